@@ -1,0 +1,21 @@
+"""Errors the toolkit raises on bad input: each names the problem and the fix."""
+
+from __future__ import annotations
+
+
+class StiffnessError(ValueError):
+    """Bad input (robot, file, configuration, units): the message says what is wrong and how to fix it."""
+
+
+class SingularConfigurationError(StiffnessError):
+    """A Jacobian or a tangent stiffness is singular where an inverse is needed."""
+
+
+def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40) -> str:
+    """Text listing the valid names (up to ``limit``), closest matches first when there are many."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(valid), n=3)
+    listed = ", ".join(list(valid)[:limit]) + (" ..." if len(valid) > limit else "")
+    hint = f" Did you mean {', '.join(close)}?" if close else ""
+    return f"valid names: {listed}.{hint}"
