@@ -116,7 +116,7 @@ def velocity_projection(robot: Robot) -> np.ndarray:
             f"by the actuated ones (rank {rank_p} < {len(robot.loop.passive_v)}); move away from "
             "the flattened or folded assembly"
         )
-    s[robot.loop.passive_v] = -np.linalg.pinv(cp, rcond=1e-9) @ (c[:, robot.compliant_v])
+    s[robot.loop.passive_v] = robot.loop.passive_rates(model, data, robot.compliant_v)
     return s
 
 

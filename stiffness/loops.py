@@ -162,6 +162,16 @@ class LoopClosure:
             blocks.append(hb - ha)
         return np.concatenate(blocks, axis=0)
 
+    def passive_rates(self, model: pin.Model, data: pin.Data, independent_v: np.ndarray
+                      ) -> np.ndarray:
+        """Rates of the passive joints per unit rate of the independent joints, (n_p, n_i).
+
+        Least-squares (rank-revealing) solution of ``C_p dq_p = -C_i dq_i``; joint Jacobians
+        must be up to date.
+        """
+        c = self.jacobian(model, data)
+        return -np.linalg.pinv(c[:, self.passive_v], rcond=1e-9) @ c[:, independent_v]
+
     def close(
         self, model: pin.Model, data: pin.Data, q: np.ndarray, max_iterations: int = 50
     ) -> np.ndarray:

@@ -153,8 +153,9 @@ class Robot:
         coords
             One value per coordinate joint (rad or m), shape (n_coordinates,).
         seed
-            A closed configuration on the wanted assembly branch, near ``coords``; by default
-            the loop is closed by continuation from the robot's reference assembly.
+            A closed configuration on the wanted assembly branch; the loop is closed by
+            continuation (tangent predictor, Newton corrector) from it, by default from the
+            robot's reference assembly (the closure at zero coordinates).
 
         Raises
         ------
@@ -171,14 +172,25 @@ class Robot:
             raise StiffnessError(f"joint coordinates must be finite numbers, got {coords.tolist()}")
         if self.loop is None:
             return self._tree_configuration(coords, pin.neutral(self.model))
-        if seed is not None:
-            return self.loop.close(self.model, self.data, self._tree_configuration(coords, seed))
-        ref_coords, ref_q = self._reference_assembly()
-        n_steps = max(1, int(np.ceil(np.max(np.abs(coords - ref_coords)) / _CONTINUATION_STEP)))
-        q = ref_q
+        if seed is None:
+            start_coords, q = self._reference_assembly()
+        else:
+            start_coords, q = self.coordinates_of(seed), seed
+        n_steps = max(1, int(np.ceil(np.max(np.abs(coords - start_coords)) / _CONTINUATION_STEP)))
+        step = (coords - start_coords) / n_steps
+        coordinate_v = self.coordinate_v
         for s in range(1, n_steps + 1):
-            step = ref_coords + (coords - ref_coords) * s / n_steps
-            q = self.loop.close(self.model, self.data, self._tree_configuration(step, q))
+            # tangent predictor keeps the assembly branch through near-singular poses
+            pin.computeJointJacobians(self.model, self.data, q)
+            dv = np.zeros(self.model.nv)
+            dv[coordinate_v] = step
+            dv[self.loop.passive_v] = self.loop.passive_rates(self.model, self.data,
+                                                              coordinate_v) @ step
+            predicted = pin.integrate(self.model, q, dv)
+            q = self.loop.close(
+                self.model, self.data,
+                self._tree_configuration(start_coords + step * s, predicted),
+            )
         return q
 
     def _reference_assembly(self) -> tuple[np.ndarray, np.ndarray]:
