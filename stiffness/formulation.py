@@ -132,38 +132,41 @@ def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) ->
     load
         Dead force (3,) in N or wrench (6,) [N, N.m] at the target, base axes; default zero.
     """
+    return target_states(robot, q, [np.zeros(6) if load is None else load])[0]
+
+
+def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list[TargetState]:
+    """:func:`target_state` for several loads at one configuration, sharing the kinematics."""
     model, data = robot.model, robot.data
-    wrench = np.zeros(6) if load is None else as_wrench(load)
+    wrenches = [as_wrench(load) for load in loads]
     kinematics.update_kinematics(model, data, q)
     fid = robot.target_frame_id
     j_full = kinematics.frame_jacobian(model, data, fid)
     s = velocity_projection(robot)
     jac = j_full @ s
     hess = kinematics.frame_hessian(model, data, fid)
-    # dQ_a/dq_b with Q = J^T W: sum_k W_k dJ[k, a]/dq_b
-    dq = np.einsum("k,kab->ab", wrench, hess)
+    position = kinematics.frame_position(data, fid)
+    rotation = kinematics.frame_rotation(data, fid)
     if robot.loop is not None:
-        cw = robot.loop.world_jacobian(model, data)
-        pv = robot.loop.passive_v
-        lam = np.linalg.lstsq(cw[:, pv].T, (j_full.T @ wrench)[pv], rcond=1e-10)[0]
-        dq = dq - np.einsum("j,jab->ab", lam, robot.loop.world_hessian(model, data))
-    k_c = s.T @ dq @ s
-    # twist basis: d(J_b^T W_b)/d theta at fixed body wrench adds J_l^T [omega_k]x W, i.e.
-    # F.(v_l x omega_k) + M.(omega_l x omega_k) at [l, k]
+        cw_passive_t = robot.loop.world_jacobian(model, data)[:, robot.loop.passive_v].T
+        loop_hess = robot.loop.world_hessian(model, data)
     v, w = jac[:3], jac[3:]
-    cross = np.einsum("i,ijk,jl,km->lm", wrench[:3], _LEVI_CIVITA, v, w)
-    cross += np.einsum("i,ijk,jl,km->lm", wrench[3:], _LEVI_CIVITA, w, w)
-    k_c_twist = k_c + cross
-    return TargetState(
-        q=q.copy(),
-        position=kinematics.frame_position(data, fid),
-        rotation=kinematics.frame_rotation(data, fid),
-        jacobian=jac,
-        wrench=wrench,
-        k_c=k_c,
-        k_c_twist=k_c_twist,
-        projection=s,
-    )
+    states = []
+    for wrench in wrenches:
+        # dQ_a/dq_b with Q = J^T W: sum_k W_k dJ[k, a]/dq_b
+        dq = np.einsum("k,kab->ab", wrench, hess)
+        if robot.loop is not None:
+            rhs = (j_full.T @ wrench)[robot.loop.passive_v]
+            lam = np.linalg.lstsq(cw_passive_t, rhs, rcond=1e-10)[0]
+            dq = dq - np.einsum("j,jab->ab", lam, loop_hess)
+        k_c = s.T @ dq @ s
+        # twist basis: d(J_b^T W_b)/d theta at fixed body wrench adds J_l^T [omega_k]x W, i.e.
+        # F.(v_l x omega_k) + M.(omega_l x omega_k) at [l, k]
+        cross = np.einsum("i,ijk,jl,km->lm", wrench[:3], _LEVI_CIVITA, v, w)
+        cross += np.einsum("i,ijk,jl,km->lm", wrench[3:], _LEVI_CIVITA, w, w)
+        states.append(TargetState(q=q.copy(), position=position, rotation=rotation, jacobian=jac,
+                                  wrench=wrench, k_c=k_c, k_c_twist=k_c + cross, projection=s))
+    return states
 
 
 _LEVI_CIVITA = np.zeros((3, 3, 3))
