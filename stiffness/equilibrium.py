@@ -92,7 +92,8 @@ def solve_equilibrium(
     dtheta = np.linalg.solve(k_theta, base.jacobian.T @ wrench)
     q = q0
     scale = max(np.abs(base.jacobian.T @ wrench).max(), 1e-300)
-    for it in range(1, max_iterations + 1):
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (used after the loop)
         q = _move(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
         residual = k_theta @ dtheta - state.jacobian.T @ wrench
@@ -111,7 +112,7 @@ def solve_equilibrium(
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load"
         )
     rot = pin.log3(state.rotation @ base.rotation.T)
-    return Equilibrium(q, dtheta, state.position - base.position, rot, it)
+    return Equilibrium(q, dtheta, state.position - base.position, rot, iterations)
 
 
 @dataclass

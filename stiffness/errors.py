@@ -4,7 +4,10 @@ from __future__ import annotations
 
 
 class StiffnessError(ValueError):
-    """Bad input (robot, file, configuration, units): the message says what is wrong and how to fix it."""
+    """Bad input (robot, file, configuration, units).
+
+    The message says what is wrong and how to fix it.
+    """
 
 
 class SingularConfigurationError(StiffnessError):

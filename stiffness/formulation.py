@@ -1,4 +1,4 @@
-"""Stiffness formulations: Jacobian, complementary stiffness K_C, compliance and Cartesian stiffness.
+"""Stiffness formulations: Jacobian, complementary stiffness K_C, compliance, Cartesian K_X.
 
 Conventions (docs/conventions.md):
 
@@ -184,7 +184,9 @@ def joint_stiffness(k_theta: np.ndarray | list[float], n: int) -> np.ndarray:
     """
     k = np.asarray(k_theta, dtype=float).reshape(-1)
     if k.shape[0] != n:
-        raise StiffnessError(f"need one joint stiffness per compliant joint ({n}), got {k.shape[0]}")
+        raise StiffnessError(
+            f"need one joint stiffness per compliant joint ({n}), got {k.shape[0]}"
+        )
     if not np.all(np.isfinite(k)) or np.any(k <= 0):
         raise StiffnessError(f"joint stiffnesses must be finite and positive, got {k.tolist()}")
     return np.diag(k)

@@ -46,7 +46,7 @@ def frame_rotation(data: pin.Data, frame_id: int) -> np.ndarray:
 
 
 def frame_jacobian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
-    """Spatial Jacobian (6, nv) of a frame: rows [v (m/s); omega (rad/s)], world axes at its origin."""
+    """Spatial Jacobian (6, nv) of a frame: rows [v; omega], world axes at its origin."""
     return pin.getFrameJacobian(model, data, frame_id, LWA)
 
 

@@ -1,4 +1,4 @@
-"""Loop closures: declarations beside a URDF, Pinocchio constraints, closure solve, velocity projection.
+"""Loop closures: declarations beside a URDF, Pinocchio constraints, closure, projection.
 
 A URDF holds a tree; a closed chain is declared as a tree plus loop-closing frame pairs. The
 declaration follows the "Extended URDF" YAML sidecar of Gepetto's toolbox-parallel-robots::
@@ -154,7 +154,7 @@ class LoopClosure:
         return np.vstack(rows)
 
     def world_hessian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
-        """Hessian (n_rows, nv, nv) of the world-axes residual p_b - p_a; Hessians must be current."""
+        """Hessian (n_rows, nv, nv) of the world-axes residual p_b - p_a (Hessians current)."""
         blocks = []
         for fa, fb in self.frame_ids:
             ha = kinematics.frame_hessian(model, data, fa)[:3]
@@ -243,19 +243,17 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
                 f"actuated joint {name!r} is not in the model; {did_you_mean(name, joint_names)}"
             )
     if declaration.passive is None:
-        passive = tuple(j for j in joint_names if j in path_joints and j not in declaration.actuated)
+        passive = tuple(
+            j for j in joint_names if j in path_joints and j not in declaration.actuated
+        )
     else:
         passive = declaration.passive
         for name in passive:
             if name not in joint_names:
                 raise StiffnessError(
-                    f"passive joint {name!r} is not in the model; {did_you_mean(name, joint_names)}"
+                    f"passive joint {name!r} is not in the model; "
+                    f"{did_you_mean(name, joint_names)}"
                 )
-    passive_v = np.concatenate(
-        [
-            np.arange(model.joints[model.getJointId(j)].idx_v,
-                      model.joints[model.getJointId(j)].idx_v + model.joints[model.getJointId(j)].nv)
-            for j in passive
-        ]
-    ).astype(int)
+    joints = [model.joints[model.getJointId(j)] for j in passive]
+    passive_v = np.concatenate([np.arange(j.idx_v, j.idx_v + j.nv) for j in joints]).astype(int)
     return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)

@@ -12,12 +12,12 @@ order: an angle (rad) for a revolute or continuous joint, a length (m) for a pri
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+import tomllib
 
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.loops import LoopClosure, build_loop_closure, read_loop_declaration
@@ -320,7 +320,9 @@ def load_robot(
     if frame is None:
         frame = settings.get("frame", frame_names[-1])
     if not model.existFrame(frame):
-        raise StiffnessError(f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}")
+        raise StiffnessError(
+            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}"
+        )
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
     offset = np.asarray(target_offset, dtype=float).reshape(-1)

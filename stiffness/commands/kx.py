@@ -60,7 +60,8 @@ def parse_list(text: str, flag: str) -> list[float]:
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness kx``."""
     parser.add_argument("--robot", required=True,
-                        help="shipped robot (sk120), example-robot-data name (ur5, panda...) or URDF")
+                        help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
+                             "or URDF path")
     parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
     parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
     parser.add_argument("--q", help="joint values: one per degree of freedom (rad, or m for "
@@ -75,7 +76,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "default enhanced")
     parser.add_argument("--connection", choices=("joint", "twist"),
                         help="6x6 stiffness of Zefran & Kumar: joint-space connection "
-                             "(J^-T K J^-1) or twist basis (asymmetric under load); target body axes")
+                             "(J^-T K J^-1) or twist basis (asymmetric under load), "
+                             "in the target's body axes")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
