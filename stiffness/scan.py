@@ -43,6 +43,8 @@ class DefinitenessScan:
         (inf where K_C has no positive direction).
     k_c_diagonal
         (m, 3, n) diagonal of K_C for the unit forces along x, y, z (N.m/rad per N).
+    determinant_positive
+        (m, c) whether det K_C > 0 (not a definiteness test: kept to audit tables that used it).
     """
 
     coordinates: np.ndarray
@@ -51,6 +53,7 @@ class DefinitenessScan:
     tangent_classes: np.ndarray
     critical_factor: np.ndarray
     k_c_diagonal: np.ndarray
+    determinant_positive: np.ndarray
 
     def counts(self, case: int) -> dict[str, int]:
         """Number of configurations in each definiteness class for a load case."""
@@ -78,6 +81,7 @@ def definiteness_scan(
     tangent = np.empty((m, c), dtype="<U3")
     factor = np.full((m, c), np.inf)
     diag = np.empty((m, 3, robot.n_compliant))
+    det_positive = np.zeros((m, c), dtype=bool)
     k_half_inv = np.diag(1.0 / np.sqrt(np.diag(k_theta)))
     q = None
     for i, coords in enumerate(coordinates):
@@ -87,13 +91,14 @@ def definiteness_scan(
         for j, load in enumerate(loads):
             k_c = sum(load[a] * units[a] for a in range(3))
             classes[i, j] = definiteness(k_c, rtol=rtol)
+            det_positive[i, j] = np.linalg.det(k_c) > 0
             tangent[i, j] = definiteness(k_theta - k_c, rtol=rtol)
             top = np.linalg.eigvalsh(k_half_inv @ (0.5 * (k_c + k_c.T)) @ k_half_inv)[-1]
             if top > 0:
                 factor[i, j] = 1.0 / top
         if progress is not None:
             progress(i + 1, m)
-    return DefinitenessScan(coordinates, loads, classes, tangent, factor, diag)
+    return DefinitenessScan(coordinates, loads, classes, tangent, factor, diag, det_positive)
 
 
 def terminal_progress(label: str, quiet: bool = False) -> Callable[[int, int], None] | None:
