@@ -17,7 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-import tomllib
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
+    import tomli as tomllib
 
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.loops import LoopClosure, build_loop_closure, read_loop_declaration

@@ -1,0 +1,368 @@
+"""Tests of measurement campaigns: reading, validation errors, units, writing."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from stiffness.campaign import (
+    CAMPAIGN_FILE,
+    Campaign,
+    RobotSettings,
+    Units,
+    load_campaign,
+    write_campaign,
+)
+from stiffness.errors import StiffnessError
+from stiffness.robot import robots_directory
+
+TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
+
+SK120_TOML = """\
+name = "test"
+baseline = "enhanced"
+[robot]
+source = "sk120"
+frame = "fixture_target"
+target_offset = [0.0, 0.0, 0.0]
+compliant_joints = ["joint1", "joint2", "joint3"]
+[units]
+angle = "deg"
+force = "N"
+length = "mm"
+[measurement]
+data = "measurements.csv"
+"""
+HEADER = "config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz"
+ROW_A = "A,-33.2004,15.9,-55.5957,0,-34.4045,-90.0,9.2295,72.9220,44.1053,0.0300,0.1750,0.0560"
+ROW_B = "B,32.5391,32.4702,-19.0085,0,-70.9913,-90.0,-5.3855,-73.2743,-26.0841,-0.071,-0.258,-0.052"
+
+SLIDER_URDF = """<?xml version="1.0"?>
+<robot name="slider">
+  <link name="base_link"/><link name="carriage"/><link name="arm"/><link name="tip"/>
+  <joint name="slide" type="prismatic"><parent link="base_link"/><child link="carriage"/>
+    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="1 0 0"/>
+    <limit effort="100" velocity="1" lower="-2" upper="2"/></joint>
+  <joint name="swing" type="revolute"><parent link="carriage"/><child link="arm"/>
+    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/>
+    <limit effort="100" velocity="1" lower="-3" upper="3"/></joint>
+  <joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/>
+    <origin xyz="0.5 0 0" rpy="0 0 0"/></joint>
+</robot>
+"""
+
+
+def write(folder: Path, toml: str = SK120_TOML, csv: str | None = None) -> Path:
+    """A campaign folder with the given texts; returns its campaign.toml."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / CAMPAIGN_FILE).write_text(toml)
+    if csv is None:
+        csv = f"{HEADER}\n{ROW_A}\n{ROW_B}\n"
+    (folder / "measurements.csv").write_text(csv)
+    return folder / CAMPAIGN_FILE
+
+
+def error_of(path: Path) -> str:
+    with pytest.raises(StiffnessError) as info:
+        load_campaign(path)
+    return str(info.value)
+
+
+# ------------------------------------------------------------------------------------ reading
+
+
+def test_shipped_table2_campaign_reads_in_si():
+    c = load_campaign(TABLE2)
+    assert c.name == "sk120-table2" and c.baseline == "enhanced"
+    assert c.n_rows == 15 and c.config[:6] == ("A",) * 5 + ("B",)
+    assert c.q.shape == (15, 6) and c.force.shape == c.deflection.shape == (15, 3)
+    assert c.moment is None and c.rotation is None and c.noise_std_m is None
+    np.testing.assert_allclose(np.rad2deg(c.q[0]), [-33.2004, 15.9, -55.5957, 0, -34.4045, -90])
+    np.testing.assert_allclose(c.force[0], [9.2295, 72.9220, 44.1053])
+    np.testing.assert_allclose(c.deflection[0], [0.03e-3, 0.175e-3, 0.056e-3])
+    assert c.lines == tuple(range(2, 17))
+    robot = c.robot()
+    assert robot is c.robot()  # loaded once
+    assert robot.target_frame == "fixture_target"
+    assert robot.compliant_joints == ("joint1", "joint2", "joint3")
+
+
+def test_folder_or_file_path(tmp_path):
+    toml = write(tmp_path / "c")
+    assert load_campaign(toml).n_rows == load_campaign(toml.parent).n_rows == 2
+
+
+def test_comments_and_blank_lines_are_skipped_and_lines_counted(tmp_path):
+    toml = write(tmp_path, csv=f"# provenance\n{HEADER}\n\n{ROW_A}\n# note\n{ROW_B}\n")
+    assert load_campaign(toml).lines == (4, 6)
+
+
+def test_unit_conversion_rad_kn_m(tmp_path):
+    toml = SK120_TOML.replace('"deg"', '"rad"').replace('"N"', '"kN"').replace('"mm"', '"m"')
+    toml = toml.replace("[0.0, 0.0, 0.0]", "[0.01, 0.02, 0.03]")
+    toml += "noise_std = 2e-6\n"
+    csv = (f"{HEADER},mx,my,mz,rx,ry,rz\n"
+           "A,0.1,0.2,-0.3,0,-1,-1.5,0.5,-0.25,1,1e-4,2e-4,-3e-4,0.01,0.02,0.03,1e-5,2e-5,3e-5\n")
+    c = load_campaign(write(tmp_path, toml, csv))
+    np.testing.assert_allclose(c.q[0], [0.1, 0.2, -0.3, 0, -1, -1.5])
+    np.testing.assert_allclose(c.force[0], [500.0, -250.0, 1000.0])
+    np.testing.assert_allclose(c.deflection[0], [1e-4, 2e-4, -3e-4])
+    np.testing.assert_allclose(c.moment[0], [10.0, 20.0, 30.0])  # kN.m -> N.m
+    np.testing.assert_allclose(c.rotation[0], [1e-5, 2e-5, 3e-5])
+    np.testing.assert_allclose(c.robot_settings.target_offset_m, [0.01, 0.02, 0.03])
+    np.testing.assert_allclose(c.robot().target_offset, [0.01, 0.02, 0.03])
+    assert c.noise_std_m == pytest.approx(2e-6)
+    np.testing.assert_allclose(c.wrench[0], [500, -250, 1000, 10, 20, 30])
+
+
+@pytest.mark.parametrize(("unit", "factor"), [("mm", 1e-3), ("cm", 1e-2), ("um", 1e-6),
+                                              ("m", 1.0)])
+def test_length_units(tmp_path, unit, factor):
+    toml = SK120_TOML.replace('length = "mm"', f'length = "{unit}"').replace(
+        "[0.0, 0.0, 0.0]", "[1.0, 2.0, 3.0]") + "noise_std = 5\n"
+    csv = f"{HEADER},mx,my,mz\n{ROW_A},1,2,3\n"
+    c = load_campaign(write(tmp_path, toml, csv))
+    np.testing.assert_allclose(c.deflection[0], np.array([0.03, 0.175, 0.056]) * factor)
+    np.testing.assert_allclose(c.robot_settings.target_offset_m, np.array([1, 2, 3]) * factor)
+    np.testing.assert_allclose(c.moment[0], np.array([1, 2, 3]) * factor)  # N x length
+    assert c.noise_std_m == pytest.approx(5 * factor)
+    assert Units(length=unit).moment == f"N.{unit}"
+
+
+def test_degrees_for_angles_and_rotations(tmp_path):
+    csv = f"{HEADER},rx,ry,rz\n{ROW_A},0.001,0,-0.002\n"
+    c = load_campaign(write(tmp_path, csv=csv))
+    np.testing.assert_allclose(c.rotation[0], np.deg2rad([0.001, 0, -0.002]))
+    assert c.moment is None
+
+
+def test_prismatic_coordinates_take_the_length_unit_and_urdf_is_relative(tmp_path):
+    (tmp_path / "robots").mkdir()
+    (tmp_path / "robots" / "slider.urdf").write_text(SLIDER_URDF)
+    toml = """\
+name = "slider"
+baseline = "conventional"
+[robot]
+source = "../robots/slider.urdf"
+frame = "tip"
+[units]
+angle = "deg"
+force = "N"
+length = "mm"
+[measurement]
+data = "m.csv"
+"""
+    folder = tmp_path / "campaign"
+    folder.mkdir()
+    (folder / CAMPAIGN_FILE).write_text(toml)
+    (folder / "m.csv").write_text("config,q1,q2,fx,fy,fz,dx,dy,dz\nA,250,90,0,10,0,0,0.5,0\n")
+    c = load_campaign(folder)
+    np.testing.assert_allclose(c.q[0], [0.25, np.pi / 2])  # mm -> m, deg -> rad
+    assert c.robot().coordinate_joints == ("slide", "swing")
+    assert c.robot().compliant_joints == ("slide", "swing")  # default: every coordinate joint
+    # written elsewhere, the relative URDF path is rewritten for the new folder
+    out = write_campaign(c, tmp_path / "elsewhere" / "deep")
+    assert 'source = "../../robots/slider.urdf"' in out.read_text()
+    again = load_campaign(out)
+    np.testing.assert_allclose(again.q, c.q)
+    assert "250.0,90.0" in (out.parent / "m.csv").read_text()
+
+
+# ------------------------------------------------------------------------------ CSV errors
+
+
+def csv_error(tmp_path, text: str) -> str:
+    return error_of(write(tmp_path, csv=text))
+
+
+@pytest.mark.parametrize(("header", "line", "column", "words"), [
+    ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy", 1, 13, "'dz' is missing"),
+    ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,temp", 1, 14, "'temp' is not a campaign"),
+    ("config,q1,q2,q3,q4,q5,q6,Fx,fy,fz,dx,dy,dz", 1, 8, "expected 'fx'"),
+    ("label,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz", 1, 1, "must be 'config'"),
+    ("config,q1,q3,q2,q4,q5,q6,fx,fy,fz,dx,dy,dz", 1, 3, "expected 'q2'"),
+    ("config,q1,q2,q3,q4,q5,fx,fy,fz,dx,dy,dz", 1, 7, "has 6 coordinates but the header has 5"),
+    ("config,q1,q2,q3,q4,q5,q6,q7,fx,fy,fz,dx,dy,dz", 1, 8, "has 7 q columns"),
+    ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,mx,my", 1, 16, "'mz' is missing"),
+    ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,rx,ry,rz,mx,my,mz", 1, 17, "'mx' is not"),
+    ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,mx,mz,my", 1, 15, "expected 'my'"),
+])
+def test_header_errors_name_file_line_column(tmp_path, header, line, column, words):
+    n_cells = len(header.split(","))
+    row = ",".join(["A"] + ["0"] * (n_cells - 1))
+    msg = csv_error(tmp_path, f"{header}\n{row}\n")
+    assert "measurements.csv" in msg
+    assert f"line {line}, column {column}" in msg
+    assert words in msg
+
+
+def test_header_error_line_counts_comments(tmp_path):
+    msg = csv_error(tmp_path, f"# comment\n\n{HEADER.replace('dz', 'dZ')}\n{ROW_A}\n")
+    assert "line 3, column 13: got 'dZ', expected 'dz'" in msg
+
+
+@pytest.mark.parametrize(("cell", "column", "shown"), [
+    ("abc", 9, "'abc'"), ("nan", 9, "'nan'"), ("NaN", 9, "'NaN'"), ("inf", 9, "'inf'"),
+    ("", 9, "an empty cell"),
+])
+def test_bad_cells_name_file_line_column(tmp_path, cell, column, shown):
+    cells = ROW_B.split(",")
+    cells[column - 1] = cell
+    msg = csv_error(tmp_path, f"{HEADER}\n{ROW_A}\n{','.join(cells)}\n")
+    assert re.search(rf"measurements\.csv, line 3, column {column} \(fy\): {re.escape(shown)} "
+                     "is not a finite number", msg), msg
+
+
+def test_row_with_missing_or_extra_cells(tmp_path):
+    short = ROW_B.rsplit(",", 1)[0]
+    msg = csv_error(tmp_path, f"{HEADER}\n{ROW_A}\n{short}\n")
+    assert "line 3, column 13 (dz)" in msg and "12 cells but the header has 13" in msg
+    msg = csv_error(tmp_path, f"{HEADER}\n{ROW_A},7\n")
+    assert "line 2, column 14" in msg and "14 cells" in msg
+
+
+def test_empty_label_empty_file_no_rows(tmp_path):
+    assert "line 2, column 1 (config)" in csv_error(tmp_path, f"{HEADER}\n,{ROW_A[2:]}\n")
+    assert "line 1: the file is empty" in csv_error(tmp_path, "")
+    assert "line 2: no measurement rows" in csv_error(tmp_path, f"{HEADER}\n")
+
+
+def test_missing_csv(tmp_path):
+    toml = write(tmp_path)
+    (tmp_path / "measurements.csv").unlink()
+    msg = error_of(toml)
+    assert "measurements.csv" in msg and "[measurement] data" in msg
+
+
+# ----------------------------------------------------------------------------- TOML errors
+
+
+@pytest.mark.parametrize(("old", "new", "words"), [
+    ('name = "test"\n', "", "missing key name"),
+    ('baseline = "enhanced"\n', "", "missing key baseline"),
+    ('source = "sk120"\n', "", "missing key [robot] source"),
+    ('length = "mm"\n', "", "missing key [units] length"),
+    ('data = "measurements.csv"\n', "", "missing key [measurement] data"),
+    ('[units]\nangle = "deg"\nforce = "N"\nlength = "mm"\n', "", "missing key units"),
+    ('"enhanced"', '"exact"', "unknown baseline 'exact'; valid baselines: conventional, enhanced"),
+    ('"deg"', '"grad"', "valid angle units: deg, rad"),
+    ('"N"', '"lbf"', "valid force units: N, kN"),
+    ('"mm"', '"in"', "valid length units: mm, m, cm, um"),
+    ('data = "measurements.csv"', 'data = "measurements.csv"\nnoise_sd = 0.1',
+     "unknown key 'noise_sd' in [measurement]"),
+    ('data = "measurements.csv"', 'data = "measurements.csv"\nnoise_std = -1',
+     "noise_std must be a positive"),
+    ('data = "measurements.csv"', 'data = "measurements.csv"\nnoise_std = "small"',
+     "noise_std must be a positive number"),
+    ("[0.0, 0.0, 0.0]", "[0.0, 0.0]", "target_offset must be three numbers in mm"),
+    ('compliant_joints = ["joint1", "joint2", "joint3"]', "compliant_joints = []",
+     "compliant_joints must be a non-empty list"),
+    ('name = "test"', 'name = "test"\ncolour = "red"', "unknown key 'colour' in top level"),
+    ('name = "test"', "name = test", "is not valid TOML"),
+    ('source = "sk120"', 'source = "sk12O"', "unknown robot 'sk12O'"),
+    ('"joint3"]', '"joint9"]', "compliant joint 'joint9' is not a coordinate joint"),
+    ('frame = "fixture_target"', 'frame = "nowhere"', "frame 'nowhere' is not in sk120"),
+])
+def test_toml_errors(tmp_path, old, new, words):
+    assert old in SK120_TOML
+    msg = error_of(write(tmp_path, SK120_TOML.replace(old, new, 1)))
+    assert words in msg
+    assert str(tmp_path / CAMPAIGN_FILE) in msg
+
+
+def test_missing_campaign(tmp_path):
+    assert "give a campaign.toml or the folder holding one" in error_of(tmp_path / "none")
+    assert "give a campaign.toml" in error_of(tmp_path)  # a folder without one
+
+
+def test_units_and_campaign_validation():
+    with pytest.raises(StiffnessError, match="valid length units: mm, m, cm, um"):
+        Units(length="inch")
+    settings = RobotSettings("sk120")
+    with pytest.raises(StiffnessError, match=r"deflection must have shape \(2, 3\)"):
+        Campaign("x", "enhanced", settings, q=np.zeros((2, 6)), force=np.zeros((2, 3)),
+                 deflection=np.zeros((3, 3)))
+    with pytest.raises(StiffnessError, match="valid baselines"):
+        Campaign("x", "linear", settings, q=np.zeros((1, 6)), force=np.zeros((1, 3)),
+                 deflection=np.zeros((1, 3)))
+    with pytest.raises(StiffnessError, match="labels must be non-empty single-line"):
+        Campaign("x", "enhanced", settings, q=np.zeros((1, 6)), force=np.zeros((1, 3)),
+                 deflection=np.zeros((1, 3)), config=("a\nb",))
+    with pytest.raises(StiffnessError, match="target offset must be three finite lengths"):
+        RobotSettings("sk120", target_offset_m=[0.0, np.nan, 0.0])
+    c = Campaign("x", "enhanced", settings, q=np.zeros((1, 5)), force=np.zeros((1, 3)),
+                 deflection=np.zeros((1, 3)))
+    with pytest.raises(StiffnessError, match="has 6 coordinates .* but campaign 'x' has 5"):
+        c.robot()
+
+
+# --------------------------------------------------------------------------------- writing
+
+
+def test_round_trip_of_the_shipped_campaign(tmp_path):
+    c = load_campaign(TABLE2)
+    out = write_campaign(c, tmp_path / "copy")
+    assert out == tmp_path / "copy" / CAMPAIGN_FILE
+    back = load_campaign(out)
+    assert (back.name, back.baseline, back.config, back.units) == (c.name, c.baseline, c.config,
+                                                                  c.units)
+    assert back.robot_settings.frame == "fixture_target"
+    assert back.robot_settings.compliant_joints == ("joint1", "joint2", "joint3")
+    for attr in ("q", "force", "deflection"):
+        np.testing.assert_allclose(getattr(back, attr), getattr(c, attr), rtol=1e-14, atol=1e-18)
+    # the data are written in the declared units (deg, N, mm)
+    text = (tmp_path / "copy" / "measurements.csv").read_text().splitlines()
+    assert text[0] == HEADER
+    assert text[1].startswith("A,-33.2004,15.9,-55.5957,0.0,-34.4045,-90.0,9.2295,")
+
+
+def test_round_trip_with_moments_rotations_noise_and_other_units(tmp_path):
+    rng = np.random.default_rng(3)
+    m = 4
+    c = Campaign(
+        name='odd "name"', baseline="conventional",
+        robot_settings=RobotSettings("sk120", "tool0", np.array([0.01, -0.02, 0.3]),
+                                     ("joint1", "joint2")),
+        q=rng.uniform(-1, 1, (m, 6)), force=rng.normal(size=(m, 3)) * 100,
+        deflection=rng.normal(size=(m, 3)) * 1e-4, config=("a,b", "c", "c", "d"),
+        moment=rng.normal(size=(m, 3)), rotation=rng.normal(size=(m, 3)) * 1e-4,
+        noise_std_m=3e-6, units=Units("rad", "kN", "cm"), data_file="data.csv",
+    )
+    out = write_campaign(c, tmp_path)
+    back = load_campaign(out)
+    assert back.name == 'odd "name"' and back.config == c.config
+    assert back.units == Units("rad", "kN", "cm") and back.data_file == "data.csv"
+    assert back.noise_std_m == pytest.approx(3e-6, rel=1e-14)
+    assert back.robot().compliant_joints == ("joint1", "joint2")
+    np.testing.assert_allclose(back.robot_settings.target_offset_m, [0.01, -0.02, 0.3])
+    for attr in ("q", "force", "deflection", "moment", "rotation"):
+        np.testing.assert_allclose(getattr(back, attr), getattr(c, attr), rtol=1e-13)
+    assert (tmp_path / "data.csv").read_text().startswith(f"{HEADER},mx,my,mz,rx,ry,rz\n")
+
+
+def test_write_is_atomic_overwrites_and_leaves_no_temporary_files(tmp_path):
+    c = load_campaign(TABLE2)
+    write_campaign(c, tmp_path)
+    (tmp_path / CAMPAIGN_FILE).chmod(0o640)
+    c.name = "renamed"
+    write_campaign(c, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CAMPAIGN_FILE, "measurements.csv"]
+    assert load_campaign(tmp_path).name == "renamed"
+    assert (tmp_path / CAMPAIGN_FILE).stat().st_mode & 0o777 == 0o640
+    assert (tmp_path / "measurements.csv").stat().st_mode & 0o777 == 0o644
+
+
+def test_write_accepts_a_campaign_like_object(tmp_path):
+    like = SimpleNamespace(
+        name="sim", baseline="enhanced", robot_settings=RobotSettings("sk120"),
+        q=np.deg2rad([[-33.2004, 15.9, -55.5957, 0, -34.4045, -90.0]]),
+        force=np.array([[1.0, 2.0, 3.0]]), deflection=np.array([[1e-5, 2e-5, 3e-5]]),
+    )
+    back = load_campaign(write_campaign(like, tmp_path))
+    assert back.config == ("1",) and back.units == Units()
+    np.testing.assert_allclose(back.deflection, like.deflection)
+    assert back.robot().target_frame == "fixture_target"  # the shipped robot's default

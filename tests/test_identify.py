@@ -1,0 +1,341 @@
+"""Tests of joint-stiffness identification (A&S eq. 11-13) and ``stiffness identify``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stiffness.campaign import Campaign, RobotSettings, load_campaign, write_campaign
+from stiffness.cli import main
+from stiffness.equilibrium import solve_equilibrium
+from stiffness.errors import StiffnessError
+from stiffness.formulation import deflection, target_state
+from stiffness.identify import (
+    MODEL_FORMAT,
+    DeflectionModel,
+    identify,
+    load_identified_model,
+)
+from stiffness.robot import load_robot, robots_directory
+from stiffness.sk120 import PAPER_K_THETA_NMM_PER_RAD
+
+TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
+#: Paper's K_theta in N.m/rad.
+K_PAPER = np.array(PAPER_K_THETA_NMM_PER_RAD) * 1e-3
+NOISE_M = 5e-6  # 0.005 mm
+UR5_K = np.array([5e4, 5e4, 3e4, 1e4, 1e4, 1e4])
+
+
+@pytest.fixture(scope="module")
+def sk120_robot():
+    return load_robot("sk120")
+
+
+def sk120_synthetic(robot, seed: int = 1, noise: float | None = NOISE_M, n_configs: int = 6,
+                    n_loads: int = 5, force_max: float = 400.0) -> Campaign:
+    """SK120 measurements simulated by the exact equilibrium with the paper's K_theta.
+
+    Wrist vertical as in the paper: q4 = 0, q5 = -90 - q3, q6 = -90 (deg); one random load
+    direction per configuration, magnitudes force_max * (1..n_loads) / n_loads; Gaussian noise.
+    """
+    rng = np.random.default_rng(seed)
+    q, force, dx, labels = [], [], [], []
+    for c in range(n_configs):
+        q1, q2, q3 = rng.uniform(-120, 120), rng.uniform(-30, 40), rng.uniform(-70, 15)
+        coords = np.deg2rad([q1, q2, q3, 0.0, -90.0 - q3, -90.0])
+        q0 = robot.configuration(coords)
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        for s in range(1, n_loads + 1):
+            f = direction * force_max * s / n_loads
+            eq = solve_equilibrium(robot, q0, np.diag(K_PAPER), f)
+            q.append(coords)
+            force.append(f)
+            dx.append(eq.dx + (rng.normal(scale=noise, size=3) if noise else 0.0))
+            labels.append(chr(ord("A") + c))
+    return Campaign("sk120-synthetic", "enhanced", RobotSettings("sk120"), q=np.array(q),
+                    force=np.array(force), deflection=np.array(dx), config=tuple(labels),
+                    noise_std_m=noise, _robot=robot)
+
+
+@pytest.fixture(scope="module")
+def synthetic(sk120_robot):
+    return sk120_synthetic(sk120_robot)
+
+
+@pytest.fixture(scope="module")
+def table2():
+    return load_campaign(TABLE2)
+
+
+# ------------------------------------------------------------------------------ the model
+
+
+def test_linear_predictions_match_the_formulation_module(synthetic, sk120_robot):
+    k = K_PAPER * np.array([1.3, 0.8, 1.1])
+    for formulation in ("conventional", "enhanced"):
+        model = DeflectionModel(synthetic, formulation)
+        pred = model.predict(k)
+        for i in (0, 7, 29):
+            state = target_state(sk120_robot, sk120_robot.configuration(synthetic.q[i]),
+                                 synthetic.force[i])
+            np.testing.assert_allclose(pred[i], deflection(state, np.diag(k), formulation),
+                                       rtol=1e-12)
+    assert model.n_configurations == 6 and model.k_c_max > 0
+
+
+@pytest.mark.parametrize("formulation", ["conventional", "enhanced", "exact"])
+def test_jacobian_against_finite_differences(synthetic, formulation):
+    model = DeflectionModel(synthetic, formulation)
+    x = np.log(K_PAPER * np.array([0.7, 1.2, 1.05]))
+    _, jac = model.predict_with_jacobian(np.exp(x))
+    h = 1e-4  # the exact equilibrium is converged to ~1e-12: keep its noise out of the quotient
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = h
+        fd = (model.predict(np.exp(x + e)) - model.predict(np.exp(x - e))) / (2 * h)
+        np.testing.assert_allclose(jac[..., i], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+
+
+def test_exact_prediction_is_the_equilibrium(synthetic, sk120_robot):
+    model = DeflectionModel(synthetic, "exact")
+    pred = model.predict(K_PAPER)
+    eq = solve_equilibrium(sk120_robot, sk120_robot.configuration(synthetic.q[4]),
+                           np.diag(K_PAPER), synthetic.force[4])
+    np.testing.assert_allclose(pred[4], eq.dx, rtol=1e-12)
+
+
+# ------------------------------------------------------------------------ identification
+
+
+def test_exact_identification_recovers_k_within_its_confidence_intervals(synthetic):
+    result = identify(synthetic, "exact", starts=2)
+    assert result.formulation == "exact" and result.sigma_source == "declared noise_std"
+    assert result.sigma_m == NOISE_M
+    assert np.all(result.ci95_low <= K_PAPER) and np.all(result.ci95_high >= K_PAPER)
+    np.testing.assert_allclose(result.k, K_PAPER, rtol=0.02)
+    assert np.all(result.ci95_low < result.k) and np.all(result.k < result.ci95_high)
+    assert result.undetermined_joints == () and result.undetermined_directions == []
+    assert result.starts_agree and result.notes == []
+    # residuals consistent with the declared noise: E ~ N sigma^2
+    assert 0.5 < result.residual_ss_m2 / (result.n_residuals * NOISE_M ** 2) < 1.5
+    assert result.n_residuals == 90 and result.n_parameters == 3
+    assert 1 <= result.condition_number < 1e3
+
+
+def test_linear_formulations_run_and_agree_with_the_truth(synthetic):
+    conventional = identify(synthetic, "conventional", starts=3)
+    enhanced = identify(synthetic)  # the campaign's baseline
+    assert enhanced.formulation == "enhanced" and conventional.formulation == "conventional"
+    for result in (conventional, enhanced):
+        np.testing.assert_allclose(result.k, K_PAPER, rtol=0.02)
+        assert result.starts_agree and np.all(np.isfinite(result.standard_error))
+    assert conventional.k_c_floor == 0.0 and enhanced.k_c_floor > 0.0
+    assert not np.allclose(conventional.k, enhanced.k, rtol=1e-9)  # K_C changes the fit
+
+
+def test_trf_and_lm_agree(synthetic):
+    result = identify(synthetic, "enhanced", method="both", starts=3)
+    assert result.methods_agree is True and result.starts_agree
+    trf = min((r for r in result.starts if r.method == "trf"), key=lambda r: r.cost)
+    lm = min((r for r in result.starts if r.method == "lm"), key=lambda r: r.cost)
+    np.testing.assert_allclose(trf.k, lm.k, rtol=1e-6)
+    assert {r.method for r in result.starts} == {"trf", "lm"} and len(result.starts) == 6
+
+
+def test_sigma_from_residuals_when_noise_is_not_declared(synthetic):
+    blind = Campaign(synthetic.name, synthetic.baseline, synthetic.robot_settings,
+                     q=synthetic.q, force=synthetic.force, deflection=synthetic.deflection,
+                     _robot=synthetic.robot())
+    result = identify(blind, starts=1)
+    assert result.sigma_source.startswith("residuals")
+    assert result.sigma_m == pytest.approx(result.sigma_residual_m)
+    assert 0.6 * NOISE_M < result.sigma_m < 1.4 * NOISE_M
+    assert np.all(result.ci95_low <= K_PAPER) and np.all(result.ci95_high >= K_PAPER)
+
+
+def test_declared_noise_too_small_is_noted(sk120_robot):
+    noisy = sk120_synthetic(sk120_robot, seed=2, noise=5e-5, n_configs=3, n_loads=2)
+    noisy.noise_std_m = 5e-6
+    result = identify(noisy, "enhanced", starts=1)
+    assert any("larger than the declared noise_std" in n for n in result.notes)
+
+
+@pytest.fixture(scope="module")
+def ur5_unexcited():
+    """UR5, target on the wrist_3 axis and forces only: wrist_3_joint is never loaded."""
+    robot = load_robot("ur5", frame="tool0")
+    rng = np.random.default_rng(4)
+    q, force, dx = [], [], []
+    for _ in range(6):
+        coords = rng.uniform(-2, 2, 6)
+        q0 = robot.configuration(coords)
+        for _ in range(3):
+            f = rng.normal(size=3) * 30
+            q.append(coords)
+            force.append(f)
+            eq = solve_equilibrium(robot, q0, np.diag(UR5_K), f)
+            dx.append(eq.dx + rng.normal(scale=2e-6, size=3))
+    return Campaign("ur5-unexcited", "conventional", RobotSettings("ur5", "tool0"),
+                    q=np.array(q), force=np.array(force), deflection=np.array(dx),
+                    noise_std_m=2e-6, _robot=robot)
+
+
+def test_a_stiffness_the_loads_never_excite_is_flagged(ur5_unexcited):
+    result = identify(ur5_unexcited, "enhanced", starts=2)
+    assert result.undetermined_joints == ("wrist_3_joint",)
+    (direction,) = result.undetermined_directions
+    assert direction.joints == ("wrist_3_joint",)
+    assert direction.components["wrist_3_joint"] == pytest.approx(1.0)
+    assert direction.relative_ci_width == np.inf and result.condition_number == np.inf
+    assert result.ci95_high[5] == np.inf and result.standard_error[5] == np.inf
+    np.testing.assert_allclose(result.k[:5], UR5_K[:5], rtol=0.05)
+    assert np.all(result.relative_ci_width[:5] < 1.0)
+    # JSON has no Infinity: undetermined bounds are null
+    joints = json.loads(result.to_json())["joints"]
+    assert joints[5]["determined"] is False and joints[5]["ci95"][1] is None
+    assert joints[0]["determined"] is True
+
+
+def test_one_configuration_one_direction_cannot_determine_six_stiffnesses(ur5_unexcited):
+    c = ur5_unexcited
+    one = Campaign("one", "conventional", c.robot_settings, q=c.q[:3],
+                   force=np.outer([1.0, 2.0, 3.0], c.force[0]), deflection=c.deflection[:3],
+                   noise_std_m=2e-6, _robot=c.robot())
+    result = identify(one, starts=1)
+    assert len(result.undetermined_joints) >= 5
+    assert len(result.undetermined_directions) >= 3
+
+
+def test_bad_arguments(synthetic, ur5_unexcited):
+    with pytest.raises(StiffnessError, match="valid formulations: conventional, enhanced, exact"):
+        identify(synthetic, "linear")
+    with pytest.raises(StiffnessError, match="valid methods: trf, lm, both"):
+        identify(synthetic, method="newton")
+    with pytest.raises(StiffnessError, match="starts must be at least 1"):
+        identify(synthetic, starts=0)
+    c = ur5_unexcited
+    one = Campaign("one", "conventional", c.robot_settings, q=c.q[:1], force=c.force[:1],
+                   deflection=c.deflection[:1], noise_std_m=2e-6, _robot=c.robot())
+    with pytest.raises(StiffnessError, match="lm needs at least as many residuals"):
+        identify(one, method="lm")
+    one.noise_std_m = None
+    with pytest.raises(StiffnessError, match="cannot estimate the noise.*noise_std"):
+        identify(one)
+
+
+def test_a_singular_row_is_named_by_file_line_and_config(tmp_path, table2):
+    bad = Campaign(table2.name, table2.baseline, table2.robot_settings,
+                   q=np.vstack([table2.q[:2], np.deg2rad([[0.0, 30.0, 60.0, 0.0, -150.0, -90.0]])]),
+                   force=table2.force[:3], deflection=table2.deflection[:3], config=("A", "A", "Z"))
+    loaded = load_campaign(write_campaign(bad, tmp_path))
+    with pytest.raises(StiffnessError, match=r"measurements\.csv line 4 \(config Z\): the loop "
+                                             "of sk120 is singular"):
+        identify(loaded, starts=1)
+
+
+# ---------------------------------------------------------------- the paper's Table II
+
+
+def test_shipped_table2_identification(table2, tmp_path):
+    result = identify(table2, method="both", starts=4)
+    assert result.formulation == "enhanced"  # the campaign's baseline (the paper's eq. 10)
+    assert np.all(np.isfinite(result.k)) and np.all(np.isfinite(result.ci95_high))
+    # same order of magnitude as the paper (not equal: our SK120 geometry is reconstructed)
+    assert np.all(result.k > K_PAPER / 10) and np.all(result.k < K_PAPER * 10)
+    assert result.starts_agree and result.methods_agree
+    assert result.undetermined_joints == ()
+    assert result.sigma_source.startswith("residuals")
+    assert 0 < result.residual_ss_mm2 < 2.2106  # 45 components vs the paper's larger set
+    assert result.residual_ss_mm2 == pytest.approx(result.residual_ss_m2 * 1e6)
+
+    out = result.write_model(tmp_path / "model" / "identified-model.json")
+    model = load_identified_model(out)
+    np.testing.assert_allclose(model.k_theta, result.k)
+    np.testing.assert_allclose(model.ci95_low, result.ci95_low)
+    assert model.formulation == "enhanced" and model.units == ("N.m/rad",) * 3
+    assert model.compliant_joints == ("joint1", "joint2", "joint3")
+    robot = model.robot()
+    assert robot.target_frame == "fixture_target" and robot.n_compliant == 3
+    np.testing.assert_allclose(model.k_theta_matrix(), np.diag(result.k))
+
+
+def test_model_file_keeps_a_relative_urdf_usable(tmp_path, table2):
+    urdf = robots_directory() / "sk120" / "sk120.urdf"
+    (tmp_path / "robot").mkdir()
+    (tmp_path / "robot" / "arm.urdf").write_text(urdf.read_text())
+    (tmp_path / "robot" / "arm.loops.yaml").write_text(
+        (robots_directory() / "sk120" / "sk120.loops.yaml").read_text())
+    campaign = Campaign(
+        "urdf", "enhanced", RobotSettings(str(tmp_path / "robot" / "arm.urdf"), "fixture_target",
+                                          compliant_joints=("joint1", "joint2", "joint3")),
+        q=table2.q, force=table2.force, deflection=table2.deflection,
+    )
+    # joint order of a bare URDF is the model's (no coordinate_order): only check it runs
+    written = write_campaign(campaign, tmp_path / "campaign")
+    loaded = load_campaign(written)
+    result = identify(loaded, starts=1)
+    out = result.write_model(tmp_path / "models" / "m.json")
+    assert json.loads(out.read_text())["robot"]["source"] == "../robot/arm.urdf"
+    assert load_identified_model(out).robot().n_compliant == 3
+
+
+@pytest.mark.parametrize(("content", "words"), [
+    (None, "cannot read identified model"),
+    ("{", "is not JSON"),
+    ('{"format": "other"}', "is not an identified model"),
+    (f'{{"format": "{MODEL_FORMAT}", "robot": {{}}}}', "missing key robot.compliant_joints"),
+])
+def test_load_identified_model_errors(tmp_path, content, words):
+    path = tmp_path / "m.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(StiffnessError, match=words):
+        load_identified_model(path)
+
+
+def test_load_identified_model_rejects_bad_values(tmp_path, table2):
+    result = identify(table2, starts=1)
+    doc = result.model_dict()
+    doc["k_theta"]["values"][1] = -5.0
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(StiffnessError, match="k_theta.values must be positive"):
+        load_identified_model(path)
+
+
+# ----------------------------------------------------------------------------- command
+
+
+def test_cli_table(tmp_path, capsys):
+    out = tmp_path / "model.json"
+    assert main(["identify", str(TABLE2), "--starts", "2", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""  # progress only on a TTY
+    text = captured.out
+    for words in ("joint1", "K (N.m/rad)", "K (N.mm/rad)", "SE (N.m/rad)", "CI95 (N.m/rad)",
+                  "residual norm (eq. 12)", "mm^2", "condition number", "undetermined: none",
+                  f"identified model written to {out}"):
+        assert words in text
+    assert load_identified_model(out).formulation == "enhanced"
+
+
+def test_cli_json_prints_one_object(tmp_path, capsys):
+    out = tmp_path / "model.json"
+    code = main(["identify", str(TABLE2 / "campaign.toml"), "--json", "--formulation",
+                 "conventional", "--method", "lm", "--starts", "2", "--out", str(out), "--quiet"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)  # exactly one JSON document
+    assert doc["formulation"] == "conventional" and doc["method"] == "lm"
+    assert [j["joint"] for j in doc["joints"]] == ["joint1", "joint2", "joint3"]
+    assert doc["model_file"] == str(out) and doc["residual_norm"]["eq12_mm2"] > 0
+
+
+def test_cli_errors_exit_2(tmp_path, capsys):
+    assert main(["identify", str(tmp_path / "missing")]) == 2
+    assert "campaign.toml" in capsys.readouterr().err
+    assert main(["identify", str(TABLE2), "--starts", "0", "--out", str(tmp_path / "m")]) == 2
+    assert "starts must be at least 1" in capsys.readouterr().err
