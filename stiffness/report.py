@@ -92,7 +92,7 @@ def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
     q = None
     for i, a in enumerate(t2):
         for j, b in enumerate(t3):
-            if abs(a + b + 90.0) < 3.0:  # flat parallelogram: a loop singularity
+            if abs((a + b) % 180.0 - 90.0) < 3.0:  # flat parallelogram: a loop singularity
                 continue
             q = robot.configuration(np.deg2rad([0.0, a, b, 0.0, -90.0 - b, -90.0]), seed=q)
             (state,) = target_states(robot, q, [load])

@@ -31,6 +31,8 @@ TARGET_FRAME = "stiffness_target"
 
 #: Largest joint step (rad or m) of the continuation used to close loops along a path.
 _CONTINUATION_STEP = 0.15
+#: Largest Newton correction of the passive joints (rad or m) accepted in one continuation step.
+_BRANCH_JUMP = 0.05
 
 _SUPPORTED_JOINTS = {
     "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
@@ -180,21 +182,58 @@ class Robot:
             start_coords, q = self._reference_assembly()
         else:
             start_coords, q = self.coordinates_of(seed), seed
-        n_steps = max(1, int(np.ceil(np.max(np.abs(coords - start_coords)) / _CONTINUATION_STEP)))
-        step = (coords - start_coords) / n_steps
-        coordinate_v = self.coordinate_v
-        for s in range(1, n_steps + 1):
-            # tangent predictor keeps the assembly branch through near-singular poses
-            pin.computeJointJacobians(self.model, self.data, q)
-            dv = np.zeros(self.model.nv)
-            dv[coordinate_v] = step
-            dv[self.loop.passive_v] = self.loop.passive_rates(self.model, self.data,
-                                                              coordinate_v) @ step
-            predicted = pin.integrate(self.model, q, dv)
-            q = self.loop.close(
-                self.model, self.data,
-                self._tree_configuration(start_coords + step * s, predicted),
-            )
+        return self._continue(start_coords, q, coords)
+
+    def _continue(self, start: np.ndarray, q: np.ndarray, coords: np.ndarray) -> np.ndarray:
+        """Close the loops along the straight coordinate path from ``start`` (closed at ``q``).
+
+        Predictor: the tangent (first step) then the secant through the last two solutions,
+        which carries the branch through singular poses (e.g. a flat parallelogram). Corrector:
+        Newton on the passive joints. A step whose correction exceeds
+        :data:`_BRANCH_JUMP` is halved, so the path cannot hop to another assembly branch.
+        """
+        span = float(np.max(np.abs(coords - start)))
+        if span == 0.0:
+            return self.loop.close(self.model, self.data, self._tree_configuration(coords, q))
+        passive_q = np.concatenate([
+            np.arange(j.idx_q, j.idx_q + j.nq)
+            for j in (self.model.joints[self.model.getJointId(n)] for n in self.loop.passive_joints)
+        ])
+        nominal = min(1.0, _CONTINUATION_STEP / span)
+        fraction, h = 0.0, nominal
+        previous: tuple[np.ndarray, float] | None = None
+        while fraction < 1.0 - 1e-12:
+            h = min(h, 1.0 - fraction)
+            if previous is None:
+                pin.computeJointJacobians(self.model, self.data, q)
+                dv = np.zeros(self.model.nv)
+                dv[self.coordinate_v] = (coords - start) * h
+                dv[self.loop.passive_v] = self.loop.passive_rates(
+                    self.model, self.data, self.coordinate_v) @ dv[self.coordinate_v]
+                predicted = pin.integrate(self.model, q, dv)
+            else:
+                predicted = q.copy()
+                q_prev, h_prev = previous
+                predicted[passive_q] += (q[passive_q] - q_prev[passive_q]) * h / h_prev
+            target = start + (coords - start) * (fraction + h)
+            try:
+                closed = self.loop.close(
+                    self.model, self.data, self._tree_configuration(target, predicted))
+                jump = float(np.max(np.abs(closed[passive_q] - predicted[passive_q])))
+            except StiffnessError:
+                closed, jump = None, np.inf
+            if jump > _BRANCH_JUMP:
+                h /= 2.0
+                if h < 1e-9:
+                    raise StiffnessError(
+                        f"the loops of {self.name} cannot be closed continuously from the "
+                        f"reference assembly to coordinates {np.round(coords, 6).tolist()}: the "
+                        "path meets a fold of the loop (the pose is unreachable on this branch)"
+                    )
+                continue
+            previous = (q, h)
+            q, fraction = closed, fraction + h
+            h = min(2.0 * h, nominal)
         return q
 
     def _reference_assembly(self) -> tuple[np.ndarray, np.ndarray]:
