@@ -21,6 +21,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "identify": ("stiffness.commands.identify", "identify joint stiffness from a campaign"),
     "report": ("stiffness.report", "the SK120 paper-reproduction report (the main job)"),
+    "diagnose": ("stiffness.commands.diagnose",
+                 "find and name what a model misses against a campaign's measurements"),
+    "simulate": ("stiffness.commands.simulate", "write a synthetic campaign with hidden effects"),
+    "view": ("stiffness.commands.view", "stiffness ellipsoids in the browser (meshcat)"),
+    "scan": ("stiffness.commands.scan", "stiffness and definiteness maps over a workspace"),
 }
 
 
