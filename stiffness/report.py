@@ -278,8 +278,11 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
              "padding:2px 6px;font-size:12px}.bad{color:#b00}img{max-width:100%}</style></head>"
              "<body><h1>Motoman SK120: reproduction of Alici &amp; Shirinzadeh (2005)</h1>"]
     parts.append("<h2>Appendix I against Pinocchio</h2>")
-    parts.append(f"<p>Convention found: {html.escape(json.dumps(s['appendix']['conventions']))}"
-                 "</p>")
+    conv = s["appendix"]["conventions"]
+    parts.append("<p>Angle convention of the appendix, found by search: "
+                 f"{html.escape(conv['description'])}. {html.escape(conv['theta2_theta3'])} "
+                 f"{html.escape(conv['chain_rule'])} Lengths (mm): "
+                 f"{html.escape(json.dumps(s['appendix']['lengths_mm']))}.</p>")
     rows = [[k, v["max_abs"], v["max_rel"]] for k, v in s["appendix"]["elements"].items()]
     parts.append(_table(["element", "max abs (mm/rad)", "max rel"], rows))
     for m in s["appendix"]["mismatches"]:
