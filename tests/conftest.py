@@ -1,0 +1,294 @@
+"""Shared fixtures: robots loaded once per module, test linkages written as URDF, FD helpers.
+
+Robots: the shipped SK120 (closed five-bar), UR5 (all six joints, or only the first three
+compliant for the 3x3 translational cases), Panda (the seven arm joints compliant: redundant).
+
+Test linkages (written to a temporary folder as a URDF plus its ``.loops.yaml`` sidecar):
+
+* ``four_bar``: a planar crank-rocker four-bar (not a parallelogram) with a tool joint on the
+  coupler carrying the target, so the closed-loop K_C is 2x2 and its multiplier term is large;
+* ``tilted_four_bar``: the same linkage mounted on a tilted plane, so the loop's redundant
+  constraint direction (the plane normal) is not a base axis;
+* ``spatial_four_bar``: an R-U-S-R spatial linkage (crank, universal joint, point contact, rocker
+  with a skew axis): a non-planar loop whose point constraint has full rank 3;
+* ``non_grashof_four_bar``: a triple-rocker whose crank cannot turn a full circle.
+
+Finite differences (``fd`` fixture): central differences over the robot coordinates of the
+compliant joints, the loops being closed by :meth:`Robot.configuration` seeded from the base
+configuration (the same assembly branch).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from stiffness.formulation import target_state
+from stiffness.robot import Robot, load_robot
+
+#: SK120 workspace of the paper (printed angles, deg): theta1, theta2, theta3.
+SK120_WORKSPACE_DEG = ((-180.0, 180.0), (-70.0, 70.0), (-115.0, 35.0))
+
+#: UR5 and Panda arm joints.
+UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+PANDA_ARM = [f"panda_joint{i}" for i in range(1, 8)]
+
+
+# --------------------------------------------------------------------------------------- robots
+
+
+@pytest.fixture(scope="module")
+def sk120() -> Robot:
+    return load_robot("sk120")
+
+
+@pytest.fixture(scope="module")
+def ur5() -> Robot:
+    return load_robot("ur5")
+
+
+@pytest.fixture(scope="module")
+def ur5_arm() -> Robot:
+    """UR5 with only its first three joints compliant (3x3 translational cases)."""
+    return load_robot("ur5", compliant_joints=UR5_ARM)
+
+
+@pytest.fixture(scope="module")
+def panda() -> Robot:
+    """Panda with its seven arm joints compliant (redundant), target at the hand TCP."""
+    return load_robot("panda", compliant_joints=PANDA_ARM)
+
+
+def sk120_coordinates(u: np.ndarray) -> np.ndarray:
+    """SK120 coordinates (rad) from six numbers in [0, 1]: theta1..3 in the paper's workspace,
+    the wrist angles in [-180, 180] deg."""
+    u = np.asarray(u, dtype=float)
+    lo = np.array([b[0] for b in SK120_WORKSPACE_DEG] + [-180.0] * 3)
+    hi = np.array([b[1] for b in SK120_WORKSPACE_DEG] + [180.0] * 3)
+    return np.deg2rad(lo + u * (hi - lo))
+
+
+@pytest.fixture(scope="module")
+def sk120_coords():
+    """Function mapping six numbers in [0, 1] to SK120 workspace coordinates (rad)."""
+    return sk120_coordinates
+
+
+# ---------------------------------------------------------------------------- finite differences
+
+
+def _coordinate_fd(robot: Robot, coords: np.ndarray, fn, h: float = 1e-5) -> np.ndarray:
+    """Central differences of ``fn(TargetState)`` over the compliant joints' coordinates.
+
+    Returns an array of shape fn(...).shape + (n_compliant,). Loops are closed by
+    ``robot.configuration`` seeded with the base configuration (same assembly branch).
+    """
+    coords = np.asarray(coords, dtype=float)
+    q0 = robot.configuration(coords)
+    columns = []
+    for i in robot.compliant_in_coordinates:
+        values = []
+        for sign in (1.0, -1.0):
+            c = coords.copy()
+            c[i] += sign * h
+            values.append(np.asarray(fn(target_state(robot, robot.configuration(c, seed=q0)))))
+        columns.append((values[0] - values[1]) / (2.0 * h))
+    return np.stack(columns, axis=-1)
+
+
+def _rel_err(a: np.ndarray, b: np.ndarray) -> float:
+    """Frobenius-norm error of ``a`` relative to the reference ``b``."""
+    return float(np.linalg.norm(np.asarray(a) - np.asarray(b)) / np.linalg.norm(b))
+
+
+@pytest.fixture(scope="module")
+def fd():
+    """Finite-difference helpers: ``fd.coordinates(robot, coords, fn, h)`` and ``fd.rel_err``."""
+    return SimpleNamespace(coordinates=_coordinate_fd, rel_err=_rel_err)
+
+
+# ------------------------------------------------------------------------------- test linkages
+
+
+def _num(v: float) -> str:
+    return repr(float(v))
+
+
+def _vec(v) -> str:
+    return " ".join(_num(x) for x in v)
+
+
+def _joint(name: str, parent: str, child: str, xyz=(0, 0, 0), rpy=(0, 0, 0), axis=(0, 0, 1),
+           kind: str = "revolute") -> str:
+    extra = ""
+    if kind != "fixed":
+        extra = f'<axis xyz="{_vec(axis)}"/>'
+    if kind == "revolute":
+        extra += '<limit effort="100" velocity="2" lower="-6.3" upper="6.3"/>'
+    return (f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+            f'<origin xyz="{_vec(xyz)}" rpy="{_vec(rpy)}"/>{extra}</joint>')
+
+
+def _robot_xml(name: str, links: list[str], joints: list[str]) -> str:
+    body = "".join(f'<link name="{link}"/>' for link in links) + "".join(joints)
+    return f'<?xml version="1.0"?>\n<robot name="{name}">{body}</robot>\n'
+
+
+LOOP_SIDECAR = (
+    'closed_loop:\n  - [coupler_end, rocker_end]\ntype: ["3D"]\nname_mot: [crank_joint]\n'
+)
+
+
+def four_bar_closed_form(phi: float, a: float, b: float, c: float, d: float, branch: int = 1
+                         ) -> tuple[float, float]:
+    """Absolute coupler and rocker angles (rad, in the loop plane) of a planar four-bar.
+
+    Ground pivots at (0, 0) (crank, length a) and (d, 0) (rocker, length c); coupler length b;
+    crank angle ``phi``. ``branch`` = +1 or -1 selects the assembly (the sign of the angle
+    between the crank-pivot-to-rocker-pivot direction and the coupler, seen from the crank end).
+    Raises ValueError when the loop cannot close.
+    """
+    crank_end = a * np.array([np.cos(phi), np.sin(phi)])
+    to_pivot = np.array([d, 0.0]) - crank_end
+    e = float(np.linalg.norm(to_pivot))
+    cos_alpha = (b * b + e * e - c * c) / (2.0 * b * e)
+    if abs(cos_alpha) > 1.0:
+        raise ValueError("the four-bar cannot close at this crank angle")
+    coupler = np.arctan2(to_pivot[1], to_pivot[0]) + branch * np.arccos(cos_alpha)
+    rocker_end = crank_end + b * np.array([np.cos(coupler), np.sin(coupler)])
+    rocker = np.arctan2(rocker_end[1], rocker_end[0] - d)
+    return float(coupler), float(rocker)
+
+
+@dataclass
+class FourBar:
+    """A planar four-bar test linkage written as URDF: lengths (m) and the assembly offsets."""
+
+    urdf: Path
+    a: float
+    b: float
+    c: float
+    d: float
+    beta0: float
+    psi0: float
+    tilt: tuple[float, float, float]
+
+    def passive_closed_form(self, phi: float, branch: int = 1) -> tuple[float, float]:
+        """URDF values (rad) of coupler_joint and rocker_joint at crank angle ``phi``, on the
+        assembly branch of the zero configuration (+1) or the other one (-1)."""
+        coupler, rocker = four_bar_closed_form(phi, self.a, self.b, self.c, self.d, branch)
+        return coupler - phi - self.beta0, rocker - self.psi0
+
+
+def write_four_bar(folder: Path, name: str, a: float, b: float, c: float, d: float,
+                   tilt=(0.0, 0.0, 0.0)) -> FourBar:
+    """Planar four-bar in the x-y plane of a ``plane`` link (mounted on the base with ``tilt``
+    roll-pitch-yaw), assembled at zero joint values on the +1 branch.
+
+    Joints: crank_joint (ground-crank, at the origin), coupler_joint (crank-coupler),
+    rocker_joint (ground-rocker, at (d, 0, 0)) and tool_joint (coupler-tool, off the coupler
+    line). Loop frames: coupler_end (far end of the coupler), rocker_end (far end of the rocker).
+    Target frame: tool_tip.
+    """
+    beta0, psi0 = four_bar_closed_form(0.0, a, b, c, d)
+    links = ["base_link", "plane", "crank", "coupler", "coupler_end", "tool", "tool_tip",
+             "rocker", "rocker_end"]
+    joints = [
+        _joint("mount", "base_link", "plane", xyz=(0.1, -0.2, 0.3), rpy=tilt, kind="fixed"),
+        _joint("crank_joint", "plane", "crank"),
+        _joint("coupler_joint", "crank", "coupler", xyz=(a, 0, 0), rpy=(0, 0, beta0)),
+        _joint("coupler_end_joint", "coupler", "coupler_end", xyz=(b, 0, 0), kind="fixed"),
+        _joint("tool_joint", "coupler", "tool", xyz=(0.35 * b, 0.15, 0)),
+        _joint("tool_tip_joint", "tool", "tool_tip", xyz=(0.25, 0.05, 0), kind="fixed"),
+        _joint("rocker_joint", "plane", "rocker", xyz=(d, 0, 0), rpy=(0, 0, psi0)),
+        _joint("rocker_end_joint", "rocker", "rocker_end", xyz=(c, 0, 0), kind="fixed"),
+    ]
+    folder.mkdir(parents=True, exist_ok=True)
+    urdf = folder / f"{name}.urdf"
+    urdf.write_text(_robot_xml(name, links, joints))
+    (folder / f"{name}.loops.yaml").write_text(LOOP_SIDECAR)
+    return FourBar(urdf, a, b, c, d, beta0, psi0, tuple(tilt))
+
+
+def write_spatial_four_bar(folder: Path, name: str = "rusr") -> Path:
+    """R-U-S-R spatial linkage, closed at zero joint values.
+
+    crank_joint (axis z) -> universal joint u1_joint (y), u2_joint (z) -> coupler, whose far end
+    (coupler_end) meets the end of a rocker (rocker_joint, skew axis normal to the rocker) in a
+    point contact. tool_joint (skew axis) on the coupler carries the target ``tool_tip``.
+    """
+    crank_end = np.array([0.2, 0.0, 0.0])
+    coupler = np.array([0.3, 0.4, 0.5])
+    pivot = np.array([0.6, -0.1, 0.05])
+    rocker = crank_end + coupler - pivot
+    axis = np.cross(rocker, [1.0, 0.3, -0.2])
+    axis /= np.linalg.norm(axis)
+    links = ["base_link", "crank", "ulink", "coupler", "coupler_end", "tool", "tool_tip",
+             "rocker", "rocker_end"]
+    joints = [
+        _joint("crank_joint", "base_link", "crank"),
+        _joint("u1_joint", "crank", "ulink", xyz=crank_end, axis=(0, 1, 0)),
+        _joint("u2_joint", "ulink", "coupler", axis=(0, 0, 1)),
+        _joint("coupler_end_joint", "coupler", "coupler_end", xyz=coupler, kind="fixed"),
+        _joint("tool_joint", "coupler", "tool", xyz=0.5 * coupler, axis=(0.6, 0.0, 0.8)),
+        _joint("tool_tip_joint", "tool", "tool_tip", xyz=(0.1, 0.2, 0.05), kind="fixed"),
+        _joint("rocker_joint", "base_link", "rocker", xyz=pivot, axis=axis),
+        _joint("rocker_end_joint", "rocker", "rocker_end", xyz=rocker, kind="fixed"),
+    ]
+    folder.mkdir(parents=True, exist_ok=True)
+    urdf = folder / f"{name}.urdf"
+    urdf.write_text(_robot_xml(name, links, joints))
+    (folder / f"{name}.loops.yaml").write_text(LOOP_SIDECAR)
+    return urdf
+
+
+#: Crank-rocker (Grashof: s + l = 0.9 < p + q = 1.1, crank shortest): the crank turns fully and
+#: the loop never reaches a toggle (passive Jacobian regular everywhere).
+CRANK_ROCKER = {"a": 0.2, "b": 0.7, "c": 0.5, "d": 0.6}
+#: Triple rocker: at crank angle pi the crank end is 1.1 m from the rocker pivot > b + c = 0.65.
+TRIPLE_ROCKER = {"a": 0.5, "b": 0.3, "c": 0.35, "d": 0.6}
+TILT_RPY = (0.3, -0.5, 0.7)
+
+
+@pytest.fixture(scope="module")
+def linkage_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("linkages")
+
+
+@pytest.fixture(scope="module")
+def four_bar(linkage_dir) -> FourBar:
+    return write_four_bar(linkage_dir / "planar", "fourbar", **CRANK_ROCKER)
+
+
+@pytest.fixture(scope="module")
+def tilted_four_bar(linkage_dir) -> FourBar:
+    return write_four_bar(linkage_dir / "tilted", "fourbar", **CRANK_ROCKER, tilt=TILT_RPY)
+
+
+@pytest.fixture(scope="module")
+def non_grashof_four_bar(linkage_dir) -> FourBar:
+    return write_four_bar(linkage_dir / "rocker", "rockers", **TRIPLE_ROCKER)
+
+
+@pytest.fixture(scope="module")
+def spatial_four_bar(linkage_dir) -> Path:
+    return write_spatial_four_bar(linkage_dir / "spatial")
+
+
+@pytest.fixture(scope="module")
+def four_bar_robot(four_bar) -> Robot:
+    return load_robot(four_bar.urdf, frame="tool_tip")
+
+
+@pytest.fixture(scope="module")
+def tilted_four_bar_robot(tilted_four_bar) -> Robot:
+    return load_robot(tilted_four_bar.urdf, frame="tool_tip")
+
+
+@pytest.fixture(scope="module")
+def spatial_robot(spatial_four_bar) -> Robot:
+    return load_robot(spatial_four_bar, frame="tool_tip")
