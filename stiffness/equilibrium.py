@@ -111,6 +111,14 @@ def solve_equilibrium(
             f"the exact equilibrium did not converge in {max_iterations} iterations "
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load"
         )
+    tangent = tangent_joint_stiffness(k_theta, state.k_c)
+    lowest = np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0]
+    if lowest <= 0:
+        raise StiffnessError(
+            f"the equilibrium found under this load is unstable (K_theta - K_C has the eigenvalue "
+            f"{lowest:.3g} there): the load exceeds the buckling load of the robot in this "
+            "configuration; reduce the load or stiffen the joints"
+        )
     rot = pin.log3(state.rotation @ base.rotation.T)
     return Equilibrium(q, dtheta, state.position - base.position, rot, iterations)
 

@@ -240,10 +240,17 @@ def cartesian_stiffness(compliance_matrix: np.ndarray) -> np.ndarray:
 
 def deflection(state: TargetState, k_theta: np.ndarray, formulation: str = "enhanced",
                rows: slice = slice(0, 3)) -> np.ndarray:
-    """Linear deflection prediction ``C W`` of the target under its load (A&S eq. 11), m."""
-    jac = state.jacobian[rows]
-    c = compliance(jac, tangent_joint_stiffness(k_theta, state.k_c, formulation))
-    return c @ state.wrench[rows]
+    """Linear deflection ``J[rows] (K_theta - K_C)^-1 J^T W`` under the full load (eq. 11).
+
+    ``rows`` selects the output (default the position, m); the whole wrench loads the joints.
+    """
+    tangent = tangent_joint_stiffness(k_theta, state.k_c, formulation)
+    try:
+        dtheta = np.linalg.solve(tangent, state.jacobian.T @ state.wrench)
+    except np.linalg.LinAlgError as exc:
+        raise SingularConfigurationError(
+            "the tangent joint stiffness K_theta - K_C is singular: reduce the load") from exc
+    return state.jacobian[rows] @ dtheta
 
 
 def definiteness(matrix: np.ndarray, rtol: float = 1e-9, atol: float = 0.0) -> str:

@@ -5,17 +5,28 @@ declaration follows the "Extended URDF" YAML sidecar of Gepetto's toolbox-parall
 
     closed_loop:              # frame pairs that coincide when the loop is closed
       - [coupler_end, forearm_rear]
-    type: ["3D"]              # "3D": the two frame origins coincide (point constraint)
+    type: ["3D"]              # per pair: "3D" (point constraint) or "6D" (frame constraint)
     name_mot: [joint1, joint2, joint3]   # actuated joints
 
-Optional key ``passive_joints`` lists the loop's unactuated joints; by default they are the
-joints on the path between the two frames of each pair that are not actuated.
+``"3D"``: the two frame origins coincide (a spherical joint). ``"6D"``: the two frames coincide,
+origin and axes (a weld). Optional key ``passive_joints`` lists the loop's unactuated joints; by
+default they are the joints on the path between the two frames of each pair that are not
+actuated. Passive joints may be revolute, prismatic or multi-degree-of-freedom joints (the
+closure steps on their velocity coordinates with ``pin.integrate``).
 
-Conventions (see docs/conventions.md): the closure residual is Pinocchio's
-``PointAnchorConstraintModel`` residual (p_b - p_a in frame a's axes); its Jacobian is the exact
-derivative of that residual. Second-order terms use the world-axes residual c_w = p_b - p_a,
-whose Hessian comes from Pinocchio's kinematic Hessians; on the closed loop both Jacobians differ
-by the rotation of frame a only.
+Conventions (see docs/conventions.md and docs/spatial-loops.md):
+
+* ``"3D"``: the closure residual is Pinocchio's ``PointAnchorConstraintModel`` residual
+  (p_b - p_a in frame a's axes, 3 rows, m).
+* ``"6D"``: the residual is Pinocchio's ``FrameAnchorConstraintModel`` residual
+  ``log6(oMa^-1 oMb)`` (6 rows, [m; rad]).
+
+:meth:`LoopClosure.jacobian` is the exact derivative of that residual, on and off the loop.
+Second-order terms use a world-axes residual built from points only, whose Hessian comes from
+Pinocchio's kinematic Hessians of points: ``p_b - p_a`` for a ``"3D"`` pair; for a ``"6D"`` pair
+the same for three points of each frame (its origin and the points one metre along its x and y
+axes), 9 rows of rank 6. The world-axes rows are redundant wherever a loop is planar (or 6D):
+every solve on them is rank-revealing (least squares / pseudo-inverse).
 """
 
 from __future__ import annotations
@@ -29,13 +40,23 @@ import pinocchio as pin
 from stiffness import kinematics
 from stiffness.errors import StiffnessError, did_you_mean
 
-#: Closure tolerance on the loop residual (m).
+#: Closure tolerance on the loop residual (m; rad for the rotation rows of a 6D pair).
 CLOSURE_TOLERANCE_M = 1e-11
+
+#: Supported loop types: rows of the Pinocchio residual per pair.
+LOOP_TYPES = {"3D": 3, "6D": 6}
+
+#: Offsets (in the frame's own axes, m) of the points whose coincidence makes a 6D pair's
+#: world-axes residual: origin, one metre along x, one metre along y.
+_FRAME_POINTS_M = (np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
 
 
 @dataclass(frozen=True)
 class LoopPair:
-    """Two frames whose origins coincide when the loop is closed."""
+    """Two frames that coincide when the loop is closed.
+
+    ``kind`` is ``"3D"`` (their origins coincide) or ``"6D"`` (origins and axes coincide).
+    """
 
     frame_a: str
     frame_b: str
@@ -74,8 +95,15 @@ def read_loop_declaration(path: str | Path) -> LoopDeclaration:
     if missing:
         raise StiffnessError(
             f"loop declaration {path} lacks {', '.join(missing)}; it needs closed_loop (frame "
-            "pairs), type (one of '3D' per pair) and name_mot (actuated joints)"
+            "pairs), type (one of '3D' or '6D' per pair) and name_mot (actuated joints)"
         )
+    for key in ("closed_loop", "type", "name_mot", "passive_joints"):
+        value = content.get(key, [])
+        if not isinstance(value, list) or (key != "passive_joints" and not value):
+            raise StiffnessError(
+                f"loop declaration {path}: {key} must be a non-empty YAML list (e.g. "
+                f"{key}: [a, b]), got {value!r}"
+            )
     loops, kinds = content["closed_loop"], content["type"]
     if len(loops) != len(kinds):
         raise StiffnessError(
@@ -83,11 +111,14 @@ def read_loop_declaration(path: str | Path) -> LoopDeclaration:
         )
     pairs = []
     for pair, kind in zip(loops, kinds, strict=True):
-        if len(pair) != 2:
-            raise StiffnessError(f"loop declaration {path}: {pair} is not a pair of frame names")
-        if kind not in ("3D",):
+        if not isinstance(pair, list) or len(pair) != 2:
             raise StiffnessError(
-                f"loop declaration {path}: loop type {kind!r} is not supported; use '3D'"
+                f"loop declaration {path}: {pair!r} is not a pair of frame names [frame_a, frame_b]"
+            )
+        if kind not in LOOP_TYPES:
+            raise StiffnessError(
+                f"loop declaration {path}: loop type {kind!r} is not supported; use '3D' "
+                "(point constraint) or '6D' (frame constraint)"
             )
         pairs.append(LoopPair(str(pair[0]), str(pair[1]), kind))
     passive = content.get("passive_joints")
@@ -100,7 +131,7 @@ def read_loop_declaration(path: str | Path) -> LoopDeclaration:
 
 @dataclass
 class LoopClosure:
-    """Loop-closure constraints of a model, built as Pinocchio point-anchor constraints.
+    """Loop-closure constraints of a model, built as Pinocchio anchor constraints.
 
     Attributes
     ----------
@@ -109,7 +140,8 @@ class LoopClosure:
     frame_ids
         ``(frame_a_id, frame_b_id)`` for each pair.
     constraints
-        One ``pin.PointAnchorConstraintModel`` per pair.
+        One ``pin.PointAnchorConstraintModel`` ("3D") or ``pin.FrameAnchorConstraintModel``
+        ("6D") per pair.
     passive_joints
         Names of the loop's unactuated joints, solved from the closure.
     passive_v
@@ -125,11 +157,19 @@ class LoopClosure:
 
     @property
     def n_rows(self) -> int:
-        """Number of constraint rows (3 per point constraint)."""
-        return 3 * len(self.pairs)
+        """Number of rows of :meth:`residual` (3 per "3D" pair, 6 per "6D" pair)."""
+        return sum(LOOP_TYPES[p.kind] for p in self.pairs)
+
+    @property
+    def n_world_rows(self) -> int:
+        """Number of rows of :meth:`world_jacobian` (3 per "3D" pair, 9 per "6D" pair)."""
+        return sum(3 if p.kind == "3D" else 3 * len(_FRAME_POINTS_M) for p in self.pairs)
 
     def residual(self, model: pin.Model, data: pin.Data) -> np.ndarray:
-        """Closure residual (m), Pinocchio's convention; kinematics must be up to date."""
+        """Closure residual (m; rad for 6D rotation rows), Pinocchio's convention.
+
+        Placements (``computeJointJacobians`` or forward kinematics) must be up to date.
+        """
         out = []
         for cm, cd in zip(self.constraints, self.constraint_datas, strict=True):
             cm.calc(model, data, cd)
@@ -137,30 +177,90 @@ class LoopClosure:
         return np.concatenate(out)
 
     def jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
-        """Exact Jacobian (n_rows, nv) of :meth:`residual`; joint Jacobians must be up to date."""
+        """Exact Jacobian (n_rows, nv) of :meth:`residual`; joint Jacobians must be up to date.
+
+        For a "6D" pair Pinocchio's constraint Jacobian is the relative twist of frame b with
+        respect to frame a in a's axes; the derivative of ``log6(aMb)`` is
+        ``Jlog6(aMb) Ad(bMa)`` times it (equal to it on the closed loop).
+        """
         rows = []
-        for cm, cd in zip(self.constraints, self.constraint_datas, strict=True):
+        for pair, cm, cd in zip(self.pairs, self.constraints, self.constraint_datas,
+                                strict=True):
             cm.calc(model, data, cd)
-            rows.append(np.array(pin.getConstraintJacobian(model, data, cm, cd)))
+            jac = np.array(pin.getConstraintJacobian(model, data, cm, cd))
+            if pair.kind == "6D":
+                a_m_b = cd.c1Mc2
+                jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() @ jac
+            rows.append(jac)
         return np.vstack(rows)
 
-    def world_jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
-        """Jacobian (n_rows, nv) of the world-axes residual p_b - p_a."""
+    def _world_points(self, model: pin.Model):
+        """Per pair, the ((joint_a, placement_a), (joint_b, placement_b)) point pairs."""
+        out = []
+        for pair, (fa, fb) in zip(self.pairs, self.frame_ids, strict=True):
+            if pair.kind == "3D":
+                out.append(None)
+                continue
+            frame_a, frame_b = model.frames[fa], model.frames[fb]
+            out.append([((frame_a.parentJoint, frame_a.placement * pin.SE3(np.eye(3), d)),
+                         (frame_b.parentJoint, frame_b.placement * pin.SE3(np.eye(3), d)))
+                        for d in _FRAME_POINTS_M])
+        return out
+
+    def world_residual(self, model: pin.Model, data: pin.Data) -> np.ndarray:
+        """World-axes residual (n_world_rows,), m: p_b - p_a for each point pair.
+
+        Frame placements must be up to date (``framesForwardKinematics``).
+        """
         rows = []
-        for fa, fb in self.frame_ids:
-            ja = kinematics.frame_jacobian(model, data, fa)[:3]
-            jb = kinematics.frame_jacobian(model, data, fb)[:3]
-            rows.append(jb - ja)
+        for points, (fa, fb) in zip(self._world_points(model), self.frame_ids, strict=True):
+            if points is None:
+                rows.append(data.oMf[fb].translation - data.oMf[fa].translation)
+                continue
+            for (ja, ma), (jb, mb) in points:
+                rows.append((data.oMi[jb] * mb).translation - (data.oMi[ja] * ma).translation)
+        return np.concatenate(rows)
+
+    def world_jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
+        """Jacobian (n_world_rows, nv) of the world-axes residual p_b - p_a."""
+        rows = []
+        for points, (fa, fb) in zip(self._world_points(model), self.frame_ids, strict=True):
+            if points is None:
+                ja = kinematics.frame_jacobian(model, data, fa)[:3]
+                jb = kinematics.frame_jacobian(model, data, fb)[:3]
+                rows.append(jb - ja)
+                continue
+            for (ja, ma), (jb, mb) in points:
+                rows.append(pin.getFrameJacobian(model, data, jb, mb, kinematics.LWA)[:3]
+                            - pin.getFrameJacobian(model, data, ja, ma, kinematics.LWA)[:3])
         return np.vstack(rows)
 
     def world_hessian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
-        """Hessian (n_rows, nv, nv) of the world-axes residual p_b - p_a (Hessians current)."""
+        """Hessian (n_world_rows, nv, nv) of the world-axes residual (Hessians current).
+
+        ``H[r, a, b] = d2 c_r / dq_a dq_b`` (symmetric in a, b).
+        """
         blocks = []
-        for fa, fb in self.frame_ids:
-            ha = kinematics.frame_hessian(model, data, fa)[:3]
-            hb = kinematics.frame_hessian(model, data, fb)[:3]
-            blocks.append(hb - ha)
+        for points, (fa, fb) in zip(self._world_points(model), self.frame_ids, strict=True):
+            if points is None:
+                ha = kinematics.frame_hessian(model, data, fa)[:3]
+                hb = kinematics.frame_hessian(model, data, fb)[:3]
+                blocks.append(hb - ha)
+                continue
+            for (ja, ma), (jb, mb) in points:
+                blocks.append(_point_hessian(model, data, jb, mb)
+                              - _point_hessian(model, data, ja, ma))
         return np.concatenate(blocks, axis=0)
+
+    def passive_rank(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9) -> int:
+        """Rank of the passive columns of :meth:`jacobian` (rank-revealing SVD).
+
+        The passive joints are determined by the independent ones where it equals the number
+        of passive velocity coordinates; rows beyond it are redundant (planar loops).
+        """
+        cp = self.jacobian(model, data)[:, self.passive_v]
+        sv = np.linalg.svd(cp, compute_uv=False)
+        return int(np.sum(sv > rtol * max(1.0, sv[0] if sv.size else 0.0)))
 
     def passive_rates(self, model: pin.Model, data: pin.Data, independent_v: np.ndarray
                       ) -> np.ndarray:
@@ -228,9 +328,9 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
                 )
             ids.append(model.getFrameId(name))
         fa, fb = (model.frames[i] for i in ids)
-        cm = pin.PointAnchorConstraintModel(
-            model, fa.parentJoint, fa.placement, fb.parentJoint, fb.placement
-        )
+        anchor = (pin.FrameAnchorConstraintModel if pair.kind == "6D"
+                  else pin.PointAnchorConstraintModel)
+        cm = anchor(model, fa.parentJoint, fa.placement, fb.parentJoint, fb.placement)
         constraints.append(cm)
         datas.append(cm.createData())
         frame_ids.append((ids[0], ids[1]))
@@ -257,3 +357,13 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
     joints = [model.joints[model.getJointId(j)] for j in passive]
     passive_v = np.concatenate([np.arange(j.idx_v, j.idx_v + j.nv) for j in joints]).astype(int)
     return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)
+
+
+def _point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
+                   ) -> np.ndarray:
+    """Hessian (3, nv, nv) of the world position of a point fixed to a joint (m/rad^2).
+
+    Same layout fix as :func:`stiffness.kinematics.frame_hessian`; Hessians must be current.
+    """
+    raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, kinematics.LWA)
+    return raw.reshape(-1).reshape(raw.shape, order="F")[:3]

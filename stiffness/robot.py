@@ -85,7 +85,11 @@ class Robot:
     visual_model
         Pinocchio visual geometry, when the source provides meshes (for the viewer).
     defaults
-        Shipped defaults (``q`` in rad/m, ``k_theta`` in SI), empty for other sources.
+        Shipped defaults (``q`` in rad/m, ``k_theta`` in SI), empty for other sources. Keys
+        read by the toolkit: ``q_deg`` or ``q_SI`` (default coordinates, deg, or rad/m),
+        ``k_theta_SI``, ``wrench_SI``, ``rest_q_SI`` (spring rest coordinates: the default load
+        is then the wrench that holds the target there), ``twist_order`` (``"v-w"`` or
+        ``"w-v"``: row order of printed 6x6 matrices).
     """
 
     name: str
@@ -226,8 +230,9 @@ class Robot:
                 h /= 2.0
                 if h < 1e-9:
                     raise StiffnessError(
-                        f"the loops of {self.name} cannot be closed continuously from the "
-                        f"reference assembly to coordinates {np.round(coords, 6).tolist()}: the "
+                        f"the loops of {self.name} cannot be closed continuously from "
+                        f"coordinates {np.round(start, 6).tolist()} to "
+                        f"{np.round(coords, 6).tolist()}: the "
                         "path meets a fold of the loop (the pose is unreachable on this branch)"
                     )
                 continue
@@ -237,8 +242,16 @@ class Robot:
         return q
 
     def _reference_assembly(self) -> tuple[np.ndarray, np.ndarray]:
+        """Closed configuration the continuation starts from.
+
+        The closure of the neutral configuration, or, for a shipped robot whose ``robot.toml``
+        gives its default coordinates ``q_SI`` (rad or m; e.g. leg lengths, which cannot be
+        zero), the closure from the neutral passive joints at those coordinates.
+        """
         if self._reference is None:
             q0 = pin.neutral(self.model)
+            if "q_SI" in self.defaults:
+                q0 = self._tree_configuration(np.asarray(self.defaults["q_SI"], dtype=float), q0)
             q0 = self.loop.close(self.model, self.data, q0)
             self._reference = (self.coordinates_of(q0), q0)
         return self._reference
@@ -248,14 +261,31 @@ def _read_urdf(path: Path) -> tuple[pin.Model, object | None]:
     """Validate a URDF with yourdfpy, then build the Pinocchio model."""
     import yourdfpy
 
+    from lxml import etree
+
     if not path.is_file():
         raise StiffnessError(f"URDF file {path} does not exist; give an existing .urdf path")
+    try:  # yourdfpy repairs broken XML silently: parse strictly first
+        etree.parse(str(path), etree.XMLParser(recover=False))
+    except etree.XMLSyntaxError as exc:
+        raise StiffnessError(
+            f"{path} is not a valid URDF: not well-formed XML ({exc}); fix it at that line and "
+            "column"
+        ) from exc
     try:
         urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
     except Exception as exc:  # yourdfpy raises lxml, KeyError or ValueError on bad files
         raise StiffnessError(f"{path} is not a valid URDF: {exc}") from exc
     if not urdf.validate():
         raise StiffnessError(f"{path} is not a valid URDF: {'; '.join(urdf.errors)}")
+    links = set(urdf.link_map)
+    for joint in urdf.robot.joints:
+        for role, link in (("parent", joint.parent), ("child", joint.child)):
+            if link not in links:
+                raise StiffnessError(
+                    f"{path} is not a valid URDF: joint {joint.name!r} names the {role} link "
+                    f"{link!r}, which it does not define; {did_you_mean(str(link), sorted(links))}"
+                )
     try:
         model = pin.buildModelFromUrdf(str(path))
     except (RuntimeError, ValueError) as exc:

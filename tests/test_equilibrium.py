@@ -200,12 +200,6 @@ def test_deflection_is_first_order_exact_for_a_force(name, cases):
     assert 1.8 < rel[1] / rel[0] < 2.2  # relative error O(F): absolute O(F^2)
 
 
-@pytest.mark.xfail(
-    reason="formulation.deflection applies rows=slice(0, 3) to the wrench as well as to J, so a "
-    "wrench's moment is dropped: C[rows, rows] @ W[rows] instead of J[rows] (K_theta - K_C)^-1 "
-    "J^T W (62 % off on UR5 with M = (3, -2, 4) N.m)",
-    strict=True,
-)
 def test_deflection_under_a_wrench_includes_the_moment(cases):
     robot, q0, k_theta, _ = cases["ur5"]
     wrench = np.array([10.0, 20.0, -5.0, 3.0, -2.0, 4.0])
@@ -231,12 +225,6 @@ def test_load_beyond_buckling_does_not_converge(cases):
         solve_equilibrium(robot, q0, k_theta, np.array([0.0, 0.0, 1e5]))
 
 
-@pytest.mark.xfail(
-    reason="equilibrium.solve_equilibrium returns an unstable stationary point of Pi far beyond "
-    "buckling (here dtheta ~ -7000 rad, min eig(K_theta - K_C) ~ -2e5) instead of raising: "
-    "no stability check after convergence and an undamped Newton step",
-    strict=True,
-)
 def test_equilibrium_beyond_buckling_is_never_an_unstable_point(cases):
     """Either refuse (StiffnessError) or return a stable equilibrium (a minimiser of Pi)."""
     robot, q0, _, _ = cases["ur5"]

@@ -318,11 +318,6 @@ def test_explicit_loop_file_overrides_sidecar(four_bar, tmp_path):
     assert abs(_wrap(_joint_value(robot, q, "coupler_joint") - coupler)) < 1e-9
 
 
-@pytest.mark.xfail(
-    reason="loops.read_loop_declaration: a key present with no value (YAML null) reaches len()/"
-    "iteration and raises TypeError instead of a StiffnessError naming the key",
-    strict=True,
-)
 @pytest.mark.parametrize(
     "text",
     ['closed_loop:\ntype: ["3D"]\nname_mot: [crank_joint]\n',
@@ -335,12 +330,6 @@ def test_loop_declaration_null_value(four_bar, tmp_path, text):
         load_robot(four_bar.urdf, frame="tool_tip", loops=sidecar)
 
 
-@pytest.mark.xfail(
-    reason="loops.read_loop_declaration: a scalar where a list is expected (name_mot: crank_joint,"
-    " type: \"3D\") is iterated character by character; the message blames joint 'c' or a "
-    "count of 2 types instead of saying the key must be a list",
-    strict=True,
-)
 @pytest.mark.parametrize(
     ("text", "key"),
     [('closed_loop: [[coupler_end, rocker_end]]\ntype: ["3D"]\nname_mot: crank_joint\n',
@@ -354,11 +343,6 @@ def test_loop_declaration_scalar_instead_of_list(four_bar, tmp_path, text, key):
         load_robot(four_bar.urdf, frame="tool_tip", loops=sidecar)
 
 
-@pytest.mark.xfail(
-    reason="robot.Robot._continue: the unreachable-path message always says the path starts "
-    "'from the reference assembly', also when configuration() was given a seed",
-    strict=True,
-)
 def test_unreachable_from_a_seed_does_not_blame_the_reference_assembly(non_grashof_four_bar):
     robot = load_robot(non_grashof_four_bar.urdf, frame="tool_tip")
     seed = robot.configuration(np.array([0.5, 0.0]))

@@ -160,13 +160,6 @@ def test_malformed_urdf_is_refused(tmp_path, text):
         load_robot(path)
 
 
-@pytest.mark.xfail(
-    reason="robot._read_urdf: yourdfpy recovers from the XML syntax error (it only logs it) and "
-    "its validate() does not check joint links, so the error surfaces from Pinocchio as a "
-    "generic 'does not contain a valid URDF model': the message names neither the XML error "
-    "(line/column) nor the missing parent link 'zzz'",
-    strict=True,
-)
 @pytest.mark.parametrize(("text", "detail"), [(BAD_XML, r"line 2|mismatch"),
                                               (MISSING_PARENT, "zzz")],
                          ids=["invalid-xml", "missing-parent"])

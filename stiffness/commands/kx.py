@@ -4,6 +4,11 @@ Example::
 
     stiffness kx --robot ur5 --frame tool0 --q 0,-1.2,1.5,-0.3,1.57,0 \\
         --wrench 0,0,-200 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --json
+    stiffness kx --robot griffis-duffy --connection twist --json
+
+A shipped robot brings its defaults (frame, configuration ``q_deg``/``q_SI``, springs
+``k_theta_SI``, load ``wrench_SI`` or spring rest values ``rest_q_SI``, whose holding wrench is
+then the load; row order ``twist_order``), which flags override.
 
 SI units throughout: m, N, rad, N.m/rad (N/m for prismatic joints).
 """
@@ -29,6 +34,7 @@ from stiffness.formulation import (
     target_state,
     twist_basis_stiffness,
 )
+from stiffness.platform import TWIST_ORDERS, WRENCH_ORDERS, holding_wrench, reorder_twist
 from stiffness.robot import Robot, load_robot
 
 _BASIS_3 = ["vx", "vy", "vz"]
@@ -78,6 +84,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="6x6 stiffness of Zefran & Kumar: joint-space connection "
                              "(J^-T K J^-1) or twist basis (asymmetric under load), "
                              "in the target's body axes")
+    parser.add_argument("--twist-order", choices=tuple(TWIST_ORDERS),
+                        help="row order of 6x6 results: v-w (Pinocchio: linear first) or w-v "
+                             "(Zefran & Kumar: angular first); default the robot's own, else v-w")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -85,6 +94,8 @@ def _coordinates(robot: Robot, args: argparse.Namespace) -> np.ndarray:
     if args.q is None:
         if "q_deg" in robot.defaults:
             return np.deg2rad(robot.defaults["q_deg"])
+        if "q_SI" in robot.defaults:
+            return np.asarray(robot.defaults["q_SI"], dtype=float)
         raise StiffnessError(
             f"--q is required for {robot.name}: give {robot.model.nv} joint values "
             f"({', '.join(robot.coordinate_joints)})"
@@ -128,15 +139,22 @@ def compute(args: argparse.Namespace) -> dict:
             f"({', '.join(robot.compliant_joints)}), N.m/rad"
         )
     k_theta = joint_stiffness(kq, robot.n_compliant)
+    q = robot.configuration(coords)
+    load_source = "--wrench"
     if args.wrench is not None:
         load = np.array(parse_list(args.wrench, "--wrench"))
     elif "wrench_SI" in robot.defaults:
-        load = np.array(robot.defaults["wrench_SI"], dtype=float)
+        load, load_source = np.array(robot.defaults["wrench_SI"], dtype=float), "wrench_SI"
+    elif "rest_q_SI" in robot.defaults and compliant is None:
+        load = holding_wrench(robot, q, k_theta, robot.defaults["rest_q_SI"])
+        load_source = "rest_q_SI (wrench holding the target against the springs)"
     else:
         raise StiffnessError("--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
-    q = robot.configuration(coords)
     state = target_state(robot, q, load)
     six = load.shape[0] == 6 or args.connection is not None
+    order = args.twist_order or robot.defaults.get("twist_order", "v-w")
+    if order not in TWIST_ORDERS:
+        raise StiffnessError(f"twist_order of {robot.name} must be one of {list(TWIST_ORDERS)}")
     rows = slice(0, 6) if six else slice(0, 3)
     tangent = tangent_joint_stiffness(k_theta, state.k_c, args.formulation)
     if args.connection is not None:
@@ -152,18 +170,27 @@ def compute(args: argparse.Namespace) -> dict:
         k_x = cartesian_stiffness(c_x)
         axes = "base frame axes at the target"
         k_c = state.k_c
+    wrench = state.wrench[: 6 if six else 3]
+    if six:
+        k_x, c_x, wrench = reorder_twist(k_x, order), reorder_twist(c_x, order), reorder_twist(
+            wrench, order)
+        if order == "w-v":
+            jac = jac[[3, 4, 5, 0, 1, 2]]
     ell = ellipsoid(k_x)
-    trans = "N/m" if not six else "N/m | N | N.m/rad blocks ([v; w] order)"
+    blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
+    trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
     return {
         "robot": robot.name,
         "frame": robot.target_frame,
         "target_offset": robot.target_offset.tolist(),
         "compliant_joints": list(robot.compliant_joints),
         "q": coords.tolist(),
-        "wrench": state.wrench[: 6 if six else 3].tolist(),
+        "wrench": wrench.tolist(),
+        "wrench_basis": WRENCH_ORDERS[order] if six else ["fx", "fy", "fz"],
+        "load_source": load_source,
         "formulation": args.formulation,
         "connection": args.connection,
-        "basis": _BASIS_6 if six else _BASIS_3,
+        "basis": TWIST_ORDERS[order] if six else _BASIS_3,
         "axes": axes,
         "position": state.position.tolist(),
         "J": jac.tolist(),
@@ -177,8 +204,9 @@ def compute(args: argparse.Namespace) -> dict:
         "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
             k_theta - state.k_c), "K_X": definiteness(k_x)},
         "units": {
-            "J": "m/rad (m/m for prismatic); angular rows rad/rad",
-            "K_C": "N.m/rad", "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
+            "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
+            "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
+            "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
             "compliance": "m/N (inverse of K_X)", "eigenvalues": "same as K_X",
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
         },
