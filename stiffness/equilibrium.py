@@ -44,7 +44,12 @@ class Equilibrium:
     iterations: int
 
 
-def _move(robot: Robot, q0: np.ndarray, dtheta: np.ndarray, seed: np.ndarray) -> np.ndarray:
+def deflected_configuration(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
+                            seed: np.ndarray) -> np.ndarray:
+    """Configuration with the compliant joints moved by ``dtheta`` from ``q0``, loops closed.
+
+    ``seed`` is a nearby closed configuration whose passive joints start the closure.
+    """
     dv = np.zeros(robot.model.nv)
     dv[robot.compliant_v] = dtheta
     target = pin.integrate(robot.model, q0, dv)
@@ -94,7 +99,7 @@ def solve_equilibrium(
     scale = max(np.abs(base.jacobian.T @ wrench).max(), 1e-300)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (used after the loop)
-        q = _move(robot, q0, dtheta, q)
+        q = deflected_configuration(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
         residual = k_theta @ dtheta - state.jacobian.T @ wrench
         if np.abs(residual).max() <= tolerance * scale:

@@ -1,0 +1,166 @@
+"""The discrepancy workflow (stiffness.diagnose, stiffness diagnose) on simulated campaigns."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stiffness.campaign import load_campaign
+from stiffness.cli import main
+from stiffness.diagnose import (
+    DIAGNOSIS_FILE,
+    FINAL_MODEL_FILE,
+    RESIDUALS_PLOT,
+    config_folds,
+    diagnose,
+    format_report,
+)
+from stiffness.effects import REQUIRED_EFFECTS
+from stiffness.simulate import parse_effect, simulate
+
+UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+#: UR5 with a 10 cm tool: the arm joints compliant.
+UR5 = {"robot": "ur5", "kq": [3e4, 2e4, 1.5e4], "compliant_joints": UR5_ARM,
+       "target_offset_m": [0.0, 0.0, 0.1], "max_force": 100.0}
+#: The same, softer (the load-dependent geometry shows at 150 N).
+UR5_SOFT = {**UR5, "kq": [1e4, 1e4, 8e3], "max_force": 150.0}
+#: The paper's SK120 and stiffness under loads like Table II's.
+SK120 = {"robot": "sk120", "max_force": 400.0}
+NOISE = 5e-6
+SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missing_effects",
+                "final_rms", "unit"}
+
+#: Each library effect hidden at a clearly detectable size (3 to 25 noise std RMS).
+HIDDEN = [
+    (UR5_SOFT, "complementary_stiffness"),
+    (SK120, "joint_compliance:joint5=3e5"),
+    (UR5, "joint_compliance:wrist_1_joint=1e4"),
+    (SK120, "link_compliance:joint2->elbow=2e6"),
+    (UR5, "link_compliance:elbow_joint->wrist_1_joint=5e4"),
+    (SK120, "backlash:joint2=0.003"),
+    (UR5, "nonlinear_joint_stiffness:elbow_joint=0.005"),
+    (SK120, "nonlinear_joint_stiffness:joint3=0.001"),
+    (UR5, "frame_misalignment=2"),
+    (UR5, "target_offset=20"),
+    (SK120, "force_sensor_bias=8"),
+    (SK120, "deflection_offset=0.02"),
+]
+
+
+def _simulate(setup: dict, effects: list[str], configs: int = 10, seed: int = 1, **kw):
+    args = {k: v for k, v in setup.items() if k != "robot"}
+    args.update(kw)
+    return simulate(setup["robot"], effects=[parse_effect(e) for e in effects],
+                    configs=configs, loads_per_config=4, noise_std_m=NOISE, seed=seed, **args)
+
+
+def test_every_required_effect_is_exercised():
+    assert {parse_effect(e).name for _, e in HIDDEN} >= set(REQUIRED_EFFECTS)
+
+
+@pytest.mark.parametrize(("setup", "effect"), HIDDEN, ids=[e for _, e in HIDDEN])
+def test_hidden_effect_is_named_first(setup, effect):
+    hidden = parse_effect(effect)
+    sim = _simulate(setup, [effect])
+    result = diagnose(sim.campaign, propose=False)
+    summary = result.summary()
+    assert summary["missing_effects"], format_report(result)
+    first = summary["steps"][0]
+    assert (first["effect"], first["where"]) == (hidden.name, hidden.where), format_report(result)
+    assert summary["final_rms"] <= 1.5 * summary["noise_std"]
+    assert summary["baseline_rms"] > summary["final_rms"]
+
+
+@pytest.mark.parametrize("setup", [UR5, SK120], ids=["ur5", "sk120"])
+def test_nothing_hidden_nothing_missing(setup):
+    sim = _simulate(setup, [], seed=7)
+    result = diagnose(sim.campaign)
+    assert result.summary()["missing_effects"] == [], format_report(result)
+    assert result.gof_baseline is not None and result.gof_baseline > 0.05
+    assert "nothing" in format_report(result) or "none" in format_report(result)
+
+
+def test_identified_parameters_cover_the_truth():
+    sim = _simulate(SK120, ["backlash:joint2=0.003"], configs=12)
+    step = diagnose(sim.campaign, propose=False).summary()["steps"][0]
+    half = step["parameters"]["half_width"]
+    assert half["unit"] == "deg"
+    assert half["ci95"][0] <= 0.003 <= half["ci95"][1]
+    assert half["standard_error"] < 0.1 * half["value"]
+
+
+def test_cannot_tell_apart_and_proposals():
+    # a hidden wrist joint looks like a bending forearm about the same axis
+    sim = _simulate(UR5, ["joint_compliance:wrist_1_joint=1e4"])
+    result = diagnose(sim.campaign)
+    pairs = {(a.chosen, a.other) for a in result.ambiguities}
+    assert ("joint_compliance(wrist_1_joint)",
+            "link_compliance(elbow_joint->wrist_1_joint)") in pairs
+    amb = next(a for a in result.ambiguities if a.other.startswith("link_compliance"))
+    assert amb.similarity > 0.95
+    assert 1 <= len(amb.proposals) <= 3
+    assert all(len(p["q"]) == 6 and len(p["force"]) == 3 for p in amb.proposals)
+
+
+def test_unknown_noise_is_estimated_and_said_so():
+    sim = _simulate(SK120, ["backlash:joint2=0.003"], declare_noise=False)
+    result = diagnose(sim.campaign, propose=False)
+    s = result.summary()
+    assert s["noise_std_source"] == "residuals"
+    assert s["missing_effects"][0] == "backlash"
+    assert 0.5 * NOISE * 1e3 < s["noise_std"] < 1.5 * NOISE * 1e3
+    assert "estimated from the residuals" in result.noise_note
+
+
+def test_replicates_give_the_noise():
+    sim = _simulate(SK120, [], configs=6, declare_noise=False, repeats=3)
+    s = diagnose(sim.campaign, propose=False).summary()
+    assert s["noise_std_source"] == "replicates"
+    assert s["noise_std"] == pytest.approx(NOISE * 1e3, rel=0.3)
+
+
+def test_config_folds():
+    labels = tuple("AABBCCDD")
+    folds = config_folds(labels)
+    assert len(folds) == 4 and sorted(np.concatenate(folds).tolist()) == list(range(8))
+    many = tuple(f"c{i // 2}" for i in range(60))
+    folds = config_folds(many)
+    assert len(folds) == 6
+    for f in folds:  # a configuration never straddles two folds
+        assert len({many[i] for i in f}) * 2 == len(f)
+
+
+def test_cli_json_and_files(tmp_path, capsys):
+    sim = _simulate(SK120, ["force_sensor_bias=8"], configs=8)
+    sim.write(tmp_path / "camp")
+    out = tmp_path / "out"
+    assert main(["diagnose", str(tmp_path / "camp"), "--json", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    summary = json.loads(text)
+    assert set(summary) == SUMMARY_KEYS
+    assert summary["unit"] == "mm" and summary["noise_std_source"] == "declared"
+    assert summary["missing_effects"] == ["force_sensor_bias"]
+    step = summary["steps"][0]
+    assert set(step) == {"effect", "where", "rms", "parameters"}
+    assert set(step["parameters"]) == {"fx", "fy", "fz"}
+    assert step["parameters"]["fx"]["unit"] == "N"
+    for name in (DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT):
+        assert (out / name).stat().st_size > 0
+    model = json.loads((out / FINAL_MODEL_FILE).read_text())
+    assert model["effects"][0]["effect"] == "force_sensor_bias"
+    assert set(model["k_theta"]) == {"joint1", "joint2", "joint3"}
+    full = json.loads((out / DIAGNOSIS_FILE).read_text())
+    assert "where_baseline_disagrees" in full and "by_load_sign" in full[
+        "where_baseline_disagrees"]
+    assert main(["diagnose", str(tmp_path / "camp"), "--quiet"]) == 0
+    assert "missing effects: force_sensor_bias" in capsys.readouterr().out
+
+
+def test_table2_runs():
+    camp = load_campaign("robots/sk120/campaigns/table2")
+    s = diagnose(camp, propose=False).summary()
+    assert set(s) == SUMMARY_KEYS
+    assert s["noise_std_source"] == "residuals"
+    assert s["baseline_rms"] == pytest.approx(0.0814, abs=0.002)

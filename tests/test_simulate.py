@@ -1,0 +1,94 @@
+"""Synthetic campaigns with hidden effects (stiffness.simulate, stiffness simulate)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stiffness.campaign import load_campaign
+from stiffness.cli import main
+from stiffness.errors import StiffnessError
+from stiffness.robot import load_robot
+from stiffness.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
+
+UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+
+
+def test_parse_effect():
+    h = parse_effect("link_compliance:joint2->elbow=2e6,3e6")
+    assert (h.name, h.where, h.values) == ("link_compliance", "joint2->elbow", (2e6, 3e6))
+    assert parse_effect("complementary_stiffness").values == ()
+    assert parse_effect("target_offset=1,2,3").where is None
+    with pytest.raises(StiffnessError, match="unknown effect"):
+        parse_effect("backlash_x:joint2=1")
+    with pytest.raises(StiffnessError, match="takes 1 value"):
+        parse_effect("backlash:joint2")
+    with pytest.raises(StiffnessError, match="not a number"):
+        parse_effect("backlash:joint2=abc")
+    with pytest.raises(StiffnessError, match="1 or 3"):
+        parse_effect("target_offset=1,2")
+
+
+def test_sk120_poses_keep_the_tool_vertical():
+    robot = load_robot("sk120")
+    coords = np.rad2deg(sample_coordinates(robot, 6, np.random.default_rng(3)))
+    np.testing.assert_allclose(coords[:, 3], 0.0)
+    np.testing.assert_allclose(coords[:, 2] + coords[:, 4], -90.0, atol=1e-9)
+    flat = np.minimum(np.abs(coords[:, 1] + coords[:, 2] - 90), np.abs(coords[:, 1] + coords[:, 2]
+                                                                      + 90))
+    assert flat.min() >= 15.0
+
+
+def test_simulate_writes_a_loadable_campaign(tmp_path):
+    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=UR5_ARM,
+                   effects=[parse_effect("backlash:shoulder_lift_joint=0.005")], configs=3,
+                   loads_per_config=2, repeats=2, noise_std_m=5e-6, seed=4)
+    path = sim.write(tmp_path / "sim")
+    camp = load_campaign(path)
+    assert camp.n_rows == 12 and len(set(camp.config)) == 3
+    assert camp.noise_std_m == pytest.approx(5e-6)
+    assert camp.baseline == "enhanced"
+    assert camp.robot().compliant_joints == tuple(UR5_ARM)
+    np.testing.assert_allclose(camp.deflection, sim.campaign.deflection, rtol=1e-12)
+    truth = json.loads((tmp_path / "sim" / TRUTH_FILE).read_text())
+    assert truth["expected_missing_effects"] == ["backlash"]
+    assert truth["effect_rms_noise_units"]["backlash(shoulder_lift_joint)"] > 1.0
+    # repeats share the deflection, differ by noise
+    d = camp.deflection
+    assert np.abs(d[0] - d[1]).max() < 6 * 5e-6
+    assert np.abs(d[0] - d[2]).max() > 6 * 5e-6
+
+
+def test_hidden_complementary_stiffness_declares_conventional():
+    sim = simulate("sk120", effects=[parse_effect("complementary_stiffness")], configs=2,
+                   loads_per_config=2, seed=1)
+    assert sim.campaign.baseline == "conventional"
+    with pytest.raises(StiffnessError, match="conventional"):
+        simulate("sk120", effects=[parse_effect("complementary_stiffness")], configs=2,
+                 loads_per_config=2, baseline="enhanced")
+
+
+def test_simulate_rejects_bad_inputs():
+    with pytest.raises(StiffnessError, match="already compliant"):
+        simulate("sk120", effects=[parse_effect("joint_compliance:joint2=1e5")], configs=2)
+    with pytest.raises(StiffnessError, match="positive stiffnesses"):
+        simulate("sk120", kq=[1e6, -1.0, 1e6], configs=2)
+    with pytest.raises(StiffnessError, match="compliant joint"):
+        simulate("sk120", effects=[parse_effect("backlash:joint5=0.01")], configs=2)
+    with pytest.raises(StiffnessError, match="--kq"):
+        simulate("ur5", configs=2)
+
+
+def test_simulate_cli(tmp_path, capsys):
+    out = tmp_path / "cli"
+    code = main(["simulate", "--robot", "sk120", "--effect", "force_sensor_bias=5",
+                 "--configs", "3", "--loads-per-config", "2", "--max-force", "300",
+                 "--noise", "0.004", "--seed", "2", "--out", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "hidden force_sensor_bias" in text
+    camp = load_campaign(out)
+    assert camp.n_rows == 6 and camp.noise_std_m == pytest.approx(4e-6)
+    assert (out / TRUTH_FILE).is_file()
