@@ -260,7 +260,6 @@ class Robot:
 def _read_urdf(path: Path) -> tuple[pin.Model, object | None]:
     """Validate a URDF with yourdfpy, then build the Pinocchio model."""
     import yourdfpy
-
     from lxml import etree
 
     if not path.is_file():

@@ -68,6 +68,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from stiffness.defaults import default_coordinates, default_load
 from stiffness.equilibrium import solve_equilibrium
 from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.formulation import (
@@ -137,28 +138,16 @@ def _meshcat() -> Any:
     return modules
 
 
-def default_coordinates(robot: Robot) -> np.ndarray:
-    """A shipped robot's default coordinates (``q_deg`` or ``q_SI``), else zeros (rad, m)."""
-    if "q_deg" in robot.defaults:
-        return np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float))
-    if "q_SI" in robot.defaults:
-        return np.asarray(robot.defaults["q_SI"], dtype=float)
-    return np.zeros(robot.n_coordinates)
+def _coordinates_or_zero(robot: Robot) -> np.ndarray:
+    """A shipped robot's default coordinates, else zeros (rad, m)."""
+    shipped = default_coordinates(robot)
+    return np.zeros(robot.n_coordinates) if shipped is None else shipped
 
 
-def default_load(robot: Robot, q: np.ndarray, k_theta: np.ndarray) -> np.ndarray:
-    """A shipped robot's default load as a wrench [F (N); M (N.m)], base axes, at ``q``.
-
-    ``wrench_SI``, else the wrench holding the target at ``q`` against springs at rest at
-    ``rest_q_SI`` (as ``stiffness kx``), else no load.
-    """
-    if "wrench_SI" in robot.defaults:
-        return as_wrench(robot.defaults["wrench_SI"])
-    if "rest_q_SI" in robot.defaults:
-        from stiffness.platform import holding_wrench
-
-        return as_wrench(holding_wrench(robot, q, k_theta, robot.defaults["rest_q_SI"]))
-    return np.zeros(6)
+def _load_or_zero(robot: Robot, q: np.ndarray, k_theta: np.ndarray) -> np.ndarray:
+    """A shipped robot's default load as a wrench [F (N); M (N.m)], else no load."""
+    shipped = default_load(robot, q, k_theta)
+    return np.zeros(6) if shipped is None else as_wrench(shipped[0])
 
 
 def _pinocchio_meshcat_visualizer() -> type:
@@ -1335,7 +1324,7 @@ class StiffnessViewer:
         model, data = self.robot.model, self.robot.data
         q = pin.neutral(model)
         with contextlib.suppress(StiffnessError):
-            q = self.robot.configuration(default_coordinates(self.robot))
+            q = self.robot.configuration(_coordinates_or_zero(self.robot))
         pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
         points = [data.oMi[j].translation for j in range(model.njoints)]
@@ -1394,7 +1383,7 @@ class StiffnessViewer:
         if coords is None:
             if self.state is not None:
                 return self.state.coords, self.state.q
-            coords = default_coordinates(robot)
+            coords = _coordinates_or_zero(robot)
         values = np.asarray(coords, dtype=float).reshape(-1)
         if values.shape[0] != robot.n_coordinates and values.shape[0] == robot.model.nq:
             return robot.coordinates_of(values), values
@@ -1407,7 +1396,7 @@ class StiffnessViewer:
                 return self.state.wrench
             if q is None:
                 q = self._configuration(None)[1]
-            return default_load(self.robot, q, self.k_theta)
+            return _load_or_zero(self.robot, q, self.k_theta)
         return as_wrench(wrench)
 
     def _formulations(self, formulation: str | None) -> tuple[str, tuple[str, ...]]:

@@ -18,9 +18,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.errors import StiffnessError
 from stiffness.formulation import (
     FORMULATIONS,
@@ -34,7 +36,7 @@ from stiffness.formulation import (
     target_state,
     twist_basis_stiffness,
 )
-from stiffness.platform import TWIST_ORDERS, WRENCH_ORDERS, holding_wrench, reorder_twist
+from stiffness.platform import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
 from stiffness.robot import Robot, load_robot
 
 _BASIS_3 = ["vx", "vy", "vz"]
@@ -90,12 +92,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _coordinates(robot: Robot, args: argparse.Namespace) -> np.ndarray:
+def coordinates_from_args(robot: Robot, args: argparse.Namespace) -> np.ndarray:
+    """Coordinates (rad, m) of ``--q``/``--deg``, or the shipped ones."""
     if args.q is None:
-        if "q_deg" in robot.defaults:
-            return np.deg2rad(robot.defaults["q_deg"])
-        if "q_SI" in robot.defaults:
-            return np.asarray(robot.defaults["q_SI"], dtype=float)
+        shipped = default_coordinates(robot)
+        if shipped is not None:
+            return shipped
         raise StiffnessError(
             f"--q is required for {robot.name}: give {robot.model.nv} joint values "
             f"({', '.join(robot.coordinate_joints)})"
@@ -120,36 +122,57 @@ def _coordinates(robot: Robot, args: argparse.Namespace) -> np.ndarray:
     return values
 
 
-def compute(args: argparse.Namespace) -> dict:
-    """Evaluate the stiffness quantities of ``stiffness kx``; returns the JSON object."""
+@dataclass
+class KxInputs:
+    """What the ``kx`` flags (and a shipped robot's defaults) resolve to, in SI."""
+
+    robot: Robot
+    coords: np.ndarray
+    q: np.ndarray
+    k_theta: np.ndarray
+    load: np.ndarray
+    load_source: str
+
+
+def resolve_inputs(args: argparse.Namespace) -> KxInputs:
+    """Robot, configuration, joint stiffness and load of the ``kx`` flags (shared by ``view``).
+
+    Raises
+    ------
+    StiffnessError
+        On a bad flag value, or a missing flag the robot brings no default for.
+    """
     compliant = None if args.compliant_joints is None else [
         j.strip() for j in args.compliant_joints.split(",") if j.strip()]
     offset = None if args.target_offset is None else parse_list(args.target_offset,
                                                                 "--target-offset")
     robot = load_robot(args.robot, frame=args.frame, target_offset=offset,
                        compliant_joints=compliant)
-    coords = _coordinates(robot, args)
-    if args.kq is not None:
-        kq = parse_list(args.kq, "--kq")
-    elif "k_theta_SI" in robot.defaults and compliant is None:
-        kq = robot.defaults["k_theta_SI"]
-    else:
+    coords = coordinates_from_args(robot, args)
+    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
+    if kq is None:
         raise StiffnessError(
             f"--kq is required: one stiffness per compliant joint "
             f"({', '.join(robot.compliant_joints)}), N.m/rad"
         )
     k_theta = joint_stiffness(kq, robot.n_compliant)
     q = robot.configuration(coords)
-    load_source = "--wrench"
     if args.wrench is not None:
-        load = np.array(parse_list(args.wrench, "--wrench"))
-    elif "wrench_SI" in robot.defaults:
-        load, load_source = np.array(robot.defaults["wrench_SI"], dtype=float), "wrench_SI"
-    elif "rest_q_SI" in robot.defaults and compliant is None:
-        load = holding_wrench(robot, q, k_theta, robot.defaults["rest_q_SI"])
-        load_source = "rest_q_SI (wrench holding the target against the springs)"
+        load, source = np.array(parse_list(args.wrench, "--wrench")), "--wrench"
     else:
-        raise StiffnessError("--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
+        shipped = default_load(robot, q, k_theta)
+        if shipped is None:
+            raise StiffnessError(
+                "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
+        load, source = shipped
+    return KxInputs(robot, coords, q, k_theta, load, source)
+
+
+def compute(args: argparse.Namespace) -> dict:
+    """Evaluate the stiffness quantities of ``stiffness kx``; returns the JSON object."""
+    inputs = resolve_inputs(args)
+    robot, coords, q, k_theta = inputs.robot, inputs.coords, inputs.q, inputs.k_theta
+    load, load_source = inputs.load, inputs.load_source
     state = target_state(robot, q, load)
     six = load.shape[0] == 6 or args.connection is not None
     order = args.twist_order or robot.defaults.get("twist_order", "v-w")

@@ -26,14 +26,12 @@ import numpy as np
 
 from stiffness.commands import kx
 from stiffness.errors import StiffnessError
-from stiffness.formulation import joint_stiffness
-from stiffness.robot import Robot, load_robot
+from stiffness.robot import Robot
 from stiffness.viewer import (
     LOOPBACK,
     QUANTITIES,
     SHOW_FORMULATIONS,
     StiffnessViewer,
-    default_load,
 )
 
 #: ``stiffness kx`` flags that have no meaning for the viewer.
@@ -96,33 +94,11 @@ def _revolute(robot: Robot, joint: str) -> bool:
 def resolve(args: argparse.Namespace) -> tuple[Robot, np.ndarray, np.ndarray, np.ndarray]:
     """Robot, coordinates (rad, m), joint stiffness (n, n) and load of the kx flags.
 
-    The same defaults as ``stiffness kx``: shipped robots bring their configuration, springs
-    and load.
+    The same resolution as ``stiffness kx`` (:func:`stiffness.commands.kx.resolve_inputs`):
+    shipped robots bring their configuration, springs and load.
     """
-    compliant = None if args.compliant_joints is None else [
-        j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    offset = None if args.target_offset is None else kx.parse_list(args.target_offset,
-                                                                   "--target-offset")
-    robot = load_robot(args.robot, frame=args.frame, target_offset=offset,
-                       compliant_joints=compliant)
-    coords = kx._coordinates(robot, args)
-    if args.kq is not None:
-        kq = kx.parse_list(args.kq, "--kq")
-    elif "k_theta_SI" in robot.defaults and compliant is None:
-        kq = robot.defaults["k_theta_SI"]
-    else:
-        raise StiffnessError(
-            f"--kq is required: one stiffness per compliant joint "
-            f"({', '.join(robot.compliant_joints)}), N.m/rad"
-        )
-    k_theta = joint_stiffness(kq, robot.n_compliant)
-    if args.wrench is not None:
-        load = np.array(kx.parse_list(args.wrench, "--wrench"))
-    elif "wrench_SI" in robot.defaults or ("rest_q_SI" in robot.defaults and compliant is None):
-        load = default_load(robot, robot.configuration(coords), k_theta)
-    else:
-        raise StiffnessError("--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
-    return robot, coords, k_theta, load
+    inputs = kx.resolve_inputs(args)
+    return inputs.robot, inputs.coords, inputs.k_theta, inputs.load
 
 
 def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -> np.ndarray:
