@@ -40,13 +40,13 @@ import csv
 import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.files import atomic_write
 from stiffness.robot import Robot, load_robot
 
 try:
@@ -647,20 +647,6 @@ def _num(x: float) -> str:
     return repr(float(x))
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-        # mkstemp creates 0600 files: keep the replaced file's mode, else rw-r--r--
-        os.chmod(tmp, path.stat().st_mode & 0o777 if path.exists() else 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     """Write a campaign as ``campaign.toml`` plus its CSV in ``folder``, atomically per file.
 
@@ -735,7 +721,7 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     for label, row in zip(c.config, table, strict=True):
         writer.writerow([label, *(_num(v) for v in row)])
     lines = out.getvalue()
-    _atomic_write(folder / data_name, lines)
+    atomic_write(folder / data_name, lines)
 
     toml = [
         "# Measurement campaign (see stiffness/campaign.py for the format).",
@@ -765,5 +751,5 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     if c.noise_std_m is not None:
         toml.append(f"noise_std = {_num(c.noise_std_m / u.length_to_si)}")
     target = folder / CAMPAIGN_FILE
-    _atomic_write(target, "\n".join(toml) + "\n")
+    atomic_write(target, "\n".join(toml) + "\n")
     return target

@@ -41,9 +41,10 @@ from scipy.optimize import least_squares, nnls
 from scipy.stats import chi2, norm
 from scipy.stats import t as student_t
 
-from stiffness.campaign import Campaign, _atomic_write
+from stiffness.campaign import Campaign
 from stiffness.effects import Effect, Geometry, Model, Parameter, References, candidates
 from stiffness.errors import StiffnessError
+from stiffness.files import atomic_write
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
 #: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
@@ -583,8 +584,8 @@ class Diagnosis:
         folder.mkdir(parents=True, exist_ok=True)
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
                  "final_model": folder / FINAL_MODEL_FILE}
-        _atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")
-        _atomic_write(paths["final_model"], json.dumps(self.final_model(), indent=1) + "\n")
+        atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")
+        atomic_write(paths["final_model"], json.dumps(self.final_model(), indent=1) + "\n")
         png = residual_plot(self)
         tmp = paths["plot"].with_suffix(".png.tmp")
         tmp.write_bytes(png)

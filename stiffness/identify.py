@@ -49,9 +49,10 @@ from scipy.optimize import least_squares
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
-from stiffness.campaign import Campaign, _atomic_write, _looks_like_path, _resolve_source
+from stiffness.campaign import Campaign, _looks_like_path, _resolve_source
 from stiffness.equilibrium import solve_equilibrium
 from stiffness.errors import StiffnessError
+from stiffness.files import atomic_write
 from stiffness.formulation import target_state
 from stiffness.robot import Robot, load_robot
 
@@ -465,7 +466,7 @@ class Identification:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         text = json.dumps(self.model_dict(path.parent), indent=1, allow_nan=False)
-        _atomic_write(path, text + "\n")
+        atomic_write(path, text + "\n")
         return path
 
 

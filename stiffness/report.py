@@ -15,7 +15,6 @@ import html
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -24,6 +23,7 @@ import numpy as np
 from stiffness import plots
 from stiffness.campaign import load_campaign
 from stiffness.equilibrium import linear_departure, solve_equilibrium
+from stiffness.files import atomic_write
 from stiffness.formulation import compliance, target_states
 from stiffness.identify import identify
 from stiffness.paper_data import FIGURE_CONFIGURATIONS_DEG, read_table4
@@ -45,22 +45,13 @@ from stiffness.scan import terminal_progress
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
+#: The SK120 meshcat scene written beside the report.
+SCENE_FILE = "sk120-scene.html"
 
 
 def _log(quiet: bool, text: str) -> None:
     if not quiet:
         print(text, file=sys.stderr)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _force_deflection_curves(robot: Robot, k_theta: np.ndarray, direction: np.ndarray) -> dict:
@@ -334,7 +325,11 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
     for a in s["audit"]:
         parts.append(f"<li><b>{html.escape(a['item'])}</b> — law: {html.escape(a['law'])}. "
                      f"<span class='bad'>{html.escape(a['finding'])}</span></li>")
-    parts.append("</ol><h2>Figures</h2>")
+    parts.append(f"</ol><h2>Stiffness ellipsoids in 3-D</h2><p><a href='{SCENE_FILE}'>"
+                 "The SK120 at configuration A under its largest Table II load</a>: enhanced and "
+                 "conventional stiffness ellipsoids, the load and the exaggerated deflected pose "
+                 "(meshcat, self-contained, opens offline; <code>stiffness view --robot sk120"
+                 "</code> browses it live).</p><h2>Figures</h2>")
     captions = {
         "force_deflection.png": "Figs. 4–6 configurations: deflection against load (the "
                                 "figures' load directions are not printed; Table II's last "
@@ -356,13 +351,16 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
 
 
 def write_report(out: Path, summary: dict, figures: dict[str, bytes]) -> None:
-    """Write report.html, summary.json and the PNGs atomically into ``out``."""
+    """Write report.html, summary.json, the PNGs and the 3-D scene atomically into ``out``."""
+    from stiffness.viewer import export_sk120_scene
+
     out.mkdir(parents=True, exist_ok=True)
+    export_sk120_scene(out / SCENE_FILE)
     for name, data in figures.items():
-        _atomic_write(out / name, data)
-    _atomic_write(out / "summary.json", json.dumps(summary, indent=1, default=_json_default
+        atomic_write(out / name, data)
+    atomic_write(out / "summary.json", json.dumps(summary, indent=1, default=_json_default
                                                    ).encode())
-    _atomic_write(out / "report.html", render_html(summary, figures).encode())
+    atomic_write(out / "report.html", render_html(summary, figures).encode())
 
 
 def _json_default(value):

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.campaign import Campaign, RobotSettings, Units, _atomic_write, write_campaign
+from stiffness.campaign import Campaign, RobotSettings, Units, write_campaign
 from stiffness.effects import (
     LIBRARY,
     Geometry,
@@ -56,6 +56,7 @@ from stiffness.effects import (
 )
 from stiffness.equilibrium import deflected_configuration
 from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.files import atomic_write
 from stiffness.formulation import as_wrench, target_state
 from stiffness.robot import Robot
 
@@ -427,7 +428,7 @@ class Simulation:
     def write(self, folder: str | Path) -> Path:
         """Write ``campaign.toml``, ``measurements.csv`` and ``truth.json``; returns the toml."""
         path = write_campaign(self.campaign, folder)
-        _atomic_write(Path(folder) / TRUTH_FILE, json.dumps(self.truth(), indent=1) + "\n")
+        atomic_write(Path(folder) / TRUTH_FILE, json.dumps(self.truth(), indent=1) + "\n")
         self.campaign.path = path
         return path
 

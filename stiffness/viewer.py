@@ -71,6 +71,7 @@ import pinocchio as pin
 from stiffness.defaults import default_coordinates, default_load
 from stiffness.equilibrium import solve_equilibrium
 from stiffness.errors import SingularConfigurationError, StiffnessError
+from stiffness.files import atomic_write
 from stiffness.formulation import (
     FORMULATIONS,
     as_wrench,
@@ -2062,7 +2063,7 @@ class StiffnessViewer:
         """Write :meth:`html` to ``path``; returns the path."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(self.html(title), encoding="utf-8")
+        atomic_write(path, self.html(title))
         return path
 
     def commands(self) -> list[dict]:

@@ -31,7 +31,8 @@ def summary(report_dir) -> dict:
 
 def test_files_written_without_leftovers(report_dir):
     names = sorted(p.name for p in report_dir.iterdir())
-    assert "report.html" in names and "summary.json" in names
+    assert "report.html" in names and "summary.json" in names and "sk120-scene.html" in names
+    assert "href='sk120-scene.html'" in (report_dir / "report.html").read_text()
     assert not [n for n in names if n.startswith(".")], names
 
 
