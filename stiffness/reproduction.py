@@ -16,7 +16,7 @@ from stiffness.equilibrium import solve_equilibrium
 from stiffness.formulation import compliance, target_states
 from stiffness.paper_data import read_paper_table, read_table4
 from stiffness.robot import Robot
-from stiffness.scan import DefinitenessScan, definiteness_scan, grid_axis
+from stiffness.scan import DefinitenessScan, batched_definiteness_scan, grid_axis
 
 MM = 1e-3
 #: Paper's residual norm of eq. 12 at its identified K_theta (mm^2, as printed).
@@ -145,7 +145,7 @@ def table4(robot: Robot, k_theta: np.ndarray,
     """Table IV reproduced, with the paper's counts and our counts under the paper's apparent
     rule (see :func:`audit_table4`)."""
     names, loads = table4_loads()
-    scan = definiteness_scan(robot, table4_grid(), loads, k_theta, progress=progress)
+    scan = batched_definiteness_scan(robot, table4_grid(), loads, k_theta, progress=progress)
     ours, det_rule = {}, {}
     for j, name in enumerate(names):
         ours[name] = scan.counts(j)

@@ -1,0 +1,367 @@
+"""Benchmarks of the batched elastostatics (issue 6): per-configuration cost, Table IV, scaling.
+
+Usage::
+
+    python scripts/bench.py            # tables (ratios and absolute times), then scaling
+    python scripts/bench.py --json     # one JSON line: per-robot costs and the Table IV time
+    python scripts/bench.py --quick    # fewer configurations and rounds (a smoke run)
+
+Per robot (ur5, panda with its seven arm joints, the SK120 with its loop), per configuration,
+all in this process, each the best of several interleaved rounds (the machine is shared: the
+minimum is the least disturbed measurement, and interleaving exposes every method to the same
+load):
+
+* ``batched_kx_us``: :func:`stiffness.batch.evaluate`, the loaded enhanced translational K_X
+  (K_C, compliance, K_X) of many configurations under one dead force; for the SK120 the loop is
+  closed beforehand (``sk120_with_closure_us`` adds the closure of random configurations);
+* ``bare_pinocchio_us``: one ``pin.computeStaticTorqueDerivatives`` call per configuration
+  (the floor of any Python-driven evaluation: the derivative alone, no Jacobian, no algebra);
+* ``finite_difference_us``: what a user writes by hand: central differences of J(q)^T F (two
+  frame-Jacobian calls per compliant joint; for the SK120 each perturbed configuration is
+  re-closed by :meth:`Robot.configuration` and J is the closed-loop Jacobian), then the same
+  compliance and K_X with ``np.linalg`` one configuration at a time.
+
+``table4_scan_s``: the full A&S Table IV scan (5824 configurations x 8 load cases: closures,
+kinematics, K_C classes, K_theta - K_C classes, critical loads, enhanced and conventional K_X and
+their principal values, NPZ chunk written), one process, robot loaded, figures not drawn.
+
+Scaling: batched K_X for 1e3 ... 1e6 UR5 configurations (time per configuration should stay
+flat), and ``stiffness scan`` runs (in subprocesses: wall time and peak memory) over 1e4 ... 1e6
+samples, and with 1 and 2 Dask workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness import batch
+from stiffness.formulation import velocity_projection
+from stiffness.kinematics import LWA, update_first_order
+from stiffness.robot import Robot, load_robot
+
+PANDA_ARM = [f"panda_joint{i}" for i in range(1, 8)]
+FORCE = np.array([120.0, -80.0, -250.0])  # N
+
+
+def _robots() -> dict[str, tuple[Robot, np.ndarray]]:
+    """name -> (robot, joint stiffness N.m/rad)."""
+    return {
+        "ur5": (load_robot("ur5"), np.array([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])),
+        "panda": (load_robot("panda", compliant_joints=PANDA_ARM),
+                  np.array([3e5, 3e5, 2e5, 2e5, 5e4, 5e4, 5e4])),
+        "sk120": (load_robot("sk120"), np.array([1.4098e6, 4.0076e5, 9.3528e5])),
+    }
+
+
+def _configurations(robot: Robot, m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(coordinates, closed q) of m random configurations (SK120: the paper's workspace)."""
+    rng = np.random.default_rng(seed)
+    if robot.loop is None:
+        lo, hi = -np.pi, np.pi
+        coords = rng.uniform(lo, hi, (m, robot.n_coordinates))
+        return coords, batch.tree_configurations(robot, coords)
+    lo = np.deg2rad([-180, -70, -115, -180, -180, -180])
+    hi = np.deg2rad([180, 70, 35, 180, 180, 180])
+    coords = lo + rng.uniform(size=(m, 6)) * (hi - lo)
+    closed = batch.close_loops(robot, coords)
+    return coords[closed.closed], closed.q[closed.closed]
+
+
+# ------------------------------------------------------------------------------ methods
+
+
+def bare_pinocchio(robot: Robot, q: np.ndarray) -> None:
+    """``computeStaticTorqueDerivatives`` once per configuration (force at the target)."""
+    model, data = robot.model, robot.data
+    frame = model.frames[robot.target_frame_id]
+    fext = pin.StdVec_Force()
+    for _ in range(model.njoints):
+        fext.append(pin.Force.Zero())
+    fext[frame.parentJoint] = pin.Force(FORCE, np.cross(frame.placement.translation, FORCE))
+    derivatives = pin.computeStaticTorqueDerivatives
+    for qi in q:
+        derivatives(model, data, qi, fext)
+
+
+def batched(robot: Robot, q: np.ndarray, k_theta: np.ndarray, method: str = "auto") -> None:
+    """The batched loaded enhanced K_X (translational, one force)."""
+    batch.evaluate(robot, q, FORCE, k_theta, method=method)
+
+
+def batched_with_closure(robot: Robot, coords: np.ndarray, k_theta: np.ndarray) -> None:
+    """The same from coordinates: loop closures included."""
+    closed = batch.close_loops(robot, coords)
+    batch.evaluate(robot, closed.q, FORCE, k_theta)
+
+
+def finite_difference(robot: Robot, q: np.ndarray, k_theta: np.ndarray,
+                      h: float = 1e-6) -> None:
+    """Hand-written baseline: central differences of J(q)^T F, then compliance and K_X."""
+    model, data = robot.model, robot.data
+    fid = robot.target_frame_id
+    k = np.diag(k_theta)
+    frame_jacobian = pin.computeFrameJacobian
+    cq = [model.joints[model.getJointId(j)].idx_q for j in robot.compliant_joints]
+    cv = robot.compliant_v
+    n = len(cq)
+    if robot.loop is None:
+        for qi in q:
+            jac = frame_jacobian(model, data, qi, fid, LWA)[:3, cv]
+            k_c = np.empty((n, n))
+            for col, idx in enumerate(cq):
+                qp, qm = qi.copy(), qi.copy()
+                qp[idx] += h
+                qm[idx] -= h
+                tp = frame_jacobian(model, data, qp, fid, LWA)[:3, cv].T @ FORCE
+                tm = frame_jacobian(model, data, qm, fid, LWA)[:3, cv].T @ FORCE
+                k_c[:, col] = (tp - tm) / (2.0 * h)
+            c = jac @ np.linalg.solve(k - k_c, jac.T)
+            np.linalg.inv(c)
+        return
+    coordinate_of = robot.compliant_in_coordinates
+    for qi in q:
+        coords = robot.coordinates_of(qi)
+        jac = _closed_jacobian(robot, qi)
+        k_c = np.empty((n, n))
+        for col, idx in enumerate(coordinate_of):
+            taus = []
+            for sign in (1.0, -1.0):
+                c = coords.copy()
+                c[idx] += sign * h
+                taus.append(_closed_jacobian(robot, robot.configuration(c, seed=qi)).T @ FORCE)
+            k_c[:, col] = (taus[0] - taus[1]) / (2.0 * h)
+        c = jac @ np.linalg.solve(k - k_c, jac.T)
+        np.linalg.inv(c)
+
+
+def _closed_jacobian(robot: Robot, q: np.ndarray) -> np.ndarray:
+    update_first_order(robot.model, robot.data, q)
+    j_full = pin.getFrameJacobian(robot.model, robot.data, robot.target_frame_id, LWA)
+    return (j_full @ velocity_projection(robot))[:3]
+
+
+def _best(functions: dict, counts: dict, rounds: int) -> dict[str, float]:
+    """Interleaved rounds; per method the best time per configuration (us)."""
+    best = {name: np.inf for name in functions}
+    for _ in range(rounds):
+        for name, fn in functions.items():
+            t0 = time.perf_counter()
+            fn()
+            best[name] = min(best[name], (time.perf_counter() - t0) / counts[name] * 1e6)
+    return best
+
+
+def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
+    """Per-configuration costs of every method on every robot (us)."""
+    out = {}
+    rounds = 3 if quick else 7
+    for name, (robot, k_theta) in _robots().items():
+        m = 512 if quick else 4096
+        coords, q = _configurations(robot, m, seed=1)
+        m = q.shape[0]
+        fd_m = min(m, 16 if robot.loop is not None else (64 if quick else 256))
+        functions = {
+            "bare_pinocchio_us": lambda r=robot, q=q: bare_pinocchio(r, q),
+            "batched_kx_us": lambda r=robot, q=q, k=k_theta: batched(r, q, k),
+            "finite_difference_us": lambda r=robot, q=q[:fd_m], k=k_theta:
+                finite_difference(r, q, k),
+        }
+        counts = {"bare_pinocchio_us": m, "batched_kx_us": m, "finite_difference_us": fd_m}
+        if robot.loop is None:
+            functions["batched_kx_hessian_us"] = lambda r=robot, q=q, k=k_theta: batched(
+                r, q, k, "hessian")
+            counts["batched_kx_hessian_us"] = m
+        else:
+            functions["batched_kx_with_closure_us"] = (
+                lambda r=robot, c=coords, k=k_theta: batched_with_closure(r, c, k))
+            counts["batched_kx_with_closure_us"] = m
+        result = _best(functions, counts, rounds if robot.loop is None else max(2, rounds // 2))
+        result["ratio_to_bare"] = result["batched_kx_us"] / result["bare_pinocchio_us"]
+        result["speedup_over_fd"] = result["finite_difference_us"] / result["batched_kx_us"]
+        out[name] = result
+    return out
+
+
+def table4_seconds(rounds: int = 3) -> float:
+    """Wall time of the Table IV scan in this process (robot loaded, no figures), best of N."""
+    from stiffness.commands import scan as scan_command
+
+    parser = argparse.ArgumentParser()
+    scan_command.configure_parser(parser)
+    spec, _ = scan_command.build_spec(parser.parse_args(["--robot", "sk120", "--preset",
+                                                         "table4"]))
+    scan_command.scan_chunk(spec.to_dict(), 0)  # loads the worker's robot once
+    best = np.inf
+    for _ in range(rounds):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            scan_command.run_scan(spec, Path(tmp) / "t4", plots=False)
+            best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def table4_cli_seconds() -> float:
+    """Wall time of `stiffness scan --robot sk120 --preset table4` (new process, figures)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "stiffness.cli", "scan", "--robot", "sk120",
+                        "--preset", "table4", "--out", str(Path(tmp) / "t4"), "--quiet"],
+                       check=True, stdout=subprocess.DEVNULL)
+        return time.perf_counter() - t0
+
+
+def scaling_configurations(sizes: list[int]) -> list[dict]:
+    """Batched K_X on the UR5 for growing numbers of configurations (blocks of 4096)."""
+    robot, k_theta = _robots()["ur5"]
+    rows = []
+    for m in sizes:
+        rng = np.random.default_rng(m)
+        total, done, t0 = 0.0, 0, time.perf_counter()
+        while done < m:  # generate in pieces: the input itself would not bound memory
+            count = min(65536, m - done)
+            q = batch.tree_configurations(robot, rng.uniform(-np.pi, np.pi, (count, 6)))
+            t1 = time.perf_counter()
+            batch.evaluate(robot, q, FORCE, k_theta)
+            total += time.perf_counter() - t1
+            done += count
+        rows.append({"configurations": m, "seconds": total, "us_per_configuration":
+                     total / m * 1e6, "wall_s": time.perf_counter() - t0})
+    return rows
+
+
+_SCAN_SNIPPET = """
+import json, resource, sys, tempfile, time
+from pathlib import Path
+import argparse
+from stiffness.commands import scan
+from stiffness.distributed import warm_worker
+p = argparse.ArgumentParser(); scan.configure_parser(p)
+args = p.parse_args(sys.argv[1:-1])
+spec, _ = scan.build_spec(args)
+workers = int(sys.argv[-1])
+client = cluster = None
+startup = 0.0
+if workers > 1:
+    from distributed import Client, LocalCluster
+    t0 = time.perf_counter()
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=None)
+    client = Client(cluster)
+    client.run(warm_worker, spec.robot)  # each worker loads the robot once
+    startup = time.perf_counter() - t0
+else:
+    warm_worker(spec.robot)
+with tempfile.TemporaryDirectory() as tmp:
+    t0 = time.perf_counter()
+    scan.run_scan(spec, Path(tmp) / "s", plots=False, client=client)
+    wall = time.perf_counter() - t0
+if client is not None:
+    client.close(); cluster.close()
+status = dict(line.split(":", 1) for line in open("/proc/self/status").read().splitlines()
+              if ":" in line)
+self_kb = float(status["VmHWM"].split()[0])  # peak resident memory of this process
+child_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss  # largest worker
+print(json.dumps({"seconds": wall, "startup_s": startup, "driver_peak_MB": self_kb / 1024,
+                  "worker_peak_MB": child_kb / 1024}))
+"""
+
+
+def scaling_scans(sizes: list[int], workers: list[int], worker_size: int) -> list[dict]:
+    """`stiffness scan` on UR5 samples in subprocesses: wall time and peak memory."""
+    base = ["--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4", "--load", "0,0,-200",
+            "--chunk-size", "8192", "--quiet"]
+    runs = [(m, 1) for m in sizes]
+    runs += [(worker_size, w) for w in workers if w > 1 or worker_size not in sizes]
+    rows = []
+    for m, w in runs:
+        result = subprocess.run(
+            [sys.executable, "-c", _SCAN_SNIPPET, *base, "--samples", str(m), str(w)],
+            check=True, capture_output=True, text=True, env={**os.environ})
+        row = json.loads(result.stdout.strip().splitlines()[-1])
+        row.update({"configurations": m, "workers": w,
+                    "us_per_configuration": row["seconds"] / m * 1e6})
+        rows.append(row)
+    return rows
+
+
+# ------------------------------------------------------------------------------ report
+
+
+def _print_table(costs: dict, t4: float, t4_cli: float | None) -> None:
+    print("Per-configuration cost (us, best of interleaved rounds; one force, enhanced "
+          "translational K_X)")
+    header = (f"{'robot':<7}{'batched K_X':>13}{'bare pin call':>15}{'finite diff.':>14}"
+              f"{'batched/bare':>14}{'FD/batched':>12}")
+    print(header)
+    for name, r in costs.items():
+        print(f"{name:<7}{r['batched_kx_us']:>13.2f}{r['bare_pinocchio_us']:>15.2f}"
+              f"{r['finite_difference_us']:>14.1f}{r['ratio_to_bare']:>13.2f}x"
+              f"{r['speedup_over_fd']:>11.1f}x")
+    for name, r in costs.items():
+        if "batched_kx_hessian_us" in r:
+            print(f"  {name}: kinematic-Hessian route (any number of loads) "
+                  f"{r['batched_kx_hessian_us']:.2f} us "
+                  f"({r['batched_kx_hessian_us'] / r['bare_pinocchio_us']:.2f}x bare)")
+        if "batched_kx_with_closure_us" in r:
+            print(f"  {name}: with the loop closure of random configurations "
+                  f"{r['batched_kx_with_closure_us']:.1f} us")
+    print(f"Table IV scan (5824 x 8, one process, no figures): {t4:.3f} s")
+    if t4_cli is not None:
+        print(f"`stiffness scan --robot sk120 --preset table4` (new process, imports, figures): "
+              f"{t4_cli:.2f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON line")
+    parser.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
+    parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
+    args = parser.parse_args(argv)
+    costs = per_configuration(args.quick)
+    t4 = table4_seconds(2 if args.quick else 3)
+    if args.json:
+        out = {name: {k: float(v) for k, v in r.items()} for name, r in costs.items()}
+        out["table4_scan_s"] = t4
+        print(json.dumps(out))
+        return 0
+    t4_cli = table4_cli_seconds()
+    _print_table(costs, t4, t4_cli)
+    if args.no_scaling:
+        return 0
+    sizes = [1000, 10000, 100000] if args.quick else [1000, 10000, 100000, 1000000]
+    print("\nScaling: batched K_X (UR5, one force), time per configuration")
+    print(f"{'configurations':>15}{'seconds':>10}{'us/config':>11}")
+    for row in scaling_configurations(sizes):
+        print(f"{row['configurations']:>15}{row['seconds']:>10.3f}"
+              f"{row['us_per_configuration']:>11.2f}")
+    scan_sizes = [10000, 100000] if args.quick else [10000, 100000, 1000000]
+    worker_size = 100000 if args.quick else 1000000
+    print("\nScaling: `stiffness scan` (UR5 samples, one force, chunks of 8192, NPZ written)")
+    print(f"{'configurations':>15}{'workers':>8}{'seconds':>10}{'us/config':>11}"
+          f"{'driver MB':>11}{'workers MB':>12}{'cluster start s':>17}")
+    rows = scaling_scans(scan_sizes, [1, 2], worker_size)
+    for row in rows:
+        print(f"{row['configurations']:>15}{row['workers']:>8}{row['seconds']:>10.2f}"
+              f"{row['us_per_configuration']:>11.2f}{row['driver_peak_MB']:>11.0f}"
+              f"{row['worker_peak_MB']:>12.0f}{row['startup_s']:>17.1f}")
+    one = [r for r in rows if r["configurations"] == worker_size and r["workers"] == 1]
+    two = [r for r in rows if r["configurations"] == worker_size and r["workers"] == 2]
+    if one and two:
+        print(f"speed-up with 2 workers at {worker_size} configurations: "
+              f"{one[0]['seconds'] / two[0]['seconds']:.2f}x (cluster start-up excluded: "
+              f"{two[0]['startup_s']:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,309 @@
+"""``stiffness scan``: workspace maps, chunked streaming, resume, Dask.
+
+* The Table IV preset reproduces the definiteness counts of stiffness.scan.definiteness_scan
+  (through batched_definiteness_scan, checked against it in test_batch.py) and obeys K_C's
+  linearity in the load (PD(F) = ND(-F)).
+* A grid scan's maps equal the one-at-a-time API at sampled configurations; the files
+  (manifest, NPZ chunks, Parquet parts, figures, summary) are there and readable.
+* A killed scan resumes: only the missing chunks are computed, the maps are unchanged.
+* A Dask LocalCluster scan (two workers) writes the same maps as the single-process scan.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stiffness import batch
+from stiffness.cli import main
+from stiffness.commands import scan as scan_command
+from stiffness.formulation import cartesian_stiffness, compliance, definiteness, target_state
+from stiffness.robot import load_robot
+
+UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
+GRID = ["--axis", "shoulder_lift_joint=-90:0:30", "--axis", "elbow_joint=20:140:40",
+        "--axis", "wrist_1_joint=-60:60:60", "--deg"]
+
+
+def _run(argv, capsys=None):
+    code = main(argv)
+    out = capsys.readouterr() if capsys is not None else None
+    return code, out
+
+
+def _arrays(folder):
+    return scan_command.load_scan(folder)
+
+
+# ------------------------------------------------------------------------------ Table IV
+
+
+def test_table4_preset(tmp_path, capsys):
+    """`stiffness scan --robot sk120 --preset table4`: 5824 x 8 maps, the counts of the
+    reproduction's scan, linear in the load, written with figures."""
+    from stiffness.reproduction import table4_grid, table4_loads
+    from stiffness.scan import batched_definiteness_scan
+
+    out = tmp_path / "t4"
+    code, captured = _run(["scan", "--robot", "sk120", "--preset", "table4", "--out", str(out),
+                           "--json", "--quiet"], capsys)
+    assert code == 0
+    summary = json.loads(captured.out)
+    assert summary["configurations"] == 5824 == summary["valid_configurations"]
+    robot = load_robot("sk120")
+    names, loads = table4_loads()
+    reference = batched_definiteness_scan(robot, table4_grid(), loads,
+                                          np.diag(robot.defaults["k_theta_SI"]))
+    for j, name in enumerate(names):
+        counts = summary["load_cases"][name]["k_c"]
+        assert {k: counts[k] for k in ("PD", "PSD", "ND", "NSD", "ID")} == reference.counts(j)
+        assert summary["load_cases"][name]["k_theta_minus_k_c"]["PD"] == 5824
+        assert summary["load_cases"][name]["k_c_determinant_positive"] == int(
+            reference.determinant_positive[:, j].sum())
+    for a, b in (("1", "2"), ("3", "6"), ("4", "7"), ("5", "8")):
+        ca, cb = summary["load_cases"][a]["k_c"], summary["load_cases"][b]["k_c"]
+        assert ca["PD"] == cb["ND"] and ca["ID"] == cb["ID"]
+    maps = _arrays(out)
+    assert maps["k_x"].shape == (5824, 8, 3, 3)
+    np.testing.assert_array_equal(maps["coordinates"], table4_grid())
+    for name in ("manifest.json", "summary.json", "definiteness_counts.png",
+                 "definiteness_map.png", "stiffness_map.png"):
+        assert (out / name).is_file()
+        if name.endswith(".png"):
+            assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# ------------------------------------------------------------------------------ grid
+
+
+def test_grid_maps_equal_one_at_a_time(tmp_path, capsys):
+    """Every stored quantity equals the one-at-a-time API at sampled configurations."""
+    out = tmp_path / "grid"
+    code, captured = _run(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--load", "0,0,-200",
+                           "--load", "150,0,0", "--chunk-size", "7", "--out", str(out),
+                           "--no-plots", "--quiet"], capsys)
+    assert code == 0
+    assert "definiteness of K_C" in captured.out
+    maps = _arrays(out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["n_configurations"] == 4 * 4 * 3 == maps["index"].shape[0]
+    assert manifest["n_chunks"] == 7
+    np.testing.assert_array_equal(maps["index"], np.arange(48))
+    robot = load_robot("ur5")
+    k_theta = np.diag([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
+    loads = np.array([[0, 0, -200.0], [150.0, 0, 0]])
+    # grid order: first axis outermost
+    assert np.allclose(np.rad2deg(maps["coordinates"][:3, 1:4]),
+                       [[-90, 20, -60], [-90, 20, 0], [-90, 20, 60]])
+    for i in (0, 5, 17, 30, 47):
+        q = robot.configuration(maps["coordinates"][i])
+        assert maps["valid"][i]
+        for j, load in enumerate(loads):
+            state = target_state(robot, q, load)
+            assert batch.class_names(maps["k_c_class"][i, j]) == definiteness(state.k_c)
+            assert batch.class_names(maps["tangent_class"][i, j]) == definiteness(
+                k_theta - state.k_c)
+            c = compliance(state.jacobian[:3], k_theta - state.k_c)
+            k_x = cartesian_stiffness(c)
+            np.testing.assert_allclose(maps["k_x"][i, j], k_x, rtol=1e-9,
+                                       atol=1e-9 * np.abs(k_x).max())
+            np.testing.assert_allclose(maps["k_x_eigenvalues"][i, j],
+                                       np.linalg.eigvalsh(0.5 * (k_x + k_x.T)), rtol=1e-9)
+        k_conv = cartesian_stiffness(compliance(state.jacobian[:3], k_theta))
+        np.testing.assert_allclose(maps["k_x_conventional"][i], k_conv, rtol=1e-9,
+                                   atol=1e-9 * np.abs(k_conv).max())
+        np.testing.assert_allclose(maps["position"][i], state.position, atol=1e-12)
+    summary = json.loads((out / "summary.json").read_text())
+    total = sum(summary["load_cases"]["1"]["k_c"].values())
+    assert total == 48 and summary["chunks"]["computed"] == 7
+
+
+def test_parquet_and_figures(tmp_path):
+    pq = pytest.importorskip("pyarrow.parquet")
+    out = tmp_path / "pq"
+    assert main(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--format", "both",
+                 "--map-axes", "shoulder_lift_joint,elbow_joint", "--out", str(out),
+                 "--quiet"]) == 0
+    table = pq.read_table(out / "maps.parquet").to_pandas() if _has_pandas() else None
+    parts = sorted((out / "maps.parquet").glob("part-*.parquet"))
+    assert len(parts) == 1
+    arrow = pq.read_table(parts[0])
+    assert arrow.num_rows == 48
+    assert {"configuration", "load_case", "q_elbow_joint", "x_m", "k_c_class",
+            "k_x_eig0_N_per_m", "k_x_22"} <= set(arrow.column_names)
+    maps = _arrays(out)
+    np.testing.assert_array_equal(arrow.column("k_x_eig0_N_per_m").to_numpy(),
+                                  maps["k_x_eigenvalues"][:, 0, 0])
+    if table is not None:
+        assert len(table) == 48
+    for name in ("definiteness_map.png", "stiffness_map.png", "definiteness_counts.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"
+
+
+def _has_pandas() -> bool:
+    try:
+        import pandas  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def test_samples_default_out_and_single_axis(tmp_path, monkeypatch, capsys):
+    """Random samples within joint limits, seeded; the default output folder is new each time;
+    a single map axis draws line plots."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "40", "--seed", "3",
+            "--axis", "elbow_joint=-2:2", "--chunk-size", "16", "--quiet"]
+    assert main(argv) == 0
+    assert main(argv) == 0
+    first, second = tmp_path / "ur5-samples", tmp_path / "ur5-samples-2"
+    assert first.is_dir() and second.is_dir()
+    a, b = _arrays(first), _arrays(second)
+    np.testing.assert_array_equal(a["coordinates"], b["coordinates"])
+    assert np.all(np.abs(a["coordinates"][:, 2]) <= 2.0)
+    assert np.unique(a["coordinates"][:, 2]).shape[0] == 40
+    assert (first / "stiffness_map.png").is_file()
+    capsys.readouterr()
+
+
+# ------------------------------------------------------------------------------ resume
+
+
+def test_resume_recomputes_only_missing_chunks(tmp_path):
+    out = tmp_path / "resume"
+    argv = ["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--chunk-size", "10",
+            "--out", str(out), "--no-plots", "--quiet", "--json"]
+    assert main(argv) == 0
+    before = _arrays(out)
+    # a killed run: chunk 2 never finished, chunk 3 wrote its data but not its aggregate
+    (out / "chunks" / "chunk-00002.npz").unlink()
+    (out / "chunks" / "aggregate-00002.npz").unlink()
+    (out / "chunks" / "aggregate-00003.npz").unlink()
+    spec = scan_command.ScanSpec.from_dict(json.loads((out / "manifest.json").read_text())["spec"])
+    summary = scan_command.run_scan(spec, out, plots=False)
+    assert summary["chunks"] == {"total": 5, "computed": 2, "resumed": 3, "chunk_size": 10}
+    after = _arrays(out)
+    for key in before:
+        np.testing.assert_array_equal(before[key], after[key])
+    # another scan into the same folder is refused
+    assert main(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--load", "1,2,3",
+                 "--out", str(out), "--quiet"]) == 2
+
+
+# ------------------------------------------------------------------------------ Dask
+
+
+def test_dask_local_cluster_gives_the_same_maps(tmp_path):
+    """Two Dask workers (a LocalCluster) write exactly the maps of the single-process scan,
+    on a closed-loop robot (shared closures per chunk) and with chunks finishing out of
+    order."""
+    pytest.importorskip("distributed")
+    common = ["scan", "--robot", "sk120", "--samples", "300", "--seed", "1",
+              "--axis", "q2=-1:1", "--axis", "q3=-1.5:0.5", "--axis", "q1=-3:3",
+              "--load", "0,0,-500", "--load", "300,-200,100", "--chunk-size", "50",
+              "--no-plots", "--quiet"]
+    local, dask = tmp_path / "local", tmp_path / "dask"
+    assert main([*common, "--out", str(local)]) == 0
+    assert main([*common, "--out", str(dask), "--workers", "2"]) == 0
+    # a given client (a remote cluster): the chunks' arrays travel back and are written here
+    distributed = pytest.importorskip("distributed")
+    spec = scan_command.ScanSpec.from_dict(json.loads((local / "manifest.json").read_text())[
+        "spec"])
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        gathered = scan_command.run_scan(spec, tmp_path / "gathered", client=client, plots=False)
+    assert gathered["chunks"]["computed"] == 6
+    a = _arrays(local)
+    for other in (dask, tmp_path / "gathered"):
+        b = _arrays(other)
+        assert a.keys() == b.keys()
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    sa = json.loads((local / "summary.json").read_text())
+    sb = json.loads((dask / "summary.json").read_text())
+    assert sa["load_cases"] == sb["load_cases"] == gathered["load_cases"]
+
+
+def test_run_chunks_in_process_and_on_a_client():
+    """The engine streams every chunk once, in process or on a Dask client."""
+    from stiffness.distributed import run_chunks
+
+    seen = {}
+    assert run_chunks(_square, (3,), range(5), seen.__setitem__) == 5
+    assert seen == {i: 3 + i * i for i in range(5)}
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        got = {}
+        assert run_chunks(_square, (3,), range(9), got.__setitem__, client=client) == 9
+    assert got == {i: 3 + i * i for i in range(9)}
+
+
+def _square(offset: int, index: int) -> int:
+    return offset + index * index
+
+
+def _die_once(marker: str, index: int) -> int:
+    """Chunk 3 kills its worker process the first time it runs (a crashed machine)."""
+    import os
+    from pathlib import Path
+
+    if index == 3 and not Path(marker).exists():
+        Path(marker).write_text("killed")
+        os._exit(1)
+    return index * 10
+
+
+def test_killed_worker_loses_only_its_chunk(tmp_path):
+    """A worker process dies while computing a chunk: Dask restarts it and recomputes that
+    chunk only; every chunk is delivered exactly once."""
+    distributed = pytest.importorskip("distributed")
+    cloudpickle = pytest.importorskip("cloudpickle")
+    import sys
+
+    from stiffness.distributed import run_chunks
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    marker = tmp_path / "killed"
+    try:
+        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster, \
+                distributed.Client(cluster) as client:
+            got: dict[int, int] = {}
+
+            def collect(index: int, value: int) -> None:
+                assert index not in got
+                got[index] = value
+
+            assert run_chunks(_die_once, (str(marker),), range(8), collect, client=client) == 8
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert marker.exists()
+    assert got == {i: 10 * i for i in range(8)}
+
+
+# ------------------------------------------------------------------------------ errors
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--robot", "ur5", "--preset", "table4", "--kq", UR5_KQ], "SK120 grid"),
+    (["--robot", "ur5"], "--kq is required"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--axis", "elbow=0:1:0.1"], "not a coordinate"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--axis", "elbow_joint=0..1"], "JOINT=LO:HI"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--axis", "elbow_joint=0:1"], "STEP"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--axis", "q3=1:0:0.1"], "upper bound"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--load", "1,2"], "--load"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--samples", "2.5"], "--samples"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--q", "1,2"], "--q needs 6"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--chunk-size", "0"], "--chunk-size"),
+    (["--robot", "ur5", "--kq", UR5_KQ, "--workers", "0"], "--workers"),
+    (["--robot", "sk120", "--preset", "table4", "--samples", "5"], "drop --axis"),
+])
+def test_errors(tmp_path, capsys, argv, message):
+    code = main(["scan", *argv, "--out", str(tmp_path / "x"), "--quiet", "--no-plots"])
+    assert code == 2
+    assert message in capsys.readouterr().err
