@@ -122,6 +122,21 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace) -> np.ndarray:
     return values
 
 
+def robot_from_args(args: argparse.Namespace
+                    ) -> tuple[Robot, list[str] | None, list[float] | None]:
+    """The robot of ``--robot``, ``--frame``, ``--target-offset`` (m) and ``--compliant-joints``.
+
+    Returns the robot and the parsed compliant joints and offset (None where not given).
+    """
+    compliant = None if args.compliant_joints is None else [
+        j.strip() for j in args.compliant_joints.split(",") if j.strip()]
+    offset = None if args.target_offset is None else parse_list(args.target_offset,
+                                                                "--target-offset")
+    robot = load_robot(args.robot, frame=args.frame, target_offset=offset,
+                       compliant_joints=compliant)
+    return robot, compliant, offset
+
+
 @dataclass
 class KxInputs:
     """What the ``kx`` flags (and a shipped robot's defaults) resolve to, in SI."""
@@ -142,12 +157,7 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
     StiffnessError
         On a bad flag value, or a missing flag the robot brings no default for.
     """
-    compliant = None if args.compliant_joints is None else [
-        j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    offset = None if args.target_offset is None else parse_list(args.target_offset,
-                                                                "--target-offset")
-    robot = load_robot(args.robot, frame=args.frame, target_offset=offset,
-                       compliant_joints=compliant)
+    robot, _, _ = robot_from_args(args)
     coords = coordinates_from_args(robot, args)
     kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
     if kq is None:

@@ -48,12 +48,12 @@ from pathlib import Path
 import numpy as np
 
 from stiffness import batch
-from stiffness.commands.kx import parse_list
+from stiffness.commands.kx import parse_list, robot_from_args
 from stiffness.distributed import run_chunks, worker_robot
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.files import atomic_write, atomic_write_with
 from stiffness.formulation import DEFINITENESS_CLASSES
-from stiffness.robot import Robot, load_robot
+from stiffness.robot import Robot
 from stiffness.scan import grid_axis, terminal_progress
 
 PRESETS = ("table4",)
@@ -869,12 +869,7 @@ def _joint_range(robot: Robot, index: int) -> tuple[float, float]:
 
 def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
     """The scan specification of a command line (and the loaded robot)."""
-    compliant = None if args.compliant_joints is None else [
-        j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    offset = None if args.target_offset is None else parse_list(args.target_offset,
-                                                                "--target-offset")
-    robot = load_robot(args.robot, frame=args.frame, target_offset=offset,
-                       compliant_joints=compliant)
+    robot, compliant, offset = robot_from_args(args)
     robot_spec = {"source": str(args.robot), "frame": args.frame, "target_offset": offset,
                   "compliant_joints": compliant}
     if args.kq is not None:
