@@ -1,0 +1,11 @@
+"""``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG]``: the live server process.
+
+:class:`stiffness.viewer.server.LiveServer` starts it; see :func:`stiffness.viewer.server._main`.
+"""
+
+import sys
+
+from stiffness.viewer.server import _main
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

@@ -1,0 +1,346 @@
+"""The viewer's HTML page: render a recorded scene and its legend; read a page's scene back.
+
+:func:`render_page` writes a self-contained static page (meshcat's viewer script inlined, no
+network access) or the live server's page (scene and legend over its websocket);
+:func:`scene_commands` and :func:`scene_transforms` decode the scene embedded in a static page.
+"""
+
+from __future__ import annotations
+
+import base64
+import html as html_lib
+import json
+import re
+from typing import Any
+
+import numpy as np
+
+from stiffness.errors import StiffnessError
+from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.style import DEFLECTED_RGBA
+
+_PAGE_CSS = """
+body { margin: 0; font: 12px/1.3 sans-serif; overflow: hidden; }
+#meshcat-pane { width: 100vw; height: 100vh; overflow: hidden; }
+#stiffness-overlay { position: absolute; left: 8px; top: 8px; max-width: 360px;
+  max-height: calc(100vh - 16px); overflow: auto; background: rgba(255,255,255,0.9);
+  border-radius: 6px; padding: 6px 10px; box-shadow: 0 1px 4px rgba(0,0,0,0.3); z-index: 5; }
+#stiffness-overlay h1 { font-size: 13px; margin: 2px 0 4px; cursor: pointer; }
+#stiffness-overlay.folded > :not(h1) { display: none; }
+#stiffness-overlay .swatch { display: inline-block; width: 12px; height: 12px;
+  margin-right: 5px; vertical-align: -2px; border: 1px solid #555; }
+#stiffness-overlay .bar { height: 10px; border: 1px solid #555; margin: 2px 0; }
+#stiffness-overlay .ends { display: flex; justify-content: space-between; font-size: 11px; }
+#stiffness-overlay .note { color: #444; font-size: 12px; }
+#stiffness-overlay .error { color: #b00; font-weight: bold; }
+#stiffness-overlay fieldset { border: 1px solid #bbb; margin: 5px 0; padding: 3px 6px; }
+#stiffness-overlay label.row { display: flex; gap: 6px; align-items: center; }
+#stiffness-overlay label.row span.name { min-width: 92px; }
+#stiffness-overlay label.row input[type=range] { flex: 1; }
+#stiffness-overlay label.row span.value { min-width: 64px; text-align: right; }
+"""
+
+# The page's script: replays the embedded commands (static page) or the websocket's (live
+# page), renders the legend from the overlay JSON, and in the live page sends the controls'
+# state back to the server.
+_PAGE_JS = r"""
+(function () {
+  "use strict";
+  var GHOST = JSON.parse(document.getElementById("stiffness-ghost").textContent);
+  var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
+  window.viewer = viewer;
+  var overlay = document.getElementById("stiffness-overlay");
+  var live = document.body.getAttribute("data-live") === "true";
+  var socket = null, controlsBuilt = null, received = 0, frames = null;
+  function bytes(b64) {
+    var s = atob(b64), a = new Uint8Array(s.length);
+    for (var i = 0; i < s.length; i++) { a[i] = s.charCodeAt(i); }
+    return a;
+  }
+  function el(tag, attrs, text) {
+    var e = document.createElement(tag);
+    Object.keys(attrs || {}).forEach(function (k) { e.setAttribute(k, attrs[k]); });
+    if (text !== undefined) { e.textContent = text; }
+    return e;
+  }
+  function node(path) {
+    var n = viewer.scene_tree;
+    for (var i = 0; i < path.length; i++) {
+      n = n.children[path[i]];
+      if (n === undefined) { return null; }
+    }
+    return n;
+  }
+  function send(state) {
+    if (socket && socket.readyState === 1) {
+      socket.send(JSON.stringify({type: "control", state: state}));
+    }
+  }
+  function buildControls(spec, box) {
+    var fs = el("fieldset"); fs.appendChild(el("legend", {}, "browse (live)"));
+    var inputs = {joints: []}, timer = null;
+    function row(name, min, max, step, value, fmt) {
+      var lab = el("label", {"class": "row"}); lab.appendChild(el("span", {"class": "name"}, name));
+      var inp = el("input", {type: "range", min: min, max: max, step: step});
+      inp.value = value;
+      var out = el("span", {"class": "value"}, fmt(value));
+      inp.addEventListener("input", function () { out.textContent = fmt(+inp.value); changed(); });
+      lab.appendChild(inp); lab.appendChild(out); fs.appendChild(lab);
+      inp.fmt = fmt; inp.out = out;
+      return inp;
+    }
+    function state() {
+      var az = +inputs.azimuth.value * Math.PI / 180, el_ = +inputs.elevation.value * Math.PI / 180;
+      var m = +inputs.magnitude.value;
+      return {
+        coords: inputs.joints.map(function (j, i) { return +j.value * spec.joints[i].to_si; }),
+        force: [m * Math.cos(el_) * Math.cos(az), m * Math.cos(el_) * Math.sin(az),
+                m * Math.sin(el_)],
+        formulation: inputs.formulation.value, quantity: inputs.quantity.value
+      };
+    }
+    function changed() {
+      if (timer) { clearTimeout(timer); }
+      timer = setTimeout(function () { send(state()); }, 60);
+    }
+    spec.joints.forEach(function (j) {
+      inputs.joints.push(row(j.name, j.min, j.max, j.step, j.value,
+        function (v) { return v.toFixed(j.digits) + " " + j.unit; }));
+    });
+    inputs.magnitude = row("|F| (N)", 0, spec.force.max, spec.force.max / 200, spec.force.magnitude,
+      function (v) { return v.toFixed(1) + " N"; });
+    inputs.azimuth = row("F azimuth", -180, 180, 1, spec.force.azimuth,
+      function (v) { return v.toFixed(0) + " deg"; });
+    inputs.elevation = row("F elevation", -90, 90, 1, spec.force.elevation,
+      function (v) { return v.toFixed(0) + " deg"; });
+    [["formulation", spec.formulations, spec.formulation],
+     ["quantity", spec.quantities, spec.quantity]].forEach(function (s) {
+        var lab = el("label", {"class": "row"});
+        lab.appendChild(el("span", {"class": "name"}, s[0]));
+        var sel = el("select");
+        s[1].forEach(function (o) { var opt = el("option", {value: o}, o); sel.appendChild(opt); });
+        sel.value = s[2]; sel.addEventListener("change", changed);
+        lab.appendChild(sel); fs.appendChild(lab); inputs[s[0]] = sel;
+      });
+    box.appendChild(fs);
+    return {fieldset: fs, inputs: inputs};
+  }
+  function updateControls(spec) {
+    var inputs = controlsBuilt.inputs, active = document.activeElement;
+    function set(inp, v) {
+      if (inp === active) { return; }
+      inp.value = v;
+      if (inp.out) { inp.out.textContent = inp.fmt(+v); }
+    }
+    spec.joints.forEach(function (j, i) { set(inputs.joints[i], j.value); });
+    set(inputs.magnitude, spec.force.magnitude); set(inputs.azimuth, spec.force.azimuth);
+    set(inputs.elevation, spec.force.elevation);
+    set(inputs.formulation, spec.formulation); set(inputs.quantity, spec.quantity);
+  }
+  function render(data) {
+    if (!data) { return; }
+    var keep = controlsBuilt ? controlsBuilt.fieldset : null;
+    overlay.textContent = "";
+    var h1 = el("h1", {title: "click to fold or unfold the legend"}, data.title || "");
+    h1.addEventListener("click", function () { overlay.classList.toggle("folded"); });
+    overlay.appendChild(h1);
+    if (data.error) { overlay.appendChild(el("div", {"class": "error"}, data.error)); }
+    (data.lines || []).forEach(function (t) { overlay.appendChild(el("div", {}, t)); });
+    if (live && data.controls) {
+      if (keep) { overlay.appendChild(keep); updateControls(data.controls); }
+      else { controlsBuilt = buildControls(data.controls, overlay); }
+    }
+    (data.legend || []).forEach(function (item) {
+      var d = el("div"), sw = el("span", {"class": "swatch"});
+      sw.style.background = item.color; d.appendChild(sw);
+      d.appendChild(document.createTextNode(item.text)); overlay.appendChild(d);
+    });
+    (data.colorbars || []).forEach(function (cb) {
+      var d = el("div"); d.appendChild(el("div", {}, cb.label));
+      var bar = el("div", {"class": "bar"});
+      bar.style.background = "linear-gradient(to right, " + cb.colors.join(", ") + ")";
+      d.appendChild(bar);
+      var ends = el("div", {"class": "ends"});
+      ends.appendChild(el("span", {}, cb.min)); ends.appendChild(el("span", {}, cb.max));
+      d.appendChild(ends); overlay.appendChild(d);
+    });
+    if ((data.toggles || []).length) {
+      var fs = el("fieldset"); fs.appendChild(el("legend", {}, "show"));
+      data.toggles.forEach(function (t) {
+        var lab = el("label", {"class": "row"}), box = el("input", {type: "checkbox"});
+        var n = node(t.path);
+        box.checked = n ? n.object.visible : true;
+        box.addEventListener("change", function () {
+          var m = node(t.path);
+          if (m) { m.vis_controller.setValue(box.checked); viewer.set_dirty(); }
+        });
+        lab.appendChild(box); lab.appendChild(el("span", {}, t.label)); fs.appendChild(lab);
+      });
+      overlay.appendChild(fs);
+    }
+    frames = data.frames || null;
+    if (frames) { overlay.appendChild(el("div", {id: "stiffness-frame", "class": "note"}, "")); }
+    (data.notes || []).forEach(function (t) {
+      overlay.appendChild(el("div", {"class": "note"}, t));
+    });
+    var connected = socket && socket.readyState === 1 ? "connected" : "connecting";
+    var status = el("div", {id: "stiffness-status", "class": "note"},
+      live ? "live: " + connected : "static page");
+    overlay.appendChild(status);
+  }
+  function showFrame() {
+    if (frames) {
+      var box = document.getElementById("stiffness-frame");
+      var i = Math.round(viewer.animator.time * frames.fps);
+      i = Math.max(0, Math.min(frames.rows.length - 1, i));
+      if (box && box.getAttribute("data-frame") !== String(i)) {
+        box.setAttribute("data-frame", String(i));
+        box.textContent = "animation frame " + i + ": " + frames.rows[i];
+      }
+    }
+    requestAnimationFrame(showFrame);
+  }
+  function handle(data) {
+    try { viewer.handle_command_bytearray(data); }
+    catch (err) { console.error("stiffness viewer: command failed", err); }
+  }
+  // The deflected robot: a translucent red copy of the robot's meshes, made here rather than
+  // sent twice (meshcat's colour property cannot recolour multi-material meshes anyway).
+  function ghost() {
+    var robot = node(["meshcat", "robot", "visuals"]);
+    Object.keys(robot ? robot.children : {}).forEach(function (k) {
+      var source = robot.children[k].children["<object>"];
+      if (!source) { return; }
+      var target = viewer.scene_tree.find(["meshcat", "deflected", "visuals", k]);
+      if (target.children["<object>"]) { return; }
+      target.find(["<object>"]).set_object(source.object.clone());
+    });
+    var n = node(["meshcat", "deflected"]);
+    if (!n) { return; }
+    n.object.traverse(function (o) {
+      if (!o.isMesh || o.userData.stiffnessGhost) { return; }
+      function tint(m) {
+        if (Array.isArray(m)) { return m.map(tint); }
+        if (!m || typeof m.clone !== "function") { return m; }
+        var g = m.clone();
+        if (g.color) { g.color.setRGB(GHOST[0], GHOST[1], GHOST[2]); }
+        g.map = null; g.opacity = GHOST[3]; g.transparent = true; g.depthWrite = false;
+        g.needsUpdate = true;
+        return g;
+      }
+      o.material = tint(o.material);
+      o.userData.stiffnessGhost = true;
+    });
+    viewer.set_dirty();
+  }
+  var ghostTimer = null;
+  JSON.parse(document.getElementById("stiffness-commands").textContent).forEach(function (c) {
+    handle(bytes(c));
+  });
+  ghost();
+  var aimed = false;
+  function aim(c) {
+    // meshcat's world is z-up; three.js (the camera and its orbit controls) is y-up.
+    if (!c || aimed) { return; }
+    viewer.controls.target.set(c.target[0], c.target[2], -c.target[1]);
+    viewer.camera.position.set(c.position[0], c.position[2], -c.position[1]);
+    viewer.controls.update(); viewer.set_dirty(); aimed = true;
+  }
+  var initial = JSON.parse(document.getElementById("stiffness-overlay-data").textContent);
+  render(initial);
+  if (initial) { aim(initial.camera); }
+  if (live) {
+    var scheme = location.protocol === "https:" ? "wss://" : "ws://";
+    socket = new WebSocket(scheme + location.host + "/websocket");
+    socket.binaryType = "arraybuffer";
+    viewer.connection = socket;
+    socket.onmessage = function (e) {
+      if (typeof e.data === "string") {
+        var m = JSON.parse(e.data);
+        if (m.type === "overlay") { render(m.data); aim(m.data && m.data.camera); }
+      } else {
+        handle(new Uint8Array(e.data));
+        received += 1;
+        if (ghostTimer) { clearTimeout(ghostTimer); }
+        ghostTimer = setTimeout(ghost, 50);
+        document.body.setAttribute("data-received", String(received));
+      }
+    };
+    socket.onopen = function () {
+      var s = document.getElementById("stiffness-status");
+      if (s) { s.textContent = "live: connected"; }
+    };
+    socket.onclose = function () {
+      var s = document.getElementById("stiffness-status");
+      if (s) { s.textContent = "live: disconnected (the viewer's server stopped)"; }
+    };
+  }
+  requestAnimationFrame(showFrame);
+  document.body.setAttribute("data-stiffness-ready", "true");
+})();
+"""
+
+
+def _json_script(value: Any) -> str:
+    return json.dumps(value).replace("</", "<\\/")
+
+
+def render_page(commands: list[bytes], overlay: dict | None, title: str, live: bool = False
+                ) -> str:
+    """HTML page of a scene.
+
+    Parameters
+    ----------
+    commands
+        Packed meshcat commands to replay when the page loads.
+    overlay
+        Legend data (see :meth:`StiffnessViewer.overlay`).
+    title
+        Page title.
+    live
+        ``False``: a self-contained page (meshcat's viewer script inlined, no network access).
+        ``True``: the live server's page (script from ``/static/``, scene and legend over the
+        server's websocket).
+    """
+    encoded = [base64.b64encode(c).decode("ascii") for c in commands]
+    if live:
+        viewer_script = '<script src="/static/main.min.js"></script>'
+    else:
+        viewer_script = "<script>" + _meshcat().viewer_js.read_text() + "</script>"
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        f"<title>{html_lib.escape(title)}</title>\n<style>{_PAGE_CSS}</style>\n</head>\n"
+        f"<body data-live=\"{'true' if live else 'false'}\">\n"
+        "<div id=\"meshcat-pane\"></div>\n<div id=\"stiffness-overlay\"></div>\n"
+        f"{viewer_script}\n"
+        "<script type=\"application/json\" id=\"stiffness-commands\">"
+        f"{_json_script(encoded)}</script>\n"
+        f"<script type=\"application/json\" id=\"stiffness-ghost\">{list(DEFLECTED_RGBA)}"
+        "</script>\n"
+        "<script type=\"application/json\" id=\"stiffness-overlay-data\">"
+        f"{_json_script(overlay)}</script>\n"
+        f"<script>{_PAGE_JS}</script>\n</body>\n</html>\n"
+    )
+
+
+def scene_commands(page: str) -> list[dict]:
+    """Decode the meshcat commands embedded in a page written by :func:`render_page`.
+
+    Returns the unpacked commands (``type``, ``path``, ``object``/``matrix``/...) in replay
+    order: read back an exported scene, e.g. to check an ellipsoid's transform.
+    """
+    match = re.search(r'<script type="application/json" id="stiffness-commands">(.*?)</script>',
+                      page, re.S)
+    if match is None:
+        raise StiffnessError("not a page written by stiffness.viewer (no embedded scene)")
+    unpack = _meshcat().msgpack.unpackb
+    return [unpack(base64.b64decode(c)) for c in json.loads(match.group(1))]
+
+
+def scene_transforms(commands: list[dict]) -> dict[str, np.ndarray]:
+    """Latest 4x4 transform of each path among decoded commands (meshcat is column-major)."""
+    out = {}
+    for command in commands:
+        if command["type"] == "set_transform":
+            out[command["path"]] = np.array(command["matrix"], dtype=float).reshape(4, 4).T
+    return out

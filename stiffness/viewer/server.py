@@ -1,0 +1,377 @@
+"""The live server: a loopback-only web server process, its client, and meshcat's window.
+
+The live viewer starts its own server process (:func:`_serve`: meshcat's viewer page,
+websocket and ZeroMQ command socket) bound to 127.0.0.1 by default, on free ports, with
+``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG]``. Every request to it has a
+timeout (nothing waits for a browser forever), and the process is stopped by
+:meth:`LiveServer.close`, at interpreter exit, and by itself when its parent process dies.
+meshcat 0.3.2's own server binds its web port on every interface and its ``wait`` can leave its
+command socket stuck; neither is used.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+from stiffness.errors import StiffnessError
+from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.page import render_page
+from stiffness.viewer.scene import SceneStore
+
+#: Address the live server binds by default (loopback only).
+LOOPBACK = "127.0.0.1"
+#: Seconds the client waits for any answer of the live server.
+DEFAULT_TIMEOUT = 10.0
+
+
+class _Window:
+    """meshcat's window protocol: records every command, forwards it to a live server if any."""
+
+    def __init__(self, server: LiveServer | None = None) -> None:
+        self.scene = SceneStore()
+        self.server = server
+        self.web_url = server.web_url if server is not None else None
+
+    def send(self, command: Any) -> None:
+        data = command.lower()
+        packed = _meshcat().msgpack.packb(data)
+        self.scene.apply(data["type"], data["path"], packed, data.get("property"))
+        if self.server is not None:
+            self.server.request([data["type"].encode(), data["path"].encode(), packed])
+
+    def get_scene(self) -> str:
+        return render_page(self.scene.commands(), None, "meshcat")
+
+    def get_image(self) -> Any:
+        raise StiffnessError("image capture is not supported; use export() and a browser")
+
+    def close(self) -> None:
+        if self.server is not None:
+            self.server.close()
+
+
+class LiveServer:
+    """The viewer's web server, in its own process, bound to ``host`` (loopback by default).
+
+    Serves the viewer page at ``web_url``, meshcat's scripts under ``/static/``, the scene over
+    a websocket at ``/websocket``, and takes commands on a ZeroMQ socket (``zmq_url``). Every
+    request times out after ``timeout`` s; the process stops on :meth:`close`, at interpreter
+    exit, or when this process dies.
+
+    Parameters
+    ----------
+    host
+        Address to bind (default 127.0.0.1: unreachable from other machines).
+    port
+        Web port (0: a free port).
+    timeout
+        Seconds to wait for the process to start and for each answer.
+    """
+
+    def __init__(self, host: str = LOOPBACK, port: int = 0, timeout: float = DEFAULT_TIMEOUT
+                 ) -> None:
+        import zmq
+
+        self.host, self.timeout = host, float(timeout)
+        self._lock = threading.RLock()
+        log, self._log_path = tempfile.mkstemp(prefix="stiffness-viewer-", suffix=".log")
+        command = [sys.executable, "-m", "stiffness.viewer", "--serve", host, str(int(port)),
+                   str(os.getpid()), self._log_path]
+        try:
+            # own session: a Ctrl-C in a notebook cell does not kill the server
+            self.process = subprocess.Popen(
+                command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log,
+                start_new_session=True, text=True,
+            )
+        finally:
+            os.close(log)
+        self._closed = False
+        atexit.register(self.close)
+        urls = self._read_urls()
+        self.zmq_url, self.web_url = urls["zmq_url"], urls["web_url"]
+        threading.Thread(target=self._drain, daemon=True).start()
+        self._context = zmq.Context()
+        self._socket = None
+        self._connect()
+
+    def _read_urls(self) -> dict:
+        found: dict = {}
+        lines: list[str] = []
+
+        def reader() -> None:
+            for line in self.process.stdout:
+                lines.append(line.strip())
+                if line.startswith("web_url="):
+                    return
+
+        thread = threading.Thread(target=reader, daemon=True)
+        thread.start()
+        thread.join(self.timeout)
+        for line in lines:
+            if "=" in line:
+                key, value = line.split("=", 1)
+                found[key] = value
+        if "zmq_url" not in found or "web_url" not in found:
+            log = self._log_tail()
+            code = self.process.poll()
+            why = f"exited with code {code}" if code is not None else \
+                f"did not start within {self.timeout:g} s"
+            self.close()
+            raise StiffnessError(f"the viewer's server {why} (its log: {log})")
+        return found
+
+    def _drain(self) -> None:
+        try:
+            for _ in self.process.stdout:
+                pass
+        except (OSError, ValueError):
+            pass
+
+    def _log_tail(self) -> str:
+        try:
+            return Path(self._log_path).read_text()[-600:].strip() or "empty"
+        except OSError:
+            return "unreadable"
+
+    def _connect(self) -> None:
+        import zmq
+
+        if self._socket is not None:
+            self._socket.close(linger=0)
+        self._socket = self._context.socket(zmq.REQ)
+        self._socket.setsockopt(zmq.LINGER, 0)
+        self._socket.setsockopt(zmq.SNDTIMEO, int(self.timeout * 1000))
+        self._socket.connect(self.zmq_url)
+
+    def request(self, frames: list[bytes], timeout: float | None = None) -> bytes:
+        """Send one command, return the server's answer.
+
+        Raises
+        ------
+        StiffnessError
+            If the server is closed or does not answer within ``timeout`` s (default: the
+            server's); the command socket is then reset so later requests still work.
+        """
+        import zmq
+
+        timeout = self.timeout if timeout is None else timeout
+        with self._lock:
+            if self._closed:
+                raise StiffnessError("the viewer's server is closed")
+            try:
+                self._socket.send_multipart(frames)
+                if self._socket.poll(int(timeout * 1000), zmq.POLLIN):
+                    return self._socket.recv()
+            except zmq.ZMQError as exc:
+                self._connect()
+                raise StiffnessError(f"the viewer's server failed: {exc}") from exc
+            self._connect()
+            alive = "running" if self.process.poll() is None else "exited"
+            raise StiffnessError(
+                f"the viewer's server ({alive}) did not answer within {timeout:g} s"
+            )
+
+    def clients(self) -> int:
+        """Number of browsers connected."""
+        return int(self.request([b"clients"]))
+
+    def events(self) -> list[dict]:
+        """Control changes sent by the pages since the last call, oldest first."""
+        return json.loads(self.request([b"events"]))
+
+    def set_overlay(self, overlay: dict) -> None:
+        """Send the legend and controls to the server (and its pages)."""
+        self.request([b"overlay", json.dumps(overlay).encode()])
+
+    def wait_for_browser(self, timeout: float = 10.0, poll: float = 0.1) -> bool:
+        """Wait at most ``timeout`` s for a browser to connect; whether one did."""
+        deadline = time.monotonic() + timeout
+        while True:
+            if self.clients() > 0:
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(poll)
+
+    @property
+    def running(self) -> bool:
+        """Whether the server process is alive."""
+        return self.process.poll() is None
+
+    def close(self) -> None:
+        """Stop the server process (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            if getattr(self, "_socket", None) is not None:
+                with contextlib.suppress(StiffnessError):
+                    self.request([b"stop"], timeout=1.0)
+            self._closed = True
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.process.wait(timeout=2.0)
+            if self.process.poll() is None:
+                self.process.terminate()
+                try:
+                    self.process.wait(timeout=3.0)
+                except subprocess.TimeoutExpired:
+                    self.process.kill()
+                    self.process.wait(timeout=3.0)
+            if self.process.stdout is not None:
+                self.process.stdout.close()
+            if getattr(self, "_socket", None) is not None:
+                self._socket.close(linger=0)
+                self._context.term()
+            with contextlib.suppress(OSError):
+                os.unlink(self._log_path)
+            atexit.unregister(self.close)
+
+    def __enter__(self) -> LiveServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None) -> int:
+    """The server process: meshcat's page scripts, our page, a websocket and a ZeroMQ socket.
+
+    Stops on the ``stop`` command, on SIGTERM, or when ``parent_pid`` is no longer its parent
+    (the owner died without closing it; it then removes its log file ``log_path``).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import tornado.httpserver
+        import tornado.ioloop
+        import tornado.netutil
+        import tornado.web
+        import tornado.websocket
+        import zmq
+        from meshcat.servers.zmqserver import VIEWER_ROOT, StaticFileHandlerNoCache
+        from zmq.eventloop.zmqstream import ZMQStream
+
+    store = SceneStore()
+    state: dict = {"overlay": None, "events": [], "pool": set()}
+    loop = tornado.ioloop.IOLoop.current()
+
+    class Page(tornado.web.RequestHandler):
+        def get(self) -> None:
+            self.set_header("Cache-Control", "no-store")
+            self.write(render_page([], state["overlay"], "stiffness viewer", live=True))
+
+    class Socket(tornado.websocket.WebSocketHandler):
+        def open(self) -> None:  # noqa: A003 (tornado's name)
+            state["pool"].add(self)
+            for packed in store.commands():
+                self.write_message(packed, binary=True)
+            if state["overlay"] is not None:
+                self.write_message(json.dumps({"type": "overlay", "data": state["overlay"]}))
+
+        def on_message(self, message: str | bytes) -> None:
+            try:
+                data = json.loads(message)
+            except (TypeError, ValueError):
+                return
+            if isinstance(data, dict) and data.get("type") == "control":
+                state["events"] = (state["events"] + [data.get("state", {})])[-100:]
+
+        def on_close(self) -> None:
+            state["pool"].discard(self)
+
+    def broadcast(message: bytes | str, binary: bool) -> None:
+        for socket in list(state["pool"]):
+            try:
+                socket.write_message(message, binary=binary)
+            except tornado.websocket.WebSocketClosedError:
+                state["pool"].discard(socket)
+
+    app = tornado.web.Application([
+        (r"/", Page),
+        (r"/websocket", Socket),
+        (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT}),
+    ])
+    sockets = tornado.netutil.bind_sockets(port, address=host)
+    server = tornado.httpserver.HTTPServer(app)
+    server.add_sockets(sockets)
+    web_port = sockets[0].getsockname()[1]
+
+    context = zmq.Context()
+    rep = context.socket(zmq.REP)
+    rep.setsockopt(zmq.LINGER, 0)
+    rep.bind(f"tcp://{host}:*")
+    zmq_url = rep.getsockopt(zmq.LAST_ENDPOINT).decode()
+    stream = ZMQStream(rep)
+
+    def stop() -> None:
+        server.stop()
+        loop.stop()
+
+    def handle(frames: list[bytes]) -> None:
+        kind = frames[0].decode()
+        reply = b"ok"
+        if kind in ("set_object", "set_transform", "set_property", "set_animation", "delete"):
+            if len(frames) != 3:
+                reply = b"error: expected 3 frames"
+            else:
+                key = None
+                if kind == "set_property":
+                    key = _meshcat().msgpack.unpackb(frames[2]).get("property")
+                store.apply(kind, frames[1].decode(), frames[2], key)
+                broadcast(frames[2], True)
+        elif kind == "overlay":
+            state["overlay"] = json.loads(frames[1])
+            broadcast(json.dumps({"type": "overlay", "data": state["overlay"]}), False)
+        elif kind == "clients":
+            reply = str(len(state["pool"])).encode()
+        elif kind == "events":
+            reply = json.dumps(state["events"]).encode()
+            state["events"] = []
+        elif kind == "url":
+            reply = web_url.encode()
+        elif kind == "stop":
+            loop.add_callback(stop)
+        else:
+            reply = b"error: unknown command " + frames[0]
+        stream.send(reply)
+
+    stream.on_recv(handle)
+    shown_host = f"[{host}]" if ":" in host else host
+    web_url = f"http://{shown_host}:{web_port}/"
+
+    def watch_parent() -> None:
+        if os.getppid() != parent_pid:
+            if log_path:
+                with contextlib.suppress(OSError):
+                    os.unlink(log_path)
+            stop()
+
+    tornado.ioloop.PeriodicCallback(watch_parent, 1000).start()
+    print(f"zmq_url={zmq_url}", flush=True)
+    print(f"web_url={web_url}", flush=True)
+    try:
+        loop.start()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stream.close()
+        context.term()
+    return 0
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG]``: the live server."""
+    if len(argv) in (4, 5) and argv[0] == "--serve":
+        return _serve(argv[1], int(argv[2]), int(argv[3]), argv[4] if len(argv) == 5 else None)
+    print("usage: python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG] "
+          "(started by StiffnessViewer; use `stiffness view`)", file=sys.stderr)
+    return 2
