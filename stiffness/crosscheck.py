@@ -36,34 +36,47 @@ complementary stiffness K_C that Pinocchio computes on the SK120 model built fro
 
 Units in the output: J in mm/rad; K_C in N.mm/rad per N of force (mm/rad), i.e. K_C for a
 1 N force. Angles in rad internally, deg in descriptions.
+
+Layout: the angle convention, Table I lengths and convention search are in
+:mod:`stiffness.appendix_convention`; evaluation of the terms (J, K_C, integrability) in
+:mod:`stiffness.appendix_eval`; the edits that explain a mismatch in
+:mod:`stiffness.appendix_edits`; poses and the Pinocchio side in :mod:`stiffness.appendix_poses`.
+This module assembles the report (:func:`run_crosscheck`) and runs the command; it re-exports
+the building blocks listed in ``__all__``.
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
-import tempfile
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
-from stiffness import kinematics
-from stiffness.appendix import ANGLE_SYMBOLS, APPENDIX_TERMS, ELEMENT_NAMES, LENGTH_SYMBOLS, Term
-from stiffness.formulation import target_state
-from stiffness.paper_data import paper_configurations
-from stiffness.robot import Robot, load_robot, robots_directory
-from stiffness.sk120 import (
-    FIXTURE_A_M,
-    FIXTURE_B_M,
-    AngleConvention,
-    DHRow,
-    read_table1,
-    sk120_urdf,
+from stiffness.appendix import APPENDIX_TERMS, ELEMENT_NAMES
+from stiffness.appendix_convention import (
+    SEARCH_POSES,
+    SEARCH_REL,
+    AppendixConvention,
+    ConventionSearch,
+    find_convention,
+    printed_convention,
+    table1_lengths_mm,
+    wrap_deg,
 )
+from stiffness.appendix_edits import ROUND_OFF_REL, Edit, apply_edits, edit_delta, explain_element
+from stiffness.appendix_eval import (
+    TermsByElement,
+    integrability_violations,
+    jacobian_from_terms,
+    kc_from_terms,
+    terms_values,
+)
+from stiffness.appendix_poses import LOOP_MARGIN_DEG as LOOP_MARGIN_DEG  # re-export, see docs
+from stiffness.appendix_poses import PoseSet, build_generic_robot, pinocchio_samples, sample_poses
+from stiffness.robot import load_robot, robots_directory
+from stiffness.sk120 import FIXTURE_A_M, FIXTURE_B_M, AngleConvention, DHRow, read_table1
 
 __all__ = [
     "AppendixConvention",
@@ -85,888 +98,8 @@ __all__ = [
     "table1_lengths_mm",
 ]
 
-TermsByElement = Mapping[str, Sequence[Term]]
-
-#: Relative agreement (to the largest element at the pose) accepted as round-off.
-ROUND_OFF_REL = 1e-9
-#: Relative tolerance of the convention search (exact matches only; typos give O(1)).
-_SEARCH_REL = 1e-6
-#: Number of general-wrist poses used by the convention search.
-_SEARCH_POSES = 8
-_OFFSETS_DEG = (0.0, 90.0, 180.0, -90.0)
-_SIGNS = (1, -1)
-_T3_COUPLINGS = (0, 1, -1)
-_BASE_FLIPS = tuple(itertools.product((1, -1), (1, -1)))  # (f2, f3); f1 = +1
-_COMPLEX_STEP = 1e-30
-_MAX_EQUIVALENT = 32
 #: Non-zero values (mm) given to the lengths Table I sets to zero, for the generic-length check.
 GENERIC_EXTRA_LENGTHS_MM = {"D1": 37.0, "D3": 53.0, "L4": 71.0, "D5": 29.0, "L5": 43.0}
-#: Margin (deg) kept from the flattened parallelogram by the random samples.
-LOOP_MARGIN_DEG = 2.0
-#: Workspace ranges (deg) of the paper, Section VI.
-_RANGES_DEG = ((-180.0, 180.0), (-70.0, 70.0), (-115.0, 35.0))
-
-
-# --------------------------------------------------------------------------------------------
-# Conventions and lengths
-# --------------------------------------------------------------------------------------------
-
-
-def printed_convention() -> AngleConvention:
-    """The printed-angle -> Table I DH convention of the shipped SK120 model.
-
-    Returns
-    -------
-    AngleConvention
-        ``theta_DH = offset + sign * q`` (deg offsets), as chosen in
-        ``robots/sk120/convention_fit.json``.
-    """
-    fit = json.loads((robots_directory() / "sk120" / "convention_fit.json").read_text())
-    chosen = fit["chosen"]
-    return AngleConvention(tuple(int(s) for s in chosen["signs"]),
-                           tuple(float(o) for o in chosen["offsets_deg"]))
-
-
-def table1_lengths_mm(
-    table1: Mapping[str, DHRow] | None = None,
-    fixture_mm: tuple[float, float] | None = None,
-) -> dict[str, float]:
-    """Appendix length symbols from Table I (the natural assignment), in mm.
-
-    ``L_i`` / ``D_i`` are the ``a`` / ``d`` of Table I row ``i``; ``L2`` is the five-bar's
-    lower arm (row 2b); the L-shaped fixture (``a`` along the tool axis z6, ``b`` along x6)
-    extends row 6: ``D6 = d6 + a``, ``L6 = a6 + b``. ``D2`` (a lateral offset of the lower
-    arm) has no Table I row and is 0.
-
-    Parameters
-    ----------
-    table1 : Mapping[str, DHRow], optional
-        Table I rows in SI (default: the shipped ``table1_dh.csv``).
-    fixture_mm : tuple of float, optional
-        Fixture ``(a, b)`` in mm (default: the paper's 112.65, 205.32).
-
-    Returns
-    -------
-    dict[str, float]
-        Value (mm) of every symbol ``L1..L6``, ``D1..D6``.
-    """
-    if table1 is None:
-        table1 = read_table1(robots_directory() / "sk120" / "table1_dh.csv")
-    a_fix, b_fix = fixture_mm if fixture_mm is not None else (FIXTURE_A_M * 1e3, FIXTURE_B_M * 1e3)
-    mm = 1e3
-    return {
-        "L1": table1["1"].a * mm, "L2": table1["2b"].a * mm, "L3": table1["3"].a * mm,
-        "L4": table1["4"].a * mm, "L5": table1["5"].a * mm, "L6": table1["6"].a * mm + b_fix,
-        "D1": table1["1"].d * mm, "D2": 0.0, "D3": table1["3"].d * mm,
-        "D4": table1["4"].d * mm, "D5": table1["5"].d * mm, "D6": table1["6"].d * mm + a_fix,
-    }
-
-
-@dataclass(frozen=True)
-class AppendixConvention:
-    """The appendix's angles and base frame relative to Table I's DH angles and Pinocchio's base.
-
-    ``t_i = offset_i + sign_i * theta_i`` for ``i != 3`` and
-    ``t3 = offset_3 + sign_3 * theta_3 + t3_coupling * theta_2`` (``theta`` = Table I DH
-    angles; coupling 0 means the appendix's ``t3`` is absolute, like Table I's). Positions
-    are ``x_app = diag(base_flips) x_pinocchio`` (plus a constant).
-
-    Attributes
-    ----------
-    offsets_deg : tuple of float
-        ``offset_1..offset_6`` (deg).
-    signs : tuple of int
-        ``sign_1..sign_6``.
-    t3_coupling : int
-        Coefficient ``k`` of ``theta_2`` in ``t3``.
-    base_flips : tuple of int
-        Diagonal of the base reflection (first entry always +1).
-    """
-
-    offsets_deg: tuple[float, ...]
-    signs: tuple[int, ...]
-    t3_coupling: int = 0
-    base_flips: tuple[int, int, int] = (1, 1, 1)
-
-    def to_appendix(self, theta_dh: np.ndarray) -> np.ndarray:
-        """Appendix angles (rad), shape (..., 6), from Table I DH angles (rad)."""
-        theta_dh = np.asarray(theta_dh, dtype=float)
-        t = np.deg2rad(self.offsets_deg) + np.asarray(self.signs) * theta_dh
-        t[..., 2] = t[..., 2] + self.t3_coupling * theta_dh[..., 1]
-        return t
-
-    def dt_dtheta(self) -> np.ndarray:
-        """Chain-rule matrix ``T = dt/dtheta`` (3x3) of the first three angles."""
-        t = np.diag(np.asarray(self.signs[:3], dtype=float))
-        t[2, 1] = self.t3_coupling
-        return t
-
-    def rotation(self) -> np.ndarray:
-        """Base reflection ``R`` (3x3): ``x_app = R x_pinocchio``."""
-        return np.diag(np.asarray(self.base_flips, dtype=float))
-
-    def cost(self) -> int:
-        """Number of departures from the identity map (for picking among equivalent ones)."""
-        return (sum(o != 0.0 for o in self.offsets_deg) + sum(s < 0 for s in self.signs)
-                + 4 * abs(self.t3_coupling) + 4 * sum(f < 0 for f in self.base_flips))
-
-    def in_printed_angles(self, printed: AngleConvention) -> list[tuple[float, int, dict]]:
-        """The same map in the paper's printed angles ``q`` (deg offsets).
-
-        Returns
-        -------
-        list of (float, int, dict)
-            Per joint: offset (deg, wrapped to (-180, 180]), sign of ``q_i``, and extra
-            coefficients on other printed angles (only ``t3`` can have one, on ``q2``).
-        """
-        out = []
-        for i in range(6):
-            off = self.offsets_deg[i] + self.signs[i] * printed.offsets_deg[i]
-            extra = {}
-            if i == 2 and self.t3_coupling:
-                off += self.t3_coupling * printed.offsets_deg[1]
-                extra = {"q2": self.t3_coupling * printed.signs[1]}
-            out.append((_wrap_deg(off), self.signs[i] * printed.signs[i], extra))
-        return out
-
-    def describe(self, printed: AngleConvention | None = None) -> str:
-        """Words: ``t1 = theta1_DH; t2 = theta2_DH + 180 deg; ...`` (and in printed angles)."""
-        dh = "; ".join(
-            _affine_text(f"t{i + 1}", self.offsets_deg[i], {f"theta{i + 1}_DH": self.signs[i],
-                         **({"theta2_DH": self.t3_coupling} if i == 2 and self.t3_coupling
-                            else {})})
-            for i in range(6)
-        )
-        text = f"Table I DH: {dh}"
-        if printed is not None:
-            pr = "; ".join(
-                _affine_text(f"t{i + 1}", off, {f"q{i + 1}": sign, **extra})
-                for i, (off, sign, extra) in enumerate(self.in_printed_angles(printed))
-            )
-            text += f". Printed angles: {pr}"
-        flips = self.base_flips
-        if flips == (1, 1, 1):
-            text += ". Base frame: the same as Table I's frame 0 (x, y, z unchanged)"
-        else:
-            axes = ", ".join(a for a, f in zip("xyz", flips, strict=True) if f < 0)
-            text += f". Base frame: Table I's frame 0 with {axes} reversed"
-        return text
-
-    def as_dict(self, printed: AngleConvention | None = None) -> dict:
-        """JSON-ready numbers of the map."""
-        out = {
-            "offsets_deg_vs_table1_dh": [float(o) for o in self.offsets_deg],
-            "signs_vs_table1_dh": [int(s) for s in self.signs],
-            "t3_coupling_on_theta2": int(self.t3_coupling),
-            "base_axis_signs": [int(f) for f in self.base_flips],
-        }
-        if printed is not None:
-            rows = self.in_printed_angles(printed)
-            out["offsets_deg_vs_printed"] = [float(o) for o, _, _ in rows]
-            out["signs_vs_printed"] = [int(s) for _, s, _ in rows]
-        return out
-
-
-def _wrap_deg(angle: float) -> float:
-    wrapped = (angle + 180.0) % 360.0 - 180.0
-    return 180.0 if wrapped == -180.0 else wrapped + 0.0
-
-
-def _affine_text(lhs: str, offset: float, coefs: Mapping[str, int]) -> str:
-    parts = []
-    for name, c in coefs.items():
-        if c == 0:
-            continue
-        sign = "-" if c < 0 else "+"
-        parts.append(f"{sign} {name}" if parts or c < 0 else name)
-    text = " ".join(parts)
-    if text.startswith("- "):
-        text = "-" + text[2:]
-    off = _wrap_deg(offset)
-    if off:
-        text += f" {'+' if off > 0 else '-'} {abs(off):g} deg"
-    return f"{lhs} = {text}"
-
-
-# --------------------------------------------------------------------------------------------
-# Evaluating printed (or edited) terms, vectorized over poses
-# --------------------------------------------------------------------------------------------
-
-
-def _terms_values(terms: Sequence[Term], t: np.ndarray, lengths: Mapping[str, float]) -> np.ndarray:
-    """Sum of terms at poses ``t`` (P, 6) (real or complex), shape (P,)."""
-    angles = {f"t{i + 1}": t[:, i] for i in range(6)}
-    out = np.zeros(t.shape[0], dtype=t.dtype)
-    for term in terms:
-        out = out + term.value(angles, lengths)
-    return out
-
-
-def jacobian_from_terms(
-    terms: TermsByElement, t: np.ndarray, lengths: Mapping[str, float]
-) -> np.ndarray:
-    """3x3 Jacobians of a set of element expressions at many poses.
-
-    Parameters
-    ----------
-    terms : Mapping[str, Sequence[Term]]
-        Terms of ``"J11".."J33"`` (e.g. :data:`stiffness.appendix.APPENDIX_TERMS`).
-    t : np.ndarray, shape (P, 6)
-        Appendix angles t1..t6 (rad), real or complex.
-    lengths : Mapping[str, float]
-        Length symbols (mm); missing ones are 0.
-
-    Returns
-    -------
-    np.ndarray, shape (P, 3, 3)
-        ``J[p, r, c]`` in mm/rad.
-    """
-    t = np.atleast_2d(np.asarray(t))
-    t = t.astype(np.result_type(t.dtype, np.float64))
-    jac = np.zeros((t.shape[0], 3, 3), dtype=t.dtype)
-    for name in ELEMENT_NAMES:
-        r, c = int(name[1]) - 1, int(name[2]) - 1
-        jac[:, r, c] = _terms_values(terms[name], t, lengths)
-    return jac
-
-
-def kc_from_terms(
-    terms: TermsByElement, t: np.ndarray, force: np.ndarray, lengths: Mapping[str, float]
-) -> np.ndarray:
-    """K_C (A&S eq. 9) of a set of element expressions, by complex-step differentiation.
-
-    ``K_C[p, i, j] = sum_k F_k dJ[k, i] / dt_j`` (j over t1..t3), as
-    :func:`stiffness.appendix.appendix_kc`, vectorized over poses.
-
-    Parameters
-    ----------
-    terms : Mapping[str, Sequence[Term]]
-        Element expressions.
-    t : np.ndarray, shape (P, 6)
-        Real appendix angles (rad).
-    force : np.ndarray, shape (3,)
-        Force (N) in the appendix's base axes.
-    lengths : Mapping[str, float]
-        Length symbols (mm).
-
-    Returns
-    -------
-    np.ndarray, shape (P, 3, 3)
-        K_C in N.mm/rad.
-    """
-    t = np.atleast_2d(np.asarray(t, dtype=float))
-    force = np.asarray(force, dtype=float)
-    kc = np.zeros((t.shape[0], 3, 3))
-    for j in range(3):
-        tc = t.astype(np.complex128)
-        tc[:, j] += 1j * _COMPLEX_STEP
-        dj = jacobian_from_terms(terms, tc, lengths).imag / _COMPLEX_STEP
-        kc[:, :, j] = np.einsum("k,pki->pi", force, dj)
-    return kc
-
-
-# --------------------------------------------------------------------------------------------
-# Poses and the Pinocchio side
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass
-class PoseSet:
-    """Printed configurations (rad) with a label per pose.
-
-    Attributes
-    ----------
-    q : np.ndarray, shape (P, 6)
-        Printed angles q1..q6 (rad).
-    kind : list of str
-        ``"paper"``, ``"workspace"`` (vertical wrist) or ``"general"`` (random wrist).
-    """
-
-    q: np.ndarray
-    kind: list[str]
-
-    def select(self, kind: str) -> np.ndarray:
-        """Indices of the poses of one kind."""
-        return np.array([i for i, k in enumerate(self.kind) if k == kind], dtype=int)
-
-
-def sample_poses(
-    n_samples: int = 200,
-    seed: int = 0,
-    n_general: int | None = None,
-    loop_margin_deg: float = LOOP_MARGIN_DEG,
-) -> PoseSet:
-    """The paper's printed configurations plus a workspace sample.
-
-    Parameters
-    ----------
-    n_samples : int
-        Random poses with a vertical tool (printed ``q4 = 0``, ``q5 = -90 - q3``,
-        ``q6 = +-90`` deg) within the paper's ranges ``q1 in [-180, 180]``,
-        ``q2 in [-70, 70]``, ``q3 in [-115, 35]`` deg.
-    seed : int
-        Seed of the generator.
-    n_general : int, optional
-        Extra poses with a random wrist (``q4..q6`` uniform in [-180, 180] deg); default
-        ``max(8, n_samples // 4)``.
-    loop_margin_deg : float
-        Random poses whose five-bar angle ``theta_bar2 = theta2 - theta3`` (Table I) is within
-        this margin (deg) of 0 or 180 (the flattened parallelogram, a loop singularity the
-        paper's independent joint ranges do not exclude) are redrawn: there the closed-loop
-        K_C of the reference loses digits (4e-9 relative, 3e-6 N.mm/rad per N, at 0.4 deg).
-
-    Returns
-    -------
-    PoseSet
-        Paper configurations first, then the vertical-wrist and general samples.
-    """
-    rng = np.random.default_rng(seed)
-    printed = printed_convention()
-    if n_general is None:
-        n_general = max(_SEARCH_POSES, n_samples // 4)
-
-    def arm(n: int) -> np.ndarray:
-        out = np.zeros((0, 3))
-        while out.shape[0] < n:
-            draw = np.column_stack([rng.uniform(lo, hi, n) for lo, hi in _RANGES_DEG])
-            q = np.zeros((n, 6))
-            q[:, :3] = np.deg2rad(draw)
-            theta = printed.to_dh(q)
-            ok = np.abs(np.sin(theta[:, 1] - theta[:, 2])) >= np.sin(np.deg2rad(loop_margin_deg))
-            out = np.vstack([out, draw[ok]])
-        return out[:n]
-
-    paper = np.deg2rad(paper_configurations())
-    arm_v = arm(n_samples)
-    q6 = rng.choice([-90.0, 90.0], n_samples)
-    vertical = np.deg2rad(np.column_stack(
-        [arm_v, np.zeros(n_samples), -90.0 - arm_v[:, 2], q6]))
-    arm_g = arm(n_general)
-    general = np.deg2rad(np.column_stack([arm_g, rng.uniform(-180.0, 180.0, (n_general, 3))]))
-    q = np.vstack([paper, vertical, general])
-    kind = ["paper"] * len(paper) + ["workspace"] * n_samples + ["general"] * n_general
-    return PoseSet(q, kind)
-
-
-def _polished(robot: Robot, q: np.ndarray, iterations: int = 3) -> np.ndarray:
-    """Extra Gauss-Newton steps on the loop closure, down to round-off (pure model accuracy)."""
-    model, data, loop = robot.model, robot.data, robot.loop
-    for _ in range(iterations):
-        kinematics.update_first_order(model, data, q)
-        c = loop.residual(model, data)
-        cp = loop.jacobian(model, data)[:, loop.passive_v]
-        dv = np.zeros(model.nv)
-        dv[loop.passive_v] = np.linalg.lstsq(cp, -c, rcond=1e-10)[0]
-        q = pin.integrate(model, q, dv)
-    return q
-
-
-def pinocchio_samples(robot: Robot, q_printed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pinocchio target Jacobians and unit-force K_C at printed configurations.
-
-    Parameters
-    ----------
-    robot : Robot
-        An SK120 model whose joints ``joint1..joint6`` take the printed angles
-        (``load_robot("sk120")``), compliant joints ``joint1..joint3``.
-    q_printed : np.ndarray, shape (P, 6)
-        Printed angles (rad).
-
-    Returns
-    -------
-    jac : np.ndarray, shape (P, 3, 3)
-        ``d(target position)/d(q1, q2, q3)`` in mm/rad (loop closed), Pinocchio base axes.
-    kc : np.ndarray, shape (P, 3, 3, 3)
-        ``kc[p, k]`` = K_C (N.mm/rad) w.r.t. ``q1..q3`` for a 1 N dead force along base axis k.
-    """
-    names = [f"joint{i + 1}" for i in range(6)]
-    order = [names.index(j) for j in robot.coordinate_joints]
-    jac = np.zeros((len(q_printed), 3, 3))
-    kc = np.zeros((len(q_printed), 3, 3, 3))
-    for p, coords in enumerate(q_printed):
-        q = robot.configuration(np.asarray(coords)[order])
-        if robot.loop is not None:
-            q = _polished(robot, q)
-        for k in range(3):
-            state = target_state(robot, q, np.eye(3)[k])
-            kc[p, k] = state.k_c * 1e3
-        jac[p] = state.jacobian[:3] * 1e3
-    return jac, kc
-
-
-def _generic_robot(extra_mm: Mapping[str, float], printed: AngleConvention) -> Robot:
-    """The SK120 built from Table I with the zero lengths of ``extra_mm`` made non-zero."""
-    table1 = dict(read_table1(robots_directory() / "sk120" / "table1_dh.csv"))
-    edits = {"D1": ("1", "d"), "D3": ("3", "d"), "L4": ("4", "a"), "D5": ("5", "d"),
-             "L5": ("5", "a")}
-    for sym, value in extra_mm.items():
-        row, field_name = edits[sym]
-        table1[row] = replace(table1[row], **{field_name: value * 1e-3})
-    loops = robots_directory() / "sk120" / "sk120.loops.yaml"
-    with tempfile.TemporaryDirectory(prefix="sk120_generic_") as tmp:
-        urdf = Path(tmp) / "sk120_generic.urdf"
-        urdf.write_text(sk120_urdf(table1, printed))
-        (Path(tmp) / "sk120_generic.loops.yaml").write_text(loops.read_text())
-        return load_robot(urdf, frame="fixture_target",
-                          compliant_joints=["joint1", "joint2", "joint3"])
-
-
-# --------------------------------------------------------------------------------------------
-# Convention search
-# --------------------------------------------------------------------------------------------
-
-
-def _options() -> tuple[list[tuple[float, int]], list[tuple[float, int, int]]]:
-    single = [(o, s) for o in _OFFSETS_DEG for s in _SIGNS]
-    third = [(o, s, k) for k in _T3_COUPLINGS for o in _OFFSETS_DEG for s in _SIGNS]
-    return single, third
-
-
-@dataclass
-class ConventionSearch:
-    """Result of :func:`find_convention`.
-
-    Attributes
-    ----------
-    best : AppendixConvention
-        The simplest of the conventions with the most matching elements.
-    n_matching : int
-        Number of elements (of 9, or of 7 with ``full=False``) that match exactly under it.
-    matching : list of str
-        Those elements.
-    equivalent : list of AppendixConvention
-        Conventions with the same number of matching elements, simplest first (at most
-        ``_MAX_EQUIVALENT``).
-    n_equivalent : int
-        Number of such conventions.
-    n_candidates : int
-        Size of the search space.
-    """
-
-    best: AppendixConvention
-    n_matching: int
-    matching: list[str]
-    equivalent: list[AppendixConvention]
-    n_equivalent: int
-    n_candidates: int
-
-
-def find_convention(
-    theta_dh: np.ndarray, jac_theta: np.ndarray, lengths: Mapping[str, float],
-    terms: TermsByElement = APPENDIX_TERMS,
-    full: bool = True,
-) -> ConventionSearch:
-    """Exhaustive search of the appendix's angle convention and base frame.
-
-    Every map ``t_i = o_i + s_i theta_i`` (``o`` in {0, 90, 180, -90} deg, ``s = +-1``),
-    ``t3 += k theta2`` (``k`` in {0, 1, -1}), with base reflection ``diag(1, f2, f3)``
-    (8^5 * 24 * 4 = 3.1e6 candidates) is scored by the number of elements that agree exactly
-    (relative 1e-6) at all given poses. Elements are separable (each depends on a subset of the
-    angles), so scores of seven elements are tabulated by broadcasting; J11 and J21 (which
-    depend on all six angles) are evaluated only where the total can still reach the best
-    (branch and bound).
-
-    Parameters
-    ----------
-    theta_dh : np.ndarray, shape (P, 6)
-        Table I DH angles (rad) of general poses (random wrist, so that the wrist is resolved).
-    jac_theta : np.ndarray, shape (P, 3, 3)
-        Pinocchio Jacobian w.r.t. the DH angles theta1..theta3 (mm/rad), Pinocchio axes.
-    lengths : Mapping[str, float]
-        Length symbols (mm).
-    terms : Mapping[str, Sequence[Term]]
-        Element expressions (default: as printed).
-    full : bool
-        Score all nine elements (default); if False, only the seven tabulated ones (J11 and
-        J21 left out), which is faster when many conventions tie.
-
-    Returns
-    -------
-    ConventionSearch
-        The best convention, its matching elements and all equivalent ones.
-    """
-    single, third = _options()
-    n_pose = theta_dh.shape[0]
-    scale = np.abs(jac_theta).max(axis=(1, 2))  # (P,)
-    tol = _SEARCH_REL * scale
-    nd = 8  # axes: a1, a2, a3, a4, a5, a6, f, pose
-
-    def axis_array(values: np.ndarray, axis: int) -> np.ndarray:
-        shape = [1] * nd
-        shape[axis] = values.shape[0]
-        shape[-1] = n_pose
-        return values.reshape(shape)
-
-    trig: dict[str, np.ndarray] = {}
-    for i in range(6):
-        opts = third if i == 2 else single
-        ang = np.array([np.deg2rad(opt[0]) + opt[1] * theta_dh[:, i]
-                        + (opt[2] * theta_dh[:, 1] if i == 2 else 0.0) for opt in opts])
-        trig[f"cos(t{i + 1})"] = axis_array(np.cos(ang), i)
-        trig[f"sin(t{i + 1})"] = axis_array(np.sin(ang), i)
-    c2, s2, c3, s3 = (trig[k] for k in ("cos(t2)", "sin(t2)", "cos(t3)", "sin(t3)"))
-    trig["cos(t2-t3)"] = c2 * c3 + s2 * s3
-    trig["sin(t2-t3)"] = s2 * c3 - c2 * s3
-
-    def element_values(name: str) -> np.ndarray:
-        total = np.zeros([1] * nd)
-        for term in terms[name]:
-            value = term.sign * lengths.get(term.length, 0.0)
-            if value == 0.0:
-                continue
-            prod = np.full([1] * nd, value)
-            for func, arg in term.factors:
-                prod = prod * trig[f"{func}({arg})"]
-            total = total + prod
-        return total
-
-    sign1 = axis_array(np.array([[s] * n_pose for _, s in single], dtype=float), 0)
-    sign2 = axis_array(np.array([[s] * n_pose for _, s in single], dtype=float), 1)
-    sign3 = axis_array(np.array([[s] * n_pose for _, s, _ in third], dtype=float), 2)
-    coup3 = axis_array(np.array([[k] * n_pose for _, _, k in third], dtype=float), 2)
-    flips = [np.ones(len(_BASE_FLIPS)), np.array([f[0] for f in _BASE_FLIPS], dtype=float),
-             np.array([f[1] for f in _BASE_FLIPS], dtype=float)]
-    tol_b = tol.reshape([1] * (nd - 1) + [n_pose])
-
-    def pin_values(r: int, c: int) -> np.ndarray:
-        f = flips[r].reshape([1] * 6 + [len(_BASE_FLIPS), 1])
-        jr = [jac_theta[:, r, k].reshape([1] * (nd - 1) + [n_pose]) for k in range(3)]
-        if c == 0:
-            return f * sign1 * jr[0]
-        if c == 1:
-            return f * sign2 * (jr[1] - coup3 * sign3 * jr[2])
-        return f * sign3 * jr[2]
-
-    def match(name: str) -> np.ndarray:
-        r, c = int(name[1]) - 1, int(name[2]) - 1
-        diff = np.abs(element_values(name) - pin_values(r, c))
-        return np.all(diff <= tol_b, axis=-1)
-
-    full_shape = (8, 8, 24, 8, 8, 8, len(_BASE_FLIPS))
-    cheap = [n for n in ELEMENT_NAMES if n not in ("J11", "J21")]
-    partial = np.zeros(full_shape, dtype=np.int8)
-    tables = {}
-    for name in cheap:
-        tables[name] = match(name)
-        partial += tables[name].astype(np.int8)
-    bound = int(partial.max())
-    if full:
-        cand = np.nonzero(partial >= bound - 2)
-        totals = partial[cand].astype(int)
-        extra_match = _match_j11_j21(cand, single, third, theta_dh, jac_theta, tol, lengths,
-                                     terms)
-        for ok in extra_match.values():
-            totals = totals + ok
-    else:
-        cand = np.nonzero(partial == bound)
-        totals = partial[cand].astype(int)
-        extra_match = {}
-    best_score = int(totals.max())
-    winners = np.nonzero(totals == best_score)[0]
-    # simplest first: departures from the identity map
-    cost = np.zeros(winners.shape[0], dtype=int)
-    for i in range(6):
-        opts = third if i == 2 else single
-        c_opt = np.array([int(opt[0] != 0.0) + int(opt[1] < 0)
-                          + (4 * abs(opt[2]) if i == 2 else 0) for opt in opts])
-        cost += c_opt[cand[i][winners]]
-    c_flip = np.array([4 * ((f2 < 0) + (f3 < 0)) for f2, f3 in _BASE_FLIPS])
-    cost += c_flip[cand[6][winners]]
-    order = winners[np.argsort(cost, kind="stable")][:_MAX_EQUIVALENT]
-    conventions = []
-    for w in order:
-        idx = [cand[i][w] for i in range(7)]
-        o3, s3, k3 = third[idx[2]]
-        offs = tuple(single[idx[i]][0] if i != 2 else o3 for i in range(6))
-        sgns = tuple(single[idx[i]][1] if i != 2 else s3 for i in range(6))
-        f2, f3 = _BASE_FLIPS[idx[6]]
-        conventions.append(AppendixConvention(offs, sgns, k3, (1, f2, f3)))
-    idx = tuple(cand[i][order[0]] for i in range(7))
-    matching = [n for n in cheap if np.broadcast_to(tables[n], full_shape)[idx]]
-    matching += [n for n, ok in extra_match.items() if ok[order[0]]]
-    return ConventionSearch(conventions[0], best_score, sorted(matching), conventions,
-                            int(winners.shape[0]), int(np.prod(full_shape)))
-
-
-def _match_j11_j21(cand, single, third, theta_dh, jac_theta, tol, lengths, terms
-                   ) -> dict[str, np.ndarray]:
-    """Exact-match flags of J11 and J21 for the candidate conventions ``cand`` (indices)."""
-    n_cand, n_pose = cand[0].shape[0], theta_dh.shape[0]
-    t_cand = np.zeros((n_cand, n_pose, 6))
-    for i in range(6):
-        opts = third if i == 2 else single
-        off = np.deg2rad(np.array([opt[0] for opt in opts]))[cand[i]]
-        sgn = np.array([opt[1] for opt in opts], dtype=float)[cand[i]]
-        t_cand[:, :, i] = off[:, None] + sgn[:, None] * theta_dh[None, :, i]
-        if i == 2:
-            k = np.array([opt[2] for opt in opts], dtype=float)[cand[i]]
-            t_cand[:, :, i] += k[:, None] * theta_dh[None, :, 1]
-    f2 = np.array([f[0] for f in _BASE_FLIPS], dtype=float)[cand[6]]
-    s1 = np.array([opt[1] for opt in single], dtype=float)[cand[0]]
-    flat = t_cand.reshape(-1, 6)
-    out = {}
-    for name, row_flip in (("J11", np.ones(n_cand)), ("J21", f2)):
-        r = int(name[1]) - 1
-        app = _terms_values(terms[name], flat, lengths).reshape(n_cand, n_pose)
-        pin_v = (row_flip * s1)[:, None] * jac_theta[None, :, r, 0]
-        out[name] = np.all(np.abs(app - pin_v) <= tol[None, :], axis=1)
-    return out
-
-
-# --------------------------------------------------------------------------------------------
-# Edits: explaining a disagreeing element
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Edit:
-    """One edit of a printed element.
-
-    Attributes
-    ----------
-    element : str
-        ``"J11".."J33"``.
-    kind : str
-        ``"sign"`` (flip a term's sign), ``"drop"``, ``"length"`` (swap the length symbol),
-        ``"function"`` (cos <-> sin of one factor), ``"argument"`` (another angle in one
-        factor) or ``"add"`` (a missing monomial).
-    index : int or None
-        Position of the edited term in the printed element (None for ``add``).
-    old : Term or None
-        The printed term (None for ``add``).
-    new : Term or None
-        The replacement or added term (None for ``drop``).
-    """
-
-    element: str
-    kind: str
-    index: int | None
-    old: Term | None
-    new: Term | None
-
-    def describe(self) -> str:
-        """One sentence, e.g. ``printed term '- D4 cos(t1) cos(t3)' has the wrong sign``."""
-        if self.kind == "sign":
-            return f"printed term '{self.old}' has the wrong sign (should be '{self.new}')"
-        if self.kind == "drop":
-            return f"printed term '{self.old}' should not be there"
-        if self.kind == "add":
-            return f"term '{self.new}' is missing"
-        what = {"length": "length symbol", "function": "trigonometric function",
-                "argument": "angle"}[self.kind]
-        return f"printed term '{self.old}' has the wrong {what} (should be '{self.new}')"
-
-    def as_dict(self) -> dict:
-        """JSON-ready description."""
-        return {"element": self.element, "kind": self.kind, "index": self.index,
-                "printed": None if self.old is None else str(self.old),
-                "corrected": None if self.new is None else str(self.new),
-                "text": self.describe()}
-
-
-def apply_edits(terms: TermsByElement, edits: Sequence[Edit]) -> dict[str, tuple[Term, ...]]:
-    """A copy of ``terms`` with the edits applied (indices refer to the unedited element).
-
-    Parameters
-    ----------
-    terms : Mapping[str, Sequence[Term]]
-        Element expressions.
-    edits : Sequence[Edit]
-        Edits (at most one per term, any number of additions).
-
-    Returns
-    -------
-    dict[str, tuple[Term, ...]]
-        Edited expressions.
-    """
-    out = {name: list(ts) for name, ts in terms.items()}
-    drops: dict[str, set[int]] = {}
-    for e in edits:
-        if e.kind == "add":
-            out[e.element].append(e.new)
-        elif e.kind == "drop":
-            drops.setdefault(e.element, set()).add(e.index)
-        else:
-            out[e.element][e.index] = e.new
-    for name, idx in drops.items():
-        out[name] = [t for i, t in enumerate(out[name]) if i not in idx]
-    return {name: tuple(ts) for name, ts in out.items()}
-
-
-def _monomial_dictionary(terms: TermsByElement, lengths: Mapping[str, float]) -> list[Term]:
-    """Candidate missing monomials: every printed trigonometric product (and its t1-rotated
-    twin, cos t1 <-> sin t1) with every non-zero length symbol, both signs."""
-    shapes: set[tuple[tuple[str, str], ...]] = set()
-    for ts in terms.values():
-        for term in ts:
-            shapes.add(term.factors)
-            shapes.add(tuple((("sin" if f == "cos" else "cos"), a) if a == "t1" else (f, a)
-                             for f, a in term.factors))
-    symbols = [s for s in LENGTH_SYMBOLS if lengths.get(s, 0.0) != 0.0]
-    return [Term(sign, sym, factors) for factors in sorted(shapes) for sym in symbols
-            for sign in (1, -1)]
-
-
-def _single_edits(name: str, terms: TermsByElement, lengths: Mapping[str, float]) -> list[Edit]:
-    edits: list[Edit] = []
-    printed = list(terms[name])
-    for i, term in enumerate(printed):
-        edits.append(Edit(name, "sign", i, term, Term(-term.sign, term.length, term.factors)))
-    for i, term in enumerate(printed):
-        for sym in LENGTH_SYMBOLS:
-            if sym != term.length:
-                edits.append(Edit(name, "length", i, term, Term(term.sign, sym, term.factors)))
-    for i, term in enumerate(printed):
-        edits.append(Edit(name, "drop", i, term, None))
-    for i, term in enumerate(printed):
-        for j, (func, arg) in enumerate(term.factors):
-            other = "sin" if func == "cos" else "cos"
-            factors = term.factors[:j] + ((other, arg),) + term.factors[j + 1:]
-            edits.append(Edit(name, "function", i, term, Term(term.sign, term.length, factors)))
-    for i, term in enumerate(printed):
-        for j, (func, arg) in enumerate(term.factors):
-            for new_arg in ANGLE_SYMBOLS:
-                if new_arg != arg:
-                    factors = term.factors[:j] + ((func, new_arg),) + term.factors[j + 1:]
-                    edits.append(Edit(name, "argument", i, term,
-                                      Term(term.sign, term.length, factors)))
-    present = {(t.sign, t.length, t.factors) for t in printed}
-    for term in _monomial_dictionary(terms, lengths):
-        if (term.sign, term.length, term.factors) not in present:
-            edits.append(Edit(name, "add", None, None, term))
-    return edits
-
-
-def _edit_delta(edit: Edit, t: np.ndarray, lengths: Mapping[str, float]) -> np.ndarray:
-    new = _terms_values([edit.new], t, lengths) if edit.new is not None else 0.0
-    old = _terms_values([edit.old], t, lengths) if edit.old is not None else 0.0
-    return new - old
-
-
-def explain_element(
-    name: str,
-    target: np.ndarray,
-    t: np.ndarray,
-    lengths: Mapping[str, float],
-    terms: TermsByElement = APPENDIX_TERMS,
-    scale: np.ndarray | None = None,
-    rel_tol: float = ROUND_OFF_REL,
-    max_edits: int = 2,
-) -> list[tuple[Edit, ...]]:
-    """Smallest edits of a printed element that make it match a reference to round-off.
-
-    Single edits are tried first (sign flips, length-symbol swaps, dropped terms, cos/sin
-    swaps, angle swaps, added monomials), then pairs of edits on different terms. An
-    explanation is accepted when the edited element matches ``target`` within
-    ``rel_tol * scale`` at every pose.
-
-    Parameters
-    ----------
-    name : str
-        Element, ``"J11".."J33"``.
-    target : np.ndarray, shape (P,)
-        Reference values (mm/rad) in the appendix's convention.
-    t : np.ndarray, shape (P, 6)
-        Appendix angles (rad).
-    lengths : Mapping[str, float]
-        Length symbols (mm).
-    terms : Mapping[str, Sequence[Term]]
-        Element expressions to edit (default: as printed).
-    scale : np.ndarray, shape (P,), optional
-        Per-pose scale of the tolerance (default: ``max |target|``).
-    rel_tol : float
-        Relative tolerance.
-    max_edits : int
-        1 or 2.
-
-    Returns
-    -------
-    list of tuple of Edit
-        Accepted explanations, smallest first (empty if none).
-    """
-    t = np.atleast_2d(np.asarray(t, dtype=float))
-    target = np.asarray(target, dtype=float)
-    if scale is None:
-        scale = np.full(target.shape, max(float(np.abs(target).max()), 1e-300))
-    tol = rel_tol * np.asarray(scale)
-    resid = (target - _terms_values(terms[name], t, lengths)) / tol
-    if np.all(np.abs(resid) <= 1.0):
-        return [()]
-    edits = _single_edits(name, terms, lengths)
-    deltas = np.array([_edit_delta(e, t, lengths) for e in edits]) / tol[None, :]
-    err1 = np.abs(resid[None, :] - deltas).max(axis=1)
-    singles = [(e,) for e, err in zip(edits, err1, strict=True) if err <= 1.0]
-    if singles or max_edits < 2:
-        return singles
-    # pairs: screen with L2 norms (Gram matrix), then verify in the max norm
-    n_pose = resid.shape[0]
-    gram = deltas @ deltas.T
-    rd = deltas @ resid
-    sq = resid @ resid - 2.0 * (rd[:, None] + rd[None, :]) + (
-        np.diag(gram)[:, None] + np.diag(gram)[None, :] + 2.0 * gram)
-    ii, jj = np.nonzero(np.triu(sq <= n_pose * 4.0, k=1))
-    pairs = []
-    for i, j in zip(ii, jj, strict=True):
-        a, b = edits[i], edits[j]
-        if a.index is not None and a.index == b.index:
-            continue
-        if np.abs(resid - deltas[i] - deltas[j]).max() <= 1.0:
-            pairs.append((a, b))
-    return pairs
-
-
-# --------------------------------------------------------------------------------------------
-# Model-free integrability check
-# --------------------------------------------------------------------------------------------
-
-
-def integrability_violations(
-    terms: TermsByElement = APPENDIX_TERMS, n_poses: int = 16, seed: int = 1
-) -> list[dict]:
-    """Conditions a position Jacobian must satisfy, checked symbol by symbol at random angles.
-
-    For every length symbol alone (value 1): ``dJ[:, i]/dt_j = dJ[:, j]/dt_i`` (the columns
-    are derivatives of one position) and ``dJ[:, c]/dt1 = z x J[:, c]`` (t1 turns about the
-    base z axis). The expressions are linear in the lengths, so this detects inconsistent
-    terms whatever the lengths' values, including those Table I sets to zero.
-
-    Parameters
-    ----------
-    terms : Mapping[str, Sequence[Term]]
-        Element expressions.
-    n_poses : int
-        Number of random angle sets.
-    seed : int
-        Seed.
-
-    Returns
-    -------
-    list of dict
-        ``{"symbol", "condition", "max_abs"}`` for each violated condition (per unit length).
-    """
-    rng = np.random.default_rng(seed)
-    t = rng.uniform(-np.pi, np.pi, (n_poses, 6))
-    out = []
-    for sym in LENGTH_SYMBOLS:
-        lengths = {sym: 1.0}
-        jac = jacobian_from_terms(terms, t, lengths)
-        d = []
-        for j in range(3):
-            tc = t.astype(np.complex128)
-            tc[:, j] += 1j * _COMPLEX_STEP
-            d.append(jacobian_from_terms(terms, tc, lengths).imag / _COMPLEX_STEP)
-        checks = {}
-        for i, j in ((0, 1), (0, 2), (1, 2)):
-            checks[f"dJ[:,{i + 1}]/dt{j + 1} = dJ[:,{j + 1}]/dt{i + 1}"] = d[j][:, :, i] - d[i][
-                :, :, j]
-        for c in range(3):
-            rot = np.stack([-jac[:, 1, c], jac[:, 0, c], np.zeros(n_poses)], axis=1)
-            checks[f"dJ[:,{c + 1}]/dt1 = z x J[:,{c + 1}]"] = d[0][:, :, c] - rot
-        for cond, diff in checks.items():
-            err = float(np.abs(diff).max())
-            if err > 1e-9:
-                out.append({"symbol": sym, "condition": cond, "max_abs": err})
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -992,6 +125,7 @@ def _element_errors(ref: np.ndarray, other: np.ndarray, prefix: str = "J") -> di
 
 
 def _matches(errors: Mapping[str, dict], rel: float = ROUND_OFF_REL) -> list[str]:
+    """Names of the elements whose ``max_rel`` is within ``rel``."""
     return [name for name, e in errors.items() if e["max_rel"] <= rel]
 
 
@@ -1018,6 +152,7 @@ def _map_to_appendix(conv: AppendixConvention, printed: AngleConvention, q: np.n
 
 def _kc_of_terms(terms: TermsByElement, t: np.ndarray, lengths: Mapping[str, float]
                  ) -> np.ndarray:
+    """K_C (P, 3, 3, 3) of element expressions for a unit force along each appendix axis."""
     return np.stack([kc_from_terms(terms, t, np.eye(3)[k], lengths) for k in range(3)], axis=1)
 
 
@@ -1031,7 +166,7 @@ def _identify_lengths(t: np.ndarray, target: np.ndarray, terms: TermsByElement,
         if not symbols:
             continue
         basis = np.column_stack([
-            _terms_values([tm for tm in terms[name] if tm.length == s], t, {s: 1.0})
+            terms_values([tm for tm in terms[name] if tm.length == s], t, {s: 1.0})
             for s in symbols])
         coef = np.linalg.lstsq(basis, target[:, r, c], rcond=None)[0]
         out[name] = {s: float(np.round(v, 6)) + 0.0 for s, v in zip(symbols, coef, strict=True)}
@@ -1088,24 +223,24 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
     jac_theta = jac_q * np.asarray(printed.signs[:3], dtype=float)[None, None, :]
 
     # 1-2. convention (and fixture placement) from general-wrist poses
-    search_idx = poses.select("general")[:_SEARCH_POSES]
+    search_idx = poses.select("general")[:SEARCH_POSES]
     found = find_convention(theta[search_idx], jac_theta[search_idx], lengths)
     fixture_rows = _fixture_search(theta[search_idx], jac_theta[search_idx], table1)
 
     # generic lengths: Pinocchio model with the zero lengths of Table I made non-zero
     generic_lengths = {**lengths, **GENERIC_EXTRA_LENGTHS_MM}
-    generic_robot = _generic_robot(GENERIC_EXTRA_LENGTHS_MM, printed)
+    generic_robot = build_generic_robot(GENERIC_EXTRA_LENGTHS_MM, printed)
     generic_idx = poses.select("general")
     g_jac_q, g_kc_q = pinocchio_samples(generic_robot, poses.q[generic_idx])
     g_jac_theta = g_jac_q * np.asarray(printed.signs[:3], dtype=float)[None, None, :]
-    found_generic = find_convention(theta[generic_idx][:_SEARCH_POSES],
-                                    g_jac_theta[:_SEARCH_POSES], generic_lengths)
+    found_generic = find_convention(theta[generic_idx][:SEARCH_POSES],
+                                    g_jac_theta[:SEARCH_POSES], generic_lengths)
     conv = found_generic.best
     check = _map_to_appendix(conv, printed, poses.q[search_idx], jac_q[search_idx],
                              kc_q[search_idx])
     check_errors = _element_errors(
         check.jac, jacobian_from_terms(APPENDIX_TERMS, check.t, lengths))
-    if len(_matches(check_errors, _SEARCH_REL)) < found.n_matching:
+    if len(_matches(check_errors, SEARCH_REL)) < found.n_matching:
         conv = found.best
 
     # 3. comparison at Table I's lengths
@@ -1154,7 +289,7 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
         entry = {"element": name, "max_abs_generic": g_elements[name]["max_abs"]}
         if expl:
             edits = list(expl[0])
-            delta_t1 = max(float(np.abs(_edit_delta(e, mapped.t, lengths)).max()) for e in edits)
+            delta_t1 = max(float(np.abs(edit_delta(e, mapped.t, lengths)).max()) for e in edits)
             zero = sorted({s for e in edits for s in _symbols(e) if lengths.get(s, 0.0) == 0.0})
             entry["explanation"] = " and ".join(e.describe() for e in edits) + (
                 f"; with it {name} matches the generic-length model to "
@@ -1191,7 +326,7 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
 
     plain = {
         "t = printed q": AppendixConvention(
-            tuple(_wrap_deg(-s * o) for s, o in zip(printed.signs, printed.offsets_deg,
+            tuple(wrap_deg(-s * o) for s, o in zip(printed.signs, printed.offsets_deg,
                                                       strict=True)),
             tuple(printed.signs)),
         "t = Table I DH theta": AppendixConvention((0.0,) * 6, (1,) * 6),
@@ -1279,6 +414,7 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
 
 def _edit_error(name: str, terms: TermsByElement, edits: Sequence[Edit], mapped: _Mapped,
                 lengths: Mapping[str, float]) -> float:
+    """Max abs error (mm/rad) of element ``name`` after the edits, against ``mapped.jac``."""
     r, c = int(name[1]) - 1, int(name[2]) - 1
     fixed = apply_edits(terms, edits)
     return float(np.abs(jacobian_from_terms(fixed, mapped.t, lengths)[:, r, c]
@@ -1286,7 +422,9 @@ def _edit_error(name: str, terms: TermsByElement, edits: Sequence[Edit], mapped:
 
 
 def _symbols(edit: Edit) -> set[str]:
+    """Length symbols of the old and new terms of an edit."""
     return {t.length for t in (edit.old, edit.new) if t is not None}
+
 
 
 # --------------------------------------------------------------------------------------------
@@ -1318,6 +456,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _text_report(report: dict) -> str:
+    """Plain-text summary of a :func:`run_crosscheck` report."""
     lines = [
         "Appendix I (A&S 2005) vs Pinocchio SK120, same physical poses "
         f"({report['n_poses']}: " + ", ".join(
