@@ -194,18 +194,19 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
 
 def table4_seconds(rounds: int = 3) -> float:
     """Wall time of the Table IV scan in this process (robot loaded, no figures), best of N."""
+    from stiffness import workspace_scan
     from stiffness.commands import scan as scan_command
 
     parser = argparse.ArgumentParser()
     scan_command.configure_parser(parser)
     spec, _ = scan_command.build_spec(parser.parse_args(["--robot", "sk120", "--preset",
                                                          "table4"]))
-    scan_command.scan_chunk(spec.to_dict(), 0)  # loads the worker's robot once
+    workspace_scan.scan_chunk(spec.to_dict(), 0)  # loads the worker's robot once
     best = np.inf
     for _ in range(rounds):
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            scan_command.run_scan(spec, Path(tmp) / "t4", plots=False)
+            workspace_scan.run_scan(spec, Path(tmp) / "t4", plots=False)
             best = min(best, time.perf_counter() - t0)
     return best
 
@@ -245,6 +246,7 @@ from pathlib import Path
 import argparse
 from stiffness.commands import scan
 from stiffness.distributed import warm_worker
+from stiffness.workspace_scan import run_scan
 p = argparse.ArgumentParser(); scan.configure_parser(p)
 args = p.parse_args(sys.argv[1:-1])
 spec, _ = scan.build_spec(args)
@@ -263,7 +265,7 @@ else:
     warm_worker(spec.robot)
 with tempfile.TemporaryDirectory() as tmp:
     t0 = time.perf_counter()
-    scan.run_scan(spec, Path(tmp) / "s", plots=False, client=client)
+    run_scan(spec, Path(tmp) / "s", plots=False, client=client)
     wall = time.perf_counter() - t0
 if client is not None:
     client.close(); cluster.close()

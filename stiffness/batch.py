@@ -35,6 +35,12 @@ Shapes: ``m`` configurations, ``L`` load cases, ``n`` compliant joints, ``r`` Ca
 (3: translational, 6: [v; omega]). Units: SI (m, N, rad; K_C in N.m/rad; K_X in N/m for the
 translational block; compliance in m/N). A :class:`~stiffness.robot.Robot` holds one
 Pinocchio ``Data``: use one robot per thread.
+
+Layout: this module holds the kinematics (:func:`batch_kinematics`,
+:func:`single_force_kinematics`), K_C of the load cases (:func:`complementary_stiffness`) and
+the pipelines built on them (:func:`evaluate`, :func:`definiteness_map`); the loop closures are
+in :mod:`stiffness.batch_loops` and the stacked linear algebra in :mod:`stiffness.batch_linalg`,
+whose public names are re-exported here (``batch.close_loops``, ``batch.compliance``...).
 """
 
 from __future__ import annotations
@@ -44,20 +50,46 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch_linalg import (
+    CLASS_CODES,
+    CONDITION_LIMIT,
+    INVALID_CLASS,
+    _compliance_stack,
+    _symmetric_stack,
+    as_joint_stiffness,
+    cartesian_stiffness,
+    class_names,
+    compliance,
+    critical_load_factor,
+    definiteness_codes,
+    principal_stiffness,
+    symmetric_eigenvalues,
+    tangent_stiffness,
+)
+from stiffness.batch_loops import (
+    LWA,
+    ClosedConfigurations,
+    _loop_points,
+    close_loops,
+    loop_coordinate_indices,
+    tree_configurations,
+)
 from stiffness.errors import StiffnessError
-from stiffness.formulation import DEFINITENESS_CLASSES, FORMULATIONS
+from stiffness.formulation import FORMULATIONS
 from stiffness.robot import Robot
 
-LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-#: Definiteness class codes: ``DEFINITENESS_CLASSES[code]`` ("PD", "PSD", "ND", "NSD", "ID");
-#: -1 marks an invalid entry (singular or unreachable configuration).
-CLASS_CODES = {name: i for i, name in enumerate(DEFINITENESS_CLASSES)}
-INVALID_CLASS = -1
-
-#: Condition-number limit of the compliance beyond which K_X is reported singular (NaN), as in
-#: :func:`stiffness.formulation.cartesian_stiffness` (there: 2-norm; here: 1-norm estimate).
-CONDITION_LIMIT = 1e12
+__all__ = [
+    # kinematics and pipelines (this module)
+    "BatchKinematics", "BatchStiffness", "DefinitenessMap", "batch_kinematics",
+    "complementary_stiffness", "definiteness_map", "evaluate", "single_force_kinematics",
+    # loop closures (stiffness.batch_loops)
+    "LWA", "ClosedConfigurations", "close_loops", "loop_coordinate_indices",
+    "tree_configurations",
+    # linear algebra (stiffness.batch_linalg)
+    "CLASS_CODES", "CONDITION_LIMIT", "INVALID_CLASS", "as_joint_stiffness",
+    "cartesian_stiffness", "class_names", "compliance", "critical_load_factor",
+    "definiteness_codes", "principal_stiffness", "symmetric_eigenvalues", "tangent_stiffness",
+]
 
 #: Rank tolerance of the passive-joint constraint block, as in
 #: :func:`stiffness.formulation.velocity_projection`.
@@ -233,33 +265,6 @@ def _is_identity_selection(index: np.ndarray, size: int) -> bool:
     return index.shape[0] == size and bool(np.all(index == np.arange(size)))
 
 
-#: Points (in a frame's own axes, m) whose coincidence closes a "6D" loop pair.
-_FRAME_POINTS_M = (np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-
-
-def _loop_points(robot: Robot) -> list[tuple]:
-    """Points whose world positions make the loop residual, as ``getFrame*`` arguments.
-
-    Consecutive entries (a, b) form the rows ``p_b - p_a``: a "3D" pair is its two frame
-    origins (``(frame_id,)``); a "6D" pair three points of each frame, its origin and the
-    points one metre along its x and y axes (``(joint_id, placement)``), as
-    :meth:`stiffness.loops.LoopClosure.world_residual`. The reduced Hessian does not depend on
-    how the closure is written, only on its zero set.
-    """
-    model = robot.model
-    points: list[tuple] = []
-    for pair, (fa, fb) in zip(robot.loop.pairs, robot.loop.frame_ids, strict=True):
-        if pair.kind == "3D":
-            points += [(fa,), (fb,)]
-            continue
-        frame_a, frame_b = model.frames[fa], model.frames[fb]
-        for offset in _FRAME_POINTS_M:
-            shift = pin.SE3(np.eye(3), offset)
-            points += [(frame_a.parentJoint, frame_a.placement * shift),
-                       (frame_b.parentJoint, frame_b.placement * shift)]
-    return points
-
-
 def _closed_loop_basis(robot: Robot, hess: np.ndarray, j_full: np.ndarray,
                        raw_loop: np.ndarray, j_loop: np.ndarray, w: int,
                        loop_pos: np.ndarray | None, loop_jac: np.ndarray | None
@@ -393,278 +398,6 @@ def single_force_kinematics(robot: Robot, q: np.ndarray, force: np.ndarray
     return j_full, dg
 
 
-# ------------------------------------------------------------------------------ loops
-
-
-def loop_coordinate_indices(robot: Robot) -> np.ndarray:
-    """Positions, in the coordinate vector, of the coordinates that change the loop closure.
-
-    They are the coordinate joints on the path between the two frames of a loop pair (in the
-    support of one frame but not of the other). Common ancestors move the loop rigidly and
-    joints outside both supports do not touch it, so the passive joint values depend only on
-    these coordinates. Empty for an open chain.
-    """
-    if robot.loop is None:
-        return np.zeros(0, dtype=int)
-    model = robot.model
-    path: set[str] = set()
-    for fa, fb in robot.loop.frame_ids:
-        sa = set(model.supports[model.frames[fa].parentJoint])
-        sb = set(model.supports[model.frames[fb].parentJoint])
-        path |= {model.names[j] for j in sa ^ sb}
-    return np.array([i for i, name in enumerate(robot.coordinate_joints) if name in path],
-                    dtype=int)
-
-
-def tree_configurations(robot: Robot, coordinates: np.ndarray,
-                        base: np.ndarray | None = None) -> np.ndarray:
-    """Full configurations (m, nq) with the coordinates set and other joints from ``base``.
-
-    Vectorised :meth:`Robot.configuration` without loop closure; ``base`` defaults to
-    Pinocchio's neutral configuration. Angles in rad, lengths in m.
-    """
-    coordinates = np.atleast_2d(np.asarray(coordinates, dtype=float))
-    model = robot.model
-    base = pin.neutral(model) if base is None else np.asarray(base, dtype=float)
-    q = np.repeat(base[None, :], coordinates.shape[0], axis=0)
-    for i, name in enumerate(robot.coordinate_joints):
-        joint = model.joints[model.getJointId(name)]
-        if joint.nq == 2:
-            q[:, joint.idx_q] = np.cos(coordinates[:, i])
-            q[:, joint.idx_q + 1] = np.sin(coordinates[:, i])
-        else:
-            q[:, joint.idx_q] = coordinates[:, i]
-    return q
-
-
-def _passive_q_indices(robot: Robot) -> np.ndarray:
-    model = robot.model
-    joints = (model.joints[model.getJointId(n)] for n in robot.loop.passive_joints)
-    return np.concatenate([np.arange(j.idx_q, j.idx_q + j.nq) for j in joints]).astype(int)
-
-
-@dataclass
-class ClosedConfigurations:
-    """Output of :func:`close_loops`.
-
-    Attributes
-    ----------
-    q
-        (m, nq) full configurations, loops closed (NaN where ``closed`` is False).
-    closed
-        (m,) whether the loop could be closed (the pose is reachable on the assembly branch).
-    n_closures
-        Number of distinct loop closures solved.
-    """
-
-    q: np.ndarray
-    closed: np.ndarray
-    n_closures: int
-
-
-#: Cell size (rad or m) of the loop-coordinate grid whose cells share a continuation anchor.
-#: Below the continuation step of Robot.configuration (0.15), so that a Newton correction from
-#: an anchor is as safe as one continuation step.
-_ANCHOR_CELL = 0.1
-#: Largest passive-joint correction (rad or m) accepted from the predictor, as
-#: Robot.configuration's continuation; beyond it the key is closed by continuation.
-_NEWTON_JUMP = 0.05
-_NEWTON_ITERATIONS = 12
-
-
-def close_loops(robot: Robot, coordinates: np.ndarray) -> ClosedConfigurations:
-    """Full configurations for many coordinate vectors, each loop closed once per distinct value
-    of the loop coordinates (:func:`loop_coordinate_indices`).
-
-    The distinct loop-coordinate values ("keys") are grouped in cells of
-    :data:`_ANCHOR_CELL`; one key per cell (the anchor) is closed by continuation
-    (:meth:`Robot.configuration`) from the previous anchor, the anchors visited in a snake
-    order so that each continuation is short (the first from the robot's reference assembly; a
-    failed continuation is retried from there). The other keys of a cell are closed together by
-    a batched Newton iteration from their anchor's closure plus the first-order predictor
-    (Pinocchio in a tight loop, the least-squares steps stacked in NumPy); a key whose
-    correction exceeds the continuation's branch-jump bound, or that does not converge, falls
-    back to continuation from its anchor. The result depends only on the set of coordinates
-    given (not on their order), so a scan split into fixed chunks gives the same configurations
-    whichever worker runs a chunk.
-
-    Parameters
-    ----------
-    robot
-        The robot.
-    coordinates
-        (m, n_coordinates) joint coordinates (rad or m).
-    """
-    coordinates = np.atleast_2d(np.asarray(coordinates, dtype=float))
-    if coordinates.shape[1] != robot.n_coordinates:
-        raise StiffnessError(
-            f"{robot.name} has {robot.n_coordinates} coordinates "
-            f"({', '.join(robot.coordinate_joints)}), got {coordinates.shape[1]} per row"
-        )
-    if not np.all(np.isfinite(coordinates)):
-        raise StiffnessError("joint coordinates must be finite numbers")
-    m = coordinates.shape[0]
-    if robot.loop is None:
-        return ClosedConfigurations(tree_configurations(robot, coordinates),
-                                    np.ones(m, dtype=bool), 0)
-    keys_at = loop_coordinate_indices(robot)
-    keys, inverse = np.unique(coordinates[:, keys_at], axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    passive_q = _passive_q_indices(robot)
-    passive, ok = _close_keys(robot, keys, keys_at, passive_q)
-    q = tree_configurations(robot, coordinates)
-    q[:, passive_q] = passive[inverse]
-    closed = ok[inverse]
-    q[~closed] = np.nan
-    return ClosedConfigurations(q, closed, int(keys.shape[0]))
-
-
-def _snake_order(cells: np.ndarray) -> np.ndarray:
-    """Order of integer cells along a boustrophedon path (neighbours follow each other)."""
-    columns = [cells[:, 0]]
-    parity = cells[:, 0].copy()
-    for k in range(1, cells.shape[1]):
-        columns.append(np.where(parity % 2 == 0, cells[:, k], -cells[:, k]))
-        parity = parity + cells[:, k]
-    return np.lexsort(columns[::-1])
-
-
-def _close_keys(robot: Robot, keys: np.ndarray, keys_at: np.ndarray, passive_q: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Passive joint values (k, n_pq) and closed mask of each key (see :func:`close_loops`)."""
-    n_keys = keys.shape[0]
-    passive = np.full((n_keys, passive_q.shape[0]), np.nan)
-    ok = np.zeros(n_keys, dtype=bool)
-    base = np.zeros(robot.n_coordinates)
-
-    def continuation(key: np.ndarray, seed: np.ndarray | None) -> np.ndarray | None:
-        coords = base.copy()
-        coords[keys_at] = key
-        for attempt in ((seed, None) if seed is not None else (None,)):
-            try:
-                return robot.configuration(coords, seed=attempt)
-            except StiffnessError:
-                continue
-        return None
-
-    cells = np.floor(keys / _ANCHOR_CELL).astype(np.int64)
-    cell_ids, first, owner = np.unique(cells, axis=0, return_index=True, return_inverse=True)
-    owner = owner.reshape(-1)
-    anchor_q = np.full((cell_ids.shape[0], robot.model.nq), np.nan)
-    seed = None
-    for c in _snake_order(cell_ids):
-        k = first[c]
-        q = continuation(keys[k], seed)
-        if q is None:
-            continue
-        anchor_q[c], passive[k], ok[k], seed = q, q[passive_q], True, q
-    others = np.flatnonzero((np.arange(n_keys) != first[owner]) & ok[first[owner]])
-    if others.size:
-        anchors = first[owner[others]]
-        closed_q, good = _newton_from_anchors(robot, keys[others], keys[anchors],
-                                              anchor_q[owner[others]], keys_at)
-        passive[others[good]] = closed_q[good][:, passive_q]
-        ok[others[good]] = True
-        for k in others[~good]:
-            q = continuation(keys[k], anchor_q[owner[k]])
-            if q is not None:
-                passive[k], ok[k] = q[passive_q], True
-    # keys whose cell anchor failed: continuation from the reference assembly
-    for k in np.flatnonzero(~ok & ~ok[first[owner]]):
-        q = continuation(keys[k], None)
-        if q is not None:
-            passive[k], ok[k] = q[passive_q], True
-    return passive, ok
-
-
-def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray,
-                         anchor_q: np.ndarray, keys_at: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """Close the loop at each key by Newton from its anchor's closure, all keys at once.
-
-    Predictor: the anchor's passive values plus their first-order rates times the key step.
-    Corrector: Gauss-Newton on the world-axes residual of :func:`_loop_points` (its zero set is
-    the closed loop), least squares by pseudo-inverse. Returns the configurations and the mask
-    of keys that converged within :data:`_NEWTON_JUMP` of the prediction.
-    """
-    from stiffness.loops import CLOSURE_TOLERANCE_M
-
-    model, data = robot.model, robot.data
-    loop = robot.loop
-    points = _loop_points(robot)
-    coordinate_v = robot.coordinate_v[keys_at]
-    pv = loop.passive_v
-    simple = all(robot.model.joints[robot.model.getJointId(j)].nq ==
-                 robot.model.joints[robot.model.getJointId(j)].nv for j in loop.passive_joints)
-    passive_q = _passive_q_indices(robot)
-
-    def residual_and_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m = q.shape[0]
-        pos = np.empty((len(points), m, 3))
-        jac = np.empty((len(points), m, 6, model.nv))
-        joint_jacobians = pin.computeJointJacobians
-        frame_jacobian = pin.getFrameJacobian
-        for i in range(m):
-            joint_jacobians(model, data, q[i])
-            for f, point in enumerate(points):
-                jac[f, i] = frame_jacobian(model, data, *point, LWA)
-                if len(point) == 1:
-                    pos[f, i] = pin.updateFramePlacement(model, data, point[0]).translation
-                else:
-                    pos[f, i] = (data.oMi[point[0]] * point[1]).translation
-        pairs = range(0, len(points), 2)
-        res = np.concatenate([pos[p + 1] - pos[p] for p in pairs], axis=1)
-        c_w = np.concatenate([jac[p + 1, :, :3] - jac[p, :, :3] for p in pairs], axis=1)
-        return res, c_w
-
-    def lstsq(a: np.ndarray, b: np.ndarray, rcond: float) -> np.ndarray:
-        u, s, vt = np.linalg.svd(a, full_matrices=False)
-        cutoff = rcond * s[:, :1]
-        s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
-        return ((np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
-                @ b[..., None])[..., 0]
-
-    def step(q: np.ndarray, dv: np.ndarray) -> np.ndarray:
-        if simple:
-            out = q.copy()
-            out[:, passive_q] += dv
-            return out
-        full = np.zeros((q.shape[0], model.nv))
-        full[:, pv] = dv
-        return np.array([pin.integrate(model, qi, di) for qi, di in zip(q, full, strict=True)])
-
-    # predictor from the anchors' rates
-    _, c_anchor = residual_and_jacobian(anchor_q)
-    u, s, vt = np.linalg.svd(c_anchor[:, :, pv], full_matrices=False)
-    cutoff = 1e-9 * s[:, :1]
-    s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
-    rates = -((np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
-              @ c_anchor[:, :, coordinate_v])  # (m, np, d)
-    coords = np.zeros((keys.shape[0], robot.n_coordinates))
-    coords[:, keys_at] = keys
-    q = tree_configurations(robot, coords)
-    q[:, passive_q] = anchor_q[:, passive_q]
-    q = step(q, (rates @ (keys - anchor_keys)[..., None])[..., 0])
-    predicted = q[:, passive_q].copy()
-    done = np.zeros(keys.shape[0], dtype=bool)
-    active = np.arange(keys.shape[0])
-    for _ in range(_NEWTON_ITERATIONS):
-        res, c_w = residual_and_jacobian(q[active])
-        norm = np.linalg.norm(res, axis=1)
-        converged = norm < CLOSURE_TOLERANCE_M
-        done[active[converged]] = True
-        active = active[~converged]
-        if active.size == 0:
-            break
-        dv = lstsq(c_w[~converged][:, :, pv], -res[~converged], 1e-10)
-        q[active] = step(q[active], dv)
-    if active.size:
-        res, _ = residual_and_jacobian(q[active])
-        done[active[np.linalg.norm(res, axis=1) < 1e3 * CLOSURE_TOLERANCE_M]] = True
-    jump = np.abs(q[:, passive_q] - predicted).max(axis=1) if passive_q.size else 0.0
-    return q, done & (jump <= _NEWTON_JUMP)
-
-
 # ------------------------------------------------------------------------------ stiffness
 
 
@@ -725,412 +458,6 @@ def _cross_matrices(vectors: np.ndarray) -> np.ndarray:
     x[:, 1, 2], x[:, 2, 1] = vectors[:, 0], -vectors[:, 0]
     x[:, 2, 0], x[:, 0, 2] = vectors[:, 1], -vectors[:, 1]
     return x
-
-
-def as_joint_stiffness(k_theta: np.ndarray | list[float], n: int) -> np.ndarray:
-    """K_theta (n, n) from n positive values (N.m/rad, N/m) or an (n, n) matrix."""
-    k = np.asarray(k_theta, dtype=float)
-    if k.ndim == 1:
-        if k.shape[0] != n or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise StiffnessError(
-                f"need {n} finite positive joint stiffnesses (N.m/rad, N/m), got {k.tolist()}"
-            )
-        return np.diag(k)
-    if k.shape != (n, n) or not np.all(np.isfinite(k)):
-        raise StiffnessError(f"K_theta must be {n} values or an ({n}, {n}) matrix")
-    return k
-
-
-def tangent_stiffness(k_theta: np.ndarray, k_c: np.ndarray,
-                      formulation: str = "enhanced") -> np.ndarray:
-    """K_theta - K_C (enhanced) or K_theta broadcast to K_C's shape (conventional)."""
-    if formulation not in FORMULATIONS:
-        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
-    if formulation == "enhanced":
-        return k_theta - k_c
-    return np.broadcast_to(k_theta, k_c.shape)
-
-
-#: Matrices per block of batched linear algebra (keeps the work arrays in cache).
-_BLOCK = 2048
-
-
-def _cholesky_t(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cholesky factors of a batch-last stack ``a`` (n, n, M) (lower triangle read).
-
-    Vectorised over M (one NumPy operation per entry column, not per matrix). Returns the
-    lower factors and the mask of positive definite matrices (the others hold junk).
-    """
-    n = a.shape[0]
-    low = np.zeros_like(a)
-    ok = np.ones(a.shape[-1], dtype=bool)
-    for j in range(n):
-        d = a[j, j] - np.square(low[j, :j]).sum(axis=0) if j else a[j, j].copy()
-        good = d > 0.0
-        if not good.all():
-            ok &= good
-            d = np.where(good, d, 1.0)
-        pivot = np.sqrt(d)
-        low[j, j] = pivot
-        if j + 1 < n:
-            col = a[j + 1:, j]
-            if j:
-                col = col - (low[j + 1:, :j] * low[j, :j]).sum(axis=1)
-            low[j + 1:, j] = col / pivot
-    return low, ok
-
-
-def _forward_t(low: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve ``low y = b`` for batch-last lower-triangular ``low`` (n, n, M), ``b`` (n, k, M)."""
-    y = np.empty(np.broadcast_shapes(b.shape, (low.shape[0], 1, low.shape[2])))
-    for i in range(low.shape[0]):
-        s = b[i]
-        if i:
-            s = s - (low[i, :i, None] * y[:i]).sum(axis=0)
-        y[i] = s / low[i, i]
-    return y
-
-
-def _gram_t(y: np.ndarray) -> np.ndarray:
-    """``y^T y`` per matrix of a batch-last stack (n, k, M) -> (k, k, M)."""
-    return (y[:, :, None] * y[:, None, :]).sum(axis=0)
-
-
-def _spd_block_t(t_t: np.ndarray, j_t: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Compliance and its inverse through Cholesky factors, batch-last, symmetric tangents.
-
-    ``C = Y^T Y`` with ``L Y = J^T`` (``T = L L^T``), ``K_X = Z^T Z`` with ``L_C Z = I``.
-    ``t_t`` (n, n, M) (or (n, n, 1): the same T for all), ``j_t`` = J^T (n, r, M). Returns
-    C, K_X (r, r, M) and the masks of positive definite T and C (elsewhere the results are junk
-    and must be recomputed by LU).
-    """
-    r = j_t.shape[1]
-    low, t_ok = _cholesky_t(t_t)
-    c_t = _gram_t(_forward_t(low, j_t))
-    low_c, c_ok = _cholesky_t(c_t)
-    k_t = _gram_t(_forward_t(low_c, np.eye(r)[:, :, None]))
-    return c_t, k_t, np.broadcast_to(t_ok, c_ok.shape), c_ok
-
-
-def _spd_block(tangent: np.ndarray, jac: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_spd_block_t` for batch-first stacks (M, n, n), (M, r, n) -> (M, r, r)."""
-    c_t, k_t, t_ok, c_ok = _spd_block_t(np.ascontiguousarray(tangent.transpose(1, 2, 0)),
-                                        np.ascontiguousarray(jac.transpose(2, 1, 0)))
-    return c_t.transpose(2, 0, 1), k_t.transpose(2, 0, 1), t_ok, c_ok
-
-
-def _symmetric_stack(k_theta: np.ndarray, k_c: np.ndarray | None, jac: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """C, K_X (m, L, r, r) and the regular mask (m, L) for symmetric tangents, fast path.
-
-    ``T = K_theta - K_C`` (``k_c`` (m, L, n, n)) or ``K_theta`` for every configuration
-    (``k_c`` None, L = 1), ``jac`` (m, r, n). The tangents are laid out batch-last for the
-    vectorised Cholesky path in cache-sized blocks; those that are not positive definite are
-    redone by LU (:func:`_compliance_block`).
-    """
-    m, r, n = jac.shape
-    n_loads = 1 if k_c is None else k_c.shape[1]
-    c_out = np.empty((m, n_loads, r, r))
-    k_out = np.empty((m, n_loads, r, r))
-    ok_out = np.empty((m, n_loads), dtype=bool)
-    step = max(1, _BLOCK // n_loads)
-    for s in range(0, m, step):
-        e = min(m, s + step)
-        cols = (e - s) * n_loads
-        j_t = jac[s:e].transpose(2, 1, 0)  # (n, r, mb)
-        if n_loads > 1:
-            j_t = np.broadcast_to(j_t[..., None], (n, r, e - s, n_loads))
-        j_t = np.ascontiguousarray(j_t).reshape(n, r, cols)
-        if k_c is None:
-            t_t = k_theta[:, :, None]
-        else:
-            t_t = np.empty((n, n, e - s, n_loads))
-            np.subtract(k_theta[:, :, None, None], k_c[s:e].transpose(2, 3, 0, 1), out=t_t)
-            t_t = t_t.reshape(n, n, cols)
-        c_t, k_t, ok_t, ok_c = _spd_block_t(t_t, j_t)
-        c = c_t.transpose(2, 0, 1)
-        k_x = k_t.transpose(2, 0, 1)
-        redo = ~(ok_t & ok_c)
-        if redo.any():
-            idx = np.flatnonzero(redo)
-            tangent = np.broadcast_to(t_t, (n, n, cols))[:, :, idx].transpose(2, 0, 1)
-            c_r, k_r, t_r, _ = _compliance_block(tangent, j_t[:, :, idx].transpose(2, 1, 0),
-                                                 True, False)
-            c, k_x = c.copy(), k_x.copy()
-            c[idx], k_x[idx] = c_r, k_r
-            regular = _condition_ok(c, k_x)
-            regular[idx] &= t_r & np.all(np.isfinite(k_r), axis=(1, 2))
-        else:
-            regular = _condition_ok(c, k_x)
-        c_out[s:e] = c.reshape(e - s, n_loads, r, r)
-        k_out[s:e] = k_x.reshape(e - s, n_loads, r, r)
-        ok_out[s:e] = regular.reshape(e - s, n_loads)
-    k_out[~ok_out] = np.nan
-    return c_out, k_out, ok_out
-
-
-def _solve_each(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """LU ``solve(a, b)`` of stacks (M, n, n), (M, n, k); singular systems give NaN, False."""
-    try:
-        return np.linalg.solve(a, b), np.ones(a.shape[0], dtype=bool)
-    except np.linalg.LinAlgError:
-        pass
-    out = np.full(b.shape, np.nan)
-    ok = np.ones(a.shape[0], dtype=bool)
-    for i in range(a.shape[0]):
-        try:
-            out[i] = np.linalg.solve(a[i], b[i])
-        except np.linalg.LinAlgError:
-            ok[i] = False
-    return out, ok
-
-
-def _inverse_each(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """LU inverses of a stack (M, r, r), NaN for singular or non-finite matrices."""
-    finite = np.all(np.isfinite(c), axis=(1, 2))
-    out = np.full(c.shape, np.nan)
-    ok = finite.copy()
-    if finite.any():
-        eye = np.broadcast_to(np.eye(c.shape[-1]), (int(finite.sum()), *c.shape[1:]))
-        out[finite], ok[finite] = _solve_each(c[finite], eye)
-    return out, ok
-
-
-def _is_symmetric(a: np.ndarray) -> np.ndarray:
-    """Per matrix: symmetric to round-off (|A - A^T| <= 1e-12 |A|, entrywise max norms)."""
-    asym = np.abs(a - np.swapaxes(a, -1, -2)).max(axis=(-2, -1))
-    return asym <= 1e-12 * np.abs(a).max(axis=(-2, -1))
-
-
-def _condition_ok(c: np.ndarray, k_x: np.ndarray) -> np.ndarray:
-    """1-norm condition estimate ``|C|_1 |C^-1|_1`` within :data:`CONDITION_LIMIT`."""
-    norm_c = np.abs(c).sum(axis=-2).max(axis=-1)
-    norm_k = np.abs(k_x).sum(axis=-2).max(axis=-1)
-    with np.errstate(invalid="ignore", over="ignore"):
-        return np.isfinite(norm_k) & (norm_c * norm_k <= CONDITION_LIMIT)
-
-
-def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
-                      symmetric: bool | None = None
-                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
-    """C, K_X (or None), regular-T and regular-K_X masks of one block (M, n, n), (M, r, n).
-
-    ``symmetric``: True when every tangent is known to be symmetric (pure forces), None to
-    test each matrix.
-    """
-    m = tangent.shape[0]
-    r = jac.shape[1]
-    sym = np.ones(m, dtype=bool) if symmetric else _is_symmetric(tangent)
-    if sym.all():
-        c_t, k_t, ok_t, ok_c = _spd_block(tangent, jac)
-        c = np.ascontiguousarray(c_t)
-        k_x = np.ascontiguousarray(k_t) if with_k_x else None
-        lu_t = ~ok_t
-        lu_c = ~(ok_t & ok_c)
-    else:
-        c = np.empty((m, r, r))
-        k_x = np.empty((m, r, r)) if with_k_x else None
-        lu_t, lu_c = ~sym, ~sym
-        if sym.any():
-            idx = np.flatnonzero(sym)
-            c_s, k_s, ok_t, ok_c = _spd_block(tangent[idx], jac[idx])
-            c[idx], lu_t[idx] = c_s, ~ok_t
-            if with_k_x:
-                k_x[idx] = k_s
-                lu_c[idx] = ~(ok_t & ok_c)
-    t_ok = np.ones(m, dtype=bool)
-    if lu_t.any():
-        idx = np.flatnonzero(lu_t)
-        x, ok = _solve_each(tangent[idx], np.swapaxes(jac[idx], 1, 2))
-        c[idx] = jac[idx] @ x
-        t_ok[idx] = ok
-    kx_ok = t_ok
-    if with_k_x:
-        if lu_c.any():
-            idx = np.flatnonzero(lu_c)
-            k_x[idx], _ = _inverse_each(c[idx])
-        kx_ok = t_ok & _condition_ok(c, k_x)
-        if not kx_ok.all():
-            k_x[~kx_ok] = np.nan
-    if not t_ok.all():
-        c[~t_ok] = np.nan
-    return c, k_x, t_ok, kx_ok
-
-
-def _compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
-                      symmetric: bool | None = None
-                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
-    """:func:`_compliance_block` over a stack (..., n, n), (..., r, n) in cache-sized blocks."""
-    shape = np.broadcast_shapes(tangent.shape[:-2], jac.shape[:-2])
-    n, r = tangent.shape[-1], jac.shape[-2]
-    t_flat = np.broadcast_to(tangent, (*shape, n, n)).reshape(-1, n, n)
-    j_flat = np.broadcast_to(jac, (*shape, r, n)).reshape(-1, r, n)
-    total = t_flat.shape[0]
-    if total <= _BLOCK:
-        c, k_x, t_ok, kx_ok = _compliance_block(t_flat, j_flat, with_k_x, symmetric)
-    else:
-        c = np.empty((total, r, r))
-        k_x = np.empty((total, r, r)) if with_k_x else None
-        t_ok = np.empty(total, dtype=bool)
-        kx_ok = np.empty(total, dtype=bool)
-        for s in range(0, total, _BLOCK):
-            e = min(total, s + _BLOCK)
-            c[s:e], kb, t_ok[s:e], kx_ok[s:e] = _compliance_block(
-                t_flat[s:e], j_flat[s:e], with_k_x, symmetric)
-            if with_k_x:
-                k_x[s:e] = kb
-    return (c.reshape(*shape, r, r), None if k_x is None else k_x.reshape(*shape, r, r),
-            t_ok.reshape(shape), kx_ok.reshape(shape))
-
-
-def compliance(jacobian: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cartesian compliance ``C = J T^-1 J^T`` (m/N for translations), batched.
-
-    Symmetric tangents go through a Cholesky factorisation vectorised across the batch; the
-    others (and those that are not positive definite) through LAPACK's LU, as
-    :func:`stiffness.formulation.compliance`.
-
-    Parameters
-    ----------
-    jacobian
-        (..., r, n) Jacobian rows (m/rad; rad/rad), broadcast against ``tangent``.
-    tangent
-        (..., n, n) tangent joint stiffness T (N.m/rad).
-
-    Returns
-    -------
-    compliance, regular
-        (..., r, r) compliance (NaN where T is singular) and the mask of regular T.
-    """
-    c, _, t_ok, _ = _compliance_stack(tangent, jacobian, with_k_x=False)
-    return c, t_ok
-
-
-def cartesian_stiffness(compliance_matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """K_X = C^-1 (N/m for translations), batched.
-
-    Returns
-    -------
-    k_x, regular
-        K_X, NaN where the compliance is singular (a condition-number estimate
-        ``|C|_1 |C^-1|_1`` above :data:`CONDITION_LIMIT`, or NaN input), and the mask of
-        regular entries.
-    """
-    c = np.asarray(compliance_matrix, dtype=float)
-    shape, r = c.shape[:-2], c.shape[-1]
-    flat = c.reshape(-1, r, r)
-    k_x = np.empty_like(flat)
-    ok = np.empty(flat.shape[0], dtype=bool)
-    for s in range(0, flat.shape[0], _BLOCK):
-        block = flat[s:s + _BLOCK]
-        out = np.full(block.shape, np.nan)
-        good = np.zeros(block.shape[0], dtype=bool)
-        finite = np.all(np.isfinite(block), axis=(1, 2))
-        sym = finite & _is_symmetric(np.where(finite[:, None, None], block, 0.0))
-        if sym.any():
-            low, pd = _cholesky_t(np.ascontiguousarray(block[sym].transpose(1, 2, 0)))
-            z = _forward_t(low, np.eye(r)[:, :, None])
-            idx = np.flatnonzero(sym)[pd]
-            out[idx] = _gram_t(z).transpose(2, 0, 1)[pd]
-            good[idx] = True
-        rest = finite & ~good
-        if rest.any():
-            out[rest], good[rest] = _inverse_each(block[rest])
-        good &= _condition_ok(block, out)
-        out[~good] = np.nan
-        k_x[s:s + _BLOCK], ok[s:s + _BLOCK] = out, good
-    return k_x.reshape(c.shape), ok.reshape(shape)
-
-
-def symmetric_eigenvalues(matrices: np.ndarray) -> np.ndarray:
-    """Ascending eigenvalues of the symmetric parts, NaN for matrices holding NaN."""
-    return _eigvalsh(0.5 * (matrices + np.swapaxes(matrices, -1, -2)))
-
-
-def _eigvalsh(sym: np.ndarray) -> np.ndarray:
-    """``eigvalsh`` of symmetric matrices, NaN for matrices holding NaN."""
-    finite = np.all(np.isfinite(sym), axis=(-2, -1))
-    if finite.all():
-        return np.linalg.eigvalsh(sym)
-    out = np.linalg.eigvalsh(np.where(finite[..., None, None], sym, 0.0))
-    out[~finite] = np.nan
-    return out
-
-
-def definiteness_codes(matrices: np.ndarray | None = None, rtol: float = 1e-9, atol: float = 0.0,
-                       eigenvalues: np.ndarray | None = None) -> np.ndarray:
-    """Definiteness class codes of the quadratic forms, batched (int8).
-
-    ``DEFINITENESS_CLASSES[code]`` names the class, with the rule of
-    :func:`stiffness.formulation.definiteness`; :data:`INVALID_CLASS` (-1) where the matrix
-    holds NaN. Give ``matrices`` (..., n, n) or their symmetric parts' ``eigenvalues`` (..., n).
-    Matrices whose Gershgorin discs already decide PD or ND (with a margin far above the
-    eigensolver's round-off) skip the eigen-decomposition.
-    """
-    if eigenvalues is not None:
-        return _codes_from_eigenvalues(eigenvalues, rtol, atol)
-    sym = 0.5 * (matrices + np.swapaxes(matrices, -1, -2))
-    centre = np.diagonal(sym, axis1=-2, axis2=-1)
-    radius = np.abs(sym).sum(axis=-1) - np.abs(centre)
-    low, high = centre - radius, centre + radius
-    with np.errstate(invalid="ignore"):
-        bound = np.maximum(np.abs(low), np.abs(high)).max(axis=-1)  # >= max |eigenvalue|
-        margin = atol + (rtol + 1e-12) * bound + 1e-12 * bound
-        pd = low.min(axis=-1) > margin
-        nd = high.max(axis=-1) < -margin
-    codes = np.full(sym.shape[:-2], CLASS_CODES["PD"], dtype=np.int8)
-    codes[nd] = CLASS_CODES["ND"]
-    rest = ~(pd | nd)
-    if rest.any():
-        codes[rest] = _codes_from_eigenvalues(_eigvalsh(sym[rest]), rtol, atol)
-    return codes
-
-
-def _codes_from_eigenvalues(eig: np.ndarray, rtol: float, atol: float) -> np.ndarray:
-    finite = np.all(np.isfinite(eig), axis=-1)
-    eig = np.where(finite[..., None], eig, 0.0)
-    tol = atol + rtol * np.maximum(np.abs(eig).max(axis=-1), 0.0)
-    pos = eig > tol[..., None]
-    neg = eig < -tol[..., None]
-    codes = np.full(eig.shape[:-1], CLASS_CODES["ID"], dtype=np.int8)
-    codes[~pos.any(axis=-1)] = CLASS_CODES["NSD"]
-    codes[~neg.any(axis=-1)] = CLASS_CODES["PSD"]
-    codes[neg.all(axis=-1)] = CLASS_CODES["ND"]
-    codes[pos.all(axis=-1)] = CLASS_CODES["PD"]
-    codes[~finite] = INVALID_CLASS
-    return codes
-
-
-def class_names(codes: np.ndarray) -> np.ndarray:
-    """Class names ("PD", ..., "" for invalid) of an array of codes."""
-    names = np.array([*DEFINITENESS_CLASSES, ""], dtype="<U3")
-    return names[np.where(codes < 0, len(DEFINITENESS_CLASSES), codes)]
-
-
-def critical_load_factor(k_theta: np.ndarray, k_c: np.ndarray) -> np.ndarray:
-    """Load multiplier at which K_theta - s K_C stops being positive definite (inf if never).
-
-    ``1 / lambda_max(K_theta^-1/2 sym(K_C) K_theta^-1/2)`` for a diagonal K_theta, as in
-    :func:`stiffness.scan.definiteness_scan`; shape ``k_c.shape[:-2]``.
-    """
-    k_half_inv = np.diag(1.0 / np.sqrt(np.diag(k_theta)))
-    sym = 0.5 * (k_c + np.swapaxes(k_c, -1, -2))
-    top = _eigvalsh(k_half_inv @ sym @ k_half_inv)[..., -1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(top > 0, 1.0 / np.where(top > 0, top, 1.0),
-                        np.where(np.isnan(top), np.nan, np.inf))
-
-
-def principal_stiffness(k_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Principal values (ascending) and directions (columns) of the symmetric part of K_X."""
-    sym = 0.5 * (k_x + np.swapaxes(k_x, -1, -2))
-    finite = np.all(np.isfinite(sym), axis=(-2, -1))
-    values, vectors = np.linalg.eigh(np.where(finite[..., None, None], sym, 0.0))
-    values[~finite] = np.nan
-    vectors[~finite] = np.nan
-    return values, vectors
 
 
 @dataclass
