@@ -54,16 +54,16 @@ from stiffness.batch_linalg import (
     CLASS_CODES,
     CONDITION_LIMIT,
     INVALID_CLASS,
-    _compliance_stack,
-    _symmetric_stack,
     as_joint_stiffness,
     cartesian_stiffness,
     class_names,
     compliance,
+    compliance_stack,
     critical_load_factor,
     definiteness_codes,
     principal_stiffness,
     symmetric_eigenvalues,
+    symmetric_stack,
     tangent_stiffness,
 )
 from stiffness.batch_loops import (
@@ -576,12 +576,12 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
             kin = batch_kinematics(robot, q[start:end], moments=moments)
             jac, kc, kin_valid = kin.jacobian, complementary_stiffness(kin, wrenches), kin.valid
         if symmetric:
-            c, kx, ok = _symmetric_stack(k_th, kc if formulation == "enhanced" else None,
+            c, kx, ok = symmetric_stack(k_th, kc if formulation == "enhanced" else None,
                                          jac[:, :rows])
         elif formulation == "enhanced":
-            c, kx, _, ok = _compliance_stack(k_th - kc, jac[:, None, :rows], True)
+            c, kx, _, ok = compliance_stack(k_th - kc, jac[:, None, :rows], True)
         else:  # load-independent: once per configuration
-            c, kx, _, ok = _compliance_stack(np.broadcast_to(k_th, (end - start, 1, n, n)),
+            c, kx, _, ok = compliance_stack(np.broadcast_to(k_th, (end - start, 1, n, n)),
                                              jac[:, None, :rows], True)
         jacobian[start:end], k_c[start:end] = jac, kc
         c_x[start:end], k_x[start:end], regular[start:end] = c, kx, ok

@@ -123,7 +123,7 @@ def _spd_block(tangent: np.ndarray, jac: np.ndarray
     return c_t.transpose(2, 0, 1), k_t.transpose(2, 0, 1), t_ok, c_ok
 
 
-def _symmetric_stack(k_theta: np.ndarray, k_c: np.ndarray | None, jac: np.ndarray
+def symmetric_stack(k_theta: np.ndarray, k_c: np.ndarray | None, jac: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """C, K_X (m, L, r, r) and the regular mask (m, L) for symmetric tangents, fast path.
 
@@ -261,7 +261,7 @@ def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
     return c, k_x, t_ok, kx_ok
 
 
-def _compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
+def compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
                       symmetric: bool | None = None
                       ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """:func:`_compliance_block` over a stack (..., n, n), (..., r, n) in cache-sized blocks."""
@@ -306,7 +306,7 @@ def compliance(jacobian: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, n
     compliance, regular
         (..., r, r) compliance (NaN where T is singular) and the mask of regular T.
     """
-    c, _, t_ok, _ = _compliance_stack(tangent, jacobian, with_k_x=False)
+    c, _, t_ok, _ = compliance_stack(tangent, jacobian, with_k_x=False)
     return c, t_ok
 
 
