@@ -241,3 +241,15 @@ def test_coordinate_order_must_list_the_coordinate_joints(tmp_path, monkeypatch)
     with pytest.raises(StiffnessError,
                        match="coordinate_order .* must list exactly its coordinate"):
         load_robot("sk120")
+
+
+def test_package_level_api_matches_the_modules():
+    """``stiffness.load_robot`` (the issue's spelling) is the loader of ``stiffness.robot``."""
+    import stiffness
+    from stiffness import formulation, robot
+
+    assert stiffness.load_robot is robot.load_robot
+    assert stiffness.target_state is formulation.target_state
+    loaded = stiffness.load_robot("sk120")
+    assert loaded.compliant_joints == ("joint1", "joint2", "joint3")
+    assert loaded.loop is not None and loaded.loop.passive_joints == ("elbow", "coupler_joint")
