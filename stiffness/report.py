@@ -42,6 +42,7 @@ from stiffness.reproduction import (
 )
 from stiffness.robot import Robot, load_robot, robots_directory
 from stiffness.scan import terminal_progress
+from stiffness.sk120 import AngleConvention
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
@@ -103,6 +104,18 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         "k_theta": "N.mm/rad (paper units)", "deflection": "mm", "work": "N.mm",
         "force": "N"}}
     audit: list[AuditEntry] = []
+
+    fit = json.loads((robots_directory() / "sk120" / "convention_fit.json").read_text())
+    summary["printed_angle_convention"] = {
+        "chosen": fit["chosen_description"],
+        "criterion": fit["criterion"],
+        "alternatives": [
+            {"description": AngleConvention(tuple(c["signs"]), tuple(c["offsets_deg"])
+                                            ).describe(),
+             "tool_axis": c["tool_axis"], "rms_vs_measured_mm": c["rms_vs_measured_mm"]}
+            for c in fit["distinct_fits"][:6]
+        ],
+    }
 
     _log(quiet, "checking Appendix I against Pinocchio ...")
     from stiffness.crosscheck import run_crosscheck
@@ -268,6 +281,13 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
              "table{border-collapse:collapse;margin:8px 0}td,th{border:1px solid #bbb;"
              "padding:2px 6px;font-size:12px}.bad{color:#b00}img{max-width:100%}</style></head>"
              "<body><h1>Motoman SK120: reproduction of Alici &amp; Shirinzadeh (2005)</h1>"]
+    pc = s["printed_angle_convention"]
+    parts.append("<h2>The printed joint angles</h2><p>Chosen convention (tool vertical at every "
+                 f"printed configuration, best fit to the measured Table II deflections): "
+                 f"{html.escape(pc['chosen'])}. Criterion: {html.escape(pc['criterion'])}.</p>")
+    parts.append(_table(["convention (theta_DH from printed q)", "tool axis", "RMS (mm)"],
+                        [[html.escape(a["description"]), a["tool_axis"],
+                          a["rms_vs_measured_mm"]] for a in pc["alternatives"]]))
     parts.append("<h2>Appendix I against Pinocchio</h2>")
     conv = s["appendix"]["conventions"]
     parts.append("<p>Angle convention of the appendix, found by search: "
