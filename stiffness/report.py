@@ -130,6 +130,14 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
                                 law="J = d(x, y, z)/d(theta1, theta2, theta3) of the end point",
                                 finding=m["explanation"], numbers={"max_abs_mm_per_rad":
                                                                   m["max_abs"]}))
+    for c in cross["corrections"]:
+        if not c["visible_at_table1_lengths"]:
+            audit.append(AuditEntry(
+                item=f"Appendix I, {c['element']} (invisible at Table I's lengths)",
+                law="J = d(x, y, z)/d(theta1, ...) for any link lengths",
+                finding=(f"{c['text']}: the printed term vanishes at Table I's lengths, and is "
+                         "wrong on a model with non-zero offsets"),
+                numbers={"printed": c["printed"], "corrected": c["corrected"]}))
 
     _log(quiet, "identifying K_theta from the Table II campaign ...")
     campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
@@ -307,6 +315,11 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
     for m in s["appendix"]["mismatches"]:
         parts.append(f"<p class='bad'>{html.escape(m['element'])}: "
                      f"{html.escape(m['explanation'])}</p>")
+    for c in s["appendix"]["corrections"]:
+        if not c["visible_at_table1_lengths"]:
+            parts.append(f"<p class='bad'>{html.escape(c['element'])}: {html.escape(c['text'])}"
+                         " (invisible at Table I's lengths, where the symbol is zero; found on "
+                         "a model with non-zero offsets).</p>")
     parts.append(f"<p>K_C from the corrected appendix against Pinocchio: max relative "
                  f"difference {s['appendix_kc_max_rel']:.3g}.</p>")
     parts.append("<h2>Identification (eq. 11–13) from the Table II campaign</h2>")
