@@ -67,9 +67,13 @@ def parse_list(text: str, flag: str) -> list[float]:
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness kx``."""
-    parser.add_argument("--robot", required=True,
+    parser.add_argument("--robot",
                         help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
-                             "or URDF path")
+                             "or URDF path (required unless --model gives it)")
+    parser.add_argument("--model", metavar="FILE",
+                        help="identified model written by `stiffness identify` "
+                             "(identified-model.json): its robot, target, compliant joints and "
+                             "K_theta; the other flags override them")
     parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
     parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
     parser.add_argument("--q", help="joint values: one per degree of freedom (rad, or m for "
@@ -132,9 +136,30 @@ def robot_from_args(args: argparse.Namespace
         j.strip() for j in args.compliant_joints.split(",") if j.strip()]
     offset = None if args.target_offset is None else parse_list(args.target_offset,
                                                                 "--target-offset")
-    robot = load_robot(args.robot, frame=args.frame, target_offset=offset,
-                       compliant_joints=compliant)
+    source, frame = args.robot, args.frame
+    model = _identified_model(args)
+    if model is not None:
+        source = source or model.source
+        frame = frame or model.frame
+        if offset is None:
+            offset = model.target_offset_m.tolist()
+        if compliant is None:
+            compliant = list(model.compliant_joints)
+    if source is None:
+        raise StiffnessError("--robot is required (or --model FILE from `stiffness identify`)")
+    robot = load_robot(source, frame=frame, target_offset=offset, compliant_joints=compliant)
     return robot, compliant, offset
+
+
+def _identified_model(args: argparse.Namespace):
+    """The ``--model`` file's identified model, or None (read once per parsed command line)."""
+    if getattr(args, "model", None) is None:
+        return None
+    if getattr(args, "_identified_model", None) is None:
+        from stiffness.identify import load_identified_model
+
+        args._identified_model = load_identified_model(args.model)
+    return args._identified_model
 
 
 @dataclass
@@ -159,7 +184,13 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
     """
     robot, _, _ = robot_from_args(args)
     coords = coordinates_from_args(robot, args)
-    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
+    model = _identified_model(args)
+    if args.kq is not None:
+        kq = parse_list(args.kq, "--kq")
+    elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
+        kq = model.k_theta
+    else:
+        kq = default_stiffness(robot)
     if kq is None:
         raise StiffnessError(
             f"--kq is required: one stiffness per compliant joint "

@@ -1,0 +1,48 @@
+"""`stiffness kx --model` reads the file `stiffness identify` writes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stiffness.campaign import load_campaign
+from stiffness.cli import main
+from stiffness.identify import identify
+from stiffness.robot import robots_directory
+
+
+@pytest.fixture(scope="module")
+def identified(tmp_path_factory):
+    campaign = load_campaign(robots_directory() / "sk120" / "campaigns" / "table2")
+    result = identify(campaign, starts=2)
+    path = tmp_path_factory.mktemp("model") / "identified-model.json"
+    result.write_model(path)
+    return result, path
+
+
+def test_kx_uses_the_identified_robot_and_stiffness(identified, capsys):
+    result, path = identified
+    assert main(["kx", "--model", str(path), "--wrench", "0,0,-300", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["robot"] == "sk120" and out["frame"] == "fixture_target"
+    assert out["compliant_joints"] == ["joint1", "joint2", "joint3"]
+    assert np.allclose(out["K_theta"], result.k, rtol=1e-12)
+    # the same numbers as giving the stiffnesses by hand
+    kq = ",".join(repr(float(k)) for k in result.k)
+    assert main(["kx", "--robot", "sk120", "--kq", kq, "--wrench", "0,0,-300", "--json"]) == 0
+    by_hand = json.loads(capsys.readouterr().out)
+    assert np.allclose(out["K_X"], by_hand["K_X"], rtol=1e-12)
+
+
+def test_kx_flags_override_the_model(identified, capsys):
+    _, path = identified
+    assert main(["kx", "--model", str(path), "--kq", "1e6,2e6,3e6", "--wrench", "1,0,0",
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["K_theta"] == [1e6, 2e6, 3e6]
+
+
+def test_kx_without_robot_or_model_says_what_to_give(capsys):
+    assert main(["kx", "--wrench", "1,2,3"]) == 2
+    assert "--robot is required (or --model" in capsys.readouterr().err
