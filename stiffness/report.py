@@ -23,6 +23,7 @@ import numpy as np
 from stiffness import plots
 from stiffness.campaign import load_campaign
 from stiffness.equilibrium import linear_departure, solve_equilibrium
+from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
 from stiffness.formulation import compliance, target_states
 from stiffness.identify import identify
@@ -99,6 +100,15 @@ def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
 def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False) -> tuple:
     """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes)."""
     started = time.perf_counter()
+    campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
+    campaign = load_campaign(campaign_file)
+    if campaign.robot_settings.source != "sk120" or campaign.robot().compliant_joints != (
+            "joint1", "joint2", "joint3"):
+        raise StiffnessError(
+            f"stiffness report reproduces Alici & Shirinzadeh on the SK120: --campaign must be "
+            f"an SK120 campaign with compliant joints joint1..joint3 ({campaign_file} is not); "
+            "use `stiffness identify` or `stiffness diagnose` for other robots"
+        )
     robot = load_robot("sk120")
     paper_k = np.diag(robot.defaults["k_theta_SI"])
     summary: dict = {"robot": "sk120", "units": {
@@ -140,8 +150,6 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
                 numbers={"printed": c["printed"], "corrected": c["corrected"]}))
 
     _log(quiet, "identifying K_theta from the Table II campaign ...")
-    campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
-    campaign = load_campaign(campaign_file)
     ident = identify(campaign, method="both", starts=6,
                      progress=None if quiet else _identify_progress())
     summary["campaign"] = str(campaign_file)

@@ -109,3 +109,14 @@ def test_report_renders_in_headless_chromium(report_dir):
     assert 'data-probe="done"' in dom
     assert dom.count('data-rendered="yes"') == n_figures
     assert 'data-rendered="no"' not in dom
+
+
+def test_report_refuses_a_campaign_of_another_robot(tmp_path, capsys):
+    campaign = tmp_path / "ur5-campaign"
+    assert main(["simulate", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4",
+                 "--configs", "2", "--loads-per-config", "2", "--out", str(campaign)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "report"
+    assert main(["report", "--campaign", str(campaign), "--out", str(out), "--quiet"]) == 2
+    assert "must be an SK120 campaign" in capsys.readouterr().err
+    assert not out.exists()
