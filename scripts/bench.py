@@ -11,7 +11,7 @@ all in this process, each the best of several interleaved rounds (the machine is
 minimum is the least disturbed measurement, and interleaving exposes every method to the same
 load):
 
-* ``batched_kx_us``: :func:`stiffness.batch.evaluate`, the loaded enhanced translational K_X
+* ``batched_kx_us``: :func:`stiffness.batch.kernels.evaluate`, the loaded enhanced translational K_X
   (K_C, compliance, K_X) of many configurations under one dead force; for the SK120 the loop is
   closed beforehand (``sk120_with_closure_us`` adds the closure of random configurations);
 * ``bare_pinocchio_us``: one ``pin.computeStaticTorqueDerivatives`` call per configuration
@@ -44,10 +44,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness import batch
-from stiffness.formulation import velocity_projection
-from stiffness.kinematics import LWA, update_first_order
-from stiffness.robot import Robot, load_robot
+from stiffness.batch import kernels as batch
+from stiffness.mechanics.formulation import velocity_projection
+from stiffness.model.kinematics import LWA, update_first_order
+from stiffness.model.robot import Robot, load_robot
 
 PANDA_ARM = [f"panda_joint{i}" for i in range(1, 8)]
 FORCE = np.array([120.0, -80.0, -250.0])  # N
@@ -194,8 +194,8 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
 
 def table4_seconds(rounds: int = 3) -> float:
     """Wall time of the Table IV scan in this process (robot loaded, no figures), best of N."""
-    from stiffness import workspace_scan
-    from stiffness.commands import scan as scan_command
+    from stiffness.cli import scan as scan_command
+    from stiffness.scan import engine as workspace_scan
 
     parser = argparse.ArgumentParser()
     scan_command.configure_parser(parser)
@@ -215,7 +215,7 @@ def table4_cli_seconds() -> float:
     """Wall time of `stiffness scan --robot sk120 --preset table4` (new process, figures)."""
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "stiffness.cli", "scan", "--robot", "sk120",
+        subprocess.run([sys.executable, "-m", "stiffness.cli.main", "scan", "--robot", "sk120",
                         "--preset", "table4", "--out", str(Path(tmp) / "t4"), "--quiet"],
                        check=True, stdout=subprocess.DEVNULL)
         return time.perf_counter() - t0
@@ -244,9 +244,9 @@ _SCAN_SNIPPET = """
 import json, resource, sys, tempfile, time
 from pathlib import Path
 import argparse
-from stiffness.commands import scan
-from stiffness.distributed import warm_worker
-from stiffness.workspace_scan import run_scan
+from stiffness.cli import scan
+from stiffness.scan.distributed import warm_worker
+from stiffness.scan.engine import run_scan
 p = argparse.ArgumentParser(); scan.configure_parser(p)
 args = p.parse_args(sys.argv[1:-1])
 spec, _ = scan.build_spec(args)

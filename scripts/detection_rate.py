@@ -3,7 +3,8 @@
 For each robot (a UR5 with a 10 cm tool and its three arm joints compliant; the paper's SK120),
 each library effect at three sizes, two noise levels and several seeds, a campaign of
 ``--configs`` configurations x 4 random loads is simulated with that effect hidden
-(:func:`stiffness.simulate.simulate`) and diagnosed (:func:`stiffness.diagnose.diagnose`). A
+(:func:`stiffness.calibration.simulate.simulate`) and diagnosed
+(:func:`stiffness.calibration.diagnose.diagnose`). A
 run *detects* the effect when the first effect named is the hidden one at the hidden place;
 it *fits* when the final RMS is within 1.5x the noise. Campaigns with nothing hidden measure
 the false-alarm rate. The tables go to stdout and between the markers of ``docs/diagnose.md``.
@@ -28,8 +29,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stiffness.diagnose import diagnose  # noqa: E402
-from stiffness.simulate import parse_effect, simulate  # noqa: E402
+from stiffness.calibration.diagnose import diagnose  # noqa: E402
+from stiffness.calibration.simulate import parse_effect, simulate  # noqa: E402
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 ROBOTS = {

@@ -21,10 +21,15 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.formulation import target_state
-from stiffness.paper_data import paper_configurations, read_paper_table
-from stiffness.robot import load_robot
-from stiffness.sk120 import PAPER_K_THETA_NMM_PER_RAD, AngleConvention, read_table1, sk120_urdf
+from stiffness.mechanics.formulation import target_state
+from stiffness.model.robot import load_robot
+from stiffness.papers.sk120 import (
+    PAPER_K_THETA_NMM_PER_RAD,
+    AngleConvention,
+    read_table1,
+    sk120_urdf,
+)
+from stiffness.papers.tables import paper_configurations, read_paper_table
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "robots" / "sk120"

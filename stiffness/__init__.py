@@ -16,9 +16,9 @@ Example::
     c_x = stiffness.compliance(state.jacobian[:3], k_theta - state.k_c)   # m/N
 """
 
-from stiffness.equilibrium import solve_equilibrium
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.formulation import (
+from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.formulation import (
     cartesian_stiffness,
     compliance,
     definiteness,
@@ -30,7 +30,7 @@ from stiffness.formulation import (
     twist_basis_stiffness,
     work_balance,
 )
-from stiffness.robot import Robot, load_robot
+from stiffness.model.robot import Robot, load_robot
 
 __all__ = [
     "Robot",

@@ -27,8 +27,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from stiffness.formulation import target_state
-from stiffness.robot import Robot, load_robot
+from stiffness.mechanics.formulation import target_state
+from stiffness.model.robot import Robot, load_robot
 
 #: SK120 workspace of the paper (printed angles, deg): theta1, theta2, theta3.
 SK120_WORKSPACE_DEG = ((-180.0, 180.0), (-70.0, 70.0), (-115.0, 35.0))

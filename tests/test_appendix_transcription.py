@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stiffness.appendix import (
+from stiffness.papers.appendix import (
     APPENDIX_TERMS,
     Term,
     appendix_element,

@@ -1,6 +1,7 @@
-"""Batched elastostatics (stiffness.batch) against the one-at-a-time API, on random inputs.
+"""Batched elastostatics (stiffness.batch.kernels) against the one-at-a-time API, on random inputs.
 
-Every batched quantity is compared with :func:`stiffness.formulation.target_state` and friends
+Every batched quantity is compared with :func:`stiffness.mechanics.formulation.target_state` and
+friends
 at the same configurations: the Jacobian, the unit-wrench K_C basis and K_C for forces and
 wrenches (base and twist basis), the compliance and K_X of both formulations by both kinematic
 routes (kinematic Hessians; generalized-gravity derivatives of a unit point mass), the
@@ -18,9 +19,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness import batch
+from stiffness.batch import kernels as batch
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.formulation import (
+from stiffness.mechanics.formulation import (
     DEFINITENESS_CLASSES,
     cartesian_stiffness,
     compliance,
@@ -28,7 +29,7 @@ from stiffness.formulation import (
     target_state,
     target_states,
 )
-from stiffness.robot import load_robot
+from stiffness.model.robot import load_robot
 
 RTOL = 1e-10
 #: Closed loops go through a pseudo-inverse of the passive constraint block (condition numbers
@@ -533,8 +534,8 @@ def test_definiteness_map_and_principal_stiffness(configurations):
 def test_batched_definiteness_scan_equals_definiteness_scan(sk120):
     """scan.batched_definiteness_scan gives the classes of scan.definiteness_scan on a slice of
     the Table IV grid (closures differ by the Newton tolerance only)."""
-    from stiffness.reproduction import table4_grid, table4_loads
-    from stiffness.scan import batched_definiteness_scan, definiteness_scan
+    from stiffness.papers.reproduction import table4_grid, table4_loads
+    from stiffness.scan.definiteness import batched_definiteness_scan, definiteness_scan
 
     grid = table4_grid()[::97]
     # keep the configurations away from the flattened parallelogram, where the closed-loop

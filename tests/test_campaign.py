@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from stiffness.campaign import (
+from stiffness.calibration.campaign import (
     CAMPAIGN_FILE,
     Campaign,
     RobotSettings,
@@ -18,7 +18,7 @@ from stiffness.campaign import (
     write_campaign,
 )
 from stiffness.errors import StiffnessError
-from stiffness.robot import robots_directory
+from stiffness.model.robot import robots_directory
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 

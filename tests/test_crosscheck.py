@@ -1,6 +1,6 @@
 """Tests of the Appendix I cross-check (``stiffness check-jacobian``).
 
-The independent tests compare :func:`stiffness.appendix.appendix_jacobian` (the verbatim
+The independent tests compare :func:`stiffness.papers.appendix.appendix_jacobian` (the verbatim
 transcription) with Pinocchio's target Jacobian (``target_state``) directly, with the angle
 map written out by hand (t1 = 180 deg - q1, t2 = q2 + 90 deg, t3 = -q3, t4 = q4, t5 = q5,
 t6 = q6 + 90 deg; so dt/dq = diag(-1, 1, -1) for the first three) and Table I's lengths, so
@@ -14,9 +14,11 @@ import json
 import numpy as np
 import pytest
 
-from stiffness import cli
-from stiffness.appendix import APPENDIX_TERMS, appendix_jacobian, appendix_kc
-from stiffness.crosscheck import (
+from stiffness.cli import main as cli
+from stiffness.mechanics.formulation import target_state
+from stiffness.model.robot import load_robot
+from stiffness.papers.appendix import APPENDIX_TERMS, appendix_jacobian, appendix_kc
+from stiffness.papers.crosscheck import (
     AppendixConvention,
     Edit,
     apply_edits,
@@ -28,10 +30,8 @@ from stiffness.crosscheck import (
     run_crosscheck,
     table1_lengths_mm,
 )
-from stiffness.formulation import target_state
-from stiffness.paper_data import paper_configurations
-from stiffness.robot import load_robot
-from stiffness.sk120 import FIXTURE_A_M, FIXTURE_B_M
+from stiffness.papers.sk120 import FIXTURE_A_M, FIXTURE_B_M
+from stiffness.papers.tables import paper_configurations
 
 #: Table I lengths in the appendix's symbols (mm), written out by hand.
 LENGTHS = {"L1": 215.0, "L2": 1100.0, "L3": 250.0, "D4": 1300.0,

@@ -1,4 +1,5 @@
-"""The discrepancy workflow (stiffness.diagnose, stiffness diagnose) on simulated campaigns."""
+"""The discrepancy workflow (stiffness.calibration.diagnose, stiffness diagnose) on simulated
+campaigns."""
 
 from __future__ import annotations
 
@@ -7,9 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from stiffness.campaign import load_campaign
-from stiffness.cli import main
-from stiffness.diagnose import (
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.diagnose import (
     DIAGNOSIS_FILE,
     FINAL_MODEL_FILE,
     RESIDUALS_PLOT,
@@ -17,8 +17,9 @@ from stiffness.diagnose import (
     diagnose,
     format_report,
 )
-from stiffness.effects import REQUIRED_EFFECTS
-from stiffness.simulate import parse_effect, simulate
+from stiffness.calibration.effects import REQUIRED_EFFECTS
+from stiffness.calibration.simulate import parse_effect, simulate
+from stiffness.cli.main import main
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 #: UR5 with a 10 cm tool: the arm joints compliant.

@@ -1,12 +1,12 @@
-"""The effect library and the cached deflection model (stiffness.effects)."""
+"""The effect library and the cached deflection model (stiffness.calibration.effects)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stiffness.campaign import Campaign, RobotSettings
-from stiffness.effects import (
+from stiffness.calibration.campaign import Campaign, RobotSettings
+from stiffness.calibration.effects import (
     LIBRARY,
     REQUIRED_EFFECTS,
     ComplementaryStiffness,
@@ -20,11 +20,11 @@ from stiffness.effects import (
     make_effect,
     rotation_matrix,
 )
-from stiffness.equilibrium import solve_equilibrium
+from stiffness.calibration.identify import DeflectionModel
+from stiffness.calibration.simulate import Truth
 from stiffness.errors import StiffnessError
-from stiffness.identify import DeflectionModel
-from stiffness.robot import load_robot
-from stiffness.simulate import Truth
+from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.model.robot import load_robot
 
 UR5_ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 SK120_K = np.array([1.4098e6, 4.0076e5, 9.3528e5])

@@ -1,4 +1,5 @@
-"""Exact elastostatic equilibrium (stiffness.equilibrium) and what the linear predictions miss.
+"""Exact elastostatic equilibrium (stiffness.mechanics.equilibrium) and what the linear predictions
+miss.
 
 * The exact solution is checked independently: K_theta dtheta = J(theta)^T F with J from finite
   differences of the loop-closed forward kinematics, dx and the rotation from pin's kinematics.
@@ -16,9 +17,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.equilibrium import linear_departure, solve_equilibrium
 from stiffness.errors import StiffnessError
-from stiffness.formulation import compliance, deflection, target_state
+from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
+from stiffness.mechanics.formulation import compliance, deflection, target_state
 
 UR5_Q = np.array([0.3, -1.0, 1.2, -0.7, 1.1, 0.4])
 UR5_K = np.diag([3e4, 3e4, 2e4, 5e3, 5e3, 5e3])

@@ -1,4 +1,5 @@
-"""Stiffness formulations (stiffness.formulation) against finite differences and the papers.
+"""Stiffness formulations (stiffness.mechanics.formulation) against finite differences and the
+papers.
 
 * K_C = d(J^T W)/d theta: central differences of J(theta)^T W over the compliant coordinates, the
   loops closed by Robot.configuration (UR5, Panda, SK120), for a pure force and a 6-D wrench;
@@ -18,7 +19,7 @@ from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.formulation import (
+from stiffness.mechanics.formulation import (
     as_wrench,
     cartesian_stiffness,
     compliance,
@@ -435,7 +436,7 @@ def test_singular_compliance_at_ur5_singularity(ur5):
 
 
 def test_singular_compliance_with_fewer_compliant_joints():
-    from stiffness.robot import load_robot
+    from stiffness.model.robot import load_robot
 
     robot = load_robot("ur5", compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint"])
     state = target_state(robot, robot.configuration(UR5_Q), np.array([0.0, 0.0, -100.0]))

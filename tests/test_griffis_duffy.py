@@ -2,7 +2,8 @@
 
 ``load_robot("griffis-duffy")`` (robots/griffis-duffy: URDF, loop declaration, robot.toml)
 closes the six leg loops; the platform's closed-loop Jacobian, the holding wrench and K_C^tw
-come from Pinocchio through stiffness.formulation. The printed J^-1, K_j and K_a are compared to
+come from Pinocchio through stiffness.mechanics.formulation. The printed J^-1, K_j and K_a are
+compared to
 their last printed digit (half a unit: 0.005 for J^-1, 0.05 for K_j and K_a), converted at this
 boundary from SI to the paper's cm and N/cm:
 
@@ -26,16 +27,16 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-from stiffness.cli import main
-from stiffness.formulation import joint_stiffness, target_state
-from stiffness.platform import (
+from stiffness.cli.main import main
+from stiffness.mechanics.formulation import joint_stiffness, target_state
+from stiffness.mechanics.platform import (
     holding_wrench,
     lie_bracket_term,
     platform_stiffness,
     reorder_twist,
     solve_pose,
 )
-from stiffness.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot, robots_directory
 
 FOLDER = robots_directory() / "griffis-duffy"
 PAPER = tomllib.loads((FOLDER / "zefran-kumar-section5.toml").read_text())

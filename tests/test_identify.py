@@ -7,19 +7,19 @@ import json
 import numpy as np
 import pytest
 
-from stiffness.campaign import Campaign, RobotSettings, load_campaign, write_campaign
-from stiffness.cli import main
-from stiffness.equilibrium import solve_equilibrium
-from stiffness.errors import StiffnessError
-from stiffness.formulation import deflection, target_state
-from stiffness.identify import (
+from stiffness.calibration.campaign import Campaign, RobotSettings, load_campaign, write_campaign
+from stiffness.calibration.identify import (
     MODEL_FORMAT,
     DeflectionModel,
     identify,
     load_identified_model,
 )
-from stiffness.robot import load_robot, robots_directory
-from stiffness.sk120 import PAPER_K_THETA_NMM_PER_RAD
+from stiffness.cli.main import main
+from stiffness.errors import StiffnessError
+from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.formulation import deflection, target_state
+from stiffness.model.robot import load_robot, robots_directory
+from stiffness.papers.sk120 import PAPER_K_THETA_NMM_PER_RAD
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 #: Paper's K_theta in N.m/rad.

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from stiffness.campaign import load_campaign
-from stiffness.cli import main
-from stiffness.identify import identify
-from stiffness.robot import robots_directory
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.identify import identify
+from stiffness.cli.main import main
+from stiffness.model.robot import robots_directory
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,5 @@
-"""Loop machinery (stiffness.loops, Robot.configuration, closed-loop J and K_C) on test linkages.
+"""Loop machinery (stiffness.model.loops, Robot.configuration, closed-loop J and K_C) on test
+linkages.
 
 The SK120's five-bar is a parallelogram, whose multiplier term in the closed-loop K_C vanishes
 identically (its passive angles are linear in the actuated ones), so it cannot test that term.
@@ -18,11 +19,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness import kinematics
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.formulation import target_state, velocity_projection
-from stiffness.loops import CLOSURE_TOLERANCE_M, read_loop_declaration
-from stiffness.robot import load_robot, robots_directory
+from stiffness.mechanics.formulation import target_state, velocity_projection
+from stiffness.model import kinematics
+from stiffness.model.loops import CLOSURE_TOLERANCE_M, read_loop_declaration
+from stiffness.model.robot import load_robot, robots_directory
 
 
 def _wrap(x):

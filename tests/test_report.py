@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stiffness.cli import main
-from stiffness.paper_data import read_table4
+from stiffness.cli.main import main
+from stiffness.papers.tables import read_table4
 
 CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 

@@ -1,4 +1,5 @@
-"""Loading robots (stiffness.robot): sources, coordinates, configurations and every error path.
+"""Loading robots (stiffness.model.robot): sources, coordinates, configurations and every error
+path.
 
 Error messages must name the problem and the fix; the tests match on both.
 """
@@ -12,8 +13,8 @@ import pinocchio as pin
 import pytest
 
 from stiffness.errors import StiffnessError
-from stiffness.formulation import target_state
-from stiffness.robot import (
+from stiffness.mechanics.formulation import target_state
+from stiffness.model.robot import (
     TARGET_FRAME,
     example_robot_names,
     load_robot,
@@ -244,9 +245,11 @@ def test_coordinate_order_must_list_the_coordinate_joints(tmp_path, monkeypatch)
 
 
 def test_package_level_api_matches_the_modules():
-    """``stiffness.load_robot`` (the issue's spelling) is the loader of ``stiffness.robot``."""
+    """``stiffness.load_robot`` (the issue's spelling) is the loader of
+    ``stiffness.model.robot``."""
     import stiffness
-    from stiffness import formulation, robot
+    from stiffness.mechanics import formulation
+    from stiffness.model import robot
 
     assert stiffness.load_robot is robot.load_robot
     assert stiffness.target_state is formulation.target_state

@@ -1,6 +1,7 @@
 """``stiffness scan``: workspace maps, chunked streaming, resume, Dask.
 
-* The Table IV preset reproduces the definiteness counts of stiffness.scan.definiteness_scan
+* The Table IV preset reproduces the definiteness counts of
+stiffness.scan.definiteness.definiteness_scan
   (through batched_definiteness_scan, checked against it in test_batch.py) and obeys K_C's
   linearity in the load (PD(F) = ND(-F)).
 * A grid scan's maps equal the one-at-a-time API at sampled configurations; the files
@@ -16,11 +17,16 @@ import json
 import numpy as np
 import pytest
 
-from stiffness import batch
-from stiffness.cli import main
-from stiffness.commands import scan as scan_command
-from stiffness.formulation import cartesian_stiffness, compliance, definiteness, target_state
-from stiffness.robot import load_robot
+from stiffness.batch import kernels as batch
+from stiffness.cli import scan as scan_command
+from stiffness.cli.main import main
+from stiffness.mechanics.formulation import (
+    cartesian_stiffness,
+    compliance,
+    definiteness,
+    target_state,
+)
+from stiffness.model.robot import load_robot
 
 UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
 GRID = ["--axis", "shoulder_lift_joint=-90:0:30", "--axis", "elbow_joint=20:140:40",
@@ -43,8 +49,8 @@ def _arrays(folder):
 def test_table4_preset(tmp_path, capsys):
     """`stiffness scan --robot sk120 --preset table4`: 5824 x 8 maps, the counts of the
     reproduction's scan, linear in the load, written with figures."""
-    from stiffness.reproduction import table4_grid, table4_loads
-    from stiffness.scan import batched_definiteness_scan
+    from stiffness.papers.reproduction import table4_grid, table4_loads
+    from stiffness.scan.definiteness import batched_definiteness_scan
 
     out = tmp_path / "t4"
     code, captured = _run(["scan", "--robot", "sk120", "--preset", "table4", "--out", str(out),
@@ -229,7 +235,7 @@ def test_dask_local_cluster_gives_the_same_maps(tmp_path):
 
 def test_run_chunks_in_process_and_on_a_client():
     """The engine streams every chunk once, in process or on a Dask client."""
-    from stiffness.distributed import run_chunks
+    from stiffness.scan.distributed import run_chunks
 
     seen = {}
     assert run_chunks(_square, (3,), range(5), seen.__setitem__) == 5
@@ -265,7 +271,7 @@ def test_killed_worker_loses_only_its_chunk(tmp_path):
     cloudpickle = pytest.importorskip("cloudpickle")
     import sys
 
-    from stiffness.distributed import run_chunks
+    from stiffness.scan.distributed import run_chunks
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])
     marker = tmp_path / "killed"

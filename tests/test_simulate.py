@@ -1,4 +1,4 @@
-"""Synthetic campaigns with hidden effects (stiffness.simulate, stiffness simulate)."""
+"""Synthetic campaigns with hidden effects (stiffness.calibration.simulate, stiffness simulate)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from stiffness.campaign import load_campaign
-from stiffness.cli import main
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
+from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
-from stiffness.robot import load_robot
-from stiffness.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
+from stiffness.model.robot import load_robot
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 

@@ -6,9 +6,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.paper_data import paper_configurations
-from stiffness.robot import load_robot, robots_directory
-from stiffness.sk120 import FIXTURE_A_M, FIXTURE_B_M, AngleConvention, read_table1, sk120_urdf
+from stiffness.model.robot import load_robot, robots_directory
+from stiffness.papers.sk120 import (
+    FIXTURE_A_M,
+    FIXTURE_B_M,
+    AngleConvention,
+    read_table1,
+    sk120_urdf,
+)
+from stiffness.papers.tables import paper_configurations
 
 
 @pytest.fixture(scope="module")

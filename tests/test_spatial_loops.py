@@ -20,16 +20,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness import kinematics
 from stiffness.errors import StiffnessError
-from stiffness.formulation import (
+from stiffness.mechanics.formulation import (
     joint_connection_stiffness,
     joint_stiffness,
     target_state,
     twist_basis_stiffness,
 )
-from stiffness.loops import read_loop_declaration
-from stiffness.platform import (
+from stiffness.mechanics.platform import (
     VIRTUAL_JOINTS,
     jacobian_derivative,
     lie_bracket_term,
@@ -37,7 +35,9 @@ from stiffness.platform import (
     solve_pose,
     stiffness_map,
 )
-from stiffness.robot import load_robot, robots_directory
+from stiffness.model import kinematics
+from stiffness.model.loops import read_loop_declaration
+from stiffness.model.robot import load_robot, robots_directory
 
 GD = robots_directory() / "griffis-duffy"
 #: A configuration away from the shipped one (leg lengths, m).

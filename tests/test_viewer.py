@@ -34,16 +34,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stiffness.cli import main as cli_main
+from stiffness.cli.main import main as cli_main
 from stiffness.errors import StiffnessError
-from stiffness.formulation import (
+from stiffness.mechanics.formulation import (
     FORMULATIONS,
     cartesian_stiffness,
     compliance,
     tangent_joint_stiffness,
     target_state,
 )
-from stiffness.robot import load_robot
+from stiffness.model.robot import load_robot
 from stiffness.viewer import (
     LOOPBACK,
     LiveServer,
@@ -100,7 +100,7 @@ def screenshot(page: Path, out: Path, *extra: str) -> np.ndarray:
 
 
 def computed_stiffness(robot, coords, k_theta, load) -> dict[str, np.ndarray]:
-    """Translational K_X of both formulations, straight from stiffness.formulation."""
+    """Translational K_X of both formulations, straight from stiffness.mechanics.formulation."""
     q = robot.configuration(np.asarray(coords, dtype=float))
     state = target_state(robot, q, load)
     k = np.diag(k_theta)
@@ -713,7 +713,7 @@ def test_cli_sweep_and_errors(tmp_path, capsys):
 
 
 def test_cli_live_serves_for_its_duration():
-    cli = subprocess.run([sys.executable, "-m", "stiffness.cli", "view", "--robot", "sk120",
+    cli = subprocess.run([sys.executable, "-m", "stiffness.cli.main", "view", "--robot", "sk120",
                           "--duration", "0.5"], capture_output=True, text=True, timeout=60)
     assert cli.returncode == 0, cli.stderr
     url = re.search(r"(http://127\.0\.0\.1:(\d+)/)", cli.stdout)

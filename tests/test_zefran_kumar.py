@@ -4,7 +4,8 @@
   joint-connection stiffness K_j = J^-T K J^-1 (rounded to 0.1). The paper orders twists
   [omega; v] and wrenches [tau; F]; K_j is computed in that order here (the arithmetic does not
   depend on it). Units: K in N/cm; K_j in the paper's mixed N, cm units.
-* The twist-basis stiffness K_a (eq. 30) of stiffness.formulation against a finite-difference
+* The twist-basis stiffness K_a (eq. 30) of stiffness.mechanics.formulation against a
+finite-difference
   definition, its asymmetry against eq. 34 (Lie bracket of the basis twists), K_a = K_j where
   the wrench vanishes; and the printed K_a's asymmetry against the structure eq. 34 implies.
 """
@@ -16,7 +17,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from stiffness.formulation import (
+from stiffness.mechanics.formulation import (
     TargetState,
     joint_connection_stiffness,
     target_state,

@@ -4,7 +4,7 @@
 (through Pinocchio's ``MeshcatVisualizer`` for the robot's meshes):
 
 * the robot at a configuration, and a translucent red copy of it at the *exact* equilibrium
-  under the load (:func:`stiffness.equilibrium.solve_equilibrium`) with the deflection
+  under the load (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`) with the deflection
   multiplied by a stated factor (``exaggeration``);
 * the load arrow at the target (force; a second arrow for a moment, if any);
 * the translational stiffness ellipsoid (3x3, N/m) or compliance ellipsoid (m/N) at the target,

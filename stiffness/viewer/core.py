@@ -23,18 +23,18 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from stiffness.defaults import default_coordinates, default_load
-from stiffness.equilibrium import solve_equilibrium
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
-from stiffness.formulation import (
+from stiffness.mechanics.defaults import default_coordinates, default_load
+from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.formulation import (
     FORMULATIONS,
     as_wrench,
     joint_stiffness,
     tangent_joint_stiffness,
     target_state,
 )
-from stiffness.robot import Robot, load_robot
+from stiffness.model.robot import Robot, load_robot
 from stiffness.viewer.deps import _meshcat, _pinocchio_meshcat_visualizer
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
@@ -174,7 +174,7 @@ class StiffnessViewer:
     Parameters
     ----------
     robot
-        The robot (:func:`stiffness.robot.load_robot`).
+        The robot (:func:`stiffness.model.robot.load_robot`).
     k_theta
         Joint stiffness: one value per compliant joint (N.m/rad; N/m prismatic) or the (n, n)
         matrix.

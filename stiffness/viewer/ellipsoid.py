@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.formulation import cartesian_stiffness, compliance
+from stiffness.mechanics.formulation import cartesian_stiffness, compliance
 
 #: What the ellipsoids can show.
 QUANTITIES = ("stiffness", "compliance")

@@ -1,0 +1,1 @@
+"""Batch layer: vectorised elastostatics over arrays of configurations and loads."""

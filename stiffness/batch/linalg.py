@@ -1,0 +1,437 @@
+"""Batched linear algebra of elastostatics (part of :mod:`stiffness.batch.kernels`, which re-exports
+its public names): tangent stiffness, compliance, K_X, eigenvalues and definiteness classes of
+stacks of small matrices.
+
+Pure NumPy on arrays whose leading axes are the batch (no robot, no Pinocchio). Compliance and
+K_X of symmetric tangents (pure forces) go through a Cholesky factorisation vectorised across
+the batch (one NumPy operation per matrix entry, not per matrix); the others, and those that
+are not positive definite, through LAPACK's LU. Singular entries come back as NaN with a mask
+instead of raising.
+
+Shapes: ``n`` compliant joints, ``r`` Cartesian rows (3: translational, 6: [v; omega]).
+Units: SI (K_theta, K_C in N.m/rad; K_X in N/m for the translational block; compliance in m/N).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stiffness.errors import StiffnessError
+from stiffness.mechanics.formulation import DEFINITENESS_CLASSES, FORMULATIONS
+
+#: Definiteness class codes: ``DEFINITENESS_CLASSES[code]`` ("PD", "PSD", "ND", "NSD", "ID");
+#: -1 marks an invalid entry (singular or unreachable configuration).
+CLASS_CODES = {name: i for i, name in enumerate(DEFINITENESS_CLASSES)}
+INVALID_CLASS = -1
+
+#: Condition-number limit of the compliance beyond which K_X is reported singular (NaN), as in
+#: :func:`stiffness.mechanics.formulation.cartesian_stiffness` (there: 2-norm; here: 1-norm
+#: estimate).
+CONDITION_LIMIT = 1e12
+
+
+def as_joint_stiffness(k_theta: np.ndarray | list[float], n: int) -> np.ndarray:
+    """K_theta (n, n) from n positive values (N.m/rad, N/m) or an (n, n) matrix."""
+    k = np.asarray(k_theta, dtype=float)
+    if k.ndim == 1:
+        if k.shape[0] != n or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise StiffnessError(
+                f"need {n} finite positive joint stiffnesses (N.m/rad, N/m), got {k.tolist()}"
+            )
+        return np.diag(k)
+    if k.shape != (n, n) or not np.all(np.isfinite(k)):
+        raise StiffnessError(f"K_theta must be {n} values or an ({n}, {n}) matrix")
+    return k
+
+
+def tangent_stiffness(k_theta: np.ndarray, k_c: np.ndarray,
+                      formulation: str = "enhanced") -> np.ndarray:
+    """K_theta - K_C (enhanced) or K_theta broadcast to K_C's shape (conventional)."""
+    if formulation not in FORMULATIONS:
+        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+    if formulation == "enhanced":
+        return k_theta - k_c
+    return np.broadcast_to(k_theta, k_c.shape)
+
+
+#: Matrices per block of batched linear algebra (keeps the work arrays in cache).
+_BLOCK = 2048
+
+
+def _cholesky_t(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factors of a batch-last stack ``a`` (n, n, M) (lower triangle read).
+
+    Vectorised over M (one NumPy operation per entry column, not per matrix). Returns the
+    lower factors and the mask of positive definite matrices (the others hold junk).
+    """
+    n = a.shape[0]
+    low = np.zeros_like(a)
+    ok = np.ones(a.shape[-1], dtype=bool)
+    for j in range(n):
+        d = a[j, j] - np.square(low[j, :j]).sum(axis=0) if j else a[j, j].copy()
+        good = d > 0.0
+        if not good.all():
+            ok &= good
+            d = np.where(good, d, 1.0)
+        pivot = np.sqrt(d)
+        low[j, j] = pivot
+        if j + 1 < n:
+            col = a[j + 1:, j]
+            if j:
+                col = col - (low[j + 1:, :j] * low[j, :j]).sum(axis=1)
+            low[j + 1:, j] = col / pivot
+    return low, ok
+
+
+def _forward_t(low: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``low y = b`` for batch-last lower-triangular ``low`` (n, n, M), ``b`` (n, k, M)."""
+    y = np.empty(np.broadcast_shapes(b.shape, (low.shape[0], 1, low.shape[2])))
+    for i in range(low.shape[0]):
+        s = b[i]
+        if i:
+            s = s - (low[i, :i, None] * y[:i]).sum(axis=0)
+        y[i] = s / low[i, i]
+    return y
+
+
+def _gram_t(y: np.ndarray) -> np.ndarray:
+    """``y^T y`` per matrix of a batch-last stack (n, k, M) -> (k, k, M)."""
+    return (y[:, :, None] * y[:, None, :]).sum(axis=0)
+
+
+def _spd_block_t(t_t: np.ndarray, j_t: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Compliance and its inverse through Cholesky factors, batch-last, symmetric tangents.
+
+    ``C = Y^T Y`` with ``L Y = J^T`` (``T = L L^T``), ``K_X = Z^T Z`` with ``L_C Z = I``.
+    ``t_t`` (n, n, M) (or (n, n, 1): the same T for all), ``j_t`` = J^T (n, r, M). Returns
+    C, K_X (r, r, M) and the masks of positive definite T and C (elsewhere the results are junk
+    and must be recomputed by LU).
+    """
+    r = j_t.shape[1]
+    low, t_ok = _cholesky_t(t_t)
+    c_t = _gram_t(_forward_t(low, j_t))
+    low_c, c_ok = _cholesky_t(c_t)
+    k_t = _gram_t(_forward_t(low_c, np.eye(r)[:, :, None]))
+    return c_t, k_t, np.broadcast_to(t_ok, c_ok.shape), c_ok
+
+
+def _spd_block(tangent: np.ndarray, jac: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_spd_block_t` for batch-first stacks (M, n, n), (M, r, n) -> (M, r, r)."""
+    c_t, k_t, t_ok, c_ok = _spd_block_t(np.ascontiguousarray(tangent.transpose(1, 2, 0)),
+                                        np.ascontiguousarray(jac.transpose(2, 1, 0)))
+    return c_t.transpose(2, 0, 1), k_t.transpose(2, 0, 1), t_ok, c_ok
+
+
+def symmetric_stack(k_theta: np.ndarray, k_c: np.ndarray | None, jac: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """C, K_X (m, L, r, r) and the regular mask (m, L) for symmetric tangents, fast path.
+
+    ``T = K_theta - K_C`` (``k_c`` (m, L, n, n)) or ``K_theta`` for every configuration
+    (``k_c`` None, L = 1), ``jac`` (m, r, n). The tangents are laid out batch-last for the
+    vectorised Cholesky path in cache-sized blocks; those that are not positive definite are
+    redone by LU (:func:`_compliance_block`).
+    """
+    m, r, n = jac.shape
+    n_loads = 1 if k_c is None else k_c.shape[1]
+    c_out = np.empty((m, n_loads, r, r))
+    k_out = np.empty((m, n_loads, r, r))
+    ok_out = np.empty((m, n_loads), dtype=bool)
+    step = max(1, _BLOCK // n_loads)
+    for s in range(0, m, step):
+        e = min(m, s + step)
+        cols = (e - s) * n_loads
+        j_t = jac[s:e].transpose(2, 1, 0)  # (n, r, mb)
+        if n_loads > 1:
+            j_t = np.broadcast_to(j_t[..., None], (n, r, e - s, n_loads))
+        j_t = np.ascontiguousarray(j_t).reshape(n, r, cols)
+        if k_c is None:
+            t_t = k_theta[:, :, None]
+        else:
+            t_t = np.empty((n, n, e - s, n_loads))
+            np.subtract(k_theta[:, :, None, None], k_c[s:e].transpose(2, 3, 0, 1), out=t_t)
+            t_t = t_t.reshape(n, n, cols)
+        c_t, k_t, ok_t, ok_c = _spd_block_t(t_t, j_t)
+        c = c_t.transpose(2, 0, 1)
+        k_x = k_t.transpose(2, 0, 1)
+        redo = ~(ok_t & ok_c)
+        if redo.any():
+            idx = np.flatnonzero(redo)
+            tangent = np.broadcast_to(t_t, (n, n, cols))[:, :, idx].transpose(2, 0, 1)
+            c_r, k_r, t_r, _ = _compliance_block(tangent, j_t[:, :, idx].transpose(2, 1, 0),
+                                                 True, False)
+            c, k_x = c.copy(), k_x.copy()
+            c[idx], k_x[idx] = c_r, k_r
+            regular = _condition_ok(c, k_x)
+            regular[idx] &= t_r & np.all(np.isfinite(k_r), axis=(1, 2))
+        else:
+            regular = _condition_ok(c, k_x)
+        c_out[s:e] = c.reshape(e - s, n_loads, r, r)
+        k_out[s:e] = k_x.reshape(e - s, n_loads, r, r)
+        ok_out[s:e] = regular.reshape(e - s, n_loads)
+    k_out[~ok_out] = np.nan
+    return c_out, k_out, ok_out
+
+
+def _solve_each(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """LU ``solve(a, b)`` of stacks (M, n, n), (M, n, k); singular systems give NaN, False."""
+    try:
+        return np.linalg.solve(a, b), np.ones(a.shape[0], dtype=bool)
+    except np.linalg.LinAlgError:
+        pass
+    out = np.full(b.shape, np.nan)
+    ok = np.ones(a.shape[0], dtype=bool)
+    for i in range(a.shape[0]):
+        try:
+            out[i] = np.linalg.solve(a[i], b[i])
+        except np.linalg.LinAlgError:
+            ok[i] = False
+    return out, ok
+
+
+def _inverse_each(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """LU inverses of a stack (M, r, r), NaN for singular or non-finite matrices."""
+    finite = np.all(np.isfinite(c), axis=(1, 2))
+    out = np.full(c.shape, np.nan)
+    ok = finite.copy()
+    if finite.any():
+        eye = np.broadcast_to(np.eye(c.shape[-1]), (int(finite.sum()), *c.shape[1:]))
+        out[finite], ok[finite] = _solve_each(c[finite], eye)
+    return out, ok
+
+
+def _is_symmetric(a: np.ndarray) -> np.ndarray:
+    """Per matrix: symmetric to round-off (|A - A^T| <= 1e-12 |A|, entrywise max norms)."""
+    asym = np.abs(a - np.swapaxes(a, -1, -2)).max(axis=(-2, -1))
+    return asym <= 1e-12 * np.abs(a).max(axis=(-2, -1))
+
+
+def _condition_ok(c: np.ndarray, k_x: np.ndarray) -> np.ndarray:
+    """1-norm condition estimate ``|C|_1 |C^-1|_1`` within :data:`CONDITION_LIMIT`."""
+    norm_c = np.abs(c).sum(axis=-2).max(axis=-1)
+    norm_k = np.abs(k_x).sum(axis=-2).max(axis=-1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.isfinite(norm_k) & (norm_c * norm_k <= CONDITION_LIMIT)
+
+
+def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
+                      symmetric: bool | None = None
+                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """C, K_X (or None), regular-T and regular-K_X masks of one block (M, n, n), (M, r, n).
+
+    ``symmetric``: True when every tangent is known to be symmetric (pure forces), None to
+    test each matrix.
+    """
+    m = tangent.shape[0]
+    r = jac.shape[1]
+    sym = np.ones(m, dtype=bool) if symmetric else _is_symmetric(tangent)
+    if sym.all():
+        c_t, k_t, ok_t, ok_c = _spd_block(tangent, jac)
+        c = np.ascontiguousarray(c_t)
+        k_x = np.ascontiguousarray(k_t) if with_k_x else None
+        lu_t = ~ok_t
+        lu_c = ~(ok_t & ok_c)
+    else:
+        c = np.empty((m, r, r))
+        k_x = np.empty((m, r, r)) if with_k_x else None
+        lu_t, lu_c = ~sym, ~sym
+        if sym.any():
+            idx = np.flatnonzero(sym)
+            c_s, k_s, ok_t, ok_c = _spd_block(tangent[idx], jac[idx])
+            c[idx], lu_t[idx] = c_s, ~ok_t
+            if with_k_x:
+                k_x[idx] = k_s
+                lu_c[idx] = ~(ok_t & ok_c)
+    t_ok = np.ones(m, dtype=bool)
+    if lu_t.any():
+        idx = np.flatnonzero(lu_t)
+        x, ok = _solve_each(tangent[idx], np.swapaxes(jac[idx], 1, 2))
+        c[idx] = jac[idx] @ x
+        t_ok[idx] = ok
+    kx_ok = t_ok
+    if with_k_x:
+        if lu_c.any():
+            idx = np.flatnonzero(lu_c)
+            k_x[idx], _ = _inverse_each(c[idx])
+        kx_ok = t_ok & _condition_ok(c, k_x)
+        if not kx_ok.all():
+            k_x[~kx_ok] = np.nan
+    if not t_ok.all():
+        c[~t_ok] = np.nan
+    return c, k_x, t_ok, kx_ok
+
+
+def compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
+                      symmetric: bool | None = None
+                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """:func:`_compliance_block` over a stack (..., n, n), (..., r, n) in cache-sized blocks."""
+    shape = np.broadcast_shapes(tangent.shape[:-2], jac.shape[:-2])
+    n, r = tangent.shape[-1], jac.shape[-2]
+    t_flat = np.broadcast_to(tangent, (*shape, n, n)).reshape(-1, n, n)
+    j_flat = np.broadcast_to(jac, (*shape, r, n)).reshape(-1, r, n)
+    total = t_flat.shape[0]
+    if total <= _BLOCK:
+        c, k_x, t_ok, kx_ok = _compliance_block(t_flat, j_flat, with_k_x, symmetric)
+    else:
+        c = np.empty((total, r, r))
+        k_x = np.empty((total, r, r)) if with_k_x else None
+        t_ok = np.empty(total, dtype=bool)
+        kx_ok = np.empty(total, dtype=bool)
+        for s in range(0, total, _BLOCK):
+            e = min(total, s + _BLOCK)
+            c[s:e], kb, t_ok[s:e], kx_ok[s:e] = _compliance_block(
+                t_flat[s:e], j_flat[s:e], with_k_x, symmetric)
+            if with_k_x:
+                k_x[s:e] = kb
+    return (c.reshape(*shape, r, r), None if k_x is None else k_x.reshape(*shape, r, r),
+            t_ok.reshape(shape), kx_ok.reshape(shape))
+
+
+def compliance(jacobian: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian compliance ``C = J T^-1 J^T`` (m/N for translations), batched.
+
+    Symmetric tangents go through a Cholesky factorisation vectorised across the batch; the
+    others (and those that are not positive definite) through LAPACK's LU, as
+    :func:`stiffness.mechanics.formulation.compliance`.
+
+    Parameters
+    ----------
+    jacobian
+        (..., r, n) Jacobian rows (m/rad; rad/rad), broadcast against ``tangent``.
+    tangent
+        (..., n, n) tangent joint stiffness T (N.m/rad).
+
+    Returns
+    -------
+    compliance, regular
+        (..., r, r) compliance (NaN where T is singular) and the mask of regular T.
+    """
+    c, _, t_ok, _ = compliance_stack(tangent, jacobian, with_k_x=False)
+    return c, t_ok
+
+
+def cartesian_stiffness(compliance_matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """K_X = C^-1 (N/m for translations), batched.
+
+    Returns
+    -------
+    k_x, regular
+        K_X, NaN where the compliance is singular (a condition-number estimate
+        ``|C|_1 |C^-1|_1`` above :data:`CONDITION_LIMIT`, or NaN input), and the mask of
+        regular entries.
+    """
+    c = np.asarray(compliance_matrix, dtype=float)
+    shape, r = c.shape[:-2], c.shape[-1]
+    flat = c.reshape(-1, r, r)
+    k_x = np.empty_like(flat)
+    ok = np.empty(flat.shape[0], dtype=bool)
+    for s in range(0, flat.shape[0], _BLOCK):
+        block = flat[s:s + _BLOCK]
+        out = np.full(block.shape, np.nan)
+        good = np.zeros(block.shape[0], dtype=bool)
+        finite = np.all(np.isfinite(block), axis=(1, 2))
+        sym = finite & _is_symmetric(np.where(finite[:, None, None], block, 0.0))
+        if sym.any():
+            low, pd = _cholesky_t(np.ascontiguousarray(block[sym].transpose(1, 2, 0)))
+            z = _forward_t(low, np.eye(r)[:, :, None])
+            idx = np.flatnonzero(sym)[pd]
+            out[idx] = _gram_t(z).transpose(2, 0, 1)[pd]
+            good[idx] = True
+        rest = finite & ~good
+        if rest.any():
+            out[rest], good[rest] = _inverse_each(block[rest])
+        good &= _condition_ok(block, out)
+        out[~good] = np.nan
+        k_x[s:s + _BLOCK], ok[s:s + _BLOCK] = out, good
+    return k_x.reshape(c.shape), ok.reshape(shape)
+
+
+def symmetric_eigenvalues(matrices: np.ndarray) -> np.ndarray:
+    """Ascending eigenvalues of the symmetric parts, NaN for matrices holding NaN."""
+    return _eigvalsh(0.5 * (matrices + np.swapaxes(matrices, -1, -2)))
+
+
+def _eigvalsh(sym: np.ndarray) -> np.ndarray:
+    """``eigvalsh`` of symmetric matrices, NaN for matrices holding NaN."""
+    finite = np.all(np.isfinite(sym), axis=(-2, -1))
+    if finite.all():
+        return np.linalg.eigvalsh(sym)
+    out = np.linalg.eigvalsh(np.where(finite[..., None, None], sym, 0.0))
+    out[~finite] = np.nan
+    return out
+
+
+def definiteness_codes(matrices: np.ndarray | None = None, rtol: float = 1e-9, atol: float = 0.0,
+                       eigenvalues: np.ndarray | None = None) -> np.ndarray:
+    """Definiteness class codes of the quadratic forms, batched (int8).
+
+    ``DEFINITENESS_CLASSES[code]`` names the class, with the rule of
+    :func:`stiffness.mechanics.formulation.definiteness`; :data:`INVALID_CLASS` (-1) where the
+    matrix
+    holds NaN. Give ``matrices`` (..., n, n) or their symmetric parts' ``eigenvalues`` (..., n).
+    Matrices whose Gershgorin discs already decide PD or ND (with a margin far above the
+    eigensolver's round-off) skip the eigen-decomposition.
+    """
+    if eigenvalues is not None:
+        return _codes_from_eigenvalues(eigenvalues, rtol, atol)
+    sym = 0.5 * (matrices + np.swapaxes(matrices, -1, -2))
+    centre = np.diagonal(sym, axis1=-2, axis2=-1)
+    radius = np.abs(sym).sum(axis=-1) - np.abs(centre)
+    low, high = centre - radius, centre + radius
+    with np.errstate(invalid="ignore"):
+        bound = np.maximum(np.abs(low), np.abs(high)).max(axis=-1)  # >= max |eigenvalue|
+        margin = atol + (rtol + 1e-12) * bound + 1e-12 * bound
+        pd = low.min(axis=-1) > margin
+        nd = high.max(axis=-1) < -margin
+    codes = np.full(sym.shape[:-2], CLASS_CODES["PD"], dtype=np.int8)
+    codes[nd] = CLASS_CODES["ND"]
+    rest = ~(pd | nd)
+    if rest.any():
+        codes[rest] = _codes_from_eigenvalues(_eigvalsh(sym[rest]), rtol, atol)
+    return codes
+
+
+def _codes_from_eigenvalues(eig: np.ndarray, rtol: float, atol: float) -> np.ndarray:
+    finite = np.all(np.isfinite(eig), axis=-1)
+    eig = np.where(finite[..., None], eig, 0.0)
+    tol = atol + rtol * np.maximum(np.abs(eig).max(axis=-1), 0.0)
+    pos = eig > tol[..., None]
+    neg = eig < -tol[..., None]
+    codes = np.full(eig.shape[:-1], CLASS_CODES["ID"], dtype=np.int8)
+    codes[~pos.any(axis=-1)] = CLASS_CODES["NSD"]
+    codes[~neg.any(axis=-1)] = CLASS_CODES["PSD"]
+    codes[neg.all(axis=-1)] = CLASS_CODES["ND"]
+    codes[pos.all(axis=-1)] = CLASS_CODES["PD"]
+    codes[~finite] = INVALID_CLASS
+    return codes
+
+
+def class_names(codes: np.ndarray) -> np.ndarray:
+    """Class names ("PD", ..., "" for invalid) of an array of codes."""
+    names = np.array([*DEFINITENESS_CLASSES, ""], dtype="<U3")
+    return names[np.where(codes < 0, len(DEFINITENESS_CLASSES), codes)]
+
+
+def critical_load_factor(k_theta: np.ndarray, k_c: np.ndarray) -> np.ndarray:
+    """Load multiplier at which K_theta - s K_C stops being positive definite (inf if never).
+
+    ``1 / lambda_max(K_theta^-1/2 sym(K_C) K_theta^-1/2)`` for a diagonal K_theta, as in
+    :func:`stiffness.scan.definiteness.definiteness_scan`; shape ``k_c.shape[:-2]``.
+    """
+    k_half_inv = np.diag(1.0 / np.sqrt(np.diag(k_theta)))
+    sym = 0.5 * (k_c + np.swapaxes(k_c, -1, -2))
+    top = _eigvalsh(k_half_inv @ sym @ k_half_inv)[..., -1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(top > 0, 1.0 / np.where(top > 0, top, 1.0),
+                        np.where(np.isnan(top), np.nan, np.inf))
+
+
+def principal_stiffness(k_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal values (ascending) and directions (columns) of the symmetric part of K_X."""
+    sym = 0.5 * (k_x + np.swapaxes(k_x, -1, -2))
+    finite = np.all(np.isfinite(sym), axis=(-2, -1))
+    values, vectors = np.linalg.eigh(np.where(finite[..., None, None], sym, 0.0))
+    values[~finite] = np.nan
+    vectors[~finite] = np.nan
+    return values, vectors

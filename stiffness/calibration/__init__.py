@@ -1,0 +1,2 @@
+"""Calibration layer: campaigns, model files, the fitting engine, effects, diagnosis and
+simulation."""

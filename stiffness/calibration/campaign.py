@@ -1,0 +1,756 @@
+"""Measurement campaigns: a ``campaign.toml`` and the CSV of measurements beside it.
+
+A campaign is the input of :mod:`stiffness.calibration.identify` (and the output of ``stiffness
+simulate``)::
+
+    name = "sk120-table2"
+    baseline = "enhanced"              # or "conventional": the model to start from
+    [robot]
+    source = "sk120"                   # shipped robot, example-robot-data name, or a URDF path
+                                       # relative to this file
+    frame = "fixture_target"           # frame carrying the measurement target (optional)
+    target_offset = [0.0, 0.0, 0.0]    # target in that frame, in the [units] length (optional)
+    compliant_joints = ["joint1", "joint2", "joint3"]   # springs; the rest rigid (optional)
+    [units]
+    angle = "deg"                      # deg | rad
+    force = "N"                        # N | kN
+    length = "mm"                      # mm | m | cm | um
+    [measurement]
+    data = "measurements.csv"
+    noise_std = 0.005                  # measurement noise std, length unit (optional)
+
+Omitted optional keys take :func:`stiffness.model.robot.load_robot`'s defaults (the shipped robot's
+frame and compliant joints, else the model's last frame and every coordinate joint). Unknown
+keys are errors (a misspelt ``noise_std`` would otherwise be silently ignored).
+
+The CSV has a header and the columns ``config,q1,...,qn,fx,fy,fz,dx,dy,dz``: a configuration
+label, the robot's coordinates in its coordinate order (``Robot.coordinate_joints``; angles in
+the angle unit, prismatic joints in the length unit), the force applied at the target and the
+measured displacement of the target from its unloaded position. The optional groups
+``mx,my,mz`` (applied moment, force unit x length unit) and ``rx,ry,rz`` (measured small
+rotation vector, angle unit) may follow, in that order. Lines starting with ``#`` and blank
+lines are skipped. Any other column, a missing column, or a cell that is not a finite number is
+an error naming the file, the line and the column.
+
+In memory everything is SI (rad, m, N, N.m); the declared units apply only to the files.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.files import atomic_write
+from stiffness.model.robot import Robot, load_robot
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
+    import tomli as tomllib
+
+#: Campaign file name inside a campaign folder.
+CAMPAIGN_FILE = "campaign.toml"
+#: Default measurement file name.
+DEFAULT_DATA_FILE = "measurements.csv"
+#: Models a campaign may start from.
+BASELINES = ("conventional", "enhanced")
+
+#: Unit name -> factor to SI (rad, N, m).
+ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
+FORCE_UNITS = {"N": 1.0, "kN": 1e3}
+LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
+
+_FORCE_COLUMNS = ("fx", "fy", "fz")
+_DEFLECTION_COLUMNS = ("dx", "dy", "dz")
+_MOMENT_COLUMNS = ("mx", "my", "mz")
+_ROTATION_COLUMNS = ("rx", "ry", "rz")
+
+_TOML_KEYS = {
+    "": {"name", "baseline", "robot", "units", "measurement"},
+    "robot": {"source", "frame", "target_offset", "compliant_joints"},
+    "units": {"angle", "force", "length"},
+    "measurement": {"data", "noise_std"},
+}
+_REQUIRED_KEYS = {
+    "": ("name", "baseline", "robot", "units", "measurement"),
+    "robot": ("source",),
+    "units": ("angle", "force", "length"),
+    "measurement": ("data",),
+}
+_KEY_HELP = {
+    "name": 'a label for the campaign, e.g. name = "sk120-table2"',
+    "baseline": f"the model to start from, one of {', '.join(BASELINES)}",
+    "robot": "a [robot] table with at least source",
+    "units": "a [units] table with angle, force and length",
+    "measurement": "a [measurement] table with data (the CSV file name)",
+    "source": 'a shipped robot ("sk120"), an example-robot-data name, or a URDF path relative '
+              "to the campaign file",
+    "angle": f"one of {', '.join(ANGLE_UNITS)}",
+    "force": f"one of {', '.join(FORCE_UNITS)}",
+    "length": f"one of {', '.join(LENGTH_UNITS)}",
+    "data": 'the measurement CSV beside the campaign file, e.g. data = "measurements.csv"',
+}
+
+
+@dataclass(frozen=True)
+class Units:
+    """Units of a campaign's files (in memory everything is SI).
+
+    Attributes
+    ----------
+    angle
+        Unit of joint angles and measured rotations: ``deg`` or ``rad``.
+    force
+        Unit of forces: ``N`` or ``kN``; moments are in force x length (N.mm for N and mm).
+    length
+        Unit of deflections, the target offset, noise and prismatic coordinates:
+        ``mm``, ``m``, ``cm`` or ``um``.
+    """
+
+    angle: str = "deg"
+    force: str = "N"
+    length: str = "mm"
+
+    def __post_init__(self) -> None:
+        for kind, value, table in (("angle", self.angle, ANGLE_UNITS),
+                                   ("force", self.force, FORCE_UNITS),
+                                   ("length", self.length, LENGTH_UNITS)):
+            if value not in table:
+                raise StiffnessError(
+                    f"unknown {kind} unit {value!r}; valid {kind} units: {', '.join(table)}"
+                )
+
+    @property
+    def angle_to_si(self) -> float:
+        """Factor from the angle unit to rad."""
+        return ANGLE_UNITS[self.angle]
+
+    @property
+    def force_to_si(self) -> float:
+        """Factor from the force unit to N."""
+        return FORCE_UNITS[self.force]
+
+    @property
+    def length_to_si(self) -> float:
+        """Factor from the length unit to m."""
+        return LENGTH_UNITS[self.length]
+
+    @property
+    def moment_to_si(self) -> float:
+        """Factor from the moment unit (force x length) to N.m."""
+        return self.force_to_si * self.length_to_si
+
+    @property
+    def moment(self) -> str:
+        """Name of the moment unit, e.g. ``N.mm``."""
+        return f"{self.force}.{self.length}"
+
+
+@dataclass
+class RobotSettings:
+    """The ``[robot]`` table of a campaign.
+
+    Attributes
+    ----------
+    source
+        Shipped robot name, example-robot-data name, or URDF path (relative paths are relative
+        to the campaign file's folder, or to the working directory for an unsaved campaign).
+    frame
+        Frame carrying the target, or ``None`` for the robot's default.
+    target_offset_m
+        Target position in ``frame`` axes (m), shape (3,).
+    compliant_joints
+        Joints modelled as springs, or ``None`` for the robot's default.
+    """
+
+    source: str
+    frame: str | None = None
+    target_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    compliant_joints: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        self.source = str(self.source)
+        offset = np.asarray(self.target_offset_m, dtype=float).reshape(-1)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            raise StiffnessError(
+                f"the target offset must be three finite lengths, got {offset.tolist()}"
+            )
+        self.target_offset_m = offset
+        if self.compliant_joints is not None:
+            self.compliant_joints = tuple(str(j) for j in self.compliant_joints)
+
+
+def _looks_like_path(source: str) -> bool:
+    return (Path(source).suffix.lower() in (".urdf", ".xml") or "/" in source
+            or os.sep in source or Path(source).is_absolute())
+
+
+def _resolve_source(source: str, folder: Path) -> str:
+    """A robot name as is; a relative URDF path made absolute against ``folder``."""
+    if _looks_like_path(source) and not Path(source).is_absolute():
+        return str((folder / source).resolve())
+    return source
+
+
+@dataclass
+class Campaign:
+    """A measurement campaign, in SI.
+
+    Attributes
+    ----------
+    name
+        Campaign label.
+    baseline
+        Model to start from: ``conventional`` or ``enhanced``.
+    robot_settings
+        Robot source, target frame and offset, compliant joints.
+    q
+        (m, n_coordinates) robot coordinates per row, rad (revolute) or m (prismatic).
+    force
+        (m, 3) force applied at the target, base axes, N.
+    deflection
+        (m, 3) measured target displacement from its unloaded position, base axes, m.
+    config
+        (m,) configuration labels.
+    moment
+        (m, 3) moment applied at the target, N.m, or ``None``.
+    rotation
+        (m, 3) measured small rotation vector of the target frame, rad, or ``None``.
+    noise_std_m
+        Standard deviation of the deflection measurement noise, m, or ``None`` if unknown.
+    units
+        Units of the files.
+    path
+        The ``campaign.toml`` this was read from (or written to), or ``None``.
+    data_file
+        Name of the measurement CSV, relative to the campaign file.
+    lines
+        (m,) CSV line number of each row (1-based), or ``None`` for a campaign built in memory.
+    """
+
+    name: str
+    baseline: str
+    robot_settings: RobotSettings
+    q: np.ndarray
+    force: np.ndarray
+    deflection: np.ndarray
+    config: tuple[str, ...] | None = None
+    moment: np.ndarray | None = None
+    rotation: np.ndarray | None = None
+    noise_std_m: float | None = None
+    units: Units = field(default_factory=Units)
+    path: Path | None = None
+    data_file: str = DEFAULT_DATA_FILE
+    lines: tuple[int, ...] | None = None
+    _robot: Robot | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.baseline not in BASELINES:
+            raise StiffnessError(
+                f"unknown baseline {self.baseline!r}; valid baselines: {', '.join(BASELINES)}"
+            )
+        self.q = np.atleast_2d(np.asarray(self.q, dtype=float))
+        m = self.q.shape[0]
+        if m == 0:
+            raise StiffnessError("a campaign needs at least one measurement row")
+        for label in ("force", "deflection", "moment", "rotation"):
+            value = getattr(self, label)
+            if value is None:
+                continue
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != (m, 3):
+                raise StiffnessError(
+                    f"campaign {label} must have shape ({m}, 3) like its {m} rows of q, "
+                    f"got {np.shape(value)}"
+                )
+            if not np.all(np.isfinite(arr)):
+                raise StiffnessError(f"campaign {label} must be finite numbers")
+            setattr(self, label, arr)
+        if not np.all(np.isfinite(self.q)):
+            raise StiffnessError("campaign coordinates q must be finite numbers")
+        if self.config is None:
+            self.config = tuple(str(i + 1) for i in range(m))
+        self.config = tuple(str(c) for c in self.config)
+        for label in self.config:
+            if not label.strip() or "\n" in label or "\r" in label:
+                raise StiffnessError(f"configuration labels must be non-empty single-line text, "
+                                     f"got {label!r}")
+        if len(self.config) != m:
+            raise StiffnessError(f"campaign needs {m} configuration labels, got {len(self.config)}")
+        if self.noise_std_m is not None:
+            self.noise_std_m = float(self.noise_std_m)
+            if not (math.isfinite(self.noise_std_m) and self.noise_std_m > 0):
+                raise StiffnessError(
+                    f"noise_std must be a positive finite length, got {self.noise_std_m}"
+                )
+        if not isinstance(self.units, Units):
+            raise StiffnessError("campaign units must be a stiffness.calibration.campaign.Units")
+        if self.path is not None:
+            self.path = Path(self.path)
+
+    @property
+    def n_rows(self) -> int:
+        """Number of measurement rows."""
+        return self.q.shape[0]
+
+    @property
+    def wrench(self) -> np.ndarray:
+        """(m, 6) applied wrenches [F (N); M (N.m)] per row (moment zero when not given)."""
+        moment = np.zeros_like(self.force) if self.moment is None else self.moment
+        return np.hstack([self.force, moment])
+
+    def folder(self) -> Path:
+        """Folder relative paths are resolved against (the campaign file's, else the cwd)."""
+        return self.path.parent if self.path is not None else Path.cwd()
+
+    def resolved_source(self) -> str:
+        """Robot source with a relative URDF path resolved against :meth:`folder`."""
+        return _resolve_source(self.robot_settings.source, self.folder())
+
+    def describe_row(self, i: int) -> str:
+        """Where row ``i`` comes from, e.g. ``measurements.csv line 7 (config A)``."""
+        where = f"row {i + 1}"
+        if self.lines is not None:
+            data = (self.folder() / self.data_file) if self.path is not None else self.data_file
+            where = f"{data} line {self.lines[i]}"
+        return f"{where} (config {self.config[i]})"
+
+    def robot(self) -> Robot:
+        """The campaign's robot, loaded once (:func:`stiffness.model.robot.load_robot`).
+
+        Raises
+        ------
+        StiffnessError
+            If the robot cannot be loaded or its coordinate count differs from ``q``'s columns.
+        """
+        if self._robot is None:
+            s = self.robot_settings
+            robot = load_robot(self.resolved_source(), frame=s.frame,
+                               target_offset=s.target_offset_m,
+                               compliant_joints=s.compliant_joints)
+            if robot.n_coordinates != self.q.shape[1]:
+                raise StiffnessError(
+                    f"robot {s.source} has {robot.n_coordinates} coordinates "
+                    f"({', '.join(robot.coordinate_joints)}) but campaign {self.name!r} has "
+                    f"{self.q.shape[1]} q values per row; give one q per coordinate joint"
+                )
+            self._robot = robot
+        return self._robot
+
+
+# ----------------------------------------------------------------------------------------------
+# reading
+
+
+def _check_keys(table: dict, where: str, path: Path) -> None:
+    section = "" if where == "" else where
+    label = "top level" if where == "" else f"[{where}]"
+    for key in table:
+        if key not in _TOML_KEYS[section]:
+            raise StiffnessError(
+                f"{path}: unknown key {key!r} in {label}; "
+                f"{did_you_mean(key, sorted(_TOML_KEYS[section]))}"
+            )
+    for key in _REQUIRED_KEYS[section]:
+        if key not in table:
+            prefix = "" if where == "" else f"[{where}] "
+            raise StiffnessError(f"{path}: missing key {prefix}{key}: add {_KEY_HELP[key]}")
+
+
+def _typed(value, kind: type | tuple, path: Path, key: str, what: str):
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise StiffnessError(f"{path}: {key} must be {what}, got {value!r}")
+    return value
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise StiffnessError(f"cannot read campaign file {path}: {exc.strerror}") from exc
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise StiffnessError(f"{path} is not valid TOML: {exc}; fix the syntax") from exc
+    _check_keys(doc, "", path)
+    for section in ("robot", "units", "measurement"):
+        if not isinstance(doc[section], dict):
+            raise StiffnessError(
+                f"{path}: {section} must be a [{section}] table, got {doc[section]!r}"
+            )
+        _check_keys(doc[section], section, path)
+    return doc
+
+
+def _campaign_path(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    if p.is_dir():
+        p = p / CAMPAIGN_FILE
+    if not p.is_file():
+        raise StiffnessError(
+            f"campaign {path} not found: give a {CAMPAIGN_FILE} or the folder holding one"
+        )
+    return p
+
+
+def _expected_header(n_q: int) -> list[str]:
+    return ["config", *(f"q{i}" for i in range(1, n_q + 1)), *_FORCE_COLUMNS,
+            *_DEFLECTION_COLUMNS]
+
+
+def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
+                  robot_text: str = "the robot") -> tuple[int, bool, bool]:
+    """Check a CSV header; return (number of q columns, has moment, has rotation)."""
+    optional = "optional columns after dz: mx,my,mz (moment) then rx,ry,rz (rotation)"
+
+    def fail(col: int, text: str) -> StiffnessError:
+        return StiffnessError(f"{data}, line {line}, column {col}: {text}")
+
+    if not cells or cells[0] != "config":
+        got = repr(cells[0]) if cells else "nothing"
+        raise fail(1, f"the first column must be 'config', got {got}; the header is "
+                      f"config,q1,...,qn,fx,fy,fz,dx,dy,dz")
+    k = 0
+    while 1 + k < len(cells) and cells[1 + k].startswith("q") and cells[1 + k][1:].isdigit():
+        if cells[1 + k] != f"q{k + 1}":
+            raise fail(2 + k, f"got {cells[1 + k]!r}, expected 'q{k + 1}' "
+                              "(q columns are q1, q2, ... in order)")
+        k += 1
+    if n_q is not None and k != n_q:
+        raise fail(2 + min(k, n_q), f"{robot_text} has {n_q} coordinates but the header has {k} "
+                                    f"q columns; give q1..q{n_q} in that order")
+    if k == 0:
+        raise fail(2, f"got {cells[1]!r} where q1 was expected" if len(cells) > 1 else
+                   "column q1 is missing")
+    expected = _expected_header(k)
+    for col, name in enumerate(expected, start=1):
+        if col > len(cells):
+            raise fail(col, f"column {name!r} is missing; the header must be "
+                            f"{','.join(expected)}")
+        if cells[col - 1] != name:
+            raise fail(col, f"got {cells[col - 1]!r}, expected {name!r}; the header must be "
+                            f"{','.join(expected)} (optionally then mx,my,mz and rx,ry,rz)")
+    rest = cells[len(expected):]
+    groups = {_MOMENT_COLUMNS: "moment", _ROTATION_COLUMNS: "rotation"}
+    found = {"moment": False, "rotation": False}
+    col = len(expected) + 1
+    allowed = [_MOMENT_COLUMNS, _ROTATION_COLUMNS]
+    while rest:
+        group = next((g for g in allowed if rest[0] == g[0]), None)
+        if group is None:
+            valid = [c for g in allowed for c in g[:1]]
+            hint = f"expected {' or '.join(repr(v) for v in valid)}; " if valid else ""
+            raise fail(col, f"column {rest[0]!r} is not a campaign column; {hint}{optional}")
+        for j, name in enumerate(group):
+            if j >= len(rest):
+                raise fail(col + j, f"column {name!r} is missing ({groups[group]} columns come "
+                                    f"as {','.join(group)})")
+            if rest[j] != name:
+                raise fail(col + j, f"got {rest[j]!r}, expected {name!r} "
+                                    f"({groups[group]} columns come as {','.join(group)})")
+        found[groups[group]] = True
+        allowed = allowed[allowed.index(group) + 1:]
+        rest = rest[3:]
+        col += 3
+    return k, found["moment"], found["rotation"]
+
+
+def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
+    text = cell.strip()
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is None or not math.isfinite(value):
+        shown = repr(cell) if text else "an empty cell"
+        raise StiffnessError(
+            f"{data}, line {line}, column {col} ({name}): {shown} is not a finite number; "
+            "every q, force, moment, deflection and rotation cell must be a number"
+        )
+    return value
+
+
+def _read_rows(data: Path, n_q: int | None, robot_text: str = "the robot"):
+    try:
+        text = data.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise StiffnessError(
+            f"cannot read the measurement file {data}: {exc.strerror}; check [measurement] data"
+        ) from exc
+    header = None
+    rows: list[tuple[int, list[str]]] = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        if not raw.strip() or raw.lstrip().startswith("#"):
+            continue
+        cells = next(csv.reader([raw]))
+        if header is None:
+            header = [c.strip() for c in cells]
+            header_line = number
+            continue
+        rows.append((number, cells))
+    if header is None:
+        raise StiffnessError(f"{data}, line 1: the file is empty; it needs a header "
+                             "config,q1,...,qn,fx,fy,fz,dx,dy,dz and measurement rows")
+    k, has_moment, has_rotation = _parse_header(header, data, header_line, n_q, robot_text)
+    if not rows:
+        raise StiffnessError(f"{data}, line {header_line + 1}: no measurement rows after the "
+                             "header; add one row per loaded measurement")
+    width = len(header)
+    labels, values, lines = [], [], []
+    for number, cells in rows:
+        if len(cells) != width:
+            col = min(len(cells), width) + 1
+            name = header[col - 1] if col <= width else f"extra cell {cells[width]!r}"
+            raise StiffnessError(
+                f"{data}, line {number}, column {col} ({name}): the row has {len(cells)} cells "
+                f"but the header has {width}"
+            )
+        label = cells[0].strip()
+        if not label:
+            raise StiffnessError(f"{data}, line {number}, column 1 (config): the configuration "
+                                 "label is empty; give a label such as A")
+        labels.append(label)
+        values.append([_number(c, data, number, j, header[j - 1])
+                       for j, c in enumerate(cells[1:], start=2)])
+        lines.append(number)
+    return k, has_moment, has_rotation, labels, np.array(values, dtype=float), lines
+
+
+def _prismatic_mask(robot: Robot) -> np.ndarray:
+    kinds = [robot.model.joints[robot.model.getJointId(j)].shortname()
+             for j in robot.coordinate_joints]
+    return np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
+
+
+def load_campaign(path: str | os.PathLike) -> Campaign:
+    """Read and validate a campaign; the result is in SI and carries its loaded robot.
+
+    Parameters
+    ----------
+    path
+        A ``campaign.toml`` or the folder holding one.
+
+    Returns
+    -------
+    Campaign
+        Rows in SI (rad/m, N, N.m, m); :meth:`Campaign.robot` returns the robot loaded here.
+
+    Raises
+    ------
+    StiffnessError
+        Missing file, invalid TOML, missing or unknown keys, unknown units or baseline, robot
+        that cannot be loaded, or a CSV with missing/extra/misnamed columns, a wrong number of
+        q columns, or a non-numeric or NaN cell (file, line and column named).
+    """
+    toml_path = _campaign_path(path)
+    doc = _read_toml(toml_path)
+    name = _typed(doc["name"], str, toml_path, "name", "a string")
+    baseline = _typed(doc["baseline"], str, toml_path, "baseline", "a string")
+    if baseline not in BASELINES:
+        raise StiffnessError(f"{toml_path}: unknown baseline {baseline!r}; valid baselines: "
+                             f"{', '.join(BASELINES)}")
+    u = doc["units"]
+    for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
+                       ("length", LENGTH_UNITS)):
+        value = u[key]
+        if value not in table:
+            raise StiffnessError(f"{toml_path}: [units] {key} = {value!r} is not a known {key} "
+                                 f"unit; valid {key} units: {', '.join(table)}")
+    units = Units(u["angle"], u["force"], u["length"])
+
+    r = doc["robot"]
+    source = _typed(r["source"], str, toml_path, "[robot] source", "a string")
+    frame = r.get("frame")
+    if frame is not None:
+        _typed(frame, str, toml_path, "[robot] frame", "a frame name (string)")
+    offset = r.get("target_offset", [0.0, 0.0, 0.0])
+    if (not isinstance(offset, list) or len(offset) != 3
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in offset)):
+        raise StiffnessError(f"{toml_path}: [robot] target_offset must be three numbers in "
+                             f"{units.length}, got {offset!r}")
+    joints = r.get("compliant_joints")
+    if joints is not None and (not isinstance(joints, list) or not joints
+                               or not all(isinstance(j, str) for j in joints)):
+        raise StiffnessError(f"{toml_path}: [robot] compliant_joints must be a non-empty list "
+                             f"of joint names, got {joints!r}")
+    settings = RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
+                             tuple(joints) if joints is not None else None)
+
+    m = doc["measurement"]
+    data_name = _typed(m["data"], str, toml_path, "[measurement] data", "a file name")
+    noise = m.get("noise_std")
+    if noise is not None:
+        _typed(noise, int | float, toml_path, "[measurement] noise_std",
+               f"a positive number in {units.length}")
+        if not (math.isfinite(noise) and noise > 0):
+            raise StiffnessError(f"{toml_path}: [measurement] noise_std must be a positive "
+                                 f"finite number in {units.length}, got {noise!r}; omit it if "
+                                 "unknown")
+    data_path = toml_path.parent / data_name
+
+    try:
+        robot = load_robot(_resolve_source(source, toml_path.parent), frame=settings.frame,
+                           target_offset=settings.target_offset_m,
+                           compliant_joints=settings.compliant_joints)
+    except StiffnessError as exc:
+        raise StiffnessError(f"{toml_path}: [robot]: {exc}") from exc
+
+    robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
+    k, has_moment, has_rotation, labels, values, lines = _read_rows(
+        data_path, robot.n_coordinates, robot_text)
+    q = values[:, :k].copy()
+    prismatic = _prismatic_mask(robot)
+    q[:, ~prismatic] *= units.angle_to_si
+    q[:, prismatic] *= units.length_to_si
+    col = k
+    force = values[:, col: col + 3] * units.force_to_si
+    deflection = values[:, col + 3: col + 6] * units.length_to_si
+    col += 6
+    moment = rotation = None
+    if has_moment:
+        moment = values[:, col: col + 3] * units.moment_to_si
+        col += 3
+    if has_rotation:
+        rotation = values[:, col: col + 3] * units.angle_to_si
+    return Campaign(
+        name=name, baseline=baseline, robot_settings=settings, q=q, force=force,
+        deflection=deflection, config=tuple(labels), moment=moment, rotation=rotation,
+        noise_std_m=None if noise is None else float(noise) * units.length_to_si, units=units,
+        path=toml_path, data_file=data_name, lines=tuple(lines), _robot=robot,
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# writing
+
+
+def _toml_string(text: str) -> str:
+    out = ['"']
+    for ch in text:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
+
+
+def _num(x: float) -> str:
+    return repr(float(x))
+
+
+def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
+    """Write a campaign as ``campaign.toml`` plus its CSV in ``folder``, atomically per file.
+
+    Each file is written to a temporary file in ``folder`` then moved over the target with
+    :func:`os.replace`, so a reader never sees a half-written file. The CSV is written first.
+
+    Parameters
+    ----------
+    campaign_like
+        A :class:`Campaign`, or any object with its attributes (``name``, ``baseline``,
+        ``robot_settings``, ``q``, ``force``, ``deflection`` and optionally ``config``,
+        ``moment``, ``rotation``, ``noise_std_m``, ``units``, ``data_file``, ``path``). Values
+        are SI; they are written in the campaign's units (default deg, N, mm).
+    folder
+        Destination folder, created if missing.
+
+    Returns
+    -------
+    Path
+        The written ``campaign.toml``.
+
+    Raises
+    ------
+    StiffnessError
+        If the campaign is inconsistent (shapes, units, baseline), or its robot cannot be
+        loaded (it tells angle coordinates from prismatic lengths).
+    """
+    c = campaign_like
+    if not isinstance(c, Campaign):
+        c = Campaign(
+            name=c.name, baseline=c.baseline, robot_settings=c.robot_settings, q=c.q,
+            force=c.force, deflection=c.deflection, config=getattr(c, "config", None),
+            moment=getattr(c, "moment", None), rotation=getattr(c, "rotation", None),
+            noise_std_m=getattr(c, "noise_std_m", None), units=getattr(c, "units", Units()),
+            path=getattr(c, "path", None),
+            data_file=getattr(c, "data_file", DEFAULT_DATA_FILE),
+            _robot=getattr(c, "_robot", None),
+        )
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    u = c.units
+    s = c.robot_settings
+
+    source = s.source
+    if _looks_like_path(source):
+        resolved = Path(c.resolved_source())
+        try:
+            source = os.path.relpath(resolved, folder.resolve())
+        except ValueError:  # another drive on Windows
+            source = str(resolved)
+        source = Path(source).as_posix()
+
+    data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
+    n_q = c.q.shape[1]
+    prismatic = _prismatic_mask(c.robot())
+    q_out = c.q.copy()
+    q_out[:, ~prismatic] /= u.angle_to_si
+    q_out[:, prismatic] /= u.length_to_si
+
+    header = _expected_header(n_q)
+    blocks = [q_out, c.force / u.force_to_si, c.deflection / u.length_to_si]
+    if c.moment is not None:
+        header += list(_MOMENT_COLUMNS)
+        blocks.append(c.moment / u.moment_to_si)
+    if c.rotation is not None:
+        header += list(_ROTATION_COLUMNS)
+        blocks.append(c.rotation / u.angle_to_si)
+    table = np.hstack(blocks)
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(header)
+    for label, row in zip(c.config, table, strict=True):
+        writer.writerow([label, *(_num(v) for v in row)])
+    lines = out.getvalue()
+    atomic_write(folder / data_name, lines)
+
+    toml = [
+        "# Measurement campaign (see stiffness/campaign.py for the format).",
+        f"name = {_toml_string(c.name)}",
+        f"baseline = {_toml_string(c.baseline)}",
+        "",
+        "[robot]",
+        f"source = {_toml_string(source)}",
+    ]
+    if s.frame is not None:
+        toml.append(f"frame = {_toml_string(s.frame)}")
+    offset = ", ".join(_num(v / u.length_to_si) for v in s.target_offset_m)
+    toml.append(f"target_offset = [{offset}]")
+    if s.compliant_joints is not None:
+        joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
+        toml.append(f"compliant_joints = [{joints}]")
+    toml += [
+        "",
+        "[units]",
+        f"angle = {_toml_string(u.angle)}",
+        f"force = {_toml_string(u.force)}",
+        f"length = {_toml_string(u.length)}",
+        "",
+        "[measurement]",
+        f"data = {_toml_string(data_name)}",
+    ]
+    if c.noise_std_m is not None:
+        toml.append(f"noise_std = {_num(c.noise_std_m / u.length_to_si)}")
+    target = folder / CAMPAIGN_FILE
+    atomic_write(target, "\n".join(toml) + "\n")
+    return target

@@ -1,0 +1,1013 @@
+"""Discrepancy diagnosis: where a model and a campaign disagree, and which effect is missing.
+
+:func:`diagnose` runs the workflow of ``stiffness diagnose``:
+
+1. Fit the campaign's baseline (its ``baseline`` formulation over its ``compliant_joints``;
+   ``ln k`` by least squares from a non-negative linear start and the paper's 1e5 N.m/rad).
+2. Break the baseline's residuals down by configuration, axis, load magnitude and load sign,
+   against the noise level: the declared ``noise_std``, else the pooled scatter of replicate
+   rows (same configuration and force), else (said so) the residual scatter of the final model.
+3. Extend the current model by each candidate of :func:`stiffness.calibration.effects.candidates`
+(its own
+   parameters identified jointly with the stiffnesses), rank them by BIC
+   (``RSS / sigma^2 + p ln N`` with a known sigma, ``N ln(RSS / N) + p ln N`` otherwise;
+   a parameter-free switch counts one parameter), keep those improving BIC by more than
+   :data:`BIC_MARGIN`, cross-validate the best :data:`CV_TOP` over configurations
+   (leave-one-configuration-out, or :data:`CV_FOLDS`-fold over configuration labels when there
+   are many) and add the lowest-BIC one whose cross-validated error beats the current model's.
+   Repeat until the model fits to noise (chi-square test of ``RSS / sigma^2`` at
+   :data:`GOF_LEVEL` with ``N - p`` degrees of freedom, known sigma only) or nothing helps.
+4. Report the RMS after each step, each added effect's parameters with standard errors and 95 %
+   intervals, the residuals before and after, the final model.
+5. Report the candidates the campaign cannot tell from the winner (BIC within
+   :data:`AMBIGUITY_BIC`, or fitted residual reductions with cosine similarity above
+   :data:`SIMILARITY_LIMIT` and BIC within :data:`WEAK_BIC`) and propose the extra poses and
+   loads where their predictions differ most, in noise units.
+
+RMS values are over every dx, dy, dz residual component pooled. SI inside; the report converts
+to the campaign's units.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares, nnls
+from scipy.stats import chi2, norm
+from scipy.stats import t as student_t
+
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
+from stiffness.errors import StiffnessError
+from stiffness.files import atomic_write
+
+#: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
+#: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
+GOF_LEVEL = 0.95
+#: A candidate must lower BIC by more than this.
+BIC_MARGIN = 2.0
+#: Number of best-BIC candidates cross-validated per step.
+CV_TOP = 3
+#: Folds over configuration labels when there are more than :data:`LOCO_MAX` configurations.
+CV_FOLDS = 6
+#: Up to this many configurations, cross-validation leaves one configuration out at a time.
+LOCO_MAX = 12
+#: Largest number of effects added.
+MAX_STEPS = 5
+#: Candidates within this BIC of the winner cannot be told apart.
+AMBIGUITY_BIC = 2.0
+#: Candidates within this BIC of the winner and with similar signatures cannot be told apart.
+WEAK_BIC = 6.0
+#: Cosine similarity of fitted residual reductions above which signatures are "similar".
+SIMILARITY_LIMIT = 0.95
+#: ``format`` tag of the final-model file.
+MODEL_FORMAT = "stiffness-diagnosed-model"
+#: File names written by :meth:`Diagnosis.write`.
+DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
+    "diagnosis.json", "residuals.png", "final-model.json")
+#: Noise sources.
+NOISE_SOURCES = ("declared", "replicates", "residuals")
+
+_PENALTY = 1e6
+_MIN_REPLICATE_DOF = 9
+
+
+# ------------------------------------------------------------------------------------------
+# fitting
+
+
+@dataclass
+class Fit:
+    """A model fitted to a campaign.
+
+    Attributes
+    ----------
+    model
+        The model (over the fitted rows).
+    x
+        Parameter vector at the optimum.
+    predicted
+        (m, 3) predicted deflections (m).
+    rss
+        Residual sum of squares (m^2).
+    jacobian
+        (N, p) derivative of the residuals / scale w.r.t. ``x``.
+    scale
+        The residual scale (m) of :attr:`jacobian`.
+    """
+
+    model: Model
+    x: np.ndarray
+    predicted: np.ndarray
+    rss: float
+    jacobian: np.ndarray
+    scale: float
+
+    @property
+    def n_residuals(self) -> int:
+        """Number of residual components."""
+        return self.predicted.size
+
+    def rms(self) -> float:
+        """RMS residual component (m)."""
+        return math.sqrt(self.rss / self.n_residuals)
+
+
+class _Objective:
+    def __init__(self, model: Model, measured: np.ndarray, scale: float) -> None:
+        self.model, self.measured, self.scale = model, measured, scale
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        try:
+            with np.errstate(all="ignore"):
+                pred = self.model.predict(x)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            pred = None
+        if pred is None or not np.all(np.isfinite(pred)):
+            return np.full(self.measured.size, _PENALTY)
+        return ((pred - self.measured) / self.scale).reshape(-1)
+
+
+def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
+              max_nfev: int | None = None) -> Fit:
+    """Least squares of ``model`` on ``measured`` (m, 3) from ``x0`` (trf, bounded).
+
+    Parameters
+    ----------
+    model
+        Model over the rows of ``measured``.
+    measured
+        (m, 3) measured deflections (m).
+    scale
+        Residual scale (m): the noise std if known.
+    x0
+        Start parameter vector (clipped into the bounds).
+    max_nfev
+        Evaluation budget (default ``40 (p + 1)``).
+    """
+    lo, hi = model.bounds()
+    x0 = np.clip(x0, lo, hi)
+    objective = _Objective(model, measured, scale)
+    sol = least_squares(objective, x0, bounds=(lo, hi), method="trf", x_scale=1.0,
+                        ftol=1e-10, xtol=1e-10, gtol=1e-10,
+                        max_nfev=max_nfev or 40 * (model.n_params + 1))
+    r = objective(sol.x)
+    pred = measured + r.reshape(measured.shape) * scale
+    return Fit(model, sol.x, pred, float(np.sum((r * scale) ** 2)), np.asarray(sol.jac), scale)
+
+
+def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
+    """ln k from the conventional model, linear in the compliances (non-negative LS)."""
+    tau = model.rows.torques()[:, model.index[: len(model.compliant)]]
+    design = (model.jv[:, :, : len(model.compliant)] * tau[:, None, :]).reshape(
+        -1, len(model.compliant))
+    c, _ = nnls(design, measured.reshape(-1))
+    k = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.nan)
+    fill = np.nanmax(k) * 100.0 if np.any(np.isfinite(k)) else 1e9
+    return np.log(np.where(np.isfinite(k), k, fill))
+
+
+def fit_baseline(model: Model, measured: np.ndarray, scale: float) -> Fit:
+    """Baseline fit from the linear start and the paper's 1e5 N.m/rad start; the best kept."""
+    n = len(model.compliant)
+    starts = [_linear_start(model, measured), np.full(n, math.log(1e5))]
+    fits = [fit_model(model, measured, scale, x0, max_nfev=200 * (n + 1)) for x0 in starts]
+    return min(fits, key=lambda f: f.rss)
+
+
+def information_criterion(rss: float, n: int, p: int, sigma: float | None) -> float:
+    """BIC: ``RSS / sigma^2 + p ln N`` (known sigma) or ``N ln(RSS / N) + p ln N``."""
+    if sigma is not None:
+        return rss / sigma ** 2 + p * math.log(n)
+    return n * math.log(max(rss, 1e-300) / n) + p * math.log(n)
+
+
+def config_folds(labels: tuple[str, ...], seed: int = 0) -> list[np.ndarray]:
+    """Held-out row indices of each fold: one configuration label each, or
+    :data:`CV_FOLDS` groups of labels when there are more than :data:`LOCO_MAX`."""
+    labels_arr = np.asarray(labels)
+    unique = list(dict.fromkeys(labels))
+    if len(unique) < 2:
+        return []
+    if len(unique) <= LOCO_MAX:
+        groups = [[u] for u in unique]
+    else:
+        order = np.random.default_rng(seed).permutation(len(unique))
+        groups = [[unique[i] for i in order[f::CV_FOLDS]] for f in range(CV_FOLDS)]
+    return [np.flatnonzero(np.isin(labels_arr, g)) for g in groups]
+
+
+def cross_validate(fit: Fit, measured: np.ndarray, folds: list[np.ndarray]) -> float:
+    """Cross-validated RMS residual (m): each fold refitted without its rows, from ``fit.x``."""
+    if not folds:
+        return math.nan
+    model, m = fit.model, measured.shape[0]
+    total = 0.0
+    for test in folds:
+        train = np.setdiff1d(np.arange(m), test)
+        sub = fit_model(model.with_rows(model.rows.subset(train)), measured[train], fit.scale,
+                        fit.x)
+        try:
+            with np.errstate(all="ignore"):
+                pred = model.with_rows(model.rows.subset(test)).predict(sub.x)
+        except np.linalg.LinAlgError:
+            return math.inf
+        if not np.all(np.isfinite(pred)):
+            return math.inf
+        total += float(np.sum((pred - measured[test]) ** 2))
+    return math.sqrt(total / measured.size)
+
+
+def _covariance(fit: Fit, sigma: float) -> np.ndarray:
+    """Covariance of ``x``: ``sigma^2 (J^T J)^+`` with J w.r.t. residuals in m."""
+    jac = fit.jacobian * fit.scale
+    _, s, vt = np.linalg.svd(jac, full_matrices=False)
+    tol = 1e-10 * (s.max() if s.size else 0.0)
+    inv = np.where(s > tol, 1.0 / np.where(s > tol, s, 1.0) ** 2, np.inf)
+    with np.errstate(invalid="ignore"):
+        cov = (vt.T * np.where(np.isfinite(inv), inv, 0.0)) @ vt
+    dead = ~np.isfinite(inv)
+    if dead.any():
+        unseen = (np.abs(vt[dead]) > 1e-6).any(axis=0)
+        cov[unseen, :] = np.inf
+        cov[:, unseen] = np.inf
+    return cov * sigma ** 2
+
+
+# ------------------------------------------------------------------------------------------
+# noise
+
+
+def replicate_noise(campaign: Campaign) -> tuple[float, int] | None:
+    """Pooled std (m) of replicate rows (same coordinates and force) and its degrees of freedom,
+    or ``None`` when the replicates give fewer than 9 degrees of freedom."""
+    groups: dict[tuple, list[int]] = {}
+    for i in range(campaign.n_rows):
+        key = tuple(np.round(campaign.q[i], 9)) + tuple(np.round(campaign.wrench[i], 6))
+        groups.setdefault(key, []).append(i)
+    ss, dof = 0.0, 0
+    for idx in groups.values():
+        if len(idx) > 1:
+            d = campaign.deflection[idx]
+            ss += float(np.sum((d - d.mean(axis=0)) ** 2))
+            dof += 3 * (len(idx) - 1)
+    if dof < _MIN_REPLICATE_DOF:
+        return None
+    return math.sqrt(ss / dof), dof
+
+
+# ------------------------------------------------------------------------------------------
+# where the model disagrees
+
+
+def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float) -> dict:
+    """Residual RMS by configuration, axis, load magnitude and load sign, in the campaign's
+    length unit and in noise units (``ratio``)."""
+    u = campaign.units
+    lu = u.length_to_si
+    force = campaign.force
+
+    def group(idx: np.ndarray) -> dict:
+        r = residuals[idx]
+        rms = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
+        return {"rows": int(len(idx)), "rms": rms / lu, "ratio": rms / sigma,
+                "mean": (r.mean(axis=0) / lu).tolist() if r.size else None}
+
+    labels = np.asarray(campaign.config)
+    out: dict = {"by_configuration": {
+        lab: group(np.flatnonzero(labels == lab)) for lab in dict.fromkeys(campaign.config)}}
+    out["by_axis"] = {}
+    for k, name in enumerate(("dx", "dy", "dz")):
+        r = residuals[:, k]
+        rms = float(np.sqrt(np.mean(r ** 2)))
+        out["by_axis"][name] = {"rms": rms / lu, "ratio": rms / sigma,
+                                "mean": float(r.mean()) / lu}
+    mag = np.linalg.norm(force, axis=1)
+    edges = np.unique(np.quantile(mag, [0.0, 1 / 3, 2 / 3, 1.0]))
+    bins = []
+    for i in range(len(edges) - 1):
+        last = i == len(edges) - 2
+        sel = (mag >= edges[i]) & ((mag <= edges[i + 1]) if last else (mag < edges[i + 1]))
+        g = group(np.flatnonzero(sel))
+        g["force_range"] = [float(edges[i]) / u.force_to_si, float(edges[i + 1]) / u.force_to_si]
+        bins.append(g)
+    out["by_load_magnitude"] = bins
+    out["by_load_sign"] = {}
+    for k, name in enumerate(("fx", "fy", "fz")):
+        scale = max(float(np.abs(force[:, k]).max()), 1e-12)
+        pos = np.flatnonzero(force[:, k] > 1e-3 * scale)
+        neg = np.flatnonzero(force[:, k] < -1e-3 * scale)
+        out["by_load_sign"][name] = {"positive": group(pos), "negative": group(neg)}
+    return out
+
+
+def _disagreement_lines(d: dict, unit: str, force_unit: str) -> list[str]:
+    def cell(g: dict) -> str:
+        return f"{g['rms']:.4g} ({g['ratio']:.2g}x)" if g["rows"] else "-"
+
+    lines = ["  by configuration: " + ", ".join(
+        f"{k} {cell(g)}" for k, g in d["by_configuration"].items())]
+    lines.append("  by axis: " + ", ".join(
+        f"{k} {g['rms']:.4g} ({g['ratio']:.2g}x, mean {g['mean']:+.3g})"
+        for k, g in d["by_axis"].items()))
+    lines.append("  by load magnitude: " + ", ".join(
+        f"[{g['force_range'][0]:.4g}, {g['force_range'][1]:.4g}] {force_unit} {cell(g)}"
+        for g in d["by_load_magnitude"]))
+    lines.append("  by load sign: " + ", ".join(
+        f"{k}>0 {cell(g['positive'])} {k}<0 {cell(g['negative'])}"
+        for k, g in d["by_load_sign"].items()))
+    return lines
+
+
+# ------------------------------------------------------------------------------------------
+# results
+
+
+@dataclass
+class Candidate:
+    """One candidate extension at a step.
+
+    Attributes
+    ----------
+    effect
+        The effect.
+    fit
+        The extended model fitted.
+    bic, delta_bic
+        Its BIC and the change from the current model's.
+    cv_rms
+        Cross-validated RMS (m), when computed.
+    """
+
+    effect: Effect
+    fit: Fit
+    bic: float
+    delta_bic: float
+    cv_rms: float | None = None
+
+
+@dataclass
+class Ambiguity:
+    """Two effects the campaign cannot tell apart, and the measurements that would.
+
+    Attributes
+    ----------
+    step
+        Step (1-based) at which they competed.
+    chosen, other
+        Labels of the added effect and of its rival.
+    delta_bic
+        BIC of the rival minus the chosen one's.
+    similarity
+        Cosine similarity of their fitted residual reductions.
+    separation
+        RMS difference of their predictions over the campaign, noise units.
+    reason
+        Why they cannot be told apart.
+    cv_rms
+        Cross-validated RMS (m) of the chosen and of the other (None if not computed).
+    proposals
+        Extra measurements, best first: coordinates, force, predicted deflections of both, the
+        separation in noise units.
+    """
+
+    step: int
+    chosen: str
+    other: str
+    delta_bic: float
+    similarity: float
+    separation: float
+    reason: str = ""
+    cv_rms: tuple[float | None, float | None] = (None, None)
+    proposals: list[dict] = field(default_factory=list)
+
+    def to_dict(self, length_to_si: float = 1.0) -> dict:
+        """JSON-ready (CV RMS divided by ``length_to_si``)."""
+        return {"step": self.step, "chosen": self.chosen, "other": self.other,
+                "reason": self.reason, "delta_bic": self.delta_bic,
+                "similarity": self.similarity,
+                "cv_rms": [None if v is None else v / length_to_si for v in self.cv_rms],
+                "separation_noise_units": self.separation, "proposals": self.proposals}
+
+
+@dataclass
+class Step:
+    """One effect added.
+
+    Attributes
+    ----------
+    effect
+        The effect.
+    fit
+        The model after adding it.
+    rms
+        RMS residual (m).
+    bic, delta_bic, cv_rms
+        Its BIC, the BIC change, its cross-validated RMS (m).
+    parameters
+        The effect's parameters, campaign units.
+    ranking
+        The best candidates of the step: label, delta BIC, CV RMS (m) or None.
+    """
+
+    effect: Effect
+    fit: Fit
+    rms: float
+    bic: float
+    delta_bic: float
+    cv_rms: float
+    parameters: list[Parameter]
+    ranking: list[dict]
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose` (SI; :meth:`summary` and the files use campaign units).
+
+    Attributes
+    ----------
+    campaign
+        The campaign diagnosed.
+    geometry
+        Its robot's shared geometry.
+    baseline
+        The baseline fitted.
+    baseline_stiffness
+        Baseline stiffnesses with uncertainties (N.m/rad or N/m).
+    final_stiffness
+        The same in the final model.
+    noise_std_m, noise_std_source, noise_note
+        The noise level (m), where it comes from (:data:`NOISE_SOURCES`) and what that means.
+    steps
+        Effects added, in order.
+    stop_reason
+        Why the search stopped.
+    baseline_disagreement, final_disagreement
+        Residual breakdowns (:func:`disagreement`).
+    gof_baseline, gof_final
+        Chi-square p-values of the baseline and final fits (known noise only).
+    ambiguities
+        What the campaign cannot tell apart.
+    cv_baseline
+        Cross-validated RMS of the baseline (m).
+    elapsed_s
+        Wall time (s).
+    """
+
+    campaign: Campaign
+    geometry: Geometry
+    baseline: Fit
+    baseline_stiffness: list[Parameter]
+    final_stiffness: list[Parameter]
+    noise_std_m: float
+    noise_std_source: str
+    noise_note: str
+    steps: list[Step]
+    stop_reason: str
+    baseline_disagreement: dict
+    final_disagreement: dict
+    gof_baseline: float | None
+    gof_final: float | None
+    ambiguities: list[Ambiguity]
+    cv_baseline: float
+    elapsed_s: float
+    final_parameters: dict[str, list[Parameter]] = field(default_factory=dict)
+
+    @property
+    def final(self) -> Fit:
+        """The final fit."""
+        return self.steps[-1].fit if self.steps else self.baseline
+
+    @property
+    def unit(self) -> str:
+        """The campaign's length unit."""
+        return self.campaign.units.length
+
+    def _len(self, value_m: float) -> float:
+        return value_m / self.campaign.units.length_to_si
+
+    @property
+    def missing_effects(self) -> list[str]:
+        """Names of the effects added."""
+        return [s.effect.name for s in self.steps]
+
+    def summary(self) -> dict:
+        """The ``--json`` object: exactly the keys of the issue."""
+        return _clean({
+            "baseline_rms": self._len(self.baseline.rms()),
+            "noise_std": self._len(self.noise_std_m),
+            "noise_std_source": self.noise_std_source,
+            "steps": [{"effect": s.effect.name, "where": s.effect.where,
+                       "rms": self._len(s.rms),
+                       "parameters": {p.name: p.to_dict() for p in s.parameters}}
+                      for s in self.steps],
+            "missing_effects": self.missing_effects,
+            "final_rms": self._len(self.final.rms()),
+            "unit": self.unit,
+        })
+
+    def to_dict(self) -> dict:
+        """Everything: the summary plus the breakdowns, rankings, ambiguities, proposals."""
+        c = self.campaign
+        out = self.summary()
+        out.update({
+            "campaign": c.name,
+            "campaign_path": str(c.path) if c.path is not None else None,
+            "rows": c.n_rows,
+            "residual_components": 3 * c.n_rows,
+            "configurations": len(set(c.config)),
+            "baseline": self.baseline.model.describe(),
+            "final_model": self.final.model.describe(),
+            "noise_std_note": self.noise_note,
+            "fits_to_noise": {"baseline_p_value": self.gof_baseline,
+                              "final_p_value": self.gof_final, "level": GOF_LEVEL},
+            "stop_reason": self.stop_reason,
+            "cv_rms": {"baseline": self._len(self.cv_baseline),
+                       "steps": [self._len(s.cv_rms) for s in self.steps]},
+            "baseline_stiffness": {p.name: p.to_dict() for p in self.baseline_stiffness},
+            "final_stiffness": {p.name: p.to_dict() for p in self.final_stiffness},
+            "step_details": [{"effect": s.effect.name, "where": s.effect.where,
+                              "description": s.effect.describe(),
+                              "delta_bic": s.delta_bic, "ranking": [
+                                  {**r, "cv_rms": None if r["cv_rms"] is None
+                                   else self._len(r["cv_rms"])} for r in s.ranking]}
+                             for s in self.steps],
+            "where_baseline_disagrees": self.baseline_disagreement,
+            "where_final_disagrees": self.final_disagreement,
+            "cannot_tell_apart": [a.to_dict(c.units.length_to_si) for a in self.ambiguities],
+            "elapsed_s": self.elapsed_s,
+        })
+        return _clean(out)
+
+    def final_model(self) -> dict:
+        """The final model: baseline, stiffnesses, effects with parameters and uncertainties."""
+        c, f = self.campaign, self.final
+        s = c.robot_settings
+        return _clean({
+            "format": MODEL_FORMAT,
+            "version": 1,
+            "campaign": c.name,
+            "robot": {"source": c.resolved_source(), "frame": self.geometry.robot.target_frame,
+                      "target_offset_m": s.target_offset_m.tolist()},
+            "baseline": f.model.baseline,
+            "compliant_joints": list(f.model.compliant),
+            "k_theta": {p.name: p.to_dict() for p in self.final_stiffness},
+            "effects": [{"effect": e.name, "where": e.where, "description": e.describe(),
+                         "parameters": {p.name: p.to_dict()
+                                        for p in self.final_parameters.get(e.label, [])}}
+                        for e in f.model.effects],
+            "model": f.model.describe(),
+            "rms": self._len(f.rms()),
+            "noise_std": self._len(self.noise_std_m),
+            "noise_std_source": self.noise_std_source,
+            "unit": self.unit,
+            "parameter_vector": f.x.tolist(),
+            "references": {"k_ref": f.model.refs.k_ref,
+                           "theta_ref": f.model.refs.theta_ref,
+                           "force_ref": f.model.refs.force_ref,
+                           "deflection_ref": f.model.refs.deflection_ref,
+                           "tau_max": dict(zip(f.model.refs.joints,
+                                               f.model.refs.tau_max.tolist(), strict=True)),
+                           "tau_smoothing": dict(zip(
+                               f.model.refs.joints, f.model.refs.tau_smoothing.tolist(),
+                               strict=True))},
+        })
+
+    def write(self, folder: str | Path) -> dict[str, Path]:
+        """Write ``diagnosis.json``, ``residuals.png`` and ``final-model.json`` in ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
+                 "final_model": folder / FINAL_MODEL_FILE}
+        atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")
+        atomic_write(paths["final_model"], json.dumps(self.final_model(), indent=1) + "\n")
+        png = residual_plot(self)
+        tmp = paths["plot"].with_suffix(".png.tmp")
+        tmp.write_bytes(png)
+        tmp.replace(paths["plot"])
+        return paths
+
+
+def _clean(obj):
+    """JSON-ready: numpy scalars to floats, inf/NaN to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, bool | np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
+# ------------------------------------------------------------------------------------------
+# the workflow
+
+
+def _stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float) -> list[Parameter]:
+    model = fit.model
+    out = []
+    for i, j in enumerate(model.compliant):
+        k = math.exp(fit.x[i])
+        se = math.sqrt(cov[i, i]) if math.isfinite(cov[i, i]) else math.inf
+        prismatic = bool(model.geometry.prismatic[model.geometry.joints.index(j)])
+        with np.errstate(over="ignore"):
+            ci = (k * math.exp(-quantile * se) if math.isfinite(se) else 0.0,
+                  k * math.exp(quantile * se) if math.isfinite(se) and quantile * se < 700
+                  else math.inf)
+        out.append(Parameter(j, k, k * se, ci, "N/m" if prismatic else "N.m/rad"))
+    return out
+
+
+def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
+                       ) -> dict[str, list[Parameter]]:
+    model = fit.model
+    out = {}
+    for i, e in enumerate(model.effects):
+        a, b = model.offsets[i + 1], model.offsets[i + 2]
+        out[e.label] = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
+    return out
+
+
+def _gof(rss: float, n: int, p: int, sigma: float | None) -> float | None:
+    if sigma is None or n <= p:
+        return None
+    return float(chi2.sf(rss / sigma ** 2, n - p))
+
+
+def diagnose(
+    campaign: Campaign,
+    max_steps: int = MAX_STEPS,
+    seed: int = 0,
+    propose: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosis:
+    """Diagnose what the campaign's baseline model misses (see the module docstring).
+
+    Parameters
+    ----------
+    campaign
+        The campaign (SI rows).
+    max_steps
+        Largest number of effects added.
+    seed
+        Seed of the fold assignment and of the poses sampled for experiment proposals.
+    propose
+        Whether to propose extra poses and loads for what cannot be told apart.
+    progress
+        Called with a line of text as the search goes.
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    StiffnessError
+        If a configuration cannot be assembled, or there are too few residuals.
+    """
+    t0 = time.perf_counter()
+    say = progress or (lambda text: None)
+    robot = campaign.robot()
+    geo = Geometry.of(robot)
+    rows = geo.rows(campaign.q, campaign.force, campaign.moment,
+                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
+    measured = campaign.deflection
+    n = measured.size
+    if n <= len(robot.compliant_joints) + 1:
+        raise StiffnessError(f"{n} residual components cannot diagnose a model of "
+                             f"{len(robot.compliant_joints)} stiffnesses; add measurement rows")
+
+    # noise
+    sigma: float | None
+    note = ""
+    if campaign.noise_std_m is not None:
+        sigma, source = campaign.noise_std_m, "declared"
+        note = "declared noise_std of the campaign"
+    else:
+        rep = replicate_noise(campaign)
+        if rep is not None:
+            sigma, source = rep[0], "replicates"
+            note = f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)"
+        else:
+            sigma, source = None, "residuals"
+    rms_meas = float(np.sqrt(np.mean(measured ** 2)))
+    scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
+
+    # baseline
+    refs0 = References.of(geo, rows, 1e5, measured)
+    model0 = Model(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
+    base = fit_baseline(model0, measured, scale)
+    k_ref = float(np.exp(np.mean(base.x)))
+    refs = References.of(geo, rows, k_ref, measured)
+    base.model = base.model.with_refs(refs)
+    if sigma is None:
+        scale = max(base.rms(), 1e-12)
+        base = fit_model(base.model, measured, scale, base.x)
+    say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
+    folds = config_folds(campaign.config, seed)
+
+    def bic(f: Fit) -> float:
+        return information_criterion(f.rss, n, f.model.penalty_params, sigma)
+
+    current, current_bic = base, bic(base)
+    cv_current = cross_validate(base, measured, folds)
+    cv_base = cv_current
+    steps: list[Step] = []
+    ambiguities_raw: list[tuple[int, Candidate, Candidate, float]] = []
+    stop = ""
+    while True:
+        p_now = current.model.penalty_params
+        gof = _gof(current.rss, n, p_now, sigma)
+        if gof is not None and gof > 1.0 - GOF_LEVEL:
+            stop = (f"the model explains the data to noise (chi-square p = {gof:.3g} > "
+                    f"{1 - GOF_LEVEL:.2g})")
+            break
+        if len(steps) >= max_steps:
+            stop = f"stopped after {max_steps} effects (max_steps)"
+            break
+        results = []
+        for effect in candidates(current.model):
+            model = current.model.extended(effect)
+            f = fit_model(model, measured, scale, current.model.extend_x(current.x, effect))
+            b = bic(f)
+            results.append(Candidate(effect, f, b, b - current_bic))
+        results.sort(key=lambda c: c.bic)
+        say(f"step {len(steps) + 1}: {len(results)} candidates; best "
+            + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}" for c in results[:3]))
+        eligible = [c for c in results if c.delta_bic < -BIC_MARGIN]
+        if not eligible:
+            stop = (f"no candidate improves BIC by more than {BIC_MARGIN:g}" if results
+                    else "no candidate left")
+            break
+        winner = None
+        for c in eligible[:CV_TOP]:
+            c.cv_rms = cross_validate(c.fit, measured, folds)
+            if winner is None and (not folds or c.cv_rms < cv_current):
+                winner = c
+        if winner is None:
+            stop = ("no candidate that improves BIC also improves the error predicted for "
+                    "held-out configurations (cross-validation)")
+            break
+        for c in results[:CV_TOP]:
+            if c is winner:
+                continue
+            similarity = _similarity(current, winner.fit, c.fit, scale)
+            d_bic = c.bic - winner.bic
+            if d_bic < AMBIGUITY_BIC or (similarity > SIMILARITY_LIMIT and d_bic < WEAK_BIC):
+                ambiguities_raw.append((len(steps) + 1, winner, c, similarity))
+        sig = sigma if sigma is not None else math.sqrt(winner.fit.rss / max(
+            n - winner.fit.model.penalty_params, 1))
+        cov = _covariance(winner.fit, sig)
+        quantile = _quantile(sigma, n, winner.fit.model.penalty_params)
+        params = _effect_parameters(winner.fit, cov, quantile, campaign.units)
+        ranking = [{"effect": c.effect.name, "where": c.effect.where,
+                    "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
+        steps.append(Step(winner.effect, winner.fit, winner.fit.rms(), winner.bic,
+                          winner.delta_bic, winner.cv_rms, params[winner.effect.label],
+                          ranking))
+        say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
+        current, current_bic, cv_current = winner.fit, winner.bic, winner.cv_rms
+
+    final = current
+    p_final = final.model.penalty_params
+    if sigma is None:
+        sigma_used = math.sqrt(final.rss / max(n - p_final, 1))
+        note = (f"estimated from the residuals of the final model ({final.model.describe()}, "
+                f"{n - p_final} degrees of freedom): it includes any model error left, so the "
+                "fit-to-noise test is not available and 'nothing missing' means only that no "
+                "candidate helped")
+    else:
+        sigma_used = sigma
+    quantile = _quantile(sigma, n, p_final)
+    cov_final = _covariance(final, sigma_used)
+    cov_base = _covariance(base, sigma_used if sigma is not None else math.sqrt(
+        base.rss / max(n - base.model.penalty_params, 1)))
+    final_params = _effect_parameters(final, cov_final, quantile, campaign.units)
+    ambiguities = []
+    for step_no, w, c, similarity in ambiguities_raw:
+        sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma_used
+        d_bic = c.bic - w.bic
+        if d_bic < 0:
+            reason = ("BIC prefers the other, but it does not predict held-out configurations "
+                      "better than the current model (cross-validation)")
+        elif d_bic < AMBIGUITY_BIC:
+            reason = f"BIC within {AMBIGUITY_BIC:g}"
+        elif c.fit.model.penalty_params > w.fit.model.penalty_params:
+            reason = (f"similar signatures (cosine {similarity:.3f}); the chosen one wins by "
+                      "parsimony (fewer parameters), hardly by fit")
+        else:
+            reason = (f"similar signatures (cosine {similarity:.3f}) and BIC within "
+                      f"{WEAK_BIC:g}: weak evidence only")
+        amb = Ambiguity(step_no, w.effect.label, c.effect.label, d_bic, similarity, sep,
+                        reason, (w.cv_rms, c.cv_rms))
+        if propose and len(ambiguities) < 3:
+            try:
+                amb.proposals = propose_measurements(campaign, geo, w.fit, c.fit, sigma_used,
+                                                     seed=seed)
+            except StiffnessError as exc:  # no reachable pose sampled
+                amb.proposals = [{"note": str(exc)}]
+        ambiguities.append(amb)
+    return Diagnosis(
+        campaign=campaign, geometry=geo, baseline=base,
+        baseline_stiffness=_stiffness_parameters(base, cov_base, _quantile(
+            sigma, n, base.model.penalty_params)),
+        final_stiffness=_stiffness_parameters(final, cov_final, quantile),
+        noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
+        stop_reason=stop,
+        baseline_disagreement=disagreement(base.predicted - measured, campaign, sigma_used),
+        final_disagreement=disagreement(final.predicted - measured, campaign, sigma_used),
+        gof_baseline=_gof(base.rss, n, base.model.penalty_params, sigma),
+        gof_final=_gof(final.rss, n, p_final, sigma),
+        ambiguities=ambiguities, cv_baseline=cv_base,
+        elapsed_s=time.perf_counter() - t0, final_parameters=final_params,
+    )
+
+
+def _quantile(sigma: float | None, n: int, p: int) -> float:
+    if sigma is not None:
+        return float(norm.ppf(0.975))
+    return float(student_t.ppf(0.975, max(n - p, 1)))
+
+
+def _similarity(current: Fit, a: Fit, b: Fit, scale: float) -> float:
+    """Cosine similarity of the residual reductions of two candidate fits."""
+    da = (a.predicted - current.predicted).reshape(-1) / scale
+    db = (b.predicted - current.predicted).reshape(-1) / scale
+    na, nb = np.linalg.norm(da), np.linalg.norm(db)
+    if na == 0 or nb == 0:
+        return 0.0
+    return float(da @ db / (na * nb))
+
+
+# ------------------------------------------------------------------------------------------
+# experiment design
+
+
+#: Load directions tried by :func:`propose_measurements`: the axes and the cube diagonals.
+_DIRECTIONS = np.vstack([np.eye(3), -np.eye(3)] + [
+    np.array([sx, sy, sz]) / math.sqrt(3.0)
+    for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)])
+
+
+def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit, sigma: float,
+                         n_poses: int = 40, n_best: int = 3, seed: int = 0) -> list[dict]:
+    """Extra poses and loads where two fitted models' predictions differ most.
+
+    Poses are sampled at random among reachable ones
+    (:func:`stiffness.calibration.simulate.sample_coordinates`); loads along the axes and cube
+    diagonals
+    at the campaign's largest force. The
+    ``n_best`` pose-load pairs of largest predicted separation ``|dx_a - dx_b| / sigma`` are
+    returned, one per pose, in the campaign's units.
+    """
+    from stiffness.calibration.simulate import sample_coordinates
+
+    rng = np.random.default_rng(seed)
+    coords = sample_coordinates(geometry.robot, n_poses, rng)
+    f_max = float(np.linalg.norm(campaign.force, axis=1).max())
+    n_dir = len(_DIRECTIONS)
+    q = np.repeat(coords, n_dir, axis=0)
+    force = np.tile(_DIRECTIONS * f_max, (len(coords), 1))
+    rows = geometry.rows(q, force)
+    with np.errstate(all="ignore"):
+        pa = a.model.with_rows(rows).predict(a.x)
+        pb = b.model.with_rows(rows).predict(b.x)
+    sep = np.linalg.norm(pa - pb, axis=1) / sigma
+    sep = np.where(np.isfinite(sep), sep, -1.0)
+    u = campaign.units
+    prismatic = geometry.prismatic
+    out, used = [], set()
+    for i in np.argsort(-sep):
+        pose = int(i // n_dir)
+        if pose in used or sep[i] < 0:
+            continue
+        used.add(pose)
+        qc = coords[pose].copy()
+        qc[~prismatic] /= u.angle_to_si
+        qc[prismatic] /= u.length_to_si
+        out.append({"q": qc.tolist(), "force": (force[i] / u.force_to_si).tolist(),
+                    "deflection_chosen": (pa[i] / u.length_to_si).tolist(),
+                    "deflection_other": (pb[i] / u.length_to_si).tolist(),
+                    "separation_noise_units": float(sep[i])})
+        if len(out) >= n_best:
+            break
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# output
+
+
+def format_report(d: Diagnosis) -> str:
+    """The human-readable report of ``stiffness diagnose``."""
+    c, unit = d.campaign, d.unit
+    lu = c.units.length_to_si
+    lines = [
+        f"campaign {c.name}" + (f" ({c.path})" if c.path else "")
+        + f": {c.n_rows} rows, {len(set(c.config))} configurations, {3 * c.n_rows} residual "
+          f"components; lengths in {unit}",
+        f"baseline: {d.baseline.model.describe()}; RMS {d.baseline.rms() / lu:.4g} {unit}",
+        f"noise std: {d.noise_std_m / lu:.4g} {unit} ({d.noise_std_source}: {d.noise_note})",
+    ]
+    if d.gof_baseline is not None:
+        verdict = "fits" if d.gof_baseline > 1 - GOF_LEVEL else "does NOT fit"
+        lines.append(f"the baseline {verdict} to noise (chi-square p = {d.gof_baseline:.3g})")
+    lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
+    lines += _disagreement_lines(d.baseline_disagreement, unit, c.units.force)
+    lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {'RMS':>10} {'dBIC':>9} "
+                  f"{'CV RMS':>10}"]
+    lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
+                 f"{d.cv_baseline / lu:>10.4g}")
+    for i, s in enumerate(d.steps, start=1):
+        lines.append(f"{i:<5} {s.effect.name:<28} {s.effect.where or '':<30} "
+                     f"{s.rms / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
+    lines.append("")
+    if d.steps:
+        lines.append("identified effects (final model; 95 % intervals):")
+        for s in d.steps:
+            lines.append(f"  {s.effect.label}: {s.effect.describe()}")
+            for p in d.final_parameters.get(s.effect.label, []):
+                lines.append(f"    {p.name} = {p.value:.5g} +- {p.standard_error:.3g} {p.unit} "
+                             f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]")
+        lines.append("missing effects: " + ", ".join(s.effect.label for s in d.steps))
+    else:
+        lines.append("missing effects: none" + (
+            " (the baseline explains the data to noise)" if d.gof_baseline is not None
+            and d.gof_baseline > 1 - GOF_LEVEL else ""))
+    lines.append("stiffness (final model): " + ", ".join(
+        f"{p.name} {p.value:.5g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}"
+        for p in d.final_stiffness))
+    ratio = d.final.rms() / d.noise_std_m
+    lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
+                 f"stopped: {d.stop_reason}")
+    if d.ambiguities:
+        lines += ["", "cannot tell apart:"]
+        for a in d.ambiguities:
+            cv = ", ".join("-" if v is None else f"{v / lu:.4g}" for v in a.cv_rms)
+            lines.append(f"  step {a.step}: {a.chosen} vs {a.other}: {a.reason}; dBIC "
+                         f"{a.delta_bic:+.3g}, CV RMS {cv} {unit}, signature similarity "
+                         f"{a.similarity:.3f}; their predictions differ by {a.separation:.3g} "
+                         "noise std RMS over this campaign")
+            for p in a.proposals:
+                if "note" in p:
+                    lines.append(f"    {p['note']}")
+                    continue
+                q = ", ".join(f"{v:.4g}" for v in p["q"])
+                f = ", ".join(f"{v:.4g}" for v in p["force"])
+                lines.append(f"    measure q = [{q}] {c.units.angle}, F = [{f}] "
+                             f"{c.units.force}: predicted difference "
+                             f"{p['separation_noise_units']:.3g} noise std")
+    return "\n".join(lines)
+
+
+def residual_plot(d: Diagnosis) -> bytes:
+    """PNG: residual components before (baseline) and after (final model), row by row."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lu = d.campaign.units.length_to_si
+    before = (d.baseline.predicted - d.campaign.deflection) / lu
+    after = (d.final.predicted - d.campaign.deflection) / lu
+    sigma = d.noise_std_m / lu
+    rows = np.arange(1, d.campaign.n_rows + 1)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    for k, ax in enumerate(axes):
+        ax.axhspan(-2 * sigma, 2 * sigma, color="0.9", label="±2 noise std")
+        ax.plot(rows, before[:, k], "x", color="0.45", label="baseline")
+        ax.plot(rows, after[:, k], "o", ms=3.5, color=f"C{k}", label="final model")
+        ax.axhline(0.0, color="0.3", lw=0.6)
+        ax.set_ylabel(f"d{'xyz'[k]} residual ({d.unit})")
+        ax.grid(alpha=0.3)
+    labels = d.campaign.config
+    starts = [i for i in range(len(labels)) if i == 0 or labels[i] != labels[i - 1]]
+    if len(starts) <= 30:
+        for ax in axes:
+            for i in starts[1:]:
+                ax.axvline(i + 0.5, color="0.8", lw=0.5)
+    axes[0].legend(fontsize=8, ncol=3, loc="upper right")
+    title = "missing: " + (", ".join(s.effect.label for s in d.steps) or "nothing")
+    axes[0].set_title(f"{d.campaign.name}: RMS {d.baseline.rms() / lu:.3g} -> "
+                      f"{d.final.rms() / lu:.3g} {d.unit} (noise {sigma:.3g}); {title}",
+                      fontsize=9)
+    axes[-1].set_xlabel("measurement row")
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()

@@ -1,0 +1,1033 @@
+"""Effects a stiffness model may miss, and a fast deflection model that composes them.
+
+A campaign's deflections are explained by a *model*: the baseline (``conventional``
+``J K^-1 J^T W`` or ``enhanced`` ``J (K - K_C(W))^-1 J^T W``, A&S eq. 8 and 10) over the
+campaign's compliant joints, extended by any number of *effects* from :data:`LIBRARY`:
+
+``complementary_stiffness``
+    Load-dependent geometry: ``K_C`` in the tangent stiffness *and* the second-order kinematics
+    of the deflection, ``dx = J dtheta + 1/2 sum_k e_k dtheta^T H_k dtheta`` with ``dtheta`` the
+    fixed point of ``dtheta = K^-1 (J^T W + K_C(W) dtheta)``. This is the exact elastostatic
+    equilibrium to second order in the deflection (the error is third order: ``dtheta^3 L``).
+    No parameter.
+``joint_compliance`` (where: a joint)
+    A joint declared rigid is a spring; parameter its stiffness ``k`` (N.m/rad or N/m).
+``link_compliance`` (where: ``a->b``, two joints of the target's chain)
+    The segment between the origins of joints ``a`` and ``b`` bends: a lumped rotational
+    compliance about the two axes normal to the segment, at ``b``'s origin ``p_b``. The moment
+    there is ``(x_t - p_b) x F + M``; the part of the robot beyond ``p_b`` turns rigidly by
+    ``omega = sum_i e_i (e_i . M_b) / k_i``, the target moves by ``omega x (x_t - p_b)``.
+    Parameters the stiffnesses ``k_1, k_2`` (N.m/rad) about ``e_1, e_2`` (:func:`link_axes`).
+    In a closed loop the rotation is taken as in a serial chain (the loop's reaction to it is
+    neglected).
+``backlash`` (where: a compliant joint)
+    Lost motion: ``dtheta_j += b tanh(tau_j / tau_s)``, a dead band of half-width ``b`` (rad)
+    smoothed over ``tau_s`` = :data:`BACKLASH_SMOOTHING` times the joint's RMS torque over the
+    campaign (so it acts like ``b sign(tau_j)`` for all but the smallest torques).
+``nonlinear_joint_stiffness`` (where: a compliant joint)
+    ``dtheta_j = tau_j / k_j (1 + beta |tau_j|)``: ``beta > 0`` softens, ``beta < 0`` hardens
+    (1/(N.m)); reported also as the relative change of compliance at the largest torque.
+``frame_misalignment``
+    The instrument's frame is rotated against the robot base: measured
+    ``dx = R(phi) dx_model`` (rotation vector ``phi``, rad).
+``target_offset``
+    The target (where the load acts and the deflection is measured) is displaced by ``delta``
+    (m, target frame axes) from where the campaign says: ``J_v -> J_v - [R_t delta]x J_w``.
+``force_sensor_bias``
+    The recorded force carries a constant offset ``b`` (N): the applied force is
+    ``F_recorded - b``.
+``deflection_offset``
+    The measured deflections carry a constant offset ``d`` (m) (the unloaded reference moved,
+    an instrument zero drift).
+
+Speed: Pinocchio is called once per distinct configuration (:func:`build_rows`), with every
+coordinate joint compliant: the target Jacobian (6, n) and ``K_C`` of the six unit wrenches
+(6, n, n) (``K_C`` is linear in the wrench; for a unit force along ``k`` it is also the Hessian
+of the target coordinate ``x_k`` along the loop manifold), the origins and orientations of the
+target chain's joints. Every model is then array algebra over the rows (:meth:`Model.predict`),
+cheap enough for least squares over dozens of candidate models with cross-validation.
+
+Units: SI inside (m, N, rad, N.m/rad).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.errors import StiffnessError
+from stiffness.mechanics.formulation import target_states
+from stiffness.model.robot import Robot, load_robot
+
+#: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
+BACKLASH_SMOOTHING = 0.02
+#: Joint origins closer than this (m) do not make a link-compliance segment.
+MIN_SEGMENT_M = 0.02
+#: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
+LAW_ITERATIONS = 4
+#: Baselines a model may start from.
+BASELINES = ("conventional", "enhanced")
+
+_UNIT_WRENCHES = np.eye(6)
+
+
+# ------------------------------------------------------------------------------------------
+# geometry cache
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) cross-product matrices of (..., 3) vectors."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def rotation_matrix(phi: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector ``phi`` (rad), Rodrigues' formula."""
+    phi = np.asarray(phi, dtype=float)
+    angle = float(np.linalg.norm(phi))
+    k = _skew(phi)
+    if angle < 1e-8:
+        return np.eye(3) + k + 0.5 * k @ k
+    return (np.eye(3) + math.sin(angle) / angle * k
+            + (1.0 - math.cos(angle)) / angle ** 2 * k @ k)
+
+
+@dataclass
+class Rows:
+    """Per-row geometry and loads, SI; arrays indexed by row.
+
+    Attributes
+    ----------
+    jac
+        (m, 6, n) target Jacobian w.r.t. every coordinate joint, rows [v; omega], loops closed.
+    k_c_unit
+        (m, 6, n, n) ``K_C`` of the six unit wrenches (N.m/rad per N or per N.m).
+    position
+        (m, 3) target position (m).
+    rotation
+        (m, 3, 3) target frame orientation.
+    chain_origin
+        (m, c, 3) world origins of the target chain's joints (m).
+    chain_rotation
+        (m, c, 3, 3) orientation of the body each chain joint is mounted on.
+    force, moment
+        (m, 3) applied (recorded) force (N) and moment (N.m) at the target, base axes.
+    config_index
+        (m,) index of the row's distinct configuration.
+    """
+
+    jac: np.ndarray
+    k_c_unit: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    chain_origin: np.ndarray
+    chain_rotation: np.ndarray
+    force: np.ndarray
+    moment: np.ndarray
+    config_index: np.ndarray
+
+    @property
+    def n_rows(self) -> int:
+        """Number of rows."""
+        return self.force.shape[0]
+
+    def subset(self, index: np.ndarray) -> Rows:
+        """The rows ``index`` (an integer or boolean index)."""
+        return Rows(*(getattr(self, f)[index] for f in (
+            "jac", "k_c_unit", "position", "rotation", "chain_origin", "chain_rotation",
+            "force", "moment", "config_index")))
+
+    def torques(self) -> np.ndarray:
+        """(m, n) joint torques ``J^T W`` that hold the recorded loads (N.m or N)."""
+        return (np.einsum("mkn,mk->mn", self.jac[:, :3], self.force)
+                + np.einsum("mkn,mk->mn", self.jac[:, 3:], self.moment))
+
+
+@dataclass
+class Geometry:
+    """What every model of one robot shares: joint names and the all-compliant robot.
+
+    Attributes
+    ----------
+    robot
+        The robot with every coordinate joint compliant (the campaign's frame and offset).
+    joints
+        Coordinate joints (the columns of :attr:`Rows.jac`).
+    chain
+        Joints supporting the target, base to tip (passive loop joints included).
+    prismatic
+        (n,) whether each coordinate joint is prismatic.
+    link_columns
+        ``(a, b) -> column`` of ``b``'s mounting body axes used for :func:`link_axes`, chosen
+        at the zero coordinates (so a simulator and a diagnosis agree on the axes).
+    """
+
+    robot: Robot
+    joints: tuple[str, ...]
+    chain: tuple[str, ...]
+    prismatic: np.ndarray
+    link_columns: dict[tuple[str, str], int] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, robot: Robot) -> Geometry:
+        """Geometry of ``robot`` (reloaded with every coordinate joint compliant)."""
+        full = robot
+        if tuple(robot.compliant_joints) != tuple(robot.coordinate_joints):
+            full = cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
+                                tuple(robot.coordinate_joints))
+        model = full.model
+        parent = model.frames[full.target_frame_id].parentJoint
+        chain = tuple(model.names[j] for j in model.supports[parent] if j > 0
+                      and model.joints[j].nv == 1)
+        kinds = [model.joints[model.getJointId(j)].shortname() for j in full.coordinate_joints]
+        prismatic = np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
+        geo = cls(full, tuple(full.coordinate_joints), chain, prismatic)
+        geo.link_columns = geo._choose_link_columns()
+        return geo
+
+    def _placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        model, data = self.robot.model, self.robot.data
+        pin.forwardKinematics(model, data, q)
+        return self._chain_placements()
+
+    def _chain_placements(self) -> tuple[np.ndarray, np.ndarray]:
+        return chain_placements(self.robot, self.chain)
+
+    def _choose_link_columns(self) -> dict[tuple[str, str], int]:
+        q = self.robot.configuration(np.zeros(len(self.joints)))
+        origins, rotations = self._placements(q)
+        out = {}
+        for ia, a in enumerate(self.chain):
+            for ib in range(ia + 1, len(self.chain)):
+                seg = origins[ib] - origins[ia]
+                norm = float(np.linalg.norm(seg))
+                if norm < 1e-12:
+                    continue
+                u = seg / norm
+                out[(a, self.chain[ib])] = int(np.argmin(np.abs(rotations[ib].T @ u)))
+        return out
+
+    def rows(self, coords: np.ndarray, force: np.ndarray, moment: np.ndarray | None = None,
+             labels: list[str] | None = None) -> Rows:
+        """Geometry of rows at coordinates ``coords`` (m, n) under ``force``/``moment`` (m, 3).
+
+        Pinocchio runs once per distinct configuration.
+
+        Raises
+        ------
+        StiffnessError
+            If a configuration cannot be assembled or its loop is singular (the message names
+            the row).
+        """
+        coords = np.atleast_2d(np.asarray(coords, dtype=float))
+        force = np.asarray(force, dtype=float).reshape(-1, 3)
+        moment = np.zeros_like(force) if moment is None else np.asarray(
+            moment, dtype=float).reshape(-1, 3)
+        keys: dict[tuple[float, ...], int] = {}
+        index = np.empty(coords.shape[0], dtype=int)
+        for i, c in enumerate(coords):
+            index[i] = keys.setdefault(tuple(c), len(keys))
+        n_c, n, nch = len(keys), len(self.joints), len(self.chain)
+        jac = np.empty((n_c, 6, n))
+        k_c = np.empty((n_c, 6, n, n))
+        pos = np.empty((n_c, 3))
+        rot = np.empty((n_c, 3, 3))
+        origin = np.empty((n_c, nch, 3))
+        chain_rot = np.empty((n_c, nch, 3, 3))
+        for key, c in keys.items():
+            row = int(np.argmax(index == c))
+            try:
+                q = self.robot.configuration(np.array(key))
+                states = target_states(self.robot, q, _UNIT_WRENCHES)
+            except StiffnessError as exc:
+                where = labels[row] if labels is not None else f"row {row + 1}"
+                raise StiffnessError(f"{where}: {exc}") from exc
+            origin[c], chain_rot[c] = self._chain_placements()
+            jac[c] = states[0].jacobian
+            k_c[c] = np.array([s.k_c for s in states])
+            pos[c] = states[0].position
+            rot[c] = states[0].rotation
+        return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
+                    chain_rot[index], force, moment, index)
+
+    def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
+        """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart
+        at the zero coordinates and whose distal origin is off the target.
+
+        Of joints whose origins coincide (within ``min_length``, e.g. a spherical wrist), only
+        the first stands for the group.
+        """
+        q = self.robot.configuration(np.zeros(len(self.joints)))
+        origins, _ = self._placements(q)
+        pin.updateFramePlacements(self.robot.model, self.robot.data)
+        target = self.robot.data.oMf[self.robot.target_frame_id].translation
+        groups: list[int] = []
+        for i in range(len(self.chain)):
+            if not groups or np.linalg.norm(origins[i] - origins[groups[-1]]) >= min_length:
+                groups.append(i)
+        out = []
+        for n, ia in enumerate(groups):
+            for ib in groups[n + 1:]:
+                a, b = self.chain[ia], self.chain[ib]
+                if (np.linalg.norm(target - origins[ib]) >= min_length
+                        and (a, b) in self.link_columns):
+                    out.append((a, b))
+        return out
+
+
+@functools.lru_cache(maxsize=32)
+def cached_robot(source: str, frame: str | None, target_offset: tuple[float, ...] | None,
+                 compliant_joints: tuple[str, ...] | None) -> Robot:
+    """:func:`stiffness.model.robot.load_robot`, loaded once per argument set (example-robot-data
+    models take about half a second to load). The robot's ``data`` is shared: not for use from
+    several threads."""
+    return load_robot(source, frame=frame,
+                      target_offset=None if target_offset is None else np.array(target_offset),
+                      compliant_joints=compliant_joints)
+
+
+def chain_placements(robot: Robot, chain: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """World origins (c, 3) of the ``chain`` joints and orientations (c, 3, 3) of the bodies
+    they are mounted on, from ``robot.data`` (placements must be up to date)."""
+    model, data = robot.model, robot.data
+    origins, rotations = [], []
+    for name in chain:
+        jid = model.getJointId(name)
+        origins.append(np.array(data.oMi[jid].translation))
+        rotations.append(np.array(data.oMi[model.parents[jid]].rotation))
+    return np.array(origins), np.array(rotations)
+
+
+def link_axes(p_a: np.ndarray, p_b: np.ndarray, mount_rotation: np.ndarray, column: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The two unit axes normal to the segment ``p_a -> p_b`` (each (..., 3)).
+
+    ``e_1`` is the ``column``-th axis of the body ``b`` is mounted on, made normal to the
+    segment; ``e_2 = u x e_1`` with ``u`` the segment direction.
+    """
+    seg = p_b - p_a
+    u = seg / np.linalg.norm(seg, axis=-1, keepdims=True)
+    ref = mount_rotation[..., :, column]
+    e1 = ref - np.sum(ref * u, axis=-1, keepdims=True) * u
+    e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
+    return e1, np.cross(u, e1)
+
+
+# ------------------------------------------------------------------------------------------
+# references (scales of the optimiser's variables)
+
+
+@dataclass
+class References:
+    """Scales that make every optimiser variable of order one (SI).
+
+    Attributes
+    ----------
+    joints
+        Coordinate joints (the order of the per-joint arrays).
+    k_ref
+        Geometric mean of the baseline stiffnesses (compliances are in units of ``1/k_ref``).
+    tau_max
+        (n,) largest |torque| per coordinate joint over the campaign.
+    tau_smoothing
+        (n,) backlash smoothing torque per coordinate joint.
+    theta_ref
+        Typical joint deflection (rad).
+    force_ref
+        RMS applied force (N).
+    deflection_ref
+        RMS measured deflection (m).
+    """
+
+    joints: tuple[str, ...]
+    k_ref: float
+    tau_max: np.ndarray
+    tau_smoothing: np.ndarray
+    theta_ref: float
+    force_ref: float
+    deflection_ref: float
+
+    @classmethod
+    def of(cls, geometry: Geometry, rows: Rows, k_ref: float, deflection: np.ndarray
+           ) -> References:
+        """References from a campaign's rows, its baseline stiffness scale and deflections."""
+        tau = np.abs(rows.torques())
+        tau_max = np.maximum(tau.max(axis=0), 1e-9)
+        tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9)
+        theta = float(np.sqrt(np.mean(tau_rms ** 2))) / k_ref
+        return cls(geometry.joints, float(k_ref), tau_max, BACKLASH_SMOOTHING * tau_rms,
+                   max(theta, 1e-9),
+                   max(float(np.sqrt(np.mean(np.sum(rows.force ** 2, axis=1)))), 1e-9),
+                   max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12))
+
+    def max_torque(self, joint: str) -> float:
+        """Largest |torque| of ``joint`` over the campaign."""
+        return float(self.tau_max[self.joints.index(joint)])
+
+
+# ------------------------------------------------------------------------------------------
+# effects
+
+
+@dataclass
+class Parameter:
+    """A reported parameter: value, standard error and 95 % interval in ``unit``."""
+
+    name: str
+    value: float
+    standard_error: float
+    ci95: tuple[float, float]
+    unit: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready (inf and NaN become ``None``)."""
+        def num(v: float) -> float | None:
+            return float(v) if math.isfinite(v) else None
+        return {"value": num(self.value), "standard_error": num(self.standard_error),
+                "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit}
+
+
+@dataclass
+class Law:
+    """Joint torque-deflection law of the model's compliant joints (arrays over joints)."""
+
+    compliance: np.ndarray
+    beta: np.ndarray
+    backlash: np.ndarray
+    smoothing: np.ndarray
+
+    @property
+    def linear(self) -> bool:
+        """Whether the law is ``dtheta = c tau``."""
+        return not (np.any(self.beta != 0.0) or np.any(self.backlash != 0.0))
+
+    def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Deflections and their derivatives w.r.t. the torques, both (m, n)."""
+        a = np.abs(tau)
+        th = np.tanh(tau / self.smoothing)
+        value = self.compliance * tau * (1.0 + self.beta * a) + self.backlash * th
+        slope = (self.compliance * (1.0 + 2.0 * self.beta * a)
+                 + self.backlash / self.smoothing * (1.0 - th ** 2))
+        return value, slope
+
+
+class Effect:
+    """An effect a model may miss: its name, where it acts, its parameters and its prediction.
+
+    Optimiser variables ``u`` are scaled (:meth:`scale`) so that ``u ~ 1`` is a sizeable effect;
+    :meth:`physical` turns them into SI values. Hooks default to doing nothing.
+    """
+
+    name: ClassVar[str] = ""
+    #: names of the parameters (SI values from :meth:`physical`)
+    param_names: ClassVar[tuple[str, ...]] = ()
+    #: whether the model gets ``K_C`` and the second-order kinematics
+    second_order: ClassVar[bool] = False
+    #: a rigid joint this effect makes compliant
+    added_joint: str | None = None
+    #: the joint whose law this effect changes
+    joint: str | None = None
+
+    @property
+    def where(self) -> str | None:
+        """Where the effect acts (a joint, ``a->b``) or ``None``."""
+        return None
+
+    @property
+    def label(self) -> str:
+        """``name`` or ``name(where)``."""
+        return self.name if self.where is None else f"{self.name}({self.where})"
+
+    @property
+    def n_params(self) -> int:
+        """Number of parameters."""
+        return len(self.param_names)
+
+    @property
+    def penalty_params(self) -> int:
+        """Parameters counted by the information criterion (a switch counts as one)."""
+        return max(self.n_params, 1)
+
+    def key(self) -> tuple:
+        """Identity of the effect (name and where)."""
+        return (self.name, self.where)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the optimiser variables."""
+        return np.full(self.n_params, -1e4), np.full(self.n_params, 1e4)
+
+    def start(self) -> np.ndarray:
+        """Start of the optimiser variables (the effect nearly absent)."""
+        return np.zeros(self.n_params)
+
+    def physical(self, u: np.ndarray, refs: References) -> np.ndarray:
+        """SI parameter values of optimiser variables ``u``."""
+        return np.asarray(u, dtype=float) * self.scale(refs)
+
+    def scale(self, refs: References) -> np.ndarray:
+        """SI value of one unit of each optimiser variable."""
+        return np.ones(self.n_params)
+
+    # hooks ---------------------------------------------------------------------------------
+    def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Applied load from the recorded one."""
+        return force, moment
+
+    def target_shift(self, p: np.ndarray, rows: Rows) -> np.ndarray | None:
+        """(m, 3) displacement of the true target from the declared one, world axes."""
+        return None
+
+    def adjust_law(self, p: np.ndarray, law: Law, column: int, refs: References) -> None:
+        """Change the law of the model joint at ``column`` (that of :attr:`joint`)."""
+
+    def displacement(self, p: np.ndarray, model: Model, rows: Rows, force: np.ndarray,
+                     moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
+        """(m, 3) extra target displacement (m)."""
+        return None
+
+    def adjust_output(self, p: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """Measured displacement from the model's."""
+        return dx
+
+    # reporting ------------------------------------------------------------------------------
+    def report(self, u: np.ndarray, cov_u: np.ndarray, refs: References, units,
+               quantile: float) -> list[Parameter]:
+        """Parameters with uncertainties in the campaign's units (``units``:
+        :class:`stiffness.calibration.campaign.Units`). ``cov_u`` is the covariance of ``u``."""
+        scale = self.scale(refs)
+        se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
+        value = self.physical(u, refs)
+        out = []
+        for name, v, s, (unit, factor) in zip(self.param_names, value, se,
+                                              self._units(units), strict=True):
+            out.append(Parameter(name, v / factor, s / factor,
+                                 ((v - quantile * s) / factor, (v + quantile * s) / factor),
+                                 unit))
+        return out
+
+    def _units(self, units) -> list[tuple[str, float]]:
+        return [("SI", 1.0)] * self.n_params
+
+    def describe(self) -> str:
+        """One line on what the effect is."""
+        return self.label
+
+
+class ComplementaryStiffness(Effect):
+    """Load-dependent geometry: ``K_C`` and the second-order kinematics of the deflection."""
+
+    name = "complementary_stiffness"
+    second_order = True
+
+    def describe(self) -> str:
+        return ("the load changes the geometry: K_C in the tangent stiffness and the "
+                "second-order kinematics (exact equilibrium to second order)")
+
+
+def _stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
+                      quantile: float) -> Parameter:
+    """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method."""
+    se_u = math.sqrt(max(var_u, 0.0)) if math.isfinite(var_u) else math.inf
+    c = u * scale
+    k = 1.0 / c if c > 0 else math.inf
+    se_k = se_u * scale / c ** 2 if c > 0 else math.inf
+    hi_c = (u + quantile * se_u) * scale
+    lo_c = (u - quantile * se_u) * scale
+    low = 1.0 / hi_c if hi_c > 0 and math.isfinite(hi_c) else 0.0
+    high = 1.0 / lo_c if lo_c > 0 else math.inf
+    return Parameter(name, k, se_k, (low, high), unit)
+
+
+@dataclass(eq=False)
+class JointCompliance(Effect):
+    """A joint declared rigid is a spring of stiffness ``k``."""
+
+    joint_name: str = ""
+    prismatic: bool = False
+    name: ClassVar[str] = "joint_compliance"
+    param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
+
+    def __post_init__(self) -> None:
+        self.added_joint = self.joint_name
+        self.joint = self.joint_name
+
+    @property
+    def where(self) -> str:
+        return self.joint_name
+
+    def bounds(self):
+        return np.zeros(1), np.full(1, 1e4)
+
+    def start(self):
+        return np.full(1, 1e-3)
+
+    def scale(self, refs):
+        return np.full(1, 1.0 / refs.k_ref)  # compliance
+
+    def adjust_law(self, p, law, column, refs):
+        law.compliance[column] = p[0]
+
+    def report(self, u, cov_u, refs, units, quantile):
+        unit = "N/m" if self.prismatic else "N.m/rad"
+        return [_stiffness_report("stiffness", float(u[0]), float(cov_u[0, 0]),
+                                  1.0 / refs.k_ref, unit, quantile)]
+
+    def describe(self) -> str:
+        return f"joint {self.joint_name}, declared rigid, is a spring"
+
+
+@dataclass(eq=False)
+class LinkCompliance(Effect):
+    """Lumped bending of the segment ``a -> b`` at ``b``'s origin, about two normal axes."""
+
+    a: str = ""
+    b: str = ""
+    column: int = 0
+    name: ClassVar[str] = "link_compliance"
+    param_names: ClassVar[tuple[str, ...]] = ("stiffness_1", "stiffness_2")
+
+    @property
+    def where(self) -> str:
+        return f"{self.a}->{self.b}"
+
+    def bounds(self):
+        return np.zeros(2), np.full(2, 1e4)
+
+    def start(self):
+        return np.full(2, 1e-3)
+
+    def scale(self, refs):
+        return np.full(2, 1.0 / refs.k_ref)
+
+    def displacement(self, p, model, rows, force, moment, point):
+        ia, ib = model.geometry.chain.index(self.a), model.geometry.chain.index(self.b)
+        p_a, p_b = rows.chain_origin[:, ia], rows.chain_origin[:, ib]
+        e1, e2 = link_axes(p_a, p_b, rows.chain_rotation[:, ib], self.column)
+        r = point - p_b
+        m_b = np.cross(r, force) + moment
+        omega = (e1 * (p[0] * np.sum(e1 * m_b, axis=1))[:, None]
+                 + e2 * (p[1] * np.sum(e2 * m_b, axis=1))[:, None])
+        return np.cross(omega, r)
+
+    def report(self, u, cov_u, refs, units, quantile):
+        return [_stiffness_report(n, float(u[i]), float(cov_u[i, i]), 1.0 / refs.k_ref,
+                                  "N.m/rad", quantile)
+                for i, n in enumerate(self.param_names)]
+
+    def describe(self) -> str:
+        return (f"the segment {self.a} -> {self.b} bends at {self.b} about the two axes "
+                "normal to it")
+
+
+@dataclass(eq=False)
+class Backlash(Effect):
+    """Lost motion at a joint: ``dtheta += b tanh(tau / tau_s)``."""
+
+    joint_name: str = ""
+    prismatic: bool = False
+    name: ClassVar[str] = "backlash"
+    param_names: ClassVar[tuple[str, ...]] = ("half_width",)
+
+    def __post_init__(self) -> None:
+        self.joint = self.joint_name
+
+    @property
+    def where(self) -> str:
+        return self.joint_name
+
+    def bounds(self):
+        return np.zeros(1), np.full(1, 1e4)
+
+    def start(self):
+        return np.full(1, 1e-3)
+
+    def scale(self, refs):
+        return np.full(1, refs.theta_ref)
+
+    def adjust_law(self, p, law, column, refs):
+        law.backlash[column] = p[0]
+
+    def _units(self, units):
+        if self.prismatic:
+            return [(units.length, units.length_to_si)]
+        return [(units.angle, units.angle_to_si)]
+
+    def describe(self) -> str:
+        return f"joint {self.joint_name} has lost motion (a dead band around zero torque)"
+
+
+@dataclass(eq=False)
+class NonlinearJointStiffness(Effect):
+    """``dtheta = tau / k (1 + beta |tau|)``: the spring softens (beta > 0) or hardens."""
+
+    joint_name: str = ""
+    prismatic: bool = False
+    name: ClassVar[str] = "nonlinear_joint_stiffness"
+    param_names: ClassVar[tuple[str, ...]] = ("beta",)
+
+    def __post_init__(self) -> None:
+        self.joint = self.joint_name
+
+    @property
+    def where(self) -> str:
+        return self.joint_name
+
+    def bounds(self):
+        return np.full(1, -0.95), np.full(1, 100.0)
+
+    def scale(self, refs):
+        return np.full(1, 1.0 / refs.max_torque(self.joint_name))
+
+    def adjust_law(self, p, law, column, refs):
+        law.beta[column] = p[0]
+
+    def report(self, u, cov_u, refs, units, quantile):
+        beta = super().report(u, cov_u, refs, units, quantile)[0]
+        se_u = math.sqrt(max(float(cov_u[0, 0]), 0.0))
+        rel = float(u[0])
+        return [beta, Parameter("relative_change_at_max_torque", rel, se_u,
+                                (rel - quantile * se_u, rel + quantile * se_u), "1")]
+
+    def _units(self, units):
+        return [("1/N" if self.prismatic else "1/(N.m)", 1.0)]
+
+    def describe(self) -> str:
+        return f"joint {self.joint_name}'s spring softens or hardens with the load"
+
+
+class FrameMisalignment(Effect):
+    """Measured ``dx = R(phi) dx_model``."""
+
+    name = "frame_misalignment"
+    param_names = ("rx", "ry", "rz")
+
+    def scale(self, refs):
+        return np.full(3, 0.01)
+
+    def adjust_output(self, p, dx):
+        return dx @ rotation_matrix(p).T
+
+    def _units(self, units):
+        return [(units.angle, units.angle_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the instrument's frame is rotated against the robot base"
+
+
+class TargetOffset(Effect):
+    """The target is ``delta`` (target frame axes) away from the declared one."""
+
+    name = "target_offset"
+    param_names = ("dx", "dy", "dz")
+
+    def scale(self, refs):
+        return np.full(3, 0.01)
+
+    def target_shift(self, p, rows):
+        return rows.rotation @ p
+
+    def _units(self, units):
+        return [(units.length, units.length_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the measured target is not where the campaign says (target frame axes)"
+
+
+class ForceSensorBias(Effect):
+    """The recorded force is ``F + b``."""
+
+    name = "force_sensor_bias"
+    param_names = ("fx", "fy", "fz")
+
+    def scale(self, refs):
+        return np.full(3, 0.01 * refs.force_ref)
+
+    def adjust_load(self, p, force, moment):
+        return force - p, moment
+
+    def _units(self, units):
+        return [(units.force, units.force_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the recorded force carries a constant offset (base axes)"
+
+
+class DeflectionOffset(Effect):
+    """The measured deflections carry a constant offset."""
+
+    name = "deflection_offset"
+    param_names = ("dx", "dy", "dz")
+
+    def scale(self, refs):
+        return np.full(3, 0.01 * refs.deflection_ref)
+
+    def adjust_output(self, p, dx):
+        return dx + p
+
+    def _units(self, units):
+        return [(units.length, units.length_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the measured deflections carry a constant offset (the reference moved)"
+
+
+#: Effect name -> class, in the order candidates are listed.
+LIBRARY: dict[str, type[Effect]] = {
+    cls.name: cls for cls in (ComplementaryStiffness, JointCompliance, LinkCompliance, Backlash,
+                              NonlinearJointStiffness, FrameMisalignment, TargetOffset,
+                              ForceSensorBias, DeflectionOffset)
+}
+#: Effects the issue requires (``deflection_offset`` is an extra).
+REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n != "deflection_offset")
+
+
+def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
+    """An effect by name and place, checked against the robot.
+
+    Raises
+    ------
+    StiffnessError
+        Unknown name, a missing or unknown ``where``.
+    """
+    from stiffness.errors import did_you_mean
+
+    if name not in LIBRARY:
+        raise StiffnessError(f"unknown effect {name!r}; {did_you_mean(name, list(LIBRARY))}")
+    cls = LIBRARY[name]
+    if cls in (JointCompliance, Backlash, NonlinearJointStiffness):
+        if where not in geometry.joints:
+            raise StiffnessError(f"{name} needs a joint, e.g. {name}:{geometry.joints[0]}; "
+                                 f"{did_you_mean(str(where), list(geometry.joints))}")
+        return cls(joint_name=where,
+                   prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
+    if cls is LinkCompliance:
+        parts = None
+        if where:
+            for sep in ("->", "/", ","):
+                if sep in where:
+                    parts = [s.strip() for s in where.split(sep)]
+                    break
+        if not parts or len(parts) != 2 or tuple(parts) not in geometry.link_columns:
+            pairs = [f"{a}->{b}" for a, b in geometry.link_segments()]
+            raise StiffnessError(
+                f"link_compliance needs two joints of the target's chain, proximal first, as "
+                f"A->B (or A/B); got {where!r}; valid segments: {', '.join(pairs)}")
+        return LinkCompliance(a=parts[0], b=parts[1],
+                              column=geometry.link_columns[(parts[0], parts[1])])
+    if where:
+        raise StiffnessError(f"{name} acts on the whole campaign; drop ':{where}'")
+    return cls()
+
+
+# ------------------------------------------------------------------------------------------
+# the model
+
+
+class Model:
+    """A deflection model: baseline formulation, compliant joints and effects, over some rows.
+
+    The parameter vector ``x`` is ``ln k`` of the baseline's compliant joints followed by each
+    effect's scaled variables (:meth:`Effect.physical`).
+
+    Parameters
+    ----------
+    geometry
+        The robot's shared geometry.
+    rows
+        The rows to predict.
+    baseline
+        ``conventional`` or ``enhanced``.
+    compliant
+        The baseline's compliant joints.
+    effects
+        Effects, in the order added.
+    refs
+        Variable scales.
+    """
+
+    def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
+                 compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References
+                 ) -> None:
+        if baseline not in BASELINES:
+            raise StiffnessError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}")
+        self.geometry, self.rows, self.baseline = geometry, rows, baseline
+        self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
+        self.joints = self.compliant + tuple(e.added_joint for e in self.effects
+                                             if e.added_joint is not None)
+        self.index = np.array([geometry.joints.index(j) for j in self.joints], dtype=int)
+        self.tangent = baseline == "enhanced" or any(e.second_order for e in self.effects)
+        self.second_order = any(e.second_order for e in self.effects)
+        sizes = [len(self.compliant)] + [e.n_params for e in self.effects]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        self._prepare()
+
+    def _prepare(self) -> None:
+        idx, rows = self.index, self.rows
+        self.jv = rows.jac[:, :3][:, :, idx]
+        self.jw = rows.jac[:, 3:][:, :, idx]
+        self.h = rows.k_c_unit[:, :, idx][:, :, :, idx]
+
+    # construction ----------------------------------------------------------------------------
+    def with_rows(self, rows: Rows) -> Model:
+        """The same model over other rows."""
+        return Model(self.geometry, rows, self.baseline, self.compliant, self.effects, self.refs)
+
+    def extended(self, effect: Effect) -> Model:
+        """This model plus ``effect``."""
+        return Model(self.geometry, self.rows, self.baseline, self.compliant,
+                     self.effects + (effect,), self.refs)
+
+    def with_refs(self, refs: References) -> Model:
+        """The same model with other variable scales."""
+        return Model(self.geometry, self.rows, self.baseline, self.compliant, self.effects, refs)
+
+    @property
+    def n_params(self) -> int:
+        """Length of the parameter vector."""
+        return int(self.offsets[-1])
+
+    @property
+    def penalty_params(self) -> int:
+        """Parameters counted by the information criterion."""
+        return len(self.compliant) + sum(e.penalty_params for e in self.effects)
+
+    def extend_x(self, x: np.ndarray, effect: Effect) -> np.ndarray:
+        """Start vector of :meth:`extended` from this model's ``x``."""
+        return np.concatenate([x, effect.start()])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the parameter vector."""
+        n0 = len(self.compliant)
+        lo, hi = [np.full(n0, math.log(1e-3))], [np.full(n0, math.log(1e14))]
+        for e in self.effects:
+            a, b = e.bounds()
+            lo.append(a)
+            hi.append(b)
+        return np.concatenate(lo), np.concatenate(hi)
+
+    def effect_vars(self, x: np.ndarray, i: int) -> np.ndarray:
+        """Optimiser variables of effect ``i``."""
+        return x[self.offsets[i + 1]: self.offsets[i + 2]]
+
+    def _effect_params(self, x: np.ndarray) -> list[np.ndarray]:
+        return [e.physical(self.effect_vars(x, i), self.refs)
+                for i, e in enumerate(self.effects)]
+
+    def stiffness(self, x: np.ndarray) -> np.ndarray:
+        """Baseline stiffnesses (SI) of parameter vector ``x``."""
+        return np.exp(x[: len(self.compliant)])
+
+    # prediction ------------------------------------------------------------------------------
+    def law(self, x: np.ndarray, params: list[np.ndarray] | None = None) -> Law:
+        """The joint law over :attr:`joints`."""
+        params = self._effect_params(x) if params is None else params
+        n = len(self.joints)
+        compliance = np.zeros(n)
+        compliance[: len(self.compliant)] = np.exp(-x[: len(self.compliant)])
+        law = Law(compliance, np.zeros(n), np.zeros(n),
+                  self.refs.tau_smoothing[self.index].copy())
+        for e, p in zip(self.effects, params, strict=True):
+            if e.joint is not None:
+                e.adjust_law(p, law, self.joints.index(e.joint), self.refs)
+        return law
+
+    def predict(self, x: np.ndarray, detail: bool = False):
+        """(m, 3) predicted measured displacements (m) for parameters ``x``.
+
+        With ``detail``, also returns the joint deflections (m, n) and torques (m, n).
+
+        Raises
+        ------
+        np.linalg.LinAlgError
+            If the tangent stiffness is singular for some row.
+        """
+        rows = self.rows
+        params = self._effect_params(x)
+        force, moment = rows.force, rows.moment
+        for e, p in zip(self.effects, params, strict=True):
+            force, moment = e.adjust_load(p, force, moment)
+        jv, jw, point = self.jv, self.jw, rows.position
+        for e, p in zip(self.effects, params, strict=True):
+            shift = e.target_shift(p, rows)
+            if shift is not None:
+                jv = jv - _skew(shift) @ jw
+                point = point + shift
+        tau0 = np.einsum("mkn,mk->mn", jv, force) + np.einsum("mkn,mk->mn", jw, moment)
+        law = self.law(x, params)
+        n = len(self.joints)
+        if self.tangent:
+            wrench = np.hstack([force, moment])
+            k_c = np.einsum("mk,mkab->mab", wrench, self.h)
+            a = np.eye(n) - law.compliance[:, None] * k_c
+            dtheta = np.linalg.solve(a, (law.compliance * tau0)[:, :, None])[:, :, 0]
+        else:
+            k_c = None
+            dtheta = law.compliance * tau0
+        if not law.linear:
+            if k_c is None:
+                dtheta = law(tau0)[0]
+            else:
+                for _ in range(LAW_ITERATIONS):
+                    tau = tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
+                    value, slope = law(tau)
+                    g = dtheta - value
+                    jg = np.eye(n) - slope[:, :, None] * k_c
+                    dtheta = dtheta - np.linalg.solve(jg, g[:, :, None])[:, :, 0]
+        dx = np.einsum("mkn,mn->mk", jv, dtheta)
+        if self.second_order:
+            dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)
+        for e, p in zip(self.effects, params, strict=True):
+            extra = e.displacement(p, self, rows, force, moment, point)
+            if extra is not None:
+                dx = dx + extra
+        for e, p in zip(self.effects, params, strict=True):
+            dx = e.adjust_output(p, dx)
+        if detail:
+            tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
+            return dx, dtheta, tau
+        return dx
+
+    def describe(self) -> str:
+        """E.g. ``enhanced over joint1, joint2 + backlash(joint2)``."""
+        text = f"{self.baseline} over {', '.join(self.compliant)}"
+        return text + "".join(f" + {e.label}" for e in self.effects)
+
+
+def candidates(model: Model) -> list[Effect]:
+    """Every library effect that can extend ``model`` (each effect and place at most once).
+
+    ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
+    ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`); ``backlash``
+    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects.
+    """
+    geo = model.geometry
+    have = {e.key() for e in model.effects}
+    out: list[Effect] = []
+
+    def add(effect: Effect) -> None:
+        if effect.key() not in have:
+            out.append(effect)
+
+    if not model.second_order:
+        add(ComplementaryStiffness())
+    for j in geo.joints:
+        if j not in model.joints:
+            add(make_effect("joint_compliance", j, geo))
+    for a, b in geo.link_segments():
+        add(LinkCompliance(a=a, b=b, column=geo.link_columns[(a, b)]))
+    for j in model.joints:
+        add(make_effect("backlash", j, geo))
+        add(make_effect("nonlinear_joint_stiffness", j, geo))
+    for name in ("frame_misalignment", "target_offset", "force_sensor_bias",
+                 "deflection_offset"):
+        add(LIBRARY[name]())
+    return out

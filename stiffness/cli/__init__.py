@@ -1,0 +1,1 @@
+"""The ``stiffness`` command line: one module per command over the library."""

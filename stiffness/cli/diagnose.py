@@ -1,0 +1,60 @@
+"""``stiffness diagnose``: where a campaign's model disagrees with it, and what effect is missing.
+
+Example::
+
+    stiffness diagnose robots/sk120/campaigns/table2 --out diagnosis/
+
+prints where the baseline disagrees with the measurements (by configuration, axis, load
+magnitude and load sign, against the noise), the effects added one by one with the RMS residual
+after each, their parameters with 95 % intervals, what the campaign cannot tell apart and the
+extra poses and loads that would. ``--json`` prints one JSON object (``baseline_rms``,
+``noise_std``, ``noise_std_source``, ``steps``, ``missing_effects``, ``final_rms``, ``unit``)
+and nothing else on stdout; ``--out DIR`` writes ``diagnosis.json`` (everything),
+``residuals.png`` (residuals before and after) and ``final-model.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness diagnose``."""
+    parser.add_argument("campaign", metavar="CAMPAIGN",
+                        help="campaign.toml, or the folder holding it")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (campaign units) and nothing else")
+    parser.add_argument("--out", metavar="DIR",
+                        help="write diagnosis.json, residuals.png and final-model.json here")
+    parser.add_argument("--max-steps", type=int, default=MAX_STEPS,
+                        help=f"largest number of effects added; default {MAX_STEPS}")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the cross-validation folds and proposed poses; default 0")
+    parser.add_argument("--no-proposals", action="store_true",
+                        help="do not propose extra poses and loads")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness diagnose``; returns the exit code."""
+    campaign = load_campaign(args.campaign)
+    show = sys.stderr.isatty() and not args.quiet
+
+    def progress(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
+                      propose=not args.no_proposals, progress=progress if show else None)
+    paths = result.write(args.out) if args.out else None
+    if args.json:
+        print(json.dumps(result.summary(), indent=1, allow_nan=False))
+        return 0
+    print(format_report(result))
+    if paths:
+        print("written: " + ", ".join(str(p) for p in paths.values()))
+    return 0

@@ -1,0 +1,297 @@
+"""``stiffness kx``: Cartesian stiffness, complementary stiffness and compliance at one pose.
+
+Example::
+
+    stiffness kx --robot ur5 --frame tool0 --q 0,-1.2,1.5,-0.3,1.57,0 \\
+        --wrench 0,0,-200 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --json
+    stiffness kx --robot griffis-duffy --connection twist --json
+
+A shipped robot brings its defaults (frame, configuration ``q_deg``/``q_SI``, springs
+``k_theta_SI``, load ``wrench_SI`` or spring rest values ``rest_q_SI``, whose holding wrench is
+then the load; row order ``twist_order``), which flags override.
+
+SI units throughout: m, N, rad, N.m/rad (N/m for prismatic joints).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from stiffness.errors import StiffnessError
+from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
+from stiffness.mechanics.formulation import (
+    FORMULATIONS,
+    cartesian_stiffness,
+    compliance,
+    definiteness,
+    ellipsoid,
+    joint_connection_stiffness,
+    joint_stiffness,
+    tangent_joint_stiffness,
+    target_state,
+    twist_basis_stiffness,
+)
+from stiffness.mechanics.platform import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
+from stiffness.model.robot import Robot, load_robot
+
+_BASIS_3 = ["vx", "vy", "vz"]
+_BASIS_6 = ["vx", "vy", "vz", "wx", "wy", "wz"]
+
+
+def parse_list(text: str, flag: str) -> list[float]:
+    """Comma-separated numbers of a flag, e.g. ``"1,2.5,-3"``.
+
+    Raises
+    ------
+    StiffnessError
+        If an item is not a finite number.
+    """
+    values = []
+    for item in text.split(","):
+        try:
+            value = float(item)
+        except ValueError:
+            raise StiffnessError(
+                f"{flag} takes comma-separated numbers; {item.strip()!r} is not a number"
+            ) from None
+        if not np.isfinite(value):
+            raise StiffnessError(f"{flag} values must be finite, got {item.strip()!r}")
+        values.append(value)
+    return values
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness kx``."""
+    parser.add_argument("--robot",
+                        help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
+                             "or URDF path (required unless --model gives it)")
+    parser.add_argument("--model", metavar="FILE",
+                        help="identified model written by `stiffness identify` "
+                             "(identified-model.json): its robot, target, compliant joints and "
+                             "K_theta; the other flags override them")
+    parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
+    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
+    parser.add_argument("--q", help="joint values: one per degree of freedom (rad, or m for "
+                                    "prismatic); for closed loops the independent joints suffice")
+    parser.add_argument("--deg", action="store_true", help="--q angles are in degrees")
+    parser.add_argument("--wrench", help="dead load at the target, base axes: fx,fy,fz (N) "
+                                         "or fx,fy,fz,mx,my,mz (N, N.m)")
+    parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m prismatic)")
+    parser.add_argument("--compliant-joints", help="comma-separated joint names (default: all)")
+    parser.add_argument("--formulation", choices=FORMULATIONS, default="enhanced",
+                        help="conventional (K_C = 0, A&S eq. 8) or enhanced (eq. 10); "
+                             "default enhanced")
+    parser.add_argument("--connection", choices=("joint", "twist"),
+                        help="6x6 stiffness of Zefran & Kumar: joint-space connection "
+                             "(J^-T K J^-1) or twist basis (asymmetric under load), "
+                             "in the target's body axes")
+    parser.add_argument("--twist-order", choices=tuple(TWIST_ORDERS),
+                        help="row order of 6x6 results: v-w (Pinocchio: linear first) or w-v "
+                             "(Zefran & Kumar: angular first); default the robot's own, else v-w")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def coordinates_from_args(robot: Robot, args: argparse.Namespace) -> np.ndarray:
+    """Coordinates (rad, m) of ``--q``/``--deg``, or the shipped ones."""
+    if args.q is None:
+        shipped = default_coordinates(robot)
+        if shipped is not None:
+            return shipped
+        raise StiffnessError(
+            f"--q is required for {robot.name}: give {robot.model.nv} joint values "
+            f"({', '.join(robot.coordinate_joints)})"
+        )
+    values = np.array(parse_list(args.q, "--q"))
+    model = robot.model
+    if values.shape[0] == robot.n_coordinates:
+        names = list(robot.coordinate_joints)
+    elif values.shape[0] == model.nv:
+        names = [model.names[j] for j in range(1, model.njoints) for _ in range(model.joints[j].nv)]
+        keep = [names.index(n) for n in robot.coordinate_joints]
+        values, names = values[keep], list(robot.coordinate_joints)
+    else:
+        raise StiffnessError(
+            f"--q needs {robot.n_coordinates} values for {robot.name} "
+            f"({', '.join(robot.coordinate_joints)}), got {values.shape[0]}"
+        )
+    if args.deg:
+        for i, name in enumerate(names):
+            if not model.joints[model.getJointId(name)].shortname().startswith("JointModelP"):
+                values[i] = np.deg2rad(values[i])
+    return values
+
+
+def robot_from_args(args: argparse.Namespace
+                    ) -> tuple[Robot, list[str] | None, list[float] | None]:
+    """The robot of ``--robot``, ``--frame``, ``--target-offset`` (m) and ``--compliant-joints``.
+
+    Returns the robot and the parsed compliant joints and offset (None where not given).
+    """
+    compliant = None if args.compliant_joints is None else [
+        j.strip() for j in args.compliant_joints.split(",") if j.strip()]
+    offset = None if args.target_offset is None else parse_list(args.target_offset,
+                                                                "--target-offset")
+    source, frame = args.robot, args.frame
+    model = _identified_model(args)
+    if model is not None:
+        source = source or model.source
+        frame = frame or model.frame
+        if offset is None:
+            offset = model.target_offset_m.tolist()
+        if compliant is None:
+            compliant = list(model.compliant_joints)
+    if source is None:
+        raise StiffnessError("--robot is required (or --model FILE from `stiffness identify`)")
+    robot = load_robot(source, frame=frame, target_offset=offset, compliant_joints=compliant)
+    return robot, compliant, offset
+
+
+def _identified_model(args: argparse.Namespace):
+    """The ``--model`` file's identified model, or None (read once per parsed command line)."""
+    if getattr(args, "model", None) is None:
+        return None
+    if getattr(args, "_identified_model", None) is None:
+        from stiffness.calibration.identify import load_identified_model
+
+        args._identified_model = load_identified_model(args.model)
+    return args._identified_model
+
+
+@dataclass
+class KxInputs:
+    """What the ``kx`` flags (and a shipped robot's defaults) resolve to, in SI."""
+
+    robot: Robot
+    coords: np.ndarray
+    q: np.ndarray
+    k_theta: np.ndarray
+    load: np.ndarray
+    load_source: str
+
+
+def resolve_inputs(args: argparse.Namespace) -> KxInputs:
+    """Robot, configuration, joint stiffness and load of the ``kx`` flags (shared by ``view``).
+
+    Raises
+    ------
+    StiffnessError
+        On a bad flag value, or a missing flag the robot brings no default for.
+    """
+    robot, _, _ = robot_from_args(args)
+    coords = coordinates_from_args(robot, args)
+    model = _identified_model(args)
+    if args.kq is not None:
+        kq = parse_list(args.kq, "--kq")
+    elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
+        kq = model.k_theta
+    else:
+        kq = default_stiffness(robot)
+    if kq is None:
+        raise StiffnessError(
+            f"--kq is required: one stiffness per compliant joint "
+            f"({', '.join(robot.compliant_joints)}), N.m/rad"
+        )
+    k_theta = joint_stiffness(kq, robot.n_compliant)
+    q = robot.configuration(coords)
+    if args.wrench is not None:
+        load, source = np.array(parse_list(args.wrench, "--wrench")), "--wrench"
+    else:
+        shipped = default_load(robot, q, k_theta)
+        if shipped is None:
+            raise StiffnessError(
+                "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
+        load, source = shipped
+    return KxInputs(robot, coords, q, k_theta, load, source)
+
+
+def compute(args: argparse.Namespace) -> dict:
+    """Evaluate the stiffness quantities of ``stiffness kx``; returns the JSON object."""
+    inputs = resolve_inputs(args)
+    robot, coords, q, k_theta = inputs.robot, inputs.coords, inputs.q, inputs.k_theta
+    load, load_source = inputs.load, inputs.load_source
+    state = target_state(robot, q, load)
+    six = load.shape[0] == 6 or args.connection is not None
+    order = args.twist_order or robot.defaults.get("twist_order", "v-w")
+    if order not in TWIST_ORDERS:
+        raise StiffnessError(f"twist_order of {robot.name} must be one of {list(TWIST_ORDERS)}")
+    rows = slice(0, 6) if six else slice(0, 3)
+    tangent = tangent_joint_stiffness(k_theta, state.k_c, args.formulation)
+    if args.connection is not None:
+        k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
+               else twist_basis_stiffness(state, k_theta))
+        jac = state.body_jacobian()
+        c_x = np.linalg.inv(k_x)
+        axes = "target frame body axes (left-invariant twist basis)"
+        k_c = state.k_c_twist if args.connection == "twist" else np.zeros_like(state.k_c)
+    else:
+        jac = state.jacobian[rows]
+        c_x = compliance(jac, tangent)
+        k_x = cartesian_stiffness(c_x)
+        axes = "base frame axes at the target"
+        k_c = state.k_c
+    wrench = state.wrench[: 6 if six else 3]
+    if six:
+        k_x, c_x, wrench = reorder_twist(k_x, order), reorder_twist(c_x, order), reorder_twist(
+            wrench, order)
+        if order == "w-v":
+            jac = jac[[3, 4, 5, 0, 1, 2]]
+    ell = ellipsoid(k_x)
+    blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
+    trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
+    return {
+        "robot": robot.name,
+        "frame": robot.target_frame,
+        "target_offset": robot.target_offset.tolist(),
+        "compliant_joints": list(robot.compliant_joints),
+        "q": coords.tolist(),
+        "wrench": wrench.tolist(),
+        "wrench_basis": WRENCH_ORDERS[order] if six else ["fx", "fy", "fz"],
+        "load_source": load_source,
+        "formulation": args.formulation,
+        "connection": args.connection,
+        "basis": TWIST_ORDERS[order] if six else _BASIS_3,
+        "axes": axes,
+        "position": state.position.tolist(),
+        "J": jac.tolist(),
+        "K_theta": np.diag(k_theta).tolist(),
+        "K_C": k_c.tolist(),
+        "K_X": k_x.tolist(),
+        "compliance": c_x.tolist(),
+        "K_X_symmetric": bool(ell.symmetric),
+        "eigenvalues": ell.values.tolist(),
+        "eigenvectors": ell.directions.tolist(),
+        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
+            k_theta - state.k_c), "K_X": definiteness(k_x)},
+        "units": {
+            "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
+            "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
+            "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
+            "compliance": "m/N (inverse of K_X)", "eigenvalues": "same as K_X",
+            "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
+        },
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the result as JSON or as a short table."""
+    result = compute(args)
+    if args.json:
+        json.dump(result, sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    np.set_printoptions(precision=5, suppress=False, linewidth=120)
+    print(f"{result['robot']} target at {result['frame']} + {result['target_offset']} m; "
+          f"{result['formulation']} formulation"
+          + (f", {result['connection']} connection" if result["connection"] else ""))
+    print(f"position (m): {np.array(result['position'])}")
+    print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
+    print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")
+    print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n{np.array(result['K_X'])}")
+    print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
+    print(f"definiteness: {result['definiteness']}")
+    return 0

@@ -1,0 +1,64 @@
+"""The ``stiffness`` command line: a thin dispatcher over one module per command.
+
+Each command module provides ``configure_parser(parser)`` and ``run(args) -> int``; it is
+imported only when its command runs, so ``stiffness --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from stiffness.errors import StiffnessError
+
+#: command name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "kx": ("stiffness.cli.kx", "Cartesian stiffness, K_C and compliance at one configuration"),
+    "check-jacobian": (
+        "stiffness.papers.crosscheck",
+        "compare the printed Appendix I Jacobian and its K_C with Pinocchio's SK120",
+    ),
+    "identify": ("stiffness.cli.identify", "identify joint stiffness from a campaign"),
+    "report": ("stiffness.papers.report", "the SK120 paper-reproduction report (the main job)"),
+    "diagnose": ("stiffness.cli.diagnose",
+                 "find and name what a model misses against a campaign's measurements"),
+    "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
+    "view": ("stiffness.cli.view", "stiffness ellipsoids in the browser (meshcat)"),
+    "scan": ("stiffness.cli.scan", "stiffness and definiteness maps over a workspace"),
+}
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """Argument parser; configures the subcommand ``only`` (all if None)."""
+    parser = argparse.ArgumentParser(
+        prog="stiffness",
+        description="Elastostatics of robot manipulators (SI units: m, N, rad, N.m/rad).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if only is None or only == name:
+            importlib.import_module(module).configure_parser(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``stiffness`` console script."""
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.run(args) or 0)
+    except StiffnessError as exc:
+        print(f"stiffness {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

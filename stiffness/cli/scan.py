@@ -1,0 +1,335 @@
+"""``stiffness scan``: stiffness and definiteness maps over a workspace.
+
+Examples::
+
+    stiffness scan --robot sk120 --preset table4            # A&S Table IV: 5824 x 8 loads
+    stiffness scan --robot ur5 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --deg \\
+        --axis shoulder_lift_joint=-90:0:5 --axis elbow_joint=0:150:5 --load 0,0,-200
+    stiffness scan --robot ur5 --kq ... --samples 1000000 --workers 2
+    stiffness scan --robot panda --kq ... --samples 1e7 --scheduler tcp://10.0.0.5:8786
+
+This module turns the flags into a :class:`~stiffness.scan.engine.ScanSpec` and hands it to
+:func:`stiffness.scan.engine.run_scan`, which computes, per configuration and load case, the
+definiteness class of K_C and of K_theta - K_C, the load factor at which K_theta - K_C stops
+being positive definite, the enhanced Cartesian stiffness K_X (A&S eq. 10) and its principal
+values, and the conventional K_X (eq. 8). The scan is cut into chunks (``--chunk-size``
+configurations); each chunk is written to ``--out`` as soon as it is done (NPZ and/or Parquet),
+so memory is bounded by the chunk size and a killed run (or worker) loses only unfinished
+chunks: run the same command with the same ``--out`` to resume. ``--workers N`` spreads the
+chunks over a Dask LocalCluster, ``--scheduler ADDRESS`` over an existing Dask cluster; the
+default runs them in this process, through the same code. In this process and on a
+LocalCluster each chunk is written by the process that computes it; on a remote cluster the
+chunk's arrays come back and are written here, unless ``--shared-out`` says the workers see
+``--out`` too.
+
+Files in ``--out`` (default: a new folder ``<robot>-<preset>`` in the current directory):
+
+* ``manifest.json``: the scan's specification (robot, coordinates, loads, K_theta, units);
+* ``chunks/chunk-NNNNN.npz`` (``--format npz``) and/or ``maps.parquet/part-NNNNN.parquet``
+  (``--format parquet``, one row per configuration and load case);
+* ``chunks/aggregate-NNNNN.npz``: the chunk's contribution to the summary (marks it done);
+* ``summary.json`` (class counts per load case, extremes) and the figures
+  ``definiteness_counts.png``, ``definiteness_map.png``, ``stiffness_map.png``.
+
+SI units: rad (``--deg`` for degrees on the command line), m, N, N.m/rad, N/m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.batch import kernels as batch
+from stiffness.cli.kx import parse_list, robot_from_args
+from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.model.robot import Robot
+from stiffness.scan.definiteness import grid_axis, terminal_progress
+from stiffness.scan.engine import COUNT_LABELS, ScanSpec, load_scan, run_scan, scan_chunk
+
+# The scan engine lives in stiffness.scan.engine (figures: stiffness.scan.plots);
+# ScanSpec, load_scan, run_scan and scan_chunk are re-exported for code that imports them here.
+__all__ = ["DEFAULT_LOAD_N", "FORMATS", "PRESETS", "ScanSpec", "build_spec", "configure_parser",
+           "default_out", "load_scan", "run", "run_scan", "scan_chunk"]
+
+PRESETS = ("table4",)
+FORMATS = ("npz", "parquet", "both")
+#: Default load case when none is given (N): 100 N downwards.
+DEFAULT_LOAD_N = (0.0, 0.0, -100.0)
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness scan``."""
+    parser.add_argument("--robot", required=True,
+                        help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
+                             "or URDF path")
+    parser.add_argument("--preset", choices=PRESETS,
+                        help="table4: A&S Table IV on the SK120 (theta1 -180..180, theta2 "
+                             "-70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical; the "
+                             "eight +-100 N load cases; the paper's K_theta)")
+    parser.add_argument("--axis", action="append", default=[], metavar="JOINT=LO:HI[:STEP]",
+                        help="swept coordinate (joint name or q1, q2...): a grid LO..HI by "
+                             "STEP, or a sampling range without STEP (rad or m; --deg); "
+                             "repeat for several axes")
+    parser.add_argument("--samples", type=float,
+                        help="random configurations (uniform in the --axis ranges, else in the "
+                             "joint limits) instead of a grid")
+    parser.add_argument("--seed", type=int, default=0, help="seed of --samples; default 0")
+    parser.add_argument("--q", help="values of the coordinates that are not swept (all "
+                                    "coordinates, comma-separated); default the robot's "
+                                    "default pose, else zero")
+    parser.add_argument("--deg", action="store_true",
+                        help="angles of --axis and --q in degrees")
+    parser.add_argument("--load", action="append", default=[], metavar="FX,FY,FZ[,MX,MY,MZ]",
+                        help="dead load case at the target, base axes (N, N.m); repeat for "
+                             f"several; default {','.join(f'{v:g}' for v in DEFAULT_LOAD_N)}")
+    parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m "
+                                     "prismatic); default the robot's")
+    parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
+    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
+    parser.add_argument("--compliant-joints", help="comma-separated joint names (default: all)")
+    parser.add_argument("--rtol", type=float, default=1e-9,
+                        help="relative eigenvalue tolerance of the definiteness classes")
+    parser.add_argument("--map-axes", help="two swept coordinates the figures are drawn over "
+                                           "(default: the two with the most values)")
+    parser.add_argument("--chunk-size", type=int, default=8192,
+                        help="configurations per chunk (memory and the work a killed worker "
+                             "loses); default 8192")
+    parser.add_argument("--format", choices=FORMATS, default="npz",
+                        help="map files: npz (default), parquet (needs pyarrow) or both")
+    parser.add_argument("--out", help="output folder (default: a new folder <robot>-<preset> "
+                                      "here); an existing scan folder is resumed")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="Dask scheduler address (tcp://host:8786): run the chunks on that "
+                             "cluster")
+    parser.add_argument("--shared-out", action="store_true",
+                        help="with --scheduler: the workers share the --out folder's filesystem "
+                             "and write their chunks there themselves (default: the chunks "
+                             "travel back and this process writes them)")
+    parser.add_argument("--workers", type=int,
+                        help="without --scheduler: a Dask LocalCluster of N worker processes "
+                             "on this machine (default: this process only)")
+    parser.add_argument("--no-plots", action="store_true", help="write no figures")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+_AXIS = re.compile(r"^\s*([^=]+?)\s*=\s*([^:]+):([^:]+)(?::([^:]+))?\s*$")
+
+
+def _joint_index(robot: Robot, name: str) -> int:
+    """Position in the coordinate vector of a joint name or ``q1``, ``q2``... (1-based)."""
+    names = list(robot.coordinate_joints)
+    if name in names:
+        return names.index(name)
+    match = re.fullmatch(r"q(\d+)", name)
+    if match and 1 <= int(match.group(1)) <= len(names):
+        return int(match.group(1)) - 1
+    raise StiffnessError(
+        f"--axis {name!r} is not a coordinate of {robot.name}; use a joint name or q1..q"
+        f"{len(names)}: {did_you_mean(name, names)}"
+    )
+
+
+def _angle_scale(robot: Robot, index: int, deg: bool) -> float:
+    """Factor to SI of a coordinate given on the command line (deg -> rad if revolute)."""
+    joint = robot.model.joints[robot.model.getJointId(robot.coordinate_joints[index])]
+    return np.pi / 180.0 if deg and not joint.shortname().startswith("JointModelP") else 1.0
+
+
+def _joint_range(robot: Robot, index: int) -> tuple[float, float]:
+    """Sampling range of a coordinate: its joint limits, or [-pi, pi] when unlimited."""
+    model = robot.model
+    joint = model.joints[model.getJointId(robot.coordinate_joints[index])]
+    prismatic = joint.shortname().startswith("JointModelP")
+    if joint.nq == 1:
+        lo = float(model.lowerPositionLimit[joint.idx_q])
+        hi = float(model.upperPositionLimit[joint.idx_q])
+        if np.isfinite(lo) and np.isfinite(hi) and hi > lo and max(abs(lo), abs(hi)) < 1e3:
+            return lo, hi
+    if prismatic:
+        raise StiffnessError(
+            f"prismatic joint {robot.coordinate_joints[index]!r} has no finite limits: give its "
+            "range with --axis NAME=LO:HI (m)"
+        )
+    return -np.pi, np.pi
+
+
+def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
+    """The scan specification of a command line (and the loaded robot)."""
+    robot, compliant, offset = robot_from_args(args)
+    robot_spec = {"source": str(args.robot), "frame": args.frame, "target_offset": offset,
+                  "compliant_joints": compliant}
+    if args.kq is not None:
+        k_theta = parse_list(args.kq, "--kq")
+    elif "k_theta_SI" in robot.defaults and compliant is None:
+        k_theta = [float(v) for v in robot.defaults["k_theta_SI"]]
+    else:
+        raise StiffnessError(
+            f"--kq is required for {robot.name}: one stiffness per compliant joint "
+            f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)"
+        )
+    batch.as_joint_stiffness(k_theta, robot.n_compliant)  # validates
+    if args.chunk_size < 1:
+        raise StiffnessError(f"--chunk-size must be a positive number, got {args.chunk_size}")
+    if args.rtol < 0:
+        raise StiffnessError(f"--rtol must be >= 0, got {args.rtol}")
+    loads = [parse_list(text, "--load") for text in args.load]
+    for load in loads:
+        if len(load) not in (3, 6):
+            raise StiffnessError(f"--load takes fx,fy,fz (N) or fx,fy,fz,mx,my,mz; got {load}")
+    if loads and len({len(x) for x in loads}) > 1:
+        loads = [x + [0.0] * (6 - len(x)) for x in loads]
+    names = [str(i + 1) for i in range(len(loads))]
+
+    if args.preset == "table4":
+        if args.axis or args.samples is not None:
+            raise StiffnessError("--preset table4 fixes the grid: drop --axis and --samples")
+        if robot.n_coordinates != 6 or robot.n_compliant != 3:
+            raise StiffnessError(
+                "--preset table4 is the SK120 grid of A&S Table IV (six coordinates, three "
+                f"compliant joints); {robot.name} has {robot.n_coordinates} and "
+                f"{robot.n_compliant}"
+            )
+        from stiffness.papers.reproduction import table4_loads
+
+        if not loads:
+            names, table = table4_loads()
+            loads = table.tolist()
+        axes = [{"index": i, "joint": robot.coordinate_joints[i], "lower": None, "upper": None,
+                 "step": None} for i in range(3)]
+        spec = ScanSpec(robot=robot_spec, preset="table4",
+                        coordinate_joints=list(robot.coordinate_joints),
+                        base=[0.0] * robot.n_coordinates, axes=axes, samples=None, seed=0,
+                        loads=loads, load_names=names, k_theta=k_theta, rtol=args.rtol,
+                        chunk_size=args.chunk_size, map_axes=[1, 2])
+        return spec, robot
+
+    if not loads:
+        loads, names = [list(DEFAULT_LOAD_N)], ["1"]
+    if args.q is not None:
+        base = np.array(parse_list(args.q, "--q"))
+        if base.shape[0] != robot.n_coordinates:
+            raise StiffnessError(
+                f"--q needs {robot.n_coordinates} values ({', '.join(robot.coordinate_joints)}),"
+                f" got {base.shape[0]}"
+            )
+        base = base * np.array([_angle_scale(robot, i, args.deg)
+                                for i in range(robot.n_coordinates)])
+    elif "q_SI" in robot.defaults:
+        base = np.asarray(robot.defaults["q_SI"], dtype=float)
+    elif "q_deg" in robot.defaults:
+        base = np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float))
+    else:
+        base = np.zeros(robot.n_coordinates)
+    samples = None
+    if args.samples is not None:
+        if args.samples < 1 or args.samples != int(args.samples):
+            raise StiffnessError(f"--samples must be a positive integer, got {args.samples:g}")
+        samples = int(args.samples)
+    axes = []
+    for text in args.axis:
+        match = _AXIS.match(text)
+        if match is None:
+            raise StiffnessError(
+                f"--axis takes JOINT=LO:HI:STEP (grid) or JOINT=LO:HI (sampling), got {text!r}"
+            )
+        index = _joint_index(robot, match.group(1))
+        scale = _angle_scale(robot, index, args.deg)
+        lo, hi = (parse_list(match.group(k), "--axis")[0] * scale for k in (2, 3))
+        step = None if match.group(4) is None else parse_list(match.group(4), "--axis")[0] * scale
+        if hi < lo:
+            raise StiffnessError(f"--axis {text!r}: the upper bound is below the lower one")
+        if samples is None and (step is None or step <= 0):
+            raise StiffnessError(
+                f"--axis {text!r} needs a positive STEP for a grid (or give --samples N)"
+            )
+        if any(a["index"] == index for a in axes):
+            raise StiffnessError(f"--axis repeats {robot.coordinate_joints[index]}")
+        axes.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
+                     "upper": hi, "step": None if samples is not None else step})
+    if not axes and samples is None:
+        samples = 10000
+    if not axes:
+        for index in range(robot.n_coordinates):
+            lo, hi = _joint_range(robot, index)
+            axes.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
+                         "upper": hi, "step": None})
+    preset = "samples" if samples is not None else "grid"
+    spec = ScanSpec(robot=robot_spec, preset=preset,
+                    coordinate_joints=list(robot.coordinate_joints), base=base.tolist(),
+                    axes=axes, samples=samples, seed=args.seed, loads=loads, load_names=names,
+                    k_theta=k_theta, rtol=args.rtol, chunk_size=args.chunk_size,
+                    map_axes=_map_axes(robot, axes, args.map_axes, samples))
+    return spec, robot
+
+
+def _map_axes(robot: Robot, axes: list[dict], text: str | None, samples: int | None
+              ) -> list[int]:
+    """Positions in ``axes`` of the figures' axes."""
+    if text is not None:
+        chosen = []
+        for name in (t.strip() for t in text.split(",") if t.strip()):
+            index = _joint_index(robot, name)
+            where = [k for k, a in enumerate(axes) if a["index"] == index]
+            if not where:
+                raise StiffnessError(f"--map-axes {name!r} is not a swept coordinate (--axis)")
+            chosen.append(where[0])
+        if not 1 <= len(chosen) <= 2:
+            raise StiffnessError("--map-axes takes one or two swept coordinates")
+        return chosen
+    if samples is not None:
+        return list(range(min(2, len(axes))))
+    lengths = [len(grid_axis(a["lower"], a["upper"], a["step"])) for a in axes]
+    order = sorted(range(len(axes)), key=lambda k: -lengths[k])
+    return sorted(k for k in order[:2] if lengths[k] > 1)
+
+
+def default_out(spec: ScanSpec) -> Path:
+    """A new folder ``<robot>-<preset>`` (``-2``, ``-3``... if taken) in the current directory."""
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(spec.robot["source"]).stem) or "robot"
+    base = Path.cwd() / f"{stem}-{spec.preset}"
+    candidate, k = base, 1
+    while candidate.exists():
+        k += 1
+        candidate = base.with_name(f"{base.name}-{k}")
+    return candidate
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the scan, print the summary."""
+    spec, _ = build_spec(args)
+    if args.workers is not None and args.workers < 1:
+        raise StiffnessError(f"--workers must be at least 1, got {args.workers}")
+    out = Path(args.out) if args.out else default_out(spec)
+    formats = ("npz", "parquet") if args.format == "both" else (args.format,)
+    label = f"scan {spec.n_configurations} configurations x {len(spec.loads)} loads"
+    progress = terminal_progress(label, args.quiet)
+    t0 = time.perf_counter()
+    summary = run_scan(spec, out, formats=formats, scheduler=args.scheduler,
+                       workers=args.workers, plots=not args.no_plots, progress=progress,
+                       write_on_workers=True if args.shared_out else None)
+    summary["out"] = str(out)
+    summary["wall_seconds"] = time.perf_counter() - t0
+    if args.json:
+        json.dump(summary, sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    print(f"{summary['robot']} {spec.preset}: {summary['configurations']} configurations "
+          f"({summary['valid_configurations']} valid) x {len(spec.loads)} load cases in "
+          f"{summary['wall_seconds']:.2f} s -> {out}")
+    header = f"{'case':>6} {'load (N)':>24} " + " ".join(f"{c:>6}" for c in COUNT_LABELS)
+    print("definiteness of K_C per load case:")
+    print(header)
+    for name, case in summary["load_cases"].items():
+        load = ",".join(f"{v:g}" for v in case["load"])
+        print(f"{name:>6} {load:>24} " + " ".join(f"{case['k_c'][c]:>6}" for c in COUNT_LABELS))
+    tangent_pd = all(c["k_theta_minus_k_c"]["PD"] == summary["valid_configurations"]
+                     for c in summary["load_cases"].values())
+    print(f"K_theta - K_C positive definite everywhere: {tangent_pd}")
+    return 0

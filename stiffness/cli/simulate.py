@@ -1,0 +1,104 @@
+"""``stiffness simulate``: a synthetic campaign with chosen effects hidden in it.
+
+Example::
+
+    stiffness simulate --robot ur5 --compliant-joints shoulder_pan_joint,shoulder_lift_joint,\\
+        elbow_joint --kq 3e4,2e4,1.5e4 --effect backlash:shoulder_lift_joint=0.005 \\
+        --configs 12 --loads-per-config 4 --max-force 100 --noise 0.005 --out sim/
+
+writes ``sim/campaign.toml``, ``sim/measurements.csv`` (deflections of the exact elastostatic
+equilibrium of the true robot, plus Gaussian noise) and ``sim/truth.json`` (the hidden effects,
+their size in noise units, the settings). Run ``stiffness diagnose sim`` to see whether the rig
+would detect them. Effect values: see :mod:`stiffness.calibration.simulate` (stiffness N.m/rad,
+angles in
+deg, lengths in ``--units``, forces in N, beta in 1/(N.m)).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from stiffness.calibration.campaign import BASELINES, LENGTH_UNITS, Units
+from stiffness.calibration.effects import LIBRARY
+from stiffness.calibration.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
+from stiffness.cli.kx import parse_list
+from stiffness.errors import StiffnessError
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness simulate``."""
+    parser.add_argument("--robot", required=True,
+                        help="shipped robot (sk120), example-robot-data name or URDF path")
+    parser.add_argument("--frame", help="frame carrying the target (default: the robot's)")
+    parser.add_argument("--target-offset", help="target in the frame's axes, in --units: x,y,z")
+    parser.add_argument("--compliant-joints", help="comma-separated declared springs "
+                                                   "(default: the robot's)")
+    parser.add_argument("--kq", help="true stiffness per declared compliant joint, N.m/rad "
+                                     "(N/m prismatic); default the shipped robot's")
+    parser.add_argument("--effect", action="append", default=[], metavar="NAME[:WHERE]=VALUE",
+                        help="hidden effect, repeatable: " + ", ".join(LIBRARY) + "; e.g. "
+                             "backlash:joint2=0.003 (deg), joint_compliance:joint5=3e5 "
+                             "(N.m/rad), 'link_compliance:joint2->elbow=2e6' (N.m/rad), "
+                             "nonlinear_joint_stiffness:joint3=0.001 (1/(N.m)), "
+                             "frame_misalignment=2 (deg), target_offset=20 (--units), "
+                             "force_sensor_bias=5 (N), complementary_stiffness")
+    parser.add_argument("--configs", type=int, default=10, help="configurations; default 10")
+    parser.add_argument("--loads-per-config", type=int, default=4,
+                        help="loads per configuration; default 4")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="measurements per load (replicates); default 1")
+    parser.add_argument("--max-force", type=float, default=100.0,
+                        help="largest force, N; default 100")
+    parser.add_argument("--load-pattern", choices=LOAD_PATTERNS, default="random",
+                        help="random directions and magnitudes, a ramp along one direction per "
+                             "configuration, or the six axis directions; default random")
+    parser.add_argument("--noise", type=float, default=0.005,
+                        help="measurement noise std, in --units; default 0.005")
+    parser.add_argument("--undeclared-noise", action="store_true",
+                        help="do not write noise_std into the campaign")
+    parser.add_argument("--baseline", choices=BASELINES,
+                        help="declared baseline; default conventional when "
+                             "complementary_stiffness is hidden, else enhanced")
+    parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default="mm",
+                        help="length unit of the files; default mm")
+    parser.add_argument("--seed", type=int, default=0, help="random seed; default 0")
+    parser.add_argument("--name", help="campaign name")
+    parser.add_argument("--json", action="store_true", help="print the truth as JSON")
+    parser.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness simulate``; returns the exit code."""
+    units = Units(length=args.units)
+    offset = None
+    if args.target_offset:
+        offset = [v * units.length_to_si for v in parse_list(args.target_offset,
+                                                             "--target-offset")]
+        if len(offset) != 3:
+            raise StiffnessError("--target-offset takes three lengths x,y,z")
+    joints = None
+    if args.compliant_joints:
+        joints = [j.strip() for j in args.compliant_joints.split(",") if j.strip()]
+    kq = parse_list(args.kq, "--kq") if args.kq else None
+    sim = simulate(
+        args.robot, kq=kq, effects=[parse_effect(e) for e in args.effect],
+        configs=args.configs, loads_per_config=args.loads_per_config,
+        max_force=args.max_force, noise_std_m=args.noise * units.length_to_si, seed=args.seed,
+        frame=args.frame, target_offset_m=offset, compliant_joints=joints,
+        baseline=args.baseline, units=units, load_pattern=args.load_pattern,
+        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name)
+    path = sim.write(args.out)
+    if args.json:
+        print(json.dumps(sim.truth(), indent=1))
+        return 0
+    truth = sim.truth()
+    print(f"wrote {path} ({sim.campaign.n_rows} rows) and {path.parent / TRUTH_FILE}")
+    print(f"baseline {sim.campaign.baseline}; noise std {truth['noise_std']:.4g} "
+          f"{truth['unit']}; the baseline's linearisation misses "
+          f"{truth['baseline_model_error_noise_units']:.3g} noise std RMS")
+    for label, size in truth["effect_rms_noise_units"].items():
+        print(f"hidden {label}: changes the deflections by {size:.3g} noise std RMS")
+    if not sim.effects:
+        print("no hidden effect")
+    return 0

@@ -1,0 +1,213 @@
+"""``stiffness view``: a robot, its load and its stiffness ellipsoids in the browser (meshcat).
+
+Examples::
+
+    # a self-contained page that opens offline (no server)
+    stiffness view --robot sk120 --export sk120-stiffness.html
+
+    # the live viewer on http://127.0.0.1:<free port>/ : joint sliders, load, formulation
+    stiffness view --robot ur5 --frame tool0 --q 0,-1.2,1.5,-0.3,1.57,0 \\
+        --wrench 0,0,-200 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --open
+
+    # a sweep of one joint on meshcat's animation timeline, and an ellipsoid field
+    stiffness view --robot sk120 --deg --sweep joint2=-20:40:31 --field 300 --export sweep.html
+
+The robot, configuration, load and joint-stiffness flags are those of ``stiffness kx`` (its
+parser adds them here); SI units throughout (m, N, rad, N.m/rad; degrees with ``--deg``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.cli import kx
+from stiffness.errors import StiffnessError
+from stiffness.model.robot import Robot
+from stiffness.viewer import (
+    LOOPBACK,
+    QUANTITIES,
+    SHOW_FORMULATIONS,
+    StiffnessViewer,
+)
+
+#: ``stiffness kx`` flags that have no meaning for the viewer.
+_KX_ONLY = {"help", "connection", "json", "twist_order"}
+#: Frames of a ``--sweep`` without an explicit count.
+DEFAULT_SWEEP_FRAMES = 30
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness view``: those of ``stiffness kx`` plus the viewer's own."""
+    shared = argparse.ArgumentParser(add_help=False)
+    kx.configure_parser(shared)
+    for action in shared._actions:
+        if action.dest in _KX_ONLY:
+            continue
+        if action.dest == "formulation":
+            action.choices, action.default = SHOW_FORMULATIONS, "both"
+            action.help = ("both (side by side, default), enhanced (K_theta - K_C, A&S eq. 10) "
+                           "or conventional (K_theta, eq. 8)")
+        parser._add_action(action)
+    parser.add_argument("--quantity", choices=QUANTITIES, default="stiffness",
+                        help="draw the stiffness (N/m, default) or the compliance (m/N) "
+                             "ellipsoid; radii are proportional to the principal values")
+    parser.add_argument("--size", type=float,
+                        help="largest ellipsoid radius, m (default: 12%% of the robot's reach)")
+    parser.add_argument("--exaggeration", type=float,
+                        help="factor applied to the drawn deflection (default: a round number "
+                             "that moves the target about 8%% of the reach)")
+    parser.add_argument("--sweep", metavar="JOINT=START:STOP[:N]",
+                        help="animate N configurations (default 30) moving one joint from START "
+                             "to STOP (rad, m prismatic; degrees with --deg)")
+    parser.add_argument("--path", metavar="FILE.csv",
+                        help="animate a path: one row of coordinates per frame, comma-separated "
+                             "(rad, m prismatic; degrees with --deg)")
+    parser.add_argument("--fps", type=float, default=10.0,
+                        help="frames per second of the animation (default 10)")
+    parser.add_argument("--field", type=int, metavar="N",
+                        help="ellipsoid field over N random configurations, coloured by the "
+                             "smallest principal stiffness")
+    parser.add_argument("--field-joints",
+                        help="coordinates the field varies, comma-separated (default: all)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the field")
+    parser.add_argument("--export", metavar="FILE.html",
+                        help="write a self-contained static page (opens offline) and exit")
+    parser.add_argument("--host", default=LOOPBACK,
+                        help="address of the live server (default 127.0.0.1, this machine "
+                             "only; another address exposes the viewer to the network)")
+    parser.add_argument("--port", type=int, default=0, help="web port (default: a free one)")
+    parser.add_argument("--open", action="store_true",
+                        help="open the live page in the system's browser (does not wait)")
+    parser.add_argument("--duration", type=float,
+                        help="serve the live viewer this many seconds (default: until Ctrl-C)")
+
+
+def _revolute(robot: Robot, joint: str) -> bool:
+    model = robot.model
+    return not model.joints[model.getJointId(joint)].shortname().startswith("JointModelP")
+
+
+def resolve(args: argparse.Namespace) -> tuple[Robot, np.ndarray, np.ndarray, np.ndarray]:
+    """Robot, coordinates (rad, m), joint stiffness (n, n) and load of the kx flags.
+
+    The same resolution as ``stiffness kx`` (:func:`stiffness.cli.kx.resolve_inputs`):
+    shipped robots bring their configuration, springs and load.
+    """
+    inputs = kx.resolve_inputs(args)
+    return inputs.robot, inputs.coords, inputs.k_theta, inputs.load
+
+
+def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -> np.ndarray:
+    """Rows of coordinates of ``JOINT=START:STOP[:N]``, the other joints at ``coords``.
+
+    Raises
+    ------
+    StiffnessError
+        On a malformed specification or an unknown joint.
+    """
+    name, sep, bounds = spec.partition("=")
+    parts = bounds.split(":")
+    if not sep or len(parts) not in (2, 3):
+        raise StiffnessError(f"--sweep takes JOINT=START:STOP[:N], got {spec!r}")
+    name = name.strip()
+    if name not in robot.coordinate_joints:
+        raise StiffnessError(f"--sweep: {name!r} is not a coordinate of {robot.name}; "
+                             f"coordinates: {', '.join(robot.coordinate_joints)}")
+    start, stop = kx.parse_list(",".join(parts[:2]), "--sweep")
+    try:
+        n = int(parts[2]) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
+    except ValueError:
+        raise StiffnessError(f"--sweep: the frame count must be an integer, got {parts[2]!r}"
+                             ) from None
+    if n < 2:
+        raise StiffnessError(f"--sweep needs at least 2 frames, got {n}")
+    if deg and _revolute(robot, name):
+        start, stop = np.deg2rad(start), np.deg2rad(stop)
+    rows = np.tile(coords, (n, 1))
+    rows[:, robot.coordinate_joints.index(name)] = np.linspace(start, stop, n)
+    return rows
+
+
+def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
+    """Rows of coordinates from a CSV file (one configuration per line; ``#`` comments).
+
+    Raises
+    ------
+    StiffnessError
+        If the file is missing or a row has the wrong number of values.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise StiffnessError(f"--path: {path} does not exist")
+    try:
+        rows = np.atleast_2d(np.loadtxt(path, delimiter=",", comments="#", dtype=float))
+    except ValueError as exc:
+        raise StiffnessError(f"--path: {path} is not a CSV of numbers: {exc}") from exc
+    if rows.shape[1] != robot.n_coordinates:
+        raise StiffnessError(
+            f"--path: each row needs {robot.n_coordinates} values "
+            f"({', '.join(robot.coordinate_joints)}), {path} has {rows.shape[1]}")
+    if deg:
+        for i, joint in enumerate(robot.coordinate_joints):
+            if _revolute(robot, joint):
+                rows[:, i] = np.deg2rad(rows[:, i])
+    return rows
+
+
+def build(args: argparse.Namespace, live: bool) -> StiffnessViewer:
+    """The viewer with everything the flags ask for drawn (the caller closes it)."""
+    robot, coords, k_theta, load = resolve(args)
+    rows = None
+    if args.sweep is not None and args.path is not None:
+        raise StiffnessError("give --sweep or --path, not both")
+    if args.sweep is not None:
+        rows = sweep_path(robot, coords, args.sweep, args.deg)
+    elif args.path is not None:
+        rows = read_path(robot, args.path, args.deg)
+    viewer = StiffnessViewer(robot, k_theta, live=live, quantity=args.quantity, size=args.size,
+                             exaggeration=args.exaggeration, host=args.host, port=args.port,
+                             open_browser=args.open and live)
+    try:
+        viewer.show(coords, load, args.formulation)
+        if args.field is not None:
+            joints = None if args.field_joints is None else [
+                j.strip() for j in args.field_joints.split(",") if j.strip()]
+            formulation = "enhanced" if args.formulation == "both" else args.formulation
+            viewer.field(args.field, load, formulation, joints=joints, seed=args.seed)
+        if rows is not None:
+            viewer.sweep(rows, load, args.formulation, fps=args.fps)
+    except BaseException:
+        viewer.close()
+        raise
+    return viewer
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Export the static page, or serve the live viewer until Ctrl-C or ``--duration``."""
+    if args.export is not None:
+        viewer = build(args, live=False)
+        path = viewer.export(args.export)
+        print(f"wrote {path}: a self-contained page, open it in a browser (works offline)")
+        return 0
+    previous = signal.signal(signal.SIGTERM, _terminate)  # so that the server is stopped
+    viewer = build(args, live=True)
+    try:
+        where = "this machine only" if args.host == LOOPBACK else \
+            f"{args.host}: reachable from the network"
+        print(f"stiffness viewer: {viewer.url} (listening on {where}); Ctrl-C stops it",
+              flush=True)
+        viewer.browse(duration=args.duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+        signal.signal(signal.SIGTERM, previous)
+    return 0

@@ -1,0 +1,344 @@
+"""Stiffness formulations: Jacobian, complementary stiffness K_C, compliance, Cartesian K_X.
+
+Conventions (docs/conventions.md):
+
+* The load is a force ``F`` (N) or a wrench ``W = [F; M]`` (N, N.m) applied at the target and
+  held fixed in the base frame (a dead load). Joint torques that hold it: ``tau = J^T W``.
+* ``J`` is the target Jacobian with respect to the compliant joints, loops closed: rows
+  ``[v (3); omega (3)]`` (Pinocchio order), base-frame axes at the target.
+* ``K_C = d(J^T W) / d theta`` (A&S eq. 9), from Pinocchio's kinematic Hessians; for a closed
+  loop, the reduced Hessian ``S^T (sum_k W_k d2x_k - sum_j lambda_j d2c_j) S``.
+* Compliance ``C = J (K_theta - K_C)^-1 J^T`` and ``K_X = C^-1`` (A&S eq. 10 when J is square).
+  ``conventional`` sets ``K_C = 0`` (A&S eq. 8).
+* Six-dimensional stiffness (Zefran & Kumar): ``joint`` connection ``J^-T K_theta J^-1``
+  (symmetric); ``twist`` basis (left-invariant fields of the target frame, body axes)
+  ``J_b^-T (K_theta - K_C^tw) J_b^-1`` with ``K_C^tw`` the derivative of ``J_b^T W_b`` at fixed body
+  wrench (asymmetric under load).
+
+Units: SI (m, N, rad; stiffness N/m, N.m/rad, N.m/rad for joints, N for K_C of a revolute joint
+under a force: N.m/rad).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stiffness.errors import SingularConfigurationError, StiffnessError
+from stiffness.model import kinematics
+from stiffness.model.robot import Robot
+
+FORMULATIONS = ("conventional", "enhanced")
+DEFINITENESS_CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
+
+
+def as_wrench(load: np.ndarray) -> np.ndarray:
+    """A force (3,) or wrench (6,) as a wrench [F (N); M (N.m)], checked finite."""
+    load = np.asarray(load, dtype=float).reshape(-1)
+    if load.shape not in ((3,), (6,)):
+        raise StiffnessError(
+            f"a load is a force (fx,fy,fz in N) or a wrench (fx,fy,fz,mx,my,mz in N, N.m); "
+            f"got {load.shape[0]} values"
+        )
+    if not np.all(np.isfinite(load)):
+        raise StiffnessError(f"the load must be finite numbers, got {load.tolist()}")
+    return np.concatenate([load, np.zeros(6 - load.shape[0])])
+
+
+@dataclass
+class TargetState:
+    """Kinematic and load-dependent quantities at one configuration.
+
+    Attributes
+    ----------
+    q
+        Full Pinocchio configuration (loops closed).
+    position
+        Target position in the base frame (m).
+    rotation
+        Target frame orientation in the base frame.
+    jacobian
+        (6, n) target Jacobian w.r.t. the compliant joints, rows [v; omega], base axes.
+    wrench
+        Applied dead wrench [F; M] in the base frame.
+    k_c
+        (n, n) complementary stiffness ``d(J^T W)/d theta`` (N.m/rad for revolute joints).
+    k_c_twist
+        (n, n) the same with the wrench held fixed in the target's body axes (Zefran-Kumar
+        twist basis).
+    projection
+        (nv, n) velocity map S from compliant-joint rates to all joint rates.
+    """
+
+    q: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    jacobian: np.ndarray
+    wrench: np.ndarray
+    k_c: np.ndarray
+    k_c_twist: np.ndarray
+    projection: np.ndarray
+
+    def translational_jacobian(self) -> np.ndarray:
+        """(3, n) Jacobian of the target position (m/rad)."""
+        return self.jacobian[:3]
+
+    def body_jacobian(self) -> np.ndarray:
+        """(6, n) Jacobian in the target's body axes, rows [v; omega]."""
+        rt = self.rotation.T
+        return np.vstack([rt @ self.jacobian[:3], rt @ self.jacobian[3:]])
+
+
+def velocity_projection(robot: Robot) -> np.ndarray:
+    """Velocity map S (nv, n_compliant) of the current kinematics: q_dot = S theta_dot.
+
+    Rigid coordinate joints stay still; passive loop joints follow the closure. Kinematics
+    (joint Jacobians) must be up to date.
+
+    Raises
+    ------
+    SingularConfigurationError
+        If the passive joints are not determined by the compliant ones (a loop singularity).
+    """
+    model, data = robot.model, robot.data
+    n = robot.n_compliant
+    s = np.zeros((model.nv, n))
+    s[robot.compliant_v, np.arange(n)] = 1.0
+    if robot.loop is None:
+        return s
+    c = robot.loop.jacobian(model, data)
+    cp = c[:, robot.loop.passive_v]
+    rank_p = np.linalg.matrix_rank(cp, tol=1e-9 * max(1.0, np.abs(cp).max()))
+    if rank_p < len(robot.loop.passive_v):
+        raise SingularConfigurationError(
+            f"the loop of {robot.name} is singular here: its passive joints are not determined "
+            f"by the actuated ones (rank {rank_p} < {len(robot.loop.passive_v)}); move away from "
+            "the flattened or folded assembly"
+        )
+    s[robot.loop.passive_v] = robot.loop.passive_rates(model, data, robot.compliant_v)
+    return s
+
+
+def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) -> TargetState:
+    """Jacobian and complementary stiffness of the target at a (closed) configuration ``q``.
+
+    Parameters
+    ----------
+    robot
+        The robot.
+    q
+        Full configuration with loops closed (see :meth:`Robot.configuration`).
+    load
+        Dead force (3,) in N or wrench (6,) [N, N.m] at the target, base axes; default zero.
+    """
+    return target_states(robot, q, [np.zeros(6) if load is None else load])[0]
+
+
+def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list[TargetState]:
+    """:func:`target_state` for several loads at one configuration, sharing the kinematics."""
+    model, data = robot.model, robot.data
+    wrenches = [as_wrench(load) for load in loads]
+    kinematics.update_kinematics(model, data, q)
+    fid = robot.target_frame_id
+    j_full = kinematics.frame_jacobian(model, data, fid)
+    s = velocity_projection(robot)
+    jac = j_full @ s
+    hess = kinematics.frame_hessian(model, data, fid)
+    position = kinematics.frame_position(data, fid)
+    rotation = kinematics.frame_rotation(data, fid)
+    if robot.loop is not None:
+        cw_passive_t = robot.loop.world_jacobian(model, data)[:, robot.loop.passive_v].T
+        loop_hess = robot.loop.world_hessian(model, data)
+    v, w = jac[:3], jac[3:]
+    states = []
+    for wrench in wrenches:
+        # dQ_a/dq_b with Q = J^T W: sum_k W_k dJ[k, a]/dq_b
+        dq = np.einsum("k,kab->ab", wrench, hess)
+        if robot.loop is not None:
+            rhs = (j_full.T @ wrench)[robot.loop.passive_v]
+            lam = np.linalg.lstsq(cw_passive_t, rhs, rcond=1e-10)[0]
+            dq = dq - np.einsum("j,jab->ab", lam, loop_hess)
+        k_c = s.T @ dq @ s
+        # twist basis: d(J_b^T W_b)/d theta at fixed body wrench adds J_l^T [omega_k]x W, i.e.
+        # F.(v_l x omega_k) + M.(omega_l x omega_k) at [l, k]
+        cross = np.einsum("i,ijk,jl,km->lm", wrench[:3], _LEVI_CIVITA, v, w)
+        cross += np.einsum("i,ijk,jl,km->lm", wrench[3:], _LEVI_CIVITA, w, w)
+        states.append(TargetState(q=q.copy(), position=position, rotation=rotation, jacobian=jac,
+                                  wrench=wrench, k_c=k_c, k_c_twist=k_c + cross, projection=s))
+    return states
+
+
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _LEVI_CIVITA[_i, _j, _k], _LEVI_CIVITA[_i, _k, _j] = 1.0, -1.0
+
+
+def joint_stiffness(k_theta: np.ndarray | list[float], n: int) -> np.ndarray:
+    """Diagonal joint stiffness K_theta (n, n) from n positive values (N.m/rad or N/m).
+
+    Raises
+    ------
+    StiffnessError
+        On a wrong count, a non-finite or a non-positive value.
+    """
+    k = np.asarray(k_theta, dtype=float).reshape(-1)
+    if k.shape[0] != n:
+        raise StiffnessError(
+            f"need one joint stiffness per compliant joint ({n}), got {k.shape[0]}"
+        )
+    if not np.all(np.isfinite(k)) or np.any(k <= 0):
+        raise StiffnessError(f"joint stiffnesses must be finite and positive, got {k.tolist()}")
+    return np.diag(k)
+
+
+def tangent_joint_stiffness(
+    k_theta: np.ndarray, k_c: np.ndarray, formulation: str = "enhanced"
+) -> np.ndarray:
+    """K_theta - K_C (enhanced) or K_theta (conventional)."""
+    if formulation not in FORMULATIONS:
+        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+    return k_theta - k_c if formulation == "enhanced" else k_theta.copy()
+
+
+def compliance(jacobian: np.ndarray, tangent_stiffness: np.ndarray) -> np.ndarray:
+    """Cartesian compliance ``C = J (K_theta - K_C)^-1 J^T`` (m/N for translations).
+
+    Raises
+    ------
+    SingularConfigurationError
+        If the tangent joint stiffness is singular.
+    """
+    try:
+        x = np.linalg.solve(tangent_stiffness, jacobian.T)
+    except np.linalg.LinAlgError as exc:
+        raise SingularConfigurationError(
+            "the tangent joint stiffness K_theta - K_C is singular: the load is at the "
+            "buckling limit of this configuration; reduce the load"
+        ) from exc
+    return jacobian @ x
+
+
+def cartesian_stiffness(compliance_matrix: np.ndarray) -> np.ndarray:
+    """K_X = C^-1 (N/m for translations).
+
+    Raises
+    ------
+    SingularConfigurationError
+        If the compliance is singular (the Jacobian loses rank: a kinematic singularity, or
+        fewer compliant joints than Cartesian directions).
+    """
+    cond = np.linalg.cond(compliance_matrix)
+    if not np.isfinite(cond) or cond > 1e12:
+        raise SingularConfigurationError(
+            f"the compliance is singular (condition number {cond:.3g}): the target Jacobian "
+            "loses rank here (kinematic singularity, or fewer compliant joints than directions); "
+            "use the compliance, or move away from the singularity"
+        )
+    return np.linalg.inv(compliance_matrix)
+
+
+def deflection(state: TargetState, k_theta: np.ndarray, formulation: str = "enhanced",
+               rows: slice = slice(0, 3)) -> np.ndarray:
+    """Linear deflection ``J[rows] (K_theta - K_C)^-1 J^T W`` under the full load (eq. 11).
+
+    ``rows`` selects the output (default the position, m); the whole wrench loads the joints.
+    """
+    tangent = tangent_joint_stiffness(k_theta, state.k_c, formulation)
+    try:
+        dtheta = np.linalg.solve(tangent, state.jacobian.T @ state.wrench)
+    except np.linalg.LinAlgError as exc:
+        raise SingularConfigurationError(
+            "the tangent joint stiffness K_theta - K_C is singular: reduce the load") from exc
+    return state.jacobian[rows] @ dtheta
+
+
+def definiteness(matrix: np.ndarray, rtol: float = 1e-9, atol: float = 0.0) -> str:
+    """Definiteness class of the quadratic form of ``matrix``: PD, PSD, ND, NSD or ID.
+
+    Eigenvalues of the symmetric part with ``|lambda| <= atol + rtol * max|lambda|`` count as
+    zero. A zero matrix is PSD.
+    """
+    eig = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    tol = atol + rtol * max(float(np.max(np.abs(eig))), 0.0)
+    pos, neg = eig > tol, eig < -tol
+    if pos.all():
+        return "PD"
+    if neg.all():
+        return "ND"
+    if not neg.any():
+        return "PSD"
+    if not pos.any():
+        return "NSD"
+    return "ID"
+
+
+@dataclass
+class Ellipsoid:
+    """Principal values (ascending) and directions (columns) of a symmetric stiffness."""
+
+    values: np.ndarray
+    directions: np.ndarray
+    symmetric: bool
+
+
+def ellipsoid(matrix: np.ndarray) -> Ellipsoid:
+    """Principal values and directions of a stiffness (of its symmetric part if asymmetric)."""
+    sym = 0.5 * (matrix + matrix.T)
+    values, vectors = np.linalg.eigh(sym)
+    asym = np.abs(matrix - matrix.T).max() <= 1e-9 * max(np.abs(matrix).max(), 1e-300)
+    return Ellipsoid(values, vectors, bool(asym))
+
+
+@dataclass
+class WorkBalance:
+    """Net works of A&S eq. 14 (Cartesian) and eq. 15 (joint space), J.
+
+    ``cartesian`` uses the given K_X; ``joint_enhanced`` uses K_theta - K_C and
+    ``joint_conventional`` K_theta alone. Eq. 15 is evaluated as printed in intent,
+    ``Gamma^T dTheta`` (the printed ``Gamma^T dX`` mixes units).
+    """
+
+    cartesian: float
+    joint_enhanced: float
+    joint_conventional: float
+
+
+def work_balance(force: np.ndarray, dx: np.ndarray, k_x: np.ndarray, dtheta: np.ndarray,
+                 jacobian: np.ndarray, k_theta: np.ndarray, k_c: np.ndarray) -> WorkBalance:
+    """Works of eq. 14 and 15 for a deflection (dx in m, dtheta in rad) under a force (N)."""
+    gamma = jacobian.T @ force
+    cart = float(force @ dx + 0.5 * dx @ k_x @ dx)
+    joint_e = float(gamma @ dtheta + 0.5 * dtheta @ (k_theta - k_c) @ dtheta)
+    joint_c = float(gamma @ dtheta + 0.5 * dtheta @ k_theta @ dtheta)
+    return WorkBalance(cart, joint_e, joint_c)
+
+
+def twist_basis_stiffness(state: TargetState, k_theta: np.ndarray) -> np.ndarray:
+    """Zefran-Kumar twist-basis 6x6 stiffness K_a (body axes, rows [v; omega] ordering).
+
+    ``K_a = J_b^-T (K_theta - K_C^tw) J_b^-1``; needs six compliant joints and a regular J_b.
+    """
+    jb = state.body_jacobian()
+    _require_square(jb)
+    jinv = np.linalg.inv(jb)
+    return jinv.T @ (k_theta - state.k_c_twist) @ jinv
+
+
+def joint_connection_stiffness(state: TargetState, k_theta: np.ndarray, body: bool = True
+                               ) -> np.ndarray:
+    """Zefran-Kumar joint-space-connection 6x6 stiffness ``J^-T K_theta J^-1`` (symmetric)."""
+    jb = state.body_jacobian() if body else state.jacobian
+    _require_square(jb)
+    jinv = np.linalg.inv(jb)
+    return jinv.T @ k_theta @ jinv
+
+
+def _require_square(jac: np.ndarray) -> None:
+    if jac.shape[0] != jac.shape[1]:
+        raise StiffnessError(
+            f"the 6x6 stiffness in a connection needs six compliant joints (J is {jac.shape}); "
+            "use the compliance for other cases"
+        )
+    if np.linalg.cond(jac) > 1e12:
+        raise SingularConfigurationError("the Jacobian is singular at this configuration")

@@ -1,0 +1,1 @@
+"""Scan layer: workspace maps, chunked and on Dask, and their figures."""
