@@ -1,12 +1,12 @@
 """Synthetic campaigns with hidden effects: what could a rig detect before measuring?
 
-:func:`simulate` draws reachable configurations (:func:`sample_coordinates`), loads along random
-directions (or a ramp along one direction per configuration, like the SK120's Table II, or the
-six axis directions), computes the deflections from the *exact* elastostatic equilibrium of a
-true robot that carries the hidden effects, adds Gaussian noise, and returns a
-:class:`~stiffness.calibration.campaign.Campaign` that declares only the baseline (its ``--kq``
-joints),
-plus the hidden truth.
+:func:`simulate` draws reachable configurations
+(:func:`stiffness.calibration.poses.sample_coordinates`), or takes the rows of a measurement plan
+(:mod:`stiffness.calibration.plan`), loads along random directions (or a ramp along one
+direction per configuration, or the six axis directions), computes the deflections from the
+*exact* elastostatic equilibrium of a true robot that carries the hidden effects, adds Gaussian
+noise, and returns a :class:`~stiffness.calibration.campaign.Campaign` that declares only the
+baseline (its ``--kq`` joints), plus the hidden truth.
 
 How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects` for the models):
 
@@ -55,6 +55,7 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
+from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import deflected_configuration
@@ -65,72 +66,7 @@ from stiffness.model.robot import Robot
 LOAD_PATTERNS = ("random", "ramp", "axes")
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
-#: SK120 sampling ranges (printed angles, deg): the paper's workspace in front of the robot.
-SK120_RANGES_DEG = {"q1": (-90.0, 90.0), "q2": (-70.0, 70.0), "q3": (-115.0, 35.0)}
-#: SK120 poses with q2 + q3 within this of +-90 deg (flat parallelogram) are not drawn.
-SK120_FLAT_MARGIN_DEG = 15.0
-#: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
-_MAX_JACOBIAN = 10.0
 _DIAGONAL = np.ones(3) / math.sqrt(3.0)
-
-
-# ------------------------------------------------------------------------------------------
-# poses
-
-
-def _is_sk120(robot: Robot) -> bool:
-    return robot.name == "sk120"
-
-
-def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
-                       max_tries: int = 200) -> np.ndarray:
-    """``n`` random reachable coordinate vectors (rad, m), shape (n, n_coordinates).
-
-    SK120: vertical tool (q4 = 0, q5 = -90 deg - q3), q1..q3 in :data:`SK120_RANGES_DEG`,
-    away from the flat parallelogram, q6 = +-90 deg. Other robots: uniform within the joint
-    limits (clipped to +-pi for revolute joints), target above the base plane. Every pose must
-    assemble (loops closed, regular) with a moderate target Jacobian.
-
-    Raises
-    ------
-    StiffnessError
-        If fewer than ``n`` poses are found in ``max_tries * n`` draws.
-    """
-    model = robot.model
-    joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
-    lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
-    hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
-    prismatic = np.array([j.shortname().startswith("JointModelP") for j in joints])
-    bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
-    lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
-    hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
-    lo = np.where(prismatic, lo, np.maximum(lo, -math.pi))
-    hi = np.where(prismatic, hi, np.minimum(hi, math.pi))
-    out: list[np.ndarray] = []
-    for _ in range(max_tries * n):
-        if len(out) == n:
-            break
-        if _is_sk120(robot):
-            r = SK120_RANGES_DEG
-            q1, q2, q3 = (rng.uniform(*r[k]) for k in ("q1", "q2", "q3"))
-            if min(abs(q2 + q3 - 90.0), abs(q2 + q3 + 90.0)) < SK120_FLAT_MARGIN_DEG:
-                continue
-            coords = np.deg2rad([q1, q2, q3, 0.0, -90.0 - q3, rng.choice([-90.0, 90.0])])
-        else:
-            coords = rng.uniform(lo, hi)
-        try:
-            q = robot.configuration(coords)
-            state = target_state(robot, q)
-        except StiffnessError:
-            continue
-        if np.abs(state.jacobian[:3]).max() > _MAX_JACOBIAN:
-            continue
-        if not _is_sk120(robot) and state.position[2] < 0.0:
-            continue
-        out.append(coords)
-    if len(out) < n:
-        raise StiffnessError(f"found only {len(out)} of {n} reachable poses of {robot.name}")
-    return np.array(out)
 
 
 # ------------------------------------------------------------------------------------------
