@@ -55,6 +55,7 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
+from stiffness.calibration.plan import Plan
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.files import atomic_write
@@ -402,6 +403,7 @@ def simulate(
     repeats: int = 1,
     declare_noise: bool = True,
     name: str | None = None,
+    plan: Plan | None = None,
 ) -> Simulation:
     """Simulate a campaign with hidden effects.
 
@@ -438,6 +440,9 @@ def simulate(
         Whether the campaign declares its ``noise_std``.
     name
         Campaign name.
+    plan
+        Rows to simulate exactly (:class:`stiffness.calibration.plan.Plan`: coordinates,
+        applied forces, labels) instead of drawing ``configs`` poses and their loads.
 
     Raises
     ------
@@ -479,10 +484,17 @@ def simulate(
                              "baseline (the truth is always the exact equilibrium)")
 
     rng = np.random.default_rng(seed)
-    coords = sample_coordinates(declared, configs, rng)
-    q = np.repeat(coords, loads_per_config, axis=0)
-    applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
-                         for _ in range(configs)])
+    if plan is None:
+        coords = sample_coordinates(declared, configs, rng)
+        q = np.repeat(coords, loads_per_config, axis=0)
+        applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
+                             for _ in range(configs)])
+        row_labels = [f"C{i // loads_per_config + 1}" for i in range(len(q))]
+    else:
+        if plan.q.shape[1] != declared.n_coordinates:
+            raise StiffnessError(f"the plan has {plan.q.shape[1]} coordinates per row but "
+                                 f"{declared.name} has {declared.n_coordinates}")
+        q, applied, row_labels = plan.q.copy(), plan.force.copy(), list(plan.config)
     geometry = Geometry.of(declared)
     truth = build_truth(declared, kq, [h for h in effects], units,
                         np.zeros(len(geometry.joints)), geometry)
@@ -507,7 +519,7 @@ def simulate(
 
     reps = np.repeat(np.arange(len(q)), repeats)
     measured = clean[reps] + rng.normal(scale=noise_std_m, size=(len(reps), 3))
-    config_labels = [f"C{i // (loads_per_config * repeats) + 1}" for i in range(len(reps))]
+    config_labels = [row_labels[i] for i in reps]
     settings = RobotSettings(declared.name, frame=declared.target_frame,
                              target_offset_m=declared.target_offset.copy(),
                              compliant_joints=tuple(declared.compliant_joints))
@@ -521,8 +533,13 @@ def simulate(
     info = {
         "robot": {"source": str(robot), "frame": declared.target_frame,
                   "target_offset_m": declared.target_offset.tolist()},
-        "configs": configs, "loads_per_config": loads_per_config, "repeats": repeats,
-        "max_force_N": max_force, "load_pattern": load_pattern, "seed": seed,
+        "configs": len(dict.fromkeys(row_labels)) if plan is not None else configs,
+        "loads_per_config": None if plan is not None else loads_per_config,
+        "plan": str(plan.path) if plan is not None and plan.path is not None else None,
+        "repeats": repeats,
+        "max_force_N": float(np.linalg.norm(applied, axis=1).max()) if plan is not None
+        else max_force,
+        "load_pattern": None if plan is not None else load_pattern, "seed": seed,
         "declare_noise": declare_noise,
         "backlash_smoothing_Nm": dict(zip(geometry.joints, smoothing.tolist(), strict=True)),
     }

@@ -20,7 +20,8 @@ import argparse
 import json
 
 from stiffness.calibration.campaign import BASELINES, LENGTH_UNITS, Units
-from stiffness.calibration.effects import LIBRARY
+from stiffness.calibration.effects import LIBRARY, cached_robot
+from stiffness.calibration.plan import read_plan
 from stiffness.calibration.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
 from stiffness.cli.kx import parse_list
 from stiffness.errors import StiffnessError
@@ -28,8 +29,14 @@ from stiffness.errors import StiffnessError
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness simulate``."""
-    parser.add_argument("--robot", required=True,
-                        help="shipped robot (sk120), example-robot-data name or URDF path")
+    parser.add_argument("--robot",
+                        help="shipped robot (sk120), example-robot-data name or URDF path "
+                             "(required unless --plan is a folder naming it)")
+    parser.add_argument("--plan", metavar="PLAN",
+                        help="simulate exactly these rows: a PLAN.csv written by `stiffness "
+                             "design`, or its folder (whose campaign.toml gives the robot "
+                             "flags' defaults); --configs, --loads-per-config, --max-force and "
+                             "--load-pattern are then not used")
     parser.add_argument("--frame", help="frame carrying the target (default: the robot's)")
     parser.add_argument("--target-offset", help="target in the frame's axes, in --units: x,y,z")
     parser.add_argument("--compliant-joints", help="comma-separated declared springs "
@@ -68,6 +75,21 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
 
 
+def _plan_robot(args: argparse.Namespace, offset, joints):
+    """The plan of ``--plan`` and the robot flags with its folder's settings as defaults."""
+    robot = None
+    if args.robot is not None:
+        robot = cached_robot(args.robot, args.frame, None if offset is None else tuple(offset),
+                             None if joints is None else tuple(joints))
+    plan, _ = read_plan(args.plan, robot)
+    s = plan.robot_settings
+    if args.robot is None and s is not None:
+        return (plan, plan.resolved_source(), args.frame or s.frame,
+                offset if offset is not None else s.target_offset_m,
+                joints if joints is not None else s.compliant_joints)
+    return plan, args.robot, args.frame, offset, joints
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
@@ -81,13 +103,20 @@ def run(args: argparse.Namespace) -> int:
     if args.compliant_joints:
         joints = [j.strip() for j in args.compliant_joints.split(",") if j.strip()]
     kq = parse_list(args.kq, "--kq") if args.kq else None
+    source, frame, plan = args.robot, args.frame, None
+    if args.plan:
+        plan, source, frame, offset, joints = _plan_robot(args, offset, joints)
+    if source is None:
+        raise StiffnessError("--robot is required (or --plan FOLDER written by `stiffness "
+                             "design`)")
     sim = simulate(
-        args.robot, kq=kq, effects=[parse_effect(e) for e in args.effect],
+        source, kq=kq, effects=[parse_effect(e) for e in args.effect],
         configs=args.configs, loads_per_config=args.loads_per_config,
         max_force=args.max_force, noise_std_m=args.noise * units.length_to_si, seed=args.seed,
-        frame=args.frame, target_offset_m=offset, compliant_joints=joints,
+        frame=frame, target_offset_m=offset, compliant_joints=joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,
-        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name)
+        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name,
+        plan=plan)
     path = sim.write(args.out)
     if args.json:
         print(json.dumps(sim.truth(), indent=1))
