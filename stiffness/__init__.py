@@ -39,6 +39,7 @@ __all__ = [
     "cartesian_stiffness",
     "compliance",
     "definiteness",
+    "design",
     "ellipsoid",
     "joint_connection_stiffness",
     "joint_stiffness",
@@ -49,3 +50,13 @@ __all__ = [
     "twist_basis_stiffness",
     "work_balance",
 ]
+
+
+def __getattr__(name: str):
+    """``stiffness.design`` (experiment design), imported on first use: it pulls in the
+    calibration layer and SciPy's optimisers, which ``import stiffness`` should not pay for."""
+    if name == "design":
+        from stiffness.calibration.design import design
+
+        return design
+    raise AttributeError(f"module 'stiffness' has no attribute {name!r}")
