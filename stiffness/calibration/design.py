@@ -50,6 +50,7 @@ from stiffness.calibration.diagnose import (
 )
 from stiffness.calibration.effects import (
     BASELINES,
+    LIBRARY,
     Geometry,
     Model,
     References,
@@ -58,7 +59,7 @@ from stiffness.calibration.effects import (
 )
 from stiffness.calibration.plan import Plan
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.model.robot import Robot
 
 #: Load directions of the candidates: the six axes, then the eight cube diagonals (unit).
@@ -415,14 +416,14 @@ def random_selections(k: int, d: int, n_configs: int, loads_per_config: int, cou
 
 
 def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | None]]:
-    """``EFFECT[:WHERE],EFFECT[:WHERE]`` as two ``(name, where)`` pairs.
+    """``EFFECT[:WHERE],EFFECT[:WHERE]`` as two ``(name, where)`` pairs, names checked.
 
     A link segment may be written ``A->B`` or ``A/B`` (a comma inside a where is not allowed).
 
     Raises
     ------
     StiffnessError
-        Not exactly two effects.
+        Not exactly two effects, or an effect name that is not in the library.
     """
     parts = [s.strip() for s in str(text).split(",") if s.strip()]
     if len(parts) != 2:
@@ -431,8 +432,32 @@ def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | 
     out = []
     for part in parts:
         name, _, where = part.partition(":")
-        out.append((name.strip(), where.strip() or None))
+        name = name.strip()
+        if name not in LIBRARY:
+            raise StiffnessError(f"unknown effect {name!r} in --separate {text!r}; "
+                                 f"{did_you_mean(name, list(LIBRARY))}")
+        out.append((name, where.strip() or None))
     return out[0], out[1]
+
+
+def check_sizes(configs: int, loads_per_config: int, candidates: int | None) -> None:
+    """Check a plan's size against the candidates (``None``: not known yet).
+
+    Raises
+    ------
+    StiffnessError
+        ``configs`` below 1 or above ``candidates``; ``loads_per_config`` outside 1 to the
+        number of load directions.
+    """
+    if int(configs) < 1:
+        raise StiffnessError(f"--configs must be at least 1, got {configs}")
+    n_dir = len(LOAD_DIRECTIONS)
+    if not 1 <= int(loads_per_config) <= n_dir:
+        raise StiffnessError(f"--loads-per-config must be between 1 and {n_dir} (the axis and "
+                             f"cube-diagonal directions), got {loads_per_config}")
+    if candidates is not None and int(configs) > int(candidates):
+        raise StiffnessError(f"--configs {configs} is larger than the {candidates} candidate "
+                             "poses; raise --candidates or lower --configs")
 
 
 @dataclass
@@ -759,15 +784,8 @@ def design(
     if robot.n_compliant == 0:
         raise StiffnessError(f"{robot.name} has no compliant joint: there is no stiffness to "
                              "design for; name the springs with --compliant-joints")
-    if int(configs) < 1:
-        raise StiffnessError(f"--configs must be at least 1, got {configs}")
-    n_dir = len(LOAD_DIRECTIONS)
-    if not 1 <= int(loads_per_config) <= n_dir:
-        raise StiffnessError(f"--loads-per-config must be between 1 and {n_dir} (the axis and "
-                             f"cube-diagonal directions), got {loads_per_config}")
-    if isinstance(candidates, int) and int(configs) > candidates:
-        raise StiffnessError(f"--configs {configs} is larger than the {candidates} candidate "
-                             "poses; raise --candidates or lower --configs")
+    check_sizes(configs, loads_per_config,
+                candidates.n_poses if isinstance(candidates, Candidates) else candidates)
     if not (math.isfinite(max_force) and max_force > 0):
         raise StiffnessError(f"--max-force must be a positive force in N, got {max_force}")
     if int(random_plans) < 1:
@@ -778,12 +796,12 @@ def design(
     pair = None
     if separate is not None:
         pair = parse_separate(separate) if isinstance(separate, str) else tuple(separate)
-        geo = Geometry.of(robot)
-        for name, where in pair:
-            make_effect(name, where, geo)  # unknown effect or place: one line, before any work
         if existing is None:
             raise StiffnessError("--separate needs --existing CAMPAIGN: the two alternatives are "
                                  "fitted to its measurements")
+        geo = Geometry.of(robot)
+        for name, where in pair:
+            make_effect(name, where, geo)  # unknown effect or place: one line, before any work
     notes: list[str] = []
 
     # nominal stiffness
@@ -821,9 +839,6 @@ def design(
     # candidates and their information
     if isinstance(candidates, Candidates):
         cands = candidates
-        if int(configs) > cands.n_poses:
-            raise StiffnessError(f"--configs {configs} is larger than the {cands.n_poses} "
-                                 "candidate poses; raise --candidates or lower --configs")
     else:
         say(f"drawing {candidates} candidate poses")
         cands = candidate_set(robot, int(candidates), max_force, seed)

@@ -30,7 +30,9 @@ from stiffness.calibration.design import (
     DEFAULT_CANDIDATES,
     DEFAULT_RANDOM_PLANS,
     DesignResult,
+    check_sizes,
     design,
+    parse_separate,
 )
 from stiffness.calibration.effects import BASELINES
 from stiffness.calibration.plan import write_plan
@@ -156,6 +158,9 @@ def _g(v) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness design``; returns the exit code."""
+    check_sizes(args.configs, args.loads_per_config, args.candidates)
+    if args.separate is not None:
+        parse_separate(args.separate)
     existing = load_campaign(args.existing) if args.existing else None
     robot = _robot(args, existing)
     units = existing.units if existing is not None else Units()
