@@ -24,11 +24,15 @@ first steps are defined) and then Fedorov-style exchange passes: each chosen con
 replaced by the best candidate pose (its own included, with its directions re-chosen) and each
 load direction by the best direction at its pose, while the criterion improves.
 
-Separation (:func:`separation`). To tell two fitted alternatives ``A`` and ``B`` apart, the
-rows are chosen where their predictions differ most relative to the noise:
-``s_r = |d_A(r) - d_B(r)| / sigma``; a plan's separation is ``sqrt(sum_r s_r^2)`` (the
-noncentrality of the test between them). ``stiffness diagnose`` proposes its extra measurements
-with the same code (:func:`best_separating_rows`).
+Separation (:class:`SeparationStatistics`). To tell two alternatives ``A`` and ``B`` fitted
+to a campaign apart, the rows are chosen where their predictions differ most relative to the
+noise, ``D_r = (d_A(r) - d_B(r)) / sigma``, counting only the part of the difference that
+neither can absorb by refitting its own parameters to the other's predictions over the
+campaign's rows and the plan's (linearised: the residual of ``D`` after projection on the
+other's parameter sensitivities, the smaller of A-to-B and B-to-A). The plan's separation is
+the square root of that residual sum of squares, in noise units (the noncentrality of the test
+between them); it grows only with rows that add evidence. The same greedy and exchange passes
+maximise it; ``stiffness diagnose`` proposes its extra measurements with this code.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """
@@ -195,22 +199,25 @@ def baseline_model(geometry: Geometry, rows: Rows, compliant: tuple[str, ...], k
     return Model(geometry, rows, formulation, compliant, (), refs), np.log(k)
 
 
-def sensitivities(model: Model, x: np.ndarray) -> np.ndarray:
-    """(m, 3, p) derivatives of the predicted deflections w.r.t. ``ln k`` of the model's
-    compliant joints (central differences, step :data:`_FD_STEP`), m.
+def sensitivities(model: Model, x: np.ndarray, n_columns: int | None = None) -> np.ndarray:
+    """(m, 3, c) derivatives of the predicted deflections (m) w.r.t. the first ``c`` entries of
+    the parameter vector ``x`` (central differences, step :data:`_FD_STEP`): by default the
+    ``ln k`` of the model's compliant joints.
 
     Raises
     ------
     StiffnessError
         If the tangent stiffness is singular for some row (the load buckles the robot).
     """
-    p = len(model.compliant)
-    out = np.empty((model.rows.n_rows, 3, p))
+    c = len(model.compliant) if n_columns is None else n_columns
+    out = np.empty((model.rows.n_rows, 3, c))
     try:
-        for i in range(p):
-            step = np.zeros_like(x)
-            step[i] = _FD_STEP
-            out[:, :, i] = (model.predict(x + step) - model.predict(x - step)) / (2 * _FD_STEP)
+        with np.errstate(all="ignore"):
+            for i in range(c):
+                step = np.zeros_like(x)
+                step[i] = _FD_STEP
+                out[:, :, i] = (model.predict(x + step) - model.predict(x - step)) / (
+                    2 * _FD_STEP)
     except np.linalg.LinAlgError as exc:
         raise StiffnessError("K - K_C is singular at a candidate row: the largest force buckles "
                              "the robot at these stiffnesses; lower --max-force") from exc
@@ -288,37 +295,106 @@ class Selection:
         return (self.poses[:, None] * n_directions + self.loads).reshape(-1)
 
 
-def _best_loads(info: np.ndarray, base: np.ndarray, m: int, criterion: str,
+Score = Callable[[list[np.ndarray]], np.ndarray]
+
+
+def _best_loads(rows: list[np.ndarray], base: list[np.ndarray], m: int, score: Score,
                 allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For every pose, ``m`` distinct directions chosen one by one on top of ``base``.
 
-    ``info`` (K, D, p, p); returns the criterion per pose (K,) (``-inf`` where not allowed) and
-    the directions (K, m).
+    ``rows[i]`` (K, D, ...) are additive statistics of each candidate row, ``base[i]`` (...)
+    their sum over the rows already chosen; ``score`` maps batched sums to values (larger is
+    better). Returns the score per pose (K,) (``-inf`` where not allowed) and the directions
+    (K, m).
     """
-    k, d = info.shape[:2]
-    acc = np.broadcast_to(base, (k,) + base.shape).copy()
+    k, d = rows[0].shape[:2]
+    acc = [np.broadcast_to(b, (k,) + b.shape).copy() for b in base]
     used = np.zeros((k, d), dtype=bool)
     chosen = np.empty((k, m), dtype=int)
     idx = np.arange(k)
     for j in range(m):
-        value = criterion_value(acc[:, None] + info, criterion)
+        value = score([a[:, None] + r for a, r in zip(acc, rows, strict=True)])
         value[used] = -np.inf
         best = np.argmax(value, axis=1)
         chosen[:, j] = best
         used[idx, best] = True
-        acc += info[idx, best]
-    value = criterion_value(acc, criterion)
-    return np.where(allowed, value, -np.inf), chosen
+        for a, r in zip(acc, rows, strict=True):
+            a += r[idx, best]
+    return np.where(allowed, score(acc), -np.inf), chosen
 
 
 def _better(new: float, old: float) -> bool:
     return new > old + _IMPROVEMENT * (abs(old) + 1e-300) if math.isfinite(old) else new > old
 
 
+def select_rows(rows: list[np.ndarray], base: list[np.ndarray], score: Score, n_configs: int,
+                loads_per_config: int, passes: int = EXCHANGE_PASSES) -> Selection:
+    """Greedy selection then exchange passes maximising ``score`` of additive row statistics.
+
+    Parameters
+    ----------
+    rows
+        Statistics of each candidate row, each (K, D, ...); a plan's statistics are their sums
+        over its rows plus ``base``.
+    base
+        Statistics already in hand (the rows of an existing campaign, a ridge).
+    score
+        Batched sums -> criterion (larger is better).
+    n_configs, loads_per_config
+        Plan size N x M.
+    passes
+        Largest number of exchange passes: each chosen configuration is replaced by the best
+        candidate pose (its own included, directions re-chosen), then each load direction by
+        the best one at its pose, while the score improves.
+    """
+    k = rows[0].shape[0]
+    chosen = np.zeros(k, dtype=bool)
+    poses, loads = np.empty(n_configs, dtype=int), np.empty((n_configs, loads_per_config), int)
+    total = [b.copy() for b in base]
+
+    def plus(acc, pose, dirs, sign=1.0):
+        return [a + sign * r[pose, dirs].sum(axis=0) for a, r in zip(acc, rows, strict=True)]
+
+    for i in range(n_configs):
+        value, dirs = _best_loads(rows, total, loads_per_config, score, ~chosen)
+        best = int(np.argmax(value))
+        poses[i], loads[i] = best, dirs[best]
+        chosen[best] = True
+        total = plus(total, best, dirs[best])
+    current = float(score(total))
+    exchanges = 0
+    for _ in range(passes):
+        changed = False
+        for i in range(n_configs):
+            rest = plus(total, poses[i], loads[i], -1.0)
+            allowed = ~chosen
+            allowed[poses[i]] = True
+            value, dirs = _best_loads(rows, rest, loads_per_config, score, allowed)
+            best = int(np.argmax(value))
+            if _better(float(value[best]), current):
+                chosen[poses[i]], chosen[best] = False, True
+                poses[i], loads[i] = best, dirs[best]
+                total = plus(rest, best, dirs[best])
+                current, exchanges, changed = float(score(total)), exchanges + 1, True
+            for j in range(loads_per_config):
+                pose = poses[i]
+                rest = [a - r[pose, loads[i, j]] for a, r in zip(total, rows, strict=True)]
+                value = score([a[None] + r[pose] for a, r in zip(rest, rows, strict=True)])
+                value[np.delete(loads[i], j)] = -np.inf
+                best = int(np.argmax(value))
+                if _better(float(value[best]), current):
+                    loads[i, j] = best
+                    total = [a + r[pose, best] for a, r in zip(rest, rows, strict=True)]
+                    current, exchanges, changed = float(score(total)), exchanges + 1, True
+        if not changed:
+            break
+    return Selection(poses, loads, current, exchanges)
+
+
 def select_information(info: np.ndarray, n_configs: int, loads_per_config: int,
                        criterion: str = "D", prior: np.ndarray | None = None,
                        passes: int = EXCHANGE_PASSES) -> Selection:
-    """Greedy selection then exchange passes maximising ``criterion`` (module docstring).
+    """The plan maximising a criterion of the Fisher information (module docstring).
 
     Parameters
     ----------
@@ -333,70 +409,12 @@ def select_information(info: np.ndarray, n_configs: int, loads_per_config: int,
     passes
         Largest number of exchange passes.
     """
-    k, p = info.shape[0], info.shape[2]
+    p = info.shape[-1]
     mean_row = float(np.mean(np.trace(info, axis1=2, axis2=3))) / max(p, 1)
     base = (np.zeros((p, p)) if prior is None else np.asarray(prior, dtype=float)) \
         + RIDGE * max(mean_row, 1e-300) * np.eye(p)
-    chosen = np.zeros(k, dtype=bool)
-    poses, loads = [], []
-    total = base.copy()
-    for _ in range(n_configs):
-        value, dirs = _best_loads(info, total, loads_per_config, criterion, ~chosen)
-        best = int(np.argmax(value))
-        poses.append(best)
-        loads.append(dirs[best])
-        chosen[best] = True
-        total = total + info[best, dirs[best]].sum(axis=0)
-    poses_a, loads_a = np.array(poses), np.array(loads)
-    exchanges = 0
-    current = float(criterion_value(total, criterion))
-    for _ in range(passes):
-        changed = False
-        for i in range(n_configs):
-            rest = total - info[poses_a[i], loads_a[i]].sum(axis=0)
-            allowed = ~chosen
-            allowed[poses_a[i]] = True
-            value, dirs = _best_loads(info, rest, loads_per_config, criterion, allowed)
-            best = int(np.argmax(value))
-            if _better(float(value[best]), current):
-                chosen[poses_a[i]] = False
-                chosen[best] = True
-                poses_a[i], loads_a[i] = best, dirs[best]
-                total = rest + info[best, dirs[best]].sum(axis=0)
-                current = float(criterion_value(total, criterion))
-                exchanges += 1
-                changed = True
-            for j in range(loads_per_config):
-                pose = poses_a[i]
-                rest = total - info[pose, loads_a[i, j]]
-                value = criterion_value(rest[None] + info[pose], criterion)
-                others = np.delete(loads_a[i], j)
-                value[others] = -np.inf
-                best = int(np.argmax(value))
-                if _better(float(value[best]), current):
-                    loads_a[i, j] = best
-                    total = rest + info[pose, best]
-                    current = float(criterion_value(total, criterion))
-                    exchanges += 1
-                    changed = True
-        if not changed:
-            break
-    return Selection(poses_a, loads_a, current, exchanges)
-
-
-def best_separating_rows(score: np.ndarray, n_configs: int, loads_per_config: int
-                         ) -> Selection:
-    """The ``n_configs`` poses whose ``loads_per_config`` largest scores sum highest.
-
-    ``score`` (K, D) is additive over rows (a squared separation in noise units), so this is
-    the exact optimum; non-finite scores are never chosen.
-    """
-    score = np.where(np.isfinite(score), score, -np.inf)
-    order = np.argsort(-score, axis=1)[:, :loads_per_config]
-    top = np.take_along_axis(score, order, axis=1).sum(axis=1)
-    poses = np.argsort(-top, kind="stable")[:n_configs]
-    poses = poses[np.isfinite(top[poses])]
-    return Selection(poses, order[poses], float(top[poses].sum()) if len(poses) else 0.0)
+    return select_rows([info], [base], lambda acc: criterion_value(acc[0], criterion),
+                       n_configs, loads_per_config, passes)
 
 
 def random_selections(k: int, d: int, n_configs: int, loads_per_config: int, count: int,
@@ -535,20 +553,82 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
                         source)
 
 
-def separation(alternatives: Alternatives, rows: Rows) -> tuple[np.ndarray, np.ndarray,
-                                                                 np.ndarray]:
-    """Predicted deflections of both alternatives at ``rows`` (each (m, 3), m) and their
-    separation ``|d_A - d_B| / sigma`` per row (m,), noise units (``nan`` where a model
-    cannot be evaluated)."""
-    a, b = alternatives.a, alternatives.b
-    with np.errstate(all="ignore"):
-        try:
-            pa = a.model.with_rows(rows).predict(a.x)
-            pb = b.model.with_rows(rows).predict(b.x)
-        except np.linalg.LinAlgError:
-            nan = np.full((rows.n_rows, 3), np.nan)
-            return nan, nan, np.full(rows.n_rows, np.nan)
-    return pa, pb, np.linalg.norm(pa - pb, axis=1) / alternatives.sigma
+@dataclass
+class SeparationStatistics:
+    """Additive statistics of the test between two fitted alternatives, row by row.
+
+    With ``D_r = (d_A(r) - d_B(r)) / sigma`` and ``G_r`` the derivative of ``d_B(r) / sigma``
+    w.r.t. B's parameters, the squared separation left once B is refitted (linearised) to A's
+    predictions over a set of rows is ``a - b^T M^-1 b`` with ``a = sum |D_r|^2``,
+    ``b = sum G_r^T D_r``, ``M = sum G_r^T G_r``; the same with A and B exchanged; the
+    separation is the smaller of the two (:func:`separation_score`).
+
+    Attributes
+    ----------
+    rows
+        ``[a_AB, b_AB, M_AB, a_BA, b_BA, M_BA]`` of each candidate row, each (K, D, ...).
+    base
+        Their sums over the measured rows, plus a ridge on ``M``.
+    raw
+        (K, D) ``|D_r|``: the difference of the two fitted predictions in noise units.
+    predicted_a, predicted_b
+        (K, D, 3) predictions of A and B (m).
+    """
+
+    rows: list[np.ndarray]
+    base: list[np.ndarray]
+    raw: np.ndarray
+    predicted_a: np.ndarray
+    predicted_b: np.ndarray
+
+
+def _row_statistics(alt: Alternatives, rows: Rows) -> tuple[list[np.ndarray], np.ndarray,
+                                                            np.ndarray, np.ndarray]:
+    a, b = alt.a, alt.b
+    ma, mb = a.model.with_rows(rows), b.model.with_rows(rows)
+    try:
+        with np.errstate(all="ignore"):
+            pa, pb = ma.predict(a.x), mb.predict(b.x)
+    except np.linalg.LinAlgError as exc:
+        raise StiffnessError("an alternative cannot be evaluated at some candidate rows (the "
+                             "load buckles it); lower --max-force") from exc
+    diff = (pa - pb) / alt.sigma
+    ga = sensitivities(ma, a.x, len(a.x)) / alt.sigma
+    gb = sensitivities(mb, b.x, len(b.x)) / alt.sigma
+    sq = np.sum(diff ** 2, axis=1)
+    stats = [sq, np.einsum("mkq,mk->mq", gb, diff), np.einsum("mkq,mkr->mqr", gb, gb),
+             sq, np.einsum("mkq,mk->mq", ga, -diff), np.einsum("mkq,mkr->mqr", ga, ga)]
+    return stats, np.sqrt(sq), pa, pb
+
+
+def separation_statistics(alt: Alternatives, candidates: Candidates) -> SeparationStatistics:
+    """The statistics of every candidate row, on top of the rows the alternatives were fitted
+    to (their models' own rows).
+
+    Raises
+    ------
+    StiffnessError
+        If an alternative cannot be evaluated at the candidates.
+    """
+    k, d = candidates.n_poses, candidates.n_directions
+    stats, raw, pa, pb = _row_statistics(alt, candidates.rows)
+    measured, _, _, _ = _row_statistics(alt, alt.a.model.rows)
+    base = [m.sum(axis=0) for m in measured]
+    for i in (2, 5):  # a ridge keeps M invertible where a parameter is not excited
+        scale = float(np.mean(np.trace(stats[i], axis1=1, axis2=2))) / stats[i].shape[-1]
+        base[i] = base[i] + RIDGE * max(scale, 1e-300) * np.eye(stats[i].shape[-1])
+    return SeparationStatistics([v.reshape((k, d) + v.shape[1:]) for v in stats], base,
+                                raw.reshape(k, d), pa.reshape(k, d, 3), pb.reshape(k, d, 3))
+
+
+def separation_score(acc: list[np.ndarray]) -> np.ndarray:
+    """Squared separation (noise units) left after refitting, the smaller of A-to-B and
+    B-to-A, of batched sums ``[a_AB, b_AB, M_AB, a_BA, b_BA, M_BA]``."""
+    out = []
+    for a, b, m in (acc[0:3], acc[3:6]):
+        x = np.linalg.solve(m, b[..., None])[..., 0]
+        out.append(a - np.sum(b * x, axis=-1))
+    return np.maximum(np.minimum(out[0], out[1]), 0.0)
 
 
 # ------------------------------------------------------------------------------------------
@@ -793,6 +873,11 @@ def design(
     if existing is not None and existing.robot().coordinate_joints != robot.coordinate_joints:
         raise StiffnessError(f"the existing campaign {existing.name!r} is of another robot "
                              f"({existing.robot().name}) than {robot.name}")
+    if separate is not None and existing is not None and (
+            existing.robot().target_frame != robot.target_frame
+            or not np.allclose(existing.robot().target_offset, robot.target_offset)):
+        raise StiffnessError("--separate designs for the existing campaign's target; drop "
+                             "--frame and --target-offset")
     pair = None
     if separate is not None:
         pair = parse_separate(separate) if isinstance(separate, str) else tuple(separate)
@@ -856,14 +941,10 @@ def design(
     if pair is not None:
         say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
         alternatives = fit_alternatives(existing, pair, noise_std_m)
-        _, _, sep = separation(alternatives, cands.rows)
-        score = (sep ** 2).reshape(cands.n_poses, cands.n_directions)
-        selection = best_separating_rows(score, int(configs), int(loads_per_config))
-        if len(selection.poses) < int(configs):
-            raise StiffnessError("the two alternatives cannot be evaluated at enough candidate "
-                                 "poses; lower --max-force")
-        existing_pred.separation = float(np.sqrt(np.nansum(separation(alternatives, ex_rows)[2]
-                                                            ** 2)))
+        sep = separation_statistics(alternatives, cands)
+        selection = select_rows(sep.rows, sep.base, separation_score, int(configs),
+                                int(loads_per_config))
+        existing_pred.separation = float(np.sqrt(separation_score(sep.base)))
     else:
         say(f"selecting {configs} x {loads_per_config} rows ({criterion}-optimal)")
         selection = select_information(info, int(configs), int(loads_per_config), criterion,
@@ -875,7 +956,9 @@ def design(
             total = total + prior
         pred = Prediction(standard_errors(total))
         if alternatives is not None:
-            pred.separation = float(np.sqrt(np.sum(score[sel.poses[:, None], sel.loads])))
+            acc = [b + r[sel.poses[:, None], sel.loads].sum(axis=(0, 1))
+                   for b, r in zip(sep.base, sep.rows, strict=True)]
+            pred.separation = float(np.sqrt(separation_score(acc)))
         return pred
 
     designed = predict(selection)
@@ -906,7 +989,7 @@ def design(
                 noise_std_m=sigma)
     row_sep = None
     if alternatives is not None:
-        row_sep = np.sqrt(score.reshape(-1)[rows_idx])
+        row_sep = sep.raw.reshape(-1)[rows_idx]
     return DesignResult(
         plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source, noise_std_m=sigma,
         noise_source=noise_source, criterion=criterion, formulation=formulation,

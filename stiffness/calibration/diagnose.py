@@ -861,33 +861,35 @@ def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit,
 
     The experiment design's separation (:mod:`stiffness.calibration.design`): ``n_poses``
     reachable candidate poses, loads along the axes and cube diagonals at the campaign's largest
-    force, and the ``n_best`` pose-load pairs (one per pose) of largest predicted separation
-    ``|dx_a - dx_b| / sigma``, in the campaign's units.
+    force; the ``n_best`` poses, one load each, that add the most separation left after either
+    model is refitted, in the campaign's units. Each proposal's ``separation_noise_units`` is
+    ``|dx_a - dx_b| / sigma`` there.
     """
     from stiffness.calibration.design import (
         Alternatives,
-        best_separating_rows,
         candidate_set,
-        separation,
+        select_rows,
+        separation_score,
+        separation_statistics,
     )
 
     f_max = float(np.linalg.norm(campaign.force, axis=1).max())
     cands = candidate_set(geometry.robot, n_poses, f_max, seed)
     labels = (a.model.describe(), b.model.describe())
-    pa, pb, sep = separation(Alternatives(a, b, labels, sigma, ""), cands.rows)
-    score = (sep ** 2).reshape(cands.n_poses, cands.n_directions)
-    chosen = best_separating_rows(score, n_best, 1)
+    sep = separation_statistics(Alternatives(a, b, labels, sigma, ""), cands)
+    chosen = select_rows(sep.rows, sep.base, separation_score, min(n_best, cands.n_poses), 1)
     u = campaign.units
     prismatic = geometry.prismatic
     out = []
-    for i in chosen.rows(cands.n_directions):
-        qc = cands.coords[i // cands.n_directions].copy()
+    for pose, load in zip(chosen.poses, chosen.loads[:, 0], strict=True):
+        qc = cands.coords[pose].copy()
         qc[~prismatic] /= u.angle_to_si
         qc[prismatic] /= u.length_to_si
-        out.append({"q": qc.tolist(), "force": (cands.rows.force[i] / u.force_to_si).tolist(),
-                    "deflection_chosen": (pa[i] / u.length_to_si).tolist(),
-                    "deflection_other": (pb[i] / u.length_to_si).tolist(),
-                    "separation_noise_units": float(sep[i])})
+        force = cands.directions[load] * cands.max_force
+        out.append({"q": qc.tolist(), "force": (force / u.force_to_si).tolist(),
+                    "deflection_chosen": (sep.predicted_a[pose, load] / u.length_to_si).tolist(),
+                    "deflection_other": (sep.predicted_b[pose, load] / u.length_to_si).tolist(),
+                    "separation_noise_units": float(sep.raw[pose, load])})
     return out
 
 
