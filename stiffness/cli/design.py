@@ -123,7 +123,9 @@ def format_report(result: DesignResult) -> str:
     ]
     if result.existing_rows:
         lines.append(f"completes the existing campaign's {result.existing_rows} rows")
-    lines += ["", "predicted standard error of k relative to k:"]
+    lines += ["", "predicted standard error of k relative to k"
+              + (" (the existing rows with the plan, with a random plan, alone):"
+                 if result.existing is not None else ":")]
     head = f"  {'joint':<24} {'k (SI)':>11} {'plan':>10} {'random':>10}"
     if result.existing is not None:
         head += f" {'existing':>10}"
