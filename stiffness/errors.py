@@ -19,6 +19,7 @@ The command line turns each into exit status 2 and one line on stderr.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -110,21 +111,26 @@ class FileFormatError(StiffnessError):
         The file.
     line, column : int, optional
         1-based position of the problem, when known.
+    field : str, optional
+        Name of the field at that position (a CSV column, a TOML key).
 
-    The message is ``"<path>, line L, column C: <problem>"`` (the known parts only).
+    The message is ``"<path>, line L, column C (field): <problem>"`` (the known parts only).
     """
 
     def __init__(self, problem: str, *, path: str | Path, line: int | None = None,
-                 column: int | None = None) -> None:
+                 column: int | None = None, field: str | None = None) -> None:
         where = str(path)
         if line is not None:
             where += f", line {line}"
         if column is not None:
             where += f", column {column}"
+        if field is not None:
+            where += f" ({field})"
         super().__init__(f"{where}: {problem}")
         self.path = Path(path)
         self.line = line
         self.column = column
+        self.field = field
         self.problem = problem
 
 
@@ -142,6 +148,17 @@ class ConvergenceError(StiffnessError):
 
 class UnstableEquilibriumError(StiffnessError):
     """The load buckles the robot: the equilibrium is unstable or the tangent stiffness singular."""
+
+
+def with_context(exc: StiffnessError, context: str) -> StiffnessError:
+    """A copy of ``exc``, of the same type and attributes, its message prefixed by ``context``.
+
+    For re-raising an error with where it happened (``raise with_context(exc, row) from exc``)
+    without losing its type.
+    """
+    out = copy.copy(exc)
+    out.args = (f"{context}: {exc}", *exc.args[1:])
+    return out
 
 
 def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40) -> str:

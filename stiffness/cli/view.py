@@ -19,6 +19,7 @@ parser adds them here); SI units throughout (m, N, rad, N.m/rad; degrees with ``
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import signal
 from pathlib import Path
@@ -26,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.cli import flags, kx
-from stiffness.errors import StiffnessError
+from stiffness.errors import FileFormatError, StiffnessError
+from stiffness.files import read_text
 from stiffness.model.robot import Robot
 from stiffness.viewer import (
     LOOPBACK,
@@ -119,10 +121,8 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     parts = bounds.split(":")
     if not sep or len(parts) not in (2, 3):
         raise StiffnessError(f"--sweep takes JOINT=START:STOP[:N], got {spec!r}")
-    name = name.strip()
-    if name not in robot.coordinate_joints:
-        raise StiffnessError(f"--sweep: {name!r} is not a coordinate of {robot.name}; "
-                             f"coordinates: {', '.join(robot.coordinate_joints)}")
+    index = flags.coordinate_index(robot, name.strip(), "--sweep")
+    name = robot.coordinate_joints[index]
     start, stop = flags.parse_list(",".join(parts[:2]), "--sweep")
     try:
         n = int(parts[2]) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
@@ -134,7 +134,7 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     if deg and _revolute(robot, name):
         start, stop = np.deg2rad(start), np.deg2rad(stop)
     rows = np.tile(coords, (n, 1))
-    rows[:, robot.coordinate_joints.index(name)] = np.linspace(start, stop, n)
+    rows[:, index] = np.linspace(start, stop, n)
     return rows
 
 
@@ -143,20 +143,26 @@ def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
 
     Raises
     ------
-    StiffnessError
-        If the file is missing or a row has the wrong number of values.
+    MissingFileError
+        If the file is missing.
+    FileFormatError
+        If a value is not a number or a row has the wrong number of values.
     """
     path = Path(path)
-    if not path.is_file():
-        raise StiffnessError(f"--path: {path} does not exist")
+    text = read_text(path, "--path file")
     try:
-        rows = np.atleast_2d(np.loadtxt(path, delimiter=",", comments="#", dtype=float))
+        rows = np.atleast_2d(np.loadtxt(io.StringIO(text), delimiter=",", comments="#",
+                                        dtype=float))
     except ValueError as exc:
-        raise StiffnessError(f"--path: {path} is not a CSV of numbers: {exc}") from exc
+        raise FileFormatError(f"not a CSV of numbers ({exc}); give one row of "
+                              f"{robot.n_coordinates} coordinates per line", path=path) from exc
+    if rows.size == 0:
+        raise FileFormatError(f"no rows; give one row of {robot.n_coordinates} coordinates per "
+                              "line", path=path)
     if rows.shape[1] != robot.n_coordinates:
-        raise StiffnessError(
-            f"--path: each row needs {robot.n_coordinates} values "
-            f"({', '.join(robot.coordinate_joints)}), {path} has {rows.shape[1]}")
+        raise FileFormatError(
+            f"each row needs {robot.n_coordinates} values "
+            f"({', '.join(robot.coordinate_joints)}), this file has {rows.shape[1]}", path=path)
     if deg:
         for i, joint in enumerate(robot.coordinate_joints):
             if _revolute(robot, joint):
