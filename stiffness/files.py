@@ -102,11 +102,15 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[BinaryIO], objec
     """Write through ``write(binary_file)`` into a temporary file beside ``path``, then rename.
 
     The file keeps the mode of the file it replaces (else ``rw-r--r--``); on any error the
-    temporary file is removed and ``path`` is left as it was.
+    temporary file is removed and ``path`` is left as it was. An :class:`OSError` names
+    ``path`` (not the temporary file).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise type(exc)(exc.errno, exc.strerror, str(path)) from exc
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)

@@ -12,6 +12,7 @@ order: an angle (rad) for a revolute or continuous joint, a length (m) for a pri
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -274,7 +275,8 @@ def _read_urdf(path: Path) -> tuple[pin.Model, object | None]:
         etree.parse(str(path), etree.XMLParser(recover=False))
     except etree.XMLSyntaxError as exc:
         line, column = exc.position if exc.position else (None, None)
-        raise FileFormatError(f"not a valid URDF: not well-formed XML ({exc.msg}); fix it there",
+        problem = re.sub(r",? line \d+, column \d+$", "", str(exc.msg))
+        raise FileFormatError(f"not a valid URDF: not well-formed XML ({problem}); fix it there",
                               path=path, line=line, column=column) from exc
     try:
         urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
