@@ -4,7 +4,7 @@ Examples::
 
     stiffness scan --robot sk120 --preset table4            # A&S Table IV: 5824 x 8 loads
     stiffness scan --robot ur5 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --deg \\
-        --axis shoulder_lift_joint=-90:0:5 --axis elbow_joint=0:150:5 --load 0,0,-200
+        --axis shoulder_lift_joint=-90:0:5 --axis elbow_joint=0:150:5 --wrench 0,0,-200
     stiffness scan --robot ur5 --kq ... --samples 1000000 --workers 2
     stiffness scan --robot panda --kq ... --samples 1e7 --scheduler tcp://10.0.0.5:8786
 

@@ -68,8 +68,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="factor applied to the drawn deflection (default: a round number "
                              "that moves the target about 8%% of the reach)")
     parser.add_argument("--sweep", metavar="JOINT=START:STOP[:N]",
-                        help="animate N configurations (default 30) moving one joint from START "
-                             "to STOP (rad, m prismatic; degrees with --deg)")
+                        help="animate N configurations (default 30) moving one joint (name, "
+                             "or q1, q2...) from START to STOP (rad, m prismatic; degrees with "
+                             "--deg)")
     parser.add_argument("--path", metavar="FILE.csv",
                         help="animate a path: one row of coordinates per frame, comma-separated "
                              "(rad, m prismatic; degrees with --deg)")
