@@ -63,7 +63,13 @@ from stiffness.calibration.effects import (
 )
 from stiffness.calibration.plan import Plan
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.errors import (
+    StiffnessError,
+    UnknownEffectError,
+    UnknownNameError,
+    UnstableEquilibriumError,
+    did_you_mean,
+)
 from stiffness.model.robot import Robot
 
 #: Load directions of the candidates: the six axes, then the eight cube diagonals (unit).
@@ -192,8 +198,8 @@ def baseline_model(geometry: Geometry, rows: Rows, compliant: tuple[str, ...], k
     """The identification's deflection model (no effect) over ``rows`` and its parameter
     vector at the nominal stiffness ``k`` (SI)."""
     if formulation not in BASELINES:
-        raise StiffnessError(f"unknown formulation {formulation!r}; valid: "
-                             f"{', '.join(BASELINES)}")
+        raise UnknownNameError(f"unknown formulation {formulation!r}; valid: "
+                               f"{', '.join(BASELINES)}", name=formulation, choices=BASELINES)
     k = np.asarray(k, dtype=float)
     refs = References.of(geometry, rows, float(np.exp(np.mean(np.log(k)))), np.ones((1, 3)))
     return Model(geometry, rows, formulation, compliant, (), refs), np.log(k)
@@ -219,11 +225,12 @@ def sensitivities(model: Model, x: np.ndarray, n_columns: int | None = None) -> 
                 out[:, :, i] = (model.predict(x + step) - model.predict(x - step)) / (
                     2 * _FD_STEP)
     except np.linalg.LinAlgError as exc:
-        raise StiffnessError("K - K_C is singular at a candidate row: the largest force buckles "
-                             "the robot at these stiffnesses; lower --max-force") from exc
+        raise UnstableEquilibriumError("K - K_C is singular at a candidate row: the largest "
+                                       "force buckles the robot at these stiffnesses; lower "
+                                       "--max-force") from exc
     if not np.all(np.isfinite(out)):
-        raise StiffnessError("the deflection model cannot be evaluated at some candidate rows; "
-                             "lower --max-force")
+        raise UnstableEquilibriumError("the deflection model cannot be evaluated at some "
+                                       "candidate rows; lower --max-force")
     return out
 
 
@@ -248,7 +255,8 @@ def criterion_value(info: np.ndarray, criterion: str) -> np.ndarray:
         elif criterion == "A":
             value = -np.sum(1.0 / np.where(ok[..., None], lam, 1.0), axis=-1)
         else:
-            raise StiffnessError(f"unknown criterion {criterion!r}; valid: {', '.join(CRITERIA)}")
+            raise UnknownNameError(f"unknown criterion {criterion!r}; valid: "
+                                   f"{', '.join(CRITERIA)}", name=criterion, choices=CRITERIA)
     return np.where(ok, value, -np.inf)
 
 
@@ -452,8 +460,9 @@ def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | 
         name, _, where = part.partition(":")
         name = name.strip()
         if name not in LIBRARY:
-            raise StiffnessError(f"unknown effect {name!r} in --separate {text!r}; "
-                                 f"{did_you_mean(name, list(LIBRARY))}")
+            raise UnknownEffectError(f"unknown effect {name!r} in --separate {text!r}; "
+                                     f"{did_you_mean(name, list(LIBRARY))}", name=name,
+                                     choices=list(LIBRARY))
         out.append((name, where.strip() or None))
     return out[0], out[1]
 
@@ -590,8 +599,8 @@ def _row_statistics(alt: Alternatives, rows: Rows) -> tuple[list[np.ndarray], np
         with np.errstate(all="ignore"):
             pa, pb = ma.predict(a.x), mb.predict(b.x)
     except np.linalg.LinAlgError as exc:
-        raise StiffnessError("an alternative cannot be evaluated at some candidate rows (the "
-                             "load buckles it); lower --max-force") from exc
+        raise UnstableEquilibriumError("an alternative cannot be evaluated at some candidate "
+                                       "rows (the load buckles it); lower --max-force") from exc
     diff = (pa - pb) / alt.sigma
     ga = sensitivities(ma, a.x, len(a.x)) / alt.sigma
     gb = sensitivities(mb, b.x, len(b.x)) / alt.sigma
@@ -860,7 +869,8 @@ def design(
     """
     say = progress or (lambda text: None)
     if criterion not in CRITERIA:
-        raise StiffnessError(f"unknown criterion {criterion!r}; valid: {', '.join(CRITERIA)}")
+        raise UnknownNameError(f"unknown criterion {criterion!r}; valid: {', '.join(CRITERIA)}",
+                               name=criterion, choices=CRITERIA)
     if robot.n_compliant == 0:
         raise StiffnessError(f"{robot.name} has no compliant joint: there is no stiffness to "
                              "design for; name the springs with --compliant-joints")

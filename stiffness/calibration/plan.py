@@ -37,8 +37,8 @@ from stiffness.calibration.campaign import (
     _resolve_source,
     campaign_toml,
 )
-from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.errors import FileFormatError, MissingFileError, StiffnessError, with_context
+from stiffness.files import atomic_write, output_folder, read_text
 from stiffness.model.robot import Robot, load_robot
 
 #: Name of the plan CSV inside a plan folder.
@@ -127,7 +127,7 @@ def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
         return atomic_write(out, plan_csv(plan, robot))
     if plan.robot_settings is None:
         raise StiffnessError("a plan folder needs the robot settings for its campaign.toml")
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out)
     csv_path = atomic_write(out / PLAN_FILE, plan_csv(plan, robot))
     stub = Campaign(name=plan.name, baseline=plan.baseline, robot_settings=plan.robot_settings,
                     q=plan.q, force=plan.force, deflection=np.zeros_like(plan.force),
@@ -138,12 +138,12 @@ def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
 
 
 def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None]:
-    doc = _read_toml(toml_path)
+    doc, toml = _read_toml(toml_path)
     u = doc["units"]
     try:
         units = Units(u["angle"], u["force"], u["length"])
     except StiffnessError as exc:
-        raise StiffnessError(f"{toml_path}: [units]: {exc}") from exc
+        raise toml.error(str(exc), "units") from exc
     r = doc["robot"]
     offset = r.get("target_offset", [0.0, 0.0, 0.0])
     try:
@@ -151,8 +151,11 @@ def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None
                                  np.array(offset, dtype=float) * units.length_to_si,
                                  r.get("compliant_joints"))
     except (StiffnessError, TypeError, ValueError) as exc:
-        raise StiffnessError(f"{toml_path}: [robot]: {exc}") from exc
+        raise toml.error(str(exc), "robot") from exc
     noise = doc["measurement"].get("noise_std")
+    if noise is not None and not (isinstance(noise, int | float) and noise > 0):
+        raise toml.error(f"[measurement] noise_std must be a positive number in "
+                         f"{units.length}, got {noise!r}", "measurement", "noise_std")
     return doc, units, settings, None if noise is None else float(noise) * units.length_to_si
 
 
@@ -168,18 +171,21 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
 
     Raises
     ------
+    MissingFileError
+        No such plan.
+    FileFormatError
+        A header other than ``config,q1..qn,fx,fy,fz`` (optionally then ``dx,dy,dz``), a
+        non-numeric cell (file, line and column named).
     StiffnessError
-        Missing file, a header other than ``config,q1..qn,fx,fy,fz`` (optionally then
-        ``dx,dy,dz``), a non-numeric cell (file, line and column named), a bare CSV without a
-        robot.
+        A bare CSV without a robot.
     """
     p = Path(path)
     toml_path = p / CAMPAIGN_FILE if p.is_dir() else (p if p.suffix == ".toml" else None)
     doc, units, settings, noise = None, Units(), None, None
     if toml_path is not None:
         if not toml_path.is_file():
-            raise StiffnessError(f"plan {path} not found: give PLAN.csv, or a folder holding "
-                                 f"{CAMPAIGN_FILE} and its plan CSV")
+            raise MissingFileError(f"plan {path} not found: give PLAN.csv, or a folder holding "
+                                   f"{CAMPAIGN_FILE} and its plan CSV", path=toml_path)
         doc, units, settings, noise = _settings(toml_path)
         data = toml_path.parent / doc["measurement"]["data"]
         if robot is None:
@@ -188,15 +194,12 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
                                    frame=settings.frame, target_offset=settings.target_offset_m,
                                    compliant_joints=settings.compliant_joints)
             except StiffnessError as exc:
-                raise StiffnessError(f"{toml_path}: [robot]: {exc}") from exc
+                raise with_context(exc, f"{toml_path}: [robot]") from exc
     else:
         data = p
     if robot is None:
         raise StiffnessError(f"plan {path} is a bare CSV: give its robot (--robot ...)")
-    try:
-        text = data.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise StiffnessError(f"cannot read the plan {data}: {exc.strerror}") from exc
+    text = read_text(data, "plan").lstrip("\ufeff")
     header, rows = None, []
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()
@@ -208,7 +211,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
                 try:
                     units = Units(*m.groups())
                 except StiffnessError as exc:
-                    raise StiffnessError(f"{data}, line {number}: {exc}") from exc
+                    raise FileFormatError(str(exc), path=data, line=number) from exc
             continue
         cells = next(csv.reader([raw]))
         if header is None:
@@ -219,28 +222,28 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
     n_q = robot.n_coordinates
     expected = _header(n_q)
     if header is None:
-        raise StiffnessError(f"{data}: the plan is empty; it needs the header "
-                             f"{','.join(expected)} and one row per measurement")
+        raise FileFormatError(f"the plan is empty; it needs the header {','.join(expected)} "
+                              "and one row per measurement", path=data)
     width = len(expected)
     if header[:width] != expected or header[width:] not in ([], ["dx", "dy", "dz"]):
         pairs = enumerate(zip(header, expected, strict=False))
         bad = next((i for i, (a, b) in pairs if a != b), min(len(header), width))
         got = repr(header[bad]) if bad < len(header) else "nothing"
-        raise StiffnessError(
-            f"{data}, line {header_line}, column {bad + 1}: got {got}; the plan header for "
-            f"{robot.name} ({n_q} coordinates) is {','.join(expected)} (optionally then "
-            "dx,dy,dz, which are ignored)")
+        raise FileFormatError(
+            f"got {got}; the plan header for {robot.name} ({n_q} coordinates) is "
+            f"{','.join(expected)} (optionally then dx,dy,dz, which are ignored)", path=data,
+            line=header_line, column=bad + 1)
     if not rows:
-        raise StiffnessError(f"{data}, line {header_line + 1}: no rows after the header")
+        raise FileFormatError("no rows after the header", path=data, line=header_line + 1)
     labels, values = [], []
     for number, cells in rows:
         if len(cells) != len(header):
-            raise StiffnessError(f"{data}, line {number}: the row has {len(cells)} cells but "
-                                 f"the header has {len(header)}")
+            raise FileFormatError(f"the row has {len(cells)} cells but the header has "
+                                  f"{len(header)}", path=data, line=number)
         label = cells[0].strip()
         if not label:
-            raise StiffnessError(f"{data}, line {number}, column 1 (config): the "
-                                 "configuration label is empty; give a label such as P1")
+            raise FileFormatError("the configuration label is empty; give a label such as P1",
+                                  path=data, line=number, column=1, field="config")
         labels.append(label)
         values.append([_number(c, data, number, j, header[j - 1])
                        for j, c in enumerate(cells[1:width], start=2)])

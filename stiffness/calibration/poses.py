@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stiffness.calibration.effects import cached_robot
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.errors import ConvergenceError, StiffnessError, UnknownJointError, did_you_mean
 from stiffness.mechanics.formulation import target_state
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
@@ -123,8 +123,9 @@ class Workspace:
 
         def index(name: str) -> int:
             if name not in joints:
-                raise StiffnessError(f"{where}: {name!r} is not a coordinate joint; "
-                                     f"{did_you_mean(name, joints)}")
+                raise UnknownJointError(f"{where}: {name!r} is not a coordinate joint; "
+                                        f"{did_you_mean(name, joints)}", name=name,
+                                        choices=joints)
             return joints.index(name)
 
         def numbers(value, what: str, count: int | None = None) -> list[float]:
@@ -288,9 +289,10 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
             continue
         out.append(coords)
     if len(out) < n:
-        raise StiffnessError(f"found only {len(out)} of {n} reachable poses of {robot.name}"
-                             + (" away from singularities and folds; lower the margins"
-                                if singularity_margin > 0 or fold_margin > 0 else ""))
+        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.name}"
+                               + (" away from singularities and folds" if singularity_margin > 0
+                                  or fold_margin > 0 else "")
+                               + "; ask for fewer configurations, or check the joint limits")
     return np.array(out)
 
 

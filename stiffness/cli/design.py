@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 from stiffness.calibration.campaign import LENGTH_UNITS, Units, load_campaign
 from stiffness.calibration.design import (
@@ -36,24 +37,21 @@ from stiffness.calibration.design import (
 )
 from stiffness.calibration.effects import BASELINES
 from stiffness.calibration.plan import write_plan
-from stiffness.cli.kx import _identified_model, parse_list, robot_from_args
+from stiffness.cli import flags
+from stiffness.cli.kx import _identified_model
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import load_robot
+from stiffness.files import output_folder
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness design``."""
-    parser.add_argument("--robot", help="shipped robot (sk120), example-robot-data name or URDF "
-                                        "path (default: --model's or --existing's)")
+    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name or "
+                                             "URDF path (default: --model's or --existing's)")
     parser.add_argument("--model", metavar="FILE",
                         help="identified model (identified-model.json): robot, target, "
                              "compliant joints and the nominal K_theta")
-    parser.add_argument("--frame", help="frame carrying the target (default: the robot's)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
-    parser.add_argument("--compliant-joints", help="comma-separated springs whose stiffness is "
-                                                   "to be identified (default: the robot's)")
-    parser.add_argument("--kq", help="nominal stiffness per compliant joint, N.m/rad (N/m "
-                                     "prismatic); default --model's or the shipped robot's")
+    flags.add_stiffness_flag(parser, help="nominal stiffness per compliant joint, N.m/rad (N/m "
+                                          "prismatic); default --model's or the shipped robot's")
     parser.add_argument("--formulation", choices=BASELINES, default=None,
                         help="deflection model: enhanced (K - K_C, default) or conventional; "
                              "default --existing's baseline, else enhanced")
@@ -85,26 +83,25 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed; default 0")
     parser.add_argument("--out", required=True, metavar="PLAN.csv",
                         help="plan to write: a .csv file, or a folder (campaign.toml + plan.csv)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object (SI)")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    flags.add_output_flags(parser, quiet_help="no progress on stderr")
 
 
 def _robot(args: argparse.Namespace, existing):
-    if args.robot is not None or args.model is not None:
-        return robot_from_args(args)[0]
-    if existing is None:
+    """The robot of the flags, ``--model``'s, or the existing campaign's (flags override)."""
+    fallback = _identified_model(args)
+    if fallback is None and existing is not None:
+        s = existing.robot_settings
+        if (args.robot is None and args.frame is None and args.target_offset is None
+                and args.compliant_joints is None):
+            return existing.robot()
+        fallback = SimpleNamespace(source=existing.resolved_source(), frame=s.frame,
+                                   target_offset_m=s.target_offset_m,
+                                   compliant_joints=s.compliant_joints
+                                   or existing.robot().compliant_joints)
+    robot = flags.robot_flags(args, fallback)
+    if robot.source is None:
         raise StiffnessError("--robot is required (or --model FILE, or --existing CAMPAIGN)")
-    s = existing.robot_settings
-    compliant = s.compliant_joints
-    if args.compliant_joints is not None:
-        compliant = [j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    offset = s.target_offset_m
-    if args.target_offset is not None:
-        offset = parse_list(args.target_offset, "--target-offset")
-    if args.frame is None and args.target_offset is None and args.compliant_joints is None:
-        return existing.robot()
-    return load_robot(existing.resolved_source(), frame=args.frame or s.frame,
-                      target_offset=offset, compliant_joints=compliant)
+    return robot.load()
 
 
 def format_report(result: DesignResult) -> str:
@@ -161,6 +158,8 @@ def _g(v) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness design``; returns the exit code."""
     check_sizes(args.configs, args.loads_per_config, args.candidates)
+    out = Path(args.out)  # before the work: a bad --out fails at once
+    output_folder(out.parent if out.suffix.lower() == ".csv" else out, create=False)
     if args.separate is not None:
         parse_separate(args.separate)
     existing = load_campaign(args.existing) if args.existing else None
@@ -170,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
         units = Units(units.angle, units.force, args.units)
     k = None
     if args.kq is not None:
-        k = parse_list(args.kq, "--kq")
+        k = flags.parse_list(args.kq, "--kq")
     else:
         model = _identified_model(args)
         if model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
@@ -187,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
         noise_std_m=None if args.noise is None else args.noise * units.length_to_si,
         existing=existing, separate=args.separate, seed=args.seed, formulation=formulation,
         random_plans=args.random_plans, units=units, progress=progress if show else None)
-    out = write_plan(result.plan, robot, Path(args.out))
+    out = write_plan(result.plan, robot, out)
     result.plan.path = out
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))

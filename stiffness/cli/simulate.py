@@ -21,28 +21,24 @@ import json
 
 from stiffness.calibration.campaign import BASELINES, LENGTH_UNITS, Units
 from stiffness.calibration.effects import LIBRARY, cached_robot
-from stiffness.calibration.plan import read_plan
+from stiffness.calibration.plan import Plan, read_plan
 from stiffness.calibration.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
-from stiffness.cli.kx import parse_list
+from stiffness.cli import flags
 from stiffness.errors import StiffnessError
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness simulate``."""
-    parser.add_argument("--robot",
-                        help="shipped robot (sk120), example-robot-data name or URDF path "
-                             "(required unless --plan is a folder naming it)")
+    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name "
+                                             "or URDF path (required unless --plan is a folder "
+                                             "naming it)")
     parser.add_argument("--plan", metavar="PLAN",
                         help="simulate exactly these rows: a PLAN.csv written by `stiffness "
                              "design`, or its folder (whose campaign.toml gives the robot "
                              "flags' defaults); --configs, --loads-per-config, --max-force and "
                              "--load-pattern are then not used")
-    parser.add_argument("--frame", help="frame carrying the target (default: the robot's)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, in --units: x,y,z")
-    parser.add_argument("--compliant-joints", help="comma-separated declared springs "
-                                                   "(default: the robot's)")
-    parser.add_argument("--kq", help="true stiffness per declared compliant joint, N.m/rad "
-                                     "(N/m prismatic); default the shipped robot's")
+    flags.add_stiffness_flag(parser, help="true stiffness per declared compliant joint, "
+                                          "N.m/rad (N/m prismatic); default the shipped robot's")
     parser.add_argument("--effect", action="append", default=[], metavar="NAME[:WHERE]=VALUE",
                         help="hidden effect, repeatable: " + ", ".join(LIBRARY) + "; e.g. "
                              "backlash:joint2=0.003 (deg), joint_compliance:joint5=3e5 "
@@ -71,49 +67,47 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="length unit of the files; default mm")
     parser.add_argument("--seed", type=int, default=0, help="random seed; default 0")
     parser.add_argument("--name", help="campaign name")
-    parser.add_argument("--json", action="store_true", help="print the truth as JSON")
+    flags.add_output_flags(parser, json_help="print the truth as one JSON object",
+                           quiet_help="print only the files written")
     parser.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
 
 
-def _plan_robot(args: argparse.Namespace, offset, joints):
-    """The plan of ``--plan`` and the robot flags with its folder's settings as defaults."""
-    robot = None
-    if args.robot is not None:
-        robot = cached_robot(args.robot, args.frame, None if offset is None else tuple(offset),
-                             None if joints is None else tuple(joints))
-    plan, _ = read_plan(args.plan, robot)
+def _plan_robot(robot: flags.RobotFlags, path: str) -> tuple[Plan, flags.RobotFlags]:
+    """The plan at ``path`` and the robot flags, its folder's settings filling what they omit."""
+    declared = None
+    if robot.source is not None:
+        declared = cached_robot(robot.source, robot.frame, None if robot.target_offset is None
+                                else tuple(robot.target_offset), None if robot.compliant_joints
+                                is None else tuple(robot.compliant_joints))
+    plan, _ = read_plan(path, declared)
     s = plan.robot_settings
-    if args.robot is None and s is not None:
-        return (plan, plan.resolved_source(), args.frame or s.frame,
-                offset if offset is not None else s.target_offset_m,
-                joints if joints is not None else s.compliant_joints)
-    return plan, args.robot, args.frame, offset, joints
+    if robot.source is None and s is not None:
+        robot = flags.RobotFlags(
+            plan.resolved_source(), robot.frame or s.frame,
+            robot.target_offset if robot.target_offset is not None
+            else [float(v) for v in s.target_offset_m],
+            robot.compliant_joints if robot.compliant_joints is not None
+            else (None if s.compliant_joints is None else list(s.compliant_joints)))
+    return plan, robot
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
-    offset = None
-    if args.target_offset:
-        offset = [v * units.length_to_si for v in parse_list(args.target_offset,
-                                                             "--target-offset")]
-        if len(offset) != 3:
-            raise StiffnessError("--target-offset takes three lengths x,y,z")
-    joints = None
-    if args.compliant_joints:
-        joints = [j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    kq = parse_list(args.kq, "--kq") if args.kq else None
-    source, frame, plan = args.robot, args.frame, None
+    robot = flags.robot_flags(args)
+    kq = flags.parse_list(args.kq, "--kq") if args.kq else None
+    plan = None
     if args.plan:
-        plan, source, frame, offset, joints = _plan_robot(args, offset, joints)
-    if source is None:
+        plan, robot = _plan_robot(robot, args.plan)
+    if robot.source is None:
         raise StiffnessError("--robot is required (or --plan FOLDER written by `stiffness "
                              "design`)")
     sim = simulate(
-        source, kq=kq, effects=[parse_effect(e) for e in args.effect],
+        robot.source, kq=kq, effects=[parse_effect(e) for e in args.effect],
         configs=args.configs, loads_per_config=args.loads_per_config,
         max_force=args.max_force, noise_std_m=args.noise * units.length_to_si, seed=args.seed,
-        frame=frame, target_offset_m=offset, compliant_joints=joints,
+        frame=robot.frame, target_offset_m=robot.target_offset,
+        compliant_joints=robot.compliant_joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,
         repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name,
         plan=plan)
@@ -123,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     truth = sim.truth()
     print(f"wrote {path} ({sim.campaign.n_rows} rows) and {path.parent / TRUTH_FILE}")
+    if args.quiet:
+        return 0
     print(f"baseline {sim.campaign.baseline}; noise std {truth['noise_std']:.4g} "
           f"{truth['unit']}; the baseline's linearisation misses "
           f"{truth['baseline_model_error_noise_units']:.3g} noise std RMS")
