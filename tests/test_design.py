@@ -36,7 +36,12 @@ from stiffness.calibration.plan import PLAN_FILE, read_plan, write_plan
 from stiffness.calibration.poses import coordinate_limits
 from stiffness.calibration.simulate import parse_effect, simulate
 from stiffness.cli.main import main
-from stiffness.errors import StiffnessError
+from stiffness.errors import (
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    UnknownEffectError,
+)
 from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import load_robot
 
@@ -353,18 +358,24 @@ def test_bad_input_one_line(tmp_path, capsys):
     assert "--kq is required" in err
     assert not (tmp_path / "p.csv").exists()
     sk = load_robot("sk120")
+    with pytest.raises(UnknownEffectError, match="unknown effect 'backlashh'") as info:
+        design(sk, 2, 100.0, separate="backlashh:joint2,target_offset")
+    assert "backlash" in info.value.choices
     with pytest.raises(StiffnessError, match="loads-per-config"):
         design(sk, 2, 100.0, loads_per_config=15)
     with pytest.raises(StiffnessError, match="needs --existing"):
         design(sk, 2, 100.0, separate="backlash:joint2,target_offset")
     (tmp_path / "bad.csv").write_text("config,q1,q2,fx,fy,fz\nA,1,2,3,4,5\n")
-    with pytest.raises(StiffnessError, match="bad.csv, line 1, column 4.*q3"):
+    with pytest.raises(FileFormatError, match="bad.csv, line 1, column 4.*q3") as info:
         read_plan(tmp_path / "bad.csv", sk)
+    assert (info.value.line, info.value.column) == (1, 4)
     (tmp_path / "nan.csv").write_text("config,q1,q2,q3,q4,q5,q6,fx,fy,fz\nA,1,2,x,4,5,6,7,8,9\n")
-    with pytest.raises(StiffnessError, match="nan.csv, line 2, column 4"):
+    with pytest.raises(FileFormatError, match="nan.csv, line 2, column 4"):
         read_plan(tmp_path / "nan.csv", sk)
     with pytest.raises(StiffnessError, match="bare CSV"):
         read_plan(tmp_path / "nan.csv")
+    with pytest.raises(MissingFileError):
+        read_plan(tmp_path / "nowhere")
 
 
 def test_separation_is_what_refitting_leaves(pools):

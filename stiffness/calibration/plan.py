@@ -180,6 +180,9 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         A bare CSV without a robot.
     """
     p = Path(path)
+    if not p.exists():
+        raise MissingFileError(f"plan {path} not found: give PLAN.csv, or a folder holding "
+                               f"{CAMPAIGN_FILE} and its plan CSV", path=p)
     toml_path = p / CAMPAIGN_FILE if p.is_dir() else (p if p.suffix == ".toml" else None)
     doc, units, settings, noise = None, Units(), None, None
     if toml_path is not None:
