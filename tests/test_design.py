@@ -316,6 +316,18 @@ def test_cli_design_then_simulate_the_plan(tmp_path, capsys):
     measured = load_campaign(tmp_path / "plan")
     np.testing.assert_allclose(measured.q, plan.q, atol=1e-12)
     assert measured.noise_std_m == pytest.approx(NOISE)
+    # complete the simulated campaign: its robot, noise and (fitted) stiffness by default
+    capsys.readouterr()
+    assert main(["design", "--existing", str(tmp_path / "sim"), "--configs", "2",
+                 "--loads-per-config", "1", "--max-force", "80", "--candidates", "10",
+                 "--random-plans", "3", "--out", str(tmp_path / "more.csv"), "--json"]) == 0
+    more = json.loads(capsys.readouterr().out)
+    assert more["existing_rows"] == 8 and more["k_source"].startswith("the baseline fitted")
+    assert more["noise_source"].startswith("declared")
+    extra, _ = read_plan(tmp_path / "more.csv", camp.robot())
+    assert not set(extra.config) & set(camp.config)
+    rel = more["predicted_relative_se"]
+    assert all(rel["plan"][j] < rel["existing"][j] for j in UR5_ARM)
 
 
 def test_python_api_at_package_top(pools):

@@ -53,8 +53,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     flags.add_stiffness_flag(parser, help="nominal stiffness per compliant joint, N.m/rad (N/m "
                                           "prismatic); default --model's or the shipped robot's")
     parser.add_argument("--formulation", choices=BASELINES, default=None,
-                        help="deflection model: enhanced (K - K_C, default) or conventional; "
-                             "default --existing's baseline, else enhanced")
+                        help="deflection model: enhanced (K - K_C) or conventional; default "
+                             "--existing's baseline, else --model's, else enhanced")
     parser.add_argument("--configs", type=int, required=True, metavar="N",
                         help="configurations in the plan")
     parser.add_argument("--loads-per-config", type=int, default=4, metavar="M",
@@ -167,14 +167,18 @@ def run(args: argparse.Namespace) -> int:
     units = existing.units if existing is not None else Units()
     if args.units is not None:
         units = Units(units.angle, units.force, args.units)
-    k = None
+    k, k_source = None, None
+    model = _identified_model(args)
     if args.kq is not None:
-        k = flags.parse_list(args.kq, "--kq")
-    else:
-        model = _identified_model(args)
-        if model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
-            k = model.k_theta
-    formulation = args.formulation or (existing.baseline if existing is not None else "enhanced")
+        k, k_source = flags.parse_list(args.kq, "--kq"), "--kq"
+    elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
+        k, k_source = model.k_theta, f"the model file {args.model}"
+    formulation = args.formulation
+    if formulation is None and existing is not None:
+        formulation = existing.baseline
+    if formulation is None and model is not None and model.formulation in BASELINES:
+        formulation = model.formulation
+    formulation = formulation or "enhanced"
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(text: str) -> None:
@@ -186,6 +190,8 @@ def run(args: argparse.Namespace) -> int:
         noise_std_m=None if args.noise is None else args.noise * units.length_to_si,
         existing=existing, separate=args.separate, seed=args.seed, formulation=formulation,
         random_plans=args.random_plans, units=units, progress=progress if show else None)
+    if k_source is not None:
+        result.k_source = k_source
     out = write_plan(result.plan, robot, out)
     result.plan.path = out
     if args.json:
