@@ -82,10 +82,12 @@ CRITERIA = ("D", "A", "E")
 DEFAULT_CANDIDATES = 200
 #: Default number of random plans the design is compared with.
 DEFAULT_RANDOM_PLANS = 50
-#: Candidate poses keep ``sigma_r / sigma_1`` of the Jacobian at least this (singularities).
-SINGULARITY_MARGIN = 0.05
-#: Closed-loop candidate poses keep the passive-joint conditioning at least this (folds).
-FOLD_MARGIN = 0.05
+#: Candidate poses keep ``sigma_r / sigma_1`` of the Jacobian at least this fraction of the
+#: best over probe poses (away from singularities).
+SINGULARITY_MARGIN = 0.1
+#: Closed-loop candidate poses keep the passive-joint conditioning at least this fraction of
+#: the reference assembly's (away from folds).
+FOLD_MARGIN = 0.1
 #: Ridge of the greedy start, relative to the mean information of one candidate row.
 RIDGE = 1e-6
 #: Largest number of exchange passes.

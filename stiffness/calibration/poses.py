@@ -5,18 +5,23 @@
 * every coordinate is within its joint limits (revolute joints also within +-pi; joints without
   limits: +-pi, or 0..0.1 m for a prismatic joint);
 * it follows the robot's workspace rules, where its ``robot.toml`` declares a ``[workspace]``
-  table (:class:`Workspace`); otherwise the coordinates are uniform within the limits;
+  table (:class:`Workspace`); otherwise the coordinates are uniform within the limits, or, for
+  a closed-loop robot (whose limits say little about where it assembles), within
+  :data:`LOOP_SPAN_RAD` (revolute) or :data:`LOOP_SPAN_FRACTION` of the reference length
+  (prismatic, at least 1 cm) around its reference assembly (its shipped coordinates, else
+  zero);
 * the target is above the base plane (z >= 0 in the base frame), unless the workspace says
   ``target_above_base = false``;
 * it assembles (loops closed on the reference branch, regular) with a moderate target Jacobian
   (at most :data:`MAX_JACOBIAN` m/rad: a larger one is next to a loop singularity);
-* optionally, it is away from singularities: ``sigma_r / sigma_1 >= singularity_margin`` for the
-  singular values of the target Jacobian over every coordinate joint, rows ``[v; L omega]``
-  (``L`` the base-to-target distance, so both rows are lengths per radian), ``r`` the rank the
-  robot reaches in general (the largest rank seen over a few probe poses);
-* optionally, for closed loops, away from folds: ``sigma_min / sigma_max >= fold_margin`` for
-  the passive-joint columns of the loop-closure Jacobian (zero where the loop flattens or
-  folds and its passive joints are no longer determined).
+* optionally, it is away from singularities: ``sigma_r / sigma_1`` of the target Jacobian over
+  every coordinate joint, rows ``[v; L omega]`` (``L`` the base-to-target distance, so both
+  rows are lengths per radian), at least ``singularity_margin`` times the best value over a
+  few probe poses, ``r`` the rank the robot reaches in general (the largest rank seen there);
+* optionally, for closed loops, away from folds: ``sigma_min / sigma_max`` of the passive-joint
+  columns of the loop-closure Jacobian (zero where the loop flattens or folds and its passive
+  joints are no longer determined) at least ``fold_margin`` times its value at the reference
+  assembly (mechanisms with many passive joints are never well conditioned in absolute terms).
 
 A ``[workspace]`` table (angles in ``angle_unit``, ``deg`` or ``rad``; lengths in m)::
 
@@ -49,6 +54,12 @@ from stiffness.model.robot import Robot
 
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 MAX_JACOBIAN = 10.0
+#: Closed loops without workspace rules: revolute coordinates within this of the reference (rad).
+LOOP_SPAN_RAD = 0.5
+#: ... and prismatic ones within this fraction of their reference length.
+LOOP_SPAN_FRACTION = 0.05
+#: Give up when this many draws (plus 10 per pose asked) assemble none.
+_FIRST_POSE_TRIES = 50
 #: Probe poses used to find the rank the robot's Jacobian reaches in general.
 _RANK_PROBES = 8
 _RANK_RTOL = 1e-8
@@ -212,6 +223,24 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def sampling_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Box (rad, m) the coordinates are drawn in when no workspace rule says otherwise: the
+    limits (:func:`coordinate_limits`), narrowed around the reference assembly for loops."""
+    lo, hi = coordinate_limits(robot)
+    if robot.loop is None:
+        return lo, hi
+    from stiffness.mechanics.defaults import default_coordinates
+
+    ref = default_coordinates(robot)
+    ref = np.zeros(robot.n_coordinates) if ref is None else ref
+    model = robot.model
+    prismatic = np.array([model.joints[model.getJointId(j)].shortname().startswith("JointModelP")
+                          for j in robot.coordinate_joints])
+    span = np.where(prismatic, np.maximum(LOOP_SPAN_FRACTION * np.abs(ref), 0.01),
+                    LOOP_SPAN_RAD)
+    return np.maximum(lo, ref - span), np.minimum(hi, ref + span)
+
+
 def _all_coordinates(robot: Robot) -> Robot:
     if tuple(robot.compliant_joints) == tuple(robot.coordinate_joints):
         return robot
@@ -257,15 +286,19 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
     StiffnessError
         If fewer than ``n`` poses are found in ``max_tries * n`` draws.
     """
-    lo, hi = coordinate_limits(robot)
     rules = Workspace.of(robot)
+    lo, hi = coordinate_limits(robot) if rules.declared else sampling_box(robot)
     rank = None
+    fold_floor = 0.0
+    if fold_margin > 0 and robot.loop is not None:
+        fold_floor = fold_margin * _reference_fold_ratio(robot)
     if singularity_margin > 0:
         probe = np.random.default_rng(int(rng.integers(2 ** 63)))
-        rank = _generic_rank(robot, lo, hi, rules, probe)
+        rank, best_ratio = _generic_rank(robot, lo, hi, rules, probe)
+        singularity_floor = singularity_margin * best_ratio
     out: list[np.ndarray] = []
-    for _ in range(max_tries * n):
-        if len(out) == n:
+    for attempt in range(max_tries * n):
+        if len(out) == n or (not out and attempt >= _FIRST_POSE_TRIES + 10 * n):
             break
         coords = rules.draw(lo, hi, rng)
         if coords is None:
@@ -279,11 +312,11 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
                 continue
             if rules.target_above_base and state.position[2] < 0.0:
                 continue
-            if fold_margin > 0 and fold_ratio(robot, q) < fold_margin:
+            if fold_floor > 0 and fold_ratio(robot, q) < fold_floor:
                 continue
             if rank is not None:
                 sv = singular_values(robot, q)
-                if sv[rank - 1] < singularity_margin * sv[0]:
+                if sv[rank - 1] < singularity_floor * sv[0]:
                     continue
         except StiffnessError:
             continue
@@ -296,23 +329,36 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
     return np.array(out)
 
 
+def _reference_fold_ratio(robot: Robot) -> float:
+    """:func:`fold_ratio` at the reference assembly (the shipped coordinates, else zero)."""
+    from stiffness.mechanics.defaults import default_coordinates
+
+    ref = default_coordinates(robot)
+    try:
+        q = robot.configuration(np.zeros(robot.n_coordinates) if ref is None else ref)
+    except StiffnessError:
+        return 1.0  # no reference to compare with: an absolute margin
+    return fold_ratio(robot, q)
+
+
 def _generic_rank(robot: Robot, lo: np.ndarray, hi: np.ndarray, rules: Workspace,
-                  rng: np.random.Generator) -> int:
-    """The largest Jacobian rank over a few assembled probe poses (the rank in general)."""
-    best = 0
-    found = 0
-    for _ in range(50 * _RANK_PROBES):
-        if found == _RANK_PROBES:
+                  rng: np.random.Generator) -> tuple[int, float]:
+    """The largest Jacobian rank over a few assembled probe poses (the rank in general), and
+    the best ``sigma_r / sigma_1`` among them."""
+    svs = []
+    for attempt in range(50 * _RANK_PROBES):
+        if len(svs) == _RANK_PROBES or (not svs and attempt >= _FIRST_POSE_TRIES):
             break
         coords = rules.draw(lo, hi, rng)
         if coords is None:
             continue
         try:
-            sv = singular_values(robot, robot.configuration(coords))
+            svs.append(singular_values(robot, robot.configuration(coords)))
         except StiffnessError:
             continue
-        found += 1
-        best = max(best, int(np.sum(sv > _RANK_RTOL * max(sv[0], 1e-300))))
-    if best == 0:
-        raise StiffnessError(f"no pose of {robot.name} assembles within its joint limits")
-    return best
+    if not svs:
+        raise ConvergenceError(f"no pose of {robot.name} drawn within its joint limits "
+                               f"assembles (in {_FIRST_POSE_TRIES} draws); check the limits, or "
+                               "declare a [workspace] in its robot.toml")
+    rank = max(int(np.sum(sv > _RANK_RTOL * max(sv[0], 1e-300))) for sv in svs)
+    return rank, max(float(sv[rank - 1] / sv[0]) if len(sv) >= rank else 0.0 for sv in svs)

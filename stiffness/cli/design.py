@@ -113,7 +113,7 @@ def format_report(result: DesignResult) -> str:
         f"{d['rows'] // max(d['configs'], 1)} loads = {d['rows']} rows chosen from "
         f"{d['candidates']} candidate poses x {d['load_directions']} load directions at "
         f"{d['max_force_N']:.4g} N ({d['criterion']}-optimal, {d['formulation']} model, "
-        f"{d['exchanges']} exchanges after the greedy pass)",
+        f"{d['exchanges']} exchange{'' if d['exchanges'] == 1 else 's'} after the greedy pass)",
         f"nominal stiffness from {d['k_source']}; noise std "
         f"{result.noise_std_m / result.plan.units.length_to_si:.4g} {result.plan.units.length} "
         f"({d['noise_source']})",
