@@ -740,10 +740,19 @@ class DesignResult:
         return np.array([r.relative_se for r in self.random])
 
     @property
+    def determined(self) -> np.ndarray:
+        """(p,) whether the plan determines each stiffness (finite standard error)."""
+        return np.isfinite(self.designed.relative_se)
+
+    @property
     def se_ratio(self) -> float:
-        """Mean relative SE of the plan over the mean of the random plans' (lower is better)."""
-        mean_random = float(np.mean([r.mean_relative_se for r in self.random]))
-        return self.designed.mean_relative_se / mean_random
+        """Mean relative SE of the plan over the mean of the random plans' (lower is better),
+        over the stiffnesses the plan determines."""
+        keep = self.determined
+        if not keep.any():
+            return math.nan
+        mean_random = float(np.mean(self.random_relative_se[:, keep]))
+        return float(np.mean(self.designed.relative_se[keep])) / mean_random
 
     def to_dict(self) -> dict:
         """JSON-ready summary (SI; infinities become ``None``)."""
@@ -774,6 +783,8 @@ class DesignResult:
                 "plan": {j: num(v) for j, v in zip(self.joints, self.designed.relative_se,
                                                     strict=True)},
                 "plan_mean": num(self.designed.mean_relative_se),
+                "determined": [j for j, ok in zip(self.joints, self.determined, strict=True)
+                               if ok],
                 "random_mean": {j: num(v) for j, v in zip(self.joints, rnd.mean(axis=0),
                                                            strict=True)},
                 "random_median": {j: num(v) for j, v in zip(self.joints, np.median(rnd, axis=0),
@@ -978,7 +989,13 @@ def design(
     randoms = [predict(s) for s in random_selections(
         cands.n_poses, cands.n_directions, int(configs), int(loads_per_config),
         int(random_plans), rng)]
-    if not np.all(np.isfinite(designed.relative_se)):
+    unseen = ~np.isfinite(standard_errors(info.sum(axis=(0, 1))))
+    if unseen.any():
+        notes.append(f"no candidate row determines {', '.join(np.array(joints)[unseen])}: a force "
+                     "at the target does not load it or its motion does not move the target "
+                     "(e.g. a last joint whose axis passes through the target); its standard "
+                     "error is infinite whatever the plan")
+    elif not np.all(np.isfinite(designed.relative_se)):
         notes.append("the plan leaves some stiffness undetermined: add configurations or loads")
 
     # the plan
