@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.mechanics.platform import PlatformSpec, platform_loop_declaration, platform_urdf
+from stiffness.model.platform import PlatformSpec, platform_loop_declaration, platform_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "robots" / "griffis-duffy"
