@@ -16,6 +16,9 @@ Example::
     c_x = stiffness.compliance(state.jacobian[:3], k_theta - state.k_c)   # m/N
 """
 
+#: The package version (the single source: pyproject.toml reads it from here).
+__version__ = "0.1.0"
+
 from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import (

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import sys
 
+from stiffness import __version__
 from stiffness.errors import StiffnessError
 
 #: command name -> (module, one-line help)
@@ -35,6 +36,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         prog="stiffness",
         description="Elastostatics of robot manipulators (SI units: m, N, rad, N.m/rad).",
     )
+    parser.add_argument("--version", action="version", version=f"stiffness {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
