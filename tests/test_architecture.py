@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -251,3 +253,30 @@ def test_the_checks_catch_what_they_forbid(tmp_path):
 def test_pending_violations_are_gone():
     still = PENDING & (_layer_violations() | _cycle_violations() | _paper_name_violations())
     assert not still, f"still pending: {sorted(still)}"
+
+
+# ------------------------------------------------------------------------ the public API
+
+
+def test_the_package_top_exports_every_layer():
+    """``stiffness.__all__`` resolves, each entry documented, every layer represented."""
+    layers = set()
+    for name in stiffness.__all__:
+        value = getattr(stiffness, name)
+        if name == "__version__":
+            assert isinstance(value, str) and value
+            continue
+        assert (value.__doc__ or "").strip(), f"stiffness.{name} has no docstring"
+        layers.add(value.__module__.split(".")[1])
+    assert {"model", "mechanics", "batch", "scan", "calibration", "papers", "viewer"} <= layers
+    assert set(stiffness.__all__) <= set(dir(stiffness))
+
+
+def test_importing_the_package_stays_light():
+    """``import stiffness`` (every command does) loads no optimiser, plotting or viewer."""
+    heavy = ("scipy.optimize", "matplotlib", "meshcat", "stiffness.calibration.identify",
+             "stiffness.viewer")
+    code = f"import sys, stiffness; print(' '.join(m for m in {heavy!r} if m in sys.modules))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True).stdout.split()
+    assert not loaded, f"import stiffness loads {loaded}"
