@@ -154,9 +154,9 @@ def test_commands_give_the_checkout_numbers(name, wheel_outputs, installed, caps
     _same(json.loads(wheel_outputs[name]), here, _roots(installed))
 
 
-def test_report_gives_the_checkout_numbers(wheel_outputs, installed, tmp_path):
-    assert main(["report", "--out", str(tmp_path), "--quiet"]) == 0
+def test_report_gives_the_checkout_numbers(wheel_outputs, installed, sk120_report):
     theirs = wheel_outputs["report"]
-    assert sorted(p.name for p in theirs.iterdir()) == sorted(p.name for p in tmp_path.iterdir())
+    assert sorted(p.name for p in theirs.iterdir()) == sorted(p.name for p in
+                                                              sk120_report.iterdir())
     _same(json.loads((theirs / "summary.json").read_text()),
-          json.loads((tmp_path / "summary.json").read_text()), _roots(installed))
+          json.loads((sk120_report / "summary.json").read_text()), _roots(installed))
