@@ -160,3 +160,26 @@ def test_report_gives_the_checkout_numbers(wheel_outputs, installed, sk120_repor
                                                               sk120_report.iterdir())
     _same(json.loads((theirs / "summary.json").read_text()),
           json.loads((sk120_report / "summary.json").read_text()), _roots(installed))
+
+
+def _editable_checkout() -> Path | None:
+    """The folder of an editable install of stiffness in this environment, if any."""
+    from importlib import metadata
+
+    try:
+        text = metadata.distribution("stiffness").read_text("direct_url.json")
+    except metadata.PackageNotFoundError:
+        return None
+    info = json.loads(text or "{}")
+    if not info.get("dir_info", {}).get("editable") or not info["url"].startswith("file://"):
+        return None
+    return Path(info["url"][len("file://"):]).resolve()
+
+
+@pytest.mark.skipif(_editable_checkout() != ROOT,
+                    reason="needs an editable install of this checkout (pip install -e .)")
+def test_editable_install_maps_the_robots_package_data():
+    """``pip install -e .`` maps the package ``stiffness.robots`` onto the checkout's robots/."""
+    from importlib import resources
+
+    assert Path(str(resources.files("stiffness.robots"))).resolve() == ROOT / "robots"
