@@ -183,3 +183,17 @@ def test_editable_install_maps_the_robots_package_data():
     from importlib import resources
 
     assert Path(str(resources.files("stiffness.robots"))).resolve() == ROOT / "robots"
+
+
+def test_a_copy_without_its_robots_says_so(installed, tmp_path):
+    """An installed copy that lost its package data fails with one line naming the fix."""
+    site = tmp_path / "site"
+    shutil.copytree(installed["site"] / "stiffness", site / "stiffness",
+                    ignore=shutil.ignore_patterns("robots"))
+    env = dict(installed["env"], PYTHONPATH=str(site))
+    done = subprocess.run([sys.executable, "-m", "stiffness.cli.main", "kx", "--robot", "sk120"],
+                          env=env, cwd=installed["cwd"], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "robots" in lines[0] and "pip install ." in lines[0], lines
