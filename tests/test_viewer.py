@@ -35,6 +35,7 @@ import numpy as np
 import pytest
 
 from stiffness.cli.main import main as cli_main
+from stiffness.cli.report import export_scene
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
@@ -48,7 +49,6 @@ from stiffness.viewer import (
     LOOPBACK,
     LiveServer,
     StiffnessViewer,
-    export_sk120_scene,
     format_value,
     scene_commands,
     scene_transforms,
@@ -187,7 +187,7 @@ def refused(host: str, port: int) -> bool:
 def sk120_page(tmp_path_factory, sk120):
     """The SK120 scene written by the report hook, and the viewer's own computation."""
     folder = tmp_path_factory.mktemp("viewer")
-    path = export_sk120_scene(folder / "sk120-scene.html")
+    path = export_scene(folder / "sk120-scene.html")
     viewer = StiffnessViewer(sk120, sk120.defaults["k_theta_SI"])
     state = viewer.show()
     return path, viewer, state

@@ -37,7 +37,7 @@ from stiffness.mechanics.formulation import (
     target_state,
     twist_basis_stiffness,
 )
-from stiffness.mechanics.platform import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
+from stiffness.mechanics.wrench import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
 from stiffness.model.robot import Robot
 
 _BASIS_3 = ["vx", "vy", "vz"]

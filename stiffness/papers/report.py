@@ -1,4 +1,4 @@
-"""``stiffness report``: the SK120 paper-reproduction report (the main job).
+"""The SK120 paper-reproduction report (the main job; the ``stiffness report`` command).
 
 Checks the Appendix I Jacobian and K_C against Pinocchio's, identifies K_theta from the Table II
 campaign, reproduces Tables II, III and IV, audits them against the laws of the formulation,
@@ -9,13 +9,13 @@ every file is written atomically (temporary file, then rename).
 
 from __future__ import annotations
 
-import argparse
 import base64
 import html
 import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -48,8 +48,19 @@ from stiffness.scan.definiteness import terminal_progress
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
-#: The SK120 meshcat scene written beside the report.
+#: The SK120 meshcat scene written beside the report, and its title.
 SCENE_FILE = "sk120-scene.html"
+SCENE_TITLE = "Motoman SK120: stiffness at configuration A"
+
+
+def scene_robot() -> tuple[Robot, np.ndarray]:
+    """The robot and joint springs (N.m/rad) of the report's 3-D scene.
+
+    The shipped SK120 at its defaults: Table II's configuration A, its largest load there and
+    the paper's identified K_theta; the scene shows both formulations' ellipsoids side by side.
+    """
+    robot = load_robot("sk120")
+    return robot, np.asarray(robot.defaults["k_theta_SI"], dtype=float)
 
 
 def _log(quiet: bool, text: str) -> None:
@@ -399,12 +410,17 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
     return "\n".join(parts)
 
 
-def write_report(out: Path, summary: dict, figures: dict[str, bytes]) -> None:
-    """Write report.html, summary.json, the PNGs and the 3-D scene atomically into ``out``."""
-    from stiffness.viewer import export_sk120_scene
+def write_report(out: Path, summary: dict, figures: dict[str, bytes],
+                 scene: Callable[[Path], object] | None = None) -> None:
+    """Write report.html, summary.json, the PNGs and the 3-D scene atomically into ``out``.
 
+    ``scene(path)`` writes the 3-D scene of :func:`scene_robot` to ``out / SCENE_FILE`` (the
+    ``stiffness report`` command passes the viewer's export: the viewer sits above this layer);
+    None writes no scene.
+    """
     output_folder(out)
-    export_sk120_scene(out / SCENE_FILE)
+    if scene is not None:
+        scene(out / SCENE_FILE)
     for name, data in figures.items():
         atomic_write(out / name, data)
     atomic_write(out / "summary.json", json.dumps(summary, indent=1, default=_json_default
@@ -419,32 +435,3 @@ def _json_default(value):
         return value.tolist()
     raise TypeError(f"not JSON serialisable: {type(value)}")
 
-
-def configure_parser(parser: argparse.ArgumentParser) -> None:
-    """Flags of ``stiffness report``."""
-    parser.add_argument("--out", default="sk120-report", help="output folder (default "
-                                                              "./sk120-report)")
-    parser.add_argument("--campaign", help="campaign to identify from (default: the shipped "
-                                           "Table II campaign)")
-    parser.add_argument("--quiet", action="store_true", help="no progress on the terminal")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Build and write the report, then print a short summary."""
-    out = output_folder(args.out, create=False)  # before the work: a bad --out fails at once
-    summary, figures = build_report(args.campaign, quiet=args.quiet)
-    write_report(out, summary, figures)
-    s = summary
-    print(f"SK120 report written to {out / 'report.html'} ({s['elapsed_s']:.0f} s)")
-    print(f"  Appendix I mismatches: {', '.join(s['appendix_mismatches']) or 'none'}")
-    print("  K_theta (N.mm/rad): paper " + ", ".join(f"{k:.4g}" for k in
-                                                    s["paper_k_theta_Nmm_per_rad"])
-          + " | identified " + ", ".join(f"{k:.4g}" for k in s["identified_k_theta_Nmm_per_rad"]))
-    t2 = s["table2_summary"]
-    print(f"  Table II: enhanced vs measured {t2['rms_enhanced_vs_measured_mm']:.3f} mm RMS "
-          f"(paper's own {t2['rms_paper_calculated_vs_measured_mm']:.3f})")
-    print(f"  Table IV printed counts self-consistent: {s['table4_paper_self_consistent']}")
-    print(f"  K_theta - K_C PD on the whole grid: {s['kx_positive_definite_everywhere']}; loses "
-          f"PD at {s['kx_loses_pd_at_force_N'] / 1e3:.0f} kN")
-    print(f"  audit: {len(s['audit'])} violations (see report)")
-    return 0

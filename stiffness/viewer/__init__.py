@@ -59,7 +59,6 @@ from stiffness.viewer.core import (
     FieldState,
     SceneState,
     StiffnessViewer,
-    export_sk120_scene,
 )
 
 # private helpers kept importable from here (tests import them)
@@ -108,7 +107,6 @@ __all__ = [
     "StiffnessViewer",
     "TextSprite",
     "ellipsoid_transform",
-    "export_sk120_scene",
     "format_value",
     "principal_ellipsoid",
     "render_page",

@@ -3,7 +3,7 @@
 :class:`StiffnessViewer` draws the robot and its deflected copy, the load, the stiffness (or
 compliance) ellipsoids of both formulations, ellipsoid fields and animated paths into a
 recorded meshcat scene, forwarded to a live server if any, and writes it as a static page
-(:func:`export_sk120_scene` for the report). See :mod:`stiffness.viewer` for the conventions.
+(:meth:`StiffnessViewer.export`). See :mod:`stiffness.viewer` for the conventions.
 
 Units: SI (m, N, rad; N/m, m/N; N.m/rad for joints).
 """
@@ -34,7 +34,7 @@ from stiffness.mechanics.formulation import (
     tangent_joint_stiffness,
     target_state,
 )
-from stiffness.model.robot import Robot, load_robot
+from stiffness.model.robot import Robot
 from stiffness.viewer.deps import _meshcat, _pinocchio_meshcat_visualizer
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
@@ -1032,14 +1032,3 @@ class StiffnessViewer:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-
-def export_sk120_scene(path: Path) -> Path:
-    """Write the SK120's static scene (default configuration A and load) to ``path``.
-
-    The report links it. Enhanced and conventional stiffness ellipsoids side by side, the
-    deflected robot and the load arrow; a self-contained HTML page that opens offline.
-    """
-    robot = load_robot("sk120")
-    viewer = StiffnessViewer(robot, robot.defaults["k_theta_SI"])
-    viewer.show()
-    return viewer.export(path, title="Motoman SK120: stiffness at configuration A")
