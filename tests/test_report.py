@@ -91,7 +91,7 @@ def test_report_renders_in_headless_chromium(report_dir):
         pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")
     page = (report_dir / "report.html").read_text()
     n_figures = page.count("<figure")
-    assert n_figures == 5
+    assert n_figures == 6
     probe = ("<script>window.addEventListener('load',()=>{for(const i of document.images)"
              "{i.setAttribute('data-rendered',i.complete&&i.naturalWidth>100?'yes':'no');}"
              "document.body.setAttribute('data-probe','done');});</script>")

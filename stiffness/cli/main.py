@@ -20,7 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compare the printed Appendix I Jacobian and its K_C with Pinocchio's SK120",
     ),
     "identify": ("stiffness.cli.identify", "identify joint stiffness from a campaign"),
-    "report": ("stiffness.papers.report", "the SK120 paper-reproduction report (the main job)"),
+    "report": ("stiffness.cli.report", "the SK120 paper-reproduction report (the main job)"),
     "diagnose": ("stiffness.cli.diagnose",
                  "find and name what a model misses against a campaign's measurements"),
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
