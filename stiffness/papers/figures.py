@@ -27,7 +27,8 @@ def force_deflection(curves: dict[str, dict]) -> bytes:
     ``curves[name] = {"force_N": (k,), "conventional": (k, 3), "enhanced": (k, 3),
     "exact": (k, 3), "direction": (3,)}`` in mm.
     """
-    fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 4.3), squeeze=False)
+    fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 4.3), squeeze=False,
+                             layout="constrained")
     for ax, (name, c) in zip(axes[0], curves.items(), strict=True):
         for i, (axis, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"), strict=True)):
             ax.plot(c["force_N"], c["exact"][:, i], "-", color=colour,
@@ -60,14 +61,17 @@ def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
     keep = np.abs(q_deg[:, 0] - q1) < 1e-6
     q2_axis, q2_index = np.unique(np.round(q_deg[keep, 1], 6), return_inverse=True)
     q3_axis, q3_index = np.unique(np.round(q_deg[keep, 2], 6), return_inverse=True)
-    fig, axes = plt.subplots(3, 3, figsize=(13, 10), sharex=True, sharey=True)
+    fig, axes = plt.subplots(3, 3, figsize=(13, 10), sharex=True, sharey=True,
+                             layout="constrained")
+    floor = 1e-3 * float(np.max(np.abs(diag[keep])))  # below: numerically zero
     for i in range(3):
         for k in range(3):
             grid = np.full((q2_axis.size, q3_axis.size), np.nan)
             grid[q2_index, q3_index] = diag[keep, k, i]
             ax = axes[k, i]
+            limit = max(float(np.nanmax(np.abs(grid))), floor)
             mesh = ax.pcolormesh(q3_axis, q2_axis, grid, shading="nearest", cmap="RdBu_r",
-                                 vmin=-np.nanmax(np.abs(grid)), vmax=np.nanmax(np.abs(grid)))
+                                 vmin=-limit, vmax=limit)
             fig.colorbar(mesh, ax=ax, label="mm/rad")
             ax.set_title(rf"C{i + 1}{i + 1}, {'xyz'[k]} part: "
                          rf"$\partial J_{{{'xyz'[k]}{i + 1}}}/\partial\theta_{i + 1}$",
@@ -83,7 +87,7 @@ def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
 
 def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
     """Error of the linear predictions against the exact equilibrium, log-log in the load."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
     force = departure.scales * reference_force_N
     for pred, name, style in ((departure.conventional, "conventional", "o-"),
                               (departure.enhanced, "enhanced", "s-")):
@@ -110,7 +114,7 @@ def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
 def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.ndarray,
                   ratio: np.ndarray, load_N: float) -> bytes:
     """Minimum principal stiffness (N/mm) over (theta2, theta3), and enhanced/conventional."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), layout="constrained")
     mesh = ax1.pcolormesh(theta3_deg, theta2_deg, minimum * 1e-3, shading="auto", cmap="viridis")
     fig.colorbar(mesh, ax=ax1, label="smallest principal stiffness (N/mm)")
     ax1.set_title("conventional stiffness (eq. 8), q1 = 0, wrist vertical", fontsize=10)
@@ -141,7 +145,7 @@ def table2_comparison(rows: list[dict]) -> bytes:
               ("paper_calculated_mm", "paper's calculated (eq. 10)", "s"),
               ("enhanced_mm", "ours, enhanced (eq. 10)", "^"),
               ("conventional_mm", "ours, conventional (eq. 8)", "x"))
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6), layout="constrained")
     for a, ax in enumerate(axes):
         for key, label, style in series:
             ax.plot(x, [r[key][a] for r in rows], style, label=label, alpha=0.85,
@@ -150,7 +154,8 @@ def table2_comparison(rows: list[dict]) -> bytes:
         ax.set_xlabel("Table II row (configuration and load step)")
         ax.set_ylabel(f"deflection along base {'xyz'[a]} (mm)")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=4,
+               fontsize=9)
     return _png(fig)
 
 
@@ -161,9 +166,10 @@ def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
     ratio = np.array([r["paper_work_cartesian"] / np.dot(r["force_N"], r["force_N"])
                       for r in rows])
     ours = np.array([r["work_cartesian_Nmm"] / np.dot(r["force_N"], r["force_N"]) for r in rows])
-    fig, ax = plt.subplots(figsize=(11, 4))
-    ax.plot(x, ratio, "o", label="printed eq. 14 work / |F|^2 (printed unit per N^2)")
-    ax.plot(x, ours, "x", label="ours, eq. 14 from the enhanced deflection (N.mm per N^2)")
+    fig, ax = plt.subplots(figsize=(11, 4.6), layout="constrained")
+    ax.plot(x, ratio, "o", label=r"printed eq. 14 work / $|F|^2$ (printed unit per N$^2$)")
+    ax.plot(x, ours, "x",
+            label=r"ours: eq. 14 from the enhanced deflection / $|F|^2$ (N·mm per N$^2$)")
     for c in corrupt:
         i = labels.index(f"{c['config']}{c['row']}")
         ax.plot(x[i], ratio[i], "o", ms=14, mfc="none", mec="C3",
@@ -171,6 +177,6 @@ def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
     ax.set_xticks(x, labels, fontsize=8)
     ax.set_xlabel("Table III row (configuration and load step)")
     ax.set_ylabel("work per squared load")
-    ax.legend(fontsize=8)
+    fig.legend(loc="outside lower center", ncol=3, fontsize=9)
     ax.grid(alpha=0.3)
     return _png(fig)

@@ -169,6 +169,13 @@ def _table(caption: str, headers: list[str], rows: list[list], legend: str = "",
             f"<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
 
 
+def _sentence(text: str) -> str:
+    """A finding as a sentence: capitalised, micrometres spelled µm, a final full stop."""
+    text = text.replace(" um", " µm")
+    text = text[:1].upper() + text[1:]
+    return _esc(text if text.endswith(".") else text + ".")
+
+
 def _badge(verdict: str) -> str:
     return (f"<span class='verdict' style='background:{_BADGE[verdict]}'>{_esc(verdict)}"
             "</span>")
@@ -190,7 +197,8 @@ def _section(anchor: str) -> str:
 _STYLE = (
     "body{font-family:system-ui,sans-serif;max-width:1180px;margin:auto;padding:0 16px;"
     "color:#222;line-height:1.45}h1{font-size:26px;margin-bottom:4px}h2{margin-top:32px;"
-    "border-bottom:1px solid #ddd;padding-bottom:4px}table{border-collapse:collapse;"
+    "border-bottom:1px solid #ddd;padding-bottom:4px}"
+    "table{border-collapse:collapse;min-width:640px;"
     "margin:10px 0 18px}td,th{border:1px solid #bbb;padding:3px 7px;font-size:13px;"
     "vertical-align:top}th{background:#f2f2f2}caption{caption-side:top;text-align:left;"
     "padding:4px 0;font-size:13px}.legend{color:#555}.verdict{color:#fff;border-radius:4px;"
@@ -198,7 +206,8 @@ _STYLE = (
     "nav ol{columns:2}pre{background:#f6f6f6;padding:10px;overflow-x:auto}img{max-width:100%}"
     "figure{margin:18px 0}figcaption{font-size:13px;color:#444}.lead{font-size:15px}"
     "dl.prov{display:grid;grid-template-columns:max-content auto;gap:2px 14px;font-size:13px}"
-    "dl.prov dt{color:#555}code{background:#f3f3f3;padding:0 3px}"
+    "dl.prov dt{color:#555}tr.group td{border-top:2px solid #888}"
+    "code{background:#f3f3f3;padding:0 3px}"
 )
 
 
@@ -311,13 +320,13 @@ def _conventions_section(s: dict) -> list[str]:
 def _appendix_section(s: dict) -> list[str]:
     app = s["appendix"]
     conv = app["conventions"]
-    lengths = [[_esc(k), v] for k, v in app["lengths_mm"].items()]
+    lengths = [["value (mm)", *app["lengths_mm"].values()]]
     elements = [[_esc(k), v["max_abs"], v["max_rel"]] for k, v in app["elements"].items()]
     parts = [_section("appendix"),
              "<p>Angle convention of the appendix, found by search: "
              f"{_esc(conv['description'])}. {_esc(conv['theta2_theta3'])} "
              f"{_esc(conv['chain_rule'])}</p>",
-             _table("Appendix I length symbols", ["symbol", "value (mm)"], lengths,
+             _table("Appendix I length symbols", ["symbol", *app["lengths_mm"]], lengths,
                     "Values from Table I (natural assignment) and the L-shaped fixture."),
              _table("Printed Jacobian elements against Pinocchio's",
                     ["element", "largest difference (mm/rad)", "largest relative difference"],
@@ -358,7 +367,7 @@ def _identification_section(s: dict) -> list[str]:
         f"15 Table II rows (RMS {s['identified_rms_residual_mm']:.3f} mm), the paper's "
         f"{s['paper_residual_norm']} over its 20 unpublished configurations. Formulation "
         f"{_esc(s['identified_formulation'])}; undetermined joints: {_esc(undetermined)}.</p>",
-        f"<p>{_badge(entry['verdict'])} {_esc(entry['finding'])}.</p>",
+        f"<p>{_badge(entry['verdict'])} {_sentence(entry['finding'])}</p>",
     ]
 
 
@@ -400,9 +409,9 @@ def _table2_section(s: dict) -> list[str]:
                     fit_rows, "Least-squares fits per configuration; our enhanced column is "
                     "rounded to the paper's 4 decimals first. Printed rounding: 5e-05 mm. "
                     "Small singular values: nearly collinear forces.")]
-    for a in _entries(s, "Table II"):
+    for a in _entries(s, "Table II ", "Table II:"):
         parts.append(f"<p>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>: "
-                     f"{_esc(a['finding'])}.</p>")
+                     f"{_sentence(a['finding'])}</p>")
     return parts
 
 
@@ -423,35 +432,41 @@ def _table3_section(s: dict) -> list[str]:
                     "K_C = 0, which our model gives as −½ΔΘᵀK_CΔΘ.")]
     for a in _entries(s, "Table III"):
         parts.append(f"<p>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>: "
-                     f"{_esc(a['finding'])}.</p>")
+                     f"{_sentence(a['finding'])}</p>")
     return parts
 
 
 def _table4_section(s: dict) -> list[str]:
     classes = ("PD", "PSD", "ND", "NSD", "ID")
-    rows = []
+    body = []
     for case, paper in s["table4_paper"].items():
         signs = s.get("table4_signs", {}).get(case)
         load = ("(" + ", ".join(f"{'+' if v > 0 else '−'}100" for v in signs) + ") N"
                 if signs else "")
-        for name, counts in (("paper", paper), ("ours, eigenvalues", s["table4"][case]),
-                             ("ours, determinant sign", s["table4_determinant_rule"][case])):
-            rows.append([case if name == "paper" else "", load if name == "paper" else "",
-                         name] + [counts[c] for c in classes])
+        for k, (name, counts) in enumerate((
+                ("paper", paper), ("ours, eigenvalues", s["table4"][case]),
+                ("ours, determinant sign", s["table4_determinant_rule"][case]))):
+            lead = (f"<td rowspan='3'>{_esc(case)}</td><td rowspan='3'>{load}</td>"
+                    if k == 0 else "")
+            style = " class='group'" if k == 0 else ""
+            body.append(f"<tr{style}>{lead}<td>{_esc(name)}</td>"
+                        + "".join(f"<td>{counts[c]}</td>" for c in classes) + "</tr>")
+    head = "".join(f"<th>{h}</th>" for h in ("case", "load F", "counted by", *classes))
     where = s["kx_loses_pd_where"]
     q = ", ".join(f"{v:.1f}" for v in where["q_deg"])
     d = ", ".join(f"{v:.2f}" for v in where["direction"])
     parts = [_section("table4"),
-             _table("Table IV: configurations of the grid by definiteness of K_C",
-                    ["case", "load F", "counted by", *classes], rows,
-                    f"Grid: {s['table4_grid']} (5824 configurations). Each case has three "
-                    "rows: the printed counts, ours from the eigenvalues of K_C, and ours if "
-                    "'positive definite' meant a positive determinant (the test the printed "
-                    "counts follow). PD/ND positive/negative definite, PSD/NSD semi-definite, "
-                    "ID indefinite.")]
+             "<table><caption><b>Table IV: configurations of the grid by definiteness of "
+             "K_C</b> <span class='legend'>" + _esc(
+                 f"Grid: {s['table4_grid']} (5824 configurations). Each case has three rows: "
+                 "the printed counts, ours from the eigenvalues of K_C, and ours if 'positive "
+                 "definite' meant a positive determinant (the test the printed counts follow). "
+                 "PD/ND positive/negative definite, PSD/NSD semi-definite, ID indefinite.")
+             + f"</span></caption><thead><tr>{head}</tr></thead><tbody>{''.join(body)}"
+             "</tbody></table>"]
     for a in _entries(s, "Table IV"):
         parts.append(f"<p>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>: "
-                     f"{_esc(a['finding'])}.</p>")
+                     f"{_sentence(a['finding'])}</p>")
     parts.append(_section("definiteness"))
     parts.append(f"<p>K_θ − K_C is positive definite everywhere on the grid under the Table IV "
                  f"loads: {'yes' if s['kx_positive_definite_everywhere'] else 'no'}. Scaling the "
@@ -459,7 +474,7 @@ def _table4_section(s: dict) -> list[str]:
                  f"kN, at q = ({q}) deg under load case {_esc(where['load_case'])} (direction "
                  f"{d}).</p>")
     for a in _entries(s, "Section VI"):
-        parts.append(f"<p>{_badge(a['verdict'])} {_esc(a['finding'])}.</p>")
+        parts.append(f"<p>{_badge(a['verdict'])} {_sentence(a['finding'])}</p>")
     return parts
 
 
@@ -467,8 +482,8 @@ def _findings_section(s: dict) -> list[str]:
     parts = [_section("findings"), "<p>Every finding, with the law it is checked against. "
              "These are statements about the paper's printed numbers and formulas.</p><ol>"]
     for a in s["audit"]:
-        parts.append(f"<li>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>. Law: "
-                     f"{_esc(a['law'])}. {_esc(a['finding'])}.</li>")
+        parts.append(f"<li>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>. <i>Law:</i> "
+                     f"{_esc(a['law'])}. <i>Finding:</i> {_sentence(a['finding'])}</li>")
     parts.append("</ol>")
     return parts
 
