@@ -99,6 +99,14 @@ def screenshot(page: Path, out: Path, *extra: str) -> np.ndarray:
     return np.asarray(Image.open(out).convert("RGB"), dtype=float)
 
 
+def page_overlay(page: str) -> dict:
+    """The legend and label data embedded in an exported page."""
+    found = re.search(r'<script type="application/json" id="stiffness-overlay-data">(.*?)'
+                      r'</script>', page, re.S)
+    assert found is not None, "no overlay data in the page"
+    return json.loads(found.group(1).replace("<\\/", "</"))
+
+
 def computed_stiffness(robot, coords, k_theta, load) -> dict[str, np.ndarray]:
     """Translational K_X of both formulations, straight from stiffness.mechanics.formulation."""
     q = robot.configuration(np.asarray(coords, dtype=float))
@@ -213,13 +221,18 @@ def test_exported_ellipsoids_are_the_eigendecomposition(sk120_page, sk120):
         np.testing.assert_array_equal(transforms[f"/meshcat/stiffness/{name}/axes"], matrix)
     # the stated scale is the one drawn
     assert f"radius = {format_value(state.scale, 'm')} per N/m" in page
-    # labels carry values and units
-    labels = [c["object"]["textures"][0]["text"] for c in scene_commands(page)
-              if c["type"] == "set_object" and "/label" in c["path"]
-              and c["object"].get("textures")]
+    # the page's labels name the axes at their tips; the legend carries values and units
+    overlay = page_overlay(page)
+    labels = {tuple(label["anchor"]): label["text"] for label in overlay["labels"]}
+    assert labels[("meshcat", "stiffness", "enhanced", "label1")] == "k1"
+    assert {"enhanced", "conventional"} <= set(labels.values())
     values = np.linalg.eigh(k_x["enhanced"])[0]
-    assert f"k1 = {format_value(values[0], 'N/m')}" in labels
-    assert {"enhanced", "conventional"} <= set(labels)
+    legend = " ".join(item["text"] for item in overlay["legend"])
+    assert f"k1, k2, k3 = [{', '.join(format_value(v) for v in values)}] N/m" in legend
+    for i in range(3):  # anchored at the axis tips: centre + radius along eigenvector i
+        tip = transforms[f"/meshcat/stiffness/enhanced/label{i + 1}"][:3, 3]
+        axis = transforms["/meshcat/stiffness/enhanced/surface"][:3, i]
+        np.testing.assert_allclose(tip, position + axis, atol=1e-9)
 
 
 def test_ur5_scene_and_compliance_quantity(ur5):
@@ -253,9 +266,8 @@ def test_unbounded_stiffness_is_drawn_clipped(four_bar_robot):
     assert np.isinf(ell.values[-1]) and ell.stiffness is None
     radii = state.radii["enhanced"]
     assert np.all(np.isfinite(radii)) and radii[-1] == pytest.approx(3.0 * radii[1])
-    labels = [c["object"]["textures"][0]["text"] for c in viewer.commands()
-              if c["type"] == "set_object" and c["path"].endswith("label3")]
-    assert labels == ["k3 = inf N/m"]
+    legend = " ".join(item["text"] for item in viewer.overlay()["legend"])
+    assert "k1, k2, k3 = [" in legend and ", inf] N/m" in legend
 
 
 def test_sweep_animates_each_frames_ellipsoid(ur5):
