@@ -95,9 +95,10 @@ def resolve(args: argparse.Namespace) -> tuple[Robot, np.ndarray, np.ndarray, np
     """Robot, coordinates (rad, m), joint stiffness (n, n) and load of the kx flags.
 
     The same resolution as ``stiffness kx`` (:func:`stiffness.cli.kx.resolve_inputs`):
-    shipped robots bring their configuration, springs and load.
+    shipped robots bring their configuration, springs and load; without ``--wrench`` and a
+    shipped load, the load is zero (the unloaded stiffness).
     """
-    inputs = kx.resolve_inputs(args)
+    inputs = kx.resolve_inputs(args, require_load=False)
     return inputs.robot, inputs.coords, inputs.k_theta, inputs.load
 
 
@@ -186,6 +187,12 @@ def build(args: argparse.Namespace, live: bool) -> StiffnessViewer:
     return viewer
 
 
+def _say_if_unloaded(viewer: StiffnessViewer) -> None:
+    if viewer.state is not None and not np.any(viewer.state.wrench):
+        print("no load (give --wrench fx,fy,fz in N): drawing the unloaded stiffness, where "
+              "enhanced and conventional coincide")
+
+
 def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
@@ -194,11 +201,13 @@ def run(args: argparse.Namespace) -> int:
     """Export the static page, or serve the live viewer until Ctrl-C or ``--duration``."""
     if args.export is not None:
         viewer = build(args, live=False)
+        _say_if_unloaded(viewer)
         path = viewer.export(args.export)
         print(f"wrote {path}: a self-contained page, open it in a browser (works offline)")
         return 0
     previous = signal.signal(signal.SIGTERM, _terminate)  # so that the server is stopped
     viewer = build(args, live=True)
+    _say_if_unloaded(viewer)
     try:
         where = "this machine only" if args.host == LOOPBACK else \
             f"{args.host}: reachable from the network"
