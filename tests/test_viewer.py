@@ -871,7 +871,7 @@ def test_page_title_is_the_robots_name_not_its_path():
 
     robot = load_robot(robots_directory() / "hexapod" / "hexapod.urdf", frame="platform")
     viewer = StiffnessViewer(robot, [1e7] * 6)
-    viewer.show()
+    viewer.show(load_robot("hexapod").defaults["q_SI"], [0.0, 0.0, -100.0])
     title = re.search(r"<title>(.*?)</title>", viewer.html()).group(1)
     assert "/" not in title and ".urdf" not in title
     assert title.startswith(robot.model.name) and viewer.overlay()["title"].startswith(
