@@ -869,9 +869,10 @@ def test_labels_never_overlap_and_the_floor_is_in_frame(case, tmp_path, capsys):
 def test_page_title_is_the_robots_name_not_its_path():
     from stiffness.model.robot import robots_directory
 
-    robot = load_robot(robots_directory() / "hexapod" / "hexapod.urdf", frame="platform")
-    viewer = StiffnessViewer(robot, [1e7] * 6)
-    viewer.show(load_robot("hexapod").defaults["q_SI"], [0.0, 0.0, -100.0])
+    robot = load_robot(robots_directory() / "sk120" / "sk120.urdf", frame="fixture_target",
+                       compliant_joints=["joint1", "joint2", "joint3"])
+    viewer = StiffnessViewer(robot, [1e6, 4e5, 9e5])
+    viewer.show(np.deg2rad(load_robot("sk120").defaults["q_deg"]), [0.0, 0.0, -100.0])
     title = re.search(r"<title>(.*?)</title>", viewer.html()).group(1)
     assert "/" not in title and ".urdf" not in title
     assert title.startswith(robot.model.name) and viewer.overlay()["title"].startswith(
