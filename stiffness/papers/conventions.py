@@ -17,18 +17,18 @@ difference) and the identification of K_theta.
 
 from __future__ import annotations
 
-import tempfile
+import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.identify import identify
-from stiffness.model.robot import Robot, load_robot, robots_directory
+from stiffness.model.robot import Robot, load_robot
 from stiffness.papers.appendix_convention import printed_convention
 from stiffness.papers.reproduction import table2, table2_summary, table3
-from stiffness.papers.sk120 import AngleConvention, read_table1, sk120_urdf
+from stiffness.papers.sk120 import AngleConvention
 
 #: The other tool-vertical convention: theta1 and theta6 without offset or sign change.
 RADIAL_ALTERNATIVE = AngleConvention((1, 1, -1, 1, 1, 1), (0.0, -90.0, 180.0, 0.0, 0.0, 0.0))
@@ -98,23 +98,19 @@ class ConventionResult:
         }
 
 
-def convention_robot(convention: AngleConvention, folder: Path) -> Robot:
-    """The SK120 (Table I, shipped loop) with printed angles mapped by ``convention``.
+def angle_map(convention: AngleConvention, model: AngleConvention) -> Callable:
+    """Printed angles under ``convention`` -> coordinates of a model built in ``model``, deg.
 
-    Parameters
-    ----------
-    convention
-        Printed-angle map.
-    folder
-        Where the URDF and its loop sidecar are written.
+    Both give the same DH angles: ``o_m + s_m q' = o_c + s_c q``, so
+    ``q' = (o_c - o_m + s_c q) / s_m``.
     """
-    shipped = robots_directory() / "sk120"
-    urdf = folder / "sk120_convention.urdf"
-    urdf.write_text(sk120_urdf(read_table1(shipped / "table1_dh.csv"), convention))
-    (folder / "sk120_convention.loops.yaml").write_text(
-        (shipped / "sk120.loops.yaml").read_text())
-    return load_robot(urdf, frame="fixture_target", compliant_joints=["joint1", "joint2",
-                                                                       "joint3"])
+    o_c, s_c = np.asarray(convention.offsets_deg), np.asarray(convention.signs, dtype=float)
+    o_m, s_m = np.asarray(model.offsets_deg), np.asarray(model.signs, dtype=float)
+
+    def to_model(q_deg: np.ndarray) -> np.ndarray:
+        return (o_c - o_m + s_c * np.asarray(q_deg, dtype=float)) / s_m
+
+    return to_model
 
 
 def rows_within_configuration(configs: list[str]) -> list[int]:
@@ -137,26 +133,30 @@ def evaluate_convention(name: str, convention: AngleConvention, robot: Robot,
     name
         Label of the convention.
     convention
-        Its printed-angle map (for the record; ``robot`` must be built with it).
+        Its printed-angle map.
     robot
-        The SK120 in that convention.
+        The shipped SK120 (built in :func:`printed_convention`); the printed angles are mapped
+        onto its coordinates (:func:`angle_map`).
     campaign
-        The Table II campaign (printed angles).
+        The Table II campaign (printed angles, rad).
     k_theta
         The paper's joint stiffness (3, 3), N.m/rad.
     starts
         Starts of the identification.
     """
-    t2 = table2(robot, k_theta)
+    to_model = angle_map(convention, printed_convention())
+    t2 = table2(robot, k_theta, to_model)
     s2 = table2_summary(t2)
-    t3 = table3(robot, k_theta)
+    t3 = table3(robot, k_theta, to_model)
     printed = np.array([r["paper_work_cartesian"] - r["paper_work_joint_conventional"]
                         for r in t3])
     ours = np.array([r["work_cartesian_Nmm"] - r["work_joint_conventional_Nmm"] for r in t3])
     agree = np.sign(printed) == np.sign(ours)
     within = rows_within_configuration([r["config"] for r in t3])
     nonzero = (printed != 0) & (ours != 0)
-    ident = identify(campaign, method="both", starts=starts, robot=robot)
+    mapped = dataclasses.replace(campaign, q=np.deg2rad(to_model(np.rad2deg(campaign.q))),
+                                 _robot=robot)
+    ident = identify(mapped, method="both", starts=starts, robot=robot)
     return ConventionResult(
         name=name, convention=convention,
         table2_rms_mm=s2["rms_enhanced_vs_measured_mm"],
@@ -176,10 +176,7 @@ def evaluate_convention(name: str, convention: AngleConvention, robot: Robot,
 def compare_conventions(campaign: Campaign, k_theta: np.ndarray, starts: int = 6
                         ) -> list[ConventionResult]:
     """The chosen convention (the shipped model) and :data:`RADIAL_ALTERNATIVE`, chosen first."""
-    results = [evaluate_convention("chosen", printed_convention(), load_robot("sk120"), campaign,
-                                   k_theta, starts)]
-    with tempfile.TemporaryDirectory() as tmp:
-        robot = convention_robot(RADIAL_ALTERNATIVE, Path(tmp))
-        results.append(evaluate_convention("alternative", RADIAL_ALTERNATIVE, robot, campaign,
-                                           k_theta, starts))
-    return results
+    robot = load_robot("sk120")
+    return [evaluate_convention(name, convention, robot, campaign, k_theta, starts)
+            for name, convention in (("chosen", printed_convention()),
+                                     ("alternative", RADIAL_ALTERNATIVE))]

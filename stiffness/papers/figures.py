@@ -176,7 +176,7 @@ def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
                 label=f"misprinted force: row {labels[i]}")
     ax.set_xticks(x, labels, fontsize=8)
     ax.set_xlabel("Table III row (configuration and load step)")
-    ax.set_ylabel("work per squared load")
+    ax.set_ylabel(r"work / $|F|^2$ (printed unit or N·mm, per N$^2$)")
     fig.legend(loc="outside lower center", ncol=3, fontsize=9)
     ax.grid(alpha=0.3)
     return _png(fig)

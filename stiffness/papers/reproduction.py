@@ -55,11 +55,23 @@ class AuditEntry:
                 "numbers": self.numbers, "verdict": self.verdict}
 
 
-def table2(robot: Robot, k_theta: np.ndarray) -> list[dict]:
-    """Table II reproduced: paper-calculated, ours conventional, enhanced, exact, measured (mm)."""
+#: Map from printed joint angles (deg) to the model's coordinates (deg).
+AngleMap = Callable[[np.ndarray], np.ndarray]
+
+
+def _identity(q_deg: np.ndarray) -> np.ndarray:
+    return q_deg
+
+
+def table2(robot: Robot, k_theta: np.ndarray, angles: AngleMap = _identity) -> list[dict]:
+    """Table II reproduced: paper-calculated, ours conventional, enhanced, exact, measured (mm).
+
+    ``angles`` maps the printed angles (deg) to the model's coordinates (deg): another
+    printed-angle convention on the same model (default: the model's own).
+    """
     rows, q = [], None
     for rec in read_paper_table("table2"):
-        q = robot.configuration(np.deg2rad(rec["q"]), seed=q)
+        q = robot.configuration(np.deg2rad(angles(rec["q"])), seed=q)
         force = rec["force_N"]
         (state,) = target_states(robot, q, [force])
         jac = state.jacobian[:3]
@@ -121,15 +133,16 @@ def table2_summary(rows: list[dict]) -> dict:
     }
 
 
-def table3(robot: Robot, k_theta: np.ndarray) -> list[dict]:
+def table3(robot: Robot, k_theta: np.ndarray, angles: AngleMap = _identity) -> list[dict]:
     """Table III reproduced: works of eq. 14 and 15 (N.mm) from the enhanced deflection.
 
     Table III prints no deflections, so the deflection is the enhanced model's (paper's K_theta),
-    ``dTheta = (K_theta - K_C)^-1 J^T F`` and ``dX = J dTheta``.
+    ``dTheta = (K_theta - K_C)^-1 J^T F`` and ``dX = J dTheta``. ``angles`` as in
+    :func:`table2`.
     """
     rows, q = [], None
     for rec in read_paper_table("table3"):
-        q = robot.configuration(np.deg2rad(rec["q"]), seed=q)
+        q = robot.configuration(np.deg2rad(angles(rec["q"])), seed=q)
         force = rec["force_N"]
         (state,) = target_states(robot, q, [force])
         jac = state.jacobian[:3]
