@@ -8,11 +8,19 @@ printed; figures are embedded as base64 PNG.
 
 from __future__ import annotations
 
-import base64
-import html
-
 import numpy as np
 
+from stiffness.htmlpage import (
+    contents,
+    esc,
+    figure,
+    heading,
+    page,
+    provenance_block,
+    reproduce_block,
+    table,
+    vec,
+)
 from stiffness.papers.reproduction import VERDICTS
 
 TITLE = "Motoman SK120: reproduction of Alici & Shirinzadeh (2005)"
@@ -139,45 +147,17 @@ def claims(summary: dict) -> list[dict]:
 # ------------------------------------------------------------------------------------ helpers
 
 
-def _esc(text) -> str:
-    return html.escape(str(text))
-
-
-def _num(x, digits: int = 4) -> str:
-    if x is None:
-        return "—"
-    if isinstance(x, float | np.floating):
-        if not np.isfinite(x):
-            return "unbounded"
-        return f"{x:.{digits}g}"
-    return _esc(x)
-
-
-def _vec(v, digits: int = 4) -> str:
-    return ", ".join(f"{x:.{digits}f}" for x in v)
-
-
-def _table(caption: str, headers: list[str], rows: list[list], legend: str = "",
-           cls: str = "") -> str:
-    """A table with its caption (and the legend of its cells); cells: numbers or safe HTML."""
-    head = "".join(f"<th>{_esc(h)}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(
-        f"<td>{c if isinstance(c, str) else _num(c)}</td>" for c in row) + "</tr>"
-        for row in rows)
-    legend_html = f" <span class='legend'>{_esc(legend)}</span>" if legend else ""
-    return (f"<table class='{cls}'><caption><b>{_esc(caption)}</b>{legend_html}</caption>"
-            f"<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>")
 
 
 def _sentence(text: str) -> str:
     """A finding as a sentence: capitalised, micrometres spelled µm, a final full stop."""
     text = text.replace(" um", " µm")
     text = text[:1].upper() + text[1:]
-    return _esc(text if text.endswith(".") else text + ".")
+    return esc(text if text.endswith(".") else text + ".")
 
 
 def _badge(verdict: str) -> str:
-    return (f"<span class='verdict' style='background:{_BADGE[verdict]}'>{_esc(verdict)}"
+    return (f"<span class='verdict' style='background:{_BADGE[verdict]}'>{esc(verdict)}"
             "</span>")
 
 
@@ -191,24 +171,7 @@ def _row_labels(rows: list[dict]) -> list[str]:
 
 
 def _section(anchor: str) -> str:
-    return f"<h2 id='{anchor}'>{_esc(SECTIONS[anchor])}</h2>"
-
-
-_STYLE = (
-    "body{font-family:system-ui,sans-serif;max-width:1180px;margin:auto;padding:0 16px;"
-    "color:#222;line-height:1.45}h1{font-size:26px;margin-bottom:4px}h2{margin-top:32px;"
-    "border-bottom:1px solid #ddd;padding-bottom:4px}"
-    "table{border-collapse:collapse;min-width:640px;"
-    "margin:10px 0 18px}td,th{border:1px solid #bbb;padding:3px 7px;font-size:13px;"
-    "vertical-align:top}th{background:#f2f2f2}caption{caption-side:top;text-align:left;"
-    "padding:4px 0;font-size:13px}.legend{color:#555}.verdict{color:#fff;border-radius:4px;"
-    "padding:1px 6px;white-space:nowrap;font-size:12px}.summary td{font-size:14px}"
-    "nav ol{columns:2}pre{background:#f6f6f6;padding:10px;overflow-x:auto}img{max-width:100%}"
-    "figure{margin:18px 0}figcaption{font-size:13px;color:#444}.lead{font-size:15px}"
-    "dl.prov{display:grid;grid-template-columns:max-content auto;gap:2px 14px;font-size:13px}"
-    "dl.prov dt{color:#555}tr.group td{border-top:2px solid #888}"
-    "code{background:#f3f3f3;padding:0 3px}"
-)
+    return heading(anchor, SECTIONS)
 
 
 # ------------------------------------------------------------------------------------ page
@@ -217,16 +180,12 @@ _STYLE = (
 def render_html(summary: dict, figures: dict[str, bytes]) -> str:
     """The report page, figures embedded as base64 PNG."""
     s = summary
-    parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>"
-             f"{_esc(TITLE)}</title><style>{_STYLE}</style></head><body>"
-             f"<h1>{_esc(TITLE)}</h1><p class='lead'>“Enhanced stiffness modeling of "
+    parts = [f"<h1>{esc(TITLE)}</h1><p class='lead'>“Enhanced stiffness modeling of "
              "manipulators with joint compliance”, its tables and equations checked with "
              "<i>stiffness</i> on a Pinocchio model built from Table I. Numbers are in the "
              "paper's units (mm, N, N·mm/rad) unless stated.</p>"]
     parts += _summary_section(s)
-    parts.append("<nav id='contents'><h2>Contents</h2><ol>" + "".join(
-        f"<li><a href='#{a}'>{_esc(t)}</a></li>" for a, t in SECTIONS.items()
-        if a != "summary") + "</ol></nav>")
+    parts.append(contents(SECTIONS))
     parts += _provenance_section(s)
     parts += _conventions_section(s)
     parts += _appendix_section(s)
@@ -242,57 +201,44 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
                  "browses it live).</p>")
     parts.append(_section("figures"))
     for name, data in figures.items():
-        caption = FIGURE_CAPTIONS[name]
-        b64 = base64.b64encode(data).decode()
-        parts.append(f"<figure id='{name}'><img alt='{_esc(caption)}' "
-                     f"src='data:image/png;base64,{b64}'><figcaption>{_esc(caption)}"
-                     "</figcaption></figure>")
-    parts += _reproduce_section(s)
-    parts.append("</body></html>")
-    return "\n".join(parts)
+        parts.append(figure(name, data, FIGURE_CAPTIONS[name]))
+    parts.append(reproduce_block(s["provenance"], "reproduce", SECTIONS,
+                                 "The run writes this page, summary.json (every number above, "
+                                 "in the units its keys name) and the figures as PNG."))
+    return page(TITLE, parts)
 
 
 def _summary_section(s: dict) -> list[str]:
     counts = ", ".join(f"{n} {v}" for v, n in s["findings_by_verdict"].items())
-    rows = [[_esc(c["claim"]), _esc(c["finding"]), _badge(c["verdict"]),
-             f"<a href='#{c['section']}'>{_esc(SECTIONS[c['section']])}</a>"]
+    rows = [[esc(c["claim"]), esc(c["finding"]), _badge(c["verdict"]),
+             f"<a href='#{c['section']}'>{esc(SECTIONS[c['section']])}</a>"]
             for c in s["claims"]]
     return [_section("summary"),
-            f"<p>{s['findings_count']} findings about the paper ({_esc(counts)}). They concern "
+            f"<p>{s['findings_count']} findings about the paper ({esc(counts)}). They concern "
             "the paper's printed numbers and formulas; the toolkit's own computations are "
             "checked against Pinocchio and finite differences in its test suite.</p>",
-            _table("What the paper claims and what we find",
+            table("What the paper claims and what we find",
                    ["the paper's claim", "what we find", "verdict", "evidence"], rows,
                    "Verdicts: " + "; ".join(VERDICTS) + ". A claim takes the most severe "
                    "verdict of the findings behind it.", cls="summary")]
 
 
 def _provenance_section(s: dict) -> list[str]:
-    p = s["provenance"]
-    commit = p["git_commit"] or "not a git checkout"
-    if p["git_commit"] and p["git_dirty"]:
-        commit += " (with uncommitted changes)"
-    items = [("stiffness version", p["package_version"]), ("git commit", commit),
-             ("date", p["date_utc"]), ("Python", p["python"]), ("Pinocchio", p["pinocchio"]),
-             ("NumPy", p["numpy"]), ("platform", p["platform"]),
-             ("command", f"<code>{_esc(p['command'])}</code>"),
-             ("campaign", f"<code>{_esc(s['campaign'])}</code>")]
-    return [_section("provenance"), "<dl class='prov'>" + "".join(
-        f"<dt>{_esc(k)}</dt><dd>{v if k in ('command', 'campaign') else _esc(v)}</dd>"
-        for k, v in items) + "</dl>"]
+    return [_section("provenance"), provenance_block(
+        s["provenance"], [("campaign", f"<code>{esc(s['campaign'])}</code>")])]
 
 
 def _conventions_section(s: dict) -> list[str]:
     conv = s["conventions"]
     rows = []
     for c in conv:
-        rows.append([_esc(c["name"]), _esc(c["theta_map"]), c["table2_rms_mm"],
+        rows.append([esc(c["name"]), esc(c["theta_map"]), c["table2_rms_mm"],
                      f"{c['table3_sign_agreement']} of {c['table3_rows']}",
-                     _esc(", ".join(c["table3_disagreeing_rows"]) or "none"),
+                     esc(", ".join(c["table3_disagreeing_rows"]) or "none"),
                      c["table3_work_ratio_median"], c["table3_difference_ratio_median"],
-                     _esc(_k(c["k_theta_Nmm_per_rad"]))])
+                     esc(_k(c["k_theta_Nmm_per_rad"]))])
     pc = s["printed_angle_convention"]
-    alternatives = [[_esc(a["description"]), _esc(a["tool_axis"]), a["rms_vs_measured_mm"]]
+    alternatives = [[esc(a["description"]), esc(a["tool_axis"]), a["rms_vs_measured_mm"]]
                     for a in pc["alternatives"]]
     return [
         _section("conventions"),
@@ -301,7 +247,7 @@ def _conventions_section(s: dict) -> list[str]:
         "paper's experiments require, and differ only in the sense and zero of θ1 and in θ6 "
         "(in the alternative the fixture offset points sideways rather than radially). The "
         "report uses the first; nothing in the paper's text decides between them.</p>",
-        _table("The two tool-vertical conventions side by side",
+        table("The two tool-vertical conventions side by side",
                ["convention", "θ_DH from the printed q", "Table II RMS (mm)",
                 "Table III signs agreeing", "rows disagreeing", "Table III work ratio",
                 "Table III difference ratio", "identified K_θ (N·mm/rad)"], rows,
@@ -311,7 +257,7 @@ def _conventions_section(s: dict) -> list[str]:
                "ours, for the eq. 14 work (read as N·mm) and for the work difference. K_θ: "
                "identified from the Table II campaign; undetermined: the data do not bound "
                "it."),
-        _table("All ranked conventions (the six best distinct fits)",
+        table("All ranked conventions (the six best distinct fits)",
                ["convention (θ_DH from printed q)", "tool axis", "Table II RMS (mm)"],
                alternatives, "Criterion: " + pc["criterion"] + "."),
     ]
@@ -321,22 +267,22 @@ def _appendix_section(s: dict) -> list[str]:
     app = s["appendix"]
     conv = app["conventions"]
     lengths = [["value (mm)", *app["lengths_mm"].values()]]
-    elements = [[_esc(k), v["max_abs"], v["max_rel"]] for k, v in app["elements"].items()]
+    elements = [[esc(k), v["max_abs"], v["max_rel"]] for k, v in app["elements"].items()]
     parts = [_section("appendix"),
              "<p>Angle convention of the appendix, found by search: "
-             f"{_esc(conv['description'])}. {_esc(conv['theta2_theta3'])} "
-             f"{_esc(conv['chain_rule'])}</p>",
-             _table("Appendix I length symbols", ["symbol", *app["lengths_mm"]], lengths,
+             f"{esc(conv['description'])}. {esc(conv['theta2_theta3'])} "
+             f"{esc(conv['chain_rule'])}</p>",
+             table("Appendix I length symbols", ["symbol", *app["lengths_mm"]], lengths,
                     "Values from Table I (natural assignment) and the L-shaped fixture."),
-             _table("Printed Jacobian elements against Pinocchio's",
+             table("Printed Jacobian elements against Pinocchio's",
                     ["element", "largest difference (mm/rad)", "largest relative difference"],
                     elements, f"Over {app['n_poses']} poses; relative: "
                     f"{app['relative_error']}.")]
     for m in app["mismatches"]:
-        parts.append(f"<p><b>{_esc(m['element'])}</b>: {_esc(m['explanation'])}</p>")
+        parts.append(f"<p><b>{esc(m['element'])}</b>: {esc(m['explanation'])}</p>")
     for c in app["corrections"]:
         if not c["visible_at_table1_lengths"]:
-            parts.append(f"<p><b>{_esc(c['element'])}</b>: {_esc(c['text'])} (invisible at "
+            parts.append(f"<p><b>{esc(c['element'])}</b>: {esc(c['text'])} (invisible at "
                          "Table I's lengths, where the symbol is zero; found on a model with "
                          "non-zero offsets).</p>")
     parts.append(f"<p>K_C from the corrected appendix against Pinocchio: largest relative "
@@ -356,7 +302,7 @@ def _identification_section(s: dict) -> list[str]:
     undetermined = ", ".join(s["identified_undetermined_joints"]) or "none"
     return [
         _section("identification"),
-        _table("Joint stiffness K_θ (N·mm/rad)",
+        table("Joint stiffness K_θ (N·mm/rad)",
                ["joint", "paper", "ours (chosen convention)", "ours, 95 % interval",
                 "ours, band over the two conventions"], rows,
                "95 % interval: from the fit's covariance, assuming independent measurement "
@@ -366,7 +312,7 @@ def _identification_section(s: dict) -> list[str]:
         f"<p>Residual norm (eq. 12): ours {s['identified_residual_norm_mm2']:.4g} mm² over the "
         f"15 Table II rows (RMS {s['identified_rms_residual_mm']:.3f} mm), the paper's "
         f"{s['paper_residual_norm']} over its 20 unpublished configurations. Formulation "
-        f"{_esc(s['identified_formulation'])}; undetermined joints: {_esc(undetermined)}.</p>",
+        f"{esc(s['identified_formulation'])}; undetermined joints: {esc(undetermined)}.</p>",
         f"<p>{_badge(entry['verdict'])} {_sentence(entry['finding'])}</p>",
     ]
 
@@ -376,9 +322,9 @@ def _table2_section(s: dict) -> list[str]:
     rows = []
     for label, r in zip(labels, s["table2"], strict=True):
         diff = np.array(r["enhanced_mm"]) - np.array(r["paper_calculated_mm"])
-        rows.append([label, _vec(r["force_N"], 2), _vec(r["paper_calculated_mm"]),
-                     _vec(r["conventional_mm"]), _vec(r["enhanced_mm"]), _vec(diff),
-                     _vec(r["exact_mm"]), _vec(r["measured_mm"])])
+        rows.append([label, vec(r["force_N"], 2), vec(r["paper_calculated_mm"]),
+                     vec(r["conventional_mm"]), vec(r["enhanced_mm"]), vec(diff),
+                     vec(r["exact_mm"]), vec(r["measured_mm"])])
     t2 = s["table2_summary"]
     rms_rows = [["paper's calculated", "measured", t2["rms_paper_calculated_vs_measured_mm"]],
                 ["ours, enhanced", "paper's calculated",
@@ -393,15 +339,15 @@ def _table2_section(s: dict) -> list[str]:
                  ", ".join(f"{v:.2g}" for v in f["force_singular_values"])]
                 for c, f in s["table2_linear_map_fits"].items()]
     parts = [_section("table2"),
-             _table("Table II reproduced with the paper's K_θ (deflections in mm, forces in N)",
+             table("Table II reproduced with the paper's K_θ (deflections in mm, forces in N)",
                     ["row", "F", "paper's calculated", "ours, conventional (eq. 8)",
                      "ours, enhanced (eq. 10)", "ours enhanced − paper's calculated",
                      "exact equilibrium", "measured"], rows,
                     "Row: configuration and load step (A1 … C5). Each cell lists the x, y, z "
                     "components in base axes."),
-             _table("Agreement between the columns", ["column", "against", "RMS (mm)"],
+             table("Agreement between the columns", ["column", "against", "RMS (mm)"],
                     rms_rows, "RMS over the 45 deflection components."),
-             _table("Is the paper's calculated column a linear map of F?",
+             table("Is the paper's calculated column a linear map of F?",
                     ["configuration", "general 3×3 map: largest residual (mm)",
                      "symmetric map: largest residual (mm)",
                      "symmetric map on our column: largest residual (mm)",
@@ -410,20 +356,20 @@ def _table2_section(s: dict) -> list[str]:
                     "rounded to the paper's 4 decimals first. Printed rounding: 5e-05 mm. "
                     "Small singular values: nearly collinear forces.")]
     for a in _entries(s, "Table II ", "Table II:"):
-        parts.append(f"<p>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>: "
+        parts.append(f"<p>{_badge(a['verdict'])} <b>{esc(a['item'])}</b>: "
                      f"{_sentence(a['finding'])}</p>")
     return parts
 
 
 def _table3_section(s: dict) -> list[str]:
     labels = _row_labels(s["table3"])
-    rows = [[label, _vec(r["force_N"], 2), r["paper_work_cartesian"], r["work_cartesian_Nmm"],
+    rows = [[label, vec(r["force_N"], 2), r["paper_work_cartesian"], r["work_cartesian_Nmm"],
              r["paper_work_joint_conventional"], r["work_joint_conventional_Nmm"],
              r["paper_work_cartesian"] - r["paper_work_joint_conventional"],
              r["work_cartesian_Nmm"] - r["work_joint_conventional_Nmm"]]
             for label, r in zip(labels, s["table3"], strict=True)]
     parts = [_section("table3"),
-             _table("Table III reproduced with the paper's K_θ",
+             table("Table III reproduced with the paper's K_θ",
                     ["row", "F (N)", "paper eq. 14", "ours eq. 14 (N·mm)",
                      "paper eq. 15, K_C = 0", "ours eq. 15, K_C = 0 (N·mm)",
                      "paper difference", "ours difference (N·mm)"], rows,
@@ -431,7 +377,7 @@ def _table3_section(s: dict) -> list[str]:
                     "in a unit labelled J; ours are in N·mm. Difference: eq. 14 − eq. 15 with "
                     "K_C = 0, which our model gives as −½ΔΘᵀK_CΔΘ.")]
     for a in _entries(s, "Table III"):
-        parts.append(f"<p>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>: "
+        parts.append(f"<p>{_badge(a['verdict'])} <b>{esc(a['item'])}</b>: "
                      f"{_sentence(a['finding'])}</p>")
     return parts
 
@@ -446,10 +392,10 @@ def _table4_section(s: dict) -> list[str]:
         for k, (name, counts) in enumerate((
                 ("paper", paper), ("ours, eigenvalues", s["table4"][case]),
                 ("ours, determinant sign", s["table4_determinant_rule"][case]))):
-            lead = (f"<td rowspan='3'>{_esc(case)}</td><td rowspan='3'>{load}</td>"
+            lead = (f"<td rowspan='3'>{esc(case)}</td><td rowspan='3'>{load}</td>"
                     if k == 0 else "")
             style = " class='group'" if k == 0 else ""
-            body.append(f"<tr{style}>{lead}<td>{_esc(name)}</td>"
+            body.append(f"<tr{style}>{lead}<td>{esc(name)}</td>"
                         + "".join(f"<td>{counts[c]}</td>" for c in classes) + "</tr>")
     head = "".join(f"<th>{h}</th>" for h in ("case", "load F", "counted by", *classes))
     where = s["kx_loses_pd_where"]
@@ -457,7 +403,7 @@ def _table4_section(s: dict) -> list[str]:
     d = ", ".join(f"{v:.2f}" for v in where["direction"])
     parts = [_section("table4"),
              "<table><caption><b>Table IV: configurations of the grid by definiteness of "
-             "K_C</b> <span class='legend'>" + _esc(
+             "K_C</b> <span class='legend'>" + esc(
                  f"Grid: {s['table4_grid']} (5824 configurations). Each case has three rows: "
                  "the printed counts, ours from the eigenvalues of K_C, and ours if 'positive "
                  "definite' meant a positive determinant (the test the printed counts follow). "
@@ -465,13 +411,13 @@ def _table4_section(s: dict) -> list[str]:
              + f"</span></caption><thead><tr>{head}</tr></thead><tbody>{''.join(body)}"
              "</tbody></table>"]
     for a in _entries(s, "Table IV"):
-        parts.append(f"<p>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>: "
+        parts.append(f"<p>{_badge(a['verdict'])} <b>{esc(a['item'])}</b>: "
                      f"{_sentence(a['finding'])}</p>")
     parts.append(_section("definiteness"))
     parts.append(f"<p>K_θ − K_C is positive definite everywhere on the grid under the Table IV "
                  f"loads: {'yes' if s['kx_positive_definite_everywhere'] else 'no'}. Scaling the "
                  f"loads up, it first stops being so at {s['kx_loses_pd_at_force_N'] / 1e3:.1f} "
-                 f"kN, at q = ({q}) deg under load case {_esc(where['load_case'])} (direction "
+                 f"kN, at q = ({q}) deg under load case {esc(where['load_case'])} (direction "
                  f"{d}).</p>")
     for a in _entries(s, "Section VI"):
         parts.append(f"<p>{_badge(a['verdict'])} {_sentence(a['finding'])}</p>")
@@ -482,17 +428,7 @@ def _findings_section(s: dict) -> list[str]:
     parts = [_section("findings"), "<p>Every finding, with the law it is checked against. "
              "These are statements about the paper's printed numbers and formulas.</p><ol>"]
     for a in s["audit"]:
-        parts.append(f"<li>{_badge(a['verdict'])} <b>{_esc(a['item'])}</b>. <i>Law:</i> "
-                     f"{_esc(a['law'])}. <i>Finding:</i> {_sentence(a['finding'])}</li>")
+        parts.append(f"<li>{_badge(a['verdict'])} <b>{esc(a['item'])}</b>. <i>Law:</i> "
+                     f"{esc(a['law'])}. <i>Finding:</i> {_sentence(a['finding'])}</li>")
     parts.append("</ol>")
     return parts
-
-
-def _reproduce_section(s: dict) -> list[str]:
-    p = s["provenance"]
-    checkout = (f"git checkout {p['git_commit']}\n" if p["git_commit"] else "")
-    return [_section("reproduce"),
-            "<p>In a checkout of the <i>stiffness</i> repository (Python ≥ 3.10):</p>",
-            f"<pre>{_esc(checkout)}pip install -e .\n{_esc(p['command'])}</pre>",
-            "<p>The run writes this page, <code>summary.json</code> (every number above, "
-            "in the units its keys name) and the figures as PNG.</p>"]
