@@ -55,7 +55,8 @@ def provenance(command: str | None = None) -> dict:
     Parameters
     ----------
     command
-        The command line to record; default this process's (``stiffness`` and its arguments).
+        The command line to record; default this process's (``stiffness`` and its arguments,
+        or the Python command line that called the toolkit).
 
     Returns
     -------
@@ -71,7 +72,10 @@ def provenance(command: str | None = None) -> dict:
             return "not installed"
 
     if command is None:
-        command = shlex.join(["stiffness", *sys.argv[1:]])
+        if Path(sys.argv[0]).name == "stiffness":
+            command = shlex.join(["stiffness", *sys.argv[1:]])
+        else:
+            command = "from Python: " + shlex.join(sys.argv)
     commit, dirty = git_commit()
     return {
         "package_version": package_version(),
