@@ -877,3 +877,33 @@ def test_page_title_is_the_robots_name_not_its_path():
     assert "/" not in title and ".urdf" not in title
     assert title.startswith(robot.model.name) and viewer.overlay()["title"].startswith(
         robot.model.name)
+
+
+def test_rotational_block_of_the_six_by_six_stiffness():
+    """Hexapod (six compliant legs): the rotational 3x3 block of K_X = C6^-1, in N.m/rad, drawn
+    hidden beside the target with its own scale and a toggle; none for a 3-joint SK120."""
+    robot = load_robot("hexapod")
+    k_theta = np.asarray(robot.defaults["k_theta_SI"], dtype=float)
+    coords = np.asarray(robot.defaults["q_SI"], dtype=float)
+    wrench = np.asarray(robot.defaults["wrench_SI"], dtype=float)
+    viewer = StiffnessViewer(robot, k_theta)
+    state = viewer.show(coords, wrench, "enhanced")
+    target = target_state(robot, robot.configuration(coords), wrench)
+    tangent = tangent_joint_stiffness(np.diag(k_theta), target.k_c, "enhanced")
+    k6 = np.linalg.inv(compliance(target.jacobian, tangent))
+    block = 0.5 * (k6[3:, 3:] + k6[3:, 3:].T)
+    np.testing.assert_allclose(state.rotational.values, np.linalg.eigvalsh(block), rtol=1e-8)
+    assert state.rotational.units == "N.m/rad"
+    transforms = scene_transforms(viewer.commands())
+    radii = np.linalg.norm(transforms["/meshcat/rotational/surface"][:3, :3], axis=0)
+    np.testing.assert_allclose(radii / radii.max(), state.rotational.values
+                               / state.rotational.values.max(), rtol=1e-8)
+    assert radii.max() == pytest.approx(viewer.size)
+    overlay = viewer.overlay()
+    assert {"label": "rotational stiffness (N.m/rad)", "path": ["meshcat", "rotational"]} in \
+        overlay["toggles"]
+    hidden = [c for c in viewer.commands() if c["type"] == "set_property"
+              and c["path"] == "/meshcat/rotational" and c["property"] == "visible"]
+    assert hidden and hidden[-1]["value"] is False
+    sk120 = load_robot("sk120")
+    assert StiffnessViewer(sk120, sk120.defaults["k_theta_SI"]).show().rotational is None
