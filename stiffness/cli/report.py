@@ -11,6 +11,7 @@ import shlex
 from pathlib import Path
 
 from stiffness.papers.report import build_report, write_report
+from stiffness.papers.report_page import verdict_counts
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +49,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"  Table IV printed counts self-consistent: {s['table4_paper_self_consistent']}")
     print(f"  K_theta - K_C PD on the whole grid: {s['kx_positive_definite_everywhere']}; loses "
           f"PD at {s['kx_loses_pd_at_force_N'] / 1e3:.0f} kN")
-    verdicts = ", ".join(f"{n} {v}" for v, n in s["findings_by_verdict"].items())
+    verdicts = verdict_counts(s["findings_by_verdict"])
     print(f"  {s['findings_count']} findings in the paper ({verdicts}); see the report")
     return 0

@@ -208,8 +208,14 @@ def render_html(summary: dict, figures: dict[str, bytes]) -> str:
     return page(TITLE, parts)
 
 
+def verdict_counts(by_verdict: dict[str, int]) -> str:
+    """``12 errors in the paper, 3 not reproduced, ...``."""
+    return ", ".join(f"{n} " + ("errors in the paper" if v == "error in the paper" and n > 1
+                                else v) for v, n in by_verdict.items())
+
+
 def _summary_section(s: dict) -> list[str]:
-    counts = ", ".join(f"{n} {v}" for v, n in s["findings_by_verdict"].items())
+    counts = verdict_counts(s["findings_by_verdict"])
     rows = [[esc(c["claim"]), esc(c["finding"]), _badge(c["verdict"]),
              f"<a href='#{c['section']}'>{esc(SECTIONS[c['section']])}</a>"]
             for c in s["claims"]]
