@@ -198,7 +198,10 @@ def test_page_opens_on_a_summary_then_contents_then_provenance(page, summary):
     assert prov["command"] in text[text.index("Reproduce this"):]
 
 
-def test_page_has_no_raw_literals_and_every_table_a_caption(page):
+def test_page_has_no_raw_literals_and_every_table_a_caption(page, report_dir):
+    captions = re.findall(r"<caption>(.*?)</caption>", (report_dir / "report.html").read_text(),
+                          re.S)
+    assert len(captions) == page.tables and all("class='legend'" in c for c in captions)
     text = " ".join(page.text)
     assert '{"' not in text and "': " not in text and "{'" not in text
     assert "_mm" not in text and "Infinity" not in text and "None" not in text

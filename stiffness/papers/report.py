@@ -332,10 +332,11 @@ def _convention_entry(conventions: list[dict], ci95: list[list[float]]) -> Audit
         item="printed joint angles: convention",
         law="the printed angles must map onto Table I's DH angles by one stated convention",
         finding=(
-            "the paper does not state how its printed angles map onto Table I; two conventions "
-            "keep the tool vertical at every printed configuration and differ only in theta1 "
-            f"and theta6. The chosen one fits Table II to {chosen['table2_rms_mm']:.3f} mm RMS "
-            f"against {other['table2_rms_mm']:.3f} mm; Table III's work-difference signs agree "
+            "the paper does not state how its printed angles map onto Table I; among the "
+            "conventions that keep the tool vertical at every printed configuration, the chosen "
+            "one and the alternative differ only in theta1 and theta6. The chosen one fits "
+            f"Table II to {chosen['table2_rms_mm']:.3f} mm RMS against "
+            f"{other['table2_rms_mm']:.3f} mm; Table III's work-difference signs agree "
             f"in {chosen['table3_sign_agreement']} against {other['table3_sign_agreement']} of "
             f"{chosen['table3_rows']} rows; identified K_theta: " + "; ".join(moves)
             + ". Nothing in the paper's text decides between them"),

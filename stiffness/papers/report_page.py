@@ -93,7 +93,8 @@ def claims(summary: dict) -> list[dict]:
 
     conv = s["conventions"]
     add("The printed joint angles are Table I's (no convention stated)",
-        f"two tool-vertical conventions fit: Table II RMS {conv[0]['table2_rms_mm']:.3f} against "
+        f"two tool-vertical conventions that differ only in θ1 and θ6: Table II RMS "
+        f"{conv[0]['table2_rms_mm']:.3f} against "
         f"{conv[1]['table2_rms_mm']:.3f} mm, Table III signs {conv[0]['table3_sign_agreement']} "
         f"against {conv[1]['table3_sign_agreement']} of {conv[0]['table3_rows']} rows",
         "conventions", "printed joint angles")
@@ -249,10 +250,13 @@ def _conventions_section(s: dict) -> list[str]:
     return [
         _section("conventions"),
         "<p>The paper prints joint angles without saying how they map onto Table I's DH "
-        "angles. Two conventions keep the tool vertical at every printed configuration, as the "
-        "paper's experiments require, and differ only in the sense and zero of θ1 and in θ6 "
-        "(in the alternative the fixture offset points sideways rather than radially). The "
-        "report uses the first; nothing in the paper's text decides between them.</p>",
+        "angles. Many conventions keep the tool vertical at every printed configuration, as the "
+        "paper's experiments require (the second table ranks the best of them by their Table "
+        "II fit). Two of them differ only in the sense and zero of θ1 and in θ6: the chosen "
+        "one, which fits Table II best, and an alternative in which the fixture offset points "
+        "sideways rather than radially. The report uses the first; the table below shows "
+        "where the alternative does better, and nothing in the paper's text decides between "
+        "them.</p>",
         table("The two tool-vertical conventions side by side",
                ["convention", "θ_DH from the printed q", "Table II RMS (mm)",
                 "Table III signs agreeing", "rows disagreeing", "Table III work ratio",
