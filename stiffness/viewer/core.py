@@ -559,9 +559,10 @@ class StiffnessViewer:
         center = state.position - gap * self._side_direction(state.position)
         return Pose(center, block.directions, radii), radii
 
-    def _draw_floor(self, state: SceneState) -> None:
-        """A floor under the robot (once, at the first show): a plate at the lowest joint's
-        height with a grid of round spacing, spanning the robot and its ellipsoids."""
+    def _draw_floor(self, state: SceneState, extra: np.ndarray | None = None) -> None:
+        """A floor under the robot (at the first show): a plate at the lowest joint's height
+        with a grid of round spacing, spanning the robot, its ellipsoids and ``extra`` points
+        (m; a field's targets)."""
         model, data = self.robot.model, self.robot.data
         pin.forwardKinematics(model, data, state.q)
         points = [data.oMi[j].translation.copy() for j in range(model.njoints)]
@@ -569,6 +570,8 @@ class StiffnessViewer:
         points += [state.centers[n] for n in state.centers]
         points = np.array(points)
         z = float(points[:, 2].min()) - 0.01 * self.reach
+        if extra is not None:
+            points = np.vstack([points, np.asarray(extra, dtype=float).reshape(-1, 3)])
         lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
         center = 0.5 * (lo + hi)
         half = 1.25 * max(0.5 * float(np.max(hi - lo)), self.reach)
@@ -781,7 +784,8 @@ class StiffnessViewer:
         if self._frames is not None:
             data["frames"] = self._frames
             data["notes"].append("animation: meshcat's Open Controls > Animations (play, time); "
-                                 "label values are those of frame 0, the line above follows")
+                                 "the legend's values are those of frame 0, the animation "
+                                 "frame line gives the frame shown")
         if self.server is not None and st is not None:
             data["controls"] = self._controls_spec()
         data["camera"] = self._camera_spec()
@@ -999,6 +1003,8 @@ class StiffnessViewer:
                 node.set_transform(ellipsoid_transform(p, e.directions, radii))
             self.field_state = FieldState(np.array(kept), positions_a, ells, kmin, scale,
                                           len(rows) - len(kept), (lo, hi))
+            if self.state is not None and len(positions_a):
+                self._draw_floor(self.state, positions_a)  # under the field too
             self._send_overlay()
             return self.field_state
 
