@@ -19,18 +19,20 @@ from scipy.stats import binom
 
 import stiffness
 from stiffness.calibration.campaign import Campaign, load_campaign
-from stiffness.calibration.design import (
+from stiffness.calibration.design import design, fit_alternatives
+from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.experiment import (
     LOAD_DIRECTIONS,
     baseline_model,
     candidate_set,
     criterion_value,
-    design,
     random_selections,
     select_information,
     sensitivities,
+    separation_score,
+    separation_statistics,
     standard_errors,
 )
-from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.identify import DeflectionModel, identify
 from stiffness.calibration.plan import PLAN_FILE, read_plan, write_plan
 from stiffness.calibration.poses import coordinate_limits
@@ -393,12 +395,6 @@ def test_bad_input_one_line(tmp_path, capsys):
 def test_separation_is_what_refitting_leaves(pools):
     """The accumulated separation equals an explicit least-squares refit of each alternative
     to the other's predictions over the measured rows plus the chosen ones."""
-    from stiffness.calibration.design import (
-        fit_alternatives,
-        separation_score,
-        separation_statistics,
-    )
-
     robot, k, force, pool = pools["ur5"]
     old = simulate("ur5", kq=k, compliant_joints=UR5_ARM, target_offset_m=UR5_OFFSET,
                    effects=[parse_effect("backlash:elbow_joint=0.01")], configs=3,

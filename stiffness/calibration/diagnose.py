@@ -43,9 +43,11 @@ from scipy.stats import chi2, norm
 from scipy.stats import t as student_t
 
 from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
+from stiffness.provenance import provenance
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
 #: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
@@ -71,6 +73,8 @@ MODEL_FORMAT = "stiffness-diagnosed-model"
 #: File names written by :meth:`Diagnosis.write`.
 DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
     "diagnosis.json", "residuals.png", "final-model.json")
+#: The diagnosis as a page (:mod:`stiffness.calibration.diagnosis_page`).
+DIAGNOSIS_PAGE = "diagnosis.html"
 #: Noise sources.
 NOISE_SOURCES = ("declared", "replicates", "residuals")
 
@@ -579,8 +583,10 @@ class Diagnosis:
                                strict=True))},
         })
 
-    def write(self, folder: str | Path) -> dict[str, Path]:
-        """Write ``diagnosis.json``, ``residuals.png`` and ``final-model.json`` in ``folder``."""
+    def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
+        """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
+        ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
+        (default: this process's command line)."""
         folder = Path(folder)
         output_folder(folder)
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
@@ -591,6 +597,9 @@ class Diagnosis:
         tmp = paths["plot"].with_suffix(".png.tmp")
         tmp.write_bytes(png)
         tmp.replace(paths["plot"])
+        paths["page"] = folder / DIAGNOSIS_PAGE
+        atomic_write(paths["page"], render_diagnosis(self.to_dict(), png,
+                                                          provenance(command)))
         return paths
 
 
@@ -859,13 +868,13 @@ def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit,
                          n_poses: int = 40, n_best: int = 3, seed: int = 0) -> list[dict]:
     """Extra poses and loads where two fitted models' predictions differ most.
 
-    The experiment design's separation (:mod:`stiffness.calibration.design`): ``n_poses``
+    The experiment design's separation (:mod:`stiffness.calibration.experiment`): ``n_poses``
     reachable candidate poses, loads along the axes and cube diagonals at the campaign's largest
     force; the ``n_best`` poses, one load each, that add the most separation left after either
     model is refitted, in the campaign's units. Each proposal's ``separation_noise_units`` is
     ``|dx_a - dx_b| / sigma`` there.
     """
-    from stiffness.calibration.design import (
+    from stiffness.calibration.experiment import (
         Alternatives,
         candidate_set,
         select_rows,

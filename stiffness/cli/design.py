@@ -27,7 +27,6 @@ from types import SimpleNamespace
 
 from stiffness.calibration.campaign import LENGTH_UNITS, Units, load_campaign
 from stiffness.calibration.design import (
-    CRITERIA,
     DEFAULT_CANDIDATES,
     DEFAULT_RANDOM_PLANS,
     DesignResult,
@@ -36,6 +35,7 @@ from stiffness.calibration.design import (
     parse_separate,
 )
 from stiffness.calibration.effects import BASELINES
+from stiffness.calibration.experiment import CRITERIA
 from stiffness.calibration.plan import write_plan
 from stiffness.cli import flags
 from stiffness.cli.kx import _identified_model
