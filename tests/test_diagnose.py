@@ -151,7 +151,10 @@ def test_cli_json_and_files(tmp_path, capsys):
         assert (out / name).stat().st_size > 0
     model = json.loads((out / FINAL_MODEL_FILE).read_text())
     assert model["effects"][0]["effect"] == "force_sensor_bias"
-    assert set(model["k_theta"]) == {"joint1", "joint2", "joint3"}
+    assert model["schema"] == "stiffness-model/1"
+    assert model["k_theta"]["joints"] == ["joint1", "joint2", "joint3"]
+    assert model["effects"][0]["kind"] == "measurement"
+    assert model["effects"][0]["parameters"]["fx"]["unit"] == "N"
     full = json.loads((out / DIAGNOSIS_FILE).read_text())
     assert "where_baseline_disagrees" in full and "by_load_sign" in full[
         "where_baseline_disagrees"]

@@ -8,12 +8,8 @@ import numpy as np
 import pytest
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, load_campaign, write_campaign
-from stiffness.calibration.identify import (
-    MODEL_FORMAT,
-    DeflectionModel,
-    identify,
-    load_identified_model,
-)
+from stiffness.calibration.identify import DeflectionModel, identify
+from stiffness.calibration.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
@@ -253,7 +249,7 @@ def test_shipped_table2_identification(table2, tmp_path):
     assert result.residual_ss_mm2 == pytest.approx(result.residual_ss_m2 * 1e6)
 
     out = result.write_model(tmp_path / "model" / "identified-model.json")
-    model = load_identified_model(out)
+    model = read_model_file(out)
     np.testing.assert_allclose(model.k_theta, result.k)
     np.testing.assert_allclose(model.ci95_low, result.ci95_low)
     assert model.formulation == "enhanced" and model.units == ("N.m/rad",) * 3
@@ -280,31 +276,32 @@ def test_model_file_keeps_a_relative_urdf_usable(tmp_path, table2):
     result = identify(loaded, starts=1)
     out = result.write_model(tmp_path / "models" / "m.json")
     assert json.loads(out.read_text())["robot"]["source"] == "../robot/arm.urdf"
-    assert load_identified_model(out).robot().n_compliant == 3
+    assert read_model_file(out).robot().n_compliant == 3
 
 
 @pytest.mark.parametrize(("content", "words"), [
-    (None, "cannot read identified model"),
+    (None, "cannot read model file"),
     ("{", "is not JSON"),
-    ('{"format": "other"}', "is not an identified model"),
-    (f'{{"format": "{MODEL_FORMAT}", "robot": {{}}}}', "missing key robot.compliant_joints"),
+    ('{"format": "other"}', "is not a model file"),
+    ('{"schema": "stiffness-model/99"}', "has schema 'stiffness-model/99', which this version"),
+    (f'{{"format": "{LEGACY_IDENTIFIED}", "robot": {{}}}}', "missing key robot.source"),
 ])
-def test_load_identified_model_errors(tmp_path, content, words):
+def test_read_model_file_errors(tmp_path, content, words):
     path = tmp_path / "m.json"
     if content is not None:
         path.write_text(content)
-    with pytest.raises(StiffnessError, match=words):
-        load_identified_model(path)
+    with pytest.raises(ModelFileError, match=words):
+        read_model_file(path)
 
 
-def test_load_identified_model_rejects_bad_values(tmp_path, table2):
+def test_read_model_file_rejects_bad_values(tmp_path, table2):
     result = identify(table2, starts=1)
     doc = result.model_dict()
     doc["k_theta"]["values"][1] = -5.0
     path = tmp_path / "m.json"
     path.write_text(json.dumps(doc))
     with pytest.raises(StiffnessError, match="k_theta.values must be positive"):
-        load_identified_model(path)
+        read_model_file(path)
 
 
 # ----------------------------------------------------------------------------- command
@@ -320,7 +317,7 @@ def test_cli_table(tmp_path, capsys):
                   "residual norm (eq. 12)", "mm^2", "condition number", "undetermined: none",
                   f"identified model written to {out}"):
         assert words in text
-    assert load_identified_model(out).formulation == "enhanced"
+    assert read_model_file(out).formulation == "enhanced"
 
 
 def test_cli_json_prints_one_object(tmp_path, capsys):

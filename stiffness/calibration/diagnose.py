@@ -42,8 +42,9 @@ from scipy.optimize import least_squares, nnls
 from scipy.stats import chi2, norm
 from scipy.stats import t as student_t
 
-from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.campaign import Campaign, Units
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
+from stiffness.calibration.model_file import ModelEffect, ModelFile
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
 
@@ -66,8 +67,8 @@ AMBIGUITY_BIC = 2.0
 WEAK_BIC = 6.0
 #: Cosine similarity of fitted residual reductions above which signatures are "similar".
 SIMILARITY_LIMIT = 0.95
-#: ``format`` tag of the final-model file.
-MODEL_FORMAT = "stiffness-diagnosed-model"
+#: Units of the model file's effect parameters (SI).
+SI_UNITS = Units(angle="rad", force="N", length="m")
 #: File names written by :meth:`Diagnosis.write`.
 DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
     "diagnosis.json", "residuals.png", "final-model.json")
@@ -478,6 +479,7 @@ class Diagnosis:
     cv_baseline: float
     elapsed_s: float
     final_parameters: dict[str, list[Parameter]] = field(default_factory=dict)
+    final_parameters_si: dict[str, list[Parameter]] = field(default_factory=dict)
 
     @property
     def final(self) -> Fit:
@@ -545,39 +547,54 @@ class Diagnosis:
         })
         return _clean(out)
 
-    def final_model(self) -> dict:
-        """The final model: baseline, stiffnesses, effects with parameters and uncertainties."""
+    def model_file(self) -> ModelFile:
+        """The final model in the model-file schema (SI): baseline stiffnesses with their
+        intervals, each effect with its SI parameters and intervals, the noise."""
         c, f = self.campaign, self.final
         s = c.robot_settings
-        return _clean({
-            "format": MODEL_FORMAT,
-            "version": 1,
-            "campaign": c.name,
-            "robot": {"source": c.resolved_source(), "frame": self.geometry.robot.target_frame,
-                      "target_offset_m": s.target_offset_m.tolist()},
-            "baseline": f.model.baseline,
-            "compliant_joints": list(f.model.compliant),
-            "k_theta": {p.name: p.to_dict() for p in self.final_stiffness},
-            "effects": [{"effect": e.name, "where": e.where, "description": e.describe(),
-                         "parameters": {p.name: p.to_dict()
-                                        for p in self.final_parameters.get(e.label, [])}}
-                        for e in f.model.effects],
-            "model": f.model.describe(),
-            "rms": self._len(f.rms()),
-            "noise_std": self._len(self.noise_std_m),
-            "noise_std_source": self.noise_std_source,
-            "unit": self.unit,
-            "parameter_vector": f.x.tolist(),
-            "references": {"k_ref": f.model.refs.k_ref,
-                           "theta_ref": f.model.refs.theta_ref,
-                           "force_ref": f.model.refs.force_ref,
-                           "deflection_ref": f.model.refs.deflection_ref,
-                           "tau_max": dict(zip(f.model.refs.joints,
-                                               f.model.refs.tau_max.tolist(), strict=True)),
-                           "tau_smoothing": dict(zip(
-                               f.model.refs.joints, f.model.refs.tau_smoothing.tolist(),
-                               strict=True))},
-        })
+        refs = f.model.refs
+        effects = []
+        for e in f.model.effects:
+            settings = {}
+            if e.name == "backlash":
+                settings["smoothing_torque"] = float(refs.tau_smoothing[
+                    refs.joints.index(e.where)])
+            effects.append(ModelEffect(e.name, e.where, e.kind,
+                                       self.final_parameters_si.get(e.label, []), settings,
+                                       e.describe()))
+        stiff = self.final_stiffness
+        return ModelFile(
+            source=c.resolved_source(), frame=self.geometry.robot.target_frame,
+            target_offset_m=s.target_offset_m, compliant_joints=tuple(f.model.compliant),
+            k_theta=np.array([p.value for p in stiff]), units=tuple(p.unit for p in stiff),
+            formulation=f.model.baseline,
+            standard_error=np.array([p.standard_error for p in stiff]),
+            ci95_low=np.array([p.ci95[0] for p in stiff]),
+            ci95_high=np.array([p.ci95[1] for p in stiff]),
+            effects=tuple(effects), noise_std_m=self.noise_std_m,
+            noise_source=self.noise_std_source, campaign=c.name, produced_by="diagnose",
+            undetermined_joints=tuple(p.name for p in stiff if not (
+                math.isfinite(p.ci95[1]) and p.ci95[0] > 0)),
+            extra={
+                "model": f.model.describe(), "rms": self._len(f.rms()),
+                "noise_std": self._len(self.noise_std_m),
+                "noise_std_source": self.noise_std_source, "unit": self.unit,
+                "baseline": f.model.baseline, "compliant_joints": list(f.model.compliant),
+                "parameter_vector": f.x.tolist(),
+                "references": {"k_ref": refs.k_ref, "theta_ref": refs.theta_ref,
+                               "force_ref": refs.force_ref,
+                               "deflection_ref": refs.deflection_ref,
+                               "tau_max": dict(zip(refs.joints, refs.tau_max.tolist(),
+                                                   strict=True)),
+                               "tau_smoothing": dict(zip(refs.joints,
+                                                         refs.tau_smoothing.tolist(),
+                                                         strict=True))},
+            },
+        )
+
+    def final_model(self) -> dict:
+        """The JSON object of ``final-model.json`` (:meth:`model_file`)."""
+        return self.model_file().to_dict()
 
     def write(self, folder: str | Path) -> dict[str, Path]:
         """Write ``diagnosis.json``, ``residuals.png`` and ``final-model.json`` in ``folder``."""
@@ -586,7 +603,7 @@ class Diagnosis:
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
                  "final_model": folder / FINAL_MODEL_FILE}
         atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")
-        atomic_write(paths["final_model"], json.dumps(self.final_model(), indent=1) + "\n")
+        self.model_file().write(paths["final_model"])
         png = residual_plot(self)
         tmp = paths["plot"].with_suffix(".png.tmp")
         tmp.write_bytes(png)
@@ -795,6 +812,7 @@ def diagnose(
     cov_base = _covariance(base, sigma_used if sigma is not None else math.sqrt(
         base.rss / max(n - base.model.penalty_params, 1)))
     final_params = _effect_parameters(final, cov_final, quantile, campaign.units)
+    final_params_si = _effect_parameters(final, cov_final, quantile, SI_UNITS)
     ambiguities = []
     for step_no, w, c, similarity in ambiguities_raw:
         sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma_used
@@ -832,6 +850,7 @@ def diagnose(
         gof_final=_gof(final.rss, n, p_final, sigma),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0, final_parameters=final_params,
+        final_parameters_si=final_params_si,
     )
 
 

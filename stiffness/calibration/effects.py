@@ -72,6 +72,10 @@ MIN_SEGMENT_M = 0.02
 LAW_ITERATIONS = 4
 #: Baselines a model may start from.
 BASELINES = ("conventional", "enhanced")
+#: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
+#: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
+#: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied).
+EFFECT_KINDS = ("stiffness", "measurement", "lost_motion")
 
 _UNIT_WRENCHES = np.eye(6)
 
@@ -435,6 +439,9 @@ class Effect:
     added_joint: str | None = None
     #: the joint whose law this effect changes
     joint: str | None = None
+    #: how the effect enters a model used away from its campaign
+    #: (:mod:`stiffness.calibration.model_file`): one of :data:`EFFECT_KINDS`
+    kind: ClassVar[str] = "stiffness"
 
     @property
     def where(self) -> str | None:
@@ -475,6 +482,11 @@ class Effect:
     def scale(self, refs: References) -> np.ndarray:
         """SI value of one unit of each optimiser variable."""
         return np.ones(self.n_params)
+
+    def variables(self, values: np.ndarray, refs: References) -> np.ndarray:
+        """Optimiser variables of reported SI parameter values (the inverse of :meth:`report`
+        with SI units; only the first :attr:`n_params` values are used)."""
+        return np.asarray(values, dtype=float)[: self.n_params] / self.scale(refs)
 
     # hooks ---------------------------------------------------------------------------------
     def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
@@ -576,6 +588,9 @@ class JointCompliance(Effect):
     def adjust_law(self, p, law, column, refs):
         law.compliance[column] = p[0]
 
+    def variables(self, values, refs):
+        return (1.0 / np.asarray(values, dtype=float)[:1]) / self.scale(refs)
+
     def report(self, u, cov_u, refs, units, quantile):
         unit = "N/m" if self.prismatic else "N.m/rad"
         return [_stiffness_report("stiffness", float(u[0]), float(cov_u[0, 0]),
@@ -608,6 +623,9 @@ class LinkCompliance(Effect):
     def scale(self, refs):
         return np.full(2, 1.0 / refs.k_ref)
 
+    def variables(self, values, refs):
+        return (1.0 / np.asarray(values, dtype=float)[:2]) / self.scale(refs)
+
     def displacement(self, p, model, rows, force, moment, point):
         ia, ib = model.geometry.chain.index(self.a), model.geometry.chain.index(self.b)
         p_a, p_b = rows.chain_origin[:, ia], rows.chain_origin[:, ib]
@@ -635,6 +653,7 @@ class Backlash(Effect):
     joint_name: str = ""
     prismatic: bool = False
     name: ClassVar[str] = "backlash"
+    kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
 
     def __post_init__(self) -> None:
@@ -708,6 +727,7 @@ class FrameMisalignment(Effect):
     """Measured ``dx = R(phi) dx_model``."""
 
     name = "frame_misalignment"
+    kind = "measurement"
     param_names = ("rx", "ry", "rz")
 
     def scale(self, refs):
@@ -746,6 +766,7 @@ class ForceSensorBias(Effect):
     """The recorded force is ``F + b``."""
 
     name = "force_sensor_bias"
+    kind = "measurement"
     param_names = ("fx", "fy", "fz")
 
     def scale(self, refs):
@@ -765,6 +786,7 @@ class DeflectionOffset(Effect):
     """The measured deflections carry a constant offset."""
 
     name = "deflection_offset"
+    kind = "measurement"
     param_names = ("dx", "dy", "dz")
 
     def scale(self, refs):

@@ -49,12 +49,12 @@ from scipy.optimize import least_squares
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
-from stiffness.calibration.campaign import Campaign, _looks_like_path, _resolve_source
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.model_file import ModelFile
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import Robot, load_robot
+from stiffness.model.robot import Robot
 
 FORMULATIONS = ("conventional", "enhanced", "exact")
 METHODS = ("trf", "lm", "both")
@@ -68,8 +68,6 @@ REL_CI_WIDTH_LIMIT = 1.0
 SINGULAR_RTOL = 1e-10
 #: Two solutions agree when every determined ln k differs by less than this (0.1 %).
 AGREEMENT_TOL_LOG = 1e-3
-#: ``format`` tag of identified-model files.
-MODEL_FORMAT = "stiffness-identified-model"
 #: Default name of the identified-model file.
 MODEL_FILE = "identified-model.json"
 
@@ -425,49 +423,37 @@ class Identification:
         """The result as JSON text (see :meth:`to_dict`)."""
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
+    def model_file(self) -> ModelFile:
+        """The identified model (:class:`stiffness.calibration.model_file.ModelFile`)."""
+        return ModelFile(
+            source=self.robot_source, frame=self.robot_frame,
+            target_offset_m=self.target_offset_m, compliant_joints=self.joints, k_theta=self.k,
+            units=self.units, formulation=self.formulation,
+            standard_error=self.standard_error, ci95_low=self.ci95_low,
+            ci95_high=self.ci95_high, noise_std_m=self.sigma_m, noise_source=self.sigma_source,
+            campaign=self.campaign, produced_by="identify",
+            undetermined_joints=self.undetermined_joints,
+            extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,
+                                     "eq12_mm2": self.residual_ss_mm2}},
+        )
+
     def model_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
-        """The identified model as written by :meth:`write_model`.
+        """The identified model as written by :meth:`write_model` (the model-file schema).
 
         Parameters
         ----------
         relative_to
             Folder a URDF source path is written relative to (the model file's folder).
         """
-        source = self.robot_source
-        if relative_to is not None and _looks_like_path(source):
-            try:
-                source = os.path.relpath(Path(source).resolve(), Path(relative_to).resolve())
-            except ValueError:  # another drive on Windows
-                source = str(Path(source).resolve())
-            source = Path(source).as_posix()
-        return _jsonable({
-            "format": MODEL_FORMAT,
-            "version": 1,
-            "campaign": self.campaign,
-            "robot": {"source": source, "frame": self.robot_frame,
-                      "target_offset_m": self.target_offset_m,
-                      "compliant_joints": list(self.joints)},
-            "formulation": self.formulation,
-            "k_theta": {"joints": list(self.joints), "values": self.k, "unit": list(self.units)},
-            "standard_error": self.standard_error,
-            "ci95": {"low": self.ci95_low, "high": self.ci95_high,
-                     "method": "delta method on ln k"},
-            "undetermined_joints": list(self.undetermined_joints),
-            "residual_norm": {"eq12_m2": self.residual_ss_m2,
-                              "eq12_mm2": self.residual_ss_mm2},
-        })
+        return self.model_file().to_dict(relative_to)
 
     def write_model(self, path: str | os.PathLike) -> Path:
         """Write the identified model (``identified-model.json``) atomically; returns its path.
 
         A URDF source is stored relative to the file's folder; read it back with
-        :func:`load_identified_model`.
+        :func:`stiffness.calibration.model_file.read_model_file`.
         """
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        text = json.dumps(self.model_dict(path.parent), indent=1, allow_nan=False)
-        atomic_write(path, text + "\n")
-        return path
+        return self.model_file().write(path)
 
 
 def _jsonable(value):
@@ -485,128 +471,6 @@ def _jsonable(value):
     if isinstance(value, float | np.floating):
         return float(value) if math.isfinite(value) else None
     return value
-
-
-# ----------------------------------------------------------------------------------------------
-# identified models
-
-
-@dataclass
-class IdentifiedModel:
-    """An identified model read from ``identified-model.json``.
-
-    Attributes
-    ----------
-    source, frame, target_offset_m, compliant_joints
-        Robot settings (source resolved against the file's folder; offset in m).
-    k_theta
-        Stiffness per compliant joint (SI), in ``compliant_joints`` order.
-    units
-        ``N.m/rad`` or ``N/m`` per joint.
-    formulation
-        Formulation the stiffnesses were identified with.
-    ci95_low, ci95_high, standard_error
-        Uncertainty (SI; NaN where not determined).
-    campaign
-        Campaign name.
-    path
-        The file read.
-    """
-
-    source: str
-    frame: str
-    target_offset_m: np.ndarray
-    compliant_joints: tuple[str, ...]
-    k_theta: np.ndarray
-    units: tuple[str, ...]
-    formulation: str
-    ci95_low: np.ndarray
-    ci95_high: np.ndarray
-    standard_error: np.ndarray
-    campaign: str
-    path: Path
-
-    def robot(self) -> Robot:
-        """Load the model's robot (:func:`stiffness.model.robot.load_robot`)."""
-        return load_robot(self.source, frame=self.frame, target_offset=self.target_offset_m,
-                          compliant_joints=self.compliant_joints)
-
-    def k_theta_matrix(self) -> np.ndarray:
-        """Diagonal joint stiffness matrix (SI)."""
-        return np.diag(self.k_theta)
-
-
-def load_identified_model(path: str | os.PathLike) -> IdentifiedModel:
-    """Read an ``identified-model.json`` written by :meth:`Identification.write_model`.
-
-    Raises
-    ------
-    StiffnessError
-        Missing or unreadable file, not JSON, wrong ``format``, or a missing or malformed key
-        (the message names the key).
-    """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise StiffnessError(f"cannot read identified model {path}: {exc.strerror}; give the "
-                             f"{MODEL_FILE} written by `stiffness identify`") from exc
-    except json.JSONDecodeError as exc:
-        raise StiffnessError(f"{path} is not JSON ({exc}); give the {MODEL_FILE} written by "
-                             "`stiffness identify`") from exc
-    if not isinstance(doc, dict) or doc.get("format") != MODEL_FORMAT:
-        raise StiffnessError(f"{path} is not an identified model (its format is not "
-                             f"{MODEL_FORMAT!r}); give the file written by `stiffness identify`")
-
-    def get(*keys):
-        node = doc
-        for key in keys:
-            if not isinstance(node, dict) or key not in node:
-                raise StiffnessError(f"{path}: missing key {'.'.join(keys)}; rewrite the file "
-                                     "with `stiffness identify`")
-            node = node[key]
-        return node
-
-    def numbers(value, name: str, count: int, allow_null: bool = False) -> np.ndarray:
-        ok = isinstance(value, list) and len(value) == count and all(
-            (v is None and allow_null) or (isinstance(v, int | float) and not isinstance(v, bool))
-            for v in value)
-        if not ok:
-            raise StiffnessError(f"{path}: {name} must be a list of {count} numbers, got {value!r}")
-        return np.array([np.nan if v is None else v for v in value], dtype=float)
-
-    joints = get("robot", "compliant_joints")
-    if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise StiffnessError(f"{path}: robot.compliant_joints must be a list of joint names")
-    n = len(joints)
-    if get("k_theta", "joints") != joints:
-        raise StiffnessError(f"{path}: k_theta.joints must equal robot.compliant_joints")
-    k = numbers(get("k_theta", "values"), "k_theta.values", n)
-    if not np.all(np.isfinite(k)) or np.any(k <= 0):
-        raise StiffnessError(f"{path}: k_theta.values must be positive, got {k.tolist()}")
-    units = get("k_theta", "unit")
-    if not isinstance(units, list) or len(units) != n or not set(units) <= {"N.m/rad", "N/m"}:
-        raise StiffnessError(f"{path}: k_theta.unit must list N.m/rad or N/m per joint")
-    formulation = get("formulation")
-    if formulation not in FORMULATIONS:
-        raise StiffnessError(f"{path}: formulation must be one of {', '.join(FORMULATIONS)}")
-    source, frame = get("robot", "source"), get("robot", "frame")
-    if not isinstance(source, str) or not isinstance(frame, str):
-        raise StiffnessError(f"{path}: robot.source and robot.frame must be strings")
-    return IdentifiedModel(
-        source=_resolve_source(source, path.parent),
-        frame=frame,
-        target_offset_m=numbers(get("robot", "target_offset_m"), "robot.target_offset_m", 3),
-        compliant_joints=tuple(joints),
-        k_theta=k,
-        units=tuple(units),
-        formulation=formulation,
-        ci95_low=numbers(get("ci95", "low"), "ci95.low", n, allow_null=True),
-        ci95_high=numbers(get("ci95", "high"), "ci95.high", n, allow_null=True),
-        standard_error=numbers(get("standard_error"), "standard_error", n, allow_null=True),
-        campaign=str(doc.get("campaign", "")),
-        path=path,
-    )
 
 
 # ----------------------------------------------------------------------------------------------

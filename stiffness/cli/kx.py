@@ -156,9 +156,9 @@ def _identified_model(args: argparse.Namespace):
     if getattr(args, "model", None) is None:
         return None
     if getattr(args, "_identified_model", None) is None:
-        from stiffness.calibration.identify import load_identified_model
+        from stiffness.calibration.model_file import read_model_file
 
-        args._identified_model = load_identified_model(args.model)
+        args._identified_model = read_model_file(args.model)
     return args._identified_model
 
 

@@ -1,0 +1,172 @@
+"""The model file (stiffness.calibration.model_file): schema, older files, effects at a pose."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from stiffness.calibration.effects import Parameter
+from stiffness.calibration.model_file import (
+    SCHEMA,
+    CompliantModel,
+    ModelEffect,
+    ModelFile,
+    ModelFileError,
+    model_compliance,
+    read_model_file,
+)
+from stiffness.model.robot import load_robot
+
+ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
+K_ARM = np.array([3e4, 2e4, 1.5e4])
+Q = np.array([0.3, -1.1, 1.4, -0.5, 1.2, 0.2])
+
+
+def _p(name: str, value: float, unit: str) -> Parameter:
+    return Parameter(name, value, 0.01 * value, (0.98 * value, 1.02 * value), unit)
+
+
+def _ur5_model(*effects: ModelEffect) -> ModelFile:
+    return ModelFile(source="ur5", frame="tool0", target_offset_m=[0.0, 0.0, 0.1],
+                     compliant_joints=ARM, k_theta=K_ARM, units=("N.m/rad",) * 3,
+                     formulation="enhanced", effects=effects, noise_std_m=5e-6,
+                     noise_source="declared", campaign="test", produced_by="diagnose")
+
+
+def _tool_position(robot, q: np.ndarray) -> np.ndarray:
+    pin.framesForwardKinematics(robot.model, robot.data, q)
+    return robot.data.oMf[robot.target_frame_id].translation.copy()
+
+
+def _fd_kx(robot, q: np.ndarray, k: np.ndarray, force: np.ndarray, h: float = 1e-6
+           ) -> np.ndarray:
+    """Enhanced K_X = (J (K - K_C)^-1 J^T)^-1 with J and K_C = d(J^T F)/dq from central
+    differences of the target position (a serial arm: every compliant joint is a q entry)."""
+    idx = [robot.model.joints[robot.model.getJointId(j)].idx_q for j in robot.compliant_joints]
+
+    def jac(qq):
+        out = np.empty((3, len(idx)))
+        for c, i in enumerate(idx):
+            e = np.zeros_like(qq)
+            e[i] = h
+            out[:, c] = (_tool_position(robot, qq + e) - _tool_position(robot, qq - e)) / (2 * h)
+        return out
+
+    j = jac(q)
+    k_c = np.empty((len(idx), len(idx)))
+    for c, i in enumerate(idx):
+        e = np.zeros_like(q)
+        e[i] = 1e-4
+        k_c[:, c] = ((jac(q + e) - jac(q - e)).T @ force) / 2e-4
+    return np.linalg.inv(j @ np.linalg.solve(np.diag(k) - k_c, j.T))
+
+
+def test_round_trip_keeps_everything(tmp_path):
+    model = _ur5_model(
+        ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                    [_p("stiffness", 1e4, "N.m/rad")]),
+        ModelEffect("backlash", "elbow_joint", "lost_motion", [_p("half_width", 1e-4, "rad")],
+                    {"smoothing_torque": 0.3}),
+        ModelEffect("deflection_offset", None, "measurement",
+                    [_p("dx", 1e-5, "m"), _p("dy", 0.0, "m"), _p("dz", 2e-5, "m")]))
+    path = model.write(tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    assert doc["schema"] == SCHEMA and doc["noise"] == {"std_m": 5e-6, "source": "declared"}
+    assert [e["kind"] for e in doc["effects"]] == ["stiffness", "lost_motion", "measurement"]
+    back = read_model_file(path)
+    np.testing.assert_array_equal(back.k_theta, K_ARM)
+    assert back.compliant_joints == ARM and back.formulation == "enhanced"
+    assert [e.label for e in back.effects] == [e.label for e in model.effects]
+    assert back.effects[1].settings == {"smoothing_torque": 0.3}
+    assert back.effects[0].value("stiffness") == 1e4
+
+
+def test_older_identified_file_reads(tmp_path):
+    old = {"format": "stiffness-identified-model", "version": 1, "campaign": "c",
+           "robot": {"source": "ur5", "frame": "tool0", "target_offset_m": [0, 0, 0.1],
+                     "compliant_joints": list(ARM)},
+           "formulation": "enhanced",
+           "k_theta": {"joints": list(ARM), "values": K_ARM.tolist(), "unit": ["N.m/rad"] * 3},
+           "standard_error": [1.0, 2.0, None], "ci95": {"low": [1, 2, 3], "high": [4, 5, None]},
+           "undetermined_joints": ["elbow_joint"], "residual_norm": {"eq12_m2": 1e-9}}
+    path = tmp_path / "identified-model.json"
+    path.write_text(json.dumps(old))
+    model = read_model_file(path)
+    np.testing.assert_array_equal(model.k_theta, K_ARM)
+    assert model.effects == () and model.undetermined_joints == ("elbow_joint",)
+    assert np.isnan(model.standard_error[2])
+
+
+def test_older_diagnosed_file_reads_in_its_units(tmp_path):
+    old = {"format": "stiffness-diagnosed-model", "version": 1, "campaign": "c",
+           "robot": {"source": "ur5", "frame": "tool0", "target_offset_m": [0, 0, 0.1]},
+           "baseline": "enhanced", "compliant_joints": list(ARM),
+           "k_theta": {j: {"value": k, "standard_error": 1.0, "ci95": [k - 2, k + 2],
+                           "unit": "N.m/rad"} for j, k in zip(ARM, K_ARM, strict=True)},
+           "effects": [{"effect": "target_offset", "where": None, "parameters": {
+               a: {"value": v, "standard_error": 0.1, "ci95": [v - 0.2, v + 0.2], "unit": "mm"}
+               for a, v in (("dx", 20.0), ("dy", 0.0), ("dz", -10.0))}}],
+           "noise_std": 0.005, "noise_std_source": "declared", "unit": "mm"}
+    path = tmp_path / "final-model.json"
+    path.write_text(json.dumps(old))
+    model = read_model_file(path)
+    np.testing.assert_allclose(model.effects[0].values(), [0.02, 0.0, -0.01])
+    assert model.effects[0].parameters[0].unit == "m" and model.noise_std_m == 5e-6
+    compliant = CompliantModel(model)
+    np.testing.assert_allclose(compliant.robot.target_offset, [0.02, 0.0, 0.09])
+
+
+def test_unknown_schema_and_other_robot_are_one_line_errors(tmp_path):
+    path = _ur5_model().write(tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    doc["schema"] = "stiffness-model/7"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="schema 'stiffness-model/7'") as info:
+        read_model_file(bad)
+    assert "\n" not in str(info.value)
+    model = read_model_file(path)
+    model.check_robot("ur5")
+    with pytest.raises(ModelFileError, match="is of robot 'ur5', not 'panda'"):
+        model.check_robot("panda")
+
+
+def test_joint_compliance_enters_k_x_like_a_spring():
+    k_wrist = 1e4
+    model = _ur5_model(ModelEffect("joint_compliance", "wrist_2_joint", "stiffness",
+                                   [_p("stiffness", k_wrist, "N.m/rad")]))
+    force = np.array([20.0, -10.0, -80.0])
+    result = model_compliance(model, Q, force)
+    assert result.robot.compliant_joints == ARM + ("wrist_2_joint",)
+    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.1],
+                      compliant_joints=ARM + ("wrist_2_joint",))
+    expected = _fd_kx(true, true.configuration(Q), np.append(K_ARM, k_wrist), force)
+    np.testing.assert_allclose(result.k_x(), expected, rtol=1e-5)
+
+
+def test_link_and_nonlinear_effects_are_the_tangent_of_the_fitted_deflection():
+    """Conventional formulation: the compliance is d(deflection)/dF of the fitted model."""
+    model = _ur5_model(
+        ModelEffect("link_compliance", "elbow_joint->wrist_1_joint", "stiffness",
+                    [_p("stiffness_1", 4e4, "N.m/rad"), _p("stiffness_2", 6e4, "N.m/rad")]),
+        ModelEffect("nonlinear_joint_stiffness", "shoulder_lift_joint", "stiffness",
+                    [_p("beta", 0.004, "1/(N.m)")]),
+        ModelEffect("frame_misalignment", None, "measurement",
+                    [_p("rx", 0.03, "rad"), _p("ry", 0.0, "rad"), _p("rz", 0.0, "rad")]))
+    model.formulation = "conventional"
+    compliant = CompliantModel(model)
+    assert [e.name for e, _ in compliant.not_applied] == ["frame_misalignment"]
+    force = np.array([30.0, 10.0, -60.0])
+    at = compliant.at(Q, force, "conventional")
+    h = 1e-3
+    fd = np.column_stack([(compliant.deflection(Q, force + h * e)
+                           - compliant.deflection(Q, force - h * e)) / (2 * h)
+                          for e in np.eye(3)])
+    np.testing.assert_allclose(at.compliance(), fd, rtol=1e-6, atol=1e-12)
+    assert np.abs(at.link_compliance).max() > 0
+    # the measurement effect is not in the deflection unless asked for
+    measured = compliant.deflection(Q, force, measured=True)
+    assert not np.allclose(measured, compliant.deflection(Q, force))
