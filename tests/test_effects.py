@@ -11,7 +11,6 @@ from stiffness.calibration.effects import (
     REQUIRED_EFFECTS,
     ComplementaryStiffness,
     Geometry,
-    Law,
     Model,
     References,
     TargetOffset,
@@ -23,7 +22,7 @@ from stiffness.calibration.effects import (
 from stiffness.calibration.identify import DeflectionModel
 from stiffness.calibration.simulate import Truth
 from stiffness.errors import StiffnessError
-from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
 from stiffness.model.robot import load_robot
 
 UR5_ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
@@ -146,7 +145,7 @@ def test_candidates_cover_the_library():
 def test_truth_with_linear_law_is_solve_equilibrium():
     robot = load_robot("sk120")
     geo = Geometry.of(robot)
-    law = Law(1.0 / SK120_K, np.zeros(3), np.zeros(3), np.ones(3))
+    law = SpringLaw(1.0 / SK120_K, np.zeros(3), np.zeros(3), np.ones(3))
     truth = Truth(robot, law, chain=geo.chain)
     force = 2.0 * np.array([45.524, 364.5018, 211.3439])
     dx = truth.deflections(SK120_A[None], force[None])[0]

@@ -61,6 +61,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
+from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import target_states
 from stiffness.model.robot import Robot, load_robot
 
@@ -399,30 +400,6 @@ class Parameter:
                 "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit}
 
 
-@dataclass
-class Law:
-    """Joint torque-deflection law of the model's compliant joints (arrays over joints)."""
-
-    compliance: np.ndarray
-    beta: np.ndarray
-    backlash: np.ndarray
-    smoothing: np.ndarray
-
-    @property
-    def linear(self) -> bool:
-        """Whether the law is ``dtheta = c tau``."""
-        return not (np.any(self.beta != 0.0) or np.any(self.backlash != 0.0))
-
-    def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Deflections and their derivatives w.r.t. the torques, both (m, n)."""
-        a = np.abs(tau)
-        th = np.tanh(tau / self.smoothing)
-        value = self.compliance * tau * (1.0 + self.beta * a) + self.backlash * th
-        slope = (self.compliance * (1.0 + 2.0 * self.beta * a)
-                 + self.backlash / self.smoothing * (1.0 - th ** 2))
-        return value, slope
-
-
 class Effect:
     """An effect a model may miss: its name, where it acts, its parameters and its prediction.
 
@@ -498,7 +475,7 @@ class Effect:
         """(m, 3) displacement of the true target from the declared one, world axes."""
         return None
 
-    def adjust_law(self, p: np.ndarray, law: Law, column: int, refs: References) -> None:
+    def adjust_law(self, p: np.ndarray, law: SpringLaw, column: int, refs: References) -> None:
         """Change the law of the model joint at ``column`` (that of :attr:`joint`)."""
 
     def displacement(self, p: np.ndarray, model: Model, rows: Rows, force: np.ndarray,
@@ -949,13 +926,13 @@ class Model:
         return np.exp(x[: len(self.compliant)])
 
     # prediction ------------------------------------------------------------------------------
-    def law(self, x: np.ndarray, params: list[np.ndarray] | None = None) -> Law:
+    def law(self, x: np.ndarray, params: list[np.ndarray] | None = None) -> SpringLaw:
         """The joint law over :attr:`joints`."""
         params = self._effect_params(x) if params is None else params
         n = len(self.joints)
         compliance = np.zeros(n)
         compliance[: len(self.compliant)] = np.exp(-x[: len(self.compliant)])
-        law = Law(compliance, np.zeros(n), np.zeros(n),
+        law = SpringLaw(compliance, np.zeros(n), np.zeros(n),
                   self.refs.tau_smoothing[self.index].copy())
         for e, p in zip(self.effects, params, strict=True):
             if e.joint is not None:

@@ -63,7 +63,6 @@ from stiffness.calibration.campaign import (
 from stiffness.calibration.effects import (
     LIBRARY,
     Geometry,
-    Law,
     Model,
     Parameter,
     References,
@@ -73,6 +72,7 @@ from stiffness.calibration.effects import (
 )
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
+from stiffness.mechanics.equilibrium import SpringLaw, tangent_equilibrium
 from stiffness.mechanics.formulation import (
     as_wrench,
     cartesian_stiffness,
@@ -92,8 +92,6 @@ FORMULATIONS = ("conventional", "enhanced", "exact")
 #: Unit names of the files -> factor to SI.
 _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
-#: Newton steps of a nonlinear joint law at one pose.
-_LAW_STEPS = 30
 
 
 class ModelFileError(StiffnessError):
@@ -770,17 +768,10 @@ class CompliantModel:
         compliance = 1.0 / self.k_theta
         if not self._beta:
             return compliance
-        joints = list(self.robot.compliant_joints)
-        beta = np.array([self._beta.get(j, 0.0) for j in joints])
-        law = Law(compliance, beta, np.zeros_like(beta), np.ones_like(beta))
-        dtheta = compliance * tau0
-        for _ in range(_LAW_STEPS):  # dtheta = f(tau0 + K_C dtheta), Newton
-            value, slope = law((tau0 + k_c @ dtheta)[None])
-            g = dtheta - value[0]
-            if np.abs(g).max() <= 1e-14 * max(np.abs(dtheta).max(), 1e-300):
-                break
-            dtheta = dtheta - np.linalg.solve(np.eye(len(g)) - slope[0][:, None] * k_c, g)
-        return law((tau0 + k_c @ dtheta)[None])[1][0]
+        beta = np.array([self._beta.get(j, 0.0) for j in self.robot.compliant_joints])
+        law = SpringLaw(compliance, beta, np.zeros_like(beta), np.ones_like(beta))
+        dtheta = tangent_equilibrium(law, tau0, k_c)
+        return law(tau0 + k_c @ dtheta)[1]
 
     def deflection(self, q: np.ndarray, load: np.ndarray, measured: bool = False
                    ) -> np.ndarray:
