@@ -38,12 +38,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares, nnls
+from scipy.optimize import nnls
 from scipy.stats import chi2, norm
 from scipy.stats import t as student_t
 
+from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
+from stiffness.calibration.fitting import Fit
 from stiffness.calibration.model_file import ModelEffect, ModelFile
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
@@ -75,7 +77,6 @@ DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
 #: Noise sources.
 NOISE_SOURCES = ("declared", "replicates", "residuals")
 
-_PENALTY = 1e6
 _MIN_REPLICATE_DOF = 9
 
 
@@ -83,84 +84,11 @@ _MIN_REPLICATE_DOF = 9
 # fitting
 
 
-@dataclass
-class Fit:
-    """A model fitted to a campaign.
-
-    Attributes
-    ----------
-    model
-        The model (over the fitted rows).
-    x
-        Parameter vector at the optimum.
-    predicted
-        (m, 3) predicted deflections (m).
-    rss
-        Residual sum of squares (m^2).
-    jacobian
-        (N, p) derivative of the residuals / scale w.r.t. ``x``.
-    scale
-        The residual scale (m) of :attr:`jacobian`.
-    """
-
-    model: Model
-    x: np.ndarray
-    predicted: np.ndarray
-    rss: float
-    jacobian: np.ndarray
-    scale: float
-
-    @property
-    def n_residuals(self) -> int:
-        """Number of residual components."""
-        return self.predicted.size
-
-    def rms(self) -> float:
-        """RMS residual component (m)."""
-        return math.sqrt(self.rss / self.n_residuals)
-
-
-class _Objective:
-    def __init__(self, model: Model, measured: np.ndarray, scale: float) -> None:
-        self.model, self.measured, self.scale = model, measured, scale
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        try:
-            with np.errstate(all="ignore"):
-                pred = self.model.predict(x)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-            pred = None
-        if pred is None or not np.all(np.isfinite(pred)):
-            return np.full(self.measured.size, _PENALTY)
-        return ((pred - self.measured) / self.scale).reshape(-1)
-
-
 def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
               max_nfev: int | None = None) -> Fit:
-    """Least squares of ``model`` on ``measured`` (m, 3) from ``x0`` (trf, bounded).
-
-    Parameters
-    ----------
-    model
-        Model over the rows of ``measured``.
-    measured
-        (m, 3) measured deflections (m).
-    scale
-        Residual scale (m): the noise std if known.
-    x0
-        Start parameter vector (clipped into the bounds).
-    max_nfev
-        Evaluation budget (default ``40 (p + 1)``).
-    """
-    lo, hi = model.bounds()
-    x0 = np.clip(x0, lo, hi)
-    objective = _Objective(model, measured, scale)
-    sol = least_squares(objective, x0, bounds=(lo, hi), method="trf", x_scale=1.0,
-                        ftol=1e-10, xtol=1e-10, gtol=1e-10,
-                        max_nfev=max_nfev or 40 * (model.n_params + 1))
-    r = objective(sol.x)
-    pred = measured + r.reshape(measured.shape) * scale
-    return Fit(model, sol.x, pred, float(np.sum((r * scale) ** 2)), np.asarray(sol.jac), scale)
+    """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
+    (:func:`stiffness.calibration.fitting.fit_model`)."""
+    return fitting.fit_model(model, measured, scale, x0, max_nfev=max_nfev, x_scale=1.0)
 
 
 def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
@@ -226,19 +154,8 @@ def cross_validate(fit: Fit, measured: np.ndarray, folds: list[np.ndarray]) -> f
 
 
 def _covariance(fit: Fit, sigma: float) -> np.ndarray:
-    """Covariance of ``x``: ``sigma^2 (J^T J)^+`` with J w.r.t. residuals in m."""
-    jac = fit.jacobian * fit.scale
-    _, s, vt = np.linalg.svd(jac, full_matrices=False)
-    tol = 1e-10 * (s.max() if s.size else 0.0)
-    inv = np.where(s > tol, 1.0 / np.where(s > tol, s, 1.0) ** 2, np.inf)
-    with np.errstate(invalid="ignore"):
-        cov = (vt.T * np.where(np.isfinite(inv), inv, 0.0)) @ vt
-    dead = ~np.isfinite(inv)
-    if dead.any():
-        unseen = (np.abs(vt[dead]) > 1e-6).any(axis=0)
-        cov[unseen, :] = np.inf
-        cov[:, unseen] = np.inf
-    return cov * sigma ** 2
+    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+``."""
+    return fitting.covariance(fit, sigma).matrix
 
 
 # ------------------------------------------------------------------------------------------

@@ -61,8 +61,8 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
-from stiffness.mechanics.equilibrium import SpringLaw
-from stiffness.mechanics.formulation import target_states
+from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
+from stiffness.mechanics.formulation import target_state, target_states
 from stiffness.model.robot import Robot, load_robot
 
 #: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
@@ -71,8 +71,9 @@ BACKLASH_SMOOTHING = 0.02
 MIN_SEGMENT_M = 0.02
 #: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
 LAW_ITERATIONS = 4
-#: Baselines a model may start from.
-BASELINES = ("conventional", "enhanced")
+#: Baselines a model may start from (``exact``: the exact equilibrium of
+#: :func:`stiffness.mechanics.equilibrium.solve_equilibrium`, without effects).
+BASELINES = ("conventional", "enhanced", "exact")
 #: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
 #: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
 #: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied).
@@ -127,6 +128,8 @@ class Rows:
         (m, 3) applied (recorded) force (N) and moment (N.m) at the target, base axes.
     config_index
         (m,) index of the row's distinct configuration.
+    coords
+        (m, n_coordinates) the rows' coordinates (rad, m).
     """
 
     jac: np.ndarray
@@ -138,6 +141,7 @@ class Rows:
     force: np.ndarray
     moment: np.ndarray
     config_index: np.ndarray
+    coords: np.ndarray
 
     @property
     def n_rows(self) -> int:
@@ -148,7 +152,7 @@ class Rows:
         """The rows ``index`` (an integer or boolean index)."""
         return Rows(*(getattr(self, f)[index] for f in (
             "jac", "k_c_unit", "position", "rotation", "chain_origin", "chain_rotation",
-            "force", "moment", "config_index")))
+            "force", "moment", "config_index", "coords")))
 
     def torques(self) -> np.ndarray:
         """(m, n) joint torques ``J^T W`` that hold the recorded loads (N.m or N)."""
@@ -261,7 +265,7 @@ class Geometry:
             pos[c] = states[0].position
             rot[c] = states[0].rotation
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
-                    chain_rot[index], force, moment, index)
+                    chain_rot[index], force, moment, index, coords)
 
     def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
         """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart
@@ -858,6 +862,9 @@ class Model:
                  ) -> None:
         if baseline not in BASELINES:
             raise StiffnessError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}")
+        if baseline == "exact" and effects:
+            raise StiffnessError("the exact baseline takes no effects (complementary_stiffness "
+                                 "approximates it to second order); start from enhanced")
         self.geometry, self.rows, self.baseline = geometry, rows, baseline
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
         self.joints = self.compliant + tuple(e.added_joint for e in self.effects
@@ -875,6 +882,11 @@ class Model:
         self.jw = rows.jac[:, 3:][:, :, idx]
         self.h = rows.k_c_unit[:, :, idx][:, :, :, idx]
 
+    def _exact_robot(self) -> Robot:
+        robot = self.geometry.robot
+        return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
+                            self.joints)
+
     # construction ----------------------------------------------------------------------------
     def with_rows(self, rows: Rows) -> Model:
         """The same model over other rows."""
@@ -888,6 +900,19 @@ class Model:
     def with_refs(self, refs: References) -> Model:
         """The same model with other variable scales."""
         return Model(self.geometry, self.rows, self.baseline, self.compliant, self.effects, refs)
+
+    def with_baseline(self, baseline: str) -> Model:
+        """The same model under another baseline."""
+        return Model(self.geometry, self.rows, baseline, self.compliant, self.effects, self.refs)
+
+    @property
+    def wrench(self) -> np.ndarray:
+        """(m, 6) recorded wrenches of the rows."""
+        return np.hstack([self.rows.force, self.rows.moment])
+
+    def k_c(self) -> np.ndarray:
+        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints`."""
+        return np.einsum("mk,mkab->mab", self.wrench, self.h)
 
     @property
     def n_params(self) -> int:
@@ -939,6 +964,60 @@ class Model:
                 e.adjust_law(p, law, self.joints.index(e.joint), self.refs)
         return law
 
+    def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Predicted displacements (m, 3) and, for a baseline without effects, their
+        derivatives (m, 3, p) w.r.t. ``x = ln k`` (``None`` when there are effects: the fitting
+        engine then differentiates numerically).
+
+        Linear baselines: ``d pred / d ln k_i = -J_v (K - K_C)^-1 e_i k_i u_i`` with
+        ``u = (K - K_C)^-1 J^T W``; exact: the implicit function theorem on
+        ``K dtheta = J(theta)^T W``, ``d dtheta / d k_i = -(K - K_C(theta))^-1 e_i dtheta_i``.
+
+        Raises
+        ------
+        np.linalg.LinAlgError
+            If the tangent stiffness is singular for some row.
+        StiffnessError
+            If the exact equilibrium does not converge or is unstable.
+        """
+        if self.effects:
+            return self.predict(x), None
+        k = np.exp(x[: len(self.compliant)])
+        if self.baseline == "exact":
+            return self._exact(k)
+        a = np.broadcast_to(np.diag(k), (self.rows.n_rows, len(k), len(k))).copy()
+        if self.baseline == "enhanced":
+            a -= self.k_c()
+        inv = np.linalg.inv(a)
+        tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
+            "mkn,mk->mn", self.jw, self.rows.moment)
+        u = np.einsum("mij,mj->mi", inv, tau)
+        pred = np.einsum("mij,mj->mi", self.jv, u)
+        return pred, -(self.jv @ inv) * (u * k)[:, None, :]
+
+    def _exact(self, k: np.ndarray, jacobian: bool = True
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+        robot = self._exact_robot()
+        kmat = np.diag(k)
+        rows = self.rows
+        m = rows.n_rows
+        pred = np.empty((m, 3))
+        jac = np.empty((m, 3, len(k))) if jacobian else None
+        q0: dict[int, np.ndarray] = {}
+        for i in range(m):
+            c = int(rows.config_index[i])
+            if c not in q0:
+                q0[c] = robot.configuration(rows.coords[i])
+            wrench = np.concatenate([rows.force[i], rows.moment[i]])
+            eq = solve_equilibrium(robot, q0[c], kmat, wrench)
+            pred[i] = eq.dx
+            if jac is None:
+                continue
+            state = target_state(robot, eq.q, wrench)
+            dtheta = -np.linalg.solve(kmat - state.k_c, np.diag(eq.dtheta * k))
+            jac[i] = state.jacobian[:3] @ dtheta
+        return pred, jac
+
     def predict(self, x: np.ndarray, detail: bool = False):
         """(m, 3) predicted measured displacements (m) for parameters ``x``.
 
@@ -949,6 +1028,10 @@ class Model:
         np.linalg.LinAlgError
             If the tangent stiffness is singular for some row.
         """
+        if self.baseline == "exact":
+            if detail:
+                raise StiffnessError("the exact baseline gives no linear detail")
+            return self._exact(np.exp(x[: len(self.compliant)]), jacobian=False)[0]
         rows = self.rows
         params = self._effect_params(x)
         force, moment = rows.force, rows.moment

@@ -705,6 +705,7 @@ class CompliantModel:
                                 compliant_joints=tuple(stiff))
         self._chain: tuple[str, ...] = ()
         self._columns: dict[tuple[str, str], int] = {}
+        self._declared: tuple[Robot, Geometry] | None = None
         if self._links:
             geometry = Geometry.of(self.robot)
             self._chain, self._columns = geometry.chain, geometry.link_columns
@@ -779,8 +780,10 @@ class CompliantModel:
         as the fitted model predicts it: every effect applied, lost motion included;
         measurement effects only with ``measured`` (what the campaign's instrument reads)."""
         model = self.model
-        declared = model.robot()
-        geometry = Geometry.of(declared)
+        if self._declared is None:
+            declared = model.robot()
+            self._declared = (declared, Geometry.of(declared))
+        declared, geometry = self._declared
         wrench = as_wrench(load)
         coords = np.asarray(q, dtype=float).reshape(-1)
         if coords.shape[0] != declared.n_coordinates:

@@ -1,7 +1,7 @@
 """Synthetic campaigns with hidden effects: what could a rig detect before measuring?
 
 :func:`simulate` draws reachable configurations (:func:`sample_coordinates`), loads along random
-directions (or a ramp along one direction per configuration, like the SK120's Table II, or the
+directions (or a ramp along one direction per configuration, or the
 six axis directions), computes the deflections from the *exact* elastostatic equilibrium of a
 true robot that carries the hidden effects, adds Gaussian noise, and returns a
 :class:`~stiffness.calibration.campaign.Campaign` that declares only the baseline (its ``--kq``
