@@ -141,7 +141,7 @@ def test_joint_compliance_enters_k_x_like_a_spring():
     force = np.array([20.0, -10.0, -80.0])
     result = model_compliance(model, Q, force)
     assert result.robot.compliant_joints == ARM + ("wrist_2_joint",)
-    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.1],
+    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.15],
                       compliant_joints=ARM + ("wrist_2_joint",))
     expected = _fd_kx(true, true.configuration(Q), np.append(K_ARM, k_wrist), force)
     np.testing.assert_allclose(result.k_x(), expected, rtol=1e-5)
@@ -170,3 +170,78 @@ def test_link_and_nonlinear_effects_are_the_tangent_of_the_fitted_deflection():
     # the measurement effect is not in the deflection unless asked for
     measured = compliant.deflection(Q, force, measured=True)
     assert not np.allclose(measured, compliant.deflection(Q, force))
+
+
+# --------------------------------------------------------------- the issue's check, end to end
+
+
+def test_diagnosed_wrist_spring_enters_kx_at_a_new_pose(tmp_path, capsys):
+    """simulate a UR5 campaign with a hidden wrist spring, diagnose --out, kx --model at a pose
+    that is not in the campaign: K_X within 2 % of the true model's (finite differences of
+    Pinocchio's forward kinematics, with the hidden spring)."""
+    from stiffness.cli.main import main
+
+    k_wrist = 1.5e3
+    camp, diag = tmp_path / "camp", tmp_path / "diag"
+    assert main(["simulate", "--robot", "ur5", "--frame", "tool0", "--compliant-joints",
+                 ",".join(ARM), "--kq", ",".join(f"{k:g}" for k in K_ARM),
+                 "--target-offset", "0,0,150", "--effect", f"joint_compliance:wrist_2_joint="
+                 f"{k_wrist:g}", "--configs", "8", "--loads-per-config", "4", "--max-force",
+                 "100", "--noise", "0.005", "--seed", "1", "--out", str(camp)]) == 0
+    assert main(["diagnose", str(camp), "--out", str(diag), "--no-proposals", "--quiet"]) == 0
+    capsys.readouterr()
+    q, force = np.array([0.4, -1.3, 1.6, -0.9, 1.1, 0.5]), np.array([0.0, 0.0, -80.0])
+    assert main(["kx", "--model", str(diag / "final-model.json"), "--q",
+                 ",".join(map(str, q)), "--wrench", "0,0,-80", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.15],
+                      compliant_joints=ARM + ("wrist_2_joint",))
+    expected = _fd_kx(true, true.configuration(q), np.append(K_ARM, k_wrist), force)
+    k_x = np.array(out["K_X"])
+    error = np.linalg.norm(k_x - expected) / np.linalg.norm(expected)
+    assert error <= 0.02, (error, out["model"])
+    # the baseline model alone (no wrist spring) is off by over 5x the tolerance: the
+    # diagnosed effect made the difference
+    baseline = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.15], compliant_joints=ARM)
+    rigid_wrist = _fd_kx(baseline, baseline.configuration(q), K_ARM, force)
+    assert np.linalg.norm(rigid_wrist - expected) > 0.1 * np.linalg.norm(expected)
+    assert out["model"]["effects_applied"]
+
+
+def test_kx_model_of_another_robot_is_one_line(tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    path = _ur5_model().write(tmp_path / "m.json")
+    assert main(["kx", "--model", str(path), "--robot", "panda", "--json"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "is of robot 'ur5', not 'panda'" in err and "\n" not in err
+    bad = tmp_path / "future.json"
+    bad.write_text(json.dumps({"schema": "stiffness-model/2"}))
+    assert main(["kx", "--model", str(bad), "--json"]) == 2
+    assert "schema 'stiffness-model/2'" in capsys.readouterr().err
+
+
+def test_kx_lists_measurement_effects_and_applies_stiffness_ones(tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    model = _ur5_model(
+        ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                    [_p("stiffness", 2e4, "N.m/rad")]),
+        ModelEffect("force_sensor_bias", None, "measurement",
+                    [_p("fx", 1.0, "N"), _p("fy", 2.0, "N"), _p("fz", 3.0, "N")]))
+    path = model.write(tmp_path / "m.json")
+    args = ["kx", "--model", str(path), "--q", ",".join(map(str, Q)), "--wrench", "0,10,-50"]
+    assert main(args + ["--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["compliant_joints"] == list(ARM) + ["wrist_1_joint"]
+    assert out["K_theta"] == K_ARM.tolist() + [2e4]
+    assert [e["effect"] for e in out["model"]["effects_not_applied"]] == ["force_sensor_bias"]
+    assert out["model"]["effects_not_applied"][0]["kind"] == "measurement"
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "effects in K_X: joint_compliance(wrist_1_joint)" in text
+    assert "not applied: force_sensor_bias" in text
+    # --kq replaces the model's springs: nothing of the model's effects applies
+    assert main(args + ["--kq", "1e4,1e4,1e4", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["compliant_joints"] == list(ARM) and not out["model"]["effects_applied"]
