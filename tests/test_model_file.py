@@ -141,7 +141,7 @@ def test_joint_compliance_enters_k_x_like_a_spring():
     force = np.array([20.0, -10.0, -80.0])
     result = model_compliance(model, Q, force)
     assert result.robot.compliant_joints == ARM + ("wrist_2_joint",)
-    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.15],
+    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.1],
                       compliant_joints=ARM + ("wrist_2_joint",))
     expected = _fd_kx(true, true.configuration(Q), np.append(K_ARM, k_wrist), force)
     np.testing.assert_allclose(result.k_x(), expected, rtol=1e-5)
