@@ -245,3 +245,59 @@ def test_kx_lists_measurement_effects_and_applies_stiffness_ones(tmp_path, capsy
     assert main(args + ["--kq", "1e4,1e4,1e4", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["compliant_joints"] == list(ARM) and not out["model"]["effects_applied"]
+
+
+def _link_model() -> ModelFile:
+    return _ur5_model(
+        ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                    [_p("stiffness", 2e4, "N.m/rad")]),
+        ModelEffect("link_compliance", "elbow_joint->wrist_1_joint", "stiffness",
+                    [_p("stiffness_1", 4e4, "N.m/rad"), _p("stiffness_2", 6e4, "N.m/rad")]))
+
+
+def test_view_model_draws_the_models_compliance(tmp_path, capsys):
+    """The exported ellipsoid's radii are proportional to the principal compliances of the
+    model (link compliance included), not of its joint springs alone."""
+    from stiffness.cli.main import main
+    from stiffness.viewer import scene_commands, scene_transforms
+
+    path = _link_model().write(tmp_path / "m.json")
+    page = tmp_path / "page.html"
+    force = [0.0, 0.0, -100.0]
+    assert main(["view", "--model", str(path), "--q", ",".join(map(str, Q)), "--wrench",
+                 "0,0,-100", "--formulation", "enhanced", "--quantity", "compliance",
+                 "--export", str(page)]) == 0
+    capsys.readouterr()
+    matrix = scene_transforms(scene_commands(page.read_text()))[
+        "/meshcat/stiffness/enhanced/surface"]
+    radii = np.sort(np.linalg.norm(matrix[:3, :3], axis=0))
+    with_link = np.linalg.eigvalsh(model_compliance(_link_model(), Q, force).compliance())
+    np.testing.assert_allclose(radii / with_link, radii[0] / with_link[0], rtol=1e-6)
+    springs = CompliantModel(_link_model())
+    at = springs.at(Q, force)
+    joints_only = np.linalg.eigvalsh(at.compliance() - at.link_compliance[:3, :3])
+    assert not np.allclose(radii / joints_only, radii[0] / joints_only[0], rtol=1e-3)
+
+
+def test_scan_model_scans_the_models_springs(tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    model = _ur5_model(ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                                   [_p("stiffness", 2e4, "N.m/rad")]))
+    path = model.write(tmp_path / "m.json")
+    out = tmp_path / "scan"
+    assert main(["scan", "--model", str(path), "--samples", "6", "--load", "0,0,-100",
+                 "--out", str(out), "--no-plots", "--quiet", "--json"]) == 0
+    capsys.readouterr()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["spec"]["k_theta"] == K_ARM.tolist() + [2e4]
+    assert manifest["spec"]["robot"]["compliant_joints"] == list(ARM) + ["wrist_1_joint"]
+    chunk = np.load(next((out / "chunks").glob("chunk-*.npz")))
+    compliant = CompliantModel(model)
+    for i in range(2):
+        expected = compliant.at(chunk["coordinates"][i], [0, 0, -100.0]).k_x()
+        np.testing.assert_allclose(chunk["k_x"][i, 0], expected, rtol=1e-9)
+    path = _link_model().write(tmp_path / "link.json")
+    assert main(["scan", "--model", str(path), "--samples", "6", "--out",
+                 str(tmp_path / "no"), "--quiet"]) == 2
+    assert "link_compliance(elbow_joint->wrist_1_joint) change K_X" in capsys.readouterr().err
