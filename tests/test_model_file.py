@@ -18,7 +18,7 @@ from stiffness.calibration.model_file import (
     model_compliance,
     read_model_file,
 )
-from stiffness.model.robot import load_robot
+from stiffness.model.robot import load_robot, robots_directory
 
 ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 K_ARM = np.array([3e4, 2e4, 1.5e4])
@@ -132,6 +132,13 @@ def test_unknown_schema_and_other_robot_are_one_line_errors(tmp_path):
     model.check_robot("ur5")
     with pytest.raises(ModelFileError, match="is of robot 'ur5', not 'panda'"):
         model.check_robot("panda")
+    # a shipped robot by name or by the path of its URDF is the same robot
+    sk120 = ModelFile(source="sk120", frame="fixture_target", target_offset_m=np.zeros(3),
+                      compliant_joints=("joint1",), k_theta=[1e6], units=("N.m/rad",),
+                      formulation="enhanced")
+    sk120.check_robot(robots_directory() / "sk120" / "sk120.urdf")
+    with pytest.raises(ModelFileError, match="not 'ur5'"):
+        sk120.check_robot("ur5")
 
 
 def test_joint_compliance_enters_k_x_like_a_spring():

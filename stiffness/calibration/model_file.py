@@ -296,14 +296,16 @@ class ModelFile:
 
 
 def _robot_identity(source: str) -> str:
-    """A comparable name of a robot source: a shipped robot's URDF path, a resolved path, or
-    the example-robot-data name."""
+    """A comparable name of a robot source: a shipped robot's name (also for a path to a file
+    in its folder), a resolved path, or the example-robot-data name."""
     if source in shipped_robots():
-        folder = robots_directory() / source
-        return str((folder / f"{source}.urdf").resolve()) if (
-            folder / f"{source}.urdf").is_file() else source
+        return source
     if _looks_like_path(source) or Path(source).exists():
-        return str(Path(source).resolve())
+        path = Path(source).resolve()
+        for name in shipped_robots():
+            if path.parent == (robots_directory() / name).resolve():
+                return name
+        return str(path)
     return source
 
 
