@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.calibration.effects import Parameter
+from stiffness.calibration.effects import LIBRARY, Parameter
 from stiffness.calibration.model_file import (
     SCHEMA,
     CompliantModel,
@@ -132,6 +132,12 @@ def test_unknown_schema_and_other_robot_are_one_line_errors(tmp_path):
     model.check_robot("ur5")
     with pytest.raises(ModelFileError, match="is of robot 'ur5', not 'panda'"):
         model.check_robot("panda")
+    # an effect on a joint the robot does not have
+    for name in ("joint_compliance", "nonlinear_joint_stiffness"):
+        wrong = _ur5_model(ModelEffect(name, "wrist_9_joint", "stiffness",
+                                       [_p(LIBRARY[name].param_names[0], 1e4, "SI")]))
+        with pytest.raises(ModelFileError, match="wrist_9_joint"):
+            CompliantModel(wrong)
     # a shipped robot by name or by the path of its URDF is the same robot
     sk120 = ModelFile(source="sk120", frame="fixture_target", target_offset_m=np.zeros(3),
                       compliant_joints=("joint1",), k_theta=[1e6], units=("N.m/rad",),

@@ -70,7 +70,7 @@ from stiffness.calibration.effects import (
     link_axes,
     make_effect,
 )
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import SpringLaw, tangent_equilibrium
 from stiffness.mechanics.formulation import (
@@ -412,7 +412,6 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
             f"{LEGACY_IDENTIFIED!r} or {LEGACY_DIAGNOSED!r}); give the file written by "
             "`stiffness identify` or `stiffness diagnose --out`")
     model.path = path
-    _check_effects(model, reader)
     return model
 
 
@@ -578,23 +577,6 @@ def _read_effect(r: _Reader, doc, where: str, si: bool) -> ModelEffect:
                        dict(settings), str(doc.get("description", "")))
 
 
-def _check_effects(model: ModelFile, r: _Reader) -> None:
-    """Places of the effects must exist in the model's robot (checked without loading it
-    when there are no effects)."""
-    if not model.effects:
-        return
-    geometry = _geometry(model)
-    for e in model.effects:
-        try:
-            make_effect(e.name, e.where, geometry)
-        except StiffnessError as exc:
-            raise r.fail(f"effect {e.label}: {exc}") from None
-
-
-def _geometry(model: ModelFile) -> Geometry:
-    return Geometry.of(model.robot())
-
-
 # ------------------------------------------------------------------------------------------
 # the model at a pose
 
@@ -703,14 +685,32 @@ class CompliantModel:
                 offset = offset + e.values()[:3]
             self.applied.append(e)
         self.k_theta = np.array(list(stiff.values()), dtype=float)
-        self.robot = load_robot(model.source, frame=frame or model.frame, target_offset=offset,
-                                compliant_joints=tuple(stiff))
+        self._where = f"{model.path}: " if model.path is not None else ""
+        try:
+            self.robot = load_robot(model.source, frame=frame or model.frame,
+                                    target_offset=offset, compliant_joints=tuple(stiff))
+        except StiffnessError as exc:
+            raise ModelFileError(f"{self._where}the model's robot with its effects: {exc}"
+                                 ) from None
+        self._check_places()
         self._chain: tuple[str, ...] = ()
         self._columns: dict[tuple[str, str], int] = {}
         self._declared: tuple[Robot, Geometry] | None = None
         if self._links:
             geometry = Geometry.of(self.robot)
             self._chain, self._columns = geometry.chain, geometry.link_columns
+
+    def _check_places(self) -> None:
+        """Every effect's joint or segment must be a coordinate joint of the robot."""
+        joints = list(self.robot.coordinate_joints)
+        for e in self.model.effects:
+            names = list(_segment(e.where)) if e.name == "link_compliance" else (
+                [e.where] if e.where is not None else [])
+            for name in names:
+                if name not in joints:
+                    raise ModelFileError(
+                        f"{self._where}effect {e.label} names {name!r}, not a coordinate joint "
+                        f"of {self.robot.name}; {did_you_mean(str(name), joints)}")
 
     def configuration(self, q: np.ndarray) -> np.ndarray:
         """Full configuration of coordinates (n_coordinates,) or of a full ``q`` (nq,)."""
