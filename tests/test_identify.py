@@ -12,7 +12,7 @@ from stiffness.calibration.campaign import Campaign, RobotSettings, load_campaig
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.calibration.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file
 from stiffness.cli.main import main
-from stiffness.errors import StiffnessError
+from stiffness.errors import FileFormatError, MissingFileError, StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state
 from stiffness.model.robot import load_robot, robots_directory
@@ -325,18 +325,20 @@ def test_model_file_keeps_a_relative_urdf_usable(tmp_path, table2):
     assert read_model_file(out).robot().n_compliant == 3
 
 
-@pytest.mark.parametrize(("content", "words"), [
-    (None, "cannot read model file"),
-    ("{", "is not JSON"),
-    ('{"format": "other"}', "is not a model file"),
-    ('{"schema": "stiffness-model/99"}', "has schema 'stiffness-model/99', which this version"),
-    (f'{{"format": "{LEGACY_IDENTIFIED}", "robot": {{}}}}', "missing key robot.source"),
+@pytest.mark.parametrize(("content", "error", "words"), [
+    (None, MissingFileError, "cannot read model file"),
+    ("{", FileFormatError, "not JSON"),
+    ('{"format": "other"}', ModelFileError, "not a model file"),
+    ('{"schema": "stiffness-model/99"}', ModelFileError,
+     "schema 'stiffness-model/99', which this version"),
+    (f'{{"format": "{LEGACY_IDENTIFIED}", "robot": {{}}}}', ModelFileError,
+     "missing key robot.source"),
 ])
-def test_read_model_file_errors(tmp_path, content, words):
+def test_read_model_file_errors(tmp_path, content, error, words):
     path = tmp_path / "m.json"
     if content is not None:
         path.write_text(content)
-    with pytest.raises(ModelFileError, match=words):
+    with pytest.raises(error, match=words):
         read_model_file(path)
 
 

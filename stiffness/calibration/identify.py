@@ -56,7 +56,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.effects import Geometry, Model, References
 from stiffness.calibration.fitting import Covariance, Fit, covariance, fit_model
 from stiffness.calibration.model_file import ModelFile
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.model.robot import Robot
 
 FORMULATIONS = ("conventional", "enhanced", "exact")
@@ -418,8 +418,9 @@ def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = 
         file, line and configuration).
     """
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"unknown formulation {formulation!r}; valid formulations: "
-                             f"{', '.join(FORMULATIONS)}")
+        raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                               f"{', '.join(FORMULATIONS)}", name=formulation,
+                               choices=FORMULATIONS)
     robot = robot if robot is not None else campaign.robot()
     geometry = Geometry.of(robot)
     rows = geometry.rows(campaign.q, campaign.force, campaign.moment,
@@ -475,10 +476,12 @@ def identify(
     """
     formulation = campaign.baseline if formulation is None else formulation
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"unknown formulation {formulation!r}; valid formulations: "
-                             f"{', '.join(FORMULATIONS)}")
+        raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                               f"{', '.join(FORMULATIONS)}", name=formulation,
+                               choices=FORMULATIONS)
     if method not in METHODS:
-        raise StiffnessError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}")
+        raise UnknownNameError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}",
+                               name=method, choices=METHODS)
     if int(starts) < 1:
         raise StiffnessError(f"starts must be at least 1, got {starts}")
     rob = robot if robot is not None else campaign.robot()

@@ -70,8 +70,8 @@ from stiffness.calibration.effects import (
     link_axes,
     make_effect,
 )
-from stiffness.errors import StiffnessError, did_you_mean
-from stiffness.files import atomic_write
+from stiffness.errors import FileFormatError, StiffnessError, did_you_mean, with_context
+from stiffness.files import atomic_write, output_folder, read_json
 from stiffness.mechanics.equilibrium import SpringLaw, tangent_equilibrium
 from stiffness.mechanics.formulation import (
     as_wrench,
@@ -94,9 +94,14 @@ _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
 
 
-class ModelFileError(StiffnessError):
-    """A model file that cannot be used: unreadable, of an unknown schema, malformed, or of
-    another robot than the one asked for."""
+class ModelFileError(FileFormatError):
+    """A model file of an unknown schema, or with a missing or malformed key (the message
+    starts with the file)."""
+
+
+class ModelRobotError(StiffnessError):
+    """A model file used with another robot than its own, or whose effects name joints its
+    robot does not have."""
 
 
 # ------------------------------------------------------------------------------------------
@@ -240,12 +245,12 @@ class ModelFile:
 
         Raises
         ------
-        ModelFileError
+        ModelRobotError
             If ``source`` and the model's source are different robots.
         """
         if _robot_identity(str(source)) != _robot_identity(self.source):
             where = f" {self.path}" if self.path is not None else ""
-            raise ModelFileError(
+            raise ModelRobotError(
                 f"the model file{where} is of robot {self.source!r}, not {str(source)!r}; drop "
                 "--robot (the model names its robot) or give the model of that robot")
 
@@ -290,6 +295,7 @@ class ModelFile:
     def write(self, path: str | os.PathLike) -> Path:
         """Write the file atomically (a URDF source relative to its folder); returns the path."""
         path = Path(path)
+        output_folder(path.parent)
         text = json.dumps(self.to_dict(path.parent), indent=1, allow_nan=False)
         atomic_write(path, text + "\n")
         return path
@@ -337,8 +343,8 @@ class _Reader:
         self.doc, self.path = doc, path
 
     def fail(self, text: str) -> ModelFileError:
-        return ModelFileError(f"{self.path}: {text}; rewrite the file with `stiffness identify` "
-                              "or `stiffness diagnose --out`")
+        return ModelFileError(f"{text}; rewrite the file with `stiffness identify` or "
+                              "`stiffness diagnose --out`", path=self.path)
 
     def get(self, *keys, default=KeyError):
         node = self.doc
@@ -376,31 +382,28 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
 
     Raises
     ------
+    MissingFileError
+        Missing or unreadable file.
+    FileFormatError
+        Not JSON (with its line and column).
     ModelFileError
-        Unreadable file, not JSON, an unknown schema or version, or a missing or malformed key
-        (one line naming the file and the key).
+        An unknown schema or version, or a missing or malformed key (one line naming the file
+        and the key).
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ModelFileError(f"cannot read model file {path}: {exc.strerror}; give the "
-                             "identified-model.json of `stiffness identify` or the "
-                             "final-model.json of `stiffness diagnose --out`") from exc
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ModelFileError(f"{path} is not JSON ({exc}); give the file written by `stiffness "
-                             "identify` or `stiffness diagnose --out`") from exc
+    doc = read_json(path, "model file (identified-model.json of `stiffness identify` or "
+                          "final-model.json of `stiffness diagnose --out`)")
     if not isinstance(doc, dict):
-        raise ModelFileError(f"{path} is not a model file (not a JSON object)")
+        raise ModelFileError("not a model file (not a JSON object)", path=path)
     reader = _Reader(doc, path)
     schema = doc.get("schema")
     if schema is not None:
         name, _, version = str(schema).partition("/")
         if name != SCHEMA_NAME or version != str(SCHEMA_VERSION):
             raise ModelFileError(
-                f"{path} has schema {schema!r}, which this version of stiffness does not know "
-                f"(it reads {SCHEMA!r} and the older identified and diagnosed model files); "
-                "upgrade stiffness or rewrite the file")
+                f"schema {schema!r}, which this version of stiffness does not know (it reads "
+                f"{SCHEMA!r} and the older identified and diagnosed model files); upgrade "
+                "stiffness or rewrite the file", path=path)
         model = _read_current(reader)
     elif doc.get("format") == LEGACY_IDENTIFIED:
         model = _read_legacy_identified(reader)
@@ -408,9 +411,9 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
         model = _read_legacy_diagnosed(reader)
     else:
         raise ModelFileError(
-            f"{path} is not a model file (no schema {SCHEMA!r} and no format "
-            f"{LEGACY_IDENTIFIED!r} or {LEGACY_DIAGNOSED!r}); give the file written by "
-            "`stiffness identify` or `stiffness diagnose --out`")
+            f"not a model file (no schema {SCHEMA!r} and no format {LEGACY_IDENTIFIED!r} or "
+            f"{LEGACY_DIAGNOSED!r}); give the file written by `stiffness identify` or "
+            "`stiffness diagnose --out`", path=path)
     model.path = path
     return model
 
@@ -690,8 +693,7 @@ class CompliantModel:
             self.robot = load_robot(model.source, frame=frame or model.frame,
                                     target_offset=offset, compliant_joints=tuple(stiff))
         except StiffnessError as exc:
-            raise ModelFileError(f"{self._where}the model's robot with its effects: {exc}"
-                                 ) from None
+            raise with_context(exc, f"{self._where}the model's robot with its effects") from exc
         self._check_places()
         self._chain: tuple[str, ...] = ()
         self._columns: dict[tuple[str, str], int] = {}
@@ -708,7 +710,7 @@ class CompliantModel:
                 [e.where] if e.where is not None else [])
             for name in names:
                 if name not in joints:
-                    raise ModelFileError(
+                    raise ModelRobotError(
                         f"{self._where}effect {e.label} names {name!r}, not a coordinate joint "
                         f"of {self.robot.name}; {did_you_mean(str(name), joints)}")
 
