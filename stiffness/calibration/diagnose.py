@@ -509,10 +509,6 @@ class Diagnosis:
             },
         )
 
-    def final_model(self) -> dict:
-        """The JSON object of ``final-model.json`` (:meth:`model_file`)."""
-        return self.model_file().to_dict()
-
     def write(self, folder: str | Path) -> dict[str, Path]:
         """Write ``diagnosis.json``, ``residuals.png`` and ``final-model.json`` in ``folder``."""
         folder = Path(folder)

@@ -143,8 +143,10 @@ class Workspace:
             raise StiffnessError(f"{where} must be a table")
         unknown = set(table) - set(WORKSPACE_KEYS)
         if unknown:
-            raise StiffnessError(f"{where}: unknown key {sorted(unknown)[0]!r}; valid keys: "
-                                 f"{', '.join(WORKSPACE_KEYS)}")
+            key = sorted(unknown)[0]
+            raise UnknownNameError(f"{where}: unknown key {key!r}; valid keys: "
+                                   f"{', '.join(WORKSPACE_KEYS)}", name=key,
+                                   choices=WORKSPACE_KEYS)
         unit = table.get("angle_unit", "deg")
         if unit not in ("deg", "rad"):
             raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
@@ -154,8 +156,9 @@ class Workspace:
 
         def index(name) -> int:
             if name not in names:
-                raise StiffnessError(f"{where}: {name!r} is not a coordinate of {robot.name}; "
-                                     f"{did_you_mean(str(name), names)}")
+                raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
+                                        f"{robot.name}; {did_you_mean(str(name), names)}",
+                                        name=str(name), choices=names)
             return names.index(name)
 
         def number(value, what: str) -> float:
