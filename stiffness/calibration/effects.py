@@ -1058,25 +1058,10 @@ class Model:
                 point = point + shift
         tau0 = np.einsum("mkn,mk->mn", jv, force) + np.einsum("mkn,mk->mn", jw, moment)
         law = self.law(x, params)
-        n = len(self.joints)
+        k_c = None
         if self.tangent:
-            wrench = np.hstack([force, moment])
-            k_c = np.einsum("mk,mkab->mab", wrench, self.h)
-            a = np.eye(n) - law.compliance[:, None] * k_c
-            dtheta = np.linalg.solve(a, (law.compliance * tau0)[:, :, None])[:, :, 0]
-        else:
-            k_c = None
-            dtheta = law.compliance * tau0
-        if not law.linear:
-            if k_c is None:
-                dtheta = law(tau0)[0]
-            else:
-                for _ in range(LAW_ITERATIONS):
-                    tau = tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
-                    value, slope = law(tau)
-                    g = dtheta - value
-                    jg = np.eye(n) - slope[:, :, None] * k_c
-                    dtheta = dtheta - np.linalg.solve(jg, g[:, :, None])[:, :, 0]
+            k_c = np.einsum("mk,mkab->mab", np.hstack([force, moment]), self.h)
+        dtheta = law.frozen_deflection(tau0, k_c, LAW_ITERATIONS)
         dx = np.einsum("mkn,mn->mk", jv, dtheta)
         if self.second_order:
             dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)

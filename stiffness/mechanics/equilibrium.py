@@ -122,6 +122,42 @@ class SpringLaw(JointLaw):
                  + self.backlash / self.smoothing * (1.0 - th ** 2))
         return value, slope
 
+    def frozen_deflection(self, tau0: np.ndarray, k_c: np.ndarray | None = None,
+                          iterations: int = 30, tolerance: float | None = None) -> np.ndarray:
+        """Deflections solving ``dtheta = f(tau0 + K_C dtheta)`` at frozen geometry, batched.
+
+        Parameters
+        ----------
+        tau0
+            (..., n) torques ``J^T W`` of the unloaded pose.
+        k_c
+            (..., n, n) ``K_C`` there, or ``None`` (conventional: ``dtheta = f(tau0)``).
+        iterations
+            Newton steps from the linear springs' answer ``(I - c K_C)^-1 c tau0`` (none when
+            the law is linear, which that answer solves exactly).
+        tolerance
+            Stop early once every residual is below this times the largest deflection; ``None``
+            runs every step (the result is then a smooth function of the law's parameters, as a
+            least-squares fit needs).
+        """
+        if k_c is None:
+            return self(tau0)[0] if not self.linear else self.compliance * tau0
+        n = tau0.shape[-1]
+        eye = np.eye(n)
+        a = eye - self.compliance[..., :, None] * k_c
+        dtheta = np.linalg.solve(a, (self.compliance * tau0)[..., :, None])[..., :, 0]
+        if self.linear:
+            return dtheta
+        for _ in range(iterations):
+            value, slope = self(tau0 + np.einsum("...ab,...b->...a", k_c, dtheta))
+            g = dtheta - value
+            if tolerance is not None and np.abs(g).max() <= tolerance * max(
+                    float(np.abs(dtheta).max()), 1e-300):
+                break
+            jg = eye - slope[..., :, None] * k_c
+            dtheta = dtheta - np.linalg.solve(jg, g[..., :, None])[..., :, 0]
+        return dtheta
+
     def start(self, tau):
         return self(tau)[0]
 
@@ -145,9 +181,14 @@ def tangent_equilibrium(law: JointLaw | np.ndarray, tau0: np.ndarray, k_c: np.nd
     """Deflection ``dtheta`` solving ``dtheta = f(tau0 + K_C dtheta)`` (frozen geometry).
 
     The enhanced model of a joint law: ``tau0 = J^T W`` and ``K_C`` at the unloaded pose. For
-    linear springs it is ``(K_theta - K_C)^-1 tau0`` (A&S eq. 10).
+    linear springs it is ``(K_theta - K_C)^-1 tau0`` (A&S eq. 10); a :class:`SpringLaw` runs
+    :meth:`SpringLaw.frozen_deflection`; any other law, Newton on its residual.
     """
     law = as_joint_law(law)
+    if isinstance(law, LinearSprings):
+        return np.linalg.solve(law.k_theta - k_c, tau0)
+    if isinstance(law, SpringLaw):
+        return law.frozen_deflection(tau0, k_c, iterations, tolerance=1e-14)
     dtheta = law.start(tau0)
     scale = max(float(np.abs(law.residual(np.zeros_like(tau0), tau0)).max()), 1e-300)
     for _ in range(iterations):
