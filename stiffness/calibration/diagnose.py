@@ -46,7 +46,7 @@ from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
 from stiffness.calibration.fitting import Fit
-from stiffness.calibration.model_file import ModelEffect, ModelFile
+from stiffness.calibration.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
 
@@ -418,7 +418,7 @@ class Diagnosis:
 
     def summary(self) -> dict:
         """The ``--json`` object: exactly the keys of the issue."""
-        return _clean({
+        return jsonable({
             "baseline_rms": self._len(self.baseline.rms()),
             "noise_std": self._len(self.noise_std_m),
             "noise_std_source": self.noise_std_source,
@@ -462,7 +462,7 @@ class Diagnosis:
             "cannot_tell_apart": [a.to_dict(c.units.length_to_si) for a in self.ambiguities],
             "elapsed_s": self.elapsed_s,
         })
-        return _clean(out)
+        return jsonable(out)
 
     def model_file(self) -> ModelFile:
         """The final model in the model-file schema (SI): baseline stiffnesses with their
@@ -522,23 +522,6 @@ class Diagnosis:
         tmp.write_bytes(png)
         tmp.replace(paths["plot"])
         return paths
-
-
-def _clean(obj):
-    """JSON-ready: numpy scalars to floats, inf/NaN to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, bool | np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    return obj
 
 
 # ------------------------------------------------------------------------------------------

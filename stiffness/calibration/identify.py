@@ -55,7 +55,7 @@ from scipy.stats import t as student_t
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.effects import Geometry, Model, References
 from stiffness.calibration.fitting import Covariance, Fit, covariance, fit_model
-from stiffness.calibration.model_file import ModelFile
+from stiffness.calibration.model_file import ModelFile, jsonable
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.model.robot import Robot
 
@@ -250,7 +250,7 @@ class Identification:
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (SI; eq. 12 also in mm^2; inf and NaN become null)."""
-        return _jsonable({
+        return jsonable({
             "campaign": self.campaign,
             "campaign_path": self.campaign_path,
             "robot": {"source": self.robot_source, "frame": self.robot_frame,
@@ -335,23 +335,6 @@ class Identification:
         :func:`stiffness.calibration.model_file.read_model_file`.
         """
         return self.model_file().write(path)
-
-
-def _jsonable(value):
-    """Arrays to lists, non-finite floats to None, recursively."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.bool_ | bool):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    return value
 
 
 # ----------------------------------------------------------------------------------------------

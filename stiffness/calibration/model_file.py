@@ -25,7 +25,9 @@ Public API
 :class:`CompliantModel` (a model file made usable: the robot the effects imply and
 :meth:`CompliantModel.at`, :meth:`CompliantModel.deflection`) and :func:`model_compliance`
 (one call: J, joint tangent stiffness, K_C, compliance and K_X at a pose and load, effects
-included).
+included, as a :class:`ModelCompliance`). Errors: :class:`ModelFileError` (a
+:class:`~stiffness.errors.FileFormatError`: unknown schema, missing or malformed key) and
+:class:`ModelRobotError` (another robot than the model's, or an effect on a joint it lacks).
 
 How effects enter (``kind`` of :data:`stiffness.calibration.effects.EFFECT_KINDS`):
 
@@ -290,7 +292,7 @@ class ModelFile:
         }
         for key, value in self.extra.items():
             doc.setdefault(key, value)
-        return _jsonable(doc)
+        return jsonable(doc)
 
     def write(self, path: str | os.PathLike) -> Path:
         """Write the file atomically (a URDF source relative to its folder); returns the path."""
@@ -315,14 +317,15 @@ def _robot_identity(source: str) -> str:
     return source
 
 
-def _jsonable(value):
-    """Arrays to lists, non-finite floats to None, recursively."""
+def jsonable(value):
+    """JSON-ready: arrays to lists, numpy scalars to Python, non-finite floats to None,
+    recursively."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, np.bool_ | bool):
         return bool(value)
     if isinstance(value, np.integer):
