@@ -23,20 +23,7 @@
   joints are no longer determined) at least ``fold_margin`` times its value at the reference
   assembly (mechanisms with many passive joints are never well conditioned in absolute terms).
 
-A ``[workspace]`` table (angles in ``angle_unit``, ``deg`` or ``rad``; lengths in m)::
-
-    [workspace]
-    angle_unit = "deg"
-    ranges = { joint1 = [-90.0, 90.0], joint2 = [-70.0, 70.0] }      # uniform, in this order
-    avoid = [{ sum = { joint2 = 1.0, joint3 = 1.0 }, values = [90.0, -90.0], margin = 15.0 }]
-    choices = { joint6 = [-90.0, 90.0] }                               # one of these values
-    fixed = { joint4 = { offset = 0.0 }, joint5 = { offset = -90.0, joint3 = -1.0 } }
-    target_above_base = false
-
-``ranges`` narrow the limits of the joints they name; the joints no rule names are uniform
-within their limits; ``avoid`` rejects poses where a linear combination of coordinates is
-within ``margin`` of one of ``values``; ``fixed`` sets a joint to ``offset + sum(c_j q_j)``
-of the drawn ones. Units: rad and m inside.
+The ``[workspace]`` table is described by :class:`Workspace`. Units: rad and m inside.
 """
 
 from __future__ import annotations
@@ -47,7 +34,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stiffness.calibration.effects import cached_robot
-from stiffness.errors import ConvergenceError, StiffnessError, UnknownJointError, did_you_mean
+from stiffness.errors import (
+    ConvergenceError,
+    StiffnessError,
+    UnknownJointError,
+    UnknownNameError,
+    did_you_mean,
+)
 from stiffness.mechanics.formulation import target_state
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
@@ -63,146 +56,170 @@ _FIRST_POSE_TRIES = 50
 #: Probe poses used to find the rank the robot's Jacobian reaches in general.
 _RANK_PROBES = 8
 _RANK_RTOL = 1e-8
-_KEYS = {"angle_unit", "ranges", "avoid", "choices", "fixed", "target_above_base"}
-_ANGLE = {"deg": math.pi / 180.0, "rad": 1.0}
-
-
-@dataclass
-class Avoid:
-    """Reject poses with ``|sum_j c_j q_j - v| < margin`` for a ``v`` of ``values`` (rad, m)."""
-
-    terms: dict[int, float]
-    values: tuple[float, ...]
-    margin: float
-
-    def rejects(self, coords: np.ndarray) -> bool:
-        """Whether ``coords`` falls in a band to avoid."""
-        s = sum(c * coords[j] for j, c in self.terms.items())
-        return any(abs(s - v) < self.margin for v in self.values)
+#: Keys of a robot's ``[workspace]`` table.
+WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
 
 
 @dataclass
 class Workspace:
-    """A robot's declared workspace rules (SI), read from the ``[workspace]`` of its robot.toml.
+    """Where poses are drawn, from the robot's ``[workspace]`` table in its ``robot.toml``.
+
+    Every key is optional; angles are in ``angle_unit`` (``deg`` by default, or ``rad``),
+    prismatic coordinates in m::
+
+        [workspace]
+        uniform = { joint1 = [-90.0, 90.0], joint2 = [-70.0, 70.0] }   # ranges
+        choice = { joint6 = [-90.0, 90.0] }                             # one of these values
+        linear = [ { joint = "joint5", constant = -90.0, terms = { joint3 = -1.0 } } ]
+        avoid = [ { terms = { joint2 = 1.0, joint3 = 1.0 }, values = [90.0, -90.0],
+                    margin = 15.0 } ]
+        target_above_base = false
+
+    A pose draws the ``uniform`` coordinates in the table's order, then every coordinate with
+    no rule uniformly within its joint limits (``+-pi`` when unlimited), rejects the pose when
+    an ``avoid`` combination ``sum terms * q`` lies within ``margin`` of one of its ``values``,
+    draws the ``choice`` coordinates, and sets each ``linear`` coordinate to
+    ``constant + sum terms * q`` in order. ``target_above_base`` (default true) rejects poses
+    whose target is below the base plane.
 
     Attributes
     ----------
-    ranges
-        Coordinate index -> (low, high), drawn uniformly in declaration order.
+    uniform
+        Coordinate index -> (low, high), SI.
+    choice
+        Coordinate index -> values, SI.
+    linear
+        (index, constant, {index: coefficient}) in order, SI.
     avoid
-        Bands of linear combinations to stay out of.
-    choices
-        Coordinate index -> values, one drawn at random.
-    fixed
-        Coordinate index -> (offset, {index: coefficient}).
+        ({index: coefficient}, values, margin), SI.
     target_above_base
         Whether the target must be above the base plane.
     """
 
-    ranges: dict[int, tuple[float, float]] = field(default_factory=dict)
-    avoid: list[Avoid] = field(default_factory=list)
-    choices: dict[int, tuple[float, ...]] = field(default_factory=dict)
-    fixed: dict[int, tuple[float, dict[int, float]]] = field(default_factory=dict)
+    uniform: dict[int, tuple[float, float]] = field(default_factory=dict)
+    choice: dict[int, list[float]] = field(default_factory=dict)
+    linear: list[tuple[int, float, dict[int, float]]] = field(default_factory=list)
+    avoid: list[tuple[dict[int, float], list[float], float]] = field(default_factory=list)
     target_above_base: bool = True
+    declared: bool = False
 
     @classmethod
     def of(cls, robot: Robot) -> Workspace:
-        """The rules ``robot`` declares (none: uniform within the limits, target above base).
+        """The robot's declared workspace (default: its joint limits, target above the base).
 
         Raises
         ------
         StiffnessError
-            On an unknown key, an unknown joint or a malformed value.
+            On an unknown key, joint or unit, or a malformed rule (one line naming it).
         """
         table = robot.defaults.get("workspace")
         if table is None:
             return cls()
-        where = f"[workspace] of {robot.name}'s robot.toml"
+        where = f"[workspace] of {robot.name}"
         if not isinstance(table, dict):
             raise StiffnessError(f"{where} must be a table")
-        for key in table:
-            if key not in _KEYS:
-                raise StiffnessError(f"{where}: unknown key {key!r}; "
-                                     f"{did_you_mean(key, sorted(_KEYS))}")
-        unit = table.get("angle_unit", "rad")
-        if unit not in _ANGLE:
+        unknown = set(table) - set(WORKSPACE_KEYS)
+        if unknown:
+            key = sorted(unknown)[0]
+            raise UnknownNameError(f"{where}: unknown key {key!r}; valid keys: "
+                                   f"{', '.join(WORKSPACE_KEYS)}", name=key,
+                                   choices=WORKSPACE_KEYS)
+        unit = table.get("angle_unit", "deg")
+        if unit not in ("deg", "rad"):
             raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
-        joints = list(robot.coordinate_joints)
-        model = robot.model
-        factor = [1.0 if model.joints[model.getJointId(j)].shortname().startswith("JointModelP")
-                  else _ANGLE[unit] for j in joints]
+        names = list(robot.coordinate_joints)
+        factor = np.array([1.0 if _is_prismatic(robot, j) else (
+            math.pi / 180.0 if unit == "deg" else 1.0) for j in names])
 
-        def index(name: str) -> int:
-            if name not in joints:
-                raise UnknownJointError(f"{where}: {name!r} is not a coordinate joint; "
-                                        f"{did_you_mean(name, joints)}", name=name,
-                                        choices=joints)
-            return joints.index(name)
+        def index(name) -> int:
+            if name not in names:
+                raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
+                                        f"{robot.name}; {did_you_mean(str(name), names)}",
+                                        name=str(name), choices=names)
+            return names.index(name)
 
-        def numbers(value, what: str, count: int | None = None) -> list[float]:
-            ok = isinstance(value, list) and all(
-                isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-            if not ok or (count is not None and len(value) != count) or not value:
-                raise StiffnessError(f"{where}: {what} must be a list of "
-                                     f"{count or 'some'} numbers, got {value!r}")
-            return [float(v) for v in value]
+        def number(value, what: str) -> float:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
+                    value):
+                raise StiffnessError(f"{where}: {what} must be a finite number, got {value!r}")
+            return float(value)
 
-        out = cls(target_above_base=bool(table.get("target_above_base", True)))
-        for name, value in table.get("ranges", {}).items():
-            i = index(name)
-            lo, hi = numbers(value, f"ranges.{name}", 2)
-            if not hi > lo:
-                raise StiffnessError(f"{where}: ranges.{name} must be [low, high] with low < high")
-            out.ranges[i] = (lo * factor[i], hi * factor[i])
-        for name, value in table.get("choices", {}).items():
-            i = index(name)
-            out.choices[i] = tuple(v * factor[i] for v in numbers(value, f"choices.{name}"))
-        for name, value in table.get("fixed", {}).items():
-            i = index(name)
-            if not isinstance(value, dict):
-                raise StiffnessError(f"{where}: fixed.{name} must be a table "
-                                     "{ offset = ..., joint = coefficient, ... }")
-            offset = float(value.get("offset", 0.0)) * factor[i]
-            terms = {index(j): float(c) * factor[i] / factor[index(j)]
-                     for j, c in value.items() if j != "offset"}
-            out.fixed[i] = (offset, terms)
-        for k, item in enumerate(table.get("avoid", [])):
-            if not isinstance(item, dict) or set(item) != {"sum", "values", "margin"}:
-                raise StiffnessError(f"{where}: avoid[{k}] needs exactly sum, values and margin")
-            terms = {index(j): float(c) for j, c in item["sum"].items()}
-            scale = _ANGLE[unit]
-            out.avoid.append(Avoid(terms, tuple(v * scale for v in numbers(
-                item["values"], f"avoid[{k}].values")), float(item["margin"]) * scale))
-        named = [set(out.ranges), set(out.choices), set(out.fixed)]
-        if sum(len(s) for s in named) != len(set().union(*named)):
-            raise StiffnessError(f"{where}: a joint is named by more than one of ranges, "
-                                 "choices and fixed")
-        return out
+        def terms(rule: dict, what: str) -> dict[int, float]:
+            raw = rule.get("terms", {})
+            if not isinstance(raw, dict):
+                raise StiffnessError(f"{where}: {what}.terms must map joints to coefficients")
+            out = {}
+            for joint, c in raw.items():
+                i = index(joint)
+                # the coefficient relates SI values: q_out = c q_in in the table's units
+                out[i] = number(c, f"{what}.terms.{joint}")
+            return out
 
-    @property
-    def declared(self) -> bool:
-        """Whether any rule is declared."""
-        return bool(self.ranges or self.avoid or self.choices or self.fixed)
+        ws = cls(declared=True)
+        for joint, bounds in dict(table.get("uniform", {})).items():
+            i = index(joint)
+            if not isinstance(bounds, list) or len(bounds) != 2:
+                raise StiffnessError(f"{where}: uniform.{joint} must be [low, high]")
+            lo, hi = (number(v, f"uniform.{joint}") * factor[i] for v in bounds)
+            if hi < lo:
+                raise StiffnessError(f"{where}: uniform.{joint} has high below low")
+            ws.uniform[i] = (lo, hi)
+        for joint, values in dict(table.get("choice", {})).items():
+            i = index(joint)
+            if not isinstance(values, list) or not values:
+                raise StiffnessError(f"{where}: choice.{joint} must be a list of values")
+            ws.choice[i] = [number(v, f"choice.{joint}") * factor[i] for v in values]
+        for k, rule in enumerate(table.get("linear", [])):
+            if not isinstance(rule, dict) or "joint" not in rule:
+                raise StiffnessError(f"{where}: linear[{k}] needs a joint")
+            i = index(rule["joint"])
+            c = terms(rule, f"linear[{k}]")
+            scaled = {j: v * factor[i] / factor[j] for j, v in c.items()}
+            ws.linear.append((i, number(rule.get("constant", 0.0), f"linear[{k}].constant")
+                              * factor[i], scaled))
+        for k, rule in enumerate(table.get("avoid", [])):
+            if not isinstance(rule, dict) or "terms" not in rule or "margin" not in rule:
+                raise StiffnessError(f"{where}: avoid[{k}] needs terms, values and margin")
+            c = terms(rule, f"avoid[{k}]")
+            ref = factor[next(iter(c))] if c else 1.0
+            values = rule.get("values", [0.0])
+            if not isinstance(values, list):
+                raise StiffnessError(f"{where}: avoid[{k}].values must be a list")
+            ws.avoid.append(({j: v * factor[j] / ref for j, v in c.items()},
+                             [number(v, f"avoid[{k}].values") * ref for v in values],
+                             number(rule["margin"], f"avoid[{k}].margin") * ref))
+        above = table.get("target_above_base", True)
+        if not isinstance(above, bool):
+            raise StiffnessError(f"{where}: target_above_base must be true or false")
+        ws.target_above_base = above
+        return ws
 
     def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
              ) -> np.ndarray | None:
-        """One coordinate vector, or ``None`` if it falls in a band to avoid."""
+        """One coordinate vector (SI), or ``None`` when an ``avoid`` rule rejects it."""
         if not self.declared:
             return rng.uniform(lo, hi)
-        coords = np.zeros(lo.shape[0])
-        for i, (a, b) in self.ranges.items():
-            coords[i] = rng.uniform(max(a, lo[i]), min(b, hi[i]))
-        free = [i for i in range(lo.shape[0])
-                if i not in self.ranges and i not in self.choices and i not in self.fixed]
-        if free:
-            coords[free] = rng.uniform(lo[free], hi[free])
-        if any(a.rejects(coords) for a in self.avoid):
-            return None
-        for i, values in self.choices.items():
+        coords = np.zeros(len(lo))
+        for i, (a, b) in self.uniform.items():
+            coords[i] = rng.uniform(a, b)
+        ruled = set(self.uniform) | set(self.choice) | {i for i, _, _ in self.linear}
+        for i in range(len(lo)):
+            if i not in ruled:
+                coords[i] = rng.uniform(lo[i], hi[i])
+        for c, values, margin in self.avoid:
+            combo = sum(v * coords[j] for j, v in c.items())
+            if min(abs(combo - v) for v in values) < margin:
+                return None
+        for i, values in self.choice.items():
             coords[i] = rng.choice(values)
-        for i, (offset, terms) in self.fixed.items():
-            coords[i] = offset + sum(c * coords[j] for j, c in terms.items())
+        for i, constant, c in self.linear:
+            coords[i] = constant + sum(v * coords[j] for j, v in c.items())
         return coords
+
+
+def _is_prismatic(robot: Robot, joint: str) -> bool:
+    return robot.model.joints[robot.model.getJointId(joint)].shortname().startswith("JointModelP")
+
 
 
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
@@ -287,20 +304,21 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
         If fewer than ``n`` poses are found in ``max_tries * n`` draws.
     """
     rules = Workspace.of(robot)
-    lo, hi = coordinate_limits(robot) if rules.declared else sampling_box(robot)
+    lo, hi = coordinate_limits(robot)
+    box = sampling_box(robot)
     rank = None
     fold_floor = 0.0
     if fold_margin > 0 and robot.loop is not None:
         fold_floor = fold_margin * _reference_fold_ratio(robot)
     if singularity_margin > 0:
         probe = np.random.default_rng(int(rng.integers(2 ** 63)))
-        rank, best_ratio = _generic_rank(robot, lo, hi, rules, probe)
+        rank, best_ratio = _generic_rank(robot, *box, rules, probe)
         singularity_floor = singularity_margin * best_ratio
     out: list[np.ndarray] = []
     for attempt in range(max_tries * n):
         if len(out) == n or (not out and attempt >= _FIRST_POSE_TRIES + 10 * n):
             break
-        coords = rules.draw(lo, hi, rng)
+        coords = rules.draw(*box, rng)
         if coords is None:
             continue
         if np.any(coords < lo - 1e-12) or np.any(coords > hi + 1e-12):

@@ -41,12 +41,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
 from stiffness.calibration.effects import (
     LIBRARY,
     Geometry,
-    Law,
     LinkCompliance,
     References,
     cached_robot,
@@ -58,7 +58,6 @@ from stiffness.calibration.effects import (
 from stiffness.calibration.plan import Plan
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import (
-    ConvergenceError,
     StiffnessError,
     UnknownEffectError,
     UnknownJointError,
@@ -66,7 +65,7 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.files import atomic_write
-from stiffness.mechanics.equilibrium import deflected_configuration
+from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.model.robot import Robot
 
@@ -176,7 +175,7 @@ class Truth:
     """
 
     robot: Robot
-    law: Law
+    law: SpringLaw
     links: list[tuple[str, str, int, float, float]] = field(default_factory=list)
     chain: tuple[str, ...] = ()
     misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -209,40 +208,17 @@ class Truth:
         robot, law = self.robot, self.law
         wrench = as_wrench(force)
         base = target_state(robot, q0, wrench)
-        tau = base.jacobian.T @ wrench
-        dtheta = law(tau[None])[0][0]
-        state, q = base, q0
-        exact = mode == "exact"
-        if mode == "enhanced":
-            for _ in range(20):
-                value, slope = law((tau + base.k_c @ dtheta)[None])
-                g = dtheta - value[0]
-                jg = np.eye(len(dtheta)) - slope[0][:, None] * base.k_c
-                dtheta = dtheta - np.linalg.solve(jg, g)
-        if exact:
-            scale = max(float(np.abs(dtheta).max()), 1e-300)
-            for _ in range(60):
-                q = deflected_configuration(robot, q0, dtheta, q)
-                state = target_state(robot, q, wrench)
-                tau = state.jacobian.T @ wrench
-                value, slope = law(tau[None])
-                g = dtheta - value[0]
-                if np.abs(g).max() <= 1e-12 * scale:
-                    break
-                jg = np.eye(len(dtheta)) - slope[0][:, None] * state.k_c
-                dtheta = dtheta - np.linalg.solve(jg, g)
-            else:
-                raise ConvergenceError("the exact equilibrium with the hidden effects did not "
-                                       "converge: the load may exceed the buckling load; "
-                                       "lower --max-force")
-            dx = state.position - base.position
+        tau0 = base.jacobian.T @ wrench
+        if mode == "exact":
+            eq = solve_equilibrium(robot, q0, law, wrench)
+            q, x, dx = eq.q, eq.position, eq.dx
         else:
-            dx = base.jacobian[:3] @ dtheta
+            k_c = base.k_c if mode == "enhanced" else np.zeros_like(base.k_c)
+            dtheta = tangent_equilibrium(law, tau0, k_c)
+            q, x, dx = q0, base.position, base.jacobian[:3] @ dtheta
         if self.links:
-            if not exact:
-                target_state(robot, q0)  # placements at q0
+            pin.forwardKinematics(robot.model, robot.data, q)
             origins, rotations = chain_placements(robot, self.chain)
-            x = state.position
             for a, b, column, k1, k2 in self.links:
                 ia, ib = self.chain.index(a), self.chain.index(b)
                 e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib], column)
@@ -302,7 +278,7 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
                                     f"joint ({', '.join(compliant)}), not {j}", name=j,
                                     choices=compliant)
     robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
-    law = Law(np.array([1.0 / stiff[j] for j in compliant]),
+    law = SpringLaw(np.array([1.0 / stiff[j] for j in compliant]),
               np.array([beta.get(j, 0.0) for j in compliant]),
               np.array([backlash.get(j, 0.0) for j in compliant]),
               np.array([smoothing[geometry.joints.index(j)] for j in compliant]))
