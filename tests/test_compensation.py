@@ -1,0 +1,200 @@
+"""Deflection compensation: exact commands checked by an independent root finder.
+
+The independent check solves the torque balance ``law^-1(theta - theta_c) = J(theta)^T W`` with
+scipy's root finder, ``J`` by central finite differences of the forward kinematics (loops closed
+by :meth:`Robot.configuration`), never with the toolkit's equilibrium solver.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.optimize import root
+
+from stiffness.calibration.compensation import (
+    ElasticModel,
+    LinkBend,
+    compensate,
+    loaded_equilibrium,
+)
+from stiffness.calibration.effects import Geometry, LinkCompliance, link_axes
+from stiffness.mechanics.ik import all_coordinates
+from stiffness.model import kinematics
+from stiffness.model.robot import load_robot
+
+UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]  # N.m/rad
+UR5_PATH = np.array([[0.1, -1.2, 1.5, -0.3, 1.57, 0.2],
+                     [0.4, -1.0, 1.2, -0.6, 1.3, 0.5]])
+
+
+@pytest.fixture(scope="module")
+def ur5():
+    return load_robot("ur5")
+
+
+@pytest.fixture(scope="module")
+def sk120():
+    return load_robot("sk120")
+
+
+def _fk(robot, coords, seed):
+    q = robot.configuration(coords, seed=seed)
+    kinematics.update_first_order(robot.model, robot.data, q)
+    m = robot.data.oMf[robot.target_frame_id]
+    return m.translation.copy(), m.rotation.copy()
+
+
+def _fd_jacobian(robot, coords, seed, columns, h=1e-6):
+    """(6, k) FD Jacobian of the target (position; rotation vector) w.r.t. ``columns``."""
+    out = []
+    for i in columns:
+        cp, cm = coords.copy(), coords.copy()
+        cp[i] += h
+        cm[i] -= h
+        (pp, rp), (pm, rm) = _fk(robot, cp, seed), _fk(robot, cm, seed)
+        out.append(np.concatenate([(pp - pm) / (2 * h), pin.log3(rp @ rm.T) / (2 * h)]))
+    return np.array(out).T
+
+
+def _independent_equilibrium(robot, command, k, wrench, seed):
+    """Equilibrium coordinates of the springs ``k`` on the compliant joints at rest at
+    ``command`` (rigid coordinates held), by scipy's root finder on the torque balance."""
+    cols = robot.compliant_in_coordinates
+
+    def balance(theta):
+        coords = command.copy()
+        coords[cols] = theta
+        jac = _fd_jacobian(robot, coords, seed, cols)
+        return k * (theta - command[cols]) - jac.T @ wrench
+
+    sol = root(balance, command[cols], method="hybr", tol=1e-14)
+    # the FD Jacobian is noisy at the 1e-14 level: judge by the torque balance itself
+    assert np.abs(balance(sol.x)).max() / k.min() < 1e-12, sol.message
+    coords = command.copy()
+    coords[cols] = sol.x
+    return coords
+
+
+@pytest.mark.parametrize("case", ["ur5", "sk120"])
+def test_exact_command_puts_target_on_nominal_pose(case, ur5, sk120):
+    if case == "ur5":
+        robot, k, path = ur5, np.array(UR5_K), UR5_PATH
+        wrench = np.array([120.0, -80.0, -300.0, 4.0, -3.0, 2.0])
+    else:
+        robot, k = sk120, np.array(sk120.defaults["k_theta_SI"])
+        c = np.deg2rad(sk120.defaults["q_deg"])
+        path = np.array([c, c + np.deg2rad([10.0, 5.0, -8.0, 0.0, 0.0, 0.0])])
+        wrench = np.array([45.5, 364.5, 211.3, 0.0, 0.0, 0.0])
+    result = compensate(ElasticModel.joint_springs(robot, k), path, wrench)
+    assert result.hold == "pose"
+    for point, nominal in zip(result.points, path, strict=True):
+        seed = point.q_nominal
+        coords = _independent_equilibrium(robot, point.command, k, wrench, seed)
+        p, r = _fk(robot, coords, seed)
+        p_n, r_n = _fk(robot, nominal, seed)
+        assert np.linalg.norm(p - p_n) < 1e-9
+        assert np.linalg.norm(pin.log3(r @ r_n.T)) < 1e-9
+        # the deflection it cancels is real (the uncompensated equilibrium moves the target)
+        free = _independent_equilibrium(robot, nominal.copy(), k, wrench, seed)
+        moved = _fk(robot, free, seed)[0] - p_n
+        assert np.linalg.norm(moved) > 1e-4
+        np.testing.assert_allclose(point.deflection, moved, atol=1e-9)
+        assert np.linalg.norm(point.residual) < 1e-9
+
+
+def test_first_order_residual_grows_as_the_square_of_the_load(ur5):
+    em = ElasticModel.joint_springs(ur5, UR5_K)
+    scales = np.geomspace(0.1, 1.0, 5)
+    base = np.array([150.0, -100.0, -400.0])
+    err = [np.linalg.norm(compensate(em, UR5_PATH[:1], s * base).points[0].residual_first_order)
+           for s in scales]
+    rate = np.polyfit(np.log(scales), np.log(err), 1)[0]
+    assert 1.9 < rate < 2.1, rate
+    assert err[-1] > 1e-8  # the first-order residual is not negligible at full load
+
+
+def test_general_solver_agrees_with_the_closed_form_for_a_nonlinear_law(ur5):
+    em = ElasticModel.joint_springs(ur5, UR5_K)
+    em.law.beta[:] = [2e-3, 1e-3, -5e-4, 0.0, 3e-3, 0.0]
+    em.law.backlash[1] = 2e-4
+    em.law.smoothing[:] = 5.0
+    wrench = [100.0, 50.0, -300.0]
+    closed = compensate(em, UR5_PATH, wrench, method="closed-form")
+    general = compensate(em, UR5_PATH, wrench, method="general")
+    for a, b in zip(closed.points, general.points, strict=True):
+        assert b.iterations >= 2  # the general solver starts from the uncompensated command
+        np.testing.assert_allclose(a.command, b.command, atol=1e-11)
+        assert np.linalg.norm(a.residual) < 1e-9
+
+
+def _ur5_link_model(ur5):
+    geometry = Geometry.of(ur5)
+    a, b = "shoulder_lift_joint", "elbow_joint"
+    joints = ElasticModel.joint_springs(ur5, UR5_K)
+    bend = LinkBend(a, b, geometry.link_columns[(a, b)], (1.5e5, 8e4))
+    return joints, ElasticModel(ur5, joints.law, (bend,)), geometry
+
+
+def test_link_compliance_needs_the_general_solver(ur5):
+    joints, linked, _ = _ur5_link_model(ur5)
+    wrench = [100.0, 0.0, -300.0]
+    general = compensate(linked, UR5_PATH, wrench)
+    closed = compensate(joints, UR5_PATH, wrench)
+    for g, c, nominal in zip(general.points, closed.points, UR5_PATH, strict=True):
+        assert g.method == "general"
+        assert np.linalg.norm(g.residual) < 1e-9
+        assert np.linalg.norm(g.rotation_residual) < 1e-9
+        # the joint-only closed form, loaded on the model with the link, leaves its bend
+        left = loaded_equilibrium(linked, c.command, wrench, seed_q=c.q_nominal)
+        p_n = _fk(ur5, nominal, c.q_nominal)[0]
+        assert np.linalg.norm(left.position - p_n) > 1e-4
+
+
+def test_link_bend_matches_the_effect_library_to_first_order(ur5):
+    """The exact bend at a small load equals the library's linear link-compliance term."""
+    joints, linked, geometry = _ur5_link_model(ur5)
+    bend = linked.links[0]
+    force = np.array([10.0, -5.0, -20.0])
+    coords = UR5_PATH[0]
+    with_link = loaded_equilibrium(linked, coords, force)
+    without = loaded_equilibrium(joints, coords, force)
+    full = all_coordinates(ur5)
+    q = full.configuration(coords)
+    kinematics.update_first_order(full.model, full.data, q)
+    data, model = full.data, full.model
+    ja, jb = model.getJointId(bend.a), model.getJointId(bend.b)
+    p_b = data.oMi[jb].translation
+    e1, e2 = link_axes(data.oMi[ja].translation, p_b, data.oMi[model.parents[jb]].rotation,
+                       bend.column)
+    r = data.oMf[full.target_frame_id].translation - p_b
+    m_b = np.cross(r, force)
+    omega = e1 * (e1 @ m_b) / bend.stiffness[0] + e2 * (e2 @ m_b) / bend.stiffness[1]
+    linear = np.cross(omega, r)
+    assert LinkCompliance.name == "link_compliance"
+    extra = with_link.position - without.position
+    assert np.linalg.norm(extra - linear) < 0.02 * np.linalg.norm(linear)
+
+
+def test_bent_jacobian_matches_finite_differences(ur5):
+    from stiffness.calibration.compensation import _frozen_axes, _kinematics
+
+    _, linked, _ = _ur5_link_model(ur5)
+    links = linked.ordered_links()
+    c = UR5_PATH[1]
+    q = linked.full.configuration(c)
+    kinematics.update_first_order(ur5.model, linked.full.data, q)
+    axes = _frozen_axes(linked, links)
+    z = np.concatenate([c, [0.01, -0.02]])
+    wrench = np.zeros(6)
+    kin = _kinematics(linked, links, axes, z[:6], z[6:], wrench, None)
+    h, fd = 1e-6, []
+    for i in range(z.shape[0]):
+        zp, zm = z.copy(), z.copy()
+        zp[i] += h
+        zm[i] -= h
+        kp = _kinematics(linked, links, axes, zp[:6], zp[6:], wrench, None)
+        km = _kinematics(linked, links, axes, zm[:6], zm[6:], wrench, None)
+        fd.append(np.concatenate([(kp.position - km.position) / (2 * h),
+                                  pin.log3(kp.rotation @ km.rotation.T) / (2 * h)]))
+    np.testing.assert_allclose(np.array(fd).T, kin.jac, atol=1e-8)
