@@ -16,6 +16,8 @@ Example::
     c_x = stiffness.compliance(state.jacobian[:3], k_theta - state.k_c)   # m/N
 """
 
+from stiffness.calibration.compensation import ElasticModel, compensate
+from stiffness.calibration.posture import posture
 from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import (
@@ -33,16 +35,19 @@ from stiffness.mechanics.formulation import (
 from stiffness.model.robot import Robot, load_robot
 
 __all__ = [
+    "ElasticModel",
     "Robot",
     "SingularConfigurationError",
     "StiffnessError",
     "cartesian_stiffness",
+    "compensate",
     "compliance",
     "definiteness",
     "ellipsoid",
     "joint_connection_stiffness",
     "joint_stiffness",
     "load_robot",
+    "posture",
     "solve_equilibrium",
     "target_state",
     "target_states",

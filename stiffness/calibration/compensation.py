@@ -122,9 +122,8 @@ class ElasticModel:
     def joint_springs(cls, robot: Robot, k_theta: np.ndarray | list[float],
                       formulation: str = "enhanced") -> ElasticModel:
         """Linear springs ``k_theta`` (N.m/rad, N/m) on the robot's compliant joints."""
-        k = np.asarray(k_theta, dtype=float).reshape(-1)
-        if k.ndim == 2:
-            k = np.diag(k)
+        k = np.asarray(k_theta, dtype=float)
+        k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
         if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
             raise StiffnessError(
                 f"need one finite positive stiffness per compliant joint of {robot.name} "
@@ -354,6 +353,44 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
 
 
 # ------------------------------------------------------------------------------------------
+# linear deflection
+
+
+def _linear(em: ElasticModel, links: list[LinkBend], kin: _Kinematics, wrench: np.ndarray
+            ) -> np.ndarray:
+    """First-order target displacement ``C W`` (6,) [m; rad] of the model at ``kin``.
+
+    The joint law enters by its secant ``law(tau) / tau`` at the holding torques (the linear
+    springs themselves for a linear law); ``K_C`` enters for the ``enhanced`` formulation.
+    """
+    tau = kin.jac.T @ wrench
+    value, _ = _law_z(em, links, tau)
+    secant = np.divide(value, tau, out=np.zeros_like(value), where=tau != 0)
+    k_c = kin.k_c if em.formulation == "enhanced" else np.zeros_like(kin.k_c)
+    a = np.eye(k_c.shape[0]) - secant[:, None] * k_c
+    try:
+        dz = np.linalg.solve(a, secant * tau)
+    except np.linalg.LinAlgError as exc:
+        raise StiffnessError("the tangent stiffness is singular: the load buckles the robot "
+                             "here; reduce the load") from exc
+    return kin.jac @ dz
+
+
+def linear_deflection(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
+                      seed_q: np.ndarray | None = None) -> np.ndarray:
+    """First-order deflection ``C W`` (6,) [m; rad] of the target at ``coords`` (rad, m)
+    under the dead ``wrench`` (base axes), every effect of the model included."""
+    wrench = as_wrench(wrench)
+    links = em.ordered_links()
+    q = em.full.configuration(coords, seed=seed_q)
+    kinematics.update_first_order(em.full.model, em.full.data, q)
+    axes = _frozen_axes(em, links)
+    kin = _kinematics(em, links, axes, np.asarray(coords, dtype=float),
+                      np.zeros(2 * len(links)), wrench, q)
+    return _linear(em, links, kin, wrench)
+
+
+# ------------------------------------------------------------------------------------------
 # one path point
 
 
@@ -493,12 +530,7 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
         command = coords - em.law(tau_n[:n])[0]
         loaded = solve(command)
     # first-order Cartesian compensation: command the pose shifted by -C W through IK
-    value, _ = _law_z(em, links, tau_n)
-    secant = np.divide(value, tau_n, out=np.zeros_like(value), where=tau_n != 0)
-    k_c = nominal.k_c if em.formulation == "enhanced" else np.zeros_like(nominal.k_c)
-    a = np.eye(k_c.shape[0]) - secant[:, None] * k_c
-    dz = np.linalg.solve(a, secant * tau_n)
-    shift = nominal.jac @ dz
+    shift = _linear(em, links, nominal, wrench)
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
     ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
     first = solve(ik.coords)
@@ -569,7 +601,7 @@ class PathCompensation:
 
 
 def compensate(
-    model: ElasticModel,
+    model: ElasticModel | str | Path,
     path: np.ndarray,
     wrench: np.ndarray | list[float] | None = None,
     wrench_frame: str = "base",
@@ -582,7 +614,8 @@ def compensate(
     Parameters
     ----------
     model
-        The elastic model (:func:`load_elastic_model` or :meth:`ElasticModel.joint_springs`).
+        The elastic model (:meth:`ElasticModel.joint_springs`), or a model file's path
+        (:func:`load_elastic_model`).
     path
         (m, n) nominal coordinates (rad, m), one row per point, model coordinate order.
     wrench
@@ -602,7 +635,7 @@ def compensate(
     StiffnessError
         A bad path or wrench, or a point where a solve fails (the message names the row).
     """
-    em = model
+    em = model if isinstance(model, ElasticModel) else load_elastic_model(model)
     path = np.atleast_2d(np.asarray(path, dtype=float))
     n = em.robot.n_coordinates
     if path.shape[1] != n or path.shape[0] == 0:
@@ -818,9 +851,11 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
         missing = [j for j in joints if j not in header]
         missing_q = [q for q in by_index if q not in header]
         shown = missing if len(missing) <= len(missing_q) else missing_q
+        other = "" if set(header) & set(joints + by_index) else (
+            " (its columns name none of them: is the model file of another robot?)")
         raise StiffnessError(
-            f"{path} lacks the coordinate column(s) {', '.join(shown)} of {robot.name}: name "
-            f"one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})")
+            f"{path} lacks the coordinate column(s) {', '.join(shown)} of {robot.name}{other}: "
+            f"name one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})")
     present = [c for c in WRENCH_COLUMNS if c in header]
     if present and not all(c in present for c in WRENCH_COLUMNS[:3]):
         raise StiffnessError(f"{path}: per-row loads need the columns fx, fy, fz (N) "

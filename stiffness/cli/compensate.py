@@ -1,0 +1,202 @@
+"""``stiffness compensate``: joint commands that cancel the deflection along a path.
+
+Example::
+
+    stiffness compensate --model identified-model.json --path path.csv \\
+        --wrench 0,0,-300 --deg --out compensated.csv
+
+``PATH.csv`` has one column per coordinate (joint names, or q1..qn in the model's coordinate
+order; rad, or deg with ``--deg``; m for prismatic joints), one row per point, and optionally
+``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row instead of ``--wrench``. ``OUT.csv`` repeats the input
+columns and adds ``<column>_cmd`` (the exact command, input unit), ``dx,dy,dz`` (uncompensated
+deflection, m), ``ex,ey,ez`` (residual after the exact compensation, m) and ``ex1,ey1,ez1``
+(after the first-order Cartesian compensation, m). Nothing is written when any row fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+
+import numpy as np
+
+from stiffness.calibration.compensation import (
+    WRENCH_FRAMES,
+    ElasticModel,
+    PathCompensation,
+    compensate,
+    load_elastic_model,
+    read_joint_path,
+)
+from stiffness.cli.kx import parse_list, robot_from_args
+from stiffness.errors import StiffnessError
+from stiffness.files import atomic_write
+from stiffness.mechanics.defaults import default_stiffness
+from stiffness.mechanics.formulation import joint_stiffness
+
+
+def add_model_flags(parser: argparse.ArgumentParser, required: bool) -> None:
+    """``--model`` and the robot flags (``--robot``, ``--frame``, ``--target-offset``,
+    ``--compliant-joints``, ``--kq``) shared by ``compensate`` and ``posture``."""
+    parser.add_argument("--model", metavar="M.json", required=required,
+                        help="model file: identified-model.json (`stiffness identify`) or "
+                             "final-model.json (`stiffness diagnose`, with its effects)")
+    parser.add_argument("--robot", help="shipped robot, example-robot-data name or URDF "
+                                        "(instead of --model, or checked against it)")
+    parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
+    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
+    parser.add_argument("--compliant-joints", help="comma-separated joint names")
+    parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m "
+                                     "prismatic), when no --model is given")
+
+
+def add_wrench_flags(parser: argparse.ArgumentParser) -> None:
+    """``--wrench`` and ``--wrench-frame``."""
+    parser.add_argument("--wrench", help="process wrench at the target: fx,fy,fz (N) or "
+                                         "fx,fy,fz,mx,my,mz (N, N.m)")
+    parser.add_argument("--wrench-frame", choices=WRENCH_FRAMES, default="base",
+                        help="axes of --wrench (and of per-row loads): base, or target (the "
+                             "target frame at each nominal pose); default base")
+
+
+def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
+    """The elastic model of ``--model`` (checked against ``--robot``), or of the robot flags
+    with ``--kq`` (or the shipped springs).
+
+    Raises
+    ------
+    StiffnessError
+        Neither given, a ``--robot`` that is not the model file's, a missing ``--kq``.
+    """
+    if args.model is not None:
+        em = load_elastic_model(args.model)
+        if args.robot is not None and args.robot != em.robot.name:
+            raise StiffnessError(
+                f"the model file {args.model} is of robot {em.robot.name!r}, not {args.robot!r}; "
+                "give the model file of this robot (or drop --robot)")
+        return em
+    if args.robot is None:
+        raise StiffnessError("give --model M.json (or --robot R with --kq)")
+    robot, _, _ = robot_from_args(args)
+    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
+    if kq is None:
+        raise StiffnessError(f"--kq is required: one stiffness per compliant joint "
+                             f"({', '.join(robot.compliant_joints)}), N.m/rad")
+    return ElasticModel.joint_springs(robot, np.diag(joint_stiffness(kq, robot.n_compliant)))
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness compensate``."""
+    add_model_flags(parser, required=False)
+    parser.add_argument("--path", metavar="PATH.csv", required=True,
+                        help="joint path: one column per coordinate (joint names or q1..qn), "
+                             "one row per point; optional fx,fy,fz[,mx,my,mz] per row")
+    add_wrench_flags(parser)
+    parser.add_argument("--deg", action="store_true",
+                        help="angles of PATH.csv (and of the commands written) are in degrees")
+    parser.add_argument("--hold", choices=("auto", "pose", "position"), default="auto",
+                        help="what the compensation holds: the target position and orientation "
+                             "(pose), its position only, or auto (pose when the robot can); "
+                             "default auto")
+    parser.add_argument("--method", choices=("auto", "closed-form", "general"), default="auto",
+                        help="auto: closed form when joint compliance is the only effect, else "
+                             "the general solver; default auto")
+    parser.add_argument("--out", metavar="OUT.csv", help="write the compensated path here")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def progress_printer(args: argparse.Namespace, what: str):
+    """A ``(done, total)`` progress callback on stderr when a TTY, else None (``--quiet``)."""
+    if args.quiet or not sys.stderr.isatty():
+        return None
+
+    def show(done: int, total: int) -> None:
+        end = "\n" if done == total else ""
+        print(f"\r{what}: {done}/{total}", end=end, file=sys.stderr, flush=True)
+
+    return show
+
+
+def _num(value: float) -> str:
+    return repr(float(value))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness compensate``; returns the exit code."""
+    if args.model is None and args.robot is None:
+        raise StiffnessError("--model M.json is required (the identified or diagnosed model)")
+    em = elastic_model_from_args(args)
+    path = read_joint_path(args.path, em.robot, deg=args.deg)
+    if args.wrench is not None and path.wrench is not None:
+        raise StiffnessError(f"{args.path} carries per-row loads (fx,fy,fz...): drop --wrench, "
+                             "or drop those columns")
+    wrench = path.wrench if path.wrench is not None else (
+        None if args.wrench is None else np.array(parse_list(args.wrench, "--wrench")))
+    if wrench is None:
+        raise StiffnessError("give --wrench fx,fy,fz[,mx,my,mz] (N, N.m), or per-row fx,fy,fz "
+                             f"columns in {args.path}")
+    result = compensate(em, path.coords, wrench, wrench_frame=args.wrench_frame, hold=args.hold,
+                        method=args.method, progress=progress_printer(args, "compensate"))
+    scale = np.where(path.angular & args.deg, 180.0 / np.pi, 1.0)
+    if args.out:
+        atomic_write(args.out, format_csv(result, path, scale))
+    doc = to_json(result, path, scale, args.deg)
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+        return 0
+    s = doc["summary"]
+    print(f"{em.robot.name}: {s['points']} points, {s['model']}; holds the {s['hold']}, "
+          f"{'/'.join(s['method'])}")
+    if s["ignored_effects"]:
+        print(f"not compensated (rig effects): {', '.join(s['ignored_effects'])}")
+    print(f"deflection without compensation: max {s['max_deflection_m']:.4g} m, "
+          f"RMS {s['rms_deflection_m']:.4g} m")
+    print(f"residual, exact compensation:    max {s['max_residual_m']:.3g} m")
+    print(f"residual, first-order (-C.F):    max {s['max_residual_first_order_m']:.3g} m")
+    if args.out:
+        print(f"written: {args.out}")
+    return 0
+
+
+def format_csv(result: PathCompensation, path, scale: np.ndarray) -> str:
+    """``OUT.csv``: input columns, ``<column>_cmd``, ``dx..``, ``ex..``, ``ex1..``."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(path.header + [f"{c}_cmd" for c in path.column_of]
+                    + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
+    for cells, p in zip(path.cells, result.points, strict=True):
+        cells = cells + [""] * (len(path.header) - len(cells))
+        writer.writerow(cells[: len(path.header)] + [_num(v) for v in p.command * scale]
+                        + [_num(v) for v in np.concatenate(
+                            [p.deflection, p.residual, p.residual_first_order])])
+    return buf.getvalue()
+
+
+def to_json(result: PathCompensation, path, scale: np.ndarray, deg: bool) -> dict:
+    """The ``--json`` object: ``rows``, ``summary``, ``units``."""
+    unit = ["deg" if (a and deg) else ("rad" if a else "m") for a in path.angular]
+    rows = [{
+        "q_command": (p.command * scale).tolist(),
+        "q_command_first_order": (p.command_first_order * scale).tolist(),
+        "deflection": p.deflection.tolist(),
+        "residual": p.residual.tolist(),
+        "residual_first_order": p.residual_first_order.tolist(),
+        "rotation_deflection": p.rotation_deflection.tolist(),
+        "rotation_residual": p.rotation_residual.tolist(),
+        "rotation_residual_first_order": p.rotation_residual_first_order.tolist(),
+        "method": p.method,
+    } for p in result.points]
+    return {
+        "robot": result.model.robot.name,
+        "joints": list(result.joints),
+        "rows": rows,
+        "summary": result.summary(),
+        "units": {"q_command": unit, "q_command_first_order": unit, "deflection": "m",
+                  "residual": "m", "residual_first_order": "m", "rotation_deflection": "rad",
+                  "rotation_residual": "rad", "rotation_residual_first_order": "rad",
+                  "summary": "m (rad for rotation keys)"},
+    }
