@@ -354,8 +354,7 @@ def posture(
                 prev = [r for r in iks[i - 1] if r is not None]
                 if prev:
                     seeds.append((prev[0].coords, prev[0].q))
-            if i == 0 and not near:
-                seeds.append((start, q_start))
+            seeds.append((start, q_start))
             row[k] = problem.solve(i, angles[k], seeds)
         if all(r is None for r in row):
             raise StiffnessError(

@@ -160,8 +160,14 @@ def solve_ik(
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
         if _converged(err, tolerance):
             break
-        a = jac @ jac.T + lam ** 2 * np.eye(jac.shape[0])
-        step = jac.T @ np.linalg.solve(a, -err)
+        step = _dls_step(jac, err, lam)
+        if limits:
+            # active set: joints at a limit that the step pushes outward are held there
+            held = ((coords <= lo + 1e-12) & (step < 0)) | ((coords >= hi - 1e-12) & (step > 0))
+            if held.any():
+                free = ~held
+                step = np.zeros_like(step)
+                step[free] = _dls_step(jac[:, free], err, lam)
         trial = coords + step
         if limits:
             trial = np.clip(trial, lo, hi)
@@ -193,6 +199,12 @@ def solve_ik(
             "workspace"
         )
     return result
+
+
+def _dls_step(jac: np.ndarray, err: np.ndarray, lam: float) -> np.ndarray:
+    """Damped least-squares step ``J^T (J J^T + lambda^2 I)^-1 (-e)``."""
+    a = jac @ jac.T + lam ** 2 * np.eye(jac.shape[0])
+    return jac.T @ np.linalg.solve(a, -err)
 
 
 def _converged(err: np.ndarray, tolerance: float) -> bool:
