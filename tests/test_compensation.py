@@ -198,3 +198,113 @@ def test_bent_jacobian_matches_finite_differences(ur5):
         fd.append(np.concatenate([(kp.position - km.position) / (2 * h),
                                   pin.log3(kp.rotation @ km.rotation.T) / (2 * h)]))
     np.testing.assert_allclose(np.array(fd).T, kin.jac, atol=1e-8)
+
+
+# ------------------------------------------------------------------------------ the command
+
+JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
+          "wrist_2_joint", "wrist_3_joint"]
+
+
+def _identified_model(path, source="ur5", frame="tool0", joints=JOINTS, k=UR5_K):
+    import json
+
+    n = len(joints)
+    path.write_text(json.dumps({
+        "format": "stiffness-identified-model", "version": 1, "campaign": "test",
+        "robot": {"source": source, "frame": frame, "target_offset_m": [0.0, 0.0, 0.0],
+                  "compliant_joints": joints},
+        "formulation": "enhanced",
+        "k_theta": {"joints": joints, "values": k, "unit": ["N.m/rad"] * n},
+        "standard_error": [None] * n, "ci95": {"low": [None] * n, "high": [None] * n},
+        "undetermined_joints": [], "residual_norm": {"eq12_m2": 0.0, "eq12_mm2": 0.0}}))
+    return path
+
+
+def _path_csv(path, rows, header=None, deg=True):
+    header = header or [f"q{i + 1}" for i in range(6)]
+    values = np.rad2deg(rows) if deg else rows
+    path.write_text(",".join(header) + "\n" + "\n".join(
+        ",".join(repr(float(v)) for v in r) for r in values) + "\n")
+    return path
+
+
+def test_command_csv_and_json(tmp_path, capsys):
+    import json
+
+    from stiffness.cli.main import main
+
+    model = _identified_model(tmp_path / "m.json")
+    path = _path_csv(tmp_path / "p.csv", UR5_PATH)
+    out = tmp_path / "out.csv"
+    code = main(["compensate", "--model", str(model), "--path", str(path), "--deg",
+                 "--wrench", "0,0,-300", "--out", str(out), "--json", "--quiet"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc["summary"]) >= {"max_deflection_m", "rms_deflection_m", "max_residual_m",
+                                   "max_residual_first_order_m"}
+    assert set(doc["rows"][0]) >= {"q_command", "deflection", "residual",
+                                   "residual_first_order"}
+    assert "units" in doc and doc["units"]["q_command"][0] == "deg"
+    lines = out.read_text().splitlines()
+    assert lines[0].split(",") == ([f"q{i + 1}" for i in range(6)]
+                                   + [f"q{i + 1}_cmd" for i in range(6)]
+                                   + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
+    assert len(lines) == 1 + len(UR5_PATH)
+    # the commands written (deg) are the library's commands
+    expected = compensate(ElasticModel.joint_springs(load_robot("ur5"), UR5_K), UR5_PATH,
+                          [0.0, 0.0, -300.0])
+    cmd = np.array([float(v) for v in lines[1].split(",")[6:12]])
+    np.testing.assert_allclose(np.deg2rad(cmd), expected.points[0].command, atol=1e-12)
+    assert doc["summary"]["max_residual_m"] < 1e-9
+
+
+def test_per_row_wrench_columns(tmp_path, capsys):
+    import json
+
+    from stiffness.cli.main import main
+
+    model = _identified_model(tmp_path / "m.json")
+    rows = np.hstack([UR5_PATH[[0, 0]], [[0.0, 0.0, -300.0], [0.0, 0.0, -150.0]]])
+    path = tmp_path / "p.csv"
+    path.write_text("shoulder_pan_joint,shoulder_lift_joint,elbow_joint,wrist_1_joint,"
+                    "wrist_2_joint,wrist_3_joint,fx,fy,fz\n" + "\n".join(
+                        ",".join(repr(float(v)) for v in r) for r in rows) + "\n")
+    assert main(["compensate", "--model", str(model), "--path", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    d = [np.linalg.norm(r["deflection"]) for r in doc["rows"]]
+    assert abs(d[1] / d[0] - 0.5) < 0.01  # the same point at half the load
+
+
+@pytest.mark.parametrize("case", ["missing", "nan", "other_robot", "bad_wrench"])
+def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    model = _identified_model(tmp_path / "m.json")
+    path = _path_csv(tmp_path / "p.csv", UR5_PATH)
+    wrench = "0,0,-300"
+    if case == "missing":
+        path = _path_csv(tmp_path / "p.csv", UR5_PATH[:, :5], header=[f"q{i}" for i in
+                                                                         range(1, 6)])
+        expect = "q6"
+    elif case == "nan":
+        rows = UR5_PATH.copy()
+        rows[1, 2] = np.nan
+        path = _path_csv(tmp_path / "p.csv", rows)
+        expect = "row 2: column q3"
+    elif case == "other_robot":
+        model = _identified_model(tmp_path / "m.json", source="sk120", frame="fixture_target",
+                                  joints=["joint1", "joint2", "joint3"],
+                                  k=[1.4e6, 4.0e5, 9.3e5])
+        path = _path_csv(tmp_path / "p.csv", UR5_PATH, header=JOINTS)
+        expect = "another robot"
+    else:
+        wrench = "0,0,-300,1"
+        expect = "wrench"
+    out = tmp_path / "out.csv"
+    code = main(["compensate", "--model", str(model), "--path", str(path), "--deg",
+                 "--wrench", wrench, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and expect in err and "\n" not in err, err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".out.csv*"))
