@@ -308,3 +308,27 @@ def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
     assert code == 2 and expect in err and "\n" not in err, err
     assert not out.exists()
     assert not list(tmp_path.glob(".out.csv*"))
+
+
+def test_diagnosed_model_file_brings_its_effects(sk120):
+    """A final-model.json of `stiffness diagnose` (simulated SK120 campaign with a hidden
+    backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""
+    from pathlib import Path
+
+    from stiffness.calibration.compensation import load_elastic_model
+
+    em = load_elastic_model(Path(__file__).parent / "data" / "sk120-final-model.json")
+    assert em.law.backlash[em.robot.coordinate_joints.index("joint2")] > 0
+    (bend,) = em.links
+    assert (bend.a, bend.b) == ("joint2", "elbow")
+    assert abs(bend.stiffness[1] / 2e6 - 1) < 0.1
+    c = np.deg2rad(sk120.defaults["q_deg"])
+    path = np.array([c, c + np.deg2rad([15.0, 5.0, -5.0, 0.0, 5.0, 0.0])])
+    wrench = [0.0, -250.0, -200.0]
+    result = compensate(em, path, wrench)
+    joint_only = compensate(ElasticModel(em.robot, em.law), path, wrench)
+    for point, closed, coords in zip(result.points, joint_only.points, path, strict=True):
+        assert point.method == "general" and np.linalg.norm(point.residual) < 1e-9
+        left = loaded_equilibrium(em, closed.command, wrench, seed_q=closed.q_nominal)
+        nominal = _fk(sk120, coords, closed.q_nominal)[0]
+        assert np.linalg.norm(left.position - nominal) > 1e-5
