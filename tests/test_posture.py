@@ -80,6 +80,10 @@ def test_never_worse_than_the_fixed_angle_and_measurably_better(ur5_path):
 
 
 def test_redundant_arm_uses_its_null_space():
+    """Panda (7 arm joints): the chosen postures are local minima along the self-motion."""
+    from stiffness.calibration.compensation import linear_deflection
+    from stiffness.mechanics.ik import solve_ik
+
     arm = [f"panda_joint{i}" for i in range(1, 8)]
     robot = load_robot("panda", frame="panda_hand", target_offset=[0.05, 0.0, 0.1],
                        compliant_joints=arm)
@@ -88,16 +92,33 @@ def test_redundant_arm_uses_its_null_space():
     axes = np.tile([0.0, 0.0, -1.0], (4, 1))
     start = np.zeros(robot.n_coordinates)
     start[:7] = [0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]
-    result = posture(em, positions, axes=axes, wrench=[0.0, 0.0, 200.0], steps=8,
-                     max_step_deg=30.0, reference_angle_deg=-45.0, start=start)
+    wrench = [0.0, 0.0, 200.0]
+    kwargs = dict(axes=axes, wrench=wrench, steps=8, max_step_deg=30.0,
+                  reference_angle_deg=45.0, start=start)
+    result = posture(em, positions, **kwargs)
+    coarse = posture(em, positions, refine=False, **kwargs)
     assert result.summary()["fixed_reachable_points"] == 4
-    for i, p in enumerate(result.points):
+    full = em.full
+    for i, (p, c) in enumerate(zip(result.points, coarse.points, strict=True)):
         q = robot.configuration(p.coords)
         kinematics.update_first_order(robot.model, robot.data, q)
         m = robot.data.oMf[robot.target_frame_id]
         assert np.linalg.norm(m.translation - positions[i]) < 1e-9
         assert np.linalg.norm(m.rotation[:, 2] - axes[i]) < 1e-9
-        assert np.linalg.norm(p.deflection) <= np.linalg.norm(p.deflection_fixed) * (1 + 1e-12)
+        d = np.linalg.norm(p.deflection)
+        assert d <= np.linalg.norm(p.deflection_fixed) * (1 + 1e-12)
+        assert d <= np.linalg.norm(c.deflection) * (1 + 1e-12)
+        # moving along the self-motion (pose held, re-projected by IK) does not lower it
+        jac = target_state(full, q).jacobian[:, :7]
+        null = np.linalg.svd(jac)[2][-1]
+        for s in (-0.03, 0.03):
+            seed = p.coords.copy()
+            seed[:7] += s * null
+            moved = solve_ik(full, m.translation, m.rotation, seed=seed, seed_q=q)
+            other = np.linalg.norm(linear_deflection(em, moved.coords, wrench)[:3])
+            assert other >= d * (1 - 1e-6)
+    # the refinement (angle and null space) buys something over the candidates alone
+    assert result.summary()["max_deflection_m"] < 0.97 * coarse.summary()["max_deflection_m"]
     assert np.abs(np.diff(result.joint_path(), axis=0)).max() <= np.deg2rad(30.0) + 1e-9
 
 

@@ -42,7 +42,7 @@ from stiffness.calibration.compensation import (
 )
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.formulation import as_wrench, target_state
-from stiffness.mechanics.ik import IKResult, solve_ik
+from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
 
 #: Named free axes (target frame).
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),
@@ -477,42 +477,56 @@ def _refine_point(problem: _Problem, i: int, chosen: list[IKResult], psi: np.nda
 
 def _null_space_descent(problem: _Problem, i: int, chosen: list[IKResult], psi: np.ndarray,
                         defl: list[np.ndarray], feasible, bound: float,
-                        iterations: int = 8) -> None:
-    """Lower point ``i``'s deflection by moving in the null space of its pose Jacobian."""
+                        iterations: int = 20) -> None:
+    """Lower point ``i``'s deflection by moving in the null space of its pose Jacobian.
+
+    Projected steepest descent: the coordinate gradient of ``|C W|`` (central differences)
+    projected on the null space of the target Jacobian, joints at a limit that the step pushes
+    outward held; a backtracking line search, each trial re-projected onto the pose by IK.
+    """
     full = problem.full
+    lo, hi = coordinate_limits(full)
+    load = problem.load(i, psi[i])
     current = float(np.linalg.norm(defl[i]))
-    step = 0.05
+
+    def value_at(coords: np.ndarray, q: np.ndarray) -> float:
+        return float(np.linalg.norm(linear_deflection(problem.em, coords, load, seed_q=q)[:3]))
+
     for _ in range(iterations):
         ik = chosen[i]
         jac = target_state(full, ik.q).jacobian
-        _, sv, vt = np.linalg.svd(jac)
-        null = vt[int(np.sum(sv > 1e-9 * sv[0])):].T
-        if null.shape[1] == 0:
-            return
+        free = np.linalg.norm(jac, axis=0) > 0
+        grad = np.zeros(full.n_coordinates)
         h = 1e-6
-        grad = np.zeros(null.shape[1])
-        for j in range(null.shape[1]):
-            plus = ik.coords + h * null[:, j]
-            minus = ik.coords - h * null[:, j]
-            fp = np.linalg.norm(linear_deflection(problem.em, plus, problem.load(i, psi[i]),
-                                                  seed_q=ik.q)[:3])
-            fm = np.linalg.norm(linear_deflection(problem.em, minus, problem.load(i, psi[i]),
-                                                  seed_q=ik.q)[:3])
-            grad[j] = (fp - fm) / (2 * h)
-        if np.linalg.norm(grad) == 0:
+        for j in np.flatnonzero(free):
+            e = np.zeros(full.n_coordinates)
+            e[j] = h
+            grad[j] = (value_at(ik.coords + e, ik.q) - value_at(ik.coords - e, ik.q)) / (2 * h)
+        direction = np.zeros(full.n_coordinates)
+        for _ in range(full.n_coordinates):
+            js = jac[:, free]
+            proj = np.eye(js.shape[1]) - np.linalg.pinv(js, rcond=1e-9) @ js
+            direction[:] = 0.0
+            direction[free] = -proj @ grad[free]
+            blocked = (((ik.coords <= lo + 1e-9) & (direction < 0))
+                       | ((ik.coords >= hi - 1e-9) & (direction > 0)))
+            if not blocked.any():
+                break
+            free &= ~blocked
+        norm = float(np.linalg.norm(direction))
+        if norm < 1e-12 * max(current, 1e-300):
             return
+        direction /= norm
         improved = False
-        while step > 1e-4:
-            trial = ik.coords - step * null @ (grad / np.linalg.norm(grad))
-            new = problem.solve(i, psi[i], [(trial, ik.q)])
-            if new is not None and feasible(new):
-                vec = problem.deflection(i, psi[i], new)
-                value = float(np.linalg.norm(vec))
-                if value < current and (not np.isfinite(bound) or value <= bound):
-                    chosen[i], defl[i], current = new, vec, value
-                    improved = True
-                    break
-            step /= 3.0
+        for step in (0.3, 0.1, 0.03, 0.01, 0.003, 0.001):
+            new = problem.solve(i, psi[i], [(ik.coords + step * direction, ik.q)])
+            if new is None or not feasible(new):
+                continue
+            vec = problem.deflection(i, psi[i], new)
+            value = float(np.linalg.norm(vec))
+            if value < current * (1 - 1e-9) and (not np.isfinite(bound) or value <= bound):
+                chosen[i], defl[i], current = new, vec, value
+                improved = True
+                break
         if not improved:
             return
-

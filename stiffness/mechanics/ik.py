@@ -157,9 +157,14 @@ def solve_ik(
     cost = float(err @ err)
     lam = 1e-3
     iterations = 0
+    checkpoint = cost
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
         if _converged(err, tolerance):
             break
+        if iterations % 20 == 0:
+            if cost > 0.25 * checkpoint:  # stalled (a limit, a singularity, out of reach)
+                break
+            checkpoint = cost
         step = _dls_step(jac, err, lam)
         if limits:
             # active set: joints at a limit that the step pushes outward are held there
