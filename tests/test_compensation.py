@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
 from scipy.optimize import root
 
 from stiffness.calibration.compensation import (
@@ -101,6 +103,26 @@ def test_exact_command_puts_target_on_nominal_pose(case, ur5, sk120):
         assert np.linalg.norm(moved) > 1e-4
         np.testing.assert_allclose(point.deflection, moved, atol=1e-9)
         assert np.linalg.norm(point.residual) < 1e-9
+
+
+@settings(max_examples=12, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(coords=st.lists(st.floats(-2.5, 2.5), min_size=6, max_size=6),
+       force=st.lists(st.floats(-400.0, 400.0), min_size=3, max_size=3),
+       moment=st.lists(st.floats(-10.0, 10.0), min_size=3, max_size=3))
+def test_closed_form_holds_for_any_pose_and_wrench(ur5, coords, force, moment):
+    """For every configuration and wrench, the independent root finder rests the loaded UR5
+    on the nominal pose at the closed-form command."""
+    coords = np.array(coords)
+    jac = _fd_jacobian(ur5, coords, None, range(6))
+    assume(np.linalg.svd(jac, compute_uv=False)[-1] > 0.05)  # away from singularities
+    wrench = np.array(force + moment)
+    point = compensate(ElasticModel.joint_springs(ur5, UR5_K), coords[None], wrench).points[0]
+    rest = _independent_equilibrium(ur5, point.command, np.array(UR5_K), wrench, None)
+    p, r = _fk(ur5, rest, None)
+    p_n, r_n = _fk(ur5, coords, None)
+    assert np.linalg.norm(p - p_n) < 1e-9
+    assert np.linalg.norm(pin.log3(r @ r_n.T)) < 1e-9
 
 
 def test_first_order_residual_grows_as_the_square_of_the_load(ur5):

@@ -134,6 +134,18 @@ class ElasticModel:
         return cls(robot, Law(compliance, np.zeros(n), np.zeros(n), np.ones(n)),
                    formulation=formulation)
 
+    def with_target(self, frame: str | None = None,
+                    target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+        """The same springs and bends with the target moved (e.g. to a tool): joint laws and
+        link bends act on joints, not on the target, so they carry over unchanged."""
+        from stiffness.model.robot import load_robot
+
+        robot = load_robot(self.robot.name, frame=frame or self.robot.target_frame,
+                           target_offset=self.robot.target_offset if target_offset is None
+                           else target_offset, compliant_joints=self.robot.compliant_joints)
+        return ElasticModel(robot, self.law, self.links, self.formulation, self.ignored,
+                            self.source)
+
     @property
     def full(self) -> Robot:
         """The robot with every coordinate compliant (Jacobians w.r.t. all coordinates)."""

@@ -46,8 +46,10 @@ def add_model_flags(parser: argparse.ArgumentParser, required: bool) -> None:
                              "final-model.json (`stiffness diagnose`, with its effects)")
     parser.add_argument("--robot", help="shipped robot, example-robot-data name or URDF "
                                         "(instead of --model, or checked against it)")
-    parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
+    parser.add_argument("--frame", help="frame carrying the target (default: the model's, "
+                                        "else the robot's own)")
+    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z (with "
+                                                "--model: moves the target, e.g. to a tool)")
     parser.add_argument("--compliant-joints", help="comma-separated joint names")
     parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m "
                                      "prismatic), when no --model is given")
@@ -77,6 +79,14 @@ def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
             raise StiffnessError(
                 f"the model file {args.model} is of robot {em.robot.name!r}, not {args.robot!r}; "
                 "give the model file of this robot (or drop --robot)")
+        for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
+            if value is not None:
+                raise StiffnessError(f"{flag} conflicts with --model, which brings the springs; "
+                                     f"drop {flag} (or --model)")
+        if args.frame is not None or args.target_offset is not None:
+            offset = None if args.target_offset is None else parse_list(args.target_offset,
+                                                                        "--target-offset")
+            em = em.with_target(args.frame, offset)
         return em
     if args.robot is None:
         raise StiffnessError("give --model M.json (or --robot R with --kq)")
