@@ -270,6 +270,7 @@ def test_command_csv_and_json(tmp_path, capsys):
     assert "units" in doc and doc["units"]["q_command"][0] == "deg"
     lines = out.read_text().splitlines()
     assert lines[0].split(",") == ([f"q{i + 1}" for i in range(6)]
+                                   + [f"{j}_cmd" for j in JOINTS]
                                    + [f"q{i + 1}_cmd" for i in range(6)]
                                    + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
     assert len(lines) == 1 + len(UR5_PATH)
@@ -277,6 +278,7 @@ def test_command_csv_and_json(tmp_path, capsys):
     expected = compensate(ElasticModel.joint_springs(load_robot("ur5"), UR5_K), UR5_PATH,
                           [0.0, 0.0, -300.0])
     cmd = np.array([float(v) for v in lines[1].split(",")[6:12]])
+    np.testing.assert_array_equal(cmd, [float(v) for v in lines[1].split(",")[12:18]])
     np.testing.assert_allclose(np.deg2rad(cmd), expected.points[0].command, atol=1e-12)
     assert doc["summary"]["max_residual_m"] < 1e-9
 

@@ -176,6 +176,30 @@ class ElasticModel:
         return text + "".join(f" + link bend {lk.a}->{lk.b}" for lk in self.links)
 
 
+def as_elastic_model(model: ElasticModel | Robot | str | Path,
+                     k_theta: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """An :class:`ElasticModel` from itself, a model file's path, or a robot with springs
+    ``k_theta`` (N.m/rad, N/m; default the shipped robot's).
+
+    Raises
+    ------
+    StiffnessError
+        A robot without springs, or springs given with a model.
+    """
+    if isinstance(model, Robot):
+        if k_theta is None:
+            from stiffness.mechanics.defaults import default_stiffness
+
+            k_theta = default_stiffness(model)
+            if k_theta is None:
+                raise StiffnessError(f"give k_theta: one stiffness per compliant joint of "
+                                     f"{model.name} ({', '.join(model.compliant_joints)})")
+        return ElasticModel.joint_springs(model, k_theta)
+    if k_theta is not None:
+        raise StiffnessError("k_theta goes with a robot; a model (file) brings its own springs")
+    return model if isinstance(model, ElasticModel) else load_elastic_model(model)
+
+
 def _frozen_axes(em: ElasticModel, links: list[LinkBend]) -> list[np.ndarray]:
     """Bend axes (2, 3) in each mounting body's frame, from the current placements."""
     model, data = em.full.model, em.full.data
@@ -613,23 +637,27 @@ class PathCompensation:
 
 
 def compensate(
-    model: ElasticModel | str | Path,
-    path: np.ndarray,
+    model: ElasticModel | Robot | str | Path,
+    path: np.ndarray | str | Path,
     wrench: np.ndarray | list[float] | None = None,
     wrench_frame: str = "base",
     hold: str = "auto",
     method: str = "auto",
     progress: Callable[[int, int], None] | None = None,
+    k_theta: np.ndarray | list[float] | None = None,
+    deg: bool = False,
 ) -> PathCompensation:
     """Joint commands that cancel the deflection along a path (see the module docstring).
 
     Parameters
     ----------
     model
-        The elastic model (:meth:`ElasticModel.joint_springs`), or a model file's path
-        (:func:`load_elastic_model`).
+        The elastic model (:meth:`ElasticModel.joint_springs`), a model file's path
+        (:func:`load_elastic_model`), or a robot with ``k_theta``.
     path
-        (m, n) nominal coordinates (rad, m), one row per point, model coordinate order.
+        (m, n) nominal coordinates (rad, m), one row per point, model coordinate order; or a
+        ``PATH.csv`` (:func:`read_joint_path`; ``deg`` for angles in degrees; its per-row loads
+        are used when ``wrench`` is None).
     wrench
         One process wrench (3,) or (6,) for every point, or (m, 6) one per point (N, N.m).
     wrench_frame
@@ -641,13 +669,22 @@ def compensate(
         ``auto``, ``closed-form`` or ``general`` (:func:`compensate_point`).
     progress
         Called with (done, total) after each point.
+    k_theta
+        Joint springs (N.m/rad, N/m) when ``model`` is a robot (default: its shipped ones).
+    deg
+        Angles of a ``PATH.csv`` are in degrees.
 
     Raises
     ------
     StiffnessError
         A bad path or wrench, or a point where a solve fails (the message names the row).
     """
-    em = model if isinstance(model, ElasticModel) else load_elastic_model(model)
+    em = as_elastic_model(model, k_theta)
+    if isinstance(path, str | Path):
+        read = read_joint_path(path, em.robot, deg=deg)
+        path = read.coords
+        if wrench is None:
+            wrench = read.wrench
     path = np.atleast_2d(np.asarray(path, dtype=float))
     n = em.robot.n_coordinates
     if path.shape[1] != n or path.shape[0] == 0:

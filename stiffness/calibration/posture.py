@@ -28,21 +28,27 @@ Units: m, rad inside (the ``deg`` names report degrees); deflections in m.
 
 from __future__ import annotations
 
+import csv
+import io
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.compensation import (
+    WRENCH_COLUMNS,
     WRENCH_FRAMES,
     ElasticModel,
+    as_elastic_model,
     linear_deflection,
-    load_elastic_model,
 )
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
+from stiffness.model.robot import Robot
 
 #: Named free axes (target frame).
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),
@@ -114,6 +120,92 @@ def tool_frames(free: np.ndarray, axes: np.ndarray | None = None,
         frames.append(frame)
         previous = (frame, a)
     return np.array(frames)
+
+
+@dataclass
+class Poses:
+    """A path of target poses read from CSV (SI).
+
+    Attributes
+    ----------
+    header, cells
+        The input columns and cells (text), as given.
+    positions
+        (m, 3) target positions (m).
+    axes, quaternions
+        (m, 3) tool axes or (m, 4) orientations ``qw, qx, qy, qz`` (one of them is None).
+    wrench
+        (m, 6) per-row wrenches (N, N.m), or None.
+    """
+
+    header: list[str]
+    cells: list[list[str]]
+    positions: np.ndarray
+    axes: np.ndarray | None
+    quaternions: np.ndarray | None
+    wrench: np.ndarray | None
+
+
+def read_poses(path: str | Path) -> Poses:
+    """Read ``POSES.csv``: ``x,y,z`` (m) and ``ax,ay,az`` (tool axis) or ``qw,qx,qy,qz``, one
+    row per point, optional ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
+
+    Raises
+    ------
+    StiffnessError
+        Unreadable file, missing columns, a value that is not a finite number (row, column).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise StiffnessError(f"cannot read pose file {path}: {exc.strerror}") from exc
+    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
+    if len(rows) < 2:
+        raise StiffnessError(f"{path} has no poses: give a header line and one row per point")
+    header = [h.strip() for h in rows[0]]
+    index = {h: i for i, h in enumerate(header)}
+    groups = {"position": ("x", "y", "z"), "axis": ("ax", "ay", "az"),
+              "orientation": ("qw", "qx", "qy", "qz")}
+    missing = [c for c in groups["position"] if c not in index]
+    if missing:
+        raise StiffnessError(f"{path} lacks the column(s) {', '.join(missing)}: give x,y,z (m) "
+                             "and ax,ay,az or qw,qx,qy,qz")
+    has_axis = all(c in index for c in groups["axis"])
+    has_quat = all(c in index for c in groups["orientation"])
+    if has_axis == has_quat:
+        raise StiffnessError(f"{path} needs exactly one of the column groups ax,ay,az (tool "
+                             "axis) and qw,qx,qy,qz (orientation)")
+    body = rows[1:]
+
+    def column(name: str) -> np.ndarray:
+        out = []
+        for r, row in enumerate(body, start=1):
+            cell = row[index[name]] if index[name] < len(row) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                raise StiffnessError(f"{path} row {r}: column {name} = {cell!r} is not a "
+                                     "number") from None
+            if not math.isfinite(value):
+                raise StiffnessError(f"{path} row {r}: column {name} is {value}; every value "
+                                     "must be a finite number")
+            out.append(value)
+        return np.array(out)
+
+    def block(names) -> np.ndarray:
+        return np.column_stack([column(c) for c in names])
+
+    wrench = None
+    if all(c in index for c in WRENCH_COLUMNS[:3]):
+        wrench = np.zeros((len(body), 6))
+        for k, c in enumerate(WRENCH_COLUMNS):
+            if c in index:
+                wrench[:, k] = column(c)
+    return Poses(header, [list(r) for r in body], block(groups["position"]),
+                 block(groups["axis"]) if has_axis else None,
+                 block(groups["orientation"]) if has_quat else None, wrench)
+
 
 
 @dataclass
@@ -240,8 +332,8 @@ class _Problem:
 
 
 def posture(
-    model: ElasticModel | str,
-    positions: np.ndarray,
+    model: ElasticModel | Robot | str | Path,
+    positions: np.ndarray | str | Path,
     axes: np.ndarray | None = None,
     quaternions: np.ndarray | None = None,
     free_axis: str | np.ndarray = "z",
@@ -254,15 +346,17 @@ def posture(
     start: np.ndarray | None = None,
     refine: bool = True,
     progress: Callable[[int, int], None] | None = None,
+    k_theta: np.ndarray | list[float] | None = None,
 ) -> PostureResult:
     """The stiffest admissible posture along a path (see the module docstring).
 
     Parameters
     ----------
     model
-        The elastic model (robot, joint law, link bends), or a model file's path.
+        The elastic model (robot, joint law, link bends), a model file's path, or a robot with
+        ``k_theta`` (N.m/rad, N/m).
     positions
-        (m, 3) target positions, base frame (m).
+        (m, 3) target positions, base frame (m); or a ``POSES.csv`` (:func:`read_poses`).
     axes, quaternions
         (m, 3) tool axes (base frame) or (m, 4) orientations ``qw, qx, qy, qz``: one of them.
     free_axis
@@ -289,8 +383,12 @@ def posture(
         Bad input, a point no candidate reaches (named by row), or no sequence within
         ``max_step_deg``.
     """
-    em = model if isinstance(model, ElasticModel) else load_elastic_model(model)
+    em = as_elastic_model(model, k_theta)
     full = em.full
+    if isinstance(positions, str | Path):
+        read = read_poses(positions)
+        positions, axes, quaternions = read.positions, read.axes, read.quaternions
+        wrench = read.wrench if wrench is None else wrench
     positions = np.atleast_2d(np.asarray(positions, dtype=float))
     m = positions.shape[0]
     if positions.shape[1] != 3 or m == 0:

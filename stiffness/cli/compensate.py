@@ -8,7 +8,8 @@ Example::
 ``PATH.csv`` has one column per coordinate (joint names, or q1..qn in the model's coordinate
 order; rad, or deg with ``--deg``; m for prismatic joints), one row per point, and optionally
 ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row instead of ``--wrench``. ``OUT.csv`` repeats the input
-columns and adds ``<column>_cmd`` (the exact command, input unit), ``dx,dy,dz`` (uncompensated
+columns and adds ``<joint>_cmd`` (the exact command, input unit; also ``q<i>_cmd`` for a path
+whose columns are q1..qn), ``dx,dy,dz`` (uncompensated
 deflection, m), ``ex,ey,ez`` (residual after the exact compensation, m) and ``ex1,ey1,ez1``
 (after the first-order Cartesian compensation, m). Nothing is written when any row fails.
 """
@@ -173,14 +174,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def format_csv(result: PathCompensation, path, scale: np.ndarray) -> str:
-    """``OUT.csv``: input columns, ``<column>_cmd``, ``dx..``, ``ex..``, ``ex1..``."""
+    """``OUT.csv``: input columns, ``<joint>_cmd`` (and ``q<i>_cmd`` when the input names the
+    coordinates q1..qn), ``dx..``, ``ex..``, ``ex1..``."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(path.header + [f"{c}_cmd" for c in path.column_of]
+    names = [f"{j}_cmd" for j in result.joints]
+    aliases = [f"{c}_cmd" for c in path.column_of if f"{c}_cmd" not in names]
+    writer.writerow(path.header + names + aliases
                     + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
     for cells, p in zip(path.cells, result.points, strict=True):
         cells = cells + [""] * (len(path.header) - len(cells))
-        writer.writerow(cells[: len(path.header)] + [_num(v) for v in p.command * scale]
+        command = [_num(v) for v in p.command * scale]
+        writer.writerow(cells[: len(path.header)] + command + (command if aliases else [])
                         + [_num(v) for v in np.concatenate(
                             [p.deflection, p.residual, p.residual_first_order])])
     return buf.getvalue()

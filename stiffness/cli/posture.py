@@ -26,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.compensation import WRENCH_COLUMNS
-from stiffness.calibration.posture import PostureResult, posture
+from stiffness.calibration.posture import Poses, PostureResult, posture, read_poses
 from stiffness.cli.compensate import (
     add_model_flags,
     add_wrench_flags,
@@ -72,77 +71,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def read_poses(path: str | Path) -> dict:
-    """``POSES.csv`` as arrays: ``positions``, ``axes`` or ``quaternions``, ``wrench``, and
-    the input ``header`` and ``cells``.
-
-    Raises
-    ------
-    StiffnessError
-        Unreadable file, missing columns, a value that is not a finite number (row, column).
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise StiffnessError(f"cannot read pose file {path}: {exc.strerror}") from exc
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise StiffnessError(f"{path} has no poses: give a header line and one row per point")
-    header = [h.strip() for h in rows[0]]
-    index = {h: i for i, h in enumerate(header)}
-    groups = {"position": ("x", "y", "z"), "axis": ("ax", "ay", "az"),
-              "orientation": ("qw", "qx", "qy", "qz")}
-    missing = [c for c in groups["position"] if c not in index]
-    if missing:
-        raise StiffnessError(f"{path} lacks the column(s) {', '.join(missing)}: give x,y,z (m) "
-                             "and ax,ay,az or qw,qx,qy,qz")
-    has_axis = all(c in index for c in groups["axis"])
-    has_quat = all(c in index for c in groups["orientation"])
-    if has_axis == has_quat:
-        raise StiffnessError(f"{path} needs exactly one of the column groups ax,ay,az (tool "
-                             "axis) and qw,qx,qy,qz (orientation)")
-    body = rows[1:]
-
-    def column(name: str) -> np.ndarray:
-        out = []
-        for r, row in enumerate(body, start=1):
-            cell = row[index[name]] if index[name] < len(row) else ""
-            try:
-                value = float(cell)
-            except ValueError:
-                raise StiffnessError(f"{path} row {r}: column {name} = {cell!r} is not a "
-                                     "number") from None
-            if not math.isfinite(value):
-                raise StiffnessError(f"{path} row {r}: column {name} is {value}; every value "
-                                     "must be a finite number")
-            out.append(value)
-        return np.array(out)
-
-    def block(names) -> np.ndarray:
-        return np.column_stack([column(c) for c in names])
-
-    wrench = None
-    if all(c in index for c in WRENCH_COLUMNS[:3]):
-        wrench = np.zeros((len(body), 6))
-        for k, c in enumerate(WRENCH_COLUMNS):
-            if c in index:
-                wrench[:, k] = column(c)
-    return {"header": header, "cells": [list(r) for r in body],
-            "positions": block(groups["position"]),
-            "axes": block(groups["axis"]) if has_axis else None,
-            "quaternions": block(groups["orientation"]) if has_quat else None,
-            "wrench": wrench}
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness posture``; returns the exit code."""
     em = elastic_model_from_args(args)
     poses = read_poses(args.path)
-    if args.wrench is not None and poses["wrench"] is not None:
+    if args.wrench is not None and poses.wrench is not None:
         raise StiffnessError(f"{args.path} carries per-row loads (fx,fy,fz...): drop --wrench, "
                              "or drop those columns")
-    wrench = poses["wrench"] if poses["wrench"] is not None else (
+    wrench = poses.wrench if poses.wrench is not None else (
         None if args.wrench is None else np.array(parse_list(args.wrench, "--wrench")))
     full = em.full
     model = full.model
@@ -156,8 +92,8 @@ def run(args: argparse.Namespace) -> int:
             raise StiffnessError(f"--start needs {full.n_coordinates} values "
                                  f"({', '.join(full.coordinate_joints)}), got {start.shape[0]}")
         start = start / scale
-    result = posture(em, poses["positions"], axes=poses["axes"],
-                     quaternions=poses["quaternions"], free_axis=args.free_axis, wrench=wrench,
+    result = posture(em, poses.positions, axes=poses.axes,
+                     quaternions=poses.quaternions, free_axis=args.free_axis, wrench=wrench,
                      wrench_frame=args.wrench_frame, steps=args.steps,
                      max_step_deg=args.max_step, reference_angle_deg=args.reference_angle,
                      singularity_margin=args.singularity_margin, start=start,
@@ -198,14 +134,14 @@ def _num(value: float) -> str:
     return repr(float(value)) if math.isfinite(value) else ""
 
 
-def format_csv(result: PostureResult, poses: dict, scale: np.ndarray) -> str:
+def format_csv(result: PostureResult, poses: Poses, scale: np.ndarray) -> str:
     """``OUT.csv``: input columns, joints, angle and deflections per point."""
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    header = poses["header"]
+    header = poses.header
     writer.writerow(header + list(result.joints) + [
         "angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m", "ik_residual_rad"])
-    for cells, p in zip(poses["cells"], result.points, strict=True):
+    for cells, p in zip(poses.cells, result.points, strict=True):
         cells = (cells + [""] * len(header))[: len(header)]
         writer.writerow(cells + [_num(v) for v in p.coords * scale] + [
             _num(np.rad2deg(p.angle)), _num(np.linalg.norm(p.deflection)),
