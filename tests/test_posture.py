@@ -158,3 +158,36 @@ def test_point_out_of_reach_is_named_and_nothing_written(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and "row 2" in err and "out of reach" in err and "\n" not in err
     assert not out.exists() and not (tmp_path / "out.png").exists()
+
+
+@pytest.mark.parametrize("case", ["missing", "nan", "both_orientations", "other_robot"])
+def test_bad_pose_files_one_line(case, tmp_path, capsys):
+    poses = tmp_path / "poses.csv"
+    rows = "0.45,0.0,0.3,0,0,-1\n0.45,0.1,0.3,0,0,-1\n"
+    args = ["--robot", "ur5", "--kq", ",".join(map(str, UR5_K))]
+    expect = {"missing": "lacks the column(s) z", "nan": "row 2: column y",
+              "both_orientations": "exactly one of", "other_robot": "not 'sk120'"}[case]
+    if case == "missing":
+        poses.write_text("x,y,ax,ay,az\n0.45,0.0,0,0,-1\n")
+    elif case == "nan":
+        poses.write_text("x,y,z,ax,ay,az\n" + rows.replace("0.1", "nan"))
+    elif case == "both_orientations":
+        poses.write_text("x,y,z,ax,ay,az,qw,qx,qy,qz\n0.45,0,0.3,0,0,-1,1,0,0,0\n")
+    else:
+        poses.write_text("x,y,z,ax,ay,az\n" + rows)
+        model = tmp_path / "m.json"
+        model.write_text(json.dumps({
+            "format": "stiffness-identified-model", "version": 1, "campaign": "t",
+            "robot": {"source": "ur5", "frame": "tool0", "target_offset_m": [0, 0, 0],
+                      "compliant_joints": ["shoulder_pan_joint"]},
+            "formulation": "enhanced",
+            "k_theta": {"joints": ["shoulder_pan_joint"], "values": [1e5], "unit": ["N.m/rad"]},
+            "standard_error": [None], "ci95": {"low": [None], "high": [None]},
+            "undetermined_joints": [], "residual_norm": {"eq12_m2": 0, "eq12_mm2": 0}}))
+        args = ["--robot", "sk120", "--model", str(model)]
+    out = tmp_path / "out.csv"
+    code = main(["posture", *args, "--path", str(poses), "--wrench", "0,0,300", "--out",
+                 str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and expect in err and "\n" not in err, err
+    assert not out.exists()
