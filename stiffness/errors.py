@@ -22,3 +22,17 @@ def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40)
     listed = ", ".join(list(valid)[:limit]) + (" ..." if len(valid) > limit else "")
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     return f"valid names: {listed}.{hint}"
+
+
+class OutputError(StiffnessError):
+    """An output cannot be written (full disk, read-only folder, a file where a folder goes).
+
+    Attributes
+    ----------
+    path
+        The file or folder that could not be written.
+    """
+
+    def __init__(self, message: str, path: object = None) -> None:
+        super().__init__(message)
+        self.path = path

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.errors import StiffnessError, did_you_mean
-from stiffness.files import atomic_write
+from stiffness.files import atomic_write, output_folder
 from stiffness.model.robot import Robot, load_robot
 
 try:
@@ -687,7 +687,7 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
             _robot=getattr(c, "_robot", None),
         )
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    output_folder(folder)
     u = c.units
     s = c.robot_settings
 

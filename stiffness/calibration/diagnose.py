@@ -45,7 +45,7 @@ from scipy.stats import t as student_t
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.files import atomic_write, output_folder
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
 #: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
@@ -582,7 +582,7 @@ class Diagnosis:
     def write(self, folder: str | Path) -> dict[str, Path]:
         """Write ``diagnosis.json``, ``residuals.png`` and ``final-model.json`` in ``folder``."""
         folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
+        output_folder(folder)
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
                  "final_model": folder / FINAL_MODEL_FILE}
         atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")

@@ -51,7 +51,7 @@ from scipy.stats import t as student_t
 
 from stiffness.calibration.campaign import Campaign, _looks_like_path, _resolve_source
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.files import atomic_write, output_folder
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import Robot, load_robot
@@ -464,7 +464,7 @@ class Identification:
         :func:`load_identified_model`.
         """
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        output_folder(path.parent)
         text = json.dumps(self.model_dict(path.parent), indent=1, allow_nan=False)
         atomic_write(path, text + "\n")
         return path

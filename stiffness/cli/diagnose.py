@@ -21,6 +21,7 @@ import sys
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+from stiffness.files import output_folder
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -43,6 +44,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness diagnose``; returns the exit code."""
     campaign = load_campaign(args.campaign)
+    if args.out:
+        output_folder(args.out, create=False)  # before the work: a bad --out fails at once
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(text: str) -> None:

@@ -23,7 +23,7 @@ import numpy as np
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.files import atomic_write, output_folder
 from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
 from stiffness.model.robot import Robot, load_robot, robots_directory
@@ -403,7 +403,7 @@ def write_report(out: Path, summary: dict, figures: dict[str, bytes]) -> None:
     """Write report.html, summary.json, the PNGs and the 3-D scene atomically into ``out``."""
     from stiffness.viewer import export_sk120_scene
 
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out)
     export_sk120_scene(out / SCENE_FILE)
     for name, data in figures.items():
         atomic_write(out / name, data)
@@ -431,8 +431,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Build and write the report, then print a short summary."""
+    out = output_folder(args.out, create=False)  # before the work: a bad --out fails at once
     summary, figures = build_report(args.campaign, quiet=args.quiet)
-    out = Path(args.out)
     write_report(out, summary, figures)
     s = summary
     print(f"SK120 report written to {out / 'report.html'} ({s['elapsed_s']:.0f} s)")

@@ -41,7 +41,7 @@ import numpy as np
 
 from stiffness.batch import kernels as batch
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, atomic_write_with
+from stiffness.files import atomic_write, atomic_write_with, output_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.model.robot import Robot
 from stiffness.scan.definiteness import grid_axis
@@ -550,7 +550,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
                 "folder, or the same options to resume it"
             )
     else:
-        out.mkdir(parents=True, exist_ok=True)
+        output_folder(out)
         atomic_write(manifest_file, json.dumps(manifest, indent=1))
     acc = MapAccumulator(spec)
     done = set()
