@@ -21,6 +21,7 @@ import csv
 import io
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -33,8 +34,8 @@ from stiffness.calibration.compensation import (
     read_joint_path,
 )
 from stiffness.cli.kx import parse_list, robot_from_args
-from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.errors import OutputError, StiffnessError
+from stiffness.files import atomic_write, output_folder
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import joint_stiffness
 
@@ -120,6 +121,19 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
+def check_outputs(*paths: str | None) -> None:
+    """Refuse, before any work, output files that cannot be written (a folder in the way, a
+    read-only or missing-and-uncreatable folder): one-line :class:`OutputError`."""
+    for name in paths:
+        if name is None:
+            continue
+        target = Path(name)
+        if target.is_dir():
+            raise OutputError(f"cannot write {target}: it is a folder; give a file name",
+                              path=target)
+        output_folder(target.parent, create=False)
+
+
 def progress_printer(args: argparse.Namespace, what: str):
     """A ``(done, total)`` progress callback on stderr when a TTY, else None (``--quiet``)."""
     if args.quiet or not sys.stderr.isatty():
@@ -140,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stiffness compensate``; returns the exit code."""
     if args.model is None and args.robot is None:
         raise StiffnessError("--model M.json is required (the identified or diagnosed model)")
+    check_outputs(args.out)
     em = elastic_model_from_args(args)
     path = read_joint_path(args.path, em.robot, deg=args.deg)
     if args.wrench is not None and path.wrench is not None:

@@ -30,6 +30,7 @@ from stiffness.calibration.posture import Poses, PostureResult, posture, read_po
 from stiffness.cli.compensate import (
     add_model_flags,
     add_wrench_flags,
+    check_outputs,
     elastic_model_from_args,
     progress_printer,
 )
@@ -73,6 +74,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness posture``; returns the exit code."""
+    figure = args.figure or (str(Path(args.out).with_suffix(".png")) if args.out else None)
+    check_outputs(args.out, figure)
     em = elastic_model_from_args(args)
     poses = read_poses(args.path)
     if args.wrench is not None and poses.wrench is not None:
@@ -98,7 +101,6 @@ def run(args: argparse.Namespace) -> int:
                      max_step_deg=args.max_step, reference_angle_deg=args.reference_angle,
                      singularity_margin=args.singularity_margin, start=start,
                      refine=not args.no_refine, progress=progress_printer(args, "posture"))
-    figure = args.figure or (str(Path(args.out).with_suffix(".png")) if args.out else None)
     csv_text = format_csv(result, poses, scale) if args.out else None
     png = figure_png(result) if figure else None
     if args.out:
