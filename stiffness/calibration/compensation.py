@@ -61,7 +61,8 @@ from stiffness.model.robot import Robot
 
 #: Effects of a model file that describe the measuring rig, not the robot (not compensated).
 RIG_EFFECTS = ("frame_misalignment", "force_sensor_bias", "deflection_offset", "target_offset")
-#: Convergence of the exact equilibrium (rad, m of the joint and bend variables).
+#: Convergence of the exact equilibrium (rad, m of the joint and bend variables), plus 1e-11
+#: of the largest deflection (closure noise of loops).
 EQUILIBRIUM_TOLERANCE = 1e-14
 #: Convergence of the general compensation solve (m, rad of the target error).
 POSE_TOLERANCE = 1e-12
@@ -358,7 +359,8 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
         tau = kin.jac.T @ wrench
         value, slope = _law_z(em, links, tau)
         g = z - base - value
-        if iterations > 1 and np.abs(g).max() <= EQUILIBRIUM_TOLERANCE:
+        tol = EQUILIBRIUM_TOLERANCE * (1.0 + 1e3 * float(np.abs(value).max(initial=0.0)))
+        if iterations > 1 and np.abs(g).max() <= tol:
             break
         a = np.eye(n + m) - slope[:, None] * kin.k_c
         try:
@@ -367,7 +369,7 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
             raise StiffnessError("the tangent stiffness is singular: the load buckles the "
                                  "robot here; reduce the load") from exc
         z = z + step
-        if iterations > 1 and np.abs(step).max() <= EQUILIBRIUM_TOLERANCE:
+        if iterations > 1 and np.abs(step).max() <= tol:
             kin = _kinematics(em, links, axes, z[:n], z[n:], wrench, q)
             tau = kin.jac.T @ wrench
             value, slope = _law_z(em, links, tau)
