@@ -76,7 +76,7 @@ from stiffness.batch.loops import (
     loop_coordinate_indices,
     tree_configurations,
 )
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.formulation import FORMULATIONS
 from stiffness.model.robot import Robot
 
@@ -536,7 +536,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
         :func:`~stiffness.mechanics.formulation.cartesian_stiffness` to round-off.
     """
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
+                               f"{formulation!r}", name=formulation, choices=FORMULATIONS)
     loads_arr = np.atleast_2d(np.asarray(loads, dtype=float))
     wrenches = _as_loads(loads_arr, 6)
     moments = bool(np.any(wrenches[:, 3:] != 0.0))
@@ -548,7 +549,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
     symmetric = bool(not moments and np.array_equal(k_th, k_th.T))
     gravity_ok = robot.loop is None and not moments and wrenches.shape[0] == 1
     if method not in ("auto", "hessian", "gravity"):
-        raise StiffnessError(f"method must be auto, hessian or gravity, got {method!r}")
+        raise UnknownNameError(f"method must be auto, hessian or gravity, got {method!r}",
+                               name=method, choices=("auto", "hessian", "gravity"))
     if method == "gravity" and not gravity_ok:
         raise StiffnessError("method 'gravity' needs an open chain and a single force load")
     use_gravity = gravity_ok and method != "hessian" and not isinstance(q, BatchKinematics)

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import ConvergenceError, StiffnessError, UnknownNameError
 from stiffness.mechanics.formulation import (
     TargetState,
     joint_connection_stiffness,
@@ -213,7 +213,8 @@ def reorder_twist(x: np.ndarray, order: str = "w-v") -> np.ndarray:
     Wrenches ``[F; M]`` become ``[M; F]`` the same way.
     """
     if order not in TWIST_ORDERS:
-        raise StiffnessError(f"twist order must be one of {list(TWIST_ORDERS)}, got {order!r}")
+        raise UnknownNameError(f"twist order must be one of {', '.join(TWIST_ORDERS)}, got "
+                               f"{order!r}", name=order, choices=list(TWIST_ORDERS))
     x = np.asarray(x, dtype=float)
     if order == "v-w":
         return x.copy()
@@ -310,7 +311,7 @@ def solve_pose(robot: Robot, pose: pin.SE3, seed: np.ndarray, max_iterations: in
 
     Raises
     ------
-    StiffnessError
+    ConvergenceError
         If the pose is not reached (outside the workspace, or a singular pose).
     """
     model, data, fid = robot.model, robot.data, robot.target_frame_id
@@ -325,7 +326,7 @@ def solve_pose(robot: Robot, pose: pin.SE3, seed: np.ndarray, max_iterations: in
         jt = pin.Jlog6(err_m) @ pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL)
         jac = np.vstack([robot.loop.jacobian(model, data), jt]) if robot.loop else jt
         q = pin.integrate(model, q, -np.linalg.lstsq(jac, res, rcond=1e-10)[0])
-    raise StiffnessError(
+    raise ConvergenceError(
         f"the target frame of {robot.name} cannot reach the pose {pose.translation.round(6)} m "
         f"(residual {np.linalg.norm(res):.3g} after {max_iterations} iterations): outside "
         "the workspace, or a singular pose"

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.errors import StiffnessError
+from stiffness.errors import MissingFileError, StiffnessError
 from stiffness.files import atomic_write, atomic_write_with, output_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.model.robot import Robot
@@ -492,8 +492,8 @@ def load_scan(out: str | os.PathLike) -> dict[str, np.ndarray]:
     out = Path(out)
     files = sorted((out / "chunks").glob("chunk-*.npz"))
     if not files:
-        raise StiffnessError(f"{out} holds no NPZ chunk (chunks/chunk-*.npz); was it written "
-                             "with --format parquet?")
+        raise MissingFileError(f"{out} holds no NPZ chunk (chunks/chunk-*.npz); was it written "
+                               "with --format parquet?", path=out)
     parts = [dict(np.load(f)) for f in files]
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownJointError, UnknownNameError
 from stiffness.files import atomic_write
 from stiffness.mechanics.defaults import default_coordinates, default_load
 from stiffness.mechanics.equilibrium import solve_equilibrium
@@ -214,7 +214,8 @@ class StiffnessViewer:
                  port: int = 0, timeout: float = DEFAULT_TIMEOUT, open_browser: bool = False
                  ) -> None:
         if quantity not in QUANTITIES:
-            raise StiffnessError(f"quantity must be one of {QUANTITIES}, got {quantity!r}")
+            raise UnknownNameError(f"quantity must be one of {', '.join(QUANTITIES)}, got "
+                                   f"{quantity!r}", name=quantity, choices=QUANTITIES)
         k = np.asarray(k_theta, dtype=float)
         self.k_theta = k if k.ndim == 2 else joint_stiffness(k, robot.n_compliant)
         if self.k_theta.shape != (robot.n_compliant, robot.n_compliant):
@@ -336,8 +337,9 @@ class StiffnessViewer:
     def _formulations(self, formulation: str | None) -> tuple[str, tuple[str, ...]]:
         formulation = self._formulation if formulation is None else formulation
         if formulation not in SHOW_FORMULATIONS:
-            raise StiffnessError(
-                f"formulation must be one of {SHOW_FORMULATIONS}, got {formulation!r}")
+            raise UnknownNameError(
+                f"formulation must be one of {', '.join(SHOW_FORMULATIONS)}, got "
+                f"{formulation!r}", name=str(formulation), choices=SHOW_FORMULATIONS)
         return formulation, FORMULATIONS[::-1] if formulation == "both" else (formulation,)
 
     def ellipsoids(self, q: np.ndarray, wrench: np.ndarray, formulations: Sequence[str],
@@ -474,7 +476,8 @@ class StiffnessViewer:
         """
         with self._lock:
             if quantity is not None and quantity not in QUANTITIES:
-                raise StiffnessError(f"quantity must be one of {QUANTITIES}, got {quantity!r}")
+                raise UnknownNameError(f"quantity must be one of {', '.join(QUANTITIES)}, "
+                                       f"got {quantity!r}", name=quantity, choices=QUANTITIES)
             quantity = quantity or self.quantity
             formulation, names = self._formulations(formulation)
             coords, q = self._configuration(coords)
@@ -843,8 +846,9 @@ class StiffnessViewer:
             the stated range).
         """
         if formulation not in FORMULATIONS:
-            raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got "
-                                 f"{formulation!r}")
+            raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, "
+                                   f"got {formulation!r}", name=formulation,
+                                   choices=FORMULATIONS)
         robot = self.robot
         with self._lock:
             base, q_base = self._configuration(None)
@@ -895,8 +899,9 @@ class StiffnessViewer:
         names = list(robot.coordinate_joints) if joints is None else list(joints)
         unknown = [j for j in names if j not in robot.coordinate_joints]
         if unknown:
-            raise StiffnessError(f"{unknown} are not coordinates of {robot.name}; "
-                                 f"coordinates: {', '.join(robot.coordinate_joints)}")
+            raise UnknownJointError(f"{', '.join(unknown)} are not coordinates of {robot.name}; "
+                                    f"coordinates: {', '.join(robot.coordinate_joints)}",
+                                    name=unknown[0], choices=robot.coordinate_joints)
         rng = np.random.default_rng(seed)
         rows = np.tile(base, (n, 1))
         for name in names:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.errors import SingularConfigurationError, StiffnessError
+from stiffness.errors import SingularConfigurationError, UnknownNameError
 from stiffness.mechanics.formulation import cartesian_stiffness, compliance
 
 #: What the ellipsoids can show.
@@ -95,7 +95,8 @@ def principal_ellipsoid(jacobian: np.ndarray, tangent_stiffness: np.ndarray, for
         If the tangent joint stiffness is singular (the buckling limit).
     """
     if quantity not in QUANTITIES:
-        raise StiffnessError(f"quantity must be one of {QUANTITIES}, got {quantity!r}")
+        raise UnknownNameError(f"quantity must be one of {', '.join(QUANTITIES)}, got "
+                               f"{quantity!r}", name=quantity, choices=QUANTITIES)
     c = compliance(jacobian, tangent_stiffness)
     c = 0.5 * (c + c.T)
     try:
