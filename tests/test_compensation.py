@@ -315,7 +315,7 @@ def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
         rows = UR5_PATH.copy()
         rows[1, 2] = np.nan
         path = _path_csv(tmp_path / "p.csv", rows)
-        expect = "row 2: column q3"
+        expect = "line 3, column 3 (q3)"
     elif case == "other_robot":
         model = _identified_model(tmp_path / "m.json", source="sk120", frame="fixture_target",
                                   joints=["joint1", "joint2", "joint3"],
@@ -332,6 +332,29 @@ def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
     assert code == 2 and expect in err and "\n" not in err, err
     assert not out.exists()
     assert not list(tmp_path.glob(".out.csv*"))
+
+
+def test_bad_path_errors_are_typed(tmp_path, ur5):
+    from stiffness.calibration.compensation import read_joint_path
+    from stiffness.errors import (
+        ConvergenceError,
+        FileFormatError,
+        MissingFileError,
+        UnstableEquilibriumError,
+    )
+
+    rows = UR5_PATH.copy()
+    rows[1, 2] = np.nan
+    with pytest.raises(FileFormatError) as info:
+        read_joint_path(_path_csv(tmp_path / "p.csv", rows), ur5, deg=True)
+    assert (info.value.line, info.value.column, info.value.field) == (3, 3, "q3")
+    with pytest.raises(MissingFileError):
+        read_joint_path(tmp_path / "absent.csv", ur5)
+    # a load beyond what the springs hold: a typed solver error naming the row
+    soft = ElasticModel.joint_springs(ur5, [30.0] * 6)
+    with pytest.raises((ConvergenceError, UnstableEquilibriumError)) as info:
+        compensate(soft, UR5_PATH, [0.0, 0.0, -3000.0])
+    assert "path row 1" in str(info.value)
 
 
 def test_diagnosed_model_file_brings_its_effects(sk120):

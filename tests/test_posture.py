@@ -165,7 +165,7 @@ def test_bad_pose_files_one_line(case, tmp_path, capsys):
     poses = tmp_path / "poses.csv"
     rows = "0.45,0.0,0.3,0,0,-1\n0.45,0.1,0.3,0,0,-1\n"
     args = ["--robot", "ur5", "--kq", ",".join(map(str, UR5_K))]
-    expect = {"missing": "lacks the column(s) z", "nan": "row 2: column y",
+    expect = {"missing": "lacks the column(s) z", "nan": "line 3, column 2 (y)",
               "both_orientations": "exactly one of", "other_robot": "not 'sk120'"}[case]
     if case == "missing":
         poses.write_text("x,y,ax,ay,az\n0.45,0.0,0,0,-1\n")

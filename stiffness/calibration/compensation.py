@@ -53,7 +53,14 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.effects import Law, link_axes
-from stiffness.errors import StiffnessError
+from stiffness.errors import (
+    ConvergenceError,
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    UnstableEquilibriumError,
+    with_context,
+)
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, all_coordinates, coordinate_limits, solve_ik
 from stiffness.model import kinematics
@@ -366,8 +373,8 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
         try:
             step = np.linalg.solve(a, -g)
         except np.linalg.LinAlgError as exc:
-            raise StiffnessError("the tangent stiffness is singular: the load buckles the "
-                                 "robot here; reduce the load") from exc
+            raise UnstableEquilibriumError("the tangent stiffness is singular: the load buckles "
+                                           "the robot here; reduce the load") from exc
         z = z + step
         if iterations > 1 and np.abs(step).max() <= tol:
             kin = _kinematics(em, links, axes, z[:n], z[n:], wrench, q)
@@ -375,7 +382,7 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
             value, slope = _law_z(em, links, tau)
             break
     else:
-        raise StiffnessError(
+        raise ConvergenceError(
             f"the exact equilibrium did not converge in {max_iterations} iterations (residual "
             f"{np.abs(g).max():.3g}): the load may exceed the buckling load; reduce it")
     soft = slope > 0
@@ -383,7 +390,7 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
         tangent = np.diag(1.0 / slope[soft]) - kin.k_c[np.ix_(soft, soft)]
         lowest = float(np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0])
         if lowest <= 0:
-            raise StiffnessError(
+            raise UnstableEquilibriumError(
                 f"the loaded equilibrium is unstable (tangent stiffness eigenvalue {lowest:.3g})"
                 ": the load exceeds the buckling load here; reduce the load")
     return Loaded(kin.q, z[:n].copy(), z[n:].copy(), kin.position, kin.rotation, tau,
@@ -409,8 +416,8 @@ def _linear(em: ElasticModel, links: list[LinkBend], kin: _Kinematics, wrench: n
     try:
         dz = np.linalg.solve(a, secant * tau)
     except np.linalg.LinAlgError as exc:
-        raise StiffnessError("the tangent stiffness is singular: the load buckles the robot "
-                             "here; reduce the load") from exc
+        raise UnstableEquilibriumError("the tangent stiffness is singular: the load buckles the "
+                                       "robot here; reduce the load") from exc
     return kin.jac @ dz
 
 
@@ -560,7 +567,7 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
             loaded = solve(command)
         size, command, loaded = best
         if size > 1e3 * POSE_TOLERANCE:
-            raise StiffnessError(
+            raise ConvergenceError(
                 f"the general compensation did not converge (target error {size:.3g} m/rad "
                 "remains): the load may be near the buckling load; reduce it")
     else:
@@ -729,7 +736,7 @@ def compensate(
                 load = np.concatenate([rot @ load[:3], rot @ load[3:]])
             point = compensate_point(em, coords, load, chosen, method, seed_q=q)
         except StiffnessError as exc:
-            raise type(exc)(f"path row {i + 1}: {exc}") from exc
+            raise with_context(exc, f"path row {i + 1}") from exc
         points.append(point)
         seed = point.q_nominal
         if progress is not None:
@@ -757,10 +764,12 @@ def load_elastic_model(path: str | Path) -> ElasticModel:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
-        raise StiffnessError(f"cannot read model file {path}: {exc.strerror}; give the "
-                             "identified-model.json or final-model.json") from exc
+        raise MissingFileError(f"cannot read model file {path}: {exc.strerror}; give the "
+                               "identified-model.json or final-model.json", path=path) from exc
     except json.JSONDecodeError as exc:
-        raise StiffnessError(f"model file {path} is not JSON ({exc})") from exc
+        raise FileFormatError(f"not JSON ({exc.msg}); give the identified-model.json or "
+                              "final-model.json", path=path, line=exc.lineno,
+                              column=exc.colno) from exc
     fmt = doc.get("format") if isinstance(doc, dict) else None
     if fmt == IDENTIFIED:
         ident = load_identified_model(path)
@@ -862,6 +871,8 @@ class JointPath:
         Input column name of each coordinate.
     angular
         (n,) whether each coordinate is an angle (converted by ``--deg``).
+    lines
+        File line (1-based) of each row.
     """
 
     header: list[str]
@@ -870,6 +881,84 @@ class JointPath:
     wrench: np.ndarray | None
     column_of: list[str]
     angular: np.ndarray
+    lines: list[int] = field(default_factory=list)
+
+
+@dataclass
+class Table:
+    """A CSV table: its header, and its non-empty rows with their 1-based file line numbers."""
+
+    path: Path
+    header: list[str]
+    rows: list[list[str]]
+    lines: list[int]
+
+    def column(self, name: str) -> np.ndarray:
+        """The finite numbers of column ``name``.
+
+        Raises
+        ------
+        FileFormatError
+            A cell that is not a finite number (its line, column and name).
+        """
+        k = self.header.index(name)
+        out = np.empty(len(self.rows))
+        for r, (row, line) in enumerate(zip(self.rows, self.lines, strict=True)):
+            cell = row[k].strip() if k < len(row) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                raise FileFormatError(f"{cell!r} is not a number; every value must be one",
+                                      path=self.path, line=line, column=k + 1, field=name
+                                      ) from None
+            if not math.isfinite(value):
+                raise FileFormatError(f"{cell!r}: every value must be a finite number",
+                                      path=self.path, line=line, column=k + 1, field=name)
+            out[r] = value
+        return out
+
+    def wrenches(self) -> np.ndarray | None:
+        """(m, 6) per-row loads of columns ``fx,fy,fz[,mx,my,mz]`` (N, N.m), or None."""
+        present = [c for c in WRENCH_COLUMNS if c in self.header]
+        if not present:
+            return None
+        if not all(c in present for c in WRENCH_COLUMNS[:3]) or len(present) not in (3, 6):
+            raise FileFormatError("per-row loads need the columns fx, fy, fz (N), and "
+                                  "optionally all of mx, my, mz (N.m)", path=self.path, line=1)
+        out = np.zeros((len(self.rows), 6))
+        for k, c in enumerate(WRENCH_COLUMNS):
+            if c in present:
+                out[:, k] = self.column(c)
+        return out
+
+
+def read_table(path: str | Path, what: str) -> Table:
+    """Read a CSV file with a header line (``what`` names it in errors).
+
+    Raises
+    ------
+    MissingFileError
+        The file cannot be read.
+    FileFormatError
+        No data row.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise MissingFileError(f"cannot read {what} {path}: {exc.strerror}; give an existing "
+                               "CSV file", path=path) from exc
+    rows, lines = [], []
+    for row in csv.reader(io.StringIO(text)):
+        if row and any(c.strip() for c in row):
+            rows.append(row)
+    # csv.reader does not give line numbers: count them on the text (no quoted newlines)
+    numbered = [k + 1 for k, line in enumerate(text.splitlines()) if line.strip(" ,\t")]
+    lines = numbered[: len(rows)]
+    if len(rows) < 2:
+        raise FileFormatError(f"no {what} rows: give a header line and one row per point",
+                              path=path)
+    return Table(path, [h.strip() for h in rows[0]], rows[1:], lines[1:])
 
 
 def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointPath:
@@ -878,20 +967,12 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
 
     Raises
     ------
-    StiffnessError
+    MissingFileError, FileFormatError
         Unreadable file, a missing coordinate column, a value that is not a finite number
-        (named by row and column).
+        (named by line and column).
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise StiffnessError(f"cannot read path file {path}: {exc.strerror}") from exc
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise StiffnessError(f"{path} has no path points: give a header line and one row per "
-                             "point")
-    header = [h.strip() for h in rows[0]]
+    table = read_table(path, "path file")
+    header = table.header
     joints = list(robot.coordinate_joints)
     by_index = [f"q{i + 1}" for i in range(len(joints))]
     if all(j in header for j in joints):
@@ -904,42 +985,16 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
         shown = missing if len(missing) <= len(missing_q) else missing_q
         other = "" if set(header) & set(joints + by_index) else (
             " (its columns name none of them: is the model file of another robot?)")
-        raise StiffnessError(
-            f"{path} lacks the coordinate column(s) {', '.join(shown)} of {robot.name}{other}: "
-            f"name one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})")
-    present = [c for c in WRENCH_COLUMNS if c in header]
-    if present and not all(c in present for c in WRENCH_COLUMNS[:3]):
-        raise StiffnessError(f"{path}: per-row loads need the columns fx, fy, fz (N) "
-                             "(and optionally mx, my, mz in N.m)")
-    if present and any(c in present for c in WRENCH_COLUMNS[3:]) and not all(
-            c in present for c in WRENCH_COLUMNS[3:]):
-        raise StiffnessError(f"{path}: give all of mx, my, mz (N.m) or none")
-    index = {h: i for i, h in enumerate(header)}
-
-    def number(r: int, row: list[str], col: str) -> float:
-        try:
-            value = float(row[index[col]])
-        except (ValueError, IndexError):
-            cell = row[index[col]] if index[col] < len(row) else ""
-            raise StiffnessError(f"{path} row {r}: column {col} = {cell!r} is not a number"
-                                 ) from None
-        if not math.isfinite(value):
-            raise StiffnessError(f"{path} row {r}: column {col} is {value}; every value must be "
-                                 "a finite number")
-        return value
-
-    body = rows[1:]
-    coords = np.array([[number(r, row, c) for c in column_of] for r, row in
-                       enumerate(body, start=1)])
+        raise FileFormatError(
+            f"lacks the coordinate column(s) {', '.join(shown)} of {robot.name}{other}: name "
+            f"one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})",
+            path=table.path, line=1)
+    coords = np.column_stack([table.column(c) for c in column_of])
+    wrench = table.wrenches()
     model = robot.model
     angular = np.array([not model.joints[model.getJointId(j)].shortname().startswith(
         "JointModelP") for j in joints])
     if deg:
         coords[:, angular] = np.deg2rad(coords[:, angular])
-    wrench = None
-    if present:
-        wrench = np.zeros((len(body), 6))
-        for k, c in enumerate(WRENCH_COLUMNS):
-            if c in present:
-                wrench[:, k] = [number(r, row, c) for r, row in enumerate(body, start=1)]
-    return JointPath(header, [list(r) for r in body], coords, wrench, column_of, angular)
+    return JointPath(header, [list(r) for r in table.rows], coords, wrench, column_of, angular,
+                     table.lines)

@@ -28,9 +28,6 @@ Units: m, rad inside (the ``deg`` names report degrees); deflections in m.
 
 from __future__ import annotations
 
-import csv
-import io
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,13 +36,13 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.compensation import (
-    WRENCH_COLUMNS,
     WRENCH_FRAMES,
     ElasticModel,
     as_elastic_model,
     linear_deflection,
+    read_table,
 )
-from stiffness.errors import StiffnessError
+from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
 from stiffness.model.robot import Robot
@@ -152,60 +149,27 @@ def read_poses(path: str | Path) -> Poses:
 
     Raises
     ------
-    StiffnessError
-        Unreadable file, missing columns, a value that is not a finite number (row, column).
+    MissingFileError, FileFormatError
+        Unreadable file, missing columns, a value that is not a finite number (line, column).
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise StiffnessError(f"cannot read pose file {path}: {exc.strerror}") from exc
-    rows = [r for r in csv.reader(io.StringIO(text)) if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise StiffnessError(f"{path} has no poses: give a header line and one row per point")
-    header = [h.strip() for h in rows[0]]
-    index = {h: i for i, h in enumerate(header)}
-    groups = {"position": ("x", "y", "z"), "axis": ("ax", "ay", "az"),
-              "orientation": ("qw", "qx", "qy", "qz")}
-    missing = [c for c in groups["position"] if c not in index]
+    table = read_table(path, "pose file")
+    header = table.header
+    missing = [c for c in ("x", "y", "z") if c not in header]
     if missing:
-        raise StiffnessError(f"{path} lacks the column(s) {', '.join(missing)}: give x,y,z (m) "
-                             "and ax,ay,az or qw,qx,qy,qz")
-    has_axis = all(c in index for c in groups["axis"])
-    has_quat = all(c in index for c in groups["orientation"])
+        raise FileFormatError(f"lacks the column(s) {', '.join(missing)}: give x,y,z (m) and "
+                              "ax,ay,az or qw,qx,qy,qz", path=table.path, line=1)
+    has_axis = all(c in header for c in ("ax", "ay", "az"))
+    has_quat = all(c in header for c in ("qw", "qx", "qy", "qz"))
     if has_axis == has_quat:
-        raise StiffnessError(f"{path} needs exactly one of the column groups ax,ay,az (tool "
-                             "axis) and qw,qx,qy,qz (orientation)")
-    body = rows[1:]
-
-    def column(name: str) -> np.ndarray:
-        out = []
-        for r, row in enumerate(body, start=1):
-            cell = row[index[name]] if index[name] < len(row) else ""
-            try:
-                value = float(cell)
-            except ValueError:
-                raise StiffnessError(f"{path} row {r}: column {name} = {cell!r} is not a "
-                                     "number") from None
-            if not math.isfinite(value):
-                raise StiffnessError(f"{path} row {r}: column {name} is {value}; every value "
-                                     "must be a finite number")
-            out.append(value)
-        return np.array(out)
+        raise FileFormatError("needs exactly one of the column groups ax,ay,az (tool axis) and "
+                              "qw,qx,qy,qz (orientation)", path=table.path, line=1)
 
     def block(names) -> np.ndarray:
-        return np.column_stack([column(c) for c in names])
+        return np.column_stack([table.column(c) for c in names])
 
-    wrench = None
-    if all(c in index for c in WRENCH_COLUMNS[:3]):
-        wrench = np.zeros((len(body), 6))
-        for k, c in enumerate(WRENCH_COLUMNS):
-            if c in index:
-                wrench[:, k] = column(c)
-    return Poses(header, [list(r) for r in body], block(groups["position"]),
-                 block(groups["axis"]) if has_axis else None,
-                 block(groups["orientation"]) if has_quat else None, wrench)
-
+    return Poses(header, [list(r) for r in table.rows], block(("x", "y", "z")),
+                 block(("ax", "ay", "az")) if has_axis else None,
+                 block(("qw", "qx", "qy", "qz")) if has_quat else None, table.wrenches())
 
 
 @dataclass
@@ -455,7 +419,7 @@ def posture(
             seeds.append((start, q_start))
             row[k] = problem.solve(i, angles[k], seeds)
         if all(r is None for r in row):
-            raise StiffnessError(
+            raise ConvergenceError(
                 f"row {i + 1}: the pose at {np.round(positions[i], 6).tolist()} m is out of "
                 f"reach for every angle about the free axis (within the joint limits); move it "
                 "into the workspace")

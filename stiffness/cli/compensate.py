@@ -33,34 +33,37 @@ from stiffness.calibration.compensation import (
     load_elastic_model,
     read_joint_path,
 )
-from stiffness.cli.kx import parse_list, robot_from_args
+from stiffness.cli.flags import (
+    add_output_flags,
+    add_robot_flags,
+    add_stiffness_flag,
+    add_wrench_flag,
+    parse_list,
+    robot_from_args,
+    target_offset_from_args,
+)
 from stiffness.errors import OutputError, StiffnessError
 from stiffness.files import atomic_write, output_folder
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import joint_stiffness
 
 
-def add_model_flags(parser: argparse.ArgumentParser, required: bool) -> None:
-    """``--model`` and the robot flags (``--robot``, ``--frame``, ``--target-offset``,
-    ``--compliant-joints``, ``--kq``) shared by ``compensate`` and ``posture``."""
-    parser.add_argument("--model", metavar="M.json", required=required,
+def add_model_flags(parser: argparse.ArgumentParser) -> None:
+    """``--model`` and the shared robot and stiffness flags (:mod:`stiffness.cli.flags`)."""
+    parser.add_argument("--model", metavar="M.json",
                         help="model file: identified-model.json (`stiffness identify`) or "
                              "final-model.json (`stiffness diagnose`, with its effects)")
-    parser.add_argument("--robot", help="shipped robot, example-robot-data name or URDF "
-                                        "(instead of --model, or checked against it)")
-    parser.add_argument("--frame", help="frame carrying the target (default: the model's, "
-                                        "else the robot's own)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z (with "
-                                                "--model: moves the target, e.g. to a tool)")
-    parser.add_argument("--compliant-joints", help="comma-separated joint names")
-    parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m "
-                                     "prismatic), when no --model is given")
+    add_robot_flags(parser, robot_help="shipped robot, example-robot-data name or URDF path, "
+                                       "instead of --model (or checked against it); with "
+                                       "--model, --frame and --target-offset move the target")
+    add_stiffness_flag(parser, help="joint stiffness per compliant joint, N.m/rad (N/m "
+                                    "prismatic), when no --model is given; default the robot's")
 
 
 def add_wrench_flags(parser: argparse.ArgumentParser) -> None:
-    """``--wrench`` and ``--wrench-frame``."""
-    parser.add_argument("--wrench", help="process wrench at the target: fx,fy,fz (N) or "
-                                         "fx,fy,fz,mx,my,mz (N, N.m)")
+    """``--wrench`` (alias ``--load``) and ``--wrench-frame``."""
+    add_wrench_flag(parser, help="process wrench at the target: fx,fy,fz (N) or "
+                                 "fx,fy,fz,mx,my,mz (N, N.m); --load is an alias")
     parser.add_argument("--wrench-frame", choices=WRENCH_FRAMES, default="base",
                         help="axes of --wrench (and of per-row loads): base, or target (the "
                              "target frame at each nominal pose); default base")
@@ -86,9 +89,7 @@ def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
                 raise StiffnessError(f"{flag} conflicts with --model, which brings the springs; "
                                      f"drop {flag} (or --model)")
         if args.frame is not None or args.target_offset is not None:
-            offset = None if args.target_offset is None else parse_list(args.target_offset,
-                                                                        "--target-offset")
-            em = em.with_target(args.frame, offset)
+            em = em.with_target(args.frame, target_offset_from_args(args))
         return em
     if args.robot is None:
         raise StiffnessError("give --model M.json (or --robot R with --kq)")
@@ -102,7 +103,7 @@ def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness compensate``."""
-    add_model_flags(parser, required=False)
+    add_model_flags(parser)
     parser.add_argument("--path", metavar="PATH.csv", required=True,
                         help="joint path: one column per coordinate (joint names or q1..qn), "
                              "one row per point; optional fx,fy,fz[,mx,my,mz] per row")
@@ -117,8 +118,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="auto: closed form when joint compliance is the only effect, else "
                              "the general solver; default auto")
     parser.add_argument("--out", metavar="OUT.csv", help="write the compensated path here")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_output_flags(parser, quiet_help="no progress on stderr")
 
 
 def check_outputs(*paths: str | None) -> None:

@@ -34,14 +34,14 @@ from stiffness.cli.compensate import (
     elastic_model_from_args,
     progress_printer,
 )
-from stiffness.cli.kx import parse_list
+from stiffness.cli.flags import add_output_flags, parse_list
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness posture``."""
-    add_model_flags(parser, required=False)
+    add_model_flags(parser)
     parser.add_argument("--path", metavar="POSES.csv", required=True,
                         help="target poses: x,y,z (m) and ax,ay,az (tool axis) or "
                              "qw,qx,qy,qz; optional fx,fy,fz[,mx,my,mz] per row")
@@ -68,8 +68,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", metavar="OUT.csv", help="write the joint path here")
     parser.add_argument("--figure", metavar="FIG.png",
                         help="figure of the deflections along the path; default OUT.png")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_output_flags(parser, quiet_help="no progress on stderr")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.formulation import velocity_projection
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
@@ -198,7 +198,7 @@ def solve_ik(
     result = IKResult(coords, q, p_err, r_err, iterations)
     if raise_on_failure and not _converged(err, 1e3 * tolerance):
         within = " within the joint limits" if limits else ""
-        raise StiffnessError(
+        raise ConvergenceError(
             f"the target pose is out of reach (inverse kinematics stops {p_err:.3g} m and "
             f"{r_err:.3g} rad away after {iterations} steps{within}); move the pose into the "
             "workspace"
