@@ -78,6 +78,7 @@ from stiffness.batch.loops import (
 )
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.formulation import FORMULATIONS
+from stiffness.model.kinematics import reorder_hessian
 from stiffness.model.robot import Robot
 
 __all__ = [
@@ -137,17 +138,6 @@ class BatchKinematics:
     def size(self) -> int:
         """Number of configurations m."""
         return self.q.shape[0]
-
-
-def _unscramble(raw: np.ndarray) -> np.ndarray:
-    """Batched kinematic-Hessian reorder: ``H[i, k, a, b] = dJ_i[k, a] / dq_b``.
-
-    ``raw`` (m, 6, nv, nv) holds, per configuration, the array returned by
-    ``getFrameKinematicHessian`` (the column-major tensor read in row-major order, see
-    :mod:`stiffness.model.kinematics`). Returns a view.
-    """
-    m, _, nv, _ = raw.shape
-    return raw.reshape(m, nv, nv, 6).transpose(0, 3, 2, 1)
 
 
 def batch_kinematics(robot: Robot, q: np.ndarray, moments: bool = True,
@@ -247,15 +237,14 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
     if robot.loop is None:
-        # raw read as (m, b, a, k) is the unit-wrench basis [m, k, a, b], transposed
-        basis_t = raw.reshape(m, nv, nv, 6)
+        # the Hessian rows are the unit-wrench basis [m, k, a, b] (a view of raw)
+        basis = reorder_hessian(raw)[:, :w]
         if not _is_identity_selection(cv, nv):
-            basis_t = basis_t[:, cv[:, None], cv[None, :]]
+            basis = basis[:, :, cv[:, None], cv[None, :]]
             j_full = j_full[:, :, cv]
-        basis = basis_t[..., :w].transpose(0, 3, 2, 1)
         jac = j_full
     else:
-        basis, jac, valid = _closed_loop_basis(robot, _unscramble(raw), j_full, raw_loop,
+        basis, jac, valid = _closed_loop_basis(robot, reorder_hessian(raw), j_full, raw_loop,
                                                j_loop, w, loop_pos, loop_jac)
     return BatchKinematics(
         q=q, jacobian=jac, k_c_basis=basis, valid=valid,
@@ -290,7 +279,7 @@ def _closed_loop_basis(robot: Robot, hess: np.ndarray, j_full: np.ndarray,
     c_w = np.concatenate([j_loop[p + 1, :, :3] - j_loop[p, :, :3] for p in pairs],
                          axis=1)  # (m, R, nv)
     hc = np.concatenate([
-        _unscramble(raw_loop[p + 1])[:, :3] - _unscramble(raw_loop[p])[:, :3]
+        reorder_hessian(raw_loop[p + 1])[:, :3] - reorder_hessian(raw_loop[p])[:, :3]
         for p in pairs], axis=1)  # (m, R, nv, nv)
     if loop_jac is not None:
         d_s = loop_jac

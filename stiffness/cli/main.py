@@ -11,6 +11,7 @@ import importlib
 import os
 import sys
 
+from stiffness import __version__
 from stiffness.cli.flags import ArgumentParser
 from stiffness.errors import StiffnessError
 
@@ -22,7 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compare the printed Appendix I Jacobian and its K_C with Pinocchio's SK120",
     ),
     "identify": ("stiffness.cli.identify", "identify joint stiffness from a campaign"),
-    "report": ("stiffness.papers.report", "the SK120 paper-reproduction report (the main job)"),
+    "report": ("stiffness.cli.report", "the SK120 paper-reproduction report (the main job)"),
     "diagnose": ("stiffness.cli.diagnose",
                  "find and name what a model misses against a campaign's measurements"),
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
@@ -41,6 +42,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         prog="stiffness",
         description="Elastostatics of robot manipulators (SI units: m, N, rad, N.m/rad).",
     )
+    parser.add_argument("--version", action="version", version=f"stiffness {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

@@ -253,8 +253,8 @@ class LoopClosure:
                 blocks.append(hb - ha)
                 continue
             for (ja, ma), (jb, mb) in points:
-                blocks.append(_point_hessian(model, data, jb, mb)
-                              - _point_hessian(model, data, ja, ma))
+                blocks.append(kinematics.point_hessian(model, data, jb, mb)
+                              - kinematics.point_hessian(model, data, ja, ma))
         return np.concatenate(blocks, axis=0)
 
     def passive_rank(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9) -> int:
@@ -362,12 +362,3 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
     passive_v = np.concatenate([np.arange(j.idx_v, j.idx_v + j.nv) for j in joints]).astype(int)
     return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)
 
-
-def _point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
-                   ) -> np.ndarray:
-    """Hessian (3, nv, nv) of the world position of a point fixed to a joint (m/rad^2).
-
-    Same layout fix as :func:`stiffness.model.kinematics.frame_hessian`; Hessians must be current.
-    """
-    raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, kinematics.LWA)
-    return raw.reshape(-1).reshape(raw.shape, order="F")[:3]

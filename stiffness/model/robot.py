@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -48,9 +49,29 @@ _SUPPORTED_JOINTS = {
 
 
 def robots_directory() -> Path:
-    """Folder of the shipped robots (``robots/`` of the checkout, or ``$STIFFNESS_ROBOTS``)."""
+    """Folder of the shipped robots: the repository's ``robots/``, installed as package data.
+
+    In order: ``$STIFFNESS_ROBOTS`` if set; the ``robots/`` folder of the source checkout this
+    package runs from (``PYTHONPATH`` or an editable install: the checkout's own data, even if
+    another copy of the package is installed); else the installed package data
+    ``stiffness.robots`` (``robots/`` mapped into the wheel), read with :mod:`importlib.resources`.
+    """
     env = os.environ.get("STIFFNESS_ROBOTS")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "robots"
+    if env:
+        return Path(env)
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file() and (checkout / "robots" / "__init__.py").is_file():
+        return checkout / "robots"
+    try:
+        data = resources.files("stiffness.robots")
+    except ModuleNotFoundError:
+        data = None
+    if not isinstance(data, Path) or not data.is_dir():
+        raise StiffnessError(
+            "the shipped robots are missing: this copy of stiffness has no robots/ package data "
+            "(reinstall it with `pip install .`, or set STIFFNESS_ROBOTS to a robots/ folder)"
+        )
+    return data
 
 
 def shipped_robots() -> list[str]:
