@@ -66,7 +66,7 @@ _ON_FIRST_USE = {
     "diagnose": "stiffness.calibration.diagnose",
     "simulate": "stiffness.calibration.simulate",
     # calibration: compensation along a path, the stiffest posture
-    "ElasticModel": "stiffness.calibration.compensation",
+    "ElasticModel": "stiffness.calibration.elastic",
     "compensate": "stiffness.calibration.compensation",
     "posture": "stiffness.calibration.posture",
     # papers: the SK120 reproduction

@@ -14,13 +14,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import root
 
-from stiffness.calibration.compensation import (
-    ElasticModel,
-    LinkBend,
-    compensate,
-    loaded_equilibrium,
-)
+from stiffness.calibration.compensation import compensate
 from stiffness.calibration.effects import Geometry, LinkCompliance, link_axes
+from stiffness.calibration.elastic import ElasticModel, LinkBend, loaded_equilibrium
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.model import kinematics
 from stiffness.model.robot import load_robot
@@ -199,24 +195,24 @@ def test_link_bend_matches_the_effect_library_to_first_order(ur5):
 
 
 def test_bent_jacobian_matches_finite_differences(ur5):
-    from stiffness.calibration.compensation import _frozen_axes, _kinematics
+    from stiffness.calibration.elastic import bent_kinematics, frozen_axes
 
     _, linked, _ = _ur5_link_model(ur5)
     links = linked.ordered_links()
     c = UR5_PATH[1]
     q = linked.full.configuration(c)
     kinematics.update_first_order(ur5.model, linked.full.data, q)
-    axes = _frozen_axes(linked, links)
+    axes = frozen_axes(linked, links)
     z = np.concatenate([c, [0.01, -0.02]])
     wrench = np.zeros(6)
-    kin = _kinematics(linked, links, axes, z[:6], z[6:], wrench, None)
+    kin = bent_kinematics(linked, links, axes, z[:6], z[6:], wrench, None)
     h, fd = 1e-6, []
     for i in range(z.shape[0]):
         zp, zm = z.copy(), z.copy()
         zp[i] += h
         zm[i] -= h
-        kp = _kinematics(linked, links, axes, zp[:6], zp[6:], wrench, None)
-        km = _kinematics(linked, links, axes, zm[:6], zm[6:], wrench, None)
+        kp = bent_kinematics(linked, links, axes, zp[:6], zp[6:], wrench, None)
+        km = bent_kinematics(linked, links, axes, zm[:6], zm[6:], wrench, None)
         fd.append(np.concatenate([(kp.position - km.position) / (2 * h),
                                   pin.log3(kp.rotation @ km.rotation.T) / (2 * h)]))
     np.testing.assert_allclose(np.array(fd).T, kin.jac, atol=1e-8)
@@ -362,7 +358,7 @@ def test_diagnosed_model_file_brings_its_effects(sk120):
     backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""
     from pathlib import Path
 
-    from stiffness.calibration.compensation import load_elastic_model
+    from stiffness.calibration.elastic import load_elastic_model
 
     em = load_elastic_model(Path(__file__).parent / "data" / "sk120-final-model.json")
     assert em.law.backlash[em.robot.coordinate_joints.index("joint2")] > 0

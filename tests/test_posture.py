@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from stiffness.calibration.compensation import ElasticModel
+from stiffness.calibration.elastic import ElasticModel
 from stiffness.calibration.posture import posture, tool_frames
 from stiffness.cli.main import main
 from stiffness.mechanics.formulation import compliance, target_state
@@ -81,7 +81,7 @@ def test_never_worse_than_the_fixed_angle_and_measurably_better(ur5_path):
 
 def test_redundant_arm_uses_its_null_space():
     """Panda (7 arm joints): the chosen postures are local minima along the self-motion."""
-    from stiffness.calibration.compensation import linear_deflection
+    from stiffness.calibration.elastic import linear_deflection
     from stiffness.mechanics.ik import solve_ik
 
     arm = [f"panda_joint{i}" for i in range(1, 8)]

@@ -2,28 +2,10 @@
 
 A path point gives the *nominal* coordinates ``theta_n`` (the unloaded program). Under the
 process wrench ``W`` (a dead load at the target, base axes) the robot commanded at ``theta_c``
-rests at its exact elastostatic equilibrium; compensation finds the ``theta_c`` whose loaded
+rests at its exact elastostatic equilibrium (:mod:`stiffness.calibration.elastic`: every effect
+of the model file that acts on the robot); compensation finds the ``theta_c`` whose loaded
 equilibrium puts the target at the unloaded nominal pose ``x(theta_n)`` (position, and the
-orientation when it is held: see :func:`compensate`).
-
-The elastic model (:class:`ElasticModel`) holds every effect of a model file that acts on the
-robot:
-
-* a joint law over the coordinates, ``theta - theta_c = law(tau)`` with ``tau = J(theta)^T W``
-  (linear springs, extra springs on joints the baseline holds rigid, nonlinear springs
-  ``tau/k (1 + beta|tau|)`` and backlash ``b tanh(tau/tau_s)``; zero for rigid coordinates);
-* link compliances (:class:`LinkBend`): the segment ``a -> b`` bends at ``b``'s origin about two
-  axes normal to it, modelled exactly as two virtual revolute joints there (a universal joint:
-  the second axis is carried by the first) with springs ``k_1, k_2``. The axes are those of
-  :func:`stiffness.calibration.effects.link_axes` at the nominal configuration of the point,
-  fixed in the body joint ``b`` is mounted on. The bend rotates everything beyond it; loops are
-  closed on the unbent kinematics (as in the effect library).
-
-Exact equilibrium (:func:`loaded_equilibrium`): unknowns ``z = [theta, alpha]``, equations
-``theta - theta_c = law(J_theta^T W)``, ``alpha = law_link(J_alpha^T W)``, solved by Newton with
-the tangent ``I - diag(law') K_C`` (``K_C`` of the coordinates from the kinematic Hessians).
-
-Compensation:
+orientation when it is held: see :func:`compensate`):
 
 * joint law only: rest at ``theta = theta_n`` exactly, so ``theta_c = theta_n - law(J(theta_n)^T
   W)`` (closed form, design notes "Compensation along a path");
@@ -43,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,388 +33,32 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.effects import Law, link_axes
+from stiffness.calibration.elastic import (
+    ElasticModel,
+    as_elastic_model,
+    bent_kinematics,
+    frozen_axes,
+    linear_shift,
+    loaded_equilibrium,
+)
 from stiffness.errors import (
     ConvergenceError,
     FileFormatError,
     MissingFileError,
     StiffnessError,
-    UnstableEquilibriumError,
     with_context,
 )
 from stiffness.mechanics.formulation import as_wrench, target_state
-from stiffness.mechanics.ik import HOLDS, all_coordinates, coordinate_limits, solve_ik
+from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
 
-#: Effects of a model file that describe the measuring rig, not the robot (not compensated).
-RIG_EFFECTS = ("frame_misalignment", "force_sensor_bias", "deflection_offset", "target_offset")
-#: Convergence of the exact equilibrium (rad, m of the joint and bend variables), plus 1e-11
-#: of the largest deflection (closure noise of loops).
-EQUILIBRIUM_TOLERANCE = 1e-14
 #: Convergence of the general compensation solve (m, rad of the target error).
 POSE_TOLERANCE = 1e-12
 #: Wrench columns a path file may carry (N, N.m).
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 #: Reference frames of a process wrench.
 WRENCH_FRAMES = ("base", "target")
-
-
-# ------------------------------------------------------------------------------------------
-# the elastic model
-
-
-@dataclass(frozen=True)
-class LinkBend:
-    """A link compliance: the segment ``a -> b`` bends at ``b``'s origin.
-
-    ``column`` picks the mounting body's axis that :func:`link_axes` makes normal to the
-    segment; ``stiffness`` (2,) N.m/rad about ``e_1`` and ``e_2``.
-    """
-
-    a: str
-    b: str
-    column: int
-    stiffness: tuple[float, float]
-
-
-@dataclass
-class ElasticModel:
-    """What acts on the robot under a load: its joint law and its link bends.
-
-    Attributes
-    ----------
-    robot
-        The robot (its coordinates are the path's columns).
-    law
-        Joint law over ``robot.coordinate_joints`` (zero compliance: a rigid coordinate).
-    links
-        Link compliances, any order.
-    formulation
-        Formulation of the model's linear compliance (``enhanced`` with K_C, or
-        ``conventional``), used by the first-order compensation only.
-    ignored
-        Effects of the model file that do not act on the robot (rig effects), by label.
-    source
-        The model file, if any.
-    """
-
-    robot: Robot
-    law: Law
-    links: tuple[LinkBend, ...] = ()
-    formulation: str = "enhanced"
-    ignored: tuple[str, ...] = ()
-    source: str | None = None
-    _full: Robot | None = field(default=None, repr=False)
-
-    @classmethod
-    def joint_springs(cls, robot: Robot, k_theta: np.ndarray | list[float],
-                      formulation: str = "enhanced") -> ElasticModel:
-        """Linear springs ``k_theta`` (N.m/rad, N/m) on the robot's compliant joints."""
-        k = np.asarray(k_theta, dtype=float)
-        k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
-        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise StiffnessError(
-                f"need one finite positive stiffness per compliant joint of {robot.name} "
-                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
-        n = robot.n_coordinates
-        compliance = np.zeros(n)
-        compliance[robot.compliant_in_coordinates] = 1.0 / k
-        return cls(robot, Law(compliance, np.zeros(n), np.zeros(n), np.ones(n)),
-                   formulation=formulation)
-
-    def with_target(self, frame: str | None = None,
-                    target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
-        """The same springs and bends with the target moved (e.g. to a tool): joint laws and
-        link bends act on joints, not on the target, so they carry over unchanged."""
-        from stiffness.model.robot import load_robot
-
-        robot = load_robot(self.robot.name, frame=frame or self.robot.target_frame,
-                           target_offset=self.robot.target_offset if target_offset is None
-                           else target_offset, compliant_joints=self.robot.compliant_joints)
-        return ElasticModel(robot, self.law, self.links, self.formulation, self.ignored,
-                            self.source)
-
-    @property
-    def full(self) -> Robot:
-        """The robot with every coordinate compliant (Jacobians w.r.t. all coordinates)."""
-        if self._full is None:
-            self._full = all_coordinates(self.robot)
-        return self._full
-
-    @property
-    def joint_only(self) -> bool:
-        """Whether joint motions are the only effect (the compensation is closed-form)."""
-        return not self.links
-
-    def ordered_links(self) -> list[LinkBend]:
-        """Links from the base to the tip (by the chain position of ``b``, then ``a``)."""
-        model = self.robot.model
-        depth = {name: len(model.supports[model.getJointId(name)]) for name in model.names}
-        return sorted(self.links, key=lambda lk: (depth[lk.b], depth[lk.a]))
-
-    def describe(self) -> str:
-        """E.g. ``joint springs on joint1, joint2 + link bend joint2->joint3``."""
-        names = [j for j, c in zip(self.robot.coordinate_joints, self.law.compliance,
-                                   strict=True) if c > 0]
-        text = f"joint springs on {', '.join(names) or 'no joint'}"
-        if np.any(self.law.beta != 0):
-            text += " (nonlinear)"
-        if np.any(self.law.backlash != 0):
-            text += " + backlash"
-        return text + "".join(f" + link bend {lk.a}->{lk.b}" for lk in self.links)
-
-
-def as_elastic_model(model: ElasticModel | Robot | str | Path,
-                     k_theta: np.ndarray | list[float] | None = None) -> ElasticModel:
-    """An :class:`ElasticModel` from itself, a model file's path, or a robot with springs
-    ``k_theta`` (N.m/rad, N/m; default the shipped robot's).
-
-    Raises
-    ------
-    StiffnessError
-        A robot without springs, or springs given with a model.
-    """
-    if isinstance(model, Robot):
-        if k_theta is None:
-            from stiffness.mechanics.defaults import default_stiffness
-
-            k_theta = default_stiffness(model)
-            if k_theta is None:
-                raise StiffnessError(f"give k_theta: one stiffness per compliant joint of "
-                                     f"{model.name} ({', '.join(model.compliant_joints)})")
-        return ElasticModel.joint_springs(model, k_theta)
-    if k_theta is not None:
-        raise StiffnessError("k_theta goes with a robot; a model (file) brings its own springs")
-    return model if isinstance(model, ElasticModel) else load_elastic_model(model)
-
-
-def _frozen_axes(em: ElasticModel, links: list[LinkBend]) -> list[np.ndarray]:
-    """Bend axes (2, 3) in each mounting body's frame, from the current placements."""
-    model, data = em.full.model, em.full.data
-    out = []
-    for lk in links:
-        ja, jb = model.getJointId(lk.a), model.getJointId(lk.b)
-        mount = data.oMi[model.parents[jb]].rotation
-        e1, e2 = link_axes(data.oMi[ja].translation, data.oMi[jb].translation, mount, lk.column)
-        out.append(np.vstack([mount.T @ e1, mount.T @ e2]))
-    return out
-
-
-# ------------------------------------------------------------------------------------------
-# kinematics of the loaded robot
-
-
-@dataclass
-class _Kinematics:
-    """Target pose and Jacobians of the (bent) robot at ``z = [coords, alpha]``."""
-
-    q: np.ndarray
-    position: np.ndarray
-    rotation: np.ndarray
-    jac: np.ndarray  # (6, n + 2m) rows [v; omega] base axes at the target
-    k_c: np.ndarray  # (n + 2m, n + 2m): K_C of the coordinates (bend rows zero)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def _kinematics(em: ElasticModel, links: list[LinkBend], axes: list[np.ndarray],
-                coords: np.ndarray, alpha: np.ndarray, wrench: np.ndarray,
-                seed_q: np.ndarray | None) -> _Kinematics:
-    full = em.full
-    n, m = full.n_coordinates, 2 * len(links)
-    q = full.configuration(coords, seed=seed_q)
-    state = target_state(full, q, wrench)
-    k_c = np.zeros((n + m, n + m))
-    k_c[:n, :n] = state.k_c
-    if not links:
-        return _Kinematics(q, state.position, state.rotation, state.jacobian, k_c)
-    model, data = full.model, full.data
-    j_world = pin.getFrameJacobian(model, data, full.target_frame_id, pin.ReferenceFrame.WORLD)
-    bent = j_world.copy()
-    cum = pin.SE3.Identity()
-    alpha_cols = []
-    chain = set(model.supports[model.frames[full.target_frame_id].parentJoint])
-    for i, (lk, ax) in enumerate(zip(links, axes, strict=True)):
-        jb = model.getJointId(lk.b)
-        point = data.oMi[jb].translation
-        mount = data.oMi[model.parents[jb]].rotation
-        r1 = pin.exp3(alpha[2 * i] * ax[0])
-        r2 = pin.exp3(alpha[2 * i + 1] * ax[1])
-        for axis_local in (ax[0], r1 @ ax[1]):
-            w = cum.rotation @ mount @ axis_local
-            p = cum.act(point)
-            alpha_cols.append(np.concatenate([np.cross(p, w), w]))
-        rot = mount @ r1 @ r2 @ mount.T
-        cum = cum * pin.SE3(rot, point - rot @ point)
-        ad = cum.toActionMatrix()
-        for jid in chain:
-            if jid > 0 and jb in model.supports[jid]:
-                joint = model.joints[jid]
-                cols = slice(joint.idx_v, joint.idx_v + joint.nv)
-                # the latest (most distal) bend proximal to the joint wins: links are ordered
-                bent[:, cols] = ad @ j_world[:, cols]
-    position = cum.act(state.position)
-    rotation = cum.rotation @ state.rotation
-    spatial = np.hstack([bent @ state.projection, np.array(alpha_cols).T])
-    jac = np.vstack([spatial[:3] - _skew(position) @ spatial[3:], spatial[3:]])
-    return _Kinematics(q, position, rotation, jac, k_c)
-
-
-# ------------------------------------------------------------------------------------------
-# exact equilibrium
-
-
-@dataclass
-class Loaded:
-    """Exact equilibrium of the loaded robot at a command.
-
-    Attributes
-    ----------
-    q
-        Full configuration at equilibrium (loops closed).
-    coords
-        Coordinates at equilibrium (rad, m).
-    alpha
-        Bend angles of the link compliances (rad), two per link (base to tip).
-    position, rotation
-        Target pose at equilibrium (m; rotation matrix), base frame.
-    torque
-        Generalised forces ``J^T W`` at equilibrium over ``[coords, alpha]``.
-    iterations
-        Newton iterations.
-    """
-
-    q: np.ndarray
-    coords: np.ndarray
-    alpha: np.ndarray
-    position: np.ndarray
-    rotation: np.ndarray
-    torque: np.ndarray
-    iterations: int
-    _kin: _Kinematics = field(repr=False)
-    _slope: np.ndarray = field(repr=False)
-
-
-def _law_z(em: ElasticModel, links: list[LinkBend], tau: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray]:
-    n = em.full.n_coordinates
-    value, slope = em.law(tau[:n])
-    c_link = np.array([1.0 / k for lk in links for k in lk.stiffness])
-    return (np.concatenate([value, c_link * tau[n:]]),
-            np.concatenate([slope, c_link]))
-
-
-def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray,
-                       seed_q: np.ndarray | None = None, axes: list[np.ndarray] | None = None,
-                       max_iterations: int = 60) -> Loaded:
-    """Exact elastostatic equilibrium of the robot commanded at ``command`` under ``wrench``.
-
-    Parameters
-    ----------
-    em
-        The elastic model.
-    command
-        Commanded coordinates (rad, m): the joint springs' rest positions.
-    wrench
-        Dead force (3,) N or wrench (6,) N, N.m at the target, base axes.
-    seed_q
-        A closed configuration near the equilibrium (the loop branch), default the command's.
-    axes
-        Bend axes per link (:func:`_frozen_axes`), default those at the command.
-
-    Raises
-    ------
-    StiffnessError
-        Newton does not converge, or the equilibrium is unstable (the load buckles the robot).
-    """
-    wrench = as_wrench(wrench)
-    links = em.ordered_links()
-    command = np.asarray(command, dtype=float)
-    n, m = command.shape[0], 2 * len(links)
-    if axes is None:
-        kinematics.update_first_order(em.full.model, em.full.data,
-                                      em.full.configuration(command, seed=seed_q))
-        axes = _frozen_axes(em, links)
-    z = np.concatenate([command, np.zeros(m)])
-    base = np.concatenate([command, np.zeros(m)])
-    q = seed_q
-    for iterations in range(1, max_iterations + 1):
-        kin = _kinematics(em, links, axes, z[:n], z[n:], wrench, q)
-        q = kin.q
-        tau = kin.jac.T @ wrench
-        value, slope = _law_z(em, links, tau)
-        g = z - base - value
-        tol = EQUILIBRIUM_TOLERANCE * (1.0 + 1e3 * float(np.abs(value).max(initial=0.0)))
-        if iterations > 1 and np.abs(g).max() <= tol:
-            break
-        a = np.eye(n + m) - slope[:, None] * kin.k_c
-        try:
-            step = np.linalg.solve(a, -g)
-        except np.linalg.LinAlgError as exc:
-            raise UnstableEquilibriumError("the tangent stiffness is singular: the load buckles "
-                                           "the robot here; reduce the load") from exc
-        z = z + step
-        if iterations > 1 and np.abs(step).max() <= tol:
-            kin = _kinematics(em, links, axes, z[:n], z[n:], wrench, q)
-            tau = kin.jac.T @ wrench
-            value, slope = _law_z(em, links, tau)
-            break
-    else:
-        raise ConvergenceError(
-            f"the exact equilibrium did not converge in {max_iterations} iterations (residual "
-            f"{np.abs(g).max():.3g}): the load may exceed the buckling load; reduce it")
-    soft = slope > 0
-    if np.any(soft):
-        tangent = np.diag(1.0 / slope[soft]) - kin.k_c[np.ix_(soft, soft)]
-        lowest = float(np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0])
-        if lowest <= 0:
-            raise UnstableEquilibriumError(
-                f"the loaded equilibrium is unstable (tangent stiffness eigenvalue {lowest:.3g})"
-                ": the load exceeds the buckling load here; reduce the load")
-    return Loaded(kin.q, z[:n].copy(), z[n:].copy(), kin.position, kin.rotation, tau,
-                  iterations, kin, slope)
-
-
-# ------------------------------------------------------------------------------------------
-# linear deflection
-
-
-def _linear(em: ElasticModel, links: list[LinkBend], kin: _Kinematics, wrench: np.ndarray
-            ) -> np.ndarray:
-    """First-order target displacement ``C W`` (6,) [m; rad] of the model at ``kin``.
-
-    The joint law enters by its secant ``law(tau) / tau`` at the holding torques (the linear
-    springs themselves for a linear law); ``K_C`` enters for the ``enhanced`` formulation.
-    """
-    tau = kin.jac.T @ wrench
-    value, _ = _law_z(em, links, tau)
-    secant = np.divide(value, tau, out=np.zeros_like(value), where=tau != 0)
-    k_c = kin.k_c if em.formulation == "enhanced" else np.zeros_like(kin.k_c)
-    a = np.eye(k_c.shape[0]) - secant[:, None] * k_c
-    try:
-        dz = np.linalg.solve(a, secant * tau)
-    except np.linalg.LinAlgError as exc:
-        raise UnstableEquilibriumError("the tangent stiffness is singular: the load buckles the "
-                                       "robot here; reduce the load") from exc
-    return kin.jac @ dz
-
-
-def linear_deflection(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
-                      seed_q: np.ndarray | None = None) -> np.ndarray:
-    """First-order deflection ``C W`` (6,) [m; rad] of the target at ``coords`` (rad, m)
-    under the dead ``wrench`` (base axes), every effect of the model included."""
-    wrench = as_wrench(wrench)
-    links = em.ordered_links()
-    q = em.full.configuration(coords, seed=seed_q)
-    kinematics.update_first_order(em.full.model, em.full.data, q)
-    axes = _frozen_axes(em, links)
-    kin = _kinematics(em, links, axes, np.asarray(coords, dtype=float),
-                      np.zeros(2 * len(links)), wrench, q)
-    return _linear(em, links, kin, wrench)
-
 
 # ------------------------------------------------------------------------------------------
 # one path point
@@ -533,8 +158,8 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     links = em.ordered_links()
     q_n = full.configuration(coords, seed=seed_q)
     kinematics.update_first_order(full.model, full.data, q_n)
-    axes = _frozen_axes(em, links)
-    nominal = _kinematics(em, links, axes, coords, np.zeros(2 * len(links)), wrench, q_n)
+    axes = frozen_axes(em, links)
+    nominal = bent_kinematics(em, links, axes, coords, np.zeros(2 * len(links)), wrench, q_n)
     pos_n, rot_n = nominal.position.copy(), nominal.rotation.copy()
     rows = slice(0, 6 if hold == "pose" else 3)
 
@@ -555,8 +180,8 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
                 best = (size, command, loaded)
             if size <= POSE_TOLERANCE:
                 break
-            kin = loaded._kin
-            a = np.eye(kin.k_c.shape[0]) - loaded._slope[:, None] * kin.k_c
+            kin = loaded.kin
+            a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
             dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n])
             jac = kin.jac[rows] @ dz_dc
             if hold == "pose":
@@ -575,7 +200,7 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
         command = coords - em.law(tau_n[:n])[0]
         loaded = solve(command)
     # first-order Cartesian compensation: command the pose shifted by -C W through IK
-    shift = _linear(em, links, nominal, wrench)
+    shift = linear_shift(em, links, nominal, wrench)
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
     ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
     first = solve(ik.coords)
@@ -742,111 +367,6 @@ def compensate(
         if progress is not None:
             progress(i + 1, path.shape[0])
     return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em)
-
-
-# ------------------------------------------------------------------------------------------
-# model files
-
-
-def load_elastic_model(path: str | Path) -> ElasticModel:
-    """The elastic model of a model file: ``identified-model.json`` (``stiffness identify``)
-    or ``final-model.json`` (``stiffness diagnose``), with every effect acting on the robot.
-
-    Raises
-    ------
-    StiffnessError
-        Unreadable file, unknown format, or a malformed key.
-    """
-    from stiffness.calibration.identify import MODEL_FORMAT as IDENTIFIED
-    from stiffness.calibration.identify import load_identified_model
-
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise MissingFileError(f"cannot read model file {path}: {exc.strerror}; give the "
-                               "identified-model.json or final-model.json", path=path) from exc
-    except json.JSONDecodeError as exc:
-        raise FileFormatError(f"not JSON ({exc.msg}); give the identified-model.json or "
-                              "final-model.json", path=path, line=exc.lineno,
-                              column=exc.colno) from exc
-    fmt = doc.get("format") if isinstance(doc, dict) else None
-    if fmt == IDENTIFIED:
-        ident = load_identified_model(path)
-        em = ElasticModel.joint_springs(ident.robot(), ident.k_theta,
-                                        "conventional" if ident.formulation == "conventional"
-                                        else "enhanced")
-        em.source = str(path)
-        return em
-    from stiffness.calibration.diagnose import MODEL_FORMAT as DIAGNOSED
-
-    if fmt != DIAGNOSED:
-        raise StiffnessError(
-            f"{path} is not a model file (format {fmt!r}); give the identified-model.json "
-            "of `stiffness identify` or the final-model.json of `stiffness diagnose`")
-    return _diagnosed_model(doc, path)
-
-
-def _diagnosed_model(doc: dict, path: Path) -> ElasticModel:
-    from stiffness.calibration.campaign import _resolve_source
-    from stiffness.calibration.effects import Geometry, References, make_effect
-    from stiffness.model.robot import load_robot
-
-    def get(*keys):
-        node = doc
-        for key in keys:
-            if not isinstance(node, dict) or key not in node:
-                raise StiffnessError(f"{path}: missing key {'.'.join(keys)}; rewrite the file "
-                                     "with `stiffness diagnose`")
-            node = node[key]
-        return node
-
-    compliant = [str(j) for j in get("compliant_joints")]
-    effects_doc = get("effects")
-    added = [e["where"] for e in effects_doc if e.get("effect") == "joint_compliance"]
-    source = _resolve_source(str(get("robot", "source")), path.parent)
-    robot = load_robot(source, frame=get("robot", "frame"),
-                       target_offset=np.asarray(get("robot", "target_offset_m"), dtype=float),
-                       compliant_joints=compliant + added)
-    geometry = Geometry.of(robot)
-    refs_doc = get("references")
-    joints = geometry.joints
-    try:
-        refs = References(
-            joints, float(refs_doc["k_ref"]),
-            np.array([float(refs_doc["tau_max"][j]) for j in joints]),
-            np.array([float(refs_doc["tau_smoothing"][j]) for j in joints]),
-            float(refs_doc["theta_ref"]), float(refs_doc["force_ref"]),
-            float(refs_doc["deflection_ref"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise StiffnessError(f"{path}: references are incomplete ({exc}); rewrite the file "
-                             "with `stiffness diagnose`") from exc
-    x = np.asarray(get("parameter_vector"), dtype=float)
-    effects = [make_effect(str(e.get("effect")), e.get("where"), geometry) for e in effects_doc]
-    sizes = [len(compliant)] + [e.n_params for e in effects]
-    if x.shape[0] != sum(sizes):
-        raise StiffnessError(f"{path}: parameter_vector has {x.shape[0]} values for "
-                             f"{sum(sizes)} parameters; rewrite the file with `stiffness diagnose`")
-    n = robot.n_coordinates
-    coord = list(robot.coordinate_joints)
-    compliance = np.zeros(n)
-    compliance[[coord.index(j) for j in compliant]] = np.exp(-x[: len(compliant)])
-    smoothing = np.array([refs.tau_smoothing[joints.index(j)] for j in coord])
-    law = Law(compliance, np.zeros(n), np.zeros(n), smoothing)
-    links, ignored = [], []
-    offset = len(compliant)
-    for e in effects:
-        p = e.physical(x[offset: offset + e.n_params], refs)
-        offset += e.n_params
-        if e.name in RIG_EFFECTS:
-            ignored.append(e.label)
-        elif e.name == "link_compliance":
-            links.append(LinkBend(e.a, e.b, e.column, (1.0 / p[0], 1.0 / p[1])))
-        elif e.joint is not None:
-            e.adjust_law(p, law, coord.index(e.joint), refs)
-    formulation = "enhanced" if get("baseline") == "enhanced" or any(
-        e.name == "complementary_stiffness" for e in effects) else "conventional"
-    return ElasticModel(robot, law, tuple(links), formulation, tuple(ignored), str(path))
 
 
 # ------------------------------------------------------------------------------------------

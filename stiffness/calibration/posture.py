@@ -35,13 +35,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.compensation import (
-    WRENCH_FRAMES,
-    ElasticModel,
-    as_elastic_model,
-    linear_deflection,
-    read_table,
-)
+from stiffness.calibration.compensation import WRENCH_FRAMES, read_table
+from stiffness.calibration.elastic import ElasticModel, as_elastic_model, linear_deflection
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik

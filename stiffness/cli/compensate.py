@@ -27,12 +27,11 @@ import numpy as np
 
 from stiffness.calibration.compensation import (
     WRENCH_FRAMES,
-    ElasticModel,
     PathCompensation,
     compensate,
-    load_elastic_model,
     read_joint_path,
 )
+from stiffness.calibration.elastic import ElasticModel, load_elastic_model
 from stiffness.cli.flags import (
     add_output_flags,
     add_robot_flags,
