@@ -192,6 +192,13 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
             loaded = solve(command)
         size, command, loaded = best
         if size > 1e3 * POSE_TOLERANCE:
+            sv = np.linalg.svd(jac, compute_uv=False)
+            rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
+            if rank < jac.shape[0]:
+                raise ConvergenceError(
+                    f"the coordinates cannot cancel this deflection: they move only {rank} of "
+                    f"the {jac.shape[0]} held target components here ({size:.3g} m/rad "
+                    "remains); hold fewer (--hold position) or move away from the singularity")
             raise ConvergenceError(
                 f"the general compensation did not converge (target error {size:.3g} m/rad "
                 "remains): the load may be near the buckling load; reduce it")
