@@ -194,25 +194,35 @@ def test_link_bend_matches_the_effect_library_to_first_order(ur5):
     assert np.linalg.norm(extra - linear) < 0.02 * np.linalg.norm(linear)
 
 
-def test_bent_jacobian_matches_finite_differences(ur5):
+@pytest.mark.parametrize("case", ["ur5", "sk120"])
+def test_bent_jacobian_matches_finite_differences(case, ur5, sk120):
+    """The exact Jacobian of the bent target w.r.t. coordinates and bend angles, on a serial arm
+    and through the SK120's loop (the bend joint2->elbow has a passive joint at its end)."""
     from stiffness.calibration.elastic import bent_kinematics, frozen_axes
 
-    _, linked, _ = _ur5_link_model(ur5)
+    if case == "ur5":
+        _, linked, _ = _ur5_link_model(ur5)
+        c = UR5_PATH[1]
+    else:
+        springs = ElasticModel.joint_springs(sk120, sk120.defaults["k_theta_SI"])
+        column = Geometry.of(sk120).link_columns[("joint2", "elbow")]
+        linked = ElasticModel(sk120, springs.law, (LinkBend("joint2", "elbow", column,
+                                                            (2e6, 1e6)),))
+        c = np.deg2rad(sk120.defaults["q_deg"])
     links = linked.ordered_links()
-    c = UR5_PATH[1]
     q = linked.full.configuration(c)
-    kinematics.update_first_order(ur5.model, linked.full.data, q)
+    kinematics.update_first_order(linked.full.model, linked.full.data, q)
     axes = frozen_axes(linked, links)
     z = np.concatenate([c, [0.01, -0.02]])
     wrench = np.zeros(6)
-    kin = bent_kinematics(linked, links, axes, z[:6], z[6:], wrench, None)
-    h, fd = 1e-6, []
+    kin = bent_kinematics(linked, links, axes, z[:6], z[6:], wrench, q)
+    h, fd = 1e-5, []
     for i in range(z.shape[0]):
         zp, zm = z.copy(), z.copy()
         zp[i] += h
         zm[i] -= h
-        kp = bent_kinematics(linked, links, axes, zp[:6], zp[6:], wrench, None)
-        km = bent_kinematics(linked, links, axes, zm[:6], zm[6:], wrench, None)
+        kp = bent_kinematics(linked, links, axes, zp[:6], zp[6:], wrench, q)
+        km = bent_kinematics(linked, links, axes, zm[:6], zm[6:], wrench, q)
         fd.append(np.concatenate([(kp.position - km.position) / (2 * h),
                                   pin.log3(kp.rotation @ km.rotation.T) / (2 * h)]))
     np.testing.assert_allclose(np.array(fd).T, kin.jac, atol=1e-8)
