@@ -306,7 +306,7 @@ def test_per_row_wrench_columns(tmp_path, capsys):
     assert abs(d[1] / d[0] - 0.5) < 0.01  # the same point at half the load
 
 
-@pytest.mark.parametrize("case", ["missing", "nan", "other_robot", "bad_wrench"])
+@pytest.mark.parametrize("case", ["missing", "nan", "other_robot", "bad_wrench", "out_of_reach"])
 def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
     from stiffness.cli.main import main
 
@@ -328,9 +328,14 @@ def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
                                   k=[1.4e6, 4.0e5, 9.3e5])
         path = _path_csv(tmp_path / "p.csv", UR5_PATH, header=JOINTS)
         expect = "another robot"
-    else:
+    elif case == "bad_wrench":
         wrench = "0,0,-300,1"
         expect = "wrench"
+    else:
+        rows = UR5_PATH.copy()
+        rows[1, 2] = np.deg2rad(200.0)  # the elbow turns +-180 deg
+        path = _path_csv(tmp_path / "p.csv", rows)
+        expect = "path row 2: elbow_joint"
     out = tmp_path / "out.csv"
     code = main(["compensate", "--model", str(model), "--path", str(path), "--deg",
                  "--wrench", wrench, "--out", str(out)])
