@@ -390,3 +390,69 @@ def test_diagnosed_model_file_brings_its_effects(sk120):
         left = loaded_equilibrium(em, closed.command, wrench, seed_q=closed.q_nominal)
         nominal = _fk(sk120, coords, closed.q_nominal)[0]
         assert np.linalg.norm(left.position - nominal) > 1e-5
+
+
+def _parameter(name, value, unit):
+    from stiffness.calibration.effects import Parameter
+
+    return Parameter(name, value, 0.0, (value, value), unit)
+
+
+def test_model_file_effects_enter_the_elastic_model(tmp_path, ur5):
+    """A model file (the one schema of identify and diagnose) with every kind of effect: the
+    robot's effects enter the law and the bends, the measurement ones are listed, and the
+    compensation still lands on the nominal pose."""
+    from stiffness.calibration.elastic import load_elastic_model
+    from stiffness.calibration.model_file import ModelEffect, ModelFile
+
+    arm = JOINTS[:5]
+    effects = (
+        ModelEffect("joint_compliance", "wrist_3_joint", "stiffness",
+                    [_parameter("stiffness", 3e4, "N.m/rad")]),
+        ModelEffect("nonlinear_joint_stiffness", "shoulder_lift_joint", "stiffness",
+                    [_parameter("beta", 1e-3, "1/(N.m)")]),
+        ModelEffect("backlash", "elbow_joint", "lost_motion",
+                    [_parameter("half_width", 2e-4, "rad")], {"smoothing_torque": 2.0}),
+        ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
+                    [_parameter("stiffness_1", 1.5e5, "N.m/rad"),
+                     _parameter("stiffness_2", 8e4, "N.m/rad")]),
+        ModelEffect("frame_misalignment", None, "measurement",
+                    [_parameter(n, 0.01, "rad") for n in ("rx", "ry", "rz")]),
+        ModelEffect("target_offset", None, "stiffness",
+                    [_parameter(n, v, "m") for n, v in (("dx", 0.0), ("dy", 0.0),
+                                                        ("dz", 0.05))]),
+    )
+    path = ModelFile("ur5", "tool0", [0.0, 0.0, 0.0], arm, UR5_K[:5], ["N.m/rad"] * 5,
+                     "enhanced", effects=effects, produced_by="diagnose").write(
+        tmp_path / "final-model.json")
+    em = load_elastic_model(path)
+    joints = list(em.robot.coordinate_joints)
+    assert em.law.compliance[joints.index("wrist_3_joint")] == pytest.approx(1 / 3e4)
+    assert em.law.beta[joints.index("shoulder_lift_joint")] == pytest.approx(1e-3)
+    assert em.law.backlash[joints.index("elbow_joint")] == pytest.approx(2e-4)
+    assert em.law.smoothing[joints.index("elbow_joint")] == pytest.approx(2.0)
+    assert [(b.a, b.b, b.stiffness) for b in em.links] == [
+        ("shoulder_lift_joint", "elbow_joint", (1.5e5, 8e4))]
+    np.testing.assert_allclose(em.robot.target_offset, [0.0, 0.0, 0.05])
+    assert em.ignored == ("frame_misalignment",)
+    result = compensate(em, UR5_PATH, [50.0, 0.0, -300.0])
+    assert result.summary()["max_residual_m"] < 1e-9
+    assert result.summary()["max_deflection_m"] > 1e-4
+
+
+def test_loaded_equilibrium_agrees_with_the_joint_law_solver(ur5):
+    """Joint laws only: the equilibrium over all coordinates (elastic) and the toolkit's
+    joint-law solver (mechanics.equilibrium, compliant joints only) are the same point."""
+    from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
+
+    em = ElasticModel.joint_springs(ur5, UR5_K)
+    em.law.beta[:] = [1e-3, 2e-3, 0.0, 1e-3, 0.0, 0.0]
+    em.law.backlash[2] = 3e-4
+    em.law.smoothing[:] = 4.0
+    wrench = np.array([80.0, -40.0, -250.0, 2.0, 0.0, 1.0])
+    command = UR5_PATH[0]
+    mine = loaded_equilibrium(em, command, wrench)
+    law = SpringLaw(em.law.compliance.copy(), em.law.beta.copy(), em.law.backlash.copy(),
+                    em.law.smoothing.copy())
+    theirs = solve_equilibrium(ur5, ur5.configuration(command), law, wrench)
+    np.testing.assert_allclose(mine.coords - command, theirs.dtheta, atol=1e-12)

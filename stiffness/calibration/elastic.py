@@ -26,28 +26,24 @@ Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.effects import Law, link_axes
+from stiffness.calibration.effects import link_axes
 from stiffness.errors import (
     ConvergenceError,
-    FileFormatError,
-    MissingFileError,
     StiffnessError,
     UnstableEquilibriumError,
 )
+from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
 
-#: Effects of a model file that describe the measuring rig, not the robot (not compensated).
-RIG_EFFECTS = ("frame_misalignment", "force_sensor_bias", "deflection_offset", "target_offset")
 #: Convergence of the exact equilibrium (rad, m of the joint and bend variables), plus 1e-11
 #: of the largest deflection (closure noise of loops).
 EQUILIBRIUM_TOLERANCE = 1e-14
@@ -86,13 +82,13 @@ class ElasticModel:
         Formulation of the model's linear compliance (``enhanced`` with K_C, or
         ``conventional``), used by the first-order compensation only.
     ignored
-        Effects of the model file that do not act on the robot (rig effects), by label.
+        Effects of the model file that do not act on the robot (measurement effects), by label.
     source
         The model file, if any.
     """
 
     robot: Robot
-    law: Law
+    law: SpringLaw
     links: tuple[LinkBend, ...] = ()
     formulation: str = "enhanced"
     ignored: tuple[str, ...] = ()
@@ -112,20 +108,8 @@ class ElasticModel:
         n = robot.n_coordinates
         compliance = np.zeros(n)
         compliance[robot.compliant_in_coordinates] = 1.0 / k
-        return cls(robot, Law(compliance, np.zeros(n), np.zeros(n), np.ones(n)),
+        return cls(robot, SpringLaw(compliance, np.zeros(n), np.zeros(n), np.ones(n)),
                    formulation=formulation)
-
-    def with_target(self, frame: str | None = None,
-                    target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
-        """The same springs and bends with the target moved (e.g. to a tool): joint laws and
-        link bends act on joints, not on the target, so they carry over unchanged."""
-        from stiffness.model.robot import load_robot
-
-        robot = load_robot(self.robot.name, frame=frame or self.robot.target_frame,
-                           target_offset=self.robot.target_offset if target_offset is None
-                           else target_offset, compliant_joints=self.robot.compliant_joints)
-        return ElasticModel(robot, self.law, self.links, self.formulation, self.ignored,
-                            self.source)
 
     @property
     def full(self) -> Robot:
@@ -416,103 +400,76 @@ def linear_deflection(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
 # model files
 
 
-def load_elastic_model(path: str | Path) -> ElasticModel:
-    """The elastic model of a model file: ``identified-model.json`` (``stiffness identify``)
-    or ``final-model.json`` (``stiffness diagnose``), with every effect acting on the robot.
+def load_elastic_model(path: str | Path, frame: str | None = None,
+                       target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """The elastic model of a model file (``identified-model.json`` of ``stiffness identify``
+    or ``final-model.json`` of ``stiffness diagnose``, read by
+    :func:`stiffness.calibration.model_file.read_model_file`), see :func:`elastic_model_of`.
 
     Raises
     ------
     StiffnessError
-        Unreadable file, unknown format, or a malformed key.
+        The file's errors (:class:`stiffness.calibration.model_file.ModelFileError`...).
     """
-    from stiffness.calibration.identify import MODEL_FORMAT as IDENTIFIED
-    from stiffness.calibration.identify import load_identified_model
+    from stiffness.calibration.model_file import read_model_file
 
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise MissingFileError(f"cannot read model file {path}: {exc.strerror}; give the "
-                               "identified-model.json or final-model.json", path=path) from exc
-    except json.JSONDecodeError as exc:
-        raise FileFormatError(f"not JSON ({exc.msg}); give the identified-model.json or "
-                              "final-model.json", path=path, line=exc.lineno,
-                              column=exc.colno) from exc
-    fmt = doc.get("format") if isinstance(doc, dict) else None
-    if fmt == IDENTIFIED:
-        ident = load_identified_model(path)
-        em = ElasticModel.joint_springs(ident.robot(), ident.k_theta,
-                                        "conventional" if ident.formulation == "conventional"
-                                        else "enhanced")
-        em.source = str(path)
-        return em
-    from stiffness.calibration.diagnose import MODEL_FORMAT as DIAGNOSED
-
-    if fmt != DIAGNOSED:
-        raise StiffnessError(
-            f"{path} is not a model file (format {fmt!r}); give the identified-model.json "
-            "of `stiffness identify` or the final-model.json of `stiffness diagnose`")
-    return _diagnosed_model(doc, path)
+    em = elastic_model_of(read_model_file(path), frame, target_offset)
+    em.source = str(path)
+    return em
 
 
-def _diagnosed_model(doc: dict, path: Path) -> ElasticModel:
-    from stiffness.calibration.campaign import _resolve_source
-    from stiffness.calibration.effects import Geometry, References, make_effect
+def elastic_model_of(model, frame: str | None = None,
+                     target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """Every effect of a model file (:class:`stiffness.calibration.model_file.ModelFile`) that
+    acts on the robot, as an :class:`ElasticModel`.
+
+    Joint springs (the baseline's and ``joint_compliance``), ``nonlinear_joint_stiffness``,
+    ``backlash`` (with its smoothing torque), ``link_compliance`` and ``target_offset`` (the
+    target moves, unless ``frame``/``target_offset`` give another target) act on the robot;
+    ``complementary_stiffness`` is in the exact equilibrium anyway; the measurement effects
+    (how the campaign observed the deflection) are listed in :attr:`ElasticModel.ignored`.
+    """
+    from stiffness.calibration.effects import Geometry
     from stiffness.model.robot import load_robot
 
-    def get(*keys):
-        node = doc
-        for key in keys:
-            if not isinstance(node, dict) or key not in node:
-                raise StiffnessError(f"{path}: missing key {'.'.join(keys)}; rewrite the file "
-                                     "with `stiffness diagnose`")
-            node = node[key]
-        return node
-
-    compliant = [str(j) for j in get("compliant_joints")]
-    effects_doc = get("effects")
-    added = [e["where"] for e in effects_doc if e.get("effect") == "joint_compliance"]
-    source = _resolve_source(str(get("robot", "source")), path.parent)
-    robot = load_robot(source, frame=get("robot", "frame"),
-                       target_offset=np.asarray(get("robot", "target_offset_m"), dtype=float),
-                       compliant_joints=compliant + added)
-    geometry = Geometry.of(robot)
-    refs_doc = get("references")
-    joints = geometry.joints
-    try:
-        refs = References(
-            joints, float(refs_doc["k_ref"]),
-            np.array([float(refs_doc["tau_max"][j]) for j in joints]),
-            np.array([float(refs_doc["tau_smoothing"][j]) for j in joints]),
-            float(refs_doc["theta_ref"]), float(refs_doc["force_ref"]),
-            float(refs_doc["deflection_ref"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise StiffnessError(f"{path}: references are incomplete ({exc}); rewrite the file "
-                             "with `stiffness diagnose`") from exc
-    x = np.asarray(get("parameter_vector"), dtype=float)
-    effects = [make_effect(str(e.get("effect")), e.get("where"), geometry) for e in effects_doc]
-    sizes = [len(compliant)] + [e.n_params for e in effects]
-    if x.shape[0] != sum(sizes):
-        raise StiffnessError(f"{path}: parameter_vector has {x.shape[0]} values for "
-                             f"{sum(sizes)} parameters; rewrite the file with `stiffness diagnose`")
-    n = robot.n_coordinates
-    coord = list(robot.coordinate_joints)
-    compliance = np.zeros(n)
-    compliance[[coord.index(j) for j in compliant]] = np.exp(-x[: len(compliant)])
-    smoothing = np.array([refs.tau_smoothing[joints.index(j)] for j in coord])
-    law = Law(compliance, np.zeros(n), np.zeros(n), smoothing)
-    links, ignored = [], []
-    offset = len(compliant)
-    for e in effects:
-        p = e.physical(x[offset: offset + e.n_params], refs)
-        offset += e.n_params
-        if e.name in RIG_EFFECTS:
+    stiffness = dict(zip(model.compliant_joints, model.k_theta, strict=True))
+    moved = frame is not None or target_offset is not None
+    offset = (model.target_offset_m.copy() if target_offset is None
+              else np.asarray(target_offset, dtype=float).reshape(3))
+    beta, backlash, smoothing, bends, ignored = {}, {}, {}, [], []
+    for e in model.effects:
+        if e.kind == "measurement":
             ignored.append(e.label)
+        elif e.name == "joint_compliance":
+            stiffness[e.where] = e.value("stiffness")
+        elif e.name == "nonlinear_joint_stiffness":
+            beta[e.where] = e.value("beta")
+        elif e.name == "backlash":
+            backlash[e.where] = e.value("half_width")
+            smoothing[e.where] = float(e.settings.get("smoothing_torque", 1.0))
         elif e.name == "link_compliance":
-            links.append(LinkBend(e.a, e.b, e.column, (1.0 / p[0], 1.0 / p[1])))
-        elif e.joint is not None:
-            e.adjust_law(p, law, coord.index(e.joint), refs)
-    formulation = "enhanced" if get("baseline") == "enhanced" or any(
-        e.name == "complementary_stiffness" for e in effects) else "conventional"
-    return ElasticModel(robot, law, tuple(links), formulation, tuple(ignored), str(path))
-
+            a, b = (part.strip() for part in str(e.where).split("->", 1))
+            bends.append((a, b, e.value("stiffness_1"), e.value("stiffness_2")))
+        elif e.name == "target_offset":
+            if moved:
+                ignored.append(f"{e.label} (another target was given)")
+            else:
+                offset = offset + e.values()[:3]
+    robot = load_robot(model.source, frame=frame or model.frame, target_offset=offset,
+                       compliant_joints=tuple(stiffness))
+    coords = list(robot.coordinate_joints)
+    n = robot.n_coordinates
+    law = SpringLaw(np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n))
+    for joint, k in stiffness.items():
+        law.compliance[coords.index(joint)] = 1.0 / k
+    for joint, value in beta.items():
+        law.beta[coords.index(joint)] = value
+    for joint, value in backlash.items():
+        law.backlash[coords.index(joint)] = value
+        law.smoothing[coords.index(joint)] = smoothing[joint]
+    links = ()
+    if bends:
+        columns = Geometry.of(robot).link_columns
+        links = tuple(LinkBend(a, b, columns[(a, b)], (k1, k2)) for a, b, k1, k2 in bends)
+    formulation = "conventional" if model.formulation == "conventional" else "enhanced"
+    return ElasticModel(robot, law, links, formulation, tuple(ignored))

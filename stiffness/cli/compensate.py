@@ -31,7 +31,8 @@ from stiffness.calibration.compensation import (
     compensate,
     read_joint_path,
 )
-from stiffness.calibration.elastic import ElasticModel, load_elastic_model
+from stiffness.calibration.elastic import ElasticModel, elastic_model_of
+from stiffness.calibration.model_file import read_model_file
 from stiffness.cli.flags import (
     add_output_flags,
     add_robot_flags,
@@ -78,17 +79,15 @@ def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
         Neither given, a ``--robot`` that is not the model file's, a missing ``--kq``.
     """
     if args.model is not None:
-        em = load_elastic_model(args.model)
-        if args.robot is not None and args.robot != em.robot.name:
-            raise StiffnessError(
-                f"the model file {args.model} is of robot {em.robot.name!r}, not {args.robot!r}; "
-                "give the model file of this robot (or drop --robot)")
         for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
             if value is not None:
                 raise StiffnessError(f"{flag} conflicts with --model, which brings the springs; "
                                      f"drop {flag} (or --model)")
-        if args.frame is not None or args.target_offset is not None:
-            em = em.with_target(args.frame, target_offset_from_args(args))
+        model = read_model_file(args.model)
+        if args.robot is not None:
+            model.check_robot(args.robot)
+        em = elastic_model_of(model, args.frame, target_offset_from_args(args))
+        em.source = str(args.model)
         return em
     if args.robot is None:
         raise StiffnessError("give --model M.json (or --robot R with --kq)")
@@ -177,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{em.robot.name}: {s['points']} points, {s['model']}; holds the {s['hold']}, "
           f"{'/'.join(s['method'])}")
     if s["ignored_effects"]:
-        print(f"not compensated (rig effects): {', '.join(s['ignored_effects'])}")
+        print(f"not compensated (measurement effects): {', '.join(s['ignored_effects'])}")
     print(f"deflection without compensation: max {s['max_deflection_m']:.4g} m, "
           f"RMS {s['rms_deflection_m']:.4g} m")
     print(f"residual, exact compensation:    max {s['max_residual_m']:.3g} m")
