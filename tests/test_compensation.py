@@ -456,3 +456,23 @@ def test_loaded_equilibrium_agrees_with_the_joint_law_solver(ur5):
                     em.law.smoothing.copy())
     theirs = solve_equilibrium(ur5, ur5.configuration(command), law, wrench)
     np.testing.assert_allclose(mine.coords - command, theirs.dtheta, atol=1e-12)
+
+
+def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
+    """The first-order deflection the posture search minimises (link bends included) equals
+    the model file's compliance times the load (model_file.model_compliance)."""
+    from stiffness.calibration.elastic import linear_deflection, load_elastic_model
+    from stiffness.calibration.model_file import ModelEffect, ModelFile, model_compliance
+
+    bend = ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
+                       [_parameter("stiffness_1", 1.5e5, "N.m/rad"),
+                        _parameter("stiffness_2", 8e4, "N.m/rad")])
+    path = ModelFile("ur5", "tool0", [0.0, 0.1, 0.05], JOINTS, UR5_K, ["N.m/rad"] * 6,
+                     "enhanced", effects=(bend,), produced_by="diagnose").write(
+        tmp_path / "final-model.json")
+    em = load_elastic_model(path)
+    wrench = np.array([60.0, -30.0, -300.0, 0.0, 0.0, 0.0])
+    for coords in UR5_PATH:
+        theirs = model_compliance(path, coords, wrench).compliance6 @ wrench
+        np.testing.assert_allclose(linear_deflection(em, coords, wrench), theirs,
+                                   rtol=1e-9, atol=1e-14)
