@@ -85,7 +85,11 @@ def solve_equilibrium(
     load
         Force (3,) N or wrench (6,) N, N.m at the target, base axes.
     tolerance
-        Convergence on the relative torque residual.
+        Convergence on the torque residual ``r = K_theta dtheta - J^T W`` relative to the size
+        of the terms that form it: ``|r|_inf <= tolerance * torque_scale`` (see
+        :func:`torque_scale`: the joint stiffness times the deflection plus the lever arms
+        times the load). Relative to the terms, not to ``|J^T W|``, which vanishes when the
+        load runs along the arm while its round-off does not.
 
     Raises
     ------
@@ -99,13 +103,13 @@ def solve_equilibrium(
     base = target_state(robot, q0)
     dtheta = np.linalg.solve(k_theta, base.jacobian.T @ wrench)
     q = q0
-    scale = max(np.abs(base.jacobian.T @ wrench).max(), 1e-300)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (used after the loop)
         q = deflected_configuration(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
         residual = k_theta @ dtheta - state.jacobian.T @ wrench
-        if np.abs(residual).max() <= tolerance * scale:
+        if np.abs(residual).max() <= tolerance * torque_scale(k_theta, dtheta,
+                                                              state.jacobian, wrench):
             break
         tangent = k_theta - state.k_c
         try:
@@ -116,6 +120,14 @@ def solve_equilibrium(
                 "the load buckles the robot; reduce the load or stiffen the joints") from exc
         dtheta = dtheta + step
     else:
+        start = k_theta - target_state(robot, q0, wrench).k_c
+        lowest = np.linalg.eigvalsh(0.5 * (start + start.T))[0]
+        if lowest <= 0:
+            raise UnstableEquilibriumError(
+                f"the exact equilibrium did not converge in {max_iterations} iterations and "
+                f"K_theta - K_C under this load is already indefinite at the unloaded pose "
+                f"(eigenvalue {lowest:.3g}): loads this large exceed the buckling load; "
+                "reduce it or stiffen the joints")
         raise ConvergenceError(
             f"the exact equilibrium did not converge in {max_iterations} iterations "
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
@@ -131,6 +143,21 @@ def solve_equilibrium(
         )
     rot = pin.log3(state.rotation @ base.rotation.T)
     return Equilibrium(q, dtheta, state.position - base.position, rot, iterations)
+
+
+def torque_scale(k_theta: np.ndarray, dtheta: np.ndarray, jacobian: np.ndarray,
+                 wrench: np.ndarray) -> float:
+    """Size of the terms of the equilibrium residual ``K_theta dtheta - J^T W`` (N.m, N).
+
+    ``|K_theta|_max |dtheta|_1 + |J_v|_max |F|_1 + |J_w|_max |M|_1``: the round-off of the
+    residual is about machine epsilon times this. It does not shrink when the terms cancel,
+    as ``|J^T W|`` does (a load along the arm gives ``J^T W = 0``, and the Jacobian column
+    entries along the arm are round-off of lever arms of size ``|J_v|_max``). Zero only for a
+    zero load at rest.
+    """
+    return float(np.abs(k_theta).max() * np.abs(dtheta).sum()
+                 + np.abs(jacobian[:3]).max() * np.abs(wrench[:3]).sum()
+                 + np.abs(jacobian[3:]).max() * np.abs(wrench[3:]).sum())
 
 
 @dataclass
