@@ -34,6 +34,7 @@ from stiffness.mechanics.formulation import (
     joint_connection_stiffness,
     joint_stiffness,
     subspace_stiffness,
+    tangent_definiteness,
     tangent_joint_stiffness,
     target_state,
     twist_basis_stiffness,
@@ -238,8 +239,8 @@ def compute(args: argparse.Namespace) -> dict:
         "K_X_symmetric": None if ell is None else bool(ell.symmetric),
         "eigenvalues": None if ell is None else ell.values.tolist(),
         "eigenvectors": None if ell is None else ell.directions.tolist(),
-        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
-            k_theta - state.k_c), "K_X": None if k_x is None else definiteness(k_x)},
+        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": tangent_definiteness(
+            k_theta, k_theta - state.k_c), "K_X": None if k_x is None else definiteness(k_x)},
         **inputs_summary(inputs),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",

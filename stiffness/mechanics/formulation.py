@@ -325,6 +325,19 @@ def definiteness(matrix: np.ndarray, rtol: float = 1e-9, atol: float = 0.0) -> s
     return "ID"
 
 
+def tangent_definiteness(k_theta: np.ndarray, tangent: np.ndarray, rtol: float = 1e-9) -> str:
+    """Definiteness class of a tangent stiffness ``K_theta - K_C`` in the metric of K_theta.
+
+    The class of ``L^-1 T L^-T`` (``L L^T = K_theta``): the same as that of ``T`` (Sylvester's
+    law of inertia), but its eigenvalues are ``1 - s_i`` with ``s_i`` the load factors, so the
+    zero tolerance ``rtol`` is relative to each joint's own stiffness, not to the stiffest
+    (``definiteness(T)`` calls a 1e-2 N.m/rad joint next to a 1e10 N/m one zero: PSD).
+    """
+    low = np.linalg.cholesky(0.5 * (k_theta + k_theta.T))
+    x = np.linalg.solve(low, np.linalg.solve(low, tangent).T)
+    return definiteness(x, rtol=rtol)
+
+
 @dataclass
 class Ellipsoid:
     """Principal values (ascending) and directions (columns) of a symmetric stiffness."""
