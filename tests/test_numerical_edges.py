@@ -348,13 +348,16 @@ def test_twelve_orders_of_stiffness(capsys, rpr):
                                    atol=8 * EPS * np.abs(c_exact).max())
         cond = np.linalg.cond(c_exact)
         assert (cond < CONDITION_LIMIT) == defined
+        robot = load_robot(str(rpr), frame="tip")
+        regular = batch.evaluate(robot, robot.configuration(RPR_Q)[None], [[0.0, 0, 0]], kq)
+        assert regular.regular[0, 0] == defined  # the batched test is the same 2-norm one
         if defined:
             j_inv = _exact_inverse(jac)
             k_exact = j_inv.T @ np.diag(kq) @ j_inv
             # inverting C perturbed by eps |C| perturbs K_X by K (eps |C|) K: eps cond(C) |K|
             bound = 10 * EPS * cond
-            err = np.abs(np.array(out["K_X"]) - k_exact).max() / np.abs(k_exact).max()
-            assert err <= bound
+            for k_x in (np.array(out["K_X"]), regular.k_x[0, 0]):  # one at a time, batched
+                assert np.abs(k_x - k_exact).max() / np.abs(k_exact).max() <= bound
             assert bound < 1e-2  # the answer keeps at least two significant digits
             values = np.linalg.eigvalsh(k_exact)
             rel = np.abs(np.array(out["eigenvalues"]) - values) / values
