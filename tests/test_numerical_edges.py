@@ -366,6 +366,7 @@ def test_twelve_orders_of_stiffness(capsys, rpr):
             assert out["K_X"] is None
             found = float(re.search(r"condition number ([0-9.e+]+)", out["K_X_undefined"])[1])
             assert found == pytest.approx(cond, rel=1e-2) and found > CONDITION_LIMIT
+            assert "orders of magnitude" in out["K_X_undefined"]
 
 
 def test_equilibrium_with_twelve_orders_and_a_prismatic_joint(rpr):

@@ -239,8 +239,9 @@ def cartesian_stiffness(compliance_matrix: np.ndarray) -> np.ndarray:
     if not np.isfinite(cond) or cond > CONDITION_LIMIT:
         raise SingularConfigurationError(
             f"the compliance is singular (condition number {cond:.3g}): the target Jacobian "
-            "loses rank here (kinematic singularity, or fewer compliant joints than directions); "
-            "use the compliance, or move away from the singularity"
+            "loses rank here (kinematic singularity, or fewer compliant joints than directions), "
+            "or the joint stiffnesses span more orders of magnitude than double precision can "
+            "invert; use the compliance, or move away from the singularity"
         )
     return np.linalg.inv(compliance_matrix)
 
