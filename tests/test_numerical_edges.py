@@ -121,6 +121,16 @@ def test_kx_at_ur5_singularities(capsys, ur5, coords):
     assert joint["K_X_subspace"]["rank"] == 5
 
 
+def test_kx_text_at_a_singularity(capsys):
+    """The table output says K_X is undefined and why, and prints the compliance instead."""
+    assert main(["kx", "--robot", "ur5", "--q", ",".join(map(str, UR5_ELBOW)), "--kq", UR5_KQ,
+                 "--wrench", "0,0,-10,0,0,0", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"^K_X undefined: the compliance is singular \(condition number", text, re.M)
+    assert "compliance (m/N blocks)" in text and "5-dimensional moving subspace" in text
+    assert "nan" not in text.lower()
+
+
 def test_library_at_ur5_singularity(ur5):
     """target_state and compliance are finite, cartesian_stiffness raises one typed line,
     subspace_stiffness gives the rest; the exact equilibrium converges and approaches the linear
