@@ -393,10 +393,11 @@ def test_evaluate_equals_one_at_a_time(configurations, name, formulation):
                 assert _close(result.k_x[i, j], k_x, max(tol, 1e-14 * cond))
 
 
-@pytest.mark.parametrize("name", ["ur5", "ur5_arm", "panda"])
+@pytest.mark.parametrize("name", ROBOTS)
 def test_gravity_route_equals_hessian_route(configurations, name):
-    """One force on an open chain: the generalized-gravity route (two Pinocchio calls) gives
-    the same K_C, compliance and K_X as the kinematic-Hessian route."""
+    """One force: the generalized-gravity route (two Pinocchio calls; on a loop with the
+    closure derivatives of each distinct closure) gives the same K_C, compliance and K_X as
+    the kinematic-Hessian route (itself checked against target_state)."""
     robot, q = configurations[name]
     k_theta = np.linspace(5e4, 2e5, robot.n_compliant)
     force = np.array([[120.0, -80.0, -250.0]])
@@ -406,7 +407,9 @@ def test_gravity_route_equals_hessian_route(configurations, name):
     assert _close(fast.jacobian, slow.jacobian)
     assert _close(fast.compliance, slow.compliance)
     regular = fast.regular & slow.regular
-    assert _close(fast.k_x[regular], slow.k_x[regular], 1e-8)
+    np.testing.assert_array_equal(fast.regular, slow.regular)
+    if regular.any():  # the four-bar's two joints give no regular 3x3 K_X
+        assert _close(fast.k_x[regular], slow.k_x[regular], 1e-8)
     jac, k_c = batch.single_force_kinematics(robot, q, force[0])
     assert _close(k_c, slow.k_c[:, 0]) and _close(jac, slow.jacobian)
 
@@ -520,7 +523,9 @@ def test_definiteness_map_and_principal_stiffness(configurations):
             k_c = target_state(robot, qi, load).k_c
             assert batch.class_names(dmap.k_c_class[i, j]) == definiteness(k_c)
             assert batch.class_names(dmap.tangent_class[i, j]) == definiteness(k_theta - k_c)
-            assert dmap.determinant_positive[i, j] == (np.linalg.det(k_c) > 0)
+            det = np.linalg.det(k_c)
+            if abs(det) > 1e-9 * np.abs(k_c).max() ** 3:  # the sign is not round-off
+                assert dmap.determinant_positive[i, j] == (det > 0)
             top = np.linalg.eigvalsh(k_half @ (0.5 * (k_c + k_c.T)) @ k_half)[-1]
             expected = 1 / top if top > 0 else np.inf
             assert dmap.critical_factor[i, j] == pytest.approx(expected, rel=1e-9)
@@ -577,11 +582,9 @@ def test_input_errors(ur5, sk120):
         batch.evaluate(ur5, np.zeros((1, 6)), [[0, 0, 1.0]], UR5_K, rows=4)
     with pytest.raises(StiffnessError, match="method"):
         batch.evaluate(ur5, np.zeros((1, 6)), [[0, 0, 1.0]], UR5_K, method="magic")
-    with pytest.raises(StiffnessError, match="open chain"):
-        batch.evaluate(sk120, batch.close_loops(sk120, np.zeros((1, 6))).q, [[0, 0, 1.0]],
-                       [1e6, 1e6, 1e6], method="gravity")
-    with pytest.raises(StiffnessError, match="open chains"):
-        batch.single_force_kinematics(sk120, np.zeros((1, 8)), np.ones(3))
+    with pytest.raises(StiffnessError, match="single force"):
+        batch.evaluate(sk120, batch.close_loops(sk120, np.zeros((1, 6))).q,
+                       [[0, 0, 1.0], [1.0, 0, 0]], [1e6, 1e6, 1e6], method="gravity")
 
 
 # ------------------------------------------------------------------------------ benchmarks
