@@ -64,6 +64,7 @@ from stiffness.batch.linalg import (
     compliance_stack,
     critical_load_factor,
     definiteness_codes,
+    load_definiteness,
     principal_stiffness,
     symmetric_eigenvalues,
     symmetric_stack,
@@ -85,14 +86,16 @@ from stiffness.model.robot import Robot
 __all__ = [
     # kinematics and pipelines (this module)
     "BatchKinematics", "BatchStiffness", "DefinitenessMap", "batch_kinematics",
-    "complementary_stiffness", "definiteness_map", "evaluate", "single_force_kinematics",
+    "complementary_stiffness", "definiteness_map", "evaluate", "single_force_block",
+    "single_force_kinematics",
     # loop closures (stiffness.batch.loops)
     "LWA", "ClosedConfigurations", "close_loops", "loop_coordinate_indices",
     "tree_configurations",
     # linear algebra (stiffness.batch.linalg)
     "CLASS_CODES", "CONDITION_LIMIT", "INVALID_CLASS", "as_joint_stiffness",
     "cartesian_stiffness", "class_names", "compliance", "critical_load_factor",
-    "definiteness_codes", "principal_stiffness", "symmetric_eigenvalues", "tangent_stiffness",
+    "definiteness_codes", "load_definiteness", "principal_stiffness", "symmetric_eigenvalues",
+    "tangent_stiffness",
 ]
 
 # ------------------------------------------------------------------------------ kinematics
@@ -501,13 +504,14 @@ def single_force_kinematics(robot: Robot, q: np.ndarray, force: np.ndarray
         (m, 6, n) target Jacobian and (m, n, n) K_C (N.m/rad) w.r.t. the compliant joints;
         NaN where a loop is singular.
     """
-    jac, k_c, _ = _single_force_block(robot, q, force)
+    jac, k_c, _, _ = single_force_block(robot, q, force)
     return jac, k_c
 
 
-def _single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`single_force_kinematics` and the validity mask (m,)."""
+def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: bool = False
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`single_force_kinematics`, the validity mask (m,) and, with ``pose``, the target
+    positions (m, 3) in m (else None)."""
     model, data = _point_mass_model(robot)
     force = np.asarray(force, dtype=float).reshape(3)
     # gravity -F: the generalized gravity J^T F, whose derivative is K_C(F)
@@ -519,25 +523,32 @@ def _single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray
     j_full = np.empty((m, 6, nv))
     gravity_derivatives = pin.computeGeneralizedGravityDerivatives
     frame_jacobian = pin.getFrameJacobian
-    if robot.loop is None:
+    update_placement = pin.updateFramePlacement
+    position = np.empty((m, 3)) if pose else None
+    closure = None if robot.loop is None else _ClosurePass(robot, q)
+    if closure is None and not pose:
         for i in range(m):
             dg[i] = gravity_derivatives(model, data, q[i])  # also fills the joint Jacobians
             j_full[i] = frame_jacobian(model, data, fid, LWA)
+    else:
+        record = ((lambda i: None) if closure is None
+                  else closure.recorder(model, data, hessians=False))
+        for i in range(m):
+            dg[i] = gravity_derivatives(model, data, q[i])
+            j_full[i] = frame_jacobian(model, data, fid, LWA)
+            record(i)
+            if pose:
+                position[i] = update_placement(model, data, fid).translation
+    if closure is None:
         cv = robot.compliant_v
         if not _is_identity_selection(cv, nv):
             dg = dg[:, cv[:, None], cv[None, :]]
             j_full = j_full[:, :, cv]
-        return j_full, dg, np.ones(m, dtype=bool)
-    closure = _ClosurePass(robot, q)
-    record = closure.recorder(model, data, hessians=False)
-    for i in range(m):
-        dg[i] = gravity_derivatives(model, data, q[i])
-        j_full[i] = frame_jacobian(model, data, fid, LWA)
-        record(i)
+        return j_full, dg, np.ones(m, dtype=bool), position
     proj, curvature, valid = closure.derivatives()
     k_c = closed_loop.reduced_hessian(dg, (force @ j_full[:, :3])[:, robot.loop.passive_v],
                                       proj, curvature)
-    return j_full @ proj, k_c, valid
+    return j_full @ proj, k_c, valid, position
 
 
 # ------------------------------------------------------------------------------ stiffness
@@ -711,7 +722,7 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
             end, jac, kc, kin_valid = m, q.jacobian, complementary_stiffness(q, wrenches), q.valid
         elif use_gravity:
             end = min(m, start + block)
-            jac, kc, kin_valid = _single_force_block(robot, q[start:end], wrenches[0, :3])
+            jac, kc, kin_valid, _ = single_force_block(robot, q[start:end], wrenches[0, :3])
             kc = kc[:, None]
         else:
             end = min(m, start + block)
