@@ -624,3 +624,40 @@ if HAVE_BENCHMARK:
                 pin.computeStaticTorqueDerivatives(ur5.model, ur5.data, qi, fext)
 
         benchmark.pedantic(bare, rounds=5, iterations=1)
+
+
+def test_load_definiteness_equals_separate_definitions():
+    """One eigen-decomposition of the scaled K_C gives the classes of K_C and K_theta - K_C
+    (definiteness_codes), the critical factor (critical_load_factor) and the sign of det K_C,
+    also for rank-deficient K_C, eigenvalues near the class tolerance and zero loads."""
+    rng = np.random.default_rng(31)
+    n, m = 4, 400
+    k_theta = np.diag(rng.uniform(1e4, 8e4, n))
+    vectors = np.linalg.qr(rng.normal(size=(m, n, n)))[0]
+    values = rng.normal(size=(m, n)) * rng.uniform(1e2, 1e5, (m, 1))
+    values[:100, 0] = 0.0                                           # rank-deficient
+    values[100:200, 1] = 3e-9 * np.abs(values[100:200]).max(axis=1)  # near the tolerance
+    values[200:260] = 0.0                                           # no load
+    k_c = vectors @ (values[:, :, None] * np.swapaxes(vectors, 1, 2))
+    k_c[300:320] *= 50.0                                            # beyond the critical load
+    k_c[320] = np.nan
+    d = batch.load_definiteness(k_theta, k_c)
+    np.testing.assert_array_equal(d.k_c_class, batch.definiteness_codes(k_c))
+    np.testing.assert_array_equal(d.tangent_class, batch.definiteness_codes(k_theta - k_c))
+    np.testing.assert_array_equal(d.critical_factor, batch.critical_load_factor(k_theta, k_c))
+    assert (d.tangent_class[300:320] != batch.CLASS_CODES["PD"]).any()
+    finite = np.all(np.isfinite(k_c), axis=(1, 2))
+    det = np.linalg.det(np.where(finite[:, None, None], k_c, 0.0))
+    scale = np.abs(np.where(finite[:, None, None], k_c, 0.0)).max(axis=(1, 2))
+    sure = finite & (np.abs(det) > 1e-9 * scale ** n)
+    np.testing.assert_array_equal(d.determinant_positive[sure], det[sure] > 0)
+    assert not d.determinant_positive[320]
+
+
+@pytest.mark.parametrize("name", ["ur5", "ur5_arm", "panda"])
+def test_unit_force_diagonal_from_the_jacobian(configurations, name):
+    """The unit-force K_C diagonal read off the Jacobian equals the Hessian basis's."""
+    robot, q = configurations[name]
+    kin = batch.batch_kinematics(robot, q, moments=False)
+    expected = np.diagonal(kin.k_c_basis[:, :3], axis1=-2, axis2=-1)
+    assert _close(batch.unit_force_diagonal(robot, kin.jacobian), expected)

@@ -87,7 +87,7 @@ __all__ = [
     # kinematics and pipelines (this module)
     "BatchKinematics", "BatchStiffness", "DefinitenessMap", "batch_kinematics",
     "complementary_stiffness", "definiteness_map", "evaluate", "single_force_block",
-    "single_force_kinematics",
+    "one_coordinate_joints", "single_force_kinematics", "unit_force_diagonal",
     # loop closures (stiffness.batch.loops)
     "LWA", "ClosedConfigurations", "close_loops", "loop_coordinate_indices",
     "tree_configurations",
@@ -287,7 +287,7 @@ class _ClosurePass:
         slot[first] = np.arange(first.shape[0])  # distinct closure of a first visit, else -1
         self.slot = slot.tolist()
         k, nv, n_points = first.shape[0], robot.model.nv, len(self.points)
-        self.analytic = _analytic_points(robot)
+        self.analytic = one_coordinate_joints(robot)
         if self.analytic:
             self.world_j = np.empty((k, 6, nv))
             self.position = np.empty((n_points, k, 3))
@@ -361,6 +361,21 @@ class _ClosurePass:
         return proj[at], curvature[at], valid[at]
 
 
+def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray | None:
+    """Diagonal of K_C under the unit forces x, y, z (m, 3, n), N.m/rad per N, from the target
+    Jacobian alone, for open chains whose joints have one velocity coordinate each; None
+    otherwise (use :func:`batch_kinematics`).
+
+    ``K_C(e_k)[a, a] = d2 x_k / dq_a^2 = (omega_a x v_a)_k`` (the point Hessian of
+    :func:`point_derivatives` on its diagonal), with ``[v_a; omega_a]`` the columns of the
+    (m, 6, n) Jacobian, rows [v; omega].
+    """
+    if robot.loop is not None or not one_coordinate_joints(robot):
+        return None
+    v, om = jacobian[:, :3], jacobian[:, 3:]
+    return _cross0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
+
+
 def _loop_key_q_indices(robot: Robot) -> np.ndarray:
     """Positions in q of the loop coordinates (:func:`loop_coordinate_indices`)."""
     model = robot.model
@@ -371,9 +386,10 @@ def _loop_key_q_indices(robot: Robot) -> np.ndarray:
     return np.array(out, dtype=int)
 
 
-def _analytic_points(robot: Robot) -> bool:
-    """Whether :func:`point_derivatives` applies: every joint of the model has at most one
-    velocity coordinate of its own and none is a mimic or composite joint."""
+def one_coordinate_joints(robot: Robot) -> bool:
+    """Whether the Jacobian-based Hessians apply (:func:`point_derivatives`,
+    :func:`unit_force_diagonal`): every joint of the model has one velocity coordinate of its
+    own and none is a mimic or composite joint."""
     model = robot.model
     for joint in list(model.joints)[1:]:
         name = joint.shortname()

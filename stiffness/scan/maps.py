@@ -5,9 +5,10 @@
   the definiteness classes of K_C and of K_theta - K_C, the critical load factor and the sign
   of det K_C (one eigen-decomposition per matrix,
   :func:`stiffness.batch.linalg.load_definiteness`), the enhanced K_X (A&S eq. 10) and its
-  principal values, the conventional K_X (eq. 8), the target position. One force and no
-  unit-force diagonal asked: the generalized-gravity kinematics (two Pinocchio calls per
-  configuration); otherwise the kinematic-Hessian basis (any number of loads).
+  principal values, the conventional K_X (eq. 8), the target position. One force (and, if the
+  unit-force diagonal is asked, an open chain of one-coordinate joints, where it comes from
+  the Jacobian): the generalized-gravity kinematics (two Pinocchio calls per configuration);
+  otherwise the kinematic-Hessian basis (any number of loads).
 * :func:`stored_arrays`: the arrays written to the chunk files (the chosen fields, symmetric
   K_X as its upper triangle, floats in the spec's dtype);
 * :func:`derive`: the maps read back (index, coordinates, full K_X and every derived field);
@@ -65,11 +66,14 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
     q = np.where(closed.closed[:, None], closed.q, batch.tree_configurations(robot, coords))
     moments = spec.moments
     out: dict[str, np.ndarray] = {"index": ids, "coordinates": coords}
-    single_force = loads.shape[0] == 1 and not moments and not want["diagonal"]
+    single_force = loads.shape[0] == 1 and not moments and (
+        not want["diagonal"] or (robot.loop is None and batch.one_coordinate_joints(robot)))
     if single_force:
         jac, k_c, kin_valid, position = batch.single_force_block(
             robot, q, loads[0, :3], pose=want["position"])
         k_c = k_c[:, None]
+        if want["diagonal"]:
+            out["k_c_diagonal"] = batch.unit_force_diagonal(robot, jac)
     else:
         kin = batch.batch_kinematics(robot, q, moments=moments, pose=want["position"])
         jac, kin_valid, position = kin.jacobian, kin.valid, kin.position
@@ -139,7 +143,8 @@ def stored_arrays(spec: ScanSpec, maps: dict[str, np.ndarray]) -> dict[str, np.n
 def derive(spec: ScanSpec, index: int, stored: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The maps of chunk ``index`` read back from its stored arrays (float64).
 
-    Adds ``index``, ``coordinates`` (from the spec when not stored), the full K_X and the
+    Adds ``index``, ``coordinates`` (from the spec: exact, whatever the storage dtype), the
+    full K_X and the
     derived fields: ``k_x_eigenvalues``, ``k_x_class``, ``regular``,
     ``k_x_conventional_eigenvalues``.
     """
@@ -148,6 +153,8 @@ def derive(spec: ScanSpec, index: int, stored: dict[str, np.ndarray]) -> dict[st
     r = spec.rows
     upper = np.triu_indices(r)
     for name, value in stored.items():
+        if name == "coordinates":  # the spec's exact values (the stored copy may be float32)
+            continue
         if value.dtype.kind == "f":
             value = value.astype(float)
         if name.endswith("_upper"):
