@@ -30,12 +30,19 @@ import numpy as np
 from stiffness.errors import StiffnessError
 from stiffness.model.robot import Robot, load_robot
 
-_ROBOTS: dict[tuple[int, str], Robot] = {}
+_ROBOTS: dict[str, list[Robot]] = {}
+_IN_USE: dict[int, tuple[str, Robot]] = {}
 _ROBOTS_LOCK = threading.Lock()
 
 
 def worker_robot(robot_spec: dict) -> Robot:
-    """The robot of a scan, loaded once per process and thread (a Robot is not thread-safe).
+    """The robot of a scan for this thread, loaded once per process (a Robot holds one
+    Pinocchio Data, so two threads never share one).
+
+    A process keeps a pool of loaded robots per spec: a thread keeps the one it got until it
+    asks for another spec, and a new thread takes a free one, so a robot loaded ahead of the
+    chunks (:func:`warm_worker`, run by ``client.run`` in the worker's event-loop thread) is
+    the one its executor thread computes with.
 
     Parameters
     ----------
@@ -43,20 +50,39 @@ def worker_robot(robot_spec: dict) -> Robot:
         Keyword arguments of :func:`stiffness.model.robot.load_robot` (``source``, ``frame``,
         ``target_offset``, ``compliant_joints``), JSON-serialisable.
     """
-    key = (threading.get_ident(), json.dumps(robot_spec, sort_keys=True))
+    key = json.dumps(robot_spec, sort_keys=True)
+    thread = threading.get_ident()
     with _ROBOTS_LOCK:
-        robot = _ROBOTS.get(key)
+        held = _IN_USE.get(thread)
+        if held is not None and held[0] == key:
+            return held[1]
+        if held is not None:
+            _ROBOTS.setdefault(held[0], []).append(held[1])  # give the other spec's back
+            del _IN_USE[thread]
+        free = _ROBOTS.get(key)
+        robot = free.pop() if free else None
     if robot is None:
         robot = load_robot(**robot_spec)
-        with _ROBOTS_LOCK:
-            _ROBOTS[key] = robot
+    with _ROBOTS_LOCK:
+        alive = {t.ident for t in threading.enumerate()}
+        for other in [t for t in _IN_USE if t not in alive]:  # threads that ended
+            spec_key, done = _IN_USE.pop(other)
+            _ROBOTS.setdefault(spec_key, []).append(done)
+        _IN_USE[thread] = (key, robot)
     return robot
 
 
 def warm_worker(robot_spec: dict) -> None:
-    """Load a scan's robot on a worker ahead of its chunks (``client.run(warm_worker, spec)``);
-    returns nothing, so that no robot travels back to the client."""
-    worker_robot(robot_spec)
+    """Load a scan's robot on a worker ahead of its chunks (``client.run(warm_worker, spec)``)
+    into the process's pool, unless the process already holds one; returns nothing, so that
+    no robot travels back to the client."""
+    key = json.dumps(robot_spec, sort_keys=True)
+    with _ROBOTS_LOCK:
+        if _ROBOTS.get(key) or any(k == key for k, _ in _IN_USE.values()):
+            return
+    robot = load_robot(**robot_spec)
+    with _ROBOTS_LOCK:
+        _ROBOTS.setdefault(key, []).append(robot)
 
 
 def _dask_client(scheduler: str | None, workers: int | None):
@@ -210,7 +236,7 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
 
     if warm is not None:
         client.run(warm[0], warm[1])
-    n_workers = max(1, len(client.scheduler_info().get("workers", {})) or (workers or 1))
+    n_workers = max(1, len(client.nthreads()) or (workers or 1))
     overhead = task_overhead(client) if group is None else None
     size = {"group": group or 1}
     chunk_times: list[float] = []
@@ -240,7 +266,7 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
             on_result(index, result)
         done += len(results)
         chunk_times.append(seconds / max(1, len(results)))
-        if group is None and len(chunk_times) == n_workers:  # first wave measured
+        if group is None and len(chunk_times) == min(n_workers, len(indices)):  # first wave
             median = float(np.median(chunk_times))
             size["group"] = chunks_per_task(overhead, median, len(pending), n_workers)
         submit_next()
