@@ -422,6 +422,42 @@ def dask_scaling(samples: int, rounds: int) -> dict:
     }
 
 
+def scan_time_plot(path: Path, sizes: list[int], fields: str | None = None) -> list[dict]:
+    """Wall time of the UR5 scan against the number of configurations, in process and on two
+    LocalCluster workers (start-up excluded), one subprocess per run; the figure goes to
+    ``path`` (PNG) and the rows are returned."""
+    rows = []
+    extra = [] if fields is None else ["--fields", fields]
+    for m in sizes:
+        for workers in (0, 2):
+            result = subprocess.run(
+                [sys.executable, "-c", _DASK_SNIPPET, str(Path(__file__).parent),
+                 str(workers), *UR5_SCAN, "--samples", str(m), *extra], check=True,
+                capture_output=True, text=True)
+            row = json.loads(result.stdout.strip().splitlines()[-1])
+            rows.append({"configurations": m, "workers": max(1, workers) if workers else 0,
+                         "seconds": row["seconds"], "startup_s": row["startup_s"],
+                         "load": os.getloadavg()[0]})
+            print(json.dumps(rows[-1]), flush=True)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for workers, label in ((0, "in process"), (2, "two Dask workers (start-up excluded)")):
+        pts = [(r["configurations"], r["seconds"]) for r in rows if r["workers"] == workers]
+        ax.loglog(*zip(*pts, strict=True), "o-", label=label)
+    ax.set_xlabel("configurations")
+    ax.set_ylabel("wall time (s)")
+    ax.set_title("stiffness scan, UR5, one force" + ("" if fields is None else
+                                                     f", --fields {fields}"), fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    return rows
+
+
 def _wall(argv: list[str], rounds: int = 1, cwd: str | None = None) -> float:
     """Best wall time (s) of a command in a new process."""
     best = np.inf
@@ -485,7 +521,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON line")
     parser.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
+    parser.add_argument("--plot", metavar="PNG",
+                        help="only draw scan time against configurations (1e3 ... 1e7, in "
+                             "process and two workers) into PNG")
+    parser.add_argument("--plot-max", type=float, default=1e7,
+                        help="largest scan of --plot (default 1e7)")
     args = parser.parse_args(argv)
+    if args.plot:
+        sizes = [int(10 ** k) for k in range(3, 8) if 10 ** k <= args.plot_max]
+        scan_time_plot(Path(args.plot), sizes)
+        return 0
     load_before = os.getloadavg()
     costs = per_configuration(args.quick)
     t4 = table4_seconds(2 if args.quick else 3)

@@ -111,12 +111,14 @@ def _dask_client(scheduler: str | None, workers: int | None):
     return Client(cluster), cluster
 
 
-#: Environment of LocalCluster worker processes: single-threaded BLAS (a worker is one core;
-#: threaded BLAS on tiny matrices only adds contention), and glibc's default malloc trimming
-#: (Dask's nanny sets an aggressive MALLOC_TRIM_THRESHOLD_, which returns the chunk's work
-#: arrays to the system after each chunk and pays page faults to get them back).
+#: Environment of LocalCluster worker processes (set it for ``dask worker`` too): single-threaded
+#: BLAS (a worker is one core; threaded BLAS on tiny matrices only adds contention); a malloc
+#: trim threshold above a chunk's work arrays (Dask's nanny sets 64 kB, which returns them to
+#: the system after each chunk and pays page faults to get them back); and no statistical
+#: profiler (it samples the computing thread's stack every 10 ms, under the GIL).
 WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-                      "MKL_NUM_THREADS": "1", "MALLOC_TRIM_THRESHOLD_": str(128 * 2**20)}
+                      "MKL_NUM_THREADS": "1", "MALLOC_TRIM_THRESHOLD_": str(128 * 2**20),
+                      "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
 
 #: Target share of a task's time spent on Dask's per-task overhead when choosing the number
 #: of chunks per task.

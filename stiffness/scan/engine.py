@@ -106,7 +106,8 @@ def write_parquet(path: Path, spec: ScanSpec, maps: dict[str, np.ndarray]) -> in
 
     def column(values: np.ndarray, per_config: bool) -> np.ndarray:
         values = np.repeat(values, n_loads) if per_config else values.reshape(-1)
-        return values.astype(dtype) if values.dtype.kind == "f" else values
+        with np.errstate(over="ignore"):  # a critical factor beyond float32 is inf
+            return values.astype(dtype) if values.dtype.kind == "f" else values
 
     table = {
         "configuration": np.repeat(maps["index"], n_loads),

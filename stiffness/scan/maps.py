@@ -135,7 +135,8 @@ def stored_arrays(spec: ScanSpec, maps: dict[str, np.ndarray]) -> dict[str, np.n
         if _packed(spec, name):
             value, name = value[..., upper[0], upper[1]], f"{name}_upper"
         if value.dtype.kind == "f":
-            value = value.astype(dtype, copy=False)
+            with np.errstate(over="ignore"):  # a critical factor beyond float32 is inf
+                value = value.astype(dtype, copy=False)
         out[name] = np.ascontiguousarray(value)
     return out
 
