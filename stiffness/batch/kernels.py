@@ -2,9 +2,8 @@
 of configurations and loads at once.
 
 The one-at-a-time API (:func:`stiffness.mechanics.formulation.target_state`) spends ~100 us of
-Python per
-configuration. Here Pinocchio is called in a tight loop into preallocated arrays and everything
-else is NumPy over the whole batch:
+Python per configuration. Here Pinocchio is called in a tight loop into preallocated arrays and
+everything else is NumPy over the whole batch:
 
 * Kinematic-Hessian route (:func:`batch_kinematics`; any robot, any number of loads): three
   calls per configuration of an open chain (joint kinematic Hessians, the target's frame
@@ -16,22 +15,24 @@ else is NumPy over the whole batch:
   ``computeGeneralizedGravityDerivatives`` on a copy of the model holding only that mass (and
   gravity -F) returns K_C(F) exactly, with no follower-load correction; with the frame
   Jacobian, two calls per configuration. :func:`evaluate` picks it for a single force.
-* Closed loops (the SK120's five-bar): the basis is the reduced Hessian
-  ``S^T (H_k - sum_j Lambda_jk Hc_j) S`` of :mod:`stiffness.mechanics.formulation`, with the
-  multipliers
-  per unit wrench ``Lambda = pinv(C_p^T) J_p^T`` and the velocity map ``S``, batched.
-* Loop closures are the expensive part of a closed-chain configuration: :func:`close_loops`
-  closes each distinct value of the *loop coordinates* (the coordinates of the joints on the
-  path between the loop frames; the others, e.g. the SK120's theta1 and wrist, move the loop
-  rigidly or not at all) once, by continuation for one anchor per small cell of those
-  coordinates and by a batched Newton iteration from the anchor for the rest.
+* Closed loops: the basis is the reduced Hessian ``S^T H_k S + sum_p J[k, p] dS_p`` of
+  :mod:`stiffness.mechanics.closed_loop` (the same functions as the single-pose API), with the
+  velocity map S and the closure curvature dS_p computed once per distinct closure (they depend
+  only on the loop coordinates, :class:`_ClosurePass`), from the world joint Jacobian
+  ``data.J`` and the loop points' positions where every joint has one velocity coordinate
+  (:func:`point_derivatives`), so the per-configuration Pinocchio work is the open chain's.
+* Loop closures are the expensive part of a closed-chain configuration from coordinates:
+  :func:`close_loops` closes each distinct value of the *loop coordinates* (the coordinates of
+  the joints on the path between the loop frames; the others, e.g. a base rotation or a
+  wrist, move the loop rigidly or not at all) once, by continuation for one anchor per small
+  cell of those coordinates and by a batched Newton iteration from the anchor for the rest.
 * Compliance and K_X of symmetric tangents (pure forces) go through a Cholesky factorisation
   vectorised across the batch (one NumPy operation per matrix entry, not per matrix); the
   others, and those that are not positive definite, through LAPACK's LU.
 
-Results equal :func:`~stiffness.mechanics.formulation.target_state` and friends to round-off (tests:
-relative 1e-10 on open chains, 1e-9 through a loop's pseudo-inverse). Where the one-at-a-time
-API raises on a singular configuration, the batched one returns NaN and a mask.
+Results equal :func:`~stiffness.mechanics.formulation.target_state` and friends to round-off
+(tests: relative 1e-10 on open chains, 1e-9 through a loop's pseudo-inverse). Where the
+one-at-a-time API raises on a singular configuration, the batched one returns NaN and a mask.
 
 Shapes: ``m`` configurations, ``L`` load cases, ``n`` compliant joints, ``r`` Cartesian rows
 (3: translational, 6: [v; omega]). Units: SI (m, N, rad; K_C in N.m/rad; K_X in N/m for the
