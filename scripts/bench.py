@@ -257,8 +257,10 @@ import json, resource, sys, tempfile, time
 from pathlib import Path
 import argparse
 from stiffness.cli import scan
-from stiffness.scan.distributed import WORKER_ENVIRONMENT, warm_worker
+import dask
+from stiffness.scan.distributed import SCHEDULER_CONFIG, WORKER_ENVIRONMENT, warm_worker
 from stiffness.scan.engine import run_scan
+dask.config.set(SCHEDULER_CONFIG)
 p = argparse.ArgumentParser(); scan.configure_parser(p)
 args = p.parse_args(sys.argv[1:-1])
 spec, _ = scan.build_spec(args)
@@ -367,8 +369,10 @@ import json, sys, tempfile, time
 from pathlib import Path
 sys.path.insert(0, sys.argv[1])
 import bench
-from stiffness.scan.distributed import WORKER_ENVIRONMENT, warm_worker
+import dask
+from stiffness.scan.distributed import SCHEDULER_CONFIG, WORKER_ENVIRONMENT, warm_worker
 from stiffness.scan.engine import run_scan
+dask.config.set(SCHEDULER_CONFIG)
 workers = int(sys.argv[2])
 spec = bench._scan_spec(sys.argv[3:])
 client = cluster = None
