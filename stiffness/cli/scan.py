@@ -22,11 +22,21 @@ LocalCluster each chunk is written by the process that computes it; on a remote 
 chunk's arrays come back and are written here, unless ``--shared-out`` says the workers see
 ``--out`` too.
 
+What is stored is chosen with ``--fields`` (default: everything but the coordinates, which the
+manifest determines), in ``--dtype`` float64 or float32, with ``--compression``; nothing that
+another stored array determines is stored (symmetric K_X as its upper triangle, no
+eigenvalues): :func:`stiffness.scan.engine.load_scan` rebuilds them. The run prints its bytes
+per configuration. With Dask, a task computes ``--chunks-per-task`` consecutive chunks
+(default: chosen from the measured per-task overhead). Presets (``--preset``) come from the
+papers layer (:data:`stiffness.papers.presets.SCAN_PRESETS`).
+
 Files in ``--out`` (default: a new folder ``<robot>-<preset>`` in the current directory):
 
-* ``manifest.json``: the scan's specification (robot, coordinates, loads, K_theta, units);
-* ``chunks/chunk-NNNNN.npz`` (``--format npz``) and/or ``maps.parquet/part-NNNNN.parquet``
-  (``--format parquet``, one row per configuration and load case);
+* ``manifest.json``: the scan's specification (robot, coordinates, loads, K_theta, fields,
+  dtype, units);
+* ``chunks/chunk-NNNNN.npz`` (``--format npz``: the stored fields) and/or
+  ``maps.parquet/part-NNNNN.parquet`` (``--format parquet``, one row per configuration and
+  load case);
 * ``chunks/aggregate-NNNNN.npz``: the chunk's contribution to the summary (marks it done);
 * ``summary.json`` (class counts per load case, extremes) and the figures
   ``definiteness_counts.png``, ``definiteness_map.png``, ``stiffness_map.png``.
@@ -80,9 +90,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
                              "or URDF path")
     parser.add_argument("--preset", choices=PRESETS,
-                        help="table4: A&S Table IV on the SK120 (theta1 -180..180, theta2 "
-                             "-70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical; the "
-                             "eight +-100 N load cases; the paper's K_theta)")
+                        help="a scan the papers provide; table4: A&S Table IV on the SK120 "
+                             "(theta1 -180..180, theta2 -70..70, theta3 -115..35 deg, step 0.2 "
+                             "rad, wrist vertical; the eight +-100 N load cases; the robot's "
+                             "K_theta)")
     parser.add_argument("--axis", action="append", default=[], metavar="JOINT=LO:HI[:STEP]",
                         help="swept coordinate (joint name or q1, q2...): a grid LO..HI by "
                              "STEP, or a sampling range without STEP (rad or m; --deg); "
