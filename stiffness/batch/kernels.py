@@ -79,9 +79,10 @@ from stiffness.batch.loops import (
     loop_coordinate_indices,
     tree_configurations,
 )
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics import closed_loop
 from stiffness.mechanics.formulation import FORMULATIONS
+from stiffness.model.kinematics import reorder_hessian
 from stiffness.model.robot import Robot
 
 __all__ = [
@@ -138,17 +139,6 @@ class BatchKinematics:
     def size(self) -> int:
         """Number of configurations m."""
         return self.q.shape[0]
-
-
-def _unscramble(raw: np.ndarray) -> np.ndarray:
-    """Batched kinematic-Hessian reorder: ``H[i, k, a, b] = dJ_i[k, a] / dq_b``.
-
-    ``raw`` (m, 6, nv, nv) holds, per configuration, the array returned by
-    ``getFrameKinematicHessian`` (the column-major tensor read in row-major order, see
-    :mod:`stiffness.model.kinematics`). Returns a view.
-    """
-    m, _, nv, _ = raw.shape
-    return raw.reshape(m, nv, nv, 6).transpose(0, 3, 2, 1)
 
 
 def batch_kinematics(robot: Robot, q: np.ndarray, moments: bool = True,
@@ -234,17 +224,16 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
     if closure is None:
-        # raw read as (m, b, a, k) is the unit-wrench basis [m, k, a, b], transposed
-        basis_t = raw.reshape(m, nv, nv, 6)
+        # the Hessian rows are the unit-wrench basis [m, k, a, b] (a view of raw)
+        basis = reorder_hessian(raw)[:, :w]
         if not _is_identity_selection(cv, nv):
-            basis_t = basis_t[:, cv[:, None], cv[None, :]]
+            basis = basis[:, :, cv[:, None], cv[None, :]]
             j_full = j_full[:, :, cv]
-        basis = basis_t[..., :w].transpose(0, 3, 2, 1)
         jac = j_full
     else:
         proj, curvature, valid = closure.derivatives()
         pv = robot.loop.passive_v
-        basis = closed_loop.reduced_hessian(_unscramble(raw)[:, :w], j_full[:, :w, pv],
+        basis = closed_loop.reduced_hessian(reorder_hessian(raw)[:, :w], j_full[:, :w, pv],
                                             proj[:, None], curvature[:, None])
         jac = j_full @ proj
     return BatchKinematics(
@@ -351,8 +340,8 @@ class _ClosurePass:
         else:
             c = np.concatenate([self.jac[p + 1, :, :3] - self.jac[p, :, :3] for p in pairs],
                                axis=1)
-            hc = np.concatenate([_unscramble(self.raw[p + 1])[:, :3]
-                                 - _unscramble(self.raw[p])[:, :3] for p in pairs], axis=1)
+            hc = np.concatenate([reorder_hessian(self.raw[p + 1])[:, :3]
+                                 - reorder_hessian(self.raw[p])[:, :3] for p in pairs], axis=1)
             proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv)
             hss = np.swapaxes(proj, 1, 2)[:, None] @ hc @ proj[:, None]
         curvature = closed_loop.closure_curvature(pinv, hss)
@@ -703,7 +692,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
         :func:`~stiffness.mechanics.formulation.cartesian_stiffness` to round-off.
     """
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
+                               f"{formulation!r}", name=formulation, choices=FORMULATIONS)
     loads_arr = np.atleast_2d(np.asarray(loads, dtype=float))
     wrenches = _as_loads(loads_arr, 6)
     moments = bool(np.any(wrenches[:, 3:] != 0.0))
@@ -715,7 +705,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
     symmetric = bool(not moments and np.array_equal(k_th, k_th.T))
     gravity_ok = not moments and wrenches.shape[0] == 1
     if method not in ("auto", "hessian", "gravity"):
-        raise StiffnessError(f"method must be auto, hessian or gravity, got {method!r}")
+        raise UnknownNameError(f"method must be auto, hessian or gravity, got {method!r}",
+                               name=method, choices=("auto", "hessian", "gravity"))
     if method == "gravity" and not gravity_ok:
         raise StiffnessError("method 'gravity' needs a single force load (no moments)")
     use_gravity = gravity_ok and method != "hessian" and not isinstance(q, BatchKinematics)

@@ -37,7 +37,15 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.errors import (
+    FileFormatError,
+    LoopClosureError,
+    MissingFileError,
+    UnknownFrameError,
+    UnknownJointError,
+    did_you_mean,
+)
+from stiffness.files import read_yaml
 from stiffness.model import kinematics
 
 #: Closure tolerance on the loop residual (m; rad for the rotation rows of a 6D pair).
@@ -77,49 +85,46 @@ def read_loop_declaration(path: str | Path) -> LoopDeclaration:
 
     Raises
     ------
-    StiffnessError
-        If the file is missing, is not YAML, or lacks ``closed_loop``/``type``/``name_mot``.
+    MissingFileError
+        If the file is missing.
+    FileFormatError
+        If it is not YAML, or lacks ``closed_loop``/``type``/``name_mot``.
     """
-    import yaml
-
     path = Path(path)
     if not path.is_file():
-        raise StiffnessError(f"loop declaration {path} does not exist; give the YAML sidecar path")
-    try:
-        content = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise StiffnessError(f"loop declaration {path} is not valid YAML: {exc}") from exc
+        raise MissingFileError(f"loop declaration {path} does not exist; give the YAML sidecar "
+                               "path", path=path)
+    content = read_yaml(path, "loop declaration")
     if not isinstance(content, dict):
-        raise StiffnessError(f"loop declaration {path} must be a YAML mapping")
+        raise FileFormatError("a loop declaration must be a YAML mapping (closed_loop, type, "
+                              "name_mot)", path=path)
     missing = [k for k in ("closed_loop", "type", "name_mot") if k not in content]
     if missing:
-        raise StiffnessError(
-            f"loop declaration {path} lacks {', '.join(missing)}; it needs closed_loop (frame "
-            "pairs), type (one of '3D' or '6D' per pair) and name_mot (actuated joints)"
-        )
+        raise FileFormatError(
+            f"the loop declaration lacks {', '.join(missing)}; it needs closed_loop (frame "
+            "pairs), type (one of '3D' or '6D' per pair) and name_mot (actuated joints)",
+            path=path)
     for key in ("closed_loop", "type", "name_mot", "passive_joints"):
         value = content.get(key, [])
         if not isinstance(value, list) or (key != "passive_joints" and not value):
-            raise StiffnessError(
-                f"loop declaration {path}: {key} must be a non-empty YAML list (e.g. "
-                f"{key}: [a, b]), got {value!r}"
-            )
+            raise FileFormatError(
+                f"{key} must be a non-empty YAML list (e.g. {key}: [a, b]), got {value!r}",
+                path=path, field=key)
     loops, kinds = content["closed_loop"], content["type"]
     if len(loops) != len(kinds):
-        raise StiffnessError(
-            f"loop declaration {path}: {len(loops)} closed_loop pairs but {len(kinds)} types"
-        )
+        raise FileFormatError(
+            f"{len(loops)} closed_loop pairs but {len(kinds)} types; give one type per pair",
+            path=path, field="type")
     pairs = []
     for pair, kind in zip(loops, kinds, strict=True):
         if not isinstance(pair, list) or len(pair) != 2:
-            raise StiffnessError(
-                f"loop declaration {path}: {pair!r} is not a pair of frame names [frame_a, frame_b]"
-            )
+            raise FileFormatError(
+                f"{pair!r} is not a pair of frame names [frame_a, frame_b]", path=path,
+                field="closed_loop")
         if kind not in LOOP_TYPES:
-            raise StiffnessError(
-                f"loop declaration {path}: loop type {kind!r} is not supported; use '3D' "
-                "(point constraint) or '6D' (frame constraint)"
-            )
+            raise FileFormatError(
+                f"loop type {kind!r} is not supported; use '3D' (point constraint) or '6D' "
+                "(frame constraint)", path=path, field="type")
         pairs.append(LoopPair(str(pair[0]), str(pair[1]), kind))
     passive = content.get("passive_joints")
     return LoopDeclaration(
@@ -248,8 +253,8 @@ class LoopClosure:
                 blocks.append(hb - ha)
                 continue
             for (ja, ma), (jb, mb) in points:
-                blocks.append(_point_hessian(model, data, jb, mb)
-                              - _point_hessian(model, data, ja, ma))
+                blocks.append(kinematics.point_hessian(model, data, jb, mb)
+                              - kinematics.point_hessian(model, data, ja, ma))
         return np.concatenate(blocks, axis=0)
 
     def passive_rank(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9) -> int:
@@ -282,7 +287,7 @@ class LoopClosure:
 
         Raises
         ------
-        StiffnessError
+        LoopClosureError
             If the loop does not close (the independent joints put it out of reach).
         """
         q = q.copy()
@@ -300,7 +305,7 @@ class LoopClosure:
         c = self.residual(model, data)
         if np.linalg.norm(c) < 1e3 * CLOSURE_TOLERANCE_M:
             return q
-        raise StiffnessError(
+        raise LoopClosureError(
             f"the kinematic loop does not close (residual {np.linalg.norm(c):.3g} m after "
             f"{max_iterations} iterations): the configuration is out of the loop's reach; "
             "check the joint values and their units"
@@ -312,7 +317,7 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
 
     Raises
     ------
-    StiffnessError
+    UnknownFrameError, UnknownJointError
         If a frame or joint named in the declaration is not in the model.
     """
     frame_names = [f.name for f in model.frames]
@@ -323,9 +328,9 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
         ids = []
         for name in (pair.frame_a, pair.frame_b):
             if not model.existFrame(name):
-                raise StiffnessError(
-                    f"loop frame {name!r} is not in the model; {did_you_mean(name, frame_names)}"
-                )
+                raise UnknownFrameError(
+                    f"loop frame {name!r} is not in the model; {did_you_mean(name, frame_names)}",
+                    name=name, choices=frame_names)
             ids.append(model.getFrameId(name))
         fa, fb = (model.frames[i] for i in ids)
         anchor = (pin.FrameAnchorConstraintModel if pair.kind == "6D"
@@ -339,9 +344,9 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
         path_joints |= {model.names[j] for j in support_a ^ support_b}
     for name in declaration.actuated:
         if name not in joint_names:
-            raise StiffnessError(
-                f"actuated joint {name!r} is not in the model; {did_you_mean(name, joint_names)}"
-            )
+            raise UnknownJointError(
+                f"actuated joint {name!r} is not in the model; {did_you_mean(name, joint_names)}",
+                name=name, choices=joint_names)
     if declaration.passive is None:
         passive = tuple(
             j for j in joint_names if j in path_joints and j not in declaration.actuated
@@ -350,20 +355,10 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
         passive = declaration.passive
         for name in passive:
             if name not in joint_names:
-                raise StiffnessError(
+                raise UnknownJointError(
                     f"passive joint {name!r} is not in the model; "
-                    f"{did_you_mean(name, joint_names)}"
-                )
+                    f"{did_you_mean(name, joint_names)}", name=name, choices=joint_names)
     joints = [model.joints[model.getJointId(j)] for j in passive]
     passive_v = np.concatenate([np.arange(j.idx_v, j.idx_v + j.nv) for j in joints]).astype(int)
     return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)
 
-
-def _point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
-                   ) -> np.ndarray:
-    """Hessian (3, nv, nv) of the world position of a point fixed to a joint (m/rad^2).
-
-    Same layout fix as :func:`stiffness.model.kinematics.frame_hessian`; Hessians must be current.
-    """
-    raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, kinematics.LWA)
-    return raw.reshape(-1).reshape(raw.shape, order="F")[:3]

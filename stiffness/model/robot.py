@@ -12,18 +12,25 @@ order: an angle (rad) for a revolute or continuous joint, a length (m) for a pri
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
-    import tomli as tomllib
-
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.errors import (
+    FileFormatError,
+    LoopClosureError,
+    MissingFileError,
+    StiffnessError,
+    UnknownFrameError,
+    UnknownJointError,
+    UnknownRobotError,
+    did_you_mean,
+)
+from stiffness.files import read_toml
 from stiffness.model.loops import LoopClosure, build_loop_closure, read_loop_declaration
 
 #: Name of the operational frame added at the measurement target.
@@ -42,9 +49,29 @@ _SUPPORTED_JOINTS = {
 
 
 def robots_directory() -> Path:
-    """Folder of the shipped robots (``robots/`` of the checkout, or ``$STIFFNESS_ROBOTS``)."""
+    """Folder of the shipped robots: the repository's ``robots/``, installed as package data.
+
+    In order: ``$STIFFNESS_ROBOTS`` if set; the ``robots/`` folder of the source checkout this
+    package runs from (``PYTHONPATH`` or an editable install: the checkout's own data, even if
+    another copy of the package is installed); else the installed package data
+    ``stiffness.robots`` (``robots/`` mapped into the wheel), read with :mod:`importlib.resources`.
+    """
     env = os.environ.get("STIFFNESS_ROBOTS")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "robots"
+    if env:
+        return Path(env)
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file() and (checkout / "robots" / "__init__.py").is_file():
+        return checkout / "robots"
+    try:
+        data = resources.files("stiffness.robots")
+    except ModuleNotFoundError:
+        data = None
+    if not isinstance(data, Path) or not data.is_dir():
+        raise StiffnessError(
+            "the shipped robots are missing: this copy of stiffness has no robots/ package data "
+            "(reinstall it with `pip install .`, or set STIFFNESS_ROBOTS to a robots/ folder)"
+        )
+    return data
 
 
 def shipped_robots() -> list[str]:
@@ -229,7 +256,7 @@ class Robot:
             if jump > _BRANCH_JUMP:
                 h /= 2.0
                 if h < 1e-9:
-                    raise StiffnessError(
+                    raise LoopClosureError(
                         f"the loops of {self.name} cannot be closed continuously from "
                         f"coordinates {np.round(start, 6).tolist()} to "
                         f"{np.round(coords, 6).tolist()}: the "
@@ -263,32 +290,34 @@ def _read_urdf(path: Path) -> tuple[pin.Model, object | None]:
     from lxml import etree
 
     if not path.is_file():
-        raise StiffnessError(f"URDF file {path} does not exist; give an existing .urdf path")
+        raise MissingFileError(f"URDF file {path} does not exist; give an existing .urdf path",
+                               path=path)
     try:  # yourdfpy repairs broken XML silently: parse strictly first
         etree.parse(str(path), etree.XMLParser(recover=False))
     except etree.XMLSyntaxError as exc:
-        raise StiffnessError(
-            f"{path} is not a valid URDF: not well-formed XML ({exc}); fix it at that line and "
-            "column"
-        ) from exc
+        line, column = exc.position if exc.position else (None, None)
+        problem = re.sub(r",? line \d+, column \d+$", "", str(exc.msg))
+        raise FileFormatError(f"not a valid URDF: not well-formed XML ({problem}); fix it there",
+                              path=path, line=line, column=column) from exc
     try:
         urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
     except Exception as exc:  # yourdfpy raises lxml, KeyError or ValueError on bad files
-        raise StiffnessError(f"{path} is not a valid URDF: {exc}") from exc
+        raise FileFormatError(f"not a valid URDF: {exc}", path=path) from exc
     if not urdf.validate():
-        raise StiffnessError(f"{path} is not a valid URDF: {'; '.join(urdf.errors)}")
+        raise FileFormatError(f"not a valid URDF: {'; '.join(urdf.errors)}", path=path)
     links = set(urdf.link_map)
     for joint in urdf.robot.joints:
         for role, link in (("parent", joint.parent), ("child", joint.child)):
             if link not in links:
-                raise StiffnessError(
-                    f"{path} is not a valid URDF: joint {joint.name!r} names the {role} link "
-                    f"{link!r}, which it does not define; {did_you_mean(str(link), sorted(links))}"
-                )
+                raise FileFormatError(
+                    f"not a valid URDF: joint {joint.name!r} names the {role} link "
+                    f"{link!r}, which it does not define; {did_you_mean(str(link), sorted(links))}",
+                    path=path)
     try:
         model = pin.buildModelFromUrdf(str(path))
     except (RuntimeError, ValueError) as exc:
-        raise StiffnessError(f"Pinocchio cannot build a model from {path}: {exc}") from exc
+        raise FileFormatError(f"Pinocchio cannot build a model from it: {exc}", path=path
+                              ) from exc
     visual = None
     try:
         visual = pin.buildGeomFromUrdf(model, str(path), pin.GeometryType.VISUAL, package_dirs=[
@@ -304,7 +333,7 @@ def _resolve_source(source: str | os.PathLike) -> tuple[str, pin.Model, object |
     shipped = shipped_robots()
     if text in shipped:
         folder = robots_directory() / text
-        settings = tomllib.loads((folder / "robot.toml").read_text())
+        settings = read_toml(folder / "robot.toml", "robot file")
         model, visual = _read_urdf(folder / settings["urdf"])
         settings["_folder"] = folder
         return text, model, visual, settings
@@ -322,11 +351,11 @@ def _resolve_source(source: str | os.PathLike) -> tuple[str, pin.Model, object |
 
         wrapper = example_robot_data.load(text)
         return text, wrapper.model, wrapper.visual_model, {}
-    raise StiffnessError(
+    raise UnknownRobotError(
         f"unknown robot {text!r}: not a shipped robot ({', '.join(shipped)}), not an existing "
         f"URDF file, and not an example-robot-data name; "
-        f"{did_you_mean(text, shipped + erd_names, limit=80)}"
-    )
+        f"{did_you_mean(text, shipped + erd_names, limit=80)}", name=text,
+        choices=shipped + erd_names)
 
 
 def load_robot(
@@ -392,9 +421,9 @@ def load_robot(
     if frame is None:
         frame = settings.get("frame", frame_names[-1])
     if not model.existFrame(frame):
-        raise StiffnessError(
-            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}"
-        )
+        raise UnknownFrameError(
+            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}",
+            name=frame, choices=frame_names)
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
     offset = np.asarray(target_offset, dtype=float).reshape(-1)
@@ -407,10 +436,10 @@ def load_robot(
     for joint_name in compliant_joints:
         if joint_name not in coordinate_joints:
             why = " (it is a passive loop joint)" if joint_name in passive else ""
-            raise StiffnessError(
+            raise UnknownJointError(
                 f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
-                f"{did_you_mean(joint_name, coordinate_joints)}"
-            )
+                f"{did_you_mean(joint_name, coordinate_joints)}", name=joint_name,
+                choices=coordinate_joints)
     if len(set(compliant_joints)) != len(compliant_joints):
         raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
 

@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, atomic_write_with
+from stiffness.errors import MissingFileError, StiffnessError
+from stiffness.files import atomic_write, atomic_write_with, output_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.scan.distributed import run_chunks, warm_worker, worker_robot
 from stiffness.scan.maps import MapAccumulator, compute_maps, derive, stored_arrays
@@ -193,8 +193,8 @@ def load_scan(out: str | os.PathLike) -> dict[str, np.ndarray]:
     out = Path(out)
     files = sorted((out / "chunks").glob("chunk-*.npz"))
     if not files:
-        raise StiffnessError(f"{out} holds no NPZ chunk (chunks/chunk-*.npz); was it written "
-                             "with --format parquet?")
+        raise MissingFileError(f"{out} holds no NPZ chunk (chunks/chunk-*.npz); was it written "
+                               "with --format parquet?", path=out)
     spec = _manifest_spec(out)
     parts = [derive(spec, int(f.stem.split("-")[1]), dict(np.load(f))) for f in files]
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
@@ -204,7 +204,7 @@ def _manifest_spec(out: Path) -> ScanSpec:
     """The spec of the scan in ``out`` (its manifest.json)."""
     manifest = out / "manifest.json"
     if not manifest.is_file():
-        raise StiffnessError(f"{out} is not a scan folder (no manifest.json)")
+        raise MissingFileError(f"{out} is not a scan folder (no manifest.json)", path=out)
     data = json.loads(manifest.read_text())
     if data.get("layout") != LAYOUT_VERSION:
         raise StiffnessError(
@@ -271,7 +271,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
                 "folder, or the same options to resume it"
             )
     else:
-        out.mkdir(parents=True, exist_ok=True)
+        output_folder(out)
         atomic_write(manifest_file, json.dumps(manifest, indent=1))
     acc = MapAccumulator(spec)
     done = set()
