@@ -426,23 +426,25 @@ def dask_scaling(samples: int, rounds: int) -> dict:
     }
 
 
-def scan_time_plot(path: Path, sizes: list[int], fields: str | None = None) -> list[dict]:
-    """Wall time of the UR5 scan against the number of configurations, in process and on two
-    LocalCluster workers (start-up excluded), one subprocess per run; the figure goes to
-    ``path`` (PNG) and the rows are returned."""
+def scan_time_rows(sizes: list[int], workers: tuple[int, ...] = (0, 2)) -> list[dict]:
+    """Wall time of the UR5 scan for each size, in process (0) and on LocalCluster workers
+    (start-up excluded), one subprocess per run; each row is also printed as a JSON line."""
     rows = []
-    extra = [] if fields is None else ["--fields", fields]
     for m in sizes:
-        for workers in (0, 2):
+        for count in workers:
             result = subprocess.run(
                 [sys.executable, "-c", _DASK_SNIPPET, str(Path(__file__).parent),
-                 str(workers), *UR5_SCAN, "--samples", str(m), *extra], check=True,
+                 str(count), *UR5_SCAN, "--samples", str(m)], check=True,
                 capture_output=True, text=True)
             row = json.loads(result.stdout.strip().splitlines()[-1])
-            rows.append({"configurations": m, "workers": max(1, workers) if workers else 0,
-                         "seconds": row["seconds"], "startup_s": row["startup_s"],
-                         "load": os.getloadavg()[0]})
+            rows.append({"configurations": m, "workers": count, "seconds": row["seconds"],
+                         "startup_s": row["startup_s"], "load": os.getloadavg()[0]})
             print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def draw_scan_time(rows: list[dict], path: Path) -> None:
+    """Log-log figure of :func:`scan_time_rows` (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -450,16 +452,18 @@ def scan_time_plot(path: Path, sizes: list[int], fields: str | None = None) -> l
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for workers, label in ((0, "in process"), (2, "two Dask workers (start-up excluded)")):
-        pts = [(r["configurations"], r["seconds"]) for r in rows if r["workers"] == workers]
-        ax.loglog(*zip(*pts, strict=True), "o-", label=label)
+        pts = sorted((r["configurations"], r["seconds"]) for r in rows
+                     if r["workers"] == workers)
+        if pts:
+            ax.loglog(*zip(*pts, strict=True), "o-", label=label)
+    loads = [r["load"] for r in rows]
     ax.set_xlabel("configurations")
     ax.set_ylabel("wall time (s)")
-    ax.set_title("stiffness scan, UR5, one force" + ("" if fields is None else
-                                                     f", --fields {fields}"), fontsize=10)
+    ax.set_title("stiffness scan, UR5, one force, default fields\n(2 shared cores, load "
+                 f"average {min(loads):.0f}-{max(loads):.0f})", fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.savefig(path, dpi=100, bbox_inches="tight")
-    return rows
 
 
 def _wall(argv: list[str], rounds: int = 1, cwd: str | None = None) -> float:
@@ -533,7 +537,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.plot:
         sizes = [int(10 ** k) for k in range(3, 8) if 10 ** k <= args.plot_max]
-        scan_time_plot(Path(args.plot), sizes)
+        draw_scan_time(scan_time_rows(sizes), Path(args.plot))
         return 0
     load_before = os.getloadavg()
     costs = per_configuration(args.quick)
