@@ -41,7 +41,7 @@ from stiffness.files import atomic_write, atomic_write_with, output_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.scan.distributed import run_chunks, warm_worker, worker_robot
 from stiffness.scan.maps import MapAccumulator, compute_maps, derive, stored_arrays
-from stiffness.scan.spec import LAYOUT_VERSION, ScanSpec
+from stiffness.scan.spec import LAYOUT_VERSION, UNDEFINED, ScanSpec
 
 # ---------------------------------------------------------------------------------- chunk
 
@@ -90,7 +90,7 @@ def write_parquet(path: Path, spec: ScanSpec, maps: dict[str, np.ndarray]) -> in
     ``q_<joint>`` always; ``x_m``, ``y_m``, ``z_m`` (position); ``valid``; ``k_c_class``,
     ``tangent_class`` (class names), ``critical_factor``, ``k_c_det_positive``;
     ``k_c_diag_<f><j>`` (k_c_diagonal: unit force f = x, y, z, joint j); ``k_x_class``,
-    ``regular``, ``k_x_eig<k>_N_per_m`` and ``k_x_<a><b>`` (k_x);
+    ``regular``, ``k_x_eig<k>_N_per_m`` and ``k_x_<a><b>`` (k_x); ``regular_conventional``,
     ``k_x_conventional_eig<k>_N_per_m`` and ``k_x_conventional_<a><b>`` (k_x_conventional).
     """
     try:
@@ -138,6 +138,7 @@ def write_parquet(path: Path, spec: ScanSpec, maps: dict[str, np.ndarray]) -> in
             for b in range(rows):
                 table[f"k_x_{a}{b}"] = column(maps["k_x"][:, :, a, b], False)
     if "k_x_conventional" in fields:
+        table["regular_conventional"] = column(maps["regular_conventional"], True)
         for k in range(rows):
             table[f"k_x_conventional_eig{k}_N_per_m"] = column(
                 maps["k_x_conventional_eigenvalues"][:, k], True)
@@ -261,7 +262,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     out = Path(out)
     manifest = {"layout": LAYOUT_VERSION, "spec": spec.to_dict(), "formats": list(formats),
                 "n_configurations": spec.n_configurations, "n_chunks": spec.n_chunks,
-                "units": _UNITS, "classes": list(DEFINITENESS_CLASSES)}
+                "units": _UNITS, "classes": list(DEFINITENESS_CLASSES), "undefined": UNDEFINED}
     manifest_file = out / "manifest.json"
     if manifest_file.is_file():
         previous = json.loads(manifest_file.read_text())

@@ -26,7 +26,7 @@ import numpy as np
 
 from stiffness.batch import kernels as batch
 from stiffness.model.robot import Robot
-from stiffness.scan.spec import COUNT_LABELS, ScanSpec
+from stiffness.scan.spec import COUNT_LABELS, UNDEFINED, ScanSpec
 
 #: Fields computed together by one eigen-decomposition of the scaled K_C.
 DEFINITENESS_FIELDS = ("k_c_class", "tangent_class", "critical_factor", "k_c_det_positive")
@@ -99,8 +99,9 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
         out.update(k_x=k_x, k_x_eigenvalues=eig, regular=ok & valid[:, None],
                    k_x_class=batch.definiteness_codes(eigenvalues=eig, rtol=spec.rtol))
     if want["conventional"]:
-        _, k_conv, _ = batch.symmetric_stack(k_theta, None, jac[:, :rows])
+        _, k_conv, ok_conv = batch.symmetric_stack(k_theta, None, jac[:, :rows])
         out["k_x_conventional"] = k_conv[:, 0]
+        out["regular_conventional"] = ok_conv[:, 0] & valid
         out["k_x_conventional_eigenvalues"] = batch.symmetric_eigenvalues(k_conv[:, 0])
     invalid = ~valid
     if invalid.any():
@@ -172,8 +173,11 @@ def derive(spec: ScanSpec, index: int, stored: dict[str, np.ndarray]) -> dict[st
         out["k_x_class"] = batch.definiteness_codes(eigenvalues=eig, rtol=spec.rtol)
         out["regular"] = np.all(np.isfinite(out["k_x"]), axis=(-2, -1)) & valid[:, None]
     if "k_x_conventional" in out:
+        valid = out["valid"] if "valid" in out else np.ones(ids.shape[0], dtype=bool)
         out["k_x_conventional_eigenvalues"] = batch.symmetric_eigenvalues(
             out["k_x_conventional"])
+        out["regular_conventional"] = np.all(np.isfinite(out["k_x_conventional"]),
+                                             axis=(-2, -1)) & valid
     return out
 
 
@@ -316,6 +320,8 @@ class MapAccumulator:
                 })
             if want["k_x"]:
                 case.update({
+                    "k_x_undefined": int(p["k_x_counts"][j][-1])
+                    - int(p["n"][0] - p["n_valid"][0]),
                     "k_x": _counts(p["k_x_counts"][j]),
                     "min_principal_stiffness_N_per_m": _finite_or_none(float(p["k_x_min"][j])),
                     "max_principal_stiffness_N_per_m": _finite_or_none(float(p["k_x_max"][j])),
@@ -328,6 +334,7 @@ class MapAccumulator:
             "valid_configurations": int(p["n_valid"][0]),
             "load_cases": cases,
         }
+        out["undefined"] = UNDEFINED
         if want["conventional"]:
             out["conventional_min_principal_stiffness_N_per_m"] = _finite_or_none(
                 float(p["k_x_conventional_min"][0]))

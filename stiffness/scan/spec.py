@@ -49,9 +49,32 @@ DERIVED_FIELDS = {
     "k_x_class": "k_x",
     "regular": "k_x",
     "k_x_conventional_eigenvalues": "k_x_conventional",
+    "regular_conventional": "k_x_conventional",
 }
 #: Fields stored by default: all of them but the coordinates (rebuilt from the spec).
 DEFAULT_FIELDS = tuple(k for k in STORED_FIELDS if k != "coordinates")
+#: Where the map arrays (NPZ and Parquet, as read back by ``load_scan``) hold NaN or inf, and
+#: why: nowhere else. Written in ``manifest.json`` and ``summary.json`` (whose ``k_x_undefined``
+#: counts, per load case, the valid configurations where K_X is undefined; ``None`` in JSON
+#: stands for a non-finite value).
+UNDEFINED = {
+    "k_x, k_x_eigenvalues (Parquet: k_x_AB, k_x_eigK_N_per_m)":
+        "NaN where regular is False: K_X = C^-1 does not exist there (a kinematic singularity "
+        "or fewer compliant joints than directions: the compliance C is singular, condition "
+        "number above 1e12; or K_theta - K_C singular: the buckling limit), or the "
+        "configuration is invalid; the k_x_class is then -1 (Parquet: empty)",
+    "k_x_conventional, k_x_conventional_eigenvalues (Parquet: k_x_conventional_eigK_N_per_m)":
+        "NaN where regular_conventional is False: J K_theta^-1 J^T is singular (kinematic "
+        "singularity), or the configuration is invalid",
+    "position, critical_factor, k_c_diagonal (Parquet: x_m, y_m, z_m, critical_factor, "
+    "k_c_diag_FJ)":
+        "NaN where valid is False: the loop is singular there (passive joints not determined) "
+        "or could not be closed",
+    "critical_factor (inf)":
+        "+inf where K_C has no positive eigenvalue: no positive multiple of the load case "
+        "makes K_theta - K_C indefinite (a zero load, or K_C negative semidefinite); also in "
+        "float32 storage where it exceeds 3.4e38",
+}
 #: Floating-point storage types.
 DTYPES = ("float64", "float32")
 #: Compression of the map files: Parquet codecs; for NPZ any of them means deflate.
