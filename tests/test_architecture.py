@@ -19,8 +19,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 import stiffness
 
 PACKAGE = Path(stiffness.__file__).resolve().parent
