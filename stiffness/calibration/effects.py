@@ -1226,7 +1226,9 @@ class Model:
 
         Effects with a :meth:`Effect.preload` (gravity) make the deflection the loaded minus
         the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
-        dtheta_1) - f(tau_p + K_p dtheta_0)``.
+        dtheta_1) - f(tau_p + K_p dtheta_0)``, seen through the kinematics of the preloaded
+        pose to first order in ``dtheta_0``: ``dx += sum_k e_k dtheta^T H_k dtheta_0`` and
+        ``dphi += sum_k e_k dtheta^T K_C(e_k moment) dtheta_0``.
 
         With ``detail``, also returns the joint deflections (m, n) and torques (m, n).
 
@@ -1271,12 +1273,9 @@ class Model:
             dtheta = loaded - unloaded
         dx = np.einsum("mkn,mn->mk", jv, dtheta)
         if self.second_order:
-            if unloaded is None:
-                dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)
-            else:
-                dx = dx + 0.5 * (np.einsum("mkab,ma,mb->mk", self.h[:, :3], loaded, loaded)
-                                 - np.einsum("mkab,ma,mb->mk", self.h[:, :3], unloaded,
-                                             unloaded))
+            dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)
+        if unloaded is not None:  # the load acts on the arm already deflected by the preload
+            dx = dx + np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, unloaded)
         for e, p in zip(self.effects, params, strict=True):
             extra = e.displacement(p, self, rows, force, moment, point)
             if extra is not None:
@@ -1285,6 +1284,8 @@ class Model:
             dx = e.adjust_output(p, dx)
         if self.rotation_weight is not None:
             dphi = np.einsum("mkn,mn->mk", jw, dtheta)
+            if unloaded is not None:  # J_w at the preloaded pose: K_C of unit moments
+                dphi = dphi + np.einsum("mkab,ma,mb->mk", self.h[:, 3:], dtheta, unloaded)
             for e, p in zip(self.effects, params, strict=True):
                 extra = e.rotation(p, self, rows, force, moment, point)
                 if extra is not None:
