@@ -98,7 +98,9 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
 def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
     """ln k from the conventional model, linear in the compliances (non-negative LS)."""
     tau = model.rows.torques()[:, model.index[: len(model.compliant)]]
-    design = (model.jv[:, :, : len(model.compliant)] * tau[:, None, :]).reshape(
+    jac = model.jv if model.rotation_weight is None else np.concatenate(
+        [model.jv, model.rotation_weight * model.jw], axis=1)
+    design = (jac[:, :, : len(model.compliant)] * tau[:, None, :]).reshape(
         -1, len(model.compliant))
     c, _ = nnls(design, measured.reshape(-1))
     k = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.nan)
@@ -504,6 +506,8 @@ class Diagnosis:
             if e.name == "backlash":
                 settings["smoothing_torque"] = float(refs.tau_smoothing[
                     refs.joints.index(e.where)])
+            elif e.name == "gravity_compensator":
+                settings = dict(e.settings)
             effects.append(ModelEffect(e.name, e.where, e.kind,
                                        self.final_parameters_si.get(e.label, []), settings,
                                        e.describe()))
@@ -964,8 +968,8 @@ def residual_plot(d: Diagnosis) -> bytes:
     import matplotlib.pyplot as plt
 
     lu = d.campaign.units.length_to_si
-    before = (d.baseline.predicted - d.campaign.deflection) / lu
-    after = (d.final.predicted - d.campaign.deflection) / lu
+    before = (d.baseline.predicted[:, :3] - d.campaign.deflection) / lu
+    after = (d.final.predicted[:, :3] - d.campaign.deflection) / lu
     sigma = d.noise_std_m / lu
     rows = np.arange(1, d.campaign.n_rows + 1)
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
