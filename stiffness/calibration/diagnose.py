@@ -938,6 +938,14 @@ def format_report(d: Diagnosis) -> str:
     ratio = d.final.rms() / d.noise_std_m
     lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
                  f"stopped: {d.stop_reason}")
+    if d.rotation_noise_std_rad is not None:
+        kinds, ru = d.rms_by_kind(), d.campaign.units.rotation
+        lines.append(f"RMS by kind: translations {kinds['baseline']['translation']:.4g} -> "
+                     f"{kinds['final']['translation']:.4g} {unit}, rotations "
+                     f"{kinds['baseline']['rotation']:.4g} -> {kinds['final']['rotation']:.4g} "
+                     f"{ru} (rotation noise std "
+                     f"{d.rotation_noise_std_rad / d.campaign.units.rotation_to_si:.4g} {ru}, "
+                     f"{d.rotation_noise_source})")
     if d.ambiguities:
         lines += ["", "cannot tell apart:"]
         for a in d.ambiguities:

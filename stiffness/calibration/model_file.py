@@ -114,6 +114,12 @@ _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
 
 
+#: Effects that change K_X beyond the joint springs' stiffness matrix (applied by
+#: :meth:`CompliantModel.at`; the batched scan and the 6x6 connection stiffness cannot).
+BEYOND_SPRINGS = ("link_compliance", "nonlinear_joint_stiffness", "gravity_compensator",
+                  "gravity_preload")
+
+
 class ModelFileError(FileFormatError):
     """A model file of an unknown schema, or with a missing or malformed key (the message
     starts with the file)."""
