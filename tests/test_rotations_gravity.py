@@ -211,6 +211,25 @@ def test_hidden_gravity_is_named_first_and_recovered(effect, truth):
     assert covered >= total - 1
 
 
+def test_payload_in_the_model_file_enters_k_x(tmp_path):
+    sim = _sim(["gravity_preload=20,0,0,50"], seed=3, configs=6, loads=4)
+    diagnose(sim.campaign, propose=False).write(tmp_path)
+    model = read_model_file(tmp_path / "final-model.json")
+    [grav] = [e for e in model.effects if e.name == "gravity_preload"]
+    assert grav.kind == "preload"
+    cm = CompliantModel(model)
+    assert grav in cm.applied
+    q = sim.campaign.q[0]
+    at = cm.at(q, np.zeros(3))
+    assert np.abs(at.preload_torque).max() > 10.0          # the arm's weight, N.m
+    step = 5.0
+    fd = np.column_stack([(cm.deflection(q, step * e) - cm.deflection(q, -step * e)) / (2 * step)
+                          for e in np.eye(3)])
+    np.testing.assert_allclose(at.compliance(), fd, rtol=1e-2, atol=1e-12)
+    # conventional: no K_C, so no K_g either; the weight still moves the pose
+    assert np.abs(cm.at(q, np.zeros(3), "conventional").k_preload).max() == 0.0
+
+
 def test_compensator_in_the_model_file_enters_k_x(tmp_path):
     sim = _sim(["gravity_compensator:shoulder_lift_joint=3e4,2000"], seed=3, configs=6,
                loads=4)

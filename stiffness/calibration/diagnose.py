@@ -528,6 +528,10 @@ class Diagnosis:
                 "model": f.model.describe(), "rms": self._len(f.rms()),
                 "noise_std": self._len(self.noise_std_m),
                 "noise_std_source": self.noise_std_source, "unit": self.unit,
+                "rotation_noise": None if self.rotation_noise_std_rad is None else {
+                    "std_rad": self.rotation_noise_std_rad,
+                    "source": self.rotation_noise_source,
+                    "weight_m_per_rad": f.model.rotation_weight},
                 "baseline": f.model.baseline, "compliant_joints": list(f.model.compliant),
                 "parameter_vector": f.x.tolist(),
                 "references": {"k_ref": refs.k_ref, "theta_ref": refs.theta_ref,

@@ -33,6 +33,13 @@ intervals of ``k`` follow by the delta method on ``ln k``: ``SE(k) = k SE(ln k)`
 ``CI = k exp(+-t SE(ln k))`` (``t`` Student's with ``N - p`` degrees of freedom when sigma is
 estimated, normal when declared), so the intervals are asymmetric and stay positive.
 
+A campaign with measured rotations (``rx, ry, rz``) is fitted on translations and rotations
+together: the rotation residuals are weighted by ``w = sigma_t / sigma_r``
+(:func:`stiffness.calibration.fitting.observations`), with ``sigma_r`` the declared
+``rotation_noise_std`` or, failing it, estimated from the residuals of a preliminary fit
+(:func:`stiffness.calibration.fitting.kind_noise`); ``sigma`` above is then ``sigma_t`` and
+the result reports the RMS of each kind.
+
 A stiffness the data cannot determine is one whose 95 % interval is wider than the value itself
 (relative width > 1, infinite when the data do not excite it); a direction in ``ln k`` space is
 undetermined when the same criterion fails along a right-singular vector of the whitened
@@ -348,7 +355,11 @@ class Identification:
             campaign=self.campaign, produced_by="identify",
             undetermined_joints=self.undetermined_joints,
             extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,
-                                     "eq12_mm2": self.residual_ss_mm2}},
+                                     "eq12_mm2": self.residual_ss_mm2},
+                   **({} if self.rotation_residuals is None else {"rotation_noise": {
+                       "std_rad": self.rotation_sigma_rad,
+                       "source": self.rotation_sigma_source,
+                       "weight_m_per_rad": self.rotation_weight_m_per_rad}})},
         )
 
     def model_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
