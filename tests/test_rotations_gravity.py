@@ -6,6 +6,7 @@ Statistical claims run over seeds against binomial bounds; campaigns are tiny (4
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 
 import numpy as np
@@ -39,6 +40,13 @@ def _sim(effects=(), seed=0, configs=4, loads=2, **kw):
             "rotations": True, **kw}
     return simulate("ur5", effects=[parse_effect(e) for e in effects], configs=configs,
                     loads_per_config=loads, seed=seed, **args)
+
+
+@functools.lru_cache(maxsize=8)
+def _diagnosed(effect: str, seed: int):
+    """A diagnosed campaign of 6 poses x 4 loads with ``effect`` hidden (shared by tests)."""
+    sim = _sim([effect], seed=seed, configs=6, loads=4)
+    return sim, diagnose(sim.campaign, propose=False)
 
 
 # ------------------------------------------------------------------------------------------
@@ -199,8 +207,7 @@ def test_hidden_gravity_is_named_first_and_recovered(effect, truth):
     hidden = parse_effect(effect)
     covered = total = 0
     for seed in (1, 3):
-        result = diagnose(_sim([effect], seed=seed, configs=6, loads=4).campaign,
-                          propose=False)
+        result = _diagnosed(effect, seed)[1]
         assert result.steps and result.steps[0].effect.name == hidden.name
         assert result.steps[0].effect.where == hidden.where
         params = result.final_parameters_si[result.steps[0].effect.label]
@@ -212,8 +219,8 @@ def test_hidden_gravity_is_named_first_and_recovered(effect, truth):
 
 
 def test_payload_in_the_model_file_enters_k_x(tmp_path):
-    sim = _sim(["gravity_preload=20,0,0,50"], seed=3, configs=6, loads=4)
-    diagnose(sim.campaign, propose=False).write(tmp_path)
+    sim, result = _diagnosed("gravity_preload=20,0,0,50", 3)
+    result.write(tmp_path)
     model = read_model_file(tmp_path / "final-model.json")
     [grav] = [e for e in model.effects if e.name == "gravity_preload"]
     assert grav.kind == "preload"
@@ -231,9 +238,7 @@ def test_payload_in_the_model_file_enters_k_x(tmp_path):
 
 
 def test_compensator_in_the_model_file_enters_k_x(tmp_path):
-    sim = _sim(["gravity_compensator:shoulder_lift_joint=3e4,2000"], seed=3, configs=6,
-               loads=4)
-    result = diagnose(sim.campaign, propose=False)
+    sim, result = _diagnosed("gravity_compensator:shoulder_lift_joint=3e4,2000", 3)
     result.write(tmp_path)
     model = read_model_file(tmp_path / "final-model.json")
     comp = [e for e in model.effects if e.name == "gravity_compensator"]
