@@ -39,6 +39,19 @@ campaign's compliant joints, extended by any number of *effects* from :data:`LIB
 ``deflection_offset``
     The measured deflections carry a constant offset ``d`` (m) (the unloaded reference moved,
     an instrument zero drift).
+``gravity_preload``
+    The links' weight (URDF inertias) and a payload (mass kg, centre of mass m in target frame
+    axes) preload the joints (:meth:`Effect.preload`): the deflection is the loaded minus the
+    unloaded equilibrium at the commanded pose (open chains only).
+``gravity_compensator`` (where: a revolute compliant joint)
+    A spring between the base and a lever on the link
+    (:func:`stiffness.mechanics.gravity.spring_balancer`; parameters its stiffness N/m and its
+    tension N at the joint's zero): its torque preloads the joint, its angle derivative adds
+    to the joint's stiffness.
+
+With a :attr:`Model.rotation_weight` a model also predicts the rotation of the target frame,
+``J_w dtheta`` plus each effect's rotational part (:meth:`Effect.rotation`,
+:meth:`Effect.adjust_rotation`).
 
 Speed: Pinocchio is called once per distinct configuration (:func:`build_rows`), with every
 coordinate joint compliant: the target Jacobian (6, n) and ``K_C`` of the six unit wrenches
