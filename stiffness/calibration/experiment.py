@@ -186,7 +186,8 @@ def baseline_model(geometry: Geometry, rows: Rows, compliant: tuple[str, ...], k
 def sensitivities(model: Model, x: np.ndarray, n_columns: int | None = None) -> np.ndarray:
     """(m, 3, c) derivatives of the predicted deflections (m) w.r.t. the first ``c`` entries of
     the parameter vector ``x`` (central differences, step :data:`_FD_STEP`): by default the
-    ``ln k`` of the model's compliant joints.
+    ``ln k`` of the model's compliant joints. A model that also predicts rotations gives
+    (m, 6, c), its rotation rows weighted as in :mod:`stiffness.calibration.fitting`.
 
     Raises
     ------
@@ -194,7 +195,7 @@ def sensitivities(model: Model, x: np.ndarray, n_columns: int | None = None) -> 
         If the tangent stiffness is singular for some row (the load buckles the robot).
     """
     c = len(model.compliant) if n_columns is None else n_columns
-    out = np.empty((model.rows.n_rows, 3, c))
+    out = np.empty((model.rows.n_rows, model.n_outputs, c))
     try:
         with np.errstate(all="ignore"):
             for i in range(c):
@@ -516,7 +517,7 @@ def separation_statistics(alt: Alternatives, candidates: Candidates) -> Separati
         scale = float(np.mean(np.trace(stats[i], axis1=1, axis2=2))) / stats[i].shape[-1]
         base[i] = base[i] + RIDGE * max(scale, 1e-300) * np.eye(stats[i].shape[-1])
     return SeparationStatistics([v.reshape((k, d) + v.shape[1:]) for v in stats], base,
-                                raw.reshape(k, d), pa.reshape(k, d, 3), pb.reshape(k, d, 3))
+                                raw.reshape(k, d), pa.reshape(k, d, -1), pb.reshape(k, d, -1))
 
 
 def separation_score(acc: list[np.ndarray]) -> np.ndarray:

@@ -28,6 +28,18 @@ How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects
 * ``force_sensor_bias=b`` or ``=bx,by,bz``: the recorded force is the applied one plus b
   (force unit; one value along (1, 1, 1)/sqrt(3)).
 * ``deflection_offset=d`` or ``=dx,dy,dz``: the measured deflections carry that offset.
+* ``gravity_preload=m`` or ``=m,cx,cy,cz``: the robot's weight (URDF inertias) and a payload of
+  m kg with its centre of mass at c (length unit, target frame axes, from the target) preload
+  the joints; the deflection is the loaded minus the unloaded exact equilibrium under that
+  weight (open chains only).
+* ``gravity_compensator:J=k,F0``: a spring compensator of stiffness k (N/m) and tension F0 (N)
+  at the joint's zero on the revolute compliant joint J, geometry
+  :data:`stiffness.calibration.effects.COMPENSATOR_GEOMETRY`
+  (:func:`stiffness.mechanics.gravity.spring_balancer`), in the exact equilibrium.
+
+With ``rotations``, the campaign also records the rotation vector of the target frame between
+the unloaded and the loaded equilibrium (base axes; rotated by a hidden frame misalignment,
+turned further by a hidden link compliance) with its own noise.
 
 The size of each hidden effect is reported as the RMS change it makes to the noise-free
 deflections (:attr:`Simulation.effect_rms_m`), in noise units in ``truth.json``.
@@ -45,6 +57,7 @@ import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
 from stiffness.calibration.effects import (
+    COMPENSATOR_GEOMETRY,
     LIBRARY,
     Geometry,
     LinkCompliance,
@@ -67,6 +80,12 @@ from stiffness.errors import (
 from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
+from stiffness.mechanics.gravity import (
+    gravity_preload,
+    require_open_chain,
+    spring_balancer,
+    with_payload,
+)
 from stiffness.model.robot import Robot
 
 #: Load patterns of :func:`simulate`.
@@ -112,6 +131,7 @@ _VALUE_COUNTS = {
     "complementary_stiffness": (0, 1), "joint_compliance": (1,), "link_compliance": (1, 2),
     "backlash": (1,), "nonlinear_joint_stiffness": (1,), "frame_misalignment": (1, 3),
     "target_offset": (1, 3), "force_sensor_bias": (1, 3), "deflection_offset": (1, 3),
+    "gravity_preload": (1, 4), "gravity_compensator": (2,),
 }
 
 
@@ -172,6 +192,13 @@ class Truth:
         Recorded minus applied force (N).
     deflection_offset
         Offset of the measured deflections (m).
+    gravity
+        Whether the robot's weight preloads the joints (``gravity_preload``).
+    payload
+        ``(mass kg, centre of mass (3,) m in target frame axes)`` of the payload.
+    compensators
+        ``(joint, stiffness N/m, preload N, lever m, base m, angle0 rad)`` of hidden spring
+        gravity compensators.
     """
 
     robot: Robot
@@ -181,11 +208,45 @@ class Truth:
     misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
     force_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     deflection_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gravity: bool = False
+    payload: tuple[float, np.ndarray] = (0.0, np.zeros(3))
+    compensators: list[tuple[str, float, float, float, float, float]] = field(
+        default_factory=list)
 
-    def deflections(self, coords: np.ndarray, force: np.ndarray, mode: str = "exact"
-                    ) -> np.ndarray:
+    def __post_init__(self) -> None:
+        self._weighed = None
+        if self.gravity:
+            self._weighed = with_payload(self.robot, self.payload[0], self.payload[1])
+
+    def preload(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Joint preload of the weight and the compensators at the configuration ``q``:
+        torque (n,) and its derivative (n, n) over the compliant joints."""
+        robot = self.robot
+        n = robot.n_compliant
+        tau, k = np.zeros(n), np.zeros((n, n))
+        if self._weighed is not None:
+            tau, k = gravity_preload(robot, q, model=self._weighed)
+        for joint, k_s, f0, lever, base, angle0 in self.compensators:
+            i = list(robot.compliant_joints).index(joint)
+            jm = robot.model.joints[robot.model.getJointId(joint)]
+            t, dt = spring_balancer(q[jm.idx_q], k_s, f0, lever, base, angle0)
+            tau[i] += t
+            k[i, i] += dt
+        return tau, k
+
+    @property
+    def preloaded(self) -> bool:
+        """Whether a preload (weight, compensator) acts."""
+        return self._weighed is not None or bool(self.compensators)
+
+    def deflections(self, coords: np.ndarray, force: np.ndarray, mode: str = "exact",
+                    rotations: bool = False) -> np.ndarray:
         """Noise-free measured deflections (m, 3) of rows at ``coords`` under the *applied*
-        forces ``force`` (m, 3).
+        forces ``force`` (m, 3); with ``rotations``, (m, 6): the deflections and the measured
+        rotation vectors of the target frame (rad, base axes).
+
+        Under a preload (weight, compensator) the deflection is the loaded minus the unloaded
+        equilibrium at the same commanded pose.
 
         ``mode``: ``exact`` (the exact equilibrium), ``enhanced`` (``K_C`` of the unloaded
         pose in the tangent, first-order kinematics) or ``conventional`` (first order, no
@@ -194,28 +255,54 @@ class Truth:
             raise UnknownNameError(f"unknown mode {mode!r}; valid: exact, enhanced, "
                                    "conventional", name=mode,
                                    choices=("exact", "enhanced", "conventional"))
-        out = np.empty((len(coords), 3))
-        q0 = {}
+        out = np.empty((len(coords), 6))
+        q0: dict[tuple, np.ndarray] = {}
+        rest: dict[tuple, tuple | None] = {}
         for i, (c, f) in enumerate(zip(coords, force, strict=True)):
             key = tuple(c)
             if key not in q0:
                 q0[key] = self.robot.configuration(c)
-            out[i] = self._row(q0[key], f, mode)
-        out = out @ rotation_matrix(self.misalignment).T
-        return out + self.deflection_offset
+                rest[key] = self._unloaded(q0[key], mode)
+            out[i] = self._row(q0[key], f, mode, rest[key])
+        turn = rotation_matrix(self.misalignment)
+        out[:, :3] = out[:, :3] @ turn.T + self.deflection_offset
+        out[:, 3:] = out[:, 3:] @ turn.T
+        return out if rotations else out[:, :3]
 
-    def _row(self, q0: np.ndarray, force: np.ndarray, mode: str) -> np.ndarray:
+    def _unloaded(self, q0: np.ndarray, mode: str) -> tuple | None:
+        """The unloaded state under the preload: (position, rotation) for ``exact``,
+        (dtheta, k_p) for the linear modes; ``None`` without a preload."""
+        if not self.preloaded:
+            return None
+        if mode == "exact":
+            eq = solve_equilibrium(self.robot, q0, self.law, np.zeros(6), preload=self.preload)
+            state = target_state(self.robot, eq.q)
+            return state.position, state.rotation
+        tau_p, k_p = self.preload(q0)
+        return tangent_equilibrium(self.law, tau_p, k_p), tau_p, k_p
+
+    def _row(self, q0: np.ndarray, force: np.ndarray, mode: str, rest: tuple | None
+             ) -> np.ndarray:
         robot, law = self.robot, self.law
         wrench = as_wrench(force)
         base = target_state(robot, q0, wrench)
         tau0 = base.jacobian.T @ wrench
         if mode == "exact":
-            eq = solve_equilibrium(robot, q0, law, wrench)
-            q, x, dx = eq.q, eq.position, eq.dx
+            eq = solve_equilibrium(robot, q0, law, wrench,
+                                   preload=self.preload if rest is not None else None)
+            q, x, dx, rot = eq.q, eq.position, eq.dx, eq.rotation
+            if rest is not None:
+                state = target_state(robot, eq.q)
+                dx = state.position - rest[0]
+                rot = pin.log3(state.rotation @ rest[1].T)
         else:
             k_c = base.k_c if mode == "enhanced" else np.zeros_like(base.k_c)
-            dtheta = tangent_equilibrium(law, tau0, k_c)
-            q, x, dx = q0, base.position, base.jacobian[:3] @ dtheta
+            if rest is None:
+                dtheta = tangent_equilibrium(law, tau0, k_c)
+            else:
+                dtheta = tangent_equilibrium(law, tau0 + rest[1], k_c + rest[2]) - rest[0]
+            q, x = q0, base.position
+            dx, rot = base.jacobian[:3] @ dtheta, base.jacobian[3:] @ dtheta
         if self.links:
             pin.forwardKinematics(robot.model, robot.data, q)
             origins, rotations = chain_placements(robot, self.chain)
@@ -226,7 +313,8 @@ class Truth:
                 m_b = np.cross(r, force)
                 omega = e1 * (e1 @ m_b) / k1 + e2 * (e2 @ m_b) / k2
                 dx = dx + np.cross(omega, r)
-        return dx
+                rot = rot + omega
+        return np.concatenate([dx, rot])
 
 
 def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], units: Units,
@@ -239,6 +327,7 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
     extra, beta, backlash = [], {}, {}
     links, misalignment = [], np.zeros(3)
     force_bias, deflection_offset = np.zeros(3), np.zeros(3)
+    gravity, payload, compensators = False, (0.0, np.zeros(3)), []
     stiff = dict(zip(declared.compliant_joints, kq, strict=True))
     for h in effects:
         make_effect(h.name, h.where, geometry)  # validates where
@@ -271,10 +360,21 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
             force_bias = _vector(v) * units.force_to_si
         elif h.name == "deflection_offset":
             deflection_offset = _vector(v) * units.length_to_si
+        elif h.name == "gravity_preload":
+            require_open_chain(declared, h.name)
+            if v[0] < 0:
+                raise StiffnessError(f"gravity_preload needs a payload mass >= 0 kg, got {v[0]}")
+            com = np.zeros(3) if len(v) == 1 else np.array(v[1:4]) * units.length_to_si
+            gravity, payload = True, (float(v[0]), com)
+        elif h.name == "gravity_compensator":
+            g = COMPENSATOR_GEOMETRY
+            compensators.append((h.where, float(v[0]), float(v[1]), g["lever_m"], g["base_m"],
+                                 g["angle0_rad"]))
     compliant = tuple(declared.compliant_joints) + tuple(extra)
-    for j in list(beta) + list(backlash):
+    for j in list(beta) + list(backlash) + [c[0] for c in compensators]:
         if j not in compliant:
-            raise UnknownJointError(f"backlash and nonlinear_joint_stiffness act on a compliant "
+            raise UnknownJointError(f"backlash, nonlinear_joint_stiffness and "
+                                    f"gravity_compensator act on a compliant "
                                     f"joint ({', '.join(compliant)}), not {j}", name=j,
                                     choices=compliant)
     robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
@@ -282,7 +382,8 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
               np.array([beta.get(j, 0.0) for j in compliant]),
               np.array([backlash.get(j, 0.0) for j in compliant]),
               np.array([smoothing[geometry.joints.index(j)] for j in compliant]))
-    return Truth(robot, law, links, geometry.chain, misalignment, force_bias, deflection_offset)
+    return Truth(robot, law, links, geometry.chain, misalignment, force_bias, deflection_offset,
+                 gravity, payload, compensators)
 
 
 # ------------------------------------------------------------------------------------------
@@ -346,7 +447,9 @@ class Simulation:
                 "frame_misalignment": self.campaign.units.angle,
                 "target_offset": self.campaign.units.length,
                 "force_sensor_bias": self.campaign.units.force,
-                "deflection_offset": self.campaign.units.length},
+                "deflection_offset": self.campaign.units.length,
+                "gravity_preload": f"kg, then {self.campaign.units.length} (target frame)",
+                "gravity_compensator": "N/m, N"},
             "settings": self.settings,
             "model": ("exact elastostatic equilibrium of the true robot"
                       " (stiffness.calibration.simulate)"),
@@ -391,6 +494,8 @@ def simulate(
     repeats: int = 1,
     declare_noise: bool = True,
     name: str | None = None,
+    rotations: bool = False,
+    rotation_noise_std_rad: float | None = None,
     plan: Plan | None = None,
 ) -> Simulation:
     """Simulate a campaign with hidden effects.
@@ -428,6 +533,11 @@ def simulate(
         Whether the campaign declares its ``noise_std``.
     name
         Campaign name.
+    rotations
+        Whether the campaign also records the rotations ``rx, ry, rz`` of the target frame.
+    rotation_noise_std_rad
+        Their noise std (rad); default ``noise_std_m / 0.1 m`` (a 6-D probe whose markers are
+        0.1 m apart). Declared with ``declare_noise``.
     plan
         Rows to simulate exactly (:class:`stiffness.calibration.plan.Plan`: coordinates,
         applied forces, labels) instead of drawing ``configs`` poses and their loads.
@@ -491,7 +601,12 @@ def simulate(
     rows = geometry.rows(q, recorded)
     smoothing = References.of(geometry, rows, 1.0, np.ones((1, 3))).tau_smoothing
     truth = build_truth(declared, kq, effects, units, smoothing, geometry)
-    clean = truth.deflections(q, applied)
+    if rotation_noise_std_rad is None:
+        rotation_noise_std_rad = noise_std_m / 0.1
+    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
+        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
+    clean6 = truth.deflections(q, applied, rotations=True)
+    clean = clean6[:, :3]
 
     effect_rms: dict[str, float] = {}
     for h in effects:
@@ -508,6 +623,10 @@ def simulate(
 
     reps = np.repeat(np.arange(len(q)), repeats)
     measured = clean[reps] + rng.normal(scale=noise_std_m, size=(len(reps), 3))
+    rotation = None
+    if rotations:
+        rotation = clean6[reps, 3:] + rng.normal(scale=rotation_noise_std_rad,
+                                                 size=(len(reps), 3))
     config_labels = [row_labels[i] for i in reps]
     settings = RobotSettings(declared.name, frame=declared.target_frame,
                              target_offset_m=declared.target_offset.copy(),
@@ -517,7 +636,9 @@ def simulate(
         baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],
         deflection=measured, config=tuple(config_labels),
         noise_std_m=noise_std_m if declare_noise and noise_std_m > 0 else None,
-        units=units, _robot=declared,
+        units=units, _robot=declared, rotation=rotation,
+        rotation_noise_std_rad=(rotation_noise_std_rad if rotations and declare_noise
+                                and rotation_noise_std_rad > 0 else None),
     )
     info = {
         "robot": {"source": str(robot), "frame": declared.target_frame,
@@ -529,7 +650,8 @@ def simulate(
         "max_force_N": float(np.linalg.norm(applied, axis=1).max()) if plan is not None
         else max_force,
         "load_pattern": None if plan is not None else load_pattern, "seed": seed,
-        "declare_noise": declare_noise,
+        "declare_noise": declare_noise, "rotations": rotations,
+        "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
         "backlash_smoothing_Nm": dict(zip(geometry.joints, smoothing.tolist(), strict=True)),
     }
     return Simulation(campaign, effects, kq, noise_std_m, effect_rms, info, baseline_error)

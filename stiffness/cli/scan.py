@@ -56,6 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
+from stiffness.calibration.model_file import BEYOND_SPRINGS
 from stiffness.cli import flags
 from stiffness.cli.flags import parse_list, robot_from_args
 from stiffness.cli.kx import _identified_model, compliant_model_from_args
@@ -189,7 +190,7 @@ def _refuse_unscannable(model) -> None:
     """The batched scan models joint springs only: refuse a model whose link or nonlinear
     effects would change K_X (kx and view apply them at chosen poses)."""
     extra = [e.label for e in model.applied
-             if e.name in ("link_compliance", "nonlinear_joint_stiffness")]
+             if e.name in BEYOND_SPRINGS]
     if extra:
         raise StiffnessError(
             f"scan --model: {', '.join(extra)} change K_X beyond joint springs, which the "

@@ -45,7 +45,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "(N.m/rad), 'link_compliance:joint2->elbow=2e6' (N.m/rad), "
                              "nonlinear_joint_stiffness:joint3=0.001 (1/(N.m)), "
                              "frame_misalignment=2 (deg), target_offset=20 (--units), "
-                             "force_sensor_bias=5 (N), complementary_stiffness")
+                             "force_sensor_bias=5 (N), complementary_stiffness, "
+                             "gravity_preload=20[,cx,cy,cz] (kg, --units), "
+                             "gravity_compensator:joint2=2e5,500 (N/m, N)")
     parser.add_argument("--configs", type=int, default=10, help="configurations; default 10")
     parser.add_argument("--loads-per-config", type=int, default=4,
                         help="loads per configuration; default 4")
@@ -58,6 +60,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "configuration, or the six axis directions; default random")
     parser.add_argument("--noise", type=float, default=0.005,
                         help="measurement noise std, in --units; default 0.005")
+    parser.add_argument("--rotations", action="store_true",
+                        help="also write the measured rotations rx, ry, rz of the target frame")
+    parser.add_argument("--rotation-noise", type=float, default=None,
+                        help="rotation noise std, deg; default --noise / 100 mm")
     parser.add_argument("--undeclared-noise", action="store_true",
                         help="do not write noise_std into the campaign")
     parser.add_argument("--baseline", choices=BASELINES,
@@ -110,7 +116,9 @@ def run(args: argparse.Namespace) -> int:
         compliant_joints=robot.compliant_joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,
         repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name,
-        plan=plan)
+        rotations=args.rotations,
+        rotation_noise_std_rad=None if args.rotation_noise is None
+        else args.rotation_noise * units.angle_to_si, plan=plan)
     path = sim.write(args.out)
     if args.json:
         print(json.dumps(sim.truth(), indent=1))
