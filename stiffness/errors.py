@@ -22,3 +22,29 @@ def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40)
     listed = ", ".join(list(valid)[:limit]) + (" ..." if len(valid) > limit else "")
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     return f"valid names: {listed}.{hint}"
+
+
+class RobotFileError(StiffnessError):
+    """A robot file (URDF, loop declaration) that cannot be read: path, line (or None), problem."""
+
+    def __init__(self, path, line: int | None, problem: str) -> None:
+        self.path, self.line, self.problem = str(path), line, problem
+        where = f"{path}:{line}" if line is not None else f"{path}"
+        super().__init__(f"{where}: {problem}")
+
+
+class LoopClosureError(StiffnessError):
+    """A kinematic loop that does not close: ``loop`` names it, ``residual`` is in m (rad)."""
+
+    def __init__(self, message: str, loop: str | None = None, residual: float | None = None
+                 ) -> None:
+        self.loop, self.residual = loop, residual
+        super().__init__(message)
+
+
+class UndeterminedMotionError(SingularConfigurationError):
+    """The target moves with a passive motion that the loop constraints leave undetermined."""
+
+
+class FloatingBaseError(StiffnessError):
+    """A floating or planar base that was not fixed (``--fixed-base`` / ``fixed_base=True``)."""

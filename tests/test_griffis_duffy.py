@@ -36,7 +36,8 @@ from stiffness.mechanics.platform import (
     reorder_twist,
     solve_pose,
 )
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 
 FOLDER = robots_directory() / "griffis-duffy"
 PAPER = tomllib.loads((FOLDER / "zefran-kumar-section5.toml").read_text())

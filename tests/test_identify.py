@@ -18,7 +18,8 @@ from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 from stiffness.papers.sk120 import PAPER_K_THETA_NMM_PER_RAD
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.errors import SingularConfigurationError, StiffnessError
+from stiffness.errors import SingularConfigurationError, StiffnessError, UndeterminedMotionError
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
 
@@ -93,31 +93,55 @@ class TargetState:
 def velocity_projection(robot: Robot) -> np.ndarray:
     """Velocity map S (nv, n_compliant) of the current kinematics: q_dot = S theta_dot.
 
-    Rigid coordinate joints stay still; passive loop joints follow the closure. Kinematics
-    (joint Jacobians) must be up to date.
+    Rigid coordinate joints stay still; mimic followers move with their leaders; passive loop
+    joints follow the closure (minimum-norm solution, so passive motions that the constraints
+    leave undetermined, such as a rod spinning about its own axis, stay still). Kinematics
+    (joint Jacobians, frame placements) must be up to date.
 
     Raises
     ------
-    SingularConfigurationError
-        If the passive joints are not determined by the compliant ones (a loop singularity).
+    UndeterminedMotionError
+        If the target's position depends on a passive motion the constraints leave undetermined
+        (a loop singularity, or a passive joint no loop constrains).
     """
     model, data = robot.model, robot.data
     n = robot.n_compliant
     s = np.zeros((model.nv, n))
     s[robot.compliant_v, np.arange(n)] = 1.0
+    for m in robot.mimics:
+        s[robot.joint_v_index(m.follower)] = m.multiplier * s[robot.joint_v_index(m.leader)]
     if robot.loop is None:
         return s
     c = robot.loop.jacobian(model, data)
-    cp = c[:, robot.loop.passive_v]
-    rank_p = np.linalg.matrix_rank(cp, tol=1e-9 * max(1.0, np.abs(cp).max()))
-    if rank_p < len(robot.loop.passive_v):
-        raise SingularConfigurationError(
-            f"the loop of {robot.name} is singular here: its passive joints are not determined "
-            f"by the actuated ones (rank {rank_p} < {len(robot.loop.passive_v)}); move away from "
-            "the flattened or folded assembly"
-        )
-    s[robot.loop.passive_v] = robot.loop.passive_rates(model, data, robot.compliant_v)
+    idle = robot.loop.idle_motions(model, data)
+    if idle.shape[1]:
+        j_pos = kinematics.frame_jacobian(model, data, robot.target_frame_id)[:3,
+                                                                              robot.loop.passive_v]
+        moved = np.linalg.norm(j_pos @ idle, axis=0)
+        scale = max(1.0, float(np.abs(j_pos).max(initial=0.0)))
+        if np.any(moved > 1e-8 * scale):
+            k = int(np.sum(moved > 1e-8 * scale))
+            joints = _joints_of(robot, idle[:, int(np.argmax(moved))])
+            raise UndeterminedMotionError(
+                f"the target's position depends on an undetermined motion: {k} passive "
+                f"motion(s) of {robot.name} that the loop constraints leave free move the target "
+                f"here (mostly joints {', '.join(joints)}); the pose is a loop singularity (a "
+                "flattened or folded assembly: move away from it), or these joints belong in "
+                "name_mot (actuated) or lack a loop")
+    s[robot.loop.passive_v] = -np.linalg.pinv(c[:, robot.loop.passive_v], rcond=1e-9) @ (c @ s)
     return s
+
+
+def _joints_of(robot: Robot, motion: np.ndarray) -> list[str]:
+    """Names of the passive joints that carry most of a passive motion (unit vector)."""
+    names = []
+    offset = 0
+    for name in robot.loop.passive_joints:
+        nv = robot.model.joints[robot.model.getJointId(name)].nv
+        if np.linalg.norm(motion[offset: offset + nv]) > 0.3:
+            names.append(name)
+        offset += nv
+    return names or list(robot.loop.passive_joints[:3])
 
 
 def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) -> TargetState:

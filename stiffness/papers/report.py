@@ -26,7 +26,8 @@ from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
-from stiffness.model.robot import Robot, load_robot, robots_directory
+from stiffness.model.robot import Robot, load_robot
+from stiffness.model.sources import robots_directory
 from stiffness.papers import figures as plots
 from stiffness.papers.reproduction import (
     PAPER_CRITICAL_FORCE_N,
