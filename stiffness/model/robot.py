@@ -204,9 +204,21 @@ class Robot:
         """
         return self.assemble(coords, seed).q
 
-    def assemble(self, coords: np.ndarray, seed: np.ndarray | None = None) -> Assembly:
+    def assemble(self, coords: np.ndarray | None, seed: np.ndarray | None = None) -> Assembly:
         """:meth:`configuration` with how the loops were closed (residual, idle passive
-        motions, whether the assembly search was needed); also kept as ``last_assembly``."""
+        motions, whether the assembly search was needed); also kept as ``last_assembly``.
+
+        ``coords=None`` asks for the robot's reference pose: zero coordinates (or the shipped
+        ``q_SI``) and, when that pose does not close, the assembly found near it by moving
+        every joint (its coordinates then differ from zero: read them with
+        :meth:`coordinates_of`).
+        """
+        if coords is None:
+            if self.loop is None:
+                return self.assemble(np.zeros(self.n_coordinates))
+            start_coords, q, searched = self._reference_assembly()
+            self.last_assembly = self.closure_report(q, searched)
+            return self.last_assembly
         coords = np.asarray(coords, dtype=float).reshape(-1)
         if coords.shape[0] != self.n_coordinates:
             raise StiffnessError(
@@ -507,7 +519,9 @@ def load_robot(
             )
         coordinate_joints = list(order)
 
-    frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"))
+    closure = frozenset(n for p in (loop.pairs if loop else ()) for n in (p.frame_a, p.frame_b))
+    frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"),
+                          closure)
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
     offset = np.asarray(target_offset, dtype=float).reshape(-1)
@@ -555,12 +569,13 @@ def load_robot(
     )
 
 
-def _target_frame(name: str, model: pin.Model, frame: str | None) -> str:
+def _target_frame(name: str, model: pin.Model, frame: str | None,
+                  closure: frozenset[str]) -> str:
     """The requested target frame, checked, or the default one."""
     frame_names = [f.name for f in model.frames]
     moving = moving_frames(model)
     if frame is None:
-        frame = default_target_frame(model)
+        frame = default_target_frame(model, closure)
         if frame is None:
             raise StiffnessError(f"no joint of {name} moves any frame: it has no degree of "
                                  "freedom left to be compliant")
