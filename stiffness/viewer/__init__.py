@@ -74,7 +74,7 @@ from stiffness.viewer.ellipsoid import (
 from stiffness.viewer.geometry import Pose, TextSprite
 from stiffness.viewer.page import render_page, scene_commands, scene_transforms
 from stiffness.viewer.scene import SceneStore
-from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer
+from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, ServerLimits
 from stiffness.viewer.style import (
     COLORMAPS,
     DEFLECTED_RGBA,
@@ -100,6 +100,7 @@ __all__ = [
     "STIFFNESS_NODE",
     "FieldState",
     "LiveServer",
+    "ServerLimits",
     "Pose",
     "PrincipalEllipsoid",
     "SceneState",

@@ -1,4 +1,5 @@
-"""``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG]``: the live server process.
+"""``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]]``:
+the live server process.
 
 :class:`stiffness.viewer.server.LiveServer` starts it; see :func:`stiffness.viewer.server._main`.
 """

@@ -12,6 +12,7 @@ command socket stuck; neither is used.
 from __future__ import annotations
 
 import atexit
+import collections
 import contextlib
 import json
 import os
@@ -21,6 +22,7 @@ import tempfile
 import threading
 import time
 import warnings
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +35,43 @@ from stiffness.viewer.scene import SceneStore
 LOOPBACK = "127.0.0.1"
 #: Seconds the client waits for any answer of the live server.
 DEFAULT_TIMEOUT = 10.0
+
+
+@dataclass(frozen=True)
+class ServerLimits:
+    """Bounds that keep the live server's memory, descriptors and latency bounded.
+
+    Attributes
+    ----------
+    idle_timeout_s
+        Seconds a connection may stay idle or take to send its request headers (slowloris
+        defence) or its body before the server closes it.
+    max_connections
+        Open connections (pages' websockets included). A new connection beyond it evicts the
+        oldest connection that is not a page (an idle keep-alive or a slowloris half request),
+        so a held-open flood cannot lock well-behaved clients out.
+    max_websockets
+        Connected pages beyond which a new websocket is refused (HTTP 503).
+    max_pending_bytes
+        Bytes queued for one page that it has not read; a page over it (a client that never
+        reads) is disconnected, so a stalled client cannot grow the server's memory.
+    max_message_bytes
+        Largest websocket message accepted from a page (its controls are a few hundred bytes).
+    max_header_bytes, max_body_bytes
+        Largest HTTP request header block and body.
+    ping_interval_s
+        Seconds between websocket pings; a page that does not answer within one interval is
+        dropped.
+    """
+
+    idle_timeout_s: float = 10.0
+    max_connections: int = 512
+    max_websockets: int = 128
+    max_pending_bytes: int = 64 * 2**20
+    max_message_bytes: int = 64 * 2**10
+    max_header_bytes: int = 16 * 2**10
+    max_body_bytes: int = 64 * 2**10
+    ping_interval_s: float = 10.0
 
 
 class _Window:
@@ -77,17 +116,20 @@ class LiveServer:
         Web port (0: a free port).
     timeout
         Seconds to wait for the process to start and for each answer.
+    limits
+        Bounds on connections, queued bytes and timeouts (:class:`ServerLimits`).
     """
 
-    def __init__(self, host: str = LOOPBACK, port: int = 0, timeout: float = DEFAULT_TIMEOUT
-                 ) -> None:
+    def __init__(self, host: str = LOOPBACK, port: int = 0, timeout: float = DEFAULT_TIMEOUT,
+                 limits: ServerLimits | None = None) -> None:
         import zmq
 
         self.host, self.timeout = host, float(timeout)
+        self.limits = limits or ServerLimits()
         self._lock = threading.RLock()
         log, self._log_path = tempfile.mkstemp(prefix="stiffness-viewer-", suffix=".log")
         command = [sys.executable, "-m", "stiffness.viewer", "--serve", host, str(int(port)),
-                   str(os.getpid()), self._log_path]
+                   str(os.getpid()), self._log_path, json.dumps(asdict(self.limits))]
         try:
             # own session: a Ctrl-C in a notebook cell does not kill the server
             self.process = subprocess.Popen(
@@ -243,12 +285,15 @@ class LiveServer:
         self.close()
 
 
-def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None) -> int:
+def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
+           limits: ServerLimits | None = None) -> int:
     """The server process: meshcat's page scripts, our page, a websocket and a ZeroMQ socket.
 
     Stops on the ``stop`` command, on SIGTERM, or when ``parent_pid`` is no longer its parent
-    (the owner died without closing it; it then removes its log file ``log_path``).
+    (the owner died without closing it; it then removes its log file ``log_path``). Every
+    connection is bounded by ``limits`` (:class:`ServerLimits`).
     """
+    limits = limits or ServerLimits()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         import tornado.httpserver
@@ -270,12 +315,19 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None) -
             self.write(render_page([], state["overlay"], "stiffness viewer", live=True))
 
     class Socket(tornado.websocket.WebSocketHandler):
+        pending = 0  # bytes queued for this page and not yet written to its socket
+
+        def prepare(self) -> None:
+            if len(state["pool"]) >= limits.max_websockets:
+                self.set_status(503)
+                self.finish("too many viewer pages are connected")
+
         def open(self) -> None:  # noqa: A003 (tornado's name)
             state["pool"].add(self)
             for packed in store.commands():
-                self.write_message(packed, binary=True)
+                send(self, packed, True)
             if state["overlay"] is not None:
-                self.write_message(json.dumps({"type": "overlay", "data": state["overlay"]}))
+                send(self, json.dumps({"type": "overlay", "data": state["overlay"]}), False)
 
         def on_message(self, message: str | bytes) -> None:
             try:
@@ -288,20 +340,63 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None) -
         def on_close(self) -> None:
             state["pool"].discard(self)
 
+    def send(socket: Socket, message: bytes | str, binary: bool) -> None:
+        """Queue ``message`` for one page; drop the page if it stopped reading."""
+        size = len(message)
+        if socket.pending + size > limits.max_pending_bytes:
+            state["pool"].discard(socket)
+            socket.close(1008, "not reading")
+            return
+        try:
+            written = socket.write_message(message, binary=binary)
+        except tornado.websocket.WebSocketClosedError:
+            state["pool"].discard(socket)
+            return
+        socket.pending += size
+
+        def done(future: Any) -> None:
+            socket.pending -= size
+            if not future.cancelled():
+                future.exception()  # a page that left: its write fails, nothing to report
+
+        written.add_done_callback(done)
+
     def broadcast(message: bytes | str, binary: bool) -> None:
         for socket in list(state["pool"]):
-            try:
-                socket.write_message(message, binary=binary)
-            except tornado.websocket.WebSocketClosedError:
-                state["pool"].discard(socket)
+            send(socket, message, binary)
+
+    class BoundedHTTPServer(tornado.httpserver.HTTPServer):
+        """At most ``limits.max_connections`` open: a new one evicts the oldest non-page one."""
+
+        streams: collections.OrderedDict = collections.OrderedDict()
+
+        def handle_stream(self, stream, address) -> None:  # noqa: ANN001 (tornado's types)
+            streams = self.streams
+            for old in [s for s in streams if s.closed()]:
+                del streams[old]
+            if len(streams) >= limits.max_connections:
+                pages = {page.ws_connection.stream for page in state["pool"]
+                         if page.ws_connection is not None}
+                victim = next((s for s in streams if s not in pages), None)
+                if victim is None:
+                    stream.close()
+                    return
+                del streams[victim]
+                victim.close()
+            streams[stream] = None
+            super().handle_stream(stream, address)
 
     app = tornado.web.Application([
         (r"/", Page),
         (r"/websocket", Socket),
         (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT}),
-    ])
+    ], websocket_max_message_size=limits.max_message_bytes,
+        websocket_ping_interval=limits.ping_interval_s,
+        websocket_ping_timeout=limits.ping_interval_s)
     sockets = tornado.netutil.bind_sockets(port, address=host)
-    server = tornado.httpserver.HTTPServer(app)
+    server = BoundedHTTPServer(
+        app, idle_connection_timeout=limits.idle_timeout_s, body_timeout=limits.idle_timeout_s,
+        max_header_size=limits.max_header_bytes, max_body_size=limits.max_body_bytes)
     server.add_sockets(sockets)
     web_port = sockets[0].getsockname()[1]
 
@@ -369,9 +464,11 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None) -
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG]``: the live server."""
-    if len(argv) in (4, 5) and argv[0] == "--serve":
-        return _serve(argv[1], int(argv[2]), int(argv[3]), argv[4] if len(argv) == 5 else None)
-    print("usage: python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG] "
+    """``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]]``."""
+    if len(argv) in (4, 5, 6) and argv[0] == "--serve":
+        limits = ServerLimits(**json.loads(argv[5])) if len(argv) == 6 else None
+        return _serve(argv[1], int(argv[2]), int(argv[3]), argv[4] if len(argv) >= 5 else None,
+                      limits)
+    print("usage: python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]] "
           "(started by StiffnessViewer; use `stiffness view`)", file=sys.stderr)
     return 2
