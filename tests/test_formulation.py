@@ -297,7 +297,7 @@ def test_definiteness_congruence_sees_both_classes(sk120):
 def test_redundant_compliance_symmetric_pd(panda, angles, fdir, ratio, k):
     """Panda (7 joints): C = J (K_theta - K_C)^-1 J^T, 3x3 and 6x6, is symmetric PD under a pure
     force whenever K_theta - K_C is PD (and J has full row rank)."""
-    coords = np.r_[angles, 0.02, 0.02]
+    coords = np.r_[angles, 0.02]  # the second finger mimics the first
     force = fdir * ratio * min(k)
     state = target_state(panda, panda.configuration(coords), force)
     tangent = np.diag(k) - state.k_c

@@ -32,11 +32,14 @@ from stiffness.mechanics.formulation import (
     ellipsoid,
     joint_connection_stiffness,
     joint_stiffness,
+    subspace_stiffness,
     tangent_joint_stiffness,
     target_state,
+    task_rank,
     twist_basis_stiffness,
 )
 from stiffness.mechanics.platform import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
+from stiffness.model.assembly import Assembly
 from stiffness.model.robot import Robot, load_robot
 
 _BASIS_3 = ["vx", "vy", "vz"]
@@ -65,11 +68,21 @@ def parse_list(text: str, flag: str) -> list[float]:
     return values
 
 
+def add_robot_file_flags(parser: argparse.ArgumentParser) -> None:
+    """``--loops FILE`` and ``--fixed-base``: how to read the ``--robot`` (every command)."""
+    parser.add_argument("--loops", metavar="FILE",
+                        help="loop declaration (Gepetto's Extended-URDF YAML; default: "
+                             "<name>.loops.yaml, <name>.yaml or robot.yaml beside the URDF)")
+    parser.add_argument("--fixed-base", action="store_true",
+                        help="fix a floating or planar base at its neutral placement")
+
+
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness kx``."""
     parser.add_argument("--robot",
                         help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
                              "or URDF path (required unless --model gives it)")
+    add_robot_file_flags(parser)
     parser.add_argument("--model", metavar="FILE",
                         help="identified model written by `stiffness identify` "
                              "(identified-model.json): its robot, target, compliant joints and "
@@ -96,16 +109,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def coordinates_from_args(robot: Robot, args: argparse.Namespace) -> np.ndarray:
-    """Coordinates (rad, m) of ``--q``/``--deg``, or the shipped ones."""
+def coordinates_from_args(robot: Robot, args: argparse.Namespace) -> np.ndarray | None:
+    """Coordinates (rad, m) of ``--q``/``--deg``, the shipped ones, or None: the robot's
+    reference pose (zero, or the assembly found near zero; :meth:`Robot.assemble`)."""
     if args.q is None:
-        shipped = default_coordinates(robot)
-        if shipped is not None:
-            return shipped
-        raise StiffnessError(
-            f"--q is required for {robot.name}: give {robot.model.nv} joint values "
-            f"({', '.join(robot.coordinate_joints)})"
-        )
+        return default_coordinates(robot)
     values = np.array(parse_list(args.q, "--q"))
     model = robot.model
     if values.shape[0] == robot.n_coordinates:
@@ -147,7 +155,9 @@ def robot_from_args(args: argparse.Namespace
             compliant = list(model.compliant_joints)
     if source is None:
         raise StiffnessError("--robot is required (or --model FILE from `stiffness identify`)")
-    robot = load_robot(source, frame=frame, target_offset=offset, compliant_joints=compliant)
+    robot = load_robot(source, frame=frame, target_offset=offset, compliant_joints=compliant,
+                       loops=getattr(args, "loops", None),
+                       fixed_base=getattr(args, "fixed_base", False))
     return robot, compliant, offset
 
 
@@ -172,6 +182,8 @@ class KxInputs:
     k_theta: np.ndarray
     load: np.ndarray
     load_source: str
+    assembly: Assembly
+    q_source: str
 
 
 def resolve_inputs(args: argparse.Namespace) -> KxInputs:
@@ -184,6 +196,9 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
     """
     robot, _, _ = robot_from_args(args)
     coords = coordinates_from_args(robot, args)
+    q_source = ("--q" if args.q is not None else "robot default" if coords is not None
+                else "zero pose (no --q)" if robot.loop is None
+                else "reference assembly near the zero pose (no --q)")
     model = _identified_model(args)
     if args.kq is not None:
         kq = parse_list(args.kq, "--kq")
@@ -197,7 +212,9 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
             f"({', '.join(robot.compliant_joints)}), N.m/rad"
         )
     k_theta = joint_stiffness(kq, robot.n_compliant)
-    q = robot.configuration(coords)
+    assembly = robot.assemble(coords)
+    q = assembly.q
+    coords = robot.coordinates_of(q)
     if args.wrench is not None:
         load, source = np.array(parse_list(args.wrench, "--wrench")), "--wrench"
     else:
@@ -206,7 +223,7 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
             raise StiffnessError(
                 "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
         load, source = shipped
-    return KxInputs(robot, coords, q, k_theta, load, source)
+    return KxInputs(robot, coords, q, k_theta, load, source, assembly, q_source)
 
 
 def compute(args: argparse.Namespace) -> dict:
@@ -231,16 +248,23 @@ def compute(args: argparse.Namespace) -> dict:
     else:
         jac = state.jacobian[rows]
         c_x = compliance(jac, tangent)
-        k_x = cartesian_stiffness(c_x)
         axes = "base frame axes at the target"
         k_c = state.k_c
     wrench = state.wrench[: 6 if six else 3]
     if six:
-        k_x, c_x, wrench = reorder_twist(k_x, order), reorder_twist(c_x, order), reorder_twist(
-            wrench, order)
+        c_x, wrench = reorder_twist(c_x, order), reorder_twist(wrench, order)
         if order == "w-v":
             jac = jac[[3, 4, 5, 0, 1, 2]]
-    ell = ellipsoid(k_x)
+    subspace = None
+    if args.connection is None and task_rank(jac) < jac.shape[0]:
+        # fewer task dimensions than rows: the stiffness exists on the spanned subspace only
+        subspace = subspace_stiffness(jac, c_x)
+        k_x = None
+    elif args.connection is None:
+        k_x = cartesian_stiffness(c_x)
+    elif six:
+        k_x = reorder_twist(k_x, order)
+    ell = ellipsoid(k_x if subspace is None else subspace.stiffness)
     blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
     trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
     return {
@@ -249,6 +273,7 @@ def compute(args: argparse.Namespace) -> dict:
         "target_offset": robot.target_offset.tolist(),
         "compliant_joints": list(robot.compliant_joints),
         "q": coords.tolist(),
+        "coordinate_joints": list(robot.coordinate_joints),
         "wrench": wrench.tolist(),
         "wrench_basis": WRENCH_ORDERS[order] if six else ["fx", "fy", "fz"],
         "load_source": load_source,
@@ -260,21 +285,47 @@ def compute(args: argparse.Namespace) -> dict:
         "J": jac.tolist(),
         "K_theta": np.diag(k_theta).tolist(),
         "K_C": k_c.tolist(),
-        "K_X": k_x.tolist(),
+        "K_X": None if k_x is None else k_x.tolist(),
+        "subspace": None if subspace is None else {
+            "dimension": int(subspace.basis.shape[1]),
+            "directions": subspace.basis.T.tolist(),
+            "K_X": subspace.stiffness.tolist(),
+        },
         "compliance": c_x.tolist(),
         "K_X_symmetric": bool(ell.symmetric),
         "eigenvalues": ell.values.tolist(),
         "eigenvectors": ell.directions.tolist(),
         "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
-            k_theta - state.k_c), "K_X": definiteness(k_x)},
+            k_theta - state.k_c), "K_X": definiteness(
+                k_x if subspace is None else subspace.stiffness)},
+        "configuration": _configuration(robot, q),
+        "closure": inputs.assembly.as_dict(),
+        "q_source": inputs.q_source,
+        "notes": list(robot.notes),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
             "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
             "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
             "compliance": "m/N (inverse of K_X)", "eigenvalues": "same as K_X",
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
+            "configuration": "rad (m prismatic); Pinocchio q values for multi-coordinate joints",
+            "closure": "residual in m (rad for 6D rotation rows)",
         },
     }
+
+
+def _configuration(robot: Robot, q: np.ndarray) -> dict:
+    """Every joint's value after closure, by name (rad or m); a list of its Pinocchio ``q``
+    values for a joint with more than one coordinate."""
+    out = {}
+    model = robot.model
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        if joint.nq == 0:
+            continue
+        values = q[joint.idx_q: joint.idx_q + joint.nq]
+        out[model.names[jid]] = float(values[0]) if joint.nq == 1 else values.tolist()
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -285,13 +336,32 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
         return 0
     np.set_printoptions(precision=5, suppress=False, linewidth=120)
+    for note in result["notes"]:
+        print(f"note: {note}")
+    closure = result["closure"]
+    print("q: " + ", ".join(f"{n}={v:.6g}" for n, v in zip(
+        result["coordinate_joints"], result["q"], strict=True)) + f" ({result['q_source']})")
+    if closure["assembly_search"] or closure["idle_passive_motions"]:
+        print(f"closure: residual {closure['residual']:.3g} m, idle passive motions "
+              f"{closure['idle_passive_motions']}, assembly search "
+              f"{'used' if closure['assembly_search'] else 'not needed'}")
     print(f"{result['robot']} target at {result['frame']} + {result['target_offset']} m; "
           f"{result['formulation']} formulation"
           + (f", {result['connection']} connection" if result["connection"] else ""))
     print(f"position (m): {np.array(result['position'])}")
     print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
     print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")
-    print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n{np.array(result['K_X'])}")
+    print(f"compliance ({result['units']['compliance']}), basis {result['basis']}:\n"
+          f"{np.array(result['compliance'])}")
+    sub = result["subspace"]
+    if sub is None:
+        print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n"
+              f"{np.array(result['K_X'])}")
+    else:
+        print(f"the target moves in {sub['dimension']} of {len(result['basis'])} task "
+              f"directions only; K_X on that subspace ({result['units']['K_X']}), basis "
+              f"directions (rows, in {result['basis']}):\n{np.array(sub['directions'])}\n"
+              f"{np.array(sub['K_X'])}")
     print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
     print(f"definiteness: {result['definiteness']}")
     return 0

@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.cli.kx import parse_list, robot_from_args
+from stiffness.cli.kx import add_robot_file_flags, parse_list, robot_from_args
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.model.robot import Robot
 from stiffness.scan.definiteness import grid_axis, terminal_progress
@@ -68,6 +68,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", required=True,
                         help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
                              "or URDF path")
+    add_robot_file_flags(parser)
     parser.add_argument("--preset", choices=PRESETS,
                         help="table4: A&S Table IV on the SK120 (theta1 -180..180, theta2 "
                              "-70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical; the "

@@ -262,6 +262,43 @@ def cartesian_stiffness(compliance_matrix: np.ndarray) -> np.ndarray:
     return np.linalg.inv(compliance_matrix)
 
 
+@dataclass
+class SubspaceStiffness:
+    """Stiffness on the task subspace a rank-deficient Jacobian spans.
+
+    ``basis`` (m, r) has orthonormal columns spanning the range of J (the directions the robot
+    can move the target in); ``stiffness`` (r, r) is ``(B^T C B)^-1`` in that basis, with C the
+    (singular) compliance ``J (K_theta - K_C)^-1 J^T``.
+    """
+
+    basis: np.ndarray
+    stiffness: np.ndarray
+
+
+def task_rank(jacobian: np.ndarray, rtol: float = 1e-9) -> int:
+    """Number of task directions a Jacobian spans (rank-revealing SVD, relative ``rtol``)."""
+    sv = np.linalg.svd(jacobian, compute_uv=False)
+    return int(np.sum(sv > rtol * max(float(sv[0]) if sv.size else 0.0, 1e-300)))
+
+
+def subspace_stiffness(jacobian: np.ndarray, compliance_matrix: np.ndarray, rtol: float = 1e-9
+                       ) -> SubspaceStiffness:
+    """Stiffness on the range of ``jacobian`` (fewer task dimensions than rows).
+
+    Raises
+    ------
+    SingularConfigurationError
+        If the Jacobian spans no direction at all.
+    """
+    u, sv, _ = np.linalg.svd(jacobian)
+    rank = int(np.sum(sv > rtol * max(float(sv[0]) if sv.size else 0.0, 1e-300)))
+    if rank == 0:
+        raise SingularConfigurationError(
+            "the target Jacobian is zero here: the compliant joints do not move the target")
+    basis = u[:, :rank]
+    return SubspaceStiffness(basis, np.linalg.inv(basis.T @ compliance_matrix @ basis))
+
+
 def deflection(state: TargetState, k_theta: np.ndarray, formulation: str = "enhanced",
                rows: slice = slice(0, 3)) -> np.ndarray:
     """Linear deflection ``J[rows] (K_theta - K_C)^-1 J^T W`` under the full load (eq. 11).

@@ -477,7 +477,6 @@ def load_robot(
     declaration = _loop_declaration(src, loops)
     if declaration is not None:
         model, visual = rewrite_joints(model, visual, declaration.rewrites)
-        notes.append(f"loops from {declaration.path}")
         if declaration.rewrites:
             notes.append("joints rewritten: " + ", ".join(
                 f"{j} -> {k}" for j, k in declaration.rewrites.items()))
