@@ -2,8 +2,8 @@
 
 When the passive joints alone cannot close the loops from a pose (the zero pose of a CAD export
 is often not assembled), :func:`least_squares_assembly` moves *all* free joints (independent and
-passive) by damped Gauss-Newton (Levenberg-Marquardt, minimum-norm steps, so the result stays
-near the pose) until the loop residual vanishes; the caller then restores the requested
+passive) by damped Gauss-Newton (Levenberg-Marquardt: small steps, so the result stays near
+the pose) until the loop residual vanishes; the caller then restores the requested
 independent values and closes over the passive joints from there.
 """
 
@@ -19,7 +19,7 @@ from stiffness.model import kinematics
 from stiffness.model.loops import CLOSURE_TOLERANCE_M, LoopClosure
 
 #: Iterations of the all-joint least squares.
-MAX_ITERATIONS = 200
+MAX_ITERATIONS = 400
 
 
 @dataclass
@@ -67,9 +67,9 @@ def least_squares_assembly(model: pin.Model, data: pin.Data, loop: LoopClosure, 
         if np.sqrt(cost) < CLOSURE_TOLERANCE_M:
             break
         jac = loop.jacobian(model, data)[:, free_v]
-        # minimum-norm damped step: -J^T (J J^T + mu I)^-1 c
-        gram = jac @ jac.T
-        step = -jac.T @ np.linalg.solve(gram + damping * np.eye(gram.shape[0]), c)
+        # damped Gauss-Newton step (J^T J + mu I) dq = -J^T c: small, minimum-norm-like steps
+        # that also converge to a least-squares minimum whose residual is not zero
+        step = -np.linalg.solve(jac.T @ jac + damping * np.eye(jac.shape[1]), jac.T @ c)
         norm = float(np.linalg.norm(step))
         if norm > 0.5:
             step *= 0.5 / norm

@@ -31,6 +31,8 @@ from stiffness.model.meshes import MissingMesh, resolve_visual_meshes
 #: urdfdom messages that only repeat that an earlier, more specific error happened.
 _GENERIC = ("is not initialized correctly", "Failed to build tree", "Model xml is not",
             "Failed to parse")
+_CHILD_TAGS = ("origin", "axis", "limit", "mimic", "dynamics", "calibration",
+               "safety_controller", "inertial", "visual", "collision")
 _DECLARATION = re.compile(rb"^\s*<\?xml[^>]*\?>")
 _VERSION = re.compile(rb"""version\s*=\s*["']([^"']*)["']""")
 
@@ -133,8 +135,12 @@ def _element_line(root, message: str) -> int | None:
     for name in re.findall(r"\[([^\]]+)\]", message):
         for tag in ("joint", "link"):
             for element in root.iter(tag):
-                if element.get("name") == name:
-                    return element.sourceline
+                if element.get("name") != name:
+                    continue
+                for child in _CHILD_TAGS:  # point at the faulty child element when named
+                    if child in message.lower() and element.find(child) is not None:
+                        return element.find(child).sourceline
+                return element.sourceline
     return None
 
 
