@@ -52,6 +52,9 @@ TARGET_FRAME = "stiffness_target"
 _CONTINUATION_STEP = 0.15
 #: Largest Newton correction of the passive joints (rad or m) accepted in one continuation step.
 _BRANCH_JUMP = 0.05
+#: Fraction of the way from the requested pose to the assembly found by the search that the
+#: reference assembly steps on, into the loops' reach (see Robot._step_inside).
+_INSIDE_STEP = 0.1
 
 _SUPPORTED_JOINTS = {
     "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
@@ -355,6 +358,24 @@ class Robot:
             h = min(2.0 * h, nominal)
         return q
 
+    def _step_inside(self, start: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """An assembly a little further from ``start`` than ``q``, when one closes.
+
+        The assembly nearest to a pose that does not close lies on the edge of the loops' reach
+        (a fold, where the passive joints are not determined to first order); stepping on by
+        :data:`_INSIDE_STEP` of the way (at most 0.05 rad or m) gives a regular pose nearby.
+        """
+        found = self.coordinates_of(q)
+        delta = found - start
+        span = float(np.max(np.abs(delta), initial=0.0))
+        if span == 0.0:
+            return q
+        step = delta * min(_INSIDE_STEP, 0.05 / span)
+        try:
+            return self._continue(found, q, found + step)
+        except LoopClosureError:
+            return q
+
     def _reference_assembly(self) -> tuple[np.ndarray, np.ndarray, bool]:
         """Closed configuration the continuation starts from, and whether it needed the search.
 
@@ -382,7 +403,8 @@ class Robot:
                         f"{self.name} has no assembly near its zero pose: even moving every "
                         f"joint, the loop {name} keeps a residual of {worst:.3g} m; check the "
                         "loop file's frame pairs", loop=name, residual=worst) from None
-                q0, searched = self.loop.close(self.model, self.data, found), True
+                q0, searched = self._step_inside(coords, self.loop.close(
+                    self.model, self.data, found)), True
             self._reference = (self.coordinates_of(q0), q0, searched)
         return self._reference
 
