@@ -4,6 +4,9 @@ Every quirk of the pin 4.x Python bindings is fixed here, once:
 
 * ``getFrameKinematicHessian`` returns the column-major C++ tensor read in row-major order;
   :func:`frame_hessian` reorders it so that ``H[k, a, b] = dJ[k, a] / dq_b``.
+* For a model with one velocity coordinate the bindings return Jacobians squeezed to shape
+  (6,); :func:`frame_jacobian`, :func:`point_jacobian` and :func:`frame_hessian` always return
+  (6, nv) and (6, nv, nv).
 * Only the ``LOCAL_WORLD_ALIGNED`` linear rows are the Hessian of the frame origin's position;
   this module only ever asks for that reference frame.
 
@@ -47,7 +50,22 @@ def frame_rotation(data: pin.Data, frame_id: int) -> np.ndarray:
 
 def frame_jacobian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
     """Spatial Jacobian (6, nv) of a frame: rows [v; omega], world axes at its origin."""
-    return pin.getFrameJacobian(model, data, frame_id, LWA)
+    return np.asarray(pin.getFrameJacobian(model, data, frame_id, LWA)).reshape(6, model.nv)
+
+
+def point_jacobian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
+                   ) -> np.ndarray:
+    """Spatial Jacobian (6, nv) of a point fixed to a joint (``placement`` in its frame)."""
+    return np.asarray(pin.getFrameJacobian(model, data, joint_id, placement, LWA)).reshape(
+        6, model.nv)
+
+
+def fix_hessian_layout(model: pin.Model, raw) -> np.ndarray:
+    """A kinematic Hessian from the bindings as ``H[k, a, b] = dJ[k, a] / dq_b``, (6, nv, nv)."""
+    raw = np.asarray(raw)
+    if raw.ndim != 3:
+        return raw.reshape(6, model.nv, model.nv)
+    return raw.reshape(-1).reshape(raw.shape, order="F")
 
 
 def frame_hessian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
@@ -56,5 +74,4 @@ def frame_hessian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray
     Rows 0..2 are the Hessian of the world position of the frame origin (symmetric in a, b);
     rows 3..5 the derivative of the world-axes angular Jacobian.
     """
-    raw = pin.getFrameKinematicHessian(model, data, frame_id, LWA)
-    return raw.reshape(-1).reshape(raw.shape, order="F")
+    return fix_hessian_layout(model, pin.getFrameKinematicHessian(model, data, frame_id, LWA))

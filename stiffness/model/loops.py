@@ -247,7 +247,7 @@ class LoopClosure:
         for pair, cm, cd in zip(self.pairs, self.constraints, self.constraint_datas,
                                 strict=True):
             cm.calc(model, data, cd)
-            jac = np.array(pin.getConstraintJacobian(model, data, cm, cd))
+            jac = np.array(pin.getConstraintJacobian(model, data, cm, cd)).reshape(-1, model.nv)
             if pair.kind == "6D":
                 a_m_b = cd.c1Mc2
                 jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() @ jac
@@ -291,8 +291,8 @@ class LoopClosure:
                 rows.append(jb - ja)
                 continue
             for (ja, ma), (jb, mb) in points:
-                rows.append(pin.getFrameJacobian(model, data, jb, mb, kinematics.LWA)[:3]
-                            - pin.getFrameJacobian(model, data, ja, ma, kinematics.LWA)[:3])
+                rows.append(kinematics.point_jacobian(model, data, jb, mb)[:3]
+                            - kinematics.point_jacobian(model, data, ja, ma)[:3])
         return np.vstack(rows)
 
     def world_hessian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
@@ -459,4 +459,4 @@ def _point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: p
     Same layout fix as :func:`stiffness.model.kinematics.frame_hessian`; Hessians must be current.
     """
     raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, kinematics.LWA)
-    return raw.reshape(-1).reshape(raw.shape, order="F")[:3]
+    return kinematics.fix_hessian_layout(model, raw)[:3]

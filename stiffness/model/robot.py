@@ -331,6 +331,7 @@ class Robot:
                 predicted = q.copy()
                 q_prev, h_prev = previous
                 predicted[passive_q] += (q[passive_q] - q_prev[passive_q]) * h / h_prev
+                predicted = pin.normalize(self.model, predicted)  # quaternions of ball joints
             target = start + (coords - start) * (fraction + h)
             try:
                 closed = self.loop.close(
