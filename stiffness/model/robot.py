@@ -542,8 +542,9 @@ def load_robot(
         coordinate_joints = list(order)
 
     closure = frozenset(n for p in (loop.pairs if loop else ()) for n in (p.frame_a, p.frame_b))
+    gripper = src.gripper_joints | {n for m in src.mimics for n in (m.leader, m.follower)}
     frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"),
-                          closure)
+                          closure, gripper)
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
     offset = np.asarray(target_offset, dtype=float).reshape(-1)
@@ -592,12 +593,12 @@ def load_robot(
 
 
 def _target_frame(name: str, model: pin.Model, frame: str | None,
-                  closure: frozenset[str]) -> str:
+                  closure: frozenset[str], gripper: frozenset[str]) -> str:
     """The requested target frame, checked, or the default one."""
     frame_names = [f.name for f in model.frames]
     moving = moving_frames(model)
     if frame is None:
-        frame = default_target_frame(model, closure)
+        frame = default_target_frame(model, closure, gripper)
         if frame is None:
             raise StiffnessError(f"no joint of {name} moves any frame: it has no degree of "
                                  "freedom left to be compliant")

@@ -46,6 +46,7 @@ class RobotSource:
     loop_file: Path | None = None
     urdf: Path | None = None
     notes: list[str] = field(default_factory=list)
+    gripper_joints: frozenset[str] = frozenset()
 
 
 def robots_directory() -> Path:
@@ -94,7 +95,7 @@ def _from_toml(folder: Path, name: str) -> RobotSource:
     settings["_folder"] = folder
     loop_file = folder / settings["loops"] if "loops" in settings else None
     return RobotSource(name, read.model, read.visual, settings, read.mimics, read.missing_meshes,
-                       loop_file, urdf)
+                       loop_file, urdf, gripper_joints=read.gripper_joints)
 
 
 def _toml_naming(path: Path) -> bool:
@@ -115,19 +116,23 @@ def _from_example_robot_data(name: str) -> RobotSource:
     loader = robots_loader.ROBOTS[name]()
     wrapper = loader.robot
     mimics: tuple[Mimic, ...] = ()
+    gripper: frozenset[str] = frozenset()
     path = Path(getattr(loader, "df_path", ""))
     if path.suffix.lower() == ".urdf" and path.is_file():
-        mimics = tuple(m for m in _mimic_tags(path) if wrapper.model.existJointName(m.follower)
-                       and wrapper.model.existJointName(m.leader))
+        tags = _mimic_tags(path)
+        gripper = frozenset(n for m in tags for n in (m.leader, m.follower))
+        mimics = tuple(m for m in tags if wrapper.model.existJointName(m.follower)
+                       and wrapper.model.existJointName(m.leader)
+                       and wrapper.model.joints[wrapper.model.getJointId(m.follower)].nv == 1)
     return RobotSource(name, wrapper.model, wrapper.visual_model, {}, mimics, (), None,
-                       path if path.is_file() else None)
+                       path if path.is_file() else None, gripper_joints=gripper)
 
 
 def _mimic_tags(path: Path) -> tuple[Mimic, ...]:
     from lxml import etree
 
     return mimic_tags(etree.parse(str(path), etree.XMLParser(recover=True, huge_tree=True))
-                      .getroot())
+                      .getroot(), include_fixed=True)
 
 
 def resolve_source(source: str | os.PathLike) -> RobotSource:
@@ -150,7 +155,8 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
             return found
         read = read_urdf(path)
         return RobotSource(text, read.model, read.visual, {"_folder": path.parent}, read.mimics,
-                           read.missing_meshes, find_loop_sidecar(path), path)
+                           read.missing_meshes, find_loop_sidecar(path), path,
+                           gripper_joints=read.gripper_joints)
     erd_names = example_robot_names()
     if text in erd_names:
         return _from_example_robot_data(text)

@@ -63,6 +63,8 @@ class UrdfRobot:
         Visual geometry with resolved meshes (primitives stand in for missing ones), or None.
     mimics
         The ``<mimic>`` couplings.
+    gripper_joints
+        Every joint named in a ``<mimic>`` tag, leaders included (a gripper's jaws).
     missing_meshes
         Meshes that could not be found (drawn as primitives).
     """
@@ -71,6 +73,7 @@ class UrdfRobot:
     visual: object | None
     mimics: tuple[Mimic, ...] = ()
     missing_meshes: tuple[MissingMesh, ...] = field(default_factory=tuple)
+    gripper_joints: frozenset[str] = frozenset()
 
 
 def warn(message: str) -> None:
@@ -157,12 +160,13 @@ def _structure_problem(root) -> tuple[str, int] | None:
     return None
 
 
-def mimic_tags(root) -> tuple[Mimic, ...]:
-    """The ``<mimic>`` couplings of a parsed URDF (lxml root)."""
+def mimic_tags(root, include_fixed: bool = False) -> tuple[Mimic, ...]:
+    """The ``<mimic>`` couplings of a parsed URDF (lxml root); those of fixed joints (which
+    couple nothing) only with ``include_fixed``."""
     out = []
     for joint in root.iter("joint"):
         tag = joint.find("mimic")
-        if tag is None or joint.get("type") in ("fixed", None):
+        if tag is None or (joint.get("type") in ("fixed", None) and not include_fixed):
             continue
         out.append(Mimic(str(joint.get("name")), str(tag.get("joint")),
                          float(tag.get("multiplier", 1.0)), float(tag.get("offset", 0.0))))
@@ -231,4 +235,6 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
             raise RobotFileError(path, None, f"joint {mimic.follower!r} mimics {mimic.leader!r}, "
                                              "which is not a joint of the file")
     visual, missing = resolve_visual_meshes(path, root, model)
-    return UrdfRobot(model, visual, mimics, missing)
+    gripper = frozenset(n for m in mimic_tags(root, include_fixed=True)
+                        for n in (m.leader, m.follower))
+    return UrdfRobot(model, visual, mimics, missing, gripper)
