@@ -48,3 +48,8 @@ class UndeterminedMotionError(SingularConfigurationError):
 
 class FloatingBaseError(StiffnessError):
     """A floating or planar base that was not fixed (``--fixed-base`` / ``fixed_base=True``)."""
+
+
+class RobotFileWarning(UserWarning):
+    """Something in a robot file that the toolkit ignores or reads in its own way (one warning
+    per thing)."""

@@ -27,12 +27,12 @@ from stiffness.errors import (
     FloatingBaseError,
     LoopClosureError,
     RobotFileError,
+    RobotFileWarning,
     StiffnessError,
     UndeterminedMotionError,
 )
 from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import load_robot
-from stiffness.model.urdf import RobotFileWarning
 
 A, C = 0.2, 0.3
 P = np.array([0.5, 0.15, 0.0])

@@ -294,7 +294,8 @@ def subspace_stiffness(jacobian: np.ndarray, compliance_matrix: np.ndarray, rtol
     rank = int(np.sum(sv > rtol * max(float(sv[0]) if sv.size else 0.0, 1e-300)))
     if rank == 0:
         raise SingularConfigurationError(
-            "the target Jacobian is zero here: the compliant joints do not move the target")
+            "the target Jacobian is zero here: the compliant joints do not move the target (it "
+            "sits on their axes); choose another --frame, or a --target-offset off the axes")
     basis = u[:, :rank]
     return SubspaceStiffness(basis, np.linalg.inv(basis.T @ compliance_matrix @ basis))
 

@@ -7,6 +7,7 @@ Every quirk of the pin 4.x Python bindings is fixed here, once:
 * For a model with one velocity coordinate the bindings return Jacobians squeezed to shape
   (6,); :func:`frame_jacobian`, :func:`point_jacobian` and :func:`frame_hessian` always return
   (6, nv) and (6, nv, nv).
+* The URDF parser prints its errors on the C-level standard error: :func:`captured_stderr`.
 * Only the ``LOCAL_WORLD_ALIGNED`` linear rows are the Hessian of the frame origin's position;
   this module only ever asks for that reference frame.
 
@@ -15,6 +16,10 @@ at the frame origin. Units: m, rad.
 """
 
 from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
 
 import numpy as np
 import pinocchio as pin
@@ -75,3 +80,24 @@ def frame_hessian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray
     rows 3..5 the derivative of the world-axes angular Jacobian.
     """
     return fix_hessian_layout(model, pin.getFrameKinematicHessian(model, data, frame_id, LWA))
+
+
+@contextmanager
+def captured_stderr():
+    """Capture the C-level standard error: Pinocchio's URDF parser (urdfdom) prints its
+    diagnosis there instead of raising it. Yields a list that holds the text afterwards."""
+    captured: list[str] = []
+    try:
+        fd = os.dup(2)
+    except OSError:  # no file descriptor 2 (embedded interpreters): nothing to capture
+        yield captured
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield captured
+        finally:
+            os.dup2(fd, 2)
+            os.close(fd)
+            tmp.seek(0)
+            captured.append(tmp.read().decode("utf-8", "replace"))

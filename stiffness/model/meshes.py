@@ -17,11 +17,16 @@ from __future__ import annotations
 
 import copy
 import os
+import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import unquote
 
 import pinocchio as pin
+
+from stiffness.errors import RobotFileWarning
+from stiffness.model import kinematics
 
 #: Radius (m) of the sphere drawn in place of a missing mesh.
 PLACEHOLDER_RADIUS_M = 0.02
@@ -118,9 +123,14 @@ def resolve_visual_meshes(urdf: Path, root, model: pin.Model
                 etree.SubElement(geometry, "sphere", radius=repr(PLACEHOLDER_RADIUS_M))
     if n_visuals == 0:
         return None, tuple(missing)
-    try:
-        visual = pin.buildGeomFromUrdfString(model, etree.tostring(doc, encoding="unicode"),
-                                             pin.GeometryType.VISUAL)
-    except (RuntimeError, ValueError):
-        return None, tuple(missing)
+    with kinematics.captured_stderr() as err:
+        try:
+            visual = pin.buildGeomFromUrdfString(model, etree.tostring(doc, encoding="unicode"),
+                                                 pin.GeometryType.VISUAL)
+        except (RuntimeError, ValueError):
+            visual = None
+    problems = [m.strip() for m in re.findall(r"Error:\s*(.+)", err[0] if err else "")]
+    for problem in dict.fromkeys(problems):
+        warnings.warn(f"{urdf}: visuals: {problem} (ignored by Pinocchio)", RobotFileWarning,
+                      stacklevel=3)
     return visual, tuple(missing)

@@ -542,7 +542,7 @@ def load_robot(
         coordinate_joints = list(order)
 
     closure = frozenset(n for p in (loop.pairs if loop else ()) for n in (p.frame_a, p.frame_b))
-    gripper = src.gripper_joints | {n for m in src.mimics for n in (m.leader, m.follower)}
+    gripper = _gripper_joints(model, src.all_mimics + src.mimics)
     frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"),
                           closure, gripper)
     if target_offset is None:
@@ -590,6 +590,18 @@ def load_robot(
         notes=tuple(notes),
         loop_file=None if declaration is None else declaration.path,
     )
+
+
+def _gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
+    """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
+    does not hang below its leader), which do not lengthen a chain for the default target."""
+    out: set[str] = set()
+    for m in mimics:
+        if model.existJointName(m.follower) and model.existJointName(m.leader) and \
+                model.getJointId(m.leader) in model.supports[model.getJointId(m.follower)]:
+            continue  # a serial coupling: the follower extends the leader's chain
+        out |= {m.leader, m.follower}
+    return frozenset(out)
 
 
 def _target_frame(name: str, model: pin.Model, frame: str | None,

@@ -46,7 +46,7 @@ class RobotSource:
     loop_file: Path | None = None
     urdf: Path | None = None
     notes: list[str] = field(default_factory=list)
-    gripper_joints: frozenset[str] = frozenset()
+    all_mimics: tuple[Mimic, ...] = ()
 
 
 def robots_directory() -> Path:
@@ -95,7 +95,7 @@ def _from_toml(folder: Path, name: str) -> RobotSource:
     settings["_folder"] = folder
     loop_file = folder / settings["loops"] if "loops" in settings else None
     return RobotSource(name, read.model, read.visual, settings, read.mimics, read.missing_meshes,
-                       loop_file, urdf, gripper_joints=read.gripper_joints)
+                       loop_file, urdf, all_mimics=read.all_mimics)
 
 
 def _toml_naming(path: Path) -> bool:
@@ -116,16 +116,15 @@ def _from_example_robot_data(name: str) -> RobotSource:
     loader = robots_loader.ROBOTS[name]()
     wrapper = loader.robot
     mimics: tuple[Mimic, ...] = ()
-    gripper: frozenset[str] = frozenset()
+    tags: tuple[Mimic, ...] = ()
     path = Path(getattr(loader, "df_path", ""))
     if path.suffix.lower() == ".urdf" and path.is_file():
         tags = _mimic_tags(path)
-        gripper = frozenset(n for m in tags for n in (m.leader, m.follower))
         mimics = tuple(m for m in tags if wrapper.model.existJointName(m.follower)
                        and wrapper.model.existJointName(m.leader)
                        and wrapper.model.joints[wrapper.model.getJointId(m.follower)].nv == 1)
     return RobotSource(name, wrapper.model, wrapper.visual_model, {}, mimics, (), None,
-                       path if path.is_file() else None, gripper_joints=gripper)
+                       path if path.is_file() else None, all_mimics=tags)
 
 
 def _mimic_tags(path: Path) -> tuple[Mimic, ...]:
@@ -156,7 +155,7 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
         read = read_urdf(path)
         return RobotSource(text, read.model, read.visual, {"_folder": path.parent}, read.mimics,
                            read.missing_meshes, find_loop_sidecar(path), path,
-                           gripper_joints=read.gripper_joints)
+                           all_mimics=read.all_mimics)
     erd_names = example_robot_names()
     if text in erd_names:
         return _from_example_robot_data(text)

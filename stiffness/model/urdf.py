@@ -16,16 +16,15 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 import warnings
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import RobotFileError, StiffnessError
+from stiffness.errors import RobotFileError, RobotFileWarning, StiffnessError
+from stiffness.model import kinematics
 from stiffness.model.meshes import MissingMesh, resolve_visual_meshes
 
 #: urdfdom messages that only repeat that an earlier, more specific error happened.
@@ -35,10 +34,6 @@ _CHILD_TAGS = ("origin", "axis", "limit", "mimic", "dynamics", "calibration",
                "safety_controller", "inertial", "visual", "collision")
 _DECLARATION = re.compile(rb"^\s*<\?xml[^>]*\?>")
 _VERSION = re.compile(rb"""version\s*=\s*["']([^"']*)["']""")
-
-
-class RobotFileWarning(UserWarning):
-    """Something in a robot file that the toolkit ignores or reads in its own way."""
 
 
 @dataclass(frozen=True)
@@ -63,8 +58,8 @@ class UrdfRobot:
         Visual geometry with resolved meshes (primitives stand in for missing ones), or None.
     mimics
         The ``<mimic>`` couplings.
-    gripper_joints
-        Every joint named in a ``<mimic>`` tag, leaders included (a gripper's jaws).
+    all_mimics
+        Every ``<mimic>`` tag, those of fixed joints included (for the default target frame).
     missing_meshes
         Meshes that could not be found (drawn as primitives).
     """
@@ -73,32 +68,12 @@ class UrdfRobot:
     visual: object | None
     mimics: tuple[Mimic, ...] = ()
     missing_meshes: tuple[MissingMesh, ...] = field(default_factory=tuple)
-    gripper_joints: frozenset[str] = frozenset()
+    all_mimics: tuple[Mimic, ...] = ()
 
 
 def warn(message: str) -> None:
     """Emit one :class:`RobotFileWarning`."""
     warnings.warn(message, RobotFileWarning, stacklevel=3)
-
-
-@contextmanager
-def _captured_stderr():
-    """Capture the C-level standard error (urdfdom prints its diagnosis there)."""
-    captured: list[str] = []
-    try:
-        fd = os.dup(2)
-    except OSError:  # no file descriptor 2 (embedded interpreters): nothing to capture
-        yield captured
-        return
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            yield captured
-        finally:
-            os.dup2(fd, 2)
-            os.close(fd)
-            tmp.seek(0)
-            captured.append(tmp.read().decode("utf-8", "replace"))
 
 
 def _tolerant_bytes(raw: bytes) -> bytes:
@@ -212,7 +187,7 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
         raise StiffnessError(f"URDF file {path} does not exist; give an existing .urdf path")
     raw = path.read_bytes()
     root = _parse_tree(path, raw)
-    with _captured_stderr() as err:
+    with kinematics.captured_stderr() as err:
         try:
             model = pin.buildModelFromXML(raw.decode("utf-8", "replace"))
             failure = None
@@ -235,6 +210,4 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
             raise RobotFileError(path, None, f"joint {mimic.follower!r} mimics {mimic.leader!r}, "
                                              "which is not a joint of the file")
     visual, missing = resolve_visual_meshes(path, root, model)
-    gripper = frozenset(n for m in mimic_tags(root, include_fixed=True)
-                        for n in (m.leader, m.follower))
-    return UrdfRobot(model, visual, mimics, missing, gripper)
+    return UrdfRobot(model, visual, mimics, missing, mimic_tags(root, include_fixed=True))
