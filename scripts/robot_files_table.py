@@ -93,7 +93,7 @@ def row(path: Path, root: Path) -> dict:
             text = str(exc)
             out["loads"] = ("no moving joint" if "no joint of" in text
                             else f"refused: {text.split(': ', 1)[-1][:110]}")
-            return out
+            return {k: v.replace(f"{root}/", "") for k, v in out.items()}
     out["loads"] = ("with --fixed-base" if fixed else "yes") + (
         f" ({len(caught)} warnings)" if caught else "")
     out["coordinates"] = str(robot.n_coordinates)
@@ -114,7 +114,7 @@ def row(path: Path, root: Path) -> dict:
     except StiffnessError as exc:
         out["kx"] = f"2: {str(exc)[:110]}"
     out["seconds"] = f"{time.perf_counter() - started:.1f}"
-    return out
+    return {k: v.replace(f"{root}/", "") for k, v in out.items()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -123,19 +123,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--exclude", action="append", default=[],
                         help="skip URDFs whose path contains this text (repeatable)")
     parser.add_argument("--out", type=Path, help="write the Markdown table here")
+    parser.add_argument("--skip-static", action="store_true",
+                        help="leave out files without any moving joint (objects)")
     args = parser.parse_args(argv)
     lines = ["| robot | loads unchanged? | coords | passive | idle | search | kx exit | "
              "J vs FD | K_C vs FD |", "|---|---|---|---|---|---|---|---|---|"]
+    skipped = 0
     for folder in args.folders:
         for path in sorted(folder.rglob("*.urdf")):
             if any(text in str(path) for text in args.exclude):
                 continue
             r = row(path, folder)
+            if args.skip_static and r["loads"] == "no moving joint":
+                skipped += 1
+                continue
             line = (f"| {r['robot']} | {r['loads']} | {r['coordinates']} | {r['passive']} | "
                     f"{r['idle']} | {r['search']} | {r['kx']} | {r['J']} | {r['K_C']} |")
             lines.append(line.replace("\n", " "))
             print(line, file=sys.stderr, flush=True)
     text = "\n".join(lines) + "\n"
+    if skipped:
+        text += f"\n({skipped} files without any moving joint left out.)\n"
     if args.out:
         args.out.write_text(text)
     else:

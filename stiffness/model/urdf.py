@@ -84,18 +84,26 @@ def _tolerant_bytes(raw: bytes) -> bytes:
     return raw[: match.start()] + raw[match.end():]
 
 
-def _parse_tree(path: Path, raw: bytes):
-    """lxml tree of the file (declaration neutralised), or a :class:`RobotFileError`."""
+def _parse_tree(path: Path, raw: bytes, strict: bool):
+    """lxml tree of the file (declaration neutralised).
+
+    ``strict``: a file that is not well-formed XML is a :class:`RobotFileError` with its line
+    (only asked once Pinocchio has refused the file: what Pinocchio reads, loads); otherwise the
+    parser recovers what it can (for warnings, mimic tags and visuals).
+    """
     from lxml import etree
 
     try:
-        return etree.fromstring(_tolerant_bytes(raw), etree.XMLParser(
-            recover=False, remove_comments=True, huge_tree=True))
+        root = etree.fromstring(_tolerant_bytes(raw), etree.XMLParser(
+            recover=not strict, remove_comments=True, huge_tree=True))
     except etree.XMLSyntaxError as exc:
         # the declaration is removed without its line break: line numbers are unchanged
         line = exc.position[0] if exc.position else None
         raise RobotFileError(path, line,
                              f"not a valid URDF: not well-formed XML: {exc.msg}") from exc
+    if root is None:
+        return etree.fromstring(b"<robot/>")
+    return root
 
 
 def _urdfdom_problem(text: str) -> tuple[str | None, int | None]:
@@ -186,7 +194,6 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
     if not path.is_file():
         raise StiffnessError(f"URDF file {path} does not exist; give an existing .urdf path")
     raw = path.read_bytes()
-    root = _parse_tree(path, raw)
     with kinematics.captured_stderr() as err:
         try:
             model = pin.buildModelFromXML(raw.decode("utf-8", "replace"))
@@ -194,6 +201,7 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
         except (RuntimeError, ValueError) as exc:
             failure = exc
     if failure is not None:
+        root = _parse_tree(path, raw, strict=True)
         problem, line = _urdfdom_problem(err[0] if err else "")
         structure = _structure_problem(root)
         if structure is not None:
@@ -203,6 +211,7 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
         raise RobotFileError(
             path, line or _element_line(root, problem),
             f"not a valid URDF (Pinocchio's parser refuses it): {problem}") from failure
+    root = _parse_tree(path, raw, strict=False)
     _warn_ignored(path, raw, root, model)
     mimics = mimic_tags(root)
     for mimic in mimics:
