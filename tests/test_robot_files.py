@@ -497,3 +497,26 @@ def test_sk120_by_name_and_by_path_give_identical_kx(capsys):
     assert by_name["coordinate_joints"] == by_path["coordinate_joints"]
     assert by_name["J"] == by_path["J"] and by_name["K_X"] == by_path["K_X"]
     assert by_name["frame"] == by_path["frame"] == "fixture_target"
+
+
+def test_batch_kernels_allow_idle_motions_and_follow_mimics(spinning, tmp_path):
+    """The vectorised kinematics (scan) agree with target_state (checked above against finite
+    differences) on the idle rod spin and on a mimic follower."""
+    from stiffness.batch.kernels import batch_kinematics
+
+    robot, _ = spinning
+    arm = tmp_path / "mimic.urdf"
+    arm.write_text(_planar_arm("""
+  <link name="l3"/><joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/>
+    <origin xyz="0.3 0 0"/><axis xyz="0 0 1"/><mimic joint="j2" multiplier="-0.7"/>
+    <limit effort="1" velocity="1" lower="-3" upper="3"/></joint>"""))
+    mimic = load_robot(arm, frame="l3", target_offset=[0.2, 0.05, 0.0])
+    for r, coords in ((robot, [[0.4, 0.03], [-0.3, 0.1]]), (mimic, [[0.3, 0.9], [1.0, -0.5]])):
+        q = np.array([r.configuration(np.array(c)) for c in coords])
+        kin = batch_kinematics(r, q)
+        assert kin.valid.all()
+        for i in range(len(q)):
+            state = target_state(r, q[i], FORCE)
+            np.testing.assert_allclose(kin.jacobian[i], state.jacobian, atol=1e-12)
+            k_c = np.einsum("k,kab->ab", FORCE, kin.k_c_basis[i][:3])
+            np.testing.assert_allclose(k_c, state.k_c, atol=1e-10 * np.abs(state.k_c).max())

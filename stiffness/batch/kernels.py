@@ -246,7 +246,13 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
 
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
-    if robot.loop is None:
+    if robot.loop is None and robot.mimics:
+        # mimic followers move with their leaders: S is not a selection (as
+        # formulation.velocity_projection)
+        e = _partial_projection(robot, nv)
+        basis = np.einsum("ia,mkij,jb->mkab", e, _unscramble(raw)[:, :w], e, optimize=True)
+        jac = j_full @ e
+    elif robot.loop is None:
         # raw read as (m, b, a, k) is the unit-wrench basis [m, k, a, b], transposed
         basis_t = raw.reshape(m, nv, nv, 6)
         if not _is_identity_selection(cv, nv):
@@ -262,6 +268,36 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
         position=None if placement is None else placement[:, :3, 3].copy(),
         rotation=None if placement is None else placement[:, :3, :3].copy(),
     )
+
+
+def _partial_projection(robot: Robot, nv: int) -> np.ndarray:
+    """(nv, n) rates of the compliant joints (identity) and their mimic followers."""
+    n = robot.n_compliant
+    e = np.zeros((nv, n))
+    e[robot.compliant_v, np.arange(n)] = 1.0
+    for mimic in robot.mimics:
+        e[robot.joint_v_index(mimic.follower)] = mimic.multiplier * e[
+            robot.joint_v_index(mimic.leader)]
+    return e
+
+
+def _determined_target(d_p: np.ndarray, s: np.ndarray, scale: np.ndarray,
+                       j_passive: np.ndarray) -> np.ndarray:
+    """Per configuration: whether the target position is determined by the closure.
+
+    Passive motions the constraints leave free (null space of ``d_p``, (m, R, np)) are allowed
+    when they do not move the target (``j_passive``: (m, 3, np) position Jacobian columns), as
+    in :func:`stiffness.mechanics.formulation.velocity_projection`.
+    """
+    n_passive = d_p.shape[2]
+    rank = np.sum(s > _RANK_RTOL * scale[:, None], axis=1)
+    valid = np.ones(d_p.shape[0], dtype=bool)
+    for i in np.flatnonzero(rank < n_passive):
+        null = np.linalg.svd(d_p[i])[2][rank[i]:].T
+        j = j_passive[i]
+        moved = np.linalg.norm(j @ null, axis=0)
+        valid[i] = not np.any(moved > 1e-8 * max(1.0, float(np.abs(j).max(initial=0.0))))
+    return valid
 
 
 def _is_identity_selection(index: np.ndarray, size: int) -> bool:
@@ -284,8 +320,7 @@ def _closed_loop_basis(robot: Robot, hess: np.ndarray, j_full: np.ndarray,
     """
     loop = robot.loop
     m, nv = j_full.shape[0], j_full.shape[2]
-    n = robot.n_compliant
-    cv, pv = robot.compliant_v, loop.passive_v
+    pv = loop.passive_v
     pairs = range(0, raw_loop.shape[0], 2)
     c_w = np.concatenate([j_loop[p + 1, :, :3] - j_loop[p, :, :3] for p in pairs],
                          axis=1)  # (m, R, nv)
@@ -303,13 +338,13 @@ def _closed_loop_basis(robot: Robot, hess: np.ndarray, j_full: np.ndarray,
     d_p = d_s[:, :, pv]
     u, s, vt = np.linalg.svd(d_p, full_matrices=False)
     scale = np.maximum(1.0, np.abs(d_p).max(axis=(1, 2)))
-    valid = np.all(s > _RANK_RTOL * scale[:, None], axis=1)
+    valid = _determined_target(d_p, s, scale, j_full[:, :3, pv])
     cutoff = _RANK_RTOL * s[:, :1]
     s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
+    partial = _partial_projection(robot, nv)
     rates = -((np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
-              @ d_s[:, :, cv])  # -pinv(D_p) D_c
-    proj = np.zeros((m, nv, n))
-    proj[:, cv, np.arange(n)] = 1.0
+              @ (d_s @ partial))  # -pinv(D_p) D S_c (S_c: compliant joints and followers)
+    proj = np.repeat(partial[None], m, axis=0)
     proj[:, pv, :] = rates
     # multipliers per unit wrench component: lambda = pinv(C_p^T) (J^T W)_p, world residual
     c_p = c_w[:, :, pv]  # (m, R, np)
