@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.mechanics.platform import PlatformSpec, platform_loop_declaration, platform_urdf
+from stiffness.model.platform import PlatformSpec, platform_loop_declaration, platform_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "robots" / "hexapod"

@@ -2,7 +2,13 @@
 
 Load a robot (URDF, example-robot-data name or a shipped robot, closed loops included), then
 compute its Jacobian, complementary stiffness K_C, compliance and Cartesian stiffness with and
-without the load-dependent term, and the exact elastostatic equilibrium. SI units throughout.
+without the load-dependent term, and the exact elastostatic equilibrium; evaluate many
+configurations at once, scan a workspace, identify joint stiffness from measurements and find
+what a model misses, and draw stiffness ellipsoids. SI units throughout (m, N, rad, N.m/rad).
+
+The main functions and classes of every layer are here (see docs/architecture.md): the model
+and mechanics are imported with the package; the batch, scan, calibration, papers and viewer
+entries are imported on first use (they bring SciPy's optimisers, matplotlib, meshcat).
 
 Example::
 
@@ -16,12 +22,21 @@ Example::
     c_x = stiffness.compliance(state.jacobian[:3], k_theta - state.k_c)   # m/N
 """
 
+#: The package version (the single source: pyproject.toml reads it from here).
+__version__ = "0.1.0"
+
+import importlib
+
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.files import atomic_write
+from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
+from stiffness.mechanics.equilibrium import Equilibrium, solve_equilibrium
 from stiffness.mechanics.formulation import (
+    TargetState,
     cartesian_stiffness,
     compliance,
     definiteness,
+    deflection,
     ellipsoid,
     joint_connection_stiffness,
     joint_stiffness,
@@ -30,20 +45,86 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
     work_balance,
 )
+from stiffness.mechanics.platform import platform_stiffness, solve_pose
+from stiffness.mechanics.wrench import holding_wrench, reorder_twist
 from stiffness.model.robot import Robot, load_robot
+from stiffness.model.sources import shipped_robots
+
+#: Entries of the upper layers, imported on first use: name -> module defining it.
+_ON_FIRST_USE = {
+    # batch: many configurations at once
+    "batch_kinematics": "stiffness.batch.kernels",
+    "close_loops": "stiffness.batch.loops",
+    "definiteness_map": "stiffness.batch.kernels",
+    # scan: workspace maps
+    "ScanSpec": "stiffness.scan.engine",
+    "run_scan": "stiffness.scan.engine",
+    "load_scan": "stiffness.scan.engine",
+    # calibration: campaigns, identification, diagnosis, synthetic campaigns
+    "Campaign": "stiffness.calibration.campaign",
+    "load_campaign": "stiffness.calibration.campaign",
+    "identify": "stiffness.calibration.identify",
+    "diagnose": "stiffness.calibration.diagnose",
+    "simulate": "stiffness.calibration.simulate",
+    # papers: the SK120 reproduction
+    "build_report": "stiffness.papers.report",
+    # viewer: stiffness ellipsoids in the browser
+    "StiffnessViewer": "stiffness.viewer",
+}
+
+
+def __getattr__(name: str):
+    """Import an upper-layer entry of :data:`__all__` on first use."""
+    module = _ON_FIRST_USE.get(name)
+    if module is None:
+        raise AttributeError(f"module 'stiffness' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_ON_FIRST_USE))
+
 
 __all__ = [
+    "Campaign",
+    "Equilibrium",
     "Robot",
+    "ScanSpec",
     "SingularConfigurationError",
     "StiffnessError",
+    "StiffnessViewer",
+    "TargetState",
+    "__version__",
+    "atomic_write",
+    "batch_kinematics",
+    "build_report",
     "cartesian_stiffness",
+    "close_loops",
     "compliance",
+    "default_coordinates",
+    "default_load",
+    "default_stiffness",
+    "deflection",
     "definiteness",
+    "definiteness_map",
+    "diagnose",
     "ellipsoid",
+    "holding_wrench",
+    "identify",
     "joint_connection_stiffness",
     "joint_stiffness",
+    "load_campaign",
     "load_robot",
+    "load_scan",
+    "platform_stiffness",
+    "reorder_twist",
+    "run_scan",
+    "shipped_robots",
+    "simulate",
     "solve_equilibrium",
+    "solve_pose",
     "target_state",
     "target_states",
     "twist_basis_stiffness",

@@ -1,17 +1,197 @@
-"""Errors the toolkit raises on bad input: each names the problem and the fix."""
+"""Errors the toolkit raises on bad input: each names the problem and the fix in one line.
+
+Every error is a :class:`StiffnessError` (a :class:`ValueError`, so older ``except ValueError``
+code keeps working); the subclasses say what went wrong and carry what a program needs to react:
+
+* :class:`UnknownNameError` (:class:`UnknownRobotError`, :class:`UnknownFrameError`,
+  :class:`UnknownJointError`, :class:`UnknownEffectError`): ``name`` and the valid ``choices``;
+* :class:`MissingFileError`: ``path``;
+* :class:`FileFormatError`: ``path``, ``line`` and ``column`` (1-based, None when unknown);
+* :class:`SingularConfigurationError`: a Jacobian or tangent stiffness that must be inverted is
+  singular;
+* :class:`RobotFileError` (a :class:`FileFormatError`): a URDF or loop file that cannot be read;
+* :class:`LoopClosureError`: a kinematic loop cannot be closed at the given coordinates
+  (``loop`` and ``residual`` when known);
+* :class:`UndeterminedMotionError` (a :class:`SingularConfigurationError`): the target moves
+  with a passive motion the loops leave free;
+* :class:`FloatingBaseError`: a floating or planar base that ``--fixed-base`` would fix;
+* :class:`ConvergenceError`: an iterative solver did not converge;
+* :class:`UnstableEquilibriumError`: the load buckles the robot (K_theta - K_C not positive
+  definite at the equilibrium).
+
+The command line turns each into exit status 2 and one line on stderr.
+"""
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def _restore(cls: type, args: tuple, state: dict) -> BaseException:
+    """Rebuild a pickled error (keyword-only attributes survive Dask and multiprocessing)."""
+    exc = cls.__new__(cls)
+    exc.args = args
+    exc.__dict__.update(state)
+    return exc
+
 
 class StiffnessError(ValueError):
-    """Bad input (robot, file, configuration, units).
+    """Bad input (robot, file, configuration, units, flag value).
 
-    The message says what is wrong and how to fix it.
+    The message says what is wrong and how to fix it, on one line.
     """
+
+    def __reduce__(self):  # noqa: D105
+        return _restore, (type(self), self.args, dict(self.__dict__))
+
+
+class UnknownNameError(StiffnessError):
+    """A name (robot, frame, joint, effect...) that is not among the valid ones.
+
+    Attributes
+    ----------
+    kind : str
+        What was named ("robot", "frame", "joint", "effect", or "name").
+    name : str
+        The name given.
+    choices : tuple of str
+        The valid names.
+    """
+
+    kind = "name"
+
+    def __init__(self, message: str, *, name: str, choices: Sequence[str]) -> None:
+        super().__init__(message)
+        self.name = str(name)
+        self.choices = tuple(str(c) for c in choices)
+
+
+class UnknownRobotError(UnknownNameError):
+    """A robot that is neither shipped, nor an example-robot-data name, nor a URDF file."""
+
+    kind = "robot"
+
+
+class UnknownFrameError(UnknownNameError):
+    """A frame the robot model does not have."""
+
+    kind = "frame"
+
+
+class UnknownJointError(UnknownNameError):
+    """A joint (or coordinate) the robot does not have, or not of the kind required."""
+
+    kind = "joint"
+
+
+class UnknownEffectError(UnknownNameError):
+    """An effect that is not in the effect library."""
+
+    kind = "effect"
+
+
+class MissingFileError(StiffnessError):
+    """A file or folder that does not exist or cannot be read.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    """
+
+    def __init__(self, message: str, *, path: str | Path) -> None:
+        super().__init__(message)
+        self.path = Path(path)
+
+
+class OutputError(StiffnessError):
+    """An output that cannot be written (full disk, read-only folder, a file where a folder goes).
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The file or folder that could not be written.
+    """
+
+    def __init__(self, message: str, *, path: str | Path) -> None:
+        super().__init__(message)
+        self.path = Path(path)
+
+
+class FileFormatError(StiffnessError):
+    """A file whose content is malformed; the message starts with where.
+
+    Parameters
+    ----------
+    problem : str
+        What is wrong and how to fix it (without the location).
+    path : str or Path
+        The file.
+    line, column : int, optional
+        1-based position of the problem, when known.
+    field : str, optional
+        Name of the field at that position (a CSV column, a TOML key).
+
+    The message is ``"<path>, line L, column C (field): <problem>"`` (the known parts only).
+    """
+
+    def __init__(self, problem: str, *, path: str | Path, line: int | None = None,
+                 column: int | None = None, field: str | None = None) -> None:
+        where = str(path)
+        if line is not None:
+            where += f", line {line}"
+        if column is not None:
+            where += f", column {column}"
+        if field is not None:
+            where += f" ({field})"
+        super().__init__(f"{where}: {problem}")
+        self.path = Path(path)
+        self.line = line
+        self.column = column
+        self.field = field
+        self.problem = problem
 
 
 class SingularConfigurationError(StiffnessError):
     """A Jacobian or a tangent stiffness is singular where an inverse is needed."""
+
+
+class LoopClosureError(StiffnessError):
+    """The kinematic loops cannot be closed at the given coordinates (out of reach, or branch).
+
+    Attributes
+    ----------
+    loop : str or None
+        The loop that cannot close (``[frame_a, frame_b]``), when known.
+    residual : float or None
+        Its residual (m; rad for 6D rotation rows), when known.
+    """
+
+    def __init__(self, message: str, loop: str | None = None, residual: float | None = None
+                 ) -> None:
+        super().__init__(message)
+        self.loop = loop
+        self.residual = residual
+
+
+class ConvergenceError(StiffnessError):
+    """An iterative solver (equilibrium, inverse kinematics, fit) did not converge."""
+
+
+class UnstableEquilibriumError(StiffnessError):
+    """The load buckles the robot: the equilibrium is unstable or the tangent stiffness singular."""
+
+
+def with_context(exc: StiffnessError, context: str) -> StiffnessError:
+    """A copy of ``exc``, of the same type and attributes, its message prefixed by ``context``.
+
+    For re-raising an error with where it happened (``raise with_context(exc, row) from exc``)
+    without losing its type.
+    """
+    out = copy.copy(exc)
+    out.args = (f"{context}: {exc}", *exc.args[1:])
+    return out
 
 
 def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40) -> str:
@@ -24,22 +204,13 @@ def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40)
     return f"valid names: {listed}.{hint}"
 
 
-class RobotFileError(StiffnessError):
-    """A robot file (URDF, loop declaration) that cannot be read: path, line (or None), problem."""
+class RobotFileError(FileFormatError):
+    """A robot file (URDF, loop declaration) that cannot be read: ``path``, ``line`` (or None)
+    and ``problem``, in :class:`FileFormatError`'s one-line form."""
 
-    def __init__(self, path, line: int | None, problem: str) -> None:
-        self.path, self.line, self.problem = str(path), line, problem
-        where = f"{path}:{line}" if line is not None else f"{path}"
-        super().__init__(f"{where}: {problem}")
-
-
-class LoopClosureError(StiffnessError):
-    """A kinematic loop that does not close: ``loop`` names it, ``residual`` is in m (rad)."""
-
-    def __init__(self, message: str, loop: str | None = None, residual: float | None = None
-                 ) -> None:
-        self.loop, self.residual = loop, residual
-        super().__init__(message)
+    def __init__(self, path: str | Path, line: int | None, problem: str,
+                 column: int | None = None) -> None:
+        super().__init__(problem, path=path, line=line, column=column)
 
 
 class UndeterminedMotionError(SingularConfigurationError):

@@ -1,12 +1,175 @@
-"""Atomic file output: a reader never sees a half-written file, and a failure loses nothing."""
+"""Files in and out: typed errors on reading, atomic output.
+
+Reading (:func:`read_text`, :func:`read_toml`, :func:`read_json`, :func:`read_yaml`): a file that
+is missing or unreadable raises :class:`~stiffness.errors.MissingFileError`, one whose syntax is
+broken a :class:`~stiffness.errors.FileFormatError` with its line and column, each with a
+one-line message naming the file, the problem and the fix.
+
+Writing (:func:`atomic_write`, :func:`atomic_write_with`, :func:`output_folder`): a reader
+never sees a half-written file, and a failure loses nothing. The data is written to a temporary
+file beside the target (``.<name>.<pid>.<random>.tmp``), flushed to disk, then renamed over the
+target. A process killed mid-write leaves the target as it was (absent or the previous complete
+version) plus at most its temporary file, which the next write of the same target removes once
+its writing process is gone. A write that fails (a full disk, a read-only folder, ``--out``
+naming an existing file) removes its temporary file and raises
+:class:`~stiffness.errors.OutputError` with one line naming the path and the fix.
+"""
 
 from __future__ import annotations
 
+import errno
+import json
 import os
+import re
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
+
+from stiffness.errors import FileFormatError, MissingFileError, OutputError
+
+#: Where tomllib (and tomli) put the position in their messages.
+_TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
+
+
+def read_text(path: str | os.PathLike, what: str = "file") -> str:
+    """The UTF-8 text of ``path`` (``what`` names the file in the error, e.g. "campaign file").
+
+    Raises
+    ------
+    MissingFileError
+        If the file does not exist or cannot be read.
+    FileFormatError
+        If it is not UTF-8 text.
+    """
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise MissingFileError(f"cannot read {what} {path}: no such file; check the path",
+                               path=path) from None
+    except IsADirectoryError:
+        raise MissingFileError(f"{what} {path} is a folder, not a file; give the file",
+                               path=path) from None
+    except OSError as exc:
+        raise MissingFileError(f"cannot read {what} {path}: {exc.strerror}; check its "
+                               "permissions", path=path) from exc
+    except UnicodeDecodeError as exc:
+        raise FileFormatError(f"not UTF-8 text (byte {exc.start}); save the {what} as UTF-8",
+                              path=path) from exc
+
+
+def read_toml(path: str | os.PathLike, what: str = "TOML file") -> dict[str, Any]:
+    """The table of a TOML file; syntax errors carry their line and column."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
+        import tomli as tomllib
+
+    text = read_text(path, what)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        message = str(exc)
+        where = _TOML_POSITION.search(message)
+        problem = _TOML_POSITION.sub("", message)
+        raise FileFormatError(
+            f"the file is not valid TOML ({problem}); fix the syntax there", path=path,
+            line=int(where.group(1)) if where else None,
+            column=int(where.group(2)) if where else None) from exc
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
+    """The content of a JSON file; syntax errors carry their line and column."""
+    text = read_text(path, what)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"the file is not JSON ({exc.msg}); fix the syntax there",
+                              path=path, line=exc.lineno, column=exc.colno) from exc
+
+
+def read_yaml(path: str | os.PathLike, what: str = "YAML file") -> Any:
+    """The content of a YAML file; syntax errors carry their line and column."""
+    import yaml
+
+    text = read_text(path, what)
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        raise FileFormatError(
+            f"the file is not valid YAML ({problem}); fix the syntax there", path=path,
+            line=None if mark is None else mark.line + 1,
+            column=None if mark is None else mark.column + 1) from exc
+
+
+#: What to do about each kind of write failure.
+_FIXES = {
+    errno.ENOSPC: "free some space or choose another output folder",
+    errno.EDQUOT: "free some space or choose another output folder",
+    errno.EFBIG: "the file is over this process's size limit; choose another output folder",
+    errno.EROFS: "the file system is read-only; choose another output folder",
+    errno.EACCES: "the folder is not writable; choose another output folder",
+    errno.EPERM: "the folder is not writable; choose another output folder",
+    errno.EEXIST: "a file stands where a folder is needed; remove it or choose another path",
+    errno.ENOTDIR: "a file stands where a folder is needed; remove it or choose another path",
+    errno.EISDIR: "a folder stands where the file is to be written; choose another path",
+}
+
+
+def _output_error(path: Path, exc: OSError) -> OutputError:
+    fix = _FIXES.get(exc.errno or -1, "check the path and the disk")
+    return OutputError(f"cannot write {path}: {exc.strerror or exc}; {fix}", path=path)
+
+
+def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
+    """Check (and with ``create``, make) the folder ``path`` for outputs.
+
+    With ``create=False`` nothing is made: the check a command runs before its work, so a
+    bad ``--out`` fails at once and a refused run leaves no folder behind.
+
+    Raises
+    ------
+    OutputError
+        ``path`` or one of its parents is an existing file, or the folder cannot be created
+        or written.
+    """
+    path = Path(path)
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        what = "it is" if existing == path else f"{existing} is"
+        raise OutputError(f"cannot write into {path}: {what} a file, not a folder; remove it "
+                          f"or choose another output folder", path=path)
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputError(f"cannot write into {path}: {existing} is not writable; choose "
+                          f"another output folder", path=path)
+    if create:
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise _output_error(path, exc) from exc
+    return path
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Remove temporary files of ``path`` left by writers that no longer run (killed)."""
+    for stale in path.parent.glob(f".{path.name}.*.tmp"):
+        parts = stale.name[len(path.name) + 2:].split(".")
+        if not parts or not parts[0].isdigit():
+            continue
+        pid = int(parts[0])
+        if pid == os.getpid():
+            continue
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            stale.unlink(missing_ok=True)
+        except PermissionError:
+            continue  # another user's live process
 
 
 def atomic_write_with(path: str | os.PathLike, write: Callable[[BinaryIO], object]) -> Path:
@@ -14,15 +177,31 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[BinaryIO], objec
 
     The file keeps the mode of the file it replaces (else ``rw-r--r--``); on any error the
     temporary file is removed and ``path`` is left as it was.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (full disk, read-only folder, a file where the folder
+        should be); nothing is left half-written.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    output_folder(path.parent)
+    _remove_stale_temporaries(path)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.",
+                                   suffix=".tmp")
+    except OSError as exc:
+        raise _output_error(path, exc) from exc
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
+            f.flush()
+            os.fsync(f.fileno())
         os.chmod(tmp, path.stat().st_mode & 0o777 if path.exists() else 0o644)
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise _output_error(path, exc) from exc
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -293,3 +293,16 @@ def tilted_four_bar_robot(tilted_four_bar) -> Robot:
 @pytest.fixture(scope="module")
 def spatial_robot(spatial_four_bar) -> Robot:
     return load_robot(spatial_four_bar, frame="tool_tip")
+
+
+# ---------------------------------------------------------------------------- the SK120 report
+
+
+@pytest.fixture(scope="session")
+def sk120_report(tmp_path_factory) -> Path:
+    """Folder written once per session by ``stiffness report --quiet`` (summary.json, ...)."""
+    from stiffness.cli.main import main
+
+    out = tmp_path_factory.mktemp("sk120-report")
+    assert main(["report", "--out", str(out), "--quiet"]) == 0
+    return out

@@ -29,13 +29,8 @@ except ModuleNotFoundError:  # Python 3.10
 
 from stiffness.cli.main import main
 from stiffness.mechanics.formulation import joint_stiffness, target_state
-from stiffness.mechanics.platform import (
-    holding_wrench,
-    lie_bracket_term,
-    platform_stiffness,
-    reorder_twist,
-    solve_pose,
-)
+from stiffness.mechanics.platform import lie_bracket_term, platform_stiffness, solve_pose
+from stiffness.mechanics.wrench import holding_wrench, reorder_twist
 from stiffness.model.robot import load_robot
 from stiffness.model.sources import robots_directory
 

@@ -28,7 +28,6 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
 )
 from stiffness.mechanics.platform import (
-    VIRTUAL_JOINTS,
     jacobian_derivative,
     lie_bracket_term,
     platform_stiffness,
@@ -37,6 +36,7 @@ from stiffness.mechanics.platform import (
 )
 from stiffness.model import kinematics
 from stiffness.model.loops import read_loop_declaration
+from stiffness.model.platform import VIRTUAL_JOINTS
 from stiffness.model.robot import load_robot
 from stiffness.model.sources import robots_directory
 

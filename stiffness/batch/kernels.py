@@ -76,8 +76,9 @@ from stiffness.batch.loops import (
     loop_coordinate_indices,
     tree_configurations,
 )
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.formulation import FORMULATIONS
+from stiffness.model.kinematics import reorder_hessian
 from stiffness.model.robot import Robot
 
 __all__ = [
@@ -137,17 +138,6 @@ class BatchKinematics:
     def size(self) -> int:
         """Number of configurations m."""
         return self.q.shape[0]
-
-
-def _unscramble(raw: np.ndarray) -> np.ndarray:
-    """Batched kinematic-Hessian reorder: ``H[i, k, a, b] = dJ_i[k, a] / dq_b``.
-
-    ``raw`` (m, 6, nv, nv) holds, per configuration, the array returned by
-    ``getFrameKinematicHessian`` (the column-major tensor read in row-major order, see
-    :mod:`stiffness.model.kinematics`). Returns a view.
-    """
-    m, _, nv, _ = raw.shape
-    return raw.reshape(m, nv, nv, 6).transpose(0, 3, 2, 1)
 
 
 def batch_kinematics(robot: Robot, q: np.ndarray, moments: bool = True,
@@ -250,18 +240,17 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
         # mimic followers move with their leaders: S is not a selection (as
         # formulation.velocity_projection)
         e = _partial_projection(robot, nv)
-        basis = np.einsum("ia,mkij,jb->mkab", e, _unscramble(raw)[:, :w], e, optimize=True)
+        basis = np.einsum("ia,mkij,jb->mkab", e, reorder_hessian(raw)[:, :w], e, optimize=True)
         jac = j_full @ e
     elif robot.loop is None:
-        # raw read as (m, b, a, k) is the unit-wrench basis [m, k, a, b], transposed
-        basis_t = raw.reshape(m, nv, nv, 6)
+        # the Hessian rows are the unit-wrench basis [m, k, a, b] (a view of raw)
+        basis = reorder_hessian(raw)[:, :w]
         if not _is_identity_selection(cv, nv):
-            basis_t = basis_t[:, cv[:, None], cv[None, :]]
+            basis = basis[:, :, cv[:, None], cv[None, :]]
             j_full = j_full[:, :, cv]
-        basis = basis_t[..., :w].transpose(0, 3, 2, 1)
         jac = j_full
     else:
-        basis, jac, valid = _closed_loop_basis(robot, _unscramble(raw), j_full, raw_loop,
+        basis, jac, valid = _closed_loop_basis(robot, reorder_hessian(raw), j_full, raw_loop,
                                                j_loop, w, loop_pos, loop_jac)
     return BatchKinematics(
         q=q, jacobian=jac, k_c_basis=basis, valid=valid,
@@ -325,7 +314,7 @@ def _closed_loop_basis(robot: Robot, hess: np.ndarray, j_full: np.ndarray,
     c_w = np.concatenate([j_loop[p + 1, :, :3] - j_loop[p, :, :3] for p in pairs],
                          axis=1)  # (m, R, nv)
     hc = np.concatenate([
-        _unscramble(raw_loop[p + 1])[:, :3] - _unscramble(raw_loop[p])[:, :3]
+        reorder_hessian(raw_loop[p + 1])[:, :3] - reorder_hessian(raw_loop[p])[:, :3]
         for p in pairs], axis=1)  # (m, R, nv, nv)
     if loop_jac is not None:
         d_s = loop_jac
@@ -571,7 +560,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
         :func:`~stiffness.mechanics.formulation.cartesian_stiffness` to round-off.
     """
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
+                               f"{formulation!r}", name=formulation, choices=FORMULATIONS)
     loads_arr = np.atleast_2d(np.asarray(loads, dtype=float))
     wrenches = _as_loads(loads_arr, 6)
     moments = bool(np.any(wrenches[:, 3:] != 0.0))
@@ -583,7 +573,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
     symmetric = bool(not moments and np.array_equal(k_th, k_th.T))
     gravity_ok = robot.loop is None and not moments and wrenches.shape[0] == 1
     if method not in ("auto", "hessian", "gravity"):
-        raise StiffnessError(f"method must be auto, hessian or gravity, got {method!r}")
+        raise UnknownNameError(f"method must be auto, hessian or gravity, got {method!r}",
+                               name=method, choices=("auto", "hessian", "gravity"))
     if method == "gravity" and not gravity_ok:
         raise StiffnessError("method 'gravity' needs an open chain and a single force load")
     use_gravity = gravity_ok and method != "hessian" and not isinstance(q, BatchKinematics)

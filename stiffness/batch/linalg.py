@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES, FORMULATIONS
 
 #: Definiteness class codes: ``DEFINITENESS_CLASSES[code]`` ("PD", "PSD", "ND", "NSD", "ID");
@@ -48,7 +48,8 @@ def tangent_stiffness(k_theta: np.ndarray, k_c: np.ndarray,
                       formulation: str = "enhanced") -> np.ndarray:
     """K_theta - K_C (enhanced) or K_theta broadcast to K_C's shape (conventional)."""
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
+                               f"{formulation!r}", name=formulation, choices=FORMULATIONS)
     if formulation == "enhanced":
         return k_theta - k_c
     return np.broadcast_to(k_theta, k_c.shape)

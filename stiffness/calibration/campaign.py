@@ -41,19 +41,22 @@ import csv
 import io
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from stiffness.errors import StiffnessError, did_you_mean
-from stiffness.files import atomic_write
+from stiffness.errors import (
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    UnknownNameError,
+    did_you_mean,
+    with_context,
+)
+from stiffness.files import atomic_write, output_folder, read_text, read_toml
 from stiffness.model.robot import Robot, load_robot
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
-    import tomli as tomllib
 
 #: Campaign file name inside a campaign folder.
 CAMPAIGN_FILE = "campaign.toml"
@@ -123,9 +126,9 @@ class Units:
                                    ("force", self.force, FORCE_UNITS),
                                    ("length", self.length, LENGTH_UNITS)):
             if value not in table:
-                raise StiffnessError(
-                    f"unknown {kind} unit {value!r}; valid {kind} units: {', '.join(table)}"
-                )
+                raise UnknownNameError(
+                    f"unknown {kind} unit {value!r}; valid {kind} units: {', '.join(table)}",
+                    name=str(value), choices=list(table))
 
     @property
     def angle_to_si(self) -> float:
@@ -253,9 +256,9 @@ class Campaign:
 
     def __post_init__(self) -> None:
         if self.baseline not in BASELINES:
-            raise StiffnessError(
-                f"unknown baseline {self.baseline!r}; valid baselines: {', '.join(BASELINES)}"
-            )
+            raise UnknownNameError(
+                f"unknown baseline {self.baseline!r}; valid baselines: {', '.join(BASELINES)}",
+                name=str(self.baseline), choices=BASELINES)
         self.q = np.atleast_2d(np.asarray(self.q, dtype=float))
         m = self.q.shape[0]
         if m == 0:
@@ -349,44 +352,68 @@ class Campaign:
 # reading
 
 
-def _check_keys(table: dict, where: str, path: Path) -> None:
+@dataclass
+class _TomlFile:
+    """A campaign TOML file: its path and text, to point errors at the line of a key."""
+
+    path: Path
+    text: str
+
+    def position(self, section: str, key: str | None) -> tuple[int | None, int | None]:
+        """1-based line and column of ``key = ...`` in ``[section]`` ("" for the top level),
+        of the section header when ``key`` is None, or (None, None) when not found."""
+        current = ""
+        for number, raw in enumerate(self.text.splitlines(), start=1):
+            header = re.match(r"^\s*\[\s*([^\]]+?)\s*\]", raw)
+            if header:
+                current = header.group(1)
+                if key is None and current == section:
+                    return number, raw.index("[") + 1
+                continue
+            if key is not None and current == section:
+                match = re.match(rf"^(\s*)(\"?){re.escape(key)}\2\s*=", raw)
+                if match:
+                    return number, len(match.group(1)) + 1
+        return None, None
+
+    def error(self, problem: str, section: str = "", key: str | None = None
+              ) -> FileFormatError:
+        """A :class:`FileFormatError` at ``key`` of ``[section]`` (or at the section)."""
+        line, column = self.position(section, key)
+        label = None if key is None else (f"[{section}] {key}" if section else key)
+        return FileFormatError(problem, path=self.path, line=line, column=column, field=label)
+
+
+def _check_keys(table: dict, where: str, toml: _TomlFile) -> None:
     section = "" if where == "" else where
     label = "top level" if where == "" else f"[{where}]"
     for key in table:
         if key not in _TOML_KEYS[section]:
-            raise StiffnessError(
-                f"{path}: unknown key {key!r} in {label}; "
-                f"{did_you_mean(key, sorted(_TOML_KEYS[section]))}"
-            )
+            raise toml.error(f"unknown key {key!r} in {label}; "
+                             f"{did_you_mean(key, sorted(_TOML_KEYS[section]))}", section, key)
     for key in _REQUIRED_KEYS[section]:
         if key not in table:
             prefix = "" if where == "" else f"[{where}] "
-            raise StiffnessError(f"{path}: missing key {prefix}{key}: add {_KEY_HELP[key]}")
+            raise toml.error(f"missing key {prefix}{key}: add {_KEY_HELP[key]}", section)
 
 
-def _typed(value, kind: type | tuple, path: Path, key: str, what: str):
+def _typed(value, kind: type | tuple, toml: _TomlFile, section: str, key: str, what: str):
     if not isinstance(value, kind) or isinstance(value, bool):
-        raise StiffnessError(f"{path}: {key} must be {what}, got {value!r}")
+        label = f"[{section}] {key}" if section else key
+        raise toml.error(f"{label} must be {what}, got {value!r}", section, key)
     return value
 
 
-def _read_toml(path: Path) -> dict:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise StiffnessError(f"cannot read campaign file {path}: {exc.strerror}") from exc
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise StiffnessError(f"{path} is not valid TOML: {exc}; fix the syntax") from exc
-    _check_keys(doc, "", path)
+def _read_toml(path: Path) -> tuple[dict, _TomlFile]:
+    toml = _TomlFile(path, read_text(path, "campaign file"))
+    doc = read_toml(path, "campaign file")
+    _check_keys(doc, "", toml)
     for section in ("robot", "units", "measurement"):
         if not isinstance(doc[section], dict):
-            raise StiffnessError(
-                f"{path}: {section} must be a [{section}] table, got {doc[section]!r}"
-            )
-        _check_keys(doc[section], section, path)
-    return doc
+            raise toml.error(f"{section} must be a [{section}] table, got {doc[section]!r}",
+                             "", section)
+        _check_keys(doc[section], section, toml)
+    return doc, toml
 
 
 def _campaign_path(path: str | os.PathLike) -> Path:
@@ -394,9 +421,9 @@ def _campaign_path(path: str | os.PathLike) -> Path:
     if p.is_dir():
         p = p / CAMPAIGN_FILE
     if not p.is_file():
-        raise StiffnessError(
-            f"campaign {path} not found: give a {CAMPAIGN_FILE} or the folder holding one"
-        )
+        raise MissingFileError(
+            f"campaign {path} not found: give a {CAMPAIGN_FILE} or the folder holding one",
+            path=p)
     return p
 
 
@@ -410,8 +437,8 @@ def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
     """Check a CSV header; return (number of q columns, has moment, has rotation)."""
     optional = "optional columns after dz: mx,my,mz (moment) then rx,ry,rz (rotation)"
 
-    def fail(col: int, text: str) -> StiffnessError:
-        return StiffnessError(f"{data}, line {line}, column {col}: {text}")
+    def fail(col: int, text: str) -> FileFormatError:
+        return FileFormatError(text, path=data, line=line, column=col)
 
     if not cells or cells[0] != "config":
         got = repr(cells[0]) if cells else "nothing"
@@ -470,20 +497,14 @@ def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
         value = None
     if value is None or not math.isfinite(value):
         shown = repr(cell) if text else "an empty cell"
-        raise StiffnessError(
-            f"{data}, line {line}, column {col} ({name}): {shown} is not a finite number; "
-            "every q, force, moment, deflection and rotation cell must be a number"
-        )
+        raise FileFormatError(
+            f"{shown} is not a finite number; every q, force, moment, deflection and rotation "
+            "cell must be a number", path=data, line=line, column=col, field=name)
     return value
 
 
 def _read_rows(data: Path, n_q: int | None, robot_text: str = "the robot"):
-    try:
-        text = data.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise StiffnessError(
-            f"cannot read the measurement file {data}: {exc.strerror}; check [measurement] data"
-        ) from exc
+    text = read_text(data, "measurement file ([measurement] data)").removeprefix("\ufeff")
     header = None
     rows: list[tuple[int, list[str]]] = []
     for number, raw in enumerate(text.splitlines(), start=1):
@@ -496,26 +517,26 @@ def _read_rows(data: Path, n_q: int | None, robot_text: str = "the robot"):
             continue
         rows.append((number, cells))
     if header is None:
-        raise StiffnessError(f"{data}, line 1: the file is empty; it needs a header "
-                             "config,q1,...,qn,fx,fy,fz,dx,dy,dz and measurement rows")
+        raise FileFormatError("the file is empty; it needs a header "
+                              "config,q1,...,qn,fx,fy,fz,dx,dy,dz and measurement rows",
+                              path=data, line=1)
     k, has_moment, has_rotation = _parse_header(header, data, header_line, n_q, robot_text)
     if not rows:
-        raise StiffnessError(f"{data}, line {header_line + 1}: no measurement rows after the "
-                             "header; add one row per loaded measurement")
+        raise FileFormatError("no measurement rows after the header; add one row per loaded "
+                              "measurement", path=data, line=header_line + 1)
     width = len(header)
     labels, values, lines = [], [], []
     for number, cells in rows:
         if len(cells) != width:
             col = min(len(cells), width) + 1
             name = header[col - 1] if col <= width else f"extra cell {cells[width]!r}"
-            raise StiffnessError(
-                f"{data}, line {number}, column {col} ({name}): the row has {len(cells)} cells "
-                f"but the header has {width}"
-            )
+            raise FileFormatError(
+                f"the row has {len(cells)} cells but the header has {width}", path=data,
+                line=number, column=col, field=name)
         label = cells[0].strip()
         if not label:
-            raise StiffnessError(f"{data}, line {number}, column 1 (config): the configuration "
-                                 "label is empty; give a label such as A")
+            raise FileFormatError("the configuration label is empty; give a label such as A",
+                                  path=data, line=number, column=1, field="config")
         labels.append(label)
         values.append([_number(c, data, number, j, header[j - 1])
                        for j, c in enumerate(cells[1:], start=2)])
@@ -550,49 +571,49 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
         q columns, or a non-numeric or NaN cell (file, line and column named).
     """
     toml_path = _campaign_path(path)
-    doc = _read_toml(toml_path)
-    name = _typed(doc["name"], str, toml_path, "name", "a string")
-    baseline = _typed(doc["baseline"], str, toml_path, "baseline", "a string")
+    doc, toml = _read_toml(toml_path)
+    name = _typed(doc["name"], str, toml, "", "name", "a string")
+    baseline = _typed(doc["baseline"], str, toml, "", "baseline", "a string")
     if baseline not in BASELINES:
-        raise StiffnessError(f"{toml_path}: unknown baseline {baseline!r}; valid baselines: "
-                             f"{', '.join(BASELINES)}")
+        raise toml.error(f"unknown baseline {baseline!r}; valid baselines: "
+                         f"{', '.join(BASELINES)}", "", "baseline")
     u = doc["units"]
     for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
                        ("length", LENGTH_UNITS)):
         value = u[key]
         if value not in table:
-            raise StiffnessError(f"{toml_path}: [units] {key} = {value!r} is not a known {key} "
-                                 f"unit; valid {key} units: {', '.join(table)}")
+            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
+                             f"{key} units: {', '.join(table)}", "units", key)
     units = Units(u["angle"], u["force"], u["length"])
 
     r = doc["robot"]
-    source = _typed(r["source"], str, toml_path, "[robot] source", "a string")
+    source = _typed(r["source"], str, toml, "robot", "source", "a string")
     frame = r.get("frame")
     if frame is not None:
-        _typed(frame, str, toml_path, "[robot] frame", "a frame name (string)")
+        _typed(frame, str, toml, "robot", "frame", "a frame name (string)")
     offset = r.get("target_offset", [0.0, 0.0, 0.0])
     if (not isinstance(offset, list) or len(offset) != 3
             or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in offset)):
-        raise StiffnessError(f"{toml_path}: [robot] target_offset must be three numbers in "
-                             f"{units.length}, got {offset!r}")
+        raise toml.error(f"[robot] target_offset must be three numbers in {units.length}, got "
+                         f"{offset!r}", "robot", "target_offset")
     joints = r.get("compliant_joints")
     if joints is not None and (not isinstance(joints, list) or not joints
                                or not all(isinstance(j, str) for j in joints)):
-        raise StiffnessError(f"{toml_path}: [robot] compliant_joints must be a non-empty list "
-                             f"of joint names, got {joints!r}")
+        raise toml.error(f"[robot] compliant_joints must be a non-empty list of joint names, "
+                         f"got {joints!r}", "robot", "compliant_joints")
     settings = RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
                              tuple(joints) if joints is not None else None)
 
     m = doc["measurement"]
-    data_name = _typed(m["data"], str, toml_path, "[measurement] data", "a file name")
+    data_name = _typed(m["data"], str, toml, "measurement", "data", "a file name")
     noise = m.get("noise_std")
     if noise is not None:
-        _typed(noise, int | float, toml_path, "[measurement] noise_std",
+        _typed(noise, int | float, toml, "measurement", "noise_std",
                f"a positive number in {units.length}")
         if not (math.isfinite(noise) and noise > 0):
-            raise StiffnessError(f"{toml_path}: [measurement] noise_std must be a positive "
-                                 f"finite number in {units.length}, got {noise!r}; omit it if "
-                                 "unknown")
+            raise toml.error(f"[measurement] noise_std must be a positive finite number in "
+                             f"{units.length}, got {noise!r}; omit it if unknown",
+                             "measurement", "noise_std")
     data_path = toml_path.parent / data_name
 
     try:
@@ -600,7 +621,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
                            target_offset=settings.target_offset_m,
                            compliant_joints=settings.compliant_joints)
     except StiffnessError as exc:
-        raise StiffnessError(f"{toml_path}: [robot]: {exc}") from exc
+        raise with_context(exc, f"{toml_path}: [robot]") from exc
 
     robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
     k, has_moment, has_rotation, labels, values, lines = _read_rows(
@@ -687,7 +708,7 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
             _robot=getattr(c, "_robot", None),
         )
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    output_folder(folder)
     u = c.units
     s = c.robot_settings
 

@@ -60,7 +60,14 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import (
+    StiffnessError,
+    UnknownEffectError,
+    UnknownJointError,
+    UnknownNameError,
+    did_you_mean,
+    with_context,
+)
 from stiffness.mechanics.formulation import target_states
 from stiffness.model.robot import Robot, load_robot
 
@@ -249,7 +256,7 @@ class Geometry:
                 states = target_states(self.robot, q, _UNIT_WRENCHES)
             except StiffnessError as exc:
                 where = labels[row] if labels is not None else f"row {row + 1}"
-                raise StiffnessError(f"{where}: {exc}") from exc
+                raise with_context(exc, where) from exc
             origin[c], chain_rot[c] = self._chain_placements()
             jac[c] = states[0].jacobian
             k_c[c] = np.array([s.k_c for s in states])
@@ -795,18 +802,22 @@ def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
 
     Raises
     ------
+    UnknownEffectError
+        Unknown name.
+    UnknownJointError, UnknownNameError
+        A missing or unknown joint or link segment in ``where``.
     StiffnessError
-        Unknown name, a missing or unknown ``where``.
+        A ``where`` on an effect that acts on the whole campaign.
     """
-    from stiffness.errors import did_you_mean
-
     if name not in LIBRARY:
-        raise StiffnessError(f"unknown effect {name!r}; {did_you_mean(name, list(LIBRARY))}")
+        raise UnknownEffectError(f"unknown effect {name!r}; {did_you_mean(name, list(LIBRARY))}",
+                                 name=name, choices=list(LIBRARY))
     cls = LIBRARY[name]
     if cls in (JointCompliance, Backlash, NonlinearJointStiffness):
         if where not in geometry.joints:
-            raise StiffnessError(f"{name} needs a joint, e.g. {name}:{geometry.joints[0]}; "
-                                 f"{did_you_mean(str(where), list(geometry.joints))}")
+            raise UnknownJointError(f"{name} needs a joint, e.g. {name}:{geometry.joints[0]}; "
+                                    f"{did_you_mean(str(where), list(geometry.joints))}",
+                                    name=str(where), choices=geometry.joints)
         return cls(joint_name=where,
                    prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
     if cls is LinkCompliance:
@@ -818,9 +829,10 @@ def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
                     break
         if not parts or len(parts) != 2 or tuple(parts) not in geometry.link_columns:
             pairs = [f"{a}->{b}" for a, b in geometry.link_segments()]
-            raise StiffnessError(
+            raise UnknownNameError(
                 f"link_compliance needs two joints of the target's chain, proximal first, as "
-                f"A->B (or A/B); got {where!r}; valid segments: {', '.join(pairs)}")
+                f"A->B (or A/B); got {where!r}; valid segments: {', '.join(pairs)}",
+                name=str(where), choices=pairs)
         return LinkCompliance(a=parts[0], b=parts[1],
                               column=geometry.link_columns[(parts[0], parts[1])])
     if where:
@@ -858,7 +870,8 @@ class Model:
                  compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References
                  ) -> None:
         if baseline not in BASELINES:
-            raise StiffnessError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}")
+            raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
+                                   name=baseline, choices=BASELINES)
         self.geometry, self.rows, self.baseline = geometry, rows, baseline
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
         self.joints = self.compliant + tuple(e.added_joint for e in self.effects

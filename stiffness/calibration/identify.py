@@ -50,8 +50,14 @@ from scipy.stats import norm
 from scipy.stats import t as student_t
 
 from stiffness.calibration.campaign import Campaign, _looks_like_path, _resolve_source
-from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.errors import (
+    FileFormatError,
+    SingularConfigurationError,
+    StiffnessError,
+    UnknownNameError,
+    with_context,
+)
+from stiffness.files import atomic_write, output_folder, read_json
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import Robot, load_robot
@@ -111,8 +117,9 @@ class DeflectionModel:
 
     def __init__(self, campaign: Campaign, formulation: str, robot: Robot | None = None) -> None:
         if formulation not in FORMULATIONS:
-            raise StiffnessError(f"unknown formulation {formulation!r}; valid formulations: "
-                                 f"{', '.join(FORMULATIONS)}")
+            raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                                   f"{', '.join(FORMULATIONS)}", name=formulation,
+                                   choices=FORMULATIONS)
         self.campaign = campaign
         self.formulation = formulation
         self.robot = robot if robot is not None else campaign.robot()
@@ -130,7 +137,7 @@ class DeflectionModel:
                     configs[key] = self.robot.configuration(campaign.q[i])
                 state = target_state(self.robot, configs[key], self.wrench[i])
             except StiffnessError as exc:
-                raise StiffnessError(f"{campaign.describe_row(i)}: {exc}") from exc
+                raise with_context(exc, campaign.describe_row(i)) from exc
             self.q0.append(configs[key])
             self.jac3[i] = state.jacobian[:3]
             self.tau[i] = state.jacobian.T @ state.wrench
@@ -143,8 +150,9 @@ class DeflectionModel:
     def with_formulation(self, formulation: str) -> DeflectionModel:
         """The same rows (Jacobians and K_C shared) under another formulation."""
         if formulation not in FORMULATIONS:
-            raise StiffnessError(f"unknown formulation {formulation!r}; valid formulations: "
-                                 f"{', '.join(FORMULATIONS)}")
+            raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                                   f"{', '.join(FORMULATIONS)}", name=formulation,
+                                   choices=FORMULATIONS)
         other = copy.copy(self)
         other.formulation = formulation
         return other
@@ -177,7 +185,9 @@ class DeflectionModel:
         try:
             inv = np.linalg.inv(a)
         except np.linalg.LinAlgError as exc:
-            raise StiffnessError("the tangent stiffness K - K_C is singular for some row") from exc
+            raise SingularConfigurationError(
+                "the tangent stiffness K - K_C is singular for some row: the load is at the "
+                "buckling limit there; use the exact formulation or drop that row") from exc
         u = np.einsum("mij,mj->mi", inv, self.tau)
         pred = np.einsum("mij,mj->mi", self.jac3, u)
         if not jacobian:
@@ -464,7 +474,7 @@ class Identification:
         :func:`load_identified_model`.
         """
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        output_folder(path.parent)
         text = json.dumps(self.model_dict(path.parent), indent=1, allow_nan=False)
         atomic_write(path, text + "\n")
         return path
@@ -541,29 +551,25 @@ def load_identified_model(path: str | os.PathLike) -> IdentifiedModel:
 
     Raises
     ------
-    StiffnessError
-        Missing or unreadable file, not JSON, wrong ``format``, or a missing or malformed key
+    MissingFileError
+        Missing or unreadable file.
+    FileFormatError
+        Not JSON (with its line and column), wrong ``format``, or a missing or malformed key
         (the message names the key).
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise StiffnessError(f"cannot read identified model {path}: {exc.strerror}; give the "
-                             f"{MODEL_FILE} written by `stiffness identify`") from exc
-    except json.JSONDecodeError as exc:
-        raise StiffnessError(f"{path} is not JSON ({exc}); give the {MODEL_FILE} written by "
-                             "`stiffness identify`") from exc
+    doc = read_json(path, f"identified model ({MODEL_FILE} of `stiffness identify`)")
     if not isinstance(doc, dict) or doc.get("format") != MODEL_FORMAT:
-        raise StiffnessError(f"{path} is not an identified model (its format is not "
-                             f"{MODEL_FORMAT!r}); give the file written by `stiffness identify`")
+        raise FileFormatError(f"the file is not an identified model (its format is not "
+                              f"{MODEL_FORMAT!r}); "
+                              "give the file written by `stiffness identify`", path=path)
 
     def get(*keys):
         node = doc
         for key in keys:
             if not isinstance(node, dict) or key not in node:
-                raise StiffnessError(f"{path}: missing key {'.'.join(keys)}; rewrite the file "
-                                     "with `stiffness identify`")
+                raise FileFormatError(f"missing key {'.'.join(keys)}; rewrite the file with "
+                                      "`stiffness identify`", path=path)
             node = node[key]
         return node
 
@@ -572,27 +578,28 @@ def load_identified_model(path: str | os.PathLike) -> IdentifiedModel:
             (v is None and allow_null) or (isinstance(v, int | float) and not isinstance(v, bool))
             for v in value)
         if not ok:
-            raise StiffnessError(f"{path}: {name} must be a list of {count} numbers, got {value!r}")
+            raise FileFormatError(f"{name} must be a list of {count} numbers, got {value!r}",
+                                  path=path)
         return np.array([np.nan if v is None else v for v in value], dtype=float)
 
     joints = get("robot", "compliant_joints")
     if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise StiffnessError(f"{path}: robot.compliant_joints must be a list of joint names")
+        raise FileFormatError("robot.compliant_joints must be a list of joint names", path=path)
     n = len(joints)
     if get("k_theta", "joints") != joints:
-        raise StiffnessError(f"{path}: k_theta.joints must equal robot.compliant_joints")
+        raise FileFormatError("k_theta.joints must equal robot.compliant_joints", path=path)
     k = numbers(get("k_theta", "values"), "k_theta.values", n)
     if not np.all(np.isfinite(k)) or np.any(k <= 0):
-        raise StiffnessError(f"{path}: k_theta.values must be positive, got {k.tolist()}")
+        raise FileFormatError(f"k_theta.values must be positive, got {k.tolist()}", path=path)
     units = get("k_theta", "unit")
     if not isinstance(units, list) or len(units) != n or not set(units) <= {"N.m/rad", "N/m"}:
-        raise StiffnessError(f"{path}: k_theta.unit must list N.m/rad or N/m per joint")
+        raise FileFormatError("k_theta.unit must list N.m/rad or N/m per joint", path=path)
     formulation = get("formulation")
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"{path}: formulation must be one of {', '.join(FORMULATIONS)}")
+        raise FileFormatError(f"formulation must be one of {', '.join(FORMULATIONS)}", path=path)
     source, frame = get("robot", "source"), get("robot", "frame")
     if not isinstance(source, str) or not isinstance(frame, str):
-        raise StiffnessError(f"{path}: robot.source and robot.frame must be strings")
+        raise FileFormatError("robot.source and robot.frame must be strings", path=path)
     return IdentifiedModel(
         source=_resolve_source(source, path.parent),
         frame=frame,
@@ -787,10 +794,12 @@ def identify(
     """
     formulation = campaign.baseline if formulation is None else formulation
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"unknown formulation {formulation!r}; valid formulations: "
-                             f"{', '.join(FORMULATIONS)}")
+        raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                               f"{', '.join(FORMULATIONS)}", name=formulation,
+                               choices=FORMULATIONS)
     if method not in METHODS:
-        raise StiffnessError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}")
+        raise UnknownNameError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}",
+                               name=method, choices=METHODS)
     if int(starts) < 1:
         raise StiffnessError(f"starts must be at least 1, got {starts}")
     model = DeflectionModel(campaign, formulation, robot)

@@ -55,7 +55,14 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.errors import (
+    ConvergenceError,
+    StiffnessError,
+    UnknownEffectError,
+    UnknownJointError,
+    UnknownNameError,
+    did_you_mean,
+)
 from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import deflected_configuration
 from stiffness.mechanics.formulation import as_wrench, target_state
@@ -129,7 +136,8 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
             continue
         out.append(coords)
     if len(out) < n:
-        raise StiffnessError(f"found only {len(out)} of {n} reachable poses of {robot.name}")
+        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.name}; "
+                               "ask for fewer configurations, or check the joint limits")
     return np.array(out)
 
 
@@ -184,8 +192,9 @@ def parse_effect(text: str) -> HiddenEffect:
     name, _, where = head.strip().partition(":")
     name, where = name.strip(), where.strip() or None
     if name not in LIBRARY:
-        raise StiffnessError(f"unknown effect {name!r} in --effect {text!r}; "
-                             f"{did_you_mean(name, list(LIBRARY))}")
+        raise UnknownEffectError(f"unknown effect {name!r} in --effect {text!r}; "
+                                 f"{did_you_mean(name, list(LIBRARY))}", name=name,
+                                 choices=list(LIBRARY))
     values: list[float] = []
     if rest.strip():
         for item in rest.split(","):
@@ -247,7 +256,9 @@ class Truth:
         pose in the tangent, first-order kinematics) or ``conventional`` (first order, no
         ``K_C``): the latter two measure what the linear baselines miss."""
         if mode not in ("exact", "enhanced", "conventional"):
-            raise StiffnessError(f"unknown mode {mode!r}")
+            raise UnknownNameError(f"unknown mode {mode!r}; valid: exact, enhanced, "
+                                   "conventional", name=mode,
+                                   choices=("exact", "enhanced", "conventional"))
         out = np.empty((len(coords), 3))
         q0 = {}
         for i, (c, f) in enumerate(zip(coords, force, strict=True)):
@@ -285,8 +296,9 @@ class Truth:
                 jg = np.eye(len(dtheta)) - slope[0][:, None] * state.k_c
                 dtheta = dtheta - np.linalg.solve(jg, g)
             else:
-                raise StiffnessError("the exact equilibrium with the hidden effects did not "
-                                     "converge: the load may exceed the buckling load")
+                raise ConvergenceError("the exact equilibrium with the hidden effects did not "
+                                       "converge: the load may exceed the buckling load; "
+                                       "lower --max-force")
             dx = state.position - base.position
         else:
             dx = base.jacobian[:3] @ dtheta
@@ -350,8 +362,9 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
     compliant = tuple(declared.compliant_joints) + tuple(extra)
     for j in list(beta) + list(backlash):
         if j not in compliant:
-            raise StiffnessError(f"backlash and nonlinear_joint_stiffness act on a compliant "
-                                 f"joint ({', '.join(compliant)}), not {j}")
+            raise UnknownJointError(f"backlash and nonlinear_joint_stiffness act on a compliant "
+                                    f"joint ({', '.join(compliant)}), not {j}", name=j,
+                                    choices=compliant)
     robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
     law = Law(np.array([1.0 / stiff[j] for j in compliant]),
               np.array([beta.get(j, 0.0) for j in compliant]),
@@ -512,8 +525,9 @@ def simulate(
     effects = list(effects or [])
     units = units or Units()
     if load_pattern not in LOAD_PATTERNS:
-        raise StiffnessError(f"unknown load pattern {load_pattern!r}; valid: "
-                             f"{', '.join(LOAD_PATTERNS)}")
+        raise UnknownNameError(f"unknown load pattern {load_pattern!r}; valid: "
+                               f"{', '.join(LOAD_PATTERNS)}", name=load_pattern,
+                               choices=LOAD_PATTERNS)
     if configs < 1 or loads_per_config < 1 or repeats < 1:
         raise StiffnessError("configs, loads per config and repeats must be at least 1")
     if not (max_force > 0 and math.isfinite(max_force)):

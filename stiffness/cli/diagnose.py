@@ -10,17 +10,21 @@ after each, their parameters with 95 % intervals, what the campaign cannot tell 
 extra poses and loads that would. ``--json`` prints one JSON object (``baseline_rms``,
 ``noise_std``, ``noise_std_source``, ``steps``, ``missing_effects``, ``final_rms``, ``unit``)
 and nothing else on stdout; ``--out DIR`` writes ``diagnosis.json`` (everything),
-``residuals.png`` (residuals before and after) and ``final-model.json``.
+``residuals.png`` (residuals before and after), ``final-model.json`` and ``diagnosis.html``
+(all of it as a page: residuals, steps with their BIC change and RMS, parameters with intervals,
+ambiguities with the proposed poses).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+from stiffness.files import output_folder
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +34,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (campaign units) and nothing else")
     parser.add_argument("--out", metavar="DIR",
-                        help="write diagnosis.json, residuals.png and final-model.json here")
+                        help="write diagnosis.json, residuals.png, final-model.json and "
+                             "diagnosis.html (the page) here")
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS,
                         help=f"largest number of effects added; default {MAX_STEPS}")
     parser.add_argument("--seed", type=int, default=0,
@@ -40,9 +45,18 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """The command that reproduces this run (recorded in diagnosis.html)."""
+    words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
+             "--max-steps", str(args.max_steps), "--seed", str(args.seed)]
+    return shlex.join(words + (["--no-proposals"] if args.no_proposals else []))
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness diagnose``; returns the exit code."""
     campaign = load_campaign(args.campaign)
+    if args.out:
+        output_folder(args.out, create=False)  # before the work: a bad --out fails at once
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(text: str) -> None:
@@ -50,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None)
-    paths = result.write(args.out) if args.out else None
+    paths = result.write(args.out, command_line(args)) if args.out else None
     if args.json:
         print(json.dumps(result.summary(), indent=1, allow_nan=False))
         return 0

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.cli import flags
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.formulation import (
@@ -38,64 +39,27 @@ from stiffness.mechanics.formulation import (
     task_rank,
     twist_basis_stiffness,
 )
-from stiffness.mechanics.platform import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
+from stiffness.mechanics.wrench import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
 from stiffness.model.assembly import Assembly
-from stiffness.model.robot import Robot, load_robot
+from stiffness.model.robot import Robot
 
 _BASIS_3 = ["vx", "vy", "vz"]
 _BASIS_6 = ["vx", "vy", "vz", "wx", "wy", "wz"]
-
-
-def parse_list(text: str, flag: str) -> list[float]:
-    """Comma-separated numbers of a flag, e.g. ``"1,2.5,-3"``.
-
-    Raises
-    ------
-    StiffnessError
-        If an item is not a finite number.
-    """
-    values = []
-    for item in text.split(","):
-        try:
-            value = float(item)
-        except ValueError:
-            raise StiffnessError(
-                f"{flag} takes comma-separated numbers; {item.strip()!r} is not a number"
-            ) from None
-        if not np.isfinite(value):
-            raise StiffnessError(f"{flag} values must be finite, got {item.strip()!r}")
-        values.append(value)
-    return values
-
-
-def add_robot_file_flags(parser: argparse.ArgumentParser) -> None:
-    """``--loops FILE`` and ``--fixed-base``: how to read the ``--robot`` (every command)."""
-    parser.add_argument("--loops", metavar="FILE",
-                        help="loop declaration (Gepetto's Extended-URDF YAML; default: "
-                             "<name>.loops.yaml, <name>.yaml or robot.yaml beside the URDF)")
-    parser.add_argument("--fixed-base", action="store_true",
-                        help="fix a floating or planar base at its neutral placement")
+_LOAD_NAMES = ("fx", "fy", "fz", "mx", "my", "mz")
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness kx``."""
-    parser.add_argument("--robot",
-                        help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
-                             "or URDF path (required unless --model gives it)")
-    add_robot_file_flags(parser)
+    flags.add_robot_flags(parser, robot_help=(
+        "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data name (ur5, "
+        "panda...) or URDF path (required unless --model gives it)"))
     parser.add_argument("--model", metavar="FILE",
                         help="identified model written by `stiffness identify` "
                              "(identified-model.json): its robot, target, compliant joints and "
                              "K_theta; the other flags override them")
-    parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
-    parser.add_argument("--q", help="joint values: one per degree of freedom (rad, or m for "
-                                    "prismatic); for closed loops the independent joints suffice")
-    parser.add_argument("--deg", action="store_true", help="--q angles are in degrees")
-    parser.add_argument("--wrench", help="dead load at the target, base axes: fx,fy,fz (N) "
-                                         "or fx,fy,fz,mx,my,mz (N, N.m)")
-    parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m prismatic)")
-    parser.add_argument("--compliant-joints", help="comma-separated joint names (default: all)")
+    flags.add_configuration_flags(parser)
+    flags.add_wrench_flag(parser)
+    flags.add_stiffness_flag(parser)
     parser.add_argument("--formulation", choices=FORMULATIONS, default="enhanced",
                         help="conventional (K_C = 0, A&S eq. 8) or enhanced (eq. 10); "
                              "default enhanced")
@@ -106,59 +70,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--twist-order", choices=tuple(TWIST_ORDERS),
                         help="row order of 6x6 results: v-w (Pinocchio: linear first) or w-v "
                              "(Zefran & Kumar: angular first); default the robot's own, else v-w")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-
-
-def coordinates_from_args(robot: Robot, args: argparse.Namespace) -> np.ndarray | None:
-    """Coordinates (rad, m) of ``--q``/``--deg``, the shipped ones, or None: the robot's
-    reference pose (zero, or the assembly found near zero; :meth:`Robot.assemble`)."""
-    if args.q is None:
-        return default_coordinates(robot)
-    values = np.array(parse_list(args.q, "--q"))
-    model = robot.model
-    if values.shape[0] == robot.n_coordinates:
-        names = list(robot.coordinate_joints)
-    elif values.shape[0] == model.nv:
-        names = [model.names[j] for j in range(1, model.njoints) for _ in range(model.joints[j].nv)]
-        keep = [names.index(n) for n in robot.coordinate_joints]
-        values, names = values[keep], list(robot.coordinate_joints)
-    else:
-        raise StiffnessError(
-            f"--q needs {robot.n_coordinates} values for {robot.name} "
-            f"({', '.join(robot.coordinate_joints)}), got {values.shape[0]}"
-        )
-    if args.deg:
-        for i, name in enumerate(names):
-            if not model.joints[model.getJointId(name)].shortname().startswith("JointModelP"):
-                values[i] = np.deg2rad(values[i])
-    return values
-
-
-def robot_from_args(args: argparse.Namespace
-                    ) -> tuple[Robot, list[str] | None, list[float] | None]:
-    """The robot of ``--robot``, ``--frame``, ``--target-offset`` (m) and ``--compliant-joints``.
-
-    Returns the robot and the parsed compliant joints and offset (None where not given).
-    """
-    compliant = None if args.compliant_joints is None else [
-        j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    offset = None if args.target_offset is None else parse_list(args.target_offset,
-                                                                "--target-offset")
-    source, frame = args.robot, args.frame
-    model = _identified_model(args)
-    if model is not None:
-        source = source or model.source
-        frame = frame or model.frame
-        if offset is None:
-            offset = model.target_offset_m.tolist()
-        if compliant is None:
-            compliant = list(model.compliant_joints)
-    if source is None:
-        raise StiffnessError("--robot is required (or --model FILE from `stiffness identify`)")
-    robot = load_robot(source, frame=frame, target_offset=offset, compliant_joints=compliant,
-                       loops=getattr(args, "loops", None),
-                       fixed_base=getattr(args, "fixed_base", False))
-    return robot, compliant, offset
+    flags.add_output_flags(parser, quiet_help="print the results only, without the echo of "
+                                              "the inputs")
 
 
 def _identified_model(args: argparse.Namespace):
@@ -174,7 +87,11 @@ def _identified_model(args: argparse.Namespace):
 
 @dataclass
 class KxInputs:
-    """What the ``kx`` flags (and a shipped robot's defaults) resolve to, in SI."""
+    """What the ``kx`` flags (and a shipped robot's defaults) resolve to, in SI.
+
+    ``*_source`` say where each input came from: a flag, the model file or the robot's default
+    (``load_source`` keeps its historical values: ``--wrench``, ``wrench_SI``, ``rest_q_SI...``).
+    """
 
     robot: Robot
     coords: np.ndarray
@@ -182,30 +99,40 @@ class KxInputs:
     k_theta: np.ndarray
     load: np.ndarray
     load_source: str
-    assembly: Assembly
-    q_source: str
+    assembly: Assembly | None = None
+    q_source: str = flags.FROM_FLAG
+    k_theta_source: str = flags.FROM_FLAG
+
+    @property
+    def sources(self) -> dict[str, str]:
+        """Where the coordinates, the load and K_theta came from (flag, model file, robot)."""
+        load = (f"{flags.FROM_FLAG} --wrench" if self.load_source == "--wrench"
+                else f"{flags.FROM_ROBOT} ({self.load_source})")
+        return {"q": self.q_source, "wrench": load, "K_theta": self.k_theta_source}
 
 
-def resolve_inputs(args: argparse.Namespace) -> KxInputs:
+def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInputs:
     """Robot, configuration, joint stiffness and load of the ``kx`` flags (shared by ``view``).
+
+    Without ``--wrench`` the robot's shipped load is used; if it has none, the load is zero
+    when ``require_load`` is false (``view`` draws the unloaded stiffness), else an error.
 
     Raises
     ------
     StiffnessError
         On a bad flag value, or a missing flag the robot brings no default for.
     """
-    robot, _, _ = robot_from_args(args)
-    coords = coordinates_from_args(robot, args)
-    q_source = ("--q" if args.q is not None else "robot default" if coords is not None
-                else "zero pose (no --q)" if robot.loop is None
-                else "reference assembly near the zero pose (no --q)")
     model = _identified_model(args)
+    robot, _, _ = flags.robot_from_args(args, fallback=model)
+    reference = args.q is None and default_coordinates(robot) is None
+    # without --q and robot defaults: the reference pose (zero, or the assembly found near it)
+    coords = None if reference else flags.coordinates_from_args(robot, args)
     if args.kq is not None:
-        kq = parse_list(args.kq, "--kq")
+        kq, kq_source = flags.parse_list(args.kq, "--kq"), f"{flags.FROM_FLAG} --kq"
     elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
-        kq = model.k_theta
+        kq, kq_source = model.k_theta, f"{flags.FROM_MODEL} {args.model}"
     else:
-        kq = default_stiffness(robot)
+        kq, kq_source = default_stiffness(robot), flags.FROM_ROBOT
     if kq is None:
         raise StiffnessError(
             f"--kq is required: one stiffness per compliant joint "
@@ -216,14 +143,49 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
     q = assembly.q
     coords = robot.coordinates_of(q)
     if args.wrench is not None:
-        load, source = np.array(parse_list(args.wrench, "--wrench")), "--wrench"
+        load, source = np.array(flags.parse_list(args.wrench, "--wrench")), "--wrench"
     else:
         shipped = default_load(robot, q, k_theta)
+        if shipped is None and not require_load:
+            shipped = np.zeros(3), "none"
         if shipped is None:
             raise StiffnessError(
                 "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
         load, source = shipped
-    return KxInputs(robot, coords, q, k_theta, load, source, assembly, q_source)
+    q_source = flags.coordinates_source(robot, args)
+    if reference:
+        q_source = ("assembly found near the zero pose (no --q)" if assembly.assembly_search
+                    else "zero pose (no --q)")
+    return KxInputs(robot, coords, q, k_theta, load, source, assembly, q_source=q_source,
+                    k_theta_source=kq_source)
+
+
+def inputs_summary(inputs: KxInputs) -> dict:
+    """The inputs as JSON: coordinates by name, load, K_theta and where each came from."""
+    robot = inputs.robot
+    return {
+        "coordinate_joints": list(robot.coordinate_joints),
+        "q_named": dict(zip(robot.coordinate_joints, inputs.coords.tolist(), strict=True)),
+        "load_named": dict(zip(_LOAD_NAMES, inputs.load.tolist(), strict=False)),
+        "K_theta_named": dict(zip(robot.compliant_joints, np.diag(inputs.k_theta).tolist(),
+                                  strict=True)),
+        "sources": inputs.sources,
+    }
+
+
+def echo_lines(summary: dict) -> list[str]:
+    """Lines echoing :func:`inputs_summary`: coordinates as name=value, load and K_theta, each
+    with where it came from."""
+    sources, load = summary["sources"], summary["load_named"]
+    q = summary["q_named"]
+    k = summary["K_theta_named"]
+    return [
+        f"q [{sources['q']}] (rad, m prismatic): {flags.format_named(list(q), list(q.values()))}",
+        f"wrench [{sources['wrench']}] (N, N.m; base axes): "
+        f"{flags.format_named(list(load), list(load.values()))}",
+        f"K_theta [{sources['K_theta']}] (N.m/rad, N/m prismatic): "
+        f"{flags.format_named(list(k), list(k.values()))}",
+    ]
 
 
 def compute(args: argparse.Namespace) -> dict:
@@ -273,7 +235,6 @@ def compute(args: argparse.Namespace) -> dict:
         "target_offset": robot.target_offset.tolist(),
         "compliant_joints": list(robot.compliant_joints),
         "q": coords.tolist(),
-        "coordinate_joints": list(robot.coordinate_joints),
         "wrench": wrench.tolist(),
         "wrench_basis": WRENCH_ORDERS[order] if six else ["fx", "fy", "fz"],
         "load_source": load_source,
@@ -298,9 +259,9 @@ def compute(args: argparse.Namespace) -> dict:
         "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
             k_theta - state.k_c), "K_X": definiteness(
                 k_x if subspace is None else subspace.stiffness)},
+        **inputs_summary(inputs),
         "configuration": _configuration(robot, q),
         "closure": inputs.assembly.as_dict(),
-        "q_source": inputs.q_source,
         "notes": list(robot.notes),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
@@ -338,16 +299,16 @@ def run(args: argparse.Namespace) -> int:
     np.set_printoptions(precision=5, suppress=False, linewidth=120)
     for note in result["notes"]:
         print(f"note: {note}")
-    closure = result["closure"]
-    print("q: " + ", ".join(f"{n}={v:.6g}" for n, v in zip(
-        result["coordinate_joints"], result["q"], strict=True)) + f" ({result['q_source']})")
-    if closure["assembly_search"] or closure["idle_passive_motions"]:
-        print(f"closure: residual {closure['residual']:.3g} m, idle passive motions "
-              f"{closure['idle_passive_motions']}, assembly search "
-              f"{'used' if closure['assembly_search'] else 'not needed'}")
     print(f"{result['robot']} target at {result['frame']} + {result['target_offset']} m; "
           f"{result['formulation']} formulation"
           + (f", {result['connection']} connection" if result["connection"] else ""))
+    if not args.quiet:
+        print("\n".join(echo_lines(result)))
+        closure = result["closure"]
+        if closure["assembly_search"] or closure["idle_passive_motions"]:
+            print(f"closure: residual {closure['residual']:.3g} m, idle passive motions "
+                  f"{closure['idle_passive_motions']}, assembly search "
+                  f"{'used' if closure['assembly_search'] else 'not needed'}")
     print(f"position (m): {np.array(result['position'])}")
     print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
     print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")

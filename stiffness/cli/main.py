@@ -8,20 +8,23 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 
+from stiffness import __version__
+from stiffness.cli.flags import ArgumentParser
 from stiffness.errors import StiffnessError
 
 #: command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "kx": ("stiffness.cli.kx", "Cartesian stiffness, K_C and compliance at one configuration"),
     "check-jacobian": (
-        "stiffness.papers.crosscheck",
+        "stiffness.cli.check_jacobian",
         "compare the printed Appendix I Jacobian and its K_C with Pinocchio's SK120",
     ),
     "identify": ("stiffness.cli.identify", "identify joint stiffness from a campaign"),
-    "report": ("stiffness.papers.report", "the SK120 paper-reproduction report (the main job)"),
+    "report": ("stiffness.cli.report", "the SK120 paper-reproduction report (the main job)"),
     "diagnose": ("stiffness.cli.diagnose",
                  "find and name what a model misses against a campaign's measurements"),
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
@@ -32,10 +35,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """Argument parser; configures the subcommand ``only`` (all if None)."""
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="stiffness",
         description="Elastostatics of robot manipulators (SI units: m, N, rad, N.m/rad).",
     )
+    parser.add_argument("--version", action="version", version=f"stiffness {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -63,8 +67,24 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(module.run(args) or 0)
     except StiffnessError as exc:
-        print(f"stiffness {args.command}: error: {exc}", file=sys.stderr)
+        print(f"stiffness {args.command}: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader (| head) stopped: not an error of ours
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as exc:  # a file that cannot be read or written (permissions, disk full...)
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"stiffness {args.command}: error: cannot access{where}: "
+              f"{exc.strerror or exc}; check the path and its permissions", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"stiffness {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(text: str) -> str:
+    """An error message on one line (a wrapped third-party message is joined)."""
+    return " ".join(part.strip() for part in text.splitlines() if part.strip())
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ Examples::
 
     stiffness scan --robot sk120 --preset table4            # A&S Table IV: 5824 x 8 loads
     stiffness scan --robot ur5 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --deg \\
-        --axis shoulder_lift_joint=-90:0:5 --axis elbow_joint=0:150:5 --load 0,0,-200
+        --axis shoulder_lift_joint=-90:0:5 --axis elbow_joint=0:150:5 --wrench 0,0,-200
     stiffness scan --robot ur5 --kq ... --samples 1000000 --workers 2
     stiffness scan --robot panda --kq ... --samples 1e7 --scheduler tcp://10.0.0.5:8786
 
@@ -46,8 +46,10 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.cli.kx import add_robot_file_flags, parse_list, robot_from_args
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.cli import flags
+from stiffness.cli.flags import parse_list, robot_from_args
+from stiffness.errors import StiffnessError
+from stiffness.mechanics.defaults import default_stiffness
 from stiffness.model.robot import Robot
 from stiffness.scan.definiteness import grid_axis, terminal_progress
 from stiffness.scan.engine import COUNT_LABELS, ScanSpec, load_scan, run_scan, scan_chunk
@@ -65,10 +67,7 @@ DEFAULT_LOAD_N = (0.0, 0.0, -100.0)
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness scan``."""
-    parser.add_argument("--robot", required=True,
-                        help="shipped robot (sk120), example-robot-data name (ur5, panda...) "
-                             "or URDF path")
-    add_robot_file_flags(parser)
+    flags.add_robot_flags(parser, required=True)
     parser.add_argument("--preset", choices=PRESETS,
                         help="table4: A&S Table IV on the SK120 (theta1 -180..180, theta2 "
                              "-70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical; the "
@@ -81,19 +80,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="random configurations (uniform in the --axis ranges, else in the "
                              "joint limits) instead of a grid")
     parser.add_argument("--seed", type=int, default=0, help="seed of --samples; default 0")
-    parser.add_argument("--q", help="values of the coordinates that are not swept (all "
-                                    "coordinates, comma-separated); default the robot's "
-                                    "default pose, else zero")
-    parser.add_argument("--deg", action="store_true",
-                        help="angles of --axis and --q in degrees")
-    parser.add_argument("--load", action="append", default=[], metavar="FX,FY,FZ[,MX,MY,MZ]",
-                        help="dead load case at the target, base axes (N, N.m); repeat for "
-                             f"several; default {','.join(f'{v:g}' for v in DEFAULT_LOAD_N)}")
-    parser.add_argument("--kq", help="joint stiffness per compliant joint, N.m/rad (N/m "
-                                     "prismatic); default the robot's")
-    parser.add_argument("--frame", help="frame carrying the target (default: robot's own)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, m: x,y,z")
-    parser.add_argument("--compliant-joints", help="comma-separated joint names (default: all)")
+    flags.add_configuration_flags(parser, q_help=(
+        "values of the coordinates that are not swept: one per coordinate, or name=value "
+        "pairs (joint names or q1, q2...); default the robot's default pose, else zero"))
+    flags.add_wrench_flag(parser, repeat=True, help=(
+        "dead load case at the target, base axes: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m); "
+        "repeat for several; --load is an alias; default "
+        f"{','.join(f'{v:g}' for v in DEFAULT_LOAD_N)}"))
+    flags.add_stiffness_flag(parser)
     parser.add_argument("--rtol", type=float, default=1e-9,
                         help="relative eigenvalue tolerance of the definiteness classes")
     parser.add_argument("--map-axes", help="two swept coordinates the figures are drawn over "
@@ -116,25 +110,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="without --scheduler: a Dask LocalCluster of N worker processes "
                              "on this machine (default: this process only)")
     parser.add_argument("--no-plots", action="store_true", help="write no figures")
-    parser.add_argument("--json", action="store_true", help="print the summary as one JSON line")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    flags.add_output_flags(parser, json_help="print the summary as one JSON line",
+                           quiet_help="no progress bar and no echo of the inputs")
 
 
 _AXIS = re.compile(r"^\s*([^=]+?)\s*=\s*([^:]+):([^:]+)(?::([^:]+))?\s*$")
-
-
-def _joint_index(robot: Robot, name: str) -> int:
-    """Position in the coordinate vector of a joint name or ``q1``, ``q2``... (1-based)."""
-    names = list(robot.coordinate_joints)
-    if name in names:
-        return names.index(name)
-    match = re.fullmatch(r"q(\d+)", name)
-    if match and 1 <= int(match.group(1)) <= len(names):
-        return int(match.group(1)) - 1
-    raise StiffnessError(
-        f"--axis {name!r} is not a coordinate of {robot.name}; use a joint name or q1..q"
-        f"{len(names)}: {did_you_mean(name, names)}"
-    )
 
 
 def _angle_scale(robot: Robot, index: int, deg: bool) -> float:
@@ -168,8 +148,8 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
                   "compliant_joints": compliant}
     if args.kq is not None:
         k_theta = parse_list(args.kq, "--kq")
-    elif "k_theta_SI" in robot.defaults and compliant is None:
-        k_theta = [float(v) for v in robot.defaults["k_theta_SI"]]
+    elif default_stiffness(robot) is not None:
+        k_theta = default_stiffness(robot).tolist()
     else:
         raise StiffnessError(
             f"--kq is required for {robot.name}: one stiffness per compliant joint "
@@ -180,10 +160,11 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
         raise StiffnessError(f"--chunk-size must be a positive number, got {args.chunk_size}")
     if args.rtol < 0:
         raise StiffnessError(f"--rtol must be >= 0, got {args.rtol}")
-    loads = [parse_list(text, "--load") for text in args.load]
+    loads = [parse_list(text, "--wrench") for text in args.wrench]
     for load in loads:
         if len(load) not in (3, 6):
-            raise StiffnessError(f"--load takes fx,fy,fz (N) or fx,fy,fz,mx,my,mz; got {load}")
+            raise StiffnessError(f"--wrench (alias --load) takes fx,fy,fz (N) or "
+                                 f"fx,fy,fz,mx,my,mz (N, N.m); got {load}")
     if loads and len({len(x) for x in loads}) > 1:
         loads = [x + [0.0] * (6 - len(x)) for x in loads]
     names = [str(i + 1) for i in range(len(loads))]
@@ -213,21 +194,7 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
 
     if not loads:
         loads, names = [list(DEFAULT_LOAD_N)], ["1"]
-    if args.q is not None:
-        base = np.array(parse_list(args.q, "--q"))
-        if base.shape[0] != robot.n_coordinates:
-            raise StiffnessError(
-                f"--q needs {robot.n_coordinates} values ({', '.join(robot.coordinate_joints)}),"
-                f" got {base.shape[0]}"
-            )
-        base = base * np.array([_angle_scale(robot, i, args.deg)
-                                for i in range(robot.n_coordinates)])
-    elif "q_SI" in robot.defaults:
-        base = np.asarray(robot.defaults["q_SI"], dtype=float)
-    elif "q_deg" in robot.defaults:
-        base = np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float))
-    else:
-        base = np.zeros(robot.n_coordinates)
+    base = flags.coordinates_from_args(robot, args, required=False)
     samples = None
     if args.samples is not None:
         if args.samples < 1 or args.samples != int(args.samples):
@@ -240,7 +207,7 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
             raise StiffnessError(
                 f"--axis takes JOINT=LO:HI:STEP (grid) or JOINT=LO:HI (sampling), got {text!r}"
             )
-        index = _joint_index(robot, match.group(1))
+        index = flags.coordinate_index(robot, match.group(1), "--axis")
         scale = _angle_scale(robot, index, args.deg)
         lo, hi = (parse_list(match.group(k), "--axis")[0] * scale for k in (2, 3))
         step = None if match.group(4) is None else parse_list(match.group(4), "--axis")[0] * scale
@@ -276,7 +243,7 @@ def _map_axes(robot: Robot, axes: list[dict], text: str | None, samples: int | N
     if text is not None:
         chosen = []
         for name in (t.strip() for t in text.split(",") if t.strip()):
-            index = _joint_index(robot, name)
+            index = flags.coordinate_index(robot, name, "--map-axes")
             where = [k for k, a in enumerate(axes) if a["index"] == index]
             if not where:
                 raise StiffnessError(f"--map-axes {name!r} is not a swept coordinate (--axis)")
@@ -302,14 +269,34 @@ def default_out(spec: ScanSpec) -> Path:
     return candidate
 
 
+def echo_lines(spec: ScanSpec, robot: Robot, args: argparse.Namespace) -> list[str]:
+    """The scan's inputs: fixed coordinates (name=value), load cases and K_theta, with sources."""
+    preset = f"preset {spec.preset}" if spec.preset in PRESETS else None
+    q_source = preset or flags.coordinates_source(robot, args)
+    load_source = f"{flags.FROM_FLAG} --wrench" if args.wrench else (preset or "default")
+    k_source = f"{flags.FROM_FLAG} --kq" if args.kq is not None else flags.FROM_ROBOT
+    swept = ", ".join(a["joint"] for a in spec.axes)
+    loads = "; ".join(f"{name}: {','.join(f'{v:g}' for v in load)}"
+                      for name, load in zip(spec.load_names, spec.loads, strict=True))
+    return [
+        f"q [{q_source}] (rad, m prismatic; swept: {swept}): "
+        + flags.format_named(spec.coordinate_joints, spec.base),
+        f"wrench [{load_source}] (N, N.m; base axes): {loads}",
+        f"K_theta [{k_source}] (N.m/rad, N/m prismatic): "
+        + flags.format_named(robot.compliant_joints, spec.k_theta),
+    ]
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the scan, print the summary."""
-    spec, _ = build_spec(args)
+    spec, robot = build_spec(args)
     if args.workers is not None and args.workers < 1:
         raise StiffnessError(f"--workers must be at least 1, got {args.workers}")
     out = Path(args.out) if args.out else default_out(spec)
     formats = ("npz", "parquet") if args.format == "both" else (args.format,)
     label = f"scan {spec.n_configurations} configurations x {len(spec.loads)} loads"
+    if not (args.quiet or args.json):
+        print("\n".join(echo_lines(spec, robot, args)), flush=True)
     progress = terminal_progress(label, args.quiet)
     t0 = time.perf_counter()
     summary = run_scan(spec, out, formats=formats, scheduler=args.scheduler,

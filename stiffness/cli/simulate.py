@@ -22,20 +22,14 @@ import json
 from stiffness.calibration.campaign import BASELINES, LENGTH_UNITS, Units
 from stiffness.calibration.effects import LIBRARY
 from stiffness.calibration.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
-from stiffness.cli.kx import parse_list
-from stiffness.errors import StiffnessError
+from stiffness.cli import flags
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness simulate``."""
-    parser.add_argument("--robot", required=True,
-                        help="shipped robot (sk120), example-robot-data name or URDF path")
-    parser.add_argument("--frame", help="frame carrying the target (default: the robot's)")
-    parser.add_argument("--target-offset", help="target in the frame's axes, in --units: x,y,z")
-    parser.add_argument("--compliant-joints", help="comma-separated declared springs "
-                                                   "(default: the robot's)")
-    parser.add_argument("--kq", help="true stiffness per declared compliant joint, N.m/rad "
-                                     "(N/m prismatic); default the shipped robot's")
+    flags.add_robot_flags(parser, required=True)
+    flags.add_stiffness_flag(parser, help="true stiffness per declared compliant joint, "
+                                          "N.m/rad (N/m prismatic); default the shipped robot's")
     parser.add_argument("--effect", action="append", default=[], metavar="NAME[:WHERE]=VALUE",
                         help="hidden effect, repeatable: " + ", ".join(LIBRARY) + "; e.g. "
                              "backlash:joint2=0.003 (deg), joint_compliance:joint5=3e5 "
@@ -64,28 +58,22 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="length unit of the files; default mm")
     parser.add_argument("--seed", type=int, default=0, help="random seed; default 0")
     parser.add_argument("--name", help="campaign name")
-    parser.add_argument("--json", action="store_true", help="print the truth as JSON")
+    flags.add_output_flags(parser, json_help="print the truth as one JSON object",
+                           quiet_help="print only the files written")
     parser.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
-    offset = None
-    if args.target_offset:
-        offset = [v * units.length_to_si for v in parse_list(args.target_offset,
-                                                             "--target-offset")]
-        if len(offset) != 3:
-            raise StiffnessError("--target-offset takes three lengths x,y,z")
-    joints = None
-    if args.compliant_joints:
-        joints = [j.strip() for j in args.compliant_joints.split(",") if j.strip()]
-    kq = parse_list(args.kq, "--kq") if args.kq else None
+    robot = flags.robot_flags(args)
+    kq = flags.parse_list(args.kq, "--kq") if args.kq else None
     sim = simulate(
-        args.robot, kq=kq, effects=[parse_effect(e) for e in args.effect],
+        robot.source, kq=kq, effects=[parse_effect(e) for e in args.effect],
         configs=args.configs, loads_per_config=args.loads_per_config,
         max_force=args.max_force, noise_std_m=args.noise * units.length_to_si, seed=args.seed,
-        frame=args.frame, target_offset_m=offset, compliant_joints=joints,
+        frame=robot.frame, target_offset_m=robot.target_offset,
+        compliant_joints=robot.compliant_joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,
         repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name)
     path = sim.write(args.out)
@@ -94,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     truth = sim.truth()
     print(f"wrote {path} ({sim.campaign.n_rows} rows) and {path.parent / TRUTH_FILE}")
+    if args.quiet:
+        return 0
     print(f"baseline {sim.campaign.baseline}; noise std {truth['noise_std']:.4g} "
           f"{truth['unit']}; the baseline's linearisation misses "
           f"{truth['baseline_model_error_noise_units']:.3g} noise std RMS")

@@ -19,13 +19,16 @@ parser adds them here); SI units throughout (m, N, rad, N.m/rad; degrees with ``
 from __future__ import annotations
 
 import argparse
+import io
+import json
 import signal
 from pathlib import Path
 
 import numpy as np
 
-from stiffness.cli import kx
-from stiffness.errors import StiffnessError
+from stiffness.cli import flags, kx
+from stiffness.errors import FileFormatError, StiffnessError
+from stiffness.files import read_text
 from stiffness.model.robot import Robot
 from stiffness.viewer import (
     LOOPBACK,
@@ -35,7 +38,7 @@ from stiffness.viewer import (
 )
 
 #: ``stiffness kx`` flags that have no meaning for the viewer.
-_KX_ONLY = {"help", "connection", "json", "twist_order"}
+_KX_ONLY = {"help", "connection", "twist_order"}
 #: Frames of a ``--sweep`` without an explicit count.
 DEFAULT_SWEEP_FRAMES = 30
 
@@ -47,6 +50,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     for action in shared._actions:
         if action.dest in _KX_ONLY:
             continue
+        if action.dest == "json":
+            action.help = "print one JSON object (the page or URL, the inputs) on stdout"
+        if action.dest == "quiet":
+            action.help = "no echo of the inputs"
         if action.dest == "formulation":
             action.choices, action.default = SHOW_FORMULATIONS, "both"
             action.help = ("both (side by side, default), enhanced (K_theta - K_C, A&S eq. 10) "
@@ -61,8 +68,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="factor applied to the drawn deflection (default: a round number "
                              "that moves the target about 8%% of the reach)")
     parser.add_argument("--sweep", metavar="JOINT=START:STOP[:N]",
-                        help="animate N configurations (default 30) moving one joint from START "
-                             "to STOP (rad, m prismatic; degrees with --deg)")
+                        help="animate N configurations (default 30) moving one joint (name, "
+                             "or q1, q2...) from START to STOP (rad, m prismatic; degrees with "
+                             "--deg)")
     parser.add_argument("--path", metavar="FILE.csv",
                         help="animate a path: one row of coordinates per frame, comma-separated "
                              "(rad, m prismatic; degrees with --deg)")
@@ -91,13 +99,15 @@ def _revolute(robot: Robot, joint: str) -> bool:
     return not model.joints[model.getJointId(joint)].shortname().startswith("JointModelP")
 
 
-def resolve(args: argparse.Namespace) -> tuple[Robot, np.ndarray, np.ndarray, np.ndarray]:
+def resolve(args: argparse.Namespace, inputs: kx.KxInputs | None = None
+            ) -> tuple[Robot, np.ndarray, np.ndarray, np.ndarray]:
     """Robot, coordinates (rad, m), joint stiffness (n, n) and load of the kx flags.
 
     The same resolution as ``stiffness kx`` (:func:`stiffness.cli.kx.resolve_inputs`):
-    shipped robots bring their configuration, springs and load.
+    shipped robots bring their configuration, springs and load; without ``--wrench`` and a
+    shipped load, the load is zero (the unloaded stiffness). ``inputs``: already resolved.
     """
-    inputs = kx.resolve_inputs(args)
+    inputs = inputs or kx.resolve_inputs(args, require_load=False)
     return inputs.robot, inputs.coords, inputs.k_theta, inputs.load
 
 
@@ -113,11 +123,9 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     parts = bounds.split(":")
     if not sep or len(parts) not in (2, 3):
         raise StiffnessError(f"--sweep takes JOINT=START:STOP[:N], got {spec!r}")
-    name = name.strip()
-    if name not in robot.coordinate_joints:
-        raise StiffnessError(f"--sweep: {name!r} is not a coordinate of {robot.name}; "
-                             f"coordinates: {', '.join(robot.coordinate_joints)}")
-    start, stop = kx.parse_list(",".join(parts[:2]), "--sweep")
+    index = flags.coordinate_index(robot, name.strip(), "--sweep")
+    name = robot.coordinate_joints[index]
+    start, stop = flags.parse_list(",".join(parts[:2]), "--sweep")
     try:
         n = int(parts[2]) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
     except ValueError:
@@ -128,7 +136,7 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     if deg and _revolute(robot, name):
         start, stop = np.deg2rad(start), np.deg2rad(stop)
     rows = np.tile(coords, (n, 1))
-    rows[:, robot.coordinate_joints.index(name)] = np.linspace(start, stop, n)
+    rows[:, index] = np.linspace(start, stop, n)
     return rows
 
 
@@ -137,20 +145,26 @@ def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
 
     Raises
     ------
-    StiffnessError
-        If the file is missing or a row has the wrong number of values.
+    MissingFileError
+        If the file is missing.
+    FileFormatError
+        If a value is not a number or a row has the wrong number of values.
     """
     path = Path(path)
-    if not path.is_file():
-        raise StiffnessError(f"--path: {path} does not exist")
+    text = read_text(path, "--path file")
     try:
-        rows = np.atleast_2d(np.loadtxt(path, delimiter=",", comments="#", dtype=float))
+        rows = np.atleast_2d(np.loadtxt(io.StringIO(text), delimiter=",", comments="#",
+                                        dtype=float))
     except ValueError as exc:
-        raise StiffnessError(f"--path: {path} is not a CSV of numbers: {exc}") from exc
+        raise FileFormatError(f"not a CSV of numbers ({exc}); give one row of "
+                              f"{robot.n_coordinates} coordinates per line", path=path) from exc
+    if rows.size == 0:
+        raise FileFormatError(f"no rows; give one row of {robot.n_coordinates} coordinates per "
+                              "line", path=path)
     if rows.shape[1] != robot.n_coordinates:
-        raise StiffnessError(
-            f"--path: each row needs {robot.n_coordinates} values "
-            f"({', '.join(robot.coordinate_joints)}), {path} has {rows.shape[1]}")
+        raise FileFormatError(
+            f"each row needs {robot.n_coordinates} values "
+            f"({', '.join(robot.coordinate_joints)}), this file has {rows.shape[1]}", path=path)
     if deg:
         for i, joint in enumerate(robot.coordinate_joints):
             if _revolute(robot, joint):
@@ -158,9 +172,10 @@ def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
     return rows
 
 
-def build(args: argparse.Namespace, live: bool) -> StiffnessViewer:
+def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = None
+          ) -> StiffnessViewer:
     """The viewer with everything the flags ask for drawn (the caller closes it)."""
-    robot, coords, k_theta, load = resolve(args)
+    robot, coords, k_theta, load = resolve(args, inputs)
     rows = None
     if args.sweep is not None and args.path is not None:
         raise StiffnessError("give --sweep or --path, not both")
@@ -186,24 +201,48 @@ def build(args: argparse.Namespace, live: bool) -> StiffnessViewer:
     return viewer
 
 
+def _say_if_unloaded(viewer: StiffnessViewer) -> None:
+    if viewer.state is not None and not np.any(viewer.state.wrench):
+        print("no load (give --wrench fx,fy,fz in N): drawing the unloaded stiffness, where "
+              "enhanced and conventional coincide")
+
+
 def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
+def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str) -> None:
+    """Print where the page is (one JSON object with ``--json``) and echo the inputs."""
+    summary = {"robot": inputs.robot.name, "frame": inputs.robot.target_frame,
+               "formulation": args.formulation, **where, **kx.inputs_summary(inputs)}
+    if args.json:
+        print(json.dumps(summary), flush=True)
+        return
+    if not args.quiet:
+        print("\n".join(kx.echo_lines(summary)), flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Export the static page, or serve the live viewer until Ctrl-C or ``--duration``."""
+    inputs = kx.resolve_inputs(args, require_load=False)
     if args.export is not None:
-        viewer = build(args, live=False)
+        viewer = build(args, live=False, inputs=inputs)
+        _say_if_unloaded(viewer)
         path = viewer.export(args.export)
-        print(f"wrote {path}: a self-contained page, open it in a browser (works offline)")
+        _report(args, inputs, export=str(path))
+        if not args.json:
+            print(f"wrote {path}: a self-contained page, open it in a browser (works offline)")
         return 0
     previous = signal.signal(signal.SIGTERM, _terminate)  # so that the server is stopped
-    viewer = build(args, live=True)
+    viewer = build(args, live=True, inputs=inputs)
+    _say_if_unloaded(viewer)
     try:
         where = "this machine only" if args.host == LOOPBACK else \
             f"{args.host}: reachable from the network"
-        print(f"stiffness viewer: {viewer.url} (listening on {where}); Ctrl-C stops it",
-              flush=True)
+        _report(args, inputs, url=viewer.url)
+        if not args.json:
+            print(f"stiffness viewer: {viewer.url} (listening on {where}); Ctrl-C stops it",
+                  flush=True)
         viewer.browse(duration=args.duration)
     except KeyboardInterrupt:
         pass

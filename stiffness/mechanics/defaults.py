@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from stiffness.mechanics.formulation import as_wrench
+from stiffness.mechanics.wrench import holding_wrench
 from stiffness.model.robot import Robot
 
 
@@ -44,8 +45,6 @@ def default_load(robot: Robot, q: np.ndarray, k_theta: np.ndarray
         return as_wrench(robot.defaults["wrench_SI"])[: len(robot.defaults["wrench_SI"])], \
             "wrench_SI"
     if "rest_q_SI" in robot.defaults:
-        from stiffness.mechanics.platform import holding_wrench
-
         load = holding_wrench(robot, q, k_theta, robot.defaults["rest_q_SI"])
         return as_wrench(load), "rest_q_SI (wrench holding the target against the springs)"
     return None

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.formulation import as_wrench, tangent_joint_stiffness, target_state
 from stiffness.model.robot import Robot
 
@@ -89,9 +89,11 @@ def solve_equilibrium(
 
     Raises
     ------
-    StiffnessError
-        If Newton's method does not converge (the load exceeds the buckling load, or the
-        tangent stiffness is singular).
+    ConvergenceError
+        If Newton's method does not converge (the load may exceed the buckling load).
+    UnstableEquilibriumError
+        If the tangent stiffness becomes singular on the way, or the equilibrium found is
+        unstable (K_theta - K_C not positive definite there): the load buckles the robot.
     """
     wrench = as_wrench(load)
     base = target_state(robot, q0)
@@ -109,18 +111,20 @@ def solve_equilibrium(
         try:
             step = np.linalg.solve(tangent, -residual)
         except np.linalg.LinAlgError as exc:
-            raise StiffnessError("the tangent stiffness is singular: the load buckles the robot"
-                                 ) from exc
+            raise UnstableEquilibriumError(
+                "the tangent stiffness K_theta - K_C is singular on the way to the equilibrium: "
+                "the load buckles the robot; reduce the load or stiffen the joints") from exc
         dtheta = dtheta + step
     else:
-        raise StiffnessError(
+        raise ConvergenceError(
             f"the exact equilibrium did not converge in {max_iterations} iterations "
-            f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load"
+            f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
+            "reduce it or raise max_iterations"
         )
     tangent = tangent_joint_stiffness(k_theta, state.k_c)
     lowest = np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0]
     if lowest <= 0:
-        raise StiffnessError(
+        raise UnstableEquilibriumError(
             f"the equilibrium found under this load is unstable (K_theta - K_C has the eigenvalue "
             f"{lowest:.3g} there): the load exceeds the buckling load of the robot in this "
             "configuration; reduce the load or stiffen the joints"

@@ -25,7 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.errors import SingularConfigurationError, StiffnessError, UndeterminedMotionError
+from stiffness.errors import (
+    SingularConfigurationError,
+    StiffnessError,
+    UndeterminedMotionError,
+    UnknownNameError,
+)
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
 
@@ -221,7 +226,8 @@ def tangent_joint_stiffness(
 ) -> np.ndarray:
     """K_theta - K_C (enhanced) or K_theta (conventional)."""
     if formulation not in FORMULATIONS:
-        raise StiffnessError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+        raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
+                               f"{formulation!r}", name=formulation, choices=FORMULATIONS)
     return k_theta - k_c if formulation == "enhanced" else k_theta.copy()
 
 

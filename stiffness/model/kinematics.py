@@ -3,10 +3,11 @@
 Every quirk of the pin 4.x Python bindings is fixed here, once:
 
 * ``getFrameKinematicHessian`` returns the column-major C++ tensor read in row-major order;
-  :func:`frame_hessian` reorders it so that ``H[k, a, b] = dJ[k, a] / dq_b``.
-* For a model with one velocity coordinate the bindings return Jacobians squeezed to shape
-  (6,); :func:`frame_jacobian`, :func:`point_jacobian` and :func:`frame_hessian` always return
-  (6, nv) and (6, nv, nv).
+  :func:`reorder_hessian` (used by :func:`frame_hessian`, :func:`point_hessian` and the batched
+  kernels) reorders it so that ``H[k, a, b] = dJ[k, a] / dq_b``.
+* For a model with one velocity coordinate the bindings return Jacobians and Hessians squeezed
+  to shape (6,); :func:`frame_jacobian`, :func:`point_jacobian`, :func:`frame_hessian` and
+  :func:`point_hessian` always return (6, nv) and (6, nv, nv) (or (3, nv, nv)).
 * The URDF parser prints its errors on the C-level standard error: :func:`captured_stderr`.
 * Only the ``LOCAL_WORLD_ALIGNED`` linear rows are the Hessian of the frame origin's position;
   this module only ever asks for that reference frame.
@@ -65,21 +66,46 @@ def point_jacobian(model: pin.Model, data: pin.Data, joint_id: int, placement: p
         6, model.nv)
 
 
-def fix_hessian_layout(model: pin.Model, raw) -> np.ndarray:
-    """A kinematic Hessian from the bindings as ``H[k, a, b] = dJ[k, a] / dq_b``, (6, nv, nv)."""
+def _full_hessian(model: pin.Model, raw) -> np.ndarray:
+    """Pinocchio's raw Hessian of one frame, unsqueezed to (6, nv, nv) (nv = 1 models)."""
     raw = np.asarray(raw)
-    if raw.ndim != 3:
-        return raw.reshape(6, model.nv, model.nv)
-    return raw.reshape(-1).reshape(raw.shape, order="F")
+    return raw if raw.ndim == 3 else raw.reshape(6, model.nv, model.nv)
+
+
+def reorder_hessian(raw: np.ndarray) -> np.ndarray:
+    """Kinematic Hessian ``H[..., k, a, b] = dJ[k, a] / dq_b`` from Pinocchio's raw array.
+
+    ``raw`` (..., 6, nv, nv) holds, in its last three axes, the array returned by
+    ``getFrameKinematicHessian``: the column-major C++ tensor read in row-major order (leading
+    axes, e.g. a batch of configurations, are kept). The memory of each raw tensor, read as
+    (nv, nv, 6), is ``H[k, a, b]`` at ``[b, a, k]``. Returns a view.
+    """
+    raw = np.asarray(raw)
+    lead, (_, nv, _) = raw.shape[:-3], raw.shape[-3:]
+    axes = tuple(range(len(lead)))
+    return raw.reshape(lead + (nv, nv, 6)).transpose(axes + tuple(len(lead) + i for i in (2, 1, 0)))
 
 
 def frame_hessian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
     """Kinematic Hessian (6, nv, nv) of a frame, ``H[k, a, b] = dJ[k, a] / dq_b``.
 
     Rows 0..2 are the Hessian of the world position of the frame origin (symmetric in a, b);
-    rows 3..5 the derivative of the world-axes angular Jacobian.
+    rows 3..5 the derivative of the world-axes angular Jacobian. Hessians must be current
+    (:func:`update_kinematics`).
     """
-    return fix_hessian_layout(model, pin.getFrameKinematicHessian(model, data, frame_id, LWA))
+    return reorder_hessian(_full_hessian(
+        model, pin.getFrameKinematicHessian(model, data, frame_id, LWA)))
+
+
+def point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
+                  ) -> np.ndarray:
+    """Hessian (3, nv, nv) of the world position of a point fixed to a joint (m/rad^2).
+
+    ``placement`` locates the point in the joint's frame. Hessians must be current
+    (:func:`update_kinematics`).
+    """
+    raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, LWA)
+    return reorder_hessian(_full_hessian(model, raw))[:3]
 
 
 @contextmanager

@@ -37,7 +37,15 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import LoopClosureError, RobotFileError, StiffnessError, did_you_mean
+from stiffness.errors import (
+    LoopClosureError,
+    MissingFileError,
+    RobotFileError,
+    UnknownFrameError,
+    UnknownJointError,
+    did_you_mean,
+)
+from stiffness.files import read_yaml
 from stiffness.model import kinematics
 from stiffness.model.rewrite import JOINT_REWRITES
 
@@ -118,21 +126,17 @@ def read_loop_declaration(path: str | Path) -> LoopDeclaration:
 
     Raises
     ------
-    RobotFileError
-        If the file is missing or is not YAML, a required key is missing, a key or a type is
-        unknown, or the lists do not match.
+    MissingFileError
+        If the file is missing.
+    FileFormatError
+        If it is not YAML (:func:`stiffness.files.read_yaml`), or (:class:`RobotFileError`) a
+        required key is missing, a key or a type is unknown, or the lists do not match.
     """
-    import yaml
-
     path = Path(path)
     if not path.is_file():
-        raise StiffnessError(f"loop declaration {path} does not exist; give the YAML sidecar path")
-    try:
-        content = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise RobotFileError(path, None if mark is None else mark.line + 1,
-                             f"not valid YAML: {getattr(exc, 'problem', exc)}") from exc
+        raise MissingFileError(f"loop declaration {path} does not exist; give the YAML sidecar "
+                               "path", path=path)
+    content = read_yaml(path, "loop declaration")
     if not isinstance(content, dict):
         raise RobotFileError(path, None, "a loop declaration must be a YAML mapping")
     unknown = [k for k in content if k not in LOOP_KEYS]
@@ -308,8 +312,8 @@ class LoopClosure:
                 blocks.append(hb - ha)
                 continue
             for (ja, ma), (jb, mb) in points:
-                blocks.append(_point_hessian(model, data, jb, mb)
-                              - _point_hessian(model, data, ja, ma))
+                blocks.append(kinematics.point_hessian(model, data, jb, mb)
+                              - kinematics.point_hessian(model, data, ja, ma))
         return np.concatenate(blocks, axis=0)
 
     def passive_rank(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9) -> int:
@@ -404,7 +408,7 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
 
     Raises
     ------
-    StiffnessError
+    UnknownFrameError, UnknownJointError
         If a frame or joint named in the declaration is not in the model.
     """
     frame_names = [f.name for f in model.frames]
@@ -415,10 +419,9 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
         ids = []
         for name in (pair.frame_a, pair.frame_b):
             if not model.existFrame(name):
-                raise StiffnessError(
+                raise UnknownFrameError(
                     f"{where}loop frame {name!r} is not in the model; "
-                    f"{did_you_mean(name, frame_names)}"
-                )
+                    f"{did_you_mean(name, frame_names)}", name=name, choices=frame_names)
             ids.append(model.getFrameId(name))
         fa, fb = (model.frames[i] for i in ids)
         anchor = (pin.FrameAnchorConstraintModel if pair.kind == "6D"
@@ -429,10 +432,9 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
         frame_ids.append((ids[0], ids[1]))
     for name in declaration.actuated:
         if name not in joint_names:
-            raise StiffnessError(
+            raise UnknownJointError(
                 f"{where}actuated joint {name!r} is not in the model; "
-                f"{did_you_mean(name, joint_names)}"
-            )
+                f"{did_you_mean(name, joint_names)}", name=name, choices=joint_names)
     if declaration.passive is None:
         passive = tuple(
             j for j in joint_names if model.joints[model.getJointId(j)].nv > 0
@@ -442,21 +444,10 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
         passive = declaration.passive
         for name in passive:
             if name not in joint_names:
-                raise StiffnessError(
+                raise UnknownJointError(
                     f"{where}passive joint {name!r} is not in the model; "
-                    f"{did_you_mean(name, joint_names)}"
-                )
+                    f"{did_you_mean(name, joint_names)}", name=name, choices=joint_names)
     joints = [model.joints[model.getJointId(j)] for j in passive]
     passive_v = np.concatenate(
         [np.arange(j.idx_v, j.idx_v + j.nv) for j in joints] + [np.zeros(0)]).astype(int)
     return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)
-
-
-def _point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
-                   ) -> np.ndarray:
-    """Hessian (3, nv, nv) of the world position of a point fixed to a joint (m/rad^2).
-
-    Same layout fix as :func:`stiffness.model.kinematics.frame_hessian`; Hessians must be current.
-    """
-    raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, kinematics.LWA)
-    return kinematics.fix_hessian_layout(model, raw)[:3]

@@ -29,6 +29,8 @@ from stiffness.errors import (
     FloatingBaseError,
     LoopClosureError,
     StiffnessError,
+    UnknownFrameError,
+    UnknownJointError,
     did_you_mean,
 )
 from stiffness.model import kinematics
@@ -559,10 +561,10 @@ def load_robot(
             why = (" (it is a passive loop joint)" if joint_name in passive else
                    " (it is a mimic follower: its leader carries the spring)"
                    if joint_name in dependent else "")
-            raise StiffnessError(
+            raise UnknownJointError(
                 f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
-                f"{did_you_mean(joint_name, coordinate_joints)}"
-            )
+                f"{did_you_mean(joint_name, coordinate_joints)}", name=joint_name,
+                choices=coordinate_joints)
     if len(set(compliant_joints)) != len(compliant_joints):
         raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
 
@@ -616,13 +618,12 @@ def _target_frame(name: str, model: pin.Model, frame: str | None,
                                  "freedom left to be compliant")
         return frame
     if not model.existFrame(frame):
-        raise StiffnessError(
-            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}"
-        )
+        raise UnknownFrameError(
+            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}",
+            name=frame, choices=frame_names)
     if frame not in moving:
-        raise StiffnessError(
+        raise UnknownFrameError(
             f"frame {frame!r} of {name} is not moved by any joint (it is fixed to the base), so "
             f"it has no stiffness to compute; choose a frame that moves: "
-            f"{did_you_mean(frame, moving)}"
-        )
+            f"{did_you_mean(frame, moving)}", name=frame, choices=moving)
     return frame

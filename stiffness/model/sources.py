@@ -15,16 +15,13 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import pinocchio as pin
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
-    import tomli as tomllib
-
-from stiffness.errors import StiffnessError, did_you_mean
+from stiffness.errors import FileFormatError, StiffnessError, UnknownRobotError, did_you_mean
+from stiffness.files import read_toml
 from stiffness.model.meshes import MissingMesh
 from stiffness.model.urdf import Mimic, mimic_tags, read_urdf, warn
 
@@ -50,9 +47,29 @@ class RobotSource:
 
 
 def robots_directory() -> Path:
-    """Folder of the shipped robots (``robots/`` of the checkout, or ``$STIFFNESS_ROBOTS``)."""
+    """Folder of the shipped robots: the repository's ``robots/``, installed as package data.
+
+    In order: ``$STIFFNESS_ROBOTS`` if set; the ``robots/`` folder of the source checkout this
+    package runs from (``PYTHONPATH`` or an editable install: the checkout's own data, even if
+    another copy of the package is installed); else the installed package data
+    ``stiffness.robots`` (``robots/`` mapped into the wheel), read with :mod:`importlib.resources`.
+    """
     env = os.environ.get("STIFFNESS_ROBOTS")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "robots"
+    if env:
+        return Path(env)
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file() and (checkout / "robots" / "__init__.py").is_file():
+        return checkout / "robots"
+    try:
+        data = resources.files("stiffness.robots")
+    except ModuleNotFoundError:
+        data = None
+    if not isinstance(data, Path) or not data.is_dir():
+        raise StiffnessError(
+            "the shipped robots are missing: this copy of stiffness has no robots/ package data "
+            "(reinstall it with `pip install .`, or set STIFFNESS_ROBOTS to a robots/ folder)"
+        )
+    return data
 
 
 def shipped_robots() -> list[str]:
@@ -89,7 +106,7 @@ def find_loop_sidecar(urdf: Path) -> Path | None:
 
 
 def _from_toml(folder: Path, name: str) -> RobotSource:
-    settings = tomllib.loads((folder / "robot.toml").read_text())
+    settings = read_toml(folder / "robot.toml", "robot file")
     urdf = folder / settings["urdf"]
     read = read_urdf(urdf)
     settings["_folder"] = folder
@@ -104,8 +121,8 @@ def _toml_naming(path: Path) -> bool:
     if not toml.is_file():
         return False
     try:
-        declared = tomllib.loads(toml.read_text()).get("urdf")
-    except tomllib.TOMLDecodeError:
+        declared = read_toml(toml, "robot file").get("urdf")
+    except FileFormatError:
         return False
     return declared is not None and (path.parent / declared).resolve() == path.resolve()
 
@@ -159,8 +176,8 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
     erd_names = example_robot_names()
     if text in erd_names:
         return _from_example_robot_data(text)
-    raise StiffnessError(
+    raise UnknownRobotError(
         f"unknown robot {text!r}: not a shipped robot ({', '.join(shipped)}), not an existing "
         f"URDF file, and not an example-robot-data name; "
-        f"{did_you_mean(text, shipped + erd_names, limit=80)}"
-    )
+        f"{did_you_mean(text, shipped + erd_names, limit=80)}", name=text,
+        choices=shipped + erd_names)

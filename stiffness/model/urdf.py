@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import RobotFileError, RobotFileWarning, StiffnessError
+from stiffness.errors import MissingFileError, RobotFileError, RobotFileWarning
 from stiffness.model import kinematics
 from stiffness.model.meshes import MissingMesh, resolve_visual_meshes
 
@@ -185,14 +185,15 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
 
     Raises
     ------
-    StiffnessError
+    MissingFileError
         If the file is missing.
     RobotFileError
         If Pinocchio's parser refuses it (the message names the line).
     """
     path = Path(path)
     if not path.is_file():
-        raise StiffnessError(f"URDF file {path} does not exist; give an existing .urdf path")
+        raise MissingFileError(f"URDF file {path} does not exist; give an existing .urdf path",
+                               path=path)
     raw = path.read_bytes()
     with kinematics.captured_stderr() as err:
         try:

@@ -1,4 +1,4 @@
-"""``stiffness check-jacobian``: the printed Appendix I Jacobian of A&S (2005) vs Pinocchio.
+"""The printed Appendix I Jacobian of A&S (2005) vs Pinocchio (``stiffness check-jacobian``).
 
 The paper gives, in its Appendix I, eq. (17), a hand-derived 3x3 positional Jacobian
 ``J = d(x, y, z) / d(t1, t2, t3)`` of the SK120 end point, as a function of six joint angles
@@ -43,14 +43,13 @@ Layout: the angle convention, Table I lengths and convention search are in
 :mod:`stiffness.papers.appendix_eval`; the edits that explain a mismatch in
 :mod:`stiffness.papers.appendix_edits`; poses and the Pinocchio side in
 :mod:`stiffness.papers.appendix_poses`.
-This module assembles the report (:func:`run_crosscheck`) and runs the command; it re-exports
+This module assembles the report (:func:`run_crosscheck`; the command is
+:mod:`stiffness.cli.check_jacobian`); it re-exports
 the building blocks listed in ``__all__``.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -100,7 +99,6 @@ __all__ = [
     "Edit",
     "PoseSet",
     "apply_edits",
-    "configure_parser",
     "explain_element",
     "find_convention",
     "integrability_violations",
@@ -108,7 +106,6 @@ __all__ = [
     "kc_from_terms",
     "pinocchio_samples",
     "printed_convention",
-    "run",
     "run_crosscheck",
     "sample_poses",
     "table1_lengths_mm",
@@ -440,72 +437,3 @@ def _edit_error(name: str, terms: TermsByElement, edits: Sequence[Edit], mapped:
 def _symbols(edit: Edit) -> set[str]:
     """Length symbols of the old and new terms of an edit."""
     return {t.length for t in (edit.old, edit.new) if t is not None}
-
-
-
-# --------------------------------------------------------------------------------------------
-# Command line
-# --------------------------------------------------------------------------------------------
-
-
-def configure_parser(parser: argparse.ArgumentParser) -> None:
-    """Options of ``stiffness check-jacobian``."""
-    parser.add_argument("--json", action="store_true",
-                        help="print one JSON object (and nothing else) on stdout")
-    parser.add_argument("--samples", type=int, default=200, metavar="N",
-                        help="random vertical-wrist workspace poses (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the workspace sample")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Run ``stiffness check-jacobian``; returns the exit status (0)."""
-    from stiffness.errors import StiffnessError
-
-    if args.samples < 0:
-        raise StiffnessError(f"--samples must be >= 0, got {args.samples}")
-    report = run_crosscheck(args.samples, args.seed)
-    if args.json:
-        print(json.dumps(report, indent=1))
-        return 0
-    print(_text_report(report))
-    return 0
-
-
-def _text_report(report: dict) -> str:
-    """Plain-text summary of a :func:`run_crosscheck` report."""
-    lines = [
-        "Appendix I (A&S 2005) vs Pinocchio SK120, same physical poses "
-        f"({report['n_poses']}: " + ", ".join(
-            f"{n} {k}" for k, n in report["n_poses_by_kind"].items()) + ")",
-        "",
-        "Angle convention of the appendix:",
-        "  " + report["conventions"]["description"].replace(". ", ".\n  "),
-        "Lengths (mm): " + ", ".join(f"{k}={v:g}" for k, v in report["lengths_mm"].items() if v),
-        "",
-        f"{'element':8}{'printed max abs':>18}{'max rel':>11}{'corrected max abs':>20}"
-        f"{'max rel':>11}   [{report['unit']}]",
-    ]
-    for name in ELEMENT_NAMES:
-        p, c = report["elements"][name], report["elements_corrected"][name]
-        lines.append(f"{name:8}{p['max_abs']:18.3e}{p['max_rel']:11.1e}"
-                     f"{c['max_abs']:20.3e}{c['max_rel']:11.1e}")
-    lines += ["", "Disagreeing elements:"]
-    for m in report["mismatches"] or [{"element": "none", "explanation": ""}]:
-        lines.append(f"  {m['element']}: {m['explanation']}")
-    lines += ["", "Typos invisible at Table I's lengths:"]
-    for m in report["invisible_typos"] or [{"element": "none", "explanation": ""}]:
-        lines.append(f"  {m['element']}: {m['explanation']}")
-    lines += [
-        "",
-        f"K_C [{report['kc_unit']}]",
-        f"{'element':8}{'printed max abs':>18}{'max rel':>11}{'corrected max abs':>20}"
-        f"{'max rel':>11}",
-    ]
-    for name in report["kc_elements"]:
-        p, c = report["kc_elements"][name], report["kc_elements_corrected"][name]
-        lines.append(f"{name:8}{p['max_abs']:18.3e}{p['max_rel']:11.1e}"
-                     f"{c['max_abs']:20.3e}{c['max_rel']:11.1e}")
-    lines.append(f"K_C of the printed appendix: max asymmetry "
-                 f"{report['kc_printed_max_asymmetry']:.4g}; corrected appendix vs Pinocchio: "
-                 f"max rel {report['appendix_kc_max_rel']:.1e}")
-    return "\n".join(lines)

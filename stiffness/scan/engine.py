@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, atomic_write_with
+from stiffness.errors import MissingFileError, StiffnessError
+from stiffness.files import atomic_write, atomic_write_with, output_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.model.robot import Robot
 from stiffness.scan.definiteness import grid_axis
@@ -492,8 +492,8 @@ def load_scan(out: str | os.PathLike) -> dict[str, np.ndarray]:
     out = Path(out)
     files = sorted((out / "chunks").glob("chunk-*.npz"))
     if not files:
-        raise StiffnessError(f"{out} holds no NPZ chunk (chunks/chunk-*.npz); was it written "
-                             "with --format parquet?")
+        raise MissingFileError(f"{out} holds no NPZ chunk (chunks/chunk-*.npz); was it written "
+                               "with --format parquet?", path=out)
     parts = [dict(np.load(f)) for f in files]
     return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
 
@@ -550,7 +550,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
                 "folder, or the same options to resume it"
             )
     else:
-        out.mkdir(parents=True, exist_ok=True)
+        output_folder(out)
         atomic_write(manifest_file, json.dumps(manifest, indent=1))
     acc = MapAccumulator(spec)
     done = set()

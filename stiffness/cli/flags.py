@@ -1,0 +1,374 @@
+"""The one flag layer every command shares: robot, configuration, load, stiffness, output.
+
+A command declares its flags with the ``add_*`` functions and reads them back with
+:func:`robot_from_args`, :func:`coordinates_from_args` and :func:`parse_list`, so that the same
+flag has the same name, unit and syntax in every command:
+
+* ``--robot``, ``--frame``, ``--target-offset x,y,z`` (m, the frame's axes),
+  ``--compliant-joints a,b,...``, ``--loops FILE`` (a loop declaration instead of the sidecar)
+  and ``--fixed-base`` (fix a floating or planar base; docs/robot-files.md);
+* ``--q v1,v2,...`` (one value per coordinate, rad or m) or ``--q name=value,...`` (joint names,
+  or ``q1``, ``q2``...; the coordinates not named keep the robot's default configuration, zero
+  when it has none), ``--deg`` for angles in degrees;
+* ``--wrench fx,fy,fz[,mx,my,mz]`` (N, N.m, base axes; ``--load`` is an alias);
+* ``--kq k1,k2,...`` (N.m/rad, N/m prismatic);
+* ``--json`` (one JSON object on stdout) and ``--quiet`` (no progress, no echo of the inputs).
+
+Values that start with a minus sign are taken in the natural form (``--q -35,-60,95``,
+``--wrench -10,0,-100``) by :class:`ArgumentParser`, which the ``stiffness`` dispatcher uses;
+plain :mod:`argparse` would read them as unknown options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
+
+if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
+    from stiffness.model.robot import Robot
+
+#: A command-line token that is a value starting with a minus sign (a negative number or a list
+#: of numbers), never an option: ``-35``, ``-.5``, ``-1e3,2``, ``-inf``.
+_NEGATIVE_VALUE = re.compile(r"^-(?:\.?\d|inf\b|nan\b)", re.IGNORECASE)
+#: ``--q`` items of the form ``name=value``.
+_PAIR = re.compile(r"^\s*([^=\s][^=]*?)\s*=\s*(\S.*?)\s*$")
+
+#: Where a value came from, as echoed by the commands.
+FROM_FLAG = "flag"
+FROM_MODEL = "model file"
+FROM_ROBOT = "robot default"
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """An :class:`argparse.ArgumentParser` that takes option values starting with a minus sign.
+
+    ``--q -35,-60,95`` is rewritten ``--q=-35,-60,95`` before parsing, for every option that
+    takes one value (abbreviations included), when the next token is a negative number or a
+    number list. Sub-parsers made with ``add_subparsers`` inherit the class.
+    """
+
+    def parse_known_args(self, args: Sequence[str] | None = None,
+                         namespace: argparse.Namespace | None = None):
+        """Parse like argparse, after joining negative values to their options."""
+        args = sys.argv[1:] if args is None else list(args)
+        return super().parse_known_args(join_negative_values(self, args), namespace)
+
+
+def join_negative_values(parser: argparse.ArgumentParser, argv: Sequence[str]) -> list[str]:
+    """``argv`` with ``--flag -1,2`` joined into ``--flag=-1,2`` for ``parser``'s one-value flags.
+
+    Tokens after ``--`` are left alone; so are values that look like options.
+    """
+    options = {s: a for a in parser._actions for s in a.option_strings}
+    out: list[str] = []
+    argv = list(argv)
+    i = 0
+    while i < len(argv):
+        token = argv[i]
+        if token == "--":
+            out.extend(argv[i:])
+            break
+        action = options.get(token)
+        if action is None and token.startswith("--") and "=" not in token and parser.allow_abbrev:
+            matches = {options[s] for s in options if s.startswith(token)}
+            action = matches.pop() if len(matches) == 1 else None
+        if (action is not None and action.nargs in (None, 1) and i + 1 < len(argv)
+                and _NEGATIVE_VALUE.match(argv[i + 1]) and argv[i + 1] not in options):
+            out.append(f"{token}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(token)
+        i += 1
+    return out
+
+
+def parse_list(text: str, flag: str) -> list[float]:
+    """Comma-separated numbers of a flag, e.g. ``"1,2.5,-3"``.
+
+    Raises
+    ------
+    StiffnessError
+        If an item is not a finite number.
+    """
+    values = []
+    for item in text.split(","):
+        try:
+            value = float(item)
+        except ValueError:
+            raise StiffnessError(
+                f"{flag} takes comma-separated numbers; {item.strip()!r} is not a number"
+            ) from None
+        if not np.isfinite(value):
+            raise StiffnessError(f"{flag} values must be finite, got {item.strip()!r}")
+        values.append(value)
+    return values
+
+
+def parse_names(text: str | None) -> list[str] | None:
+    """Comma-separated names (``--compliant-joints a,b``), or None when not given."""
+    if text is None:
+        return None
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+# --- declaring flags -------------------------------------------------------------------------
+
+def add_robot_flags(parser: argparse.ArgumentParser, *, required: bool = False,
+                    robot_help: str | None = None) -> None:
+    """``--robot``, ``--frame``, ``--target-offset`` (m), ``--compliant-joints``, ``--loops``
+    and ``--fixed-base``."""
+    parser.add_argument(
+        "--robot", required=required,
+        help=robot_help or "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data "
+                           "name (ur5, panda...) or URDF path")
+    parser.add_argument("--frame", help="frame carrying the target (default: the robot's own)")
+    parser.add_argument("--target-offset", metavar="X,Y,Z",
+                        help="target in the frame's axes, m (default: the robot's own, else 0)")
+    parser.add_argument("--compliant-joints", metavar="J1,J2,...",
+                        help="comma-separated joints modelled as springs (default: the robot's "
+                             "own, else every coordinate joint)")
+    parser.add_argument("--loops", metavar="FILE",
+                        help="loop declaration (Gepetto's Extended-URDF YAML) instead of the "
+                             "one beside the URDF (<name>.loops.yaml, <name>.yaml, robot.yaml)")
+    parser.add_argument("--fixed-base", action="store_true",
+                        help="fix a floating or planar base at its neutral placement")
+
+
+def add_configuration_flags(parser: argparse.ArgumentParser, q_help: str | None = None) -> None:
+    """``--q`` (values in coordinate order, or name=value pairs) and ``--deg``."""
+    parser.add_argument(
+        "--q", metavar="Q1,Q2,...|NAME=V,...",
+        help=q_help or "joint coordinates, rad (m prismatic): one value per coordinate in the "
+                       "robot's order (for closed loops the independent joints suffice), or "
+                       "name=value pairs (joint names or q1, q2...; coordinates not named keep "
+                       "the robot's default configuration, else 0)")
+    parser.add_argument("--deg", action="store_true",
+                        help="angles of --q (and of other coordinate flags) in degrees")
+
+
+def add_wrench_flag(parser: argparse.ArgumentParser, *, repeat: bool = False,
+                    help: str | None = None) -> None:
+    """``--wrench fx,fy,fz[,mx,my,mz]`` (alias ``--load``): dead load at the target, base axes."""
+    text = help or ("dead load at the target, base axes: fx,fy,fz (N) or fx,fy,fz,mx,my,mz "
+                    "(N, N.m); --load is an alias")
+    if repeat:
+        parser.add_argument("--wrench", "--load", dest="wrench", action="append", default=[],
+                            metavar="FX,FY,FZ[,MX,MY,MZ]", help=text)
+    else:
+        parser.add_argument("--wrench", "--load", dest="wrench", metavar="FX,FY,FZ[,MX,MY,MZ]",
+                            help=text)
+
+
+def add_stiffness_flag(parser: argparse.ArgumentParser, help: str | None = None) -> None:
+    """``--kq``: one joint stiffness per compliant joint (N.m/rad, N/m prismatic)."""
+    parser.add_argument("--kq", metavar="K1,K2,...",
+                        help=help or "joint stiffness per compliant joint, in their order, "
+                                     "N.m/rad (N/m prismatic); default the robot's own")
+
+
+def add_output_flags(parser: argparse.ArgumentParser, json_help: str | None = None,
+                     quiet_help: str | None = None) -> None:
+    """``--json`` and ``--quiet``."""
+    parser.add_argument("--json", action="store_true",
+                        help=json_help or "print one JSON object (SI) and nothing else on stdout")
+    parser.add_argument("--quiet", action="store_true",
+                        help=quiet_help or "no progress and no echo of the inputs")
+
+
+# --- reading flags ---------------------------------------------------------------------------
+
+@dataclass
+class RobotFlags:
+    """What the robot flags resolve to (None where neither a flag nor a fallback gives it)."""
+
+    source: str | None
+    frame: str | None
+    target_offset: list[float] | None
+    compliant_joints: list[str] | None
+    #: another flag that can name the robot (``--model``), for the error when none does
+    alternative: str | None = None
+    #: ``--loops FILE`` and ``--fixed-base``
+    loops: str | None = None
+    fixed_base: bool = False
+
+    def load(self) -> Robot:
+        """The robot (:func:`stiffness.model.robot.load_robot`)."""
+        from stiffness.model.robot import load_robot
+
+        if self.source is None:
+            raise StiffnessError(
+                "--robot is required" + (f" (or {self.alternative})" if self.alternative else "")
+                + ": a shipped robot, an example-robot-data name or a URDF path")
+        return load_robot(self.source, frame=self.frame, target_offset=self.target_offset,
+                          compliant_joints=self.compliant_joints, loops=self.loops,
+                          fixed_base=self.fixed_base)
+
+
+def target_offset_from_args(args: argparse.Namespace) -> list[float] | None:
+    """``--target-offset`` in m (three values), or None."""
+    text = getattr(args, "target_offset", None)
+    if text is None:
+        return None
+    offset = parse_list(text, "--target-offset")
+    if len(offset) != 3:
+        raise StiffnessError(f"--target-offset takes three lengths x,y,z in m, got {len(offset)}")
+    return offset
+
+
+def robot_flags(args: argparse.Namespace, fallback: object | None = None) -> RobotFlags:
+    """The robot flags of ``args``; ``fallback`` fills what they leave out.
+
+    ``fallback`` is anything with ``source``, ``frame``, ``target_offset_m`` and
+    ``compliant_joints`` attributes (an identified model file), or None.
+    """
+    flags = RobotFlags(getattr(args, "robot", None), getattr(args, "frame", None),
+                       target_offset_from_args(args),
+                       parse_names(getattr(args, "compliant_joints", None)),
+                       "--model FILE from `stiffness identify`" if hasattr(args, "model")
+                       else None, getattr(args, "loops", None),
+                       bool(getattr(args, "fixed_base", False)))
+    if fallback is not None:
+        flags.source = flags.source or fallback.source
+        flags.frame = flags.frame or fallback.frame
+        if flags.target_offset is None:
+            flags.target_offset = [float(v) for v in fallback.target_offset_m]
+        if flags.compliant_joints is None:
+            flags.compliant_joints = list(fallback.compliant_joints)
+    return flags
+
+
+def robot_from_args(args: argparse.Namespace, fallback: object | None = None
+                    ) -> tuple[Robot, list[str] | None, list[float] | None]:
+    """The robot of ``--robot``, ``--frame``, ``--target-offset`` (m) and ``--compliant-joints``.
+
+    Returns the robot and the compliant joints and offset that were given (None where not),
+    with ``fallback`` (see :func:`robot_flags`) filling what the flags leave out.
+    """
+    flags = robot_flags(args, fallback)
+    return flags.load(), flags.compliant_joints, flags.target_offset
+
+
+def _is_revolute(robot: Robot, joint: str) -> bool:
+    model = robot.model
+    return not model.joints[model.getJointId(joint)].shortname().startswith("JointModelP")
+
+
+def coordinate_index(robot: Robot, name: str, flag: str) -> int:
+    """Position in the coordinate vector of a joint name or ``q1``, ``q2``... (1-based).
+
+    Raises
+    ------
+    UnknownJointError
+        If ``name`` is neither a coordinate joint nor ``q1..qn``.
+    """
+    names = list(robot.coordinate_joints)
+    if name in names:
+        return names.index(name)
+    match = re.fullmatch(r"q(\d+)", name)
+    if match and 1 <= int(match.group(1)) <= len(names):
+        return int(match.group(1)) - 1
+    passive = robot.loop is not None and name in robot.loop.passive_joints
+    why = " (a passive loop joint: it follows the others)" if passive else ""
+    raise UnknownJointError(
+        f"{flag}: {name!r} is not a coordinate of {robot.name}{why}; use a joint name or q1..q"
+        f"{len(names)}: {did_you_mean(name, names)}", name=name, choices=names)
+
+
+def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: bool = True,
+                          flag: str = "--q") -> np.ndarray:
+    """Coordinates (rad, m) of ``--q``/``--deg``, or the robot's default configuration.
+
+    ``--q`` is either one value per coordinate (``robot.coordinate_joints`` order; for a closed
+    loop also one per degree of freedom of the model, of which the independent ones are kept)
+    or ``name=value`` pairs: joint names or ``q1``, ``q2``...; the coordinates not named keep
+    the robot's default configuration, or 0 when it has none. ``--deg`` converts the revolute
+    ones from degrees.
+
+    Parameters
+    ----------
+    required
+        When ``--q`` is absent and the robot brings no configuration: raise if True, else zero.
+
+    Raises
+    ------
+    StiffnessError
+        On a malformed value or a wrong count; :class:`UnknownJointError` on an unknown name.
+    """
+    from stiffness.mechanics.defaults import default_coordinates
+
+    text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+    shipped = default_coordinates(robot)
+    if text is None:
+        if shipped is not None:
+            return shipped
+        if required:
+            raise StiffnessError(
+                f"{flag} is required for {robot.name}: give {robot.n_coordinates} joint values "
+                f"({', '.join(robot.coordinate_joints)}) or name=value pairs")
+        return np.zeros(robot.n_coordinates)
+    deg = bool(getattr(args, "deg", False))
+    items = [item for item in text.split(",") if item.strip()]
+    pairs = [_PAIR.match(item) for item in items]
+    if any(pairs):
+        if not all(pairs):
+            raise StiffnessError(
+                f"{flag} mixes name=value pairs and bare values ({text!r}): give all values in "
+                "order, or name=value for each")
+        values = np.zeros(robot.n_coordinates) if shipped is None else shipped.copy()
+        seen: set[int] = set()
+        for match in pairs:
+            index = coordinate_index(robot, match.group(1), flag)
+            if index in seen:
+                raise StiffnessError(f"{flag} names {robot.coordinate_joints[index]} twice")
+            seen.add(index)
+            value = parse_list(match.group(2), flag)
+            if len(value) != 1:
+                raise StiffnessError(f"{flag} {match.group(0).strip()!r}: one value per name")
+            joint = robot.coordinate_joints[index]
+            values[index] = np.deg2rad(value[0]) if deg and _is_revolute(robot, joint) \
+                else value[0]
+        return values
+    values = np.array(parse_list(text, flag))
+    model = robot.model
+    if values.shape[0] == robot.n_coordinates:
+        names = list(robot.coordinate_joints)
+    elif values.shape[0] == model.nv:
+        names = [model.names[j] for j in range(1, model.njoints) for _ in range(model.joints[j].nv)]
+        keep = [names.index(n) for n in robot.coordinate_joints]
+        values, names = values[keep], list(robot.coordinate_joints)
+    else:
+        raise StiffnessError(
+            f"{flag} needs {robot.n_coordinates} values for {robot.name} "
+            f"({', '.join(robot.coordinate_joints)}), got {values.shape[0]}; or name=value pairs"
+        )
+    if deg:
+        for i, name in enumerate(names):
+            if _is_revolute(robot, name):
+                values[i] = np.deg2rad(values[i])
+    return values
+
+
+def coordinates_source(robot: Robot, args: argparse.Namespace, flag: str = "--q") -> str:
+    """Where :func:`coordinates_from_args` took the coordinates from (for the echo)."""
+    from stiffness.mechanics.defaults import default_coordinates
+
+    text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+    if text is None:
+        return FROM_ROBOT if default_coordinates(robot) is not None else "zero (no default)"
+    if "=" in text and len(text.split(",")) < robot.n_coordinates:
+        rest = FROM_ROBOT if default_coordinates(robot) is not None else "zero"
+        return f"{FROM_FLAG} {flag} (coordinates not named: {rest})"
+    return f"{FROM_FLAG} {flag}"
+
+
+def format_named(names: Sequence[str], values: Sequence[float], digits: int = 6) -> str:
+    """``name=value`` pairs, comma-separated (the form ``--q`` takes back)."""
+    return ",".join(f"{n}={v:.{digits}g}" for n, v in zip(names, values, strict=True))

@@ -1,0 +1,159 @@
+"""The shared flag layer (stiffness.cli.flags): negative lists, name=value coordinates, aliases."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from stiffness.calibration.campaign import load_campaign
+from stiffness.cli import flags
+from stiffness.cli.main import build_parser, main
+from stiffness.errors import StiffnessError, UnknownJointError
+
+UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
+UR5_DEG = [-35.0, -60.0, 95.0, -40.0, -70.0, 15.0]
+UR5_JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
+              "wrist_2_joint", "wrist_3_joint"]
+
+
+def _kx(capsys, *argv: str) -> dict:
+    assert main(["kx", *argv, "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def _csv(values) -> str:
+    return ",".join(f"{v:g}" for v in values)
+
+
+def test_negative_lists_and_name_value_pairs_give_the_same_kx_on_ur5(capsys):
+    """``--q -35,...`` (natural form), ``--q=-35,...`` and name=value pairs in another order."""
+    common = ["--robot", "ur5", "--frame", "tool0", "--kq", UR5_KQ, "--deg"]
+    natural = _kx(capsys, *common, "--q", _csv(UR5_DEG), "--wrench", "-10,0,-100")
+    equals = _kx(capsys, *common, f"--q={_csv(UR5_DEG)}", "--wrench=-10,0,-100")
+    # joint names and q1..q6 (1-based), in another order than the robot's
+    names = [n if i % 2 else f"q{i + 1}" for i, n in enumerate(UR5_JOINTS)]
+    pairs = ",".join(f"{n}={v:g}" for n, v in reversed(list(zip(names, UR5_DEG, strict=True))))
+    named = _kx(capsys, *common, "--q", pairs, "--load", "-10,0,-100")
+    for other in (equals, named):
+        assert other["J"] == natural["J"] and other["K_X"] == natural["K_X"]
+    # the values really are the given ones, converted from degrees
+    np.testing.assert_allclose(natural["q"], np.deg2rad(UR5_DEG), rtol=0, atol=1e-15)
+    assert natural["wrench"] == [-10.0, 0.0, -100.0]
+    assert natural["q_named"] == dict(zip(UR5_JOINTS, natural["q"], strict=True))
+    assert natural["sources"] == {"q": "flag --q", "wrench": "flag --wrench",
+                                  "K_theta": "flag --kq"}
+
+
+def test_negative_lists_and_pairs_on_the_sk120(sk120, capsys):
+    """On the closed-loop SK120: partial pairs keep the shipped pose for the others."""
+    shipped = _kx(capsys, "--robot", "sk120")
+    q_deg = [float(v) for v in sk120.defaults["q_deg"]]  # negative first value
+    assert q_deg[0] < 0
+    natural = _kx(capsys, "--robot", "sk120", "--deg", "--q", ",".join(map(repr, q_deg)))
+    only_two = _kx(capsys, "--robot", "sk120", "--deg", "--q",
+                   f"joint3={q_deg[2]!r},joint1={q_deg[0]!r}")
+    for other in (natural, only_two):
+        assert other["q"] == shipped["q"]
+        assert other["J"] == shipped["J"] and other["K_X"] == shipped["K_X"]
+    assert shipped["sources"]["q"] == "robot default"
+    assert only_two["sources"]["q"] == "flag --q (coordinates not named: robot default)"
+    # a negative first value in the natural form, and a negative target offset
+    moved = _kx(capsys, "--robot", "sk120", "--q", "-0.5,0.2,-1,0,-0.6,-1.5",
+                "--target-offset", "-0.1,0,0.05", "--wrench", "-100,0,-200")
+    assert moved["q"][0] == -0.5 and moved["target_offset"] == [-0.1, 0.0, 0.05]
+    assert moved["wrench"] == [-100.0, 0.0, -200.0]
+
+
+def test_plain_text_echoes_inputs_with_their_sources(capsys):
+    assert main(["kx", "--robot", "sk120", "--q", "joint2=0.3"]) == 0
+    text = capsys.readouterr().out
+    assert "q [flag --q (coordinates not named: robot default)]" in text
+    assert "joint2=0.3," in text
+    assert "wrench [robot default (wrench_SI)]" in text and "fx=45.524" in text
+    assert "K_theta [robot default]" in text
+    assert main(["kx", "--robot", "sk120", "--quiet"]) == 0
+    assert "K_theta [" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", ["kx", "view", "scan", "simulate"])
+def test_every_command_takes_negative_lists(command, tmp_path, capsys):
+    argv = {
+        "kx": ["--robot", "sk120", "--q", "-0.5,0.2,-1,0,-0.6,-1.5", "--wrench", "-1,0,-2",
+               "--target-offset", "-0.01,0,0"],
+        "view": ["--robot", "sk120", "--q", "-0.5,0.2,-1,0,-0.6,-1.5", "--wrench", "-1,0,-2",
+                 "--target-offset", "-0.01,0,0", "--export", str(tmp_path / "v.html")],
+        "scan": ["--robot", "sk120", "--q", "-0.5,0.2,-1,0,-0.6,-1.5", "--wrench", "-1,0,-2",
+                 "--load", "-3,0,0", "--target-offset", "-0.01,0,0", "--axis", "joint1=-1:1:1",
+                 "--out", str(tmp_path / "s"), "--no-plots"],
+        "simulate": ["--robot", "sk120", "--target-offset", "-0.01,0,0", "--configs", "2",
+                     "--loads-per-config", "1", "--out", str(tmp_path / "c")],
+    }[command]
+    assert main([command, *argv, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    if command in ("kx", "view"):
+        assert out["q_named"]["joint1"] == -0.5 and out["load_named"]["fx"] == -1.0
+    if command == "scan":
+        assert [c["load"] for c in out["load_cases"].values()] == [[-1.0, 0.0, -2.0],
+                                                                   [-3.0, 0.0, 0.0]]
+    if command == "simulate":  # --target-offset is in m, the campaign file in its own unit
+        camp = load_campaign(tmp_path / "c")
+        np.testing.assert_allclose(camp.robot_settings.target_offset_m, [-0.01, 0, 0], atol=1e-15)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = flags.ArgumentParser(prog="t")
+    flags.add_configuration_flags(parser)
+    flags.add_wrench_flag(parser, repeat=True)
+    parser.add_argument("--max", type=float)
+    parser.add_argument("--quiet", action="store_true")
+    return parser
+
+
+def test_join_negative_values():
+    parser = _parser()
+    join = flags.join_negative_values
+    assert join(parser, ["--q", "-1,2", "--wr", "-3e2,0,.5", "--load", "-.5,0,0"]) == [
+        "--q=-1,2", "--wr=-3e2,0,.5", "--load=-.5,0,0"]
+    assert join(parser, ["--max", "-inf"]) == ["--max=-inf"]
+    # flags that take no value, values that are not negative numbers, and after --
+    assert join(parser, ["--quiet", "-1", "--q", "a=-1", "--", "--q", "-1"]) == [
+        "--quiet", "-1", "--q", "a=-1", "--", "--q", "-1"]
+    args = parser.parse_args(["--q", "-35,-60", "--deg", "--wrench", "-1,0,0", "--load", "2,0,0"])
+    assert args.q == "-35,-60" and args.deg and args.wrench == ["-1,0,0", "2,0,0"]
+    with pytest.raises(SystemExit):  # an option where a value is expected is still refused
+        parser.parse_args(["--q", "--deg"])
+
+
+def test_subcommands_inherit_the_parser():
+    args = build_parser("kx").parse_args(["kx", "--q", "-1,-2,-3", "--wrench", "-5,0,0"])
+    assert (args.q, args.wrench) == ("-1,-2,-3", "-5,0,0")
+
+
+def test_name_value_coordinates(ur5):
+    robot = ur5
+    ns = argparse.Namespace
+    q = flags.coordinates_from_args(robot, ns(q="elbow_joint=90,q1=-45", deg=True),
+                                    required=False)
+    np.testing.assert_allclose(q, np.deg2rad([-45, 0, 90, 0, 0, 0]))
+    with pytest.raises(UnknownJointError) as info:
+        flags.coordinates_from_args(robot, ns(q="elbw=1", deg=False))
+    assert info.value.name == "elbw" and info.value.choices == tuple(robot.coordinate_joints)
+    with pytest.raises(StiffnessError, match="mixes"):
+        flags.coordinates_from_args(robot, ns(q="1,elbow_joint=2", deg=False))
+    with pytest.raises(StiffnessError, match="twice"):
+        flags.coordinates_from_args(robot, ns(q="q3=1,elbow_joint=2", deg=False))
+    with pytest.raises(StiffnessError, match="needs 6 values"):
+        flags.coordinates_from_args(robot, ns(q="1,2", deg=False))
+    with pytest.raises(StiffnessError, match="--q is required"):
+        flags.coordinates_from_args(robot, ns(q=None, deg=False))
+
+
+def test_parse_list_errors():
+    assert flags.parse_list("-1, 2.5,-3e-2", "--x") == [-1.0, 2.5, -0.03]
+    with pytest.raises(StiffnessError, match="not a number"):
+        flags.parse_list("1,a", "--x")
+    with pytest.raises(StiffnessError, match="finite"):
+        flags.parse_list("1,nan", "--x")

@@ -1,0 +1,199 @@
+"""A wheel built from the checkout works outside it, with the checkout's numbers (issue 10, item 2).
+
+The wheel is built from a copy of the checkout's build inputs (``pip wheel --no-deps
+--no-build-isolation``: nothing is downloaded), installed with ``pip install --no-deps
+--target`` into a temporary folder, and run through its own console script with only that
+folder on ``PYTHONPATH``, from a folder outside the checkout. Its ``stiffness report``,
+``stiffness kx --robot sk120 --json`` and ``stiffness check-jacobian --json`` must equal the
+same commands run from the checkout (in this process), value for value; the file paths in
+the outputs are the only difference allowed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import stiffness
+from stiffness.cli.main import main
+from stiffness.model.sources import robots_directory
+
+ROOT = Path(__file__).resolve().parents[1]
+#: What the build reads from the checkout.
+BUILD_INPUTS = ("pyproject.toml", "README.md", "stiffness", "robots")
+COMMANDS = {
+    "kx": ["kx", "--robot", "sk120", "--json"],
+    "check-jacobian": ["check-jacobian", "--json"],
+}
+
+
+def _run(cmd: list[str], env: dict, cwd: Path) -> subprocess.CompletedProcess:
+    done = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, f"{' '.join(map(str, cmd))} failed:\n{done.stderr[-3000:]}"
+    return done
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    """The wheel built from a copy of the checkout's build inputs."""
+    src = tmp_path_factory.mktemp("src")
+    for name in BUILD_INPUTS:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, src / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        else:
+            shutil.copy2(ROOT / name, src / name)
+    out = tmp_path_factory.mktemp("dist")
+    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
+          "--disable-pip-version-check", "-q", "-w", str(out), str(src)], dict(os.environ), src)
+    (built,) = out.glob("stiffness-*.whl")
+    return built
+
+
+@pytest.fixture(scope="module")
+def installed(wheel, tmp_path_factory) -> dict:
+    """The wheel installed into a folder of its own; the environment and folder to run it in."""
+    target = tmp_path_factory.mktemp("site")
+    _run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--no-compile",
+          "--disable-pip-version-check", "-q", "--target", str(target), str(wheel)],
+         dict(os.environ), target)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "STIFFNESS_ROBOTS")}
+    env["PYTHONPATH"] = str(target)
+    return {"env": env, "cwd": tmp_path_factory.mktemp("elsewhere"), "site": target,
+            "script": str(target / "bin" / "stiffness")}
+
+
+@pytest.fixture(scope="module")
+def wheel_outputs(installed) -> dict:
+    """stdout of each command, and the report's folder, run from the installed wheel.
+
+    The three commands run at the same time (the suite's time budget).
+    """
+    report = installed["cwd"] / "report"
+    commands = {**COMMANDS, "report": ["report", "--out", str(report), "--quiet"]}
+    running = {name: subprocess.Popen([installed["script"], *args], env=installed["env"],
+                                      cwd=installed["cwd"], stdout=subprocess.PIPE,
+                                      stderr=subprocess.PIPE, text=True)
+               for name, args in commands.items()}
+    out = {}
+    for name, process in running.items():
+        stdout, stderr = process.communicate(timeout=600)
+        assert process.returncode == 0, f"stiffness {name} failed:\n{stderr[-3000:]}"
+        out[name] = stdout
+    out["report"] = report
+    return out
+
+
+def _normalised(value, roots: list[str]):
+    """JSON value with the robots folders and checkout paths replaced by placeholders."""
+    if isinstance(value, dict):
+        return {k: _normalised(v, roots) for k, v in value.items() if k != "elapsed_s"}
+    if isinstance(value, list):
+        return [_normalised(v, roots) for v in value]
+    if isinstance(value, str):
+        for root in roots:
+            value = value.replace(root, "<robots>")
+        return value
+    return value
+
+
+def _same(a: dict, b: dict, roots: list[str]) -> None:
+    left = json.dumps(_normalised(a, roots), sort_keys=True)
+    right = json.dumps(_normalised(b, roots), sort_keys=True)
+    if left != right:
+        diff = next(i for i, (x, y) in enumerate(zip(left, right, strict=False)) if x != y)
+        raise AssertionError(f"outputs differ near: ...{left[max(0, diff - 120):diff + 80]}... "
+                             f"vs ...{right[max(0, diff - 120):diff + 80]}...")
+
+
+def _roots(installed) -> list[str]:
+    return [str(installed["site"] / "stiffness" / "robots"), str(robots_directory())]
+
+
+def test_the_wheel_holds_every_module_and_every_robot_file(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    package = {p.relative_to(ROOT).as_posix() for p in (ROOT / "stiffness").rglob("*.py")}
+    robots = {"stiffness/robots/" + p.relative_to(ROOT / "robots").as_posix()
+              for p in (ROOT / "robots").rglob("*") if p.is_file() and "__pycache__" not in p.parts}
+    missing = sorted((package | robots) - names)
+    assert not missing, (f"the wheel lacks {missing[:10]}: list new subpackages in "
+                         "pyproject.toml [tool.setuptools] packages")
+
+
+def test_the_installed_copy_runs_from_its_own_files(installed):
+    """Outside the checkout, the package and its robots come from the installed folder."""
+    code = ("import json, stiffness, stiffness.model.robot as r; print(stiffness.__file__); "
+            "print(r.robots_directory()); print(json.dumps(r.shipped_robots()))")
+    lines = _run([sys.executable, "-c", code], installed["env"],
+                 installed["cwd"]).stdout.splitlines()
+    site = str(installed["site"])
+    assert lines[0].startswith(site) and lines[1].startswith(site), lines
+    assert {"sk120", "hexapod", "griffis-duffy"} <= set(json.loads(lines[2]))
+
+
+def test_version_is_the_package_metadata(installed):
+    """``stiffness --version`` = ``stiffness.__version__`` = the wheel's metadata Version."""
+    printed = _run([installed["script"], "--version"], installed["env"], installed["cwd"]).stdout
+    assert printed.split() == ["stiffness", stiffness.__version__]
+    (meta,) = installed["site"].glob("stiffness-*.dist-info/METADATA")
+    assert f"Version: {stiffness.__version__}" in meta.read_text().splitlines()
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_commands_give_the_checkout_numbers(name, wheel_outputs, installed, capsys):
+    capsys.readouterr()
+    assert main(COMMANDS[name]) == 0
+    here = json.loads(capsys.readouterr().out)
+    _same(json.loads(wheel_outputs[name]), here, _roots(installed))
+
+
+def test_report_gives_the_checkout_numbers(wheel_outputs, installed, sk120_report):
+    theirs = wheel_outputs["report"]
+    assert sorted(p.name for p in theirs.iterdir()) == sorted(p.name for p in
+                                                              sk120_report.iterdir())
+    _same(json.loads((theirs / "summary.json").read_text()),
+          json.loads((sk120_report / "summary.json").read_text()), _roots(installed))
+
+
+def _editable_checkout() -> Path | None:
+    """The folder of an editable install of stiffness in this environment, if any."""
+    from importlib import metadata
+
+    try:
+        text = metadata.distribution("stiffness").read_text("direct_url.json")
+    except metadata.PackageNotFoundError:
+        return None
+    info = json.loads(text or "{}")
+    if not info.get("dir_info", {}).get("editable") or not info["url"].startswith("file://"):
+        return None
+    return Path(info["url"][len("file://"):]).resolve()
+
+
+@pytest.mark.skipif(_editable_checkout() != ROOT,
+                    reason="needs an editable install of this checkout (pip install -e .)")
+def test_editable_install_maps_the_robots_package_data():
+    """``pip install -e .`` maps the package ``stiffness.robots`` onto the checkout's robots/."""
+    from importlib import resources
+
+    assert Path(str(resources.files("stiffness.robots"))).resolve() == ROOT / "robots"
+
+
+def test_a_copy_without_its_robots_says_so(installed, tmp_path):
+    """An installed copy that lost its package data fails with one line naming the fix."""
+    site = tmp_path / "site"
+    shutil.copytree(installed["site"] / "stiffness", site / "stiffness",
+                    ignore=shutil.ignore_patterns("robots"))
+    env = dict(installed["env"], PYTHONPATH=str(site))
+    done = subprocess.run([sys.executable, "-m", "stiffness.cli.main", "kx", "--robot", "sk120"],
+                          env=env, cwd=installed["cwd"], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "robots" in lines[0] and "pip install ." in lines[0], lines
