@@ -161,7 +161,7 @@ def test_gepetto_files_load_unchanged(spinning):
     assert robot.coordinate_joints == ("crank_joint", "slide")
     # the <limit> without bounds loads, with one warning naming the joint and the line
     assert len(warned) == 1 and "'slide' has a <limit> without lower and upper" in warned[0]
-    assert ":18:" in warned[0]  # the line of that <limit>
+    assert ", line 18:" in warned[0]  # the line of that <limit>
     # the default target is the tip of the longest chain that does not close a loop
     assert robot.target_frame == "tool_tip"
 
@@ -285,9 +285,9 @@ def test_kx_json_configuration_and_closure(spinning, capsys):
 
 @pytest.mark.parametrize(("yaml_text", "match"), [
     ("closed_loop: [[rod_end, rocker_end]]\ntype: ['3d']\nname_mot: [crank_joint, slide]\n"
-     "motors: [x]\n", r"robot\.yaml:4: unknown key 'motors'.*valid keys: closed_loop"),
+     "motors: [x]\n", r"robot\.yaml, line 4: unknown key 'motors'.*valid keys: closed_loop"),
     ("closed_loop: [[rod_end, rocker_end]]\ntype: ['2d']\nname_mot: [crank_joint, slide]\n",
-     r"robot\.yaml:2: loop type '2d' is not supported"),
+     r"robot\.yaml, line 2: loop type '2d' is not supported"),
     ("closed_loop: [[rod_end, rocker_end]]\ntype: ['3d']\nname_mot: [crank_joint, slide]\n"
      "joint_name: [rod_ball]\njoint_type: [BALL]\n", r"joint type 'BALL' of 'rod_ball'"),
     ("closed_loop: [[rod_end, rocker_end]]\ntype: ['3d']\nname_mot: [crank_joint, slide]\n"
@@ -369,7 +369,7 @@ def test_malformed_urdf_is_one_line_with_file_and_line(tmp_path, text, line, pro
     with pytest.raises(RobotFileError) as info:
         load_robot(path)
     message = str(info.value)
-    assert "\n" not in message and message.startswith(f"{path}:")
+    assert "\n" not in message and message.startswith(f"{path}, line {line}")
     assert info.value.line == line and problem in message
 
 

@@ -141,7 +141,8 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     k_theta = joint_stiffness(kq, robot.n_compliant)
     assembly = robot.assemble(coords)
     q = assembly.q
-    coords = robot.coordinates_of(q)
+    if coords is None:
+        coords = robot.coordinates_of(q)
     if args.wrench is not None:
         load, source = np.array(flags.parse_list(args.wrench, "--wrench")), "--wrench"
     else:

@@ -171,7 +171,7 @@ def _warn_ignored(path: Path, raw: bytes, root, model: pin.Model) -> None:
             continue
         missing = [b for b in ("lower", "upper") if limit.get(b) is None]
         if missing and model.existJointName(name):
-            warn(f"{path}:{limit.sourceline}: joint {name!r} has a <limit> without "
+            warn(f"{path}, line {limit.sourceline}: joint {name!r} has a <limit> without "
                  f"{' and '.join(missing)}; the joint is taken as unbounded")
             j = model.joints[model.getJointId(name)]
             if "lower" in missing:
