@@ -334,8 +334,7 @@ class Robot:
                 q_prev, h_prev = previous
                 predicted[passive_q] += (q[passive_q] - q_prev[passive_q]) * h / h_prev
                 predicted = pin.normalize(self.model, predicted)  # quaternions of ball joints
-            target = coords if fraction + h >= 1.0 - 1e-12 else start + (coords - start) * (
-                fraction + h)
+            target = start + (coords - start) * (fraction + h)
             try:
                 closed = self.loop.close(
                     self.model, self.data, self._tree_configuration(target, predicted))
