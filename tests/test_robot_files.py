@@ -520,3 +520,18 @@ def test_batch_kernels_allow_idle_motions_and_follow_mimics(spinning, tmp_path):
             np.testing.assert_allclose(kin.jacobian[i], state.jacobian, atol=1e-12)
             k_c = np.einsum("k,kab->ab", FORCE, kin.k_c_basis[i][:3])
             np.testing.assert_allclose(k_c, state.k_c, atol=1e-10 * np.abs(state.k_c).max())
+
+
+def test_example_robot_data_defaults_and_floating_base():
+    """The default target of robots people use: the gripper of talos_arm (not a jaw or its motor
+    link), tiago's grasping frame (not the sonar ring on its base); solo12's free flyer needs
+    the flag, and with it the base is fixed and the default target is a foot."""
+    assert load_robot("talos_arm").target_frame == "gripper_left_base_link"
+    assert load_robot("tiago").target_frame == "hand_grasping_frame"
+    with pytest.raises(FloatingBaseError, match=r"solo12 .*'root_joint' \(JointModelFreeFlyer\)"
+                                                r".*--fixed-base.*fixed_base=True"):
+        load_robot("solo12")
+    solo = load_robot("solo12", fixed_base=True)
+    assert solo.model.nq == solo.model.nv == solo.n_coordinates == 12
+    assert solo.target_frame.endswith("_FOOT")
+    assert any("fixed at its neutral placement" in note for note in solo.notes)
