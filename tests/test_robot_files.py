@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -535,3 +536,27 @@ def test_example_robot_data_defaults_and_floating_base():
     assert solo.model.nq == solo.model.nv == solo.n_coordinates == 12
     assert solo.target_frame.endswith("_FOOT")
     assert any("fixed at its neutral placement" in note for note in solo.notes)
+
+
+def test_simulated_campaign_keeps_the_loop_file_and_the_fixed_base(tmp_path, capsys):
+    """``simulate --loops FILE --fixed-base`` writes both into the campaign's [robot] table, and
+    the campaign reloads the same robot."""
+    from stiffness.calibration.campaign import load_campaign
+
+    (tmp_path / "arm").mkdir()
+    text = _rssr_urdf(ROD).replace('<link name="base_link"/>',
+                                   '<link name="world"/><link name="base_link"/>').replace(
+        "</robot>", '<joint name="root" type="floating"><parent link="world"/>'
+                    '<child link="base_link"/></joint></robot>')
+    (tmp_path / "arm" / "robot.urdf").write_text(text)
+    (tmp_path / "decl.yaml").write_text(_rssr_yaml("spherical"))
+    out = tmp_path / "campaign"
+    assert main(["simulate", "--robot", str(tmp_path / "arm" / "robot.urdf"), "--loops",
+                 str(tmp_path / "decl.yaml"), "--fixed-base", "--kq", "1e4,2e5", "--configs",
+                 "2", "--loads-per-config", "2", "--max-force", "10", "--out", str(out)]) == 0
+    capsys.readouterr()
+    toml = (out / "campaign.toml").read_text()
+    assert 'loops = "../decl.yaml"' in toml and "fixed_base = true" in toml
+    robot = load_campaign(out).robot()
+    assert robot.fixed_base and Path(robot.loop_file).resolve() == tmp_path / "decl.yaml"
+    assert robot.coordinate_joints == ("crank_joint", "slide")

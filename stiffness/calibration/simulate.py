@@ -365,7 +365,8 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
             raise UnknownJointError(f"backlash and nonlinear_joint_stiffness act on a compliant "
                                     f"joint ({', '.join(compliant)}), not {j}", name=j,
                                     choices=compliant)
-    robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
+    robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant,
+                         declared.loop_file, declared.fixed_base)
     law = Law(np.array([1.0 / stiff[j] for j in compliant]),
               np.array([beta.get(j, 0.0) for j in compliant]),
               np.array([backlash.get(j, 0.0) for j in compliant]),
@@ -479,6 +480,8 @@ def simulate(
     repeats: int = 1,
     declare_noise: bool = True,
     name: str | None = None,
+    loops: str | None = None,
+    fixed_base: bool = False,
 ) -> Simulation:
     """Simulate a campaign with hidden effects.
 
@@ -515,6 +518,10 @@ def simulate(
         Whether the campaign declares its ``noise_std``.
     name
         Campaign name.
+    loops, fixed_base
+        Loop declaration overriding the robot's sidecar, and whether to fix a floating or
+        planar base (:func:`stiffness.model.robot.load_robot`); both are written into the
+        campaign's ``[robot]`` table.
 
     Raises
     ------
@@ -539,7 +546,8 @@ def simulate(
         raise StiffnessError(f"an effect is hidden twice: {labels}")
     declared = cached_robot(str(robot), frame, None if target_offset_m is None else tuple(
         np.asarray(target_offset_m, dtype=float).reshape(-1)), None if compliant_joints is None
-        else tuple(compliant_joints))
+        else tuple(compliant_joints), None if loops is None else str(Path(loops).resolve()),
+        fixed_base)
     if kq is None:
         if "k_theta_SI" not in declared.defaults:
             raise StiffnessError(f"give the true joint stiffness of {robot} (--kq), one per "
@@ -588,7 +596,9 @@ def simulate(
     config_labels = [f"C{i // (loads_per_config * repeats) + 1}" for i in range(len(reps))]
     settings = RobotSettings(declared.name, frame=declared.target_frame,
                              target_offset_m=declared.target_offset.copy(),
-                             compliant_joints=tuple(declared.compliant_joints))
+                             compliant_joints=tuple(declared.compliant_joints),
+                             loops=None if loops is None else str(Path(loops).resolve()),
+                             fixed_base=fixed_base)
     campaign = Campaign(
         name=name or f"simulated-{Path(str(robot)).stem}",
         baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],

@@ -75,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
         frame=robot.frame, target_offset_m=robot.target_offset,
         compliant_joints=robot.compliant_joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,
-        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name)
+        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name,
+        loops=robot.loops, fixed_base=robot.fixed_base)
     path = sim.write(args.out)
     if args.json:
         print(json.dumps(sim.truth(), indent=1))

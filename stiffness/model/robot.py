@@ -106,6 +106,8 @@ class Robot:
         What loading did that the user should hear once (a base fixed, a loop file read).
     loop_file
         The loop declaration read, or None.
+    fixed_base
+        Whether a floating or planar base was fixed (``load_robot(..., fixed_base=True)``).
     """
 
     name: str
@@ -123,6 +125,7 @@ class Robot:
     missing_meshes: tuple[MissingMesh, ...] = ()
     notes: tuple[str, ...] = ()
     loop_file: str | None = None
+    fixed_base: bool = False
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
 
@@ -591,6 +594,7 @@ def load_robot(
         missing_meshes=src.missing_meshes,
         notes=tuple(notes),
         loop_file=None if declaration is None else declaration.path,
+        fixed_base=fixed_base,
     )
 
 
