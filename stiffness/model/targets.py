@@ -62,9 +62,13 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
         if branch and longest - depth[branch] <= depth[branch] \
                 and branch in model.supports[tip] and branch != tip:
             tip = branch  # fingers or jaws of one hand: their last common joint
+    # a loop-closing frame and the fixed-joint frame that carries it are not targets
+    closing_frames = set(closure_frames) | {
+        model.frames[model.frames[i].parentFrame].name for i in range(len(model.frames))
+        if model.frames[i].name in closure_frames}
     best, best_key = None, None
     for fid, frame in enumerate(model.frames):
-        if frame.parentJoint != tip or frame.name in closure_frames or _below(model, fid,
+        if frame.parentJoint != tip or frame.name in closing_frames or _below(model, fid,
                                                                                 gripper):
             continue
         distance = float(np.linalg.norm(frame.placement.translation))
