@@ -70,7 +70,8 @@ def _kx(path: Path, robot: Robot, fixed_base: bool) -> tuple[int, str]:
         code = cli_main(argv)
     if code == 0:
         result = json.loads(out.getvalue())
-        dims = "" if result["subspace"] is None else f", {result['subspace']['dimension']}-D"
+        sub = result["K_X_subspace"]
+        dims = "" if sub is None else f", {sub['rank']}-D"
         return code, dims
     return code, err.getvalue().strip().splitlines()[-1] if err.getvalue() else ""
 

@@ -10,7 +10,7 @@ import pytest
 
 from stiffness import errors
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.identify import load_identified_model
+from stiffness.calibration.model_file import read_model_file
 from stiffness.calibration.simulate import parse_effect
 from stiffness.cli import main as cli
 from stiffness.errors import (
@@ -94,7 +94,7 @@ def test_missing_and_malformed_files(tmp_path):
         load_campaign(tmp_path / "nothere")
     assert info.value.path == tmp_path / "nothere"
     with pytest.raises(MissingFileError):
-        load_identified_model(tmp_path / "none.json")
+        read_model_file(tmp_path / "none.json")
     with pytest.raises(MissingFileError):
         load_robot(str(tmp_path / "none.urdf"))
     toml = tmp_path / "bad.toml"
@@ -178,10 +178,8 @@ def test_loop_closure_singular_convergence_unstable(non_grashof_four_bar, ur5):
      "'elbw' is not a coordinate of ur5"),
     (["kx", "--robot", "sk120", "--model", "{tmp}/none.json"], "no such file"),
     (["kx", "--robot", "sk120", "--model", "{tmp}/bad.json"], "bad.json, line 1, column 2"),
-    # (two springs for three directions is no error: kx gives the stiffness on the plane the
-    # robot spans, docs/robot-files.md; a 6x6 connection at a singular pose is)
-    (["kx", "--robot", "ur5", "--q", "0,0,0,0,0,0", "--kq", "1e5,1e5,1e5,1e5,1e5,1e5",
-      "--wrench", "0,0,-1", "--connection", "joint"], "singular"),
+    (["kx", "--robot", "sk120", "--deg", "--q", "-33.2,15.9,-105.9,0,-34.4,-90"],
+     "loop singularity"),
     (["identify", "{tmp}/none"], "not found"),
     (["identify", "{tmp}/bad.toml"], "bad.toml, line 2, column 12"),
     (["diagnose", "{tmp}/bad.toml"], "is not valid TOML"),

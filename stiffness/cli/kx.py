@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.calibration.model_file import CompliantModel, read_model_file
 from stiffness.cli import flags
-from stiffness.errors import StiffnessError
+from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
@@ -34,9 +35,9 @@ from stiffness.mechanics.formulation import (
     joint_connection_stiffness,
     joint_stiffness,
     subspace_stiffness,
+    tangent_definiteness,
     tangent_joint_stiffness,
     target_state,
-    task_rank,
     twist_basis_stiffness,
 )
 from stiffness.mechanics.wrench import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
@@ -54,9 +55,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data name (ur5, "
         "panda...) or URDF path (required unless --model gives it)"))
     parser.add_argument("--model", metavar="FILE",
-                        help="identified model written by `stiffness identify` "
-                             "(identified-model.json): its robot, target, compliant joints and "
-                             "K_theta; the other flags override them")
+                        help="model file of `stiffness identify` (identified-model.json) or "
+                             "`stiffness diagnose --out` (final-model.json): its robot, target, "
+                             "compliant joints, K_theta and the effects that change the "
+                             "stiffness (docs/model-file.md); the other flags override them")
     flags.add_configuration_flags(parser)
     flags.add_wrench_flag(parser)
     flags.add_stiffness_flag(parser)
@@ -79,10 +81,47 @@ def _identified_model(args: argparse.Namespace):
     if getattr(args, "model", None) is None:
         return None
     if getattr(args, "_identified_model", None) is None:
-        from stiffness.calibration.identify import load_identified_model
-
-        args._identified_model = load_identified_model(args.model)
+        model = read_model_file(args.model)
+        if getattr(args, "robot", None) is not None:
+            model.check_robot(args.robot)
+        args._identified_model = model
     return args._identified_model
+
+
+def compliant_model_from_args(args: argparse.Namespace) -> CompliantModel | None:
+    """The ``--model`` file with its stiffness effects applied, or None (no ``--model``, or
+    ``--kq`` / ``--compliant-joints`` replace the model's springs)."""
+    model = _identified_model(args)
+    if model is None or args.kq is not None or args.compliant_joints is not None:
+        return None
+    if getattr(args, "_compliant_model", None) is None:
+        args._compliant_model = CompliantModel(model, frame=args.frame,
+                                               target_offset=flags.target_offset_from_args(args))
+    return args._compliant_model
+
+
+def model_summary(args: argparse.Namespace) -> dict | None:
+    """What the ``--model`` file contributes (JSON-ready), or None without ``--model``."""
+    model = _identified_model(args)
+    if model is None:
+        return None
+    cm = compliant_model_from_args(args)
+
+    def entry(e, reason=None):
+        return {"effect": e.name, "where": e.where, "kind": e.kind,
+                "parameters": {p.name: p.value for p in e.parameters},
+                **({} if reason is None else {"reason": reason})}
+
+    if cm is None:
+        applied, not_applied = [], [
+            entry(e, "--kq or --compliant-joints replace the model's springs")
+            for e in model.effects]
+    else:
+        applied = [entry(e) for e in cm.applied]
+        not_applied = [entry(e, why) for e, why in cm.not_applied]
+    return {"file": str(model.path), "produced_by": model.produced_by,
+            "formulation": model.formulation, "effects_applied": applied,
+            "effects_not_applied": not_applied}
 
 
 @dataclass
@@ -99,6 +138,7 @@ class KxInputs:
     k_theta: np.ndarray
     load: np.ndarray
     load_source: str
+    model: CompliantModel | None = None
     assembly: Assembly | None = None
     q_source: str = flags.FROM_FLAG
     k_theta_source: str = flags.FROM_FLAG
@@ -123,11 +163,14 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
         On a bad flag value, or a missing flag the robot brings no default for.
     """
     model = _identified_model(args)
-    robot, _, _ = flags.robot_from_args(args, fallback=model)
+    cm = compliant_model_from_args(args)
+    robot = cm.robot if cm is not None else flags.robot_from_args(args, fallback=model)[0]
     reference = args.q is None and default_coordinates(robot) is None
     # without --q and robot defaults: the reference pose (zero, or the assembly found near it)
     coords = None if reference else flags.coordinates_from_args(robot, args)
-    if args.kq is not None:
+    if cm is not None:
+        kq, kq_source = cm.k_theta, f"{flags.FROM_MODEL} {args.model}"
+    elif args.kq is not None:
         kq, kq_source = flags.parse_list(args.kq, "--kq"), f"{flags.FROM_FLAG} --kq"
     elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
         kq, kq_source = model.k_theta, f"{flags.FROM_MODEL} {args.model}"
@@ -157,7 +200,7 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     if reference:
         q_source = ("assembly found near the zero pose (no --q)" if assembly.assembly_search
                     else "zero pose (no --q)")
-    return KxInputs(robot, coords, q, k_theta, load, source, assembly, q_source=q_source,
+    return KxInputs(robot, coords, q, k_theta, load, source, cm, assembly, q_source=q_source,
                     k_theta_source=kq_source)
 
 
@@ -201,36 +244,55 @@ def compute(args: argparse.Namespace) -> dict:
         raise StiffnessError(f"twist_order of {robot.name} must be one of {list(TWIST_ORDERS)}")
     rows = slice(0, 6) if six else slice(0, 3)
     tangent = tangent_joint_stiffness(k_theta, state.k_c, args.formulation)
-    if args.connection is not None:
-        k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
-               else twist_basis_stiffness(state, k_theta))
+    undefined = None  # why K_X does not exist here (the compliance does)
+    at = None
+    if inputs.model is not None and args.connection is None:
+        at = inputs.model.at(q, load, args.formulation)
+    elif inputs.model is not None and any(
+            e.name in ("link_compliance", "nonlinear_joint_stiffness")
+            for e in inputs.model.applied):
+        raise StiffnessError("--connection gives the 6x6 stiffness of joint springs alone; the "
+                             "model's link_compliance or nonlinear_joint_stiffness cannot enter "
+                             "it: drop --connection")
+    if at is not None:
+        jac = state.jacobian[rows]
+        c_x = at.compliance(rows)
+        axes = "base frame axes at the target"
+        k_c = state.k_c
+        try:
+            k_x = cartesian_stiffness(c_x)
+        except SingularConfigurationError as exc:
+            k_x, undefined = None, str(exc)
+    elif args.connection is not None:
         jac = state.body_jacobian()
-        c_x = np.linalg.inv(k_x)
         axes = "target frame body axes (left-invariant twist basis)"
         k_c = state.k_c_twist if args.connection == "twist" else np.zeros_like(state.k_c)
+        try:
+            k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
+                   else twist_basis_stiffness(state, k_theta))
+            c_x = np.linalg.inv(k_x)
+        except SingularConfigurationError as exc:  # J_b singular: C = J_b T^-1 J_b^T exists
+            k_x, undefined = None, str(exc)
+            c_x = compliance(jac, k_theta - k_c)
     else:
         jac = state.jacobian[rows]
         c_x = compliance(jac, tangent)
         axes = "base frame axes at the target"
         k_c = state.k_c
+        try:
+            k_x = cartesian_stiffness(c_x)
+        except SingularConfigurationError as exc:
+            k_x, undefined = None, str(exc)
     wrench = state.wrench[: 6 if six else 3]
     if six:
         c_x, wrench = reorder_twist(c_x, order), reorder_twist(wrench, order)
+        k_x = None if k_x is None else reorder_twist(k_x, order)
         if order == "w-v":
             jac = jac[[3, 4, 5, 0, 1, 2]]
-    subspace = None
-    if args.connection is None and task_rank(jac) < jac.shape[0]:
-        # fewer task dimensions than rows: the stiffness exists on the spanned subspace only
-        subspace = subspace_stiffness(jac, c_x)
-        k_x = None
-    elif args.connection is None:
-        k_x = cartesian_stiffness(c_x)
-    elif six:
-        k_x = reorder_twist(k_x, order)
-    ell = ellipsoid(k_x if subspace is None else subspace.stiffness)
+    ell = None if k_x is None else ellipsoid(k_x)
     blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
     trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
-    return {
+    out = {
         "robot": robot.name,
         "frame": robot.target_frame,
         "target_offset": robot.target_offset.tolist(),
@@ -248,18 +310,14 @@ def compute(args: argparse.Namespace) -> dict:
         "K_theta": np.diag(k_theta).tolist(),
         "K_C": k_c.tolist(),
         "K_X": None if k_x is None else k_x.tolist(),
-        "subspace": None if subspace is None else {
-            "dimension": int(subspace.basis.shape[1]),
-            "directions": subspace.basis.T.tolist(),
-            "K_X": subspace.stiffness.tolist(),
-        },
+        "K_X_undefined": undefined,
+        "K_X_subspace": None if k_x is not None else _subspace_json(c_x),
         "compliance": c_x.tolist(),
-        "K_X_symmetric": bool(ell.symmetric),
-        "eigenvalues": ell.values.tolist(),
-        "eigenvectors": ell.directions.tolist(),
-        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
-            k_theta - state.k_c), "K_X": definiteness(
-                k_x if subspace is None else subspace.stiffness)},
+        "K_X_symmetric": None if ell is None else bool(ell.symmetric),
+        "eigenvalues": None if ell is None else ell.values.tolist(),
+        "eigenvectors": None if ell is None else ell.directions.tolist(),
+        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": tangent_definiteness(
+            k_theta, k_theta - state.k_c), "K_X": None if k_x is None else definiteness(k_x)},
         **inputs_summary(inputs),
         "configuration": _configuration(robot, q),
         "closure": inputs.assembly.as_dict(),
@@ -269,11 +327,32 @@ def compute(args: argparse.Namespace) -> dict:
             "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
             "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
             "compliance": "m/N (inverse of K_X)", "eigenvalues": "same as K_X",
+            "K_X_subspace": "K_X, eigenvalues: as K_X (pseudo-inverse of the compliance in SI: "
+                            "in 6x6, 1 m weighs as 1 rad); directions: unit vectors",
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
             "configuration": "rad (m prismatic); Pinocchio q values for multi-coordinate joints",
             "closure": "residual in m (rad for 6D rotation rows)",
         },
     }
+    summary = model_summary(args)
+    if summary is not None:
+        out["model"] = summary
+        if at is not None:
+            out["K_theta_tangent"] = np.diag(at.k_tangent).tolist()
+            out["link_compliance"] = at.link_compliance[rows, rows].tolist()
+    return out
+
+
+def _subspace_json(c_x: np.ndarray) -> dict:
+    """Where K_X is undefined (singular compliance): the stiffness on the moving subspace.
+
+    ``K_X`` is the pseudo-inverse of the compliance, ``eigenvalues`` its principal values on the
+    ``moving_directions`` (rows: unit displacement directions); along ``rigid_directions``
+    (rows: unit wrench directions) the target does not move, the stiffness is unbounded.
+    """
+    sub = subspace_stiffness(c_x)
+    return {"rank": sub.rank, "K_X": sub.stiffness.tolist(), "eigenvalues": sub.values.tolist(),
+            "moving_directions": sub.moving.T.tolist(), "rigid_directions": sub.rigid.T.tolist()}
 
 
 def _configuration(robot: Robot, q: np.ndarray) -> dict:
@@ -313,17 +392,24 @@ def run(args: argparse.Namespace) -> int:
     print(f"position (m): {np.array(result['position'])}")
     print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
     print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")
-    print(f"compliance ({result['units']['compliance']}), basis {result['basis']}:\n"
-          f"{np.array(result['compliance'])}")
-    sub = result["subspace"]
-    if sub is None:
+    if result["K_X"] is None:
+        sub = result["K_X_subspace"]
+        print(f"K_X undefined: {result['K_X_undefined']}")
+        print(f"compliance (m/N blocks), basis {result['basis']}:\n"
+              f"{np.array(result['compliance'])}")
+        print(f"K_X on the {sub['rank']}-dimensional moving subspace (pseudo-inverse of the "
+              f"compliance): principal stiffnesses {np.array(sub['eigenvalues'])}; rigid "
+              f"(unbounded) along {np.array(sub['rigid_directions'])}")
+    else:
         print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n"
               f"{np.array(result['K_X'])}")
-    else:
-        print(f"the target moves in {sub['dimension']} of {len(result['basis'])} task "
-              f"directions only; K_X on that subspace ({result['units']['K_X']}), basis "
-              f"directions (rows, in {result['basis']}):\n{np.array(sub['directions'])}\n"
-              f"{np.array(sub['K_X'])}")
-    print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
+        print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
     print(f"definiteness: {result['definiteness']}")
+    if "model" in result:
+        m = result["model"]
+        label = lambda e: e["effect"] + (f"({e['where']})" if e["where"] else "")  # noqa: E731
+        print(f"model {m['file']}: effects in K_X: "
+              + (", ".join(label(e) for e in m["effects_applied"]) or "none"))
+        for e in m["effects_not_applied"]:
+            print(f"  not applied: {label(e)}: {e['reason']}")
     return 0
