@@ -179,7 +179,7 @@ def test_loop_closure_singular_convergence_unstable(non_grashof_four_bar, ur5):
     (["kx", "--robot", "sk120", "--model", "{tmp}/none.json"], "no such file"),
     (["kx", "--robot", "sk120", "--model", "{tmp}/bad.json"], "bad.json, line 1, column 2"),
     (["kx", "--robot", "sk120", "--deg", "--q", "-33.2,15.9,-105.9,0,-34.4,-90"],
-     "loop singularity"),
+     "loop of sk120 is singular"),
     (["identify", "{tmp}/none"], "not found"),
     (["identify", "{tmp}/bad.toml"], "bad.toml, line 2, column 12"),
     (["diagnose", "{tmp}/bad.toml"], "is not valid TOML"),

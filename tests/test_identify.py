@@ -275,9 +275,9 @@ def test_a_singular_row_is_named_by_file_line_and_config(tmp_path, table2):
                    q=np.vstack([table2.q[:2], np.deg2rad([[0.0, 30.0, 60.0, 0.0, -150.0, -90.0]])]),
                    force=table2.force[:3], deflection=table2.deflection[:3], config=("A", "A", "Z"))
     loaded = load_campaign(write_campaign(bad, tmp_path))
-    with pytest.raises(StiffnessError, match=r"measurements\.csv line 4 \(config Z\): the "
-                                             "target's position depends on an undetermined "
-                                             "motion.*loop singularity"):
+    with pytest.raises(StiffnessError, match=r"measurements\.csv line 4 \(config Z\): the loop "
+                                             "of sk120 is singular here: the target's position "
+                                             "depends on an undetermined motion"):
         identify(loaded, starts=1)
 
 

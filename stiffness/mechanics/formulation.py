@@ -128,10 +128,10 @@ def velocity_projection(robot: Robot) -> np.ndarray:
             k = int(np.sum(moved > 1e-8 * scale))
             joints = _joints_of(robot, idle[:, int(np.argmax(moved))])
             raise UndeterminedMotionError(
-                f"the target's position depends on an undetermined motion: {k} passive "
-                f"motion(s) of {robot.name} that the loop constraints leave free move the target "
-                f"here (mostly joints {', '.join(joints)}); the pose is a loop singularity (a "
-                "flattened or folded assembly: move away from it), or these joints belong in "
+                f"the loop of {robot.name} is singular here: the target's position depends on an "
+                f"undetermined motion ({k} passive motion(s) that the loop constraints leave "
+                f"free move the target; mostly joints {', '.join(joints)}): the pose is a "
+                "flattened or folded assembly (move away from it), or these joints belong in "
                 "name_mot (actuated) or lack a loop")
     s[robot.loop.passive_v] = -np.linalg.pinv(c[:, robot.loop.passive_v], rcond=1e-9) @ (c @ s)
     return s
