@@ -47,7 +47,8 @@ from stiffness.mechanics.formulation import (
 )
 from stiffness.mechanics.platform import platform_stiffness, solve_pose
 from stiffness.mechanics.wrench import holding_wrench, reorder_twist
-from stiffness.model.robot import Robot, load_robot, shipped_robots
+from stiffness.model.robot import Robot, load_robot
+from stiffness.model.sources import shipped_robots
 
 #: Entries of the upper layers, imported on first use: name -> module defining it.
 _ON_FIRST_USE = {

@@ -9,7 +9,12 @@ code keeps working); the subclasses say what went wrong and carry what a program
 * :class:`FileFormatError`: ``path``, ``line`` and ``column`` (1-based, None when unknown);
 * :class:`SingularConfigurationError`: a Jacobian or tangent stiffness that must be inverted is
   singular;
-* :class:`LoopClosureError`: a kinematic loop cannot be closed at the given coordinates;
+* :class:`RobotFileError` (a :class:`FileFormatError`): a URDF or loop file that cannot be read;
+* :class:`LoopClosureError`: a kinematic loop cannot be closed at the given coordinates
+  (``loop`` and ``residual`` when known);
+* :class:`UndeterminedMotionError` (a :class:`SingularConfigurationError`): the target moves
+  with a passive motion the loops leave free;
+* :class:`FloatingBaseError`: a floating or planar base that ``--fixed-base`` would fix;
 * :class:`ConvergenceError`: an iterative solver did not converge;
 * :class:`UnstableEquilibriumError`: the load buckles the robot (K_theta - K_C not positive
   definite at the equilibrium).
@@ -153,7 +158,21 @@ class SingularConfigurationError(StiffnessError):
 
 
 class LoopClosureError(StiffnessError):
-    """The kinematic loops cannot be closed at the given coordinates (out of reach, or branch)."""
+    """The kinematic loops cannot be closed at the given coordinates (out of reach, or branch).
+
+    Attributes
+    ----------
+    loop : str or None
+        The loop that cannot close (``[frame_a, frame_b]``), when known.
+    residual : float or None
+        Its residual (m; rad for 6D rotation rows), when known.
+    """
+
+    def __init__(self, message: str, loop: str | None = None, residual: float | None = None
+                 ) -> None:
+        super().__init__(message)
+        self.loop = loop
+        self.residual = residual
 
 
 class ConvergenceError(StiffnessError):
@@ -183,3 +202,25 @@ def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40)
     listed = ", ".join(list(valid)[:limit]) + (" ..." if len(valid) > limit else "")
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     return f"valid names: {listed}.{hint}"
+
+
+class RobotFileError(FileFormatError):
+    """A robot file (URDF, loop declaration) that cannot be read: ``path``, ``line`` (or None)
+    and ``problem``, in :class:`FileFormatError`'s one-line form."""
+
+    def __init__(self, path: str | Path, line: int | None, problem: str,
+                 column: int | None = None) -> None:
+        super().__init__(problem, path=path, line=line, column=column)
+
+
+class UndeterminedMotionError(SingularConfigurationError):
+    """The target moves with a passive motion that the loop constraints leave undetermined."""
+
+
+class FloatingBaseError(StiffnessError):
+    """A floating or planar base that was not fixed (``--fixed-base`` / ``fixed_base=True``)."""
+
+
+class RobotFileWarning(UserWarning):
+    """Something in a robot file that the toolkit ignores or reads in its own way (one warning
+    per thing)."""

@@ -139,7 +139,8 @@ def _robot_xml(name: str, links: list[str], joints: list[str]) -> str:
 
 
 LOOP_SIDECAR = (
-    'closed_loop:\n  - [coupler_end, rocker_end]\ntype: ["3D"]\nname_mot: [crank_joint]\n'
+    'closed_loop:\n  - [coupler_end, rocker_end]\ntype: ["3D"]\n'
+    'name_mot: [crank_joint, tool_joint]\n'
 )
 
 

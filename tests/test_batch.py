@@ -115,7 +115,7 @@ def _write_four_bar(folder, weld: bool):
             _joint("pivot_fixed", "plane", "pivot", (d, 0, 0), kind="fixed"),
         ]
         sidecar = ('closed_loop:\n  - [pivot, pivot_copy]\ntype: ["6D"]\n'
-                   'name_mot: [crank_joint]\n')
+                   'name_mot: [crank_joint, tool_joint]\n')
     else:
         links += ["rocker_end"]
         joints += [
@@ -123,7 +123,7 @@ def _write_four_bar(folder, weld: bool):
             _joint("rocker_end_joint", "rocker", "rocker_end", (c, 0, 0), kind="fixed"),
         ]
         sidecar = ('closed_loop:\n  - [coupler_end, rocker_end]\ntype: ["3D"]\n'
-                   'name_mot: [crank_joint]\n')
+                   'name_mot: [crank_joint, tool_joint]\n')
     body = "".join(f'<link name="{x}"/>' for x in links) + "".join(joints)
     urdf = folder / ("welded.urdf" if weld else "fourbar.urdf")
     urdf.write_text(f'<?xml version="1.0"?>\n<robot name="fb">{body}</robot>\n')
@@ -153,7 +153,7 @@ def welded_four_bar(tmp_path_factory):
 
 def _random_q(robot, m, seed):
     pin.seed(seed)
-    return np.array([pin.randomConfiguration(robot.model) for _ in range(m)])
+    return np.array([robot.follow(pin.randomConfiguration(robot.model)) for _ in range(m)])
 
 
 def _sk120_coords(m, seed):

@@ -32,7 +32,7 @@ UR5_F = np.array([100.0, 200.0, -50.0])
 SK120_F = np.array([3e3, -5e3, 2e3])
 FOUR_BAR_K = np.diag([50.0, 20.0])
 FOUR_BAR_F = np.array([1.5, -2.0, 0.5])
-PANDA_Q = np.array([0.2, -0.4, 0.3, -2.0, 0.1, 1.8, 0.6, 0.0, 0.0])
+PANDA_Q = np.array([0.2, -0.4, 0.3, -2.0, 0.1, 1.8, 0.6, 0.0])  # the second finger mimics
 PANDA_K = np.diag([2e4, 2e4, 1.5e4, 1.5e4, 8e3, 8e3, 5e3])
 PANDA_F = np.array([40.0, -30.0, -60.0])
 

@@ -31,7 +31,8 @@ from stiffness.files import read_json, read_toml, read_yaml
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import tangent_joint_stiffness, target_state
 from stiffness.model.loops import read_loop_declaration
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 

@@ -15,7 +15,8 @@ from stiffness.cli.main import main
 from stiffness.errors import FileFormatError, MissingFileError, StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 from stiffness.papers.sk120 import PAPER_K_THETA_NMM_PER_RAD
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
@@ -275,7 +276,8 @@ def test_a_singular_row_is_named_by_file_line_and_config(tmp_path, table2):
                    force=table2.force[:3], deflection=table2.deflection[:3], config=("A", "A", "Z"))
     loaded = load_campaign(write_campaign(bad, tmp_path))
     with pytest.raises(StiffnessError, match=r"measurements\.csv line 4 \(config Z\): the loop "
-                                             "of sk120 is singular"):
+                                             "of sk120 is singular here: the target's position "
+                                             "depends on an undetermined motion"):
         identify(loaded, starts=1)
 
 

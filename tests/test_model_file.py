@@ -20,7 +20,8 @@ from stiffness.calibration.model_file import (
     read_model_file,
 )
 from stiffness.errors import UnknownJointError
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 
 ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 K_ARM = np.array([3e4, 2e4, 1.5e4])

@@ -12,15 +12,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import FloatingBaseError, StiffnessError
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import (
-    TARGET_FRAME,
-    example_robot_names,
-    load_robot,
-    robots_directory,
-    shipped_robots,
-)
+from stiffness.model.robot import TARGET_FRAME, load_robot
+from stiffness.model.sources import example_robot_names, robots_directory, shipped_robots
 
 SERIAL_URDF = """<?xml version="1.0"?>
 <robot name="serial">
@@ -176,9 +171,11 @@ def test_unsupported_joint_type(tmp_path):
     path.write_text('<?xml version="1.0"?><robot name="f"><link name="a"/><link name="b"/>'
                     '<joint name="free" type="floating"><parent link="a"/><child link="b"/>'
                     "</joint></robot>")
-    with pytest.raises(StiffnessError,
-                       match="joint 'free' is a JointModelFreeFlyer; only revolute.*fix the base"):
+    with pytest.raises(FloatingBaseError,
+                       match="floating or planar base, joint 'free' .JointModelFreeFlyer.: fix "
+                             "the base .*--fixed-base"):
         load_robot(path)
+
 
 
 def test_unknown_frame():

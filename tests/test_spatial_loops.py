@@ -37,7 +37,8 @@ from stiffness.mechanics.platform import (
 from stiffness.model import kinematics
 from stiffness.model.loops import read_loop_declaration
 from stiffness.model.platform import VIRTUAL_JOINTS
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 
 GD = robots_directory() / "griffis-duffy"
 #: A configuration away from the shipped one (leg lengths, m).

@@ -81,7 +81,7 @@ from stiffness.batch.loops import (
 )
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics import closed_loop
-from stiffness.mechanics.formulation import FORMULATIONS
+from stiffness.mechanics.formulation import FORMULATIONS, compliant_projection
 from stiffness.model.kinematics import reorder_hessian
 from stiffness.model.robot import Robot
 
@@ -223,7 +223,12 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
 
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
-    if closure is None:
+    if closure is None and robot.mimics:
+        # mimic followers move with their leaders: S is not a selection
+        e = compliant_projection(robot)
+        basis = np.einsum("ia,mkij,jb->mkab", e, reorder_hessian(raw)[:, :w], e, optimize=True)
+        jac = j_full @ e
+    elif closure is None:
         # the Hessian rows are the unit-wrench basis [m, k, a, b] (a view of raw)
         basis = reorder_hessian(raw)[:, :w]
         if not _is_identity_selection(cv, nv):
@@ -231,7 +236,7 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
             j_full = j_full[:, :, cv]
         jac = j_full
     else:
-        proj, curvature, valid = closure.derivatives()
+        proj, curvature, valid = closure.derivatives(j_full)
         pv = robot.loop.passive_v
         basis = closed_loop.reduced_hessian(reorder_hessian(raw)[:, :w], j_full[:, :w, pv],
                                             proj[:, None], curvature[:, None])
@@ -273,6 +278,7 @@ class _ClosurePass:
         else:
             first, inverse = np.zeros(1, dtype=int), np.zeros(q.shape[0], dtype=int)
         self.inverse = inverse.reshape(-1)
+        self.first = first
         slot = np.full(q.shape[0], -1)
         slot[first] = np.arange(first.shape[0])  # distinct closure of a first visit, else -1
         self.slot = slot.tolist()
@@ -320,16 +326,23 @@ class _ClosurePass:
                 jac[f, k] = pin.getFrameJacobian(model, data, *point, LWA)
         return record_pinocchio
 
-    def derivatives(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Velocity maps (m, nv, n), curvatures (m, n_p, n, n) and validity (m,)."""
+    def derivatives(self, j_target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Velocity maps (m, nv, n), curvatures (m, n_p, n, n) and validity (m,).
+
+        ``j_target`` (m, >=3, nv): the target's Jacobian (linear rows first) at every
+        configuration; a free passive motion is idle where it does not move the target at the
+        first configuration of its closure (:mod:`stiffness.mechanics.closed_loop`).
+        """
         robot = self.robot
         cv, pv = robot.compliant_v, robot.loop.passive_v
+        base = compliant_projection(robot)
+        target_passive = j_target[self.first, :3][:, :, pv]
         pairs = range(0, len(self.points), 2)
         if self.analytic:
             supports = _point_supports(robot)
             lin, om = point_derivatives(self.world_j, self.position, supports)
             c = np.concatenate([lin[p + 1] - lin[p] for p in pairs], axis=0).transpose(2, 0, 1)
-            proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv)
+            proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv, base, target_passive)
             proj_t = np.ascontiguousarray(proj.transpose(1, 2, 0))
             hss = []
             for f, support in enumerate(supports):  # on the point's support columns only
@@ -342,7 +355,7 @@ class _ClosurePass:
                                axis=1)
             hc = np.concatenate([reorder_hessian(self.raw[p + 1])[:, :3]
                                  - reorder_hessian(self.raw[p])[:, :3] for p in pairs], axis=1)
-            proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv)
+            proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv, base, target_passive)
             hss = np.swapaxes(proj, 1, 2)[:, None] @ hc @ proj[:, None]
         curvature = closed_loop.closure_curvature(pinv, hss)
         if not valid.all():
@@ -545,13 +558,16 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
             record(i)
             if pose:
                 position[i] = update_placement(model, data, fid).translation
+    if closure is None and robot.mimics:
+        e = compliant_projection(robot)  # mimic followers move with their leaders
+        return j_full @ e, e.T @ dg @ e, np.ones(m, dtype=bool), position
     if closure is None:
         cv = robot.compliant_v
         if not _is_identity_selection(cv, nv):
             dg = dg[:, cv[:, None], cv[None, :]]
             j_full = j_full[:, :, cv]
         return j_full, dg, np.ones(m, dtype=bool), position
-    proj, curvature, valid = closure.derivatives()
+    proj, curvature, valid = closure.derivatives(j_full)
     k_c = closed_loop.reduced_hessian(dg, (force @ j_full[:, :3])[:, robot.loop.passive_v],
                                       proj, curvature)
     return j_full @ proj, k_c, valid, position

@@ -75,8 +75,9 @@ def tree_configurations(robot: Robot, coordinates: np.ndarray,
                         base: np.ndarray | None = None) -> np.ndarray:
     """Full configurations (m, nq) with the coordinates set and other joints from ``base``.
 
-    Vectorised :meth:`Robot.configuration` without loop closure; ``base`` defaults to
-    Pinocchio's neutral configuration. Angles in rad, lengths in m.
+    Vectorised :meth:`Robot.configuration` without loop closure (mimic followers set from their
+    leaders); ``base`` defaults to Pinocchio's neutral configuration. Angles in rad, lengths in
+    m.
     """
     coordinates = np.atleast_2d(np.asarray(coordinates, dtype=float))
     model = robot.model
@@ -89,6 +90,8 @@ def tree_configurations(robot: Robot, coordinates: np.ndarray,
             q[:, joint.idx_q + 1] = np.sin(coordinates[:, i])
         else:
             q[:, joint.idx_q] = coordinates[:, i]
+    for qi in q if robot.mimics else ():
+        robot.follow(qi)  # mimic followers from their leaders (in place)
     return q
 
 

@@ -12,6 +12,8 @@ simulate``)::
     target_offset = [0.0, 0.0, 100.0]  # target in that frame, in the [units] length (optional)
     compliant_joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
                                        # springs; the rest rigid (optional)
+    loops = "robot.yaml"               # loop declaration, relative to this file (optional)
+    fixed_base = false                 # fix a floating or planar base (optional)
     [units]
     angle = "deg"                      # deg | rad
     force = "N"                        # N | kN
@@ -86,7 +88,7 @@ _ROTATION_COLUMNS = ("rx", "ry", "rz")
 
 _TOML_KEYS = {
     "": {"name", "baseline", "robot", "units", "measurement"},
-    "robot": {"source", "frame", "target_offset", "compliant_joints"},
+    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base"},
     "units": {"angle", "force", "length", "rotation", "moment"},
     "measurement": {"data", "noise_std", "rotation_noise_std"},
 }
@@ -200,12 +202,19 @@ class RobotSettings:
         Target position in ``frame`` axes (m), shape (3,).
     compliant_joints
         Joints modelled as springs, or ``None`` for the robot's default.
+    loops
+        Loop declaration overriding the one beside the URDF (a path, relative like
+        ``source``), or ``None``.
+    fixed_base
+        Fix a floating or planar base at its neutral placement (docs/robot-files.md).
     """
 
     source: str
     frame: str | None = None
     target_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     compliant_joints: tuple[str, ...] | None = None
+    loops: str | None = None
+    fixed_base: bool = False
 
     def __post_init__(self) -> None:
         self.source = str(self.source)
@@ -222,6 +231,21 @@ class RobotSettings:
 def _looks_like_path(source: str) -> bool:
     return (Path(source).suffix.lower() in (".urdf", ".xml") or "/" in source
             or os.sep in source or Path(source).is_absolute())
+
+
+def _resolve_path(path: str, folder: Path) -> str:
+    """A file path of a campaign (``loops``): absolute as is, else relative to ``folder``."""
+    return path if Path(path).is_absolute() else str(folder / path)
+
+
+def _written_path(resolved: str, folder: Path) -> str:
+    """An absolute path as written into a campaign file in ``folder`` (relative when possible)."""
+    resolved = Path(resolved)
+    try:
+        written = os.path.relpath(resolved, folder.resolve())
+    except ValueError:  # another drive on Windows
+        written = str(resolved)
+    return Path(written).as_posix()
 
 
 def _resolve_source(source: str, folder: Path) -> str:
@@ -379,7 +403,10 @@ class Campaign:
             s = self.robot_settings
             robot = load_robot(self.resolved_source(), frame=s.frame,
                                target_offset=s.target_offset_m,
-                               compliant_joints=s.compliant_joints)
+                               compliant_joints=s.compliant_joints,
+                               loops=None if s.loops is None else _resolve_path(
+                                   s.loops, self.folder()),
+                               fixed_base=s.fixed_base)
             if robot.n_coordinates != self.q.shape[1]:
                 raise StiffnessError(
                     f"robot {s.source} has {robot.n_coordinates} coordinates "
@@ -649,8 +676,15 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
                                or not all(isinstance(j, str) for j in joints)):
         raise toml.error(f"[robot] compliant_joints must be a non-empty list of joint names, "
                          f"got {joints!r}", "robot", "compliant_joints")
+    loops = r.get("loops")
+    if loops is not None:
+        _typed(loops, str, toml, "robot", "loops", "a loop-declaration path (string)")
+    fixed_base = r.get("fixed_base", False)
+    if not isinstance(fixed_base, bool):
+        raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
+                         "robot", "fixed_base")
     settings = RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
-                             tuple(joints) if joints is not None else None)
+                             tuple(joints) if joints is not None else None, loops, fixed_base)
 
     m = doc["measurement"]
     data_name = _typed(m["data"], str, toml, "measurement", "data", "a file name")
@@ -675,7 +709,10 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     try:
         robot = load_robot(_resolve_source(source, toml_path.parent), frame=settings.frame,
                            target_offset=settings.target_offset_m,
-                           compliant_joints=settings.compliant_joints)
+                           compliant_joints=settings.compliant_joints,
+                           loops=None if loops is None else _resolve_path(
+                               loops, toml_path.parent),
+                           fixed_base=fixed_base)
     except StiffnessError as exc:
         raise with_context(exc, f"{toml_path}: [robot]") from exc
 
@@ -839,6 +876,11 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
     if s.compliant_joints is not None:
         joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
         toml.append(f"compliant_joints = [{joints}]")
+    if s.loops is not None:
+        loops = _written_path(_resolve_path(s.loops, c.folder()), folder)
+        toml.append(f"loops = {_toml_string(loops)}")
+    if s.fixed_base:
+        toml.append("fixed_base = true")
     toml += [
         "",
         "[units]",

@@ -225,7 +225,8 @@ class Geometry:
         full = robot
         if tuple(robot.compliant_joints) != tuple(robot.coordinate_joints):
             full = cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
-                                tuple(robot.coordinate_joints))
+                                tuple(robot.coordinate_joints), robot.loop_file,
+                                robot.fixed_base)
         model = full.model
         parent = model.frames[full.target_frame_id].parentJoint
         chain = tuple(model.names[j] for j in model.supports[parent] if j > 0
@@ -332,13 +333,14 @@ class Geometry:
 
 @functools.lru_cache(maxsize=32)
 def cached_robot(source: str, frame: str | None, target_offset: tuple[float, ...] | None,
-                 compliant_joints: tuple[str, ...] | None) -> Robot:
+                 compliant_joints: tuple[str, ...] | None, loops: str | None = None,
+                 fixed_base: bool = False) -> Robot:
     """:func:`stiffness.model.robot.load_robot`, loaded once per argument set (example-robot-data
     models take about half a second to load). The robot's ``data`` is shared: not for use from
     several threads."""
     return load_robot(source, frame=frame,
                       target_offset=None if target_offset is None else np.array(target_offset),
-                      compliant_joints=compliant_joints)
+                      compliant_joints=compliant_joints, loops=loops, fixed_base=fixed_base)
 
 
 def chain_placements(robot: Robot, chain: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

@@ -98,7 +98,8 @@ from stiffness.mechanics.gravity import (
     spring_balancer,
     with_payload,
 )
-from stiffness.model.robot import Robot, load_robot, robots_directory, shipped_robots
+from stiffness.model.robot import Robot, load_robot
+from stiffness.model.sources import robots_directory, shipped_robots
 
 #: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
 SCHEMA_NAME = "stiffness-model"

@@ -377,7 +377,8 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
                                     f"gravity_compensator act on a compliant "
                                     f"joint ({', '.join(compliant)}), not {j}", name=j,
                                     choices=compliant)
-    robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
+    robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant,
+                         declared.loop_file, declared.fixed_base)
     law = SpringLaw(np.array([1.0 / stiff[j] for j in compliant]),
               np.array([beta.get(j, 0.0) for j in compliant]),
               np.array([backlash.get(j, 0.0) for j in compliant]),
@@ -496,6 +497,8 @@ def simulate(
     name: str | None = None,
     rotations: bool = False,
     rotation_noise_std_rad: float | None = None,
+    loops: str | None = None,
+    fixed_base: bool = False,
     plan: Plan | None = None,
 ) -> Simulation:
     """Simulate a campaign with hidden effects.
@@ -538,6 +541,10 @@ def simulate(
     rotation_noise_std_rad
         Their noise std (rad); default ``noise_std_m / 0.1 m`` (a 6-D probe whose markers are
         0.1 m apart). Declared with ``declare_noise``.
+    loops, fixed_base
+        Loop declaration overriding the robot's sidecar, and whether to fix a floating or
+        planar base (:func:`stiffness.model.robot.load_robot`); both are written into the
+        campaign's ``[robot]`` table.
     plan
         Rows to simulate exactly (:class:`stiffness.calibration.plan.Plan`: coordinates,
         applied forces, labels) instead of drawing ``configs`` poses and their loads.
@@ -565,7 +572,8 @@ def simulate(
         raise StiffnessError(f"an effect is hidden twice: {labels}")
     declared = cached_robot(str(robot), frame, None if target_offset_m is None else tuple(
         np.asarray(target_offset_m, dtype=float).reshape(-1)), None if compliant_joints is None
-        else tuple(compliant_joints))
+        else tuple(compliant_joints), None if loops is None else str(Path(loops).resolve()),
+        fixed_base)
     if kq is None:
         if "k_theta_SI" not in declared.defaults:
             raise StiffnessError(f"give the true joint stiffness of {robot} (--kq), one per "
@@ -630,7 +638,9 @@ def simulate(
     config_labels = [row_labels[i] for i in reps]
     settings = RobotSettings(declared.name, frame=declared.target_frame,
                              target_offset_m=declared.target_offset.copy(),
-                             compliant_joints=tuple(declared.compliant_joints))
+                             compliant_joints=tuple(declared.compliant_joints),
+                             loops=None if loops is None else str(Path(loops).resolve()),
+                             fixed_base=fixed_base)
     campaign = Campaign(
         name=name or f"simulated-{Path(str(robot)).stem}",
         baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],

@@ -5,7 +5,8 @@ A command declares its flags with the ``add_*`` functions and reads them back wi
 flag has the same name, unit and syntax in every command:
 
 * ``--robot``, ``--frame``, ``--target-offset x,y,z`` (m, the frame's axes),
-  ``--compliant-joints a,b,...``;
+  ``--compliant-joints a,b,...``, ``--loops FILE`` (a loop declaration instead of the sidecar)
+  and ``--fixed-base`` (fix a floating or planar base; docs/robot-files.md);
 * ``--q v1,v2,...`` (one value per coordinate, rad or m) or ``--q name=value,...`` (joint names,
   or ``q1``, ``q2``...; the coordinates not named keep the robot's default configuration, zero
   when it has none), ``--deg`` for angles in degrees;
@@ -122,7 +123,8 @@ def parse_names(text: str | None) -> list[str] | None:
 
 def add_robot_flags(parser: argparse.ArgumentParser, *, required: bool = False,
                     robot_help: str | None = None) -> None:
-    """``--robot``, ``--frame``, ``--target-offset`` (m) and ``--compliant-joints``."""
+    """``--robot``, ``--frame``, ``--target-offset`` (m), ``--compliant-joints``, ``--loops``
+    and ``--fixed-base``."""
     parser.add_argument(
         "--robot", required=required,
         help=robot_help or "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data "
@@ -133,6 +135,11 @@ def add_robot_flags(parser: argparse.ArgumentParser, *, required: bool = False,
     parser.add_argument("--compliant-joints", metavar="J1,J2,...",
                         help="comma-separated joints modelled as springs (default: the robot's "
                              "own, else every coordinate joint)")
+    parser.add_argument("--loops", metavar="FILE",
+                        help="loop declaration (Gepetto's Extended-URDF YAML) instead of the "
+                             "one beside the URDF (<name>.loops.yaml, <name>.yaml, robot.yaml)")
+    parser.add_argument("--fixed-base", action="store_true",
+                        help="fix a floating or planar base at its neutral placement")
 
 
 def add_configuration_flags(parser: argparse.ArgumentParser, q_help: str | None = None) -> None:
@@ -188,6 +195,9 @@ class RobotFlags:
     compliant_joints: list[str] | None
     #: another flag that can name the robot (``--model``), for the error when none does
     alternative: str | None = None
+    #: ``--loops FILE`` and ``--fixed-base``
+    loops: str | None = None
+    fixed_base: bool = False
 
     def load(self) -> Robot:
         """The robot (:func:`stiffness.model.robot.load_robot`)."""
@@ -198,7 +208,8 @@ class RobotFlags:
                 "--robot is required" + (f" (or {self.alternative})" if self.alternative else "")
                 + ": a shipped robot, an example-robot-data name or a URDF path")
         return load_robot(self.source, frame=self.frame, target_offset=self.target_offset,
-                          compliant_joints=self.compliant_joints)
+                          compliant_joints=self.compliant_joints, loops=self.loops,
+                          fixed_base=self.fixed_base)
 
 
 def target_offset_from_args(args: argparse.Namespace) -> list[float] | None:
@@ -222,7 +233,8 @@ def robot_flags(args: argparse.Namespace, fallback: object | None = None) -> Rob
                        target_offset_from_args(args),
                        parse_names(getattr(args, "compliant_joints", None)),
                        "--model FILE from `stiffness identify`" if hasattr(args, "model")
-                       else None)
+                       else None, getattr(args, "loops", None),
+                       bool(getattr(args, "fixed_base", False)))
     if fallback is not None:
         flags.source = flags.source or fallback.source
         flags.frame = flags.frame or fallback.frame

@@ -25,7 +25,7 @@ import numpy as np
 from stiffness.calibration.model_file import BEYOND_SPRINGS, CompliantModel, read_model_file
 from stiffness.cli import flags
 from stiffness.errors import SingularConfigurationError, StiffnessError
-from stiffness.mechanics.defaults import default_load, default_stiffness
+from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
     cartesian_stiffness,
@@ -41,6 +41,7 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
 )
 from stiffness.mechanics.wrench import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
+from stiffness.model.assembly import Assembly
 from stiffness.model.robot import Robot
 
 _BASIS_3 = ["vx", "vy", "vz"]
@@ -138,6 +139,7 @@ class KxInputs:
     load: np.ndarray
     load_source: str
     model: CompliantModel | None = None
+    assembly: Assembly | None = None
     q_source: str = flags.FROM_FLAG
     k_theta_source: str = flags.FROM_FLAG
 
@@ -163,7 +165,9 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     model = _identified_model(args)
     cm = compliant_model_from_args(args)
     robot = cm.robot if cm is not None else flags.robot_from_args(args, fallback=model)[0]
-    coords = flags.coordinates_from_args(robot, args)
+    reference = args.q is None and default_coordinates(robot) is None
+    # without --q and robot defaults: the reference pose (zero, or the assembly found near it)
+    coords = None if reference else flags.coordinates_from_args(robot, args)
     if cm is not None:
         kq, kq_source = cm.k_theta, f"{flags.FROM_MODEL} {args.model}"
     elif args.kq is not None:
@@ -178,7 +182,10 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
             f"({', '.join(robot.compliant_joints)}), N.m/rad"
         )
     k_theta = joint_stiffness(kq, robot.n_compliant)
-    q = robot.configuration(coords)
+    assembly = robot.assemble(coords)
+    q = assembly.q
+    if coords is None:
+        coords = robot.coordinates_of(q)
     if args.wrench is not None:
         load, source = np.array(flags.parse_list(args.wrench, "--wrench")), "--wrench"
     else:
@@ -189,8 +196,12 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
             raise StiffnessError(
                 "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
         load, source = shipped
-    return KxInputs(robot, coords, q, k_theta, load, source, cm,
-                    q_source=flags.coordinates_source(robot, args), k_theta_source=kq_source)
+    q_source = flags.coordinates_source(robot, args)
+    if reference:
+        q_source = ("assembly found near the zero pose (no --q)" if assembly.assembly_search
+                    else "zero pose (no --q)")
+    return KxInputs(robot, coords, q, k_theta, load, source, cm, assembly, q_source=q_source,
+                    k_theta_source=kq_source)
 
 
 def inputs_summary(inputs: KxInputs) -> dict:
@@ -308,6 +319,9 @@ def compute(args: argparse.Namespace) -> dict:
         "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": tangent_definiteness(
             k_theta, k_theta - state.k_c), "K_X": None if k_x is None else definiteness(k_x)},
         **inputs_summary(inputs),
+        "configuration": _configuration(robot, q),
+        "closure": inputs.assembly.as_dict(),
+        "notes": list(robot.notes),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
             "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
@@ -316,6 +330,8 @@ def compute(args: argparse.Namespace) -> dict:
             "K_X_subspace": "K_X, eigenvalues: as K_X (pseudo-inverse of the compliance in SI: "
                             "in 6x6, 1 m weighs as 1 rad); directions: unit vectors",
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
+            "configuration": "rad (m prismatic); Pinocchio q values for multi-coordinate joints",
+            "closure": "residual in m (rad for 6D rotation rows)",
         },
     }
     summary = model_summary(args)
@@ -339,6 +355,20 @@ def _subspace_json(c_x: np.ndarray) -> dict:
             "moving_directions": sub.moving.T.tolist(), "rigid_directions": sub.rigid.T.tolist()}
 
 
+def _configuration(robot: Robot, q: np.ndarray) -> dict:
+    """Every joint's value after closure, by name (rad or m); a list of its Pinocchio ``q``
+    values for a joint with more than one coordinate."""
+    out = {}
+    model = robot.model
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        if joint.nq == 0:
+            continue
+        values = q[joint.idx_q: joint.idx_q + joint.nq]
+        out[model.names[jid]] = float(values[0]) if joint.nq == 1 else values.tolist()
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     """Print the result as JSON or as a short table."""
     result = compute(args)
@@ -347,11 +377,18 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
         return 0
     np.set_printoptions(precision=5, suppress=False, linewidth=120)
+    for note in result["notes"]:
+        print(f"note: {note}")
     print(f"{result['robot']} target at {result['frame']} + {result['target_offset']} m; "
           f"{result['formulation']} formulation"
           + (f", {result['connection']} connection" if result["connection"] else ""))
     if not args.quiet:
         print("\n".join(echo_lines(result)))
+        closure = result["closure"]
+        if closure["assembly_search"] or closure["idle_passive_motions"]:
+            print(f"closure: residual {closure['residual']:.3g} m, idle passive motions "
+                  f"{closure['idle_passive_motions']}, assembly search "
+                  f"{'used' if closure['assembly_search'] else 'not needed'}")
     print(f"position (m): {np.array(result['position'])}")
     print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
     print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")

@@ -118,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name,
         rotations=args.rotations,
         rotation_noise_std_rad=None if args.rotation_noise is None
-        else args.rotation_noise * units.angle_to_si, plan=plan)
+        else args.rotation_noise * units.angle_to_si,
+        loops=robot.loops, fixed_base=robot.fixed_base, plan=plan)
     path = sim.write(args.out)
     if args.json:
         print(json.dumps(sim.truth(), indent=1))

@@ -247,10 +247,13 @@ def _terminate(signum: int, frame: object) -> None:
 def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str) -> None:
     """Print where the page is (one JSON object with ``--json``) and echo the inputs."""
     summary = {"robot": inputs.robot.name, "frame": inputs.robot.target_frame,
-               "formulation": args.formulation, **where, **kx.inputs_summary(inputs)}
+               "formulation": args.formulation, **where, **kx.inputs_summary(inputs),
+               "notes": list(inputs.robot.notes)}
     if args.json:
         print(json.dumps(summary), flush=True)
         return
+    for note in summary["notes"]:
+        print(f"note: {note}", flush=True)
     if not args.quiet:
         print("\n".join(kx.echo_lines(summary)), flush=True)
 

@@ -23,7 +23,15 @@ of load cases reuse them as products.
 
 Rank test (one for the whole toolkit): the passive joints are determined where every singular
 value of ``C_p`` exceeds ``LOOP_RANK_RTOL * max(1, max |C_p|)``; the pseudo-inverse cuts
-singular values below ``LOOP_RANK_RTOL`` times the largest.
+singular values below ``LOOP_RANK_RTOL`` times the largest. Where the rank falls short, the
+passive motions the constraints leave free (the null space of ``C_p``, e.g. a rod spinning about
+its own axis) are *idle* when they do not move the target (less than :data:`IDLE_MOTION_TOL`
+m per unit rate, relative to the target's passive Jacobian): the configuration stays valid and
+the minimum-norm pseudo-inverse keeps those motions still. Only a free motion that moves the
+target makes the configuration invalid (the target's position depends on it).
+
+Mimic followers move with their leaders: the velocity map starts from the compliant joints'
+*base projection* (identity on the compliant joints, the multiplier on each follower).
 
 Units: C in m/rad (m/m for prismatic joints), Hc in m/rad^2, K_C in N.m/rad.
 """
@@ -36,6 +44,9 @@ import numpy as np
 
 #: Relative rank tolerance of the passive block of the loop Jacobian (see module docstring).
 LOOP_RANK_RTOL = 1e-9
+#: A free passive motion moving the target by less than this (m per unit rate, times
+#: ``max(1, max |J_target,p|)``) is idle.
+IDLE_MOTION_TOL = 1e-8
 
 
 @dataclass
@@ -49,8 +60,8 @@ class ClosureDerivatives:
     curvature
         (m, n_p, n, n) ``dS_p`` (rad/rad^2), symmetric in the last two axes.
     valid
-        (m,) False where the passive joints are not determined (loop singularity); the other
-        arrays hold NaN there.
+        (m,) False where the target's position depends on a passive motion the loop leaves
+        free (a loop singularity); the other arrays hold NaN there.
     rank
         (m,) numerical rank of ``C_p``.
     """
@@ -61,8 +72,13 @@ class ClosureDerivatives:
     rank: np.ndarray
 
 
-def passive_pseudo_inverse(c_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def passive_pseudo_inverse(c_p: np.ndarray, target_passive: np.ndarray | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pseudo-inverses (m, n_p, R), validity and rank of the passive loop Jacobians (m, R, n_p).
+
+    Without ``target_passive`` an entry is valid where ``C_p`` has full column rank; with it
+    ((m, 3, n_p): the target position's Jacobian on the passive joints), also where every
+    motion the constraints leave free is idle (:func:`idle_motions_leave_target`).
 
     The toolkit's one rank test (:data:`LOOP_RANK_RTOL`). Decided by a stacked SVD, except
     for one or two passive coordinates with a well-conditioned block
@@ -98,22 +114,57 @@ def passive_pseudo_inverse(c_p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
         cutoff = LOOP_RANK_RTOL * s[:, :1]
         s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
         pinv[slow] = (np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
+    if target_passive is not None and not valid.all():
+        valid |= idle_motions_leave_target(c_p, rank, target_passive, ~valid)
     return pinv, valid, rank
 
 
-def velocity_map(c: np.ndarray, compliant_v: np.ndarray, passive_v: np.ndarray
+def idle_motions_leave_target(c_p: np.ndarray, rank: np.ndarray, target_passive: np.ndarray,
+                              which: np.ndarray) -> np.ndarray:
+    """Whether the passive motions that ``C_p`` (m, R, n_p) leaves free move the target.
+
+    For the entries ``which`` (m,) bool: True where no vector of the null space of ``C_p``
+    (beyond its ``rank``) moves the target by more than :data:`IDLE_MOTION_TOL` (m per unit
+    rate, relative to ``max(1, max |J|)``), with ``J = target_passive`` (m, 3, n_p).
+    """
+    out = np.zeros(c_p.shape[0], dtype=bool)
+    for i in np.flatnonzero(which):
+        null = np.linalg.svd(c_p[i])[2][rank[i]:].T
+        j = target_passive[i]
+        moved = np.linalg.norm(j @ null, axis=0)
+        out[i] = not np.any(moved > IDLE_MOTION_TOL * max(1.0, float(np.abs(j).max(initial=0.0))))
+    return out
+
+
+def base_projection(compliant_v: np.ndarray, nv: int,
+                    followers: list[tuple[int, int, float]] = ()) -> np.ndarray:
+    """(nv, n) rates of the tree joints per compliant rate, loops aside: identity on the
+    compliant joints, ``multiplier`` times the leader's on each mimic follower
+    (``followers``: (follower v index, leader v index, multiplier))."""
+    n = compliant_v.shape[0]
+    base = np.zeros((nv, n))
+    base[compliant_v, np.arange(n)] = 1.0
+    for follower, leader, multiplier in followers:
+        base[follower] = multiplier * base[leader]
+    return base
+
+
+def velocity_map(c: np.ndarray, compliant_v: np.ndarray, passive_v: np.ndarray,
+                 base: np.ndarray | None = None, target_passive: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Velocity maps S (m, nv, n) of a stack of loop Jacobians ``c`` (m, R, nv).
 
-    Returns S (NaN rows where invalid), the passive pseudo-inverses (m, n_p, R), the validity
-    and the rank of :func:`passive_pseudo_inverse`.
+    ``base`` (nv, n): the :func:`base_projection` (default: identity on the compliant joints);
+    ``target_passive``: see :func:`passive_pseudo_inverse`. Returns S (NaN rows where invalid),
+    the passive pseudo-inverses (m, n_p, R), the validity and the rank of
+    :func:`passive_pseudo_inverse`.
     """
     m, _, nv = c.shape
-    n = compliant_v.shape[0]
-    pinv, valid, rank = passive_pseudo_inverse(c[:, :, passive_v])
-    proj = np.zeros((m, nv, n))
-    proj[:, compliant_v, np.arange(n)] = 1.0
-    proj[:, passive_v, :] = -(pinv @ c[:, :, compliant_v])
+    if base is None:
+        base = base_projection(compliant_v, nv)
+    pinv, valid, rank = passive_pseudo_inverse(c[:, :, passive_v], target_passive)
+    proj = np.repeat(base[None], m, axis=0)
+    proj[:, passive_v, :] = -(pinv @ (c @ base))
     if not valid.all():
         proj[~valid] = np.nan
     return proj, pinv, valid, rank
@@ -127,7 +178,8 @@ def closure_curvature(pinv: np.ndarray, hss: np.ndarray) -> np.ndarray:
 
 
 def closure_derivatives(c: np.ndarray, hc: np.ndarray, compliant_v: np.ndarray,
-                        passive_v: np.ndarray) -> ClosureDerivatives:
+                        passive_v: np.ndarray, base: np.ndarray | None = None,
+                        target_passive: np.ndarray | None = None) -> ClosureDerivatives:
     """Velocity map and closure curvature of a stack of closed configurations.
 
     Parameters
@@ -138,8 +190,10 @@ def closure_derivatives(c: np.ndarray, hc: np.ndarray, compliant_v: np.ndarray,
         (m, R, nv, nv) its Hessian, ``hc[:, r, i, j] = d C[r, i] / d q_j``.
     compliant_v, passive_v
         Velocity indices of the compliant and of the passive joints.
+    base, target_passive
+        See :func:`velocity_map`.
     """
-    proj, pinv, valid, rank = velocity_map(c, compliant_v, passive_v)
+    proj, pinv, valid, rank = velocity_map(c, compliant_v, passive_v, base, target_passive)
     hss = np.swapaxes(proj, 1, 2)[:, None] @ hc @ proj[:, None]  # (m, R, n, n)
     return ClosureDerivatives(proj, closure_curvature(pinv, hss), valid, rank)
 

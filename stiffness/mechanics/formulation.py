@@ -27,7 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.errors import SingularConfigurationError, StiffnessError, UnknownNameError
+from stiffness.errors import (
+    SingularConfigurationError,
+    StiffnessError,
+    UndeterminedMotionError,
+    UnknownNameError,
+)
 from stiffness.mechanics import closed_loop
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
@@ -96,38 +101,75 @@ class TargetState:
 def velocity_projection(robot: Robot) -> np.ndarray:
     """Velocity map S (nv, n_compliant) of the current kinematics: q_dot = S theta_dot.
 
-    Rigid coordinate joints stay still; passive loop joints follow the closure
-    (:func:`stiffness.mechanics.closed_loop.closure_derivatives`, the toolkit's one rank test).
-    Kinematics (joint Jacobians) must be up to date.
+    Rigid coordinate joints stay still; mimic followers move with their leaders; passive loop
+    joints follow the closure (:func:`stiffness.mechanics.closed_loop.velocity_map`, the
+    toolkit's one rank test: passive motions that the constraints leave undetermined and
+    that do not move the target, such as a rod spinning about its own axis, stay still).
+    Kinematics (joint Jacobians, frame placements) must be up to date.
 
     Raises
     ------
-    SingularConfigurationError
-        If the passive joints are not determined by the compliant ones (a loop singularity).
+    UndeterminedMotionError
+        If the target's position depends on a passive motion the constraints leave undetermined
+        (a loop singularity, or a passive joint no loop constrains).
     """
     model, data = robot.model, robot.data
-    n = robot.n_compliant
+    base = compliant_projection(robot)
     if robot.loop is None:
-        s = np.zeros((model.nv, n))
-        s[robot.compliant_v, np.arange(n)] = 1.0
-        return s
-    c = robot.loop.world_jacobian(model, data)[None]
-    pinv, valid, rank = closed_loop.passive_pseudo_inverse(c[:, :, robot.loop.passive_v])
-    _require_determined(robot, valid, rank)
-    s = np.zeros((model.nv, n))
-    s[robot.compliant_v, np.arange(n)] = 1.0
-    s[robot.loop.passive_v] = -(pinv[0] @ c[0][:, robot.compliant_v])
-    return s
+        return base
+    proj, _, valid, _ = closed_loop.velocity_map(
+        robot.loop.world_jacobian(model, data)[None], robot.compliant_v, robot.loop.passive_v,
+        base, _target_passive(robot))
+    _require_determined(robot, valid)
+    return proj[0]
 
 
-def _require_determined(robot: Robot, valid: np.ndarray, rank: np.ndarray) -> None:
-    """Raise on a loop singularity (passive joints not determined)."""
-    if not bool(valid[0]):
-        raise SingularConfigurationError(
-            f"the loop of {robot.name} is singular here: its passive joints are not determined "
-            f"by the actuated ones (rank {int(rank[0])} < {len(robot.loop.passive_v)}); move "
-            "away from the flattened or folded assembly"
-        )
+def compliant_projection(robot: Robot) -> np.ndarray:
+    """(nv, n_compliant) tree-joint rates per compliant rate, loops aside: identity on the
+    compliant joints, each mimic follower at its multiplier times its leader."""
+    followers = [(robot.joint_v_index(m.follower), robot.joint_v_index(m.leader), m.multiplier)
+                 for m in robot.mimics]
+    return closed_loop.base_projection(robot.compliant_v, robot.model.nv, followers)
+
+
+def _target_passive(robot: Robot) -> np.ndarray:
+    """(1, 3, n_p) the target position's Jacobian on the passive joints (kinematics current)."""
+    j_pos = kinematics.frame_jacobian(robot.model, robot.data, robot.target_frame_id)[:3]
+    return j_pos[:, robot.loop.passive_v][None]
+
+
+def _require_determined(robot: Robot, valid: np.ndarray) -> None:
+    """Return if ``valid[0]``, else raise :class:`UndeterminedMotionError` naming the joints
+    of the passive motion that the loop leaves free and that moves the target (kinematics
+    current)."""
+    if bool(valid[0]):
+        return
+    model, data = robot.model, robot.data
+    idle = robot.loop.idle_motions(model, data)
+    j_pos = _target_passive(robot)[0]
+    moved = np.linalg.norm(j_pos @ idle, axis=0) if idle.shape[1] else np.zeros(1)
+    k = max(1, int(np.sum(moved > closed_loop.IDLE_MOTION_TOL
+                          * max(1.0, float(np.abs(j_pos).max(initial=0.0))))))
+    joints = _joints_of(robot, idle[:, int(np.argmax(moved))]) if idle.shape[1] else \
+        list(robot.loop.passive_joints[:3])
+    raise UndeterminedMotionError(
+        f"the loop of {robot.name} is singular here: the target's position depends on an "
+        f"undetermined motion ({k} passive motion(s) that the loop constraints leave "
+        f"free move the target; mostly joints {', '.join(joints)}): the pose is a "
+        "flattened or folded assembly (move away from it), or these joints belong in "
+        "name_mot (actuated) or lack a loop")
+
+
+def _joints_of(robot: Robot, motion: np.ndarray) -> list[str]:
+    """Names of the passive joints that carry most of a passive motion (unit vector)."""
+    names = []
+    offset = 0
+    for name in robot.loop.passive_joints:
+        nv = robot.model.joints[robot.model.getJointId(name)].nv
+        if np.linalg.norm(motion[offset: offset + nv]) > 0.3:
+            names.append(name)
+        offset += nv
+    return names or list(robot.loop.passive_joints[:3])
 
 
 def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) -> TargetState:
@@ -167,8 +209,9 @@ def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list
         closure = closed_loop.closure_derivatives(
             robot.loop.world_jacobian(model, data)[None],
             robot.loop.world_hessian(model, data)[None], robot.compliant_v,
-            robot.loop.passive_v)
-        _require_determined(robot, closure.valid, closure.rank)
+            robot.loop.passive_v, compliant_projection(robot),
+            j_full[:3, robot.loop.passive_v][None])
+        _require_determined(robot, closure.valid)
         s, curvature = closure.projection[0], closure.curvature[0]
     jac = j_full @ s
     v, w = jac[:3], jac[3:]

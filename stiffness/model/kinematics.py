@@ -5,6 +5,10 @@ Every quirk of the pin 4.x Python bindings is fixed here, once:
 * ``getFrameKinematicHessian`` returns the column-major C++ tensor read in row-major order;
   :func:`reorder_hessian` (used by :func:`frame_hessian`, :func:`point_hessian` and the batched
   kernels) reorders it so that ``H[k, a, b] = dJ[k, a] / dq_b``.
+* For a model with one velocity coordinate the bindings return Jacobians and Hessians squeezed
+  to shape (6,); :func:`frame_jacobian`, :func:`point_jacobian`, :func:`frame_hessian` and
+  :func:`point_hessian` always return (6, nv) and (6, nv, nv) (or (3, nv, nv)).
+* The URDF parser prints its errors on the C-level standard error: :func:`captured_stderr`.
 * Only the ``LOCAL_WORLD_ALIGNED`` linear rows are the Hessian of the frame origin's position;
   this module only ever asks for that reference frame.
 
@@ -13,6 +17,10 @@ at the frame origin. Units: m, rad.
 """
 
 from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
 
 import numpy as np
 import pinocchio as pin
@@ -48,7 +56,20 @@ def frame_rotation(data: pin.Data, frame_id: int) -> np.ndarray:
 
 def frame_jacobian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray:
     """Spatial Jacobian (6, nv) of a frame: rows [v; omega], world axes at its origin."""
-    return pin.getFrameJacobian(model, data, frame_id, LWA)
+    return np.asarray(pin.getFrameJacobian(model, data, frame_id, LWA)).reshape(6, model.nv)
+
+
+def point_jacobian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
+                   ) -> np.ndarray:
+    """Spatial Jacobian (6, nv) of a point fixed to a joint (``placement`` in its frame)."""
+    return np.asarray(pin.getFrameJacobian(model, data, joint_id, placement, LWA)).reshape(
+        6, model.nv)
+
+
+def _full_hessian(model: pin.Model, raw) -> np.ndarray:
+    """Pinocchio's raw Hessian of one frame, unsqueezed to (6, nv, nv) (nv = 1 models)."""
+    raw = np.asarray(raw)
+    return raw if raw.ndim == 3 else raw.reshape(6, model.nv, model.nv)
 
 
 def reorder_hessian(raw: np.ndarray) -> np.ndarray:
@@ -72,7 +93,8 @@ def frame_hessian(model: pin.Model, data: pin.Data, frame_id: int) -> np.ndarray
     rows 3..5 the derivative of the world-axes angular Jacobian. Hessians must be current
     (:func:`update_kinematics`).
     """
-    return reorder_hessian(pin.getFrameKinematicHessian(model, data, frame_id, LWA))
+    return reorder_hessian(_full_hessian(
+        model, pin.getFrameKinematicHessian(model, data, frame_id, LWA)))
 
 
 def point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pin.SE3
@@ -83,4 +105,25 @@ def point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pi
     (:func:`update_kinematics`).
     """
     raw = pin.getFrameKinematicHessian(model, data, joint_id, placement, LWA)
-    return reorder_hessian(raw)[:3]
+    return reorder_hessian(_full_hessian(model, raw))[:3]
+
+
+@contextmanager
+def captured_stderr():
+    """Capture the C-level standard error: Pinocchio's URDF parser (urdfdom) prints its
+    diagnosis there instead of raising it. Yields a list that holds the text afterwards."""
+    captured: list[str] = []
+    try:
+        fd = os.dup(2)
+    except OSError:  # no file descriptor 2 (embedded interpreters): nothing to capture
+        yield captured
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield captured
+        finally:
+            os.dup2(fd, 2)
+            os.close(fd)
+            tmp.seek(0)
+            captured.append(tmp.read().decode("utf-8", "replace"))

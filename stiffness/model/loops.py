@@ -38,18 +38,22 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import (
-    FileFormatError,
     LoopClosureError,
     MissingFileError,
+    RobotFileError,
     UnknownFrameError,
     UnknownJointError,
     did_you_mean,
 )
 from stiffness.files import read_yaml
 from stiffness.model import kinematics
+from stiffness.model.rewrite import JOINT_REWRITES
 
 #: Closure tolerance on the loop residual (m; rad for the rotation rows of a 6D pair).
 CLOSURE_TOLERANCE_M = 1e-11
+
+#: Longest Gauss-Newton step (rad or m, norm over the passive joints) of the closure.
+MAX_STEP = 0.5
 
 #: Supported loop types: rows of the Pinocchio residual per pair.
 LOOP_TYPES = {"3D": 3, "6D": 6}
@@ -73,22 +77,60 @@ class LoopPair:
 
 @dataclass(frozen=True)
 class LoopDeclaration:
-    """Loop-closing frame pairs and the actuated (and optionally passive) joints."""
+    """Loop-closing frame pairs, the actuated joints, joint rewrites and passive joints.
+
+    ``rewrites`` maps joint names to Gepetto joint types (``joint_name``/``joint_type``, see
+    :mod:`stiffness.model.rewrite`); ``passive`` is None unless the file's ``passive_joints``
+    lists them.
+    """
 
     pairs: tuple[LoopPair, ...]
     actuated: tuple[str, ...]
     passive: tuple[str, ...] | None = None
+    rewrites: dict = field(default_factory=dict)
+    path: str = ""
+
+
+#: Keys of a loop declaration: Gepetto's, then ours (``passive_joints``).
+LOOP_KEYS = ("closed_loop", "type", "name_mot", "joint_name", "joint_type", "passive_joints")
+
+
+def _names(path: Path, content: dict, key: str, required: bool) -> list[str]:
+    """A list of names under ``key`` (empty when absent and not required)."""
+    value = content.get(key, [])
+    if value is None:
+        value = []
+    if not isinstance(value, list) or (required and not value) or not all(
+            isinstance(v, str) for v in value):
+        raise RobotFileError(path, _key_line(path, key),
+                             f"{key} must be a {'non-empty ' if required else ''}YAML list of "
+                             f"names (e.g. {key}: [a, b]), got {value!r}")
+    return value
+
+
+def _key_line(path: Path, key: str) -> int | None:
+    """Line of a top-level key in a YAML file (for error messages)."""
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if line.startswith(f"{key}:") or line.startswith(f"{key} :"):
+            return number
+    return None
 
 
 def read_loop_declaration(path: str | Path) -> LoopDeclaration:
-    """Read an Extended-URDF loop declaration (YAML).
+    """Read an Extended-URDF loop declaration (YAML, Gepetto's format; docs/robot-files.md).
+
+    Keys: ``closed_loop`` (frame pairs), ``type`` (``3D``/``6D`` per pair, any case),
+    ``name_mot`` (actuated joints), ``joint_name`` and ``joint_type`` (joint rewrites,
+    ``SPHERICAL``, ``UJOINT_XY``/``YZ``/``ZY``/..., ``FIXED``, any case), and our
+    ``passive_joints``.
 
     Raises
     ------
     MissingFileError
         If the file is missing.
     FileFormatError
-        If it is not YAML, or lacks ``closed_loop``/``type``/``name_mot``.
+        If it is not YAML (:func:`stiffness.files.read_yaml`), or (:class:`RobotFileError`) a
+        required key is missing, a key or a type is unknown, or the lists do not match.
     """
     path = Path(path)
     if not path.is_file():
@@ -96,42 +138,59 @@ def read_loop_declaration(path: str | Path) -> LoopDeclaration:
                                "path", path=path)
     content = read_yaml(path, "loop declaration")
     if not isinstance(content, dict):
-        raise FileFormatError("a loop declaration must be a YAML mapping (closed_loop, type, "
-                              "name_mot)", path=path)
+        raise RobotFileError(path, None, "a loop declaration must be a YAML mapping")
+    unknown = [k for k in content if k not in LOOP_KEYS]
+    if unknown:
+        raise RobotFileError(path, _key_line(path, str(unknown[0])),
+                             f"unknown key {unknown[0]!r} in a loop declaration; "
+                             f"valid keys: {', '.join(LOOP_KEYS)}")
     missing = [k for k in ("closed_loop", "type", "name_mot") if k not in content]
     if missing:
-        raise FileFormatError(
+        raise RobotFileError(
+            path, None,
             f"the loop declaration lacks {', '.join(missing)}; it needs closed_loop (frame "
-            "pairs), type (one of '3D' or '6D' per pair) and name_mot (actuated joints)",
-            path=path)
-    for key in ("closed_loop", "type", "name_mot", "passive_joints"):
-        value = content.get(key, [])
-        if not isinstance(value, list) or (key != "passive_joints" and not value):
-            raise FileFormatError(
-                f"{key} must be a non-empty YAML list (e.g. {key}: [a, b]), got {value!r}",
-                path=path, field=key)
+            "pairs), type (one of '3D' or '6D' per pair) and name_mot (actuated joints)")
     loops, kinds = content["closed_loop"], content["type"]
+    for key, value in (("closed_loop", loops), ("type", kinds)):
+        if not isinstance(value, list) or not value:
+            raise RobotFileError(path, _key_line(path, key),
+                                 f"{key} must be a non-empty YAML list (e.g. {key}: [a, b]), "
+                                 f"got {value!r}")
+    actuated = _names(path, content, "name_mot", required=True)
     if len(loops) != len(kinds):
-        raise FileFormatError(
-            f"{len(loops)} closed_loop pairs but {len(kinds)} types; give one type per pair",
-            path=path, field="type")
+        raise RobotFileError(path, _key_line(path, "type"),
+                             f"{len(loops)} closed_loop pairs but {len(kinds)} types")
     pairs = []
     for pair, kind in zip(loops, kinds, strict=True):
         if not isinstance(pair, list) or len(pair) != 2:
-            raise FileFormatError(
-                f"{pair!r} is not a pair of frame names [frame_a, frame_b]", path=path,
-                field="closed_loop")
-        if kind not in LOOP_TYPES:
-            raise FileFormatError(
-                f"loop type {kind!r} is not supported; use '3D' (point constraint) or '6D' "
-                "(frame constraint)", path=path, field="type")
-        pairs.append(LoopPair(str(pair[0]), str(pair[1]), kind))
+            raise RobotFileError(path, _key_line(path, "closed_loop"),
+                                 f"{pair!r} is not a pair of frame names [frame_a, frame_b]")
+        if str(kind).upper() not in LOOP_TYPES:
+            raise RobotFileError(path, _key_line(path, "type"),
+                                 f"loop type {kind!r} is not supported; use '3D' (point "
+                                 "constraint) or '6D' (frame constraint), in any case")
+        pairs.append(LoopPair(str(pair[0]), str(pair[1]), str(kind).upper()))
+    joint_names = _names(path, content, "joint_name", required=False)
+    joint_types = content.get("joint_type") or []
+    if not isinstance(joint_types, list) or len(joint_types) != len(joint_names):
+        raise RobotFileError(path, _key_line(path, "joint_type"),
+                             f"joint_type must list one type per joint_name entry "
+                             f"({len(joint_names)}), got {joint_types!r}")
+    rewrites = {}
+    for name, kind in zip(joint_names, joint_types, strict=True):
+        kind = str(kind).upper()
+        if kind not in JOINT_REWRITES:
+            raise RobotFileError(path, _key_line(path, "joint_type"),
+                                 f"joint type {kind!r} of {name!r} is not supported; use one of "
+                                 f"{', '.join(JOINT_REWRITES)}")
+        if name in rewrites:
+            raise RobotFileError(path, _key_line(path, "joint_name"),
+                                 f"joint_name lists {name!r} twice")
+        rewrites[name] = kind
     passive = content.get("passive_joints")
-    return LoopDeclaration(
-        tuple(pairs),
-        tuple(str(j) for j in content["name_mot"]),
-        None if passive is None else tuple(str(j) for j in passive),
-    )
+    if passive is not None:
+        passive = tuple(_names(path, content, "passive_joints", required=False))
+    return LoopDeclaration(tuple(pairs), tuple(actuated), passive, rewrites, str(path))
 
 
 @dataclass
@@ -192,7 +251,7 @@ class LoopClosure:
         for pair, cm, cd in zip(self.pairs, self.constraints, self.constraint_datas,
                                 strict=True):
             cm.calc(model, data, cd)
-            jac = np.array(pin.getConstraintJacobian(model, data, cm, cd))
+            jac = np.array(pin.getConstraintJacobian(model, data, cm, cd)).reshape(-1, model.nv)
             if pair.kind == "6D":
                 a_m_b = cd.c1Mc2
                 jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() @ jac
@@ -236,8 +295,8 @@ class LoopClosure:
                 rows.append(jb - ja)
                 continue
             for (ja, ma), (jb, mb) in points:
-                rows.append(pin.getFrameJacobian(model, data, jb, mb, kinematics.LWA)[:3]
-                            - pin.getFrameJacobian(model, data, ja, ma, kinematics.LWA)[:3])
+                rows.append(kinematics.point_jacobian(model, data, jb, mb)[:3]
+                            - kinematics.point_jacobian(model, data, ja, ma)[:3])
         return np.vstack(rows)
 
     def world_hessian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
@@ -277,18 +336,42 @@ class LoopClosure:
         c = self.jacobian(model, data)
         return -np.linalg.pinv(c[:, self.passive_v], rcond=1e-9) @ c[:, independent_v]
 
+    def loop_residuals(self, model: pin.Model, data: pin.Data) -> list[tuple[str, float]]:
+        """Name (``[frame_a, frame_b]``) and residual norm (m; rad) of each loop, placements
+        current."""
+        out = []
+        for pair, cm, cd in zip(self.pairs, self.constraints, self.constraint_datas,
+                                strict=True):
+            cm.calc(model, data, cd)
+            out.append((f"[{pair.frame_a}, {pair.frame_b}]",
+                        float(np.linalg.norm(cd.constraint_position_error))))
+        return out
+
+    def idle_motions(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9) -> np.ndarray:
+        """Passive motions the constraints leave undetermined: (n_passive_v, k) orthonormal basis
+        of the null space of the passive columns of :meth:`jacobian` (joint Jacobians current).
+        """
+        cp = self.jacobian(model, data)[:, self.passive_v]
+        if cp.shape[1] == 0:
+            return np.zeros((0, 0))
+        _, sv, vt = np.linalg.svd(cp, full_matrices=True)
+        rank = int(np.sum(sv > rtol * max(1.0, sv[0] if sv.size else 0.0)))
+        return vt[rank:].T
+
     def close(
         self, model: pin.Model, data: pin.Data, q: np.ndarray, max_iterations: int = 50
     ) -> np.ndarray:
         """Solve the passive joints so that the loops close, by Gauss-Newton from ``q``.
 
-        The independent joints keep their values. Seed ``q`` near the wanted assembly branch
-        (the closure keeps the branch it starts on).
+        The independent joints keep their values; steps are minimum-norm (undetermined passive
+        motions keep their values) and at most :data:`MAX_STEP` long. Seed ``q`` near the
+        wanted assembly branch (the closure keeps the branch it starts on).
 
         Raises
         ------
         LoopClosureError
-            If the loop does not close (the independent joints put it out of reach).
+            If the loop does not close (the independent joints put it out of reach); the
+            message names the loop with the largest residual.
         """
         q = q.copy()
         for _ in range(max_iterations):
@@ -298,6 +381,9 @@ class LoopClosure:
                 return q
             cp = self.jacobian(model, data)[:, self.passive_v]
             step = np.linalg.lstsq(cp, -c, rcond=1e-10)[0]
+            norm = float(np.linalg.norm(step))
+            if norm > MAX_STEP:
+                step *= MAX_STEP / norm
             dv = np.zeros(model.nv)
             dv[self.passive_v] = step
             q = pin.integrate(model, q, dv)
@@ -305,15 +391,20 @@ class LoopClosure:
         c = self.residual(model, data)
         if np.linalg.norm(c) < 1e3 * CLOSURE_TOLERANCE_M:
             return q
+        name, worst = max(self.loop_residuals(model, data), key=lambda item: item[1])
         raise LoopClosureError(
-            f"the kinematic loop does not close (residual {np.linalg.norm(c):.3g} m after "
-            f"{max_iterations} iterations): the configuration is out of the loop's reach; "
-            "check the joint values and their units"
-        )
+            f"the kinematic loop does not close at {name} (residual {np.linalg.norm(c):.3g} m "
+            f"after {max_iterations} iterations): the configuration is out of the loop's reach; "
+            "check the joint values and their units", loop=name, residual=worst)
 
 
-def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopClosure:
+def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
+                       dependent: tuple[str, ...] = ()) -> LoopClosure:
     """Turn a declaration into Pinocchio constraints on ``model``.
+
+    Passive joints: the declaration's ``passive_joints``, else (as in Gepetto's loader) every
+    joint with a degree of freedom that is not a motor (``name_mot``) and not ``dependent``
+    (mimic followers, whose values follow their leaders).
 
     Raises
     ------
@@ -322,15 +413,15 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
     """
     frame_names = [f.name for f in model.frames]
     joint_names = list(model.names)[1:]
+    where = f"loop declaration {declaration.path}: " if declaration.path else ""
     frame_ids, constraints, datas = [], [], []
-    path_joints: set[str] = set()
     for pair in declaration.pairs:
         ids = []
         for name in (pair.frame_a, pair.frame_b):
             if not model.existFrame(name):
                 raise UnknownFrameError(
-                    f"loop frame {name!r} is not in the model; {did_you_mean(name, frame_names)}",
-                    name=name, choices=frame_names)
+                    f"{where}loop frame {name!r} is not in the model; "
+                    f"{did_you_mean(name, frame_names)}", name=name, choices=frame_names)
             ids.append(model.getFrameId(name))
         fa, fb = (model.frames[i] for i in ids)
         anchor = (pin.FrameAnchorConstraintModel if pair.kind == "6D"
@@ -339,26 +430,24 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration) -> LoopCl
         constraints.append(cm)
         datas.append(cm.createData())
         frame_ids.append((ids[0], ids[1]))
-        support_a = set(model.supports[fa.parentJoint])
-        support_b = set(model.supports[fb.parentJoint])
-        path_joints |= {model.names[j] for j in support_a ^ support_b}
     for name in declaration.actuated:
         if name not in joint_names:
             raise UnknownJointError(
-                f"actuated joint {name!r} is not in the model; {did_you_mean(name, joint_names)}",
-                name=name, choices=joint_names)
+                f"{where}actuated joint {name!r} is not in the model; "
+                f"{did_you_mean(name, joint_names)}", name=name, choices=joint_names)
     if declaration.passive is None:
         passive = tuple(
-            j for j in joint_names if j in path_joints and j not in declaration.actuated
+            j for j in joint_names if model.joints[model.getJointId(j)].nv > 0
+            and j not in declaration.actuated and j not in dependent
         )
     else:
         passive = declaration.passive
         for name in passive:
             if name not in joint_names:
                 raise UnknownJointError(
-                    f"passive joint {name!r} is not in the model; "
+                    f"{where}passive joint {name!r} is not in the model; "
                     f"{did_you_mean(name, joint_names)}", name=name, choices=joint_names)
     joints = [model.joints[model.getJointId(j)] for j in passive]
-    passive_v = np.concatenate([np.arange(j.idx_v, j.idx_v + j.nv) for j in joints]).astype(int)
+    passive_v = np.concatenate(
+        [np.arange(j.idx_v, j.idx_v + j.nv) for j in joints] + [np.zeros(0)]).astype(int)
     return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)
-

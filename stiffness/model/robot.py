@@ -4,34 +4,48 @@
 measurement target (a frame plus an offset in that frame) and which joints are springs.
 
 Coordinates. A robot's *coordinates* are the values of its independent joints (every joint with
-a degree of freedom except the passive joints of closed loops), one value per joint, in model
-order: an angle (rad) for a revolute or continuous joint, a length (m) for a prismatic one.
-:meth:`Robot.configuration` turns them into a full Pinocchio configuration with the loops closed.
+a degree of freedom except the passive joints of closed loops and mimic followers), one value
+per joint, in model order unless the robot declares ``coordinate_order``: an angle (rad) for a
+revolute or continuous joint, a length (m) for a prismatic one. :meth:`Robot.configuration`
+turns them into a full Pinocchio configuration with the loops closed (searching for an assembly
+when the pose does not close, :mod:`stiffness.model.assembly`).
+
+Loading steps (docs/robot-files.md): read the source (:mod:`stiffness.model.sources`,
+:mod:`stiffness.model.urdf`); apply the loop file's ``joint_name``/``joint_type`` rewrites
+(:mod:`stiffness.model.rewrite`); fix a floating or planar base when asked; build the loop
+closures; choose the target frame (:mod:`stiffness.model.targets`).
 """
 
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import (
-    FileFormatError,
+    FloatingBaseError,
     LoopClosureError,
-    MissingFileError,
     StiffnessError,
     UnknownFrameError,
     UnknownJointError,
-    UnknownRobotError,
     did_you_mean,
 )
-from stiffness.files import read_toml
-from stiffness.model.loops import LoopClosure, build_loop_closure, read_loop_declaration
+from stiffness.model import kinematics
+from stiffness.model.assembly import Assembly, least_squares_assembly
+from stiffness.model.loops import (
+    CLOSURE_TOLERANCE_M,
+    LoopClosure,
+    build_loop_closure,
+    read_loop_declaration,
+)
+from stiffness.model.meshes import MissingMesh
+from stiffness.model.rewrite import lock_joints, rewrite_joints
+from stiffness.model.sources import resolve_source
+from stiffness.model.targets import default_target_frame, moving_frames
+from stiffness.model.urdf import Mimic, warn
 
 #: Name of the operational frame added at the measurement target.
 TARGET_FRAME = "stiffness_target"
@@ -40,51 +54,16 @@ TARGET_FRAME = "stiffness_target"
 _CONTINUATION_STEP = 0.15
 #: Largest Newton correction of the passive joints (rad or m) accepted in one continuation step.
 _BRANCH_JUMP = 0.05
+#: Fraction of the way from the requested pose to the assembly found by the search that the
+#: reference assembly steps on, into the loops' reach (see Robot._step_inside).
+_INSIDE_STEP = 0.1
 
 _SUPPORTED_JOINTS = {
     "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
     "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
     "JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned",
 }
-
-
-def robots_directory() -> Path:
-    """Folder of the shipped robots: the repository's ``robots/``, installed as package data.
-
-    In order: ``$STIFFNESS_ROBOTS`` if set; the ``robots/`` folder of the source checkout this
-    package runs from (``PYTHONPATH`` or an editable install: the checkout's own data, even if
-    another copy of the package is installed); else the installed package data
-    ``stiffness.robots`` (``robots/`` mapped into the wheel), read with :mod:`importlib.resources`.
-    """
-    env = os.environ.get("STIFFNESS_ROBOTS")
-    if env:
-        return Path(env)
-    checkout = Path(__file__).resolve().parents[2]
-    if (checkout / "pyproject.toml").is_file() and (checkout / "robots" / "__init__.py").is_file():
-        return checkout / "robots"
-    try:
-        data = resources.files("stiffness.robots")
-    except ModuleNotFoundError:
-        data = None
-    if not isinstance(data, Path) or not data.is_dir():
-        raise StiffnessError(
-            "the shipped robots are missing: this copy of stiffness has no robots/ package data "
-            "(reinstall it with `pip install .`, or set STIFFNESS_ROBOTS to a robots/ folder)"
-        )
-    return data
-
-
-def shipped_robots() -> list[str]:
-    """Names of the robots shipped in ``robots/`` (folders holding a ``robot.toml``)."""
-    root = robots_directory()
-    return sorted(p.parent.name for p in root.glob("*/robot.toml"))
-
-
-def example_robot_names() -> list[str]:
-    """Names example-robot-data can load."""
-    from example_robot_data import robots_loader
-
-    return sorted(robots_loader.ROBOTS)
+_BASE_JOINTS = {"JointModelFreeFlyer", "JointModelPlanar"}
 
 
 @dataclass
@@ -104,7 +83,8 @@ class Robot:
     target_frame_id
         Id of the operational frame :data:`TARGET_FRAME` placed at the target.
     coordinate_joints
-        Independent joints, in model order; a robot's coordinates are their values.
+        Independent joints, in model order (or the robot's ``coordinate_order``); a robot's
+        coordinates are their values.
     compliant_joints
         Joints modelled as springs (a subset of ``coordinate_joints``); the rest are rigid.
     loop
@@ -117,6 +97,17 @@ class Robot:
         ``k_theta_SI``, ``wrench_SI``, ``rest_q_SI`` (spring rest coordinates: the default load
         is then the wrench that holds the target there), ``twist_order`` (``"v-w"`` or
         ``"w-v"``: row order of printed 6x6 matrices).
+    mimics
+        Mimic followers (``<mimic>`` tags): they follow their leader, a coordinate joint, and
+        have neither a coordinate nor a spring of their own.
+    missing_meshes
+        Visual meshes that could not be found (drawn as primitives by the viewer).
+    notes
+        What loading did that the user should hear once (a base fixed, a loop file read).
+    loop_file
+        The loop declaration read, or None.
+    fixed_base
+        Whether a floating or planar base was fixed (``load_robot(..., fixed_base=True)``).
     """
 
     name: str
@@ -130,7 +121,13 @@ class Robot:
     loop: LoopClosure | None = None
     visual_model: object | None = None
     defaults: dict = field(default_factory=dict)
-    _reference: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    mimics: tuple[Mimic, ...] = ()
+    missing_meshes: tuple[MissingMesh, ...] = ()
+    notes: tuple[str, ...] = ()
+    loop_file: str | None = None
+    fixed_base: bool = False
+    last_assembly: Assembly | None = field(default=None, repr=False)
+    _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
 
     @property
     def n_coordinates(self) -> int:
@@ -161,26 +158,37 @@ class Robot:
         """Position of each compliant joint in the coordinate vector."""
         return np.array([self.coordinate_joints.index(j) for j in self.compliant_joints], dtype=int)
 
+    def _joint(self, name: str):
+        return self.model.joints[self.model.getJointId(name)]
+
+    def _value(self, q: np.ndarray, name: str) -> float:
+        joint = self._joint(name)
+        if joint.nq == 2:
+            return float(np.arctan2(q[joint.idx_q + 1], q[joint.idx_q]))
+        return float(q[joint.idx_q])
+
+    def _set_value(self, q: np.ndarray, name: str, value: float) -> None:
+        joint = self._joint(name)
+        if joint.nq == 2:
+            q[joint.idx_q: joint.idx_q + 2] = np.cos(value), np.sin(value)
+        else:
+            q[joint.idx_q] = value
+
     def coordinates_of(self, q: np.ndarray) -> np.ndarray:
         """Coordinates (rad or m) of a full configuration ``q``."""
-        out = np.empty(self.n_coordinates)
-        for i, name in enumerate(self.coordinate_joints):
-            joint = self.model.joints[self.model.getJointId(name)]
-            if joint.nq == 2:
-                out[i] = np.arctan2(q[joint.idx_q + 1], q[joint.idx_q])
-            else:
-                out[i] = q[joint.idx_q]
-        return out
+        return np.array([self._value(q, name) for name in self.coordinate_joints])
+
+    def follow(self, q: np.ndarray) -> np.ndarray:
+        """``q`` with every mimic follower set from its leader (in place; returned)."""
+        for m in self.mimics:
+            self._set_value(q, m.follower, m.multiplier * self._value(q, m.leader) + m.offset)
+        return q
 
     def _tree_configuration(self, coords: np.ndarray, base: np.ndarray) -> np.ndarray:
         q = base.copy()
         for value, name in zip(coords, self.coordinate_joints, strict=True):
-            joint = self.model.joints[self.model.getJointId(name)]
-            if joint.nq == 2:
-                q[joint.idx_q: joint.idx_q + 2] = np.cos(value), np.sin(value)
-            else:
-                q[joint.idx_q] = value
-        return q
+            self._set_value(q, name, value)
+        return self.follow(q)
 
     def configuration(self, coords: np.ndarray, seed: np.ndarray | None = None) -> np.ndarray:
         """Full Pinocchio configuration for the given coordinates, loops closed.
@@ -192,13 +200,33 @@ class Robot:
         seed
             A closed configuration on the wanted assembly branch; the loop is closed by
             continuation (tangent predictor, Newton corrector) from it, by default from the
-            robot's reference assembly (the closure at zero coordinates).
+            robot's reference assembly (the closure at zero coordinates, found by the
+            assembly search when zero does not close).
 
         Raises
         ------
         StiffnessError
-            On a wrong length, a NaN or infinity, or a loop that cannot close.
+            On a wrong length, a NaN or infinity.
+        LoopClosureError
+            When no assembly exists near the pose (the message gives the residual and the loop).
         """
+        return self.assemble(coords, seed).q
+
+    def assemble(self, coords: np.ndarray | None, seed: np.ndarray | None = None) -> Assembly:
+        """:meth:`configuration` with how the loops were closed (residual, idle passive
+        motions, whether the assembly search was needed); also kept as ``last_assembly``.
+
+        ``coords=None`` asks for the robot's reference pose: zero coordinates (or the shipped
+        ``q_SI``) and, when that pose does not close, the assembly found near it by moving
+        every joint (its coordinates then differ from zero: read them with
+        :meth:`coordinates_of`).
+        """
+        if coords is None:
+            if self.loop is None:
+                return self.assemble(np.zeros(self.n_coordinates))
+            start_coords, q, searched = self._reference_assembly()
+            self.last_assembly = self.closure_report(q, searched)
+            return self.last_assembly
         coords = np.asarray(coords, dtype=float).reshape(-1)
         if coords.shape[0] != self.n_coordinates:
             raise StiffnessError(
@@ -208,12 +236,74 @@ class Robot:
         if not np.all(np.isfinite(coords)):
             raise StiffnessError(f"joint coordinates must be finite numbers, got {coords.tolist()}")
         if self.loop is None:
-            return self._tree_configuration(coords, pin.neutral(self.model))
+            q = self._tree_configuration(coords, pin.neutral(self.model))
+            self.last_assembly = Assembly(q, 0.0, 0, False)
+            return self.last_assembly
+        searched = False
         if seed is None:
-            start_coords, q = self._reference_assembly()
+            start_coords, start_q, searched = self._reference_assembly()
         else:
-            start_coords, q = self.coordinates_of(seed), seed
-        return self._continue(start_coords, q, coords)
+            start_coords, start_q = self.coordinates_of(seed), seed
+        try:
+            q = self._continue(start_coords, start_q, coords)
+        except LoopClosureError:
+            q = self._search(coords, self._tree_configuration(coords, start_q))
+            searched = True
+        self.last_assembly = self.closure_report(q, searched)
+        return self.last_assembly
+
+    def closure_report(self, q: np.ndarray, searched: bool = False) -> Assembly:
+        """Residual and idle passive motions of the loops at ``q`` (no closure is attempted)."""
+        if self.loop is None:
+            return Assembly(q, 0.0, 0, searched)
+        kinematics.update_first_order(self.model, self.data, q)
+        residual = float(np.linalg.norm(self.loop.residual(self.model, self.data)))
+        idle = self.loop.idle_motions(self.model, self.data).shape[1]
+        return Assembly(q, residual, idle, searched)
+
+    def _search(self, coords: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Assembly search near ``q``: all free joints by least squares, then the closure over
+        the passive joints at the requested ``coords``.
+
+        Raises
+        ------
+        LoopClosureError
+            With the residual and the loop that cannot close.
+        """
+        model, data, loop = self.model, self.data, self.loop
+        try:
+            return loop.close(model, data, q)
+        except LoopClosureError:
+            pass
+        free_v = np.concatenate([self.coordinate_v, loop.passive_v]).astype(int)
+        found, residual = least_squares_assembly(model, data, loop, q, free_v, self.follow)
+        if residual > 1e3 * CLOSURE_TOLERANCE_M:
+            name, worst = max(loop.loop_residuals(model, data), key=lambda item: item[1])
+            raise LoopClosureError(
+                f"{self.name} has no assembly near coordinates "
+                f"{np.round(coords, 6).tolist()}: even moving every joint, the loop {name} keeps "
+                f"a residual of {worst:.3g} m (total {residual:.3g}); check the loop file's "
+                "frame pairs and the joint values", loop=name, residual=worst)
+        try:
+            return loop.close(model, data, self._tree_configuration(coords, found))
+        except LoopClosureError:
+            pass
+        try:
+            return self._continue(self.coordinates_of(found), found, coords)
+        except LoopClosureError:
+            pass
+        closest, left = least_squares_assembly(model, data, loop,
+                                               self._tree_configuration(coords, found),
+                                               loop.passive_v, self.follow)
+        if left <= 1e3 * CLOSURE_TOLERANCE_M:
+            return loop.close(model, data, closest)
+        name, worst = max(loop.loop_residuals(model, data), key=lambda item: item[1])
+        raise LoopClosureError(
+            f"{self.name}: the loop {name} cannot be closed at coordinates "
+            f"{np.round(coords, 6).tolist()}: the closest the passive joints reach leaves a "
+            f"residual of {worst:.3g} m (an assembly exists at "
+            f"{np.round(self.coordinates_of(found), 6).tolist()}); the pose is out of the "
+            "loop's reach; check the joint values and their units", loop=name, residual=worst)
 
     def _continue(self, start: np.ndarray, q: np.ndarray, coords: np.ndarray) -> np.ndarray:
         """Close the loops along the straight coordinate path from ``start`` (closed at ``q``).
@@ -223,13 +313,13 @@ class Robot:
         Newton on the passive joints. A step whose correction exceeds
         :data:`_BRANCH_JUMP` is halved, so the path cannot hop to another assembly branch.
         """
-        span = float(np.max(np.abs(coords - start)))
+        span = float(np.max(np.abs(coords - start))) if coords.size else 0.0
         if span == 0.0:
             return self.loop.close(self.model, self.data, self._tree_configuration(coords, q))
         passive_q = np.concatenate([
             np.arange(j.idx_q, j.idx_q + j.nq)
-            for j in (self.model.joints[self.model.getJointId(n)] for n in self.loop.passive_joints)
-        ])
+            for j in (self._joint(n) for n in self.loop.passive_joints)
+        ] + [np.zeros(0)]).astype(int)
         nominal = min(1.0, _CONTINUATION_STEP / span)
         fraction, h = 0.0, nominal
         previous: tuple[np.ndarray, float] | None = None
@@ -246,116 +336,132 @@ class Robot:
                 predicted = q.copy()
                 q_prev, h_prev = previous
                 predicted[passive_q] += (q[passive_q] - q_prev[passive_q]) * h / h_prev
+                predicted = pin.normalize(self.model, predicted)  # quaternions of ball joints
             target = start + (coords - start) * (fraction + h)
             try:
                 closed = self.loop.close(
                     self.model, self.data, self._tree_configuration(target, predicted))
-                jump = float(np.max(np.abs(closed[passive_q] - predicted[passive_q])))
-            except StiffnessError:
+                jump = float(np.max(np.abs(closed[passive_q] - predicted[passive_q]),
+                                    initial=0.0))
+            except LoopClosureError:
                 closed, jump = None, np.inf
             if jump > _BRANCH_JUMP:
                 h /= 2.0
                 if h < 1e-9:
+                    kinematics.update_first_order(self.model, self.data,
+                                                  self._tree_configuration(target, predicted))
+                    name, worst = max(self.loop.loop_residuals(self.model, self.data),
+                                      key=lambda item: item[1])
                     raise LoopClosureError(
                         f"the loops of {self.name} cannot be closed continuously from "
                         f"coordinates {np.round(start, 6).tolist()} to "
                         f"{np.round(coords, 6).tolist()}: the "
-                        "path meets a fold of the loop (the pose is unreachable on this branch)"
-                    )
+                        "path meets a fold of the loop (the pose is unreachable on this branch)",
+                        loop=name, residual=worst)
                 continue
             previous = (q, h)
             q, fraction = closed, fraction + h
             h = min(2.0 * h, nominal)
         return q
 
-    def _reference_assembly(self) -> tuple[np.ndarray, np.ndarray]:
-        """Closed configuration the continuation starts from.
+    def _step_inside(self, start: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """An assembly a little further from ``start`` than ``q``, when one closes.
+
+        The assembly nearest to a pose that does not close lies on the edge of the loops' reach
+        (a fold, where the passive joints are not determined to first order); stepping on by
+        :data:`_INSIDE_STEP` of the way (at most 0.05 rad or m) gives a regular pose nearby.
+        """
+        found = self.coordinates_of(q)
+        delta = found - start
+        span = float(np.max(np.abs(delta), initial=0.0))
+        if span == 0.0:
+            return q
+        step = delta * min(_INSIDE_STEP, 0.05 / span)
+        try:
+            return self._continue(found, q, found + step)
+        except LoopClosureError:
+            return q
+
+    def _reference_assembly(self) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Closed configuration the continuation starts from, and whether it needed the search.
 
         The closure of the neutral configuration, or, for a shipped robot whose ``robot.toml``
         gives its default coordinates ``q_SI`` (rad or m; e.g. leg lengths, which cannot be
-        zero), the closure from the neutral passive joints at those coordinates.
+        zero), the closure from the neutral passive joints at those coordinates. When that does
+        not close, the assembly search near it (all joints, least squares) gives the reference.
         """
         if self._reference is None:
             q0 = pin.neutral(self.model)
+            coords = np.zeros(self.n_coordinates)
             if "q_SI" in self.defaults:
-                q0 = self._tree_configuration(np.asarray(self.defaults["q_SI"], dtype=float), q0)
-            q0 = self.loop.close(self.model, self.data, q0)
-            self._reference = (self.coordinates_of(q0), q0)
+                coords = np.asarray(self.defaults["q_SI"], dtype=float)
+            q0 = self._tree_configuration(coords, q0)
+            try:
+                q0, searched = self.loop.close(self.model, self.data, q0), False
+            except LoopClosureError:
+                free_v = np.concatenate([self.coordinate_v, self.loop.passive_v]).astype(int)
+                found, residual = least_squares_assembly(self.model, self.data, self.loop, q0,
+                                                         free_v, self.follow)
+                if residual > 1e3 * CLOSURE_TOLERANCE_M:
+                    name, worst = max(self.loop.loop_residuals(self.model, self.data),
+                                      key=lambda item: item[1])
+                    raise LoopClosureError(
+                        f"{self.name} has no assembly near its zero pose: even moving every "
+                        f"joint, the loop {name} keeps a residual of {worst:.3g} m; check the "
+                        "loop file's frame pairs", loop=name, residual=worst) from None
+                q0, searched = self._step_inside(coords, self.loop.close(
+                    self.model, self.data, found)), True
+            self._reference = (self.coordinates_of(q0), q0, searched)
         return self._reference
 
 
-def _read_urdf(path: Path) -> tuple[pin.Model, object | None]:
-    """Validate a URDF with yourdfpy, then build the Pinocchio model."""
-    import yourdfpy
-    from lxml import etree
-
-    if not path.is_file():
-        raise MissingFileError(f"URDF file {path} does not exist; give an existing .urdf path",
-                               path=path)
-    try:  # yourdfpy repairs broken XML silently: parse strictly first
-        etree.parse(str(path), etree.XMLParser(recover=False))
-    except etree.XMLSyntaxError as exc:
-        line, column = exc.position if exc.position else (None, None)
-        problem = re.sub(r",? line \d+, column \d+$", "", str(exc.msg))
-        raise FileFormatError(f"not a valid URDF: not well-formed XML ({problem}); fix it there",
-                              path=path, line=line, column=column) from exc
-    try:
-        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
-    except Exception as exc:  # yourdfpy raises lxml, KeyError or ValueError on bad files
-        raise FileFormatError(f"not a valid URDF: {exc}", path=path) from exc
-    if not urdf.validate():
-        raise FileFormatError(f"not a valid URDF: {'; '.join(urdf.errors)}", path=path)
-    links = set(urdf.link_map)
-    for joint in urdf.robot.joints:
-        for role, link in (("parent", joint.parent), ("child", joint.child)):
-            if link not in links:
-                raise FileFormatError(
-                    f"not a valid URDF: joint {joint.name!r} names the {role} link "
-                    f"{link!r}, which it does not define; {did_you_mean(str(link), sorted(links))}",
-                    path=path)
-    try:
-        model = pin.buildModelFromUrdf(str(path))
-    except (RuntimeError, ValueError) as exc:
-        raise FileFormatError(f"Pinocchio cannot build a model from it: {exc}", path=path
-                              ) from exc
-    visual = None
-    try:
-        visual = pin.buildGeomFromUrdf(model, str(path), pin.GeometryType.VISUAL, package_dirs=[
-            str(path.parent)])
-    except (RuntimeError, ValueError):
-        visual = None
-    return model, visual
+def _loop_declaration(source, loops: str | os.PathLike | None):
+    """The loop declaration to read: ``loops``, the shipped one, or the sidecar found."""
+    if loops is not None:
+        return read_loop_declaration(Path(loops))
+    if source.loop_file is not None:
+        return read_loop_declaration(source.loop_file)
+    return None
 
 
-def _resolve_source(source: str | os.PathLike) -> tuple[str, pin.Model, object | None, dict]:
-    """Model, visuals and shipped settings for a source name or path."""
-    text = str(source)
-    shipped = shipped_robots()
-    if text in shipped:
-        folder = robots_directory() / text
-        settings = read_toml(folder / "robot.toml", "robot file")
-        model, visual = _read_urdf(folder / settings["urdf"])
-        settings["_folder"] = folder
-        return text, model, visual, settings
-    path = Path(text)
-    if path.suffix.lower() in (".urdf", ".xml") or path.exists():
-        model, visual = _read_urdf(path)
-        settings: dict = {"_folder": path.parent}
-        sidecar = path.with_suffix(".loops.yaml")
-        if sidecar.is_file():
-            settings["loops"] = sidecar.name
-        return text, model, visual, settings
-    erd_names = example_robot_names()
-    if text in erd_names:
-        import example_robot_data
+def _fix_base(model: pin.Model, visual, name: str, fixed_base: bool
+              ) -> tuple[pin.Model, object | None, list[str]]:
+    """Lock floating or planar base joints at their neutral placement when ``fixed_base``."""
+    bases = [j for j in range(1, model.njoints)
+             if model.parents[j] == 0 and model.joints[j].shortname() in _BASE_JOINTS]
+    if not bases:
+        return model, visual, []
+    described = ", ".join(f"{model.names[j]!r} ({model.joints[j].shortname()})" for j in bases)
+    if not fixed_base:
+        raise FloatingBaseError(
+            f"{name} has a floating or planar base, joint {described}: fix the base at its "
+            "neutral placement with --fixed-base (Python: load_robot(..., fixed_base=True))")
+    names = [model.names[j] for j in bases]
+    model, visual = lock_joints(model, visual, names)
+    return model, visual, [f"base joint {described} fixed at its neutral placement"]
 
-        wrapper = example_robot_data.load(text)
-        return text, wrapper.model, wrapper.visual_model, {}
-    raise UnknownRobotError(
-        f"unknown robot {text!r}: not a shipped robot ({', '.join(shipped)}), not an existing "
-        f"URDF file, and not an example-robot-data name; "
-        f"{did_you_mean(text, shipped + erd_names, limit=80)}", name=text,
-        choices=shipped + erd_names)
+
+def _check_mimics(name: str, mimics: tuple[Mimic, ...], model: pin.Model, passive: set[str]
+                  ) -> tuple[Mimic, ...]:
+    """Mimic couplings that still apply after rewrites and locking (warn about the others)."""
+    kept = []
+    for m in mimics:
+        if not (model.existJointName(m.follower) and model.existJointName(m.leader)):
+            warn(f"{name}: mimic joint {m.follower!r} (leader {m.leader!r}) is not in the "
+                 "model after the joint rewrites; its coupling is ignored")
+            continue
+        if m.leader in passive or any(m.leader == other.follower for other in mimics):
+            raise StiffnessError(
+                f"{name}: mimic joint {m.follower!r} follows {m.leader!r}, which is a passive "
+                "loop joint or itself a mimic follower; make the leader an actuated joint "
+                "(name_mot) or declare the follower passive")
+        follower, leader = model.joints[model.getJointId(m.follower)], model.joints[
+            model.getJointId(m.leader)]
+        if follower.nv != 1 or leader.nv != 1:
+            raise StiffnessError(f"{name}: mimic joint {m.follower!r} and its leader "
+                                 f"{m.leader!r} must both have one degree of freedom")
+        kept.append(m)
+    return tuple(kept)
 
 
 def load_robot(
@@ -364,51 +470,74 @@ def load_robot(
     target_offset: np.ndarray | list[float] | None = None,
     compliant_joints: list[str] | tuple[str, ...] | None = None,
     loops: str | os.PathLike | None = None,
+    fixed_base: bool = False,
 ) -> Robot:
     """Load a robot for elastostatics.
 
     Parameters
     ----------
     source
-        A shipped robot name (``"sk120"``), a path to a URDF (a ``<name>.loops.yaml`` beside it
-        declares its loops), or an example-robot-data name (``"ur5"``, ``"panda"``, ...).
+        A shipped robot name (``"sk120"``), a path to a URDF (a ``<name>.loops.yaml``,
+        ``<name>.yaml`` or ``robot.yaml`` beside it declares its loops), or an
+        example-robot-data name (``"ur5"``, ``"panda"``, ...).
     frame
         Frame carrying the measurement target; default: the shipped robot's target frame, else
-        the last frame of the model.
+        the tip frame of the longest chain of moving joints (:mod:`stiffness.model.targets`).
     target_offset
         Target position in ``frame`` axes (m); default zero (or the shipped robot's).
     compliant_joints
         Joints modelled as springs; default: the shipped robot's, else every coordinate joint.
     loops
-        Loop declaration (YAML) overriding the sidecar.
+        Loop declaration (YAML, Gepetto's Extended-URDF format) overriding the sidecar.
+    fixed_base
+        Fix a floating or planar base at its neutral placement (else such a base is refused).
 
     Raises
     ------
     StiffnessError
-        Unknown source, missing or malformed URDF, unknown frame or joint, unsupported joint type.
+        Unknown source, missing or malformed file (:class:`~stiffness.errors.RobotFileError`),
+        unknown frame or joint, unsupported joint type, floating base without ``fixed_base``
+        (:class:`~stiffness.errors.FloatingBaseError`).
     """
-    name, model, visual, settings = _resolve_source(source)
+    src = resolve_source(source)
+    name, model, visual, settings = src.name, src.model, src.visual, src.settings
+    notes = list(src.notes)
+    declaration = _loop_declaration(src, loops)
+    if declaration is not None:
+        model, visual = rewrite_joints(model, visual, declaration.rewrites)
+        if declaration.rewrites:
+            notes.append("joints rewritten: " + ", ".join(
+                f"{j} -> {k}" for j, k in declaration.rewrites.items()))
+    model, visual, base_notes = _fix_base(model, visual, name, fixed_base)
+    notes += base_notes
+    followers = tuple(m.follower for m in src.mimics)
     loop = None
-    loop_file = loops or settings.get("loops")
-    if loop_file is not None:
-        loop_path = Path(loop_file)
-        if not loop_path.is_absolute() and loops is None:
-            loop_path = settings["_folder"] / loop_path
-        loop = build_loop_closure(model, read_loop_declaration(loop_path))
+    if declaration is not None:
+        loop = build_loop_closure(model, declaration, dependent=followers)
     passive = set(loop.passive_joints) if loop else set()
+    mimics = _check_mimics(name, src.mimics, model, passive)
+    dependent = {m.follower for m in mimics}
     coordinate_joints = []
     for jid in range(1, model.njoints):
         joint = model.joints[jid]
-        if joint.nv == 0 or model.names[jid] in passive:
+        joint_name = model.names[jid]
+        if joint.nv == 0 or joint_name in passive or joint_name in dependent:
             continue
         if joint.shortname() not in _SUPPORTED_JOINTS:
             raise StiffnessError(
-                f"joint {model.names[jid]!r} is a {joint.shortname()}; only revolute, continuous "
-                "and prismatic joints can be coordinates (fix the base, or declare the joint "
-                "passive in a loop)"
+                f"joint {joint_name!r} is a {joint.shortname()} with {joint.nv} degrees of "
+                "freedom; only revolute, continuous and prismatic joints can be coordinates "
+                "(declare it passive in a loop file, or fix the base with --fixed-base)"
             )
-        coordinate_joints.append(model.names[jid])
+        coordinate_joints.append(joint_name)
     order = settings.get("coordinate_order")
+    if order is not None and loops is not None and sorted(order) != sorted(coordinate_joints):
+        warn(f"{name}: the coordinate_order of its robot.toml does not match the coordinates "
+             f"under the loop file {loops}; model order used, and its defaults for the "
+             "coordinates (q, compliant joints, springs) dropped")
+        settings = {k: v for k, v in settings.items() if k not in (
+            "coordinate_order", "q_SI", "q_deg", "rest_q_SI", "compliant_joints", "k_theta_SI")}
+        order = None
     if order is not None:
         if sorted(order) != sorted(coordinate_joints):
             raise StiffnessError(
@@ -417,13 +546,10 @@ def load_robot(
             )
         coordinate_joints = list(order)
 
-    frame_names = [f.name for f in model.frames]
-    if frame is None:
-        frame = settings.get("frame", frame_names[-1])
-    if not model.existFrame(frame):
-        raise UnknownFrameError(
-            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}",
-            name=frame, choices=frame_names)
+    closure = frozenset(n for p in (loop.pairs if loop else ()) for n in (p.frame_a, p.frame_b))
+    gripper = _gripper_joints(model, src.all_mimics + src.mimics)
+    frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"),
+                          closure, gripper)
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
     offset = np.asarray(target_offset, dtype=float).reshape(-1)
@@ -435,7 +561,9 @@ def load_robot(
     compliant_joints = tuple(compliant_joints)
     for joint_name in compliant_joints:
         if joint_name not in coordinate_joints:
-            why = " (it is a passive loop joint)" if joint_name in passive else ""
+            why = (" (it is a passive loop joint)" if joint_name in passive else
+                   " (it is a mimic follower: its leader carries the spring)"
+                   if joint_name in dependent else "")
             raise UnknownJointError(
                 f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
                 f"{did_you_mean(joint_name, coordinate_joints)}", name=joint_name,
@@ -462,4 +590,44 @@ def load_robot(
         loop=loop,
         visual_model=visual,
         defaults=defaults,
+        mimics=mimics,
+        missing_meshes=src.missing_meshes,
+        notes=tuple(notes),
+        loop_file=None if declaration is None else declaration.path,
+        fixed_base=fixed_base,
     )
+
+
+def _gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
+    """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
+    does not hang below its leader), which do not lengthen a chain for the default target."""
+    out: set[str] = set()
+    for m in mimics:
+        if model.existJointName(m.follower) and model.existJointName(m.leader) and \
+                model.getJointId(m.leader) in model.supports[model.getJointId(m.follower)]:
+            continue  # a serial coupling: the follower extends the leader's chain
+        out |= {m.leader, m.follower}
+    return frozenset(out)
+
+
+def _target_frame(name: str, model: pin.Model, frame: str | None,
+                  closure: frozenset[str], gripper: frozenset[str]) -> str:
+    """The requested target frame, checked, or the default one."""
+    frame_names = [f.name for f in model.frames]
+    moving = moving_frames(model)
+    if frame is None:
+        frame = default_target_frame(model, closure, gripper)
+        if frame is None:
+            raise StiffnessError(f"no joint of {name} moves any frame: it has no degree of "
+                                 "freedom left to be compliant")
+        return frame
+    if not model.existFrame(frame):
+        raise UnknownFrameError(
+            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}",
+            name=frame, choices=frame_names)
+    if frame not in moving:
+        raise UnknownFrameError(
+            f"frame {frame!r} of {name} is not moved by any joint (it is fixed to the base), so "
+            f"it has no stiffness to compute; choose a frame that moves: "
+            f"{did_you_mean(frame, moving)}", name=frame, choices=moving)
+    return frame

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.model.robot import robots_directory
+from stiffness.model.sources import robots_directory
 from stiffness.papers.appendix import APPENDIX_TERMS, ELEMENT_NAMES
 from stiffness.papers.appendix_eval import TermsByElement, terms_values
 from stiffness.papers.sk120 import FIXTURE_A_M, FIXTURE_B_M, AngleConvention, DHRow, read_table1

@@ -20,7 +20,8 @@ import pinocchio as pin
 
 from stiffness.mechanics.formulation import target_state
 from stiffness.model import kinematics
-from stiffness.model.robot import Robot, load_robot, robots_directory
+from stiffness.model.robot import Robot, load_robot
+from stiffness.model.sources import robots_directory
 from stiffness.papers.appendix_convention import SEARCH_POSES, printed_convention
 from stiffness.papers.sk120 import AngleConvention, read_table1, sk120_urdf
 from stiffness.papers.tables import paper_configurations

@@ -55,7 +55,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.model.robot import load_robot, robots_directory
+from stiffness.model.robot import load_robot
+from stiffness.model.sources import robots_directory
 from stiffness.papers.appendix import APPENDIX_TERMS, ELEMENT_NAMES
 from stiffness.papers.appendix_convention import (
     SEARCH_POSES,

@@ -25,7 +25,8 @@ from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
 from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
-from stiffness.model.robot import Robot, load_robot, robots_directory
+from stiffness.model.robot import Robot, load_robot
+from stiffness.model.sources import robots_directory
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
 from stiffness.papers.report_page import SCENE_FILE, claims, render_html

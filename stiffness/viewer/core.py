@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import html as html_lib
 import os
+import sys
 import threading
 import time
 from collections.abc import Sequence
@@ -44,7 +45,7 @@ from stiffness.viewer.ellipsoid import (
     principal_ellipsoid,
     rotational_block,
 )
-from stiffness.viewer.geometry import Pose, _rotation_y_to, _segment
+from stiffness.viewer.geometry import Pose, _rotation_y_to, _segment, missing_mesh_notes
 from stiffness.viewer.page import render_page
 from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, _Window
 from stiffness.viewer.style import (
@@ -302,6 +303,10 @@ class StiffnessViewer:
         vis["/Grid"].set_property("visible", False)  # replaced by the floor under the robot
         visual = self.robot.visual_model
         self._has_meshes = visual is not None and visual.ngeoms > 0
+        if not getattr(self, "_missing_reported", False):
+            for line in missing_mesh_notes(self.robot):
+                print(f"stiffness viewer: {line}", file=sys.stderr)
+            self._missing_reported = True
         if self._has_meshes:
             visualizer = _pinocchio_meshcat_visualizer()
             self._viz = visualizer(self.robot.model, None, visual)
@@ -691,6 +696,7 @@ class StiffnessViewer:
                       "colorbars": [], "toggles": [], "notes": [], "labels": []}
         if self._error:
             data["error"] = self._error
+        data["notes"].extend(missing_mesh_notes(robot))
         if st is not None:
             deg = [format_value(v) for v in self._display_coords(st.coords)]
             data["lines"].append(f"coordinates ({', '.join(robot.coordinate_joints)}): "

@@ -31,6 +31,20 @@ class Pose:
         return [float(c) for c in pin.Quaternion(self.rotation).coeffs()]
 
 
+def missing_mesh_notes(robot) -> list[str]:
+    """One line per visual mesh of ``robot`` that could not be found (drawn as a sphere).
+
+    Meshes are resolved when the robot is loaded (:mod:`stiffness.model.meshes`: the URDF's
+    folder and its ancestors, ``ROS_PACKAGE_PATH``, example-robot-data's share folder).
+    """
+    missing = list(getattr(robot, "missing_meshes", ()))
+    lines = [f"mesh not found: {m}; drawn as a sphere (searched the URDF's folder, "
+             "ROS_PACKAGE_PATH and example-robot-data)" for m in missing[:10]]
+    if len(missing) > 10:
+        lines.append(f"... and {len(missing) - 10} more meshes not found")
+    return lines
+
+
 def _rotation_y_to(direction: np.ndarray) -> np.ndarray:
     """A rotation taking +y (three.js cylinders' axis) to the unit vector ``direction``."""
     d = np.asarray(direction, dtype=float)

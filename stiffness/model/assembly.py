@@ -1,0 +1,91 @@
+"""Assembly search: a closed configuration near a pose whose loops do not close.
+
+When the passive joints alone cannot close the loops from a pose (the zero pose of a CAD export
+is often not assembled), :func:`least_squares_assembly` moves *all* free joints (independent and
+passive) by damped Gauss-Newton (Levenberg-Marquardt: small steps, so the result stays near
+the pose) until the loop residual vanishes; the caller then restores the requested
+independent values and closes over the passive joints from there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.model import kinematics
+from stiffness.model.loops import CLOSURE_TOLERANCE_M, LoopClosure
+
+#: Iterations of the all-joint least squares.
+MAX_ITERATIONS = 400
+
+
+@dataclass
+class Assembly:
+    """A closed configuration and how it was found.
+
+    Attributes
+    ----------
+    q
+        Full configuration (loops closed).
+    residual
+        Norm of the loop residual at ``q`` (m; rad for 6D rotation rows).
+    idle_passive_motions
+        Number of passive motions the constraints leave undetermined at ``q`` (they do not
+        move the target).
+    assembly_search
+        Whether the all-joint least-squares search was needed.
+    """
+
+    q: np.ndarray
+    residual: float
+    idle_passive_motions: int
+    assembly_search: bool
+
+    def as_dict(self) -> dict:
+        """The JSON ``closure`` object of ``kx``."""
+        return {"residual": self.residual, "idle_passive_motions": self.idle_passive_motions,
+                "assembly_search": self.assembly_search}
+
+
+def least_squares_assembly(model: pin.Model, data: pin.Data, loop: LoopClosure, q: np.ndarray,
+                           free_v: np.ndarray, follow: Callable[[np.ndarray], np.ndarray]
+                           ) -> tuple[np.ndarray, float]:
+    """Minimise the loop residual over the velocity coordinates ``free_v`` from ``q``.
+
+    ``follow`` re-applies dependent joints (mimic followers) after each step. Returns the
+    configuration reached and its residual norm.
+    """
+    q = follow(q.copy())
+    kinematics.update_first_order(model, data, q)
+    c = loop.residual(model, data)
+    cost = float(c @ c)
+    damping = 1e-6
+    for _ in range(MAX_ITERATIONS):
+        if np.sqrt(cost) < CLOSURE_TOLERANCE_M:
+            break
+        jac = loop.jacobian(model, data)[:, free_v]
+        # damped Gauss-Newton step (J^T J + mu I) dq = -J^T c: small, minimum-norm-like steps
+        # that also converge to a least-squares minimum whose residual is not zero
+        step = -np.linalg.solve(jac.T @ jac + damping * np.eye(jac.shape[1]), jac.T @ c)
+        norm = float(np.linalg.norm(step))
+        if norm > 0.5:
+            step *= 0.5 / norm
+        dv = np.zeros(model.nv)
+        dv[free_v] = step
+        trial = follow(pin.integrate(model, q, dv))
+        kinematics.update_first_order(model, data, trial)
+        c_trial = loop.residual(model, data)
+        cost_trial = float(c_trial @ c_trial)
+        if cost_trial < cost:
+            q, c, cost = trial, c_trial, cost_trial
+            damping = max(damping / 3.0, 1e-12)
+        else:
+            damping *= 10.0
+            if damping > 1e8:
+                break
+            kinematics.update_first_order(model, data, q)
+    kinematics.update_first_order(model, data, q)
+    return q, float(np.linalg.norm(loop.residual(model, data)))

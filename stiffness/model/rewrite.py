@@ -1,0 +1,106 @@
+"""Model rewrites: Gepetto's ``joint_name``/``joint_type`` and locking joints (fixed bases).
+
+``joint_type`` semantics are those of Gepetto's ``completeRobotLoader``
+(example-parallel-robots, ``loader_tools.py``), applied to the joint named in ``joint_name``:
+
+* ``SPHERICAL``: the joint becomes a spherical joint (``JointModelSpherical``, 3 degrees of
+  freedom) at the same placement, with the same name.
+* ``UJOINT_AB`` (``XY``, ``YZ``, ``ZY``, and the other pairs of distinct axes): the joint becomes
+  two revolute joints about the axes A then B of its placement frame (the URDF's ``<axis>`` is
+  not used), named ``<name>_A`` and ``<name>_B``, the second at the same origin as the first.
+  The link, its frames and its visuals hang on ``<name>_B``; the joint frame ``<name>`` is
+  replaced by the joint frames ``<name>_A`` and ``<name>_B``.
+* ``FIXED``: the joint is locked at its neutral value (0), as ``pin.buildReducedModel`` does.
+
+Floating and planar bases are locked in the same way (:func:`lock_joints`) at their neutral
+placement.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+#: Joint types of Gepetto's ``joint_type`` key (upper case; files may use any case).
+JOINT_REWRITES = ("SPHERICAL", "FIXED") + tuple(
+    f"UJOINT_{a}{b}" for a in "XYZ" for b in "XYZ" if a != b)
+
+_AXIS_JOINTS = {"X": pin.JointModelRX, "Y": pin.JointModelRY, "Z": pin.JointModelRZ}
+
+
+def rewrite_joints(model: pin.Model, visual, rewrites: dict[str, str]
+                   ) -> tuple[pin.Model, object | None]:
+    """Apply ``{joint name: joint type}`` rewrites (:data:`JOINT_REWRITES`) to a model.
+
+    Returns the new model and its visual geometry (``visual`` re-attached, or None).
+    """
+    if not rewrites:
+        return model, visual
+    new = pin.Model()
+    new.name = model.name
+    new.gravity = model.gravity
+    joint_map = {0: 0}  # old joint id -> new joint id carrying its body
+    fixed: list[int] = []
+    for jid in range(1, model.njoints):
+        name, joint = model.names[jid], model.joints[jid]
+        parent = joint_map[model.parents[jid]]
+        placement = model.jointPlacements[jid]
+        kind = rewrites.get(name)
+        if kind == "SPHERICAL":
+            new_id = new.addJoint(parent, pin.JointModelSpherical(), placement, name)
+        elif kind is not None and kind.startswith("UJOINT_"):
+            a, b = kind[-2], kind[-1]
+            first = new.addJoint(parent, _AXIS_JOINTS[a](), placement, f"{name}_{a}")
+            new_id = new.addJoint(first, _AXIS_JOINTS[b](), pin.SE3.Identity(), f"{name}_{b}")
+        else:
+            new_id = new.addJoint(parent, joint, placement, name)
+            if kind == "FIXED":
+                fixed.append(new_id)
+        _copy_limits(model, jid, new, new_id)
+        new.appendBodyToJoint(new_id, model.inertias[jid], pin.SE3.Identity())
+        joint_map[jid] = new_id
+    frame_map = {0: 0}
+    for fid in range(1, len(model.frames)):
+        frame = model.frames[fid]
+        parent_frame = frame_map.get(frame.parentFrame, 0)
+        kind = rewrites.get(frame.name) if frame.type == pin.FrameType.JOINT else None
+        if kind is not None and kind.startswith("UJOINT_"):
+            for axis in kind[-2:]:
+                joint_name = f"{frame.name}_{axis}"
+                frame_map[fid] = new.addFrame(pin.Frame(
+                    joint_name, new.getJointId(joint_name), parent_frame, pin.SE3.Identity(),
+                    pin.FrameType.JOINT), False)
+                parent_frame = frame_map[fid]
+            continue
+        frame_map[fid] = new.addFrame(pin.Frame(
+            frame.name, joint_map[frame.parentJoint], parent_frame, frame.placement, frame.type,
+            frame.inertia), False)
+    if visual is not None:
+        visual = visual.copy()
+        for obj in visual.geometryObjects:
+            obj.parentJoint = joint_map[obj.parentJoint]
+            obj.parentFrame = frame_map.get(obj.parentFrame, 0)
+    return lock_joints(new, visual, [new.names[j] for j in fixed])
+
+
+def _copy_limits(old: pin.Model, jid: int, new: pin.Model, new_id: int) -> None:
+    """Keep the position limits of a joint whose type did not change."""
+    o, n = old.joints[jid], new.joints[new_id]
+    if o.nq == n.nq and o.shortname() == n.shortname():
+        new.lowerPositionLimit[n.idx_q: n.idx_q + n.nq] = old.lowerPositionLimit[
+            o.idx_q: o.idx_q + o.nq]
+        new.upperPositionLimit[n.idx_q: n.idx_q + n.nq] = old.upperPositionLimit[
+            o.idx_q: o.idx_q + o.nq]
+
+
+def lock_joints(model: pin.Model, visual, names: list[str], reference: np.ndarray | None = None
+                ) -> tuple[pin.Model, object | None]:
+    """Lock the named joints at ``reference`` (default neutral); returns model and visuals."""
+    if not names:
+        return model, visual
+    ids = [model.getJointId(n) for n in names]
+    q0 = pin.neutral(model) if reference is None else reference
+    if visual is None:
+        return pin.buildReducedModel(model, ids, q0), None
+    reduced, geometries = pin.buildReducedModel(model, [visual], ids, q0)
+    return reduced, geometries[0]

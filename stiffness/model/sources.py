@@ -1,0 +1,183 @@
+"""Where a robot comes from: a shipped robot, a URDF path (and its loop sidecar), or
+example-robot-data.
+
+A URDF path inside a folder whose ``robot.toml`` names that file (``urdf = "..."``) is that
+robot: it brings the same settings (coordinate order, loop file, defaults) as when it is loaded
+by name, so one robot has one coordinate order.
+
+Loop sidecars beside ``<folder>/<name>.urdf``, first found wins: ``<name>.loops.yaml``,
+``<name>.yaml``, ``robot.yaml`` (Gepetto's example-parallel-robots). A ``<name>.yaml`` or
+``robot.yaml`` without the key ``closed_loop`` is not a loop declaration: it is skipped with a
+warning.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import pinocchio as pin
+
+from stiffness.errors import FileFormatError, StiffnessError, UnknownRobotError, did_you_mean
+from stiffness.files import read_toml
+from stiffness.model.meshes import MissingMesh
+from stiffness.model.urdf import Mimic, mimic_tags, read_urdf, warn
+
+
+@dataclass
+class RobotSource:
+    """A robot's model as read, before loops, rewrites and base fixing.
+
+    ``settings`` holds the ``robot.toml`` keys (empty for other sources) and ``_folder``, the
+    folder relative loop paths are taken from; ``loop_file`` is the sidecar found (or None).
+    """
+
+    name: str
+    model: pin.Model
+    visual: object | None
+    settings: dict
+    mimics: tuple[Mimic, ...] = ()
+    missing_meshes: tuple[MissingMesh, ...] = ()
+    loop_file: Path | None = None
+    urdf: Path | None = None
+    notes: list[str] = field(default_factory=list)
+    all_mimics: tuple[Mimic, ...] = ()
+
+
+def robots_directory() -> Path:
+    """Folder of the shipped robots: the repository's ``robots/``, installed as package data.
+
+    In order: ``$STIFFNESS_ROBOTS`` if set; the ``robots/`` folder of the source checkout this
+    package runs from (``PYTHONPATH`` or an editable install: the checkout's own data, even if
+    another copy of the package is installed); else the installed package data
+    ``stiffness.robots`` (``robots/`` mapped into the wheel), read with :mod:`importlib.resources`.
+    """
+    env = os.environ.get("STIFFNESS_ROBOTS")
+    if env:
+        return Path(env)
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file() and (checkout / "robots" / "__init__.py").is_file():
+        return checkout / "robots"
+    try:
+        data = resources.files("stiffness.robots")
+    except ModuleNotFoundError:
+        data = None
+    if not isinstance(data, Path) or not data.is_dir():
+        raise StiffnessError(
+            "the shipped robots are missing: this copy of stiffness has no robots/ package data "
+            "(reinstall it with `pip install .`, or set STIFFNESS_ROBOTS to a robots/ folder)"
+        )
+    return data
+
+
+def shipped_robots() -> list[str]:
+    """Names of the robots shipped in ``robots/`` (folders holding a ``robot.toml``)."""
+    root = robots_directory()
+    return sorted(p.parent.name for p in root.glob("*/robot.toml"))
+
+
+def example_robot_names() -> list[str]:
+    """Names example-robot-data can load."""
+    from example_robot_data import robots_loader
+
+    return sorted(robots_loader.ROBOTS)
+
+
+def find_loop_sidecar(urdf: Path) -> Path | None:
+    """The loop declaration beside a URDF (see the module docstring), or None."""
+    import yaml
+
+    for candidate in (urdf.with_suffix(".loops.yaml"), urdf.with_suffix(".yaml"),
+                      urdf.parent / "robot.yaml"):
+        if not candidate.is_file():
+            continue
+        if candidate.name.endswith(".loops.yaml"):
+            return candidate
+        try:
+            content = yaml.safe_load(candidate.read_text())
+        except yaml.YAMLError:
+            return candidate  # let the loop reader report where the YAML is broken
+        if isinstance(content, dict) and "closed_loop" in content:
+            return candidate
+        warn(f"{candidate}: not a loop declaration (no closed_loop key); ignored")
+    return None
+
+
+def _from_toml(folder: Path, name: str) -> RobotSource:
+    settings = read_toml(folder / "robot.toml", "robot file")
+    urdf = folder / settings["urdf"]
+    read = read_urdf(urdf)
+    settings["_folder"] = folder
+    loop_file = folder / settings["loops"] if "loops" in settings else None
+    return RobotSource(name, read.model, read.visual, settings, read.mimics, read.missing_meshes,
+                       loop_file, urdf, all_mimics=read.all_mimics)
+
+
+def _toml_naming(path: Path) -> bool:
+    """Whether a ``robot.toml`` beside ``path`` declares it as its URDF."""
+    toml = path.parent / "robot.toml"
+    if not toml.is_file():
+        return False
+    try:
+        declared = read_toml(toml, "robot file").get("urdf")
+    except FileFormatError:
+        return False
+    return declared is not None and (path.parent / declared).resolve() == path.resolve()
+
+
+def _from_example_robot_data(name: str) -> RobotSource:
+    from example_robot_data import robots_loader
+
+    loader = robots_loader.ROBOTS[name]()
+    wrapper = loader.robot
+    mimics: tuple[Mimic, ...] = ()
+    tags: tuple[Mimic, ...] = ()
+    path = Path(getattr(loader, "df_path", ""))
+    if path.suffix.lower() == ".urdf" and path.is_file():
+        tags = _mimic_tags(path)
+        mimics = tuple(m for m in tags if wrapper.model.existJointName(m.follower)
+                       and wrapper.model.existJointName(m.leader)
+                       and wrapper.model.joints[wrapper.model.getJointId(m.follower)].nv == 1)
+    return RobotSource(name, wrapper.model, wrapper.visual_model, {}, mimics, (), None,
+                       path if path.is_file() else None, all_mimics=tags)
+
+
+def _mimic_tags(path: Path) -> tuple[Mimic, ...]:
+    from lxml import etree
+
+    return mimic_tags(etree.parse(str(path), etree.XMLParser(recover=True, huge_tree=True))
+                      .getroot(), include_fixed=True)
+
+
+def resolve_source(source: str | os.PathLike) -> RobotSource:
+    """Read a shipped robot name, a URDF path or an example-robot-data name.
+
+    Raises
+    ------
+    StiffnessError
+        Unknown name, missing or malformed file.
+    """
+    text = str(source)
+    shipped = shipped_robots()
+    if text in shipped:
+        return _from_toml(robots_directory() / text, text)
+    path = Path(text)
+    if path.suffix.lower() in (".urdf", ".xml") or path.exists():
+        if path.is_file() and _toml_naming(path):
+            found = _from_toml(path.parent, text)
+            found.notes.append(f"settings from {path.parent / 'robot.toml'}")
+            return found
+        read = read_urdf(path)
+        return RobotSource(text, read.model, read.visual, {"_folder": path.parent}, read.mimics,
+                           read.missing_meshes, find_loop_sidecar(path), path,
+                           all_mimics=read.all_mimics)
+    erd_names = example_robot_names()
+    if text in erd_names:
+        return _from_example_robot_data(text)
+    raise UnknownRobotError(
+        f"unknown robot {text!r}: not a shipped robot ({', '.join(shipped)}), not an existing "
+        f"URDF file, and not an example-robot-data name; "
+        f"{did_you_mean(text, shipped + erd_names, limit=80)}", name=text,
+        choices=shipped + erd_names)

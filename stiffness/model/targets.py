@@ -1,0 +1,92 @@
+"""The default target frame and the frames a robot's joints move.
+
+Rule (docs/robot-files.md): the target is the tip frame of the longest chain of moving joints
+(joints with a degree of freedom, counted from the base); in a closed-loop robot, a branch
+whose last joint carries a loop-closing frame is not a candidate (it closes a loop) unless all
+branches are such ones. Of several equally long chains the first in model order is taken,
+except that chains branching off it with fewer moving joints below the branch than above it (a
+hand's fingers) move the tip up to their last common joint (the wrist); joints of
+``<mimic>`` couplings (a gripper's jaws) do not lengthen a chain. The tip frame is, among the
+frames carried by the tip joint, the one farthest from the joint's origin, a link or tool frame
+before a joint frame, the last in model order on a tie.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+
+def moving_depth(model: pin.Model, uncounted: frozenset[str] = frozenset()) -> list[int]:
+    """Number of joints with a degree of freedom from the base to each joint (inclusive),
+    not counting the joints named in ``uncounted``."""
+    depth = [0] * model.njoints
+    for j in range(1, model.njoints):
+        moves = model.joints[j].nv > 0 and model.names[j] not in uncounted
+        depth[j] = depth[model.parents[j]] + (1 if moves else 0)
+    return depth
+
+
+def moving_frames(model: pin.Model) -> list[str]:
+    """Frames that at least one joint with a degree of freedom moves."""
+    depth = moving_depth(model)
+    return [f.name for f in model.frames if depth[f.parentJoint] > 0]
+
+
+def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = frozenset(),
+                         gripper: frozenset[str] = frozenset()) -> str | None:
+    """Name of the default target frame (module docstring), or None when nothing moves.
+
+    ``closure_frames`` are the loop-closing frames: a branch whose last joint carries one of them
+    exists to close a loop, and is not a candidate chain unless every branch is such a one.
+    ``gripper`` names the joints of ``<mimic>`` couplings (leaders and followers: a gripper's
+    jaws), which do not lengthen a chain.
+    """
+    depth = moving_depth(model, gripper)
+    if max(depth) == 0:
+        return None
+    has_child = {model.parents[j] for j in range(1, model.njoints)}
+    leaves = [j for j in range(1, model.njoints) if j not in has_child and depth[j] > 0]
+    closing = {f.parentJoint for f in model.frames if f.name in closure_frames}
+    open_leaves = [j for j in leaves if j not in closing] or leaves
+    longest = max(depth[j] for j in open_leaves)
+    deepest = [j for j in open_leaves if depth[j] == longest]
+    tip = deepest[0]
+    while tip and model.names[tip] in gripper or depth[model.parents[tip]] == depth[tip] > 0:
+        tip = model.parents[tip]  # up to the last joint that lengthens the chain
+    for other in deepest[1:]:
+        shared = [j for j in model.supports[other] if j in set(model.supports[deepest[0]])
+                  and model.joints[j].nv > 0]
+        branch = max(shared, key=lambda j: depth[j]) if shared else 0
+        # branches shorter than the chain that carries them are one hand's fingers
+        if branch and longest - depth[branch] <= depth[branch] \
+                and branch in model.supports[tip] and branch != tip:
+            tip = branch  # fingers or jaws of one hand: their last common joint
+    # a loop-closing frame and the fixed-joint frame that carries it are not targets
+    closing_frames = set(closure_frames) | {
+        model.frames[model.frames[i].parentFrame].name for i in range(len(model.frames))
+        if model.frames[i].name in closure_frames}
+    best, best_key = None, None
+    for fid, frame in enumerate(model.frames):
+        if frame.parentJoint != tip or frame.name in closing_frames or _below(model, fid,
+                                                                                gripper):
+            continue
+        distance = float(np.linalg.norm(frame.placement.translation))
+        key = (round(distance, 9), frame.type != pin.FrameType.JOINT, fid)
+        if best_key is None or key > best_key:
+            best, best_key = frame.name, key
+    if best is None:  # only loop-closing frames on the tip joint
+        return default_target_frame(model, frozenset(), gripper) if closure_frames else None
+    return best
+
+
+def _below(model: pin.Model, frame_id: int, names: frozenset[str]) -> bool:
+    """Whether a frame hangs (through fixed joints) below a frame named in ``names``: the
+    links of a gripper's locked jaws."""
+    seen = 0
+    while frame_id > 0 and seen < len(model.frames):
+        if model.frames[frame_id].name in names:
+            return True
+        frame_id = model.frames[frame_id].parentFrame
+        seen += 1
+    return False

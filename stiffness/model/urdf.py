@@ -1,0 +1,223 @@
+"""Reading URDF files as tolerantly as Pinocchio's own parser (urdfdom) does.
+
+Whatever Pinocchio's parser accepts loads: a ``<limit effort velocity/>`` without ``lower`` or
+``upper``, any XML header version (pybullet's ``<?xml version="0.0"?>``), tags it does not know.
+Each thing the toolkit reads differently from the file, or ignores, gives one
+:class:`RobotFileWarning`. A file Pinocchio refuses gets one
+:class:`~stiffness.errors.RobotFileError` line naming the file, the line and the problem
+(urdfdom's own diagnosis, which it prints on the C-level standard error, is captured for it).
+
+Also read here, because Pinocchio's algorithms cannot use them: ``<mimic>`` tags (the follower
+joint is built as an ordinary joint and :class:`Mimic` records the coupling), and the visual
+geometry, whose mesh files are resolved by :mod:`stiffness.model.meshes`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.errors import MissingFileError, RobotFileError, RobotFileWarning
+from stiffness.model import kinematics
+from stiffness.model.meshes import MissingMesh, resolve_visual_meshes
+
+#: urdfdom messages that only repeat that an earlier, more specific error happened.
+_GENERIC = ("is not initialized correctly", "Failed to build tree", "Model xml is not",
+            "Failed to parse")
+_CHILD_TAGS = ("origin", "axis", "limit", "mimic", "dynamics", "calibration",
+               "safety_controller", "inertial", "visual", "collision")
+_DECLARATION = re.compile(rb"^\s*<\?xml[^>]*\?>")
+_VERSION = re.compile(rb"""version\s*=\s*["']([^"']*)["']""")
+
+
+@dataclass(frozen=True)
+class Mimic:
+    """A URDF ``<mimic>``: ``follower = multiplier * leader + offset`` (rad or m)."""
+
+    follower: str
+    leader: str
+    multiplier: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass
+class UrdfRobot:
+    """A URDF read for elastostatics.
+
+    Attributes
+    ----------
+    model
+        Pinocchio model (mimic followers as ordinary joints, fixed base).
+    visual
+        Visual geometry with resolved meshes (primitives stand in for missing ones), or None.
+    mimics
+        The ``<mimic>`` couplings.
+    all_mimics
+        Every ``<mimic>`` tag, those of fixed joints included (for the default target frame).
+    missing_meshes
+        Meshes that could not be found (drawn as primitives).
+    """
+
+    model: pin.Model
+    visual: object | None
+    mimics: tuple[Mimic, ...] = ()
+    missing_meshes: tuple[MissingMesh, ...] = field(default_factory=tuple)
+    all_mimics: tuple[Mimic, ...] = ()
+
+
+def warn(message: str) -> None:
+    """Emit one :class:`RobotFileWarning`."""
+    warnings.warn(message, RobotFileWarning, stacklevel=3)
+
+
+def _tolerant_bytes(raw: bytes) -> bytes:
+    """The file with its XML declaration made acceptable to a strict XML parser."""
+    match = _DECLARATION.match(raw)
+    if match is None:
+        return raw
+    return raw[: match.start()] + raw[match.end():]
+
+
+def _parse_tree(path: Path, raw: bytes, strict: bool):
+    """lxml tree of the file (declaration neutralised).
+
+    ``strict``: a file that is not well-formed XML is a :class:`RobotFileError` with its line
+    (only asked once Pinocchio has refused the file: what Pinocchio reads, loads); otherwise the
+    parser recovers what it can (for warnings, mimic tags and visuals).
+    """
+    from lxml import etree
+
+    try:
+        root = etree.fromstring(_tolerant_bytes(raw), etree.XMLParser(
+            recover=not strict, remove_comments=True, huge_tree=True))
+    except etree.XMLSyntaxError as exc:
+        # the declaration is removed without its line break: line numbers are unchanged
+        line = exc.position[0] if exc.position else None
+        raise RobotFileError(path, line,
+                             f"not a valid URDF: not well-formed XML: {exc.msg}") from exc
+    if root is None:
+        return etree.fromstring(b"<robot/>")
+    return root
+
+
+def _urdfdom_problem(text: str) -> tuple[str | None, int | None]:
+    """The most specific urdfdom message and the line it names, from its stderr output."""
+    messages = [m.strip() for m in re.findall(r"Error:\s*(.+)", text)]
+    specific = [m for m in messages if not any(g in m for g in _GENERIC)] or messages
+    if not specific:
+        return None, None
+    line = re.search(r"Line number=(\d+)", specific[0])
+    return "; ".join(dict.fromkeys(specific[:2])), int(line.group(1)) if line else None
+
+
+def _element_line(root, message: str) -> int | None:
+    """Source line of the joint or link an urdfdom message names in brackets."""
+    for name in re.findall(r"\[([^\]]+)\]", message):
+        for tag in ("joint", "link"):
+            for element in root.iter(tag):
+                if element.get("name") != name:
+                    continue
+                for child in _CHILD_TAGS:  # point at the faulty child element when named
+                    if child in message.lower() and element.find(child) is not None:
+                        return element.find(child).sourceline
+                return element.sourceline
+    return None
+
+
+def _structure_problem(root) -> tuple[str, int] | None:
+    """First joint naming a link the file does not define (urdfdom's message omits the line)."""
+    links = {link.get("name") for link in root.iter("link")}
+    for joint in root.iter("joint"):
+        for role in ("parent", "child"):
+            element = joint.find(role)
+            name = None if element is None else element.get("link")
+            if element is not None and name not in links:
+                return (f"joint {joint.get('name')!r} names the {role} link {name!r}, which the "
+                        "file does not define"), element.sourceline
+    return None
+
+
+def mimic_tags(root, include_fixed: bool = False) -> tuple[Mimic, ...]:
+    """The ``<mimic>`` couplings of a parsed URDF (lxml root); those of fixed joints (which
+    couple nothing) only with ``include_fixed``."""
+    out = []
+    for joint in root.iter("joint"):
+        tag = joint.find("mimic")
+        if tag is None or (joint.get("type") in ("fixed", None) and not include_fixed):
+            continue
+        out.append(Mimic(str(joint.get("name")), str(tag.get("joint")),
+                         float(tag.get("multiplier", 1.0)), float(tag.get("offset", 0.0))))
+    return tuple(out)
+
+
+def _warn_ignored(path: Path, raw: bytes, root, model: pin.Model) -> None:
+    """One warning per thing the toolkit ignores or reads its own way."""
+    match = _DECLARATION.match(raw)
+    if match is not None:
+        version = _VERSION.search(match.group(0))
+        if version is not None and version.group(1) != b"1.0":
+            warn(f"{path}: XML declaration version {version.group(1).decode()!r} ignored "
+                 "(read as XML 1.0, as Pinocchio does)")
+    for joint in root.iter("joint"):
+        limit = joint.find("limit")
+        name = joint.get("name")
+        if joint.get("type") not in ("revolute", "prismatic") or limit is None:
+            continue
+        missing = [b for b in ("lower", "upper") if limit.get(b) is None]
+        if missing and model.existJointName(name):
+            warn(f"{path}, line {limit.sourceline}: joint {name!r} has a <limit> without "
+                 f"{' and '.join(missing)}; the joint is taken as unbounded")
+            j = model.joints[model.getJointId(name)]
+            if "lower" in missing:
+                model.lowerPositionLimit[j.idx_q] = -np.inf
+            if "upper" in missing:
+                model.upperPositionLimit[j.idx_q] = np.inf
+
+
+def read_urdf(path: str | os.PathLike) -> UrdfRobot:
+    """Read a URDF file: model, visuals and mimic couplings.
+
+    Raises
+    ------
+    MissingFileError
+        If the file is missing.
+    RobotFileError
+        If Pinocchio's parser refuses it (the message names the line).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"URDF file {path} does not exist; give an existing .urdf path",
+                               path=path)
+    raw = path.read_bytes()
+    with kinematics.captured_stderr() as err:
+        try:
+            model = pin.buildModelFromXML(raw.decode("utf-8", "replace"))
+            failure = None
+        except (RuntimeError, ValueError) as exc:
+            failure = exc
+    if failure is not None:
+        root = _parse_tree(path, raw, strict=True)
+        problem, line = _urdfdom_problem(err[0] if err else "")
+        structure = _structure_problem(root)
+        if structure is not None:
+            problem, line = structure
+        if problem is None:
+            problem = str(failure)
+        raise RobotFileError(
+            path, line or _element_line(root, problem),
+            f"not a valid URDF (Pinocchio's parser refuses it): {problem}") from failure
+    root = _parse_tree(path, raw, strict=False)
+    _warn_ignored(path, raw, root, model)
+    mimics = mimic_tags(root)
+    for mimic in mimics:
+        if not model.existJointName(mimic.leader):
+            raise RobotFileError(path, None, f"joint {mimic.follower!r} mimics {mimic.leader!r}, "
+                                             "which is not a joint of the file")
+    visual, missing = resolve_visual_meshes(path, root, model)
+    return UrdfRobot(model, visual, mimics, missing, mimic_tags(root, include_fixed=True))
