@@ -165,3 +165,50 @@ def test_table2_runs():
     assert set(s) == SUMMARY_KEYS
     assert s["noise_std_source"] == "residuals"
     assert s["baseline_rms"] == pytest.approx(0.0814, abs=0.002)
+
+
+def test_diagnosis_page(tmp_path):
+    """``--out`` also writes diagnosis.html in the report's template: residuals, steps with
+    BIC change and RMS, parameters with intervals, ambiguities; no raw literals; every table
+    captioned; Chromium renders it with its figure."""
+    import html
+    import re
+    import shutil
+    import subprocess
+    import tempfile
+
+    from stiffness.calibration.diagnose import DIAGNOSIS_PAGE
+
+    sim = _simulate(SK120, ["force_sensor_bias=8"], configs=6)
+    result = diagnose(sim.campaign, propose=False)
+    paths = result.write(tmp_path)
+    page = paths["page"].read_text()
+    assert paths["page"].name == DIAGNOSIS_PAGE
+    for anchor in ("summary", "contents", "provenance", "residuals", "steps", "parameters",
+                   "ambiguities", "reproduce"):
+        assert f"id='{anchor}'" in page, anchor
+    assert page.count("<table") == page.count("<caption>") >= 4
+    visible = html.unescape(re.sub(r"<(script|style)[^>]*>.*?</\1>|<[^>]+>", " ", page,
+                                   flags=re.S))
+    assert '{"' not in visible and "': " not in visible
+    summary = result.summary()
+    assert "force_sensor_bias" in visible and "ΔBIC" in visible
+    fx = summary["steps"][0]["parameters"]["fx"]
+    assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
+    assert f"{summary['final_rms']:.4g}" in visible
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")
+    probe = ("<script>window.addEventListener('load',()=>{document.body.setAttribute("
+             "'data-images',[...document.images].filter(i=>i.naturalWidth>100).length);});"
+             "</script>")
+    probe_file = tmp_path / "probe.html"
+    probe_file.write_text(page.replace("</body>", probe + "</body>"))
+    with tempfile.TemporaryDirectory() as profile:
+        dom = subprocess.run(
+            [browser, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             f"--user-data-dir={profile}", "--virtual-time-budget=5000", "--dump-dom",
+             probe_file.as_uri()], capture_output=True, text=True, timeout=120, check=False,
+        ).stdout
+    assert 'data-images="1"' in dom

@@ -2,26 +2,39 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import re
 import shutil
 import subprocess
 import tempfile
+from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from stiffness.cli.main import main
-from stiffness.papers.tables import read_table4
+from stiffness.mechanics.formulation import target_state
+from stiffness.model.robot import load_robot
+from stiffness.papers.tables import read_paper_table, read_table4
 
 CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 
 
 @pytest.fixture(scope="module")
-def report_dir(tmp_path_factory) -> Path:
+def report_run(tmp_path_factory) -> tuple[Path, str]:
     out = tmp_path_factory.mktemp("report")
-    assert main(["report", "--out", str(out), "--quiet"]) == 0
-    return out
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said):
+        assert main(["report", "--out", str(out), "--quiet"]) == 0
+    return out, said.getvalue()
+
+
+@pytest.fixture(scope="module")
+def report_dir(report_run) -> Path:
+    return report_run[0]
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +104,7 @@ def test_report_renders_in_headless_chromium(report_dir):
         pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")
     page = (report_dir / "report.html").read_text()
     n_figures = page.count("<figure")
-    assert n_figures == 5
+    assert n_figures == 6
     probe = ("<script>window.addEventListener('load',()=>{for(const i of document.images)"
              "{i.setAttribute('data-rendered',i.complete&&i.naturalWidth>100?'yes':'no');}"
              "document.body.setAttribute('data-probe','done');});</script>")
@@ -120,3 +133,179 @@ def test_report_refuses_a_campaign_of_another_robot(tmp_path, capsys):
     assert main(["report", "--campaign", str(campaign), "--out", str(out), "--quiet"]) == 2
     assert "must be an SK120 campaign" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------- the page a reader sees
+
+
+class _Page(HTMLParser):
+    """Visible text (no script or style), tables and their captions, ids and links."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.text: list[str] = []
+        self.tables = 0
+        self.captions = 0
+        self.ids: list[str] = []
+        self.links: list[str] = []
+        self._skip = 0
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag in ("script", "style"):
+            self._skip += 1
+        self.tables += tag == "table"
+        self.captions += tag == "caption"
+        if "id" in attrs:
+            self.ids.append(attrs["id"])
+        if tag == "a" and attrs.get("href", "").startswith("#"):
+            self.links.append(attrs["href"][1:])
+
+    def handle_endtag(self, tag):
+        if tag in ("script", "style"):
+            self._skip -= 1
+
+    def handle_data(self, data):
+        if not self._skip:
+            self.text.append(data)
+
+
+@pytest.fixture(scope="module")
+def page(report_dir) -> _Page:
+    parsed = _Page()
+    parsed.feed((report_dir / "report.html").read_text())
+    return parsed
+
+
+def test_page_opens_on_a_summary_then_contents_then_provenance(page, summary):
+    text = " ".join(page.text)
+    order = [page.ids.index(a) for a in ("summary", "contents", "provenance")]
+    assert order == sorted(order) and page.ids[-1] != "summary"
+    assert page.ids.index("summary") < page.ids.index("conventions")
+    # every verdict in the summary table is one of the four, every link lands in the page
+    for claim in summary["claims"]:
+        assert claim["verdict"] in ("reproduced", "not reproduced", "error in the paper",
+                                    "undecidable from the paper")
+        assert claim["section"] in page.ids
+    assert set(page.links) <= set(page.ids)
+    prov = summary["provenance"]
+    for value in (prov["package_version"], prov["python"], prov["pinocchio"],
+                  prov["date_utc"], prov["command"]):
+        assert value in text, value
+    assert prov["command"].startswith("stiffness report --out ")
+    assert re.fullmatch(r"[0-9a-f]{40}", prov["git_commit"] or "0" * 40)
+    assert text.rstrip().endswith("the figures as PNG.")  # the "reproduce this" block ends it
+    assert prov["command"] in text[text.index("Reproduce this"):]
+
+
+def test_page_has_no_raw_literals_and_every_table_a_caption(page, report_dir):
+    captions = re.findall(r"<caption>(.*?)</caption>", (report_dir / "report.html").read_text(),
+                          re.S)
+    assert len(captions) == page.tables and all("class='legend'" in c for c in captions)
+    text = " ".join(page.text)
+    assert '{"' not in text and "': " not in text and "{'" not in text
+    assert "_mm" not in text and "Infinity" not in text and "None" not in text
+    assert page.tables >= 10 and page.captions == page.tables
+
+
+def test_plot_labels_are_words_with_units(monkeypatch, summary):
+    """Legends, titles and axis labels of the row-by-row figures: no variable names, units
+    on the value axes, the configuration rows (A1 ...) on the other."""
+    from stiffness.papers import figures
+
+    drawn = []
+    monkeypatch.setattr(figures, "_png", lambda fig: drawn.append(fig) or b"")
+    figures.table2_comparison(summary["table2"])
+    figures.table3_work_per_load(summary["table3"], summary["table3_corrupt_rows"])
+    for fig in drawn:
+        legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes)]
+        texts = [t.get_text() for lg in legends if lg is not None for t in lg.get_texts()]
+        assert texts, "a figure without a legend"
+        for ax in fig.axes:
+            texts += [ax.get_xlabel(), ax.get_ylabel(), ax.get_title()]
+            assert "row" in ax.get_xlabel()
+            assert [t.get_text() for t in ax.get_xticklabels()][:2] == ["A1", "A2"]
+            assert re.search(r"\(.*(mm|N).*\)", ax.get_ylabel()), ax.get_ylabel()
+        for text in texts:
+            assert not re.search(r"[a-z]_[a-z]", re.sub(r"\$[^$]*\$", "", text)), text
+
+
+def test_terminal_says_findings_in_the_paper(report_run, summary):
+    said = report_run[1]
+    assert f"{summary['findings_count']} findings in the paper" in said
+    assert "violations" not in said
+    assert summary["findings_count"] == len(summary["audit"])
+    assert all(a["verdict"] in summary["findings_by_verdict"] for a in summary["audit"])
+
+
+def _independent_convention(robot, remap, k_theta):
+    """Table II RMS (enhanced, paper's K_theta) and a least-squares K_theta (conventional,
+    linear in the compliances) with the printed angles remapped, straight from mechanics."""
+    err, blocks, values = [], [], []
+    for rec in read_paper_table("table2"):
+        q = robot.configuration(np.deg2rad(remap(rec["q"])))
+        force = rec["force_N"]
+        state = target_state(robot, q, force)
+        jac = state.jacobian[:3]
+        err.append(jac @ np.linalg.solve(k_theta - state.k_c, jac.T @ force) - rec["measured_m"])
+        blocks.append(jac * (jac.T @ force)[None, :])
+        values.append(rec["measured_m"])
+    c, *_ = np.linalg.lstsq(np.vstack(blocks), np.concatenate(values), rcond=None)
+    return float(np.sqrt(np.mean(np.square(err)))) * 1e3, 1e3 / c
+
+
+def test_two_conventions_match_an_independent_computation(summary):
+    conventions = summary["conventions"]
+    assert [c["name"] for c in conventions] == ["chosen", "alternative"]
+    for c in conventions:
+        assert {"name", "theta_map", "table2_rms_mm", "table3_sign_agreement",
+                "k_theta_Nmm_per_rad"} <= set(c)
+        assert 0 <= c["table3_sign_agreement"] <= 25
+    robot = load_robot("sk120")
+    k_theta = np.diag(robot.defaults["k_theta_SI"])
+    # chosen: theta1_DH = 180 - q1, theta6_DH = 90 + q6; alternative: theta1_DH = q1,
+    # theta6_DH = q6 (the rest alike), so on the shipped model q1 -> 180 - q1, q6 -> q6 - 90
+    remaps = (lambda q: q, lambda q: np.r_[180.0 - q[0], q[1:5], q[5] - 90.0])
+    assert "theta1_DH = 0 deg + q1" in conventions[1]["theta_map"]
+    assert "theta6_DH = 0 deg + q6" in conventions[1]["theta_map"]
+    for c, remap in zip(conventions, remaps, strict=True):
+        rms, k = _independent_convention(robot, remap, k_theta)
+        assert c["table2_rms_mm"] == pytest.approx(rms, rel=1e-9)
+        np.testing.assert_allclose(c["k_theta_Nmm_per_rad"], k, rtol=5e-3)
+    # the headline K_theta carries the band over both conventions
+    band = summary["k_theta_convention_band_Nmm_per_rad"]
+    for j, (lo, hi) in enumerate(band):
+        values = [c["k_theta_Nmm_per_rad"][j] for c in conventions]
+        assert lo == pytest.approx(min(values)) and hi == pytest.approx(max(values))
+
+
+def test_table3_corrupt_row_by_work_per_load(summary):
+    rows = read_paper_table("table3")
+    ratio = np.array([r["work_cartesian"] / np.dot(r["force_N"], r["force_N"]) for r in rows])
+    configs = np.array([r["config"] for r in rows])
+    in_c = ratio[configs == "C"]
+    departure = np.abs(in_c / np.median(in_c) - 1.0)
+    assert summary["table3_corrupt_row"] == {"config": "C", "row": int(np.argmax(departure)) + 1}
+    entry = next(a for a in summary["audit"] if a["item"].startswith("Table III configuration C"))
+    assert "misprinted" in entry["finding"]
+
+
+def test_findings_say_no_more_than_the_evidence(summary):
+    by_item = {a["item"]: a for a in summary["audit"]}
+    ident = by_item["identified K_theta"]
+    assert ident["verdict"] == "undecidable from the paper"
+    assert "not a finding about the paper" in ident["finding"]
+    assert by_item["printed joint angles: convention"]["verdict"] == "undecidable from the paper"
+    symmetric = by_item["Table II calculated deflections: symmetric linear map of F"]
+    assert "Caveat" in symmetric["finding"] and "Table I does not give" not in json.dumps(
+        summary["audit"])
+    fits = summary["table2_linear_map_fits"]
+    for config, fit in fits.items():  # a general map fits to rounding, a symmetric one not all
+        assert fit["general_max_residual_mm"] < 1e-4, config
+    assert max(f["symmetric_max_residual_mm"] for f in fits.values()) > 10 * max(
+        f["ours_symmetric_max_residual_mm"] for f in fits.values())
+    signs = [a for a in summary["audit"] if a["item"].endswith("sign of the work difference")]
+    for a in signs:  # a sign that flips with the convention is not called a paper error
+        agree = a["numbers"]["rows_agreeing_by_convention"]
+        if len(set(agree.values())) > 1:
+            assert a["verdict"] == "undecidable from the paper"

@@ -99,6 +99,14 @@ def screenshot(page: Path, out: Path, *extra: str) -> np.ndarray:
     return np.asarray(Image.open(out).convert("RGB"), dtype=float)
 
 
+def page_overlay(page: str) -> dict:
+    """The legend and label data embedded in an exported page."""
+    found = re.search(r'<script type="application/json" id="stiffness-overlay-data">(.*?)'
+                      r'</script>', page, re.S)
+    assert found is not None, "no overlay data in the page"
+    return json.loads(found.group(1).replace("<\\/", "</"))
+
+
 def computed_stiffness(robot, coords, k_theta, load) -> dict[str, np.ndarray]:
     """Translational K_X of both formulations, straight from stiffness.mechanics.formulation."""
     q = robot.configuration(np.asarray(coords, dtype=float))
@@ -213,13 +221,18 @@ def test_exported_ellipsoids_are_the_eigendecomposition(sk120_page, sk120):
         np.testing.assert_array_equal(transforms[f"/meshcat/stiffness/{name}/axes"], matrix)
     # the stated scale is the one drawn
     assert f"radius = {format_value(state.scale, 'm')} per N/m" in page
-    # labels carry values and units
-    labels = [c["object"]["textures"][0]["text"] for c in scene_commands(page)
-              if c["type"] == "set_object" and "/label" in c["path"]
-              and c["object"].get("textures")]
+    # the page's labels name the axes at their tips; the legend carries values and units
+    overlay = page_overlay(page)
+    labels = {tuple(label["anchor"]): label["text"] for label in overlay["labels"]}
+    assert labels[("meshcat", "stiffness", "enhanced", "label1")] == "k1"
+    assert {"enhanced", "conventional"} <= set(labels.values())
     values = np.linalg.eigh(k_x["enhanced"])[0]
-    assert f"k1 = {format_value(values[0], 'N/m')}" in labels
-    assert {"enhanced", "conventional"} <= set(labels)
+    legend = " ".join(item["text"] for item in overlay["legend"])
+    assert f"k1, k2, k3 = [{', '.join(format_value(v) for v in values)}] N/m" in legend
+    for i in range(3):  # anchored at the axis tips: centre + radius along eigenvector i
+        tip = transforms[f"/meshcat/stiffness/enhanced/label{i + 1}"][:3, 3]
+        axis = transforms["/meshcat/stiffness/enhanced/surface"][:3, i]
+        np.testing.assert_allclose(tip, position + axis, atol=1e-9)
 
 
 def test_ur5_scene_and_compliance_quantity(ur5):
@@ -253,9 +266,8 @@ def test_unbounded_stiffness_is_drawn_clipped(four_bar_robot):
     assert np.isinf(ell.values[-1]) and ell.stiffness is None
     radii = state.radii["enhanced"]
     assert np.all(np.isfinite(radii)) and radii[-1] == pytest.approx(3.0 * radii[1])
-    labels = [c["object"]["textures"][0]["text"] for c in viewer.commands()
-              if c["type"] == "set_object" and c["path"].endswith("label3")]
-    assert labels == ["k3 = inf N/m"]
+    legend = " ".join(item["text"] for item in viewer.overlay()["legend"])
+    assert "k1, k2, k3 = [" in legend and ", inf] N/m" in legend
 
 
 def test_sweep_animates_each_frames_ellipsoid(ur5):
@@ -735,3 +747,163 @@ def test_import_keeps_warnings_local():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             timeout=60)
     assert result.returncode == 0, result.stderr
+
+
+# ------------------------------------------------------------------ legible labels and floor
+
+LABEL_PROBE = FIX_CANVAS + r"""
+<script>
+window.addEventListener("load", function () { setTimeout(function () {
+  viewer.render();
+  var canvas = viewer.renderer.domElement.getBoundingClientRect();
+  var W = canvas.width, H = canvas.height;
+  function screen(p) {
+    var v = viewer.camera.position.clone().set(p[0], p[1], p[2]);
+    viewer.scene.localToWorld(v); v.project(viewer.camera);
+    return [canvas.left + (v.x + 1) / 2 * W, canvas.top + (1 - v.y) / 2 * H, v.z];
+  }
+  var labels = Array.from(document.querySelectorAll(".stiffness-label")).filter(function (e) {
+    return getComputedStyle(e).display !== "none"; }).map(function (e) {
+    var r = e.getBoundingClientRect();
+    return {text: e.textContent, l: r.left, t: r.top, r: r.right, b: r.bottom}; });
+  var o = document.getElementById("stiffness-overlay").getBoundingClientRect();
+  var plate = viewer.scene_tree.children.meshcat.children.floor.children.plate;
+  var box = plate.children["<object>"].object;
+  box.geometry.computeBoundingBox(); box.updateWorldMatrix(true, false);
+  var bb = box.geometry.boundingBox, floor = [];
+  for (var i = 0; i <= 10; i++) { for (var j = 0; j <= 10; j++) {
+    var v = bb.min.clone();
+    v.x = bb.min.x + (bb.max.x - bb.min.x) * i / 10;
+    v.y = bb.min.y + (bb.max.y - bb.min.y) * j / 10;
+    v.z = bb.max.z;
+    v.applyMatrix4(box.matrixWorld); v.project(viewer.camera);
+    floor.push([canvas.left + (v.x + 1) / 2 * W, canvas.top + (1 - v.y) / 2 * H, v.z]); } }
+  var pre = document.createElement("pre"); pre.id = "probe";
+  pre.textContent = JSON.stringify({labels: labels, robot: ROBOT.map(screen), floor: floor,
+    canvas: [canvas.left, canvas.top, canvas.right, canvas.bottom],
+    legend: [o.left, o.top, o.right, o.bottom], title: document.title});
+  document.body.appendChild(pre);
+}, 1500); });
+</script>
+""".replace("CANVAS", json.dumps(CANVAS))
+
+
+def robot_points(robot, q, per_link: int = 6) -> list[list[float]]:
+    """Points along the robot's skeleton (joint origins and between parent and child), m."""
+    import pinocchio as pin
+
+    model, data = robot.model, robot.data
+    pin.forwardKinematics(model, data, q)
+    points = []
+    for j in range(1, model.njoints):
+        a, b = data.oMi[int(model.parents[j])].translation, data.oMi[j].translation
+        points += [list(map(float, a + (b - a) * t)) for t in np.linspace(0, 1, per_link)]
+    return points
+
+
+def rendered_layout(page: Path, robot, q, tmp_path: Path) -> dict:
+    probe = LABEL_PROBE.replace("ROBOT", json.dumps(robot_points(robot, q)))
+    probe_page = tmp_path / f"{page.stem}-probe.html"
+    probe_page.write_text(page.read_text().replace("</body>", probe + "</body>"))
+    dom = run_chromium(probe_page.as_uri(), *OFFLINE_FLAGS, "--dump-dom")
+    match = re.search(r'<pre id="probe">(.*?)</pre>', dom, re.S)
+    assert match, "the probe did not run: the page did not load or WebGL failed"
+    import html
+
+    return json.loads(html.unescape(match.group(1)))
+
+
+def overlap(a: dict, b: dict) -> bool:
+    return a["l"] < b["r"] and b["l"] < a["r"] and a["t"] < b["b"] and b["t"] < a["b"]
+
+
+@pytest.mark.parametrize("case", ["hexapod", "ur5-unloaded"])
+def test_labels_never_overlap_and_the_floor_is_in_frame(case, tmp_path, capsys):
+    """Measured in the rendered page: label rectangles disjoint, off the legend and the robot's
+    skeleton, inside the canvas; the floor plate under the robot inside the frame. The UR5
+    is drawn without --wrench: the unloaded stiffness, said on the terminal and the page."""
+    out = tmp_path / f"{case}.html"
+    if case == "hexapod":
+        argv, robot = ["view", "--robot", "hexapod"], load_robot("hexapod")
+        coords = np.asarray(robot.defaults["q_SI"], dtype=float)
+    else:
+        argv = ["view", "--robot", "ur5", "--frame", "tool0", "--q", ",".join(map(str, UR5_Q)),
+                "--kq", ",".join(map(str, UR5_KQ))]
+        robot, coords = load_robot("ur5", frame="tool0"), np.asarray(UR5_Q)
+    assert cli_main([*argv, "--export", str(out)]) == 0
+    said = capsys.readouterr().out
+    page = out.read_text()
+    overlay = page_overlay(page)
+    if case == "ur5-unloaded":
+        assert "unloaded stiffness" in said
+        assert any("no load" in line for line in overlay["lines"])
+        transforms = scene_transforms(scene_commands(page))
+        k_x = computed_stiffness(robot, coords, UR5_KQ, [0.0, 0.0, 0.0])
+        scale = np.linalg.norm(transforms["/meshcat/stiffness/enhanced/surface"][:3, 0]) / \
+            np.linalg.eigvalsh(k_x["enhanced"])[0]
+        assert_ellipsoid(transforms["/meshcat/stiffness/enhanced/surface"], k_x["enhanced"],
+                         scale)
+        np.testing.assert_allclose(k_x["enhanced"], k_x["conventional"])
+    layout = rendered_layout(out, robot, robot.configuration(coords), tmp_path)
+    assert "/" not in layout["title"] and layout["title"].startswith(robot.name)
+    labels = layout["labels"]
+    assert len(labels) >= 4, labels  # names and most axis labels find a place
+    left, top, right, bottom = layout["canvas"]
+    legend = dict(zip("ltrb", layout["legend"], strict=True))
+    for i, a in enumerate(labels):
+        assert left <= a["l"] and a["r"] <= right and top <= a["t"] and a["b"] <= bottom, a
+        assert not overlap(a, legend), a
+        for b in labels[i + 1:]:
+            assert not overlap(a, b), (a, b)
+        for x, y, z in layout["robot"]:
+            if -1 < z < 1:
+                assert not (a["l"] < x < a["r"] and a["t"] < y < a["b"]), (a, (x, y))
+    floor = np.array(layout["floor"])
+    inside = ((floor[:, 0] > left) & (floor[:, 0] < right) & (floor[:, 1] > top)
+              & (floor[:, 1] < bottom) & (np.abs(floor[:, 2]) < 1))
+    assert inside.mean() > 0.2, f"floor mostly outside the frame ({inside.mean():.0%} inside)"
+    robot_y = np.array([y for _, y, z in layout["robot"] if -1 < z < 1])
+    assert np.median(floor[inside, 1]) > np.min(robot_y), "floor not under the robot"
+
+
+def test_page_title_is_the_robots_name_not_its_path():
+    from stiffness.model.robot import robots_directory
+
+    robot = load_robot(robots_directory() / "sk120" / "sk120.urdf", frame="fixture_target",
+                       compliant_joints=["joint1", "joint2", "joint3"])
+    viewer = StiffnessViewer(robot, [1e6, 4e5, 9e5])
+    viewer.show(np.deg2rad(load_robot("sk120").defaults["q_deg"]), [0.0, 0.0, -100.0])
+    title = re.search(r"<title>(.*?)</title>", viewer.html()).group(1)
+    assert "/" not in title and ".urdf" not in title
+    assert title.startswith(robot.model.name) and viewer.overlay()["title"].startswith(
+        robot.model.name)
+
+
+def test_rotational_block_of_the_six_by_six_stiffness():
+    """Hexapod (six compliant legs): the rotational 3x3 block of K_X = C6^-1, in N.m/rad, drawn
+    hidden beside the target with its own scale and a toggle; none for a 3-joint SK120."""
+    robot = load_robot("hexapod")
+    k_theta = np.asarray(robot.defaults["k_theta_SI"], dtype=float)
+    coords = np.asarray(robot.defaults["q_SI"], dtype=float)
+    wrench = np.asarray(robot.defaults["wrench_SI"], dtype=float)
+    viewer = StiffnessViewer(robot, k_theta)
+    state = viewer.show(coords, wrench, "enhanced")
+    target = target_state(robot, robot.configuration(coords), wrench)
+    tangent = tangent_joint_stiffness(np.diag(k_theta), target.k_c, "enhanced")
+    k6 = np.linalg.inv(compliance(target.jacobian, tangent))
+    block = 0.5 * (k6[3:, 3:] + k6[3:, 3:].T)
+    np.testing.assert_allclose(state.rotational.values, np.linalg.eigvalsh(block), rtol=1e-8)
+    assert state.rotational.units == "N.m/rad"
+    transforms = scene_transforms(viewer.commands())
+    radii = np.linalg.norm(transforms["/meshcat/rotational/surface"][:3, :3], axis=0)
+    np.testing.assert_allclose(radii / radii.max(), state.rotational.values
+                               / state.rotational.values.max(), rtol=1e-8)
+    assert radii.max() == pytest.approx(viewer.size)
+    overlay = viewer.overlay()
+    assert {"label": "rotational stiffness (N.m/rad)", "path": ["meshcat", "rotational"]} in \
+        overlay["toggles"]
+    hidden = [c for c in viewer.commands() if c["type"] == "set_property"
+              and c["path"] == "/meshcat/rotational" and c["property"] == "visible"]
+    assert hidden and hidden[-1]["value"] is False
+    sk120 = load_robot("sk120")
+    assert StiffnessViewer(sk120, sk120.defaults["k_theta_SI"]).show().rotational is None

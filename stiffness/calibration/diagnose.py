@@ -43,9 +43,11 @@ from scipy.stats import chi2, norm
 from scipy.stats import t as student_t
 
 from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
+from stiffness.provenance import provenance
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
 #: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
@@ -71,6 +73,8 @@ MODEL_FORMAT = "stiffness-diagnosed-model"
 #: File names written by :meth:`Diagnosis.write`.
 DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
     "diagnosis.json", "residuals.png", "final-model.json")
+#: The diagnosis as a page (:mod:`stiffness.calibration.diagnosis_page`).
+DIAGNOSIS_PAGE = "diagnosis.html"
 #: Noise sources.
 NOISE_SOURCES = ("declared", "replicates", "residuals")
 
@@ -579,8 +583,10 @@ class Diagnosis:
                                strict=True))},
         })
 
-    def write(self, folder: str | Path) -> dict[str, Path]:
-        """Write ``diagnosis.json``, ``residuals.png`` and ``final-model.json`` in ``folder``."""
+    def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
+        """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
+        ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
+        (default: this process's command line)."""
         folder = Path(folder)
         output_folder(folder)
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
@@ -591,6 +597,9 @@ class Diagnosis:
         tmp = paths["plot"].with_suffix(".png.tmp")
         tmp.write_bytes(png)
         tmp.replace(paths["plot"])
+        paths["page"] = folder / DIAGNOSIS_PAGE
+        atomic_write(paths["page"], render_diagnosis(self.to_dict(), png,
+                                                          provenance(command)))
         return paths
 
 

@@ -10,13 +10,16 @@ after each, their parameters with 95 % intervals, what the campaign cannot tell 
 extra poses and loads that would. ``--json`` prints one JSON object (``baseline_rms``,
 ``noise_std``, ``noise_std_source``, ``steps``, ``missing_effects``, ``final_rms``, ``unit``)
 and nothing else on stdout; ``--out DIR`` writes ``diagnosis.json`` (everything),
-``residuals.png`` (residuals before and after) and ``final-model.json``.
+``residuals.png`` (residuals before and after), ``final-model.json`` and ``diagnosis.html``
+(all of it as a page: residuals, steps with their BIC change and RMS, parameters with intervals,
+ambiguities with the proposed poses).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 
 from stiffness.calibration.campaign import load_campaign
@@ -31,7 +34,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (campaign units) and nothing else")
     parser.add_argument("--out", metavar="DIR",
-                        help="write diagnosis.json, residuals.png and final-model.json here")
+                        help="write diagnosis.json, residuals.png, final-model.json and "
+                             "diagnosis.html (the page) here")
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS,
                         help=f"largest number of effects added; default {MAX_STEPS}")
     parser.add_argument("--seed", type=int, default=0,
@@ -39,6 +43,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-proposals", action="store_true",
                         help="do not propose extra poses and loads")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The command that reproduces this run (recorded in diagnosis.html)."""
+    words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
+             "--max-steps", str(args.max_steps), "--seed", str(args.seed)]
+    return shlex.join(words + (["--no-proposals"] if args.no_proposals else []))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None)
-    paths = result.write(args.out) if args.out else None
+    paths = result.write(args.out, command_line(args)) if args.out else None
     if args.json:
         print(json.dumps(result.summary(), indent=1, allow_nan=False))
         return 0

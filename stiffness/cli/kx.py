@@ -107,8 +107,11 @@ class KxInputs:
         return {"q": self.q_source, "wrench": load, "K_theta": self.k_theta_source}
 
 
-def resolve_inputs(args: argparse.Namespace) -> KxInputs:
+def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInputs:
     """Robot, configuration, joint stiffness and load of the ``kx`` flags (shared by ``view``).
+
+    Without ``--wrench`` the robot's shipped load is used; if it has none, the load is zero
+    when ``require_load`` is false (``view`` draws the unloaded stiffness), else an error.
 
     Raises
     ------
@@ -135,6 +138,8 @@ def resolve_inputs(args: argparse.Namespace) -> KxInputs:
         load, source = np.array(flags.parse_list(args.wrench, "--wrench")), "--wrench"
     else:
         shipped = default_load(robot, q, k_theta)
+        if shipped is None and not require_load:
+            shipped = np.zeros(3), "none"
         if shipped is None:
             raise StiffnessError(
                 "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")

@@ -1,17 +1,20 @@
-"""``stiffness report``: the SK120 paper-reproduction report and its 3-D scene.
+"""``stiffness report``: the SK120 paper-reproduction report (the main job) and its 3-D scene.
 
-The report itself is :mod:`stiffness.papers.report`; this command adds the meshcat scene of
-:func:`stiffness.papers.report.scene_robot` (drawn by :mod:`stiffness.viewer`, a layer above
-the papers) and prints a short summary.
+Writes ``report.html`` (summary of verdicts, contents, provenance, evidence, figures embedded),
+``summary.json`` and the figures as PNG into ``--out`` (see :mod:`stiffness.papers.report`),
+and the meshcat scene of :func:`stiffness.papers.report.scene_robot`, drawn by
+:mod:`stiffness.viewer` (a layer above the papers).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 from pathlib import Path
 
 from stiffness.files import output_folder
 from stiffness.papers.report import SCENE_TITLE, build_report, scene_robot, write_report
+from stiffness.papers.report_page import verdict_counts
 from stiffness.viewer import StiffnessViewer
 
 
@@ -36,10 +39,19 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on the terminal")
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """The command that reproduces this run (recorded in the report's provenance)."""
+    words = ["stiffness", "report", "--out", str(args.out)]
+    if args.campaign:
+        words += ["--campaign", str(args.campaign)]
+    return shlex.join(words)
+
+
 def run(args: argparse.Namespace) -> int:
     """Build and write the report, then print a short summary."""
     out = output_folder(args.out, create=False)  # before the work: a bad --out fails at once
-    summary, figures = build_report(args.campaign, quiet=args.quiet)
+    summary, figures = build_report(args.campaign, quiet=args.quiet,
+                                    command=command_line(args))
     write_report(out, summary, figures, scene=export_scene)
     s = summary
     print(f"SK120 report written to {out / 'report.html'} ({s['elapsed_s']:.0f} s)")
@@ -53,5 +65,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"  Table IV printed counts self-consistent: {s['table4_paper_self_consistent']}")
     print(f"  K_theta - K_C PD on the whole grid: {s['kx_positive_definite_everywhere']}; loses "
           f"PD at {s['kx_loses_pd_at_force_N'] / 1e3:.0f} kN")
-    print(f"  audit: {len(s['audit'])} violations (see report)")
+    verdicts = verdict_counts(s["findings_by_verdict"])
+    print(f"  {s['findings_count']} findings in the paper ({verdicts}); see the report")
     return 0

@@ -104,9 +104,10 @@ def resolve(args: argparse.Namespace, inputs: kx.KxInputs | None = None
     """Robot, coordinates (rad, m), joint stiffness (n, n) and load of the kx flags.
 
     The same resolution as ``stiffness kx`` (:func:`stiffness.cli.kx.resolve_inputs`):
-    shipped robots bring their configuration, springs and load. ``inputs``: already resolved.
+    shipped robots bring their configuration, springs and load; without ``--wrench`` and a
+    shipped load, the load is zero (the unloaded stiffness). ``inputs``: already resolved.
     """
-    inputs = inputs or kx.resolve_inputs(args)
+    inputs = inputs or kx.resolve_inputs(args, require_load=False)
     return inputs.robot, inputs.coords, inputs.k_theta, inputs.load
 
 
@@ -200,6 +201,12 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
     return viewer
 
 
+def _say_if_unloaded(viewer: StiffnessViewer) -> None:
+    if viewer.state is not None and not np.any(viewer.state.wrench):
+        print("no load (give --wrench fx,fy,fz in N): drawing the unloaded stiffness, where "
+              "enhanced and conventional coincide")
+
+
 def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
@@ -217,9 +224,10 @@ def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str) -> None
 
 def run(args: argparse.Namespace) -> int:
     """Export the static page, or serve the live viewer until Ctrl-C or ``--duration``."""
-    inputs = kx.resolve_inputs(args)
+    inputs = kx.resolve_inputs(args, require_load=False)
     if args.export is not None:
         viewer = build(args, live=False, inputs=inputs)
+        _say_if_unloaded(viewer)
         path = viewer.export(args.export)
         _report(args, inputs, export=str(path))
         if not args.json:
@@ -227,6 +235,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     previous = signal.signal(signal.SIGTERM, _terminate)  # so that the server is stopped
     viewer = build(args, live=True, inputs=inputs)
+    _say_if_unloaded(viewer)
     try:
         where = "this machine only" if args.host == LOOPBACK else \
             f"{args.host}: reachable from the network"

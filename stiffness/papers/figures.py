@@ -27,17 +27,21 @@ def force_deflection(curves: dict[str, dict]) -> bytes:
     ``curves[name] = {"force_N": (k,), "conventional": (k, 3), "enhanced": (k, 3),
     "exact": (k, 3), "direction": (3,)}`` in mm.
     """
-    fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 4.3), squeeze=False,
+                             layout="constrained")
     for ax, (name, c) in zip(axes[0], curves.items(), strict=True):
         for i, (axis, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"), strict=True)):
-            ax.plot(c["force_N"], c["exact"][:, i], "-", color=colour, label=f"d{axis} exact")
+            ax.plot(c["force_N"], c["exact"][:, i], "-", color=colour,
+                    label=f"{axis}, exact equilibrium")
             ax.plot(c["force_N"], c["enhanced"][:, i], "--", color=colour,
-                    label=f"d{axis} enhanced")
+                    label=f"{axis}, enhanced (eq. 10)")
             ax.plot(c["force_N"], c["conventional"][:, i], ":", color=colour,
-                    label=f"d{axis} conventional")
-        ax.set_title(f"{name}: load along {np.round(c['direction'], 3).tolist()}")
+                    label=f"{axis}, conventional (eq. 8)")
+        title = name.replace("fig", "Fig. ") + " configuration"
+        ax.set_title(f"{title}\nload direction ({', '.join(f'{v:.2f}' for v in c['direction'])})"
+                     , fontsize=10)
         ax.set_xlabel("load magnitude (N)")
-        ax.set_ylabel("deflection (mm)")
+        ax.set_ylabel("deflection component, base axes (mm)")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
     return _png(fig)
@@ -46,44 +50,62 @@ def force_deflection(curves: dict[str, dict]) -> bytes:
 def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
     """Figs. 7-9: the parts of C11, C22, C33 (eq. 16) over the Table IV grid, mm/rad.
 
-    Part k of C_ii is dJ[k, i]/dtheta_i, i.e. C_ii for a unit force along axis k.
+    Part k of C_ii is dJ[k, i]/dtheta_i, i.e. C_ii for a unit force along axis k. Drawn as maps
+    over the printed angles (q3, q2) at the grid's q1 nearest 0 (q1 turns the x and y parts
+    about the vertical and leaves the z part unchanged).
     """
     diag = scan.k_c_diagonal * 1e3  # N.m/rad per N -> mm/rad
-    fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
-    index = np.arange(diag.shape[0])
+    q_deg = np.rad2deg(scan.coordinates[:, :3])
+    q1_values = np.unique(np.round(q_deg[:, 0], 6))
+    q1 = q1_values[np.argmin(np.abs(q1_values))]
+    keep = np.abs(q_deg[:, 0] - q1) < 1e-6
+    q2_axis, q2_index = np.unique(np.round(q_deg[keep, 1], 6), return_inverse=True)
+    q3_axis, q3_index = np.unique(np.round(q_deg[keep, 2], 6), return_inverse=True)
+    fig, axes = plt.subplots(3, 3, figsize=(13, 10), sharex=True, sharey=True,
+                             layout="constrained")
+    floor = 1e-3 * float(np.max(np.abs(diag[keep])))  # below: numerically zero
     for i in range(3):
         for k in range(3):
+            grid = np.full((q2_axis.size, q3_axis.size), np.nan)
+            grid[q2_index, q3_index] = diag[keep, k, i]
             ax = axes[k, i]
-            ax.plot(index, diag[:, k, i], ",", color="C0")
-            ax.set_title(f"C{i + 1}{i + 1} part {k + 1}: dJ{'xyz'[k]}{i + 1}/dθ{i + 1}", fontsize=9)
+            limit = max(float(np.nanmax(np.abs(grid))), floor)
+            mesh = ax.pcolormesh(q3_axis, q2_axis, grid, shading="nearest", cmap="RdBu_r",
+                                 vmin=-limit, vmax=limit)
+            fig.colorbar(mesh, ax=ax, label="mm/rad")
+            ax.set_title(rf"C{i + 1}{i + 1}, {'xyz'[k]} part: "
+                         rf"$\partial J_{{{'xyz'[k]}{i + 1}}}/\partial\theta_{i + 1}$",
+                         fontsize=10)
             if i == 0:
-                ax.set_ylabel("mm/rad")
+                ax.set_ylabel("joint angle q2 (deg)")
             if k == 2:
-                ax.set_xlabel("configuration index")
-            ax.grid(alpha=0.3)
+                ax.set_xlabel("joint angle q3 (deg)")
+    fig.suptitle(f"Parts of the diagonal of K_C per newton of load along x, y, z "
+                 f"(q1 = {q1:.1f} deg, wrist vertical)", fontsize=11)
     return _png(fig)
 
 
 def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
     """Error of the linear predictions against the exact equilibrium, log-log in the load."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
     force = departure.scales * reference_force_N
     for pred, name, style in ((departure.conventional, "conventional", "o-"),
                               (departure.enhanced, "enhanced", "s-")):
         err = np.linalg.norm(pred - departure.exact, axis=1) * 1e3
         rate = departure.rate_conventional if name == "conventional" else departure.rate_enhanced
-        ax1.loglog(force, err, style, label=f"{name} (slope {rate:.2f})")
+        ax1.loglog(force, err, style, label=f"{name} (log-log slope {rate:.2f})")
     ax1.set_xlabel("load magnitude (N)")
-    ax1.set_ylabel("|linear - exact| deflection (mm)")
+    ax1.set_ylabel("error against the exact equilibrium (mm)")
     ax1.legend()
     ax1.grid(alpha=0.3, which="both")
-    ax2.plot(force, np.linalg.norm(departure.exact, axis=1) * 1e3, "k-", label="exact")
+    ax2.plot(force, np.linalg.norm(departure.exact, axis=1) * 1e3, "k-",
+             label="exact equilibrium")
     ax2.plot(force, np.linalg.norm(departure.enhanced, axis=1) * 1e3, "--", label="enhanced")
     ax2.plot(force, np.linalg.norm(departure.conventional, axis=1) * 1e3, ":", label="conventional")
     ax2.set_xscale("log")
     ax2.set_yscale("log")
     ax2.set_xlabel("load magnitude (N)")
-    ax2.set_ylabel("|deflection| (mm)")
+    ax2.set_ylabel("deflection magnitude (mm)")
     ax2.legend()
     ax2.grid(alpha=0.3, which="both")
     return _png(fig)
@@ -92,29 +114,69 @@ def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
 def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.ndarray,
                   ratio: np.ndarray, load_N: float) -> bytes:
     """Minimum principal stiffness (N/mm) over (theta2, theta3), and enhanced/conventional."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), layout="constrained")
     mesh = ax1.pcolormesh(theta3_deg, theta2_deg, minimum * 1e-3, shading="auto", cmap="viridis")
-    fig.colorbar(mesh, ax=ax1, label="min principal stiffness (N/mm)")
-    ax1.set_title("conventional K_X, theta1 = 0, wrist vertical")
+    fig.colorbar(mesh, ax=ax1, label="smallest principal stiffness (N/mm)")
+    ax1.set_title("conventional stiffness (eq. 8), q1 = 0, wrist vertical", fontsize=10)
     mesh2 = ax2.pcolormesh(theta3_deg, theta2_deg, ratio, shading="auto", cmap="coolwarm")
-    fig.colorbar(mesh2, ax=ax2, label="min stiffness ratio enhanced / conventional")
-    ax2.set_title(f"effect of K_C under a {load_N:g} N load along -z")
+    fig.colorbar(mesh2, ax=ax2, label="smallest principal stiffness, enhanced / conventional")
+    ax2.set_title(f"effect of K_C under a {load_N:g} N load straight down", fontsize=10)
     for ax in (ax1, ax2):
-        ax.set_xlabel("q3 (deg)")
-        ax.set_ylabel("q2 (deg)")
+        ax.set_xlabel("joint angle q3 (deg)")
+        ax.set_ylabel("joint angle q2 (deg)")
     return _png(fig)
 
 
+def _row_labels(rows: list[dict]) -> list[str]:
+    """``A1, A2, ...``: configuration label and row number within it."""
+    seen: dict[str, int] = {}
+    out = []
+    for r in rows:
+        seen[r["config"]] = seen.get(r["config"], 0) + 1
+        out.append(f"{r['config']}{seen[r['config']]}")
+    return out
+
+
 def table2_comparison(rows: list[dict]) -> bytes:
-    """Measured against predicted Table II deflections (mm)."""
-    fig, ax = plt.subplots(figsize=(5.5, 5))
-    meas = np.array([r["measured_mm"] for r in rows]).ravel()
-    for key, marker in (("paper_calculated_mm", "o"), ("enhanced_mm", "s"), ("exact_mm", "x")):
-        ax.plot(meas, np.array([r[key] for r in rows]).ravel(), marker, label=key, alpha=0.8)
-    lim = [min(meas.min(), 0) * 1.1, meas.max() * 1.1]
-    ax.plot(lim, lim, "k-", lw=0.5)
-    ax.set_xlabel("measured deflection component (mm)")
-    ax.set_ylabel("predicted (mm)")
-    ax.legend(fontsize=8)
+    """Table II per row (A1..C5): measured, the paper's calculated and our deflections (mm)."""
+    labels = _row_labels(rows)
+    x = np.arange(len(rows))
+    series = (("measured_mm", "measured (laser tracker)", "ko"),
+              ("paper_calculated_mm", "paper's calculated (eq. 10)", "s"),
+              ("enhanced_mm", "ours, enhanced (eq. 10)", "^"),
+              ("conventional_mm", "ours, conventional (eq. 8)", "x"))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6), layout="constrained")
+    for a, ax in enumerate(axes):
+        for key, label, style in series:
+            ax.plot(x, [r[key][a] for r in rows], style, label=label, alpha=0.85,
+                    mfc="none" if key != "measured_mm" else None)
+        ax.set_xticks(x, labels, fontsize=8)
+        ax.set_xlabel("Table II row (configuration and load step)")
+        ax.set_ylabel(f"deflection along base {'xyz'[a]} (mm)")
+        ax.grid(alpha=0.3)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=4,
+               fontsize=9)
+    return _png(fig)
+
+
+def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
+    """Table III per row (A1..E5): printed eq. 14 work over |F|^2, corrupt rows marked."""
+    labels = _row_labels(rows)
+    x = np.arange(len(rows))
+    ratio = np.array([r["paper_work_cartesian"] / np.dot(r["force_N"], r["force_N"])
+                      for r in rows])
+    ours = np.array([r["work_cartesian_Nmm"] / np.dot(r["force_N"], r["force_N"]) for r in rows])
+    fig, ax = plt.subplots(figsize=(11, 4.6), layout="constrained")
+    ax.plot(x, ratio, "o", label=r"printed eq. 14 work / $|F|^2$ (printed unit per N$^2$)")
+    ax.plot(x, ours, "x",
+            label=r"ours: eq. 14 from the enhanced deflection / $|F|^2$ (N·mm per N$^2$)")
+    for c in corrupt:
+        i = labels.index(f"{c['config']}{c['row']}")
+        ax.plot(x[i], ratio[i], "o", ms=14, mfc="none", mec="C3",
+                label=f"misprinted force: row {labels[i]}")
+    ax.set_xticks(x, labels, fontsize=8)
+    ax.set_xlabel("Table III row (configuration and load step)")
+    ax.set_ylabel(r"work / $|F|^2$ (printed unit or N·mm, per N$^2$)")
+    fig.legend(loc="outside lower center", ncol=3, fontsize=9)
     ax.grid(alpha=0.3)
     return _png(fig)

@@ -1,16 +1,15 @@
-"""The SK120 paper-reproduction report (the main job; the ``stiffness report`` command).
+"""The SK120 paper-reproduction report (``stiffness report``, see :mod:`stiffness.cli.report`).
 
 Checks the Appendix I Jacobian and K_C against Pinocchio's, identifies K_theta from the Table II
-campaign, reproduces Tables II, III and IV, audits them against the laws of the formulation,
-finds where K_theta - K_C stops being positive definite, and draws the figures. Writes
-``report.html`` (figures embedded), ``summary.json`` and the figures as PNG into ``--out``;
-every file is written atomically (temporary file, then rename).
+campaign under the two tool-vertical printed-angle conventions, reproduces Tables II, III and
+IV, audits them against the laws of the formulation, finds where K_theta - K_C stops being
+positive definite, and draws the figures. :func:`write_report` writes ``report.html`` (figures
+embedded; its page is :mod:`stiffness.papers.report_page`), ``summary.json`` and the figures as
+PNG; every file is written atomically (temporary file, then rename).
 """
 
 from __future__ import annotations
 
-import base64
-import html
 import json
 import os
 import sys
@@ -28,28 +27,34 @@ from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
 from stiffness.model.robot import Robot, load_robot, robots_directory
 from stiffness.papers import figures as plots
+from stiffness.papers.conventions import compare_conventions
+from stiffness.papers.report_page import SCENE_FILE, claims, render_html
 from stiffness.papers.reproduction import (
     PAPER_CRITICAL_FORCE_N,
     PAPER_RESIDUAL_NORM,
+    TRACKER_ACCURACY_MM,
+    VERDICTS,
     AuditEntry,
     audit_table2,
     audit_table3,
     audit_table4,
     best_stiffness_for,
+    linear_map_fits,
     printed_equation_audit,
     table2,
     table2_summary,
     table3,
+    table3_corrupt_rows,
     table4,
 )
 from stiffness.papers.sk120 import AngleConvention
 from stiffness.papers.tables import FIGURE_CONFIGURATIONS_DEG, read_table4
+from stiffness.provenance import provenance
 from stiffness.scan.definiteness import terminal_progress
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
-#: The SK120 meshcat scene written beside the report, and its title.
-SCENE_FILE = "sk120-scene.html"
+#: Title of the SK120 meshcat scene written beside the report (its file: SCENE_FILE).
 SCENE_TITLE = "Motoman SK120: stiffness at configuration A"
 
 
@@ -108,8 +113,12 @@ def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
     return t2, t3, minimum, ratio
 
 
-def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False) -> tuple:
-    """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes)."""
+def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False,
+                 command: str | None = None) -> tuple:
+    """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes).
+
+    ``command`` is the command line recorded in the provenance (default: this process's).
+    """
     started = time.perf_counter()
     campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
     campaign = load_campaign(campaign_file)
@@ -125,6 +134,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     summary: dict = {"robot": "sk120", "units": {
         "k_theta": "N.mm/rad (paper units)", "deflection": "mm", "work": "N.mm",
         "force": "N"}}
+    summary["provenance"] = provenance(command)
     audit: list[AuditEntry] = []
 
     fit = json.loads((robots_directory() / "sk120" / "convention_fit.json").read_text())
@@ -171,44 +181,42 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     summary["paper_k_theta_Nmm_per_rad"] = (np.diag(paper_k) * NMM).tolist()
     summary["identified_undetermined_joints"] = list(ident.undetermined_joints)
     summary["identified_residual_norm_mm2"] = ident.residual_ss_m2 * 1e6
+    summary["identified_rms_residual_mm"] = ident.rms_residual_m * 1e3
     summary["paper_residual_norm"] = PAPER_RESIDUAL_NORM
     summary["identification"] = json.loads(ident.to_json())
-    outside = [j for j, (lo, hi, p) in enumerate(zip(ident.ci95_low, ident.ci95_high,
-                                                      np.diag(paper_k), strict=True))
-               if not lo <= p <= hi]
-    if outside:
-        audit.append(AuditEntry(
-            item="identified K_theta",
-            law="the paper's K_theta should lie within our 95 % intervals if models agree",
-            finding=(f"the paper's K_theta of joints {[j + 1 for j in outside]} lies outside our "
-                     "95 % confidence intervals from the same Table II measurements"),
-            numbers={"paper_Nmm": summary["paper_k_theta_Nmm_per_rad"],
-                     "ours_Nmm": summary["identified_k_theta_Nmm_per_rad"],
-                     "ci95_Nmm": summary["identified_k_theta_ci95_Nmm_per_rad"]}))
+
+    _log(quiet, "comparing the two tool-vertical angle conventions ...")
+    conventions = compare_conventions(campaign, paper_k)
+    summary["conventions"] = [_finite(c.as_dict()) for c in conventions]
+    band = _convention_band(summary["conventions"])
+    summary["k_theta_convention_band_Nmm_per_rad"] = band
+    audit.append(_convention_entry(summary["conventions"],
+                                   summary["identified_k_theta_ci95_Nmm_per_rad"]))
+    audit.append(_identification_entry(summary))
 
     _log(quiet, "reproducing Tables II and III ...")
     t2_rows = table2(robot, paper_k)
     summary["table2"] = t2_rows
     summary["table2_summary"] = table2_summary(t2_rows)
-    audit += audit_table2(t2_rows)
+    summary["table2_linear_map_fits"] = linear_map_fits(t2_rows)
     s2 = summary["table2_summary"]
     best_k, best_rms = best_stiffness_for(robot, "calculated_m")
     s2["best_k_for_paper_calculated_Nmm_per_rad"] = (best_k * NMM).tolist()
     s2["best_k_rms_vs_paper_calculated_mm"] = best_rms / 1e-3
     audit.append(AuditEntry(
-        item="Table II calculated deflections",
+        item="Table II calculated deflections: reproduction",
         law="eq. 10 with Table I's geometry and the paper's K_theta",
-        finding=(f"not reproduced: our enhanced prediction differs from the printed calculated "
+        finding=(f"our enhanced prediction differs from the printed calculated "
                  f"column by {s2['rms_enhanced_vs_paper_calculated_mm']:.3f} mm RMS, while the "
                  f"printed calculated and measured columns differ by "
                  f"{s2['rms_paper_calculated_vs_measured_mm']:.3f} mm; no sign/offset convention "
                  "of the printed angles closes the gap (docs/sk120.md), forces read in the "
                  f"tool frame fit worse ({fit['tool_frame_forces_best_rms_mm']:.3f} mm at "
-                 "best), and even the joint stiffness that best fits the "
-                 f"calculated column leaves {s2['best_k_rms_vs_paper_calculated_mm']:.3f} mm RMS "
-                 "(rounding: 5e-5 mm), so the paper's calculation used geometry Table I does "
-                 "not give"),
-        numbers=s2))
+                 "best), and the joint stiffness that best fits the calculated column still "
+                 f"leaves {s2['best_k_rms_vs_paper_calculated_mm']:.3f} mm RMS (rounding: "
+                 "5e-5 mm)"),
+        numbers=s2, verdict="not reproduced"))
+    audit += audit_table2(t2_rows)
     audit.append(AuditEntry(
         item="Table II: enhanced against conventional",
         law="the experiment can only separate formulations that differ beyond its noise",
@@ -218,10 +226,14 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
                  f"{s2['max_exact_minus_enhanced_mm'] * 1e3:.2f} um, against "
                  f"{s2['rms_paper_calculated_vs_measured_mm'] * 1e3:.0f} um between the paper's "
                  "model and its measurements: Table II cannot show either formulation better"),
-        numbers={}))
+        numbers={}, verdict="undecidable from the paper"))
     t3_rows = table3(robot, paper_k)
     summary["table3"] = t3_rows
-    audit += audit_table3(t3_rows)
+    corrupt = table3_corrupt_rows(t3_rows)
+    summary["table3_corrupt_row"] = ({"config": corrupt[0]["config"], "row": corrupt[0]["row"]}
+                                     if corrupt else None)
+    summary["table3_corrupt_rows"] = corrupt
+    audit += audit_table3(t3_rows, {c.name: c.table3_rows_by_sign for c in conventions})
 
     _log(quiet, "scanning the Table IV grid (5824 configurations x 8 loads) ...")
     t4, scan = table4(robot, paper_k, progress=terminal_progress("Table IV", quiet))
@@ -232,6 +244,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     summary["table4"] = t4["ours"]
     summary["table4_determinant_rule"] = t4["ours_determinant_rule"]
     summary["table4_paper"] = paper_t4
+    summary["table4_signs"] = {k: list(v["signs"]) for k, v in read_table4().items()}
     summary["table4_paper_self_consistent"] = consistent
     summary["table4_grid"] = ("theta1 -180..180, theta2 -70..70, theta3 -115..35 deg, step 0.2 "
                               "rad; wrist vertical (q4 = 0, q5 = -90 - q3, q6 = -90 deg); "
@@ -253,7 +266,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
             finding=(f"the paper says ~10 kN; over the Table IV grid and load directions the "
                      f"smallest such force is {summary['kx_loses_pd_at_force_N'] / 1e3:.0f} kN"),
             numbers={"ours_N": summary["kx_loses_pd_at_force_N"],
-                     "paper_N": PAPER_CRITICAL_FORCE_N}))
+                     "paper_N": PAPER_CRITICAL_FORCE_N}, verdict="not reproduced"))
     audit += printed_equation_audit()
 
     _log(quiet, "drawing figures ...")
@@ -274,10 +287,96 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
             reference * 1000))),
         "stiffness_map.png": plots.stiffness_map(t2g, t3g, minimum, ratio, 1000.0),
         "table2.png": plots.table2_comparison(t2_rows),
+        "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
     summary["audit"] = [a.as_dict() for a in audit]
+    summary["findings_count"] = len(audit)
+    summary["findings_by_verdict"] = {v: n for v in VERDICTS
+                                      if (n := sum(a.verdict == v for a in audit))}
+    summary["claims"] = claims(summary)
     summary["elapsed_s"] = time.perf_counter() - started
     return summary, figures
+
+
+def _finite(value):
+    """``value`` with non-finite floats replaced by ``None`` (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+#: Above this identified value (N.mm/rad) a joint counts as rigid: the data do not bound it.
+_RIGID_NMM = 1e15
+
+
+def _determined(k: float | None) -> bool:
+    return k is not None and k < _RIGID_NMM
+
+
+def _convention_band(conventions: list[dict]) -> list[list[float | None]]:
+    """Per joint, the (low, high) K_theta over the conventions (N.mm/rad); ``None`` where a
+    convention leaves the joint undetermined (the band is then unbounded)."""
+    band = []
+    for j in range(len(conventions[0]["k_theta_Nmm_per_rad"])):
+        values = [c["k_theta_Nmm_per_rad"][j] for c in conventions]
+        if all(_determined(v) for v in values):
+            band.append([min(values), max(values)])
+        else:
+            band.append([min(v for v in values if _determined(v)), None])
+    return band
+
+
+def _convention_entry(conventions: list[dict], ci95: list[list[float]]) -> AuditEntry:
+    """The printed-angle convention: what each tool-vertical candidate gives."""
+    chosen, other = conventions[0], conventions[1]
+    moves = []
+    for j, ((lo, hi), a, b) in enumerate(zip(ci95, chosen["k_theta_Nmm_per_rad"],
+                                             other["k_theta_Nmm_per_rad"], strict=True)):
+        if not _determined(b):
+            moves.append(f"k{j + 1} undetermined under the alternative")
+        elif not lo <= b <= hi:
+            moves.append(f"k{j + 1} changes by a factor {max(a, b) / min(a, b):.2f}, outside "
+                         "the chosen convention's 95 % interval")
+    return AuditEntry(
+        item="printed joint angles: convention",
+        law="the printed angles must map onto Table I's DH angles by one stated convention",
+        finding=(
+            "the paper does not state how its printed angles map onto Table I; among the "
+            "conventions that keep the tool vertical at every printed configuration, the chosen "
+            "one and the alternative differ only in theta1 and theta6. The chosen one fits "
+            f"Table II to {chosen['table2_rms_mm']:.3f} mm RMS against "
+            f"{other['table2_rms_mm']:.3f} mm; Table III's work-difference signs agree "
+            f"in {chosen['table3_sign_agreement']} against {other['table3_sign_agreement']} of "
+            f"{chosen['table3_rows']} rows; identified K_theta: " + "; ".join(moves)
+            + ". Nothing in the paper's text decides between them"),
+        numbers={"conventions": conventions}, verdict="undecidable from the paper")
+
+
+def _identification_entry(summary: dict) -> AuditEntry:
+    """The paper's K_theta against ours: what the intervals can and cannot say."""
+    rms = summary["identified_rms_residual_mm"]
+    return AuditEntry(
+        item="identified K_theta",
+        law="an identification is reproducible from the data it used",
+        finding=(
+            "the paper identified K_theta from 20 configurations it did not publish, so its "
+            "values cannot be reproduced; from the 15 Table II rows we identify "
+            + ", ".join(f"k{j + 1} = {k:.3g}" for j, k in enumerate(
+                summary["identified_k_theta_Nmm_per_rad"]))
+            + f" N.mm/rad. Our 95 % intervals assume independent measurement noise, but the "
+            f"fit's RMS residual ({rms:.3f} mm) is {rms / TRACKER_ACCURACY_MM:.0f} times the "
+            f"tracker's accuracy ({TRACKER_ACCURACY_MM} mm): the residuals are mostly model "
+            "error, so the intervals understate the uncertainty and a paper value outside them "
+            "is not a finding about the paper"),
+        numbers={"paper_Nmm": summary["paper_k_theta_Nmm_per_rad"],
+                 "ours_Nmm": summary["identified_k_theta_Nmm_per_rad"],
+                 "ci95_Nmm": summary["identified_k_theta_ci95_Nmm_per_rad"],
+                 "rms_residual_mm": rms, "tracker_accuracy_mm": TRACKER_ACCURACY_MM},
+        verdict="undecidable from the paper")
 
 
 def _identify_progress():
@@ -291,123 +390,6 @@ def _identify_progress():
         sys.stderr.flush()
 
     return show
-
-
-def _num(x, digits: int = 4) -> str:
-    return f"{x:.{digits}g}" if isinstance(x, float) else html.escape(str(x))
-
-
-def _table(headers: list[str], rows: list[list]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(f"<td>{_num(c) if not isinstance(c, str) else c}</td>"
-                                    for c in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _vec(v, digits: int = 4) -> str:
-    return ", ".join(f"{x:.{digits}f}" for x in v)
-
-
-def render_html(summary: dict, figures: dict[str, bytes]) -> str:
-    """The report page, figures embedded as base64 PNG."""
-    s = summary
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>SK120 stiffness report"
-             "</title><style>body{font-family:sans-serif;max-width:1200px;margin:auto}"
-             "table{border-collapse:collapse;margin:8px 0}td,th{border:1px solid #bbb;"
-             "padding:2px 6px;font-size:12px}.bad{color:#b00}img{max-width:100%}</style></head>"
-             "<body><h1>Motoman SK120: reproduction of Alici &amp; Shirinzadeh (2005)</h1>"]
-    pc = s["printed_angle_convention"]
-    parts.append("<h2>The printed joint angles</h2><p>Chosen convention (tool vertical at every "
-                 f"printed configuration, best fit to the measured Table II deflections): "
-                 f"{html.escape(pc['chosen'])}. Criterion: {html.escape(pc['criterion'])}.</p>")
-    parts.append(_table(["convention (theta_DH from printed q)", "tool axis", "RMS (mm)"],
-                        [[html.escape(a["description"]), a["tool_axis"],
-                          a["rms_vs_measured_mm"]] for a in pc["alternatives"]]))
-    parts.append("<h2>Appendix I against Pinocchio</h2>")
-    conv = s["appendix"]["conventions"]
-    parts.append("<p>Angle convention of the appendix, found by search: "
-                 f"{html.escape(conv['description'])}. {html.escape(conv['theta2_theta3'])} "
-                 f"{html.escape(conv['chain_rule'])} Lengths (mm): "
-                 f"{html.escape(json.dumps(s['appendix']['lengths_mm']))}.</p>")
-    rows = [[k, v["max_abs"], v["max_rel"]] for k, v in s["appendix"]["elements"].items()]
-    parts.append(_table(["element", "max abs (mm/rad)", "max rel"], rows))
-    for m in s["appendix"]["mismatches"]:
-        parts.append(f"<p class='bad'>{html.escape(m['element'])}: "
-                     f"{html.escape(m['explanation'])}</p>")
-    for c in s["appendix"]["corrections"]:
-        if not c["visible_at_table1_lengths"]:
-            parts.append(f"<p class='bad'>{html.escape(c['element'])}: {html.escape(c['text'])}"
-                         " (invisible at Table I's lengths, where the symbol is zero; found on "
-                         "a model with non-zero offsets).</p>")
-    parts.append(f"<p>K_C from the corrected appendix against Pinocchio: max relative "
-                 f"difference {s['appendix_kc_max_rel']:.3g}.</p>")
-    parts.append("<h2>Identification (eq. 11–13) from the Table II campaign</h2>")
-    rows = [[f"K{j + 1}", p, o, o - p, f"[{lo:.4g}, {hi:.4g}]"] for j, (p, o, (lo, hi)) in
-            enumerate(zip(s["paper_k_theta_Nmm_per_rad"], s["identified_k_theta_Nmm_per_rad"],
-                          s["identified_k_theta_ci95_Nmm_per_rad"], strict=True))]
-    parts.append(_table(["joint", "paper (N.mm/rad)", "ours", "difference", "ours 95 % CI"],
-                        rows))
-    parts.append(f"<p>Residual norm (eq. 12): ours {s['identified_residual_norm_mm2']:.4g} mm², "
-                 f"paper {s['paper_residual_norm']} (on its 20 unpublished configurations). "
-                 f"Formulation {html.escape(s['identified_formulation'])}; undetermined joints: "
-                 f"{s['identified_undetermined_joints'] or 'none'}.</p>")
-    parts.append("<h2>Table II (deflections, mm; paper K_θ)</h2>")
-    rows = []
-    for r in s["table2"]:
-        diff = np.array(r["enhanced_mm"]) - np.array(r["paper_calculated_mm"])
-        rows.append([r["config"], _vec(r["force_N"], 2), _vec(r["paper_calculated_mm"]),
-                     _vec(r["conventional_mm"]), _vec(r["enhanced_mm"]), _vec(diff),
-                     _vec(r["exact_mm"]), _vec(r["measured_mm"])])
-    parts.append(_table(["config", "F (N)", "paper calculated", "ours conventional",
-                         "ours enhanced", "ours − paper", "exact", "measured"], rows))
-    parts.append(f"<pre>{html.escape(json.dumps(s['table2_summary'], indent=1))}</pre>")
-    parts.append("<h2>Table III (works; printed 'J', ours N.mm)</h2>")
-    rows = [[r["config"], _vec(r["force_N"], 2), r["paper_work_cartesian"],
-             r["work_cartesian_Nmm"], r["work_cartesian_Nmm"] - r["paper_work_cartesian"],
-             r["paper_work_joint_conventional"], r["work_joint_conventional_Nmm"],
-             r["work_joint_enhanced_Nmm"], r["half_dtheta_kc_dtheta_Nmm"]] for r in s["table3"]]
-    parts.append(_table(["config", "F (N)", "paper eq. 14", "ours eq. 14", "difference",
-                         "paper eq. 15 CF", "ours eq. 15 CF", "ours eq. 15 enhanced",
-                         "½ΔΘᵀK_CΔΘ"], rows))
-    parts.append("<h2>Table IV (definiteness of K_C, 5824 configurations)</h2>")
-    rows = []
-    for case, paper in s["table4_paper"].items():
-        ours, det = s["table4"][case], s["table4_determinant_rule"][case]
-        rows.append([case] + [f"{paper[c]} / {ours[c]} / {ours[c] - paper[c]:+d} "
-                              f"(det rule {det[c]})" for c in ("PD", "PSD", "ND", "NSD", "ID")])
-    parts.append(_table(["case", "PD paper / ours / diff", "PSD", "ND", "NSD", "ID"], rows))
-    parts.append(f"<p>Printed Table IV self-consistent: {s['table4_paper_self_consistent']}. "
-                 f"K_θ − K_C positive definite everywhere on the grid: "
-                 f"{s['kx_positive_definite_everywhere']}; it first stops being so at a load of "
-                 f"{s['kx_loses_pd_at_force_N'] / 1e3:.1f} kN "
-                 f"({html.escape(json.dumps(s['kx_loses_pd_where']))}).</p>")
-    parts.append("<h2>Audit: violations found</h2><ol>")
-    for a in s["audit"]:
-        parts.append(f"<li><b>{html.escape(a['item'])}</b> — law: {html.escape(a['law'])}. "
-                     f"<span class='bad'>{html.escape(a['finding'])}</span></li>")
-    parts.append(f"</ol><h2>Stiffness ellipsoids in 3-D</h2><p><a href='{SCENE_FILE}'>"
-                 "The SK120 at configuration A under its largest Table II load</a>: enhanced and "
-                 "conventional stiffness ellipsoids, the load and the exaggerated deflected pose "
-                 "(meshcat, self-contained, opens offline; <code>stiffness view --robot sk120"
-                 "</code> browses it live).</p><h2>Figures</h2>")
-    captions = {
-        "force_deflection.png": "Figs. 4–6 configurations: deflection against load (the "
-                                "figures' load directions are not printed; Table II's last "
-                                "direction is used)",
-        "partial_derivatives.png": "Figs. 7–9: the parts of C11, C22, C33 (eq. 16) over the "
-                                   "Table IV grid",
-        "linear_vs_exact.png": "Conventional and enhanced predictions against the exact "
-                               "equilibrium (configuration A, load scaled up to 1000x)",
-        "stiffness_map.png": "Stiffness maps over the workspace",
-        "table2.png": "Table II: predicted against measured",
-    }
-    for name, data in figures.items():
-        b64 = base64.b64encode(data).decode()
-        parts.append(f"<figure id='{name}'><img alt='{html.escape(captions[name])}' "
-                     f"src='data:image/png;base64,{b64}'><figcaption>"
-                     f"{html.escape(captions[name])}</figcaption></figure>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
 
 
 def write_report(out: Path, summary: dict, figures: dict[str, bytes],
@@ -434,4 +416,3 @@ def _json_default(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
     raise TypeError(f"not JSON serialisable: {type(value)}")
-

@@ -10,7 +10,11 @@
 * the translational stiffness ellipsoid (3x3, N/m) or compliance ellipsoid (m/N) at the target,
   for the ``enhanced`` (K_theta - K_C, A&S eq. 10) and ``conventional`` (K_theta, eq. 8)
   formulations: the enhanced one at the target, the conventional one beside it (linked to the
-  target by a grey line), with their principal axes drawn and labelled with value and unit;
+  target by a grey line), with their principal axes drawn; the page labels the axis tips
+  (``k1``, ``k2``, ``k3``) and the ellipsoids with leader lines, never overlapping one another,
+  the legend or the robot (a label with no free place is dropped), the values in the legend;
+* the rotational 3x3 block of a 6x6 stiffness (N.m/rad) or compliance, hidden until toggled;
+* a floor under the robot;
 * an ellipsoid field over a workspace sample (:meth:`StiffnessViewer.field`);
 * a path through configurations as a meshcat animation (:meth:`StiffnessViewer.sweep`).
 
@@ -24,10 +28,10 @@ ascending, ``det V = +1``), the ellipsoid is the unit sphere under the transform
 ``[V diag(s |lambda|), c]``: principal axis ``i`` is column ``i`` of ``V`` and its radius is
 ``s |lambda_i|`` (m), linear in the principal value, with ``s`` the stated scale (m per N/m,
 or m per m/N). A negative principal stiffness (an indefinite enhanced stiffness under a large
-load) is drawn by its magnitude and labelled with its sign; an unbounded principal stiffness
-(the compliance is singular) is drawn clipped and labelled ``inf``. The scale, the colour range
-and the exaggeration are fixed by the first :meth:`StiffnessViewer.show` (or given), so that
-browsing compares like with like.
+load) is drawn by its magnitude and its value keeps its sign; an unbounded principal
+stiffness (the compliance is singular) is drawn clipped and given as ``inf``. The scale, the
+colour range and the exaggeration are fixed by the first :meth:`StiffnessViewer.show` (or
+given), so that browsing compares like with like.
 
 Colour. Each ellipsoid is coloured by its smallest principal stiffness ``k_min`` (N/m) on a
 stated linear range: oranges for the enhanced formulation, blues for the conventional one,

@@ -39,10 +39,12 @@ from stiffness.viewer.deps import _meshcat, _pinocchio_meshcat_visualizer
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
     PrincipalEllipsoid,
+    RotationalBlock,
     ellipsoid_transform,
     principal_ellipsoid,
+    rotational_block,
 )
-from stiffness.viewer.geometry import Pose, _rotation_y_to, _segment, _text_object
+from stiffness.viewer.geometry import Pose, _rotation_y_to, _segment
 from stiffness.viewer.page import render_page
 from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, _Window
 from stiffness.viewer.style import (
@@ -51,6 +53,7 @@ from stiffness.viewer.style import (
     FORCE_COLOR,
     FORMULATION_LABELS,
     MOMENT_COLOR,
+    ROTATIONAL_COLOR,
     _color_of,
     _colorbar,
     _hex,
@@ -67,10 +70,20 @@ ROBOT_NODE = "robot"
 DEFLECTED_NODE = "deflected"
 STIFFNESS_NODE = "stiffness"
 FIELD_NODE = "field"
+FLOOR_NODE = "floor"
+ROTATIONAL_NODE = "rotational"
 
 #: Radius drawn for an unbounded principal value, in multiples of the largest finite radius.
 _UNBOUNDED_RADIUS = 3.0
 _AXIS_NAMES = ("1", "2", "3")
+
+
+def display_name(robot: Robot) -> str:
+    """The robot's name for titles: its source name, or the URDF's robot name (never a path)."""
+    name = robot.name
+    if "/" in name or "\\" in name or name.lower().endswith((".urdf", ".xml")):
+        name = robot.model.name or Path(name).stem
+    return name
 
 
 def _coordinates_or_zero(robot: Robot) -> np.ndarray:
@@ -83,6 +96,17 @@ def _load_or_zero(robot: Robot, q: np.ndarray, k_theta: np.ndarray) -> np.ndarra
     """A shipped robot's default load as a wrench [F (N); M (N.m)], else no load."""
     shipped = default_load(robot, q, k_theta)
     return np.zeros(6) if shipped is None else as_wrench(shipped[0])
+
+
+def _axes_object() -> Any:
+    """The three principal axes of a unit sphere (red, green, blue: axes 1, 2, 3)."""
+    mg = _meshcat().geometry
+    points = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]],
+                      dtype=np.float32).T
+    colors = np.array([[0.7, 0, 0]] * 2 + [[0, 0.5, 0]] * 2 + [[0, 0, 0.8]] * 2,
+                      dtype=np.float32).T
+    return mg.LineSegments(mg.PointsGeometry(points, colors),
+                           mg.LineBasicMaterial(vertexColors=True))
 
 
 @dataclass
@@ -117,6 +141,10 @@ class SceneState:
         Factor applied to the joint deflection for drawing.
     note
         Why the deflected robot is missing, if it is.
+    rotational
+        Rotational 3x3 block of the 6x6 stiffness (N.m/rad) or compliance (rad/(N.m)) of the
+        first formulation drawn, or ``None`` (no 6x6 matrix: fewer than six compliant joints
+        for a stiffness); drawn hidden, beside the target, in its own scale.
     poses
         Pose of every scene node drawn (scene path below ``/meshcat`` -> :class:`Pose`).
     """
@@ -134,6 +162,7 @@ class SceneState:
     deflected_q: np.ndarray | None
     exaggeration: float
     note: str = ""
+    rotational: RotationalBlock | None = None
     poses: dict[str, Pose] = field(default_factory=dict, repr=False)
 
 
@@ -225,7 +254,7 @@ class StiffnessViewer:
         self.quantity = quantity
         self.reach = self._reach()
         self.size = float(size) if size is not None else 0.12 * self.reach
-        self._label = 0.22 * self.reach
+        self._floor_drawn = False
         self._scales: dict[str, float] = {} if scale is None else {quantity: float(scale)}
         self.exaggeration = exaggeration
         self.color_range = color_range
@@ -270,6 +299,7 @@ class StiffnessViewer:
         vis = self._vis
         vis["/Background"].set_property("top_color", [0.98, 0.98, 0.98])
         vis["/Background"].set_property("bottom_color", [0.78, 0.8, 0.84])
+        vis["/Grid"].set_property("visible", False)  # replaced by the floor under the robot
         visual = self.robot.visual_model
         self._has_meshes = visual is not None and visual.ngeoms > 0
         if self._has_meshes:
@@ -295,6 +325,7 @@ class StiffnessViewer:
                                          mg.MeshPhongMaterial(color=0x222222))
         vis[f"{base}/deflection"].set_object(
             mg.Cylinder(1.0, 0.004 * self.reach), mg.MeshPhongMaterial(color=0xCC0000))
+        vis[ROTATIONAL_NODE].set_property("visible", False)
         for name, color in (("force", FORCE_COLOR), ("moment", MOMENT_COLOR)):
             material = mg.MeshPhongMaterial(color=color)
             vis[f"{base}/{name}/shaft"].set_object(mg.Cylinder(1.0, 0.008 * self.reach), material)
@@ -484,6 +515,8 @@ class StiffnessViewer:
             load = self._load(wrench, q)
             state = self._compute(coords, q, load, names, quantity)
             self.state, self.quantity, self._formulation = state, quantity, formulation
+            if not self._floor_drawn:
+                self._draw_floor(state)
             self._send_poses(state.poses)
             self._style(state)
             self._error = None
@@ -505,12 +538,67 @@ class StiffnessViewer:
             gap = np.max(radii["enhanced"]) + np.max(radii["conventional"]) + 1.5 * self.size
             centers["conventional"] = position + gap * side
         dx, deflected_q, note = self._deflection(coords, q, load)
+        rotational = rotational_block(target.jacobian, tangent_joint_stiffness(
+            self.k_theta, target.k_c, names[0]), names[0], quantity)
         state = SceneState(coords=np.asarray(coords, dtype=float), q=q, wrench=load,
                            position=position, ellipsoids=ells, centers=centers, radii=radii,
                            scale=scale, quantity=quantity, deflection=dx, deflected_q=deflected_q,
-                           exaggeration=float(self.exaggeration or 1.0), note=note)
+                           exaggeration=float(self.exaggeration or 1.0), note=note,
+                           rotational=rotational)
         state.poses = self._poses(state)
         return state
+
+    def _rotational_pose(self, state: SceneState) -> tuple[Pose, np.ndarray]:
+        """Pose of the rotational block's ellipsoid (its own scale: largest radius ``size``),
+        beside the target on the side away from the conventional ellipsoid; and its radii."""
+        block = state.rotational
+        finite = np.abs(block.values[np.isfinite(block.values)])
+        top = float(np.max(finite)) if finite.size else 1.0
+        radii = np.where(np.isfinite(block.values), np.abs(block.values) / (top or 1.0),
+                         _UNBOUNDED_RADIUS) * self.size
+        radii = np.maximum(radii, 1e-3 * self.size)
+        first = next(iter(state.radii.values()))
+        gap = float(np.max(first)) + float(np.max(radii)) + 1.5 * self.size
+        center = state.position - gap * self._side_direction(state.position)
+        return Pose(center, block.directions, radii), radii
+
+    def _draw_floor(self, state: SceneState, extra: np.ndarray | None = None) -> None:
+        """A floor under the robot (at the first show): a plate at the lowest joint's height
+        with a grid of round spacing, spanning the robot, its ellipsoids and ``extra`` points
+        (m; a field's targets)."""
+        model, data = self.robot.model, self.robot.data
+        pin.forwardKinematics(model, data, state.q)
+        points = [data.oMi[j].translation.copy() for j in range(model.njoints)]
+        points.append(state.position)
+        points += [state.centers[n] for n in state.centers]
+        points = np.array(points)
+        z = float(points[:, 2].min()) - 0.01 * self.reach
+        if extra is not None:
+            points = np.vstack([points, np.asarray(extra, dtype=float).reshape(-1, 3)])
+        lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
+        center = 0.5 * (lo + hi)
+        half = 1.25 * max(0.5 * float(np.max(hi - lo)), self.reach)
+        spacing = _nice(half / 4.0)
+        half = spacing * np.ceil(half / spacing)
+        mg, vis = _meshcat().geometry, self._vis
+        thickness = 0.004 * self.reach
+        vis[f"{FLOOR_NODE}/plate"].set_object(
+            mg.Box([2 * half, 2 * half, thickness]),
+            mg.MeshLambertMaterial(color=0xE9E7E1, opacity=0.92, transparent=True))
+        vis[f"{FLOOR_NODE}/plate"].set_transform(Pose(
+            np.array([center[0], center[1], z - 0.5 * thickness]), np.eye(3),
+            np.ones(3)).matrix())
+        ticks = np.arange(-half, half + 0.5 * spacing, spacing)
+        segments = []
+        for t in ticks:
+            segments += [[t, -half, 0.0], [t, half, 0.0], [-half, t, 0.0], [half, t, 0.0]]
+        points_xyz = (np.array(segments) + [center[0], center[1], z + 1e-4 * self.reach]).T
+        vis[f"{FLOOR_NODE}/grid"].set_object(mg.LineSegments(
+            mg.PointsGeometry(points_xyz.astype(np.float32)),
+            mg.LineBasicMaterial(color=0xA9ADB5)))
+        self.floor = {"z": z, "center": center.tolist(), "half_size": float(half),
+                      "spacing": float(spacing)}
+        self._floor_drawn = True
 
     def _poses(self, state: SceneState) -> dict[str, Pose]:
         poses = self._robot_poses(ROBOT_NODE, state.q)
@@ -539,21 +627,31 @@ class StiffnessViewer:
             pose = Pose(c, ell.directions, r)
             poses[f"{base}/surface"] = pose
             poses[f"{base}/axes"] = pose
-            for i, a in enumerate(_AXIS_NAMES):
-                side = -1.0 if i == 1 else 1.0  # axis 2 labelled at its other end
-                tip = c + side * ell.directions[:, i] * (r[i] + 0.15 * self.size)
+            for i, a in enumerate(_AXIS_NAMES):  # label anchors: the axis tips
+                tip = c + ell.directions[:, i] * r[i]
                 poses[f"{base}/label{a}"] = Pose(tip, np.eye(3), np.ones(3))
-            below = c - np.array([0.0, 0.0, np.max(r) + 0.3 * self.size])
+            below = c - np.array([0.0, 0.0, np.max(r)])
             poses[f"{base}/label"] = Pose(below, np.eye(3), np.ones(3))
             poses[f"{base}/link"] = _segment(p, c) if np.linalg.norm(c - p) > 0 else hidden
+        if state.rotational is not None:
+            pose, radii = self._rotational_pose(state)
+            poses[f"{ROTATIONAL_NODE}/surface"] = pose
+            poses[f"{ROTATIONAL_NODE}/axes"] = pose
+            below = pose.position - np.array([0.0, 0.0, float(np.max(radii))])
+            poses[f"{ROTATIONAL_NODE}/label"] = Pose(below, np.eye(3), np.ones(3))
+            poses[f"{ROTATIONAL_NODE}/link"] = _segment(p, pose.position)
+        else:
+            for part in ("surface", "axes", "label", "link"):
+                poses[f"{ROTATIONAL_NODE}/{part}"] = hidden
         return poses
 
     def _send_poses(self, poses: dict[str, Pose]) -> None:
         for path, pose in poses.items():
             self._vis[path].set_transform(pose.matrix())
 
-    def _style(self, state: SceneState, labels: bool = True) -> None:
-        """Objects whose look depends on the values: ellipsoid colours, labels, visibility."""
+    def _style(self, state: SceneState) -> None:
+        """Objects whose look depends on the values: ellipsoid colours and visibility (the
+        labels are the page's, see :meth:`overlay`)."""
         vis, mg = self._vis, _meshcat().geometry
         lo, hi = self.color_range
         vis[DEFLECTED_NODE].set_property("visible", state.deflected_q is not None)
@@ -569,21 +667,16 @@ class StiffnessViewer:
             vis[f"{base}/surface"].set_object(
                 mg.Sphere(1.0), mg.MeshPhongMaterial(color=_rgb_int(rgb), opacity=0.55,
                                                      transparent=True, depthWrite=False))
-            points = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1],
-                               [0, 0, 1]], dtype=np.float32).T
-            colors = np.array([[0.7, 0, 0]] * 2 + [[0, 0.5, 0]] * 2 + [[0, 0, 0.8]] * 2,
-                              dtype=np.float32).T
-            vis[f"{base}/axes"].set_object(mg.LineSegments(
-                mg.PointsGeometry(points, colors), mg.LineBasicMaterial(vertexColors=True)))
-            symbol = "k" if state.quantity == "stiffness" else "c"
-            for i, a in enumerate(_AXIS_NAMES):
-                text = f"{symbol}{a}"
-                if labels:
-                    text += f" = {format_value(ell.values[i], ell.units)}"
-                vis[f"{base}/label{a}"].set_object(_text_object(text, self._label))
-            vis[f"{base}/label"].set_object(_text_object(name, 1.1 * self._label))
+            vis[f"{base}/axes"].set_object(_axes_object())
             vis[f"{base}/link"].set_object(mg.Cylinder(1.0, 0.003 * self.reach),
                                            mg.MeshPhongMaterial(color=0x888888))
+        if state.rotational is not None:
+            vis[f"{ROTATIONAL_NODE}/surface"].set_object(
+                mg.Sphere(1.0), mg.MeshPhongMaterial(color=ROTATIONAL_COLOR, opacity=0.5,
+                                                     transparent=True, depthWrite=False))
+            vis[f"{ROTATIONAL_NODE}/axes"].set_object(_axes_object())
+            vis[f"{ROTATIONAL_NODE}/link"].set_object(mg.Cylinder(1.0, 0.003 * self.reach),
+                                                      mg.MeshPhongMaterial(color=0x888888))
         moment = state.wrench[3:]
         vis[f"{STIFFNESS_NODE}/moment"].set_property("visible", bool(np.any(moment)))
         vis[f"{STIFFNESS_NODE}/force"].set_property("visible", bool(np.any(state.wrench[:3])))
@@ -593,9 +686,9 @@ class StiffnessViewer:
     def overlay(self) -> dict:
         """Legend (and live controls) of the current scene, as the page's JSON."""
         robot, st = self.robot, self.state
-        data: dict = {"title": f"{robot.name}: {self.quantity} ellipsoids at "
+        data: dict = {"title": f"{display_name(robot)}: {self.quantity} ellipsoids at "
                                f"{robot.target_frame}", "lines": [], "legend": [],
-                      "colorbars": [], "toggles": [], "notes": []}
+                      "colorbars": [], "toggles": [], "notes": [], "labels": []}
         if self._error:
             data["error"] = self._error
         if st is not None:
@@ -603,21 +696,31 @@ class StiffnessViewer:
             data["lines"].append(f"coordinates ({', '.join(robot.coordinate_joints)}): "
                                  f"[{', '.join(deg)}] (deg; m for prismatic)")
             f = st.wrench[:3]
+            if not np.any(st.wrench):
+                data["lines"].append("no load: the unloaded stiffness (K_C = 0, so enhanced "
+                                     "and conventional coincide)")
             data["lines"].append(
                 f"load F = [{', '.join(format_value(v) for v in f)}] N "
                 f"(|F| = {format_value(float(np.linalg.norm(f)), 'N')})"
                 + (f", M = [{', '.join(format_value(v) for v in st.wrench[3:])}] N.m"
                    if np.any(st.wrench[3:]) else "") + ", base axes")
             lo, hi = self.color_range
+            symbol = "k" if self.quantity == "stiffness" else "c"
             for name, ell in st.ellipsoids.items():
                 values = ", ".join(format_value(v) for v in ell.values)
+                base = ["meshcat", STIFFNESS_NODE, name]
+                data["labels"].append({"text": name, "kind": "name",
+                                       "anchor": [*base, "label"], "center": [*base, "surface"]})
+                data["labels"] += [{"text": f"{symbol}{a}", "kind": "axis",
+                                    "anchor": [*base, f"label{a}"],
+                                    "center": [*base, "surface"]} for a in _AXIS_NAMES]
                 where = "at the target" if np.allclose(st.centers[name], st.position) else \
                     "beside the target (grey line)"
                 rgb = _color_of(COLORMAPS[name], (ell.min_stiffness - lo) / (hi - lo))
                 data["legend"].append({
                     "color": _hex(rgb),
                     "text": f"{FORMULATION_LABELS[name]}, {where}: principal {self.quantity} "
-                            f"[{values}] {ell.units}; k_min = "
+                            f"{symbol}1, {symbol}2, {symbol}3 = [{values}] {ell.units}; k_min = "
                             f"{format_value(ell.min_stiffness, 'N/m')}"})
                 data["colorbars"].append({
                     "label": f"{name} colour: k_min, smallest principal stiffness (linear)",
@@ -639,6 +742,20 @@ class StiffnessViewer:
                 f"radius = {format_value(st.scale, 'm')} per {unit} of principal value "
                 f"(axis i along eigenvector i; {format_value(self.size, 'm')} = "
                 f"{format_value(self.size / st.scale, unit)}); axes 1, 2, 3 red, green, blue")
+            if st.rotational is not None:
+                block = st.rotational
+                data["legend"].append({
+                    "color": _hex([int(ROTATIONAL_COLOR >> s & 255) / 255 for s in (16, 8, 0)]),
+                    "text": f"rotational block of the 6x6 {block.formulation} {self.quantity} "
+                            f"(hidden at first; own scale, largest radius "
+                            f"{format_value(self.size, 'm')}): principal values "
+                            f"[{', '.join(format_value(v) for v in block.values)}] "
+                            f"{block.units}"})
+                data["toggles"].append({"label": f"rotational {self.quantity} ({block.units})",
+                                        "path": ["meshcat", ROTATIONAL_NODE]})
+                data["labels"].append({"text": f"rotational ({block.units})", "kind": "name",
+                                       "anchor": ["meshcat", ROTATIONAL_NODE, "label"],
+                                       "center": ["meshcat", ROTATIONAL_NODE, "surface"]})
             if self.arrow_scale:
                 data["legend"].append({
                     "color": _hex([int(FORCE_COLOR >> s & 255) / 255 for s in (16, 8, 0)]),
@@ -670,7 +787,8 @@ class StiffnessViewer:
         if self._frames is not None:
             data["frames"] = self._frames
             data["notes"].append("animation: meshcat's Open Controls > Animations (play, time); "
-                                 "label values are those of frame 0, the line above follows")
+                                 "the legend's values are those of frame 0, the animation "
+                                 "frame line gives the frame shown")
         if self.server is not None and st is not None:
             data["controls"] = self._controls_spec()
         data["camera"] = self._camera_spec()
@@ -766,7 +884,7 @@ class StiffnessViewer:
 
         Every frame moves the robot, its deflected copy, the load arrow and the ellipsoids
         (axes and radii); the legend's frame line gives the principal values of the frame shown
-        (the 3-D labels keep the axis names). The scene left outside the animation is frame 0.
+        (the page's labels name the axes). The scene left outside the animation is frame 0.
 
         Parameters
         ----------
@@ -797,7 +915,6 @@ class StiffnessViewer:
                 q = self.robot.configuration(row, seed=states[-1].q)
                 states.append(self._compute(row, q, first.wrench,
                                             tuple(first.ellipsoids), first.quantity))
-            self._style(first, labels=False)
             animation = mc.animation.Animation(default_framerate=fps)
             root = self._vis
             for k, st in enumerate(states):
@@ -890,6 +1007,8 @@ class StiffnessViewer:
                 node.set_transform(ellipsoid_transform(p, e.directions, radii))
             self.field_state = FieldState(np.array(kept), positions_a, ells, kmin, scale,
                                           len(rows) - len(kept), (lo, hi))
+            if self.state is not None and len(positions_a):
+                self._draw_floor(self.state, positions_a)  # under the field too
             self._send_overlay()
             return self.field_state
 
@@ -994,7 +1113,7 @@ class StiffnessViewer:
     def html(self, title: str | None = None) -> str:
         """The scene as a self-contained static HTML page (opens offline)."""
         with self._lock:
-            title = title or f"{self.robot.name} stiffness ({self.quantity})"
+            title = title or f"{display_name(self.robot)} stiffness ({self.quantity})"
             return render_page(self._window.scene.commands(), self.overlay(), title)
 
     def export(self, path: str | os.PathLike, title: str | None = None) -> Path:

@@ -133,3 +133,63 @@ def ellipsoid_transform(center: np.ndarray, directions: np.ndarray, radii: np.nd
     t[:3, :3] = np.asarray(directions, dtype=float) * np.asarray(radii, dtype=float)[None, :]
     t[:3, 3] = center
     return t
+
+
+@dataclass
+class RotationalBlock:
+    """Rotational 3x3 block of the 6x6 Cartesian stiffness (or compliance) at the target.
+
+    Attributes
+    ----------
+    formulation
+        ``enhanced`` or ``conventional``.
+    quantity
+        ``stiffness``: the block ``K_X[3:, 3:]`` of ``K_X = C6^-1`` (N.m/rad), the rotational
+        stiffness with the target free to translate; ``compliance``: ``C6[3:, 3:]``
+        (rad/(N.m)).
+    matrix
+        (3, 3) the block, base axes.
+    values
+        Its eigenvalues, ascending.
+    directions
+        (3, 3) unit eigenvectors (columns), right-handed.
+    """
+
+    formulation: str
+    quantity: str
+    matrix: np.ndarray
+    values: np.ndarray
+    directions: np.ndarray
+
+    @property
+    def units(self) -> str:
+        """Unit of ``values``."""
+        return "N.m/rad" if self.quantity == "stiffness" else "rad/(N.m)"
+
+
+def rotational_block(jacobian: np.ndarray, tangent_stiffness: np.ndarray, formulation: str,
+                     quantity: str = "stiffness") -> RotationalBlock | None:
+    """The rotational block of the 6x6 stiffness (or compliance) of a (6, n) Jacobian.
+
+    ``C6 = J (K_theta - K_C)^-1 J^T`` (A&S eq. 10 with the full Jacobian). Returns ``None``
+    when there is no 6x6 matrix to take it from: a Jacobian without rotational rows, a singular
+    tangent stiffness, or (for a stiffness) a singular ``C6``, e.g. fewer than six compliant
+    joints.
+    """
+    jacobian = np.asarray(jacobian, dtype=float)
+    if jacobian.shape[0] != 6:
+        return None
+    try:
+        c6 = compliance(jacobian, tangent_stiffness)
+    except (SingularConfigurationError, np.linalg.LinAlgError):
+        return None
+    c6 = 0.5 * (c6 + c6.T)
+    if quantity == "stiffness":
+        if np.linalg.matrix_rank(c6, tol=1e-10 * max(float(np.max(np.abs(c6))), 1e-300)) < 6:
+            return None
+        block = np.linalg.inv(c6)[3:, 3:]
+    else:
+        block = c6[3:, 3:]
+    block = 0.5 * (block + block.T)
+    values, vectors = np.linalg.eigh(block)
+    return RotationalBlock(formulation, quantity, block, values, _right_handed(vectors))

@@ -1,4 +1,4 @@
-"""Scene geometry: poses of scene nodes, segments between points, camera-facing text labels.
+"""Scene geometry: poses of scene nodes, segments between points, a camera-facing text sprite.
 
 Positions in m, in the base frame; rotations proper (``det = +1``).
 """
@@ -7,12 +7,10 @@ from __future__ import annotations
 
 import uuid
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
-from stiffness.viewer.deps import _meshcat
 from stiffness.viewer.ellipsoid import ellipsoid_transform
 
 
@@ -79,18 +77,3 @@ class TextSprite:
                        "matrix": [s, 0, 0, 0, 0, s, 0, 0, 0, 0, s, 0, 0, 0, 0, 1],
                        "renderOrder": 10},
         }
-
-
-def _text_object(text: str, height: float) -> Any:
-    """A meshcat Object wrapping :class:`TextSprite` (accepted by ``Visualizer.set_object``)."""
-    mg = _meshcat().geometry
-    sprite = TextSprite(text, height)
-
-    class _Sprite(mg.Object):
-        def __init__(self) -> None:
-            self.uuid = str(uuid.uuid4())
-
-        def lower(self) -> dict:
-            return sprite.lower()
-
-    return _Sprite()

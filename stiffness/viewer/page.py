@@ -38,6 +38,13 @@ body { margin: 0; font: 12px/1.3 sans-serif; overflow: hidden; }
 #stiffness-overlay label.row span.name { min-width: 92px; }
 #stiffness-overlay label.row input[type=range] { flex: 1; }
 #stiffness-overlay label.row span.value { min-width: 64px; text-align: right; }
+#stiffness-labels { position: absolute; left: 0; top: 0; width: 100vw; height: 100vh;
+  pointer-events: none; overflow: hidden; z-index: 4; }
+#stiffness-labels svg { position: absolute; left: 0; top: 0; width: 100%; height: 100%; }
+#stiffness-labels .stiffness-label { position: absolute; display: none; white-space: nowrap;
+  font: 12px/1.2 sans-serif; padding: 1px 4px; background: rgba(255,255,255,0.88);
+  border: 1px solid #777; border-radius: 3px; color: #111; }
+#stiffness-labels .stiffness-label.name { font-weight: bold; }
 """
 
 # The page's script: replays the embedded commands (static page) or the websocket's (live
@@ -74,6 +81,150 @@ _PAGE_JS = r"""
   function send(state) {
     if (socket && socket.readyState === 1) {
       socket.send(JSON.stringify({type: "control", state: state}));
+    }
+  }
+  // ---- labels: HTML boxes at the projected anchors, with leader lines. Placed greedily in
+  // order (names first): each tries offsets outward from its ellipsoid's centre and is
+  // dropped if every offset would overlap a placed label, the legend, the robot or leave the
+  // frame.
+  var labelLayer = document.getElementById("stiffness-labels");
+  var SVGNS = "http://www.w3.org/2000/svg";
+  var leaders = document.createElementNS(SVGNS, "svg");
+  labelLayer.appendChild(leaders);
+  var labelSpecs = [], labelEls = [], lastLayout = -1e9, lastCamera = "";
+  var Vec3 = viewer.camera.position.constructor;
+  var DISTANCES = [12, 30, 56], ANGLES = [0, 0.6, -0.6, 1.2, -1.2, 1.9, -1.9, Math.PI];
+  function shown(path) {
+    var n = node(path);
+    if (!n) { return null; }
+    for (var o = n.object; o; o = o.parent) { if (!o.visible) { return null; } }
+    return n.object;
+  }
+  function worldOf(o) {
+    o.updateWorldMatrix(true, false);
+    return new Vec3().setFromMatrixPosition(o.matrixWorld);
+  }
+  function screenOf(v, w, h) {
+    var p = v.clone().project(viewer.camera);
+    if (!(p.z > -1 && p.z < 1)) { return null; }
+    return [(p.x + 1) / 2 * w, (1 - p.y) / 2 * h];
+  }
+  function robotSegments(w, h) {
+    // every mesh of the robot (and its deflected copy) as a thick screen segment along its
+    // longest local axis
+    var out = [];
+    ["robot", "deflected"].forEach(function (root) {
+      var top = shown(["meshcat", root]);
+      if (!top) { return; }
+      top.traverseVisible(function (o) {
+        if (!o.isMesh || !o.geometry) { return; }
+        if (!o.geometry.boundingBox) { o.geometry.computeBoundingBox(); }
+        var box = o.geometry.boundingBox, c = new Vec3(), size = new Vec3();
+        box.getCenter(c); box.getSize(size);
+        var s = [size.x, size.y, size.z];
+        var axis = s[0] >= s[1] && s[0] >= s[2] ? 0 : (s[1] >= s[2] ? 1 : 2);
+        var a = c.clone(), b = c.clone(), side = c.clone();
+        a.setComponent(axis, c.getComponent(axis) - s[axis] / 2);
+        b.setComponent(axis, c.getComponent(axis) + s[axis] / 2);
+        var k = (axis + 1) % 3, m = (axis + 2) % 3, other = s[k] >= s[m] ? k : m;
+        side.setComponent(other, c.getComponent(other) + s[other] / 2);
+        o.updateWorldMatrix(true, false);
+        [a, b, c, side].forEach(function (v) { v.applyMatrix4(o.matrixWorld); });
+        var pa = screenOf(a, w, h), pb = screenOf(b, w, h);
+        var pc = screenOf(c, w, h), ps = screenOf(side, w, h);
+        if (!pa || !pb) { return; }
+        var t = pc && ps ? Math.hypot(ps[0] - pc[0], ps[1] - pc[1]) : 3;
+        out.push([pa, pb, Math.max(t, 3)]);
+      });
+    });
+    return out;
+  }
+  function overlaps(a, b, gap) {
+    return a.l < b.r + gap && b.l < a.r + gap && a.t < b.b + gap && b.t < a.b + gap;
+  }
+  function hitsSegment(box, seg) {
+    var a = seg[0], b = seg[1], t = seg[2];
+    var n = Math.max(2, Math.ceil(Math.hypot(b[0] - a[0], b[1] - a[1]) / 4));
+    for (var i = 0; i <= n; i++) {
+      var x = a[0] + (b[0] - a[0]) * i / n, y = a[1] + (b[1] - a[1]) * i / n;
+      if (x > box.l - t && x < box.r + t && y > box.t - t && y < box.b + t) { return true; }
+    }
+    return false;
+  }
+  function buildLabels(specs) {
+    labelEls.forEach(function (e) { e.remove(); });
+    labelSpecs = specs || [];
+    labelEls = labelSpecs.map(function (spec) {
+      var e = el("div", {"class": "stiffness-label " + spec.kind}, spec.text);
+      labelLayer.appendChild(e);
+      return e;
+    });
+    lastLayout = -1e9;
+  }
+  function layoutLabels() {
+    var canvas = viewer.renderer.domElement.getBoundingClientRect();
+    var w = canvas.width, h = canvas.height;
+    var o = overlay.getBoundingClientRect();
+    var legend = {l: o.left - canvas.left, t: o.top - canvas.top, r: o.right - canvas.left,
+                  b: o.bottom - canvas.top};
+    var placed = [], segments = robotSegments(w, h);
+    while (leaders.firstChild) { leaders.removeChild(leaders.firstChild); }
+    labelSpecs.forEach(function (spec, i) {
+      var e = labelEls[i];
+      e.style.display = "none";
+      e.removeAttribute("data-placed");
+      var anchor = shown(spec.anchor), center = shown(spec.center);
+      if (!anchor) { return; }
+      var A = screenOf(worldOf(anchor), w, h);
+      if (!A) { return; }
+      var C = center ? screenOf(worldOf(center), w, h) : null;
+      var dx = 0, dy = 1;
+      if (spec.kind !== "name" && C) {
+        dx = A[0] - C[0]; dy = A[1] - C[1];
+        var norm = Math.hypot(dx, dy);
+        if (norm > 1e-6) { dx /= norm; dy /= norm; } else { dx = 0; dy = -1; }
+      }
+      e.style.display = "block";
+      var bw = e.offsetWidth, bh = e.offsetHeight, found = null;
+      for (var di = 0; di < DISTANCES.length && !found; di++) {
+        for (var ai = 0; ai < ANGLES.length && !found; ai++) {
+          var ca = Math.cos(ANGLES[ai]), sa = Math.sin(ANGLES[ai]);
+          var ux = dx * ca - dy * sa, uy = dx * sa + dy * ca;
+          var reach = DISTANCES[di] + Math.abs(ux) * bw / 2 + Math.abs(uy) * bh / 2;
+          var cx = A[0] + ux * reach, cy = A[1] + uy * reach;
+          var box = {l: cx - bw / 2, t: cy - bh / 2, r: cx + bw / 2, b: cy + bh / 2};
+          if (box.l < 2 || box.t < 2 || box.r > w - 2 || box.b > h - 2) { continue; }
+          if (overlaps(box, legend, 4)) { continue; }
+          if (placed.some(function (p) { return overlaps(box, p, 3); })) { continue; }
+          if (segments.some(function (sg) { return hitsSegment(box, sg); })) { continue; }
+          found = box;
+        }
+      }
+      if (!found) { e.style.display = "none"; return; }
+      placed.push(found);
+      e.style.left = (canvas.left + found.l) + "px";
+      e.style.top = (canvas.top + found.t) + "px";
+      e.setAttribute("data-placed", "true");
+      var px = Math.max(found.l, Math.min(A[0], found.r));
+      var py = Math.max(found.t, Math.min(A[1], found.b));
+      var line = document.createElementNS(SVGNS, "line");
+      line.setAttribute("x1", canvas.left + A[0]); line.setAttribute("y1", canvas.top + A[1]);
+      line.setAttribute("x2", canvas.left + px); line.setAttribute("y2", canvas.top + py);
+      line.setAttribute("stroke", "#555"); line.setAttribute("stroke-width", "1");
+      leaders.appendChild(line);
+      var dot = document.createElementNS(SVGNS, "circle");
+      dot.setAttribute("cx", canvas.left + A[0]); dot.setAttribute("cy", canvas.top + A[1]);
+      dot.setAttribute("r", "2"); dot.setAttribute("fill", "#555");
+      leaders.appendChild(dot);
+    });
+    document.body.setAttribute("data-labels-placed",
+      String(labelEls.filter(function (e) { return e.hasAttribute("data-placed"); }).length));
+  }
+  function maybeLayout(now) {
+    var cam = viewer.camera.matrixWorld.elements.join(",") + viewer.animator.time;
+    if (cam !== lastCamera || now - lastLayout > 500) {
+      lastCamera = cam; lastLayout = now;
+      try { layoutLabels(); } catch (err) { console.error("stiffness viewer: labels", err); }
     }
   }
   function buildControls(spec, box) {
@@ -178,6 +329,7 @@ _PAGE_JS = r"""
       });
       overlay.appendChild(fs);
     }
+    buildLabels(data.labels);
     frames = data.frames || null;
     if (frames) { overlay.appendChild(el("div", {id: "stiffness-frame", "class": "note"}, "")); }
     (data.notes || []).forEach(function (t) {
@@ -188,7 +340,8 @@ _PAGE_JS = r"""
       live ? "live: " + connected : "static page");
     overlay.appendChild(status);
   }
-  function showFrame() {
+  function showFrame(now) {
+    maybeLayout(now || 0);
     if (frames) {
       var box = document.getElementById("stiffness-frame");
       var i = Math.round(viewer.animator.time * frames.fps);
@@ -311,7 +464,8 @@ def render_page(commands: list[bytes], overlay: dict | None, title: str, live: b
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         f"<title>{html_lib.escape(title)}</title>\n<style>{_PAGE_CSS}</style>\n</head>\n"
         f"<body data-live=\"{'true' if live else 'false'}\">\n"
-        "<div id=\"meshcat-pane\"></div>\n<div id=\"stiffness-overlay\"></div>\n"
+        "<div id=\"meshcat-pane\"></div>\n<div id=\"stiffness-labels\"></div>\n"
+        "<div id=\"stiffness-overlay\"></div>\n"
         f"{viewer_script}\n"
         "<script type=\"application/json\" id=\"stiffness-commands\">"
         f"{_json_script(encoded)}</script>\n"

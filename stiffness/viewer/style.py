@@ -24,6 +24,8 @@ DEFLECTED_RGBA = (0.85, 0.1, 0.1, 0.35)
 #: Colours of the force and moment arrows (0xRRGGBB).
 FORCE_COLOR = 0x2CA02C
 MOMENT_COLOR = 0x9467BD
+#: Rotational block of a 6x6 stiffness or compliance.
+ROTATIONAL_COLOR = 0x17BECF
 
 
 def format_value(value: float, unit: str = "") -> str:

@@ -1,0 +1,146 @@
+"""``diagnosis.html``: the page of ``stiffness diagnose --out``, in the report's template.
+
+Rendered from :meth:`stiffness.calibration.diagnose.Diagnosis.to_dict` (campaign units): the
+residuals before and after, the effects added step by step with their BIC gain and RMS, the
+parameters with 95 % intervals, and what the campaign cannot tell apart with the poses and loads
+that would.
+"""
+
+from __future__ import annotations
+
+from stiffness.htmlpage import (
+    contents,
+    esc,
+    figure,
+    heading,
+    num,
+    page,
+    provenance_block,
+    reproduce_block,
+    table,
+    vec,
+)
+
+SECTIONS = {
+    "summary": "Summary",
+    "provenance": "Provenance",
+    "residuals": "Residuals before and after",
+    "steps": "Effects added, step by step",
+    "parameters": "Parameters with 95 % intervals",
+    "ambiguities": "What this campaign cannot tell apart",
+    "reproduce": "Reproduce this",
+}
+
+
+def _parameter_rows(where: str, parameters: dict) -> list[list]:
+    rows = []
+    for name, p in parameters.items():
+        lo, hi = p["ci95"] if p.get("ci95") else (None, None)
+        rows.append([esc(where), esc(name), p["value"], p.get("standard_error"),
+                     f"{num(lo)} to {num(hi)}", esc(p.get("unit", ""))])
+    return rows
+
+
+def _by_configuration(before: dict, after: dict, unit: str) -> str:
+    rows = []
+    for label, b in before["by_configuration"].items():
+        a = after["by_configuration"].get(label, {})
+        rows.append([esc(label), b["rows"], b["rms"], b["ratio"], a.get("rms"), a.get("ratio")])
+    return table("Residuals by configuration", ["configuration", "rows",
+                 f"RMS before ({unit})", "before, in noise std", f"RMS after ({unit})",
+                 "after, in noise std"], rows,
+                 "Before: the baseline model; after: with every effect added. In noise std: "
+                 "the RMS over the noise standard deviation (about 1 where the model explains "
+                 "the data).")
+
+
+def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
+    """The page.
+
+    Parameters
+    ----------
+    d
+        :meth:`Diagnosis.to_dict` (lengths in the campaign's unit ``d["unit"]``).
+    residuals_png
+        The residual plot (before and after), embedded if given.
+    prov
+        :func:`stiffness.provenance.provenance`.
+    """
+    unit = d["unit"]
+    title = f"Diagnosis of campaign {d['campaign']}"
+    effects = ", ".join(f"{s['effect']} ({s['where']})" if s.get("where") else s["effect"]
+                        for s in d["steps"]) or "none"
+    parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),
+             table("What the diagnosis finds", ["quantity", "value"], [
+                 ["baseline model", esc(d["baseline"])],
+                 [f"baseline RMS residual ({unit})", d["baseline_rms"]],
+                 [f"noise standard deviation ({unit})",
+                  f"{num(d['noise_std'])} ({esc(d['noise_std_source'])})"],
+                 ["effects added", esc(effects)],
+                 [f"final RMS residual ({unit})", d["final_rms"]],
+                 ["final model", esc(d["final_model"])],
+                 ["why it stopped", esc(d["stop_reason"])],
+                 ["measurements", f"{d['rows']} rows, {d['configurations']} configurations"],
+             ], "RMS over all residual components, in the campaign's length unit."),
+             contents(SECTIONS), heading("provenance", SECTIONS),
+             provenance_block(prov, [("campaign", f"<code>{esc(d['campaign_path'])}</code>"
+                                      if d.get("campaign_path") else "built in memory")]),
+             heading("residuals", SECTIONS)]
+    if d.get("noise_std_note"):
+        parts.append(f"<p>{esc(d['noise_std_note'])}</p>")
+    if residuals_png:
+        parts.append(figure("residuals.png", residuals_png,
+                            f"Residual components ({unit}) before and after the effects"))
+    parts.append(_by_configuration(d["where_baseline_disagrees"], d["where_final_disagrees"],
+                                   unit))
+    parts.append(heading("steps", SECTIONS))
+    cv = d["cv_rms"]
+    rows = [["0", "baseline", "", "", d["baseline_rms"], cv["baseline"]]]
+    for i, (s, detail) in enumerate(zip(d["steps"], d["step_details"], strict=True)):
+        rows.append([str(i + 1), esc(s["effect"]), esc(s.get("where") or ""),
+                     detail["delta_bic"], s["rms"], cv["steps"][i]])
+    parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",
+                       f"RMS ({unit})", f"cross-validated RMS ({unit})"], rows,
+                       "ΔBIC: change of the Bayesian information criterion from the "
+                       "previous step (negative: the effect earns its parameters). "
+                       "Cross-validated RMS: residual on configurations left out of the "
+                       "fit."))
+    for i, detail in enumerate(d["step_details"]):
+        ranked = [[esc(r.get("effect", "")), esc(r.get("where") or ""), r.get("delta_bic"),
+                   r.get("cv_rms")] for r in detail["ranking"][:6]]
+        if ranked:
+            parts.append(table(f"Step {i + 1}: the best candidates",
+                               ["effect", "where", "ΔBIC", f"cross-validated RMS ({unit})"],
+                               ranked, "The six best-ranked candidate effects of this step."))
+    parts.append(heading("parameters", SECTIONS))
+    rows = _parameter_rows("joint stiffness", d["final_stiffness"])
+    for s in d["steps"]:
+        rows += _parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
+                                s["parameters"])
+    parts.append(table("Identified parameters of the final model",
+                       ["part", "parameter", "value", "standard error", "95 % interval",
+                        "unit"], rows,
+                       "Intervals from the fit's covariance at the stated noise."))
+    parts.append(heading("ambiguities", SECTIONS))
+    ambiguities = d["cannot_tell_apart"]
+    if not ambiguities:
+        parts.append("<p>None: every effect added is distinguishable from its runner-up.</p>")
+    for a in ambiguities:
+        parts.append(f"<p>Step {a['step']}: <b>{esc(a['chosen'])}</b> against "
+                     f"<b>{esc(a['other'])}</b>, {esc(a['reason'])}.</p>")
+        rows = [[vec(p["q"], 2), vec(p["force"], 1), vec(p["deflection_chosen"]),
+                 vec(p["deflection_other"]), p["separation_noise_units"]]
+                for p in a.get("proposals", [])]
+        if rows:
+            parts.append(table(f"Poses and loads that would tell {a['chosen']} from "
+                               f"{a['other']}",
+                               ["q (deg; m prismatic)", "force (N)",
+                                f"deflection, {a['chosen']} ({unit})",
+                                f"deflection, {a['other']} ({unit})",
+                                "separation (noise std)"], rows,
+                               "Each row a proposed measurement; separation: the difference "
+                               "of the two predicted deflections over the noise."))
+    parts.append(reproduce_block(prov, "reproduce", SECTIONS,
+                                 "The run writes this page, diagnosis.json, residuals.png and "
+                                 "final-model.json."))
+    return page(title, parts)
