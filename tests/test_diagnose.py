@@ -151,7 +151,10 @@ def test_cli_json_and_files(tmp_path, capsys):
         assert (out / name).stat().st_size > 0
     model = json.loads((out / FINAL_MODEL_FILE).read_text())
     assert model["effects"][0]["effect"] == "force_sensor_bias"
-    assert set(model["k_theta"]) == {"joint1", "joint2", "joint3"}
+    assert model["schema"] == "stiffness-model/1"
+    assert model["k_theta"]["joints"] == ["joint1", "joint2", "joint3"]
+    assert model["effects"][0]["kind"] == "measurement"
+    assert model["effects"][0]["parameters"]["fx"]["unit"] == "N"
     full = json.loads((out / DIAGNOSIS_FILE).read_text())
     assert "where_baseline_disagrees" in full and "by_load_sign" in full[
         "where_baseline_disagrees"]
@@ -165,6 +168,24 @@ def test_table2_runs():
     assert set(s) == SUMMARY_KEYS
     assert s["noise_std_source"] == "residuals"
     assert s["baseline_rms"] == pytest.approx(0.0814, abs=0.002)
+
+
+def test_identification_is_diagnosis_without_effects():
+    """Nothing hidden: diagnose's final model is identify's, to the solvers' tolerance, with
+    the same intervals (one objective, one covariance) and the same model-file schema."""
+    from stiffness.calibration.identify import identify
+
+    sim = _simulate(UR5, [], seed=7)
+    diagnosis = diagnose(sim.campaign, propose=False)
+    assert diagnosis.steps == []
+    ident = identify(sim.campaign, starts=2)
+    stiff = diagnosis.final_stiffness
+    np.testing.assert_allclose([p.value for p in stiff], ident.k, rtol=1e-6)
+    np.testing.assert_allclose([p.ci95[0] for p in stiff], ident.ci95_low, rtol=1e-4)
+    np.testing.assert_allclose([p.ci95[1] for p in stiff], ident.ci95_high, rtol=1e-4)
+    a, b = diagnosis.model_file().to_dict(), ident.model_dict()
+    assert a["schema"] == b["schema"] and set(a["k_theta"]) == set(b["k_theta"])
+    np.testing.assert_allclose(a["k_theta"]["values"], b["k_theta"]["values"], rtol=1e-6)
 
 
 def test_diagnosis_page(tmp_path):

@@ -5,13 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stiffness.calibration.campaign import Campaign, RobotSettings
 from stiffness.calibration.effects import (
     LIBRARY,
     REQUIRED_EFFECTS,
     ComplementaryStiffness,
     Geometry,
-    Law,
     Model,
     References,
     TargetOffset,
@@ -20,10 +18,10 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
-from stiffness.calibration.identify import DeflectionModel
 from stiffness.calibration.simulate import Truth
 from stiffness.errors import StiffnessError
-from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
+from stiffness.mechanics.formulation import deflection, target_state
 from stiffness.model.robot import load_robot
 
 UR5_ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
@@ -73,15 +71,16 @@ def test_second_order_matches_exact_equilibrium_ur5():
         assert np.linalg.norm(pred - exact) <= 1e-3 * np.linalg.norm(exact)
 
 
-def test_baselines_match_identify_model():
+def test_baselines_match_the_formulation_module():
+    """The cached all-joints geometry restricted to the compliant joints is the compliant
+    robot's own J and K_C (loops closed): eq. 8 and 10 row by row."""
     robot = load_robot("sk120")
     forces = np.array([[45.5, 364.5, 211.3], [-30.0, 100.0, -200.0]])
-    camp = Campaign("t", "enhanced", RobotSettings("sk120"), q=np.vstack([SK120_A] * 2),
-                    force=forces, deflection=np.zeros((2, 3)), _robot=robot)
+    q = robot.configuration(SK120_A)
     for baseline in ("conventional", "enhanced"):
-        ref = DeflectionModel(camp, baseline, robot).predict(SK120_K)
+        ref = [deflection(target_state(robot, q, f), np.diag(SK120_K), baseline) for f in forces]
         pred = _model(robot, SK120_A, forces, baseline).predict(np.log(SK120_K))
-        np.testing.assert_allclose(pred, ref, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(pred, np.array(ref), rtol=1e-9, atol=1e-15)
 
 
 def test_target_offset_effect_is_the_offset_robot():
@@ -146,7 +145,7 @@ def test_candidates_cover_the_library():
 def test_truth_with_linear_law_is_solve_equilibrium():
     robot = load_robot("sk120")
     geo = Geometry.of(robot)
-    law = Law(1.0 / SK120_K, np.zeros(3), np.zeros(3), np.ones(3))
+    law = SpringLaw(1.0 / SK120_K, np.zeros(3), np.zeros(3), np.ones(3))
     truth = Truth(robot, law, chain=geo.chain)
     force = 2.0 * np.array([45.524, 364.5018, 211.3439])
     dx = truth.deflections(SK120_A[None], force[None])[0]

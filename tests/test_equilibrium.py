@@ -18,7 +18,12 @@ import pinocchio as pin
 import pytest
 
 from stiffness.errors import StiffnessError
-from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
+from stiffness.mechanics.equilibrium import (
+    SpringLaw,
+    linear_departure,
+    solve_equilibrium,
+    tangent_equilibrium,
+)
 from stiffness.mechanics.formulation import compliance, deflection, target_state
 
 UR5_Q = np.array([0.3, -1.0, 1.2, -0.7, 1.1, 0.4])
@@ -78,6 +83,34 @@ def test_exact_equilibrium_balances_the_load(name, scale, cases, fd):
     # a stable equilibrium: the tangent K_theta - K_C at the solution is PD
     state = target_state(robot, eq.q, force)
     assert np.linalg.eigvalsh(k_theta - state.k_c).min() > 0
+
+
+@pytest.mark.parametrize("name", ["sk120", "ur5"])
+def test_nonlinear_joint_law_equilibrium(name, cases, fd):
+    """Softening springs and backlash: dtheta = f(J(theta)^T F) with an independent FD J."""
+    robot, q0, k_theta, force = cases[name]
+    k = np.diag(k_theta)
+    n = len(k)
+    tau_scale = np.abs(target_state(robot, q0).jacobian[:3].T @ force).max()
+    law = SpringLaw(1.0 / k, np.full(n, 2.0 / tau_scale), np.full(n, 2e-4),
+                    np.full(n, 0.02 * tau_scale))
+    eq = solve_equilibrium(robot, q0, law, force)
+    jac = fd.coordinates(robot, robot.coordinates_of(eq.q), lambda s: s.position)
+    tau = jac.T @ force
+    c, beta, b, s = law.compliance, law.beta, law.backlash, law.smoothing
+    expected = c * tau * (1 + beta * np.abs(tau)) + b * np.tanh(tau / s)
+    np.testing.assert_allclose(eq.dtheta, expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
+    # far from the linear springs' answer: the law matters
+    linear = solve_equilibrium(robot, q0, k_theta, force)
+    assert np.abs(eq.dtheta - linear.dtheta).max() > 0.1 * np.abs(linear.dtheta).max()
+    # linear springs through either law type give the same equilibrium
+    same = solve_equilibrium(robot, q0, SpringLaw.of_stiffness(k), force)
+    np.testing.assert_allclose(same.dtheta, linear.dtheta, rtol=1e-10)
+    # the frozen-geometry fixed point of linear springs is the enhanced eq. 10
+    state = target_state(robot, q0, force)
+    frozen = tangent_equilibrium(k_theta, state.jacobian[:3].T @ force, state.k_c)
+    np.testing.assert_allclose(frozen, np.linalg.solve(k_theta - state.k_c,
+                                                       state.jacobian[:3].T @ force), rtol=1e-12)
 
 
 def test_zero_load_leaves_the_robot_still(cases):

@@ -10,7 +10,7 @@ import pytest
 
 from stiffness import errors
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.identify import load_identified_model
+from stiffness.calibration.model_file import read_model_file
 from stiffness.calibration.simulate import parse_effect
 from stiffness.cli import main as cli
 from stiffness.errors import (
@@ -93,7 +93,7 @@ def test_missing_and_malformed_files(tmp_path):
         load_campaign(tmp_path / "nothere")
     assert info.value.path == tmp_path / "nothere"
     with pytest.raises(MissingFileError):
-        load_identified_model(tmp_path / "none.json")
+        read_model_file(tmp_path / "none.json")
     with pytest.raises(MissingFileError):
         load_robot(str(tmp_path / "none.urdf"))
     toml = tmp_path / "bad.toml"

@@ -39,6 +39,33 @@ def test_sk120_poses_keep_the_tool_vertical():
     flat = np.minimum(np.abs(coords[:, 1] + coords[:, 2] - 90), np.abs(coords[:, 1] + coords[:, 2]
                                                                       + 90))
     assert flat.min() >= 15.0
+    assert set(np.round(coords[:, 5])) <= {-90.0, 90.0}
+    assert np.all((coords[:, 0] >= -90) & (coords[:, 0] <= 90))
+
+
+def test_a_robot_declares_its_workspace_in_its_robot_toml():
+    """Any robot's [workspace] table (here set on the UR5's defaults, as its robot.toml would)
+    is read by the same rules; a bad table is a one-line error naming the key."""
+    from stiffness.calibration.simulate import Workspace
+
+    robot = load_robot("ur5")
+    robot.defaults["workspace"] = {
+        "uniform": {"shoulder_lift_joint": [-100.0, -80.0]},
+        "choice": {"wrist_3_joint": [0.0, 45.0]},
+        "linear": [{"joint": "wrist_1_joint", "constant": -90.0,
+                    "terms": {"shoulder_lift_joint": -1.0}}],
+        "avoid": [{"terms": {"elbow_joint": 1.0}, "values": [0.0], "margin": 30.0}]}
+    coords = np.rad2deg(sample_coordinates(robot, 8, np.random.default_rng(0)))
+    assert np.all((coords[:, 1] >= -100) & (coords[:, 1] <= -80))
+    assert set(np.round(coords[:, 5], 9)) <= {0.0, 45.0}
+    np.testing.assert_allclose(coords[:, 3], -90.0 - coords[:, 1], atol=1e-9)
+    assert np.abs(coords[:, 2]).min() >= 30.0
+    robot.defaults["workspace"] = {"uniform": {"elbow": [0, 1]}}
+    with pytest.raises(StiffnessError, match=r"\[workspace\] of ur5: 'elbow' is not a coordinate"):
+        Workspace.of(robot)
+    robot.defaults["workspace"] = {"ranges": {}}
+    with pytest.raises(StiffnessError, match="unknown key 'ranges'"):
+        Workspace.of(robot)
 
 
 def test_simulate_writes_a_loadable_campaign(tmp_path):

@@ -94,7 +94,9 @@ def wheel_outputs(installed) -> dict:
 def _normalised(value, roots: list[str]):
     """JSON value with the robots folders and checkout paths replaced by placeholders."""
     if isinstance(value, dict):
-        return {k: _normalised(v, roots) for k, v in value.items() if k != "elapsed_s"}
+        # run-dependent: the time taken and the provenance (date, command, commit, versions)
+        return {k: _normalised(v, roots) for k, v in value.items()
+                if k not in ("elapsed_s", "provenance")}
     if isinstance(value, list):
         return [_normalised(v, roots) for v in value]
     if isinstance(value, str):

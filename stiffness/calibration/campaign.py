@@ -3,14 +3,15 @@
 A campaign is the input of :mod:`stiffness.calibration.identify` (and the output of ``stiffness
 simulate``)::
 
-    name = "sk120-table2"
+    name = "ur5-bench-2024"
     baseline = "enhanced"              # or "conventional": the model to start from
     [robot]
-    source = "sk120"                   # shipped robot, example-robot-data name, or a URDF path
+    source = "ur5"                     # shipped robot, example-robot-data name, or a URDF path
                                        # relative to this file
-    frame = "fixture_target"           # frame carrying the measurement target (optional)
-    target_offset = [0.0, 0.0, 0.0]    # target in that frame, in the [units] length (optional)
-    compliant_joints = ["joint1", "joint2", "joint3"]   # springs; the rest rigid (optional)
+    frame = "tool0"                    # frame carrying the measurement target (optional)
+    target_offset = [0.0, 0.0, 100.0]  # target in that frame, in the [units] length (optional)
+    compliant_joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+                                       # springs; the rest rigid (optional)
     [units]
     angle = "deg"                      # deg | rad
     force = "N"                        # N | kN
@@ -88,13 +89,13 @@ _REQUIRED_KEYS = {
     "measurement": ("data",),
 }
 _KEY_HELP = {
-    "name": 'a label for the campaign, e.g. name = "sk120-table2"',
+    "name": 'a label for the campaign, e.g. name = "ur5-bench-2024"',
     "baseline": f"the model to start from, one of {', '.join(BASELINES)}",
     "robot": "a [robot] table with at least source",
     "units": "a [units] table with angle, force and length",
     "measurement": "a [measurement] table with data (the CSV file name)",
-    "source": 'a shipped robot ("sk120"), an example-robot-data name, or a URDF path relative '
-              "to the campaign file",
+    "source": "a shipped robot name, an example-robot-data name, or a URDF path relative to "
+              "the campaign file",
     "angle": f"one of {', '.join(ANGLE_UNITS)}",
     "force": f"one of {', '.join(FORCE_UNITS)}",
     "length": f"one of {', '.join(LENGTH_UNITS)}",

@@ -38,13 +38,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares, nnls
+from scipy.optimize import nnls
 from scipy.stats import chi2, norm
 from scipy.stats import t as student_t
 
-from stiffness.calibration.campaign import Campaign
+from stiffness.calibration import fitting
+from stiffness.calibration.campaign import Campaign, Units
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
+from stiffness.calibration.fitting import Fit
+from stiffness.calibration.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
 from stiffness.provenance import provenance
@@ -68,8 +71,8 @@ AMBIGUITY_BIC = 2.0
 WEAK_BIC = 6.0
 #: Cosine similarity of fitted residual reductions above which signatures are "similar".
 SIMILARITY_LIMIT = 0.95
-#: ``format`` tag of the final-model file.
-MODEL_FORMAT = "stiffness-diagnosed-model"
+#: Units of the model file's effect parameters (SI).
+SI_UNITS = Units(angle="rad", force="N", length="m")
 #: File names written by :meth:`Diagnosis.write`.
 DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
     "diagnosis.json", "residuals.png", "final-model.json")
@@ -78,7 +81,6 @@ DIAGNOSIS_PAGE = "diagnosis.html"
 #: Noise sources.
 NOISE_SOURCES = ("declared", "replicates", "residuals")
 
-_PENALTY = 1e6
 _MIN_REPLICATE_DOF = 9
 
 
@@ -86,84 +88,11 @@ _MIN_REPLICATE_DOF = 9
 # fitting
 
 
-@dataclass
-class Fit:
-    """A model fitted to a campaign.
-
-    Attributes
-    ----------
-    model
-        The model (over the fitted rows).
-    x
-        Parameter vector at the optimum.
-    predicted
-        (m, 3) predicted deflections (m).
-    rss
-        Residual sum of squares (m^2).
-    jacobian
-        (N, p) derivative of the residuals / scale w.r.t. ``x``.
-    scale
-        The residual scale (m) of :attr:`jacobian`.
-    """
-
-    model: Model
-    x: np.ndarray
-    predicted: np.ndarray
-    rss: float
-    jacobian: np.ndarray
-    scale: float
-
-    @property
-    def n_residuals(self) -> int:
-        """Number of residual components."""
-        return self.predicted.size
-
-    def rms(self) -> float:
-        """RMS residual component (m)."""
-        return math.sqrt(self.rss / self.n_residuals)
-
-
-class _Objective:
-    def __init__(self, model: Model, measured: np.ndarray, scale: float) -> None:
-        self.model, self.measured, self.scale = model, measured, scale
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        try:
-            with np.errstate(all="ignore"):
-                pred = self.model.predict(x)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-            pred = None
-        if pred is None or not np.all(np.isfinite(pred)):
-            return np.full(self.measured.size, _PENALTY)
-        return ((pred - self.measured) / self.scale).reshape(-1)
-
-
 def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
               max_nfev: int | None = None) -> Fit:
-    """Least squares of ``model`` on ``measured`` (m, 3) from ``x0`` (trf, bounded).
-
-    Parameters
-    ----------
-    model
-        Model over the rows of ``measured``.
-    measured
-        (m, 3) measured deflections (m).
-    scale
-        Residual scale (m): the noise std if known.
-    x0
-        Start parameter vector (clipped into the bounds).
-    max_nfev
-        Evaluation budget (default ``40 (p + 1)``).
-    """
-    lo, hi = model.bounds()
-    x0 = np.clip(x0, lo, hi)
-    objective = _Objective(model, measured, scale)
-    sol = least_squares(objective, x0, bounds=(lo, hi), method="trf", x_scale=1.0,
-                        ftol=1e-10, xtol=1e-10, gtol=1e-10,
-                        max_nfev=max_nfev or 40 * (model.n_params + 1))
-    r = objective(sol.x)
-    pred = measured + r.reshape(measured.shape) * scale
-    return Fit(model, sol.x, pred, float(np.sum((r * scale) ** 2)), np.asarray(sol.jac), scale)
+    """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
+    (:func:`stiffness.calibration.fitting.fit_model`)."""
+    return fitting.fit_model(model, measured, scale, x0, max_nfev=max_nfev, x_scale=1.0)
 
 
 def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
@@ -229,19 +158,8 @@ def cross_validate(fit: Fit, measured: np.ndarray, folds: list[np.ndarray]) -> f
 
 
 def _covariance(fit: Fit, sigma: float) -> np.ndarray:
-    """Covariance of ``x``: ``sigma^2 (J^T J)^+`` with J w.r.t. residuals in m."""
-    jac = fit.jacobian * fit.scale
-    _, s, vt = np.linalg.svd(jac, full_matrices=False)
-    tol = 1e-10 * (s.max() if s.size else 0.0)
-    inv = np.where(s > tol, 1.0 / np.where(s > tol, s, 1.0) ** 2, np.inf)
-    with np.errstate(invalid="ignore"):
-        cov = (vt.T * np.where(np.isfinite(inv), inv, 0.0)) @ vt
-    dead = ~np.isfinite(inv)
-    if dead.any():
-        unseen = (np.abs(vt[dead]) > 1e-6).any(axis=0)
-        cov[unseen, :] = np.inf
-        cov[:, unseen] = np.inf
-    return cov * sigma ** 2
+    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+``."""
+    return fitting.covariance(fit, sigma).matrix
 
 
 # ------------------------------------------------------------------------------------------
@@ -482,6 +400,7 @@ class Diagnosis:
     cv_baseline: float
     elapsed_s: float
     final_parameters: dict[str, list[Parameter]] = field(default_factory=dict)
+    final_parameters_si: dict[str, list[Parameter]] = field(default_factory=dict)
 
     @property
     def final(self) -> Fit:
@@ -503,7 +422,7 @@ class Diagnosis:
 
     def summary(self) -> dict:
         """The ``--json`` object: exactly the keys of the issue."""
-        return _clean({
+        return jsonable({
             "baseline_rms": self._len(self.baseline.rms()),
             "noise_std": self._len(self.noise_std_m),
             "noise_std_source": self.noise_std_source,
@@ -547,41 +466,52 @@ class Diagnosis:
             "cannot_tell_apart": [a.to_dict(c.units.length_to_si) for a in self.ambiguities],
             "elapsed_s": self.elapsed_s,
         })
-        return _clean(out)
+        return jsonable(out)
 
-    def final_model(self) -> dict:
-        """The final model: baseline, stiffnesses, effects with parameters and uncertainties."""
+    def model_file(self) -> ModelFile:
+        """The final model in the model-file schema (SI): baseline stiffnesses with their
+        intervals, each effect with its SI parameters and intervals, the noise."""
         c, f = self.campaign, self.final
         s = c.robot_settings
-        return _clean({
-            "format": MODEL_FORMAT,
-            "version": 1,
-            "campaign": c.name,
-            "robot": {"source": c.resolved_source(), "frame": self.geometry.robot.target_frame,
-                      "target_offset_m": s.target_offset_m.tolist()},
-            "baseline": f.model.baseline,
-            "compliant_joints": list(f.model.compliant),
-            "k_theta": {p.name: p.to_dict() for p in self.final_stiffness},
-            "effects": [{"effect": e.name, "where": e.where, "description": e.describe(),
-                         "parameters": {p.name: p.to_dict()
-                                        for p in self.final_parameters.get(e.label, [])}}
-                        for e in f.model.effects],
-            "model": f.model.describe(),
-            "rms": self._len(f.rms()),
-            "noise_std": self._len(self.noise_std_m),
-            "noise_std_source": self.noise_std_source,
-            "unit": self.unit,
-            "parameter_vector": f.x.tolist(),
-            "references": {"k_ref": f.model.refs.k_ref,
-                           "theta_ref": f.model.refs.theta_ref,
-                           "force_ref": f.model.refs.force_ref,
-                           "deflection_ref": f.model.refs.deflection_ref,
-                           "tau_max": dict(zip(f.model.refs.joints,
-                                               f.model.refs.tau_max.tolist(), strict=True)),
-                           "tau_smoothing": dict(zip(
-                               f.model.refs.joints, f.model.refs.tau_smoothing.tolist(),
-                               strict=True))},
-        })
+        refs = f.model.refs
+        effects = []
+        for e in f.model.effects:
+            settings = {}
+            if e.name == "backlash":
+                settings["smoothing_torque"] = float(refs.tau_smoothing[
+                    refs.joints.index(e.where)])
+            effects.append(ModelEffect(e.name, e.where, e.kind,
+                                       self.final_parameters_si.get(e.label, []), settings,
+                                       e.describe()))
+        stiff = self.final_stiffness
+        return ModelFile(
+            source=c.resolved_source(), frame=self.geometry.robot.target_frame,
+            target_offset_m=s.target_offset_m, compliant_joints=tuple(f.model.compliant),
+            k_theta=np.array([p.value for p in stiff]), units=tuple(p.unit for p in stiff),
+            formulation=f.model.baseline,
+            standard_error=np.array([p.standard_error for p in stiff]),
+            ci95_low=np.array([p.ci95[0] for p in stiff]),
+            ci95_high=np.array([p.ci95[1] for p in stiff]),
+            effects=tuple(effects), noise_std_m=self.noise_std_m,
+            noise_source=self.noise_std_source, campaign=c.name, produced_by="diagnose",
+            undetermined_joints=tuple(p.name for p in stiff if not (
+                math.isfinite(p.ci95[1]) and p.ci95[0] > 0)),
+            extra={
+                "model": f.model.describe(), "rms": self._len(f.rms()),
+                "noise_std": self._len(self.noise_std_m),
+                "noise_std_source": self.noise_std_source, "unit": self.unit,
+                "baseline": f.model.baseline, "compliant_joints": list(f.model.compliant),
+                "parameter_vector": f.x.tolist(),
+                "references": {"k_ref": refs.k_ref, "theta_ref": refs.theta_ref,
+                               "force_ref": refs.force_ref,
+                               "deflection_ref": refs.deflection_ref,
+                               "tau_max": dict(zip(refs.joints, refs.tau_max.tolist(),
+                                                   strict=True)),
+                               "tau_smoothing": dict(zip(refs.joints,
+                                                         refs.tau_smoothing.tolist(),
+                                                         strict=True))},
+            },
+        )
 
     def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
         """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
@@ -592,7 +522,7 @@ class Diagnosis:
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
                  "final_model": folder / FINAL_MODEL_FILE}
         atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")
-        atomic_write(paths["final_model"], json.dumps(self.final_model(), indent=1) + "\n")
+        self.model_file().write(paths["final_model"])
         png = residual_plot(self)
         tmp = paths["plot"].with_suffix(".png.tmp")
         tmp.write_bytes(png)
@@ -601,23 +531,6 @@ class Diagnosis:
         atomic_write(paths["page"], render_diagnosis(self.to_dict(), png,
                                                           provenance(command)))
         return paths
-
-
-def _clean(obj):
-    """JSON-ready: numpy scalars to floats, inf/NaN to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, bool | np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return float(obj) if math.isfinite(obj) else None
-    return obj
 
 
 # ------------------------------------------------------------------------------------------
@@ -804,6 +717,7 @@ def diagnose(
     cov_base = _covariance(base, sigma_used if sigma is not None else math.sqrt(
         base.rss / max(n - base.model.penalty_params, 1)))
     final_params = _effect_parameters(final, cov_final, quantile, campaign.units)
+    final_params_si = _effect_parameters(final, cov_final, quantile, SI_UNITS)
     ambiguities = []
     for step_no, w, c, similarity in ambiguities_raw:
         sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma_used
@@ -841,6 +755,7 @@ def diagnose(
         gof_final=_gof(final.rss, n, p_final, sigma),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0, final_parameters=final_params,
+        final_parameters_si=final_params_si,
     )
 
 

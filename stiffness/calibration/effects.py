@@ -68,7 +68,8 @@ from stiffness.errors import (
     did_you_mean,
     with_context,
 )
-from stiffness.mechanics.formulation import target_states
+from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
+from stiffness.mechanics.formulation import target_state, target_states
 from stiffness.model.robot import Robot, load_robot
 
 #: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
@@ -77,8 +78,13 @@ BACKLASH_SMOOTHING = 0.02
 MIN_SEGMENT_M = 0.02
 #: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
 LAW_ITERATIONS = 4
-#: Baselines a model may start from.
-BASELINES = ("conventional", "enhanced")
+#: Baselines a model may start from (``exact``: the exact equilibrium of
+#: :func:`stiffness.mechanics.equilibrium.solve_equilibrium`, without effects).
+BASELINES = ("conventional", "enhanced", "exact")
+#: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
+#: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
+#: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied).
+EFFECT_KINDS = ("stiffness", "measurement", "lost_motion")
 
 _UNIT_WRENCHES = np.eye(6)
 
@@ -129,6 +135,8 @@ class Rows:
         (m, 3) applied (recorded) force (N) and moment (N.m) at the target, base axes.
     config_index
         (m,) index of the row's distinct configuration.
+    coords
+        (m, n_coordinates) the rows' coordinates (rad, m).
     """
 
     jac: np.ndarray
@@ -140,6 +148,7 @@ class Rows:
     force: np.ndarray
     moment: np.ndarray
     config_index: np.ndarray
+    coords: np.ndarray
 
     @property
     def n_rows(self) -> int:
@@ -150,7 +159,7 @@ class Rows:
         """The rows ``index`` (an integer or boolean index)."""
         return Rows(*(getattr(self, f)[index] for f in (
             "jac", "k_c_unit", "position", "rotation", "chain_origin", "chain_rotation",
-            "force", "moment", "config_index")))
+            "force", "moment", "config_index", "coords")))
 
     def torques(self) -> np.ndarray:
         """(m, n) joint torques ``J^T W`` that hold the recorded loads (N.m or N)."""
@@ -263,7 +272,7 @@ class Geometry:
             pos[c] = states[0].position
             rot[c] = states[0].rotation
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
-                    chain_rot[index], force, moment, index)
+                    chain_rot[index], force, moment, index, coords)
 
     def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
         """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart
@@ -402,30 +411,6 @@ class Parameter:
                 "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit}
 
 
-@dataclass
-class Law:
-    """Joint torque-deflection law of the model's compliant joints (arrays over joints)."""
-
-    compliance: np.ndarray
-    beta: np.ndarray
-    backlash: np.ndarray
-    smoothing: np.ndarray
-
-    @property
-    def linear(self) -> bool:
-        """Whether the law is ``dtheta = c tau``."""
-        return not (np.any(self.beta != 0.0) or np.any(self.backlash != 0.0))
-
-    def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Deflections and their derivatives w.r.t. the torques, both (m, n)."""
-        a = np.abs(tau)
-        th = np.tanh(tau / self.smoothing)
-        value = self.compliance * tau * (1.0 + self.beta * a) + self.backlash * th
-        slope = (self.compliance * (1.0 + 2.0 * self.beta * a)
-                 + self.backlash / self.smoothing * (1.0 - th ** 2))
-        return value, slope
-
-
 class Effect:
     """An effect a model may miss: its name, where it acts, its parameters and its prediction.
 
@@ -442,6 +427,9 @@ class Effect:
     added_joint: str | None = None
     #: the joint whose law this effect changes
     joint: str | None = None
+    #: how the effect enters a model used away from its campaign
+    #: (:mod:`stiffness.calibration.model_file`): one of :data:`EFFECT_KINDS`
+    kind: ClassVar[str] = "stiffness"
 
     @property
     def where(self) -> str | None:
@@ -483,6 +471,11 @@ class Effect:
         """SI value of one unit of each optimiser variable."""
         return np.ones(self.n_params)
 
+    def variables(self, values: np.ndarray, refs: References) -> np.ndarray:
+        """Optimiser variables of reported SI parameter values (the inverse of :meth:`report`
+        with SI units; only the first :attr:`n_params` values are used)."""
+        return np.asarray(values, dtype=float)[: self.n_params] / self.scale(refs)
+
     # hooks ---------------------------------------------------------------------------------
     def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -493,7 +486,7 @@ class Effect:
         """(m, 3) displacement of the true target from the declared one, world axes."""
         return None
 
-    def adjust_law(self, p: np.ndarray, law: Law, column: int, refs: References) -> None:
+    def adjust_law(self, p: np.ndarray, law: SpringLaw, column: int, refs: References) -> None:
         """Change the law of the model joint at ``column`` (that of :attr:`joint`)."""
 
     def displacement(self, p: np.ndarray, model: Model, rows: Rows, force: np.ndarray,
@@ -583,6 +576,9 @@ class JointCompliance(Effect):
     def adjust_law(self, p, law, column, refs):
         law.compliance[column] = p[0]
 
+    def variables(self, values, refs):
+        return (1.0 / np.asarray(values, dtype=float)[:1]) / self.scale(refs)
+
     def report(self, u, cov_u, refs, units, quantile):
         unit = "N/m" if self.prismatic else "N.m/rad"
         return [_stiffness_report("stiffness", float(u[0]), float(cov_u[0, 0]),
@@ -615,6 +611,9 @@ class LinkCompliance(Effect):
     def scale(self, refs):
         return np.full(2, 1.0 / refs.k_ref)
 
+    def variables(self, values, refs):
+        return (1.0 / np.asarray(values, dtype=float)[:2]) / self.scale(refs)
+
     def displacement(self, p, model, rows, force, moment, point):
         ia, ib = model.geometry.chain.index(self.a), model.geometry.chain.index(self.b)
         p_a, p_b = rows.chain_origin[:, ia], rows.chain_origin[:, ib]
@@ -642,6 +641,7 @@ class Backlash(Effect):
     joint_name: str = ""
     prismatic: bool = False
     name: ClassVar[str] = "backlash"
+    kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
 
     def __post_init__(self) -> None:
@@ -715,6 +715,7 @@ class FrameMisalignment(Effect):
     """Measured ``dx = R(phi) dx_model``."""
 
     name = "frame_misalignment"
+    kind = "measurement"
     param_names = ("rx", "ry", "rz")
 
     def scale(self, refs):
@@ -753,6 +754,7 @@ class ForceSensorBias(Effect):
     """The recorded force is ``F + b``."""
 
     name = "force_sensor_bias"
+    kind = "measurement"
     param_names = ("fx", "fy", "fz")
 
     def scale(self, refs):
@@ -772,6 +774,7 @@ class DeflectionOffset(Effect):
     """The measured deflections carry a constant offset."""
 
     name = "deflection_offset"
+    kind = "measurement"
     param_names = ("dx", "dy", "dz")
 
     def scale(self, refs):
@@ -872,6 +875,9 @@ class Model:
         if baseline not in BASELINES:
             raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
                                    name=baseline, choices=BASELINES)
+        if baseline == "exact" and effects:
+            raise StiffnessError("the exact baseline takes no effects (complementary_stiffness "
+                                 "approximates it to second order); start from enhanced")
         self.geometry, self.rows, self.baseline = geometry, rows, baseline
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
         self.joints = self.compliant + tuple(e.added_joint for e in self.effects
@@ -889,6 +895,11 @@ class Model:
         self.jw = rows.jac[:, 3:][:, :, idx]
         self.h = rows.k_c_unit[:, :, idx][:, :, :, idx]
 
+    def _exact_robot(self) -> Robot:
+        robot = self.geometry.robot
+        return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
+                            self.joints)
+
     # construction ----------------------------------------------------------------------------
     def with_rows(self, rows: Rows) -> Model:
         """The same model over other rows."""
@@ -902,6 +913,19 @@ class Model:
     def with_refs(self, refs: References) -> Model:
         """The same model with other variable scales."""
         return Model(self.geometry, self.rows, self.baseline, self.compliant, self.effects, refs)
+
+    def with_baseline(self, baseline: str) -> Model:
+        """The same model under another baseline."""
+        return Model(self.geometry, self.rows, baseline, self.compliant, self.effects, self.refs)
+
+    @property
+    def wrench(self) -> np.ndarray:
+        """(m, 6) recorded wrenches of the rows."""
+        return np.hstack([self.rows.force, self.rows.moment])
+
+    def k_c(self) -> np.ndarray:
+        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints`."""
+        return np.einsum("mk,mkab->mab", self.wrench, self.h)
 
     @property
     def n_params(self) -> int:
@@ -940,18 +964,72 @@ class Model:
         return np.exp(x[: len(self.compliant)])
 
     # prediction ------------------------------------------------------------------------------
-    def law(self, x: np.ndarray, params: list[np.ndarray] | None = None) -> Law:
+    def law(self, x: np.ndarray, params: list[np.ndarray] | None = None) -> SpringLaw:
         """The joint law over :attr:`joints`."""
         params = self._effect_params(x) if params is None else params
         n = len(self.joints)
         compliance = np.zeros(n)
         compliance[: len(self.compliant)] = np.exp(-x[: len(self.compliant)])
-        law = Law(compliance, np.zeros(n), np.zeros(n),
+        law = SpringLaw(compliance, np.zeros(n), np.zeros(n),
                   self.refs.tau_smoothing[self.index].copy())
         for e, p in zip(self.effects, params, strict=True):
             if e.joint is not None:
                 e.adjust_law(p, law, self.joints.index(e.joint), self.refs)
         return law
+
+    def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Predicted displacements (m, 3) and, for a baseline without effects, their
+        derivatives (m, 3, p) w.r.t. ``x = ln k`` (``None`` when there are effects: the fitting
+        engine then differentiates numerically).
+
+        Linear baselines: ``d pred / d ln k_i = -J_v (K - K_C)^-1 e_i k_i u_i`` with
+        ``u = (K - K_C)^-1 J^T W``; exact: the implicit function theorem on
+        ``K dtheta = J(theta)^T W``, ``d dtheta / d k_i = -(K - K_C(theta))^-1 e_i dtheta_i``.
+
+        Raises
+        ------
+        np.linalg.LinAlgError
+            If the tangent stiffness is singular for some row.
+        StiffnessError
+            If the exact equilibrium does not converge or is unstable.
+        """
+        if self.effects:
+            return self.predict(x), None
+        k = np.exp(x[: len(self.compliant)])
+        if self.baseline == "exact":
+            return self._exact(k)
+        a = np.broadcast_to(np.diag(k), (self.rows.n_rows, len(k), len(k))).copy()
+        if self.baseline == "enhanced":
+            a -= self.k_c()
+        inv = np.linalg.inv(a)
+        tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
+            "mkn,mk->mn", self.jw, self.rows.moment)
+        u = np.einsum("mij,mj->mi", inv, tau)
+        pred = np.einsum("mij,mj->mi", self.jv, u)
+        return pred, -(self.jv @ inv) * (u * k)[:, None, :]
+
+    def _exact(self, k: np.ndarray, jacobian: bool = True
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+        robot = self._exact_robot()
+        kmat = np.diag(k)
+        rows = self.rows
+        m = rows.n_rows
+        pred = np.empty((m, 3))
+        jac = np.empty((m, 3, len(k))) if jacobian else None
+        q0: dict[int, np.ndarray] = {}
+        for i in range(m):
+            c = int(rows.config_index[i])
+            if c not in q0:
+                q0[c] = robot.configuration(rows.coords[i])
+            wrench = np.concatenate([rows.force[i], rows.moment[i]])
+            eq = solve_equilibrium(robot, q0[c], kmat, wrench)
+            pred[i] = eq.dx
+            if jac is None:
+                continue
+            state = target_state(robot, eq.q, wrench)
+            dtheta = -np.linalg.solve(kmat - state.k_c, np.diag(eq.dtheta * k))
+            jac[i] = state.jacobian[:3] @ dtheta
+        return pred, jac
 
     def predict(self, x: np.ndarray, detail: bool = False):
         """(m, 3) predicted measured displacements (m) for parameters ``x``.
@@ -963,6 +1041,10 @@ class Model:
         np.linalg.LinAlgError
             If the tangent stiffness is singular for some row.
         """
+        if self.baseline == "exact":
+            if detail:
+                raise StiffnessError("the exact baseline gives no linear detail")
+            return self._exact(np.exp(x[: len(self.compliant)]), jacobian=False)[0]
         rows = self.rows
         params = self._effect_params(x)
         force, moment = rows.force, rows.moment
@@ -976,25 +1058,10 @@ class Model:
                 point = point + shift
         tau0 = np.einsum("mkn,mk->mn", jv, force) + np.einsum("mkn,mk->mn", jw, moment)
         law = self.law(x, params)
-        n = len(self.joints)
+        k_c = None
         if self.tangent:
-            wrench = np.hstack([force, moment])
-            k_c = np.einsum("mk,mkab->mab", wrench, self.h)
-            a = np.eye(n) - law.compliance[:, None] * k_c
-            dtheta = np.linalg.solve(a, (law.compliance * tau0)[:, :, None])[:, :, 0]
-        else:
-            k_c = None
-            dtheta = law.compliance * tau0
-        if not law.linear:
-            if k_c is None:
-                dtheta = law(tau0)[0]
-            else:
-                for _ in range(LAW_ITERATIONS):
-                    tau = tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
-                    value, slope = law(tau)
-                    g = dtheta - value
-                    jg = np.eye(n) - slope[:, :, None] * k_c
-                    dtheta = dtheta - np.linalg.solve(jg, g[:, :, None])[:, :, 0]
+            k_c = np.einsum("mk,mkab->mab", np.hstack([force, moment]), self.h)
+        dtheta = law.frozen_deflection(tau0, k_c, LAW_ITERATIONS)
         dx = np.einsum("mkn,mn->mk", jv, dtheta)
         if self.second_order:
             dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)

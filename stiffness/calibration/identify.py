@@ -9,21 +9,26 @@ joints, N/m for prismatic ones). For each measurement row ``r`` (configuration `
 * ``exact``: the displacement of the exact elastostatic equilibrium
   (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`; slower),
 
-with ``J`` the translational target Jacobian w.r.t. the compliant joints. ``J`` and ``K_C``
-are computed once per row (``K_C`` is linear in the row's own load). The residuals
+with ``J`` the translational target Jacobian w.r.t. the compliant joints. Identification is a
+diagnosis with no effects: the model is the campaign's baseline
+(:func:`stiffness_model`, a :class:`stiffness.calibration.effects.Model` without effects; ``J``
+and ``K_C`` computed once per row, ``K_C`` linear in the row's own load) and the fit is the
+fitting engine's (:mod:`stiffness.calibration.fitting`): the residuals
 ``(predicted - measured) / s`` are stacked row by row (eq. 13) and their sum of squares
 (eq. 12) is minimised by :func:`scipy.optimize.least_squares` (``trf`` and/or ``lm``) over
 ``ln k`` (positivity, and a scale-free parameterisation), from several starts: the paper's
 ``1e8 N.mm/rad`` and log-uniform random starts over ``1e2..1e8`` SI units; the best run is
-kept and the result says whether all runs agree. Tiny pseudo-residuals
-``PRIOR_WEIGHT (ln k - ln k_start)`` keep combinations the data do not see at their start
-instead of letting them drift on round-off; they are left out of every reported quantity.
+kept and the result says whether all runs agree. Each run is anchored at its start by the
+engine's tiny pseudo-residuals (:data:`stiffness.calibration.fitting.PRIOR_WEIGHT`), which
+keep combinations the data do not see at their start instead of letting them drift on
+round-off; they are left out of every reported quantity.
 
 ``s`` is the declared measurement noise ``noise_std`` if the campaign gives one (the residuals
 are then whitened and ``sigma = noise_std``); otherwise ``s`` is a fixed scale and the noise
 ``sigma^2 = SS / (N - p)`` is estimated from the residual sum of squares ``SS`` of the ``N``
-residuals and ``p`` stiffnesses. The covariance of ``ln k`` is ``sigma^2 (J_r^T J_r)^-1``
-with ``J_r`` the residual Jacobian at the optimum; standard errors and 95 % confidence
+residuals and ``p`` stiffnesses. The covariance of ``ln k`` is the engine's
+``sigma^2 (J_r^T J_r)^+`` (:func:`stiffness.calibration.fitting.covariance`) with ``J_r`` the
+residual Jacobian at the optimum; standard errors and 95 % confidence
 intervals of ``k`` follow by the delta method on ``ln k``: ``SE(k) = k SE(ln k)`` and
 ``CI = k exp(+-t SE(ln k))`` (``t`` Student's with ``N - p`` degrees of freedom when sigma is
 estimated, normal when declared), so the intervals are asymmetric and stay positive.
@@ -36,7 +41,6 @@ residual Jacobian (singular value below ``t / asinh(1/2)``, or numerically zero)
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 import os
@@ -45,22 +49,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.stats import norm
 from scipy.stats import t as student_t
 
-from stiffness.calibration.campaign import Campaign, _looks_like_path, _resolve_source
-from stiffness.errors import (
-    FileFormatError,
-    SingularConfigurationError,
-    StiffnessError,
-    UnknownNameError,
-    with_context,
-)
-from stiffness.files import atomic_write, output_folder, read_json
-from stiffness.mechanics.equilibrium import solve_equilibrium
-from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import Robot, load_robot
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.effects import Geometry, Model, References
+from stiffness.calibration.fitting import Covariance, Fit, covariance, fit_model
+from stiffness.calibration.model_file import ModelFile, jsonable
+from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.model.robot import Robot
 
 FORMULATIONS = ("conventional", "enhanced", "exact")
 METHODS = ("trf", "lm", "both")
@@ -70,23 +67,10 @@ PAPER_START_SI = 1e5
 RANDOM_START_RANGE_SI = (1e2, 1e8)
 #: A stiffness is undetermined when its 95 % interval is wider than this times its value.
 REL_CI_WIDTH_LIMIT = 1.0
-#: Singular values below this fraction of the largest count as zero.
-SINGULAR_RTOL = 1e-10
 #: Two solutions agree when every determined ln k differs by less than this (0.1 %).
 AGREEMENT_TOL_LOG = 1e-3
-#: ``format`` tag of identified-model files.
-MODEL_FORMAT = "stiffness-identified-model"
 #: Default name of the identified-model file.
 MODEL_FILE = "identified-model.json"
-
-#: Weight of the pseudo-residuals ``w (ln k - ln k_start)`` added to the scaled residuals: they
-#: keep directions the data do not see at their start (instead of drifting on round-off) and
-#: move a determined ln k by about ``w^2 / s^2`` of its distance to the start (s >~ 1).
-PRIOR_WEIGHT = 1e-6
-
-_PENALTY = 1e6  # scaled residual returned where the model cannot be evaluated (buckling)
-_MAX_LOG_K = 230.0  # |ln k| beyond this (k ~ 1e100) is treated as a failed evaluation
-
 
 def _unit_of(robot: Robot, joint: str) -> str:
     kind = robot.model.joints[robot.model.getJointId(joint)].shortname()
@@ -96,122 +80,6 @@ def _unit_of(robot: Robot, joint: str) -> str:
 def _paper_unit(unit: str) -> tuple[str, float]:
     """The papers' unit for a stiffness unit and the factor from SI to it."""
     return ("N.mm/rad", 1e3) if unit == "N.m/rad" else ("N/mm", 1e-3)
-
-
-# ----------------------------------------------------------------------------------------------
-# the deflection model
-
-
-class DeflectionModel:
-    """Predicted target displacements of a campaign's rows as a function of the stiffnesses.
-
-    Parameters
-    ----------
-    campaign
-        The campaign (SI rows).
-    formulation
-        ``conventional``, ``enhanced`` or ``exact``.
-    robot
-        The campaign's robot (default :meth:`Campaign.robot`).
-    """
-
-    def __init__(self, campaign: Campaign, formulation: str, robot: Robot | None = None) -> None:
-        if formulation not in FORMULATIONS:
-            raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
-                                   f"{', '.join(FORMULATIONS)}", name=formulation,
-                                   choices=FORMULATIONS)
-        self.campaign = campaign
-        self.formulation = formulation
-        self.robot = robot if robot is not None else campaign.robot()
-        self.wrench = campaign.wrench
-        m, n = campaign.n_rows, self.robot.n_compliant
-        configs: dict[tuple[float, ...], np.ndarray] = {}
-        self.q0: list[np.ndarray] = []
-        self.jac3 = np.empty((m, 3, n))
-        self.tau = np.empty((m, n))
-        self.k_c = np.zeros((m, n, n))
-        for i in range(m):
-            key = tuple(campaign.q[i])
-            try:
-                if key not in configs:
-                    configs[key] = self.robot.configuration(campaign.q[i])
-                state = target_state(self.robot, configs[key], self.wrench[i])
-            except StiffnessError as exc:
-                raise with_context(exc, campaign.describe_row(i)) from exc
-            self.q0.append(configs[key])
-            self.jac3[i] = state.jacobian[:3]
-            self.tau[i] = state.jacobian.T @ state.wrench
-            self.k_c[i] = state.k_c
-        self.n_configurations = len(configs)
-        sym = 0.5 * (self.k_c + np.transpose(self.k_c, (0, 2, 1)))
-        #: Largest eigenvalue of K_C over the rows (SI); below it K - K_C may be singular.
-        self.k_c_max = float(max(0.0, np.linalg.eigvalsh(sym).max())) if n else 0.0
-
-    def with_formulation(self, formulation: str) -> DeflectionModel:
-        """The same rows (Jacobians and K_C shared) under another formulation."""
-        if formulation not in FORMULATIONS:
-            raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
-                                   f"{', '.join(FORMULATIONS)}", name=formulation,
-                                   choices=FORMULATIONS)
-        other = copy.copy(self)
-        other.formulation = formulation
-        return other
-
-    @property
-    def n_parameters(self) -> int:
-        """Number of identified stiffnesses."""
-        return self.robot.n_compliant
-
-    def predict(self, k: np.ndarray) -> np.ndarray:
-        """(m, 3) predicted target displacements (m) for stiffnesses ``k`` (SI)."""
-        return self.predict_with_jacobian(k, jacobian=False)[0]
-
-    def predict_with_jacobian(self, k: np.ndarray, jacobian: bool = True
-                              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Predicted displacements (m, 3) and their derivatives (m, 3, p) w.r.t. ``ln k``.
-
-        Raises
-        ------
-        StiffnessError
-            If the model cannot be evaluated (singular tangent stiffness, or the exact
-            equilibrium does not converge: the load buckles the robot at these stiffnesses).
-        """
-        k = np.asarray(k, dtype=float)
-        if self.formulation == "exact":
-            return self._exact(k, jacobian)
-        a = np.broadcast_to(np.diag(k), self.k_c.shape).copy()
-        if self.formulation == "enhanced":
-            a -= self.k_c
-        try:
-            inv = np.linalg.inv(a)
-        except np.linalg.LinAlgError as exc:
-            raise SingularConfigurationError(
-                "the tangent stiffness K - K_C is singular for some row: the load is at the "
-                "buckling limit there; use the exact formulation or drop that row") from exc
-        u = np.einsum("mij,mj->mi", inv, self.tau)
-        pred = np.einsum("mij,mj->mi", self.jac3, u)
-        if not jacobian:
-            return pred, None
-        mat = self.jac3 @ inv
-        # d pred / d ln k_i = -J A^-1 e_i (A^-1 tau)_i k_i
-        return pred, -mat * (u * k)[:, None, :]
-
-    def _exact(self, k: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        kmat = np.diag(k)
-        m, n = self.campaign.n_rows, len(k)
-        pred = np.empty((m, 3))
-        jac = np.empty((m, 3, n)) if jacobian else None
-        for i in range(m):
-            eq = solve_equilibrium(self.robot, self.q0[i], kmat, self.wrench[i])
-            pred[i] = eq.dx
-            if jacobian:
-                # implicit function theorem on K (theta - theta0) = J(theta)^T W:
-                # d theta / d k_i = -(K - K_C)^-1 e_i dtheta_i
-                state = target_state(self.robot, eq.q, self.wrench[i])
-                tangent = kmat - state.k_c
-                dtheta = -np.linalg.solve(tangent, np.diag(eq.dtheta * k))
-                jac[i] = state.jacobian[:3] @ dtheta
-        return pred, jac
 
 
 # ----------------------------------------------------------------------------------------------
@@ -382,7 +250,7 @@ class Identification:
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (SI; eq. 12 also in mm^2; inf and NaN become null)."""
-        return _jsonable({
+        return jsonable({
             "campaign": self.campaign,
             "campaign_path": self.campaign_path,
             "robot": {"source": self.robot_source, "frame": self.robot_frame,
@@ -435,185 +303,38 @@ class Identification:
         """The result as JSON text (see :meth:`to_dict`)."""
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
+    def model_file(self) -> ModelFile:
+        """The identified model (:class:`stiffness.calibration.model_file.ModelFile`)."""
+        return ModelFile(
+            source=self.robot_source, frame=self.robot_frame,
+            target_offset_m=self.target_offset_m, compliant_joints=self.joints, k_theta=self.k,
+            units=self.units, formulation=self.formulation,
+            standard_error=self.standard_error, ci95_low=self.ci95_low,
+            ci95_high=self.ci95_high, noise_std_m=self.sigma_m,
+            noise_source="declared" if self.sigma_source.startswith("declared") else "residuals",
+            campaign=self.campaign, produced_by="identify",
+            undetermined_joints=self.undetermined_joints,
+            extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,
+                                     "eq12_mm2": self.residual_ss_mm2}},
+        )
+
     def model_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
-        """The identified model as written by :meth:`write_model`.
+        """The identified model as written by :meth:`write_model` (the model-file schema).
 
         Parameters
         ----------
         relative_to
             Folder a URDF source path is written relative to (the model file's folder).
         """
-        source = self.robot_source
-        if relative_to is not None and _looks_like_path(source):
-            try:
-                source = os.path.relpath(Path(source).resolve(), Path(relative_to).resolve())
-            except ValueError:  # another drive on Windows
-                source = str(Path(source).resolve())
-            source = Path(source).as_posix()
-        return _jsonable({
-            "format": MODEL_FORMAT,
-            "version": 1,
-            "campaign": self.campaign,
-            "robot": {"source": source, "frame": self.robot_frame,
-                      "target_offset_m": self.target_offset_m,
-                      "compliant_joints": list(self.joints)},
-            "formulation": self.formulation,
-            "k_theta": {"joints": list(self.joints), "values": self.k, "unit": list(self.units)},
-            "standard_error": self.standard_error,
-            "ci95": {"low": self.ci95_low, "high": self.ci95_high,
-                     "method": "delta method on ln k"},
-            "undetermined_joints": list(self.undetermined_joints),
-            "residual_norm": {"eq12_m2": self.residual_ss_m2,
-                              "eq12_mm2": self.residual_ss_mm2},
-        })
+        return self.model_file().to_dict(relative_to)
 
     def write_model(self, path: str | os.PathLike) -> Path:
         """Write the identified model (``identified-model.json``) atomically; returns its path.
 
         A URDF source is stored relative to the file's folder; read it back with
-        :func:`load_identified_model`.
+        :func:`stiffness.calibration.model_file.read_model_file`.
         """
-        path = Path(path)
-        output_folder(path.parent)
-        text = json.dumps(self.model_dict(path.parent), indent=1, allow_nan=False)
-        atomic_write(path, text + "\n")
-        return path
-
-
-def _jsonable(value):
-    """Arrays to lists, non-finite floats to None, recursively."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.bool_ | bool):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-# ----------------------------------------------------------------------------------------------
-# identified models
-
-
-@dataclass
-class IdentifiedModel:
-    """An identified model read from ``identified-model.json``.
-
-    Attributes
-    ----------
-    source, frame, target_offset_m, compliant_joints
-        Robot settings (source resolved against the file's folder; offset in m).
-    k_theta
-        Stiffness per compliant joint (SI), in ``compliant_joints`` order.
-    units
-        ``N.m/rad`` or ``N/m`` per joint.
-    formulation
-        Formulation the stiffnesses were identified with.
-    ci95_low, ci95_high, standard_error
-        Uncertainty (SI; NaN where not determined).
-    campaign
-        Campaign name.
-    path
-        The file read.
-    """
-
-    source: str
-    frame: str
-    target_offset_m: np.ndarray
-    compliant_joints: tuple[str, ...]
-    k_theta: np.ndarray
-    units: tuple[str, ...]
-    formulation: str
-    ci95_low: np.ndarray
-    ci95_high: np.ndarray
-    standard_error: np.ndarray
-    campaign: str
-    path: Path
-
-    def robot(self) -> Robot:
-        """Load the model's robot (:func:`stiffness.model.robot.load_robot`)."""
-        return load_robot(self.source, frame=self.frame, target_offset=self.target_offset_m,
-                          compliant_joints=self.compliant_joints)
-
-    def k_theta_matrix(self) -> np.ndarray:
-        """Diagonal joint stiffness matrix (SI)."""
-        return np.diag(self.k_theta)
-
-
-def load_identified_model(path: str | os.PathLike) -> IdentifiedModel:
-    """Read an ``identified-model.json`` written by :meth:`Identification.write_model`.
-
-    Raises
-    ------
-    MissingFileError
-        Missing or unreadable file.
-    FileFormatError
-        Not JSON (with its line and column), wrong ``format``, or a missing or malformed key
-        (the message names the key).
-    """
-    path = Path(path)
-    doc = read_json(path, f"identified model ({MODEL_FILE} of `stiffness identify`)")
-    if not isinstance(doc, dict) or doc.get("format") != MODEL_FORMAT:
-        raise FileFormatError(f"the file is not an identified model (its format is not "
-                              f"{MODEL_FORMAT!r}); "
-                              "give the file written by `stiffness identify`", path=path)
-
-    def get(*keys):
-        node = doc
-        for key in keys:
-            if not isinstance(node, dict) or key not in node:
-                raise FileFormatError(f"missing key {'.'.join(keys)}; rewrite the file with "
-                                      "`stiffness identify`", path=path)
-            node = node[key]
-        return node
-
-    def numbers(value, name: str, count: int, allow_null: bool = False) -> np.ndarray:
-        ok = isinstance(value, list) and len(value) == count and all(
-            (v is None and allow_null) or (isinstance(v, int | float) and not isinstance(v, bool))
-            for v in value)
-        if not ok:
-            raise FileFormatError(f"{name} must be a list of {count} numbers, got {value!r}",
-                                  path=path)
-        return np.array([np.nan if v is None else v for v in value], dtype=float)
-
-    joints = get("robot", "compliant_joints")
-    if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise FileFormatError("robot.compliant_joints must be a list of joint names", path=path)
-    n = len(joints)
-    if get("k_theta", "joints") != joints:
-        raise FileFormatError("k_theta.joints must equal robot.compliant_joints", path=path)
-    k = numbers(get("k_theta", "values"), "k_theta.values", n)
-    if not np.all(np.isfinite(k)) or np.any(k <= 0):
-        raise FileFormatError(f"k_theta.values must be positive, got {k.tolist()}", path=path)
-    units = get("k_theta", "unit")
-    if not isinstance(units, list) or len(units) != n or not set(units) <= {"N.m/rad", "N/m"}:
-        raise FileFormatError("k_theta.unit must list N.m/rad or N/m per joint", path=path)
-    formulation = get("formulation")
-    if formulation not in FORMULATIONS:
-        raise FileFormatError(f"formulation must be one of {', '.join(FORMULATIONS)}", path=path)
-    source, frame = get("robot", "source"), get("robot", "frame")
-    if not isinstance(source, str) or not isinstance(frame, str):
-        raise FileFormatError("robot.source and robot.frame must be strings", path=path)
-    return IdentifiedModel(
-        source=_resolve_source(source, path.parent),
-        frame=frame,
-        target_offset_m=numbers(get("robot", "target_offset_m"), "robot.target_offset_m", 3),
-        compliant_joints=tuple(joints),
-        k_theta=k,
-        units=tuple(units),
-        formulation=formulation,
-        ci95_low=numbers(get("ci95", "low"), "ci95.low", n, allow_null=True),
-        ci95_high=numbers(get("ci95", "high"), "ci95.high", n, allow_null=True),
-        standard_error=numbers(get("standard_error"), "standard_error", n, allow_null=True),
-        campaign=str(doc.get("campaign", "")),
-        path=path,
-    )
+        return self.model_file().write(path)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -633,68 +354,6 @@ def _agree(a: np.ndarray, b: np.ndarray, determined: np.ndarray) -> bool:
     return bool(np.all(diff < AGREEMENT_TOL_LOG))
 
 
-class _Objective:
-    """Scaled residuals ``(predicted - measured) / scale`` over ``x = ln k`` and their Jacobian.
-
-    With ``x_start``, the pseudo-residuals ``PRIOR_WEIGHT (x - x_start)`` are appended.
-    """
-
-    def __init__(self, model: DeflectionModel, measured: np.ndarray, scale: float,
-                 x_start: np.ndarray | None = None) -> None:
-        self.model, self.measured, self.scale, self.x_start = model, measured, scale, x_start
-        self.n_res, self.p = measured.size, model.n_parameters
-        self._key: bytes | None = None
-        self._pred: np.ndarray | None = None
-        self._jac: np.ndarray | None = None
-
-    def anchored(self, x_start: np.ndarray) -> _Objective:
-        """The same objective pulled weakly towards ``x_start``."""
-        return _Objective(self.model, self.measured, self.scale, x_start)
-
-    def _evaluate(self, x: np.ndarray) -> None:
-        key = x.tobytes()
-        if key == self._key:
-            return
-        pred = jac = None
-        if np.all(np.abs(x) < _MAX_LOG_K):
-            try:
-                with np.errstate(all="ignore"):
-                    pred, jac = self.model.predict_with_jacobian(np.exp(x))
-                if not (np.all(np.isfinite(pred)) and np.all(np.isfinite(jac))):
-                    pred = jac = None
-            except (StiffnessError, np.linalg.LinAlgError):
-                pred = jac = None
-        self._key, self._pred, self._jac = key, pred, jac
-
-    def data(self, x: np.ndarray) -> np.ndarray:
-        """Scaled data residuals (N,), or a large constant where the model fails."""
-        self._evaluate(x)
-        if self._pred is None:
-            return np.full(self.n_res, _PENALTY)
-        return ((self._pred - self.measured) / self.scale).reshape(-1)
-
-    def data_jacobian(self, x: np.ndarray) -> np.ndarray:
-        """(N, p) derivative of the scaled data residuals w.r.t. ``ln k``."""
-        self._evaluate(x)
-        if self._jac is None:
-            return np.zeros((self.n_res, self.p))
-        return (self._jac / self.scale).reshape(self.n_res, self.p)
-
-    def fun(self, x: np.ndarray) -> np.ndarray:
-        """Residuals handed to the solver."""
-        r = self.data(x)
-        if self.x_start is None:
-            return r
-        return np.concatenate([r, PRIOR_WEIGHT * (x - self.x_start)])
-
-    def jac(self, x: np.ndarray) -> np.ndarray:
-        """Their Jacobian."""
-        j = self.data_jacobian(x)
-        if self.x_start is None:
-            return j
-        return np.vstack([j, PRIOR_WEIGHT * np.eye(self.p)])
-
-
 @dataclass
 class _Uncertainty:
     covariance_log: np.ndarray
@@ -707,34 +366,19 @@ class _Uncertainty:
     directions: list[UndeterminedDirection]
 
 
-def _uncertainty(jac_white: np.ndarray, k: np.ndarray, quantile: float,
-                 joints: tuple[str, ...]) -> _Uncertainty:
-    """Covariance, CIs and undetermined directions from the whitened Jacobian w.r.t. ln k."""
-    p = len(k)
-    _, sv, vt = np.linalg.svd(jac_white, full_matrices=True)
-    s_full = np.zeros(p)
-    s_full[: len(sv)] = sv
-    smax = float(s_full.max()) if p else 0.0
-    zero = s_full <= SINGULAR_RTOL * smax if smax > 0 else np.ones(p, dtype=bool)
-    inv_s2 = np.where(zero, 0.0, 1.0 / np.where(zero, 1.0, s_full) ** 2)
-    cov = (vt.T * inv_s2) @ vt
-    var = np.diag(cov).copy()
-    # a parameter with a component along a direction the data do not see at all
-    unexcited = (np.abs(vt[zero]) > 1e-8).any(axis=0) if zero.any() else np.zeros(p, bool)
-    var[unexcited] = np.inf
-    cov[unexcited, :] = np.inf
-    cov[:, unexcited] = np.inf
-    se_log = np.sqrt(var)
+def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[str, ...]
+                 ) -> _Uncertainty:
+    """Intervals and undetermined directions from the fitting engine's covariance of ln k."""
+    se_log = np.sqrt(np.diag(cov.matrix))
     with np.errstate(over="ignore", invalid="ignore"):
         low = k * np.exp(-quantile * se_log)
         high = k * np.exp(quantile * se_log)
         width = (high - low) / k
     width = np.where(np.isfinite(width), width, np.inf)
-
     directions = []
-    for s_j, v in zip(s_full, vt, strict=True):
+    for s_j, v, zero in zip(cov.singular_values, cov.directions, cov.undetermined, strict=True):
         dir_width = math.inf
-        if smax > 0 and s_j > SINGULAR_RTOL * smax and quantile / s_j < 700.0:
+        if not zero and quantile / s_j < 700.0:
             dir_width = 2.0 * math.sinh(quantile / s_j)
         if dir_width <= REL_CI_WIDTH_LIMIT:
             continue
@@ -743,8 +387,30 @@ def _uncertainty(jac_white: np.ndarray, k: np.ndarray, quantile: float,
         big = tuple(j for j, c in comps.items() if abs(c) >= 0.3)
         text = " ".join(f"{c:+.2f} ln K_{j}" for j, c in comps.items() if abs(c) >= 0.05)
         directions.append(UndeterminedDirection(comps, big, dir_width, text))
-    cond = math.inf if zero.any() else smax / float(s_full.min())
-    return _Uncertainty(cov, se_log, low, high, width, s_full, cond, directions)
+    return _Uncertainty(cov.matrix, se_log, low, high, width, cov.singular_values,
+                        cov.condition_number, directions)
+
+
+def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = None) -> Model:
+    """The campaign's baseline model without effects: its compliant joints under
+    ``formulation`` over the campaign's rows (:class:`stiffness.calibration.effects.Model`).
+
+    Raises
+    ------
+    StiffnessError
+        Unknown formulation, or a row whose configuration cannot be assembled (named by its
+        file, line and configuration).
+    """
+    if formulation not in FORMULATIONS:
+        raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                               f"{', '.join(FORMULATIONS)}", name=formulation,
+                               choices=FORMULATIONS)
+    robot = robot if robot is not None else campaign.robot()
+    geometry = Geometry.of(robot)
+    rows = geometry.rows(campaign.q, campaign.force, campaign.moment,
+                         labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
+    refs = References.of(geometry, rows, PAPER_START_SI, campaign.deflection)
+    return Model(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs)
 
 
 def identify(
@@ -802,9 +468,8 @@ def identify(
                                name=method, choices=METHODS)
     if int(starts) < 1:
         raise StiffnessError(f"starts must be at least 1, got {starts}")
-    model = DeflectionModel(campaign, formulation, robot)
-    rob = model.robot
-    p = model.n_parameters
+    rob = robot if robot is not None else campaign.robot()
+    p = rob.n_compliant
     n_res = 3 * campaign.n_rows
     declared = campaign.noise_std_m is not None
     if method in ("lm", "both") and n_res < p:
@@ -817,6 +482,7 @@ def identify(
             f"{n_res} residuals cannot estimate the noise of {p} stiffnesses; add measurement "
             "rows or declare [measurement] noise_std"
         )
+    model = stiffness_model(campaign, formulation, rob)
     measured = campaign.deflection
     if declared:
         scale = campaign.noise_std_m
@@ -824,36 +490,35 @@ def identify(
         rms = float(np.sqrt(np.mean(measured ** 2)))
         scale = rms if rms > 0 else 1e-3
 
-    objective = _Objective(model, measured, scale)
-    pre = None
-    if formulation == "exact":
-        pre = _Objective(model.with_formulation("enhanced"), measured, scale)
-    floor = 0.0 if formulation == "conventional" else 2.0 * model.k_c_max
+    pre = model.with_baseline("enhanced") if formulation == "exact" else None
+    k_c = model.k_c()
+    sym = 0.5 * (k_c + np.transpose(k_c, (0, 2, 1)))
+    k_c_max = float(max(0.0, np.linalg.eigvalsh(sym).max())) if p else 0.0
+    floor = 0.0 if formulation == "conventional" else 2.0 * k_c_max
     methods = ("trf", "lm") if method == "both" else (method,)
     runs: list[StartResult] = []
+    fits: list[Fit] = []
     total = int(starts) * len(methods)
-    options = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12, "max_nfev": 200 * (p + 1)}
+    options = {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (p + 1)}
     for k0 in _starts(p, int(starts), seed):
         k0 = np.maximum(k0, floor)
         x_start = np.log(k0)
         for meth in methods:
             x0 = x_start
             if pre is not None:
-                obj = pre.anchored(x_start)
-                x0 = least_squares(obj.fun, x0, jac=obj.jac, method=meth, **options).x
-            obj = objective.anchored(x_start)
-            sol = least_squares(obj.fun, x0, jac=obj.jac, method=meth, **options)
-            data = obj.data(sol.x)
-            runs.append(StartResult(start=k0.copy(), method=meth, k=np.exp(sol.x),
-                                    cost=float(data @ data), success=bool(sol.success),
-                                    message=str(sol.message), nfev=int(sol.nfev)))
+                x0 = fit_model(pre, measured, scale, x0, meth, anchor=x_start, **options).x
+            fit = fit_model(model, measured, scale, x0, meth, anchor=x_start, **options)
+            fits.append(fit)
+            runs.append(StartResult(start=k0.copy(), method=meth, k=np.exp(fit.x),
+                                    cost=fit.cost, success=fit.success, message=fit.message,
+                                    nfev=fit.nfev))
             if progress is not None:
                 progress(len(runs), total, f"{meth} from {np.array2string(k0, precision=3)}: "
                                            f"cost {runs[-1].cost:.6g}")
-    best = min(runs, key=lambda r: r.cost)
-    x = np.log(best.k)
-    pred = model.predict(best.k)
-    ss_m2 = float(np.sum((pred - measured) ** 2))
+    best_index = min(range(len(runs)), key=lambda i: runs[i].cost)
+    best, best_fit = runs[best_index], fits[best_index]
+    pred = best_fit.predicted
+    ss_m2 = best_fit.rss
     dof = n_res - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     notes: list[str] = []
@@ -871,8 +536,7 @@ def identify(
         sigma = sigma_res
         sigma_source = "residuals (SS / (N - p))"
         quantile = float(student_t.ppf(0.975, dof))
-    unc = _uncertainty(objective.data_jacobian(x) * (scale / sigma), best.k, quantile,
-                       rob.compliant_joints)
+    unc = _uncertainty(covariance(best_fit, sigma), best.k, quantile, rob.compliant_joints)
     undetermined = tuple(j for j, w in zip(rob.compliant_joints, unc.width, strict=True)
                          if not w <= REL_CI_WIDTH_LIMIT)
     determined = np.array([j not in undetermined for j in rob.compliant_joints])
@@ -917,7 +581,7 @@ def identify(
         n_residuals=n_res,
         n_parameters=p,
         n_rows=campaign.n_rows,
-        n_configurations=model.n_configurations,
+        n_configurations=int(len(np.unique(model.rows.config_index))),
         condition_number=unc.condition_number,
         singular_values=unc.singular_values,
         relative_ci_width=unc.width,

@@ -1,7 +1,7 @@
 """Synthetic campaigns with hidden effects: what could a rig detect before measuring?
 
 :func:`simulate` draws reachable configurations (:func:`sample_coordinates`), loads along random
-directions (or a ramp along one direction per configuration, like the SK120's Table II, or the
+directions (or a ramp along one direction per configuration, or the
 six axis directions), computes the deflections from the *exact* elastostatic equilibrium of a
 true robot that carries the hidden effects, adds Gaussian noise, and returns a
 :class:`~stiffness.calibration.campaign.Campaign` that declares only the baseline (its ``--kq``
@@ -41,12 +41,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
 from stiffness.calibration.effects import (
     LIBRARY,
     Geometry,
-    Law,
     LinkCompliance,
     References,
     cached_robot,
@@ -64,7 +64,7 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.files import atomic_write
-from stiffness.mechanics.equilibrium import deflected_configuration
+from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.model.robot import Robot
 
@@ -72,31 +72,186 @@ from stiffness.model.robot import Robot
 LOAD_PATTERNS = ("random", "ramp", "axes")
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
-#: SK120 sampling ranges (printed angles, deg): the paper's workspace in front of the robot.
-SK120_RANGES_DEG = {"q1": (-90.0, 90.0), "q2": (-70.0, 70.0), "q3": (-115.0, 35.0)}
-#: SK120 poses with q2 + q3 within this of +-90 deg (flat parallelogram) are not drawn.
-SK120_FLAT_MARGIN_DEG = 15.0
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 _MAX_JACOBIAN = 10.0
 _DIAGONAL = np.ones(3) / math.sqrt(3.0)
+#: Keys of a robot's ``[workspace]`` table.
+WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
 
 
 # ------------------------------------------------------------------------------------------
 # poses
 
 
-def _is_sk120(robot: Robot) -> bool:
-    return robot.name == "sk120"
+@dataclass
+class Workspace:
+    """Where poses are drawn, from the robot's ``[workspace]`` table in its ``robot.toml``.
+
+    Every key is optional; angles are in ``angle_unit`` (``deg`` by default, or ``rad``),
+    prismatic coordinates in m::
+
+        [workspace]
+        uniform = { joint1 = [-90.0, 90.0], joint2 = [-70.0, 70.0] }   # ranges
+        choice = { joint6 = [-90.0, 90.0] }                             # one of these values
+        linear = [ { joint = "joint5", constant = -90.0, terms = { joint3 = -1.0 } } ]
+        avoid = [ { terms = { joint2 = 1.0, joint3 = 1.0 }, values = [90.0, -90.0],
+                    margin = 15.0 } ]
+        target_above_base = false
+
+    A pose draws the ``uniform`` coordinates in the table's order, then every coordinate with
+    no rule uniformly within its joint limits (``+-pi`` when unlimited), rejects the pose when
+    an ``avoid`` combination ``sum terms * q`` lies within ``margin`` of one of its ``values``,
+    draws the ``choice`` coordinates, and sets each ``linear`` coordinate to
+    ``constant + sum terms * q`` in order. ``target_above_base`` (default true) rejects poses
+    whose target is below the base plane.
+
+    Attributes
+    ----------
+    uniform
+        Coordinate index -> (low, high), SI.
+    choice
+        Coordinate index -> values, SI.
+    linear
+        (index, constant, {index: coefficient}) in order, SI.
+    avoid
+        ({index: coefficient}, values, margin), SI.
+    target_above_base
+        Whether the target must be above the base plane.
+    """
+
+    uniform: dict[int, tuple[float, float]] = field(default_factory=dict)
+    choice: dict[int, list[float]] = field(default_factory=dict)
+    linear: list[tuple[int, float, dict[int, float]]] = field(default_factory=list)
+    avoid: list[tuple[dict[int, float], list[float], float]] = field(default_factory=list)
+    target_above_base: bool = True
+    declared: bool = False
+
+    @classmethod
+    def of(cls, robot: Robot) -> Workspace:
+        """The robot's declared workspace (default: its joint limits, target above the base).
+
+        Raises
+        ------
+        StiffnessError
+            On an unknown key, joint or unit, or a malformed rule (one line naming it).
+        """
+        table = robot.defaults.get("workspace")
+        if table is None:
+            return cls()
+        where = f"[workspace] of {robot.name}"
+        if not isinstance(table, dict):
+            raise StiffnessError(f"{where} must be a table")
+        unknown = set(table) - set(WORKSPACE_KEYS)
+        if unknown:
+            key = sorted(unknown)[0]
+            raise UnknownNameError(f"{where}: unknown key {key!r}; valid keys: "
+                                   f"{', '.join(WORKSPACE_KEYS)}", name=key,
+                                   choices=WORKSPACE_KEYS)
+        unit = table.get("angle_unit", "deg")
+        if unit not in ("deg", "rad"):
+            raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
+        names = list(robot.coordinate_joints)
+        factor = np.array([1.0 if _is_prismatic(robot, j) else (
+            math.pi / 180.0 if unit == "deg" else 1.0) for j in names])
+
+        def index(name) -> int:
+            if name not in names:
+                raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
+                                        f"{robot.name}; {did_you_mean(str(name), names)}",
+                                        name=str(name), choices=names)
+            return names.index(name)
+
+        def number(value, what: str) -> float:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
+                    value):
+                raise StiffnessError(f"{where}: {what} must be a finite number, got {value!r}")
+            return float(value)
+
+        def terms(rule: dict, what: str) -> dict[int, float]:
+            raw = rule.get("terms", {})
+            if not isinstance(raw, dict):
+                raise StiffnessError(f"{where}: {what}.terms must map joints to coefficients")
+            out = {}
+            for joint, c in raw.items():
+                i = index(joint)
+                # the coefficient relates SI values: q_out = c q_in in the table's units
+                out[i] = number(c, f"{what}.terms.{joint}")
+            return out
+
+        ws = cls(declared=True)
+        for joint, bounds in dict(table.get("uniform", {})).items():
+            i = index(joint)
+            if not isinstance(bounds, list) or len(bounds) != 2:
+                raise StiffnessError(f"{where}: uniform.{joint} must be [low, high]")
+            lo, hi = (number(v, f"uniform.{joint}") * factor[i] for v in bounds)
+            if hi < lo:
+                raise StiffnessError(f"{where}: uniform.{joint} has high below low")
+            ws.uniform[i] = (lo, hi)
+        for joint, values in dict(table.get("choice", {})).items():
+            i = index(joint)
+            if not isinstance(values, list) or not values:
+                raise StiffnessError(f"{where}: choice.{joint} must be a list of values")
+            ws.choice[i] = [number(v, f"choice.{joint}") * factor[i] for v in values]
+        for k, rule in enumerate(table.get("linear", [])):
+            if not isinstance(rule, dict) or "joint" not in rule:
+                raise StiffnessError(f"{where}: linear[{k}] needs a joint")
+            i = index(rule["joint"])
+            c = terms(rule, f"linear[{k}]")
+            scaled = {j: v * factor[i] / factor[j] for j, v in c.items()}
+            ws.linear.append((i, number(rule.get("constant", 0.0), f"linear[{k}].constant")
+                              * factor[i], scaled))
+        for k, rule in enumerate(table.get("avoid", [])):
+            if not isinstance(rule, dict) or "terms" not in rule or "margin" not in rule:
+                raise StiffnessError(f"{where}: avoid[{k}] needs terms, values and margin")
+            c = terms(rule, f"avoid[{k}]")
+            ref = factor[next(iter(c))] if c else 1.0
+            values = rule.get("values", [0.0])
+            if not isinstance(values, list):
+                raise StiffnessError(f"{where}: avoid[{k}].values must be a list")
+            ws.avoid.append(({j: v * factor[j] / ref for j, v in c.items()},
+                             [number(v, f"avoid[{k}].values") * ref for v in values],
+                             number(rule["margin"], f"avoid[{k}].margin") * ref))
+        above = table.get("target_above_base", True)
+        if not isinstance(above, bool):
+            raise StiffnessError(f"{where}: target_above_base must be true or false")
+        ws.target_above_base = above
+        return ws
+
+    def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
+             ) -> np.ndarray | None:
+        """One coordinate vector (SI), or ``None`` when an ``avoid`` rule rejects it."""
+        if not self.declared:
+            return rng.uniform(lo, hi)
+        coords = np.zeros(len(lo))
+        for i, (a, b) in self.uniform.items():
+            coords[i] = rng.uniform(a, b)
+        ruled = set(self.uniform) | set(self.choice) | {i for i, _, _ in self.linear}
+        for i in range(len(lo)):
+            if i not in ruled:
+                coords[i] = rng.uniform(lo[i], hi[i])
+        for c, values, margin in self.avoid:
+            combo = sum(v * coords[j] for j, v in c.items())
+            if min(abs(combo - v) for v in values) < margin:
+                return None
+        for i, values in self.choice.items():
+            coords[i] = rng.choice(values)
+        for i, constant, c in self.linear:
+            coords[i] = constant + sum(v * coords[j] for j, v in c.items())
+        return coords
+
+
+def _is_prismatic(robot: Robot, joint: str) -> bool:
+    return robot.model.joints[robot.model.getJointId(joint)].shortname().startswith("JointModelP")
 
 
 def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
                        max_tries: int = 200) -> np.ndarray:
     """``n`` random reachable coordinate vectors (rad, m), shape (n, n_coordinates).
 
-    SK120: vertical tool (q4 = 0, q5 = -90 deg - q3), q1..q3 in :data:`SK120_RANGES_DEG`,
-    away from the flat parallelogram, q6 = +-90 deg. Other robots: uniform within the joint
-    limits (clipped to +-pi for revolute joints), target above the base plane. Every pose must
-    assemble (loops closed, regular) with a moderate target Jacobian.
+    Poses follow the robot's :class:`Workspace` (its ``robot.toml`` ``[workspace]`` table);
+    without one, uniform within the joint limits (clipped to +-pi for revolute joints), target
+    above the base plane. Every pose must assemble (loops closed, regular) with a moderate
+    target Jacobian.
 
     Raises
     ------
@@ -113,18 +268,14 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
     hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
     lo = np.where(prismatic, lo, np.maximum(lo, -math.pi))
     hi = np.where(prismatic, hi, np.minimum(hi, math.pi))
+    workspace = Workspace.of(robot)
     out: list[np.ndarray] = []
     for _ in range(max_tries * n):
         if len(out) == n:
             break
-        if _is_sk120(robot):
-            r = SK120_RANGES_DEG
-            q1, q2, q3 = (rng.uniform(*r[k]) for k in ("q1", "q2", "q3"))
-            if min(abs(q2 + q3 - 90.0), abs(q2 + q3 + 90.0)) < SK120_FLAT_MARGIN_DEG:
-                continue
-            coords = np.deg2rad([q1, q2, q3, 0.0, -90.0 - q3, rng.choice([-90.0, 90.0])])
-        else:
-            coords = rng.uniform(lo, hi)
+        coords = workspace.draw(lo, hi, rng)
+        if coords is None:
+            continue
         try:
             q = robot.configuration(coords)
             state = target_state(robot, q)
@@ -132,7 +283,7 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
             continue
         if np.abs(state.jacobian[:3]).max() > _MAX_JACOBIAN:
             continue
-        if not _is_sk120(robot) and state.position[2] < 0.0:
+        if workspace.target_above_base and state.position[2] < 0.0:
             continue
         out.append(coords)
     if len(out) < n:
@@ -240,7 +391,7 @@ class Truth:
     """
 
     robot: Robot
-    law: Law
+    law: SpringLaw
     links: list[tuple[str, str, int, float, float]] = field(default_factory=list)
     chain: tuple[str, ...] = ()
     misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -273,40 +424,17 @@ class Truth:
         robot, law = self.robot, self.law
         wrench = as_wrench(force)
         base = target_state(robot, q0, wrench)
-        tau = base.jacobian.T @ wrench
-        dtheta = law(tau[None])[0][0]
-        state, q = base, q0
-        exact = mode == "exact"
-        if mode == "enhanced":
-            for _ in range(20):
-                value, slope = law((tau + base.k_c @ dtheta)[None])
-                g = dtheta - value[0]
-                jg = np.eye(len(dtheta)) - slope[0][:, None] * base.k_c
-                dtheta = dtheta - np.linalg.solve(jg, g)
-        if exact:
-            scale = max(float(np.abs(dtheta).max()), 1e-300)
-            for _ in range(60):
-                q = deflected_configuration(robot, q0, dtheta, q)
-                state = target_state(robot, q, wrench)
-                tau = state.jacobian.T @ wrench
-                value, slope = law(tau[None])
-                g = dtheta - value[0]
-                if np.abs(g).max() <= 1e-12 * scale:
-                    break
-                jg = np.eye(len(dtheta)) - slope[0][:, None] * state.k_c
-                dtheta = dtheta - np.linalg.solve(jg, g)
-            else:
-                raise ConvergenceError("the exact equilibrium with the hidden effects did not "
-                                       "converge: the load may exceed the buckling load; "
-                                       "lower --max-force")
-            dx = state.position - base.position
+        tau0 = base.jacobian.T @ wrench
+        if mode == "exact":
+            eq = solve_equilibrium(robot, q0, law, wrench)
+            q, x, dx = eq.q, eq.position, eq.dx
         else:
-            dx = base.jacobian[:3] @ dtheta
+            k_c = base.k_c if mode == "enhanced" else np.zeros_like(base.k_c)
+            dtheta = tangent_equilibrium(law, tau0, k_c)
+            q, x, dx = q0, base.position, base.jacobian[:3] @ dtheta
         if self.links:
-            if not exact:
-                target_state(robot, q0)  # placements at q0
+            pin.forwardKinematics(robot.model, robot.data, q)
             origins, rotations = chain_placements(robot, self.chain)
-            x = state.position
             for a, b, column, k1, k2 in self.links:
                 ia, ib = self.chain.index(a), self.chain.index(b)
                 e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib], column)
@@ -366,7 +494,7 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
                                     f"joint ({', '.join(compliant)}), not {j}", name=j,
                                     choices=compliant)
     robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
-    law = Law(np.array([1.0 / stiff[j] for j in compliant]),
+    law = SpringLaw(np.array([1.0 / stiff[j] for j in compliant]),
               np.array([beta.get(j, 0.0) for j in compliant]),
               np.array([backlash.get(j, 0.0) for j in compliant]),
               np.array([smoothing[geometry.joints.index(j)] for j in compliant]))

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.calibration.model_file import CompliantModel, read_model_file
 from stiffness.cli import flags
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_load, default_stiffness
@@ -51,9 +52,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data name (ur5, "
         "panda...) or URDF path (required unless --model gives it)"))
     parser.add_argument("--model", metavar="FILE",
-                        help="identified model written by `stiffness identify` "
-                             "(identified-model.json): its robot, target, compliant joints and "
-                             "K_theta; the other flags override them")
+                        help="model file of `stiffness identify` (identified-model.json) or "
+                             "`stiffness diagnose --out` (final-model.json): its robot, target, "
+                             "compliant joints, K_theta and the effects that change the "
+                             "stiffness (docs/model-file.md); the other flags override them")
     flags.add_configuration_flags(parser)
     flags.add_wrench_flag(parser)
     flags.add_stiffness_flag(parser)
@@ -76,10 +78,47 @@ def _identified_model(args: argparse.Namespace):
     if getattr(args, "model", None) is None:
         return None
     if getattr(args, "_identified_model", None) is None:
-        from stiffness.calibration.identify import load_identified_model
-
-        args._identified_model = load_identified_model(args.model)
+        model = read_model_file(args.model)
+        if getattr(args, "robot", None) is not None:
+            model.check_robot(args.robot)
+        args._identified_model = model
     return args._identified_model
+
+
+def compliant_model_from_args(args: argparse.Namespace) -> CompliantModel | None:
+    """The ``--model`` file with its stiffness effects applied, or None (no ``--model``, or
+    ``--kq`` / ``--compliant-joints`` replace the model's springs)."""
+    model = _identified_model(args)
+    if model is None or args.kq is not None or args.compliant_joints is not None:
+        return None
+    if getattr(args, "_compliant_model", None) is None:
+        args._compliant_model = CompliantModel(model, frame=args.frame,
+                                               target_offset=flags.target_offset_from_args(args))
+    return args._compliant_model
+
+
+def model_summary(args: argparse.Namespace) -> dict | None:
+    """What the ``--model`` file contributes (JSON-ready), or None without ``--model``."""
+    model = _identified_model(args)
+    if model is None:
+        return None
+    cm = compliant_model_from_args(args)
+
+    def entry(e, reason=None):
+        return {"effect": e.name, "where": e.where, "kind": e.kind,
+                "parameters": {p.name: p.value for p in e.parameters},
+                **({} if reason is None else {"reason": reason})}
+
+    if cm is None:
+        applied, not_applied = [], [
+            entry(e, "--kq or --compliant-joints replace the model's springs")
+            for e in model.effects]
+    else:
+        applied = [entry(e) for e in cm.applied]
+        not_applied = [entry(e, why) for e, why in cm.not_applied]
+    return {"file": str(model.path), "produced_by": model.produced_by,
+            "formulation": model.formulation, "effects_applied": applied,
+            "effects_not_applied": not_applied}
 
 
 @dataclass
@@ -96,6 +135,7 @@ class KxInputs:
     k_theta: np.ndarray
     load: np.ndarray
     load_source: str
+    model: CompliantModel | None = None
     q_source: str = flags.FROM_FLAG
     k_theta_source: str = flags.FROM_FLAG
 
@@ -119,9 +159,12 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
         On a bad flag value, or a missing flag the robot brings no default for.
     """
     model = _identified_model(args)
-    robot, _, _ = flags.robot_from_args(args, fallback=model)
+    cm = compliant_model_from_args(args)
+    robot = cm.robot if cm is not None else flags.robot_from_args(args, fallback=model)[0]
     coords = flags.coordinates_from_args(robot, args)
-    if args.kq is not None:
+    if cm is not None:
+        kq, kq_source = cm.k_theta, f"{flags.FROM_MODEL} {args.model}"
+    elif args.kq is not None:
         kq, kq_source = flags.parse_list(args.kq, "--kq"), f"{flags.FROM_FLAG} --kq"
     elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
         kq, kq_source = model.k_theta, f"{flags.FROM_MODEL} {args.model}"
@@ -144,7 +187,7 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
             raise StiffnessError(
                 "--wrench is required: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m)")
         load, source = shipped
-    return KxInputs(robot, coords, q, k_theta, load, source,
+    return KxInputs(robot, coords, q, k_theta, load, source, cm,
                     q_source=flags.coordinates_source(robot, args), k_theta_source=kq_source)
 
 
@@ -188,7 +231,22 @@ def compute(args: argparse.Namespace) -> dict:
         raise StiffnessError(f"twist_order of {robot.name} must be one of {list(TWIST_ORDERS)}")
     rows = slice(0, 6) if six else slice(0, 3)
     tangent = tangent_joint_stiffness(k_theta, state.k_c, args.formulation)
-    if args.connection is not None:
+    at = None
+    if inputs.model is not None and args.connection is None:
+        at = inputs.model.at(q, load, args.formulation)
+    elif inputs.model is not None and any(
+            e.name in ("link_compliance", "nonlinear_joint_stiffness")
+            for e in inputs.model.applied):
+        raise StiffnessError("--connection gives the 6x6 stiffness of joint springs alone; the "
+                             "model's link_compliance or nonlinear_joint_stiffness cannot enter "
+                             "it: drop --connection")
+    if at is not None:
+        jac = state.jacobian[rows]
+        c_x = at.compliance(rows)
+        k_x = cartesian_stiffness(c_x)
+        axes = "base frame axes at the target"
+        k_c = state.k_c
+    elif args.connection is not None:
         k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
                else twist_basis_stiffness(state, k_theta))
         jac = state.body_jacobian()
@@ -210,7 +268,7 @@ def compute(args: argparse.Namespace) -> dict:
     ell = ellipsoid(k_x)
     blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
     trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
-    return {
+    out = {
         "robot": robot.name,
         "frame": robot.target_frame,
         "target_offset": robot.target_offset.tolist(),
@@ -243,6 +301,13 @@ def compute(args: argparse.Namespace) -> dict:
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
         },
     }
+    summary = model_summary(args)
+    if summary is not None:
+        out["model"] = summary
+        if at is not None:
+            out["K_theta_tangent"] = np.diag(at.k_tangent).tolist()
+            out["link_compliance"] = at.link_compliance[rows, rows].tolist()
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -264,4 +329,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n{np.array(result['K_X'])}")
     print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
     print(f"definiteness: {result['definiteness']}")
+    if "model" in result:
+        m = result["model"]
+        label = lambda e: e["effect"] + (f"({e['where']})" if e["where"] else "")  # noqa: E731
+        print(f"model {m['file']}: effects in K_X: "
+              + (", ".join(label(e) for e in m["effects_applied"]) or "none"))
+        for e in m["effects_not_applied"]:
+            print(f"  not applied: {label(e)}: {e['reason']}")
     return 0

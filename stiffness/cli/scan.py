@@ -48,6 +48,7 @@ import numpy as np
 from stiffness.batch import kernels as batch
 from stiffness.cli import flags
 from stiffness.cli.flags import parse_list, robot_from_args
+from stiffness.cli.kx import _identified_model, compliant_model_from_args
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.model.robot import Robot
@@ -67,7 +68,13 @@ DEFAULT_LOAD_N = (0.0, 0.0, -100.0)
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness scan``."""
-    flags.add_robot_flags(parser, required=True)
+    flags.add_robot_flags(parser, robot_help=(
+        "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data name (ur5, "
+        "panda...) or URDF path (required unless --model gives it)"))
+    parser.add_argument("--model", metavar="FILE",
+                        help="model file of `stiffness identify` or `stiffness diagnose --out`: "
+                             "its robot, target, springs and joint-compliance and target-offset "
+                             "effects (docs/model-file.md); the other flags override them")
     parser.add_argument("--preset", choices=PRESETS,
                         help="table4: A&S Table IV on the SK120 (theta1 -180..180, theta2 "
                              "-70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical; the "
@@ -141,12 +148,36 @@ def _joint_range(robot: Robot, index: int) -> tuple[float, float]:
     return -np.pi, np.pi
 
 
+def _refuse_unscannable(model) -> None:
+    """The batched scan models joint springs only: refuse a model whose link or nonlinear
+    effects would change K_X (kx and view apply them at chosen poses)."""
+    extra = [e.label for e in model.applied
+             if e.name in ("link_compliance", "nonlinear_joint_stiffness")]
+    if extra:
+        raise StiffnessError(
+            f"scan --model: {', '.join(extra)} change K_X beyond joint springs, which the "
+            "batched scan does not model; use `stiffness kx --model` or `stiffness view "
+            "--model` at chosen poses, or give --kq to scan the springs alone")
+
+
 def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
     """The scan specification of a command line (and the loaded robot)."""
-    robot, compliant, offset = robot_from_args(args)
-    robot_spec = {"source": str(args.robot), "frame": args.frame, "target_offset": offset,
-                  "compliant_joints": compliant}
-    if args.kq is not None:
+    model = compliant_model_from_args(args)
+    if model is not None:
+        robot = model.robot
+        _refuse_unscannable(model)
+        compliant, offset = list(robot.compliant_joints), robot.target_offset.tolist()
+        robot_spec = {"source": model.model.source, "frame": robot.target_frame,
+                      "target_offset": offset, "compliant_joints": compliant}
+    else:
+        fallback = _identified_model(args)
+        robot, compliant, offset = robot_from_args(args, fallback=fallback)
+        robot_spec = {"source": str(args.robot) if args.robot else robot.name,
+                      "frame": args.frame if fallback is None else robot.target_frame,
+                      "target_offset": offset, "compliant_joints": compliant}
+    if model is not None and args.kq is None:
+        k_theta = model.k_theta.tolist()
+    elif args.kq is not None:
         k_theta = parse_list(args.kq, "--kq")
     elif default_stiffness(robot) is not None:
         k_theta = default_stiffness(robot).tolist()

@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.calibration.model_file import CompliantModel
 from stiffness.cli import flags, kx
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
+from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import Robot
 from stiffness.viewer import (
     LOOPBACK,
@@ -36,6 +38,7 @@ from stiffness.viewer import (
     SHOW_FORMULATIONS,
     StiffnessViewer,
 )
+from stiffness.viewer.ellipsoid import principal_ellipsoid
 
 #: ``stiffness kx`` flags that have no meaning for the viewer.
 _KX_ONLY = {"help", "connection", "twist_order"}
@@ -183,9 +186,15 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
         rows = sweep_path(robot, coords, args.sweep, args.deg)
     elif args.path is not None:
         rows = read_path(robot, args.path, args.deg)
-    viewer = StiffnessViewer(robot, k_theta, live=live, quantity=args.quantity, size=args.size,
-                             exaggeration=args.exaggeration, host=args.host, port=args.port,
-                             open_browser=args.open and live)
+    model = kx.compliant_model_from_args(args)
+    options = {"live": live, "quantity": args.quantity, "size": args.size,
+               "exaggeration": args.exaggeration, "host": args.host, "port": args.port,
+               "open_browser": args.open and live}
+    if model is not None and any(e.name in ("link_compliance", "nonlinear_joint_stiffness")
+                                 for e in model.applied):
+        viewer = ModelViewer(model, robot, k_theta, **options)
+    else:
+        viewer = StiffnessViewer(robot, k_theta, **options)
     try:
         viewer.show(coords, load, args.formulation)
         if args.field is not None:
@@ -199,6 +208,31 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
         viewer.close()
         raise
     return viewer
+
+
+class ModelViewer(StiffnessViewer):
+    """The viewer drawing a model file's compliance at each pose and load, its link
+    compliance and nonlinear springs' tangents included (:meth:`CompliantModel.at`); the
+    drawn deflection is that of its joint springs."""
+
+    def __init__(self, model: CompliantModel, *args, **kwargs) -> None:
+        self.compliant_model = model
+        super().__init__(*args, **kwargs)
+
+    def ellipsoids(self, q: np.ndarray, wrench: np.ndarray, formulations, quantity=None):
+        """Target state and principal ellipsoids of the model's 3x3 compliance."""
+        quantity = self.quantity if quantity is None else quantity
+        state = target_state(self.robot, q, wrench)
+        out = {}
+        for name in formulations:
+            c = self.compliant_model.at(q, wrench, name).compliance()
+            values, vectors = np.linalg.eigh(0.5 * (c + c.T))
+            # principal_ellipsoid draws F T^-1 F^T: C = F T^-1 F^T with F = V |L|^1/2 and
+            # T = sign(L) (an indefinite compliance past the buckling load keeps its signs)
+            factor = vectors * np.sqrt(np.abs(values))
+            signs = np.diag(np.where(values < 0.0, -1.0, 1.0))
+            out[name] = principal_ellipsoid(factor, signs, name, quantity)
+        return state, out
 
 
 def _say_if_unloaded(viewer: StiffnessViewer) -> None:

@@ -1,11 +1,22 @@
-"""Exact elastostatic equilibrium under a dead load, loops closed.
+"""Exact elastostatic equilibrium under a dead load, loops closed, for any joint law.
 
-Solves ``K_theta (theta - theta_0) = J(theta)^T W`` for the compliant joints ``theta`` (the
-stationary point of ``Pi = 1/2 (theta - theta_0)^T K_theta (theta - theta_0) - W . x(theta)``,
-rigid joints held, passive loop joints following the closure) by Newton's method with the
-tangent ``K_theta - K_C(theta)``. The linear predictions of :mod:`stiffness.mechanics.formulation`
-are
-truncations of this solution (see :func:`linear_departure`).
+Solves ``dtheta = f(J(theta)^T W)`` for the compliant-joint deflection ``dtheta = theta - theta_0``
+(rigid joints held, passive loop joints following the closure), where the *joint law* ``f``
+gives each joint's deflection under its torque:
+
+* :class:`LinearSprings` ``f(tau) = K_theta^-1 tau`` (any symmetric positive definite
+  ``K_theta``): the stationary point of
+  ``Pi = 1/2 dtheta^T K_theta dtheta - W . x(theta)``, solved as ``K_theta dtheta = J^T W``;
+* :class:`SpringLaw` ``f_j(tau_j) = c_j tau_j (1 + beta_j |tau_j|) + b_j tanh(tau_j / s_j)``:
+  linear springs (``beta = b = 0``), softening or hardening springs (``beta``) and lost motion
+  (backlash of half-width ``b`` smoothed over the torque ``s``).
+
+Newton's method runs on the law's residual with ``d(J^T W)/d theta = K_C`` (A&S eq. 9), i.e. the
+tangent ``K_t - K_C`` with ``K_t = (df/dtau)^-1``; the solution must be stable (``K_t - K_C``
+positive definite). :func:`tangent_equilibrium` is the same fixed point at frozen geometry
+(``tau = J^T W + K_C dtheta`` at the unloaded pose), the enhanced model of a nonlinear law.
+The linear predictions of :mod:`stiffness.mechanics.formulation` are truncations of the exact
+solution (see :func:`linear_departure`).
 """
 
 from __future__ import annotations
@@ -18,6 +29,175 @@ import pinocchio as pin
 from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.formulation import as_wrench, tangent_joint_stiffness, target_state
 from stiffness.model.robot import Robot
+
+
+class JointLaw:
+    """A joint torque-deflection law over the compliant joints (SI: N.m or N, rad or m).
+
+    Subclasses give the Newton residual ``r(dtheta, tau)`` whose zero is the law, its
+    derivative w.r.t. ``dtheta`` when ``d tau / d dtheta = K_C``, a start, and the tangent
+    stiffness ``(df/dtau)^-1``.
+    """
+
+    def start(self, tau: np.ndarray) -> np.ndarray:
+        """A first deflection for the torque ``tau`` (n,)."""
+        raise NotImplementedError
+
+    def residual(self, dtheta: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Residual (n,) that vanishes when ``dtheta`` is the law's deflection under ``tau``."""
+        raise NotImplementedError
+
+    def residual_jacobian(self, dtheta: np.ndarray, tau: np.ndarray, k_c: np.ndarray
+                          ) -> np.ndarray:
+        """(n, n) derivative of :meth:`residual` w.r.t. ``dtheta`` when ``d tau = K_C d dtheta``."""
+        raise NotImplementedError
+
+    def tangent_stiffness(self, tau: np.ndarray) -> np.ndarray:
+        """(n, n) tangent joint stiffness ``(df/dtau)^-1`` at the torque ``tau``."""
+        raise NotImplementedError
+
+
+@dataclass
+class LinearSprings(JointLaw):
+    """``K_theta dtheta = tau`` with a (n, n) stiffness matrix (N.m/rad, N/m)."""
+
+    k_theta: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.k_theta = np.atleast_2d(np.asarray(self.k_theta, dtype=float))
+
+    def start(self, tau):
+        return np.linalg.solve(self.k_theta, tau)
+
+    def residual(self, dtheta, tau):
+        return self.k_theta @ dtheta - tau
+
+    def residual_jacobian(self, dtheta, tau, k_c):
+        return self.k_theta - k_c
+
+    def tangent_stiffness(self, tau):
+        return self.k_theta
+
+
+@dataclass
+class SpringLaw(JointLaw):
+    """Diagonal law ``dtheta_j = c_j tau_j (1 + beta_j |tau_j|) + b_j tanh(tau_j / s_j)``.
+
+    Attributes (arrays over the compliant joints)
+    ----------
+    compliance
+        ``c = 1 / k`` (rad/(N.m), m/N).
+    beta
+        Softening (> 0) or hardening (< 0) coefficient (1/(N.m), 1/N).
+    backlash
+        Lost-motion half-width ``b`` (rad, m).
+    smoothing
+        Torque ``s`` over which the dead band is smoothed (N.m, N).
+    """
+
+    compliance: np.ndarray
+    beta: np.ndarray
+    backlash: np.ndarray
+    smoothing: np.ndarray
+
+    @classmethod
+    def of_stiffness(cls, k: np.ndarray) -> SpringLaw:
+        """Linear springs of stiffnesses ``k``."""
+        k = np.asarray(k, dtype=float)
+        zero = np.zeros_like(k)
+        return cls(1.0 / k, zero, zero.copy(), np.ones_like(k))
+
+    @property
+    def linear(self) -> bool:
+        """Whether the law is ``dtheta = c tau``."""
+        return not (np.any(self.beta != 0.0) or np.any(self.backlash != 0.0))
+
+    def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Deflections and their derivatives w.r.t. the torques, both shaped like ``tau``
+        (..., n)."""
+        a = np.abs(tau)
+        th = np.tanh(tau / self.smoothing)
+        value = self.compliance * tau * (1.0 + self.beta * a) + self.backlash * th
+        slope = (self.compliance * (1.0 + 2.0 * self.beta * a)
+                 + self.backlash / self.smoothing * (1.0 - th ** 2))
+        return value, slope
+
+    def frozen_deflection(self, tau0: np.ndarray, k_c: np.ndarray | None = None,
+                          iterations: int = 30, tolerance: float | None = None) -> np.ndarray:
+        """Deflections solving ``dtheta = f(tau0 + K_C dtheta)`` at frozen geometry, batched.
+
+        Parameters
+        ----------
+        tau0
+            (..., n) torques ``J^T W`` of the unloaded pose.
+        k_c
+            (..., n, n) ``K_C`` there, or ``None`` (conventional: ``dtheta = f(tau0)``).
+        iterations
+            Newton steps from the linear springs' answer ``(I - c K_C)^-1 c tau0`` (none when
+            the law is linear, which that answer solves exactly).
+        tolerance
+            Stop early once every residual is below this times the largest deflection; ``None``
+            runs every step (the result is then a smooth function of the law's parameters, as a
+            least-squares fit needs).
+        """
+        if k_c is None:
+            return self(tau0)[0] if not self.linear else self.compliance * tau0
+        n = tau0.shape[-1]
+        eye = np.eye(n)
+        a = eye - self.compliance[..., :, None] * k_c
+        dtheta = np.linalg.solve(a, (self.compliance * tau0)[..., :, None])[..., :, 0]
+        if self.linear:
+            return dtheta
+        for _ in range(iterations):
+            value, slope = self(tau0 + np.einsum("...ab,...b->...a", k_c, dtheta))
+            g = dtheta - value
+            if tolerance is not None and np.abs(g).max() <= tolerance * max(
+                    float(np.abs(dtheta).max()), 1e-300):
+                break
+            jg = eye - slope[..., :, None] * k_c
+            dtheta = dtheta - np.linalg.solve(jg, g[..., :, None])[..., :, 0]
+        return dtheta
+
+    def start(self, tau):
+        return self(tau)[0]
+
+    def residual(self, dtheta, tau):
+        return dtheta - self(tau)[0]
+
+    def residual_jacobian(self, dtheta, tau, k_c):
+        return np.eye(len(dtheta)) - self(tau)[1][:, None] * k_c
+
+    def tangent_stiffness(self, tau):
+        return np.diag(1.0 / self(tau)[1])
+
+
+def as_joint_law(law: JointLaw | np.ndarray) -> JointLaw:
+    """A joint law, or linear springs of a (n, n) stiffness matrix."""
+    return law if isinstance(law, JointLaw) else LinearSprings(law)
+
+
+def tangent_equilibrium(law: JointLaw | np.ndarray, tau0: np.ndarray, k_c: np.ndarray,
+                        iterations: int = 30) -> np.ndarray:
+    """Deflection ``dtheta`` solving ``dtheta = f(tau0 + K_C dtheta)`` (frozen geometry).
+
+    The enhanced model of a joint law: ``tau0 = J^T W`` and ``K_C`` at the unloaded pose. For
+    linear springs it is ``(K_theta - K_C)^-1 tau0`` (A&S eq. 10); a :class:`SpringLaw` runs
+    :meth:`SpringLaw.frozen_deflection`; any other law, Newton on its residual.
+    """
+    law = as_joint_law(law)
+    if isinstance(law, LinearSprings):
+        return np.linalg.solve(law.k_theta - k_c, tau0)
+    if isinstance(law, SpringLaw):
+        return law.frozen_deflection(tau0, k_c, iterations, tolerance=1e-14)
+    dtheta = law.start(tau0)
+    scale = max(float(np.abs(law.residual(np.zeros_like(tau0), tau0)).max()), 1e-300)
+    for _ in range(iterations):
+        tau = tau0 + k_c @ dtheta
+        g = law.residual(dtheta, tau)
+        if np.abs(g).max() <= 1e-14 * scale:
+            break
+        dtheta = dtheta - np.linalg.solve(law.residual_jacobian(dtheta, tau, k_c), g)
+    return dtheta
 
 
 @dataclass
@@ -36,6 +216,10 @@ class Equilibrium:
         Small rotation vector (3,) of the target frame, base axes (rad).
     iterations
         Newton iterations used.
+    torque
+        Compliant-joint torques ``J(theta)^T W`` at equilibrium (N.m or N).
+    position
+        Target position at equilibrium, base frame (m).
     """
 
     q: np.ndarray
@@ -43,6 +227,8 @@ class Equilibrium:
     dx: np.ndarray
     rotation: np.ndarray
     iterations: int
+    torque: np.ndarray
+    position: np.ndarray
 
 
 def deflected_configuration(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
@@ -67,10 +253,10 @@ def deflected_configuration(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
 def solve_equilibrium(
     robot: Robot,
     q0: np.ndarray,
-    k_theta: np.ndarray,
+    k_theta: JointLaw | np.ndarray,
     load: np.ndarray,
     tolerance: float = 1e-12,
-    max_iterations: int = 50,
+    max_iterations: int = 60,
 ) -> Equilibrium:
     """Exact deflection of ``robot`` from the unloaded configuration ``q0`` under a dead load.
 
@@ -81,11 +267,14 @@ def solve_equilibrium(
     q0
         Unloaded full configuration (loops closed).
     k_theta
-        (n, n) joint stiffness (SI).
+        The joint law: a (n, n) joint stiffness matrix (SI, :class:`LinearSprings`) or any
+        :class:`JointLaw` (e.g. :class:`SpringLaw` with nonlinear springs and backlash).
     load
         Force (3,) N or wrench (6,) N, N.m at the target, base axes.
     tolerance
-        Convergence on the relative torque residual.
+        Convergence on the law's residual relative to its value at zero deflection.
+    max_iterations
+        Newton iterations allowed.
 
     Raises
     ------
@@ -95,21 +284,23 @@ def solve_equilibrium(
         If the tangent stiffness becomes singular on the way, or the equilibrium found is
         unstable (K_theta - K_C not positive definite there): the load buckles the robot.
     """
+    law = as_joint_law(k_theta)
     wrench = as_wrench(load)
     base = target_state(robot, q0)
-    dtheta = np.linalg.solve(k_theta, base.jacobian.T @ wrench)
+    tau0 = base.jacobian.T @ wrench
+    dtheta = law.start(tau0)
     q = q0
-    scale = max(np.abs(base.jacobian.T @ wrench).max(), 1e-300)
+    scale = max(float(np.abs(law.residual(np.zeros_like(tau0), tau0)).max()), 1e-300)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (used after the loop)
         q = deflected_configuration(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
-        residual = k_theta @ dtheta - state.jacobian.T @ wrench
+        tau = state.jacobian.T @ wrench
+        residual = law.residual(dtheta, tau)
         if np.abs(residual).max() <= tolerance * scale:
             break
-        tangent = k_theta - state.k_c
         try:
-            step = np.linalg.solve(tangent, -residual)
+            step = np.linalg.solve(law.residual_jacobian(dtheta, tau, state.k_c), -residual)
         except np.linalg.LinAlgError as exc:
             raise UnstableEquilibriumError(
                 "the tangent stiffness K_theta - K_C is singular on the way to the equilibrium: "
@@ -121,7 +312,7 @@ def solve_equilibrium(
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
             "reduce it or raise max_iterations"
         )
-    tangent = tangent_joint_stiffness(k_theta, state.k_c)
+    tangent = tangent_joint_stiffness(law.tangent_stiffness(tau), state.k_c)
     lowest = np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0]
     if lowest <= 0:
         raise UnstableEquilibriumError(
@@ -130,7 +321,8 @@ def solve_equilibrium(
             "configuration; reduce the load or stiffen the joints"
         )
     rot = pin.log3(state.rotation @ base.rotation.T)
-    return Equilibrium(q, dtheta, state.position - base.position, rot, iterations)
+    return Equilibrium(q, dtheta, state.position - base.position, rot, iterations, tau,
+                       state.position.copy())
 
 
 @dataclass

@@ -1,0 +1,863 @@
+"""The model file: an identified or diagnosed stiffness model, and its use at any pose and load.
+
+``stiffness identify`` (``identified-model.json``) and ``stiffness diagnose --out``
+(``final-model.json``) write the same JSON schema, documented in ``docs/model-file.md``::
+
+    {"schema": "stiffness-model/1",
+     "robot": {"source", "frame", "target_offset_m", "compliant_joints"},
+     "formulation": "conventional" | "enhanced" | "exact",
+     "k_theta": {"joints", "values", "unit", "standard_error", "ci95": {"low", "high"},
+                 "determined"},
+     "effects": [{"effect", "where", "kind", "description",
+                  "parameters": {name: {"value", "standard_error", "ci95", "unit"}},
+                  "settings": {...}}],
+     "noise": {"std_m", "source"},
+     ...}
+
+Everything is SI (m, N, rad, N.m/rad, N/m); a parameter's ``unit`` names its unit. The older
+files (``format`` ``stiffness-identified-model`` and ``stiffness-diagnosed-model``, version 1)
+still read.
+
+Public API
+----------
+:func:`read_model_file` (path -> :class:`ModelFile`), :meth:`ModelFile.write`,
+:meth:`ModelFile.to_dict`, :meth:`ModelFile.check_robot` (refuses a model of another robot);
+:class:`CompliantModel` (a model file made usable: the robot the effects imply and
+:meth:`CompliantModel.at`, :meth:`CompliantModel.deflection`) and :func:`model_compliance`
+(one call: J, joint tangent stiffness, K_C, compliance and K_X at a pose and load, effects
+included, as a :class:`ModelCompliance`). Errors: :class:`ModelFileError` (a
+:class:`~stiffness.errors.FileFormatError`: unknown schema, missing or malformed key) and
+:class:`ModelRobotError` (another robot than the model's, or an effect on a joint it lacks).
+
+How effects enter (``kind`` of :data:`stiffness.calibration.effects.EFFECT_KINDS`):
+
+* ``stiffness``: ``joint_compliance`` (the joint becomes a spring of the given stiffness),
+  ``link_compliance`` (a lumped rotational compliance at the distal joint's origin, about the
+  two axes normal to the segment; it adds ``G E diag(1/k) E^T G^T`` to the 6x6 compliance,
+  ``G = [-[r]x; I]``, ``r`` from that origin to the target), ``nonlinear_joint_stiffness``
+  (the joint's tangent stiffness at the load, ``1 / (c (1 + 2 beta |tau|))``),
+  ``target_offset`` (the target moves by ``delta``, target frame axes) and
+  ``complementary_stiffness`` (K_C, which the ``enhanced`` formulation has anyway): these
+  enter the compliance and K_X.
+* ``measurement``: ``frame_misalignment``, ``force_sensor_bias``, ``deflection_offset``: how
+  the campaign's deflections were observed; listed, not applied.
+* ``lost_motion``: ``backlash``: a deflection ``+-half_width`` that is not a stiffness; listed,
+  not applied to K_X (:meth:`CompliantModel.deflection` includes it).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.campaign import (
+    ANGLE_UNITS,
+    FORCE_UNITS,
+    LENGTH_UNITS,
+    _looks_like_path,
+    _resolve_source,
+)
+from stiffness.calibration.effects import (
+    LIBRARY,
+    Geometry,
+    Model,
+    Parameter,
+    References,
+    chain_placements,
+    link_axes,
+    make_effect,
+)
+from stiffness.errors import FileFormatError, StiffnessError, did_you_mean, with_context
+from stiffness.files import atomic_write, output_folder, read_json
+from stiffness.mechanics.equilibrium import SpringLaw, tangent_equilibrium
+from stiffness.mechanics.formulation import (
+    as_wrench,
+    cartesian_stiffness,
+    target_state,
+)
+from stiffness.model.robot import Robot, load_robot, robots_directory, shipped_robots
+
+#: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
+SCHEMA_NAME = "stiffness-model"
+SCHEMA_VERSION = 1
+SCHEMA = f"{SCHEMA_NAME}/{SCHEMA_VERSION}"
+#: ``format`` tags of the older files, still read (and still written beside ``schema``).
+LEGACY_IDENTIFIED = "stiffness-identified-model"
+LEGACY_DIAGNOSED = "stiffness-diagnosed-model"
+#: Formulations a model may be identified with.
+FORMULATIONS = ("conventional", "enhanced", "exact")
+#: Unit names of the files -> factor to SI.
+_UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
+               "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
+
+
+class ModelFileError(FileFormatError):
+    """A model file of an unknown schema, or with a missing or malformed key (the message
+    starts with the file)."""
+
+
+class ModelRobotError(StiffnessError):
+    """A model file used with another robot than its own, or whose effects name joints its
+    robot does not have."""
+
+
+# ------------------------------------------------------------------------------------------
+# the model
+
+
+@dataclass
+class ModelEffect:
+    """An effect of a model file, SI.
+
+    Attributes
+    ----------
+    name
+        Library name (:data:`stiffness.calibration.effects.LIBRARY`).
+    where
+        A joint, ``a->b``, or ``None``.
+    kind
+        ``stiffness``, ``measurement`` or ``lost_motion``.
+    parameters
+        Values with standard errors and 95 % intervals, SI (each names its unit).
+    settings
+        Fixed settings of the effect (``smoothing_torque`` of a backlash, N.m or N).
+    description
+        One line on what it is.
+    """
+
+    name: str
+    where: str | None
+    kind: str
+    parameters: list[Parameter] = field(default_factory=list)
+    settings: dict = field(default_factory=dict)
+    description: str = ""
+
+    @property
+    def label(self) -> str:
+        """``name`` or ``name(where)``."""
+        return self.name if self.where is None else f"{self.name}({self.where})"
+
+    def value(self, name: str) -> float:
+        """The SI value of parameter ``name``."""
+        for p in self.parameters:
+            if p.name == name:
+                return float(p.value)
+        raise ModelFileError(f"effect {self.label} has no parameter {name!r}")
+
+    def values(self) -> np.ndarray:
+        """SI values in the effect's parameter order."""
+        return np.array([p.value for p in self.parameters], dtype=float)
+
+    def to_dict(self) -> dict:
+        """JSON-ready."""
+        return {"effect": self.name, "where": self.where, "kind": self.kind,
+                "description": self.description,
+                "parameters": {p.name: p.to_dict() for p in self.parameters},
+                "settings": dict(self.settings)}
+
+
+@dataclass
+class ModelFile:
+    """A stiffness model: robot, compliant joints, K_theta with intervals, formulation,
+    effects, noise (SI).
+
+    Attributes
+    ----------
+    source, frame, target_offset_m
+        The robot and its measurement target (offset in m, frame axes). A URDF source is an
+        absolute path in memory (relative to the file's folder on disk).
+    compliant_joints
+        The baseline's compliant joints.
+    k_theta, units
+        Their stiffness (N.m/rad or N/m) and unit names.
+    standard_error, ci95_low, ci95_high
+        Uncertainty of ``k_theta`` (NaN or inf where undetermined).
+    formulation
+        ``conventional``, ``enhanced`` or ``exact``: what ``k_theta`` was identified with.
+    effects
+        Effects added by a diagnosis (none for an identification).
+    noise_std_m, noise_source
+        Measurement noise std (m) and where it comes from, or ``None``.
+    campaign
+        Campaign name.
+    produced_by
+        ``identify`` or ``diagnose``.
+    undetermined_joints
+        Joints whose stiffness the campaign could not determine.
+    extra
+        Further keys kept as written (e.g. ``residual_norm``).
+    path
+        The file read, or ``None``.
+    """
+
+    source: str
+    frame: str
+    target_offset_m: np.ndarray
+    compliant_joints: tuple[str, ...]
+    k_theta: np.ndarray
+    units: tuple[str, ...]
+    formulation: str
+    standard_error: np.ndarray | None = None
+    ci95_low: np.ndarray | None = None
+    ci95_high: np.ndarray | None = None
+    effects: tuple[ModelEffect, ...] = ()
+    noise_std_m: float | None = None
+    noise_source: str | None = None
+    campaign: str = ""
+    produced_by: str = "identify"
+    undetermined_joints: tuple[str, ...] = ()
+    extra: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.compliant_joints)
+        self.compliant_joints = tuple(self.compliant_joints)
+        self.target_offset_m = np.asarray(self.target_offset_m, dtype=float).reshape(3)
+        self.k_theta = np.asarray(self.k_theta, dtype=float).reshape(n)
+        nan = np.full(n, np.nan)
+        self.standard_error = nan.copy() if self.standard_error is None else np.asarray(
+            self.standard_error, dtype=float).reshape(n)
+        self.ci95_low = nan.copy() if self.ci95_low is None else np.asarray(
+            self.ci95_low, dtype=float).reshape(n)
+        self.ci95_high = nan.copy() if self.ci95_high is None else np.asarray(
+            self.ci95_high, dtype=float).reshape(n)
+        self.effects = tuple(self.effects)
+
+    # views -----------------------------------------------------------------------------
+    def robot(self) -> Robot:
+        """The declared robot (baseline compliant joints, declared target), effects not applied."""
+        return load_robot(self.source, frame=self.frame, target_offset=self.target_offset_m,
+                          compliant_joints=self.compliant_joints)
+
+    def k_theta_matrix(self) -> np.ndarray:
+        """Diagonal joint stiffness of the baseline's compliant joints (SI)."""
+        return np.diag(self.k_theta)
+
+    def effects_of_kind(self, kind: str) -> list[ModelEffect]:
+        """The effects of one kind (``stiffness``, ``measurement``, ``lost_motion``)."""
+        return [e for e in self.effects if e.kind == kind]
+
+    def check_robot(self, source: str | os.PathLike) -> None:
+        """Refuse the model when ``source`` names another robot than the model's.
+
+        Raises
+        ------
+        ModelRobotError
+            If ``source`` and the model's source are different robots.
+        """
+        if _robot_identity(str(source)) != _robot_identity(self.source):
+            where = f" {self.path}" if self.path is not None else ""
+            raise ModelRobotError(
+                f"the model file{where} is of robot {self.source!r}, not {str(source)!r}; drop "
+                "--robot (the model names its robot) or give the model of that robot")
+
+    # writing ---------------------------------------------------------------------------
+    def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
+        """The file's JSON object (a URDF source relative to ``relative_to`` when given)."""
+        source = self.source
+        if relative_to is not None and _looks_like_path(source):
+            try:
+                source = os.path.relpath(Path(source).resolve(), Path(relative_to).resolve())
+            except ValueError:  # another drive on Windows
+                source = str(Path(source).resolve())
+            source = Path(source).as_posix()
+        joints = list(self.compliant_joints)
+        determined = [j not in self.undetermined_joints for j in joints]
+        doc = {
+            "schema": SCHEMA,
+            "format": LEGACY_IDENTIFIED if self.produced_by == "identify" else LEGACY_DIAGNOSED,
+            "version": 1,
+            "produced_by": self.produced_by,
+            "campaign": self.campaign,
+            "robot": {"source": source, "frame": self.frame,
+                      "target_offset_m": self.target_offset_m,
+                      "compliant_joints": joints},
+            "formulation": self.formulation,
+            "k_theta": {"joints": joints, "values": self.k_theta, "unit": list(self.units),
+                        "standard_error": self.standard_error,
+                        "ci95": {"low": self.ci95_low, "high": self.ci95_high},
+                        "determined": determined},
+            "effects": [e.to_dict() for e in self.effects],
+            "noise": {"std_m": self.noise_std_m, "source": self.noise_source},
+            # the keys of the first identified-model files, kept for their readers
+            "standard_error": self.standard_error,
+            "ci95": {"low": self.ci95_low, "high": self.ci95_high,
+                     "method": "delta method on ln k"},
+            "undetermined_joints": list(self.undetermined_joints),
+        }
+        for key, value in self.extra.items():
+            doc.setdefault(key, value)
+        return jsonable(doc)
+
+    def write(self, path: str | os.PathLike) -> Path:
+        """Write the file atomically (a URDF source relative to its folder); returns the path."""
+        path = Path(path)
+        output_folder(path.parent)
+        text = json.dumps(self.to_dict(path.parent), indent=1, allow_nan=False)
+        atomic_write(path, text + "\n")
+        return path
+
+
+def _robot_identity(source: str) -> str:
+    """A comparable name of a robot source: a shipped robot's name (also for a path to a file
+    in its folder), a resolved path, or the example-robot-data name."""
+    if source in shipped_robots():
+        return source
+    if _looks_like_path(source) or Path(source).exists():
+        path = Path(source).resolve()
+        for name in shipped_robots():
+            if path.parent == (robots_directory() / name).resolve():
+                return name
+        return str(path)
+    return source
+
+
+def jsonable(value):
+    """JSON-ready: arrays to lists, numpy scalars to Python, non-finite floats to None,
+    recursively."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, np.bool_ | bool):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+# ------------------------------------------------------------------------------------------
+# reading
+
+
+class _Reader:
+    """Typed access to a JSON document with one-line errors naming the file and the key."""
+
+    def __init__(self, doc: dict, path: Path) -> None:
+        self.doc, self.path = doc, path
+
+    def fail(self, text: str) -> ModelFileError:
+        return ModelFileError(f"{text}; rewrite the file with `stiffness identify` or "
+                              "`stiffness diagnose --out`", path=self.path)
+
+    def get(self, *keys, default=KeyError):
+        node = self.doc
+        for key in keys:
+            if not isinstance(node, dict) or key not in node:
+                if default is not KeyError:
+                    return default
+                raise self.fail(f"missing key {'.'.join(keys)}")
+            node = node[key]
+        return node
+
+    def numbers(self, value, name: str, count: int, allow_null: bool = False) -> np.ndarray:
+        ok = isinstance(value, list) and len(value) == count and all(
+            (v is None and allow_null) or (isinstance(v, int | float) and not isinstance(v, bool))
+            for v in value)
+        if not ok:
+            raise self.fail(f"{name} must be a list of {count} numbers, got {value!r}")
+        return np.array([np.nan if v is None else v for v in value], dtype=float)
+
+    def number(self, value, name: str, allow_null: bool = True) -> float:
+        if value is None and allow_null:
+            return math.nan
+        if not isinstance(value, int | float) or isinstance(value, bool):
+            raise self.fail(f"{name} must be a number, got {value!r}")
+        return float(value)
+
+    def strings(self, value, name: str) -> list[str]:
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise self.fail(f"{name} must be a list of names")
+        return list(value)
+
+
+def read_model_file(path: str | os.PathLike) -> ModelFile:
+    """Read a model file (``identified-model.json``, ``final-model.json``), any known schema.
+
+    Raises
+    ------
+    MissingFileError
+        Missing or unreadable file.
+    FileFormatError
+        Not JSON (with its line and column).
+    ModelFileError
+        An unknown schema or version, or a missing or malformed key (one line naming the file
+        and the key).
+    """
+    path = Path(path)
+    doc = read_json(path, "model file (identified-model.json of `stiffness identify` or "
+                          "final-model.json of `stiffness diagnose --out`)")
+    if not isinstance(doc, dict):
+        raise ModelFileError("not a model file (not a JSON object)", path=path)
+    reader = _Reader(doc, path)
+    schema = doc.get("schema")
+    if schema is not None:
+        name, _, version = str(schema).partition("/")
+        if name != SCHEMA_NAME or version != str(SCHEMA_VERSION):
+            raise ModelFileError(
+                f"schema {schema!r}, which this version of stiffness does not know (it reads "
+                f"{SCHEMA!r} and the older identified and diagnosed model files); upgrade "
+                "stiffness or rewrite the file", path=path)
+        model = _read_current(reader)
+    elif doc.get("format") == LEGACY_IDENTIFIED:
+        model = _read_legacy_identified(reader)
+    elif doc.get("format") == LEGACY_DIAGNOSED:
+        model = _read_legacy_diagnosed(reader)
+    else:
+        raise ModelFileError(
+            f"not a model file (no schema {SCHEMA!r} and no format {LEGACY_IDENTIFIED!r} or "
+            f"{LEGACY_DIAGNOSED!r}); give the file written by `stiffness identify` or "
+            "`stiffness diagnose --out`", path=path)
+    model.path = path
+    return model
+
+
+def _robot_part(r: _Reader) -> tuple[str, str, np.ndarray]:
+    source, frame = r.get("robot", "source"), r.get("robot", "frame")
+    if not isinstance(source, str) or not isinstance(frame, str):
+        raise r.fail("robot.source and robot.frame must be strings")
+    offset = r.numbers(r.get("robot", "target_offset_m"), "robot.target_offset_m", 3)
+    return _resolve_source(source, r.path.parent), frame, offset
+
+
+def _formulation(r: _Reader, value) -> str:
+    if value not in FORMULATIONS:
+        raise r.fail(f"formulation must be one of {', '.join(FORMULATIONS)}, got {value!r}")
+    return value
+
+
+def _stiffness_values(r: _Reader, k: np.ndarray, units) -> None:
+    n = len(k)
+    if not np.all(np.isfinite(k)) or np.any(k <= 0):
+        raise r.fail(f"k_theta.values must be positive, got {k.tolist()}")
+    if not isinstance(units, list) or len(units) != n or not set(units) <= {"N.m/rad", "N/m"}:
+        raise r.fail("k_theta.unit must list N.m/rad or N/m per joint")
+
+
+def _read_current(r: _Reader) -> ModelFile:
+    source, frame, offset = _robot_part(r)
+    joints = r.strings(r.get("robot", "compliant_joints"), "robot.compliant_joints")
+    if not joints:
+        raise r.fail("robot.compliant_joints must name at least one joint")
+    n = len(joints)
+    if r.get("k_theta", "joints") != joints:
+        raise r.fail("k_theta.joints must equal robot.compliant_joints")
+    k = r.numbers(r.get("k_theta", "values"), "k_theta.values", n)
+    units = r.get("k_theta", "unit")
+    _stiffness_values(r, k, units)
+    se = r.numbers(r.get("k_theta", "standard_error", default=[None] * n),
+                   "k_theta.standard_error", n, allow_null=True)
+    low = r.numbers(r.get("k_theta", "ci95", "low", default=[None] * n), "k_theta.ci95.low", n,
+                    allow_null=True)
+    high = r.numbers(r.get("k_theta", "ci95", "high", default=[None] * n),
+                     "k_theta.ci95.high", n, allow_null=True)
+    high = np.where(np.isnan(high) & ~np.isnan(low), np.inf, high)
+    determined = r.get("k_theta", "determined", default=[True] * n)
+    effects = []
+    raw = r.get("effects", default=[])
+    if not isinstance(raw, list):
+        raise r.fail("effects must be a list")
+    for i, e in enumerate(raw):
+        effects.append(_read_effect(r, e, f"effects[{i}]", si=True))
+    noise = r.get("noise", default={}) or {}
+    std = noise.get("std_m") if isinstance(noise, dict) else None
+    known = {"schema", "format", "version", "produced_by", "campaign", "robot", "formulation",
+             "k_theta", "effects", "noise", "standard_error", "ci95", "undetermined_joints"}
+    return ModelFile(
+        source=source, frame=frame, target_offset_m=offset, compliant_joints=tuple(joints),
+        k_theta=k, units=tuple(units), formulation=_formulation(r, r.get("formulation")),
+        standard_error=se, ci95_low=low, ci95_high=high, effects=tuple(effects),
+        noise_std_m=None if std is None else r.number(std, "noise.std_m"),
+        noise_source=noise.get("source") if isinstance(noise, dict) else None,
+        campaign=str(r.get("campaign", default="")),
+        produced_by=str(r.get("produced_by", default="identify")),
+        undetermined_joints=tuple(j for j, d in zip(joints, determined, strict=False) if not d),
+        extra={k2: v for k2, v in r.doc.items() if k2 not in known},
+    )
+
+
+def _read_legacy_identified(r: _Reader) -> ModelFile:
+    source, frame, offset = _robot_part(r)
+    joints = r.strings(r.get("robot", "compliant_joints"), "robot.compliant_joints")
+    if not joints:
+        raise r.fail("robot.compliant_joints must be a list of joint names")
+    n = len(joints)
+    if r.get("k_theta", "joints") != joints:
+        raise r.fail("k_theta.joints must equal robot.compliant_joints")
+    k = r.numbers(r.get("k_theta", "values"), "k_theta.values", n)
+    units = r.get("k_theta", "unit")
+    _stiffness_values(r, k, units)
+    return ModelFile(
+        source=source, frame=frame, target_offset_m=offset, compliant_joints=tuple(joints),
+        k_theta=k, units=tuple(units), formulation=_formulation(r, r.get("formulation")),
+        standard_error=r.numbers(r.get("standard_error"), "standard_error", n, allow_null=True),
+        ci95_low=r.numbers(r.get("ci95", "low"), "ci95.low", n, allow_null=True),
+        ci95_high=r.numbers(r.get("ci95", "high"), "ci95.high", n, allow_null=True),
+        campaign=str(r.get("campaign", default="")), produced_by="identify",
+        undetermined_joints=tuple(r.get("undetermined_joints", default=[])),
+        extra={"residual_norm": r.get("residual_norm", default=None)},
+    )
+
+
+def _read_legacy_diagnosed(r: _Reader) -> ModelFile:
+    source, frame, offset = _robot_part(r)
+    joints = r.strings(r.get("compliant_joints"), "compliant_joints")
+    table = r.get("k_theta")
+    if not isinstance(table, dict) or list(table) != joints:
+        raise r.fail("k_theta must give each compliant joint's stiffness")
+    k, units, se, low, high = [], [], [], [], []
+    for j in joints:
+        p = _read_parameter(r, j, table[j], f"k_theta.{j}")
+        k.append(p.value)
+        units.append(p.unit)
+        se.append(p.standard_error)
+        low.append(p.ci95[0])
+        high.append(p.ci95[1])
+    _stiffness_values(r, np.array(k), units)
+    raw = r.get("effects", default=[])
+    effects = [_read_effect(r, e, f"effects[{i}]", si=False) for i, e in enumerate(raw)]
+    unit = r.get("unit", default="m")
+    std = r.get("noise_std", default=None)
+    std_m = None if std is None else r.number(std, "noise_std") * _unit_factor(r, unit, "unit")
+    baseline = r.get("baseline")
+    return ModelFile(
+        source=source, frame=frame, target_offset_m=offset, compliant_joints=tuple(joints),
+        k_theta=np.array(k), units=tuple(units), formulation=_formulation(r, baseline),
+        standard_error=np.array(se), ci95_low=np.array(low), ci95_high=np.array(high),
+        effects=tuple(effects), noise_std_m=std_m,
+        noise_source=r.get("noise_std_source", default=None),
+        campaign=str(r.get("campaign", default="")), produced_by="diagnose",
+    )
+
+
+def _unit_factor(r: _Reader, unit, where: str) -> float:
+    if unit not in _UNIT_TO_SI:
+        raise r.fail(f"{where}: unknown unit {unit!r}")
+    return _UNIT_TO_SI[unit]
+
+
+def _read_parameter(r: _Reader, name: str, doc, where: str, si: bool = True) -> Parameter:
+    if not isinstance(doc, dict) or "value" not in doc:
+        raise r.fail(f"{where} must be an object with value, standard_error, ci95 and unit")
+    unit = doc.get("unit", "SI")
+    factor = 1.0 if si else _unit_factor(r, unit, where)
+    value = r.number(doc["value"], f"{where}.value", allow_null=False)
+    se = r.number(doc.get("standard_error"), f"{where}.standard_error")
+    ci = doc.get("ci95", [None, None])
+    if not isinstance(ci, list) or len(ci) != 2:
+        raise r.fail(f"{where}.ci95 must be [low, high]")
+    low = r.number(ci[0], f"{where}.ci95[0]")
+    high = r.number(ci[1], f"{where}.ci95[1]")
+    if si or factor == 1.0:
+        si_unit = unit
+    else:
+        si_unit = "m" if unit in LENGTH_UNITS else "rad" if unit in ANGLE_UNITS else "N"
+    return Parameter(name, value * factor, se * factor, (low * factor, high * factor), si_unit)
+
+
+def _read_effect(r: _Reader, doc, where: str, si: bool) -> ModelEffect:
+    if not isinstance(doc, dict) or not isinstance(doc.get("effect"), str):
+        raise r.fail(f"{where} must be an object with an effect name")
+    name = doc["effect"]
+    if name not in LIBRARY:
+        raise r.fail(f"{where}: unknown effect {name!r} (valid: {', '.join(LIBRARY)})")
+    params = doc.get("parameters", {})
+    if not isinstance(params, dict):
+        raise r.fail(f"{where}.parameters must be an object")
+    parameters = [_read_parameter(r, pn, pd, f"{where}.parameters.{pn}", si)
+                  for pn, pd in params.items()]
+    need = LIBRARY[name].param_names
+    if [p.name for p in parameters][: len(need)] != list(need):
+        raise r.fail(f"{where}: {name} needs the parameters {', '.join(need) or 'none'}")
+    settings = doc.get("settings", {}) or {}
+    return ModelEffect(name, doc.get("where"), LIBRARY[name].kind, parameters,
+                       dict(settings), str(doc.get("description", "")))
+
+
+# ------------------------------------------------------------------------------------------
+# the model at a pose
+
+
+@dataclass
+class ModelCompliance:
+    """A model's stiffness at one pose and load (SI; base axes at the target).
+
+    Attributes
+    ----------
+    robot
+        The robot the effects imply (its compliant joints: the baseline's plus those of
+        ``joint_compliance``; its target moved by ``target_offset``).
+    q
+        Full configuration (loops closed).
+    load
+        Applied wrench [F (N); M (N.m)].
+    jacobian
+        (6, n) target Jacobian w.r.t. ``robot.compliant_joints``, rows [v; omega].
+    k_theta
+        (n,) nominal joint stiffness (N.m/rad, N/m).
+    k_tangent
+        (n, n) joint tangent stiffness at the load (a nonlinear spring's slope).
+    k_c
+        (n, n) complementary stiffness at the load (zero in the conventional formulation).
+    link_compliance
+        (6, 6) compliance the link effects add (m/N, rad/(N.m)).
+    compliance6
+        (6, 6) ``J (K_t - K_C)^-1 J^T + C_link``.
+    formulation
+        ``conventional`` or ``enhanced``.
+    """
+
+    robot: Robot
+    q: np.ndarray
+    load: np.ndarray
+    jacobian: np.ndarray
+    k_theta: np.ndarray
+    k_tangent: np.ndarray
+    k_c: np.ndarray
+    link_compliance: np.ndarray
+    compliance6: np.ndarray
+    formulation: str
+
+    def compliance(self, rows: slice = slice(0, 3)) -> np.ndarray:
+        """Compliance block (default the 3x3 translational one, m/N)."""
+        return self.compliance6[rows, rows]
+
+    def k_x(self, rows: slice = slice(0, 3)) -> np.ndarray:
+        """Cartesian stiffness ``C[rows, rows]^-1`` (default 3x3, N/m)."""
+        return cartesian_stiffness(self.compliance(rows))
+
+
+class CompliantModel:
+    """A model file made usable at any pose and load, its stiffness effects applied.
+
+    Parameters
+    ----------
+    model
+        The model file.
+    frame, target_offset
+        Another target (frame, offset in m in its axes) than the model's; the model's
+        ``target_offset`` effect then does not apply (it moved the campaign's target).
+
+    Attributes
+    ----------
+    robot
+        The robot the effects imply.
+    k_theta
+        (n,) joint stiffness over ``robot.compliant_joints`` (baseline and added joints).
+    applied, not_applied
+        Effects that enter the stiffness, and ``(effect, reason)`` of those that do not.
+    """
+
+    def __init__(self, model: ModelFile, frame: str | None = None,
+                 target_offset: np.ndarray | list[float] | None = None) -> None:
+        self.model = model
+        stiff = dict(zip(model.compliant_joints, model.k_theta, strict=True))
+        offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
+            target_offset, dtype=float).reshape(3)
+        moved = frame is not None or target_offset is not None
+        self.applied: list[ModelEffect] = []
+        self.not_applied: list[tuple[ModelEffect, str]] = []
+        self._beta: dict[str, float] = {}
+        self._links: list[tuple[str, str, float, float]] = []
+        for e in model.effects:
+            if e.kind == "measurement":
+                self.not_applied.append((e, "a measurement effect (how the campaign observed "
+                                            "the deflection), not a stiffness"))
+                continue
+            if e.kind == "lost_motion":
+                self.not_applied.append((e, "lost motion: a deflection of +-half_width that "
+                                            "does not change the stiffness"))
+                continue
+            if e.name == "joint_compliance":
+                stiff[e.where] = e.value("stiffness")
+            elif e.name == "nonlinear_joint_stiffness":
+                self._beta[e.where] = e.value("beta")
+            elif e.name == "link_compliance":
+                a, b = _segment(e.where)
+                self._links.append((a, b, e.value("stiffness_1"), e.value("stiffness_2")))
+            elif e.name == "target_offset":
+                if moved:
+                    self.not_applied.append((e, "the target given overrides the campaign's"))
+                    continue
+                offset = offset + e.values()[:3]
+            self.applied.append(e)
+        self.k_theta = np.array(list(stiff.values()), dtype=float)
+        self._where = f"{model.path}: " if model.path is not None else ""
+        try:
+            self.robot = load_robot(model.source, frame=frame or model.frame,
+                                    target_offset=offset, compliant_joints=tuple(stiff))
+        except StiffnessError as exc:
+            raise with_context(exc, f"{self._where}the model's robot with its effects") from exc
+        self._check_places()
+        self._chain: tuple[str, ...] = ()
+        self._columns: dict[tuple[str, str], int] = {}
+        self._declared: tuple[Robot, Geometry] | None = None
+        if self._links:
+            geometry = Geometry.of(self.robot)
+            self._chain, self._columns = geometry.chain, geometry.link_columns
+
+    def _check_places(self) -> None:
+        """Every effect's joint or segment must be a coordinate joint of the robot."""
+        joints = list(self.robot.coordinate_joints)
+        for e in self.model.effects:
+            names = list(_segment(e.where)) if e.name == "link_compliance" else (
+                [e.where] if e.where is not None else [])
+            for name in names:
+                if name not in joints:
+                    raise ModelRobotError(
+                        f"{self._where}effect {e.label} names {name!r}, not a coordinate joint "
+                        f"of {self.robot.name}; {did_you_mean(str(name), joints)}")
+
+    def configuration(self, q: np.ndarray) -> np.ndarray:
+        """Full configuration of coordinates (n_coordinates,) or of a full ``q`` (nq,)."""
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape[0] == self.robot.n_coordinates:
+            return self.robot.configuration(q)
+        if q.shape[0] == self.robot.model.nq:
+            return q
+        raise StiffnessError(
+            f"give {self.robot.n_coordinates} coordinates of {self.robot.name} "
+            f"({', '.join(self.robot.coordinate_joints)}) or a full configuration of "
+            f"{self.robot.model.nq} values; got {q.shape[0]}")
+
+    def at(self, q: np.ndarray, load: np.ndarray | None = None,
+           formulation: str = "enhanced") -> ModelCompliance:
+        """J, tangent joint stiffness, K_C and compliance at a pose and load, effects included.
+
+        Parameters
+        ----------
+        q
+            Coordinates (rad, m) or a full configuration.
+        load
+            Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default zero.
+        formulation
+            ``enhanced`` (K_t - K_C, A&S eq. 10) or ``conventional`` (K_t alone, eq. 8).
+        """
+        if formulation not in ("conventional", "enhanced"):
+            raise StiffnessError(f"formulation must be conventional or enhanced, got "
+                                 f"{formulation!r}")
+        robot = self.robot
+        wrench = as_wrench(np.zeros(3) if load is None else load)
+        qf = self.configuration(q)
+        state = target_state(robot, qf, wrench)
+        k_c = state.k_c if formulation == "enhanced" else np.zeros_like(state.k_c)
+        slope = self._slope(state.jacobian.T @ wrench, k_c)
+        k_tangent = np.diag(1.0 / slope)
+        try:
+            c6 = state.jacobian @ np.linalg.solve(k_tangent - k_c, state.jacobian.T)
+        except np.linalg.LinAlgError as exc:
+            raise StiffnessError("the tangent joint stiffness K_t - K_C is singular: the load "
+                                 "is at the buckling limit of this configuration") from exc
+        link = np.zeros((6, 6))
+        if self._links:
+            origins, rotations = chain_placements(robot, self._chain)
+            for a, b, k1, k2 in self._links:
+                ia, ib = self._chain.index(a), self._chain.index(b)
+                e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib],
+                                   self._columns[(a, b)])
+                r = state.position - origins[ib]
+                g = np.vstack([-_skew(r), np.eye(3)])  # twist of the target per rotation at b
+                e = np.column_stack([e1, e2])
+                link += g @ e @ np.diag([1.0 / k1, 1.0 / k2]) @ e.T @ g.T
+        return ModelCompliance(robot, qf, wrench, state.jacobian, self.k_theta.copy(), k_tangent,
+                               k_c, link, c6 + link, formulation)
+
+    def _slope(self, tau0: np.ndarray, k_c: np.ndarray) -> np.ndarray:
+        """Joint compliance slopes d(dtheta)/d(tau) at the load (the law's tangent)."""
+        compliance = 1.0 / self.k_theta
+        if not self._beta:
+            return compliance
+        beta = np.array([self._beta.get(j, 0.0) for j in self.robot.compliant_joints])
+        law = SpringLaw(compliance, beta, np.zeros_like(beta), np.ones_like(beta))
+        dtheta = tangent_equilibrium(law, tau0, k_c)
+        return law(tau0 + k_c @ dtheta)[1]
+
+    def deflection(self, q: np.ndarray, load: np.ndarray, measured: bool = False
+                   ) -> np.ndarray:
+        """Predicted target displacement (3,) in m under a dead ``load`` (force or wrench),
+        as the fitted model predicts it: every effect applied, lost motion included;
+        measurement effects only with ``measured`` (what the campaign's instrument reads)."""
+        model = self.model
+        if self._declared is None:
+            declared = model.robot()
+            self._declared = (declared, Geometry.of(declared))
+        declared, geometry = self._declared
+        wrench = as_wrench(load)
+        coords = np.asarray(q, dtype=float).reshape(-1)
+        if coords.shape[0] != declared.n_coordinates:
+            raise StiffnessError(f"give the {declared.n_coordinates} coordinates of "
+                                 f"{declared.name} ({', '.join(declared.coordinate_joints)})")
+        rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:])
+        smoothing = np.ones(len(geometry.joints))
+        effects, values = [], []
+        for e in model.effects:
+            if e.kind == "measurement" and not measured:
+                continue
+            effect = make_effect(e.name, e.where, geometry)
+            if e.name == "backlash":
+                smoothing[geometry.joints.index(e.where)] = float(
+                    e.settings.get("smoothing_torque", 1.0))
+            effects.append(effect)
+            values.append(e.values())
+        refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing,
+                          1.0, 1.0, 1.0)
+        baseline = "conventional" if model.formulation == "conventional" else "enhanced"
+        if model.formulation == "exact" and not any(e.second_order for e in effects):
+            effects.insert(0, LIBRARY["complementary_stiffness"]())
+            values.insert(0, np.zeros(0))
+        fitted = Model(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
+        x = np.concatenate([np.log(model.k_theta)] + [
+            e.variables(v, refs) for e, v in zip(effects, values, strict=True)])
+        return fitted.predict(x)[0]
+
+
+def _segment(where: str | None) -> tuple[str, str]:
+    for sep in ("->", "/", ","):
+        if where and sep in where:
+            a, b = (s.strip() for s in where.split(sep, 1))
+            return a, b
+    raise StiffnessError(f"link_compliance needs a segment A->B, got {where!r}")
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def model_compliance(model: ModelFile | CompliantModel | str | os.PathLike, q: np.ndarray,
+                     load: np.ndarray | None = None, formulation: str = "enhanced"
+                     ) -> ModelCompliance:
+    """The model's J, tangent joint stiffness, K_C, compliance and K_X at a pose and load.
+
+    Parameters
+    ----------
+    model
+        A :class:`ModelFile`, a :class:`CompliantModel` (reuse it for many poses: it loads the
+        robot once) or the path of a model file.
+    q
+        Coordinates (rad, m) of the model's robot, or a full configuration.
+    load
+        Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default zero.
+    formulation
+        ``enhanced`` (default) or ``conventional``.
+
+    Examples
+    --------
+    >>> m = model_compliance("diagnosis/final-model.json", [0, -1.2, 1.5, -0.3, 1.57, 0],
+    ...                      [0, 0, -100])                                   # doctest: +SKIP
+    >>> m.k_x()            # 3x3 N/m, effects that change the stiffness included   # doctest: +SKIP
+    """
+    if isinstance(model, str | os.PathLike):
+        model = read_model_file(model)
+    if isinstance(model, ModelFile):
+        model = CompliantModel(model)
+    return model.at(q, load, formulation)
+

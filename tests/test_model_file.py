@@ -1,0 +1,318 @@
+"""The model file (stiffness.calibration.model_file): schema, older files, effects at a pose."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from stiffness.calibration.effects import LIBRARY, Parameter
+from stiffness.calibration.model_file import (
+    SCHEMA,
+    CompliantModel,
+    ModelEffect,
+    ModelFile,
+    ModelFileError,
+    ModelRobotError,
+    model_compliance,
+    read_model_file,
+)
+from stiffness.errors import UnknownJointError
+from stiffness.model.robot import load_robot, robots_directory
+
+ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
+K_ARM = np.array([3e4, 2e4, 1.5e4])
+Q = np.array([0.3, -1.1, 1.4, -0.5, 1.2, 0.2])
+
+
+def _p(name: str, value: float, unit: str) -> Parameter:
+    return Parameter(name, value, 0.01 * value, (0.98 * value, 1.02 * value), unit)
+
+
+def _ur5_model(*effects: ModelEffect) -> ModelFile:
+    return ModelFile(source="ur5", frame="tool0", target_offset_m=[0.0, 0.0, 0.1],
+                     compliant_joints=ARM, k_theta=K_ARM, units=("N.m/rad",) * 3,
+                     formulation="enhanced", effects=effects, noise_std_m=5e-6,
+                     noise_source="declared", campaign="test", produced_by="diagnose")
+
+
+def _tool_position(robot, q: np.ndarray) -> np.ndarray:
+    pin.framesForwardKinematics(robot.model, robot.data, q)
+    return robot.data.oMf[robot.target_frame_id].translation.copy()
+
+
+def _fd_kx(robot, q: np.ndarray, k: np.ndarray, force: np.ndarray, h: float = 1e-6
+           ) -> np.ndarray:
+    """Enhanced K_X = (J (K - K_C)^-1 J^T)^-1 with J and K_C = d(J^T F)/dq from central
+    differences of the target position (a serial arm: every compliant joint is a q entry)."""
+    idx = [robot.model.joints[robot.model.getJointId(j)].idx_q for j in robot.compliant_joints]
+
+    def jac(qq):
+        out = np.empty((3, len(idx)))
+        for c, i in enumerate(idx):
+            e = np.zeros_like(qq)
+            e[i] = h
+            out[:, c] = (_tool_position(robot, qq + e) - _tool_position(robot, qq - e)) / (2 * h)
+        return out
+
+    j = jac(q)
+    k_c = np.empty((len(idx), len(idx)))
+    for c, i in enumerate(idx):
+        e = np.zeros_like(q)
+        e[i] = 1e-4
+        k_c[:, c] = ((jac(q + e) - jac(q - e)).T @ force) / 2e-4
+    return np.linalg.inv(j @ np.linalg.solve(np.diag(k) - k_c, j.T))
+
+
+def test_round_trip_keeps_everything(tmp_path):
+    model = _ur5_model(
+        ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                    [_p("stiffness", 1e4, "N.m/rad")]),
+        ModelEffect("backlash", "elbow_joint", "lost_motion", [_p("half_width", 1e-4, "rad")],
+                    {"smoothing_torque": 0.3}),
+        ModelEffect("deflection_offset", None, "measurement",
+                    [_p("dx", 1e-5, "m"), _p("dy", 0.0, "m"), _p("dz", 2e-5, "m")]))
+    path = model.write(tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    assert doc["schema"] == SCHEMA and doc["noise"] == {"std_m": 5e-6, "source": "declared"}
+    assert [e["kind"] for e in doc["effects"]] == ["stiffness", "lost_motion", "measurement"]
+    back = read_model_file(path)
+    np.testing.assert_array_equal(back.k_theta, K_ARM)
+    assert back.compliant_joints == ARM and back.formulation == "enhanced"
+    assert [e.label for e in back.effects] == [e.label for e in model.effects]
+    assert back.effects[1].settings == {"smoothing_torque": 0.3}
+    assert back.effects[0].value("stiffness") == 1e4
+
+
+def test_older_identified_file_reads(tmp_path):
+    old = {"format": "stiffness-identified-model", "version": 1, "campaign": "c",
+           "robot": {"source": "ur5", "frame": "tool0", "target_offset_m": [0, 0, 0.1],
+                     "compliant_joints": list(ARM)},
+           "formulation": "enhanced",
+           "k_theta": {"joints": list(ARM), "values": K_ARM.tolist(), "unit": ["N.m/rad"] * 3},
+           "standard_error": [1.0, 2.0, None], "ci95": {"low": [1, 2, 3], "high": [4, 5, None]},
+           "undetermined_joints": ["elbow_joint"], "residual_norm": {"eq12_m2": 1e-9}}
+    path = tmp_path / "identified-model.json"
+    path.write_text(json.dumps(old))
+    model = read_model_file(path)
+    np.testing.assert_array_equal(model.k_theta, K_ARM)
+    assert model.effects == () and model.undetermined_joints == ("elbow_joint",)
+    assert np.isnan(model.standard_error[2])
+
+
+def test_older_diagnosed_file_reads_in_its_units(tmp_path):
+    old = {"format": "stiffness-diagnosed-model", "version": 1, "campaign": "c",
+           "robot": {"source": "ur5", "frame": "tool0", "target_offset_m": [0, 0, 0.1]},
+           "baseline": "enhanced", "compliant_joints": list(ARM),
+           "k_theta": {j: {"value": k, "standard_error": 1.0, "ci95": [k - 2, k + 2],
+                           "unit": "N.m/rad"} for j, k in zip(ARM, K_ARM, strict=True)},
+           "effects": [{"effect": "target_offset", "where": None, "parameters": {
+               a: {"value": v, "standard_error": 0.1, "ci95": [v - 0.2, v + 0.2], "unit": "mm"}
+               for a, v in (("dx", 20.0), ("dy", 0.0), ("dz", -10.0))}}],
+           "noise_std": 0.005, "noise_std_source": "declared", "unit": "mm"}
+    path = tmp_path / "final-model.json"
+    path.write_text(json.dumps(old))
+    model = read_model_file(path)
+    np.testing.assert_allclose(model.effects[0].values(), [0.02, 0.0, -0.01])
+    assert model.effects[0].parameters[0].unit == "m" and model.noise_std_m == 5e-6
+    compliant = CompliantModel(model)
+    np.testing.assert_allclose(compliant.robot.target_offset, [0.02, 0.0, 0.09])
+
+
+def test_unknown_schema_and_other_robot_are_one_line_errors(tmp_path):
+    path = _ur5_model().write(tmp_path / "m.json")
+    doc = json.loads(path.read_text())
+    doc["schema"] = "stiffness-model/7"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="schema 'stiffness-model/7'") as info:
+        read_model_file(bad)
+    assert "\n" not in str(info.value)
+    model = read_model_file(path)
+    model.check_robot("ur5")
+    with pytest.raises(ModelRobotError, match="is of robot 'ur5', not 'panda'"):
+        model.check_robot("panda")
+    # an effect on a joint the robot does not have
+    for name in ("joint_compliance", "nonlinear_joint_stiffness"):
+        wrong = _ur5_model(ModelEffect(name, "wrist_9_joint", "stiffness",
+                                       [_p(LIBRARY[name].param_names[0], 1e4, "SI")]))
+        with pytest.raises((UnknownJointError, ModelRobotError), match="wrist_9_joint"):
+            CompliantModel(wrong)
+    # a shipped robot by name or by the path of its URDF is the same robot
+    sk120 = ModelFile(source="sk120", frame="fixture_target", target_offset_m=np.zeros(3),
+                      compliant_joints=("joint1",), k_theta=[1e6], units=("N.m/rad",),
+                      formulation="enhanced")
+    sk120.check_robot(robots_directory() / "sk120" / "sk120.urdf")
+    with pytest.raises(ModelRobotError, match="not 'ur5'"):
+        sk120.check_robot("ur5")
+
+
+def test_joint_compliance_enters_k_x_like_a_spring():
+    k_wrist = 1e4
+    model = _ur5_model(ModelEffect("joint_compliance", "wrist_2_joint", "stiffness",
+                                   [_p("stiffness", k_wrist, "N.m/rad")]))
+    force = np.array([20.0, -10.0, -80.0])
+    result = model_compliance(model, Q, force)
+    assert result.robot.compliant_joints == ARM + ("wrist_2_joint",)
+    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.1],
+                      compliant_joints=ARM + ("wrist_2_joint",))
+    expected = _fd_kx(true, true.configuration(Q), np.append(K_ARM, k_wrist), force)
+    np.testing.assert_allclose(result.k_x(), expected, rtol=1e-5)
+
+
+def test_link_and_nonlinear_effects_are_the_tangent_of_the_fitted_deflection():
+    """Conventional formulation: the compliance is d(deflection)/dF of the fitted model."""
+    model = _ur5_model(
+        ModelEffect("link_compliance", "elbow_joint->wrist_1_joint", "stiffness",
+                    [_p("stiffness_1", 4e4, "N.m/rad"), _p("stiffness_2", 6e4, "N.m/rad")]),
+        ModelEffect("nonlinear_joint_stiffness", "shoulder_lift_joint", "stiffness",
+                    [_p("beta", 0.004, "1/(N.m)")]),
+        ModelEffect("frame_misalignment", None, "measurement",
+                    [_p("rx", 0.03, "rad"), _p("ry", 0.0, "rad"), _p("rz", 0.0, "rad")]))
+    model.formulation = "conventional"
+    compliant = CompliantModel(model)
+    assert [e.name for e, _ in compliant.not_applied] == ["frame_misalignment"]
+    force = np.array([30.0, 10.0, -60.0])
+    at = compliant.at(Q, force, "conventional")
+    h = 1e-3
+    fd = np.column_stack([(compliant.deflection(Q, force + h * e)
+                           - compliant.deflection(Q, force - h * e)) / (2 * h)
+                          for e in np.eye(3)])
+    np.testing.assert_allclose(at.compliance(), fd, rtol=1e-6, atol=1e-12)
+    assert np.abs(at.link_compliance).max() > 0
+    # the measurement effect is not in the deflection unless asked for
+    measured = compliant.deflection(Q, force, measured=True)
+    assert not np.allclose(measured, compliant.deflection(Q, force))
+
+
+# --------------------------------------------------------------- the issue's check, end to end
+
+
+def test_diagnosed_wrist_spring_enters_kx_at_a_new_pose(tmp_path, capsys):
+    """simulate a UR5 campaign with a hidden wrist spring, diagnose --out, kx --model at a pose
+    that is not in the campaign: K_X within 2 % of the true model's (finite differences of
+    Pinocchio's forward kinematics, with the hidden spring)."""
+    from stiffness.cli.main import main
+
+    k_wrist = 1.5e3
+    camp, diag = tmp_path / "camp", tmp_path / "diag"
+    assert main(["simulate", "--robot", "ur5", "--frame", "tool0", "--compliant-joints",
+                 ",".join(ARM), "--kq", ",".join(f"{k:g}" for k in K_ARM),
+                 "--target-offset", "0,0,0.15", "--effect", f"joint_compliance:wrist_2_joint="
+                 f"{k_wrist:g}", "--configs", "8", "--loads-per-config", "4", "--max-force",
+                 "100", "--noise", "0.005", "--seed", "1", "--out", str(camp)]) == 0
+    assert main(["diagnose", str(camp), "--out", str(diag), "--no-proposals", "--quiet"]) == 0
+    capsys.readouterr()
+    q, force = np.array([0.4, -1.3, 1.6, -0.9, 1.1, 0.5]), np.array([0.0, 0.0, -80.0])
+    assert main(["kx", "--model", str(diag / "final-model.json"), "--q",
+                 ",".join(map(str, q)), "--wrench", "0,0,-80", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.15],
+                      compliant_joints=ARM + ("wrist_2_joint",))
+    expected = _fd_kx(true, true.configuration(q), np.append(K_ARM, k_wrist), force)
+    k_x = np.array(out["K_X"])
+    error = np.linalg.norm(k_x - expected) / np.linalg.norm(expected)
+    assert error <= 0.02, (error, out["model"])
+    # the baseline model alone (no wrist spring) is off by over 5x the tolerance: the
+    # diagnosed effect made the difference
+    baseline = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.15], compliant_joints=ARM)
+    rigid_wrist = _fd_kx(baseline, baseline.configuration(q), K_ARM, force)
+    assert np.linalg.norm(rigid_wrist - expected) > 0.1 * np.linalg.norm(expected)
+    assert out["model"]["effects_applied"]
+
+
+def test_kx_model_of_another_robot_is_one_line(tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    path = _ur5_model().write(tmp_path / "m.json")
+    assert main(["kx", "--model", str(path), "--robot", "panda", "--json"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "is of robot 'ur5', not 'panda'" in err and "\n" not in err
+    bad = tmp_path / "future.json"
+    bad.write_text(json.dumps({"schema": "stiffness-model/2"}))
+    assert main(["kx", "--model", str(bad), "--json"]) == 2
+    assert "schema 'stiffness-model/2'" in capsys.readouterr().err
+
+
+def test_kx_lists_measurement_effects_and_applies_stiffness_ones(tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    model = _ur5_model(
+        ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                    [_p("stiffness", 2e4, "N.m/rad")]),
+        ModelEffect("force_sensor_bias", None, "measurement",
+                    [_p("fx", 1.0, "N"), _p("fy", 2.0, "N"), _p("fz", 3.0, "N")]))
+    path = model.write(tmp_path / "m.json")
+    args = ["kx", "--model", str(path), "--q", ",".join(map(str, Q)), "--wrench", "0,10,-50"]
+    assert main(args + ["--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["compliant_joints"] == list(ARM) + ["wrist_1_joint"]
+    assert out["K_theta"] == K_ARM.tolist() + [2e4]
+    assert [e["effect"] for e in out["model"]["effects_not_applied"]] == ["force_sensor_bias"]
+    assert out["model"]["effects_not_applied"][0]["kind"] == "measurement"
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "effects in K_X: joint_compliance(wrist_1_joint)" in text
+    assert "not applied: force_sensor_bias" in text
+    # --kq replaces the model's springs: nothing of the model's effects applies
+    assert main(args + ["--kq", "1e4,1e4,1e4", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["compliant_joints"] == list(ARM) and not out["model"]["effects_applied"]
+
+
+def _link_model() -> ModelFile:
+    return _ur5_model(
+        ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                    [_p("stiffness", 2e4, "N.m/rad")]),
+        ModelEffect("link_compliance", "elbow_joint->wrist_1_joint", "stiffness",
+                    [_p("stiffness_1", 4e4, "N.m/rad"), _p("stiffness_2", 6e4, "N.m/rad")]))
+
+
+def test_view_model_draws_the_models_compliance(tmp_path, capsys):
+    """The exported ellipsoid's radii are proportional to the principal compliances of the
+    model (link compliance included), not of its joint springs alone."""
+    from stiffness.cli.main import main
+    from stiffness.viewer import scene_commands, scene_transforms
+
+    path = _link_model().write(tmp_path / "m.json")
+    page = tmp_path / "page.html"
+    force = [0.0, 0.0, -100.0]
+    assert main(["view", "--model", str(path), "--q", ",".join(map(str, Q)), "--wrench",
+                 "0,0,-100", "--formulation", "enhanced", "--quantity", "compliance",
+                 "--export", str(page)]) == 0
+    capsys.readouterr()
+    matrix = scene_transforms(scene_commands(page.read_text()))[
+        "/meshcat/stiffness/enhanced/surface"]
+    radii = np.sort(np.linalg.norm(matrix[:3, :3], axis=0))
+    with_link = np.linalg.eigvalsh(model_compliance(_link_model(), Q, force).compliance())
+    np.testing.assert_allclose(radii / with_link, radii[0] / with_link[0], rtol=1e-6)
+    springs = CompliantModel(_link_model())
+    at = springs.at(Q, force)
+    joints_only = np.linalg.eigvalsh(at.compliance() - at.link_compliance[:3, :3])
+    assert not np.allclose(radii / joints_only, radii[0] / joints_only[0], rtol=1e-3)
+
+
+def test_scan_model_scans_the_models_springs(tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    model = _ur5_model(ModelEffect("joint_compliance", "wrist_1_joint", "stiffness",
+                                   [_p("stiffness", 2e4, "N.m/rad")]))
+    path = model.write(tmp_path / "m.json")
+    out = tmp_path / "scan"
+    assert main(["scan", "--model", str(path), "--samples", "6", "--load", "0,0,-100",
+                 "--out", str(out), "--no-plots", "--quiet", "--json"]) == 0
+    capsys.readouterr()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["spec"]["k_theta"] == K_ARM.tolist() + [2e4]
+    assert manifest["spec"]["robot"]["compliant_joints"] == list(ARM) + ["wrist_1_joint"]
+    chunk = np.load(next((out / "chunks").glob("chunk-*.npz")))
+    compliant = CompliantModel(model)
+    for i in range(2):
+        expected = compliant.at(chunk["coordinates"][i], [0, 0, -100.0]).k_x()
+        np.testing.assert_allclose(chunk["k_x"][i, 0], expected, rtol=1e-9)
+    path = _link_model().write(tmp_path / "link.json")
+    assert main(["scan", "--model", str(path), "--samples", "6", "--out",
+                 str(tmp_path / "no"), "--quiet"]) == 2
+    assert "link_compliance(elbow_joint->wrist_1_joint) change K_X" in capsys.readouterr().err
