@@ -29,6 +29,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
     "view": ("stiffness.cli.view", "stiffness ellipsoids in the browser (meshcat)"),
     "scan": ("stiffness.cli.scan", "stiffness and definiteness maps over a workspace"),
+    "compensate": ("stiffness.cli.compensate",
+                   "joint commands that cancel the deflection along a path"),
+    "posture": ("stiffness.cli.posture",
+                "the stiffest posture about the tool axis along a path"),
 }
 
 
