@@ -290,3 +290,38 @@ def test_model_file_mutations(model_file, data):
             assert np.all(np.isfinite(k)) and np.all(k > 0)
     finally:
         target.unlink()
+
+
+# ------------------------------------------------------------------ path and pose CSV files
+
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "compensation"
+
+
+@given(data=st.data())
+def test_joint_path_mutations(ur5, tmp_path_factory, data):
+    from stiffness.calibration.compensation import read_joint_path
+
+    folder = tmp_path_factory.mktemp("fuzz-path")
+    text = (DOCS / "ur5-path.csv").read_text()
+    original = read_joint_path(DOCS / "ur5-path.csv", ur5, deg=True)
+    path = folder / "path.csv"
+    write_text(path, data.draw(csv_mutation(text)))
+    result = assert_reader_contract(lambda: read_joint_path(path, ur5, deg=True), folder)
+    if result is not None:
+        assert np.all(np.isfinite(result.coords))
+        assert result.coords.shape[1] == original.coords.shape[1]
+
+
+@given(data=st.data())
+def test_pose_file_mutations(tmp_path_factory, data):
+    from stiffness.calibration.posture import read_poses
+
+    folder = tmp_path_factory.mktemp("fuzz-poses")
+    text = (DOCS / "ur5-poses.csv").read_text()
+    path = folder / "poses.csv"
+    write_text(path, data.draw(csv_mutation(text)))
+    result = assert_reader_contract(lambda: read_poses(path), folder)
+    if result is not None:
+        for value in vars(result).values():
+            if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+                assert np.all(np.isfinite(value))
