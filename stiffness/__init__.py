@@ -65,6 +65,7 @@ _ON_FIRST_USE = {
     "identify": "stiffness.calibration.identify",
     "diagnose": "stiffness.calibration.diagnose",
     "simulate": "stiffness.calibration.simulate",
+    "design": "stiffness.calibration.design",
     # calibration: compensation along a path, the stiffest posture
     "ElasticModel": "stiffness.calibration.elastic",
     "compensate": "stiffness.calibration.compensation",
@@ -114,6 +115,7 @@ __all__ = [
     "deflection",
     "definiteness",
     "definiteness_map",
+    "design",
     "diagnose",
     "ellipsoid",
     "holding_wrench",

@@ -47,10 +47,6 @@ PAPER_NAME = re.compile(r"sk[_-]?120|table_?(\d+|i{1,3}v?|iv|v)(?![a-z])|appendi
 #: pass over exactly these; ``test_pending_violations_are_gone`` turns green when they land
 #: (then delete this set).
 PENDING = {
-    ("stiffness.calibration.simulate", "name", "_is_sk120"),
-    ("stiffness.calibration.simulate", "name", "SK120_RANGES_DEG"),
-    ("stiffness.calibration.simulate", "name", "SK120_FLAT_MARGIN_DEG"),
-    ("stiffness.calibration.simulate", "string", "sk120"),
     ("stiffness.scan.engine", "name", "_table4_grid"),
     ("stiffness.scan.engine", "name", "_table4_size"),
     ("stiffness.scan.engine", "name", "table4_grid"),

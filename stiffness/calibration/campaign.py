@@ -711,17 +711,6 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     folder = Path(folder)
     output_folder(folder)
     u = c.units
-    s = c.robot_settings
-
-    source = s.source
-    if _looks_like_path(source):
-        resolved = Path(c.resolved_source())
-        try:
-            source = os.path.relpath(resolved, folder.resolve())
-        except ValueError:  # another drive on Windows
-            source = str(resolved)
-        source = Path(source).as_posix()
-
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     n_q = c.q.shape[1]
     prismatic = _prismatic_mask(c.robot())
@@ -743,9 +732,29 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     writer.writerow(header)
     for label, row in zip(c.config, table, strict=True):
         writer.writerow([label, *(_num(v) for v in row)])
-    lines = out.getvalue()
-    atomic_write(folder / data_name, lines)
+    atomic_write(folder / data_name, out.getvalue())
 
+    target = folder / CAMPAIGN_FILE
+    atomic_write(target, campaign_toml(c, folder))
+    return target
+
+
+def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
+    """The ``campaign.toml`` text of ``c`` written into ``folder`` (a relative URDF source is
+    made relative to ``folder``); its ``[measurement] data`` is ``c.data_file``'s name."""
+    folder = Path(folder)
+    u = c.units
+    s = c.robot_settings
+    source = s.source
+    if _looks_like_path(source):
+        resolved = Path(c.resolved_source())
+        try:
+            source = os.path.relpath(resolved, folder.resolve())
+        except ValueError:  # another drive on Windows
+            source = str(resolved)
+        source = Path(source).as_posix()
+
+    data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     toml = [
         "# Measurement campaign (see stiffness/campaign.py for the format).",
         f"name = {_toml_string(c.name)}",
@@ -773,6 +782,4 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     ]
     if c.noise_std_m is not None:
         toml.append(f"noise_std = {_num(c.noise_std_m / u.length_to_si)}")
-    target = folder / CAMPAIGN_FILE
-    atomic_write(target, "\n".join(toml) + "\n")
-    return target
+    return "\n".join(toml) + "\n"

@@ -779,54 +779,41 @@ def _similarity(current: Fit, a: Fit, b: Fit, scale: float) -> float:
 # experiment design
 
 
-#: Load directions tried by :func:`propose_measurements`: the axes and the cube diagonals.
-_DIRECTIONS = np.vstack([np.eye(3), -np.eye(3)] + [
-    np.array([sx, sy, sz]) / math.sqrt(3.0)
-    for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)])
-
-
 def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit, sigma: float,
                          n_poses: int = 40, n_best: int = 3, seed: int = 0) -> list[dict]:
     """Extra poses and loads where two fitted models' predictions differ most.
 
-    Poses are sampled at random among reachable ones
-    (:func:`stiffness.calibration.simulate.sample_coordinates`); loads along the axes and cube
-    diagonals
-    at the campaign's largest force. The
-    ``n_best`` pose-load pairs of largest predicted separation ``|dx_a - dx_b| / sigma`` are
-    returned, one per pose, in the campaign's units.
+    The experiment design's separation (:mod:`stiffness.calibration.experiment`): ``n_poses``
+    reachable candidate poses, loads along the axes and cube diagonals at the campaign's largest
+    force; the ``n_best`` poses, one load each, that add the most separation left after either
+    model is refitted, in the campaign's units. Each proposal's ``separation_noise_units`` is
+    ``|dx_a - dx_b| / sigma`` there.
     """
-    from stiffness.calibration.simulate import sample_coordinates
+    from stiffness.calibration.experiment import (
+        Alternatives,
+        candidate_set,
+        select_rows,
+        separation_score,
+        separation_statistics,
+    )
 
-    rng = np.random.default_rng(seed)
-    coords = sample_coordinates(geometry.robot, n_poses, rng)
     f_max = float(np.linalg.norm(campaign.force, axis=1).max())
-    n_dir = len(_DIRECTIONS)
-    q = np.repeat(coords, n_dir, axis=0)
-    force = np.tile(_DIRECTIONS * f_max, (len(coords), 1))
-    rows = geometry.rows(q, force)
-    with np.errstate(all="ignore"):
-        pa = a.model.with_rows(rows).predict(a.x)
-        pb = b.model.with_rows(rows).predict(b.x)
-    sep = np.linalg.norm(pa - pb, axis=1) / sigma
-    sep = np.where(np.isfinite(sep), sep, -1.0)
+    cands = candidate_set(geometry.robot, n_poses, f_max, seed)
+    labels = (a.model.describe(), b.model.describe())
+    sep = separation_statistics(Alternatives(a, b, labels, sigma, ""), cands)
+    chosen = select_rows(sep.rows, sep.base, separation_score, min(n_best, cands.n_poses), 1)
     u = campaign.units
     prismatic = geometry.prismatic
-    out, used = [], set()
-    for i in np.argsort(-sep):
-        pose = int(i // n_dir)
-        if pose in used or sep[i] < 0:
-            continue
-        used.add(pose)
-        qc = coords[pose].copy()
+    out = []
+    for pose, load in zip(chosen.poses, chosen.loads[:, 0], strict=True):
+        qc = cands.coords[pose].copy()
         qc[~prismatic] /= u.angle_to_si
         qc[prismatic] /= u.length_to_si
-        out.append({"q": qc.tolist(), "force": (force[i] / u.force_to_si).tolist(),
-                    "deflection_chosen": (pa[i] / u.length_to_si).tolist(),
-                    "deflection_other": (pb[i] / u.length_to_si).tolist(),
-                    "separation_noise_units": float(sep[i])})
-        if len(out) >= n_best:
-            break
+        force = cands.directions[load] * cands.max_force
+        out.append({"q": qc.tolist(), "force": (force / u.force_to_si).tolist(),
+                    "deflection_chosen": (sep.predicted_a[pose, load] / u.length_to_si).tolist(),
+                    "deflection_other": (sep.predicted_b[pose, load] / u.length_to_si).tolist(),
+                    "separation_noise_units": float(sep.raw[pose, load])})
     return out
 
 

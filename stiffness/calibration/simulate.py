@@ -1,12 +1,12 @@
 """Synthetic campaigns with hidden effects: what could a rig detect before measuring?
 
-:func:`simulate` draws reachable configurations (:func:`sample_coordinates`), loads along random
-directions (or a ramp along one direction per configuration, or the
-six axis directions), computes the deflections from the *exact* elastostatic equilibrium of a
-true robot that carries the hidden effects, adds Gaussian noise, and returns a
-:class:`~stiffness.calibration.campaign.Campaign` that declares only the baseline (its ``--kq``
-joints),
-plus the hidden truth.
+:func:`simulate` draws reachable configurations
+(:func:`stiffness.calibration.poses.sample_coordinates`), or takes the rows of a measurement plan
+(:mod:`stiffness.calibration.plan`), loads along random directions (or a ramp along one
+direction per configuration, or the six axis directions), computes the deflections from the
+*exact* elastostatic equilibrium of a true robot that carries the hidden effects, adds Gaussian
+noise, and returns a :class:`~stiffness.calibration.campaign.Campaign` that declares only the
+baseline (its ``--kq`` joints), plus the hidden truth.
 
 How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects` for the models):
 
@@ -55,8 +55,9 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
+from stiffness.calibration.plan import Plan
+from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import (
-    ConvergenceError,
     StiffnessError,
     UnknownEffectError,
     UnknownJointError,
@@ -72,224 +73,7 @@ from stiffness.model.robot import Robot
 LOAD_PATTERNS = ("random", "ramp", "axes")
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
-#: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
-_MAX_JACOBIAN = 10.0
 _DIAGONAL = np.ones(3) / math.sqrt(3.0)
-#: Keys of a robot's ``[workspace]`` table.
-WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
-
-
-# ------------------------------------------------------------------------------------------
-# poses
-
-
-@dataclass
-class Workspace:
-    """Where poses are drawn, from the robot's ``[workspace]`` table in its ``robot.toml``.
-
-    Every key is optional; angles are in ``angle_unit`` (``deg`` by default, or ``rad``),
-    prismatic coordinates in m::
-
-        [workspace]
-        uniform = { joint1 = [-90.0, 90.0], joint2 = [-70.0, 70.0] }   # ranges
-        choice = { joint6 = [-90.0, 90.0] }                             # one of these values
-        linear = [ { joint = "joint5", constant = -90.0, terms = { joint3 = -1.0 } } ]
-        avoid = [ { terms = { joint2 = 1.0, joint3 = 1.0 }, values = [90.0, -90.0],
-                    margin = 15.0 } ]
-        target_above_base = false
-
-    A pose draws the ``uniform`` coordinates in the table's order, then every coordinate with
-    no rule uniformly within its joint limits (``+-pi`` when unlimited), rejects the pose when
-    an ``avoid`` combination ``sum terms * q`` lies within ``margin`` of one of its ``values``,
-    draws the ``choice`` coordinates, and sets each ``linear`` coordinate to
-    ``constant + sum terms * q`` in order. ``target_above_base`` (default true) rejects poses
-    whose target is below the base plane.
-
-    Attributes
-    ----------
-    uniform
-        Coordinate index -> (low, high), SI.
-    choice
-        Coordinate index -> values, SI.
-    linear
-        (index, constant, {index: coefficient}) in order, SI.
-    avoid
-        ({index: coefficient}, values, margin), SI.
-    target_above_base
-        Whether the target must be above the base plane.
-    """
-
-    uniform: dict[int, tuple[float, float]] = field(default_factory=dict)
-    choice: dict[int, list[float]] = field(default_factory=dict)
-    linear: list[tuple[int, float, dict[int, float]]] = field(default_factory=list)
-    avoid: list[tuple[dict[int, float], list[float], float]] = field(default_factory=list)
-    target_above_base: bool = True
-    declared: bool = False
-
-    @classmethod
-    def of(cls, robot: Robot) -> Workspace:
-        """The robot's declared workspace (default: its joint limits, target above the base).
-
-        Raises
-        ------
-        StiffnessError
-            On an unknown key, joint or unit, or a malformed rule (one line naming it).
-        """
-        table = robot.defaults.get("workspace")
-        if table is None:
-            return cls()
-        where = f"[workspace] of {robot.name}"
-        if not isinstance(table, dict):
-            raise StiffnessError(f"{where} must be a table")
-        unknown = set(table) - set(WORKSPACE_KEYS)
-        if unknown:
-            key = sorted(unknown)[0]
-            raise UnknownNameError(f"{where}: unknown key {key!r}; valid keys: "
-                                   f"{', '.join(WORKSPACE_KEYS)}", name=key,
-                                   choices=WORKSPACE_KEYS)
-        unit = table.get("angle_unit", "deg")
-        if unit not in ("deg", "rad"):
-            raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
-        names = list(robot.coordinate_joints)
-        factor = np.array([1.0 if _is_prismatic(robot, j) else (
-            math.pi / 180.0 if unit == "deg" else 1.0) for j in names])
-
-        def index(name) -> int:
-            if name not in names:
-                raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
-                                        f"{robot.name}; {did_you_mean(str(name), names)}",
-                                        name=str(name), choices=names)
-            return names.index(name)
-
-        def number(value, what: str) -> float:
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
-                    value):
-                raise StiffnessError(f"{where}: {what} must be a finite number, got {value!r}")
-            return float(value)
-
-        def terms(rule: dict, what: str) -> dict[int, float]:
-            raw = rule.get("terms", {})
-            if not isinstance(raw, dict):
-                raise StiffnessError(f"{where}: {what}.terms must map joints to coefficients")
-            out = {}
-            for joint, c in raw.items():
-                i = index(joint)
-                # the coefficient relates SI values: q_out = c q_in in the table's units
-                out[i] = number(c, f"{what}.terms.{joint}")
-            return out
-
-        ws = cls(declared=True)
-        for joint, bounds in dict(table.get("uniform", {})).items():
-            i = index(joint)
-            if not isinstance(bounds, list) or len(bounds) != 2:
-                raise StiffnessError(f"{where}: uniform.{joint} must be [low, high]")
-            lo, hi = (number(v, f"uniform.{joint}") * factor[i] for v in bounds)
-            if hi < lo:
-                raise StiffnessError(f"{where}: uniform.{joint} has high below low")
-            ws.uniform[i] = (lo, hi)
-        for joint, values in dict(table.get("choice", {})).items():
-            i = index(joint)
-            if not isinstance(values, list) or not values:
-                raise StiffnessError(f"{where}: choice.{joint} must be a list of values")
-            ws.choice[i] = [number(v, f"choice.{joint}") * factor[i] for v in values]
-        for k, rule in enumerate(table.get("linear", [])):
-            if not isinstance(rule, dict) or "joint" not in rule:
-                raise StiffnessError(f"{where}: linear[{k}] needs a joint")
-            i = index(rule["joint"])
-            c = terms(rule, f"linear[{k}]")
-            scaled = {j: v * factor[i] / factor[j] for j, v in c.items()}
-            ws.linear.append((i, number(rule.get("constant", 0.0), f"linear[{k}].constant")
-                              * factor[i], scaled))
-        for k, rule in enumerate(table.get("avoid", [])):
-            if not isinstance(rule, dict) or "terms" not in rule or "margin" not in rule:
-                raise StiffnessError(f"{where}: avoid[{k}] needs terms, values and margin")
-            c = terms(rule, f"avoid[{k}]")
-            ref = factor[next(iter(c))] if c else 1.0
-            values = rule.get("values", [0.0])
-            if not isinstance(values, list):
-                raise StiffnessError(f"{where}: avoid[{k}].values must be a list")
-            ws.avoid.append(({j: v * factor[j] / ref for j, v in c.items()},
-                             [number(v, f"avoid[{k}].values") * ref for v in values],
-                             number(rule["margin"], f"avoid[{k}].margin") * ref))
-        above = table.get("target_above_base", True)
-        if not isinstance(above, bool):
-            raise StiffnessError(f"{where}: target_above_base must be true or false")
-        ws.target_above_base = above
-        return ws
-
-    def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
-             ) -> np.ndarray | None:
-        """One coordinate vector (SI), or ``None`` when an ``avoid`` rule rejects it."""
-        if not self.declared:
-            return rng.uniform(lo, hi)
-        coords = np.zeros(len(lo))
-        for i, (a, b) in self.uniform.items():
-            coords[i] = rng.uniform(a, b)
-        ruled = set(self.uniform) | set(self.choice) | {i for i, _, _ in self.linear}
-        for i in range(len(lo)):
-            if i not in ruled:
-                coords[i] = rng.uniform(lo[i], hi[i])
-        for c, values, margin in self.avoid:
-            combo = sum(v * coords[j] for j, v in c.items())
-            if min(abs(combo - v) for v in values) < margin:
-                return None
-        for i, values in self.choice.items():
-            coords[i] = rng.choice(values)
-        for i, constant, c in self.linear:
-            coords[i] = constant + sum(v * coords[j] for j, v in c.items())
-        return coords
-
-
-def _is_prismatic(robot: Robot, joint: str) -> bool:
-    return robot.model.joints[robot.model.getJointId(joint)].shortname().startswith("JointModelP")
-
-
-def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
-                       max_tries: int = 200) -> np.ndarray:
-    """``n`` random reachable coordinate vectors (rad, m), shape (n, n_coordinates).
-
-    Poses follow the robot's :class:`Workspace` (its ``robot.toml`` ``[workspace]`` table);
-    without one, uniform within the joint limits (clipped to +-pi for revolute joints), target
-    above the base plane. Every pose must assemble (loops closed, regular) with a moderate
-    target Jacobian.
-
-    Raises
-    ------
-    StiffnessError
-        If fewer than ``n`` poses are found in ``max_tries * n`` draws.
-    """
-    model = robot.model
-    joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
-    lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
-    hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
-    prismatic = np.array([j.shortname().startswith("JointModelP") for j in joints])
-    bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
-    lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
-    hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
-    lo = np.where(prismatic, lo, np.maximum(lo, -math.pi))
-    hi = np.where(prismatic, hi, np.minimum(hi, math.pi))
-    workspace = Workspace.of(robot)
-    out: list[np.ndarray] = []
-    for _ in range(max_tries * n):
-        if len(out) == n:
-            break
-        coords = workspace.draw(lo, hi, rng)
-        if coords is None:
-            continue
-        try:
-            q = robot.configuration(coords)
-            state = target_state(robot, q)
-        except StiffnessError:
-            continue
-        if np.abs(state.jacobian[:3]).max() > _MAX_JACOBIAN:
-            continue
-        if workspace.target_above_base and state.position[2] < 0.0:
-            continue
-        out.append(coords)
-    if len(out) < n:
-        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.name}; "
-                               "ask for fewer configurations, or check the joint limits")
-    return np.array(out)
 
 
 # ------------------------------------------------------------------------------------------
@@ -607,6 +391,7 @@ def simulate(
     repeats: int = 1,
     declare_noise: bool = True,
     name: str | None = None,
+    plan: Plan | None = None,
 ) -> Simulation:
     """Simulate a campaign with hidden effects.
 
@@ -643,6 +428,9 @@ def simulate(
         Whether the campaign declares its ``noise_std``.
     name
         Campaign name.
+    plan
+        Rows to simulate exactly (:class:`stiffness.calibration.plan.Plan`: coordinates,
+        applied forces, labels) instead of drawing ``configs`` poses and their loads.
 
     Raises
     ------
@@ -685,10 +473,17 @@ def simulate(
                              "baseline (the truth is always the exact equilibrium)")
 
     rng = np.random.default_rng(seed)
-    coords = sample_coordinates(declared, configs, rng)
-    q = np.repeat(coords, loads_per_config, axis=0)
-    applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
-                         for _ in range(configs)])
+    if plan is None:
+        coords = sample_coordinates(declared, configs, rng)
+        q = np.repeat(coords, loads_per_config, axis=0)
+        applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
+                             for _ in range(configs)])
+        row_labels = [f"C{i // loads_per_config + 1}" for i in range(len(q))]
+    else:
+        if plan.q.shape[1] != declared.n_coordinates:
+            raise StiffnessError(f"the plan has {plan.q.shape[1]} coordinates per row but "
+                                 f"{declared.name} has {declared.n_coordinates}")
+        q, applied, row_labels = plan.q.copy(), plan.force.copy(), list(plan.config)
     geometry = Geometry.of(declared)
     truth = build_truth(declared, kq, [h for h in effects], units,
                         np.zeros(len(geometry.joints)), geometry)
@@ -713,7 +508,7 @@ def simulate(
 
     reps = np.repeat(np.arange(len(q)), repeats)
     measured = clean[reps] + rng.normal(scale=noise_std_m, size=(len(reps), 3))
-    config_labels = [f"C{i // (loads_per_config * repeats) + 1}" for i in range(len(reps))]
+    config_labels = [row_labels[i] for i in reps]
     settings = RobotSettings(declared.name, frame=declared.target_frame,
                              target_offset_m=declared.target_offset.copy(),
                              compliant_joints=tuple(declared.compliant_joints))
@@ -727,8 +522,13 @@ def simulate(
     info = {
         "robot": {"source": str(robot), "frame": declared.target_frame,
                   "target_offset_m": declared.target_offset.tolist()},
-        "configs": configs, "loads_per_config": loads_per_config, "repeats": repeats,
-        "max_force_N": max_force, "load_pattern": load_pattern, "seed": seed,
+        "configs": len(dict.fromkeys(row_labels)) if plan is not None else configs,
+        "loads_per_config": None if plan is not None else loads_per_config,
+        "plan": str(plan.path) if plan is not None and plan.path is not None else None,
+        "repeats": repeats,
+        "max_force_N": float(np.linalg.norm(applied, axis=1).max()) if plan is not None
+        else max_force,
+        "load_pattern": None if plan is not None else load_pattern, "seed": seed,
         "declare_noise": declare_noise,
         "backlash_smoothing_Nm": dict(zip(geometry.joints, smoothing.tolist(), strict=True)),
     }
