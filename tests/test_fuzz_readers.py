@@ -325,3 +325,38 @@ def test_pose_file_mutations(tmp_path_factory, data):
         for value in vars(result).values():
             if isinstance(value, np.ndarray) and value.dtype.kind == "f":
                 assert np.all(np.isfinite(value))
+
+
+PLAN_UNITS = "# measurement plan; units: angle=deg force=N length=mm\n"
+PLAN = """config,q1,q2,q3,q4,q5,q6,fx,fy,fz
+P1,-25.09,167.78,22.40,-86.81,-92.99,139.72,57.735,57.735,57.735
+P1,-25.09,167.78,22.40,-86.81,-92.99,139.72,-57.735,-57.735,-57.735
+P2,10.0,-60.0,80.0,-20.0,90.0,0.0,0,0,100
+"""
+
+
+@given(data=st.data())
+def test_plan_file_mutations(ur5, tmp_path_factory, data):
+    from stiffness.calibration.plan import read_plan
+
+    folder = tmp_path_factory.mktemp("fuzz-plan")
+    path = folder / "plan.csv"
+    keep_units = data.draw(st.booleans())
+    write_text(path, (PLAN_UNITS if keep_units else "") + data.draw(csv_mutation(PLAN)))
+    result = assert_reader_contract(lambda: read_plan(path, ur5), folder)
+    if result is not None:
+        plan, _ = result
+        for value in vars(plan).values():
+            if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+                assert np.all(np.isfinite(value))
+
+
+def test_plan_reads_back_in_si(ur5, tmp_path):
+    from stiffness.calibration.plan import read_plan
+
+    path = tmp_path / "plan.csv"
+    path.write_text(PLAN_UNITS + PLAN)
+    plan, _ = read_plan(path, ur5)
+    arrays = {k: v for k, v in vars(plan).items() if isinstance(v, np.ndarray)}
+    q = next(v for v in arrays.values() if v.ndim == 2 and v.shape[1] == 6)
+    np.testing.assert_allclose(q[-1], np.deg2rad([10.0, -60.0, 80.0, -20.0, 90.0, 0.0]))
