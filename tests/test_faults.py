@@ -1,6 +1,7 @@
 """Faults: commands killed mid-run, a full disk, a read-only folder, ``--out`` on a file.
 
-* Each command that writes files (``report``, ``scan``, ``diagnose``, ``identify``) is run once
+* Each command that writes files (``report``, ``scan``, ``diagnose``, ``identify``,
+  ``compensate``) is run once
   uninterrupted, then started again in a fresh folder and killed with SIGKILL at a random
   point of its run (a bounded, seeded loop: one kill per command by default,
   ``STIFFNESS_FAULT_KILLS`` for more). Afterwards every file in its output folder is
@@ -33,6 +34,7 @@ import pytest
 
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"
 TABLE2 = ROBOTS / "sk120" / "campaigns" / "table2"
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "compensation"
 #: Kills per command (``STIFFNESS_FAULT_KILLS=20 pytest tests/test_faults.py`` for a long run).
 KILLS = int(os.environ.get("STIFFNESS_FAULT_KILLS", "1"))
 #: Keys whose values depend on the run (timings, resume bookkeeping), not on its inputs.
@@ -131,6 +133,9 @@ def command_lines(campaign: Path) -> dict[str, list[str]]:
                      "--out", "OUT/identified-model.json"],
         "diagnose": ["diagnose", str(campaign), "--no-proposals", "--max-steps", "1", "--quiet",
                      "--out", "OUT"],
+        "compensate": ["compensate", "--robot", "ur5", "--frame", "tool0", "--deg", "--path",
+                       str(DOCS / "ur5-path.csv"), "--kq", "8e4,8e4,5e4,2e4,2e4,2e4",
+                       "--wrench", "0,0,-300", "--quiet", "--out", "OUT/compensated.csv"],
         "scan": ["scan", "--robot", "ur5", "--frame", "tool0", "--samples", "60000",
                  "--chunk-size", "4000", "--kq", "8e4,8e4,5e4,2e4,2e4,2e4", "--no-plots",
                  "--quiet", "--out", "OUT"],
@@ -141,7 +146,7 @@ def run_in(args: list[str], out: Path) -> subprocess.CompletedProcess:
     return cli(*[a.replace("OUT", str(out)) for a in args])
 
 
-@pytest.mark.parametrize("command", ["report", "identify", "diagnose", "scan"])
+@pytest.mark.parametrize("command", ["report", "identify", "diagnose", "scan", "compensate"])
 def test_killed_command_leaves_complete_outputs_and_reruns_identically(
         command, simulated_campaign, tmp_path):
     args = command_lines(simulated_campaign)[command]

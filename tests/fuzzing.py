@@ -1,0 +1,136 @@
+"""The reader contract and mutations of valid files, shared by the fuzz tests.
+
+The contract (:func:`assert_reader_contract`): a reader given any input either returns (the
+test then checks the meaning) or raises a :class:`~stiffness.errors.StiffnessError` whose
+message is one line. It never raises another exception, never takes longer than the
+hypothesis deadline, and never writes a file.
+
+Profiles: ``ci`` (default, a few dozen examples per reader) and ``long``
+(``HYPOTHESIS_PROFILE=long pytest tests/test_fuzz_readers.py``, thousands).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from datetime import timedelta
+from pathlib import Path
+
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+
+from stiffness.errors import StiffnessError
+
+settings.register_profile(
+    "ci", max_examples=40, deadline=timedelta(seconds=5), derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+settings.register_profile(
+    "long", max_examples=2000, deadline=timedelta(seconds=10),
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+#: Cell values that break naive readers.
+NASTY_CELLS = ["nan", "NaN", "inf", "-inf", "1e309", "-1e309", "", " ", "1,5", "0x1F", "1e-400",
+               "１２", "١٢", "12abc", "--1", "None", "null", "true", "\u00e9", "\u202e12",
+               "1" * 400, "9" * 40, "\x00", "'1'", '"1"', "1_000", "+", "."]
+#: TOML values of the wrong type for any key.
+NASTY_TOML = ['""', "1", "-1", "0", "1e999", "nan", "inf", "[]", "[1, \"a\"]", "{}", "true",
+              '"\u00e9\u00e8"', '"' + "x" * 300 + '"', "[[1]]", '"../../etc/passwd"',
+              "1979-05-27"]
+
+
+def files_under(folder: Path) -> dict[str, float]:
+    return {str(p): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+def assert_reader_contract(read: Callable[[], object], folder: Path) -> object | None:
+    """Call ``read()``; allow a result or a one-line StiffnessError, and no new file."""
+    before = files_under(folder)
+    try:
+        result = read()
+    except StiffnessError as exc:
+        message = str(exc)
+        assert message.strip(), "an error with no message"
+        assert "\n" not in message.strip(), f"a message of several lines: {message!r}"
+        result = None
+    after = files_under(folder)
+    assert after == before, f"the reader wrote files: {set(after) ^ set(before)}"
+    return result
+
+
+@st.composite
+def csv_mutation(draw, text: str) -> str:
+    """A mutation of a CSV text: a dropped, duplicated or renamed column, a nasty cell,
+    a truncation, a blank or duplicated line, or an empty file."""
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    kind = draw(st.sampled_from(["drop", "duplicate", "rename", "cell", "truncate", "empty",
+                                 "blank", "extra_cell", "short_row", "reorder", "bom"]))
+    rows = [line.split(",") for line in lines]
+    if kind in ("drop", "duplicate", "rename", "reorder"):
+        col = draw(st.integers(0, len(header) - 1))
+        if kind == "drop":
+            rows = [r[:col] + r[col + 1:] for r in rows]
+        elif kind == "duplicate":
+            rows = [r + [r[col]] for r in rows]
+        elif kind == "rename":
+            rows[0][col] = draw(st.sampled_from(["", "Q1", "fx ", "dX", "q99", "\u00e9"]))
+        else:
+            other = draw(st.integers(0, len(header) - 1))
+            for r in rows:
+                r[col], r[other] = r[other], r[col]
+    elif kind == "cell":
+        row = draw(st.integers(1, len(rows) - 1))
+        col = draw(st.integers(0, len(header) - 1))
+        rows[row][col] = draw(st.sampled_from(NASTY_CELLS) | st.text(max_size=8))
+    elif kind == "extra_cell":
+        rows[draw(st.integers(1, len(rows) - 1))].append("1.0")
+    elif kind == "short_row":
+        row = draw(st.integers(1, len(rows) - 1))
+        rows[row] = rows[row][:-1]
+    out = "\n".join(",".join(r) for r in rows) + "\n"
+    if kind == "truncate":
+        out = text[:draw(st.integers(0, len(text) - 1))]
+    elif kind == "empty":
+        out = ""
+    elif kind == "blank":
+        at = draw(st.integers(1, len(lines)))
+        out = "\n".join(lines[:at] + ["", lines[at - 1]] + lines[at:]) + "\n"
+    elif kind == "bom":
+        out = "\ufeff" + text
+    return out
+
+
+@st.composite
+def toml_mutation(draw, text: str) -> str:
+    """A mutation of a TOML text: a value of the wrong type, a dropped or unknown key, a
+    truncation, a duplicated table, invalid UTF-8 or an empty file."""
+    lines = text.splitlines()
+    assignments = [i for i, line in enumerate(lines)
+                   if "=" in line and not line.lstrip().startswith("#")]
+    kind = draw(st.sampled_from(["value", "drop", "unknown", "truncate", "empty", "table",
+                                 "binary"]))
+    if kind == "value" and assignments:
+        i = draw(st.sampled_from(assignments))
+        key = lines[i].split("=", 1)[0]
+        lines[i] = f"{key}= {draw(st.sampled_from(NASTY_TOML))}"
+    elif kind == "drop" and assignments:
+        del lines[draw(st.sampled_from(assignments))]
+    elif kind == "unknown":
+        lines.insert(draw(st.integers(0, len(lines))), "colour = \"blue\"")
+    elif kind == "table":
+        lines.append("[units]")
+        lines.append('length = "mm"')
+    out = "\n".join(lines) + "\n"
+    if kind == "truncate":
+        out = text[:draw(st.integers(0, len(text) - 1))]
+    elif kind == "empty":
+        out = ""
+    elif kind == "binary":
+        out = text[:draw(st.integers(0, len(text)))] + "\udcff"
+    return out
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write ``text`` as UTF-8, surrogate escapes as the raw (invalid UTF-8) bytes."""
+    path.write_bytes(text.encode("utf-8", errors="surrogateescape"))
