@@ -20,15 +20,27 @@ configuration (the same assembly branch).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import Robot, load_robot
+
+# Hypothesis profiles, loaded before any test module: ``ci`` (default) is derandomized, so a
+# run is reproducible and never fails on an example another run stored; ``random`` explores new
+# examples (``HYPOTHESIS_PROFILE=random python -m pytest``); ``long`` runs the fuzz tests of
+# tests/test_fuzz_readers.py with thousands of examples.
+_QUIET = [HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+settings.register_profile("ci", derandomize=True, suppress_health_check=_QUIET)
+settings.register_profile("random", suppress_health_check=_QUIET)
+settings.register_profile("long", suppress_health_check=_QUIET)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 #: SK120 workspace of the paper (printed angles, deg): theta1, theta2, theta3.
 SK120_WORKSPACE_DEG = ((-180.0, 180.0), (-70.0, 70.0), (-115.0, 35.0))

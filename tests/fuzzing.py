@@ -5,8 +5,8 @@ test then checks the meaning) or raises a :class:`~stiffness.errors.StiffnessErr
 message is one line. It never raises another exception, never takes longer than the
 hypothesis deadline, and never writes a file.
 
-Profiles: ``ci`` (default, a few dozen examples per reader) and ``long``
-(``HYPOTHESIS_PROFILE=long pytest tests/test_fuzz_readers.py``, thousands).
+Examples: a few dozen per reader in CI, thousands with
+``HYPOTHESIS_PROFILE=long python -m pytest tests/test_fuzz_readers.py`` (:data:`FUZZ`).
 """
 
 from __future__ import annotations
@@ -16,18 +16,16 @@ from collections.abc import Callable
 from datetime import timedelta
 from pathlib import Path
 
-from hypothesis import HealthCheck, settings
+from hypothesis import settings
 from hypothesis import strategies as st
 
 from stiffness.errors import StiffnessError
 
-settings.register_profile(
-    "ci", max_examples=40, deadline=timedelta(seconds=5), derandomize=True,
-    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-settings.register_profile(
-    "long", max_examples=2000, deadline=timedelta(seconds=10),
-    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+#: Settings of every fuzz test: a few dozen examples with a bounded time each, thousands under
+#: the ``long`` profile (profiles: tests/conftest.py).
+LONG = os.environ.get("HYPOTHESIS_PROFILE") == "long"
+FUZZ = settings(max_examples=2000 if LONG else 40,
+                deadline=timedelta(seconds=10 if LONG else 5))
 
 #: Cell values that break naive readers.
 NASTY_CELLS = ["nan", "NaN", "inf", "-inf", "1e309", "-1e309", "", " ", "1,5", "0x1F", "1e-400",

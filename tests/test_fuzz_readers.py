@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fuzzing import assert_reader_contract, csv_mutation, toml_mutation, write_text
+from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -53,6 +53,7 @@ def check_campaign_meaning(campaign, original) -> None:
     assert campaign.q.shape[0] >= 1
 
 
+@FUZZ
 @given(data=st.data())
 def test_measurement_csv_mutations(campaign_folder, data):
     original = load_campaign(campaign_folder)
@@ -67,6 +68,7 @@ def test_measurement_csv_mutations(campaign_folder, data):
         restore(campaign_folder)
 
 
+@FUZZ
 @given(data=st.data())
 def test_campaign_toml_mutations(campaign_folder, data):
     original = load_campaign(campaign_folder)
@@ -101,6 +103,7 @@ def test_campaign_units_convert_to_si(campaign_folder):
 numbers = st.floats(allow_nan=True, allow_infinity=True, width=64)
 
 
+@FUZZ
 @given(values=st.lists(numbers, min_size=1, max_size=8))
 def test_parse_list_reads_back_finite_numbers(values):
     text = ",".join(repr(v) for v in values)
@@ -113,6 +116,7 @@ def test_parse_list_reads_back_finite_numbers(values):
     assert parsed == values
 
 
+@FUZZ
 @given(text=st.text(max_size=40))
 def test_parse_list_on_any_text(text):
     try:
@@ -123,6 +127,7 @@ def test_parse_list_on_any_text(text):
     assert all(math.isfinite(v) for v in parsed)
 
 
+@FUZZ
 @given(tokens=st.lists(st.sampled_from(["--q", "-35,-60,95", "-1e3", "--deg", "--", "-x",
                                         "--wrench", "-10,0,-100", "1,2", "--json", "=", "-"]),
                        max_size=8))
@@ -138,6 +143,7 @@ def test_negative_values_rewrite_keeps_every_token(tokens):
         t.replace("=", "") for t in tokens)
 
 
+@FUZZ
 @given(pairs=st.lists(st.tuples(st.sampled_from(["shoulder_pan_joint", "elbow_joint", "q1",
                                                   "q6", "nope", "q0", "q99", ""]),
                                 st.sampled_from(["0.5", "-1", "nan", "x", "", "1e400"])),
@@ -165,6 +171,7 @@ def four_bar(tmp_path_factory) -> Path:
     return folder
 
 
+@FUZZ
 @given(data=st.data())
 def test_loop_file_mutations(four_bar, data):
     loops = four_bar / "sk120.loops.yaml"
@@ -195,6 +202,7 @@ def test_loop_file_mutations(four_bar, data):
         shutil.copy(ROBOTS / "sk120" / "sk120.loops.yaml", loops)
 
 
+@FUZZ
 @given(data=st.data())
 def test_urdf_mutations(four_bar, data):
     urdf = four_bar / "sk120.urdf"
@@ -267,6 +275,7 @@ def replaced(doc, path, value):
     return copy
 
 
+@FUZZ
 @given(data=st.data())
 def test_model_file_mutations(model_file, data):
     from stiffness.calibration.model_file import read_model_file
@@ -297,6 +306,7 @@ def test_model_file_mutations(model_file, data):
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "compensation"
 
 
+@FUZZ
 @given(data=st.data())
 def test_joint_path_mutations(ur5, tmp_path_factory, data):
     from stiffness.calibration.compensation import read_joint_path
@@ -312,6 +322,7 @@ def test_joint_path_mutations(ur5, tmp_path_factory, data):
         assert result.coords.shape[1] == original.coords.shape[1]
 
 
+@FUZZ
 @given(data=st.data())
 def test_pose_file_mutations(tmp_path_factory, data):
     from stiffness.calibration.posture import read_poses
@@ -335,6 +346,7 @@ P2,10.0,-60.0,80.0,-20.0,90.0,0.0,0,0,100
 """
 
 
+@FUZZ
 @given(data=st.data())
 def test_plan_file_mutations(ur5, tmp_path_factory, data):
     from stiffness.calibration.plan import read_plan
