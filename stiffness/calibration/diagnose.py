@@ -7,9 +7,9 @@
 2. Break the baseline's residuals down by configuration, axis, load magnitude and load sign,
    against the noise level: the declared ``noise_std``, else the pooled scatter of replicate
    rows (same configuration and force), else (said so) the residual scatter of the final model.
-3. Extend the current model by each candidate of :func:`stiffness.calibration.effects.candidates`
-(its own
-   parameters identified jointly with the stiffnesses), rank them by BIC
+3. Extend the current model by each candidate of
+   :func:`stiffness.calibration.effects.candidates` (its own parameters identified jointly
+   with the stiffnesses), rank them by BIC
    (``RSS / sigma^2 + p ln N`` with a known sigma, ``N ln(RSS / N) + p ln N`` otherwise;
    a parameter-free switch counts one parameter), keep those improving BIC by more than
    :data:`BIC_MARGIN`, cross-validate the best :data:`CV_TOP` over configurations
@@ -17,6 +17,12 @@
    are many) and add the lowest-BIC one whose cross-validated error beats the current model's.
    Repeat until the model fits to noise (chi-square test of ``RSS / sigma^2`` at
    :data:`GOF_LEVEL` with ``N - p`` degrees of freedom, known sigma only) or nothing helps.
+   With a known sigma, each step's BICs use ``c sigma^2``, ``c`` the step's overdispersion
+   (:func:`step_dispersion`): what the best extension leaves above the noise counts as noise.
+   If the search ends with the chi-square test still rejecting, the result is *unexplained*
+   (:attr:`Diagnosis.unexplained`) and the final residual's structure
+   (:func:`residual_structure`: by load direction and row order, correlations with each
+   joint's torque and angle) says where to look.
 4. Report the RMS after each step, each added effect's parameters with standard errors and 95 %
    intervals, the residuals before and after, the final model.
 5. Report the candidates the campaign cannot tell from the winner (BIC within
