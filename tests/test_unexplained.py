@@ -5,7 +5,9 @@ come back empty. Rates over seeds against binomial bounds."""
 from __future__ import annotations
 
 import dataclasses
+import html
 import math
+import re
 
 import numpy as np
 import pytest
@@ -18,8 +20,10 @@ from stiffness.calibration.diagnose import (
     fit_model,
     format_report,
 )
+from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.effects import Geometry, Model, References, candidates
 from stiffness.calibration.simulate import parse_effect, simulate
+from stiffness.provenance import provenance
 
 NOISE = 5e-6
 UR5 = {"kq": [3e4, 2e4, 1.5e4],
@@ -110,6 +114,12 @@ def test_out_of_library_is_unexplained_and_names_nothing():
     assert "UNEXPLAINED" in text and "row order: R2" in text
     full = drift.to_dict()
     assert full["unexplained"] is True and full["missing_effects"] == []
+    page = render_diagnosis(full, None, provenance("test"))
+    visible = html.unescape(re.sub(r"<(script|style)[^>]*>.*?</\1>|<[^>]+>", " ", page,
+                                   flags=re.S))
+    assert "id='left'" in page and "torque of shoulder_pan_joint" in visible
+    assert "angle of wrist_3_joint" in visible and "rows 1 to 8" in visible
+    assert '{"' not in visible and "': " not in visible
 
 
 def test_nothing_hidden_comes_back_empty():
