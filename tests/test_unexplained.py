@@ -114,6 +114,9 @@ def test_out_of_library_is_unexplained_and_names_nothing():
     assert "UNEXPLAINED" in text and "row order: R2" in text
     full = drift.to_dict()
     assert full["unexplained"] is True and full["missing_effects"] == []
+    notes = drift.model_file().to_dict()
+    assert notes["unexplained"] is True and "library does not model" in notes[
+        "unexplained_note"]
     page = render_diagnosis(full, None, provenance("test"))
     visible = html.unescape(re.sub(r"<(script|style)[^>]*>.*?</\1>|<[^>]+>", " ", page,
                                    flags=re.S))

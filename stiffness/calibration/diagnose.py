@@ -701,6 +701,7 @@ class Diagnosis:
                 "model": f.model.describe(), "rms": self._len(f.rms()),
                 "noise_std": self._len(self.noise_std_m),
                 "noise_std_source": self.noise_std_source, "unit": self.unit,
+                "unexplained": self.unexplained, "unexplained_note": self.unexplained_note,
                 "baseline": f.model.baseline, "compliant_joints": list(f.model.compliant),
                 "parameter_vector": f.x.tolist(),
                 "references": {"k_ref": refs.k_ref, "theta_ref": refs.theta_ref,
