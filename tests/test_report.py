@@ -309,3 +309,22 @@ def test_findings_say_no_more_than_the_evidence(summary):
         agree = a["numbers"]["rows_agreeing_by_convention"]
         if len(set(agree.values())) > 1:
             assert a["verdict"] == "undecidable from the paper"
+
+
+def test_report_files_hold_no_undefined_number(report_dir):
+    """summary.json is strict JSON (no NaN / Infinity tokens: undefined values are null with a
+    reason) and every JSON block embedded in the pages is too (docs/reliability.md)."""
+    def refuse(token):
+        raise AssertionError(f"non-finite number {token}")
+
+    checked = 0
+    for path in sorted(report_dir.rglob("*")):
+        if path.suffix == ".json":
+            json.loads(path.read_text(), parse_constant=refuse)
+            checked += 1
+        elif path.suffix == ".html":
+            for block in re.findall(r'<script type="application/json"[^>]*>(.*?)</script>',
+                                    path.read_text(), re.S):
+                json.loads(block, parse_constant=refuse)
+            checked += 1
+    assert checked >= 3

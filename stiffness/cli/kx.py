@@ -24,7 +24,7 @@ import numpy as np
 
 from stiffness.calibration.model_file import CompliantModel, read_model_file
 from stiffness.cli import flags
-from stiffness.errors import StiffnessError
+from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.defaults import default_load, default_stiffness
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
@@ -34,6 +34,8 @@ from stiffness.mechanics.formulation import (
     ellipsoid,
     joint_connection_stiffness,
     joint_stiffness,
+    subspace_stiffness,
+    tangent_definiteness,
     tangent_joint_stiffness,
     target_state,
     twist_basis_stiffness,
@@ -231,6 +233,7 @@ def compute(args: argparse.Namespace) -> dict:
         raise StiffnessError(f"twist_order of {robot.name} must be one of {list(TWIST_ORDERS)}")
     rows = slice(0, 6) if six else slice(0, 3)
     tangent = tangent_joint_stiffness(k_theta, state.k_c, args.formulation)
+    undefined = None  # why K_X does not exist here (the compliance does)
     at = None
     if inputs.model is not None and args.connection is None:
         at = inputs.model.at(q, load, args.formulation)
@@ -243,29 +246,39 @@ def compute(args: argparse.Namespace) -> dict:
     if at is not None:
         jac = state.jacobian[rows]
         c_x = at.compliance(rows)
-        k_x = cartesian_stiffness(c_x)
         axes = "base frame axes at the target"
         k_c = state.k_c
+        try:
+            k_x = cartesian_stiffness(c_x)
+        except SingularConfigurationError as exc:
+            k_x, undefined = None, str(exc)
     elif args.connection is not None:
-        k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
-               else twist_basis_stiffness(state, k_theta))
         jac = state.body_jacobian()
-        c_x = np.linalg.inv(k_x)
         axes = "target frame body axes (left-invariant twist basis)"
         k_c = state.k_c_twist if args.connection == "twist" else np.zeros_like(state.k_c)
+        try:
+            k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
+                   else twist_basis_stiffness(state, k_theta))
+            c_x = np.linalg.inv(k_x)
+        except SingularConfigurationError as exc:  # J_b singular: C = J_b T^-1 J_b^T exists
+            k_x, undefined = None, str(exc)
+            c_x = compliance(jac, k_theta - k_c)
     else:
         jac = state.jacobian[rows]
         c_x = compliance(jac, tangent)
-        k_x = cartesian_stiffness(c_x)
         axes = "base frame axes at the target"
         k_c = state.k_c
+        try:
+            k_x = cartesian_stiffness(c_x)
+        except SingularConfigurationError as exc:
+            k_x, undefined = None, str(exc)
     wrench = state.wrench[: 6 if six else 3]
     if six:
-        k_x, c_x, wrench = reorder_twist(k_x, order), reorder_twist(c_x, order), reorder_twist(
-            wrench, order)
+        c_x, wrench = reorder_twist(c_x, order), reorder_twist(wrench, order)
+        k_x = None if k_x is None else reorder_twist(k_x, order)
         if order == "w-v":
             jac = jac[[3, 4, 5, 0, 1, 2]]
-    ell = ellipsoid(k_x)
+    ell = None if k_x is None else ellipsoid(k_x)
     blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
     trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
     out = {
@@ -285,19 +298,23 @@ def compute(args: argparse.Namespace) -> dict:
         "J": jac.tolist(),
         "K_theta": np.diag(k_theta).tolist(),
         "K_C": k_c.tolist(),
-        "K_X": k_x.tolist(),
+        "K_X": None if k_x is None else k_x.tolist(),
+        "K_X_undefined": undefined,
+        "K_X_subspace": None if k_x is not None else _subspace_json(c_x),
         "compliance": c_x.tolist(),
-        "K_X_symmetric": bool(ell.symmetric),
-        "eigenvalues": ell.values.tolist(),
-        "eigenvectors": ell.directions.tolist(),
-        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": definiteness(
-            k_theta - state.k_c), "K_X": definiteness(k_x)},
+        "K_X_symmetric": None if ell is None else bool(ell.symmetric),
+        "eigenvalues": None if ell is None else ell.values.tolist(),
+        "eigenvectors": None if ell is None else ell.directions.tolist(),
+        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": tangent_definiteness(
+            k_theta, k_theta - state.k_c), "K_X": None if k_x is None else definiteness(k_x)},
         **inputs_summary(inputs),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
             "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
             "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
             "compliance": "m/N (inverse of K_X)", "eigenvalues": "same as K_X",
+            "K_X_subspace": "K_X, eigenvalues: as K_X (pseudo-inverse of the compliance in SI: "
+                            "in 6x6, 1 m weighs as 1 rad); directions: unit vectors",
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
         },
     }
@@ -308,6 +325,18 @@ def compute(args: argparse.Namespace) -> dict:
             out["K_theta_tangent"] = np.diag(at.k_tangent).tolist()
             out["link_compliance"] = at.link_compliance[rows, rows].tolist()
     return out
+
+
+def _subspace_json(c_x: np.ndarray) -> dict:
+    """Where K_X is undefined (singular compliance): the stiffness on the moving subspace.
+
+    ``K_X`` is the pseudo-inverse of the compliance, ``eigenvalues`` its principal values on the
+    ``moving_directions`` (rows: unit displacement directions); along ``rigid_directions``
+    (rows: unit wrench directions) the target does not move, the stiffness is unbounded.
+    """
+    sub = subspace_stiffness(c_x)
+    return {"rank": sub.rank, "K_X": sub.stiffness.tolist(), "eigenvalues": sub.values.tolist(),
+            "moving_directions": sub.moving.T.tolist(), "rigid_directions": sub.rigid.T.tolist()}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -326,8 +355,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"position (m): {np.array(result['position'])}")
     print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
     print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")
-    print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n{np.array(result['K_X'])}")
-    print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
+    if result["K_X"] is None:
+        sub = result["K_X_subspace"]
+        print(f"K_X undefined: {result['K_X_undefined']}")
+        print(f"compliance (m/N blocks), basis {result['basis']}:\n"
+              f"{np.array(result['compliance'])}")
+        print(f"K_X on the {sub['rank']}-dimensional moving subspace (pseudo-inverse of the "
+              f"compliance): principal stiffnesses {np.array(sub['eigenvalues'])}; rigid "
+              f"(unbounded) along {np.array(sub['rigid_directions'])}")
+    else:
+        print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n"
+              f"{np.array(result['K_X'])}")
+        print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
     print(f"definiteness: {result['definiteness']}")
     if "model" in result:
         m = result["model"]

@@ -30,6 +30,10 @@ from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.formulation import as_wrench, tangent_joint_stiffness, target_state
 from stiffness.model.robot import Robot
 
+#: Absolute floor of the convergence test, relative to the largest residual term: the round-off
+#: of the kinematics (a few eps) that couples every joint's residual to the largest term.
+_ROUND_OFF = 16 * np.finfo(float).eps
+
 
 class JointLaw:
     """A joint torque-deflection law over the compliant joints (SI: N.m or N, rad or m).
@@ -272,7 +276,11 @@ def solve_equilibrium(
     load
         Force (3,) N or wrench (6,) N, N.m at the target, base axes.
     tolerance
-        Convergence on the law's residual relative to its value at zero deflection.
+        Convergence on the law's residual ``r(dtheta, tau)``, per joint relative to the size of
+        the terms that form it, plus a floor at the round-off of the largest of them:
+        ``|r_i| <= tolerance * s_i + 16 eps max_j s_j`` (:func:`residual_scale`). Not relative
+        to its value at zero deflection, ``|J^T W|``, which vanishes when the load runs along
+        the arm while its round-off does not.
     max_iterations
         Newton iterations allowed.
 
@@ -290,14 +298,14 @@ def solve_equilibrium(
     tau0 = base.jacobian.T @ wrench
     dtheta = law.start(tau0)
     q = q0
-    scale = max(float(np.abs(law.residual(np.zeros_like(tau0), tau0)).max()), 1e-300)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (used after the loop)
         q = deflected_configuration(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
         tau = state.jacobian.T @ wrench
         residual = law.residual(dtheta, tau)
-        if np.abs(residual).max() <= tolerance * scale:
+        scale = residual_scale(law, dtheta, state.jacobian, wrench)
+        if np.all(np.abs(residual) <= tolerance * scale + _ROUND_OFF * scale.max()):
             break
         try:
             step = np.linalg.solve(law.residual_jacobian(dtheta, tau, state.k_c), -residual)
@@ -307,6 +315,15 @@ def solve_equilibrium(
                 "the load buckles the robot; reduce the load or stiffen the joints") from exc
         dtheta = dtheta + step
     else:
+        start = tangent_joint_stiffness(law.tangent_stiffness(tau0),
+                                        target_state(robot, q0, wrench).k_c)
+        lowest = np.linalg.eigvalsh(0.5 * (start + start.T))[0]
+        if lowest <= 0:
+            raise UnstableEquilibriumError(
+                f"the exact equilibrium did not converge in {max_iterations} iterations and "
+                f"K_theta - K_C under this load is already indefinite at the unloaded pose "
+                f"(eigenvalue {lowest:.3g}): loads this large exceed the buckling load; "
+                "reduce it or stiffen the joints")
         raise ConvergenceError(
             f"the exact equilibrium did not converge in {max_iterations} iterations "
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
@@ -323,6 +340,31 @@ def solve_equilibrium(
     rot = pin.log3(state.rotation @ base.rotation.T)
     return Equilibrium(q, dtheta, state.position - base.position, rot, iterations, tau,
                        state.position.copy())
+
+
+def torque_scale(jacobian: np.ndarray, wrench: np.ndarray) -> np.ndarray:
+    """Per joint, the size of the load's torque before cancellation (N.m, N).
+
+    ``|v_i| |F| + |omega_i| |M|`` with ``[v_i; omega_i]`` the i-th Jacobian column: the lever
+    times the load, the bound of ``|J_i^T W|`` that does not vanish when the load runs along
+    the arm (a 1 m lever under 100 N gives ``J^T W`` ~ 1e-14 N.m, the round-off of 100 N.m).
+    """
+    return (np.linalg.norm(jacobian[:3], axis=0) * np.linalg.norm(wrench[:3])
+            + np.linalg.norm(jacobian[3:], axis=0) * np.linalg.norm(wrench[3:]))
+
+
+def residual_scale(law: JointLaw, dtheta: np.ndarray, jacobian: np.ndarray,
+                   wrench: np.ndarray) -> np.ndarray:
+    """Per joint, the size of the terms of the law's residual ``r(dtheta, tau)``.
+
+    ``|r(|dtheta|, 0)| + |r(0, torque_scale)|``: for linear springs ``|K_theta| |dtheta|`` plus
+    the lever times the load (N.m, N); for a :class:`SpringLaw` ``|dtheta| + |f(torque_scale)|``
+    (rad, m). Per joint, so that a stiff joint (1e10) does not loosen the test of a soft one
+    (1e-2). Zero only for a zero load at rest.
+    """
+    zero = np.zeros_like(dtheta)
+    return (np.abs(law.residual(np.abs(dtheta), zero))
+            + np.abs(law.residual(zero, torque_scale(jacobian, wrench))))
 
 
 @dataclass

@@ -220,23 +220,75 @@ def compliance(jacobian: np.ndarray, tangent_stiffness: np.ndarray) -> np.ndarra
     return jacobian @ x
 
 
+#: Condition number of the compliance beyond which K_X = C^-1 is undefined (singular C): with
+#: double precision (eps 2.2e-16) an inverse beyond it has fewer than ~4 correct digits.
+CONDITION_LIMIT = 1e12
+
+
 def cartesian_stiffness(compliance_matrix: np.ndarray) -> np.ndarray:
     """K_X = C^-1 (N/m for translations).
 
     Raises
     ------
     SingularConfigurationError
-        If the compliance is singular (the Jacobian loses rank: a kinematic singularity, or
-        fewer compliant joints than Cartesian directions).
+        If the compliance is singular, condition number above :data:`CONDITION_LIMIT` (the
+        Jacobian loses rank: a kinematic singularity, or fewer compliant joints than Cartesian
+        directions). :func:`subspace_stiffness` then gives the stiffness where it exists.
     """
     cond = np.linalg.cond(compliance_matrix)
-    if not np.isfinite(cond) or cond > 1e12:
+    if not np.isfinite(cond) or cond > CONDITION_LIMIT:
         raise SingularConfigurationError(
             f"the compliance is singular (condition number {cond:.3g}): the target Jacobian "
-            "loses rank here (kinematic singularity, or fewer compliant joints than directions); "
-            "use the compliance, or move away from the singularity"
+            "loses rank here (kinematic singularity, or fewer compliant joints than directions), "
+            "or the joint stiffnesses span more orders of magnitude than double precision can "
+            "invert; use the compliance, or move away from the singularity"
         )
     return np.linalg.inv(compliance_matrix)
+
+
+@dataclass
+class SubspaceStiffness:
+    """The Cartesian stiffness where it exists, for a singular compliance ``C`` (r < rows).
+
+    With the singular value decomposition ``C = U S V^T`` and rank ``r`` (singular values above
+    ``S_max / CONDITION_LIMIT``): the target moves only within ``range(C)`` (columns
+    ``U_r``, the ``moving`` directions); wrenches in ``null(C)`` (columns ``V[:, r:]``, the
+    ``rigid`` directions) move it not at all, the stiffness there is unbounded. On the moving
+    subspace the stiffness is the pseudo-inverse ``K_r = C^+ = V_r S_r^-1 U_r^T``:
+    ``W = K_r dx`` for ``dx`` in ``range(C)`` is the wrench of least norm that gives ``dx``.
+
+    Attributes
+    ----------
+    rank
+        r, the dimension of the moving subspace.
+    moving
+        (rows, r) orthonormal displacement directions the target can take.
+    rigid
+        (rows, rows - r) orthonormal wrench directions that do not move the target.
+    stiffness
+        (rows, rows) ``C^+`` (N/m for translations), base axes like ``C``.
+    values
+        (r,) its principal stiffnesses ``1 / S_r`` on the moving subspace, ascending.
+    """
+
+    rank: int
+    moving: np.ndarray
+    rigid: np.ndarray
+    stiffness: np.ndarray
+    values: np.ndarray
+
+
+def subspace_stiffness(compliance_matrix: np.ndarray) -> SubspaceStiffness:
+    """The stiffness on the subspace a singular compliance spans (see :class:`SubspaceStiffness`).
+
+    Exact for any compliance; equal to ``C^-1`` (rank full, ``rigid`` empty) for a regular one.
+    """
+    u, sv, vt = np.linalg.svd(compliance_matrix)
+    rank = int(np.sum(sv > sv[0] / CONDITION_LIMIT)) if sv[0] > 0 else 0
+    inv = np.zeros_like(sv)
+    inv[:rank] = 1.0 / sv[:rank]
+    stiffness = (vt.T * inv) @ u.T
+    return SubspaceStiffness(rank, u[:, :rank], vt[rank:].T, stiffness, np.sort(inv[:rank]))
 
 
 def deflection(state: TargetState, k_theta: np.ndarray, formulation: str = "enhanced",
@@ -272,6 +324,19 @@ def definiteness(matrix: np.ndarray, rtol: float = 1e-9, atol: float = 0.0) -> s
     if not pos.any():
         return "NSD"
     return "ID"
+
+
+def tangent_definiteness(k_theta: np.ndarray, tangent: np.ndarray, rtol: float = 1e-9) -> str:
+    """Definiteness class of a tangent stiffness ``K_theta - K_C`` in the metric of K_theta.
+
+    The class of ``L^-1 T L^-T`` (``L L^T = K_theta``): the same as that of ``T`` (Sylvester's
+    law of inertia), but its eigenvalues are ``1 - s_i`` with ``s_i`` the load factors, so the
+    zero tolerance ``rtol`` is relative to each joint's own stiffness, not to the stiffest
+    (``definiteness(T)`` calls a 1e-2 N.m/rad joint next to a 1e10 N/m one zero: PSD).
+    """
+    low = np.linalg.cholesky(0.5 * (k_theta + k_theta.T))
+    x = np.linalg.solve(low, np.linalg.solve(low, tangent).T)
+    return definiteness(x, rtol=rtol)
 
 
 @dataclass
@@ -341,5 +406,9 @@ def _require_square(jac: np.ndarray) -> None:
             f"the 6x6 stiffness in a connection needs six compliant joints (J is {jac.shape}); "
             "use the compliance for other cases"
         )
-    if np.linalg.cond(jac) > 1e12:
-        raise SingularConfigurationError("the Jacobian is singular at this configuration")
+    cond = np.linalg.cond(jac)
+    if not np.isfinite(cond) or cond > CONDITION_LIMIT:
+        raise SingularConfigurationError(
+            f"the Jacobian is singular at this configuration (condition number {cond:.3g}): "
+            "the 6x6 stiffness is undefined here; use the compliance, or move away from the "
+            "singularity")

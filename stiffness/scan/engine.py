@@ -53,6 +53,25 @@ LAYOUT_VERSION = 1
 SAMPLE_BINS = 32
 #: Classes counted per load case: the definiteness classes, then invalid configurations.
 COUNT_LABELS = (*DEFINITENESS_CLASSES, "invalid")
+#: Where the map arrays (NPZ and Parquet) hold NaN or inf, and why: nowhere else. Written in
+#: ``manifest.json`` and ``summary.json`` (whose ``k_x_undefined`` counts, per load case, the
+#: valid configurations where K_X is undefined; ``None`` in JSON stands for a non-finite value).
+UNDEFINED = {
+    "k_x, k_x_eigenvalues (Parquet: k_x_AB, k_x_eigK_N_per_m)":
+        "NaN where regular is False: K_X = C^-1 does not exist there (a kinematic singularity "
+        "or fewer compliant joints than directions: the compliance C is singular, condition "
+        "number above 1e12; or K_theta - K_C singular: the buckling limit), or the "
+        "configuration is invalid; the k_x_class is then -1 (Parquet: empty)",
+    "k_x_conventional, k_x_conventional_eigenvalues (Parquet: k_x_conventional_eigK_N_per_m)":
+        "NaN where regular_conventional is False: J K_theta^-1 J^T is singular (kinematic "
+        "singularity), or the configuration is invalid",
+    "position, critical_factor, k_c_diagonal (Parquet: x_m, y_m, z_m, critical_factor)":
+        "NaN where valid is False: the loop is singular there (passive joints not determined) "
+        "or could not be closed",
+    "critical_factor (inf)":
+        "+inf where K_C has no positive eigenvalue: no positive multiple of the load case "
+        "makes K_theta - K_C indefinite (a zero load, or K_C negative semidefinite)",
+}
 
 
 # ---------------------------------------------------------------------------------- spec
@@ -191,7 +210,8 @@ def scan_chunk(spec_dict: dict, index: int) -> dict[str, np.ndarray]:
         into DEFINITENESS_CLASSES (-1 invalid), ``critical_factor`` (c, L),
         ``k_c_det_positive`` (c, L), ``k_c_diagonal`` (c, 3, n) N.m/rad per N,
         ``k_x`` (c, L, r, r) N/m, ``k_x_eigenvalues`` (c, L, r) N/m, ``regular`` (c, L),
-        ``k_x_conventional`` (c, r, r) and ``k_x_conventional_eigenvalues`` (c, r).
+        ``regular_conventional`` (c,), ``k_x_conventional`` (c, r, r) and
+        ``k_x_conventional_eigenvalues`` (c, r). NaN and inf only as :data:`UNDEFINED` says.
     """
     spec = ScanSpec.from_dict(spec_dict)
     robot = worker_robot(spec.robot)
@@ -230,6 +250,7 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
         "k_x": enhanced.k_x,
         "k_x_eigenvalues": eig,
         "regular": enhanced.regular & valid[:, None],
+        "regular_conventional": conventional.regular[:, 0] & valid,
         "k_x_conventional": conventional.k_x[:, 0],
         "k_x_conventional_eigenvalues": eig_conv,
     }
@@ -349,8 +370,10 @@ class MapAccumulator:
         for j, name in enumerate(spec.load_names):
             crit = float(p["critical_min"][j])
             magnitude = float(np.linalg.norm(spec.loads[j][:3]))
+            undefined = int(p["k_x_counts"][j][-1]) - int(p["n"][0] - p["n_valid"][0])
             cases[name] = {
                 "load": spec.loads[j],
+                "k_x_undefined": undefined,
                 "k_c": _counts(p["k_c_counts"][j]),
                 "k_theta_minus_k_c": _counts(p["tangent_counts"][j]),
                 "k_x": _counts(p["k_x_counts"][j]),
@@ -372,6 +395,7 @@ class MapAccumulator:
                 float(p["k_x_conventional_min"][0])),
             "conventional_max_principal_stiffness_N_per_m": _finite_or_none(
                 float(p["k_x_conventional_max"][0])),
+            "undefined": UNDEFINED,
         }
 
 
@@ -455,6 +479,7 @@ def write_parquet(path: Path, spec: ScanSpec, maps: dict[str, np.ndarray]) -> No
     table["critical_factor"] = maps["critical_factor"].reshape(-1)
     table["k_c_det_positive"] = maps["k_c_det_positive"].reshape(-1)
     table["regular"] = maps["regular"].reshape(-1)
+    table["regular_conventional"] = np.repeat(maps["regular_conventional"], n_loads)
     for k in range(rows):
         table[f"k_x_eig{k}_N_per_m"] = maps["k_x_eigenvalues"][..., k].reshape(-1)
         table[f"k_x_conventional_eig{k}_N_per_m"] = np.repeat(
@@ -540,7 +565,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     out = Path(out)
     manifest = {"layout": LAYOUT_VERSION, "spec": spec.to_dict(), "formats": list(formats),
                 "n_configurations": spec.n_configurations, "n_chunks": spec.n_chunks,
-                "units": _UNITS, "classes": list(DEFINITENESS_CLASSES)}
+                "units": _UNITS, "classes": list(DEFINITENESS_CLASSES), "undefined": UNDEFINED}
     manifest_file = out / "manifest.json"
     if manifest_file.is_file():
         previous = json.loads(manifest_file.read_text())
