@@ -229,10 +229,7 @@ def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float,
     force = campaign.force
 
     def group(idx: np.ndarray) -> dict:
-        r = residuals[idx]
-        rms = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
-        return {"rows": int(len(idx)), "rms": rms / lu, "ratio": rms / sigma,
-                "mean": (r.mean(axis=0) / lu).tolist() if r.size else None}
+        return _group(residuals, idx, sigma, lu)
 
     labels = np.asarray(campaign.config)
     out: dict = {"by_configuration": {
