@@ -28,6 +28,18 @@ their principal values, NPZ chunk written), one process, robot loaded, figures n
 Scaling: batched K_X for 1e3 ... 1e6 UR5 configurations (time per configuration should stay
 flat), and ``stiffness scan`` runs (in subprocesses: wall time and peak memory) over 1e4 ... 1e6
 samples, and with 1 and 2 Dask workers.
+
+Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
+
+* ``scan_end_to_end_over_kernel``: the in-process UR5 scan (default fields) per configuration
+  over the batched loaded K_X (``kernel_us``); ``scan_fields_k_x_over_kernel`` with
+  ``--fields k_x``; ``bytes_per_configuration`` (default fields, float64) and variants;
+* ``dask_two_workers_speedup`` and ``dask_one_worker_over_in_process``: 2e6 configurations in
+  process, on one and on two LocalCluster workers (cluster start-up excluded, in ``dask``);
+* ``sk120.ratio_to_bare``: the SK120's batched K_X over the bare call;
+* ``diagnose_200_rows_s``, ``identify_exact_200_rows_s``, ``report_s``, ``import_s``: new
+  processes, imports included (``import_s`` over a bare interpreter);
+* ``load_average``: ``os.getloadavg()`` before and after (the machine is shared).
 """
 
 from __future__ import annotations
@@ -245,8 +257,10 @@ import json, resource, sys, tempfile, time
 from pathlib import Path
 import argparse
 from stiffness.cli import scan
-from stiffness.scan.distributed import warm_worker
+import dask
+from stiffness.scan.distributed import SCHEDULER_CONFIG, WORKER_ENVIRONMENT, warm_worker
 from stiffness.scan.engine import run_scan
+dask.config.set(SCHEDULER_CONFIG)
 p = argparse.ArgumentParser(); scan.configure_parser(p)
 args = p.parse_args(sys.argv[1:-1])
 spec, _ = scan.build_spec(args)
@@ -257,7 +271,7 @@ if workers > 1:
     from distributed import Client, LocalCluster
     t0 = time.perf_counter()
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=None)
+                           dashboard_address=None, env=dict(WORKER_ENVIRONMENT))
     client = Client(cluster)
     client.run(warm_worker, spec.robot)  # each worker loads the robot once
     startup = time.perf_counter() - t0
@@ -265,7 +279,7 @@ else:
     warm_worker(spec.robot)
 with tempfile.TemporaryDirectory() as tmp:
     t0 = time.perf_counter()
-    run_scan(spec, Path(tmp) / "s", plots=False, client=client)
+    run_scan(spec, Path(tmp) / "s", plots=False, client=client, write_on_workers=True)
     wall = time.perf_counter() - t0
 if client is not None:
     client.close(); cluster.close()
@@ -294,6 +308,193 @@ def scaling_scans(sizes: list[int], workers: list[int], worker_size: int) -> lis
                     "us_per_configuration": row["seconds"] / m * 1e6})
         rows.append(row)
     return rows
+
+
+# ------------------------------------------------------------------------------ issue 15
+
+UR5_SCAN = ["--robot", "ur5", "--frame", "tool0", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
+            "--load", "0,0,-200", "--quiet", "--no-plots"]
+
+
+def _scan_spec(argv: list[str]):
+    from stiffness.cli import scan as scan_command
+
+    parser = argparse.ArgumentParser()
+    scan_command.configure_parser(parser)
+    return scan_command.build_spec(parser.parse_args(argv))[0]
+
+
+def scan_over_kernel(samples: int, rounds: int) -> dict[str, float]:
+    """In-process UR5 scan (robot loaded, no figures) per configuration, over the batched
+    loaded K_X kernel on the same robot and load, interleaved rounds in this run."""
+    from stiffness.scan.distributed import warm_worker
+    from stiffness.scan.engine import run_scan
+
+    specs = {"default": _scan_spec([*UR5_SCAN, "--samples", str(samples)]),
+             "k_x": _scan_spec([*UR5_SCAN, "--samples", str(samples), "--fields", "k_x"]),
+             "float32": _scan_spec([*UR5_SCAN, "--samples", str(samples), "--dtype",
+                                    "float32"])}
+    warm_worker(specs["default"].robot)
+    robot = load_robot("ur5", frame="tool0")
+    k_theta = np.array([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
+    rng = np.random.default_rng(5)
+    q = batch.tree_configurations(robot, rng.uniform(-np.pi, np.pi, (8192, 6)))
+    force = np.array([0.0, 0.0, -200.0])
+    best = {"kernel": np.inf, **{k: np.inf for k in specs}}
+    size = {}
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        batch.evaluate(robot, q, force, k_theta)
+        best["kernel"] = min(best["kernel"], (time.perf_counter() - t0) / q.shape[0])
+        for name, spec in specs.items():
+            with tempfile.TemporaryDirectory() as tmp:
+                t0 = time.perf_counter()
+                summary = run_scan(spec, Path(tmp) / "s", plots=False)
+                best[name] = min(best[name], (time.perf_counter() - t0) / samples)
+            size[name] = summary["bytes_per_configuration"]
+    return {
+        "kernel_us": best["kernel"] * 1e6,
+        "scan_us": best["default"] * 1e6,
+        "scan_end_to_end_over_kernel": best["default"] / best["kernel"],
+        "scan_fields_k_x_over_kernel": best["k_x"] / best["kernel"],
+        "scan_float32_over_kernel": best["float32"] / best["kernel"],
+        "bytes_per_configuration": size["default"],
+        "bytes_per_configuration_float32": size["float32"],
+        "bytes_per_configuration_fields_k_x": size["k_x"],
+    }
+
+
+_DASK_SNIPPET = """
+import json, sys, tempfile, time
+from pathlib import Path
+sys.path.insert(0, sys.argv[1])
+import bench
+import dask
+from stiffness.scan.distributed import SCHEDULER_CONFIG, WORKER_ENVIRONMENT, warm_worker
+from stiffness.scan.engine import run_scan
+dask.config.set(SCHEDULER_CONFIG)
+workers = int(sys.argv[2])
+spec = bench._scan_spec(sys.argv[3:])
+client = cluster = None
+t0 = time.perf_counter()
+if workers:
+    from distributed import Client, LocalCluster
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=None, env=dict(WORKER_ENVIRONMENT))
+    client = Client(cluster)
+    client.run(warm_worker, spec.robot)
+else:
+    warm_worker(spec.robot)
+startup = time.perf_counter() - t0
+with tempfile.TemporaryDirectory() as tmp:
+    t0 = time.perf_counter()
+    summary = run_scan(spec, Path(tmp) / "s", plots=False, client=client,
+                       write_on_workers=True)
+    wall = time.perf_counter() - t0
+if client is not None:
+    client.close(); cluster.close()
+print(json.dumps({"seconds": wall, "startup_s": startup, "dask": summary.get("dask")}))
+"""
+
+
+def dask_scaling(samples: int, rounds: int) -> dict:
+    """The UR5 scan in a subprocess: in-process, on one and on two LocalCluster workers
+    (single-threaded, writing their own chunks), best of ``rounds`` interleaved runs each;
+    cluster start-up excluded (reported apart)."""
+    argv = [*UR5_SCAN, "--samples", str(samples)]
+    best: dict[int, dict] = {}
+    for _ in range(rounds):
+        for workers in (0, 1, 2):
+            result = subprocess.run(
+                [sys.executable, "-c", _DASK_SNIPPET, str(Path(__file__).parent),
+                 str(workers), *argv], check=True, capture_output=True, text=True,
+                env={**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
+            row = json.loads(result.stdout.strip().splitlines()[-1])
+            if workers not in best or row["seconds"] < best[workers]["seconds"]:
+                best[workers] = row
+    return {
+        "configurations": samples,
+        "in_process_s": best[0]["seconds"],
+        "one_worker_s": best[1]["seconds"],
+        "two_workers_s": best[2]["seconds"],
+        "cluster_startup_s": best[2]["startup_s"],
+        "dask_two_workers_speedup": best[0]["seconds"] / best[2]["seconds"],
+        "dask_one_worker_over_in_process": best[1]["seconds"] / best[0]["seconds"],
+        "task_overhead_s": (best[2]["dask"] or {}).get("task_overhead_s"),
+        "chunk_seconds": (best[2]["dask"] or {}).get("chunk_seconds"),
+        "chunks_per_task": (best[2]["dask"] or {}).get("chunks_per_task"),
+    }
+
+
+def scan_time_rows(sizes: list[int], workers: tuple[int, ...] = (0, 2)) -> list[dict]:
+    """Wall time of the UR5 scan for each size, in process (0) and on LocalCluster workers
+    (start-up excluded), one subprocess per run; each row is also printed as a JSON line."""
+    rows = []
+    for m in sizes:
+        for count in workers:
+            result = subprocess.run(
+                [sys.executable, "-c", _DASK_SNIPPET, str(Path(__file__).parent),
+                 str(count), *UR5_SCAN, "--samples", str(m)], check=True,
+                capture_output=True, text=True)
+            row = json.loads(result.stdout.strip().splitlines()[-1])
+            rows.append({"configurations": m, "workers": count, "seconds": row["seconds"],
+                         "startup_s": row["startup_s"], "load": os.getloadavg()[0]})
+            print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def draw_scan_time(rows: list[dict], path: Path) -> None:
+    """Log-log figure of :func:`scan_time_rows` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for workers, label in ((0, "in process"), (2, "two Dask workers (start-up excluded)")):
+        pts = sorted((r["configurations"], r["seconds"]) for r in rows
+                     if r["workers"] == workers)
+        if pts:
+            ax.loglog(*zip(*pts, strict=True), "o-", label=label)
+    loads = [r["load"] for r in rows]
+    ax.set_xlabel("configurations")
+    ax.set_ylabel("wall time (s)")
+    ax.set_title("stiffness scan, UR5, one force, default fields\n(2 shared cores, load "
+                 f"average {min(loads):.0f}-{max(loads):.0f})", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+
+
+def _wall(argv: list[str], rounds: int = 1, cwd: str | None = None) -> float:
+    """Best wall time (s) of a command in a new process."""
+    best = np.inf
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        subprocess.run(argv, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                       cwd=cwd)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def commands_seconds(rounds: int) -> dict[str, float]:
+    """``import stiffness`` (over a bare interpreter), ``stiffness report``, and ``diagnose``
+    / ``identify --formulation exact`` on a simulated 200-row UR5 campaign, each in a new
+    process (imports included), best of ``rounds``."""
+    python = [sys.executable]
+    bare = _wall([*python, "-c", "pass"], rounds)
+    out = {"import_s": _wall([*python, "-c", "import stiffness"], rounds) - bare}
+    cli = [*python, "-m", "stiffness.cli.main"]
+    with tempfile.TemporaryDirectory() as tmp:
+        campaign = Path(tmp) / "campaign"
+        subprocess.run([*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
+                        "--configs", "50", "--loads-per-config", "4", "--seed", "3",
+                        "--out", str(campaign)], check=True, capture_output=True)
+        out["diagnose_200_rows_s"] = _wall([*cli, "diagnose", str(campaign), "--json"], rounds)
+        out["identify_exact_200_rows_s"] = _wall(
+            [*cli, "identify", str(campaign), "--formulation", "exact", "--json"], rounds)
+        out["report_s"] = _wall([*cli, "report", "--out", str(Path(tmp) / "report")], rounds)
+    return out
 
 
 # ------------------------------------------------------------------------------ report
@@ -328,16 +529,51 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON line")
     parser.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
+    parser.add_argument("--plot", metavar="PNG",
+                        help="only draw scan time against configurations (1e3 ... 1e7, in "
+                             "process and two workers) into PNG")
+    parser.add_argument("--plot-max", type=float, default=1e7,
+                        help="largest scan of --plot (default 1e7)")
     args = parser.parse_args(argv)
+    if args.plot:
+        sizes = [int(10 ** k) for k in range(3, 8) if 10 ** k <= args.plot_max]
+        draw_scan_time(scan_time_rows(sizes), Path(args.plot))
+        return 0
+    load_before = os.getloadavg()
     costs = per_configuration(args.quick)
     t4 = table4_seconds(2 if args.quick else 3)
+    samples = 50000 if args.quick else 400000
+    scan = scan_over_kernel(samples, 2 if args.quick else 3)
+    dask = dask_scaling(200000 if args.quick else 2000000, 1 if args.quick else 2)
+    commands = commands_seconds(1 if args.quick else 2)
     if args.json:
         out = {name: {k: float(v) for k, v in r.items()} for name, r in costs.items()}
         out["table4_scan_s"] = t4
+        out.update(scan)
+        out.update({k: v for k, v in dask.items() if k.startswith("dask_")})
+        out["dask"] = dask
+        out.update(commands)
+        out["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
         print(json.dumps(out))
         return 0
     t4_cli = table4_cli_seconds()
     _print_table(costs, t4, t4_cli)
+    print(f"\nScan ({samples} UR5 samples, in process) over the kernel: default fields "
+          f"{scan['scan_end_to_end_over_kernel']:.2f}x, --fields k_x "
+          f"{scan['scan_fields_k_x_over_kernel']:.2f}x, float32 "
+          f"{scan['scan_float32_over_kernel']:.2f}x; bytes per configuration "
+          f"{scan['bytes_per_configuration']:.0f} (float32 "
+          f"{scan['bytes_per_configuration_float32']:.0f}, k_x only "
+          f"{scan['bytes_per_configuration_fields_k_x']:.0f})")
+    print(f"Dask ({dask['configurations']} configurations): in process "
+          f"{dask['in_process_s']:.2f} s, one worker {dask['one_worker_s']:.2f} s "
+          f"({dask['dask_one_worker_over_in_process']:.2f}x), two workers "
+          f"{dask['two_workers_s']:.2f} s (speed-up {dask['dask_two_workers_speedup']:.2f}x); "
+          f"cluster start-up {dask['cluster_startup_s']:.1f} s; task overhead "
+          f"{dask['task_overhead_s']}, chunk {dask['chunk_seconds']} s, "
+          f"{dask['chunks_per_task']} chunks per task")
+    print("Commands: " + ", ".join(f"{k} {v:.2f}" for k, v in commands.items()))
+    print(f"load average before/after: {load_before} / {os.getloadavg()}")
     if args.no_scaling:
         return 0
     sizes = [1000, 10000, 100000] if args.quick else [1000, 10000, 100000, 1000000]

@@ -65,6 +65,11 @@ _ON_FIRST_USE = {
     "identify": "stiffness.calibration.identify",
     "diagnose": "stiffness.calibration.diagnose",
     "simulate": "stiffness.calibration.simulate",
+    "design": "stiffness.calibration.design",
+    # calibration: compensation along a path, the stiffest posture
+    "ElasticModel": "stiffness.calibration.elastic",
+    "compensate": "stiffness.calibration.compensation",
+    "posture": "stiffness.calibration.posture",
     # papers: the SK120 reproduction
     "build_report": "stiffness.papers.report",
     # viewer: stiffness ellipsoids in the browser
@@ -88,6 +93,7 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "Campaign",
+    "ElasticModel",
     "Equilibrium",
     "Robot",
     "ScanSpec",
@@ -101,6 +107,7 @@ __all__ = [
     "build_report",
     "cartesian_stiffness",
     "close_loops",
+    "compensate",
     "compliance",
     "default_coordinates",
     "default_load",
@@ -108,6 +115,7 @@ __all__ = [
     "deflection",
     "definiteness",
     "definiteness_map",
+    "design",
     "diagnose",
     "ellipsoid",
     "holding_wrench",
@@ -118,6 +126,7 @@ __all__ = [
     "load_robot",
     "load_scan",
     "platform_stiffness",
+    "posture",
     "reorder_twist",
     "run_scan",
     "shipped_robots",

@@ -19,8 +19,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 import stiffness
 
 PACKAGE = Path(stiffness.__file__).resolve().parent
@@ -41,23 +39,6 @@ LAYERS = {
 GENERAL = {name for name, layer in LAYERS.items() if layer < LAYERS["papers"]}
 #: A paper-specific name: the SK120 of Alici & Shirinzadeh, its tables, its appendix.
 PAPER_NAME = re.compile(r"sk[_-]?120|table_?(\d+|i{1,3}v?|iv|v)(?![a-z])|appendix", re.IGNORECASE)
-
-#: Violations in files other helpers are fixing right now (issue 10): calibration/simulate's
-#: SK120 branching and scan's Table IV preset and engine <-> plots imports. The checks below
-#: pass over exactly these; ``test_pending_violations_are_gone`` turns green when they land
-#: (then delete this set).
-PENDING = {
-    ("stiffness.calibration.simulate", "name", "_is_sk120"),
-    ("stiffness.calibration.simulate", "name", "SK120_RANGES_DEG"),
-    ("stiffness.calibration.simulate", "name", "SK120_FLAT_MARGIN_DEG"),
-    ("stiffness.calibration.simulate", "string", "sk120"),
-    ("stiffness.scan.engine", "name", "_table4_grid"),
-    ("stiffness.scan.engine", "name", "_table4_size"),
-    ("stiffness.scan.engine", "name", "table4_grid"),
-    ("stiffness.scan.engine", "string", "table4"),
-    ("stiffness.scan.engine", "import", "stiffness.papers.reproduction"),
-    ("stiffness.scan.engine", "cycle", "stiffness.scan.engine <-> stiffness.scan.plots"),
-}
 
 
 def _module_name(path: Path) -> str:
@@ -220,18 +201,18 @@ def test_the_reader_sees_the_imports_it_must():
 
 
 def test_no_import_from_a_higher_layer():
-    found = _layer_violations() - PENDING
+    found = _layer_violations()
     assert not found, "imports from a higher layer: " + "; ".join(
         f"{m} imports {t}" for m, _, t in sorted(found))
 
 
 def test_no_import_cycles():
-    found = _cycle_violations() - PENDING
+    found = _cycle_violations()
     assert not found, "import cycles: " + "; ".join(c for _, _, c in sorted(found))
 
 
 def test_no_paper_names_below_papers():
-    found = _paper_name_violations() - PENDING
+    found = _paper_name_violations()
     assert not found, "paper-specific names below `papers`: " + "; ".join(
         f"{m}: {kind} {n!r}" for m, kind, n in sorted(found))
 
@@ -247,13 +228,6 @@ def test_the_checks_catch_what_they_forbid(tmp_path):
     assert _imports("stiffness.model.loops", relative) == {"stiffness.papers.report",
                                                             "stiffness.model.robot"}
     assert not PAPER_NAME.search("stable_definiteness") and PAPER_NAME.search("TABLE_IV")
-
-
-@pytest.mark.xfail(reason="other helpers are removing these (issue 10); delete PENDING then",
-                   strict=False)
-def test_pending_violations_are_gone():
-    still = PENDING & (_layer_violations() | _cycle_violations() | _paper_name_violations())
-    assert not still, f"still pending: {sorted(still)}"
 
 
 # ------------------------------------------------------------------------ the public API

@@ -47,6 +47,8 @@ HIDDEN = [
     (UR5, "target_offset=20"),
     (SK120, "force_sensor_bias=8"),
     (SK120, "deflection_offset=0.02"),
+    (UR5, "gravity_preload=20,0,0,50"),
+    (UR5, "gravity_compensator:shoulder_lift_joint=3e4,2000"),
 ]
 
 

@@ -78,3 +78,9 @@ def test_batch_example_matches_the_single_pose_path(outputs):
     text = outputs["04_batch_scan.py"].stdout
     assert _number(r"single-pose one to ([0-9.e+-]+)", text) < 1e-10
     assert re.search(r"scan: \d+ configurations", text), text
+
+
+def test_compensation_example_cancels_the_deflection(outputs):
+    text = outputs["05_compensate_ur5.py"].stdout
+    assert _number(r"residual ([0-9.e+-]+) m exact", text) < 1e-9
+    assert _number(r"\(factor ([0-9.]+)\)", text) > 1.0

@@ -39,6 +39,8 @@ from stiffness.mechanics.formulation import (
 )
 from stiffness.model.robot import load_robot
 from stiffness.scan.engine import UNDEFINED
+from stiffness.scan.maps import derive
+from stiffness.scan.spec import ScanSpec
 
 UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]
 UR5_KQ = ",".join(map(str, UR5_K))
@@ -432,8 +434,10 @@ def _check_scan(folder: Path) -> None:
     """NaN / inf in a scan's arrays only where manifest.json's "undefined" says, nowhere else."""
     manifest = _strict_json((folder / "manifest.json").read_text())
     assert manifest["undefined"] == _strict_json(json.dumps(UNDEFINED))
+    spec = ScanSpec.from_dict(manifest["spec"])
     for chunk in sorted((folder / "chunks").glob("chunk-*.npz")):
-        maps = dict(np.load(chunk))
+        # the stored arrays with the derived ones rebuilt, as load_scan reads them
+        maps = derive(spec, int(chunk.stem.split("-")[1]), dict(np.load(chunk)))
         valid, regular = maps["valid"], maps["regular"]
         for key, value in maps.items():
             if value.dtype.kind != "f":
@@ -473,7 +477,8 @@ def _check_scan(folder: Path) -> None:
                 assert (nan == ~np.array(table["regular_conventional"])).all(), name
             elif name.startswith("k_x_"):
                 assert (nan == ~regular).all(), name
-            elif name == "critical_factor" or name.endswith("_m"):
+            elif name == "critical_factor" or name.endswith("_m") or name.startswith(
+                    "k_c_diag_"):
                 assert (nan == ~np.array(table["valid"])).all(), name
             else:
                 assert not nan.any(), name
@@ -547,8 +552,10 @@ def test_no_command_writes_an_undefined_number(tmp_path, capsys):
         assert main(["kx", *argv, "--json"]) == 0
         (tmp_path / f"{name}.json").write_text(capsys.readouterr().out)
     summary = _strict_json((tmp_path / "scan-ur5" / "summary.json").read_text())
-    singular = int((~np.load(tmp_path / "scan-ur5" / "chunks" / "chunk-00000.npz")["regular"]
-                    [:, 0]).sum())
+    ur5_scan = tmp_path / "scan-ur5"
+    ur5_spec = ScanSpec.from_dict(_strict_json((ur5_scan / "manifest.json").read_text())["spec"])
+    singular = int((~derive(ur5_spec, 0, dict(np.load(ur5_scan / "chunks" / "chunk-00000.npz")))
+                    ["regular"][:, 0]).sum())
     assert singular == 5  # elbow = 0 (3 poses) or wrist_2 = 0 (3 poses), one shared
     assert summary["load_cases"]["1"]["k_x_undefined"] == singular
     flat = _strict_json((tmp_path / "scan-sk120" / "summary.json").read_text())

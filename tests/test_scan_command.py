@@ -313,3 +313,150 @@ def test_errors(tmp_path, capsys, argv, message):
     code = main(["scan", *argv, "--out", str(tmp_path / "x"), "--quiet", "--no-plots"])
     assert code == 2
     assert message in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------ fields, dtypes
+
+
+def _single_pose_maps(robot, coords, loads, k_theta):
+    """Every stored quantity at one configuration, by the one-at-a-time API."""
+    q = robot.configuration(coords)
+    out = {"k_c_class": [], "tangent_class": [], "critical_factor": [], "det": [], "k_x": [],
+           "det_sure": []}
+    k_half = np.diag(1 / np.sqrt(np.diag(k_theta)))
+    for load in loads:
+        state = target_state(robot, q, load)
+        out["k_c_class"].append(definiteness(state.k_c))
+        out["tangent_class"].append(definiteness(k_theta - state.k_c))
+        top = np.linalg.eigvalsh(k_half @ (0.5 * (state.k_c + state.k_c.T)) @ k_half)[-1]
+        out["critical_factor"].append(1 / top if top > 0 else np.inf)
+        out["det"].append(np.linalg.det(state.k_c))
+        # the sign of det K_C is round-off where K_C is (numerically) singular
+        out["det_sure"].append(abs(out["det"][-1]) > 1e-9 * np.abs(state.k_c).max()
+                               ** robot.n_compliant)
+        out["k_x"].append(cartesian_stiffness(compliance(state.jacobian[:3],
+                                                         k_theta - state.k_c)))
+    out["k_x_conventional"] = cartesian_stiffness(compliance(state.jacobian[:3], k_theta))
+    out["position"] = state.position
+    out["k_c_diagonal"] = [np.diag(target_state(robot, q, f).k_c) for f in np.eye(3)]
+    return out
+
+
+@pytest.mark.parametrize("robot_name, dtype, compression, loads", [
+    ("ur5", "float64", None, ["0,0,-200"]),             # one force: gravity route
+    ("ur5", "float32", "zstd", ["0,0,-200", "150,0,0"]),  # Hessian route, float32, deflated
+    ("sk120", "float32", None, ["0,0,-500"]),           # closed loop, one force
+    ("sk120", "float64", "gzip", ["0,0,-500", "300,-200,100"]),
+])
+def test_every_stored_field_equals_single_pose(tmp_path, robot_name, dtype, compression,
+                                               loads):
+    """Every field (--fields all) in every dtype, read back by load_scan (derived arrays
+    rebuilt), equals the one-at-a-time API; the Parquet table holds the same numbers."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    out = tmp_path / "f"
+    if robot_name == "ur5":
+        where = [*GRID, "--kq", UR5_KQ]
+    else:
+        where = ["--samples", "12", "--axis", "q2=-1:1", "--axis", "q3=-1.5:0.5",
+                 "--axis", "q1=-3:3", "--axis", "q5=-1:1"]
+    argv = ["scan", "--robot", robot_name, *where, "--fields", "all", "--dtype", dtype,
+            "--format", "both", "--chunk-size", "5", "--out", str(out), "--no-plots",
+            "--quiet", "--json"]
+    for load in loads:
+        argv += ["--load", load]
+    if compression:
+        argv += ["--compression", compression]
+    assert main(argv) == 0
+    maps = _arrays(out)
+    robot = load_robot(robot_name)
+    k_theta = (np.diag([3e5, 3e5, 2e5, 4e4, 4e4, 4e4]) if robot_name == "ur5"
+               else np.diag(robot.defaults["k_theta_SI"]))
+    forces = np.array([[float(v) for v in x.split(",")] for x in loads])
+    rtol = 1e-9 if dtype == "float64" else 2e-7
+    assert maps["k_x"].dtype == np.float64  # read back as float64 whatever was stored
+    for i in range(0, maps["index"].shape[0], 5):
+        assert maps["valid"][i]
+        ref = _single_pose_maps(robot, maps["coordinates"][i], forces, k_theta)
+        for j in range(len(loads)):
+            assert batch.class_names(maps["k_c_class"][i, j]) == ref["k_c_class"][j]
+            assert batch.class_names(maps["tangent_class"][i, j]) == ref["tangent_class"][j]
+            assert maps["critical_factor"][i, j] == pytest.approx(ref["critical_factor"][j],
+                                                                  rel=rtol)
+            if ref["det_sure"][j]:
+                assert maps["k_c_det_positive"][i, j] == (ref["det"][j] > 0)
+            k_x = ref["k_x"][j]
+            np.testing.assert_allclose(maps["k_x"][i, j], k_x, rtol=rtol,
+                                       atol=rtol * np.abs(k_x).max())
+            eig = np.linalg.eigvalsh(0.5 * (k_x + k_x.T))
+            np.testing.assert_allclose(maps["k_x_eigenvalues"][i, j], eig, rtol=rtol * 10)
+            assert maps["regular"][i, j]
+            assert batch.class_names(maps["k_x_class"][i, j]) == definiteness(k_x)
+        k_conv = ref["k_x_conventional"]
+        np.testing.assert_allclose(maps["k_x_conventional"][i], k_conv, rtol=rtol,
+                                   atol=rtol * np.abs(k_conv).max())
+        np.testing.assert_allclose(maps["position"][i], ref["position"], rtol=rtol,
+                                   atol=1e-12)
+        diag = np.array(ref["k_c_diagonal"])
+        np.testing.assert_allclose(maps["k_c_diagonal"][i], diag, rtol=rtol,
+                                   atol=rtol * np.abs(diag).max())
+    stored = np.load(out / "chunks" / "chunk-00000.npz")
+    assert "k_x_eigenvalues" not in stored and "regular" not in stored  # derivable: not stored
+    assert stored["k_x_upper"].dtype == np.dtype(dtype) and stored["k_x_upper"].shape[-1] == 6
+    table = pq.read_table(out / "maps.parquet" / "part-00000.parquet")
+    assert table.column("k_x_01").type.to_pandas_dtype() == np.dtype(dtype)
+    np.testing.assert_allclose(table.column("k_x_01").to_numpy().reshape(-1, len(loads)),
+                               maps["k_x"][:5, :, 0, 1], rtol=1e-7)
+    if compression:
+        assert pq.ParquetFile(out / "maps.parquet" / "part-00000.parquet").metadata.row_group(
+            0).column(0).compression.lower() == compression
+
+
+def test_fields_choose_what_is_stored_and_bytes_are_reported(tmp_path, capsys):
+    """--fields k_x stores only K_X's upper triangle (its eigenvalues are rebuilt); the run
+    prints its bytes per configuration and they match the files."""
+    out = tmp_path / "lean"
+    code, captured = _run(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID,
+                           "--fields", "k_x_eigenvalues", "--dtype", "float32",
+                           "--out", str(out), "--quiet"], capsys)
+    assert code == 0
+    assert "bytes per configuration" in captured.out
+    summary = json.loads((out / "summary.json").read_text())
+    files = sorted((out / "chunks").glob("chunk-*.npz"))
+    assert summary["bytes_written"] == sum(f.stat().st_size for f in files)
+    assert summary["bytes_per_configuration"] == pytest.approx(summary["bytes_written"] / 48)
+    assert set(np.load(files[0])) == {"k_x_upper"}
+    maps = _arrays(out)
+    assert {"index", "coordinates", "k_x", "k_x_eigenvalues", "regular", "k_x_class"} == set(
+        maps)
+    assert "k_c" not in summary["load_cases"]["1"] and "k_x" in summary["load_cases"]["1"]
+    assert not (out / "definiteness_counts.png").exists()
+    assert main(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--fields", "stiffness",
+                 "--out", str(tmp_path / "bad"), "--quiet"]) == 2
+    assert "unknown field 'stiffness'" in capsys.readouterr().err
+
+
+def test_killed_scan_resumed_with_workers_gives_the_same_maps(tmp_path):
+    """A scan killed mid-run (chunks missing, one without its aggregate) and resumed on two
+    Dask workers, several chunks per task, gives the maps and summary of an uninterrupted
+    one-process scan."""
+    pytest.importorskip("distributed")
+    common = ["scan", "--robot", "sk120", "--samples", "240", "--seed", "2",
+              "--axis", "q2=-1:1", "--axis", "q3=-1.5:0.5", "--axis", "q1=-3:3",
+              "--load", "0,0,-500", "--chunk-size", "20", "--no-plots", "--quiet"]
+    whole, resumed = tmp_path / "whole", tmp_path / "resumed"
+    assert main([*common, "--out", str(whole)]) == 0
+    assert main([*common, "--out", str(resumed)]) == 0
+    for index in (1, 4, 5, 9):
+        (resumed / "chunks" / f"chunk-{index:05d}.npz").unlink()
+        (resumed / "chunks" / f"aggregate-{index:05d}.npz").unlink()
+    (resumed / "chunks" / "aggregate-00007.npz").unlink()  # data written, not marked done
+    assert main([*common, "--out", str(resumed), "--workers", "2",
+                 "--chunks-per-task", "2", "--json"]) == 0
+    summary = json.loads((resumed / "summary.json").read_text())
+    assert summary["chunks"]["computed"] == 5 and summary["chunks"]["resumed"] == 7
+    a, b = _arrays(whole), _arrays(resumed)
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert json.loads((whole / "summary.json").read_text())["load_cases"] == summary[
+        "load_cases"]

@@ -46,7 +46,7 @@ def test_sk120_poses_keep_the_tool_vertical():
 def test_a_robot_declares_its_workspace_in_its_robot_toml():
     """Any robot's [workspace] table (here set on the UR5's defaults, as its robot.toml would)
     is read by the same rules; a bad table is a one-line error naming the key."""
-    from stiffness.calibration.simulate import Workspace
+    from stiffness.calibration.poses import Workspace
 
     robot = load_robot("ur5")
     robot.defaults["workspace"] = {

@@ -2,36 +2,37 @@
 of configurations and loads at once.
 
 The one-at-a-time API (:func:`stiffness.mechanics.formulation.target_state`) spends ~100 us of
-Python per
-configuration. Here Pinocchio is called in a tight loop into preallocated arrays and everything
-else is NumPy over the whole batch:
+Python per configuration. Here Pinocchio is called in a tight loop into preallocated arrays and
+everything else is NumPy over the whole batch:
 
 * Kinematic-Hessian route (:func:`batch_kinematics`; any robot, any number of loads): three
   calls per configuration of an open chain (joint kinematic Hessians, the target's frame
   Hessian, its frame Jacobian). ``K_C(W) = sum_k W_k B_k`` is linear in the wrench, so the
   kinematics keep the *unit-wrench basis* ``B_k = d(J^T e_k)/d theta`` and any number of load
   cases cost one small matrix product.
-* Generalized-gravity route (:func:`single_force_kinematics`; open chains, one force): a dead
+* Generalized-gravity route (:func:`single_force_kinematics`; one force): a dead
   force F at the target is gravity acting on a unit point mass there, so Pinocchio's
   ``computeGeneralizedGravityDerivatives`` on a copy of the model holding only that mass (and
   gravity -F) returns K_C(F) exactly, with no follower-load correction; with the frame
   Jacobian, two calls per configuration. :func:`evaluate` picks it for a single force.
-* Closed loops (the SK120's five-bar): the basis is the reduced Hessian
-  ``S^T (H_k - sum_j Lambda_jk Hc_j) S`` of :mod:`stiffness.mechanics.formulation`, with the
-  multipliers
-  per unit wrench ``Lambda = pinv(C_p^T) J_p^T`` and the velocity map ``S``, batched.
-* Loop closures are the expensive part of a closed-chain configuration: :func:`close_loops`
-  closes each distinct value of the *loop coordinates* (the coordinates of the joints on the
-  path between the loop frames; the others, e.g. the SK120's theta1 and wrist, move the loop
-  rigidly or not at all) once, by continuation for one anchor per small cell of those
-  coordinates and by a batched Newton iteration from the anchor for the rest.
+* Closed loops: the basis is the reduced Hessian ``S^T H_k S + sum_p J[k, p] dS_p`` of
+  :mod:`stiffness.mechanics.closed_loop` (the same functions as the single-pose API), with the
+  velocity map S and the closure curvature dS_p computed once per distinct closure (they depend
+  only on the loop coordinates, :class:`_ClosurePass`), from the world joint Jacobian
+  ``data.J`` and the loop points' positions where every joint has one velocity coordinate
+  (:func:`point_derivatives`), so the per-configuration Pinocchio work is the open chain's.
+* Loop closures are the expensive part of a closed-chain configuration from coordinates:
+  :func:`close_loops` closes each distinct value of the *loop coordinates* (the coordinates of
+  the joints on the path between the loop frames; the others, e.g. a base rotation or a
+  wrist, move the loop rigidly or not at all) once, by continuation for one anchor per small
+  cell of those coordinates and by a batched Newton iteration from the anchor for the rest.
 * Compliance and K_X of symmetric tangents (pure forces) go through a Cholesky factorisation
   vectorised across the batch (one NumPy operation per matrix entry, not per matrix); the
   others, and those that are not positive definite, through LAPACK's LU.
 
-Results equal :func:`~stiffness.mechanics.formulation.target_state` and friends to round-off (tests:
-relative 1e-10 on open chains, 1e-9 through a loop's pseudo-inverse). Where the one-at-a-time
-API raises on a singular configuration, the batched one returns NaN and a mask.
+Results equal :func:`~stiffness.mechanics.formulation.target_state` and friends to round-off
+(tests: relative 1e-10 on open chains, 1e-9 through a loop's pseudo-inverse). Where the
+one-at-a-time API raises on a singular configuration, the batched one returns NaN and a mask.
 
 Shapes: ``m`` configurations, ``L`` load cases, ``n`` compliant joints, ``r`` Cartesian rows
 (3: translational, 6: [v; omega]). Units: SI (m, N, rad; K_C in N.m/rad; K_X in N/m for the
@@ -47,6 +48,7 @@ whose public names are re-exported here (``batch.close_loops``, ``batch.complian
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +65,7 @@ from stiffness.batch.linalg import (
     compliance_stack,
     critical_load_factor,
     definiteness_codes,
+    load_definiteness,
     principal_stiffness,
     symmetric_eigenvalues,
     symmetric_stack,
@@ -77,6 +80,7 @@ from stiffness.batch.loops import (
     tree_configurations,
 )
 from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.mechanics import closed_loop
 from stiffness.mechanics.formulation import FORMULATIONS
 from stiffness.model.kinematics import reorder_hessian
 from stiffness.model.robot import Robot
@@ -84,20 +88,17 @@ from stiffness.model.robot import Robot
 __all__ = [
     # kinematics and pipelines (this module)
     "BatchKinematics", "BatchStiffness", "DefinitenessMap", "batch_kinematics",
-    "complementary_stiffness", "definiteness_map", "evaluate", "single_force_kinematics",
+    "complementary_stiffness", "definiteness_map", "evaluate", "single_force_block",
+    "one_coordinate_joints", "single_force_kinematics", "unit_force_diagonal",
     # loop closures (stiffness.batch.loops)
     "LWA", "ClosedConfigurations", "close_loops", "loop_coordinate_indices",
     "tree_configurations",
     # linear algebra (stiffness.batch.linalg)
     "CLASS_CODES", "CONDITION_LIMIT", "INVALID_CLASS", "as_joint_stiffness",
     "cartesian_stiffness", "class_names", "compliance", "critical_load_factor",
-    "definiteness_codes", "principal_stiffness", "symmetric_eigenvalues", "tangent_stiffness",
+    "definiteness_codes", "load_definiteness", "principal_stiffness", "symmetric_eigenvalues",
+    "tangent_stiffness",
 ]
-
-#: Rank tolerance of the passive-joint constraint block, as in
-#: :func:`stiffness.mechanics.formulation.velocity_projection`.
-_RANK_RTOL = 1e-9
-
 
 # ------------------------------------------------------------------------------ kinematics
 
@@ -196,47 +197,33 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
     model, data = robot.model, robot.data
     m, nv = q.shape[0], model.nv
     fid = robot.target_frame_id
-    loop_points = [] if robot.loop is None else _loop_points(robot)
     raw = np.empty((m, 6, nv, nv))
     j_full = np.empty((m, 6, nv))
-    raw_loop = np.empty((len(loop_points), m, 6, nv, nv))
-    j_loop = np.empty((len(loop_points), m, 6, nv))
     placement = np.empty((m, 4, 4)) if pose else None
-    # the velocity map uses the exact derivative of Pinocchio's closure residual, as
-    # formulation.velocity_projection: for point pairs from the frame positions (see
-    # _closed_loop_basis), otherwise (6D pairs) from LoopClosure.jacobian itself
-    points_only = robot.loop is not None and all(p.kind == "3D" for p in robot.loop.pairs)
-    loop_pos = np.empty((len(loop_points), m, 3)) if points_only else None
-    loop_jac = (np.empty((m, robot.loop.n_rows, nv))
-                if robot.loop is not None and not points_only else None)
+    closure = None if robot.loop is None else _ClosurePass(robot, q)
 
     hessians = pin.computeJointKinematicHessians
     frame_hessian = pin.getFrameKinematicHessian
     frame_jacobian = pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
-    if not loop_points and not pose:  # the hot loop: three calls per configuration
+    if closure is None and not pose:  # the hot loop: three calls per configuration
         for i in range(m):
             hessians(model, data, q[i])  # also computes the joint Jacobians and placements
             raw[i] = frame_hessian(model, data, fid, LWA)
             j_full[i] = frame_jacobian(model, data, fid, LWA)
     else:
+        record = (lambda i: None) if closure is None else closure.recorder(model, data)
         for i in range(m):
             hessians(model, data, q[i])
             raw[i] = frame_hessian(model, data, fid, LWA)
             j_full[i] = frame_jacobian(model, data, fid, LWA)
-            for f, point in enumerate(loop_points):
-                raw_loop[f, i] = frame_hessian(model, data, *point, LWA)
-                j_loop[f, i] = frame_jacobian(model, data, *point, LWA)
-                if points_only:
-                    loop_pos[f, i] = update_placement(model, data, point[0]).translation
-            if loop_jac is not None:
-                loop_jac[i] = robot.loop.jacobian(model, data)
+            record(i)
             if pose:
                 placement[i] = update_placement(model, data, fid).homogeneous
 
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
-    if robot.loop is None:
+    if closure is None:
         # the Hessian rows are the unit-wrench basis [m, k, a, b] (a view of raw)
         basis = reorder_hessian(raw)[:, :w]
         if not _is_identity_selection(cv, nv):
@@ -244,8 +231,11 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
             j_full = j_full[:, :, cv]
         jac = j_full
     else:
-        basis, jac, valid = _closed_loop_basis(robot, reorder_hessian(raw), j_full, raw_loop,
-                                               j_loop, w, loop_pos, loop_jac)
+        proj, curvature, valid = closure.derivatives()
+        pv = robot.loop.passive_v
+        basis = closed_loop.reduced_hessian(reorder_hessian(raw)[:, :w], j_full[:, :w, pv],
+                                            proj[:, None], curvature[:, None])
+        jac = j_full @ proj
     return BatchKinematics(
         q=q, jacobian=jac, k_c_basis=basis, valid=valid,
         position=None if placement is None else placement[:, :3, 3].copy(),
@@ -257,65 +247,213 @@ def _is_identity_selection(index: np.ndarray, size: int) -> bool:
     return index.shape[0] == size and bool(np.all(index == np.arange(size)))
 
 
-def _closed_loop_basis(robot: Robot, hess: np.ndarray, j_full: np.ndarray,
-                       raw_loop: np.ndarray, j_loop: np.ndarray, w: int,
-                       loop_pos: np.ndarray | None, loop_jac: np.ndarray | None
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reduced unit-wrench basis, closed-loop Jacobian and validity (see module docstring).
+class _ClosurePass:
+    """Closure derivatives of a block of closed configurations, once per distinct closure.
 
-    World-axes loop residual ``c = p_b - p_a`` per point pair: Jacobian ``C`` (R, nv), Hessian
-    ``Hc`` (R, nv, nv). Velocity map ``S``: identity on the compliant joints,
-    ``-pinv(D_p) D_c`` on the passive ones (the other coordinate joints stay still), with ``D``
-    the exact Jacobian of Pinocchio's residual ``R_a^T (p_b - p_a)`` rotated to world axes,
-    ``C + (p_b - p_a) x J_a,omega`` (equal to ``C`` on the closed loop; off it, by the closure
-    tolerance), or ``loop_jac`` when given. Multipliers per unit wrench:
-    ``Lambda = pinv(C_p^T) J_p^T`` (minimum-norm, as the ``lstsq`` of the one-at-a-time path).
+    The passive joints, and so the velocity map S and the closure curvature dS_p
+    (:mod:`stiffness.mechanics.closed_loop`), depend only on the values of the loop
+    coordinates (:func:`loop_coordinate_indices`): joints that are common ancestors of a loop
+    move it rigidly and the others do not touch it. The loop residual's derivatives are
+    recorded at the first configuration of each distinct closure while the kinematics pass
+    visits it (:meth:`recorder`), and the derivatives broadcast to the others.
+
+    Where every joint has one velocity coordinate of its own (revolute, prismatic, helical...),
+    they come from the world joint Jacobian ``data.J`` and the points' positions
+    (:func:`point_derivatives`, one read per closure); otherwise from Pinocchio's frame
+    Jacobians and kinematic Hessians.
     """
-    loop = robot.loop
-    m, nv = j_full.shape[0], j_full.shape[2]
-    n = robot.n_compliant
-    cv, pv = robot.compliant_v, loop.passive_v
-    pairs = range(0, raw_loop.shape[0], 2)
-    c_w = np.concatenate([j_loop[p + 1, :, :3] - j_loop[p, :, :3] for p in pairs],
-                         axis=1)  # (m, R, nv)
-    hc = np.concatenate([
-        reorder_hessian(raw_loop[p + 1])[:, :3] - reorder_hessian(raw_loop[p])[:, :3]
-        for p in pairs], axis=1)  # (m, R, nv, nv)
-    if loop_jac is not None:
-        d_s = loop_jac
-    else:
-        d_s = np.concatenate([
-            j_loop[p + 1, :, :3] - j_loop[p, :, :3]
-            + np.cross((loop_pos[p + 1] - loop_pos[p])[:, :, None], j_loop[p, :, 3:], axis=1)
-            for p in pairs], axis=1)
-    # velocity map from the residual's Jacobian
-    d_p = d_s[:, :, pv]
-    u, s, vt = np.linalg.svd(d_p, full_matrices=False)
-    scale = np.maximum(1.0, np.abs(d_p).max(axis=(1, 2)))
-    valid = np.all(s > _RANK_RTOL * scale[:, None], axis=1)
-    cutoff = _RANK_RTOL * s[:, :1]
-    s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
-    rates = -((np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
-              @ d_s[:, :, cv])  # -pinv(D_p) D_c
-    proj = np.zeros((m, nv, n))
-    proj[:, cv, np.arange(n)] = 1.0
-    proj[:, pv, :] = rates
-    # multipliers per unit wrench component: lambda = pinv(C_p^T) (J^T W)_p, world residual
-    c_p = c_w[:, :, pv]  # (m, R, np)
-    u, s, vt = np.linalg.svd(c_p, full_matrices=False)
-    cutoff = 1e-10 * s[:, :1]
-    s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
-    pinv_t = (u * s_inv[:, None, :]) @ vt  # (m, R, np) = pinv(C_p^T)
-    lam = pinv_t @ np.swapaxes(j_full[:, :w, pv], 1, 2)  # (m, R, w)
-    rows = hc.shape[1]
-    dq = hess[:, :w] - (np.swapaxes(lam, 1, 2) @ hc.reshape(m, rows, nv * nv)).reshape(
-        m, w, nv, nv)
-    basis = np.swapaxes(proj, 1, 2)[:, None] @ dq @ proj[:, None]
-    jac = j_full @ proj
-    if not valid.all():
-        basis[~valid] = np.nan
-        jac[~valid] = np.nan
-    return basis, jac, valid
+
+    def __init__(self, robot: Robot, q: np.ndarray) -> None:
+        self.robot = robot
+        self.points = _loop_points(robot)
+        key_q = _loop_key_q_indices(robot)
+        if key_q.size:
+            _, first, inverse = np.unique(q[:, key_q], axis=0, return_index=True,
+                                          return_inverse=True)
+        else:
+            first, inverse = np.zeros(1, dtype=int), np.zeros(q.shape[0], dtype=int)
+        self.inverse = inverse.reshape(-1)
+        slot = np.full(q.shape[0], -1)
+        slot[first] = np.arange(first.shape[0])  # distinct closure of a first visit, else -1
+        self.slot = slot.tolist()
+        k, nv, n_points = first.shape[0], robot.model.nv, len(self.points)
+        self.analytic = one_coordinate_joints(robot)
+        if self.analytic:
+            self.world_j = np.empty((k, 6, nv))
+            self.position = np.empty((n_points, k, 3))
+        else:
+            self.raw = np.empty((n_points, k, 6, nv, nv))
+            self.jac = np.empty((n_points, k, 6, nv))
+
+    def recorder(self, model: pin.Model, data: pin.Data, hessians: bool = True
+                 ) -> Callable[[int], None]:
+        """``record(i)``: store what the closure derivatives need at configuration ``i`` if
+        it is the first of its closure (joint Jacobians and placements done; kinematic
+        Hessians too unless ``hessians`` is False)."""
+        slot, points = self.slot, self.points
+        if self.analytic:
+            world_j, position = self.world_j, self.position
+            frames = [(f, p[0]) for f, p in enumerate(points) if len(p) == 1]
+            anchored = [(f, p[0], p[1].translation) for f, p in enumerate(points) if len(p) > 1]
+            update_placement, o_m_i = pin.updateFramePlacement, data.oMi
+
+            def record(i: int) -> None:
+                k = slot[i]
+                if k < 0:
+                    return
+                world_j[k] = data.J
+                for f, frame in frames:
+                    position[f, k] = update_placement(model, data, frame).translation
+                for f, joint, offset in anchored:
+                    position[f, k] = o_m_i[joint].act(offset)
+            return record
+        raw, jac = self.raw, self.jac
+
+        def record_pinocchio(i: int) -> None:
+            k = slot[i]
+            if k < 0:
+                return
+            if not hessians:
+                pin.computeJointKinematicHessians(model, data)
+            for f, point in enumerate(points):
+                raw[f, k] = pin.getFrameKinematicHessian(model, data, *point, LWA)
+                jac[f, k] = pin.getFrameJacobian(model, data, *point, LWA)
+        return record_pinocchio
+
+    def derivatives(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Velocity maps (m, nv, n), curvatures (m, n_p, n, n) and validity (m,)."""
+        robot = self.robot
+        cv, pv = robot.compliant_v, robot.loop.passive_v
+        pairs = range(0, len(self.points), 2)
+        if self.analytic:
+            supports = _point_supports(robot)
+            lin, om = point_derivatives(self.world_j, self.position, supports)
+            c = np.concatenate([lin[p + 1] - lin[p] for p in pairs], axis=0).transpose(2, 0, 1)
+            proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv)
+            proj_t = np.ascontiguousarray(proj.transpose(1, 2, 0))
+            hss = []
+            for f, support in enumerate(supports):  # on the point's support columns only
+                idx = np.flatnonzero(support)
+                hss.append(_projected_point_hessian(lin[f][:, idx], om[f][:, idx],
+                                                    proj_t[idx]))
+            hss = np.concatenate([hss[p + 1] - hss[p] for p in pairs], axis=1)
+        else:
+            c = np.concatenate([self.jac[p + 1, :, :3] - self.jac[p, :, :3] for p in pairs],
+                               axis=1)
+            hc = np.concatenate([reorder_hessian(self.raw[p + 1])[:, :3]
+                                 - reorder_hessian(self.raw[p])[:, :3] for p in pairs], axis=1)
+            proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv)
+            hss = np.swapaxes(proj, 1, 2)[:, None] @ hc @ proj[:, None]
+        curvature = closed_loop.closure_curvature(pinv, hss)
+        if not valid.all():
+            curvature[~valid] = np.nan
+        at = self.inverse
+        return proj[at], curvature[at], valid[at]
+
+
+def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray | None:
+    """Diagonal of K_C under the unit forces x, y, z (m, 3, n), N.m/rad per N, from the target
+    Jacobian alone, for open chains whose joints have one velocity coordinate each; None
+    otherwise (use :func:`batch_kinematics`).
+
+    ``K_C(e_k)[a, a] = d2 x_k / dq_a^2 = (omega_a x v_a)_k`` (the point Hessian of
+    :func:`point_derivatives` on its diagonal), with ``[v_a; omega_a]`` the columns of the
+    (m, 6, n) Jacobian, rows [v; omega].
+    """
+    if robot.loop is not None or not one_coordinate_joints(robot):
+        return None
+    v, om = jacobian[:, :3], jacobian[:, 3:]
+    return _cross0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
+
+
+def _loop_key_q_indices(robot: Robot) -> np.ndarray:
+    """Positions in q of the loop coordinates (:func:`loop_coordinate_indices`)."""
+    model = robot.model
+    out = []
+    for i in loop_coordinate_indices(robot):
+        joint = model.joints[model.getJointId(robot.coordinate_joints[i])]
+        out.extend(range(joint.idx_q, joint.idx_q + joint.nq))
+    return np.array(out, dtype=int)
+
+
+def one_coordinate_joints(robot: Robot) -> bool:
+    """Whether the Jacobian-based Hessians apply (:func:`point_derivatives`,
+    :func:`unit_force_diagonal`): every joint of the model has one velocity coordinate of its
+    own and none is a mimic or composite joint."""
+    model = robot.model
+    for joint in list(model.joints)[1:]:
+        name = joint.shortname()
+        if joint.nv != 1 or "Mimic" in name or "Composite" in name:
+            return False
+    return True
+
+
+def _point_supports(robot: Robot) -> np.ndarray:
+    """(n_points, nv) masks of the velocity coordinates moving each loop point."""
+    model = robot.model
+    masks = np.zeros((len(_loop_points(robot)), model.nv), dtype=bool)
+    for f, point in enumerate(_loop_points(robot)):
+        joint = model.frames[point[0]].parentJoint if len(point) == 1 else point[0]
+        for j in list(model.supports[joint])[1:]:
+            masks[f, model.joints[j].idx_v] = True
+    return masks
+
+
+def point_derivatives(world_j: np.ndarray, position: np.ndarray, supports: np.ndarray
+                      ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """World Jacobians of loop points, and the joint axes that move them, from ``data.J``.
+
+    For joints with one velocity coordinate each, with the world spatial axis
+    ``[v0_a; omega_a]`` of coordinate a (``data.J``, world axes at the world origin), a point p
+    moved by the coordinates of its support has ``dp/dq_a = v_a(p) = v0_a + omega_a x p`` and
+    ``d2p/dq_a dq_b = omega_a x v_b(p)`` for a an ancestor of (or equal to) b, symmetric
+    (a support is a chain, ordered by velocity index); see :func:`_projected_point_hessian`.
+
+    Parameters
+    ----------
+    world_j
+        (k, 6, nv) ``data.J``.
+    position
+        (n_points, k, 3) world positions (m) of the points, consecutive pairs (a, b).
+    supports
+        (n_points, nv) masks of each point's support.
+
+    Returns
+    -------
+    lin, om
+        Per point, batch-last (3, nv, k): ``v_a(p)`` (m/rad) and ``omega_a`` (rad/rad), zero
+        outside the point's support.
+    """
+    wj = np.ascontiguousarray(world_j.transpose(1, 2, 0))  # (6, nv, k)
+    v0, om = wj[:3], wj[3:]
+    lin, oms = [], []
+    for f, support in enumerate(supports):
+        p = np.ascontiguousarray(position[f].T)[:, None, :]  # (3, 1, k)
+        mask = support[None, :, None]
+        lin.append((v0 + _cross0(om, p)) * mask)
+        oms.append(om * mask)
+    return lin, oms
+
+
+def _projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray) -> np.ndarray:
+    """``H(p)[S_a, S_b]`` (k, 3, n, n) of a point's position Hessian, without forming it.
+
+    ``lin``, ``om`` (3, s, k) and ``proj`` (s, n, k), batch-last, on the point's support
+    columns. With ``H_ij = omega_min(i,j) x v_max(i,j)``: ``A[a, b] = sum_j (sum_{i<=j} S_ia
+    omega_i) x v_j S_jb`` holds the terms with i <= j, and ``H[S_a, S_b] = A + A^T - D`` with
+    D the diagonal terms ``sum_j (omega_j x v_j) S_ja S_jb`` counted twice.
+    """
+    cum = np.cumsum(om[:, :, None] * proj[None], axis=1)  # (3, s, n, k)
+    # y[r, j, a] = (cum_a(j) x v_j)_r, minus half the diagonal term (counted twice below)
+    y = _cross0(cum, lin[:, :, None]) - 0.5 * _cross0(om, lin)[:, :, None] * proj[None]
+    a = (y[:, :, :, None] * proj[None, :, None]).sum(axis=1)  # (3, n, n, k)
+    return (a + a.transpose(0, 2, 1, 3)).transpose(3, 0, 1, 2)
+
+
+def _cross0(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product along axis 0 (length 3), broadcast."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 _POINT_MASS_MODELS: dict[int, tuple[pin.Model, pin.Model, pin.Data]] = {}
@@ -348,31 +486,42 @@ def _point_mass_model(robot: Robot) -> tuple[pin.Model, pin.Data]:
 
 def single_force_kinematics(robot: Robot, q: np.ndarray, force: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray]:
-    """Target Jacobian and K_C of an open chain under one dead force, two Pinocchio calls each.
+    """Target Jacobian and K_C under one dead force, two Pinocchio calls per configuration.
 
     ``K_C(F) = dg/dq`` of :func:`_point_mass_model` with gravity ``-F``
     (``computeGeneralizedGravityDerivatives``), the Jacobian from the joint Jacobians that call
-    leaves in ``data``. Faster than :func:`batch_kinematics` for a single load case.
+    leaves in ``data``. Faster than :func:`batch_kinematics` for a single load case. On a
+    closed loop, ``dg/dq`` is the tree term of the reduced K_C
+    (:func:`stiffness.mechanics.closed_loop.reduced_hessian`), with the closure derivatives
+    of each distinct closure (:class:`_ClosurePass`).
 
     Parameters
     ----------
     robot
-        An open-chain robot (no loop).
+        The robot.
     q
-        (m, nq) configurations.
+        (m, nq) configurations (loops closed).
     force
         (3,) dead force at the target (N), base axes.
 
     Returns
     -------
     jacobian, k_c
-        (m, 6, n) target Jacobian and (m, n, n) K_C (N.m/rad) w.r.t. the compliant joints.
+        (m, 6, n) target Jacobian and (m, n, n) K_C (N.m/rad) w.r.t. the compliant joints;
+        NaN where a loop is singular.
     """
-    if robot.loop is not None:
-        raise StiffnessError("single_force_kinematics is for open chains; use batch_kinematics")
+    jac, k_c, _, _ = single_force_block(robot, q, force)
+    return jac, k_c
+
+
+def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: bool = False
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`single_force_kinematics`, the validity mask (m,) and, with ``pose``, the target
+    positions (m, 3) in m (else None)."""
     model, data = _point_mass_model(robot)
+    force = np.asarray(force, dtype=float).reshape(3)
     # gravity -F: the generalized gravity J^T F, whose derivative is K_C(F)
-    model.gravity = pin.Motion(-np.asarray(force, dtype=float).reshape(3), np.zeros(3))
+    model.gravity = pin.Motion(-force, np.zeros(3))
     q = np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float)))
     m, nv = q.shape[0], model.nv
     fid = robot.target_frame_id
@@ -380,14 +529,32 @@ def single_force_kinematics(robot: Robot, q: np.ndarray, force: np.ndarray
     j_full = np.empty((m, 6, nv))
     gravity_derivatives = pin.computeGeneralizedGravityDerivatives
     frame_jacobian = pin.getFrameJacobian
-    for i in range(m):
-        dg[i] = gravity_derivatives(model, data, q[i])  # also fills the joint Jacobians
-        j_full[i] = frame_jacobian(model, data, fid, LWA)
-    cv = robot.compliant_v
-    if not _is_identity_selection(cv, nv):
-        dg = dg[:, cv[:, None], cv[None, :]]
-        j_full = j_full[:, :, cv]
-    return j_full, dg
+    update_placement = pin.updateFramePlacement
+    position = np.empty((m, 3)) if pose else None
+    closure = None if robot.loop is None else _ClosurePass(robot, q)
+    if closure is None and not pose:
+        for i in range(m):
+            dg[i] = gravity_derivatives(model, data, q[i])  # also fills the joint Jacobians
+            j_full[i] = frame_jacobian(model, data, fid, LWA)
+    else:
+        record = ((lambda i: None) if closure is None
+                  else closure.recorder(model, data, hessians=False))
+        for i in range(m):
+            dg[i] = gravity_derivatives(model, data, q[i])
+            j_full[i] = frame_jacobian(model, data, fid, LWA)
+            record(i)
+            if pose:
+                position[i] = update_placement(model, data, fid).translation
+    if closure is None:
+        cv = robot.compliant_v
+        if not _is_identity_selection(cv, nv):
+            dg = dg[:, cv[:, None], cv[None, :]]
+            j_full = j_full[:, :, cv]
+        return j_full, dg, np.ones(m, dtype=bool), position
+    proj, curvature, valid = closure.derivatives()
+    k_c = closed_loop.reduced_hessian(dg, (force @ j_full[:, :3])[:, robot.loop.passive_v],
+                                      proj, curvature)
+    return j_full @ proj, k_c, valid, position
 
 
 # ------------------------------------------------------------------------------ stiffness
@@ -515,8 +682,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
         Configurations whose kinematics are held at once (memory ~2 kB each for six joints).
     method
         "hessian": kinematic Hessians (:func:`batch_kinematics`, any loads, any robot);
-        "gravity": generalized-gravity derivatives (:func:`single_force_kinematics`: open
-        chains, one force); "auto": "gravity" where it applies, else "hessian".
+        "gravity": generalized-gravity derivatives (:func:`single_force_kinematics`: one
+        force); "auto": "gravity" where it applies, else "hessian".
 
     Returns
     -------
@@ -536,12 +703,12 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
         raise StiffnessError(f"rows must be 3 (translations) or 6, got {rows}")
     k_th = as_joint_stiffness(k_theta, robot.n_compliant)
     symmetric = bool(not moments and np.array_equal(k_th, k_th.T))
-    gravity_ok = robot.loop is None and not moments and wrenches.shape[0] == 1
+    gravity_ok = not moments and wrenches.shape[0] == 1
     if method not in ("auto", "hessian", "gravity"):
         raise UnknownNameError(f"method must be auto, hessian or gravity, got {method!r}",
                                name=method, choices=("auto", "hessian", "gravity"))
     if method == "gravity" and not gravity_ok:
-        raise StiffnessError("method 'gravity' needs an open chain and a single force load")
+        raise StiffnessError("method 'gravity' needs a single force load (no moments)")
     use_gravity = gravity_ok and method != "hessian" and not isinstance(q, BatchKinematics)
     if isinstance(q, BatchKinematics):
         m = q.size
@@ -563,8 +730,8 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
             end, jac, kc, kin_valid = m, q.jacobian, complementary_stiffness(q, wrenches), q.valid
         elif use_gravity:
             end = min(m, start + block)
-            jac, kc = single_force_kinematics(robot, q[start:end], wrenches[0, :3])
-            kc, kin_valid = kc[:, None], None
+            jac, kc, kin_valid, _ = single_force_block(robot, q[start:end], wrenches[0, :3])
+            kc = kc[:, None]
         else:
             end = min(m, start + block)
             kin = batch_kinematics(robot, q[start:end], moments=moments)

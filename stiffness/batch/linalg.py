@@ -14,6 +14,8 @@ Units: SI (K_theta, K_C in N.m/rad; K_X in N/m for the translational block; comp
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -443,3 +445,87 @@ def principal_stiffness(k_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     values[~finite] = np.nan
     vectors[~finite] = np.nan
     return values, vectors
+
+
+@dataclass
+class LoadDefiniteness:
+    """Definiteness of K_C and K_theta - K_C and the critical load factor (output of
+    :func:`load_definiteness`), shape ``k_c.shape[:-2]``."""
+
+    k_c_class: np.ndarray
+    tangent_class: np.ndarray
+    critical_factor: np.ndarray
+    determinant_positive: np.ndarray
+
+
+def load_definiteness(k_theta: np.ndarray, k_c: np.ndarray, rtol: float = 1e-9
+                      ) -> LoadDefiniteness:
+    """Classes of K_C and K_theta - K_C, critical load factor and det K_C > 0 from one
+    eigen-decomposition per matrix.
+
+    With ``M = K_theta^-1/2 sym(K_C) K_theta^-1/2`` (diagonal K_theta): its largest eigenvalue
+    gives the critical factor (:func:`critical_load_factor`, bitwise the same); by Sylvester's
+    law of inertia K_C has the signs of M's eigenvalues mu and K_theta - K_C those of 1 - mu,
+    and by Ostrowski's theorem each eigenvalue of K_C is mu_i times a number in
+    [k_min, k_max]. Where that bound decides every eigenvalue against the class tolerance of
+    :func:`definiteness_codes` (with a margin above round-off), the class is read from the
+    signs; elsewhere (eigenvalues near the tolerance) it is computed by
+    :func:`definiteness_codes`, so the result equals it everywhere. ``det K_C > 0`` likewise
+    from the signs, or ``np.linalg.det`` where an eigenvalue is near zero.
+    """
+    diag = np.diag(k_theta)
+    if not np.allclose(k_theta, np.diag(diag)) or np.any(diag <= 0):
+        raise StiffnessError("load_definiteness needs a diagonal positive K_theta")
+    k_half_inv = np.diag(1.0 / np.sqrt(diag))
+    sym = 0.5 * (k_c + np.swapaxes(k_c, -1, -2))
+    mu = _eigvalsh(k_half_inv @ sym @ k_half_inv)
+    top = mu[..., -1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        critical = np.where(top > 0, 1.0 / np.where(top > 0, top, 1.0),
+                            np.where(np.isnan(top), np.nan, np.inf))
+    ratio = float(diag.max() / diag.min())
+    finite = np.all(np.isfinite(mu), axis=-1)
+    k_c_codes, k_c_sure = _inertia_codes(mu, ratio, rtol, finite)
+    t_codes, t_sure = _inertia_codes(1.0 - mu[..., ::-1], ratio, rtol, finite,
+                                     round_off=np.abs(mu).max(axis=-1, initial=0.0) + 1.0)
+    redo = ~k_c_sure & finite
+    if redo.any():
+        k_c_codes[redo] = definiteness_codes(k_c[redo], rtol=rtol)
+    redo = ~t_sure & finite
+    if redo.any():
+        t_codes[redo] = definiteness_codes(k_theta - k_c[redo], rtol=rtol)
+    scale = np.abs(mu).max(axis=-1, initial=0.0)
+    nonzero = np.all(np.abs(mu) > 1e-6 * scale[..., None], axis=-1) & finite
+    det_positive = np.zeros(mu.shape[:-1], dtype=bool)
+    det_positive[nonzero] = np.prod(np.sign(mu[nonzero]), axis=-1) > 0
+    rest = ~nonzero & finite
+    if rest.any():
+        det_positive[rest] = np.linalg.det(k_c[rest]) > 0
+    return LoadDefiniteness(k_c_codes, t_codes, critical, det_positive)
+
+
+def _inertia_codes(eig: np.ndarray, ratio: float, rtol: float, finite: np.ndarray,
+                   round_off: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Class codes from the signs of congruent eigenvalues and where they are certain.
+
+    ``eig`` (..., n) are eigenvalues of a matrix congruent to the classified one by a diagonal
+    scaling of condition ``ratio``; an eigenvalue is surely nonzero for the class tolerance
+    ``rtol max|lambda|`` above ``ratio rtol max|eig|`` and surely zero below
+    ``rtol max|eig| / ratio`` (margins ``1e-12`` of ``round_off``, default ``max|eig|``).
+    """
+    eig = np.where(finite[..., None], eig, 0.0)
+    top = np.abs(eig).max(axis=-1, initial=0.0)
+    delta = 1e-12 * (top if round_off is None else round_off)
+    size = np.abs(eig)
+    nonzero = size > ratio * rtol * (top + delta)[..., None] + delta[..., None]
+    zero = size + delta[..., None] < (rtol * (top - delta) / ratio)[..., None]
+    sure = np.all(nonzero | zero, axis=-1) & finite
+    pos = nonzero & (eig > 0)
+    neg = nonzero & (eig < 0)
+    codes = np.full(eig.shape[:-1], CLASS_CODES["ID"], dtype=np.int8)
+    codes[~pos.any(axis=-1)] = CLASS_CODES["NSD"]
+    codes[~neg.any(axis=-1)] = CLASS_CODES["PSD"]
+    codes[neg.all(axis=-1)] = CLASS_CODES["ND"]
+    codes[pos.all(axis=-1)] = CLASS_CODES["PD"]
+    codes[~finite] = INVALID_CLASS
+    return codes, sure | ~finite

@@ -16,9 +16,12 @@ simulate``)::
     angle = "deg"                      # deg | rad
     force = "N"                        # N | kN
     length = "mm"                      # mm | m | cm | um
+    rotation = "deg"                   # unit of rx, ry, rz (optional; default the angle unit)
+    moment = "N.mm"                    # unit of mx, my, mz (optional; default force.length)
     [measurement]
     data = "measurements.csv"
     noise_std = 0.005                  # measurement noise std, length unit (optional)
+    rotation_noise_std = 0.001         # rotation noise std, rotation unit (optional)
 
 Omitted optional keys take :func:`stiffness.model.robot.load_robot`'s defaults (the shipped robot's
 frame and compliant joints, else the model's last frame and every coordinate joint). Unknown
@@ -28,10 +31,12 @@ The CSV has a header and the columns ``config,q1,...,qn,fx,fy,fz,dx,dy,dz``: a c
 label, the robot's coordinates in its coordinate order (``Robot.coordinate_joints``; angles in
 the angle unit, prismatic joints in the length unit), the force applied at the target and the
 measured displacement of the target from its unloaded position. The optional groups
-``mx,my,mz`` (applied moment, force unit x length unit) and ``rx,ry,rz`` (measured small
-rotation vector, angle unit) may follow, in that order. Lines starting with ``#`` and blank
-lines are skipped. Any other column, a missing column, or a cell that is not a finite number is
-an error naming the file, the line and the column.
+``mx,my,mz`` (applied moment, in the ``[units] moment`` unit, default force unit x length
+unit) and ``rx,ry,rz`` (measured small rotation vector of the target frame's deflection, base
+axes, in the ``[units] rotation`` unit, default the angle unit) may follow, in that order; each
+group comes whole (all three columns). ``rotation_noise_std`` needs the rotation columns.
+Lines starting with ``#`` and blank lines are skipped. Any other column, a missing column, or a
+cell that is not a finite number is an error naming the file, the line and the column.
 
 In memory everything is SI (rad, m, N, N.m); the declared units apply only to the files.
 """
@@ -70,6 +75,9 @@ BASELINES = ("conventional", "enhanced")
 ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
 FORCE_UNITS = {"N": 1.0, "kN": 1e3}
 LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
+#: Moment unit name -> factor to N.m (every force unit times every length unit).
+MOMENT_UNITS = {f"{f}.{ln}": FORCE_UNITS[f] * LENGTH_UNITS[ln]
+                for f in FORCE_UNITS for ln in LENGTH_UNITS}
 
 _FORCE_COLUMNS = ("fx", "fy", "fz")
 _DEFLECTION_COLUMNS = ("dx", "dy", "dz")
@@ -79,8 +87,8 @@ _ROTATION_COLUMNS = ("rx", "ry", "rz")
 _TOML_KEYS = {
     "": {"name", "baseline", "robot", "units", "measurement"},
     "robot": {"source", "frame", "target_offset", "compliant_joints"},
-    "units": {"angle", "force", "length"},
-    "measurement": {"data", "noise_std"},
+    "units": {"angle", "force", "length", "rotation", "moment"},
+    "measurement": {"data", "noise_std", "rotation_noise_std"},
 }
 _REQUIRED_KEYS = {
     "": ("name", "baseline", "robot", "units", "measurement"),
@@ -112,20 +120,30 @@ class Units:
     angle
         Unit of joint angles and measured rotations: ``deg`` or ``rad``.
     force
-        Unit of forces: ``N`` or ``kN``; moments are in force x length (N.mm for N and mm).
+        Unit of forces: ``N`` or ``kN``.
     length
         Unit of deflections, the target offset, noise and prismatic coordinates:
         ``mm``, ``m``, ``cm`` or ``um``.
+    rotation_unit
+        Unit of measured rotations and their noise (``deg`` or ``rad``), or ``None`` for the
+        angle unit.
+    moment_unit
+        Unit of applied moments, force.length (e.g. ``N.mm``, ``N.m``), or ``None`` for the
+        force unit times the length unit.
     """
 
     angle: str = "deg"
     force: str = "N"
     length: str = "mm"
+    rotation_unit: str | None = None
+    moment_unit: str | None = None
 
     def __post_init__(self) -> None:
         for kind, value, table in (("angle", self.angle, ANGLE_UNITS),
                                    ("force", self.force, FORCE_UNITS),
-                                   ("length", self.length, LENGTH_UNITS)):
+                                   ("length", self.length, LENGTH_UNITS),
+                                   ("rotation", self.rotation, ANGLE_UNITS),
+                                   ("moment", self.moment, MOMENT_UNITS)):
             if value not in table:
                 raise UnknownNameError(
                     f"unknown {kind} unit {value!r}; valid {kind} units: {', '.join(table)}",
@@ -148,13 +166,23 @@ class Units:
 
     @property
     def moment_to_si(self) -> float:
-        """Factor from the moment unit (force x length) to N.m."""
-        return self.force_to_si * self.length_to_si
+        """Factor from the moment unit (default force x length) to N.m."""
+        return MOMENT_UNITS[self.moment]
 
     @property
     def moment(self) -> str:
-        """Name of the moment unit, e.g. ``N.mm``."""
-        return f"{self.force}.{self.length}"
+        """Name of the moment unit, e.g. ``N.mm`` (``[units] moment``, default force.length)."""
+        return self.moment_unit or f"{self.force}.{self.length}"
+
+    @property
+    def rotation(self) -> str:
+        """Unit of measured rotations (``[units] rotation``, default the angle unit)."""
+        return self.rotation_unit or self.angle
+
+    @property
+    def rotation_to_si(self) -> float:
+        """Factor from the rotation unit to rad."""
+        return ANGLE_UNITS[self.rotation]
 
 
 @dataclass
@@ -229,6 +257,8 @@ class Campaign:
         (m, 3) measured small rotation vector of the target frame, rad, or ``None``.
     noise_std_m
         Standard deviation of the deflection measurement noise, m, or ``None`` if unknown.
+    rotation_noise_std_rad
+        Standard deviation of the rotation measurement noise, rad, or ``None`` if unknown.
     units
         Units of the files.
     path
@@ -254,6 +284,7 @@ class Campaign:
     data_file: str = DEFAULT_DATA_FILE
     lines: tuple[int, ...] | None = None
     _robot: Robot | None = field(default=None, repr=False, compare=False)
+    rotation_noise_std_rad: float | None = None
 
     def __post_init__(self) -> None:
         if self.baseline not in BASELINES:
@@ -294,6 +325,16 @@ class Campaign:
                 raise StiffnessError(
                     f"noise_std must be a positive finite length, got {self.noise_std_m}"
                 )
+        if self.rotation_noise_std_rad is not None:
+            self.rotation_noise_std_rad = float(self.rotation_noise_std_rad)
+            if not (math.isfinite(self.rotation_noise_std_rad)
+                    and self.rotation_noise_std_rad > 0):
+                raise StiffnessError(f"rotation_noise_std must be a positive finite angle, got "
+                                     f"{self.rotation_noise_std_rad}")
+            if self.rotation is None:
+                raise StiffnessError("rotation_noise_std is given but the campaign has no "
+                                     "measured rotations (columns rx, ry, rz); add them or drop "
+                                     "rotation_noise_std")
         if not isinstance(self.units, Units):
             raise StiffnessError("campaign units must be a stiffness.calibration.campaign.Units")
         if self.path is not None:
@@ -585,7 +626,13 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
         if value not in table:
             raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
                              f"{key} units: {', '.join(table)}", "units", key)
-    units = Units(u["angle"], u["force"], u["length"])
+    for key, table in (("rotation", ANGLE_UNITS), ("moment", MOMENT_UNITS)):
+        value = u.get(key)
+        if value is not None and value not in table:
+            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
+                             f"{key} units: {', '.join(table)}; omit it for the default",
+                             "units", key)
+    units = Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
 
     r = doc["robot"]
     source = _typed(r["source"], str, toml, "robot", "source", "a string")
@@ -615,6 +662,14 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
             raise toml.error(f"[measurement] noise_std must be a positive finite number in "
                              f"{units.length}, got {noise!r}; omit it if unknown",
                              "measurement", "noise_std")
+    rot_noise = m.get("rotation_noise_std")
+    if rot_noise is not None:
+        _typed(rot_noise, int | float, toml, "measurement", "rotation_noise_std",
+               f"a positive number in {units.rotation}")
+        if not (math.isfinite(rot_noise) and rot_noise > 0):
+            raise toml.error(f"[measurement] rotation_noise_std must be a positive finite number "
+                             f"in {units.rotation}, got {rot_noise!r}; omit it if unknown",
+                             "measurement", "rotation_noise_std")
     data_path = toml_path.parent / data_name
 
     try:
@@ -640,12 +695,25 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
         moment = values[:, col: col + 3] * units.moment_to_si
         col += 3
     if has_rotation:
-        rotation = values[:, col: col + 3] * units.angle_to_si
+        rotation = values[:, col: col + 3] * units.rotation_to_si
+    elif rot_noise is not None:
+        raise toml.error(f"[measurement] rotation_noise_std is given but {data_name} has no "
+                         "rotation columns rx,ry,rz; add them after dz (or after mz) or drop "
+                         "rotation_noise_std", "measurement", "rotation_noise_std")
+    if "moment" in u and not has_moment:
+        raise toml.error(f"[units] moment is given but {data_name} has no moment columns "
+                         "mx,my,mz; add them after dz or drop the key", "units", "moment")
+    if "rotation" in u and not has_rotation:
+        raise toml.error(f"[units] rotation is given but {data_name} has no rotation columns "
+                         "rx,ry,rz; add them after dz (or after mz) or drop the key",
+                         "units", "rotation")
     return Campaign(
         name=name, baseline=baseline, robot_settings=settings, q=q, force=force,
         deflection=deflection, config=tuple(labels), moment=moment, rotation=rotation,
         noise_std_m=None if noise is None else float(noise) * units.length_to_si, units=units,
         path=toml_path, data_file=data_name, lines=tuple(lines), _robot=robot,
+        rotation_noise_std_rad=(None if rot_noise is None
+                                else float(rot_noise) * units.rotation_to_si),
     )
 
 
@@ -707,21 +775,11 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
             path=getattr(c, "path", None),
             data_file=getattr(c, "data_file", DEFAULT_DATA_FILE),
             _robot=getattr(c, "_robot", None),
+            rotation_noise_std_rad=getattr(c, "rotation_noise_std_rad", None),
         )
     folder = Path(folder)
     output_folder(folder)
     u = c.units
-    s = c.robot_settings
-
-    source = s.source
-    if _looks_like_path(source):
-        resolved = Path(c.resolved_source())
-        try:
-            source = os.path.relpath(resolved, folder.resolve())
-        except ValueError:  # another drive on Windows
-            source = str(resolved)
-        source = Path(source).as_posix()
-
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     n_q = c.q.shape[1]
     prismatic = _prismatic_mask(c.robot())
@@ -736,16 +794,36 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
         blocks.append(c.moment / u.moment_to_si)
     if c.rotation is not None:
         header += list(_ROTATION_COLUMNS)
-        blocks.append(c.rotation / u.angle_to_si)
+        blocks.append(c.rotation / u.rotation_to_si)
     table = np.hstack(blocks)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(header)
     for label, row in zip(c.config, table, strict=True):
         writer.writerow([label, *(_num(v) for v in row)])
-    lines = out.getvalue()
-    atomic_write(folder / data_name, lines)
+    atomic_write(folder / data_name, out.getvalue())
 
+    target = folder / CAMPAIGN_FILE
+    atomic_write(target, campaign_toml(c, folder))
+    return target
+
+
+def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
+    """The ``campaign.toml`` text of ``c`` written into ``folder`` (a relative URDF source is
+    made relative to ``folder``); its ``[measurement] data`` is ``c.data_file``'s name."""
+    folder = Path(folder)
+    u = c.units
+    s = c.robot_settings
+    source = s.source
+    if _looks_like_path(source):
+        resolved = Path(c.resolved_source())
+        try:
+            source = os.path.relpath(resolved, folder.resolve())
+        except ValueError:  # another drive on Windows
+            source = str(resolved)
+        source = Path(source).as_posix()
+
+    data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     toml = [
         "# Measurement campaign (see stiffness/campaign.py for the format).",
         f"name = {_toml_string(c.name)}",
@@ -767,12 +845,16 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
         f"angle = {_toml_string(u.angle)}",
         f"force = {_toml_string(u.force)}",
         f"length = {_toml_string(u.length)}",
+        *([f"rotation = {_toml_string(u.rotation_unit)}"]
+          if u.rotation_unit is not None and c.rotation is not None else []),
+        *([f"moment = {_toml_string(u.moment_unit)}"]
+          if u.moment_unit is not None and c.moment is not None else []),
         "",
         "[measurement]",
         f"data = {_toml_string(data_name)}",
     ]
     if c.noise_std_m is not None:
         toml.append(f"noise_std = {_num(c.noise_std_m / u.length_to_si)}")
-    target = folder / CAMPAIGN_FILE
-    atomic_write(target, "\n".join(toml) + "\n")
-    return target
+    if c.rotation_noise_std_rad is not None:
+        toml.append(f"rotation_noise_std = {_num(c.rotation_noise_std_rad / u.rotation_to_si)}")
+    return "\n".join(toml) + "\n"

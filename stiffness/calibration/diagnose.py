@@ -61,7 +61,7 @@ from stiffness.calibration.effects import (
     Rows,
     candidates,
 )
-from stiffness.calibration.fitting import Fit
+from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
@@ -113,7 +113,9 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
 def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
     """ln k from the conventional model, linear in the compliances (non-negative LS)."""
     tau = model.rows.torques()[:, model.index[: len(model.compliant)]]
-    design = (model.jv[:, :, : len(model.compliant)] * tau[:, None, :]).reshape(
+    jac = model.jv if model.rotation_weight is None else np.concatenate(
+        [model.jv, model.rotation_weight * model.jw], axis=1)
+    design = (jac[:, :, : len(model.compliant)] * tau[:, None, :]).reshape(
         -1, len(model.compliant))
     c, _ = nnls(design, measured.reshape(-1))
     k = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.nan)
@@ -197,9 +199,14 @@ def _covariance(fit: Fit, sigma: float) -> np.ndarray:
 # noise
 
 
-def replicate_noise(campaign: Campaign) -> tuple[float, int] | None:
-    """Pooled std (m) of replicate rows (same coordinates and force) and its degrees of freedom,
-    or ``None`` when the replicates give fewer than 9 degrees of freedom."""
+def replicate_noise(campaign: Campaign, kind: str = "translation"
+                    ) -> tuple[float, int] | None:
+    """Pooled std (m; rad for ``kind="rotation"``) of replicate rows (same coordinates and
+    force) and its degrees of freedom, or ``None`` when the replicates give fewer than 9
+    degrees of freedom (or the campaign measures no rotations)."""
+    values = campaign.deflection if kind == "translation" else campaign.rotation
+    if values is None:
+        return None
     groups: dict[tuple, list[int]] = {}
     for i in range(campaign.n_rows):
         key = tuple(np.round(campaign.q[i], 9)) + tuple(np.round(campaign.wrench[i], 6))
@@ -207,7 +214,7 @@ def replicate_noise(campaign: Campaign) -> tuple[float, int] | None:
     ss, dof = 0.0, 0
     for idx in groups.values():
         if len(idx) > 1:
-            d = campaign.deflection[idx]
+            d = values[idx]
             ss += float(np.sum((d - d.mean(axis=0)) ** 2))
             dof += 3 * (len(idx) - 1)
     if dof < _MIN_REPLICATE_DOF:
@@ -583,6 +590,20 @@ class Diagnosis:
     final_parameters: dict[str, list[Parameter]] = field(default_factory=dict)
     final_parameters_si: dict[str, list[Parameter]] = field(default_factory=dict)
     unexplained: bool | None = None
+    measured: np.ndarray | None = None
+    rotation_noise_std_rad: float | None = None
+    rotation_noise_source: str | None = None
+
+    def rms_by_kind(self) -> dict:
+        """RMS of the baseline's and the final model's residuals per kind: translations in
+        the length unit, rotations (when measured) in the campaign's rotation unit."""
+        measured = self.campaign.deflection if self.measured is None else self.measured
+        out = {}
+        for label, fit in (("baseline", self.baseline), ("final", self.final)):
+            t, r = fit.rms_by_kind(measured)
+            out[label] = {"translation": self._len(t), "rotation": None if r is None
+                          else r / self.campaign.units.rotation_to_si}
+        return out
 
     @property
     def final(self) -> Fit:
@@ -639,7 +660,7 @@ class Diagnosis:
             "campaign": c.name,
             "campaign_path": str(c.path) if c.path is not None else None,
             "rows": c.n_rows,
-            "residual_components": 3 * c.n_rows,
+            "residual_components": (3 if c.rotation is None else 6) * c.n_rows,
             "configurations": len(set(c.config)),
             "baseline": self.baseline.model.describe(),
             "final_model": self.final.model.describe(),
@@ -663,6 +684,11 @@ class Diagnosis:
             "where_final_disagrees": self.final_disagreement,
             "cannot_tell_apart": [a.to_dict(c.units.length_to_si) for a in self.ambiguities],
             "elapsed_s": self.elapsed_s,
+            "rms_by_kind": self.rms_by_kind(),
+            "rotation_unit": c.units.rotation,
+            "rotation_noise_std": None if self.rotation_noise_std_rad is None
+            else self.rotation_noise_std_rad / c.units.rotation_to_si,
+            "rotation_noise_std_source": self.rotation_noise_source,
         })
         return jsonable(out)
 
@@ -678,6 +704,8 @@ class Diagnosis:
             if e.name == "backlash":
                 settings["smoothing_torque"] = float(refs.tau_smoothing[
                     refs.joints.index(e.where)])
+            elif e.name == "gravity_compensator":
+                settings = dict(e.settings)
             effects.append(ModelEffect(e.name, e.where, e.kind,
                                        self.final_parameters_si.get(e.label, []), settings,
                                        e.describe()))
@@ -699,6 +727,10 @@ class Diagnosis:
                 "noise_std": self._len(self.noise_std_m),
                 "noise_std_source": self.noise_std_source, "unit": self.unit,
                 "unexplained": self.unexplained, "unexplained_note": self.unexplained_note,
+                "rotation_noise": None if self.rotation_noise_std_rad is None else {
+                    "std_rad": self.rotation_noise_std_rad,
+                    "source": self.rotation_noise_source,
+                    "weight_m_per_rad": f.model.rotation_weight},
                 "baseline": f.model.baseline, "compliant_joints": list(f.model.compliant),
                 "parameter_vector": f.x.tolist(),
                 "references": {"k_ref": refs.k_ref, "theta_ref": refs.theta_ref,
@@ -805,7 +837,7 @@ def diagnose(
     rows = geo.rows(campaign.q, campaign.force, campaign.moment,
                     labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
     measured = campaign.deflection
-    n = measured.size
+    n = measured.size * (1 if campaign.rotation is None else 2)
     if n <= len(robot.compliant_joints) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
                              f"{len(robot.compliant_joints)} stiffnesses; add measurement rows")
@@ -825,13 +857,25 @@ def diagnose(
             sigma, source = None, "residuals"
     rms_meas = float(np.sqrt(np.mean(measured ** 2)))
     scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
+    rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma)
+    deflection = measured
+    measured = observations(deflection, campaign.rotation, weight)
 
     # baseline
-    refs0 = References.of(geo, rows, 1e5, measured)
-    model0 = Model(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
+    refs0 = References.of(geo, rows, 1e5, deflection)
+    model0 = Model(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0,
+                   weight)
     base = fit_baseline(model0, measured, scale)
+    if rot_source == "residuals":  # the rotation noise from the baseline's residuals
+        res_t, res_r = base.residuals(measured)
+        s_t = sigma if sigma is not None else kind_noise(res_t, n, len(base.x))
+        rot_sigma = kind_noise(res_r, n, len(base.x))
+        if s_t and rot_sigma:
+            weight = s_t / rot_sigma
+            measured = observations(deflection, campaign.rotation, weight)
+            base = fit_baseline(model0.with_rotation_weight(weight), measured, scale)
     k_ref = float(np.exp(np.mean(base.x)))
-    refs = References.of(geo, rows, k_ref, measured)
+    refs = References.of(geo, rows, k_ref, deflection)
     base.model = base.model.with_refs(refs)
     if sigma is None:
         scale = max(base.rms(), 1e-12)
@@ -953,17 +997,37 @@ def diagnose(
         final_stiffness=_stiffness_parameters(final, cov_final, quantile),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
-        baseline_disagreement=disagreement(base.predicted - measured, campaign, sigma_used,
-                                           rows, geo.joints),
-        final_disagreement=disagreement(final.predicted - measured, campaign, sigma_used, rows,
-                                        geo.joints),
+        baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
+                                           sigma_used, rows, geo.joints),
+        final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
+                                        sigma_used, rows, geo.joints),
         gof_baseline=_gof(base.rss, n, base.model.penalty_params, sigma),
         gof_final=gof_final, unexplained=None if gof_final is None
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0, final_parameters=final_params,
-        final_parameters_si=final_params_si,
+        final_parameters_si=final_params_si, measured=measured,
+        rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
     )
+
+
+def _rotation_noise(campaign: Campaign, sigma: float | None
+                    ) -> tuple[float | None, str | None, float | None]:
+    """Rotation noise std (rad), its source and the rotation weight ``sigma_t / sigma_r``
+    (m/rad) of a campaign with rotations (``None``s without): declared, else replicates,
+    else ``residuals`` (then the weight is a first guess, the ratio of the measured RMS of
+    each kind, refined from the baseline's residuals)."""
+    if campaign.rotation is None:
+        return None, None, None
+    rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2))) or 1.0
+    rms_r = float(np.sqrt(np.mean(campaign.rotation ** 2))) or 1.0
+    s_t = sigma if sigma is not None else rms_t
+    if campaign.rotation_noise_std_rad is not None:
+        rot, source = campaign.rotation_noise_std_rad, "declared"
+    else:
+        rep = replicate_noise(campaign, "rotation")
+        rot, source = (rep[0], "replicates") if rep is not None else (None, "residuals")
+    return rot, source, s_t / (rot if rot is not None else rms_r)
 
 
 def _quantile(sigma: float | None, n: int, p: int) -> float:
@@ -986,54 +1050,43 @@ def _similarity(current: Fit, a: Fit, b: Fit, scale: float) -> float:
 # experiment design
 
 
-#: Load directions tried by :func:`propose_measurements`: the axes and the cube diagonals.
-_DIRECTIONS = np.vstack([np.eye(3), -np.eye(3)] + [
-    np.array([sx, sy, sz]) / math.sqrt(3.0)
-    for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)])
-
-
 def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit, sigma: float,
                          n_poses: int = 40, n_best: int = 3, seed: int = 0) -> list[dict]:
     """Extra poses and loads where two fitted models' predictions differ most.
 
-    Poses are sampled at random among reachable ones
-    (:func:`stiffness.calibration.simulate.sample_coordinates`); loads along the axes and cube
-    diagonals
-    at the campaign's largest force. The
-    ``n_best`` pose-load pairs of largest predicted separation ``|dx_a - dx_b| / sigma`` are
-    returned, one per pose, in the campaign's units.
+    The experiment design's separation (:mod:`stiffness.calibration.experiment`): ``n_poses``
+    reachable candidate poses, loads along the axes and cube diagonals at the campaign's largest
+    force; the ``n_best`` poses, one load each, that add the most separation left after either
+    model is refitted, in the campaign's units. Each proposal's ``separation_noise_units`` is
+    ``|dx_a - dx_b| / sigma`` there.
     """
-    from stiffness.calibration.simulate import sample_coordinates
+    from stiffness.calibration.experiment import (
+        Alternatives,
+        candidate_set,
+        select_rows,
+        separation_score,
+        separation_statistics,
+    )
 
-    rng = np.random.default_rng(seed)
-    coords = sample_coordinates(geometry.robot, n_poses, rng)
     f_max = float(np.linalg.norm(campaign.force, axis=1).max())
-    n_dir = len(_DIRECTIONS)
-    q = np.repeat(coords, n_dir, axis=0)
-    force = np.tile(_DIRECTIONS * f_max, (len(coords), 1))
-    rows = geometry.rows(q, force)
-    with np.errstate(all="ignore"):
-        pa = a.model.with_rows(rows).predict(a.x)
-        pb = b.model.with_rows(rows).predict(b.x)
-    sep = np.linalg.norm(pa - pb, axis=1) / sigma
-    sep = np.where(np.isfinite(sep), sep, -1.0)
+    cands = candidate_set(geometry.robot, n_poses, f_max, seed)
+    labels = (a.model.describe(), b.model.describe())
+    sep = separation_statistics(Alternatives(a, b, labels, sigma, ""), cands)
+    chosen = select_rows(sep.rows, sep.base, separation_score, min(n_best, cands.n_poses), 1)
     u = campaign.units
     prismatic = geometry.prismatic
-    out, used = [], set()
-    for i in np.argsort(-sep):
-        pose = int(i // n_dir)
-        if pose in used or sep[i] < 0:
-            continue
-        used.add(pose)
-        qc = coords[pose].copy()
+    out = []
+    for pose, load in zip(chosen.poses, chosen.loads[:, 0], strict=True):
+        qc = cands.coords[pose].copy()
         qc[~prismatic] /= u.angle_to_si
         qc[prismatic] /= u.length_to_si
-        out.append({"q": qc.tolist(), "force": (force[i] / u.force_to_si).tolist(),
-                    "deflection_chosen": (pa[i] / u.length_to_si).tolist(),
-                    "deflection_other": (pb[i] / u.length_to_si).tolist(),
-                    "separation_noise_units": float(sep[i])})
-        if len(out) >= n_best:
-            break
+        force = cands.directions[load] * cands.max_force
+        out.append({"q": qc.tolist(), "force": (force / u.force_to_si).tolist(),
+                    "deflection_chosen": (sep.predicted_a[pose, load, :3]
+                                          / u.length_to_si).tolist(),
+                    "deflection_other": (sep.predicted_b[pose, load, :3]
+                                         / u.length_to_si).tolist(),
+                    "separation_noise_units": float(sep.raw[pose, load])})
     return out
 
 
@@ -1087,6 +1140,14 @@ def format_report(d: Diagnosis) -> str:
         lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",
                   f"where the final model disagrees (RMS in {unit}, and in noise std):"]
         lines += _disagreement_lines(d.final_disagreement, unit, c.units.force)
+    if d.rotation_noise_std_rad is not None:
+        kinds, ru = d.rms_by_kind(), d.campaign.units.rotation
+        lines.append(f"RMS by kind: translations {kinds['baseline']['translation']:.4g} -> "
+                     f"{kinds['final']['translation']:.4g} {unit}, rotations "
+                     f"{kinds['baseline']['rotation']:.4g} -> {kinds['final']['rotation']:.4g} "
+                     f"{ru} (rotation noise std "
+                     f"{d.rotation_noise_std_rad / d.campaign.units.rotation_to_si:.4g} {ru}, "
+                     f"{d.rotation_noise_source})")
     if d.ambiguities:
         lines += ["", "cannot tell apart:"]
         for a in d.ambiguities:
@@ -1117,8 +1178,8 @@ def residual_plot(d: Diagnosis) -> bytes:
     import matplotlib.pyplot as plt
 
     lu = d.campaign.units.length_to_si
-    before = (d.baseline.predicted - d.campaign.deflection) / lu
-    after = (d.final.predicted - d.campaign.deflection) / lu
+    before = (d.baseline.predicted[:, :3] - d.campaign.deflection) / lu
+    after = (d.final.predicted[:, :3] - d.campaign.deflection) / lu
     sigma = d.noise_std_m / lu
     rows = np.arange(1, d.campaign.n_rows + 1)
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)

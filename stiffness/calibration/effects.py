@@ -39,6 +39,19 @@ campaign's compliant joints, extended by any number of *effects* from :data:`LIB
 ``deflection_offset``
     The measured deflections carry a constant offset ``d`` (m) (the unloaded reference moved,
     an instrument zero drift).
+``gravity_preload``
+    The links' weight (URDF inertias) and a payload (mass kg, centre of mass m in target frame
+    axes) preload the joints (:meth:`Effect.preload`): the deflection is the loaded minus the
+    unloaded equilibrium at the commanded pose (open chains only).
+``gravity_compensator`` (where: a revolute compliant joint)
+    A spring between the base and a lever on the link
+    (:func:`stiffness.mechanics.gravity.spring_balancer`; parameters its stiffness N/m and its
+    tension N at the joint's zero): its torque preloads the joint, its angle derivative adds
+    to the joint's stiffness.
+
+With a :attr:`Model.rotation_weight` a model also predicts the rotation of the target frame,
+``J_w dtheta`` plus each effect's rotational part (:meth:`Effect.rotation`,
+:meth:`Effect.adjust_rotation`).
 
 Speed: Pinocchio is called once per distinct configuration (:func:`build_rows`), with every
 coordinate joint compliant: the target Jacobian (6, n) and ``K_C`` of the six unit wrenches
@@ -70,6 +83,7 @@ from stiffness.errors import (
 )
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
 from stiffness.mechanics.formulation import target_state, target_states
+from stiffness.mechanics.gravity import gravity_preload, require_open_chain, spring_balancer
 from stiffness.model.robot import Robot, load_robot
 
 #: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
@@ -83,8 +97,13 @@ LAW_ITERATIONS = 4
 BASELINES = ("conventional", "enhanced", "exact")
 #: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
 #: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
-#: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied).
-EFFECT_KINDS = ("stiffness", "measurement", "lost_motion")
+#: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied),
+#: ``preload`` (a load present at every pose, the robot's weight: it moves the operating point
+#: and adds its ``K_C``).
+EFFECT_KINDS = ("stiffness", "measurement", "lost_motion", "preload")
+#: Default geometry of ``gravity_compensator`` (m, m, rad): lever on the link, distance of the
+#: base attachment from the axis, angle between them at the joint's zero.
+COMPENSATOR_GEOMETRY = {"lever_m": 0.1, "base_m": 0.3, "angle0_rad": 0.0}
 
 _UNIT_WRENCHES = np.eye(6)
 
@@ -137,6 +156,11 @@ class Rows:
         (m,) index of the row's distinct configuration.
     coords
         (m, n_coordinates) the rows' coordinates (rad, m).
+    gravity_torque
+        (m, n) the links' weight on every coordinate joint, ``-g(q)``
+        (:func:`stiffness.mechanics.gravity.gravity_preload`); NaN for a robot with loops.
+    gravity_stiffness
+        (m, n, n) its derivative ``-dg/dq`` (N.m/rad); NaN for a robot with loops.
     """
 
     jac: np.ndarray
@@ -149,6 +173,8 @@ class Rows:
     moment: np.ndarray
     config_index: np.ndarray
     coords: np.ndarray
+    gravity_torque: np.ndarray | None = None
+    gravity_stiffness: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -159,7 +185,8 @@ class Rows:
         """The rows ``index`` (an integer or boolean index)."""
         return Rows(*(getattr(self, f)[index] for f in (
             "jac", "k_c_unit", "position", "rotation", "chain_origin", "chain_rotation",
-            "force", "moment", "config_index", "coords")))
+            "force", "moment", "config_index", "coords", "gravity_torque",
+            "gravity_stiffness")))
 
     def torques(self) -> np.ndarray:
         """(m, n) joint torques ``J^T W`` that hold the recorded loads (N.m or N)."""
@@ -258,6 +285,8 @@ class Geometry:
         rot = np.empty((n_c, 3, 3))
         origin = np.empty((n_c, nch, 3))
         chain_rot = np.empty((n_c, nch, 3, 3))
+        g_tau = np.full((n_c, n), np.nan)
+        g_k = np.full((n_c, n, n), np.nan)
         for key, c in keys.items():
             row = int(np.argmax(index == c))
             try:
@@ -271,8 +300,10 @@ class Geometry:
             k_c[c] = np.array([s.k_c for s in states])
             pos[c] = states[0].position
             rot[c] = states[0].rotation
+            if self.robot.loop is None:
+                g_tau[c], g_k[c] = gravity_preload(self.robot, q, columns=self.robot.coordinate_v)
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
-                    chain_rot[index], force, moment, index, coords)
+                    chain_rot[index], force, moment, index, coords, g_tau[index], g_k[index])
 
     def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
         """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart
@@ -498,6 +529,24 @@ class Effect:
         """Measured displacement from the model's."""
         return dx
 
+    def rotation(self, p: np.ndarray, model: Model, rows: Rows, force: np.ndarray,
+                 moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
+        """(m, 3) extra rotation of the target frame (rad, base axes), the rotational part of
+        :meth:`displacement`."""
+        return None
+
+    def adjust_rotation(self, p: np.ndarray, dphi: np.ndarray) -> np.ndarray:
+        """Measured rotation (m, 3) from the model's (the rotational part of
+        :meth:`adjust_output`)."""
+        return dphi
+
+    def preload(self, p: np.ndarray, model: Model, rows: Rows
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+        """A torque present at the unloaded pose: ``(tau_p (m, n), K_p (m, n, n))`` over the
+        model's joints, ``K_p = d tau_p / d theta``, or ``None``. The measured deflection is
+        then the loaded minus the unloaded equilibrium (:meth:`Model.predict`)."""
+        return None
+
     # reporting ------------------------------------------------------------------------------
     def report(self, u: np.ndarray, cov_u: np.ndarray, refs: References, units,
                quantile: float) -> list[Parameter]:
@@ -614,7 +663,7 @@ class LinkCompliance(Effect):
     def variables(self, values, refs):
         return (1.0 / np.asarray(values, dtype=float)[:2]) / self.scale(refs)
 
-    def displacement(self, p, model, rows, force, moment, point):
+    def _omega(self, p, model, rows, force, moment, point):
         ia, ib = model.geometry.chain.index(self.a), model.geometry.chain.index(self.b)
         p_a, p_b = rows.chain_origin[:, ia], rows.chain_origin[:, ib]
         e1, e2 = link_axes(p_a, p_b, rows.chain_rotation[:, ib], self.column)
@@ -622,7 +671,14 @@ class LinkCompliance(Effect):
         m_b = np.cross(r, force) + moment
         omega = (e1 * (p[0] * np.sum(e1 * m_b, axis=1))[:, None]
                  + e2 * (p[1] * np.sum(e2 * m_b, axis=1))[:, None])
+        return omega, r
+
+    def displacement(self, p, model, rows, force, moment, point):
+        omega, r = self._omega(p, model, rows, force, moment, point)
         return np.cross(omega, r)
+
+    def rotation(self, p, model, rows, force, moment, point):
+        return self._omega(p, model, rows, force, moment, point)[0]
 
     def report(self, u, cov_u, refs, units, quantile):
         return [_stiffness_report(n, float(u[i]), float(cov_u[i, i]), 1.0 / refs.k_ref,
@@ -724,6 +780,9 @@ class FrameMisalignment(Effect):
     def adjust_output(self, p, dx):
         return dx @ rotation_matrix(p).T
 
+    def adjust_rotation(self, p, dphi):
+        return dphi @ rotation_matrix(p).T
+
     def _units(self, units):
         return [(units.angle, units.angle_to_si)] * 3
 
@@ -790,11 +849,107 @@ class DeflectionOffset(Effect):
         return "the measured deflections carry a constant offset (the reference moved)"
 
 
+class GravityPreload(Effect):
+    """The robot's weight (URDF inertias) and a payload preload the joints at every pose."""
+
+    name = "gravity_preload"
+    kind = "preload"
+    param_names = ("mass", "com_x", "com_y", "com_z")
+
+    def scale(self, refs):
+        return np.array([refs.force_ref / 9.81, 0.1, 0.1, 0.1])
+
+    def bounds(self):
+        return np.array([0.0, -1e4, -1e4, -1e4]), np.full(4, 1e4)
+
+    def start(self):
+        return np.array([0.05, 0.0, 0.0, 0.0])
+
+    def preload(self, p, model, rows):
+        idx = model.index
+        if rows.gravity_torque is None or not np.all(np.isfinite(rows.gravity_torque)):
+            require_open_chain(model.geometry.robot, self.name)
+        tau = rows.gravity_torque[:, idx]
+        k_g = rows.gravity_stiffness[:, idx][:, :, idx]
+        f = p[0] * np.asarray(model.geometry.robot.model.gravity.linear, dtype=float)
+        r = rows.rotation @ p[1:4]
+        moment = np.cross(r, f)
+        wrench = np.hstack([np.broadcast_to(f, moment.shape), moment])
+        tau = tau + model.jv.transpose(0, 2, 1) @ f + np.einsum("mkn,mk->mn", model.jw, moment)
+        k_p = np.einsum("mk,mkab->mab", wrench, model.h)
+        k_p += model.jw.transpose(0, 2, 1) @ (_skew(f) @ _skew(r)) @ model.jw
+        return tau, k_g + k_p
+
+    def _units(self, units):
+        return [("kg", 1.0)] + [(units.length, units.length_to_si)] * 3
+
+    def describe(self) -> str:
+        return ("the robot's weight and a payload preload the joints (the measured deflection "
+                "is loaded minus unloaded under that weight)")
+
+
+@dataclass(eq=False)
+class GravityCompensator(Effect):
+    """A spring between the base and a lever on the joint's link
+    (:func:`stiffness.mechanics.gravity.spring_balancer`)."""
+
+    joint_name: str = ""
+    lever_m: float = COMPENSATOR_GEOMETRY["lever_m"]
+    base_m: float = COMPENSATOR_GEOMETRY["base_m"]
+    angle0_rad: float = COMPENSATOR_GEOMETRY["angle0_rad"]
+    name: ClassVar[str] = "gravity_compensator"
+    param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
+
+    def __post_init__(self) -> None:
+        if not (self.lever_m > 0 and self.base_m > 0 and abs(self.lever_m - self.base_m) > 1e-6):
+            raise StiffnessError(f"gravity_compensator:{self.joint_name} needs a lever and a "
+                                 f"base distance that are positive and differ, got "
+                                 f"{self.lever_m} and {self.base_m} m")
+
+    @property
+    def where(self) -> str:
+        return self.joint_name
+
+    @property
+    def settings(self) -> dict:
+        """The spring's geometry (SI)."""
+        return {"lever_m": self.lever_m, "base_m": self.base_m, "angle0_rad": self.angle0_rad}
+
+    def scale(self, refs):
+        ad = self.lever_m * self.base_m
+        return np.array([0.1 * refs.k_ref / ad, 0.1 * refs.k_ref / self.lever_m])
+
+    def bounds(self):
+        return np.array([0.0, -1e4]), np.full(2, 1e4)
+
+    def torque(self, p: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Spring torque (N.m) on the joint at angles ``theta`` (rad) and its derivative."""
+        return spring_balancer(theta, p[0], p[1], self.lever_m, self.base_m, self.angle0_rad)
+
+    def preload(self, p, model, rows):
+        column = model.joints.index(self.joint_name)
+        theta = rows.coords[:, model.geometry.joints.index(self.joint_name)]
+        tau_s, dtau = self.torque(p, theta)
+        m, n = rows.n_rows, len(model.joints)
+        tau, k = np.zeros((m, n)), np.zeros((m, n, n))
+        tau[:, column] = tau_s
+        k[:, column, column] = dtau
+        return tau, k
+
+    def _units(self, units):
+        return [("N/m", 1.0), ("N", 1.0)]
+
+    def describe(self) -> str:
+        return (f"a spring gravity compensator on {self.joint_name} adds its torque and its "
+                "angle derivative (a stiffness) to the joint")
+
+
 #: Effect name -> class, in the order candidates are listed.
 LIBRARY: dict[str, type[Effect]] = {
     cls.name: cls for cls in (ComplementaryStiffness, JointCompliance, LinkCompliance, Backlash,
                               NonlinearJointStiffness, FrameMisalignment, TargetOffset,
-                              ForceSensorBias, DeflectionOffset)
+                              ForceSensorBias, DeflectionOffset, GravityPreload,
+                              GravityCompensator)
 }
 #: Effects the issue requires (``deflection_offset`` is an extra).
 REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n != "deflection_offset")
@@ -838,8 +993,19 @@ def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
                 name=str(where), choices=pairs)
         return LinkCompliance(a=parts[0], b=parts[1],
                               column=geometry.link_columns[(parts[0], parts[1])])
+    if cls is GravityCompensator:
+        if where not in geometry.joints or geometry.prismatic[geometry.joints.index(where)]:
+            revolute = [j for j, p in zip(geometry.joints, geometry.prismatic, strict=True)
+                        if not p]
+            raise UnknownJointError(f"gravity_compensator needs a revolute joint, e.g. "
+                                    f"gravity_compensator:{revolute[0]}; "
+                                    f"{did_you_mean(str(where), revolute)}", name=str(where),
+                                    choices=revolute)
+        return GravityCompensator(joint_name=where)
     if where:
         raise StiffnessError(f"{name} acts on the whole campaign; drop ':{where}'")
+    if cls is GravityPreload:
+        require_open_chain(geometry.robot, name)
     return cls()
 
 
@@ -867,11 +1033,16 @@ class Model:
         Effects, in the order added.
     refs
         Variable scales.
+    rotation_weight
+        ``None``: the model predicts the (m, 3) translations. A weight ``w`` (m/rad): it
+        predicts (m, 6) rows ``[dx; w dphi]``, the rotation ``dphi`` of the target frame
+        (rad, base axes) in translation-noise units (``w = sigma_t / sigma_r``), so that one
+        residual scale whitens both kinds (:mod:`stiffness.calibration.fitting`).
     """
 
     def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
-                 compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References
-                 ) -> None:
+                 compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References,
+                 rotation_weight: float | None = None) -> None:
         if baseline not in BASELINES:
             raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
                                    name=baseline, choices=BASELINES)
@@ -880,6 +1051,7 @@ class Model:
                                  "approximates it to second order); start from enhanced")
         self.geometry, self.rows, self.baseline = geometry, rows, baseline
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
+        self.rotation_weight = None if rotation_weight is None else float(rotation_weight)
         self.joints = self.compliant + tuple(e.added_joint for e in self.effects
                                              if e.added_joint is not None)
         self.index = np.array([geometry.joints.index(j) for j in self.joints], dtype=int)
@@ -903,20 +1075,42 @@ class Model:
     # construction ----------------------------------------------------------------------------
     def with_rows(self, rows: Rows) -> Model:
         """The same model over other rows."""
-        return Model(self.geometry, rows, self.baseline, self.compliant, self.effects, self.refs)
+        return Model(self.geometry, rows, self.baseline, self.compliant, self.effects, self.refs,
+                     self.rotation_weight)
 
     def extended(self, effect: Effect) -> Model:
         """This model plus ``effect``."""
         return Model(self.geometry, self.rows, self.baseline, self.compliant,
-                     self.effects + (effect,), self.refs)
+                     self.effects + (effect,), self.refs, self.rotation_weight)
 
     def with_refs(self, refs: References) -> Model:
         """The same model with other variable scales."""
-        return Model(self.geometry, self.rows, self.baseline, self.compliant, self.effects, refs)
+        return Model(self.geometry, self.rows, self.baseline, self.compliant, self.effects, refs,
+                     self.rotation_weight)
 
     def with_baseline(self, baseline: str) -> Model:
         """The same model under another baseline."""
-        return Model(self.geometry, self.rows, baseline, self.compliant, self.effects, self.refs)
+        return Model(self.geometry, self.rows, baseline, self.compliant, self.effects, self.refs,
+                     self.rotation_weight)
+
+    def with_rotation_weight(self, weight: float | None) -> Model:
+        """The same model predicting rotations with weight ``weight`` (m/rad), or only
+        translations (``None``)."""
+        return Model(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
+                     self.refs, weight)
+
+    @property
+    def n_outputs(self) -> int:
+        """Predicted components per row: 3 (translation) or 6 (translation and rotation)."""
+        return 3 if self.rotation_weight is None else 6
+
+    def split(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Translations (m, 3) in m and rotations (m, 3) in rad (or ``None``) of predicted or
+        measured rows in this model's output layout."""
+        values = np.asarray(values, dtype=float)
+        if self.rotation_weight is None:
+            return values[:, :3], None
+        return values[:, :3], values[:, 3:6] / self.rotation_weight
 
     @property
     def wrench(self) -> np.ndarray:
@@ -1005,8 +1199,10 @@ class Model:
         tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
             "mkn,mk->mn", self.jw, self.rows.moment)
         u = np.einsum("mij,mj->mi", inv, tau)
-        pred = np.einsum("mij,mj->mi", self.jv, u)
-        return pred, -(self.jv @ inv) * (u * k)[:, None, :]
+        out = self.jv if self.rotation_weight is None else np.concatenate(
+            [self.jv, self.rotation_weight * self.jw], axis=1)
+        pred = np.einsum("mij,mj->mi", out, u)
+        return pred, -(out @ inv) * (u * k)[:, None, :]
 
     def _exact(self, k: np.ndarray, jacobian: bool = True
                ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -1014,8 +1210,9 @@ class Model:
         kmat = np.diag(k)
         rows = self.rows
         m = rows.n_rows
-        pred = np.empty((m, 3))
-        jac = np.empty((m, 3, len(k))) if jacobian else None
+        w, n_out = self.rotation_weight, self.n_outputs
+        pred = np.empty((m, n_out))
+        jac = np.empty((m, n_out, len(k))) if jacobian else None
         q0: dict[int, np.ndarray] = {}
         for i in range(m):
             c = int(rows.config_index[i])
@@ -1023,16 +1220,28 @@ class Model:
                 q0[c] = robot.configuration(rows.coords[i])
             wrench = np.concatenate([rows.force[i], rows.moment[i]])
             eq = solve_equilibrium(robot, q0[c], kmat, wrench)
-            pred[i] = eq.dx
+            pred[i, :3] = eq.dx
+            if w is not None:
+                pred[i, 3:] = w * eq.rotation
             if jac is None:
                 continue
             state = target_state(robot, eq.q, wrench)
             dtheta = -np.linalg.solve(kmat - state.k_c, np.diag(eq.dtheta * k))
-            jac[i] = state.jacobian[:3] @ dtheta
+            jac[i, :3] = state.jacobian[:3] @ dtheta
+            if w is not None:
+                jac[i, 3:] = w * state.jacobian[3:] @ dtheta
         return pred, jac
 
     def predict(self, x: np.ndarray, detail: bool = False):
-        """(m, 3) predicted measured displacements (m) for parameters ``x``.
+        """(m, 3) predicted measured displacements (m) for parameters ``x``; (m, 6)
+        ``[dx; w dphi]`` with a :attr:`rotation_weight` (first-order rotation ``J_w dtheta``
+        plus the effects' rotational parts).
+
+        Effects with a :meth:`Effect.preload` (gravity) make the deflection the loaded minus
+        the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
+        dtheta_1) - f(tau_p + K_p dtheta_0)``, seen through the kinematics of the preloaded
+        pose to first order in ``dtheta_0``: ``dx += sum_k e_k dtheta^T H_k dtheta_0`` and
+        ``dphi += sum_k e_k dtheta^T K_C(e_k moment) dtheta_0``.
 
         With ``detail``, also returns the joint deflections (m, n) and torques (m, n).
 
@@ -1061,16 +1270,42 @@ class Model:
         k_c = None
         if self.tangent:
             k_c = np.einsum("mk,mkab->mab", np.hstack([force, moment]), self.h)
-        dtheta = law.frozen_deflection(tau0, k_c, LAW_ITERATIONS)
+        pre_tau = pre_k = None
+        for e, p in zip(self.effects, params, strict=True):
+            pre = e.preload(p, self, rows)
+            if pre is not None:
+                pre_tau = pre[0] if pre_tau is None else pre_tau + pre[0]
+                pre_k = pre[1] if pre_k is None else pre_k + pre[1]
+        if pre_tau is None:
+            dtheta = law.frozen_deflection(tau0, k_c, LAW_ITERATIONS)
+            unloaded = None
+        else:  # loaded minus unloaded equilibrium, both under the preload
+            loaded = law.frozen_deflection(tau0 + pre_tau, pre_k if k_c is None else k_c + pre_k,
+                                           LAW_ITERATIONS)
+            unloaded = law.frozen_deflection(pre_tau, pre_k, LAW_ITERATIONS)
+            dtheta = loaded - unloaded
         dx = np.einsum("mkn,mn->mk", jv, dtheta)
         if self.second_order:
             dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)
+        if unloaded is not None:  # the load acts on the arm already deflected by the preload
+            dx = dx + np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, unloaded)
         for e, p in zip(self.effects, params, strict=True):
             extra = e.displacement(p, self, rows, force, moment, point)
             if extra is not None:
                 dx = dx + extra
         for e, p in zip(self.effects, params, strict=True):
             dx = e.adjust_output(p, dx)
+        if self.rotation_weight is not None:
+            dphi = np.einsum("mkn,mn->mk", jw, dtheta)
+            if unloaded is not None:  # J_w at the preloaded pose: K_C of unit moments
+                dphi = dphi + np.einsum("mkab,ma,mb->mk", self.h[:, 3:], dtheta, unloaded)
+            for e, p in zip(self.effects, params, strict=True):
+                extra = e.rotation(p, self, rows, force, moment, point)
+                if extra is not None:
+                    dphi = dphi + extra
+            for e, p in zip(self.effects, params, strict=True):
+                dphi = e.adjust_rotation(p, dphi)
+            dx = np.hstack([dx, self.rotation_weight * dphi])
         if detail:
             tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
             return dx, dtheta, tau
@@ -1110,4 +1345,9 @@ def candidates(model: Model) -> list[Effect]:
     for name in ("frame_misalignment", "target_offset", "force_sensor_bias",
                  "deflection_offset"):
         add(LIBRARY[name]())
+    if geo.robot.loop is None:  # the weight of passive loop joints is not modelled
+        add(GravityPreload())
+    for j in model.joints:
+        if not geo.prismatic[geo.joints.index(j)]:
+            add(make_effect("gravity_compensator", j, geo))
     return out

@@ -16,6 +16,14 @@ letting them drift on round-off; they are left out of every reported quantity. W
 model cannot be evaluated (a buckling load, a singular tangent) the residuals are a large
 constant, so the solver backs off.
 
+Rotations: a campaign that also measures the target frame's rotation is fitted on rows
+``[dx; w dphi]`` (:attr:`stiffness.calibration.effects.Model.rotation_weight`,
+:func:`observations`): with ``w = sigma_t / sigma_r`` the translation noise std ``sigma_t`` (m)
+and the rotation noise std ``sigma_r`` (rad), one scale whitens both kinds and every quantity
+below (RSS, chi-square, covariance, information criteria) holds in translation-noise units.
+:func:`kind_noise` estimates a kind's std from the residuals when it is neither declared nor
+known from replicates; :meth:`Fit.rms_by_kind` reports the RMS of each kind.
+
 Covariance: ``cov(x) = sigma^2 (J^T J)^+`` with ``J`` the derivative of the residuals in
 metres at the optimum; singular values of the whitened ``J / sigma`` below
 :data:`SINGULAR_RTOL` times the largest are undetermined directions (not inverted), and a
@@ -94,8 +102,40 @@ class Fit:
         return self.rss / self.scale ** 2
 
     def rms(self) -> float:
-        """RMS residual component (m)."""
+        """RMS residual component (m; rotations in translation-noise units)."""
         return math.sqrt(self.rss / self.n_residuals)
+
+    def residuals(self, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Translation (m, 3) residuals in m and rotation residuals (m, 3) in rad (or
+        ``None``), predicted minus ``measured`` (the fitted observations)."""
+        return self.model.split(self.predicted - measured)
+
+    def rms_by_kind(self, measured: np.ndarray) -> tuple[float, float | None]:
+        """RMS residual component of the translations (m) and of the rotations (rad, or
+        ``None`` when the model predicts none)."""
+        t, r = self.residuals(measured)
+        return (float(np.sqrt(np.mean(t ** 2))),
+                None if r is None else float(np.sqrt(np.mean(r ** 2))))
+
+
+def observations(deflection: np.ndarray, rotation: np.ndarray | None,
+                 weight: float | None) -> np.ndarray:
+    """The fitted observations: the deflections (m, 3), or ``[d; w r]`` (m, 6) with measured
+    rotations ``r`` (rad) and a weight ``w`` (m/rad)."""
+    if rotation is None or weight is None:
+        return np.asarray(deflection, dtype=float)
+    return np.hstack([deflection, weight * np.asarray(rotation, dtype=float)])
+
+
+def kind_noise(residual: np.ndarray, n_total: int, p: int) -> float | None:
+    """Noise std of one kind from its residuals (any shape): ``sqrt(SS / (N_k - p N_k / N))``,
+    the kind's share ``N_k / N`` of the ``p`` fitted parameters removed from its degrees of
+    freedom; ``None`` without degrees of freedom."""
+    n_k = residual.size
+    dof = n_k - p * n_k / max(n_total, 1)
+    if dof <= 0:
+        return None
+    return math.sqrt(float(np.sum(residual ** 2)) / dof)
 
 
 class Objective:

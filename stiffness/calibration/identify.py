@@ -33,6 +33,13 @@ intervals of ``k`` follow by the delta method on ``ln k``: ``SE(k) = k SE(ln k)`
 ``CI = k exp(+-t SE(ln k))`` (``t`` Student's with ``N - p`` degrees of freedom when sigma is
 estimated, normal when declared), so the intervals are asymmetric and stay positive.
 
+A campaign with measured rotations (``rx, ry, rz``) is fitted on translations and rotations
+together: the rotation residuals are weighted by ``w = sigma_t / sigma_r``
+(:func:`stiffness.calibration.fitting.observations`), with ``sigma_r`` the declared
+``rotation_noise_std`` or, failing it, estimated from the residuals of a preliminary fit
+(:func:`stiffness.calibration.fitting.kind_noise`); ``sigma`` above is then ``sigma_t`` and
+the result reports the RMS of each kind.
+
 A stiffness the data cannot determine is one whose 95 % interval is wider than the value itself
 (relative width > 1, infinite when the data do not excite it); a direction in ``ln k`` space is
 undetermined when the same criterion fails along a right-singular vector of the whitened
@@ -54,7 +61,14 @@ from scipy.stats import t as student_t
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.effects import Geometry, Model, References
-from stiffness.calibration.fitting import Covariance, Fit, covariance, fit_model
+from stiffness.calibration.fitting import (
+    Covariance,
+    Fit,
+    covariance,
+    fit_model,
+    kind_noise,
+    observations,
+)
 from stiffness.calibration.model_file import ModelFile, jsonable
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.model.robot import Robot
@@ -196,6 +210,14 @@ class Identification:
         rows, under which K - K_C can be singular (0 for the conventional formulation).
     notes
         Warnings (e.g. declared noise inconsistent with the residuals).
+    rotation_residuals
+        (m, 3) rotation residuals (rad) when the campaign measures rotations, else ``None``;
+        ``predicted`` and ``residuals`` are then the translations and ``residual_ss_m2`` sums
+        both kinds in translation-noise units (rotations weighted by
+        ``rotation_weight_m_per_rad = sigma_t / sigma_r``).
+    rotation_sigma_rad, rotation_sigma_source
+        The rotation noise std (rad) and where it comes from (``declared
+        rotation_noise_std`` or ``residuals``).
     """
 
     campaign: str
@@ -232,6 +254,18 @@ class Identification:
     residuals: np.ndarray
     k_c_floor: float = 0.0
     notes: list[str] = field(default_factory=list)
+    rotation_residuals: np.ndarray | None = None
+    rotation_sigma_rad: float | None = None
+    rotation_sigma_source: str | None = None
+    rotation_weight_m_per_rad: float | None = None
+
+    @property
+    def rms_by_kind(self) -> dict[str, float | None]:
+        """RMS residual component of the translations (m) and of the rotations (rad, ``None``
+        without measured rotations)."""
+        rot = self.rotation_residuals
+        return {"translation_m": float(np.sqrt(np.mean(self.residuals ** 2))),
+                "rotation_rad": None if rot is None else float(np.sqrt(np.mean(rot ** 2)))}
 
     @property
     def residual_ss_mm2(self) -> float:
@@ -296,6 +330,12 @@ class Identification:
                 for s in self.starts
             ],
             "residuals_m": self.residuals,
+            "rms": self.rms_by_kind,
+            "rotations": None if self.rotation_residuals is None else {
+                "sigma_rad": self.rotation_sigma_rad, "sigma_source": self.rotation_sigma_source,
+                "weight_m_per_rad": self.rotation_weight_m_per_rad,
+                "rms_rad": self.rms_by_kind["rotation_rad"],
+                "residuals_rad": self.rotation_residuals},
             "notes": list(self.notes),
         })
 
@@ -315,7 +355,11 @@ class Identification:
             campaign=self.campaign, produced_by="identify",
             undetermined_joints=self.undetermined_joints,
             extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,
-                                     "eq12_mm2": self.residual_ss_mm2}},
+                                     "eq12_mm2": self.residual_ss_mm2},
+                   **({} if self.rotation_residuals is None else {"rotation_noise": {
+                       "std_rad": self.rotation_sigma_rad,
+                       "source": self.rotation_sigma_source,
+                       "weight_m_per_rad": self.rotation_weight_m_per_rad}})},
         )
 
     def model_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
@@ -470,7 +514,8 @@ def identify(
         raise StiffnessError(f"starts must be at least 1, got {starts}")
     rob = robot if robot is not None else campaign.robot()
     p = rob.n_compliant
-    n_res = 3 * campaign.n_rows
+    rotation = campaign.rotation
+    n_res = (3 if rotation is None else 6) * campaign.n_rows
     declared = campaign.noise_std_m is not None
     if method in ("lm", "both") and n_res < p:
         raise StiffnessError(
@@ -489,6 +534,11 @@ def identify(
     else:  # any fixed scale: sigma is estimated from the residuals
         rms = float(np.sqrt(np.mean(measured ** 2)))
         scale = rms if rms > 0 else 1e-3
+    options = {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (p + 1)}
+    rot_sigma = rot_source = weight = None
+    if rotation is not None:
+        model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
+            campaign, model, scale, options)
 
     pre = model.with_baseline("enhanced") if formulation == "exact" else None
     k_c = model.k_c()
@@ -499,7 +549,6 @@ def identify(
     runs: list[StartResult] = []
     fits: list[Fit] = []
     total = int(starts) * len(methods)
-    options = {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (p + 1)}
     for k0 in _starts(p, int(starts), seed):
         k0 = np.maximum(k0, floor)
         x_start = np.log(k0)
@@ -517,7 +566,11 @@ def identify(
                                            f"cost {runs[-1].cost:.6g}")
     best_index = min(range(len(runs)), key=lambda i: runs[i].cost)
     best, best_fit = runs[best_index], fits[best_index]
-    pred = best_fit.predicted
+    pred, rot_res = best_fit.predicted[:, :3], None
+    if rotation is not None:
+        rot_res = best_fit.residuals(measured)[1]
+        if rot_source == "residuals":
+            rot_sigma = kind_noise(rot_res, n_res, p)
     ss_m2 = best_fit.rss
     dof = n_res - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
@@ -591,7 +644,54 @@ def identify(
         starts_agree=bool(starts_agree),
         methods_agree=methods_agree,
         predicted=pred,
-        residuals=pred - measured,
+        residuals=pred - campaign.deflection,
         k_c_floor=floor,
         notes=notes,
+        rotation_residuals=rot_res,
+        rotation_sigma_rad=rot_sigma,
+        rotation_sigma_source=rot_source,
+        rotation_weight_m_per_rad=weight,
     )
+
+
+def _rotation_weighting(campaign: Campaign, model: Model, scale: float, options: dict
+                        ) -> tuple[Model, np.ndarray, float, float | None, str]:
+    """The model and observations of a campaign with rotations, and the weight
+    ``w = sigma_t / sigma_r`` (m/rad) (:mod:`stiffness.calibration.fitting`).
+
+    A declared noise std is used as is; an undeclared one is estimated from the residuals of a
+    baseline fit (:func:`stiffness.calibration.fitting.kind_noise`), twice, starting from the
+    ratio of the measured RMS of each kind.
+
+    Returns
+    -------
+    model, measured, weight, rotation sigma (rad, or None until estimated), its source.
+    """
+    sigma_t, sigma_r = campaign.noise_std_m, campaign.rotation_noise_std_rad
+    source = "declared rotation_noise_std" if sigma_r is not None else "residuals"
+    if sigma_t is not None and sigma_r is not None:
+        weight = sigma_t / sigma_r
+    else:
+        rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2)))
+        rms_r = float(np.sqrt(np.mean(campaign.rotation ** 2)))
+        weight = rms_t / rms_r if rms_t > 0 and rms_r > 0 else 1.0
+        if sigma_t is not None:
+            weight = sigma_t / rms_r if rms_r > 0 else 1.0
+        elif sigma_r is not None:
+            weight = rms_t / sigma_r if rms_t > 0 else 1.0
+        x0 = np.full(len(model.compliant), math.log(PAPER_START_SI))
+        n, p = 6 * campaign.n_rows, len(model.compliant)
+        for _ in range(2):
+            weighted = model.with_rotation_weight(weight)
+            fit = fit_model(weighted, observations(campaign.deflection, campaign.rotation,
+                                                   weight), scale, x0, anchor=x0, **options)
+            res_t, res_r = fit.residuals(observations(campaign.deflection, campaign.rotation,
+                                                      weight))
+            s_t = sigma_t if sigma_t is not None else kind_noise(res_t, n, p)
+            s_r = sigma_r if sigma_r is not None else kind_noise(res_r, n, p)
+            if not s_t or not s_r:
+                break
+            weight, x0 = s_t / s_r, fit.x
+    model = model.with_rotation_weight(weight)
+    return (model, observations(campaign.deflection, campaign.rotation, weight), weight,
+            sigma_r, source)

@@ -43,6 +43,13 @@ How effects enter (``kind`` of :data:`stiffness.calibration.effects.EFFECT_KINDS
   the campaign's deflections were observed; listed, not applied.
 * ``lost_motion``: ``backlash``: a deflection ``+-half_width`` that is not a stiffness; listed,
   not applied to K_X (:meth:`CompliantModel.deflection` includes it).
+* ``gravity_compensator`` (``stiffness``): its torque ``tau_s(theta)`` joins the joint's load
+  (the operating point of a nonlinear spring) and ``-d tau_s / d theta`` adds to the joint's
+  stiffness (:func:`stiffness.mechanics.gravity.spring_balancer`; geometry in ``settings``).
+* ``preload``: ``gravity_preload``: the links' weight and the payload at the pose asked for.
+  Their torque joins the load on the joints (a nonlinear spring's operating point, in both
+  formulations), and in the ``enhanced`` formulation their ``K_g = -dg/dq`` joins ``K_C``:
+  ``C = J (K_t - K_C - K_g - K_s)^-1 J^T + C_link`` (``K_s`` the compensators').
 """
 
 from __future__ import annotations
@@ -63,6 +70,7 @@ from stiffness.calibration.campaign import (
     _resolve_source,
 )
 from stiffness.calibration.effects import (
+    COMPENSATOR_GEOMETRY,
     LIBRARY,
     Geometry,
     Model,
@@ -74,11 +82,21 @@ from stiffness.calibration.effects import (
 )
 from stiffness.errors import FileFormatError, StiffnessError, did_you_mean, with_context
 from stiffness.files import atomic_write, output_folder, read_json
-from stiffness.mechanics.equilibrium import SpringLaw, tangent_equilibrium
+from stiffness.mechanics.equilibrium import (
+    SpringLaw,
+    deflected_configuration,
+    tangent_equilibrium,
+)
 from stiffness.mechanics.formulation import (
     as_wrench,
     cartesian_stiffness,
     target_state,
+)
+from stiffness.mechanics.gravity import (
+    gravity_preload,
+    require_open_chain,
+    spring_balancer,
+    with_payload,
 )
 from stiffness.model.robot import Robot, load_robot, robots_directory, shipped_robots
 
@@ -94,6 +112,12 @@ FORMULATIONS = ("conventional", "enhanced", "exact")
 #: Unit names of the files -> factor to SI.
 _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
+
+
+#: Effects that change K_X beyond the joint springs' stiffness matrix (applied by
+#: :meth:`CompliantModel.at`; the batched scan and the 6x6 connection stiffness cannot).
+BEYOND_SPRINGS = ("link_compliance", "nonlinear_joint_stiffness", "gravity_compensator",
+                  "gravity_preload")
 
 
 class ModelFileError(FileFormatError):
@@ -611,9 +635,13 @@ class ModelCompliance:
     link_compliance
         (6, 6) compliance the link effects add (m/N, rad/(N.m)).
     compliance6
-        (6, 6) ``J (K_t - K_C)^-1 J^T + C_link``.
+        (6, 6) ``J (K_t - K_C - K_p)^-1 J^T + C_link``.
     formulation
         ``conventional`` or ``enhanced``.
+    preload_torque
+        (n,) torque of the weight and the compensators at the pose (zeros without them).
+    k_preload
+        (n, n) its derivative ``K_p`` (the compensators' stiffness enters as ``-K_p``).
     """
 
     robot: Robot
@@ -626,6 +654,8 @@ class ModelCompliance:
     link_compliance: np.ndarray
     compliance6: np.ndarray
     formulation: str
+    preload_torque: np.ndarray | None = None
+    k_preload: np.ndarray | None = None
 
     def compliance(self, rows: slice = slice(0, 3)) -> np.ndarray:
         """Compliance block (default the 3x3 translational one, m/N)."""
@@ -668,6 +698,8 @@ class CompliantModel:
         self.not_applied: list[tuple[ModelEffect, str]] = []
         self._beta: dict[str, float] = {}
         self._links: list[tuple[str, str, float, float]] = []
+        self._payload: tuple[float, np.ndarray] | None = None
+        self._compensators: list[tuple[str, float, float, dict]] = []
         for e in model.effects:
             if e.kind == "measurement":
                 self.not_applied.append((e, "a measurement effect (how the campaign observed "
@@ -684,6 +716,11 @@ class CompliantModel:
             elif e.name == "link_compliance":
                 a, b = _segment(e.where)
                 self._links.append((a, b, e.value("stiffness_1"), e.value("stiffness_2")))
+            elif e.name == "gravity_preload":
+                self._payload = (e.value("mass"), e.values()[1:4])
+            elif e.name == "gravity_compensator":
+                self._compensators.append((e.where, e.value("stiffness"), e.value("preload"),
+                                           {**COMPENSATOR_GEOMETRY, **e.settings}))
             elif e.name == "target_offset":
                 if moved:
                     self.not_applied.append((e, "the target given overrides the campaign's"))
@@ -701,6 +738,10 @@ class CompliantModel:
         self._chain: tuple[str, ...] = ()
         self._columns: dict[tuple[str, str], int] = {}
         self._declared: tuple[Robot, Geometry] | None = None
+        self._weighed = None
+        if self._payload is not None:
+            require_open_chain(self.robot, "gravity_preload")
+            self._weighed = with_payload(self.robot, *self._payload)
         if self._links:
             geometry = Geometry.of(self.robot)
             self._chain, self._columns = geometry.chain, geometry.link_columns
@@ -736,7 +777,9 @@ class CompliantModel:
         Parameters
         ----------
         q
-            Coordinates (rad, m) or a full configuration.
+            Coordinates (rad, m) or a full configuration: the commanded pose (with a weight or a
+        compensator in the model, J and K_C are those of the pose they deflect it to,
+        :meth:`preloaded_configuration`).
         load
             Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default zero.
         formulation
@@ -748,12 +791,15 @@ class CompliantModel:
         robot = self.robot
         wrench = as_wrench(np.zeros(3) if load is None else load)
         qf = self.configuration(q)
+        if self._weighed is not None or self._compensators:
+            qf = self.preloaded_configuration(qf)
         state = target_state(robot, qf, wrench)
         k_c = state.k_c if formulation == "enhanced" else np.zeros_like(state.k_c)
-        slope = self._slope(state.jacobian.T @ wrench, k_c)
+        tau_p, k_p = self.preload(qf, formulation)
+        slope = self._slope(state.jacobian.T @ wrench + tau_p, k_c + k_p)
         k_tangent = np.diag(1.0 / slope)
         try:
-            c6 = state.jacobian @ np.linalg.solve(k_tangent - k_c, state.jacobian.T)
+            c6 = state.jacobian @ np.linalg.solve(k_tangent - k_c - k_p, state.jacobian.T)
         except np.linalg.LinAlgError as exc:
             raise StiffnessError("the tangent joint stiffness K_t - K_C is singular: the load "
                                  "is at the buckling limit of this configuration") from exc
@@ -769,7 +815,38 @@ class CompliantModel:
                 e = np.column_stack([e1, e2])
                 link += g @ e @ np.diag([1.0 / k1, 1.0 / k2]) @ e.T @ g.T
         return ModelCompliance(robot, qf, wrench, state.jacobian, self.k_theta.copy(), k_tangent,
-                               k_c, link, c6 + link, formulation)
+                               k_c, link, c6 + link, formulation, tau_p, k_p)
+
+    def preloaded_configuration(self, q: np.ndarray) -> np.ndarray:
+        """The unloaded pose under the weight and the compensators: the commanded full
+        configuration ``q`` deflected by ``dtheta_0 = f(tau_p + K_p dtheta_0)`` (the joint
+        law at frozen geometry), loops closed. :meth:`at` evaluates J and K_C there."""
+        tau_p, k_p = self.preload(q)
+        beta = np.array([self._beta.get(j, 0.0) for j in self.robot.compliant_joints])
+        law = SpringLaw(1.0 / self.k_theta, beta, np.zeros_like(beta), np.ones_like(beta))
+        dtheta0 = tangent_equilibrium(law, tau_p, k_p)
+        return deflected_configuration(self.robot, q, dtheta0, q)
+
+    def preload(self, q: np.ndarray, formulation: str = "enhanced"
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Torque (n,) of the weight and the compensators on the compliant joints at the full
+        configuration ``q``, and its derivative (n, n): the compensators' always, the weight's
+        (``K_g``) in the ``enhanced`` formulation only (zeros without such effects)."""
+        robot = self.robot
+        n = robot.n_compliant
+        tau, k = np.zeros(n), np.zeros((n, n))
+        if self._weighed is not None:
+            tau, k = gravity_preload(robot, q, model=self._weighed)
+            if formulation != "enhanced":
+                k = np.zeros((n, n))
+        for joint, k_s, f0, g in self._compensators:
+            i = list(robot.compliant_joints).index(joint)
+            jm = robot.model.joints[robot.model.getJointId(joint)]
+            t, dt = spring_balancer(q[jm.idx_q], k_s, f0, g["lever_m"], g["base_m"],
+                                    g["angle0_rad"])
+            tau[i] += t
+            k[i, i] += dt
+        return tau, k
 
     def _slope(self, tau0: np.ndarray, k_c: np.ndarray) -> np.ndarray:
         """Joint compliance slopes d(dtheta)/d(tau) at the load (the law's tangent)."""
@@ -803,6 +880,10 @@ class CompliantModel:
             if e.kind == "measurement" and not measured:
                 continue
             effect = make_effect(e.name, e.where, geometry)
+            if e.name == "gravity_compensator":
+                g = {**COMPENSATOR_GEOMETRY, **e.settings}
+                effect = type(effect)(joint_name=e.where, lever_m=g["lever_m"],
+                                      base_m=g["base_m"], angle0_rad=g["angle0_rad"])
             if e.name == "backlash":
                 smoothing[geometry.joints.index(e.where)] = float(
                     e.settings.get("smoothing_torque", 1.0))

@@ -1,12 +1,12 @@
 """Synthetic campaigns with hidden effects: what could a rig detect before measuring?
 
-:func:`simulate` draws reachable configurations (:func:`sample_coordinates`), loads along random
-directions (or a ramp along one direction per configuration, or the
-six axis directions), computes the deflections from the *exact* elastostatic equilibrium of a
-true robot that carries the hidden effects, adds Gaussian noise, and returns a
-:class:`~stiffness.calibration.campaign.Campaign` that declares only the baseline (its ``--kq``
-joints),
-plus the hidden truth.
+:func:`simulate` draws reachable configurations
+(:func:`stiffness.calibration.poses.sample_coordinates`), or takes the rows of a measurement plan
+(:mod:`stiffness.calibration.plan`), loads along random directions (or a ramp along one
+direction per configuration, or the six axis directions), computes the deflections from the
+*exact* elastostatic equilibrium of a true robot that carries the hidden effects, adds Gaussian
+noise, and returns a :class:`~stiffness.calibration.campaign.Campaign` that declares only the
+baseline (its ``--kq`` joints), plus the hidden truth.
 
 How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects` for the models):
 
@@ -28,6 +28,18 @@ How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects
 * ``force_sensor_bias=b`` or ``=bx,by,bz``: the recorded force is the applied one plus b
   (force unit; one value along (1, 1, 1)/sqrt(3)).
 * ``deflection_offset=d`` or ``=dx,dy,dz``: the measured deflections carry that offset.
+* ``gravity_preload=m`` or ``=m,cx,cy,cz``: the robot's weight (URDF inertias) and a payload of
+  m kg with its centre of mass at c (length unit, target frame axes, from the target) preload
+  the joints; the deflection is the loaded minus the unloaded exact equilibrium under that
+  weight (open chains only).
+* ``gravity_compensator:J=k,F0``: a spring compensator of stiffness k (N/m) and tension F0 (N)
+  at the joint's zero on the revolute compliant joint J, geometry
+  :data:`stiffness.calibration.effects.COMPENSATOR_GEOMETRY`
+  (:func:`stiffness.mechanics.gravity.spring_balancer`), in the exact equilibrium.
+
+With ``rotations``, the campaign also records the rotation vector of the target frame between
+the unloaded and the loaded equilibrium (base axes; rotated by a hidden frame misalignment,
+turned further by a hidden link compliance) with its own noise.
 
 The size of each hidden effect is reported as the RMS change it makes to the noise-free
 deflections (:attr:`Simulation.effect_rms_m`), in noise units in ``truth.json``.
@@ -45,6 +57,7 @@ import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
 from stiffness.calibration.effects import (
+    COMPENSATOR_GEOMETRY,
     LIBRARY,
     Geometry,
     LinkCompliance,
@@ -55,8 +68,9 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
+from stiffness.calibration.plan import Plan
+from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import (
-    ConvergenceError,
     StiffnessError,
     UnknownEffectError,
     UnknownJointError,
@@ -66,230 +80,19 @@ from stiffness.errors import (
 from stiffness.files import atomic_write
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
+from stiffness.mechanics.gravity import (
+    gravity_preload,
+    require_open_chain,
+    spring_balancer,
+    with_payload,
+)
 from stiffness.model.robot import Robot
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
-#: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
-_MAX_JACOBIAN = 10.0
 _DIAGONAL = np.ones(3) / math.sqrt(3.0)
-#: Keys of a robot's ``[workspace]`` table.
-WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
-
-
-# ------------------------------------------------------------------------------------------
-# poses
-
-
-@dataclass
-class Workspace:
-    """Where poses are drawn, from the robot's ``[workspace]`` table in its ``robot.toml``.
-
-    Every key is optional; angles are in ``angle_unit`` (``deg`` by default, or ``rad``),
-    prismatic coordinates in m::
-
-        [workspace]
-        uniform = { joint1 = [-90.0, 90.0], joint2 = [-70.0, 70.0] }   # ranges
-        choice = { joint6 = [-90.0, 90.0] }                             # one of these values
-        linear = [ { joint = "joint5", constant = -90.0, terms = { joint3 = -1.0 } } ]
-        avoid = [ { terms = { joint2 = 1.0, joint3 = 1.0 }, values = [90.0, -90.0],
-                    margin = 15.0 } ]
-        target_above_base = false
-
-    A pose draws the ``uniform`` coordinates in the table's order, then every coordinate with
-    no rule uniformly within its joint limits (``+-pi`` when unlimited), rejects the pose when
-    an ``avoid`` combination ``sum terms * q`` lies within ``margin`` of one of its ``values``,
-    draws the ``choice`` coordinates, and sets each ``linear`` coordinate to
-    ``constant + sum terms * q`` in order. ``target_above_base`` (default true) rejects poses
-    whose target is below the base plane.
-
-    Attributes
-    ----------
-    uniform
-        Coordinate index -> (low, high), SI.
-    choice
-        Coordinate index -> values, SI.
-    linear
-        (index, constant, {index: coefficient}) in order, SI.
-    avoid
-        ({index: coefficient}, values, margin), SI.
-    target_above_base
-        Whether the target must be above the base plane.
-    """
-
-    uniform: dict[int, tuple[float, float]] = field(default_factory=dict)
-    choice: dict[int, list[float]] = field(default_factory=dict)
-    linear: list[tuple[int, float, dict[int, float]]] = field(default_factory=list)
-    avoid: list[tuple[dict[int, float], list[float], float]] = field(default_factory=list)
-    target_above_base: bool = True
-    declared: bool = False
-
-    @classmethod
-    def of(cls, robot: Robot) -> Workspace:
-        """The robot's declared workspace (default: its joint limits, target above the base).
-
-        Raises
-        ------
-        StiffnessError
-            On an unknown key, joint or unit, or a malformed rule (one line naming it).
-        """
-        table = robot.defaults.get("workspace")
-        if table is None:
-            return cls()
-        where = f"[workspace] of {robot.name}"
-        if not isinstance(table, dict):
-            raise StiffnessError(f"{where} must be a table")
-        unknown = set(table) - set(WORKSPACE_KEYS)
-        if unknown:
-            key = sorted(unknown)[0]
-            raise UnknownNameError(f"{where}: unknown key {key!r}; valid keys: "
-                                   f"{', '.join(WORKSPACE_KEYS)}", name=key,
-                                   choices=WORKSPACE_KEYS)
-        unit = table.get("angle_unit", "deg")
-        if unit not in ("deg", "rad"):
-            raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
-        names = list(robot.coordinate_joints)
-        factor = np.array([1.0 if _is_prismatic(robot, j) else (
-            math.pi / 180.0 if unit == "deg" else 1.0) for j in names])
-
-        def index(name) -> int:
-            if name not in names:
-                raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
-                                        f"{robot.name}; {did_you_mean(str(name), names)}",
-                                        name=str(name), choices=names)
-            return names.index(name)
-
-        def number(value, what: str) -> float:
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
-                    value):
-                raise StiffnessError(f"{where}: {what} must be a finite number, got {value!r}")
-            return float(value)
-
-        def terms(rule: dict, what: str) -> dict[int, float]:
-            raw = rule.get("terms", {})
-            if not isinstance(raw, dict):
-                raise StiffnessError(f"{where}: {what}.terms must map joints to coefficients")
-            out = {}
-            for joint, c in raw.items():
-                i = index(joint)
-                # the coefficient relates SI values: q_out = c q_in in the table's units
-                out[i] = number(c, f"{what}.terms.{joint}")
-            return out
-
-        ws = cls(declared=True)
-        for joint, bounds in dict(table.get("uniform", {})).items():
-            i = index(joint)
-            if not isinstance(bounds, list) or len(bounds) != 2:
-                raise StiffnessError(f"{where}: uniform.{joint} must be [low, high]")
-            lo, hi = (number(v, f"uniform.{joint}") * factor[i] for v in bounds)
-            if hi < lo:
-                raise StiffnessError(f"{where}: uniform.{joint} has high below low")
-            ws.uniform[i] = (lo, hi)
-        for joint, values in dict(table.get("choice", {})).items():
-            i = index(joint)
-            if not isinstance(values, list) or not values:
-                raise StiffnessError(f"{where}: choice.{joint} must be a list of values")
-            ws.choice[i] = [number(v, f"choice.{joint}") * factor[i] for v in values]
-        for k, rule in enumerate(table.get("linear", [])):
-            if not isinstance(rule, dict) or "joint" not in rule:
-                raise StiffnessError(f"{where}: linear[{k}] needs a joint")
-            i = index(rule["joint"])
-            c = terms(rule, f"linear[{k}]")
-            scaled = {j: v * factor[i] / factor[j] for j, v in c.items()}
-            ws.linear.append((i, number(rule.get("constant", 0.0), f"linear[{k}].constant")
-                              * factor[i], scaled))
-        for k, rule in enumerate(table.get("avoid", [])):
-            if not isinstance(rule, dict) or "terms" not in rule or "margin" not in rule:
-                raise StiffnessError(f"{where}: avoid[{k}] needs terms, values and margin")
-            c = terms(rule, f"avoid[{k}]")
-            ref = factor[next(iter(c))] if c else 1.0
-            values = rule.get("values", [0.0])
-            if not isinstance(values, list):
-                raise StiffnessError(f"{where}: avoid[{k}].values must be a list")
-            ws.avoid.append(({j: v * factor[j] / ref for j, v in c.items()},
-                             [number(v, f"avoid[{k}].values") * ref for v in values],
-                             number(rule["margin"], f"avoid[{k}].margin") * ref))
-        above = table.get("target_above_base", True)
-        if not isinstance(above, bool):
-            raise StiffnessError(f"{where}: target_above_base must be true or false")
-        ws.target_above_base = above
-        return ws
-
-    def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
-             ) -> np.ndarray | None:
-        """One coordinate vector (SI), or ``None`` when an ``avoid`` rule rejects it."""
-        if not self.declared:
-            return rng.uniform(lo, hi)
-        coords = np.zeros(len(lo))
-        for i, (a, b) in self.uniform.items():
-            coords[i] = rng.uniform(a, b)
-        ruled = set(self.uniform) | set(self.choice) | {i for i, _, _ in self.linear}
-        for i in range(len(lo)):
-            if i not in ruled:
-                coords[i] = rng.uniform(lo[i], hi[i])
-        for c, values, margin in self.avoid:
-            combo = sum(v * coords[j] for j, v in c.items())
-            if min(abs(combo - v) for v in values) < margin:
-                return None
-        for i, values in self.choice.items():
-            coords[i] = rng.choice(values)
-        for i, constant, c in self.linear:
-            coords[i] = constant + sum(v * coords[j] for j, v in c.items())
-        return coords
-
-
-def _is_prismatic(robot: Robot, joint: str) -> bool:
-    return robot.model.joints[robot.model.getJointId(joint)].shortname().startswith("JointModelP")
-
-
-def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator,
-                       max_tries: int = 200) -> np.ndarray:
-    """``n`` random reachable coordinate vectors (rad, m), shape (n, n_coordinates).
-
-    Poses follow the robot's :class:`Workspace` (its ``robot.toml`` ``[workspace]`` table);
-    without one, uniform within the joint limits (clipped to +-pi for revolute joints), target
-    above the base plane. Every pose must assemble (loops closed, regular) with a moderate
-    target Jacobian.
-
-    Raises
-    ------
-    StiffnessError
-        If fewer than ``n`` poses are found in ``max_tries * n`` draws.
-    """
-    model = robot.model
-    joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
-    lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
-    hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
-    prismatic = np.array([j.shortname().startswith("JointModelP") for j in joints])
-    bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
-    lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
-    hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
-    lo = np.where(prismatic, lo, np.maximum(lo, -math.pi))
-    hi = np.where(prismatic, hi, np.minimum(hi, math.pi))
-    workspace = Workspace.of(robot)
-    out: list[np.ndarray] = []
-    for _ in range(max_tries * n):
-        if len(out) == n:
-            break
-        coords = workspace.draw(lo, hi, rng)
-        if coords is None:
-            continue
-        try:
-            q = robot.configuration(coords)
-            state = target_state(robot, q)
-        except StiffnessError:
-            continue
-        if np.abs(state.jacobian[:3]).max() > _MAX_JACOBIAN:
-            continue
-        if workspace.target_above_base and state.position[2] < 0.0:
-            continue
-        out.append(coords)
-    if len(out) < n:
-        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.name}; "
-                               "ask for fewer configurations, or check the joint limits")
-    return np.array(out)
 
 
 # ------------------------------------------------------------------------------------------
@@ -328,6 +131,7 @@ _VALUE_COUNTS = {
     "complementary_stiffness": (0, 1), "joint_compliance": (1,), "link_compliance": (1, 2),
     "backlash": (1,), "nonlinear_joint_stiffness": (1,), "frame_misalignment": (1, 3),
     "target_offset": (1, 3), "force_sensor_bias": (1, 3), "deflection_offset": (1, 3),
+    "gravity_preload": (1, 4), "gravity_compensator": (2,),
 }
 
 
@@ -388,6 +192,13 @@ class Truth:
         Recorded minus applied force (N).
     deflection_offset
         Offset of the measured deflections (m).
+    gravity
+        Whether the robot's weight preloads the joints (``gravity_preload``).
+    payload
+        ``(mass kg, centre of mass (3,) m in target frame axes)`` of the payload.
+    compensators
+        ``(joint, stiffness N/m, preload N, lever m, base m, angle0 rad)`` of hidden spring
+        gravity compensators.
     """
 
     robot: Robot
@@ -397,11 +208,45 @@ class Truth:
     misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
     force_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     deflection_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gravity: bool = False
+    payload: tuple[float, np.ndarray] = (0.0, np.zeros(3))
+    compensators: list[tuple[str, float, float, float, float, float]] = field(
+        default_factory=list)
 
-    def deflections(self, coords: np.ndarray, force: np.ndarray, mode: str = "exact"
-                    ) -> np.ndarray:
+    def __post_init__(self) -> None:
+        self._weighed = None
+        if self.gravity:
+            self._weighed = with_payload(self.robot, self.payload[0], self.payload[1])
+
+    def preload(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Joint preload of the weight and the compensators at the configuration ``q``:
+        torque (n,) and its derivative (n, n) over the compliant joints."""
+        robot = self.robot
+        n = robot.n_compliant
+        tau, k = np.zeros(n), np.zeros((n, n))
+        if self._weighed is not None:
+            tau, k = gravity_preload(robot, q, model=self._weighed)
+        for joint, k_s, f0, lever, base, angle0 in self.compensators:
+            i = list(robot.compliant_joints).index(joint)
+            jm = robot.model.joints[robot.model.getJointId(joint)]
+            t, dt = spring_balancer(q[jm.idx_q], k_s, f0, lever, base, angle0)
+            tau[i] += t
+            k[i, i] += dt
+        return tau, k
+
+    @property
+    def preloaded(self) -> bool:
+        """Whether a preload (weight, compensator) acts."""
+        return self._weighed is not None or bool(self.compensators)
+
+    def deflections(self, coords: np.ndarray, force: np.ndarray, mode: str = "exact",
+                    rotations: bool = False) -> np.ndarray:
         """Noise-free measured deflections (m, 3) of rows at ``coords`` under the *applied*
-        forces ``force`` (m, 3).
+        forces ``force`` (m, 3); with ``rotations``, (m, 6): the deflections and the measured
+        rotation vectors of the target frame (rad, base axes).
+
+        Under a preload (weight, compensator) the deflection is the loaded minus the unloaded
+        equilibrium at the same commanded pose.
 
         ``mode``: ``exact`` (the exact equilibrium), ``enhanced`` (``K_C`` of the unloaded
         pose in the tangent, first-order kinematics) or ``conventional`` (first order, no
@@ -410,28 +255,54 @@ class Truth:
             raise UnknownNameError(f"unknown mode {mode!r}; valid: exact, enhanced, "
                                    "conventional", name=mode,
                                    choices=("exact", "enhanced", "conventional"))
-        out = np.empty((len(coords), 3))
-        q0 = {}
+        out = np.empty((len(coords), 6))
+        q0: dict[tuple, np.ndarray] = {}
+        rest: dict[tuple, tuple | None] = {}
         for i, (c, f) in enumerate(zip(coords, force, strict=True)):
             key = tuple(c)
             if key not in q0:
                 q0[key] = self.robot.configuration(c)
-            out[i] = self._row(q0[key], f, mode)
-        out = out @ rotation_matrix(self.misalignment).T
-        return out + self.deflection_offset
+                rest[key] = self._unloaded(q0[key], mode)
+            out[i] = self._row(q0[key], f, mode, rest[key])
+        turn = rotation_matrix(self.misalignment)
+        out[:, :3] = out[:, :3] @ turn.T + self.deflection_offset
+        out[:, 3:] = out[:, 3:] @ turn.T
+        return out if rotations else out[:, :3]
 
-    def _row(self, q0: np.ndarray, force: np.ndarray, mode: str) -> np.ndarray:
+    def _unloaded(self, q0: np.ndarray, mode: str) -> tuple | None:
+        """The unloaded state under the preload: (position, rotation) for ``exact``,
+        (dtheta, k_p) for the linear modes; ``None`` without a preload."""
+        if not self.preloaded:
+            return None
+        if mode == "exact":
+            eq = solve_equilibrium(self.robot, q0, self.law, np.zeros(6), preload=self.preload)
+            state = target_state(self.robot, eq.q)
+            return state.position, state.rotation
+        tau_p, k_p = self.preload(q0)
+        return tangent_equilibrium(self.law, tau_p, k_p), tau_p, k_p
+
+    def _row(self, q0: np.ndarray, force: np.ndarray, mode: str, rest: tuple | None
+             ) -> np.ndarray:
         robot, law = self.robot, self.law
         wrench = as_wrench(force)
         base = target_state(robot, q0, wrench)
         tau0 = base.jacobian.T @ wrench
         if mode == "exact":
-            eq = solve_equilibrium(robot, q0, law, wrench)
-            q, x, dx = eq.q, eq.position, eq.dx
+            eq = solve_equilibrium(robot, q0, law, wrench,
+                                   preload=self.preload if rest is not None else None)
+            q, x, dx, rot = eq.q, eq.position, eq.dx, eq.rotation
+            if rest is not None:
+                state = target_state(robot, eq.q)
+                dx = state.position - rest[0]
+                rot = pin.log3(state.rotation @ rest[1].T)
         else:
             k_c = base.k_c if mode == "enhanced" else np.zeros_like(base.k_c)
-            dtheta = tangent_equilibrium(law, tau0, k_c)
-            q, x, dx = q0, base.position, base.jacobian[:3] @ dtheta
+            if rest is None:
+                dtheta = tangent_equilibrium(law, tau0, k_c)
+            else:
+                dtheta = tangent_equilibrium(law, tau0 + rest[1], k_c + rest[2]) - rest[0]
+            q, x = q0, base.position
+            dx, rot = base.jacobian[:3] @ dtheta, base.jacobian[3:] @ dtheta
         if self.links:
             pin.forwardKinematics(robot.model, robot.data, q)
             origins, rotations = chain_placements(robot, self.chain)
@@ -442,7 +313,8 @@ class Truth:
                 m_b = np.cross(r, force)
                 omega = e1 * (e1 @ m_b) / k1 + e2 * (e2 @ m_b) / k2
                 dx = dx + np.cross(omega, r)
-        return dx
+                rot = rot + omega
+        return np.concatenate([dx, rot])
 
 
 def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], units: Units,
@@ -455,6 +327,7 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
     extra, beta, backlash = [], {}, {}
     links, misalignment = [], np.zeros(3)
     force_bias, deflection_offset = np.zeros(3), np.zeros(3)
+    gravity, payload, compensators = False, (0.0, np.zeros(3)), []
     stiff = dict(zip(declared.compliant_joints, kq, strict=True))
     for h in effects:
         make_effect(h.name, h.where, geometry)  # validates where
@@ -487,10 +360,21 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
             force_bias = _vector(v) * units.force_to_si
         elif h.name == "deflection_offset":
             deflection_offset = _vector(v) * units.length_to_si
+        elif h.name == "gravity_preload":
+            require_open_chain(declared, h.name)
+            if v[0] < 0:
+                raise StiffnessError(f"gravity_preload needs a payload mass >= 0 kg, got {v[0]}")
+            com = np.zeros(3) if len(v) == 1 else np.array(v[1:4]) * units.length_to_si
+            gravity, payload = True, (float(v[0]), com)
+        elif h.name == "gravity_compensator":
+            g = COMPENSATOR_GEOMETRY
+            compensators.append((h.where, float(v[0]), float(v[1]), g["lever_m"], g["base_m"],
+                                 g["angle0_rad"]))
     compliant = tuple(declared.compliant_joints) + tuple(extra)
-    for j in list(beta) + list(backlash):
+    for j in list(beta) + list(backlash) + [c[0] for c in compensators]:
         if j not in compliant:
-            raise UnknownJointError(f"backlash and nonlinear_joint_stiffness act on a compliant "
+            raise UnknownJointError(f"backlash, nonlinear_joint_stiffness and "
+                                    f"gravity_compensator act on a compliant "
                                     f"joint ({', '.join(compliant)}), not {j}", name=j,
                                     choices=compliant)
     robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant)
@@ -498,7 +382,8 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
               np.array([beta.get(j, 0.0) for j in compliant]),
               np.array([backlash.get(j, 0.0) for j in compliant]),
               np.array([smoothing[geometry.joints.index(j)] for j in compliant]))
-    return Truth(robot, law, links, geometry.chain, misalignment, force_bias, deflection_offset)
+    return Truth(robot, law, links, geometry.chain, misalignment, force_bias, deflection_offset,
+                 gravity, payload, compensators)
 
 
 # ------------------------------------------------------------------------------------------
@@ -562,7 +447,9 @@ class Simulation:
                 "frame_misalignment": self.campaign.units.angle,
                 "target_offset": self.campaign.units.length,
                 "force_sensor_bias": self.campaign.units.force,
-                "deflection_offset": self.campaign.units.length},
+                "deflection_offset": self.campaign.units.length,
+                "gravity_preload": f"kg, then {self.campaign.units.length} (target frame)",
+                "gravity_compensator": "N/m, N"},
             "settings": self.settings,
             "model": ("exact elastostatic equilibrium of the true robot"
                       " (stiffness.calibration.simulate)"),
@@ -607,6 +494,9 @@ def simulate(
     repeats: int = 1,
     declare_noise: bool = True,
     name: str | None = None,
+    rotations: bool = False,
+    rotation_noise_std_rad: float | None = None,
+    plan: Plan | None = None,
 ) -> Simulation:
     """Simulate a campaign with hidden effects.
 
@@ -643,6 +533,14 @@ def simulate(
         Whether the campaign declares its ``noise_std``.
     name
         Campaign name.
+    rotations
+        Whether the campaign also records the rotations ``rx, ry, rz`` of the target frame.
+    rotation_noise_std_rad
+        Their noise std (rad); default ``noise_std_m / 0.1 m`` (a 6-D probe whose markers are
+        0.1 m apart). Declared with ``declare_noise``.
+    plan
+        Rows to simulate exactly (:class:`stiffness.calibration.plan.Plan`: coordinates,
+        applied forces, labels) instead of drawing ``configs`` poses and their loads.
 
     Raises
     ------
@@ -685,10 +583,17 @@ def simulate(
                              "baseline (the truth is always the exact equilibrium)")
 
     rng = np.random.default_rng(seed)
-    coords = sample_coordinates(declared, configs, rng)
-    q = np.repeat(coords, loads_per_config, axis=0)
-    applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
-                         for _ in range(configs)])
+    if plan is None:
+        coords = sample_coordinates(declared, configs, rng)
+        q = np.repeat(coords, loads_per_config, axis=0)
+        applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
+                             for _ in range(configs)])
+        row_labels = [f"C{i // loads_per_config + 1}" for i in range(len(q))]
+    else:
+        if plan.q.shape[1] != declared.n_coordinates:
+            raise StiffnessError(f"the plan has {plan.q.shape[1]} coordinates per row but "
+                                 f"{declared.name} has {declared.n_coordinates}")
+        q, applied, row_labels = plan.q.copy(), plan.force.copy(), list(plan.config)
     geometry = Geometry.of(declared)
     truth = build_truth(declared, kq, [h for h in effects], units,
                         np.zeros(len(geometry.joints)), geometry)
@@ -696,7 +601,12 @@ def simulate(
     rows = geometry.rows(q, recorded)
     smoothing = References.of(geometry, rows, 1.0, np.ones((1, 3))).tau_smoothing
     truth = build_truth(declared, kq, effects, units, smoothing, geometry)
-    clean = truth.deflections(q, applied)
+    if rotation_noise_std_rad is None:
+        rotation_noise_std_rad = noise_std_m / 0.1
+    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
+        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
+    clean6 = truth.deflections(q, applied, rotations=True)
+    clean = clean6[:, :3]
 
     effect_rms: dict[str, float] = {}
     for h in effects:
@@ -713,7 +623,11 @@ def simulate(
 
     reps = np.repeat(np.arange(len(q)), repeats)
     measured = clean[reps] + rng.normal(scale=noise_std_m, size=(len(reps), 3))
-    config_labels = [f"C{i // (loads_per_config * repeats) + 1}" for i in range(len(reps))]
+    rotation = None
+    if rotations:
+        rotation = clean6[reps, 3:] + rng.normal(scale=rotation_noise_std_rad,
+                                                 size=(len(reps), 3))
+    config_labels = [row_labels[i] for i in reps]
     settings = RobotSettings(declared.name, frame=declared.target_frame,
                              target_offset_m=declared.target_offset.copy(),
                              compliant_joints=tuple(declared.compliant_joints))
@@ -722,14 +636,22 @@ def simulate(
         baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],
         deflection=measured, config=tuple(config_labels),
         noise_std_m=noise_std_m if declare_noise and noise_std_m > 0 else None,
-        units=units, _robot=declared,
+        units=units, _robot=declared, rotation=rotation,
+        rotation_noise_std_rad=(rotation_noise_std_rad if rotations and declare_noise
+                                and rotation_noise_std_rad > 0 else None),
     )
     info = {
         "robot": {"source": str(robot), "frame": declared.target_frame,
                   "target_offset_m": declared.target_offset.tolist()},
-        "configs": configs, "loads_per_config": loads_per_config, "repeats": repeats,
-        "max_force_N": max_force, "load_pattern": load_pattern, "seed": seed,
-        "declare_noise": declare_noise,
+        "configs": len(dict.fromkeys(row_labels)) if plan is not None else configs,
+        "loads_per_config": None if plan is not None else loads_per_config,
+        "plan": str(plan.path) if plan is not None and plan.path is not None else None,
+        "repeats": repeats,
+        "max_force_N": float(np.linalg.norm(applied, axis=1).max()) if plan is not None
+        else max_force,
+        "load_pattern": None if plan is not None else load_pattern, "seed": seed,
+        "declare_noise": declare_noise, "rotations": rotations,
+        "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
         "backlash_smoothing_Nm": dict(zip(geometry.joints, smoothing.tolist(), strict=True)),
     }
     return Simulation(campaign, effects, kq, noise_std_m, effect_rms, info, baseline_error)

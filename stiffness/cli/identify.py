@@ -95,6 +95,15 @@ def format_table(result: Identification) -> str:
         "method on ln k",
         f"condition number (Jacobian w.r.t. ln k): {_g(result.condition_number, 4)}",
     ]
+    if result.rotation_residuals is not None:
+        kinds = result.rms_by_kind
+        sigma_r = result.rotation_sigma_rad
+        lines.append(
+            f"RMS by kind: translations {_g(kinds['translation_m'] * 1e3, 4)} mm, rotations "
+            f"{_g(kinds['rotation_rad'], 4)} rad (rotation noise std "
+            f"{'-' if sigma_r is None else _g(sigma_r, 4)} rad from "
+            f"{result.rotation_sigma_source}; rotations weighted by "
+            f"{_g(result.rotation_weight_m_per_rad, 4)} m/rad)")
     if result.undetermined_directions or result.undetermined_joints:
         lines.append("undetermined: " + (", ".join(result.undetermined_joints) or "no single "
                                           "stiffness, but combinations:"))

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.calibration.model_file import CompliantModel, read_model_file
+from stiffness.calibration.model_file import BEYOND_SPRINGS, CompliantModel, read_model_file
 from stiffness.cli import flags
 from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.defaults import default_load, default_stiffness
@@ -238,10 +238,10 @@ def compute(args: argparse.Namespace) -> dict:
     if inputs.model is not None and args.connection is None:
         at = inputs.model.at(q, load, args.formulation)
     elif inputs.model is not None and any(
-            e.name in ("link_compliance", "nonlinear_joint_stiffness")
-            for e in inputs.model.applied):
+            e.name in BEYOND_SPRINGS for e in inputs.model.applied):
         raise StiffnessError("--connection gives the 6x6 stiffness of joint springs alone; the "
-                             "model's link_compliance or nonlinear_joint_stiffness cannot enter "
+                             "model's link_compliance, nonlinear_joint_stiffness or gravity "
+                             "effects cannot enter "
                              "it: drop --connection")
     if at is not None:
         jac = state.jacobian[rows]

@@ -27,8 +27,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "diagnose": ("stiffness.cli.diagnose",
                  "find and name what a model misses against a campaign's measurements"),
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
+    "design": ("stiffness.cli.design",
+               "choose the poses and loads to measure (experiment design)"),
     "view": ("stiffness.cli.view", "stiffness ellipsoids in the browser (meshcat)"),
     "scan": ("stiffness.cli.scan", "stiffness and definiteness maps over a workspace"),
+    "compensate": ("stiffness.cli.compensate",
+                   "joint commands that cancel the deflection along a path"),
+    "posture": ("stiffness.cli.posture",
+                "the stiffest posture about the tool axis along a path"),
 }
 
 

@@ -22,11 +22,21 @@ LocalCluster each chunk is written by the process that computes it; on a remote 
 chunk's arrays come back and are written here, unless ``--shared-out`` says the workers see
 ``--out`` too.
 
+What is stored is chosen with ``--fields`` (default: everything but the coordinates, which the
+manifest determines), in ``--dtype`` float64 or float32, with ``--compression``; nothing that
+another stored array determines is stored (symmetric K_X as its upper triangle, no
+eigenvalues): :func:`stiffness.scan.engine.load_scan` rebuilds them. The run prints its bytes
+per configuration. With Dask, a task computes ``--chunks-per-task`` consecutive chunks
+(default: chosen from the measured per-task overhead). Presets (``--preset``) come from the
+papers layer (:data:`stiffness.papers.presets.SCAN_PRESETS`).
+
 Files in ``--out`` (default: a new folder ``<robot>-<preset>`` in the current directory):
 
-* ``manifest.json``: the scan's specification (robot, coordinates, loads, K_theta, units);
-* ``chunks/chunk-NNNNN.npz`` (``--format npz``) and/or ``maps.parquet/part-NNNNN.parquet``
-  (``--format parquet``, one row per configuration and load case);
+* ``manifest.json``: the scan's specification (robot, coordinates, loads, K_theta, fields,
+  dtype, units);
+* ``chunks/chunk-NNNNN.npz`` (``--format npz``: the stored fields) and/or
+  ``maps.parquet/part-NNNNN.parquet`` (``--format parquet``, one row per configuration and
+  load case);
 * ``chunks/aggregate-NNNNN.npz``: the chunk's contribution to the summary (marks it done);
 * ``summary.json`` (class counts per load case, extremes) and the figures
   ``definiteness_counts.png``, ``definiteness_map.png``, ``stiffness_map.png``.
@@ -46,21 +56,33 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
+from stiffness.calibration.model_file import BEYOND_SPRINGS
 from stiffness.cli import flags
 from stiffness.cli.flags import parse_list, robot_from_args
 from stiffness.cli.kx import _identified_model, compliant_model_from_args
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.model.robot import Robot
-from stiffness.scan.definiteness import grid_axis, terminal_progress
-from stiffness.scan.engine import COUNT_LABELS, ScanSpec, load_scan, run_scan, scan_chunk
+from stiffness.papers.presets import SCAN_PRESETS
+from stiffness.scan.definiteness import terminal_progress
+from stiffness.scan.engine import load_scan, run_scan, scan_chunk
+from stiffness.scan.spec import (
+    COMPRESSIONS,
+    COUNT_LABELS,
+    DERIVED_FIELDS,
+    DTYPES,
+    STORED_FIELDS,
+    ScanSpec,
+    grid_axis,
+    parse_fields,
+)
 
 # The scan engine lives in stiffness.scan.engine (figures: stiffness.scan.plots);
 # ScanSpec, load_scan, run_scan and scan_chunk are re-exported for code that imports them here.
 __all__ = ["DEFAULT_LOAD_N", "FORMATS", "PRESETS", "ScanSpec", "build_spec", "configure_parser",
            "default_out", "load_scan", "run", "run_scan", "scan_chunk"]
 
-PRESETS = ("table4",)
+PRESETS = tuple(SCAN_PRESETS)
 FORMATS = ("npz", "parquet", "both")
 #: Default load case when none is given (N): 100 N downwards.
 DEFAULT_LOAD_N = (0.0, 0.0, -100.0)
@@ -76,9 +98,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "its robot, target, springs and joint-compliance and target-offset "
                              "effects (docs/model-file.md); the other flags override them")
     parser.add_argument("--preset", choices=PRESETS,
-                        help="table4: A&S Table IV on the SK120 (theta1 -180..180, theta2 "
-                             "-70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical; the "
-                             "eight +-100 N load cases; the paper's K_theta)")
+                        help="a scan the papers provide; table4: A&S Table IV on the SK120 "
+                             "(theta1 -180..180, theta2 -70..70, theta3 -115..35 deg, step 0.2 "
+                             "rad, wrist vertical; the eight +-100 N load cases; the robot's "
+                             "K_theta)")
     parser.add_argument("--axis", action="append", default=[], metavar="JOINT=LO:HI[:STEP]",
                         help="swept coordinate (joint name or q1, q2...): a grid LO..HI by "
                              "STEP, or a sampling range without STEP (rad or m; --deg); "
@@ -104,6 +127,21 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "loses); default 8192")
     parser.add_argument("--format", choices=FORMATS, default="npz",
                         help="map files: npz (default), parquet (needs pyarrow) or both")
+    parser.add_argument("--fields", metavar="NAME[,NAME...]",
+                        help="what is stored per configuration (and computed): "
+                             f"{', '.join(STORED_FIELDS)}, or all; derived fields "
+                             f"({', '.join(k for k in DERIVED_FIELDS if DERIVED_FIELDS[k])}) "
+                             "are rebuilt when read and select their source; default: all but "
+                             "coordinates (rebuilt from the manifest)")
+    parser.add_argument("--dtype", choices=DTYPES, default="float64",
+                        help="storage type of the floating-point fields (computed in float64); "
+                             "default float64")
+    parser.add_argument("--compression", choices=COMPRESSIONS,
+                        help="Parquet codec (default snappy); NPZ files are deflated with any "
+                             "value but none (default: not compressed)")
+    parser.add_argument("--chunks-per-task", type=int,
+                        help="with Dask: consecutive chunks per task (default: chosen from the "
+                             "measured per-task overhead)")
     parser.add_argument("--out", help="output folder (default: a new folder <robot>-<preset> "
                                       "here); an existing scan folder is resumed")
     parser.add_argument("--scheduler", metavar="ADDRESS",
@@ -152,7 +190,7 @@ def _refuse_unscannable(model) -> None:
     """The batched scan models joint springs only: refuse a model whose link or nonlinear
     effects would change K_X (kx and view apply them at chosen poses)."""
     extra = [e.label for e in model.applied
-             if e.name in ("link_compliance", "nonlinear_joint_stiffness")]
+             if e.name in BEYOND_SPRINGS]
     if extra:
         raise StiffnessError(
             f"scan --model: {', '.join(extra)} change K_X beyond joint springs, which the "
@@ -200,27 +238,21 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
         loads = [x + [0.0] * (6 - len(x)) for x in loads]
     names = [str(i + 1) for i in range(len(loads))]
 
-    if args.preset == "table4":
+    fields = parse_fields(args.fields)
+    if args.preset is not None:
         if args.axis or args.samples is not None:
-            raise StiffnessError("--preset table4 fixes the grid: drop --axis and --samples")
-        if robot.n_coordinates != 6 or robot.n_compliant != 3:
-            raise StiffnessError(
-                "--preset table4 is the SK120 grid of A&S Table IV (six coordinates, three "
-                f"compliant joints); {robot.name} has {robot.n_coordinates} and "
-                f"{robot.n_compliant}"
-            )
-        from stiffness.papers.reproduction import table4_loads
-
+            raise StiffnessError(f"--preset {args.preset} fixes the grid: drop --axis and "
+                                 "--samples")
+        preset = SCAN_PRESETS[args.preset](robot)
         if not loads:
-            names, table = table4_loads()
-            loads = table.tolist()
-        axes = [{"index": i, "joint": robot.coordinate_joints[i], "lower": None, "upper": None,
-                 "step": None} for i in range(3)]
-        spec = ScanSpec(robot=robot_spec, preset="table4",
-                        coordinate_joints=list(robot.coordinate_joints),
-                        base=[0.0] * robot.n_coordinates, axes=axes, samples=None, seed=0,
-                        loads=loads, load_names=names, k_theta=k_theta, rtol=args.rtol,
-                        chunk_size=args.chunk_size, map_axes=[1, 2])
+            names, loads = preset.load_names, preset.loads
+        spec = ScanSpec(robot=robot_spec, preset=args.preset,
+                        coordinate_joints=list(robot.coordinate_joints), base=preset.base,
+                        axes=preset.axes, samples=None, seed=0, loads=loads,
+                        load_names=names, k_theta=k_theta, rtol=args.rtol,
+                        chunk_size=args.chunk_size, map_axes=preset.map_axes,
+                        couplings=preset.couplings, fields=fields, dtype=args.dtype,
+                        compression=args.compression)
         return spec, robot
 
     if not loads:
@@ -264,7 +296,8 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
                     coordinate_joints=list(robot.coordinate_joints), base=base.tolist(),
                     axes=axes, samples=samples, seed=args.seed, loads=loads, load_names=names,
                     k_theta=k_theta, rtol=args.rtol, chunk_size=args.chunk_size,
-                    map_axes=_map_axes(robot, axes, args.map_axes, samples))
+                    map_axes=_map_axes(robot, axes, args.map_axes, samples), fields=fields,
+                    dtype=args.dtype, compression=args.compression)
     return spec, robot
 
 
@@ -323,6 +356,8 @@ def run(args: argparse.Namespace) -> int:
     spec, robot = build_spec(args)
     if args.workers is not None and args.workers < 1:
         raise StiffnessError(f"--workers must be at least 1, got {args.workers}")
+    if args.chunks_per_task is not None and args.chunks_per_task < 1:
+        raise StiffnessError(f"--chunks-per-task must be at least 1, got {args.chunks_per_task}")
     out = Path(args.out) if args.out else default_out(spec)
     formats = ("npz", "parquet") if args.format == "both" else (args.format,)
     label = f"scan {spec.n_configurations} configurations x {len(spec.loads)} loads"
@@ -332,7 +367,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     summary = run_scan(spec, out, formats=formats, scheduler=args.scheduler,
                        workers=args.workers, plots=not args.no_plots, progress=progress,
-                       write_on_workers=True if args.shared_out else None)
+                       write_on_workers=True if args.shared_out else None,
+                       chunks_per_task=args.chunks_per_task)
     summary["out"] = str(out)
     summary["wall_seconds"] = time.perf_counter() - t0
     if args.json:
@@ -342,13 +378,19 @@ def run(args: argparse.Namespace) -> int:
     print(f"{summary['robot']} {spec.preset}: {summary['configurations']} configurations "
           f"({summary['valid_configurations']} valid) x {len(spec.loads)} load cases in "
           f"{summary['wall_seconds']:.2f} s -> {out}")
-    header = f"{'case':>6} {'load (N)':>24} " + " ".join(f"{c:>6}" for c in COUNT_LABELS)
-    print("definiteness of K_C per load case:")
-    print(header)
-    for name, case in summary["load_cases"].items():
-        load = ",".join(f"{v:g}" for v in case["load"])
-        print(f"{name:>6} {load:>24} " + " ".join(f"{case['k_c'][c]:>6}" for c in COUNT_LABELS))
-    tangent_pd = all(c["k_theta_minus_k_c"]["PD"] == summary["valid_configurations"]
-                     for c in summary["load_cases"].values())
-    print(f"K_theta - K_C positive definite everywhere: {tangent_pd}")
+    print(f"stored: {', '.join(spec.fields)} ({spec.dtype}); "
+          f"{summary['bytes_per_configuration']:.1f} bytes per configuration "
+          f"({summary['bytes_written'] / 1e6:.1f} MB written this run)")
+    cases = summary["load_cases"]
+    if cases and "k_c" in next(iter(cases.values())):
+        header = f"{'case':>6} {'load (N)':>24} " + " ".join(f"{c:>6}" for c in COUNT_LABELS)
+        print("definiteness of K_C per load case:")
+        print(header)
+        for name, case in cases.items():
+            load = ",".join(f"{v:g}" for v in case["load"])
+            print(f"{name:>6} {load:>24} "
+                  + " ".join(f"{case['k_c'][c]:>6}" for c in COUNT_LABELS))
+        tangent_pd = all(c["k_theta_minus_k_c"]["PD"] == summary["valid_configurations"]
+                         for c in cases.values())
+        print(f"K_theta - K_C positive definite everywhere: {tangent_pd}")
     return 0

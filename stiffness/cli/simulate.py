@@ -20,14 +20,23 @@ import argparse
 import json
 
 from stiffness.calibration.campaign import BASELINES, LENGTH_UNITS, Units
-from stiffness.calibration.effects import LIBRARY
+from stiffness.calibration.effects import LIBRARY, cached_robot
+from stiffness.calibration.plan import Plan, read_plan
 from stiffness.calibration.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
 from stiffness.cli import flags
+from stiffness.errors import StiffnessError
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness simulate``."""
-    flags.add_robot_flags(parser, required=True)
+    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name "
+                                             "or URDF path (required unless --plan is a folder "
+                                             "naming it)")
+    parser.add_argument("--plan", metavar="PLAN",
+                        help="simulate exactly these rows: a PLAN.csv written by `stiffness "
+                             "design`, or its folder (whose campaign.toml gives the robot "
+                             "flags' defaults); --configs, --loads-per-config, --max-force and "
+                             "--load-pattern are then not used")
     flags.add_stiffness_flag(parser, help="true stiffness per declared compliant joint, "
                                           "N.m/rad (N/m prismatic); default the shipped robot's")
     parser.add_argument("--effect", action="append", default=[], metavar="NAME[:WHERE]=VALUE",
@@ -36,7 +45,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "(N.m/rad), 'link_compliance:joint2->elbow=2e6' (N.m/rad), "
                              "nonlinear_joint_stiffness:joint3=0.001 (1/(N.m)), "
                              "frame_misalignment=2 (deg), target_offset=20 (--units), "
-                             "force_sensor_bias=5 (N), complementary_stiffness")
+                             "force_sensor_bias=5 (N), complementary_stiffness, "
+                             "gravity_preload=20[,cx,cy,cz] (kg, --units), "
+                             "gravity_compensator:joint2=2e5,500 (N/m, N)")
     parser.add_argument("--configs", type=int, default=10, help="configurations; default 10")
     parser.add_argument("--loads-per-config", type=int, default=4,
                         help="loads per configuration; default 4")
@@ -49,6 +60,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "configuration, or the six axis directions; default random")
     parser.add_argument("--noise", type=float, default=0.005,
                         help="measurement noise std, in --units; default 0.005")
+    parser.add_argument("--rotations", action="store_true",
+                        help="also write the measured rotations rx, ry, rz of the target frame")
+    parser.add_argument("--rotation-noise", type=float, default=None,
+                        help="rotation noise std, deg; default --noise / 100 mm")
     parser.add_argument("--undeclared-noise", action="store_true",
                         help="do not write noise_std into the campaign")
     parser.add_argument("--baseline", choices=BASELINES,
@@ -63,11 +78,36 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
 
 
+def _plan_robot(robot: flags.RobotFlags, path: str) -> tuple[Plan, flags.RobotFlags]:
+    """The plan at ``path`` and the robot flags, its folder's settings filling what they omit."""
+    declared = None
+    if robot.source is not None:
+        declared = cached_robot(robot.source, robot.frame, None if robot.target_offset is None
+                                else tuple(robot.target_offset), None if robot.compliant_joints
+                                is None else tuple(robot.compliant_joints))
+    plan, _ = read_plan(path, declared)
+    s = plan.robot_settings
+    if robot.source is None and s is not None:
+        robot = flags.RobotFlags(
+            plan.resolved_source(), robot.frame or s.frame,
+            robot.target_offset if robot.target_offset is not None
+            else [float(v) for v in s.target_offset_m],
+            robot.compliant_joints if robot.compliant_joints is not None
+            else (None if s.compliant_joints is None else list(s.compliant_joints)))
+    return plan, robot
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
     robot = flags.robot_flags(args)
     kq = flags.parse_list(args.kq, "--kq") if args.kq else None
+    plan = None
+    if args.plan:
+        plan, robot = _plan_robot(robot, args.plan)
+    if robot.source is None:
+        raise StiffnessError("--robot is required (or --plan FOLDER written by `stiffness "
+                             "design`)")
     sim = simulate(
         robot.source, kq=kq, effects=[parse_effect(e) for e in args.effect],
         configs=args.configs, loads_per_config=args.loads_per_config,
@@ -75,7 +115,10 @@ def run(args: argparse.Namespace) -> int:
         frame=robot.frame, target_offset_m=robot.target_offset,
         compliant_joints=robot.compliant_joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,
-        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name)
+        repeats=args.repeats, declare_noise=not args.undeclared_noise, name=args.name,
+        rotations=args.rotations,
+        rotation_noise_std_rad=None if args.rotation_noise is None
+        else args.rotation_noise * units.angle_to_si, plan=plan)
     path = sim.write(args.out)
     if args.json:
         print(json.dumps(sim.truth(), indent=1))

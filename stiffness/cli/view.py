@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.model_file import CompliantModel
+from stiffness.calibration.model_file import BEYOND_SPRINGS, CompliantModel
 from stiffness.cli import flags, kx
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
@@ -190,8 +190,7 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
     options = {"live": live, "quantity": args.quantity, "size": args.size,
                "exaggeration": args.exaggeration, "host": args.host, "port": args.port,
                "open_browser": args.open and live}
-    if model is not None and any(e.name in ("link_compliance", "nonlinear_joint_stiffness")
-                                 for e in model.applied):
+    if model is not None and any(e.name in BEYOND_SPRINGS for e in model.applied):
         viewer = ModelViewer(model, robot, k_theta, **options)
     else:
         viewer = StiffnessViewer(robot, k_theta, **options)

@@ -21,6 +21,7 @@ solution (see :func:`linear_departure`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -261,6 +262,7 @@ def solve_equilibrium(
     load: np.ndarray,
     tolerance: float = 1e-12,
     max_iterations: int = 60,
+    preload: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> Equilibrium:
     """Exact deflection of ``robot`` from the unloaded configuration ``q0`` under a dead load.
 
@@ -283,6 +285,12 @@ def solve_equilibrium(
         the arm while its round-off does not.
     max_iterations
         Newton iterations allowed.
+    preload
+        A configuration-dependent joint torque besides the load (the robot's weight, a
+        spring compensator): ``preload(q) -> (tau_p (n,), d tau_p / d theta (n, n))`` over the
+        compliant joints. The law then balances ``J^T W + tau_p(theta)`` and the tangent is
+        ``K_t - K_C - d tau_p / d theta``. ``q0`` stays the *commanded* pose: with
+        ``load = 0`` the result is the unloaded equilibrium under the preload.
 
     Raises
     ------
@@ -296,6 +304,8 @@ def solve_equilibrium(
     wrench = as_wrench(load)
     base = target_state(robot, q0)
     tau0 = base.jacobian.T @ wrench
+    if preload is not None:
+        tau0 = tau0 + preload(q0)[0]
     dtheta = law.start(tau0)
     q = q0
     iterations = 0
@@ -303,12 +313,16 @@ def solve_equilibrium(
         q = deflected_configuration(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
         tau = state.jacobian.T @ wrench
+        k_c = state.k_c
+        if preload is not None:
+            tau_p, k_p = preload(q)
+            tau, k_c = tau + tau_p, k_c + k_p
         residual = law.residual(dtheta, tau)
         scale = residual_scale(law, dtheta, state.jacobian, wrench)
         if np.all(np.abs(residual) <= tolerance * scale + _ROUND_OFF * scale.max()):
             break
         try:
-            step = np.linalg.solve(law.residual_jacobian(dtheta, tau, state.k_c), -residual)
+            step = np.linalg.solve(law.residual_jacobian(dtheta, tau, k_c), -residual)
         except np.linalg.LinAlgError as exc:
             raise UnstableEquilibriumError(
                 "the tangent stiffness K_theta - K_C is singular on the way to the equilibrium: "
@@ -329,7 +343,7 @@ def solve_equilibrium(
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
             "reduce it or raise max_iterations"
         )
-    tangent = tangent_joint_stiffness(law.tangent_stiffness(tau), state.k_c)
+    tangent = tangent_joint_stiffness(law.tangent_stiffness(tau), k_c)
     lowest = np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0]
     if lowest <= 0:
         raise UnstableEquilibriumError(

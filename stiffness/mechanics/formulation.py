@@ -7,7 +7,9 @@ Conventions (docs/conventions.md):
 * ``J`` is the target Jacobian with respect to the compliant joints, loops closed: rows
   ``[v (3); omega (3)]`` (Pinocchio order), base-frame axes at the target.
 * ``K_C = d(J^T W) / d theta`` (A&S eq. 9), from Pinocchio's kinematic Hessians; for a closed
-  loop, the reduced Hessian ``S^T (sum_k W_k d2x_k - sum_j lambda_j d2c_j) S``.
+  loop, the reduced Hessian ``S^T (sum_k W_k d2x_k) S + sum_p tau_p d2q_p/dtheta2``
+  (:mod:`stiffness.mechanics.closed_loop`, equal to the multiplier form
+  ``S^T (sum_k W_k d2x_k - sum_j lambda_j d2c_j) S``).
 * Compliance ``C = J (K_theta - K_C)^-1 J^T`` and ``K_X = C^-1`` (A&S eq. 10 when J is square).
   ``conventional`` sets ``K_C = 0`` (A&S eq. 8).
 * Six-dimensional stiffness (Zefran & Kumar): ``joint`` connection ``J^-T K_theta J^-1``
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stiffness.errors import SingularConfigurationError, StiffnessError, UnknownNameError
+from stiffness.mechanics import closed_loop
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot
 
@@ -93,8 +96,9 @@ class TargetState:
 def velocity_projection(robot: Robot) -> np.ndarray:
     """Velocity map S (nv, n_compliant) of the current kinematics: q_dot = S theta_dot.
 
-    Rigid coordinate joints stay still; passive loop joints follow the closure. Kinematics
-    (joint Jacobians) must be up to date.
+    Rigid coordinate joints stay still; passive loop joints follow the closure
+    (:func:`stiffness.mechanics.closed_loop.closure_derivatives`, the toolkit's one rank test).
+    Kinematics (joint Jacobians) must be up to date.
 
     Raises
     ------
@@ -103,21 +107,27 @@ def velocity_projection(robot: Robot) -> np.ndarray:
     """
     model, data = robot.model, robot.data
     n = robot.n_compliant
+    if robot.loop is None:
+        s = np.zeros((model.nv, n))
+        s[robot.compliant_v, np.arange(n)] = 1.0
+        return s
+    c = robot.loop.world_jacobian(model, data)[None]
+    pinv, valid, rank = closed_loop.passive_pseudo_inverse(c[:, :, robot.loop.passive_v])
+    _require_determined(robot, valid, rank)
     s = np.zeros((model.nv, n))
     s[robot.compliant_v, np.arange(n)] = 1.0
-    if robot.loop is None:
-        return s
-    c = robot.loop.jacobian(model, data)
-    cp = c[:, robot.loop.passive_v]
-    rank_p = np.linalg.matrix_rank(cp, tol=1e-9 * max(1.0, np.abs(cp).max()))
-    if rank_p < len(robot.loop.passive_v):
+    s[robot.loop.passive_v] = -(pinv[0] @ c[0][:, robot.compliant_v])
+    return s
+
+
+def _require_determined(robot: Robot, valid: np.ndarray, rank: np.ndarray) -> None:
+    """Raise on a loop singularity (passive joints not determined)."""
+    if not bool(valid[0]):
         raise SingularConfigurationError(
             f"the loop of {robot.name} is singular here: its passive joints are not determined "
-            f"by the actuated ones (rank {rank_p} < {len(robot.loop.passive_v)}); move away from "
-            "the flattened or folded assembly"
+            f"by the actuated ones (rank {int(rank[0])} < {len(robot.loop.passive_v)}); move "
+            "away from the flattened or folded assembly"
         )
-    s[robot.loop.passive_v] = robot.loop.passive_rates(model, data, robot.compliant_v)
-    return s
 
 
 def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) -> TargetState:
@@ -136,30 +146,41 @@ def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) ->
 
 
 def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list[TargetState]:
-    """:func:`target_state` for several loads at one configuration, sharing the kinematics."""
+    """:func:`target_state` for several loads at one configuration, sharing the kinematics.
+
+    For a closed loop, K_C is :func:`stiffness.mechanics.closed_loop.reduced_hessian` of the
+    tree's Hessian term with the closure derivatives of this configuration (the stack of one
+    of the batched API).
+    """
     model, data = robot.model, robot.data
     wrenches = [as_wrench(load) for load in loads]
     kinematics.update_kinematics(model, data, q)
     fid = robot.target_frame_id
     j_full = kinematics.frame_jacobian(model, data, fid)
-    s = velocity_projection(robot)
-    jac = j_full @ s
     hess = kinematics.frame_hessian(model, data, fid)
     position = kinematics.frame_position(data, fid)
     rotation = kinematics.frame_rotation(data, fid)
-    if robot.loop is not None:
-        cw_passive_t = robot.loop.world_jacobian(model, data)[:, robot.loop.passive_v].T
-        loop_hess = robot.loop.world_hessian(model, data)
+    if robot.loop is None:
+        s = velocity_projection(robot)
+        curvature = None
+    else:
+        closure = closed_loop.closure_derivatives(
+            robot.loop.world_jacobian(model, data)[None],
+            robot.loop.world_hessian(model, data)[None], robot.compliant_v,
+            robot.loop.passive_v)
+        _require_determined(robot, closure.valid, closure.rank)
+        s, curvature = closure.projection[0], closure.curvature[0]
+    jac = j_full @ s
     v, w = jac[:3], jac[3:]
     states = []
     for wrench in wrenches:
         # dQ_a/dq_b with Q = J^T W: sum_k W_k dJ[k, a]/dq_b
         dq = np.einsum("k,kab->ab", wrench, hess)
-        if robot.loop is not None:
-            rhs = (j_full.T @ wrench)[robot.loop.passive_v]
-            lam = np.linalg.lstsq(cw_passive_t, rhs, rcond=1e-10)[0]
-            dq = dq - np.einsum("j,jab->ab", lam, loop_hess)
-        k_c = s.T @ dq @ s
+        if curvature is None:
+            k_c = s.T @ dq @ s
+        else:
+            k_c = closed_loop.reduced_hessian(dq, (j_full.T @ wrench)[robot.loop.passive_v],
+                                              s, curvature)
         # twist basis: d(J_b^T W_b)/d theta at fixed body wrench adds J_l^T [omega_k]x W, i.e.
         # F.(v_l x omega_k) + M.(omega_l x omega_k) at [l, k]
         cross = np.einsum("i,ijk,jl,km->lm", wrench[:3], _LEVI_CIVITA, v, w)

@@ -14,14 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.batch.linalg import class_names
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES, definiteness, target_states
 from stiffness.model.robot import Robot
-
-
-def grid_axis(lower: float, upper: float, step: float) -> np.ndarray:
-    """Values ``lower, lower + step, ...`` not beyond ``upper`` (same unit as the inputs)."""
-    n = int(np.floor((upper - lower) / step + 1e-9)) + 1
-    return lower + step * np.arange(n)
+from stiffness.scan.maps import DEFINITENESS_FIELDS, compute_maps
+from stiffness.scan.spec import ScanSpec
 
 
 @dataclass
@@ -127,12 +124,13 @@ def batched_definiteness_scan(
     progress: Callable[[int, int], None] | None = None,
     chunk: int = 8192,
 ) -> DefinitenessScan:
-    """:func:`definiteness_scan` computed with the batched API (:mod:`stiffness.batch.kernels`).
+    """:func:`definiteness_scan` computed by the scan engine's chunk kernel
+    (:func:`stiffness.scan.maps.compute_maps`, the same code as ``stiffness scan``).
 
     Same result to round-off, two orders of magnitude faster: loop closures are shared between
-    configurations with the same loop coordinates (:func:`stiffness.batch.kernels.close_loops`), the
-    kinematics come from a tight Pinocchio loop and the eigenvalues from stacked LAPACK calls.
-    Configurations whose loop cannot be closed get class "" and a NaN critical factor.
+    configurations with the same loop coordinates (:func:`stiffness.batch.kernels.close_loops`),
+    the kinematics come from a tight Pinocchio loop and the eigenvalues from stacked LAPACK
+    calls. Configurations whose loop cannot be closed get class "" and a NaN critical factor.
 
     Parameters
     ----------
@@ -151,11 +149,15 @@ def batched_definiteness_scan(
     chunk
         Configurations processed at once (bounds the memory).
     """
-    from stiffness.batch import kernels as batch
-
     coordinates = np.asarray(coordinates, dtype=float)
     loads = np.asarray(loads, dtype=float)
     m, c = coordinates.shape[0], loads.shape[0]
+    spec = ScanSpec(robot={"source": robot.name}, preset="points",
+                    coordinate_joints=list(robot.coordinate_joints),
+                    base=[0.0] * robot.n_coordinates, axes=[], samples=None, seed=0,
+                    loads=loads.tolist(), load_names=[str(j + 1) for j in range(c)],
+                    k_theta=np.diag(k_theta).tolist(), rtol=rtol, chunk_size=chunk,
+                    fields=[*DEFINITENESS_FIELDS, "k_c_diagonal"])
     classes = np.empty((m, c), dtype="<U3")
     tangent = np.empty((m, c), dtype="<U3")
     factor = np.empty((m, c))
@@ -163,17 +165,12 @@ def batched_definiteness_scan(
     det_positive = np.zeros((m, c), dtype=bool)
     for start in range(0, m, chunk):
         end = min(m, start + chunk)
-        closed = batch.close_loops(robot, coordinates[start:end])
-        q = np.where(closed.closed[:, None], closed.q,
-                     batch.tree_configurations(robot, coordinates[start:end]))
-        kin = batch.batch_kinematics(robot, q, moments=False)
-        dmap = batch.definiteness_map(kin, loads, k_theta, rtol=rtol)
-        ok = (closed.closed & kin.valid)[:, None]
-        classes[start:end] = np.where(ok, batch.class_names(dmap.k_c_class), "")
-        tangent[start:end] = np.where(ok, batch.class_names(dmap.tangent_class), "")
-        factor[start:end] = np.where(ok, dmap.critical_factor, np.nan)
-        diag[start:end] = np.where(ok[:, :, None], dmap.k_c_diagonal, np.nan)
-        det_positive[start:end] = dmap.determinant_positive & ok
+        maps = compute_maps(robot, spec, np.arange(start, end), coordinates[start:end])
+        classes[start:end] = class_names(maps["k_c_class"])
+        tangent[start:end] = class_names(maps["tangent_class"])
+        factor[start:end] = maps["critical_factor"]
+        diag[start:end] = maps["k_c_diagonal"]
+        det_positive[start:end] = maps["k_c_det_positive"]
         if progress is not None:
             progress(end, m)
     return DefinitenessScan(coordinates, loads, classes, tangent, factor, diag, det_positive)

@@ -2,9 +2,11 @@
 
 A scan is split into numbered chunks; a chunk is a pure function of (spec, index), so any
 worker can compute it, a chunk whose worker dies is simply recomputed (Dask reschedules it) and
-only that chunk's work is lost. Results stream back in completion order to a callback that
-writes them to disk; at most ``2 x workers`` chunks are in flight, so the driver's memory is
-bounded by the chunk size, not by the size of the scan.
+only that task's work is lost. On a cluster, a task computes one or more consecutive chunks:
+as many as make Dask's measured per-task overhead a small share of the task
+(:func:`chunks_per_task`). Results stream back in completion order to a callback; at most
+``2 x workers`` tasks are in flight, so the driver's memory is bounded by the chunk size, not
+by the size of the scan.
 
 The single-process path (the default) runs the very same chunk function in a loop, so a
 distributed scan and a local one write the same maps.
@@ -19,18 +21,28 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
+
+import numpy as np
 
 from stiffness.errors import StiffnessError
 from stiffness.model.robot import Robot, load_robot
 
-_ROBOTS: dict[tuple[int, str], Robot] = {}
+_ROBOTS: dict[str, list[Robot]] = {}
+_IN_USE: dict[int, tuple[str, Robot]] = {}
 _ROBOTS_LOCK = threading.Lock()
 
 
 def worker_robot(robot_spec: dict) -> Robot:
-    """The robot of a scan, loaded once per process and thread (a Robot is not thread-safe).
+    """The robot of a scan for this thread, loaded once per process (a Robot holds one
+    Pinocchio Data, so two threads never share one).
+
+    A process keeps a pool of loaded robots per spec: a thread keeps the one it got until it
+    asks for another spec, and a new thread takes a free one, so a robot loaded ahead of the
+    chunks (:func:`warm_worker`, run by ``client.run`` in the worker's event-loop thread) is
+    the one its executor thread computes with.
 
     Parameters
     ----------
@@ -38,24 +50,48 @@ def worker_robot(robot_spec: dict) -> Robot:
         Keyword arguments of :func:`stiffness.model.robot.load_robot` (``source``, ``frame``,
         ``target_offset``, ``compliant_joints``), JSON-serialisable.
     """
-    key = (threading.get_ident(), json.dumps(robot_spec, sort_keys=True))
+    key = json.dumps(robot_spec, sort_keys=True)
+    thread = threading.get_ident()
     with _ROBOTS_LOCK:
-        robot = _ROBOTS.get(key)
+        held = _IN_USE.get(thread)
+        if held is not None and held[0] == key:
+            return held[1]
+        if held is not None:
+            _ROBOTS.setdefault(held[0], []).append(held[1])  # give the other spec's back
+            del _IN_USE[thread]
+        free = _ROBOTS.get(key)
+        robot = free.pop() if free else None
     if robot is None:
         robot = load_robot(**robot_spec)
-        with _ROBOTS_LOCK:
-            _ROBOTS[key] = robot
+    with _ROBOTS_LOCK:
+        alive = {t.ident for t in threading.enumerate()}
+        for other in [t for t in _IN_USE if t not in alive]:  # threads that ended
+            spec_key, done = _IN_USE.pop(other)
+            _ROBOTS.setdefault(spec_key, []).append(done)
+        _IN_USE[thread] = (key, robot)
     return robot
 
 
 def warm_worker(robot_spec: dict) -> None:
-    """Load a scan's robot on a worker ahead of its chunks (``client.run(warm_worker, spec)``);
-    returns nothing, so that no robot travels back to the client."""
-    worker_robot(robot_spec)
+    """Load a scan's robot on a worker ahead of its chunks (``client.run(warm_worker, spec)``)
+    into the process's pool, unless the process already holds one; returns nothing, so that
+    no robot travels back to the client."""
+    key = json.dumps(robot_spec, sort_keys=True)
+    with _ROBOTS_LOCK:
+        if _ROBOTS.get(key) or any(k == key for k, _ in _IN_USE.values()):
+            return
+    robot = load_robot(**robot_spec)
+    with _ROBOTS_LOCK:
+        _ROBOTS.setdefault(key, []).append(robot)
 
 
 def _dask_client(scheduler: str | None, workers: int | None):
-    """A Dask client on ``scheduler``, or on a new LocalCluster of ``workers`` processes."""
+    """A Dask client on ``scheduler``, or on a new LocalCluster of ``workers`` processes.
+
+    LocalCluster workers are single-threaded processes with single-threaded BLAS
+    (:data:`WORKER_ENVIRONMENT`); an external cluster should be started the same way
+    (``dask worker ADDRESS --nworkers N --nthreads 1``, see docs/performance.md).
+    """
     try:
         from distributed import Client, LocalCluster
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -71,8 +107,65 @@ def _dask_client(scheduler: str | None, workers: int | None):
                 "`dask scheduler` and give its address, e.g. tcp://10.0.0.5:8786"
             ) from exc
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=None)
+                           dashboard_address=None, env=dict(WORKER_ENVIRONMENT))
     return Client(cluster), cluster
+
+
+#: Environment of LocalCluster worker processes (set it for ``dask worker`` too): single-threaded
+#: BLAS (a worker is one core; threaded BLAS on tiny matrices only adds contention); a malloc
+#: trim threshold above a chunk's work arrays (Dask's nanny sets 64 kB, which returns them to
+#: the system after each chunk and pays page faults to get them back); and no statistical
+#: profiler (it samples the computing thread's stack every 10 ms, under the GIL), and the
+#: worker's periodic housekeeping (event-loop tick, system and memory monitors) at intervals
+#: of seconds rather than tens of milliseconds: measured here, a chunk computed in a worker
+#: took 2x its in-process time with Dask's defaults and the same time with these.
+WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                      "MKL_NUM_THREADS": "1", "MALLOC_TRIM_THRESHOLD_": str(128 * 2**20),
+                      "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False",
+                      "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL": "1s",
+                      "DASK_DISTRIBUTED__ADMIN__SYSTEM_MONITOR__INTERVAL": "10s",
+                      "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL": "1s"}
+#: The same housekeeping intervals for the scheduler of a LocalCluster (it runs in this
+#: process, beside the client).
+SCHEDULER_CONFIG = {"distributed.admin.tick.interval": "1s",
+                    "distributed.admin.system-monitor.interval": "10s"}
+
+#: Target share of a task's time spent on Dask's per-task overhead when choosing the number
+#: of chunks per task.
+OVERHEAD_SHARE = 0.02
+#: Tasks per worker kept at least, for load balance and progress.
+TASKS_PER_WORKER = 4
+
+
+def run_group(func: Callable[..., Any], args: tuple, indices: tuple[int, ...]
+              ) -> tuple[dict[int, Any], float]:
+    """``{index: func(*args, index)}`` for consecutive chunks, and the seconds it took (one Dask
+    task)."""
+    t0 = time.perf_counter()
+    results = {index: func(*args, index) for index in indices}
+    return results, time.perf_counter() - t0
+
+
+def _noop() -> None:
+    """A task that does nothing (measures Dask's per-task overhead)."""
+
+
+def task_overhead(client: Any, rounds: int = 8) -> float:
+    """Median round trip (s) of an empty task through the scheduler and a worker."""
+    times = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        client.submit(_noop, pure=False).result()
+        times.append(time.perf_counter() - t0)
+    return float(sorted(times)[len(times) // 2])
+
+
+def chunks_per_task(overhead_s: float, chunk_s: float, remaining: int, n_workers: int) -> int:
+    """Chunks per task so that the per-task overhead is at most :data:`OVERHEAD_SHARE` of a
+    task, with at least :data:`TASKS_PER_WORKER` tasks per worker left."""
+    wanted = int(np.ceil(overhead_s / (OVERHEAD_SHARE * max(chunk_s, 1e-9))))
+    balance = max(1, remaining // (TASKS_PER_WORKER * n_workers))
+    return int(max(1, min(wanted, balance)))
 
 
 def run_chunks(
@@ -83,6 +176,9 @@ def run_chunks(
     scheduler: str | None = None,
     workers: int | None = None,
     client: Any | None = None,
+    group: int | None = None,
+    warm: tuple[Callable[[Any], None], Any] | None = None,
+    stats: dict | None = None,
 ) -> int:
     """Compute ``func(*args, index)`` for every index and hand each result to ``on_result``.
 
@@ -105,6 +201,16 @@ def run_chunks(
         processes on this machine; None or 1, this process (no Dask).
     client
         An existing ``distributed.Client`` (overrides ``scheduler`` and ``workers``).
+    group
+        Consecutive chunks per Dask task. Default: the first tasks hold one chunk each; their
+        measured compute time and the measured per-task overhead (:func:`task_overhead`) then
+        set it (:func:`chunks_per_task`).
+    warm
+        ``(function, argument)`` run once on every worker (or in this process) before the
+        chunks, e.g. loading the robot; returns nothing.
+    stats
+        Filled, on a cluster, with ``workers``, ``chunks_per_task``, ``task_overhead_s`` and
+        ``chunk_seconds`` (median compute time of a chunk on a worker).
 
     Returns
     -------
@@ -113,47 +219,73 @@ def run_chunks(
     """
     indices = list(indices)
     if client is None and scheduler is None and (workers is None or workers <= 1):
+        if warm is not None:
+            warm[0](warm[1])
         for index in indices:
             on_result(index, func(*args, index))
         return len(indices)
-    own_cluster = None
-    if client is None:
-        client, own_cluster = _dask_client(scheduler, workers)
-        own_client = True
-    else:
-        own_client = False
-    try:
-        from distributed import as_completed
+    import dask
 
-        n_workers = max(1, len(client.scheduler_info().get("workers", {})) or (workers or 1))
-        window = 2 * n_workers
-        pending = iter(indices)
-        futures = {}
+    with dask.config.set(SCHEDULER_CONFIG):
+        own_cluster = None
+        if client is None:
+            client, own_cluster = _dask_client(scheduler, workers)
+            own_client = True
+        else:
+            own_client = False
+        try:
+            return _run_on_client(client, func, args, indices, on_result, workers, group,
+                                  warm, {} if stats is None else stats)
+        finally:
+            if own_client:
+                client.close()
+            if own_cluster is not None:
+                own_cluster.close()
 
-        def submit_next() -> bool:
-            index = next(pending, None)
-            if index is None:
-                return False
-            future = client.submit(func, *args, index, pure=False, retries=2)
-            futures[future.key] = index
-            stream.add(future)
-            return True
 
-        stream = as_completed([])
-        for _ in range(window):
-            if not submit_next():
-                break
-        done = 0
-        for future in stream:
-            index = futures.pop(future.key)
-            result = future.result()
-            future.release()
+def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: list[int],
+                   on_result: Callable[[int, Any], None], workers: int | None,
+                   group: int | None, warm: tuple | None, stats: dict) -> int:
+    """:func:`run_chunks` on a Dask client: a window of ``2 x workers`` tasks in flight."""
+    from distributed import as_completed
+
+    if warm is not None:
+        client.run(warm[0], warm[1])
+    n_workers = max(1, len(client.nthreads()) or (workers or 1))
+    overhead = task_overhead(client) if group is None else None
+    size = {"group": group or 1}
+    chunk_times: list[float] = []
+    pending = list(reversed(indices))
+    futures: dict[str, tuple[int, ...]] = {}
+    stream = as_completed([])
+
+    def submit_next() -> bool:
+        if not pending:
+            return False
+        count = min(size["group"], len(pending))
+        chunk = tuple(pending.pop() for _ in range(count))
+        future = client.submit(run_group, func, args, chunk, pure=False, retries=2)
+        futures[future.key] = chunk
+        stream.add(future)
+        return True
+
+    for _ in range(2 * n_workers):
+        if not submit_next():
+            break
+    done = 0
+    for future in stream:
+        futures.pop(future.key)
+        results, seconds = future.result()
+        future.release()
+        for index, result in results.items():
             on_result(index, result)
-            done += 1
-            submit_next()
-        return done
-    finally:
-        if own_client:
-            client.close()
-        if own_cluster is not None:
-            own_cluster.close()
+        done += len(results)
+        chunk_times.append(seconds / max(1, len(results)))
+        if group is None and len(chunk_times) == min(n_workers, len(indices)):  # first wave
+            median = float(np.median(chunk_times))
+            size["group"] = chunks_per_task(overhead, median, len(pending), n_workers)
+        submit_next()
+    stats.update({"workers": n_workers, "chunks_per_task": size["group"],
+                  "task_overhead_s": overhead,
+                  "chunk_seconds": float(np.median(chunk_times)) if chunk_times else None})
+    return done

@@ -1,5 +1,5 @@
 """Figures of a workspace scan (:mod:`stiffness.scan.engine`), drawn from its
-:class:`~stiffness.scan.engine.MapAccumulator` (PNG bytes, matplotlib's Agg backend).
+:class:`~stiffness.scan.maps.MapAccumulator` (PNG bytes, matplotlib's Agg backend).
 
 * ``definiteness_counts.png``: configurations per definiteness class of K_C, per load case;
 * ``stiffness_map.png``: smallest principal stiffness over the map axes (conventional K_X, and
@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stiffness.scan.distributed import worker_robot
-from stiffness.scan.engine import COUNT_LABELS, MapAccumulator, ScanSpec
+from stiffness.scan.maps import MapAccumulator
+from stiffness.scan.spec import COUNT_LABELS, ScanSpec
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -179,9 +180,12 @@ def definiteness_figure(spec: ScanSpec, acc: MapAccumulator) -> bytes:
 
 
 def all_figures(spec: ScanSpec, acc: MapAccumulator) -> dict[str, bytes]:
-    """File name -> PNG bytes of the scan's figures."""
-    figures = {"definiteness_counts.png": counts_figure(spec, acc)}
-    if acc.edges:
+    """File name -> PNG bytes of the scan's figures (those its fields compute)."""
+    figures = {}
+    if acc.needs["definiteness"]:
+        figures["definiteness_counts.png"] = counts_figure(spec, acc)
+    if acc.edges and acc.needs["k_x"] and acc.needs["conventional"]:
         figures["stiffness_map.png"] = stiffness_figure(spec, acc)
+    if acc.edges and acc.needs["definiteness"]:
         figures["definiteness_map.png"] = definiteness_figure(spec, acc)
     return figures

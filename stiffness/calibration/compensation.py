@@ -1,0 +1,527 @@
+"""Deflection compensation along a path: joint commands that cancel the load's deflection.
+
+A path point gives the *nominal* coordinates ``theta_n`` (the unloaded program). Under the
+process wrench ``W`` (a dead load at the target, base axes) the robot commanded at ``theta_c``
+rests at its exact elastostatic equilibrium (:mod:`stiffness.calibration.elastic`: every effect
+of the model file that acts on the robot); compensation finds the ``theta_c`` whose loaded
+equilibrium puts the target at the unloaded nominal pose ``x(theta_n)`` (position, and the
+orientation when it is held: see :func:`compensate`):
+
+* joint law only: rest at ``theta = theta_n`` exactly, so ``theta_c = theta_n - law(J(theta_n)^T
+  W)`` (closed form, design notes "Compensation along a path");
+* otherwise (link compliance): Newton on ``theta_c`` with ``x_loaded(theta_c) = x(theta_n)``,
+  each evaluation an exact equilibrium, the Jacobian ``J (I - diag(law') K_C)^-1`` (minimum-norm
+  steps when the pose leaves freedom).
+
+Beside it the usual first-order Cartesian compensation: command the pose shifted by
+``-C W`` (``C`` the model's linear compliance at the nominal pose) through inverse kinematics;
+its residual grows as the square of the load.
+
+Every residual reported is that of the exact loaded equilibrium at the command, solved anew.
+Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.calibration.elastic import (
+    ElasticModel,
+    as_elastic_model,
+    bent_kinematics,
+    frozen_axes,
+    linear_shift,
+    loaded_equilibrium,
+)
+from stiffness.errors import (
+    ConvergenceError,
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    with_context,
+)
+from stiffness.mechanics.formulation import as_wrench, target_state
+from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
+from stiffness.model import kinematics
+from stiffness.model.robot import Robot
+
+#: Convergence of the general compensation solve (m, rad of the target error).
+POSE_TOLERANCE = 1e-12
+#: Wrench columns a path file may carry (N, N.m).
+WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
+#: Reference frames of a process wrench.
+WRENCH_FRAMES = ("base", "target")
+
+# ------------------------------------------------------------------------------------------
+# one path point
+
+
+@dataclass
+class PointCompensation:
+    """Compensation of one path point (SI).
+
+    Attributes
+    ----------
+    command
+        Exact joint command (rad, m), one per coordinate.
+    command_first_order
+        First-order Cartesian compensation's command (rad, m).
+    deflection
+        Target displacement (3,) of the uncompensated robot under the load (m).
+    rotation_deflection
+        Its rotation vector (3,) (rad).
+    residual, rotation_residual
+        Target error after the exact compensation (m; rad).
+    residual_first_order, rotation_residual_first_order
+        Target error after the first-order compensation (m; rad).
+    method
+        ``closed-form`` or ``general``.
+    iterations
+        Newton steps of the general solve (0 for the closed form).
+    """
+
+    command: np.ndarray
+    command_first_order: np.ndarray
+    deflection: np.ndarray
+    rotation_deflection: np.ndarray
+    residual: np.ndarray
+    rotation_residual: np.ndarray
+    residual_first_order: np.ndarray
+    rotation_residual_first_order: np.ndarray
+    method: str
+    iterations: int
+    q_nominal: np.ndarray = field(repr=False)
+
+
+def choose_hold(em: ElasticModel, q: np.ndarray) -> str:
+    """``pose`` when the coordinates can hold position and orientation (6-row rank), else
+    ``position``."""
+    jac = target_state(em.full, q).jacobian
+    sv = np.linalg.svd(jac, compute_uv=False)
+    rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
+    return "pose" if rank == 6 else "position"
+
+
+def _pose_error(loaded_pos, loaded_rot, pos, rot, hold) -> np.ndarray:
+    e = loaded_pos - pos
+    if hold == "pose":
+        e = np.concatenate([e, pin.log3(loaded_rot @ rot.T)])
+    return e
+
+
+def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
+                     hold: str = "pose", method: str = "auto",
+                     seed_q: np.ndarray | None = None) -> PointCompensation:
+    """Exact and first-order compensation at nominal coordinates ``coords`` (rad, m).
+
+    Parameters
+    ----------
+    em
+        The elastic model.
+    coords
+        Nominal coordinates (the unloaded program).
+    wrench
+        Dead wrench (6,) [N; N.m] at the target, base axes.
+    hold
+        ``pose`` (position and orientation) or ``position``.
+    method
+        ``auto`` (closed form when joint motions are the only effect), ``closed-form`` or
+        ``general``.
+    seed_q
+        A closed configuration near ``coords`` (the loop branch).
+
+    Raises
+    ------
+    StiffnessError
+        Unstable or non-convergent equilibrium, a first-order pose out of reach, or the closed
+        form asked for a model with link compliance.
+    """
+    if hold not in HOLDS:
+        raise StiffnessError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
+    if method not in ("auto", "closed-form", "general"):
+        raise StiffnessError(f"method must be auto, closed-form or general, got {method!r}")
+    if method == "closed-form" and not em.joint_only:
+        raise StiffnessError("the closed form holds for joint compliance only; this model has "
+                             "link compliance: use method 'general'")
+    wrench = as_wrench(wrench)
+    full = em.full
+    coords = np.asarray(coords, dtype=float)
+    n = coords.shape[0]
+    links = em.ordered_links()
+    q_n = full.configuration(coords, seed=seed_q)
+    kinematics.update_first_order(full.model, full.data, q_n)
+    axes = frozen_axes(em, links)
+    nominal = bent_kinematics(em, links, axes, coords, np.zeros(2 * len(links)), wrench, q_n)
+    pos_n, rot_n = nominal.position.copy(), nominal.rotation.copy()
+    rows = slice(0, 6 if hold == "pose" else 3)
+
+    def solve(command):
+        return loaded_equilibrium(em, command, wrench, seed_q=q_n, axes=axes)
+
+    uncompensated = solve(coords)
+    tau_n = nominal.jac.T @ wrench
+    iterations = 0
+    if method == "general" or (method == "auto" and not em.joint_only):
+        used = "general"
+        command, loaded = coords.copy(), uncompensated
+        best = (np.inf, command, loaded)
+        for iterations in range(1, 41):  # noqa: B007 (reported)
+            err = _pose_error(loaded.position, loaded.rotation, pos_n, rot_n, hold)
+            size = float(np.abs(err).max())
+            if size < best[0]:
+                best = (size, command, loaded)
+            if size <= POSE_TOLERANCE:
+                break
+            kin = loaded.kin
+            a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
+            dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n])
+            jac = kin.jac[rows] @ dz_dc
+            if hold == "pose":
+                m_rot = loaded.rotation @ rot_n.T
+                jac = np.vstack([jac[:3], pin.Jlog3(m_rot) @ m_rot.T @ jac[3:]])
+            step = np.linalg.lstsq(jac, -err, rcond=1e-12)[0]
+            command = command + step
+            loaded = solve(command)
+        size, command, loaded = best
+        if size > 1e3 * POSE_TOLERANCE:
+            sv = np.linalg.svd(jac, compute_uv=False)
+            rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
+            if rank < jac.shape[0]:
+                raise ConvergenceError(
+                    f"the coordinates cannot cancel this deflection: they move only {rank} of "
+                    f"the {jac.shape[0]} held target components here ({size:.3g} m/rad "
+                    "remains); hold fewer (--hold position) or move away from the singularity")
+            raise ConvergenceError(
+                f"the general compensation did not converge (target error {size:.3g} m/rad "
+                "remains): the load may be near the buckling load; reduce it")
+    else:
+        used = "closed-form"
+        command = coords - em.law(tau_n[:n])[0]
+        loaded = solve(command)
+    # first-order Cartesian compensation: command the pose shifted by -C W through IK
+    shift = linear_shift(em, links, nominal, wrench)
+    target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
+    ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
+    first = solve(ik.coords)
+    return PointCompensation(
+        command=command,
+        command_first_order=ik.coords,
+        deflection=uncompensated.position - pos_n,
+        rotation_deflection=pin.log3(uncompensated.rotation @ rot_n.T),
+        residual=loaded.position - pos_n,
+        rotation_residual=pin.log3(loaded.rotation @ rot_n.T),
+        residual_first_order=first.position - pos_n,
+        rotation_residual_first_order=pin.log3(first.rotation @ rot_n.T),
+        method=used,
+        iterations=iterations,
+        q_nominal=q_n,
+    )
+
+
+# ------------------------------------------------------------------------------------------
+# a path
+
+
+@dataclass
+class PathCompensation:
+    """Compensation along a path.
+
+    Attributes
+    ----------
+    points
+        Per path point.
+    joints
+        Coordinate joints (the order of every command).
+    hold
+        What the exact compensation holds: ``pose`` or ``position``.
+    model
+        The elastic model used.
+    """
+
+    points: list[PointCompensation]
+    joints: tuple[str, ...]
+    hold: str
+    model: ElasticModel
+
+    def array(self, name: str) -> np.ndarray:
+        """(m, k) stack of a per-point attribute, e.g. ``"residual"``."""
+        return np.array([getattr(p, name) for p in self.points])
+
+    def summary(self) -> dict:
+        """``max_deflection_m``, ``rms_deflection_m``, ``max_residual_m``,
+        ``max_residual_first_order_m`` (norms of the position errors), and more."""
+        d = np.linalg.norm(self.array("deflection"), axis=1)
+        e = np.linalg.norm(self.array("residual"), axis=1)
+        e1 = np.linalg.norm(self.array("residual_first_order"), axis=1)
+        er = np.linalg.norm(self.array("rotation_residual"), axis=1)
+        return {
+            "max_deflection_m": float(d.max()),
+            "rms_deflection_m": float(np.sqrt(np.mean(d ** 2))),
+            "max_residual_m": float(e.max()),
+            "max_residual_first_order_m": float(e1.max()),
+            "rms_residual_first_order_m": float(np.sqrt(np.mean(e1 ** 2))),
+            "max_rotation_residual_rad": float(er.max()),
+            "points": len(self.points),
+            "hold": self.hold,
+            "method": sorted({p.method for p in self.points}),
+            "model": self.model.describe(),
+            "ignored_effects": list(self.model.ignored),
+        }
+
+
+def compensate(
+    model: ElasticModel | Robot | str | Path,
+    path: np.ndarray | str | Path,
+    wrench: np.ndarray | list[float] | None = None,
+    wrench_frame: str = "base",
+    hold: str = "auto",
+    method: str = "auto",
+    progress: Callable[[int, int], None] | None = None,
+    k_theta: np.ndarray | list[float] | None = None,
+    deg: bool = False,
+) -> PathCompensation:
+    """Joint commands that cancel the deflection along a path (see the module docstring).
+
+    Parameters
+    ----------
+    model
+        The elastic model (:meth:`ElasticModel.joint_springs`), a model file's path
+        (:func:`load_elastic_model`), or a robot with ``k_theta``.
+    path
+        (m, n) nominal coordinates (rad, m), one row per point, model coordinate order; or a
+        ``PATH.csv`` (:func:`read_joint_path`; ``deg`` for angles in degrees; its per-row loads
+        are used when ``wrench`` is None).
+    wrench
+        One process wrench (3,) or (6,) for every point, or (m, 6) one per point (N, N.m).
+    wrench_frame
+        ``base``: base axes; ``target``: the target frame's axes at each nominal pose (held
+        fixed in the base while the robot deflects, a dead load).
+    hold
+        ``pose``, ``position`` or ``auto`` (``pose`` when the coordinates can hold it).
+    method
+        ``auto``, ``closed-form`` or ``general`` (:func:`compensate_point`).
+    progress
+        Called with (done, total) after each point.
+    k_theta
+        Joint springs (N.m/rad, N/m) when ``model`` is a robot (default: its shipped ones).
+    deg
+        Angles of a ``PATH.csv`` are in degrees.
+
+    Raises
+    ------
+    StiffnessError
+        A bad path or wrench, or a point where a solve fails (the message names the row).
+    """
+    em = as_elastic_model(model, k_theta)
+    if isinstance(path, str | Path):
+        read = read_joint_path(path, em.robot, deg=deg)
+        path = read.coords
+        if wrench is None:
+            wrench = read.wrench
+    path = np.atleast_2d(np.asarray(path, dtype=float))
+    n = em.robot.n_coordinates
+    if path.shape[1] != n or path.shape[0] == 0:
+        raise StiffnessError(
+            f"the path needs one column per coordinate of {em.robot.name} "
+            f"({', '.join(em.robot.coordinate_joints)}); got shape {path.shape}")
+    if not np.all(np.isfinite(path)):
+        row = int(np.argwhere(~np.isfinite(path))[0, 0])
+        raise StiffnessError(f"path row {row + 1} holds a NaN or infinite coordinate; fix it")
+    if wrench_frame not in WRENCH_FRAMES:
+        raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
+    if wrench is None:
+        raise StiffnessError("give a wrench (fx,fy,fz[,mx,my,mz] in N, N.m)")
+    w = np.asarray(wrench, dtype=float)
+    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
+    if w.shape[0] == 1:
+        w = np.repeat(w, path.shape[0], axis=0)
+    if w.shape[0] != path.shape[0]:
+        raise StiffnessError(f"{w.shape[0]} wrenches for {path.shape[0]} path points")
+    lo, hi = coordinate_limits(em.full)
+    for i, row in enumerate(path):
+        bad = np.flatnonzero((row < lo - 1e-12) | (row > hi + 1e-12))
+        if bad.size:
+            j = bad[0]
+            raise StiffnessError(
+                f"path row {i + 1}: {em.robot.coordinate_joints[j]} = {row[j]:.6g} is beyond "
+                f"its limits [{lo[j]:.6g}, {hi[j]:.6g}] (rad or m); fix the path or its unit")
+    points: list[PointCompensation] = []
+    seed = None
+    chosen = hold
+    for i, coords in enumerate(path):
+        try:
+            q = em.full.configuration(coords, seed=seed)
+            if chosen == "auto":
+                chosen = choose_hold(em, q)
+            load = w[i].copy()
+            if wrench_frame == "target":
+                kinematics.update_first_order(em.full.model, em.full.data, q)
+                rot = em.full.data.oMf[em.full.target_frame_id].rotation
+                load = np.concatenate([rot @ load[:3], rot @ load[3:]])
+            point = compensate_point(em, coords, load, chosen, method, seed_q=q)
+        except StiffnessError as exc:
+            raise with_context(exc, f"path row {i + 1}") from exc
+        points.append(point)
+        seed = point.q_nominal
+        if progress is not None:
+            progress(i + 1, path.shape[0])
+    return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em)
+
+
+# ------------------------------------------------------------------------------------------
+# path files
+
+
+@dataclass
+class JointPath:
+    """A joint path read from CSV.
+
+    Attributes
+    ----------
+    header
+        The input columns, as given.
+    cells
+        The input cells (text), one list per row.
+    coords
+        (m, n) coordinates in SI (rad, m), model coordinate order.
+    wrench
+        (m, 6) per-row wrenches (N, N.m), or None.
+    column_of
+        Input column name of each coordinate.
+    angular
+        (n,) whether each coordinate is an angle (converted by ``--deg``).
+    lines
+        File line (1-based) of each row.
+    """
+
+    header: list[str]
+    cells: list[list[str]]
+    coords: np.ndarray
+    wrench: np.ndarray | None
+    column_of: list[str]
+    angular: np.ndarray
+    lines: list[int] = field(default_factory=list)
+
+
+@dataclass
+class Table:
+    """A CSV table: its header, and its non-empty rows with their 1-based file line numbers."""
+
+    path: Path
+    header: list[str]
+    rows: list[list[str]]
+    lines: list[int]
+
+    def column(self, name: str) -> np.ndarray:
+        """The finite numbers of column ``name``.
+
+        Raises
+        ------
+        FileFormatError
+            A cell that is not a finite number (its line, column and name).
+        """
+        k = self.header.index(name)
+        out = np.empty(len(self.rows))
+        for r, (row, line) in enumerate(zip(self.rows, self.lines, strict=True)):
+            cell = row[k].strip() if k < len(row) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                raise FileFormatError(f"{cell!r} is not a number; every value must be one",
+                                      path=self.path, line=line, column=k + 1, field=name
+                                      ) from None
+            if not math.isfinite(value):
+                raise FileFormatError(f"{cell!r}: every value must be a finite number",
+                                      path=self.path, line=line, column=k + 1, field=name)
+            out[r] = value
+        return out
+
+    def wrenches(self) -> np.ndarray | None:
+        """(m, 6) per-row loads of columns ``fx,fy,fz[,mx,my,mz]`` (N, N.m), or None."""
+        present = [c for c in WRENCH_COLUMNS if c in self.header]
+        if not present:
+            return None
+        if not all(c in present for c in WRENCH_COLUMNS[:3]) or len(present) not in (3, 6):
+            raise FileFormatError("per-row loads need the columns fx, fy, fz (N), and "
+                                  "optionally all of mx, my, mz (N.m)", path=self.path, line=1)
+        out = np.zeros((len(self.rows), 6))
+        for k, c in enumerate(WRENCH_COLUMNS):
+            if c in present:
+                out[:, k] = self.column(c)
+        return out
+
+
+def read_table(path: str | Path, what: str) -> Table:
+    """Read a CSV file with a header line (``what`` names it in errors).
+
+    Raises
+    ------
+    MissingFileError
+        The file cannot be read.
+    FileFormatError
+        No data row.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise MissingFileError(f"cannot read {what} {path}: {exc.strerror}; give an existing "
+                               "CSV file", path=path) from exc
+    rows, lines = [], []
+    for row in csv.reader(io.StringIO(text)):
+        if row and any(c.strip() for c in row):
+            rows.append(row)
+    # csv.reader does not give line numbers: count them on the text (no quoted newlines)
+    numbered = [k + 1 for k, line in enumerate(text.splitlines()) if line.strip(" ,\t")]
+    lines = numbered[: len(rows)]
+    if len(rows) < 2:
+        raise FileFormatError(f"no {what} rows: give a header line and one row per point",
+                              path=path)
+    return Table(path, [h.strip() for h in rows[0]], rows[1:], lines[1:])
+
+
+def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointPath:
+    """Read ``PATH.csv``: one column per coordinate, named by joint name or ``q1..qn`` (model
+    coordinate order), one row per point; optional ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
+
+    Raises
+    ------
+    MissingFileError, FileFormatError
+        Unreadable file, a missing coordinate column, a value that is not a finite number
+        (named by line and column).
+    """
+    table = read_table(path, "path file")
+    header = table.header
+    joints = list(robot.coordinate_joints)
+    by_index = [f"q{i + 1}" for i in range(len(joints))]
+    if all(j in header for j in joints):
+        column_of = joints
+    elif all(q in header for q in by_index):
+        column_of = by_index
+    else:
+        missing = [j for j in joints if j not in header]
+        missing_q = [q for q in by_index if q not in header]
+        shown = missing if len(missing) <= len(missing_q) else missing_q
+        other = "" if set(header) & set(joints + by_index) else (
+            " (its columns name none of them: is the model file of another robot?)")
+        raise FileFormatError(
+            f"lacks the coordinate column(s) {', '.join(shown)} of {robot.name}{other}: name "
+            f"one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})",
+            path=table.path, line=1)
+    coords = np.column_stack([table.column(c) for c in column_of])
+    wrench = table.wrenches()
+    model = robot.model
+    angular = np.array([not model.joints[model.getJointId(j)].shortname().startswith(
+        "JointModelP") for j in joints])
+    if deg:
+        coords[:, angular] = np.deg2rad(coords[:, angular])
+    return JointPath(header, [list(r) for r in table.rows], coords, wrench, column_of, angular,
+                     table.lines)

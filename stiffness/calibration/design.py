@@ -1,0 +1,534 @@
+"""Experiment design, the workflow of ``stiffness design``: a plan of N configurations x M
+loads that identifies the joint stiffness best (or completes a measured campaign, or tells two
+alternatives fitted to it apart), with the predicted standard errors of the plan and of random
+plans of the same size.
+
+The mathematics (candidates, Fisher information of ln k, D/A/E criteria, greedy and exchange
+selection, the separation left after refitting) is in :mod:`stiffness.calibration.experiment`;
+the plan files in :mod:`stiffness.calibration.plan`.
+
+Units: SI inside (m, N, rad, N.m/rad).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stiffness.calibration.campaign import Campaign, RobotSettings, Units
+from stiffness.calibration.diagnose import fit_baseline, fit_model, replicate_noise
+from stiffness.calibration.effects import LIBRARY, Geometry, Model, References, make_effect
+from stiffness.calibration.experiment import (
+    CRITERIA,
+    LOAD_DIRECTIONS,
+    Alternatives,
+    Candidates,
+    Selection,
+    baseline_model,
+    candidate_set,
+    random_selections,
+    row_information,
+    select_information,
+    select_rows,
+    sensitivities,
+    separation_score,
+    separation_statistics,
+    standard_errors,
+)
+from stiffness.calibration.plan import Plan
+from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
+from stiffness.model.robot import Robot
+
+#: Default number of candidate poses.
+DEFAULT_CANDIDATES = 200
+#: Default number of random plans the design is compared with.
+DEFAULT_RANDOM_PLANS = 50
+
+
+def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | None]]:
+    """``EFFECT[:WHERE],EFFECT[:WHERE]`` as two ``(name, where)`` pairs, names checked.
+
+    A link segment may be written ``A->B`` or ``A/B`` (a comma inside a where is not allowed).
+
+    Raises
+    ------
+    StiffnessError
+        Not exactly two effects, or an effect name that is not in the library.
+    """
+    parts = [s.strip() for s in str(text).split(",") if s.strip()]
+    if len(parts) != 2:
+        raise StiffnessError(f"--separate takes two effects EFFECT[:WHERE],EFFECT[:WHERE], got "
+                             f"{text!r}")
+    out = []
+    for part in parts:
+        name, _, where = part.partition(":")
+        name = name.strip()
+        if name not in LIBRARY:
+            raise UnknownEffectError(f"unknown effect {name!r} in --separate {text!r}; "
+                                     f"{did_you_mean(name, list(LIBRARY))}", name=name,
+                                     choices=list(LIBRARY))
+        out.append((name, where.strip() or None))
+    return out[0], out[1]
+
+
+def check_sizes(configs: int, loads_per_config: int, candidates: int | None) -> None:
+    """Check a plan's size against the candidates (``None``: not known yet).
+
+    Raises
+    ------
+    StiffnessError
+        ``configs`` below 1 or above ``candidates``; ``loads_per_config`` outside 1 to the
+        number of load directions.
+    """
+    if int(configs) < 1:
+        raise StiffnessError(f"--configs must be at least 1, got {configs}")
+    n_dir = len(LOAD_DIRECTIONS)
+    if not 1 <= int(loads_per_config) <= n_dir:
+        raise StiffnessError(f"--loads-per-config must be between 1 and {n_dir} (the axis and "
+                             f"cube-diagonal directions), got {loads_per_config}")
+    if candidates is not None and int(configs) > int(candidates):
+        raise StiffnessError(f"--configs {configs} is larger than the {candidates} candidate "
+                             "poses; raise --candidates or lower --configs")
+
+
+def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], ...],
+                     sigma: float | None = None) -> Alternatives:
+    """Fit the campaign's baseline plus each of two effects, as ``diagnose`` does.
+
+    Parameters
+    ----------
+    campaign
+        The measured campaign.
+    effects
+        Two ``(name, where)`` pairs (:func:`parse_separate`).
+    sigma
+        Noise std (m); default the campaign's declared one, else the replicates', else the
+        residual scatter of the better fit.
+
+    Raises
+    ------
+    StiffnessError
+        An unknown effect or place, or the same effect twice.
+    """
+    robot = campaign.robot()
+    geo = Geometry.of(robot)
+    chosen = [make_effect(name, where, geo) for name, where in effects]
+    if chosen[0].key() == chosen[1].key():
+        raise StiffnessError(f"--separate needs two different effects, got {chosen[0].label} "
+                             "twice")
+    rows = geo.rows(campaign.q, campaign.force, campaign.moment,
+                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
+    measured = campaign.deflection
+    source = "given"
+    if sigma is None and campaign.noise_std_m is not None:
+        sigma, source = campaign.noise_std_m, "declared noise_std of the campaign"
+    if sigma is None:
+        rep = replicate_noise(campaign)
+        if rep is not None:
+            sigma, source = rep[0], "replicate rows of the campaign"
+    scale = sigma if sigma is not None else max(float(np.sqrt(np.mean(measured ** 2))) * 1e-2,
+                                                1e-12)
+    refs0 = References.of(geo, rows, 1e5, measured)
+    model0 = Model(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
+    base = fit_baseline(model0, measured, scale)
+    refs = References.of(geo, rows, float(np.exp(np.mean(base.x))), measured)
+    base.model = base.model.with_refs(refs)
+    fits = [fit_model(base.model.extended(e), measured, scale, base.model.extend_x(base.x, e))
+            for e in chosen]
+    if sigma is None:
+        best = min(fits, key=lambda f: f.rss)
+        dof = max(measured.size - best.model.penalty_params, 1)
+        sigma, source = math.sqrt(best.rss / dof), "residual scatter of the better fit"
+    return Alternatives(fits[0], fits[1], (chosen[0].label, chosen[1].label), float(sigma),
+                        source)
+
+
+# ------------------------------------------------------------------------------------------
+# the design
+
+
+@dataclass
+class Prediction:
+    """Predicted precision of a plan (with the existing rows, if any).
+
+    Attributes
+    ----------
+    relative_se
+        (p,) predicted standard error of each k relative to k.
+    separation
+        Predicted separation of the two alternatives over the plan's rows, noise units
+        (``sqrt(sum_r s_r^2)``), or ``None``.
+    """
+
+    relative_se: np.ndarray
+    separation: float | None = None
+
+    @property
+    def mean_relative_se(self) -> float:
+        """Mean over the joints of the relative standard error."""
+        return float(np.mean(self.relative_se))
+
+
+@dataclass
+class DesignResult:
+    """Result of :func:`design` (SI).
+
+    Attributes
+    ----------
+    plan
+        The rows to measure.
+    robot
+        The robot.
+    joints
+        Compliant joints (the identified stiffnesses).
+    k
+        Nominal stiffness the design is local to (SI).
+    k_source
+        Where ``k`` comes from.
+    noise_std_m, noise_source
+        Noise std per deflection component (m) and where it comes from.
+    criterion
+        ``D``, ``A`` or ``E``.
+    formulation
+        The deflection model's baseline.
+    n_candidates, n_directions, max_force
+        Candidate poses, load directions, load magnitude (N).
+    designed
+        Prediction for the plan.
+    random
+        Predictions for the random plans of the same size.
+    existing
+        Prediction for the existing campaign alone, or ``None``.
+    existing_rows
+        Number of rows of the existing campaign (0 if none).
+    separate
+        The two effect labels of ``--separate``, or ``None``.
+    separation_sigma_source
+        Where the noise of the separation comes from.
+    row_separation
+        (rows,) predicted separation of each plan row, noise units, or ``None``.
+    exchanges
+        Exchanges accepted after the greedy pass.
+    notes
+        Remarks.
+    """
+
+    plan: Plan
+    robot: Robot
+    joints: tuple[str, ...]
+    k: np.ndarray
+    k_source: str
+    noise_std_m: float
+    noise_source: str
+    criterion: str
+    formulation: str
+    n_candidates: int
+    n_directions: int
+    max_force: float
+    designed: Prediction
+    random: list[Prediction]
+    existing: Prediction | None = None
+    existing_rows: int = 0
+    separate: tuple[str, str] | None = None
+    separation_sigma_source: str | None = None
+    row_separation: np.ndarray | None = None
+    exchanges: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def random_relative_se(self) -> np.ndarray:
+        """(R, p) relative standard errors of the random plans."""
+        return np.array([r.relative_se for r in self.random])
+
+    @property
+    def determined(self) -> np.ndarray:
+        """(p,) whether the plan determines each stiffness (finite standard error)."""
+        return np.isfinite(self.designed.relative_se)
+
+    @property
+    def se_ratio(self) -> float:
+        """Mean relative SE of the plan over the mean of the random plans' (lower is better),
+        over the stiffnesses the plan determines."""
+        keep = self.determined
+        if not keep.any():
+            return math.nan
+        mean_random = float(np.mean(self.random_relative_se[:, keep]))
+        return float(np.mean(self.designed.relative_se[keep])) / mean_random
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (SI; infinities become ``None``)."""
+        def num(v):
+            v = float(v)
+            return v if math.isfinite(v) else None
+
+        rnd = self.random_relative_se
+        rnd_sep = [r.separation for r in self.random if r.separation is not None]
+        out = {
+            "robot": self.robot.name,
+            "compliant_joints": list(self.joints),
+            "k_nominal": dict(zip(self.joints, self.k.tolist(), strict=True)),
+            "k_source": self.k_source,
+            "noise_std_m": self.noise_std_m,
+            "noise_source": self.noise_source,
+            "criterion": self.criterion,
+            "formulation": self.formulation,
+            "configs": int(len(dict.fromkeys(self.plan.config))),
+            "rows": self.plan.n_rows,
+            "candidates": self.n_candidates,
+            "load_directions": self.n_directions,
+            "max_force_N": self.max_force,
+            "exchanges": self.exchanges,
+            "existing_rows": self.existing_rows,
+            "plan_file": str(self.plan.path) if self.plan.path is not None else None,
+            "predicted_relative_se": {
+                "plan": {j: num(v) for j, v in zip(self.joints, self.designed.relative_se,
+                                                    strict=True)},
+                "plan_mean": num(self.designed.mean_relative_se),
+                "determined": [j for j, ok in zip(self.joints, self.determined, strict=True)
+                               if ok],
+                "random_mean": {j: num(v) for j, v in zip(self.joints, rnd.mean(axis=0),
+                                                           strict=True)},
+                "random_median": {j: num(v) for j, v in zip(self.joints, np.median(rnd, axis=0),
+                                                             strict=True)},
+                "random_plans": len(self.random),
+                "random_plan_mean": num(np.mean([r.mean_relative_se for r in self.random])),
+                "ratio_plan_to_random": num(self.se_ratio),
+                "existing": None if self.existing is None else {
+                    j: num(v) for j, v in zip(self.joints, self.existing.relative_se,
+                                              strict=True)},
+            },
+            "notes": self.notes,
+        }
+        if self.separate is not None:
+            out["separate"] = {
+                "effects": list(self.separate),
+                "noise_source": self.separation_sigma_source,
+                "plan_noise_units": num(self.designed.separation),
+                "random_mean_noise_units": num(np.mean(rnd_sep)) if rnd_sep else None,
+                "existing_noise_units": None if self.existing is None
+                or self.existing.separation is None else num(self.existing.separation),
+                "rows_noise_units": [num(v) for v in self.row_separation],
+            }
+        return out
+
+
+def _info_of(cands: Candidates, model: Model, x: np.ndarray, sigma: float) -> np.ndarray:
+    sens = sensitivities(model.with_rows(cands.rows), x)
+    info = row_information(sens, sigma)
+    p = info.shape[-1]
+    return info.reshape(cands.n_poses, cands.n_directions, p, p)
+
+
+def design(
+    robot: Robot,
+    configs: int,
+    max_force: float,
+    loads_per_config: int = 4,
+    candidates: int | Candidates = DEFAULT_CANDIDATES,
+    criterion: str = "D",
+    k: np.ndarray | list[float] | None = None,
+    noise_std_m: float | None = None,
+    existing: Campaign | None = None,
+    separate: str | tuple | None = None,
+    seed: int = 0,
+    formulation: str = "enhanced",
+    random_plans: int = DEFAULT_RANDOM_PLANS,
+    units: Units | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> DesignResult:
+    """Design a measurement plan (see the module docstring).
+
+    Parameters
+    ----------
+    robot
+        The robot; its compliant joints are the stiffnesses to identify.
+    configs
+        Number of configurations N of the plan.
+    max_force
+        Load magnitude (N).
+    loads_per_config
+        Load directions M per configuration (distinct).
+    candidates
+        Number of candidate poses K, or a :class:`Candidates` built by :func:`candidate_set`.
+    criterion
+        ``D`` (default), ``A`` or ``E``.
+    k
+        Nominal stiffness per compliant joint (SI); default the robot's shipped
+        ``k_theta_SI``, else the baseline fitted to ``existing``.
+    noise_std_m
+        Noise std per deflection component (m); default the existing campaign's declared one,
+        else 5e-6 m.
+    existing
+        A measured campaign whose rows count as already chosen (the plan completes it).
+    separate
+        ``"EFFECT[:WHERE],EFFECT[:WHERE]"``: choose the rows that tell these two alternatives,
+        fitted to ``existing``, apart.
+    seed
+        Seed of the candidate poses and of the random plans.
+    formulation
+        ``enhanced`` (K_C included, default) or ``conventional``.
+    random_plans
+        Number of random plans compared with.
+    units
+        Units of the plan files (default deg, N, mm; the existing campaign's if given).
+    progress
+        Called with a line of text as the work goes.
+
+    Raises
+    ------
+    StiffnessError
+        No compliant joint; configs or loads per config out of range (more than the candidates
+        or the load directions); an unknown criterion or effect; ``separate`` without
+        ``existing``; no nominal stiffness; a load that buckles the robot.
+    """
+    say = progress or (lambda text: None)
+    if criterion not in CRITERIA:
+        raise UnknownNameError(f"unknown criterion {criterion!r}; valid: {', '.join(CRITERIA)}",
+                               name=criterion, choices=CRITERIA)
+    if robot.n_compliant == 0:
+        raise StiffnessError(f"{robot.name} has no compliant joint: there is no stiffness to "
+                             "design for; name the springs with --compliant-joints")
+    check_sizes(configs, loads_per_config,
+                candidates.n_poses if isinstance(candidates, Candidates) else candidates)
+    if not (math.isfinite(max_force) and max_force > 0):
+        raise StiffnessError(f"--max-force must be a positive force in N, got {max_force}")
+    if int(random_plans) < 1:
+        raise StiffnessError(f"--random-plans must be at least 1, got {random_plans}")
+    if existing is not None and existing.robot().coordinate_joints != robot.coordinate_joints:
+        raise StiffnessError(f"the existing campaign {existing.name!r} is of another robot "
+                             f"({existing.robot().name}) than {robot.name}")
+    if separate is not None and existing is not None and (
+            existing.robot().target_frame != robot.target_frame
+            or not np.allclose(existing.robot().target_offset, robot.target_offset)):
+        raise StiffnessError("--separate designs for the existing campaign's target; drop "
+                             "--frame and --target-offset")
+    pair = None
+    if separate is not None:
+        pair = parse_separate(separate) if isinstance(separate, str) else tuple(separate)
+        if existing is None:
+            raise StiffnessError("--separate needs --existing CAMPAIGN: the two alternatives are "
+                                 "fitted to its measurements")
+        geo = Geometry.of(robot)
+        for name, where in pair:
+            make_effect(name, where, geo)  # unknown effect or place: one line, before any work
+    notes: list[str] = []
+
+    # nominal stiffness
+    joints = tuple(robot.compliant_joints)
+    if k is not None:
+        k_arr, k_source = np.asarray(k, dtype=float).reshape(-1), "given"
+    elif "k_theta_SI" in robot.defaults and len(robot.defaults["k_theta_SI"]) == len(joints):
+        k_arr, k_source = np.asarray(robot.defaults["k_theta_SI"], dtype=float), \
+            "the robot's shipped k_theta_SI"
+    elif existing is not None:
+        geo = Geometry.of(existing.robot())
+        rows = geo.rows(existing.q, existing.force, existing.moment)
+        model0 = Model(geo, rows, existing.baseline, joints,
+                       (), References.of(geo, rows, 1e5, existing.deflection))
+        scale = existing.noise_std_m or max(float(np.sqrt(np.mean(existing.deflection ** 2)))
+                                            * 1e-2, 1e-12)
+        k_arr = np.exp(fit_baseline(model0, existing.deflection, scale).x)
+        k_source = f"the baseline fitted to the existing campaign {existing.name!r}"
+    else:
+        raise StiffnessError(f"--kq is required: the design is local to a nominal stiffness, one "
+                             f"per compliant joint ({', '.join(joints)}), N.m/rad (N/m "
+                             "prismatic)")
+    if k_arr.shape != (len(joints),) or not np.all(np.isfinite(k_arr)) or np.any(k_arr <= 0):
+        raise StiffnessError(f"need {len(joints)} positive stiffnesses (one per compliant joint "
+                             f"{', '.join(joints)}), got {k_arr.tolist()}")
+    if noise_std_m is not None:
+        sigma, noise_source = float(noise_std_m), "given"
+    elif existing is not None and existing.noise_std_m is not None:
+        sigma, noise_source = existing.noise_std_m, "declared noise_std of the existing campaign"
+    else:
+        sigma, noise_source = 5e-6, "default (5e-6 m)"
+    if not (math.isfinite(sigma) and sigma > 0):
+        raise StiffnessError(f"the noise std must be a positive length, got {sigma}")
+
+    # candidates and their information
+    if isinstance(candidates, Candidates):
+        cands = candidates
+    else:
+        say(f"drawing {candidates} candidate poses")
+        cands = candidate_set(robot, int(candidates), max_force, seed)
+    model, x = baseline_model(cands.geometry, cands.rows, joints, k_arr, formulation)
+    info = _info_of(cands, model, x, sigma)
+    prior = None
+    existing_pred = None
+    if existing is not None:
+        ex_rows = cands.geometry.rows(existing.q, existing.force, existing.moment)
+        prior = row_information(sensitivities(model.with_rows(ex_rows), x), sigma).sum(axis=0)
+        existing_pred = Prediction(standard_errors(prior))
+
+    # selection
+    alternatives = None
+    if pair is not None:
+        say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
+        alternatives = fit_alternatives(existing, pair, noise_std_m)
+        sep = separation_statistics(alternatives, cands)
+        selection = select_rows(sep.rows, sep.base, separation_score, int(configs),
+                                int(loads_per_config))
+        existing_pred.separation = float(np.sqrt(separation_score(sep.base)))
+    else:
+        say(f"selecting {configs} x {loads_per_config} rows ({criterion}-optimal)")
+        selection = select_information(info, int(configs), int(loads_per_config), criterion,
+                                       prior)
+
+    def predict(sel: Selection) -> Prediction:
+        total = info[sel.poses[:, None], sel.loads].sum(axis=(0, 1))
+        if prior is not None:
+            total = total + prior
+        pred = Prediction(standard_errors(total))
+        if alternatives is not None:
+            acc = [b + r[sel.poses[:, None], sel.loads].sum(axis=(0, 1))
+                   for b, r in zip(sep.base, sep.rows, strict=True)]
+            pred.separation = float(np.sqrt(separation_score(acc)))
+        return pred
+
+    designed = predict(selection)
+    rng = np.random.default_rng(None if seed is None else seed + 7919)
+    randoms = [predict(s) for s in random_selections(
+        cands.n_poses, cands.n_directions, int(configs), int(loads_per_config),
+        int(random_plans), rng)]
+    unseen = ~np.isfinite(standard_errors(info.sum(axis=(0, 1))))
+    if unseen.any():
+        notes.append(f"no candidate row determines {', '.join(np.array(joints)[unseen])}: a force "
+                     "at the target does not load it or its motion does not move the target "
+                     "(e.g. a last joint whose axis passes through the target); its standard "
+                     "error is infinite whatever the plan")
+    elif not np.all(np.isfinite(designed.relative_se)):
+        notes.append("the plan leaves some stiffness undetermined: add configurations or loads")
+
+    # the plan
+    rows_idx = selection.rows(cands.n_directions)
+    q = np.repeat(cands.coords[selection.poses], int(loads_per_config), axis=0)
+    force = cands.directions[selection.loads.reshape(-1)] * cands.max_force
+    taken = set(existing.config) if existing is not None else set()
+    prefix = "P"
+    while any(f"{prefix}{i + 1}" in taken for i in range(int(configs))):
+        prefix += "P"
+    labels = tuple(f"{prefix}{i // int(loads_per_config) + 1}" for i in range(len(q)))
+    if units is None:
+        units = existing.units if existing is not None else Units()
+    settings = (existing.robot_settings if existing is not None else RobotSettings(
+        robot.name, frame=robot.target_frame, target_offset_m=robot.target_offset.copy(),
+        compliant_joints=joints))
+    plan = Plan(q=q, force=force, config=labels, units=units, robot_settings=settings,
+                name=(f"{existing.name}-plan" if existing is not None else f"plan-{robot.name}"),
+                baseline=existing.baseline if existing is not None else formulation,
+                noise_std_m=sigma)
+    row_sep = None
+    if alternatives is not None:
+        row_sep = sep.raw.reshape(-1)[rows_idx]
+    return DesignResult(
+        plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source, noise_std_m=sigma,
+        noise_source=noise_source, criterion=criterion, formulation=formulation,
+        n_candidates=cands.n_poses, n_directions=cands.n_directions, max_force=cands.max_force,
+        designed=designed, random=randoms, existing=existing_pred,
+        existing_rows=existing.n_rows if existing is not None else 0,
+        separate=alternatives.labels if alternatives is not None else None,
+        separation_sigma_source=alternatives.sigma_source if alternatives is not None else None,
+        row_separation=row_sep, exchanges=selection.exchanges, notes=notes)

@@ -1,0 +1,475 @@
+"""The loaded robot: every effect of a model file that acts on it, and its exact equilibrium.
+
+The elastic model (:class:`ElasticModel`) holds:
+
+* a joint law over the coordinates, ``theta - theta_c = law(tau)`` with ``tau = J(theta)^T W``
+  (linear springs, extra springs on joints the baseline holds rigid, nonlinear springs
+  ``tau/k (1 + beta|tau|)`` and backlash ``b tanh(tau/tau_s)``; zero for rigid coordinates);
+  ``theta_c`` is the command (the springs' rest positions);
+* link compliances (:class:`LinkBend`): the segment ``a -> b`` bends at ``b``'s origin about two
+  axes normal to it, modelled exactly as two virtual revolute joints there (a universal joint:
+  the second axis is carried by the first) with springs ``k_1, k_2``. The axes are those of
+  :func:`stiffness.calibration.effects.link_axes` at a reference configuration (the nominal one
+  of a path point, :func:`frozen_axes`), fixed in the body joint ``b`` is mounted on. The bend
+  rotates everything beyond it; loops are closed on the unbent kinematics (as in the effect
+  library).
+
+Exact equilibrium (:func:`loaded_equilibrium`) under a dead wrench ``W`` at the target: unknowns
+``z = [theta, alpha]``, equations ``theta - theta_c = law(J_theta^T W)``,
+``alpha = law_link(J_alpha^T W)``, solved by Newton with the tangent ``I - diag(law') K_C``
+(``K_C`` of the coordinates from the kinematic Hessians). :func:`bent_kinematics` gives the
+target pose and its exact Jacobian w.r.t. ``z`` (product of exponentials of the bends);
+:func:`linear_deflection` the first-order deflection ``C W``.
+
+Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.calibration.effects import link_axes
+from stiffness.errors import (
+    ConvergenceError,
+    StiffnessError,
+    UnstableEquilibriumError,
+)
+from stiffness.mechanics.equilibrium import SpringLaw
+from stiffness.mechanics.formulation import as_wrench, target_state
+from stiffness.mechanics.ik import all_coordinates
+from stiffness.model import kinematics
+from stiffness.model.robot import Robot
+
+#: Convergence of the exact equilibrium (rad, m of the joint and bend variables), plus 1e-11
+#: of the largest deflection (closure noise of loops).
+EQUILIBRIUM_TOLERANCE = 1e-14
+
+# ------------------------------------------------------------------------------------------
+# the elastic model
+
+
+@dataclass(frozen=True)
+class LinkBend:
+    """A link compliance: the segment ``a -> b`` bends at ``b``'s origin.
+
+    ``column`` picks the mounting body's axis that :func:`link_axes` makes normal to the
+    segment; ``stiffness`` (2,) N.m/rad about ``e_1`` and ``e_2``.
+    """
+
+    a: str
+    b: str
+    column: int
+    stiffness: tuple[float, float]
+
+
+@dataclass
+class ElasticModel:
+    """What acts on the robot under a load: its joint law and its link bends.
+
+    Attributes
+    ----------
+    robot
+        The robot (its coordinates are the path's columns).
+    law
+        Joint law over ``robot.coordinate_joints`` (zero compliance: a rigid coordinate).
+    links
+        Link compliances, any order.
+    formulation
+        Formulation of the model's linear compliance (``enhanced`` with K_C, or
+        ``conventional``), used by the first-order compensation only.
+    ignored
+        Effects of the model file that do not act on the robot (measurement effects), by label.
+    source
+        The model file, if any.
+    """
+
+    robot: Robot
+    law: SpringLaw
+    links: tuple[LinkBend, ...] = ()
+    formulation: str = "enhanced"
+    ignored: tuple[str, ...] = ()
+    source: str | None = None
+    _full: Robot | None = field(default=None, repr=False)
+
+    @classmethod
+    def joint_springs(cls, robot: Robot, k_theta: np.ndarray | list[float],
+                      formulation: str = "enhanced") -> ElasticModel:
+        """Linear springs ``k_theta`` (N.m/rad, N/m) on the robot's compliant joints."""
+        k = np.asarray(k_theta, dtype=float)
+        k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
+        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise StiffnessError(
+                f"need one finite positive stiffness per compliant joint of {robot.name} "
+                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+        n = robot.n_coordinates
+        compliance = np.zeros(n)
+        compliance[robot.compliant_in_coordinates] = 1.0 / k
+        return cls(robot, SpringLaw(compliance, np.zeros(n), np.zeros(n), np.ones(n)),
+                   formulation=formulation)
+
+    @property
+    def full(self) -> Robot:
+        """The robot with every coordinate compliant (Jacobians w.r.t. all coordinates)."""
+        if self._full is None:
+            self._full = all_coordinates(self.robot)
+        return self._full
+
+    @property
+    def joint_only(self) -> bool:
+        """Whether joint motions are the only effect (the compensation is closed-form)."""
+        return not self.links
+
+    def ordered_links(self) -> list[LinkBend]:
+        """Links from the base to the tip (by the chain position of ``b``, then ``a``)."""
+        model = self.robot.model
+        depth = {name: len(model.supports[model.getJointId(name)]) for name in model.names}
+        return sorted(self.links, key=lambda lk: (depth[lk.b], depth[lk.a]))
+
+    def describe(self) -> str:
+        """E.g. ``joint springs on joint1, joint2 + link bend joint2->joint3``."""
+        names = [j for j, c in zip(self.robot.coordinate_joints, self.law.compliance,
+                                   strict=True) if c > 0]
+        text = f"joint springs on {', '.join(names) or 'no joint'}"
+        if np.any(self.law.beta != 0):
+            text += " (nonlinear)"
+        if np.any(self.law.backlash != 0):
+            text += " + backlash"
+        return text + "".join(f" + link bend {lk.a}->{lk.b}" for lk in self.links)
+
+
+def as_elastic_model(model: ElasticModel | Robot | str | Path,
+                     k_theta: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """An :class:`ElasticModel` from itself, a model file's path, or a robot with springs
+    ``k_theta`` (N.m/rad, N/m; default the shipped robot's).
+
+    Raises
+    ------
+    StiffnessError
+        A robot without springs, or springs given with a model.
+    """
+    if isinstance(model, Robot):
+        if k_theta is None:
+            from stiffness.mechanics.defaults import default_stiffness
+
+            k_theta = default_stiffness(model)
+            if k_theta is None:
+                raise StiffnessError(f"give k_theta: one stiffness per compliant joint of "
+                                     f"{model.name} ({', '.join(model.compliant_joints)})")
+        return ElasticModel.joint_springs(model, k_theta)
+    if k_theta is not None:
+        raise StiffnessError("k_theta goes with a robot; a model (file) brings its own springs")
+    return model if isinstance(model, ElasticModel) else load_elastic_model(model)
+
+
+def frozen_axes(em: ElasticModel, links: list[LinkBend]) -> list[np.ndarray]:
+    """Bend axes (2, 3) in each mounting body's frame, from the current placements."""
+    model, data = em.full.model, em.full.data
+    out = []
+    for lk in links:
+        ja, jb = model.getJointId(lk.a), model.getJointId(lk.b)
+        mount = data.oMi[model.parents[jb]].rotation
+        e1, e2 = link_axes(data.oMi[ja].translation, data.oMi[jb].translation, mount, lk.column)
+        out.append(np.vstack([mount.T @ e1, mount.T @ e2]))
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# kinematics of the loaded robot
+
+
+@dataclass
+class BentKinematics:
+    """Target pose and Jacobians of the (bent) robot at ``z = [coords, alpha]``."""
+
+    q: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    jac: np.ndarray  # (6, n + 2m) rows [v; omega] base axes at the target
+    k_c: np.ndarray  # (n + 2m, n + 2m): K_C of the coordinates (bend rows zero)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def bent_kinematics(em: ElasticModel, links: list[LinkBend], axes: list[np.ndarray],
+                coords: np.ndarray, alpha: np.ndarray, wrench: np.ndarray,
+                seed_q: np.ndarray | None) -> BentKinematics:
+    full = em.full
+    n, m = full.n_coordinates, 2 * len(links)
+    q = full.configuration(coords, seed=seed_q)
+    state = target_state(full, q, wrench)
+    k_c = np.zeros((n + m, n + m))
+    k_c[:n, :n] = state.k_c
+    if not links:
+        return BentKinematics(q, state.position, state.rotation, state.jacobian, k_c)
+    model, data = full.model, full.data
+    j_world = pin.getFrameJacobian(model, data, full.target_frame_id, pin.ReferenceFrame.WORLD)
+    bent = j_world.copy()
+    cum = pin.SE3.Identity()
+    alpha_cols = []
+    chain = set(model.supports[model.frames[full.target_frame_id].parentJoint])
+    for i, (lk, ax) in enumerate(zip(links, axes, strict=True)):
+        jb = model.getJointId(lk.b)
+        point = data.oMi[jb].translation
+        mount = data.oMi[model.parents[jb]].rotation
+        r1 = pin.exp3(alpha[2 * i] * ax[0])
+        r2 = pin.exp3(alpha[2 * i + 1] * ax[1])
+        for axis_local in (ax[0], r1 @ ax[1]):
+            w = cum.rotation @ mount @ axis_local
+            p = cum.act(point)
+            alpha_cols.append(np.concatenate([np.cross(p, w), w]))
+        rot = mount @ r1 @ r2 @ mount.T
+        cum = cum * pin.SE3(rot, point - rot @ point)
+        ad = cum.toActionMatrix()
+        for jid in chain:
+            if jid > 0 and jb in model.supports[jid]:
+                joint = model.joints[jid]
+                cols = slice(joint.idx_v, joint.idx_v + joint.nv)
+                # the latest (most distal) bend proximal to the joint wins: links are ordered
+                bent[:, cols] = ad @ j_world[:, cols]
+    position = cum.act(state.position)
+    rotation = cum.rotation @ state.rotation
+    spatial = np.hstack([bent @ state.projection, np.array(alpha_cols).T])
+    jac = np.vstack([spatial[:3] - _skew(position) @ spatial[3:], spatial[3:]])
+    return BentKinematics(q, position, rotation, jac, k_c)
+
+
+# ------------------------------------------------------------------------------------------
+# exact equilibrium
+
+
+@dataclass
+class Loaded:
+    """Exact equilibrium of the loaded robot at a command.
+
+    Attributes
+    ----------
+    q
+        Full configuration at equilibrium (loops closed).
+    coords
+        Coordinates at equilibrium (rad, m).
+    alpha
+        Bend angles of the link compliances (rad), two per link (base to tip).
+    position, rotation
+        Target pose at equilibrium (m; rotation matrix), base frame.
+    torque
+        Generalised forces ``J^T W`` at equilibrium over ``[coords, alpha]``.
+    iterations
+        Newton iterations.
+    kin
+        Pose, Jacobian and K_C at equilibrium (:func:`bent_kinematics`).
+    slope
+        Slope of the joint and bend laws at the equilibrium torques.
+    """
+
+    q: np.ndarray
+    coords: np.ndarray
+    alpha: np.ndarray
+    position: np.ndarray
+    rotation: np.ndarray
+    torque: np.ndarray
+    iterations: int
+    kin: BentKinematics = field(repr=False)
+    slope: np.ndarray = field(repr=False)
+
+
+def _law_z(em: ElasticModel, links: list[LinkBend], tau: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    n = em.full.n_coordinates
+    value, slope = em.law(tau[:n])
+    c_link = np.array([1.0 / k for lk in links for k in lk.stiffness])
+    return (np.concatenate([value, c_link * tau[n:]]),
+            np.concatenate([slope, c_link]))
+
+
+def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray,
+                       seed_q: np.ndarray | None = None, axes: list[np.ndarray] | None = None,
+                       max_iterations: int = 60) -> Loaded:
+    """Exact elastostatic equilibrium of the robot commanded at ``command`` under ``wrench``.
+
+    Parameters
+    ----------
+    em
+        The elastic model.
+    command
+        Commanded coordinates (rad, m): the joint springs' rest positions.
+    wrench
+        Dead force (3,) N or wrench (6,) N, N.m at the target, base axes.
+    seed_q
+        A closed configuration near the equilibrium (the loop branch), default the command's.
+    axes
+        Bend axes per link (:func:`frozen_axes`), default those at the command.
+
+    Raises
+    ------
+    StiffnessError
+        Newton does not converge, or the equilibrium is unstable (the load buckles the robot).
+    """
+    wrench = as_wrench(wrench)
+    links = em.ordered_links()
+    command = np.asarray(command, dtype=float)
+    n, m = command.shape[0], 2 * len(links)
+    if axes is None:
+        kinematics.update_first_order(em.full.model, em.full.data,
+                                      em.full.configuration(command, seed=seed_q))
+        axes = frozen_axes(em, links)
+    z = np.concatenate([command, np.zeros(m)])
+    base = np.concatenate([command, np.zeros(m)])
+    q = seed_q
+    for iterations in range(1, max_iterations + 1):
+        kin = bent_kinematics(em, links, axes, z[:n], z[n:], wrench, q)
+        q = kin.q
+        tau = kin.jac.T @ wrench
+        value, slope = _law_z(em, links, tau)
+        g = z - base - value
+        tol = EQUILIBRIUM_TOLERANCE * (1.0 + 1e3 * float(np.abs(value).max(initial=0.0)))
+        if iterations > 1 and np.abs(g).max() <= tol:
+            break
+        a = np.eye(n + m) - slope[:, None] * kin.k_c
+        try:
+            step = np.linalg.solve(a, -g)
+        except np.linalg.LinAlgError as exc:
+            raise UnstableEquilibriumError("the tangent stiffness is singular: the load buckles "
+                                           "the robot here; reduce the load") from exc
+        z = z + step
+        if iterations > 1 and np.abs(step).max() <= tol:
+            kin = bent_kinematics(em, links, axes, z[:n], z[n:], wrench, q)
+            tau = kin.jac.T @ wrench
+            value, slope = _law_z(em, links, tau)
+            break
+    else:
+        raise ConvergenceError(
+            f"the exact equilibrium did not converge in {max_iterations} iterations (residual "
+            f"{np.abs(g).max():.3g}): the load may exceed the buckling load; reduce it")
+    soft = slope > 0
+    if np.any(soft):
+        tangent = np.diag(1.0 / slope[soft]) - kin.k_c[np.ix_(soft, soft)]
+        lowest = float(np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0])
+        if lowest <= 0:
+            raise UnstableEquilibriumError(
+                f"the loaded equilibrium is unstable (tangent stiffness eigenvalue {lowest:.3g})"
+                ": the load exceeds the buckling load here; reduce the load")
+    return Loaded(kin.q, z[:n].copy(), z[n:].copy(), kin.position, kin.rotation, tau,
+                  iterations, kin, slope)
+
+
+# ------------------------------------------------------------------------------------------
+# linear deflection
+
+
+def linear_shift(em: ElasticModel, links: list[LinkBend], kin: BentKinematics, wrench: np.ndarray
+            ) -> np.ndarray:
+    """First-order target displacement ``C W`` (6,) [m; rad] of the model at ``kin``.
+
+    The joint law enters by its secant ``law(tau) / tau`` at the holding torques (the linear
+    springs themselves for a linear law); ``K_C`` enters for the ``enhanced`` formulation.
+    """
+    tau = kin.jac.T @ wrench
+    value, _ = _law_z(em, links, tau)
+    secant = np.divide(value, tau, out=np.zeros_like(value), where=tau != 0)
+    k_c = kin.k_c if em.formulation == "enhanced" else np.zeros_like(kin.k_c)
+    a = np.eye(k_c.shape[0]) - secant[:, None] * k_c
+    try:
+        dz = np.linalg.solve(a, secant * tau)
+    except np.linalg.LinAlgError as exc:
+        raise UnstableEquilibriumError("the tangent stiffness is singular: the load buckles the "
+                                       "robot here; reduce the load") from exc
+    return kin.jac @ dz
+
+
+def linear_deflection(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
+                      seed_q: np.ndarray | None = None) -> np.ndarray:
+    """First-order deflection ``C W`` (6,) [m; rad] of the target at ``coords`` (rad, m)
+    under the dead ``wrench`` (base axes), every effect of the model included."""
+    wrench = as_wrench(wrench)
+    links = em.ordered_links()
+    q = em.full.configuration(coords, seed=seed_q)
+    kinematics.update_first_order(em.full.model, em.full.data, q)
+    axes = frozen_axes(em, links)
+    kin = bent_kinematics(em, links, axes, np.asarray(coords, dtype=float),
+                      np.zeros(2 * len(links)), wrench, q)
+    return linear_shift(em, links, kin, wrench)
+
+
+# ------------------------------------------------------------------------------------------
+# model files
+
+
+def load_elastic_model(path: str | Path, frame: str | None = None,
+                       target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """The elastic model of a model file (``identified-model.json`` of ``stiffness identify``
+    or ``final-model.json`` of ``stiffness diagnose``, read by
+    :func:`stiffness.calibration.model_file.read_model_file`), see :func:`elastic_model_of`.
+
+    Raises
+    ------
+    StiffnessError
+        The file's errors (:class:`stiffness.calibration.model_file.ModelFileError`...).
+    """
+    from stiffness.calibration.model_file import read_model_file
+
+    em = elastic_model_of(read_model_file(path), frame, target_offset)
+    em.source = str(path)
+    return em
+
+
+def elastic_model_of(model, frame: str | None = None,
+                     target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """Every effect of a model file (:class:`stiffness.calibration.model_file.ModelFile`) that
+    acts on the robot, as an :class:`ElasticModel`.
+
+    Joint springs (the baseline's and ``joint_compliance``), ``nonlinear_joint_stiffness``,
+    ``backlash`` (with its smoothing torque), ``link_compliance`` and ``target_offset`` (the
+    target moves, unless ``frame``/``target_offset`` give another target) act on the robot;
+    ``complementary_stiffness`` is in the exact equilibrium anyway; the measurement effects
+    (how the campaign observed the deflection) are listed in :attr:`ElasticModel.ignored`.
+    """
+    from stiffness.calibration.effects import Geometry
+    from stiffness.model.robot import load_robot
+
+    stiffness = dict(zip(model.compliant_joints, model.k_theta, strict=True))
+    moved = frame is not None or target_offset is not None
+    offset = (model.target_offset_m.copy() if target_offset is None
+              else np.asarray(target_offset, dtype=float).reshape(3))
+    beta, backlash, smoothing, bends, ignored = {}, {}, {}, [], []
+    for e in model.effects:
+        if e.kind == "measurement":
+            ignored.append(e.label)
+        elif e.name == "joint_compliance":
+            stiffness[e.where] = e.value("stiffness")
+        elif e.name == "nonlinear_joint_stiffness":
+            beta[e.where] = e.value("beta")
+        elif e.name == "backlash":
+            backlash[e.where] = e.value("half_width")
+            smoothing[e.where] = float(e.settings.get("smoothing_torque", 1.0))
+        elif e.name == "link_compliance":
+            a, b = (part.strip() for part in str(e.where).split("->", 1))
+            bends.append((a, b, e.value("stiffness_1"), e.value("stiffness_2")))
+        elif e.name == "target_offset":
+            if moved:
+                ignored.append(f"{e.label} (another target was given)")
+            else:
+                offset = offset + e.values()[:3]
+    robot = load_robot(model.source, frame=frame or model.frame, target_offset=offset,
+                       compliant_joints=tuple(stiffness))
+    coords = list(robot.coordinate_joints)
+    n = robot.n_coordinates
+    law = SpringLaw(np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n))
+    for joint, k in stiffness.items():
+        law.compliance[coords.index(joint)] = 1.0 / k
+    for joint, value in beta.items():
+        law.beta[coords.index(joint)] = value
+    for joint, value in backlash.items():
+        law.backlash[coords.index(joint)] = value
+        law.smoothing[coords.index(joint)] = smoothing[joint]
+    links = ()
+    if bends:
+        columns = Geometry.of(robot).link_columns
+        links = tuple(LinkBend(a, b, columns[(a, b)], (k1, k2)) for a, b, k1, k2 in bends)
+    formulation = "conventional" if model.formulation == "conventional" else "enhanced"
+    return ElasticModel(robot, law, links, formulation, tuple(ignored))

@@ -1,0 +1,262 @@
+"""Measurement plans: the rows a rig should measure, in the campaign's measurement format.
+
+A plan is a campaign without its measured columns: a CSV with the header
+``config,q1,...,qn,fx,fy,fz`` (a configuration label, the coordinates in the robot's coordinate
+order, the force to apply at the target, base axes), in the units of the campaign format
+(:mod:`stiffness.calibration.campaign`). Written as
+
+* a single file ``PLAN.csv``: its first line is a comment declaring the units, e.g.
+  ``# measurement plan; units: angle=deg force=N length=mm`` (absent: deg, N, mm);
+* a folder: ``campaign.toml`` (robot, target, compliant joints, units, noise) and the CSV it
+  names (``plan.csv``). Once the rig has added the measured ``dx,dy,dz`` columns, the folder is a
+  campaign :func:`stiffness.calibration.campaign.load_campaign` reads.
+
+A campaign's own CSV (with ``dx,dy,dz``) reads as a plan too; its measured columns are ignored.
+In memory everything is SI (rad, m, N).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.campaign import (
+    CAMPAIGN_FILE,
+    Campaign,
+    RobotSettings,
+    Units,
+    _number,
+    _prismatic_mask,
+    _read_toml,
+    _resolve_source,
+    campaign_toml,
+)
+from stiffness.errors import FileFormatError, MissingFileError, StiffnessError, with_context
+from stiffness.files import atomic_write, output_folder, read_text
+from stiffness.model.robot import Robot, load_robot
+
+#: Name of the plan CSV inside a plan folder.
+PLAN_FILE = "plan.csv"
+_UNITS_LINE = re.compile(r"units:\s*angle=(\S+)\s+force=(\S+)\s+length=(\S+)")
+
+
+@dataclass
+class Plan:
+    """Rows to measure, SI.
+
+    Attributes
+    ----------
+    q
+        (m, n_coordinates) coordinates (rad, m).
+    force
+        (m, 3) force to apply at the target, base axes (N).
+    config
+        (m,) configuration labels.
+    units
+        Units of the files.
+    robot_settings
+        Robot, target and compliant joints (``None`` for a bare CSV: give the robot).
+    name, baseline
+        Campaign name and baseline written with a folder.
+    noise_std_m
+        Declared measurement noise (m), written with a folder, or ``None``.
+    path
+        The file read (a CSV, or a folder's ``campaign.toml``), or ``None``.
+    """
+
+    q: np.ndarray
+    force: np.ndarray
+    config: tuple[str, ...]
+    units: Units = field(default_factory=Units)
+    robot_settings: RobotSettings | None = None
+    name: str = "plan"
+    baseline: str = "enhanced"
+    noise_std_m: float | None = None
+    path: Path | None = None
+
+    @property
+    def n_rows(self) -> int:
+        """Number of rows."""
+        return self.q.shape[0]
+
+    def resolved_source(self) -> str | None:
+        """Robot source with a relative URDF path resolved against the plan's folder."""
+        if self.robot_settings is None:
+            return None
+        folder = self.path.parent if self.path is not None else Path.cwd()
+        return _resolve_source(self.robot_settings.source, folder)
+
+
+def _header(n_q: int) -> list[str]:
+    return ["config", *(f"q{i}" for i in range(1, n_q + 1)), "fx", "fy", "fz"]
+
+
+def plan_csv(plan: Plan, robot: Robot) -> str:
+    """The plan's CSV text (units comment, header, rows in the plan's units)."""
+    u = plan.units
+    prismatic = _prismatic_mask(robot)
+    q = plan.q.copy()
+    q[:, ~prismatic] /= u.angle_to_si
+    q[:, prismatic] /= u.length_to_si
+    out = io.StringIO()
+    out.write(f"# measurement plan; units: angle={u.angle} force={u.force} length={u.length}\n")
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(_header(plan.q.shape[1]))
+    for label, qi, fi in zip(plan.config, q, plan.force / u.force_to_si, strict=True):
+        writer.writerow([label, *(repr(float(v)) for v in (*qi, *fi))])
+    return out.getvalue()
+
+
+def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
+    """Write ``plan`` to ``out``: a ``.csv`` file, or a folder (``campaign.toml`` and
+    :data:`PLAN_FILE`). Each file is written atomically. Returns the CSV written.
+
+    Raises
+    ------
+    StiffnessError
+        If a folder is asked for a plan without robot settings.
+    """
+    out = Path(out)
+    if out.suffix.lower() == ".csv":
+        return atomic_write(out, plan_csv(plan, robot))
+    if plan.robot_settings is None:
+        raise StiffnessError("a plan folder needs the robot settings for its campaign.toml")
+    output_folder(out)
+    csv_path = atomic_write(out / PLAN_FILE, plan_csv(plan, robot))
+    stub = Campaign(name=plan.name, baseline=plan.baseline, robot_settings=plan.robot_settings,
+                    q=plan.q, force=plan.force, deflection=np.zeros_like(plan.force),
+                    config=plan.config, noise_std_m=plan.noise_std_m, units=plan.units,
+                    data_file=PLAN_FILE, _robot=robot)
+    atomic_write(out / CAMPAIGN_FILE, campaign_toml(stub, out))
+    return csv_path
+
+
+def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None]:
+    doc, toml = _read_toml(toml_path)
+    u = doc["units"]
+    try:
+        units = Units(u["angle"], u["force"], u["length"])
+    except StiffnessError as exc:
+        raise toml.error(str(exc), "units") from exc
+    r = doc["robot"]
+    offset = r.get("target_offset", [0.0, 0.0, 0.0])
+    try:
+        settings = RobotSettings(str(r["source"]), r.get("frame"),
+                                 np.array(offset, dtype=float) * units.length_to_si,
+                                 r.get("compliant_joints"))
+    except (StiffnessError, TypeError, ValueError) as exc:
+        raise toml.error(str(exc), "robot") from exc
+    noise = doc["measurement"].get("noise_std")
+    if noise is not None and not (isinstance(noise, int | float) and noise > 0):
+        raise toml.error(f"[measurement] noise_std must be a positive number in "
+                         f"{units.length}, got {noise!r}", "measurement", "noise_std")
+    return doc, units, settings, None if noise is None else float(noise) * units.length_to_si
+
+
+def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan, Robot]:
+    """Read a plan (a CSV, a folder holding ``campaign.toml``, or that file) and its robot.
+
+    Parameters
+    ----------
+    path
+        The plan.
+    robot
+        The robot of a bare CSV (a folder names its own; ``robot`` then overrides it).
+
+    Raises
+    ------
+    MissingFileError
+        No such plan.
+    FileFormatError
+        A header other than ``config,q1..qn,fx,fy,fz`` (optionally then ``dx,dy,dz``), a
+        non-numeric cell (file, line and column named).
+    StiffnessError
+        A bare CSV without a robot.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise MissingFileError(f"plan {path} not found: give PLAN.csv, or a folder holding "
+                               f"{CAMPAIGN_FILE} and its plan CSV", path=p)
+    toml_path = p / CAMPAIGN_FILE if p.is_dir() else (p if p.suffix == ".toml" else None)
+    doc, units, settings, noise = None, Units(), None, None
+    if toml_path is not None:
+        if not toml_path.is_file():
+            raise MissingFileError(f"plan {path} not found: give PLAN.csv, or a folder holding "
+                                   f"{CAMPAIGN_FILE} and its plan CSV", path=toml_path)
+        doc, units, settings, noise = _settings(toml_path)
+        data = toml_path.parent / doc["measurement"]["data"]
+        if robot is None:
+            try:
+                robot = load_robot(_resolve_source(settings.source, toml_path.parent),
+                                   frame=settings.frame, target_offset=settings.target_offset_m,
+                                   compliant_joints=settings.compliant_joints)
+            except StiffnessError as exc:
+                raise with_context(exc, f"{toml_path}: [robot]") from exc
+    else:
+        data = p
+    if robot is None:
+        raise StiffnessError(f"plan {path} is a bare CSV: give its robot (--robot ...)")
+    text = read_text(data, "plan").lstrip("\ufeff")
+    header, rows = None, []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        stripped = raw.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            m = _UNITS_LINE.search(stripped)
+            if m and toml_path is None:
+                try:
+                    units = Units(*m.groups())
+                except StiffnessError as exc:
+                    raise FileFormatError(str(exc), path=data, line=number) from exc
+            continue
+        cells = next(csv.reader([raw]))
+        if header is None:
+            header = [c.strip() for c in cells]
+            header_line = number
+        else:
+            rows.append((number, cells))
+    n_q = robot.n_coordinates
+    expected = _header(n_q)
+    if header is None:
+        raise FileFormatError(f"the plan is empty; it needs the header {','.join(expected)} "
+                              "and one row per measurement", path=data)
+    width = len(expected)
+    if header[:width] != expected or header[width:] not in ([], ["dx", "dy", "dz"]):
+        pairs = enumerate(zip(header, expected, strict=False))
+        bad = next((i for i, (a, b) in pairs if a != b), min(len(header), width))
+        got = repr(header[bad]) if bad < len(header) else "nothing"
+        raise FileFormatError(
+            f"got {got}; the plan header for {robot.name} ({n_q} coordinates) is "
+            f"{','.join(expected)} (optionally then dx,dy,dz, which are ignored)", path=data,
+            line=header_line, column=bad + 1)
+    if not rows:
+        raise FileFormatError("no rows after the header", path=data, line=header_line + 1)
+    labels, values = [], []
+    for number, cells in rows:
+        if len(cells) != len(header):
+            raise FileFormatError(f"the row has {len(cells)} cells but the header has "
+                                  f"{len(header)}", path=data, line=number)
+        label = cells[0].strip()
+        if not label:
+            raise FileFormatError("the configuration label is empty; give a label such as P1",
+                                  path=data, line=number, column=1, field="config")
+        labels.append(label)
+        values.append([_number(c, data, number, j, header[j - 1])
+                       for j, c in enumerate(cells[1:width], start=2)])
+    arr = np.array(values, dtype=float)
+    q = arr[:, :n_q].copy()
+    prismatic = _prismatic_mask(robot)
+    q[:, ~prismatic] *= units.angle_to_si
+    q[:, prismatic] *= units.length_to_si
+    plan = Plan(q=q, force=arr[:, n_q:] * units.force_to_si, config=tuple(labels), units=units,
+                robot_settings=settings, noise_std_m=noise, path=toml_path or data)
+    if doc is not None:
+        plan.name, plan.baseline = str(doc["name"]), str(doc["baseline"])
+    return plan, robot

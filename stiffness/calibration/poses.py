@@ -1,0 +1,382 @@
+"""Reachable measurement poses: joint limits, the robot's own workspace rules, margins.
+
+:func:`sample_coordinates` draws coordinate vectors a rig could measure at. A pose is kept when
+
+* every coordinate is within its joint limits (revolute joints also within +-pi; joints without
+  limits: +-pi, or 0..0.1 m for a prismatic joint);
+* it follows the robot's workspace rules, where its ``robot.toml`` declares a ``[workspace]``
+  table (:class:`Workspace`); otherwise the coordinates are uniform within the limits, or, for
+  a closed-loop robot (whose limits say little about where it assembles), within
+  :data:`LOOP_SPAN_RAD` (revolute) or :data:`LOOP_SPAN_FRACTION` of the reference length
+  (prismatic, at least 1 cm) around its reference assembly (its shipped coordinates, else
+  zero);
+* the target is above the base plane (z >= 0 in the base frame), unless the workspace says
+  ``target_above_base = false``;
+* it assembles (loops closed on the reference branch, regular) with a moderate target Jacobian
+  (at most :data:`MAX_JACOBIAN` m/rad: a larger one is next to a loop singularity);
+* optionally, it is away from singularities: ``sigma_r / sigma_1`` of the target Jacobian over
+  every coordinate joint, rows ``[v; L omega]`` (``L`` the base-to-target distance, so both
+  rows are lengths per radian), at least ``singularity_margin`` times the best value over a
+  few probe poses, ``r`` the rank the robot reaches in general (the largest rank seen there);
+* optionally, for closed loops, away from folds: ``sigma_min / sigma_max`` of the passive-joint
+  columns of the loop-closure Jacobian (zero where the loop flattens or folds and its passive
+  joints are no longer determined) at least ``fold_margin`` times its value at the reference
+  assembly (mechanisms with many passive joints are never well conditioned in absolute terms).
+
+The ``[workspace]`` table is described by :class:`Workspace`. Units: rad and m inside.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stiffness.calibration.effects import cached_robot
+from stiffness.errors import (
+    ConvergenceError,
+    StiffnessError,
+    UnknownJointError,
+    UnknownNameError,
+    did_you_mean,
+)
+from stiffness.mechanics.formulation import target_state
+from stiffness.model import kinematics
+from stiffness.model.robot import Robot
+
+#: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
+MAX_JACOBIAN = 10.0
+#: Closed loops without workspace rules: revolute coordinates within this of the reference (rad).
+LOOP_SPAN_RAD = 0.5
+#: ... and prismatic ones within this fraction of their reference length.
+LOOP_SPAN_FRACTION = 0.05
+#: Give up when this many draws (plus 10 per pose asked) assemble none.
+_FIRST_POSE_TRIES = 50
+#: Probe poses used to find the rank the robot's Jacobian reaches in general.
+_RANK_PROBES = 8
+_RANK_RTOL = 1e-8
+#: Keys of a robot's ``[workspace]`` table.
+WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
+
+
+@dataclass
+class Workspace:
+    """Where poses are drawn, from the robot's ``[workspace]`` table in its ``robot.toml``.
+
+    Every key is optional; angles are in ``angle_unit`` (``deg`` by default, or ``rad``),
+    prismatic coordinates in m::
+
+        [workspace]
+        uniform = { joint1 = [-90.0, 90.0], joint2 = [-70.0, 70.0] }   # ranges
+        choice = { joint6 = [-90.0, 90.0] }                             # one of these values
+        linear = [ { joint = "joint5", constant = -90.0, terms = { joint3 = -1.0 } } ]
+        avoid = [ { terms = { joint2 = 1.0, joint3 = 1.0 }, values = [90.0, -90.0],
+                    margin = 15.0 } ]
+        target_above_base = false
+
+    A pose draws the ``uniform`` coordinates in the table's order, then every coordinate with
+    no rule uniformly within its joint limits (``+-pi`` when unlimited), rejects the pose when
+    an ``avoid`` combination ``sum terms * q`` lies within ``margin`` of one of its ``values``,
+    draws the ``choice`` coordinates, and sets each ``linear`` coordinate to
+    ``constant + sum terms * q`` in order. ``target_above_base`` (default true) rejects poses
+    whose target is below the base plane.
+
+    Attributes
+    ----------
+    uniform
+        Coordinate index -> (low, high), SI.
+    choice
+        Coordinate index -> values, SI.
+    linear
+        (index, constant, {index: coefficient}) in order, SI.
+    avoid
+        ({index: coefficient}, values, margin), SI.
+    target_above_base
+        Whether the target must be above the base plane.
+    """
+
+    uniform: dict[int, tuple[float, float]] = field(default_factory=dict)
+    choice: dict[int, list[float]] = field(default_factory=dict)
+    linear: list[tuple[int, float, dict[int, float]]] = field(default_factory=list)
+    avoid: list[tuple[dict[int, float], list[float], float]] = field(default_factory=list)
+    target_above_base: bool = True
+    declared: bool = False
+
+    @classmethod
+    def of(cls, robot: Robot) -> Workspace:
+        """The robot's declared workspace (default: its joint limits, target above the base).
+
+        Raises
+        ------
+        StiffnessError
+            On an unknown key, joint or unit, or a malformed rule (one line naming it).
+        """
+        table = robot.defaults.get("workspace")
+        if table is None:
+            return cls()
+        where = f"[workspace] of {robot.name}"
+        if not isinstance(table, dict):
+            raise StiffnessError(f"{where} must be a table")
+        unknown = set(table) - set(WORKSPACE_KEYS)
+        if unknown:
+            key = sorted(unknown)[0]
+            raise UnknownNameError(f"{where}: unknown key {key!r}; valid keys: "
+                                   f"{', '.join(WORKSPACE_KEYS)}", name=key,
+                                   choices=WORKSPACE_KEYS)
+        unit = table.get("angle_unit", "deg")
+        if unit not in ("deg", "rad"):
+            raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
+        names = list(robot.coordinate_joints)
+        factor = np.array([1.0 if _is_prismatic(robot, j) else (
+            math.pi / 180.0 if unit == "deg" else 1.0) for j in names])
+
+        def index(name) -> int:
+            if name not in names:
+                raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
+                                        f"{robot.name}; {did_you_mean(str(name), names)}",
+                                        name=str(name), choices=names)
+            return names.index(name)
+
+        def number(value, what: str) -> float:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
+                    value):
+                raise StiffnessError(f"{where}: {what} must be a finite number, got {value!r}")
+            return float(value)
+
+        def terms(rule: dict, what: str) -> dict[int, float]:
+            raw = rule.get("terms", {})
+            if not isinstance(raw, dict):
+                raise StiffnessError(f"{where}: {what}.terms must map joints to coefficients")
+            out = {}
+            for joint, c in raw.items():
+                i = index(joint)
+                # the coefficient relates SI values: q_out = c q_in in the table's units
+                out[i] = number(c, f"{what}.terms.{joint}")
+            return out
+
+        ws = cls(declared=True)
+        for joint, bounds in dict(table.get("uniform", {})).items():
+            i = index(joint)
+            if not isinstance(bounds, list) or len(bounds) != 2:
+                raise StiffnessError(f"{where}: uniform.{joint} must be [low, high]")
+            lo, hi = (number(v, f"uniform.{joint}") * factor[i] for v in bounds)
+            if hi < lo:
+                raise StiffnessError(f"{where}: uniform.{joint} has high below low")
+            ws.uniform[i] = (lo, hi)
+        for joint, values in dict(table.get("choice", {})).items():
+            i = index(joint)
+            if not isinstance(values, list) or not values:
+                raise StiffnessError(f"{where}: choice.{joint} must be a list of values")
+            ws.choice[i] = [number(v, f"choice.{joint}") * factor[i] for v in values]
+        for k, rule in enumerate(table.get("linear", [])):
+            if not isinstance(rule, dict) or "joint" not in rule:
+                raise StiffnessError(f"{where}: linear[{k}] needs a joint")
+            i = index(rule["joint"])
+            c = terms(rule, f"linear[{k}]")
+            scaled = {j: v * factor[i] / factor[j] for j, v in c.items()}
+            ws.linear.append((i, number(rule.get("constant", 0.0), f"linear[{k}].constant")
+                              * factor[i], scaled))
+        for k, rule in enumerate(table.get("avoid", [])):
+            if not isinstance(rule, dict) or "terms" not in rule or "margin" not in rule:
+                raise StiffnessError(f"{where}: avoid[{k}] needs terms, values and margin")
+            c = terms(rule, f"avoid[{k}]")
+            ref = factor[next(iter(c))] if c else 1.0
+            values = rule.get("values", [0.0])
+            if not isinstance(values, list):
+                raise StiffnessError(f"{where}: avoid[{k}].values must be a list")
+            ws.avoid.append(({j: v * factor[j] / ref for j, v in c.items()},
+                             [number(v, f"avoid[{k}].values") * ref for v in values],
+                             number(rule["margin"], f"avoid[{k}].margin") * ref))
+        above = table.get("target_above_base", True)
+        if not isinstance(above, bool):
+            raise StiffnessError(f"{where}: target_above_base must be true or false")
+        ws.target_above_base = above
+        return ws
+
+    def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
+             ) -> np.ndarray | None:
+        """One coordinate vector (SI), or ``None`` when an ``avoid`` rule rejects it."""
+        if not self.declared:
+            return rng.uniform(lo, hi)
+        coords = np.zeros(len(lo))
+        for i, (a, b) in self.uniform.items():
+            coords[i] = rng.uniform(a, b)
+        ruled = set(self.uniform) | set(self.choice) | {i for i, _, _ in self.linear}
+        for i in range(len(lo)):
+            if i not in ruled:
+                coords[i] = rng.uniform(lo[i], hi[i])
+        for c, values, margin in self.avoid:
+            combo = sum(v * coords[j] for j, v in c.items())
+            if min(abs(combo - v) for v in values) < margin:
+                return None
+        for i, values in self.choice.items():
+            coords[i] = rng.choice(values)
+        for i, constant, c in self.linear:
+            coords[i] = constant + sum(v * coords[j] for j, v in c.items())
+        return coords
+
+
+def _is_prismatic(robot: Robot, joint: str) -> bool:
+    return robot.model.joints[robot.model.getJointId(joint)].shortname().startswith("JointModelP")
+
+
+
+def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper limits (rad, m) of the coordinates as poses are drawn.
+
+    Revolute joints within +-pi; a joint without finite limits: +-pi, or 0..0.1 m if prismatic.
+    """
+    model = robot.model
+    joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
+    lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
+    hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
+    prismatic = np.array([j.shortname().startswith("JointModelP") for j in joints])
+    bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
+    lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
+    hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
+    lo = np.where(prismatic, lo, np.maximum(lo, -math.pi))
+    hi = np.where(prismatic, hi, np.minimum(hi, math.pi))
+    return lo, hi
+
+
+def sampling_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Box (rad, m) the coordinates are drawn in when no workspace rule says otherwise: the
+    limits (:func:`coordinate_limits`), narrowed around the reference assembly for loops."""
+    lo, hi = coordinate_limits(robot)
+    if robot.loop is None:
+        return lo, hi
+    from stiffness.mechanics.defaults import default_coordinates
+
+    ref = default_coordinates(robot)
+    ref = np.zeros(robot.n_coordinates) if ref is None else ref
+    model = robot.model
+    prismatic = np.array([model.joints[model.getJointId(j)].shortname().startswith("JointModelP")
+                          for j in robot.coordinate_joints])
+    span = np.where(prismatic, np.maximum(LOOP_SPAN_FRACTION * np.abs(ref), 0.01),
+                    LOOP_SPAN_RAD)
+    return np.maximum(lo, ref - span), np.minimum(hi, ref + span)
+
+
+def _all_coordinates(robot: Robot) -> Robot:
+    if tuple(robot.compliant_joints) == tuple(robot.coordinate_joints):
+        return robot
+    return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
+                        tuple(robot.coordinate_joints))
+
+
+def singular_values(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """Singular values of the target Jacobian over every coordinate joint, rows ``[v; L omega]``
+    (``L`` the base-to-target distance, at least 0.1 m), m/rad; ``q`` closed.
+
+    Raises
+    ------
+    StiffnessError
+        If the loop is singular at ``q``.
+    """
+    full = _all_coordinates(robot)
+    state = target_state(full, q)
+    length = max(float(np.linalg.norm(state.position)), 0.1)
+    jac = np.vstack([state.jacobian[:3], length * state.jacobian[3:]])
+    return np.linalg.svd(jac, compute_uv=False)
+
+
+def fold_ratio(robot: Robot, q: np.ndarray) -> float:
+    """``sigma_min / sigma_max`` of the passive columns of the loop-closure Jacobian at ``q``
+    (1 for a robot without loops; 0 on a fold)."""
+    if robot.loop is None or not len(robot.loop.passive_v):
+        return 1.0
+    kinematics.update_first_order(robot.model, robot.data, q)
+    cp = robot.loop.jacobian(robot.model, robot.data)[:, robot.loop.passive_v]
+    sv = np.linalg.svd(cp, compute_uv=False)
+    return float(sv[-1] / sv[0]) if sv[0] > 0 else 0.0
+
+
+def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries: int = 200,
+                       singularity_margin: float = 0.0, fold_margin: float = 0.0) -> np.ndarray:
+    """``n`` random reachable coordinate vectors (rad, m), shape (n, n_coordinates).
+
+    See the module docstring for the rules; the margins are off by default.
+
+    Raises
+    ------
+    StiffnessError
+        If fewer than ``n`` poses are found in ``max_tries * n`` draws.
+    """
+    rules = Workspace.of(robot)
+    lo, hi = coordinate_limits(robot)
+    box = sampling_box(robot)
+    rank = None
+    fold_floor = 0.0
+    if fold_margin > 0 and robot.loop is not None:
+        fold_floor = fold_margin * _reference_fold_ratio(robot)
+    if singularity_margin > 0:
+        probe = np.random.default_rng(int(rng.integers(2 ** 63)))
+        rank, best_ratio = _generic_rank(robot, *box, rules, probe)
+        singularity_floor = singularity_margin * best_ratio
+    out: list[np.ndarray] = []
+    for attempt in range(max_tries * n):
+        if len(out) == n or (not out and attempt >= _FIRST_POSE_TRIES + 10 * n):
+            break
+        coords = rules.draw(*box, rng)
+        if coords is None:
+            continue
+        if np.any(coords < lo - 1e-12) or np.any(coords > hi + 1e-12):
+            continue
+        try:
+            q = robot.configuration(coords)
+            state = target_state(robot, q)
+            if np.abs(state.jacobian[:3]).max() > MAX_JACOBIAN:
+                continue
+            if rules.target_above_base and state.position[2] < 0.0:
+                continue
+            if fold_floor > 0 and fold_ratio(robot, q) < fold_floor:
+                continue
+            if rank is not None:
+                sv = singular_values(robot, q)
+                if sv[rank - 1] < singularity_floor * sv[0]:
+                    continue
+        except StiffnessError:
+            continue
+        out.append(coords)
+    if len(out) < n:
+        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.name}"
+                               + (" away from singularities and folds" if singularity_margin > 0
+                                  or fold_margin > 0 else "")
+                               + "; ask for fewer configurations, or check the joint limits")
+    return np.array(out)
+
+
+def _reference_fold_ratio(robot: Robot) -> float:
+    """:func:`fold_ratio` at the reference assembly (the shipped coordinates, else zero)."""
+    from stiffness.mechanics.defaults import default_coordinates
+
+    ref = default_coordinates(robot)
+    try:
+        q = robot.configuration(np.zeros(robot.n_coordinates) if ref is None else ref)
+    except StiffnessError:
+        return 1.0  # no reference to compare with: an absolute margin
+    return fold_ratio(robot, q)
+
+
+def _generic_rank(robot: Robot, lo: np.ndarray, hi: np.ndarray, rules: Workspace,
+                  rng: np.random.Generator) -> tuple[int, float]:
+    """The largest Jacobian rank over a few assembled probe poses (the rank in general), and
+    the best ``sigma_r / sigma_1`` among them."""
+    svs = []
+    for attempt in range(50 * _RANK_PROBES):
+        if len(svs) == _RANK_PROBES or (not svs and attempt >= _FIRST_POSE_TRIES):
+            break
+        coords = rules.draw(lo, hi, rng)
+        if coords is None:
+            continue
+        try:
+            svs.append(singular_values(robot, robot.configuration(coords)))
+        except StiffnessError:
+            continue
+    if not svs:
+        raise ConvergenceError(f"no pose of {robot.name} drawn within its joint limits "
+                               f"assembles (in {_FIRST_POSE_TRIES} draws); check the limits, or "
+                               "declare a [workspace] in its robot.toml")
+    rank = max(int(np.sum(sv > _RANK_RTOL * max(sv[0], 1e-300))) for sv in svs)
+    return rank, max(float(sv[rank - 1] / sv[0]) if len(sv) >= rank else 0.0 for sv in svs)

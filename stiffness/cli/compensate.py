@@ -1,0 +1,230 @@
+"""``stiffness compensate``: joint commands that cancel the deflection along a path.
+
+Example::
+
+    stiffness compensate --model identified-model.json --path path.csv \\
+        --wrench 0,0,-300 --deg --out compensated.csv
+
+``PATH.csv`` has one column per coordinate (joint names, or q1..qn in the model's coordinate
+order; rad, or deg with ``--deg``; m for prismatic joints), one row per point, and optionally
+``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row instead of ``--wrench``. ``OUT.csv`` repeats the input
+columns and adds ``<joint>_cmd`` (the exact command, input unit; also ``q<i>_cmd`` for a path
+whose columns are q1..qn), ``dx,dy,dz`` (uncompensated
+deflection, m), ``ex,ey,ez`` (residual after the exact compensation, m) and ``ex1,ey1,ez1``
+(after the first-order Cartesian compensation, m). Nothing is written when any row fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.compensation import (
+    WRENCH_FRAMES,
+    PathCompensation,
+    compensate,
+    read_joint_path,
+)
+from stiffness.calibration.elastic import ElasticModel, elastic_model_of
+from stiffness.calibration.model_file import read_model_file
+from stiffness.cli.flags import (
+    add_output_flags,
+    add_robot_flags,
+    add_stiffness_flag,
+    add_wrench_flag,
+    parse_list,
+    robot_from_args,
+    target_offset_from_args,
+)
+from stiffness.errors import OutputError, StiffnessError
+from stiffness.files import atomic_write, output_folder
+from stiffness.mechanics.defaults import default_stiffness
+from stiffness.mechanics.formulation import joint_stiffness
+
+
+def add_model_flags(parser: argparse.ArgumentParser) -> None:
+    """``--model`` and the shared robot and stiffness flags (:mod:`stiffness.cli.flags`)."""
+    parser.add_argument("--model", metavar="M.json",
+                        help="model file: identified-model.json (`stiffness identify`) or "
+                             "final-model.json (`stiffness diagnose`, with its effects)")
+    add_robot_flags(parser, robot_help="shipped robot, example-robot-data name or URDF path, "
+                                       "instead of --model (or checked against it); with "
+                                       "--model, --frame and --target-offset move the target")
+    add_stiffness_flag(parser, help="joint stiffness per compliant joint, N.m/rad (N/m "
+                                    "prismatic), when no --model is given; default the robot's")
+
+
+def add_wrench_flags(parser: argparse.ArgumentParser) -> None:
+    """``--wrench`` (alias ``--load``) and ``--wrench-frame``."""
+    add_wrench_flag(parser, help="process wrench at the target: fx,fy,fz (N) or "
+                                 "fx,fy,fz,mx,my,mz (N, N.m); --load is an alias")
+    parser.add_argument("--wrench-frame", choices=WRENCH_FRAMES, default="base",
+                        help="axes of --wrench (and of per-row loads): base, or target (the "
+                             "target frame at each nominal pose); default base")
+
+
+def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
+    """The elastic model of ``--model`` (checked against ``--robot``), or of the robot flags
+    with ``--kq`` (or the shipped springs).
+
+    Raises
+    ------
+    StiffnessError
+        Neither given, a ``--robot`` that is not the model file's, a missing ``--kq``.
+    """
+    if args.model is not None:
+        for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
+            if value is not None:
+                raise StiffnessError(f"{flag} conflicts with --model, which brings the springs; "
+                                     f"drop {flag} (or --model)")
+        model = read_model_file(args.model)
+        if args.robot is not None:
+            model.check_robot(args.robot)
+        em = elastic_model_of(model, args.frame, target_offset_from_args(args))
+        em.source = str(args.model)
+        return em
+    if args.robot is None:
+        raise StiffnessError("give --model M.json (or --robot R with --kq)")
+    robot, _, _ = robot_from_args(args)
+    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
+    if kq is None:
+        raise StiffnessError(f"--kq is required: one stiffness per compliant joint "
+                             f"({', '.join(robot.compliant_joints)}), N.m/rad")
+    return ElasticModel.joint_springs(robot, np.diag(joint_stiffness(kq, robot.n_compliant)))
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness compensate``."""
+    add_model_flags(parser)
+    parser.add_argument("--path", metavar="PATH.csv", required=True,
+                        help="joint path: one column per coordinate (joint names or q1..qn), "
+                             "one row per point; optional fx,fy,fz[,mx,my,mz] per row")
+    add_wrench_flags(parser)
+    parser.add_argument("--deg", action="store_true",
+                        help="angles of PATH.csv (and of the commands written) are in degrees")
+    parser.add_argument("--hold", choices=("auto", "pose", "position"), default="auto",
+                        help="what the compensation holds: the target position and orientation "
+                             "(pose), its position only, or auto (pose when the robot can); "
+                             "default auto")
+    parser.add_argument("--method", choices=("auto", "closed-form", "general"), default="auto",
+                        help="auto: closed form when joint compliance is the only effect, else "
+                             "the general solver; default auto")
+    parser.add_argument("--out", metavar="OUT.csv", help="write the compensated path here")
+    add_output_flags(parser, quiet_help="no progress on stderr")
+
+
+def check_outputs(*paths: str | None) -> None:
+    """Refuse, before any work, output files that cannot be written (a folder in the way, a
+    read-only or missing-and-uncreatable folder): one-line :class:`OutputError`."""
+    for name in paths:
+        if name is None:
+            continue
+        target = Path(name)
+        if target.is_dir():
+            raise OutputError(f"cannot write {target}: it is a folder; give a file name",
+                              path=target)
+        output_folder(target.parent, create=False)
+
+
+def progress_printer(args: argparse.Namespace, what: str):
+    """A ``(done, total)`` progress callback on stderr when a TTY, else None (``--quiet``)."""
+    if args.quiet or not sys.stderr.isatty():
+        return None
+
+    def show(done: int, total: int) -> None:
+        end = "\n" if done == total else ""
+        print(f"\r{what}: {done}/{total}", end=end, file=sys.stderr, flush=True)
+
+    return show
+
+
+def _num(value: float) -> str:
+    return repr(float(value))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness compensate``; returns the exit code."""
+    if args.model is None and args.robot is None:
+        raise StiffnessError("--model M.json is required (the identified or diagnosed model)")
+    check_outputs(args.out)
+    em = elastic_model_from_args(args)
+    path = read_joint_path(args.path, em.robot, deg=args.deg)
+    if args.wrench is not None and path.wrench is not None:
+        raise StiffnessError(f"{args.path} carries per-row loads (fx,fy,fz...): drop --wrench, "
+                             "or drop those columns")
+    wrench = path.wrench if path.wrench is not None else (
+        None if args.wrench is None else np.array(parse_list(args.wrench, "--wrench")))
+    if wrench is None:
+        raise StiffnessError("give --wrench fx,fy,fz[,mx,my,mz] (N, N.m), or per-row fx,fy,fz "
+                             f"columns in {args.path}")
+    result = compensate(em, path.coords, wrench, wrench_frame=args.wrench_frame, hold=args.hold,
+                        method=args.method, progress=progress_printer(args, "compensate"))
+    scale = np.where(path.angular & args.deg, 180.0 / np.pi, 1.0)
+    if args.out:
+        atomic_write(args.out, format_csv(result, path, scale))
+    doc = to_json(result, path, scale, args.deg)
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+        return 0
+    s = doc["summary"]
+    print(f"{em.robot.name}: {s['points']} points, {s['model']}; holds the {s['hold']}, "
+          f"{'/'.join(s['method'])}")
+    if s["ignored_effects"]:
+        print(f"not compensated (measurement effects): {', '.join(s['ignored_effects'])}")
+    print(f"deflection without compensation: max {s['max_deflection_m']:.4g} m, "
+          f"RMS {s['rms_deflection_m']:.4g} m")
+    print(f"residual, exact compensation:    max {s['max_residual_m']:.3g} m")
+    print(f"residual, first-order (-C.F):    max {s['max_residual_first_order_m']:.3g} m")
+    if args.out:
+        print(f"written: {args.out}")
+    return 0
+
+
+def format_csv(result: PathCompensation, path, scale: np.ndarray) -> str:
+    """``OUT.csv``: input columns, ``<joint>_cmd`` (and ``q<i>_cmd`` when the input names the
+    coordinates q1..qn), ``dx..``, ``ex..``, ``ex1..``."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    names = [f"{j}_cmd" for j in result.joints]
+    aliases = [f"{c}_cmd" for c in path.column_of if f"{c}_cmd" not in names]
+    writer.writerow(path.header + names + aliases
+                    + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
+    for cells, p in zip(path.cells, result.points, strict=True):
+        cells = cells + [""] * (len(path.header) - len(cells))
+        command = [_num(v) for v in p.command * scale]
+        writer.writerow(cells[: len(path.header)] + command + (command if aliases else [])
+                        + [_num(v) for v in np.concatenate(
+                            [p.deflection, p.residual, p.residual_first_order])])
+    return buf.getvalue()
+
+
+def to_json(result: PathCompensation, path, scale: np.ndarray, deg: bool) -> dict:
+    """The ``--json`` object: ``rows``, ``summary``, ``units``."""
+    unit = ["deg" if (a and deg) else ("rad" if a else "m") for a in path.angular]
+    rows = [{
+        "q_command": (p.command * scale).tolist(),
+        "q_command_first_order": (p.command_first_order * scale).tolist(),
+        "deflection": p.deflection.tolist(),
+        "residual": p.residual.tolist(),
+        "residual_first_order": p.residual_first_order.tolist(),
+        "rotation_deflection": p.rotation_deflection.tolist(),
+        "rotation_residual": p.rotation_residual.tolist(),
+        "rotation_residual_first_order": p.rotation_residual_first_order.tolist(),
+        "method": p.method,
+    } for p in result.points]
+    return {
+        "robot": result.model.robot.name,
+        "joints": list(result.joints),
+        "rows": rows,
+        "summary": result.summary(),
+        "units": {"q_command": unit, "q_command_first_order": unit, "deflection": "m",
+                  "residual": "m", "residual_first_order": "m", "rotation_deflection": "rad",
+                  "rotation_residual": "rad", "rotation_residual_first_order": "rad",
+                  "summary": "m (rad for rotation keys)"},
+    }

@@ -1,0 +1,198 @@
+"""``stiffness posture``: the stiffest posture about the tool axis along a path.
+
+Example::
+
+    stiffness posture --robot ur5 --target-offset 0.1,0,0.1 --kq 3e5,3e5,2e5,4e4,4e4,4e4 \\
+        --path poses.csv --wrench 0,0,300 --steps 36 --max-step 10 --out posture.csv
+
+``POSES.csv``: ``x,y,z`` (m, base frame) and a tool axis ``ax,ay,az`` (the direction of the
+target frame's free axis, base frame) or a full orientation ``qw,qx,qy,qz``; optional
+``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row. ``OUT.csv`` repeats the input columns and adds the
+joint path (one column per coordinate joint; rad, deg with ``--deg``, m for prismatic),
+``angle_deg`` (the chosen rotation about the free axis), ``deflection_m`` and
+``deflection_fixed_m`` (first-order position deflection with the chosen posture and with the
+fixed angle), ``ik_residual_m`` and ``ik_residual_rad``; the figure (``--figure``, by default
+``OUT.png``) shows both deflections and the angle along the path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.posture import Poses, PostureResult, posture, read_poses
+from stiffness.cli.compensate import (
+    add_model_flags,
+    add_wrench_flags,
+    check_outputs,
+    elastic_model_from_args,
+    progress_printer,
+)
+from stiffness.cli.flags import add_output_flags, parse_list
+from stiffness.errors import StiffnessError
+from stiffness.files import atomic_write
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness posture``."""
+    add_model_flags(parser)
+    parser.add_argument("--path", metavar="POSES.csv", required=True,
+                        help="target poses: x,y,z (m) and ax,ay,az (tool axis) or "
+                             "qw,qx,qy,qz; optional fx,fy,fz[,mx,my,mz] per row")
+    parser.add_argument("--free-axis", default="z",
+                        help="the target frame's axis the process is symmetric about: x, y, z "
+                             "or ax,ay,az; default z")
+    add_wrench_flags(parser)
+    parser.add_argument("--steps", type=int, default=36,
+                        help="candidate angles about the free axis per point; default 36")
+    parser.add_argument("--max-step", type=float, default=10.0, metavar="DEG",
+                        help="largest joint change between consecutive points, deg; default 10")
+    parser.add_argument("--reference-angle", type=float, default=0.0, metavar="DEG",
+                        help="the fixed angle compared with, deg; default 0 (the first point's "
+                             "orientation, carried along the path)")
+    parser.add_argument("--singularity-margin", type=float, default=1e-3,
+                        help="smallest admissible singular value of the target Jacobian "
+                             "(m/rad); default 1e-3")
+    parser.add_argument("--start", help="IK seed of the first point, one value per coordinate "
+                                        "(rad, deg with --deg, m prismatic)")
+    parser.add_argument("--deg", action="store_true",
+                        help="joint values written (and --start) in degrees")
+    parser.add_argument("--no-refine", action="store_true",
+                        help="skip the local refinement after the dynamic programming")
+    parser.add_argument("--out", metavar="OUT.csv", help="write the joint path here")
+    parser.add_argument("--figure", metavar="FIG.png",
+                        help="figure of the deflections along the path; default OUT.png")
+    add_output_flags(parser, quiet_help="no progress on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness posture``; returns the exit code."""
+    figure = args.figure or (str(Path(args.out).with_suffix(".png")) if args.out else None)
+    check_outputs(args.out, figure)
+    em = elastic_model_from_args(args)
+    poses = read_poses(args.path)
+    if args.wrench is not None and poses.wrench is not None:
+        raise StiffnessError(f"{args.path} carries per-row loads (fx,fy,fz...): drop --wrench, "
+                             "or drop those columns")
+    wrench = poses.wrench if poses.wrench is not None else (
+        None if args.wrench is None else np.array(parse_list(args.wrench, "--wrench")))
+    full = em.full
+    model = full.model
+    angular = np.array([not model.joints[model.getJointId(j)].shortname().startswith(
+        "JointModelP") for j in full.coordinate_joints])
+    scale = np.where(angular & args.deg, 180.0 / np.pi, 1.0)
+    start = None
+    if args.start is not None:
+        start = np.array(parse_list(args.start, "--start"))
+        if start.shape[0] != full.n_coordinates:
+            raise StiffnessError(f"--start needs {full.n_coordinates} values "
+                                 f"({', '.join(full.coordinate_joints)}), got {start.shape[0]}")
+        start = start / scale
+    result = posture(em, poses.positions, axes=poses.axes,
+                     quaternions=poses.quaternions, free_axis=args.free_axis, wrench=wrench,
+                     wrench_frame=args.wrench_frame, steps=args.steps,
+                     max_step_deg=args.max_step, reference_angle_deg=args.reference_angle,
+                     singularity_margin=args.singularity_margin, start=start,
+                     refine=not args.no_refine, progress=progress_printer(args, "posture"))
+    csv_text = format_csv(result, poses, scale) if args.out else None
+    png = figure_png(result) if figure else None
+    if args.out:
+        atomic_write(args.out, csv_text)
+    if figure:
+        atomic_write(figure, png)
+    doc = to_json(result, scale, angular, args.deg)
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+        return 0
+    s = doc["summary"]
+    print(f"{em.robot.name}: {s['points']} points, {args.steps} angles, max joint step "
+          f"{s['max_joint_step_deg']:.3g} deg (bound {args.max_step:g})")
+    print(f"max deflection: {s['max_deflection_m']:.4g} m chosen, "
+          f"{_g(s['max_deflection_fixed_m'])} m fixed angle "
+          f"(factor {_g(s.get('max_reduction_factor'))})")
+    print(f"RMS deflection: {s['rms_deflection_m']:.4g} m chosen, "
+          f"{_g(s['rms_deflection_fixed_m'])} m fixed angle")
+    print(f"IK residual: {s['max_ik_residual_m']:.2g} m, {s['max_ik_residual_rad']:.2g} rad")
+    for note in result.notes:
+        print(f"note: {note}")
+    for name in (args.out, figure):
+        if name:
+            print(f"written: {name}")
+    return 0
+
+
+def _g(value) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
+
+
+def _num(value: float) -> str:
+    return repr(float(value)) if math.isfinite(value) else ""
+
+
+def format_csv(result: PostureResult, poses: Poses, scale: np.ndarray) -> str:
+    """``OUT.csv``: input columns, joints, angle and deflections per point."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    header = poses.header
+    writer.writerow(header + list(result.joints) + [
+        "angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m", "ik_residual_rad"])
+    for cells, p in zip(poses.cells, result.points, strict=True):
+        cells = (cells + [""] * len(header))[: len(header)]
+        writer.writerow(cells + [_num(v) for v in p.coords * scale] + [
+            _num(np.rad2deg(p.angle)), _num(np.linalg.norm(p.deflection)),
+            _num(np.linalg.norm(p.deflection_fixed)), _num(p.ik_position_error),
+            _num(p.ik_rotation_error)])
+    return buf.getvalue()
+
+
+def to_json(result: PostureResult, scale: np.ndarray, angular: np.ndarray, deg: bool) -> dict:
+    """The ``--json`` object: ``rows``, ``summary``, ``units``, ``notes``."""
+    def num(v: float):
+        return float(v) if math.isfinite(v) else None
+
+    unit = ["deg" if (a and deg) else ("rad" if a else "m") for a in angular]
+    rows = [{"q": (p.coords * scale).tolist(), "angle_deg": float(np.rad2deg(p.angle)),
+             "deflection_m": float(np.linalg.norm(p.deflection)),
+             "deflection": p.deflection.tolist(),
+             "deflection_fixed_m": num(np.linalg.norm(p.deflection_fixed)),
+             "ik_residual_m": p.ik_position_error, "ik_residual_rad": p.ik_rotation_error}
+            for p in result.points]
+    return {"joints": list(result.joints), "rows": rows, "summary": result.summary(),
+            "notes": result.notes,
+            "units": {"q": unit, "angle_deg": "deg", "deflection_m": "m", "deflection": "m",
+                      "deflection_fixed_m": "m", "ik_residual_m": "m", "ik_residual_rad": "rad"}}
+
+
+def figure_png(result: PostureResult) -> bytes:
+    """PNG: deflection with the chosen posture and with the fixed angle, and the angle."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    index = np.arange(1, len(result.points) + 1)
+    chosen = [1e3 * np.linalg.norm(p.deflection) for p in result.points]
+    fixed = [1e3 * np.linalg.norm(p.deflection_fixed) for p in result.points]
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    ax1.plot(index, fixed, "o-", ms=3, label=f"fixed angle "
+             f"({np.rad2deg(result.reference_angle):.3g} deg)")
+    ax1.plot(index, chosen, "o-", ms=3, label="chosen posture")
+    ax1.set_ylabel("deflection (mm)")
+    ax1.legend()
+    ax1.grid(alpha=0.3)
+    ax2.plot(index, [np.rad2deg(p.angle) for p in result.points], "o-", ms=3)
+    ax2.set_ylabel("angle about free axis (deg)")
+    ax2.set_xlabel("path point")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return buf.getvalue()
+

@@ -1,0 +1,80 @@
+"""Scan presets the papers provide to ``stiffness scan --preset NAME``.
+
+A preset turns a robot into the options of a workspace scan (grid axes, the coordinates that
+follow them, load cases) without the scan layer knowing about any paper: the scan command
+looks the name up in :data:`SCAN_PRESETS` and builds an ordinary grid
+:class:`~stiffness.scan.spec.ScanSpec` from it.
+
+* ``table4``: Alici & Shirinzadeh's Section VI / Table IV grid on the SK120 (theta1 -180..180,
+  theta2 -70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical: q4 = 0,
+  q5 = -90 deg - theta3, q6 = -90 deg), the eight +-100 N load cases; the same configurations,
+  in the same order, as :func:`stiffness.papers.reproduction.table4_grid`.
+
+Angles in rad, loads in N.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from stiffness.errors import StiffnessError
+from stiffness.model.robot import Robot
+from stiffness.papers.reproduction import table4_loads
+
+
+@dataclass
+class ScanPreset:
+    """Options of a preset scan.
+
+    Attributes
+    ----------
+    axes
+        Grid axes ``{"index", "joint", "lower", "upper", "step"}`` (rad or m).
+    base
+        Coordinates of the joints that are not swept (rad, m).
+    couplings
+        ``{"index", "axis", "factor"}``: coordinate ``index`` gets ``factor`` times the value
+        of ``axes[axis]`` added to its base value.
+    load_names, loads
+        Default load cases (N), used when no ``--load`` is given.
+    map_axes
+        Positions in ``axes`` of the figures' axes.
+    """
+
+    axes: list[dict]
+    base: list[float]
+    couplings: list[dict]
+    load_names: list[str]
+    loads: list[list[float]]
+    map_axes: list[int]
+
+
+def table4_preset(robot: Robot) -> ScanPreset:
+    """The Table IV grid (see the module docstring) for the SK120.
+
+    Raises
+    ------
+    StiffnessError
+        If the robot does not have the SK120's six coordinates and three compliant joints.
+    """
+    if robot.n_coordinates != 6 or robot.n_compliant != 3:
+        raise StiffnessError(
+            "--preset table4 is the SK120 grid of A&S Table IV (six coordinates, three "
+            f"compliant joints); {robot.name} has {robot.n_coordinates} and "
+            f"{robot.n_compliant}"
+        )
+    ranges = [(-np.pi, np.pi), (np.deg2rad(-70.0), np.deg2rad(70.0)),
+              (np.deg2rad(-115.0), np.deg2rad(35.0))]
+    axes = [{"index": i, "joint": robot.coordinate_joints[i], "lower": float(lo),
+             "upper": float(hi), "step": 0.2} for i, (lo, hi) in enumerate(ranges)]
+    names, loads = table4_loads()
+    return ScanPreset(axes=axes, base=[0.0, 0.0, 0.0, 0.0, -np.pi / 2, -np.pi / 2],
+                      couplings=[{"index": 4, "axis": 2, "factor": -1.0}],
+                      load_names=names, loads=loads.tolist(), map_axes=[1, 2])
+
+
+#: Preset name -> builder of its scan options from the loaded robot.
+SCAN_PRESETS: dict[str, Callable[[Robot], ScanPreset]] = {"table4": table4_preset}

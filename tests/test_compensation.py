@@ -1,0 +1,478 @@
+"""Deflection compensation: exact commands checked by an independent root finder.
+
+The independent check solves the torque balance ``law^-1(theta - theta_c) = J(theta)^T W`` with
+scipy's root finder, ``J`` by central finite differences of the forward kinematics (loops closed
+by :meth:`Robot.configuration`), never with the toolkit's equilibrium solver.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from scipy.optimize import root
+
+from stiffness.calibration.compensation import compensate
+from stiffness.calibration.effects import Geometry, LinkCompliance, link_axes
+from stiffness.calibration.elastic import ElasticModel, LinkBend, loaded_equilibrium
+from stiffness.mechanics.ik import all_coordinates
+from stiffness.model import kinematics
+from stiffness.model.robot import load_robot
+
+UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]  # N.m/rad
+UR5_PATH = np.array([[0.1, -1.2, 1.5, -0.3, 1.57, 0.2],
+                     [0.4, -1.0, 1.2, -0.6, 1.3, 0.5]])
+
+
+@pytest.fixture(scope="module")
+def ur5():
+    return load_robot("ur5")
+
+
+@pytest.fixture(scope="module")
+def sk120():
+    return load_robot("sk120")
+
+
+def _fk(robot, coords, seed):
+    q = robot.configuration(coords, seed=seed)
+    kinematics.update_first_order(robot.model, robot.data, q)
+    m = robot.data.oMf[robot.target_frame_id]
+    return m.translation.copy(), m.rotation.copy()
+
+
+def _fd_jacobian(robot, coords, seed, columns, h=1e-6):
+    """(6, k) FD Jacobian of the target (position; rotation vector) w.r.t. ``columns``."""
+    out = []
+    for i in columns:
+        cp, cm = coords.copy(), coords.copy()
+        cp[i] += h
+        cm[i] -= h
+        (pp, rp), (pm, rm) = _fk(robot, cp, seed), _fk(robot, cm, seed)
+        out.append(np.concatenate([(pp - pm) / (2 * h), pin.log3(rp @ rm.T) / (2 * h)]))
+    return np.array(out).T
+
+
+def _independent_equilibrium(robot, command, k, wrench, seed):
+    """Equilibrium coordinates of the springs ``k`` on the compliant joints at rest at
+    ``command`` (rigid coordinates held), by scipy's root finder on the torque balance."""
+    cols = robot.compliant_in_coordinates
+
+    def balance(theta):
+        coords = command.copy()
+        coords[cols] = theta
+        jac = _fd_jacobian(robot, coords, seed, cols)
+        return k * (theta - command[cols]) - jac.T @ wrench
+
+    sol = root(balance, command[cols], method="hybr", tol=1e-14)
+    # the FD Jacobian is noisy at the 1e-14 level: judge by the torque balance itself
+    assert np.abs(balance(sol.x)).max() / k.min() < 1e-12, sol.message
+    coords = command.copy()
+    coords[cols] = sol.x
+    return coords
+
+
+@pytest.mark.parametrize("case", ["ur5", "sk120"])
+def test_exact_command_puts_target_on_nominal_pose(case, ur5, sk120):
+    if case == "ur5":
+        robot, k, path = ur5, np.array(UR5_K), UR5_PATH
+        wrench = np.array([120.0, -80.0, -300.0, 4.0, -3.0, 2.0])
+    else:
+        robot, k = sk120, np.array(sk120.defaults["k_theta_SI"])
+        c = np.deg2rad(sk120.defaults["q_deg"])
+        path = np.array([c, c + np.deg2rad([10.0, 5.0, -8.0, 0.0, 0.0, 0.0])])
+        wrench = np.array([45.5, 364.5, 211.3, 0.0, 0.0, 0.0])
+    result = compensate(ElasticModel.joint_springs(robot, k), path, wrench)
+    assert result.hold == "pose"
+    for point, nominal in zip(result.points, path, strict=True):
+        seed = point.q_nominal
+        coords = _independent_equilibrium(robot, point.command, k, wrench, seed)
+        p, r = _fk(robot, coords, seed)
+        p_n, r_n = _fk(robot, nominal, seed)
+        assert np.linalg.norm(p - p_n) < 1e-9
+        assert np.linalg.norm(pin.log3(r @ r_n.T)) < 1e-9
+        # the deflection it cancels is real (the uncompensated equilibrium moves the target)
+        free = _independent_equilibrium(robot, nominal.copy(), k, wrench, seed)
+        moved = _fk(robot, free, seed)[0] - p_n
+        assert np.linalg.norm(moved) > 1e-4
+        np.testing.assert_allclose(point.deflection, moved, atol=1e-9)
+        assert np.linalg.norm(point.residual) < 1e-9
+
+
+@settings(max_examples=12, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(coords=st.lists(st.floats(-2.5, 2.5), min_size=6, max_size=6),
+       force=st.lists(st.floats(-400.0, 400.0), min_size=3, max_size=3),
+       moment=st.lists(st.floats(-10.0, 10.0), min_size=3, max_size=3))
+def test_closed_form_holds_for_any_pose_and_wrench(ur5, coords, force, moment):
+    """For every configuration and wrench, the independent root finder rests the loaded UR5
+    on the nominal pose at the closed-form command."""
+    coords = np.array(coords)
+    jac = _fd_jacobian(ur5, coords, None, range(6))
+    assume(np.linalg.svd(jac, compute_uv=False)[-1] > 0.05)  # away from singularities
+    wrench = np.array(force + moment)
+    point = compensate(ElasticModel.joint_springs(ur5, UR5_K), coords[None], wrench).points[0]
+    rest = _independent_equilibrium(ur5, point.command, np.array(UR5_K), wrench, None)
+    p, r = _fk(ur5, rest, None)
+    p_n, r_n = _fk(ur5, coords, None)
+    assert np.linalg.norm(p - p_n) < 1e-9
+    assert np.linalg.norm(pin.log3(r @ r_n.T)) < 1e-9
+
+
+def test_first_order_residual_grows_as_the_square_of_the_load(ur5):
+    em = ElasticModel.joint_springs(ur5, UR5_K)
+    scales = np.geomspace(0.1, 1.0, 5)
+    base = np.array([150.0, -100.0, -400.0])
+    err = [np.linalg.norm(compensate(em, UR5_PATH[:1], s * base).points[0].residual_first_order)
+           for s in scales]
+    rate = np.polyfit(np.log(scales), np.log(err), 1)[0]
+    assert 1.9 < rate < 2.1, rate
+    assert err[-1] > 1e-8  # the first-order residual is not negligible at full load
+
+
+def test_general_solver_agrees_with_the_closed_form_for_a_nonlinear_law(ur5):
+    em = ElasticModel.joint_springs(ur5, UR5_K)
+    em.law.beta[:] = [2e-3, 1e-3, -5e-4, 0.0, 3e-3, 0.0]
+    em.law.backlash[1] = 2e-4
+    em.law.smoothing[:] = 5.0
+    wrench = [100.0, 50.0, -300.0]
+    closed = compensate(em, UR5_PATH, wrench, method="closed-form")
+    general = compensate(em, UR5_PATH, wrench, method="general")
+    for a, b in zip(closed.points, general.points, strict=True):
+        assert b.iterations >= 2  # the general solver starts from the uncompensated command
+        np.testing.assert_allclose(a.command, b.command, atol=1e-11)
+        assert np.linalg.norm(a.residual) < 1e-9
+
+
+def _ur5_link_model(ur5):
+    geometry = Geometry.of(ur5)
+    a, b = "shoulder_lift_joint", "elbow_joint"
+    joints = ElasticModel.joint_springs(ur5, UR5_K)
+    bend = LinkBend(a, b, geometry.link_columns[(a, b)], (1.5e5, 8e4))
+    return joints, ElasticModel(ur5, joints.law, (bend,)), geometry
+
+
+def test_link_compliance_needs_the_general_solver(ur5):
+    joints, linked, _ = _ur5_link_model(ur5)
+    wrench = [100.0, 0.0, -300.0]
+    general = compensate(linked, UR5_PATH, wrench)
+    closed = compensate(joints, UR5_PATH, wrench)
+    for g, c, nominal in zip(general.points, closed.points, UR5_PATH, strict=True):
+        assert g.method == "general"
+        assert np.linalg.norm(g.residual) < 1e-9
+        assert np.linalg.norm(g.rotation_residual) < 1e-9
+        # the joint-only closed form, loaded on the model with the link, leaves its bend
+        left = loaded_equilibrium(linked, c.command, wrench, seed_q=c.q_nominal)
+        p_n = _fk(ur5, nominal, c.q_nominal)[0]
+        assert np.linalg.norm(left.position - p_n) > 1e-4
+
+
+def test_link_bend_matches_the_effect_library_to_first_order(ur5):
+    """The exact bend at a small load equals the library's linear link-compliance term."""
+    joints, linked, geometry = _ur5_link_model(ur5)
+    bend = linked.links[0]
+    force = np.array([10.0, -5.0, -20.0])
+    coords = UR5_PATH[0]
+    with_link = loaded_equilibrium(linked, coords, force)
+    without = loaded_equilibrium(joints, coords, force)
+    full = all_coordinates(ur5)
+    q = full.configuration(coords)
+    kinematics.update_first_order(full.model, full.data, q)
+    data, model = full.data, full.model
+    ja, jb = model.getJointId(bend.a), model.getJointId(bend.b)
+    p_b = data.oMi[jb].translation
+    e1, e2 = link_axes(data.oMi[ja].translation, p_b, data.oMi[model.parents[jb]].rotation,
+                       bend.column)
+    r = data.oMf[full.target_frame_id].translation - p_b
+    m_b = np.cross(r, force)
+    omega = e1 * (e1 @ m_b) / bend.stiffness[0] + e2 * (e2 @ m_b) / bend.stiffness[1]
+    linear = np.cross(omega, r)
+    assert LinkCompliance.name == "link_compliance"
+    extra = with_link.position - without.position
+    assert np.linalg.norm(extra - linear) < 0.02 * np.linalg.norm(linear)
+
+
+@pytest.mark.parametrize("case", ["ur5", "sk120"])
+def test_bent_jacobian_matches_finite_differences(case, ur5, sk120):
+    """The exact Jacobian of the bent target w.r.t. coordinates and bend angles, on a serial arm
+    and through the SK120's loop (the bend joint2->elbow has a passive joint at its end)."""
+    from stiffness.calibration.elastic import bent_kinematics, frozen_axes
+
+    if case == "ur5":
+        _, linked, _ = _ur5_link_model(ur5)
+        c = UR5_PATH[1]
+    else:
+        springs = ElasticModel.joint_springs(sk120, sk120.defaults["k_theta_SI"])
+        column = Geometry.of(sk120).link_columns[("joint2", "elbow")]
+        linked = ElasticModel(sk120, springs.law, (LinkBend("joint2", "elbow", column,
+                                                            (2e6, 1e6)),))
+        c = np.deg2rad(sk120.defaults["q_deg"])
+    links = linked.ordered_links()
+    q = linked.full.configuration(c)
+    kinematics.update_first_order(linked.full.model, linked.full.data, q)
+    axes = frozen_axes(linked, links)
+    z = np.concatenate([c, [0.01, -0.02]])
+    wrench = np.zeros(6)
+    kin = bent_kinematics(linked, links, axes, z[:6], z[6:], wrench, q)
+    h, fd = 1e-5, []
+    for i in range(z.shape[0]):
+        zp, zm = z.copy(), z.copy()
+        zp[i] += h
+        zm[i] -= h
+        kp = bent_kinematics(linked, links, axes, zp[:6], zp[6:], wrench, q)
+        km = bent_kinematics(linked, links, axes, zm[:6], zm[6:], wrench, q)
+        fd.append(np.concatenate([(kp.position - km.position) / (2 * h),
+                                  pin.log3(kp.rotation @ km.rotation.T) / (2 * h)]))
+    np.testing.assert_allclose(np.array(fd).T, kin.jac, atol=1e-8)
+
+
+# ------------------------------------------------------------------------------ the command
+
+JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
+          "wrist_2_joint", "wrist_3_joint"]
+
+
+def _identified_model(path, source="ur5", frame="tool0", joints=JOINTS, k=UR5_K):
+    import json
+
+    n = len(joints)
+    path.write_text(json.dumps({
+        "format": "stiffness-identified-model", "version": 1, "campaign": "test",
+        "robot": {"source": source, "frame": frame, "target_offset_m": [0.0, 0.0, 0.0],
+                  "compliant_joints": joints},
+        "formulation": "enhanced",
+        "k_theta": {"joints": joints, "values": k, "unit": ["N.m/rad"] * n},
+        "standard_error": [None] * n, "ci95": {"low": [None] * n, "high": [None] * n},
+        "undetermined_joints": [], "residual_norm": {"eq12_m2": 0.0, "eq12_mm2": 0.0}}))
+    return path
+
+
+def _path_csv(path, rows, header=None, deg=True):
+    header = header or [f"q{i + 1}" for i in range(6)]
+    values = np.rad2deg(rows) if deg else rows
+    path.write_text(",".join(header) + "\n" + "\n".join(
+        ",".join(repr(float(v)) for v in r) for r in values) + "\n")
+    return path
+
+
+def test_command_csv_and_json(tmp_path, capsys):
+    import json
+
+    from stiffness.cli.main import main
+
+    model = _identified_model(tmp_path / "m.json")
+    path = _path_csv(tmp_path / "p.csv", UR5_PATH)
+    out = tmp_path / "out.csv"
+    code = main(["compensate", "--model", str(model), "--path", str(path), "--deg",
+                 "--wrench", "0,0,-300", "--out", str(out), "--json", "--quiet"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc["summary"]) >= {"max_deflection_m", "rms_deflection_m", "max_residual_m",
+                                   "max_residual_first_order_m"}
+    assert set(doc["rows"][0]) >= {"q_command", "deflection", "residual",
+                                   "residual_first_order"}
+    assert "units" in doc and doc["units"]["q_command"][0] == "deg"
+    lines = out.read_text().splitlines()
+    assert lines[0].split(",") == ([f"q{i + 1}" for i in range(6)]
+                                   + [f"{j}_cmd" for j in JOINTS]
+                                   + [f"q{i + 1}_cmd" for i in range(6)]
+                                   + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
+    assert len(lines) == 1 + len(UR5_PATH)
+    # the commands written (deg) are the library's commands
+    expected = compensate(ElasticModel.joint_springs(load_robot("ur5"), UR5_K), UR5_PATH,
+                          [0.0, 0.0, -300.0])
+    cmd = np.array([float(v) for v in lines[1].split(",")[6:12]])
+    np.testing.assert_array_equal(cmd, [float(v) for v in lines[1].split(",")[12:18]])
+    np.testing.assert_allclose(np.deg2rad(cmd), expected.points[0].command, atol=1e-12)
+    assert doc["summary"]["max_residual_m"] < 1e-9
+
+
+def test_per_row_wrench_columns(tmp_path, capsys):
+    import json
+
+    from stiffness.cli.main import main
+
+    model = _identified_model(tmp_path / "m.json")
+    rows = np.hstack([UR5_PATH[[0, 0]], [[0.0, 0.0, -300.0], [0.0, 0.0, -150.0]]])
+    path = tmp_path / "p.csv"
+    path.write_text("shoulder_pan_joint,shoulder_lift_joint,elbow_joint,wrist_1_joint,"
+                    "wrist_2_joint,wrist_3_joint,fx,fy,fz\n" + "\n".join(
+                        ",".join(repr(float(v)) for v in r) for r in rows) + "\n")
+    assert main(["compensate", "--model", str(model), "--path", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    d = [np.linalg.norm(r["deflection"]) for r in doc["rows"]]
+    assert abs(d[1] / d[0] - 0.5) < 0.01  # the same point at half the load
+
+
+@pytest.mark.parametrize("case", ["missing", "nan", "other_robot", "bad_wrench", "out_of_reach"])
+def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
+    from stiffness.cli.main import main
+
+    model = _identified_model(tmp_path / "m.json")
+    path = _path_csv(tmp_path / "p.csv", UR5_PATH)
+    wrench = "0,0,-300"
+    if case == "missing":
+        path = _path_csv(tmp_path / "p.csv", UR5_PATH[:, :5], header=[f"q{i}" for i in
+                                                                         range(1, 6)])
+        expect = "q6"
+    elif case == "nan":
+        rows = UR5_PATH.copy()
+        rows[1, 2] = np.nan
+        path = _path_csv(tmp_path / "p.csv", rows)
+        expect = "line 3, column 3 (q3)"
+    elif case == "other_robot":
+        model = _identified_model(tmp_path / "m.json", source="sk120", frame="fixture_target",
+                                  joints=["joint1", "joint2", "joint3"],
+                                  k=[1.4e6, 4.0e5, 9.3e5])
+        path = _path_csv(tmp_path / "p.csv", UR5_PATH, header=JOINTS)
+        expect = "another robot"
+    elif case == "bad_wrench":
+        wrench = "0,0,-300,1"
+        expect = "wrench"
+    else:
+        rows = UR5_PATH.copy()
+        rows[1, 2] = np.deg2rad(200.0)  # the elbow turns +-180 deg
+        path = _path_csv(tmp_path / "p.csv", rows)
+        expect = "path row 2: elbow_joint"
+    out = tmp_path / "out.csv"
+    code = main(["compensate", "--model", str(model), "--path", str(path), "--deg",
+                 "--wrench", wrench, "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and expect in err and "\n" not in err, err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".out.csv*"))
+
+
+def test_bad_path_errors_are_typed(tmp_path, ur5):
+    from stiffness.calibration.compensation import read_joint_path
+    from stiffness.errors import (
+        ConvergenceError,
+        FileFormatError,
+        MissingFileError,
+        UnstableEquilibriumError,
+    )
+
+    rows = UR5_PATH.copy()
+    rows[1, 2] = np.nan
+    with pytest.raises(FileFormatError) as info:
+        read_joint_path(_path_csv(tmp_path / "p.csv", rows), ur5, deg=True)
+    assert (info.value.line, info.value.column, info.value.field) == (3, 3, "q3")
+    with pytest.raises(MissingFileError):
+        read_joint_path(tmp_path / "absent.csv", ur5)
+    # a load beyond what the springs hold: a typed solver error naming the row
+    soft = ElasticModel.joint_springs(ur5, [30.0] * 6)
+    with pytest.raises((ConvergenceError, UnstableEquilibriumError)) as info:
+        compensate(soft, UR5_PATH, [0.0, 0.0, -3000.0])
+    assert "path row 1" in str(info.value)
+
+
+def test_diagnosed_model_file_brings_its_effects(sk120):
+    """A final-model.json of `stiffness diagnose` (simulated SK120 campaign with a hidden
+    backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""
+    from pathlib import Path
+
+    from stiffness.calibration.elastic import load_elastic_model
+
+    em = load_elastic_model(Path(__file__).parent / "data" / "sk120-final-model.json")
+    assert em.law.backlash[em.robot.coordinate_joints.index("joint2")] > 0
+    (bend,) = em.links
+    assert (bend.a, bend.b) == ("joint2", "elbow")
+    assert abs(bend.stiffness[1] / 2e6 - 1) < 0.1
+    c = np.deg2rad(sk120.defaults["q_deg"])
+    path = np.array([c, c + np.deg2rad([15.0, 5.0, -5.0, 0.0, 5.0, 0.0])])
+    wrench = [0.0, -250.0, -200.0]
+    result = compensate(em, path, wrench)
+    joint_only = compensate(ElasticModel(em.robot, em.law), path, wrench)
+    for point, closed, coords in zip(result.points, joint_only.points, path, strict=True):
+        assert point.method == "general" and np.linalg.norm(point.residual) < 1e-9
+        left = loaded_equilibrium(em, closed.command, wrench, seed_q=closed.q_nominal)
+        nominal = _fk(sk120, coords, closed.q_nominal)[0]
+        assert np.linalg.norm(left.position - nominal) > 1e-5
+
+
+def _parameter(name, value, unit):
+    from stiffness.calibration.effects import Parameter
+
+    return Parameter(name, value, 0.0, (value, value), unit)
+
+
+def test_model_file_effects_enter_the_elastic_model(tmp_path, ur5):
+    """A model file (the one schema of identify and diagnose) with every kind of effect: the
+    robot's effects enter the law and the bends, the measurement ones are listed, and the
+    compensation still lands on the nominal pose."""
+    from stiffness.calibration.elastic import load_elastic_model
+    from stiffness.calibration.model_file import ModelEffect, ModelFile
+
+    arm = JOINTS[:5]
+    effects = (
+        ModelEffect("joint_compliance", "wrist_3_joint", "stiffness",
+                    [_parameter("stiffness", 3e4, "N.m/rad")]),
+        ModelEffect("nonlinear_joint_stiffness", "shoulder_lift_joint", "stiffness",
+                    [_parameter("beta", 1e-3, "1/(N.m)")]),
+        ModelEffect("backlash", "elbow_joint", "lost_motion",
+                    [_parameter("half_width", 2e-4, "rad")], {"smoothing_torque": 2.0}),
+        ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
+                    [_parameter("stiffness_1", 1.5e5, "N.m/rad"),
+                     _parameter("stiffness_2", 8e4, "N.m/rad")]),
+        ModelEffect("frame_misalignment", None, "measurement",
+                    [_parameter(n, 0.01, "rad") for n in ("rx", "ry", "rz")]),
+        ModelEffect("target_offset", None, "stiffness",
+                    [_parameter(n, v, "m") for n, v in (("dx", 0.0), ("dy", 0.0),
+                                                        ("dz", 0.05))]),
+    )
+    path = ModelFile("ur5", "tool0", [0.0, 0.0, 0.0], arm, UR5_K[:5], ["N.m/rad"] * 5,
+                     "enhanced", effects=effects, produced_by="diagnose").write(
+        tmp_path / "final-model.json")
+    em = load_elastic_model(path)
+    joints = list(em.robot.coordinate_joints)
+    assert em.law.compliance[joints.index("wrist_3_joint")] == pytest.approx(1 / 3e4)
+    assert em.law.beta[joints.index("shoulder_lift_joint")] == pytest.approx(1e-3)
+    assert em.law.backlash[joints.index("elbow_joint")] == pytest.approx(2e-4)
+    assert em.law.smoothing[joints.index("elbow_joint")] == pytest.approx(2.0)
+    assert [(b.a, b.b, b.stiffness) for b in em.links] == [
+        ("shoulder_lift_joint", "elbow_joint", (1.5e5, 8e4))]
+    np.testing.assert_allclose(em.robot.target_offset, [0.0, 0.0, 0.05])
+    assert em.ignored == ("frame_misalignment",)
+    result = compensate(em, UR5_PATH, [50.0, 0.0, -300.0])
+    assert result.summary()["max_residual_m"] < 1e-9
+    assert result.summary()["max_deflection_m"] > 1e-4
+
+
+def test_loaded_equilibrium_agrees_with_the_joint_law_solver(ur5):
+    """Joint laws only: the equilibrium over all coordinates (elastic) and the toolkit's
+    joint-law solver (mechanics.equilibrium, compliant joints only) are the same point."""
+    from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
+
+    em = ElasticModel.joint_springs(ur5, UR5_K)
+    em.law.beta[:] = [1e-3, 2e-3, 0.0, 1e-3, 0.0, 0.0]
+    em.law.backlash[2] = 3e-4
+    em.law.smoothing[:] = 4.0
+    wrench = np.array([80.0, -40.0, -250.0, 2.0, 0.0, 1.0])
+    command = UR5_PATH[0]
+    mine = loaded_equilibrium(em, command, wrench)
+    law = SpringLaw(em.law.compliance.copy(), em.law.beta.copy(), em.law.backlash.copy(),
+                    em.law.smoothing.copy())
+    theirs = solve_equilibrium(ur5, ur5.configuration(command), law, wrench)
+    np.testing.assert_allclose(mine.coords - command, theirs.dtheta, atol=1e-12)
+
+
+def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
+    """The first-order deflection the posture search minimises (link bends included) equals
+    the model file's compliance times the load (model_file.model_compliance)."""
+    from stiffness.calibration.elastic import linear_deflection, load_elastic_model
+    from stiffness.calibration.model_file import ModelEffect, ModelFile, model_compliance
+
+    bend = ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
+                       [_parameter("stiffness_1", 1.5e5, "N.m/rad"),
+                        _parameter("stiffness_2", 8e4, "N.m/rad")])
+    path = ModelFile("ur5", "tool0", [0.0, 0.1, 0.05], JOINTS, UR5_K, ["N.m/rad"] * 6,
+                     "enhanced", effects=(bend,), produced_by="diagnose").write(
+        tmp_path / "final-model.json")
+    em = load_elastic_model(path)
+    wrench = np.array([60.0, -30.0, -300.0, 0.0, 0.0, 0.0])
+    for coords in UR5_PATH:
+        theirs = model_compliance(path, coords, wrench).compliance6 @ wrench
+        np.testing.assert_allclose(linear_deflection(em, coords, wrench), theirs,
+                                   rtol=1e-9, atol=1e-14)
