@@ -31,7 +31,7 @@ UR5_SOFT = {**UR5, "kq": [1e4, 1e4, 8e3], "max_force": 150.0}
 SK120 = {"robot": "sk120", "max_force": 400.0}
 NOISE = 5e-6
 SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missing_effects",
-                "final_rms", "unit"}
+                "unexplained", "final_rms", "unit"}
 
 #: Each library effect hidden at a clearly detectable size (3 to 25 noise std RMS).
 HIDDEN = [
@@ -235,3 +235,15 @@ def test_diagnosis_page(tmp_path):
              probe_file.as_uri()], capture_output=True, text=True, timeout=120, check=False,
         ).stdout
     assert 'data-images="1"' in dom
+
+
+def test_two_hidden_effects_are_both_named():
+    """Two effects at once: the search goes on after the first and names the second."""
+    sim = _simulate(UR5, ["backlash:shoulder_lift_joint=0.005", "frame_misalignment=2"],
+                    configs=8, seed=3)
+    result = diagnose(sim.campaign, propose=False)
+    s = result.summary()
+    named = {(st["effect"], st["where"]) for st in s["steps"]}
+    assert named == {("backlash", "shoulder_lift_joint"), ("frame_misalignment", None)}, (
+        format_report(result))
+    assert s["unexplained"] is False and s["final_rms"] <= 1.5 * s["noise_std"]

@@ -7,9 +7,9 @@
 2. Break the baseline's residuals down by configuration, axis, load magnitude and load sign,
    against the noise level: the declared ``noise_std``, else the pooled scatter of replicate
    rows (same configuration and force), else (said so) the residual scatter of the final model.
-3. Extend the current model by each candidate of :func:`stiffness.calibration.effects.candidates`
-(its own
-   parameters identified jointly with the stiffnesses), rank them by BIC
+3. Extend the current model by each candidate of
+   :func:`stiffness.calibration.effects.candidates` (its own parameters identified jointly
+   with the stiffnesses), rank them by BIC
    (``RSS / sigma^2 + p ln N`` with a known sigma, ``N ln(RSS / N) + p ln N`` otherwise;
    a parameter-free switch counts one parameter), keep those improving BIC by more than
    :data:`BIC_MARGIN`, cross-validate the best :data:`CV_TOP` over configurations
@@ -17,6 +17,12 @@
    are many) and add the lowest-BIC one whose cross-validated error beats the current model's.
    Repeat until the model fits to noise (chi-square test of ``RSS / sigma^2`` at
    :data:`GOF_LEVEL` with ``N - p`` degrees of freedom, known sigma only) or nothing helps.
+   With a known sigma, each step's BICs use ``c sigma^2``, ``c`` the step's overdispersion
+   (:func:`step_dispersion`): what the best extension leaves above the noise counts as noise.
+   If the search ends with the chi-square test still rejecting, the result is *unexplained*
+   (:attr:`Diagnosis.unexplained`) and the final residual's structure
+   (:func:`residual_structure`: by load direction and row order, correlations with each
+   joint's torque and angle) says where to look.
 4. Report the RMS after each step, each added effect's parameters with standard errors and 95 %
    intervals, the residuals before and after, the final model.
 5. Report the candidates the campaign cannot tell from the winner (BIC within
@@ -40,12 +46,21 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 from scipy.stats import chi2, norm
+from scipy.stats import f as f_dist
 from scipy.stats import t as student_t
 
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units
 from stiffness.calibration.diagnosis_page import render_diagnosis
-from stiffness.calibration.effects import Effect, Geometry, Model, Parameter, References, candidates
+from stiffness.calibration.effects import (
+    Effect,
+    Geometry,
+    Model,
+    Parameter,
+    References,
+    Rows,
+    candidates,
+)
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
@@ -123,6 +138,22 @@ def information_criterion(rss: float, n: int, p: int, sigma: float | None) -> fl
     return n * math.log(max(rss, 1e-300) / n) + p * math.log(n)
 
 
+def step_dispersion(fits: list[Fit], n: int, sigma: float | None) -> float:
+    """Overdispersion of a selection step: ``c = max(1, min_f RSS_f / (sigma^2 (N - p_f)))``
+    over the current model and its extensions ``fits`` (1 with an unknown sigma).
+
+    What the best extension leaves above the noise is structure no candidate of the step
+    models; it acts as extra noise on every comparison of the step. The step's BICs therefore
+    use ``c sigma^2`` (a quasi-likelihood BIC), so that a candidate must explain a share of the
+    *remaining* misfit, not only beat the measurement noise, to be named. When one extension
+    fits to noise, ``c = 1`` and the BIC is the plain known-sigma one.
+    """
+    if sigma is None:
+        return 1.0
+    ratios = [f.rss / (sigma ** 2 * max(n - f.model.penalty_params, 1)) for f in fits]
+    return max(1.0, min(ratios))
+
+
 def config_folds(labels: tuple[str, ...], seed: int = 0) -> list[np.ndarray]:
     """Held-out row indices of each fold: one configuration label each, or
     :data:`CV_FOLDS` groups of labels when there are more than :data:`LOCO_MAX`."""
@@ -195,18 +226,17 @@ def replicate_noise(campaign: Campaign, kind: str = "translation"
 # where the model disagrees
 
 
-def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float) -> dict:
+def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float,
+                 rows: Rows | None = None, joints: tuple[str, ...] = ()) -> dict:
     """Residual RMS by configuration, axis, load magnitude and load sign, in the campaign's
-    length unit and in noise units (``ratio``)."""
+    length unit and in noise units (``ratio``); with ``rows`` and their ``joints``, also
+    :func:`residual_structure` (load direction, row order, correlations)."""
     u = campaign.units
     lu = u.length_to_si
     force = campaign.force
 
     def group(idx: np.ndarray) -> dict:
-        r = residuals[idx]
-        rms = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
-        return {"rows": int(len(idx)), "rms": rms / lu, "ratio": rms / sigma,
-                "mean": (r.mean(axis=0) / lu).tolist() if r.size else None}
+        return _group(residuals, idx, sigma, lu)
 
     labels = np.asarray(campaign.config)
     out: dict = {"by_configuration": {
@@ -233,7 +263,134 @@ def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float) -> dic
         pos = np.flatnonzero(force[:, k] > 1e-3 * scale)
         neg = np.flatnonzero(force[:, k] < -1e-3 * scale)
         out["by_load_sign"][name] = {"positive": group(pos), "negative": group(neg)}
+    if rows is not None:
+        out.update(residual_structure(residuals, campaign, rows, joints, sigma))
     return out
+
+
+#: Consecutive blocks of rows (in file order) of the ``by_row_order`` breakdown.
+ROW_BLOCKS = 4
+#: Number of strongest residual correlations listed in the text report.
+REPORTED_CORRELATIONS = 5
+_DIRECTION_NAMES = ("+fx", "-fx", "+fy", "-fy", "+fz", "-fz")
+
+
+def _group(residuals: np.ndarray, idx: np.ndarray, sigma: float, lu: float) -> dict:
+    """RMS (length unit), its ratio to the noise and the mean (length unit) of rows ``idx``."""
+    r = residuals[idx]
+    rms = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
+    return {"rows": int(len(idx)), "rms": rms / lu, "ratio": rms / sigma,
+            "mean": (r.mean(axis=0) / lu).tolist() if r.size else None}
+
+
+def correlation(variable: np.ndarray, residuals: np.ndarray, sigma: float, lu: float
+                ) -> dict:
+    """How much of the residual a straight line in one per-row variable explains.
+
+    Each residual axis ``k`` is regressed on ``variable`` (with an intercept): its Pearson
+    correlation ``r_k``, and pooled over the axes the explained fraction
+    ``R^2 = sum_k r_k^2 SS_k / sum_k SS_k`` (``SS_k`` the centred sum of squares of axis ``k``),
+    the RMS of the explained part (length unit and noise std) and the p-value of the F test
+    ``F = (R^2 / 3) / ((1 - R^2) / (3 (m - 2)))`` with (3, 3 (m - 2)) degrees of freedom.
+
+    Parameters
+    ----------
+    variable
+        (m,) one value per row (a joint torque, a joint angle, the row index).
+    residuals
+        (m, 3) model minus measured (m).
+    sigma, lu
+        Noise std (m) and the campaign's length unit (m).
+    """
+    m = residuals.shape[0]
+    v = np.asarray(variable, dtype=float) - np.mean(variable)
+    r = residuals - residuals.mean(axis=0)
+    sv = float(v @ v)
+    ss = np.sum(r ** 2, axis=0)
+    if m < 4 or sv <= 1e-24 * max(float(np.max(np.abs(variable))) ** 2, 1e-300) * m:
+        return {"r": [None, None, None], "r2": None, "explained_rms": None,
+                "explained_ratio": None, "p_value": None}
+    slope_ss = (v @ r) ** 2 / sv
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rk = np.where(ss > 0, np.sign(v @ r) * np.sqrt(slope_ss / np.where(ss > 0, ss, 1.0)),
+                      0.0)
+    total = float(ss.sum())
+    r2 = float(slope_ss.sum() / total) if total > 0 else 0.0
+    explained = math.sqrt(float(slope_ss.sum()) / residuals.size)
+    dof2 = 3 * (m - 2)
+    f_stat = (r2 / 3.0) / max((1.0 - r2) / dof2, 1e-300)
+    return {"r": rk.tolist(), "r2": r2, "explained_rms": explained / lu,
+            "explained_ratio": explained / sigma, "p_value": float(f_dist.sf(f_stat, 3, dof2))}
+
+
+def residual_structure(residuals: np.ndarray, campaign: Campaign, rows: Rows,
+                       joints: tuple[str, ...], sigma: float) -> dict:
+    """Residual RMS by load direction and by row order, and the residual's correlation with
+    each joint's torque, each joint's coordinate and the row order (:func:`correlation`).
+
+    Parameters
+    ----------
+    residuals
+        (m, 3) model minus measured (m).
+    campaign
+        The campaign (its units and force).
+    rows
+        The campaign's rows (:meth:`Geometry.rows`): the torques ``J^T W`` and coordinates.
+    joints
+        The coordinate joints, the columns of ``rows``.
+    sigma
+        Noise std (m).
+    """
+    lu = campaign.units.length_to_si
+    m = residuals.shape[0]
+    force = campaign.force
+    mag = np.linalg.norm(force, axis=1)
+    unit = force / np.where(mag > 0, mag, 1.0)[:, None]
+    axis = np.argmax(np.abs(unit), axis=1)
+    code = 2 * axis + (unit[np.arange(m), axis] < 0)
+    by_direction = {}
+    for c, name in enumerate(_DIRECTION_NAMES):
+        idx = np.flatnonzero((code == c) & (mag > 0))
+        if len(idx):
+            by_direction[name] = _group(residuals, idx, sigma, lu)
+    blocks = [b for b in np.array_split(np.arange(m), min(ROW_BLOCKS, m)) if len(b)]
+    by_order = []
+    for b in blocks:
+        g = _group(residuals, b, sigma, lu)
+        g["row_range"] = [int(b[0]) + 1, int(b[-1]) + 1]
+        by_order.append(g)
+    torques = rows.torques()
+    return {
+        "by_load_direction": by_direction,
+        "by_row_order": by_order,
+        "correlation": {
+            "joint_torque": {j: correlation(torques[:, i], residuals, sigma, lu)
+                             for i, j in enumerate(joints)},
+            "joint_angle": {j: correlation(rows.coords[:, i], residuals, sigma, lu)
+                            for i, j in enumerate(joints)},
+            "load_direction": {name: correlation(unit[:, k], residuals, sigma, lu)
+                               for k, name in enumerate(("fx", "fy", "fz"))},
+            "load_magnitude": correlation(mag, residuals, sigma, lu),
+            "row_order": correlation(np.arange(m, dtype=float), residuals, sigma, lu),
+        },
+    }
+
+
+def strongest_correlations(structure: dict, n: int = REPORTED_CORRELATIONS) -> list[dict]:
+    """The ``n`` per-row variables of ``structure["correlation"]`` whose straight line explains
+    most of the residual: ``{variable, r2, explained_ratio, p_value, r}``, strongest first."""
+    corr = structure.get("correlation", {})
+    flat = []
+    for kind, label in (("joint_torque", "torque of {}"), ("joint_angle", "angle of {}"),
+                        ("load_direction", "load direction {}")):
+        for name, c in corr.get(kind, {}).items():
+            flat.append((label.format(name), c))
+    for kind, label in (("load_magnitude", "load magnitude"), ("row_order", "row order")):
+        if kind in corr:
+            flat.append((label, corr[kind]))
+    flat = [(v, c) for v, c in flat if c["r2"] is not None]
+    flat.sort(key=lambda vc: -vc[1]["r2"])
+    return [{"variable": v, **c} for v, c in flat[:n]]
 
 
 def _disagreement_lines(d: dict, unit: str, force_unit: str) -> list[str]:
@@ -251,6 +408,20 @@ def _disagreement_lines(d: dict, unit: str, force_unit: str) -> list[str]:
     lines.append("  by load sign: " + ", ".join(
         f"{k}>0 {cell(g['positive'])} {k}<0 {cell(g['negative'])}"
         for k, g in d["by_load_sign"].items()))
+    if "by_load_direction" in d:
+        lines.append("  by load direction (nearest axis): " + ", ".join(
+            f"{k} {cell(g)}" for k, g in d["by_load_direction"].items()))
+        lines.append("  by row order: " + ", ".join(
+            f"rows {g['row_range'][0]}-{g['row_range'][1]} {cell(g)}"
+            for g in d["by_row_order"]))
+        strongest = strongest_correlations(d)
+        if strongest:
+            lines.append("  strongest correlations (share of the residual a straight line in "
+                         "the variable explains):")
+            for c in strongest:
+                lines.append(f"    {c['variable']}: R2 {c['r2']:.2g}, "
+                             f"{c['explained_ratio']:.2g} noise std RMS, "
+                             f"p = {c['p_value']:.2g}")
     return lines
 
 
@@ -343,6 +514,9 @@ class Step:
         The effect's parameters, campaign units.
     ranking
         The best candidates of the step: label, delta BIC, CV RMS (m) or None.
+    dispersion
+        The step's overdispersion (:func:`step_dispersion`): its BICs use the noise variance
+        times this.
     """
 
     effect: Effect
@@ -353,6 +527,7 @@ class Step:
     cv_rms: float
     parameters: list[Parameter]
     ranking: list[dict]
+    dispersion: float = 1.0
 
 
 @dataclass
@@ -387,6 +562,12 @@ class Diagnosis:
         Cross-validated RMS of the baseline (m).
     elapsed_s
         Wall time (s).
+    unexplained
+        ``True`` when the search ended (library exhausted, or nothing else passing BIC and
+        cross-validation) with the chi-square test still rejecting the final model: something
+        outside the library is in the data, and :attr:`final_disagreement` says where to look.
+        ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
+        from the residuals (no test available).
     """
 
     campaign: Campaign
@@ -408,6 +589,7 @@ class Diagnosis:
     elapsed_s: float
     final_parameters: dict[str, list[Parameter]] = field(default_factory=dict)
     final_parameters_si: dict[str, list[Parameter]] = field(default_factory=dict)
+    unexplained: bool | None = None
     measured: np.ndarray | None = None
     rotation_noise_std_rad: float | None = None
     rotation_noise_source: str | None = None
@@ -437,6 +619,19 @@ class Diagnosis:
         return value_m / self.campaign.units.length_to_si
 
     @property
+    def unexplained_note(self) -> str:
+        """One sentence on the verdict of :attr:`unexplained`."""
+        if self.unexplained is None:
+            return ("not tested: the noise is estimated from the final model's residuals, so "
+                    "whether something outside the library is left cannot be said")
+        if not self.unexplained:
+            return "the final model explains the data to noise (chi-square test)"
+        return (f"the residual is still above the noise (chi-square p = {self.gof_final:.3g} "
+                f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
+                "cross-validation: the data contain something the library does not model; "
+                "the residual's structure (where_final_disagrees) says where to look")
+
+    @property
     def missing_effects(self) -> list[str]:
         """Names of the effects added."""
         return [s.effect.name for s in self.steps]
@@ -452,6 +647,7 @@ class Diagnosis:
                        "parameters": {p.name: p.to_dict() for p in s.parameters}}
                       for s in self.steps],
             "missing_effects": self.missing_effects,
+            "unexplained": self.unexplained,
             "final_rms": self._len(self.final.rms()),
             "unit": self.unit,
         })
@@ -472,13 +668,15 @@ class Diagnosis:
             "fits_to_noise": {"baseline_p_value": self.gof_baseline,
                               "final_p_value": self.gof_final, "level": GOF_LEVEL},
             "stop_reason": self.stop_reason,
+            "unexplained_note": self.unexplained_note,
             "cv_rms": {"baseline": self._len(self.cv_baseline),
                        "steps": [self._len(s.cv_rms) for s in self.steps]},
             "baseline_stiffness": {p.name: p.to_dict() for p in self.baseline_stiffness},
             "final_stiffness": {p.name: p.to_dict() for p in self.final_stiffness},
             "step_details": [{"effect": s.effect.name, "where": s.effect.where,
                               "description": s.effect.describe(),
-                              "delta_bic": s.delta_bic, "ranking": [
+                              "delta_bic": s.delta_bic, "dispersion": s.dispersion,
+                              "ranking": [
                                   {**r, "cv_rms": None if r["cv_rms"] is None
                                    else self._len(r["cv_rms"])} for r in s.ranking]}
                              for s in self.steps],
@@ -528,6 +726,7 @@ class Diagnosis:
                 "model": f.model.describe(), "rms": self._len(f.rms()),
                 "noise_std": self._len(self.noise_std_m),
                 "noise_std_source": self.noise_std_source, "unit": self.unit,
+                "unexplained": self.unexplained, "unexplained_note": self.unexplained_note,
                 "rotation_noise": None if self.rotation_noise_std_rad is None else {
                     "std_rad": self.rotation_noise_std_rad,
                     "source": self.rotation_noise_source,
@@ -684,8 +883,8 @@ def diagnose(
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
 
-    def bic(f: Fit) -> float:
-        return information_criterion(f.rss, n, f.model.penalty_params, sigma)
+    def bic(f: Fit, s: float | None = sigma) -> float:
+        return information_criterion(f.rss, n, f.model.penalty_params, s)
 
     current, current_bic = base, bic(base)
     cv_current = cross_validate(base, measured, folds)
@@ -703,12 +902,16 @@ def diagnose(
         if len(steps) >= max_steps:
             stop = f"stopped after {max_steps} effects (max_steps)"
             break
-        results = []
+        fits = []
         for effect in candidates(current.model):
             model = current.model.extended(effect)
-            f = fit_model(model, measured, scale, current.model.extend_x(current.x, effect))
-            b = bic(f)
-            results.append(Candidate(effect, f, b, b - current_bic))
+            fits.append((effect, fit_model(model, measured, scale,
+                                           current.model.extend_x(current.x, effect))))
+        dispersion = step_dispersion([current] + [f for _, f in fits], n, sigma)
+        s_step = None if sigma is None else sigma * math.sqrt(dispersion)
+        current_bic = bic(current, s_step)
+        results = [Candidate(e, f, bic(f, s_step), bic(f, s_step) - current_bic)
+                   for e, f in fits]
         results.sort(key=lambda c: c.bic)
         say(f"step {len(steps) + 1}: {len(results)} candidates; best "
             + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}" for c in results[:3]))
@@ -742,12 +945,13 @@ def diagnose(
                     "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
         steps.append(Step(winner.effect, winner.fit, winner.fit.rms(), winner.bic,
                           winner.delta_bic, winner.cv_rms, params[winner.effect.label],
-                          ranking))
+                          ranking, dispersion))
         say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
         current, current_bic, cv_current = winner.fit, winner.bic, winner.cv_rms
 
     final = current
     p_final = final.model.penalty_params
+    gof_final = _gof(final.rss, n, p_final, sigma)
     if sigma is None:
         sigma_used = math.sqrt(final.rss / max(n - p_final, 1))
         note = (f"estimated from the residuals of the final model ({final.model.describe()}, "
@@ -794,11 +998,12 @@ def diagnose(
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
-                                           sigma_used),
+                                           sigma_used, rows, geo.joints),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
-                                        sigma_used),
+                                        sigma_used, rows, geo.joints),
         gof_baseline=_gof(base.rss, n, base.model.penalty_params, sigma),
-        gof_final=_gof(final.rss, n, p_final, sigma),
+        gof_final=gof_final, unexplained=None if gof_final is None
+        else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0, final_parameters=final_params,
         final_parameters_si=final_params_si, measured=measured,
@@ -931,6 +1136,10 @@ def format_report(d: Diagnosis) -> str:
     ratio = d.final.rms() / d.noise_std_m
     lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
                  f"stopped: {d.stop_reason}")
+    if d.unexplained:
+        lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",
+                  f"where the final model disagrees (RMS in {unit}, and in noise std):"]
+        lines += _disagreement_lines(d.final_disagreement, unit, c.units.force)
     if d.rotation_noise_std_rad is not None:
         kinds, ru = d.rms_by_kind(), d.campaign.units.rotation
         lines.append(f"RMS by kind: translations {kinds['baseline']['translation']:.4g} -> "

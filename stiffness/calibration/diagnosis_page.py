@@ -2,8 +2,10 @@
 
 Rendered from :meth:`stiffness.calibration.diagnose.Diagnosis.to_dict` (campaign units): the
 residuals before and after, the effects added step by step with their BIC gain and RMS, the
-parameters with 95 % intervals, and what the campaign cannot tell apart with the poses and loads
-that would.
+parameters with 95 % intervals, the verdict on what is left (explained to noise, or
+*unexplained*) with the final residual's structure (by load direction and row order, and its
+correlation with each joint's torque and angle), and what the campaign cannot tell apart with
+the poses and loads that would.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ SECTIONS = {
     "residuals": "Residuals before and after",
     "steps": "Effects added, step by step",
     "parameters": "Parameters with 95 % intervals",
+    "left": "What is left: the final residual's structure",
     "ambiguities": "What this campaign cannot tell apart",
     "reproduce": "Reproduce this",
 }
@@ -52,6 +55,68 @@ def _by_configuration(before: dict, after: dict, unit: str) -> str:
                  "Before: the baseline model; after: with every effect added. In noise std: "
                  "the RMS over the noise standard deviation (about 1 where the model explains "
                  "the data).")
+
+
+def _verdict(d: dict) -> str:
+    flag = d.get("unexplained")
+    word = "not tested" if flag is None else ("<b>yes</b>" if flag else "no")
+    return f"{word}: {esc(d.get('unexplained_note', ''))}"
+
+
+def _group_rows(groups: dict) -> list[list]:
+    return [[esc(k), g["rows"], g["rms"], g["ratio"], vec(g["mean"]) if g.get("mean")
+             else "-"] for k, g in groups.items()]
+
+
+def _correlation_rows(corr: dict, label: str) -> list[list]:
+    rows = []
+    for name, c in corr.items():
+        if c["r2"] is None:
+            rows.append([esc(label.format(name)), "-", "-", "-", "constant"])
+            continue
+        rows.append([esc(label.format(name)), vec(c["r"], 2), c["r2"], c["explained_ratio"],
+                     c["p_value"]])
+    return rows
+
+
+def _left(d: dict, unit: str) -> list[str]:
+    """The final residual's structure."""
+    after = d["where_final_disagrees"]
+    parts = [f"<p>{esc(d.get('unexplained_note', ''))}.</p>"]
+    if "by_load_direction" not in after:
+        return parts
+    head = ["group", "rows", f"RMS ({unit})", "in noise std", f"mean dx, dy, dz ({unit})"]
+    parts.append(table("Final residual by configuration, axis and load", head,
+                       _group_rows(after["by_configuration"])
+                       + [[esc(k), "", g["rms"], g["ratio"], num(g["mean"])]
+                          for k, g in after["by_axis"].items()]
+                       + [[f"{num(g['force_range'][0])} to {num(g['force_range'][1])} N", g["rows"],
+                           g["rms"], g["ratio"], vec(g["mean"]) if g.get("mean") else "-"]
+                          for g in after["by_load_magnitude"]],
+                       "Per configuration, per axis (its mean is the bias) and per load-"
+                       "magnitude tercile."))
+    parts.append(table("Final residual by load direction and by row order", head,
+                       _group_rows({f"load nearest {k}": g
+                                    for k, g in after["by_load_direction"].items()})
+                       + _group_rows({f"rows {g['row_range'][0]} to {g['row_range'][1]}": g
+                                      for g in after["by_row_order"]}),
+                       "Load direction: rows grouped by the axis nearest to their force. Row "
+                       "order: consecutive blocks of rows in the file's order (a drift in time "
+                       "shows here)."))
+    corr = after["correlation"]
+    rows = (_correlation_rows(corr["joint_torque"], "torque of {}")
+            + _correlation_rows(corr["joint_angle"], "angle of {}")
+            + _correlation_rows(corr["load_direction"], "load direction {}")
+            + _correlation_rows({"": corr["load_magnitude"]}, "load magnitude{}")
+            + _correlation_rows({"": corr["row_order"]}, "row order{}"))
+    parts.append(table("Correlation of the final residual with each joint's torque and angle",
+                       ["variable", "r with dx, dy, dz", "R² (share explained)",
+                        "explained RMS (noise std)", "p-value"], rows,
+                       "A straight line in the variable fitted to each residual axis: its "
+                       "correlations, the share of the residual it explains pooled over the "
+                       "axes, that part's RMS in noise std, and the F-test p-value. Large "
+                       "shares with small p-values say where to look."))
+    return parts
 
 
 def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
@@ -80,6 +145,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                  [f"final RMS residual ({unit})", d["final_rms"]],
                  ["final model", esc(d["final_model"])],
                  ["why it stopped", esc(d["stop_reason"])],
+                 ["unexplained", _verdict(d)],
                  ["measurements", f"{d['rows']} rows, {d['configurations']} configurations"],
              ], "RMS over all residual components, in the campaign's length unit."),
              contents(SECTIONS), heading("provenance", SECTIONS),
@@ -121,6 +187,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                        ["part", "parameter", "value", "standard error", "95 % interval",
                         "unit"], rows,
                        "Intervals from the fit's covariance at the stated noise."))
+    parts.append(heading("left", SECTIONS))
+    parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))
     ambiguities = d["cannot_tell_apart"]
     if not ambiguities:
