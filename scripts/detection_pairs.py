@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import re
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -38,6 +37,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from detection_rate import write_between_markers  # noqa: E402  (scripts/ is on sys.path)
 
 from stiffness.calibration.diagnose import GOF_LEVEL, diagnose  # noqa: E402
 from stiffness.calibration.simulate import parse_effect, simulate  # noqa: E402
@@ -249,14 +250,7 @@ def main(argv: list[str] | None = None) -> int:
         text, start, end = table(results, args.seeds, args.configs), MARK_START, MARK_END
     print(text)
     if not args.no_write:
-        doc = ROOT / "docs" / "diagnose.md"
-        old = doc.read_text()
-        pattern = re.compile(re.escape(start) + ".*?" + re.escape(end), re.S)
-        if not pattern.search(old):
-            print(f"markers not found in {doc}; table not written", file=sys.stderr)
-            return 1
-        doc.write_text(pattern.sub(lambda _: f"{start}\n{text}\n{end}", old))
-        print(f"written to {doc}", file=sys.stderr)
+        return write_between_markers(ROOT / "docs" / "diagnose.md", start, end, text)
     return 0
 
 

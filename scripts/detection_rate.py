@@ -194,14 +194,20 @@ def main(argv: list[str] | None = None) -> int:
     text = tables(results, args.seeds, args.configs)
     print(text)
     if not args.no_write:
-        doc = ROOT / "docs" / "diagnose.md"
-        old = doc.read_text()
-        pattern = re.compile(re.escape(MARK_START) + ".*?" + re.escape(MARK_END), re.S)
-        if not pattern.search(old):
-            print(f"markers not found in {doc}; table not written", file=sys.stderr)
-            return 1
-        doc.write_text(pattern.sub(lambda _: f"{MARK_START}\n{text}\n{MARK_END}", old))
-        print(f"written to {doc}", file=sys.stderr)
+        return write_between_markers(ROOT / "docs" / "diagnose.md", MARK_START, MARK_END, text)
+    return 0
+
+
+def write_between_markers(doc: Path, start: str, end: str, text: str) -> int:
+    """Replace what stands between the lines ``start`` and ``end`` of ``doc`` by ``text``;
+    exit code 1 (and nothing written) when the markers are missing."""
+    old = doc.read_text()
+    pattern = re.compile(re.escape(start) + ".*?" + re.escape(end), re.S)
+    if not pattern.search(old):
+        print(f"markers not found in {doc}; table not written", file=sys.stderr)
+        return 1
+    doc.write_text(pattern.sub(lambda _: f"{start}\n{text}\n{end}", old))
+    print(f"written to {doc}", file=sys.stderr)
     return 0
 
 

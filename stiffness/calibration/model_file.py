@@ -468,17 +468,26 @@ def _stiffness_values(r: _Reader, k: np.ndarray, units) -> None:
         raise r.fail("k_theta.unit must list N.m/rad or N/m per joint")
 
 
-def _read_current(r: _Reader) -> ModelFile:
+def _robot_and_stiffness(r: _Reader, no_joints: str
+                         ) -> tuple[str, str, np.ndarray, list[str], np.ndarray, list]:
+    """Robot part, compliant joints and the ``k_theta`` table (joints, values, unit) shared by
+    the current and the identified v1 layouts; ``no_joints`` is the error for an empty list."""
     source, frame, offset = _robot_part(r)
     joints = r.strings(r.get("robot", "compliant_joints"), "robot.compliant_joints")
     if not joints:
-        raise r.fail("robot.compliant_joints must name at least one joint")
-    n = len(joints)
+        raise r.fail(no_joints)
     if r.get("k_theta", "joints") != joints:
         raise r.fail("k_theta.joints must equal robot.compliant_joints")
-    k = r.numbers(r.get("k_theta", "values"), "k_theta.values", n)
+    k = r.numbers(r.get("k_theta", "values"), "k_theta.values", len(joints))
     units = r.get("k_theta", "unit")
     _stiffness_values(r, k, units)
+    return source, frame, offset, joints, k, units
+
+
+def _read_current(r: _Reader) -> ModelFile:
+    source, frame, offset, joints, k, units = _robot_and_stiffness(
+        r, "robot.compliant_joints must name at least one joint")
+    n = len(joints)
     se = r.numbers(r.get("k_theta", "standard_error", default=[None] * n),
                    "k_theta.standard_error", n, allow_null=True)
     low = r.numbers(r.get("k_theta", "ci95", "low", default=[None] * n), "k_theta.ci95.low", n,
@@ -511,16 +520,9 @@ def _read_current(r: _Reader) -> ModelFile:
 
 
 def _read_legacy_identified(r: _Reader) -> ModelFile:
-    source, frame, offset = _robot_part(r)
-    joints = r.strings(r.get("robot", "compliant_joints"), "robot.compliant_joints")
-    if not joints:
-        raise r.fail("robot.compliant_joints must be a list of joint names")
+    source, frame, offset, joints, k, units = _robot_and_stiffness(
+        r, "robot.compliant_joints must be a list of joint names")
     n = len(joints)
-    if r.get("k_theta", "joints") != joints:
-        raise r.fail("k_theta.joints must equal robot.compliant_joints")
-    k = r.numbers(r.get("k_theta", "values"), "k_theta.values", n)
-    units = r.get("k_theta", "unit")
-    _stiffness_values(r, k, units)
     return ModelFile(
         source=source, frame=frame, target_offset_m=offset, compliant_joints=tuple(joints),
         k_theta=k, units=tuple(units), formulation=_formulation(r, r.get("formulation")),
