@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -171,6 +172,52 @@ def write_chunk(out: Path, spec: ScanSpec, index: int, maps: dict[str, np.ndarra
     return parts
 
 
+class ChunkWriter:
+    """Writes computed chunks (:func:`write_chunk`) on one background thread, so that a
+    chunk's files are written (and synced) while the next chunk computes; at most
+    :attr:`DEPTH` chunks wait, so memory stays bounded by the chunk size.
+
+    ``on_written(index, aggregate)`` is called in the submitting thread, in submission order,
+    once a chunk's files are on disk. Leaving the ``with`` block finishes every submitted
+    chunk (also when the computation raised, so that finished chunks are kept for a resume)
+    and re-raises a write error.
+    """
+
+    DEPTH = 2
+
+    def __init__(self, out: Path, spec: ScanSpec, formats: tuple[str, ...],
+                 on_written: Callable[[int, dict[str, np.ndarray]], None]) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._out, self._spec, self._formats = out, spec, formats
+        self._on_written = on_written
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="scan-writer")
+        self._pending: deque = deque()
+
+    def submit(self, index: int, maps: dict[str, np.ndarray]) -> None:
+        """Queue chunk ``index`` (its float64 maps) for writing."""
+        while len(self._pending) >= self.DEPTH:
+            self._finish_oldest()
+        self._pending.append((index, self._executor.submit(
+            write_chunk, self._out, self._spec, index, maps, self._formats)))
+
+    def _finish_oldest(self) -> None:
+        index, future = self._pending.popleft()
+        self._on_written(index, future.result())
+
+    def __enter__(self) -> ChunkWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        try:
+            while self._pending:
+                self._finish_oldest()
+        finally:
+            for _, future in self._pending:
+                future.cancel()
+            self._executor.shutdown(wait=True)
+
+
 def scan_chunk_to_files(spec_dict: dict, out: str, formats: tuple[str, ...], index: int
                         ) -> dict[str, np.ndarray]:
     """Compute chunk ``index`` and write its files where it runs (a worker sharing the output
@@ -242,10 +289,11 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     progress
         Called with (configurations done, total).
     write_on_workers
-        Each chunk's files are written by the process that computes it and only its aggregate
-        travels back (needs ``out`` on a filesystem the workers share); otherwise the chunk's
-        stored arrays travel back and this process writes them. Default: True in this process
-        and on a LocalCluster, False on a remote scheduler or a given client.
+        On Dask: each chunk's files are written by the worker that computes it and only its
+        aggregate travels back (needs ``out`` on a filesystem the workers share); otherwise
+        the chunk's stored arrays travel back and this process writes them. Default: True on
+        a LocalCluster, False on a remote scheduler or a given client. In this process (no
+        Dask), a :class:`ChunkWriter` thread writes each chunk while the next one computes.
     chunks_per_task
         Consecutive chunks computed by one Dask task; default chosen from the measured
         per-task overhead (:func:`stiffness.scan.distributed.run_chunks`).
@@ -289,15 +337,11 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     if progress is not None and done:
         progress(counter["configurations"], total)
 
+    local = client is None and scheduler is None and (workers is None or workers <= 1)
     if write_on_workers is None:
         write_on_workers = scheduler is None and client is None
 
-    def on_result(index: int, result) -> None:
-        if write_on_workers:
-            parts = result
-        else:
-            parts, stored = result
-            parts = _write_stored(out, spec, index, stored, formats, parts)
+    def on_written(index: int, parts: dict[str, np.ndarray]) -> None:
         acc.add(parts)
         counter["configurations"] += int(parts["n"][0])
         if progress is not None:
@@ -305,14 +349,28 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
 
     t0 = time.perf_counter()
     todo = [i for i in range(spec.n_chunks) if i not in done]
-    if write_on_workers:
-        func, args = scan_chunk_to_files, (spec.to_dict(), str(out.resolve()), tuple(formats))
-    else:
-        func, args = scan_chunk_stored, (spec.to_dict(),)
     stats: dict = {}
-    computed = run_chunks(func, args, todo, on_result, scheduler=scheduler, workers=workers,
-                          client=client, group=chunks_per_task,
-                          warm=(warm_worker, spec.robot), stats=stats)
+    if local:  # compute here; one thread writes each chunk while the next one computes
+        with ChunkWriter(out, spec, tuple(formats), on_written) as writer:
+            computed = run_chunks(scan_chunk, (spec.to_dict(),), todo, writer.submit,
+                                  warm=(warm_worker, spec.robot))
+    else:
+        def on_result(index: int, result) -> None:
+            if write_on_workers:
+                parts = result
+            else:
+                parts, stored = result
+                parts = _write_stored(out, spec, index, stored, formats, parts)
+            on_written(index, parts)
+
+        if write_on_workers:
+            func, args = scan_chunk_to_files, (spec.to_dict(), str(out.resolve()),
+                                               tuple(formats))
+        else:
+            func, args = scan_chunk_stored, (spec.to_dict(),)
+        computed = run_chunks(func, args, todo, on_result, scheduler=scheduler,
+                              workers=workers, client=client, group=chunks_per_task,
+                              warm=(warm_worker, spec.robot), stats=stats)
     elapsed = time.perf_counter() - t0
     summary = acc.summary()
     written = int(acc.parts["bytes"][0])
