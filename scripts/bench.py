@@ -258,9 +258,9 @@ from pathlib import Path
 import argparse
 from stiffness.cli import scan
 import dask
-from stiffness.scan.distributed import SCHEDULER_CONFIG, WORKER_ENVIRONMENT, warm_worker
+from stiffness.scan.distributed import CLUSTER_CONFIG, WORKER_ENVIRONMENT, warm_worker
 from stiffness.scan.engine import run_scan
-dask.config.set(SCHEDULER_CONFIG)
+dask.config.set(CLUSTER_CONFIG)
 p = argparse.ArgumentParser(); scan.configure_parser(p)
 args = p.parse_args(sys.argv[1:-1])
 spec, _ = scan.build_spec(args)
@@ -370,9 +370,9 @@ from pathlib import Path
 sys.path.insert(0, sys.argv[1])
 import bench
 import dask
-from stiffness.scan.distributed import SCHEDULER_CONFIG, WORKER_ENVIRONMENT, warm_worker
+from stiffness.scan.distributed import CLUSTER_CONFIG, WORKER_ENVIRONMENT, warm_worker
 from stiffness.scan.engine import run_scan
-dask.config.set(SCHEDULER_CONFIG)
+dask.config.set(CLUSTER_CONFIG)
 workers = int(sys.argv[2])
 spec = bench._scan_spec(sys.argv[3:])
 client = cluster = None
