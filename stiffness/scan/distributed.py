@@ -144,12 +144,13 @@ OVERHEAD_SHARE = 0.02
 TASKS_PER_WORKER = 4
 
 
-def run_group(func: Callable[..., Any], args: tuple, indices: tuple[int, ...]
-              ) -> tuple[dict[int, Any], float]:
-    """``{index: func(*args, index)}`` for consecutive chunks, and the seconds it took (one Dask
-    task)."""
+def run_group(func: Callable[..., Any], args: tuple, indices: tuple[int, ...],
+              grouped: bool = False) -> tuple[dict[int, Any], float]:
+    """``{index: func(*args, index)}`` for consecutive chunks (``grouped``: ``func(*args,
+    indices)`` returns that dict itself), and the seconds it took (one Dask task)."""
     t0 = time.perf_counter()
-    results = {index: func(*args, index) for index in indices}
+    results = (func(*args, indices) if grouped
+               else {index: func(*args, index) for index in indices})
     return results, time.perf_counter() - t0
 
 
@@ -186,6 +187,7 @@ def run_chunks(
     group: int | None = None,
     warm: tuple[Callable[[Any], None], Any] | None = None,
     stats: dict | None = None,
+    grouped: bool = False,
 ) -> int:
     """Compute ``func(*args, index)`` for every index and hand each result to ``on_result``.
 
@@ -218,6 +220,9 @@ def run_chunks(
     stats
         Filled, on a cluster, with ``workers``, ``chunks_per_task``, ``task_overhead_s`` and
         ``chunk_seconds`` (median compute time of a chunk on a worker).
+    grouped
+        ``func(*args, indices)`` computes a task's consecutive chunks at once and returns
+        ``{index: result}`` (e.g. to write one chunk while computing the next).
 
     Returns
     -------
@@ -229,7 +234,8 @@ def run_chunks(
         if warm is not None:
             warm[0](warm[1])
         for index in indices:
-            on_result(index, func(*args, index))
+            result = func(*args, (index,))[index] if grouped else func(*args, index)
+            on_result(index, result)
         return len(indices)
     import dask
 
@@ -242,7 +248,7 @@ def run_chunks(
             own_client = False
         try:
             return _run_on_client(client, func, args, indices, on_result, workers, group,
-                                  warm, {} if stats is None else stats)
+                                  warm, {} if stats is None else stats, grouped)
         finally:
             if own_client:
                 client.close()
@@ -252,7 +258,8 @@ def run_chunks(
 
 def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: list[int],
                    on_result: Callable[[int, Any], None], workers: int | None,
-                   group: int | None, warm: tuple | None, stats: dict) -> int:
+                   group: int | None, warm: tuple | None, stats: dict, grouped: bool
+                   ) -> int:
     """:func:`run_chunks` on a Dask client: a window of ``2 x workers`` tasks in flight."""
     from distributed import as_completed
 
@@ -271,7 +278,7 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
             return False
         count = min(size["group"], len(pending))
         chunk = tuple(pending.pop() for _ in range(count))
-        future = client.submit(run_group, func, args, chunk, pure=False, retries=2)
+        future = client.submit(run_group, func, args, chunk, grouped, pure=False, retries=2)
         futures[future.key] = chunk
         stream.add(future)
         return True

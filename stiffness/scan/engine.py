@@ -218,12 +218,17 @@ class ChunkWriter:
             self._executor.shutdown(wait=True)
 
 
-def scan_chunk_to_files(spec_dict: dict, out: str, formats: tuple[str, ...], index: int
-                        ) -> dict[str, np.ndarray]:
-    """Compute chunk ``index`` and write its files where it runs (a worker sharing the output
-    folder's filesystem); only the small aggregate travels back."""
-    maps = scan_chunk(spec_dict, index)
-    return write_chunk(Path(out), ScanSpec.from_dict(spec_dict), index, maps, tuple(formats))
+def scan_chunks_to_files(spec_dict: dict, out: str, formats: tuple[str, ...],
+                         indices: tuple[int, ...]) -> dict[int, dict[str, np.ndarray]]:
+    """Compute consecutive chunks and write their files where they run (a worker sharing the
+    output folder's filesystem), each chunk's while the next computes (:class:`ChunkWriter`);
+    only the small aggregates travel back, ``{index: aggregate}``."""
+    done: dict[int, dict[str, np.ndarray]] = {}
+    with ChunkWriter(Path(out), ScanSpec.from_dict(spec_dict), tuple(formats),
+                     done.__setitem__) as writer:
+        for index in indices:
+            writer.submit(index, scan_chunk(spec_dict, index))
+    return done
 
 
 def scan_chunk_stored(spec_dict: dict, index: int
@@ -364,13 +369,14 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
             on_written(index, parts)
 
         if write_on_workers:
-            func, args = scan_chunk_to_files, (spec.to_dict(), str(out.resolve()),
-                                               tuple(formats))
+            func, args = scan_chunks_to_files, (spec.to_dict(), str(out.resolve()),
+                                                tuple(formats))
         else:
             func, args = scan_chunk_stored, (spec.to_dict(),)
         computed = run_chunks(func, args, todo, on_result, scheduler=scheduler,
                               workers=workers, client=client, group=chunks_per_task,
-                              warm=(warm_worker, spec.robot), stats=stats)
+                              warm=(warm_worker, spec.robot), stats=stats,
+                              grouped=write_on_workers)
     elapsed = time.perf_counter() - t0
     summary = acc.summary()
     written = int(acc.parts["bytes"][0])
