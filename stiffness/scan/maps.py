@@ -281,9 +281,11 @@ class MapAccumulator:
             ratios = parts["map_min_ratio"].reshape(size, n_loads)
             np.fmin.at(ratios, flat, np.where(np.isfinite(ratio), ratio, np.inf))
         if "k_c_class" in maps:
-            counts = parts["map_k_c_counts"].reshape(size, n_loads, k)
             codes = np.where(maps["k_c_class"] < 0, k - 1, maps["k_c_class"])
-            np.add.at(counts, (flat[:, None], np.arange(n_loads)[None, :], codes), 1)
+            cell = (flat[:, None] * n_loads + np.arange(n_loads)[None, :]) * k + codes
+            parts["map_k_c_counts"] += np.bincount(
+                cell.reshape(-1), minlength=size * n_loads * k).reshape(
+                parts["map_k_c_counts"].shape)
 
     def add(self, parts: dict[str, np.ndarray]) -> None:
         """Merge a chunk's contribution."""
