@@ -197,7 +197,7 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
             functions["batched_kx_with_closure_us"] = (
                 lambda r=robot, c=coords, k=k_theta: batched_with_closure(r, c, k))
             counts["batched_kx_with_closure_us"] = m
-        result = _best(functions, counts, rounds if robot.loop is None else max(2, rounds // 2))
+        result = _best(functions, counts, rounds)
         result["ratio_to_bare"] = result["batched_kx_us"] / result["bare_pinocchio_us"]
         result["speedup_over_fd"] = result["finite_difference_us"] / result["batched_kx_us"]
         out[name] = result

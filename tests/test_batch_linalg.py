@@ -89,3 +89,18 @@ def test_classes_of_3x3_equal_one_at_a_time(seed):
     a = _from_spectrum(values, seed)
     codes = batch.definiteness_codes(eigenvalues=batch.symmetric_eigenvalues(a))
     assert list(batch.class_names(codes)) == [definiteness(m) for m in a]
+
+
+@given(arrays(np.float64, st.tuples(st.integers(1, 40), st.integers(1, 3)),
+              elements=st.sampled_from([0.0, -0.0, 1.0, 2.5, -3.0, 1e-300])))
+@settings(max_examples=60)
+def test_distinct_loop_coordinates_as_numpy_unique(values):
+    """The distinct closures of a batch (first visits and the map back) are numpy.unique's
+    rows, in its order."""
+    from stiffness.batch.kernels import _distinct_rows
+
+    first, inverse = _distinct_rows(values)
+    _, first_ref, inverse_ref = np.unique(values, axis=0, return_index=True,
+                                          return_inverse=True)
+    np.testing.assert_array_equal(first, first_ref)
+    np.testing.assert_array_equal(inverse, inverse_ref.reshape(-1))

@@ -18,9 +18,10 @@ everything else is NumPy over the whole batch:
 * Closed loops: the basis is the reduced Hessian ``S^T H_k S + sum_p J[k, p] dS_p`` of
   :mod:`stiffness.mechanics.closed_loop` (the same functions as the single-pose API), with the
   velocity map S and the closure curvature dS_p computed once per distinct closure (they depend
-  only on the loop coordinates, :class:`_ClosurePass`), from the world joint Jacobian
-  ``data.J`` and the loop points' positions where every joint has one velocity coordinate
-  (:func:`point_derivatives`), so the per-configuration Pinocchio work is the open chain's.
+  only on the loop coordinates, :class:`_ClosurePass`), from the loop points' frame
+  Jacobians alone where every joint has one velocity coordinate
+  (:func:`_projected_point_hessian`), so the per-configuration Pinocchio work is the open
+  chain's.
 * Loop closures are the expensive part of a closed-chain configuration from coordinates:
   :func:`close_loops` closes each distinct value of the *loop coordinates* (the coordinates of
   the joints on the path between the loop frames; the others, e.g. a base rotation or a
@@ -252,6 +253,24 @@ def _is_identity_selection(index: np.ndarray, size: int) -> bool:
     return index.shape[0] == size and bool(np.all(index == np.arange(size)))
 
 
+def _distinct_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First occurrence of each distinct row of ``values`` (m, c) and, per row, the index of
+    its distinct row in that list (``np.unique(values, axis=0, return_index=True,
+    return_inverse=True)`` without the row-wise structured sort; rows holding NaN are each
+    distinct)."""
+    m = values.shape[0]
+    if values.shape[1] == 0 or m == 0:
+        return np.zeros(min(m, 1), dtype=int), np.zeros(m, dtype=int)
+    order = np.lexsort(values.T[::-1])  # stable: the first of equal rows comes first
+    ordered = values[order]
+    new = np.ones(m, dtype=bool)
+    new[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    group = np.cumsum(new) - 1
+    inverse = np.empty(m, dtype=int)
+    inverse[order] = group
+    return order[new], inverse
+
+
 class _ClosurePass:
     """Closure derivatives of a block of closed configurations, once per distinct closure.
 
@@ -263,57 +282,45 @@ class _ClosurePass:
     visits it (:meth:`recorder`), and the derivatives broadcast to the others.
 
     Where every joint has one velocity coordinate of its own (revolute, prismatic, helical...),
-    they come from the world joint Jacobian ``data.J`` and the points' positions
-    (:func:`point_derivatives`, one read per closure); otherwise from Pinocchio's frame
-    Jacobians and kinematic Hessians.
+    they come from the points' frame Jacobians alone (:func:`_projected_point_hessian`, one
+    Jacobian per point and closure); otherwise from Pinocchio's frame Jacobians and kinematic
+    Hessians.
     """
 
     def __init__(self, robot: Robot, q: np.ndarray) -> None:
         self.robot = robot
         self.points = _loop_points(robot)
         key_q = _loop_key_q_indices(robot)
-        if key_q.size:
-            _, first, inverse = np.unique(q[:, key_q], axis=0, return_index=True,
-                                          return_inverse=True)
-        else:
-            first, inverse = np.zeros(1, dtype=int), np.zeros(q.shape[0], dtype=int)
-        self.inverse = inverse.reshape(-1)
+        first, inverse = _distinct_rows(q[:, key_q])
+        self.inverse = inverse
         self.first = first
         slot = np.full(q.shape[0], -1)
         slot[first] = np.arange(first.shape[0])  # distinct closure of a first visit, else -1
         self.slot = slot.tolist()
         k, nv, n_points = first.shape[0], robot.model.nv, len(self.points)
         self.analytic = one_coordinate_joints(robot)
-        if self.analytic:
-            self.world_j = np.empty((k, 6, nv))
-            self.position = np.empty((n_points, k, 3))
-        else:
+        self.jac = np.empty((n_points, k, 6, nv))
+        if not self.analytic:
             self.raw = np.empty((n_points, k, 6, nv, nv))
-            self.jac = np.empty((n_points, k, 6, nv))
 
     def recorder(self, model: pin.Model, data: pin.Data, hessians: bool = True
                  ) -> Callable[[int], None]:
         """``record(i)``: store what the closure derivatives need at configuration ``i`` if
         it is the first of its closure (joint Jacobians and placements done; kinematic
         Hessians too unless ``hessians`` is False)."""
-        slot, points = self.slot, self.points
+        slot, points, jac = self.slot, self.points, self.jac
         if self.analytic:
-            world_j, position = self.world_j, self.position
-            frames = [(f, p[0]) for f, p in enumerate(points) if len(p) == 1]
-            anchored = [(f, p[0], p[1].translation) for f, p in enumerate(points) if len(p) > 1]
-            update_placement, o_m_i = pin.updateFramePlacement, data.oMi
+            frame_jacobian = pin.getFrameJacobian
+            numbered = list(enumerate(points))
 
             def record(i: int) -> None:
                 k = slot[i]
                 if k < 0:
                     return
-                world_j[k] = data.J
-                for f, frame in frames:
-                    position[f, k] = update_placement(model, data, frame).translation
-                for f, joint, offset in anchored:
-                    position[f, k] = o_m_i[joint].act(offset)
+                for f, point in numbered:
+                    jac[f, k] = frame_jacobian(model, data, *point, LWA)
             return record
-        raw, jac = self.raw, self.jac
+        raw = self.raw
 
         def record_pinocchio(i: int) -> None:
             k = slot[i]
@@ -340,7 +347,8 @@ class _ClosurePass:
         pairs = range(0, len(self.points), 2)
         if self.analytic:
             supports = _point_supports(robot)
-            lin, om = point_derivatives(self.world_j, self.position, supports)
+            point_j = np.ascontiguousarray(self.jac.transpose(0, 2, 3, 1))  # (n_p, 6, nv, k)
+            lin, om = point_j[:, :3], point_j[:, 3:]  # zero outside each point's support
             c = np.concatenate([lin[p + 1] - lin[p] for p in pairs], axis=0).transpose(2, 0, 1)
             proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv, base, target_passive)
             proj_t = np.ascontiguousarray(proj.transpose(1, 2, 0))
@@ -370,7 +378,7 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray | None
     otherwise (use :func:`batch_kinematics`).
 
     ``K_C(e_k)[a, a] = d2 x_k / dq_a^2 = (omega_a x v_a)_k`` (the point Hessian of
-    :func:`point_derivatives` on its diagonal), with ``[v_a; omega_a]`` the columns of the
+    :func:`_projected_point_hessian` on its diagonal), with ``[v_a; omega_a]`` the columns of the
     (m, 6, n) Jacobian, rows [v; omega].
     """
     if robot.loop is not None or not one_coordinate_joints(robot):
@@ -390,7 +398,7 @@ def _loop_key_q_indices(robot: Robot) -> np.ndarray:
 
 
 def one_coordinate_joints(robot: Robot) -> bool:
-    """Whether the Jacobian-based Hessians apply (:func:`point_derivatives`,
+    """Whether the Jacobian-based Hessians apply (:func:`_projected_point_hessian`,
     :func:`unit_force_diagonal`): every joint of the model has one velocity coordinate of its
     own and none is a mimic or composite joint."""
     model = robot.model
@@ -412,54 +420,21 @@ def _point_supports(robot: Robot) -> np.ndarray:
     return masks
 
 
-def point_derivatives(world_j: np.ndarray, position: np.ndarray, supports: np.ndarray
-                      ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """World Jacobians of loop points, and the joint axes that move them, from ``data.J``.
-
-    For joints with one velocity coordinate each, with the world spatial axis
-    ``[v0_a; omega_a]`` of coordinate a (``data.J``, world axes at the world origin), a point p
-    moved by the coordinates of its support has ``dp/dq_a = v_a(p) = v0_a + omega_a x p`` and
-    ``d2p/dq_a dq_b = omega_a x v_b(p)`` for a an ancestor of (or equal to) b, symmetric
-    (a support is a chain, ordered by velocity index); see :func:`_projected_point_hessian`.
-
-    Parameters
-    ----------
-    world_j
-        (k, 6, nv) ``data.J``.
-    position
-        (n_points, k, 3) world positions (m) of the points, consecutive pairs (a, b).
-    supports
-        (n_points, nv) masks of each point's support.
-
-    Returns
-    -------
-    lin, om
-        Per point, batch-last (3, nv, k): ``v_a(p)`` (m/rad) and ``omega_a`` (rad/rad), zero
-        outside the point's support.
-    """
-    wj = np.ascontiguousarray(world_j.transpose(1, 2, 0))  # (6, nv, k)
-    v0, om = wj[:3], wj[3:]
-    lin, oms = [], []
-    for f, support in enumerate(supports):
-        p = np.ascontiguousarray(position[f].T)[:, None, :]  # (3, 1, k)
-        mask = support[None, :, None]
-        lin.append((v0 + _cross0(om, p)) * mask)
-        oms.append(om * mask)
-    return lin, oms
-
-
 def _projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray) -> np.ndarray:
     """``H(p)[S_a, S_b]`` (k, 3, n, n) of a point's position Hessian, without forming it.
 
     ``lin``, ``om`` (3, s, k) and ``proj`` (s, n, k), batch-last, on the point's support
-    columns. With ``H_ij = omega_min(i,j) x v_max(i,j)``: ``A[a, b] = sum_j (sum_{i<=j} S_ia
+    columns: ``lin[:, a]`` = ``v_a(p)`` = dp/dq_a and ``om[:, a]`` = ``omega_a``, the columns
+    of the point's frame Jacobian (LOCAL_WORLD_ALIGNED; joints with one velocity coordinate
+    each, a support being a chain ordered by velocity index). With ``H_ij = d2p/dq_i dq_j =
+    omega_min(i,j) x v_max(i,j)``: ``A[a, b] = sum_j (sum_{i<=j} S_ia
     omega_i) x v_j S_jb`` holds the terms with i <= j, and ``H[S_a, S_b] = A + A^T - D`` with
     D the diagonal terms ``sum_j (omega_j x v_j) S_ja S_jb`` counted twice.
     """
     cum = np.cumsum(om[:, :, None] * proj[None], axis=1)  # (3, s, n, k)
     # y[r, j, a] = (cum_a(j) x v_j)_r, minus half the diagonal term (counted twice below)
     y = _cross0(cum, lin[:, :, None]) - 0.5 * _cross0(om, lin)[:, :, None] * proj[None]
-    a = (y[:, :, :, None] * proj[None, :, None]).sum(axis=1)  # (3, n, n, k)
+    a = np.einsum("rsak,sbk->rabk", y, proj)  # (3, n, n, k)
     return (a + a.transpose(0, 2, 1, 3)).transpose(3, 0, 1, 2)
 
 

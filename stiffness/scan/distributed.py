@@ -130,11 +130,12 @@ WORKER_ENVIRONMENT = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
                       "DASK_DISTRIBUTED__ADMIN__SYSTEM_MONITOR__INTERVAL": "10s",
                       "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL": "1s"}
 #: Dask configuration around a LocalCluster: the same housekeeping intervals for its scheduler
-#: (it runs in this process, beside the client), and :data:`WORKER_ENVIRONMENT` as the nanny's
-#: pre-spawn environment, set before each worker process starts (glibc reads the MALLOC_
-#: variables at process start; the ``env`` of a LocalCluster is applied after it).
+#: and nannies (they run in this process, beside the client), and :data:`WORKER_ENVIRONMENT`
+#: as the nannies' pre-spawn environment, set before each worker process starts (glibc reads
+#: the MALLOC_ variables at process start; the ``env`` of a LocalCluster is applied after it).
 CLUSTER_CONFIG = {"distributed.admin.tick.interval": "1s",
                   "distributed.admin.system-monitor.interval": "10s",
+                  "distributed.worker.memory.monitor-interval": "1s",  # the nannies' monitor
                   "distributed.nanny.pre-spawn-environ": WORKER_ENVIRONMENT}
 
 #: Target share of a task's time spent on Dask's per-task overhead when choosing the number
