@@ -102,7 +102,9 @@ def solve_equilibria(robot: Robot, q0: np.ndarray, k_theta: np.ndarray, wrenches
         If a loop is singular at a deflected configuration.
     """
     q0 = np.atleast_2d(np.asarray(q0, dtype=float))
-    wrench = np.array([as_wrench(w) for w in np.atleast_2d(wrenches)])
+    wrench = np.atleast_2d(np.asarray(wrenches, dtype=float))
+    if wrench.shape[1] != 6 or not np.all(np.isfinite(wrench)):  # forces, or a bad row named
+        wrench = np.array([as_wrench(w) for w in wrench])
     law = LinearSprings(k_theta)
     kmat = law.k_theta
     base = unloaded_kinematics(robot, q0) if base is None else base

@@ -93,8 +93,8 @@ BACKLASH_SMOOTHING = 0.02
 MIN_SEGMENT_M = 0.02
 #: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
 LAW_ITERATIONS = 4
-#: Baselines a model may start from (``exact``: the exact equilibrium of
-#: :func:`stiffness.mechanics.equilibrium.solve_equilibrium`, without effects).
+#: Baselines a model may start from (``exact``: the exact equilibrium of every row,
+#: :func:`stiffness.batch.equilibrium.solve_equilibria`, without effects).
 BASELINES = ("conventional", "enhanced", "exact")
 #: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
 #: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,

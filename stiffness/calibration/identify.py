@@ -7,7 +7,8 @@ joints, N/m for prismatic ones). For each measurement row ``r`` (configuration `
 * ``conventional``: ``J K^-1 J^T W`` (A&S eq. 8),
 * ``enhanced``: ``J (K - K_C(W))^-1 J^T W`` (A&S eq. 10-11),
 * ``exact``: the displacement of the exact elastostatic equilibrium
-  (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`; slower),
+  (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`, all rows at once by
+  :func:`stiffness.batch.equilibrium.solve_equilibria`; slower),
 
 with ``J`` the translational target Jacobian w.r.t. the compliant joints. Identification is a
 diagnosis with no effects: the model is the campaign's baseline
