@@ -1071,6 +1071,8 @@ class Model:
         self.jv = rows.jac[:, :3][:, :, idx]
         self.jw = rows.jac[:, 3:][:, :, idx]
         self.h = rows.k_c_unit[:, :, idx][:, :, :, idx]
+        self._k_c: np.ndarray | None = None
+        self._tau: np.ndarray | None = None
 
     def _exact_robot(self) -> Robot:
         robot = self.geometry.robot
@@ -1125,8 +1127,18 @@ class Model:
         return np.hstack([self.rows.force, self.rows.moment])
 
     def k_c(self) -> np.ndarray:
-        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints`."""
-        return np.einsum("mk,mkab->mab", self.wrench, self.h)
+        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints` (computed once;
+        not to be modified)."""
+        if self._k_c is None:
+            self._k_c = np.einsum("mk,mkab->mab", self.wrench, self.h)
+        return self._k_c
+
+    def _torques(self) -> np.ndarray:
+        """(m, n) ``J^T W`` of each row's recorded wrench over :attr:`joints` (computed once)."""
+        if self._tau is None:
+            self._tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
+                "mkn,mk->mn", self.jw, self.rows.moment)
+        return self._tau
 
     @property
     def n_params(self) -> int:
@@ -1203,9 +1215,7 @@ class Model:
         if self.baseline == "enhanced":
             a -= self.k_c()
         inv = np.linalg.inv(a)
-        tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
-            "mkn,mk->mn", self.jw, self.rows.moment)
-        u = np.einsum("mij,mj->mi", inv, tau)
+        u = np.einsum("mij,mj->mi", inv, self._torques())
         out = self.jv if self.rotation_weight is None else np.concatenate(
             [self.jv, self.rotation_weight * self.jw], axis=1)
         pred = np.einsum("mij,mj->mi", out, u)
