@@ -17,6 +17,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from stiffness.batch.equilibrium import solve_equilibria
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
@@ -276,3 +277,41 @@ def test_bad_load_for_equilibrium(cases, load):
     robot, q0, k_theta, _ = cases["ur5"]
     with pytest.raises(StiffnessError, match="load"):
         solve_equilibrium(robot, q0, k_theta, load)
+
+
+# ------------------------------------------------------------------ many rows at once (batch)
+
+
+@pytest.mark.parametrize("name", ["sk120", "ur5", "panda", "four_bar"])
+def test_batched_equilibria_equal_the_one_at_a_time_solver(name, cases):
+    """solve_equilibria over rows of loads (a wrench among them, two poses) equals
+    solve_equilibrium row by row, and each row balances K dtheta = J(theta)^T W."""
+    robot, q0, k_theta, force = cases[name]
+    q1 = robot.configuration(robot.coordinates_of(q0) + 0.05)
+    loads = np.array([np.r_[0.5 * force, 0, 0, 0], np.r_[2.0 * force, 0, 0, 0],
+                      np.r_[force, 0.02 * np.abs(force).max() * np.array([1.0, -0.5, 0.3])],
+                      np.r_[-force, 0, 0, 0]])
+    q_rows = np.array([q0, q0, q0, q1])
+    eqs = solve_equilibria(robot, q_rows, k_theta, loads)
+    for i, (q, load) in enumerate(zip(q_rows, loads, strict=True)):
+        one = solve_equilibrium(robot, q, k_theta, load)
+        state = target_state(robot, one.q, load)
+        scale = np.abs(one.dx).max()
+        np.testing.assert_allclose(eqs.dx[i], one.dx, rtol=0, atol=1e-9 * scale)
+        np.testing.assert_allclose(eqs.rotation[i], one.rotation, rtol=0,
+                                   atol=1e-9 * np.abs(one.rotation).max())
+        np.testing.assert_allclose(eqs.dtheta[i], one.dtheta, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(eqs.torque[i], one.torque, rtol=1e-9,
+                                   atol=1e-12 * np.abs(one.torque).max())
+        np.testing.assert_allclose(eqs.jacobian[i], state.jacobian, atol=1e-9)
+        np.testing.assert_allclose(eqs.k_c[i], state.k_c, atol=1e-9 * np.abs(state.k_c).max())
+        assert eqs.iterations[i] == one.iterations
+        np.testing.assert_allclose(k_theta @ eqs.dtheta[i], state.jacobian.T @ load,
+                                   atol=1e-9 * np.abs(state.jacobian.T @ load).max())
+
+
+def test_batched_equilibria_refuse_a_load_beyond_buckling(cases):
+    robot, q0, k_theta, force = cases["ur5"]
+    with pytest.raises(StiffnessError, match="row 2 did not converge"):
+        solve_equilibria(robot, np.array([q0, q0]), k_theta,
+                         np.array([force, [0.0, 0.0, 1e5]]))

@@ -45,9 +45,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.stats import chi2, norm
-from scipy.stats import f as f_dist
-from scipy.stats import t as student_t
+from scipy.special import chdtrc, fdtrc, ndtri, stdtrit
 
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units
@@ -320,7 +318,7 @@ def correlation(variable: np.ndarray, residuals: np.ndarray, sigma: float, lu: f
     dof2 = 3 * (m - 2)
     f_stat = (r2 / 3.0) / max((1.0 - r2) / dof2, 1e-300)
     return {"r": rk.tolist(), "r2": r2, "explained_rms": explained / lu,
-            "explained_ratio": explained / sigma, "p_value": float(f_dist.sf(f_stat, 3, dof2))}
+            "explained_ratio": explained / sigma, "p_value": float(fdtrc(3, dof2, f_stat))}
 
 
 def residual_structure(residuals: np.ndarray, campaign: Campaign, rows: Rows,
@@ -796,7 +794,7 @@ def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
 def _gof(rss: float, n: int, p: int, sigma: float | None) -> float | None:
     if sigma is None or n <= p:
         return None
-    return float(chi2.sf(rss / sigma ** 2, n - p))
+    return float(chdtrc(n - p, rss / sigma ** 2))
 
 
 def diagnose(
@@ -1032,8 +1030,8 @@ def _rotation_noise(campaign: Campaign, sigma: float | None
 
 def _quantile(sigma: float | None, n: int, p: int) -> float:
     if sigma is not None:
-        return float(norm.ppf(0.975))
-    return float(student_t.ppf(0.975, max(n - p, 1)))
+        return float(ndtri(0.975))
+    return float(stdtrit(max(n - p, 1), 0.975))
 
 
 def _similarity(current: Fit, a: Fit, b: Fit, scale: float) -> float:

@@ -73,6 +73,7 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.equilibrium import solve_equilibria, unloaded_kinematics
 from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
@@ -81,8 +82,8 @@ from stiffness.errors import (
     did_you_mean,
     with_context,
 )
-from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
-from stiffness.mechanics.formulation import target_state, target_states
+from stiffness.mechanics.equilibrium import SpringLaw
+from stiffness.mechanics.formulation import target_states
 from stiffness.mechanics.gravity import gravity_preload, require_open_chain, spring_balancer
 from stiffness.model.robot import Robot, load_robot
 
@@ -92,8 +93,8 @@ BACKLASH_SMOOTHING = 0.02
 MIN_SEGMENT_M = 0.02
 #: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
 LAW_ITERATIONS = 4
-#: Baselines a model may start from (``exact``: the exact equilibrium of
-#: :func:`stiffness.mechanics.equilibrium.solve_equilibrium`, without effects).
+#: Baselines a model may start from (``exact``: the exact equilibrium of every row,
+#: :func:`stiffness.batch.equilibrium.solve_equilibria`, without effects).
 BASELINES = ("conventional", "enhanced", "exact")
 #: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
 #: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
@@ -1061,6 +1062,8 @@ class Model:
         self.second_order = any(e.second_order for e in self.effects)
         sizes = [len(self.compliant)] + [e.n_params for e in self.effects]
         self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        #: exact baseline: its robot, the rows' unloaded configurations and their kinematics
+        self._exact_rows: tuple | None = None
         self._prepare()
 
     def _prepare(self) -> None:
@@ -1068,11 +1071,15 @@ class Model:
         self.jv = rows.jac[:, :3][:, :, idx]
         self.jw = rows.jac[:, 3:][:, :, idx]
         self.h = rows.k_c_unit[:, :, idx][:, :, :, idx]
+        self._k_c: np.ndarray | None = None
+        self._tau: np.ndarray | None = None
 
     def _exact_robot(self) -> Robot:
         robot = self.geometry.robot
+        if self.joints == tuple(robot.compliant_joints):  # every coordinate joint: no reload
+            return robot
         return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
-                            self.joints)
+                            self.joints, robot.loop_file, robot.fixed_base)
 
     # construction ----------------------------------------------------------------------------
     def with_rows(self, rows: Rows) -> Model:
@@ -1120,8 +1127,18 @@ class Model:
         return np.hstack([self.rows.force, self.rows.moment])
 
     def k_c(self) -> np.ndarray:
-        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints`."""
-        return np.einsum("mk,mkab->mab", self.wrench, self.h)
+        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints` (computed once;
+        not to be modified)."""
+        if self._k_c is None:
+            self._k_c = np.einsum("mk,mkab->mab", self.wrench, self.h)
+        return self._k_c
+
+    def _torques(self) -> np.ndarray:
+        """(m, n) ``J^T W`` of each row's recorded wrench over :attr:`joints` (computed once)."""
+        if self._tau is None:
+            self._tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
+                "mkn,mk->mn", self.jw, self.rows.moment)
+        return self._tau
 
     @property
     def n_params(self) -> int:
@@ -1198,9 +1215,7 @@ class Model:
         if self.baseline == "enhanced":
             a -= self.k_c()
         inv = np.linalg.inv(a)
-        tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
-            "mkn,mk->mn", self.jw, self.rows.moment)
-        u = np.einsum("mij,mj->mi", inv, tau)
+        u = np.einsum("mij,mj->mi", inv, self._torques())
         out = self.jv if self.rotation_weight is None else np.concatenate(
             [self.jv, self.rotation_weight * self.jw], axis=1)
         pred = np.einsum("mij,mj->mi", out, u)
@@ -1208,31 +1223,30 @@ class Model:
 
     def _exact(self, k: np.ndarray, jacobian: bool = True
                ) -> tuple[np.ndarray, np.ndarray | None]:
-        robot = self._exact_robot()
+        """Exact equilibria of every row (:func:`stiffness.batch.equilibrium.solve_equilibria`)
+        and their derivatives w.r.t. ``ln k``."""
+        if self._exact_rows is None:
+            robot = self._exact_robot()
+            rows = self.rows
+            q0: dict[int, np.ndarray] = {}
+            for i in range(rows.n_rows):
+                c = int(rows.config_index[i])
+                if c not in q0:
+                    q0[c] = robot.configuration(rows.coords[i])
+            q = np.array([q0[int(c)] for c in rows.config_index])
+            self._exact_rows = (robot, q, unloaded_kinematics(robot, q))
+        robot, q, base = self._exact_rows
         kmat = np.diag(k)
-        rows = self.rows
-        m = rows.n_rows
-        w, n_out = self.rotation_weight, self.n_outputs
-        pred = np.empty((m, n_out))
-        jac = np.empty((m, n_out, len(k))) if jacobian else None
-        q0: dict[int, np.ndarray] = {}
-        for i in range(m):
-            c = int(rows.config_index[i])
-            if c not in q0:
-                q0[c] = robot.configuration(rows.coords[i])
-            wrench = np.concatenate([rows.force[i], rows.moment[i]])
-            eq = solve_equilibrium(robot, q0[c], kmat, wrench)
-            pred[i, :3] = eq.dx
-            if w is not None:
-                pred[i, 3:] = w * eq.rotation
-            if jac is None:
-                continue
-            state = target_state(robot, eq.q, wrench)
-            dtheta = -np.linalg.solve(kmat - state.k_c, np.diag(eq.dtheta * k))
-            jac[i, :3] = state.jacobian[:3] @ dtheta
-            if w is not None:
-                jac[i, 3:] = w * state.jacobian[3:] @ dtheta
-        return pred, jac
+        eq = solve_equilibria(robot, q, kmat, self.wrench, base=base)
+        w = self.rotation_weight
+        out = eq.jacobian[:, :3] if w is None else np.concatenate(
+            [eq.jacobian[:, :3], w * eq.jacobian[:, 3:]], axis=1)
+        pred = eq.dx if w is None else np.hstack([eq.dx, w * eq.rotation])
+        if not jacobian:
+            return pred, None
+        # implicit function theorem: d dtheta / d ln k_i = -(K - K_C)^-1 e_i k_i dtheta_i
+        dtheta = -np.linalg.solve(kmat - eq.k_c, eq.dtheta[:, :, None] * np.diag(k))
+        return pred, out @ dtheta
 
     def predict(self, x: np.ndarray, detail: bool = False):
         """(m, 3) predicted measured displacements (m) for parameters ``x``; (m, 6)

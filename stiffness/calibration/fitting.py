@@ -296,7 +296,8 @@ def covariance(fit: Fit, sigma: float) -> Covariance:
     (:data:`SINGULAR_RTOL`) for undetermined directions."""
     white = fit.jacobian * (fit.scale / sigma)
     p = white.shape[1]
-    _, sv, vt = np.linalg.svd(white, full_matrices=True)
+    # the (N, N) left vectors are never used: all p right vectors are there unless N < p
+    _, sv, vt = np.linalg.svd(white, full_matrices=white.shape[0] < p)
     s = np.zeros(p)
     s[: len(sv)] = sv
     smax = float(s.max()) if p else 0.0

@@ -7,7 +7,8 @@ joints, N/m for prismatic ones). For each measurement row ``r`` (configuration `
 * ``conventional``: ``J K^-1 J^T W`` (A&S eq. 8),
 * ``enhanced``: ``J (K - K_C(W))^-1 J^T W`` (A&S eq. 10-11),
 * ``exact``: the displacement of the exact elastostatic equilibrium
-  (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`; slower),
+  (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`, all rows at once by
+  :func:`stiffness.batch.equilibrium.solve_equilibria`; slower),
 
 with ``J`` the translational target Jacobian w.r.t. the compliant joints. Identification is a
 diagnosis with no effects: the model is the campaign's baseline
@@ -56,8 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import norm
-from scipy.stats import t as student_t
+from scipy.special import ndtri, stdtrit
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.effects import Geometry, Model, References
@@ -578,7 +578,7 @@ def identify(
     if declared:
         sigma = campaign.noise_std_m
         sigma_source = "declared noise_std"
-        quantile = float(norm.ppf(0.975))
+        quantile = float(ndtri(0.975))
         if sigma_res is not None and sigma_res > 2.0 * sigma:
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much larger than the "
@@ -588,7 +588,7 @@ def identify(
     else:
         sigma = sigma_res
         sigma_source = "residuals (SS / (N - p))"
-        quantile = float(student_t.ppf(0.975, dof))
+        quantile = float(stdtrit(dof, 0.975))
     unc = _uncertainty(covariance(best_fit, sigma), best.k, quantile, rob.compliant_joints)
     undetermined = tuple(j for j, w in zip(rob.compliant_joints, unc.width, strict=True)
                          if not w <= REL_CI_WIDTH_LIMIT)

@@ -75,7 +75,7 @@ class LinearSprings(JointLaw):
         return np.linalg.solve(self.k_theta, tau)
 
     def residual(self, dtheta, tau):
-        return self.k_theta @ dtheta - tau
+        return dtheta @ self.k_theta.T - tau  # (..., n): also for stacks of rows
 
     def residual_jacobian(self, dtheta, tau, k_c):
         return self.k_theta - k_c
@@ -242,17 +242,25 @@ def deflected_configuration(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
 
     ``seed`` is a nearby closed configuration whose passive joints start the closure.
     """
-    dv = np.zeros(robot.model.nv)
-    dv[robot.compliant_v] = dtheta
-    target = pin.integrate(robot.model, q0, dv)
+    return deflected_configurations(robot, q0[None], np.asarray(dtheta)[None], seed[None])[0]
+
+
+def deflected_configurations(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
+                             seed: np.ndarray) -> np.ndarray:
+    """:func:`deflected_configuration` of (m, nq) configurations ``q0`` and ``seed`` and (m, n)
+    deflections ``dtheta``: (m, nq) configurations, loops closed."""
+    model = robot.model
+    dv = np.zeros((q0.shape[0], model.nv))
+    dv[:, robot.compliant_v] = dtheta
+    target = np.array([pin.integrate(model, a, b) for a, b in zip(q0, dv, strict=True)])
     if robot.loop is None:
         return target
     # keep the coordinates from target, the passive joints from the seed, then close
     q = seed.copy()
     for j in robot.coordinate_joints:
-        joint = robot.model.joints[robot.model.getJointId(j)]
-        q[joint.idx_q: joint.idx_q + joint.nq] = target[joint.idx_q: joint.idx_q + joint.nq]
-    return robot.loop.close(robot.model, robot.data, q)
+        joint = model.joints[model.getJointId(j)]
+        q[:, joint.idx_q: joint.idx_q + joint.nq] = target[:, joint.idx_q: joint.idx_q + joint.nq]
+    return np.array([robot.loop.close(model, robot.data, row) for row in q])
 
 
 def solve_equilibrium(
@@ -318,8 +326,7 @@ def solve_equilibrium(
             tau_p, k_p = preload(q)
             tau, k_c = tau + tau_p, k_c + k_p
         residual = law.residual(dtheta, tau)
-        scale = residual_scale(law, dtheta, state.jacobian, wrench)
-        if np.all(np.abs(residual) <= tolerance * scale + _ROUND_OFF * scale.max()):
+        if converged(residual, residual_scale(law, dtheta, state.jacobian, wrench), tolerance):
             break
         try:
             step = np.linalg.solve(law.residual_jacobian(dtheta, tau, k_c), -residual)
@@ -356,15 +363,26 @@ def solve_equilibrium(
                        state.position.copy())
 
 
+def converged(residual: np.ndarray, scale: np.ndarray, tolerance: float) -> np.ndarray:
+    """Whether the law's residual ``r`` (..., n) is zero to ``tolerance``:
+    ``|r_i| <= tolerance * s_i + 16 eps max_j s_j`` for every joint, with ``s``
+    (:func:`residual_scale`) the size of its terms; one answer per row of a stack."""
+    floor = _ROUND_OFF * scale.max(axis=-1, keepdims=True)
+    return np.all(np.abs(residual) <= tolerance * scale + floor, axis=-1)
+
+
 def torque_scale(jacobian: np.ndarray, wrench: np.ndarray) -> np.ndarray:
     """Per joint, the size of the load's torque before cancellation (N.m, N).
 
     ``|v_i| |F| + |omega_i| |M|`` with ``[v_i; omega_i]`` the i-th Jacobian column: the lever
     times the load, the bound of ``|J_i^T W|`` that does not vanish when the load runs along
     the arm (a 1 m lever under 100 N gives ``J^T W`` ~ 1e-14 N.m, the round-off of 100 N.m).
+    Also for stacks: (..., 6, n) Jacobians and (..., 6) wrenches give (..., n).
     """
-    return (np.linalg.norm(jacobian[:3], axis=0) * np.linalg.norm(wrench[:3])
-            + np.linalg.norm(jacobian[3:], axis=0) * np.linalg.norm(wrench[3:]))
+    return (np.linalg.norm(jacobian[..., :3, :], axis=-2)
+            * np.linalg.norm(wrench[..., :3], axis=-1)[..., None]
+            + np.linalg.norm(jacobian[..., 3:, :], axis=-2)
+            * np.linalg.norm(wrench[..., 3:], axis=-1)[..., None])
 
 
 def residual_scale(law: JointLaw, dtheta: np.ndarray, jacobian: np.ndarray,
