@@ -15,7 +15,12 @@ import pytest
 from stiffness.errors import FloatingBaseError, StiffnessError
 from stiffness.mechanics.formulation import target_state
 from stiffness.model.robot import TARGET_FRAME, load_robot
-from stiffness.model.sources import example_robot_names, robots_directory, shipped_robots
+from stiffness.model.sources import (
+    example_robot_names,
+    resolve_source,
+    robots_directory,
+    shipped_robots,
+)
 
 SERIAL_URDF = """<?xml version="1.0"?>
 <robot name="serial">
@@ -253,3 +258,22 @@ def test_package_level_api_matches_the_modules():
     loaded = stiffness.load_robot("sk120")
     assert loaded.compliant_joints == ("joint1", "joint2", "joint3")
     assert loaded.loop is not None and loaded.loop.passive_joints == ("elbow", "coupler_joint")
+
+
+@pytest.mark.parametrize("name", ["ur5", "panda", "solo12", "talos_arm", "double_pendulum"])
+def test_example_robot_data_model_without_meshes_is_the_loaders(name):
+    """An example-robot-data robot is read without its meshes (they are read when the viewer
+    asks): the model is the library loader's own (SRDF posture and rotor parameters,
+    free-flyer limits included), and the visual geometry read later is its geometry."""
+    from example_robot_data import robots_loader
+
+    reference = robots_loader.ROBOTS[name]().robot
+    source = resolve_source(name)
+    assert source.visual is None and source.visual_loader is not None
+    assert source.model == reference.model
+    robot = load_robot(name, fixed_base=True)
+    assert robot._visual_loader is not None  # nothing read yet
+    geometry = robot.visual_model
+    assert [g.name for g in geometry.geometryObjects] == [
+        g.name for g in reference.visual_model.geometryObjects]
+    assert robot.visual_model is geometry  # read once

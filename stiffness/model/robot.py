@@ -19,6 +19,7 @@ closures; choose the target frame (:mod:`stiffness.model.targets`).
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -90,7 +91,8 @@ class Robot:
     loop
         Loop closures, or ``None`` for a tree.
     visual_model
-        Pinocchio visual geometry, when the source provides meshes (for the viewer).
+        Pinocchio visual geometry, when the source provides meshes (for the viewer); for
+        example-robot-data robots read on first use (it is most of their loading time).
     defaults
         Shipped defaults (``q`` in rad/m, ``k_theta`` in SI), empty for other sources. Keys
         read by the toolkit: ``q_deg`` or ``q_SI`` (default coordinates, deg, or rad/m),
@@ -119,7 +121,7 @@ class Robot:
     coordinate_joints: tuple[str, ...]
     compliant_joints: tuple[str, ...]
     loop: LoopClosure | None = None
-    visual_model: object | None = None
+    _visual: object | None = field(default=None, repr=False)
     defaults: dict = field(default_factory=dict)
     mimics: tuple[Mimic, ...] = ()
     missing_meshes: tuple[MissingMesh, ...] = ()
@@ -128,6 +130,14 @@ class Robot:
     fixed_base: bool = False
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
+    _visual_loader: Callable[[], object | None] | None = field(default=None, repr=False)
+
+    @property
+    def visual_model(self) -> object | None:
+        """Pinocchio visual geometry of :attr:`model`, or None (no meshes)."""
+        if self._visual_loader is not None:
+            self._visual, self._visual_loader = self._visual_loader(), None
+        return self._visual
 
     @property
     def n_coordinates(self) -> int:
@@ -510,6 +520,13 @@ def load_robot(
                 f"{j} -> {k}" for j, k in declaration.rewrites.items()))
     model, visual, base_notes = _fix_base(model, visual, name, fixed_base)
     notes += base_notes
+    visual_loader = None
+    if src.visual_loader is not None:  # the same edits on the geometry, when it is drawn
+        def visual_loader() -> object | None:
+            edited_model, edited = src.model, src.visual_loader()
+            if declaration is not None:
+                edited_model, edited = rewrite_joints(edited_model, edited, declaration.rewrites)
+            return _fix_base(edited_model, edited, name, fixed_base)[1]
     followers = tuple(m.follower for m in src.mimics)
     loop = None
     if declaration is not None:
@@ -588,7 +605,8 @@ def load_robot(
         coordinate_joints=tuple(coordinate_joints),
         compliant_joints=compliant_joints,
         loop=loop,
-        visual_model=visual,
+        _visual=visual,
+        _visual_loader=visual_loader,
         defaults=defaults,
         mimics=mimics,
         missing_meshes=src.missing_meshes,

@@ -14,6 +14,7 @@ warning.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -32,6 +33,9 @@ class RobotSource:
 
     ``settings`` holds the ``robot.toml`` keys (empty for other sources) and ``_folder``, the
     folder relative loop paths are taken from; ``loop_file`` is the sidecar found (or None).
+    ``visual_loader``, when given (``visual`` is then None), builds the visual geometry of
+    ``model`` on demand: reading meshes is most of the loading time of example-robot-data
+    robots (0.36 s of 0.37 s for the UR5), and only the viewer draws them.
     """
 
     name: str
@@ -44,6 +48,7 @@ class RobotSource:
     urdf: Path | None = None
     notes: list[str] = field(default_factory=list)
     all_mimics: tuple[Mimic, ...] = ()
+    visual_loader: Callable[[], object | None] | None = None
 
 
 def robots_directory() -> Path:
@@ -130,18 +135,62 @@ def _toml_naming(path: Path) -> bool:
 def _from_example_robot_data(name: str) -> RobotSource:
     from example_robot_data import robots_loader
 
-    loader = robots_loader.ROBOTS[name]()
-    wrapper = loader.robot
+    plain = _plain_urdf_loader(robots_loader.ROBOTS[name])
+    if plain is not None:  # the model now, the meshes when the viewer asks
+        model, path, visual_loader = plain
+        visual = None
+    else:  # a loader of its own (it builds and edits the model itself): run it
+        loader = robots_loader.ROBOTS[name]()
+        model, visual, visual_loader = loader.robot.model, loader.robot.visual_model, None
+        path = Path(getattr(loader, "df_path", ""))
     mimics: tuple[Mimic, ...] = ()
     tags: tuple[Mimic, ...] = ()
-    path = Path(getattr(loader, "df_path", ""))
     if path.suffix.lower() == ".urdf" and path.is_file():
         tags = _mimic_tags(path)
-        mimics = tuple(m for m in tags if wrapper.model.existJointName(m.follower)
-                       and wrapper.model.existJointName(m.leader)
-                       and wrapper.model.joints[wrapper.model.getJointId(m.follower)].nv == 1)
-    return RobotSource(name, wrapper.model, wrapper.visual_model, {}, mimics, (), None,
-                       path if path.is_file() else None, all_mimics=tags)
+        mimics = tuple(m for m in tags if model.existJointName(m.follower)
+                       and model.existJointName(m.leader)
+                       and model.joints[model.getJointId(m.follower)].nv == 1)
+    return RobotSource(name, model, visual, {}, mimics, (), None,
+                       path if path.is_file() else None, all_mimics=tags,
+                       visual_loader=visual_loader)
+
+
+def _plain_urdf_loader(cls: type) -> tuple[pin.Model, Path, Callable[[], object]] | None:
+    """Model, URDF path and visual-geometry builder of an example-robot-data loader class
+    that only reads a URDF (the library's own ``RobotLoader.__init__``, no SDF), without
+    building its meshes; None for the loaders that build their model otherwise.
+
+    The same steps as that ``__init__``, with the library's functions: its paths
+    (``getModelPath`` on ``path/urdf_subpath/urdf_filename``, package folder
+    ``model_path/../..``), Pinocchio's ``buildModelsFromUrdf`` for the model alone,
+    ``readParamsFromSrdf`` (reference posture, rotor parameters) and the free-flyer limits of
+    ``RobotLoader.addFreeFlyerJointLimits``; tests/test_robot_loading.py checks that the model
+    equals the loader's.
+    """
+    from types import SimpleNamespace
+
+    from example_robot_data.utils import RobotLoader, getModelPath, readParamsFromSrdf
+
+    if cls.__init__ is not RobotLoader.__init__ or not cls.urdf_filename or cls.sdf_filename:
+        return None
+    relative = os.path.join(cls.path, cls.urdf_subpath, cls.urdf_filename)
+    model_path = cls.model_path if cls.model_path is not None else getModelPath(relative)
+    urdf = os.path.join(model_path, relative)
+    package_dirs = [os.path.join(model_path, "../..")]
+    root = pin.JointModelFreeFlyer() if cls.free_flyer else None
+    model = pin.buildModelsFromUrdf(urdf, package_dirs=package_dirs, root_joint=root,
+                                    geometry_types=[])[0]
+    if cls.srdf_filename:
+        readParamsFromSrdf(model, os.path.join(model_path, cls.path, cls.srdf_subpath,
+                                               cls.srdf_filename),
+                           False, cls.has_rotor_parameters, cls.ref_posture)
+    if cls.free_flyer:
+        RobotLoader.addFreeFlyerJointLimits(SimpleNamespace(robot=SimpleNamespace(model=model)))
+
+    def visual() -> object:
+        return pin.buildGeomFromUrdf(model, urdf, pin.GeometryType.VISUAL,
+                                     package_dirs=package_dirs)
+    return model, Path(urdf), visual
 
 
 def _mimic_tags(path: Path) -> tuple[Mimic, ...]:
