@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.batch import kernels as batch
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
@@ -95,23 +96,31 @@ def _force_deflection_curves(robot: Robot, k_theta: np.ndarray, direction: np.nd
 
 
 def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
+    """Smallest principal stiffness (N/m) over (theta2, theta3) at q1 = 0, wrist vertical,
+    conventional (eq. 8), and enhanced (eq. 10, load ``load_N`` straight down) / conventional.
+
+    Batched (:mod:`stiffness.batch`): one loop closure and one kinematics pass for the grid;
+    NaN at the flat parallelogram (a loop singularity) and where a stiffness is singular.
+    """
     t2 = np.arange(-70.0, 70.1, 5.0)
     t3 = np.arange(-115.0, 35.1, 5.0)
-    minimum = np.full((t2.size, t3.size), np.nan)
-    ratio = np.full_like(minimum, np.nan)
-    load = np.array([0.0, 0.0, -load_N])
-    q = None
-    for i, a in enumerate(t2):
-        for j, b in enumerate(t3):
-            if abs((a + b) % 180.0 - 90.0) < 3.0:  # flat parallelogram: a loop singularity
-                continue
-            q = robot.configuration(np.deg2rad([0.0, a, b, 0.0, -90.0 - b, -90.0]), seed=q)
-            (state,) = target_states(robot, q, [load])
-            jac = state.jacobian[:3]
-            conv = np.linalg.eigvalsh(np.linalg.inv(compliance(jac, k_theta)))[0]
-            enh = np.linalg.eigvalsh(np.linalg.inv(compliance(jac, k_theta - state.k_c)))[0]
-            minimum[i, j], ratio[i, j] = conv, enh / conv
-    return t2, t3, minimum, ratio
+    a, b = (g.ravel() for g in np.meshgrid(t2, t3, indexing="ij"))
+    flat = np.abs((a + b) % 180.0 - 90.0) < 3.0  # flat parallelogram: a loop singularity
+    coords = np.deg2rad(np.column_stack([np.zeros_like(a), a, b, np.zeros_like(a),
+                                         -90.0 - b, np.full_like(a, -90.0)]))[~flat]
+    closed = batch.close_loops(robot, coords)
+    load = np.array([[0.0, 0.0, -load_N]])
+    kin = batch.batch_kinematics(robot, closed.q[closed.closed], moments=False)
+    smallest = {}
+    for formulation in ("conventional", "enhanced"):
+        k_x = batch.evaluate(robot, kin, load, k_theta, formulation).k_x[:, 0]
+        smallest[formulation] = np.linalg.eigvalsh(k_x)[:, 0]
+    minimum = np.full(a.shape, np.nan)
+    ratio = np.full(a.shape, np.nan)
+    at = np.flatnonzero(~flat)[closed.closed]
+    minimum[at] = smallest["conventional"]
+    ratio[at] = smallest["enhanced"] / smallest["conventional"]
+    return t2, t3, minimum.reshape(t2.size, t3.size), ratio.reshape(t2.size, t3.size)
 
 
 def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False,
