@@ -16,8 +16,10 @@ from stiffness.scan.definiteness import DefinitenessScan
 
 
 def _png(fig: Figure) -> bytes:
+    """PNG of ``fig`` at its own size (its constrained layout already fits it: no second
+    layout pass to crop it)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=110)
     return buf.getvalue()
 
 

@@ -124,10 +124,15 @@ def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
 
 
 def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False,
-                 command: str | None = None) -> tuple:
+                 command: str | None = None,
+                 appendix: Callable[[], dict] | None = None) -> tuple:
     """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes).
 
     ``command`` is the command line recorded in the provenance (default: this process's).
+    ``appendix()`` returns the Appendix I cross-check,
+    :func:`stiffness.papers.crosscheck.run_crosscheck` with its defaults, and is called last
+    (the ``stiffness report`` command computes it in a second process meanwhile); default:
+    computed here.
     """
     started = time.perf_counter()
     campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
@@ -159,26 +164,8 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         ],
     }
 
-    _log(quiet, "checking Appendix I against Pinocchio ...")
-    from stiffness.papers.crosscheck import run_crosscheck
-
-    cross = run_crosscheck()
-    summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
-    summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
-    summary["appendix"] = cross
-    for m in cross["mismatches"]:
-        audit.append(AuditEntry(item=f"Appendix I, {m['element']}",
-                                law="J = d(x, y, z)/d(theta1, theta2, theta3) of the end point",
-                                finding=m["explanation"], numbers={"max_abs_mm_per_rad":
-                                                                  m["max_abs"]}))
-    for c in cross["corrections"]:
-        if not c["visible_at_table1_lengths"]:
-            audit.append(AuditEntry(
-                item=f"Appendix I, {c['element']} (invisible at Table I's lengths)",
-                law="J = d(x, y, z)/d(theta1, ...) for any link lengths",
-                finding=(f"{c['text']}: the printed term vanishes at Table I's lengths, and is "
-                         "wrong on a model with non-zero offsets"),
-                numbers={"printed": c["printed"], "corrected": c["corrected"]}))
+    # their place in summary.json, filled at the end (``appendix``)
+    summary.update(dict.fromkeys(("appendix_mismatches", "appendix_kc_max_rel", "appendix")))
 
     _log(quiet, "identifying K_theta from the Table II campaign ...")
     ident = identify(campaign, method="both", starts=6,
@@ -299,6 +286,16 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         "table2.png": plots.table2_comparison(t2_rows),
         "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
+    _log(quiet, "checking Appendix I against Pinocchio ...")
+    if appendix is None:
+        from stiffness.papers.crosscheck import run_crosscheck
+
+        appendix = run_crosscheck
+    cross = appendix()
+    summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
+    summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
+    summary["appendix"] = cross
+    audit = _appendix_entries(cross) + audit
     summary["audit"] = [a.as_dict() for a in audit]
     summary["findings_count"] = len(audit)
     summary["findings_by_verdict"] = {v: n for v in VERDICTS
@@ -306,6 +303,24 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     summary["claims"] = claims(summary)
     summary["elapsed_s"] = time.perf_counter() - started
     return summary, figures
+
+
+def _appendix_entries(cross: dict) -> list[AuditEntry]:
+    """The findings of the Appendix I cross-check: mismatching elements, and the typos that
+    Table I's zero lengths hide."""
+    entries = [AuditEntry(item=f"Appendix I, {m['element']}",
+                          law="J = d(x, y, z)/d(theta1, theta2, theta3) of the end point",
+                          finding=m["explanation"], numbers={"max_abs_mm_per_rad": m["max_abs"]})
+               for m in cross["mismatches"]]
+    for c in cross["corrections"]:
+        if not c["visible_at_table1_lengths"]:
+            entries.append(AuditEntry(
+                item=f"Appendix I, {c['element']} (invisible at Table I's lengths)",
+                law="J = d(x, y, z)/d(theta1, ...) for any link lengths",
+                finding=(f"{c['text']}: the printed term vanishes at Table I's lengths, and is "
+                         "wrong on a model with non-zero offsets"),
+                numbers={"printed": c["printed"], "corrected": c["corrected"]}))
+    return entries
 
 
 def _finite(value):
