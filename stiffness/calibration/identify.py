@@ -578,7 +578,7 @@ def identify(
     if declared:
         sigma = campaign.noise_std_m
         sigma_source = "declared noise_std"
-        quantile = float(ndtri(0.975))
+        quantile = float(ndtri(0.975))  # standard normal 97.5 % quantile
         if sigma_res is not None and sigma_res > 2.0 * sigma:
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much larger than the "
@@ -588,7 +588,7 @@ def identify(
     else:
         sigma = sigma_res
         sigma_source = "residuals (SS / (N - p))"
-        quantile = float(stdtrit(dof, 0.975))
+        quantile = float(stdtrit(dof, 0.975))  # Student t, dof degrees of freedom
     unc = _uncertainty(covariance(best_fit, sigma), best.k, quantile, rob.compliant_joints)
     undetermined = tuple(j for j, w in zip(rob.compliant_joints, unc.width, strict=True)
                          if not w <= REL_CI_WIDTH_LIMIT)

@@ -20,8 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.errors import StiffnessError
 from stiffness.model.sources import robots_directory
-from stiffness.papers.appendix import APPENDIX_TERMS, ELEMENT_NAMES
+from stiffness.papers.appendix import APPENDIX_TERMS, ELEMENT_NAMES, Term
 from stiffness.papers.appendix_eval import TermsByElement, terms_values
 from stiffness.papers.sk120 import FIXTURE_A_M, FIXTURE_B_M, AngleConvention, DHRow, read_table1
 
@@ -30,6 +31,7 @@ __all__ = [
     "SEARCH_REL",
     "AppendixConvention",
     "ConventionSearch",
+    "MatchTables",
     "find_convention",
     "printed_convention",
     "table1_lengths_mm",
@@ -282,10 +284,102 @@ class ConventionSearch:
     n_candidates: int
 
 
+class MatchTables:
+    """Exact-match tables of the convention search at fixed poses, shared between searches.
+
+    For each element, a boolean table over the candidate conventions (broadcast over the axes
+    ``a1..a6, f`` it depends on): whether the element agrees exactly with Pinocchio's at every
+    pose. A table depends on the poses and on the element's own terms and length values only,
+    so searches at the same poses that differ in other lengths (the fixture placements of
+    :mod:`stiffness.papers.crosscheck`) compute each table once.
+
+    Parameters
+    ----------
+    theta_dh : np.ndarray, shape (P, 6)
+        Table I DH angles (rad) of the poses.
+    jac_theta : np.ndarray, shape (P, 3, 3)
+        Pinocchio Jacobian w.r.t. the DH angles theta1..theta3 (mm/rad), Pinocchio axes.
+    """
+
+    _ND = 8  # axes: a1, a2, a3, a4, a5, a6, f, pose
+
+    def __init__(self, theta_dh: np.ndarray, jac_theta: np.ndarray) -> None:
+        single, third = _options()
+        self.theta_dh, self.jac_theta = theta_dh, jac_theta
+        self.n_pose = theta_dh.shape[0]
+        scale = np.abs(jac_theta).max(axis=(1, 2))  # (P,)
+        self.tol = SEARCH_REL * scale
+        trig: dict[str, np.ndarray] = {}
+        for i in range(6):
+            opts = third if i == 2 else single
+            ang = np.array([np.deg2rad(opt[0]) + opt[1] * theta_dh[:, i]
+                            + (opt[2] * theta_dh[:, 1] if i == 2 else 0.0) for opt in opts])
+            trig[f"cos(t{i + 1})"] = self._axis_array(np.cos(ang), i)
+            trig[f"sin(t{i + 1})"] = self._axis_array(np.sin(ang), i)
+        c2, s2, c3, s3 = (trig[k] for k in ("cos(t2)", "sin(t2)", "cos(t3)", "sin(t3)"))
+        trig["cos(t2-t3)"] = c2 * c3 + s2 * s3
+        trig["sin(t2-t3)"] = s2 * c3 - c2 * s3
+        self._trig = trig
+        n_pose = self.n_pose
+        self._sign1 = self._axis_array(np.array([[s] * n_pose for _, s in single], dtype=float),
+                                       0)
+        self._sign2 = self._axis_array(np.array([[s] * n_pose for _, s in single], dtype=float),
+                                       1)
+        self._sign3 = self._axis_array(np.array([[s] * n_pose for _, s, _ in third],
+                                                dtype=float), 2)
+        self._coup3 = self._axis_array(np.array([[k] * n_pose for _, _, k in third],
+                                                dtype=float), 2)
+        self._flips = [np.ones(len(_BASE_FLIPS)),
+                       np.array([f[0] for f in _BASE_FLIPS], dtype=float),
+                       np.array([f[1] for f in _BASE_FLIPS], dtype=float)]
+        self._tol_b = self.tol.reshape([1] * (self._ND - 1) + [n_pose])
+        self._tables: dict[tuple, np.ndarray] = {}
+
+    def _axis_array(self, values: np.ndarray, axis: int) -> np.ndarray:
+        shape = [1] * self._ND
+        shape[axis] = values.shape[0]
+        shape[-1] = self.n_pose
+        return values.reshape(shape)
+
+    def _element_values(self, terms: Sequence[Term], lengths: Mapping[str, float]
+                        ) -> np.ndarray:
+        total = np.zeros([1] * self._ND)
+        for term in terms:
+            value = term.sign * lengths.get(term.length, 0.0)
+            if value == 0.0:
+                continue
+            prod = np.full([1] * self._ND, value)
+            for func, arg in term.factors:
+                prod = prod * self._trig[f"{func}({arg})"]
+            total = total + prod
+        return total
+
+    def _pin_values(self, r: int, c: int) -> np.ndarray:
+        nd, n_pose = self._ND, self.n_pose
+        f = self._flips[r].reshape([1] * 6 + [len(_BASE_FLIPS), 1])
+        jr = [self.jac_theta[:, r, k].reshape([1] * (nd - 1) + [n_pose]) for k in range(3)]
+        if c == 0:
+            return f * self._sign1 * jr[0]
+        if c == 1:
+            return f * self._sign2 * (jr[1] - self._coup3 * self._sign3 * jr[2])
+        return f * self._sign3 * jr[2]
+
+    def match(self, name: str, terms: Sequence[Term], lengths: Mapping[str, float]
+              ) -> np.ndarray:
+        """Exact-match table of element ``name`` written as ``terms`` with ``lengths`` (mm)."""
+        key = (name, tuple(terms), tuple(lengths.get(t.length, 0.0) for t in terms))
+        if key not in self._tables:
+            r, c = int(name[1]) - 1, int(name[2]) - 1
+            diff = np.abs(self._element_values(terms, lengths) - self._pin_values(r, c))
+            self._tables[key] = np.all(diff <= self._tol_b, axis=-1)
+        return self._tables[key]
+
+
 def find_convention(
     theta_dh: np.ndarray, jac_theta: np.ndarray, lengths: Mapping[str, float],
     terms: TermsByElement = APPENDIX_TERMS,
     full: bool = True,
+    tables: MatchTables | None = None,
 ) -> ConventionSearch:
     """Exhaustive search of the appendix's angle convention and base frame.
 
@@ -310,76 +404,31 @@ def find_convention(
     full : bool
         Score all nine elements (default); if False, only the seven tabulated ones (J11 and
         J21 left out), which is faster when many conventions tie.
+    tables : MatchTables, optional
+        The match tables of these poses (``MatchTables(theta_dh, jac_theta)``), to share
+        between searches at the same poses; default: new ones.
 
     Returns
     -------
     ConventionSearch
         The best convention, its matching elements and all equivalent ones.
     """
+    if tables is None:
+        tables = MatchTables(theta_dh, jac_theta)
+    elif not (np.array_equal(tables.theta_dh, theta_dh)
+              and np.array_equal(tables.jac_theta, jac_theta)):
+        raise StiffnessError("find_convention: the match tables were computed at other "
+                             "poses; build them from these theta_dh and jac_theta")
     single, third = _options()
-    n_pose = theta_dh.shape[0]
-    scale = np.abs(jac_theta).max(axis=(1, 2))  # (P,)
-    tol = SEARCH_REL * scale
-    nd = 8  # axes: a1, a2, a3, a4, a5, a6, f, pose
-
-    def axis_array(values: np.ndarray, axis: int) -> np.ndarray:
-        shape = [1] * nd
-        shape[axis] = values.shape[0]
-        shape[-1] = n_pose
-        return values.reshape(shape)
-
-    trig: dict[str, np.ndarray] = {}
-    for i in range(6):
-        opts = third if i == 2 else single
-        ang = np.array([np.deg2rad(opt[0]) + opt[1] * theta_dh[:, i]
-                        + (opt[2] * theta_dh[:, 1] if i == 2 else 0.0) for opt in opts])
-        trig[f"cos(t{i + 1})"] = axis_array(np.cos(ang), i)
-        trig[f"sin(t{i + 1})"] = axis_array(np.sin(ang), i)
-    c2, s2, c3, s3 = (trig[k] for k in ("cos(t2)", "sin(t2)", "cos(t3)", "sin(t3)"))
-    trig["cos(t2-t3)"] = c2 * c3 + s2 * s3
-    trig["sin(t2-t3)"] = s2 * c3 - c2 * s3
-
-    def element_values(name: str) -> np.ndarray:
-        total = np.zeros([1] * nd)
-        for term in terms[name]:
-            value = term.sign * lengths.get(term.length, 0.0)
-            if value == 0.0:
-                continue
-            prod = np.full([1] * nd, value)
-            for func, arg in term.factors:
-                prod = prod * trig[f"{func}({arg})"]
-            total = total + prod
-        return total
-
-    sign1 = axis_array(np.array([[s] * n_pose for _, s in single], dtype=float), 0)
-    sign2 = axis_array(np.array([[s] * n_pose for _, s in single], dtype=float), 1)
-    sign3 = axis_array(np.array([[s] * n_pose for _, s, _ in third], dtype=float), 2)
-    coup3 = axis_array(np.array([[k] * n_pose for _, _, k in third], dtype=float), 2)
-    flips = [np.ones(len(_BASE_FLIPS)), np.array([f[0] for f in _BASE_FLIPS], dtype=float),
-             np.array([f[1] for f in _BASE_FLIPS], dtype=float)]
-    tol_b = tol.reshape([1] * (nd - 1) + [n_pose])
-
-    def pin_values(r: int, c: int) -> np.ndarray:
-        f = flips[r].reshape([1] * 6 + [len(_BASE_FLIPS), 1])
-        jr = [jac_theta[:, r, k].reshape([1] * (nd - 1) + [n_pose]) for k in range(3)]
-        if c == 0:
-            return f * sign1 * jr[0]
-        if c == 1:
-            return f * sign2 * (jr[1] - coup3 * sign3 * jr[2])
-        return f * sign3 * jr[2]
-
-    def match(name: str) -> np.ndarray:
-        r, c = int(name[1]) - 1, int(name[2]) - 1
-        diff = np.abs(element_values(name) - pin_values(r, c))
-        return np.all(diff <= tol_b, axis=-1)
+    tol = tables.tol
 
     full_shape = (8, 8, 24, 8, 8, 8, len(_BASE_FLIPS))
     cheap = [n for n in ELEMENT_NAMES if n not in ("J11", "J21")]
     partial = np.zeros(full_shape, dtype=np.int8)
-    tables = {}
+    matches = {}
     for name in cheap:
-        tables[name] = match(name)
-        partial += tables[name].astype(np.int8)
+        matches[name] = tables.match(name, terms[name], lengths)
+        partial += matches[name].astype(np.int8)
     bound = int(partial.max())
     if full:
         cand = np.nonzero(partial >= bound - 2)
@@ -413,7 +462,7 @@ def find_convention(
         f2, f3 = _BASE_FLIPS[idx[6]]
         conventions.append(AppendixConvention(offs, sgns, k3, (1, f2, f3)))
     idx = tuple(cand[i][order[0]] for i in range(7))
-    matching = [n for n in cheap if np.broadcast_to(tables[n], full_shape)[idx]]
+    matching = [n for n in cheap if np.broadcast_to(matches[n], full_shape)[idx]]
     matching += [n for n, ok in extra_match.items() if ok[order[0]]]
     return ConventionSearch(conventions[0], best_score, sorted(matching), conventions,
                             int(winners.shape[0]), int(np.prod(full_shape)))

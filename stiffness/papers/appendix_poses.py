@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.mechanics.formulation import target_state
+from stiffness.mechanics.formulation import target_states
 from stiffness.model import kinematics
 from stiffness.model.robot import Robot, load_robot
 from stiffness.model.sources import robots_directory
@@ -162,10 +162,9 @@ def pinocchio_samples(robot: Robot, q_printed: np.ndarray) -> tuple[np.ndarray, 
         q = robot.configuration(np.asarray(coords)[order])
         if robot.loop is not None:
             q = _polished(robot, q)
-        for k in range(3):
-            state = target_state(robot, q, np.eye(3)[k])
-            kc[p, k] = state.k_c * 1e3
-        jac[p] = state.jacobian[:3] * 1e3
+        states = target_states(robot, q, np.eye(3))  # one kinematics, three unit forces
+        kc[p] = [state.k_c * 1e3 for state in states]
+        jac[p] = states[-1].jacobian[:3] * 1e3
     return jac, kc
 
 

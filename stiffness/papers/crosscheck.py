@@ -63,6 +63,7 @@ from stiffness.papers.appendix_convention import (
     SEARCH_REL,
     AppendixConvention,
     ConventionSearch,
+    MatchTables,
     find_convention,
     printed_convention,
     table1_lengths_mm,
@@ -186,9 +187,9 @@ def _identify_lengths(t: np.ndarray, target: np.ndarray, terms: TermsByElement,
     return out
 
 
-def _fixture_search(theta: np.ndarray, jac_theta: np.ndarray, table1: Mapping[str, DHRow]
-                    ) -> list[dict]:
-    """Score a few placements of the fixture (a, b) in the appendix's D6, L6."""
+def _fixture_search(tables: MatchTables, table1: Mapping[str, DHRow]) -> list[dict]:
+    """Score a few placements of the fixture (a, b) in the appendix's D6, L6 at the poses of
+    ``tables``."""
     a_fix, b_fix = FIXTURE_A_M * 1e3, FIXTURE_B_M * 1e3
     rows = []
     for label, fixture in (("D6 = d6 + a, L6 = b", (a_fix, b_fix)),
@@ -197,7 +198,8 @@ def _fixture_search(theta: np.ndarray, jac_theta: np.ndarray, table1: Mapping[st
                            ("D6 = d6 + b, L6 = a", (b_fix, a_fix)),
                            ("D6 = d6, L6 = 0 (no fixture)", (0.0, 0.0))):
         lengths = table1_lengths_mm(table1, fixture)
-        found = find_convention(theta, jac_theta, lengths, full=False)
+        found = find_convention(tables.theta_dh, tables.jac_theta, lengths, full=False,
+                                tables=tables)
         rows.append({"assignment": label, "n_matching_of_7_tabulated": found.n_matching,
                      "convention": found.best.describe(),
                      "lengths_mm": {k: v for k, v in lengths.items() if v}})
@@ -237,8 +239,9 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
 
     # 1-2. convention (and fixture placement) from general-wrist poses
     search_idx = poses.select("general")[:SEARCH_POSES]
-    found = find_convention(theta[search_idx], jac_theta[search_idx], lengths)
-    fixture_rows = _fixture_search(theta[search_idx], jac_theta[search_idx], table1)
+    tables = MatchTables(theta[search_idx], jac_theta[search_idx])
+    found = find_convention(tables.theta_dh, tables.jac_theta, lengths, tables=tables)
+    fixture_rows = _fixture_search(tables, table1)
 
     # generic lengths: Pinocchio model with the zero lengths of Table I made non-zero
     generic_lengths = {**lengths, **GENERIC_EXTRA_LENGTHS_MM}

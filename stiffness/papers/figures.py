@@ -1,23 +1,25 @@
-"""Figures of the SK120 report (matplotlib, Agg backend, PNG bytes)."""
+"""Figures of the SK120 report (matplotlib's Agg renderer, PNG bytes).
+
+Figures are built with :class:`matplotlib.figure.Figure` directly, not through pyplot: no
+global figure manager, no backend to select, nothing to close.
+"""
 
 from __future__ import annotations
 
 import io
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from stiffness.mechanics.equilibrium import Departure  # noqa: E402
-from stiffness.scan.definiteness import DefinitenessScan  # noqa: E402
+from stiffness.mechanics.equilibrium import Departure
+from stiffness.scan.definiteness import DefinitenessScan
 
 
-def _png(fig) -> bytes:
+def _png(fig: Figure) -> bytes:
+    """PNG of ``fig`` at its own size (its constrained layout already fits it: no second
+    layout pass to crop it)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    fig.savefig(buf, format="png", dpi=110)
     return buf.getvalue()
 
 
@@ -27,8 +29,8 @@ def force_deflection(curves: dict[str, dict]) -> bytes:
     ``curves[name] = {"force_N": (k,), "conventional": (k, 3), "enhanced": (k, 3),
     "exact": (k, 3), "direction": (3,)}`` in mm.
     """
-    fig, axes = plt.subplots(1, len(curves), figsize=(5 * len(curves), 4.3), squeeze=False,
-                             layout="constrained")
+    fig = Figure(figsize=(5 * len(curves), 4.3), layout="constrained")
+    axes = fig.subplots(1, len(curves), squeeze=False)
     for ax, (name, c) in zip(axes[0], curves.items(), strict=True):
         for i, (axis, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"), strict=True)):
             ax.plot(c["force_N"], c["exact"][:, i], "-", color=colour,
@@ -61,8 +63,8 @@ def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
     keep = np.abs(q_deg[:, 0] - q1) < 1e-6
     q2_axis, q2_index = np.unique(np.round(q_deg[keep, 1], 6), return_inverse=True)
     q3_axis, q3_index = np.unique(np.round(q_deg[keep, 2], 6), return_inverse=True)
-    fig, axes = plt.subplots(3, 3, figsize=(13, 10), sharex=True, sharey=True,
-                             layout="constrained")
+    fig = Figure(figsize=(13, 10), layout="constrained")
+    axes = fig.subplots(3, 3, sharex=True, sharey=True)
     floor = 1e-3 * float(np.max(np.abs(diag[keep])))  # below: numerically zero
     for i in range(3):
         for k in range(3):
@@ -87,7 +89,8 @@ def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
 
 def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
     """Error of the linear predictions against the exact equilibrium, log-log in the load."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    fig = Figure(figsize=(11, 4), layout="constrained")
+    ax1, ax2 = fig.subplots(1, 2)
     force = departure.scales * reference_force_N
     for pred, name, style in ((departure.conventional, "conventional", "o-"),
                               (departure.enhanced, "enhanced", "s-")):
@@ -114,7 +117,8 @@ def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
 def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.ndarray,
                   ratio: np.ndarray, load_N: float) -> bytes:
     """Minimum principal stiffness (N/mm) over (theta2, theta3), and enhanced/conventional."""
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), layout="constrained")
+    fig = Figure(figsize=(12, 4.5), layout="constrained")
+    ax1, ax2 = fig.subplots(1, 2)
     mesh = ax1.pcolormesh(theta3_deg, theta2_deg, minimum * 1e-3, shading="auto", cmap="viridis")
     fig.colorbar(mesh, ax=ax1, label="smallest principal stiffness (N/mm)")
     ax1.set_title("conventional stiffness (eq. 8), q1 = 0, wrist vertical", fontsize=10)
@@ -145,7 +149,8 @@ def table2_comparison(rows: list[dict]) -> bytes:
               ("paper_calculated_mm", "paper's calculated (eq. 10)", "s"),
               ("enhanced_mm", "ours, enhanced (eq. 10)", "^"),
               ("conventional_mm", "ours, conventional (eq. 8)", "x"))
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.6), layout="constrained")
+    fig = Figure(figsize=(14, 4.6), layout="constrained")
+    axes = fig.subplots(1, 3)
     for a, ax in enumerate(axes):
         for key, label, style in series:
             ax.plot(x, [r[key][a] for r in rows], style, label=label, alpha=0.85,
@@ -166,7 +171,8 @@ def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
     ratio = np.array([r["paper_work_cartesian"] / np.dot(r["force_N"], r["force_N"])
                       for r in rows])
     ours = np.array([r["work_cartesian_Nmm"] / np.dot(r["force_N"], r["force_N"]) for r in rows])
-    fig, ax = plt.subplots(figsize=(11, 4.6), layout="constrained")
+    fig = Figure(figsize=(11, 4.6), layout="constrained")
+    ax = fig.subplots()
     ax.plot(x, ratio, "o", label=r"printed eq. 14 work / $|F|^2$ (printed unit per N$^2$)")
     ax.plot(x, ours, "x",
             label=r"ours: eq. 14 from the enhanced deflection / $|F|^2$ (N·mm per N$^2$)")

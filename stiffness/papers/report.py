@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.batch import kernels as batch
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
@@ -95,30 +96,43 @@ def _force_deflection_curves(robot: Robot, k_theta: np.ndarray, direction: np.nd
 
 
 def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
+    """Smallest principal stiffness (N/m) over (theta2, theta3) at q1 = 0, wrist vertical,
+    conventional (eq. 8), and enhanced (eq. 10, load ``load_N`` straight down) / conventional.
+
+    Batched (:mod:`stiffness.batch`): one loop closure and one kinematics pass for the grid;
+    NaN at the flat parallelogram (a loop singularity) and where a stiffness is singular.
+    """
     t2 = np.arange(-70.0, 70.1, 5.0)
     t3 = np.arange(-115.0, 35.1, 5.0)
-    minimum = np.full((t2.size, t3.size), np.nan)
-    ratio = np.full_like(minimum, np.nan)
-    load = np.array([0.0, 0.0, -load_N])
-    q = None
-    for i, a in enumerate(t2):
-        for j, b in enumerate(t3):
-            if abs((a + b) % 180.0 - 90.0) < 3.0:  # flat parallelogram: a loop singularity
-                continue
-            q = robot.configuration(np.deg2rad([0.0, a, b, 0.0, -90.0 - b, -90.0]), seed=q)
-            (state,) = target_states(robot, q, [load])
-            jac = state.jacobian[:3]
-            conv = np.linalg.eigvalsh(np.linalg.inv(compliance(jac, k_theta)))[0]
-            enh = np.linalg.eigvalsh(np.linalg.inv(compliance(jac, k_theta - state.k_c)))[0]
-            minimum[i, j], ratio[i, j] = conv, enh / conv
-    return t2, t3, minimum, ratio
+    a, b = (g.ravel() for g in np.meshgrid(t2, t3, indexing="ij"))
+    flat = np.abs((a + b) % 180.0 - 90.0) < 3.0  # flat parallelogram: a loop singularity
+    coords = np.deg2rad(np.column_stack([np.zeros_like(a), a, b, np.zeros_like(a),
+                                         -90.0 - b, np.full_like(a, -90.0)]))[~flat]
+    closed = batch.close_loops(robot, coords)
+    load = np.array([[0.0, 0.0, -load_N]])
+    kin = batch.batch_kinematics(robot, closed.q[closed.closed], moments=False)
+    smallest = {}
+    for formulation in ("conventional", "enhanced"):
+        k_x = batch.evaluate(robot, kin, load, k_theta, formulation).k_x[:, 0]
+        smallest[formulation] = np.linalg.eigvalsh(k_x)[:, 0]
+    minimum = np.full(a.shape, np.nan)
+    ratio = np.full(a.shape, np.nan)
+    at = np.flatnonzero(~flat)[closed.closed]
+    minimum[at] = smallest["conventional"]
+    ratio[at] = smallest["enhanced"] / smallest["conventional"]
+    return t2, t3, minimum.reshape(t2.size, t3.size), ratio.reshape(t2.size, t3.size)
 
 
 def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False,
-                 command: str | None = None) -> tuple:
+                 command: str | None = None,
+                 appendix: Callable[[], dict] | None = None) -> tuple:
     """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes).
 
     ``command`` is the command line recorded in the provenance (default: this process's).
+    ``appendix()`` returns the Appendix I cross-check,
+    :func:`stiffness.papers.crosscheck.run_crosscheck` with its defaults, and is called last
+    (the ``stiffness report`` command computes it in a second process meanwhile); default:
+    computed here.
     """
     started = time.perf_counter()
     campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
@@ -150,26 +164,8 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         ],
     }
 
-    _log(quiet, "checking Appendix I against Pinocchio ...")
-    from stiffness.papers.crosscheck import run_crosscheck
-
-    cross = run_crosscheck()
-    summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
-    summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
-    summary["appendix"] = cross
-    for m in cross["mismatches"]:
-        audit.append(AuditEntry(item=f"Appendix I, {m['element']}",
-                                law="J = d(x, y, z)/d(theta1, theta2, theta3) of the end point",
-                                finding=m["explanation"], numbers={"max_abs_mm_per_rad":
-                                                                  m["max_abs"]}))
-    for c in cross["corrections"]:
-        if not c["visible_at_table1_lengths"]:
-            audit.append(AuditEntry(
-                item=f"Appendix I, {c['element']} (invisible at Table I's lengths)",
-                law="J = d(x, y, z)/d(theta1, ...) for any link lengths",
-                finding=(f"{c['text']}: the printed term vanishes at Table I's lengths, and is "
-                         "wrong on a model with non-zero offsets"),
-                numbers={"printed": c["printed"], "corrected": c["corrected"]}))
+    # their place in summary.json, filled at the end (``appendix``)
+    summary.update(dict.fromkeys(("appendix_mismatches", "appendix_kc_max_rel", "appendix")))
 
     _log(quiet, "identifying K_theta from the Table II campaign ...")
     ident = identify(campaign, method="both", starts=6,
@@ -290,6 +286,16 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         "table2.png": plots.table2_comparison(t2_rows),
         "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
+    _log(quiet, "checking Appendix I against Pinocchio ...")
+    if appendix is None:
+        from stiffness.papers.crosscheck import run_crosscheck
+
+        appendix = run_crosscheck
+    cross = appendix()
+    summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
+    summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
+    summary["appendix"] = cross
+    audit = _appendix_entries(cross) + audit
     summary["audit"] = [a.as_dict() for a in audit]
     summary["findings_count"] = len(audit)
     summary["findings_by_verdict"] = {v: n for v in VERDICTS
@@ -297,6 +303,24 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     summary["claims"] = claims(summary)
     summary["elapsed_s"] = time.perf_counter() - started
     return summary, figures
+
+
+def _appendix_entries(cross: dict) -> list[AuditEntry]:
+    """The findings of the Appendix I cross-check: mismatching elements, and the typos that
+    Table I's zero lengths hide."""
+    entries = [AuditEntry(item=f"Appendix I, {m['element']}",
+                          law="J = d(x, y, z)/d(theta1, theta2, theta3) of the end point",
+                          finding=m["explanation"], numbers={"max_abs_mm_per_rad": m["max_abs"]})
+               for m in cross["mismatches"]]
+    for c in cross["corrections"]:
+        if not c["visible_at_table1_lengths"]:
+            entries.append(AuditEntry(
+                item=f"Appendix I, {c['element']} (invisible at Table I's lengths)",
+                law="J = d(x, y, z)/d(theta1, ...) for any link lengths",
+                finding=(f"{c['text']}: the printed term vanishes at Table I's lengths, and is "
+                         "wrong on a model with non-zero offsets"),
+                numbers={"printed": c["printed"], "corrected": c["corrected"]}))
+    return entries
 
 
 def _finite(value):
