@@ -159,7 +159,7 @@ def _noop() -> None:
     """A task that does nothing (measures Dask's per-task overhead)."""
 
 
-def task_overhead(client: Any, rounds: int = 8) -> float:
+def task_overhead(client: Any, rounds: int = 5) -> float:
     """Median round trip (s) of an empty task through the scheduler and a worker."""
     times = []
     for _ in range(rounds):
@@ -214,13 +214,16 @@ def run_chunks(
     group
         Consecutive chunks per Dask task. Default: the first tasks hold one chunk each; their
         measured compute time and the measured per-task overhead (:func:`task_overhead`) then
-        set it (:func:`chunks_per_task`).
+        set it for each task submitted (:func:`chunks_per_task`, which keeps
+        :data:`TASKS_PER_WORKER` tasks per worker in the work left: tasks shrink towards the
+        end, so that the workers finish together).
     warm
         ``(function, argument)`` run once on every worker (or in this process) before the
         chunks, e.g. loading the robot; returns nothing.
     stats
-        Filled, on a cluster, with ``workers``, ``chunks_per_task``, ``task_overhead_s`` and
-        ``chunk_seconds`` (median compute time of a chunk on a worker).
+        Filled, on a cluster, with ``workers``, ``chunks_per_task`` (the largest task),
+        ``task_overhead_s`` and ``chunk_seconds`` (median compute time of a chunk on a
+        worker).
     grouped
         ``func(*args, indices)`` computes a task's consecutive chunks at once and returns
         ``{index: result}`` (e.g. to write one chunk while computing the next).
@@ -268,15 +271,19 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
         client.run(warm[0], warm[1])
     n_workers = max(1, len(client.nthreads()) or (workers or 1))
     overhead = task_overhead(client) if group is None else None
-    size = {"group": group or 1}
+    size = {"group": group or 1, "largest": group or 1}
     chunk_times: list[float] = []
     pending = list(reversed(indices))
     futures: dict[str, tuple[int, ...]] = {}
     stream = as_completed([])
+    median: list[float] = []  # a chunk's compute time, once the first wave has measured it
 
     def submit_next() -> bool:
         if not pending:
             return False
+        if group is None and median:  # guided: tasks shrink as the work left does
+            size["group"] = chunks_per_task(overhead, median[0], len(pending), n_workers)
+            size["largest"] = max(size["largest"], size["group"])
         count = min(size["group"], len(pending))
         chunk = tuple(pending.pop() for _ in range(count))
         future = client.submit(run_group, func, args, chunk, grouped, pure=False, retries=2)
@@ -297,10 +304,9 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
         done += len(results)
         chunk_times.append(seconds / max(1, len(results)))
         if group is None and len(chunk_times) == min(n_workers, len(indices)):  # first wave
-            median = float(np.median(chunk_times))
-            size["group"] = chunks_per_task(overhead, median, len(pending), n_workers)
+            median.append(float(np.median(chunk_times)))
         submit_next()
-    stats.update({"workers": n_workers, "chunks_per_task": size["group"],
+    stats.update({"workers": n_workers, "chunks_per_task": size["largest"],
                   "task_overhead_s": overhead,
                   "chunk_seconds": float(np.median(chunk_times)) if chunk_times else None})
     return done
