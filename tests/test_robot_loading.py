@@ -6,6 +6,7 @@ Error messages must name the problem and the fix; the tests match on both.
 
 from __future__ import annotations
 
+import pickle
 import shutil
 
 import numpy as np
@@ -273,7 +274,10 @@ def test_example_robot_data_model_without_meshes_is_the_loaders(name):
     assert source.model == reference.model
     robot = load_robot(name, fixed_base=True)
     assert robot._visual_loader is not None  # nothing read yet
+    copy = pickle.loads(pickle.dumps(robot))  # a robot pickles before its meshes are read
     geometry = robot.visual_model
+    assert [g.name for g in copy.visual_model.geometryObjects] == [
+        g.name for g in geometry.geometryObjects]
     assert [g.name for g in geometry.geometryObjects] == [
         g.name for g in reference.visual_model.geometryObjects]
     assert robot.visual_model is geometry  # read once

@@ -434,6 +434,24 @@ def _loop_declaration(source, loops: str | os.PathLike | None):
     return None
 
 
+@dataclass(frozen=True)
+class _EditedVisual:
+    """A source's visual geometry read on demand, with the joint rewrites and base fixing
+    that :func:`load_robot` applied to its model (picklable)."""
+
+    model: pin.Model
+    read: Callable[[], object | None]
+    rewrites: dict[str, str] | None
+    name: str
+    fixed_base: bool
+
+    def __call__(self) -> object | None:
+        model, visual = self.model, self.read()
+        if self.rewrites is not None:
+            model, visual = rewrite_joints(model, visual, self.rewrites)
+        return _fix_base(model, visual, self.name, self.fixed_base)[1]
+
+
 def _fix_base(model: pin.Model, visual, name: str, fixed_base: bool
               ) -> tuple[pin.Model, object | None, list[str]]:
     """Lock floating or planar base joints at their neutral placement when ``fixed_base``."""
@@ -522,11 +540,9 @@ def load_robot(
     notes += base_notes
     visual_loader = None
     if src.visual_loader is not None:  # the same edits on the geometry, when it is drawn
-        def visual_loader() -> object | None:
-            edited_model, edited = src.model, src.visual_loader()
-            if declaration is not None:
-                edited_model, edited = rewrite_joints(edited_model, edited, declaration.rewrites)
-            return _fix_base(edited_model, edited, name, fixed_base)[1]
+        visual_loader = _EditedVisual(pin.Model(src.model), src.visual_loader,
+                                      None if declaration is None else declaration.rewrites,
+                                      name, fixed_base)
     followers = tuple(m.follower for m in src.mimics)
     loop = None
     if declaration is not None:

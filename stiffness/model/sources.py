@@ -155,7 +155,7 @@ def _from_example_robot_data(name: str) -> RobotSource:
                        visual_loader=visual_loader)
 
 
-def _plain_urdf_loader(cls: type) -> tuple[pin.Model, Path, Callable[[], object]] | None:
+def _plain_urdf_loader(cls: type) -> tuple[pin.Model, Path, UrdfVisual] | None:
     """Model, URDF path and visual-geometry builder of an example-robot-data loader class
     that only reads a URDF (the library's own ``RobotLoader.__init__``, no SDF), without
     building its meshes; None for the loaders that build their model otherwise.
@@ -186,11 +186,21 @@ def _plain_urdf_loader(cls: type) -> tuple[pin.Model, Path, Callable[[], object]
                            False, cls.has_rotor_parameters, cls.ref_posture)
     if cls.free_flyer:
         RobotLoader.addFreeFlyerJointLimits(SimpleNamespace(robot=SimpleNamespace(model=model)))
+    return model, Path(urdf), UrdfVisual(pin.Model(model), urdf, tuple(package_dirs))
 
-    def visual() -> object:
-        return pin.buildGeomFromUrdf(model, urdf, pin.GeometryType.VISUAL,
-                                     package_dirs=package_dirs)
-    return model, Path(urdf), visual
+
+@dataclass(frozen=True)
+class UrdfVisual:
+    """The visual geometry of a URDF for its model, read when called (picklable, so that a
+    robot whose meshes were not read yet pickles small)."""
+
+    model: pin.Model
+    urdf: str
+    package_dirs: tuple[str, ...]
+
+    def __call__(self) -> object:
+        return pin.buildGeomFromUrdf(self.model, self.urdf, pin.GeometryType.VISUAL,
+                                     package_dirs=list(self.package_dirs))
 
 
 def _mimic_tags(path: Path) -> tuple[Mimic, ...]:
