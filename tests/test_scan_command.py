@@ -460,3 +460,45 @@ def test_killed_scan_resumed_with_workers_gives_the_same_maps(tmp_path):
         np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     assert json.loads((whole / "summary.json").read_text())["load_cases"] == summary[
         "load_cases"]
+
+
+def test_failed_write_keeps_the_finished_chunks_and_resumes(tmp_path, monkeypatch):
+    """A chunk whose files cannot be written stops the scan with that error; the chunks the
+    writer thread finished before it stay complete (files and aggregate), and rerunning the
+    command computes only the rest and gives the maps of an uninterrupted scan."""
+    from stiffness.errors import OutputError
+    from stiffness.scan import engine
+
+    common = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "60", "--seed", "4",
+              "--chunk-size", "10", "--no-plots", "--quiet"]
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    assert main([*common, "--out", str(whole)]) == 0
+    write = engine.write_chunk
+
+    def failing(out, spec, index, maps, formats, parts=None):
+        if index == 3:
+            raise OutputError(f"cannot write {out}: disk full (test)", path=str(out))
+        return write(out, spec, index, maps, formats, parts)
+
+    monkeypatch.setattr(engine, "write_chunk", failing)
+    with pytest.raises(OutputError):
+        engine.run_scan(scan_command.build_spec(_parsed(common + ["--out", str(broken)]))[0],
+                        broken, plots=False)
+    done = sorted(p.name for p in (broken / "chunks").glob("aggregate-*.npz"))
+    assert "aggregate-00003.npz" not in done and {"aggregate-00000.npz", "aggregate-00001.npz",
+                                                 "aggregate-00002.npz"} <= set(done)
+    monkeypatch.setattr(engine, "write_chunk", write)
+    assert main([*common, "--out", str(broken), "--json"]) == 0
+    summary = json.loads((broken / "summary.json").read_text())
+    assert summary["chunks"]["resumed"] == len(done)
+    a, b = _arrays(whole), _arrays(broken)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def _parsed(argv):
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    scan_command.configure_parser(parser)
+    return parser.parse_args(argv[1:])
