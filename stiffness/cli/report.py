@@ -3,9 +3,9 @@
 Writes ``report.html`` (summary of verdicts, contents, provenance, evidence, figures embedded),
 ``summary.json`` and the figures as PNG into ``--out`` (see :mod:`stiffness.papers.report`),
 and the meshcat scene of :func:`stiffness.papers.report.scene_robot`, drawn by
-:mod:`stiffness.viewer` (a layer above the papers). With two or more CPUs the Appendix I
-cross-check (independent of the rest, about a fifth of the work) runs meanwhile in a second
-Python process (:func:`background_crosscheck`).
+:mod:`stiffness.viewer` (a layer above the papers). With two or more CPUs the parts that depend
+on no campaign (the Appendix I cross-check and the K_C-parts figure, about a third of the work)
+run meanwhile in a second Python process (:func:`background_independent_parts`).
 """
 
 from __future__ import annotations
@@ -21,50 +21,72 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import stiffness
-from stiffness.files import output_folder
-from stiffness.papers.crosscheck import run_crosscheck
-from stiffness.papers.report import SCENE_TITLE, build_report, scene_robot, write_report
-from stiffness.papers.report_page import verdict_counts
-from stiffness.viewer import StiffnessViewer
+from stiffness.files import atomic_write, output_folder
+
+# The report, the figures and the viewer are imported by the functions that use them: `run`
+# starts the second process before this one spends its time importing them.
 
 
-def export_scene(path: Path) -> Path:
-    """Write the report's static 3-D scene to ``path`` (self-contained HTML, opens offline).
+def scene_html() -> str:
+    """The report's static 3-D scene (self-contained HTML, opens offline).
 
     Enhanced and conventional stiffness ellipsoids side by side, the deflected robot and the
     load arrow, at :func:`~stiffness.papers.report.scene_robot`'s configuration and load.
     """
+    from stiffness.papers.report import SCENE_TITLE, scene_robot
+    from stiffness.viewer import StiffnessViewer
+
     robot, k_theta = scene_robot()
     viewer = StiffnessViewer(robot, k_theta)
     viewer.show()
-    return viewer.export(path, title=SCENE_TITLE)
+    return viewer.html(title=SCENE_TITLE)
 
 
-#: The second process: the cross-check with its defaults, pickled on stdout, if it imports
-#: the same stiffness as this process (its ``__init__`` file is the argument); else exit 3.
-_CROSSCHECK_CHILD = ("import pickle, sys, stiffness; "
-                     "sys.exit(3) if stiffness.__file__ != sys.argv[1] else None; "
-                     "from stiffness.papers.crosscheck import run_crosscheck; "
-                     "sys.stdout.buffer.write(pickle.dumps(run_crosscheck()))")
+def export_scene(path: Path) -> Path:
+    """Write :func:`scene_html` to ``path`` atomically."""
+    return atomic_write(path, scene_html())
+
+
+def independent_parts() -> dict:
+    """:func:`stiffness.papers.independent.independent_parts` (imported when called)."""
+    from stiffness.papers.independent import independent_parts as compute
+
+    return compute()
+
+
+#: The second process: :func:`~stiffness.papers.independent.independent_parts`, pickled on stdout,
+#: if it imports the same stiffness as this process (its ``__init__`` file is the argument);
+#: else exit 3.
+_INDEPENDENT_CHILD = ("import pickle, sys, stiffness; "
+                      "sys.exit(3) if stiffness.__file__ != sys.argv[1] else None; "
+                      "from stiffness.papers.independent import independent_parts; "
+                      "sys.stdout.buffer.write(pickle.dumps(independent_parts()))")
+
+
+#: Single-threaded BLAS in the second process: two processes with a BLAS thread pool each on
+#: two cores slow each other down (idle pool threads spin).
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 @contextmanager
-def background_crosscheck() -> Iterator[Callable[[], dict]]:
-    """:func:`~stiffness.papers.crosscheck.run_crosscheck`, started in a second Python
-    process where there is a second CPU; yields the function that returns its report.
+def background_independent_parts() -> Iterator[Callable[[], dict]]:
+    """:func:`~stiffness.papers.independent.independent_parts` (the Appendix I cross-check and the
+    K_C-parts figure), started in a second Python process where there is a second CPU;
+    yields the function that returns them.
 
-    The process is a fresh interpreter running only the cross-check (nothing of the caller's
+    The process is a fresh interpreter running only those parts (nothing of the caller's
     ``__main__`` is re-run) on the same ``stiffness``, in its own session (Ctrl-C is the
     parent's to handle), ended on leaving the block. If it fails, imports another
-    ``stiffness`` or is not started, the report is computed in this process (a real error of
-    the cross-check is then raised here, as without the second process).
+    ``stiffness`` or is not started, the parts are computed in this process (a real error is
+    then raised here, as without the second process).
     """
     if _usable_cpus() < 2:
-        yield run_crosscheck
+        yield independent_parts
         return
-    child = subprocess.Popen([sys.executable, "-c", _CROSSCHECK_CHILD, stiffness.__file__],
+    child = subprocess.Popen([sys.executable, "-c", _INDEPENDENT_CHILD, stiffness.__file__],
                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                             stderr=subprocess.DEVNULL, start_new_session=True)
+                             stderr=subprocess.DEVNULL, start_new_session=True,
+                             env={**os.environ, **_ONE_THREAD})
 
     def result() -> dict:
         data, _ = child.communicate()
@@ -73,7 +95,7 @@ def background_crosscheck() -> Iterator[Callable[[], dict]]:
                 return pickle.loads(data)
             except (pickle.UnpicklingError, EOFError):
                 pass
-        return run_crosscheck()
+        return independent_parts()
 
     try:
         yield result
@@ -111,10 +133,20 @@ def command_line(args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> int:
     """Build and write the report, then print a short summary."""
     out = output_folder(args.out, create=False)  # before the work: a bad --out fails at once
-    with background_crosscheck() as appendix:
+    scene: dict[str, str] = {}
+    with background_independent_parts() as collect:
+        from stiffness.papers.report import build_report
+
+        def independent() -> dict:
+            scene["html"] = scene_html()  # this process's share while the second one works
+            return collect()
+
         summary, figures = build_report(args.campaign, quiet=args.quiet,
-                                        command=command_line(args), appendix=appendix)
-    write_report(out, summary, figures, scene=export_scene)
+                                        command=command_line(args), independent=independent)
+    from stiffness.papers.report import write_report
+    from stiffness.papers.report_page import verdict_counts
+
+    write_report(out, summary, figures, scene=lambda path: atomic_write(path, scene["html"]))
     s = summary
     print(f"SK120 report written to {out / 'report.html'} ({s['elapsed_s']:.0f} s)")
     print(f"  Appendix I mismatches: {', '.join(s['appendix_mismatches']) or 'none'}")

@@ -30,6 +30,7 @@ from stiffness.model.robot import Robot, load_robot
 from stiffness.model.sources import robots_directory
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
+from stiffness.papers.independent import INDEPENDENT_FIGURE, independent_parts
 from stiffness.papers.report_page import SCENE_FILE, claims, render_html
 from stiffness.papers.reproduction import (
     PAPER_CRITICAL_FORCE_N,
@@ -125,14 +126,13 @@ def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
 
 def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = False,
                  command: str | None = None,
-                 appendix: Callable[[], dict] | None = None) -> tuple:
+                 independent: Callable[[], dict] | None = None) -> tuple:
     """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes).
 
     ``command`` is the command line recorded in the provenance (default: this process's).
-    ``appendix()`` returns the Appendix I cross-check,
-    :func:`stiffness.papers.crosscheck.run_crosscheck` with its defaults, and is called last
-    (the ``stiffness report`` command computes it in a second process meanwhile); default:
-    computed here.
+    ``independent()`` returns :func:`stiffness.papers.independent.independent_parts` and is
+    called last (the ``stiffness report`` command computes them in a second process
+    meanwhile); default: computed here.
     """
     started = time.perf_counter()
     campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
@@ -279,7 +279,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     figures = {
         "force_deflection.png": plots.force_deflection(
             _force_deflection_curves(robot, paper_k, direction)),
-        "partial_derivatives.png": plots.partial_derivative_maps(scan),
+        INDEPENDENT_FIGURE: None,  # its place; filled from ``independent`` below
         "linear_vs_exact.png": plots.linear_vs_exact(departure, float(np.linalg.norm(
             reference * 1000))),
         "stiffness_map.png": plots.stiffness_map(t2g, t3g, minimum, ratio, 1000.0),
@@ -287,11 +287,9 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
     _log(quiet, "checking Appendix I against Pinocchio ...")
-    if appendix is None:
-        from stiffness.papers.crosscheck import run_crosscheck
-
-        appendix = run_crosscheck
-    cross = appendix()
+    parts = (independent or independent_parts)()
+    figures.update(parts["figures"])
+    cross = parts["appendix"]
     summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
     summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
     summary["appendix"] = cross
