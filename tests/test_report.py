@@ -328,3 +328,23 @@ def test_report_files_hold_no_undefined_number(report_dir):
                 json.loads(block, parse_constant=refuse)
             checked += 1
     assert checked >= 3
+
+
+@pytest.mark.parametrize("child, expected", [
+    # the second process answers: its parts are used
+    ("import pickle, sys; sys.stdout.buffer.write(pickle.dumps({'from': 'child'}))",
+     {"from": "child"}),
+    # it fails, or imports another stiffness (exit 3): computed in this process
+    ("import sys; sys.exit(3)", {"from": "this process"}),
+    ("import sys; sys.stdout.write('not a pickle')", {"from": "this process"}),
+])
+def test_second_process_parts_or_this_process(monkeypatch, child, expected):
+    """`stiffness report` takes the campaign-independent parts from its second process when
+    that process answers, and computes them itself when it does not."""
+    from stiffness.cli import report as command
+
+    monkeypatch.setattr(command, "_INDEPENDENT_CHILD", child)
+    monkeypatch.setattr(command, "independent_parts", lambda: {"from": "this process"})
+    monkeypatch.setattr(command, "_usable_cpus", lambda: 2)
+    with command.background_independent_parts() as collect:
+        assert collect() == expected
