@@ -72,7 +72,8 @@ def scene_robot() -> tuple[Robot, np.ndarray]:
 
 
 def _log(quiet: bool, text: str) -> None:
-    if not quiet:
+    """A progress line on the terminal (none under --quiet or when stderr is not a TTY)."""
+    if not quiet and sys.stderr.isatty():
         print(text, file=sys.stderr)
 
 
