@@ -346,17 +346,15 @@ class _ClosurePass:
         target_passive = j_target[self.first, :3][:, :, pv]
         pairs = range(0, len(self.points), 2)
         if self.analytic:
-            supports = _point_supports(robot)
-            point_j = np.ascontiguousarray(self.jac.transpose(0, 2, 3, 1))  # (n_p, 6, nv, k)
-            lin, om = point_j[:, :3], point_j[:, 3:]  # zero outside each point's support
-            c = np.concatenate([lin[p + 1] - lin[p] for p in pairs], axis=0).transpose(2, 0, 1)
+            jac = self.jac  # (n_p, k, 6, nv), zero outside each point's support
+            c = np.concatenate([jac[p + 1, :, :3] - jac[p, :, :3] for p in pairs], axis=1)
             proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv, base, target_passive)
             proj_t = np.ascontiguousarray(proj.transpose(1, 2, 0))
             hss = []
-            for f, support in enumerate(supports):  # on the point's support columns only
+            for f, support in enumerate(_point_supports(robot)):  # its support columns only
                 idx = np.flatnonzero(support)
-                hss.append(_projected_point_hessian(lin[f][:, idx], om[f][:, idx],
-                                                    proj_t[idx]))
+                point_j = np.ascontiguousarray(jac[f][:, :, idx].transpose(1, 2, 0))  # (6, s, k)
+                hss.append(_projected_point_hessian(point_j[:3], point_j[3:], proj_t[idx]))
             hss = np.concatenate([hss[p + 1] - hss[p] for p in pairs], axis=1)
         else:
             c = np.concatenate([self.jac[p + 1, :, :3] - self.jac[p, :, :3] for p in pairs],
