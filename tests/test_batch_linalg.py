@@ -104,3 +104,21 @@ def test_distinct_loop_coordinates_as_numpy_unique(values):
                                           return_inverse=True)
     np.testing.assert_array_equal(first, first_ref)
     np.testing.assert_array_equal(inverse, inverse_ref.reshape(-1))
+
+
+@given(st.integers(1, 6), st.integers(1, 4), st.integers(0, 2**32 - 1))
+@settings(max_examples=30)
+def test_point_hessian_along_a_force_is_its_contraction(s, n, seed):
+    """The projected point Hessian along F (computed contracted first, as for the closed-loop
+    K_C's tree term) is F . H[S_a, S_b] of the full one, and symmetric."""
+    from stiffness.batch.kernels import _projected_point_hessian
+
+    rng = np.random.default_rng(seed)
+    lin, om = rng.standard_normal((3, s, 7)), rng.standard_normal((3, s, 7))
+    proj, force = rng.standard_normal((s, n, 7)), rng.standard_normal(3) * 100
+    full = _projected_point_hessian(lin, om, proj)
+    along = _projected_point_hessian(lin, om, proj, along=force)
+    np.testing.assert_allclose(along, np.einsum("krab,r->kab", full, force),
+                               rtol=1e-12, atol=1e-12 * np.abs(full).max() * 100)
+    np.testing.assert_allclose(along, np.swapaxes(along, 1, 2), rtol=0, atol=1e-12 * 100 * (
+        np.abs(full).max() + 1))

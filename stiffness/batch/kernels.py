@@ -410,16 +410,23 @@ def one_coordinate_joints(robot: Robot) -> bool:
 def _point_supports(robot: Robot) -> np.ndarray:
     """(n_points, nv) masks of the velocity coordinates moving each loop point."""
     model = robot.model
-    masks = np.zeros((len(_loop_points(robot)), model.nv), dtype=bool)
-    for f, point in enumerate(_loop_points(robot)):
-        joint = model.frames[point[0]].parentJoint if len(point) == 1 else point[0]
-        for j in list(model.supports[joint])[1:]:
-            masks[f, model.joints[j].idx_v] = True
-    return masks
+    return np.array([_support_mask(model, model.frames[point[0]].parentJoint
+                                   if len(point) == 1 else point[0])
+                     for point in _loop_points(robot)], dtype=bool).reshape(-1, model.nv)
 
 
-def _projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray) -> np.ndarray:
-    """``H(p)[S_a, S_b]`` (k, 3, n, n) of a point's position Hessian, without forming it.
+def _support_mask(model: pin.Model, joint: int) -> np.ndarray:
+    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body."""
+    mask = np.zeros(model.nv, dtype=bool)
+    for j in list(model.supports[joint])[1:]:
+        mask[model.joints[j].idx_v] = True
+    return mask
+
+
+def _projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray,
+                             along: np.ndarray | None = None) -> np.ndarray:
+    """``H(p)[S_a, S_b]`` (k, 3, n, n) of a point's position Hessian, without forming it; with
+    ``along`` (3,), its component ``along . H(p)[S_a, S_b]`` (k, n, n), contracted first.
 
     ``lin``, ``om`` (3, s, k) and ``proj`` (s, n, k), batch-last, on the point's support
     columns: ``lin[:, a]`` = ``v_a(p)`` = dp/dq_a and ``om[:, a]`` = ``omega_a``, the columns
@@ -427,13 +434,20 @@ def _projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray) 
     each, a support being a chain ordered by velocity index). With ``H_ij = d2p/dq_i dq_j =
     omega_min(i,j) x v_max(i,j)``: ``A[a, b] = sum_j (sum_{i<=j} S_ia
     omega_i) x v_j S_jb`` holds the terms with i <= j, and ``H[S_a, S_b] = A + A^T - D`` with
-    D the diagonal terms ``sum_j (omega_j x v_j) S_ja S_jb`` counted twice.
+    D the diagonal terms ``sum_j (omega_j x v_j) S_ja S_jb`` counted twice. Along a vector F,
+    ``F . (c x v) = c . (v x F)``.
     """
     cum = np.cumsum(om[:, :, None] * proj[None], axis=1)  # (3, s, n, k)
-    # y[r, j, a] = (cum_a(j) x v_j)_r, minus half the diagonal term (counted twice below)
-    y = _cross0(cum, lin[:, :, None]) - 0.5 * _cross0(om, lin)[:, :, None] * proj[None]
-    a = np.einsum("rsak,sbk->rabk", y, proj)  # (3, n, n, k)
-    return (a + a.transpose(0, 2, 1, 3)).transpose(3, 0, 1, 2)
+    if along is None:
+        # y[r, j, a] = (cum_a(j) x v_j)_r, minus half the diagonal term (counted twice below)
+        y = _cross0(cum, lin[:, :, None]) - 0.5 * _cross0(om, lin)[:, :, None] * proj[None]
+        a = np.einsum("rsak,sbk->rabk", y, proj)  # (3, n, n, k)
+        return (a + a.transpose(0, 2, 1, 3)).transpose(3, 0, 1, 2)
+    w = _cross0(lin, np.asarray(along, dtype=float)[:, None, None])  # v_j x F, (3, s, k)
+    y = (np.einsum("rjak,rjk->jak", cum, w)
+         - 0.5 * np.einsum("rjk,rjk->jk", om, w)[:, None] * proj)  # (s, n, k)
+    a = np.einsum("jak,jbk->abk", y, proj)  # (n, n, k)
+    return (a + a.transpose(1, 0, 2)).transpose(2, 0, 1)
 
 
 def _cross0(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -518,6 +532,8 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
     update_placement = pin.updateFramePlacement
     position = np.empty((m, 3)) if pose else None
     closure = None if robot.loop is None else _ClosurePass(robot, q)
+    if closure is not None and closure.analytic:
+        return _closed_point_force_block(robot, model, data, q, force, closure, position)
     if closure is None and not pose:
         for i in range(m):
             dg[i] = gravity_derivatives(model, data, q[i])  # also fills the joint Jacobians
@@ -543,6 +559,40 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
     proj, curvature, valid = closure.derivatives(j_full)
     k_c = closed_loop.reduced_hessian(dg, (force @ j_full[:, :3])[:, robot.loop.passive_v],
                                       proj, curvature)
+    return j_full @ proj, k_c, valid, position
+
+
+def _closed_point_force_block(robot: Robot, model: pin.Model, data: pin.Data, q: np.ndarray,
+                              force: np.ndarray, closure: _ClosurePass,
+                              position: np.ndarray | None
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`single_force_block` on a closed loop whose joints have one velocity coordinate
+    each, with no derivative call: per configuration the joint Jacobians and the target's
+    frame Jacobian (and the loop points' at the first configuration of each closure).
+
+    For a dead force F at the target p, the tree term of K_C is ``F . d2p/dq2``, which the
+    target's Jacobian gives (``d2p/dq_a dq_b = omega_a x v_b(p)``), projected on the velocity
+    map S without forming it (:func:`_projected_point_hessian`, as for the loop points); the
+    closure term is :func:`stiffness.mechanics.closed_loop.closure_term`.
+    """
+    m, fid = q.shape[0], robot.target_frame_id
+    j_full = np.empty((m, 6, model.nv))
+    joint_jacobians, frame_jacobian = pin.computeJointJacobians, pin.getFrameJacobian
+    update_placement = pin.updateFramePlacement
+    record = closure.recorder(model, data, hessians=False)
+    for i in range(m):
+        joint_jacobians(model, data, q[i])
+        j_full[i] = frame_jacobian(model, data, fid, LWA)
+        record(i)
+        if position is not None:
+            position[i] = update_placement(model, data, fid).translation
+    proj, curvature, valid = closure.derivatives(j_full)
+    support = _support_mask(model, model.frames[fid].parentJoint)
+    target_j = np.ascontiguousarray(j_full[:, :, support].transpose(1, 2, 0))  # (6, s, m)
+    proj_t = np.ascontiguousarray(proj[:, support].transpose(1, 2, 0))  # (s, n, m)
+    tree = _projected_point_hessian(target_j[:3], target_j[3:], proj_t, along=force)
+    k_c = tree + closed_loop.closure_term((force @ j_full[:, :3])[:, robot.loop.passive_v],
+                                          curvature)
     return j_full @ proj, k_c, valid, position
 
 

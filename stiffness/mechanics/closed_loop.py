@@ -215,8 +215,12 @@ def reduced_hessian(hessian: np.ndarray, force_passive: np.ndarray, projection: 
         (..., n_p, n, n) closure curvature dS_p.
     """
     tree = np.swapaxes(projection, -1, -2) @ hessian @ projection
+    return tree + closure_term(force_passive, curvature)
+
+
+def closure_term(force_passive: np.ndarray, curvature: np.ndarray) -> np.ndarray:
+    """``sum_p tau_p dS_p`` (..., n, n): the closure part of :func:`reduced_hessian`."""
     n_p, n = curvature.shape[-3], curvature.shape[-1]
     lead = np.broadcast_shapes(force_passive.shape[:-1], curvature.shape[:-3])
     flat = curvature.reshape(*curvature.shape[:-3], n_p, n * n)
-    loop = (force_passive[..., None, :] @ flat)[..., 0, :].reshape(*lead, n, n)
-    return tree + loop
+    return (force_passive[..., None, :] @ flat)[..., 0, :].reshape(*lead, n, n)
