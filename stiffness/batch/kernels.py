@@ -491,9 +491,11 @@ def single_force_kinematics(robot: Robot, q: np.ndarray, force: np.ndarray
     ``K_C(F) = dg/dq`` of :func:`_point_mass_model` with gravity ``-F``
     (``computeGeneralizedGravityDerivatives``), the Jacobian from the joint Jacobians that call
     leaves in ``data``. Faster than :func:`batch_kinematics` for a single load case. On a
-    closed loop, ``dg/dq`` is the tree term of the reduced K_C
-    (:func:`stiffness.mechanics.closed_loop.reduced_hessian`), with the closure derivatives
-    of each distinct closure (:class:`_ClosurePass`).
+    closed loop, the tree term of the reduced K_C
+    (:func:`stiffness.mechanics.closed_loop.reduced_hessian`) is ``dg/dq``, or, where every
+    joint has one velocity coordinate, ``F . d2p/dq2`` from the target's Jacobian with no
+    derivative call (:func:`_closed_point_force_block`), with the closure derivatives of each
+    distinct closure (:class:`_ClosurePass`).
 
     Parameters
     ----------
