@@ -281,3 +281,36 @@ def test_example_robot_data_model_without_meshes_is_the_loaders(name):
     assert [g.name for g in geometry.geometryObjects] == [
         g.name for g in reference.visual_model.geometryObjects]
     assert robot.visual_model is geometry  # read once
+
+
+@pytest.mark.parametrize("name", ["anymal_c", "b1_z1", "so100", "talos_legs"])
+def test_example_robots_pinocchio_cannot_reduce_as_given(name):
+    """Robots whose models ``pin.buildReducedModel`` refuses as they come (a link and a joint
+    of the same name; lower velocity limits above the upper ones) load with a fixed base, keep
+    unique frame names, and give a finite K_C equal to finite differences of J^T F."""
+    robot = load_robot(name, fixed_base=True)
+    names = [f.name for f in robot.model.frames]
+    assert len(set(names)) == len(names)
+    q = robot.configuration(np.full(robot.n_coordinates, 0.3))
+    force = np.array([5.0, -3.0, -20.0])
+    state = target_state(robot, q, force)
+    assert np.all(np.isfinite(state.k_c))
+    h = 1e-6
+    n = robot.n_compliant
+    numeric = np.empty((n, n))
+    for j in range(n):
+        step = np.zeros(robot.n_coordinates)
+        step[robot.coordinate_joints.index(robot.compliant_joints[j])] = h
+        coords = np.full(robot.n_coordinates, 0.3)
+        up = target_state(robot, robot.configuration(coords + step), force).jacobian[:3].T @ force
+        down = target_state(robot, robot.configuration(coords - step), force).jacobian[:3].T @ force
+        numeric[:, j] = (up - down) / (2 * h)
+    np.testing.assert_allclose(state.k_c, numeric, atol=1e-5 * max(1.0, np.abs(numeric).max()))
+
+
+def test_example_robot_the_library_cannot_build_is_a_typed_error():
+    """A loader that fails inside example-robot-data (cassie needs an SDF parser this
+    Pinocchio lacks) is one line naming the robot and what to do, not the library's traceback."""
+    with pytest.raises(StiffnessError, match="example-robot-data cannot build 'cassie'") as info:
+        load_robot("cassie")
+    assert "\n" not in str(info.value)

@@ -11,6 +11,8 @@ Every quirk of the pin 4.x Python bindings is fixed here, once:
 * The URDF parser prints its errors on the C-level standard error: :func:`captured_stderr`.
 * Only the ``LOCAL_WORLD_ALIGNED`` linear rows are the Hessian of the frame origin's position;
   this module only ever asks for that reference frame.
+* ``Model.getFrameId(name)`` raises a bare ``ValueError`` when several frames share the name
+  (a URDF link and joint of the same name): :func:`frame_id` picks one by type.
 
 Spatial quantities follow Pinocchio's order: rows ``[linear (3); angular (3)]``, world axes,
 at the frame origin. Units: m, rad.
@@ -26,6 +28,21 @@ import numpy as np
 import pinocchio as pin
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+#: Which frame a name means when several frames share it: the link first.
+_FRAME_TYPE_ORDER = (pin.FrameType.BODY, pin.FrameType.OP_FRAME, pin.FrameType.FIXED_JOINT,
+                     pin.FrameType.JOINT, pin.FrameType.SENSOR)
+
+
+def frame_id(model: pin.Model, name: str) -> int:
+    """Index of the frame called ``name`` (which must exist); where several frames share the
+    name (a URDF link and a joint), the first by type in :data:`_FRAME_TYPE_ORDER`: the body
+    (link) frame, then an operational frame, a fixed joint, a joint, a sensor."""
+    matches = [i for i, f in enumerate(model.frames) if f.name == name]
+    if len(matches) == 1:
+        return matches[0]
+    order = {t: k for k, t in enumerate(_FRAME_TYPE_ORDER)}
+    return min(matches, key=lambda i: (order.get(model.frames[i].type, len(order)), i))
 
 
 def update_kinematics(model: pin.Model, data: pin.Data, q: np.ndarray) -> None:

@@ -422,7 +422,7 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
                 raise UnknownFrameError(
                     f"{where}loop frame {name!r} is not in the model; "
                     f"{did_you_mean(name, frame_names)}", name=name, choices=frame_names)
-            ids.append(model.getFrameId(name))
+            ids.append(kinematics.frame_id(model, name))
         fa, fb = (model.frames[i] for i in ids)
         anchor = (pin.FrameAnchorConstraintModel if pair.kind == "6D"
                   else pin.PointAnchorConstraintModel)

@@ -98,9 +98,41 @@ def lock_joints(model: pin.Model, visual, names: list[str], reference: np.ndarra
     """Lock the named joints at ``reference`` (default neutral); returns model and visuals."""
     if not names:
         return model, visual
+    model = _reducible(model)
     ids = [model.getJointId(n) for n in names]
     q0 = pin.neutral(model) if reference is None else reference
     if visual is None:
         return pin.buildReducedModel(model, ids, q0), None
     reduced, geometries = pin.buildReducedModel(model, [visual], ids, q0)
     return reduced, geometries[0]
+
+
+def _reducible(model: pin.Model) -> pin.Model:
+    """A copy of ``model`` that ``pin.buildReducedModel`` accepts, where it would raise a bare
+    ``ValueError``: frames sharing a name (a URDF link and a joint) get unique names (the body
+    frame keeps it, as :func:`stiffness.model.kinematics.frame_id` would choose; the others
+    become ``<name>.<type>``), and velocity or effort limits whose lower bound exceeds the upper
+    (seen in example-robot-data's reduced Talos legs) get the lower bound ``-upper``. Neither
+    enters the elastostatics."""
+    from stiffness.model.kinematics import frame_id
+
+    names = [f.name for f in model.frames]
+    shared = {n for n in names if names.count(n) > 1}
+    limits = [("lowerVelocityLimit", "upperVelocityLimit"),
+              ("lowerEffortLimit", "upperEffortLimit")]
+    crossed = [pair for pair in limits
+               if np.any(np.asarray(getattr(model, pair[0])) > np.asarray(getattr(model, pair[1])))]
+    if not shared and not crossed:
+        return model
+    model = pin.Model(model)
+    for name in shared:
+        keep = frame_id(model, name)
+        for i, frame in enumerate(model.frames):
+            if frame.name == name and i != keep:
+                frame.name = f"{name}.{str(frame.type).lower()}"
+                model.frames[i] = frame
+    for low, high in crossed:
+        lower, upper = np.array(getattr(model, low)), np.array(getattr(model, high))
+        lower = np.where(lower > upper, -upper, lower)
+        setattr(model, low, lower)
+    return model

@@ -604,7 +604,7 @@ def load_robot(
     if len(set(compliant_joints)) != len(compliant_joints):
         raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
 
-    fid = model.getFrameId(frame)
+    fid = kinematics.frame_id(model, frame)
     parent = model.frames[fid]
     placement = parent.placement * pin.SE3(np.eye(3), offset)
     target_id = model.addFrame(

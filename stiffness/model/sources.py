@@ -140,7 +140,13 @@ def _from_example_robot_data(name: str) -> RobotSource:
         model, path, visual_loader = plain
         visual = None
     else:  # a loader of its own (it builds and edits the model itself): run it
-        loader = robots_loader.ROBOTS[name]()
+        try:
+            loader = robots_loader.ROBOTS[name]()
+        except (ImportError, ValueError, RuntimeError, OSError) as exc:
+            raise StiffnessError(
+                f"example-robot-data cannot build {name!r} here ({type(exc).__name__}: "
+                f"{str(exc).strip().splitlines()[0] if str(exc).strip() else exc!r}); load "
+                "its URDF file instead, or choose another robot") from exc
         model, visual, visual_loader = loader.robot.model, loader.robot.visual_model, None
         path = Path(getattr(loader, "df_path", ""))
     mimics: tuple[Mimic, ...] = ()
