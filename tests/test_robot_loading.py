@@ -314,3 +314,14 @@ def test_example_robot_the_library_cannot_build_is_a_typed_error():
     with pytest.raises(StiffnessError, match="example-robot-data cannot build 'cassie'") as info:
         load_robot("cassie")
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("name, target", [("pr2", "l_gripper_tool_frame"),
+                                          ("romeo", "l_gripper")])
+def test_default_target_above_a_hand_whose_fingers_are_partly_coupled(name, target):
+    """Where the deepest joint hangs below a coupled jaw without being coupled itself (PR2's
+    finger tips), the default target is the hand's tool frame, not an error."""
+    robot = load_robot(name, fixed_base=True)
+    assert robot.target_frame == target
+    q = robot.configuration(np.zeros(robot.n_coordinates))
+    assert np.all(np.isfinite(target_state(robot, q, np.array([0.0, 0.0, -10.0])).k_c))

@@ -75,9 +75,21 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
         key = (round(distance, 9), frame.type != pin.FrameType.JOINT, fid)
         if best_key is None or key > best_key:
             best, best_key = frame.name, key
+    if best is None and gripper and _with_descendants(model, gripper) != gripper:
+        # the tip is a joint below a coupled jaw (PR2's finger tips): count it with the hand
+        return default_target_frame(model, closure_frames, _with_descendants(model, gripper))
     if best is None:  # only loop-closing frames on the tip joint
         return default_target_frame(model, frozenset(), gripper) if closure_frames else None
     return best
+
+
+def _with_descendants(model: pin.Model, joints: frozenset[str]) -> frozenset[str]:
+    """``joints`` and every joint below one of them (a gripper's jaws carry their finger
+    joints, coupled or not: PR2's finger tips)."""
+    if not joints:
+        return joints
+    return frozenset(model.names[j] for j in range(1, model.njoints)
+                     if any(model.names[a] in joints for a in model.supports[j]))
 
 
 def _below(model: pin.Model, frame_id: int, names: frozenset[str]) -> bool:
