@@ -561,3 +561,21 @@ def test_simulated_campaign_keeps_the_loop_file_and_the_fixed_base(tmp_path, cap
     robot = load_campaign(out).robot()
     assert robot.fixed_base and Path(robot.loop_file).resolve() == tmp_path / "decl.yaml"
     assert robot.coordinate_joints == ("crank_joint", "slide")
+
+
+def test_mimic_of_a_joint_not_in_the_file_is_ignored_with_a_warning(tmp_path):
+    """A <mimic> tag whose leader is not a joint of the file (seen in example-robot-data's
+    Alex hands) is ignored, as Pinocchio's parser ignores it, with a warning that says the
+    follower is then an independent joint; the robot loads."""
+    link = '<link name="{0}"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" ' \
+           'iyy="1" iyz="0" izz="1"/></inertial></link>'
+    joint = ('<joint name="{0}" type="revolute"><parent link="{1}"/><child link="{2}"/>'
+             '<origin xyz="0 0 0.5"/><axis xyz="0 1 0"/>'
+             '<limit lower="-3" upper="3" effort="1" velocity="1"/>{3}</joint>')
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text('<robot name="arm">' + "".join(link.format(n) for n in ("a", "b", "c"))
+                    + joint.format("j1", "a", "b", "")
+                    + joint.format("j2", "b", "c", '<mimic joint="nope"/>') + "</robot>")
+    with pytest.warns(RobotFileWarning, match="'j2' mimics 'nope'.*independent joint"):
+        robot = load_robot(str(urdf))
+    assert robot.coordinate_joints == ("j1", "j2") and not robot.mimics

@@ -214,10 +214,13 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
             f"not a valid URDF (Pinocchio's parser refuses it): {problem}") from failure
     root = _parse_tree(path, raw, strict=False)
     _warn_ignored(path, raw, root, model)
-    mimics = mimic_tags(root)
-    for mimic in mimics:
-        if not model.existJointName(mimic.leader):
-            raise RobotFileError(path, None, f"joint {mimic.follower!r} mimics {mimic.leader!r}, "
-                                             "which is not a joint of the file")
+    mimics = []
+    for mimic in mimic_tags(root):
+        if model.existJointName(mimic.leader):
+            mimics.append(mimic)
+        else:  # Pinocchio's parser ignores the tag too; say what that means
+            warn(f"{path}: joint {mimic.follower!r} mimics {mimic.leader!r}, which is not a "
+                 f"joint of the file: the <mimic> tag is ignored and {mimic.follower!r} is an "
+                 "independent joint (fix the leader's name in the file to couple them)")
     visual, missing = resolve_visual_meshes(path, root, model)
-    return UrdfRobot(model, visual, mimics, missing, mimic_tags(root, include_fixed=True))
+    return UrdfRobot(model, visual, tuple(mimics), missing, mimic_tags(root, include_fixed=True))
