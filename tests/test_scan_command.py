@@ -502,3 +502,18 @@ def _parsed(argv):
     parser = argparse.ArgumentParser()
     scan_command.configure_parser(parser)
     return parser.parse_args(argv[1:])
+
+
+def test_scan_of_a_fixed_floating_base_robot_and_its_resume(tmp_path):
+    """`scan --fixed-base` loads the same robot where the chunks are computed (its spec says
+    so), and the same command resumes the scan."""
+    out = tmp_path / "solo"
+    argv = ["scan", "--robot", "solo8", "--fixed-base", "--kq", ",".join(["50"] * 8),
+            "--samples", "40", "--chunk-size", "20", "--no-plots", "--quiet", "--out",
+            str(out)]
+    assert main(argv) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["spec"]["robot"]["fixed_base"] is True
+    assert main([*argv, "--json"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["chunks"]["resumed"] == 2 and summary["valid_configurations"] == 40

@@ -213,6 +213,12 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
         robot_spec = {"source": str(args.robot) if args.robot else robot.name,
                       "frame": args.frame if fallback is None else robot.target_frame,
                       "target_offset": offset, "compliant_joints": compliant}
+        # the workers load the same robot: its loop file and fixed base too (keys only when
+        # given, so that the manifests of earlier scans still match for a resume)
+        if getattr(args, "loops", None):
+            robot_spec["loops"] = str(Path(args.loops).resolve())
+        if getattr(args, "fixed_base", False):
+            robot_spec["fixed_base"] = True
     if model is not None and args.kq is None:
         k_theta = model.k_theta.tolist()
     elif args.kq is not None:
