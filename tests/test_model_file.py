@@ -319,3 +319,32 @@ def test_scan_model_scans_the_models_springs(tmp_path, capsys):
     assert main(["scan", "--model", str(path), "--samples", "6", "--out",
                  str(tmp_path / "no"), "--quiet"]) == 2
     assert "link_compliance(elbow_joint->wrist_1_joint) change K_X" in capsys.readouterr().err
+
+
+def test_fixed_base_and_loop_file_travel_with_the_model(tmp_path):
+    """A model identified on a robot loaded with a fixed base and a loop file records both
+    (the loop file relative to the model's folder), and every use of the model loads the robot
+    the same way: a floating-base robot's model gives its compliance at a new pose (the foot
+    moves with its leg's two joints: rank 2)."""
+    joints = ("FL_HFE", "FL_KFE", "FR_HFE", "FR_KFE", "HL_HFE", "HL_KFE", "HR_HFE", "HR_KFE")
+    loops = tmp_path / "declared" / "robot.loops.yaml"
+    loops.parent.mkdir()
+    loops.write_text("closed_loop: []\n")
+    model = ModelFile(source="solo8", frame="FL_FOOT", target_offset_m=np.zeros(3),
+                      compliant_joints=joints, k_theta=np.full(8, 50.0),
+                      units=("N.m/rad",) * 8, formulation="enhanced", fixed_base=True)
+    path = model.write(tmp_path / "models" / "m.json")
+    doc = json.loads(path.read_text())
+    assert doc["robot"]["fixed_base"] is True and "loops" not in doc["robot"]
+    back = read_model_file(path)
+    assert back.fixed_base and back.loops is None
+    cm = CompliantModel(back)
+    q = cm.robot.configuration(np.full(8, 0.4))
+    compliance = model_compliance(back, q, np.array([0.0, 0.0, -5.0])).compliance()
+    assert np.all(np.isfinite(compliance)) and np.linalg.matrix_rank(compliance) == 2
+    with_loops = ModelFile(**{**model.__dict__, "loops": str(loops), "path": None})
+    doc = json.loads(with_loops.write(tmp_path / "models" / "l.json").read_text())
+    assert doc["robot"]["loops"] == "../declared/robot.loops.yaml"
+    assert read_model_file(tmp_path / "models" / "l.json").loops == str(loops.resolve())
+    plain = json.loads(_ur5_model().write(tmp_path / "u.json").read_text())["robot"]
+    assert "fixed_base" not in plain and "loops" not in plain  # files as before

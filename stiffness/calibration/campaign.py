@@ -383,6 +383,13 @@ class Campaign:
         """Robot source with a relative URDF path resolved against :meth:`folder`."""
         return _resolve_source(self.robot_settings.source, self.folder())
 
+    def robot_options(self) -> dict:
+        """The robot's ``loops`` (resolved against :meth:`folder`) and ``fixed_base``, as
+        keyword arguments of :func:`stiffness.model.robot.load_robot`."""
+        s = self.robot_settings
+        return {"loops": None if s.loops is None else _resolve_path(s.loops, self.folder()),
+                "fixed_base": s.fixed_base}
+
     def describe_row(self, i: int) -> str:
         """Where row ``i`` comes from, e.g. ``measurements.csv line 7 (config A)``."""
         where = f"row {i + 1}"
@@ -403,10 +410,7 @@ class Campaign:
             s = self.robot_settings
             robot = load_robot(self.resolved_source(), frame=s.frame,
                                target_offset=s.target_offset_m,
-                               compliant_joints=s.compliant_joints,
-                               loops=None if s.loops is None else _resolve_path(
-                                   s.loops, self.folder()),
-                               fixed_base=s.fixed_base)
+                               compliant_joints=s.compliant_joints, **self.robot_options())
             if robot.n_coordinates != self.q.shape[1]:
                 raise StiffnessError(
                     f"robot {s.source} has {robot.n_coordinates} coordinates "

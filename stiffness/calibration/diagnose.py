@@ -709,7 +709,8 @@ class Diagnosis:
                                        e.describe()))
         stiff = self.final_stiffness
         return ModelFile(
-            source=c.resolved_source(), frame=self.geometry.robot.target_frame,
+            source=c.resolved_source(), **c.robot_options(),
+            frame=self.geometry.robot.target_frame,
             target_offset_m=s.target_offset_m, compliant_joints=tuple(f.model.compliant),
             k_theta=np.array([p.value for p in stiff]), units=tuple(p.unit for p in stiff),
             formulation=f.model.baseline,

@@ -456,7 +456,7 @@ def elastic_model_of(model, frame: str | None = None,
             else:
                 offset = offset + e.values()[:3]
     robot = load_robot(model.source, frame=frame or model.frame, target_offset=offset,
-                       compliant_joints=tuple(stiffness))
+                       compliant_joints=tuple(stiffness), **model.robot_options())
     coords = list(robot.coordinate_joints)
     n = robot.n_coordinates
     law = SpringLaw(np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n))

@@ -161,6 +161,8 @@ class Identification:
         Its ``campaign.toml`` (or ``None``).
     robot_source, robot_frame, target_offset_m
         The robot and its measurement target (offset in m, frame axes).
+    robot_loops, robot_fixed_base
+        The robot's loop declaration (absolute path) and whether its base was fixed.
     joints
         Identified (compliant) joints.
     units
@@ -258,6 +260,8 @@ class Identification:
     rotation_sigma_rad: float | None = None
     rotation_sigma_source: str | None = None
     rotation_weight_m_per_rad: float | None = None
+    robot_loops: str | None = None
+    robot_fixed_base: bool = False
 
     @property
     def rms_by_kind(self) -> dict[str, float | None]:
@@ -289,7 +293,9 @@ class Identification:
             "campaign_path": self.campaign_path,
             "robot": {"source": self.robot_source, "frame": self.robot_frame,
                       "target_offset_m": self.target_offset_m,
-                      "compliant_joints": list(self.joints)},
+                      "compliant_joints": list(self.joints),
+                      **({"loops": self.robot_loops} if self.robot_loops else {}),
+                      **({"fixed_base": True} if self.robot_fixed_base else {})},
             "formulation": self.formulation,
             "method": self.method,
             "joints": [
@@ -346,7 +352,8 @@ class Identification:
     def model_file(self) -> ModelFile:
         """The identified model (:class:`stiffness.calibration.model_file.ModelFile`)."""
         return ModelFile(
-            source=self.robot_source, frame=self.robot_frame,
+            source=self.robot_source, loops=self.robot_loops, fixed_base=self.robot_fixed_base,
+            frame=self.robot_frame,
             target_offset_m=self.target_offset_m, compliant_joints=self.joints, k_theta=self.k,
             units=self.units, formulation=self.formulation,
             standard_error=self.standard_error, ci95_low=self.ci95_low,
@@ -616,6 +623,8 @@ def identify(
         campaign=campaign.name,
         campaign_path=str(campaign.path) if campaign.path is not None else None,
         robot_source=campaign.resolved_source(),
+        robot_loops=campaign.robot_options()["loops"],
+        robot_fixed_base=campaign.robot_options()["fixed_base"],
         robot_frame=rob.target_frame,
         target_offset_m=rob.target_offset.copy(),
         joints=tuple(rob.compliant_joints),

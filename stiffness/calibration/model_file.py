@@ -4,7 +4,8 @@
 (``final-model.json``) write the same JSON schema, documented in ``docs/model-file.md``::
 
     {"schema": "stiffness-model/1",
-     "robot": {"source", "frame", "target_offset_m", "compliant_joints"},
+     "robot": {"source", "frame", "target_offset_m", "compliant_joints",
+               "loops", "fixed_base"},  # the last two only when given
      "formulation": "conventional" | "enhanced" | "exact",
      "k_theta": {"joints", "values", "unit", "standard_error", "ci95": {"low", "high"},
                  "determined"},
@@ -196,6 +197,9 @@ class ModelFile:
     source, frame, target_offset_m
         The robot and its measurement target (offset in m, frame axes). A URDF source is an
         absolute path in memory (relative to the file's folder on disk).
+    loops, fixed_base
+        The robot's loop declaration (a path, like ``source``) and whether its floating or
+        planar base is fixed: how the robot is loaded (:meth:`robot_options`).
     compliant_joints
         The baseline's compliant joints.
     k_theta, units
@@ -238,6 +242,8 @@ class ModelFile:
     undetermined_joints: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
     path: Path | None = None
+    loops: str | None = None
+    fixed_base: bool = False
 
     def __post_init__(self) -> None:
         n = len(self.compliant_joints)
@@ -254,10 +260,15 @@ class ModelFile:
         self.effects = tuple(self.effects)
 
     # views -----------------------------------------------------------------------------
+    def robot_options(self) -> dict:
+        """``loops`` and ``fixed_base``, as keyword arguments of
+        :func:`stiffness.model.robot.load_robot`."""
+        return {"loops": self.loops, "fixed_base": self.fixed_base}
+
     def robot(self) -> Robot:
         """The declared robot (baseline compliant joints, declared target), effects not applied."""
         return load_robot(self.source, frame=self.frame, target_offset=self.target_offset_m,
-                          compliant_joints=self.compliant_joints)
+                          compliant_joints=self.compliant_joints, **self.robot_options())
 
     def k_theta_matrix(self) -> np.ndarray:
         """Diagonal joint stiffness of the baseline's compliant joints (SI)."""
@@ -284,24 +295,23 @@ class ModelFile:
     # writing ---------------------------------------------------------------------------
     def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
         """The file's JSON object (a URDF source relative to ``relative_to`` when given)."""
-        source = self.source
-        if relative_to is not None and _looks_like_path(source):
-            try:
-                source = os.path.relpath(Path(source).resolve(), Path(relative_to).resolve())
-            except ValueError:  # another drive on Windows
-                source = str(Path(source).resolve())
-            source = Path(source).as_posix()
+        source = (_relative(self.source, relative_to) if _looks_like_path(self.source)
+                  else self.source)
         joints = list(self.compliant_joints)
         determined = [j not in self.undetermined_joints for j in joints]
+        robot = {"source": source, "frame": self.frame, "target_offset_m": self.target_offset_m,
+                 "compliant_joints": joints}
+        if self.loops is not None:
+            robot["loops"] = _relative(self.loops, relative_to)
+        if self.fixed_base:
+            robot["fixed_base"] = True
         doc = {
             "schema": SCHEMA,
             "format": LEGACY_IDENTIFIED if self.produced_by == "identify" else LEGACY_DIAGNOSED,
             "version": 1,
             "produced_by": self.produced_by,
             "campaign": self.campaign,
-            "robot": {"source": source, "frame": self.frame,
-                      "target_offset_m": self.target_offset_m,
-                      "compliant_joints": joints},
+            "robot": robot,
             "formulation": self.formulation,
             "k_theta": {"joints": joints, "values": self.k_theta, "unit": list(self.units),
                         "standard_error": self.standard_error,
@@ -446,6 +456,33 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
     return model
 
 
+def _relative(path: str, relative_to: str | os.PathLike | None) -> str:
+    """``path`` relative to the folder ``relative_to`` (POSIX separators), or as given."""
+    if relative_to is None:
+        return path
+    try:
+        path = os.path.relpath(Path(path).resolve(), Path(relative_to).resolve())
+    except ValueError:  # another drive on Windows
+        path = str(Path(path).resolve())
+    return Path(path).as_posix()
+
+
+def _robot_options(r: _Reader) -> dict:
+    """The optional ``robot.loops`` (resolved against the file's folder) and
+    ``robot.fixed_base`` of a current model file."""
+    loops = r.get("robot", "loops", default=None)
+    if loops is not None and not isinstance(loops, str):
+        raise r.fail("robot.loops must be the path of a loop declaration (a string)")
+    fixed = r.get("robot", "fixed_base", default=False)
+    if not isinstance(fixed, bool):
+        raise r.fail(f"robot.fixed_base must be true or false, got {fixed!r}")
+    folder = r.path.parent
+    return {"loops": None if loops is None else str((folder / loops).resolve()
+                                                    if not Path(loops).is_absolute()
+                                                    else Path(loops)),
+            "fixed_base": fixed}
+
+
 def _robot_part(r: _Reader) -> tuple[str, str, np.ndarray]:
     source, frame = r.get("robot", "source"), r.get("robot", "frame")
     if not isinstance(source, str) or not isinstance(frame, str):
@@ -507,7 +544,8 @@ def _read_current(r: _Reader) -> ModelFile:
     known = {"schema", "format", "version", "produced_by", "campaign", "robot", "formulation",
              "k_theta", "effects", "noise", "standard_error", "ci95", "undetermined_joints"}
     return ModelFile(
-        source=source, frame=frame, target_offset_m=offset, compliant_joints=tuple(joints),
+        source=source, **_robot_options(r), frame=frame, target_offset_m=offset,
+        compliant_joints=tuple(joints),
         k_theta=k, units=tuple(units), formulation=_formulation(r, r.get("formulation")),
         standard_error=se, ci95_low=low, ci95_high=high, effects=tuple(effects),
         noise_std_m=None if std is None else r.number(std, "noise.std_m"),
@@ -734,7 +772,8 @@ class CompliantModel:
         self._where = f"{model.path}: " if model.path is not None else ""
         try:
             self.robot = load_robot(model.source, frame=frame or model.frame,
-                                    target_offset=offset, compliant_joints=tuple(stiff))
+                                    target_offset=offset, compliant_joints=tuple(stiff),
+                                    **model.robot_options())
         except StiffnessError as exc:
             raise with_context(exc, f"{self._where}the model's robot with its effects") from exc
         self._check_places()

@@ -206,7 +206,8 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
         _refuse_unscannable(model)
         compliant, offset = list(robot.compliant_joints), robot.target_offset.tolist()
         robot_spec = {"source": model.model.source, "frame": robot.target_frame,
-                      "target_offset": offset, "compliant_joints": compliant}
+                      "target_offset": offset, "compliant_joints": compliant,
+                      **{k: v for k, v in model.model.robot_options().items() if v}}
     else:
         fallback = _identified_model(args)
         robot, compliant, offset = robot_from_args(args, fallback=fallback)
