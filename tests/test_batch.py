@@ -661,3 +661,34 @@ def test_unit_force_diagonal_from_the_jacobian(configurations, name):
     kin = batch.batch_kinematics(robot, q, moments=False)
     expected = np.diagonal(kin.k_c_basis[:, :3], axis1=-2, axis2=-1)
     assert _close(batch.unit_force_diagonal(robot, kin.jacobian), expected)
+
+
+def test_one_degree_of_freedom_robot_batched_like_one_pose(tmp_path):
+    """A robot with one joint (Pinocchio's bindings squeeze its Jacobians to shape (6,)):
+    every batched route gives the single-pose K_C and compliance, and a scan runs."""
+    from stiffness.cli.main import main
+
+    inertial = ('<inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" '
+                'izz="1"/></inertial>')
+    urdf = tmp_path / "one.urdf"
+    urdf.write_text(
+        f'<robot name="one"><link name="a">{inertial}</link><link name="b">{inertial}</link>'
+        '<link name="tip"/><joint name="j1" type="revolute"><parent link="a"/>'
+        '<child link="b"/><origin xyz="0 0 0.5"/><axis xyz="0 1 0"/>'
+        '<limit lower="-3" upper="3" effort="1" velocity="1"/></joint>'
+        '<joint name="t" type="fixed"><parent link="b"/><child link="tip"/>'
+        '<origin xyz="0.5 0 0.2"/></joint></robot>')
+    robot = load_robot(str(urdf))
+    q = batch.tree_configurations(robot, np.linspace(-2.0, 2.0, 9)[:, None])
+    force = np.array([3.0, 0.0, -10.0])
+    for method in ("gravity", "hessian"):
+        out = batch.evaluate(robot, q, force, [100.0], method=method)
+        for i in range(q.shape[0]):
+            state = target_state(robot, q[i], force)
+            np.testing.assert_allclose(out.k_c[i, 0], state.k_c, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(out.compliance[i, 0],
+                                       compliance(state.jacobian[:3],
+                                                  np.diag([100.0]) - state.k_c),
+                                       rtol=1e-10, atol=1e-15)
+    assert main(["scan", "--robot", str(urdf), "--kq", "100", "--samples", "30", "--out",
+                 str(tmp_path / "scan"), "--no-plots", "--quiet"]) == 0

@@ -207,17 +207,18 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
     frame_hessian = pin.getFrameKinematicHessian
     frame_jacobian = pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
+    j_rows = _jacobian_rows(j_full)
     if closure is None and not pose:  # the hot loop: three calls per configuration
         for i in range(m):
             hessians(model, data, q[i])  # also computes the joint Jacobians and placements
             raw[i] = frame_hessian(model, data, fid, LWA)
-            j_full[i] = frame_jacobian(model, data, fid, LWA)
+            j_rows[i] = frame_jacobian(model, data, fid, LWA)
     else:
         record = (lambda i: None) if closure is None else closure.recorder(model, data)
         for i in range(m):
             hessians(model, data, q[i])
             raw[i] = frame_hessian(model, data, fid, LWA)
-            j_full[i] = frame_jacobian(model, data, fid, LWA)
+            j_rows[i] = frame_jacobian(model, data, fid, LWA)
             record(i)
             if pose:
                 placement[i] = update_placement(model, data, fid).homogeneous
@@ -251,6 +252,13 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
 
 def _is_identity_selection(index: np.ndarray, size: int) -> bool:
     return index.shape[0] == size and bool(np.all(index == np.arange(size)))
+
+
+def _jacobian_rows(jacobians: np.ndarray) -> np.ndarray:
+    """Where the loops store frame Jacobians (..., 6, nv): the array itself, or its (..., 6)
+    view for a model with one velocity coordinate, whose Jacobians Pinocchio's bindings return
+    squeezed to (6,) (the quirk :mod:`stiffness.model.kinematics` fixes for one pose)."""
+    return jacobians[..., 0] if jacobians.shape[-1] == 1 else jacobians
 
 
 def _distinct_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -308,7 +316,7 @@ class _ClosurePass:
         """``record(i)``: store what the closure derivatives need at configuration ``i`` if
         it is the first of its closure (joint Jacobians and placements done; kinematic
         Hessians too unless ``hessians`` is False)."""
-        slot, points, jac = self.slot, self.points, self.jac
+        slot, points, jac = self.slot, self.points, _jacobian_rows(self.jac)
         if self.analytic:
             frame_jacobian = pin.getFrameJacobian
             numbered = list(enumerate(points))
@@ -536,16 +544,17 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
     closure = None if robot.loop is None else _ClosurePass(robot, q)
     if closure is not None and closure.analytic:
         return _closed_point_force_block(robot, model, data, q, force, closure, position)
+    j_rows = _jacobian_rows(j_full)
     if closure is None and not pose:
         for i in range(m):
             dg[i] = gravity_derivatives(model, data, q[i])  # also fills the joint Jacobians
-            j_full[i] = frame_jacobian(model, data, fid, LWA)
+            j_rows[i] = frame_jacobian(model, data, fid, LWA)
     else:
         record = ((lambda i: None) if closure is None
                   else closure.recorder(model, data, hessians=False))
         for i in range(m):
             dg[i] = gravity_derivatives(model, data, q[i])
-            j_full[i] = frame_jacobian(model, data, fid, LWA)
+            j_rows[i] = frame_jacobian(model, data, fid, LWA)
             record(i)
             if pose:
                 position[i] = update_placement(model, data, fid).translation
@@ -582,9 +591,10 @@ def _closed_point_force_block(robot: Robot, model: pin.Model, data: pin.Data, q:
     joint_jacobians, frame_jacobian = pin.computeJointJacobians, pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
     record = closure.recorder(model, data, hessians=False)
+    j_rows = _jacobian_rows(j_full)
     for i in range(m):
         joint_jacobians(model, data, q[i])
-        j_full[i] = frame_jacobian(model, data, fid, LWA)
+        j_rows[i] = frame_jacobian(model, data, fid, LWA)
         record(i)
         if position is not None:
             position[i] = update_placement(model, data, fid).translation
