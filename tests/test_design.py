@@ -420,3 +420,18 @@ def test_separation_is_what_refitting_leaves(pools):
         direct.append(float(resid @ resid))
     assert got == pytest.approx(min(direct), rel=1e-3, abs=1e-6)
     assert got >= float(separation_score(stats.base)) - 1e-9  # rows only add evidence
+
+
+def test_design_on_a_parallel_robot_that_does_not_close_at_zero(tmp_path):
+    """The hexapod's loops do not close at zero leg lengths: the design's geometry takes the
+    robot's reference assembly, and a plan of reachable poses is written."""
+    from stiffness.calibration.plan import read_plan
+
+    out = tmp_path / "plan.csv"
+    assert main(["design", "--robot", "hexapod", "--configs", "4", "--max-force", "200",
+                 "--out", str(out), "--quiet"]) == 0
+    robot = load_robot("hexapod")
+    plan, _ = read_plan(out, robot)
+    assert plan.q.shape[0] >= 4
+    for q in plan.q:  # every planned pose assembles
+        assert robot.assemble(q).residual < 1e-9

@@ -246,9 +246,13 @@ class Geometry:
     def _chain_placements(self) -> tuple[np.ndarray, np.ndarray]:
         return chain_placements(self.robot, self.chain)
 
+    def _reference_q(self) -> np.ndarray:
+        """The robot's reference pose: zero coordinates, or for a closed loop that does not
+        close there (a hexapod) the assembly found near them (:meth:`Robot.assemble`)."""
+        return self.robot.assemble(None).q
+
     def _choose_link_columns(self) -> dict[tuple[str, str], int]:
-        q = self.robot.configuration(np.zeros(len(self.joints)))
-        origins, rotations = self._placements(q)
+        origins, rotations = self._placements(self._reference_q())
         out = {}
         for ia, a in enumerate(self.chain):
             for ib in range(ia + 1, len(self.chain)):
@@ -309,13 +313,12 @@ class Geometry:
 
     def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
         """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart
-        at the zero coordinates and whose distal origin is off the target.
+        at the reference pose (:meth:`_reference_q`) and whose distal origin is off the target.
 
         Of joints whose origins coincide (within ``min_length``, e.g. a spherical wrist), only
         the first stands for the group.
         """
-        q = self.robot.configuration(np.zeros(len(self.joints)))
-        origins, _ = self._placements(q)
+        origins, _ = self._placements(self._reference_q())
         pin.updateFramePlacements(self.robot.model, self.robot.data)
         target = self.robot.data.oMf[self.robot.target_frame_id].translation
         groups: list[int] = []
