@@ -449,9 +449,13 @@ def _codes_from_eigenvalues(eig: np.ndarray, rtol: float, atol: float) -> np.nda
     finite = np.all(np.isfinite(eig), axis=-1)
     eig = np.where(finite[..., None], eig, 0.0)
     tol = atol + rtol * np.maximum(np.abs(eig).max(axis=-1), 0.0)
-    pos = eig > tol[..., None]
-    neg = eig < -tol[..., None]
-    codes = np.full(eig.shape[:-1], CLASS_CODES["ID"], dtype=np.int8)
+    return _codes_from_signs(eig > tol[..., None], eig < -tol[..., None], finite)
+
+
+def _codes_from_signs(pos: np.ndarray, neg: np.ndarray, finite: np.ndarray) -> np.ndarray:
+    """Class codes from the masks (..., n) of the positive and the negative eigenvalues (the
+    others count as zero), :data:`INVALID_CLASS` where not ``finite``."""
+    codes = np.full(pos.shape[:-1], CLASS_CODES["ID"], dtype=np.int8)
     codes[~pos.any(axis=-1)] = CLASS_CODES["NSD"]
     codes[~neg.any(axis=-1)] = CLASS_CODES["PSD"]
     codes[neg.all(axis=-1)] = CLASS_CODES["ND"]
@@ -565,12 +569,5 @@ def _inertia_codes(eig: np.ndarray, ratio: float, rtol: float, finite: np.ndarra
     nonzero = size > ratio * rtol * (top + delta)[..., None] + delta[..., None]
     zero = size + delta[..., None] < (rtol * (top - delta) / ratio)[..., None]
     sure = np.all(nonzero | zero, axis=-1) & finite
-    pos = nonzero & (eig > 0)
-    neg = nonzero & (eig < 0)
-    codes = np.full(eig.shape[:-1], CLASS_CODES["ID"], dtype=np.int8)
-    codes[~pos.any(axis=-1)] = CLASS_CODES["NSD"]
-    codes[~neg.any(axis=-1)] = CLASS_CODES["PSD"]
-    codes[neg.all(axis=-1)] = CLASS_CODES["ND"]
-    codes[pos.all(axis=-1)] = CLASS_CODES["PD"]
-    codes[~finite] = INVALID_CLASS
+    codes = _codes_from_signs(nonzero & (eig > 0), nonzero & (eig < 0), finite)
     return codes, sure | ~finite

@@ -254,16 +254,7 @@ def compute(args: argparse.Namespace) -> dict:
                              "model's link_compliance, nonlinear_joint_stiffness or gravity "
                              "effects cannot enter "
                              "it: drop --connection")
-    if at is not None:
-        jac = state.jacobian[rows]
-        c_x = at.compliance(rows)
-        axes = "base frame axes at the target"
-        k_c = state.k_c
-        try:
-            k_x = cartesian_stiffness(c_x)
-        except SingularConfigurationError as exc:
-            k_x, undefined = None, str(exc)
-    elif args.connection is not None:
+    if args.connection is not None:
         jac = state.body_jacobian()
         axes = "target frame body axes (left-invariant twist basis)"
         k_c = state.k_c_twist if args.connection == "twist" else np.zeros_like(state.k_c)
@@ -274,9 +265,9 @@ def compute(args: argparse.Namespace) -> dict:
         except SingularConfigurationError as exc:  # J_b singular: C = J_b T^-1 J_b^T exists
             k_x, undefined = None, str(exc)
             c_x = compliance(jac, k_theta - k_c)
-    else:
+    else:  # base axes: the model's compliance (its effects included), or the springs'
         jac = state.jacobian[rows]
-        c_x = compliance(jac, tangent)
+        c_x = at.compliance(rows) if at is not None else compliance(jac, tangent)
         axes = "base frame axes at the target"
         k_c = state.k_c
         try:

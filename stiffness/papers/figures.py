@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from stiffness.mechanics.equilibrium import Departure
+from stiffness.papers.reproduction import row_labels
 from stiffness.scan.definiteness import DefinitenessScan
 
 
@@ -131,19 +132,9 @@ def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.nd
     return _png(fig)
 
 
-def _row_labels(rows: list[dict]) -> list[str]:
-    """``A1, A2, ...``: configuration label and row number within it."""
-    seen: dict[str, int] = {}
-    out = []
-    for r in rows:
-        seen[r["config"]] = seen.get(r["config"], 0) + 1
-        out.append(f"{r['config']}{seen[r['config']]}")
-    return out
-
-
 def table2_comparison(rows: list[dict]) -> bytes:
     """Table II per row (A1..C5): measured, the paper's calculated and our deflections (mm)."""
-    labels = _row_labels(rows)
+    labels = row_labels(rows)
     x = np.arange(len(rows))
     series = (("measured_mm", "measured (laser tracker)", "ko"),
               ("paper_calculated_mm", "paper's calculated (eq. 10)", "s"),
@@ -166,7 +157,7 @@ def table2_comparison(rows: list[dict]) -> bytes:
 
 def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
     """Table III per row (A1..E5): printed eq. 14 work over |F|^2, corrupt rows marked."""
-    labels = _row_labels(rows)
+    labels = row_labels(rows)
     x = np.arange(len(rows))
     ratio = np.array([r["paper_work_cartesian"] / np.dot(r["force_N"], r["force_N"])
                       for r in rows])

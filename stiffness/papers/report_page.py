@@ -21,7 +21,7 @@ from stiffness.htmlpage import (
     table,
     vec,
 )
-from stiffness.papers.reproduction import VERDICTS
+from stiffness.papers.reproduction import VERDICTS, row_labels
 
 TITLE = "Motoman SK120: reproduction of Alici & Shirinzadeh (2005)"
 #: The 3-D scene written beside the report.
@@ -160,15 +160,6 @@ def _sentence(text: str) -> str:
 def _badge(verdict: str) -> str:
     return (f"<span class='verdict' style='background:{_BADGE[verdict]}'>{esc(verdict)}"
             "</span>")
-
-
-def _row_labels(rows: list[dict]) -> list[str]:
-    seen: dict[str, int] = {}
-    out = []
-    for r in rows:
-        seen[r["config"]] = seen.get(r["config"], 0) + 1
-        out.append(f"{r['config']}{seen[r['config']]}")
-    return out
 
 
 def _section(anchor: str) -> str:
@@ -328,7 +319,7 @@ def _identification_section(s: dict) -> list[str]:
 
 
 def _table2_section(s: dict) -> list[str]:
-    labels = _row_labels(s["table2"])
+    labels = row_labels(s["table2"])
     rows = []
     for label, r in zip(labels, s["table2"], strict=True):
         diff = np.array(r["enhanced_mm"]) - np.array(r["paper_calculated_mm"])
@@ -372,7 +363,7 @@ def _table2_section(s: dict) -> list[str]:
 
 
 def _table3_section(s: dict) -> list[str]:
-    labels = _row_labels(s["table3"])
+    labels = row_labels(s["table3"])
     rows = [[label, vec(r["force_N"], 2), r["paper_work_cartesian"], r["work_cartesian_Nmm"],
              r["paper_work_joint_conventional"], r["work_joint_conventional_Nmm"],
              r["paper_work_cartesian"] - r["paper_work_joint_conventional"],

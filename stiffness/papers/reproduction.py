@@ -64,6 +64,16 @@ def _identity(q_deg: np.ndarray) -> np.ndarray:
     return q_deg
 
 
+def row_labels(rows: list[dict]) -> list[str]:
+    """``A1, A2, ...`` of Table II or III rows: configuration label and row number within it."""
+    seen: dict[str, int] = {}
+    out = []
+    for r in rows:
+        seen[r["config"]] = seen.get(r["config"], 0) + 1
+        out.append(f"{r['config']}{seen[r['config']]}")
+    return out
+
+
 def table2(robot: Robot, k_theta: np.ndarray, angles: AngleMap = _identity) -> list[dict]:
     """Table II reproduced: paper-calculated, ours conventional, enhanced, exact, measured (mm).
 
