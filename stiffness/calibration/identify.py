@@ -619,12 +619,13 @@ def identify(
                    for mm in methods}
         methods_agree = _agree(best_of["trf"].k, best_of["lm"].k, determined) and abs(
             best_of["trf"].cost - best_of["lm"].cost) <= tol_cost
+    options = campaign.robot_options()
     return Identification(
         campaign=campaign.name,
         campaign_path=str(campaign.path) if campaign.path is not None else None,
         robot_source=campaign.resolved_source(),
-        robot_loops=campaign.robot_options()["loops"],
-        robot_fixed_base=campaign.robot_options()["fixed_base"],
+        robot_loops=options["loops"],
+        robot_fixed_base=options["fixed_base"],
         robot_frame=rob.target_frame,
         target_offset_m=rob.target_offset.copy(),
         joints=tuple(rob.compliant_joints),

@@ -271,18 +271,17 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
         client.run(warm[0], warm[1])
     n_workers = max(1, len(client.nthreads()) or (workers or 1))
     overhead = task_overhead(client) if group is None else None
-    size = {"group": group or 1, "largest": group or 1}
+    size: dict = {"group": group or 1, "largest": group or 1}
     chunk_times: list[float] = []
     pending = list(reversed(indices))
     futures: dict[str, tuple[int, ...]] = {}
     stream = as_completed([])
-    median: list[float] = []  # a chunk's compute time, once the first wave has measured it
 
     def submit_next() -> bool:
         if not pending:
             return False
-        if group is None and median:  # guided: tasks shrink as the work left does
-            size["group"] = chunks_per_task(overhead, median[0], len(pending), n_workers)
+        if group is None and "chunk_s" in size:  # guided: tasks shrink as the work left does
+            size["group"] = chunks_per_task(overhead, size["chunk_s"], len(pending), n_workers)
             size["largest"] = max(size["largest"], size["group"])
         count = min(size["group"], len(pending))
         chunk = tuple(pending.pop() for _ in range(count))
@@ -304,7 +303,7 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
         done += len(results)
         chunk_times.append(seconds / max(1, len(results)))
         if group is None and len(chunk_times) == min(n_workers, len(indices)):  # first wave
-            median.append(float(np.median(chunk_times)))
+            size["chunk_s"] = float(np.median(chunk_times))  # a chunk's compute time
         submit_next()
     stats.update({"workers": n_workers, "chunks_per_task": size["largest"],
                   "task_overhead_s": overhead,

@@ -33,6 +33,7 @@ import os
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -187,8 +188,6 @@ class ChunkWriter:
 
     def __init__(self, out: Path, spec: ScanSpec, formats: tuple[str, ...],
                  on_written: Callable[[int, dict[str, np.ndarray]], None]) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
         self._out, self._spec, self._formats = out, spec, formats
         self._on_written = on_written
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="scan-writer")
