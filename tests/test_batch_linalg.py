@@ -122,3 +122,44 @@ def test_point_hessian_along_a_force_is_its_contraction(s, n, seed):
                                rtol=1e-12, atol=1e-12 * np.abs(full).max() * 100)
     np.testing.assert_allclose(along, np.swapaxes(along, 1, 2), rtol=0, atol=1e-12 * 100 * (
         np.abs(full).max() + 1))
+
+
+@given(st.integers(4, 8), st.integers(0, 2**32 - 1), st.data())
+@settings(max_examples=60, deadline=None)
+def test_negligible_rows_deflated_like_lapack(n, seed, data):
+    """Rows negligible in every matrix of the stack (exact zeros, or round-off below 1e-13 of
+    the largest entry: a joint whose axis K_C does not see) are deflated; every eigenvalue
+    stays within Weyl's bound of LAPACK's on the whole matrix."""
+    rng = np.random.default_rng(seed)
+    dead = np.array(data.draw(st.lists(st.booleans(), min_size=n, max_size=n)))
+    live = dead[:, None] | dead[None, :]
+    a = rng.standard_normal((24, n, n)) * 10.0 ** rng.uniform(-3, 6, (24, 1, 1))
+    a = a + np.swapaxes(a, -1, -2)
+    scale = np.abs(np.where(live, 0.0, a)).max(axis=(-2, -1), keepdims=True)
+    noise = data.draw(st.sampled_from([0.0, 1e-16, 1e-14]))
+    tiny = 0.5 * noise * scale * rng.uniform(-1, 1, a.shape)
+    tiny = np.where(live, tiny + np.swapaxes(tiny, -1, -2), 0.0)
+    a = np.where(live, tiny, a)
+    got = batch.symmetric_eigenvalues(a)
+    ref = np.linalg.eigvalsh(a)
+    assert np.all(np.diff(got, axis=-1) >= 0)
+    weyl = np.linalg.norm(tiny, axis=(-2, -1))[:, None]  # |E|_2 <= |E|_F
+    bound = weyl + 1e-14 * np.abs(ref).max(axis=-1, keepdims=True) + 1e-300
+    np.testing.assert_array_less(np.abs(got - ref), np.broadcast_to(bound, ref.shape))
+    if dead.any():  # deflated: one exact zero per negligible row
+        assert np.all(np.sum(got == 0.0, axis=-1) >= dead.sum())
+
+
+def test_deflated_row_has_no_determinant_sign():
+    """A K_C with a negligible row has det K_C = 0 to round-off: not 'det K_C > 0', whatever
+    sign LU would give its round-off; the classes still equal the eigenvalue rule's."""
+    rng = np.random.default_rng(8)
+    k_c = rng.standard_normal((50, 6, 6)) * 100.0
+    k_c = k_c + np.swapaxes(k_c, 1, 2)
+    k_c[:, 0, :] = k_c[:, :, 0] = 3e-15 * rng.uniform(-1, 1, (50, 6))
+    k_c[:, 0, 0] = 0.0
+    k_theta = np.diag(rng.uniform(1e4, 1e5, 6))
+    d = batch.load_definiteness(k_theta, k_c)
+    assert not d.determinant_positive.any()
+    np.testing.assert_array_equal(d.k_c_class, batch.definiteness_codes(k_c))
+    np.testing.assert_array_equal(d.tangent_class, batch.definiteness_codes(k_theta - k_c))

@@ -207,6 +207,7 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
     frame_hessian = pin.getFrameKinematicHessian
     frame_jacobian = pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
+    rotation, translation = _frame_placement_views(data, fid)
     j_rows = _jacobian_rows(j_full)
     if closure is None and not pose:  # the hot loop: three calls per configuration
         for i in range(m):
@@ -221,8 +222,12 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
             j_rows[i] = frame_jacobian(model, data, fid, LWA)
             record(i)
             if pose:
-                placement[i] = update_placement(model, data, fid).homogeneous
+                update_placement(model, data, fid)
+                placement[i, :3, :3] = rotation
+                placement[i, :3, 3] = translation
 
+    if pose:
+        placement[:, 3] = (0.0, 0.0, 0.0, 1.0)
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
     if closure is None and robot.mimics:
@@ -252,6 +257,18 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
 
 def _is_identity_selection(index: np.ndarray, size: int) -> bool:
     return index.shape[0] == size and bool(np.all(index == np.arange(size)))
+
+
+def _frame_placement_views(data: pin.Data, fid: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) of ``data.oMf[fid]``: NumPy views on Pinocchio's
+    memory (eigenpy exposes an SE3's members by reference), valid while ``data`` lives.
+
+    After ``pin.updateFramePlacement(model, data, fid)`` they hold the frame's placement;
+    copying them out costs half as much as reading the SE3 that call returns (a copy, whose
+    ``.translation`` makes another), 0.25 us less per configuration.
+    """
+    placement = data.oMf[fid]
+    return placement.rotation, placement.translation
 
 
 def _jacobian_rows(jacobians: np.ndarray) -> np.ndarray:
@@ -541,6 +558,7 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
     frame_jacobian = pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
     position = np.empty((m, 3)) if pose else None
+    translation = _frame_placement_views(data, fid)[1]
     closure = None if robot.loop is None else _ClosurePass(robot, q)
     if closure is not None and closure.analytic:
         return _closed_point_force_block(robot, model, data, q, force, closure, position)
@@ -557,7 +575,8 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
             j_rows[i] = frame_jacobian(model, data, fid, LWA)
             record(i)
             if pose:
-                position[i] = update_placement(model, data, fid).translation
+                update_placement(model, data, fid)
+                position[i] = translation
     if closure is None and robot.mimics:
         e = compliant_projection(robot)  # mimic followers move with their leaders
         return j_full @ e, e.T @ dg @ e, np.ones(m, dtype=bool), position
@@ -590,6 +609,7 @@ def _closed_point_force_block(robot: Robot, model: pin.Model, data: pin.Data, q:
     j_full = np.empty((m, 6, model.nv))
     joint_jacobians, frame_jacobian = pin.computeJointJacobians, pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
+    translation = _frame_placement_views(data, fid)[1]
     record = closure.recorder(model, data, hessians=False)
     j_rows = _jacobian_rows(j_full)
     for i in range(m):
@@ -597,7 +617,8 @@ def _closed_point_force_block(robot: Robot, model: pin.Model, data: pin.Data, q:
         j_rows[i] = frame_jacobian(model, data, fid, LWA)
         record(i)
         if position is not None:
-            position[i] = update_placement(model, data, fid).translation
+            update_placement(model, data, fid)
+            position[i] = translation
     proj, curvature, valid = closure.derivatives(j_full)
     support = _support_mask(model, model.frames[fid].parentJoint)
     target_j = np.ascontiguousarray(j_full[:, :, support].transpose(1, 2, 0))  # (6, s, m)
