@@ -155,13 +155,22 @@ def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
     return path
 
 
-def _remove_stale_temporaries(path: Path) -> None:
-    """Remove temporary files of ``path`` left by writers that no longer run (killed)."""
-    for stale in path.parent.glob(f".{path.name}.*.tmp"):
-        parts = stale.name[len(path.name) + 2:].split(".")
-        if not parts or not parts[0].isdigit():
+#: Folders whose stale temporary files this process has removed (:func:`_remove_stale_temporaries`).
+_SWEPT_FOLDERS: set[Path] = set()
+
+
+def _remove_stale_temporaries(folder: Path) -> None:
+    """Remove the temporary files in ``folder`` left by writers that no longer run (killed),
+    once per folder and process: a scan writes thousands of files into one folder, and
+    listing it at every write would cost time growing with the files already written."""
+    if folder in _SWEPT_FOLDERS:
+        return
+    _SWEPT_FOLDERS.add(folder)
+    for stale in folder.glob(".*.tmp"):
+        parts = stale.name[: -len(".tmp")].rsplit(".", 2)  # .<name>.<pid>.<random>
+        if len(parts) != 3 or not parts[1].isdigit():
             continue
-        pid = int(parts[0])
+        pid = int(parts[1])
         if pid == os.getpid():
             continue
         try:
@@ -186,7 +195,7 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[BinaryIO], objec
     """
     path = Path(path)
     output_folder(path.parent)
-    _remove_stale_temporaries(path)
+    _remove_stale_temporaries(path.parent)
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.",
                                    suffix=".tmp")

@@ -237,3 +237,26 @@ def test_out_naming_an_existing_file_gives_one_line(command, simulated_campaign,
     done = run_in(args, existing)
     one_line_error(done, str(existing))
     assert existing.read_text() == "keep me\n"
+
+
+def test_stale_temporaries_of_dead_writers_removed_once_per_folder(tmp_path):
+    """A killed writer's temporary files are removed at the first write into their folder
+    (any file of it); a live process's are kept; later writes do not list the folder again."""
+    from stiffness import files
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead_pid = int(dead.stdout)
+    stale = tmp_path / f".chunk-00001.npz.{dead_pid}.abc123.tmp"
+    live = tmp_path / f".summary.json.{os.getppid()}.xyz789.tmp"
+    other = tmp_path / ".notes.tmp"
+    for path in (stale, live, other):
+        path.write_text("half written")
+    files.atomic_write(tmp_path / "chunk-00002.npz", b"data")
+    assert not stale.exists() and live.exists() and other.exists()
+    late = tmp_path / f".chunk-00003.npz.{dead_pid}.def456.tmp"
+    late.write_text("half written")
+    files.atomic_write(tmp_path / "chunk-00004.npz", b"data")
+    assert late.exists()  # swept once per process: the next run removes it
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == [
+        "chunk-00002.npz", "chunk-00004.npz"]
