@@ -2,10 +2,11 @@
 
 Writes ``report.html`` (summary of verdicts, contents, provenance, evidence, figures embedded),
 ``summary.json`` and the figures as PNG into ``--out`` (see :mod:`stiffness.papers.report`),
-and the meshcat scene of :func:`stiffness.papers.report.scene_robot`, drawn by
+and the meshcat scene of :func:`stiffness.papers.independent.scene_robot`, drawn by
 :mod:`stiffness.viewer` (a layer above the papers). With two or more CPUs the parts that depend
-on no campaign (the Appendix I cross-check and the K_C-parts figure, about a third of the work)
-run meanwhile in a second Python process (:func:`background_independent_parts`).
+on no campaign and draw no figure (the Appendix I cross-check and the 3-D scene, about half
+of the work, :func:`independent_parts`) run meanwhile in a second Python process
+(:func:`background_independent_parts`).
 """
 
 from __future__ import annotations
@@ -31,9 +32,9 @@ def scene_html() -> str:
     """The report's static 3-D scene (self-contained HTML, opens offline).
 
     Enhanced and conventional stiffness ellipsoids side by side, the deflected robot and the
-    load arrow, at :func:`~stiffness.papers.report.scene_robot`'s configuration and load.
+    load arrow, at :func:`~stiffness.papers.independent.scene_robot`'s configuration and load.
     """
-    from stiffness.papers.report import SCENE_TITLE, scene_robot
+    from stiffness.papers.independent import SCENE_TITLE, scene_robot
     from stiffness.viewer import StiffnessViewer
 
     robot, k_theta = scene_robot()
@@ -48,18 +49,18 @@ def export_scene(path: Path) -> Path:
 
 
 def independent_parts() -> dict:
-    """:func:`stiffness.papers.independent.independent_parts` (imported when called)."""
+    """:func:`stiffness.papers.independent.independent_parts` (the Appendix I cross-check) and
+    the 3-D scene (:func:`scene_html`, under ``"scene"``), imported when called."""
     from stiffness.papers.independent import independent_parts as compute
 
-    return compute()
+    return {**compute(), "scene": scene_html()}
 
 
-#: The second process: :func:`~stiffness.papers.independent.independent_parts`, pickled on stdout,
-#: if it imports the same stiffness as this process (its ``__init__`` file is the argument);
-#: else exit 3.
+#: The second process: :func:`independent_parts`, pickled on stdout, if it imports the same
+#: stiffness as this process (its ``__init__`` file is the argument); else exit 3.
 _INDEPENDENT_CHILD = ("import pickle, sys, stiffness; "
                       "sys.exit(3) if stiffness.__file__ != sys.argv[1] else None; "
-                      "from stiffness.papers.independent import independent_parts; "
+                      "from stiffness.cli.report import independent_parts; "
                       "sys.stdout.buffer.write(pickle.dumps(independent_parts()))")
 
 
@@ -70,8 +71,8 @@ _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THR
 
 @contextmanager
 def background_independent_parts() -> Iterator[Callable[[], dict]]:
-    """:func:`~stiffness.papers.independent.independent_parts` (the Appendix I cross-check and the
-    K_C-parts figure), started in a second Python process where there is a second CPU;
+    """:func:`independent_parts` (the Appendix I cross-check and the 3-D scene), started in a
+    second Python process where there is a second CPU;
     yields the function that returns them.
 
     The process is a fresh interpreter running only those parts (nothing of the caller's
@@ -138,8 +139,9 @@ def run(args: argparse.Namespace) -> int:
         from stiffness.papers.report import build_report
 
         def independent() -> dict:
-            scene["html"] = scene_html()  # this process's share while the second one works
-            return collect()
+            parts = collect()
+            scene["html"] = parts["scene"]
+            return parts
 
         summary, figures = build_report(args.campaign, quiet=args.quiet,
                                         command=command_line(args), independent=independent)

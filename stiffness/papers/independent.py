@@ -1,35 +1,40 @@
-"""The parts of the SK120 report that depend on no campaign: the Appendix I cross-check and
-the figure of K_C's diagonal parts over the Table IV grid (Figs. 7-9).
+"""The parts of the SK120 report that depend on no campaign and need no figure: the Appendix I
+cross-check, and what the 3-D scene shows (:func:`scene_robot`).
 
-They take about a third of the report's time, so ``stiffness report`` computes them in a
-second process while this one identifies and draws the rest; this module imports only what
-they need (not the identification and its optimisers), so that process starts quickly.
+It takes about half of the report's time, so ``stiffness report`` computes it in a second
+process (with the report's 3-D scene, :func:`stiffness.cli.report.independent_parts`) while
+this one identifies and draws the rest; this module imports only what it needs (not the
+identification and its optimisers, nor matplotlib), so that process starts quickly.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from stiffness.model.robot import load_robot
-from stiffness.papers import figures as plots
+from stiffness.model.robot import Robot, load_robot
 from stiffness.papers.crosscheck import run_crosscheck
-from stiffness.papers.reproduction import table4
 
-#: The figure of :func:`independent_parts`.
-INDEPENDENT_FIGURE = "partial_derivatives.png"
+#: Title of the report's 3-D scene.
+SCENE_TITLE = "Motoman SK120: stiffness at configuration A"
+
+
+def scene_robot() -> tuple[Robot, np.ndarray]:
+    """The robot and joint springs (N.m/rad) of the report's 3-D scene.
+
+    The shipped SK120 at its defaults: Table II's configuration A, its largest load there and
+    the paper's identified K_theta; the scene shows both formulations' ellipsoids side by side.
+    """
+    robot = load_robot("sk120")
+    return robot, np.asarray(robot.defaults["k_theta_SI"], dtype=float)
 
 
 def independent_parts() -> dict:
     """The Appendix I cross-check (:func:`~stiffness.papers.crosscheck.run_crosscheck` with its
-    defaults) and the figure of K_C's diagonal parts over the Table IV grid, with the paper's
-    SK120 and K_theta.
+    defaults).
 
     Returns
     -------
     dict
-        ``{"appendix": cross-check report, "figures": {"partial_derivatives.png": PNG}}``.
+        ``{"appendix": cross-check report}``.
     """
-    robot = load_robot("sk120")
-    _, scan = table4(robot, np.diag(robot.defaults["k_theta_SI"]))
-    return {"appendix": run_crosscheck(),
-            "figures": {INDEPENDENT_FIGURE: plots.partial_derivative_maps(scan)}}
+    return {"appendix": run_crosscheck()}

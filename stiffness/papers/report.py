@@ -30,7 +30,7 @@ from stiffness.model.robot import Robot, load_robot
 from stiffness.model.sources import robots_directory
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
-from stiffness.papers.independent import INDEPENDENT_FIGURE, independent_parts
+from stiffness.papers.independent import independent_parts
 from stiffness.papers.report_page import SCENE_FILE, claims, render_html
 from stiffness.papers.reproduction import (
     PAPER_CRITICAL_FORCE_N,
@@ -58,19 +58,6 @@ from stiffness.scan.definiteness import terminal_progress
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
 #: Title of the SK120 meshcat scene written beside the report (its file: SCENE_FILE).
-SCENE_TITLE = "Motoman SK120: stiffness at configuration A"
-
-
-def scene_robot() -> tuple[Robot, np.ndarray]:
-    """The robot and joint springs (N.m/rad) of the report's 3-D scene.
-
-    The shipped SK120 at its defaults: Table II's configuration A, its largest load there and
-    the paper's identified K_theta; the scene shows both formulations' ellipsoids side by side.
-    """
-    robot = load_robot("sk120")
-    return robot, np.asarray(robot.defaults["k_theta_SI"], dtype=float)
-
-
 def _log(quiet: bool, text: str) -> None:
     """A progress line on the terminal (none under --quiet or when stderr is not a TTY)."""
     if not quiet and sys.stderr.isatty():
@@ -131,8 +118,9 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     """Compute everything; returns ``(summary, figures)`` (figures: name -> PNG bytes).
 
     ``command`` is the command line recorded in the provenance (default: this process's).
-    ``independent()`` returns :func:`stiffness.papers.independent.independent_parts` and is
-    called last (the ``stiffness report`` command computes them in a second process
+    ``independent()`` returns (at least) what
+    :func:`stiffness.papers.independent.independent_parts` returns and is called last (the
+    ``stiffness report`` command computes it in a second process
     meanwhile); default: computed here.
     """
     started = time.perf_counter()
@@ -280,7 +268,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     figures = {
         "force_deflection.png": plots.force_deflection(
             _force_deflection_curves(robot, paper_k, direction)),
-        INDEPENDENT_FIGURE: None,  # its place; filled from ``independent`` below
+        "partial_derivatives.png": plots.partial_derivative_maps(scan),
         "linear_vs_exact.png": plots.linear_vs_exact(departure, float(np.linalg.norm(
             reference * 1000))),
         "stiffness_map.png": plots.stiffness_map(t2g, t3g, minimum, ratio, 1000.0),
@@ -288,9 +276,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
     _log(quiet, "checking Appendix I against Pinocchio ...")
-    parts = (independent or independent_parts)()
-    figures.update(parts["figures"])
-    cross = parts["appendix"]
+    cross = (independent or independent_parts)()["appendix"]
     summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
     summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
     summary["appendix"] = cross
