@@ -39,6 +39,7 @@ Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
 * ``sk120.ratio_to_bare``: the SK120's batched K_X over the bare call;
 * ``diagnose_200_rows_s``, ``identify_exact_200_rows_s``, ``report_s``, ``import_s``: new
   processes, imports included (``import_s`` over a bare interpreter);
+  ``diagnose_200_rows_with_effects_s``: ``diagnose`` on a campaign with hidden effects;
 * ``load_average``: ``os.getloadavg()`` before and after (the machine is shared).
 """
 
@@ -479,8 +480,9 @@ def _wall(argv: list[str], rounds: int = 1, cwd: str | None = None) -> float:
 
 def commands_seconds(rounds: int) -> dict[str, float]:
     """``import stiffness`` (over a bare interpreter), ``stiffness report``, and ``diagnose``
-    / ``identify --formulation exact`` on a simulated 200-row UR5 campaign, each in a new
-    process (imports included), best of ``rounds``."""
+    / ``identify --formulation exact`` on a simulated 200-row UR5 campaign (``diagnose`` also
+    on one with a hidden backlash and a misaligned frame), each in a new process (imports
+    included), best of ``rounds``."""
     python = [sys.executable]
     bare = _wall([*python, "-c", "pass"], rounds)
     out = {"import_s": _wall([*python, "-c", "import stiffness"], rounds) - bare}
@@ -491,6 +493,14 @@ def commands_seconds(rounds: int) -> dict[str, float]:
                         "--configs", "50", "--loads-per-config", "4", "--seed", "3",
                         "--out", str(campaign)], check=True, capture_output=True)
         out["diagnose_200_rows_s"] = _wall([*cli, "diagnose", str(campaign), "--json"], rounds)
+        hidden = Path(tmp) / "campaign-with-effects"  # what diagnose is for: effects to find
+        subprocess.run([*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
+                        "--configs", "50", "--loads-per-config", "4", "--seed", "3",
+                        "--effect", "backlash:shoulder_lift_joint=0.01",
+                        "--effect", "frame_misalignment=1", "--out", str(hidden)],
+                       check=True, capture_output=True)
+        out["diagnose_200_rows_with_effects_s"] = _wall(
+            [*cli, "diagnose", str(hidden), "--json"], rounds)
         out["identify_exact_200_rows_s"] = _wall(
             [*cli, "identify", str(campaign), "--formulation", "exact", "--json"], rounds)
         out["report_s"] = _wall([*cli, "report", "--out", str(Path(tmp) / "report")], rounds)
