@@ -492,7 +492,8 @@ def commands_seconds(rounds: int) -> dict[str, float]:
         subprocess.run([*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
                         "--configs", "50", "--loads-per-config", "4", "--seed", "3",
                         "--out", str(campaign)], check=True, capture_output=True)
-        out["diagnose_200_rows_s"] = _wall([*cli, "diagnose", str(campaign), "--json"], rounds)
+        out["diagnose_200_rows_s"] = _wall([*cli, "diagnose", str(campaign), "--json"], rounds,
+                                           cwd=tmp)
         hidden = Path(tmp) / "campaign-with-effects"  # what diagnose is for: effects to find
         subprocess.run([*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
                         "--configs", "50", "--loads-per-config", "4", "--seed", "3",
@@ -500,9 +501,10 @@ def commands_seconds(rounds: int) -> dict[str, float]:
                         "--effect", "frame_misalignment=1", "--out", str(hidden)],
                        check=True, capture_output=True)
         out["diagnose_200_rows_with_effects_s"] = _wall(
-            [*cli, "diagnose", str(hidden), "--json"], rounds)
-        out["identify_exact_200_rows_s"] = _wall(
-            [*cli, "identify", str(campaign), "--formulation", "exact", "--json"], rounds)
+            [*cli, "diagnose", str(hidden), "--json"], rounds, cwd=tmp)
+        out["identify_exact_200_rows_s"] = _wall(  # in tmp: it writes identified-model.json
+            [*cli, "identify", str(campaign), "--formulation", "exact", "--json"], rounds,
+            cwd=tmp)
         out["report_s"] = _wall([*cli, "report", "--out", str(Path(tmp) / "report")], rounds)
     return out
 
