@@ -558,10 +558,10 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
     frame_jacobian = pin.getFrameJacobian
     update_placement = pin.updateFramePlacement
     position = np.empty((m, 3)) if pose else None
-    translation = _frame_placement_views(data, fid)[1]
     closure = None if robot.loop is None else _ClosurePass(robot, q)
     if closure is not None and closure.analytic:
         return _closed_point_force_block(robot, model, data, q, force, closure, position)
+    translation = _frame_placement_views(data, fid)[1]
     j_rows = _jacobian_rows(j_full)
     if closure is None and not pose:
         for i in range(m):

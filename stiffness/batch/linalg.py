@@ -391,22 +391,25 @@ def _eigvalsh_deflated(sym: np.ndarray) -> np.ndarray:
     a wrist axis through the loaded point. The stack's common negligible rows are deflated
     (6 x 6 with two of them costs a 4 x 4 decomposition, half the time).
     """
-    n = sym.shape[-1]
-    solve = _eigvalsh_3x3 if n == 3 else np.linalg.eigvalsh
-    if n <= 3 or sym.size == 0:
-        return solve(sym)
+    if sym.shape[-1] <= 3 or sym.size == 0:
+        return _eigvalsh_dense(sym)
     size = np.abs(sym)
     small = size <= _NEGLIGIBLE_ROW * size.max(axis=(-2, -1))[..., None, None]
     negligible = np.all(small, axis=tuple(range(sym.ndim - 2))).all(axis=-1)
     if not negligible.any():
-        return solve(sym)
+        return _eigvalsh_dense(sym)
     keep = np.flatnonzero(~negligible)
     out = np.zeros(sym.shape[:-1])
     if keep.size:
-        block = sym[..., keep[:, None], keep]
-        out[..., :keep.size] = (_eigvalsh_3x3 if keep.size == 3 else np.linalg.eigvalsh)(block)
+        out[..., :keep.size] = _eigvalsh_dense(sym[..., keep[:, None], keep])
     out.sort(axis=-1)
     return out
+
+
+def _eigvalsh_dense(sym: np.ndarray) -> np.ndarray:
+    """Ascending eigenvalues of finite symmetric matrices: :func:`_eigvalsh_3x3` for 3 x 3,
+    else ``np.linalg.eigvalsh``."""
+    return _eigvalsh_3x3(sym) if sym.shape[-1] == 3 else np.linalg.eigvalsh(sym)
 
 
 #: Closed-form 3 x 3 eigenvalues are kept where the eigenvalues are separated and of similar

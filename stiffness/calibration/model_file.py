@@ -69,6 +69,7 @@ from stiffness.calibration.campaign import (
     LENGTH_UNITS,
     _looks_like_path,
     _resolve_source,
+    _written_path,
 )
 from stiffness.calibration.effects import (
     COMPENSATOR_GEOMETRY,
@@ -460,11 +461,7 @@ def _relative(path: str, relative_to: str | os.PathLike | None) -> str:
     """``path`` relative to the folder ``relative_to`` (POSIX separators), or as given."""
     if relative_to is None:
         return path
-    try:
-        path = os.path.relpath(Path(path).resolve(), Path(relative_to).resolve())
-    except ValueError:  # another drive on Windows
-        path = str(Path(path).resolve())
-    return Path(path).as_posix()
+    return _written_path(str(Path(path).resolve()), Path(relative_to))
 
 
 def _robot_options(r: _Reader) -> dict:

@@ -21,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from stiffness.model.kinematics import frame_id
+
 #: Joint types of Gepetto's ``joint_type`` key (upper case; files may use any case).
 JOINT_REWRITES = ("SPHERICAL", "FIXED") + tuple(
     f"UJOINT_{a}{b}" for a in "XYZ" for b in "XYZ" if a != b)
@@ -114,8 +116,6 @@ def _reducible(model: pin.Model) -> pin.Model:
     become ``<name>.<type>``), and velocity or effort limits whose lower bound exceeds the upper
     (seen in example-robot-data's reduced Talos legs) get the lower bound ``-upper``. Neither
     enters the elastostatics."""
-    from stiffness.model.kinematics import frame_id
-
     names = [f.name for f in model.frames]
     shared = {n for n in names if names.count(n) > 1}
     limits = [("lowerVelocityLimit", "upperVelocityLimit"),

@@ -75,9 +75,10 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
         key = (round(distance, 9), frame.type != pin.FrameType.JOINT, fid)
         if best_key is None or key > best_key:
             best, best_key = frame.name, key
-    if best is None and gripper and _with_descendants(model, gripper) != gripper:
+    hand = _with_descendants(model, gripper) if best is None else gripper
+    if hand != gripper:
         # the tip is a joint below a coupled jaw (PR2's finger tips): count it with the hand
-        return default_target_frame(model, closure_frames, _with_descendants(model, gripper))
+        return default_target_frame(model, closure_frames, hand)
     if best is None:  # only loop-closing frames on the tip joint
         return default_target_frame(model, frozenset(), gripper) if closure_frames else None
     return best

@@ -14,7 +14,8 @@ import numpy as np
 from stiffness.model.robot import Robot, load_robot
 from stiffness.papers.crosscheck import run_crosscheck
 
-#: Title of the report's 3-D scene.
+#: Title of the SK120 meshcat scene written beside the report (its file:
+#: :data:`stiffness.papers.report_page.SCENE_FILE`).
 SCENE_TITLE = "Motoman SK120: stiffness at configuration A"
 
 

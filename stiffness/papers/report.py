@@ -57,7 +57,8 @@ from stiffness.scan.definiteness import terminal_progress
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
-#: Title of the SK120 meshcat scene written beside the report (its file: SCENE_FILE).
+
+
 def _log(quiet: bool, text: str) -> None:
     """A progress line on the terminal (none under --quiet or when stderr is not a TTY)."""
     if not quiet and sys.stderr.isatty():

@@ -162,11 +162,22 @@ def write_chunk(out: Path, spec: ScanSpec, index: int, maps: dict[str, np.ndarra
     written."""
     if parts is None:
         parts = MapAccumulator(spec).chunk_parts(maps)
+    stored = stored_arrays(spec, maps) if "npz" in formats else None
+    return _write_files(out, spec, index, stored,
+                        maps if "parquet" in formats else None, parts)
+
+
+def _write_files(out: Path, spec: ScanSpec, index: int, stored: dict[str, np.ndarray] | None,
+                 maps: dict[str, np.ndarray] | None, parts: dict[str, np.ndarray]
+                 ) -> dict[str, np.ndarray]:
+    """Write chunk ``index``'s NPZ (its ``stored`` arrays, if given) and Parquet part (of its
+    ``maps``, if given), then its aggregate ``parts`` with the bytes written (which marks the
+    chunk done); returns ``parts``."""
     written = 0
-    if "npz" in formats:
-        written += write_npz(chunk_path(out, index), stored_arrays(spec, maps),
+    if stored is not None:
+        written += write_npz(chunk_path(out, index), stored,
                              compressed=spec.compression not in (None, "none"))
-    if "parquet" in formats:
+    if maps is not None:
         written += write_parquet(parquet_path(out, index), spec, maps)
     parts["bytes"] = np.array([written], dtype=np.int64)
     write_npz(aggregate_path(out, index), parts)
@@ -403,17 +414,9 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
 def _write_stored(out: Path, spec: ScanSpec, index: int, stored: dict[str, np.ndarray],
                   formats: tuple[str, ...], parts: dict[str, np.ndarray]
                   ) -> dict[str, np.ndarray]:
-    """Write a chunk that came back as stored arrays (see :func:`scan_task`)."""
+    """Write a chunk that came back as stored arrays (see :func:`scan_chunk_stored`)."""
     maps = derive(spec, index, stored) if "parquet" in formats else None
-    written = 0
-    if "npz" in formats:
-        written += write_npz(chunk_path(out, index), stored,
-                             compressed=spec.compression not in (None, "none"))
-    if maps is not None:
-        written += write_parquet(parquet_path(out, index), spec, maps)
-    parts["bytes"] = np.array([written], dtype=np.int64)
-    write_npz(aggregate_path(out, index), parts)
-    return parts
+    return _write_files(out, spec, index, stored if "npz" in formats else None, maps, parts)
 
 
 _UNITS = {
