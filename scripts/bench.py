@@ -489,15 +489,13 @@ def commands_seconds(rounds: int) -> dict[str, float]:
     cli = [*python, "-m", "stiffness.cli.main"]
     with tempfile.TemporaryDirectory() as tmp:
         campaign = Path(tmp) / "campaign"
-        subprocess.run([*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
-                        "--configs", "50", "--loads-per-config", "4", "--seed", "3",
-                        "--out", str(campaign)], check=True, capture_output=True)
+        simulate = [*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
+                    "--configs", "50", "--loads-per-config", "4", "--seed", "3"]
+        subprocess.run([*simulate, "--out", str(campaign)], check=True, capture_output=True)
         out["diagnose_200_rows_s"] = _wall([*cli, "diagnose", str(campaign), "--json"], rounds,
                                            cwd=tmp)
         hidden = Path(tmp) / "campaign-with-effects"  # what diagnose is for: effects to find
-        subprocess.run([*cli, "simulate", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
-                        "--configs", "50", "--loads-per-config", "4", "--seed", "3",
-                        "--effect", "backlash:shoulder_lift_joint=0.01",
+        subprocess.run([*simulate, "--effect", "backlash:shoulder_lift_joint=0.01",
                         "--effect", "frame_misalignment=1", "--out", str(hidden)],
                        check=True, capture_output=True)
         out["diagnose_200_rows_with_effects_s"] = _wall(
