@@ -154,3 +154,43 @@ def test_truth_with_linear_law_is_solve_equilibrium():
     dx = truth.deflections(SK120_A[None], force[None])[0]
     exact = solve_equilibrium(robot, robot.configuration(SK120_A), np.diag(SK120_K), force).dx
     np.testing.assert_allclose(dx, exact, rtol=1e-9, atol=1e-14)
+
+
+@pytest.mark.parametrize("weight", [None, 0.05])
+def test_model_jacobian_with_effects_is_the_derivative(weight):
+    """Every candidate extension, alone and on top of a backlash and a gravity preload (two
+    law effects and a preload's unloaded equilibrium), with and without rotations: the
+    analytic columns of predict_with_jacobian equal central differences of predict."""
+    robot = load_robot("ur5")
+    geo = Geometry.of(robot)
+    rng = np.random.default_rng(4)
+    coords = np.repeat(rng.uniform(-1.5, 1.5, (4, 6)), 3, axis=0)
+    forces = rng.normal(size=(12, 3)) * 150.0
+    rows = geo.rows(coords, forces, rng.normal(size=(12, 3)) * 10.0)
+    refs = References.of(geo, rows, 1e5, np.full((1, 3), 1e-3))
+    base = Model(geo, rows, "enhanced", tuple(robot.compliant_joints), (), refs, weight)
+    stacked = base.extended(make_effect("backlash", "elbow_joint", geo)).extended(
+        make_effect("gravity_preload", None, geo))
+    x_base = np.log([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
+    x_stacked = np.concatenate([x_base, [0.4], [0.3, 0.2, -0.1, 0.1]])
+    checked = 0
+    for current, x_current in ((base, x_base), (stacked, x_stacked)):
+        for effect in candidates(current):
+            model = current.extended(effect)
+            x = model.extend_x(x_current, effect)
+            x[len(x_current):] += rng.uniform(0.1, 0.5, effect.n_params)
+            pred, jac = model.predict_with_jacobian(x)
+            np.testing.assert_allclose(pred, model.predict(x), rtol=1e-13, atol=1e-18)
+            columns = np.flatnonzero(model.analytic_columns)
+            assert np.array_equal(columns[:6], np.arange(6))
+            scale = np.abs(jac[..., columns]).max()
+            for i in columns:
+                h = 1e-6 * max(1.0, abs(x[i]))
+                step = np.zeros_like(x)
+                step[i] = h
+                fd = (model.predict(x + step) - model.predict(x - step)) / (2 * h)
+                np.testing.assert_allclose(jac[..., i], fd, rtol=0, atol=1e-7 * scale,
+                                           err_msg=f"{model.describe()}: column {i}")
+            assert not jac[..., ~model.analytic_columns].any()
+            checked += 1
+    assert checked > 60

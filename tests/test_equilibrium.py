@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stiffness.batch.equilibrium import solve_equilibria
 from stiffness.errors import StiffnessError
@@ -315,3 +317,62 @@ def test_batched_equilibria_refuse_a_load_beyond_buckling(cases):
     with pytest.raises(StiffnessError, match="row 2 did not converge"):
         solve_equilibria(robot, np.array([q0, q0]), k_theta,
                          np.array([force, [0.0, 0.0, 1e5]]))
+
+
+# ------------------------------------------------------------------ frozen-geometry joint law
+
+
+def _random_law(data, n: int) -> tuple[SpringLaw, np.ndarray, np.ndarray]:
+    """A law with some nonlinear joints, torques and a K_C that keeps the equilibrium stable
+    and unique: ``|K_C| max f' <= 0.5`` (the law's fixed-point map is then a contraction)."""
+    seed = data.draw(st.integers(0, 2 ** 31 - 1))
+    rng = np.random.default_rng(seed)
+    nonlinear = data.draw(st.lists(st.integers(0, n - 1), max_size=n, unique=True))
+    k = rng.uniform(1e4, 1e6, n)
+    beta = np.zeros(n)
+    backlash = np.zeros(n)
+    for j in nonlinear:
+        beta[j] = rng.uniform(-0.004, 0.01)
+        backlash[j] = rng.uniform(0.0, 3e-4)
+    smoothing = rng.uniform(0.5, 5.0, n)
+    tau0 = rng.normal(size=(20, n)) * 50.0
+    tau_max = 2.0 * np.abs(tau0).max()  # |tau0 + K_C dtheta| stays below this
+    slope = np.max(1.0 / k * (1.0 + 2.0 * np.abs(beta) * tau_max) + backlash / smoothing)
+    k_c = rng.normal(size=(20, n, n))
+    k_c *= rng.uniform(0.0, 0.5) / (slope * np.linalg.norm(k_c, ord=2, axis=(1, 2)).max())
+    return SpringLaw(1.0 / k, beta, backlash, smoothing), tau0, k_c
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data(), n=st.integers(1, 7))
+def test_frozen_deflection_solves_the_law(data, n):
+    """The reduced Newton's answer satisfies dtheta = f(tau0 + K_C dtheta) row by row."""
+    law, tau0, k_c = _random_law(data, n)
+    dtheta = law.frozen_deflection(tau0, k_c, iterations=30, tolerance=1e-15)
+    value, _ = law(tau0 + np.einsum("mab,mb->ma", k_c, dtheta))
+    np.testing.assert_allclose(dtheta, value, rtol=1e-10, atol=1e-12 * np.abs(value).max())
+
+
+@settings(max_examples=30, deadline=None)
+@given(data=st.data(), n=st.integers(1, 6))
+def test_deflection_tangent_is_the_derivative(data, n):
+    """The implicit-function derivative along each law array equals central differences."""
+    law, tau0, k_c = _random_law(data, n)
+    dtheta = law.frozen_deflection(tau0, k_c, iterations=30, tolerance=1e-15)
+    j = data.draw(st.integers(0, n - 1))
+    steps = np.zeros((3, 3, n))  # (direction, array, joint): c, beta, b of joint j
+    steps[0, 0, j] = 0.1 * law.compliance[j]
+    steps[1, 1, j] = 1e-3
+    steps[2, 2, j] = 1e-4
+    for with_k_c in (k_c, None):
+        ref = dtheta if with_k_c is not None else law.frozen_deflection(tau0, None)
+        tangent = law.deflection_tangent(tau0, with_k_c, ref, *steps.transpose(1, 0, 2))
+        for d in range(3):
+            h = 1e-4
+            moved = [SpringLaw(law.compliance + sign * h * steps[d, 0], law.beta
+                               + sign * h * steps[d, 1], law.backlash + sign * h * steps[d, 2],
+                               law.smoothing) for sign in (1.0, -1.0)]
+            plus, minus = (m.frozen_deflection(tau0, with_k_c, 30, 1e-15) for m in moved)
+            fd = (plus - minus) / (2 * h)
+            np.testing.assert_allclose(tangent[..., d], fd, rtol=1e-5,
+                                       atol=1e-7 * max(np.abs(fd).max(), 1e-30))

@@ -122,6 +122,12 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def _contract(h: np.ndarray, v: np.ndarray, axis: int) -> np.ndarray:
+    """(m, k, n) contraction of (m, k, n, n) ``h`` with (m, n) ``v`` over ``h``'s ``axis``
+    (2: ``sum_a h_kab v_a``; 3: ``sum_b h_kab v_b``)."""
+    return np.einsum("mkab,ma->mkb" if axis == 2 else "mkab,mb->mka", h, v)
+
+
 def rotation_matrix(phi: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector ``phi`` (rad), Rodrigues' formula."""
     phi = np.asarray(phi, dtype=float)
@@ -464,6 +470,10 @@ class Effect:
     added_joint: str | None = None
     #: the joint whose law this effect changes
     joint: str | None = None
+    #: whether the variables enter only through that joint's law, affinely
+    #: (:meth:`adjust_law` of :meth:`physical`): the model then differentiates the prediction
+    #: with respect to them analytically (:meth:`Model.predict_with_jacobian`)
+    through_law: ClassVar[bool] = False
     #: how the effect enters a model used away from its campaign
     #: (:mod:`stiffness.calibration.model_file`): one of :data:`EFFECT_KINDS`
     kind: ClassVar[str] = "stiffness"
@@ -535,6 +545,11 @@ class Effect:
         """Measured displacement from the model's."""
         return dx
 
+    def output_tangent(self, p: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Derivative of :meth:`adjust_output` along changes ``t`` (m, 3, P) of the model's
+        displacement."""
+        return t
+
     def rotation(self, p: np.ndarray, model: Model, rows: Rows, force: np.ndarray,
                  moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
         """(m, 3) extra rotation of the target frame (rad, base axes), the rotational part of
@@ -545,6 +560,11 @@ class Effect:
         """Measured rotation (m, 3) from the model's (the rotational part of
         :meth:`adjust_output`)."""
         return dphi
+
+    def rotation_tangent(self, p: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Derivative of :meth:`adjust_rotation` along changes ``t`` (m, 3, P) of the model's
+        rotation."""
+        return t
 
     def preload(self, p: np.ndarray, model: Model, rows: Rows
                 ) -> tuple[np.ndarray, np.ndarray] | None:
@@ -610,6 +630,7 @@ class JointCompliance(Effect):
     prismatic: bool = False
     name: ClassVar[str] = "joint_compliance"
     param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
+    through_law: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         self.added_joint = self.joint_name
@@ -705,6 +726,7 @@ class Backlash(Effect):
     name: ClassVar[str] = "backlash"
     kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
+    through_law: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         self.joint = self.joint_name
@@ -742,6 +764,7 @@ class NonlinearJointStiffness(Effect):
     prismatic: bool = False
     name: ClassVar[str] = "nonlinear_joint_stiffness"
     param_names: ClassVar[tuple[str, ...]] = ("beta",)
+    through_law: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         self.joint = self.joint_name
@@ -786,8 +809,14 @@ class FrameMisalignment(Effect):
     def adjust_output(self, p, dx):
         return dx @ rotation_matrix(p).T
 
+    def output_tangent(self, p, t):
+        return rotation_matrix(p) @ t
+
     def adjust_rotation(self, p, dphi):
         return dphi @ rotation_matrix(p).T
+
+    def rotation_tangent(self, p, t):
+        return rotation_matrix(p) @ t
 
     def _units(self, units):
         return [(units.angle, units.angle_to_si)] * 3
@@ -1193,14 +1222,27 @@ class Model:
                 e.adjust_law(p, law, self.joints.index(e.joint), self.refs)
         return law
 
-    def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Predicted displacements (m, 3) and, for a baseline without effects, their
-        derivatives (m, 3, p) w.r.t. ``x = ln k`` (``None`` when there are effects: the fitting
-        engine then differentiates numerically).
+    @property
+    def analytic_columns(self) -> np.ndarray:
+        """(p,) mask of the parameters :meth:`predict_with_jacobian` differentiates: ``ln k``
+        and the variables of effects acting through the joint law (:attr:`Effect.through_law`);
+        the fitting engine differentiates the others numerically."""
+        mask = np.ones(self.n_params, dtype=bool)
+        for i, e in enumerate(self.effects):
+            mask[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law
+        return mask
 
-        Linear baselines: ``d pred / d ln k_i = -J_v (K - K_C)^-1 e_i k_i u_i`` with
-        ``u = (K - K_C)^-1 J^T W``; exact: the implicit function theorem on
+    def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted displacements (m, 3) and their derivatives (m, 3, p) w.r.t. ``x`` in
+        the columns of :attr:`analytic_columns` (zeros in the others).
+
+        Linear baselines without effects: ``d pred / d ln k_i = -J_v (K - K_C)^-1 e_i k_i u_i``
+        with ``u = (K - K_C)^-1 J^T W``; exact: the implicit function theorem on
         ``K dtheta = J(theta)^T W``, ``d dtheta / d k_i = -(K - K_C(theta))^-1 e_i dtheta_i``.
+        With effects: the implicit function theorem on the frozen-geometry law
+        (:meth:`stiffness.mechanics.equilibrium.SpringLaw.deflection_tangent`), carried through
+        the second-order kinematics, the preload's unloaded equilibrium and the effects'
+        output maps (:meth:`Effect.output_tangent`).
 
         Raises
         ------
@@ -1210,7 +1252,10 @@ class Model:
             If the exact equilibrium does not converge or is unstable.
         """
         if self.effects:
-            return self.predict(x), None
+            pred, _, _, tangent = self._predict(x, tangent=True)
+            jac = np.zeros(pred.shape + (self.n_params,))
+            jac[:, :, self.analytic_columns] = tangent
+            return pred, jac
         k = np.exp(x[: len(self.compliant)])
         if self.baseline == "exact":
             return self._exact(k)
@@ -1223,6 +1268,25 @@ class Model:
             [self.jv, self.rotation_weight * self.jw], axis=1)
         pred = np.einsum("mij,mj->mi", out, u)
         return pred, -(out @ inv) * (u * k)[:, None, :]
+
+    def _law_directions(self, x: np.ndarray, law: SpringLaw
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Changes (P, n) of the law's compliance, ``beta`` and backlash per unit of each
+        parameter of :attr:`analytic_columns`: ``dc_i / d ln k_i = -c_i``, and for an effect
+        acting through the law the difference of the laws one unit apart (exact: such an
+        effect sets the law affinely)."""
+        columns = np.flatnonzero(self.analytic_columns)
+        n = len(self.joints)
+        d = np.zeros((3, len(columns), n))
+        n0 = len(self.compliant)
+        d[0, np.arange(n0), np.arange(n0)] = -law.compliance[:n0]
+        for row, column in enumerate(columns[n0:], start=n0):
+            step = x.copy()
+            step[column] += 1.0
+            moved = self.law(step)
+            d[:, row] = (moved.compliance - law.compliance, moved.beta - law.beta,
+                         moved.backlash - law.backlash)
+        return d[0], d[1], d[2]
 
     def _exact(self, k: np.ndarray, jacobian: bool = True
                ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -1273,6 +1337,14 @@ class Model:
             if detail:
                 raise StiffnessError("the exact baseline gives no linear detail")
             return self._exact(np.exp(x[: len(self.compliant)]), jacobian=False)[0]
+        dx, dtheta, tau, _ = self._predict(x, tangent=False)
+        return (dx, dtheta, tau) if detail else dx
+
+    def _predict(self, x: np.ndarray, tangent: bool
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`predict` of a linear-kinematics baseline: the predicted rows, the joint
+        deflections and torques, and with ``tangent`` the (m, 3 or 6, P) derivatives of the
+        rows along the parameters of :attr:`analytic_columns`."""
         rows = self.rows
         params = self._effect_params(x)
         force, moment = rows.force, rows.moment
@@ -1286,6 +1358,7 @@ class Model:
                 point = point + shift
         tau0 = np.einsum("mkn,mk->mn", jv, force) + np.einsum("mkn,mk->mn", jw, moment)
         law = self.law(x, params)
+        directions = self._law_directions(x, law) if tangent else None
         k_c = None
         if self.tangent:
             k_c = np.einsum("mk,mkab->mab", np.hstack([force, moment]), self.h)
@@ -1295,40 +1368,64 @@ class Model:
             if pre is not None:
                 pre_tau = pre[0] if pre_tau is None else pre_tau + pre[0]
                 pre_k = pre[1] if pre_k is None else pre_k + pre[1]
+
+        def equilibrium(torque, stiffness):
+            d = law.frozen_deflection(torque, stiffness, LAW_ITERATIONS)
+            return d, (law.deflection_tangent(torque, stiffness, d, *directions)
+                       if tangent else None)
+
         if pre_tau is None:
-            dtheta = law.frozen_deflection(tau0, k_c, LAW_ITERATIONS)
-            unloaded = None
+            dtheta, t_theta = equilibrium(tau0, k_c)
+            unloaded = t_unloaded = None
         else:  # loaded minus unloaded equilibrium, both under the preload
-            loaded = law.frozen_deflection(tau0 + pre_tau, pre_k if k_c is None else k_c + pre_k,
-                                           LAW_ITERATIONS)
-            unloaded = law.frozen_deflection(pre_tau, pre_k, LAW_ITERATIONS)
+            loaded, t_loaded = equilibrium(tau0 + pre_tau,
+                                           pre_k if k_c is None else k_c + pre_k)
+            unloaded, t_unloaded = equilibrium(pre_tau, pre_k)
             dtheta = loaded - unloaded
+            t_theta = t_loaded - t_unloaded if tangent else None
+        h_v = self.h[:, :3]
         dx = np.einsum("mkn,mn->mk", jv, dtheta)
+        t_dx = jv @ t_theta if tangent else None
         if self.second_order:
-            dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, dtheta)
+            dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", h_v, dtheta, dtheta)
+            if tangent:
+                t_dx = t_dx + 0.5 * (_contract(h_v, dtheta, 2) + _contract(h_v, dtheta, 3)
+                                     ) @ t_theta
         if unloaded is not None:  # the load acts on the arm already deflected by the preload
-            dx = dx + np.einsum("mkab,ma,mb->mk", self.h[:, :3], dtheta, unloaded)
+            dx = dx + np.einsum("mkab,ma,mb->mk", h_v, dtheta, unloaded)
+            if tangent:
+                t_dx = (t_dx + _contract(h_v, unloaded, 3) @ t_theta
+                        + _contract(h_v, dtheta, 2) @ t_unloaded)
         for e, p in zip(self.effects, params, strict=True):
             extra = e.displacement(p, self, rows, force, moment, point)
             if extra is not None:
                 dx = dx + extra
         for e, p in zip(self.effects, params, strict=True):
             dx = e.adjust_output(p, dx)
+            if tangent:
+                t_dx = e.output_tangent(p, t_dx)
         if self.rotation_weight is not None:
+            h_w = self.h[:, 3:]
             dphi = np.einsum("mkn,mn->mk", jw, dtheta)
+            t_phi = jw @ t_theta if tangent else None
             if unloaded is not None:  # J_w at the preloaded pose: K_C of unit moments
-                dphi = dphi + np.einsum("mkab,ma,mb->mk", self.h[:, 3:], dtheta, unloaded)
+                dphi = dphi + np.einsum("mkab,ma,mb->mk", h_w, dtheta, unloaded)
+                if tangent:
+                    t_phi = (t_phi + _contract(h_w, unloaded, 3) @ t_theta
+                             + _contract(h_w, dtheta, 2) @ t_unloaded)
             for e, p in zip(self.effects, params, strict=True):
                 extra = e.rotation(p, self, rows, force, moment, point)
                 if extra is not None:
                     dphi = dphi + extra
             for e, p in zip(self.effects, params, strict=True):
                 dphi = e.adjust_rotation(p, dphi)
+                if tangent:
+                    t_phi = e.rotation_tangent(p, t_phi)
             dx = np.hstack([dx, self.rotation_weight * dphi])
-        if detail:
-            tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
-            return dx, dtheta, tau
-        return dx
+            if tangent:
+                t_dx = np.concatenate([t_dx, self.rotation_weight * t_phi], axis=1)
+        tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
+        return dx, dtheta, tau, t_dx
 
     def describe(self) -> str:
         """E.g. ``enhanced over joint1, joint2 + backlash(joint2)``."""

@@ -9,8 +9,11 @@ identification is a diagnosis with no effects) and gets its uncertainty from
 Objective (A&S eq. 12-13): the residuals ``r = (predicted - measured) / s`` of every dx, dy,
 dz component, ``s`` a fixed scale (the declared noise std when known), minimised by
 :func:`scipy.optimize.least_squares` over the model's parameter vector ``x`` (``ln k`` of the
-stiffnesses, then each effect's scaled variables). The model's analytic Jacobian is used when
-it has one (a baseline without effects), else central differences. Optional pseudo-residuals
+stiffnesses, then each effect's scaled variables). The model's analytic Jacobian is used for
+``ln k`` and the effects acting through the joint law, finite differences for the other
+effects' variables. A parameter the data do not see at the start (its analytic Jacobian
+column below :data:`UNSEEN_COLUMN` of the largest: the stiffness of a joint whose axis passes
+through every load's line) is held there. Optional pseudo-residuals
 ``PRIOR_WEIGHT (x - x_anchor)`` keep directions the data do not see at the start instead of
 letting them drift on round-off; they are left out of every reported quantity. Where the
 model cannot be evaluated (a buckling load, a singular tangent) the residuals are a large
@@ -48,6 +51,9 @@ SINGULAR_RTOL = 1e-10
 #: A parameter with a component above this along an undetermined direction has infinite
 #: variance.
 UNSEEN_COMPONENT = 1e-8
+#: A parameter whose Jacobian column at the start has a norm below this fraction of the
+#: largest is not seen by the data: :func:`fit_model` holds it at its start.
+UNSEEN_COLUMN = 1e-10
 #: Weight of the anchoring pseudo-residuals ``w (x - x_anchor)``: they move a determined
 #: ``ln k`` by about ``w^2 / s^2`` of its distance to the anchor (s >~ 1).
 PRIOR_WEIGHT = 1e-6
@@ -55,8 +61,10 @@ PRIOR_WEIGHT = 1e-6
 PENALTY = 1e6
 #: |x| beyond this (k ~ 1e100 for ln k) is a failed evaluation.
 _MAX_X = 230.0
-#: Relative step of the central differences of models without an analytic Jacobian.
+#: Relative step of the central differences of the parameters without analytic derivatives.
 _FD_STEP = 1e-6
+#: Relative step of the solver's forward differences there (``sqrt(eps)``, as scipy's).
+_FORWARD_STEP = float(np.sqrt(np.finfo(float).eps))
 
 
 @dataclass
@@ -140,60 +148,74 @@ def kind_noise(residual: np.ndarray, n_total: int, p: int) -> float | None:
 
 class Objective:
     """Scaled residuals ``(predicted - measured) / scale`` of a model over ``x`` and their
-    Jacobian; with ``anchor``, the pseudo-residuals ``PRIOR_WEIGHT (x - anchor)`` appended."""
+    Jacobian; with ``anchor``, the pseudo-residuals ``PRIOR_WEIGHT (x - anchor)`` appended.
+
+    The Jacobian is the model's analytic one (:meth:`Model.predict_with_jacobian`) in its
+    :attr:`Model.analytic_columns`; the other columns are finite differences (central for the
+    reported :attr:`Fit.jacobian`, forward steps of :data:`_FORWARD_STEP` for the solver).
+    """
 
     def __init__(self, model: Model, measured: np.ndarray, scale: float,
                  anchor: np.ndarray | None = None) -> None:
         self.model, self.measured, self.scale, self.anchor = model, measured, scale, anchor
         self.n_res, self.p = measured.size, model.n_params
+        self.numeric = np.flatnonzero(~model.analytic_columns)
         self._key: bytes | None = None
         self._pred: np.ndarray | None = None
         self._jac: np.ndarray | None = None
 
+    def _predict(self, x: np.ndarray, jacobian: bool
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The model's prediction (and Jacobian) at ``x``, ``None`` where it fails."""
+        if not np.all(np.abs(x) < _MAX_X):
+            return None, None
+        try:
+            with np.errstate(all="ignore"):
+                if jacobian:
+                    pred, jac = self.model.predict_with_jacobian(x)
+                else:
+                    pred, jac = self.model.predict(x), None
+        except (StiffnessError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+            return None, None
+        if not np.all(np.isfinite(pred)) or (jac is not None and not np.all(np.isfinite(jac))):
+            return None, None
+        return pred, jac
+
     def _evaluate(self, x: np.ndarray) -> None:
         key = x.tobytes()
-        if key == self._key:
-            return
-        pred = jac = None
-        if np.all(np.abs(x) < _MAX_X):
-            try:
-                with np.errstate(all="ignore"):
-                    pred, jac = self.model.predict_with_jacobian(x)
-                if not np.all(np.isfinite(pred)) or (jac is not None
-                                                     and not np.all(np.isfinite(jac))):
-                    pred = jac = None
-            except (StiffnessError, np.linalg.LinAlgError, ValueError, FloatingPointError):
-                pred = jac = None
-        self._key, self._pred, self._jac = key, pred, jac
+        if key != self._key:
+            self._pred, self._jac = self._predict(x, jacobian=True)
+            self._key = key
 
-    @property
-    def analytic(self) -> bool:
-        """Whether the model gives its Jacobian."""
-        return not self.model.effects
+    def _scaled(self, pred: np.ndarray | None) -> np.ndarray:
+        if pred is None:
+            return np.full(self.n_res, PENALTY)
+        return ((pred - self.measured) / self.scale).reshape(-1)
 
     def data(self, x: np.ndarray) -> np.ndarray:
         """Scaled data residuals (N,), or :data:`PENALTY` where the model fails."""
         self._evaluate(x)
-        if self._pred is None:
-            return np.full(self.n_res, PENALTY)
-        return ((self._pred - self.measured) / self.scale).reshape(-1)
+        return self._scaled(self._pred)
 
-    def data_jacobian(self, x: np.ndarray) -> np.ndarray:
-        """(N, p) derivative of the scaled data residuals w.r.t. ``x`` (analytic, else
-        central differences)."""
+    def data_jacobian(self, x: np.ndarray, central: bool = True) -> np.ndarray:
+        """(N, p) derivative of the scaled data residuals w.r.t. ``x``: analytic columns and
+        finite differences (central, else forward) in the others."""
         x = np.asarray(x, dtype=float)
         self._evaluate(x)
         if self._pred is None:
             return np.zeros((self.n_res, self.p))
-        if self._jac is not None:
-            return (self._jac / self.scale).reshape(self.n_res, self.p)
-        out = np.empty((self.n_res, self.p))
-        for i in range(self.p):
-            h = _FD_STEP * max(1.0, abs(x[i]))
+        out = (self._jac / self.scale).reshape(self.n_res, self.p)
+        r0 = self._scaled(self._pred)
+        for i in self.numeric:
+            h = (_FD_STEP if central else _FORWARD_STEP) * max(1.0, abs(x[i]))
             e = np.zeros_like(x)
             e[i] = h
-            out[:, i] = (self.data(x + e) - self.data(x - e)) / (2.0 * h)
-        self._evaluate(x)
+            plus = self._scaled(self._predict(x + e, jacobian=False)[0])
+            if central:
+                minus = self._scaled(self._predict(x - e, jacobian=False)[0])
+                out[:, i] = (plus - minus) / (2.0 * h)
+            else:
+                out[:, i] = (plus - r0) / h
         return out
 
     def fun(self, x: np.ndarray) -> np.ndarray:
@@ -203,9 +225,21 @@ class Objective:
             return r
         return np.concatenate([r, PRIOR_WEIGHT * (x - self.anchor)])
 
+    def unseen(self, x: np.ndarray) -> np.ndarray:
+        """(p,) mask of the analytic parameters whose Jacobian column at ``x`` has a norm below
+        :data:`UNSEEN_COLUMN` times the largest column's (none where the model fails)."""
+        self._evaluate(x)
+        mask = np.zeros(self.p, dtype=bool)
+        if self._pred is None:
+            return mask
+        norms = np.linalg.norm(self._jac.reshape(-1, self.p), axis=0)
+        mask[self.model.analytic_columns] = (norms <= UNSEEN_COLUMN * norms.max()
+                                             )[self.model.analytic_columns]
+        return mask
+
     def jac(self, x: np.ndarray) -> np.ndarray:
-        """Their Jacobian."""
-        j = self.data_jacobian(x)
+        """Their Jacobian (forward differences in the numeric columns)."""
+        j = self.data_jacobian(x, central=False)
         if self.anchor is None:
             return j
         return np.vstack([j, PRIOR_WEIGHT * np.eye(self.p)])
@@ -248,16 +282,29 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
         lo, hi = model.bounds()
         x0 = np.clip(x0, lo, hi)
         kwargs["bounds"] = (lo, hi)
-    if objective.analytic:
-        kwargs["jac"] = objective.jac
     if x_scale is not None:
         kwargs["x_scale"] = x_scale
-    sol = least_squares(objective.fun, x0, **kwargs)
-    r = objective.data(sol.x)
+    # parameters the data do not see at the start stay there: their huge Gauss-Newton step
+    # would otherwise take the trust region and the solver would crawl
+    free = ~objective.unseen(x0)
+    if bounded:
+        kwargs["bounds"] = (kwargs["bounds"][0][free], kwargs["bounds"][1][free])
+
+    def full(z: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[free] = z
+        return x
+
+    if free.any():
+        sol = least_squares(lambda z: objective.fun(full(z)), x0[free],
+                            jac=lambda z: objective.jac(full(z))[:, free], **kwargs)
+        x, success, message, nfev = full(sol.x), bool(sol.success), str(sol.message), sol.nfev
+    else:
+        x, success, message, nfev = x0, True, "no parameter is seen by the data", 1
+    r = objective.data(x)
     pred = measured + r.reshape(measured.shape) * scale
-    return Fit(model, sol.x, pred, float(np.sum((r * scale) ** 2)),
-               objective.data_jacobian(sol.x), scale, bool(sol.success), str(sol.message),
-               int(sol.nfev))
+    return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), objective.data_jacobian(x),
+               scale, success, message, int(nfev))
 
 
 @dataclass

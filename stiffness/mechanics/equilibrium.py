@@ -127,41 +127,114 @@ class SpringLaw(JointLaw):
                  + self.backlash / self.smoothing * (1.0 - th ** 2))
         return value, slope
 
+    def nonlinear_joints(self) -> np.ndarray:
+        """Indices of the joints whose law is not ``c tau`` (``beta`` or ``b`` non-zero)."""
+        return np.flatnonzero((self.beta != 0.0) | (self.backlash != 0.0))
+
+    def _remainder(self, tau: np.ndarray, joints: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """``phi(tau) = c beta tau |tau| + b tanh(tau / s)`` on ``joints`` (the law less its
+        linear part ``c tau``) and its derivative, for torques ``tau`` (..., len(joints))."""
+        c, beta = self.compliance[joints], self.beta[joints]
+        b, s = self.backlash[joints], self.smoothing[joints]
+        a = np.abs(tau)
+        th = np.tanh(tau / s)
+        return c * beta * tau * a + b * th, 2.0 * c * beta * a + b / s * (1.0 - th ** 2)
+
     def frozen_deflection(self, tau0: np.ndarray, k_c: np.ndarray | None = None,
                           iterations: int = 30, tolerance: float | None = None) -> np.ndarray:
         """Deflections solving ``dtheta = f(tau0 + K_C dtheta)`` at frozen geometry, batched.
 
+        The law is its linear part plus a remainder on the nonlinear joints ``N``:
+        ``dtheta = c tau + E_N phi(tau_N)``. With ``A = I - K_C diag(c)`` the torque is
+        ``tau = a + G phi(tau_N)``, ``a = A^-1 tau0`` (the linear springs' torque) and
+        ``G = A^-1 K_C E_N``, so Newton runs on the ``|N|`` torques of the nonlinear joints,
+        ``t = a_N + G_N phi(t)``, from the linear springs' ``t = a_N``: one batched solve of
+        ``A`` per call, then ``|N| x |N|`` steps (scalar ones for a single nonlinear joint).
+
         Parameters
         ----------
         tau0
-            (..., n) torques ``J^T W`` of the unloaded pose.
+            (..., n) torques ``J^T W`` of the unloaded pose (N.m, N).
         k_c
-            (..., n, n) ``K_C`` there, or ``None`` (conventional: ``dtheta = f(tau0)``).
+            (..., n, n) ``K_C`` there (N.m/rad), or ``None`` (conventional:
+            ``dtheta = f(tau0)``).
         iterations
-            Newton steps from the linear springs' answer ``(I - c K_C)^-1 c tau0`` (none when
-            the law is linear, which that answer solves exactly).
+            Newton steps on the nonlinear joints' torques (none when the law is linear: the
+            linear springs' answer solves it exactly).
         tolerance
-            Stop early once every residual is below this times the largest deflection; ``None``
-            runs every step (the result is then a smooth function of the law's parameters, as a
-            least-squares fit needs).
+            Stop early once every Newton residual is below this times the largest of those
+            torques; ``None`` runs every step (the result is then a smooth function of the
+            law's parameters, as a least-squares fit needs).
+
+        Returns
+        -------
+        np.ndarray
+            (..., n) deflections (rad, m).
         """
         if k_c is None:
             return self(tau0)[0] if not self.linear else self.compliance * tau0
+        joints = self.nonlinear_joints()
         n = tau0.shape[-1]
-        eye = np.eye(n)
-        a = eye - self.compliance[..., :, None] * k_c
-        dtheta = np.linalg.solve(a, (self.compliance * tau0)[..., :, None])[..., :, 0]
-        if self.linear:
-            return dtheta
+        a_mat = np.eye(n) - k_c * self.compliance[..., None, :]
+        rhs = np.concatenate([tau0[..., :, None], k_c[..., :, joints]], axis=-1)
+        sol = np.linalg.solve(a_mat, rhs)
+        tau_linear = sol[..., 0]
+        if not joints.size:
+            return self.compliance * tau_linear
+        g = sol[..., 1:]
+        g_n = g[..., joints, :]
+        a_n = tau_linear[..., joints]
+        t = a_n
         for _ in range(iterations):
-            value, slope = self(tau0 + np.einsum("...ab,...b->...a", k_c, dtheta))
-            g = dtheta - value
-            if tolerance is not None and np.abs(g).max() <= tolerance * max(
-                    float(np.abs(dtheta).max()), 1e-300):
+            phi, slope = self._remainder(t, joints)
+            residual = t - a_n - np.einsum("...ij,...j->...i", g_n, phi)
+            if tolerance is not None and np.abs(residual).max() <= tolerance * max(
+                    float(np.abs(t).max()), 1e-300):
                 break
-            jg = eye - slope[..., :, None] * k_c
-            dtheta = dtheta - np.linalg.solve(jg, g[..., :, None])[..., :, 0]
+            if joints.size == 1:
+                t = t - residual / (1.0 - g_n[..., 0] * slope)
+            else:
+                jac = np.eye(joints.size) - g_n * slope[..., None, :]
+                t = t - np.linalg.solve(jac, residual[..., :, None])[..., :, 0]
+        phi = self._remainder(t, joints)[0]
+        dtheta = self.compliance * (tau_linear + np.einsum("...ij,...j->...i", g, phi))
+        dtheta[..., joints] += phi
         return dtheta
+
+    def deflection_tangent(self, tau0: np.ndarray, k_c: np.ndarray | None,
+                           dtheta: np.ndarray, d_compliance: np.ndarray, d_beta: np.ndarray,
+                           d_backlash: np.ndarray) -> np.ndarray:
+        """Derivatives of :meth:`frozen_deflection`'s ``dtheta`` along changes of the law.
+
+        Implicit function theorem on ``dtheta = f(tau0 + K_C dtheta)``:
+        ``(I - diag(f'(tau)) K_C) d dtheta = df/dlaw``, with
+        ``df/dc = tau (1 + beta |tau|)``, ``df/dbeta = c tau |tau|``,
+        ``df/db = tanh(tau / s)`` joint by joint (``K_C = None``: ``d dtheta = df/dlaw``).
+
+        Parameters
+        ----------
+        tau0, k_c
+            As for :meth:`frozen_deflection`.
+        dtheta
+            (..., n) its solution.
+        d_compliance, d_beta, d_backlash
+            (P, n) changes of ``c``, ``beta`` and ``b`` per unit of each of ``P`` parameters.
+
+        Returns
+        -------
+        np.ndarray
+            (..., n, P) derivatives of the deflections.
+        """
+        tau = tau0 if k_c is None else tau0 + np.einsum("...ab,...b->...a", k_c, dtheta)
+        a = np.abs(tau)
+        rhs = ((tau * (1.0 + self.beta * a))[..., :, None] * d_compliance.T
+               + (self.compliance * tau * a)[..., :, None] * d_beta.T
+               + np.tanh(tau / self.smoothing)[..., :, None] * d_backlash.T)
+        if k_c is None:
+            return rhs
+        slope = self(tau)[1]
+        return np.linalg.solve(np.eye(tau.shape[-1]) - slope[..., :, None] * k_c, rhs)
 
     def start(self, tau):
         return self(tau)[0]
