@@ -1,11 +1,22 @@
-"""The fitting engine (stiffness.calibration.fitting): parameters the data do not see."""
+"""The fitting engine (stiffness.calibration.fitting): parameters the data do not see, fits in
+forked workers."""
 
 from __future__ import annotations
 
-import numpy as np
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
 
+import numpy as np
+import pytest
+
+from stiffness.calibration import fitting
 from stiffness.calibration.effects import Geometry, Model, References, make_effect
-from stiffness.calibration.fitting import fit_model
+from stiffness.calibration.fitting import FitJob, fit_model, fit_models
+from stiffness.cores import fork_workers, usable_cores
 from stiffness.model.robot import load_robot
 
 K_TRUE = np.array([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
@@ -44,3 +55,88 @@ def test_an_unseen_stiffness_is_held_and_the_others_fit_as_without_it():
     # and the solver does not crawl along the unseen direction
     assert fit.nfev <= 60
     assert fit.cost < 1.5 * measured.size  # it fits to noise
+
+
+def _jobs() -> list[FitJob]:
+    model, measured = _campaign_model(tuple(load_robot("ur5").compliant_joints))
+    rng = np.random.default_rng(3)
+    return [FitJob(model, measured, NOISE,
+                   np.concatenate([np.log(K_TRUE * rng.uniform(0.5, 2.0, 6)), [0.5]]),
+                   {"x_scale": 1.0, "tolerance": 1e-8}) for _ in range(5)]
+
+
+def test_forked_fits_are_the_fits_of_this_process(monkeypatch):
+    jobs = _jobs()
+    serial = [job.run() for job in jobs]
+    pools = []
+
+    class CountedPool(fitting.ProcessPoolExecutor):
+        def __init__(self, *args, **kwargs):
+            pools.append(self)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(fitting, "ProcessPoolExecutor", CountedPool)
+    monkeypatch.setattr(fitting, "FORK_WORTH_S", 0.0)
+    monkeypatch.setattr(fitting, "fork_workers", lambda requested, tasks: min(2, tasks))
+    forked = fit_models(jobs, workers=2)
+    assert len(pools) == 1  # the four jobs after the first went to two forked workers
+    for a, b, job in zip(serial, forked, jobs, strict=True):
+        assert b.model is job.model
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.predicted, b.predicted)
+        assert a.rss == b.rss and a.nfev == b.nfev
+
+
+def test_fork_workers_rules():
+    assert fork_workers(4, 3) == 3 and fork_workers(1, 10) == 1 and fork_workers(5, 0) == 1
+    assert 1 <= fork_workers(None, 100) <= usable_cores()
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    try:  # a process running another Python thread never forks
+        assert fork_workers(4, 10) == 1
+    finally:
+        release.set()
+        other.join()
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to list child processes")
+def test_forked_workers_exit_when_their_command_is_killed():
+    script = (
+        "import os, time\n"
+        "from stiffness.calibration import fitting\n"
+        "parent = os.getpid()\n"
+        "class Slow(fitting.FitJob):\n"
+        "    def __init__(self):\n"
+        "        pass\n"
+        "    def run(self):\n"
+        "        if os.getpid() != parent:\n"
+        "            time.sleep(120)\n"
+        "fitting.FORK_WORTH_S = 0.0\n"
+        "fitting.fit_models([Slow() for _ in range(5)], workers=2)\n")
+    command = subprocess.Popen([sys.executable, "-c", script])
+    try:
+        deadline = time.monotonic() + 60
+        while not (workers := _children(command.pid)) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(workers) == 2
+    finally:
+        command.send_signal(signal.SIGKILL)
+        command.wait(10)
+    deadline = time.monotonic() + 10
+    while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(Path(f"/proc/{pid}").exists() for pid in workers)
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines()
+                          if ":\t" in line)
+        except OSError:
+            continue
+        if fields.get("PPid", "").strip() == str(pid):
+            out.append(int(status.parent.name))
+    return out

@@ -345,6 +345,6 @@ def test_second_process_parts_or_this_process(monkeypatch, child, expected):
 
     monkeypatch.setattr(command, "_INDEPENDENT_CHILD", child)
     monkeypatch.setattr(command, "independent_parts", lambda: {"from": "this process"})
-    monkeypatch.setattr(command, "_usable_cpus", lambda: 2)
+    monkeypatch.setattr(command, "usable_cores", lambda: 2)
     with command.background_independent_parts() as collect:
         assert collect() == expected

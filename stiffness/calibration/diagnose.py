@@ -59,7 +59,7 @@ from stiffness.calibration.effects import (
     Rows,
     candidates,
 )
-from stiffness.calibration.fitting import Fit, kind_noise, observations
+from stiffness.calibration.fitting import Fit, FitJob, kind_noise, observations
 from stiffness.calibration.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
@@ -109,12 +109,18 @@ _MIN_REPLICATE_DOF = 9
 # fitting
 
 
+def fit_job(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
+            max_nfev: int | None = None, tolerance: float = 1e-10) -> FitJob:
+    """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
+    to the solver ``tolerance``, to run (:class:`stiffness.calibration.fitting.FitJob`)."""
+    return FitJob(model, measured, scale, x0,
+                  {"max_nfev": max_nfev, "x_scale": 1.0, "tolerance": tolerance})
+
+
 def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
               max_nfev: int | None = None, tolerance: float = 1e-10) -> Fit:
-    """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
-    (:func:`stiffness.calibration.fitting.fit_model`) to the solver ``tolerance``."""
-    return fitting.fit_model(model, measured, scale, x0, max_nfev=max_nfev, x_scale=1.0,
-                             tolerance=tolerance)
+    """:func:`fit_job`'s fit, in this process."""
+    return fit_job(model, measured, scale, x0, max_nfev, tolerance).run()
 
 
 def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
@@ -176,25 +182,34 @@ def config_folds(labels: tuple[str, ...], seed: int = 0) -> list[np.ndarray]:
     return [np.flatnonzero(np.isin(labels_arr, g)) for g in groups]
 
 
-def cross_validate(fit: Fit, measured: np.ndarray, folds: list[np.ndarray]) -> float:
-    """Cross-validated RMS residual (m): each fold refitted without its rows, from ``fit.x``."""
+def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray],
+                   workers: int | None = None) -> list[float]:
+    """Cross-validated RMS residual (m) of each fit: each fold refitted without its rows, from
+    the fit's ``x`` (every refit of every fit one job of
+    :func:`stiffness.calibration.fitting.fit_models` on ``workers``)."""
     if not folds:
-        return math.nan
-    model, m = fit.model, measured.shape[0]
-    total = 0.0
-    for test in folds:
-        train = np.setdiff1d(np.arange(m), test)
-        sub = fit_model(model.with_rows(model.rows.subset(train)), measured[train], fit.scale,
-                        fit.x)
-        try:
-            with np.errstate(all="ignore"):
-                pred = model.with_rows(model.rows.subset(test)).predict(sub.x)
-        except np.linalg.LinAlgError:
-            return math.inf
-        if not np.all(np.isfinite(pred)):
-            return math.inf
-        total += float(np.sum((pred - measured[test]) ** 2))
-    return math.sqrt(total / measured.size)
+        return [math.nan] * len(fits)
+    m = measured.shape[0]
+    trains = [np.setdiff1d(np.arange(m), test) for test in folds]
+    subs = fitting.fit_models([fit_job(f.model.with_rows(f.model.rows.subset(train)),
+                                       measured[train], f.scale, f.x)
+                               for f in fits for train in trains], workers)
+    out = []
+    for i, fit in enumerate(fits):
+        total = 0.0
+        for test, sub in zip(folds, subs[i * len(folds): (i + 1) * len(folds)], strict=True):
+            try:
+                with np.errstate(all="ignore"):
+                    pred = fit.model.with_rows(fit.model.rows.subset(test)).predict(sub.x)
+            except np.linalg.LinAlgError:
+                total = math.inf
+                break
+            if not np.all(np.isfinite(pred)):
+                total = math.inf
+                break
+            total += float(np.sum((pred - measured[test]) ** 2))
+        out.append(math.sqrt(total / measured.size))
+    return out
 
 
 def _covariance(fit: Fit, sigma: float) -> np.ndarray:
@@ -813,6 +828,7 @@ def diagnose(
     seed: int = 0,
     propose: bool = True,
     progress: Callable[[str], None] | None = None,
+    workers: int | None = None,
 ) -> Diagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
@@ -828,6 +844,10 @@ def diagnose(
         Whether to propose extra poses and loads for what cannot be told apart.
     progress
         Called with a line of text as the search goes.
+    workers
+        Processes fitting a step's candidates and cross-validation folds side by side
+        (:func:`stiffness.calibration.fitting.fit_models`; default the usable cores, 1 in this
+        process); the result does not depend on it.
 
     Returns
     -------
@@ -892,7 +912,7 @@ def diagnose(
     folds = config_folds(campaign.config, seed)
 
     current = base
-    cv_current = cross_validate(base, measured, folds)
+    cv_current = cross_validate([base], measured, folds, workers)[0]
     cv_base = cv_current
     steps: list[Step] = []
     ambiguities_raw: list[tuple[int, Candidate, Candidate, float]] = []
@@ -907,16 +927,18 @@ def diagnose(
         if len(steps) >= max_steps:
             stop = f"stopped after {max_steps} effects (max_steps)"
             break
-        fits = []
-        for effect in candidates(current.model):
-            model = current.model.extended(effect)
-            fits.append((effect, fit_model(model, measured, scale,
-                                           current.model.extend_x(current.x, effect),
-                                           tolerance=SCREEN_TOLERANCE)))
+        effects = candidates(current.model)
+        fits = list(zip(effects, fitting.fit_models(
+            [fit_job(current.model.extended(e), measured, scale,
+                     current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE)
+             for e in effects], workers), strict=True))
         results, dispersion = _ranked(current, fits, n, sigma)
         best = {id(c.effect) for c in results[:REFINE_TOP]}
-        fits = [(e, fit_model(f.model, measured, scale, f.x) if id(e) in best else f)
-                for e, f in fits]
+        refine = [i for i, (e, _) in enumerate(fits) if id(e) in best]
+        refined = fitting.fit_models([fit_job(fits[i][1].model, measured, scale, fits[i][1].x)
+                                      for i in refine], workers)
+        for i, fit in zip(refine, refined, strict=True):
+            fits[i] = (fits[i][0], fit)
         results, dispersion = _ranked(current, fits, n, sigma)
         say(f"step {len(steps) + 1}: {len(results)} candidates; best "
             + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}" for c in results[:3]))
@@ -926,8 +948,10 @@ def diagnose(
                     else "no candidate left")
             break
         winner = None
-        for c in eligible[:CV_TOP]:
-            c.cv_rms = cross_validate(c.fit, measured, folds)
+        tried = eligible[:CV_TOP]
+        for c, cv in zip(tried, cross_validate([c.fit for c in tried], measured, folds,
+                                               workers), strict=True):
+            c.cv_rms = cv
             if winner is None and (not folds or c.cv_rms < cv_current):
                 winner = c
         if winner is None:

@@ -24,6 +24,7 @@ import sys
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+from stiffness.errors import StiffnessError
 from stiffness.files import output_folder
 
 
@@ -42,6 +43,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="seed of the cross-validation folds and proposed poses; default 0")
     parser.add_argument("--no-proposals", action="store_true",
                         help="do not propose extra poses and loads")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="processes fitting a step's candidates side by side (default: "
+                             "the usable cores; 1: all in this process); the result does not "
+                             "depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -54,6 +59,8 @@ def command_line(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness diagnose``; returns the exit code."""
+    if args.workers is not None and args.workers < 1:
+        raise StiffnessError(f"--workers must be at least 1, got {args.workers}")
     campaign = load_campaign(args.campaign)
     if args.out:
         output_folder(args.out, create=False)  # before the work: a bad --out fails at once
@@ -63,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr, flush=True)
 
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
-                      propose=not args.no_proposals, progress=progress if show else None)
+                      propose=not args.no_proposals, progress=progress if show else None,
+                      workers=args.workers)
     paths = result.write(args.out, command_line(args)) if args.out else None
     if args.json:
         print(json.dumps(result.summary(), indent=1, allow_nan=False))

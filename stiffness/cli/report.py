@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import stiffness
+from stiffness.cores import usable_cores
 from stiffness.files import atomic_write, output_folder
 
 # The report, the figures and the viewer are imported by the functions that use them: `run`
@@ -81,7 +82,7 @@ def background_independent_parts() -> Iterator[Callable[[], dict]]:
     ``stiffness`` or is not started, the parts are computed in this process (a real error is
     then raised here, as without the second process).
     """
-    if _usable_cpus() < 2:
+    if usable_cores() < 2:
         yield independent_parts
         return
     child = subprocess.Popen([sys.executable, "-c", _INDEPENDENT_CHILD, stiffness.__file__],
@@ -105,13 +106,6 @@ def background_independent_parts() -> Iterator[Callable[[], dict]]:
             child.kill()
         child.wait()
         child.stdout.close()
-
-
-def _usable_cpus() -> int:
-    """CPUs this process may run on (its affinity where the platform tells it)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
