@@ -362,7 +362,9 @@ window.addEventListener("load", function () { setTimeout(function () {
 HIDE = FIX_CANVAS + """
 <script>
 window.addEventListener("load", function () { setTimeout(function () {
+  // the legend and the axis labels are HTML over the canvas: the pixels compared are WebGL's
   document.getElementById("stiffness-overlay").style.display = "none";
+  document.getElementById("stiffness-labels").style.display = "none";
   HIDDEN.forEach(function (path) { var n = viewer.scene_tree;
     path.forEach(function (p) { n = n && n.children[p]; });
     if (n) { n.object.visible = false; } });
