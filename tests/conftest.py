@@ -20,6 +20,8 @@ configuration (the same assembly branch).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -311,10 +313,20 @@ def spatial_robot(spatial_four_bar) -> Robot:
 
 
 @pytest.fixture(scope="session")
-def sk120_report(tmp_path_factory) -> Path:
-    """Folder written once per session by ``stiffness report --quiet`` (summary.json, ...)."""
+def sk120_report_run(tmp_path_factory) -> tuple[Path, str]:
+    """Folder written once per session (per test worker) by ``stiffness report --quiet``
+    (summary.json, ...) and what the command printed. Tests only read it, or remove what they
+    add to it."""
     from stiffness.cli.main import main
 
     out = tmp_path_factory.mktemp("sk120-report")
-    assert main(["report", "--out", str(out), "--quiet"]) == 0
-    return out
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said):
+        assert main(["report", "--out", str(out), "--quiet"]) == 0
+    return out, said.getvalue()
+
+
+@pytest.fixture(scope="session")
+def sk120_report(sk120_report_run) -> Path:
+    """The folder of :func:`sk120_report_run`."""
+    return sk120_report_run[0]

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import re
 import shutil
@@ -24,12 +22,8 @@ CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 
 
 @pytest.fixture(scope="module")
-def report_run(tmp_path_factory) -> tuple[Path, str]:
-    out = tmp_path_factory.mktemp("report")
-    said = io.StringIO()
-    with contextlib.redirect_stdout(said):
-        assert main(["report", "--out", str(out), "--quiet"]) == 0
-    return out, said.getvalue()
+def report_run(sk120_report_run) -> tuple[Path, str]:
+    return sk120_report_run
 
 
 @pytest.fixture(scope="module")
