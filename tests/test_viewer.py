@@ -362,9 +362,7 @@ window.addEventListener("load", function () { setTimeout(function () {
 HIDE = FIX_CANVAS + """
 <script>
 window.addEventListener("load", function () { setTimeout(function () {
-  // the legend and the axis labels are HTML over the canvas: the pixels compared are WebGL's
   document.getElementById("stiffness-overlay").style.display = "none";
-  document.getElementById("stiffness-labels").style.display = "none";
   HIDDEN.forEach(function (path) { var n = viewer.scene_tree;
     path.forEach(function (p) { n = n && n.children[p]; });
     if (n) { n.object.visible = false; } });
@@ -780,8 +778,17 @@ window.addEventListener("load", function () { setTimeout(function () {
     v.z = bb.max.z;
     v.applyMatrix4(box.matrixWorld); v.project(viewer.camera);
     floor.push([canvas.left + (v.x + 1) / 2 * W, canvas.top + (1 - v.y) / 2 * H, v.z]); } }
+  var bodies = [], stiff = viewer.scene_tree.children.meshcat.children.stiffness;
+  ["enhanced", "conventional"].forEach(function (f) {
+    var n = stiff && stiff.children[f] && stiff.children[f].children.surface;
+    if (!n || !n.object.visible) { return; }
+    n.object.updateWorldMatrix(true, false);
+    var v = viewer.camera.position.clone().setFromMatrixPosition(n.object.matrixWorld);
+    v.project(viewer.camera);
+    bodies.push([canvas.left + (v.x + 1) / 2 * W, canvas.top + (1 - v.y) / 2 * H, v.z]); });
   var pre = document.createElement("pre"); pre.id = "probe";
   pre.textContent = JSON.stringify({labels: labels, robot: ROBOT.map(screen), floor: floor,
+    ellipsoids: bodies,
     canvas: [canvas.left, canvas.top, canvas.right, canvas.bottom],
     legend: [o.left, o.top, o.right, o.bottom], title: document.title});
   document.body.appendChild(pre);
@@ -821,9 +828,10 @@ def overlap(a: dict, b: dict) -> bool:
 
 @pytest.mark.parametrize("case", ["hexapod", "ur5-unloaded"])
 def test_labels_never_overlap_and_the_floor_is_in_frame(case, tmp_path, capsys):
-    """Measured in the rendered page: label rectangles disjoint, off the legend and the robot's
-    skeleton, inside the canvas; the floor plate under the robot inside the frame. The UR5
-    is drawn without --wrench: the unloaded stiffness, said on the terminal and the page."""
+    """Measured in the rendered page: label rectangles disjoint, off the legend, the robot's
+    skeleton and the ellipsoids' centres, inside the canvas; the floor plate under the robot
+    inside the frame. The UR5 is drawn without --wrench: the unloaded stiffness, said on the
+    terminal and the page."""
     out = tmp_path / f"{case}.html"
     if case == "hexapod":
         argv, robot = ["view", "--robot", "hexapod"], load_robot("hexapod")
@@ -857,9 +865,10 @@ def test_labels_never_overlap_and_the_floor_is_in_frame(case, tmp_path, capsys):
         assert not overlap(a, legend), a
         for b in labels[i + 1:]:
             assert not overlap(a, b), (a, b)
-        for x, y, z in layout["robot"]:
+        for x, y, z in layout["robot"] + layout["ellipsoids"]:
             if -1 < z < 1:
                 assert not (a["l"] < x < a["r"] and a["t"] < y < a["b"]), (a, (x, y))
+    assert layout["ellipsoids"], "no ellipsoid in the scene"
     floor = np.array(layout["floor"])
     inside = ((floor[:, 0] > left) & (floor[:, 0] < right) & (floor[:, 1] > top)
               & (floor[:, 1] < bottom) & (np.abs(floor[:, 2]) < 1))

@@ -85,8 +85,8 @@ _PAGE_JS = r"""
   }
   // ---- labels: HTML boxes at the projected anchors, with leader lines. Placed greedily in
   // order (names first): each tries offsets outward from its ellipsoid's centre and is
-  // dropped if every offset would overlap a placed label, the legend, the robot or leave the
-  // frame.
+  // dropped if every offset would overlap a placed label, the legend, the robot, an
+  // ellipsoid or leave the frame.
   var labelLayer = document.getElementById("stiffness-labels");
   var SVGNS = "http://www.w3.org/2000/svg";
   var leaders = document.createElementNS(SVGNS, "svg");
@@ -139,6 +139,37 @@ _PAGE_JS = r"""
     });
     return out;
   }
+  function ellipses(w, h) {
+    // each shown ellipsoid's image on screen, to first order about its centre: the ellipse of
+    // shape V V^T, V = the projected principal semi-axes (its axis labels' anchors)
+    var byCenter = {};
+    labelSpecs.forEach(function (spec) {
+      if (spec.kind !== "axis") { return; }
+      var anchor = shown(spec.anchor), center = shown(spec.center);
+      if (!anchor || !center) { return; }
+      var C = screenOf(worldOf(center), w, h), A = screenOf(worldOf(anchor), w, h);
+      if (!C || !A) { return; }
+      var key = spec.center.join("/");
+      var e = byCenter[key] || (byCenter[key] = {c: C, a: 0, b: 0, d: 0});
+      var vx = A[0] - C[0], vy = A[1] - C[1];
+      e.a += vx * vx; e.b += vx * vy; e.d += vy * vy;
+    });
+    return Object.keys(byCenter).map(function (k) { return byCenter[k]; }).filter(
+      function (e) { return e.a * e.d - e.b * e.b > 1e-6; });
+  }
+  function coversEllipse(box, e) {
+    // the box contains the ellipse's centre, or one of a grid of its points lies inside it
+    var det = e.a * e.d - e.b * e.b;
+    if (e.c[0] > box.l && e.c[0] < box.r && e.c[1] > box.t && e.c[1] < box.b) { return true; }
+    for (var i = 0; i <= 4; i++) {
+      for (var j = 0; j <= 2; j++) {
+        var x = box.l + (box.r - box.l) * i / 4 - e.c[0];
+        var y = box.t + (box.b - box.t) * j / 2 - e.c[1];
+        if ((e.d * x * x - 2 * e.b * x * y + e.a * y * y) / det <= 1.0) { return true; }
+      }
+    }
+    return false;
+  }
   function overlaps(a, b, gap) {
     return a.l < b.r + gap && b.l < a.r + gap && a.t < b.b + gap && b.t < a.b + gap;
   }
@@ -167,7 +198,7 @@ _PAGE_JS = r"""
     var o = overlay.getBoundingClientRect();
     var legend = {l: o.left - canvas.left, t: o.top - canvas.top, r: o.right - canvas.left,
                   b: o.bottom - canvas.top};
-    var placed = [], segments = robotSegments(w, h);
+    var placed = [], segments = robotSegments(w, h), bodies = ellipses(w, h);
     while (leaders.firstChild) { leaders.removeChild(leaders.firstChild); }
     labelSpecs.forEach(function (spec, i) {
       var e = labelEls[i];
@@ -197,6 +228,7 @@ _PAGE_JS = r"""
           if (overlaps(box, legend, 4)) { continue; }
           if (placed.some(function (p) { return overlaps(box, p, 3); })) { continue; }
           if (segments.some(function (sg) { return hitsSegment(box, sg); })) { continue; }
+          if (bodies.some(function (b) { return coversEllipse(box, b); })) { continue; }
           found = box;
         }
       }
