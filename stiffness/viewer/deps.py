@@ -8,6 +8,8 @@ meshcat.
 from __future__ import annotations
 
 import functools
+import importlib.util
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -36,9 +38,22 @@ def _meshcat() -> Any:
 
 
 def _pinocchio_meshcat_visualizer() -> type:
-    """Pinocchio's ``MeshcatVisualizer`` class, imported after :func:`_meshcat` (same warning)."""
+    """Pinocchio's ``MeshcatVisualizer`` class, imported after :func:`_meshcat` (same warning).
+
+    ``pinocchio.visualize`` imports every visualizer; its Viser one imports ``trimesh`` (1.3 s
+    here) and then ``viser``, and is disabled when either is missing. Where ``viser`` is not
+    installed, ``trimesh`` is kept out of that import (an ``ImportError`` at once: the same
+    outcome, without loading it); ``trimesh`` imports normally afterwards.
+    """
     _meshcat()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        from pinocchio.visualize import MeshcatVisualizer
+    skip_trimesh = "trimesh" not in sys.modules and importlib.util.find_spec("viser") is None
+    if skip_trimesh:
+        sys.modules["trimesh"] = None  # type: ignore[assignment]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            from pinocchio.visualize import MeshcatVisualizer
+    finally:
+        if skip_trimesh and sys.modules.get("trimesh", 0) is None:
+            del sys.modules["trimesh"]
     return MeshcatVisualizer
