@@ -1,4 +1,5 @@
-"""How many processes a command may run side by side on this machine."""
+"""How many processes a command may run side by side on this machine, and running
+independent tasks in forked workers."""
 
 from __future__ import annotations
 
@@ -6,6 +7,11 @@ import multiprocessing
 import os
 import sys
 import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
 
 
 def usable_cores() -> int:
@@ -30,3 +36,44 @@ def fork_workers(requested: int | None, tasks: int) -> int:
                   or threading.active_count() > 1):
         return 1
     return n
+
+
+#: The tasks of the running :func:`forked_map`, inherited by its forked workers.
+_TASKS: list[Callable[[], Any]] = []
+
+
+def _exit_with(parent: int) -> None:
+    """A forked worker's initializer: exit once the process ``parent`` is gone (a killed
+    command must not leave its workers waiting for tasks)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.2)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def _run_task(index: int) -> Any:
+    return _TASKS[index]()
+
+
+def forked_map(tasks: list[Callable[[], Any]], workers: int | None = None) -> list[Any]:
+    """Each task's result, in order: in forked worker processes (:func:`fork_workers`), or in
+    this process where forking is unsafe, there is one task, or a worker died.
+
+    The workers inherit the tasks (closures over any data: nothing is pickled but the results
+    coming back) and exit with this process.
+    """
+    global _TASKS
+    n = fork_workers(workers, len(tasks))
+    if n < 2:
+        return [task() for task in tasks]
+    _TASKS = tasks
+    try:
+        with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
+                                 initializer=_exit_with, initargs=(os.getpid(),)) as pool:
+            return list(pool.map(_run_task, range(len(tasks))))
+    except BrokenProcessPool:  # a worker died (killed, out of memory): do the work here
+        return [task() for task in tasks]
+    finally:
+        _TASKS = []

@@ -251,12 +251,13 @@ def test_two_hidden_effects_are_both_named():
 
 def test_the_diagnosis_does_not_depend_on_the_workers(monkeypatch):
     """Candidates and folds fitted in forked workers give the diagnosis of one process."""
+    from stiffness import cores
     from stiffness.calibration import fitting
 
     sim = _simulate(UR5, ["backlash:shoulder_lift_joint=0.05"], seed=5)
     alone = diagnose(sim.campaign, propose=False, workers=1)
     monkeypatch.setattr(fitting, "FORK_WORTH_S", 0.0)
-    monkeypatch.setattr(fitting, "fork_workers", lambda requested, tasks: min(2, tasks))
+    monkeypatch.setattr(cores, "fork_workers", lambda requested, tasks: min(2, tasks))
     forked = diagnose(sim.campaign, propose=False, workers=2)
     assert alone.missing_effects == forked.missing_effects == ["backlash"]
     assert json.dumps(alone.summary()) == json.dumps(forked.summary())

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from stiffness import cores
 from stiffness.calibration import fitting
 from stiffness.calibration.effects import Geometry, Model, References, make_effect
 from stiffness.calibration.fitting import FitJob, fit_model, fit_models
@@ -70,14 +71,14 @@ def test_forked_fits_are_the_fits_of_this_process(monkeypatch):
     serial = [job.run() for job in jobs]
     pools = []
 
-    class CountedPool(fitting.ProcessPoolExecutor):
+    class CountedPool(cores.ProcessPoolExecutor):
         def __init__(self, *args, **kwargs):
             pools.append(self)
             super().__init__(*args, **kwargs)
 
-    monkeypatch.setattr(fitting, "ProcessPoolExecutor", CountedPool)
+    monkeypatch.setattr(cores, "ProcessPoolExecutor", CountedPool)
     monkeypatch.setattr(fitting, "FORK_WORTH_S", 0.0)
-    monkeypatch.setattr(fitting, "fork_workers", lambda requested, tasks: min(2, tasks))
+    monkeypatch.setattr(cores, "fork_workers", lambda requested, tasks: min(2, tasks))
     forked = fit_models(jobs, workers=2)
     assert len(pools) == 1  # the four jobs after the first went to two forked workers
     for a, b, job in zip(serial, forked, jobs, strict=True):

@@ -36,20 +36,16 @@ variance.
 
 from __future__ import annotations
 
+import functools
 import math
-import multiprocessing
-import os
-import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from stiffness.calibration.effects import Model
-from stiffness.cores import fork_workers
+from stiffness.cores import forked_map
 from stiffness.errors import StiffnessError
 
 #: Singular values of the whitened residual Jacobian below this fraction of the largest are
@@ -332,24 +328,9 @@ class FitJob:
 #: Serial work (s) above which :func:`fit_models` forks workers (starting and joining two
 #: costs about 0.03 s).
 FORK_WORTH_S = 0.15
-#: The jobs of the running :func:`fit_models`, inherited by its forked workers.
-_JOBS: list[FitJob] = []
-
-
-def _exit_with(parent: int) -> None:
-    """A forked worker's initializer: exit once the process ``parent`` is gone (a killed
-    command must not leave its workers waiting for jobs)."""
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(0.2)
-        os._exit(1)
-
-    threading.Thread(target=watch, daemon=True).start()
-
-
-def _forked_fit(index: int) -> Fit:
-    """Job ``index`` of :data:`_JOBS`, in a forked worker; its model is not sent back."""
-    fit = _JOBS[index].run()
+def _sent_back(job: FitJob) -> Fit:
+    """``job``'s fit, without its model (a forked worker sends back only the arrays)."""
+    fit = job.run()
     fit.model = None
     return fit
 
@@ -367,27 +348,17 @@ def fit_models(jobs: list[FitJob], workers: int | None = None) -> list[Fit]:
     jobs
         The fits.
     workers
-        Worker processes (default: the usable cores; :func:`stiffness.cores.fork_workers`
-        falls back to this process where forking is unsafe).
+        Worker processes (default: the usable cores; :func:`stiffness.cores.forked_map`
+        works in this process where forking is unsafe).
     """
-    global _JOBS
     if not jobs:
         return []
     start = time.perf_counter()
     first = jobs[0].run()
     rest = jobs[1:]
-    n = fork_workers(workers, len(rest))
-    if n < 2 or (time.perf_counter() - start) * len(rest) < FORK_WORTH_S:
+    if (time.perf_counter() - start) * len(rest) < FORK_WORTH_S:
         return [first] + [job.run() for job in rest]
-    _JOBS = rest
-    try:
-        with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
-                                 initializer=_exit_with, initargs=(os.getpid(),)) as pool:
-            fits = list(pool.map(_forked_fit, range(len(rest))))
-    except BrokenProcessPool:  # a worker died (killed, out of memory): do the work here
-        return [first] + [job.run() for job in rest]
-    finally:
-        _JOBS = []
+    fits = forked_map([functools.partial(_sent_back, job) for job in rest], workers)
     for fit, job in zip(fits, rest, strict=True):
         fit.model = job.model
     return [first] + fits
