@@ -9,7 +9,9 @@
    rows (same configuration and force), else (said so) the residual scatter of the final model.
 3. Extend the current model by each candidate of
    :func:`stiffness.calibration.effects.candidates` (its own parameters identified jointly
-   with the stiffnesses), rank them by BIC
+   with the stiffnesses; every candidate fitted to :data:`SCREEN_TOLERANCE`, the best
+   :data:`REFINE_TOP` refitted to the engine's tolerance, side by side in forked workers by
+   :func:`stiffness.calibration.fitting.fit_models`), rank them by BIC
    (``RSS / sigma^2 + p ln N`` with a known sigma, ``N ln(RSS / N) + p ln N`` otherwise;
    a parameter-free switch counts one parameter), keep those improving BIC by more than
    :data:`BIC_MARGIN`, cross-validate the best :data:`CV_TOP` over configurations
