@@ -31,9 +31,7 @@ def fork_workers(requested: int | None, tasks: int) -> int:
     """
     n = usable_cores() if requested is None else requested
     n = max(1, min(n, tasks))
-    if n > 1 and (not sys.platform.startswith("linux")
-                  or "fork" not in multiprocessing.get_all_start_methods()
-                  or threading.active_count() > 1):
+    if n > 1 and (not sys.platform.startswith("linux") or threading.active_count() > 1):
         return 1
     return n
 

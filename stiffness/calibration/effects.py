@@ -1337,14 +1337,15 @@ class Model:
             if detail:
                 raise StiffnessError("the exact baseline gives no linear detail")
             return self._exact(np.exp(x[: len(self.compliant)]), jacobian=False)[0]
-        dx, dtheta, tau, _ = self._predict(x, tangent=False)
+        dx, dtheta, tau, _ = self._predict(x, tangent=False, torques=detail)
         return (dx, dtheta, tau) if detail else dx
 
-    def _predict(self, x: np.ndarray, tangent: bool
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    def _predict(self, x: np.ndarray, tangent: bool, torques: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """:meth:`predict` of a linear-kinematics baseline: the predicted rows, the joint
-        deflections and torques, and with ``tangent`` the (m, 3 or 6, P) derivatives of the
-        rows along the parameters of :attr:`analytic_columns`."""
+        deflections, with ``torques`` the joint torques (else ``None``), and with ``tangent``
+        the (m, 3 or 6, P) derivatives of the rows along the parameters of
+        :attr:`analytic_columns`."""
         rows = self.rows
         params = self._effect_params(x)
         force, moment = rows.force, rows.moment
@@ -1424,7 +1425,9 @@ class Model:
             dx = np.hstack([dx, self.rotation_weight * dphi])
             if tangent:
                 t_dx = np.concatenate([t_dx, self.rotation_weight * t_phi], axis=1)
-        tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
+        tau = None
+        if torques:
+            tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
         return dx, dtheta, tau, t_dx
 
     def describe(self) -> str:

@@ -284,14 +284,13 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
     if bounded:
         lo, hi = model.bounds()
         x0 = np.clip(x0, lo, hi)
-        kwargs["bounds"] = (lo, hi)
     if x_scale is not None:
         kwargs["x_scale"] = x_scale
     # parameters the data do not see at the start stay there: their huge Gauss-Newton step
     # would otherwise take the trust region and the solver would crawl
     free = ~objective.unseen(x0)
     if bounded:
-        kwargs["bounds"] = (kwargs["bounds"][0][free], kwargs["bounds"][1][free])
+        kwargs["bounds"] = (lo[free], hi[free])
 
     def full(z: np.ndarray) -> np.ndarray:
         x = x0.copy()

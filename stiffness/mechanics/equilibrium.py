@@ -115,23 +115,19 @@ class SpringLaw(JointLaw):
     @property
     def linear(self) -> bool:
         """Whether the law is ``dtheta = c tau``."""
-        return not (np.any(self.beta != 0.0) or np.any(self.backlash != 0.0))
+        return not self.nonlinear_joints().size
 
     def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Deflections and their derivatives w.r.t. the torques, both shaped like ``tau``
-        (..., n)."""
-        a = np.abs(tau)
-        th = np.tanh(tau / self.smoothing)
-        value = self.compliance * tau * (1.0 + self.beta * a) + self.backlash * th
-        slope = (self.compliance * (1.0 + 2.0 * self.beta * a)
-                 + self.backlash / self.smoothing * (1.0 - th ** 2))
-        return value, slope
+        (..., n): the linear part ``c tau`` plus :meth:`_remainder`."""
+        phi, slope = self._remainder(tau, slice(None))
+        return self.compliance * tau + phi, self.compliance + slope
 
     def nonlinear_joints(self) -> np.ndarray:
         """Indices of the joints whose law is not ``c tau`` (``beta`` or ``b`` non-zero)."""
         return np.flatnonzero((self.beta != 0.0) | (self.backlash != 0.0))
 
-    def _remainder(self, tau: np.ndarray, joints: np.ndarray
+    def _remainder(self, tau: np.ndarray, joints: np.ndarray | slice
                    ) -> tuple[np.ndarray, np.ndarray]:
         """``phi(tau) = c beta tau |tau| + b tanh(tau / s)`` on ``joints`` (the law less its
         linear part ``c tau``) and its derivative, for torques ``tau`` (..., len(joints))."""
