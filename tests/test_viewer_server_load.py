@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import contextlib
 import os
+import signal
 import socket
 import struct
 import subprocess
@@ -246,6 +247,31 @@ def test_connections_beyond_the_limit_evict_the_oldest_held_ones(server, probe):
     finally:
         for sock in held:
             sock.close()
+
+
+def test_a_burst_while_the_server_waits_for_the_cpu_is_queued_not_dropped(server):
+    """The accept queue holds ``max_connections``: the kernel answers while the server is paused.
+
+    The server is stopped (SIGSTOP) as if starved of CPU, and 250 connections arrive. With
+    Tornado's default queue of 128, the kernel drops the SYNs beyond it and a well-behaved
+    client waits a second for its retry; here it connects at once.
+    """
+    port = port_of(server)
+    pid = server.process.pid
+    held = []
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        for _ in range(250):
+            held.append(connect(port, timeout=0.5))
+        start = time.monotonic()
+        with connect(port, timeout=0.5):
+            waited = time.monotonic() - start
+    finally:
+        os.kill(pid, signal.SIGCONT)
+        for sock in held:
+            sock.close()
+    assert waited < 0.5
+    assert server.running
 
 
 def test_a_page_that_never_reads_is_dropped_and_memory_stays_bounded(server, probe):

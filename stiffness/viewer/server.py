@@ -49,7 +49,10 @@ class ServerLimits:
     max_connections
         Open connections (pages' websockets included). A new connection beyond it evicts the
         oldest connection that is not a page (an idle keep-alive or a slowloris half request),
-        so a held-open flood cannot lock well-behaved clients out.
+        so a held-open flood cannot lock well-behaved clients out. The listening socket's
+        accept queue holds as many (the kernel's ``somaxconn`` caps it): with Tornado's
+        default of 128, a burst of connections while the server waits for the CPU filled the
+        queue, and a well-behaved client's connection waited a second for its SYN retry.
     max_websockets
         Connected pages beyond which a new websocket is refused (HTTP 503).
     max_pending_bytes
@@ -393,7 +396,8 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
     ], websocket_max_message_size=limits.max_message_bytes,
         websocket_ping_interval=limits.ping_interval_s,
         websocket_ping_timeout=limits.ping_interval_s)
-    sockets = tornado.netutil.bind_sockets(port, address=host)
+    sockets = tornado.netutil.bind_sockets(
+        port, address=host, backlog=max(128, limits.max_connections))
     server = BoundedHTTPServer(
         app, idle_connection_timeout=limits.idle_timeout_s, body_timeout=limits.idle_timeout_s,
         max_header_size=limits.max_header_bytes, max_body_size=limits.max_body_bytes)
