@@ -107,7 +107,11 @@ def main() -> None:
         rms = float(np.sqrt(np.mean(np.square(err)))) * 1e3
         ranking.append({"signs": conv.signs, "offsets_deg": conv.offsets_deg,
                         "tool_axis": tool_dir, "rms_vs_measured_mm": rms})
-    ranking.sort(key=lambda r: r["rms_vs_measured_mm"])
+    # Conventions that give the same model (a wrist joint turned by pi with its sign flipped)
+    # fit equally up to round-off: among them, the one with the most positive signs and the
+    # smallest offsets comes first, so the ranking does not depend on the last digits.
+    ranking.sort(key=lambda r: (round(r["rms_vs_measured_mm"], 9), -sum(r["signs"]),
+                                sum(abs(o) for o in r["offsets_deg"])))
     best = AngleConvention(tuple(ranking[0]["signs"]), tuple(ranking[0]["offsets_deg"]))
     distinct = []
     for r in ranking:

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
+from lxml import etree
 
 #: L-shaped fixture: a along the tool plate's axis (z6), b normal to it (x6), in m.
 FIXTURE_A_M = 0.11265
@@ -111,56 +113,69 @@ def _dh_fixed(row: DHRow) -> np.ndarray:
     return _trans(row.a, 0.0, row.d) @ _rot_x(row.alpha)
 
 
-def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
-    """URDF text of the SK120 (tree form of the five-bar) in a given angle convention."""
-    import yourdfpy as ud
+def _numbers(values) -> str:
+    """A URDF vector attribute: each number as Python's shortest round-trip repr."""
+    return " ".join(str(float(v)) for v in values)
 
+
+def _origin(parent: etree._Element, matrix: np.ndarray) -> None:
+    """``<origin xyz rpy>`` of a homogeneous transform (rpy: Pinocchio's roll-pitch-yaw)."""
+    rpy = pin.rpy.matrixToRpy(np.ascontiguousarray(matrix[:3, :3]))
+    etree.SubElement(parent, "origin", xyz=_numbers(matrix[:3, 3]), rpy=_numbers(rpy))
+
+
+def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
+    """URDF text of the SK120 (tree form of the five-bar) in a given angle convention.
+
+    Lengths in m, angles in rad; every revolute joint is limited to [-pi, pi] rad, 1e4 N.m and
+    2 rad/s. The links' visuals are boxes 0.12 m thick along their length.
+    """
     o = np.deg2rad(convention.offsets_deg)
     s = convention.signs
     crank = table1["1b"].a
     coupler = table1["2b"].a
     r1, r3, r4, r5, r6 = (table1[k] for k in ("1", "3", "4", "5", "6"))
-    limit = ud.Limit(effort=1e4, velocity=2.0, lower=-np.pi, upper=np.pi)
+    robot = etree.Element("robot", name="motoman_sk120")
 
-    def revolute(name, parent, child, origin, sign=1):
-        return ud.Joint(name=name, type="revolute", parent=parent, child=child, origin=origin,
-                        axis=np.array([0.0, 0.0, float(sign)]), limit=limit)
-
-    def fixed(name, parent, child, origin):
-        return ud.Joint(name=name, type="fixed", parent=parent, child=child, origin=origin)
-
-    def link(name, length=0.0, axis="x"):
-        visuals = []
+    def link(name: str, length: float = 0.0, axis: str = "x") -> None:
+        element = etree.SubElement(robot, "link", name=name)
         if length:
             centre = {"x": _trans(length / 2), "z": _trans(z=length / 2)}[axis]
             size = {"x": [abs(length), 0.12, 0.12], "z": [0.12, 0.12, abs(length)]}[axis]
-            visuals = [ud.Visual(name=f"{name}_visual", origin=centre,
-                                 geometry=ud.Geometry(box=ud.Box(size=np.array(size))))]
-        return ud.Link(name=name, visuals=visuals)
+            visual = etree.SubElement(element, "visual", name=f"{name}_visual")
+            etree.SubElement(etree.SubElement(visual, "geometry"), "box", size=_numbers(size))
+            _origin(visual, centre)
 
-    links = [
-        link("base_link"), link("link1", r1.a), link("lower_arm", coupler), link("crank", crank),
-        link("coupler", coupler), link("forearm", -crank), link("link4", r4.d, "z"),
-        link("link5"), link("link6", r6.d, "z"), link("coupler_end"), link("forearm_rear"),
-        link("tool0"), link("fixture_target"),
-    ]
+    def joint(name: str, parent: str, child: str, origin: np.ndarray,
+              sign: int | None = None) -> None:
+        element = etree.SubElement(robot, "joint", name=name,
+                                type="fixed" if sign is None else "revolute")
+        etree.SubElement(element, "parent", link=parent)
+        etree.SubElement(element, "child", link=child)
+        _origin(element, origin)
+        if sign is not None:
+            etree.SubElement(element, "axis", xyz=_numbers([0.0, 0.0, sign]))
+            etree.SubElement(element, "limit", effort="10000.0", velocity="2.0",
+                          lower=str(-np.pi), upper=str(np.pi))
+
+    for args in [("base_link",), ("link1", r1.a), ("lower_arm", coupler), ("crank", crank),
+                 ("coupler", coupler), ("forearm", -crank), ("link4", r4.d, "z"), ("link5",),
+                 ("link6", r6.d, "z"), ("coupler_end",), ("forearm_rear",), ("tool0",),
+                 ("fixture_target",)]:
+        link(*args)
     shoulder = _dh_fixed(r1)
-    joints = [
-        revolute("joint1", "base_link", "link1", _rot_z(o[0]), s[0]),
-        revolute("joint2", "link1", "lower_arm", shoulder @ _rot_z(o[1]), s[1]),
-        revolute("joint3", "link1", "crank", shoulder @ _rot_z(o[2]), s[2]),
-        revolute("elbow", "lower_arm", "forearm", _trans(coupler) @ _rot_z(np.pi + o[2] - o[1])),
-        revolute("coupler_joint", "crank", "coupler", _trans(crank) @ _rot_z(o[1] - o[2])),
-        fixed("coupler_end_joint", "coupler", "coupler_end", _trans(coupler)),
-        fixed("forearm_rear_joint", "forearm", "forearm_rear", _trans(-crank)),
-        revolute("joint4", "forearm", "link4", _rot_z(-np.pi / 2) @ _dh_fixed(r3) @ _rot_z(o[3]),
-                 s[3]),
-        revolute("joint5", "link4", "link5", _dh_fixed(r4) @ _rot_z(o[4]), s[4]),
-        revolute("joint6", "link5", "link6", _dh_fixed(r5) @ _rot_z(o[5]), s[5]),
-        fixed("tool0_joint", "link6", "tool0", _dh_fixed(r6)),
-        fixed("fixture_joint", "tool0", "fixture_target",
-              _trans(FIXTURE_B_M, 0.0, FIXTURE_A_M)),
-    ]
-    robot = ud.Robot(name="motoman_sk120", links=links, joints=joints)
-    urdf = ud.URDF(robot=robot, build_scene_graph=False, load_meshes=False)
-    return urdf.write_xml_string().decode()
+    joint("joint1", "base_link", "link1", _rot_z(o[0]), s[0])
+    joint("joint2", "link1", "lower_arm", shoulder @ _rot_z(o[1]), s[1])
+    joint("joint3", "link1", "crank", shoulder @ _rot_z(o[2]), s[2])
+    joint("elbow", "lower_arm", "forearm", _trans(coupler) @ _rot_z(np.pi + o[2] - o[1]), 1)
+    joint("coupler_joint", "crank", "coupler", _trans(crank) @ _rot_z(o[1] - o[2]), 1)
+    joint("coupler_end_joint", "coupler", "coupler_end", _trans(coupler))
+    joint("forearm_rear_joint", "forearm", "forearm_rear", _trans(-crank))
+    joint("joint4", "forearm", "link4", _rot_z(-np.pi / 2) @ _dh_fixed(r3) @ _rot_z(o[3]),
+          s[3])
+    joint("joint5", "link4", "link5", _dh_fixed(r4) @ _rot_z(o[4]), s[4])
+    joint("joint6", "link5", "link6", _dh_fixed(r5) @ _rot_z(o[5]), s[5])
+    joint("tool0_joint", "link6", "tool0", _dh_fixed(r6))
+    joint("fixture_joint", "tool0", "fixture_target", _trans(FIXTURE_B_M, 0.0, FIXTURE_A_M))
+    return etree.tostring(robot, pretty_print=True, xml_declaration=True,
+                          encoding="utf-8").decode()
