@@ -30,17 +30,15 @@ from stiffness.model.robot import Robot, load_robot
 from stiffness.model.sources import robots_directory
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
-from stiffness.papers.independent import independent_parts
+from stiffness.papers.independent import DEFINITENESS_KEYS, independent_parts
 from stiffness.papers.report_page import SCENE_FILE, claims, render_html
 from stiffness.papers.reproduction import (
-    PAPER_CRITICAL_FORCE_N,
     PAPER_RESIDUAL_NORM,
     TRACKER_ACCURACY_MM,
     VERDICTS,
     AuditEntry,
     audit_table2,
     audit_table3,
-    audit_table4,
     best_stiffness_for,
     linear_map_fits,
     printed_equation_audit,
@@ -48,12 +46,10 @@ from stiffness.papers.reproduction import (
     table2_summary,
     table3,
     table3_corrupt_rows,
-    table4,
 )
 from stiffness.papers.sk120 import AngleConvention
-from stiffness.papers.tables import FIGURE_CONFIGURATIONS_DEG, read_table4
+from stiffness.papers.tables import FIGURE_CONFIGURATIONS_DEG
 from stiffness.provenance import provenance
-from stiffness.scan.definiteness import terminal_progress
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
@@ -222,38 +218,10 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     summary["table3_corrupt_rows"] = corrupt
     audit += audit_table3(t3_rows, {c.name: c.table3_rows_by_sign for c in conventions})
 
-    _log(quiet, "scanning the Table IV grid (5824 configurations x 8 loads) ...")
-    t4, scan = table4(robot, paper_k, progress=terminal_progress("Table IV", quiet))
-    paper_t4 = {k: {c: v[c] for c in ("PD", "PSD", "ND", "NSD", "ID")}
-                for k, v in read_table4().items()}
-    consistent, t4_audit = audit_table4(paper_t4, t4["ours"], t4["ours_determinant_rule"])
-    audit += t4_audit
-    summary["table4"] = t4["ours"]
-    summary["table4_determinant_rule"] = t4["ours_determinant_rule"]
-    summary["table4_paper"] = paper_t4
-    summary["table4_signs"] = {k: list(v["signs"]) for k, v in read_table4().items()}
-    summary["table4_paper_self_consistent"] = consistent
-    summary["table4_grid"] = ("theta1 -180..180, theta2 -70..70, theta3 -115..35 deg, step 0.2 "
-                              "rad; wrist vertical (q4 = 0, q5 = -90 - q3, q6 = -90 deg); "
-                              "|F_i| = 100 N")
-    magnitudes = np.linalg.norm(scan.loads, axis=1)
-    critical = scan.critical_factor * magnitudes[None, :]
-    summary["kx_positive_definite_everywhere"] = bool(np.all(scan.tangent_classes == "PD"))
-    summary["kx_loses_pd_at_force_N"] = float(np.min(critical))
-    where = np.unravel_index(np.argmin(critical), critical.shape)
-    summary["kx_loses_pd_where"] = {
-        "q_deg": np.rad2deg(scan.coordinates[where[0]]).round(4).tolist(),
-        "load_case": list(read_table4())[where[1]],
-        "direction": (scan.loads[where[1]] / magnitudes[where[1]]).tolist(),
-    }
-    if summary["kx_loses_pd_at_force_N"] > 2 * PAPER_CRITICAL_FORCE_N:
-        audit.append(AuditEntry(
-            item="Section VI: force for K_theta - K_C to lose definiteness",
-            law="K_theta - s K_C(F) is PD exactly for s < 1/lambda_max(K^-1/2 K_C K^-1/2)",
-            finding=(f"the paper says ~10 kN; over the Table IV grid and load directions the "
-                     f"smallest such force is {summary['kx_loses_pd_at_force_N'] / 1e3:.0f} kN"),
-            numbers={"ours_N": summary["kx_loses_pd_at_force_N"],
-                     "paper_N": PAPER_CRITICAL_FORCE_N}, verdict="not reproduced"))
+    # Table IV and Section VI (the scan, its findings, Figs. 7-9) depend on no campaign: they
+    # come with the other such parts (``independent``, called last), in their place here
+    summary.update(dict.fromkeys(DEFINITENESS_KEYS))
+    definiteness_at = len(audit)
     audit += printed_equation_audit()
 
     _log(quiet, "drawing figures ...")
@@ -269,15 +237,20 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     figures = {
         "force_deflection.png": plots.force_deflection(
             _force_deflection_curves(robot, paper_k, direction)),
-        "partial_derivatives.png": plots.partial_derivative_maps(scan),
+        "partial_derivatives.png": b"",  # from the definiteness part, below
         "linear_vs_exact.png": plots.linear_vs_exact(departure, float(np.linalg.norm(
             reference * 1000))),
         "stiffness_map.png": plots.stiffness_map(t2g, t3g, minimum, ratio, 1000.0),
         "table2.png": plots.table2_comparison(t2_rows),
         "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
-    _log(quiet, "checking Appendix I against Pinocchio ...")
-    cross = (independent or independent_parts)()["appendix"]
+    _log(quiet, "checking Appendix I against Pinocchio, scanning the Table IV grid ...")
+    parts = (independent or independent_parts)()
+    definiteness = parts["definiteness"]
+    summary.update(definiteness["summary"])
+    audit[definiteness_at:definiteness_at] = definiteness["audit"]
+    figures["partial_derivatives.png"] = definiteness["figure"]
+    cross = parts["appendix"]
     summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
     summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
     summary["appendix"] = cross
