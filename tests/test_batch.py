@@ -559,7 +559,12 @@ def test_batched_definiteness_scan_equals_definiteness_scan(sk120):
     np.testing.assert_array_equal(fast.classes, slow.classes)
     np.testing.assert_array_equal(fast.tangent_classes, slow.tangent_classes)
     np.testing.assert_array_equal(fast.determinant_positive, slow.determinant_positive)
-    np.testing.assert_allclose(fast.critical_factor, slow.critical_factor, rtol=1e-7)
+    # the critical factor is 1 / lambda_max(K^-1/2 K_C K^-1/2): the closure's error moves that
+    # eigenvalue by an amount set by K_C's scale, so it is compared on that scale (a factor of
+    # 3e5 against 3e3 elsewhere has an eigenvalue 100 times smaller, and its relative error
+    # 100 times larger)
+    top_fast, top_slow = 1.0 / fast.critical_factor, 1.0 / slow.critical_factor
+    np.testing.assert_allclose(top_fast, top_slow, rtol=1e-7, atol=1e-7 * np.max(top_slow))
     np.testing.assert_allclose(fast.k_c_diagonal, slow.k_c_diagonal, rtol=1e-7, atol=1e-9)
     assert calls[-1] == (grid.shape[0], grid.shape[0]) and len(calls) == -(-grid.shape[0] // 25)
 
