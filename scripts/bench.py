@@ -40,7 +40,10 @@ Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
 * ``diagnose_200_rows_s``, ``identify_exact_200_rows_s``, ``report_s``, ``import_s``: new
   processes, imports included (``import_s`` over a bare interpreter);
   ``diagnose_200_rows_with_effects_s``: ``diagnose`` on a campaign with hidden effects;
-* ``load_average``: ``os.getloadavg()`` before and after (the machine is shared).
+* ``load_average``: ``os.getloadavg()`` before and after (the machine is shared);
+  ``python_yardstick_s``: a fixed pure-Python loop (2e6 additions, best of three), the
+  machine's speed for interpreted code in this run (the commands' times above are mostly
+  interpreter and import work: compare days through it).
 """
 
 from __future__ import annotations
@@ -478,6 +481,18 @@ def _wall(argv: list[str], rounds: int = 1, cwd: str | None = None) -> float:
     return best
 
 
+def python_yardstick_s(rounds: int = 3) -> float:
+    """Best time (s) of a fixed pure-Python loop: the interpreter's speed on this machine now."""
+    best = np.inf
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        total = 0
+        for i in range(2_000_000):
+            total += i
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
 def commands_seconds(rounds: int) -> dict[str, float]:
     """``import stiffness`` (over a bare interpreter), ``stiffness report``, and ``diagnose``
     / ``identify --formulation exact`` on a simulated 200-row UR5 campaign (``diagnose`` also
@@ -564,6 +579,7 @@ def main(argv: list[str] | None = None) -> int:
         out["dask"] = dask
         out.update(commands)
         out["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
+        out["python_yardstick_s"] = python_yardstick_s()
         print(json.dumps(out))
         return 0
     t4_cli = table4_cli_seconds()
