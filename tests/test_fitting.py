@@ -119,7 +119,8 @@ def test_forked_workers_exit_when_their_command_is_killed():
     command = subprocess.Popen([sys.executable, "-c", script])
     try:
         deadline = time.monotonic() + 60
-        while not (workers := _children(command.pid)) and time.monotonic() < deadline:
+        # the pool forks its workers one after the other: wait for both
+        while len(workers := _children(command.pid)) < 2 and time.monotonic() < deadline:
             time.sleep(0.1)
         assert len(workers) == 2
     finally:

@@ -156,7 +156,7 @@ def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
         if sign is not None:
             etree.SubElement(element, "axis", xyz=_numbers([0.0, 0.0, sign]))
             etree.SubElement(element, "limit", effort="10000.0", velocity="2.0",
-                          lower=str(-np.pi), upper=str(np.pi))
+                             lower=str(-np.pi), upper=str(np.pi))
 
     for args in [("base_link",), ("link1", r1.a), ("lower_arm", coupler), ("crank", crank),
                  ("coupler", coupler), ("forearm", -crank), ("link4", r4.d, "z"), ("link5",),
