@@ -91,12 +91,17 @@ def run_chromium(url: str, *extra: str, timeout: float = 90.0) -> str:
     return result.stdout
 
 
-def screenshot(page: Path, out: Path, *extra: str) -> np.ndarray:
-    run_chromium(page.as_uri(), *OFFLINE_FLAGS, f"--screenshot={out}", *extra)
+def png_pixels(path: Path) -> np.ndarray:
+    """RGB pixels (H, W, 3) of a screenshot chromium wrote."""
     from PIL import Image
 
-    assert out.is_file(), "chromium wrote no screenshot"
-    return np.asarray(Image.open(out).convert("RGB"), dtype=float)
+    assert path.is_file(), "chromium wrote no screenshot"
+    return np.asarray(Image.open(path).convert("RGB"), dtype=float)
+
+
+def screenshot(page: Path, out: Path, *extra: str) -> np.ndarray:
+    run_chromium(page.as_uri(), *OFFLINE_FLAGS, f"--screenshot={out}", *extra)
+    return png_pixels(out)
 
 
 def page_overlay(page: str) -> dict:
@@ -353,7 +358,7 @@ window.addEventListener("load", function () { setTimeout(function () {
     var v = viewer.camera.position.clone().set(p[0], p[1], p[2]);
     viewer.scene.localToWorld(v); v.project(viewer.camera);
     out.points.push([(v.x + 1) / 2 * W, (1 - v.y) / 2 * H]); });
-  var pre = document.createElement("pre"); pre.id = "probe";
+  var pre = document.createElement("pre"); pre.id = "probe"; pre.hidden = true;
   pre.textContent = JSON.stringify(out); document.body.appendChild(pre);
 }, 300); });
 </script>
@@ -388,10 +393,17 @@ def test_static_page_renders_in_headless_chromium(sk120_page, sk120, tmp_path):
                         for a in np.linspace(0.0, 2 * np.pi, 8, endpoint=False)]
     points = pin_points + inside["enhanced"] + inside["conventional"]
     probe = PROBE.replace("POINTS", json.dumps([list(map(float, p)) for p in points]))
-    probe_page = tmp_path / "probe.html"
-    probe_page.write_text(page.replace("</body>", probe + "</body>"))
-    dom = run_chromium(probe_page.as_uri(), *OFFLINE_FLAGS, "--dump-dom")
-    match = re.search(r'<pre id="probe">(.*?)</pre>', dom, re.S)
+    # three pages: everything, no robot, no ellipsoids (overlay hidden in each); the first
+    # also runs the probe (hidden output), read from the same browser run as its screenshot
+    hidden_paths = {"all": [], "no_robot": robot_paths, "no_ellipsoids": ellipsoid_paths}
+    for key, hidden in hidden_paths.items():
+        extra = HIDE.replace("HIDDEN", json.dumps(hidden))
+        if key == "all":
+            extra += probe[len(FIX_CANVAS):]
+        (tmp_path / f"{key}.html").write_text(page.replace("</body>", extra + "</body>"))
+    dom = run_chromium((tmp_path / "all.html").as_uri(), *OFFLINE_FLAGS, "--dump-dom",
+                       f"--screenshot={tmp_path / 'all.png'}")
+    match = re.search(r'<pre id="probe"[^>]*>(.*?)</pre>', dom, re.S)
     assert match, "the probe did not run: the page did not load or WebGL failed"
     import html
 
@@ -406,14 +418,9 @@ def test_static_page_renders_in_headless_chromium(sk120_page, sk120, tmp_path):
         matrix = np.array(found["ellipsoids"][name]["matrix"]).reshape(4, 4).T
         assert_ellipsoid(matrix, k_x[name], state.scale)
     # pixels: hide the robot (resp. the ellipsoids) and the pixels where they project change
-    variants = {}
-    for key, hidden in (("all", []), ("no_robot", robot_paths), ("no_ellipsoids",
-                                                                  ellipsoid_paths)):
-        variant = tmp_path / f"{key}.html"
-        variant.write_text(page.replace("</body>", HIDE.replace("HIDDEN", json.dumps(hidden))
-                                        + "</body>"))
-        variants[key] = screenshot(variant, tmp_path / f"{key}.png")
-    full = variants["all"]
+    variants = {key: screenshot(tmp_path / f"{key}.html", tmp_path / f"{key}.png")
+                for key in ("no_robot", "no_ellipsoids")}
+    full = variants["all"] = png_pixels(tmp_path / "all.png")
     assert full.shape[:2] == (WINDOW[1], WINDOW[0])
     assert full.std() > 5, "blank screenshot: WebGL did not render"
     px = np.array(found["points"])
