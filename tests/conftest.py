@@ -21,6 +21,7 @@ configuration (the same assembly branch).
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import io
 import os
 from dataclasses import dataclass
@@ -313,17 +314,24 @@ def spatial_robot(spatial_four_bar) -> Robot:
 
 
 @pytest.fixture(scope="session")
-def sk120_report_run(tmp_path_factory) -> tuple[Path, str]:
-    """Folder written once per session (per test worker) by ``stiffness report --quiet``
-    (summary.json, ...) and what the command printed. Tests only read it, or remove what they
-    add to it."""
+def sk120_report_run(tmp_path_factory, worker_id) -> tuple[Path, str]:
+    """Folder written once per test run by ``stiffness report --quiet`` (summary.json, ...)
+    and what the command printed. Tests only read it (it is shared by the run's test workers:
+    the first to need it writes it under a file lock, the others wait and read)."""
     from stiffness.cli.main import main
 
-    out = tmp_path_factory.mktemp("sk120-report")
-    said = io.StringIO()
-    with contextlib.redirect_stdout(said):
-        assert main(["report", "--out", str(out), "--quiet"]) == 0
-    return out, said.getvalue()
+    root = tmp_path_factory.getbasetemp()
+    if worker_id != "master":
+        root = root.parent  # the folder of this run, above each worker's own
+    out, printed = root / "sk120-report", root / "sk120-report.stdout"
+    with open(root / "sk120-report.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not printed.exists():
+            said = io.StringIO()
+            with contextlib.redirect_stdout(said):
+                assert main(["report", "--out", str(out), "--quiet"]) == 0
+            printed.write_text(said.getvalue())
+    return out, printed.read_text()
 
 
 @pytest.fixture(scope="session")

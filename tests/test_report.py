@@ -92,7 +92,7 @@ def test_definiteness_limit_is_consistent(summary):
     assert summary["kx_loses_pd_at_force_N"] > 100 * np.sqrt(3)
 
 
-def test_report_renders_in_headless_chromium(report_dir):
+def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     browser = shutil.which("chromium") or shutil.which("chromium-browser")
     if browser is None:
         pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")
@@ -102,7 +102,7 @@ def test_report_renders_in_headless_chromium(report_dir):
     probe = ("<script>window.addEventListener('load',()=>{for(const i of document.images)"
              "{i.setAttribute('data-rendered',i.complete&&i.naturalWidth>100?'yes':'no');}"
              "document.body.setAttribute('data-probe','done');});</script>")
-    probe_file = report_dir / "probe.html"
+    probe_file = tmp_path / "probe.html"  # the page holds its figures: it renders anywhere
     probe_file.write_text(page.replace("</body>", probe + "</body>"))
     with tempfile.TemporaryDirectory() as profile:
         dom = subprocess.run(
@@ -112,7 +112,6 @@ def test_report_renders_in_headless_chromium(report_dir):
              "--dump-dom", probe_file.as_uri()],
             capture_output=True, text=True, timeout=120, check=False,
         ).stdout
-    probe_file.unlink()
     assert 'data-probe="done"' in dom
     assert dom.count('data-rendered="yes"') == n_figures
     assert 'data-rendered="no"' not in dom
