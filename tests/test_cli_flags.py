@@ -157,3 +157,24 @@ def test_parse_list_errors():
         flags.parse_list("1,a", "--x")
     with pytest.raises(StiffnessError, match="finite"):
         flags.parse_list("1,nan", "--x")
+
+
+def test_warnings_print_on_one_line_and_the_callers_format_is_restored(monkeypatch):
+    """While ``main`` runs, a warning is formatted as one ``stiffness: warning:`` line; after
+    it, the caller's own warning format is back (``main`` is called from Python too)."""
+    import warnings
+
+    from stiffness.cli import kx as kx_command
+
+    seen = []
+
+    def run(args) -> int:
+        seen.append(warnings.formatwarning("a joint limit is missing", UserWarning,
+                                           "robot.py", 12))
+        return 0
+
+    monkeypatch.setattr(kx_command, "run", run)
+    before = warnings.formatwarning
+    assert main(["kx", "--robot", "sk120"]) == 0
+    assert seen == ["stiffness: warning: a joint limit is missing\n"]
+    assert warnings.formatwarning is before

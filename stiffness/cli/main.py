@@ -60,8 +60,21 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``stiffness`` console script."""
+    """Entry point of the ``stiffness`` console script.
+
+    Warnings print on one line while it runs; the caller's warning format is restored after
+    (``main`` is also called from Python: tests, notebooks).
+    """
+    previous = warnings.formatwarning
     warnings.formatwarning = _one_line_warning
+    try:
+        return _run(argv)
+    finally:
+        warnings.formatwarning = previous
+
+
+def _run(argv: list[str] | None) -> int:
+    """:func:`main` with the one-line warning format in place."""
     argv = sys.argv[1:] if argv is None else argv
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(command if command in COMMANDS else None)
