@@ -165,17 +165,19 @@ def test_report_gives_the_checkout_numbers(wheel_outputs, installed, sk120_repor
 
 
 def _editable_checkout() -> Path | None:
-    """The folder of an editable install of stiffness in this environment, if any."""
+    """The folder of an editable install of stiffness in this environment, if any.
+
+    Every distribution named stiffness is looked at: the checkout's own ``stiffness.egg-info``
+    (left by the editable build, found first from the checkout) has no ``direct_url.json``;
+    the installed one in site-packages does.
+    """
     from importlib import metadata
 
-    try:
-        text = metadata.distribution("stiffness").read_text("direct_url.json")
-    except metadata.PackageNotFoundError:
-        return None
-    info = json.loads(text or "{}")
-    if not info.get("dir_info", {}).get("editable") or not info["url"].startswith("file://"):
-        return None
-    return Path(info["url"][len("file://"):]).resolve()
+    for dist in metadata.distributions(name="stiffness"):
+        info = json.loads(dist.read_text("direct_url.json") or "{}")
+        if info.get("dir_info", {}).get("editable") and info["url"].startswith("file://"):
+            return Path(info["url"][len("file://"):]).resolve()
+    return None
 
 
 @pytest.mark.skipif(_editable_checkout() != ROOT,
