@@ -327,6 +327,8 @@ class FitJob:
 #: Serial work (s) above which :func:`fit_models` forks workers (starting and joining two
 #: costs about 0.03 s).
 FORK_WORTH_S = 0.15
+
+
 def _sent_back(job: FitJob) -> Fit:
     """``job``'s fit, without its model (a forked worker sends back only the arrays)."""
     fit = job.run()

@@ -24,7 +24,7 @@ import sys
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
-from stiffness.errors import StiffnessError
+from stiffness.cli import flags
 from stiffness.files import output_folder
 
 
@@ -59,8 +59,7 @@ def command_line(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness diagnose``; returns the exit code."""
-    if args.workers is not None and args.workers < 1:
-        raise StiffnessError(f"--workers must be at least 1, got {args.workers}")
+    flags.require_at_least_one(args.workers, "--workers")
     campaign = load_campaign(args.campaign)
     if args.out:
         output_folder(args.out, create=False)  # before the work: a bad --out fails at once

@@ -112,6 +112,18 @@ def parse_list(text: str, flag: str) -> list[float]:
     return values
 
 
+def require_at_least_one(value: int | None, flag: str) -> None:
+    """Refuse a count flag below 1 (``None``: the flag was not given).
+
+    Raises
+    ------
+    StiffnessError
+        If ``value`` is below 1.
+    """
+    if value is not None and value < 1:
+        raise StiffnessError(f"{flag} must be at least 1, got {value}")
+
+
 def parse_names(text: str | None) -> list[str] | None:
     """Comma-separated names (``--compliant-joints a,b``), or None when not given."""
     if text is None:

@@ -4,9 +4,9 @@ Writes ``report.html`` (summary of verdicts, contents, provenance, evidence, fig
 ``summary.json`` and the figures as PNG into ``--out`` (see :mod:`stiffness.papers.report`),
 and the meshcat scene of :func:`stiffness.papers.independent.scene_robot`, drawn by
 :mod:`stiffness.viewer` (a layer above the papers). With two or more CPUs the parts that depend
-on no campaign and draw no figure (the Appendix I cross-check and the 3-D scene, about half
-of the work, :func:`independent_parts`) run meanwhile in a second Python process
-(:func:`background_independent_parts`).
+on no campaign (the Appendix I cross-check, the Table IV scan with Figs. 7-9 and the 3-D
+scene, about half of the work, :func:`independent_parts`) run meanwhile in a second Python
+process (:func:`background_independent_parts`).
 """
 
 from __future__ import annotations
@@ -50,8 +50,9 @@ def export_scene(path: Path) -> Path:
 
 
 def independent_parts() -> dict:
-    """:func:`stiffness.papers.independent.independent_parts` (the Appendix I cross-check) and
-    the 3-D scene (:func:`scene_html`, under ``"scene"``), imported when called."""
+    """:func:`stiffness.papers.independent.independent_parts` (the Appendix I cross-check, the
+    Table IV part) and the 3-D scene (:func:`scene_html`, under ``"scene"``), imported when
+    called."""
     from stiffness.papers.independent import independent_parts as compute
 
     return {**compute(), "scene": scene_html()}

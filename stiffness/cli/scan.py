@@ -361,10 +361,8 @@ def echo_lines(spec: ScanSpec, robot: Robot, args: argparse.Namespace) -> list[s
 def run(args: argparse.Namespace) -> int:
     """Run the scan, print the summary."""
     spec, robot = build_spec(args)
-    if args.workers is not None and args.workers < 1:
-        raise StiffnessError(f"--workers must be at least 1, got {args.workers}")
-    if args.chunks_per_task is not None and args.chunks_per_task < 1:
-        raise StiffnessError(f"--chunks-per-task must be at least 1, got {args.chunks_per_task}")
+    flags.require_at_least_one(args.workers, "--workers")
+    flags.require_at_least_one(args.chunks_per_task, "--chunks-per-task")
     out = Path(args.out) if args.out else default_out(spec)
     formats = ("npz", "parquet") if args.format == "both" else (args.format,)
     label = f"scan {spec.n_configurations} configurations x {len(spec.loads)} loads"
