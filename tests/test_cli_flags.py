@@ -178,3 +178,42 @@ def test_warnings_print_on_one_line_and_the_callers_format_is_restored(monkeypat
     assert main(["kx", "--robot", "sk120"]) == 0
     assert seen == ["stiffness: warning: a joint limit is missing\n"]
     assert warnings.formatwarning is before
+
+
+@pytest.mark.parametrize(("argv", "line"), [
+    (["view", "--robot", "ur5", "--out", "x.html"],
+     "stiffness view: error: unrecognized arguments: --out x.html; see 'stiffness view --help'"),
+    (["scan", "--robot", "ur5", "--outt", "d"],
+     "stiffness scan: error: unrecognized arguments: --outt d (did you mean --out?); see "
+     "'stiffness scan --help'"),
+    (["compensate", "--robot", "ur5"],
+     "stiffness compensate: error: the following arguments are required: --path; see "
+     "'stiffness compensate --help'"),
+    (["scan", "--format", "xml"],
+     "stiffness scan: error: argument --format: invalid choice: 'xml' (choose from 'npz', "
+     "'parquet', 'both'); see 'stiffness scan --help'"),
+    (["--bogus"], "stiffness: error: unrecognized arguments: --bogus; see 'stiffness --help'"),
+])
+def test_usage_errors_are_one_line_naming_the_command(capsys, argv, line):
+    """An unknown, misspelt or missing flag: exit code 2 and one line that names the command,
+    the closest flag it has (when one is close) and where its flags are listed."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert capsys.readouterr().err == line + "\n"
+
+
+@pytest.mark.parametrize("command", ["kx", "scan", "compensate"])
+def test_missing_stiffness_names_the_joints_and_both_units(capsys, tmp_path, command):
+    """A robot with no stiffness of its own needs --kq: every command says so in the same
+    line, naming the compliant joints and both units (a list may mix revolute and prismatic
+    joints)."""
+    argv = [command, "--robot", "ur5", "--compliant-joints", "shoulder_pan_joint,elbow_joint"]
+    argv += {"kx": ["--wrench", "0,0,-1"], "scan": ["--samples", "4", "--out",
+                                                    str(tmp_path / "s")],
+             "compensate": ["--path", str(tmp_path / "missing.csv")]}[command]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (f"stiffness {command}: error: --kq is required for ur5: one stiffness per "
+                       "compliant joint (shoulder_pan_joint, elbow_joint), N.m/rad (N/m "
+                       "prismatic)")

@@ -40,6 +40,7 @@ from stiffness.cli.flags import (
     add_wrench_flag,
     parse_list,
     robot_from_args,
+    stiffness_required,
     target_offset_from_args,
 )
 from stiffness.errors import OutputError, StiffnessError
@@ -94,8 +95,7 @@ def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
     robot, _, _ = robot_from_args(args)
     kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
     if kq is None:
-        raise StiffnessError(f"--kq is required: one stiffness per compliant joint "
-                             f"({', '.join(robot.compliant_joints)}), N.m/rad")
+        raise stiffness_required(robot)
     return ElasticModel.joint_springs(robot, np.diag(joint_stiffness(kq, robot.n_compliant)))
 
 

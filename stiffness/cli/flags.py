@@ -26,7 +26,7 @@ import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
@@ -52,7 +52,8 @@ class ArgumentParser(argparse.ArgumentParser):
 
     ``--q -35,-60,95`` is rewritten ``--q=-35,-60,95`` before parsing, for every option that
     takes one value (abbreviations included), when the next token is a negative number or a
-    number list. Sub-parsers made with ``add_subparsers`` inherit the class.
+    number list. Usage errors print on one line (:meth:`error`). Sub-parsers made with
+    ``add_subparsers`` inherit the class.
     """
 
     def parse_known_args(self, args: Sequence[str] | None = None,
@@ -60,6 +61,11 @@ class ArgumentParser(argparse.ArgumentParser):
         """Parse like argparse, after joining negative values to their options."""
         args = sys.argv[1:] if args is None else list(args)
         return super().parse_known_args(join_negative_values(self, args), namespace)
+
+    def error(self, message: str) -> NoReturn:
+        """A usage error (an unknown or missing flag, a bad choice) on one line, with where
+        the valid flags are listed; exit code 2, as argparse's."""
+        self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
 
 
 def join_negative_values(parser: argparse.ArgumentParser, argv: Sequence[str]) -> list[str]:
@@ -122,6 +128,13 @@ def require_at_least_one(value: int | None, flag: str) -> None:
     """
     if value is not None and value < 1:
         raise StiffnessError(f"{flag} must be at least 1, got {value}")
+
+
+def stiffness_required(robot: Robot) -> StiffnessError:
+    """The error of a command that needs ``--kq`` for a robot with no stiffness of its own."""
+    return StiffnessError(
+        f"--kq is required for {robot.name}: one stiffness per compliant joint "
+        f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)")
 
 
 def parse_names(text: str | None) -> list[str] | None:

@@ -177,10 +177,7 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     else:
         kq, kq_source = default_stiffness(robot), flags.FROM_ROBOT
     if kq is None:
-        raise StiffnessError(
-            f"--kq is required: one stiffness per compliant joint "
-            f"({', '.join(robot.compliant_joints)}), N.m/rad"
-        )
+        raise flags.stiffness_required(robot)
     k_theta = joint_stiffness(kq, robot.n_compliant)
     assembly = robot.assemble(coords)
     q = assembly.q

@@ -7,10 +7,12 @@ imported only when its command runs, so ``stiffness --help`` stays fast.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import os
 import sys
 import warnings
+from typing import NoReturn
 
 from stiffness import __version__
 from stiffness.cli.flags import ArgumentParser
@@ -78,7 +80,9 @@ def _run(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(command if command in COMMANDS else None)
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        _unrecognized(parser, args.command, unknown)
     if args.command is None:
         parser.print_help()
         return 2
@@ -99,6 +103,21 @@ def _run(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print(f"stiffness {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _unrecognized(parser: argparse.ArgumentParser, command: str | None,
+                  unknown: list[str]) -> NoReturn:
+    """Exit on arguments no parser took, as the command's usage error (naming the command and
+    the closest flags it has) rather than the top-level parser's."""
+    if command is not None:
+        subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = subparsers.choices[command]
+    options = [s for a in parser._actions for s in a.option_strings]
+    close = [match for token in unknown if token.startswith("--")
+             for match in difflib.get_close_matches(token.split("=")[0], options, n=1,
+                                                    cutoff=0.75)]
+    hint = f" (did you mean {', '.join(dict.fromkeys(close))}?)" if close else ""
+    parser.error(f"unrecognized arguments: {' '.join(unknown)}{hint}")
 
 
 def _one_line(text: str) -> str:

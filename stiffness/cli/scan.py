@@ -58,7 +58,7 @@ import numpy as np
 from stiffness.batch import kernels as batch
 from stiffness.calibration.model_file import BEYOND_SPRINGS
 from stiffness.cli import flags
-from stiffness.cli.flags import parse_list, robot_from_args
+from stiffness.cli.flags import parse_list, robot_from_args, stiffness_required
 from stiffness.cli.kx import _identified_model, compliant_model_from_args
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
@@ -227,10 +227,7 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
     elif default_stiffness(robot) is not None:
         k_theta = default_stiffness(robot).tolist()
     else:
-        raise StiffnessError(
-            f"--kq is required for {robot.name}: one stiffness per compliant joint "
-            f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)"
-        )
+        raise stiffness_required(robot)
     batch.as_joint_stiffness(k_theta, robot.n_compliant)  # validates
     if args.chunk_size < 1:
         raise StiffnessError(f"--chunk-size must be a positive number, got {args.chunk_size}")
