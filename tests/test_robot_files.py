@@ -316,6 +316,39 @@ def test_sidecar_order_and_the_loops_flag(tmp_path):
         assert load_robot(path).loop_file.endswith("robot.yaml")
 
 
+def test_loop_frames_without_a_declaration_are_named_in_a_warning(tmp_path):
+    """A URDF whose frames carry Gepetto's loop-frame names (closedloop<N>_A/_B) but has no
+    loop declaration loads as an open tree, with a warning that says so and how to declare
+    the loops; with the declaration, or with a URDF of no such frames, no such warning."""
+    text = _rssr_urdf(ROD).replace("rod_end", "closedloop1_A").replace("rocker_end",
+                                                                       "closedloop1_B")
+    path = _write(tmp_path / "bare", text, None)
+    with pytest.warns(RobotFileWarning) as caught:
+        robot = load_robot(path)
+    assert robot.loop_file is None and robot.n_coordinates == 4  # the rod's joint is free
+    found = [str(w.message) for w in caught if "loop-closure frames" in str(w.message)]
+    assert len(found) == 1
+    assert "'closedloop1_A'" in found[0] and "open tree" in found[0]
+    assert str(tmp_path / "bare" / "robot.yaml") in found[0] and "--loops" in found[0]
+    declared = _rssr_yaml("spherical").replace("rod_end", "closedloop1_A").replace(
+        "rocker_end", "closedloop1_B")
+    (tmp_path / "loops.yaml").write_text(declared)
+    for kwargs in ({"loops": tmp_path / "loops.yaml"}, {}):
+        if not kwargs:
+            (tmp_path / "bare" / "robot.yaml").write_text(declared)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert load_robot(path, **kwargs).loop_file is not None
+        assert not [w for w in caught if "loop-closure frames" in str(w.message)]
+    plain = tmp_path / "plain" / "planar.urdf"
+    plain.parent.mkdir()
+    plain.write_text(_planar_arm())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_robot(plain)
+    assert not [w for w in caught if "loop-closure frames" in str(w.message)]
+
+
 # ------------------------------------------------------------------------- URDF tolerance
 
 

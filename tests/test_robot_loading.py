@@ -314,6 +314,8 @@ def test_example_robot_the_library_cannot_build_is_a_typed_error():
     with pytest.raises(StiffnessError, match="example-robot-data cannot build 'cassie'") as info:
         load_robot("cassie")
     assert "\n" not in str(info.value)
+    # its description holds only SDF files: the fix names that, not "load its URDF file"
+    assert "SDF model" in str(info.value) and "URDF file instead" not in str(info.value)
 
 
 @pytest.mark.parametrize("name, target", [("pr2", "l_gripper_tool_frame"),

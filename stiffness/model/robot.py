@@ -425,12 +425,27 @@ class Robot:
         return self._reference
 
 
+#: Marks of loop-closure frame names in the tools that write closed-loop URDFs: Gepetto's
+#: example-parallel-robots (``closedloop<N>_A`` / ``_B``, formerly ``fermeture<N>``) and
+#: onshape-to-robot (``closing_``).
+LOOP_FRAME_MARKS = ("closedloop", "fermeture", "closing_")
+
+
 def _loop_declaration(source, loops: str | os.PathLike | None):
-    """The loop declaration to read: ``loops``, the shipped one, or the sidecar found."""
+    """The loop declaration to read: ``loops``, the shipped one, or the sidecar found; with
+    none, a warning if the URDF's frames are named as loop-closure frames
+    (:data:`LOOP_FRAME_MARKS`): its loops would otherwise be dropped in silence."""
     if loops is not None:
         return read_loop_declaration(Path(loops))
     if source.loop_file is not None:
         return read_loop_declaration(source.loop_file)
+    marked = [f.name for f in source.model.frames if f.type in (pin.BODY, pin.OP_FRAME)
+              and any(mark in f.name.lower() for mark in LOOP_FRAME_MARKS)]
+    if marked and source.urdf is not None:
+        warn(f"{source.urdf}: {len(marked)} frames are named as loop-closure frames (e.g. "
+             f"{marked[0]!r}) but no loop declaration is beside it: loaded as an open tree; "
+             f"declare the loops in {source.urdf.parent / 'robot.yaml'} or give --loops FILE "
+             "(docs/robot-files.md)")
     return None
 
 

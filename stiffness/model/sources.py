@@ -143,10 +143,12 @@ def _from_example_robot_data(name: str) -> RobotSource:
         try:
             loader = robots_loader.ROBOTS[name]()
         except (ImportError, ValueError, RuntimeError, OSError) as exc:
-            raise StiffnessError(
-                f"example-robot-data cannot build {name!r} here ({type(exc).__name__}: "
-                f"{str(exc).strip().splitlines()[0] if str(exc).strip() else exc!r}); load "
-                "its URDF file instead, or choose another robot") from exc
+            why = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
+            fix = ("it is an SDF model, which stiffness cannot read: choose a robot described "
+                   "by a URDF" if getattr(robots_loader.ROBOTS[name], "sdf_filename", None)
+                   else "load its URDF file instead, or choose another robot")
+            raise StiffnessError(f"example-robot-data cannot build {name!r} here "
+                                 f"({type(exc).__name__}: {why}); {fix}") from exc
         model, visual, visual_loader = loader.robot.model, loader.robot.visual_model, None
         path = Path(getattr(loader, "df_path", ""))
     mimics: tuple[Mimic, ...] = ()
