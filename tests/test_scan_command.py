@@ -435,6 +435,44 @@ def test_fields_choose_what_is_stored_and_bytes_are_reported(tmp_path, capsys):
     assert "unknown field 'stiffness'" in capsys.readouterr().err
 
 
+def test_console_names_the_stiffness_range_and_where_k_x_is_undefined(tmp_path, capsys):
+    """The run's last lines give each load case's principal stiffness range, that of the
+    stored maps' eigenvalues, and where K_X is undefined: everywhere for a planar 2R arm, whose
+    3x3 compliance has rank 2 (two springs cannot resist three directions)."""
+    out = tmp_path / "ur5"
+    code, captured = _run(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--load", "0,0,-200",
+                           "--load", "0,0,0", "--out", str(out), "--no-plots"], capsys)
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    maps = _arrays(out)
+    for name, case in summary["load_cases"].items():
+        j = int(name) - 1
+        low = float(np.nanmin(maps["k_x_eigenvalues"][:, j]))
+        high = float(np.nanmax(maps["k_x_eigenvalues"][:, j]))
+        assert case["min_principal_stiffness_N_per_m"] == pytest.approx(low, rel=1e-12)
+        assert (f"K_X, load case {name}: principal stiffness {low:.4g} to {high:.4g} N/m"
+                in captured.out.splitlines())
+    planar = tmp_path / "planar.urdf"
+    planar.write_text("""<?xml version="1.0"?>
+<robot name="planar">
+  <link name="base"/><link name="l1"/><link name="l2"/><link name="tip"/>
+  <joint name="j1" type="continuous"><parent link="base"/><child link="l1"/>
+    <axis xyz="0 0 1"/></joint>
+  <joint name="j2" type="continuous"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.4 0 0"/><axis xyz="0 0 1"/></joint>
+  <joint name="tip_joint" type="fixed"><parent link="l2"/><child link="tip"/>
+    <origin xyz="0.3 0 0"/></joint>
+</robot>
+""")
+    code, captured = _run(["scan", "--robot", str(planar), "--kq", "10,10", "--samples", "30",
+                           "--load", "5,0,0", "--out", str(tmp_path / "planar"), "--no-plots"],
+                          capsys)
+    assert code == 0
+    assert captured.out.splitlines()[-1].startswith(
+        "K_X, load case 1: undefined at all 30 valid configurations (the compliance C is "
+        "singular there")
+
+
 def test_killed_scan_resumed_with_workers_gives_the_same_maps(tmp_path):
     """A scan killed mid-run (chunks missing, one without its aggregate) and resumed on two
     Dask workers, several chunks per task, gives the maps and summary of an uninterrupted

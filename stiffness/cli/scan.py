@@ -395,4 +395,27 @@ def run(args: argparse.Namespace) -> int:
         tangent_pd = all(c["k_theta_minus_k_c"]["PD"] == summary["valid_configurations"]
                          for c in cases.values())
         print(f"K_theta - K_C positive definite everywhere: {tangent_pd}")
+    for line in k_x_lines(summary):
+        print(line)
     return 0
+
+
+def k_x_lines(summary: dict) -> list[str]:
+    """The console lines on K_X per load case: its principal stiffness range (N/m) and where
+    it is undefined (the compliance is singular there)."""
+    lines = []
+    valid = summary["valid_configurations"]
+    for name, case in summary["load_cases"].items():
+        if "k_x_undefined" not in case:
+            continue
+        undefined = case["k_x_undefined"]
+        low, high = (case["min_principal_stiffness_N_per_m"],
+                     case["max_principal_stiffness_N_per_m"])
+        count = "all" if undefined == valid else f"{undefined} of"
+        where = ("" if not undefined else
+                 f"undefined at {count} {valid} valid configurations (the compliance C is "
+                 "singular there: a kinematic singularity, fewer compliant joints than "
+                 "directions, or the buckling limit; see 'undefined' in summary.json)")
+        found = "" if low is None else f"principal stiffness {low:.4g} to {high:.4g} N/m"
+        lines.append(f"K_X, load case {name}: {'; '.join(t for t in (found, where) if t)}")
+    return lines
