@@ -668,7 +668,8 @@ def _target_frame(name: str, model: pin.Model, frame: str | None,
         frame = default_target_frame(model, closure, gripper)
         if frame is None:
             raise StiffnessError(f"no joint of {name} moves any frame: it has no degree of "
-                                 "freedom left to be compliant")
+                                 "freedom left to be compliant (a fixed base leaves none when "
+                                 "the base was its only joint); choose a robot with joints")
         return frame
     if not model.existFrame(frame):
         raise UnknownFrameError(
