@@ -501,6 +501,18 @@ def test_frame_that_no_joint_moves_is_refused_with_the_moving_frames(tmp_path):
         load_robot(path, frame="sonar")
 
 
+def test_robot_without_joints_is_refused_with_the_fix(tmp_path):
+    """A URDF of fixed joints only (a drone's body once its base is fixed) has nothing to be
+    compliant: one line that says so and what to do."""
+    path = tmp_path / "body.urdf"
+    path.write_text('<?xml version="1.0"?>\n<robot name="body"><link name="base"/>'
+                    '<link name="rotor"/><joint name="mount" type="fixed"><parent link="base"/>'
+                    '<child link="rotor"/></joint></robot>\n')
+    with pytest.raises(StiffnessError, match="no joint of .* moves any frame.*choose a robot "
+                                             "with joints"):
+        load_robot(path)
+
+
 def test_default_target_on_a_hand_is_the_wrist_tip(tmp_path):
     """Two equally long fingers: the target is on their last common joint, farthest out."""
     fingers = "".join(f"""
