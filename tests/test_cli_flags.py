@@ -193,6 +193,12 @@ def test_warnings_print_on_one_line_and_the_callers_format_is_restored(monkeypat
      "stiffness scan: error: argument --format: invalid choice: 'xml' (choose from 'npz', "
      "'parquet', 'both'); see 'stiffness scan --help'"),
     (["--bogus"], "stiffness: error: unrecognized arguments: --bogus; see 'stiffness --help'"),
+    (["identify", "campaign", "--seed", "-1"],
+     "stiffness identify: error: argument --seed: must be a non-negative integer, got '-1'; see "
+     "'stiffness identify --help'"),
+    (["scan", "--robot", "ur5", "--seed", "x"],
+     "stiffness scan: error: argument --seed: must be a non-negative integer, got 'x'; see "
+     "'stiffness scan --help'"),
 ])
 def test_usage_errors_are_one_line_naming_the_command(capsys, argv, line):
     """An unknown, misspelt or missing flag: exit code 2 and one line that names the command,

@@ -306,7 +306,8 @@ def test_per_row_wrench_columns(tmp_path, capsys):
     assert abs(d[1] / d[0] - 0.5) < 0.01  # the same point at half the load
 
 
-@pytest.mark.parametrize("case", ["missing", "nan", "other_robot", "bad_wrench", "out_of_reach"])
+@pytest.mark.parametrize("case", ["missing", "nan", "other_robot", "bad_wrench", "out_of_reach",
+                                  "latin1"])
 def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
     from stiffness.cli.main import main
 
@@ -331,6 +332,10 @@ def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
     elif case == "bad_wrench":
         wrench = "0,0,-300,1"
         expect = "wrench"
+    elif case == "latin1":  # a comment saved in latin-1, as the campaign reader refuses it
+        text = _path_csv(tmp_path / "p.csv", UR5_PATH).read_text()
+        path.write_bytes("# caf\u00e9\n".encode("latin-1") + text.encode())
+        expect = "not UTF-8 text (byte 5); save the path file as UTF-8"
     else:
         rows = UR5_PATH.copy()
         rows[1, 2] = np.deg2rad(200.0)  # the elbow turns +-180 deg

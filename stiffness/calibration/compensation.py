@@ -44,10 +44,10 @@ from stiffness.calibration.elastic import (
 from stiffness.errors import (
     ConvergenceError,
     FileFormatError,
-    MissingFileError,
     StiffnessError,
     with_context,
 )
+from stiffness.files import read_text
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.model import kinematics
@@ -467,14 +467,10 @@ def read_table(path: str | Path, what: str) -> Table:
     MissingFileError
         The file cannot be read.
     FileFormatError
-        No data row.
+        Not UTF-8 text, or no data row.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise MissingFileError(f"cannot read {what} {path}: {exc.strerror}; give an existing "
-                               "CSV file", path=path) from exc
+    text = read_text(path, what).lstrip("\ufeff")
     rows, lines = [], []
     for row in csv.reader(io.StringIO(text)):
         if row and any(c.strip() for c in row):

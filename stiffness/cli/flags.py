@@ -130,6 +130,18 @@ def require_at_least_one(value: int | None, flag: str) -> None:
         raise StiffnessError(f"{flag} must be at least 1, got {value}")
 
 
+def seed(text: str) -> int:
+    """``--seed``: a non-negative integer (NumPy's generators take no other); an argparse
+    ``type``."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+    return value
+
+
 def stiffness_required(robot: Robot) -> StiffnessError:
     """The error of a command that needs ``--kq`` for a robot with no stiffness of its own."""
     return StiffnessError(

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 import time
@@ -109,7 +110,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=float,
                         help="random configurations (uniform in the --axis ranges, else in the "
                              "joint limits) instead of a grid")
-    parser.add_argument("--seed", type=int, default=0, help="seed of --samples; default 0")
+    parser.add_argument("--seed", type=flags.seed, default=0, help="seed of --samples; default 0")
     flags.add_configuration_flags(parser, q_help=(
         "values of the coordinates that are not swept: one per coordinate, or name=value "
         "pairs (joint names or q1, q2...); default the robot's default pose, else zero"))
@@ -264,7 +265,8 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
     base = flags.coordinates_from_args(robot, args, required=False)
     samples = None
     if args.samples is not None:
-        if args.samples < 1 or args.samples != int(args.samples):
+        if not math.isfinite(args.samples) or args.samples < 1 or args.samples != int(
+                args.samples):
             raise StiffnessError(f"--samples must be a positive integer, got {args.samples:g}")
         samples = int(args.samples)
     axes = []
