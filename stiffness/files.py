@@ -59,6 +59,12 @@ def read_text(path: str | os.PathLike, what: str = "file") -> str:
                               path=path) from exc
 
 
+def read_csv_text(path: str | os.PathLike, what: str = "CSV file") -> str:
+    """:func:`read_text` of a CSV file, without the byte-order mark spreadsheet programs put
+    at its start."""
+    return read_text(path, what).removeprefix("\ufeff")
+
+
 def read_toml(path: str | os.PathLike, what: str = "TOML file") -> dict[str, Any]:
     """The table of a TOML file; syntax errors carry their line and column."""
     try:

@@ -63,7 +63,7 @@ from stiffness.errors import (
     did_you_mean,
     with_context,
 )
-from stiffness.files import atomic_write, output_folder, read_text, read_toml
+from stiffness.files import atomic_write, output_folder, read_csv_text, read_text, read_toml
 from stiffness.model.robot import Robot, load_robot
 
 #: Campaign file name inside a campaign folder.
@@ -577,7 +577,7 @@ def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
 
 
 def _read_rows(data: Path, n_q: int | None, robot_text: str = "the robot"):
-    text = read_text(data, "measurement file ([measurement] data)").removeprefix("\ufeff")
+    text = read_csv_text(data, "measurement file ([measurement] data)")
     header = None
     rows: list[tuple[int, list[str]]] = []
     for number, raw in enumerate(text.splitlines(), start=1):
