@@ -23,7 +23,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                            quiet_help="print only the elements that disagree (one line each)")
     parser.add_argument("--samples", type=int, default=200, metavar="N",
                         help="random vertical-wrist workspace poses (default 200)")
-    parser.add_argument("--seed", type=flags.seed, default=0, help="seed of the workspace sample")
+    flags.add_seed_flag(parser, "seed of the workspace sample")
 
 
 def run(args: argparse.Namespace) -> int:

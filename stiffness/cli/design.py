@@ -80,7 +80,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "--existing's, else mm")
     parser.add_argument("--random-plans", type=int, default=DEFAULT_RANDOM_PLANS,
                         help=f"random plans compared with; default {DEFAULT_RANDOM_PLANS}")
-    parser.add_argument("--seed", type=flags.seed, default=0, help="random seed; default 0")
+    flags.add_seed_flag(parser, "random seed; default 0")
     parser.add_argument("--out", required=True, metavar="PLAN.csv",
                         help="plan to write: a .csv file, or a folder (campaign.toml + plan.csv)")
     flags.add_output_flags(parser, quiet_help="no progress on stderr")

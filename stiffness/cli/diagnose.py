@@ -39,8 +39,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "diagnosis.html (the page) here")
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS,
                         help=f"largest number of effects added; default {MAX_STEPS}")
-    parser.add_argument("--seed", type=flags.seed, default=0,
-                        help="seed of the cross-validation folds and proposed poses; default 0")
+    flags.add_seed_flag(parser, "seed of the cross-validation folds and proposed poses; default 0")
     parser.add_argument("--no-proposals", action="store_true",
                         help="do not propose extra poses and loads")
     parser.add_argument("--workers", type=int, metavar="N",

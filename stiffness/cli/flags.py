@@ -12,6 +12,7 @@ flag has the same name, unit and syntax in every command:
   when it has none), ``--deg`` for angles in degrees;
 * ``--wrench fx,fy,fz[,mx,my,mz]`` (N, N.m, base axes; ``--load`` is an alias);
 * ``--kq k1,k2,...`` (N.m/rad, N/m prismatic);
+* ``--seed N`` (a non-negative integer, default 0);
 * ``--json`` (one JSON object on stdout) and ``--quiet`` (no progress, no echo of the inputs).
 
 Values that start with a minus sign are taken in the natural form (``--q -35,-60,95``,
@@ -130,18 +131,6 @@ def require_at_least_one(value: int | None, flag: str) -> None:
         raise StiffnessError(f"{flag} must be at least 1, got {value}")
 
 
-def seed(text: str) -> int:
-    """``--seed``: a non-negative integer (NumPy's generators take no other); an argparse
-    ``type``."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
-    return value
-
-
 def stiffness_required(robot: Robot) -> StiffnessError:
     """The error of a command that needs ``--kq`` for a robot with no stiffness of its own."""
     return StiffnessError(
@@ -209,6 +198,22 @@ def add_stiffness_flag(parser: argparse.ArgumentParser, help: str | None = None)
     parser.add_argument("--kq", metavar="K1,K2,...",
                         help=help or "joint stiffness per compliant joint, in their order, "
                                      "N.m/rad (N/m prismatic); default the robot's own")
+
+
+def add_seed_flag(parser: argparse.ArgumentParser, help: str) -> None:
+    """``--seed``: a non-negative integer (NumPy's generators take no other), default 0."""
+    parser.add_argument("--seed", type=_seed, default=0, help=help)
+
+
+def _seed(text: str) -> int:
+    """The ``--seed`` value (an argparse ``type``: refused in argparse's one-line form)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+    return value
 
 
 def add_output_flags(parser: argparse.ArgumentParser, json_help: str | None = None,

@@ -43,8 +43,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--starts", type=int, default=8,
                         help="number of starts: the paper's 1e8 N.mm/rad then log-uniform "
                              "random starts over 1e2..1e8 N.m/rad; default 8")
-    parser.add_argument("--seed", type=flags.seed, default=0,
-                        help="seed of the random starts; default 0")
+    flags.add_seed_flag(parser, "seed of the random starts; default 0")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (SI) instead of the table")
     parser.add_argument("--out", metavar="FILE", default=MODEL_FILE,

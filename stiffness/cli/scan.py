@@ -110,7 +110,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=float,
                         help="random configurations (uniform in the --axis ranges, else in the "
                              "joint limits) instead of a grid")
-    parser.add_argument("--seed", type=flags.seed, default=0, help="seed of --samples; default 0")
+    flags.add_seed_flag(parser, "seed of --samples; default 0")
     flags.add_configuration_flags(parser, q_help=(
         "values of the coordinates that are not swept: one per coordinate, or name=value "
         "pairs (joint names or q1, q2...); default the robot's default pose, else zero"))

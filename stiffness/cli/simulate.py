@@ -71,7 +71,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "complementary_stiffness is hidden, else enhanced")
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default="mm",
                         help="length unit of the files; default mm")
-    parser.add_argument("--seed", type=flags.seed, default=0, help="random seed; default 0")
+    flags.add_seed_flag(parser, "random seed; default 0")
     parser.add_argument("--name", help="campaign name")
     flags.add_output_flags(parser, json_help="print the truth as one JSON object",
                            quiet_help="print only the files written")

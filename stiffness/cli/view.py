@@ -84,7 +84,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "smallest principal stiffness")
     parser.add_argument("--field-joints",
                         help="coordinates the field varies, comma-separated (default: all)")
-    parser.add_argument("--seed", type=flags.seed, default=0, help="random seed of the field")
+    flags.add_seed_flag(parser, "random seed of the field")
     parser.add_argument("--export", metavar="FILE.html",
                         help="write a self-contained static page (opens offline) and exit")
     parser.add_argument("--host", default=LOOPBACK,
