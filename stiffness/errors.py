@@ -224,3 +224,8 @@ class FloatingBaseError(StiffnessError):
 class RobotFileWarning(UserWarning):
     """Something in a robot file that the toolkit ignores or reads in its own way (one warning
     per thing)."""
+
+
+class DataFileWarning(UserWarning):
+    """Something in a campaign, plan or path file that is read, but may not be what the user
+    meant: a plan that declares no units, coordinates beyond the joint limits."""

@@ -37,8 +37,10 @@ measured displacement of the target from its unloaded position. The optional gro
 unit) and ``rx,ry,rz`` (measured small rotation vector of the target frame's deflection, base
 axes, in the ``[units] rotation`` unit, default the angle unit) may follow, in that order; each
 group comes whole (all three columns). ``rotation_noise_std`` needs the rotation columns.
-Lines starting with ``#`` and blank lines are skipped. Any other column, a missing column, or a
-cell that is not a finite number is an error naming the file, the line and the column.
+Lines starting with ``#`` and blank lines are skipped; a comment declaring units (as a plan
+file's ``# units: angle=deg force=N length=mm``) must agree with ``[units]``. Any other column,
+a missing column, or a cell that is not a finite number within +-1e12 is an error naming the
+file, the line and the column.
 
 In memory everything is SI (rad, m, N, N.m); the declared units apply only to the files.
 """
@@ -50,12 +52,14 @@ import io
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from stiffness.errors import (
+    DataFileWarning,
     FileFormatError,
     MissingFileError,
     StiffnessError,
@@ -64,6 +68,7 @@ from stiffness.errors import (
     with_context,
 )
 from stiffness.files import atomic_write, output_folder, read_csv_text, read_text, read_toml
+from stiffness.mechanics.ik import coordinate_limits
 from stiffness.model.robot import Robot, load_robot
 
 #: Campaign file name inside a campaign folder.
@@ -562,6 +567,71 @@ def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
     return k, found["moment"], found["rotation"]
 
 
+#: A comment that declares units: ``units:`` / ``units=`` or a ``angle|force|length = ...`` pair.
+_UNITS_MENTION = re.compile(r"\bunits?\s*[:=]|\b(?:angle|force|length)\s*=", re.IGNORECASE)
+#: One ``key = value`` pair of a units comment (separated by spaces, commas or semicolons).
+_UNITS_PAIR = re.compile(r"([A-Za-z_]+)\s*=\s*([^\s,;]+)")
+_UNITS_KEYS = ("angle", "force", "length")
+UNITS_COMMENT_EXAMPLE = "# units: angle=deg force=N length=mm"
+
+
+def read_units_comment(comment: str, path: Path, line: int) -> Units | None:
+    """The units a CSV comment declares, or ``None`` for a comment that declares none.
+
+    Raises
+    ------
+    FileFormatError
+        A comment that mentions units but does not name each of angle, force and length once
+        with a known unit (file and line named, the expected form given).
+    """
+    if not _UNITS_MENTION.search(comment):
+        return None
+    text = re.split(r"\bunits?\s*[:=]", comment, maxsplit=1, flags=re.IGNORECASE)[-1]
+    pairs: dict[str, str] = {}
+    for key, value in _UNITS_PAIR.findall(text):
+        key = key.lower()
+        if key not in _UNITS_KEYS:
+            raise FileFormatError(f"the units comment names {key!r}; it names "
+                                  f"{', '.join(_UNITS_KEYS)}, as in '{UNITS_COMMENT_EXAMPLE}'",
+                                  path=path, line=line)
+        if key in pairs:
+            raise FileFormatError(f"the units comment names {key} twice; name each of "
+                                  f"{', '.join(_UNITS_KEYS)} once, as in '{UNITS_COMMENT_EXAMPLE}'",
+                                  path=path, line=line)
+        pairs[key] = value
+    missing = [k for k in _UNITS_KEYS if k not in pairs]
+    if missing:
+        raise FileFormatError(f"the units comment does not give {' or '.join(missing)}; write "
+                              f"it as '{UNITS_COMMENT_EXAMPLE}' with your units", path=path,
+                              line=line)
+    try:
+        return Units(pairs["angle"], pairs["force"], pairs["length"])
+    except StiffnessError as exc:
+        raise FileFormatError(str(exc), path=path, line=line) from exc
+
+
+def check_units_comment(declared: Units, expected: Units, source: object, path: Path,
+                        line: int) -> None:
+    """Refuse a units comment that disagrees with the units declared elsewhere.
+
+    Raises
+    ------
+    FileFormatError
+        The comment's angle, force or length unit differs from ``expected`` (declared by
+        ``source``: a ``campaign.toml`` or an earlier comment).
+    """
+    said = f"angle={declared.angle} force={declared.force} length={declared.length}"
+    known = f"angle={expected.angle} force={expected.force} length={expected.length}"
+    if said != known:
+        raise FileFormatError(f"the units comment says {said} but {source} says {known}; make "
+                              "them agree", path=path, line=line)
+
+
+#: Largest magnitude of a CSV cell, in the file's units: far beyond any measurement in any
+#: supported unit (1e12 um is 1e6 m), and small enough that products of squares stay finite.
+MAX_CELL = 1e12
+
+
 def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
     text = cell.strip()
     try:
@@ -573,15 +643,25 @@ def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
         raise FileFormatError(
             f"{shown} is not a finite number; every q, force, moment, deflection and rotation "
             "cell must be a number", path=data, line=line, column=col, field=name)
+    if abs(value) > MAX_CELL:
+        raise FileFormatError(
+            f"{text} is beyond +-{MAX_CELL:.0e}, larger than any coordinate, force or "
+            "deflection a rig measures (and too large for the fit's arithmetic); fix the cell "
+            "or its unit", path=data, line=line, column=col, field=name)
     return value
 
 
-def _read_rows(data: Path, n_q: int | None, robot_text: str = "the robot"):
+def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_path: Path):
     text = read_csv_text(data, "measurement file ([measurement] data)")
     header = None
     rows: list[tuple[int, list[str]]] = []
     for number, raw in enumerate(text.splitlines(), start=1):
-        if not raw.strip() or raw.lstrip().startswith("#"):
+        if not raw.strip():
+            continue
+        if raw.lstrip().startswith("#"):
+            declared = read_units_comment(raw.strip(), data, number)
+            if declared is not None:
+                check_units_comment(declared, units, toml_path, data, number)
             continue
         cells = next(csv.reader([raw]))
         if header is None:
@@ -621,6 +701,36 @@ def _prismatic_mask(robot: Robot) -> np.ndarray:
     kinds = [robot.model.joints[robot.model.getJointId(j)].shortname()
              for j in robot.coordinate_joints]
     return np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
+
+
+def warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int, ...],
+                       data: Path, units: Units) -> None:
+    """Warn once when rows hold coordinates beyond the robot's joint limits.
+
+    A rig reads its joints within their limits, so such rows usually mean a wrong angle or
+    length unit (degrees read as radians) or the wrong robot. They are still read.
+
+    Parameters
+    ----------
+    q
+        Coordinates (n_rows, n_q), rad or m.
+    lines
+        The file line of each row.
+    """
+    lo, hi = coordinate_limits(robot)
+    slack = 1e-9 * (1.0 + np.abs(q))
+    beyond = (q < lo - slack) | (q > hi + slack)
+    rows = np.flatnonzero(beyond.any(axis=1))
+    if not rows.size:
+        return
+    i, j = rows[0], int(np.flatnonzero(beyond[rows[0]])[0])
+    scale, unit = ((units.length_to_si, units.length) if _prismatic_mask(robot)[j]
+                   else (units.angle_to_si, units.angle))
+    warnings.warn(
+        f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.name}'s joint "
+        f"limits (first: line {lines[i]}, q{j + 1} = {q[i, j] / scale:.6g} {unit}, limits "
+        f"[{lo[j] / scale:.6g}, {hi[j] / scale:.6g}] {unit}); check the angle and length "
+        "units and the robot", DataFileWarning, stacklevel=3)
 
 
 def load_campaign(path: str | os.PathLike) -> Campaign:
@@ -722,11 +832,12 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
 
     robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
     k, has_moment, has_rotation, labels, values, lines = _read_rows(
-        data_path, robot.n_coordinates, robot_text)
+        data_path, robot.n_coordinates, robot_text, units, toml_path)
     q = values[:, :k].copy()
     prismatic = _prismatic_mask(robot)
     q[:, ~prismatic] *= units.angle_to_si
     q[:, prismatic] *= units.length_to_si
+    warn_beyond_limits(robot, q, lines, data_path, units)
     col = k
     force = values[:, col: col + 3] * units.force_to_si
     deflection = values[:, col + 3: col + 6] * units.length_to_si

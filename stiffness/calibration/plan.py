@@ -6,7 +6,9 @@ order, the force to apply at the target, base axes), in the units of the campaig
 (:mod:`stiffness.calibration.campaign`). Written as
 
 * a single file ``PLAN.csv``: its first line is a comment declaring the units, e.g.
-  ``# measurement plan; units: angle=deg force=N length=mm`` (absent: deg, N, mm);
+  ``# measurement plan; units: angle=deg force=N length=mm`` (``angle = rad, force = kN`` and
+  other spacings read too; a comment that mentions units but cannot be read is an error; no
+  comment at all reads as deg, N, mm with a :class:`~stiffness.errors.DataFileWarning`);
 * a folder: ``campaign.toml`` (robot, target, compliant joints, units, noise) and the CSV it
   names (``plan.csv``). Once the rig has added the measured ``dx,dy,dz`` columns, the folder is a
   campaign :func:`stiffness.calibration.campaign.load_campaign` reads.
@@ -20,7 +22,7 @@ from __future__ import annotations
 import csv
 import io
 import os
-import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +30,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import (
     CAMPAIGN_FILE,
+    UNITS_COMMENT_EXAMPLE,
     Campaign,
     RobotSettings,
     Units,
@@ -36,16 +39,22 @@ from stiffness.calibration.campaign import (
     _read_toml,
     _resolve_source,
     campaign_toml,
+    check_units_comment,
+    read_units_comment,
+    warn_beyond_limits,
 )
-from stiffness.errors import FileFormatError, MissingFileError, StiffnessError, with_context
+from stiffness.errors import (
+    DataFileWarning,
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    with_context,
+)
 from stiffness.files import atomic_write, output_folder, read_csv_text
 from stiffness.model.robot import Robot, load_robot
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"
-_UNITS_LINE = re.compile(r"units:\s*angle=(\S+)\s+force=(\S+)\s+length=(\S+)")
-
-
 @dataclass
 class Plan:
     """Rows to measure, SI.
@@ -203,18 +212,19 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
     if robot is None:
         raise StiffnessError(f"plan {path} is a bare CSV: give its robot (--robot ...)")
     text = read_csv_text(data, "plan")
-    header, rows = None, []
+    header, rows, declared_line = None, [], None
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()
         if not stripped:
             continue
         if stripped.startswith("#"):
-            m = _UNITS_LINE.search(stripped)
-            if m and toml_path is None:
-                try:
-                    units = Units(*m.groups())
-                except StiffnessError as exc:
-                    raise FileFormatError(str(exc), path=data, line=number) from exc
+            declared = read_units_comment(stripped, data, number)
+            if declared is None:
+                continue
+            if toml_path is not None or declared_line:
+                check_units_comment(declared, units, toml_path or f"line {declared_line}",
+                                    data, number)
+            units, declared_line = declared, number
             continue
         cells = next(csv.reader([raw]))
         if header is None:
@@ -250,11 +260,16 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         labels.append(label)
         values.append([_number(c, data, number, j, header[j - 1])
                        for j, c in enumerate(cells[1:width], start=2)])
+    if toml_path is None and declared_line is None:
+        warnings.warn(f"{data}: the plan declares no units; read as angle=deg force=N "
+                      f"length=mm (start it with '{UNITS_COMMENT_EXAMPLE}' to say so)",
+                      DataFileWarning, stacklevel=2)
     arr = np.array(values, dtype=float)
     q = arr[:, :n_q].copy()
     prismatic = _prismatic_mask(robot)
     q[:, ~prismatic] *= units.angle_to_si
     q[:, prismatic] *= units.length_to_si
+    warn_beyond_limits(robot, q, [number for number, _ in rows], data, units)
     plan = Plan(q=q, force=arr[:, n_q:] * units.force_to_si, config=tuple(labels), units=units,
                 robot_settings=settings, noise_std_m=noise, path=toml_path or data)
     if doc is not None:
