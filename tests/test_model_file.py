@@ -150,6 +150,30 @@ def test_unknown_schema_and_other_robot_are_one_line_errors(tmp_path):
         sk120.check_robot("ur5")
 
 
+@pytest.mark.parametrize(("effect", "where", "param", "unit"), [
+    ("joint_compliance", "wrist_1_joint", "stiffness", "N.mm/rad"),
+    ("backlash", "elbow_joint", "half_width", "deg"),
+    ("deflection_offset", None, "dx", "mm"),
+])
+def test_an_effect_parameter_in_other_than_si_is_refused(tmp_path, effect, where, param, unit):
+    """The file is SI: a parameter naming another unit would be read as SI, silently wrong."""
+    params = [_p(n, 1e-4, "rad" if effect == "backlash" else "m") for n in
+              LIBRARY[effect].param_names]
+    if effect == "joint_compliance":
+        params = [_p("stiffness", 1e4, "N.m/rad")]
+    path = _ur5_model(ModelEffect(effect, where, LIBRARY[effect].kind, params)).write(
+        tmp_path / "m.json")
+    assert read_model_file(path).effects[0].value(param) == params[0].value
+    doc = json.loads(path.read_text())
+    doc["effects"][0]["parameters"][param]["unit"] = unit
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError) as info:
+        read_model_file(path)
+    message = str(info.value)
+    assert f"effects[0].parameters.{param}.unit is {unit!r}, but a model file holds SI " \
+        "values" in message and "valid: m, rad, N, N.m/rad" in message, message
+
+
 def test_joint_compliance_enters_k_x_like_a_spring():
     k_wrist = 1e4
     model = _ur5_model(ModelEffect("joint_compliance", "wrist_2_joint", "stiffness",

@@ -113,6 +113,8 @@ LEGACY_DIAGNOSED = "stiffness-diagnosed-model"
 #: Formulations a model may be identified with.
 FORMULATIONS = ("conventional", "enhanced", "exact")
 #: Unit names of the files -> factor to SI.
+#: Units an effect parameter of the current schema may name (the file is SI).
+SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
 _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
 
@@ -611,6 +613,10 @@ def _read_parameter(r: _Reader, name: str, doc, where: str, si: bool = True) -> 
     if not isinstance(doc, dict) or "value" not in doc:
         raise r.fail(f"{where} must be an object with value, standard_error, ci95 and unit")
     unit = doc.get("unit", "SI")
+    if si and unit not in SI_PARAMETER_UNITS:
+        raise r.fail(f"{where}.unit is {unit!r}, but a model file holds SI values; convert the "
+                     f"value, its standard error and ci95 to SI and name the unit (valid: "
+                     f"{', '.join(SI_PARAMETER_UNITS)})")
     factor = 1.0 if si else _unit_factor(r, unit, where)
     value = r.number(doc["value"], f"{where}.value", allow_null=False)
     se = r.number(doc.get("standard_error"), f"{where}.standard_error")
