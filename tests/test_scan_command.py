@@ -16,6 +16,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from stiffness.batch import kernels as batch
 from stiffness.cli import scan as scan_command
@@ -555,3 +557,75 @@ def test_scan_of_a_fixed_floating_base_robot_and_its_resume(tmp_path):
     assert main([*argv, "--json"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["chunks"]["resumed"] == 2 and summary["valid_configurations"] == 40
+
+
+# ------------------------------------------------------------------------------ scan size
+
+
+@given(lower=st.floats(-10, 10), width=st.floats(0, 10), step=st.floats(1e-3, 5))
+def test_grid_length_is_the_length_of_the_grid_axis(lower, width, step):
+    from stiffness.scan.spec import grid_axis, grid_length
+
+    assert grid_length(lower, lower + width, step) == len(grid_axis(lower, lower + width, step))
+
+
+def test_chunk_coordinates_are_the_grid_axis_values(ur5):
+    """Chunk coordinates come from index arithmetic, not from built axes: the same values."""
+    from stiffness.scan.spec import ScanSpec, grid_axis
+
+    axes = [{"index": 1, "joint": "shoulder_lift_joint", "lower": -1.3, "upper": 0.4,
+             "step": 0.17},
+            {"index": 2, "joint": "elbow_joint", "lower": 0.2, "upper": 2.0, "step": 0.3}]
+    spec = ScanSpec(robot={"source": "ur5"}, preset="grid",
+                    coordinate_joints=list(ur5.coordinate_joints), base=[0.1] * 6, axes=axes,
+                    samples=None, seed=0, loads=[[0, 0, -100]], load_names=["1"],
+                    k_theta=[1e4] * 6, chunk_size=7)
+    a, b = (grid_axis(x["lower"], x["upper"], x["step"]) for x in axes)
+    expected = np.array([[v, w] for v in a for w in b])
+    got = np.concatenate([spec.chunk_coordinates(i)[1] for i in range(spec.n_chunks)])
+    np.testing.assert_array_equal(got[:, 1:3], expected)
+    np.testing.assert_array_equal(got[:, [0, 3, 4, 5]], 0.1)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--axis", "shoulder_lift_joint=0:1:1e-12"], "the figures' maps would have 1e+12 cells"),
+    (["--axis", "shoulder_lift_joint=0:1:1e-4", "--axis", "elbow_joint=0:1:1e-4"],
+     "(map axes 10001 x 10001, 1 load case), more than 4e+06; use a coarser STEP"),
+    (["--axis", "shoulder_lift_joint=0:1:1e-320"], "no finite number of values"),
+    (["--samples", "1e12"], "the scan would write at least 2.76e+05 GB (1e+12 configurations)"),
+])
+def test_scans_too_large_are_refused_before_anything_is_written(tmp_path, capsys, argv,
+                                                                message):
+    out = tmp_path / "big"
+    assert main(["scan", "--robot", "ur5", "--kq", UR5_KQ, *argv, "--out", str(out),
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_projected_bytes_bound_the_written_bytes_and_meet_the_free_space(tmp_path, monkeypatch,
+                                                                          capsys):
+    """The projection is what the chunks then hold; a disk with less free space refuses."""
+    import shutil as shutil_module
+    from collections import namedtuple
+
+    from stiffness.scan import engine
+
+    argv = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "600", "--chunk-size",
+            "300", "--no-plots", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "ok")]) == 0
+    summary = json.loads((tmp_path / "ok" / "summary.json").read_text())
+    spec = scan_command.ScanSpec.from_dict(
+        json.loads((tmp_path / "ok" / "manifest.json").read_text())["spec"])
+    per = engine.stored_bytes_per_configuration(spec)
+    assert per <= summary["bytes_per_configuration"] <= 1.1 * per
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil_module, "disk_usage", lambda _: usage(10**9, 10**9, 600 * per - 1))
+    capsys.readouterr()
+    assert main([*argv, "--out", str(tmp_path / "full")]) == 2
+    err = capsys.readouterr().err
+    assert "the scan would write at least" in err and "GB free" in err, err
+    assert not (tmp_path / "full").exists()
+    monkeypatch.setattr(shutil_module, "disk_usage", lambda _: usage(10**9, 10**9, 600 * per))
+    assert main([*argv, "--out", str(tmp_path / "fits")]) == 0

@@ -74,7 +74,7 @@ from stiffness.scan.spec import (
     DTYPES,
     STORED_FIELDS,
     ScanSpec,
-    grid_axis,
+    grid_length,
     parse_fields,
 )
 
@@ -323,7 +323,7 @@ def _map_axes(robot: Robot, axes: list[dict], text: str | None, samples: int | N
         return chosen
     if samples is not None:
         return list(range(min(2, len(axes))))
-    lengths = [len(grid_axis(a["lower"], a["upper"], a["step"])) for a in axes]
+    lengths = [grid_length(a["lower"], a["upper"], a["step"]) for a in axes]
     order = sorted(range(len(axes)), key=lambda k: -lengths[k])
     return sorted(k for k in order[:2] if lengths[k] > 1)
 

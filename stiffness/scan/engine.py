@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 from collections import deque
 from collections.abc import Callable
@@ -280,6 +281,66 @@ def _manifest_spec(out: Path) -> ScanSpec:
 # ---------------------------------------------------------------------------------- run
 
 
+#: Largest map of the figures (bins of the map axes times the load cases): a 2000 x 2000 map.
+MAX_MAP_CELLS = 4_000_000
+
+
+def stored_bytes_per_configuration(spec: ScanSpec) -> int:
+    """Bytes one configuration adds to a chunk file (the spec's fields, packed and typed as
+    stored: :func:`stiffness.scan.maps.stored_arrays` of one computed configuration)."""
+    ids, coords = spec.chunk_coordinates(0)
+    maps = compute_maps(worker_robot(spec.robot), spec, ids[:1], coords[:1])
+    return sum(a.nbytes for a in stored_arrays(spec, maps).values())
+
+
+def check_scan_size(spec: ScanSpec, out: Path, formats: tuple[str, ...]) -> None:
+    """Refuse, before anything is written, a scan whose figures' maps would not fit in memory
+    or whose files would not fit on the disk holding ``out``.
+
+    The projection is a lower bound: the configurations still to write times the bytes each
+    adds to an NPZ chunk (:func:`stored_bytes_per_configuration`), per format, less what
+    ``out`` already holds (a scan being resumed).
+
+    Raises
+    ------
+    StiffnessError
+        The maps exceed :data:`MAX_MAP_CELLS`, or the projected bytes exceed the free space
+        (both named, with the options that shrink the scan).
+    """
+    if spec.map_cells > MAX_MAP_CELLS:
+        raise StiffnessError(
+            f"the figures' maps would have {spec.map_cells:.3g} cells (map axes "
+            f"{' x '.join(str(spec.axis_lengths[i]) for i in spec.map_axes)}, "
+            f"{len(spec.loads)} load case{'s' if len(spec.loads) != 1 else ''}), more than "
+            f"{MAX_MAP_CELLS:.0e}; use a coarser STEP on the map axes (or --map-axes on shorter "
+            "ones)")
+    need = spec.n_configurations * stored_bytes_per_configuration(spec) * len(formats)
+    need -= sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) if out.is_dir() else 0
+    folder = out
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    if need > free:
+        raise StiffnessError(
+            f"the scan would write at least {need / 1e9:.3g} GB ({spec.n_configurations:.4g} "
+            f"configurations) but {folder} has {free / 1e9:.3g} GB free; scan fewer "
+            "configurations (--samples, a coarser --axis STEP), store fewer --fields, use "
+            "--dtype float32, or give --out on a larger disk")
+
+
+def _finished_aggregates(out: Path, n_chunks: int) -> list[int]:
+    """Indices of the chunks whose aggregate file exists (one listing of ``out/chunks``)."""
+    folder = out / "chunks"
+    if not folder.is_dir():
+        return []
+    found = []
+    for entry in os.scandir(folder):
+        stem, _, index = entry.name.removesuffix(".npz").partition("-")
+        if stem == "aggregate" and index.isdigit() and int(index) < n_chunks:
+            found.append(int(index))
+    return sorted(found)
+
+
 def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = ("npz",),
              scheduler: str | None = None, workers: int | None = None,
              client: object | None = None, plots: bool = True,
@@ -323,6 +384,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
         ``plot_seconds``; also written to ``out/summary.json``.
     """
     out = Path(out)
+    check_scan_size(spec, out, formats)
     manifest = {"layout": LAYOUT_VERSION, "spec": spec.to_dict(), "formats": list(formats),
                 "n_configurations": spec.n_configurations, "n_chunks": spec.n_chunks,
                 "units": _UNITS, "classes": list(DEFINITENESS_CLASSES), "undefined": UNDEFINED}
@@ -339,7 +401,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
         atomic_write(manifest_file, json.dumps(manifest, indent=1))
     acc = MapAccumulator(spec)
     done = set()
-    for index in range(spec.n_chunks):
+    for index in _finished_aggregates(out, spec.n_chunks):
         agg = aggregate_path(out, index)
         have = [chunk_path(out, index).is_file() if "npz" in formats else True,
                 parquet_path(out, index).is_file() if "parquet" in formats else True]

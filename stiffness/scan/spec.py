@@ -12,6 +12,7 @@ array determines; :data:`DERIVED_FIELDS` are rebuilt from them when a scan is re
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -81,10 +82,24 @@ DTYPES = ("float64", "float32")
 COMPRESSIONS = ("none", "snappy", "zstd", "gzip")
 
 
+def grid_length(lower: float, upper: float, step: float) -> int:
+    """Number of values of :func:`grid_axis` (computed without building the axis).
+
+    Raises
+    ------
+    StiffnessError
+        A step so small that the count is not finite (e.g. 1e-320 over a finite range).
+    """
+    count = (upper - lower) / step + 1e-9
+    if not math.isfinite(count):
+        raise StiffnessError(f"a grid axis from {lower:g} to {upper:g} in steps of {step:g} has "
+                             "no finite number of values; give a larger step")
+    return int(math.floor(count)) + 1
+
+
 def grid_axis(lower: float, upper: float, step: float) -> np.ndarray:
     """Values ``lower, lower + step, ...`` not beyond ``upper`` (same unit as the inputs)."""
-    n = int(np.floor((upper - lower) / step + 1e-9)) + 1
-    return lower + step * np.arange(n)
+    return lower + step * np.arange(grid_length(lower, upper, step))
 
 
 def parse_fields(text: str | None) -> list[str]:
@@ -193,14 +208,14 @@ class ScanSpec:
     @property
     def axis_lengths(self) -> list[int]:
         """Number of values of each grid axis."""
-        return [len(grid_axis(a["lower"], a["upper"], a["step"])) for a in self.axes]
+        return [grid_length(a["lower"], a["upper"], a["step"]) for a in self.axes]
 
     @property
     def n_configurations(self) -> int:
         """Number of configurations scanned."""
         if self.samples is not None:
             return int(self.samples)
-        return int(np.prod(self.axis_lengths)) if self.axes else 1
+        return math.prod(self.axis_lengths) if self.axes else 1
 
     @property
     def n_chunks(self) -> int:
@@ -232,16 +247,22 @@ class ScanSpec:
             rng = np.random.default_rng([self.seed, index])
             for k, a in enumerate(self.axes):
                 swept[:, k] = rng.uniform(a["lower"], a["upper"], stop - start)
-        elif self.axes:
-            values = [grid_axis(a["lower"], a["upper"], a["step"]) for a in self.axes]
-            for k, (vals, idx) in enumerate(zip(
-                    values, np.unravel_index(ids, [len(v) for v in values]), strict=True)):
-                swept[:, k] = vals[idx]
+        elif self.axes:  # the grid_axis values at the chunk's indices, without the axes
+            for k, (a, idx) in enumerate(zip(
+                    self.axes, np.unravel_index(ids, self.axis_lengths), strict=True)):
+                swept[:, k] = a["lower"] + a["step"] * idx
         for k, a in enumerate(self.axes):
             coords[:, a["index"]] = swept[:, k]
         for c in self.couplings:
             coords[:, c["index"]] = coords[:, c["index"]] + c["factor"] * swept[:, c["axis"]]
         return ids, coords
+
+    @property
+    def map_cells(self) -> int:
+        """Cells of the figures' maps (bins of the map axes, times the load cases)."""
+        bins = [SAMPLE_BINS if self.axes[i]["step"] is None else self.axis_lengths[i]
+                for i in self.map_axes]
+        return int(np.prod(bins, dtype=float)) * len(self.loads)
 
     def bin_edges(self, axis: dict) -> np.ndarray:
         """Bin edges of a map axis: midpoints between grid values, or uniform for samples."""
