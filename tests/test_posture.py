@@ -191,3 +191,14 @@ def test_bad_pose_files_one_line(case, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and expect in err and "\n" not in err, err
     assert not out.exists()
+
+
+def test_more_steps_than_the_search_can_take_are_refused(tmp_path, capsys):
+    poses = tmp_path / "poses.csv"
+    _write_poses(poses, _line(2), np.tile([0.0, 0.0, -1.0], (2, 1)))
+    out = tmp_path / "out.csv"
+    code = main(["posture", "--robot", "ur5", "--kq", ",".join(map(str, UR5_K)), "--path",
+                 str(poses), "--wrench", "0,0,300", "--steps", "3601", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--steps 3601 is more than 3600" in err and "\n" not in err, err
+    assert not out.exists()

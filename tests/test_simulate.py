@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -119,3 +120,12 @@ def test_simulate_cli(tmp_path, capsys):
     camp = load_campaign(out)
     assert camp.n_rows == 6 and camp.noise_std_m == pytest.approx(4e-6)
     assert (out / TRUTH_FILE).is_file()
+
+
+@pytest.mark.parametrize(("configs", "loads", "repeats", "rows"), [
+    (250_001, 4, 1, "1e+06"), (1000, 4, 251, "1e+06"), (100_000_000, 4, 1, "4e+08")])
+def test_campaigns_larger_than_any_rig_are_refused_at_once(configs, loads, repeats, rows):
+    with pytest.raises(StiffnessError, match=rf"the campaign would have {re.escape(rows)} rows "
+                       r"\(configs x loads per config x repeats\), more than 1e\+06"):
+        simulate("ur5", kq=[3e4, 2e4, 1e4, 5e3, 5e3, 5e3], configs=configs,
+                 loads_per_config=loads, repeats=repeats)

@@ -47,6 +47,10 @@ AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),
         "z": np.array([0.0, 0.0, 1.0])}
 
 
+#: Most candidate angles about the free axis (0.1 deg apart); the search costs steps^2.
+MAX_STEPS = 3600
+
+
 def free_axis_vector(axis: str | np.ndarray) -> np.ndarray:
     """Unit free axis (3,) in the target frame from ``x``, ``y``, ``z`` or a vector."""
     if isinstance(axis, str):
@@ -365,6 +369,10 @@ def posture(
             "tool axis needs an arm that can hold a full pose (6 or more)")
     if steps < 1 or not np.isfinite(max_step_deg) or max_step_deg <= 0:
         raise StiffnessError("--steps must be at least 1 and --max-step positive (deg)")
+    if steps > MAX_STEPS:
+        raise StiffnessError(f"--steps {steps} is more than {MAX_STEPS} (angles 0.1 deg apart), "
+                             "and the path search grows with its square; give at most "
+                             f"{MAX_STEPS}")
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
     if wrench is None:

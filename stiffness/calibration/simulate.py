@@ -477,6 +477,10 @@ def _loads(pattern: str, n: int, max_force: float, rng: np.random.Generator) -> 
     return axes[np.arange(n) % 6] * max_force
 
 
+#: Most rows a simulated campaign may have (each is an equilibrium solve; ~1e2-1e3 on a rig).
+MAX_ROWS = 1_000_000
+
+
 def simulate(
     robot: str,
     kq: list[float] | np.ndarray | None = None,
@@ -563,6 +567,13 @@ def simulate(
                                choices=LOAD_PATTERNS)
     if configs < 1 or loads_per_config < 1 or repeats < 1:
         raise StiffnessError("configs, loads per config and repeats must be at least 1")
+    rows = (len(plan.q) if plan is not None else configs * loads_per_config) * repeats
+    if rows > MAX_ROWS:
+        raise StiffnessError(
+            f"the campaign would have {rows:.3g} rows ("
+            + ("plan rows" if plan is not None else "configs x loads per config")
+            + f" x repeats), more than {MAX_ROWS:.0e}, far beyond any rig's campaign and hours "
+            "of equilibrium solves; ask for fewer")
     if not (max_force > 0 and math.isfinite(max_force)):
         raise StiffnessError(f"max force must be positive, got {max_force}")
     if not (noise_std_m >= 0 and math.isfinite(noise_std_m)):
