@@ -227,5 +227,6 @@ class RobotFileWarning(UserWarning):
 
 
 class DataFileWarning(UserWarning):
-    """Something in a campaign, plan or path file that is read, but may not be what the user
-    meant: a plan that declares no units, coordinates beyond the joint limits."""
+    """Something in a campaign, plan, path or model file that is read, but may not be what the
+    user meant: a plan that declares no units, coordinates beyond the joint limits, a model
+    stiffness marked undetermined."""

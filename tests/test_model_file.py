@@ -171,7 +171,7 @@ def test_an_effect_parameter_in_other_than_si_is_refused(tmp_path, effect, where
         read_model_file(path)
     message = str(info.value)
     assert f"effects[0].parameters.{param}.unit is {unit!r}, but a model file holds SI " \
-        "values" in message and "valid: m, rad, N, N.m/rad" in message, message
+        "values" in message and "valid: m, rad, N, N.m, kg, N.m/rad" in message, message
 
 
 def test_joint_compliance_enters_k_x_like_a_spring():
@@ -372,3 +372,27 @@ def test_fixed_base_and_loop_file_travel_with_the_model(tmp_path):
     assert read_model_file(tmp_path / "models" / "l.json").loops == str(loops.resolve())
     plain = json.loads(_ur5_model().write(tmp_path / "u.json").read_text())["robot"]
     assert "fixed_base" not in plain and "loops" not in plain  # files as before
+
+
+def test_joint_compliance_on_a_compliant_joint_is_refused(tmp_path):
+    """Two stiffnesses for one spring: the effect would silently replace k_theta's."""
+    model = _ur5_model(ModelEffect("joint_compliance", "elbow_joint", "stiffness",
+                                   [_p("stiffness", 1e4, "N.m/rad")]))
+    path = model.write(tmp_path / "m.json")
+    with pytest.raises(ModelFileError, match="joint_compliance effect on elbow_joint, which is "
+                       "already a compliant joint of k_theta") as info:
+        CompliantModel(read_model_file(path))
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_an_undetermined_stiffness_is_used_with_a_warning(tmp_path):
+    from stiffness.errors import DataFileWarning
+
+    model = _ur5_model()
+    model.undetermined_joints = ("elbow_joint",)
+    path = model.write(tmp_path / "m.json")
+    assert json.loads(path.read_text())["k_theta"]["determined"] == [True, True, False]
+    with pytest.warns(DataFileWarning, match="the stiffness of elbow_joint is marked "
+                      "undetermined"):
+        compliant = CompliantModel(read_model_file(path))
+    np.testing.assert_array_equal(compliant.k_theta, K_ARM)

@@ -58,6 +58,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -82,7 +83,13 @@ from stiffness.calibration.effects import (
     link_axes,
     make_effect,
 )
-from stiffness.errors import FileFormatError, StiffnessError, did_you_mean, with_context
+from stiffness.errors import (
+    DataFileWarning,
+    FileFormatError,
+    StiffnessError,
+    did_you_mean,
+    with_context,
+)
 from stiffness.files import atomic_write, output_folder, read_json
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
@@ -114,7 +121,7 @@ LEGACY_DIAGNOSED = "stiffness-diagnosed-model"
 FORMULATIONS = ("conventional", "enhanced", "exact")
 #: Unit names of the files -> factor to SI.
 #: Units an effect parameter of the current schema may name (the file is SI).
-SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
+SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
 _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
 
@@ -754,6 +761,11 @@ class CompliantModel:
                                             "does not change the stiffness"))
                 continue
             if e.name == "joint_compliance":
+                if e.where in model.compliant_joints:
+                    raise ModelFileError(
+                        f"a joint_compliance effect on {e.where}, which is already a compliant "
+                        "joint of k_theta (two stiffnesses for one spring); give its stiffness "
+                        "in k_theta and drop the effect", path=model.path)
                 stiff[e.where] = e.value("stiffness")
             elif e.name == "nonlinear_joint_stiffness":
                 self._beta[e.where] = e.value("beta")
@@ -773,6 +785,11 @@ class CompliantModel:
             self.applied.append(e)
         self.k_theta = np.array(list(stiff.values()), dtype=float)
         self._where = f"{model.path}: " if model.path is not None else ""
+        if model.undetermined_joints:
+            names = ", ".join(model.undetermined_joints)
+            warnings.warn(f"{self._where}the stiffness of {names} is marked undetermined (its "
+                          "campaign did not load it): K_X in the directions it governs rests on "
+                          "an unidentified value", DataFileWarning, stacklevel=2)
         try:
             self.robot = load_robot(model.source, frame=frame or model.frame,
                                     target_offset=offset, compliant_joints=tuple(stiff),
