@@ -178,3 +178,23 @@ def test_campaign_rows_beyond_the_elbow_limit_warn(tmp_path):
     with pytest.warns(DataFileWarning, match=r"1 of 2 rows .* \(first: line 4, q3 = 190 deg, "
                       r"limits \[-180, 180\] deg\)"):
         load_campaign(folder)
+
+
+def test_a_label_reused_for_another_pose_warns_naming_both_lines(ur5, tmp_path):
+    same = ROWS[0].replace("57.735,57.735,57.735", "0,0,100")  # P1 again, another load
+    other = ROWS[1].replace("P2", "P1")  # a copied row not relabelled
+    units = "# units: angle=deg force=N length=mm"
+    _, caught = read(tmp_path, plan_text(units, [ROWS[0], same, ROWS[1]]), ur5)
+    assert caught == []
+    _, caught = read(tmp_path, plan_text(units, [ROWS[0], same, other]), ur5)
+    assert len(caught) == 1, caught
+    assert ("1 configuration label(s) name rows at different coordinates (P1; first: 'P1' on "
+            "lines 3 and 5, q2 167.78 vs -60 deg)") in caught[0]
+
+
+def test_a_campaign_label_reused_for_another_pose_warns(tmp_path):
+    folder = _campaign(tmp_path, "# a campaign")
+    data = folder / "measurements.csv"
+    data.write_text(data.read_text().replace("P2,", "P1,"))
+    with pytest.warns(DataFileWarning, match=r"'P1' on lines 3 and 4, q2 167.78 vs -60 deg"):
+        load_campaign(folder)

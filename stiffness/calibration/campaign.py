@@ -733,6 +733,41 @@ def warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int
         "units and the robot", DataFileWarning, stacklevel=3)
 
 
+def warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
+                       lines: list[int] | tuple[int, ...], data: Path, units: Units) -> None:
+    """Warn once when one configuration label names rows at different coordinates.
+
+    Rows with one label are one configuration (its loads and repeats): diagnose's
+    cross-validation holds them out together and the replicates' scatter pools them. A label
+    reused for another pose (a copied row not relabelled) mixes two configurations.
+
+    Parameters
+    ----------
+    q
+        Coordinates (n_rows, n_q), rad or m; rows of one configuration agree to 1e-6 rad / m
+        (an encoder's repeatability is far finer than the poses' spacing).
+    """
+    first: dict[str, int] = {}
+    mixed = []
+    for i, label in enumerate(labels):
+        j = first.setdefault(label, i)
+        if j != i and np.max(np.abs(q[i] - q[j])) > 1e-6:
+            mixed.append((label, j, i))
+    if not mixed:
+        return
+    label, j, i = mixed[0]
+    k = int(np.argmax(np.abs(q[i] - q[j])))
+    scale, unit = ((units.length_to_si, units.length) if _prismatic_mask(robot)[k]
+                   else (units.angle_to_si, units.angle))
+    names = sorted({m[0] for m in mixed})
+    warnings.warn(
+        f"{data}: {len(names)} configuration label(s) name rows at different coordinates "
+        f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}; first: {label!r} on lines "
+        f"{lines[j]} and {lines[i]}, q{k + 1} {q[j, k] / scale:.6g} vs {q[i, k] / scale:.6g} "
+        f"{unit}); rows of one label are one configuration, so give each pose its own label",
+        DataFileWarning, stacklevel=3)
+
+
 def load_campaign(path: str | os.PathLike) -> Campaign:
     """Read and validate a campaign; the result is in SI and carries its loaded robot.
 
@@ -838,6 +873,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     q[:, ~prismatic] *= units.angle_to_si
     q[:, prismatic] *= units.length_to_si
     warn_beyond_limits(robot, q, lines, data_path, units)
+    warn_shared_labels(robot, labels, q, lines, data_path, units)
     col = k
     force = values[:, col: col + 3] * units.force_to_si
     deflection = values[:, col + 3: col + 6] * units.length_to_si

@@ -42,6 +42,7 @@ from stiffness.calibration.campaign import (
     check_units_comment,
     read_units_comment,
     warn_beyond_limits,
+    warn_shared_labels,
 )
 from stiffness.errors import (
     DataFileWarning,
@@ -269,7 +270,9 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
     prismatic = _prismatic_mask(robot)
     q[:, ~prismatic] *= units.angle_to_si
     q[:, prismatic] *= units.length_to_si
-    warn_beyond_limits(robot, q, [number for number, _ in rows], data, units)
+    lines = [number for number, _ in rows]
+    warn_beyond_limits(robot, q, lines, data, units)
+    warn_shared_labels(robot, labels, q, lines, data, units)
     plan = Plan(q=q, force=arr[:, n_q:] * units.force_to_si, config=tuple(labels), units=units,
                 robot_settings=settings, noise_std_m=noise, path=toml_path or data)
     if doc is not None:
