@@ -33,7 +33,8 @@ _TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
 
 
 def read_text(path: str | os.PathLike, what: str = "file") -> str:
-    """The UTF-8 text of ``path`` (``what`` names the file in the error, e.g. "campaign file").
+    """The UTF-8 text of ``path`` (``what`` names the file in the error, e.g. "campaign file"),
+    without the byte-order mark that spreadsheets and some editors put at its start.
 
     Raises
     ------
@@ -44,7 +45,7 @@ def read_text(path: str | os.PathLike, what: str = "file") -> str:
     """
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8").removeprefix("\ufeff")
     except FileNotFoundError:
         raise MissingFileError(f"cannot read {what} {path}: no such file; check the path",
                                path=path) from None
@@ -57,12 +58,6 @@ def read_text(path: str | os.PathLike, what: str = "file") -> str:
     except UnicodeDecodeError as exc:
         raise FileFormatError(f"not UTF-8 text (byte {exc.start}); save the {what} as UTF-8",
                               path=path) from exc
-
-
-def read_csv_text(path: str | os.PathLike, what: str = "CSV file") -> str:
-    """:func:`read_text` of a CSV file, without the byte-order mark spreadsheet programs put
-    at its start."""
-    return read_text(path, what).removeprefix("\ufeff")
 
 
 def read_toml(path: str | os.PathLike, what: str = "TOML file") -> dict[str, Any]:

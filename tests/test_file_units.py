@@ -198,3 +198,22 @@ def test_a_campaign_label_reused_for_another_pose_warns(tmp_path):
     data.write_text(data.read_text().replace("P2,", "P1,"))
     with pytest.warns(DataFileWarning, match=r"'P1' on lines 3 and 4, q2 167.78 vs -60 deg"):
         load_campaign(folder)
+
+
+def test_a_byte_order_mark_is_dropped_from_every_kind_of_user_file(tmp_path):
+    """Spreadsheets and Windows editors start UTF-8 files with U+FEFF: TOML, JSON, YAML and
+    CSV files read the same with it as without it."""
+    from stiffness.files import read_json, read_text, read_toml, read_yaml
+
+    texts = {"a.toml": ('x = 1\n[t]\ny = "z"\n', read_toml, {"x": 1, "t": {"y": "z"}}),
+             "a.json": ('{"x": [1, 2]}', read_json, {"x": [1, 2]}),
+             "a.yaml": ("x: [1, 2]\n", read_yaml, {"x": [1, 2]}),
+             "a.csv": ("a,b\n1,2\n", read_text, "a,b\n1,2\n")}
+    for name, (text, reader, expected) in texts.items():
+        path = tmp_path / name
+        path.write_text("\ufeff" + text, encoding="utf-8")
+        assert reader(path) == expected, name
+    folder = _campaign(tmp_path, "# a campaign")
+    toml = folder / "campaign.toml"
+    toml.write_text("\ufeff" + toml.read_text(), encoding="utf-8")
+    np.testing.assert_allclose(load_campaign(folder).q, np.deg2rad(Q_DEG))

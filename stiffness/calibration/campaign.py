@@ -67,7 +67,7 @@ from stiffness.errors import (
     did_you_mean,
     with_context,
 )
-from stiffness.files import atomic_write, output_folder, read_csv_text, read_text, read_toml
+from stiffness.files import atomic_write, output_folder, read_text, read_toml
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.model.robot import Robot, load_robot
 
@@ -652,7 +652,7 @@ def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
 
 
 def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_path: Path):
-    text = read_csv_text(data, "measurement file ([measurement] data)")
+    text = read_text(data, "measurement file ([measurement] data)")
     header = None
     rows: list[tuple[int, list[str]]] = []
     for number, raw in enumerate(text.splitlines(), start=1):

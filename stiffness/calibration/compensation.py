@@ -47,7 +47,7 @@ from stiffness.errors import (
     StiffnessError,
     with_context,
 )
-from stiffness.files import read_csv_text
+from stiffness.files import read_text
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.model import kinematics
@@ -470,7 +470,7 @@ def read_table(path: str | Path, what: str) -> Table:
         Not UTF-8 text, or no data row.
     """
     path = Path(path)
-    text = read_csv_text(path, what)
+    text = read_text(path, what)
     rows, lines = [], []
     for row in csv.reader(io.StringIO(text)):
         if row and any(c.strip() for c in row):

@@ -51,7 +51,7 @@ from stiffness.errors import (
     StiffnessError,
     with_context,
 )
-from stiffness.files import atomic_write, output_folder, read_csv_text
+from stiffness.files import atomic_write, output_folder, read_text
 from stiffness.model.robot import Robot, load_robot
 
 #: Name of the plan CSV inside a plan folder.
@@ -212,7 +212,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         data = p
     if robot is None:
         raise StiffnessError(f"plan {path} is a bare CSV: give its robot (--robot ...)")
-    text = read_csv_text(data, "plan")
+    text = read_text(data, "plan")
     header, rows, declared_line = None, [], None
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()
