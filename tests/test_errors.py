@@ -192,6 +192,12 @@ def test_loop_closure_singular_convergence_unstable(non_grashof_four_bar, ur5):
     (["scan", "--robot", "sk120", "--axis", "joint9=0:1:1", "--out", "{tmp}/x"],
      "'joint9' is not a coordinate of sk120"),
     (["check-jacobian", "--samples", "-1"], "--samples must be >= 0"),
+    (["identify", str(TABLE2 / "measurements.csv")],
+     "measurements.csv is a CSV file, not a campaign; give the campaign.toml"),
+    (["diagnose", str(TABLE2), "--max-steps", "-1"],
+     "--max-steps must be a non-negative integer (0: the baseline only), got -1"),
+    (["posture", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--path", "{tmp}/p.csv",
+      "--figure", "{tmp}/f.txt", "--out", "{tmp}/o.csv"], "the figure is a PNG image"),
 ])
 def test_cli_turns_each_error_into_exit_2_and_one_line(tmp_path, capsys, argv, words):
     (tmp_path / "bad.json").write_text("{oops")

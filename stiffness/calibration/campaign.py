@@ -502,6 +502,9 @@ def _campaign_path(path: str | os.PathLike) -> Path:
         raise MissingFileError(
             f"campaign {path} not found: give a {CAMPAIGN_FILE} or the folder holding one",
             path=p)
+    if p.suffix.lower() == ".csv":
+        raise FileFormatError(f"{p.name} is a CSV file, not a campaign; give the {CAMPAIGN_FILE} "
+                              "that names it (or the folder holding both)", path=p)
     return p
 
 

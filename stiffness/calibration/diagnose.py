@@ -858,8 +858,13 @@ def diagnose(
     Raises
     ------
     StiffnessError
-        If a configuration cannot be assembled, or there are too few residuals.
+        If a configuration cannot be assembled, there are too few residuals, or
+        ``max_steps`` is negative.
     """
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer) \
+            or max_steps < 0:
+        raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
+                             f"only), got {max_steps!r}")
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
     robot = campaign.robot()

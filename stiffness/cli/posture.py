@@ -74,6 +74,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness posture``; returns the exit code."""
     figure = args.figure or (str(Path(args.out).with_suffix(".png")) if args.out else None)
+    if args.figure and Path(args.figure).suffix.lower() != ".png":
+        raise StiffnessError(f"--figure {args.figure}: the figure is a PNG image; give a file "
+                             "name ending in .png")
     check_outputs(args.out, figure)
     em = elastic_model_from_args(args)
     poses = read_poses(args.path)
