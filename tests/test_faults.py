@@ -207,14 +207,22 @@ def one_line_error(done: subprocess.CompletedProcess, *words: str) -> None:
 
 
 def test_full_disk_gives_one_line_and_no_half_written_file(simulated_campaign, tmp_path):
-    args = command_lines(simulated_campaign)["scan"]
+    """A scan projected beyond the free space is refused before it writes; one that fits by
+    the projection but fills the disk on the way (its figures, its aggregates) stops at the
+    first failed write with one line and no half-written file."""
+    too_big = command_lines(simulated_campaign)["scan"]
+    fills = ["scan", "--robot", "ur5", "--frame", "tool0", "--samples", "300", "--chunk-size",
+             "100", "--kq", "8e4,8e4,5e4,2e4,2e4,2e4", "--quiet", "--out", "OUT"]
     with tmpfs("96k") as small:
         if small is not None:
             out = small / "scan"
-            done = run_in(args, out)
+            one_line_error(run_in(too_big, out), "the scan would write at least 0.0166 GB",
+                           "GB free")
+            assert not out.exists()
+            done = run_in(fills, out)
         else:
             out = tmp_path / "scan"
-            done = cli(*[a.replace("OUT", str(out)) for a in args], limit_bytes=48_000)
+            done = cli(*[a.replace("OUT", str(out)) for a in too_big], limit_bytes=48_000)
         one_line_error(done, "cannot write", str(out))
         assert not temporaries(out.parent)
         for path in outputs(out).values() if out.exists() else []:
