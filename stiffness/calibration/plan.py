@@ -56,6 +56,8 @@ from stiffness.model.robot import Robot, load_robot
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"
+
+
 @dataclass
 class Plan:
     """Rows to measure, SI.
