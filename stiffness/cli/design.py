@@ -167,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
     units = existing.units if existing is not None else Units()
     if args.units is not None:
         units = Units(units.angle, units.force, args.units)
+    flags.check_noise_std(args.noise, "--noise", units.length)
     k, k_source = None, None
     model = _identified_model(args)
     if args.kq is not None:

@@ -23,6 +23,7 @@ plain :mod:`argparse` would read them as unknown options.
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 from collections.abc import Sequence
@@ -129,6 +130,23 @@ def require_at_least_one(value: int | None, flag: str) -> None:
     """
     if value is not None and value < 1:
         raise StiffnessError(f"{flag} must be at least 1, got {value}")
+
+
+def check_noise_std(value: float | None, flag: str, unit: str, *, zero: bool = False) -> None:
+    """Refuse a noise std flag that is not a finite positive number (or zero when ``zero``),
+    naming the value and the unit the user gave (``None``: the flag was not given).
+
+    Raises
+    ------
+    StiffnessError
+        If ``value`` is NaN, infinite, negative, or zero without ``zero``.
+    """
+    if value is None:
+        return
+    if not (math.isfinite(value) and (value >= 0 if zero else value > 0)):
+        bound = ">= 0" if zero else "> 0"
+        raise StiffnessError(f"{flag} must be a finite standard deviation {bound}, in {unit}; "
+                             f"got {value:g}")
 
 
 def stiffness_required(robot: Robot) -> StiffnessError:

@@ -100,6 +100,8 @@ def _plan_robot(robot: flags.RobotFlags, path: str) -> tuple[Plan, flags.RobotFl
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
+    flags.check_noise_std(args.noise, "--noise", args.units, zero=True)
+    flags.check_noise_std(args.rotation_noise, "--rotation-noise", units.angle, zero=True)
     robot = flags.robot_flags(args)
     kq = flags.parse_list(args.kq, "--kq") if args.kq else None
     plan = None
