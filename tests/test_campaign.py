@@ -259,6 +259,8 @@ def test_missing_csv(tmp_path):
     ('data = "measurements.csv"', 'data = "measurements.csv"\nnoise_std = "small"',
      "noise_std must be a positive number"),
     ("[0.0, 0.0, 0.0]", "[0.0, 0.0]", "target_offset must be three numbers in mm"),
+    ("[0.0, 0.0, 0.0]", "[0.0, nan, 0.0]", "target_offset must be three numbers in mm, finite"),
+    ("[0.0, 0.0, 0.0]", "[0.0, 1e300, 0.0]", "finite and within +-1e+12, got [0.0, 1e+300"),
     ('compliant_joints = ["joint1", "joint2", "joint3"]', "compliant_joints = []",
      "compliant_joints must be a non-empty list"),
     ('name = "test"', 'name = "test"\ncolour = "red"', "unknown key 'colour' in top level"),

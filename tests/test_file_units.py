@@ -217,3 +217,16 @@ def test_a_byte_order_mark_is_dropped_from_every_kind_of_user_file(tmp_path):
     toml = folder / "campaign.toml"
     toml.write_text("\ufeff" + toml.read_text(), encoding="utf-8")
     np.testing.assert_allclose(load_campaign(folder).q, np.deg2rad(Q_DEG))
+
+
+def test_a_plan_folder_checks_its_campaign_toml_as_a_campaign_does(tmp_path):
+    """One reader of [units], [robot] and noise_std: a plan folder's NaN target offset is
+    refused with the file and the key, as load_campaign refuses it."""
+    folder = _campaign(tmp_path, "# a plan")
+    toml = folder / "campaign.toml"
+    toml.write_text(toml.read_text().replace('source = "ur5"\n',
+                                             'source = "ur5"\ntarget_offset = [0.0, nan, 0.0]\n'))
+    for reader in (load_campaign, read_plan):
+        with pytest.raises(FileFormatError, match=r"campaign\.toml, line 5.*\[robot\] "
+                           r"target_offset must be three numbers in mm, finite"):
+            reader(folder)

@@ -771,6 +771,70 @@ def warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
         DataFileWarning, stacklevel=3)
 
 
+def _units_section(doc: dict, toml: _TomlFile) -> Units:
+    """The ``[units]`` table of a campaign.toml, each unit checked (key named on error)."""
+    u = doc["units"]
+    for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
+                       ("length", LENGTH_UNITS)):
+        value = u[key]
+        if value not in table:
+            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
+                             f"{key} units: {', '.join(table)}", "units", key)
+    for key, table in (("rotation", ANGLE_UNITS), ("moment", MOMENT_UNITS)):
+        value = u.get(key)
+        if value is not None and value not in table:
+            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
+                             f"{key} units: {', '.join(table)}; omit it for the default",
+                             "units", key)
+    units = Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
+    return units
+
+
+def _robot_section(doc: dict, toml: _TomlFile, units: Units) -> RobotSettings:
+    """The ``[robot]`` table of a campaign.toml, each key checked (key named on error)."""
+    r = doc["robot"]
+    source = _typed(r["source"], str, toml, "robot", "source", "a string")
+    frame = r.get("frame")
+    if frame is not None:
+        _typed(frame, str, toml, "robot", "frame", "a frame name (string)")
+    offset = r.get("target_offset", [0.0, 0.0, 0.0])
+    if (not isinstance(offset, list) or len(offset) != 3
+            or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                       and math.isfinite(v) and abs(v) <= MAX_CELL for v in offset)):
+        raise toml.error(f"[robot] target_offset must be three numbers in {units.length}, "
+                         f"finite and within +-{MAX_CELL:.0e}, got {offset!r}", "robot",
+                         "target_offset")
+    joints = r.get("compliant_joints")
+    if joints is not None and (not isinstance(joints, list) or not joints
+                               or not all(isinstance(j, str) for j in joints)):
+        raise toml.error(f"[robot] compliant_joints must be a non-empty list of joint names, "
+                         f"got {joints!r}", "robot", "compliant_joints")
+    loops = r.get("loops")
+    if loops is not None:
+        _typed(loops, str, toml, "robot", "loops", "a loop-declaration path (string)")
+    fixed_base = r.get("fixed_base", False)
+    if not isinstance(fixed_base, bool):
+        raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
+                         "robot", "fixed_base")
+    settings = RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
+                             tuple(joints) if joints is not None else None, loops, fixed_base)
+    return settings
+
+
+def _noise_section(doc: dict, toml: _TomlFile, units: Units) -> float | None:
+    """``[measurement] noise_std`` in the file's length unit, or None (key named on error)."""
+    m = doc["measurement"]
+    noise = m.get("noise_std")
+    if noise is not None:
+        _typed(noise, int | float, toml, "measurement", "noise_std",
+               f"a positive number in {units.length}")
+        if not (math.isfinite(noise) and noise > 0):
+            raise toml.error(f"[measurement] noise_std must be a positive finite number in "
+                             f"{units.length}, got {noise!r}; omit it if unknown",
+                             "measurement", "noise_std")
+    return noise
+
+
 def load_campaign(path: str | os.PathLike) -> Campaign:
     """Read and validate a campaign; the result is in SI and carries its loaded robot.
 
@@ -798,56 +862,12 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     if baseline not in BASELINES:
         raise toml.error(f"unknown baseline {baseline!r}; valid baselines: "
                          f"{', '.join(BASELINES)}", "", "baseline")
-    u = doc["units"]
-    for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
-                       ("length", LENGTH_UNITS)):
-        value = u[key]
-        if value not in table:
-            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
-                             f"{key} units: {', '.join(table)}", "units", key)
-    for key, table in (("rotation", ANGLE_UNITS), ("moment", MOMENT_UNITS)):
-        value = u.get(key)
-        if value is not None and value not in table:
-            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
-                             f"{key} units: {', '.join(table)}; omit it for the default",
-                             "units", key)
-    units = Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
-
-    r = doc["robot"]
-    source = _typed(r["source"], str, toml, "robot", "source", "a string")
-    frame = r.get("frame")
-    if frame is not None:
-        _typed(frame, str, toml, "robot", "frame", "a frame name (string)")
-    offset = r.get("target_offset", [0.0, 0.0, 0.0])
-    if (not isinstance(offset, list) or len(offset) != 3
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in offset)):
-        raise toml.error(f"[robot] target_offset must be three numbers in {units.length}, got "
-                         f"{offset!r}", "robot", "target_offset")
-    joints = r.get("compliant_joints")
-    if joints is not None and (not isinstance(joints, list) or not joints
-                               or not all(isinstance(j, str) for j in joints)):
-        raise toml.error(f"[robot] compliant_joints must be a non-empty list of joint names, "
-                         f"got {joints!r}", "robot", "compliant_joints")
-    loops = r.get("loops")
-    if loops is not None:
-        _typed(loops, str, toml, "robot", "loops", "a loop-declaration path (string)")
-    fixed_base = r.get("fixed_base", False)
-    if not isinstance(fixed_base, bool):
-        raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
-                         "robot", "fixed_base")
-    settings = RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
-                             tuple(joints) if joints is not None else None, loops, fixed_base)
-
+    units = _units_section(doc, toml)
+    settings = _robot_section(doc, toml, units)
+    source, loops, fixed_base = settings.source, settings.loops, settings.fixed_base
     m = doc["measurement"]
     data_name = _typed(m["data"], str, toml, "measurement", "data", "a file name")
-    noise = m.get("noise_std")
-    if noise is not None:
-        _typed(noise, int | float, toml, "measurement", "noise_std",
-               f"a positive number in {units.length}")
-        if not (math.isfinite(noise) and noise > 0):
-            raise toml.error(f"[measurement] noise_std must be a positive finite number in "
-                             f"{units.length}, got {noise!r}; omit it if unknown",
-                             "measurement", "noise_std")
+    noise = _noise_section(doc, toml, units)
     rot_noise = m.get("rotation_noise_std")
     if rot_noise is not None:
         _typed(rot_noise, int | float, toml, "measurement", "rotation_noise_std",
@@ -891,10 +911,10 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
         raise toml.error(f"[measurement] rotation_noise_std is given but {data_name} has no "
                          "rotation columns rx,ry,rz; add them after dz (or after mz) or drop "
                          "rotation_noise_std", "measurement", "rotation_noise_std")
-    if "moment" in u and not has_moment:
+    if units.moment_unit is not None and not has_moment:
         raise toml.error(f"[units] moment is given but {data_name} has no moment columns "
                          "mx,my,mz; add them after dz or drop the key", "units", "moment")
-    if "rotation" in u and not has_rotation:
+    if units.rotation_unit is not None and not has_rotation:
         raise toml.error(f"[units] rotation is given but {data_name} has no rotation columns "
                          "rx,ry,rz; add them after dz (or after mz) or drop the key",
                          "units", "rotation")

@@ -34,10 +34,14 @@ from stiffness.calibration.campaign import (
     Campaign,
     RobotSettings,
     Units,
+    _noise_section,
     _number,
     _prismatic_mask,
     _read_toml,
+    _resolve_path,
     _resolve_source,
+    _robot_section,
+    _units_section,
     campaign_toml,
     check_units_comment,
     read_units_comment,
@@ -151,23 +155,9 @@ def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
 
 def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None]:
     doc, toml = _read_toml(toml_path)
-    u = doc["units"]
-    try:
-        units = Units(u["angle"], u["force"], u["length"])
-    except StiffnessError as exc:
-        raise toml.error(str(exc), "units") from exc
-    r = doc["robot"]
-    offset = r.get("target_offset", [0.0, 0.0, 0.0])
-    try:
-        settings = RobotSettings(str(r["source"]), r.get("frame"),
-                                 np.array(offset, dtype=float) * units.length_to_si,
-                                 r.get("compliant_joints"))
-    except (StiffnessError, TypeError, ValueError) as exc:
-        raise toml.error(str(exc), "robot") from exc
-    noise = doc["measurement"].get("noise_std")
-    if noise is not None and not (isinstance(noise, int | float) and noise > 0):
-        raise toml.error(f"[measurement] noise_std must be a positive number in "
-                         f"{units.length}, got {noise!r}", "measurement", "noise_std")
+    units = _units_section(doc, toml)
+    settings = _robot_section(doc, toml, units)
+    noise = _noise_section(doc, toml, units)
     return doc, units, settings, None if noise is None else float(noise) * units.length_to_si
 
 
@@ -205,9 +195,13 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         data = toml_path.parent / doc["measurement"]["data"]
         if robot is None:
             try:
-                robot = load_robot(_resolve_source(settings.source, toml_path.parent),
+                folder = toml_path.parent
+                robot = load_robot(_resolve_source(settings.source, folder),
                                    frame=settings.frame, target_offset=settings.target_offset_m,
-                                   compliant_joints=settings.compliant_joints)
+                                   compliant_joints=settings.compliant_joints,
+                                   loops=None if settings.loops is None else _resolve_path(
+                                       settings.loops, folder),
+                                   fixed_base=settings.fixed_base)
             except StiffnessError as exc:
                 raise with_context(exc, f"{toml_path}: [robot]") from exc
     else:
