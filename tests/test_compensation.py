@@ -366,6 +366,12 @@ def test_bad_path_errors_are_typed(tmp_path, ur5):
     assert (info.value.line, info.value.column, info.value.field) == (3, 3, "q3")
     with pytest.raises(MissingFileError):
         read_joint_path(tmp_path / "absent.csv", ur5)
+    # a column given twice: which one is the joint's is not the reader's guess to make
+    twice = np.column_stack([UR5_PATH, UR5_PATH[:, 1]])
+    with pytest.raises(FileFormatError, match=r"line 1, column 7: the column 'q2' appears "
+                       r"twice \(columns 2 and 7\)"):
+        read_joint_path(_path_csv(tmp_path / "p2.csv", twice,
+                                  [f"q{i + 1}" for i in range(6)] + ["q2"]), ur5, deg=True)
     # a load beyond what the springs hold: a typed solver error naming the row
     soft = ElasticModel.joint_springs(ur5, [30.0] * 6)
     with pytest.raises((ConvergenceError, UnstableEquilibriumError)) as info:

@@ -467,7 +467,7 @@ def read_table(path: str | Path, what: str) -> Table:
     MissingFileError
         The file cannot be read.
     FileFormatError
-        Not UTF-8 text, or no data row.
+        Not UTF-8 text, no data row, or a column name given twice.
     """
     path = Path(path)
     text = read_text(path, what)
@@ -481,7 +481,13 @@ def read_table(path: str | Path, what: str) -> Table:
     if len(rows) < 2:
         raise FileFormatError(f"no {what} rows: give a header line and one row per point",
                               path=path)
-    return Table(path, [h.strip() for h in rows[0]], rows[1:], lines[1:])
+    header = [h.strip() for h in rows[0]]
+    for k, name in enumerate(header):
+        if name and name in header[:k]:
+            raise FileFormatError(f"the column {name!r} appears twice (columns "
+                                  f"{header.index(name) + 1} and {k + 1}); name each column once",
+                                  path=path, line=lines[0], column=k + 1)
+    return Table(path, header, rows[1:], lines[1:])
 
 
 def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointPath:
