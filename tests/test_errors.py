@@ -4,6 +4,7 @@ exit status 2 and one line on stderr."""
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,6 +36,7 @@ from stiffness.model.robot import load_robot
 from stiffness.model.sources import robots_directory
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
+DOCS_PATH = Path(__file__).resolve().parents[1] / "docs" / "compensation" / "ur5-poses.csv"
 
 
 def _one_line_error(capsys, argv: list[str]) -> str:
@@ -202,6 +204,9 @@ def test_loop_closure_singular_convergence_unstable(non_grashof_four_bar, ur5):
     (["design", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--configs", "2",
       "--max-force", "100", "--noise", "-0.01", "--units", "um", "--out", "{tmp}/d"],
      "--noise must be a finite standard deviation > 0, in um; got -0.01"),
+    (["posture", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--path",
+      str(DOCS_PATH), "--wrench", "0,0,300", "--singularity-margin", "nan", "--out",
+      "{tmp}/o.csv"], "--singularity-margin must be a finite number >= 0"),
     (["diagnose", str(TABLE2), "--max-steps", "-1"],
      "--max-steps must be a non-negative integer (0: the baseline only), got -1"),
     (["posture", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--path", "{tmp}/p.csv",

@@ -28,6 +28,7 @@ Units: m, rad inside (the ``deg`` names report degrees); deflections in m.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -369,6 +370,9 @@ def posture(
             "tool axis needs an arm that can hold a full pose (6 or more)")
     if steps < 1 or not np.isfinite(max_step_deg) or max_step_deg <= 0:
         raise StiffnessError("--steps must be at least 1 and --max-step positive (deg)")
+    if not (math.isfinite(singularity_margin) and singularity_margin >= 0):
+        raise StiffnessError(f"--singularity-margin must be a finite number >= 0 (the smallest "
+                             f"singular value of the target Jacobian), got {singularity_margin:g}")
     if steps > MAX_STEPS:
         raise StiffnessError(f"--steps {steps} is more than {MAX_STEPS} (angles 0.1 deg apart), "
                              "and the path search grows with its square; give at most "
