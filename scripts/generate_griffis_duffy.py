@@ -106,6 +106,11 @@ def main() -> None:
         f"rest_q_SI = {_toml_list(np.array(FREE_LENGTH_CM) * CM)}\n"
         "# Print 6x6 matrices in the paper's order: twists [w; v], wrenches [M; F].\n"
         'twist_order = "w-v"\n'
+        "\n"
+        "# Poses drawn for experiment design (stiffness.calibration.poses): the platform moves about\n"
+        "# the base plane, so its target need not stay above it.\n"
+        "[workspace]\n"
+        "target_above_base = false\n"
     )
     paper = ["# Zefran & Kumar, 'Affine connections for the Cartesian stiffness matrix',",
              "# section 5, as printed. Matrices: rows legs (J_inv) or wrench components [M; F],",

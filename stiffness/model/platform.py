@@ -28,6 +28,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
+from stiffness.model.urdf_writer import UrdfWriter, transform
 
 #: Names of the passive virtual joints carrying the platform, in chain order.
 VIRTUAL_JOINTS = ("platform_x", "platform_y", "platform_z",
@@ -100,24 +101,6 @@ def _leg_frame(direction: np.ndarray) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def _origin(xyz: np.ndarray, rotation: np.ndarray | None = None) -> str:
-    rpy = np.zeros(3) if rotation is None else pin.rpy.matrixToRpy(rotation)
-    return (f'<origin xyz="{xyz[0]:.12g} {xyz[1]:.12g} {xyz[2]:.12g}" '
-            f'rpy="{rpy[0]:.17g} {rpy[1]:.17g} {rpy[2]:.17g}"/>')
-
-
-def _joint(name: str, kind: str, parent: str, child: str, origin: str, axis: str | None = None,
-           limits: tuple[float, float] | None = None) -> str:
-    text = f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
-    text += origin
-    if axis is not None:
-        text += f'<axis xyz="{axis}"/>'
-    if limits is not None:
-        text += (f'<limit effort="1e6" velocity="1.0" lower="{limits[0]:.12g}" '
-                 f'upper="{limits[1]:.12g}"/>')
-    return text + "</joint>"
-
-
 def platform_urdf(spec: PlatformSpec, reach_m: float | None = None) -> str:
     """URDF text of the platform tree (see the module docstring), lengths in m.
 
@@ -130,36 +113,36 @@ def platform_urdf(spec: PlatformSpec, reach_m: float | None = None) -> str:
         times the longest leg.
     """
     reach = float(reach_m or 10.0 * np.max(spec.leg_lengths()))
-    links = ["base_link"]
-    joints = []
+    urdf = UrdfWriter(spec.name)
+    for link in ("base_link", *(f"{name}_link" for name in VIRTUAL_JOINTS[:-1]), "platform"):
+        urdf.link(link)
+    for leg in spec.leg_names:
+        for part in ("cardan", "cylinder", "rod", "tip", "anchor"):
+            urdf.link(f"{leg}_{part}")
+    axes = np.vstack([np.eye(3), np.eye(3)])
+    revolute, legs = (-np.pi, np.pi, 1e6, 1.0), (0.0, reach, 1e6, 1.0)
     parent = "base_link"
-    axes = ("1 0 0", "0 1 0", "0 0 1") * 2
     for i, name in enumerate(VIRTUAL_JOINTS):
         child = "platform" if i == len(VIRTUAL_JOINTS) - 1 else f"{name}_link"
-        origin = (_origin(spec.platform_pose.translation, spec.platform_pose.rotation)
-                  if i == 0 else _origin(np.zeros(3)))
-        kind, limits = ("prismatic", (-reach, reach)) if i < 3 else ("revolute", (-np.pi, np.pi))
-        joints.append(_joint(name, kind, parent, child, origin, axes[i], limits))
-        links.append(child)
+        origin = (transform(spec.platform_pose.translation, spec.platform_pose.rotation)
+                  if i == 0 else transform())
+        kind, limit = ("prismatic", (-reach, reach, 1e6, 1.0)) if i < 3 else ("revolute",
+                                                                                revolute)
+        urdf.joint(name, kind, parent, child, origin, axes[i], limit)
         parent = child
     vectors = spec.leg_vectors()
     for i, leg in enumerate(spec.leg_names):
         rot = _leg_frame(vectors[i])
-        links += [f"{leg}_cardan", f"{leg}_cylinder", f"{leg}_rod", f"{leg}_tip", f"{leg}_anchor"]
-        joints += [
-            _joint(f"{leg}_ux", "revolute", "base_link", f"{leg}_cardan",
-                   _origin(spec.base_anchors[i], rot), "1 0 0", (-np.pi, np.pi)),
-            _joint(f"{leg}_uy", "revolute", f"{leg}_cardan", f"{leg}_cylinder",
-                   _origin(np.zeros(3)), "0 1 0", (-np.pi, np.pi)),
-            _joint(leg, "prismatic", f"{leg}_cylinder", f"{leg}_rod", _origin(np.zeros(3)),
-                   "0 0 1", (0.0, reach)),
-            _joint(f"{leg}_tip_joint", "fixed", f"{leg}_rod", f"{leg}_tip",
-                   _origin(np.zeros(3))),
-            _joint(f"{leg}_anchor_joint", "fixed", "platform", f"{leg}_anchor",
-                   _origin(spec.platform_anchors[i])),
-        ]
-    body = "".join(f'<link name="{n}"/>' for n in links) + "".join(joints)
-    return f'<?xml version="1.0"?>\n<robot name="{spec.name}">{body}</robot>\n'
+        urdf.joint(f"{leg}_ux", "revolute", "base_link", f"{leg}_cardan",
+                   transform(spec.base_anchors[i], rot), [1, 0, 0], revolute)
+        urdf.joint(f"{leg}_uy", "revolute", f"{leg}_cardan", f"{leg}_cylinder", transform(),
+                   [0, 1, 0], revolute)
+        urdf.joint(leg, "prismatic", f"{leg}_cylinder", f"{leg}_rod", transform(), [0, 0, 1],
+                   legs)
+        urdf.joint(f"{leg}_tip_joint", "fixed", f"{leg}_rod", f"{leg}_tip", transform())
+        urdf.joint(f"{leg}_anchor_joint", "fixed", "platform", f"{leg}_anchor",
+                   transform(spec.platform_anchors[i]))
+    return urdf.text()
 
 
 def platform_loop_declaration(spec: PlatformSpec) -> str:

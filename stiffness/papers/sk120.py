@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
-from lxml import etree
+
+from stiffness.model.urdf_writer import UrdfWriter
 
 #: L-shaped fixture: a along the tool plate's axis (z6), b normal to it (x6), in m.
 FIXTURE_A_M = 0.11265
@@ -113,17 +113,6 @@ def _dh_fixed(row: DHRow) -> np.ndarray:
     return _trans(row.a, 0.0, row.d) @ _rot_x(row.alpha)
 
 
-def _numbers(values) -> str:
-    """A URDF vector attribute: each number as Python's shortest round-trip repr."""
-    return " ".join(str(float(v)) for v in values)
-
-
-def _origin(parent: etree._Element, matrix: np.ndarray) -> None:
-    """``<origin xyz rpy>`` of a homogeneous transform (rpy: Pinocchio's roll-pitch-yaw)."""
-    rpy = pin.rpy.matrixToRpy(np.ascontiguousarray(matrix[:3, :3]))
-    etree.SubElement(parent, "origin", xyz=_numbers(matrix[:3, 3]), rpy=_numbers(rpy))
-
-
 def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
     """URDF text of the SK120 (tree form of the five-bar) in a given angle convention.
 
@@ -135,28 +124,23 @@ def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
     crank = table1["1b"].a
     coupler = table1["2b"].a
     r1, r3, r4, r5, r6 = (table1[k] for k in ("1", "3", "4", "5", "6"))
-    robot = etree.Element("robot", name="motoman_sk120")
+    robot = UrdfWriter("motoman_sk120")
 
     def link(name: str, length: float = 0.0, axis: str = "x") -> None:
-        element = etree.SubElement(robot, "link", name=name)
+        box = None
         if length:
             centre = {"x": _trans(length / 2), "z": _trans(z=length / 2)}[axis]
             size = {"x": [abs(length), 0.12, 0.12], "z": [0.12, 0.12, abs(length)]}[axis]
-            visual = etree.SubElement(element, "visual", name=f"{name}_visual")
-            etree.SubElement(etree.SubElement(visual, "geometry"), "box", size=_numbers(size))
-            _origin(visual, centre)
+            box = (size, centre)
+        robot.link(name, box)
 
     def joint(name: str, parent: str, child: str, origin: np.ndarray,
               sign: int | None = None) -> None:
-        element = etree.SubElement(robot, "joint", name=name,
-                                type="fixed" if sign is None else "revolute")
-        etree.SubElement(element, "parent", link=parent)
-        etree.SubElement(element, "child", link=child)
-        _origin(element, origin)
-        if sign is not None:
-            etree.SubElement(element, "axis", xyz=_numbers([0.0, 0.0, sign]))
-            etree.SubElement(element, "limit", effort="10000.0", velocity="2.0",
-                             lower=str(-np.pi), upper=str(np.pi))
+        if sign is None:
+            robot.joint(name, "fixed", parent, child, origin)
+        else:
+            robot.joint(name, "revolute", parent, child, origin, [0.0, 0.0, sign],
+                        (-np.pi, np.pi, 10000.0, 2.0))
 
     for args in [("base_link",), ("link1", r1.a), ("lower_arm", coupler), ("crank", crank),
                  ("coupler", coupler), ("forearm", -crank), ("link4", r4.d, "z"), ("link5",),
@@ -177,5 +161,4 @@ def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
     joint("joint6", "link5", "link6", _dh_fixed(r5) @ _rot_z(o[5]), s[5])
     joint("tool0_joint", "link6", "tool0", _dh_fixed(r6))
     joint("fixture_joint", "tool0", "fixture_target", _trans(FIXTURE_B_M, 0.0, FIXTURE_A_M))
-    return etree.tostring(robot, pretty_print=True, xml_declaration=True,
-                          encoding="utf-8").decode()
+    return robot.text()
