@@ -107,7 +107,8 @@ def main() -> None:
         "# Print 6x6 matrices in the paper's order: twists [w; v], wrenches [M; F].\n"
         'twist_order = "w-v"\n'
         "\n"
-        "# Poses drawn for experiment design (stiffness.calibration.poses): the platform moves about\n"
+        "# Poses drawn for experiment design (stiffness.calibration.poses): the platform moves"
+        " about\n"
         "# the base plane, so its target need not stay above it.\n"
         "[workspace]\n"
         "target_above_base = false\n"

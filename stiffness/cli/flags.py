@@ -55,8 +55,13 @@ class ArgumentParser(argparse.ArgumentParser):
     ``--q -35,-60,95`` is rewritten ``--q=-35,-60,95`` before parsing, for every option that
     takes one value (abbreviations included), when the next token is a negative number or a
     number list. Usage errors print on one line (:meth:`error`). Sub-parsers made with
-    ``add_subparsers`` inherit the class.
+    ``add_subparsers`` inherit the class; ``commands`` maps each command name to its
+    sub-parser (filled by :func:`stiffness.cli.main.build_parser`).
     """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.commands: dict[str, ArgumentParser] = {}
 
     def parse_known_args(self, args: Sequence[str] | None = None,
                          namespace: argparse.Namespace | None = None):

@@ -6,7 +6,6 @@ imported only when its command runs, so ``stiffness --help`` stays fast.
 
 from __future__ import annotations
 
-import argparse
 import difflib
 import importlib
 import os
@@ -41,7 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> ArgumentParser:
     """Argument parser; configures the subcommand ``only`` (all if None)."""
     parser = ArgumentParser(
         prog="stiffness",
@@ -51,6 +50,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
+        parser.commands[name] = p
         if only is None or only == name:
             importlib.import_module(module).configure_parser(p)
     return parser
@@ -105,13 +105,12 @@ def _run(argv: list[str] | None) -> int:
         return 130
 
 
-def _unrecognized(parser: argparse.ArgumentParser, command: str | None,
+def _unrecognized(parser: ArgumentParser, command: str | None,
                   unknown: list[str]) -> NoReturn:
     """Exit on arguments no parser took, as the command's usage error (naming the command and
     the closest flags it has) rather than the top-level parser's."""
     if command is not None:
-        subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        parser = subparsers.choices[command]
+        parser = parser.commands[command]
     options = [s for a in parser._actions for s in a.option_strings]
     close = [match for token in unknown if token.startswith("--")
              for match in difflib.get_close_matches(token.split("=")[0], options, n=1,
