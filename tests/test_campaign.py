@@ -368,3 +368,10 @@ def test_write_accepts_a_campaign_like_object(tmp_path):
     assert back.config == ("1",) and back.units == Units()
     np.testing.assert_allclose(back.deflection, like.deflection)
     assert back.robot().target_frame == "fixture_target"  # the shipped robot's default
+
+
+def test_coordinate_columns_named_by_joint_are_told_the_q_names(tmp_path):
+    header = HEADER.replace("q1,q2,q3,q4,q5,q6", "joint1,joint2,joint3,joint4,joint5,joint6")
+    msg = csv_error(tmp_path, f"{header}\n{ROW_A}\n")
+    assert ("line 1, column 2: got 'joint1', a joint name: coordinate columns are named by "
+            "position, q1..q6, in the order of robot sk120 (joint1, joint2") in msg, msg

@@ -514,7 +514,8 @@ def _expected_header(n_q: int) -> list[str]:
 
 
 def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
-                  robot_text: str = "the robot") -> tuple[int, bool, bool]:
+                  robot_text: str = "the robot", joints: tuple[str, ...] = ()
+                  ) -> tuple[int, bool, bool]:
     """Check a CSV header; return (number of q columns, has moment, has rotation)."""
     optional = "optional columns after dz: mx,my,mz (moment) then rx,ry,rz (rotation)"
 
@@ -532,6 +533,10 @@ def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
                               "(q columns are q1, q2, ... in order)")
         k += 1
     if n_q is not None and k != n_q:
+        named = cells[1 + k] if 1 + k < len(cells) else None
+        if named in joints:
+            raise fail(2 + k, f"got {named!r}, a joint name: coordinate columns are named by "
+                              f"position, q1..q{n_q}, in the order of {robot_text}")
         raise fail(2 + min(k, n_q), f"{robot_text} has {n_q} coordinates but the header has {k} "
                                     f"q columns; give q1..q{n_q} in that order")
     if k == 0:
@@ -654,7 +659,8 @@ def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
     return value
 
 
-def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_path: Path):
+def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_path: Path,
+               joints: tuple[str, ...] = ()):
     text = read_text(data, "measurement file ([measurement] data)")
     header = None
     rows: list[tuple[int, list[str]]] = []
@@ -676,7 +682,8 @@ def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_
         raise FileFormatError("the file is empty; it needs a header "
                               "config,q1,...,qn,fx,fy,fz,dx,dy,dz and measurement rows",
                               path=data, line=1)
-    k, has_moment, has_rotation = _parse_header(header, data, header_line, n_q, robot_text)
+    k, has_moment, has_rotation = _parse_header(header, data, header_line, n_q, robot_text,
+                                                joints)
     if not rows:
         raise FileFormatError("no measurement rows after the header; add one row per loaded "
                               "measurement", path=data, line=header_line + 1)
@@ -890,7 +897,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
 
     robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
     k, has_moment, has_rotation, labels, values, lines = _read_rows(
-        data_path, robot.n_coordinates, robot_text, units, toml_path)
+        data_path, robot.n_coordinates, robot_text, units, toml_path, robot.coordinate_joints)
     q = values[:, :k].copy()
     prismatic = _prismatic_mask(robot)
     q[:, ~prismatic] *= units.angle_to_si
