@@ -230,3 +230,15 @@ def test_a_plan_folder_checks_its_campaign_toml_as_a_campaign_does(tmp_path):
         with pytest.raises(FileFormatError, match=r"campaign\.toml, line 5.*\[robot\] "
                            r"target_offset must be three numbers in mm, finite"):
             reader(folder)
+
+
+@pytest.mark.parametrize("prose", ["# force = 100 N along z", "# max force=100",
+                                   "# config=P1 is the home pose", "# length of the tool = 0.1 m"])
+def test_prose_comments_are_not_units_declarations(ur5, tmp_path, prose):
+    """Only ``units:`` comments and comments made of unit pairs alone declare units."""
+    text = plan_text("# units: angle=deg force=N length=mm").replace(HEADER, prose + "\n" + HEADER)
+    plan, caught = read(tmp_path, text, ur5)
+    assert caught == []
+    np.testing.assert_allclose(plan.force, F_N)
+    _, caught = read(tmp_path, plan_text(prose), ur5)
+    assert len(caught) == 1 and "declares no units" in caught[0], caught

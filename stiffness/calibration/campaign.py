@@ -575,8 +575,10 @@ def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
     return k, found["moment"], found["rotation"]
 
 
-#: A comment that declares units: ``units:`` / ``units=`` or a ``angle|force|length = ...`` pair.
-_UNITS_MENTION = re.compile(r"\bunits?\s*[:=]|\b(?:angle|force|length)\s*=", re.IGNORECASE)
+#: ``units:`` / ``units=`` in a comment: what follows declares the units.
+_UNITS_WORD = re.compile(r"\bunits?\s*[:=]", re.IGNORECASE)
+#: A comment made only of ``key = value`` pairs (``# angle = rad, force = kN, length = m``).
+_ONLY_PAIRS = re.compile(r"^\s*(?:[A-Za-z_]+\s*=\s*[^\s,;=]+[\s,;]*)+$")
 #: One ``key = value`` pair of a units comment (separated by spaces, commas or semicolons).
 _UNITS_PAIR = re.compile(r"([A-Za-z_]+)\s*=\s*([^\s,;]+)")
 _UNITS_KEYS = ("angle", "force", "length")
@@ -592,9 +594,14 @@ def read_units_comment(comment: str, path: Path, line: int) -> Units | None:
         A comment that mentions units but does not name each of angle, force and length once
         with a known unit (file and line named, the expected form given).
     """
-    if not _UNITS_MENTION.search(comment):
+    body = comment.lstrip("#")
+    if _UNITS_WORD.search(body):
+        text = _UNITS_WORD.split(body, maxsplit=1)[-1]
+    elif _ONLY_PAIRS.match(body) and any(
+            key.lower() in _UNITS_KEYS for key, _ in _UNITS_PAIR.findall(body)):
+        text = body
+    else:  # prose ("# force = 100 N along z", "# max force=100"): not a declaration
         return None
-    text = re.split(r"\bunits?\s*[:=]", comment, maxsplit=1, flags=re.IGNORECASE)[-1]
     pairs: dict[str, str] = {}
     for key, value in _UNITS_PAIR.findall(text):
         key = key.lower()
