@@ -867,7 +867,14 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     StiffnessError
         Missing file, invalid TOML, missing or unknown keys, unknown units or baseline, robot
         that cannot be loaded, or a CSV with missing/extra/misnamed columns, a wrong number of
-        q columns, or a non-numeric or NaN cell (file, line and column named).
+        q columns, a non-numeric, NaN or implausibly large cell, or a units comment that
+        disagrees with ``[units]`` (file, line and column named).
+
+    Warns
+    -----
+    DataFileWarning
+        Rows beyond the joint limits (:func:`warn_beyond_limits`), or one label on rows at
+        different coordinates (:func:`warn_shared_labels`).
     """
     toml_path = _campaign_path(path)
     doc, toml = _read_toml(toml_path)

@@ -177,9 +177,16 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         No such plan.
     FileFormatError
         A header other than ``config,q1..qn,fx,fy,fz`` (optionally then ``dx,dy,dz``), a
-        non-numeric cell (file, line and column named).
+        non-numeric or implausibly large cell, a units comment that cannot be read or that
+        disagrees with ``campaign.toml`` (file, line and column named).
     StiffnessError
         A bare CSV without a robot.
+
+    Warns
+    -----
+    DataFileWarning
+        A bare CSV without a units comment (read as deg, N, mm), rows beyond the joint limits,
+        or one label on rows at different coordinates.
     """
     p = Path(path)
     if not p.exists():
