@@ -11,6 +11,7 @@ the outputs are the only difference allowed.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
@@ -40,54 +41,85 @@ def _run(cmd: list[str], env: dict, cwd: Path) -> subprocess.CompletedProcess:
     return done
 
 
-@pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> Path:
-    """The wheel built from a copy of the checkout's build inputs."""
-    src = tmp_path_factory.mktemp("src")
+def _build_and_run(folder: Path) -> None:
+    """Build the wheel from a copy of the checkout's build inputs, install it into a folder of
+    its own and run the commands from it, all under ``folder``; ``done`` marks the end.
+
+    The three commands run at the same time (the suite's time budget).
+    """
+    src = folder / "src"
     for name in BUILD_INPUTS:
         if (ROOT / name).is_dir():
             shutil.copytree(ROOT / name, src / name,
                             ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
         else:
+            src.mkdir(parents=True, exist_ok=True)
             shutil.copy2(ROOT / name, src / name)
-    out = tmp_path_factory.mktemp("dist")
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-          "--disable-pip-version-check", "-q", "-w", str(out), str(src)], dict(os.environ), src)
-    (built,) = out.glob("stiffness-*.whl")
-    return built
-
-
-@pytest.fixture(scope="module")
-def installed(wheel, tmp_path_factory) -> dict:
-    """The wheel installed into a folder of its own; the environment and folder to run it in."""
-    target = tmp_path_factory.mktemp("site")
+          "--disable-pip-version-check", "-q", "-w", str(folder / "dist"), str(src)],
+         dict(os.environ), src)
+    (built,) = (folder / "dist").glob("stiffness-*.whl")
     _run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--no-compile",
-          "--disable-pip-version-check", "-q", "--target", str(target), str(wheel)],
-         dict(os.environ), target)
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "STIFFNESS_ROBOTS")}
-    env["PYTHONPATH"] = str(target)
-    return {"env": env, "cwd": tmp_path_factory.mktemp("elsewhere"), "site": target,
-            "script": str(target / "bin" / "stiffness")}
-
-
-@pytest.fixture(scope="module")
-def wheel_outputs(installed) -> dict:
-    """stdout of each command, and the report's folder, run from the installed wheel.
-
-    The three commands run at the same time (the suite's time budget).
-    """
-    report = installed["cwd"] / "report"
-    commands = {**COMMANDS, "report": ["report", "--out", str(report), "--quiet"]}
+          "--disable-pip-version-check", "-q", "--target", str(folder / "site"), str(built)],
+         dict(os.environ), folder)
+    installed = _installed(folder)
+    installed["cwd"].mkdir()
+    commands = {**COMMANDS, "report": ["report", "--out", str(installed["cwd"] / "report"),
+                                       "--quiet"]}
     running = {name: subprocess.Popen([installed["script"], *args], env=installed["env"],
                                       cwd=installed["cwd"], stdout=subprocess.PIPE,
                                       stderr=subprocess.PIPE, text=True)
                for name, args in commands.items()}
-    out = {}
     for name, process in running.items():
         stdout, stderr = process.communicate(timeout=600)
         assert process.returncode == 0, f"stiffness {name} failed:\n{stderr[-3000:]}"
-        out[name] = stdout
-    out["report"] = report
+        (folder / f"{name}.stdout").write_text(stdout)
+    (folder / "done").touch()
+
+
+def _installed(folder: Path) -> dict:
+    """The environment, folders and console script of the wheel installed under ``folder``."""
+    site = folder / "site"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "STIFFNESS_ROBOTS")}
+    env["PYTHONPATH"] = str(site)
+    return {"env": env, "cwd": folder / "elsewhere", "site": site,
+            "script": str(site / "bin" / "stiffness")}
+
+
+@pytest.fixture(scope="session")
+def wheel_run(tmp_path_factory, worker_id) -> Path:
+    """The folder of :func:`_build_and_run`, made once per test run: the test workers share
+    it (the first to need it builds it under a file lock, the others wait and read)."""
+    root = tmp_path_factory.getbasetemp()
+    if worker_id != "master":
+        root = root.parent  # the folder of this run, above each worker's own
+    folder = root / "wheel-run"
+    with open(root / "wheel-run.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (folder / "done").exists():
+            shutil.rmtree(folder, ignore_errors=True)  # a worker that failed half-way
+            _build_and_run(folder)
+    return folder
+
+
+@pytest.fixture
+def wheel(wheel_run) -> Path:
+    """The wheel built from the checkout."""
+    (built,) = (wheel_run / "dist").glob("stiffness-*.whl")
+    return built
+
+
+@pytest.fixture
+def installed(wheel_run) -> dict:
+    """The wheel installed into a folder of its own; the environment and folder to run it in."""
+    return _installed(wheel_run)
+
+
+@pytest.fixture
+def wheel_outputs(wheel_run) -> dict:
+    """stdout of each command, and the report's folder, run from the installed wheel."""
+    out = {name: (wheel_run / f"{name}.stdout").read_text() for name in COMMANDS}
+    out["report"] = wheel_run / "elsewhere" / "report"
     return out
 
 
