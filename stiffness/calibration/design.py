@@ -44,6 +44,8 @@ from stiffness.model.robot import Robot
 
 #: Default number of candidate poses.
 DEFAULT_CANDIDATES = 200
+#: Most candidate poses (memory and time grow linearly: ~0.1 MB and ~10 ms each for a UR5).
+MAX_CANDIDATES = 10_000
 #: Default number of random plans the design is compared with.
 DEFAULT_RANDOM_PLANS = 50
 
@@ -80,8 +82,9 @@ def check_sizes(configs: int, loads_per_config: int, candidates: int | None) -> 
     Raises
     ------
     StiffnessError
-        ``configs`` below 1 or above ``candidates``; ``loads_per_config`` outside 1 to the
-        number of load directions.
+        ``configs`` below 1 or above ``candidates``; ``candidates`` above
+        :data:`MAX_CANDIDATES`; ``loads_per_config`` outside 1 to the number of load
+        directions.
     """
     if int(configs) < 1:
         raise StiffnessError(f"--configs must be at least 1, got {configs}")
@@ -89,6 +92,11 @@ def check_sizes(configs: int, loads_per_config: int, candidates: int | None) -> 
     if not 1 <= int(loads_per_config) <= n_dir:
         raise StiffnessError(f"--loads-per-config must be between 1 and {n_dir} (the axis and "
                              f"cube-diagonal directions), got {loads_per_config}")
+    if candidates is not None and int(candidates) > MAX_CANDIDATES:
+        raise StiffnessError(f"--candidates {candidates} is more than {MAX_CANDIDATES}: the search "
+                             "keeps every candidate's loads and information matrices in memory "
+                             "(about 0.1 MB and 10 ms each on a 6-joint arm); give at most "
+                             f"{MAX_CANDIDATES}")
     if candidates is not None and int(configs) > int(candidates):
         raise StiffnessError(f"--configs {configs} is larger than the {candidates} candidate "
                              "poses; raise --candidates or lower --configs")
