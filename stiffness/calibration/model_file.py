@@ -120,10 +120,10 @@ LEGACY_DIAGNOSED = "stiffness-diagnosed-model"
 #: Formulations a model may be identified with.
 FORMULATIONS = ("conventional", "enhanced", "exact")
 #: Unit names of the files -> factor to SI.
-#: Units an effect parameter of the current schema may name (the file is SI).
-SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
 _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
+#: Units an effect parameter of the current schema may name (the file is SI).
+SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
 
 
 #: Effects that change K_X beyond the joint springs' stiffness matrix (applied by
