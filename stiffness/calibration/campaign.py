@@ -720,7 +720,62 @@ def _prismatic_mask(robot: Robot) -> np.ndarray:
     return np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
 
 
-def warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int, ...],
+def _coordinate_unit(robot: Robot, units: Units, index: int) -> tuple[float, str]:
+    """Factor to SI and name of the file unit of coordinate ``index`` (length unit for a
+    prismatic joint, angle unit otherwise)."""
+    if _prismatic_mask(robot)[index]:
+        return units.length_to_si, units.length
+    return units.angle_to_si, units.angle
+
+
+def coordinates_in_si(robot: Robot, q_file: np.ndarray, units: Units, labels: list[str],
+                      lines: list[int] | tuple[int, ...], data: Path) -> np.ndarray:
+    """The coordinates of a campaign's or plan's rows in SI (rad, m), from the file's units.
+
+    Parameters
+    ----------
+    q_file
+        (n_rows, n_q) coordinates as written: angles in the angle unit, prismatic joints in
+        the length unit.
+    labels, lines
+        Each row's configuration label and file line (named in the warnings).
+
+    Warns
+    -----
+    DataFileWarning
+        Rows beyond the joint limits, or one label on rows at different coordinates (once
+        each, naming the first row).
+    """
+    q = np.array(q_file, dtype=float)
+    prismatic = _prismatic_mask(robot)
+    q[:, ~prismatic] *= units.angle_to_si
+    q[:, prismatic] *= units.length_to_si
+    _warn_beyond_limits(robot, q, lines, data, units)
+    _warn_shared_labels(robot, labels, q, lines, data, units)
+    return q
+
+
+def _settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
+    """The robot a ``campaign.toml``'s ``[robot]`` names (paths relative to that file).
+
+    Raises
+    ------
+    StiffnessError
+        The robot cannot be loaded (the message starts with the file and ``[robot]``).
+    """
+    folder = toml_path.parent
+    try:
+        return load_robot(_resolve_source(settings.source, folder), frame=settings.frame,
+                          target_offset=settings.target_offset_m,
+                          compliant_joints=settings.compliant_joints,
+                          loops=None if settings.loops is None else _resolve_path(
+                              settings.loops, folder),
+                          fixed_base=settings.fixed_base)
+    except StiffnessError as exc:
+        raise with_context(exc, f"{toml_path}: [robot]") from exc
+
+
+def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int, ...],
                        data: Path, units: Units) -> None:
     """Warn once when rows hold coordinates beyond the robot's joint limits.
 
@@ -741,16 +796,15 @@ def warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int
     if not rows.size:
         return
     i, j = rows[0], int(np.flatnonzero(beyond[rows[0]])[0])
-    scale, unit = ((units.length_to_si, units.length) if _prismatic_mask(robot)[j]
-                   else (units.angle_to_si, units.angle))
+    scale, unit = _coordinate_unit(robot, units, j)
     warnings.warn(
         f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.name}'s joint "
         f"limits (first: line {lines[i]}, q{j + 1} = {q[i, j] / scale:.6g} {unit}, limits "
         f"[{lo[j] / scale:.6g}, {hi[j] / scale:.6g}] {unit}); check the angle and length "
-        "units and the robot", DataFileWarning, stacklevel=3)
+        "units and the robot", DataFileWarning, stacklevel=4)
 
 
-def warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
+def _warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
                        lines: list[int] | tuple[int, ...], data: Path, units: Units) -> None:
     """Warn once when one configuration label names rows at different coordinates.
 
@@ -774,15 +828,14 @@ def warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
         return
     label, j, i = mixed[0]
     k = int(np.argmax(np.abs(q[i] - q[j])))
-    scale, unit = ((units.length_to_si, units.length) if _prismatic_mask(robot)[k]
-                   else (units.angle_to_si, units.angle))
+    scale, unit = _coordinate_unit(robot, units, k)
     names = sorted({m[0] for m in mixed})
     warnings.warn(
         f"{data}: {len(names)} configuration label(s) name rows at different coordinates "
         f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}; first: {label!r} on lines "
         f"{lines[j]} and {lines[i]}, q{k + 1} {q[j, k] / scale:.6g} vs {q[i, k] / scale:.6g} "
         f"{unit}); rows of one label are one configuration, so give each pose its own label",
-        DataFileWarning, stacklevel=3)
+        DataFileWarning, stacklevel=4)
 
 
 def _units_section(doc: dict, toml: _TomlFile) -> Units:
@@ -800,8 +853,7 @@ def _units_section(doc: dict, toml: _TomlFile) -> Units:
             raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
                              f"{key} units: {', '.join(table)}; omit it for the default",
                              "units", key)
-    units = Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
-    return units
+    return Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
 
 
 def _robot_section(doc: dict, toml: _TomlFile, units: Units) -> RobotSettings:
@@ -830,9 +882,8 @@ def _robot_section(doc: dict, toml: _TomlFile, units: Units) -> RobotSettings:
     if not isinstance(fixed_base, bool):
         raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
                          "robot", "fixed_base")
-    settings = RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
-                             tuple(joints) if joints is not None else None, loops, fixed_base)
-    return settings
+    return RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
+                         tuple(joints) if joints is not None else None, loops, fixed_base)
 
 
 def _noise_section(doc: dict, toml: _TomlFile, units: Units) -> float | None:
@@ -873,8 +924,8 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     Warns
     -----
     DataFileWarning
-        Rows beyond the joint limits (:func:`warn_beyond_limits`), or one label on rows at
-        different coordinates (:func:`warn_shared_labels`).
+        Rows beyond the joint limits, or one label on rows at different coordinates
+        (:func:`coordinates_in_si`).
     """
     toml_path = _campaign_path(path)
     doc, toml = _read_toml(toml_path)
@@ -885,7 +936,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
                          f"{', '.join(BASELINES)}", "", "baseline")
     units = _units_section(doc, toml)
     settings = _robot_section(doc, toml, units)
-    source, loops, fixed_base = settings.source, settings.loops, settings.fixed_base
+    source = settings.source
     m = doc["measurement"]
     data_name = _typed(m["data"], str, toml, "measurement", "data", "a file name")
     noise = _noise_section(doc, toml, units)
@@ -899,25 +950,12 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
                              "measurement", "rotation_noise_std")
     data_path = toml_path.parent / data_name
 
-    try:
-        robot = load_robot(_resolve_source(source, toml_path.parent), frame=settings.frame,
-                           target_offset=settings.target_offset_m,
-                           compliant_joints=settings.compliant_joints,
-                           loops=None if loops is None else _resolve_path(
-                               loops, toml_path.parent),
-                           fixed_base=fixed_base)
-    except StiffnessError as exc:
-        raise with_context(exc, f"{toml_path}: [robot]") from exc
+    robot = _settings_robot(settings, toml_path)
 
     robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
     k, has_moment, has_rotation, labels, values, lines = _read_rows(
         data_path, robot.n_coordinates, robot_text, units, toml_path, robot.coordinate_joints)
-    q = values[:, :k].copy()
-    prismatic = _prismatic_mask(robot)
-    q[:, ~prismatic] *= units.angle_to_si
-    q[:, prismatic] *= units.length_to_si
-    warn_beyond_limits(robot, q, lines, data_path, units)
-    warn_shared_labels(robot, labels, q, lines, data_path, units)
+    q = coordinates_in_si(robot, values[:, :k], units, labels, lines, data_path)
     col = k
     force = values[:, col: col + 3] * units.force_to_si
     deflection = values[:, col + 3: col + 6] * units.length_to_si

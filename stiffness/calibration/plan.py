@@ -38,25 +38,23 @@ from stiffness.calibration.campaign import (
     _number,
     _prismatic_mask,
     _read_toml,
-    _resolve_path,
     _resolve_source,
     _robot_section,
+    _settings_robot,
     _units_section,
     campaign_toml,
     check_units_comment,
+    coordinates_in_si,
     read_units_comment,
-    warn_beyond_limits,
-    warn_shared_labels,
 )
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
     MissingFileError,
     StiffnessError,
-    with_context,
 )
 from stiffness.files import atomic_write, output_folder, read_text
-from stiffness.model.robot import Robot, load_robot
+from stiffness.model.robot import Robot
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"
@@ -201,16 +199,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         doc, units, settings, noise = _settings(toml_path)
         data = toml_path.parent / doc["measurement"]["data"]
         if robot is None:
-            try:
-                folder = toml_path.parent
-                robot = load_robot(_resolve_source(settings.source, folder),
-                                   frame=settings.frame, target_offset=settings.target_offset_m,
-                                   compliant_joints=settings.compliant_joints,
-                                   loops=None if settings.loops is None else _resolve_path(
-                                       settings.loops, folder),
-                                   fixed_base=settings.fixed_base)
-            except StiffnessError as exc:
-                raise with_context(exc, f"{toml_path}: [robot]") from exc
+            robot = _settings_robot(settings, toml_path)
     else:
         data = p
     if robot is None:
@@ -269,13 +258,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
                       f"length=mm (start it with '{UNITS_COMMENT_EXAMPLE}' to say so)",
                       DataFileWarning, stacklevel=2)
     arr = np.array(values, dtype=float)
-    q = arr[:, :n_q].copy()
-    prismatic = _prismatic_mask(robot)
-    q[:, ~prismatic] *= units.angle_to_si
-    q[:, prismatic] *= units.length_to_si
-    lines = [number for number, _ in rows]
-    warn_beyond_limits(robot, q, lines, data, units)
-    warn_shared_labels(robot, labels, q, lines, data, units)
+    q = coordinates_in_si(robot, arr[:, :n_q], units, labels, [n for n, _ in rows], data)
     plan = Plan(q=q, force=arr[:, n_q:] * units.force_to_si, config=tuple(labels), units=units,
                 robot_settings=settings, noise_std_m=noise, path=toml_path or data)
     if doc is not None:
