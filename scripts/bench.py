@@ -62,8 +62,8 @@ import pinocchio as pin
 
 from stiffness.batch import kernels as batch
 from stiffness.mechanics.formulation import velocity_projection
-from stiffness.model.kinematics import LWA, update_first_order
-from stiffness.model.robot import Robot, load_robot
+from stiffness.robot.kinematics import LWA, update_first_order
+from stiffness.robot.robot import Robot, load_robot
 
 PANDA_ARM = [f"panda_joint{i}" for i in range(1, 8)]
 FORCE = np.array([120.0, -80.0, -250.0])  # N
@@ -211,7 +211,7 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
 def table4_seconds(rounds: int = 3) -> float:
     """Wall time of the Table IV scan in this process (robot loaded, no figures), best of N."""
     from stiffness.cli import scan as scan_command
-    from stiffness.scan import engine as workspace_scan
+    from stiffness.workspace import engine as workspace_scan
 
     parser = argparse.ArgumentParser()
     scan_command.configure_parser(parser)
@@ -262,8 +262,8 @@ from pathlib import Path
 import argparse
 from stiffness.cli import scan
 import dask
-from stiffness.scan.distributed import CLUSTER_CONFIG, WORKER_ENVIRONMENT, warm_worker
-from stiffness.scan.engine import run_scan
+from stiffness.workspace.distributed import CLUSTER_CONFIG, WORKER_ENVIRONMENT, warm_worker
+from stiffness.workspace.engine import run_scan
 dask.config.set(CLUSTER_CONFIG)
 p = argparse.ArgumentParser(); scan.configure_parser(p)
 args = p.parse_args(sys.argv[1:-1])
@@ -331,8 +331,8 @@ def _scan_spec(argv: list[str]):
 def scan_over_kernel(samples: int, rounds: int) -> dict[str, float]:
     """In-process UR5 scan (robot loaded, no figures) per configuration, over the batched
     loaded K_X kernel on the same robot and load, interleaved rounds in this run."""
-    from stiffness.scan.distributed import warm_worker
-    from stiffness.scan.engine import run_scan
+    from stiffness.workspace.distributed import warm_worker
+    from stiffness.workspace.engine import run_scan
 
     specs = {"default": _scan_spec([*UR5_SCAN, "--samples", str(samples)]),
              "k_x": _scan_spec([*UR5_SCAN, "--samples", str(samples), "--fields", "k_x"]),
@@ -374,8 +374,8 @@ from pathlib import Path
 sys.path.insert(0, sys.argv[1])
 import bench
 import dask
-from stiffness.scan.distributed import CLUSTER_CONFIG, WORKER_ENVIRONMENT, warm_worker
-from stiffness.scan.engine import run_scan
+from stiffness.workspace.distributed import CLUSTER_CONFIG, WORKER_ENVIRONMENT, warm_worker
+from stiffness.workspace.engine import run_scan
 dask.config.set(CLUSTER_CONFIG)
 workers = int(sys.argv[2])
 spec = bench._scan_spec(sys.argv[3:])

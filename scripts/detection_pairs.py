@@ -4,7 +4,7 @@ For each robot (a UR5 with a 10 cm tool and its three arm joints compliant; the 
 a 7-axis Franka Panda from example-robot-data with a 10 cm tool and its first four joints
 compliant), each pair of library effects of :data:`PAIRS` and several seeds, a campaign of
 ``--configs`` configurations x 4 random loads with declared noise is simulated with both
-effects hidden (:func:`stiffness.calibration.simulate.simulate`) and diagnosed
+effects hidden (:func:`stiffness.planning.simulate.simulate`) and diagnosed
 (:func:`stiffness.calibration.diagnose.diagnose`). A run names *both* when both hidden effects,
 at their hidden places, are among the effects named (in any order); *names* when both effect
 names are (the place may be one the campaign cannot tell apart); it *fits* when the final RMS
@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 from detection_rate import write_between_markers  # noqa: E402  (scripts/ is on sys.path)
 
 from stiffness.calibration.diagnose import GOF_LEVEL, diagnose  # noqa: E402
-from stiffness.calibration.simulate import parse_effect, simulate  # noqa: E402
+from stiffness.planning.simulate import parse_effect, simulate  # noqa: E402
 
 NOISE_MM = 0.005
 ROBOTS = {

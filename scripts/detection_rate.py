@@ -3,7 +3,7 @@
 For each robot (a UR5 with a 10 cm tool and its three arm joints compliant; the paper's SK120),
 each library effect at three sizes, two noise levels and several seeds, a campaign of
 ``--configs`` configurations x 4 random loads is simulated with that effect hidden
-(:func:`stiffness.calibration.simulate.simulate`) and diagnosed
+(:func:`stiffness.planning.simulate.simulate`) and diagnosed
 (:func:`stiffness.calibration.diagnose.diagnose`). A
 run *detects* the effect when the first effect named is the hidden one at the hidden place;
 it *fits* when the final RMS is within 1.5x the noise. Campaigns with nothing hidden measure
@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from stiffness.calibration.diagnose import diagnose  # noqa: E402
-from stiffness.calibration.simulate import parse_effect, simulate  # noqa: E402
+from stiffness.planning.simulate import parse_effect, simulate  # noqa: E402
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 ROBOTS = {

@@ -2,7 +2,7 @@
 
 Writes, from the geometry of the paper's example (Griffis & Duffy 1993):
 
-* ``griffis-duffy.urdf``: the U-P-S tree of :mod:`stiffness.model.platform` (virtual platform
+* ``griffis-duffy.urdf``: the U-P-S tree of :mod:`stiffness.robot.platform` (virtual platform
   chain, six legs whose prismatic joints are the springs), in m;
 * ``griffis-duffy.loops.yaml``: the six leg-tip/platform-anchor point constraints;
 * ``robot.toml``: the shipped defaults (platform frame, leg lengths, springs, free lengths);
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.model.platform import PlatformSpec, platform_loop_declaration, platform_urdf
+from stiffness.robot.platform import PlatformSpec, platform_loop_declaration, platform_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "robots" / "griffis-duffy"

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.model.platform import PlatformSpec, platform_loop_declaration, platform_urdf
+from stiffness.robot.platform import PlatformSpec, platform_loop_declaration, platform_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "robots" / "hexapod"
@@ -99,7 +99,7 @@ def print_map() -> None:
     """Print the stiffness map over x, y at the home height (Markdown tables)."""
     from stiffness.mechanics.formulation import joint_stiffness
     from stiffness.mechanics.platform import stiffness_map
-    from stiffness.model.robot import load_robot
+    from stiffness.robot.robot import load_robot
 
     robot = load_robot("hexapod")
     k_theta = joint_stiffness(robot.defaults["k_theta_SI"], 6)

@@ -22,7 +22,6 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import load_robot
 from stiffness.papers.sk120 import (
     PAPER_K_THETA_NMM_PER_RAD,
     AngleConvention,
@@ -30,6 +29,7 @@ from stiffness.papers.sk120 import (
     sk120_urdf,
 )
 from stiffness.papers.tables import paper_configurations, read_paper_table
+from stiffness.robot.robot import load_robot
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "robots" / "sk120"

@@ -29,7 +29,7 @@ import numpy as np
 from stiffness.cli.main import main as cli_main
 from stiffness.errors import FloatingBaseError, StiffnessError
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import Robot, load_robot
+from stiffness.robot.robot import Robot, load_robot
 
 #: Dead force at the target (N) for kx and the K_C check.
 FORCE_N = np.array([10.0, -20.0, 30.0])

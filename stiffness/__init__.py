@@ -47,8 +47,8 @@ from stiffness.mechanics.formulation import (
 )
 from stiffness.mechanics.platform import platform_stiffness, solve_pose
 from stiffness.mechanics.wrench import holding_wrench, reorder_twist
-from stiffness.model.robot import Robot, load_robot
-from stiffness.model.sources import shipped_robots
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.sources import shipped_robots
 
 #: Entries of the upper layers, imported on first use: name -> module defining it.
 _ON_FIRST_USE = {
@@ -57,20 +57,20 @@ _ON_FIRST_USE = {
     "close_loops": "stiffness.batch.loops",
     "definiteness_map": "stiffness.batch.kernels",
     # scan: workspace maps
-    "ScanSpec": "stiffness.scan.engine",
-    "run_scan": "stiffness.scan.engine",
-    "load_scan": "stiffness.scan.engine",
+    "ScanSpec": "stiffness.workspace.engine",
+    "run_scan": "stiffness.workspace.engine",
+    "load_scan": "stiffness.workspace.engine",
     # calibration: campaigns, identification, diagnosis, synthetic campaigns
     "Campaign": "stiffness.calibration.campaign",
     "load_campaign": "stiffness.calibration.campaign",
     "identify": "stiffness.calibration.identify",
     "diagnose": "stiffness.calibration.diagnose",
-    "simulate": "stiffness.calibration.simulate",
-    "design": "stiffness.calibration.design",
+    "simulate": "stiffness.planning.simulate",
+    "design": "stiffness.planning.design",
     # calibration: compensation along a path, the stiffest posture
-    "ElasticModel": "stiffness.calibration.elastic",
-    "compensate": "stiffness.calibration.compensation",
-    "posture": "stiffness.calibration.posture",
+    "ElasticModel": "stiffness.elastic.loaded",
+    "compensate": "stiffness.machining.compensation",
+    "posture": "stiffness.machining.posture",
     # papers: the SK120 reproduction
     "build_report": "stiffness.papers.report",
     # viewer: stiffness ellipsoids in the browser

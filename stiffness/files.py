@@ -222,3 +222,34 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> Path:
     """Write ``data`` (text is UTF-8 encoded, newlines kept as given) atomically to ``path``."""
     payload = data.encode("utf-8") if isinstance(data, str) else data
     return atomic_write_with(path, lambda f: f.write(payload))
+
+
+# ------------------------------------------------------------------------------------------
+# paths written into user files
+
+
+def looks_like_path(source: str) -> bool:
+    return (Path(source).suffix.lower() in (".urdf", ".xml") or "/" in source
+            or os.sep in source or Path(source).is_absolute())
+
+
+def resolve_path(path: str, folder: Path) -> str:
+    """A file path of a campaign (``loops``): absolute as is, else relative to ``folder``."""
+    return path if Path(path).is_absolute() else str(folder / path)
+
+
+def written_path(resolved: str, folder: Path) -> str:
+    """An absolute path as written into a campaign file in ``folder`` (relative when possible)."""
+    resolved = Path(resolved)
+    try:
+        written = os.path.relpath(resolved, folder.resolve())
+    except ValueError:  # another drive on Windows
+        written = str(resolved)
+    return Path(written).as_posix()
+
+
+def resolve_source(source: str, folder: Path) -> str:
+    """A robot name as is; a relative URDF path made absolute against ``folder``."""
+    if looks_like_path(source) and not Path(source).is_absolute():
+        return str((folder / source).resolve())
+    return source

@@ -33,7 +33,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import Robot, load_robot
+from stiffness.robot.robot import Robot, load_robot
 
 # Hypothesis profiles, loaded before any test module: ``ci`` (default) is derandomized, so a
 # run is reproducible and never fails on an example another run stored; ``random`` explores new

@@ -3,7 +3,8 @@
 Reads every module of the package with :mod:`ast` (nothing is imported), so an import inside a
 function counts as much as one at the top. Layers, lowest first::
 
-    errors, files < model < mechanics < batch < scan < calibration < papers < viewer < cli
+    errors, files, units < robot < mechanics < batch < elastic < workspace < calibration
+    < planning, machining < papers < viewer < cli
 
 ``stiffness/__init__.py`` (the public API) may import anything; below it, a module imports only
 from its own layer or lower ones, and only ``cli`` imports the top package (``__version__``).
@@ -26,14 +27,17 @@ PACKAGE = Path(stiffness.__file__).resolve().parent
 #: Layer of each top-level part of the package, lowest first (see docs/architecture.md).
 LAYERS = {
     "errors": 0, "files": 0, "cores": 0, "robots": 0, "htmlpage": 0, "provenance": 0,
-    "model": 1,
+    "units": 0,
+    "robot": 1,
     "mechanics": 2,
     "batch": 3,
-    "scan": 4,
-    "calibration": 5,
-    "papers": 6,
-    "viewer": 7,
-    "cli": 8,
+    "elastic": 4,
+    "workspace": 5,
+    "calibration": 6,
+    "planning": 7, "machining": 7,
+    "papers": 8,
+    "viewer": 9,
+    "cli": 10,
 }
 #: Layers that must not know about a paper.
 GENERAL = {name for name, layer in LAYERS.items() if layer < LAYERS["papers"]}
@@ -191,13 +195,13 @@ def test_every_module_belongs_to_a_layer():
 
 def test_the_reader_sees_the_imports_it_must():
     """The checks below are only as good as the import reader: it finds known edges."""
-    assert "stiffness.model.robot" in IMPORTS["stiffness.mechanics.formulation"]
-    assert "stiffness.model.kinematics" in IMPORTS["stiffness.mechanics.platform"]
+    assert "stiffness.robot.robot" in IMPORTS["stiffness.mechanics.formulation"]
+    assert "stiffness.robot.kinematics" in IMPORTS["stiffness.mechanics.platform"]
     assert "stiffness.viewer" in IMPORTS["stiffness.cli.report"]
-    assert {"stiffness.model.robot", "stiffness.mechanics.formulation"} <= IMPORTS["stiffness"]
+    assert {"stiffness.robot.robot", "stiffness.mechanics.formulation"} <= IMPORTS["stiffness"]
     # a lazy import inside a function counts
     lazy = ast.parse("def f():\n    from stiffness.viewer import StiffnessViewer\n")
-    assert _imports("stiffness.model.robot", lazy) == {"stiffness.viewer"}
+    assert _imports("stiffness.robot.robot", lazy) == {"stiffness.viewer"}
 
 
 def test_no_import_from_a_higher_layer():
@@ -221,12 +225,12 @@ def test_the_checks_catch_what_they_forbid(tmp_path):
     """Each rule fails on a module written to break it (the rules can fail)."""
     tree = ast.parse("from stiffness.papers.sk120 import read_table1\n"
                      "def _is_sk120(robot):\n    return robot.name == 'sk120'\n")
-    assert "stiffness.papers.sk120" in _imports("stiffness.model.bad", tree)
+    assert "stiffness.papers.sk120" in _imports("stiffness.robot.bad", tree)
     assert {"_is_sk120"} <= {n for n in _identifiers(tree) if PAPER_NAME.search(n)}
     assert _name_strings(tree) == {"sk120"}
     relative = ast.parse("from ..papers import report\nfrom . import robot\n")
-    assert _imports("stiffness.model.loops", relative) == {"stiffness.papers.report",
-                                                            "stiffness.model.robot"}
+    assert _imports("stiffness.robot.loops", relative) == {"stiffness.papers.report",
+                                                            "stiffness.robot.robot"}
     assert not PAPER_NAME.search("stable_definiteness") and PAPER_NAME.search("TABLE_IV")
 
 
@@ -243,7 +247,8 @@ def test_the_package_top_exports_every_layer():
             continue
         assert (value.__doc__ or "").strip(), f"stiffness.{name} has no docstring"
         layers.add(value.__module__.split(".")[1])
-    assert {"model", "mechanics", "batch", "scan", "calibration", "papers", "viewer"} <= layers
+    assert {"robot", "mechanics", "batch", "elastic", "workspace", "calibration", "planning",
+            "machining", "papers", "viewer"} <= layers
     assert set(stiffness.__all__) <= set(dir(stiffness))
 
 

@@ -29,7 +29,7 @@ from stiffness.mechanics.formulation import (
     target_state,
     target_states,
 )
-from stiffness.model.robot import load_robot
+from stiffness.robot.robot import load_robot
 
 RTOL = 1e-10
 #: Closed loops go through a pseudo-inverse of the passive constraint block (condition numbers
@@ -540,7 +540,7 @@ def test_batched_definiteness_scan_equals_definiteness_scan(sk120):
     """scan.batched_definiteness_scan gives the classes of scan.definiteness_scan on a slice of
     the Table IV grid (closures differ by the Newton tolerance only)."""
     from stiffness.papers.reproduction import table4_grid, table4_loads
-    from stiffness.scan.definiteness import batched_definiteness_scan, definiteness_scan
+    from stiffness.workspace.definiteness import batched_definiteness_scan, definiteness_scan
 
     grid = table4_grid()[::97]
     # keep the configurations away from the flattened parallelogram, where the closed-loop

@@ -18,7 +18,7 @@ from stiffness.calibration.campaign import (
     write_campaign,
 )
 from stiffness.errors import StiffnessError
-from stiffness.model.sources import robots_directory
+from stiffness.robot.sources import robots_directory
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 

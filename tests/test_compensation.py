@@ -14,12 +14,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import root
 
-from stiffness.calibration.compensation import compensate
-from stiffness.calibration.effects import Geometry, LinkCompliance, link_axes
-from stiffness.calibration.elastic import ElasticModel, LinkBend, loaded_equilibrium
+from stiffness.elastic.effects import Geometry, LinkCompliance, link_axes
+from stiffness.elastic.loaded import ElasticModel, LinkBend, loaded_equilibrium
+from stiffness.machining.compensation import compensate
 from stiffness.mechanics.ik import all_coordinates
-from stiffness.model import kinematics
-from stiffness.model.robot import load_robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import load_robot
 
 UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]  # N.m/rad
 UR5_PATH = np.array([[0.1, -1.2, 1.5, -0.3, 1.57, 0.2],
@@ -198,7 +198,7 @@ def test_link_bend_matches_the_effect_library_to_first_order(ur5):
 def test_bent_jacobian_matches_finite_differences(case, ur5, sk120):
     """The exact Jacobian of the bent target w.r.t. coordinates and bend angles, on a serial arm
     and through the SK120's loop (the bend joint2->elbow has a passive joint at its end)."""
-    from stiffness.calibration.elastic import bent_kinematics, frozen_axes
+    from stiffness.elastic.loaded import bent_kinematics, frozen_axes
 
     if case == "ur5":
         _, linked, _ = _ur5_link_model(ur5)
@@ -351,13 +351,13 @@ def test_bad_input_one_line_and_nothing_written(case, tmp_path, capsys):
 
 
 def test_bad_path_errors_are_typed(tmp_path, ur5):
-    from stiffness.calibration.compensation import read_joint_path
     from stiffness.errors import (
         ConvergenceError,
         FileFormatError,
         MissingFileError,
         UnstableEquilibriumError,
     )
+    from stiffness.machining.compensation import read_joint_path
 
     rows = UR5_PATH.copy()
     rows[1, 2] = np.nan
@@ -384,7 +384,7 @@ def test_diagnosed_model_file_brings_its_effects(sk120):
     backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""
     from pathlib import Path
 
-    from stiffness.calibration.elastic import load_elastic_model
+    from stiffness.elastic.loaded import load_elastic_model
 
     em = load_elastic_model(Path(__file__).parent / "data" / "sk120-final-model.json")
     assert em.law.backlash[em.robot.coordinate_joints.index("joint2")] > 0
@@ -404,7 +404,7 @@ def test_diagnosed_model_file_brings_its_effects(sk120):
 
 
 def _parameter(name, value, unit):
-    from stiffness.calibration.effects import Parameter
+    from stiffness.elastic.effects import Parameter
 
     return Parameter(name, value, 0.0, (value, value), unit)
 
@@ -413,8 +413,8 @@ def test_model_file_effects_enter_the_elastic_model(tmp_path, ur5):
     """A model file (the one schema of identify and diagnose) with every kind of effect: the
     robot's effects enter the law and the bends, the measurement ones are listed, and the
     compensation still lands on the nominal pose."""
-    from stiffness.calibration.elastic import load_elastic_model
-    from stiffness.calibration.model_file import ModelEffect, ModelFile
+    from stiffness.elastic.loaded import load_elastic_model
+    from stiffness.elastic.model_file import ModelEffect, ModelFile
 
     arm = JOINTS[:5]
     effects = (
@@ -472,8 +472,8 @@ def test_loaded_equilibrium_agrees_with_the_joint_law_solver(ur5):
 def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     """The first-order deflection the posture search minimises (link bends included) equals
     the model file's compliance times the load (model_file.model_compliance)."""
-    from stiffness.calibration.elastic import linear_deflection, load_elastic_model
-    from stiffness.calibration.model_file import ModelEffect, ModelFile, model_compliance
+    from stiffness.elastic.loaded import linear_deflection, load_elastic_model
+    from stiffness.elastic.model_file import ModelEffect, ModelFile, model_compliance
 
     bend = ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
                        [_parameter("stiffness_1", 1.5e5, "N.m/rad"),

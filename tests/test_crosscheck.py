@@ -16,7 +16,6 @@ import pytest
 
 from stiffness.cli import main as cli
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import load_robot
 from stiffness.papers.appendix import APPENDIX_TERMS, appendix_jacobian, appendix_kc
 from stiffness.papers.crosscheck import (
     AppendixConvention,
@@ -32,6 +31,7 @@ from stiffness.papers.crosscheck import (
 )
 from stiffness.papers.sk120 import FIXTURE_A_M, FIXTURE_B_M
 from stiffness.papers.tables import paper_configurations
+from stiffness.robot.robot import load_robot
 
 #: Table I lengths in the appendix's symbols (mm), written out by hand.
 LENGTHS = {"L1": 215.0, "L2": 1100.0, "L3": 250.0, "D4": 1300.0,

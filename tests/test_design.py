@@ -1,4 +1,4 @@
-"""Experiment design (stiffness.calibration.design, stiffness design, simulate --plan).
+"""Experiment design (stiffness.planning.design, stiffness design, simulate --plan).
 
 Numbers are checked against independent computations: the sensitivities against the closed
 form of the design notes and identify's analytic Jacobian; the criteria against NumPy's
@@ -19,7 +19,6 @@ from scipy.stats import binom
 
 import stiffness
 from stiffness.calibration.campaign import Campaign, load_campaign
-from stiffness.calibration.design import design, fit_alternatives
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.experiment import (
     LOAD_DIRECTIONS,
@@ -34,9 +33,7 @@ from stiffness.calibration.experiment import (
     standard_errors,
 )
 from stiffness.calibration.identify import identify
-from stiffness.calibration.plan import PLAN_FILE, read_plan, write_plan
 from stiffness.calibration.poses import coordinate_limits
-from stiffness.calibration.simulate import parse_effect, simulate
 from stiffness.cli.main import main
 from stiffness.errors import (
     FileFormatError,
@@ -45,7 +42,10 @@ from stiffness.errors import (
     UnknownEffectError,
 )
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import load_robot
+from stiffness.planning.design import design, fit_alternatives
+from stiffness.planning.plan import PLAN_FILE, read_plan, write_plan
+from stiffness.planning.simulate import parse_effect, simulate
+from stiffness.robot.robot import load_robot
 
 UR5_ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 UR5_K = np.array([3e4, 2e4, 1.5e4])
@@ -425,7 +425,7 @@ def test_separation_is_what_refitting_leaves(pools):
 def test_design_on_a_parallel_robot_that_does_not_close_at_zero(tmp_path):
     """The hexapod's loops do not close at zero leg lengths: the design's geometry takes the
     robot's reference assembly, and a plan of reachable poses is written."""
-    from stiffness.calibration.plan import read_plan
+    from stiffness.planning.plan import read_plan
 
     out = tmp_path / "plan.csv"
     assert main(["design", "--robot", "hexapod", "--configs", "4", "--max-force", "200",

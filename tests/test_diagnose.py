@@ -17,9 +17,9 @@ from stiffness.calibration.diagnose import (
     diagnose,
     format_report,
 )
-from stiffness.calibration.effects import REQUIRED_EFFECTS
-from stiffness.calibration.simulate import parse_effect, simulate
 from stiffness.cli.main import main
+from stiffness.elastic.effects import REQUIRED_EFFECTS
+from stiffness.planning.simulate import parse_effect, simulate
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 #: UR5 with a 10 cm tool: the arm joints compliant.

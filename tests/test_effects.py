@@ -1,11 +1,11 @@
-"""The effect library and the cached deflection model (stiffness.calibration.effects)."""
+"""The effect library and the cached deflection model (stiffness.elastic.effects)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stiffness.calibration.effects import (
+from stiffness.elastic.effects import (
     LIBRARY,
     REQUIRED_EFFECTS,
     ComplementaryStiffness,
@@ -18,11 +18,11 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
-from stiffness.calibration.simulate import Truth
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state
-from stiffness.model.robot import load_robot
+from stiffness.planning.simulate import Truth
+from stiffness.robot.robot import load_robot
 
 UR5_ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 SK120_K = np.array([1.4098e6, 4.0076e5, 9.3528e5])

@@ -11,9 +11,8 @@ import pytest
 
 from stiffness import errors
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.model_file import read_model_file
-from stiffness.calibration.simulate import parse_effect
 from stiffness.cli import main as cli
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import (
     ConvergenceError,
     FileFormatError,
@@ -31,9 +30,10 @@ from stiffness.errors import (
 from stiffness.files import read_json, read_toml, read_yaml
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import tangent_joint_stiffness, target_state
-from stiffness.model.loops import read_loop_declaration
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
+from stiffness.planning.simulate import parse_effect
+from stiffness.robot.loops import read_loop_declaration
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 DOCS_PATH = Path(__file__).resolve().parents[1] / "docs" / "compensation" / "ur5-poses.csv"

@@ -24,8 +24,8 @@ from stiffness.calibration.campaign import (
     MAX_CELL,
     load_campaign,
 )
-from stiffness.calibration.plan import read_plan
 from stiffness.errors import DataFileWarning, FileFormatError
+from stiffness.planning.plan import read_plan
 
 HEADER = "config,q1,q2,q3,q4,q5,q6,fx,fy,fz"
 #: Two UR5 rows (deg, N) within the joint limits (+-360 deg, elbow +-180 deg).

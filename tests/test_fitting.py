@@ -15,10 +15,10 @@ import pytest
 
 from stiffness import cores
 from stiffness.calibration import fitting
-from stiffness.calibration.effects import Geometry, Model, References, make_effect
 from stiffness.calibration.fitting import FitJob, fit_model, fit_models
 from stiffness.cores import fork_workers, usable_cores
-from stiffness.model.robot import load_robot
+from stiffness.elastic.effects import Geometry, Model, References, make_effect
+from stiffness.robot.robot import load_robot
 
 K_TRUE = np.array([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
 NOISE = 5e-6

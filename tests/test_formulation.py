@@ -441,7 +441,7 @@ def test_singular_compliance_at_ur5_singularity(ur5):
 
 
 def test_singular_compliance_with_fewer_compliant_joints():
-    from stiffness.model.robot import load_robot
+    from stiffness.robot.robot import load_robot
 
     robot = load_robot("ur5", compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint"])
     state = target_state(robot, robot.configuration(UR5_Q), np.array([0.0, 0.0, -100.0]))

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli import flags
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import load_robot
+from stiffness.robot.robot import load_robot
 
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"
 TABLE2 = ROBOTS / "sk120" / "campaigns" / "table2"
@@ -278,7 +278,7 @@ def replaced(doc, path, value):
 @FUZZ
 @given(data=st.data())
 def test_model_file_mutations(model_file, data):
-    from stiffness.calibration.model_file import read_model_file
+    from stiffness.elastic.model_file import read_model_file
 
     doc = json.loads(model_file.read_text())
     path, value = data.draw(json_mutations(doc))
@@ -309,7 +309,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs" / "compensation"
 @FUZZ
 @given(data=st.data())
 def test_joint_path_mutations(ur5, tmp_path_factory, data):
-    from stiffness.calibration.compensation import read_joint_path
+    from stiffness.machining.compensation import read_joint_path
 
     folder = tmp_path_factory.mktemp("fuzz-path")
     text = (DOCS / "ur5-path.csv").read_text()
@@ -325,7 +325,7 @@ def test_joint_path_mutations(ur5, tmp_path_factory, data):
 @FUZZ
 @given(data=st.data())
 def test_pose_file_mutations(tmp_path_factory, data):
-    from stiffness.calibration.posture import read_poses
+    from stiffness.machining.posture import read_poses
 
     folder = tmp_path_factory.mktemp("fuzz-poses")
     text = (DOCS / "ur5-poses.csv").read_text()
@@ -349,7 +349,7 @@ P2,10.0,-60.0,80.0,-20.0,90.0,0.0,0,0,100
 @FUZZ
 @given(data=st.data())
 def test_plan_file_mutations(ur5, tmp_path_factory, data):
-    from stiffness.calibration.plan import read_plan
+    from stiffness.planning.plan import read_plan
 
     folder = tmp_path_factory.mktemp("fuzz-plan")
     path = folder / "plan.csv"
@@ -364,7 +364,7 @@ def test_plan_file_mutations(ur5, tmp_path_factory, data):
 
 
 def test_plan_reads_back_in_si(ur5, tmp_path):
-    from stiffness.calibration.plan import read_plan
+    from stiffness.planning.plan import read_plan
 
     path = tmp_path / "plan.csv"
     path.write_text(PLAN_UNITS + PLAN)

@@ -31,8 +31,8 @@ from stiffness.cli.main import main
 from stiffness.mechanics.formulation import joint_stiffness, target_state
 from stiffness.mechanics.platform import lie_bracket_term, platform_stiffness, solve_pose
 from stiffness.mechanics.wrench import holding_wrench, reorder_twist
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 FOLDER = robots_directory() / "griffis-duffy"
 PAPER = tomllib.loads((FOLDER / "zefran-kumar-section5.toml").read_text())

@@ -21,8 +21,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.model.robot import Robot, load_robot
-from stiffness.model.sources import robots_directory
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.sources import robots_directory
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 #: Finite-difference step (rad) of the positions.

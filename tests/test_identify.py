@@ -10,14 +10,14 @@ from scipy.stats import binom, chi2
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, load_campaign, write_campaign
 from stiffness.calibration.identify import identify, stiffness_model
-from stiffness.calibration.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file
 from stiffness.cli.main import main
+from stiffness.elastic.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file
 from stiffness.errors import FileFormatError, MissingFileError, StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
 from stiffness.papers.sk120 import PAPER_K_THETA_NMM_PER_RAD
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 #: Paper's K_theta in N.m/rad.

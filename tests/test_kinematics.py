@@ -1,4 +1,4 @@
-"""Frame kinematics from Pinocchio (stiffness.model.kinematics) against finite differences.
+"""Frame kinematics from Pinocchio (stiffness.robot.kinematics) against finite differences.
 
 Every derivative is checked against central differences of lower-order quantities computed by
 Pinocchio's forward kinematics alone (positions, rotations), or of the Jacobian for the Hessian.
@@ -10,8 +10,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.model import kinematics
-from stiffness.model.robot import load_robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import load_robot
 
 H = 1e-6
 

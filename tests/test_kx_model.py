@@ -10,7 +10,7 @@ import pytest
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import identify
 from stiffness.cli.main import main
-from stiffness.model.sources import robots_directory
+from stiffness.robot.sources import robots_directory
 
 
 @pytest.fixture(scope="module")

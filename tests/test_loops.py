@@ -1,4 +1,4 @@
-"""Loop machinery (stiffness.model.loops, Robot.configuration, closed-loop J and K_C) on test
+"""Loop machinery (stiffness.robot.loops, Robot.configuration, closed-loop J and K_C) on test
 linkages.
 
 The SK120's five-bar is a parallelogram, whose multiplier term in the closed-loop K_C vanishes
@@ -21,10 +21,10 @@ import pytest
 
 from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.formulation import target_state, velocity_projection
-from stiffness.model import kinematics
-from stiffness.model.loops import CLOSURE_TOLERANCE_M, read_loop_declaration
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
+from stiffness.robot import kinematics
+from stiffness.robot.loops import CLOSURE_TOLERANCE_M, read_loop_declaration
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 
 def _wrap(x):

@@ -1,4 +1,4 @@
-"""The model file (stiffness.calibration.model_file): schema, older files, effects at a pose."""
+"""The model file (stiffness.elastic.model_file): schema, older files, effects at a pose."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.calibration.effects import LIBRARY, Parameter
-from stiffness.calibration.model_file import (
+from stiffness.elastic.effects import LIBRARY, Parameter
+from stiffness.elastic.model_file import (
     SCHEMA,
     CompliantModel,
     ModelEffect,
@@ -20,8 +20,8 @@ from stiffness.calibration.model_file import (
     read_model_file,
 )
 from stiffness.errors import UnknownJointError
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 K_ARM = np.array([3e4, 2e4, 1.5e4])
@@ -332,7 +332,7 @@ def test_scan_model_scans_the_models_springs(tmp_path, capsys):
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["spec"]["k_theta"] == K_ARM.tolist() + [2e4]
     assert manifest["spec"]["robot"]["compliant_joints"] == list(ARM) + ["wrist_1_joint"]
-    from stiffness.scan.engine import load_scan
+    from stiffness.workspace.engine import load_scan
 
     chunk = load_scan(out)  # the stored maps, derived arrays and coordinates rebuilt
     compliant = CompliantModel(model)

@@ -37,10 +37,10 @@ from stiffness.mechanics.formulation import (
     tangent_definiteness,
     target_state,
 )
-from stiffness.model.robot import load_robot
-from stiffness.scan.engine import UNDEFINED
-from stiffness.scan.maps import derive
-from stiffness.scan.spec import ScanSpec
+from stiffness.robot.robot import load_robot
+from stiffness.workspace.engine import UNDEFINED
+from stiffness.workspace.maps import derive
+from stiffness.workspace.spec import ScanSpec
 
 UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]
 UR5_KQ = ",".join(map(str, UR5_K))

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from stiffness.calibration.elastic import ElasticModel
-from stiffness.calibration.posture import posture, tool_frames
 from stiffness.cli.main import main
+from stiffness.elastic.loaded import ElasticModel
+from stiffness.machining.posture import posture, tool_frames
 from stiffness.mechanics.formulation import compliance, target_state
-from stiffness.model import kinematics
-from stiffness.model.robot import load_robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import load_robot
 
 UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]  # N.m/rad
 UR5_START = [0.0, -1.57, 1.57, -1.57, -1.57, 0.0]
@@ -81,7 +81,7 @@ def test_never_worse_than_the_fixed_angle_and_measurably_better(ur5_path):
 
 def test_redundant_arm_uses_its_null_space():
     """Panda (7 arm joints): the chosen postures are local minima along the self-motion."""
-    from stiffness.calibration.elastic import linear_deflection
+    from stiffness.elastic.loaded import linear_deflection
     from stiffness.mechanics.ik import solve_ik
 
     arm = [f"panda_joint{i}" for i in range(1, 8)]

@@ -15,8 +15,8 @@ import pytest
 
 from stiffness.cli.main import main
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import load_robot
 from stiffness.papers.tables import read_paper_table, read_table4
+from stiffness.robot.robot import load_robot
 
 CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 

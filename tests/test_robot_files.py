@@ -33,7 +33,7 @@ from stiffness.errors import (
     UndeterminedMotionError,
 )
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import load_robot
+from stiffness.robot.robot import load_robot
 
 A, C = 0.2, 0.3
 P = np.array([0.5, 0.15, 0.0])
@@ -531,7 +531,7 @@ def test_default_target_on_a_hand_is_the_wrist_tip(tmp_path):
 
 
 def test_sk120_by_name_and_by_path_give_identical_kx(capsys):
-    from stiffness.model.sources import robots_directory
+    from stiffness.robot.sources import robots_directory
 
     path = str(robots_directory() / "sk120" / "sk120.urdf")
     flags = ["--q=-30,20,-50,10,-30,60", "--deg", "--kq", "1.4e6,4e5,9.3e5",

@@ -1,4 +1,4 @@
-"""Loading robots (stiffness.model.robot): sources, coordinates, configurations and every error
+"""Loading robots (stiffness.robot.robot): sources, coordinates, configurations and every error
 path.
 
 Error messages must name the problem and the fix; the tests match on both.
@@ -15,8 +15,8 @@ import pytest
 
 from stiffness.errors import FloatingBaseError, StiffnessError
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import TARGET_FRAME, load_robot
-from stiffness.model.sources import (
+from stiffness.robot.robot import TARGET_FRAME, load_robot
+from stiffness.robot.sources import (
     example_robot_names,
     resolve_source,
     robots_directory,
@@ -249,10 +249,10 @@ def test_coordinate_order_must_list_the_coordinate_joints(tmp_path, monkeypatch)
 
 def test_package_level_api_matches_the_modules():
     """``stiffness.load_robot`` (the issue's spelling) is the loader of
-    ``stiffness.model.robot``."""
+    ``stiffness.robot.robot``."""
     import stiffness
     from stiffness.mechanics import formulation
-    from stiffness.model import robot
+    from stiffness.robot import robot
 
     assert stiffness.load_robot is robot.load_robot
     assert stiffness.target_state is formulation.target_state

@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.cli.main import main as cli_main
-from stiffness.model.robot import load_robot
+from stiffness.robot.robot import load_robot
 from stiffness.viewer.page import scene_commands
 
 STL = """solid t

@@ -16,19 +16,19 @@ from scipy.stats import binom
 
 from stiffness.calibration.campaign import load_campaign, write_campaign
 from stiffness.calibration.diagnose import diagnose
-from stiffness.calibration.effects import (
+from stiffness.calibration.identify import identify
+from stiffness.cli.main import main
+from stiffness.elastic.effects import (
     Geometry,
     Model,
     References,
     make_effect,
 )
-from stiffness.calibration.identify import identify
-from stiffness.calibration.model_file import CompliantModel, read_model_file
-from stiffness.calibration.simulate import parse_effect, simulate
-from stiffness.cli.main import main
+from stiffness.elastic.model_file import CompliantModel, read_model_file
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.mechanics.gravity import gravity_preload, spring_balancer, with_payload
-from stiffness.model.robot import load_robot
+from stiffness.planning.simulate import parse_effect, simulate
+from stiffness.robot.robot import load_robot
 
 ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 KQ = np.array([3e4, 2e4, 1.5e4])

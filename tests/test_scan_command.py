@@ -1,7 +1,7 @@
 """``stiffness scan``: workspace maps, chunked streaming, resume, Dask.
 
 * The Table IV preset reproduces the definiteness counts of
-stiffness.scan.definiteness.definiteness_scan
+stiffness.workspace.definiteness.definiteness_scan
   (through batched_definiteness_scan, checked against it in test_batch.py) and obeys K_C's
   linearity in the load (PD(F) = ND(-F)).
 * A grid scan's maps equal the one-at-a-time API at sampled configurations; the files
@@ -28,7 +28,7 @@ from stiffness.mechanics.formulation import (
     definiteness,
     target_state,
 )
-from stiffness.model.robot import load_robot
+from stiffness.robot.robot import load_robot
 
 UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
 GRID = ["--axis", "shoulder_lift_joint=-90:0:30", "--axis", "elbow_joint=20:140:40",
@@ -52,7 +52,7 @@ def test_table4_preset(tmp_path, capsys):
     """`stiffness scan --robot sk120 --preset table4`: 5824 x 8 maps, the counts of the
     reproduction's scan, linear in the load, written with figures."""
     from stiffness.papers.reproduction import table4_grid, table4_loads
-    from stiffness.scan.definiteness import batched_definiteness_scan
+    from stiffness.workspace.definiteness import batched_definiteness_scan
 
     out = tmp_path / "t4"
     code, captured = _run(["scan", "--robot", "sk120", "--preset", "table4", "--out", str(out),
@@ -237,7 +237,7 @@ def test_dask_local_cluster_gives_the_same_maps(tmp_path):
 
 def test_run_chunks_in_process_and_on_a_client():
     """The engine streams every chunk once, in process or on a Dask client."""
-    from stiffness.scan.distributed import run_chunks
+    from stiffness.workspace.distributed import run_chunks
 
     seen = {}
     assert run_chunks(_square, (3,), range(5), seen.__setitem__) == 5
@@ -273,7 +273,7 @@ def test_killed_worker_loses_only_its_chunk(tmp_path):
     cloudpickle = pytest.importorskip("cloudpickle")
     import sys
 
-    from stiffness.scan.distributed import run_chunks
+    from stiffness.workspace.distributed import run_chunks
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])
     marker = tmp_path / "killed"
@@ -507,7 +507,7 @@ def test_failed_write_keeps_the_finished_chunks_and_resumes(tmp_path, monkeypatc
     writer thread finished before it stay complete (files and aggregate), and rerunning the
     command computes only the rest and gives the maps of an uninterrupted scan."""
     from stiffness.errors import OutputError
-    from stiffness.scan import engine
+    from stiffness.workspace import engine
 
     common = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "60", "--seed", "4",
               "--chunk-size", "10", "--no-plots", "--quiet"]
@@ -564,14 +564,14 @@ def test_scan_of_a_fixed_floating_base_robot_and_its_resume(tmp_path):
 
 @given(lower=st.floats(-10, 10), width=st.floats(0, 10), step=st.floats(1e-3, 5))
 def test_grid_length_is_the_length_of_the_grid_axis(lower, width, step):
-    from stiffness.scan.spec import grid_axis, grid_length
+    from stiffness.workspace.spec import grid_axis, grid_length
 
     assert grid_length(lower, lower + width, step) == len(grid_axis(lower, lower + width, step))
 
 
 def test_chunk_coordinates_are_the_grid_axis_values(ur5):
     """Chunk coordinates come from index arithmetic, not from built axes: the same values."""
-    from stiffness.scan.spec import ScanSpec, grid_axis
+    from stiffness.workspace.spec import ScanSpec, grid_axis
 
     axes = [{"index": 1, "joint": "shoulder_lift_joint", "lower": -1.3, "upper": 0.4,
              "step": 0.17},
@@ -610,7 +610,7 @@ def test_projected_bytes_bound_the_written_bytes_and_meet_the_free_space(tmp_pat
     import shutil as shutil_module
     from collections import namedtuple
 
-    from stiffness.scan import engine
+    from stiffness.workspace import engine
 
     argv = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "600", "--chunk-size",
             "300", "--no-plots", "--quiet"]

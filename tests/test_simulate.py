@@ -1,4 +1,4 @@
-"""Synthetic campaigns with hidden effects (stiffness.calibration.simulate, stiffness simulate)."""
+"""Synthetic campaigns with hidden effects (stiffness.planning.simulate, stiffness simulate)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import load_robot
+from stiffness.planning.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
+from stiffness.robot.robot import load_robot
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 

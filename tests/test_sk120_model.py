@@ -6,8 +6,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
 from stiffness.papers.sk120 import (
     FIXTURE_A_M,
     FIXTURE_B_M,
@@ -16,6 +14,8 @@ from stiffness.papers.sk120 import (
     sk120_urdf,
 )
 from stiffness.papers.tables import paper_configurations
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 
 @pytest.fixture(scope="module")

@@ -34,11 +34,11 @@ from stiffness.mechanics.platform import (
     solve_pose,
     stiffness_map,
 )
-from stiffness.model import kinematics
-from stiffness.model.loops import read_loop_declaration
-from stiffness.model.platform import VIRTUAL_JOINTS
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
+from stiffness.robot import kinematics
+from stiffness.robot.loops import read_loop_declaration
+from stiffness.robot.platform import VIRTUAL_JOINTS
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 GD = robots_directory() / "griffis-duffy"
 #: A configuration away from the shipped one (leg lengths, m).

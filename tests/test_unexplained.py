@@ -21,8 +21,8 @@ from stiffness.calibration.diagnose import (
     format_report,
 )
 from stiffness.calibration.diagnosis_page import render_diagnosis
-from stiffness.calibration.effects import Geometry, Model, References, candidates
-from stiffness.calibration.simulate import parse_effect, simulate
+from stiffness.elastic.effects import Geometry, Model, References, candidates
+from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.provenance import provenance
 
 NOISE = 5e-6

@@ -44,7 +44,7 @@ from stiffness.mechanics.formulation import (
     tangent_joint_stiffness,
     target_state,
 )
-from stiffness.model.robot import load_robot
+from stiffness.robot.robot import load_robot
 from stiffness.viewer import (
     LOOPBACK,
     LiveServer,
@@ -885,7 +885,7 @@ def test_labels_never_overlap_and_the_floor_is_in_frame(case, tmp_path, capsys):
 
 
 def test_page_title_is_the_robots_name_not_its_path():
-    from stiffness.model.sources import robots_directory
+    from stiffness.robot.sources import robots_directory
 
     robot = load_robot(robots_directory() / "sk120" / "sk120.urdf", frame="fixture_target",
                        compliant_joints=["joint1", "joint2", "joint3"])

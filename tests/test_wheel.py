@@ -24,7 +24,7 @@ import pytest
 
 import stiffness
 from stiffness.cli.main import main
-from stiffness.model.sources import robots_directory
+from stiffness.robot.sources import robots_directory
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What the build reads from the checkout.
@@ -163,7 +163,7 @@ def test_the_wheel_holds_every_module_and_every_robot_file(wheel):
 
 def test_the_installed_copy_runs_from_its_own_files(installed):
     """Outside the checkout, the package and its robots come from the installed folder."""
-    code = ("import json, stiffness, stiffness.model.sources as r; print(stiffness.__file__); "
+    code = ("import json, stiffness, stiffness.robot.sources as r; print(stiffness.__file__); "
             "print(r.robots_directory()); print(json.dumps(r.shipped_robots()))")
     lines = _run([sys.executable, "-c", code], installed["env"],
                  installed["cwd"]).stdout.splitlines()

@@ -28,7 +28,7 @@ from stiffness.mechanics.equilibrium import (
     residual_scale,
 )
 from stiffness.mechanics.formulation import as_wrench, target_state
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 
 @dataclass

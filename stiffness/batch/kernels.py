@@ -37,7 +37,7 @@ one-at-a-time API raises on a singular configuration, the batched one returns Na
 
 Shapes: ``m`` configurations, ``L`` load cases, ``n`` compliant joints, ``r`` Cartesian rows
 (3: translational, 6: [v; omega]). Units: SI (m, N, rad; K_C in N.m/rad; K_X in N/m for the
-translational block; compliance in m/N). A :class:`~stiffness.model.robot.Robot` holds one
+translational block; compliance in m/N). A :class:`~stiffness.robot.robot.Robot` holds one
 Pinocchio ``Data``: use one robot per thread.
 
 Layout: this module holds the kinematics (:func:`batch_kinematics`,
@@ -83,8 +83,8 @@ from stiffness.batch.loops import (
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics import closed_loop
 from stiffness.mechanics.formulation import FORMULATIONS, compliant_projection
-from stiffness.model.kinematics import reorder_hessian
-from stiffness.model.robot import Robot
+from stiffness.robot.kinematics import reorder_hessian
+from stiffness.robot.robot import Robot
 
 __all__ = [
     # kinematics and pipelines (this module)
@@ -274,7 +274,7 @@ def _frame_placement_views(data: pin.Data, fid: int) -> tuple[np.ndarray, np.nda
 def _jacobian_rows(jacobians: np.ndarray) -> np.ndarray:
     """Where the loops store frame Jacobians (..., 6, nv): the array itself, or its (..., 6)
     view for a model with one velocity coordinate, whose Jacobians Pinocchio's bindings return
-    squeezed to (6,) (the quirk :mod:`stiffness.model.kinematics` fixes for one pose)."""
+    squeezed to (6,) (the quirk :mod:`stiffness.robot.kinematics` fixes for one pose)."""
     return jacobians[..., 0] if jacobians.shape[-1] == 1 else jacobians
 
 
@@ -850,7 +850,8 @@ def definiteness_map(kin: BatchKinematics, loads: np.ndarray, k_theta: np.ndarra
                      rtol: float = 1e-9, k_c: np.ndarray | None = None) -> DefinitenessMap:
     """Definiteness of K_C and K_theta - K_C and the critical load factor, batched.
 
-    The batched form of :func:`stiffness.scan.definiteness.definiteness_scan` on given kinematics;
+    The batched form of :func:`stiffness.workspace.definiteness.definiteness_scan` on given
+    kinematics;
     ``k_c`` (m, L, n, n) may be passed if already computed.
     """
     k_th = as_joint_stiffness(k_theta, kin.jacobian.shape[2])

@@ -512,7 +512,7 @@ def critical_load_factor(k_theta: np.ndarray, k_c: np.ndarray) -> np.ndarray:
     """Load multiplier at which K_theta - s K_C stops being positive definite (inf if never).
 
     ``1 / lambda_max(K_theta^-1/2 sym(K_C) K_theta^-1/2)`` for a diagonal K_theta, as in
-    :func:`stiffness.scan.definiteness.definiteness_scan`; shape ``k_c.shape[:-2]``.
+    :func:`stiffness.workspace.definiteness.definiteness_scan`; shape ``k_c.shape[:-2]``.
     """
     top = _eigvalsh(_scaled(k_theta, k_c))[..., -1]
     with np.errstate(divide="ignore", invalid="ignore"):

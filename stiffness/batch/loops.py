@@ -5,7 +5,7 @@ closes each distinct value of the *loop coordinates* (:func:`loop_coordinate_ind
 coordinates of the joints on the path between the loop frames; the others, e.g. the SK120's
 theta1 and wrist, move the loop rigidly or not at all) once, by continuation for one anchor per
 small cell of those coordinates and by a batched Newton iteration from the anchor for the rest.
-:func:`tree_configurations` is the vectorised :meth:`~stiffness.model.robot.Robot.configuration`
+:func:`tree_configurations` is the vectorised :meth:`~stiffness.robot.robot.Robot.configuration`
 without closure (open chains, or the starting point of a closure).
 
 Units: rad for revolute joints, m for prismatic ones and lengths.
@@ -19,7 +19,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -34,7 +34,7 @@ def _loop_points(robot: Robot) -> list[tuple]:
     Consecutive entries (a, b) form the rows ``p_b - p_a``: a "3D" pair is its two frame
     origins (``(frame_id,)``); a "6D" pair three points of each frame, its origin and the
     points one metre along its x and y axes (``(joint_id, placement)``), as
-    :meth:`stiffness.model.loops.LoopClosure.world_residual`. The reduced Hessian does not depend on
+    :meth:`stiffness.robot.loops.LoopClosure.world_residual`. The reduced Hessian does not depend on
     how the closure is written, only on its zero set.
     """
     model = robot.model
@@ -245,7 +245,7 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
     the closed loop), least squares by pseudo-inverse. Returns the configurations and the mask
     of keys that converged within :data:`_NEWTON_JUMP` of the prediction.
     """
-    from stiffness.model.loops import CLOSURE_TOLERANCE_M
+    from stiffness.robot.loops import CLOSURE_TOLERANCE_M
 
     model, data = robot.model, robot.data
     loop = robot.loop

@@ -1,2 +1,2 @@
-"""Calibration layer: campaigns, model files, the fitting engine, effects, diagnosis and
-simulation."""
+"""Calibration layer: campaigns, the fitting engine, identification and diagnosis (with the
+information a measurement adds, used by diagnose's proposals and by the design layer)."""

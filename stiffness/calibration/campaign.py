@@ -25,7 +25,7 @@ simulate``)::
     noise_std = 0.005                  # measurement noise std, length unit (optional)
     rotation_noise_std = 0.001         # rotation noise std, rotation unit (optional)
 
-Omitted optional keys take :func:`stiffness.model.robot.load_robot`'s defaults (the shipped robot's
+Omitted optional keys take :func:`stiffness.robot.robot.load_robot`'s defaults (the shipped robot's
 frame and compliant joints, else the model's last frame and every coordinate joint). Unknown
 keys are errors (a misspelt ``noise_std`` would otherwise be silently ignored).
 
@@ -67,9 +67,19 @@ from stiffness.errors import (
     did_you_mean,
     with_context,
 )
-from stiffness.files import atomic_write, output_folder, read_text, read_toml
+from stiffness.files import (
+    atomic_write,
+    looks_like_path,
+    output_folder,
+    read_text,
+    read_toml,
+    resolve_path,
+    resolve_source,
+    written_path,
+)
 from stiffness.mechanics.ik import coordinate_limits
-from stiffness.model.robot import Robot, load_robot
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS
 
 #: Campaign file name inside a campaign folder.
 CAMPAIGN_FILE = "campaign.toml"
@@ -78,13 +88,6 @@ DEFAULT_DATA_FILE = "measurements.csv"
 #: Models a campaign may start from.
 BASELINES = ("conventional", "enhanced")
 
-#: Unit name -> factor to SI (rad, N, m).
-ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
-FORCE_UNITS = {"N": 1.0, "kN": 1e3}
-LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
-#: Moment unit name -> factor to N.m (every force unit times every length unit).
-MOMENT_UNITS = {f"{f}.{ln}": FORCE_UNITS[f] * LENGTH_UNITS[ln]
-                for f in FORCE_UNITS for ln in LENGTH_UNITS}
 
 _FORCE_COLUMNS = ("fx", "fy", "fz")
 _DEFLECTION_COLUMNS = ("dx", "dy", "dz")
@@ -233,33 +236,6 @@ class RobotSettings:
             self.compliant_joints = tuple(str(j) for j in self.compliant_joints)
 
 
-def _looks_like_path(source: str) -> bool:
-    return (Path(source).suffix.lower() in (".urdf", ".xml") or "/" in source
-            or os.sep in source or Path(source).is_absolute())
-
-
-def _resolve_path(path: str, folder: Path) -> str:
-    """A file path of a campaign (``loops``): absolute as is, else relative to ``folder``."""
-    return path if Path(path).is_absolute() else str(folder / path)
-
-
-def _written_path(resolved: str, folder: Path) -> str:
-    """An absolute path as written into a campaign file in ``folder`` (relative when possible)."""
-    resolved = Path(resolved)
-    try:
-        written = os.path.relpath(resolved, folder.resolve())
-    except ValueError:  # another drive on Windows
-        written = str(resolved)
-    return Path(written).as_posix()
-
-
-def _resolve_source(source: str, folder: Path) -> str:
-    """A robot name as is; a relative URDF path made absolute against ``folder``."""
-    if _looks_like_path(source) and not Path(source).is_absolute():
-        return str((folder / source).resolve())
-    return source
-
-
 @dataclass
 class Campaign:
     """A measurement campaign, in SI.
@@ -386,13 +362,13 @@ class Campaign:
 
     def resolved_source(self) -> str:
         """Robot source with a relative URDF path resolved against :meth:`folder`."""
-        return _resolve_source(self.robot_settings.source, self.folder())
+        return resolve_source(self.robot_settings.source, self.folder())
 
     def robot_options(self) -> dict:
         """The robot's ``loops`` (resolved against :meth:`folder`) and ``fixed_base``, as
-        keyword arguments of :func:`stiffness.model.robot.load_robot`."""
+        keyword arguments of :func:`stiffness.robot.robot.load_robot`."""
         s = self.robot_settings
-        return {"loops": None if s.loops is None else _resolve_path(s.loops, self.folder()),
+        return {"loops": None if s.loops is None else resolve_path(s.loops, self.folder()),
                 "fixed_base": s.fixed_base}
 
     def describe_row(self, i: int) -> str:
@@ -404,7 +380,7 @@ class Campaign:
         return f"{where} (config {self.config[i]})"
 
     def robot(self) -> Robot:
-        """The campaign's robot, loaded once (:func:`stiffness.model.robot.load_robot`).
+        """The campaign's robot, loaded once (:func:`stiffness.robot.robot.load_robot`).
 
         Raises
         ------
@@ -765,10 +741,10 @@ def _settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
     """
     folder = toml_path.parent
     try:
-        return load_robot(_resolve_source(settings.source, folder), frame=settings.frame,
+        return load_robot(resolve_source(settings.source, folder), frame=settings.frame,
                           target_offset=settings.target_offset_m,
                           compliant_joints=settings.compliant_joints,
-                          loops=None if settings.loops is None else _resolve_path(
+                          loops=None if settings.loops is None else resolve_path(
                               settings.loops, folder),
                           fixed_base=settings.fixed_base)
     except StiffnessError as exc:
@@ -1085,7 +1061,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
     u = c.units
     s = c.robot_settings
     source = s.source
-    if _looks_like_path(source):
+    if looks_like_path(source):
         resolved = Path(c.resolved_source())
         try:
             source = os.path.relpath(resolved, folder.resolve())
@@ -1110,7 +1086,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
         joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
         toml.append(f"compliant_joints = [{joints}]")
     if s.loops is not None:
-        loops = _written_path(_resolve_path(s.loops, c.folder()), folder)
+        loops = written_path(resolve_path(s.loops, c.folder()), folder)
         toml.append(f"loops = {_toml_string(loops)}")
     if s.fixed_base:
         toml.append("fixed_base = true")

@@ -8,7 +8,7 @@
    against the noise level: the declared ``noise_std``, else the pooled scatter of replicate
    rows (same configuration and force), else (said so) the residual scatter of the final model.
 3. Extend the current model by each candidate of
-   :func:`stiffness.calibration.effects.candidates` (its own parameters identified jointly
+   :func:`stiffness.elastic.effects.candidates` (its own parameters identified jointly
    with the stiffnesses; every candidate fitted to :data:`SCREEN_TOLERANCE`, the best
    :data:`REFINE_TOP` refitted to the engine's tolerance, side by side in forked workers by
    :func:`stiffness.calibration.fitting.fit_models`), rank them by BIC
@@ -52,7 +52,8 @@ from scipy.special import chdtrc, fdtrc, ndtri, stdtrit
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units
 from stiffness.calibration.diagnosis_page import render_diagnosis
-from stiffness.calibration.effects import (
+from stiffness.calibration.fitting import Fit, FitJob, kind_noise, observations
+from stiffness.elastic.effects import (
     Effect,
     Geometry,
     Model,
@@ -61,8 +62,7 @@ from stiffness.calibration.effects import (
     Rows,
     candidates,
 )
-from stiffness.calibration.fitting import Fit, FitJob, kind_noise, observations
-from stiffness.calibration.model_file import ModelEffect, ModelFile, jsonable
+from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
 from stiffness.provenance import provenance

@@ -7,7 +7,7 @@ loops closed, away from singularities and folds) times the load directions
 :data:`LOAD_DIRECTIONS` (the six axes and the eight cube diagonals) at the largest force.
 
 Information. Row ``r`` (pose, force) has the predicted deflection ``d_r(ln k)`` of the
-identification's deflection model (:class:`stiffness.calibration.effects.Model`: the
+identification's deflection model (:class:`stiffness.elastic.effects.Model`: the
 ``enhanced`` baseline ``J (K - K_C(F))^-1 J^T F`` by default, ``K_C`` included) and the
 sensitivity ``S_r = dd_r / d ln k`` (3, p) at the nominal stiffness (central differences of the
 model's prediction). Under independent noise of std ``sigma`` on each deflection component the
@@ -33,7 +33,7 @@ other's parameter sensitivities, the smaller of A-to-B and B-to-A). The plan's s
 the square root of that residual sum of squares, in noise units (the noncentrality of the test
 between them); it grows only with rows that add evidence. The same greedy and exchange passes
 maximise it; ``stiffness diagnose`` proposes its extra measurements with this code, and
-:mod:`stiffness.calibration.design` designs whole plans with it.
+:mod:`stiffness.planning.design` designs whole plans with it.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """
@@ -47,10 +47,10 @@ from typing import Protocol
 
 import numpy as np
 
-from stiffness.calibration.effects import BASELINES, Geometry, Model, References, Rows
 from stiffness.calibration.poses import sample_coordinates
+from stiffness.elastic.effects import BASELINES, Geometry, Model, References, Rows
 from stiffness.errors import StiffnessError, UnknownNameError, UnstableEquilibriumError
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 #: Load directions of the candidates: the six axes, then the eight cube diagonals (unit).
 LOAD_DIRECTIONS = np.vstack([np.eye(3), -np.eye(3)] + [
@@ -87,7 +87,7 @@ class Candidates:
     robot
         The robot (its compliant joints are the identified ones).
     geometry
-        Its shared geometry (:class:`stiffness.calibration.effects.Geometry`).
+        Its shared geometry (:class:`stiffness.elastic.effects.Geometry`).
     coords
         (K, n) candidate poses (rad, m).
     directions
@@ -421,7 +421,7 @@ def random_selections(k: int, d: int, n_configs: int, loads_per_config: int, cou
 
 
 class Fitted(Protocol):
-    """A model fitted to a campaign: its :class:`~stiffness.calibration.effects.Model` (over the
+    """A model fitted to a campaign: its :class:`~stiffness.elastic.effects.Model` (over the
     campaign's rows) and parameter vector."""
 
     model: Model

@@ -2,7 +2,7 @@
 
 Every fit of the toolkit (``stiffness identify``: the baseline's stiffnesses from several
 starts; ``stiffness diagnose``: the baseline extended by effects, and its cross-validation)
-goes through :func:`fit_model` on a :class:`stiffness.calibration.effects.Model` (an
+goes through :func:`fit_model` on a :class:`stiffness.elastic.effects.Model` (an
 identification is a diagnosis with no effects) and gets its uncertainty from
 :func:`covariance`.
 
@@ -20,7 +20,7 @@ model cannot be evaluated (a buckling load, a singular tangent) the residuals ar
 constant, so the solver backs off.
 
 Rotations: a campaign that also measures the target frame's rotation is fitted on rows
-``[dx; w dphi]`` (:attr:`stiffness.calibration.effects.Model.rotation_weight`,
+``[dx; w dphi]`` (:attr:`stiffness.elastic.effects.Model.rotation_weight`,
 :func:`observations`): with ``w = sigma_t / sigma_r`` the translation noise std ``sigma_t`` (m)
 and the rotation noise std ``sigma_r`` (rad), one scale whitens both kinds and every quantity
 below (RSS, chi-square, covariance, information criteria) holds in translation-noise units.
@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from stiffness.calibration.effects import Model
 from stiffness.cores import forked_map
+from stiffness.elastic.effects import Model
 from stiffness.errors import StiffnessError
 
 #: Singular values of the whitened residual Jacobian below this fraction of the largest are

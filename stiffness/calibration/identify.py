@@ -12,7 +12,7 @@ joints, N/m for prismatic ones). For each measurement row ``r`` (configuration `
 
 with ``J`` the translational target Jacobian w.r.t. the compliant joints. Identification is a
 diagnosis with no effects: the model is the campaign's baseline
-(:func:`stiffness_model`, a :class:`stiffness.calibration.effects.Model` without effects; ``J``
+(:func:`stiffness_model`, a :class:`stiffness.elastic.effects.Model` without effects; ``J``
 and ``K_C`` computed once per row, ``K_C`` linear in the row's own load) and the fit is the
 fitting engine's (:mod:`stiffness.calibration.fitting`): the residuals
 ``(predicted - measured) / s`` are stacked row by row (eq. 13) and their sum of squares
@@ -60,7 +60,6 @@ import numpy as np
 from scipy.special import ndtri, stdtrit
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.effects import Geometry, Model, References
 from stiffness.calibration.fitting import (
     Covariance,
     Fit,
@@ -69,9 +68,10 @@ from stiffness.calibration.fitting import (
     kind_noise,
     observations,
 )
-from stiffness.calibration.model_file import ModelFile, jsonable
+from stiffness.elastic.effects import Geometry, Model, References
+from stiffness.elastic.model_file import ModelFile, jsonable
 from stiffness.errors import StiffnessError, UnknownNameError
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 FORMULATIONS = ("conventional", "enhanced", "exact")
 METHODS = ("trf", "lm", "both")
@@ -350,7 +350,7 @@ class Identification:
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     def model_file(self) -> ModelFile:
-        """The identified model (:class:`stiffness.calibration.model_file.ModelFile`)."""
+        """The identified model (:class:`stiffness.elastic.model_file.ModelFile`)."""
         return ModelFile(
             source=self.robot_source, loops=self.robot_loops, fixed_base=self.robot_fixed_base,
             frame=self.robot_frame,
@@ -383,7 +383,7 @@ class Identification:
         """Write the identified model (``identified-model.json``) atomically; returns its path.
 
         A URDF source is stored relative to the file's folder; read it back with
-        :func:`stiffness.calibration.model_file.read_model_file`.
+        :func:`stiffness.elastic.model_file.read_model_file`.
         """
         return self.model_file().write(path)
 
@@ -444,7 +444,7 @@ def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[
 
 def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = None) -> Model:
     """The campaign's baseline model without effects: its compliant joints under
-    ``formulation`` over the campaign's rows (:class:`stiffness.calibration.effects.Model`).
+    ``formulation`` over the campaign's rows (:class:`stiffness.elastic.effects.Model`).
 
     Raises
     ------

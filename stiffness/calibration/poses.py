@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stiffness.calibration.effects import cached_robot
+from stiffness.elastic.effects import cached_robot
 from stiffness.errors import (
     ConvergenceError,
     StiffnessError,
@@ -42,8 +42,8 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.mechanics.formulation import target_state
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot
 
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 MAX_JACOBIAN = 10.0

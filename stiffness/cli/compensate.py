@@ -25,14 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.compensation import (
-    WRENCH_FRAMES,
-    PathCompensation,
-    compensate,
-    read_joint_path,
-)
-from stiffness.calibration.elastic import ElasticModel, elastic_model_of
-from stiffness.calibration.model_file import read_model_file
 from stiffness.cli.flags import (
     add_output_flags,
     add_robot_flags,
@@ -43,8 +35,16 @@ from stiffness.cli.flags import (
     stiffness_required,
     target_offset_from_args,
 )
+from stiffness.elastic.loaded import ElasticModel, elastic_model_of
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import OutputError, StiffnessError
 from stiffness.files import atomic_write, output_folder
+from stiffness.machining.compensation import (
+    WRENCH_FRAMES,
+    PathCompensation,
+    compensate,
+    read_joint_path,
+)
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import joint_stiffness
 

@@ -25,8 +25,14 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-from stiffness.calibration.campaign import LENGTH_UNITS, Units, load_campaign
-from stiffness.calibration.design import (
+from stiffness.calibration.campaign import Units, load_campaign
+from stiffness.calibration.experiment import CRITERIA
+from stiffness.cli import flags
+from stiffness.cli.kx import _identified_model
+from stiffness.elastic.effects import BASELINES
+from stiffness.errors import StiffnessError
+from stiffness.files import output_folder
+from stiffness.planning.design import (
     DEFAULT_CANDIDATES,
     DEFAULT_RANDOM_PLANS,
     DesignResult,
@@ -34,13 +40,8 @@ from stiffness.calibration.design import (
     design,
     parse_separate,
 )
-from stiffness.calibration.effects import BASELINES
-from stiffness.calibration.experiment import CRITERIA
-from stiffness.calibration.plan import write_plan
-from stiffness.cli import flags
-from stiffness.cli.kx import _identified_model
-from stiffness.errors import StiffnessError
-from stiffness.files import output_folder
+from stiffness.planning.plan import write_plan
+from stiffness.units import LENGTH_UNITS
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

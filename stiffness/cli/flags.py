@@ -35,7 +35,7 @@ import numpy as np
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
-    from stiffness.model.robot import Robot
+    from stiffness.robot.robot import Robot
 
 #: A command-line token that is a value starting with a minus sign (a negative number or a list
 #: of numbers), never an option: ``-35``, ``-.5``, ``-1e3,2``, ``-inf``.
@@ -265,8 +265,8 @@ class RobotFlags:
     fixed_base: bool = False
 
     def load(self) -> Robot:
-        """The robot (:func:`stiffness.model.robot.load_robot`)."""
-        from stiffness.model.robot import load_robot
+        """The robot (:func:`stiffness.robot.robot.load_robot`)."""
+        from stiffness.robot.robot import load_robot
 
         if self.source is None:
             raise StiffnessError(

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.calibration.model_file import BEYOND_SPRINGS, CompliantModel, read_model_file
 from stiffness.cli import flags
+from stiffness.elastic.model_file import BEYOND_SPRINGS, CompliantModel, read_model_file
 from stiffness.errors import SingularConfigurationError, StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.formulation import (
@@ -41,8 +41,8 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
 )
 from stiffness.mechanics.wrench import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
-from stiffness.model.assembly import Assembly
-from stiffness.model.robot import Robot
+from stiffness.robot.assembly import Assembly
+from stiffness.robot.robot import Robot
 
 _BASIS_3 = ["vx", "vy", "vz"]
 _BASIS_6 = ["vx", "vy", "vz", "wx", "wy", "wz"]

@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.posture import Poses, PostureResult, posture, read_poses
 from stiffness.cli.compensate import (
     add_model_flags,
     add_wrench_flags,
@@ -37,6 +36,7 @@ from stiffness.cli.compensate import (
 from stiffness.cli.flags import add_output_flags, parse_list
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
+from stiffness.machining.posture import Poses, PostureResult, posture, read_poses
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

@@ -8,8 +8,8 @@ Examples::
     stiffness scan --robot ur5 --kq ... --samples 1000000 --workers 2
     stiffness scan --robot panda --kq ... --samples 1e7 --scheduler tcp://10.0.0.5:8786
 
-This module turns the flags into a :class:`~stiffness.scan.engine.ScanSpec` and hands it to
-:func:`stiffness.scan.engine.run_scan`, which computes, per configuration and load case, the
+This module turns the flags into a :class:`~stiffness.workspace.engine.ScanSpec` and hands it to
+:func:`stiffness.workspace.engine.run_scan`, which computes, per configuration and load case, the
 definiteness class of K_C and of K_theta - K_C, the load factor at which K_theta - K_C stops
 being positive definite, the enhanced Cartesian stiffness K_X (A&S eq. 10) and its principal
 values, and the conventional K_X (eq. 8). The scan is cut into chunks (``--chunk-size``
@@ -25,7 +25,7 @@ chunk's arrays come back and are written here, unless ``--shared-out`` says the 
 What is stored is chosen with ``--fields`` (default: everything but the coordinates, which the
 manifest determines), in ``--dtype`` float64 or float32, with ``--compression``; nothing that
 another stored array determines is stored (symmetric K_X as its upper triangle, no
-eigenvalues): :func:`stiffness.scan.engine.load_scan` rebuilds them. The run prints its bytes
+eigenvalues): :func:`stiffness.workspace.engine.load_scan` rebuilds them. The run prints its bytes
 per configuration. With Dask, a task computes ``--chunks-per-task`` consecutive chunks
 (default: chosen from the measured per-task overhead). Presets (``--preset``) come from the
 papers layer (:data:`stiffness.papers.presets.SCAN_PRESETS`).
@@ -57,17 +57,17 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.calibration.model_file import BEYOND_SPRINGS
 from stiffness.cli import flags
 from stiffness.cli.flags import parse_list, robot_from_args, stiffness_required
 from stiffness.cli.kx import _identified_model, compliant_model_from_args
+from stiffness.elastic.model_file import BEYOND_SPRINGS
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
-from stiffness.model.robot import Robot
 from stiffness.papers.presets import SCAN_PRESETS
-from stiffness.scan.definiteness import terminal_progress
-from stiffness.scan.engine import load_scan, run_scan, scan_chunk
-from stiffness.scan.spec import (
+from stiffness.robot.robot import Robot
+from stiffness.workspace.definiteness import terminal_progress
+from stiffness.workspace.engine import load_scan, run_scan, scan_chunk
+from stiffness.workspace.spec import (
     COMPRESSIONS,
     COUNT_LABELS,
     DERIVED_FIELDS,
@@ -78,7 +78,7 @@ from stiffness.scan.spec import (
     parse_fields,
 )
 
-# The scan engine lives in stiffness.scan.engine (figures: stiffness.scan.plots);
+# The scan engine lives in stiffness.workspace.engine (figures: stiffness.workspace.plots);
 # ScanSpec, load_scan, run_scan and scan_chunk are re-exported for code that imports them here.
 __all__ = ["DEFAULT_LOAD_N", "FORMATS", "PRESETS", "ScanSpec", "build_spec", "configure_parser",
            "default_out", "load_scan", "run", "run_scan", "scan_chunk"]

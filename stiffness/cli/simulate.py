@@ -9,7 +9,7 @@ Example::
 writes ``sim/campaign.toml``, ``sim/measurements.csv`` (deflections of the exact elastostatic
 equilibrium of the true robot, plus Gaussian noise) and ``sim/truth.json`` (the hidden effects,
 their size in noise units, the settings). Run ``stiffness diagnose sim`` to see whether the rig
-would detect them. Effect values: see :mod:`stiffness.calibration.simulate` (stiffness N.m/rad,
+would detect them. Effect values: see :mod:`stiffness.planning.simulate` (stiffness N.m/rad,
 angles in
 deg, lengths in ``--units``, forces in N, beta in 1/(N.m)).
 """
@@ -19,12 +19,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.calibration.campaign import BASELINES, LENGTH_UNITS, Units
-from stiffness.calibration.effects import LIBRARY, cached_robot
-from stiffness.calibration.plan import Plan, read_plan
-from stiffness.calibration.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
+from stiffness.calibration.campaign import BASELINES, Units
 from stiffness.cli import flags
+from stiffness.elastic.effects import LIBRARY, cached_robot
 from stiffness.errors import StiffnessError
+from stiffness.planning.plan import Plan, read_plan
+from stiffness.planning.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
+from stiffness.units import LENGTH_UNITS
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

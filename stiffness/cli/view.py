@@ -26,12 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.model_file import BEYOND_SPRINGS, CompliantModel
 from stiffness.cli import flags, kx
+from stiffness.elastic.model_file import BEYOND_SPRINGS, CompliantModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
 from stiffness.mechanics.formulation import target_state
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 from stiffness.viewer import (
     LOOPBACK,
     QUANTITIES,

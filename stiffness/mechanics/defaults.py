@@ -12,7 +12,7 @@ import numpy as np
 
 from stiffness.mechanics.formulation import as_wrench
 from stiffness.mechanics.wrench import holding_wrench
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 
 def default_coordinates(robot: Robot) -> np.ndarray | None:

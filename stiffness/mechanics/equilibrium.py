@@ -29,7 +29,7 @@ import pinocchio as pin
 
 from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.formulation import as_wrench, tangent_joint_stiffness, target_state
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 #: Absolute floor of the convergence test, relative to the largest residual term: the round-off
 #: of the kinematics (a few eps) that couples every joint's residual to the largest term.

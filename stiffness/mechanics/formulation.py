@@ -34,8 +34,8 @@ from stiffness.errors import (
     UnknownNameError,
 )
 from stiffness.mechanics import closed_loop
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot
 
 FORMULATIONS = ("conventional", "enhanced")
 DEFINITENESS_CLASSES = ("PD", "PSD", "ND", "NSD", "ID")

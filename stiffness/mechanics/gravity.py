@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 
 def require_open_chain(robot: Robot, what: str = "gravity effects") -> None:

@@ -1,6 +1,6 @@
 """Inverse kinematics of the target frame: damped least squares on Pinocchio, loops closed.
 
-The unknowns are a robot's coordinates (its independent joints, :mod:`stiffness.model.robot`);
+The unknowns are a robot's coordinates (its independent joints, :mod:`stiffness.robot.robot`);
 closed loops are re-closed at every step by continuation from the previous configuration, so
 the solution stays on the assembly branch of the seed. The frame error is
 
@@ -27,8 +27,8 @@ import pinocchio as pin
 
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.formulation import velocity_projection
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot
 
 #: Rows of the frame error a solve can hold.
 HOLDS = ("pose", "position")

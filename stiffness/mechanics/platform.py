@@ -1,7 +1,7 @@
 """Six-dimensional stiffness of spring-loaded parallel platforms (Zefran & Kumar).
 
 The platform is a closed-loop robot whose target is the platform frame and whose springs are
-its legs (built by :mod:`stiffness.model.platform`, or any robot with loops). Under the wrench
+its legs (built by :mod:`stiffness.robot.platform`, or any robot with loops). Under the wrench
 that holds the platform against springs with rest lengths other than the current ones
 (:func:`stiffness.mechanics.wrench.holding_wrench`), the twist-basis stiffness is asymmetric;
 :func:`lie_bracket_term` predicts its antisymmetric part from that wrench (eq. 34);
@@ -29,8 +29,8 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
 )
 from stiffness.mechanics.wrench import body_wrench, holding_wrench
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot
 
 
 def lie_bracket_term(wrench_body: np.ndarray) -> np.ndarray:

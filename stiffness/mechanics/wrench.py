@@ -11,7 +11,7 @@ import numpy as np
 
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.formulation import TargetState, target_state
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 #: Row orders of 6-vectors: Pinocchio's (linear first) and angular first.
 TWIST_ORDERS = {"v-w": ["vx", "vy", "vz", "wx", "wy", "wz"],

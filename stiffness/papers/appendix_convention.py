@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from stiffness.errors import StiffnessError
-from stiffness.model.sources import robots_directory
 from stiffness.papers.appendix import APPENDIX_TERMS, ELEMENT_NAMES, Term
 from stiffness.papers.appendix_eval import TermsByElement, terms_values
 from stiffness.papers.sk120 import FIXTURE_A_M, FIXTURE_B_M, AngleConvention, DHRow, read_table1
+from stiffness.robot.sources import robots_directory
 
 __all__ = [
     "SEARCH_POSES",

@@ -19,12 +19,12 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.mechanics.formulation import target_states
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot, load_robot
-from stiffness.model.sources import robots_directory
 from stiffness.papers.appendix_convention import SEARCH_POSES, printed_convention
 from stiffness.papers.sk120 import AngleConvention, read_table1, sk120_urdf
 from stiffness.papers.tables import paper_configurations
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.sources import robots_directory
 
 __all__ = [
     "LOOP_MARGIN_DEG",

@@ -25,10 +25,10 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.identify import identify
-from stiffness.model.robot import Robot, load_robot
 from stiffness.papers.appendix_convention import printed_convention
 from stiffness.papers.reproduction import table2, table2_summary, table3
 from stiffness.papers.sk120 import AngleConvention
+from stiffness.robot.robot import Robot, load_robot
 
 #: The other tool-vertical convention: theta1 and theta6 without offset or sign change.
 RADIAL_ALTERNATIVE = AngleConvention((1, 1, -1, 1, 1, 1), (0.0, -90.0, 180.0, 0.0, 0.0, 0.0))

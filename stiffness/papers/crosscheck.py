@@ -55,8 +55,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.model.robot import load_robot
-from stiffness.model.sources import robots_directory
 from stiffness.papers.appendix import APPENDIX_TERMS, ELEMENT_NAMES
 from stiffness.papers.appendix_convention import (
     SEARCH_POSES,
@@ -93,6 +91,8 @@ from stiffness.papers.appendix_poses import (
     sample_poses,
 )
 from stiffness.papers.sk120 import FIXTURE_A_M, FIXTURE_B_M, AngleConvention, DHRow, read_table1
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 __all__ = [
     "AppendixConvention",

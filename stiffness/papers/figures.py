@@ -15,7 +15,7 @@ from matplotlib.figure import Figure
 
 from stiffness.mechanics.equilibrium import Departure
 from stiffness.papers.reproduction import row_labels
-from stiffness.scan.definiteness import DefinitenessScan
+from stiffness.workspace.definiteness import DefinitenessScan
 
 
 def _margins(fig: Figure, left: float, right: float, bottom: float, top: float,

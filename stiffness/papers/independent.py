@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from stiffness.model.robot import Robot, load_robot
 from stiffness.papers.crosscheck import run_crosscheck
 from stiffness.papers.figures import partial_derivative_maps
 from stiffness.papers.reproduction import (
@@ -22,6 +21,7 @@ from stiffness.papers.reproduction import (
     table4,
 )
 from stiffness.papers.tables import read_table4
+from stiffness.robot.robot import Robot, load_robot
 
 #: Title of the SK120 meshcat scene written beside the report (its file:
 #: :data:`stiffness.papers.report_page.SCENE_FILE`).

@@ -3,7 +3,7 @@
 A preset turns a robot into the options of a workspace scan (grid axes, the coordinates that
 follow them, load cases) without the scan layer knowing about any paper: the scan command
 looks the name up in :data:`SCAN_PRESETS` and builds an ordinary grid
-:class:`~stiffness.scan.spec.ScanSpec` from it.
+:class:`~stiffness.workspace.spec.ScanSpec` from it.
 
 * ``table4``: Alici & Shirinzadeh's Section VI / Table IV grid on the SK120 (theta1 -180..180,
   theta2 -70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical: q4 = 0,
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import Robot
 from stiffness.papers.reproduction import table4_loads
+from stiffness.robot.robot import Robot
 
 
 @dataclass

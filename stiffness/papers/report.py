@@ -26,8 +26,6 @@ from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
 from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
-from stiffness.model.robot import Robot, load_robot
-from stiffness.model.sources import robots_directory
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
 from stiffness.papers.independent import DEFINITENESS_KEYS, independent_parts
@@ -50,6 +48,8 @@ from stiffness.papers.reproduction import (
 from stiffness.papers.sk120 import AngleConvention
 from stiffness.papers.tables import FIGURE_CONFIGURATIONS_DEG
 from stiffness.provenance import provenance
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.sources import robots_directory
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"

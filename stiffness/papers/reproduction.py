@@ -14,10 +14,10 @@ import numpy as np
 
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
-from stiffness.model.robot import Robot
 from stiffness.papers.tables import read_paper_table, read_table4
-from stiffness.scan.definiteness import DefinitenessScan, batched_definiteness_scan
-from stiffness.scan.spec import grid_axis
+from stiffness.robot.robot import Robot
+from stiffness.workspace.definiteness import DefinitenessScan, batched_definiteness_scan
+from stiffness.workspace.spec import grid_axis
 
 MM = 1e-3
 #: Paper's residual norm of eq. 12 at its identified K_theta (mm^2, as printed).

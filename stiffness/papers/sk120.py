@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.model.urdf_writer import UrdfWriter
+from stiffness.robot.urdf_writer import UrdfWriter
 
 #: L-shaped fixture: a along the tool plate's axis (z6), b normal to it (x6), in m.
 FIXTURE_A_M = 0.11265

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.model.sources import robots_directory
+from stiffness.robot.sources import robots_directory
 
 _FILES = {
     "table2": "table2_verification.csv",

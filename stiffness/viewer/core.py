@@ -35,7 +35,7 @@ from stiffness.mechanics.formulation import (
     tangent_joint_stiffness,
     target_state,
 )
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 from stiffness.viewer.deps import _meshcat, _pinocchio_meshcat_visualizer
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
@@ -204,7 +204,7 @@ class StiffnessViewer:
     Parameters
     ----------
     robot
-        The robot (:func:`stiffness.model.robot.load_robot`).
+        The robot (:func:`stiffness.robot.robot.load_robot`).
     k_theta
         Joint stiffness: one value per compliant joint (N.m/rad; N/m prismatic) or the (n, n)
         matrix.

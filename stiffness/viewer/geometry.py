@@ -34,7 +34,7 @@ class Pose:
 def missing_mesh_notes(robot) -> list[str]:
     """One line per visual mesh of ``robot`` that could not be found (drawn as a sphere).
 
-    Meshes are resolved when the robot is loaded (:mod:`stiffness.model.meshes`: the URDF's
+    Meshes are resolved when the robot is loaded (:mod:`stiffness.robot.meshes`: the URDF's
     folder and its ancestors, ``ROS_PACKAGE_PATH``, example-robot-data's share folder).
     """
     missing = list(getattr(robot, "missing_meshes", ()))

@@ -28,7 +28,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
-from stiffness.model.urdf_writer import UrdfWriter, transform
+from stiffness.robot.urdf_writer import UrdfWriter, transform
 
 #: Names of the passive virtual joints carrying the platform, in chain order.
 VIRTUAL_JOINTS = ("platform_x", "platform_y", "platform_z",
@@ -153,7 +153,7 @@ def platform_loop_declaration(spec: PlatformSpec) -> str:
     return (
         f"# Loop declaration of {spec.name}: each leg's tip meets its platform anchor (a\n"
         "# spherical joint); the leg lengths are actuated (the springs), the virtual platform\n"
-        "# chain and the universal joints passive. Written by stiffness.model.platform.\n"
+        "# chain and the universal joints passive. Written by stiffness.robot.platform.\n"
         f"closed_loop:\n{pairs}"
         "type: [" + ", ".join(['"3D"'] * len(legs)) + "]\n"
         f"name_mot: [{', '.join(legs)}]\n"

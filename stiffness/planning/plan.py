@@ -38,7 +38,6 @@ from stiffness.calibration.campaign import (
     _number,
     _prismatic_mask,
     _read_toml,
-    _resolve_source,
     _robot_section,
     _settings_robot,
     _units_section,
@@ -46,6 +45,7 @@ from stiffness.calibration.campaign import (
     check_units_comment,
     coordinates_in_si,
     read_units_comment,
+    resolve_source,
 )
 from stiffness.errors import (
     DataFileWarning,
@@ -54,7 +54,7 @@ from stiffness.errors import (
     StiffnessError,
 )
 from stiffness.files import atomic_write, output_folder, read_text
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"
@@ -104,7 +104,7 @@ class Plan:
         if self.robot_settings is None:
             return None
         folder = self.path.parent if self.path is not None else Path.cwd()
-        return _resolve_source(self.robot_settings.source, folder)
+        return resolve_source(self.robot_settings.source, folder)
 
 
 def _header(n_q: int) -> list[str]:

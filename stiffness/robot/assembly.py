@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from stiffness.model import kinematics
-from stiffness.model.loops import CLOSURE_TOLERANCE_M, LoopClosure
+from stiffness.robot import kinematics
+from stiffness.robot.loops import CLOSURE_TOLERANCE_M, LoopClosure
 
 #: Iterations of the all-joint least squares.
 MAX_ITERATIONS = 400

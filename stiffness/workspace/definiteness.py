@@ -16,9 +16,9 @@ import numpy as np
 
 from stiffness.batch.linalg import class_names
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES, definiteness, target_states
-from stiffness.model.robot import Robot
-from stiffness.scan.maps import DEFINITENESS_FIELDS, compute_maps
-from stiffness.scan.spec import ScanSpec
+from stiffness.robot.robot import Robot
+from stiffness.workspace.maps import DEFINITENESS_FIELDS, compute_maps
+from stiffness.workspace.spec import ScanSpec
 
 
 @dataclass
@@ -125,7 +125,7 @@ def batched_definiteness_scan(
     chunk: int = 8192,
 ) -> DefinitenessScan:
     """:func:`definiteness_scan` computed by the scan engine's chunk kernel
-    (:func:`stiffness.scan.maps.compute_maps`, the same code as ``stiffness scan``).
+    (:func:`stiffness.workspace.maps.compute_maps`, the same code as ``stiffness scan``).
 
     Same result to round-off, two orders of magnitude faster: loop closures are shared between
     configurations with the same loop coordinates (:func:`stiffness.batch.kernels.close_loops`),

@@ -26,7 +26,7 @@ from urllib.parse import unquote
 import pinocchio as pin
 
 from stiffness.errors import RobotFileWarning
-from stiffness.model import kinematics
+from stiffness.robot import kinematics
 
 #: Radius (m) of the sphere drawn in place of a missing mesh.
 PLACEHOLDER_RADIUS_M = 0.02

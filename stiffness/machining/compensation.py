@@ -2,7 +2,7 @@
 
 A path point gives the *nominal* coordinates ``theta_n`` (the unloaded program). Under the
 process wrench ``W`` (a dead load at the target, base axes) the robot commanded at ``theta_c``
-rests at its exact elastostatic equilibrium (:mod:`stiffness.calibration.elastic`: every effect
+rests at its exact elastostatic equilibrium (:mod:`stiffness.elastic.loaded`: every effect
 of the model file that acts on the robot); compensation finds the ``theta_c`` whose loaded
 equilibrium puts the target at the unloaded nominal pose ``x(theta_n)`` (position, and the
 orientation when it is held: see :func:`compensate`):
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.elastic import (
+from stiffness.elastic.loaded import (
     ElasticModel,
     as_elastic_model,
     bent_kinematics,
@@ -50,8 +50,8 @@ from stiffness.errors import (
 from stiffness.files import read_text
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot
 
 #: Convergence of the general compensation solve (m, rad of the target error).
 POSE_TOLERANCE = 1e-12

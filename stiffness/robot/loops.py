@@ -46,8 +46,8 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.files import read_yaml
-from stiffness.model import kinematics
-from stiffness.model.rewrite import JOINT_REWRITES
+from stiffness.robot import kinematics
+from stiffness.robot.rewrite import JOINT_REWRITES
 
 #: Closure tolerance on the loop residual (m; rad for the rotation rows of a 6D pair).
 CLOSURE_TOLERANCE_M = 1e-11
@@ -80,7 +80,7 @@ class LoopDeclaration:
     """Loop-closing frame pairs, the actuated joints, joint rewrites and passive joints.
 
     ``rewrites`` maps joint names to Gepetto joint types (``joint_name``/``joint_type``, see
-    :mod:`stiffness.model.rewrite`); ``passive`` is None unless the file's ``passive_joints``
+    :mod:`stiffness.robot.rewrite`); ``passive`` is None unless the file's ``passive_joints``
     lists them.
     """
 

@@ -8,12 +8,12 @@ a degree of freedom except the passive joints of closed loops and mimic follower
 per joint, in model order unless the robot declares ``coordinate_order``: an angle (rad) for a
 revolute or continuous joint, a length (m) for a prismatic one. :meth:`Robot.configuration`
 turns them into a full Pinocchio configuration with the loops closed (searching for an assembly
-when the pose does not close, :mod:`stiffness.model.assembly`).
+when the pose does not close, :mod:`stiffness.robot.assembly`).
 
-Loading steps (docs/robot-files.md): read the source (:mod:`stiffness.model.sources`,
-:mod:`stiffness.model.urdf`); apply the loop file's ``joint_name``/``joint_type`` rewrites
-(:mod:`stiffness.model.rewrite`); fix a floating or planar base when asked; build the loop
-closures; choose the target frame (:mod:`stiffness.model.targets`).
+Loading steps (docs/robot-files.md): read the source (:mod:`stiffness.robot.sources`,
+:mod:`stiffness.robot.urdf`); apply the loop file's ``joint_name``/``joint_type`` rewrites
+(:mod:`stiffness.robot.rewrite`); fix a floating or planar base when asked; build the loop
+closures; choose the target frame (:mod:`stiffness.robot.targets`).
 """
 
 from __future__ import annotations
@@ -34,19 +34,19 @@ from stiffness.errors import (
     UnknownJointError,
     did_you_mean,
 )
-from stiffness.model import kinematics
-from stiffness.model.assembly import Assembly, least_squares_assembly
-from stiffness.model.loops import (
+from stiffness.robot import kinematics
+from stiffness.robot.assembly import Assembly, least_squares_assembly
+from stiffness.robot.loops import (
     CLOSURE_TOLERANCE_M,
     LoopClosure,
     build_loop_closure,
     read_loop_declaration,
 )
-from stiffness.model.meshes import MissingMesh
-from stiffness.model.rewrite import lock_joints, rewrite_joints
-from stiffness.model.sources import resolve_source
-from stiffness.model.targets import default_target_frame, moving_frames
-from stiffness.model.urdf import Mimic, warn
+from stiffness.robot.meshes import MissingMesh
+from stiffness.robot.rewrite import lock_joints, rewrite_joints
+from stiffness.robot.sources import resolve_source
+from stiffness.robot.targets import default_target_frame, moving_frames
+from stiffness.robot.urdf import Mimic, warn
 
 #: Name of the operational frame added at the measurement target.
 TARGET_FRAME = "stiffness_target"
@@ -525,7 +525,7 @@ def load_robot(
         example-robot-data name (``"ur5"``, ``"panda"``, ...).
     frame
         Frame carrying the measurement target; default: the shipped robot's target frame, else
-        the tip frame of the longest chain of moving joints (:mod:`stiffness.model.targets`).
+        the tip frame of the longest chain of moving joints (:mod:`stiffness.robot.targets`).
     target_offset
         Target position in ``frame`` axes (m); default zero (or the shipped robot's).
     compliant_joints

@@ -1,5 +1,5 @@
-"""Figures of a workspace scan (:mod:`stiffness.scan.engine`), drawn from its
-:class:`~stiffness.scan.maps.MapAccumulator` (PNG bytes, matplotlib's Agg backend).
+"""Figures of a workspace scan (:mod:`stiffness.workspace.engine`), drawn from its
+:class:`~stiffness.workspace.maps.MapAccumulator` (PNG bytes, matplotlib's Agg backend).
 
 * ``definiteness_counts.png``: configurations per definiteness class of K_C, per load case;
 * ``stiffness_map.png``: smallest principal stiffness over the map axes (conventional K_X, and
@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stiffness.scan.distributed import worker_robot
-from stiffness.scan.maps import MapAccumulator
-from stiffness.scan.spec import COUNT_LABELS, ScanSpec
+from stiffness.workspace.distributed import worker_robot
+from stiffness.workspace.maps import MapAccumulator
+from stiffness.workspace.spec import COUNT_LABELS, ScanSpec
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

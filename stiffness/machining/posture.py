@@ -36,12 +36,12 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.compensation import WRENCH_FRAMES, read_table
-from stiffness.calibration.elastic import ElasticModel, as_elastic_model, linear_deflection
+from stiffness.elastic.loaded import ElasticModel, as_elastic_model, linear_deflection
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
+from stiffness.machining.compensation import WRENCH_FRAMES, read_table
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
-from stiffness.model.robot import Robot
+from stiffness.robot.robot import Robot
 
 #: Named free axes (target frame).
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),

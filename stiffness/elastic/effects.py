@@ -85,7 +85,7 @@ from stiffness.errors import (
 from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import target_states
 from stiffness.mechanics.gravity import gravity_preload, require_open_chain, spring_balancer
-from stiffness.model.robot import Robot, load_robot
+from stiffness.robot.robot import Robot, load_robot
 
 #: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
 BACKLASH_SMOOTHING = 0.02
@@ -345,7 +345,7 @@ class Geometry:
 def cached_robot(source: str, frame: str | None, target_offset: tuple[float, ...] | None,
                  compliant_joints: tuple[str, ...] | None, loops: str | None = None,
                  fixed_base: bool = False) -> Robot:
-    """:func:`stiffness.model.robot.load_robot`, loaded once per argument set (example-robot-data
+    """:func:`stiffness.robot.robot.load_robot`, loaded once per argument set (example-robot-data
     models take about half a second to load). The robot's ``data`` is shared: not for use from
     several threads."""
     return load_robot(source, frame=frame,
@@ -475,7 +475,7 @@ class Effect:
     #: with respect to them analytically (:meth:`Model.predict_with_jacobian`)
     through_law: ClassVar[bool] = False
     #: how the effect enters a model used away from its campaign
-    #: (:mod:`stiffness.calibration.model_file`): one of :data:`EFFECT_KINDS`
+    #: (:mod:`stiffness.elastic.model_file`): one of :data:`EFFECT_KINDS`
     kind: ClassVar[str] = "stiffness"
 
     @property

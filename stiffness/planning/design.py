@@ -5,7 +5,7 @@ plans of the same size.
 
 The mathematics (candidates, Fisher information of ln k, D/A/E criteria, greedy and exchange
 selection, the separation left after refitting) is in :mod:`stiffness.calibration.experiment`;
-the plan files in :mod:`stiffness.calibration.plan`.
+the plan files in :mod:`stiffness.planning.plan`.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """
@@ -20,7 +20,6 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units
 from stiffness.calibration.diagnose import fit_baseline, fit_model, replicate_noise
-from stiffness.calibration.effects import LIBRARY, Geometry, Model, References, make_effect
 from stiffness.calibration.experiment import (
     CRITERIA,
     LOAD_DIRECTIONS,
@@ -38,9 +37,10 @@ from stiffness.calibration.experiment import (
     separation_statistics,
     standard_errors,
 )
-from stiffness.calibration.plan import Plan
+from stiffness.elastic.effects import LIBRARY, Geometry, Model, References, make_effect
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
-from stiffness.model.robot import Robot
+from stiffness.planning.plan import Plan
+from stiffness.robot.robot import Robot
 
 #: Default number of candidate poses.
 DEFAULT_CANDIDATES = 200

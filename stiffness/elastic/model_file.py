@@ -30,7 +30,7 @@ included, as a :class:`ModelCompliance`). Errors: :class:`ModelFileError` (a
 :class:`~stiffness.errors.FileFormatError`: unknown schema, missing or malformed key) and
 :class:`ModelRobotError` (another robot than the model's, or an effect on a joint it lacks).
 
-How effects enter (``kind`` of :data:`stiffness.calibration.effects.EFFECT_KINDS`):
+How effects enter (``kind`` of :data:`stiffness.elastic.effects.EFFECT_KINDS`):
 
 * ``stiffness``: ``joint_compliance`` (the joint becomes a spring of the given stiffness),
   ``link_compliance`` (a lumped rotational compliance at the distal joint's origin, about the
@@ -64,15 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.campaign import (
-    ANGLE_UNITS,
-    FORCE_UNITS,
-    LENGTH_UNITS,
-    _looks_like_path,
-    _resolve_source,
-    _written_path,
-)
-from stiffness.calibration.effects import (
+from stiffness.elastic.effects import (
     COMPENSATOR_GEOMETRY,
     LIBRARY,
     Geometry,
@@ -90,7 +82,14 @@ from stiffness.errors import (
     did_you_mean,
     with_context,
 )
-from stiffness.files import atomic_write, output_folder, read_json
+from stiffness.files import (
+    atomic_write,
+    looks_like_path,
+    output_folder,
+    read_json,
+    resolve_source,
+    written_path,
+)
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
     deflected_configuration,
@@ -107,8 +106,9 @@ from stiffness.mechanics.gravity import (
     spring_balancer,
     with_payload,
 )
-from stiffness.model.robot import Robot, load_robot
-from stiffness.model.sources import robots_directory, shipped_robots
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.sources import robots_directory, shipped_robots
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
 
 #: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
 SCHEMA_NAME = "stiffness-model"
@@ -153,7 +153,7 @@ class ModelEffect:
     Attributes
     ----------
     name
-        Library name (:data:`stiffness.calibration.effects.LIBRARY`).
+        Library name (:data:`stiffness.elastic.effects.LIBRARY`).
     where
         A joint, ``a->b``, or ``None``.
     kind
@@ -272,7 +272,7 @@ class ModelFile:
     # views -----------------------------------------------------------------------------
     def robot_options(self) -> dict:
         """``loops`` and ``fixed_base``, as keyword arguments of
-        :func:`stiffness.model.robot.load_robot`."""
+        :func:`stiffness.robot.robot.load_robot`."""
         return {"loops": self.loops, "fixed_base": self.fixed_base}
 
     def robot(self) -> Robot:
@@ -305,7 +305,7 @@ class ModelFile:
     # writing ---------------------------------------------------------------------------
     def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
         """The file's JSON object (a URDF source relative to ``relative_to`` when given)."""
-        source = (_relative(self.source, relative_to) if _looks_like_path(self.source)
+        source = (_relative(self.source, relative_to) if looks_like_path(self.source)
                   else self.source)
         joints = list(self.compliant_joints)
         determined = [j not in self.undetermined_joints for j in joints]
@@ -353,7 +353,7 @@ def _robot_identity(source: str) -> str:
     in its folder), a resolved path, or the example-robot-data name."""
     if source in shipped_robots():
         return source
-    if _looks_like_path(source) or Path(source).exists():
+    if looks_like_path(source) or Path(source).exists():
         path = Path(source).resolve()
         for name in shipped_robots():
             if path.parent == (robots_directory() / name).resolve():
@@ -470,7 +470,7 @@ def _relative(path: str, relative_to: str | os.PathLike | None) -> str:
     """``path`` relative to the folder ``relative_to`` (POSIX separators), or as given."""
     if relative_to is None:
         return path
-    return _written_path(str(Path(path).resolve()), Path(relative_to))
+    return written_path(str(Path(path).resolve()), Path(relative_to))
 
 
 def _robot_options(r: _Reader) -> dict:
@@ -494,7 +494,7 @@ def _robot_part(r: _Reader) -> tuple[str, str, np.ndarray]:
     if not isinstance(source, str) or not isinstance(frame, str):
         raise r.fail("robot.source and robot.frame must be strings")
     offset = r.numbers(r.get("robot", "target_offset_m"), "robot.target_offset_m", 3)
-    return _resolve_source(source, r.path.parent), frame, offset
+    return resolve_source(source, r.path.parent), frame, offset
 
 
 def _formulation(r: _Reader, value) -> str:

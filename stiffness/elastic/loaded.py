@@ -9,7 +9,7 @@ The elastic model (:class:`ElasticModel`) holds:
 * link compliances (:class:`LinkBend`): the segment ``a -> b`` bends at ``b``'s origin about two
   axes normal to it, modelled exactly as two virtual revolute joints there (a universal joint:
   the second axis is carried by the first) with springs ``k_1, k_2``. The axes are those of
-  :func:`stiffness.calibration.effects.link_axes` at a reference configuration (the nominal one
+  :func:`stiffness.elastic.effects.link_axes` at a reference configuration (the nominal one
   of a path point, :func:`frozen_axes`), fixed in the body joint ``b`` is mounted on. The bend
   rotates everything beyond it; loops are closed on the unbent kinematics (as in the effect
   library).
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.effects import link_axes
+from stiffness.elastic.effects import link_axes
 from stiffness.errors import (
     ConvergenceError,
     StiffnessError,
@@ -41,8 +41,8 @@ from stiffness.errors import (
 from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import all_coordinates
-from stiffness.model import kinematics
-from stiffness.model.robot import Robot
+from stiffness.robot import kinematics
+from stiffness.robot.robot import Robot
 
 #: Convergence of the exact equilibrium (rad, m of the joint and bend variables), plus 1e-11
 #: of the largest deflection (closure noise of loops).
@@ -404,14 +404,14 @@ def load_elastic_model(path: str | Path, frame: str | None = None,
                        target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
     """The elastic model of a model file (``identified-model.json`` of ``stiffness identify``
     or ``final-model.json`` of ``stiffness diagnose``, read by
-    :func:`stiffness.calibration.model_file.read_model_file`), see :func:`elastic_model_of`.
+    :func:`stiffness.elastic.model_file.read_model_file`), see :func:`elastic_model_of`.
 
     Raises
     ------
     StiffnessError
-        The file's errors (:class:`stiffness.calibration.model_file.ModelFileError`...).
+        The file's errors (:class:`stiffness.elastic.model_file.ModelFileError`...).
     """
-    from stiffness.calibration.model_file import read_model_file
+    from stiffness.elastic.model_file import read_model_file
 
     em = elastic_model_of(read_model_file(path), frame, target_offset)
     em.source = str(path)
@@ -420,7 +420,7 @@ def load_elastic_model(path: str | Path, frame: str | None = None,
 
 def elastic_model_of(model, frame: str | None = None,
                      target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
-    """Every effect of a model file (:class:`stiffness.calibration.model_file.ModelFile`) that
+    """Every effect of a model file (:class:`stiffness.elastic.model_file.ModelFile`) that
     acts on the robot, as an :class:`ElasticModel`.
 
     Joint springs (the baseline's and ``joint_compliance``), ``nonlinear_joint_stiffness``,
@@ -429,8 +429,8 @@ def elastic_model_of(model, frame: str | None = None,
     ``complementary_stiffness`` is in the exact equilibrium anyway; the measurement effects
     (how the campaign observed the deflection) are listed in :attr:`ElasticModel.ignored`.
     """
-    from stiffness.calibration.effects import Geometry
-    from stiffness.model.robot import load_robot
+    from stiffness.elastic.effects import Geometry
+    from stiffness.robot.robot import load_robot
 
     stiffness = dict(zip(model.compliant_joints, model.k_theta, strict=True))
     moved = frame is not None or target_offset is not None

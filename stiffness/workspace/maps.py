@@ -1,7 +1,7 @@
 """The maps of one chunk of a workspace scan: computed, stored, read back, summarised.
 
 * :func:`compute_maps`: per configuration and load case, with :mod:`stiffness.batch.kernels`,
-  what the spec's fields (:data:`stiffness.scan.spec.STORED_FIELDS`) and the summary need:
+  what the spec's fields (:data:`stiffness.workspace.spec.STORED_FIELDS`) and the summary need:
   the definiteness classes of K_C and of K_theta - K_C, the critical load factor and the sign
   of det K_C (one eigen-decomposition per matrix,
   :func:`stiffness.batch.linalg.load_definiteness`), the enhanced K_X (A&S eq. 10) and its
@@ -25,8 +25,8 @@ from collections.abc import Callable
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.model.robot import Robot
-from stiffness.scan.spec import COUNT_LABELS, UNDEFINED, ScanSpec
+from stiffness.robot.robot import Robot
+from stiffness.workspace.spec import COUNT_LABELS, UNDEFINED, ScanSpec
 
 #: Fields computed together by one eigen-decomposition of the scaled K_C.
 DEFINITENESS_FIELDS = ("k_c_class", "tangent_class", "critical_factor", "k_c_det_positive")

@@ -1,29 +1,29 @@
 """Workspace scan engine: stiffness and definiteness maps over many configurations, chunked.
 
-A scan (:class:`stiffness.scan.spec.ScanSpec`) is cut into chunks of ``spec.chunk_size``
+A scan (:class:`stiffness.workspace.spec.ScanSpec`) is cut into chunks of ``spec.chunk_size``
 configurations; a chunk is a pure function of (spec, index) (:func:`scan_chunk`, computed by
-:func:`stiffness.scan.maps.compute_maps`), so any process can compute it. :func:`run_scan`
-runs the missing chunks through :func:`stiffness.scan.distributed.run_chunks` (in this process,
+:func:`stiffness.workspace.maps.compute_maps`), so any process can compute it. :func:`run_scan`
+runs the missing chunks through :func:`stiffness.workspace.distributed.run_chunks` (in this process,
 on a Dask LocalCluster or on a remote cluster), in tasks of one or more consecutive chunks,
 writes each chunk to the output folder as soon as it is done (NPZ and/or Parquet, by the
 process that computed it when it shares the folder), so memory is bounded by the chunk size and
 a killed run loses only unfinished chunks, and folds each chunk's small aggregate into a
-streaming :class:`~stiffness.scan.maps.MapAccumulator` for the summary and the figures
-(:mod:`stiffness.scan.plots`). Running it again on the same folder resumes the scan.
+streaming :class:`~stiffness.workspace.maps.MapAccumulator` for the summary and the figures
+(:mod:`stiffness.workspace.plots`). Running it again on the same folder resumes the scan.
 
 Files in the output folder:
 
 * ``manifest.json``: the scan's specification (robot, coordinates, loads, K_theta, fields,
   dtype, units);
 * ``chunks/chunk-NNNNN.npz`` ("npz": the stored fields, see
-  :data:`stiffness.scan.spec.STORED_FIELDS`) and/or ``maps.parquet/part-NNNNN.parquet``
+  :data:`stiffness.workspace.spec.STORED_FIELDS`) and/or ``maps.parquet/part-NNNNN.parquet``
   ("parquet", one row per configuration and load case);
 * ``chunks/aggregate-NNNNN.npz``: the chunk's contribution to the summary (marks it done);
 * ``summary.json`` (class counts per load case, extremes, bytes per configuration) and the
   figures ``definiteness_counts.png``, ``definiteness_map.png``, ``stiffness_map.png``.
 
 :func:`load_scan` reads the NPZ chunks back with the derived arrays rebuilt
-(:func:`stiffness.scan.maps.derive`). SI units: rad, m, N, N.m/rad, N/m.
+(:func:`stiffness.workspace.maps.derive`). SI units: rad, m, N, N.m/rad, N/m.
 """
 
 from __future__ import annotations
@@ -42,9 +42,9 @@ import numpy as np
 from stiffness.errors import MissingFileError, StiffnessError
 from stiffness.files import atomic_write, atomic_write_with, output_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
-from stiffness.scan.distributed import run_chunks, warm_worker, worker_robot
-from stiffness.scan.maps import MapAccumulator, compute_maps, derive, stored_arrays
-from stiffness.scan.spec import LAYOUT_VERSION, UNDEFINED, ScanSpec
+from stiffness.workspace.distributed import run_chunks, warm_worker, worker_robot
+from stiffness.workspace.maps import MapAccumulator, compute_maps, derive, stored_arrays
+from stiffness.workspace.spec import LAYOUT_VERSION, UNDEFINED, ScanSpec
 
 # ---------------------------------------------------------------------------------- chunk
 
@@ -52,7 +52,7 @@ from stiffness.scan.spec import LAYOUT_VERSION, UNDEFINED, ScanSpec
 def scan_chunk(spec_dict: dict, index: int) -> dict[str, np.ndarray]:
     """Compute chunk ``index`` of a scan (runs on a worker; a pure function of its inputs).
 
-    Returns the float64 maps of :func:`stiffness.scan.maps.compute_maps`.
+    Returns the float64 maps of :func:`stiffness.workspace.maps.compute_maps`.
     """
     spec = ScanSpec.from_dict(spec_dict)
     robot = worker_robot(spec.robot)
@@ -287,7 +287,7 @@ MAX_MAP_CELLS = 4_000_000
 
 def stored_bytes_per_configuration(spec: ScanSpec) -> int:
     """Bytes one configuration adds to a chunk file (the spec's fields, packed and typed as
-    stored: :func:`stiffness.scan.maps.stored_arrays` of one computed configuration)."""
+    stored: :func:`stiffness.workspace.maps.stored_arrays` of one computed configuration)."""
     ids, coords = spec.chunk_coordinates(0)
     maps = compute_maps(worker_robot(spec.robot), spec, ids[:1], coords[:1])
     return sum(a.nbytes for a in stored_arrays(spec, maps).values())
@@ -357,7 +357,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     formats
         "npz" and/or "parquet".
     scheduler, workers, client
-        Where the chunks run (see :func:`stiffness.scan.distributed.run_chunks`). A script that
+        Where the chunks run (see :func:`stiffness.workspace.distributed.run_chunks`). A script that
         starts a LocalCluster (``workers`` > 1) must guard its entry point with
         ``if __name__ == "__main__":`` (worker processes are spawned).
     plots
@@ -372,7 +372,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
         Dask), a :class:`ChunkWriter` thread writes each chunk while the next one computes.
     chunks_per_task
         Consecutive chunks computed by one Dask task; default chosen from the measured
-        per-task overhead (:func:`stiffness.scan.distributed.run_chunks`).
+        per-task overhead (:func:`stiffness.workspace.distributed.run_chunks`).
 
     Returns
     -------
@@ -464,7 +464,7 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     summary["units"] = _UNITS
     if plots:
         t1 = time.perf_counter()
-        from stiffness.scan.plots import all_figures  # matplotlib only when drawing
+        from stiffness.workspace.plots import all_figures  # matplotlib only when drawing
 
         for name, png in all_figures(spec, acc).items():
             atomic_write(out / name, png)

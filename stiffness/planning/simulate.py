@@ -2,13 +2,13 @@
 
 :func:`simulate` draws reachable configurations
 (:func:`stiffness.calibration.poses.sample_coordinates`), or takes the rows of a measurement plan
-(:mod:`stiffness.calibration.plan`), loads along random directions (or a ramp along one
+(:mod:`stiffness.planning.plan`), loads along random directions (or a ramp along one
 direction per configuration, or the six axis directions), computes the deflections from the
 *exact* elastostatic equilibrium of a true robot that carries the hidden effects, adds Gaussian
 noise, and returns a :class:`~stiffness.calibration.campaign.Campaign` that declares only the
 baseline (its ``--kq`` joints), plus the hidden truth.
 
-How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects` for the models):
+How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` for the models):
 
 * ``complementary_stiffness``: always in the truth (the equilibrium is exact); hiding it means
   declaring the ``conventional`` baseline, so the campaign's model misses it.
@@ -18,7 +18,7 @@ How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects
   the axes at the deflected configuration (the coupling back into the joint torques is
   second order and neglected).
 * ``backlash:J=b``: ``dtheta_J += b tanh(tau_J / tau_s)`` (b in the campaign's angle unit;
-  tau_s as in :mod:`stiffness.calibration.effects`), solved exactly with the rest.
+  tau_s as in :mod:`stiffness.elastic.effects`), solved exactly with the rest.
 * ``nonlinear_joint_stiffness:J=beta``: ``dtheta_J = tau_J / k_J (1 + beta |tau_J|)``
   (beta in 1/(N.m); > 0 softens).
 * ``frame_misalignment=r`` or ``=rx,ry,rz``: the deflections are measured in a frame rotated by
@@ -34,7 +34,7 @@ How each hidden effect enters the truth (see :mod:`stiffness.calibration.effects
   weight (open chains only).
 * ``gravity_compensator:J=k,F0``: a spring compensator of stiffness k (N/m) and tension F0 (N)
   at the joint's zero on the revolute compliant joint J, geometry
-  :data:`stiffness.calibration.effects.COMPENSATOR_GEOMETRY`
+  :data:`stiffness.elastic.effects.COMPENSATOR_GEOMETRY`
   (:func:`stiffness.mechanics.gravity.spring_balancer`), in the exact equilibrium.
 
 With ``rotations``, the campaign also records the rotation vector of the target frame between
@@ -56,7 +56,8 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
-from stiffness.calibration.effects import (
+from stiffness.calibration.poses import sample_coordinates
+from stiffness.elastic.effects import (
     COMPENSATOR_GEOMETRY,
     LIBRARY,
     Geometry,
@@ -68,8 +69,6 @@ from stiffness.calibration.effects import (
     make_effect,
     rotation_matrix,
 )
-from stiffness.calibration.plan import Plan
-from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
@@ -86,7 +85,8 @@ from stiffness.mechanics.gravity import (
     spring_balancer,
     with_payload,
 )
-from stiffness.model.robot import Robot
+from stiffness.planning.plan import Plan
+from stiffness.robot.robot import Robot
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")
@@ -106,7 +106,7 @@ class HiddenEffect:
     Attributes
     ----------
     name
-        Library name (:data:`stiffness.calibration.effects.LIBRARY`).
+        Library name (:data:`stiffness.elastic.effects.LIBRARY`).
     where
         Joint, ``A->B`` segment, or ``None``.
     values
@@ -453,7 +453,7 @@ class Simulation:
                 "gravity_compensator": "N/m, N"},
             "settings": self.settings,
             "model": ("exact elastostatic equilibrium of the true robot"
-                      " (stiffness.calibration.simulate)"),
+                      " (stiffness.planning.simulate)"),
         }
 
     def write(self, folder: str | Path) -> Path:
@@ -547,10 +547,10 @@ def simulate(
         0.1 m apart). Declared with ``declare_noise``.
     loops, fixed_base
         Loop declaration overriding the robot's sidecar, and whether to fix a floating or
-        planar base (:func:`stiffness.model.robot.load_robot`); both are written into the
+        planar base (:func:`stiffness.robot.robot.load_robot`); both are written into the
         campaign's ``[robot]`` table.
     plan
-        Rows to simulate exactly (:class:`stiffness.calibration.plan.Plan`: coordinates,
+        Rows to simulate exactly (:class:`stiffness.planning.plan.Plan`: coordinates,
         applied forces, labels) instead of drawing ``configs`` poses and their loads.
 
     Raises

@@ -9,7 +9,7 @@ Each thing the toolkit reads differently from the file, or ignores, gives one
 
 Also read here, because Pinocchio's algorithms cannot use them: ``<mimic>`` tags (the follower
 joint is built as an ordinary joint and :class:`Mimic` records the coupling), and the visual
-geometry, whose mesh files are resolved by :mod:`stiffness.model.meshes`.
+geometry, whose mesh files are resolved by :mod:`stiffness.robot.meshes`.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import MissingFileError, RobotFileError, RobotFileWarning
-from stiffness.model import kinematics
-from stiffness.model.meshes import MissingMesh, resolve_visual_meshes
+from stiffness.robot import kinematics
+from stiffness.robot.meshes import MissingMesh, resolve_visual_meshes
 
 #: urdfdom messages that only repeat that an earlier, more specific error happened.
 _GENERIC = ("is not initialized correctly", "Failed to build tree", "Model xml is not",

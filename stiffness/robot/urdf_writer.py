@@ -1,7 +1,7 @@
 """Writing URDF documents: links, joints and their origins from homogeneous transforms.
 
 The one writer of the URDF files the toolkit generates (the SK120 of the paper reproduction,
-the parallel platforms of :mod:`stiffness.model.platform`). Numbers are written as Python's
+the parallel platforms of :mod:`stiffness.robot.platform`). Numbers are written as Python's
 shortest round-trip repr, so a file read back gives the same floats; rotations as Pinocchio's
 roll-pitch-yaw (``pin.rpy.matrixToRpy``), the convention the URDF reader inverts. Units: SI
 (m, rad, N.m, rad/s).

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from stiffness.model.kinematics import frame_id
+from stiffness.robot.kinematics import frame_id
 
 #: Joint types of Gepetto's ``joint_type`` key (upper case; files may use any case).
 JOINT_REWRITES = ("SPHERICAL", "FIXED") + tuple(
@@ -112,7 +112,7 @@ def lock_joints(model: pin.Model, visual, names: list[str], reference: np.ndarra
 def _reducible(model: pin.Model) -> pin.Model:
     """A copy of ``model`` that ``pin.buildReducedModel`` accepts, where it would raise a bare
     ``ValueError``: frames sharing a name (a URDF link and a joint) get unique names (the body
-    frame keeps it, as :func:`stiffness.model.kinematics.frame_id` would choose; the others
+    frame keeps it, as :func:`stiffness.robot.kinematics.frame_id` would choose; the others
     become ``<name>.<type>``), and velocity or effort limits whose lower bound exceeds the upper
     (seen in example-robot-data's reduced Talos legs) get the lower bound ``-upper``. Neither
     enters the elastostatics."""

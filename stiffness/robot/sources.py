@@ -23,8 +23,8 @@ import pinocchio as pin
 
 from stiffness.errors import FileFormatError, StiffnessError, UnknownRobotError, did_you_mean
 from stiffness.files import read_toml
-from stiffness.model.meshes import MissingMesh
-from stiffness.model.urdf import Mimic, mimic_tags, read_urdf, warn
+from stiffness.robot.meshes import MissingMesh
+from stiffness.robot.urdf import Mimic, mimic_tags, read_urdf, warn
 
 
 @dataclass

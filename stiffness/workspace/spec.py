@@ -7,7 +7,7 @@ need not hold the coordinates.
 
 Stored fields (:data:`STORED_FIELDS`) are the per-configuration results that no other stored
 array determines; :data:`DERIVED_FIELDS` are rebuilt from them when a scan is read
-(:func:`stiffness.scan.maps.derive`). SI units: rad, m, N, N.m/rad, N/m.
+(:func:`stiffness.workspace.maps.derive`). SI units: rad, m, N, N.m/rad, N/m.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ class ScanSpec:
     Attributes
     ----------
     robot
-        Keyword arguments of :func:`stiffness.model.robot.load_robot`.
+        Keyword arguments of :func:`stiffness.robot.robot.load_robot`.
     preset
         "grid", "samples", or the name of a preset that built the spec (a label).
     coordinate_joints

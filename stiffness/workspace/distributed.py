@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from stiffness.errors import StiffnessError
-from stiffness.model.robot import Robot, load_robot
+from stiffness.robot.robot import Robot, load_robot
 
 _ROBOTS: dict[str, list[Robot]] = {}
 _IN_USE: dict[int, tuple[str, Robot]] = {}
@@ -47,7 +47,7 @@ def worker_robot(robot_spec: dict) -> Robot:
     Parameters
     ----------
     robot_spec
-        Keyword arguments of :func:`stiffness.model.robot.load_robot` (``source``, ``frame``,
+        Keyword arguments of :func:`stiffness.robot.robot.load_robot` (``source``, ``frame``,
         ``target_offset``, ``compliant_joints``), JSON-serialisable.
     """
     key = json.dumps(robot_spec, sort_keys=True)

@@ -1,0 +1,1 @@
+"""Design layer: measurement plans, synthetic campaigns and the experiment-design workflow."""
