@@ -25,11 +25,12 @@ The command line turns each into exit status 2 and one line on stderr.
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
 
-def _restore(cls: type, args: tuple, state: dict) -> BaseException:
+def _restore(cls: type[BaseException], args: tuple, state: dict) -> BaseException:
     """Rebuild a pickled error (keyword-only attributes survive Dask and multiprocessing)."""
     exc = cls.__new__(cls)
     exc.args = args
@@ -100,7 +101,7 @@ class MissingFileError(StiffnessError):
     path : pathlib.Path
     """
 
-    def __init__(self, message: str, *, path: str | Path) -> None:
+    def __init__(self, message: str, *, path: str | os.PathLike[str]) -> None:
         super().__init__(message)
         self.path = Path(path)
 
@@ -114,7 +115,7 @@ class OutputError(StiffnessError):
         The file or folder that could not be written.
     """
 
-    def __init__(self, message: str, *, path: str | Path) -> None:
+    def __init__(self, message: str, *, path: str | os.PathLike[str]) -> None:
         super().__init__(message)
         self.path = Path(path)
 
@@ -136,7 +137,7 @@ class FileFormatError(StiffnessError):
     The message is ``"<path>, line L, column C (field): <problem>"`` (the known parts only).
     """
 
-    def __init__(self, problem: str, *, path: str | Path, line: int | None = None,
+    def __init__(self, problem: str, *, path: str | os.PathLike[str], line: int | None = None,
                  column: int | None = None, field: str | None = None) -> None:
         where = str(path)
         if line is not None:
@@ -208,7 +209,7 @@ class RobotFileError(FileFormatError):
     """A robot file (URDF, loop declaration) that cannot be read: ``path``, ``line`` (or None)
     and ``problem``, in :class:`FileFormatError`'s one-line form."""
 
-    def __init__(self, path: str | Path, line: int | None, problem: str,
+    def __init__(self, path: str | os.PathLike[str], line: int | None, problem: str,
                  column: int | None = None) -> None:
         super().__init__(problem, path=path, line=line, column=column)
 

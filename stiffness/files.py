@@ -21,6 +21,7 @@ import errno
 import json
 import os
 import re
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -32,7 +33,7 @@ from stiffness.errors import FileFormatError, MissingFileError, OutputError
 _TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
 
 
-def read_text(path: str | os.PathLike, what: str = "file") -> str:
+def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
     """The UTF-8 text of ``path`` (``what`` names the file in the error, e.g. "campaign file"),
     without the byte-order mark that spreadsheets and some editors put at its start.
 
@@ -60,11 +61,11 @@ def read_text(path: str | os.PathLike, what: str = "file") -> str:
                               path=path) from exc
 
 
-def read_toml(path: str | os.PathLike, what: str = "TOML file") -> dict[str, Any]:
+def read_toml(path: str | os.PathLike[str], what: str = "TOML file") -> dict[str, Any]:
     """The table of a TOML file; syntax errors carry their line and column."""
-    try:
+    if sys.version_info >= (3, 11):
         import tomllib
-    except ModuleNotFoundError:  # Python 3.10: the tomli backport has the same API
+    else:  # Python 3.10: the tomli backport has the same API
         import tomli as tomllib
 
     text = read_text(path, what)
@@ -80,7 +81,7 @@ def read_toml(path: str | os.PathLike, what: str = "TOML file") -> dict[str, Any
             column=int(where.group(2)) if where else None) from exc
 
 
-def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
+def read_json(path: str | os.PathLike[str], what: str = "JSON file") -> Any:
     """The content of a JSON file; syntax errors carry their line and column."""
     text = read_text(path, what)
     try:
@@ -90,7 +91,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
                               path=path, line=exc.lineno, column=exc.colno) from exc
 
 
-def read_yaml(path: str | os.PathLike, what: str = "YAML file") -> Any:
+def read_yaml(path: str | os.PathLike[str], what: str = "YAML file") -> Any:
     """The content of a YAML file; syntax errors carry their line and column."""
     import yaml
 
@@ -125,7 +126,7 @@ def _output_error(path: Path, exc: OSError) -> OutputError:
     return OutputError(f"cannot write {path}: {exc.strerror or exc}; {fix}", path=path)
 
 
-def output_folder(path: str | os.PathLike, create: bool = True) -> Path:
+def output_folder(path: str | os.PathLike[str], create: bool = True) -> Path:
     """Check (and with ``create``, make) the folder ``path`` for outputs.
 
     With ``create=False`` nothing is made: the check a command runs before its work, so a
@@ -182,7 +183,7 @@ def _remove_stale_temporaries(folder: Path) -> None:
             continue  # another user's live process
 
 
-def atomic_write_with(path: str | os.PathLike, write: Callable[[BinaryIO], object]) -> Path:
+def atomic_write_with(path: str | os.PathLike[str], write: Callable[[BinaryIO], object]) -> Path:
     """Write through ``write(binary_file)`` into a temporary file beside ``path``, then rename.
 
     The file keeps the mode of the file it replaces (else ``rw-r--r--``); on any error the
@@ -218,7 +219,7 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[BinaryIO], objec
     return path
 
 
-def atomic_write(path: str | os.PathLike, data: bytes | str) -> Path:
+def atomic_write(path: str | os.PathLike[str], data: bytes | str) -> Path:
     """Write ``data`` (text is UTF-8 encoded, newlines kept as given) atomically to ``path``."""
     payload = data.encode("utf-8") if isinstance(data, str) else data
     return atomic_write_with(path, lambda f: f.write(payload))
@@ -240,11 +241,10 @@ def resolve_path(path: str, folder: Path) -> str:
 
 def written_path(resolved: str, folder: Path) -> str:
     """An absolute path as written into a campaign file in ``folder`` (relative when possible)."""
-    resolved = Path(resolved)
     try:
-        written = os.path.relpath(resolved, folder.resolve())
+        written = os.path.relpath(Path(resolved), folder.resolve())
     except ValueError:  # another drive on Windows
-        written = str(resolved)
+        written = str(Path(resolved))
     return Path(written).as_posix()
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import html
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -73,7 +74,7 @@ def figure(anchor: str, png: bytes, caption: str) -> str:
             f"src='data:image/png;base64,{b64}'><figcaption>{esc(caption)}</figcaption></figure>")
 
 
-def provenance_block(prov: dict, extra: list[tuple[str, str]] = ()) -> str:
+def provenance_block(prov: dict, extra: Sequence[tuple[str, str]] = ()) -> str:
     """The provenance as a definition list (see :func:`stiffness.provenance.provenance`);
     ``extra`` rows are (name, HTML)."""
     commit = prov["git_commit"] or "not a git checkout"
