@@ -261,4 +261,4 @@ def test_the_diagnosis_does_not_depend_on_the_workers(monkeypatch):
     forked = diagnose(sim.campaign, propose=False, workers=2)
     assert alone.missing_effects == forked.missing_effects == ["backlash"]
     assert json.dumps(alone.summary()) == json.dumps(forked.summary())
-    assert alone.to_dict()["step_details"] == forked.to_dict()["step_details"]
+    assert alone.record()["step_details"] == forked.record()["step_details"]

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,7 +51,7 @@ from scipy.optimize import nnls
 from scipy.special import chdtrc, fdtrc, ndtri, stdtrit
 
 from stiffness.calibration import fitting
-from stiffness.calibration.campaign import Campaign, Units
+from stiffness.calibration.campaign import Campaign, Units, load_campaign
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit, FitJob, kind_noise, observations
 from stiffness.elastic.effects import (
@@ -660,8 +661,9 @@ class Diagnosis:
         """Names of the effects added."""
         return [s.effect.name for s in self.steps]
 
-    def summary(self) -> dict:
-        """The ``--json`` object: exactly the keys of the issue."""
+    def to_dict(self) -> dict:
+        """The object ``stiffness diagnose --json`` prints (campaign units): exactly the keys
+        of the issue; :meth:`record` has everything."""
         return jsonable({
             "baseline_rms": self._len(self.baseline.rms()),
             "noise_std": self._len(self.noise_std_m),
@@ -676,10 +678,15 @@ class Diagnosis:
             "unit": self.unit,
         })
 
-    def to_dict(self) -> dict:
-        """Everything: the summary plus the breakdowns, rankings, ambiguities, proposals."""
+    def summary(self) -> dict:
+        """The ``--json`` object (:meth:`to_dict`)."""
+        return self.to_dict()
+
+    def record(self) -> dict:
+        """Everything (``diagnosis.json``): :meth:`to_dict` plus the breakdowns, rankings,
+        ambiguities, proposals."""
         c = self.campaign
-        out = self.summary()
+        out = self.to_dict()
         out.update({
             "campaign": c.name,
             "campaign_path": str(c.path) if c.path is not None else None,
@@ -777,14 +784,15 @@ class Diagnosis:
         output_folder(folder)
         paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
                  "final_model": folder / FINAL_MODEL_FILE}
-        atomic_write(paths["diagnosis"], json.dumps(self.to_dict(), indent=1) + "\n")
+        record = self.record()
+        atomic_write(paths["diagnosis"], json.dumps(record, indent=1) + "\n")
         self.model_file().write(paths["final_model"])
         png = residual_plot(self)
         tmp = paths["plot"].with_suffix(".png.tmp")
         tmp.write_bytes(png)
         tmp.replace(paths["plot"])
         paths["page"] = folder / DIAGNOSIS_PAGE
-        atomic_write(paths["page"], render_diagnosis(self.to_dict(), png,
+        atomic_write(paths["page"], render_diagnosis(record, png,
                                                           provenance(command)))
         return paths
 
@@ -825,7 +833,7 @@ def _gof(rss: float, n: int, p: int, sigma: float | None) -> float | None:
 
 
 def diagnose(
-    campaign: Campaign,
+    campaign: Campaign | str | os.PathLike,
     max_steps: int = MAX_STEPS,
     seed: int = 0,
     propose: bool = True,
@@ -834,10 +842,13 @@ def diagnose(
 ) -> Diagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
+    The function behind ``stiffness diagnose`` (:meth:`Diagnosis.to_dict` is its ``--json``
+    object, :meth:`Diagnosis.write` writes its ``--out`` folder).
+
     Parameters
     ----------
     campaign
-        The campaign (SI rows).
+        The campaign (SI rows), or the path of a ``campaign.toml`` (or of its folder).
     max_steps
         Largest number of effects added.
     seed
@@ -865,127 +876,27 @@ def diagnose(
             or max_steps < 0:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
                              f"only), got {max_steps!r}")
+    if not isinstance(campaign, Campaign):
+        campaign = load_campaign(campaign)
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
-    robot = campaign.robot()
-    geo = Geometry.of(robot)
+    compliant = tuple(campaign.robot().compliant_joints)
+    geo = Geometry.of(campaign.robot())
     rows = geo.rows(campaign.q, campaign.force, campaign.moment,
                     labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
-    measured = campaign.deflection
-    n = measured.size * (1 if campaign.rotation is None else 2)
-    if n <= len(robot.compliant_joints) + 1:
+    n = campaign.deflection.size * (1 if campaign.rotation is None else 2)
+    if n <= len(compliant) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
-                             f"{len(robot.compliant_joints)} stiffnesses; add measurement rows")
-
-    # noise
-    sigma: float | None
-    note = ""
-    if campaign.noise_std_m is not None:
-        sigma, source = campaign.noise_std_m, "declared"
-        note = "declared noise_std of the campaign"
-    else:
-        rep = replicate_noise(campaign)
-        if rep is not None:
-            sigma, source = rep[0], "replicates"
-            note = f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)"
-        else:
-            sigma, source = None, "residuals"
-    rms_meas = float(np.sqrt(np.mean(measured ** 2)))
-    scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
-    rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma)
-    deflection = measured
-    measured = observations(deflection, campaign.rotation, weight)
-
-    # baseline
-    refs0 = References.of(geo, rows, 1e5, deflection)
-    model0 = Model(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0,
-                   weight)
-    base = fit_baseline(model0, measured, scale)
-    if rot_source == "residuals":  # the rotation noise from the baseline's residuals
-        res_t, res_r = base.residuals(measured)
-        s_t = sigma if sigma is not None else kind_noise(res_t, n, len(base.x))
-        rot_sigma = kind_noise(res_r, n, len(base.x))
-        if s_t and rot_sigma:
-            weight = s_t / rot_sigma
-            measured = observations(deflection, campaign.rotation, weight)
-            base = fit_baseline(model0.with_rotation_weight(weight), measured, scale)
-    k_ref = float(np.exp(np.mean(base.x)))
-    refs = References.of(geo, rows, k_ref, deflection)
-    base.model = base.model.with_refs(refs)
-    if sigma is None:
-        scale = max(base.rms(), 1e-12)
-        base = fit_model(base.model, measured, scale, base.x)
+                             f"{len(compliant)} stiffnesses; add measurement rows")
+    sigma, source, note = _translation_noise(campaign)
+    base, measured, scale, rot_sigma, rot_source = _baseline_fit(
+        campaign, Model(geo, rows, campaign.baseline, compliant, (),
+                        References.of(geo, rows, 1e5, campaign.deflection)), n, sigma)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
-
-    current = base
-    cv_current = cross_validate([base], measured, folds, workers)[0]
-    cv_base = cv_current
-    steps: list[Step] = []
-    ambiguities_raw: list[tuple[int, Candidate, Candidate, float]] = []
-    stop = ""
-    while True:
-        p_now = current.model.penalty_params
-        gof = _gof(current.rss, n, p_now, sigma)
-        if gof is not None and gof > 1.0 - GOF_LEVEL:
-            stop = (f"the model explains the data to noise (chi-square p = {gof:.3g} > "
-                    f"{1 - GOF_LEVEL:.2g})")
-            break
-        if len(steps) >= max_steps:
-            stop = f"stopped after {max_steps} effects (max_steps)"
-            break
-        effects = candidates(current.model)
-        fits = list(zip(effects, fitting.fit_models(
-            [fit_job(current.model.extended(e), measured, scale,
-                     current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE)
-             for e in effects], workers), strict=True))
-        results, dispersion = _ranked(current, fits, n, sigma)
-        best = {id(c.effect) for c in results[:REFINE_TOP]}
-        refine = [i for i, (e, _) in enumerate(fits) if id(e) in best]
-        refined = fitting.fit_models([fit_job(fits[i][1].model, measured, scale, fits[i][1].x)
-                                      for i in refine], workers)
-        for i, fit in zip(refine, refined, strict=True):
-            fits[i] = (fits[i][0], fit)
-        results, dispersion = _ranked(current, fits, n, sigma)
-        say(f"step {len(steps) + 1}: {len(results)} candidates; best "
-            + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}" for c in results[:3]))
-        eligible = [c for c in results if c.delta_bic < -BIC_MARGIN]
-        if not eligible:
-            stop = (f"no candidate improves BIC by more than {BIC_MARGIN:g}" if results
-                    else "no candidate left")
-            break
-        winner = None
-        tried = eligible[:CV_TOP]
-        for c, cv in zip(tried, cross_validate([c.fit for c in tried], measured, folds,
-                                               workers), strict=True):
-            c.cv_rms = cv
-            if winner is None and (not folds or c.cv_rms < cv_current):
-                winner = c
-        if winner is None:
-            stop = ("no candidate that improves BIC also improves the error predicted for "
-                    "held-out configurations (cross-validation)")
-            break
-        for c in results[:CV_TOP]:
-            if c is winner:
-                continue
-            similarity = _similarity(current, winner.fit, c.fit, scale)
-            d_bic = c.bic - winner.bic
-            if d_bic < AMBIGUITY_BIC or (similarity > SIMILARITY_LIMIT and d_bic < WEAK_BIC):
-                ambiguities_raw.append((len(steps) + 1, winner, c, similarity))
-        sig = sigma if sigma is not None else math.sqrt(winner.fit.rss / max(
-            n - winner.fit.model.penalty_params, 1))
-        cov = _covariance(winner.fit, sig)
-        quantile = _quantile(sigma, n, winner.fit.model.penalty_params)
-        params = _effect_parameters(winner.fit, cov, quantile, campaign.units)
-        ranking = [{"effect": c.effect.name, "where": c.effect.where,
-                    "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
-        steps.append(Step(winner.effect, winner.fit, winner.fit.rms(), winner.bic,
-                          winner.delta_bic, winner.cv_rms, params[winner.effect.label],
-                          ranking, dispersion))
-        say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
-        current, cv_current = winner.fit, winner.cv_rms
-
-    final = current
+    cv_base = cross_validate([base], measured, folds, workers)[0]
+    search = _Search(measured, folds, scale, n, sigma, workers, say)
+    final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.model.penalty_params
     gof_final = _gof(final.rss, n, p_final, sigma)
     if sigma is None:
@@ -1000,32 +911,8 @@ def diagnose(
     cov_final = _covariance(final, sigma_used)
     cov_base = _covariance(base, sigma_used if sigma is not None else math.sqrt(
         base.rss / max(n - base.model.penalty_params, 1)))
-    final_params = _effect_parameters(final, cov_final, quantile, campaign.units)
-    final_params_si = _effect_parameters(final, cov_final, quantile, SI_UNITS)
-    ambiguities = []
-    for step_no, w, c, similarity in ambiguities_raw:
-        sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma_used
-        d_bic = c.bic - w.bic
-        if d_bic < 0:
-            reason = ("BIC prefers the other, but it does not predict held-out configurations "
-                      "better than the current model (cross-validation)")
-        elif d_bic < AMBIGUITY_BIC:
-            reason = f"BIC within {AMBIGUITY_BIC:g}"
-        elif c.fit.model.penalty_params > w.fit.model.penalty_params:
-            reason = (f"similar signatures (cosine {similarity:.3f}); the chosen one wins by "
-                      "parsimony (fewer parameters), hardly by fit")
-        else:
-            reason = (f"similar signatures (cosine {similarity:.3f}) and BIC within "
-                      f"{WEAK_BIC:g}: weak evidence only")
-        amb = Ambiguity(step_no, w.effect.label, c.effect.label, d_bic, similarity, sep,
-                        reason, (w.cv_rms, c.cv_rms))
-        if propose and len(ambiguities) < 3:
-            try:
-                amb.proposals = propose_measurements(campaign, geo, w.fit, c.fit, sigma_used,
-                                                     seed=seed)
-            except StiffnessError as exc:  # no reachable pose sampled
-                amb.proposals = [{"note": str(exc)}]
-        ambiguities.append(amb)
+    ambiguities = _ambiguities(ambiguities_raw, sigma_used, campaign, geo,
+                               seed if propose else None)
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=_stiffness_parameters(base, cov_base, _quantile(
@@ -1041,10 +928,194 @@ def diagnose(
         gof_final=gof_final, unexplained=None if gof_final is None
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
-        elapsed_s=time.perf_counter() - t0, final_parameters=final_params,
-        final_parameters_si=final_params_si, measured=measured,
-        rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
+        elapsed_s=time.perf_counter() - t0,
+        final_parameters=_effect_parameters(final, cov_final, quantile, campaign.units),
+        final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS),
+        measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
     )
+
+
+def _translation_noise(campaign: Campaign) -> tuple[float | None, str, str]:
+    """The translation noise std (m; ``None`` when only the residuals can tell), its source
+    (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter."""
+    if campaign.noise_std_m is not None:
+        return campaign.noise_std_m, "declared", "declared noise_std of the campaign"
+    rep = replicate_noise(campaign)
+    if rep is not None:
+        return (rep[0], "replicates",
+                f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)")
+    return None, "residuals", ""
+
+
+def _baseline_fit(campaign: Campaign, model0: Model, n: int, sigma: float | None
+                  ) -> tuple[Fit, np.ndarray, float, float | None, str | None]:
+    """The campaign's baseline ``model0`` fitted (rotations weighted by their noise, estimated
+    from the baseline's residuals when not known), with the references of its stiffness.
+
+    Returns
+    -------
+    The fit, the observations (m, rotations weighted), the residual scale (m), the rotation
+    noise std (rad, or None) and its source.
+    """
+    deflection = campaign.deflection
+    rms_meas = float(np.sqrt(np.mean(deflection ** 2)))
+    scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
+    rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma)
+    measured = observations(deflection, campaign.rotation, weight)
+    model0 = model0.with_rotation_weight(weight)
+    base = fit_baseline(model0, measured, scale)
+    if rot_source == "residuals":  # the rotation noise from the baseline's residuals
+        res_t, res_r = base.residuals(measured)
+        s_t = sigma if sigma is not None else kind_noise(res_t, n, len(base.x))
+        rot_sigma = kind_noise(res_r, n, len(base.x))
+        if s_t and rot_sigma:
+            weight = s_t / rot_sigma
+            measured = observations(deflection, campaign.rotation, weight)
+            base = fit_baseline(model0.with_rotation_weight(weight), measured, scale)
+    k_ref = float(np.exp(np.mean(base.x)))
+    base.model = base.model.with_refs(References.of(model0.geometry, model0.rows, k_ref,
+                                                    deflection))
+    if sigma is None:
+        scale = max(base.rms(), 1e-12)
+        base = fit_model(base.model, measured, scale, base.x)
+    return base, measured, scale, rot_sigma, rot_source
+
+
+@dataclass
+class _Search:
+    """The effect search of :func:`diagnose` over fixed observations (m), cross-validation
+    folds, residual scale (m), residual count, noise std (m, or None) and workers."""
+
+    measured: np.ndarray
+    folds: list[np.ndarray]
+    scale: float
+    n: int
+    sigma: float | None
+    workers: int | None
+    say: Callable[[str], None]
+
+    def run(self, base: Fit, cv_base: float, max_steps: int, units: Units
+            ) -> tuple[Fit, list[Step], list[tuple[int, Candidate, Candidate, float]], str]:
+        """Add effects until the model fits to noise, ``max_steps`` or nothing helps.
+
+        Returns
+        -------
+        The final fit, the steps, the raw ambiguities ``(step, winner, other, similarity)``
+        and why the search stopped.
+        """
+        current, cv_current = base, cv_base
+        steps: list[Step] = []
+        ambiguities: list[tuple[int, Candidate, Candidate, float]] = []
+        while True:
+            gof = _gof(current.rss, self.n, current.model.penalty_params, self.sigma)
+            if gof is not None and gof > 1.0 - GOF_LEVEL:
+                return current, steps, ambiguities, (
+                    f"the model explains the data to noise (chi-square p = {gof:.3g} > "
+                    f"{1 - GOF_LEVEL:.2g})")
+            if len(steps) >= max_steps:
+                return (current, steps, ambiguities,
+                        f"stopped after {max_steps} effects (max_steps)")
+            results, dispersion = self.candidates(current)
+            self.say(f"step {len(steps) + 1}: {len(results)} candidates; best "
+                     + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}"
+                                 for c in results[:3]))
+            winner, stop = self.winner(results, cv_current)
+            if winner is None:
+                return current, steps, ambiguities, stop
+            for c in results[:CV_TOP]:
+                if c is winner:
+                    continue
+                similarity = _similarity(current, winner.fit, c.fit, self.scale)
+                d_bic = c.bic - winner.bic
+                if d_bic < AMBIGUITY_BIC or (similarity > SIMILARITY_LIMIT
+                                             and d_bic < WEAK_BIC):
+                    ambiguities.append((len(steps) + 1, winner, c, similarity))
+            steps.append(self.step(winner, results, dispersion, units))
+            self.say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
+            current, cv_current = winner.fit, winner.cv_rms
+
+    def candidates(self, current: Fit) -> tuple[list[Candidate], float]:
+        """Every library extension of ``current`` fitted (screened, the best refined), ranked
+        by BIC, and the step's overdispersion."""
+        effects = candidates(current.model)
+        fits = list(zip(effects, fitting.fit_models(
+            [fit_job(current.model.extended(e), self.measured, self.scale,
+                     current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE)
+             for e in effects], self.workers), strict=True))
+        results, _ = _ranked(current, fits, self.n, self.sigma)
+        best = {id(c.effect) for c in results[:REFINE_TOP]}
+        refine = [i for i, (e, _) in enumerate(fits) if id(e) in best]
+        refined = fitting.fit_models([fit_job(fits[i][1].model, self.measured, self.scale,
+                                              fits[i][1].x) for i in refine], self.workers)
+        for i, fit in zip(refine, refined, strict=True):
+            fits[i] = (fits[i][0], fit)
+        return _ranked(current, fits, self.n, self.sigma)
+
+    def winner(self, results: list[Candidate], cv_current: float
+               ) -> tuple[Candidate | None, str]:
+        """The lowest-BIC candidate past :data:`BIC_MARGIN` whose cross-validated error beats
+        ``cv_current`` (m), or ``None`` and why not."""
+        eligible = [c for c in results if c.delta_bic < -BIC_MARGIN]
+        if not eligible:
+            return None, (f"no candidate improves BIC by more than {BIC_MARGIN:g}" if results
+                          else "no candidate left")
+        winner = None
+        tried = eligible[:CV_TOP]
+        for c, cv in zip(tried, cross_validate([c.fit for c in tried], self.measured,
+                                               self.folds, self.workers), strict=True):
+            c.cv_rms = cv
+            if winner is None and (not self.folds or c.cv_rms < cv_current):
+                winner = c
+        if winner is None:
+            return None, ("no candidate that improves BIC also improves the error predicted "
+                          "for held-out configurations (cross-validation)")
+        return winner, ""
+
+    def step(self, winner: Candidate, results: list[Candidate], dispersion: float,
+             units: Units) -> Step:
+        """The :class:`Step` that adds ``winner``: its parameters with intervals, the step's
+        ranking."""
+        fit = winner.fit
+        sig = self.sigma if self.sigma is not None else math.sqrt(fit.rss / max(
+            self.n - fit.model.penalty_params, 1))
+        cov = _covariance(fit, sig)
+        quantile = _quantile(self.sigma, self.n, fit.model.penalty_params)
+        params = _effect_parameters(fit, cov, quantile, units)
+        ranking = [{"effect": c.effect.name, "where": c.effect.where,
+                    "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
+        return Step(winner.effect, fit, fit.rms(), winner.bic, winner.delta_bic,
+                    winner.cv_rms, params[winner.effect.label], ranking, dispersion)
+
+
+def _ambiguities(raw: list[tuple[int, Candidate, Candidate, float]], sigma: float,
+                 campaign: Campaign, geo: Geometry, seed: int | None) -> list[Ambiguity]:
+    """The pairs the campaign cannot tell apart, with why, and (``seed`` not None, first
+    three) the measurements that would (:func:`propose_measurements`); ``sigma`` in m."""
+    ambiguities = []
+    for step_no, w, c, similarity in raw:
+        sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma
+        d_bic = c.bic - w.bic
+        if d_bic < 0:
+            reason = ("BIC prefers the other, but it does not predict held-out configurations "
+                      "better than the current model (cross-validation)")
+        elif d_bic < AMBIGUITY_BIC:
+            reason = f"BIC within {AMBIGUITY_BIC:g}"
+        elif c.fit.model.penalty_params > w.fit.model.penalty_params:
+            reason = (f"similar signatures (cosine {similarity:.3f}); the chosen one wins by "
+                      "parsimony (fewer parameters), hardly by fit")
+        else:
+            reason = (f"similar signatures (cosine {similarity:.3f}) and BIC within "
+                      f"{WEAK_BIC:g}: weak evidence only")
+        amb = Ambiguity(step_no, w.effect.label, c.effect.label, d_bic, similarity, sep,
+                        reason, (w.cv_rms, c.cv_rms))
+        if seed is not None and len(ambiguities) < 3:
+            try:
+                amb.proposals = propose_measurements(campaign, geo, w.fit, c.fit, sigma,
+                                                     seed=seed)
+            except StiffnessError as exc:  # no reachable pose sampled
+                amb.proposals = [{"note": str(exc)}]
+        ambiguities.append(amb)
+    return ambiguities
 
 
 def _ranked(current: Fit, fits: list[tuple[Effect, Fit]], n: int, sigma: float | None

@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import ndtri, stdtrit
 
-from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.fitting import (
     Covariance,
     Fit,
@@ -220,6 +220,8 @@ class Identification:
     rotation_sigma_rad, rotation_sigma_source
         The rotation noise std (rad) and where it comes from (``declared
         rotation_noise_std`` or ``residuals``).
+    model_path
+        The identified-model file :meth:`write_model` wrote last, or ``None``.
     """
 
     campaign: str
@@ -262,6 +264,7 @@ class Identification:
     rotation_weight_m_per_rad: float | None = None
     robot_loops: str | None = None
     robot_fixed_base: bool = False
+    model_path: Path | None = None
 
     @property
     def rms_by_kind(self) -> dict[str, float | None]:
@@ -287,7 +290,9 @@ class Identification:
         return np.array([v * _paper_unit(u)[1] for v, u in zip(self.k, self.units, strict=True)])
 
     def to_dict(self) -> dict:
-        """JSON-ready dictionary (SI; eq. 12 also in mm^2; inf and NaN become null)."""
+        """JSON-ready dictionary (SI; eq. 12 also in mm^2; inf and NaN become null): the
+        object ``stiffness identify --json`` prints (``model_file``: the file
+        :meth:`write_model` wrote, ``None`` before)."""
         return jsonable({
             "campaign": self.campaign,
             "campaign_path": self.campaign_path,
@@ -343,6 +348,7 @@ class Identification:
                 "rms_rad": self.rms_by_kind["rotation_rad"],
                 "residuals_rad": self.rotation_residuals},
             "notes": list(self.notes),
+            "model_file": None if self.model_path is None else str(self.model_path),
         })
 
     def to_json(self, indent: int | None = 1) -> str:
@@ -383,9 +389,10 @@ class Identification:
         """Write the identified model (``identified-model.json``) atomically; returns its path.
 
         A URDF source is stored relative to the file's folder; read it back with
-        :func:`stiffness.elastic.model_file.read_model_file`.
+        :func:`stiffness.elastic.model_file.read_model_file`; :attr:`model_path` is set.
         """
-        return self.model_file().write(path)
+        self.model_path = self.model_file().write(path)
+        return self.model_path
 
 
 # ----------------------------------------------------------------------------------------------
@@ -465,7 +472,7 @@ def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = 
 
 
 def identify(
-    campaign: Campaign,
+    campaign: Campaign | str | os.PathLike,
     formulation: str | None = None,
     method: str = "trf",
     starts: int = 8,
@@ -475,10 +482,13 @@ def identify(
 ) -> Identification:
     """Identify the compliant joints' stiffnesses from a campaign (A&S eq. 11-13).
 
+    The function behind ``stiffness identify`` (:meth:`Identification.to_dict` is its
+    ``--json`` object once :meth:`Identification.write_model` has written the model file).
+
     Parameters
     ----------
     campaign
-        The measurements (SI).
+        The measurements (SI), or the path of a ``campaign.toml`` (or of its folder).
     formulation
         ``conventional``, ``enhanced`` or ``exact``; default the campaign's baseline.
     method
@@ -509,116 +519,55 @@ def identify(
         at least as many residuals as stiffnesses; without a declared noise, sigma needs more
         residuals than stiffnesses), or a row whose configuration cannot be assembled.
     """
+    if not isinstance(campaign, Campaign):
+        campaign = load_campaign(campaign)
     formulation = campaign.baseline if formulation is None else formulation
-    if formulation not in FORMULATIONS:
-        raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
-                               f"{', '.join(FORMULATIONS)}", name=formulation,
-                               choices=FORMULATIONS)
-    if method not in METHODS:
-        raise UnknownNameError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}",
-                               name=method, choices=METHODS)
-    if int(starts) < 1:
-        raise StiffnessError(f"starts must be at least 1, got {starts}")
+    _check_options(formulation, method, starts)
     rob = robot if robot is not None else campaign.robot()
-    p = rob.n_compliant
-    rotation = campaign.rotation
-    n_res = (3 if rotation is None else 6) * campaign.n_rows
-    declared = campaign.noise_std_m is not None
-    if method in ("lm", "both") and n_res < p:
-        raise StiffnessError(
-            f"method lm needs at least as many residuals as stiffnesses ({n_res} < {p}); add "
-            "measurement rows or use --method trf"
-        )
-    if not declared and n_res <= p:
-        raise StiffnessError(
-            f"{n_res} residuals cannot estimate the noise of {p} stiffnesses; add measurement "
-            "rows or declare [measurement] noise_std"
-        )
+    _check_residual_count(campaign, method, rob.n_compliant)
     model = stiffness_model(campaign, formulation, rob)
     measured = campaign.deflection
-    if declared:
+    if campaign.noise_std_m is not None:
         scale = campaign.noise_std_m
     else:  # any fixed scale: sigma is estimated from the residuals
         rms = float(np.sqrt(np.mean(measured ** 2)))
         scale = rms if rms > 0 else 1e-3
-    options = {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (p + 1)}
+    options = {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (rob.n_compliant + 1)}
     rot_sigma = rot_source = weight = None
-    if rotation is not None:
+    if campaign.rotation is not None:
         model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
             campaign, model, scale, options)
+    floor = _k_c_floor(model, formulation)
+    runs, fits = _least_squares_runs(model, measured, scale, formulation, method, starts,
+                                     seed, floor, options, progress)
+    rotations = (measured, weight, rot_sigma, rot_source)
+    return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
+                           rotations)
 
-    pre = model.with_baseline("enhanced") if formulation == "exact" else None
-    k_c = model.k_c()
-    sym = 0.5 * (k_c + np.transpose(k_c, (0, 2, 1)))
-    k_c_max = float(max(0.0, np.linalg.eigvalsh(sym).max())) if p else 0.0
-    floor = 0.0 if formulation == "conventional" else 2.0 * k_c_max
-    methods = ("trf", "lm") if method == "both" else (method,)
-    runs: list[StartResult] = []
-    fits: list[Fit] = []
-    total = int(starts) * len(methods)
-    for k0 in _starts(p, int(starts), seed):
-        k0 = np.maximum(k0, floor)
-        x_start = np.log(k0)
-        for meth in methods:
-            x0 = x_start
-            if pre is not None:
-                x0 = fit_model(pre, measured, scale, x0, meth, anchor=x_start, **options).x
-            fit = fit_model(model, measured, scale, x0, meth, anchor=x_start, **options)
-            fits.append(fit)
-            runs.append(StartResult(start=k0.copy(), method=meth, k=np.exp(fit.x),
-                                    cost=fit.cost, success=fit.success, message=fit.message,
-                                    nfev=fit.nfev))
-            if progress is not None:
-                progress(len(runs), total, f"{meth} from {np.array2string(k0, precision=3)}: "
-                                           f"cost {runs[-1].cost:.6g}")
+
+def _identification(campaign: Campaign, rob: Robot, model: Model, formulation: str,
+                    method: str, runs: list[StartResult], fits: list[Fit], floor: float,
+                    rotations: tuple) -> Identification:
+    """The :class:`Identification` of the best run: its uncertainty, what is undetermined,
+    whether the runs agree. ``rotations`` is ``(observations, weight (m/rad), rotation noise
+    std (rad) or None, its source)``, the last three ``None`` without measured rotations."""
+    measured, weight, rot_sigma, rot_source = rotations
+    p = rob.n_compliant
+    n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
     best_index = min(range(len(runs)), key=lambda i: runs[i].cost)
     best, best_fit = runs[best_index], fits[best_index]
     pred, rot_res = best_fit.predicted[:, :3], None
-    if rotation is not None:
+    if campaign.rotation is not None:
         rot_res = best_fit.residuals(measured)[1]
         if rot_source == "residuals":
             rot_sigma = kind_noise(rot_res, n_res, p)
-    ss_m2 = best_fit.rss
-    dof = n_res - p
-    sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
-    notes: list[str] = []
-    if declared:
-        sigma = campaign.noise_std_m
-        sigma_source = "declared noise_std"
-        quantile = float(ndtri(0.975))  # standard normal 97.5 % quantile
-        if sigma_res is not None and sigma_res > 2.0 * sigma:
-            notes.append(
-                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much larger than the "
-                f"declared noise_std ({sigma * 1e3:.4g} mm): model error or underestimated noise; "
-                "the confidence intervals are too narrow"
-            )
-    else:
-        sigma = sigma_res
-        sigma_source = "residuals (SS / (N - p))"
-        quantile = float(stdtrit(dof, 0.975))  # Student t, dof degrees of freedom
+    sigma, sigma_source, quantile, sigma_res, notes = _noise_level(campaign, best_fit.rss,
+                                                                   n_res - p)
     unc = _uncertainty(covariance(best_fit, sigma), best.k, quantile, rob.compliant_joints)
     undetermined = tuple(j for j, w in zip(rob.compliant_joints, unc.width, strict=True)
                          if not w <= REL_CI_WIDTH_LIMIT)
     determined = np.array([j not in undetermined for j in rob.compliant_joints])
-
-    tol_cost = 1e-6 * best.cost + 1e-20
-    at_best = [run.cost <= best.cost + tol_cost for run in runs]
-    starts_agree = all(ok and _agree(run.k, best.k, determined)
-                       for ok, run in zip(at_best, runs, strict=True))
-    if not all(at_best):
-        notes.append(
-            f"{at_best.count(False)} of {len(runs)} runs ended at a higher cost (a local minimum, "
-            "or stalled on a plateau where a stiffness is so high its joint no longer "
-            "contributes); the best run is kept"
-        )
-    elif not starts_agree:
-        notes.append("runs reach the same cost with different determined stiffnesses")
-    methods_agree = None
-    if method == "both":
-        best_of = {mm: min((r for r in runs if r.method == mm), key=lambda r: r.cost)
-                   for mm in methods}
-        methods_agree = _agree(best_of["trf"].k, best_of["lm"].k, determined) and abs(
-            best_of["trf"].cost - best_of["lm"].cost) <= tol_cost
+    starts_agree, methods_agree = _agreement(runs, best, determined, method, notes)
     options = campaign.robot_options()
     return Identification(
         campaign=campaign.name,
@@ -640,7 +589,7 @@ def identify(
         sigma_m=float(sigma),
         sigma_source=sigma_source,
         sigma_residual_m=sigma_res,
-        residual_ss_m2=ss_m2,
+        residual_ss_m2=best_fit.rss,
         n_residuals=n_res,
         n_parameters=p,
         n_rows=campaign.n_rows,
@@ -662,6 +611,118 @@ def identify(
         rotation_sigma_source=rot_source,
         rotation_weight_m_per_rad=weight,
     )
+
+
+def _check_options(formulation: str, method: str, starts: int) -> None:
+    """Refuse an unknown formulation or method, or fewer than one start (one line)."""
+    if formulation not in FORMULATIONS:
+        raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
+                               f"{', '.join(FORMULATIONS)}", name=formulation,
+                               choices=FORMULATIONS)
+    if method not in METHODS:
+        raise UnknownNameError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}",
+                               name=method, choices=METHODS)
+    if int(starts) < 1:
+        raise StiffnessError(f"starts must be at least 1, got {starts}")
+
+
+def _check_residual_count(campaign: Campaign, method: str, p: int) -> None:
+    """Refuse a campaign with too few residuals for ``p`` stiffnesses (one line)."""
+    n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
+    if method in ("lm", "both") and n_res < p:
+        raise StiffnessError(
+            f"method lm needs at least as many residuals as stiffnesses ({n_res} < {p}); add "
+            "measurement rows or use --method trf"
+        )
+    if campaign.noise_std_m is None and n_res <= p:
+        raise StiffnessError(
+            f"{n_res} residuals cannot estimate the noise of {p} stiffnesses; add measurement "
+            "rows or declare [measurement] noise_std"
+        )
+
+
+def _k_c_floor(model: Model, formulation: str) -> float:
+    """The lowest start stiffness (SI): twice the largest eigenvalue of K_C over the rows
+    (0 for the conventional formulation, which has no K_C)."""
+    k_c = model.k_c()
+    sym = 0.5 * (k_c + np.transpose(k_c, (0, 2, 1)))
+    k_c_max = float(max(0.0, np.linalg.eigvalsh(sym).max())) if len(model.compliant) else 0.0
+    return 0.0 if formulation == "conventional" else 2.0 * k_c_max
+
+
+def _least_squares_runs(model: Model, measured: np.ndarray, scale: float, formulation: str,
+                        method: str, starts: int, seed: int | None, floor: float,
+                        options: dict, progress: Callable[[int, int, str], None] | None
+                        ) -> tuple[list[StartResult], list[Fit]]:
+    """Every least-squares run: each start (raised to ``floor``, SI) by each method; the
+    exact formulation first converges each start with the enhanced one."""
+    pre = model.with_baseline("enhanced") if formulation == "exact" else None
+    methods = ("trf", "lm") if method == "both" else (method,)
+    runs: list[StartResult] = []
+    fits: list[Fit] = []
+    total = int(starts) * len(methods)
+    for k0 in _starts(len(model.compliant), int(starts), seed):
+        k0 = np.maximum(k0, floor)
+        x_start = np.log(k0)
+        for meth in methods:
+            x0 = x_start
+            if pre is not None:
+                x0 = fit_model(pre, measured, scale, x0, meth, anchor=x_start, **options).x
+            fit = fit_model(model, measured, scale, x0, meth, anchor=x_start, **options)
+            fits.append(fit)
+            runs.append(StartResult(start=k0.copy(), method=meth, k=np.exp(fit.x),
+                                    cost=fit.cost, success=fit.success, message=fit.message,
+                                    nfev=fit.nfev))
+            if progress is not None:
+                progress(len(runs), total, f"{meth} from {np.array2string(k0, precision=3)}: "
+                                           f"cost {runs[-1].cost:.6g}")
+    return runs, fits
+
+
+def _noise_level(campaign: Campaign, ss_m2: float, dof: int
+                 ) -> tuple[float, str, float, float | None, list[str]]:
+    """The noise std (m) the covariance uses, its source, the 97.5 % quantile of the
+    intervals, the residuals' own estimate (m, or None) and a note when they disagree."""
+    sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
+    notes: list[str] = []
+    if campaign.noise_std_m is not None:
+        sigma = campaign.noise_std_m
+        if sigma_res is not None and sigma_res > 2.0 * sigma:
+            notes.append(
+                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much larger than the "
+                f"declared noise_std ({sigma * 1e3:.4g} mm): model error or underestimated noise; "
+                "the confidence intervals are too narrow"
+            )
+        # standard normal 97.5 % quantile
+        return sigma, "declared noise_std", float(ndtri(0.975)), sigma_res, notes
+    # Student t, dof degrees of freedom
+    return (sigma_res, "residuals (SS / (N - p))", float(stdtrit(dof, 0.975)), sigma_res,
+            notes)
+
+
+def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarray,
+               method: str, notes: list[str]) -> tuple[bool, bool | None]:
+    """Whether every run reached the best cost and stiffnesses, and (``both``) whether trf and
+    lm agree; appends a note on runs that did not."""
+    tol_cost = 1e-6 * best.cost + 1e-20
+    at_best = [run.cost <= best.cost + tol_cost for run in runs]
+    starts_agree = all(ok and _agree(run.k, best.k, determined)
+                       for ok, run in zip(at_best, runs, strict=True))
+    if not all(at_best):
+        notes.append(
+            f"{at_best.count(False)} of {len(runs)} runs ended at a higher cost (a local minimum, "
+            "or stalled on a plateau where a stiffness is so high its joint no longer "
+            "contributes); the best run is kept"
+        )
+    elif not starts_agree:
+        notes.append("runs reach the same cost with different determined stiffnesses")
+    methods_agree = None
+    if method == "both":
+        best_of = {mm: min((r for r in runs if r.method == mm), key=lambda r: r.cost)
+                   for mm in ("trf", "lm")}
+        methods_agree = _agree(best_of["trf"].k, best_of["lm"].k, determined) and abs(
+            best_of["trf"].cost - best_of["lm"].cost) <= tol_cost
+    return starts_agree, methods_agree
 
 
 def _rotation_weighting(campaign: Campaign, model: Model, scale: float, options: dict

@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
                       workers=args.workers)
     paths = result.write(args.out, command_line(args)) if args.out else None
     if args.json:
-        print(json.dumps(result.summary(), indent=1, allow_nan=False))
+        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
         return 0
     print(format_report(result))
     if paths:

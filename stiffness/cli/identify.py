@@ -18,7 +18,6 @@ import json
 import sys
 from pathlib import Path
 
-from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import (
     FORMULATIONS,
     METHODS,
@@ -118,20 +117,17 @@ def format_table(result: Identification) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness identify``; returns the exit code."""
-    campaign = load_campaign(args.campaign)
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(done: int, total: int, text: str) -> None:
         sys.stderr.write(f"\rleast-squares run {done}/{total}" + ("\n" if done == total else ""))
         sys.stderr.flush()
 
-    result = identify(campaign, formulation=args.formulation, method=args.method,
+    result = identify(args.campaign, formulation=args.formulation, method=args.method,
                       starts=args.starts, seed=args.seed, progress=progress if show else None)
     out = result.write_model(Path(args.out))
     if args.json:
-        payload = result.to_dict()
-        payload["model_file"] = str(out)
-        print(json.dumps(payload, indent=1, allow_nan=False))
+        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
     else:
         print(format_table(result))
         print(f"identified model written to {out}")
