@@ -32,6 +32,12 @@ from stiffness.robot.robot import Robot
 
 #: Rows of the frame error a solve can hold.
 HOLDS = ("pose", "position")
+#: Smallest damping of a step (m, rad: the units of the frame error). Far below the singular
+#: values of a usable Jacobian (so convergence stays quadratic), it keeps each step finite where
+#: ``J J^T`` is singular (a joint on its limit, a singular pose).
+MIN_DAMPING = 1e-9
+#: A seed is moved this fraction of each joint's range inside its limits.
+SEED_INSET = 1e-3
 
 
 @dataclass
@@ -150,7 +156,7 @@ def solve_ik(
     coords = np.asarray(seed, dtype=float).copy()
     lo, hi = coordinate_limits(full) if limits else (None, None)
     if limits:
-        coords = np.clip(coords, lo, hi)
+        coords = inside_limits(coords, lo, hi)
     q = full.configuration(coords, seed=seed_q)
     kinematics.update_first_order(full.model, full.data, q)
     err, jac = frame_error(full, position, rotation)
@@ -165,14 +171,14 @@ def solve_ik(
             if cost > 0.25 * checkpoint:  # stalled (a limit, a singularity, out of reach)
                 break
             checkpoint = cost
-        step = _dls_step(jac, err, lam)
+        step = damped_step(jac, err, lam)
         if limits:
             # active set: joints at a limit that the step pushes outward are held there
             held = ((coords <= lo + 1e-12) & (step < 0)) | ((coords >= hi - 1e-12) & (step > 0))
             if held.any():
                 free = ~held
                 step = np.zeros_like(step)
-                step[free] = _dls_step(jac[:, free], err, lam)
+                step[free] = damped_step(jac[:, free], err, lam)
         trial = coords + step
         if limits:
             trial = np.clip(trial, lo, hi)
@@ -188,7 +194,7 @@ def solve_ik(
         cost_t = float(err_t @ err_t)
         if cost_t < cost:
             coords, q, err, jac, cost = trial, q_trial, err_t, jac_t, cost_t
-            lam = max(lam / 10.0, 1e-12)
+            lam = max(lam / 10.0, MIN_DAMPING)
         else:
             lam *= 10.0
             if lam > 1e6:
@@ -206,10 +212,32 @@ def solve_ik(
     return result
 
 
-def _dls_step(jac: np.ndarray, err: np.ndarray, lam: float) -> np.ndarray:
-    """Damped least-squares step ``J^T (J J^T + lambda^2 I)^-1 (-e)``."""
-    a = jac @ jac.T + lam ** 2 * np.eye(jac.shape[0])
-    return jac.T @ np.linalg.solve(a, -err)
+def inside_limits(coords: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``coords`` (rad, m) clipped into the limits, :data:`SEED_INSET` of each range inside them.
+
+    A seed on a limit leaves the active-set step only the joints that can move away from it,
+    which may be too few to move the target at all; a seed just inside keeps them all.
+    """
+    span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+    inset = SEED_INSET * span
+    return np.clip(coords, lo + inset, hi - inset)
+
+
+def damped_step(jac: np.ndarray, err: np.ndarray, lam: float) -> np.ndarray:
+    """Damped least-squares step ``J^T (J J^T + lambda^2 I)^-1 (-e)``, from the SVD of ``J``.
+
+    The same step written ``V diag(s / (s^2 + lambda^2)) U^T (-e)``: defined at any rank of
+    ``J`` (a direction the joints cannot move gets no motion), with ``lambda`` floored at
+    :data:`MIN_DAMPING`.
+    """
+    if jac.shape[1] == 0:
+        return np.zeros(0)
+    if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(err))):
+        raise ConvergenceError("inverse kinematics met a non-finite Jacobian or pose error "
+                               "(a NaN or infinite coordinate or target); give finite values")
+    u, s, vt = np.linalg.svd(jac, full_matrices=False)
+    lam = max(lam, MIN_DAMPING)
+    return vt.T @ ((s / (s ** 2 + lam ** 2)) * (u.T @ -err))
 
 
 def _converged(err: np.ndarray, tolerance: float) -> bool:
