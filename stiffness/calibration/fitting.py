@@ -32,6 +32,15 @@ metres at the optimum; singular values of the whitened ``J / sigma`` below
 :data:`SINGULAR_RTOL` times the largest are undetermined directions (not inverted), and a
 parameter with a component above :data:`UNSEEN_COMPONENT` along one of them has infinite
 variance.
+
+Robust losses (:data:`LOSSES`): ``loss`` other than ``linear`` minimises
+``sum f^2 rho((r / f)^2)`` of the scaled residuals ``r`` with scipy's ``rho`` (``soft_l1``,
+``huber``, ``cauchy``) and ``f`` the noise std in scaled units, so a residual beyond about
+``f`` weighs less than its square. Such a fit's covariance is Huber's sandwich (M-estimator)
+covariance ``K^2 [sum phi'^2 / (N - p)] / mean(phi'')^2 (J^T J)^+`` with
+``phi(r) = f^2 rho((r / f)^2) / 2`` (:func:`sandwich_matrix`): it takes the spread from the
+residuals themselves through the loss, not from an assumed noise, so its intervals stay
+honest when the data hold outliers or the noise is not the declared one.
 """
 
 from __future__ import annotations
@@ -68,6 +77,38 @@ _MAX_X = 230.0
 _FD_STEP = 1e-6
 #: Relative step of the solver's forward differences there (``sqrt(eps)``, as scipy's).
 _FORWARD_STEP = float(np.sqrt(np.finfo(float).eps))
+#: Losses of :func:`fit_model` (scipy.optimize.least_squares'): ``linear`` is least squares.
+LOSSES = ("linear", "soft_l1", "huber", "cauchy")
+
+
+def loss_terms(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``rho(z)``, ``rho'(z)`` and ``rho''(z)`` of a loss of :data:`LOSSES` at ``z = (r/f)^2``
+    (scipy's definitions: ``soft_l1`` ``2 (sqrt(1 + z) - 1)``, ``huber`` ``z`` up to 1 then
+    ``2 sqrt(z) - 1``, ``cauchy`` ``ln(1 + z)``)."""
+    z = np.asarray(z, dtype=float)
+    if loss == "linear":
+        return z, np.ones_like(z), np.zeros_like(z)
+    if loss == "soft_l1":
+        t = 1.0 + z
+        return 2.0 * (np.sqrt(t) - 1.0), t ** -0.5, -0.5 * t ** -1.5
+    if loss == "huber":
+        small = z <= 1.0
+        root = np.sqrt(np.where(small, 1.0, z))
+        return (np.where(small, z, 2.0 * root - 1.0), np.where(small, 1.0, 1.0 / root),
+                np.where(small, 0.0, -0.5 / root ** 3))
+    if loss == "cauchy":
+        t = 1.0 + z
+        return np.log1p(z), 1.0 / t, -1.0 / t ** 2
+    raise StiffnessError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}")
+
+
+def loss_sum(residuals: np.ndarray, loss: str, f_scale: float) -> float:
+    """``sum f^2 rho((r / f)^2)`` of scaled residuals ``r`` (the sum of squares for
+    ``linear``; twice scipy's ``cost``)."""
+    r = np.asarray(residuals, dtype=float).reshape(-1)
+    if loss == "linear":
+        return float(np.sum(r ** 2))
+    return float(f_scale ** 2 * np.sum(loss_terms(loss, (r / f_scale) ** 2)[0]))
 
 
 @dataclass
@@ -90,6 +131,10 @@ class Fit:
         The residual scale (m).
     success, message, nfev
         From :func:`scipy.optimize.least_squares`.
+    loss, f_scale
+        The loss (:data:`LOSSES`) and its soft threshold in units of ``scale``.
+    loss_value
+        ``sum f^2 rho((r / f)^2)`` of the scaled residuals at the optimum (:func:`loss_sum`).
     """
 
     model: Model
@@ -101,6 +146,9 @@ class Fit:
     success: bool = True
     message: str = ""
     nfev: int = 0
+    loss: str = "linear"
+    f_scale: float = 1.0
+    loss_value: float | None = None
 
     @property
     def n_residuals(self) -> int:
@@ -109,8 +157,19 @@ class Fit:
 
     @property
     def cost(self) -> float:
-        """Sum of squared scaled residuals ``rss / scale^2``."""
-        return self.rss / self.scale ** 2
+        """The minimised objective: ``rss / scale^2`` (linear loss), else
+        :attr:`loss_value`."""
+        if self.loss == "linear" or self.loss_value is None:
+            return self.rss / self.scale ** 2
+        return self.loss_value
+
+    @property
+    def loss_rss(self) -> float:
+        """The objective in m^2: :attr:`rss` for the linear loss, ``scale^2`` times
+        :attr:`loss_value` for a robust one (what selection criteria compare)."""
+        if self.loss == "linear" or self.loss_value is None:
+            return self.rss
+        return self.loss_value * self.scale ** 2
 
     def rms(self) -> float:
         """RMS residual component (m; rotations in translation-noise units)."""
@@ -251,7 +310,7 @@ class Objective:
 def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
               method: str = "trf", bounded: bool = True, anchor: np.ndarray | None = None,
               tolerance: float = 1e-10, max_nfev: int | None = None,
-              x_scale: float | None = None) -> Fit:
+              x_scale: float | None = None, loss: str = "linear", f_scale: float = 1.0) -> Fit:
     """Least squares of ``model`` on ``measured`` (m, 3) from ``x0``.
 
     Parameters
@@ -276,7 +335,16 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
         Evaluation budget (default ``40 (p + 1)``).
     x_scale
         Variable scale of the solver (default scipy's).
+    loss
+        One of :data:`LOSSES` (robust ones need ``method="trf"``).
+    f_scale
+        Soft threshold of a robust loss, in units of ``scale`` (the noise std / ``scale``).
     """
+    if loss not in LOSSES:
+        raise StiffnessError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}")
+    if loss != "linear" and method == "lm":
+        raise StiffnessError(f"loss {loss} needs method trf (Levenberg-Marquardt is least "
+                             "squares only); use --method trf or --loss linear")
     objective = Objective(model, measured, scale, anchor)
     x0 = np.asarray(x0, dtype=float)
     kwargs: dict = {"method": method, "xtol": tolerance, "ftol": tolerance, "gtol": tolerance,
@@ -286,6 +354,8 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
         x0 = np.clip(x0, lo, hi)
     if x_scale is not None:
         kwargs["x_scale"] = x_scale
+    if loss != "linear":
+        kwargs.update(loss=loss, f_scale=float(f_scale))
     # parameters the data do not see at the start stay there: their huge Gauss-Newton step
     # would otherwise take the trust region and the solver would crawl
     free = ~objective.unseen(x0)
@@ -306,7 +376,8 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
     r = objective.data(x)
     pred = measured + r.reshape(measured.shape) * scale
     return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), objective.data_jacobian(x),
-               scale, success, message, int(nfev))
+               scale, success, message, int(nfev), loss, float(f_scale),
+               loss_sum(r, loss, f_scale))
 
 
 @dataclass
@@ -396,9 +467,11 @@ class Covariance:
         return float(self.singular_values.max() / self.singular_values.min())
 
 
-def covariance(fit: Fit, sigma: float) -> Covariance:
+def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Covariance:
     """The covariance of ``fit.x`` for a noise std ``sigma`` (m), with one cut-off
-    (:data:`SINGULAR_RTOL`) for undetermined directions."""
+    (:data:`SINGULAR_RTOL`) for undetermined directions; for a robust loss, given the fitted
+    observations ``measured``, the sandwich (:func:`sandwich_matrix`) in the determined
+    directions instead of ``sigma^2 (J^T J)^+``."""
     white = fit.jacobian * (fit.scale / sigma)
     p = white.shape[1]
     # the (N, N) left vectors are never used: all p right vectors are there unless N < p
@@ -409,8 +482,47 @@ def covariance(fit: Fit, sigma: float) -> Covariance:
     zero = s <= SINGULAR_RTOL * smax if smax > 0 else np.ones(p, dtype=bool)
     inv_s2 = np.where(zero, 0.0, 1.0 / np.where(zero, 1.0, s) ** 2)
     cov = (vt.T * inv_s2) @ vt
+    if fit.loss != "linear":
+        if measured is None:
+            raise StiffnessError("the covariance of a robust fit needs its observations")
+        cov = sandwich_matrix(fit, measured, vt[~zero])
     if zero.any():
         unseen = (np.abs(vt[zero]) > UNSEEN_COMPONENT).any(axis=0)
         cov[unseen, :] = np.inf
         cov[:, unseen] = np.inf
     return Covariance(cov, s, vt, zero)
+
+
+def sandwich_matrix(fit: Fit, measured: np.ndarray, determined: np.ndarray) -> np.ndarray:
+    """Huber's sandwich covariance of a robust fit's ``x`` within the ``determined``
+    directions (see the module docstring).
+
+    ``A^+ B A^+`` with the bread ``A = mean(phi'') J^T J`` and the meat
+    ``B = sum(phi'^2) / (N - p) J^T J``, times Huber's small-sample factor
+    ``K^2 = (1 + p var(phi'') / (N mean(phi'')^2))^2`` (Huber 1981, sec. 7.6): the spread is
+    taken from the residuals through the loss, so gross outliers do not inflate it and the
+    declared noise is not assumed. For the linear loss it is ``sigma_res^2 (J^T J)^+`` with
+    ``sigma_res^2 = SS / (N - p)``.
+
+    Parameters
+    ----------
+    fit
+        A fit with a loss of :data:`LOSSES`.
+    measured
+        The observations it was fitted to (m), to form its scaled residuals.
+    determined
+        (d, p) orthonormal directions of ``x`` the data determine.
+    """
+    r = ((fit.predicted - measured) / fit.scale).reshape(-1)
+    f = fit.f_scale
+    _, d_rho, dd_rho = loss_terms(fit.loss, (r / f) ** 2)
+    psi = d_rho * r                                # d phi / d r
+    dpsi = d_rho + 2.0 * (r / f) ** 2 * dd_rho     # d^2 phi / d r^2
+    jac = fit.jacobian @ determined.T              # (N, d)
+    n, d = jac.shape
+    mean_dpsi = float(np.mean(dpsi))
+    if mean_dpsi <= 0 or n <= d:
+        return np.full((fit.x.size, fit.x.size), np.inf)
+    k = 1.0 + d / n * float(np.var(dpsi)) / mean_dpsi ** 2
+    factor = k ** 2 * float(np.sum(psi ** 2)) / (n - d) / mean_dpsi ** 2
+    return determined.T @ (factor * np.linalg.pinv(jac.T @ jac)) @ determined

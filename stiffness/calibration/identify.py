@@ -41,6 +41,11 @@ together: the rotation residuals are weighted by ``w = sigma_t / sigma_r``
 (:func:`stiffness.calibration.fitting.kind_noise`); ``sigma`` above is then ``sigma_t`` and
 the result reports the RMS of each kind.
 
+A robust ``loss`` (scipy's ``soft_l1``, ``huber``, ``cauchy``, scaled by the declared or
+robustly estimated noise) is minimised instead, with intervals from Huber's sandwich covariance
+(:mod:`stiffness.calibration.fitting`) and Student's ``t``. Every identification flags the rows
+beyond 4 noise std (:mod:`stiffness.calibration.outliers`) and drops none.
+
 A stiffness the data cannot determine is one whose 95 % interval is wider than the value itself
 (relative width > 1, infinite when the data do not excite it); a direction in ``ln k`` space is
 undetermined when the same criterion fails along a right-singular vector of the whitened
@@ -61,12 +66,19 @@ from scipy.special import ndtri, stdtrit
 
 from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.fitting import (
+    LOSSES,
     Covariance,
     Fit,
     covariance,
     fit_model,
     kind_noise,
     observations,
+)
+from stiffness.calibration.outliers import (
+    OUTLIER_THRESHOLD,
+    Outlier,
+    flag_fit,
+    robust_noise_scale,
 )
 from stiffness.elastic.effects import Geometry, Model, References
 from stiffness.elastic.model_file import ModelFile, jsonable
@@ -220,6 +232,13 @@ class Identification:
     rotation_sigma_rad, rotation_sigma_source
         The rotation noise std (rad) and where it comes from (``declared
         rotation_noise_std`` or ``residuals``).
+    loss
+        The fit's loss (:data:`stiffness.calibration.fitting.LOSSES`).
+    outliers
+        Rows whose standardised residual exceeds :data:`OUTLIER_THRESHOLD`
+        (:mod:`stiffness.calibration.outliers`), flagged and kept.
+    outlier_sigma_m
+        The noise std the residuals are standardised by (m).
     model_path
         The identified-model file :meth:`write_model` wrote last, or ``None``.
     """
@@ -265,6 +284,18 @@ class Identification:
     robot_loops: str | None = None
     robot_fixed_base: bool = False
     model_path: Path | None = None
+    loss: str = "linear"
+    outliers: list[Outlier] = field(default_factory=list)
+    outlier_sigma_m: float | None = None
+
+    @property
+    def ci95_method(self) -> str:
+        """How the 95 % intervals are computed."""
+        if self.loss == "linear":
+            return ("delta method on ln k: k exp(+-t SE(ln k)); t = Student (N - p dof) if "
+                    "sigma is estimated, normal if declared")
+        return (f"Huber's sandwich covariance of the {self.loss} fit's ln k, delta method: "
+                "k exp(+-t SE(ln k)), t = Student (N - p dof)")
 
     @property
     def rms_by_kind(self) -> dict[str, float | None]:
@@ -312,8 +343,11 @@ class Identification:
                     self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
                     self.ci95_low, self.ci95_high, self.relative_ci_width, strict=True)
             ],
-            "ci95_method": "delta method on ln k: k exp(+-t SE(ln k)); t = Student "
-                           "(N - p dof) if sigma is estimated, normal if declared",
+            "ci95_method": self.ci95_method,
+            "loss": self.loss,
+            "outlier_threshold": OUTLIER_THRESHOLD,
+            "outlier_sigma_m": self.outlier_sigma_m,
+            "outliers": [o.to_dict() for o in self.outliers],
             "covariance_log": self.covariance_log,
             "sigma_m": self.sigma_m,
             "sigma_source": self.sigma_source,
@@ -479,6 +513,7 @@ def identify(
     seed: int | None = 0,
     robot: Robot | None = None,
     progress: Callable[[int, int, str], None] | None = None,
+    loss: str = "linear",
 ) -> Identification:
     """Identify the compliant joints' stiffnesses from a campaign (A&S eq. 11-13).
 
@@ -506,6 +541,10 @@ def identify(
         The campaign's robot (default :meth:`Campaign.robot`).
     progress
         Called as ``progress(done, total, text)`` after each least-squares run.
+    loss
+        ``linear`` (least squares), or the robust ``soft_l1``, ``huber`` or ``cauchy``
+        (scipy's, ``f_scale`` the declared or robustly estimated noise; method ``trf`` only;
+        intervals from Huber's sandwich covariance).
 
     Returns
     -------
@@ -515,16 +554,17 @@ def identify(
     Raises
     ------
     StiffnessError
-        Unknown formulation or method, fewer than one start, too few residuals (``lm`` needs
+        Unknown formulation, method or loss (or a robust loss with ``lm``), fewer than one
+        start, too few residuals (``lm`` needs
         at least as many residuals as stiffnesses; without a declared noise, sigma needs more
         residuals than stiffnesses), or a row whose configuration cannot be assembled.
     """
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     formulation = campaign.baseline if formulation is None else formulation
-    _check_options(formulation, method, starts)
+    _check_options(formulation, method, starts, loss)
     rob = robot if robot is not None else campaign.robot()
-    _check_residual_count(campaign, method, rob.n_compliant)
+    _check_residual_count(campaign, method, rob.n_compliant, loss)
     model = stiffness_model(campaign, formulation, rob)
     measured = campaign.deflection
     if campaign.noise_std_m is not None:
@@ -532,25 +572,33 @@ def identify(
     else:  # any fixed scale: sigma is estimated from the residuals
         rms = float(np.sqrt(np.mean(measured ** 2)))
         scale = rms if rms > 0 else 1e-3
-    options = {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (rob.n_compliant + 1)}
+    options: dict = {"bounded": False, "tolerance": 1e-12,
+                     "max_nfev": 200 * (rob.n_compliant + 1)}
     rot_sigma = rot_source = weight = None
     if campaign.rotation is not None:
         model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
             campaign, model, scale, options)
+    robust_sigma: float | None = None
+    if loss != "linear":
+        robust_sigma = robust_noise_scale(model, measured, float(scale), campaign.noise_std_m,
+                                          loss, options, PAPER_START_SI)
+        options = {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}
     floor = _k_c_floor(model, formulation)
     runs, fits = _least_squares_runs(model, measured, scale, formulation, method, starts,
                                      seed, floor, options, progress)
     rotations = (measured, weight, rot_sigma, rot_source)
     return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
-                           rotations)
+                           rotations, robust_sigma)
 
 
 def _identification(campaign: Campaign, rob: Robot, model: Model, formulation: str,
                     method: str, runs: list[StartResult], fits: list[Fit], floor: float,
-                    rotations: tuple) -> Identification:
+                    rotations: tuple, robust_sigma: float | None = None) -> Identification:
     """The :class:`Identification` of the best run: its uncertainty, what is undetermined,
-    whether the runs agree. ``rotations`` is ``(observations, weight (m/rad), rotation noise
-    std (rad) or None, its source)``, the last three ``None`` without measured rotations."""
+    whether the runs agree, the rows flagged as outliers. ``rotations`` is ``(observations,
+    weight (m/rad), rotation noise std (rad) or None, its source)``, the last three ``None``
+    without measured rotations; ``robust_sigma`` the noise std (m) a robust loss was scaled
+    by (``None`` for least squares)."""
     measured, weight, rot_sigma, rot_source = rotations
     p = rob.n_compliant
     n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
@@ -562,8 +610,14 @@ def _identification(campaign: Campaign, rob: Robot, model: Model, formulation: s
         if rot_source == "residuals":
             rot_sigma = kind_noise(rot_res, n_res, p)
     sigma, sigma_source, quantile, sigma_res, notes = _noise_level(campaign, best_fit.rss,
-                                                                   n_res - p)
-    unc = _uncertainty(covariance(best_fit, sigma), best.k, quantile, rob.compliant_joints)
+                                                                   n_res - p, robust_sigma)
+    unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, quantile,
+                       rob.compliant_joints)
+    outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, p,
+                                    tuple(campaign.config or ()), campaign.lines)
+    if outliers and best_fit.loss == "linear":
+        notes.append(f"{len(outliers)} row(s) beyond {OUTLIER_THRESHOLD:g} noise std (listed "
+                     "as outliers, kept in the fit); --loss soft_l1 weighs them down")
     undetermined = tuple(j for j, w in zip(rob.compliant_joints, unc.width, strict=True)
                          if not w <= REL_CI_WIDTH_LIMIT)
     determined = np.array([j not in undetermined for j in rob.compliant_joints])
@@ -610,11 +664,16 @@ def _identification(campaign: Campaign, rob: Robot, model: Model, formulation: s
         rotation_sigma_rad=rot_sigma,
         rotation_sigma_source=rot_source,
         rotation_weight_m_per_rad=weight,
+        loss=best_fit.loss,
+        outliers=outliers,
+        outlier_sigma_m=flag_sigma,
     )
 
 
-def _check_options(formulation: str, method: str, starts: int) -> None:
-    """Refuse an unknown formulation or method, or fewer than one start (one line)."""
+
+def _check_options(formulation: str, method: str, starts: int, loss: str = "linear") -> None:
+    """Refuse an unknown formulation, method or loss, a robust loss with ``lm``, or fewer
+    than one start (one line)."""
     if formulation not in FORMULATIONS:
         raise UnknownNameError(f"unknown formulation {formulation!r}; valid formulations: "
                                f"{', '.join(FORMULATIONS)}", name=formulation,
@@ -624,17 +683,26 @@ def _check_options(formulation: str, method: str, starts: int) -> None:
                                name=method, choices=METHODS)
     if int(starts) < 1:
         raise StiffnessError(f"starts must be at least 1, got {starts}")
+    if loss not in LOSSES:
+        raise UnknownNameError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}",
+                               name=loss, choices=LOSSES)
+    if loss != "linear" and method != "trf":
+        raise StiffnessError(f"loss {loss} needs method trf (Levenberg-Marquardt is least "
+                             "squares only); use --method trf or --loss linear")
 
 
-def _check_residual_count(campaign: Campaign, method: str, p: int) -> None:
-    """Refuse a campaign with too few residuals for ``p`` stiffnesses (one line)."""
+def _check_residual_count(campaign: Campaign, method: str, p: int, loss: str = "linear"
+                          ) -> None:
+    """Refuse a campaign with too few residuals for ``p`` stiffnesses (one line); a robust
+    loss needs more residuals than stiffnesses (its sandwich covariance estimates the
+    spread)."""
     n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
     if method in ("lm", "both") and n_res < p:
         raise StiffnessError(
             f"method lm needs at least as many residuals as stiffnesses ({n_res} < {p}); add "
             "measurement rows or use --method trf"
         )
-    if campaign.noise_std_m is None and n_res <= p:
+    if (campaign.noise_std_m is None or loss != "linear") and n_res <= p:
         raise StiffnessError(
             f"{n_res} residuals cannot estimate the noise of {p} stiffnesses; add measurement "
             "rows or declare [measurement] noise_std"
@@ -679,12 +747,17 @@ def _least_squares_runs(model: Model, measured: np.ndarray, scale: float, formul
     return runs, fits
 
 
-def _noise_level(campaign: Campaign, ss_m2: float, dof: int
+def _noise_level(campaign: Campaign, ss_m2: float, dof: int, robust_sigma: float | None = None
                  ) -> tuple[float, str, float, float | None, list[str]]:
     """The noise std (m) the covariance uses, its source, the 97.5 % quantile of the
-    intervals, the residuals' own estimate (m, or None) and a note when they disagree."""
+    intervals, the residuals' own estimate (m, or None) and a note when they disagree; with
+    ``robust_sigma`` (m, a robust fit's scale) that one, and Student's t for the sandwich."""
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     notes: list[str] = []
+    if robust_sigma is not None:
+        source = ("declared noise_std" if campaign.noise_std_m is not None
+                  else "robust estimate (1.4826 median |residual|)")
+        return robust_sigma, source, float(stdtrit(dof, 0.975)), sigma_res, notes
     if campaign.noise_std_m is not None:
         sigma = campaign.noise_std_m
         if sigma_res is not None and sigma_res > 2.0 * sigma:

@@ -18,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+from stiffness.calibration.fitting import LOSSES
 from stiffness.calibration.identify import (
     FORMULATIONS,
     METHODS,
@@ -25,6 +26,7 @@ from stiffness.calibration.identify import (
     Identification,
     identify,
 )
+from stiffness.calibration.outliers import describe_outliers
 from stiffness.cli import flags
 
 
@@ -43,6 +45,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="number of starts: the paper's 1e8 N.mm/rad then log-uniform "
                              "random starts over 1e2..1e8 N.m/rad; default 8")
     flags.add_seed_flag(parser, "seed of the random starts; default 0")
+    parser.add_argument("--loss", choices=LOSSES, default="linear",
+                        help="linear (least squares) or a robust loss scaled by the declared "
+                             "or estimated noise, whose intervals come from Huber's sandwich "
+                             "covariance (method trf only); default linear")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (SI) instead of the table")
     parser.add_argument("--out", metavar="FILE", default=MODEL_FILE,
@@ -90,8 +96,8 @@ def format_table(result: Identification) -> str:
         f"residual norm (eq. 12): {_g(result.residual_ss_mm2)} mm^2 = "
         f"{_g(result.residual_ss_m2)} m^2 (RMS {_g(result.rms_residual_m * 1e3, 4)} mm per "
         "component)",
-        f"sigma: {_g(result.sigma_m * 1e3, 4)} mm from {result.sigma_source}; CI95 by the delta "
-        "method on ln k",
+        f"loss {result.loss}; sigma: {_g(result.sigma_m * 1e3, 4)} mm from "
+        f"{result.sigma_source}; CI95: {result.ci95_method}",
         f"condition number (Jacobian w.r.t. ln k): {_g(result.condition_number, 4)}",
     ]
     if result.rotation_residuals is not None:
@@ -111,6 +117,7 @@ def format_table(result: Identification) -> str:
                          f"{_g(d.relative_ci_width, 3)})")
     else:
         lines.append("undetermined: none")
+    lines += describe_outliers(result.outliers)
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
 
@@ -124,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.flush()
 
     result = identify(args.campaign, formulation=args.formulation, method=args.method,
-                      starts=args.starts, seed=args.seed, progress=progress if show else None)
+                      starts=args.starts, seed=args.seed, progress=progress if show else None,
+                      loss=args.loss)
     out = result.write_model(Path(args.out))
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
