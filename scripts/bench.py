@@ -82,7 +82,7 @@ def _robots() -> dict[str, tuple[Robot, np.ndarray]]:
 def _configurations(robot: Robot, m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(coordinates, closed q) of m random configurations (SK120: the paper's workspace)."""
     rng = np.random.default_rng(seed)
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         lo, hi = -np.pi, np.pi
         coords = rng.uniform(lo, hi, (m, robot.n_coordinates))
         return coords, batch.tree_configurations(robot, coords)
@@ -130,7 +130,7 @@ def finite_difference(robot: Robot, q: np.ndarray, k_theta: np.ndarray,
     cq = [model.joints[model.getJointId(j)].idx_q for j in robot.compliant_joints]
     cv = robot.compliant_v
     n = len(cq)
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         for qi in q:
             jac = frame_jacobian(model, data, qi, fid, LWA)[:3, cv]
             k_c = np.empty((n, n))
@@ -185,7 +185,7 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
         m = 512 if quick else 4096
         coords, q = _configurations(robot, m, seed=1)
         m = q.shape[0]
-        fd_m = min(m, 16 if robot.loop is not None else (64 if quick else 256))
+        fd_m = min(m, 16 if not robot.loop.is_open_chain else (64 if quick else 256))
         functions = {
             "bare_pinocchio_us": lambda r=robot, q=q: bare_pinocchio(r, q),
             "batched_kx_us": lambda r=robot, q=q, k=k_theta: batched(r, q, k),
@@ -193,7 +193,7 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
                 finite_difference(r, q, k),
         }
         counts = {"bare_pinocchio_us": m, "batched_kx_us": m, "finite_difference_us": fd_m}
-        if robot.loop is None:
+        if robot.loop.is_open_chain:
             functions["batched_kx_hessian_us"] = lambda r=robot, q=q, k=k_theta: batched(
                 r, q, k, "hessian")
             counts["batched_kx_hessian_us"] = m

@@ -98,7 +98,7 @@ def row(path: Path, root: Path) -> dict:
     out["loads"] = ("with --fixed-base" if fixed else "yes") + (
         f" ({len(caught)} warnings)" if caught else "")
     out["coordinates"] = str(robot.n_coordinates)
-    out["passive"] = str(len(robot.loop.passive_joints)) if robot.loop else "0"
+    out["passive"] = str(len(robot.loop.passive_joints))
     try:
         assembly = robot.assemble(None)
         out["idle"] = str(assembly.idle_passive_motions)

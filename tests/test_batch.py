@@ -202,7 +202,7 @@ def test_kinematics_and_k_c_equal_target_state(configurations, name):
     one-at-a-time target_state at every configuration, to round-off."""
     robot, q = configurations[name]
     assert q.shape[0] >= 5
-    tol = RTOL if robot.loop is None else RTOL_LOOP
+    tol = RTOL if robot.loop.is_open_chain else RTOL_LOOP
     rng = np.random.default_rng(10)
     wrenches = rng.normal(size=(3, 6)) * np.array([100, 100, 100, 20, 20, 20])
     kin = batch.batch_kinematics(robot, q, pose=True)
@@ -365,7 +365,7 @@ def test_evaluate_equals_one_at_a_time(configurations, name, formulation):
     formulation.compliance / cartesian_stiffness; where those raise, the batch flags the entry
     and returns NaN."""
     robot, q = configurations[name]
-    tol = RTOL if robot.loop is None else RTOL_LOOP
+    tol = RTOL if robot.loop.is_open_chain else RTOL_LOOP
     rng = np.random.default_rng(11)
     k_theta = rng.uniform(2e4, 4e5, robot.n_compliant)
     forces = rng.normal(size=(2, 3)) * 300

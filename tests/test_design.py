@@ -251,7 +251,7 @@ def test_plan_rows_are_within_limits_reachable_and_closed(pools, name, tmp_path)
         state = target_state(robot, q)
         assert np.linalg.matrix_rank(state.jacobian[:3]) == 3
         assert np.linalg.norm(f) == pytest.approx(force)
-        if robot.loop is not None:
+        if not robot.loop.is_open_chain:
             assert _loop_residual(robot, q) < 1e-9
         else:
             assert state.position[2] >= 0.0

@@ -155,7 +155,7 @@ def test_gepetto_files_load_unchanged(spinning):
     robot, warned = spinning
     # robot.yaml found beside robot.urdf; the rewrite made rod_ball spherical; passive joints
     # are every joint that is not a motor
-    assert robot.loop is not None and robot.loop_file.endswith("robot.yaml")
+    assert not robot.loop.is_open_chain and robot.loop_file.endswith("robot.yaml")
     assert robot.model.joints[robot.model.getJointId("rod_ball")].shortname() == \
         "JointModelSpherical"
     assert set(robot.loop.passive_joints) == {"rod_ball", "rocker_joint"}

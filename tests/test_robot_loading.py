@@ -85,7 +85,7 @@ def test_sk120_continuation_and_seed_agree(sk120, sk120_coords):
 def test_example_robot_defaults(ur5):
     assert ur5.target_frame == "tool0"  # the model's last frame
     assert ur5.compliant_joints == ur5.coordinate_joints
-    assert ur5.n_compliant == 6 and ur5.loop is None
+    assert ur5.n_compliant == 6 and ur5.loop.is_open_chain
     np.testing.assert_array_equal(ur5.target_offset, np.zeros(3))
 
 
@@ -258,7 +258,7 @@ def test_package_level_api_matches_the_modules():
     assert stiffness.target_state is formulation.target_state
     loaded = stiffness.load_robot("sk120")
     assert loaded.compliant_joints == ("joint1", "joint2", "joint3")
-    assert loaded.loop is not None and loaded.loop.passive_joints == ("elbow", "coupler_joint")
+    assert loaded.loop.passive_joints == ("elbow", "coupler_joint")
 
 
 @pytest.mark.parametrize("name", ["ur5", "panda", "solo12", "talos_arm", "double_pendulum"])

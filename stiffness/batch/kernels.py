@@ -172,7 +172,7 @@ def batch_kinematics(robot: Robot, q: np.ndarray, moments: bool = True,
             f"{robot.name} configurations have {robot.model.nq} values (Pinocchio q), got "
             f"{q.shape[1]}"
         )
-    frames = 1 + (0 if robot.loop is None else len(_loop_points(robot)))
+    frames = 1 + (0 if robot.loop.is_open_chain else len(_loop_points(robot)))
     per_configuration = 8 * 6 * robot.model.nv ** 2 * frames
     step = max(1, _RAW_BYTES // per_configuration)
     if q.shape[0] <= step:
@@ -201,7 +201,7 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
     raw = np.empty((m, 6, nv, nv))
     j_full = np.empty((m, 6, nv))
     placement = np.empty((m, 4, 4)) if pose else None
-    closure = None if robot.loop is None else _ClosurePass(robot, q)
+    closure = None if robot.loop.is_open_chain else _ClosurePass(robot, q)
 
     hessians = pin.computeJointKinematicHessians
     frame_hessian = pin.getFrameKinematicHessian
@@ -404,7 +404,7 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray | None
     :func:`_projected_point_hessian` on its diagonal), with ``[v_a; omega_a]`` the columns of the
     (m, 6, n) Jacobian, rows [v; omega].
     """
-    if robot.loop is not None or not one_coordinate_joints(robot):
+    if not robot.loop.is_open_chain or not one_coordinate_joints(robot):
         return None
     v, om = jacobian[:, :3], jacobian[:, 3:]
     return _cross0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
@@ -557,7 +557,7 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
     gravity_derivatives = pin.computeGeneralizedGravityDerivatives
     frame_jacobian = pin.getFrameJacobian
     position = np.empty((m, 3)) if pose else None
-    closure = None if robot.loop is None else _ClosurePass(robot, q)
+    closure = None if robot.loop.is_open_chain else _ClosurePass(robot, q)
     if closure is not None and closure.analytic:
         return _closed_point_force_block(robot, model, data, q, force, closure, position)
     translation = _frame_placement_views(data, fid)[1]

@@ -59,7 +59,7 @@ def loop_coordinate_indices(robot: Robot) -> np.ndarray:
     joints outside both supports do not touch it, so the passive joint values depend only on
     these coordinates. Empty for an open chain.
     """
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return np.zeros(0, dtype=int)
     model = robot.model
     path: set[str] = set()
@@ -162,7 +162,7 @@ def close_loops(robot: Robot, coordinates: np.ndarray) -> ClosedConfigurations:
     if not np.all(np.isfinite(coordinates)):
         raise StiffnessError("joint coordinates must be finite numbers")
     m = coordinates.shape[0]
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return ClosedConfigurations(tree_configurations(robot, coordinates),
                                     np.ones(m, dtype=bool), 0)
     keys_at = loop_coordinate_indices(robot)

@@ -244,7 +244,7 @@ def sampling_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Box (rad, m) the coordinates are drawn in when no workspace rule says otherwise: the
     limits (:func:`coordinate_limits`), narrowed around the reference assembly for loops."""
     lo, hi = coordinate_limits(robot)
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return lo, hi
     from stiffness.mechanics.defaults import default_coordinates
 
@@ -284,7 +284,7 @@ def singular_values(robot: Robot, q: np.ndarray) -> np.ndarray:
 def fold_ratio(robot: Robot, q: np.ndarray) -> float:
     """``sigma_min / sigma_max`` of the passive columns of the loop-closure Jacobian at ``q``
     (1 for a robot without loops; 0 on a fold)."""
-    if robot.loop is None or not len(robot.loop.passive_v):
+    if robot.loop.is_open_chain or not len(robot.loop.passive_v):
         return 1.0
     kinematics.update_first_order(robot.model, robot.data, q)
     cp = robot.loop.jacobian(robot.model, robot.data)[:, robot.loop.passive_v]
@@ -308,7 +308,7 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
     box = sampling_box(robot)
     rank = None
     fold_floor = 0.0
-    if fold_margin > 0 and robot.loop is not None:
+    if fold_margin > 0 and not robot.loop.is_open_chain:
         fold_floor = fold_margin * _reference_fold_ratio(robot)
     if singularity_margin > 0:
         probe = np.random.default_rng(int(rng.integers(2 ** 63)))

@@ -340,7 +340,7 @@ def coordinate_index(robot: Robot, name: str, flag: str) -> int:
     match = re.fullmatch(r"q(\d+)", name)
     if match and 1 <= int(match.group(1)) <= len(names):
         return int(match.group(1)) - 1
-    passive = robot.loop is not None and name in robot.loop.passive_joints
+    passive = not robot.loop.is_open_chain and name in robot.loop.passive_joints
     why = " (a passive loop joint: it follows the others)" if passive else ""
     raise UnknownJointError(
         f"{flag}: {name!r} is not a coordinate of {robot.name}{why}; use a joint name or q1..q"

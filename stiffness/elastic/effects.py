@@ -312,7 +312,7 @@ class Geometry:
             k_c[c] = np.array([s.k_c for s in states])
             pos[c] = states[0].position
             rot[c] = states[0].rotation
-            if self.robot.loop is None:
+            if self.robot.loop.is_open_chain:
                 g_tau[c], g_k[c] = gravity_preload(self.robot, q, columns=self.robot.coordinate_v)
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
                     chain_rot[index], force, moment, index, coords, g_tau[index], g_k[index])
@@ -1464,7 +1464,7 @@ def candidates(model: Model) -> list[Effect]:
     for name in ("frame_misalignment", "target_offset", "force_sensor_bias",
                  "deflection_offset"):
         add(LIBRARY[name]())
-    if geo.robot.loop is None:  # the weight of passive loop joints is not modelled
+    if geo.robot.loop.is_open_chain:  # the weight of passive loop joints is not modelled
         add(GravityPreload())
     for j in model.joints:
         if not geo.prismatic[geo.joints.index(j)]:

@@ -322,7 +322,7 @@ def deflected_configurations(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
     dv = np.zeros((q0.shape[0], model.nv))
     dv[:, robot.compliant_v] = dtheta
     target = np.array([pin.integrate(model, a, b) for a, b in zip(q0, dv, strict=True)])
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return target
     # keep the coordinates from target, the passive joints from the seed, then close
     q = seed.copy()

@@ -115,7 +115,7 @@ def velocity_projection(robot: Robot) -> np.ndarray:
     """
     model, data = robot.model, robot.data
     base = compliant_projection(robot)
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return base
     proj, _, valid, _ = closed_loop.velocity_map(
         robot.loop.world_jacobian(model, data)[None], robot.compliant_v, robot.loop.passive_v,
@@ -202,7 +202,7 @@ def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list
     hess = kinematics.frame_hessian(model, data, fid)
     position = kinematics.frame_position(data, fid)
     rotation = kinematics.frame_rotation(data, fid)
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         s = velocity_projection(robot)
         curvature = None
     else:

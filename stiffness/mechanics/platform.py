@@ -80,11 +80,11 @@ def solve_pose(robot: Robot, pose: pin.SE3, seed: np.ndarray, max_iterations: in
         kinematics.update_first_order(model, data, q)
         err_m = pose.actInv(data.oMf[fid])
         err = pin.log6(err_m).vector
-        res = np.concatenate([robot.loop.residual(model, data), err]) if robot.loop else err
+        res = np.concatenate([robot.loop.residual(model, data), err])
         if np.linalg.norm(res) < tolerance:
             return q
         jt = pin.Jlog6(err_m) @ pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL)
-        jac = np.vstack([robot.loop.jacobian(model, data), jt]) if robot.loop else jt
+        jac = np.vstack([robot.loop.jacobian(model, data), jt])
         q = pin.integrate(model, q, -np.linalg.lstsq(jac, res, rcond=1e-10)[0])
     raise ConvergenceError(
         f"the target frame of {robot.name} cannot reach the pose {pose.translation.round(6)} m "

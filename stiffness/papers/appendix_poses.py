@@ -160,7 +160,7 @@ def pinocchio_samples(robot: Robot, q_printed: np.ndarray) -> tuple[np.ndarray, 
     kc = np.zeros((len(q_printed), 3, 3, 3))
     for p, coords in enumerate(q_printed):
         q = robot.configuration(np.asarray(coords)[order])
-        if robot.loop is not None:
+        if not robot.loop.is_open_chain:
             q = _polished(robot, q)
         states = target_states(robot, q, np.eye(3))  # one kinematics, three unit forces
         kc[p] = [state.k_c * 1e3 for state in states]

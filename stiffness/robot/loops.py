@@ -62,6 +62,9 @@ LOOP_TYPES = {"3D": 3, "6D": 6}
 #: world-axes residual: origin, one metre along x, one metre along y.
 _FRAME_POINTS_M = (np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
 
+#: Two points that coincide on a closed "6D" loop: (parent joint id, placement in its frame).
+_PointPair = tuple[tuple[int, pin.SE3], tuple[int, pin.SE3]]
+
 
 @dataclass(frozen=True)
 class LoopPair:
@@ -210,6 +213,9 @@ class LoopClosure:
         Names of the loop's unactuated joints, solved from the closure.
     passive_v
         Velocity indices of the passive joints.
+
+    An open chain (a tree) has the loop closure with no pairs (:meth:`open_chain`): no
+    constraint rows, no passive joints.
     """
 
     pairs: tuple[LoopPair, ...]
@@ -218,6 +224,16 @@ class LoopClosure:
     constraint_datas: list
     passive_joints: tuple[str, ...]
     passive_v: np.ndarray = field(repr=False)
+
+    @classmethod
+    def open_chain(cls) -> LoopClosure:
+        """The loop closure of a tree: no pairs, no constraints, no passive joints."""
+        return cls((), [], [], [], (), np.zeros(0, dtype=int))
+
+    @property
+    def is_open_chain(self) -> bool:
+        """Whether there is no loop to close (a tree)."""
+        return not self.pairs
 
     @property
     def n_rows(self) -> int:
@@ -238,7 +254,7 @@ class LoopClosure:
         for cm, cd in zip(self.constraints, self.constraint_datas, strict=True):
             cm.calc(model, data, cd)
             out.append(np.array(cd.constraint_position_error))
-        return np.concatenate(out)
+        return np.concatenate(out) if out else np.zeros(0)
 
     def jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
         """Exact Jacobian (n_rows, nv) of :meth:`residual`; joint Jacobians must be up to date.
@@ -256,11 +272,12 @@ class LoopClosure:
                 a_m_b = cd.c1Mc2
                 jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() @ jac
             rows.append(jac)
-        return np.vstack(rows)
+        return np.vstack(rows) if rows else np.zeros((0, model.nv))
 
-    def _world_points(self, model: pin.Model):
-        """Per pair, the ((joint_a, placement_a), (joint_b, placement_b)) point pairs."""
-        out = []
+    def _world_points(self, model: pin.Model) -> list[list[_PointPair] | None]:
+        """Per pair, the ((joint_a, placement_a), (joint_b, placement_b)) point pairs (None for
+        a "3D" pair: its frame origins)."""
+        out: list[list[_PointPair] | None] = []
         for pair, (fa, fb) in zip(self.pairs, self.frame_ids, strict=True):
             if pair.kind == "3D":
                 out.append(None)
@@ -283,7 +300,7 @@ class LoopClosure:
                 continue
             for (ja, ma), (jb, mb) in points:
                 rows.append((data.oMi[jb] * mb).translation - (data.oMi[ja] * ma).translation)
-        return np.concatenate(rows)
+        return np.concatenate(rows) if rows else np.zeros(0)
 
     def world_jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
         """Jacobian (n_world_rows, nv) of the world-axes residual p_b - p_a."""
@@ -297,7 +314,7 @@ class LoopClosure:
             for (ja, ma), (jb, mb) in points:
                 rows.append(kinematics.point_jacobian(model, data, jb, mb)[:3]
                             - kinematics.point_jacobian(model, data, ja, ma)[:3])
-        return np.vstack(rows)
+        return np.vstack(rows) if rows else np.zeros((0, model.nv))
 
     def world_hessian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
         """Hessian (n_world_rows, nv, nv) of the world-axes residual (Hessians current).
@@ -314,7 +331,7 @@ class LoopClosure:
             for (ja, ma), (jb, mb) in points:
                 blocks.append(kinematics.point_hessian(model, data, jb, mb)
                               - kinematics.point_hessian(model, data, ja, ma))
-        return np.concatenate(blocks, axis=0)
+        return np.concatenate(blocks, axis=0) if blocks else np.zeros((0, model.nv, model.nv))
 
     def passive_rank(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9) -> int:
         """Rank of the passive columns of :meth:`jacobian` (rank-revealing SVD).

@@ -89,7 +89,7 @@ class Robot:
     compliant_joints
         Joints modelled as springs (a subset of ``coordinate_joints``); the rest are rigid.
     loop
-        Loop closures, or ``None`` for a tree.
+        Loop closures (:meth:`LoopClosure.open_chain`, with no pairs, for a tree).
     visual_model
         Pinocchio visual geometry, when the source provides meshes (for the viewer); for
         example-robot-data robots read on first use (it is most of their loading time).
@@ -120,7 +120,7 @@ class Robot:
     target_frame_id: int
     coordinate_joints: tuple[str, ...]
     compliant_joints: tuple[str, ...]
-    loop: LoopClosure | None = None
+    loop: LoopClosure = field(default_factory=LoopClosure.open_chain)
     _visual: object | None = field(default=None, repr=False)
     defaults: dict = field(default_factory=dict)
     mimics: tuple[Mimic, ...] = ()
@@ -232,7 +232,7 @@ class Robot:
         :meth:`coordinates_of`).
         """
         if coords is None:
-            if self.loop is None:
+            if self.loop.is_open_chain:
                 return self.assemble(np.zeros(self.n_coordinates))
             start_coords, q, searched = self._reference_assembly()
             self.last_assembly = self.closure_report(q, searched)
@@ -245,7 +245,7 @@ class Robot:
             )
         if not np.all(np.isfinite(coords)):
             raise StiffnessError(f"joint coordinates must be finite numbers, got {coords.tolist()}")
-        if self.loop is None:
+        if self.loop.is_open_chain:
             q = self._tree_configuration(coords, pin.neutral(self.model))
             self.last_assembly = Assembly(q, 0.0, 0, False)
             return self.last_assembly
@@ -264,7 +264,7 @@ class Robot:
 
     def closure_report(self, q: np.ndarray, searched: bool = False) -> Assembly:
         """Residual and idle passive motions of the loops at ``q`` (no closure is attempted)."""
-        if self.loop is None:
+        if self.loop.is_open_chain:
             return Assembly(q, 0.0, 0, searched)
         kinematics.update_first_order(self.model, self.data, q)
         residual = float(np.linalg.norm(self.loop.residual(self.model, self.data)))
@@ -559,10 +559,10 @@ def load_robot(
                                       None if declaration is None else declaration.rewrites,
                                       name, fixed_base)
     followers = tuple(m.follower for m in src.mimics)
-    loop = None
+    loop = LoopClosure.open_chain()
     if declaration is not None:
         loop = build_loop_closure(model, declaration, dependent=followers)
-    passive = set(loop.passive_joints) if loop else set()
+    passive = set(loop.passive_joints)
     mimics = _check_mimics(name, src.mimics, model, passive)
     dependent = {m.follower for m in mimics}
     coordinate_joints = []
@@ -594,7 +594,7 @@ def load_robot(
             )
         coordinate_joints = list(order)
 
-    closure = frozenset(n for p in (loop.pairs if loop else ()) for n in (p.frame_a, p.frame_b))
+    closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
     gripper = _gripper_joints(model, src.all_mimics + src.mimics)
     frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"),
                           closure, gripper)
