@@ -37,6 +37,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                    "joint commands that cancel the deflection along a path"),
     "posture": ("stiffness.cli.posture",
                 "the stiffest posture about the tool axis along a path"),
+    "robot": ("stiffness.cli.robot",
+              "robot files: export the loaded robot as a URDF or a MuJoCo model (MJCF)"),
 }
 
 

@@ -1,10 +1,12 @@
 """Writing URDF documents: links, joints and their origins from homogeneous transforms.
 
 The one writer of the URDF files the toolkit generates (the SK120 of the paper reproduction,
-the parallel platforms of :mod:`stiffness.robot.platform`). Numbers are written as Python's
-shortest round-trip repr, so a file read back gives the same floats; rotations as Pinocchio's
-roll-pitch-yaw (``pin.rpy.matrixToRpy``), the convention the URDF reader inverts. Units: SI
-(m, rad, N.m, rad/s).
+the parallel platforms of :mod:`stiffness.robot.platform`, any loaded robot written back by
+:mod:`stiffness.robot.export`). Numbers are written as Python's shortest round-trip repr, so a
+file read back gives the same floats; rotations as Pinocchio's roll-pitch-yaw
+(``pin.rpy.matrixToRpy``), the convention the URDF reader inverts. An unbounded limit is
+written as the largest finite double (URDF readers refuse ``inf``). Units: SI (m, rad, kg,
+kg.m^2, N.m or N, rad/s or m/s).
 """
 
 from __future__ import annotations
@@ -13,10 +15,18 @@ import numpy as np
 import pinocchio as pin
 from lxml import etree
 
+#: The largest finite double: what an unbounded limit is written as.
+LARGEST = float(np.finfo(float).max)
+
 
 def numbers(values) -> str:
     """A URDF vector attribute: each number as Python's shortest round-trip repr."""
     return " ".join(str(float(v)) for v in values)
+
+
+def bounded(value: float) -> str:
+    """A URDF limit: the number, or +-:data:`LARGEST` for an infinite one."""
+    return str(float(np.clip(float(value), -LARGEST, LARGEST)))
 
 
 def transform(xyz=(0.0, 0.0, 0.0), rotation: np.ndarray | None = None) -> np.ndarray:
@@ -46,18 +56,39 @@ class UrdfWriter:
         rpy = pin.rpy.matrixToRpy(np.ascontiguousarray(matrix[:3, :3]))
         etree.SubElement(parent, "origin", xyz=numbers(matrix[:3, 3]), rpy=numbers(rpy))
 
-    def link(self, name: str, box: tuple[list[float], np.ndarray] | None = None) -> None:
-        """Add a link, optionally with a box visual ``(size (m), origin transform)``."""
+    def link(self, name: str, box: tuple[list[float], np.ndarray] | None = None,
+             inertia: pin.Inertia | None = None) -> etree._Element:
+        """Add a link, optionally with a box visual ``(size (m), origin transform)`` and the
+        ``inertia`` of the link (mass kg, centre of mass m and rotational inertia about it
+        kg.m^2, in the link's frame; omitted when massless). Returns the link element."""
         element = etree.SubElement(self.robot, "link", name=name)
+        if inertia is not None and inertia.mass > 0.0:
+            inertial = etree.SubElement(element, "inertial")
+            self.origin(inertial, transform(inertia.lever))
+            etree.SubElement(inertial, "mass", value=str(float(inertia.mass)))
+            i = inertia.inertia
+            etree.SubElement(inertial, "inertia", **{
+                key: str(float(i[a, b])) for key, (a, b) in
+                (("ixx", (0, 0)), ("ixy", (0, 1)), ("ixz", (0, 2)), ("iyy", (1, 1)),
+                 ("iyz", (1, 2)), ("izz", (2, 2)))})
         if box is not None:
             size, centre = box
-            visual = etree.SubElement(element, "visual", name=f"{name}_visual")
-            etree.SubElement(etree.SubElement(visual, "geometry"), "box", size=numbers(size))
-            self.origin(visual, centre)
+            self.visual(element, f"{name}_visual", "box", {"size": numbers(size)}, centre)
+        return element
+
+    def visual(self, link: etree._Element, name: str, shape: str, attributes: dict[str, str],
+               origin: np.ndarray) -> None:
+        """Add to ``link`` a visual ``<shape **attributes>`` (``box``, ``cylinder``, ``sphere``,
+        ``mesh``; lengths in m) at the 4x4 transform ``origin`` in the link's frame."""
+        element = etree.SubElement(link, "visual", name=name)
+        etree.SubElement(etree.SubElement(element, "geometry"), shape, **attributes)
+        self.origin(element, origin)
 
     def joint(self, name: str, kind: str, parent: str, child: str, origin: np.ndarray,
               axis: list[float] | None = None,
-              limit: tuple[float, float, float, float] | None = None) -> None:
+              limit: tuple[float | None, float | None, float, float] | None = None,
+              dynamics: tuple[float, float] | None = None,
+              mimic: tuple[str, float, float] | None = None) -> None:
         """Add a joint.
 
         Parameters
@@ -69,7 +100,12 @@ class UrdfWriter:
         axis
             Joint axis in the joint frame (omitted for fixed joints).
         limit
-            ``(lower, upper, effort, velocity)`` in rad or m, N.m or N, rad/s or m/s.
+            ``(lower, upper, effort, velocity)`` in rad or m, N.m or N, rad/s or m/s;
+            ``lower`` and ``upper`` None for a continuous joint.
+        dynamics
+            ``(damping, friction)``: N.m.s/rad or N.s/m, and N.m or N; omitted when None.
+        mimic
+            ``(leader joint, multiplier, offset (rad or m))``: this joint follows the leader.
         """
         element = etree.SubElement(self.robot, "joint", name=name, type=kind)
         etree.SubElement(element, "parent", link=parent)
@@ -78,9 +114,18 @@ class UrdfWriter:
         if axis is not None:
             etree.SubElement(element, "axis", xyz=numbers(axis))
         if limit is not None:
-            lower, upper, effort, velocity = (float(v) for v in limit)
-            etree.SubElement(element, "limit", effort=str(effort), velocity=str(velocity),
-                             lower=str(lower), upper=str(upper))
+            lower, upper, effort, velocity = limit
+            bounds = {} if lower is None or upper is None else {
+                "lower": bounded(lower), "upper": bounded(upper)}
+            etree.SubElement(element, "limit", effort=bounded(effort),
+                             velocity=bounded(velocity), **bounds)
+        if dynamics is not None:
+            etree.SubElement(element, "dynamics", damping=str(float(dynamics[0])),
+                             friction=str(float(dynamics[1])))
+        if mimic is not None:
+            leader, multiplier, offset = mimic
+            etree.SubElement(element, "mimic", joint=leader, multiplier=str(float(multiplier)),
+                             offset=str(float(offset)))
 
     def text(self) -> str:
         """The document, indented, with its XML declaration."""

@@ -1,0 +1,240 @@
+"""A loaded robot as a MuJoCo model (MJCF), with joint springs, from its Pinocchio model.
+
+One ``<body>`` per moving joint, placed by the joint's placement in its parent (Pinocchio's
+``jointPlacements``), carrying the joint's whole inertia (``model.inertias``: fixed links are
+already merged into it) as ``<inertial pos mass fullinertia>``. Each ``BODY`` or operational
+frame fixed to a body is a ``<site>`` of the same name (``stiffness_target`` is the target), so
+forces can be applied and positions read where the toolkit reads them.
+
+Joints: revolute -> ``hinge`` (continuous ones unlimited), prismatic -> ``slide``, with the
+model's finite limits as ``range`` and its damping and friction. A compliant joint gets
+``stiffness`` (its spring, N.m/rad or N/m) and ``springref`` (the spring's rest value, rad or m).
+What the elastostatic model holds rigid is held by MuJoCo equality constraints: a rigid
+coordinate joint is locked at its rest value (``<joint joint1 polycoef>``), a mimic follower
+follows its leader, and each loop closure is a ``<connect site1 site2>`` ("3D": the two points
+coincide) or a ``<weld site1 site2>`` ("6D": the two frames coincide) between the sites of its
+frame pair. MuJoCo's constraints are soft; these are made stiff (``solref``, ``solimp`` of
+:data:`STIFF_SOLREF`, :data:`STIFF_SOLIMP`), so that they give way by far less than the springs
+under the loads a robot carries. Passive loop joints are free. A keyframe ``rest`` holds the
+full configuration at the springs' rest (loops closed). Gravity is the model's.
+
+MuJoCo refuses a moving body without mass; massless links (a purely kinematic model such as
+the SK120's) are given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by the
+compiler's ``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
+
+Units: SI (m, rad, kg, kg.m^2, N.m/rad, N/m).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pinocchio as pin
+from lxml import etree
+
+from stiffness.errors import RobotFileWarning, StiffnessError
+from stiffness.robot.robot import Robot
+from stiffness.robot.urdf_writer import numbers
+
+#: Equality constraints' solver reference (time constant s, damping ratio): the stiffest the
+#: default time step allows (MuJoCo keeps the time constant at least two time steps).
+STIFF_SOLREF = (0.004, 1.0)
+#: Equality constraints' impedance (dmin, dmax, width, midpoint, power): close to 1, so that
+#: the constraint gives way little under a static load.
+STIFF_SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
+#: Mass (kg) and inertia (kg.m^2) given to massless moving bodies.
+MASSLESS_BOUND_KG = 1e-6
+MASSLESS_BOUND_KGM2 = 1e-9
+
+_HINGES = {"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"}
+_CONTINUOUS = {"JointModelRUBX", "JointModelRUBY", "JointModelRUBZ",
+               "JointModelRevoluteUnboundedUnaligned"}
+_SLIDES = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
+_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
+
+
+def _quaternion(rotation: np.ndarray) -> str:
+    """MuJoCo's ``quat`` (w x y z) of a rotation matrix."""
+    q = pin.Quaternion(np.ascontiguousarray(rotation)).coeffs()  # x y z w
+    return numbers([q[3], q[0], q[1], q[2]])
+
+
+def _place(element: etree._Element, placement: pin.SE3) -> None:
+    element.set("pos", numbers(placement.translation))
+    element.set("quat", _quaternion(placement.rotation))
+
+
+def _axis(joint) -> np.ndarray:
+    kind = joint.shortname()
+    if kind[-1] in _AXES and not kind.endswith("Unaligned"):
+        return np.asarray(_AXES[kind[-1]])
+    return np.asarray(joint.extract().axis, dtype=float)
+
+
+def _joint_value(joint, q: np.ndarray) -> float:
+    """The MuJoCo coordinate (rad or m) of a one-degree-of-freedom joint at ``q``."""
+    if joint.shortname() in _CONTINUOUS:
+        cos, sin = q[joint.idx_q: joint.idx_q + 2]
+        return float(np.arctan2(sin, cos))
+    return float(q[joint.idx_q])
+
+
+def _check_joints(robot: Robot) -> None:
+    model = robot.model
+    for j in range(1, model.njoints):
+        kind = model.joints[j].shortname()
+        if kind not in _HINGES | _CONTINUOUS | _SLIDES:
+            raise StiffnessError(
+                f"joint {model.names[j]!r} of {robot.name} is a {kind}; the MJCF export "
+                "writes revolute, continuous and prismatic joints only (export the robot "
+                "without the loop file's joint rewrites)")
+
+
+def _joint(body: etree._Element, robot: Robot, j: int, springs: dict[str, float],
+           rest: np.ndarray) -> None:
+    """The ``<joint>`` of body ``j``, with its spring when compliant."""
+    model = robot.model
+    joint = model.joints[j]
+    kind = joint.shortname()
+    element = etree.SubElement(body, "joint", name=model.names[j],
+                               type="slide" if kind in _SLIDES else "hinge",
+                               axis=numbers(_axis(joint)))
+    lower, upper = model.lowerPositionLimit[joint.idx_q], model.upperPositionLimit[joint.idx_q]
+    largest = np.finfo(float).max
+    if kind not in _CONTINUOUS and -largest < lower < upper < largest:
+        element.set("range", numbers([lower, upper]))
+    if model.damping[joint.idx_v] > 0.0:
+        element.set("damping", str(float(model.damping[joint.idx_v])))
+    if model.friction[joint.idx_v] > 0.0:
+        element.set("frictionloss", str(float(model.friction[joint.idx_v])))
+    name = model.names[j]
+    if name in springs:
+        element.set("stiffness", str(float(springs[name])))
+        element.set("springref", str(_joint_value(joint, rest)))
+
+
+def _inertial(body: etree._Element, inertia: pin.Inertia) -> bool:
+    """Write the body's inertia; False when it is massless (nothing written)."""
+    if inertia.mass <= 0.0:
+        return False
+    i = inertia.inertia
+    etree.SubElement(body, "inertial", pos=numbers(inertia.lever), mass=str(float(inertia.mass)),
+                     fullinertia=numbers([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]))
+    return True
+
+
+def _sites(parent: etree._Element, robot: Robot, j: int, taken: set[str]) -> None:
+    """A site per body or operational frame moved by joint ``j``, at its placement."""
+    for f in robot.model.frames:
+        if f.parentJoint != j or f.name in taken or f.type not in (
+                pin.FrameType.BODY, pin.FrameType.OP_FRAME, pin.FrameType.SENSOR):
+            continue
+        taken.add(f.name)
+        _place(etree.SubElement(parent, "site", name=f.name), f.placement)
+
+
+def _bodies(parent: etree._Element, robot: Robot, j: int, springs: dict[str, float],
+            rest: np.ndarray, order: list[int], massless: list[str], taken: set[str]) -> None:
+    """The bodies of the children of joint ``j``, depth first (MuJoCo's coordinate order)."""
+    model = robot.model
+    for child in range(1, model.njoints):
+        if model.parents[child] != j:
+            continue
+        body = etree.SubElement(parent, "body", name=model.names[child])
+        _place(body, model.jointPlacements[child])
+        if not _inertial(body, model.inertias[child]):
+            massless.append(model.names[child])
+        _joint(body, robot, child, springs, rest)
+        order.append(child)
+        _sites(body, robot, child, taken)
+        _bodies(body, robot, child, springs, rest, order, massless, taken)
+
+
+def _equalities(root: etree._Element, robot: Robot, springs: dict[str, float],
+                rest: np.ndarray) -> None:
+    """Loop closures, locked rigid joints and mimic followers as equality constraints."""
+    stiff = {"solref": numbers(STIFF_SOLREF), "solimp": numbers(STIFF_SOLIMP)}
+    equality = etree.SubElement(root, "equality")
+    for pair in (robot.loop.pairs if robot.loop is not None else ()):
+        etree.SubElement(equality, "connect" if pair.kind == "3D" else "weld",
+                         name=f"loop_{pair.frame_a}_{pair.frame_b}", site1=pair.frame_a,
+                         site2=pair.frame_b, **stiff)
+    model = robot.model
+    for name in robot.coordinate_joints:
+        if name not in springs:
+            value = _joint_value(model.joints[model.getJointId(name)], rest)
+            etree.SubElement(equality, "joint", name=f"rigid_{name}", joint1=name,
+                             polycoef=numbers([value, 0, 0, 0, 0]), **stiff)
+    for m in robot.mimics:
+        etree.SubElement(equality, "joint", name=f"mimic_{m.follower}", joint1=m.follower,
+                         joint2=m.leader, polycoef=numbers([m.offset, m.multiplier, 0, 0, 0]),
+                         **stiff)
+    if len(equality) == 0:
+        root.remove(equality)
+
+
+def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str:
+    """The MJCF text of ``robot`` with joint springs (see the module docstring).
+
+    Parameters
+    ----------
+    robot
+        The robot.
+    springs
+        Stiffness of each compliant joint by name (N.m/rad or N/m); coordinate joints not
+        named are rigid (locked at their rest value).
+    rest
+        Full Pinocchio configuration at the springs' rest (loops closed): the springs'
+        ``springref`` and the keyframe ``rest``.
+
+    Raises
+    ------
+    StiffnessError
+        A joint MJCF export does not write, a spring on a joint that is not a coordinate.
+    """
+    _check_joints(robot)
+    unknown = [name for name in springs if name not in robot.coordinate_joints]
+    if unknown:
+        raise StiffnessError(f"a spring on {unknown[0]!r}, which is not a coordinate joint of "
+                             f"{robot.name} ({', '.join(robot.coordinate_joints)})")
+    model = robot.model
+    root = etree.Element("mujoco", model=model.name or robot.name)
+    compiler = etree.SubElement(root, "compiler", angle="radian", autolimits="true")
+    etree.SubElement(root, "option", gravity=numbers(model.gravity.linear))
+    world = etree.SubElement(root, "worldbody")
+    order: list[int] = []
+    massless: list[str] = []
+    taken: set[str] = set()
+    _sites(world, robot, 0, taken)
+    _bodies(world, robot, 0, springs, rest, order, massless, taken)
+    if massless:
+        compiler.set("boundmass", str(MASSLESS_BOUND_KG))
+        compiler.set("boundinertia", str(MASSLESS_BOUND_KGM2))
+        warnings.warn(f"{robot.name}: {len(massless)} massless links ({', '.join(massless)}) "
+                      f"written with {MASSLESS_BOUND_KG} kg and {MASSLESS_BOUND_KGM2} kg.m^2, "
+                      "as MuJoCo needs a mass on every moving body", RobotFileWarning,
+                      stacklevel=2)
+    _equalities(root, robot, springs, rest)
+    keyframe = etree.SubElement(root, "keyframe")
+    etree.SubElement(keyframe, "key", name="rest", qpos=numbers(
+        [_joint_value(model.joints[j], rest) for j in order]))
+    return etree.tostring(root, pretty_print=True, encoding="unicode")
+
+
+def check_mjcf(text: str, name: str) -> None:
+    """Compile ``text`` with MuJoCo; a model it refuses raises a one-line error.
+
+    Raises
+    ------
+    StiffnessError
+        MuJoCo does not compile the model (its message, on one line).
+    """
+    import mujoco
+
+    try:
+        mujoco.MjModel.from_xml_string(text)
+    except ValueError as exc:
+        problem = " ".join(str(exc).split())
+        raise StiffnessError(f"MuJoCo refuses the model written for {name}: {problem}; "
+                             "report this with the robot file") from exc

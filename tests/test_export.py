@@ -1,0 +1,179 @@
+"""``stiffness robot export``: the URDF reloads to the same robot; the MJCF's springs, simulated
+by MuJoCo (an independent engine), hold the target where the exact equilibrium puts it."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from stiffness.cli.main import main
+from stiffness.errors import RobotFileWarning
+from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.robot.mjcf import robot_mjcf
+from stiffness.robot.robot import load_robot
+
+TOLERANCE = 1e-12
+
+
+def exported(robot_name: str, tmp_path: Path, *extra: str) -> Path:
+    out = tmp_path / f"{robot_name}.urdf"
+    assert main(["robot", "export", "--robot", robot_name, "--urdf", str(out), "--quiet",
+                 *extra]) == 0
+    return out
+
+
+def configurations(robot, count: int, seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    if robot.loop is None:
+        return [pin.randomConfiguration(robot.model) for _ in range(count)]
+    base = np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float))
+    return [robot.configuration(base + rng.uniform(-0.2, 0.2, base.shape))
+            for _ in range(count)]
+
+
+@pytest.mark.parametrize("name", ["ur5", "panda", "sk120"])
+def test_urdf_reloads_to_the_same_kinematics_and_inertias(name, tmp_path):
+    robot = load_robot(name)
+    path = exported(name, tmp_path)
+    back = load_robot(str(path), frame=robot.target_frame, target_offset=robot.target_offset)
+    a, b = robot.model, back.model
+    assert [a.names[j] for j in range(a.njoints)] == [b.names[j] for j in range(b.njoints)]
+    for j in range(a.njoints):
+        assert a.joints[j].shortname() == b.joints[j].shortname(), a.names[j]
+        np.testing.assert_allclose(b.jointPlacements[j].homogeneous,
+                                   a.jointPlacements[j].homogeneous, atol=TOLERANCE)
+        np.testing.assert_allclose(b.inertias[j].toDynamicParameters(),
+                                   a.inertias[j].toDynamicParameters(), atol=TOLERANCE)
+    for limits in ("lowerPositionLimit", "upperPositionLimit", "effortLimit", "velocityLimit"):
+        np.testing.assert_array_equal(getattr(b, limits), getattr(a, limits))
+    assert back.mimics == robot.mimics
+    assert sorted(back.coordinate_joints) == sorted(robot.coordinate_joints)
+    if robot.loop is not None:  # the loops written beside the URDF were read back
+        assert back.loop is not None and back.loop.pairs == robot.loop.pairs
+        assert back.loop.passive_joints == robot.loop.passive_joints
+    da, db = a.createData(), b.createData()
+    for q in configurations(robot, 10, seed=1):
+        pin.framesForwardKinematics(a, da, q)
+        pin.framesForwardKinematics(b, db, q)
+        np.testing.assert_allclose(db.oMf[back.target_frame_id].homogeneous,
+                                   da.oMf[robot.target_frame_id].homogeneous, atol=TOLERANCE)
+        for frame in a.frames:
+            np.testing.assert_allclose(db.oMf[b.getFrameId(frame.name)].homogeneous,
+                                       da.oMf[a.getFrameId(frame.name)].homogeneous,
+                                       atol=TOLERANCE, err_msg=frame.name)
+
+
+def simulate_to_rest(xml: str, force: np.ndarray, armature: float, damping: np.ndarray):
+    """MuJoCo, gravity off, ``force`` (N, world axes) held at the site ``stiffness_target``,
+    damped until every joint velocity is below 1e-13: the site's position and qpos."""
+    import mujoco
+
+    m = mujoco.MjModel.from_xml_string(xml)
+    m.opt.gravity[:] = 0.0
+    m.opt.timestep = 1e-3
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    m.dof_armature[:] = armature  # rotor inertia: slows the wrist, does not change statics
+    m.dof_damping[:] = damping
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    mujoco.mj_forward(m, d)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "stiffness_target")
+    for step in range(1, 100_001):
+        d.qfrc_applied[:] = 0.0
+        mujoco.mj_applyFT(m, d, force, np.zeros(3), d.site_xpos[site], m.site_bodyid[site],
+                          d.qfrc_applied)
+        mujoco.mj_step(m, d)
+        if step > 10 and np.abs(d.qvel).max() < 1e-13:
+            break
+    else:
+        raise AssertionError("MuJoCo did not come to rest")
+    mujoco.mj_forward(m, d)
+    return d.site_xpos[site].copy(), d.qpos.copy()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_mujoco_springs_hold_the_target_at_the_exact_equilibrium(seed):
+    rng = np.random.default_rng(seed)
+    robot = load_robot("ur5", frame="tool0", target_offset=[0.0, 0.05, 0.1])
+    k = np.array([8e4, 8e4, 5e4, 2e4, 2e4, 2e4]) * rng.uniform(0.5, 2.0, 6)
+    q0 = robot.configuration(np.array([0.3, -1.1, 1.4, -0.6, 1.2, 0.4])
+                             + rng.uniform(-0.3, 0.3, 6))
+    force = rng.uniform(-80.0, 80.0, 3)
+    xml = robot_mjcf(robot, dict(zip(robot.compliant_joints, k, strict=True)), q0)
+    position, qpos = simulate_to_rest(xml, force, armature=0.05,
+                                      damping=2.0 * np.sqrt(k * 0.5))
+    exact = solve_equilibrium(robot, q0, np.diag(k), force)
+    assert np.linalg.norm(exact.dx) > 1e-4  # a deflection worth comparing (m)
+    relative = np.linalg.norm(position - exact.position) / np.linalg.norm(exact.dx)
+    assert relative < 1e-6, relative
+    np.testing.assert_allclose(qpos, exact.q, atol=1e-9)
+
+
+def test_mjcf_sites_and_loops_agree_with_pinocchio_at_the_rest_keyframe(tmp_path):
+    """Every site where Pinocchio puts its frame, the loop closed (connect residual ~ 0), the
+    springs at rest: the SK120 (loops, massless links) and the Panda (a mimic follower)."""
+    import mujoco
+
+    for name in ("sk120", "panda"):
+        robot = load_robot(name)
+        coords = np.linspace(0.1, 0.3, robot.n_coordinates)
+        q = robot.configuration(coords)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RobotFileWarning)
+            xml = robot_mjcf(robot, {j: 1e5 for j in robot.compliant_joints}, q)
+        m = mujoco.MjModel.from_xml_string(xml)
+        d = mujoco.MjData(m)
+        mujoco.mj_resetDataKeyframe(m, d, 0)
+        mujoco.mj_forward(m, d)
+        data = robot.model.createData()
+        pin.framesForwardKinematics(robot.model, data, q)
+        for i in range(m.nsite):
+            placement = data.oMf[robot.model.getFrameId(m.site(i).name)]
+            np.testing.assert_allclose(d.site_xpos[i], placement.translation, atol=1e-12)
+            np.testing.assert_allclose(d.site_xmat[i].reshape(3, 3), placement.rotation,
+                                       atol=1e-12)
+        equality = d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+        np.testing.assert_allclose(d.efc_pos[equality], 0.0, atol=1e-12)
+        assert m.neq == (len(robot.loop.pairs) if robot.loop else 0) + len(robot.mimics) + \
+            len(set(robot.coordinate_joints) - set(robot.compliant_joints))
+        np.testing.assert_allclose(d.qfrc_spring, 0.0, atol=1e-9)
+
+
+def test_mjcf_from_a_model_file_carries_its_springs(tmp_path):
+    import mujoco
+
+    from stiffness.elastic.model_file import read_model_file
+
+    model = Path(__file__).resolve().parent / "data" / "sk120-final-model.json"
+    out = tmp_path / "sk120.xml"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RobotFileWarning)
+        assert main(["robot", "export", "--model", str(model), "--mjcf", str(out),
+                     "--quiet"]) == 0
+    m = mujoco.MjModel.from_xml_path(str(out))
+    written = read_model_file(model)
+    springs = dict(zip(written.compliant_joints, written.k_theta, strict=True))
+    springs.update({e.where: e.value("stiffness") for e in written.effects
+                    if e.name == "joint_compliance"})
+    for joint in range(m.njnt):
+        assert m.jnt_stiffness[joint] == springs.get(m.joint(joint).name, 0.0)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--robot", "ur5"], ["--urdf", "--mjcf"]),
+    (["--robot", "ur5", "--mjcf", "OUT"], ["--kq is required"]),
+    (["--robot", "ur5", "--mjcf", "OUT", "--kq", "1,2"], ["--kq needs 6"]),
+    (["--robot", "nosuchrobot", "--urdf", "OUT"], ["nosuchrobot"]),
+])
+def test_bad_input_gives_one_line(args, words, tmp_path, capsys):
+    out = str(tmp_path / "out.xml")
+    assert main(["robot", "export", *[out if a == "OUT" else a for a in args]]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    for word in words:
+        assert word in lines[0], lines[0]
+    assert not (tmp_path / "out.xml").exists()
