@@ -28,7 +28,7 @@ def exported(robot_name: str, tmp_path: Path, *extra: str) -> Path:
 
 def configurations(robot, count: int, seed: int) -> list[np.ndarray]:
     rng = np.random.default_rng(seed)
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return [pin.randomConfiguration(robot.model) for _ in range(count)]
     base = np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float))
     return [robot.configuration(base + rng.uniform(-0.2, 0.2, base.shape))
@@ -52,8 +52,8 @@ def test_urdf_reloads_to_the_same_kinematics_and_inertias(name, tmp_path):
         np.testing.assert_array_equal(getattr(b, limits), getattr(a, limits))
     assert back.mimics == robot.mimics
     assert sorted(back.coordinate_joints) == sorted(robot.coordinate_joints)
-    if robot.loop is not None:  # the loops written beside the URDF were read back
-        assert back.loop is not None and back.loop.pairs == robot.loop.pairs
+    if not robot.loop.is_open_chain:  # the loops written beside the URDF were read back
+        assert back.loop.pairs == robot.loop.pairs
         assert back.loop.passive_joints == robot.loop.passive_joints
     da, db = a.createData(), b.createData()
     for q in configurations(robot, 10, seed=1):
@@ -138,7 +138,7 @@ def test_mjcf_sites_and_loops_agree_with_pinocchio_at_the_rest_keyframe(tmp_path
                                        atol=1e-12)
         equality = d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
         np.testing.assert_allclose(d.efc_pos[equality], 0.0, atol=1e-12)
-        assert m.neq == (len(robot.loop.pairs) if robot.loop else 0) + len(robot.mimics) + \
+        assert m.neq == len(robot.loop.pairs) + len(robot.mimics) + \
             len(set(robot.coordinate_joints) - set(robot.compliant_joints))
         np.testing.assert_allclose(d.qfrc_spring, 0.0, atol=1e-9)
 

@@ -289,7 +289,7 @@ def loops_yaml(robot: Robot) -> str | None:
     ``passive_joints``) to write beside its URDF, or None for a tree."""
     import yaml
 
-    if robot.loop is None:
+    if robot.loop.is_open_chain:
         return None
     declaration = {
         "closed_loop": [[p.frame_a, p.frame_b] for p in robot.loop.pairs],

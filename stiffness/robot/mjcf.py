@@ -156,7 +156,7 @@ def _equalities(root: etree._Element, robot: Robot, springs: dict[str, float],
     """Loop closures, locked rigid joints and mimic followers as equality constraints."""
     stiff = {"solref": numbers(STIFF_SOLREF), "solimp": numbers(STIFF_SOLIMP)}
     equality = etree.SubElement(root, "equality")
-    for pair in (robot.loop.pairs if robot.loop is not None else ()):
+    for pair in robot.loop.pairs:
         etree.SubElement(equality, "connect" if pair.kind == "3D" else "weld",
                          name=f"loop_{pair.frame_a}_{pair.frame_b}", site1=pair.frame_a,
                          site2=pair.frame_b, **stiff)
