@@ -23,14 +23,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 from stiffness.calibration.campaign import Units, load_campaign
 from stiffness.calibration.experiment import CRITERIA
 from stiffness.cli import flags
-from stiffness.cli.kx import _identified_model
 from stiffness.elastic.effects import BASELINES
-from stiffness.errors import StiffnessError
+from stiffness.elastic.model_file import read_model_file
 from stiffness.files import output_folder
 from stiffness.planning.design import (
     DEFAULT_CANDIDATES,
@@ -38,9 +36,9 @@ from stiffness.planning.design import (
     DesignResult,
     check_sizes,
     design,
+    design_robot,
     parse_separate,
 )
-from stiffness.planning.plan import write_plan
 from stiffness.units import LENGTH_UNITS
 
 
@@ -85,24 +83,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="PLAN.csv",
                         help="plan to write: a .csv file, or a folder (campaign.toml + plan.csv)")
     flags.add_output_flags(parser, quiet_help="no progress on stderr")
-
-
-def _robot(args: argparse.Namespace, existing):
-    """The robot of the flags, ``--model``'s, or the existing campaign's (flags override)."""
-    fallback = _identified_model(args)
-    if fallback is None and existing is not None:
-        s = existing.robot_settings
-        if (args.robot is None and args.frame is None and args.target_offset is None
-                and args.compliant_joints is None):
-            return existing.robot()
-        fallback = SimpleNamespace(source=existing.resolved_source(), frame=s.frame,
-                                   target_offset_m=s.target_offset_m,
-                                   compliant_joints=s.compliant_joints
-                                   or existing.robot().compliant_joints)
-    robot = flags.robot_flags(args, fallback)
-    if robot.source is None:
-        raise StiffnessError("--robot is required (or --model FILE, or --existing CAMPAIGN)")
-    return robot.load()
 
 
 def format_report(result: DesignResult) -> str:
@@ -164,23 +144,18 @@ def run(args: argparse.Namespace) -> int:
     if args.separate is not None:
         parse_separate(args.separate)
     existing = load_campaign(args.existing) if args.existing else None
-    robot = _robot(args, existing)
+    model = None
+    if args.model is not None:
+        model = read_model_file(args.model)
+        if args.robot is not None:
+            model.check_robot(args.robot)
+    robot = flags.robot_flags(args)
+    robot = design_robot(robot.source, robot.frame, robot.target_offset, robot.compliant_joints,
+                         robot.loops, robot.fixed_base, model=model, existing=existing)
     units = existing.units if existing is not None else Units()
     if args.units is not None:
         units = Units(units.angle, units.force, args.units)
     flags.check_noise_std(args.noise, "--noise", units.length)
-    k, k_source = None, None
-    model = _identified_model(args)
-    if args.kq is not None:
-        k, k_source = flags.parse_list(args.kq, "--kq"), "--kq"
-    elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
-        k, k_source = model.k_theta, f"the model file {args.model}"
-    formulation = args.formulation
-    if formulation is None and existing is not None:
-        formulation = existing.baseline
-    if formulation is None and model is not None and model.formulation in BASELINES:
-        formulation = model.formulation
-    formulation = formulation or "enhanced"
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(text: str) -> None:
@@ -188,14 +163,14 @@ def run(args: argparse.Namespace) -> int:
 
     result = design(
         robot, args.configs, args.max_force, loads_per_config=args.loads_per_config,
-        candidates=args.candidates, criterion=args.criterion, k=k,
+        candidates=args.candidates, criterion=args.criterion,
+        k=None if args.kq is None else flags.parse_list(args.kq, "--kq"),
+        k_source=None if args.kq is None else "--kq",
         noise_std_m=None if args.noise is None else args.noise * units.length_to_si,
-        existing=existing, separate=args.separate, seed=args.seed, formulation=formulation,
-        random_plans=args.random_plans, units=units, progress=progress if show else None)
-    if k_source is not None:
-        result.k_source = k_source
-    out = write_plan(result.plan, robot, out)
-    result.plan.path = out
+        existing=existing, separate=args.separate, seed=args.seed,
+        formulation=args.formulation, random_plans=args.random_plans, units=units,
+        progress=progress if show else None, model=model)
+    out = result.write(out)
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
         return 0

@@ -21,10 +21,8 @@ import json
 
 from stiffness.calibration.campaign import BASELINES, Units
 from stiffness.cli import flags
-from stiffness.elastic.effects import LIBRARY, cached_robot
-from stiffness.errors import StiffnessError
-from stiffness.planning.plan import Plan, read_plan
-from stiffness.planning.simulate import LOAD_PATTERNS, TRUTH_FILE, parse_effect, simulate
+from stiffness.elastic.effects import LIBRARY
+from stiffness.planning.simulate import LOAD_PATTERNS, TRUTH_FILE, simulate
 from stiffness.units import LENGTH_UNITS
 
 
@@ -79,25 +77,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
 
 
-def _plan_robot(robot: flags.RobotFlags, path: str) -> tuple[Plan, flags.RobotFlags]:
-    """The plan at ``path`` and the robot flags, its folder's settings filling what they omit."""
-    declared = None
-    if robot.source is not None:
-        declared = cached_robot(robot.source, robot.frame, None if robot.target_offset is None
-                                else tuple(robot.target_offset), None if robot.compliant_joints
-                                is None else tuple(robot.compliant_joints))
-    plan, _ = read_plan(path, declared)
-    s = plan.robot_settings
-    if robot.source is None and s is not None:
-        robot = flags.RobotFlags(
-            plan.resolved_source(), robot.frame or s.frame,
-            robot.target_offset if robot.target_offset is not None
-            else [float(v) for v in s.target_offset_m],
-            robot.compliant_joints if robot.compliant_joints is not None
-            else (None if s.compliant_joints is None else list(s.compliant_joints)))
-    return plan, robot
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
@@ -105,14 +84,8 @@ def run(args: argparse.Namespace) -> int:
     flags.check_noise_std(args.rotation_noise, "--rotation-noise", units.angle, zero=True)
     robot = flags.robot_flags(args)
     kq = flags.parse_list(args.kq, "--kq") if args.kq else None
-    plan = None
-    if args.plan:
-        plan, robot = _plan_robot(robot, args.plan)
-    if robot.source is None:
-        raise StiffnessError("--robot is required (or --plan FOLDER written by `stiffness "
-                             "design`)")
     sim = simulate(
-        robot.source, kq=kq, effects=[parse_effect(e) for e in args.effect],
+        robot.source, kq=kq, effects=args.effect,
         configs=args.configs, loads_per_config=args.loads_per_config,
         max_force=args.max_force, noise_std_m=args.noise * units.length_to_si, seed=args.seed,
         frame=robot.frame, target_offset_m=robot.target_offset,
@@ -122,12 +95,12 @@ def run(args: argparse.Namespace) -> int:
         rotations=args.rotations,
         rotation_noise_std_rad=None if args.rotation_noise is None
         else args.rotation_noise * units.angle_to_si,
-        loops=robot.loops, fixed_base=robot.fixed_base, plan=plan)
+        loops=robot.loops, fixed_base=robot.fixed_base, plan=args.plan)
     path = sim.write(args.out)
+    truth = sim.to_dict()
     if args.json:
-        print(json.dumps(sim.truth(), indent=1))
+        print(json.dumps(truth, indent=1))
         return 0
-    truth = sim.truth()
     print(f"wrote {path} ({sim.campaign.n_rows} rows) and {path.parent / TRUTH_FILE}")
     if args.quiet:
         return 0

@@ -13,12 +13,14 @@ Units: SI inside (m, N, rad, N.m/rad).
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.campaign import Campaign, RobotSettings, Units
+from stiffness.calibration.campaign import Campaign, RobotSettings, Units, load_campaign
 from stiffness.calibration.diagnose import fit_baseline, fit_model, replicate_noise
 from stiffness.calibration.experiment import (
     CRITERIA,
@@ -37,10 +39,18 @@ from stiffness.calibration.experiment import (
     separation_statistics,
     standard_errors,
 )
-from stiffness.elastic.effects import LIBRARY, Geometry, Model, References, make_effect
+from stiffness.elastic.effects import (
+    BASELINES,
+    LIBRARY,
+    Geometry,
+    Model,
+    References,
+    make_effect,
+)
+from stiffness.elastic.model_file import ModelFile, read_model_file
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
-from stiffness.planning.plan import Plan
-from stiffness.robot.robot import Robot
+from stiffness.planning.plan import Plan, write_plan
+from stiffness.robot.robot import Robot, load_robot
 
 #: Default number of candidate poses.
 DEFAULT_CANDIDATES = 200
@@ -266,8 +276,16 @@ class DesignResult:
         mean_random = float(np.mean(self.random_relative_se[:, keep]))
         return float(np.mean(self.designed.relative_se[keep])) / mean_random
 
+    def write(self, out: str | os.PathLike) -> Path:
+        """Write the plan (:func:`stiffness.planning.plan.write_plan`: ``PLAN.csv``, or a folder
+        with ``campaign.toml`` and ``plan.csv``); returns the CSV written, now
+        ``plan.path``."""
+        self.plan.path = write_plan(self.plan, self.robot, out)
+        return self.plan.path
+
     def to_dict(self) -> dict:
-        """JSON-ready summary (SI; infinities become ``None``)."""
+        """JSON-ready summary (SI; infinities become ``None``): the object ``stiffness design
+        --json`` prints (``plan_file``: the plan :meth:`write` wrote)."""
         def num(v):
             v = float(v)
             return v if math.isfinite(v) else None
@@ -330,60 +348,93 @@ def _info_of(cands: Candidates, model: Model, x: np.ndarray, sigma: float) -> np
     return info.reshape(cands.n_poses, cands.n_directions, p, p)
 
 
+def design_robot(robot: str | None = None, frame: str | None = None,
+                 target_offset_m: list[float] | np.ndarray | None = None,
+                 compliant_joints: list[str] | tuple[str, ...] | None = None,
+                 loops: str | None = None, fixed_base: bool = False,
+                 model: ModelFile | None = None, existing: Campaign | None = None) -> Robot:
+    """The robot a design is for: the given source, target and springs, the model file's
+    (``model``), else the existing campaign's filling what is not given (the existing
+    campaign's own robot when nothing is given).
+
+    Raises
+    ------
+    StiffnessError
+        No robot from any of them.
+    """
+    fallback = None
+    if model is not None:
+        fallback = (model.source, model.frame, model.target_offset_m, model.compliant_joints)
+    elif existing is not None:
+        if all(v is None for v in (robot, frame, target_offset_m, compliant_joints)):
+            return existing.robot()
+        s = existing.robot_settings
+        fallback = (existing.resolved_source(), s.frame, s.target_offset_m,
+                    s.compliant_joints or existing.robot().compliant_joints)
+    if fallback is not None:
+        robot = robot or fallback[0]
+        frame = frame or fallback[1]
+        if target_offset_m is None:
+            target_offset_m = [float(v) for v in fallback[2]]
+        if compliant_joints is None:
+            compliant_joints = list(fallback[3])
+    if robot is None:
+        raise StiffnessError("--robot is required (or --model FILE, or --existing CAMPAIGN)")
+    return load_robot(robot, frame=frame, target_offset=target_offset_m,
+                      compliant_joints=compliant_joints, loops=loops, fixed_base=fixed_base)
+
+
 def design(
-    robot: Robot,
-    configs: int,
-    max_force: float,
-    loads_per_config: int = 4,
-    candidates: int | Candidates = DEFAULT_CANDIDATES,
-    criterion: str = "D",
-    k: np.ndarray | list[float] | None = None,
-    noise_std_m: float | None = None,
-    existing: Campaign | None = None,
-    separate: str | tuple | None = None,
-    seed: int = 0,
-    formulation: str = "enhanced",
-    random_plans: int = DEFAULT_RANDOM_PLANS,
-    units: Units | None = None,
+    robot: Robot | str | None, configs: int, max_force: float, loads_per_config: int = 4,
+    candidates: int | Candidates = DEFAULT_CANDIDATES, criterion: str = "D",
+    k: np.ndarray | list[float] | None = None, noise_std_m: float | None = None,
+    existing: Campaign | str | os.PathLike | None = None, separate: str | tuple | None = None,
+    seed: int = 0, formulation: str | None = None,
+    random_plans: int = DEFAULT_RANDOM_PLANS, units: Units | None = None,
     progress: Callable[[str], None] | None = None,
+    model: ModelFile | str | os.PathLike | None = None, k_source: str | None = None,
 ) -> DesignResult:
-    """Design a measurement plan (see the module docstring).
+    """Design a measurement plan (see the module docstring): ``stiffness design``
+    (:meth:`DesignResult.to_dict` is its ``--json`` object once :meth:`DesignResult.write`
+    has written the plan).
 
     Parameters
     ----------
     robot
-        The robot; its compliant joints are the stiffnesses to identify.
-    configs
-        Number of configurations N of the plan.
+        The robot (its compliant joints are the stiffnesses to identify), or its source
+        (:func:`design_robot`: ``model``'s or ``existing``'s target and springs; ``None``:
+        theirs entirely).
+    configs, loads_per_config
+        Configurations N of the plan, and load directions M per configuration (distinct).
     max_force
         Load magnitude (N).
-    loads_per_config
-        Load directions M per configuration (distinct).
-    candidates
-        Number of candidate poses K, or a :class:`Candidates` built by :func:`candidate_set`.
-    criterion
+    candidates, criterion
+        Number of candidate poses K, or a :class:`Candidates` built by :func:`candidate_set`;
         ``D`` (default), ``A`` or ``E``.
-    k
-        Nominal stiffness per compliant joint (SI); default the robot's shipped
+    k, k_source
+        Nominal stiffness per compliant joint (SI) and where it comes from (default
+        ``given``); default ``model``'s K_theta (same compliant joints), the robot's shipped
         ``k_theta_SI``, else the baseline fitted to ``existing``.
     noise_std_m
         Noise std per deflection component (m); default the existing campaign's declared one,
         else 5e-6 m.
     existing
-        A measured campaign whose rows count as already chosen (the plan completes it).
+        A measured campaign (or its path) whose rows count as already chosen (the plan
+        completes it).
     separate
         ``"EFFECT[:WHERE],EFFECT[:WHERE]"``: choose the rows that tell these two alternatives,
         fitted to ``existing``, apart.
-    seed
-        Seed of the candidate poses and of the random plans.
+    seed, random_plans
+        Seed of the candidate poses and of the random plans; how many random plans.
     formulation
-        ``enhanced`` (K_C included, default) or ``conventional``.
-    random_plans
-        Number of random plans compared with.
-    units
-        Units of the plan files (default deg, N, mm; the existing campaign's if given).
-    progress
-        Called with a line of text as the work goes.
+        ``enhanced`` (K_C included) or ``conventional``; default ``existing``'s baseline,
+        else ``model``'s formulation, else ``enhanced``.
+    units, progress
+        Units of the plan files (default deg, N, mm; the existing campaign's if given); called
+        with a line of text as the work goes.
+    model
+        An identified model file (or its path): the robot's target and springs, the nominal
+        stiffness and formulation.
 
     Raises
     ------
@@ -393,6 +444,72 @@ def design(
         ``existing``; no nominal stiffness; a load that buckles the robot.
     """
     say = progress or (lambda text: None)
+    robot, existing, model, formulation = _inputs(robot, existing, model, formulation)
+    pair = _check_request(robot, configs, max_force, loads_per_config, candidates, criterion,
+                          random_plans, existing, separate)
+    joints = tuple(robot.compliant_joints)
+    if k is None and model is not None and tuple(model.compliant_joints) == joints:
+        k, k_source = model.k_theta, k_source or f"the model file {model.path}"
+    k_arr, k_found = _nominal_stiffness(robot, k, existing)
+    sigma, noise_source = _noise_level(noise_std_m, existing)
+    if isinstance(candidates, Candidates):
+        cands = candidates
+    else:
+        say(f"drawing {candidates} candidate poses")
+        cands = candidate_set(robot, int(candidates), max_force, seed)
+    search = _Search.of(cands, joints, k_arr, formulation, sigma, existing)
+    alternatives = None
+    if pair is not None:
+        say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
+        alternatives = fit_alternatives(existing, pair, noise_std_m)
+        search.separate(alternatives)
+    else:
+        say(f"selecting {configs} x {loads_per_config} rows ({criterion}-optimal)")
+    selection = search.select(int(configs), int(loads_per_config), criterion)
+    designed = search.predict(selection)
+    rng = np.random.default_rng(None if seed is None else seed + 7919)
+    randoms = [search.predict(s) for s in random_selections(
+        cands.n_poses, cands.n_directions, int(configs), int(loads_per_config),
+        int(random_plans), rng)]
+    plan = _plan(robot, cands, selection, int(configs), int(loads_per_config), existing,
+                 units, formulation, sigma)
+    return DesignResult(
+        plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source or k_found,
+        noise_std_m=sigma, noise_source=noise_source, criterion=criterion,
+        formulation=formulation, n_candidates=cands.n_poses, n_directions=cands.n_directions,
+        max_force=cands.max_force, designed=designed, random=randoms,
+        existing=search.existing,
+        existing_rows=existing.n_rows if existing is not None else 0,
+        separate=alternatives.labels if alternatives is not None else None,
+        separation_sigma_source=alternatives.sigma_source if alternatives is not None else None,
+        row_separation=None if alternatives is None else search.row_separation(selection),
+        exchanges=selection.exchanges, notes=search.notes(designed, joints))
+
+
+def _inputs(robot: Robot | str | None, existing: Campaign | str | os.PathLike | None,
+            model: ModelFile | str | os.PathLike | None, formulation: str | None
+            ) -> tuple[Robot, Campaign | None, ModelFile | None, str]:
+    """The robot (:func:`design_robot` unless given), the existing campaign and the model
+    file read, and the formulation: given, else the existing campaign's baseline, else the
+    model file's, else ``enhanced``."""
+    if existing is not None and not isinstance(existing, Campaign):
+        existing = load_campaign(existing)
+    if model is not None and not isinstance(model, ModelFile):
+        model = read_model_file(model)
+    if not isinstance(robot, Robot):
+        robot = design_robot(robot, model=model, existing=existing)
+    if formulation is None:
+        formulation = (existing.baseline if existing is not None else model.formulation
+                       if model is not None and model.formulation in BASELINES else "enhanced")
+    return robot, existing, model, formulation
+
+
+def _check_request(robot: Robot, configs: int, max_force: float, loads_per_config: int,
+                   candidates: int | Candidates, criterion: str, random_plans: int,
+                   existing: Campaign | None, separate: str | tuple | None
+                   ) -> tuple | None:
+    """Refuse, in one line and before any work, what :func:`design` cannot do; returns the
+    two ``(name, where)`` effects of ``separate`` (or ``None``)."""
     if criterion not in CRITERIA:
         raise UnknownNameError(f"unknown criterion {criterion!r}; valid: {', '.join(CRITERIA)}",
                                name=criterion, choices=CRITERIA)
@@ -413,18 +530,22 @@ def design(
             or not np.allclose(existing.robot().target_offset, robot.target_offset)):
         raise StiffnessError("--separate designs for the existing campaign's target; drop "
                              "--frame and --target-offset")
-    pair = None
-    if separate is not None:
-        pair = parse_separate(separate) if isinstance(separate, str) else tuple(separate)
-        if existing is None:
-            raise StiffnessError("--separate needs --existing CAMPAIGN: the two alternatives are "
-                                 "fitted to its measurements")
-        geo = Geometry.of(robot)
-        for name, where in pair:
-            make_effect(name, where, geo)  # unknown effect or place: one line, before any work
-    notes: list[str] = []
+    if separate is None:
+        return None
+    pair = parse_separate(separate) if isinstance(separate, str) else tuple(separate)
+    if existing is None:
+        raise StiffnessError("--separate needs --existing CAMPAIGN: the two alternatives are "
+                             "fitted to its measurements")
+    geo = Geometry.of(robot)
+    for name, where in pair:
+        make_effect(name, where, geo)  # unknown effect or place: one line, before any work
+    return pair
 
-    # nominal stiffness
+
+def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
+                       existing: Campaign | None) -> tuple[np.ndarray, str]:
+    """The nominal stiffness (SI) per compliant joint and where it comes from: ``k``, the
+    robot's shipped ``k_theta_SI``, else the baseline fitted to ``existing``."""
     joints = tuple(robot.compliant_joints)
     if k is not None:
         k_arr, k_source = np.asarray(k, dtype=float).reshape(-1), "given"
@@ -447,6 +568,11 @@ def design(
     if k_arr.shape != (len(joints),) or not np.all(np.isfinite(k_arr)) or np.any(k_arr <= 0):
         raise StiffnessError(f"need {len(joints)} positive stiffnesses (one per compliant joint "
                              f"{', '.join(joints)}), got {k_arr.tolist()}")
+    return k_arr, k_source
+
+
+def _noise_level(noise_std_m: float | None, existing: Campaign | None) -> tuple[float, str]:
+    """The noise std per deflection component (m) and where it comes from."""
     if noise_std_m is not None:
         sigma, noise_source = float(noise_std_m), "given"
     elif existing is not None and existing.noise_std_m is not None:
@@ -455,88 +581,95 @@ def design(
         sigma, noise_source = 5e-6, "default (5e-6 m)"
     if not (math.isfinite(sigma) and sigma > 0):
         raise StiffnessError(f"the noise std must be a positive length, got {sigma}")
+    return sigma, noise_source
 
-    # candidates and their information
-    if isinstance(candidates, Candidates):
-        cands = candidates
-    else:
-        say(f"drawing {candidates} candidate poses")
-        cands = candidate_set(robot, int(candidates), max_force, seed)
-    model, x = baseline_model(cands.geometry, cands.rows, joints, k_arr, formulation)
-    info = _info_of(cands, model, x, sigma)
-    prior = None
-    existing_pred = None
-    if existing is not None:
-        ex_rows = cands.geometry.rows(existing.q, existing.force, existing.moment)
-        prior = row_information(sensitivities(model.with_rows(ex_rows), x), sigma).sum(axis=0)
-        existing_pred = Prediction(standard_errors(prior))
 
-    # selection
-    alternatives = None
-    if pair is not None:
-        say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
-        alternatives = fit_alternatives(existing, pair, noise_std_m)
-        sep = separation_statistics(alternatives, cands)
-        selection = select_rows(sep.rows, sep.base, separation_score, int(configs),
-                                int(loads_per_config))
-        existing_pred.separation = float(np.sqrt(separation_score(sep.base)))
-    else:
-        say(f"selecting {configs} x {loads_per_config} rows ({criterion}-optimal)")
-        selection = select_information(info, int(configs), int(loads_per_config), criterion,
-                                       prior)
+@dataclass
+class _Search:
+    """The candidates' information (and, when separating, their separation statistics) and
+    the selection of :func:`design`."""
 
-    def predict(sel: Selection) -> Prediction:
-        total = info[sel.poses[:, None], sel.loads].sum(axis=(0, 1))
-        if prior is not None:
-            total = total + prior
+    cands: Candidates
+    info: np.ndarray
+    prior: np.ndarray | None
+    existing: Prediction | None
+    alternatives: Alternatives | None = None
+    sep: object | None = None
+
+    @classmethod
+    def of(cls, cands: Candidates, joints: tuple[str, ...], k: np.ndarray, formulation: str,
+           sigma: float, existing: Campaign | None) -> _Search:
+        """The information of every candidate row (and of the existing rows) about ln k."""
+        model, x = baseline_model(cands.geometry, cands.rows, joints, k, formulation)
+        info = _info_of(cands, model, x, sigma)
+        prior, existing_pred = None, None
+        if existing is not None:
+            ex_rows = cands.geometry.rows(existing.q, existing.force, existing.moment)
+            prior = row_information(sensitivities(model.with_rows(ex_rows), x),
+                                    sigma).sum(axis=0)
+            existing_pred = Prediction(standard_errors(prior))
+        return cls(cands, info, prior, existing_pred)
+
+    def separate(self, alternatives: Alternatives) -> None:
+        """Select for the separation of two alternatives fitted to the existing campaign."""
+        self.alternatives = alternatives
+        self.sep = separation_statistics(alternatives, self.cands)
+        self.existing.separation = float(np.sqrt(separation_score(self.sep.base)))
+
+    def select(self, configs: int, loads_per_config: int, criterion: str) -> Selection:
+        """The chosen poses and loads: the best separation, else the criterion."""
+        if self.sep is not None:
+            return select_rows(self.sep.rows, self.sep.base, separation_score, configs,
+                               loads_per_config)
+        return select_information(self.info, configs, loads_per_config, criterion, self.prior)
+
+    def predict(self, sel: Selection) -> Prediction:
+        """The predicted precision (and separation) of a selection with the existing rows."""
+        total = self.info[sel.poses[:, None], sel.loads].sum(axis=(0, 1))
+        if self.prior is not None:
+            total = total + self.prior
         pred = Prediction(standard_errors(total))
-        if alternatives is not None:
+        if self.sep is not None:
             acc = [b + r[sel.poses[:, None], sel.loads].sum(axis=(0, 1))
-                   for b, r in zip(sep.base, sep.rows, strict=True)]
+                   for b, r in zip(self.sep.base, self.sep.rows, strict=True)]
             pred.separation = float(np.sqrt(separation_score(acc)))
         return pred
 
-    designed = predict(selection)
-    rng = np.random.default_rng(None if seed is None else seed + 7919)
-    randoms = [predict(s) for s in random_selections(
-        cands.n_poses, cands.n_directions, int(configs), int(loads_per_config),
-        int(random_plans), rng)]
-    unseen = ~np.isfinite(standard_errors(info.sum(axis=(0, 1))))
-    if unseen.any():
-        notes.append(f"no candidate row determines {', '.join(np.array(joints)[unseen])}: a force "
-                     "at the target does not load it or its motion does not move the target "
-                     "(e.g. a last joint whose axis passes through the target); its standard "
-                     "error is infinite whatever the plan")
-    elif not np.all(np.isfinite(designed.relative_se)):
-        notes.append("the plan leaves some stiffness undetermined: add configurations or loads")
+    def row_separation(self, selection: Selection) -> np.ndarray:
+        """(rows,) the predicted separation of each plan row, noise units."""
+        return self.sep.raw.reshape(-1)[selection.rows(self.cands.n_directions)]
 
-    # the plan
-    rows_idx = selection.rows(cands.n_directions)
-    q = np.repeat(cands.coords[selection.poses], int(loads_per_config), axis=0)
+    def notes(self, designed: Prediction, joints: tuple[str, ...]) -> list[str]:
+        """Remarks on stiffnesses no candidate, or the plan, determines."""
+        unseen = ~np.isfinite(standard_errors(self.info.sum(axis=(0, 1))))
+        if unseen.any():
+            return [f"no candidate row determines {', '.join(np.array(joints)[unseen])}: a "
+                    "force at the target does not load it or its motion does not move the "
+                    "target (e.g. a last joint whose axis passes through the target); its "
+                    "standard error is infinite whatever the plan"]
+        if not np.all(np.isfinite(designed.relative_se)):
+            return ["the plan leaves some stiffness undetermined: add configurations or loads"]
+        return []
+
+
+def _plan(robot: Robot, cands: Candidates, selection: Selection, configs: int,
+          loads_per_config: int, existing: Campaign | None, units: Units | None,
+          formulation: str, sigma: float) -> Plan:
+    """The selected rows as a plan (labels that do not clash with the existing campaign's,
+    its units and robot settings when completing it)."""
+    q = np.repeat(cands.coords[selection.poses], loads_per_config, axis=0)
     force = cands.directions[selection.loads.reshape(-1)] * cands.max_force
     taken = set(existing.config) if existing is not None else set()
     prefix = "P"
-    while any(f"{prefix}{i + 1}" in taken for i in range(int(configs))):
+    while any(f"{prefix}{i + 1}" in taken for i in range(configs)):
         prefix += "P"
-    labels = tuple(f"{prefix}{i // int(loads_per_config) + 1}" for i in range(len(q)))
+    labels = tuple(f"{prefix}{i // loads_per_config + 1}" for i in range(len(q)))
     if units is None:
         units = existing.units if existing is not None else Units()
     settings = (existing.robot_settings if existing is not None else RobotSettings(
         robot.name, frame=robot.target_frame, target_offset_m=robot.target_offset.copy(),
-        compliant_joints=joints))
-    plan = Plan(q=q, force=force, config=labels, units=units, robot_settings=settings,
+        compliant_joints=tuple(robot.compliant_joints)))
+    return Plan(q=q, force=force, config=labels, units=units, robot_settings=settings,
                 name=(f"{existing.name}-plan" if existing is not None else f"plan-{robot.name}"),
                 baseline=existing.baseline if existing is not None else formulation,
                 noise_std_m=sigma)
-    row_sep = None
-    if alternatives is not None:
-        row_sep = sep.raw.reshape(-1)[rows_idx]
-    return DesignResult(
-        plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source, noise_std_m=sigma,
-        noise_source=noise_source, criterion=criterion, formulation=formulation,
-        n_candidates=cands.n_poses, n_directions=cands.n_directions, max_force=cands.max_force,
-        designed=designed, random=randoms, existing=existing_pred,
-        existing_rows=existing.n_rows if existing is not None else 0,
-        separate=alternatives.labels if alternatives is not None else None,
-        separation_sigma_source=alternatives.sigma_source if alternatives is not None else None,
-        row_separation=row_sep, exchanges=selection.exchanges, notes=notes)

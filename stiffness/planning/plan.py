@@ -47,6 +47,7 @@ from stiffness.calibration.campaign import (
     read_units_comment,
     resolve_source,
 )
+from stiffness.elastic.effects import cached_robot
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
@@ -263,4 +264,45 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
                 robot_settings=settings, noise_std_m=noise, path=toml_path or data)
     if doc is not None:
         plan.name, plan.baseline = str(doc["name"]), str(doc["baseline"])
+    return plan, robot
+
+
+@dataclass
+class PlannedRobot:
+    """The robot a plan is simulated on: the given robot arguments, the plan folder's
+    ``campaign.toml`` filling those not given (:func:`plan_and_robot`)."""
+
+    source: str | None
+    frame: str | None
+    target_offset_m: list[float] | None
+    compliant_joints: list[str] | None
+    loops: str | None = None
+    fixed_base: bool = False
+
+
+def plan_and_robot(path: str | os.PathLike, robot: PlannedRobot) -> tuple[Plan, PlannedRobot]:
+    """The plan at ``path`` and its robot: ``robot`` as given when it names a source (the
+    plan's columns are checked against it), else the plan folder's settings filling what
+    ``robot`` leaves out (a bare CSV then needs a source: :func:`read_plan` refuses it).
+
+    Raises
+    ------
+    StiffnessError
+        As :func:`read_plan`.
+    """
+    declared = None
+    if robot.source is not None:
+        declared = cached_robot(robot.source, robot.frame, None if robot.target_offset_m is None
+                                else tuple(robot.target_offset_m), None
+                                if robot.compliant_joints is None
+                                else tuple(robot.compliant_joints))
+    plan, _ = read_plan(path, declared)
+    s = plan.robot_settings
+    if robot.source is None and s is not None:
+        robot = PlannedRobot(
+            plan.resolved_source(), robot.frame or s.frame,
+            robot.target_offset_m if robot.target_offset_m is not None
+            else [float(v) for v in s.target_offset_m],
+            robot.compliant_joints if robot.compliant_joints is not None
+            else (None if s.compliant_joints is None else list(s.compliant_joints)))
     return plan, robot

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,7 +86,7 @@ from stiffness.mechanics.gravity import (
     spring_balancer,
     with_payload,
 )
-from stiffness.planning.plan import Plan
+from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
 from stiffness.robot.robot import Robot
 
 #: Load patterns of :func:`simulate`.
@@ -423,6 +424,10 @@ class Simulation:
     settings: dict
     baseline_error_m: float = 0.0
 
+    def to_dict(self) -> dict:
+        """The object ``stiffness simulate --json`` prints: :meth:`truth`."""
+        return self.truth()
+
     def truth(self) -> dict:
         """The hidden truth (JSON-ready), documented in ``truth.json``."""
         lu = self.campaign.units.length_to_si
@@ -482,40 +487,31 @@ MAX_ROWS = 1_000_000
 
 
 def simulate(
-    robot: str,
-    kq: list[float] | np.ndarray | None = None,
-    effects: list[HiddenEffect] | None = None,
-    configs: int = 10,
-    loads_per_config: int = 4,
-    max_force: float = 100.0,
-    noise_std_m: float = 1e-5,
-    seed: int = 0,
-    frame: str | None = None,
+    robot: str | None = None, kq: list[float] | np.ndarray | None = None,
+    effects: list[HiddenEffect | str] | None = None, configs: int = 10,
+    loads_per_config: int = 4, max_force: float = 100.0, noise_std_m: float = 1e-5,
+    seed: int = 0, frame: str | None = None,
     target_offset_m: np.ndarray | list[float] | None = None,
-    compliant_joints: list[str] | tuple[str, ...] | None = None,
-    baseline: str | None = None,
-    units: Units | None = None,
-    load_pattern: str = "random",
-    repeats: int = 1,
-    declare_noise: bool = True,
-    name: str | None = None,
-    rotations: bool = False,
-    rotation_noise_std_rad: float | None = None,
-    loops: str | None = None,
-    fixed_base: bool = False,
-    plan: Plan | None = None,
+    compliant_joints: list[str] | tuple[str, ...] | None = None, baseline: str | None = None,
+    units: Units | None = None, load_pattern: str = "random", repeats: int = 1,
+    declare_noise: bool = True, name: str | None = None, rotations: bool = False,
+    rotation_noise_std_rad: float | None = None, loops: str | None = None,
+    fixed_base: bool = False, plan: Plan | str | os.PathLike | None = None,
 ) -> Simulation:
-    """Simulate a campaign with hidden effects.
+    """Simulate a campaign with hidden effects: ``stiffness simulate`` (:meth:`Simulation.
+    to_dict` is its ``--json`` object, :meth:`Simulation.write` its ``--out`` folder).
 
     Parameters
     ----------
     robot
-        Robot source (shipped name, example-robot-data name, URDF path).
+        Robot source (shipped name, example-robot-data name, URDF path); may be omitted when
+        ``plan`` is a plan folder (its ``campaign.toml`` names the robot).
     kq
         True stiffness of each declared compliant joint (N.m/rad, N/m); default the shipped
         robot's ``k_theta_SI``.
     effects
-        Hidden effects (:func:`parse_effect`).
+        Hidden effects (:class:`HiddenEffect`, or their ``NAME[:WHERE]=VALUE`` text,
+        :func:`parse_effect`).
     configs, loads_per_config, repeats
         Number of configurations, loads per configuration, and measurements per load (the
         repeats share the deflection and differ by their noise).
@@ -526,7 +522,7 @@ def simulate(
     seed
         Random seed (poses, loads, noise).
     frame, target_offset_m, compliant_joints
-        Declared target and springs (defaults: the robot's).
+        Declared target and springs (defaults: the robot's, or the plan folder's).
     baseline
         Declared baseline; default ``conventional`` when ``complementary_stiffness`` is hidden,
         else ``enhanced``.
@@ -538,10 +534,8 @@ def simulate(
         max_force).
     declare_noise
         Whether the campaign declares its ``noise_std``.
-    name
-        Campaign name.
-    rotations
-        Whether the campaign also records the rotations ``rx, ry, rz`` of the target frame.
+    name, rotations
+        Campaign name; whether it also records the rotations ``rx, ry, rz`` of the target.
     rotation_noise_std_rad
         Their noise std (rad); default ``noise_std_m / 0.1 m`` (a 6-D probe whose markers are
         0.1 m apart). Declared with ``declare_noise``.
@@ -551,43 +545,195 @@ def simulate(
         campaign's ``[robot]`` table.
     plan
         Rows to simulate exactly (:class:`stiffness.planning.plan.Plan`: coordinates,
-        applied forces, labels) instead of drawing ``configs`` poses and their loads.
+        applied forces, labels, or the path of a plan written by ``stiffness design``)
+        instead of drawing ``configs`` poses and their loads.
 
     Raises
     ------
     StiffnessError
-        On bad inputs (unknown effect place, non-positive stiffness, unknown pattern) or when no
-        reachable pose can be found.
+        On bad inputs (unknown effect place, non-positive stiffness, unknown pattern, no
+        robot) or when no reachable pose can be found.
     """
-    effects = list(effects or [])
-    units = units or Units()
+    given = PlannedRobot(robot, frame, None if target_offset_m is None else [
+        float(v) for v in np.asarray(target_offset_m, dtype=float).reshape(-1)],
+        None if compliant_joints is None else list(compliant_joints), loops, fixed_base)
+    if plan is not None and not isinstance(plan, Plan):
+        plan, given = plan_and_robot(plan, given)
+    hidden = [parse_effect(e) if isinstance(e, str) else e for e in effects or []]
+    _check_request(configs, loads_per_config, repeats, max_force, noise_std_m, load_pattern,
+                   None if plan is None else len(plan.q), hidden)
+    declared = _declared_robot(given)
+    kq = _true_stiffness(declared, kq, str(given.source))
+    baseline = _declared_baseline(hidden, baseline)
+    rng = np.random.default_rng(seed)
+    q, applied, row_labels = _rows(declared, plan, configs, loads_per_config, load_pattern,
+                                   max_force, rng)
+    if rotation_noise_std_rad is None:
+        rotation_noise_std_rad = noise_std_m / 0.1
+    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
+        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
+    rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats, units)
+    truth, smoothing, effect_rms, baseline_error, clean6 = _truth_and_sizes(
+        declared, kq, hidden, rig.units, q, applied, baseline)
+    campaign = rig.campaign(given, declared, name, baseline, q, applied + truth.force_bias,
+                            clean6, row_labels, rng)
+    info = {"robot": {"source": str(given.source), "frame": declared.target_frame,
+                      "target_offset_m": declared.target_offset.tolist()},
+            **_request_record(plan, configs, loads_per_config, repeats, load_pattern,
+                              max_force, row_labels, applied), "seed": seed,
+            "declare_noise": declare_noise, "rotations": rotations,
+            "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
+            "backlash_smoothing_Nm": smoothing}
+    return Simulation(campaign, hidden, kq, noise_std_m, effect_rms, info, baseline_error)
+
+
+def _request_record(plan: Plan | None, configs: int, loads_per_config: int, repeats: int,
+                    load_pattern: str, max_force: float, row_labels: list[str],
+                    applied: np.ndarray) -> dict:
+    """What was asked for (``truth.json``'s settings): the plan's sizes and largest force
+    (N), or the drawn ones."""
+    if plan is None:
+        return {"configs": configs, "loads_per_config": loads_per_config, "plan": None,
+                "repeats": repeats, "max_force_N": max_force, "load_pattern": load_pattern}
+    return {"configs": len(dict.fromkeys(row_labels)), "loads_per_config": None,
+            "plan": str(plan.path) if plan.path is not None else None, "repeats": repeats,
+            "max_force_N": float(np.linalg.norm(applied, axis=1).max()),
+            "load_pattern": None}
+
+
+def _declared_robot(given: PlannedRobot) -> Robot:
+    """The declared robot (cached): ``given``'s source, target, springs, loops and base.
+
+    Raises
+    ------
+    StiffnessError
+        No source (neither a robot nor a plan folder naming one).
+    """
+    if given.source is None:
+        raise StiffnessError("--robot is required (or --plan FOLDER written by `stiffness "
+                             "design`)")
+    return cached_robot(str(given.source), given.frame, None if given.target_offset_m is None
+                        else tuple(given.target_offset_m), None
+                        if given.compliant_joints is None else tuple(given.compliant_joints),
+                        None if given.loops is None else str(Path(given.loops).resolve()),
+                        given.fixed_base)
+
+
+def _declared_baseline(hidden: list[HiddenEffect], baseline: str | None) -> str:
+    """The baseline the campaign declares: ``baseline``, by default ``conventional`` when
+    ``complementary_stiffness`` is hidden (then required), else ``enhanced``."""
+    hidden_cs = any(h.name == "complementary_stiffness" for h in hidden)
+    baseline = baseline or ("conventional" if hidden_cs else "enhanced")
+    if hidden_cs and baseline != "conventional":
+        raise StiffnessError("hiding complementary_stiffness means declaring the conventional "
+                             "baseline (the truth is always the exact equilibrium)")
+    return baseline
+
+
+def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect],
+                     units: Units, q: np.ndarray, applied: np.ndarray, baseline: str
+                     ) -> tuple[Truth, dict[str, float], dict[str, float], float, np.ndarray]:
+    """The true robot of the rows ``q`` (rad, m) under ``applied`` (N), and what it shows.
+
+    Returns
+    -------
+    The truth, the backlash smoothing torque (N.m) per geometry joint, each hidden effect's
+    RMS size (m), the baseline's RMS linearisation error (m) and the noise-free deflections
+    and rotations (rows, 6; m, rad).
+    """
+    geometry = Geometry.of(declared)
+    truth = build_truth(declared, kq, list(hidden), units, np.zeros(len(geometry.joints)),
+                        geometry)
+    rows = geometry.rows(q, applied + truth.force_bias)
+    smoothing = References.of(geometry, rows, 1.0, np.ones((1, 3))).tau_smoothing
+    truth = build_truth(declared, kq, hidden, units, smoothing, geometry)
+    clean6 = truth.deflections(q, applied, rotations=True)
+    effect_rms = _effect_sizes(truth, declared, hidden, kq, units, smoothing, geometry, q,
+                               applied, clean6[:, :3])
+    linear = truth.deflections(q, applied, mode=baseline)
+    baseline_error = float(np.sqrt(np.mean((clean6[:, :3] - linear) ** 2)))
+    return (truth, dict(zip(geometry.joints, smoothing.tolist(), strict=True)), effect_rms,
+            baseline_error, clean6)
+
+
+@dataclass
+class _Rig:
+    """How the simulated rig measures: noise std of the deflections (m) and rotations (rad),
+    whether it records rotations and declares its noise, repeats per load, file units."""
+
+    noise_std_m: float
+    rotation_noise_std_rad: float
+    rotations: bool
+    declare_noise: bool
+    repeats: int
+    units: Units | None
+
+    def __post_init__(self) -> None:
+        self.units = self.units or Units()
+
+    def campaign(self, given: PlannedRobot, declared: Robot, name: str | None, baseline: str,
+                 q: np.ndarray, recorded: np.ndarray, clean6: np.ndarray,
+                 row_labels: list[str], rng: np.random.Generator) -> Campaign:
+        """The campaign the rig records: each row ``repeats`` times, noise added to the
+        noise-free deflections and rotations ``clean6`` (m, rad); ``recorded`` forces (N)."""
+        reps = np.repeat(np.arange(len(q)), self.repeats)
+        measured = clean6[reps, :3] + rng.normal(scale=self.noise_std_m, size=(len(reps), 3))
+        rotation = None
+        if self.rotations:
+            rotation = clean6[reps, 3:] + rng.normal(scale=self.rotation_noise_std_rad,
+                                                     size=(len(reps), 3))
+        loops = None if given.loops is None else str(Path(given.loops).resolve())
+        settings = RobotSettings(declared.name, frame=declared.target_frame,
+                                 target_offset_m=declared.target_offset.copy(),
+                                 compliant_joints=tuple(declared.compliant_joints),
+                                 loops=loops, fixed_base=given.fixed_base)
+        return Campaign(
+            name=name or f"simulated-{Path(str(given.source)).stem}",
+            baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],
+            deflection=measured, config=tuple(row_labels[i] for i in reps),
+            noise_std_m=(self.noise_std_m if self.declare_noise and self.noise_std_m > 0
+                         else None),
+            units=self.units, _robot=declared, rotation=rotation,
+            rotation_noise_std_rad=(self.rotation_noise_std_rad if self.rotations
+                                    and self.declare_noise and self.rotation_noise_std_rad > 0
+                                    else None),
+        )
+
+
+def _check_request(configs: int, loads_per_config: int, repeats: int, max_force: float,
+                   noise_std_m: float, load_pattern: str, plan_rows: int | None,
+                   hidden: list[HiddenEffect]) -> None:
+    """Refuse an unknown load pattern, sizes below one or beyond :data:`MAX_ROWS`, a
+    non-positive force (N), a negative noise (m) or an effect hidden twice, in one line."""
     if load_pattern not in LOAD_PATTERNS:
         raise UnknownNameError(f"unknown load pattern {load_pattern!r}; valid: "
                                f"{', '.join(LOAD_PATTERNS)}", name=load_pattern,
                                choices=LOAD_PATTERNS)
     if configs < 1 or loads_per_config < 1 or repeats < 1:
         raise StiffnessError("configs, loads per config and repeats must be at least 1")
-    rows = (len(plan.q) if plan is not None else configs * loads_per_config) * repeats
+    rows = (plan_rows if plan_rows is not None else configs * loads_per_config) * repeats
     if rows > MAX_ROWS:
         raise StiffnessError(
             f"the campaign would have {rows:.3g} rows ("
-            + ("plan rows" if plan is not None else "configs x loads per config")
+            + ("plan rows" if plan_rows is not None else "configs x loads per config")
             + f" x repeats), more than {MAX_ROWS:.0e}, far beyond any rig's campaign and hours "
             "of equilibrium solves; ask for fewer")
     if not (max_force > 0 and math.isfinite(max_force)):
         raise StiffnessError(f"max force must be positive, got {max_force}")
     if not (noise_std_m >= 0 and math.isfinite(noise_std_m)):
         raise StiffnessError(f"noise std must be >= 0, got {noise_std_m}")
-    labels = [h.label for h in effects]
+    labels = [h.label for h in hidden]
     if len(set(labels)) != len(labels):
         raise StiffnessError(f"an effect is hidden twice: {labels}")
-    declared = cached_robot(str(robot), frame, None if target_offset_m is None else tuple(
-        np.asarray(target_offset_m, dtype=float).reshape(-1)), None if compliant_joints is None
-        else tuple(compliant_joints), None if loops is None else str(Path(loops).resolve()),
-        fixed_base)
+
+
+def _true_stiffness(declared: Robot, kq: list[float] | np.ndarray | None, source: str
+                    ) -> np.ndarray:
+    """The true stiffness per declared compliant joint (SI): ``kq``, else the shipped
+    robot's ``k_theta_SI``; refused unless one positive value per joint."""
     if kq is None:
         if "k_theta_SI" not in declared.defaults:
-            raise StiffnessError(f"give the true joint stiffness of {robot} (--kq), one per "
+            raise StiffnessError(f"give the true joint stiffness of {source} (--kq), one per "
                                  f"compliant joint: {', '.join(declared.compliant_joints)}")
         kq = declared.defaults["k_theta_SI"]
     kq = np.asarray(kq, dtype=float).reshape(-1)
@@ -595,84 +741,39 @@ def simulate(
         raise StiffnessError(f"need {declared.n_compliant} positive stiffnesses (one per "
                              f"compliant joint {', '.join(declared.compliant_joints)}), got "
                              f"{kq.tolist()}")
-    hidden_cs = any(h.name == "complementary_stiffness" for h in effects)
-    baseline = baseline or ("conventional" if hidden_cs else "enhanced")
-    if hidden_cs and baseline != "conventional":
-        raise StiffnessError("hiding complementary_stiffness means declaring the conventional "
-                             "baseline (the truth is always the exact equilibrium)")
+    return kq
 
-    rng = np.random.default_rng(seed)
+
+def _rows(declared: Robot, plan: Plan | None, configs: int, loads_per_config: int,
+          load_pattern: str, max_force: float, rng: np.random.Generator
+          ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The rows to simulate: coordinates (rad, m), applied forces (N) and configuration
+    labels, the plan's or ``configs`` reachable poses with their loads."""
     if plan is None:
         coords = sample_coordinates(declared, configs, rng)
         q = np.repeat(coords, loads_per_config, axis=0)
         applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
                              for _ in range(configs)])
-        row_labels = [f"C{i // loads_per_config + 1}" for i in range(len(q))]
-    else:
-        if plan.q.shape[1] != declared.n_coordinates:
-            raise StiffnessError(f"the plan has {plan.q.shape[1]} coordinates per row but "
-                                 f"{declared.name} has {declared.n_coordinates}")
-        q, applied, row_labels = plan.q.copy(), plan.force.copy(), list(plan.config)
-    geometry = Geometry.of(declared)
-    truth = build_truth(declared, kq, [h for h in effects], units,
-                        np.zeros(len(geometry.joints)), geometry)
-    recorded = applied + truth.force_bias
-    rows = geometry.rows(q, recorded)
-    smoothing = References.of(geometry, rows, 1.0, np.ones((1, 3))).tau_smoothing
-    truth = build_truth(declared, kq, effects, units, smoothing, geometry)
-    if rotation_noise_std_rad is None:
-        rotation_noise_std_rad = noise_std_m / 0.1
-    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
-        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
-    clean6 = truth.deflections(q, applied, rotations=True)
-    clean = clean6[:, :3]
+        return q, applied, [f"C{i // loads_per_config + 1}" for i in range(len(q))]
+    if plan.q.shape[1] != declared.n_coordinates:
+        raise StiffnessError(f"the plan has {plan.q.shape[1]} coordinates per row but "
+                             f"{declared.name} has {declared.n_coordinates}")
+    return plan.q.copy(), plan.force.copy(), list(plan.config)
 
+
+def _effect_sizes(truth: Truth, declared: Robot, hidden: list[HiddenEffect], kq: np.ndarray,
+                  units: Units, smoothing: np.ndarray, geometry: Geometry, q: np.ndarray,
+                  applied: np.ndarray, clean: np.ndarray) -> dict[str, float]:
+    """Per hidden effect, the RMS change (m) it makes to the noise-free deflections
+    ``clean`` (m): the truth without it (or, for ``complementary_stiffness``, the
+    conventional model) against the truth."""
     effect_rms: dict[str, float] = {}
-    for h in effects:
+    for h in hidden:
         if h.name == "complementary_stiffness":
             other = truth.deflections(q, applied, mode="conventional")
         else:
-            rest = [e for e in effects if e is not h]
+            rest = [e for e in hidden if e is not h]
             t = build_truth(declared, kq, rest, units, smoothing, geometry)
             other = t.deflections(q, applied + truth.force_bias - t.force_bias)
         effect_rms[h.label] = float(np.sqrt(np.mean((clean - other) ** 2)))
-
-    linear = truth.deflections(q, applied, mode=baseline)
-    baseline_error = float(np.sqrt(np.mean((clean - linear) ** 2)))
-
-    reps = np.repeat(np.arange(len(q)), repeats)
-    measured = clean[reps] + rng.normal(scale=noise_std_m, size=(len(reps), 3))
-    rotation = None
-    if rotations:
-        rotation = clean6[reps, 3:] + rng.normal(scale=rotation_noise_std_rad,
-                                                 size=(len(reps), 3))
-    config_labels = [row_labels[i] for i in reps]
-    settings = RobotSettings(declared.name, frame=declared.target_frame,
-                             target_offset_m=declared.target_offset.copy(),
-                             compliant_joints=tuple(declared.compliant_joints),
-                             loops=None if loops is None else str(Path(loops).resolve()),
-                             fixed_base=fixed_base)
-    campaign = Campaign(
-        name=name or f"simulated-{Path(str(robot)).stem}",
-        baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],
-        deflection=measured, config=tuple(config_labels),
-        noise_std_m=noise_std_m if declare_noise and noise_std_m > 0 else None,
-        units=units, _robot=declared, rotation=rotation,
-        rotation_noise_std_rad=(rotation_noise_std_rad if rotations and declare_noise
-                                and rotation_noise_std_rad > 0 else None),
-    )
-    info = {
-        "robot": {"source": str(robot), "frame": declared.target_frame,
-                  "target_offset_m": declared.target_offset.tolist()},
-        "configs": len(dict.fromkeys(row_labels)) if plan is not None else configs,
-        "loads_per_config": None if plan is not None else loads_per_config,
-        "plan": str(plan.path) if plan is not None and plan.path is not None else None,
-        "repeats": repeats,
-        "max_force_N": float(np.linalg.norm(applied, axis=1).max()) if plan is not None
-        else max_force,
-        "load_pattern": None if plan is not None else load_pattern, "seed": seed,
-        "declare_noise": declare_noise, "rotations": rotations,
-        "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
-        "backlash_smoothing_Nm": dict(zip(geometry.joints, smoothing.tolist(), strict=True)),
-    }
-    return Simulation(campaign, effects, kq, noise_std_m, effect_rms, info, baseline_error)
+    return effect_rms
