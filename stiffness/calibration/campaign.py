@@ -95,7 +95,7 @@ _MOMENT_COLUMNS = ("mx", "my", "mz")
 _ROTATION_COLUMNS = ("rx", "ry", "rz")
 
 _TOML_KEYS = {
-    "": {"name", "baseline", "robot", "units", "measurement"},
+    "": {"kind", "name", "baseline", "robot", "units", "measurement"},
     "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base"},
     "units": {"angle", "force", "length", "rotation", "moment"},
     "measurement": {"data", "noise_std", "rotation_noise_std"},
@@ -407,7 +407,7 @@ class Campaign:
 
 
 @dataclass
-class _TomlFile:
+class TomlFile:
     """A campaign TOML file: its path and text, to point errors at the line of a key."""
 
     path: Path
@@ -438,7 +438,7 @@ class _TomlFile:
         return FileFormatError(problem, path=self.path, line=line, column=column, field=label)
 
 
-def _check_keys(table: dict, where: str, toml: _TomlFile) -> None:
+def _check_keys(table: dict, where: str, toml: TomlFile) -> None:
     section = "" if where == "" else where
     label = "top level" if where == "" else f"[{where}]"
     for key in table:
@@ -451,15 +451,15 @@ def _check_keys(table: dict, where: str, toml: _TomlFile) -> None:
             raise toml.error(f"missing key {prefix}{key}: add {_KEY_HELP[key]}", section)
 
 
-def _typed(value, kind: type | tuple, toml: _TomlFile, section: str, key: str, what: str):
+def typed_value(value, kind: type | tuple, toml: TomlFile, section: str, key: str, what: str):
     if not isinstance(value, kind) or isinstance(value, bool):
         label = f"[{section}] {key}" if section else key
         raise toml.error(f"{label} must be {what}, got {value!r}", section, key)
     return value
 
 
-def _read_toml(path: Path) -> tuple[dict, _TomlFile]:
-    toml = _TomlFile(path, read_text(path, "campaign file"))
+def read_campaign_toml(path: Path) -> tuple[dict, TomlFile]:
+    toml = TomlFile(path, read_text(path, "campaign file"))
     doc = read_toml(path, "campaign file")
     _check_keys(doc, "", toml)
     for section in ("robot", "units", "measurement"):
@@ -623,7 +623,7 @@ def check_units_comment(declared: Units, expected: Units, source: object, path: 
 MAX_CELL = 1e12
 
 
-def _number(cell: str, data: Path, line: int, col: int, name: str) -> float:
+def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float:
     text = cell.strip()
     try:
         value = float(text)
@@ -684,13 +684,13 @@ def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_
             raise FileFormatError("the configuration label is empty; give a label such as A",
                                   path=data, line=number, column=1, field="config")
         labels.append(label)
-        values.append([_number(c, data, number, j, header[j - 1])
+        values.append([parse_number(c, data, number, j, header[j - 1])
                        for j, c in enumerate(cells[1:], start=2)])
         lines.append(number)
     return k, has_moment, has_rotation, labels, np.array(values, dtype=float), lines
 
 
-def _prismatic_mask(robot: Robot) -> np.ndarray:
+def prismatic_mask(robot: Robot) -> np.ndarray:
     kinds = [robot.model.joints[robot.model.getJointId(j)].shortname()
              for j in robot.coordinate_joints]
     return np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
@@ -699,7 +699,7 @@ def _prismatic_mask(robot: Robot) -> np.ndarray:
 def _coordinate_unit(robot: Robot, units: Units, index: int) -> tuple[float, str]:
     """Factor to SI and name of the file unit of coordinate ``index`` (length unit for a
     prismatic joint, angle unit otherwise)."""
-    if _prismatic_mask(robot)[index]:
+    if prismatic_mask(robot)[index]:
         return units.length_to_si, units.length
     return units.angle_to_si, units.angle
 
@@ -723,7 +723,7 @@ def coordinates_in_si(robot: Robot, q_file: np.ndarray, units: Units, labels: li
         each, naming the first row).
     """
     q = np.array(q_file, dtype=float)
-    prismatic = _prismatic_mask(robot)
+    prismatic = prismatic_mask(robot)
     q[:, ~prismatic] *= units.angle_to_si
     q[:, prismatic] *= units.length_to_si
     _warn_beyond_limits(robot, q, lines, data, units)
@@ -731,7 +731,7 @@ def coordinates_in_si(robot: Robot, q_file: np.ndarray, units: Units, labels: li
     return q
 
 
-def _settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
+def settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
     """The robot a ``campaign.toml``'s ``[robot]`` names (paths relative to that file).
 
     Raises
@@ -814,7 +814,7 @@ def _warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
         DataFileWarning, stacklevel=4)
 
 
-def _units_section(doc: dict, toml: _TomlFile) -> Units:
+def units_section(doc: dict, toml: TomlFile) -> Units:
     """The ``[units]`` table of a campaign.toml, each unit checked (key named on error)."""
     u = doc["units"]
     for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
@@ -832,13 +832,13 @@ def _units_section(doc: dict, toml: _TomlFile) -> Units:
     return Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
 
 
-def _robot_section(doc: dict, toml: _TomlFile, units: Units) -> RobotSettings:
+def robot_section(doc: dict, toml: TomlFile, units: Units) -> RobotSettings:
     """The ``[robot]`` table of a campaign.toml, each key checked (key named on error)."""
     r = doc["robot"]
-    source = _typed(r["source"], str, toml, "robot", "source", "a string")
+    source = typed_value(r["source"], str, toml, "robot", "source", "a string")
     frame = r.get("frame")
     if frame is not None:
-        _typed(frame, str, toml, "robot", "frame", "a frame name (string)")
+        typed_value(frame, str, toml, "robot", "frame", "a frame name (string)")
     offset = r.get("target_offset", [0.0, 0.0, 0.0])
     if (not isinstance(offset, list) or len(offset) != 3
             or not all(isinstance(v, int | float) and not isinstance(v, bool)
@@ -853,7 +853,7 @@ def _robot_section(doc: dict, toml: _TomlFile, units: Units) -> RobotSettings:
                          f"got {joints!r}", "robot", "compliant_joints")
     loops = r.get("loops")
     if loops is not None:
-        _typed(loops, str, toml, "robot", "loops", "a loop-declaration path (string)")
+        typed_value(loops, str, toml, "robot", "loops", "a loop-declaration path (string)")
     fixed_base = r.get("fixed_base", False)
     if not isinstance(fixed_base, bool):
         raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
@@ -862,18 +862,49 @@ def _robot_section(doc: dict, toml: _TomlFile, units: Units) -> RobotSettings:
                          tuple(joints) if joints is not None else None, loops, fixed_base)
 
 
-def _noise_section(doc: dict, toml: _TomlFile, units: Units) -> float | None:
+def noise_section(doc: dict, toml: TomlFile, units: Units) -> float | None:
     """``[measurement] noise_std`` in the file's length unit, or None (key named on error)."""
     m = doc["measurement"]
     noise = m.get("noise_std")
     if noise is not None:
-        _typed(noise, int | float, toml, "measurement", "noise_std",
+        typed_value(noise, int | float, toml, "measurement", "noise_std",
                f"a positive number in {units.length}")
         if not (math.isfinite(noise) and noise > 0):
             raise toml.error(f"[measurement] noise_std must be a positive finite number in "
                              f"{units.length}, got {noise!r}; omit it if unknown",
                              "measurement", "noise_std")
     return noise
+
+
+#: Campaign kinds: loaded-minus-unloaded deflections (the default) or absolute marker poses.
+CAMPAIGN_KINDS = ("deflections", "poses")
+
+
+class CampaignKindError(StiffnessError):
+    """A campaign of another kind than the reader takes (``kind`` names the one given)."""
+
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+        self.choices = list(CAMPAIGN_KINDS)
+
+
+def campaign_kind(path: str | os.PathLike) -> str:
+    """The ``kind`` of a campaign (``deflections`` when the key is absent).
+
+    Raises
+    ------
+    StiffnessError
+        The file cannot be read, or ``kind`` is not one of :data:`CAMPAIGN_KINDS`.
+    """
+    toml_path = _campaign_path(path)
+    doc = read_toml(toml_path, "campaign file")
+    kind = doc.get("kind", "deflections")
+    if kind not in CAMPAIGN_KINDS:
+        toml = TomlFile(toml_path, read_text(toml_path, "campaign file"))
+        raise toml.error(f"kind = {kind!r} is not a campaign kind; valid kinds: "
+                         f"{', '.join(CAMPAIGN_KINDS)}", "", "kind")
+    return str(kind)
 
 
 def load_campaign(path: str | os.PathLike) -> Campaign:
@@ -904,21 +935,26 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
         (:func:`coordinates_in_si`).
     """
     toml_path = _campaign_path(path)
-    doc, toml = _read_toml(toml_path)
-    name = _typed(doc["name"], str, toml, "", "name", "a string")
-    baseline = _typed(doc["baseline"], str, toml, "", "baseline", "a string")
+    kind = campaign_kind(toml_path)
+    if kind != "deflections":
+        raise CampaignKindError(f"{toml_path}: kind = {kind!r} is a pose campaign (absolute "
+                                "marker positions); read it with load_pose_campaign, or "
+                                "give a deflection campaign", kind=kind)
+    doc, toml = read_campaign_toml(toml_path)
+    name = typed_value(doc["name"], str, toml, "", "name", "a string")
+    baseline = typed_value(doc["baseline"], str, toml, "", "baseline", "a string")
     if baseline not in BASELINES:
         raise toml.error(f"unknown baseline {baseline!r}; valid baselines: "
                          f"{', '.join(BASELINES)}", "", "baseline")
-    units = _units_section(doc, toml)
-    settings = _robot_section(doc, toml, units)
+    units = units_section(doc, toml)
+    settings = robot_section(doc, toml, units)
     source = settings.source
     m = doc["measurement"]
-    data_name = _typed(m["data"], str, toml, "measurement", "data", "a file name")
-    noise = _noise_section(doc, toml, units)
+    data_name = typed_value(m["data"], str, toml, "measurement", "data", "a file name")
+    noise = noise_section(doc, toml, units)
     rot_noise = m.get("rotation_noise_std")
     if rot_noise is not None:
-        _typed(rot_noise, int | float, toml, "measurement", "rotation_noise_std",
+        typed_value(rot_noise, int | float, toml, "measurement", "rotation_noise_std",
                f"a positive number in {units.rotation}")
         if not (math.isfinite(rot_noise) and rot_noise > 0):
             raise toml.error(f"[measurement] rotation_noise_std must be a positive finite number "
@@ -926,7 +962,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
                              "measurement", "rotation_noise_std")
     data_path = toml_path.parent / data_name
 
-    robot = _settings_robot(settings, toml_path)
+    robot = settings_robot(settings, toml_path)
 
     robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
     k, has_moment, has_rotation, labels, values, lines = _read_rows(
@@ -1028,7 +1064,7 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     u = c.units
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     n_q = c.q.shape[1]
-    prismatic = _prismatic_mask(c.robot())
+    prismatic = prismatic_mask(c.robot())
     q_out = c.q.copy()
     q_out[:, ~prismatic] /= u.angle_to_si
     q_out[:, prismatic] /= u.length_to_si

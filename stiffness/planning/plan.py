@@ -34,18 +34,18 @@ from stiffness.calibration.campaign import (
     Campaign,
     RobotSettings,
     Units,
-    _noise_section,
-    _number,
-    _prismatic_mask,
-    _read_toml,
-    _robot_section,
-    _settings_robot,
-    _units_section,
     campaign_toml,
     check_units_comment,
     coordinates_in_si,
+    noise_section,
+    parse_number,
+    prismatic_mask,
+    read_campaign_toml,
     read_units_comment,
     resolve_source,
+    robot_section,
+    settings_robot,
+    units_section,
 )
 from stiffness.elastic.effects import cached_robot
 from stiffness.errors import (
@@ -115,7 +115,7 @@ def _header(n_q: int) -> list[str]:
 def plan_csv(plan: Plan, robot: Robot) -> str:
     """The plan's CSV text (units comment, header, rows in the plan's units)."""
     u = plan.units
-    prismatic = _prismatic_mask(robot)
+    prismatic = prismatic_mask(robot)
     q = plan.q.copy()
     q[:, ~prismatic] /= u.angle_to_si
     q[:, prismatic] /= u.length_to_si
@@ -153,10 +153,10 @@ def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
 
 
 def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None]:
-    doc, toml = _read_toml(toml_path)
-    units = _units_section(doc, toml)
-    settings = _robot_section(doc, toml, units)
-    noise = _noise_section(doc, toml, units)
+    doc, toml = read_campaign_toml(toml_path)
+    units = units_section(doc, toml)
+    settings = robot_section(doc, toml, units)
+    noise = noise_section(doc, toml, units)
     return doc, units, settings, None if noise is None else float(noise) * units.length_to_si
 
 
@@ -200,7 +200,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         doc, units, settings, noise = _settings(toml_path)
         data = toml_path.parent / doc["measurement"]["data"]
         if robot is None:
-            robot = _settings_robot(settings, toml_path)
+            robot = settings_robot(settings, toml_path)
     else:
         data = p
     if robot is None:
@@ -252,7 +252,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
             raise FileFormatError("the configuration label is empty; give a label such as P1",
                                   path=data, line=number, column=1, field="config")
         labels.append(label)
-        values.append([_number(c, data, number, j, header[j - 1])
+        values.append([parse_number(c, data, number, j, header[j - 1])
                        for j, c in enumerate(cells[1:width], start=2)])
     if toml_path is None and declared_line is None:
         warnings.warn(f"{data}: the plan declares no units; read as angle=deg force=N "

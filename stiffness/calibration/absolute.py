@@ -1,0 +1,451 @@
+"""Absolute marker positions predicted from commanded coordinates: geometry and elasticity.
+
+A measuring system (laser tracker, motion capture) sees markers fixed to frames of the robot,
+in its own frame, at commanded coordinates ``q``; the arm sags under its weight and any applied
+wrench. The prediction of marker ``m`` on row ``i`` is
+
+.. math::
+
+    y_{im} = \\exp(\\omega) R_0 \\; {}^{0}M_{f_m}(q_i + \\delta_0 + \\Delta q_i;\\ \\varepsilon)
+             \\,(o_m + \\delta o_m) + t_0 + t,
+
+with the parameter families of :data:`FAMILIES`:
+
+``frame``
+    the measuring frame's placement relative to its starting estimate ``R_0, t_0``: ``t`` (m,
+    measuring-frame axes) and ``omega`` (rad, a rotation vector applied on the left);
+``markers``
+    each marker's offset correction ``delta o_m`` (m, in its frame's axes);
+``joint_offsets``
+    joint zero offsets ``delta_0`` (rad, or m for prismatic joints), one per coordinate;
+``geometry``
+    each moving joint's placement error ``varepsilon_j`` (translation m, rotation rad), applied
+    on the right of its placement in its parent, ``M_j exp(varepsilon_j)``; for a joint along a
+    frame axis the component along its own motion (the rotation about a revolute joint's axis,
+    the translation along a prismatic one's) is the joint's zero offset and belongs to
+    ``joint_offsets``, so the two families never share a direction (5 parameters per joint);
+``joint_compliance``
+    each compliant joint's compliance ``c_j`` (rad/(N.m), or m/N): ``Delta q_j = c_j tau_j``
+    with ``tau = J_load^T w - g(q)``, the applied wrench's and gravity's torque at the commanded
+    coordinates of the nominal robot (first order in the compliance: at tracker noise and real
+    compliances the neglected term is below a micrometre, docs/absolute-poses.md);
+``gravity_lumped``
+    masses unknown: ``Delta q_j = - sum_k theta_jk Y_jk(q)``, with ``Y`` the gravity regressor
+    (Pinocchio's joint-torque regressor at rest) and ``theta_jk = c_j pi_k`` lumped; only the
+    combinations the data determine are fitted.
+
+Every column of the Jacobian is analytic (Pinocchio's frame Jacobians, the right Jacobians of
+``exp`` on SO(3) and SE(3)); finite differences check it in the tests. SI units throughout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.errors import StiffnessError
+from stiffness.robot.robot import Robot
+
+#: Parameter families, in the order the columns are laid out.
+FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
+            "gravity_lumped")
+#: Typical size of one parameter of each family (SI), used to scale the regressor's columns.
+SCALES = {"frame": 1e-3, "markers": 1e-3, "joint_offsets": 1e-3, "geometry": 1e-3,
+          "joint_compliance": 1e-6, "gravity_lumped": 1e-6}
+#: Units of one parameter of each family (revolute joints; prismatic ones use m and m/N).
+UNITS = {"frame": ("m", "m", "m", "rad", "rad", "rad"), "markers": "m", "joint_offsets": "rad",
+         "geometry": ("m", "m", "m", "rad", "rad", "rad"), "joint_compliance": "rad/(N.m)",
+         "gravity_lumped": "rad/(N.m) x (kg or kg.m)"}
+_AXES6 = ("x", "y", "z", "rx", "ry", "rz")
+#: Gravity parameters of a link in Pinocchio's order (m, m c_x, m c_y, m c_z, inertia...).
+_GRAVITY_PARAMETERS = ("m", "mcx", "mcy", "mcz")
+
+
+class PoseModelError(StiffnessError):
+    """A robot or marker set that absolute-pose calibration cannot model."""
+
+
+@dataclass(frozen=True)
+class Marker:
+    """A marker fixed to a frame of the robot.
+
+    Attributes
+    ----------
+    name
+        Marker name (the CSV columns ``<name>_x, <name>_y, <name>_z``).
+    frame
+        Name of the robot frame the marker is fixed to.
+    offset
+        Nominal position in the frame's axes (m), shape (3,).
+    """
+
+    name: str
+    frame: str
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One column of the regressor: its family, label, scale and unit."""
+
+    family: str
+    label: str
+    scale: float
+    unit: str
+
+
+@dataclass
+class Loads:
+    """Applied wrenches of each row (world axes, at a frame's origin), or none.
+
+    Attributes
+    ----------
+    frame
+        Frame whose origin the wrench acts at.
+    wrench
+        (n, 6) force (N) and moment (N.m) in world axes.
+    """
+
+    frame: str
+    wrench: np.ndarray
+
+
+@dataclass(frozen=True)
+class RowTerms:
+    """Terms of one row that do not depend on the parameters (nominal robot, commanded pose).
+
+    Attributes
+    ----------
+    q_full
+        Commanded Pinocchio configuration (nq,).
+    gravity_torque
+        Gravity's generalised force ``-g(q)`` (nv,), N.m or N.
+    wrench_torque
+        The applied wrench's generalised force ``J_load^T w`` (nv,).
+    lumped
+        d(Delta q)/d theta of the lumped gravity parameters (nv, n_theta).
+    """
+
+    q_full: np.ndarray
+    gravity_torque: np.ndarray
+    wrench_torque: np.ndarray
+    lumped: np.ndarray
+
+
+class PoseModel:
+    """Predicted absolute marker positions and their analytic Jacobian.
+
+    Parameters
+    ----------
+    robot
+        An open-chain robot (no closed loops) with the inertias gravity needs.
+    markers
+        The markers the measuring system sees.
+    families
+        Which parameter families are in the parameter vector (subset of :data:`FAMILIES`).
+    loads
+        Applied wrenches per row, or ``None`` (gravity alone).
+    frame0
+        Starting estimate of the measuring frame: (R_0 (3, 3), t_0 (3,)) mapping robot world
+        coordinates to the measuring system's.
+    """
+
+    def __init__(self, robot: Robot, markers: list[Marker], families: tuple[str, ...],
+                 frame0: tuple[np.ndarray, np.ndarray], loads: Loads | None = None) -> None:
+        if robot.loop is not None and robot.loop.constraints:
+            raise PoseModelError(
+                f"{robot.name} has closed loops; absolute-pose calibration handles open chains "
+                "only: calibrate a serial robot, or use a deflection campaign")
+        unknown = [f for f in families if f not in FAMILIES]
+        if unknown:
+            raise PoseModelError(f"unknown parameter families {unknown}; valid: "
+                                 f"{', '.join(FAMILIES)}")
+        self.robot = robot
+        self.markers = markers
+        self.families = tuple(f for f in FAMILIES if f in families)
+        self.rotation0, self.translation0 = (np.asarray(frame0[0], float),
+                                             np.asarray(frame0[1], float))
+        self.loads = loads
+        model = robot.model
+        self.frame_ids = [self._frame_id(m.frame) for m in markers]
+        self.joints = [j for j in range(1, model.njoints) if model.joints[j].nv == 1]
+        self.compliant = [int(model.getJointId(n)) for n in robot.compliant_joints]
+        self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
+                         if c != _zero_component(model.joints[j].shortname())]
+        self.parameters = self._parameters()
+        self._slices = self._family_slices()
+
+    # ------------------------------------------------------------------ layout
+
+    def _frame_id(self, name: str) -> int:
+        model = self.robot.model
+        if not model.existFrame(name):
+            raise PoseModelError(f"marker frame {name!r} is not a frame of {self.robot.name}; "
+                                 "name one of its frames in [markers]")
+        return int(model.getFrameId(name))
+
+    def _parameters(self) -> list[Parameter]:
+        out: list[Parameter] = []
+        names = self.robot.model.names
+        for fam in self.families:
+            if fam == "frame":
+                out += [Parameter(fam, f"frame {a}", SCALES[fam], u)
+                        for a, u in zip(_AXES6, UNITS[fam], strict=True)]
+            elif fam == "markers":
+                out += [Parameter(fam, f"{m.name} offset {a}", SCALES[fam], "m")
+                        for m in self.markers for a in "xyz"]
+            elif fam == "joint_offsets":
+                out += [Parameter(fam, f"{names[j]} zero", SCALES[fam], self._unit(j, "rad", "m"))
+                        for j in self.joints]
+            elif fam == "geometry":
+                out += [Parameter(fam, f"{names[self.joints[n]]} placement {_AXES6[c]}",
+                                  SCALES[fam], UNITS[fam][c]) for n, c in self.geometry]
+            elif fam == "joint_compliance":
+                out += [Parameter(fam, f"{names[j]} compliance", SCALES[fam],
+                                  self._unit(j, "rad/(N.m)", "m/N")) for j in self._compliant()]
+            else:
+                out += [Parameter(fam, f"{names[j]} x {names[k]} {p}", SCALES[fam],
+                                  UNITS["gravity_lumped"])
+                        for j in self._compliant() for k in self._downstream(j)
+                        for p in _GRAVITY_PARAMETERS]
+        return out
+
+    def _unit(self, joint: int, revolute: str, prismatic: str) -> str:
+        return prismatic if self.robot.model.joints[joint].shortname().startswith(
+            ("JointModelP", "JointModelPrismatic")) else revolute
+
+    def _compliant(self) -> list[int]:
+        return self.compliant
+
+    def _downstream(self, joint: int) -> list[int]:
+        """Joints whose links move with ``joint`` (its subtree, itself included)."""
+        return [int(k) for k in self.robot.model.subtrees[joint]]
+
+    @property
+    def size(self) -> int:
+        """Number of parameters."""
+        return len(self.parameters)
+
+    def slices(self) -> dict[str, slice]:
+        """Columns of each family."""
+        return self._slices
+
+    def _family_slices(self) -> dict[str, slice]:
+        out, start = {}, 0
+        for fam in self.families:
+            n = sum(p.family == fam for p in self.parameters)
+            out[fam] = slice(start, start + n)
+            start += n
+        return out
+
+    # ------------------------------------------------------------------ evaluation
+
+    def perturbed_model(self, x: np.ndarray) -> pin.Model:
+        """The robot's Pinocchio model with the geometry part of ``x`` applied."""
+        model = pin.Model(self.robot.model)
+        sl = self.slices().get("geometry")
+        if sl is not None:
+            for j, e in zip(self.joints, self._placement_errors(x, sl), strict=True):
+                model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(e))
+        return model
+
+    def row_terms(self, q_full: np.ndarray, wrench: np.ndarray | None) -> RowTerms:
+        """What a row contributes whatever the parameters: torques of the nominal robot."""
+        model = self.robot.model
+        data = model.createData()
+        gravity = -pin.computeGeneralizedGravity(model, data, q_full).copy()
+        wrench_torque = np.zeros(model.nv)
+        if wrench is not None and self.loads is not None:
+            fid = self._frame_id(self.loads.frame)
+            pin.computeJointJacobians(model, data, q_full)
+            pin.updateFramePlacements(model, data)
+            jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+            wrench_torque = jac.T @ wrench
+        lumped = np.zeros((model.nv, 0))
+        if "gravity_lumped" in self.families:
+            regressor = pin.computeJointTorqueRegressor(model, data, q_full, np.zeros(model.nv),
+                                                        np.zeros(model.nv))
+            lumped = self._lumped_columns(regressor, self._compliant_v())
+        return RowTerms(q_full, gravity, wrench_torque, lumped)
+
+    def deflection(self, x: np.ndarray, row: RowTerms) -> np.ndarray:
+        """Joint deflection ``Delta q`` (nv,) of one row for parameters ``x``.
+
+        The compliance multiplies the applied wrench's torque, and gravity's too unless the
+        gravity part is lumped (``gravity_lumped``: masses unknown).
+        """
+        dq = np.zeros(self.robot.model.nv)
+        sl = self.slices()
+        v_index = self._compliant_v()
+        if "joint_compliance" in sl:
+            torque = row.wrench_torque + (0.0 if "gravity_lumped" in sl else row.gravity_torque)
+            dq[v_index] += x[sl["joint_compliance"]] * torque[v_index]
+        if "gravity_lumped" in sl:
+            dq += row.lumped @ x[sl["gravity_lumped"]]
+        return dq
+
+    def _compliant_v(self) -> list[int]:
+        return [self.robot.model.joints[j].idx_v for j in self._compliant()]
+
+    def _lumped_columns(self, regressor: np.ndarray, v_index: list[int]) -> np.ndarray:
+        """d(Delta q)/d theta (nv, n_theta): minus the regressor entries of each pair."""
+        nv = self.robot.model.nv
+        cols = []
+        for j, vj in zip(self._compliant(), v_index, strict=True):
+            for k in self._downstream(j):
+                for p in range(len(_GRAVITY_PARAMETERS)):
+                    col = np.zeros(nv)
+                    col[vj] = -regressor[vj, 10 * (k - 1) + p]
+                    cols.append(col)
+        return np.array(cols).T if cols else np.zeros((nv, 0))
+
+    def evaluate(self, x: np.ndarray, rows: list[RowTerms], jacobian: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Predicted positions (n, M, 3) in the measuring frame (m) and their Jacobian.
+
+        The Jacobian (n, M, 3, p) is d y / d x, exact at ``x``.
+        """
+        x = np.asarray(x, dtype=float)
+        model = self.perturbed_model(x)
+        data = model.createData()
+        sl = self.slices()
+        rot_w, d_omega = self._measuring_rotation(x)
+        n, m = len(rows), len(self.markers)
+        y = np.empty((n, m, 3))
+        jac = np.zeros((n, m, 3, self.size)) if jacobian else None
+        for i, row in enumerate(rows):
+            q = pin.integrate(model, row.q_full, self._joint_motion(x, row))
+            pin.forwardKinematics(model, data, q)
+            pin.updateFramePlacements(model, data)
+            if jacobian:
+                pin.computeJointJacobians(model, data, q)
+            for k, (marker, fid) in enumerate(zip(self.markers, self.frame_ids, strict=True)):
+                placement = data.oMf[fid]
+                offset = self._offset(x, k, marker)
+                point = placement.act(offset)
+                world = self.rotation0 @ point
+                y[i, k] = rot_w @ world + self.translation0 + self._translation(x)
+                if jac is not None:
+                    jac[i, k] = self._columns(x, sl, model, data, row, fid, point, world,
+                                              k, rot_w, d_omega)
+        return y, jac
+
+    def _measuring_rotation(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """exp(omega) and d(exp(omega) v)/d omega = -exp(omega) [v]x Jr(omega) (without v)."""
+        sl = self.slices().get("frame")
+        omega = x[sl][3:] if sl is not None else np.zeros(3)
+        return pin.exp3(omega), pin.Jexp3(omega)
+
+    def _translation(self, x: np.ndarray) -> np.ndarray:
+        sl = self.slices().get("frame")
+        return x[sl][:3] if sl is not None else np.zeros(3)
+
+    def _offset(self, x: np.ndarray, k: int, marker: Marker) -> np.ndarray:
+        sl = self.slices().get("markers")
+        extra = x[sl][3 * k: 3 * k + 3] if sl is not None else np.zeros(3)
+        return np.asarray(marker.offset, dtype=float) + extra
+
+    def _joint_motion(self, x: np.ndarray, row: RowTerms) -> np.ndarray:
+        """Tangent step (nv,) from the commanded configuration: zero offsets plus deflection."""
+        dv = self.deflection(x, row)
+        sl = self.slices().get("joint_offsets")
+        if sl is not None:
+            dv[[self.robot.model.joints[j].idx_v for j in self.joints]] += x[sl]
+        return dv
+
+    def _columns(self, x: np.ndarray, sl: dict[str, slice], model: pin.Model, data: pin.Data,
+                 row: RowTerms, fid: int, point: np.ndarray, world: np.ndarray, k: int,
+                 rot_w: np.ndarray, d_omega: np.ndarray) -> np.ndarray:
+        """d y / d x (3, p) of one marker on one row."""
+        cols = np.zeros((3, self.size))
+        to_measuring = rot_w @ self.rotation0
+        if "frame" in sl:
+            start = sl["frame"].start
+            cols[:, start:start + 3] = np.eye(3)
+            cols[:, start + 3:start + 6] = -rot_w @ _skew(world) @ d_omega
+        if "markers" in sl:
+            start = sl["markers"].start + 3 * k
+            cols[:, start:start + 3] = to_measuring @ data.oMf[fid].rotation
+        j_point = self._point_jacobian(model, data, fid, point)
+        if "joint_offsets" in sl:
+            cols[:, sl["joint_offsets"]] = to_measuring @ j_point[:, self._joint_v()]
+        if "joint_compliance" in sl:
+            torque = row.wrench_torque + (0.0 if "gravity_lumped" in sl else row.gravity_torque)
+            v_index = self._compliant_v()
+            cols[:, sl["joint_compliance"]] = to_measuring @ (j_point[:, v_index]
+                                                              * torque[v_index])
+        if "gravity_lumped" in sl:
+            cols[:, sl["gravity_lumped"]] = to_measuring @ j_point @ row.lumped
+        if "geometry" in sl:
+            cols[:, sl["geometry"]] = to_measuring @ self._geometry_columns(x, sl, model, data,
+                                                                          fid, point)
+        return cols
+
+    def _joint_v(self) -> list[int]:
+        return [self.robot.model.joints[j].idx_v for j in self.joints]
+
+    @staticmethod
+    def _point_jacobian(model: pin.Model, data: pin.Data, fid: int, point: np.ndarray
+                        ) -> np.ndarray:
+        """d point / d v (3, nv), world axes, for a point fixed to frame ``fid``."""
+        jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+        lever = point - data.oMf[fid].translation
+        return jac[:3] - _skew(lever) @ jac[3:]
+
+    def _placement_errors(self, x: np.ndarray, sl: slice) -> np.ndarray:
+        """(n_joints, 6) placement errors from the geometry part of ``x``."""
+        eps = np.zeros((len(self.joints), 6))
+        rows, cols = zip(*self.geometry, strict=True) if self.geometry else ((), ())
+        eps[list(rows), list(cols)] = x[sl]
+        return eps
+
+    def _geometry_columns(self, x: np.ndarray, sl: dict[str, slice], model: pin.Model,
+                          data: pin.Data, fid: int, point: np.ndarray) -> np.ndarray:
+        """d point / d epsilon (3, 6 n_joints): ``M_j exp(eps)`` perturbed on the right.
+
+        With ``a = oMi[parent] M_j exp(eps)``: ``d point = R_a (d v + d w x r)`` for a twist
+        ``(d v, d w) = Jr(eps) d eps`` and ``r`` the point in frame ``a``.
+        """
+        eps = self._placement_errors(x, sl["geometry"])
+        support = set(model.supports[model.frames[fid].parentJoint])
+        out = np.zeros((3, 6 * len(self.joints)))
+        for n, j in enumerate(self.joints):
+            if j not in support:
+                continue
+            frame_a = data.oMi[model.parents[j]] * model.jointPlacements[j]
+            rot = frame_a.rotation
+            local = np.hstack([rot, -_skew(point - frame_a.translation) @ rot])
+            out[:, 6 * n:6 * n + 6] = local @ pin.Jexp6(pin.Motion(eps[n]))
+        return out[:, [6 * n + c for n, c in self.geometry]]
+
+
+def _zero_component(shortname: str) -> int | None:
+    """Component of a placement error that is the joint's own zero offset, if any."""
+    kind = shortname.replace("JointModel", "")
+    for prefix, base in (("RUB", 3), ("R", 3), ("P", 0)):
+        if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
+            return base + "XYZ".index(kind[len(prefix):])
+    return None
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def align_frames(world: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and translation taking ``world`` points onto ``measured`` (least squares).
+
+    Kabsch/Horn on (N, 3) point pairs (rows with NaN ignored); needs three non-collinear points.
+    """
+    ok = np.all(np.isfinite(measured), axis=1) & np.all(np.isfinite(world), axis=1)
+    a, b = world[ok], measured[ok]
+    if len(a) < 3 or np.linalg.matrix_rank(a - a.mean(0), tol=1e-9) < 2:
+        raise PoseModelError("the measured markers span fewer than three non-collinear points; "
+                             "measure more varied poses")
+    ca, cb = a.mean(0), b.mean(0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return rot, cb - rot @ ca

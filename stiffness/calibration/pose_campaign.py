@@ -1,0 +1,324 @@
+"""Pose campaigns: absolute marker positions measured at commanded coordinates.
+
+A pose campaign (``kind = "poses"`` in its ``campaign.toml``, docs/absolute-poses.md) holds, per
+row, a configuration label, the commanded coordinates ``q1..qn`` and the position of each marker
+in the measuring system's frame (``<marker>_x, <marker>_y, <marker>_z``; a marker's three cells
+empty where it was not seen), optionally the applied wrench ``fx, fy, fz[, mx, my, mz]`` (world
+axes, at ``[load] frame``). Gravity always acts. Units as in deflection campaigns; in memory SI.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.absolute import Loads, Marker
+from stiffness.calibration.campaign import (
+    CAMPAIGN_FILE,
+    RobotSettings,
+    TomlFile,
+    Units,
+    coordinates_in_si,
+    noise_section,
+    parse_number,
+    robot_section,
+    settings_robot,
+    typed_value,
+    units_section,
+)
+from stiffness.errors import FileFormatError, MissingFileError, did_you_mean
+from stiffness.files import atomic_write, read_text, read_toml
+from stiffness.robot.robot import Robot
+
+_KEYS = {
+    "": {"kind", "name", "robot", "units", "measurement", "markers", "load"},
+    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base"},
+    "units": {"angle", "force", "length", "rotation", "moment"},
+    "measurement": {"data", "noise_std"},
+    "load": {"frame"},
+}
+_REQUIRED = {"": ("kind", "robot", "units", "measurement", "markers"),
+             "robot": ("source",), "units": ("angle", "length"), "measurement": ("data",),
+             "load": ()}
+_WRENCH = ("fx", "fy", "fz", "mx", "my", "mz")
+
+
+@dataclass
+class PoseCampaign:
+    """A pose campaign in SI.
+
+    Attributes
+    ----------
+    name
+        Campaign label.
+    robot
+        The loaded robot of ``[robot]``.
+    settings
+        The ``[robot]`` table (source, frame, compliant joints...).
+    units
+        Units of the files.
+    markers
+        The markers, with their nominal offsets (m).
+    labels
+        Configuration label of each row.
+    q
+        (n, n_coordinates) commanded coordinates (rad, m).
+    positions
+        (n, M, 3) measured positions (m, measuring frame); NaN where a marker was not seen.
+    loads
+        Applied wrenches (world axes, N and N.m) at a frame, or ``None``.
+    noise_std
+        Declared position noise (m), or ``None``.
+    path
+        The campaign.toml, or ``None`` for a campaign built in memory.
+    """
+
+    name: str
+    robot: Robot
+    settings: RobotSettings
+    units: Units
+    markers: list[Marker]
+    labels: list[str]
+    q: np.ndarray
+    positions: np.ndarray
+    loads: Loads | None = None
+    noise_std: float | None = None
+    path: Path | None = None
+
+    @property
+    def n_rows(self) -> int:
+        """Number of rows."""
+        return len(self.labels)
+
+    @property
+    def n_observed(self) -> int:
+        """Number of measured position components (3 per seen marker)."""
+        return int(np.isfinite(self.positions).sum())
+
+    def subset(self, rows: np.ndarray) -> PoseCampaign:
+        """The campaign restricted to ``rows`` (indices or a mask)."""
+        idx = np.arange(self.n_rows)[rows]
+        loads = None if self.loads is None else Loads(self.loads.frame, self.loads.wrench[idx])
+        return PoseCampaign(self.name, self.robot, self.settings, self.units, self.markers,
+                            [self.labels[i] for i in idx], self.q[idx], self.positions[idx],
+                            loads, self.noise_std, self.path)
+
+
+def _check_table(doc: dict, section: str, toml: TomlFile) -> None:
+    label = "top level" if section == "" else f"[{section}]"
+    for key in doc:
+        if key not in _KEYS[section]:
+            raise toml.error(f"unknown key {key!r} in {label} of a pose campaign; "
+                             f"{did_you_mean(key, sorted(_KEYS[section]))}", section, key)
+    for key in _REQUIRED[section]:
+        if key not in doc:
+            raise toml.error(f"missing key {key} in {label} of a pose campaign: see "
+                             "docs/absolute-poses.md", section)
+
+
+def _toml(path: Path) -> tuple[dict, TomlFile]:
+    toml = TomlFile(path, read_text(path, "campaign file"))
+    doc = read_toml(path, "campaign file")
+    _check_table(doc, "", toml)
+    for section in ("robot", "units", "measurement", "load"):
+        if section in doc:
+            if not isinstance(doc[section], dict):
+                raise toml.error(f"{section} must be a [{section}] table", "", section)
+            _check_table(doc[section], section, toml)
+    doc["units"].setdefault("force", "N")
+    return doc, toml
+
+
+def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
+    table = doc["markers"]
+    if not isinstance(table, dict) or not table:
+        raise toml.error("[markers] must name at least one marker, e.g. "
+                         'tip = { frame = "tool0" }', "", "markers")
+    out = []
+    for name, spec in table.items():
+        if not isinstance(spec, dict) or not isinstance(spec.get("frame"), str):
+            raise toml.error(f"[markers] {name} must be a table with frame = \"<frame name>\"",
+                             "markers", name)
+        extra = set(spec) - {"frame", "offset"}
+        if extra:
+            raise toml.error(f"[markers] {name}: unknown key(s) {sorted(extra)}; valid: frame, "
+                             "offset", "markers", name)
+        offset = spec.get("offset", [0.0, 0.0, 0.0])
+        if (not isinstance(offset, list) or len(offset) != 3 or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                for v in offset)):
+            raise toml.error(f"[markers] {name}: offset must be three finite numbers in "
+                             f"{units.length}, got {offset!r}", "markers", name)
+        out.append(Marker(name, spec["frame"], np.array(offset, float) * units.length_to_si))
+    return out
+
+
+def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
+            ) -> tuple[int, list[int], list[int]]:
+    """Check the header; (n_q, marker column starts, wrench columns)."""
+    n_q = robot.n_coordinates
+    expected = ["config"] + [f"q{i + 1}" for i in range(n_q)]
+    names = [c.strip() for c in cells]
+    if names[:n_q + 1] != expected:
+        raise FileFormatError(f"the header must start with {','.join(expected)} (the "
+                              f"{n_q} coordinates of {robot.name} in its coordinate order: "
+                              f"{', '.join(robot.coordinate_joints)})", path=data, line=1)
+    starts = []
+    for m in markers:
+        cols = [f"{m.name}_{a}" for a in "xyz"]
+        if not all(c in names for c in cols):
+            raise FileFormatError(f"marker {m.name!r} of [markers] has no columns "
+                                  f"{', '.join(cols)}; add them (empty cells where it was not "
+                                  "seen)", path=data, line=1)
+        starts.append(names.index(cols[0]))
+    wrench = [names.index(c) for c in _WRENCH if c in names]
+    known = set(expected) | {f"{m.name}_{a}" for m in markers for a in "xyz"} | set(_WRENCH)
+    unknown = [c for c in names if c not in known]
+    if unknown:
+        raise FileFormatError(f"unknown column(s) {unknown}; a pose campaign has config, q1..qn, "
+                              "<marker>_x/_y/_z per marker and optionally fx..mz", path=data,
+                              line=1)
+    if wrench and len(wrench) not in (3, 6):
+        raise FileFormatError("give the applied wrench as fx,fy,fz or fx,fy,fz,mx,my,mz",
+                              path=data, line=1)
+    return n_q, starts, wrench
+
+
+def _rows(data: Path, robot: Robot, markers: list[Marker]
+          ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray | None, list[int]]:
+    """Labels, q (file units), positions (file units, NaN unseen), wrench (file units)."""
+    if not data.is_file():
+        raise MissingFileError(f"measurement file {data} does not exist; write it or fix "
+                               "[measurement] data", path=data)
+    lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(read_text(data, "CSV"))))
+             if r and not r[0].lstrip().startswith("#")]
+    if len(lines) < 2:
+        raise FileFormatError("no data rows after the header", path=data)
+    n_q, starts, wrench_cols = _header(lines[0][1], data, robot, markers)
+    labels, q, pos, wrench, numbers = [], [], [], [], []
+    for number, cells in lines[1:]:
+        if len(cells) != len(lines[0][1]):
+            raise FileFormatError(f"{len(cells)} cells, the header has {len(lines[0][1])}",
+                                  path=data, line=number)
+        labels.append(cells[0].strip())
+        q.append([parse_number(cells[j], data, number, j + 1, f"q{j}")
+                  for j in range(1, n_q + 1)])
+        pos.append([_position(cells, s, data, number, m.name)
+                    for s, m in zip(starts, markers, strict=True)])
+        wrench.append([parse_number(cells[j], data, number, j + 1, "load")
+                       for j in wrench_cols])
+        numbers.append(number)
+    w = np.array(wrench, float) if wrench_cols else None
+    return labels, np.array(q, float), np.array(pos, float), w, numbers
+
+
+def _position(cells: list[str], start: int, data: Path, line: int, name: str) -> list[float]:
+    raw = [c.strip() for c in cells[start:start + 3]]
+    if all(c == "" for c in raw):
+        return [math.nan] * 3
+    if any(c == "" for c in raw):
+        raise FileFormatError(f"marker {name!r} has some but not all of its three cells; leave "
+                              "all three empty where it was not seen", path=data, line=line)
+    return [parse_number(c, data, line, start + i + 1, f"{name}_{'xyz'[i]}")
+            for i, c in enumerate(raw)]
+
+
+def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
+    """Read and validate a pose campaign (a ``campaign.toml`` with ``kind = "poses"``).
+
+    Raises
+    ------
+    StiffnessError
+        Missing file, unknown or missing keys, unknown units, a marker on a frame the robot
+        lacks, a CSV with missing columns, partial marker cells or non-numeric cells (file,
+        line and column named).
+    """
+    toml_path = Path(path)
+    if toml_path.is_dir():
+        toml_path = toml_path / CAMPAIGN_FILE
+    doc, toml = _toml(toml_path)
+    if doc["kind"] != "poses":
+        raise toml.error(f"kind = {doc['kind']!r}: this reader takes pose campaigns "
+                         '(kind = "poses")', "", "kind")
+    units = units_section(doc, toml)
+    settings = robot_section(doc, toml, units)
+    robot = settings_robot(settings, toml_path)
+    markers = _markers(doc, toml, units)
+    for m in markers:
+        if not robot.model.existFrame(m.frame):
+            raise toml.error(f"[markers] {m.name}: frame {m.frame!r} is not a frame of "
+                             f"{robot.name}", "markers", m.name)
+    data_name = typed_value(doc["measurement"]["data"], str, toml, "measurement", "data",
+                            "a file name")
+    data = toml_path.parent / data_name
+    labels, q_file, pos, wrench, numbers = _rows(data, robot, markers)
+    q = coordinates_in_si(robot, q_file, units, labels, numbers, data)
+    noise = noise_section(doc, toml, units)
+    loads = None
+    if wrench is not None:
+        full = np.zeros((len(labels), 6))
+        full[:, :3] = wrench[:, :3] * units.force_to_si
+        if wrench.shape[1] == 6:
+            full[:, 3:] = wrench[:, 3:] * units.moment_to_si
+        frame = doc.get("load", {}).get("frame", robot.target_frame)
+        loads = Loads(str(frame), full)
+    return PoseCampaign(str(doc.get("name", toml_path.parent.name)), robot, settings, units,
+                        markers, labels, q, pos * units.length_to_si, loads,
+                        None if noise is None else noise * units.length_to_si, toml_path)
+
+
+def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
+    """Write ``c`` as ``folder/campaign.toml`` and ``measurements.csv`` in its units."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    u = c.units
+    lines = ['kind = "poses"', f'name = "{c.name}"', "", "[robot]",
+             f'source = "{c.settings.source}"']
+    if c.settings.frame:
+        lines.append(f'frame = "{c.settings.frame}"')
+    if c.settings.compliant_joints:
+        lines.append("compliant_joints = [" + ", ".join(
+            f'"{j}"' for j in c.settings.compliant_joints) + "]")
+    lines += ["", "[units]", f'angle = "{u.angle}"', f'force = "{u.force}"',
+              f'length = "{u.length}"', "", "[measurement]", 'data = "measurements.csv"']
+    if c.noise_std is not None:
+        lines.append(f"noise_std = {c.noise_std / u.length_to_si!r}")
+    if c.loads is not None:
+        lines += ["", "[load]", f'frame = "{c.loads.frame}"']
+    lines += ["", "[markers]"] + [
+        f'{m.name} = {{ frame = "{m.frame}", offset = ['
+        + ", ".join(repr(float(v / u.length_to_si)) for v in m.offset) + "] }"
+        for m in c.markers]
+    atomic_write(folder / CAMPAIGN_FILE, "\n".join(lines) + "\n")
+    atomic_write(folder / "measurements.csv", _csv_text(c))
+    return folder / CAMPAIGN_FILE
+
+
+def _csv_text(c: PoseCampaign) -> str:
+    u = c.units
+    header = ["config"] + [f"q{i + 1}" for i in range(c.q.shape[1])] + [
+        f"{m.name}_{a}" for m in c.markers for a in "xyz"]
+    if c.loads is not None:
+        header += list(_WRENCH)
+    prismatic = np.array([c.robot.model.joints[c.robot.model.getJointId(j)].shortname()
+                          .startswith(("JointModelP", "JointModelPrismatic"))
+                          for j in c.robot.coordinate_joints])
+    q = np.where(prismatic, c.q / u.length_to_si, c.q / u.angle_to_si)
+    out = [",".join(header)]
+    for i, label in enumerate(c.labels):
+        cells = [label] + [repr(float(v)) for v in q[i]]
+        for k in range(len(c.markers)):
+            p = c.positions[i, k] / u.length_to_si
+            cells += ["", "", ""] if not np.all(np.isfinite(p)) else [repr(float(v)) for v in p]
+        if c.loads is not None:
+            w = c.loads.wrench[i]
+            cells += [repr(float(v / u.force_to_si)) for v in w[:3]]
+            cells += [repr(float(v / u.moment_to_si)) for v in w[3:]]
+        out.append(",".join(cells))
+    return "\n".join(out) + "\n"

@@ -1,0 +1,317 @@
+"""Diagnose on pose campaigns: the gap between the nominal robot and a tracker, closed family by
+family (docs/absolute-poses.md).
+
+Step 0 is the nominal rigid robot seen through a fitted measuring frame and marker offsets
+(the tracker is anywhere; its placement is always unknown). Each later step adds the parameter
+family (:data:`~stiffness.calibration.absolute.FAMILIES`: joint zero offsets, joint placement
+geometry, joint compliance under gravity and the applied loads, or its lumped form when the masses
+are unknown) that lowers BIC most, when it lowers BIC by more than
+:data:`~stiffness.calibration.diagnose.BIC_MARGIN` and the held-out RMS (cross-validation over
+configuration labels) falls. Only identifiable parameters are fitted
+(:mod:`stiffness.calibration.pose_fit`). At the end the residual is tested against the declared
+noise (chi-square at :data:`~stiffness.calibration.diagnose.GOF_LEVEL`): what is left above it
+is "unexplained", with its structure (per marker, per axis, along the row order).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
+from stiffness.calibration.diagnose import BIC_MARGIN, GOF_LEVEL, config_folds
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, predict, rows_of, starting_frame
+from stiffness.errors import FileFormatError, StiffnessError
+from stiffness.files import atomic_write, read_json
+from stiffness.robot.robot import Robot, load_robot
+
+#: The families every pose diagnosis starts with (the tracker's placement and the markers).
+BASE_FAMILIES = ("frame", "markers")
+#: Families tried after the base, by whether the robot's masses are trusted.
+CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance"),
+              "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
+#: Model-file kind of a pose calibration.
+POSE_MODEL_KIND = "pose-calibration"
+
+
+@dataclass
+class PoseStep:
+    """One step of a pose diagnosis."""
+
+    family: str
+    fit: PoseFit
+    delta_bic: float
+    cv_rms: float
+    validation: dict | None = None
+
+
+@dataclass
+class PoseDiagnosis:
+    """The steps, the final fit and the verdict of a pose diagnosis."""
+
+    campaign: PoseCampaign
+    masses: str
+    steps: list[PoseStep]
+    rejected: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def final(self) -> PoseFit:
+        """The last accepted fit."""
+        return self.steps[-1].fit
+
+    @property
+    def families(self) -> list[str]:
+        """Families of the final model, in the order chosen."""
+        return list(BASE_FAMILIES) + [s.family for s in self.steps[1:]]
+
+    def gof(self) -> float | None:
+        """Chi-square p-value of the final residual against the declared noise, or None."""
+        noise = self.campaign.noise_std
+        if noise is None:
+            return None
+        fit = self.final
+        return float(stats.chi2.sf(fit.rss() / noise ** 2, fit.n_observed - fit.n_fitted))
+
+    @property
+    def unexplained(self) -> bool | None:
+        """Whether the final residual is above the declared noise (None: no noise declared)."""
+        p = self.gof()
+        return None if p is None else p < 1 - GOF_LEVEL
+
+    def to_dict(self) -> dict:
+        """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit)."""
+        lu = self.campaign.units.length_to_si
+        return {"kind": "poses", "unit": self.campaign.units.length, "masses": self.masses,
+                "noise_std": None if self.campaign.noise_std is None
+                else self.campaign.noise_std / lu,
+                "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
+                           "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
+                           "n_parameters": s.fit.n_fitted,
+                           **({"validation": s.validation} if s.validation else {})}
+                          for s in self.steps],
+                "rejected": self.rejected, "families": self.families,
+                "gof_p": self.gof(), "unexplained": self.unexplained,
+                "identifiability": self.final.identifiability.to_dict(self.final.model),
+                "parameters": parameter_table(self.final),
+                "residual_structure": residual_structure(self.final, self.campaign)}
+
+
+def parameter_table(fit: PoseFit) -> list[dict]:
+    """Each parameter with its value, standard deviation and 95 % interval (SI, unit named)."""
+    lo, hi = fit.interval()
+    std = fit.std()
+    kept = set(fit.identifiability.kept)
+    return [{"family": p.family, "parameter": p.label, "unit": p.unit,
+             "value": float(fit.x[i]), "fitted": i in kept,
+             "std": None if i not in kept else float(std[i]),
+             "interval_95": None if i not in kept else [float(lo[i]), float(hi[i])]}
+            for i, p in enumerate(fit.model.parameters)]
+
+
+def residual_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:
+    """Where the residual sits: RMS per marker and per axis, and its trend along the rows.
+
+    ``row_trend`` is the slope of each axis's residual against the row index (m per row) and
+    the correlation coefficient: a drift (temperature, tracker) shows as a strong trend.
+    """
+    r = fit.residual
+    lu = campaign.units.length_to_si
+    per_marker = {m.name: _rms(r[:, k]) / lu for k, m in enumerate(campaign.markers)}
+    per_axis = {a: _rms(r[:, :, i]) / lu for i, a in enumerate("xyz")}
+    rows = np.arange(r.shape[0], dtype=float)
+    trend = {}
+    for i, a in enumerate("xyz"):
+        values = np.nanmean(r[:, :, i], axis=1)
+        ok = np.isfinite(values)
+        if ok.sum() > 2 and np.std(values[ok]) > 0:
+            slope = float(np.polyfit(rows[ok], values[ok], 1)[0])
+            trend[a] = {"slope_per_row": slope / lu,
+                        "correlation": float(np.corrcoef(rows[ok], values[ok])[0, 1])}
+    return {"rms_by_marker": per_marker, "rms_by_axis": per_axis, "row_trend": trend}
+
+
+def _rms(values: np.ndarray) -> float:
+    v = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
+
+
+def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray]
+         ) -> PoseFit:
+    model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads)
+    return fit_pose_model(model, campaign, rows_of(model, campaign), families)
+
+
+def _cv_rms(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
+            folds: list[np.ndarray]) -> float:
+    """Held-out RMS of the residual components, each fold fitted on the others."""
+    sq, count = 0.0, 0
+    for test in folds:
+        train = np.setdiff1d(np.arange(campaign.n_rows), test)
+        fit = _fit(campaign.subset(train), families, frame0)
+        held = campaign.subset(test)
+        err = held.positions - predict(fit.model, fit.x, held)
+        err = err[np.isfinite(err)]
+        sq, count = sq + float(err @ err), count + err.size
+    return float(np.sqrt(sq / max(count, 1)))
+
+
+def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
+                   validate: PoseCampaign | None = None) -> PoseDiagnosis:
+    """Close the gap between the nominal robot and the measured poses, family by family.
+
+    Parameters
+    ----------
+    masses
+        ``"known"`` (the robot's inertias are trusted: joint compliance times gravity torque)
+        or ``"unknown"`` (lumped compliance-times-mass-moment parameters).
+    validate
+        Another pose campaign of the same robot and markers, evaluated at every step.
+    """
+    if masses not in CANDIDATES:
+        raise StiffnessError(f"masses must be one of {', '.join(CANDIDATES)}, got {masses!r}")
+    frame0 = starting_frame(campaign)
+    folds = config_folds(tuple(campaign.labels), seed)
+    families = list(BASE_FAMILIES)
+    base = _fit(campaign, families, frame0)
+    cv = _cv_rms(campaign, families, frame0, folds)
+    steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
+    rejected: dict[str, float] = {}
+    remaining = [f for f in CANDIDATES[masses] if f in FAMILIES]
+    while remaining:
+        tried = {f: _fit(campaign, families + [f], frame0) for f in remaining}
+        best = min(tried, key=lambda f: tried[f].bic())
+        delta = tried[best].bic() - steps[-1].fit.bic()
+        if delta >= -BIC_MARGIN:
+            rejected.update({f: tried[f].bic() - steps[-1].fit.bic() for f in tried})
+            break
+        cv_new = _cv_rms(campaign, families + [best], frame0, folds)
+        if cv_new >= steps[-1].cv_rms:
+            rejected[best] = delta
+            break
+        families.append(best)
+        remaining.remove(best)
+        steps.append(PoseStep(best, tried[best], delta, cv_new,
+                              _validation(tried[best], validate)))
+    return PoseDiagnosis(campaign, masses, steps, rejected)
+
+
+def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:
+    return None if other is None else validation_errors(fit.model, fit.x, other)
+
+
+def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> dict:
+    """3-D position errors of ``campaign`` under a fitted model, without refitting.
+
+    Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``max_error``
+    (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and ``markers``
+    (the same keys per marker).
+    """
+    campaign = _in_model_order(model.markers, campaign)
+    model = PoseModel(campaign.robot, model.markers, model.families,
+                      (model.rotation0, model.translation0), campaign.loads)
+    err = np.linalg.norm(campaign.positions - predict(model, x, campaign), axis=2)
+    lu = campaign.units.length_to_si
+
+    def summary(e: np.ndarray) -> dict:
+        e = e[np.isfinite(e)] / lu
+        if not e.size:
+            return {"rms": None, "mean_error": None, "max_error": None, "rows": 0}
+        return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
+                "max_error": float(e.max()), "rows": int(e.size)}
+
+    out = summary(err)
+    out["rows"] = campaign.n_rows
+    out["unit"] = campaign.units.length
+    out["markers"] = {m.name: {**summary(err[:, k]), "unit": campaign.units.length}
+                      for k, m in enumerate(campaign.markers)}
+    return out
+
+
+def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:
+    """``campaign`` with its markers in the model's order (same names and frames required)."""
+    given = {m.name: k for k, m in enumerate(campaign.markers)}
+    for m in fitted:
+        if m.name not in given or campaign.markers[given[m.name]].frame != m.frame:
+            raise StiffnessError(f"marker {m.name!r} (on {m.frame}) of the model is not a marker "
+                                 f"of the campaign ({', '.join(given)}); validate on a campaign "
+                                 "with the model's markers")
+    if len(given) != len(fitted):
+        raise StiffnessError(f"the campaign has markers {list(given)}, the model "
+                             f"{[m.name for m in fitted]}: validate with the same markers")
+    order = [given[m.name] for m in fitted]
+    return PoseCampaign(campaign.name, campaign.robot, campaign.settings, campaign.units,
+                        list(fitted), campaign.labels, campaign.q, campaign.positions[:, order],
+                        campaign.loads, campaign.noise_std, campaign.path)
+
+
+# ------------------------------------------------------------------------------------------
+# the pose model file
+
+
+def pose_model_dict(fit: PoseFit, campaign: PoseCampaign) -> dict:
+    """The model file of a pose calibration: robot, measuring frame, markers, parameters (SI)."""
+    s = campaign.settings
+    return {"kind": POSE_MODEL_KIND, "version": 1, "units": "SI",
+            "robot": {"source": s.source, "frame": s.frame,
+                      "compliant_joints": list(campaign.robot.compliant_joints)},
+            "measuring_frame": {"rotation": fit.model.rotation0.tolist(),
+                                "translation_m": fit.model.translation0.tolist()},
+            "markers": [{"name": m.name, "frame": m.frame, "offset_m": list(map(float, m.offset))}
+                        for m in fit.model.markers],
+            "load_frame": None if campaign.loads is None else campaign.loads.frame,
+            "families": list(fit.model.families),
+            "parameters": parameter_table(fit)}
+
+
+def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike) -> Path:
+    """Write the pose model file (JSON, atomically)."""
+    atomic_write(Path(path), json.dumps(pose_model_dict(fit, campaign), indent=1) + "\n")
+    return Path(path)
+
+
+@dataclass
+class PoseModelFile:
+    """A pose model file read back: its robot, its model and parameters."""
+
+    robot: Robot
+    model: PoseModel
+    x: np.ndarray
+    path: Path
+
+
+def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> PoseModelFile:
+    """Read a pose model file written by :func:`write_pose_model`.
+
+    Raises
+    ------
+    FileFormatError
+        Not a pose model file, or a missing or malformed key (named).
+    """
+    path = Path(path)
+    doc = read_json(path, "model file")
+    if not isinstance(doc, dict) or doc.get("kind") != POSE_MODEL_KIND:
+        raise FileFormatError(f"not a pose model file (kind {POSE_MODEL_KIND!r}); give the "
+                              "final-model.json of a pose diagnosis", path=path)
+    try:
+        r = doc["robot"]
+        robot = robot or load_robot(r["source"], frame=r["frame"],
+                                    compliant_joints=tuple(r["compliant_joints"]))
+        markers = [Marker(m["name"], m["frame"], np.array(m["offset_m"], float))
+                   for m in doc["markers"]]
+        frame0 = (np.array(doc["measuring_frame"]["rotation"], float),
+                  np.array(doc["measuring_frame"]["translation_m"], float))
+        load = doc["load_frame"]
+        model = PoseModel(robot, markers, tuple(doc["families"]), frame0,
+                          None if load is None else Loads(load, np.zeros((0, 6))))
+        values = {p["parameter"]: float(p["value"]) for p in doc["parameters"]}
+        x = np.array([values[p.label] for p in model.parameters])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
+                              "stiffness diagnose --out", path=path) from exc
+    return PoseModelFile(robot, model, x, path)

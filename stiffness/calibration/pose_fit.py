@@ -1,0 +1,275 @@
+"""Fitting a :class:`~stiffness.calibration.absolute.PoseModel` to a pose campaign.
+
+Identifiability. Only an identifiable set of parameters is fitted. The regressor (d y / d x
+over every measured component, each column scaled by its parameter's typical size) is reduced
+family by family, in the order the families were chosen: a column joins when the part of it
+orthogonal to the columns already kept is at least :data:`IDENTIFIABILITY_TOL` of its own norm
+(the sine of its angle to their span; column-pivoted QR within the family). A parameter left
+out either has no effect on any marker ("no effect": its column is below
+:data:`IDENTIFIABILITY_TOL` of the largest column of the family) or is a combination of kept
+ones ("merged": the kept parameters absorb it with the least-squares coefficients reported).
+
+Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian;
+covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or the residual variance when the
+campaign declares none; 95 % intervals from the normal quantile.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg, optimize, stats
+
+from stiffness.calibration.absolute import PoseModel, RowTerms, align_frames
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.errors import StiffnessError
+
+#: Smallest sine between a kept column and the span of the others (documented above).
+IDENTIFIABILITY_TOL = 1e-6
+#: Two-sided 95 % normal quantile.
+_Z95 = float(stats.norm.ppf(0.975))
+
+
+@dataclass(frozen=True)
+class Dropped:
+    """A parameter left out of the fit, and why.
+
+    Attributes
+    ----------
+    index
+        Column of the parameter.
+    reason
+        ``"no effect"`` or ``"merged"``.
+    merged_into
+        For a merged parameter: (kept column, coefficient) pairs, largest first; the kept
+        parameters absorb ``coefficient x`` this one (in their own units).
+    """
+
+    index: int
+    reason: str
+    merged_into: tuple[tuple[int, float], ...] = ()
+
+
+@dataclass
+class Identifiability:
+    """The identifiable columns of a regressor and the dropped ones."""
+
+    kept: list[int]
+    dropped: list[Dropped]
+
+    def to_dict(self, model: PoseModel) -> dict:
+        """JSON form: kept labels, and each dropped label with its reason and combination."""
+        labels = [p.label for p in model.parameters]
+        return {"tolerance": IDENTIFIABILITY_TOL,
+                "kept": [labels[i] for i in self.kept],
+                "dropped": [{"parameter": labels[d.index], "reason": d.reason,
+                             "merged_into": [{"parameter": labels[i], "coefficient": c}
+                                             for i, c in d.merged_into]}
+                            for d in self.dropped]}
+
+
+def rows_of(model: PoseModel, campaign: PoseCampaign) -> list[RowTerms]:
+    """The parameter-independent terms of every row of ``campaign``."""
+    wrench = None if campaign.loads is None else campaign.loads.wrench
+    return [model.row_terms(campaign.robot.configuration(q),
+                            None if wrench is None else wrench[i])
+            for i, q in enumerate(campaign.q)]
+
+
+def starting_frame(campaign: PoseCampaign) -> tuple[np.ndarray, np.ndarray]:
+    """The measuring frame that best aligns the nominal robot's markers with the measurements."""
+    nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)))
+    y, _ = nominal.evaluate(np.zeros(0), rows_of(nominal, campaign), jacobian=False)
+    return align_frames(y.reshape(-1, 3), campaign.positions.reshape(-1, 3))
+
+
+def _scaled(jac: np.ndarray, observed: np.ndarray, model: PoseModel) -> np.ndarray:
+    scales = np.array([p.scale for p in model.parameters])
+    return jac.reshape(-1, model.size)[observed.reshape(-1)] * scales
+
+
+def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray
+                   ) -> Identifiability:
+    """Identifiable columns of ``a``, group by group (earlier groups first); see module doc.
+
+    ``a`` holds the regressor's columns multiplied by ``scales`` (each parameter's typical
+    size); merge coefficients are returned in the parameters' own units.
+    """
+    kept: list[int] = []
+    dropped: list[Dropped] = []
+    for group in groups:
+        norms = np.linalg.norm(a[:, group], axis=0)
+        big = norms.max() if len(group) else 0.0
+        candidates = [c for c, nrm in zip(group, norms, strict=True)
+                      if nrm > IDENTIFIABILITY_TOL * big and nrm > 0]
+        dropped += [Dropped(c, "no effect") for c in group if c not in candidates]
+        if not candidates:
+            continue
+        rest = a[:, candidates]
+        if kept:
+            basis, _ = np.linalg.qr(a[:, kept])
+            rest = rest - basis @ (basis.T @ rest)
+        _, r, piv = linalg.qr(rest, mode="economic", pivoting=True)
+        own = np.linalg.norm(a[:, candidates], axis=0)[piv]
+        diag = np.abs(np.diag(r)) if r.size else np.zeros(0)
+        joined = [candidates[p] for p, d, o in zip(piv, diag, own, strict=False)
+                  if d >= IDENTIFIABILITY_TOL * o]
+        kept += joined
+        dropped += _merged(a, kept, [c for c in candidates if c not in joined], scales)
+    return Identifiability(kept, dropped)
+
+
+def _merged(a: np.ndarray, kept: list[int], columns: list[int], scales: np.ndarray
+            ) -> list[Dropped]:
+    """Each of ``columns`` as a combination of the ``kept`` ones (parameters' own units)."""
+    if not columns:
+        return []
+    coefs, *_ = np.linalg.lstsq(a[:, kept], a[:, columns], rcond=None)
+    out = []
+    for column, coef in zip(columns, coefs.T, strict=True):
+        coef = coef * scales[kept] / scales[column]
+        order = np.argsort(-np.abs(coef))
+        pairs = tuple((kept[i], float(coef[i])) for i in order
+                      if abs(coef[i]) * scales[column] > 1e-6 * scales[kept[i]])
+        out.append(Dropped(column, "merged", pairs))
+    return out
+
+
+@dataclass
+class PoseFit:
+    """A fitted pose model.
+
+    Attributes
+    ----------
+    model
+        The model (families, markers, starting frame).
+    x
+        (p,) parameters, SI; zero where not fitted.
+    identifiability
+        The fitted (kept) and dropped parameters.
+    covariance
+        (k, k) covariance of the kept parameters (order of ``identifiability.kept``).
+    residual
+        (n, M, 3) measured minus predicted (m); NaN where a marker was not seen.
+    sigma
+        Noise standard deviation used for the covariance (m).
+    """
+
+    model: PoseModel
+    x: np.ndarray
+    identifiability: Identifiability
+    covariance: np.ndarray
+    residual: np.ndarray
+    sigma: float
+    sigma_source: str = "declared"
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def n_observed(self) -> int:
+        """Number of measured components."""
+        return int(np.isfinite(self.residual).sum())
+
+    @property
+    def n_fitted(self) -> int:
+        """Number of fitted parameters."""
+        return len(self.identifiability.kept)
+
+    def rss(self) -> float:
+        """Sum of squared residual components (m^2)."""
+        r = self.residual[np.isfinite(self.residual)]
+        return float(r @ r)
+
+    def rms(self) -> float:
+        """RMS of the residual components (m)."""
+        return float(np.sqrt(self.rss() / max(self.n_observed, 1)))
+
+    def bic(self) -> float:
+        """Bayesian information criterion ``n ln(RSS/n) + k ln n``."""
+        n = self.n_observed
+        return float(n * np.log(self.rss() / n) + self.n_fitted * np.log(n))
+
+    def std(self) -> np.ndarray:
+        """(p,) standard deviations; NaN for parameters not fitted."""
+        out = np.full(self.model.size, np.nan)
+        out[self.identifiability.kept] = np.sqrt(np.diag(self.covariance))
+        return out
+
+    def interval(self) -> tuple[np.ndarray, np.ndarray]:
+        """95 % intervals (p,) each; NaN for parameters not fitted."""
+        s = self.std()
+        return self.x - _Z95 * s, self.x + _Z95 * s
+
+
+def observed_mask(campaign: PoseCampaign) -> np.ndarray:
+    """(n, M, 3) True where a component was measured."""
+    return np.isfinite(campaign.positions)
+
+
+def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
+                   order: list[str], x0: np.ndarray | None = None) -> PoseFit:
+    """Fit the identifiable parameters of ``model`` to ``campaign``.
+
+    Parameters
+    ----------
+    order
+        The model's families in the order they were chosen (earlier families keep the
+        directions they share with later ones).
+    x0
+        Starting parameters (p,), default zero.
+
+    Raises
+    ------
+    StiffnessError
+        Fewer measured components than identifiable parameters.
+    """
+    x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
+    observed = observed_mask(campaign)
+    _, jac = model.evaluate(x, rows)
+    assert jac is not None
+    scaled = _scaled(jac, observed, model)
+    sl = model.slices()
+    ident = reduce_columns(scaled, [list(range(sl[f].start, sl[f].stop)) for f in order],
+                           np.array([p.scale for p in model.parameters]))
+    kept = ident.kept
+    if len(kept) >= int(observed.sum()):
+        raise StiffnessError(f"{len(kept)} identifiable parameters but only "
+                             f"{int(observed.sum())} measured components; measure more poses")
+    x[[d.index for d in ident.dropped]] = 0.0
+    measured = campaign.positions[observed]
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        x[kept] = z
+        y, _ = model.evaluate(x, rows, jacobian=False)
+        return y[observed] - measured
+
+    def jacobian(z: np.ndarray) -> np.ndarray:
+        x[kept] = z
+        _, j = model.evaluate(x, rows)
+        assert j is not None
+        return j[observed][:, kept]
+
+    scales = np.array([model.parameters[i].scale for i in kept])
+    sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
+                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    x[kept] = sol.x
+    return _finish(model, campaign, x, ident, sol.jac, sol.fun, observed)
+
+
+def _finish(model: PoseModel, campaign: PoseCampaign, x: np.ndarray, ident: Identifiability,
+            jac: np.ndarray, fun: np.ndarray, observed: np.ndarray) -> PoseFit:
+    residual = np.full(campaign.positions.shape, np.nan)
+    residual[observed] = -fun
+    n, k = fun.size, len(ident.kept)
+    if campaign.noise_std is not None:
+        sigma, source = campaign.noise_std, "declared"
+    else:
+        sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
+    cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
+    return PoseFit(model, x.copy(), ident, cov, residual, sigma, source)
+
+
+def predict(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> np.ndarray:
+    """Predicted positions (n, M, 3) of ``campaign``'s rows (m), measuring frame."""
+    y, _ = model.evaluate(x, rows_of(model, campaign), jacobian=False)
+    return y
