@@ -154,7 +154,7 @@ class PoseModel:
 
     def __init__(self, robot: Robot, markers: list[Marker], families: tuple[str, ...],
                  frame0: tuple[np.ndarray, np.ndarray], loads: Loads | None = None) -> None:
-        if robot.loop is not None and robot.loop.constraints:
+        if not robot.loop.is_open_chain:
             raise PoseModelError(
                 f"{robot.name} has closed loops; absolute-pose calibration handles open chains "
                 "only: calibrate a serial robot, or use a deflection campaign")

@@ -22,9 +22,13 @@ import json
 import shlex
 import sys
 
-from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+from stiffness.calibration.pose_campaign import load_pose_campaign
+from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
+from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 from stiffness.cli import flags
+from stiffness.errors import StiffnessError
 from stiffness.files import output_folder
 
 
@@ -47,6 +51,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "the usable cores; 1: all in this process); the result does not "
                              "depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--masses", choices=tuple(CANDIDATES), default="known",
+                        help="pose campaigns: whether the robot's link masses are trusted "
+                             "(joint compliance times gravity torque) or unknown (lumped "
+                             "compliance-times-mass-moment parameters); default known")
+    parser.add_argument("--validate", metavar="CAMPAIGN",
+                        help="pose campaigns: another pose campaign evaluated at every step "
+                             "without refitting (the gap shrinking on held-out data)")
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -59,6 +70,11 @@ def command_line(args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness diagnose``; returns the exit code."""
     flags.require_at_least_one(args.workers, "--workers")
+    if campaign_kind(args.campaign) == "poses":
+        return run_poses(args)
+    if args.validate:
+        raise StiffnessError("--validate takes pose campaigns; for a deflection campaign "
+                             "diagnose reports the held-out (cross-validated) RMS of each step")
     campaign = load_campaign(args.campaign)
     if args.out:
         output_folder(args.out, create=False)  # before the work: a bad --out fails at once
@@ -75,6 +91,23 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
         return 0
     print(format_report(result))
+    if paths:
+        print("written: " + ", ".join(str(p) for p in paths.values()))
+    return 0
+
+
+def run_poses(args: argparse.Namespace) -> int:
+    """``stiffness diagnose`` on a pose campaign (docs/absolute-poses.md)."""
+    campaign = load_pose_campaign(args.campaign)
+    other = load_pose_campaign(args.validate) if args.validate else None
+    if args.out:
+        output_folder(args.out, create=False)
+    result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other)
+    paths = write_pose_diagnosis(result, args.out) if args.out else None
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
+        return 0
+    print(format_pose_report(result))
     if paths:
         print("written: " + ", ".join(str(p) for p in paths.values()))
     return 0

@@ -28,6 +28,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("stiffness.cli.report", "the SK120 paper-reproduction report (the main job)"),
     "diagnose": ("stiffness.cli.diagnose",
                  "find and name what a model misses against a campaign's measurements"),
+    "validate": ("stiffness.cli.validate",
+                 "a model file evaluated on another campaign, without refitting"),
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
     "design": ("stiffness.cli.design",
                "choose the poses and loads to measure (experiment design)"),

@@ -1,0 +1,46 @@
+"""``stiffness validate``: a model file evaluated on another campaign, without refitting.
+
+Example::
+
+    stiffness validate calibration/final-model.json held-out-poses/ --json
+
+For a pose campaign (``kind = "poses"``) the model is a pose calibration's
+``final-model.json`` (its measuring frame and marker offsets are the model's) and the output is
+the 3-D position error, overall and per marker: RMS, mean and max, in the campaign's length
+unit. ``--json`` keys: ``rms``, ``mean_error``, ``max_error``, ``unit``, ``rows``, ``markers``
+(the same keys per marker).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from stiffness.calibration.campaign import campaign_kind
+from stiffness.calibration.pose_campaign import load_pose_campaign
+from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
+from stiffness.calibration.pose_report import format_validation
+from stiffness.errors import StiffnessError
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Flags of ``stiffness validate``."""
+    parser.add_argument("model", metavar="MODEL", help="model file (final-model.json)")
+    parser.add_argument("campaign", metavar="CAMPAIGN",
+                        help="campaign.toml, or the folder holding it")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (campaign units) and nothing else")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness validate``; returns the exit code."""
+    if campaign_kind(args.campaign) != "poses":
+        raise StiffnessError(f"{args.campaign} is a deflection campaign; validate takes a pose "
+                             "campaign (kind = \"poses\") and a pose calibration's model file; "
+                             "for deflection campaigns run stiffness diagnose on it")
+    campaign = load_pose_campaign(args.campaign)
+    model = read_pose_model(args.model, campaign.robot)
+    result = validation_errors(model.model, model.x, campaign)
+    print(json.dumps(result, indent=1, allow_nan=False) if args.json
+          else format_validation(result))
+    return 0
