@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import root
 
-from stiffness.elastic.effects import Geometry, LinkCompliance, link_axes
+from stiffness.elastic.effects.geometry import Geometry, link_axes
+from stiffness.elastic.effects.link_bends import LinkCompliance
 from stiffness.elastic.loaded import ElasticModel, LinkBend, loaded_equilibrium
 from stiffness.machining.compensation import compensate
 from stiffness.mechanics.ik import all_coordinates
@@ -404,7 +405,7 @@ def test_diagnosed_model_file_brings_its_effects(sk120):
 
 
 def _parameter(name, value, unit):
-    from stiffness.elastic.effects import Parameter
+    from stiffness.elastic.effects.base import Parameter
 
     return Parameter(name, value, 0.0, (value, value), unit)
 

@@ -5,19 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stiffness.elastic.effects import (
-    LIBRARY,
-    REQUIRED_EFFECTS,
-    ComplementaryStiffness,
-    Geometry,
-    Model,
-    References,
-    TargetOffset,
-    candidates,
-    link_axes,
-    make_effect,
-    rotation_matrix,
-)
+from stiffness.elastic.effects import LIBRARY, REQUIRED_EFFECTS, candidates, make_effect
+from stiffness.elastic.effects.geometry import Geometry, References, link_axes, rotation_matrix
+from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.joint_laws import ComplementaryStiffness
+from stiffness.elastic.effects.measurement import TargetOffset
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state
@@ -36,7 +28,7 @@ def _model(robot, coords, forces, baseline="enhanced", effects=()):
     forces = np.atleast_2d(forces)
     rows = geo.rows(np.repeat(coords, len(forces) // len(coords), axis=0), forces)
     refs = References.of(geo, rows, 1e5, np.full((1, 3), 1e-3))
-    return Model(geo, rows, baseline, tuple(robot.compliant_joints), tuple(effects), refs)
+    return Hypothesis(geo, rows, baseline, tuple(robot.compliant_joints), tuple(effects), refs)
 
 
 def test_library_names():
@@ -168,7 +160,7 @@ def test_model_jacobian_with_effects_is_the_derivative(weight):
     forces = rng.normal(size=(12, 3)) * 150.0
     rows = geo.rows(coords, forces, rng.normal(size=(12, 3)) * 10.0)
     refs = References.of(geo, rows, 1e5, np.full((1, 3), 1e-3))
-    base = Model(geo, rows, "enhanced", tuple(robot.compliant_joints), (), refs, weight)
+    base = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (), refs, weight)
     stacked = base.extended(make_effect("backlash", "elbow_joint", geo)).extended(
         make_effect("gravity_preload", None, geo))
     x_base = np.log([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])

@@ -17,7 +17,9 @@ from stiffness import cores
 from stiffness.calibration import fitting
 from stiffness.calibration.fitting import FitJob, fit_model, fit_models
 from stiffness.cores import fork_workers, usable_cores
-from stiffness.elastic.effects import Geometry, Model, References, make_effect
+from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.robot.robot import load_robot
 
 K_TRUE = np.array([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
@@ -35,10 +37,10 @@ def _campaign_model(compliant: tuple[str, ...]):
     rows = geo.rows(coords, forces)
     refs = References.of(geo, rows, 1e5, np.full((1, 3), 1e-3))
     backlash = make_effect("backlash", "shoulder_lift_joint", geo)
-    truth = Model(geo, rows, "enhanced", tuple(robot.compliant_joints), (backlash,), refs)
+    truth = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (backlash,), refs)
     measured = truth.predict(np.concatenate([np.log(K_TRUE), [2.0]]))
     measured = measured + rng.normal(size=measured.shape) * NOISE
-    return Model(geo, rows, "enhanced", compliant, (backlash,), refs), measured
+    return Hypothesis(geo, rows, "enhanced", compliant, (backlash,), refs), measured
 
 
 def test_an_unseen_stiffness_is_held_and_the_others_fit_as_without_it():

@@ -8,7 +8,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.elastic.effects import LIBRARY, Parameter
+from stiffness.elastic.effects import LIBRARY
+from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.model_file import (
     SCHEMA,
     CompliantModel,

@@ -18,12 +18,9 @@ from stiffness.calibration.campaign import load_campaign, write_campaign
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.identify import identify
 from stiffness.cli.main import main
-from stiffness.elastic.effects import (
-    Geometry,
-    Model,
-    References,
-    make_effect,
-)
+from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import CompliantModel, read_model_file
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.mechanics.gravity import gravity_preload, spring_balancer, with_payload
@@ -101,7 +98,7 @@ def _model(robot, coords, force, moment, effects):
     geo = Geometry.of(robot)
     rows = geo.rows(coords, force, moment)
     refs = References.of(geo, rows, 2e4, np.full((1, 3), 1e-3))
-    return Model(geo, rows, "enhanced", tuple(ARM), tuple(effects), refs, rotation_weight=1.0)
+    return Hypothesis(geo, rows, "enhanced", tuple(ARM), tuple(effects), refs, rotation_weight=1.0)
 
 
 def test_effects_rotational_parts():

@@ -21,7 +21,9 @@ from stiffness.calibration.diagnose import (
     format_report,
 )
 from stiffness.calibration.diagnosis_page import render_diagnosis
-from stiffness.elastic.effects import Geometry, Model, References, candidates
+from stiffness.elastic.effects import candidates
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.provenance import provenance
 
@@ -81,7 +83,7 @@ def test_the_test_effect_is_outside_the_library(name):
     geo = Geometry.of(camp.robot())
     rows = geo.rows(camp.q, camp.force)
     refs = References.of(geo, rows, 1e5, measured)
-    model = Model(geo, rows, camp.baseline, tuple(UR5["compliant_joints"]), (), refs)
+    model = Hypothesis(geo, rows, camp.baseline, tuple(UR5["compliant_joints"]), (), refs)
     base = fit_baseline(model, measured, NOISE)
     assert base.rms() > 0.9 * SIZE * NOISE
     for effect in candidates(base.model):

@@ -54,15 +54,10 @@ from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units, load_campaign
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit, FitJob, kind_noise, observations
-from stiffness.elastic.effects import (
-    Effect,
-    Geometry,
-    Model,
-    Parameter,
-    References,
-    Rows,
-    candidates,
-)
+from stiffness.elastic.effects import candidates
+from stiffness.elastic.effects.base import Effect, Parameter
+from stiffness.elastic.effects.geometry import Geometry, References, Rows
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
@@ -112,7 +107,7 @@ _MIN_REPLICATE_DOF = 9
 # fitting
 
 
-def fit_job(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
+def fit_job(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
             max_nfev: int | None = None, tolerance: float = 1e-10) -> FitJob:
     """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
     to the solver ``tolerance``, to run (:class:`stiffness.calibration.fitting.FitJob`)."""
@@ -120,13 +115,13 @@ def fit_job(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
                   {"max_nfev": max_nfev, "x_scale": 1.0, "tolerance": tolerance})
 
 
-def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
+def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
               max_nfev: int | None = None, tolerance: float = 1e-10) -> Fit:
     """:func:`fit_job`'s fit, in this process."""
     return fit_job(model, measured, scale, x0, max_nfev, tolerance).run()
 
 
-def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
+def _linear_start(model: Hypothesis, measured: np.ndarray) -> np.ndarray:
     """ln k from the conventional model, linear in the compliances (non-negative LS)."""
     tau = model.rows.torques()[:, model.index[: len(model.compliant)]]
     jac = model.jv if model.rotation_weight is None else np.concatenate(
@@ -139,7 +134,7 @@ def _linear_start(model: Model, measured: np.ndarray) -> np.ndarray:
     return np.log(np.where(np.isfinite(k), k, fill))
 
 
-def fit_baseline(model: Model, measured: np.ndarray, scale: float) -> Fit:
+def fit_baseline(model: Hypothesis, measured: np.ndarray, scale: float) -> Fit:
     """Baseline fit from the linear start and the paper's 1e5 N.m/rad start; the best kept."""
     n = len(model.compliant)
     starts = [_linear_start(model, measured), np.full(n, math.log(1e5))]
@@ -731,15 +726,9 @@ class Diagnosis:
         refs = f.model.refs
         effects = []
         for e in f.model.effects:
-            settings = {}
-            if e.name == "backlash":
-                settings["smoothing_torque"] = float(refs.tau_smoothing[
-                    refs.joints.index(e.where)])
-            elif e.name == "gravity_compensator":
-                settings = dict(e.settings)
             effects.append(ModelEffect(e.name, e.where, e.kind,
-                                       self.final_parameters_si.get(e.label, []), settings,
-                                       e.describe()))
+                                       self.final_parameters_si.get(e.label, []),
+                                       e.file_settings(refs), e.describe()))
         stiff = self.final_stiffness
         return ModelFile(
             source=c.resolved_source(), **c.robot_options(),
@@ -890,7 +879,7 @@ def diagnose(
                              f"{len(compliant)} stiffnesses; add measurement rows")
     sigma, source, note = _translation_noise(campaign)
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
-        campaign, Model(geo, rows, campaign.baseline, compliant, (),
+        campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (),
                         References.of(geo, rows, 1e5, campaign.deflection)), n, sigma)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
@@ -947,7 +936,7 @@ def _translation_noise(campaign: Campaign) -> tuple[float | None, str, str]:
     return None, "residuals", ""
 
 
-def _baseline_fit(campaign: Campaign, model0: Model, n: int, sigma: float | None
+def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None
                   ) -> tuple[Fit, np.ndarray, float, float | None, str | None]:
     """The campaign's baseline ``model0`` fitted (rotations weighted by their noise, estimated
     from the baseline's residuals when not known), with the references of its stiffness.

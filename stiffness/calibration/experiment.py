@@ -48,7 +48,8 @@ from typing import Protocol
 import numpy as np
 
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.elastic.effects import BASELINES, Geometry, Model, References, Rows
+from stiffness.elastic.effects.geometry import Geometry, References, Rows
+from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError, UnstableEquilibriumError
 from stiffness.robot.robot import Robot
 
@@ -172,7 +173,7 @@ def candidate_set(robot: Robot, n_poses: int, max_force: float, seed: int | None
 
 
 def baseline_model(geometry: Geometry, rows: Rows, compliant: tuple[str, ...], k: np.ndarray,
-                   formulation: str = "enhanced") -> tuple[Model, np.ndarray]:
+                   formulation: str = "enhanced") -> tuple[Hypothesis, np.ndarray]:
     """The identification's deflection model (no effect) over ``rows`` and its parameter
     vector at the nominal stiffness ``k`` (SI)."""
     if formulation not in BASELINES:
@@ -180,10 +181,10 @@ def baseline_model(geometry: Geometry, rows: Rows, compliant: tuple[str, ...], k
                                f"{', '.join(BASELINES)}", name=formulation, choices=BASELINES)
     k = np.asarray(k, dtype=float)
     refs = References.of(geometry, rows, float(np.exp(np.mean(np.log(k)))), np.ones((1, 3)))
-    return Model(geometry, rows, formulation, compliant, (), refs), np.log(k)
+    return Hypothesis(geometry, rows, formulation, compliant, (), refs), np.log(k)
 
 
-def sensitivities(model: Model, x: np.ndarray, n_columns: int | None = None) -> np.ndarray:
+def sensitivities(model: Hypothesis, x: np.ndarray, n_columns: int | None = None) -> np.ndarray:
     """(m, 3, c) derivatives of the predicted deflections (m) w.r.t. the first ``c`` entries of
     the parameter vector ``x`` (central differences, step :data:`_FD_STEP`): by default the
     ``ln k`` of the model's compliant joints. A model that also predicts rotations gives
@@ -424,7 +425,7 @@ class Fitted(Protocol):
     """A model fitted to a campaign: its :class:`~stiffness.elastic.effects.Model` (over the
     campaign's rows) and parameter vector."""
 
-    model: Model
+    model: Hypothesis
     x: np.ndarray
 
 

@@ -54,7 +54,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from stiffness.cores import forked_map
-from stiffness.elastic.effects import Model
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 
 #: Singular values of the whitened residual Jacobian below this fraction of the largest are
@@ -137,7 +137,7 @@ class Fit:
         ``sum f^2 rho((r / f)^2)`` of the scaled residuals at the optimum (:func:`loss_sum`).
     """
 
-    model: Model
+    model: Hypothesis
     x: np.ndarray
     predicted: np.ndarray
     rss: float
@@ -212,12 +212,12 @@ class Objective:
     """Scaled residuals ``(predicted - measured) / scale`` of a model over ``x`` and their
     Jacobian; with ``anchor``, the pseudo-residuals ``PRIOR_WEIGHT (x - anchor)`` appended.
 
-    The Jacobian is the model's analytic one (:meth:`Model.predict_with_jacobian`) in its
-    :attr:`Model.analytic_columns`; the other columns are finite differences (central for the
+    The Jacobian is the model's analytic one (:meth:`Hypothesis.predict_with_jacobian`) in its
+    :attr:`Hypothesis.analytic_columns`; the other columns are finite differences (central for the
     reported :attr:`Fit.jacobian`, forward steps of :data:`_FORWARD_STEP` for the solver).
     """
 
-    def __init__(self, model: Model, measured: np.ndarray, scale: float,
+    def __init__(self, model: Hypothesis, measured: np.ndarray, scale: float,
                  anchor: np.ndarray | None = None) -> None:
         self.model, self.measured, self.scale, self.anchor = model, measured, scale, anchor
         self.n_res, self.p = measured.size, model.n_params
@@ -307,7 +307,7 @@ class Objective:
         return np.vstack([j, PRIOR_WEIGHT * np.eye(self.p)])
 
 
-def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
+def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
               method: str = "trf", bounded: bool = True, anchor: np.ndarray | None = None,
               tolerance: float = 1e-10, max_nfev: int | None = None,
               x_scale: float | None = None, loss: str = "linear", f_scale: float = 1.0) -> Fit:
@@ -316,7 +316,7 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
     Parameters
     ----------
     model
-        Model over the rows of ``measured``.
+        Hypothesis over the rows of ``measured``.
     measured
         (m, 3) measured deflections (m).
     scale
@@ -326,7 +326,7 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
     method
         ``trf`` or ``lm`` (Levenberg-Marquardt; unbounded only).
     bounded
-        Whether to keep ``x`` within :meth:`Model.bounds`.
+        Whether to keep ``x`` within :meth:`Hypothesis.bounds`.
     anchor
         Anchor of the pseudo-residuals (see the module docstring), or ``None``.
     tolerance
@@ -384,7 +384,7 @@ def fit_model(model: Model, measured: np.ndarray, scale: float, x0: np.ndarray,
 class FitJob:
     """One fit of :func:`fit_models`: the arguments of :func:`fit_model`."""
 
-    model: Model
+    model: Hypothesis
     measured: np.ndarray
     scale: float
     x0: np.ndarray

@@ -80,7 +80,8 @@ from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise_scale,
 )
-from stiffness.elastic.effects import Geometry, Model, References
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import ModelFile, jsonable
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.robot.robot import Robot
@@ -483,7 +484,7 @@ def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[
                         cov.condition_number, directions)
 
 
-def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = None) -> Model:
+def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = None) -> Hypothesis:
     """The campaign's baseline model without effects: its compliant joints under
     ``formulation`` over the campaign's rows (:class:`stiffness.elastic.effects.Model`).
 
@@ -502,7 +503,7 @@ def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = 
     rows = geometry.rows(campaign.q, campaign.force, campaign.moment,
                          labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
     refs = References.of(geometry, rows, PAPER_START_SI, campaign.deflection)
-    return Model(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs)
+    return Hypothesis(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs)
 
 
 def identify(
@@ -591,7 +592,7 @@ def identify(
                            rotations, robust_sigma)
 
 
-def _identification(campaign: Campaign, rob: Robot, model: Model, formulation: str,
+def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
                     method: str, runs: list[StartResult], fits: list[Fit], floor: float,
                     rotations: tuple, robust_sigma: float | None = None) -> Identification:
     """The :class:`Identification` of the best run: its uncertainty, what is undetermined,
@@ -709,7 +710,7 @@ def _check_residual_count(campaign: Campaign, method: str, p: int, loss: str = "
         )
 
 
-def _k_c_floor(model: Model, formulation: str) -> float:
+def _k_c_floor(model: Hypothesis, formulation: str) -> float:
     """The lowest start stiffness (SI): twice the largest eigenvalue of K_C over the rows
     (0 for the conventional formulation, which has no K_C)."""
     k_c = model.k_c()
@@ -718,7 +719,7 @@ def _k_c_floor(model: Model, formulation: str) -> float:
     return 0.0 if formulation == "conventional" else 2.0 * k_c_max
 
 
-def _least_squares_runs(model: Model, measured: np.ndarray, scale: float, formulation: str,
+def _least_squares_runs(model: Hypothesis, measured: np.ndarray, scale: float, formulation: str,
                         method: str, starts: int, seed: int | None, floor: float,
                         options: dict, progress: Callable[[int, int, str], None] | None
                         ) -> tuple[list[StartResult], list[Fit]]:
@@ -798,8 +799,8 @@ def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarra
     return starts_agree, methods_agree
 
 
-def _rotation_weighting(campaign: Campaign, model: Model, scale: float, options: dict
-                        ) -> tuple[Model, np.ndarray, float, float | None, str]:
+def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, options: dict
+                        ) -> tuple[Hypothesis, np.ndarray, float, float | None, str]:
     """The model and observations of a campaign with rotations, and the weight
     ``w = sigma_t / sigma_r`` (m/rad) (:mod:`stiffness.calibration.fitting`).
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stiffness.calibration.fitting import SINGULAR_RTOL, Fit, fit_model
-from stiffness.elastic.effects import Model
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 
 #: A row is flagged when a component's standardised residual exceeds this (noise stds).
@@ -150,7 +150,7 @@ def describe_outliers(outliers: list[Outlier], threshold: float = OUTLIER_THRESH
     return lines
 
 
-def robust_noise_scale(model: Model, measured: np.ndarray, scale: float,
+def robust_noise_scale(model: Hypothesis, measured: np.ndarray, scale: float,
                        declared_m: float | None, loss: str, options: dict,
                        start_si: float = 1e5) -> float:
     """The noise std (m) a robust loss is scaled by: the declared one, else

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stiffness.elastic.effects import cached_robot
+from stiffness.elastic.effects.geometry import cached_robot
 from stiffness.errors import (
     ConvergenceError,
     StiffnessError,

@@ -27,7 +27,7 @@ from pathlib import Path
 from stiffness.calibration.campaign import Units, load_campaign
 from stiffness.calibration.experiment import CRITERIA
 from stiffness.cli import flags
-from stiffness.elastic.effects import BASELINES
+from stiffness.elastic.effects.hypothesis import BASELINES
 from stiffness.elastic.model_file import read_model_file
 from stiffness.files import output_folder
 from stiffness.planning.design import (

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.elastic.effects import link_axes
+from stiffness.elastic.effects.geometry import link_axes
 from stiffness.errors import (
     ConvergenceError,
     StiffnessError,
@@ -429,7 +429,7 @@ def elastic_model_of(model, frame: str | None = None,
     ``complementary_stiffness`` is in the exact equilibrium anyway; the measurement effects
     (how the campaign observed the deflection) are listed in :attr:`ElasticModel.ignored`.
     """
-    from stiffness.elastic.effects import Geometry
+    from stiffness.elastic.effects.geometry import Geometry
     from stiffness.robot.robot import load_robot
 
     stiffness = dict(zip(model.compliant_joints, model.k_theta, strict=True))

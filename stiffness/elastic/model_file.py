@@ -64,17 +64,11 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.elastic.effects import (
-    COMPENSATOR_GEOMETRY,
-    LIBRARY,
-    Geometry,
-    Model,
-    Parameter,
-    References,
-    chain_placements,
-    link_axes,
-    make_effect,
-)
+from stiffness.elastic.effects import LIBRARY, make_effect
+from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.effects.geometry import Geometry, References, chain_placements, link_axes
+from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.preloads import COMPENSATOR_GEOMETRY
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
@@ -957,7 +951,7 @@ class CompliantModel:
         if model.formulation == "exact" and not any(e.second_order for e in effects):
             effects.insert(0, LIBRARY["complementary_stiffness"]())
             values.insert(0, np.zeros(0))
-        fitted = Model(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
+        fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
         x = np.concatenate([np.log(model.k_theta)] + [
             e.variables(v, refs) for e, v in zip(effects, values, strict=True)])
         return fitted.predict(x)[0]

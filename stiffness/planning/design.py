@@ -39,14 +39,9 @@ from stiffness.calibration.experiment import (
     separation_statistics,
     standard_errors,
 )
-from stiffness.elastic.effects import (
-    BASELINES,
-    LIBRARY,
-    Geometry,
-    Model,
-    References,
-    make_effect,
-)
+from stiffness.elastic.effects import LIBRARY, make_effect
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
 from stiffness.elastic.model_file import ModelFile, read_model_file
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
 from stiffness.planning.plan import Plan, write_plan
@@ -150,7 +145,7 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
     scale = sigma if sigma is not None else max(float(np.sqrt(np.mean(measured ** 2))) * 1e-2,
                                                 1e-12)
     refs0 = References.of(geo, rows, 1e5, measured)
-    model0 = Model(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
+    model0 = Hypothesis(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
     base = fit_baseline(model0, measured, scale)
     refs = References.of(geo, rows, float(np.exp(np.mean(base.x))), measured)
     base.model = base.model.with_refs(refs)
@@ -341,7 +336,7 @@ class DesignResult:
         return out
 
 
-def _info_of(cands: Candidates, model: Model, x: np.ndarray, sigma: float) -> np.ndarray:
+def _info_of(cands: Candidates, model: Hypothesis, x: np.ndarray, sigma: float) -> np.ndarray:
     sens = sensitivities(model.with_rows(cands.rows), x)
     info = row_information(sens, sigma)
     p = info.shape[-1]
@@ -555,7 +550,7 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
     elif existing is not None:
         geo = Geometry.of(existing.robot())
         rows = geo.rows(existing.q, existing.force, existing.moment)
-        model0 = Model(geo, rows, existing.baseline, joints,
+        model0 = Hypothesis(geo, rows, existing.baseline, joints,
                        (), References.of(geo, rows, 1e5, existing.deflection))
         scale = existing.noise_std_m or max(float(np.sqrt(np.mean(existing.deflection ** 2)))
                                             * 1e-2, 1e-12)

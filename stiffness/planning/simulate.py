@@ -34,7 +34,7 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
   weight (open chains only).
 * ``gravity_compensator:J=k,F0``: a spring compensator of stiffness k (N/m) and tension F0 (N)
   at the joint's zero on the revolute compliant joint J, geometry
-  :data:`stiffness.elastic.effects.COMPENSATOR_GEOMETRY`
+  :data:`stiffness.elastic.effects.preloads.COMPENSATOR_GEOMETRY`
   (:func:`stiffness.mechanics.gravity.spring_balancer`), in the exact equilibrium.
 
 With ``rotations``, the campaign also records the rotation vector of the target frame between
@@ -58,22 +58,19 @@ import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.elastic.effects import (
-    COMPENSATOR_GEOMETRY,
-    LIBRARY,
+from stiffness.elastic.effects import LIBRARY, make_effect
+from stiffness.elastic.effects.base import ElasticParts
+from stiffness.elastic.effects.geometry import (
     Geometry,
-    LinkCompliance,
     References,
     cached_robot,
     chain_placements,
     link_axes,
-    make_effect,
     rotation_matrix,
 )
 from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
-    UnknownJointError,
     UnknownNameError,
     did_you_mean,
 )
@@ -82,7 +79,6 @@ from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangen
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import (
     gravity_preload,
-    require_open_chain,
     spring_balancer,
     with_payload,
 )
@@ -93,7 +89,6 @@ from stiffness.robot.robot import Robot
 LOAD_PATTERNS = ("random", "ramp", "axes")
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
-_DIAGONAL = np.ones(3) / math.sqrt(3.0)
 
 
 # ------------------------------------------------------------------------------------------
@@ -128,14 +123,6 @@ class HiddenEffect:
         return {"effect": self.name, "where": self.where, "values": list(self.values)}
 
 
-_VALUE_COUNTS = {
-    "complementary_stiffness": (0, 1), "joint_compliance": (1,), "link_compliance": (1, 2),
-    "backlash": (1,), "nonlinear_joint_stiffness": (1,), "frame_misalignment": (1, 3),
-    "target_offset": (1, 3), "force_sensor_bias": (1, 3), "deflection_offset": (1, 3),
-    "gravity_preload": (1, 4), "gravity_compensator": (2,),
-}
-
-
 def parse_effect(text: str) -> HiddenEffect:
     """Parse ``NAME[:where]=value[,value...]`` (``complementary_stiffness`` takes no value).
 
@@ -161,15 +148,12 @@ def parse_effect(text: str) -> HiddenEffect:
                                      ) from None
     if not all(math.isfinite(v) for v in values):
         raise StiffnessError(f"--effect {text!r}: values must be finite")
-    if len(values) not in _VALUE_COUNTS[name]:
-        counts = " or ".join(str(c) for c in _VALUE_COUNTS[name])
+    value_counts = LIBRARY[name].value_counts
+    if len(values) not in value_counts:
+        counts = " or ".join(str(c) for c in value_counts)
         raise StiffnessError(f"--effect {text!r}: {name} takes {counts} value(s), got "
                              f"{len(values)}")
     return HiddenEffect(name, where, tuple(values))
-
-
-def _vector(values: tuple[float, ...]) -> np.ndarray:
-    return values[0] * _DIAGONAL if len(values) == 1 else np.array(values, dtype=float)
 
 
 @dataclass
@@ -322,70 +306,27 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
                 smoothing: np.ndarray, geometry: Geometry) -> Truth:
     """The true robot of a simulation from the declared one, its stiffness and hidden effects.
 
-    ``smoothing`` is the backlash smoothing torque per coordinate joint (N.m).
+    Each hidden effect contributes through its class's one hook
+    (:meth:`stiffness.elastic.effects.base.Effect.contribute`). ``smoothing`` is the backlash
+    smoothing torque per coordinate joint (N.m).
     """
-    offset = declared.target_offset.copy()
-    extra, beta, backlash = [], {}, {}
-    links, misalignment = [], np.zeros(3)
-    force_bias, deflection_offset = np.zeros(3), np.zeros(3)
-    gravity, payload, compensators = False, (0.0, np.zeros(3)), []
-    stiff = dict(zip(declared.compliant_joints, kq, strict=True))
+    parts = ElasticParts(dict(zip(declared.compliant_joints, kq, strict=True)),
+                         smoothing=dict(zip(geometry.joints, smoothing, strict=True)))
     for h in effects:
-        make_effect(h.name, h.where, geometry)  # validates where
-        v = h.values
-        if h.name == "joint_compliance":
-            if h.where in declared.compliant_joints:
-                raise StiffnessError(f"joint_compliance:{h.where}: the joint is already "
-                                     "compliant in the campaign")
-            if v[0] <= 0:
-                raise StiffnessError(f"joint_compliance:{h.where} needs a positive stiffness")
-            extra.append(h.where)
-            stiff[h.where] = v[0]
-        elif h.name == "link_compliance":
-            eff = make_effect(h.name, h.where, geometry)
-            assert isinstance(eff, LinkCompliance)
-            k1, k2 = (v[0], v[0]) if len(v) == 1 else v
-            if k1 <= 0 or k2 <= 0:
-                raise StiffnessError(f"link_compliance:{h.where} needs positive stiffnesses")
-            links.append((eff.a, eff.b, eff.column, float(k1), float(k2)))
-        elif h.name == "backlash":
-            prismatic = geometry.prismatic[geometry.joints.index(h.where)]
-            backlash[h.where] = v[0] * (units.length_to_si if prismatic else units.angle_to_si)
-        elif h.name == "nonlinear_joint_stiffness":
-            beta[h.where] = v[0]
-        elif h.name == "frame_misalignment":
-            misalignment = _vector(v) * units.angle_to_si
-        elif h.name == "target_offset":
-            offset = offset + _vector(v) * units.length_to_si
-        elif h.name == "force_sensor_bias":
-            force_bias = _vector(v) * units.force_to_si
-        elif h.name == "deflection_offset":
-            deflection_offset = _vector(v) * units.length_to_si
-        elif h.name == "gravity_preload":
-            require_open_chain(declared, h.name)
-            if v[0] < 0:
-                raise StiffnessError(f"gravity_preload needs a payload mass >= 0 kg, got {v[0]}")
-            com = np.zeros(3) if len(v) == 1 else np.array(v[1:4]) * units.length_to_si
-            gravity, payload = True, (float(v[0]), com)
-        elif h.name == "gravity_compensator":
-            g = COMPENSATOR_GEOMETRY
-            compensators.append((h.where, float(v[0]), float(v[1]), g["lever_m"], g["base_m"],
-                                 g["angle0_rad"]))
-    compliant = tuple(declared.compliant_joints) + tuple(extra)
-    for j in list(beta) + list(backlash) + [c[0] for c in compensators]:
-        if j not in compliant:
-            raise UnknownJointError(f"backlash, nonlinear_joint_stiffness and "
-                                    f"gravity_compensator act on a compliant "
-                                    f"joint ({', '.join(compliant)}), not {j}", name=j,
-                                    choices=compliant)
-    robot = cached_robot(declared.name, declared.target_frame, tuple(offset), compliant,
+        effect = make_effect(h.name, h.where, geometry)  # validates where
+        effect.contribute(effect.simulated_values(h.values, units), parts)
+    parts.check_joints()
+    compliant = tuple(parts.springs)
+    robot = cached_robot(declared.name, declared.target_frame,
+                         tuple(declared.target_offset.copy() + parts.target_shift), compliant,
                          declared.loop_file, declared.fixed_base)
-    law = SpringLaw(np.array([1.0 / stiff[j] for j in compliant]),
-              np.array([beta.get(j, 0.0) for j in compliant]),
-              np.array([backlash.get(j, 0.0) for j in compliant]),
-              np.array([smoothing[geometry.joints.index(j)] for j in compliant]))
-    return Truth(robot, law, links, geometry.chain, misalignment, force_bias, deflection_offset,
-                 gravity, payload, compensators)
+    links = [(a, b, geometry.link_columns[(a, b)], k1, k2) for a, b, k1, k2 in parts.bends]
+    compensators = [(joint, k_s, f0, g["lever_m"], g["base_m"], g["angle0_rad"])
+                    for joint, k_s, f0, g in parts.compensators]
+    payload = (0.0, np.zeros(3)) if parts.payload is None else parts.payload
+    return Truth(robot, parts.law(compliant), links, geometry.chain, parts.misalignment,
+                 parts.force_bias, parts.deflection_offset, parts.payload is not None, payload,
+                 compensators)
 
 
 # ------------------------------------------------------------------------------------------
@@ -622,7 +563,7 @@ def _declared_robot(given: PlannedRobot) -> Robot:
 def _declared_baseline(hidden: list[HiddenEffect], baseline: str | None) -> str:
     """The baseline the campaign declares: ``baseline``, by default ``conventional`` when
     ``complementary_stiffness`` is hidden (then required), else ``enhanced``."""
-    hidden_cs = any(h.name == "complementary_stiffness" for h in hidden)
+    hidden_cs = any(LIBRARY[h.name].second_order for h in hidden)
     baseline = baseline or ("conventional" if hidden_cs else "enhanced")
     if hidden_cs and baseline != "conventional":
         raise StiffnessError("hiding complementary_stiffness means declaring the conventional "
@@ -769,7 +710,7 @@ def _effect_sizes(truth: Truth, declared: Robot, hidden: list[HiddenEffect], kq:
     conventional model) against the truth."""
     effect_rms: dict[str, float] = {}
     for h in hidden:
-        if h.name == "complementary_stiffness":
+        if LIBRARY[h.name].second_order:  # hidden by the conventional baseline
             other = truth.deflections(q, applied, mode="conventional")
         else:
             rest = [e for e in hidden if e is not h]

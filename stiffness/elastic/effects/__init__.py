@@ -1,0 +1,147 @@
+"""The effect library: what a stiffness model may miss, one class per effect.
+
+Each effect is one class in a module of its family: joint laws
+(:mod:`~stiffness.elastic.effects.joint_laws`), link bends
+(:mod:`~stiffness.elastic.effects.link_bends`), preloads
+(:mod:`~stiffness.elastic.effects.preloads`), the target and the measurement
+(:mod:`~stiffness.elastic.effects.measurement`), all subclasses of
+:class:`~stiffness.elastic.effects.base.Effect`. A class carries its prediction in a campaign's
+fit (:class:`~stiffness.elastic.effects.hypothesis.Hypothesis`) and its contribution to a model
+used away from its campaign (:meth:`Effect.contribute` into an
+:class:`~stiffness.elastic.effects.base.ElasticParts`). Adding an effect is one class, listed
+in :data:`LIBRARY`, and its test.
+
+The library (:data:`LIBRARY`):
+
+``complementary_stiffness``
+    Load-dependent geometry: ``K_C`` in the tangent stiffness *and* the second-order kinematics
+    of the deflection, ``dx = J dtheta + 1/2 sum_k e_k dtheta^T H_k dtheta`` with ``dtheta`` the
+    fixed point of ``dtheta = K^-1 (J^T W + K_C(W) dtheta)``. This is the exact elastostatic
+    equilibrium to second order in the deflection (the error is third order: ``dtheta^3 L``).
+    No parameter.
+``joint_compliance`` (where: a joint)
+    A joint declared rigid is a spring; parameter its stiffness ``k`` (N.m/rad or N/m).
+``link_compliance`` (where: ``a->b``, two joints of the target's chain)
+    The segment between the origins of joints ``a`` and ``b`` bends: a lumped rotational
+    compliance about the two axes normal to the segment, at ``b``'s origin ``p_b``. The moment
+    there is ``(x_t - p_b) x F + M``; the part of the robot beyond ``p_b`` turns rigidly by
+    ``omega = sum_i e_i (e_i . M_b) / k_i``, the target moves by ``omega x (x_t - p_b)``.
+    Parameters the stiffnesses ``k_1, k_2`` (N.m/rad) about ``e_1, e_2`` (:func:`link_axes`).
+    In a closed loop the rotation is taken as in a serial chain (the loop's reaction to it is
+    neglected).
+``backlash`` (where: a compliant joint)
+    Lost motion: ``dtheta_j += b tanh(tau_j / tau_s)``, a dead band of half-width ``b`` (rad)
+    smoothed over ``tau_s`` = :data:`BACKLASH_SMOOTHING` times the joint's RMS torque over the
+    campaign (so it acts like ``b sign(tau_j)`` for all but the smallest torques).
+``nonlinear_joint_stiffness`` (where: a compliant joint)
+    ``dtheta_j = tau_j / k_j (1 + beta |tau_j|)``: ``beta > 0`` softens, ``beta < 0`` hardens
+    (1/(N.m)); reported also as the relative change of compliance at the largest torque.
+``frame_misalignment``
+    The instrument's frame is rotated against the robot base: measured
+    ``dx = R(phi) dx_model`` (rotation vector ``phi``, rad).
+``target_offset``
+    The target (where the load acts and the deflection is measured) is displaced by ``delta``
+    (m, target frame axes) from where the campaign says: ``J_v -> J_v - [R_t delta]x J_w``.
+``force_sensor_bias``
+    The recorded force carries a constant offset ``b`` (N): the applied force is
+    ``F_recorded - b``.
+``deflection_offset``
+    The measured deflections carry a constant offset ``d`` (m) (the unloaded reference moved,
+    an instrument zero drift).
+``gravity_preload``
+    The links' weight (URDF inertias) and a payload (mass kg, centre of mass m in target frame
+    axes) preload the joints (:meth:`Effect.preload`): the deflection is the loaded minus the
+    unloaded equilibrium at the commanded pose (open chains only).
+``gravity_compensator`` (where: a revolute compliant joint)
+    A spring between the base and a lever on the link
+    (:func:`stiffness.mechanics.gravity.spring_balancer`; parameters its stiffness N/m and its
+    tension N at the joint's zero): its torque preloads the joint, its angle derivative adds
+    to the joint's stiffness.
+
+Units: SI inside (m, N, rad, N.m/rad).
+"""
+
+from __future__ import annotations
+
+from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.joint_laws import (
+    Backlash,
+    ComplementaryStiffness,
+    JointCompliance,
+    NonlinearJointStiffness,
+)
+from stiffness.elastic.effects.link_bends import LinkCompliance
+from stiffness.elastic.effects.measurement import (
+    DeflectionOffset,
+    ForceSensorBias,
+    FrameMisalignment,
+    TargetOffset,
+)
+from stiffness.elastic.effects.preloads import GravityCompensator, GravityPreload
+from stiffness.errors import UnknownEffectError, did_you_mean
+
+#: Effect name -> class, in the order candidates are listed.
+LIBRARY: dict[str, type[Effect]] = {
+    cls.name: cls for cls in (ComplementaryStiffness, JointCompliance, LinkCompliance, Backlash,
+                              NonlinearJointStiffness, FrameMisalignment, TargetOffset,
+                              ForceSensorBias, DeflectionOffset, GravityPreload,
+                              GravityCompensator)
+}
+#: Effects the issue requires (``deflection_offset`` is an extra).
+REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n != "deflection_offset")
+
+
+def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
+    """An effect by name and place, checked against the robot (:meth:`Effect.at_place`).
+
+    Raises
+    ------
+    UnknownEffectError
+        Unknown name.
+    UnknownJointError, UnknownNameError
+        A missing or unknown joint or link segment in ``where``.
+    StiffnessError
+        A ``where`` on an effect that acts on the whole campaign.
+    """
+    if name not in LIBRARY:
+        raise UnknownEffectError(f"unknown effect {name!r}; {did_you_mean(name, list(LIBRARY))}",
+                                 name=name, choices=list(LIBRARY))
+    return LIBRARY[name].at_place(where, geometry)
+
+
+def candidates(model: Hypothesis) -> list[Effect]:
+    """Every library effect that can extend ``model`` (each effect and place at most once).
+
+    ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
+    ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`); ``backlash``
+    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects.
+    """
+    geo = model.geometry
+    have = {e.key() for e in model.effects}
+    out: list[Effect] = []
+
+    def add(effect: Effect) -> None:
+        if effect.key() not in have:
+            out.append(effect)
+
+    if not model.second_order:
+        add(ComplementaryStiffness())
+    for j in geo.joints:
+        if j not in model.joints:
+            add(make_effect("joint_compliance", j, geo))
+    for a, b in geo.link_segments():
+        add(LinkCompliance(a=a, b=b, column=geo.link_columns[(a, b)]))
+    for j in model.joints:
+        add(make_effect("backlash", j, geo))
+        add(make_effect("nonlinear_joint_stiffness", j, geo))
+    for name in ("frame_misalignment", "target_offset", "force_sensor_bias",
+                 "deflection_offset"):
+        add(LIBRARY[name]())
+    if geo.robot.loop.is_open_chain:  # the weight of passive loop joints is not modelled
+        add(GravityPreload())
+    for j in model.joints:
+        if not geo.prismatic[geo.joints.index(j)]:
+            add(make_effect("gravity_compensator", j, geo))
+    return out

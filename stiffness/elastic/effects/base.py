@@ -1,0 +1,424 @@
+"""The effect base class, its parameters, and what effects do to a robot (:class:`ElasticParts`).
+
+An :class:`Effect` is one thing a stiffness model may miss. It has two faces:
+
+* in a campaign's fit (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`) it enters the
+  array algebra through the prediction hooks (:meth:`Effect.adjust_law`,
+  :meth:`Effect.displacement`, :meth:`Effect.preload`...);
+* in a model used away from its campaign (:class:`stiffness.elastic.model.ElasticModel`, built
+  from a model file or by ``stiffness simulate``) it contributes through one hook,
+  :meth:`Effect.contribute`, to an :class:`ElasticParts`: a joint spring or joint-law term, a
+  link bend, a preload, a target shift, a measurement adjustment.
+
+Nothing outside an effect's class branches on its name.
+
+Units: SI inside (m, N, rad, N.m/rad).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar, Protocol
+
+import numpy as np
+
+from stiffness.elastic.effects.geometry import Geometry, References, Rows
+from stiffness.errors import StiffnessError, UnknownJointError
+from stiffness.mechanics.equilibrium import SpringLaw
+
+
+class HypothesisArrays(Protocol):
+    """What the prediction hooks read of the hypothesis they extend
+    (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`): the shared geometry, the joints
+    of its law and their columns, and the rows' Jacobians and ``K_C`` over those joints."""
+
+    geometry: Geometry
+    joints: tuple[str, ...]
+    index: np.ndarray
+    jv: np.ndarray
+    jw: np.ndarray
+    h: np.ndarray
+
+#: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
+#: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
+#: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied),
+#: ``preload`` (a load present at every pose, the robot's weight: it moves the operating point
+#: and adds its ``K_C``).
+EFFECT_KINDS = ("stiffness", "measurement", "lost_motion", "preload")
+
+
+@dataclass
+class Parameter:
+    """A reported parameter: value, standard error and 95 % interval in ``unit``."""
+
+    name: str
+    value: float
+    standard_error: float
+    ci95: tuple[float, float]
+    unit: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready (inf and NaN become ``None``)."""
+        def num(v: float) -> float | None:
+            return float(v) if math.isfinite(v) else None
+        return {"value": num(self.value), "standard_error": num(self.standard_error),
+                "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit}
+
+
+
+class Effect:
+    """An effect a model may miss: its name, where it acts, its parameters and its prediction.
+
+    Optimiser variables ``u`` are scaled (:meth:`scale`) so that ``u ~ 1`` is a sizeable effect;
+    :meth:`physical` turns them into SI values. Hooks default to doing nothing.
+    """
+
+    name: ClassVar[str] = ""
+    #: names of the parameters (SI values from :meth:`physical`)
+    param_names: ClassVar[tuple[str, ...]] = ()
+    #: whether the model gets ``K_C`` and the second-order kinematics
+    second_order: ClassVar[bool] = False
+    #: a rigid joint this effect makes compliant
+    added_joint: str | None = None
+    #: the joint whose law this effect changes
+    joint: str | None = None
+    #: whether the variables enter only through that joint's law, affinely
+    #: (:meth:`adjust_law` of :meth:`physical`): the model then differentiates the prediction
+    #: with respect to them analytically (:meth:`Hypothesis.predict_with_jacobian`)
+    through_law: ClassVar[bool] = False
+    #: how the effect enters a model used away from its campaign
+    #: (:mod:`stiffness.elastic.model_file`): one of :data:`EFFECT_KINDS`
+    kind: ClassVar[str] = "stiffness"
+    #: whether it changes K_X beyond the joint springs' stiffness matrix (a nonlinear spring,
+    #: a link bend, a preload): the batched scan and the 6x6 connection stiffness, which take
+    #: a diagonal K_theta, cannot apply it
+    beyond_springs: ClassVar[bool] = False
+    #: how many values ``stiffness simulate --effect NAME=...`` takes
+    value_counts: ClassVar[tuple[int, ...]] = (0,)
+
+    # construction ----------------------------------------------------------------------------
+    @classmethod
+    def at_place(cls, where: str | None, geometry: Geometry) -> Effect:
+        """The effect acting at ``where`` (a joint, ``a->b``, or ``None``), checked against the
+        robot's ``geometry`` (:func:`stiffness.elastic.effects.make_effect`).
+
+        Raises
+        ------
+        StiffnessError
+            A ``where`` on an effect that acts on the whole campaign (this default).
+        """
+        if where:
+            raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
+        return cls()
+
+    @classmethod
+    def declared(cls, where: str | None, settings: dict) -> Effect:
+        """The effect as a model file declares it: at ``where`` with its fixed ``settings``
+        (:meth:`file_settings`), unchecked against a robot (:meth:`place_joints` names the
+        joints to check)."""
+        return cls()
+
+    @classmethod
+    def place_joints(cls, where: str | None) -> list[str]:
+        """The joints ``where`` names (checked against the robot of a model file)."""
+        return [] if where is None else [where]
+
+    def file_settings(self, refs: References) -> dict:
+        """Fixed settings a model file keeps beside the parameters (SI; :meth:`declared`
+        reads them back)."""
+        return {}
+
+    def simulated_values(self, values: tuple[float, ...], units) -> np.ndarray:
+        """SI parameter values of the values of ``stiffness simulate --effect NAME=...``, in
+        the campaign's ``units`` (:class:`stiffness.calibration.campaign.Units`).
+
+        Raises
+        ------
+        StiffnessError
+            A value out of range.
+        """
+        return np.asarray(values, dtype=float)
+
+    # the one hook of a model used away from its campaign ---------------------------------
+    def contribute(self, values: np.ndarray, parts: ElasticParts) -> None:
+        """Record what the effect does to the robot, with SI parameter ``values`` (in
+        :attr:`param_names` order), into ``parts``: a joint spring or a joint-law term, a
+        link bend, a preload, a target shift or a measurement adjustment. The default does
+        nothing (the effect is in the exact equilibrium anyway)."""
+
+    @property
+    def where(self) -> str | None:
+        """Where the effect acts (a joint, ``a->b``) or ``None``."""
+        return None
+
+    @property
+    def label(self) -> str:
+        """``name`` or ``name(where)``."""
+        return self.name if self.where is None else f"{self.name}({self.where})"
+
+    @property
+    def n_params(self) -> int:
+        """Number of parameters."""
+        return len(self.param_names)
+
+    @property
+    def penalty_params(self) -> int:
+        """Parameters counted by the information criterion (a switch counts as one)."""
+        return max(self.n_params, 1)
+
+    def key(self) -> tuple:
+        """Identity of the effect (name and where)."""
+        return (self.name, self.where)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the optimiser variables."""
+        return np.full(self.n_params, -1e4), np.full(self.n_params, 1e4)
+
+    def start(self) -> np.ndarray:
+        """Start of the optimiser variables (the effect nearly absent)."""
+        return np.zeros(self.n_params)
+
+    def physical(self, u: np.ndarray, refs: References) -> np.ndarray:
+        """SI parameter values of optimiser variables ``u``."""
+        return np.asarray(u, dtype=float) * self.scale(refs)
+
+    def scale(self, refs: References) -> np.ndarray:
+        """SI value of one unit of each optimiser variable."""
+        return np.ones(self.n_params)
+
+    def variables(self, values: np.ndarray, refs: References) -> np.ndarray:
+        """Optimiser variables of reported SI parameter values (the inverse of :meth:`report`
+        with SI units; only the first :attr:`n_params` values are used)."""
+        return np.asarray(values, dtype=float)[: self.n_params] / self.scale(refs)
+
+    # hooks ---------------------------------------------------------------------------------
+    def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Applied load from the recorded one."""
+        return force, moment
+
+    def target_shift(self, p: np.ndarray, rows: Rows) -> np.ndarray | None:
+        """(m, 3) displacement of the true target from the declared one, world axes."""
+        return None
+
+    def adjust_law(self, p: np.ndarray, law: SpringLaw, column: int, refs: References) -> None:
+        """Change the law of the model joint at ``column`` (that of :attr:`joint`)."""
+
+    def displacement(self, p: np.ndarray, model: HypothesisArrays, rows: Rows, force: np.ndarray,
+                     moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
+        """(m, 3) extra target displacement (m)."""
+        return None
+
+    def adjust_output(self, p: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """Measured displacement from the model's."""
+        return dx
+
+    def output_tangent(self, p: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Derivative of :meth:`adjust_output` along changes ``t`` (m, 3, P) of the model's
+        displacement."""
+        return t
+
+    def rotation(self, p: np.ndarray, model: HypothesisArrays, rows: Rows, force: np.ndarray,
+                 moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
+        """(m, 3) extra rotation of the target frame (rad, base axes), the rotational part of
+        :meth:`displacement`."""
+        return None
+
+    def adjust_rotation(self, p: np.ndarray, dphi: np.ndarray) -> np.ndarray:
+        """Measured rotation (m, 3) from the model's (the rotational part of
+        :meth:`adjust_output`)."""
+        return dphi
+
+    def rotation_tangent(self, p: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Derivative of :meth:`adjust_rotation` along changes ``t`` (m, 3, P) of the model's
+        rotation."""
+        return t
+
+    def preload(self, p: np.ndarray, model: HypothesisArrays, rows: Rows
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+        """A torque present at the unloaded pose: ``(tau_p (m, n), K_p (m, n, n))`` over the
+        model's joints, ``K_p = d tau_p / d theta``, or ``None``. The measured deflection is
+        then the loaded minus the unloaded equilibrium (:meth:`Hypothesis.predict`)."""
+        return None
+
+    # reporting ------------------------------------------------------------------------------
+    def report(self, u: np.ndarray, cov_u: np.ndarray, refs: References, units,
+               quantile: float) -> list[Parameter]:
+        """Parameters with uncertainties in the campaign's units (``units``:
+        :class:`stiffness.calibration.campaign.Units`). ``cov_u`` is the covariance of ``u``."""
+        scale = self.scale(refs)
+        se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
+        value = self.physical(u, refs)
+        out = []
+        for name, v, s, (unit, factor) in zip(self.param_names, value, se,
+                                              self._units(units), strict=True):
+            out.append(Parameter(name, v / factor, s / factor,
+                                 ((v - quantile * s) / factor, (v + quantile * s) / factor),
+                                 unit))
+        return out
+
+    def _units(self, units) -> list[tuple[str, float]]:
+        return [("SI", 1.0)] * self.n_params
+
+    def describe(self) -> str:
+        """One line on what the effect is."""
+        return self.label
+
+
+
+def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
+                      quantile: float) -> Parameter:
+    """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method."""
+    se_u = math.sqrt(max(var_u, 0.0)) if math.isfinite(var_u) else math.inf
+    c = u * scale
+    k = 1.0 / c if c > 0 else math.inf
+    se_k = se_u * scale / c ** 2 if c > 0 else math.inf
+    hi_c = (u + quantile * se_u) * scale
+    lo_c = (u - quantile * se_u) * scale
+    low = 1.0 / hi_c if hi_c > 0 and math.isfinite(hi_c) else 0.0
+    high = 1.0 / lo_c if lo_c > 0 else math.inf
+    return Parameter(name, k, se_k, (low, high), unit)
+
+
+@dataclass
+class ElasticParts:
+    """What the effects of a model do to its robot, collected through :meth:`Effect.contribute`
+    (SI). :class:`stiffness.elastic.model.ElasticModel` is built from it.
+
+    Attributes
+    ----------
+    springs
+        Joint -> stiffness (N.m/rad, N/m): the baseline's compliant joints first, then those
+        effects make compliant, in order.
+    beta, backlash
+        Joint -> softening coefficient (1/(N.m), 1/N) and lost-motion half-width (rad, m).
+    smoothing
+        Joint -> torque (N.m, N) over which a backlash is smoothed (1 where not given).
+    bends
+        ``(a, b, k_1, k_2)`` link bends (N.m/rad), in order.
+    payload
+        ``(mass kg, centre of mass (3,) m in target frame axes)`` when the robot's weight
+        preloads the joints, else ``None``.
+    compensators
+        ``(joint, stiffness N/m, tension N, geometry)`` spring gravity compensators (geometry:
+        ``lever_m``, ``base_m``, ``angle0_rad``).
+    target_shift
+        (3,) m in target frame axes: where the true target is from the declared one.
+    keep_target
+        Whether the target is the campaign's (when another target is given, a target shift
+        does not apply).
+    misalignment, force_bias, deflection_offset
+        The instrument's frame rotation vector (rad), recorded minus applied force (N) and the
+        offset of measured deflections (m).
+    not_applied
+        Reasons an effect does not act, by the effect's label (:meth:`skip`).
+    """
+
+    springs: dict[str, float]
+    beta: dict[str, float] = field(default_factory=dict)
+    backlash: dict[str, float] = field(default_factory=dict)
+    smoothing: dict[str, float] = field(default_factory=dict)
+    bends: list[tuple[str, str, float, float]] = field(default_factory=list)
+    payload: tuple[float, np.ndarray] | None = None
+    compensators: list[tuple[str, float, float, dict]] = field(default_factory=list)
+    target_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    keep_target: bool = True
+    misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    force_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    deflection_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    not_applied: dict[str, str] = field(default_factory=dict)
+
+    # what effects record ------------------------------------------------------------------
+    def add_spring(self, joint: str, stiffness: float) -> None:
+        """A joint held rigid becomes a spring of ``stiffness`` (N.m/rad, N/m).
+
+        Raises
+        ------
+        StiffnessError
+            If the joint is already a spring.
+        """
+        if joint in self.springs:
+            raise StiffnessError(
+                f"a joint_compliance effect on {joint}, which is already a compliant joint of "
+                "k_theta (two stiffnesses for one spring: the joint is already compliant); "
+                "give its stiffness in k_theta and drop the effect")
+        self.springs[joint] = float(stiffness)
+
+    def soften(self, joint: str, beta: float) -> None:
+        """The joint's spring softens (``beta > 0``, 1/(N.m)) or hardens with the load."""
+        self.beta[joint] = float(beta)
+
+    def add_backlash(self, joint: str, half_width: float, smoothing: float | None) -> None:
+        """Lost motion of ``half_width`` (rad, m) at the joint, smoothed over ``smoothing``
+        (N.m, N; ``None`` keeps the one already set, else 1)."""
+        self.backlash[joint] = float(half_width)
+        if smoothing is not None:
+            self.smoothing[joint] = float(smoothing)
+
+    def add_bend(self, a: str, b: str, k_1: float, k_2: float) -> None:
+        """The segment ``a -> b`` bends at ``b``'s origin, stiffnesses ``k_1, k_2``
+        (N.m/rad)."""
+        self.bends.append((a, b, float(k_1), float(k_2)))
+
+    def weigh(self, mass: float, centre: np.ndarray) -> None:
+        """The links' weight and a payload of ``mass`` (kg) with its centre of mass at
+        ``centre`` (m, target frame axes) preload the joints."""
+        self.payload = (float(mass), np.asarray(centre, dtype=float).reshape(3))
+
+    def add_compensator(self, joint: str, stiffness: float, tension: float,
+                        geometry: dict) -> None:
+        """A spring gravity compensator on ``joint`` (N/m, N at the joint's zero)."""
+        self.compensators.append((joint, float(stiffness), float(tension), dict(geometry)))
+
+    def shift_target(self, label: str, delta: np.ndarray) -> None:
+        """The true target is ``delta`` (m, target frame axes) from the declared one (not
+        applied when another target is given)."""
+        if not self.keep_target:
+            self.skip(label, "the target given overrides the campaign's")
+            return
+        self.target_shift = self.target_shift + np.asarray(delta, dtype=float).reshape(3)
+
+    def measure(self, label: str, rotation: np.ndarray | None = None,
+                force_bias: np.ndarray | None = None,
+                deflection_offset: np.ndarray | None = None) -> None:
+        """How the deflections were observed: the instrument's frame rotation (rad), the
+        recorded force's bias (N), the measured deflections' offset (m). A measurement effect,
+        not a stiffness: listed as not applied to the robot."""
+        if rotation is not None:
+            self.misalignment = np.asarray(rotation, dtype=float).reshape(3)
+        if force_bias is not None:
+            self.force_bias = np.asarray(force_bias, dtype=float).reshape(3)
+        if deflection_offset is not None:
+            self.deflection_offset = np.asarray(deflection_offset, dtype=float).reshape(3)
+        self.skip(label, "a measurement effect (how the campaign observed the deflection), "
+                         "not a stiffness")
+
+    def skip(self, label: str, reason: str) -> None:
+        """Note that the effect ``label`` does not act on the robot, and why."""
+        self.not_applied[label] = reason
+
+    # what the model reads -------------------------------------------------------------------
+    def check_joints(self) -> None:
+        """Joint-law terms and compensators must act on a compliant joint.
+
+        Raises
+        ------
+        UnknownJointError
+            A backlash, nonlinear spring or compensator on a rigid joint.
+        """
+        compliant = tuple(self.springs)
+        for joint in list(self.beta) + list(self.backlash) + [c[0] for c in self.compensators]:
+            if joint not in compliant:
+                raise UnknownJointError(
+                    f"backlash, nonlinear_joint_stiffness and gravity_compensator act on a "
+                    f"compliant joint ({', '.join(compliant)}), not {joint}", name=joint,
+                    choices=compliant)
+
+    def law(self, joints: list[str] | tuple[str, ...]) -> SpringLaw:
+        """The joint law over ``joints`` (zero compliance where a joint is rigid)."""
+        return SpringLaw(
+            np.array([1.0 / self.springs[j] if j in self.springs else 0.0 for j in joints]),
+            np.array([self.beta.get(j, 0.0) for j in joints]),
+            np.array([self.backlash.get(j, 0.0) for j in joints]),
+            np.array([self.smoothing.get(j, 1.0) for j in joints]))

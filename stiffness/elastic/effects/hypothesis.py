@@ -1,0 +1,439 @@
+"""A deflection hypothesis: a baseline plus effects, predicting a campaign's rows as array algebra.
+
+A campaign's deflections are explained by a :class:`Hypothesis`: the baseline
+(``conventional`` ``J K^-1 J^T W`` or ``enhanced`` ``J (K - K_C(W))^-1 J^T W``, A&S eq. 8 and
+10) over the campaign's compliant joints, extended by any number of effects from
+:data:`stiffness.elastic.effects.LIBRARY`. Pinocchio ran once per distinct configuration
+(:meth:`stiffness.elastic.effects.geometry.Geometry.rows`); every hypothesis is then array
+algebra over the rows (:meth:`Hypothesis.predict`), cheap enough for least squares over dozens
+of candidates with cross-validation (:mod:`stiffness.calibration.fitting`).
+
+``complementary_stiffness`` gives ``K_C`` in the tangent stiffness *and* the second-order
+kinematics of the deflection, ``dx = J dtheta + 1/2 sum_k e_k dtheta^T H_k dtheta`` with
+``dtheta`` the fixed point of ``dtheta = K^-1 (J^T W + K_C(W) dtheta)``: the exact
+elastostatic equilibrium to second order in the deflection.
+
+With a :attr:`Hypothesis.rotation_weight` a hypothesis also predicts the rotation of the target
+frame, ``J_w dtheta`` plus each effect's rotational part.
+
+Units: SI inside (m, N, rad, N.m/rad).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stiffness.batch.equilibrium import solve_equilibria, unloaded_kinematics
+from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.geometry import (
+    Geometry,
+    References,
+    Rows,
+    cached_robot,
+    contract_hessian,
+    skew,
+)
+from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.mechanics.equilibrium import SpringLaw
+from stiffness.robot.robot import Robot
+
+#: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
+LAW_ITERATIONS = 4
+#: Baselines a model may start from (``exact``: the exact equilibrium of every row,
+#: :func:`stiffness.batch.equilibrium.solve_equilibria`, without effects).
+BASELINES = ("conventional", "enhanced", "exact")
+
+# ------------------------------------------------------------------------------------------
+# the hypothesis
+
+
+class Hypothesis:
+    """A deflection hypothesis: baseline formulation, compliant joints and effects, over some
+    rows of a campaign (the model the fitting engine fits and compares).
+
+    The parameter vector ``x`` is ``ln k`` of the baseline's compliant joints followed by each
+    effect's scaled variables (:meth:`Effect.physical`).
+
+    Parameters
+    ----------
+    geometry
+        The robot's shared geometry.
+    rows
+        The rows to predict.
+    baseline
+        ``conventional`` or ``enhanced``.
+    compliant
+        The baseline's compliant joints.
+    effects
+        Effects, in the order added.
+    refs
+        Variable scales.
+    rotation_weight
+        ``None``: the model predicts the (m, 3) translations. A weight ``w`` (m/rad): it
+        predicts (m, 6) rows ``[dx; w dphi]``, the rotation ``dphi`` of the target frame
+        (rad, base axes) in translation-noise units (``w = sigma_t / sigma_r``), so that one
+        residual scale whitens both kinds (:mod:`stiffness.calibration.fitting`).
+    """
+
+    def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
+                 compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References,
+                 rotation_weight: float | None = None) -> None:
+        if baseline not in BASELINES:
+            raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
+                                   name=baseline, choices=BASELINES)
+        if baseline == "exact" and effects:
+            raise StiffnessError("the exact baseline takes no effects (complementary_stiffness "
+                                 "approximates it to second order); start from enhanced")
+        self.geometry, self.rows, self.baseline = geometry, rows, baseline
+        self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
+        self.rotation_weight = None if rotation_weight is None else float(rotation_weight)
+        self.joints = self.compliant + tuple(e.added_joint for e in self.effects
+                                             if e.added_joint is not None)
+        self.index = np.array([geometry.joints.index(j) for j in self.joints], dtype=int)
+        self.tangent = baseline == "enhanced" or any(e.second_order for e in self.effects)
+        self.second_order = any(e.second_order for e in self.effects)
+        sizes = [len(self.compliant)] + [e.n_params for e in self.effects]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        #: exact baseline: its robot, the rows' unloaded configurations and their kinematics
+        self._exact_rows: tuple | None = None
+        self._prepare()
+
+    def _prepare(self) -> None:
+        idx, rows = self.index, self.rows
+        self.jv = rows.jac[:, :3][:, :, idx]
+        self.jw = rows.jac[:, 3:][:, :, idx]
+        self.h = rows.k_c_unit[:, :, idx][:, :, :, idx]
+        self._k_c: np.ndarray | None = None
+        self._tau: np.ndarray | None = None
+
+    def _exact_robot(self) -> Robot:
+        robot = self.geometry.robot
+        if self.joints == tuple(robot.compliant_joints):  # every coordinate joint: no reload
+            return robot
+        return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
+                            self.joints, robot.loop_file, robot.fixed_base)
+
+    # construction ----------------------------------------------------------------------------
+    def with_rows(self, rows: Rows) -> Hypothesis:
+        """The same model over other rows."""
+        return Hypothesis(self.geometry, rows, self.baseline, self.compliant, self.effects,
+                          self.refs, self.rotation_weight)
+
+    def extended(self, effect: Effect) -> Hypothesis:
+        """This model plus ``effect``."""
+        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant,
+                          self.effects + (effect,), self.refs, self.rotation_weight)
+
+    def with_refs(self, refs: References) -> Hypothesis:
+        """The same model with other variable scales."""
+        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
+                          refs, self.rotation_weight)
+
+    def with_baseline(self, baseline: str) -> Hypothesis:
+        """The same model under another baseline."""
+        return Hypothesis(self.geometry, self.rows, baseline, self.compliant, self.effects,
+                          self.refs, self.rotation_weight)
+
+    def with_rotation_weight(self, weight: float | None) -> Hypothesis:
+        """The same model predicting rotations with weight ``weight`` (m/rad), or only
+        translations (``None``)."""
+        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
+                          self.refs, weight)
+
+    @property
+    def n_outputs(self) -> int:
+        """Predicted components per row: 3 (translation) or 6 (translation and rotation)."""
+        return 3 if self.rotation_weight is None else 6
+
+    def split(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Translations (m, 3) in m and rotations (m, 3) in rad (or ``None``) of predicted or
+        measured rows in this model's output layout."""
+        values = np.asarray(values, dtype=float)
+        if self.rotation_weight is None:
+            return values[:, :3], None
+        return values[:, :3], values[:, 3:6] / self.rotation_weight
+
+    @property
+    def wrench(self) -> np.ndarray:
+        """(m, 6) recorded wrenches of the rows."""
+        return np.hstack([self.rows.force, self.rows.moment])
+
+    def k_c(self) -> np.ndarray:
+        """(m, n, n) ``K_C`` of each row's recorded wrench over :attr:`joints` (computed once;
+        not to be modified)."""
+        if self._k_c is None:
+            self._k_c = np.einsum("mk,mkab->mab", self.wrench, self.h)
+        return self._k_c
+
+    def _torques(self) -> np.ndarray:
+        """(m, n) ``J^T W`` of each row's recorded wrench over :attr:`joints` (computed once)."""
+        if self._tau is None:
+            self._tau = np.einsum("mkn,mk->mn", self.jv, self.rows.force) + np.einsum(
+                "mkn,mk->mn", self.jw, self.rows.moment)
+        return self._tau
+
+    @property
+    def n_params(self) -> int:
+        """Length of the parameter vector."""
+        return int(self.offsets[-1])
+
+    @property
+    def penalty_params(self) -> int:
+        """Parameters counted by the information criterion."""
+        return len(self.compliant) + sum(e.penalty_params for e in self.effects)
+
+    def extend_x(self, x: np.ndarray, effect: Effect) -> np.ndarray:
+        """Start vector of :meth:`extended` from this model's ``x``."""
+        return np.concatenate([x, effect.start()])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the parameter vector."""
+        n0 = len(self.compliant)
+        lo, hi = [np.full(n0, math.log(1e-3))], [np.full(n0, math.log(1e14))]
+        for e in self.effects:
+            a, b = e.bounds()
+            lo.append(a)
+            hi.append(b)
+        return np.concatenate(lo), np.concatenate(hi)
+
+    def effect_vars(self, x: np.ndarray, i: int) -> np.ndarray:
+        """Optimiser variables of effect ``i``."""
+        return x[self.offsets[i + 1]: self.offsets[i + 2]]
+
+    def _effect_params(self, x: np.ndarray) -> list[np.ndarray]:
+        return [e.physical(self.effect_vars(x, i), self.refs)
+                for i, e in enumerate(self.effects)]
+
+    def stiffness(self, x: np.ndarray) -> np.ndarray:
+        """Baseline stiffnesses (SI) of parameter vector ``x``."""
+        return np.exp(x[: len(self.compliant)])
+
+    # prediction ------------------------------------------------------------------------------
+    def law(self, x: np.ndarray, params: list[np.ndarray] | None = None) -> SpringLaw:
+        """The joint law over :attr:`joints`."""
+        params = self._effect_params(x) if params is None else params
+        n = len(self.joints)
+        compliance = np.zeros(n)
+        compliance[: len(self.compliant)] = np.exp(-x[: len(self.compliant)])
+        law = SpringLaw(compliance, np.zeros(n), np.zeros(n),
+                  self.refs.tau_smoothing[self.index].copy())
+        for e, p in zip(self.effects, params, strict=True):
+            if e.joint is not None:
+                e.adjust_law(p, law, self.joints.index(e.joint), self.refs)
+        return law
+
+    @property
+    def analytic_columns(self) -> np.ndarray:
+        """(p,) mask of the parameters :meth:`predict_with_jacobian` differentiates: ``ln k``
+        and the variables of effects acting through the joint law (:attr:`Effect.through_law`);
+        the fitting engine differentiates the others numerically."""
+        mask = np.ones(self.n_params, dtype=bool)
+        for i, e in enumerate(self.effects):
+            mask[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law
+        return mask
+
+    def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted displacements (m, 3) and their derivatives (m, 3, p) w.r.t. ``x`` in
+        the columns of :attr:`analytic_columns` (zeros in the others).
+
+        Linear baselines without effects: ``d pred / d ln k_i = -J_v (K - K_C)^-1 e_i k_i u_i``
+        with ``u = (K - K_C)^-1 J^T W``; exact: the implicit function theorem on
+        ``K dtheta = J(theta)^T W``, ``d dtheta / d k_i = -(K - K_C(theta))^-1 e_i dtheta_i``.
+        With effects: the implicit function theorem on the frozen-geometry law
+        (:meth:`stiffness.mechanics.equilibrium.SpringLaw.deflection_tangent`), carried through
+        the second-order kinematics, the preload's unloaded equilibrium and the effects'
+        output maps (:meth:`Effect.output_tangent`).
+
+        Raises
+        ------
+        np.linalg.LinAlgError
+            If the tangent stiffness is singular for some row.
+        StiffnessError
+            If the exact equilibrium does not converge or is unstable.
+        """
+        if self.effects:
+            pred, _, _, tangent = self._predict(x, tangent=True)
+            jac = np.zeros(pred.shape + (self.n_params,))
+            jac[:, :, self.analytic_columns] = tangent
+            return pred, jac
+        k = np.exp(x[: len(self.compliant)])
+        if self.baseline == "exact":
+            return self._exact(k)
+        a = np.broadcast_to(np.diag(k), (self.rows.n_rows, len(k), len(k))).copy()
+        if self.baseline == "enhanced":
+            a -= self.k_c()
+        inv = np.linalg.inv(a)
+        u = np.einsum("mij,mj->mi", inv, self._torques())
+        out = self.jv if self.rotation_weight is None else np.concatenate(
+            [self.jv, self.rotation_weight * self.jw], axis=1)
+        pred = np.einsum("mij,mj->mi", out, u)
+        return pred, -(out @ inv) * (u * k)[:, None, :]
+
+    def _law_directions(self, x: np.ndarray, law: SpringLaw
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Changes (P, n) of the law's compliance, ``beta`` and backlash per unit of each
+        parameter of :attr:`analytic_columns`: ``dc_i / d ln k_i = -c_i``, and for an effect
+        acting through the law the difference of the laws one unit apart (exact: such an
+        effect sets the law affinely)."""
+        columns = np.flatnonzero(self.analytic_columns)
+        n = len(self.joints)
+        d = np.zeros((3, len(columns), n))
+        n0 = len(self.compliant)
+        d[0, np.arange(n0), np.arange(n0)] = -law.compliance[:n0]
+        for row, column in enumerate(columns[n0:], start=n0):
+            step = x.copy()
+            step[column] += 1.0
+            moved = self.law(step)
+            d[:, row] = (moved.compliance - law.compliance, moved.beta - law.beta,
+                         moved.backlash - law.backlash)
+        return d[0], d[1], d[2]
+
+    def _exact(self, k: np.ndarray, jacobian: bool = True
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Exact equilibria of every row (:func:`stiffness.batch.equilibrium.solve_equilibria`)
+        and their derivatives w.r.t. ``ln k``."""
+        if self._exact_rows is None:
+            robot = self._exact_robot()
+            rows = self.rows
+            q0: dict[int, np.ndarray] = {}
+            for i in range(rows.n_rows):
+                c = int(rows.config_index[i])
+                if c not in q0:
+                    q0[c] = robot.configuration(rows.coords[i])
+            q = np.array([q0[int(c)] for c in rows.config_index])
+            self._exact_rows = (robot, q, unloaded_kinematics(robot, q))
+        robot, q, base = self._exact_rows
+        kmat = np.diag(k)
+        eq = solve_equilibria(robot, q, kmat, self.wrench, base=base)
+        w = self.rotation_weight
+        out = eq.jacobian[:, :3] if w is None else np.concatenate(
+            [eq.jacobian[:, :3], w * eq.jacobian[:, 3:]], axis=1)
+        pred = eq.dx if w is None else np.hstack([eq.dx, w * eq.rotation])
+        if not jacobian:
+            return pred, None
+        # implicit function theorem: d dtheta / d ln k_i = -(K - K_C)^-1 e_i k_i dtheta_i
+        dtheta = -np.linalg.solve(kmat - eq.k_c, eq.dtheta[:, :, None] * np.diag(k))
+        return pred, out @ dtheta
+
+    def predict(self, x: np.ndarray, detail: bool = False):
+        """(m, 3) predicted measured displacements (m) for parameters ``x``; (m, 6)
+        ``[dx; w dphi]`` with a :attr:`rotation_weight` (first-order rotation ``J_w dtheta``
+        plus the effects' rotational parts).
+
+        Effects with a :meth:`Effect.preload` (gravity) make the deflection the loaded minus
+        the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
+        dtheta_1) - f(tau_p + K_p dtheta_0)``, seen through the kinematics of the preloaded
+        pose to first order in ``dtheta_0``: ``dx += sum_k e_k dtheta^T H_k dtheta_0`` and
+        ``dphi += sum_k e_k dtheta^T K_C(e_k moment) dtheta_0``.
+
+        With ``detail``, also returns the joint deflections (m, n) and torques (m, n).
+
+        Raises
+        ------
+        np.linalg.LinAlgError
+            If the tangent stiffness is singular for some row.
+        """
+        if self.baseline == "exact":
+            if detail:
+                raise StiffnessError("the exact baseline gives no linear detail")
+            return self._exact(np.exp(x[: len(self.compliant)]), jacobian=False)[0]
+        dx, dtheta, tau, _ = self._predict(x, tangent=False, torques=detail)
+        return (dx, dtheta, tau) if detail else dx
+
+    def _predict(self, x: np.ndarray, tangent: bool, torques: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """:meth:`predict` of a linear-kinematics baseline: the predicted rows, the joint
+        deflections, with ``torques`` the joint torques (else ``None``), and with ``tangent``
+        the (m, 3 or 6, P) derivatives of the rows along the parameters of
+        :attr:`analytic_columns`."""
+        rows = self.rows
+        params = self._effect_params(x)
+        force, moment = rows.force, rows.moment
+        for e, p in zip(self.effects, params, strict=True):
+            force, moment = e.adjust_load(p, force, moment)
+        jv, jw, point = self.jv, self.jw, rows.position
+        for e, p in zip(self.effects, params, strict=True):
+            shift = e.target_shift(p, rows)
+            if shift is not None:
+                jv = jv - skew(shift) @ jw
+                point = point + shift
+        tau0 = np.einsum("mkn,mk->mn", jv, force) + np.einsum("mkn,mk->mn", jw, moment)
+        law = self.law(x, params)
+        directions = self._law_directions(x, law) if tangent else None
+        k_c = None
+        if self.tangent:
+            k_c = np.einsum("mk,mkab->mab", np.hstack([force, moment]), self.h)
+        pre_tau = pre_k = None
+        for e, p in zip(self.effects, params, strict=True):
+            pre = e.preload(p, self, rows)
+            if pre is not None:
+                pre_tau = pre[0] if pre_tau is None else pre_tau + pre[0]
+                pre_k = pre[1] if pre_k is None else pre_k + pre[1]
+
+        def equilibrium(torque, stiffness):
+            d = law.frozen_deflection(torque, stiffness, LAW_ITERATIONS)
+            return d, (law.deflection_tangent(torque, stiffness, d, *directions)
+                       if tangent else None)
+
+        if pre_tau is None:
+            dtheta, t_theta = equilibrium(tau0, k_c)
+            unloaded = t_unloaded = None
+        else:  # loaded minus unloaded equilibrium, both under the preload
+            loaded, t_loaded = equilibrium(tau0 + pre_tau,
+                                           pre_k if k_c is None else k_c + pre_k)
+            unloaded, t_unloaded = equilibrium(pre_tau, pre_k)
+            dtheta = loaded - unloaded
+            t_theta = t_loaded - t_unloaded if tangent else None
+        h_v = self.h[:, :3]
+        dx = np.einsum("mkn,mn->mk", jv, dtheta)
+        t_dx = jv @ t_theta if tangent else None
+        if self.second_order:
+            dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", h_v, dtheta, dtheta)
+            if tangent:
+                t_dx = t_dx + 0.5 * (contract_hessian(h_v, dtheta, 2)
+                                     + contract_hessian(h_v, dtheta, 3)
+                                     ) @ t_theta
+        if unloaded is not None:  # the load acts on the arm already deflected by the preload
+            dx = dx + np.einsum("mkab,ma,mb->mk", h_v, dtheta, unloaded)
+            if tangent:
+                t_dx = (t_dx + contract_hessian(h_v, unloaded, 3) @ t_theta
+                        + contract_hessian(h_v, dtheta, 2) @ t_unloaded)
+        for e, p in zip(self.effects, params, strict=True):
+            extra = e.displacement(p, self, rows, force, moment, point)
+            if extra is not None:
+                dx = dx + extra
+        for e, p in zip(self.effects, params, strict=True):
+            dx = e.adjust_output(p, dx)
+            if tangent:
+                t_dx = e.output_tangent(p, t_dx)
+        if self.rotation_weight is not None:
+            h_w = self.h[:, 3:]
+            dphi = np.einsum("mkn,mn->mk", jw, dtheta)
+            t_phi = jw @ t_theta if tangent else None
+            if unloaded is not None:  # J_w at the preloaded pose: K_C of unit moments
+                dphi = dphi + np.einsum("mkab,ma,mb->mk", h_w, dtheta, unloaded)
+                if tangent:
+                    t_phi = (t_phi + contract_hessian(h_w, unloaded, 3) @ t_theta
+                             + contract_hessian(h_w, dtheta, 2) @ t_unloaded)
+            for e, p in zip(self.effects, params, strict=True):
+                extra = e.rotation(p, self, rows, force, moment, point)
+                if extra is not None:
+                    dphi = dphi + extra
+            for e, p in zip(self.effects, params, strict=True):
+                dphi = e.adjust_rotation(p, dphi)
+                if tangent:
+                    t_phi = e.rotation_tangent(p, t_phi)
+            dx = np.hstack([dx, self.rotation_weight * dphi])
+            if tangent:
+                t_dx = np.concatenate([t_dx, self.rotation_weight * t_phi], axis=1)
+        tau = None
+        if torques:
+            tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
+        return dx, dtheta, tau, t_dx
+
+    def describe(self) -> str:
+        """E.g. ``enhanced over joint1, joint2 + backlash(joint2)``."""
+        text = f"{self.baseline} over {', '.join(self.compliant)}"
+        return text + "".join(f" + {e.label}" for e in self.effects)

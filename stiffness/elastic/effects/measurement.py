@@ -1,0 +1,141 @@
+"""Effects on the target and the measurement: ``target_offset`` (the target is elsewhere),
+``frame_misalignment`` (the instrument's frame is rotated), ``force_sensor_bias`` (the recorded
+force is offset) and ``deflection_offset`` (the measured deflections are offset).
+
+A target offset changes the robot (its target moves); the other three describe how the
+campaign observed the deflection and do not act on a robot used away from its campaign.
+
+Units: SI (m, rad, N).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.geometry import rotation_matrix
+
+_DIAGONAL = np.ones(3) / math.sqrt(3.0)
+
+
+def diagonal_vector(values: tuple[float, ...]) -> np.ndarray:
+    """Three values as given, or one value along (1, 1, 1)/sqrt(3)."""
+    return values[0] * _DIAGONAL if len(values) == 1 else np.array(values, dtype=float)
+
+
+class FrameMisalignment(Effect):
+    """Measured ``dx = R(phi) dx_model``."""
+
+    name = "frame_misalignment"
+    kind = "measurement"
+    param_names = ("rx", "ry", "rz")
+    value_counts = (1, 3)
+
+    def simulated_values(self, values, units):
+        return diagonal_vector(values) * units.angle_to_si
+
+    def contribute(self, values, parts):
+        parts.measure(self.label, rotation=values[:3])
+
+    def scale(self, refs):
+        return np.full(3, 0.01)
+
+    def adjust_output(self, p, dx):
+        return dx @ rotation_matrix(p).T
+
+    def output_tangent(self, p, t):
+        return rotation_matrix(p) @ t
+
+    def adjust_rotation(self, p, dphi):
+        return dphi @ rotation_matrix(p).T
+
+    def rotation_tangent(self, p, t):
+        return rotation_matrix(p) @ t
+
+    def _units(self, units):
+        return [(units.angle, units.angle_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the instrument's frame is rotated against the robot base"
+
+
+class TargetOffset(Effect):
+    """The target is ``delta`` (target frame axes) away from the declared one."""
+
+    name = "target_offset"
+    param_names = ("dx", "dy", "dz")
+    value_counts = (1, 3)
+
+    def simulated_values(self, values, units):
+        return diagonal_vector(values) * units.length_to_si
+
+    def contribute(self, values, parts):
+        parts.shift_target(self.label, values[:3])
+
+    def scale(self, refs):
+        return np.full(3, 0.01)
+
+    def target_shift(self, p, rows):
+        return rows.rotation @ p
+
+    def _units(self, units):
+        return [(units.length, units.length_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the measured target is not where the campaign says (target frame axes)"
+
+
+class ForceSensorBias(Effect):
+    """The recorded force is ``F + b``."""
+
+    name = "force_sensor_bias"
+    kind = "measurement"
+    param_names = ("fx", "fy", "fz")
+    value_counts = (1, 3)
+
+    def simulated_values(self, values, units):
+        return diagonal_vector(values) * units.force_to_si
+
+    def contribute(self, values, parts):
+        parts.measure(self.label, force_bias=values[:3])
+
+    def scale(self, refs):
+        return np.full(3, 0.01 * refs.force_ref)
+
+    def adjust_load(self, p, force, moment):
+        return force - p, moment
+
+    def _units(self, units):
+        return [(units.force, units.force_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the recorded force carries a constant offset (base axes)"
+
+
+class DeflectionOffset(Effect):
+    """The measured deflections carry a constant offset."""
+
+    name = "deflection_offset"
+    kind = "measurement"
+    param_names = ("dx", "dy", "dz")
+    value_counts = (1, 3)
+
+    def simulated_values(self, values, units):
+        return diagonal_vector(values) * units.length_to_si
+
+    def contribute(self, values, parts):
+        parts.measure(self.label, deflection_offset=values[:3])
+
+    def scale(self, refs):
+        return np.full(3, 0.01 * refs.deflection_ref)
+
+    def adjust_output(self, p, dx):
+        return dx + p
+
+    def _units(self, units):
+        return [(units.length, units.length_to_si)] * 3
+
+    def describe(self) -> str:
+        return "the measured deflections carry a constant offset (the reference moved)"

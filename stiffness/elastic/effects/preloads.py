@@ -1,0 +1,163 @@
+"""Preloads: loads present at every pose. ``gravity_preload`` (the links' weight and a payload)
+and ``gravity_compensator`` (a spring between the base and a lever on a link).
+
+The measured deflection is then the loaded minus the unloaded equilibrium at the commanded
+pose; the preload's torque joins the joint load (a nonlinear spring's operating point) and its
+derivative the stiffness.
+
+Units: SI (kg, m, N, N/m, N.m, rad).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.geometry import skew
+from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
+from stiffness.mechanics.gravity import require_open_chain, spring_balancer
+
+#: Default geometry of ``gravity_compensator`` (m, m, rad): lever on the link, distance of the
+#: base attachment from the axis, angle between them at the joint's zero.
+COMPENSATOR_GEOMETRY = {"lever_m": 0.1, "base_m": 0.3, "angle0_rad": 0.0}
+
+
+class GravityPreload(Effect):
+    """The robot's weight (URDF inertias) and a payload preload the joints at every pose."""
+
+    name = "gravity_preload"
+    kind = "preload"
+    param_names = ("mass", "com_x", "com_y", "com_z")
+    beyond_springs = True
+    value_counts = (1, 4)
+
+    @classmethod
+    def at_place(cls, where, geometry):
+        if where:
+            raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
+        require_open_chain(geometry.robot, cls.name)
+        return cls()
+
+    def simulated_values(self, values, units):
+        if values[0] < 0:
+            raise StiffnessError(f"gravity_preload needs a payload mass >= 0 kg, got {values[0]}")
+        com = np.zeros(3) if len(values) == 1 else np.array(values[1:4]) * units.length_to_si
+        return np.concatenate([[float(values[0])], com])
+
+    def contribute(self, values, parts):
+        parts.weigh(values[0], values[1:4])
+
+    def scale(self, refs):
+        return np.array([refs.force_ref / 9.81, 0.1, 0.1, 0.1])
+
+    def bounds(self):
+        return np.array([0.0, -1e4, -1e4, -1e4]), np.full(4, 1e4)
+
+    def start(self):
+        return np.array([0.05, 0.0, 0.0, 0.0])
+
+    def preload(self, p, model, rows):
+        idx = model.index
+        if rows.gravity_torque is None or not np.all(np.isfinite(rows.gravity_torque)):
+            require_open_chain(model.geometry.robot, self.name)
+        tau = rows.gravity_torque[:, idx]
+        k_g = rows.gravity_stiffness[:, idx][:, :, idx]
+        f = p[0] * np.asarray(model.geometry.robot.model.gravity.linear, dtype=float)
+        r = rows.rotation @ p[1:4]
+        moment = np.cross(r, f)
+        wrench = np.hstack([np.broadcast_to(f, moment.shape), moment])
+        tau = tau + model.jv.transpose(0, 2, 1) @ f + np.einsum("mkn,mk->mn", model.jw, moment)
+        k_p = np.einsum("mk,mkab->mab", wrench, model.h)
+        k_p += model.jw.transpose(0, 2, 1) @ (skew(f) @ skew(r)) @ model.jw
+        return tau, k_g + k_p
+
+    def _units(self, units):
+        return [("kg", 1.0)] + [(units.length, units.length_to_si)] * 3
+
+    def describe(self) -> str:
+        return ("the robot's weight and a payload preload the joints (the measured deflection "
+                "is loaded minus unloaded under that weight)")
+
+
+@dataclass(eq=False)
+class GravityCompensator(Effect):
+    """A spring between the base and a lever on the joint's link
+    (:func:`stiffness.mechanics.gravity.spring_balancer`)."""
+
+    joint_name: str = ""
+    lever_m: float = COMPENSATOR_GEOMETRY["lever_m"]
+    base_m: float = COMPENSATOR_GEOMETRY["base_m"]
+    angle0_rad: float = COMPENSATOR_GEOMETRY["angle0_rad"]
+    name: ClassVar[str] = "gravity_compensator"
+    param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
+    beyond_springs: ClassVar[bool] = True
+    value_counts: ClassVar[tuple[int, ...]] = (2,)
+
+    def __post_init__(self) -> None:
+        if not (self.lever_m > 0 and self.base_m > 0 and abs(self.lever_m - self.base_m) > 1e-6):
+            raise StiffnessError(f"gravity_compensator:{self.joint_name} needs a lever and a "
+                                 f"base distance that are positive and differ, got "
+                                 f"{self.lever_m} and {self.base_m} m")
+
+    @classmethod
+    def at_place(cls, where, geometry):
+        if where not in geometry.joints or geometry.prismatic[geometry.joints.index(where)]:
+            revolute = [j for j, p in zip(geometry.joints, geometry.prismatic, strict=True)
+                        if not p]
+            raise UnknownJointError(f"gravity_compensator needs a revolute joint, e.g. "
+                                    f"gravity_compensator:{revolute[0]}; "
+                                    f"{did_you_mean(str(where), revolute)}", name=str(where),
+                                    choices=revolute)
+        return cls(joint_name=where)
+
+    @classmethod
+    def declared(cls, where, settings):
+        g = {**COMPENSATOR_GEOMETRY, **settings}
+        return cls(joint_name=str(where), lever_m=g["lever_m"], base_m=g["base_m"],
+                   angle0_rad=g["angle0_rad"])
+
+    def file_settings(self, refs):
+        return dict(self.settings)
+
+    def contribute(self, values, parts):
+        parts.add_compensator(self.joint_name, values[0], values[1], self.settings)
+
+    @property
+    def where(self) -> str:
+        return self.joint_name
+
+    @property
+    def settings(self) -> dict:
+        """The spring's geometry (SI)."""
+        return {"lever_m": self.lever_m, "base_m": self.base_m, "angle0_rad": self.angle0_rad}
+
+    def scale(self, refs):
+        ad = self.lever_m * self.base_m
+        return np.array([0.1 * refs.k_ref / ad, 0.1 * refs.k_ref / self.lever_m])
+
+    def bounds(self):
+        return np.array([0.0, -1e4]), np.full(2, 1e4)
+
+    def torque(self, p: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Spring torque (N.m) on the joint at angles ``theta`` (rad) and its derivative."""
+        return spring_balancer(theta, p[0], p[1], self.lever_m, self.base_m, self.angle0_rad)
+
+    def preload(self, p, model, rows):
+        column = model.joints.index(self.joint_name)
+        theta = rows.coords[:, model.geometry.joints.index(self.joint_name)]
+        tau_s, dtau = self.torque(p, theta)
+        m, n = rows.n_rows, len(model.joints)
+        tau, k = np.zeros((m, n)), np.zeros((m, n, n))
+        tau[:, column] = tau_s
+        k[:, column, column] = dtau
+        return tau, k
+
+    def _units(self, units):
+        return [("N/m", 1.0), ("N", 1.0)]
+
+    def describe(self) -> str:
+        return (f"a spring gravity compensator on {self.joint_name} adds its torque and its "
+                "angle derivative (a stiffness) to the joint")
