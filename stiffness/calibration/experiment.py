@@ -7,7 +7,7 @@ loops closed, away from singularities and folds) times the load directions
 :data:`LOAD_DIRECTIONS` (the six axes and the eight cube diagonals) at the largest force.
 
 Information. Row ``r`` (pose, force) has the predicted deflection ``d_r(ln k)`` of the
-identification's deflection model (:class:`stiffness.elastic.effects.Model`: the
+identification's deflection model (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`: the
 ``enhanced`` baseline ``J (K - K_C(F))^-1 J^T F`` by default, ``K_C`` included) and the
 sensitivity ``S_r = dd_r / d ln k`` (3, p) at the nominal stiffness (central differences of the
 model's prediction). Under independent noise of std ``sigma`` on each deflection component the

@@ -2,7 +2,7 @@
 
 Every fit of the toolkit (``stiffness identify``: the baseline's stiffnesses from several
 starts; ``stiffness diagnose``: the baseline extended by effects, and its cross-validation)
-goes through :func:`fit_model` on a :class:`stiffness.elastic.effects.Model` (an
+goes through :func:`fit_model` on a :class:`stiffness.elastic.effects.hypothesis.Hypothesis` (an
 identification is a diagnosis with no effects) and gets its uncertainty from
 :func:`covariance`.
 
@@ -20,7 +20,7 @@ model cannot be evaluated (a buckling load, a singular tangent) the residuals ar
 constant, so the solver backs off.
 
 Rotations: a campaign that also measures the target frame's rotation is fitted on rows
-``[dx; w dphi]`` (:attr:`stiffness.elastic.effects.Model.rotation_weight`,
+``[dx; w dphi]`` (:attr:`stiffness.elastic.effects.hypothesis.Hypothesis.rotation_weight`,
 :func:`observations`): with ``w = sigma_t / sigma_r`` the translation noise std ``sigma_t`` (m)
 and the rotation noise std ``sigma_r`` (rad), one scale whitens both kinds and every quantity
 below (RSS, chi-square, covariance, information criteria) holds in translation-noise units.

@@ -9,7 +9,7 @@ The elastic model (:class:`ElasticModel`) holds:
 * link compliances (:class:`LinkBend`): the segment ``a -> b`` bends at ``b``'s origin about two
   axes normal to it, modelled exactly as two virtual revolute joints there (a universal joint:
   the second axis is carried by the first) with springs ``k_1, k_2``. The axes are those of
-  :func:`stiffness.elastic.effects.link_axes` at a reference configuration (the nominal one
+  :func:`stiffness.elastic.effects.geometry.link_axes` at a reference configuration (the nominal one
   of a path point, :func:`frozen_axes`), fixed in the body joint ``b`` is mounted on. The bend
   rotates everything beyond it; loops are closed on the unbent kinematics (as in the effect
   library).

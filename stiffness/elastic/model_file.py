@@ -30,7 +30,7 @@ included, as a :class:`ModelCompliance`). Errors: :class:`ModelFileError` (a
 :class:`~stiffness.errors.FileFormatError`: unknown schema, missing or malformed key) and
 :class:`ModelRobotError` (another robot than the model's, or an effect on a joint it lacks).
 
-How effects enter (``kind`` of :data:`stiffness.elastic.effects.EFFECT_KINDS`):
+How effects enter (``kind`` of :data:`stiffness.elastic.effects.base.EFFECT_KINDS`):
 
 * ``stiffness``: ``joint_compliance`` (the joint becomes a spring of the given stiffness),
   ``link_compliance`` (a lumped rotational compliance at the distal joint's origin, about the
