@@ -13,8 +13,8 @@ joints, N/m for prismatic ones). For each measurement row ``r`` (configuration `
 with ``J`` the translational target Jacobian w.r.t. the compliant joints. Identification is a
 diagnosis with no effects: the model is the campaign's baseline
 (:func:`stiffness_model`, a :class:`stiffness.elastic.effects.hypothesis.Hypothesis` without
-effects; ``J`` and ``K_C`` computed once per row, ``K_C`` linear in the row's own load) and the fit is the
-fitting engine's (:mod:`stiffness.calibration.fitting`): the residuals
+effects; ``J`` and ``K_C`` computed once per row, ``K_C`` linear in the row's own load) and the
+fit is the fitting engine's (:mod:`stiffness.calibration.fitting`): the residuals
 ``(predicted - measured) / s`` are stacked row by row (eq. 13) and their sum of squares
 (eq. 12) is minimised by :func:`scipy.optimize.least_squares` (``trf`` and/or ``lm``) over
 ``ln k`` (positivity, and a scale-free parameterisation), from several starts: the paper's
@@ -487,7 +487,8 @@ def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[
 def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = None
                     ) -> Hypothesis:
     """The campaign's baseline model without effects: its compliant joints under
-    ``formulation`` over the campaign's rows (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`).
+    ``formulation`` over the campaign's rows
+    (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`).
 
     Raises
     ------
