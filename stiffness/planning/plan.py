@@ -47,7 +47,7 @@ from stiffness.calibration.campaign import (
     settings_robot,
     units_section,
 )
-from stiffness.elastic.effects import cached_robot
+from stiffness.elastic.effects.geometry import cached_robot
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
