@@ -20,7 +20,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.kernels import BatchKinematics, batch_kinematics
-from stiffness.errors import ConvergenceError, UnstableEquilibriumError
+from stiffness.errors import ConvergenceError, StiffnessError, UnstableEquilibriumError
 from stiffness.mechanics.equilibrium import (
     LinearSprings,
     converged,
@@ -108,6 +108,9 @@ def solve_equilibria(robot: Robot, q0: np.ndarray, k_theta: np.ndarray, wrenches
     law = LinearSprings(k_theta)
     kmat = law.k_theta
     base = unloaded_kinematics(robot, q0) if base is None else base
+    if base.position is None or base.rotation is None:
+        raise StiffnessError("the unloaded kinematics need the target pose: give "
+                             "batch_kinematics(..., pose=True) as base")
     tau0 = np.einsum("mkn,mk->mn", base.jacobian, wrench)
     m, n = tau0.shape
     dtheta = np.linalg.solve(kmat, tau0.T).T  # the start K_theta^-1 J^T W of every row

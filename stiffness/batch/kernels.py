@@ -49,7 +49,7 @@ whose public names are re-exported here (``batch.close_loops``, ``batch.complian
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -220,11 +220,11 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
             raw[i] = frame_hessian(model, data, fid, LWA)
             j_rows[i] = frame_jacobian(model, data, fid, LWA)  # also sets data.oMf[fid]
             record(i)
-            if pose:
+            if placement is not None:
                 placement[i, :3, :3] = rotation
                 placement[i, :3, 3] = translation
 
-    if pose:
+    if placement is not None:
         placement[:, 3] = (0.0, 0.0, 0.0, 1.0)
     cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
@@ -375,12 +375,12 @@ class _ClosurePass:
             c = np.concatenate([jac[p + 1, :, :3] - jac[p, :, :3] for p in pairs], axis=1)
             proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv, base, target_passive)
             proj_t = np.ascontiguousarray(proj.transpose(1, 2, 0))
-            hss = []
+            point_hss = []
             for f, support in enumerate(_point_supports(robot)):  # its support columns only
                 idx = np.flatnonzero(support)
                 point_j = np.ascontiguousarray(jac[f][:, :, idx].transpose(1, 2, 0))  # (6, s, k)
-                hss.append(_projected_point_hessian(point_j[:3], point_j[3:], proj_t[idx]))
-            hss = np.concatenate([hss[p + 1] - hss[p] for p in pairs], axis=1)
+                point_hss.append(_projected_point_hessian(point_j[:3], point_j[3:], proj_t[idx]))
+            hss = np.concatenate([point_hss[p + 1] - point_hss[p] for p in pairs], axis=1)
         else:
             c = np.concatenate([self.jac[p + 1, :, :3] - self.jac[p, :, :3] for p in pairs],
                                axis=1)
@@ -395,17 +395,19 @@ class _ClosurePass:
         return proj[at], curvature[at], valid[at]
 
 
-def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray | None:
+def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray:
     """Diagonal of K_C under the unit forces x, y, z (m, 3, n), N.m/rad per N, from the target
-    Jacobian alone, for open chains whose joints have one velocity coordinate each; None
-    otherwise (use :func:`batch_kinematics`).
+    Jacobian alone, for open chains whose joints have one velocity coordinate each (others:
+    the diagonal of :func:`batch_kinematics`'s ``k_c_basis``).
 
     ``K_C(e_k)[a, a] = d2 x_k / dq_a^2 = (omega_a x v_a)_k`` (the point Hessian of
     :func:`_projected_point_hessian` on its diagonal), with ``[v_a; omega_a]`` the columns of the
     (m, 6, n) Jacobian, rows [v; omega].
     """
     if not robot.loop.is_open_chain or not one_coordinate_joints(robot):
-        return None
+        raise StiffnessError(
+            f"{robot.name}: the unit-force K_C diagonal is read off the Jacobian only for open "
+            "chains of one-coordinate joints; take the diagonal of batch_kinematics' k_c_basis")
     v, om = jacobian[:, :3], jacobian[:, 3:]
     return _cross0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
 
@@ -413,7 +415,7 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray | None
 def _loop_key_q_indices(robot: Robot) -> np.ndarray:
     """Positions in q of the loop coordinates (:func:`loop_coordinate_indices`)."""
     model = robot.model
-    out = []
+    out: list[int] = []
     for i in loop_coordinate_indices(robot):
         joint = model.joints[model.getJointId(robot.coordinate_joints[i])]
         out.extend(range(joint.idx_q, joint.idx_q + joint.nq))
@@ -573,7 +575,7 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
             dg[i] = gravity_derivatives(model, data, q[i])
             j_rows[i] = frame_jacobian(model, data, fid, LWA)  # also sets data.oMf[fid]
             record(i)
-            if pose:
+            if position is not None:
                 position[i] = translation
     if closure is None and robot.mimics:
         e = compliant_projection(robot)  # mimic followers move with their leaders
@@ -778,6 +780,7 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
     if method == "gravity" and not gravity_ok:
         raise StiffnessError("method 'gravity' needs a single force load (no moments)")
     use_gravity = gravity_ok and method != "hessian" and not isinstance(q, BatchKinematics)
+    starts: Sequence[int]
     if isinstance(q, BatchKinematics):
         m = q.size
         starts = [0]

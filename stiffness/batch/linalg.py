@@ -15,6 +15,7 @@ Units: SI (K_theta, K_C in N.m/rad; K_X in N/m for the translational block; comp
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 
@@ -225,9 +226,20 @@ def _condition_ok(c: np.ndarray, k_x: np.ndarray) -> np.ndarray:
     return ok
 
 
+#: C, K_X, regular-T and regular-K_X masks (K_X None when not asked for).
+_Compliances = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+_CompliancesNoKx = tuple[np.ndarray, None, np.ndarray, np.ndarray]
+_MaybeCompliances = tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]
+
+
+@overload
+def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: Literal[True],
+                      symmetric: bool | None = None) -> _Compliances: ...
+@overload
 def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
-                      symmetric: bool | None = None
-                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+                      symmetric: bool | None = None) -> _MaybeCompliances: ...
+def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
+                      symmetric: bool | None = None) -> _MaybeCompliances:
     """C, K_X (or None), regular-T and regular-K_X masks of one block (M, n, n), (M, r, n).
 
     ``symmetric``: True when every tangent is known to be symmetric (pure forces), None to
@@ -250,7 +262,7 @@ def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
             idx = np.flatnonzero(sym)
             c_s, k_s, ok_t, ok_c = _spd_block(tangent[idx], jac[idx])
             c[idx], lu_t[idx] = c_s, ~ok_t
-            if with_k_x:
+            if k_x is not None:
                 k_x[idx] = k_s
                 lu_c[idx] = ~(ok_t & ok_c)
     t_ok = np.ones(m, dtype=bool)
@@ -260,7 +272,7 @@ def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
         c[idx] = jac[idx] @ x
         t_ok[idx] = ok
     kx_ok = t_ok
-    if with_k_x:
+    if k_x is not None:
         if lu_c.any():
             idx = np.flatnonzero(lu_c)
             k_x[idx], _ = _inverse_each(c[idx])
@@ -272,9 +284,14 @@ def _compliance_block(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
     return c, k_x, t_ok, kx_ok
 
 
+@overload
+def compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: Literal[True],
+                     symmetric: bool | None = None) -> _Compliances: ...
+@overload
+def compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: Literal[False],
+                     symmetric: bool | None = None) -> _CompliancesNoKx: ...
 def compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
-                      symmetric: bool | None = None
-                      ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+                     symmetric: bool | None = None) -> _MaybeCompliances:
     """:func:`_compliance_block` over a stack (..., n, n), (..., r, n) in cache-sized blocks."""
     shape = np.broadcast_shapes(tangent.shape[:-2], jac.shape[:-2])
     n, r = tangent.shape[-1], jac.shape[-2]
@@ -292,7 +309,7 @@ def compliance_stack(tangent: np.ndarray, jac: np.ndarray, with_k_x: bool,
             e = min(total, s + _BLOCK)
             c[s:e], kb, t_ok[s:e], kx_ok[s:e] = _compliance_block(
                 t_flat[s:e], j_flat[s:e], with_k_x, symmetric)
-            if with_k_x:
+            if k_x is not None:
                 k_x[s:e] = kb
     return (c.reshape(*shape, r, r), None if k_x is None else k_x.reshape(*shape, r, r),
             t_ok.reshape(shape), kx_ok.reshape(shape))
@@ -466,6 +483,8 @@ def definiteness_codes(matrices: np.ndarray | None = None, rtol: float = 1e-9, a
     """
     if eigenvalues is not None:
         return _codes_from_eigenvalues(eigenvalues, rtol, atol)
+    if matrices is None:
+        raise TypeError("definiteness_codes needs the matrices or their eigenvalues")
     sym = 0.5 * (matrices + np.swapaxes(matrices, -1, -2))
     centre = np.diagonal(sym, axis1=-2, axis2=-1)
     radius = np.abs(sym).sum(axis=-1) - np.abs(centre)

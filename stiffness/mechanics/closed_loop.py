@@ -38,6 +38,7 @@ Units: C in m/rad (m/m for prismatic joints), Hc in m/rad^2, K_C in N.m/rad.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,7 +138,7 @@ def idle_motions_leave_target(c_p: np.ndarray, rank: np.ndarray, target_passive:
 
 
 def base_projection(compliant_v: np.ndarray, nv: int,
-                    followers: list[tuple[int, int, float]] = ()) -> np.ndarray:
+                    followers: Sequence[tuple[int, int, float]] = ()) -> np.ndarray:
     """(nv, n) rates of the tree joints per compliant rate, loops aside: identity on the
     compliant joints, ``multiplier`` times the leader's on each mimic follower
     (``followers``: (follower v index, leader v index, multiplier))."""

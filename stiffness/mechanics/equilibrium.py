@@ -500,13 +500,13 @@ def linear_departure(robot: Robot, q0: np.ndarray, k_theta: np.ndarray, load: np
     """
     wrench = as_wrench(load)
     scales = np.geomspace(1e-2, 1.0, 7) if scales is None else np.asarray(scales, dtype=float)
-    exact, conv, enh = [], [], []
+    exact_rows, conv_rows, enh_rows = [], [], []
     for s in scales:
         state = target_state(robot, q0, s * wrench)
-        exact.append(solve_equilibrium(robot, q0, k_theta, s * wrench).dx)
-        conv.append(_linear(state, k_theta, "conventional"))
-        enh.append(_linear(state, k_theta, "enhanced"))
-    exact, conv, enh = map(np.array, (exact, conv, enh))
+        exact_rows.append(solve_equilibrium(robot, q0, k_theta, s * wrench).dx)
+        conv_rows.append(_linear(state, k_theta, "conventional"))
+        enh_rows.append(_linear(state, k_theta, "enhanced"))
+    exact, conv, enh = np.array(exact_rows), np.array(conv_rows), np.array(enh_rows)
 
     def rate(pred):
         err = np.linalg.norm(pred - exact, axis=1)

@@ -154,7 +154,7 @@ def solve_ik(
     if seed is None:
         seed = full.coordinates_of(seed_q) if seed_q is not None else np.zeros(full.n_coordinates)
     coords = np.asarray(seed, dtype=float).copy()
-    lo, hi = coordinate_limits(full) if limits else (None, None)
+    lo, hi = coordinate_limits(full)
     if limits:
         coords = inside_limits(coords, lo, hi)
     q = full.configuration(coords, seed=seed_q)

@@ -75,7 +75,7 @@ def holding_wrench(robot: Robot, q: np.ndarray, k_theta: np.ndarray,
     tau = k_theta @ (theta - rest)
     jac = target_state(robot, q).jacobian
     wrench = np.linalg.lstsq(jac.T, tau, rcond=1e-12)[0]
-    if np.linalg.norm(jac.T @ wrench - tau) > 1e-8 * max(1.0, np.linalg.norm(tau)):
+    if np.linalg.norm(jac.T @ wrench - tau) > 1e-8 * max(1.0, float(np.linalg.norm(tau))):
         raise StiffnessError(
             "no wrench at the target balances the springs at this configuration (the compliant "
             "joints are not all loaded through the target); give the load explicitly"

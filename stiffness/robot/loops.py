@@ -307,9 +307,9 @@ class LoopClosure:
         rows = []
         for points, (fa, fb) in zip(self._world_points(model), self.frame_ids, strict=True):
             if points is None:
-                ja = kinematics.frame_jacobian(model, data, fa)[:3]
-                jb = kinematics.frame_jacobian(model, data, fb)[:3]
-                rows.append(jb - ja)
+                jac_a = kinematics.frame_jacobian(model, data, fa)[:3]
+                jac_b = kinematics.frame_jacobian(model, data, fb)[:3]
+                rows.append(jac_b - jac_a)
                 continue
             for (ja, ma), (jb, mb) in points:
                 rows.append(kinematics.point_jacobian(model, data, jb, mb)[:3]

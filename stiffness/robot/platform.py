@@ -52,14 +52,14 @@ class PlatformSpec:
         Pose of the platform frame in the base frame at the reference configuration (all
         passive joints zero there).
     leg_names
-        Prismatic joint names, default ``leg1..legn``.
+        Prismatic joint names; empty (the default) names them ``leg1..legn``.
     """
 
     name: str
     base_anchors: np.ndarray
     platform_anchors: np.ndarray
     platform_pose: pin.SE3 = field(default_factory=pin.SE3.Identity)
-    leg_names: tuple[str, ...] | None = None
+    leg_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         base = np.asarray(self.base_anchors, dtype=float)

@@ -354,7 +354,7 @@ class Robot:
                 jump = float(np.max(np.abs(closed[passive_q] - predicted[passive_q]),
                                     initial=0.0))
             except LoopClosureError:
-                closed, jump = None, np.inf
+                closed, jump = predicted, np.inf  # not taken: the step is halved
             if jump > _BRANCH_JUMP:
                 h /= 2.0
                 if h < 1e-9:

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pinocchio as pin
 
@@ -25,6 +26,9 @@ from stiffness.errors import FileFormatError, StiffnessError, UnknownRobotError,
 from stiffness.files import read_toml
 from stiffness.robot.meshes import MissingMesh
 from stiffness.robot.urdf import Mimic, mimic_tags, read_urdf, warn
+
+if TYPE_CHECKING:
+    from example_robot_data.utils import RobotLoader
 
 
 @dataclass
@@ -163,7 +167,7 @@ def _from_example_robot_data(name: str) -> RobotSource:
                        visual_loader=visual_loader)
 
 
-def _plain_urdf_loader(cls: type) -> tuple[pin.Model, Path, UrdfVisual] | None:
+def _plain_urdf_loader(cls: type[RobotLoader]) -> tuple[pin.Model, Path, UrdfVisual] | None:
     """Model, URDF path and visual-geometry builder of an example-robot-data loader class
     that only reads a URDF (the library's own ``RobotLoader.__init__``, no SDF), without
     building its meshes; None for the loaders that build their model otherwise.

@@ -280,7 +280,7 @@ def _run_on_client(client: Any, func: Callable[..., Any], args: tuple, indices: 
     def submit_next() -> bool:
         if not pending:
             return False
-        if group is None and "chunk_s" in size:  # guided: tasks shrink as the work left does
+        if overhead is not None and "chunk_s" in size:  # guided: tasks shrink as the work does
             size["group"] = chunks_per_task(overhead, size["chunk_s"], len(pending), n_workers)
             size["largest"] = max(size["largest"], size["group"])
         count = min(size["group"], len(pending))

@@ -80,7 +80,7 @@ def aggregate_path(out: Path, index: int) -> Path:
 def write_npz(path: Path, arrays: dict[str, np.ndarray], compressed: bool = False) -> int:
     """Write arrays to an NPZ file atomically (deflate when ``compressed``); returns its size
     in bytes."""
-    save = np.savez_compressed if compressed else np.savez
+    save: Callable[..., None] = np.savez_compressed if compressed else np.savez
     atomic_write_with(path, lambda f: save(f, **arrays))
     return path.stat().st_size
 
@@ -440,6 +440,8 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
                 parts = _write_stored(out, spec, index, stored, formats, parts)
             on_written(index, parts)
 
+        func: Callable[..., object]
+        args: tuple[object, ...]
         if write_on_workers:
             func, args = scan_chunks_to_files, (spec.to_dict(), str(out.resolve()),
                                                 tuple(formats))

@@ -83,7 +83,7 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
                                               axis2=-1).copy()
     valid = closed.closed & kin_valid
     out["valid"] = valid
-    if want["position"]:
+    if position is not None:  # asked for (want["position"])
         out["position"] = position
     if want["definiteness"]:
         d = batch.load_definiteness(k_theta, k_c, rtol=spec.rtol)
