@@ -31,6 +31,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "validate": ("stiffness.cli.validate",
                  "a model file evaluated on another campaign, without refitting"),
     "simulate": ("stiffness.cli.simulate", "write a synthetic campaign with hidden effects"),
+    "campaign": ("stiffness.cli.campaign",
+                 "campaign import: a campaign folder from the CSV files a rig writes"),
     "design": ("stiffness.cli.design",
                "choose the poses and loads to measure (experiment design)"),
     "view": ("stiffness.cli.view", "stiffness ellipsoids in the browser (meshcat)"),

@@ -1,0 +1,745 @@
+"""Rig files as they come: the CSVs a rig writes, read into a campaign (``campaign import``).
+
+A rig writes one or several CSV files (joint readings, forces, tracker positions), with its
+own column names, units and frames. :func:`import_campaign` reads them into an ordinary
+:class:`stiffness.calibration.campaign.Campaign` (SI, base axes), which
+:func:`stiffness.calibration.campaign.write_campaign` writes for ``identify``, ``diagnose``
+and ``design --existing``:
+
+* **Joining.** The files' data rows are joined by row order (every file the same number of
+  rows), or by a key column present in every file (``join``; its values unique in each
+  file; rows in the first file's order).
+* **Column map.** Each campaign column (:data:`TARGETS`) is read from the file column the map
+  names (``q1=theta1,fx=Base_Fx``), else from a column of its own name (``dx`` or ``dx [mm]``).
+  A column name found in
+  several files is named ``FILE:COLUMN`` (the file's name).
+* **Deflections**, one of three ways: ``dx,dy,dz`` (loaded minus unloaded position); two
+  column sets ``x_loaded..z_loaded`` and ``x_unloaded..z_unloaded``; or paired rows:
+  positions ``x,y,z``, a ``state`` column (``loaded`` or ``unloaded``) and a ``pair`` key,
+  each pair one unloaded row and one or more loaded ones (each loaded row is a campaign row;
+  its coordinates are the unloaded row's, and a loaded row reading other coordinates is
+  refused).
+* **Units** (:class:`stiffness.calibration.campaign.Units`): given per kind, or read from the
+  headers (``theta1 [deg]``, ``Fx (N)``); a header whose unit disagrees with the given one,
+  or columns of one kind in different units, are refused. A kind the import needs and no
+  one names is refused too: no unit is assumed.
+* **Frames.** Forces (and moments) and deflections are in the base frame or in the tool
+  frame (the robot's target frame at the row's coordinates, rotated into base axes with its
+  kinematics).
+* **Labels.** The ``config`` column, else one label per distinct set of coordinates
+  (``P1``, ``P2``, ... in order of appearance).
+
+Every refusal is a one-line :class:`stiffness.errors.FileFormatError` or
+:class:`stiffness.errors.StiffnessError` naming the file, the line and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.campaign import (
+    BASELINES,
+    MAX_CELL,
+    Campaign,
+    RobotSettings,
+    Units,
+    coordinates_in_si,
+)
+from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
+from stiffness.files import read_text, read_toml, resolve_path, resolve_source
+from stiffness.robot.kinematics import frame_rotation, update_first_order
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS
+
+#: Frames forces and deflections may be given in.
+FRAMES = ("base", "tool")
+FORCE = ("fx", "fy", "fz")
+MOMENT = ("mx", "my", "mz")
+DIRECT = ("dx", "dy", "dz")
+LOADED = ("x_loaded", "y_loaded", "z_loaded")
+UNLOADED = ("x_unloaded", "y_unloaded", "z_unloaded")
+POSITION = ("x", "y", "z")
+#: Campaign columns a map may name (besides ``q1``, ``q2``, ...).
+TARGETS = ("config", *FORCE, *MOMENT, *DIRECT, *LOADED, *UNLOADED, *POSITION, "state", "pair")
+#: Values of the ``state`` column of paired rows.
+STATES = ("loaded", "unloaded")
+#: The kind of unit of each target (q columns: angle, or length for prismatic joints).
+_KIND = {**{t: "force" for t in FORCE}, **{t: "moment" for t in MOMENT},
+         **{t: "length" for t in (*DIRECT, *LOADED, *UNLOADED, *POSITION)}}
+_UNIT_TABLES = {"angle": ANGLE_UNITS, "force": FORCE_UNITS, "length": LENGTH_UNITS,
+                "moment": MOMENT_UNITS}
+_HEADER_UNIT = re.compile(r"^.*?[\[(]\s*([^\[\]()\s]+)\s*[\])]\s*$")
+#: Rows whose coordinates agree to this (rad or m) share a ``P`` label.
+SAME_POSE = 1e-9
+
+
+@dataclass
+class Table:
+    """One CSV file: its header and data rows (blank lines and ``#`` comments skipped).
+
+    Attributes
+    ----------
+    path
+        The file.
+    header
+        Column names.
+    rows
+        Cells of each data row.
+    lines
+        1-based line number of each data row.
+    """
+
+    path: Path
+    header: list[str]
+    rows: list[list[str]]
+    lines: list[int]
+
+
+@dataclass
+class Column:
+    """A file column joined into the import's rows.
+
+    Attributes
+    ----------
+    path, name, index
+        Its file, header and 0-based position there.
+    cells
+        Its cell on each joined row.
+    lines
+        The file line of each joined row.
+    """
+
+    path: Path
+    name: str
+    index: int
+    cells: list[str]
+    lines: list[int]
+
+    def error(self, row: int, problem: str) -> FileFormatError:
+        """A :class:`FileFormatError` at joined row ``row`` of this column."""
+        return FileFormatError(problem, path=self.path, line=self.lines[row],
+                               column=self.index + 1, field=self.name)
+
+    def numbers(self) -> np.ndarray:
+        """The cells as finite numbers within +-:data:`MAX_CELL` (file, line and column named
+        otherwise)."""
+        out = np.empty(len(self.cells))
+        for i, cell in enumerate(self.cells):
+            try:
+                value = float(cell)
+            except ValueError:
+                value = math.nan
+            if not (math.isfinite(value) and abs(value) <= MAX_CELL) or not cell.strip() \
+                    or not re.fullmatch(r"\s*[-+]?[0-9.eE+-]+\s*", cell):
+                raise self.error(i, f"{cell!r} is not a number; give a finite number within "
+                                    f"+-{MAX_CELL:.0e}")
+            out[i] = value
+        return out
+
+
+@dataclass
+class ImportSettings:
+    """How to read a rig's files (see the module docstring).
+
+    Attributes
+    ----------
+    column_map
+        Campaign column -> file column (``q1`` -> ``theta1``; ``FILE:COLUMN`` when several
+        files have it).
+    units
+        Unit per kind given by the user (``angle``, ``force``, ``length``, ``moment``);
+        kinds not given are read from the headers.
+    join
+        Key column joining the files, or ``None`` for row order.
+    force_frame, deflection_frame
+        ``base`` or ``tool``.
+    """
+
+    column_map: dict[str, str] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+    join: str | None = None
+    force_frame: str = "base"
+    deflection_frame: str = "base"
+
+    def __post_init__(self) -> None:
+        for kind, value in self.units.items():
+            table = _UNIT_TABLES.get(kind)
+            if table is None:
+                raise StiffnessError(f"unknown unit kind {kind!r}; "
+                                     f"{did_you_mean(kind, list(_UNIT_TABLES))}")
+            if value not in table:
+                raise StiffnessError(f"unknown {kind} unit {value!r}; valid {kind} units: "
+                                     f"{', '.join(table)}")
+        for label, frame in (("force", self.force_frame), ("deflection", self.deflection_frame)):
+            if frame not in FRAMES:
+                raise StiffnessError(f"the {label} frame must be base or tool, got {frame!r}")
+
+
+@dataclass
+class ImportReport:
+    """What an import read.
+
+    Attributes
+    ----------
+    files
+        The files and their data rows.
+    rows
+        Campaign rows made.
+    deflections
+        How the deflections were given (``direct``, ``two column sets``, ``paired rows``).
+    columns
+        Per campaign column: its source ``FILE:COLUMN``, unit, and the range read (file
+        units).
+    units
+        The units used (:class:`stiffness.calibration.campaign.Units`).
+    force_frame, deflection_frame
+        The frames the files gave forces and deflections in.
+    """
+
+    files: list[tuple[str, int]]
+    rows: int
+    deflections: str
+    columns: dict[str, dict]
+    units: Units
+    force_frame: str
+    deflection_frame: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready."""
+        return {"files": [{"file": f, "rows": n} for f, n in self.files], "rows": self.rows,
+                "deflections": self.deflections, "columns": self.columns,
+                "units": {"angle": self.units.angle, "force": self.units.force,
+                          "length": self.units.length, "moment": self.units.moment},
+                "force_frame": self.force_frame, "deflection_frame": self.deflection_frame}
+
+    def lines(self) -> list[str]:
+        """The report as text lines."""
+        out = [f"read {', '.join(f'{f} ({n} rows)' for f, n in self.files)}: {self.rows} "
+               f"campaign rows; deflections {self.deflections}; forces in the "
+               f"{self.force_frame} frame, deflections in the {self.deflection_frame} frame"]
+        width = max(len(t) for t in self.columns)
+        for target, c in self.columns.items():
+            span = "" if c["min"] is None else f"  {c['min']:.6g} .. {c['max']:.6g}"
+            out.append(f"  {target.ljust(width)} <- {c['source']}{span} {c['unit']}".rstrip())
+        return out
+
+
+# ------------------------------------------------------------------------------------------
+# reading and joining
+
+
+def read_table(path: str | os.PathLike) -> Table:
+    """Read one CSV file (header first; blank and ``#`` lines skipped).
+
+    Raises
+    ------
+    FileFormatError
+        No header or no data row, an empty or repeated column name, or a row with another
+        number of cells than the header (file and line named).
+    """
+    path = Path(path)
+    text = read_text(path, "rig file").lstrip("\ufeff")
+    header: list[str] | None = None
+    rows, lines = [], []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        try:
+            cells = [c.strip() for c in next(csv.reader([line]))]
+        except csv.Error as exc:
+            raise FileFormatError(f"not CSV ({exc})", path=path, line=number) from exc
+        if header is None:
+            _check_header(cells, path, number)
+            header = cells
+            continue
+        if len(cells) != len(header):
+            raise FileFormatError(f"{len(cells)} cells but the header has {len(header)} "
+                                  "columns; give one cell per column", path=path, line=number)
+        rows.append(cells)
+        lines.append(number)
+    if header is None or not rows:
+        raise FileFormatError("no " + ("header" if header is None else "data row") +
+                              "; a rig file is a CSV with a header line and data rows",
+                              path=path)
+    return Table(path, header, rows, lines)
+
+
+def _check_header(cells: list[str], path: Path, line: int) -> None:
+    seen: dict[str, int] = {}
+    for i, name in enumerate(cells):
+        if not name:
+            raise FileFormatError("empty column name; name every column", path=path,
+                                  line=line, column=i + 1)
+        if name in seen:
+            raise FileFormatError(f"column {name!r} appears twice (columns {seen[name] + 1} "
+                                  f"and {i + 1}); rename one", path=path, line=line,
+                                  column=i + 1)
+        seen[name] = i
+
+
+def join_tables(tables: list[Table], key: str | None) -> tuple[dict[str, list[Column]], int]:
+    """The files' columns on joined rows: by row order, or by the ``key`` column.
+
+    Returns
+    -------
+    columns
+        Column name -> the columns of that name (one per file having it; the key once).
+    n_rows
+        Joined rows.
+
+    Raises
+    ------
+    FileFormatError
+        Files of different row counts (row order); a file without the key, a repeated key,
+        or a key of the first file missing from another (key join).
+    """
+    first = tables[0]
+    if key is None:
+        for t in tables[1:]:
+            if len(t.rows) != len(first.rows):
+                raise FileFormatError(
+                    f"{len(t.rows)} data rows but {first.path.name} has {len(first.rows)}; "
+                    "files joined by row order need the same rows (or join them by a key "
+                    "column)", path=t.path)
+        orders = [list(range(len(first.rows)))] * len(tables)
+    else:
+        orders = _key_orders(tables, key)
+    columns: dict[str, list[Column]] = {}
+    for t, order in zip(tables, orders, strict=True):
+        for j, name in enumerate(t.header):
+            if key is not None and name == key and t is not first:
+                continue
+            columns.setdefault(name, []).append(
+                Column(t.path, name, j, [t.rows[i][j] for i in order],
+                       [t.lines[i] for i in order]))
+    return columns, len(first.rows)
+
+
+def _key_orders(tables: list[Table], key: str) -> list[list[int]]:
+    """For each table, the row matching each row of the first by ``key``."""
+    index = []
+    for t in tables:
+        if key not in t.header:
+            raise FileFormatError(f"no key column {key!r} to join on; "
+                                  f"{did_you_mean(key, t.header)}", path=t.path,
+                                  line=t.lines[0] - 1 if t.lines else None)
+        j = t.header.index(key)
+        where: dict[str, int] = {}
+        for i, row in enumerate(t.rows):
+            if row[j] in where:
+                raise FileFormatError(f"key {row[j]!r} repeats line {t.lines[where[row[j]]]}; "
+                                      "join keys must be unique in each file",
+                                      path=t.path, line=t.lines[i], column=j + 1, field=key)
+            where[row[j]] = i
+        index.append(where)
+    first = tables[0]
+    j0 = first.header.index(key)
+    orders = []
+    for t, where in zip(tables, index, strict=True):
+        order = []
+        for i, row in enumerate(first.rows):
+            if row[j0] not in where:
+                raise FileFormatError(f"key {row[j0]!r} has no row in {t.path}; every file "
+                                      "needs a row for each key", path=first.path,
+                                      line=first.lines[i], column=j0 + 1, field=key)
+            order.append(where[row[j0]])
+        extra = set(where) - {row[j0] for row in first.rows}
+        if extra:
+            i = min(where[k] for k in extra)
+            raise FileFormatError(f"key {t.rows[i][t.header.index(key)]!r} has no row in "
+                                  f"{first.path}; every file needs a row for each key",
+                                  path=t.path, line=t.lines[i], field=key)
+        orders.append(order)
+    return orders
+
+
+# ------------------------------------------------------------------------------------------
+# mapping
+
+
+def _bare(header: str) -> str:
+    """A header without its unit: ``dx [mm]`` -> ``dx``."""
+    match = _HEADER_UNIT.match(header)
+    return header[: header.rfind("[" if header.rstrip().endswith("]") else "(")].strip() \
+        if match else header
+
+
+class _Mapper:
+    """Finds the file column of each campaign column and reads it, with its unit."""
+
+    def __init__(self, columns: dict[str, list[Column]], settings: ImportSettings,
+                 files: list[Path]) -> None:
+        self.columns, self.settings, self.files = columns, settings, files
+        self.used: dict[str, Column] = {}
+        self.units_seen: dict[str, list[tuple[str, Column]]] = {}
+
+    def find(self, target: str) -> Column | None:
+        """The column of ``target``: the mapped one (which must exist), else one of its own
+        name, else ``None``."""
+        name = self.settings.column_map.get(target)
+        column = self._lookup(name if name is not None else target, target,
+                              required=name is not None)
+        if column is not None:
+            self.used[target] = column
+        return column
+
+    def _lookup(self, name: str, target: str, required: bool) -> Column | None:
+        file_name, _, column = name.rpartition(":")
+        column = column if file_name else name
+        candidates = self.columns.get(column) or [
+            c for named, cs in self.columns.items() if _bare(named) == column for c in cs]
+        if file_name:
+            candidates = [c for c in candidates if c.path.name == file_name]
+        if len(candidates) > 1:
+            where = ", ".join(c.path.name for c in candidates)
+            raise StiffnessError(f"column {name!r} (for {target}) is in several files ({where});"
+                                 f" name it FILE:COLUMN, e.g. {candidates[0].path.name}:{name}")
+        if not candidates:
+            if not required:
+                return None
+            files = [f for f in self.files if not file_name or f.name == file_name]
+            raise StiffnessError(f"{', '.join(str(f) for f in files or self.files)}: no column "
+                                 f"{name!r} (mapped to {target}); "
+                                 f"{did_you_mean(column, sorted(self.columns))}")
+        return candidates[0]
+
+    def group(self, targets: tuple[str, ...], required: bool) -> list[Column] | None:
+        """The columns of a group given whole (all of ``targets``) or, unless ``required``,
+        not at all."""
+        found = [self.find(t) for t in targets]
+        if all(c is None for c in found) and not required:
+            return None
+        missing = [t for t, c in zip(targets, found, strict=True) if c is None]
+        if missing:
+            raise StiffnessError(f"no column for {', '.join(missing)} in "
+                                 f"{', '.join(str(f) for f in self.files)}; map it "
+                                 f"({missing[0]}=COLUMN) or name a column {missing[0]}")
+        return [c for c in found if c is not None]
+
+    def values(self, target: str, column: Column, kind: str) -> np.ndarray:
+        """A numeric column; its header's unit (if any) noted for ``kind``."""
+        match = _HEADER_UNIT.match(column.name)
+        if match:
+            unit = match.group(1)
+            if unit not in _UNIT_TABLES[kind]:
+                raise FileFormatError(f"the header says {unit!r}, not a {kind} unit, but the "
+                                      f"column is mapped to {target}; valid {kind} units: "
+                                      f"{', '.join(_UNIT_TABLES[kind])}", path=column.path,
+                                      column=column.index + 1, field=column.name)
+            self.units_seen.setdefault(kind, []).append((unit, column))
+        return column.numbers()
+
+    def unit(self, kind: str, needed: bool) -> str | None:
+        """The unit of ``kind``: the one given, which every header must agree with, else the
+        headers' own (one unit for all); refused when needed and nowhere named."""
+        given = self.settings.units.get(kind)
+        seen = self.units_seen.get(kind, [])
+        for unit, column in seen:
+            if given is not None and unit != given:
+                raise FileFormatError(f"mixed units: the header says {unit} but the {kind} "
+                                      f"unit given is {given}; convert the column or correct "
+                                      "the unit", path=column.path, column=column.index + 1,
+                                      field=column.name)
+            if unit != seen[0][0]:
+                other = seen[0][1]
+                raise FileFormatError(f"mixed units: {unit} here but {seen[0][0]} in "
+                                      f"{other.path.name} column {other.name!r}; convert "
+                                      f"the {kind} columns to one unit", path=column.path,
+                                      column=column.index + 1, field=column.name)
+        found = given if given is not None else (seen[0][0] if seen else None)
+        if found is None and needed:
+            raise StiffnessError(f"no {kind} unit: give it (--units {kind}=...) or write it "
+                                 f"in the headers, e.g. 'Fx [N]'; valid {kind} units: "
+                                 f"{', '.join(_UNIT_TABLES[kind])}")
+        return found
+
+
+# ------------------------------------------------------------------------------------------
+# the import
+
+
+def parse_pairs(text: str | None, flag: str) -> dict[str, str]:
+    """``a=b,c=d`` (a ``--map`` or ``--units`` flag) as a dict; one line on a malformed or
+    repeated item."""
+    out: dict[str, str] = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        key, sep, value = (s.strip() for s in item.partition("="))
+        if not sep or not key or not value:
+            raise StiffnessError(f"{flag} takes NAME=VALUE items separated by commas, got "
+                                 f"{item.strip()!r}")
+        if key in out:
+            raise StiffnessError(f"{flag} names {key} twice")
+        out[key] = value
+    return out
+
+
+def read_mapping_file(path: str | os.PathLike) -> ImportSettings:
+    """A mapping file: TOML with ``[columns]`` (campaign column = file column), ``[units]``
+    (kind = unit) and the optional ``join``, ``force_frame`` and ``deflection_frame``.
+
+    Raises
+    ------
+    FileFormatError
+        Invalid TOML, an unknown key, or a value that is not a string.
+    """
+    doc = read_toml(path, "mapping file")
+    known = {"columns", "units", "join", "force_frame", "deflection_frame"}
+    for key, value in doc.items():
+        if key not in known:
+            raise FileFormatError(f"unknown key {key!r}; {did_you_mean(key, sorted(known))}",
+                                  path=path, field=key)
+        tables = ("columns", "units")
+        if key in tables and not (isinstance(value, dict)
+                                  and all(isinstance(v, str) for v in value.values())):
+            raise FileFormatError(f"[{key}] must be a table of strings, e.g. q1 = \"theta1\"",
+                                  path=path, field=key)
+        if key not in tables and not isinstance(value, str):
+            raise FileFormatError(f"{key} must be a string, got {value!r}", path=path,
+                                  field=key)
+    try:
+        return ImportSettings(dict(doc.get("columns", {})), dict(doc.get("units", {})),
+                              doc.get("join"), doc.get("force_frame", "base"),
+                              doc.get("deflection_frame", "base"))
+    except StiffnessError as exc:
+        raise FileFormatError(str(exc), path=path) from exc
+
+
+def load_import_robot(settings: RobotSettings, folder: Path | None = None) -> Robot:
+    """The robot of an import (relative paths against ``folder``, default the working
+    directory)."""
+    folder = Path.cwd() if folder is None else folder
+    return load_robot(resolve_source(settings.source, folder), frame=settings.frame,
+                      target_offset=settings.target_offset_m,
+                      compliant_joints=settings.compliant_joints,
+                      loops=None if settings.loops is None else resolve_path(settings.loops,
+                                                                             folder),
+                      fixed_base=settings.fixed_base)
+
+
+def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSettings,
+                    settings: ImportSettings, name: str = "imported",
+                    baseline: str = "enhanced", noise_std: float | None = None,
+                    robot: Robot | None = None) -> tuple[Campaign, ImportReport]:
+    """Read a rig's CSV files into a campaign (see the module docstring).
+
+    Parameters
+    ----------
+    files
+        The CSV files (one or several).
+    robot_settings
+        The robot (its source, target frame and offset, compliant joints).
+    settings
+        Column map, units, join key and frames.
+    name, baseline
+        The campaign's name and baseline (``conventional`` or ``enhanced``).
+    noise_std
+        Measurement noise std in the import's length unit, or ``None``.
+    robot
+        The robot already loaded from ``robot_settings`` (default: loaded here).
+
+    Returns
+    -------
+    campaign, report
+        The campaign in SI (base axes), and what was read.
+
+    Raises
+    ------
+    StiffnessError
+        Anything that cannot be mapped, one line naming the file, line and column.
+    """
+    if not files:
+        raise StiffnessError("give at least one CSV file to import")
+    if baseline not in BASELINES:
+        raise StiffnessError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}")
+    robot = robot if robot is not None else load_import_robot(robot_settings)
+    tables = [read_table(f) for f in files]
+    _check_map(settings, robot)
+    columns, _ = join_tables(tables, settings.join)
+    mapper = _Mapper(columns, settings, [t.path for t in tables])
+    prismatic = np.array([robot.model.joints[robot.model.getJointId(j)].shortname()
+                          .startswith("JointModelP") for j in robot.coordinate_joints])
+    q_cols = mapper.group(tuple(f"q{i + 1}" for i in range(robot.n_coordinates)), True) or []
+    q_file = np.column_stack([mapper.values(c.name, c, "length" if p else "angle")
+                              for c, p in zip(q_cols, prismatic, strict=True)])
+    force = _block(mapper, FORCE, "force", True)
+    assert force is not None  # a required group is there or refused
+    moment = _block(mapper, MOMENT, "moment", False)
+    mode, rows, unloaded, delta = _deflections(mapper, q_file)
+    units = Units(mapper.unit("angle", bool((~prismatic).any())) or "deg",
+                  mapper.unit("force", True) or "N", mapper.unit("length", True) or "mm",
+                  moment_unit=mapper.unit("moment", moment is not None))
+    config = mapper.find("config")
+    first = q_cols[0]
+    lines = [first.lines[i] for i in rows]
+    labels = _labels(config, rows, q_file[unloaded])
+    q_si = coordinates_in_si(robot, q_file[unloaded], units, labels, lines, first.path)
+    f_si = force[rows] * units.force_to_si
+    m_si = None if moment is None else moment[rows] * units.moment_to_si
+    d_si = delta * units.length_to_si
+    if settings.force_frame == "tool" or settings.deflection_frame == "tool":
+        turns = tool_rotations(robot, q_si)
+        if settings.force_frame == "tool":
+            f_si = np.einsum("rij,rj->ri", turns, f_si)
+            m_si = None if m_si is None else np.einsum("rij,rj->ri", turns, m_si)
+        if settings.deflection_frame == "tool":
+            d_si = np.einsum("rij,rj->ri", turns, d_si)
+    campaign = Campaign(name=name, baseline=baseline, robot_settings=robot_settings, q=q_si,
+                        force=f_si, deflection=d_si, config=tuple(labels), moment=m_si,
+                        noise_std_m=None if noise_std is None else noise_std
+                        * units.length_to_si, units=units, _robot=robot)
+    report = ImportReport([(str(t.path), len(t.rows)) for t in tables], len(rows), mode,
+                          _column_report(mapper, units, robot, prismatic), units,
+                          settings.force_frame, settings.deflection_frame)
+    warn_unused(columns, report, settings.join)
+    return campaign, report
+
+
+def _check_map(settings: ImportSettings, robot: Robot) -> None:
+    """Refuse a map naming a campaign column that does not exist."""
+    valid = [*TARGETS, *(f"q{i + 1}" for i in range(robot.n_coordinates))]
+    for target in settings.column_map:
+        if target not in valid:
+            raise StiffnessError(f"--map names {target!r}, not a campaign column; "
+                                 f"{did_you_mean(target, valid)}")
+
+
+def _block(mapper: _Mapper, targets: tuple[str, ...], kind: str, required: bool
+           ) -> np.ndarray | None:
+    """(n, 3) values of a group of columns, or ``None`` when an optional group is absent."""
+    cols = mapper.group(targets, required)
+    if cols is None:
+        return None
+    return np.column_stack([mapper.values(t, c, kind) for t, c in zip(targets, cols,
+                                                                        strict=True)])
+
+
+def _deflections(mapper: _Mapper, q_file: np.ndarray
+                 ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    """How the deflections come, the joined rows made campaign rows, the row holding each
+    one's unloaded pose, and the deflections (file length unit, file frame)."""
+    direct = _block(mapper, DIRECT, "length", False)
+    loaded = _block(mapper, LOADED, "length", False)
+    unloaded = _block(mapper, UNLOADED, "length", False)
+    position = _block(mapper, POSITION, "length", False)
+    given = [label for label, block in (("dx,dy,dz", direct), ("x_loaded..z_unloaded", loaded),
+                                        ("x_unloaded..z_unloaded", unloaded),
+                                        ("x,y,z", position)) if block is not None]
+    if direct is not None and len(given) == 1:
+        rows = np.arange(direct.shape[0])
+        return "direct (dx, dy, dz)", rows, rows, direct
+    if loaded is not None and unloaded is not None and len(given) == 2:
+        rows = np.arange(loaded.shape[0])
+        return "as loaded and unloaded positions", rows, rows, loaded - unloaded
+    if position is not None and len(given) == 1:
+        rows, ref = _pairs(mapper, q_file)
+        return "as paired loaded/unloaded rows", rows, ref, position[rows] - position[ref]
+    raise StiffnessError("the deflections need exactly one of: dx,dy,dz; x_loaded,y_loaded,"
+                         "z_loaded with x_unloaded,y_unloaded,z_unloaded; or x,y,z with state "
+                         "and pair columns" + (f" (found {'; '.join(given)})" if given
+                                               else " (found none)"))
+
+
+def _pairs(mapper: _Mapper, q_file: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Paired rows: each loaded row and its pair's unloaded row (refused: another state, a
+    pair with no or two unloaded rows or no loaded one, coordinates that differ)."""
+    state = mapper.find("state")
+    pair = mapper.find("pair")
+    if state is None or pair is None:
+        raise StiffnessError("positions x,y,z need a state column (loaded/unloaded) and a pair "
+                             "column (the key pairing each loaded row with its unloaded row); "
+                             "map them (state=COLUMN,pair=COLUMN)")
+    reference: dict[str, int] = {}
+    loaded: list[int] = []
+    for i, cell in enumerate(state.cells):
+        word = cell.strip().lower()
+        if word not in STATES:
+            raise state.error(i, f"state {cell!r} is neither loaded nor unloaded")
+        key = pair.cells[i]
+        if word == "loaded":
+            loaded.append(i)
+        elif key in reference:
+            raise pair.error(i, f"pair {key!r} has a second unloaded row (first on line "
+                                f"{pair.lines[reference[key]]}); give one per pair")
+        else:
+            reference[key] = i
+    for i in loaded:
+        if pair.cells[i] not in reference:
+            raise pair.error(i, f"unpaired row: pair {pair.cells[i]!r} has no unloaded row")
+        j = reference[pair.cells[i]]
+        if np.any(np.abs(q_file[i] - q_file[j]) > SAME_POSE * np.maximum(1.0,
+                                                                         np.abs(q_file[j]))):
+            raise pair.error(i, f"the loaded row reads other coordinates than its unloaded "
+                                f"row (line {pair.lines[j]}); pair rows of one pose")
+    lonely = sorted(set(reference.values()) - {reference[pair.cells[i]] for i in loaded})
+    if lonely:
+        raise pair.error(lonely[0], f"unpaired row: pair {pair.cells[lonely[0]]!r} has no "
+                                    "loaded row")
+    rows = np.array(loaded, dtype=int)
+    return rows, np.array([reference[pair.cells[i]] for i in loaded], dtype=int)
+
+
+def _labels(config: Column | None, rows: np.ndarray, q_file: np.ndarray) -> list[str]:
+    """The ``config`` cells of ``rows``, else ``P1``, ``P2``, ... per distinct pose (rows'
+    coordinates ``q_file`` equal to :data:`SAME_POSE` relative)."""
+    if config is not None:
+        for i in rows:
+            if not config.cells[i].strip():
+                raise config.error(int(i), "empty configuration label; label every row")
+        return [config.cells[i].strip() for i in rows]
+    poses: dict[tuple, str] = {}
+    out = []
+    for q in q_file:
+        key = tuple(float(f"{v:.9g}") for v in q)
+        out.append(poses.setdefault(key, f"P{len(poses) + 1}"))
+    return out
+
+
+def tool_rotations(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) orientation of the robot's target frame in the base frame at each row's
+    coordinates ``q`` (m, n, rad or m): tool-axis vectors times it are base-axis vectors."""
+    out = np.empty((q.shape[0], 3, 3))
+    seed = None
+    for r, coords in enumerate(q):
+        full = robot.assemble(coords, seed).q
+        update_first_order(robot.model, robot.data, full)
+        out[r] = frame_rotation(robot.data, robot.target_frame_id)
+        seed = full if robot.loop is not None else None
+    return out
+
+
+def _column_report(mapper: _Mapper, units: Units, robot: Robot, prismatic: np.ndarray
+                   ) -> dict[str, dict]:
+    """Per campaign column read: source, unit, range (file units)."""
+    out = {}
+    for target, column in mapper.used.items():
+        unit = ""
+        if target.startswith("q") and target[1:].isdigit():
+            unit = units.length if prismatic[int(target[1:]) - 1] else units.angle
+        elif target in _KIND:
+            unit = getattr(units, _KIND[target])
+        values = column.numbers() if unit else None
+        out[target] = {"source": f"{column.path.name}:{column.name}", "unit": unit,
+                       "min": None if values is None else float(values.min()),
+                       "max": None if values is None else float(values.max())}
+    return out
+
+
+def warn_unused(columns: dict[str, list[Column]], report: ImportReport, key: str | None
+                ) -> None:
+    """Warn once about file columns no campaign column read (a map may have missed them)."""
+    used = {c["source"] for c in report.columns.values()}
+    left = [f"{c.path.name}:{c.name}" for cs in columns.values() for c in cs
+            if f"{c.path.name}:{c.name}" not in used and c.name != key]
+    if left:
+        warnings.warn(f"columns not imported: {', '.join(left[:8])}"
+                      + (", ..." if len(left) > 8 else ""), DataFileWarning, stacklevel=2)

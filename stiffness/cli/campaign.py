@@ -1,0 +1,108 @@
+"""``stiffness campaign import``: a campaign folder from the CSV files a rig writes.
+
+Example::
+
+    stiffness campaign import joints.csv forces.csv tracker.csv --robot ur5 \\
+        --map q1=theta1,q2=theta2,q3=theta3,q4=theta4,q5=theta5,q6=theta6,fx=Fx,fy=Fy,fz=Fz \\
+        --units angle=deg,force=N,length=mm --force-frame tool --noise 0.01 --out rig/
+
+prints what it read (files and rows, each campaign column's source, range and unit) and writes
+``rig/campaign.toml`` and ``rig/measurements.csv`` (atomically), which ``identify``,
+``diagnose`` and ``design --existing`` read. Column names, deflection forms, units and frames:
+:mod:`stiffness.calibration.rig_import` and docs/campaign-import.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from stiffness.calibration.campaign import BASELINES, RobotSettings, write_campaign
+from stiffness.calibration.rig_import import (
+    FRAMES,
+    ImportSettings,
+    import_campaign,
+    load_import_robot,
+    parse_pairs,
+    read_mapping_file,
+)
+from stiffness.cli import flags
+from stiffness.errors import StiffnessError
+from stiffness.files import output_folder
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Subcommands of ``stiffness campaign``."""
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    p = sub.add_parser("import", help="a campaign folder from a rig's CSV files",
+                       description="a campaign folder from a rig's CSV files")
+    p.add_argument("files", nargs="+", metavar="CSV", help="the rig's CSV files")
+    flags.add_robot_flags(p)
+    p.add_argument("--map", metavar="TARGET=COLUMN,...",
+                   help="campaign column = file column, e.g. q1=theta1,fx=Base_Fx (FILE:COLUMN "
+                        "for a name in several files); unmapped columns are read by their own "
+                        "name")
+    p.add_argument("--map-file", metavar="TOML",
+                   help="[columns], [units], join, force_frame, deflection_frame in a TOML "
+                        "file; the flags override it")
+    p.add_argument("--units", metavar="KIND=UNIT,...",
+                   help="units of the files, e.g. angle=deg,force=N,length=mm (moment=N.mm); "
+                        "default: the headers' own ('Fx [N]'); none is assumed")
+    p.add_argument("--join", metavar="KEY",
+                   help="join the files by this key column (default: by row order)")
+    p.add_argument("--force-frame", choices=FRAMES,
+                   help="frame of the forces and moments: base, or tool (the target frame at "
+                        "each row's coordinates); default base")
+    p.add_argument("--deflection-frame", choices=FRAMES,
+                   help="frame of the deflections or positions; default base")
+    p.add_argument("--noise", type=float, metavar="STD",
+                   help="measurement noise std, in the files' length unit (noise_std)")
+    p.add_argument("--baseline", choices=BASELINES, default="enhanced",
+                   help="the model identify starts from; default enhanced")
+    p.add_argument("--name", default="imported", help="campaign name; default imported")
+    p.add_argument("--json", action="store_true",
+                   help="print what was read as one JSON object")
+    p.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
+
+
+def _settings(args: argparse.Namespace) -> ImportSettings:
+    """The mapping file's settings with the flags over them."""
+    base = read_mapping_file(args.map_file) if args.map_file else ImportSettings()
+    return ImportSettings({**base.column_map, **parse_pairs(args.map, "--map")},
+                          {**base.units, **parse_pairs(args.units, "--units")},
+                          args.join or base.join, args.force_frame or base.force_frame,
+                          args.deflection_frame or base.deflection_frame)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``stiffness campaign import``; returns the exit code."""
+    robot_flags = flags.robot_flags(args)
+    if robot_flags.source is None:
+        raise StiffnessError("--robot is required: a shipped robot, an "
+                                   "example-robot-data name or a URDF path")
+    flags.check_noise_std(args.noise, "--noise", "the files' length unit")
+    output_folder(args.out, create=False)
+    settings = _settings(args)
+    robot_settings = RobotSettings(
+        robot_flags.source, robot_flags.frame,
+        np.array(robot_flags.target_offset if robot_flags.target_offset is not None
+                 else [0.0] * 3),
+        None if robot_flags.compliant_joints is None else tuple(robot_flags.compliant_joints),
+        robot_flags.loops, robot_flags.fixed_base)
+    robot = load_import_robot(robot_settings)
+    robot_settings.frame = robot.target_frame
+    robot_settings.target_offset_m = robot.target_offset.copy()
+    robot_settings.compliant_joints = tuple(robot.compliant_joints)
+    campaign, report = import_campaign(args.files, robot_settings, settings, args.name,
+                                       args.baseline, args.noise, robot)
+    path = write_campaign(campaign, args.out)
+    if args.json:
+        print(json.dumps({**report.to_dict(), "campaign": str(path)}, indent=1))
+        return 0
+    print("\n".join(report.lines()))
+    print(f"wrote {path} ({campaign.n_rows} rows, {len(set(campaign.config or ()))} "
+          f"configurations; units {campaign.units.angle}, {campaign.units.force}, "
+          f"{campaign.units.length})")
+    return 0

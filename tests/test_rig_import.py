@@ -1,0 +1,269 @@
+"""``stiffness campaign import``: rig files as they come (issue 28, item 3).
+
+The round trip: a campaign written by ``simulate`` is split into three CSV files with the
+rig's own column names, forces in the tool frame (rotated with Pinocchio's frame placement,
+computed here apart from the importer's route) and deflections as loaded and unloaded
+positions in mm (the target's position from Pinocchio plus the deflection); the import gives
+back the same rows to 1e-12 and ``identify`` the same stiffnesses. Bad input: one line naming
+file, line and column; the reader contract under hypothesis mutations.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from fuzzing import FUZZ, assert_reader_contract, csv_mutation, write_text
+from hypothesis import given
+from hypothesis import strategies as st
+
+from stiffness.calibration.campaign import RobotSettings, load_campaign
+from stiffness.calibration.identify import identify
+from stiffness.calibration.rig_import import ImportSettings, import_campaign
+from stiffness.cli.main import main
+from stiffness.errors import StiffnessError
+
+JOINTS = "shoulder_pan_joint,shoulder_lift_joint,elbow_joint"
+MAP = ("config=label," + ",".join(f"q{i}=theta{i}" for i in range(1, 7))
+       + ",fx=Tool_Fx,fy=Tool_Fy,fz=Tool_Fz,x_loaded=X1,y_loaded=Y1,z_loaded=Z1,"
+       "x_unloaded=X0,y_unloaded=Y0,z_unloaded=Z0")
+
+
+def run_cli(*argv: str) -> tuple[int, str]:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(list(argv))
+    return code, out.getvalue()
+
+
+@pytest.fixture(scope="module")
+def original(tmp_path_factory):
+    """A small simulated UR5 campaign (conventional baseline, declared noise)."""
+    folder = tmp_path_factory.mktemp("sim")
+    code, _ = run_cli("simulate", "--robot", "ur5", "--compliant-joints", JOINTS,
+                      "--kq", "3e4,2e4,1.5e4", "--configs", "5", "--loads-per-config", "3",
+                      "--noise", "0.01", "--baseline", "conventional", "--quiet",
+                      "--out", str(folder))
+    assert code == 0
+    return load_campaign(folder)
+
+
+def tool_pose(campaign, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (base <- tool) and target position (m) at row ``i``, straight from
+    Pinocchio (UR5: no loops, q is the coordinates)."""
+    robot = campaign.robot()
+    model, data = robot.model, robot.model.createData()
+    pin.framesForwardKinematics(model, data, campaign.q[i])
+    placement = data.oMf[robot.target_frame_id]
+    return placement.rotation.copy(), placement.act(robot.target_offset)
+
+
+def write_csv(path: Path, header: list[str], rows: list[list]) -> Path:
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows([[repr(float(v)) if isinstance(v, float | np.floating) else v for v in r]
+                      for r in rows])
+    return path
+
+
+def rig_files(c, folder: Path) -> list[Path]:
+    """Three files joined by a sample key (the tracker's rows shuffled): joint angles in deg
+    with labels, forces in the tool frame (N), loaded and unloaded positions in mm."""
+    folder.mkdir(parents=True, exist_ok=True)
+    joints, forces, tracker = [], [], []
+    for i in range(c.n_rows):
+        rot, p = tool_pose(c, i)
+        joints.append([f"S{i:03d}", c.config[i], *np.degrees(c.q[i])])
+        forces.append([f"S{i:03d}", *(rot.T @ c.force[i])])
+        tracker.append([f"S{i:03d}", *(p * 1e3), *((p + c.deflection[i]) * 1e3)])
+    tracker = [tracker[i] for i in np.random.default_rng(0).permutation(len(tracker))]
+    return [write_csv(folder / "joints.csv", ["sample", "label",
+                                               *(f"theta{i}" for i in range(1, 7))], joints),
+            write_csv(folder / "forces.csv", ["sample", "Tool_Fx", "Tool_Fy", "Tool_Fz"],
+                      forces),
+            write_csv(folder / "tracker.csv", ["sample", "X0", "Y0", "Z0", "X1", "Y1", "Z1"],
+                      tracker)]
+
+
+def assert_same_rows(a, b) -> None:
+    for name in ("q", "force", "deflection"):
+        x, y = getattr(a, name), getattr(b, name)
+        np.testing.assert_allclose(y, x, rtol=0, atol=1e-12 * np.max(np.abs(x)), err_msg=name)
+    assert tuple(a.config) == tuple(b.config)
+
+
+def test_round_trip_three_files_tool_forces_positions_in_mm(original, tmp_path):
+    files = rig_files(original, tmp_path / "rig")
+    code, text = run_cli("campaign", "import", *map(str, files), "--robot", "ur5",
+                         "--compliant-joints", JOINTS, "--map", MAP, "--join", "sample",
+                         "--units", "angle=deg,force=N,length=mm", "--force-frame", "tool",
+                         "--noise", "0.01", "--baseline", "conventional",
+                         "--out", str(tmp_path / "imported"))
+    assert code == 0, text
+    assert f"{original.n_rows} campaign rows" in text
+    assert re.search(r"q1 +<- joints.csv:theta1 .* deg", text)
+    assert re.search(r"fx +<- forces.csv:Tool_Fx .* N", text)
+    assert "as loaded and unloaded positions" in text
+    back = load_campaign(tmp_path / "imported")
+    assert_same_rows(original, back)
+    assert back.noise_std_m == pytest.approx(original.noise_std_m, rel=1e-12)
+    k_original = identify(original, starts=2).k
+    k_back = identify(back, starts=2).k
+    np.testing.assert_allclose(k_back, k_original, rtol=1e-8)
+
+
+def test_paired_rows_with_tool_frame_deflections(original, tmp_path):
+    """One file, an unloaded row per pose and its loaded rows after it, deflections in the
+    tool frame as positions (mm) in tool axes; labels from the poses (P1, P2, ...)."""
+    rows, pair = [], 0
+    for i in range(original.n_rows):
+        rot, p = tool_pose(original, i)
+        angles = list(np.degrees(original.q[i]))
+        if i == 0 or original.config[i] != original.config[i - 1]:
+            pair += 1
+            rows.append([f"pose{pair}", "unloaded", *angles, 0.0, 0.0, 0.0, *(rot.T @ p * 1e3)])
+        rows.append([f"pose{pair}", "LOADED", *angles, *original.force[i],
+                     *(rot.T @ (p + original.deflection[i]) * 1e3)])
+    path = write_csv(tmp_path / "rig.csv", ["pose", "what", *(f"q{i}" for i in range(1, 7)),
+                                            "fx", "fy", "fz", "x", "y", "z"], rows)
+    settings = ImportSettings({"pair": "pose", "state": "what"},
+                              {"angle": "deg", "force": "N", "length": "mm"},
+                              deflection_frame="tool")
+    campaign, report = import_campaign([path], RobotSettings("ur5", compliant_joints=tuple(
+        JOINTS.split(","))), settings, baseline="conventional")
+    assert report.deflections == "as paired loaded/unloaded rows"
+    for name in ("q", "force", "deflection"):
+        x, y = getattr(original, name), getattr(campaign, name)
+        np.testing.assert_allclose(y, x, rtol=0, atol=1e-12 * np.max(np.abs(x)))
+    labels = dict(zip(original.config, campaign.config, strict=True))
+    assert len(set(labels.values())) == len(labels) and set(labels.values()) == {
+        f"P{i}" for i in range(1, len(labels) + 1)}
+
+
+def test_units_from_headers_and_direct_deflections(original, tmp_path):
+    """Direct dx,dy,dz in m and forces in kN, the units read from the headers."""
+    c = original
+    rows = [[*np.radians(np.degrees(c.q[i])), *(c.force[i] / 1e3), *c.deflection[i]]
+            for i in range(c.n_rows)]
+    header = [*(f"J{i} (rad)" for i in range(1, 7)), "F1 [kN]", "F2 [kN]", "F3 [kN]",
+              "dx [m]", "dy [m]", "dz [m]"]
+    path = write_csv(tmp_path / "one.csv", header, rows)
+    mapping = {**{f"q{i}": f"J{i} (rad)" for i in range(1, 7)},
+               "fx": "F1 [kN]", "fy": "F2 [kN]", "fz": "F3 [kN]"}  # dx [m]: by its name
+    campaign, report = import_campaign([path], RobotSettings("ur5"), ImportSettings(mapping))
+    assert (report.units.angle, report.units.force, report.units.length) == ("rad", "kN", "m")
+    np.testing.assert_allclose(campaign.force, c.force, rtol=1e-12)
+    np.testing.assert_allclose(campaign.deflection, c.deflection, rtol=0, atol=1e-18)
+
+
+BASE_ROWS = ["q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz",
+             "0,-90,90,0,90,0,10,0,0,0.1,0,0",
+             "0,-80,90,0,90,0,0,10,0,0,0.1,0"]
+
+
+def refusal(tmp_path, text: str, **settings) -> str:
+    path = tmp_path / "rig.csv"
+    path.write_text(text)
+    units = settings.pop("units", {"angle": "deg", "force": "N", "length": "mm"})
+    with pytest.raises(StiffnessError) as err:
+        import_campaign([path], RobotSettings("ur5"), ImportSettings(units=units, **settings))
+    message = str(err.value)
+    assert "\n" not in message
+    return message
+
+
+def test_refusals_name_file_line_and_column(tmp_path):
+    rows = list(BASE_ROWS)
+    rows[2] = "0,-80,90,0,90,0,0,ten,0,0,0.1,0"
+    msg = refusal(tmp_path, "\n".join(rows))
+    assert "rig.csv, line 3, column 8 (fy)" in msg and "'ten' is not a number" in msg
+    msg = refusal(tmp_path, "\n".join(BASE_ROWS), column_map={"fx": "Base_Fx"})
+    assert "rig.csv" in msg and "no column 'Base_Fx' (mapped to fx)" in msg
+    msg = refusal(tmp_path, "\n".join(BASE_ROWS), column_map={"qq1": "q1"})
+    assert "'qq1', not a campaign column" in msg
+    msg = refusal(tmp_path, "\n".join(BASE_ROWS), units={"angle": "deg", "force": "N"})
+    assert "no length unit" in msg
+    header = BASE_ROWS[0].replace("q1,q2", "q1 [deg],q2 [rad]")
+    msg = refusal(tmp_path, "\n".join([header, *BASE_ROWS[1:]]),
+                  column_map={"q1": "q1 [deg]", "q2": "q2 [rad]"}, units={"force": "N",
+                                                                           "length": "mm"})
+    assert "mixed units" in msg and "column 2 (q2 [rad])" in msg
+    msg = refusal(tmp_path, "\n".join([header, *BASE_ROWS[1:]]),
+                  column_map={"q1": "q1 [deg]", "q2": "q2 [rad]"})
+    assert "mixed units" in msg and "column 2" in msg
+    msg = refusal(tmp_path, "\n".join(BASE_ROWS + ["0,0,0"]))
+    assert "rig.csv, line 4" in msg and "3 cells" in msg
+
+
+def test_unpaired_and_repeated_keys(tmp_path):
+    head = "pair,state,q1,q2,q3,q4,q5,q6,fx,fy,fz,x,y,z"
+    good = ["a,unloaded,0,-90,90,0,90,0,0,0,0,500,0,300",
+            "a,loaded,0,-90,90,0,90,0,10,0,0,500.1,0,300"]
+    msg = refusal(tmp_path, "\n".join([head, *good, "b,loaded,0,-80,90,0,90,0,10,0,0,1,2,3"]))
+    assert "line 4, column 1 (pair)" in msg and "unpaired row" in msg
+    msg = refusal(tmp_path, "\n".join([head, *good, "b,unloaded,0,-80,90,0,90,0,0,0,0,1,2,3"]))
+    assert "line 4" in msg and "no loaded row" in msg
+    msg = refusal(tmp_path, "\n".join([head, *good, "a,idle,0,-90,90,0,90,0,0,0,0,1,2,3"]))
+    assert "line 4, column 2 (state)" in msg
+    msg = refusal(tmp_path, "\n".join([head, good[0], good[1].replace("-90", "-91", 1)]))
+    assert "line 3" in msg and "other coordinates" in msg
+    a = tmp_path / "a.csv"
+    b = tmp_path / "b.csv"
+    a.write_text("k,q1,q2,q3\n1,0,0,0\n2,0,0,0\n")
+    b.write_text("k,q4,q5,q6,fx,fy,fz,dx,dy,dz\n1,0,0,0,1,1,1,0,0,0\n1,0,0,0,1,1,1,0,0,0\n")
+    with pytest.raises(StiffnessError, match=r"b.csv, line 3, column 1 \(k\): key '1' repeats"):
+        import_campaign([a, b], RobotSettings("ur5"), ImportSettings(
+            units={"angle": "deg", "force": "N", "length": "mm"}, join="k"))
+    with pytest.raises(StiffnessError, match="b.csv: 2 data rows but a.csv has 2|same rows"):
+        b.write_text("q4,q5,q6,fx,fy,fz,dx,dy,dz\n0,0,0,1,1,1,0,0,0\n")
+        import_campaign([a, b], RobotSettings("ur5"), ImportSettings(
+            units={"angle": "deg", "force": "N", "length": "mm"}))
+
+
+def test_cli_refuses_in_one_line(tmp_path, capsys):
+    path = tmp_path / "rig.csv"
+    path.write_text("\n".join(BASE_ROWS))
+    code = main(["campaign", "import", str(path), "--robot", "ur5", "--units",
+                 "angle=deg,force=N", "--out", str(tmp_path / "out")])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("stiffness campaign: error:") and "\n" not in err
+    assert not (tmp_path / "out").exists()
+    code = main(["campaign", "import", str(path), "--robot", "ur5", "--units",
+                 "angle=deg,force=N,length=mm", "--json", "--out", str(tmp_path / "out")])
+    assert code == 0
+    assert (tmp_path / "out" / "campaign.toml").is_file()
+
+
+@pytest.fixture(scope="module")
+def fuzz_folder(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("fuzz-import")
+    (folder / "rig.csv").write_text("\n".join(BASE_ROWS) + "\n")
+    return folder
+
+
+@FUZZ
+@given(data=st.data())
+def test_import_reader_contract(fuzz_folder, data):
+    text = "\n".join(BASE_ROWS) + "\n"
+    mutated = data.draw(csv_mutation(text))
+    settings = ImportSettings(units={"angle": "deg", "force": "N", "length": "mm"})
+    try:
+        write_text(fuzz_folder / "rig.csv", mutated)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = assert_reader_contract(lambda: import_campaign(
+                [fuzz_folder / "rig.csv"], RobotSettings("ur5"), settings), fuzz_folder)
+        if result is not None:
+            campaign, _ = result
+            assert np.all(np.isfinite(campaign.q)) and np.all(np.isfinite(campaign.deflection))
+    finally:
+        (fuzz_folder / "rig.csv").write_text(text)
