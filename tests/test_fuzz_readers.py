@@ -325,7 +325,7 @@ def test_joint_path_mutations(ur5, tmp_path_factory, data):
 @FUZZ
 @given(data=st.data())
 def test_pose_file_mutations(tmp_path_factory, data):
-    from stiffness.machining.posture import read_poses
+    from stiffness.machining.poses import read_poses
 
     folder = tmp_path_factory.mktemp("fuzz-poses")
     text = (DOCS / "ur5-poses.csv").read_text()

@@ -9,7 +9,8 @@ import pytest
 
 from stiffness.cli.main import main
 from stiffness.elastic.loaded import ElasticModel
-from stiffness.machining.posture import posture, tool_frames
+from stiffness.machining.poses import tool_frames
+from stiffness.machining.posture import posture
 from stiffness.mechanics.formulation import compliance, target_state
 from stiffness.robot import kinematics
 from stiffness.robot.robot import load_robot

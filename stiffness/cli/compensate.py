@@ -17,8 +17,6 @@ deflection, m), ``ex,ey,ez`` (residual after the exact compensation, m) and ``ex
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import json
 import sys
 from pathlib import Path
@@ -38,13 +36,8 @@ from stiffness.cli.flags import (
 from stiffness.elastic.loaded import ElasticModel, elastic_model_of
 from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import OutputError, StiffnessError
-from stiffness.files import atomic_write, output_folder
-from stiffness.machining.compensation import (
-    WRENCH_FRAMES,
-    PathCompensation,
-    compensate,
-    read_joint_path,
-)
+from stiffness.files import output_folder
+from stiffness.machining.compensation import WRENCH_FRAMES, compensate
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import joint_stiffness
 
@@ -144,31 +137,19 @@ def progress_printer(args: argparse.Namespace, what: str):
     return show
 
 
-def _num(value: float) -> str:
-    return repr(float(value))
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness compensate``; returns the exit code."""
     if args.model is None and args.robot is None:
         raise StiffnessError("--model M.json is required (the identified or diagnosed model)")
     check_outputs(args.out)
     em = elastic_model_from_args(args)
-    path = read_joint_path(args.path, em.robot, deg=args.deg)
-    if args.wrench is not None and path.wrench is not None:
-        raise StiffnessError(f"{args.path} carries per-row loads (fx,fy,fz...): drop --wrench, "
-                             "or drop those columns")
-    wrench = path.wrench if path.wrench is not None else (
-        None if args.wrench is None else np.array(parse_list(args.wrench, "--wrench")))
-    if wrench is None:
-        raise StiffnessError("give --wrench fx,fy,fz[,mx,my,mz] (N, N.m), or per-row fx,fy,fz "
-                             f"columns in {args.path}")
-    result = compensate(em, path.coords, wrench, wrench_frame=args.wrench_frame, hold=args.hold,
-                        method=args.method, progress=progress_printer(args, "compensate"))
-    scale = np.where(path.angular & args.deg, 180.0 / np.pi, 1.0)
+    result = compensate(em, args.path,
+                        None if args.wrench is None else parse_list(args.wrench, "--wrench"),
+                        wrench_frame=args.wrench_frame, hold=args.hold, method=args.method,
+                        progress=progress_printer(args, "compensate"), deg=args.deg)
     if args.out:
-        atomic_write(args.out, format_csv(result, path, scale))
-    doc = to_json(result, path, scale, args.deg)
+        result.write(args.out)
+    doc = result.to_dict()
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return 0
@@ -184,47 +165,3 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         print(f"written: {args.out}")
     return 0
-
-
-def format_csv(result: PathCompensation, path, scale: np.ndarray) -> str:
-    """``OUT.csv``: input columns, ``<joint>_cmd`` (and ``q<i>_cmd`` when the input names the
-    coordinates q1..qn), ``dx..``, ``ex..``, ``ex1..``."""
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    names = [f"{j}_cmd" for j in result.joints]
-    aliases = [f"{c}_cmd" for c in path.column_of if f"{c}_cmd" not in names]
-    writer.writerow(path.header + names + aliases
-                    + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
-    for cells, p in zip(path.cells, result.points, strict=True):
-        cells = cells + [""] * (len(path.header) - len(cells))
-        command = [_num(v) for v in p.command * scale]
-        writer.writerow(cells[: len(path.header)] + command + (command if aliases else [])
-                        + [_num(v) for v in np.concatenate(
-                            [p.deflection, p.residual, p.residual_first_order])])
-    return buf.getvalue()
-
-
-def to_json(result: PathCompensation, path, scale: np.ndarray, deg: bool) -> dict:
-    """The ``--json`` object: ``rows``, ``summary``, ``units``."""
-    unit = ["deg" if (a and deg) else ("rad" if a else "m") for a in path.angular]
-    rows = [{
-        "q_command": (p.command * scale).tolist(),
-        "q_command_first_order": (p.command_first_order * scale).tolist(),
-        "deflection": p.deflection.tolist(),
-        "residual": p.residual.tolist(),
-        "residual_first_order": p.residual_first_order.tolist(),
-        "rotation_deflection": p.rotation_deflection.tolist(),
-        "rotation_residual": p.rotation_residual.tolist(),
-        "rotation_residual_first_order": p.rotation_residual_first_order.tolist(),
-        "method": p.method,
-    } for p in result.points]
-    return {
-        "robot": result.model.robot.name,
-        "joints": list(result.joints),
-        "rows": rows,
-        "summary": result.summary(),
-        "units": {"q_command": unit, "q_command_first_order": unit, "deflection": "m",
-                  "residual": "m", "residual_first_order": "m", "rotation_deflection": "rad",
-                  "rotation_residual": "rad", "rotation_residual_first_order": "rad",
-                  "summary": "m (rad for rotation keys)"},
-    }

@@ -18,10 +18,7 @@ fixed angle), ``ik_residual_m`` and ``ik_residual_rad``; the figure (``--figure`
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +32,8 @@ from stiffness.cli.compensate import (
 )
 from stiffness.cli.flags import add_output_flags, parse_list
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
-from stiffness.machining.posture import Poses, PostureResult, posture, read_poses
+from stiffness.machining.compensation import angular_coordinates
+from stiffness.machining.posture import posture
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -79,37 +76,23 @@ def run(args: argparse.Namespace) -> int:
                              "name ending in .png")
     check_outputs(args.out, figure)
     em = elastic_model_from_args(args)
-    poses = read_poses(args.path)
-    if args.wrench is not None and poses.wrench is not None:
-        raise StiffnessError(f"{args.path} carries per-row loads (fx,fy,fz...): drop --wrench, "
-                             "or drop those columns")
-    wrench = poses.wrench if poses.wrench is not None else (
-        None if args.wrench is None else np.array(parse_list(args.wrench, "--wrench")))
-    full = em.full
-    model = full.model
-    angular = np.array([not model.joints[model.getJointId(j)].shortname().startswith(
-        "JointModelP") for j in full.coordinate_joints])
-    scale = np.where(angular & args.deg, 180.0 / np.pi, 1.0)
     start = None
     if args.start is not None:
+        full = em.full
         start = np.array(parse_list(args.start, "--start"))
         if start.shape[0] != full.n_coordinates:
             raise StiffnessError(f"--start needs {full.n_coordinates} values "
                                  f"({', '.join(full.coordinate_joints)}), got {start.shape[0]}")
-        start = start / scale
-    result = posture(em, poses.positions, axes=poses.axes,
-                     quaternions=poses.quaternions, free_axis=args.free_axis, wrench=wrench,
+        start = start / np.where(angular_coordinates(full) & args.deg, 180.0 / np.pi, 1.0)
+    result = posture(em, args.path, free_axis=args.free_axis,
+                     wrench=None if args.wrench is None else parse_list(args.wrench, "--wrench"),
                      wrench_frame=args.wrench_frame, steps=args.steps,
                      max_step_deg=args.max_step, reference_angle_deg=args.reference_angle,
                      singularity_margin=args.singularity_margin, start=start,
-                     refine=not args.no_refine, progress=progress_printer(args, "posture"))
-    csv_text = format_csv(result, poses, scale) if args.out else None
-    png = figure_png(result) if figure else None
-    if args.out:
-        atomic_write(args.out, csv_text)
-    if figure:
-        atomic_write(figure, png)
-    doc = to_json(result, scale, angular, args.deg)
+                     refine=not args.no_refine, progress=progress_printer(args, "posture"),
+                     deg=args.deg)
+    result.write(args.out, figure)
+    doc = result.to_dict()
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return 0
@@ -132,70 +115,3 @@ def run(args: argparse.Namespace) -> int:
 
 def _g(value) -> str:
     return "n/a" if value is None else f"{value:.4g}"
-
-
-def _num(value: float) -> str:
-    return repr(float(value)) if math.isfinite(value) else ""
-
-
-def format_csv(result: PostureResult, poses: Poses, scale: np.ndarray) -> str:
-    """``OUT.csv``: input columns, joints, angle and deflections per point."""
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    header = poses.header
-    writer.writerow(header + list(result.joints) + [
-        "angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m", "ik_residual_rad"])
-    for cells, p in zip(poses.cells, result.points, strict=True):
-        cells = (cells + [""] * len(header))[: len(header)]
-        writer.writerow(cells + [_num(v) for v in p.coords * scale] + [
-            _num(np.rad2deg(p.angle)), _num(np.linalg.norm(p.deflection)),
-            _num(np.linalg.norm(p.deflection_fixed)), _num(p.ik_position_error),
-            _num(p.ik_rotation_error)])
-    return buf.getvalue()
-
-
-def to_json(result: PostureResult, scale: np.ndarray, angular: np.ndarray, deg: bool) -> dict:
-    """The ``--json`` object: ``rows``, ``summary``, ``units``, ``notes``."""
-    def num(v: float):
-        return float(v) if math.isfinite(v) else None
-
-    unit = ["deg" if (a and deg) else ("rad" if a else "m") for a in angular]
-    rows = [{"q": (p.coords * scale).tolist(), "angle_deg": float(np.rad2deg(p.angle)),
-             "deflection_m": float(np.linalg.norm(p.deflection)),
-             "deflection": p.deflection.tolist(),
-             "deflection_fixed_m": num(np.linalg.norm(p.deflection_fixed)),
-             "ik_residual_m": p.ik_position_error, "ik_residual_rad": p.ik_rotation_error}
-            for p in result.points]
-    return {"joints": list(result.joints), "rows": rows, "summary": result.summary(),
-            "notes": result.notes,
-            "units": {"q": unit, "angle_deg": "deg", "deflection_m": "m", "deflection": "m",
-                      "deflection_fixed_m": "m", "ik_residual_m": "m", "ik_residual_rad": "rad"}}
-
-
-def figure_png(result: PostureResult) -> bytes:
-    """PNG: deflection with the chosen posture and with the fixed angle, and the angle."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    index = np.arange(1, len(result.points) + 1)
-    chosen = [1e3 * np.linalg.norm(p.deflection) for p in result.points]
-    fixed = [1e3 * np.linalg.norm(p.deflection_fixed) for p in result.points]
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
-    ax1.plot(index, fixed, "o-", ms=3, label=f"fixed angle "
-             f"({np.rad2deg(result.reference_angle):.3g} deg)")
-    ax1.plot(index, chosen, "o-", ms=3, label="chosen posture")
-    ax1.set_ylabel("deflection (mm)")
-    ax1.legend()
-    ax1.grid(alpha=0.3)
-    ax2.plot(index, [np.rad2deg(p.angle) for p in result.points], "o-", ms=3)
-    ax2.set_ylabel("angle about free axis (deg)")
-    ax2.set_xlabel("path point")
-    ax2.grid(alpha=0.3)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    return buf.getvalue()
-

@@ -26,6 +26,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,7 +48,7 @@ from stiffness.errors import (
     StiffnessError,
     with_context,
 )
-from stiffness.files import read_text
+from stiffness.files import atomic_write, read_text
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.robot import kinematics
@@ -244,12 +245,78 @@ class PathCompensation:
         What the exact compensation holds: ``pose`` or ``position``.
     model
         The elastic model used.
+    table
+        The path as read (its columns, repeated in :meth:`csv`), or its coordinates as
+        columns named after the joints (:meth:`JointPath.of_coordinates`).
+    deg
+        Whether the commands are written in degrees (:meth:`to_dict`, :meth:`csv`; the
+        attributes stay SI).
     """
 
     points: list[PointCompensation]
     joints: tuple[str, ...]
     hold: str
     model: ElasticModel
+    table: JointPath
+    deg: bool = False
+
+    def _scale(self) -> np.ndarray:
+        """Factor from SI to the written unit of each coordinate (deg for angles with
+        :attr:`deg`)."""
+        return np.where(self.table.angular & self.deg, 180.0 / np.pi, 1.0)
+
+    def to_dict(self) -> dict:
+        """The object ``stiffness compensate --json`` prints: ``robot``, ``joints``, ``rows``
+        (commands in the written unit, the rest SI), ``summary`` and ``units``."""
+        scale = self._scale()
+        unit = ["deg" if (a and self.deg) else ("rad" if a else "m")
+                for a in self.table.angular]
+        rows = [{
+            "q_command": (p.command * scale).tolist(),
+            "q_command_first_order": (p.command_first_order * scale).tolist(),
+            "deflection": p.deflection.tolist(),
+            "residual": p.residual.tolist(),
+            "residual_first_order": p.residual_first_order.tolist(),
+            "rotation_deflection": p.rotation_deflection.tolist(),
+            "rotation_residual": p.rotation_residual.tolist(),
+            "rotation_residual_first_order": p.rotation_residual_first_order.tolist(),
+            "method": p.method,
+        } for p in self.points]
+        return {
+            "robot": self.model.robot.name,
+            "joints": list(self.joints),
+            "rows": rows,
+            "summary": self.summary(),
+            "units": {"q_command": unit, "q_command_first_order": unit, "deflection": "m",
+                      "residual": "m", "residual_first_order": "m",
+                      "rotation_deflection": "rad", "rotation_residual": "rad",
+                      "rotation_residual_first_order": "rad",
+                      "summary": "m (rad for rotation keys)"},
+        }
+
+    def csv(self) -> str:
+        """``OUT.csv`` of ``stiffness compensate``: the input columns, ``<joint>_cmd`` (and
+        ``q<i>_cmd`` when the input names the coordinates q1..qn; the written unit), ``dx..``,
+        ``ex..``, ``ex1..`` (m)."""
+        table = self.table
+        scale = self._scale()
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        names = [f"{j}_cmd" for j in self.joints]
+        aliases = [f"{c}_cmd" for c in table.column_of if f"{c}_cmd" not in names]
+        writer.writerow(table.header + names + aliases
+                        + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
+        for cells, p in zip(table.cells, self.points, strict=True):
+            cells = cells + [""] * (len(table.header) - len(cells))
+            command = [repr(float(v)) for v in p.command * scale]
+            writer.writerow(cells[: len(table.header)] + command + (command if aliases else [])
+                            + [repr(float(v)) for v in np.concatenate(
+                                [p.deflection, p.residual, p.residual_first_order])])
+        return buf.getvalue()
+
+    def write(self, out: str | os.PathLike) -> Path:
+        """Write :meth:`csv` to ``out`` atomically; returns its path."""
+        return atomic_write(out, self.csv())
 
     def array(self, name: str) -> np.ndarray:
         """(m, k) stack of a per-point attribute, e.g. ``"residual"``."""
@@ -288,7 +355,9 @@ def compensate(
     k_theta: np.ndarray | list[float] | None = None,
     deg: bool = False,
 ) -> PathCompensation:
-    """Joint commands that cancel the deflection along a path (see the module docstring).
+    """Joint commands that cancel the deflection along a path (see the module docstring):
+    ``stiffness compensate`` (:meth:`PathCompensation.to_dict` is its ``--json`` object,
+    :meth:`PathCompensation.write` its ``--out`` file).
 
     Parameters
     ----------
@@ -313,7 +382,8 @@ def compensate(
     k_theta
         Joint springs (N.m/rad, N/m) when ``model`` is a robot (default: its shipped ones).
     deg
-        Angles of a ``PATH.csv`` are in degrees.
+        Angles of a ``PATH.csv``, and the commands :meth:`PathCompensation.to_dict` and
+        :meth:`PathCompensation.write` give, are in degrees (an array ``path`` stays rad).
 
     Raises
     ------
@@ -321,24 +391,9 @@ def compensate(
         A bad path or wrench, or a point where a solve fails (the message names the row).
     """
     em = as_elastic_model(model, k_theta)
-    if isinstance(path, str | Path):
-        read = read_joint_path(path, em.robot, deg=deg)
-        path = read.coords
-        if wrench is None:
-            wrench = read.wrench
-    path = np.atleast_2d(np.asarray(path, dtype=float))
-    n = em.robot.n_coordinates
-    if path.shape[1] != n or path.shape[0] == 0:
-        raise StiffnessError(
-            f"the path needs one column per coordinate of {em.robot.name} "
-            f"({', '.join(em.robot.coordinate_joints)}); got shape {path.shape}")
-    if not np.all(np.isfinite(path)):
-        row = int(np.argwhere(~np.isfinite(path))[0, 0])
-        raise StiffnessError(f"path row {row + 1} holds a NaN or infinite coordinate; fix it")
+    table, path, wrench = _path_and_wrench(em.robot, path, wrench, deg)
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
-    if wrench is None:
-        raise StiffnessError("give a wrench (fx,fy,fz[,mx,my,mz] in N, N.m)")
     w = np.asarray(wrench, dtype=float)
     w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
     if w.shape[0] == 1:
@@ -373,7 +428,45 @@ def compensate(
         seed = point.q_nominal
         if progress is not None:
             progress(i + 1, path.shape[0])
-    return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em)
+    return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em, table, deg)
+
+
+def _path_and_wrench(robot: Robot, path: np.ndarray | str | Path,
+                     wrench: np.ndarray | list[float] | None, deg: bool
+                     ) -> tuple[JointPath, np.ndarray, np.ndarray | list[float]]:
+    """The path as a table, its coordinates (m, n) (SI, checked finite) and the wrench: the
+    given one, or the path file's per-row loads (not both).
+
+    Raises
+    ------
+    StiffnessError
+        A path of the wrong width or with a NaN, a wrench both given and in the file, none.
+    """
+    source = None
+    if isinstance(path, str | Path):
+        table = read_joint_path(path, robot, deg=deg)
+        if wrench is not None and table.wrench is not None:
+            raise StiffnessError(f"{path} carries per-row loads (fx,fy,fz...): drop --wrench, "
+                                 "or drop those columns")
+        source, path = path, table.coords
+        if wrench is None:
+            wrench = table.wrench
+    path = np.atleast_2d(np.asarray(path, dtype=float))
+    n = robot.n_coordinates
+    if path.shape[1] != n or path.shape[0] == 0:
+        raise StiffnessError(
+            f"the path needs one column per coordinate of {robot.name} "
+            f"({', '.join(robot.coordinate_joints)}); got shape {path.shape}")
+    if not np.all(np.isfinite(path)):
+        row = int(np.argwhere(~np.isfinite(path))[0, 0])
+        raise StiffnessError(f"path row {row + 1} holds a NaN or infinite coordinate; fix it")
+    if wrench is None:
+        raise StiffnessError("give a wrench (fx,fy,fz[,mx,my,mz] in N, N.m)" if source is None
+                             else "give --wrench fx,fy,fz[,mx,my,mz] (N, N.m), or per-row "
+                             f"fx,fy,fz columns in {source}")
+    if source is None:
+        table = JointPath.of_coordinates(robot, path)
+    return table, path, wrench
 
 
 # ------------------------------------------------------------------------------------------
@@ -409,6 +502,21 @@ class JointPath:
     column_of: list[str]
     angular: np.ndarray
     lines: list[int] = field(default_factory=list)
+
+    @classmethod
+    def of_coordinates(cls, robot: Robot, coords: np.ndarray) -> JointPath:
+        """A path given as (m, n) coordinates (rad, m): one column per coordinate joint, the
+        values written in SI."""
+        joints = list(robot.coordinate_joints)
+        return cls(joints, [[repr(float(v)) for v in row] for row in coords], coords, None,
+                   joints, angular_coordinates(robot))
+
+
+def angular_coordinates(robot: Robot) -> np.ndarray:
+    """(n,) whether each coordinate of ``robot`` is an angle (not a prismatic joint's)."""
+    model = robot.model
+    return np.array([not model.joints[model.getJointId(j)].shortname().startswith(
+        "JointModelP") for j in robot.coordinate_joints])
 
 
 @dataclass
@@ -520,9 +628,7 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
             path=table.path, line=1)
     coords = np.column_stack([table.column(c) for c in column_of])
     wrench = table.wrenches()
-    model = robot.model
-    angular = np.array([not model.joints[model.getJointId(j)].shortname().startswith(
-        "JointModelP") for j in joints])
+    angular = angular_coordinates(robot)
     if deg:
         coords[:, angular] = np.deg2rad(coords[:, angular])
     return JointPath(header, [list(r) for r in table.rows], coords, wrench, column_of, angular,

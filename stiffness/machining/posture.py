@@ -28,7 +28,10 @@ Units: m, rad inside (the ``deg`` names report degrees); deflections in m.
 
 from __future__ import annotations
 
+import csv
+import io
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,139 +40,17 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.loaded import ElasticModel, as_elastic_model, linear_deflection
-from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
-from stiffness.machining.compensation import WRENCH_FRAMES, read_table
+from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.files import atomic_write
+from stiffness.machining.compensation import WRENCH_FRAMES, angular_coordinates
+from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
+from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
 from stiffness.robot.robot import Robot
 
-#: Named free axes (target frame).
-AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),
-        "z": np.array([0.0, 0.0, 1.0])}
-
-
 #: Most candidate angles about the free axis (0.1 deg apart); the search costs steps^2.
 MAX_STEPS = 3600
-
-
-def free_axis_vector(axis: str | np.ndarray) -> np.ndarray:
-    """Unit free axis (3,) in the target frame from ``x``, ``y``, ``z`` or a vector."""
-    if isinstance(axis, str):
-        if axis.lower() in AXES:
-            return AXES[axis.lower()]
-        try:
-            axis = np.array([float(v) for v in axis.split(",")])
-        except ValueError:
-            raise StiffnessError(f"free axis must be x, y, z or ax,ay,az; got {axis!r}") from None
-    v = np.asarray(axis, dtype=float).reshape(-1)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-12:
-        raise StiffnessError(f"free axis must be a non-zero 3-vector, got {v.tolist()}")
-    return v / np.linalg.norm(v)
-
-
-def _minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Smallest rotation taking unit vector ``a`` to unit vector ``b``."""
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(a @ b)
-    if s < 1e-12:
-        if c > 0:
-            return np.eye(3)
-        perp = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(perp) < 1e-6:
-            perp = np.cross(a, [0.0, 1.0, 0.0])
-        return pin.exp3(np.pi * perp / np.linalg.norm(perp))
-    return pin.exp3(axis / s * np.arctan2(s, c))
-
-
-def tool_frames(free: np.ndarray, axes: np.ndarray | None = None,
-                quaternions: np.ndarray | None = None) -> np.ndarray:
-    """Reference orientations ``R_0`` (m, 3, 3) of the path points (``psi = 0``).
-
-    ``quaternions`` (m, 4) ``qw, qx, qy, qz`` give them directly; ``axes`` (m, 3) give the
-    direction of the free axis, the frame being carried along by minimal rotations from the
-    minimal rotation of ``free`` onto the first axis.
-
-    Raises
-    ------
-    StiffnessError
-        A zero axis or quaternion (named by row).
-    """
-    if quaternions is not None:
-        out = []
-        for i, qv in enumerate(np.asarray(quaternions, dtype=float)):
-            norm = np.linalg.norm(qv)
-            if not np.isfinite(norm) or norm < 1e-9:
-                raise StiffnessError(f"row {i + 1}: the orientation qw,qx,qy,qz is zero; give a "
-                                     "unit quaternion")
-            w, x, y, z = qv / norm
-            out.append(pin.Quaternion(w, x, y, z).toRotationMatrix())
-        return np.array(out)
-    frames, previous = [], None
-    for i, a in enumerate(np.asarray(axes, dtype=float)):
-        norm = np.linalg.norm(a)
-        if not np.isfinite(norm) or norm < 1e-9:
-            raise StiffnessError(f"row {i + 1}: the tool axis ax,ay,az is zero; give a direction")
-        a = a / norm
-        if previous is None:
-            frame = _minimal_rotation(free, a)
-        else:
-            frame = _minimal_rotation(previous[1], a) @ previous[0]
-        frames.append(frame)
-        previous = (frame, a)
-    return np.array(frames)
-
-
-@dataclass
-class Poses:
-    """A path of target poses read from CSV (SI).
-
-    Attributes
-    ----------
-    header, cells
-        The input columns and cells (text), as given.
-    positions
-        (m, 3) target positions (m).
-    axes, quaternions
-        (m, 3) tool axes or (m, 4) orientations ``qw, qx, qy, qz`` (one of them is None).
-    wrench
-        (m, 6) per-row wrenches (N, N.m), or None.
-    """
-
-    header: list[str]
-    cells: list[list[str]]
-    positions: np.ndarray
-    axes: np.ndarray | None
-    quaternions: np.ndarray | None
-    wrench: np.ndarray | None
-
-
-def read_poses(path: str | Path) -> Poses:
-    """Read ``POSES.csv``: ``x,y,z`` (m) and ``ax,ay,az`` (tool axis) or ``qw,qx,qy,qz``, one
-    row per point, optional ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
-
-    Raises
-    ------
-    MissingFileError, FileFormatError
-        Unreadable file, missing columns, a value that is not a finite number (line, column).
-    """
-    table = read_table(path, "pose file")
-    header = table.header
-    missing = [c for c in ("x", "y", "z") if c not in header]
-    if missing:
-        raise FileFormatError(f"lacks the column(s) {', '.join(missing)}: give x,y,z (m) and "
-                              "ax,ay,az or qw,qx,qy,qz", path=table.path, line=1)
-    has_axis = all(c in header for c in ("ax", "ay", "az"))
-    has_quat = all(c in header for c in ("qw", "qx", "qy", "qz"))
-    if has_axis == has_quat:
-        raise FileFormatError("needs exactly one of the column groups ax,ay,az (tool axis) and "
-                              "qw,qx,qy,qz (orientation)", path=table.path, line=1)
-
-    def block(names) -> np.ndarray:
-        return np.column_stack([table.column(c) for c in names])
-
-    return Poses(header, [list(r) for r in table.rows], block(("x", "y", "z")),
-                 block(("ax", "ay", "az")) if has_axis else None,
-                 block(("qw", "qx", "qy", "qz")) if has_quat else None, table.wrenches())
 
 
 @dataclass
@@ -215,6 +96,12 @@ class PostureResult:
         The ``S`` candidate angles (rad).
     notes
         What the user should know (e.g. the fixed-angle path breaks the step bound).
+    poses
+        The path as read (its columns, repeated in :meth:`csv`), or as given.
+    angular
+        (n,) whether each coordinate is an angle.
+    deg
+        Whether :meth:`to_dict` and :meth:`csv` give the angles in degrees (else rad).
     """
 
     points: list[PosturePoint]
@@ -223,6 +110,94 @@ class PostureResult:
     angles: np.ndarray
     max_step: float
     notes: list[str]
+    poses: Poses
+    angular: np.ndarray
+    deg: bool = False
+
+    def _scale(self) -> np.ndarray:
+        """Factor from SI to the written unit of each coordinate."""
+        return np.where(self.angular & self.deg, 180.0 / np.pi, 1.0)
+
+    def to_dict(self) -> dict:
+        """The object ``stiffness posture --json`` prints: ``joints``, ``rows`` (joint values
+        in the written unit, the rest SI), ``summary``, ``notes``, ``units``."""
+        def num(v: float):
+            return float(v) if math.isfinite(v) else None
+
+        scale = self._scale()
+        unit = ["deg" if (a and self.deg) else ("rad" if a else "m") for a in self.angular]
+        rows = [{"q": (p.coords * scale).tolist(), "angle_deg": float(np.rad2deg(p.angle)),
+                 "deflection_m": float(np.linalg.norm(p.deflection)),
+                 "deflection": p.deflection.tolist(),
+                 "deflection_fixed_m": num(np.linalg.norm(p.deflection_fixed)),
+                 "ik_residual_m": p.ik_position_error, "ik_residual_rad": p.ik_rotation_error}
+                for p in self.points]
+        return {"joints": list(self.joints), "rows": rows, "summary": self.summary(),
+                "notes": self.notes,
+                "units": {"q": unit, "angle_deg": "deg", "deflection_m": "m",
+                          "deflection": "m", "deflection_fixed_m": "m", "ik_residual_m": "m",
+                          "ik_residual_rad": "rad"}}
+
+    def csv(self) -> str:
+        """``OUT.csv`` of ``stiffness posture``: the input columns, the joints (written unit),
+        the angle (deg), the deflections (m) and the IK residuals (m, rad) per point."""
+        def num(value: float) -> str:
+            return repr(float(value)) if math.isfinite(value) else ""
+
+        scale = self._scale()
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        header = self.poses.header
+        writer.writerow(header + list(self.joints) + [
+            "angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m",
+            "ik_residual_rad"])
+        for cells, p in zip(self.poses.cells, self.points, strict=True):
+            cells = (cells + [""] * len(header))[: len(header)]
+            writer.writerow(cells + [num(v) for v in p.coords * scale] + [
+                num(np.rad2deg(p.angle)), num(np.linalg.norm(p.deflection)),
+                num(np.linalg.norm(p.deflection_fixed)), num(p.ik_position_error),
+                num(p.ik_rotation_error)])
+        return buf.getvalue()
+
+    def figure_png(self) -> bytes:
+        """PNG: deflection with the chosen posture and with the fixed angle, and the angle."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        index = np.arange(1, len(self.points) + 1)
+        chosen = [1e3 * np.linalg.norm(p.deflection) for p in self.points]
+        fixed = [1e3 * np.linalg.norm(p.deflection_fixed) for p in self.points]
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+        ax1.plot(index, fixed, "o-", ms=3, label=f"fixed angle "
+                 f"({np.rad2deg(self.reference_angle):.3g} deg)")
+        ax1.plot(index, chosen, "o-", ms=3, label="chosen posture")
+        ax1.set_ylabel("deflection (mm)")
+        ax1.legend()
+        ax1.grid(alpha=0.3)
+        ax2.plot(index, [np.rad2deg(p.angle) for p in self.points], "o-", ms=3)
+        ax2.set_ylabel("angle about free axis (deg)")
+        ax2.set_xlabel("path point")
+        ax2.grid(alpha=0.3)
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=110)
+        plt.close(fig)
+        return buf.getvalue()
+
+    def write(self, out: str | os.PathLike | None, figure: str | os.PathLike | None = None
+              ) -> list[Path]:
+        """Write :meth:`csv` to ``out`` and :meth:`figure_png` to ``figure`` (either may be
+        ``None``), both computed before either is written; returns the paths written."""
+        text = self.csv() if out is not None else None
+        png = self.figure_png() if figure is not None else None
+        written = []
+        if out is not None:
+            written.append(atomic_write(out, text))
+        if figure is not None:
+            written.append(atomic_write(figure, png))
+        return written
 
     def joint_path(self) -> np.ndarray:
         """(m, n) joint coordinates (rad, m)."""
@@ -311,8 +286,11 @@ def posture(
     refine: bool = True,
     progress: Callable[[int, int], None] | None = None,
     k_theta: np.ndarray | list[float] | None = None,
+    deg: bool = False,
 ) -> PostureResult:
-    """The stiffest admissible posture along a path (see the module docstring).
+    """The stiffest admissible posture along a path (see the module docstring): ``stiffness
+    posture`` (:meth:`PostureResult.to_dict` is its ``--json`` object,
+    :meth:`PostureResult.write` its ``--out`` file and figure).
 
     Parameters
     ----------
@@ -340,6 +318,14 @@ def posture(
         Smallest admissible singular value of the 6-row target Jacobian (m/rad, rad/rad).
     start
         IK seed of the first point (rad, m); default the robot's shipped coordinates, else zero.
+    refine, progress
+        Whether to refine each angle locally after the dynamic programming; called with
+        (done, total) as the points are solved.
+    k_theta
+        Joint springs (N.m/rad, N/m) when ``model`` is a robot.
+    deg
+        Whether :meth:`PostureResult.to_dict` and :meth:`PostureResult.write` give the joint
+        values in degrees (the attributes stay rad).
 
     Raises
     ------
@@ -349,10 +335,107 @@ def posture(
     """
     em = as_elastic_model(model, k_theta)
     full = em.full
+    poses, w = _poses_and_wrench(positions, axes, quaternions, wrench)
+    _check_search(full, steps, max_step_deg, singularity_margin, wrench_frame)
+    m = poses.positions.shape[0]
+    free = free_axis_vector(free_axis)
+    frames = tool_frames(free, poses.axes, poses.quaternions)
+    angular = angular_coordinates(full)
+    problem = _Problem(em, poses.positions, frames, free, w, wrench_frame, singularity_margin,
+                       np.deg2rad(max_step_deg), angular)
+    ref = np.deg2rad(reference_angle_deg)
+    offsets = 2.0 * np.pi * np.arange(steps) / steps
+    offsets = np.where(offsets > np.pi, offsets - 2.0 * np.pi, offsets)
+    angles = ref + offsets
+    if start is None:
+        start = default_coordinates(full)
+        start = np.zeros(full.n_coordinates) if start is None else start
+    start = np.asarray(start, dtype=float)
+    # 1. candidate tracks
+    iks = _candidate_tracks(problem, offsets, angles, (start, full.configuration(start)),
+                            progress, m if refine else 0)
+    deflection, vectors, admissible = _candidate_deflections(problem, iks, angles)
+    # 2. dynamic programming
+    choice, notes = _choose_track(problem, iks, deflection, admissible, max_step_deg,
+                                  singularity_margin)
+    # 3. local refinement
+    points = _chosen_points(problem, iks, choice, angles, vectors, deflection[:, 0],
+                            progress if refine else None, refine)
+    return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
+                         float(np.deg2rad(max_step_deg)), notes, poses, angular, deg)
+
+
+def _choose_track(problem: _Problem, iks: list[list[IKResult | None]],
+                  deflection: np.ndarray, admissible: np.ndarray, max_step_deg: float,
+                  singularity_margin: float) -> tuple[list[int], list[str]]:
+    """The candidate chosen per point (:func:`_cheapest_track`, bounded by the fixed angle
+    where it can be) and a note when it cannot.
+
+    Raises
+    ------
+    StiffnessError
+        No track within the joint-step bound.
+    """
+    notes: list[str] = []
+    choice = _cheapest_track(problem, iks, deflection, admissible, bounded=True)
+    if choice is None:
+        choice = _cheapest_track(problem, iks, deflection, admissible, bounded=False)
+        if choice is not None:
+            notes.append("the fixed-angle path itself breaks the joint-step bound or the "
+                         "singularity margin somewhere: the chosen path is not bounded by it "
+                         "point by point")
+    if choice is None:
+        raise StiffnessError(
+            f"no posture sequence keeps every joint step within {max_step_deg:g} deg (with the "
+            f"singularity margin {singularity_margin:g}); raise --max-step or --steps")
+    return choice, notes
+
+
+def _chosen_points(problem: _Problem, iks: list[list[IKResult | None]], choice: list[int],
+                   angles: np.ndarray, vectors: np.ndarray, fixed: np.ndarray,
+                   progress: Callable[[int, int], None] | None, refine: bool
+                   ) -> list[PosturePoint]:
+    """The chosen candidates (refined locally with ``refine``) as points, with the fixed
+    angle's deflection (m; NaN where out of reach) beside them."""
+    m, steps = vectors.shape[:2]
+    chosen_psi = np.array([angles[k] for k in choice])
+    chosen = [iks[i][k] for i, k in enumerate(choice)]
+    chosen_defl = [vectors[i, k] for i, k in enumerate(choice)]
+    if refine:
+        total = m * steps
+        for i in range(m):
+            _refine_point(problem, i, chosen, chosen_psi, chosen_defl, fixed[i],
+                          2.0 * np.pi / steps)
+            if progress is not None:
+                progress(total + i + 1, total + m)
+    points = []
+    for i in range(m):
+        fixed_vec = vectors[i, 0] if np.isfinite(fixed[i]) else np.full(3, np.nan)
+        ik = chosen[i]
+        points.append(PosturePoint(ik.coords, float(chosen_psi[i]), chosen_defl[i], fixed_vec,
+                                   ik.position_error, ik.rotation_error, ik.q))
+    return points
+
+
+def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | None,
+                      quaternions: np.ndarray | None, wrench: np.ndarray | list[float] | None
+                      ) -> tuple[Poses, np.ndarray]:
+    """The poses (read from a ``POSES.csv``, or the arrays as a table) and the (m, 6)
+    wrenches (N, N.m): the given one, or the file's per-row loads (not both).
+
+    Raises
+    ------
+    StiffnessError
+        Bad shapes, NaNs, both or neither of axes and orientations, no or two wrenches.
+    """
+    source = None
     if isinstance(positions, str | Path):
-        read = read_poses(positions)
-        positions, axes, quaternions = read.positions, read.axes, read.quaternions
-        wrench = read.wrench if wrench is None else wrench
+        poses = read_poses(positions)
+        if wrench is not None and poses.wrench is not None:
+            raise StiffnessError(f"{positions} carries per-row loads (fx,fy,fz...): drop "
+                                 "--wrench, or drop those columns")
+        source, wrench = positions, poses.wrench if wrench is None else wrench
+        positions, axes, quaternions = poses.positions, poses.axes, poses.quaternions
     positions = np.atleast_2d(np.asarray(positions, dtype=float))
     m = positions.shape[0]
     if positions.shape[1] != 3 or m == 0:
@@ -364,6 +447,21 @@ def posture(
         if arr is not None and not np.all(np.isfinite(arr)):
             row = int(np.argwhere(~np.isfinite(np.atleast_2d(arr)))[0, 0])
             raise StiffnessError(f"row {row + 1}: {name} hold a NaN or infinity; fix the row")
+    if source is None:
+        poses = Poses.of_arrays(positions, axes, quaternions)
+    if wrench is None:
+        raise StiffnessError("give a process wrench (fx,fy,fz[,mx,my,mz] in N, N.m)")
+    w = np.asarray(wrench, dtype=float)
+    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
+    w = np.repeat(w, m, axis=0) if w.shape[0] == 1 else w
+    if w.shape[0] != m:
+        raise StiffnessError(f"{w.shape[0]} wrenches for {m} path points")
+    return poses, w
+
+
+def _check_search(full: Robot, steps: int, max_step_deg: float, singularity_margin: float,
+                  wrench_frame: str) -> None:
+    """Refuse an arm that cannot hold a pose, or search settings out of range (one line)."""
     if full.n_coordinates < 6:
         raise StiffnessError(
             f"{full.name} has {full.n_coordinates} coordinates: choosing a posture about the "
@@ -379,36 +477,25 @@ def posture(
                              f"{MAX_STEPS}")
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
-    if wrench is None:
-        raise StiffnessError("give a process wrench (fx,fy,fz[,mx,my,mz] in N, N.m)")
-    w = np.asarray(wrench, dtype=float)
-    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
-    w = np.repeat(w, m, axis=0) if w.shape[0] == 1 else w
-    if w.shape[0] != m:
-        raise StiffnessError(f"{w.shape[0]} wrenches for {m} path points")
-    free = free_axis_vector(free_axis)
-    frames = tool_frames(free, axes, quaternions)
-    model_ = full.model
-    angular = np.array([not model_.joints[model_.getJointId(j)].shortname().startswith(
-        "JointModelP") for j in full.coordinate_joints])
-    problem = _Problem(em, positions, frames, free, w, wrench_frame, singularity_margin,
-                       np.deg2rad(max_step_deg), angular)
-    ref = np.deg2rad(reference_angle_deg)
-    offsets = 2.0 * np.pi * np.arange(steps) / steps
-    offsets = np.where(offsets > np.pi, offsets - 2.0 * np.pi, offsets)
-    angles = ref + offsets
-    if start is None:
-        from stiffness.mechanics.defaults import default_coordinates
 
-        start = default_coordinates(full)
-        start = np.zeros(full.n_coordinates) if start is None else start
-    start = np.asarray(start, dtype=float)
-    q_start = full.configuration(start)
 
-    # 1. candidate tracks
+def _candidate_tracks(problem: _Problem, offsets: np.ndarray, angles: np.ndarray,
+                      start: tuple[np.ndarray, np.ndarray],
+                      progress: Callable[[int, int], None] | None, extra: int
+                      ) -> list[list[IKResult | None]]:
+    """The IK of every point at every candidate angle (rad; ``None`` where it fails), each
+    seeded from the same angle at the previous point, the nearest solved angle, the previous
+    point's first solution and ``start`` (coordinates, configuration); ``extra`` progress
+    steps follow.
+
+    Raises
+    ------
+    ConvergenceError
+        A point no angle reaches.
+    """
+    m, steps = problem.positions.shape[0], len(angles)
     iks: list[list[IKResult | None]] = []
     sweep = sorted(range(steps), key=lambda k: (abs(offsets[k]), offsets[k]))
-    total = m * steps
     for i in range(m):
         row: list[IKResult | None] = [None] * steps
         for k in (sweep if i == 0 else range(steps)):
@@ -423,16 +510,24 @@ def posture(
                 prev = [r for r in iks[i - 1] if r is not None]
                 if prev:
                     seeds.append((prev[0].coords, prev[0].q))
-            seeds.append((start, q_start))
+            seeds.append(start)
             row[k] = problem.solve(i, angles[k], seeds)
         if all(r is None for r in row):
             raise ConvergenceError(
-                f"row {i + 1}: the pose at {np.round(positions[i], 6).tolist()} m is out of "
-                f"reach for every angle about the free axis (within the joint limits); move it "
+                f"row {i + 1}: the pose at {np.round(problem.positions[i], 6).tolist()} m is out "
+                "of reach for every angle about the free axis (within the joint limits); move it "
                 "into the workspace")
         iks.append(row)
         if progress is not None:
-            progress((i + 1) * steps, total + (m if refine else 0))
+            progress((i + 1) * steps, m * steps + extra)
+    return iks
+
+
+def _candidate_deflections(problem: _Problem, iks: list[list[IKResult | None]],
+                           angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(m, S) deflection norms (m; inf where unsolved), (m, S, 3) deflections (m) and (m, S)
+    admissibility (away from singularities) of the candidates."""
+    m, steps = len(iks), len(angles)
     deflection = np.full((m, steps), np.inf)
     vectors = np.full((m, steps, 3), np.nan)
     admissible = np.zeros((m, steps), dtype=bool)
@@ -444,68 +539,43 @@ def posture(
             vectors[i, k] = problem.deflection(i, angles[k], ik)
             deflection[i, k] = float(np.linalg.norm(vectors[i, k]))
             admissible[i, k] = problem.admissible(ik)
+    return deflection, vectors, admissible
+
+
+def _cheapest_track(problem: _Problem, iks: list[list[IKResult | None]],
+                    deflection: np.ndarray, admissible: np.ndarray, bounded: bool
+                    ) -> list[int] | None:
+    """Dynamic programming: the admissible candidate per point (indices) with the least sum
+    of squared deflections whose joint steps stay within the bound; ``bounded``: no point
+    worse than the fixed angle's (candidate 0) where that one is admissible. ``None``: none."""
+    m, steps = deflection.shape
     fixed = deflection[:, 0]
-    notes: list[str] = []
-
-    # 2. dynamic programming
-    def dp(bounded: bool) -> list[int] | None:
-        ok = admissible.copy()
-        if bounded:
-            ok &= ~np.isfinite(fixed[:, None]) | (deflection <= fixed[:, None] * (1 + 1e-12))
-        cost = np.where(ok[0], deflection[0] ** 2, np.inf)
-        back = np.zeros((m, steps), dtype=int)
-        for i in range(1, m):
-            new = np.full(steps, np.inf)
-            for k in range(steps):
-                if not ok[i, k]:
-                    continue
-                for j in range(steps):
-                    if np.isfinite(cost[j]) and cost[j] < new[k] and problem.step_ok(
-                            iks[i - 1][j].coords, iks[i][k].coords):
-                        new[k], back[i, k] = cost[j], j
-                new[k] += deflection[i, k] ** 2
-            cost = new
-            if not np.isfinite(cost).any():
-                return None
-        k = int(np.argmin(cost))
-        if not np.isfinite(cost[k]):
+    ok = admissible.copy()
+    if bounded:
+        ok &= ~np.isfinite(fixed[:, None]) | (deflection <= fixed[:, None] * (1 + 1e-12))
+    cost = np.where(ok[0], deflection[0] ** 2, np.inf)
+    back = np.zeros((m, steps), dtype=int)
+    for i in range(1, m):
+        new = np.full(steps, np.inf)
+        for k in range(steps):
+            if not ok[i, k]:
+                continue
+            for j in range(steps):
+                if np.isfinite(cost[j]) and cost[j] < new[k] and problem.step_ok(
+                        iks[i - 1][j].coords, iks[i][k].coords):
+                    new[k], back[i, k] = cost[j], j
+            new[k] += deflection[i, k] ** 2
+        cost = new
+        if not np.isfinite(cost).any():
             return None
-        choice = [k]
-        for i in range(m - 1, 0, -1):
-            k = int(back[i, k])
-            choice.append(k)
-        return choice[::-1]
-
-    choice = dp(bounded=True)
-    if choice is None:
-        choice = dp(bounded=False)
-        if choice is not None:
-            notes.append("the fixed-angle path itself breaks the joint-step bound or the "
-                         "singularity margin somewhere: the chosen path is not bounded by it "
-                         "point by point")
-    if choice is None:
-        raise StiffnessError(
-            f"no posture sequence keeps every joint step within {max_step_deg:g} deg (with the "
-            f"singularity margin {singularity_margin:g}); raise --max-step or --steps")
-    chosen_psi = np.array([angles[k] for k in choice])
-    chosen = [iks[i][k] for i, k in enumerate(choice)]
-    chosen_defl = [vectors[i, k] for i, k in enumerate(choice)]
-
-    # 3. local refinement
-    if refine:
-        spacing = 2.0 * np.pi / steps
-        for i in range(m):
-            _refine_point(problem, i, chosen, chosen_psi, chosen_defl, fixed[i], spacing)
-            if progress is not None:
-                progress(total + i + 1, total + m)
-    points = []
-    for i in range(m):
-        fixed_vec = vectors[i, 0] if np.isfinite(fixed[i]) else np.full(3, np.nan)
-        ik = chosen[i]
-        points.append(PosturePoint(ik.coords, float(chosen_psi[i]), chosen_defl[i], fixed_vec,
-                                   ik.position_error, ik.rotation_error, ik.q))
-    return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
-                         float(np.deg2rad(max_step_deg)), notes)
+    k = int(np.argmin(cost))
+    if not np.isfinite(cost[k]):
+        return None
+    choice = [k]
+    for i in range(m - 1, 0, -1):
+        k = int(back[i, k])
+        choice.append(k)
+    return choice[::-1]
 
 
 def _refine_point(problem: _Problem, i: int, chosen: list[IKResult], psi: np.ndarray,
