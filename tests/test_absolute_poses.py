@@ -267,3 +267,28 @@ def test_pose_reader_contract(pose_folder, data):
     if result is not None:
         assert result.q.shape[0] == result.positions.shape[0] >= 1
         assert np.all(np.isfinite(result.q))
+
+
+def test_calibrated_urdf_reproduces_the_rigid_positions(ur10, tmp_path, capsys):
+    """robot export --urdf --model final-model.json: reloaded, the marker frames seen from
+    measuring_frame are the calibrated model's rigid predictions (1e-9 m)."""
+    rng = np.random.default_rng(11)
+    hidden = _hidden(ur10, rng)
+    hidden.stiffness = None
+    c = simulate_pose_campaign(ur10, _markers(), hidden, 40, NOISE, seed=11)
+    write_pose_campaign(c, tmp_path / "c")
+    assert main(["diagnose", str(tmp_path / "c"), "--out", str(tmp_path / "d")]) == 0
+    out = tmp_path / "calibrated.urdf"
+    assert main(["robot", "export", "--model", str(tmp_path / "d" / "final-model.json"),
+                 "--urdf", str(out)]) == 0
+    from stiffness.calibration.pose_diagnose import read_pose_model
+    file = read_pose_model(tmp_path / "d" / "final-model.json")
+    predicted = file.model.evaluate(file.x, rows_of(file.model, c), jacobian=False)[0]
+    written = load_robot(str(out))
+    model, data = written.model, written.model.createData()
+    tracker = model.getFrameId("measuring_frame")
+    for i, q in enumerate(c.q):
+        pin.framesForwardKinematics(model, data, written.configuration(q))
+        for k, m in enumerate(file.model.markers):
+            seen = data.oMf[tracker].actInv(data.oMf[model.getFrameId(f"marker_{m.name}")])
+            assert np.allclose(seen.translation, predicted[i, k], rtol=0, atol=1e-9)

@@ -54,10 +54,10 @@ FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
 #: Typical size of one parameter of each family (SI), used to scale the regressor's columns.
 SCALES = {"frame": 1e-3, "markers": 1e-3, "joint_offsets": 1e-3, "geometry": 1e-3,
           "joint_compliance": 1e-6, "gravity_lumped": 1e-6}
-#: Units of one parameter of each family (revolute joints; prismatic ones use m and m/N).
-UNITS = {"frame": ("m", "m", "m", "rad", "rad", "rad"), "markers": "m", "joint_offsets": "rad",
-         "geometry": ("m", "m", "m", "rad", "rad", "rad"), "joint_compliance": "rad/(N.m)",
-         "gravity_lumped": "rad/(N.m) x (kg or kg.m)"}
+#: Units of the six components of a placement (the frame's and the geometry's).
+PLACEMENT_UNITS = ("m", "m", "m", "rad", "rad", "rad")
+#: Unit of a lumped gravity parameter (compliance times a mass or a mass moment).
+LUMPED_UNIT = "rad/(N.m) x (kg or kg.m)"
 _AXES6 = ("x", "y", "z", "rx", "ry", "rz")
 #: Gravity parameters of a link in Pinocchio's order (m, m c_x, m c_y, m c_z, inertia...).
 _GRAVITY_PARAMETERS = ("m", "mcx", "mcy", "mcz")
@@ -192,7 +192,7 @@ class PoseModel:
         for fam in self.families:
             if fam == "frame":
                 out += [Parameter(fam, f"frame {a}", SCALES[fam], u)
-                        for a, u in zip(_AXES6, UNITS[fam], strict=True)]
+                        for a, u in zip(_AXES6, PLACEMENT_UNITS, strict=True)]
             elif fam == "markers":
                 out += [Parameter(fam, f"{m.name} offset {a}", SCALES[fam], "m")
                         for m in self.markers for a in "xyz"]
@@ -201,13 +201,13 @@ class PoseModel:
                         for j in self.joints]
             elif fam == "geometry":
                 out += [Parameter(fam, f"{names[self.joints[n]]} placement {_AXES6[c]}",
-                                  SCALES[fam], UNITS[fam][c]) for n, c in self.geometry]
+                                  SCALES[fam], PLACEMENT_UNITS[c]) for n, c in self.geometry]
             elif fam == "joint_compliance":
                 out += [Parameter(fam, f"{names[j]} compliance", SCALES[fam],
                                   self._unit(j, "rad/(N.m)", "m/N")) for j in self._compliant()]
             else:
                 out += [Parameter(fam, f"{names[j]} x {names[k]} {p}", SCALES[fam],
-                                  UNITS["gravity_lumped"])
+                                  LUMPED_UNIT)
                         for j in self._compliant() for k in self._downstream(j)
                         for p in _GRAVITY_PARAMETERS]
         return out
@@ -321,9 +321,9 @@ class PoseModel:
             pin.updateFramePlacements(model, data)
             if jacobian:
                 pin.computeJointJacobians(model, data, q)
-            for k, (marker, fid) in enumerate(zip(self.markers, self.frame_ids, strict=True)):
+            for k, fid in enumerate(self.frame_ids):
                 placement = data.oMf[fid]
-                offset = self._offset(x, k, marker)
+                offset = self.marker_offset(x, k)
                 point = placement.act(offset)
                 world = self.rotation0 @ point
                 y[i, k] = rot_w @ world + self.translation0 + self._translation(x)
@@ -342,10 +342,16 @@ class PoseModel:
         sl = self.slices().get("frame")
         return x[sl][:3] if sl is not None else np.zeros(3)
 
-    def _offset(self, x: np.ndarray, k: int, marker: Marker) -> np.ndarray:
+    def marker_offset(self, x: np.ndarray, k: int) -> np.ndarray:
+        """Offset (3,) of marker ``k`` in its frame's axes (m) for parameters ``x``."""
         sl = self.slices().get("markers")
         extra = x[sl][3 * k: 3 * k + 3] if sl is not None else np.zeros(3)
-        return np.asarray(marker.offset, dtype=float) + extra
+        return np.asarray(self.markers[k].offset, dtype=float) + extra
+
+    def measuring_placement(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t) with ``y = R p + t`` for a robot-world point ``p``, parameters ``x``."""
+        rot, _ = self._measuring_rotation(x)
+        return rot @ self.rotation0, self.translation0 + self._translation(x)
 
     def _joint_motion(self, x: np.ndarray, row: RowTerms) -> np.ndarray:
         """Tangent step (nv,) from the commanded configuration: zero offsets plus deflection."""

@@ -15,12 +15,14 @@ is "unexplained", with its structure (per marker, per axis, along the row order)
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 from scipy import stats
 
 from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
@@ -275,6 +277,15 @@ def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLi
     return Path(path)
 
 
+def is_pose_model(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a pose calibration's model file (a JSON object of that kind)."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and doc.get("kind") == POSE_MODEL_KIND
+
+
 @dataclass
 class PoseModelFile:
     """A pose model file read back: its robot, its model and parameters."""
@@ -315,3 +326,40 @@ def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> Pose
         raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
                               "stiffness diagnose --out", path=path) from exc
     return PoseModelFile(robot, model, x, path)
+
+
+#: Frame added by :func:`calibrated_robot` at the measuring system's origin.
+MEASURING_FRAME = "measuring_frame"
+
+
+def calibrated_robot(file: PoseModelFile) -> Robot:
+    """The robot with its calibrated geometry, for other tools (``robot export --urdf``).
+
+    The placement errors and the zero offsets are folded into the joint placements
+    (``M_j exp(eps_j) M_joint(delta_j)``, so the written joint values are the commanded ones),
+    each marker becomes a frame ``marker_<name>`` at its calibrated offset, and the measuring
+    system's origin a frame :data:`MEASURING_FRAME` fixed to the world. The rigid positions of
+    the marker frames seen from :data:`MEASURING_FRAME` are the model's rigid predictions.
+    Compliance is not geometry: it stays in the model file.
+    """
+    pm, x = file.model, file.x
+    model = pm.perturbed_model(x)
+    sl = pm.slices().get("joint_offsets")
+    if sl is not None:
+        step = np.zeros(model.nv)
+        step[[model.joints[j].idx_v for j in pm.joints]] = x[sl]
+        data = model.createData()
+        pin.forwardKinematics(model, data, pin.integrate(model, pin.neutral(model), step))
+        for j in pm.joints:
+            model.jointPlacements[j] = pin.SE3(data.liMi[j])
+    for k, marker in enumerate(pm.markers):
+        frame = model.frames[model.getFrameId(marker.frame)]
+        offset = pin.SE3(np.eye(3), pm.marker_offset(x, k))
+        model.addFrame(pin.Frame(f"marker_{marker.name}", frame.parentJoint,
+                                 model.getFrameId(marker.frame), frame.placement * offset,
+                                 pin.FrameType.OP_FRAME))
+    rot, trans = pm.measuring_placement(x)
+    model.addFrame(pin.Frame(MEASURING_FRAME, 0, 0, pin.SE3(rot, trans).inverse(),
+                             pin.FrameType.OP_FRAME))
+    return dataclasses.replace(file.robot, model=model, data=model.createData(),
+                               name=f"{file.robot.name}-calibrated")

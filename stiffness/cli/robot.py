@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.calibration.pose_diagnose import calibrated_robot, is_pose_model, read_pose_model
 from stiffness.cli import flags
 from stiffness.elastic.model_file import read_model_file
 from stiffness.elastic.springs import model_springs
@@ -91,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stiffness robot export``."""
     if args.urdf is None and args.mjcf is None:
         raise StiffnessError("robot export needs --urdf OUT.urdf or --mjcf OUT.xml (or both)")
+    if args.model is not None and is_pose_model(args.model):
+        return _export_calibrated(args)
     model = read_model_file(args.model) if args.model is not None else None
     if model is not None and args.robot is not None:
         model.check_robot(args.robot)
@@ -109,4 +112,16 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         for path in written:
             print(f"wrote {path}")
+    return 0
+
+
+def _export_calibrated(args: argparse.Namespace) -> int:
+    """``--model`` is a pose calibration: write its calibrated geometry as a URDF."""
+    if args.mjcf is not None or args.urdf is None:
+        raise StiffnessError("a pose calibration's model file exports its calibrated geometry "
+                             "with --urdf OUT.urdf (its compliance stays in the model file)")
+    robot = calibrated_robot(read_pose_model(args.model))
+    path = atomic_write(args.urdf, robot_urdf(robot))
+    if not args.quiet:
+        print(f"wrote {path} (calibrated geometry; frames marker_<name> and measuring_frame)")
     return 0
