@@ -230,7 +230,7 @@ def atomic_write(path: str | os.PathLike[str], data: bytes | str) -> Path:
 
 
 def looks_like_path(source: str) -> bool:
-    return (Path(source).suffix.lower() in (".urdf", ".xml") or "/" in source
+    return (Path(source).suffix.lower() in (".urdf", ".xml", ".toml") or "/" in source
             or os.sep in source or Path(source).is_absolute())
 
 

@@ -226,15 +226,16 @@ def _kinematics_block(robot: Robot, q: np.ndarray, w: int, pose: bool) -> BatchK
 
     if placement is not None:
         placement[:, 3] = (0.0, 0.0, 0.0, 1.0)
-    cv = robot.compliant_v
     valid = np.ones(m, dtype=bool)
-    if closure is None and robot.mimics:
-        # mimic followers move with their leaders: S is not a selection
+    if closure is None and not robot.compliant_is_selection:
+        # mimic followers move with their leaders, coupled chain joints with their
+        # controller coordinates: S is not a selection
         e = compliant_projection(robot)
         basis = np.einsum("ia,mkij,jb->mkab", e, reorder_hessian(raw)[:, :w], e, optimize=True)
         jac = j_full @ e
     elif closure is None:
         # the Hessian rows are the unit-wrench basis [m, k, a, b] (a view of raw)
+        cv = robot.compliant_v
         basis = reorder_hessian(raw)[:, :w]
         if not _is_identity_selection(cv, nv):
             basis = basis[:, :, cv[:, None], cv[None, :]]
@@ -404,10 +405,12 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray:
     :func:`_projected_point_hessian` on its diagonal), with ``[v_a; omega_a]`` the columns of the
     (m, 6, n) Jacobian, rows [v; omega].
     """
-    if not robot.loop.is_open_chain or not one_coordinate_joints(robot):
+    if not robot.loop.is_open_chain or not one_coordinate_joints(robot) \
+            or robot.springs_on_controller:  # a controller coordinate's column mixes joints
         raise StiffnessError(
             f"{robot.name}: the unit-force K_C diagonal is read off the Jacobian only for open "
-            "chains of one-coordinate joints; take the diagonal of batch_kinematics' k_c_basis")
+            "chains of one-coordinate joints, each its own coordinate; take the diagonal of "
+            "batch_kinematics' k_c_basis")
     v, om = jacobian[:, :3], jacobian[:, 3:]
     return _cross0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
 
@@ -577,8 +580,8 @@ def single_force_block(robot: Robot, q: np.ndarray, force: np.ndarray, pose: boo
             record(i)
             if position is not None:
                 position[i] = translation
-    if closure is None and robot.mimics:
-        e = compliant_projection(robot)  # mimic followers move with their leaders
+    if closure is None and not robot.compliant_is_selection:
+        e = compliant_projection(robot)  # mimic followers, coupled chain joints
         return j_full @ e, e.T @ dg @ e, np.ones(m, dtype=bool), position
     if closure is None:
         cv = robot.compliant_v

@@ -83,13 +83,14 @@ def tree_configurations(robot: Robot, coordinates: np.ndarray,
     model = robot.model
     base = pin.neutral(model) if base is None else np.asarray(base, dtype=float)
     q = np.repeat(base[None, :], coordinates.shape[0], axis=0)
-    for i, name in enumerate(robot.coordinate_joints):
+    names, values = robot.joint_values(coordinates)  # through a [controller] coupling
+    for i, name in enumerate(names):
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 2:
-            q[:, joint.idx_q] = np.cos(coordinates[:, i])
-            q[:, joint.idx_q + 1] = np.sin(coordinates[:, i])
+            q[:, joint.idx_q] = np.cos(values[:, i])
+            q[:, joint.idx_q + 1] = np.sin(values[:, i])
         else:
-            q[:, joint.idx_q] = coordinates[:, i]
+            q[:, joint.idx_q] = values[:, i]
     for qi in q if robot.mimics else ():
         robot.follow(qi)  # mimic followers from their leaders (in place)
     return q

@@ -691,9 +691,7 @@ def _read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_
 
 
 def prismatic_mask(robot: Robot) -> np.ndarray:
-    kinds = [robot.model.joints[robot.model.getJointId(j)].shortname()
-             for j in robot.coordinate_joints]
-    return np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
+    return np.array([robot.is_prismatic(j) for j in robot.coordinate_joints], dtype=bool)
 
 
 def _coordinate_unit(robot: Robot, units: Units, index: int) -> tuple[float, str]:

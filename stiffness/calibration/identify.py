@@ -100,8 +100,7 @@ AGREEMENT_TOL_LOG = 1e-3
 MODEL_FILE = "identified-model.json"
 
 def _unit_of(robot: Robot, joint: str) -> str:
-    kind = robot.model.joints[robot.model.getJointId(joint)].shortname()
-    return "N/m" if kind.startswith("JointModelP") else "N.m/rad"
+    return "N/m" if robot.is_prismatic(joint) else "N.m/rad"
 
 
 def _paper_unit(unit: str) -> tuple[str, float]:
@@ -242,6 +241,10 @@ class Identification:
         The noise std the residuals are standardised by (m).
     model_path
         The identified-model file :meth:`write_model` wrote last, or ``None``.
+    stiffness_coordinates
+        The coordinates the stiffnesses refer to: ``"controller"`` (the springs act on the
+        controller's coordinates of a ``[controller]`` robot file) or ``"chain"`` (the
+        kinematic chain's joints).
     """
 
     campaign: str
@@ -288,6 +291,7 @@ class Identification:
     loss: str = "linear"
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
+    stiffness_coordinates: str = "chain"
 
     @property
     def ci95_method(self) -> str:
@@ -335,6 +339,7 @@ class Identification:
                       **({"fixed_base": True} if self.robot_fixed_base else {})},
             "formulation": self.formulation,
             "method": self.method,
+            "stiffness_coordinates": self.stiffness_coordinates,
             "joints": [
                 {"joint": j, "k": float(k), "unit": u, "k_paper_units": float(kp),
                  "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
@@ -670,6 +675,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         loss=best_fit.loss,
         outliers=outliers,
         outlier_sigma_m=flag_sigma,
+        stiffness_coordinates=rob.stiffness_coordinates,
     )
 
 

@@ -41,6 +41,7 @@ from stiffness.errors import (
     UnknownNameError,
     did_you_mean,
 )
+from stiffness.mechanics import ik
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
@@ -218,7 +219,7 @@ class Workspace:
 
 
 def _is_prismatic(robot: Robot, joint: str) -> bool:
-    return robot.model.joints[robot.model.getJointId(joint)].shortname().startswith("JointModelP")
+    return robot.is_prismatic(joint)
 
 
 
@@ -228,10 +229,13 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     Revolute joints within +-pi; a joint without finite limits: +-pi, or 0..0.1 m if prismatic.
     """
     model = robot.model
-    joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
-    lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
-    hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
-    prismatic = np.array([j.shortname().startswith("JointModelP") for j in joints])
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints], dtype=bool)
+    if robot.coupling is not None:  # the chain's limits, as the controller's coordinates
+        lo, hi = ik.coordinate_limits(robot)
+    else:
+        joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
+        lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
+        hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
     bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
     lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
     hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
@@ -250,9 +254,7 @@ def sampling_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 
     ref = default_coordinates(robot)
     ref = np.zeros(robot.n_coordinates) if ref is None else ref
-    model = robot.model
-    prismatic = np.array([model.joints[model.getJointId(j)].shortname().startswith("JointModelP")
-                          for j in robot.coordinate_joints])
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
     span = np.where(prismatic, np.maximum(LOOP_SPAN_FRACTION * np.abs(ref), 0.01),
                     LOOP_SPAN_RAD)
     return np.maximum(lo, ref - span), np.minimum(hi, ref + span)

@@ -566,8 +566,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     _check_map(settings, robot)
     columns, _ = join_tables(tables, settings.join)
     mapper = _Mapper(columns, settings, [t.path for t in tables])
-    prismatic = np.array([robot.model.joints[robot.model.getJointId(j)].shortname()
-                          .startswith("JointModelP") for j in robot.coordinate_joints])
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
     q_cols = mapper.group(tuple(f"q{i + 1}" for i in range(robot.n_coordinates)), True) or []
     q_file = np.column_stack([mapper.values(c.name, c, "length" if p else "angle")
                               for c, p in zip(q_cols, prismatic, strict=True)])

@@ -322,8 +322,7 @@ def robot_from_args(args: argparse.Namespace, fallback: object | None = None
 
 
 def _is_revolute(robot: Robot, joint: str) -> bool:
-    model = robot.model
-    return not model.joints[model.getJointId(joint)].shortname().startswith("JointModelP")
+    return not robot.is_prismatic(joint)
 
 
 def coordinate_index(robot: Robot, name: str, flag: str) -> int:

@@ -83,6 +83,12 @@ def format_table(result: Identification) -> str:
         + (f" ({result.campaign_path})" if result.campaign_path else "")
         + f": {result.n_rows} rows, {result.n_configurations} configurations, "
           f"{result.n_residuals} residuals, {result.n_parameters} stiffnesses",
+        f"stiffness in {result.stiffness_coordinates} coordinates "
+        + ("(the controller's, which the drives turn with)"
+           if result.stiffness_coordinates == "controller" else "(the kinematic chain's joints)"),
+        f"stiffness in {result.stiffness_coordinates} coordinates "
+        + ("(the controller's, which the drives turn with)"
+           if result.stiffness_coordinates == "controller" else "(the kinematic chain's joints)"),
         f"formulation {result.formulation}, method {result.method}, {len(result.starts)} "
         f"least-squares runs: " + ("all agree" if result.starts_agree else "they DISAGREE")
         + ("" if result.methods_agree is None else

@@ -98,8 +98,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _revolute(robot: Robot, joint: str) -> bool:
-    model = robot.model
-    return not model.joints[model.getJointId(joint)].shortname().startswith("JointModelP")
+    return not robot.is_prismatic(joint)
 
 
 def resolve(args: argparse.Namespace, inputs: kx.KxInputs | None = None

@@ -514,9 +514,7 @@ class JointPath:
 
 def angular_coordinates(robot: Robot) -> np.ndarray:
     """(n,) whether each coordinate of ``robot`` is an angle (not a prismatic joint's)."""
-    model = robot.model
-    return np.array([not model.joints[model.getJointId(j)].shortname().startswith(
-        "JointModelP") for j in robot.coordinate_joints])
+    return np.array([not robot.is_prismatic(j) for j in robot.coordinate_joints])
 
 
 @dataclass

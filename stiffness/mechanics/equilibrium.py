@@ -28,7 +28,12 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import ConvergenceError, UnstableEquilibriumError
-from stiffness.mechanics.formulation import as_wrench, tangent_joint_stiffness, target_state
+from stiffness.mechanics.formulation import (
+    as_wrench,
+    compliant_projection,
+    tangent_joint_stiffness,
+    target_state,
+)
 from stiffness.robot.robot import Robot
 
 #: Absolute floor of the convergence test, relative to the largest residual term: the round-off
@@ -319,8 +324,7 @@ def deflected_configurations(robot: Robot, q0: np.ndarray, dtheta: np.ndarray,
     """:func:`deflected_configuration` of (m, nq) configurations ``q0`` and ``seed`` and (m, n)
     deflections ``dtheta``: (m, nq) configurations, loops closed."""
     model = robot.model
-    dv = np.zeros((q0.shape[0], model.nv))
-    dv[:, robot.compliant_v] = dtheta
+    dv = np.asarray(dtheta) @ compliant_projection(robot).T  # followers, couplings move too
     target = np.array([pin.integrate(model, a, b) for a, b in zip(q0, dv, strict=True)])
     if robot.loop.is_open_chain:
         return target

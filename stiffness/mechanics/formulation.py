@@ -126,7 +126,11 @@ def velocity_projection(robot: Robot) -> np.ndarray:
 
 def compliant_projection(robot: Robot) -> np.ndarray:
     """(nv, n_compliant) tree-joint rates per compliant rate, loops aside: identity on the
-    compliant joints, each mimic follower at its multiplier times its leader."""
+    compliant joints, each mimic follower at its multiplier times its leader; for springs on
+    controller coordinates, each coordinate's column of the coupling's A
+    (:meth:`Robot.rate_projection`)."""
+    if robot.springs_on_controller:
+        return robot.rate_projection(robot.compliant_joints)
     followers = [(robot.joint_v_index(m.follower), robot.joint_v_index(m.leader), m.multiplier)
                  for m in robot.mimics]
     return closed_loop.base_projection(robot.compliant_v, robot.model.nv, followers)

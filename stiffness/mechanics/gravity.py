@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
+from stiffness.mechanics.formulation import compliant_projection
 from stiffness.robot.robot import Robot
 
 
@@ -50,7 +51,8 @@ def gravity_preload(robot: Robot, q: np.ndarray, model: pin.Model | None = None,
     model
         The model to weigh (default ``robot.model``; :func:`with_payload` adds a payload).
     columns
-        Velocity indices of the joints (default ``robot.compliant_v``).
+        Velocity indices of the joints (default: the compliant joints, each with its mimic
+        followers or through the ``[controller]`` coupling: ``compliant_projection``).
 
     Returns
     -------
@@ -60,10 +62,13 @@ def gravity_preload(robot: Robot, q: np.ndarray, model: pin.Model | None = None,
     require_open_chain(robot)
     model = robot.model if model is None else model
     data = robot.data if model is robot.model else model.createData()
-    v = robot.compliant_v if columns is None else np.asarray(columns, dtype=int)
+    if columns is None:
+        e = compliant_projection(robot)
+    else:
+        e = np.eye(model.nv)[:, np.asarray(columns, dtype=int)]
     g = np.array(pin.computeGeneralizedGravity(model, data, q))
     dg = np.array(pin.computeGeneralizedGravityDerivatives(model, data, q))
-    return -g[v], -dg[np.ix_(v, v)]
+    return -(e.T @ g), -(e.T @ dg @ e)
 
 
 def spring_balancer(theta: np.ndarray, stiffness: float, preload: float, lever_m: float,

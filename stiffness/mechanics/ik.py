@@ -72,15 +72,18 @@ def all_coordinates(robot: Robot) -> Robot:
     """
     if tuple(robot.compliant_joints) == tuple(robot.coordinate_joints):
         return robot
+    coupling = robot.coupling if robot.coupling is None else replace(
+        robot.coupling, springs_on="controller")  # rates of the controller's coordinates
     return replace(robot, compliant_joints=tuple(robot.coordinate_joints),
-                   data=robot.model.createData())
+                   data=robot.model.createData(), coupling=coupling)
 
 
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper position limits (rad, m) of the coordinates (+-inf where unbounded)."""
     model = robot.model
     lo, hi = [], []
-    for name in robot.coordinate_joints:
+    names, _ = robot.joint_values(np.zeros(robot.n_coordinates))
+    for name in names:
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 2:  # continuous joint: cos/sin pair, no limit
             lo.append(-np.inf)
@@ -90,6 +93,8 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
         bounded = np.isfinite(a) and np.isfinite(b) and b > a and abs(b - a) < 1e10
         lo.append(a if bounded else -np.inf)
         hi.append(b if bounded else np.inf)
+    if robot.coupling is not None:  # the chain's limits, as the controller's coordinates
+        return robot.coupling.limits(np.array(lo), np.array(hi))
     return np.array(lo), np.array(hi)
 
 

@@ -29,6 +29,7 @@ import pinocchio as pin
 from stiffness.errors import (
     FloatingBaseError,
     LoopClosureError,
+    RobotFileError,
     StiffnessError,
     UnknownFrameError,
     UnknownJointError,
@@ -36,6 +37,7 @@ from stiffness.errors import (
 )
 from stiffness.robot import kinematics
 from stiffness.robot.assembly import Assembly, least_squares_assembly
+from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
 from stiffness.robot.loops import (
     CLOSURE_TOLERANCE_M,
     LoopClosure,
@@ -110,6 +112,9 @@ class Robot:
         The loop declaration read, or None.
     fixed_base
         Whether a floating or planar base was fixed (``load_robot(..., fixed_base=True)``).
+    coupling
+        The controller's coordinates and their map to the chain joints (a ``[controller]``
+        section), or None: the coordinates are then joints of the model.
     """
 
     name: str
@@ -128,6 +133,7 @@ class Robot:
     notes: tuple[str, ...] = ()
     loop_file: str | None = None
     fixed_base: bool = False
+    coupling: CoordinateMap | None = None
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
     _visual_loader: Callable[[], object | None] | None = field(default=None, repr=False)
@@ -151,17 +157,78 @@ class Robot:
 
     def joint_v_index(self, joint: str) -> int:
         """Velocity index of a one-degree-of-freedom joint."""
+        if not self.model.existJointName(joint):
+            raise StiffnessError(f"{joint!r} is a controller coordinate of {self.name}, not a "
+                                 "joint: it has no velocity index (use rate_projection)")
         return self.model.joints[self.model.getJointId(joint)].idx_v
 
     @property
     def coordinate_v(self) -> np.ndarray:
-        """Velocity indices of the coordinate joints."""
+        """Velocity indices of the coordinate joints (a robot without ``coupling``)."""
         return np.array([self.joint_v_index(j) for j in self.coordinate_joints], dtype=int)
 
     @property
     def compliant_v(self) -> np.ndarray:
-        """Velocity indices of the compliant joints."""
+        """Velocity indices of the compliant joints (when they are joints of the model)."""
         return np.array([self.joint_v_index(j) for j in self.compliant_joints], dtype=int)
+
+    @property
+    def spring_joints(self) -> tuple[str, ...]:
+        """The names a spring can act on: the coordinates, or the chain joints of a
+        ``[controller]`` with ``springs_on = "chain"``."""
+        if self.coupling is not None and self.coupling.springs_on == "chain":
+            return self.coupling.chain
+        return self.coordinate_joints
+
+    @property
+    def springs_on_controller(self) -> bool:
+        """Whether the springs act on controller coordinates (not joints of the model)."""
+        return self.coupling is not None and self.coupling.springs_on == "controller"
+
+    @property
+    def compliant_is_selection(self) -> bool:
+        """Whether each compliant rate moves one joint alone (no mimic follower, no coupling):
+        the velocity map S of a tree is then a selection of joint columns."""
+        return not self.mimics and not self.springs_on_controller
+
+    @property
+    def stiffness_coordinates(self) -> str:
+        """The coordinates K_theta refers to: ``"controller"`` (a ``[controller]`` with
+        ``springs_on = "controller"``) or ``"chain"`` (the model's joints)."""
+        return "controller" if self.springs_on_controller else "chain"
+
+    def is_prismatic(self, name: str) -> bool:
+        """Whether a coordinate or joint is a length (m) rather than an angle (rad)."""
+        if self.coupling is not None and name in self.coupling.coordinates:
+            return self.coupling.prismatic[self.coupling.coordinates.index(name)]
+        return self._joint(name).shortname().startswith("JointModelP")
+
+    def rate_projection(self, names: tuple[str, ...] | list[str]) -> np.ndarray:
+        """(nv, len(names)) joint rates per unit rate of each named coordinate or joint.
+
+        A joint's column is a unit column (plus each mimic follower at its multiplier); a
+        controller coordinate's column is its column of the map's A spread on the chain
+        joints. Passive loop joints stay still (the loop closure adds them).
+        """
+        out = np.zeros((self.model.nv, len(names)))
+        for i, name in enumerate(names):
+            if self.coupling is not None and name in self.coupling.coordinates:
+                for joint, rate in zip(self.coupling.chain, self.coupling.column(name),
+                                       strict=True):
+                    out[self.joint_v_index(joint), i] += rate
+                continue
+            out[self.joint_v_index(name), i] = 1.0
+            for m in self.mimics:
+                if m.leader == name:
+                    out[self.joint_v_index(m.follower), i] += m.multiplier
+        return out
+
+    def joint_values(self, coords: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
+        """The joints the coordinates set and their values (..., n) (rad or m): the
+        coordinate joints themselves, or the chain joints through the ``coupling``."""
+        if self.coupling is None:
+            return self.coordinate_joints, np.asarray(coords, dtype=float)
+        return self.coupling.chain, self.coupling.chain_values(coords)
 
     @property
     def compliant_in_coordinates(self) -> np.ndarray:
@@ -186,6 +253,9 @@ class Robot:
 
     def coordinates_of(self, q: np.ndarray) -> np.ndarray:
         """Coordinates (rad or m) of a full configuration ``q``."""
+        if self.coupling is not None:
+            return self.coupling.coordinates_of(
+                np.array([self._value(q, name) for name in self.coupling.chain]))
         return np.array([self._value(q, name) for name in self.coordinate_joints])
 
     def follow(self, q: np.ndarray) -> np.ndarray:
@@ -196,7 +266,8 @@ class Robot:
 
     def _tree_configuration(self, coords: np.ndarray, base: np.ndarray) -> np.ndarray:
         q = base.copy()
-        for value, name in zip(coords, self.coordinate_joints, strict=True):
+        names, values = self.joint_values(coords)
+        for value, name in zip(values, names, strict=True):
             self._set_value(q, name, value)
         return self.follow(q)
 
@@ -593,6 +664,13 @@ def load_robot(
                 f"{coordinate_joints}"
             )
         coordinate_joints = list(order)
+    coupling = _controller(name, settings, model, coordinate_joints, not loop.is_open_chain,
+                           mimics)
+    spring_names = coordinate_joints
+    if coupling is not None:
+        coordinate_joints = list(coupling.coordinates)
+        spring_names = coordinate_joints if coupling.springs_on == "controller" \
+            else list(coupling.chain)
 
     closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
     gripper = _gripper_joints(model, src.all_mimics + src.mimics)
@@ -605,17 +683,20 @@ def load_robot(
         raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
 
     if compliant_joints is None:
-        compliant_joints = settings.get("compliant_joints", coordinate_joints)
+        compliant_joints = settings.get("compliant_joints", spring_names)
     compliant_joints = tuple(compliant_joints)
     for joint_name in compliant_joints:
-        if joint_name not in coordinate_joints:
+        if joint_name not in spring_names:
             why = (" (it is a passive loop joint)" if joint_name in passive else
                    " (it is a mimic follower: its leader carries the spring)"
                    if joint_name in dependent else "")
+            if coupling is not None:
+                why = (f" (its springs act on the {coupling.springs_on}'s coordinates: "
+                       "[controller] springs_on)")
             raise UnknownJointError(
                 f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
-                f"{did_you_mean(joint_name, coordinate_joints)}", name=joint_name,
-                choices=coordinate_joints)
+                f"{did_you_mean(joint_name, spring_names)}", name=joint_name,
+                choices=spring_names)
     if len(set(compliant_joints)) != len(compliant_joints):
         raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
 
@@ -644,7 +725,26 @@ def load_robot(
         notes=tuple(notes),
         loop_file=None if declaration is None else declaration.path,
         fixed_base=fixed_base,
+        coupling=coupling,
     )
+
+
+def _controller(name: str, settings: dict, model: pin.Model, chain: list[str], looped: bool,
+                mimics: tuple[Mimic, ...]) -> CoordinateMap | None:
+    """The ``[controller]`` map of a robot file over its chain joints, or None without one."""
+    if "controller" not in settings:
+        return None
+    path = settings.get("_file", name)
+    if looped or mimics or "coordinate_order" in settings:
+        what = "a closed loop" if looped else "mimic joints" if mimics else "coordinate_order"
+        raise RobotFileError(path, None, f"[controller] coordinates cannot be combined with "
+                             f"{what}: write the coupling in [controller] alone")
+    kinds = {j: "prismatic" if model.joints[model.getJointId(j)].shortname().startswith(
+        "JointModelP") else "revolute" for j in chain}
+    dh = settings.get("dh")
+    units = {k: dh[k] for k in ("angle_unit", "length_unit")
+             if isinstance(dh, dict) and k in dh}
+    return read_coordinate_map(settings["controller"], path, kinds, units)
 
 
 def _gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:

@@ -1,4 +1,5 @@
-"""Where a robot comes from: a shipped robot, a URDF path (and its loop sidecar), or
+"""Where a robot comes from: a shipped robot, a URDF path (and its loop sidecar), a
+``robot.toml`` (or the folder holding one: its ``urdf`` or its ``[dh]`` table), or
 example-robot-data.
 
 A URDF path inside a folder whose ``robot.toml`` names that file (``urdf = "..."``) is that
@@ -22,8 +23,15 @@ from typing import TYPE_CHECKING
 
 import pinocchio as pin
 
-from stiffness.errors import FileFormatError, StiffnessError, UnknownRobotError, did_you_mean
+from stiffness.errors import (
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    UnknownRobotError,
+    did_you_mean,
+)
 from stiffness.files import read_toml
+from stiffness.robot.dh import TOOL, build_dh_model, read_dh_table
 from stiffness.robot.meshes import MissingMesh
 from stiffness.robot.urdf import Mimic, mimic_tags, read_urdf, warn
 
@@ -114,14 +122,37 @@ def find_loop_sidecar(urdf: Path) -> Path | None:
     return None
 
 
-def _from_toml(folder: Path, name: str) -> RobotSource:
-    settings = read_toml(folder / "robot.toml", "robot file")
+def _from_toml(folder: Path, name: str, toml: Path | None = None) -> RobotSource:
+    """The robot of a ``robot.toml`` (``folder/robot.toml`` unless ``toml`` is given): its
+    ``urdf`` or its ``[dh]`` table (:mod:`stiffness.robot.dh`)."""
+    toml = folder / "robot.toml" if toml is None else toml
+    settings = read_toml(toml, "robot file")
+    settings["_folder"], settings["_file"] = folder, toml
+    if "dh" in settings:
+        return _from_dh(toml, name, settings)
+    if "urdf" not in settings:
+        raise FileFormatError("names no robot: give urdf = \"<file>.urdf\" or a [dh] table "
+                              "(docs/robot-files.md)", path=toml)
     urdf = folder / settings["urdf"]
     read = read_urdf(urdf)
-    settings["_folder"] = folder
     loop_file = folder / settings["loops"] if "loops" in settings else None
     return RobotSource(name, read.model, read.visual, settings, read.mimics, read.missing_meshes,
                        loop_file, urdf, all_mimics=read.all_mimics)
+
+
+def _from_dh(toml: Path, name: str, settings: dict) -> RobotSource:
+    """A robot described by the ``[dh]`` table of ``toml``; its target defaults to the tool."""
+    if "urdf" in settings:
+        raise FileFormatError("gives both urdf and a [dh] table: describe the robot by one of "
+                              "them", path=toml, field="urdf")
+    if "loops" in settings:
+        raise FileFormatError("a [dh] robot is a tree: it has no loop file (write a "
+                              "parallelogram as a [controller] coupling)", path=toml,
+                              field="loops")
+    model = build_dh_model(read_dh_table(settings["dh"], toml),
+                           str(settings.get("name", name)), toml)
+    settings.setdefault("frame", TOOL)
+    return RobotSource(name, model, None, settings, notes=[f"DH table of {toml}"])
 
 
 def _toml_naming(path: Path) -> bool:
@@ -235,6 +266,12 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
     if text in shipped:
         return _from_toml(robots_directory() / text, text)
     path = Path(text)
+    if path.suffix.lower() == ".toml" or (path.is_dir() and (path / "robot.toml").is_file()):
+        toml = path if path.suffix.lower() == ".toml" else path / "robot.toml"
+        if not toml.is_file():
+            raise MissingFileError(f"robot file {toml} does not exist; give the path of a "
+                                   "robot.toml", path=toml)
+        return _from_toml(toml.parent, text, toml)
     if path.suffix.lower() in (".urdf", ".xml") or path.exists():
         if path.is_file() and _toml_naming(path):
             found = _from_toml(path.parent, text)

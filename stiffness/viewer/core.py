@@ -841,8 +841,7 @@ class StiffnessViewer:
         return out
 
     def _prismatic(self, joint: str) -> bool:
-        model = self.robot.model
-        return model.joints[model.getJointId(joint)].shortname().startswith("JointModelP")
+        return self.robot.is_prismatic(joint)
 
     def _controls_spec(self) -> dict:
         st, model = self.state, self.robot.model

@@ -67,7 +67,8 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
     moments = spec.moments
     out: dict[str, np.ndarray] = {"index": ids, "coordinates": coords}
     single_force = loads.shape[0] == 1 and not moments and (
-        not want["diagonal"] or (robot.loop.is_open_chain and batch.one_coordinate_joints(robot)))
+        not want["diagonal"] or (robot.loop.is_open_chain and batch.one_coordinate_joints(robot)
+                                 and not robot.springs_on_controller))
     if single_force:
         jac, k_c, kin_valid, position = batch.single_force_block(
             robot, q, loads[0, :3], pose=want["position"])

@@ -133,7 +133,8 @@ class Geometry:
     robot
         The robot with every coordinate joint compliant (the campaign's frame and offset).
     joints
-        Coordinate joints (the columns of :attr:`Rows.jac`).
+        Coordinate joints, or the chain joints of springs on the chain (the columns of
+        :attr:`Rows.jac`: :attr:`Robot.spring_joints`).
     chain
         Joints supporting the target, base to tip (passive loop joints included).
     prismatic
@@ -153,17 +154,16 @@ class Geometry:
     def of(cls, robot: Robot) -> Geometry:
         """Geometry of ``robot`` (reloaded with every coordinate joint compliant)."""
         full = robot
-        if tuple(robot.compliant_joints) != tuple(robot.coordinate_joints):
+        if tuple(robot.compliant_joints) != tuple(robot.spring_joints):
             full = cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
-                                tuple(robot.coordinate_joints), robot.loop_file,
+                                tuple(robot.spring_joints), robot.loop_file,
                                 robot.fixed_base)
         model = full.model
         parent = model.frames[full.target_frame_id].parentJoint
         chain = tuple(model.names[j] for j in model.supports[parent] if j > 0
                       and model.joints[j].nv == 1)
-        kinds = [model.joints[model.getJointId(j)].shortname() for j in full.coordinate_joints]
-        prismatic = np.array([k.startswith("JointModelP") for k in kinds], dtype=bool)
-        geo = cls(full, tuple(full.coordinate_joints), chain, prismatic)
+        prismatic = np.array([full.is_prismatic(j) for j in full.spring_joints], dtype=bool)
+        geo = cls(full, tuple(full.spring_joints), chain, prismatic)
         geo.link_columns = geo._choose_link_columns()
         return geo
 
@@ -236,7 +236,7 @@ class Geometry:
             pos[c] = states[0].position
             rot[c] = states[0].rotation
             if self.robot.loop.is_open_chain:
-                g_tau[c], g_k[c] = gravity_preload(self.robot, q, columns=self.robot.coordinate_v)
+                g_tau[c], g_k[c] = gravity_preload(self.robot, q)
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
                     chain_rot[index], force, moment, index, coords, g_tau[index], g_k[index])
 
