@@ -80,25 +80,26 @@ class Term:
 
     def value(
         self,
-        theta: Mapping[str, complex | float],
+        theta: Mapping[str, complex | float | np.ndarray],
         lengths: Mapping[str, float],
-    ) -> complex | float:
+    ) -> complex | float | np.ndarray:
         """Evaluate the term.
 
         Parameters
         ----------
-        theta : Mapping[str, complex | float]
-            Angles ``"t1".."t6"`` in rad (complex allowed, for complex-step use).
+        theta : Mapping[str, complex | float | np.ndarray]
+            Angles ``"t1".."t6"`` in rad (complex allowed, for complex-step use; arrays
+            evaluate the term at many poses).
             ``"t2-t3"`` is computed from ``"t2"`` and ``"t3"``.
         lengths : Mapping[str, float]
             Length symbols; a missing symbol means 0.
 
         Returns
         -------
-        complex | float
-            The term value, in length units.
+        complex | float | np.ndarray
+            The term value, in length units (an array for array angles).
         """
-        out = self.sign * lengths.get(self.length, 0.0)
+        out: complex | float | np.ndarray = self.sign * lengths.get(self.length, 0.0)
         for func, arg in self.factors:
             x = theta["t2"] - theta["t3"] if arg == "t2-t3" else theta[arg]
             out = out * _FUNCTIONS[func](x)
@@ -235,7 +236,7 @@ def appendix_element(
     name: str,
     theta: np.ndarray,
     lengths: Mapping[str, float],
-) -> complex | float:
+) -> complex | float | np.ndarray:
     """Evaluate one printed Jacobian element.
 
     Parameters
@@ -249,11 +250,12 @@ def appendix_element(
 
     Returns
     -------
-    complex | float
-        The element value, in length unit / rad.
+    complex | float | np.ndarray
+        The element value, in length unit / rad (an array for arrays of angles).
     """
     angles = _angle_map(theta)
-    total = 0.0 * angles["t1"]  # keeps the input dtype (complex stays complex)
+    # 0 with the input dtype (complex stays complex)
+    total: complex | float | np.ndarray = 0.0 * angles["t1"]
     for term in APPENDIX_TERMS[name]:
         total = total + term.value(angles, lengths)
     return total

@@ -228,7 +228,7 @@ def wrap_deg(angle: float) -> float:
 
 def _affine_text(lhs: str, offset: float, coefs: Mapping[str, int]) -> str:
     """``lhs = a - b + 90 deg`` from unit coefficients and an offset (deg)."""
-    parts = []
+    parts: list[str] = []
     for name, c in coefs.items():
         if c == 0:
             continue
@@ -253,6 +253,13 @@ def _options() -> tuple[list[tuple[float, int]], list[tuple[float, int, int]]]:
     single = [(o, s) for o in _OFFSETS_DEG for s in _SIGNS]
     third = [(o, s, k) for k in _T3_COUPLINGS for o in _OFFSETS_DEG for s in _SIGNS]
     return single, third
+
+
+def _angle_options(i: int, single: Sequence[tuple[float, int]],
+                   third: Sequence[tuple[float, int, int]]) -> Sequence[tuple[float, int, int]]:
+    """The candidates of angle ``i`` (0-based) as ``(offset, sign, coupling)``: ``third`` for
+    ``t3``, else ``single`` with coupling 0 (unused)."""
+    return third if i == 2 else [(o, s, 0) for o, s in single]
 
 
 @dataclass
@@ -311,7 +318,7 @@ class MatchTables:
         self.tol = SEARCH_REL * scale
         trig: dict[str, np.ndarray] = {}
         for i in range(6):
-            opts = third if i == 2 else single
+            opts = _angle_options(i, single, third)
             ang = np.array([np.deg2rad(opt[0]) + opt[1] * theta_dh[:, i]
                             + (opt[2] * theta_dh[:, 1] if i == 2 else 0.0) for opt in opts])
             trig[f"cos(t{i + 1})"] = self._axis_array(np.cos(ang), i)
@@ -446,7 +453,7 @@ def find_convention(
     # simplest first: departures from the identity map
     cost = np.zeros(winners.shape[0], dtype=int)
     for i in range(6):
-        opts = third if i == 2 else single
+        opts = _angle_options(i, single, third)
         c_opt = np.array([int(opt[0] != 0.0) + int(opt[1] < 0)
                           + (4 * abs(opt[2]) if i == 2 else 0) for opt in opts])
         cost += c_opt[cand[i][winners]]
@@ -461,8 +468,8 @@ def find_convention(
         sgns = tuple(single[idx[i]][1] if i != 2 else s3 for i in range(6))
         f2, f3 = _BASE_FLIPS[idx[6]]
         conventions.append(AppendixConvention(offs, sgns, k3, (1, f2, f3)))
-    idx = tuple(cand[i][order[0]] for i in range(7))
-    matching = [n for n in cheap if np.broadcast_to(matches[n], full_shape)[idx]]
+    best = tuple(cand[i][order[0]] for i in range(7))
+    matching = [n for n in cheap if np.broadcast_to(matches[n], full_shape)[best]]
     matching += [n for n, ok in extra_match.items() if ok[order[0]]]
     return ConventionSearch(conventions[0], best_score, sorted(matching), conventions,
                             int(winners.shape[0]), int(np.prod(full_shape)))
@@ -482,7 +489,7 @@ def _match_j11_j21(
     n_cand, n_pose = cand[0].shape[0], theta_dh.shape[0]
     t_cand = np.zeros((n_cand, n_pose, 6))
     for i in range(6):
-        opts = third if i == 2 else single
+        opts = _angle_options(i, single, third)
         off = np.deg2rad(np.array([opt[0] for opt in opts]))[cand[i]]
         sgn = np.array([opt[1] for opt in opts], dtype=float)[cand[i]]
         t_cand[:, :, i] = off[:, None] + sgn[:, None] * theta_dh[None, :, i]

@@ -99,10 +99,14 @@ def apply_edits(terms: TermsByElement, edits: Sequence[Edit]) -> dict[str, tuple
     drops: dict[str, set[int]] = {}
     for e in edits:
         if e.kind == "add":
+            assert e.new is not None  # an addition has its term and no index
             out[e.element].append(e.new)
-        elif e.kind == "drop":
+            continue
+        assert e.index is not None  # the other edits are of a printed term
+        if e.kind == "drop":
             drops.setdefault(e.element, set()).add(e.index)
         else:
+            assert e.new is not None  # and all but a drop replace it
             out[e.element][e.index] = e.new
     for name, idx in drops.items():
         out[name] = [t for i, t in enumerate(out[name]) if i not in idx]
@@ -172,8 +176,9 @@ def edit_delta(edit: Edit, t: np.ndarray, lengths: Mapping[str, float]) -> np.nd
     np.ndarray, shape (P,)
         ``new - old`` at every pose (mm/rad).
     """
-    new = terms_values([edit.new], t, lengths) if edit.new is not None else 0.0
-    old = terms_values([edit.old], t, lengths) if edit.old is not None else 0.0
+    zero = np.zeros(len(t))
+    new = terms_values([edit.new], t, lengths) if edit.new is not None else zero
+    old = terms_values([edit.old], t, lengths) if edit.old is not None else zero
     return new - old
 
 
@@ -229,7 +234,8 @@ def explain_element(
     edits = _single_edits(name, terms, lengths)
     deltas = np.array([edit_delta(e, t, lengths) for e in edits]) / tol[None, :]
     err1 = np.abs(resid[None, :] - deltas).max(axis=1)
-    singles = [(e,) for e, err in zip(edits, err1, strict=True) if err <= 1.0]
+    singles: list[tuple[Edit, ...]] = [(e,) for e, err in zip(edits, err1, strict=True)
+                                       if err <= 1.0]
     if singles or max_edits < 2:
         return singles
     # pairs: screen with L2 norms (Gram matrix), then verify in the max norm
@@ -239,7 +245,7 @@ def explain_element(
     sq = resid @ resid - 2.0 * (rd[:, None] + rd[None, :]) + (
         np.diag(gram)[:, None] + np.diag(gram)[None, :] + 2.0 * gram)
     ii, jj = np.nonzero(np.triu(sq <= n_pose * 4.0, k=1))
-    pairs = []
+    pairs: list[tuple[Edit, ...]] = []
     for i, j in zip(ii, jj, strict=True):
         a, b = edits[i], edits[j]
         if a.index is not None and a.index == b.index:

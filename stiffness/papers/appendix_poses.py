@@ -14,6 +14,7 @@ import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -189,7 +190,8 @@ def build_generic_robot(extra_mm: Mapping[str, float], printed: AngleConvention)
              "L5": ("5", "a")}
     for sym, value in extra_mm.items():
         row, field_name = edits[sym]
-        table1[row] = replace(table1[row], **{field_name: value * 1e-3})
+        changes: dict[str, Any] = {field_name: value * 1e-3}
+        table1[row] = replace(table1[row], **changes)
     loops = robots_directory() / "sk120" / "sk120.loops.yaml"
     with tempfile.TemporaryDirectory(prefix="sk120_generic_") as tmp:
         urdf = Path(tmp) / "sk120_generic.urdf"

@@ -435,9 +435,9 @@ def _symmetric_map_residual(forces: np.ndarray, values: np.ndarray) -> np.ndarra
         design[:, a, p] += forces[:, b]
         if a != b:
             design[:, b, p] += forces[:, a]
-    design = design.reshape(-1, len(_SYMMETRIC))
-    params, *_ = np.linalg.lstsq(design, values.reshape(-1), rcond=None)
-    return (values.reshape(-1) - design @ params).reshape(values.shape)
+    rows = design.reshape(-1, len(_SYMMETRIC))
+    params, *_ = np.linalg.lstsq(rows, values.reshape(-1), rcond=None)
+    return (values.reshape(-1) - rows @ params).reshape(values.shape)
 
 
 def linear_map_fits(rows: list[dict]) -> dict[str, dict]:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -142,10 +143,12 @@ def sk120_urdf(table1: dict[str, DHRow], convention: AngleConvention) -> str:
             robot.joint(name, "revolute", parent, child, origin, [0.0, 0.0, sign],
                         (-np.pi, np.pi, 10000.0, 2.0))
 
-    for args in [("base_link",), ("link1", r1.a), ("lower_arm", coupler), ("crank", crank),
-                 ("coupler", coupler), ("forearm", -crank), ("link4", r4.d, "z"), ("link5",),
-                 ("link6", r6.d, "z"), ("coupler_end",), ("forearm_rear",), ("tool0",),
-                 ("fixture_target",)]:
+    link_args: list[tuple[Any, ...]] = [
+        ("base_link",), ("link1", r1.a), ("lower_arm", coupler), ("crank", crank),
+        ("coupler", coupler), ("forearm", -crank), ("link4", r4.d, "z"), ("link5",),
+        ("link6", r6.d, "z"), ("coupler_end",), ("forearm_rear",), ("tool0",),
+        ("fixture_target",)]
+    for args in link_args:
         link(*args)
     shoulder = _dh_fixed(r1)
     joint("joint1", "base_link", "link1", _rot_z(o[0]), s[0])

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,7 @@ def read_paper_table(table: str) -> list[dict]:
     """
     out = []
     for rec in _records(table):
-        row = {
+        row: dict[str, Any] = {
             "config": rec["config"],
             "q": np.array([float(rec[f"q{i}"]) for i in range(1, 7)]),
             "force_N": np.array([float(rec[k]) for k in ("fx", "fy", "fz")]),

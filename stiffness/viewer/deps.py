@@ -12,6 +12,7 @@ import importlib.util
 import sys
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 
@@ -25,16 +26,10 @@ def _meshcat() -> Any:
         import meshcat.geometry
         import umsgpack
 
-    class _Modules:
-        pass
-
-    modules = _Modules()
-    modules.meshcat = meshcat
-    modules.geometry = meshcat.geometry
-    modules.animation = meshcat.animation
-    modules.msgpack = umsgpack
-    modules.viewer_js = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
-    return modules
+    return SimpleNamespace(
+        meshcat=meshcat, geometry=meshcat.geometry, animation=meshcat.animation,
+        msgpack=umsgpack,
+        viewer_js=Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js")
 
 
 def _pinocchio_meshcat_visualizer() -> type:

@@ -23,13 +23,21 @@ class SceneStore:
     def _node() -> dict:
         return {"object": None, "properties": {}, "transform": None, "children": {}}
 
-    def _find(self, path: str, create: bool = True) -> dict | None:
+    def _find(self, path: str) -> dict:
+        """The node at ``path``, created with its parents where missing."""
         node = self.root
         for name in [p for p in path.split("/") if p]:
             if name not in node["children"]:
-                if not create:
-                    return None
                 node["children"][name] = self._node()
+            node = node["children"][name]
+        return node
+
+    def _existing(self, path: str) -> dict | None:
+        """The node at ``path``, or None where it (or a parent) is missing."""
+        node = self.root
+        for name in [p for p in path.split("/") if p]:
+            if name not in node["children"]:
+                return None
             node = node["children"][name]
         return node
 
@@ -43,7 +51,7 @@ class SceneStore:
             if not names:
                 self.root, self.animation = self._node(), None
                 return
-            parent = self._find("/".join(names[:-1]), create=False)
+            parent = self._existing("/".join(names[:-1]))
             if parent is not None:
                 parent["children"].pop(names[-1], None)
             return

@@ -24,12 +24,15 @@ import time
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stiffness.errors import StiffnessError
 from stiffness.viewer.deps import _meshcat
 from stiffness.viewer.page import render_page
 from stiffness.viewer.scene import SceneStore
+
+if TYPE_CHECKING:
+    import zmq
 
 #: Address the live server binds by default (loopback only).
 LOOPBACK = "127.0.0.1"
@@ -147,15 +150,17 @@ class LiveServer:
         self.zmq_url, self.web_url = urls["zmq_url"], urls["web_url"]
         threading.Thread(target=self._drain, daemon=True).start()
         self._context = zmq.Context()
-        self._socket = None
-        self._connect()
+        self._socket = self._command_socket()
 
     def _read_urls(self) -> dict:
         found: dict = {}
         lines: list[str] = []
 
+        stdout = self.process.stdout
+        assert stdout is not None  # opened with stdout=PIPE
+
         def reader() -> None:
-            for line in self.process.stdout:
+            for line in stdout:
                 lines.append(line.strip())
                 if line.startswith("web_url="):
                     return
@@ -177,8 +182,10 @@ class LiveServer:
         return found
 
     def _drain(self) -> None:
+        stdout = self.process.stdout
+        assert stdout is not None  # opened with stdout=PIPE
         try:
-            for _ in self.process.stdout:
+            for _ in stdout:
                 pass
         except (OSError, ValueError):
             pass
@@ -189,15 +196,20 @@ class LiveServer:
         except OSError:
             return "unreadable"
 
-    def _connect(self) -> None:
+    def _command_socket(self) -> zmq.Socket:
+        """A new REQ socket connected to the server's command socket."""
         import zmq
 
-        if self._socket is not None:
-            self._socket.close(linger=0)
-        self._socket = self._context.socket(zmq.REQ)
-        self._socket.setsockopt(zmq.LINGER, 0)
-        self._socket.setsockopt(zmq.SNDTIMEO, int(self.timeout * 1000))
-        self._socket.connect(self.zmq_url)
+        socket = self._context.socket(zmq.REQ)
+        socket.setsockopt(zmq.LINGER, 0)
+        socket.setsockopt(zmq.SNDTIMEO, int(self.timeout * 1000))
+        socket.connect(self.zmq_url)
+        return socket
+
+    def _connect(self) -> None:
+        """Replace the command socket (a REQ socket left waiting cannot send again)."""
+        self._socket.close(linger=0)
+        self._socket = self._command_socket()
 
     def request(self, frames: list[bytes], timeout: float | None = None) -> bytes:
         """Send one command, return the server's answer.
@@ -296,7 +308,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
     (the owner died without closing it; it then removes its log file ``log_path``). Every
     connection is bounded by ``limits`` (:class:`ServerLimits`).
     """
-    limits = limits or ServerLimits()
+    bounds = limits or ServerLimits()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         import tornado.httpserver
@@ -321,7 +333,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
         pending = 0  # bytes queued for this page and not yet written to its socket
 
         def prepare(self) -> None:
-            if len(state["pool"]) >= limits.max_websockets:
+            if len(state["pool"]) >= bounds.max_websockets:
                 self.set_status(503)
                 self.finish("too many viewer pages are connected")
 
@@ -346,7 +358,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
     def send(socket: Socket, message: bytes | str, binary: bool) -> None:
         """Queue ``message`` for one page; drop the page if it stopped reading."""
         size = len(message)
-        if socket.pending + size > limits.max_pending_bytes:
+        if socket.pending + size > bounds.max_pending_bytes:
             state["pool"].discard(socket)
             socket.close(1008, "not reading")
             return
@@ -369,7 +381,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
             send(socket, message, binary)
 
     class BoundedHTTPServer(tornado.httpserver.HTTPServer):
-        """At most ``limits.max_connections`` open: a new one evicts the oldest non-page one."""
+        """At most ``bounds.max_connections`` open: a new one evicts the oldest non-page one."""
 
         streams: collections.OrderedDict = collections.OrderedDict()
 
@@ -377,7 +389,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
             streams = self.streams
             for old in [s for s in streams if s.closed()]:
                 del streams[old]
-            if len(streams) >= limits.max_connections:
+            if len(streams) >= bounds.max_connections:
                 pages = {page.ws_connection.stream for page in state["pool"]
                          if page.ws_connection is not None}
                 victim = next((s for s in streams if s not in pages), None)
@@ -393,14 +405,14 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
         (r"/", Page),
         (r"/websocket", Socket),
         (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT}),
-    ], websocket_max_message_size=limits.max_message_bytes,
-        websocket_ping_interval=limits.ping_interval_s,
-        websocket_ping_timeout=limits.ping_interval_s)
+    ], websocket_max_message_size=bounds.max_message_bytes,
+        websocket_ping_interval=bounds.ping_interval_s,
+        websocket_ping_timeout=bounds.ping_interval_s)
     sockets = tornado.netutil.bind_sockets(
-        port, address=host, backlog=max(128, limits.max_connections))
+        port, address=host, backlog=max(128, bounds.max_connections))
     server = BoundedHTTPServer(
-        app, idle_connection_timeout=limits.idle_timeout_s, body_timeout=limits.idle_timeout_s,
-        max_header_size=limits.max_header_bytes, max_body_size=limits.max_body_bytes)
+        app, idle_connection_timeout=bounds.idle_timeout_s, body_timeout=bounds.idle_timeout_s,
+        max_header_size=bounds.max_header_bytes, max_body_size=bounds.max_body_bytes)
     server.add_sockets(sockets)
     web_port = sockets[0].getsockname()[1]
 
@@ -408,7 +420,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
     rep = context.socket(zmq.REP)
     rep.setsockopt(zmq.LINGER, 0)
     rep.bind(f"tcp://{host}:*")
-    zmq_url = rep.getsockopt(zmq.LAST_ENDPOINT).decode()
+    zmq_url = rep.getsockopt_string(zmq.LAST_ENDPOINT)
     stream = ZMQStream(rep)
 
     def stop() -> None:
