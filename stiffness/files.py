@@ -5,25 +5,41 @@ is missing or unreadable raises :class:`~stiffness.errors.MissingFileError`, one
 broken a :class:`~stiffness.errors.FileFormatError` with its line and column, each with a
 one-line message naming the file, the problem and the fix.
 
-Writing (:func:`atomic_write`, :func:`atomic_write_with`, :func:`output_folder`): a reader
-never sees a half-written file, and a failure loses nothing. The data is written to a temporary
-file beside the target (``.<name>.<pid>.<random>.tmp``), flushed to disk, then renamed over the
-target. A process killed mid-write leaves the target as it was (absent or the previous complete
-version) plus at most its temporary file, which the next write of the same target removes once
-its writing process is gone. A write that fails (a full disk, a read-only folder, ``--out``
-naming an existing file) removes its temporary file and raises
-:class:`~stiffness.errors.OutputError` with one line naming the path and the fix.
+Writing (:func:`atomic_write`, :func:`atomic_write_with`, :func:`output_folder`,
+:func:`staged_folder`): a reader never sees a half-written file, and a failure loses nothing.
+The data is written to a temporary file beside the target (``.<name>.<pid>.<random>.tmp``),
+flushed to disk, then renamed over the target. A process killed mid-write leaves the target as
+it was (absent or the previous complete version) plus at most its temporary file, which the
+next write of the same target removes once its writing process is gone. A write that fails (a
+full disk, a read-only folder, ``--out`` naming an existing file) removes its temporary file
+and raises :class:`~stiffness.errors.OutputError` with one line naming the path and the fix.
+
+A command that writes a folder (a report, a diagnosis, a campaign, a plan, a scan) builds it
+in a staging folder beside the target (``.<name>.<pid>.<random>.staging``) and publishes it by
+one rename (:func:`staged_folder`); an existing target is first renamed aside
+(``.<name>.<pid>.<random>.aside``) and removed after. Killed at any point, the target is absent,
+or the complete previous folder, or the complete new one, never a mix. The next run for the same
+target sweeps what dead processes left: their staging folders are removed (a resumable scan
+adopts one instead) and an aside folder is put back when the target is absent (killed between
+the two renames), else removed.
+
+Fault injection (tests only): with ``STIFFNESS_KILL_AT_RENAME=N`` in the environment, the
+process kills itself with SIGKILL just before the N-th rename this module makes (1-based,
+counting atomic writes and folder publications), so a test can stop a command at each of them.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
 import re
+import shutil
+import signal
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -209,7 +225,7 @@ def atomic_write_with(path: str | os.PathLike[str], write: Callable[[BinaryIO], 
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, path.stat().st_mode & 0o777 if path.exists() else 0o644)
-        os.replace(tmp, path)
+        _rename(tmp, path)
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)
         raise _output_error(path, exc) from exc
@@ -223,6 +239,160 @@ def atomic_write(path: str | os.PathLike[str], data: bytes | str) -> Path:
     """Write ``data`` (text is UTF-8 encoded, newlines kept as given) atomically to ``path``."""
     payload = data.encode("utf-8") if isinstance(data, str) else data
     return atomic_write_with(path, lambda f: f.write(payload))
+
+
+#: Renames made by this process (the count :data:`KILL_AT_RENAME` compares with).
+_RENAMES = [0]
+#: Environment variable of the fault-injection hook (see the module docstring).
+KILL_AT_RENAME = "STIFFNESS_KILL_AT_RENAME"
+
+
+def _rename(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> None:
+    """:func:`os.replace`, counted for the fault-injection hook."""
+    _RENAMES[0] += 1
+    if os.environ.get(KILL_AT_RENAME) == str(_RENAMES[0]):
+        os.kill(os.getpid(), signal.SIGKILL)
+    os.replace(source, target)
+
+
+#: Suffixes of the folders :func:`staged_folder` makes beside its target.
+_STAGING, _ASIDE = ".staging", ".aside"
+
+
+def _leftovers(target: Path, suffix: str) -> list[tuple[Path, int]]:
+    """Folders ``.<target name>.<pid>.<random><suffix>`` beside ``target`` and their pids."""
+    out = []
+    prefix = f".{target.name}."
+    for path in target.parent.iterdir():
+        if not (path.name.startswith(prefix) and path.name.endswith(suffix)):
+            continue
+        parts = path.name[len(prefix): -len(suffix)].split(".")
+        if len(parts) == 2 and parts[0].isdigit() and path.is_dir():
+            out.append((path, int(parts[0])))
+    return out
+
+
+def _dead(pid: int) -> bool:
+    """Whether no process ``pid`` runs (another user's live process counts as running)."""
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+def _sweep(target: Path, resume: bool) -> Path | None:
+    """Clean what dead processes left beside ``target``; return a staging folder to resume
+    (with ``resume``), else None."""
+    for aside, pid in _leftovers(target, _ASIDE):
+        if _dead(pid):
+            if not target.exists():
+                os.replace(aside, target)  # killed between its two renames: put it back
+            else:
+                shutil.rmtree(aside, ignore_errors=True)
+    adopted = None
+    stagings = sorted(_leftovers(target, _STAGING), key=lambda s: -s[0].stat().st_mtime)
+    for staging, pid in stagings:
+        if not _dead(pid):
+            continue
+        if resume and adopted is None:
+            adopted = staging
+        else:
+            shutil.rmtree(staging, ignore_errors=True)
+    return adopted
+
+
+def _hidden_name(target: Path, suffix: str) -> Path:
+    return target.parent / f".{target.name}.{os.getpid()}.{os.urandom(4).hex()}{suffix}"
+
+
+def _refuse_enclosing(target: Path) -> None:
+    """Refuse to replace the working folder or one enclosing it."""
+    here = Path.cwd().resolve()
+    if target.exists() and (target.resolve() == here or target.resolve() in here.parents):
+        raise OutputError(f"cannot write the output folder {target}: it is the working folder "
+                          "or encloses it, and publishing replaces it whole; give a new folder",
+                          path=target)
+
+
+@contextlib.contextmanager
+def staged_folder(target: str | os.PathLike[str], resume: bool = False) -> Iterator[Path]:
+    """Build the folder ``target`` in a staging folder beside it, then publish it by one rename.
+
+    Yields the staging folder to write into. When the block ends normally, an existing
+    ``target`` is renamed aside, the staging folder renamed to ``target`` and the old folder
+    removed; when it raises, the staging folder is removed and ``target`` is left as it was.
+    Inside another ``staged_folder`` of the same process (``target`` is a staging folder
+    being built) it yields ``target`` itself. See the module docstring for what a kill leaves.
+
+    Parameters
+    ----------
+    resume
+        Start from what is there (a resumable scan): a dead process's staging folder for
+        ``target`` is adopted, else the files of an existing ``target`` are linked (or copied)
+        into the new staging folder.
+
+    Raises
+    ------
+    OutputError
+        ``target`` or a parent is a file, the folder is not writable, or ``target`` is the
+        working folder or encloses it.
+    """
+    target = Path(target)
+    if target.name.endswith(_STAGING) and f".{os.getpid()}." in target.name:
+        yield target
+        return
+    output_folder(target, create=False)
+    _refuse_enclosing(target)
+    output_folder(target.parent)
+    adopted = _sweep(target, resume)
+    staging = _hidden_name(target, _STAGING)
+    try:
+        if adopted is not None:
+            os.replace(adopted, staging)
+        elif resume and target.is_dir():
+            shutil.copytree(target, staging, copy_function=_link_or_copy)
+        else:
+            staging.mkdir()
+    except OSError as exc:
+        raise _output_error(staging, exc) from exc
+    try:
+        yield staging
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    _publish(staging, target)
+
+
+def _link_or_copy(source: str, destination: str) -> None:
+    """A hard link of ``source`` at ``destination``, or a copy where links are not possible
+    (files are replaced by rename, never rewritten in place, so a link shares nothing that
+    changes)."""
+    try:
+        os.link(source, destination)
+    except OSError:
+        shutil.copy2(source, destination)
+
+
+def _publish(staging: Path, target: Path) -> None:
+    """Rename ``staging`` to ``target``, an existing ``target`` moved aside first."""
+    aside = None
+    try:
+        if target.exists():
+            aside = _hidden_name(target, _ASIDE)
+            _rename(target, aside)
+        _rename(staging, target)
+    except OSError as exc:
+        if aside is not None and not target.exists():
+            os.replace(aside, target)
+        shutil.rmtree(staging, ignore_errors=True)
+        raise _output_error(target, exc) from exc
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 # ------------------------------------------------------------------------------------------
