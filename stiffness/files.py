@@ -320,7 +320,8 @@ def _refuse_enclosing(target: Path) -> None:
 
 
 @contextlib.contextmanager
-def staged_folder(target: str | os.PathLike[str], resume: bool = False) -> Iterator[Path]:
+def staged_folder(target: str | os.PathLike[str], resume: bool = False,
+                  keep_others: bool = False) -> Iterator[Path]:
     """Build the folder ``target`` in a staging folder beside it, then publish it by one rename.
 
     Yields the staging folder to write into. When the block ends normally, an existing
@@ -335,6 +336,10 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False) -> Itera
         Start from what is there (a resumable scan): a dead process's staging folder for
         ``target`` is adopted, else the files of an existing ``target`` are linked (or copied)
         into the new staging folder.
+    keep_others
+        Keep the files of an existing ``target`` that the new folder does not write (a
+        campaign folder may hold the robot's URDF or the rig's files): they are linked into
+        the staging folder before it is published.
 
     Raises
     ------
@@ -365,7 +370,18 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False) -> Itera
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    if keep_others and target.is_dir():
+        _carry_over(target, staging)
     _publish(staging, target)
+
+
+def _carry_over(old: Path, new: Path) -> None:
+    """Link (or copy) into ``new`` the files of ``old`` that ``new`` does not have."""
+    for path in old.rglob("*"):
+        there = new / path.relative_to(old)
+        if path.is_file() and not path.name.endswith(".tmp") and not there.exists():
+            there.parent.mkdir(parents=True, exist_ok=True)
+            _link_or_copy(str(path), str(there))
 
 
 def _link_or_copy(source: str, destination: str) -> None:

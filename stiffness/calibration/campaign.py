@@ -70,11 +70,11 @@ from stiffness.errors import (
 from stiffness.files import (
     atomic_write,
     looks_like_path,
-    output_folder,
     read_text,
     read_toml,
     resolve_path,
     resolve_source,
+    staged_folder,
     written_path,
 )
 from stiffness.mechanics.ik import coordinate_limits
@@ -1019,10 +1019,11 @@ def _num(x: float) -> str:
 
 
 def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
-    """Write a campaign as ``campaign.toml`` plus its CSV in ``folder``, atomically per file.
+    """Write a campaign as ``campaign.toml`` plus its CSV in ``folder``, published as one folder.
 
-    Each file is written to a temporary file in ``folder`` then moved over the target with
-    :func:`os.replace`, so a reader never sees a half-written file. The CSV is written first.
+    The folder is built beside ``folder`` and renamed over it
+    (:func:`stiffness.files.staged_folder`; other files already in ``folder``, such as the
+    robot's URDF, are kept), so a reader never sees a half-written campaign.
 
     Parameters
     ----------
@@ -1058,7 +1059,6 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
             rotation_noise_std_rad=getattr(c, "rotation_noise_std_rad", None),
         )
     folder = Path(folder)
-    output_folder(folder)
     u = c.units
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     n_q = c.q.shape[1]
@@ -1081,11 +1081,10 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     writer.writerow(header)
     for label, row in zip(c.config, table, strict=True):
         writer.writerow([label, *(_num(v) for v in row)])
-    atomic_write(folder / data_name, out.getvalue())
-
-    target = folder / CAMPAIGN_FILE
-    atomic_write(target, campaign_toml(c, folder))
-    return target
+    with staged_folder(folder, keep_others=True) as stage:  # published by one rename
+        atomic_write(stage / data_name, out.getvalue())
+        atomic_write(stage / CAMPAIGN_FILE, campaign_toml(c, folder))
+    return folder / CAMPAIGN_FILE
 
 
 def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:

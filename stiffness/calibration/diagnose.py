@@ -60,7 +60,7 @@ from stiffness.elastic.effects.geometry import Geometry, References, Rows
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, output_folder
+from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
@@ -770,20 +770,16 @@ class Diagnosis:
         ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
         (default: this process's command line)."""
         folder = Path(folder)
-        output_folder(folder)
-        paths = {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
-                 "final_model": folder / FINAL_MODEL_FILE}
         record = self.record()
-        atomic_write(paths["diagnosis"], json.dumps(record, indent=1) + "\n")
-        self.model_file().write(paths["final_model"])
         png = residual_plot(self)
-        tmp = paths["plot"].with_suffix(".png.tmp")
-        tmp.write_bytes(png)
-        tmp.replace(paths["plot"])
-        paths["page"] = folder / DIAGNOSIS_PAGE
-        atomic_write(paths["page"], render_diagnosis(record, png,
-                                                          provenance(command)))
-        return paths
+        with staged_folder(folder) as stage:  # published whole, by one rename
+            atomic_write(stage / DIAGNOSIS_FILE, json.dumps(record, indent=1) + "\n")
+            self.model_file().write(stage / FINAL_MODEL_FILE)
+            atomic_write(stage / RESIDUALS_PLOT, png)
+            atomic_write(stage / DIAGNOSIS_PAGE, render_diagnosis(record, png,
+                                                                  provenance(command)))
+        return {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
+                "final_model": folder / FINAL_MODEL_FILE, "page": folder / DIAGNOSIS_PAGE}
 
 
 # ------------------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from stiffness.batch import kernels as batch
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, output_folder
+from stiffness.files import atomic_write, staged_folder
 from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
 from stiffness.mechanics.formulation import compliance, target_states
 from stiffness.papers import figures as plots
@@ -378,20 +378,21 @@ def _identify_progress():
 
 def write_report(out: Path, summary: dict, figures: dict[str, bytes],
                  scene: Callable[[Path], object] | None = None) -> None:
-    """Write report.html, summary.json, the PNGs and the 3-D scene atomically into ``out``.
+    """Write report.html, summary.json, the PNGs and the 3-D scene into ``out``, published as
+    one folder (:func:`stiffness.files.staged_folder`).
 
     ``scene(path)`` writes the 3-D scene of :func:`scene_robot` to ``out / SCENE_FILE`` (the
     ``stiffness report`` command passes the viewer's export: the viewer sits above this layer);
     None writes no scene.
     """
-    output_folder(out)
-    if scene is not None:
-        scene(out / SCENE_FILE)
-    for name, data in figures.items():
-        atomic_write(out / name, data)
-    atomic_write(out / "summary.json", json.dumps(summary, indent=1, default=_json_default
-                                                   ).encode())
-    atomic_write(out / "report.html", render_html(summary, figures).encode())
+    with staged_folder(out) as folder:  # published whole, by one rename
+        if scene is not None:
+            scene(folder / SCENE_FILE)
+        for name, data in figures.items():
+            atomic_write(folder / name, data)
+        atomic_write(folder / "summary.json", json.dumps(summary, indent=1,
+                                                         default=_json_default).encode())
+        atomic_write(folder / "report.html", render_html(summary, figures).encode())
 
 
 def _json_default(value):

@@ -54,7 +54,7 @@ from stiffness.errors import (
     MissingFileError,
     StiffnessError,
 )
-from stiffness.files import atomic_write, output_folder, read_text
+from stiffness.files import atomic_write, read_text, staged_folder
 from stiffness.robot.robot import Robot
 
 #: Name of the plan CSV inside a plan folder.
@@ -142,14 +142,14 @@ def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
         return atomic_write(out, plan_csv(plan, robot))
     if plan.robot_settings is None:
         raise StiffnessError("a plan folder needs the robot settings for its campaign.toml")
-    output_folder(out)
-    csv_path = atomic_write(out / PLAN_FILE, plan_csv(plan, robot))
     stub = Campaign(name=plan.name, baseline=plan.baseline, robot_settings=plan.robot_settings,
                     q=plan.q, force=plan.force, deflection=np.zeros_like(plan.force),
                     config=plan.config, noise_std_m=plan.noise_std_m, units=plan.units,
                     data_file=PLAN_FILE, _robot=robot)
-    atomic_write(out / CAMPAIGN_FILE, campaign_toml(stub, out))
-    return csv_path
+    with staged_folder(out, keep_others=True) as folder:  # published by one rename
+        atomic_write(folder / PLAN_FILE, plan_csv(plan, robot))
+        atomic_write(folder / CAMPAIGN_FILE, campaign_toml(stub, out))
+    return out / PLAN_FILE
 
 
 def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None]:

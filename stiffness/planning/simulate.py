@@ -74,7 +74,7 @@ from stiffness.errors import (
     UnknownNameError,
     did_you_mean,
 )
-from stiffness.files import atomic_write
+from stiffness.files import atomic_write, staged_folder
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import (
@@ -404,8 +404,11 @@ class Simulation:
 
     def write(self, folder: str | Path) -> Path:
         """Write ``campaign.toml``, ``measurements.csv`` and ``truth.json``; returns the toml."""
-        path = write_campaign(self.campaign, folder)
-        atomic_write(Path(folder) / TRUTH_FILE, json.dumps(self.truth(), indent=1) + "\n")
+        folder = Path(folder)
+        with staged_folder(folder, keep_others=True) as stage:  # published by one rename
+            written = write_campaign(self.campaign, stage)
+            atomic_write(stage / TRUTH_FILE, json.dumps(self.truth(), indent=1) + "\n")
+        path = folder / written.name
         self.campaign.path = path
         return path
 
