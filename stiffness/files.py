@@ -297,7 +297,7 @@ def _sweep(target: Path, resume: bool) -> Path | None:
     adopted = None
     stagings = sorted(_leftovers(target, _STAGING), key=lambda s: -s[0].stat().st_mtime)
     for staging, pid in stagings:
-        if not _dead(pid):
+        if not (_dead(pid) or (resume and pid == os.getpid())):
             continue
         if resume and adopted is None:
             adopted = staging
@@ -333,9 +333,10 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False,
     Parameters
     ----------
     resume
-        Start from what is there (a resumable scan): a dead process's staging folder for
-        ``target`` is adopted, else the files of an existing ``target`` are linked (or copied)
-        into the new staging folder.
+        Start from what is there (a resumable scan): a staging folder for ``target`` left by
+        a dead process (or by a failed build of this one) is adopted, else the files of an
+        existing ``target`` are linked (or copied) into the new staging folder; a build that
+        fails keeps its staging folder for the next run to continue.
     keep_others
         Keep the files of an existing ``target`` that the new folder does not write (a
         campaign folder may hold the robot's URDF or the rig's files): they are linked into
@@ -368,7 +369,8 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False,
     try:
         yield staging
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        if not resume:  # a resumable build is kept for the next run to continue
+            shutil.rmtree(staging, ignore_errors=True)
         raise
     if keep_others and target.is_dir():
         _carry_over(target, staging)

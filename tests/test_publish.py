@@ -153,9 +153,8 @@ def test_report_killed_at_its_publication_is_the_previous_report_or_absent(
                                str(target), "--quiet"], env=env, capture_output=True,
                               timeout=300)
         assert done.returncode == -signal.SIGKILL, done.stderr[-2000:]
-        if expected == "absent":
-            assert not target.exists()
-            with pytest.raises(RuntimeError), files.staged_folder(target):
-                raise RuntimeError("a next run that fails at once, after its sweep")
+        assert target.exists() == (expected == "previous")
+        with pytest.raises(RuntimeError), files.staged_folder(target):
+            raise RuntimeError("a next run that fails at once, after its sweep")
         assert {p.name: p.read_bytes() for p in target.iterdir()} == before
         assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

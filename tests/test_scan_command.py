@@ -524,7 +524,9 @@ def test_failed_write_keeps_the_finished_chunks_and_resumes(tmp_path, monkeypatc
     with pytest.raises(OutputError):
         engine.run_scan(scan_command.build_spec(_parsed(common + ["--out", str(broken)]))[0],
                         broken, plots=False)
-    done = sorted(p.name for p in (broken / "chunks").glob("aggregate-*.npz"))
+    assert not broken.exists()  # the folder is published whole; the next run resumes it
+    building = next(tmp_path.glob(".broken.*.staging"))
+    done = sorted(p.name for p in (building / "chunks").glob("aggregate-*.npz"))
     assert "aggregate-00003.npz" not in done and {"aggregate-00000.npz", "aggregate-00001.npz",
                                                  "aggregate-00002.npz"} <= set(done)
     monkeypatch.setattr(engine, "write_chunk", write)

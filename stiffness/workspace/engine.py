@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.errors import MissingFileError, StiffnessError
-from stiffness.files import atomic_write, atomic_write_with, output_folder
+from stiffness.files import atomic_write, atomic_write_with, staged_folder
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.workspace.distributed import run_chunks, warm_worker, worker_robot
 from stiffness.workspace.maps import MapAccumulator, compute_maps, derive, stored_arrays
@@ -354,6 +354,9 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
         What to compute.
     out
         Output folder; if it holds a scan with the same spec, its finished chunks are kept.
+        It is built beside ``out`` and published by one rename
+        (:func:`stiffness.files.staged_folder`); a scan killed on the way is resumed from the
+        folder it was building.
     formats
         "npz" and/or "parquet".
     scheduler, workers, client
@@ -385,6 +388,16 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
     """
     out = Path(out)
     check_scan_size(spec, out, formats)
+    with staged_folder(out, resume=True) as folder:  # published whole, by one rename
+        return _scan_into(spec, folder, out, formats, scheduler, workers, client, plots,
+                          progress, write_on_workers, chunks_per_task)
+
+
+def _scan_into(spec: ScanSpec, out: Path, shown: Path, formats: tuple[str, ...],
+               scheduler: str | None, workers: int | None, client: object | None, plots: bool,
+               progress: Callable[[int, int], None] | None, write_on_workers: bool | None,
+               chunks_per_task: int | None) -> dict:
+    """:func:`run_scan` into the folder ``out`` being built (``shown`` in messages)."""
     manifest = {"layout": LAYOUT_VERSION, "spec": spec.to_dict(), "formats": list(formats),
                 "n_configurations": spec.n_configurations, "n_chunks": spec.n_chunks,
                 "units": _UNITS, "classes": list(DEFINITENESS_CLASSES), "undefined": UNDEFINED}
@@ -393,11 +406,10 @@ def run_scan(spec: ScanSpec, out: str | os.PathLike, formats: tuple[str, ...] = 
         previous = json.loads(manifest_file.read_text())
         if previous.get("spec") != json.loads(json.dumps(spec.to_dict())):
             raise StiffnessError(
-                f"{out} holds a different scan (its manifest.json differs); give a new --out "
+                f"{shown} holds a different scan (its manifest.json differs); give a new --out "
                 "folder, or the same options to resume it"
             )
     else:
-        output_folder(out)
         atomic_write(manifest_file, json.dumps(manifest, indent=1))
     acc = MapAccumulator(spec)
     done = set()
