@@ -368,6 +368,11 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False,
         raise _output_error(staging, exc) from exc
     try:
         yield staging
+    except OutputError as exc:  # named where the user looks: the target, not the staging
+        if not resume:
+            shutil.rmtree(staging, ignore_errors=True)
+        raise OutputError(str(exc).replace(str(staging), str(target)),
+                          path=str(exc.path).replace(str(staging), str(target))) from exc
     except BaseException:
         if not resume:  # a resumable build is kept for the next run to continue
             shutil.rmtree(staging, ignore_errors=True)
