@@ -56,18 +56,20 @@ _ON_FIRST_USE = {
     "batch_kinematics": "stiffness.batch.kernels",
     "close_loops": "stiffness.batch.loops",
     "definiteness_map": "stiffness.batch.kernels",
-    # scan: workspace maps
+    # workspace: workspace maps (scan: the command `stiffness scan` as a function)
     "ScanSpec": "stiffness.workspace.engine",
     "run_scan": "stiffness.workspace.engine",
     "load_scan": "stiffness.workspace.engine",
-    # calibration: campaigns, identification, diagnosis, synthetic campaigns
+    "scan": "stiffness.workspace.request",
+    # calibration: campaigns, identification, diagnosis
     "Campaign": "stiffness.calibration.campaign",
     "load_campaign": "stiffness.calibration.campaign",
     "identify": "stiffness.calibration.identify",
     "diagnose": "stiffness.calibration.diagnose",
+    # planning: synthetic campaigns, experiment design
     "simulate": "stiffness.planning.simulate",
     "design": "stiffness.planning.design",
-    # calibration: compensation along a path, the stiffest posture
+    # machining: compensation along a path, the stiffest posture
     "ElasticModel": "stiffness.elastic.loaded",
     "compensate": "stiffness.machining.compensation",
     "posture": "stiffness.machining.posture",
@@ -130,6 +132,7 @@ __all__ = [
     "posture",
     "reorder_twist",
     "run_scan",
+    "scan",
     "shipped_robots",
     "simulate",
     "solve_equilibrium",

@@ -29,6 +29,8 @@ from stiffness.mechanics.formulation import (
     target_state,
 )
 from stiffness.robot.robot import load_robot
+from stiffness.workspace import engine
+from stiffness.workspace.spec import ScanSpec
 
 UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
 GRID = ["--axis", "shoulder_lift_joint=-90:0:30", "--axis", "elbow_joint=20:140:40",
@@ -42,7 +44,7 @@ def _run(argv, capsys=None):
 
 
 def _arrays(folder):
-    return scan_command.load_scan(folder)
+    return engine.load_scan(folder)
 
 
 # ------------------------------------------------------------------------------ Table IV
@@ -189,8 +191,8 @@ def test_resume_recomputes_only_missing_chunks(tmp_path):
     (out / "chunks" / "chunk-00002.npz").unlink()
     (out / "chunks" / "aggregate-00002.npz").unlink()
     (out / "chunks" / "aggregate-00003.npz").unlink()
-    spec = scan_command.ScanSpec.from_dict(json.loads((out / "manifest.json").read_text())["spec"])
-    summary = scan_command.run_scan(spec, out, plots=False)
+    spec = ScanSpec.from_dict(json.loads((out / "manifest.json").read_text())["spec"])
+    summary = engine.run_scan(spec, out, plots=False)
     assert summary["chunks"] == {"total": 5, "computed": 2, "resumed": 3, "chunk_size": 10}
     after = _arrays(out)
     for key in before:
@@ -217,12 +219,12 @@ def test_dask_local_cluster_gives_the_same_maps(tmp_path):
     assert main([*common, "--out", str(dask), "--workers", "2"]) == 0
     # a given client (a remote cluster): the chunks' arrays travel back and are written here
     distributed = pytest.importorskip("distributed")
-    spec = scan_command.ScanSpec.from_dict(json.loads((local / "manifest.json").read_text())[
+    spec = ScanSpec.from_dict(json.loads((local / "manifest.json").read_text())[
         "spec"])
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
-        gathered = scan_command.run_scan(spec, tmp_path / "gathered", client=client, plots=False)
+        gathered = engine.run_scan(spec, tmp_path / "gathered", client=client, plots=False)
     assert gathered["chunks"]["computed"] == 6
     a = _arrays(local)
     for other in (dask, tmp_path / "gathered"):
@@ -507,7 +509,6 @@ def test_failed_write_keeps_the_finished_chunks_and_resumes(tmp_path, monkeypatc
     writer thread finished before it stay complete (files and aggregate), and rerunning the
     command computes only the rest and gives the maps of an uninterrupted scan."""
     from stiffness.errors import OutputError
-    from stiffness.workspace import engine
 
     common = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "60", "--seed", "4",
               "--chunk-size", "10", "--no-plots", "--quiet"]
@@ -612,13 +613,12 @@ def test_projected_bytes_bound_the_written_bytes_and_meet_the_free_space(tmp_pat
     import shutil as shutil_module
     from collections import namedtuple
 
-    from stiffness.workspace import engine
 
     argv = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--samples", "600", "--chunk-size",
             "300", "--no-plots", "--quiet"]
     assert main([*argv, "--out", str(tmp_path / "ok")]) == 0
     summary = json.loads((tmp_path / "ok" / "summary.json").read_text())
-    spec = scan_command.ScanSpec.from_dict(
+    spec = ScanSpec.from_dict(
         json.loads((tmp_path / "ok" / "manifest.json").read_text())["spec"])
     per = engine.stored_bytes_per_configuration(spec)
     assert per <= summary["bytes_per_configuration"] <= 1.1 * per

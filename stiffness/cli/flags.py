@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
-from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
+from stiffness.errors import StiffnessError
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
     from stiffness.robot.robot import Robot
@@ -325,27 +325,6 @@ def _is_revolute(robot: Robot, joint: str) -> bool:
     return not robot.is_prismatic(joint)
 
 
-def coordinate_index(robot: Robot, name: str, flag: str) -> int:
-    """Position in the coordinate vector of a joint name or ``q1``, ``q2``... (1-based).
-
-    Raises
-    ------
-    UnknownJointError
-        If ``name`` is neither a coordinate joint nor ``q1..qn``.
-    """
-    names = list(robot.coordinate_joints)
-    if name in names:
-        return names.index(name)
-    match = re.fullmatch(r"q(\d+)", name)
-    if match and 1 <= int(match.group(1)) <= len(names):
-        return int(match.group(1)) - 1
-    passive = not robot.loop.is_open_chain and name in robot.loop.passive_joints
-    why = " (a passive loop joint: it follows the others)" if passive else ""
-    raise UnknownJointError(
-        f"{flag}: {name!r} is not a coordinate of {robot.name}{why}; use a joint name or q1..q"
-        f"{len(names)}: {did_you_mean(name, names)}", name=name, choices=names)
-
-
 def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: bool = True,
                           flag: str = "--q") -> np.ndarray:
     """Coordinates (rad, m) of ``--q``/``--deg``, or the robot's default configuration.
@@ -367,6 +346,7 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
         On a malformed value or a wrong count; :class:`UnknownJointError` on an unknown name.
     """
     from stiffness.mechanics.defaults import default_coordinates
+    from stiffness.robot.robot import coordinate_index
 
     text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
     shipped = default_coordinates(robot)

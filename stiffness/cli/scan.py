@@ -48,25 +48,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from stiffness.batch import kernels as batch
 from stiffness.cli import flags
 from stiffness.cli.flags import parse_list, robot_from_args, stiffness_required
-from stiffness.cli.kx import _identified_model, compliant_model_from_args
-from stiffness.elastic.model_file import BEYOND_SPRINGS
+from stiffness.cli.kx import compliant_model_from_args
+from stiffness.elastic.model_file import BEYOND_SPRINGS, ModelFile, read_model_file
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.papers.presets import SCAN_PRESETS
-from stiffness.robot.robot import Robot
+from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.workspace.definiteness import terminal_progress
-from stiffness.workspace.engine import load_scan, run_scan, scan_chunk
+from stiffness.workspace.request import DEFAULT_LOAD_N, scan, scan_spec
 from stiffness.workspace.spec import (
     COMPRESSIONS,
     COUNT_LABELS,
@@ -74,19 +71,10 @@ from stiffness.workspace.spec import (
     DTYPES,
     STORED_FIELDS,
     ScanSpec,
-    grid_length,
-    parse_fields,
 )
-
-# The scan engine lives in stiffness.workspace.engine (figures: stiffness.workspace.plots);
-# ScanSpec, load_scan, run_scan and scan_chunk are re-exported for code that imports them here.
-__all__ = ["DEFAULT_LOAD_N", "FORMATS", "PRESETS", "ScanSpec", "build_spec", "configure_parser",
-           "default_out", "load_scan", "run", "run_scan", "scan_chunk"]
 
 PRESETS = tuple(SCAN_PRESETS)
 FORMATS = ("npz", "parquet", "both")
-#: Default load case when none is given (N): 100 N downwards.
-DEFAULT_LOAD_N = (0.0, 0.0, -100.0)
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -169,24 +157,6 @@ def _angle_scale(robot: Robot, index: int, deg: bool) -> float:
     return np.pi / 180.0 if deg and not joint.shortname().startswith("JointModelP") else 1.0
 
 
-def _joint_range(robot: Robot, index: int) -> tuple[float, float]:
-    """Sampling range of a coordinate: its joint limits, or [-pi, pi] when unlimited."""
-    model = robot.model
-    joint = model.joints[model.getJointId(robot.coordinate_joints[index])]
-    prismatic = joint.shortname().startswith("JointModelP")
-    if joint.nq == 1:
-        lo = float(model.lowerPositionLimit[joint.idx_q])
-        hi = float(model.upperPositionLimit[joint.idx_q])
-        if np.isfinite(lo) and np.isfinite(hi) and hi > lo and max(abs(lo), abs(hi)) < 1e3:
-            return lo, hi
-    if prismatic:
-        raise StiffnessError(
-            f"prismatic joint {robot.coordinate_joints[index]!r} has no finite limits: give its "
-            "range with --axis NAME=LO:HI (m)"
-        )
-    return -np.pi, np.pi
-
-
 def _refuse_unscannable(model) -> None:
     """The batched scan models joint springs only: refuse a model whose link or nonlinear
     effects would change K_X (kx and view apply them at chosen poses)."""
@@ -199,76 +169,47 @@ def _refuse_unscannable(model) -> None:
             "--model` at chosen poses, or give --kq to scan the springs alone")
 
 
-def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
-    """The scan specification of a command line (and the loaded robot)."""
+def _model_file(args: argparse.Namespace) -> ModelFile | None:
+    """The ``--model`` file (checked against ``--robot``), or None."""
+    if args.model is None:
+        return None
+    model = read_model_file(args.model)
+    if args.robot is not None:
+        model.check_robot(args.robot)
+    return model
+
+
+def _robot(args: argparse.Namespace) -> tuple[Robot, dict, list[float] | None]:
+    """The robot of ``--model`` (with its stiffness effects) or of the robot flags, the
+    arguments the chunks load it with, and its springs (N.m/rad, N/m; None: the robot's)."""
     model = compliant_model_from_args(args)
+    kq = parse_list(args.kq, "--kq") if args.kq is not None else None
     if model is not None:
         robot = model.robot
         _refuse_unscannable(model)
-        compliant, offset = list(robot.compliant_joints), robot.target_offset.tolist()
         robot_spec = {"source": model.model.source, "frame": robot.target_frame,
-                      "target_offset": offset, "compliant_joints": compliant,
+                      "target_offset": robot.target_offset.tolist(),
+                      "compliant_joints": list(robot.compliant_joints),
                       **{k: v for k, v in model.model.robot_options().items() if v}}
-    else:
-        fallback = _identified_model(args)
-        robot, compliant, offset = robot_from_args(args, fallback=fallback)
-        robot_spec = {"source": str(args.robot) if args.robot else robot.name,
-                      "frame": args.frame if fallback is None else robot.target_frame,
-                      "target_offset": offset, "compliant_joints": compliant}
-        # the workers load the same robot: its loop file and fixed base too (keys only when
-        # given, so that the manifests of earlier scans still match for a resume)
-        if getattr(args, "loops", None):
-            robot_spec["loops"] = str(Path(args.loops).resolve())
-        if getattr(args, "fixed_base", False):
-            robot_spec["fixed_base"] = True
-    if model is not None and args.kq is None:
-        k_theta = model.k_theta.tolist()
-    elif args.kq is not None:
-        k_theta = parse_list(args.kq, "--kq")
-    elif default_stiffness(robot) is not None:
-        k_theta = default_stiffness(robot).tolist()
-    else:
+        return robot, robot_spec, model.k_theta.tolist() if kq is None else kq
+    fallback = _model_file(args)
+    robot, compliant, offset = robot_from_args(args, fallback=fallback)
+    robot_spec = {"source": str(args.robot) if args.robot else robot.name,
+                  "frame": args.frame if fallback is None else robot.target_frame,
+                  "target_offset": offset, "compliant_joints": compliant}
+    # the workers load the same robot: its loop file and fixed base too (keys only when
+    # given, so that the manifests of earlier scans still match for a resume)
+    if getattr(args, "loops", None):
+        robot_spec["loops"] = str(Path(args.loops).resolve())
+    if getattr(args, "fixed_base", False):
+        robot_spec["fixed_base"] = True
+    if kq is None and default_stiffness(robot) is None:
         raise stiffness_required(robot)
-    batch.as_joint_stiffness(k_theta, robot.n_compliant)  # validates
-    if args.chunk_size < 1:
-        raise StiffnessError(f"--chunk-size must be a positive number, got {args.chunk_size}")
-    if args.rtol < 0:
-        raise StiffnessError(f"--rtol must be >= 0, got {args.rtol}")
-    loads = [parse_list(text, "--wrench") for text in args.wrench]
-    for load in loads:
-        if len(load) not in (3, 6):
-            raise StiffnessError(f"--wrench (alias --load) takes fx,fy,fz (N) or "
-                                 f"fx,fy,fz,mx,my,mz (N, N.m); got {load}")
-    if loads and len({len(x) for x in loads}) > 1:
-        loads = [x + [0.0] * (6 - len(x)) for x in loads]
-    names = [str(i + 1) for i in range(len(loads))]
+    return robot, robot_spec, kq
 
-    fields = parse_fields(args.fields)
-    if args.preset is not None:
-        if args.axis or args.samples is not None:
-            raise StiffnessError(f"--preset {args.preset} fixes the grid: drop --axis and "
-                                 "--samples")
-        preset = SCAN_PRESETS[args.preset](robot)
-        if not loads:
-            names, loads = preset.load_names, preset.loads
-        spec = ScanSpec(robot=robot_spec, preset=args.preset,
-                        coordinate_joints=list(robot.coordinate_joints), base=preset.base,
-                        axes=preset.axes, samples=None, seed=0, loads=loads,
-                        load_names=names, k_theta=k_theta, rtol=args.rtol,
-                        chunk_size=args.chunk_size, map_axes=preset.map_axes,
-                        couplings=preset.couplings, fields=fields, dtype=args.dtype,
-                        compression=args.compression)
-        return spec, robot
 
-    if not loads:
-        loads, names = [list(DEFAULT_LOAD_N)], ["1"]
-    base = flags.coordinates_from_args(robot, args, required=False)
-    samples = None
-    if args.samples is not None:
-        if not math.isfinite(args.samples) or args.samples < 1 or args.samples != int(
-                args.samples):
-            raise StiffnessError(f"--samples must be a positive integer, got {args.samples:g}")
-        samples = int(args.samples)
+def _axes(robot: Robot, args: argparse.Namespace) -> list[tuple[str, tuple]]:
+    """``--axis JOINT=LO:HI[:STEP]`` as ``(joint, (lo, hi[, step]))`` in SI (``--deg``)."""
     axes = []
     for text in args.axis:
         match = _AXIS.match(text)
@@ -276,67 +217,37 @@ def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
             raise StiffnessError(
                 f"--axis takes JOINT=LO:HI:STEP (grid) or JOINT=LO:HI (sampling), got {text!r}"
             )
-        index = flags.coordinate_index(robot, match.group(1), "--axis")
-        scale = _angle_scale(robot, index, args.deg)
-        lo, hi = (parse_list(match.group(k), "--axis")[0] * scale for k in (2, 3))
-        step = None if match.group(4) is None else parse_list(match.group(4), "--axis")[0] * scale
-        if hi < lo:
-            raise StiffnessError(f"--axis {text!r}: the upper bound is below the lower one")
-        if samples is None and (step is None or step <= 0):
-            raise StiffnessError(
-                f"--axis {text!r} needs a positive STEP for a grid (or give --samples N)"
-            )
-        if any(a["index"] == index for a in axes):
-            raise StiffnessError(f"--axis repeats {robot.coordinate_joints[index]}")
-        axes.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
-                     "upper": hi, "step": None if samples is not None else step})
-    if not axes and samples is None:
-        samples = 10000
-    if not axes:
-        for index in range(robot.n_coordinates):
-            lo, hi = _joint_range(robot, index)
-            axes.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
-                         "upper": hi, "step": None})
-    preset = "samples" if samples is not None else "grid"
-    spec = ScanSpec(robot=robot_spec, preset=preset,
-                    coordinate_joints=list(robot.coordinate_joints), base=base.tolist(),
-                    axes=axes, samples=samples, seed=args.seed, loads=loads, load_names=names,
-                    k_theta=k_theta, rtol=args.rtol, chunk_size=args.chunk_size,
-                    map_axes=_map_axes(robot, axes, args.map_axes, samples), fields=fields,
-                    dtype=args.dtype, compression=args.compression)
-    return spec, robot
+        scale = _angle_scale(robot, coordinate_index(robot, match.group(1), "--axis"),
+                             args.deg)
+        bounds = [parse_list(match.group(k), "--axis")[0] * scale for k in (2, 3)]
+        if match.group(4) is not None:
+            bounds.append(parse_list(match.group(4), "--axis")[0] * scale)
+        axes.append((match.group(1), tuple(bounds)))
+    return axes
 
 
-def _map_axes(robot: Robot, axes: list[dict], text: str | None, samples: int | None
-              ) -> list[int]:
-    """Positions in ``axes`` of the figures' axes."""
-    if text is not None:
-        chosen = []
-        for name in (t.strip() for t in text.split(",") if t.strip()):
-            index = flags.coordinate_index(robot, name, "--map-axes")
-            where = [k for k, a in enumerate(axes) if a["index"] == index]
-            if not where:
-                raise StiffnessError(f"--map-axes {name!r} is not a swept coordinate (--axis)")
-            chosen.append(where[0])
-        if not 1 <= len(chosen) <= 2:
-            raise StiffnessError("--map-axes takes one or two swept coordinates")
-        return chosen
-    if samples is not None:
-        return list(range(min(2, len(axes))))
-    lengths = [grid_length(a["lower"], a["upper"], a["step"]) for a in axes]
-    order = sorted(range(len(axes)), key=lambda k: -lengths[k])
-    return sorted(k for k in order[:2] if lengths[k] > 1)
+def scan_arguments(args: argparse.Namespace) -> tuple[Robot, dict]:
+    """The robot of a command line and the keyword arguments of
+    :func:`stiffness.workspace.request.scan_spec` (and of :func:`~stiffness.workspace.
+    request.scan`) its flags give."""
+    robot, robot_spec, k_theta = _robot(args)
+    preset = SCAN_PRESETS[args.preset](robot) if args.preset is not None else None
+    return robot, {
+        "robot_spec": robot_spec, "k_theta": k_theta, "preset": preset,
+        "axes": _axes(robot, args), "samples": args.samples, "seed": args.seed,
+        "q": None if preset is not None else flags.coordinates_from_args(robot, args,
+                                                                          required=False),
+        "wrench": [parse_list(text, "--wrench") for text in args.wrench],
+        "rtol": args.rtol, "chunk_size": args.chunk_size, "fields": args.fields,
+        "map_axes": None if args.map_axes is None else [
+            t.strip() for t in args.map_axes.split(",") if t.strip()],
+        "dtype": args.dtype, "compression": args.compression}
 
 
-def default_out(spec: ScanSpec) -> Path:
-    """A new folder ``<robot>-<preset>`` (``-2``, ``-3``... if taken) in the current directory."""
-    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(spec.robot["source"]).stem) or "robot"
-    base = Path.cwd() / f"{stem}-{spec.preset}"
-    candidate, k = base, 1
-    while candidate.exists():
-        k += 1
-        candidate = base.with_name(f"{base.name}-{k}")
-    return candidate
+def build_spec(args: argparse.Namespace) -> tuple[ScanSpec, Robot]:
+    """The scan specification of a command line (and the loaded robot)."""
+    robot, arguments = scan_arguments(args)
+    return scan_spec(robot, **arguments), robot
 
 
 def echo_lines(spec: ScanSpec, robot: Robot, args: argparse.Namespace) -> list[str]:
@@ -359,22 +270,25 @@ def echo_lines(spec: ScanSpec, robot: Robot, args: argparse.Namespace) -> list[s
 
 def run(args: argparse.Namespace) -> int:
     """Run the scan, print the summary."""
-    spec, robot = build_spec(args)
+    robot, arguments = scan_arguments(args)
     flags.require_at_least_one(args.workers, "--workers")
     flags.require_at_least_one(args.chunks_per_task, "--chunks-per-task")
-    out = Path(args.out) if args.out else default_out(spec)
     formats = ("npz", "parquet") if args.format == "both" else (args.format,)
-    label = f"scan {spec.n_configurations} configurations x {len(spec.loads)} loads"
-    if not (args.quiet or args.json):
-        print("\n".join(echo_lines(spec, robot, args)), flush=True)
-    progress = terminal_progress(label, args.quiet)
-    t0 = time.perf_counter()
-    summary = run_scan(spec, out, formats=formats, scheduler=args.scheduler,
-                       workers=args.workers, plots=not args.no_plots, progress=progress,
-                       write_on_workers=True if args.shared_out else None,
-                       chunks_per_task=args.chunks_per_task)
-    summary["out"] = str(out)
-    summary["wall_seconds"] = time.perf_counter() - t0
+    bar: list = [None]  # the progress bar, labelled once the spec is known
+
+    def echo(spec: ScanSpec) -> None:
+        if not (args.quiet or args.json):
+            print("\n".join(echo_lines(spec, robot, args)), flush=True)
+        label = f"scan {spec.n_configurations} configurations x {len(spec.loads)} loads"
+        bar[0] = terminal_progress(label, args.quiet)
+
+    live = not args.quiet and sys.stderr.isatty()
+    result = scan(robot, args.out, formats=formats, scheduler=args.scheduler,
+                  workers=args.workers, plots=not args.no_plots,
+                  progress=(lambda done, total: bar[0](done, total)) if live else None,
+                  write_on_workers=True if args.shared_out else None,
+                  chunks_per_task=args.chunks_per_task, on_spec=echo, **arguments)
+    summary, spec, out = result.to_dict(), result.spec, result.out
     if args.json:
         json.dump(summary, sys.stdout)
         sys.stdout.write("\n")

@@ -31,7 +31,7 @@ from stiffness.elastic.model_file import BEYOND_SPRINGS, CompliantModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
 from stiffness.mechanics.formulation import target_state
-from stiffness.robot.robot import Robot
+from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.viewer import (
     LOOPBACK,
     QUANTITIES,
@@ -125,7 +125,7 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     parts = bounds.split(":")
     if not sep or len(parts) not in (2, 3):
         raise StiffnessError(f"--sweep takes JOINT=START:STOP[:N], got {spec!r}")
-    index = flags.coordinate_index(robot, name.strip(), "--sweep")
+    index = coordinate_index(robot, name.strip(), "--sweep")
     name = robot.coordinate_joints[index]
     start, stop = flags.parse_list(",".join(parts[:2]), "--sweep")
     try:

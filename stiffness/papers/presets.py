@@ -3,7 +3,8 @@
 A preset turns a robot into the options of a workspace scan (grid axes, the coordinates that
 follow them, load cases) without the scan layer knowing about any paper: the scan command
 looks the name up in :data:`SCAN_PRESETS` and builds an ordinary grid
-:class:`~stiffness.workspace.spec.ScanSpec` from it.
+:class:`~stiffness.workspace.spec.ScanSpec` from its
+:class:`~stiffness.workspace.request.ScanPreset`.
 
 * ``table4``: Alici & Shirinzadeh's Section VI / Table IV grid on the SK120 (theta1 -180..180,
   theta2 -70..70, theta3 -115..35 deg, step 0.2 rad, wrist vertical: q4 = 0,
@@ -16,40 +17,13 @@ Angles in rad, loads in N.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from stiffness.errors import StiffnessError
 from stiffness.papers.reproduction import table4_loads
 from stiffness.robot.robot import Robot
-
-
-@dataclass
-class ScanPreset:
-    """Options of a preset scan.
-
-    Attributes
-    ----------
-    axes
-        Grid axes ``{"index", "joint", "lower", "upper", "step"}`` (rad or m).
-    base
-        Coordinates of the joints that are not swept (rad, m).
-    couplings
-        ``{"index", "axis", "factor"}``: coordinate ``index`` gets ``factor`` times the value
-        of ``axes[axis]`` added to its base value.
-    load_names, loads
-        Default load cases (N), used when no ``--load`` is given.
-    map_axes
-        Positions in ``axes`` of the figures' axes.
-    """
-
-    axes: list[dict]
-    base: list[float]
-    couplings: list[dict]
-    load_names: list[str]
-    loads: list[list[float]]
-    map_axes: list[int]
+from stiffness.workspace.request import ScanPreset
 
 
 def table4_preset(robot: Robot) -> ScanPreset:
@@ -73,7 +47,7 @@ def table4_preset(robot: Robot) -> ScanPreset:
     names, loads = table4_loads()
     return ScanPreset(axes=axes, base=[0.0, 0.0, 0.0, 0.0, -np.pi / 2, -np.pi / 2],
                       couplings=[{"index": 4, "axis": 2, "factor": -1.0}],
-                      load_names=names, loads=loads.tolist(), map_axes=[1, 2])
+                      load_names=names, loads=loads.tolist(), map_axes=[1, 2], name="table4")
 
 
 #: Preset name -> builder of its scan options from the loaded robot.

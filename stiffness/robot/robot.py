@@ -19,6 +19,7 @@ closures; choose the target frame (:mod:`stiffness.robot.targets`).
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -781,3 +782,25 @@ def _target_frame(name: str, model: pin.Model, frame: str | None,
             f"it has no stiffness to compute; choose a frame that moves: "
             f"{did_you_mean(frame, moving)}", name=frame, choices=moving)
     return frame
+
+
+def coordinate_index(robot: Robot, name: str, what: str) -> int:
+    """Position in the coordinate vector of a joint name or ``q1``, ``q2``... (1-based);
+    ``what`` names the input (a flag) in the error.
+
+    Raises
+    ------
+    UnknownJointError
+        If ``name`` is neither a coordinate joint nor ``q1..qn``.
+    """
+    names = list(robot.coordinate_joints)
+    if name in names:
+        return names.index(name)
+    match = re.fullmatch(r"q(\d+)", name)
+    if match and 1 <= int(match.group(1)) <= len(names):
+        return int(match.group(1)) - 1
+    passive = not robot.loop.is_open_chain and name in robot.loop.passive_joints
+    why = " (a passive loop joint: it follows the others)" if passive else ""
+    raise UnknownJointError(
+        f"{what}: {name!r} is not a coordinate of {robot.name}{why}; use a joint name or q1..q"
+        f"{len(names)}: {did_you_mean(name, names)}", name=name, choices=names)

@@ -1,0 +1,352 @@
+"""A workspace scan from Python arguments: the :class:`~stiffness.workspace.spec.ScanSpec` of a
+robot, its springs, the swept coordinates and the load cases (what ``stiffness scan`` turns its
+flags into, :func:`scan_spec`), and :func:`scan`, which runs it and returns a
+:class:`ScanResult` whose :meth:`ScanResult.to_dict` is the command's ``--json`` object.
+
+SI units: rad (m for prismatic joints), N, N.m, N.m/rad, N/m.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.batch import kernels as batch
+from stiffness.errors import StiffnessError
+from stiffness.mechanics.defaults import default_coordinates, default_stiffness
+from stiffness.robot.robot import Robot, coordinate_index, load_robot
+from stiffness.workspace.engine import run_scan
+from stiffness.workspace.spec import ScanSpec, grid_length, parse_fields
+
+#: Default load case when none is given (N): 100 N downwards.
+DEFAULT_LOAD_N = (0.0, 0.0, -100.0)
+#: Random configurations drawn when neither axes nor a sample count are given.
+DEFAULT_SAMPLES = 10000
+
+
+@dataclass
+class ScanPreset:
+    """Options of a preset scan (a grid a paper provides: :mod:`stiffness.papers.presets`).
+
+    Attributes
+    ----------
+    axes
+        Grid axes ``{"index", "joint", "lower", "upper", "step"}`` (rad or m).
+    base
+        Coordinates of the joints that are not swept (rad, m).
+    couplings
+        ``{"index", "axis", "factor"}``: coordinate ``index`` gets ``factor`` times the value
+        of ``axes[axis]`` added to its base value.
+    load_names, loads
+        Default load cases (N), used when no ``--load`` is given.
+    map_axes
+        Positions in ``axes`` of the figures' axes.
+    name
+        The preset's name (the scan's label).
+    """
+
+    axes: list[dict]
+    base: list[float]
+    couplings: list[dict]
+    load_names: list[str]
+    loads: list[list[float]]
+    map_axes: list[int]
+    name: str = "preset"
+
+
+def joint_range(robot: Robot, index: int) -> tuple[float, float]:
+    """Sampling range of a coordinate (rad, m): its joint limits, or [-pi, pi] when unlimited.
+
+    Raises
+    ------
+    StiffnessError
+        A prismatic joint without finite limits.
+    """
+    model = robot.model
+    joint = model.joints[model.getJointId(robot.coordinate_joints[index])]
+    prismatic = joint.shortname().startswith("JointModelP")
+    if joint.nq == 1:
+        lo = float(model.lowerPositionLimit[joint.idx_q])
+        hi = float(model.upperPositionLimit[joint.idx_q])
+        if np.isfinite(lo) and np.isfinite(hi) and hi > lo and max(abs(lo), abs(hi)) < 1e3:
+            return lo, hi
+    if prismatic:
+        raise StiffnessError(
+            f"prismatic joint {robot.coordinate_joints[index]!r} has no finite limits: give its "
+            "range with --axis NAME=LO:HI (m)"
+        )
+    return -np.pi, np.pi
+
+
+def load_cases(wrench: Sequence[float] | Sequence[Sequence[float]] | None
+               ) -> tuple[list[list[float]], list[str]]:
+    """The load cases (N, N.m; base axes) of one wrench or a list of them, named 1, 2...;
+    forces are padded with zero moments when the cases mix 3 and 6 values.
+
+    Raises
+    ------
+    StiffnessError
+        A case with neither 3 nor 6 values.
+    """
+    if wrench is None or len(wrench) == 0:
+        return [], []
+    loads = [[float(v) for v in w] for w in (
+        [wrench] if np.ndim(wrench) == 1 else wrench)]
+    for load in loads:
+        if len(load) not in (3, 6):
+            raise StiffnessError(f"--wrench (alias --load) takes fx,fy,fz (N) or "
+                                 f"fx,fy,fz,mx,my,mz (N, N.m); got {load}")
+    if len({len(x) for x in loads}) > 1:
+        loads = [x + [0.0] * (6 - len(x)) for x in loads]
+    return loads, [str(i + 1) for i in range(len(loads))]
+
+
+def swept_axes(robot: Robot, axes: Mapping[str, Sequence[float]] | Sequence, grid: bool
+               ) -> list[dict]:
+    """The swept coordinates ``{"index", "joint", "lower", "upper", "step"}`` of ``axes``:
+    joint name (or ``q<i>``) to ``(low, high)`` or ``(low, high, step)`` (rad, m), a mapping or
+    a sequence of such pairs; every coordinate within its limits when empty (sampled).
+
+    Raises
+    ------
+    StiffnessError
+        An unknown coordinate, one swept twice, bounds in the wrong order, a grid axis without
+        a positive step.
+    """
+    items = list(axes.items()) if isinstance(axes, Mapping) else list(axes)
+    out: list[dict] = []
+    for name, bounds in items:
+        index = coordinate_index(robot, str(name), "--axis")
+        lo, hi = float(bounds[0]), float(bounds[1])
+        step = float(bounds[2]) if len(bounds) > 2 and bounds[2] is not None else None
+        if hi < lo:
+            raise StiffnessError(f"--axis {name}: the upper bound is below the lower one")
+        if grid and (step is None or step <= 0):
+            raise StiffnessError(f"--axis {name} needs a positive STEP for a grid (or give "
+                                 "--samples N)")
+        if any(a["index"] == index for a in out):
+            raise StiffnessError(f"--axis repeats {robot.coordinate_joints[index]}")
+        out.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
+                    "upper": hi, "step": step if grid else None})
+    if not out:
+        for index in range(robot.n_coordinates):
+            lo, hi = joint_range(robot, index)
+            out.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
+                        "upper": hi, "step": None})
+    return out
+
+
+def figure_axes(robot: Robot, axes: list[dict], names: Sequence[str] | None,
+                samples: int | None) -> list[int]:
+    """Positions in ``axes`` of the figures' axes: the named coordinates, else the first two
+    sampled ones, else the two grid axes with the most values.
+
+    Raises
+    ------
+    StiffnessError
+        A name that is not swept, or not one or two names.
+    """
+    if names is not None:
+        chosen = []
+        for name in names:
+            index = coordinate_index(robot, name, "--map-axes")
+            where = [k for k, a in enumerate(axes) if a["index"] == index]
+            if not where:
+                raise StiffnessError(f"--map-axes {name!r} is not a swept coordinate (--axis)")
+            chosen.append(where[0])
+        if not 1 <= len(chosen) <= 2:
+            raise StiffnessError("--map-axes takes one or two swept coordinates")
+        return chosen
+    if samples is not None:
+        return list(range(min(2, len(axes))))
+    lengths = [grid_length(a["lower"], a["upper"], a["step"]) for a in axes]
+    order = sorted(range(len(axes)), key=lambda k: -lengths[k])
+    return sorted(k for k in order[:2] if lengths[k] > 1)
+
+
+def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndarray | None,
+              *, preset: ScanPreset | None = None,
+              axes: Mapping[str, Sequence[float]] | Sequence = (),
+              samples: float | None = None, seed: int = 0, q: np.ndarray | None = None,
+              wrench: Sequence[float] | Sequence[Sequence[float]] | None = None,
+              rtol: float = 1e-9, chunk_size: int = 8192,
+              map_axes: Sequence[str] | None = None, fields: str | None = None,
+              dtype: str = "float64", compression: str | None = None) -> ScanSpec:
+    """What a scan of ``robot`` computes (see :class:`ScanSpec`).
+
+    Parameters
+    ----------
+    robot, robot_spec
+        The loaded robot, and the :func:`~stiffness.robot.robot.load_robot` arguments the
+        chunks load it with (``source``, ``frame``, ``target_offset``, ``compliant_joints``
+        and, when given, ``loops`` and ``fixed_base``).
+    k_theta
+        Joint stiffness per compliant joint (N.m/rad, N/m); default the robot's shipped one.
+    preset
+        A preset grid (its axes, coordinates and default loads); then no ``axes``/``samples``.
+    axes, samples, seed
+        Swept coordinates (:func:`swept_axes`, rad or m): a grid, or ``samples`` random
+        configurations in their ranges (default :data:`DEFAULT_SAMPLES` over the joint limits
+        when no axis is given) drawn with ``seed``.
+    q
+        Coordinates of the joints not swept (rad, m); default the robot's shipped pose, else
+        zero.
+    wrench
+        Load cases (:func:`load_cases`); default the preset's, else :data:`DEFAULT_LOAD_N`.
+    rtol, chunk_size, map_axes, fields, dtype, compression
+        Definiteness tolerance, configurations per chunk, the figures' coordinates, stored
+        fields (:func:`~stiffness.workspace.spec.parse_fields` text), storage type and codec.
+
+    Raises
+    ------
+    StiffnessError
+        Missing or bad springs, bad sizes, tolerance, axes or loads (one line each).
+    """
+    if k_theta is None:
+        k_theta = default_stiffness(robot)
+        if k_theta is None:
+            raise StiffnessError(
+                f"--kq is required for {robot.name}: one stiffness per compliant joint "
+                f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)")
+    k_theta = [float(v) for v in np.asarray(k_theta, dtype=float).reshape(-1)]
+    batch.as_joint_stiffness(k_theta, robot.n_compliant)  # validates
+    if chunk_size < 1:
+        raise StiffnessError(f"--chunk-size must be a positive number, got {chunk_size}")
+    if rtol < 0:
+        raise StiffnessError(f"--rtol must be >= 0, got {rtol}")
+    loads, names = load_cases(wrench)
+    stored = parse_fields(fields)
+    common = {"robot": robot_spec, "coordinate_joints": list(robot.coordinate_joints),
+              "k_theta": k_theta, "rtol": rtol, "chunk_size": chunk_size, "fields": stored,
+              "dtype": dtype, "compression": compression}
+    if preset is not None:
+        if len(axes) or samples is not None:
+            raise StiffnessError(f"--preset {preset.name} fixes the grid: drop --axis and "
+                                 "--samples")
+        if not loads:
+            names, loads = preset.load_names, preset.loads
+        return ScanSpec(preset=preset.name, base=preset.base, axes=preset.axes, samples=None,
+                        seed=0, loads=loads, load_names=names, map_axes=preset.map_axes,
+                        couplings=preset.couplings, **common)
+    if not loads:
+        loads, names = [list(DEFAULT_LOAD_N)], ["1"]
+    if samples is not None:
+        if not math.isfinite(samples) or samples < 1 or samples != int(samples):
+            raise StiffnessError(f"--samples must be a positive integer, got {samples:g}")
+        samples = int(samples)
+    swept = swept_axes(robot, axes, grid=samples is None)
+    if not len(axes) and samples is None:
+        samples = DEFAULT_SAMPLES
+    if q is None:
+        q = default_coordinates(robot)
+    base = np.zeros(robot.n_coordinates) if q is None else np.asarray(q, dtype=float)
+    return ScanSpec(preset="samples" if samples is not None else "grid", base=base.tolist(),
+                    axes=swept, samples=samples, seed=seed, loads=loads, load_names=names,
+                    map_axes=figure_axes(robot, swept, map_axes, samples), **common)
+
+
+def default_out(spec: ScanSpec) -> Path:
+    """A new folder ``<robot>-<preset>`` (``-2``, ``-3``... if taken) in the current directory."""
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(spec.robot["source"]).stem) or "robot"
+    base = Path.cwd() / f"{stem}-{spec.preset}"
+    candidate, k = base, 1
+    while candidate.exists():
+        k += 1
+        candidate = base.with_name(f"{base.name}-{k}")
+    return candidate
+
+
+@dataclass
+class ScanResult:
+    """A finished scan: its specification, folder and summary.
+
+    Attributes
+    ----------
+    spec
+        What was computed.
+    out
+        The scan folder (``manifest.json``, chunks, ``summary.json``, figures).
+    summary
+        :func:`~stiffness.workspace.engine.run_scan`'s summary.
+    wall_seconds
+        Wall time of the run (s).
+    """
+
+    spec: ScanSpec
+    out: Path
+    summary: dict
+    wall_seconds: float
+
+    def to_dict(self) -> dict:
+        """The object ``stiffness scan --json`` prints: the summary with ``out`` and
+        ``wall_seconds``."""
+        return {**self.summary, "out": str(self.out), "wall_seconds": self.wall_seconds}
+
+
+def scan(robot: Robot | str, out: str | os.PathLike | None = None, *,
+         k_theta: Sequence[float] | np.ndarray | None = None,
+         axes: Mapping[str, Sequence[float]] | Sequence = (), samples: float | None = None,
+         seed: int = 0, q: np.ndarray | None = None,
+         wrench: Sequence[float] | Sequence[Sequence[float]] | None = None,
+         preset: ScanPreset | None = None, robot_spec: dict | None = None,
+         formats: tuple[str, ...] = ("npz",), plots: bool = True,
+         on_spec: Callable[[ScanSpec], None] | None = None, **options) -> ScanResult:
+    """Scan a workspace: ``stiffness scan`` from Python (:meth:`ScanResult.to_dict` is its
+    ``--json`` object).
+
+    Parameters
+    ----------
+    robot
+        The robot, or its source (shipped name, example-robot-data name, URDF path). A loaded
+        robot is reloaded by the chunks from its name, target and compliant joints unless
+        ``robot_spec`` says how.
+    out
+        Scan folder (an existing one with the same spec is resumed); default a new
+        ``<robot>-<preset>`` folder here (:func:`default_out`).
+    k_theta, axes, samples, seed, q, wrench, preset
+        As :func:`scan_spec` (SI).
+    robot_spec
+        The chunks' :func:`~stiffness.robot.robot.load_robot` arguments (see above).
+    formats, plots
+        ``npz`` and/or ``parquet``; whether to draw the figures.
+    on_spec
+        Called with the spec before the run (the command prints its inputs).
+    **options
+        ``rtol``, ``chunk_size``, ``map_axes``, ``fields``, ``dtype``, ``compression`` (to
+        :func:`scan_spec`) and ``scheduler``, ``workers``, ``write_on_workers``,
+        ``chunks_per_task``, ``progress`` (to :func:`~stiffness.workspace.engine.run_scan`).
+
+    Raises
+    ------
+    StiffnessError
+        Bad inputs (:func:`scan_spec`), or a folder holding another scan.
+    """
+    spec_keys = ("rtol", "chunk_size", "map_axes", "fields", "dtype", "compression")
+    run_keys = ("scheduler", "workers", "write_on_workers", "chunks_per_task", "progress")
+    unknown = sorted(set(options) - set(spec_keys) - set(run_keys))
+    if unknown:
+        raise TypeError(f"scan() got unexpected keyword arguments {', '.join(unknown)}")
+    if not isinstance(robot, Robot):
+        robot_spec = robot_spec or {"source": str(robot), "frame": None,
+                                    "target_offset": None, "compliant_joints": None}
+        robot = load_robot(robot)
+    robot_spec = robot_spec or {"source": robot.name, "frame": robot.target_frame,
+                                "target_offset": robot.target_offset.tolist(),
+                                "compliant_joints": list(robot.compliant_joints)}
+    spec = scan_spec(robot, robot_spec, k_theta, preset=preset, axes=axes, samples=samples,
+                     seed=seed, q=q, wrench=wrench,
+                     **{k: options[k] for k in spec_keys if k in options})
+    if on_spec is not None:
+        on_spec(spec)
+    out = Path(out) if out is not None else default_out(spec)
+    t0 = time.perf_counter()
+    summary = run_scan(spec, out, formats=formats, plots=plots,
+                       **{k: options[k] for k in run_keys if k in options})
+    return ScanResult(spec, out, summary, time.perf_counter() - t0)
