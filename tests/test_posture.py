@@ -143,8 +143,8 @@ def test_command_writes_path_figure_and_json(tmp_path, capsys):
     assert len(doc["rows"]) == 4 and doc["units"]["q"][0] == "deg"
     header = out.read_text().splitlines()[0].split(",")
     assert header[:6] == ["x", "y", "z", "ax", "ay", "az"]
-    assert header[-5:] == ["angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m",
-                           "ik_residual_rad"]
+    assert header[-6:] == ["angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m",
+                           "ik_residual_rad", "branch"]
     assert (tmp_path / "out.png").read_bytes()[:4] == b"\x89PNG"
 
 

@@ -11,7 +11,9 @@ target frame's free axis, base frame) or a full orientation ``qw,qx,qy,qz``; opt
 joint path (one column per coordinate joint; rad, deg with ``--deg``, m for prismatic),
 ``angle_deg`` (the chosen rotation about the free axis), ``deflection_m`` and
 ``deflection_fixed_m`` (first-order position deflection with the chosen posture and with the
-fixed angle), ``ik_residual_m`` and ``ik_residual_rad``; the figure (``--figure``, by default
+fixed angle on the same branch), ``ik_residual_m``, ``ik_residual_rad`` and ``branch`` (the
+assembly branch, ``A`` being the branch of ``--start``; ``--json`` gives each branch's
+coordinates at the first point); the figure (``--figure``, by default
 ``OUT.png``) shows both deflections and the angle along the path.
 """
 
@@ -60,6 +62,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                                         "(rad, deg with --deg, m prismatic)")
     parser.add_argument("--deg", action="store_true",
                         help="joint values written (and --start) in degrees")
+    parser.add_argument("--branch", default="any", metavar="any|keep",
+                        help="any: the path may change assembly branch where the step bound "
+                             "allows; keep: one branch throughout; default any")
     parser.add_argument("--no-refine", action="store_true",
                         help="skip the local refinement after the dynamic programming")
     parser.add_argument("--out", metavar="OUT.csv", help="write the joint path here")
@@ -90,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
                      max_step_deg=args.max_step, reference_angle_deg=args.reference_angle,
                      singularity_margin=args.singularity_margin, start=start,
                      refine=not args.no_refine, progress=progress_printer(args, "posture"),
-                     deg=args.deg)
+                     deg=args.deg, branch=args.branch)
     result.write(args.out, figure)
     doc = result.to_dict()
     if args.json:
@@ -105,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"RMS deflection: {s['rms_deflection_m']:.4g} m chosen, "
           f"{_g(s['rms_deflection_fixed_m'])} m fixed angle")
     print(f"IK residual: {s['max_ik_residual_m']:.2g} m, {s['max_ik_residual_rad']:.2g} rad")
+    print(f"branches: {s['branches_found']} found at the first point, used "
+          f"{', '.join(s['branches_used'])}")
     for note in result.notes:
         print(f"note: {note}")
     for name in (args.out, figure):

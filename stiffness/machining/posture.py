@@ -10,18 +10,28 @@ first point's (so a constant ``psi`` does not spin the tool).
 
 Algorithm:
 
-1. Candidates: ``S`` angles ``psi_ref + 2 pi k / S`` per point. Each is solved by damped least
-   squares inverse kinematics (:func:`stiffness.mechanics.ik.solve_ik`, joint limits held)
-   seeded from the same candidate at the previous point, so every candidate is a continuous
-   track; a candidate is admissible when the IK converges within the limits and the smallest
-   singular value of the target Jacobian is at least the singularity margin.
-2. Dynamic programming over the candidates: minimise the sum of squared deflections
+1. Branches (:mod:`stiffness.machining.branches`): at the first point, inverse kinematics at
+   the reference angle from ``start`` and, for a non-redundant arm, from seeds spread over the
+   joint limits gives the distinct assembly branches (elbow up/down, wrist flipped or not,
+   ...), named ``A`` (the branch of ``start``), ``B``, ... Each is followed around all ``S``
+   angles ``psi_ref + 2 pi k / S``, up and down from the reference (each angle seeded from its
+   neighbour on the same track, a solution that jumps to another branch or wrap refused; each
+   direction covers its half of the circle, then the angles the other could not reach), and
+   along the path (each node seeded from the same angle at the previous point, else from its
+   neighbour). Damped least squares (:func:`stiffness.mechanics.ik.solve_ik`) holds the joint
+   limits; a node is admissible when the smallest singular value of the target Jacobian is at
+   least the singularity margin.
+2. Dynamic programming over the (angle, branch) nodes: minimise the sum of squared deflections
    ``|C W|`` (the model's first-order position deflection, every effect included) with the joint
-   change between consecutive points at most ``max_step`` and, where the fixed-angle posture is
-   admissible, no point worse than it (the fixed-angle track is one of the DP's paths).
-3. Local refinement: each point's angle is refined continuously within one candidate spacing
-   (bounded scalar minimisation) under the same constraints; a redundant arm then descends the
-   deflection in the null space of its pose Jacobian (IK re-projects every step onto the pose).
+   change between consecutive points at most ``max_step`` (and one branch throughout with
+   ``branch="keep"``) and, where the fixed-angle posture on the node's branch is admissible, no
+   point worse than it.
+3. Local refinement: each point's angle walks downhill on its branch in half-spacing steps as
+   far as the constraints allow (not capped at one spacing), then a bounded scalar minimisation
+   polishes it; a redundant arm then descends the deflection in the null space of its pose
+   Jacobian (IK re-projects every step onto the pose).
+
+The fixed-angle reference of each point is the reference angle on the chosen node's branch.
 
 Units: m, rad inside (the ``deg`` names report degrees); deflections in m.
 """
@@ -37,20 +47,30 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 
 from stiffness.elastic.loaded import ElasticModel, as_elastic_model, linear_deflection
-from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
+from stiffness.machining.branches import (
+    Layer,
+    PostureProblem,
+    branch_label,
+    candidate_layers,
+    candidate_tracks,
+    fixed_values,
+)
 from stiffness.machining.compensation import WRENCH_FRAMES, angular_coordinates
 from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import as_wrench, target_state
-from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
+from stiffness.mechanics.ik import IKResult, coordinate_limits
 from stiffness.robot.robot import Robot
 
 #: Most candidate angles about the free axis (0.1 deg apart); the search costs steps^2.
 MAX_STEPS = 3600
+
+#: ``any``: the path may change branch; ``keep``: one branch throughout.
+BRANCH_MODES = ("any", "keep")
 
 
 @dataclass
@@ -66,9 +86,12 @@ class PosturePoint:
     deflection
         First-order position deflection (3,) with the chosen posture (m).
     deflection_fixed
-        The same with the fixed angle (m); NaN where that posture is out of reach.
+        The same with the fixed angle on the same branch (m); NaN where that posture is out of
+        reach.
     ik_position_error, ik_rotation_error
         Remaining IK error of the chosen posture (m, rad).
+    branch
+        The branch of the chosen posture (``A``, ``B``, ...: :attr:`PostureResult.branches`).
     """
 
     coords: np.ndarray
@@ -77,6 +100,7 @@ class PosturePoint:
     deflection_fixed: np.ndarray
     ik_position_error: float
     ik_rotation_error: float
+    branch: str
     q: np.ndarray = field(repr=False)
 
 
@@ -100,6 +124,9 @@ class PostureResult:
         The path as read (its columns, repeated in :meth:`csv`), or as given.
     angular
         (n,) whether each coordinate is an angle.
+    branches
+        Each branch found at the first point: its coordinates there (rad, m) at the angle it was
+        found at (the reference angle unless that is out of reach).
     deg
         Whether :meth:`to_dict` and :meth:`csv` give the angles in degrees (else rad).
     """
@@ -112,6 +139,7 @@ class PostureResult:
     notes: list[str]
     poses: Poses
     angular: np.ndarray
+    branches: dict[str, np.ndarray]
     deg: bool = False
 
     def _scale(self) -> np.ndarray:
@@ -120,7 +148,8 @@ class PostureResult:
 
     def to_dict(self) -> dict:
         """The object ``stiffness posture --json`` prints: ``joints``, ``rows`` (joint values
-        in the written unit, the rest SI), ``summary``, ``notes``, ``units``."""
+        in the written unit, the rest SI), ``summary``, ``notes``, ``units``, ``branches``
+        (each branch's coordinates at the first point, in the unit of ``q``)."""
         def num(v: float):
             return float(v) if math.isfinite(v) else None
 
@@ -130,17 +159,20 @@ class PostureResult:
                  "deflection_m": float(np.linalg.norm(p.deflection)),
                  "deflection": p.deflection.tolist(),
                  "deflection_fixed_m": num(np.linalg.norm(p.deflection_fixed)),
-                 "ik_residual_m": p.ik_position_error, "ik_residual_rad": p.ik_rotation_error}
+                 "ik_residual_m": p.ik_position_error, "ik_residual_rad": p.ik_rotation_error,
+                 "branch": p.branch}
                 for p in self.points]
+        branches = {name: (c * scale).tolist() for name, c in self.branches.items()}
         return {"joints": list(self.joints), "rows": rows, "summary": self.summary(),
-                "notes": self.notes,
+                "notes": self.notes, "branches": branches,
                 "units": {"q": unit, "angle_deg": "deg", "deflection_m": "m",
                           "deflection": "m", "deflection_fixed_m": "m", "ik_residual_m": "m",
                           "ik_residual_rad": "rad"}}
 
     def csv(self) -> str:
         """``OUT.csv`` of ``stiffness posture``: the input columns, the joints (written unit),
-        the angle (deg), the deflections (m) and the IK residuals (m, rad) per point."""
+        the angle (deg), the deflections (m), the IK residuals (m, rad) and the branch per
+        point."""
         def num(value: float) -> str:
             return repr(float(value)) if math.isfinite(value) else ""
 
@@ -150,13 +182,13 @@ class PostureResult:
         header = self.poses.header
         writer.writerow(header + list(self.joints) + [
             "angle_deg", "deflection_m", "deflection_fixed_m", "ik_residual_m",
-            "ik_residual_rad"])
+            "ik_residual_rad", "branch"])
         for cells, p in zip(self.poses.cells, self.points, strict=True):
             cells = (cells + [""] * len(header))[: len(header)]
             writer.writerow(cells + [num(v) for v in p.coords * scale] + [
                 num(np.rad2deg(p.angle)), num(np.linalg.norm(p.deflection)),
                 num(np.linalg.norm(p.deflection_fixed)), num(p.ik_position_error),
-                num(p.ik_rotation_error)])
+                num(p.ik_rotation_error), p.branch])
         return buf.getvalue()
 
     def figure_png(self) -> bytes:
@@ -204,7 +236,8 @@ class PostureResult:
         return np.array([p.coords for p in self.points])
 
     def summary(self) -> dict:
-        """Max/RMS deflections (m) chosen and fixed, their ratio, the largest joint step."""
+        """Max/RMS deflections (m) chosen and fixed (on the chosen branch), their ratio, the
+        largest joint step, the branches found and used."""
         d = np.array([np.linalg.norm(p.deflection) for p in self.points])
         f = np.array([np.linalg.norm(p.deflection_fixed) for p in self.points])
         ok = np.isfinite(f)
@@ -220,54 +253,13 @@ class PostureResult:
             "max_ik_residual_rad": float(max(p.ik_rotation_error for p in self.points)),
             "reference_angle_deg": float(np.rad2deg(self.reference_angle)),
             "points": len(self.points),
+            "branches_found": len(self.branches),
+            "branches_used": sorted({p.branch for p in self.points}),
         }
         if ok.all() and d.max() > 0:
             out["max_reduction_factor"] = float(f.max() / d.max())
             out["rms_reduction_factor"] = float(np.sqrt(np.mean(f ** 2) / np.mean(d ** 2)))
         return out
-
-
-class _Problem:
-    """Shared state of one posture search."""
-
-    def __init__(self, em: ElasticModel, positions, frames, free, wrench, wrench_frame,
-                 margin, max_step, angular):
-        self.em, self.full = em, em.full
-        self.positions, self.frames, self.free = positions, frames, free
-        self.wrench, self.wrench_frame = wrench, wrench_frame
-        self.margin, self.max_step, self.angular = margin, max_step, angular
-
-    def rotation(self, i: int, psi: float) -> np.ndarray:
-        return self.frames[i] @ pin.exp3(psi * self.free)
-
-    def solve(self, i: int, psi: float, seeds: list[tuple[np.ndarray, np.ndarray]]
-              ) -> IKResult | None:
-        """IK of point ``i`` at angle ``psi`` from the first seed that converges."""
-        for coords, q in seeds:
-            try:
-                return solve_ik(self.full, self.positions[i], self.rotation(i, psi),
-                                seed=coords, seed_q=q)
-            except StiffnessError:
-                continue
-        return None
-
-    def admissible(self, ik: IKResult) -> bool:
-        jac = target_state(self.full, ik.q).jacobian
-        return float(np.linalg.svd(jac, compute_uv=False)[-1]) >= self.margin
-
-    def load(self, i: int, psi: float) -> np.ndarray:
-        """Base-frame wrench of point ``i`` at angle ``psi``."""
-        w = self.wrench[i]
-        if self.wrench_frame == "target":
-            r = self.rotation(i, psi)
-            w = np.concatenate([r @ w[:3], r @ w[3:]])
-        return w
-
-    def deflection(self, i: int, psi: float, ik: IKResult) -> np.ndarray:
-        return linear_deflection(self.em, ik.coords, self.load(i, psi), seed_q=ik.q)[:3]
-
-    def step_ok(self, a: np.ndarray, b: np.ndarray) -> bool:
-        return bool(np.all(np.abs(a - b)[self.angular] <= self.max_step + 1e-12))
 
 
 def posture(
@@ -287,6 +279,7 @@ def posture(
     progress: Callable[[int, int], None] | None = None,
     k_theta: np.ndarray | list[float] | None = None,
     deg: bool = False,
+    branch: str = "any",
 ) -> PostureResult:
     """The stiffest admissible posture along a path (see the module docstring): ``stiffness
     posture`` (:meth:`PostureResult.to_dict` is its ``--json`` object,
@@ -318,6 +311,7 @@ def posture(
         Smallest admissible singular value of the 6-row target Jacobian (m/rad, rad/rad).
     start
         IK seed of the first point (rad, m); default the robot's shipped coordinates, else zero.
+        Its branch is branch ``A``; the others are found from seeds spread over the limits.
     refine, progress
         Whether to refine each angle locally after the dynamic programming; called with
         (done, total) as the points are solved.
@@ -326,6 +320,9 @@ def posture(
     deg
         Whether :meth:`PostureResult.to_dict` and :meth:`PostureResult.write` give the joint
         values in degrees (the attributes stay rad).
+    branch
+        ``any``: the path may change branch where the step bound allows; ``keep``: one branch
+        along the whole path (the best one).
 
     Raises
     ------
@@ -336,50 +333,75 @@ def posture(
     em = as_elastic_model(model, k_theta)
     full = em.full
     poses, w = _poses_and_wrench(positions, axes, quaternions, wrench)
-    _check_search(full, steps, max_step_deg, singularity_margin, wrench_frame)
+    _check_search(full, steps, max_step_deg, singularity_margin, wrench_frame, branch)
     m = poses.positions.shape[0]
     free = free_axis_vector(free_axis)
-    frames = tool_frames(free, poses.axes, poses.quaternions)
     angular = angular_coordinates(full)
-    problem = _Problem(em, poses.positions, frames, free, w, wrench_frame, singularity_margin,
-                       np.deg2rad(max_step_deg), angular)
+    spacing = 2.0 * np.pi / steps
+    problem = PostureProblem(em, poses.positions, tool_frames(free, poses.axes, poses.quaternions),
+                             free, w, wrench_frame, singularity_margin, np.deg2rad(max_step_deg),
+                             angular, spacing)
     ref = np.deg2rad(reference_angle_deg)
-    offsets = 2.0 * np.pi * np.arange(steps) / steps
+    offsets = spacing * np.arange(steps)
     offsets = np.where(offsets > np.pi, offsets - 2.0 * np.pi, offsets)
     angles = ref + offsets
     if start is None:
         start = default_coordinates(full)
         start = np.zeros(full.n_coordinates) if start is None else start
     start = np.asarray(start, dtype=float)
-    # 1. candidate tracks
-    iks = _candidate_tracks(problem, offsets, angles, (start, full.configuration(start)),
-                            progress, m if refine else 0)
-    deflection, vectors, admissible = _candidate_deflections(problem, iks, angles)
-    # 2. dynamic programming
-    choice, notes = _choose_track(problem, iks, deflection, admissible, max_step_deg,
-                                  singularity_margin)
+    total = m * (2 if refine else 1)
+    tick = (lambda n: progress(n, total)) if progress is not None else (lambda n: None)
+    sweep = sorted(range(steps), key=lambda k: (abs(offsets[k]), offsets[k]))
+    # 1. candidate tracks of every branch
+    tracks, origins = candidate_tracks(problem, angles, sweep, start, full.configuration(start),
+                                       tick)
+    layers = candidate_layers(problem, tracks, angles)
+    # 2. dynamic programming over (angle, branch)
+    choice, notes = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin)
     # 3. local refinement
-    points = _chosen_points(problem, iks, choice, angles, vectors, deflection[:, 0],
-                            progress if refine else None, refine)
+    points = _chosen_points(problem, layers, choice, angles, tick if refine else None)
+    if len({p.branch for p in points}) > 1:
+        notes.append("the path changes branch where the step bound allows it (--branch keep "
+                     "holds one)")
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
-                         float(np.deg2rad(max_step_deg)), notes, poses, angular, deg)
+                         float(np.deg2rad(max_step_deg)), notes, poses, angular,
+                         {branch_label(b): o.coords for b, o in enumerate(origins)}, deg)
 
 
-def _choose_track(problem: _Problem, iks: list[list[IKResult | None]],
-                  deflection: np.ndarray, admissible: np.ndarray, max_step_deg: float,
-                  singularity_margin: float) -> tuple[list[int], list[str]]:
-    """The candidate chosen per point (:func:`_cheapest_track`, bounded by the fixed angle
-    where it can be) and a note when it cannot.
+def _chosen_points(problem: PostureProblem, layers: list[Layer], choice: list[int],
+                   angles: np.ndarray, refined: Callable[[int], None] | None
+                   ) -> list[PosturePoint]:
+    """The chosen nodes (refined locally unless ``refined`` is None, which is called with the
+    progress count as each point is done) as points, with the fixed angle's deflection on the
+    same branch (m; NaN where out of reach) beside them."""
+    m = len(layers)
+    chosen = [layer.iks[n] for layer, n in zip(layers, choice, strict=True)]
+    psi = np.array([angles[layer.angle[n]] for layer, n in zip(layers, choice, strict=True)])
+    defl = [layer.vectors[n] for layer, n in zip(layers, choice, strict=True)]
+    labels = [int(layer.branch[n]) for layer, n in zip(layers, choice, strict=True)]
+    if refined is not None:
+        for i, (layer, n) in enumerate(zip(layers, choice, strict=True)):
+            _refine_point(problem, i, chosen, psi, defl, fixed_values(layer)[n],
+                          2.0 * np.pi / len(angles))
+            refined(m + i + 1)
+    points = []
+    for i, layer in enumerate(layers):
+        f = layer.fixed.get(labels[i])
+        fixed_vec = layer.vectors[f] if f is not None else np.full(3, np.nan)
+        ik = chosen[i]
+        points.append(PosturePoint(ik.coords, float(psi[i]), defl[i], fixed_vec,
+                                   ik.position_error, ik.rotation_error,
+                                   branch_label(labels[i]), ik.q))
+    return points
 
-    Raises
-    ------
-    StiffnessError
-        No track within the joint-step bound.
-    """
+
+def _choose(layers: list[Layer], problem: PostureProblem, keep: bool, max_step_deg: float,
+            margin: float) -> tuple[list[int], list[str]]:
+    """The DP's choice, bounded point by point by the fixed angle where that is possible."""
     notes: list[str] = []
-    choice = _cheapest_track(problem, iks, deflection, admissible, bounded=True)
+    choice = _dynamic_programming(problem, layers, keep, bounded=True)
     if choice is None:
-        choice = _cheapest_track(problem, iks, deflection, admissible, bounded=False)
+        choice = _dynamic_programming(problem, layers, keep, bounded=False)
         if choice is not None:
             notes.append("the fixed-angle path itself breaks the joint-step bound or the "
                          "singularity margin somewhere: the chosen path is not bounded by it "
@@ -387,34 +409,44 @@ def _choose_track(problem: _Problem, iks: list[list[IKResult | None]],
     if choice is None:
         raise StiffnessError(
             f"no posture sequence keeps every joint step within {max_step_deg:g} deg (with the "
-            f"singularity margin {singularity_margin:g}); raise --max-step or --steps")
+            f"singularity margin {margin:g}); raise --max-step or --steps")
     return choice, notes
 
 
-def _chosen_points(problem: _Problem, iks: list[list[IKResult | None]], choice: list[int],
-                   angles: np.ndarray, vectors: np.ndarray, fixed: np.ndarray,
-                   progress: Callable[[int, int], None] | None, refine: bool
-                   ) -> list[PosturePoint]:
-    """The chosen candidates (refined locally with ``refine``) as points, with the fixed
-    angle's deflection (m; NaN where out of reach) beside them."""
-    m, steps = vectors.shape[:2]
-    chosen_psi = np.array([angles[k] for k in choice])
-    chosen = [iks[i][k] for i, k in enumerate(choice)]
-    chosen_defl = [vectors[i, k] for i, k in enumerate(choice)]
-    if refine:
-        total = m * steps
-        for i in range(m):
-            _refine_point(problem, i, chosen, chosen_psi, chosen_defl, fixed[i],
-                          2.0 * np.pi / steps)
-            if progress is not None:
-                progress(total + i + 1, total + m)
-    points = []
-    for i in range(m):
-        fixed_vec = vectors[i, 0] if np.isfinite(fixed[i]) else np.full(3, np.nan)
-        ik = chosen[i]
-        points.append(PosturePoint(ik.coords, float(chosen_psi[i]), chosen_defl[i], fixed_vec,
-                                   ik.position_error, ik.rotation_error, ik.q))
-    return points
+def _dynamic_programming(problem: PostureProblem, layers: list[Layer], keep: bool,
+                         bounded: bool) -> list[int] | None:
+    """Node indices (one per point) minimising the sum of squared deflections with every
+    revolute step within the bound (and the branch kept, and no node above its branch's
+    fixed angle, when asked); None if no such sequence."""
+    def allowed(layer: Layer) -> np.ndarray:
+        ok = layer.admissible.copy()
+        if bounded:
+            fixed = fixed_values(layer)
+            ok &= ~np.isfinite(fixed) | (layer.values <= fixed * (1 + 1e-12))
+        return ok
+
+    cost = np.where(allowed(layers[0]), layers[0].values ** 2, np.inf)
+    backs = []
+    for before, layer in zip(layers[:-1], layers[1:], strict=True):
+        jumps = np.abs(layer.coords[:, None, :] - before.coords[None, :, :])[..., problem.angular]
+        link = np.all(jumps <= problem.max_step + 1e-12, axis=2)
+        if keep:
+            link &= layer.branch[:, None] == before.branch[None, :]
+        reach = np.where(link, cost[None, :], np.inf)
+        back = np.argmin(reach, axis=1)
+        cost = np.where(allowed(layer), reach[np.arange(len(back)), back] + layer.values ** 2,
+                        np.inf)
+        backs.append(back)
+        if not np.isfinite(cost).any():
+            return None
+    n = int(np.argmin(cost))
+    if not np.isfinite(cost[n]):
+        return None
+    choice = [n]
+    for back in reversed(backs):
+        n = int(back[n])
+        choice.append(n)
+    return choice[::-1]
 
 
 def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | None,
@@ -460,7 +492,7 @@ def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | Non
 
 
 def _check_search(full: Robot, steps: int, max_step_deg: float, singularity_margin: float,
-                  wrench_frame: str) -> None:
+                  wrench_frame: str, branch: str) -> None:
     """Refuse an arm that cannot hold a pose, or search settings out of range (one line)."""
     if full.n_coordinates < 6:
         raise StiffnessError(
@@ -477,114 +509,21 @@ def _check_search(full: Robot, steps: int, max_step_deg: float, singularity_marg
                              f"{MAX_STEPS}")
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
+    if branch not in BRANCH_MODES:
+        raise StiffnessError(f"--branch must be any or keep, got {branch!r}")
 
 
-def _candidate_tracks(problem: _Problem, offsets: np.ndarray, angles: np.ndarray,
-                      start: tuple[np.ndarray, np.ndarray],
-                      progress: Callable[[int, int], None] | None, extra: int
-                      ) -> list[list[IKResult | None]]:
-    """The IK of every point at every candidate angle (rad; ``None`` where it fails), each
-    seeded from the same angle at the previous point, the nearest solved angle, the previous
-    point's first solution and ``start`` (coordinates, configuration); ``extra`` progress
-    steps follow.
-
-    Raises
-    ------
-    ConvergenceError
-        A point no angle reaches.
-    """
-    m, steps = problem.positions.shape[0], len(angles)
-    iks: list[list[IKResult | None]] = []
-    sweep = sorted(range(steps), key=lambda k: (abs(offsets[k]), offsets[k]))
-    for i in range(m):
-        row: list[IKResult | None] = [None] * steps
-        for k in (sweep if i == 0 else range(steps)):
-            seeds = []
-            if i > 0 and iks[i - 1][k] is not None:
-                seeds.append((iks[i - 1][k].coords, iks[i - 1][k].q))
-            near = [j for j in sweep if row[j] is not None]
-            if near:
-                j = min(near, key=lambda j: abs(np.angle(np.exp(1j * (offsets[j] - offsets[k])))))
-                seeds.append((row[j].coords, row[j].q))
-            if i > 0:
-                prev = [r for r in iks[i - 1] if r is not None]
-                if prev:
-                    seeds.append((prev[0].coords, prev[0].q))
-            seeds.append(start)
-            row[k] = problem.solve(i, angles[k], seeds)
-        if all(r is None for r in row):
-            raise ConvergenceError(
-                f"row {i + 1}: the pose at {np.round(problem.positions[i], 6).tolist()} m is out "
-                "of reach for every angle about the free axis (within the joint limits); move it "
-                "into the workspace")
-        iks.append(row)
-        if progress is not None:
-            progress((i + 1) * steps, m * steps + extra)
-    return iks
-
-
-def _candidate_deflections(problem: _Problem, iks: list[list[IKResult | None]],
-                           angles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(m, S) deflection norms (m; inf where unsolved), (m, S, 3) deflections (m) and (m, S)
-    admissibility (away from singularities) of the candidates."""
-    m, steps = len(iks), len(angles)
-    deflection = np.full((m, steps), np.inf)
-    vectors = np.full((m, steps, 3), np.nan)
-    admissible = np.zeros((m, steps), dtype=bool)
-    for i in range(m):
-        for k in range(steps):
-            ik = iks[i][k]
-            if ik is None:
-                continue
-            vectors[i, k] = problem.deflection(i, angles[k], ik)
-            deflection[i, k] = float(np.linalg.norm(vectors[i, k]))
-            admissible[i, k] = problem.admissible(ik)
-    return deflection, vectors, admissible
-
-
-def _cheapest_track(problem: _Problem, iks: list[list[IKResult | None]],
-                    deflection: np.ndarray, admissible: np.ndarray, bounded: bool
-                    ) -> list[int] | None:
-    """Dynamic programming: the admissible candidate per point (indices) with the least sum
-    of squared deflections whose joint steps stay within the bound; ``bounded``: no point
-    worse than the fixed angle's (candidate 0) where that one is admissible. ``None``: none."""
-    m, steps = deflection.shape
-    fixed = deflection[:, 0]
-    ok = admissible.copy()
-    if bounded:
-        ok &= ~np.isfinite(fixed[:, None]) | (deflection <= fixed[:, None] * (1 + 1e-12))
-    cost = np.where(ok[0], deflection[0] ** 2, np.inf)
-    back = np.zeros((m, steps), dtype=int)
-    for i in range(1, m):
-        new = np.full(steps, np.inf)
-        for k in range(steps):
-            if not ok[i, k]:
-                continue
-            for j in range(steps):
-                if np.isfinite(cost[j]) and cost[j] < new[k] and problem.step_ok(
-                        iks[i - 1][j].coords, iks[i][k].coords):
-                    new[k], back[i, k] = cost[j], j
-            new[k] += deflection[i, k] ** 2
-        cost = new
-        if not np.isfinite(cost).any():
-            return None
-    k = int(np.argmin(cost))
-    if not np.isfinite(cost[k]):
-        return None
-    choice = [k]
-    for i in range(m - 1, 0, -1):
-        k = int(back[i, k])
-        choice.append(k)
-    return choice[::-1]
-
-
-def _refine_point(problem: _Problem, i: int, chosen: list[IKResult], psi: np.ndarray,
+def _refine_point(problem: PostureProblem, i: int, chosen: list[IKResult], psi: np.ndarray,
                   defl: list[np.ndarray], bound: float, spacing: float) -> None:
-    """Refine point ``i``'s angle (and null-space posture) in place under the constraints."""
+    """Refine point ``i``'s angle (and null-space posture) in place under the constraints.
+
+    The angle walks downhill in half-spacing steps on its branch (each IK seeded from the last
+    one) as far as the constraints allow, then a bounded scalar minimisation polishes the best
+    bracket; a redundant arm then descends in its null space.
+    """
     from scipy.optimize import minimize_scalar
 
     m = len(chosen)
-    cache: dict[float, tuple[float, IKResult, np.ndarray]] = {}
 
     def feasible(ik: IKResult) -> bool:
         if i > 0 and not problem.step_ok(chosen[i - 1].coords, ik.coords):
@@ -593,28 +532,43 @@ def _refine_point(problem: _Problem, i: int, chosen: list[IKResult], psi: np.nda
             return False
         return problem.admissible(ik)
 
-    def evaluate(angle: float) -> float:
-        ik = problem.solve(i, angle, [(chosen[i].coords, chosen[i].q)])
+    samples: dict[float, tuple[float, IKResult, np.ndarray]] = {
+        float(psi[i]): (float(np.linalg.norm(defl[i])), chosen[i], defl[i])}
+
+    def evaluate(angle: float, seed: IKResult) -> float:
+        ik = problem.follow(i, angle, [seed])
         if ik is None or not feasible(ik):
             return np.inf
         vec = problem.deflection(i, angle, ik)
         value = float(np.linalg.norm(vec))
         if np.isfinite(bound) and value > bound * (1 + 1e-12):
             return np.inf
-        cache[angle] = (value, ik, vec)
+        samples[angle] = (value, ik, vec)
         return value
 
-    current = float(np.linalg.norm(defl[i]))
-    minimize_scalar(lambda a: min(evaluate(a), 1e9), bounds=(psi[i] - spacing, psi[i] + spacing),
-                    method="bounded", options={"xatol": 1e-6})
-    best = min(cache.items(), key=lambda kv: kv[1][0]) if cache else None
-    if best is not None and best[1][0] < current:
-        psi[i], (current, chosen[i], defl[i]) = best[0], best[1]
+    h = spacing / 2.0
+    for direction in (1.0, -1.0):
+        angle, (value, ik, _) = float(psi[i]), samples[float(psi[i])]
+        while abs(angle + direction * h - psi[i]) <= np.pi:
+            trial = angle + direction * h
+            if evaluate(trial, ik) >= value:
+                break
+            angle, (value, ik, _) = trial, samples[trial]
+    centre = min(samples, key=lambda a: samples[a][0])
+
+    def polished(angle: float) -> float:
+        seed = samples[min(samples, key=lambda a: abs(a - angle))][1]
+        return min(evaluate(angle, seed), 1e9)
+
+    minimize_scalar(polished, bounds=(centre - h, centre + h), method="bounded",
+                    options={"xatol": 1e-6})
+    best = min(samples, key=lambda a: samples[a][0])
+    psi[i], (_, chosen[i], defl[i]) = best, samples[best]
     if problem.full.n_coordinates > 6:
         _null_space_descent(problem, i, chosen, psi, defl, feasible, bound)
 
 
-def _null_space_descent(problem: _Problem, i: int, chosen: list[IKResult], psi: np.ndarray,
+def _null_space_descent(problem: PostureProblem, i: int, chosen: list[IKResult], psi: np.ndarray,
                         defl: list[np.ndarray], feasible, bound: float,
                         iterations: int = 20) -> None:
     """Lower point ``i``'s deflection by moving in the null space of its pose Jacobian.
