@@ -64,8 +64,11 @@ def _campaign(robot, seed: int, n: int = 50, **kw):
                                           payload=PAYLOAD)
 
 
-def test_jacobian_matches_finite_differences(ur10):
-    """Every column of d y / d x, every family, against central differences (1e-6)."""
+@pytest.mark.parametrize("sagging", [False, True])
+def test_jacobian_matches_finite_differences(ur10, sagging):
+    """Every column of d y / d x, every family, against central differences: to 1e-6 at zero
+    compliance (where every column is exact), to 1e-2 on a sagging arm (the derivative holds
+    the torques at the loaded configuration fixed: the documented C dtau/dq approximation)."""
     rng = np.random.default_rng(0)
     frame0 = (pin.exp3(rng.normal(size=3)), np.array([1.0, 2.0, 0.5]))
     model = PoseModel(ur10, _markers(), FAMILIES, frame0, Loads("tool0", np.zeros((0, 6))))
@@ -73,14 +76,19 @@ def test_jacobian_matches_finite_differences(ur10):
             for _ in range(3)]
     scales = np.array([p.scale for p in model.parameters])
     x = rng.normal(size=model.size) * scales * 3
+    elastic = np.array([p.family in ("joint_compliance", "gravity_lumped")
+                        for p in model.parameters])
+    if not sagging:
+        x[elastic] = 0.0
     _, jac = model.evaluate(x, rows)
     for c in range(model.size):
-        h = 1e-2 * scales[c]
+        h = (1.0 if elastic[c] else 1e-2) * scales[c]
         e = np.zeros(model.size)
         e[c] = h
         fd = (model.evaluate(x + e, rows, False)[0] - model.evaluate(x - e, rows, False)[0]) / (
             2 * h)
-        assert np.abs(jac[..., c] - fd).max() <= 1e-6 * max(np.abs(fd).max(), 1e-3), \
+        tol = 1e-2 if sagging else 1e-6
+        assert np.abs(jac[..., c] - fd).max() <= tol * max(np.abs(fd).max(), 1e-3), \
             model.parameters[c].label
 
 

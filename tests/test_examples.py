@@ -84,3 +84,9 @@ def test_compensation_example_cancels_the_deflection(outputs):
     text = outputs["05_compensate_ur5.py"].stdout
     assert _number(r"residual ([0-9.e+-]+) m exact", text) < 1e-9
     assert _number(r"\(factor ([0-9.]+)\)", text) > 1.0
+
+
+def test_pose_calibration_example_closes_the_gap_to_the_noise(outputs):
+    text = outputs["07_pose_calibration.py"].stdout
+    assert _number(r"from ([0-9.]+) um to", text) > 300.0
+    assert _number(r"to ([0-9.]+) um \(noise", text) < 25.0

@@ -26,16 +26,19 @@ with the parameter families of :data:`FAMILIES`:
     ``joint_offsets``, so the two families never share a direction (5 parameters per joint);
 ``joint_compliance``
     each compliant joint's compliance ``c_j`` (rad/(N.m), or m/N): ``Delta q_j = c_j tau_j``
-    with ``tau = J_load^T w - g(q)``, the applied wrench's and gravity's torque at the commanded
-    coordinates of the nominal robot (first order in the compliance: at tracker noise and real
-    compliances the neglected term is below a micrometre, docs/absolute-poses.md);
+    with ``tau = J_load(q)^T w - g(q)``, the applied wrench's and gravity's torque at the loaded
+    configuration ``q`` itself (the sag's fixed point, :meth:`PoseModel.loaded_configuration`);
 ``gravity_lumped``
     masses unknown: ``Delta q_j = - sum_k theta_jk Y_jk(q)``, with ``Y`` the gravity regressor
-    (Pinocchio's joint-torque regressor at rest) and ``theta_jk = c_j pi_k`` lumped; only the
-    combinations the data determine are fitted.
+    (Pinocchio's joint-torque regressor at rest, at the loaded configuration) and
+    ``theta_jk = c_j pi_k`` lumped; only the combinations the data determine are fitted.
 
 Every column of the Jacobian is analytic (Pinocchio's frame Jacobians, the right Jacobians of
-``exp`` on SO(3) and SE(3)); finite differences check it in the tests. SI units throughout.
+``exp`` on SO(3) and SE(3)); finite differences check it in the tests. The derivative holds
+the torques at the loaded configuration fixed (the sag's own change with the parameters is left
+out): exact at zero compliance, and off by the relative size of ``C dtau/dq`` (about 1e-3 on
+real arms) elsewhere, which shapes the solver's path, not the converged prediction. SI units
+throughout.
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
 
 #: Parameter families, in the order the columns are laid out.
@@ -59,6 +62,9 @@ PLACEMENT_UNITS = ("m", "m", "m", "rad", "rad", "rad")
 #: Unit of a lumped gravity parameter (compliance times a mass or a mass moment).
 LUMPED_UNIT = "rad/(N.m) x (kg or kg.m)"
 _AXES6 = ("x", "y", "z", "rx", "ry", "rz")
+#: Tolerance (rad or m) and iteration cap of the sag's fixed point.
+SAG_TOLERANCE = 1e-13
+SAG_ITERATIONS = 50
 #: Gravity parameters of a link in Pinocchio's order (m, m c_x, m c_y, m c_z, inertia...).
 _GRAVITY_PARAMETERS = ("m", "mcx", "mcy", "mcz")
 
@@ -114,23 +120,36 @@ class Loads:
 
 @dataclass(frozen=True)
 class RowTerms:
-    """Terms of one row that do not depend on the parameters (nominal robot, commanded pose).
+    """What a row gives the model: the commanded configuration and the applied wrench.
 
     Attributes
     ----------
     q_full
         Commanded Pinocchio configuration (nq,).
-    gravity_torque
-        Gravity's generalised force ``-g(q)`` (nv,), N.m or N.
-    wrench_torque
-        The applied wrench's generalised force ``J_load^T w`` (nv,).
+    wrench
+        Applied wrench (6,) in world axes at the load frame (N, N.m), or ``None``.
+    """
+
+    q_full: np.ndarray
+    wrench: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Torques:
+    """Generalised forces at a configuration (nv,), N.m or N.
+
+    Attributes
+    ----------
+    gravity
+        Gravity's generalised force ``-g(q)``.
+    wrench
+        The applied wrench's ``J_load(q)^T w``.
     lumped
         d(Delta q)/d theta of the lumped gravity parameters (nv, n_theta).
     """
 
-    q_full: np.ndarray
-    gravity_torque: np.ndarray
-    wrench_torque: np.ndarray
+    gravity: np.ndarray
+    wrench: np.ndarray
     lumped: np.ndarray
 
 
@@ -252,26 +271,29 @@ class PoseModel:
         return model
 
     def row_terms(self, q_full: np.ndarray, wrench: np.ndarray | None) -> RowTerms:
-        """What a row contributes whatever the parameters: torques of the nominal robot."""
-        model = self.robot.model
-        data = model.createData()
-        gravity = -pin.computeGeneralizedGravity(model, data, q_full).copy()
-        wrench_torque = np.zeros(model.nv)
+        """A row's commanded configuration and applied wrench (``None``: gravity alone)."""
+        return RowTerms(np.asarray(q_full, dtype=float),
+                        None if wrench is None or self.loads is None else np.asarray(wrench))
+
+    def torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
+                wrench: np.ndarray | None) -> Torques:
+        """Gravity's and the wrench's generalised forces at ``q`` for ``model``."""
+        gravity = -pin.computeGeneralizedGravity(model, data, q).copy()
+        applied = np.zeros(model.nv)
         if wrench is not None and self.loads is not None:
-            fid = self._frame_id(self.loads.frame)
-            pin.computeJointJacobians(model, data, q_full)
+            pin.computeJointJacobians(model, data, q)
             pin.updateFramePlacements(model, data)
-            jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-            wrench_torque = jac.T @ wrench
+            applied = pin.getFrameJacobian(model, data, self._frame_id(self.loads.frame),
+                                           pin.LOCAL_WORLD_ALIGNED).T @ wrench
         lumped = np.zeros((model.nv, 0))
         if "gravity_lumped" in self.families:
-            regressor = pin.computeJointTorqueRegressor(model, data, q_full, np.zeros(model.nv),
+            regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(model.nv),
                                                         np.zeros(model.nv))
             lumped = self._lumped_columns(regressor, self._compliant_v())
-        return RowTerms(q_full, gravity, wrench_torque, lumped)
+        return Torques(gravity, applied, lumped)
 
-    def deflection(self, x: np.ndarray, row: RowTerms) -> np.ndarray:
-        """Joint deflection ``Delta q`` (nv,) of one row for parameters ``x``.
+    def deflection(self, x: np.ndarray, torques: Torques) -> np.ndarray:
+        """Joint deflection ``Delta q`` (nv,) under ``torques`` for parameters ``x``.
 
         The compliance multiplies the applied wrench's torque, and gravity's too unless the
         gravity part is lumped (``gravity_lumped``: masses unknown).
@@ -280,11 +302,43 @@ class PoseModel:
         sl = self.slices()
         v_index = self._compliant_v()
         if "joint_compliance" in sl:
-            torque = row.wrench_torque + (0.0 if "gravity_lumped" in sl else row.gravity_torque)
+            torque = torques.wrench + (0.0 if "gravity_lumped" in sl else torques.gravity)
             dq[v_index] += x[sl["joint_compliance"]] * torque[v_index]
         if "gravity_lumped" in sl:
-            dq += row.lumped @ x[sl["gravity_lumped"]]
+            dq += torques.lumped @ x[sl["gravity_lumped"]]
         return dq
+
+    @property
+    def elastic(self) -> bool:
+        """Whether the model has a compliance family (the arm sags)."""
+        return bool({"joint_compliance", "gravity_lumped"} & set(self.families))
+
+    def loaded_configuration(self, model: pin.Model, data: pin.Data, x: np.ndarray,
+                             row: RowTerms) -> tuple[np.ndarray, Torques | None]:
+        """The configuration the links are at, and the torques there.
+
+        ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved by fixed-point
+        iteration (to :data:`SAG_TOLERANCE`; it contracts by about ``|C dtau/dq|``, 1e-3 for
+        real arms).
+        """
+        offsets = np.zeros(model.nv)
+        sl = self.slices().get("joint_offsets")
+        if sl is not None:
+            offsets[self._joint_v()] = x[sl]
+        if not self.elastic:
+            return pin.integrate(model, row.q_full, offsets), None
+        sag = np.zeros(model.nv)
+        for _ in range(SAG_ITERATIONS):
+            q = pin.integrate(model, row.q_full, offsets + sag)
+            torques = self.torques(model, data, q, row.wrench)
+            new = self.deflection(x, torques)
+            converged = np.max(np.abs(new - sag)) <= SAG_TOLERANCE
+            sag = new
+            if converged:
+                return pin.integrate(model, row.q_full, offsets + sag), torques
+        raise ConvergenceError("the sag of the fitted compliance does not converge: the "
+                               "compliance is too large for the arm's weight; check the "
+                               "campaign's units and masses")
 
     def _compliant_v(self) -> list[int]:
         return [self.robot.model.joints[j].idx_v for j in self._compliant()]
@@ -316,7 +370,7 @@ class PoseModel:
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
         for i, row in enumerate(rows):
-            q = pin.integrate(model, row.q_full, self._joint_motion(x, row))
+            q, torques = self.loaded_configuration(model, data, x, row)
             pin.forwardKinematics(model, data, q)
             pin.updateFramePlacements(model, data)
             if jacobian:
@@ -328,8 +382,8 @@ class PoseModel:
                 world = self.rotation0 @ point
                 y[i, k] = rot_w @ world + self.translation0 + self._translation(x)
                 if jac is not None:
-                    jac[i, k] = self._columns(x, sl, model, data, row, fid, point, world,
-                                              k, rot_w, d_omega)
+                    jac[i, k] = self._columns(x, sl, model, data, torques, fid, point,
+                                              world, k, rot_w, d_omega)
         return y, jac
 
     def _measuring_rotation(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -353,18 +407,15 @@ class PoseModel:
         rot, _ = self._measuring_rotation(x)
         return rot @ self.rotation0, self.translation0 + self._translation(x)
 
-    def _joint_motion(self, x: np.ndarray, row: RowTerms) -> np.ndarray:
-        """Tangent step (nv,) from the commanded configuration: zero offsets plus deflection."""
-        dv = self.deflection(x, row)
-        sl = self.slices().get("joint_offsets")
-        if sl is not None:
-            dv[[self.robot.model.joints[j].idx_v for j in self.joints]] += x[sl]
-        return dv
-
     def _columns(self, x: np.ndarray, sl: dict[str, slice], model: pin.Model, data: pin.Data,
-                 row: RowTerms, fid: int, point: np.ndarray, world: np.ndarray, k: int,
-                 rot_w: np.ndarray, d_omega: np.ndarray) -> np.ndarray:
-        """d y / d x (3, p) of one marker on one row."""
+                 torques: Torques | None, fid: int, point: np.ndarray, world: np.ndarray,
+                 k: int, rot_w: np.ndarray, d_omega: np.ndarray) -> np.ndarray:
+        """d y / d x (3, p) of one marker on one row.
+
+        The torques at the loaded configuration are held fixed (their change with the
+        parameters, relative size ``|C dtau/dq|``, is left out of the derivative; the
+        prediction itself is the converged fixed point).
+        """
         cols = np.zeros((3, self.size))
         to_measuring = rot_w @ self.rotation0
         if "frame" in sl:
@@ -377,13 +428,13 @@ class PoseModel:
         j_point = self._point_jacobian(model, data, fid, point)
         if "joint_offsets" in sl:
             cols[:, sl["joint_offsets"]] = to_measuring @ j_point[:, self._joint_v()]
-        if "joint_compliance" in sl:
-            torque = row.wrench_torque + (0.0 if "gravity_lumped" in sl else row.gravity_torque)
+        if torques is not None and "joint_compliance" in sl:
+            torque = torques.wrench + (0.0 if "gravity_lumped" in sl else torques.gravity)
             v_index = self._compliant_v()
             cols[:, sl["joint_compliance"]] = to_measuring @ (j_point[:, v_index]
                                                               * torque[v_index])
-        if "gravity_lumped" in sl:
-            cols[:, sl["gravity_lumped"]] = to_measuring @ j_point @ row.lumped
+        if torques is not None and "gravity_lumped" in sl:
+            cols[:, sl["gravity_lumped"]] = to_measuring @ j_point @ torques.lumped
         if "geometry" in sl:
             cols[:, sl["geometry"]] = to_measuring @ self._geometry_columns(x, sl, model, data,
                                                                           fid, point)
