@@ -18,6 +18,7 @@ import pytest
 from scipy.stats import binom
 
 from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.diagnose import diagnose, format_report
 from stiffness.calibration.fitting import LOSSES, covariance, fit_model, loss_terms
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.calibration.outliers import (
@@ -163,3 +164,28 @@ def test_robust_loss_refuses_levenberg_marquardt(tmp_path):
         identify(c, loss="huber", method="lm")
     with pytest.raises(StiffnessError, match="unknown loss"):
         identify(c, loss="l1")
+
+
+def test_diagnose_flags_outliers_and_takes_a_robust_loss(tmp_path):
+    """Two gross outliers in a clean campaign: the robust diagnosis names no effect; both
+    diagnoses flag both rows by label, in text, JSON and the page; no row is dropped."""
+    c = simulated(tmp_path / "c", seed=4, configs=8, loads=3)
+    rows = with_gross_outliers(c, seed=4, share=0.08)
+    assert len(rows) == 2
+    expected = [(c.config[i], i + 1) for i in rows]
+    robust = diagnose(c, propose=False, workers=1, loss="soft_l1", max_steps=2)
+    summary = robust.to_dict()
+    assert summary["loss"] == "soft_l1" and summary["missing_effects"] == []
+    # the outliers themselves stay above the noise (no row is dropped), and the verdict says so
+    assert "2 row(s) are flagged as outliers" in robust.unexplained_note
+    assert [(o["label"], o["row"]) for o in summary["outliers"]] == expected
+    assert robust.final.predicted.shape[0] == c.n_rows
+    plain = diagnose(c, propose=False, workers=1, max_steps=0)
+    # least squares, pulled by the outliers, may flag a neighbour as well
+    assert set(expected) <= {(o.label, o.row) for o in plain.outliers}
+    text = format_report(plain)
+    assert f"config {expected[0][0]} row {expected[0][1]}" in text
+    paths = robust.write(tmp_path / "out", command="stiffness diagnose c --loss soft_l1")
+    page = paths["page"].read_text()
+    assert "Rows flagged as outliers" in page and "sandwich" in page
+    assert all(f"<td>{label}</td>" in page for label, _ in expected)

@@ -54,12 +54,19 @@ from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign, Units, load_campaign
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit, FitJob, kind_noise, observations
+from stiffness.calibration.outliers import (
+    OUTLIER_THRESHOLD,
+    Outlier,
+    describe_outliers,
+    flag_fit,
+    robust_noise,
+)
 from stiffness.elastic.effects import candidates
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References, Rows
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
 
@@ -108,17 +115,21 @@ _MIN_REPLICATE_DOF = 9
 
 
 def fit_job(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
-            max_nfev: int | None = None, tolerance: float = 1e-10) -> FitJob:
+            max_nfev: int | None = None, tolerance: float = 1e-10, loss: str = "linear",
+            f_scale: float = 1.0) -> FitJob:
     """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
-    to the solver ``tolerance``, to run (:class:`stiffness.calibration.fitting.FitJob`)."""
+    to the solver ``tolerance`` under ``loss`` (soft threshold ``f_scale`` in units of
+    ``scale``), to run (:class:`stiffness.calibration.fitting.FitJob`)."""
     return FitJob(model, measured, scale, x0,
-                  {"max_nfev": max_nfev, "x_scale": 1.0, "tolerance": tolerance})
+                  {"max_nfev": max_nfev, "x_scale": 1.0, "tolerance": tolerance,
+                   "loss": loss, "f_scale": f_scale})
 
 
 def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
-              max_nfev: int | None = None, tolerance: float = 1e-10) -> Fit:
+              max_nfev: int | None = None, tolerance: float = 1e-10, loss: str = "linear",
+              f_scale: float = 1.0) -> Fit:
     """:func:`fit_job`'s fit, in this process."""
-    return fit_job(model, measured, scale, x0, max_nfev, tolerance).run()
+    return fit_job(model, measured, scale, x0, max_nfev, tolerance, loss, f_scale).run()
 
 
 def _linear_start(model: Hypothesis, measured: np.ndarray) -> np.ndarray:
@@ -134,12 +145,15 @@ def _linear_start(model: Hypothesis, measured: np.ndarray) -> np.ndarray:
     return np.log(np.where(np.isfinite(k), k, fill))
 
 
-def fit_baseline(model: Hypothesis, measured: np.ndarray, scale: float) -> Fit:
-    """Baseline fit from the linear start and the paper's 1e5 N.m/rad start; the best kept."""
+def fit_baseline(model: Hypothesis, measured: np.ndarray, scale: float, loss: str = "linear"
+                 ) -> Fit:
+    """Baseline fit from the linear start and the paper's 1e5 N.m/rad start; the best kept
+    (a robust ``loss`` scaled by ``scale``, the noise std)."""
     n = len(model.compliant)
     starts = [_linear_start(model, measured), np.full(n, math.log(1e5))]
-    fits = [fit_model(model, measured, scale, x0, max_nfev=200 * (n + 1)) for x0 in starts]
-    return min(fits, key=lambda f: f.rss)
+    fits = [fit_model(model, measured, scale, x0, max_nfev=200 * (n + 1), loss=loss)
+            for x0 in starts]
+    return min(fits, key=lambda f: f.loss_rss)
 
 
 def information_criterion(rss: float, n: int, p: int, sigma: float | None) -> float:
@@ -161,7 +175,7 @@ def step_dispersion(fits: list[Fit], n: int, sigma: float | None) -> float:
     """
     if sigma is None:
         return 1.0
-    ratios = [f.rss / (sigma ** 2 * max(n - f.model.penalty_params, 1)) for f in fits]
+    ratios = [f.loss_rss / (sigma ** 2 * max(n - f.model.penalty_params, 1)) for f in fits]
     return max(1.0, min(ratios))
 
 
@@ -190,7 +204,8 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
     m = measured.shape[0]
     trains = [np.setdiff1d(np.arange(m), test) for test in folds]
     subs = fitting.fit_models([fit_job(f.model.with_rows(f.model.rows.subset(train)),
-                                       measured[train], f.scale, f.x)
+                                       measured[train], f.scale, f.x, loss=f.loss,
+                                       f_scale=f.f_scale)
                                for f in fits for train in trains], workers)
     out = []
     for i, fit in enumerate(fits):
@@ -210,9 +225,9 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
     return out
 
 
-def _covariance(fit: Fit, sigma: float) -> np.ndarray:
-    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+``."""
-    return fitting.covariance(fit, sigma).matrix
+def _covariance(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray:
+    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+`` (a robust fit's sandwich)."""
+    return fitting.covariance(fit, sigma, measured).matrix
 
 
 # ------------------------------------------------------------------------------------------
@@ -588,6 +603,12 @@ class Diagnosis:
         outside the library is in the data, and :attr:`final_disagreement` says where to look.
         ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
         from the residuals (no test available).
+    loss
+        The loss of every fit (:data:`stiffness.calibration.fitting.LOSSES`).
+    outliers, outlier_sigma_m
+        The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
+        (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
+        they are standardised by.
     """
 
     campaign: Campaign
@@ -613,6 +634,9 @@ class Diagnosis:
     measured: np.ndarray | None = None
     rotation_noise_std_rad: float | None = None
     rotation_noise_source: str | None = None
+    loss: str = "linear"
+    outliers: list[Outlier] = field(default_factory=list)
+    outlier_sigma_m: float | None = None
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -649,7 +673,9 @@ class Diagnosis:
         return (f"the residual is still above the noise (chi-square p = {self.gof_final:.3g} "
                 f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
                 "cross-validation: the data contain something the library does not model; "
-                "the residual's structure (where_final_disagrees) says where to look")
+                "the residual's structure (where_final_disagrees) says where to look"
+                + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
+                   "fail the test (see outliers)" if self.outliers else ""))
 
     @property
     def missing_effects(self) -> list[str]:
@@ -671,6 +697,9 @@ class Diagnosis:
             "unexplained": self.unexplained,
             "final_rms": self._len(self.final.rms()),
             "unit": self.unit,
+            "loss": self.loss,
+            "outlier_threshold": OUTLIER_THRESHOLD,
+            "outliers": [o.to_dict() for o in self.outliers],
         })
 
     def summary(self) -> dict:
@@ -824,6 +853,7 @@ def diagnose(
     propose: bool = True,
     progress: Callable[[str], None] | None = None,
     workers: int | None = None,
+    loss: str = "linear",
 ) -> Diagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
@@ -846,6 +876,12 @@ def diagnose(
         Processes fitting a step's candidates and cross-validation folds side by side
         (:func:`stiffness.calibration.fitting.fit_models`; default the usable cores, 1 in this
         process); the result does not depend on it.
+    loss
+        ``linear`` (least squares) or a robust loss of
+        :data:`stiffness.calibration.fitting.LOSSES` for every fit, scaled by the noise std
+        (declared, replicates', else a robust estimate); criteria then compare
+        :attr:`stiffness.calibration.fitting.Fit.loss_rss` and intervals come from Huber's
+        sandwich covariance.
 
     Returns
     -------
@@ -861,6 +897,10 @@ def diagnose(
             or max_steps < 0:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
                              f"only), got {max_steps!r}")
+    if loss not in fitting.LOSSES:
+        raise UnknownNameError(f"unknown loss {loss!r}; valid losses: "
+                               f"{', '.join(fitting.LOSSES)}", name=loss,
+                               choices=fitting.LOSSES)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     t0 = time.perf_counter()
@@ -876,32 +916,35 @@ def diagnose(
     sigma, source, note = _translation_noise(campaign)
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
         campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (),
-                        References.of(geo, rows, 1e5, campaign.deflection)), n, sigma)
+                        References.of(geo, rows, 1e5, campaign.deflection)), n, sigma, loss)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
     cv_base = cross_validate([base], measured, folds, workers)[0]
     search = _Search(measured, folds, scale, n, sigma, workers, say)
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.model.penalty_params
-    gof_final = _gof(final.rss, n, p_final, sigma)
+    gof_final = _gof(final.loss_rss, n, p_final, sigma)
     if sigma is None:
-        sigma_used = math.sqrt(final.rss / max(n - p_final, 1))
+        sigma_used = math.sqrt(final.loss_rss / max(n - p_final, 1))
         note = (f"estimated from the residuals of the final model ({final.model.describe()}, "
                 f"{n - p_final} degrees of freedom): it includes any model error left, so the "
                 "fit-to-noise test is not available and 'nothing missing' means only that no "
                 "candidate helped")
     else:
         sigma_used = sigma
-    quantile = _quantile(sigma, n, p_final)
-    cov_final = _covariance(final, sigma_used)
+    known = sigma if loss == "linear" else None  # a sandwich estimates its spread: t
+    quantile = _quantile(known, n, p_final)
+    cov_final = _covariance(final, sigma_used, measured)
     cov_base = _covariance(base, sigma_used if sigma is not None else math.sqrt(
-        base.rss / max(n - base.model.penalty_params, 1)))
+        base.loss_rss / max(n - base.model.penalty_params, 1)), measured)
+    outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
+                                       tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(ambiguities_raw, sigma_used, campaign, geo,
                                seed if propose else None)
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=_stiffness_parameters(base, cov_base, _quantile(
-            sigma, n, base.model.penalty_params)),
+            known, n, base.model.penalty_params)),
         final_stiffness=_stiffness_parameters(final, cov_final, quantile),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
@@ -909,7 +952,7 @@ def diagnose(
                                            sigma_used, rows, geo.joints),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
                                         sigma_used, rows, geo.joints),
-        gof_baseline=_gof(base.rss, n, base.model.penalty_params, sigma),
+        gof_baseline=_gof(base.loss_rss, n, base.model.penalty_params, sigma),
         gof_final=gof_final, unexplained=None if gof_final is None
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
@@ -917,6 +960,7 @@ def diagnose(
         final_parameters=_effect_parameters(final, cov_final, quantile, campaign.units),
         final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
+        loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma,
     )
 
 
@@ -932,10 +976,13 @@ def _translation_noise(campaign: Campaign) -> tuple[float | None, str, str]:
     return None, "residuals", ""
 
 
-def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None
+def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
+                  loss: str = "linear"
                   ) -> tuple[Fit, np.ndarray, float, float | None, str | None]:
     """The campaign's baseline ``model0`` fitted (rotations weighted by their noise, estimated
-    from the baseline's residuals when not known), with the references of its stiffness.
+    from the baseline's residuals when not known), with the references of its stiffness;
+    under a robust ``loss`` scaled by ``sigma`` (m), else by a robust estimate
+    (:func:`stiffness.calibration.outliers.robust_noise`, twice).
 
     Returns
     -------
@@ -948,7 +995,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma)
     measured = observations(deflection, campaign.rotation, weight)
     model0 = model0.with_rotation_weight(weight)
-    base = fit_baseline(model0, measured, scale)
+    base = fit_baseline(model0, measured, scale, loss if sigma is not None else "linear")
     if rot_source == "residuals":  # the rotation noise from the baseline's residuals
         res_t, res_r = base.residuals(measured)
         s_t = sigma if sigma is not None else kind_noise(res_t, n, len(base.x))
@@ -956,13 +1003,17 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
         if s_t and rot_sigma:
             weight = s_t / rot_sigma
             measured = observations(deflection, campaign.rotation, weight)
-            base = fit_baseline(model0.with_rotation_weight(weight), measured, scale)
+            base = fit_baseline(model0.with_rotation_weight(weight), measured, scale,
+                                loss if sigma is not None else "linear")
     k_ref = float(np.exp(np.mean(base.x)))
     base.model = base.model.with_refs(References.of(model0.geometry, model0.rows, k_ref,
                                                     deflection))
-    if sigma is None:
+    if sigma is None and loss == "linear":
         scale = max(base.rms(), 1e-12)
         base = fit_model(base.model, measured, scale, base.x)
+    for _ in range(2 if sigma is None and loss != "linear" else 0):
+        scale = robust_noise(base.predicted - measured, len(base.x)) or max(base.rms(), 1e-12)
+        base = fit_model(base.model, measured, scale, base.x, loss=loss)
     return base, measured, scale, rot_sigma, rot_source
 
 
@@ -992,7 +1043,7 @@ class _Search:
         steps: list[Step] = []
         ambiguities: list[tuple[int, Candidate, Candidate, float]] = []
         while True:
-            gof = _gof(current.rss, self.n, current.model.penalty_params, self.sigma)
+            gof = _gof(current.loss_rss, self.n, current.model.penalty_params, self.sigma)
             if gof is not None and gof > 1.0 - GOF_LEVEL:
                 return current, steps, ambiguities, (
                     f"the model explains the data to noise (chi-square p = {gof:.3g} > "
@@ -1025,13 +1076,16 @@ class _Search:
         effects = candidates(current.model)
         fits = list(zip(effects, fitting.fit_models(
             [fit_job(current.model.extended(e), self.measured, self.scale,
-                     current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE)
+                     current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,
+                     loss=current.loss, f_scale=current.f_scale)
              for e in effects], self.workers), strict=True))
         results, _ = _ranked(current, fits, self.n, self.sigma)
         best = {id(c.effect) for c in results[:REFINE_TOP]}
         refine = [i for i, (e, _) in enumerate(fits) if id(e) in best]
         refined = fitting.fit_models([fit_job(fits[i][1].model, self.measured, self.scale,
-                                              fits[i][1].x) for i in refine], self.workers)
+                                              fits[i][1].x, loss=current.loss,
+                                              f_scale=current.f_scale) for i in refine],
+                                     self.workers)
         for i, fit in zip(refine, refined, strict=True):
             fits[i] = (fits[i][0], fit)
         return _ranked(current, fits, self.n, self.sigma)
@@ -1061,10 +1115,11 @@ class _Search:
         """The :class:`Step` that adds ``winner``: its parameters with intervals, the step's
         ranking."""
         fit = winner.fit
-        sig = self.sigma if self.sigma is not None else math.sqrt(fit.rss / max(
+        sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
             self.n - fit.model.penalty_params, 1))
-        cov = _covariance(fit, sig)
-        quantile = _quantile(self.sigma, self.n, fit.model.penalty_params)
+        cov = _covariance(fit, sig, self.measured)
+        quantile = _quantile(self.sigma if fit.loss == "linear" else None, self.n,
+                             fit.model.penalty_params)
         params = _effect_parameters(fit, cov, quantile, units)
         ranking = [{"effect": c.effect.name, "where": c.effect.where,
                     "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
@@ -1109,9 +1164,11 @@ def _ranked(current: Fit, fits: list[tuple[Effect, Fit]], n: int, sigma: float |
     (:func:`step_dispersion`), and that dispersion."""
     dispersion = step_dispersion([current] + [f for _, f in fits], n, sigma)
     s_step = None if sigma is None else sigma * math.sqrt(dispersion)
-    current_bic = information_criterion(current.rss, n, current.model.penalty_params, s_step)
+    current_bic = information_criterion(current.loss_rss, n, current.model.penalty_params,
+                                        s_step)
     results = [Candidate(e, f, b, b - current_bic) for e, f in fits
-               for b in [information_criterion(f.rss, n, f.model.penalty_params, s_step)]]
+               for b in [information_criterion(f.loss_rss, n, f.model.penalty_params,
+                                               s_step)]]
     results.sort(key=lambda c: c.bic)
     return results, dispersion
 
@@ -1241,6 +1298,9 @@ def format_report(d: Diagnosis) -> str:
     ratio = d.final.rms() / d.noise_std_m
     lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
                  f"stopped: {d.stop_reason}")
+    if d.loss != "linear":
+        lines.append(f"loss {d.loss} (every fit; intervals from Huber's sandwich covariance)")
+    lines += describe_outliers(d.outliers)
     if d.unexplained:
         lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",
                   f"where the final model disagrees (RMS in {unit}, and in noise std):"]

@@ -29,6 +29,7 @@ SECTIONS = {
     "residuals": "Residuals before and after",
     "steps": "Effects added, step by step",
     "parameters": "Parameters with 95 % intervals",
+    "outliers": "Rows flagged as outliers",
     "left": "What is left: the final residual's structure",
     "ambiguities": "What this campaign cannot tell apart",
     "reproduce": "Reproduce this",
@@ -119,6 +120,23 @@ def _left(d: dict, unit: str) -> list[str]:
     return parts
 
 
+def _outliers(d: dict) -> list[str]:
+    """The rows beyond the outlier threshold (flagged, none dropped)."""
+    threshold = d.get("outlier_threshold")
+    intro = (f"<p>Rows of the final model whose standardised residual (residual over the "
+             f"noise std and its leverage) exceeds {num(threshold)} in some component; "
+             f"flagged only: every row stays in the fit (loss: {esc(d.get('loss', 'linear'))})."
+             "</p>")
+    flagged = d.get("outliers", [])
+    if not flagged:
+        return [intro, "<p>None.</p>"]
+    rows = [[esc(o["label"]), o["row"], o["line"] if o["line"] is not None else "-",
+             esc(o["component"]), o["standardised_residual"]] for o in flagged]
+    return [intro, table("Flagged rows", ["configuration", "row", "CSV line", "component",
+                                          "standardised residual"], rows,
+                         "Standardised residual: predicted minus measured, in noise std.")]
+
+
 def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     """The page.
 
@@ -145,6 +163,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                  [f"final RMS residual ({unit})", d["final_rms"]],
                  ["final model", esc(d["final_model"])],
                  ["why it stopped", esc(d["stop_reason"])],
+                 ["loss", esc(d.get("loss", "linear"))],
+                 ["rows flagged as outliers", len(d.get("outliers", []))],
                  ["unexplained", _verdict(d)],
                  ["measurements", f"{d['rows']} rows, {d['configurations']} configurations"],
              ], "RMS over all residual components, in the campaign's length unit."),
@@ -186,7 +206,10 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts.append(table("Identified parameters of the final model",
                        ["part", "parameter", "value", "standard error", "95 % interval",
                         "unit"], rows,
-                       "Intervals from the fit's covariance at the stated noise."))
+                       "Intervals from the fit's covariance at the stated noise (a robust "
+                       "loss: Huber's sandwich covariance)."))
+    parts.append(heading("outliers", SECTIONS))
+    parts += _outliers(d)
     parts.append(heading("left", SECTIONS))
     parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))

@@ -102,6 +102,15 @@ def loss_terms(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     raise StiffnessError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}")
 
 
+@functools.cache
+def gaussian_loss_mean(loss: str) -> float:
+    """``E[rho(Z^2)]`` for a standard normal ``Z`` (1 for ``linear``; Gauss-Hermite, 80
+    nodes): the expected loss of a residual at the noise scale, so that
+    ``loss_value / gaussian_loss_mean`` counts like a sum of squares over the noise."""
+    nodes, weights = np.polynomial.hermite_e.hermegauss(80)
+    return float(np.sum(weights * loss_terms(loss, nodes ** 2)[0]) / math.sqrt(2.0 * math.pi))
+
+
 def loss_sum(residuals: np.ndarray, loss: str, f_scale: float) -> float:
     """``sum f^2 rho((r / f)^2)`` of scaled residuals ``r`` (the sum of squares for
     ``linear``; twice scipy's ``cost``)."""
@@ -165,11 +174,14 @@ class Fit:
 
     @property
     def loss_rss(self) -> float:
-        """The objective in m^2: :attr:`rss` for the linear loss, ``scale^2`` times
-        :attr:`loss_value` for a robust one (what selection criteria compare)."""
+        """The objective as a sum of squares (m^2), what selection criteria and fit-to-noise
+        tests compare: :attr:`rss` for the linear loss; for a robust one ``scale^2``
+        :attr:`loss_value` over :func:`gaussian_loss_mean` (same expectation, ``N sigma^2``,
+        for Gaussian residuals at the loss's scale ``sigma``; an outlier adds about
+        ``2 f |r|`` instead of ``r^2``)."""
         if self.loss == "linear" or self.loss_value is None:
             return self.rss
-        return self.loss_value * self.scale ** 2
+        return self.loss_value * self.scale ** 2 / gaussian_loss_mean(self.loss)
 
     def rms(self) -> float:
         """RMS residual component (m; rotations in translation-noise units)."""

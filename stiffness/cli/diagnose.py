@@ -24,6 +24,7 @@ import sys
 
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+from stiffness.calibration.fitting import LOSSES
 from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
 from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
@@ -51,6 +52,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "the usable cores; 1: all in this process); the result does not "
                              "depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--loss", choices=LOSSES, default="linear",
+                        help="deflection campaigns: linear (least squares) or a robust loss "
+                             "for every fit, scaled by the noise std, with intervals from "
+                             "Huber's sandwich covariance; default linear")
     parser.add_argument("--masses", choices=tuple(CANDIDATES), default="known",
                         help="pose campaigns: whether the robot's link masses are trusted "
                              "(joint compliance times gravity torque) or unknown (lumped "
@@ -64,7 +69,9 @@ def command_line(args: argparse.Namespace) -> str:
     """The command that reproduces this run (recorded in diagnosis.html)."""
     words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
              "--max-steps", str(args.max_steps), "--seed", str(args.seed)]
-    return shlex.join(words + (["--no-proposals"] if args.no_proposals else []))
+    words += ["--no-proposals"] if args.no_proposals else []
+    words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
+    return shlex.join(words)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -85,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None,
-                      workers=args.workers)
+                      workers=args.workers, loss=args.loss)
     paths = result.write(args.out, command_line(args)) if args.out else None
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
@@ -98,6 +105,9 @@ def run(args: argparse.Namespace) -> int:
 
 def run_poses(args: argparse.Namespace) -> int:
     """``stiffness diagnose`` on a pose campaign (docs/absolute-poses.md)."""
+    if args.loss != "linear":
+        raise StiffnessError("--loss takes deflection campaigns; pose campaigns are fitted by "
+                             "least squares (drop --loss)")
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
     if args.out:
