@@ -23,6 +23,7 @@ under a force: N.m/rad).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,7 +42,7 @@ FORMULATIONS = ("conventional", "enhanced")
 DEFINITENESS_CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 
 
-def as_wrench(load: np.ndarray) -> np.ndarray:
+def as_wrench(load: Sequence[float] | np.ndarray) -> np.ndarray:
     """A force (3,) or wrench (6,) as a wrench [F (N); M (N.m)], checked finite."""
     load = np.asarray(load, dtype=float).reshape(-1)
     if load.shape not in ((3,), (6,)):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
@@ -126,7 +127,7 @@ def point_hessian(model: pin.Model, data: pin.Data, joint_id: int, placement: pi
 
 
 @contextmanager
-def captured_stderr():
+def captured_stderr() -> Iterator[list[str]]:
     """Capture the C-level standard error: Pinocchio's URDF parser (urdfdom) prints its
     diagnosis there instead of raising it. Yields a list that holds the text afterwards."""
     captured: list[str] = []

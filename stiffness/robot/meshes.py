@@ -94,7 +94,7 @@ def resolve_mesh(filename: str, urdf: Path, roots: list[Path] | None = None) -> 
 
 
 def resolve_visual_meshes(urdf: Path, root, model: pin.Model
-                          ) -> tuple[object | None, tuple[MissingMesh, ...]]:
+                          ) -> tuple[pin.GeometryModel | None, tuple[MissingMesh, ...]]:
     """Visual geometry of a parsed URDF (lxml root) with every mesh resolved.
 
     Returns the Pinocchio ``GeometryModel`` (None when the file has no visuals or Pinocchio

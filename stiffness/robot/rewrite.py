@@ -31,7 +31,7 @@ _AXIS_JOINTS = {"X": pin.JointModelRX, "Y": pin.JointModelRY, "Z": pin.JointMode
 
 
 def rewrite_joints(model: pin.Model, visual, rewrites: dict[str, str]
-                   ) -> tuple[pin.Model, object | None]:
+                   ) -> tuple[pin.Model, pin.GeometryModel | None]:
     """Apply ``{joint name: joint type}`` rewrites (:data:`JOINT_REWRITES`) to a model.
 
     Returns the new model and its visual geometry (``visual`` re-attached, or None).
@@ -96,7 +96,7 @@ def _copy_limits(old: pin.Model, jid: int, new: pin.Model, new_id: int) -> None:
 
 
 def lock_joints(model: pin.Model, visual, names: list[str], reference: np.ndarray | None = None
-                ) -> tuple[pin.Model, object | None]:
+                ) -> tuple[pin.Model, pin.GeometryModel | None]:
     """Lock the named joints at ``reference`` (default neutral); returns model and visuals."""
     if not names:
         return model, visual

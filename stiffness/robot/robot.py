@@ -127,7 +127,7 @@ class Robot:
     coordinate_joints: tuple[str, ...]
     compliant_joints: tuple[str, ...]
     loop: LoopClosure = field(default_factory=LoopClosure.open_chain)
-    _visual: object | None = field(default=None, repr=False)
+    _visual: pin.GeometryModel | None = field(default=None, repr=False)
     defaults: dict = field(default_factory=dict)
     mimics: tuple[Mimic, ...] = ()
     missing_meshes: tuple[MissingMesh, ...] = ()
@@ -137,10 +137,10 @@ class Robot:
     coupling: CoordinateMap | None = None
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
-    _visual_loader: Callable[[], object | None] | None = field(default=None, repr=False)
+    _visual_loader: Callable[[], pin.GeometryModel | None] | None = field(default=None, repr=False)
 
     @property
-    def visual_model(self) -> object | None:
+    def visual_model(self) -> pin.GeometryModel | None:
         """Pinocchio visual geometry of :attr:`model`, or None (no meshes)."""
         if self._visual_loader is not None:
             self._visual, self._visual_loader = self._visual_loader(), None
@@ -527,12 +527,12 @@ class _EditedVisual:
     that :func:`load_robot` applied to its model (picklable)."""
 
     model: pin.Model
-    read: Callable[[], object | None]
+    read: Callable[[], pin.GeometryModel | None]
     rewrites: dict[str, str] | None
     name: str
     fixed_base: bool
 
-    def __call__(self) -> object | None:
+    def __call__(self) -> pin.GeometryModel | None:
         model, visual = self.model, self.read()
         if self.rewrites is not None:
             model, visual = rewrite_joints(model, visual, self.rewrites)
@@ -540,7 +540,7 @@ class _EditedVisual:
 
 
 def _fix_base(model: pin.Model, visual, name: str, fixed_base: bool
-              ) -> tuple[pin.Model, object | None, list[str]]:
+              ) -> tuple[pin.Model, pin.GeometryModel | None, list[str]]:
     """Lock floating or planar base joints at their neutral placement when ``fixed_base``."""
     bases = [j for j in range(1, model.njoints)
              if model.parents[j] == 0 and model.joints[j].shortname() in _BASE_JOINTS]

@@ -52,7 +52,7 @@ class RobotSource:
 
     name: str
     model: pin.Model
-    visual: object | None
+    visual: pin.GeometryModel | None
     settings: dict
     mimics: tuple[Mimic, ...] = ()
     missing_meshes: tuple[MissingMesh, ...] = ()
@@ -60,7 +60,7 @@ class RobotSource:
     urdf: Path | None = None
     notes: list[str] = field(default_factory=list)
     all_mimics: tuple[Mimic, ...] = ()
-    visual_loader: Callable[[], object | None] | None = None
+    visual_loader: Callable[[], pin.GeometryModel | None] | None = None
 
 
 def robots_directory() -> Path:

@@ -65,7 +65,7 @@ class UrdfRobot:
     """
 
     model: pin.Model
-    visual: object | None
+    visual: pin.GeometryModel | None
     mimics: tuple[Mimic, ...] = ()
     missing_meshes: tuple[MissingMesh, ...] = field(default_factory=tuple)
     all_mimics: tuple[Mimic, ...] = ()

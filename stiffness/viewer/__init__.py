@@ -44,26 +44,21 @@ timeout (nothing waits for a browser forever), and the process is stopped by
 when its parent process dies. meshcat 0.3.2's own server binds its web port on every interface
 and its ``wait`` can leave its command socket stuck; neither is used.
 
-Modules: :mod:`~stiffness.viewer.core` (the viewer), :mod:`~stiffness.viewer.ellipsoid`
-(ellipsoid algebra), :mod:`~stiffness.viewer.style` (formatting, colours),
-:mod:`~stiffness.viewer.geometry` (scene geometry), :mod:`~stiffness.viewer.scene` (the
-recorded scene), :mod:`~stiffness.viewer.page` (HTML pages), :mod:`~stiffness.viewer.server`
-(the live server; ``python -m stiffness.viewer --serve ...`` runs it),
-:mod:`~stiffness.viewer.deps` (lazy imports of meshcat). Everything public is re-exported here.
+Modules: :mod:`~stiffness.viewer.core` (the viewer), :mod:`~stiffness.viewer.states` (what it
+drew, scene paths), :mod:`~stiffness.viewer.layout` (where things go: radii, arrows, floor,
+camera), :mod:`~stiffness.viewer.drawing` (value-dependent meshcat objects),
+:mod:`~stiffness.viewer.legend` (the page's legend and controls),
+:mod:`~stiffness.viewer.ellipsoid` (ellipsoid algebra), :mod:`~stiffness.viewer.style`
+(formatting, colours), :mod:`~stiffness.viewer.geometry` (scene geometry),
+:mod:`~stiffness.viewer.scene` (the recorded scene), :mod:`~stiffness.viewer.page` (HTML
+pages), :mod:`~stiffness.viewer.server` (the live server; ``python -m stiffness.viewer
+--serve ...`` runs it), :mod:`~stiffness.viewer.deps` (lazy imports of meshcat). Everything
+public is re-exported here.
 
 Units: SI (m, N, rad; N/m, m/N; N.m/rad for joints).
 """
 
-from stiffness.viewer.core import (
-    DEFLECTED_NODE,
-    FIELD_NODE,
-    ROBOT_NODE,
-    SHOW_FORMULATIONS,
-    STIFFNESS_NODE,
-    FieldState,
-    SceneState,
-    StiffnessViewer,
-)
+from stiffness.viewer.core import StiffnessViewer
 
 # private helpers kept importable from here (tests import them)
 from stiffness.viewer.deps import _meshcat as _meshcat
@@ -78,6 +73,15 @@ from stiffness.viewer.geometry import Pose, TextSprite
 from stiffness.viewer.page import render_page, scene_commands, scene_transforms
 from stiffness.viewer.scene import SceneStore
 from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, ServerLimits
+from stiffness.viewer.states import (
+    DEFLECTED_NODE,
+    FIELD_NODE,
+    ROBOT_NODE,
+    SHOW_FORMULATIONS,
+    STIFFNESS_NODE,
+    FieldState,
+    SceneState,
+)
 from stiffness.viewer.style import (
     COLORMAPS,
     DEFLECTED_RGBA,

@@ -1,4 +1,4 @@
-"""The viewer: :class:`StiffnessViewer` and what it drew (:class:`SceneState`, :class:`FieldState`).
+"""The viewer: :class:`StiffnessViewer`; what it drew is in :mod:`stiffness.viewer.states`.
 
 :class:`StiffnessViewer` draws the robot and its deflected copy, the load, the stiffness (or
 compliance) ellipsoids of both formulations, ellipsoid fields and animated paths into a
@@ -17,14 +17,13 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError, UnknownJointError, UnknownNameError
+from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.files import atomic_write
 from stiffness.mechanics.defaults import default_coordinates, default_load
 from stiffness.mechanics.equilibrium import solve_equilibrium
@@ -37,54 +36,50 @@ from stiffness.mechanics.formulation import (
 )
 from stiffness.robot.robot import Robot
 from stiffness.viewer.deps import _meshcat, _pinocchio_meshcat_visualizer
+from stiffness.viewer.drawing import draw_floor, style_objects
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
     PrincipalEllipsoid,
-    RotationalBlock,
     ellipsoid_transform,
     principal_ellipsoid,
     rotational_block,
 )
-from stiffness.viewer.geometry import Pose, _rotation_y_to, _segment, missing_mesh_notes
+from stiffness.viewer.geometry import Pose, missing_mesh_notes, segment_pose
+from stiffness.viewer.layout import (
+    arrow_poses,
+    camera_spec,
+    ellipsoid_radii,
+    floor_layout,
+    random_coordinates,
+    rotational_pose,
+    sample_spacing,
+    side_direction,
+)
+from stiffness.viewer.legend import controls_spec, field_legend, path_frame_rows, scene_legend
 from stiffness.viewer.page import render_page
-from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, _Window
+from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, RecordingWindow
+from stiffness.viewer.states import (
+    AXIS_NAMES,
+    DEFLECTED_NODE,
+    FIELD_NODE,
+    ROBOT_NODE,
+    ROTATIONAL_NODE,
+    SHOW_FORMULATIONS,
+    STIFFNESS_NODE,
+    FieldState,
+    SceneState,
+    display_name,
+)
 from stiffness.viewer.style import (
     COLORMAPS,
     DEFLECTED_RGBA,
     FORCE_COLOR,
-    FORMULATION_LABELS,
     MOMENT_COLOR,
-    ROTATIONAL_COLOR,
-    _color_of,
-    _colorbar,
-    _hex,
-    _nice,
-    _nice_up,
-    _rgb_int,
-    format_value,
+    color_of,
+    nice_above,
+    nice_below,
+    rgb_int,
 )
-
-#: Formulation choices of :meth:`StiffnessViewer.show` (``both``: side by side).
-SHOW_FORMULATIONS = ("both", *FORMULATIONS)
-#: Scene paths (below meshcat's root ``/meshcat``).
-ROBOT_NODE = "robot"
-DEFLECTED_NODE = "deflected"
-STIFFNESS_NODE = "stiffness"
-FIELD_NODE = "field"
-FLOOR_NODE = "floor"
-ROTATIONAL_NODE = "rotational"
-
-#: Radius drawn for an unbounded principal value, in multiples of the largest finite radius.
-_UNBOUNDED_RADIUS = 3.0
-_AXIS_NAMES = ("1", "2", "3")
-
-
-def display_name(robot: Robot) -> str:
-    """The robot's name for titles: its source name, or the URDF's robot name (never a path)."""
-    name = robot.name
-    if "/" in name or "\\" in name or name.lower().endswith((".urdf", ".xml")):
-        name = robot.model.name or Path(name).stem
-    return name
 
 
 def _coordinates_or_zero(robot: Robot) -> np.ndarray:
@@ -97,105 +92,6 @@ def _load_or_zero(robot: Robot, q: np.ndarray, k_theta: np.ndarray) -> np.ndarra
     """A shipped robot's default load as a wrench [F (N); M (N.m)], else no load."""
     shipped = default_load(robot, q, k_theta)
     return np.zeros(6) if shipped is None else as_wrench(shipped[0])
-
-
-def _axes_object() -> Any:
-    """The three principal axes of a unit sphere (red, green, blue: axes 1, 2, 3)."""
-    mg = _meshcat().geometry
-    points = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]],
-                      dtype=np.float32).T
-    colors = np.array([[0.7, 0, 0]] * 2 + [[0, 0.5, 0]] * 2 + [[0, 0, 0.8]] * 2,
-                      dtype=np.float32).T
-    return mg.LineSegments(mg.PointsGeometry(points, colors),
-                           mg.LineBasicMaterial(vertexColors=True))
-
-
-@dataclass
-class SceneState:
-    """What :meth:`StiffnessViewer.show` drew.
-
-    Attributes
-    ----------
-    coords
-        Robot coordinates (rad, m for prismatic joints).
-    q
-        Full configuration, loops closed.
-    wrench
-        Dead wrench at the target [F (N); M (N.m)], base axes.
-    position
-        Target position (m).
-    ellipsoids
-        Drawn ellipsoids by formulation.
-    centers
-        Where each ellipsoid is drawn (m).
-    radii
-        Drawn radii (m) by formulation, along each ellipsoid's ``directions``.
-    scale
-        Radius per unit of principal value (m per N/m, or m per m/N).
-    quantity
-        ``stiffness`` or ``compliance``.
-    deflection
-        Exact target displacement under the load (m), or ``None`` (no load, or no equilibrium).
-    deflected_q
-        Configuration drawn as the deflected robot (deflection times ``exaggeration``).
-    exaggeration
-        Factor applied to the joint deflection for drawing.
-    note
-        Why the deflected robot is missing, if it is.
-    rotational
-        Rotational 3x3 block of the 6x6 stiffness (N.m/rad) or compliance (rad/(N.m)) of the
-        first formulation drawn, or ``None`` (no 6x6 matrix: fewer than six compliant joints
-        for a stiffness); drawn hidden, beside the target, in its own scale.
-    poses
-        Pose of every scene node drawn (scene path below ``/meshcat`` -> :class:`Pose`).
-    """
-
-    coords: np.ndarray
-    q: np.ndarray
-    wrench: np.ndarray
-    position: np.ndarray
-    ellipsoids: dict[str, PrincipalEllipsoid]
-    centers: dict[str, np.ndarray]
-    radii: dict[str, np.ndarray]
-    scale: float
-    quantity: str
-    deflection: np.ndarray | None
-    deflected_q: np.ndarray | None
-    exaggeration: float
-    note: str = ""
-    rotational: RotationalBlock | None = None
-    poses: dict[str, Pose] = field(default_factory=dict, repr=False)
-
-
-@dataclass
-class FieldState:
-    """What :meth:`StiffnessViewer.field` drew: one ellipsoid per workspace sample.
-
-    Attributes
-    ----------
-    coords
-        (m, n) coordinates of the samples kept (rad or m).
-    positions
-        (m, 3) target positions (m).
-    ellipsoids
-        Their ellipsoids.
-    min_stiffness
-        (m,) smallest principal stiffness of each (N/m), the colour scale's quantity.
-    scale
-        Radius per unit of principal value (m per N/m, or m per m/N).
-    skipped
-        Samples dropped (loop cannot close, singular tangent stiffness).
-    color_range
-        (lo, hi) of the colour scale of k_min (N/m).
-    """
-
-    coords: np.ndarray
-    positions: np.ndarray
-    ellipsoids: list[PrincipalEllipsoid]
-    min_stiffness: np.ndarray
-    scale: float
-    skipped: int
-    color_range: tuple[float, float]
 
 
 class StiffnessViewer:
@@ -261,7 +157,7 @@ class StiffnessViewer:
         self.color_range = color_range
         self.arrow_scale: float | None = None
         self.server = LiveServer(host, port, timeout) if live else None
-        self._window = _Window(self.server)
+        self._window = RecordingWindow(self.server)
         mc = _meshcat()
         self._vis = mc.meshcat.Visualizer(window=self._window)
         self._lock = threading.RLock()
@@ -302,24 +198,25 @@ class StiffnessViewer:
         vis["/Background"].set_property("bottom_color", [0.78, 0.8, 0.84])
         vis["/Grid"].set_property("visible", False)  # replaced by the floor under the robot
         visual = self.robot.visual_model
-        self._has_meshes = visual is not None and visual.ngeoms > 0
+        #: The robot's visual geometry when it has meshes to draw, else None (a skeleton).
+        self._meshes = visual if visual is not None and visual.ngeoms > 0 else None
         if not getattr(self, "_missing_reported", False):
             for line in missing_mesh_notes(self.robot):
                 print(f"stiffness viewer: {line}", file=sys.stderr)
             self._missing_reported = True
-        if self._has_meshes:
+        if self._meshes is not None:
             visualizer = _pinocchio_meshcat_visualizer()
-            self._viz = visualizer(self.robot.model, None, visual)
+            self._viz = visualizer(self.robot.model, None, self._meshes)
             self._viz.initViewer(viewer=vis)
             self._viz.loadViewerModel(ROBOT_NODE)
             # the deflected robot reuses these meshes: the page copies them (see page._PAGE_JS)
-            self._visual_data = visual.createData()
+            self._visual_data = self._meshes.createData()
         else:
             mg = _meshcat().geometry
             self._links = self._skeleton_links()
             for root, rgba in ((ROBOT_NODE, (0.55, 0.57, 0.6, 1.0)),
                                (DEFLECTED_NODE, DEFLECTED_RGBA)):
-                material = mg.MeshPhongMaterial(color=_rgb_int(rgba), opacity=rgba[3])
+                material = mg.MeshPhongMaterial(color=rgb_int(rgba), opacity=rgba[3])
                 for name, _, _ in self._links:
                     vis[f"{root}/visuals/{name}"].set_object(
                         mg.Cylinder(1.0, 0.015 * self.reach), material)
@@ -348,7 +245,8 @@ class StiffnessViewer:
 
     # ------------------------------------------------------------------ computing
 
-    def _configuration(self, coords: Sequence[float] | np.ndarray | None) -> tuple:
+    def _configuration(self, coords: Sequence[float] | np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray]:
         robot = self.robot
         seed = self.state.q if self.state is not None else None
         if coords is None:
@@ -398,13 +296,6 @@ class StiffnessViewer:
             self._scales[quantity] = self.size / largest if largest > 0 else 1.0
         return self._scales[quantity]
 
-    @staticmethod
-    def _radii(ellipsoid: PrincipalEllipsoid, scale: float) -> np.ndarray:
-        radii = np.abs(ellipsoid.values) * scale
-        finite = radii[np.isfinite(radii)]
-        cap = _UNBOUNDED_RADIUS * (np.max(finite) if finite.size else 1.0)
-        return np.where(np.isfinite(radii), np.maximum(radii, 1e-6 * cap), cap)
-
     def _deflection(self, coords: np.ndarray, q: np.ndarray, wrench: np.ndarray
                     ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
         if not np.any(wrench):
@@ -415,7 +306,7 @@ class StiffnessViewer:
             return None, None, f"no equilibrium: {exc}"
         if self.exaggeration is None:
             moved = float(np.linalg.norm(eq.dx))
-            self.exaggeration = _nice(0.08 * self.reach / moved) if moved > 0 else 1.0
+            self.exaggeration = nice_below(0.08 * self.reach / moved) if moved > 0 else 1.0
         dcoords = np.zeros(self.robot.n_coordinates)
         dcoords[self.robot.compliant_in_coordinates] = eq.dtheta
         try:
@@ -428,7 +319,7 @@ class StiffnessViewer:
         if self.color_range is None:
             finite = [v for v in values if np.isfinite(v)]
             top = max(finite, default=1.0)
-            self.color_range = (0.0, _nice_up(2.0 * top) if top > 0 else 1.0)
+            self.color_range = (0.0, nice_above(2.0 * top) if top > 0 else 1.0)
         return self.color_range
 
     # ------------------------------------------------------------------ drawing
@@ -438,10 +329,9 @@ class StiffnessViewer:
         pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
         poses = {}
-        if self._has_meshes:
-            visual = self.robot.visual_model
-            pin.updateGeometryPlacements(model, data, visual, self._visual_data)
-            for i, obj in enumerate(visual.geometryObjects):
+        if self._meshes is not None:
+            pin.updateGeometryPlacements(model, data, self._meshes, self._visual_data)
+            for i, obj in enumerate(self._meshes.geometryObjects):
                 placement = self._visual_data.oMg[i]
                 name = self._viz.getViewerNodeName(obj, pin.GeometryType.VISUAL)
                 poses[root + name[len(ROBOT_NODE):]] = Pose(
@@ -456,30 +346,8 @@ class StiffnessViewer:
                 else:
                     start = data.oMi[max(parent, 0)].translation
                     end = data.oMi[child].translation
-                poses[f"{root}/visuals/{name}"] = _segment(start, end)
+                poses[f"{root}/visuals/{name}"] = segment_pose(start, end)
         return poses
-
-    def _arrow_poses(self, name: str, origin: np.ndarray, vector: np.ndarray, length: float
-                     ) -> dict[str, Pose]:
-        base = f"{STIFFNESS_NODE}/{name}"
-        if length <= 0 or not np.any(vector):
-            hidden = Pose(origin, np.eye(3), np.full(3, 1e-9))
-            return {f"{base}/shaft": hidden, f"{base}/head": hidden}
-        direction = vector / np.linalg.norm(vector)
-        head = 0.06 * self.reach
-        tip = origin + direction * max(length, head)
-        neck = tip - direction * head
-        shaft = _segment(origin, neck)
-        return {f"{base}/shaft": shaft,
-                f"{base}/head": Pose(neck + 0.5 * head * direction, _rotation_y_to(direction),
-                                     np.ones(3))}
-
-    def _side_direction(self, position: np.ndarray) -> np.ndarray:
-        radial = np.array([position[0], position[1], 0.0])
-        if np.linalg.norm(radial) < 1e-6:
-            return np.array([0.0, 1.0, 0.0])
-        side = np.cross([0.0, 0.0, 1.0], radial)
-        return side / np.linalg.norm(side)
 
     def show(self, coords: Sequence[float] | np.ndarray | None = None,
              wrench: Sequence[float] | np.ndarray | None = None,
@@ -523,7 +391,7 @@ class StiffnessViewer:
             if not self._floor_drawn:
                 self._draw_floor(state)
             self._send_poses(state.poses)
-            self._style(state)
+            style_objects(self._vis, state, self._color_range([]), self.reach)
             self._error = None
             self._send_overlay()
             return state
@@ -534,8 +402,8 @@ class StiffnessViewer:
         scale = self._scale(quantity, list(ells.values()))
         self._color_range([e.min_stiffness for e in ells.values()])
         position = target.position.copy()
-        side = self._side_direction(position)
-        radii = {n: self._radii(e, scale) for n, e in ells.items()}
+        side = side_direction(position)
+        radii = {n: ellipsoid_radii(e, scale) for n, e in ells.items()}
         centers = {}
         for n in names:
             centers[n] = position.copy()
@@ -553,20 +421,6 @@ class StiffnessViewer:
         state.poses = self._poses(state)
         return state
 
-    def _rotational_pose(self, state: SceneState) -> tuple[Pose, np.ndarray]:
-        """Pose of the rotational block's ellipsoid (its own scale: largest radius ``size``),
-        beside the target on the side away from the conventional ellipsoid; and its radii."""
-        block = state.rotational
-        finite = np.abs(block.values[np.isfinite(block.values)])
-        top = float(np.max(finite)) if finite.size else 1.0
-        radii = np.where(np.isfinite(block.values), np.abs(block.values) / (top or 1.0),
-                         _UNBOUNDED_RADIUS) * self.size
-        radii = np.maximum(radii, 1e-3 * self.size)
-        first = next(iter(state.radii.values()))
-        gap = float(np.max(first)) + float(np.max(radii)) + 1.5 * self.size
-        center = state.position - gap * self._side_direction(state.position)
-        return Pose(center, block.directions, radii), radii
-
     def _draw_floor(self, state: SceneState, extra: np.ndarray | None = None) -> None:
         """A floor under the robot (at the first show): a plate at the lowest joint's height
         with a grid of round spacing, spanning the robot, its ellipsoids and ``extra`` points
@@ -576,33 +430,10 @@ class StiffnessViewer:
         points = [data.oMi[j].translation.copy() for j in range(model.njoints)]
         points.append(state.position)
         points += [state.centers[n] for n in state.centers]
-        points = np.array(points)
-        z = float(points[:, 2].min()) - 0.01 * self.reach
-        if extra is not None:
-            points = np.vstack([points, np.asarray(extra, dtype=float).reshape(-1, 3)])
-        lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
-        center = 0.5 * (lo + hi)
-        half = 1.25 * max(0.5 * float(np.max(hi - lo)), self.reach)
-        spacing = _nice(half / 4.0)
-        half = spacing * np.ceil(half / spacing)
-        mg, vis = _meshcat().geometry, self._vis
-        thickness = 0.004 * self.reach
-        vis[f"{FLOOR_NODE}/plate"].set_object(
-            mg.Box([2 * half, 2 * half, thickness]),
-            mg.MeshLambertMaterial(color=0xE9E7E1, opacity=0.92, transparent=True))
-        vis[f"{FLOOR_NODE}/plate"].set_transform(Pose(
-            np.array([center[0], center[1], z - 0.5 * thickness]), np.eye(3),
-            np.ones(3)).matrix())
-        ticks = np.arange(-half, half + 0.5 * spacing, spacing)
-        segments = []
-        for t in ticks:
-            segments += [[t, -half, 0.0], [t, half, 0.0], [-half, t, 0.0], [half, t, 0.0]]
-        points_xyz = (np.array(segments) + [center[0], center[1], z + 1e-4 * self.reach]).T
-        vis[f"{FLOOR_NODE}/grid"].set_object(mg.LineSegments(
-            mg.PointsGeometry(points_xyz.astype(np.float32)),
-            mg.LineBasicMaterial(color=0xA9ADB5)))
-        self.floor = {"z": z, "center": center.tolist(), "half_size": float(half),
-                      "spacing": float(spacing)}
+        z, center, half, spacing = floor_layout(np.array(points), extra, self.reach)
+        draw_floor(self._vis, z, center, half, spacing, self.reach)
+        self.floor = {"z": z, "center": center.tolist(), "half_size": half,
+                      "spacing": spacing}
         self._floor_drawn = True
 
     def _poses(self, state: SceneState) -> dict[str, Pose]:
@@ -615,36 +446,37 @@ class StiffnessViewer:
         if self.arrow_scale is None and np.any(force):
             self.arrow_scale = 0.25 * self.reach / float(np.linalg.norm(force))
         arrow_scale = self.arrow_scale or 0.0
-        poses.update(self._arrow_poses("force", p, force, arrow_scale * np.linalg.norm(force)))
+        poses.update(arrow_poses("force", p, force,
+                                 arrow_scale * float(np.linalg.norm(force)), self.reach))
         moment_length = 0.2 * self.reach if np.any(moment) else 0.0
-        poses.update(self._arrow_poses("moment", p, moment, moment_length))
+        poses.update(arrow_poses("moment", p, moment, moment_length, self.reach))
         end = p if state.deflection is None else p + state.exaggeration * state.deflection
-        poses[f"{STIFFNESS_NODE}/deflection"] = _segment(p, end)
+        poses[f"{STIFFNESS_NODE}/deflection"] = segment_pose(p, end)
         hidden = Pose(p, np.eye(3), np.full(3, 1e-9))
         for name in FORMULATIONS:
             base = f"{STIFFNESS_NODE}/{name}"
             if name not in state.ellipsoids:
                 for part in ("surface", "axes", "label", "link", *(f"label{a}" for a in
-                                                                   _AXIS_NAMES)):
+                                                                   AXIS_NAMES)):
                     poses[f"{base}/{part}"] = hidden
                 continue
             ell, c, r = state.ellipsoids[name], state.centers[name], state.radii[name]
             pose = Pose(c, ell.directions, r)
             poses[f"{base}/surface"] = pose
             poses[f"{base}/axes"] = pose
-            for i, a in enumerate(_AXIS_NAMES):  # label anchors: the axis tips
+            for i, a in enumerate(AXIS_NAMES):  # label anchors: the axis tips
                 tip = c + ell.directions[:, i] * r[i]
                 poses[f"{base}/label{a}"] = Pose(tip, np.eye(3), np.ones(3))
             below = c - np.array([0.0, 0.0, np.max(r)])
             poses[f"{base}/label"] = Pose(below, np.eye(3), np.ones(3))
-            poses[f"{base}/link"] = _segment(p, c) if np.linalg.norm(c - p) > 0 else hidden
+            poses[f"{base}/link"] = segment_pose(p, c) if np.linalg.norm(c - p) > 0 else hidden
         if state.rotational is not None:
-            pose, radii = self._rotational_pose(state)
+            pose, radii = rotational_pose(state.rotational, state, self.size)
             poses[f"{ROTATIONAL_NODE}/surface"] = pose
             poses[f"{ROTATIONAL_NODE}/axes"] = pose
             below = pose.position - np.array([0.0, 0.0, float(np.max(radii))])
             poses[f"{ROTATIONAL_NODE}/label"] = Pose(below, np.eye(3), np.ones(3))
-            poses[f"{ROTATIONAL_NODE}/link"] = _segment(p, pose.position)
+            poses[f"{ROTATIONAL_NODE}/link"] = segment_pose(p, pose.position)
         else:
             for part in ("surface", "axes", "label", "link"):
                 poses[f"{ROTATIONAL_NODE}/{part}"] = hidden
@@ -653,38 +485,6 @@ class StiffnessViewer:
     def _send_poses(self, poses: dict[str, Pose]) -> None:
         for path, pose in poses.items():
             self._vis[path].set_transform(pose.matrix())
-
-    def _style(self, state: SceneState) -> None:
-        """Objects whose look depends on the values: ellipsoid colours and visibility (the
-        labels are the page's, see :meth:`overlay`)."""
-        vis, mg = self._vis, _meshcat().geometry
-        lo, hi = self.color_range
-        vis[DEFLECTED_NODE].set_property("visible", state.deflected_q is not None)
-        vis[f"{STIFFNESS_NODE}/deflection"].set_property("visible", state.deflection is not None)
-        for name in FORMULATIONS:
-            base = f"{STIFFNESS_NODE}/{name}"
-            if name not in state.ellipsoids:
-                vis[base].set_property("visible", False)
-                continue
-            vis[base].set_property("visible", True)
-            ell = state.ellipsoids[name]
-            rgb = _color_of(COLORMAPS[name], (ell.min_stiffness - lo) / (hi - lo))
-            vis[f"{base}/surface"].set_object(
-                mg.Sphere(1.0), mg.MeshPhongMaterial(color=_rgb_int(rgb), opacity=0.55,
-                                                     transparent=True, depthWrite=False))
-            vis[f"{base}/axes"].set_object(_axes_object())
-            vis[f"{base}/link"].set_object(mg.Cylinder(1.0, 0.003 * self.reach),
-                                           mg.MeshPhongMaterial(color=0x888888))
-        if state.rotational is not None:
-            vis[f"{ROTATIONAL_NODE}/surface"].set_object(
-                mg.Sphere(1.0), mg.MeshPhongMaterial(color=ROTATIONAL_COLOR, opacity=0.5,
-                                                     transparent=True, depthWrite=False))
-            vis[f"{ROTATIONAL_NODE}/axes"].set_object(_axes_object())
-            vis[f"{ROTATIONAL_NODE}/link"].set_object(mg.Cylinder(1.0, 0.003 * self.reach),
-                                                      mg.MeshPhongMaterial(color=0x888888))
-        moment = state.wrench[3:]
-        vis[f"{STIFFNESS_NODE}/moment"].set_property("visible", bool(np.any(moment)))
-        vis[f"{STIFFNESS_NODE}/force"].set_property("visible", bool(np.any(state.wrench[:3])))
 
     # ------------------------------------------------------------------ legend
 
@@ -698,182 +498,20 @@ class StiffnessViewer:
             data["error"] = self._error
         data["notes"].extend(missing_mesh_notes(robot))
         if st is not None:
-            deg = [format_value(v) for v in self._display_coords(st.coords)]
-            data["lines"].append(f"coordinates ({', '.join(robot.coordinate_joints)}): "
-                                 f"[{', '.join(deg)}] (deg; m for prismatic)")
-            f = st.wrench[:3]
-            if not np.any(st.wrench):
-                data["lines"].append("no load: the unloaded stiffness (K_C = 0, so enhanced "
-                                     "and conventional coincide)")
-            data["lines"].append(
-                f"load F = [{', '.join(format_value(v) for v in f)}] N "
-                f"(|F| = {format_value(float(np.linalg.norm(f)), 'N')})"
-                + (f", M = [{', '.join(format_value(v) for v in st.wrench[3:])}] N.m"
-                   if np.any(st.wrench[3:]) else "") + ", base axes")
-            lo, hi = self.color_range
-            symbol = "k" if self.quantity == "stiffness" else "c"
-            for name, ell in st.ellipsoids.items():
-                values = ", ".join(format_value(v) for v in ell.values)
-                base = ["meshcat", STIFFNESS_NODE, name]
-                data["labels"].append({"text": name, "kind": "name",
-                                       "anchor": [*base, "label"], "center": [*base, "surface"]})
-                data["labels"] += [{"text": f"{symbol}{a}", "kind": "axis",
-                                    "anchor": [*base, f"label{a}"],
-                                    "center": [*base, "surface"]} for a in _AXIS_NAMES]
-                where = "at the target" if np.allclose(st.centers[name], st.position) else \
-                    "beside the target (grey line)"
-                rgb = _color_of(COLORMAPS[name], (ell.min_stiffness - lo) / (hi - lo))
-                data["legend"].append({
-                    "color": _hex(rgb),
-                    "text": f"{FORMULATION_LABELS[name]}, {where}: principal {self.quantity} "
-                            f"{symbol}1, {symbol}2, {symbol}3 = [{values}] {ell.units}; k_min = "
-                            f"{format_value(ell.min_stiffness, 'N/m')}"})
-                data["colorbars"].append({
-                    "label": f"{name} colour: k_min, smallest principal stiffness (linear)",
-                    "colors": _colorbar(COLORMAPS[name]),
-                    "min": format_value(lo, "N/m"), "max": format_value(hi, "N/m")})
-                data["toggles"].append({"label": f"{name} ellipsoid",
-                                        "path": ["meshcat", STIFFNESS_NODE, name]})
-            if len(st.ellipsoids) == 2:
-                enh, conv = st.ellipsoids["enhanced"].values, st.ellipsoids["conventional"].values
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    rel = np.abs(enh - conv) / np.abs(conv)
-                rel = rel[np.isfinite(rel)]
-                data["lines"].append(
-                    "enhanced vs conventional: principal values differ by up to "
-                    f"{format_value(100 * float(np.max(rel, initial=0.0)))} % (K_C, the load's "
-                    "complementary stiffness)")
-            unit = "N/m" if self.quantity == "stiffness" else "m/N"
-            data["notes"].append(
-                f"radius = {format_value(st.scale, 'm')} per {unit} of principal value "
-                f"(axis i along eigenvector i; {format_value(self.size, 'm')} = "
-                f"{format_value(self.size / st.scale, unit)}); axes 1, 2, 3 red, green, blue")
-            if st.rotational is not None:
-                block = st.rotational
-                data["legend"].append({
-                    "color": _hex([int(ROTATIONAL_COLOR >> s & 255) / 255 for s in (16, 8, 0)]),
-                    "text": f"rotational block of the 6x6 {block.formulation} {self.quantity} "
-                            f"(hidden at first; own scale, largest radius "
-                            f"{format_value(self.size, 'm')}): principal values "
-                            f"[{', '.join(format_value(v) for v in block.values)}] "
-                            f"{block.units}"})
-                data["toggles"].append({"label": f"rotational {self.quantity} ({block.units})",
-                                        "path": ["meshcat", ROTATIONAL_NODE]})
-                data["labels"].append({"text": f"rotational ({block.units})", "kind": "name",
-                                       "anchor": ["meshcat", ROTATIONAL_NODE, "label"],
-                                       "center": ["meshcat", ROTATIONAL_NODE, "surface"]})
-            if self.arrow_scale:
-                data["legend"].append({
-                    "color": _hex([int(FORCE_COLOR >> s & 255) / 255 for s in (16, 8, 0)]),
-                    "text": f"load arrow: 1 m = {format_value(1 / self.arrow_scale, 'N')}"})
-            if st.deflection is not None:
-                data["legend"].append({
-                    "color": _hex(DEFLECTED_RGBA),
-                    "text": f"deflected robot (exact equilibrium), deflection x "
-                            f"{format_value(st.exaggeration)}: target moves "
-                            f"{format_value(1e3 * float(np.linalg.norm(st.deflection)), 'mm')} "
-                            f"(red line, also x {format_value(st.exaggeration)})"})
-            if st.note:
-                data["notes"].append(st.note)
-            data["toggles"].append({"label": "deflected robot", "path": ["meshcat",
-                                                                         DEFLECTED_NODE]})
+            scene_legend(data, robot, st, self.quantity, self._color_range([]), self.size,
+                         self.arrow_scale)
         if self.field_state is not None:
-            fs = self.field_state
-            data["colorbars"].append({
-                "label": f"field ({len(fs.positions)} samples, {fs.ellipsoids[0].formulation}"
-                         f" {self.quantity}, radius {format_value(fs.scale, 'm')} per unit): "
-                         "k_min (N/m)",
-                "colors": _colorbar(COLORMAPS["field"]),
-                "min": format_value(fs.color_range[0], "N/m"),
-                "max": format_value(fs.color_range[1], "N/m")})
-            data["toggles"].append({"label": "ellipsoid field", "path": ["meshcat", FIELD_NODE]})
-            if fs.skipped:
-                data["notes"].append(f"field: {fs.skipped} samples skipped (loop cannot close "
-                                     "or singular stiffness)")
+            field_legend(data, self.field_state, self.quantity)
         if self._frames is not None:
             data["frames"] = self._frames
             data["notes"].append("animation: meshcat's Open Controls > Animations (play, time); "
                                  "the legend's values are those of frame 0, the animation "
                                  "frame line gives the frame shown")
         if self.server is not None and st is not None:
-            data["controls"] = self._controls_spec()
-        data["camera"] = self._camera_spec()
+            data["controls"] = controls_spec(robot, st, self._formulation, self.quantity)
+        data["camera"] = camera_spec(robot, st, None if self.field_state is None
+                                     else self.field_state.positions)
         return data
-
-    def _camera_spec(self) -> dict:
-        """Camera looking at the robot, its ellipsoids and the field, from beside the target."""
-        model, data = self.robot.model, self.robot.data
-        st = self.state
-        q = st.q if st is not None else pin.neutral(model)
-        pin.forwardKinematics(model, data, q)
-        points = [data.oMi[j].translation.copy() for j in range(model.njoints)]
-        target = points[-1]
-        if st is not None:
-            target = st.position
-            for name, c in st.centers.items():
-                r = float(np.max(st.radii[name]))
-                points += [c - r, c + r]
-        if self.field_state is not None:
-            points += list(self.field_state.positions)
-        points = np.array(points)
-        lo, hi = points.min(axis=0), points.max(axis=0)
-        center = 0.5 * (lo + hi)
-        extent = max(0.5 * float(np.linalg.norm(hi - lo)), 0.3)
-        radial = np.array([target[0], target[1], 0.0])
-        radial = radial / np.linalg.norm(radial) if np.linalg.norm(radial) > 1e-6 else \
-            np.array([1.0, 0.0, 0.0])
-        side = self._side_direction(radial)
-        view = radial - side
-        view = np.array([view[0], view[1], 0.0]) / np.linalg.norm(view)
-        view = np.cos(0.45) * view + np.array([0.0, 0.0, np.sin(0.45)])
-        distance = 1.5 * extent / np.tan(np.deg2rad(37.5))
-        # shift the scene right of the legend (top left of the page)
-        right = np.cross(-view, [0.0, 0.0, 1.0])
-        center = center - 0.45 * extent * right / max(np.linalg.norm(right), 1e-9)
-        return {"target": [float(v) for v in center],
-                "position": [float(v) for v in center + distance * view]}
-
-    def _display_coords(self, coords: np.ndarray) -> np.ndarray:
-        out = np.array(coords, dtype=float)
-        for i, name in enumerate(self.robot.coordinate_joints):
-            if not self._prismatic(name):
-                out[i] = np.rad2deg(out[i])
-        return out
-
-    def _prismatic(self, joint: str) -> bool:
-        return self.robot.is_prismatic(joint)
-
-    def _controls_spec(self) -> dict:
-        st, model = self.state, self.robot.model
-        joints = []
-        for i, name in enumerate(self.robot.coordinate_joints):
-            joint = model.joints[model.getJointId(name)]
-            lo, hi = model.lowerPositionLimit[joint.idx_q], model.upperPositionLimit[joint.idx_q]
-            if self._prismatic(name):
-                lo = lo if np.isfinite(lo) and lo > -10 else -1.0
-                hi = hi if np.isfinite(hi) and hi < 10 else 1.0
-                joints.append({"name": name, "unit": "m", "to_si": 1.0, "min": lo, "max": hi,
-                               "step": (hi - lo) / 1000, "digits": 3, "value": st.coords[i]})
-            else:
-                lo = np.rad2deg(lo) if joint.nq == 1 and np.isfinite(lo) and lo > -7 else -180.0
-                hi = np.rad2deg(hi) if joint.nq == 1 and np.isfinite(hi) and hi < 7 else 180.0
-                joints.append({"name": name, "unit": "deg", "to_si": np.pi / 180, "min": lo,
-                               "max": hi, "step": 0.1, "digits": 1,
-                               "value": float(np.rad2deg(st.coords[i]))})
-        force = st.wrench[:3]
-        magnitude = float(np.linalg.norm(force))
-        if magnitude > 0:
-            azimuth = float(np.rad2deg(np.arctan2(force[1], force[0])))
-            elevation = float(np.rad2deg(np.arcsin(np.clip(force[2] / magnitude, -1, 1))))
-        else:
-            azimuth, elevation = 0.0, -90.0
-        top = _nice_up(3.0 * magnitude) if magnitude > 0 else 1000.0
-        return {"joints": [{k: (float(v) if isinstance(v, (float, np.floating)) else v)
-                            for k, v in j.items()} for j in joints],
-                "force": {"magnitude": magnitude, "max": max(top, magnitude),
-                          "azimuth": azimuth, "elevation": elevation},
-                "formulation": self._formulation, "formulations": list(SHOW_FORMULATIONS),
-                "quantity": self.quantity, "quantities": list(QUANTITIES)}
 
     def _send_overlay(self) -> None:
         if self.server is not None:
@@ -931,12 +569,7 @@ class StiffnessViewer:
                         clip.set_property(k, "quaternion", "quaternion", pose.quaternion())
                         clip.set_property(k, "scale", "vector3", [float(v) for v in pose.scale])
             root.set_animation(animation, play=play, repetitions=1)
-            unit = "N/m" if first.quantity == "stiffness" else "m/N"
-            self._frames = {"fps": fps, "rows": [
-                "coordinates [" + ", ".join(format_value(v) for v in
-                                            self._display_coords(st.coords)) + "]; " + "; ".join(
-                    f"{n}: [{', '.join(format_value(v) for v in e.values)}] {unit}"
-                    for n, e in st.ellipsoids.items()) for st in states]}
+            self._frames = {"fps": fps, "rows": path_frame_rows(self.robot, states)}
             self._send_overlay()
             return states
 
@@ -976,19 +609,19 @@ class StiffnessViewer:
             base, q_base = self._configuration(None)
             load = self._load(wrench, q_base)
             if isinstance(samples, (int, np.integer)):
-                rows = self._random_coordinates(int(samples), base, joints, seed)
+                rows = random_coordinates(robot, int(samples), base, joints, seed)
             else:
                 rows = np.atleast_2d(np.asarray(samples, dtype=float))
             kept, positions, ells = [], [], []
             for row in rows:
                 try:
                     q = robot.configuration(row, seed=q_base)
-                    target, e = self.ellipsoids(q, load, (formulation,))
+                    target, at_row = self.ellipsoids(q, load, (formulation,))
                 except StiffnessError:
                     continue
                 kept.append(row)
                 positions.append(target.position.copy())
-                ells.append(e[formulation])
+                ells.append(at_row[formulation])
             if not ells:
                 raise StiffnessError("no sample of the field could be evaluated (the loops "
                                      "cannot close, or every tangent stiffness is singular)")
@@ -1000,15 +633,15 @@ class StiffnessViewer:
                 hi = lo + max(abs(lo), 1.0)
             largest = np.array([np.max(np.abs(e.values[np.isfinite(e.values)]), initial=0.0)
                                 for e in ells])
-            spacing = self._spacing(positions_a)
+            spacing = sample_spacing(positions_a)
             scale = 0.45 * spacing / max(float(np.median(largest)), 1e-300)
             mg = _meshcat().geometry
             self._vis[FIELD_NODE].delete()
             for i, (p, e) in enumerate(zip(positions_a, ells, strict=True)):
-                rgb = _color_of(COLORMAPS["field"], (kmin[i] - lo) / (hi - lo))
+                rgb = color_of(COLORMAPS["field"], (kmin[i] - lo) / (hi - lo))
                 node = self._vis[f"{FIELD_NODE}/e{i:04d}"]
-                node.set_object(mg.Sphere(1.0), mg.MeshLambertMaterial(color=_rgb_int(rgb)))
-                radii = np.minimum(self._radii(e, scale), 2.0 * spacing)
+                node.set_object(mg.Sphere(1.0), mg.MeshLambertMaterial(color=rgb_int(rgb)))
+                radii = np.minimum(ellipsoid_radii(e, scale), 2.0 * spacing)
                 node.set_transform(ellipsoid_transform(p, e.directions, radii))
             self.field_state = FieldState(np.array(kept), positions_a, ells, kmin, scale,
                                           len(rows) - len(kept), (lo, hi))
@@ -1016,36 +649,6 @@ class StiffnessViewer:
                 self._draw_floor(self.state, positions_a)  # under the field too
             self._send_overlay()
             return self.field_state
-
-    def _random_coordinates(self, n: int, base: np.ndarray, joints: Sequence[str] | None,
-                            seed: int) -> np.ndarray:
-        robot, model = self.robot, self.robot.model
-        names = list(robot.coordinate_joints) if joints is None else list(joints)
-        unknown = [j for j in names if j not in robot.coordinate_joints]
-        if unknown:
-            raise UnknownJointError(f"{', '.join(unknown)} are not coordinates of {robot.name}; "
-                                    f"coordinates: {', '.join(robot.coordinate_joints)}",
-                                    name=unknown[0], choices=robot.coordinate_joints)
-        rng = np.random.default_rng(seed)
-        rows = np.tile(base, (n, 1))
-        for name in names:
-            i = robot.coordinate_joints.index(name)
-            joint = model.joints[model.getJointId(name)]
-            lo, hi = model.lowerPositionLimit[joint.idx_q], model.upperPositionLimit[joint.idx_q]
-            bound = 1.0 if self._prismatic(name) else np.pi
-            lo = lo if joint.nq == 1 and np.isfinite(lo) and lo > -bound else -bound
-            hi = hi if joint.nq == 1 and np.isfinite(hi) and hi < bound else bound
-            rows[:, i] = rng.uniform(lo, hi, n)
-        return rows
-
-    @staticmethod
-    def _spacing(points: np.ndarray) -> float:
-        if len(points) < 2:
-            return 0.1
-        d = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1)
-        np.fill_diagonal(d, np.inf)
-        nearest = d.min(axis=1)
-        return max(float(np.median(nearest)), 1e-3)
 
     # ------------------------------------------------------------------ live browsing
 

@@ -45,7 +45,7 @@ def missing_mesh_notes(robot) -> list[str]:
     return lines
 
 
-def _rotation_y_to(direction: np.ndarray) -> np.ndarray:
+def rotation_y_to(direction: np.ndarray) -> np.ndarray:
     """A rotation taking +y (three.js cylinders' axis) to the unit vector ``direction``."""
     d = np.asarray(direction, dtype=float)
     d = d / np.linalg.norm(d)
@@ -56,11 +56,11 @@ def _rotation_y_to(direction: np.ndarray) -> np.ndarray:
     return np.column_stack([x, d, z])
 
 
-def _segment(start: np.ndarray, end: np.ndarray) -> Pose:
+def segment_pose(start: np.ndarray, end: np.ndarray) -> Pose:
     """Pose of a unit-height, y-axis cylinder stretched from ``start`` to ``end``."""
     delta = np.asarray(end, dtype=float) - np.asarray(start, dtype=float)
     length = float(np.linalg.norm(delta))
-    rotation = _rotation_y_to(delta) if length > 1e-12 else np.eye(3)
+    rotation = rotation_y_to(delta) if length > 1e-12 else np.eye(3)
     return Pose(0.5 * (np.asarray(start) + np.asarray(end)), rotation,
                 np.array([1.0, max(length, 1e-9), 1.0]))
 

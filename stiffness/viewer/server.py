@@ -80,7 +80,7 @@ class ServerLimits:
     ping_interval_s: float = 10.0
 
 
-class _Window:
+class RecordingWindow:
     """meshcat's window protocol: records every command, forwards it to a live server if any."""
 
     def __init__(self, server: LiveServer | None = None) -> None:

@@ -40,7 +40,7 @@ def format_value(value: float, unit: str = "") -> str:
     return f"{text} {unit}".strip()
 
 
-def _nice(value: float) -> float:
+def nice_below(value: float) -> float:
     """Largest of 1, 2, 5 x 10^k not above ``value`` (> 0)."""
     exponent = np.floor(np.log10(value))
     base = 10.0 ** exponent
@@ -50,7 +50,7 @@ def _nice(value: float) -> float:
     return float(base)
 
 
-def _nice_up(value: float) -> float:
+def nice_above(value: float) -> float:
     """Smallest of 1, 2, 5 x 10^k not below ``value`` (> 0)."""
     exponent = np.floor(np.log10(value))
     base = 10.0 ** exponent
@@ -60,12 +60,12 @@ def _nice_up(value: float) -> float:
     return float(10.0 * base)
 
 
-def _hex(rgb: Sequence[float]) -> str:
+def hex_color(rgb: Sequence[float]) -> str:
     return "#" + "".join(f"{int(round(255 * float(c))):02x}" for c in rgb[:3])
 
 
-def _rgb_int(rgb: Sequence[float]) -> int:
-    return int(_hex(rgb)[1:], 16)
+def rgb_int(rgb: Sequence[float]) -> int:
+    return int(hex_color(rgb)[1:], 16)
 
 
 def _colormap(name: str) -> Any:
@@ -74,7 +74,7 @@ def _colormap(name: str) -> Any:
     return colormaps[name]
 
 
-def _color_of(name: str, fraction: float) -> tuple[float, float, float]:
+def color_of(name: str, fraction: float) -> tuple[float, float, float]:
     """Colour of ``fraction`` in [0, 1] on a map; sequential maps skip their whitish end."""
     fraction = float(np.clip(fraction, 0.0, 1.0))
     if name != "viridis":
@@ -83,5 +83,5 @@ def _color_of(name: str, fraction: float) -> tuple[float, float, float]:
     return (r, g, b)
 
 
-def _colorbar(name: str, n: int = 9) -> list[str]:
-    return [_hex(_color_of(name, f)) for f in np.linspace(0.0, 1.0, n)]
+def colorbar_colors(name: str, n: int = 9) -> list[str]:
+    return [hex_color(color_of(name, f)) for f in np.linspace(0.0, 1.0, n)]
