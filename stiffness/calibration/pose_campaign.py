@@ -33,7 +33,7 @@ from stiffness.calibration.campaign import (
     units_section,
 )
 from stiffness.errors import FileFormatError, MissingFileError, did_you_mean
-from stiffness.files import atomic_write, read_text, read_toml
+from stiffness.files import atomic_write, read_text, read_toml, staged_folder
 from stiffness.robot.robot import Robot
 
 _KEYS = {
@@ -276,7 +276,6 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
 def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
     """Write ``c`` as ``folder/campaign.toml`` and ``measurements.csv`` in its units."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     u = c.units
     lines = ['kind = "poses"', f'name = "{c.name}"', "", "[robot]",
              f'source = "{c.settings.source}"']
@@ -295,8 +294,9 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
         f'{m.name} = {{ frame = "{m.frame}", offset = ['
         + ", ".join(repr(float(v / u.length_to_si)) for v in m.offset) + "] }"
         for m in c.markers]
-    atomic_write(folder / CAMPAIGN_FILE, "\n".join(lines) + "\n")
-    atomic_write(folder / "measurements.csv", _csv_text(c))
+    with staged_folder(folder, keep_others=True) as stage:  # published by one rename
+        atomic_write(stage / CAMPAIGN_FILE, "\n".join(lines) + "\n")
+        atomic_write(stage / "measurements.csv", _csv_text(c))
     return folder / CAMPAIGN_FILE
 
 

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from stiffness.calibration.pose_diagnose import PoseDiagnosis, write_pose_model
-from stiffness.files import atomic_write, output_folder
+from stiffness.files import atomic_write, staged_folder
 
 #: Files written by :func:`write_pose_diagnosis`.
 POSE_DIAGNOSIS_FILES = {"diagnosis": "diagnosis.json", "model": "final-model.json"}
@@ -74,11 +74,11 @@ def _dropped_lines(d: PoseDiagnosis) -> list[str]:
 
 def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike) -> dict[str, Path]:
     """Write ``diagnosis.json`` and ``final-model.json`` into ``folder``."""
-    out = output_folder(folder)
-    paths = {key: out / name for key, name in POSE_DIAGNOSIS_FILES.items()}
-    atomic_write(paths["diagnosis"], json.dumps(d.to_dict(), indent=1, allow_nan=False) + "\n")
-    write_pose_model(d.final, d.campaign, paths["model"])
-    return paths
+    with staged_folder(folder) as stage:  # published whole, by one rename
+        atomic_write(stage / POSE_DIAGNOSIS_FILES["diagnosis"],
+                     json.dumps(d.to_dict(), indent=1, allow_nan=False) + "\n")
+        write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"])
+    return {key: Path(folder) / name for key, name in POSE_DIAGNOSIS_FILES.items()}
 
 
 def format_validation(result: dict) -> str:
