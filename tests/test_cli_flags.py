@@ -147,8 +147,10 @@ def test_name_value_coordinates(ur5):
         flags.coordinates_from_args(robot, ns(q="q3=1,elbow_joint=2", deg=False))
     with pytest.raises(StiffnessError, match="needs 6 values"):
         flags.coordinates_from_args(robot, ns(q="1,2", deg=False))
-    with pytest.raises(StiffnessError, match="--q is required"):
-        flags.coordinates_from_args(robot, ns(q=None, deg=False))
+    # without --q: the reference configuration, here the zero pose (inside every UR5 limit)
+    np.testing.assert_array_equal(flags.coordinates_from_args(robot, ns(q=None, deg=False)),
+                                  np.zeros(6))
+    assert flags.coordinates_source(robot, ns(q=None)).startswith("zero pose")
 
 
 def test_parse_list_errors():

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -104,19 +105,29 @@ def format_report(result: DesignResult) -> str:
     lines += ["", "predicted standard error of k relative to k"
               + (" (the existing rows with the plan, with a random plan, alone):"
                  if result.existing is not None else ":")]
-    head = f"  {'joint':<24} {'k (SI)':>11} {'plan':>10} {'random':>10}"
+    head = f"  {'joint':<24} {'k (SI)':>11} {'plan':>12} {'random':>12}"
     if result.existing is not None:
-        head += f" {'existing':>10}"
+        head += f" {'existing':>12}"
     lines.append(head)
     for i, j in enumerate(result.joints):
-        row = (f"  {j:<24} {result.k[i]:>11.4g} {_pct(result.designed.relative_se[i]):>10} "
-               f"{_pct(result.random_relative_se[:, i].mean()):>10}")
+        row = (f"  {j:<24} {result.k[i]:>11.4g} {_pct(result.designed.relative_se[i]):>12} "
+               f"{_pct(result.random_relative_se[:, i].mean()):>12}")
         if result.existing is not None:
-            row += f" {_pct(result.existing.relative_se[i]):>10}"
+            row += f" {_pct(result.existing.relative_se[i]):>12}"
         lines.append(row)
+    ratio = result.se_ratio
+    ratio_text = (f"ratio {ratio:.3g}" if math.isfinite(ratio) else
+                  "no ratio (the plan determines no stiffness)")
+    undetermined = not result.determined.all()
     lines.append(f"  mean: plan {_pct(result.designed.mean_relative_se)}, random plans of the "
                  f"same size {_pct(rel['random_plan_mean'] or float('inf'))} (mean of "
-                 f"{rel['random_plans']}); ratio {result.se_ratio:.3g}")
+                 f"{rel['random_plans']}); {ratio_text}"
+                 + (" over the determined stiffnesses" if undetermined and math.isfinite(ratio)
+                    else ""))
+    if undetermined or not math.isfinite(result.designed.mean_relative_se):
+        lines.append(f"  {UNDETERMINED}: the rows leave that stiffness free (no measured "
+                     "deflection depends on it: a singular Fisher information); add poses or "
+                     "load directions that move that joint")
     if result.separate is not None:
         s = d["separate"]
         lines += ["", f"separating {s['effects'][0]} from {s['effects'][1]} (noise from "
@@ -128,8 +139,12 @@ def format_report(result: DesignResult) -> str:
     return "\n".join(lines)
 
 
+#: What an infinite or NaN standard error is printed as (explained below the table).
+UNDETERMINED = "undetermined"
+
+
 def _pct(v: float) -> str:
-    return "inf" if v != v or v == float("inf") else f"{100 * v:.3g} %"
+    return UNDETERMINED if not math.isfinite(v) else f"{100 * v:.3g} %"
 
 
 def _g(v) -> str:

@@ -183,7 +183,8 @@ def add_robot_flags(parser: argparse.ArgumentParser, *, required: bool = False,
                         help="target in the frame's axes, m (default: the robot's own, else 0)")
     parser.add_argument("--compliant-joints", metavar="J1,J2,...",
                         help="comma-separated joints modelled as springs (default: the robot's "
-                             "own, else every coordinate joint)")
+                             "own, else every coordinate joint but the fingers "
+                             "or gripper of an end effector)")
     parser.add_argument("--loops", metavar="FILE",
                         help="loop declaration (Gepetto's Extended-URDF YAML) instead of the "
                              "one beside the URDF (<name>.loops.yaml, <name>.yaml, robot.yaml)")
@@ -327,24 +328,43 @@ def _is_revolute(robot: Robot, joint: str) -> bool:
 
 def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: bool = True,
                           flag: str = "--q") -> np.ndarray:
-    """Coordinates (rad, m) of ``--q``/``--deg``, or the robot's default configuration.
+    """Coordinates (rad, m) of ``--q``/``--deg``, or the robot's reference configuration.
 
     ``--q`` is either one value per coordinate (``robot.coordinate_joints`` order; for a closed
-    loop also one per degree of freedom of the model, of which the independent ones are kept)
-    or ``name=value`` pairs: joint names or ``q1``, ``q2``...; the coordinates not named keep
-    the robot's default configuration, or 0 when it has none. ``--deg`` converts the revolute
-    ones from degrees.
+    loop also one per degree of freedom of the model, of which the independent ones are kept),
+    one value per joint outside the end-effector branch (``robot.chain_joints``: an end
+    effector's fingers keep their reference value), or ``name=value`` pairs: joint names or ``q1``,
+    ``q2``...; the coordinates not named keep the reference configuration
+    (:func:`~stiffness.mechanics.defaults.reference_configuration`), or 0 when it has none.
+    ``--deg`` converts the revolute ones from degrees. Coordinates beyond their joint limits
+    are warned about, by joint.
 
     Parameters
     ----------
     required
-        When ``--q`` is absent and the robot brings no configuration: raise if True, else zero.
+        When ``--q`` is absent and the robot has no reference configuration (closed loops
+        without shipped coordinates): raise if True, else zero.
 
     Raises
     ------
     StiffnessError
         On a malformed value or a wrong count; :class:`UnknownJointError` on an unknown name.
     """
+    import warnings
+
+    from stiffness.mechanics.ik import outside_limits
+
+    values = _coordinates_of_flag(robot, args, required, flag)
+    beyond = outside_limits(robot, values)
+    if beyond:
+        warnings.warn(f"{robot.name}: the configuration is outside the joint limits: "
+                      f"{'; '.join(beyond)}", stacklevel=2)
+    return values
+
+
+def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
+                         flag: str) -> np.ndarray:
+    """:func:`coordinates_from_args` before the limit check."""
     from stiffness.mechanics.defaults import default_coordinates
     from stiffness.robot.robot import coordinate_index
 
@@ -359,6 +379,7 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
                 f"({', '.join(robot.coordinate_joints)}) or name=value pairs")
         return np.zeros(robot.n_coordinates)
     deg = bool(getattr(args, "deg", False))
+    base = np.zeros(robot.n_coordinates) if shipped is None else shipped.copy()
     items = [item for item in text.split(",") if item.strip()]
     pairs = [_PAIR.match(item) for item in items]
     if any(pairs):
@@ -366,7 +387,6 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
             raise StiffnessError(
                 f"{flag} mixes name=value pairs and bare values ({text!r}): give all values in "
                 "order, or name=value for each")
-        values = np.zeros(robot.n_coordinates) if shipped is None else shipped.copy()
         seen: set[int] = set()
         for match in pairs:
             index = coordinate_index(robot, match.group(1), flag)
@@ -377,39 +397,51 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
             if len(value) != 1:
                 raise StiffnessError(f"{flag} {match.group(0).strip()!r}: one value per name")
             joint = robot.coordinate_joints[index]
-            values[index] = np.deg2rad(value[0]) if deg and _is_revolute(robot, joint) \
+            base[index] = np.deg2rad(value[0]) if deg and _is_revolute(robot, joint) \
                 else value[0]
-        return values
+        return base
     values = np.array(parse_list(text, flag))
+    names = _names_of_values(robot, values.shape[0], flag)
+    for name, value in zip(names, values, strict=True):
+        if name not in robot.coordinate_joints:
+            continue  # a model joint that is no coordinate (a passive loop joint)
+        value = np.deg2rad(value) if deg and _is_revolute(robot, name) else value
+        base[robot.coordinate_joints.index(name)] = value
+    return base
+
+
+def _names_of_values(robot: Robot, count: int, flag: str) -> list[str]:
+    """The joints ``count`` bare ``--q`` values are for: the coordinates, those outside the
+    end-effector branch, or every degree of freedom of the model in model order."""
     model = robot.model
-    if values.shape[0] == robot.n_coordinates:
-        names = list(robot.coordinate_joints)
-    elif values.shape[0] == model.nv:
-        names = [model.names[j] for j in range(1, model.njoints) for _ in range(model.joints[j].nv)]
-        keep = [names.index(n) for n in robot.coordinate_joints]
-        values, names = values[keep], list(robot.coordinate_joints)
-    else:
-        raise StiffnessError(
-            f"{flag} needs {robot.n_coordinates} values for {robot.name} "
-            f"({', '.join(robot.coordinate_joints)}), got {values.shape[0]}; or name=value pairs"
-        )
-    if deg:
-        for i, name in enumerate(names):
-            if _is_revolute(robot, name):
-                values[i] = np.deg2rad(values[i])
-    return values
+    if count == robot.n_coordinates:
+        return list(robot.coordinate_joints)
+    if count == len(robot.chain_joints):
+        return list(robot.chain_joints)
+    if count == model.nv:
+        return [model.names[j] for j in range(1, model.njoints) for _ in range(model.joints[j].nv)]
+    chain = "" if not robot.branch_joints else (
+        f", or {len(robot.chain_joints)} without the end-effector branch "
+        f"({', '.join(robot.chain_joints)})")
+    raise StiffnessError(
+        f"{flag} needs {robot.n_coordinates} values for {robot.name} "
+        f"({', '.join(robot.coordinate_joints)}){chain}, got {count}; or name=value pairs")
 
 
 def coordinates_source(robot: Robot, args: argparse.Namespace, flag: str = "--q") -> str:
     """Where :func:`coordinates_from_args` took the coordinates from (for the echo)."""
-    from stiffness.mechanics.defaults import default_coordinates
+    from stiffness.mechanics.defaults import reference_configuration
 
     text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
+    reference = reference_configuration(robot)
+    rest = reference.source if reference is not None else "zero"
     if text is None:
-        return FROM_ROBOT if default_coordinates(robot) is not None else "zero (no default)"
-    if "=" in text and len(text.split(",")) < robot.n_coordinates:
-        rest = FROM_ROBOT if default_coordinates(robot) is not None else "zero"
+        return rest if reference is not None else "zero (no default)"
+    items = [item for item in text.split(",") if item.strip()]
+    if "=" in text and len(items) < robot.n_coordinates:
         return f"{FROM_FLAG} {flag} (coordinates not named: {rest})"
+    if robot.branch_joints and len(items) == len(robot.chain_joints):
+        return f"{FROM_FLAG} {flag} ({', '.join(robot.branch_joints)}: {rest})"
     return f"{FROM_FLAG} {flag}"
 
 

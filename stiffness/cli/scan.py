@@ -2,7 +2,7 @@
 
 Examples::
 
-    stiffness scan --robot sk120 --preset table4            # A&S Table IV: 5824 x 8 loads
+    stiffness scan --preset table4           # A&S Table IV on the SK120: 5824 x 8 loads
     stiffness scan --robot ur5 --kq 3e5,3e5,2e5,4e4,4e4,4e4 --deg \\
         --axis shoulder_lift_joint=-90:0:5 --axis elbow_joint=0:150:5 --wrench 0,0,-200
     stiffness scan --robot ur5 --kq ... --samples 1000000 --workers 2
@@ -60,7 +60,7 @@ from stiffness.cli.kx import compliant_model_from_args
 from stiffness.elastic.model_file import BEYOND_SPRINGS, ModelFile, read_model_file
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
-from stiffness.papers.presets import SCAN_PRESETS
+from stiffness.papers.presets import PRESET_ROBOTS, SCAN_PRESETS
 from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.workspace.definiteness import terminal_progress
 from stiffness.workspace.request import DEFAULT_LOAD_N, scan, scan_spec
@@ -90,7 +90,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="a scan the papers provide; table4: A&S Table IV on the SK120 "
                              "(theta1 -180..180, theta2 -70..70, theta3 -115..35 deg, step 0.2 "
                              "rad, wrist vertical; the eight +-100 N load cases; the robot's "
-                             "K_theta)")
+                             "K_theta; implies --robot sk120)")
     parser.add_argument("--axis", action="append", default=[], metavar="JOINT=LO:HI[:STEP]",
                         help="swept coordinate (joint name or q1, q2...): a grid LO..HI by "
                              "STEP, or a sampling range without STEP (rad or m; --deg); "
@@ -230,6 +230,8 @@ def scan_arguments(args: argparse.Namespace) -> tuple[Robot, dict]:
     """The robot of a command line and the keyword arguments of
     :func:`stiffness.workspace.request.scan_spec` (and of :func:`~stiffness.workspace.
     request.scan`) its flags give."""
+    if args.preset is not None and args.robot is None and args.model is None:
+        args.robot = PRESET_ROBOTS[args.preset]  # a preset is made for one robot
     robot, robot_spec, k_theta = _robot(args)
     preset = SCAN_PRESETS[args.preset](robot) if args.preset is not None else None
     return robot, {

@@ -49,6 +49,7 @@ from stiffness.errors import (
     with_context,
 )
 from stiffness.files import atomic_write, read_text
+from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.robot import kinematics
@@ -598,7 +599,10 @@ def read_table(path: str | Path, what: str) -> Table:
 
 def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointPath:
     """Read ``PATH.csv``: one column per coordinate, named by joint name or ``q1..qn`` (model
-    coordinate order), one row per point; optional ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
+    coordinate order), or one per joint outside the end-effector branch
+    (``robot.chain_joints``: the fingers then keep their reference value), one row per point;
+    optional
+    ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
 
     Raises
     ------
@@ -609,13 +613,16 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
     table = read_table(path, "path file")
     header = table.header
     joints = list(robot.coordinate_joints)
+    chain = list(robot.chain_joints)
     by_index = [f"q{i + 1}" for i in range(len(joints))]
     if all(j in header for j in joints):
         column_of = joints
     elif all(q in header for q in by_index):
         column_of = by_index
+    elif robot.branch_joints and all(j in header for j in chain):
+        column_of = chain  # the fingers of an end effector keep their reference value
     else:
-        missing = [j for j in joints if j not in header]
+        missing = [j for j in chain if j not in header]
         missing_q = [q for q in by_index if q not in header]
         shown = missing if len(missing) <= len(missing_q) else missing_q
         other = "" if set(header) & set(joints + by_index) else (
@@ -624,10 +631,15 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
             f"lacks the coordinate column(s) {', '.join(shown)} of {robot.name}{other}: name "
             f"one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})",
             path=table.path, line=1)
-    coords = np.column_stack([table.column(c) for c in column_of])
-    wrench = table.wrenches()
     angular = angular_coordinates(robot)
-    if deg:
-        coords[:, angular] = np.deg2rad(coords[:, angular])
+    reference = default_coordinates(robot)
+    coords = np.tile(np.zeros(len(joints)) if reference is None else reference,
+                     (len(table.rows), 1))
+    for name, column in zip(joints if column_of is by_index else column_of, column_of,
+                            strict=True):
+        k = joints.index(name)
+        values = table.column(column)
+        coords[:, k] = np.deg2rad(values) if deg and angular[k] else values
+    wrench = table.wrenches()
     return JointPath(header, [list(r) for r in table.rows], coords, wrench, column_of, angular,
                      table.lines)

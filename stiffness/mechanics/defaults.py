@@ -1,27 +1,70 @@
-"""Defaults a shipped robot brings in its ``robot.toml``: configuration, springs and load.
+"""Defaults a robot brings: its reference configuration, and a shipped robot's springs and load.
 
-Keys (all SI): ``q_deg`` (printed angles, deg) or ``q_SI`` (rad, m) for the coordinates,
-``k_theta_SI`` for the compliant joints' springs, and ``wrench_SI`` for the load, or
-``rest_q_SI`` for springs whose rest positions differ from the configuration (the load is then
-the wrench that holds the target there).
+Keys of a shipped robot's ``robot.toml`` (all SI): ``q_deg`` (printed angles, deg) or ``q_SI``
+(rad, m) for the coordinates, ``k_theta_SI`` for the compliant joints' springs, and
+``wrench_SI`` for the load, or ``rest_q_SI`` for springs whose rest positions differ from the
+configuration (the load is then the wrench that holds the target there). An example-robot-data
+robot brings its reference posture (``q0``); other trees the zero pose, with the joints whose
+limits exclude zero at the middle of their limits.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from stiffness.mechanics.formulation import as_wrench
+from stiffness.mechanics.ik import coordinate_limits
 from stiffness.mechanics.wrench import holding_wrench
 from stiffness.robot.robot import Robot
 
 
-def default_coordinates(robot: Robot) -> np.ndarray | None:
-    """The shipped coordinates (rad, m), or None when the robot brings none."""
+@dataclass(frozen=True)
+class ReferenceConfiguration:
+    """A robot's own configuration: ``coords`` (rad, m) and where it comes from (``source``, as
+    the commands echo it)."""
+
+    coords: np.ndarray
+    source: str
+
+
+def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
+    """The configuration a robot is used at when none is given.
+
+    In order: a shipped robot's ``q_deg`` or ``q_SI``; example-robot-data's reference posture
+    (its ``q0``); for a tree, the zero pose with each joint whose limits exclude zero at the
+    middle of its limits. None for a robot with closed loops that brings no coordinates (its
+    reference is the assembly found near the neutral pose, :meth:`Robot.assemble`).
+    """
     if "q_deg" in robot.defaults:
-        return np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float))
+        return ReferenceConfiguration(np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float)),
+                                      "robot default")
     if "q_SI" in robot.defaults:
-        return np.asarray(robot.defaults["q_SI"], dtype=float)
-    return None
+        return ReferenceConfiguration(np.asarray(robot.defaults["q_SI"], dtype=float),
+                                      "robot default")
+    posture = robot.defaults.get("reference_posture")
+    for entry in robot.model.referenceConfigurations if posture else ():
+        if entry.key() == posture and entry.data().shape[0] == robot.model.nq:
+            return ReferenceConfiguration(robot.coordinates_of(np.asarray(entry.data())),
+                                          f"robot default (example-robot-data reference posture "
+                                          f"{posture!r})")
+    if robot.loop is not None:
+        return None
+    lo, hi = coordinate_limits(robot)
+    outside = (lo > 0.0) | (hi < 0.0)
+    coords = np.where(outside, 0.5 * (lo + hi), 0.0)
+    if not outside.any():
+        return ReferenceConfiguration(coords, "zero pose (the robot brings no configuration)")
+    moved = ", ".join(np.asarray(robot.coordinate_joints)[outside])
+    return ReferenceConfiguration(coords, f"zero pose with {moved} at the middle of its limits "
+                                          "(zero is outside them)")
+
+
+def default_coordinates(robot: Robot) -> np.ndarray | None:
+    """The coordinates (rad, m) of :func:`reference_configuration`, or None."""
+    reference = reference_configuration(robot)
+    return None if reference is None else reference.coords
 
 
 def default_stiffness(robot: Robot) -> np.ndarray | None:

@@ -98,6 +98,15 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo), np.array(hi)
 
 
+def outside_limits(robot: Robot, coords: np.ndarray) -> list[str]:
+    """``name = value beyond [lo, hi]`` for each coordinate (rad, m) outside its position limits
+    (by more than 1e-9)."""
+    lo, hi = coordinate_limits(robot)
+    return [f"{name} = {value:.6g} beyond its limits [{a:.6g}, {b:.6g}]"
+            for name, value, a, b in zip(robot.coordinate_joints, coords, lo, hi, strict=True)
+            if value < a - 1e-9 or value > b + 1e-9]
+
+
 def frame_error(robot: Robot, position: np.ndarray, rotation: np.ndarray | None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Error (3 or 6,) of the target frame against ``position``/``rotation`` and its Jacobian

@@ -52,3 +52,5 @@ def table4_preset(robot: Robot) -> ScanPreset:
 
 #: Preset name -> builder of its scan options from the loaded robot.
 SCAN_PRESETS: dict[str, Callable[[Robot], ScanPreset]] = {"table4": table4_preset}
+#: Preset name -> the robot it is made for (``scan --preset`` loads it when no robot is given).
+PRESET_ROBOTS: dict[str, str] = {"table4": "sk120"}

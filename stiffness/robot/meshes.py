@@ -6,7 +6,9 @@ Search order for ``package://PKG/REST`` (and ``package:///REST``, which Onshape 
    ``A/REST`` for an empty PKG;
 2. every folder of ``ROS_PACKAGE_PATH``: ``E/PKG/REST``, ``E/REST`` when ``E`` is named PKG, and
    packages one or two levels below ``E`` (a workspace's ``src/PKG``);
-3. example-robot-data's share folder (``share/example-robot-data/robots/PKG/REST``).
+3. example-robot-data's share folder: ``share/example-robot-data/robots/PKG/REST``, and
+   ``share/example-robot-data/REST`` for the package ``example-robot-data`` itself (the
+   ``package://example-robot-data/robots/...`` paths of its own URDFs).
 
 A relative path is taken from the URDF's folder. A mesh that none of these holds is replaced by a
 small sphere (radius :data:`PLACEHOLDER_RADIUS_M`) on the same link and listed in
@@ -64,7 +66,7 @@ def search_roots(urdf: Path) -> list[Path]:
                 roots += sorted(p for p in base.glob("*/*") if p.is_dir())
     share = _example_robot_data_share()
     if share is not None:
-        roots.append(share)
+        roots += [share, share.parent]  # .../share/example-robot-data/robots and its package
     return roots
 
 

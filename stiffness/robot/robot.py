@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -101,7 +101,8 @@ class Robot:
         read by the toolkit: ``q_deg`` or ``q_SI`` (default coordinates, deg, or rad/m),
         ``k_theta_SI``, ``wrench_SI``, ``rest_q_SI`` (spring rest coordinates: the default load
         is then the wrench that holds the target there), ``twist_order`` (``"v-w"`` or
-        ``"w-v"``: row order of printed 6x6 matrices).
+        ``"w-v"``: row order of printed 6x6 matrices), ``reference_posture`` (the name of
+        example-robot-data's reference configuration, ``q0``, in ``model.referenceConfigurations``).
     mimics
         Mimic followers (``<mimic>`` tags): they follow their leader, a coordinate joint, and
         have neither a coordinate nor a spring of their own.
@@ -150,6 +151,21 @@ class Robot:
     def n_coordinates(self) -> int:
         """Number of coordinates (independent joints)."""
         return len(self.coordinate_joints)
+
+    @property
+    def branch_joints(self) -> tuple[str, ...]:
+        """Coordinate joints of an end-effector branch, which the target does not depend on
+        (fingers or a gripper beside the target's chain); none for a robot with closed loops
+        or a controller map, whose target may depend on every coordinate through them."""
+        return branch_joints(self.model, self.target_frame_id, self.coordinate_joints,
+                             not self.loop.is_open_chain or self.coupling is not None)
+
+    @property
+    def chain_joints(self) -> tuple[str, ...]:
+        """Coordinate joints but those of the end-effector branch (:attr:`branch_joints`), in
+        coordinate order: the values ``--q`` and path files need at least."""
+        branch = set(self.branch_joints)
+        return tuple(j for j in self.coordinate_joints if j not in branch)
 
     @property
     def n_compliant(self) -> int:
@@ -601,7 +617,8 @@ def load_robot(
     target_offset
         Target position in ``frame`` axes (m); default zero (or the shipped robot's).
     compliant_joints
-        Joints modelled as springs; default: the shipped robot's, else every coordinate joint.
+        Joints modelled as springs; default: the shipped robot's, else the coordinate joints but
+        the fingers or gripper of an end-effector branch (:func:`branch_joints`).
     loops
         Loop declaration (YAML, Gepetto's Extended-URDF format) overriding the sidecar.
     fixed_base
@@ -683,8 +700,12 @@ def load_robot(
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
 
-    if compliant_joints is None:
-        compliant_joints = settings.get("compliant_joints", spring_names)
+    fid = kinematics.frame_id(model, frame)
+    if compliant_joints is None:  # default: not the fingers of an end-effector branch
+        branch = set() if coupling is not None else set(
+            branch_joints(model, fid, coordinate_joints, not loop.is_open_chain))
+        compliant_joints = settings.get(
+            "compliant_joints", [j for j in spring_names if j not in branch])
     compliant_joints = tuple(compliant_joints)
     for joint_name in compliant_joints:
         if joint_name not in spring_names:
@@ -701,7 +722,6 @@ def load_robot(
     if len(set(compliant_joints)) != len(compliant_joints):
         raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
 
-    fid = kinematics.frame_id(model, frame)
     parent = model.frames[fid]
     placement = parent.placement * pin.SE3(np.eye(3), offset)
     target_id = model.addFrame(
@@ -746,6 +766,20 @@ def _controller(name: str, settings: dict, model: pin.Model, chain: list[str], l
     units = {k: dh[k] for k in ("angle_unit", "length_unit")
              if isinstance(dh, dict) and k in dh}
     return read_coordinate_map(settings["controller"], path, kinds, units)
+
+
+def branch_joints(model: pin.Model, frame_id: int, coordinate_joints: Sequence[str],
+                  coupled: bool) -> tuple[str, ...]:
+    """Coordinate joints of an end-effector branch: they hang below a joint that supports
+    frame ``frame_id`` but do not support it themselves (fingers, a gripper's jaws). Limbs that
+    branch off at the base are not among them; none when ``coupled`` (closed loops or a
+    controller map may tie every coordinate to the target)."""
+    if coupled:
+        return ()
+    chain = set(model.supports[model.frames[frame_id].parentJoint]) - {0}
+    return tuple(name for name in coordinate_joints
+                 if (jid := model.getJointId(name)) not in chain
+                 and chain & set(model.supports[jid]))
 
 
 def _gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:

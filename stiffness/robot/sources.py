@@ -28,7 +28,6 @@ from stiffness.errors import (
     MissingFileError,
     StiffnessError,
     UnknownRobotError,
-    did_you_mean,
 )
 from stiffness.files import read_toml
 from stiffness.robot.dh import TOOL, build_dh_model, read_dh_table
@@ -193,7 +192,10 @@ def _from_example_robot_data(name: str) -> RobotSource:
         mimics = tuple(m for m in tags if model.existJointName(m.follower)
                        and model.existJointName(m.leader)
                        and model.joints[model.getJointId(m.follower)].nv == 1)
-    return RobotSource(name, model, visual, {}, mimics, (), None,
+    posture = getattr(robots_loader.ROBOTS[name], "ref_posture", None)
+    settings = {"reference_posture": posture} if posture and any(
+        entry.key() == posture for entry in model.referenceConfigurations) else {}
+    return RobotSource(name, model, visual, settings, mimics, (), None,
                        path if path.is_file() else None, all_mimics=tags,
                        visual_loader=visual_loader)
 
@@ -254,12 +256,13 @@ def _mimic_tags(path: Path) -> tuple[Mimic, ...]:
 
 
 def resolve_source(source: str | os.PathLike) -> RobotSource:
-    """Read a shipped robot name, a URDF path or an example-robot-data name.
+    """Read a shipped robot name, a URDF path (or a folder holding a ``robot.toml`` or one
+    URDF) or an example-robot-data name; names are matched regardless of case.
 
     Raises
     ------
     StiffnessError
-        Unknown name, missing or malformed file.
+        Unknown name, missing or malformed file, a folder that holds no robot.
     """
     text = str(source)
     shipped = shipped_robots()
@@ -272,6 +275,8 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
             raise MissingFileError(f"robot file {toml} does not exist; give the path of a "
                                    "robot.toml", path=toml)
         return _from_toml(toml.parent, text, toml)
+    if path.is_dir():
+        return _from_folder(path)
     if path.suffix.lower() in (".urdf", ".xml") or path.exists():
         if path.is_file() and _toml_naming(path):
             found = _from_toml(path.parent, text)
@@ -284,8 +289,35 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
     erd_names = example_robot_names()
     if text in erd_names:
         return _from_example_robot_data(text)
+    same = [n for n in shipped + erd_names if n.lower() == text.lower()]
+    if len(same) == 1:
+        return resolve_source(same[0])
     raise UnknownRobotError(
         f"unknown robot {text!r}: not a shipped robot ({', '.join(shipped)}), not an existing "
-        f"URDF file, and not an example-robot-data name; "
-        f"{did_you_mean(text, shipped + erd_names, limit=80)}", name=text,
-        choices=shipped + erd_names)
+        f"URDF file or folder, and not an example-robot-data name; "
+        f"{_closest_names(text, shipped + erd_names)}", name=text, choices=shipped + erd_names)
+
+
+def _closest_names(text: str, names: list[str]) -> str:
+    """``did you mean ...?`` with the few names closest to ``text`` (case ignored), or where
+    the full list is."""
+    import difflib
+
+    lower = {n.lower(): n for n in names}
+    close = [lower[n] for n in difflib.get_close_matches(text.lower(), list(lower), n=4,
+                                                         cutoff=0.5)]
+    close += [n for n in names if text.lower() in n.lower() and n not in close][:4 - len(close)]
+    where = (f"{len(names)} names in all, example-robot-data's in "
+             "example_robot_data.robots_loader.ROBOTS")
+    return f"did you mean {', '.join(close)}? ({where})" if close else where
+
+
+def _from_folder(folder: Path) -> RobotSource:
+    """The robot of a folder without a ``robot.toml``: its one URDF file."""
+    urdfs = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".urdf" and p.is_file())
+    if len(urdfs) == 1:
+        return resolve_source(urdfs[0])
+    held = (f"{len(urdfs)} URDF files ({', '.join(p.name for p in urdfs[:5])})" if urdfs
+            else "no robot.toml and no URDF file")
+    raise StiffnessError(f"{folder} is a folder holding {held}: give the path of one URDF file, "
+                         "or a folder with a robot.toml or a single URDF")

@@ -1,0 +1,130 @@
+"""Defaults a user would choose (issue 30, item 2): an end effector's fingers are not springs,
+``--q`` and path files need no value for them, and without ``--q`` the robot's reference
+configuration is used, echoed with its source and inside the joint limits.
+
+Checked against example-robot-data itself (its loaders' ``q0``) and the URDF limits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import warnings
+
+import numpy as np
+import pytest
+from example_robot_data import robots_loader
+
+from stiffness.cli.main import main
+from stiffness.mechanics.defaults import reference_configuration
+from stiffness.mechanics.ik import coordinate_limits
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import resolve_source
+
+#: Arms with an end-effector branch (Panda: fingers; TALOS arm: gripper) and one without
+#: (xArm 7), each with the joints of its arm in coordinate order.
+ARMS = {
+    "panda": [f"panda_joint{i}" for i in range(1, 8)],
+    "talos_arm": [f"arm_left_{i}_joint" for i in range(2, 8)],
+    "xarm7": [f"joint{i}" for i in range(1, 8)],
+}
+
+
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """Exit status, stdout and stderr of ``stiffness ARGV`` run in this process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def loader_q0(name: str) -> np.ndarray:
+    """example-robot-data's own ``q0`` of ``name`` (its loader class, run in full)."""
+    return np.asarray(robots_loader.ROBOTS[name]().robot.q0, dtype=float)
+
+
+@pytest.mark.parametrize("name", sorted(ARMS))
+def test_springs_default_to_the_arm(name):
+    robot = load_robot(name)
+    assert robot.compliant_joints == tuple(ARMS[name])
+    assert robot.chain_joints == tuple(ARMS[name])
+    assert set(robot.branch_joints) == set(robot.coordinate_joints) - set(ARMS[name])
+
+
+@pytest.mark.parametrize("name", sorted(ARMS))
+def test_kx_without_q_uses_the_reference_posture(name):
+    """``kx`` with only the arm's springs: the echoed q is example-robot-data's q0, inside the
+    limits, with its source; no warning."""
+    robot = load_robot(name)
+    kq = ",".join(["1e5"] * len(ARMS[name]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code, out, err = run_cli(["kx", "--robot", name, "--kq", kq, "--wrench", "0,0,-100",
+                                  "--json"])
+    assert code == 0, err
+    doc = json.loads(out)
+    q = np.array([doc["q_named"][j] for j in robot.coordinate_joints])
+    np.testing.assert_allclose(q, robot.coordinates_of(loader_q0(name)), rtol=0, atol=1e-12)
+    lo, hi = coordinate_limits(robot)
+    assert np.all(q >= lo) and np.all(q <= hi)
+    posture = robots_loader.ROBOTS[name].ref_posture
+    assert doc["sources"]["q"] == f"robot default (example-robot-data reference posture " \
+                                  f"{posture!r})"
+    assert doc["compliant_joints"] == ARMS[name]
+
+
+@pytest.mark.parametrize("name", sorted(ARMS))
+def test_arm_values_suffice_for_q_and_path_files(name, tmp_path):
+    """``--q`` with one value per arm joint, and a path file with one column per arm joint:
+    the fingers keep their reference value."""
+    robot = load_robot(name)
+    arm = ARMS[name]
+    reference = reference_configuration(robot).coords
+    lo, hi = coordinate_limits(robot)
+    inner = 0.5 * (lo + hi)
+    values = [float(inner[robot.coordinate_joints.index(j)]) for j in arm]
+    kq = ",".join(["1e5"] * len(arm))
+    code, out, err = run_cli(["kx", "--robot", name, "--kq", kq, "--wrench", "0,0,-100",
+                              "--q", ",".join(map(repr, values)), "--json"])
+    assert code == 0, err
+    doc = json.loads(out)
+    for joint in robot.coordinate_joints:
+        k = robot.coordinate_joints.index(joint)
+        expected = values[arm.index(joint)] if joint in arm else reference[k]
+        assert doc["q_named"][joint] == pytest.approx(expected, abs=1e-12)
+    path = tmp_path / "path.csv"
+    at_reference = [float(reference[robot.coordinate_joints.index(j)]) for j in arm]
+    path.write_text(",".join(arm) + "\n" + ",".join(map(repr, values)) + "\n"
+                    + ",".join(map(repr, at_reference)) + "\n")
+    code, out, err = run_cli(["compensate", "--robot", name, "--kq", kq, "--wrench",
+                              "0,0,-100", "--path", str(path), "--json"])
+    assert code == 0, err
+    doc = json.loads(out)
+    assert len(doc["rows"]) == 2 and doc["joints"] == list(robot.coordinate_joints)
+
+
+def test_configuration_outside_the_limits_is_warned_by_joint():
+    """The Panda's zero pose: joint 4 is outside [-3.0718, -0.0698] rad."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, _, err = run_cli(["kx", "--robot", "panda", "--kq", ",".join(["1e5"] * 7),
+                                "--wrench", "0,0,-100", "--q", "0,0,0,0,0,0,0"])
+    assert code == 0, err
+    warned = [str(w.message) for w in caught if "limits" in str(w.message)]
+    assert len(warned) == 1 and "panda_joint4 = 0 beyond its limits" in warned[0], warned
+    assert "panda_joint1" not in warned[0]
+
+
+def test_a_urdf_without_reference_takes_the_middle_of_limits_that_exclude_zero():
+    """The Panda's URDF read as a file (no example-robot-data reference): the zero pose, with
+    joint 4 at the middle of its limits."""
+    robot = load_robot(str(resolve_source("panda").urdf))
+    reference = reference_configuration(robot)
+    lo, hi = coordinate_limits(robot)
+    k = robot.coordinate_joints.index("panda_joint4")
+    expected = np.zeros(robot.n_coordinates)
+    expected[k] = 0.5 * (lo[k] + hi[k])
+    np.testing.assert_array_equal(reference.coords, expected)
+    assert "panda_joint4 at the middle of its limits" in reference.source
+    assert np.all(reference.coords >= lo) and np.all(reference.coords <= hi)
