@@ -34,8 +34,9 @@ def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
 
     In order: a shipped robot's ``q_deg`` or ``q_SI``; example-robot-data's reference posture
     (its ``q0``); for a tree, the zero pose with each joint whose limits exclude zero at the
-    middle of its limits. None for a robot with closed loops that brings no coordinates (its
-    reference is the assembly found near the neutral pose, :meth:`Robot.assemble`).
+    middle of its limits. None for a robot with closed loops or controller coordinates that
+    brings no coordinates (its reference is the assembly found near the neutral pose,
+    :meth:`Robot.assemble`, or zero).
     """
     if "q_deg" in robot.defaults:
         return ReferenceConfiguration(np.deg2rad(np.asarray(robot.defaults["q_deg"], dtype=float)),
@@ -49,7 +50,7 @@ def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
             return ReferenceConfiguration(robot.coordinates_of(np.asarray(entry.data())),
                                           f"robot default (example-robot-data reference posture "
                                           f"{posture!r})")
-    if robot.loop is not None:
+    if not robot.loop.is_open_chain or robot.coupling is not None:
         return None
     lo, hi = coordinate_limits(robot)
     outside = (lo > 0.0) | (hi < 0.0)

@@ -770,16 +770,15 @@ def _controller(name: str, settings: dict, model: pin.Model, chain: list[str], l
 
 def branch_joints(model: pin.Model, frame_id: int, coordinate_joints: Sequence[str],
                   coupled: bool) -> tuple[str, ...]:
-    """Coordinate joints of an end-effector branch: they hang below a joint that supports
-    frame ``frame_id`` but do not support it themselves (fingers, a gripper's jaws). Limbs that
-    branch off at the base are not among them; none when ``coupled`` (closed loops or a
-    controller map may tie every coordinate to the target)."""
-    if coupled:
+    """Coordinate joints of an end-effector branch: they hang below the joint that moves frame
+    ``frame_id`` (fingers, a gripper's jaws), so that the frame does not depend on them. Other
+    limbs (an arm or leg branching off higher up) are not among them; none when ``coupled``
+    (closed loops or a controller map may tie every coordinate to the target)."""
+    parent = model.frames[frame_id].parentJoint
+    if coupled or parent == 0:
         return ()
-    chain = set(model.supports[model.frames[frame_id].parentJoint]) - {0}
     return tuple(name for name in coordinate_joints
-                 if (jid := model.getJointId(name)) not in chain
-                 and chain & set(model.supports[jid]))
+                 if (jid := model.getJointId(name)) != parent and parent in model.supports[jid])
 
 
 def _gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
