@@ -97,9 +97,9 @@ def test_classes_of_3x3_equal_one_at_a_time(seed):
 def test_distinct_loop_coordinates_as_numpy_unique(values):
     """The distinct closures of a batch (first visits and the map back) are numpy.unique's
     rows, in its order."""
-    from stiffness.batch.kernels import _distinct_rows
+    from stiffness.batch.linalg import distinct_rows
 
-    first, inverse = _distinct_rows(values)
+    first, inverse = distinct_rows(values)
     _, first_ref, inverse_ref = np.unique(values, axis=0, return_index=True,
                                           return_inverse=True)
     np.testing.assert_array_equal(first, first_ref)
@@ -111,13 +111,13 @@ def test_distinct_loop_coordinates_as_numpy_unique(values):
 def test_point_hessian_along_a_force_is_its_contraction(s, n, seed):
     """The projected point Hessian along F (computed contracted first, as for the closed-loop
     K_C's tree term) is F . H[S_a, S_b] of the full one, and symmetric."""
-    from stiffness.batch.kernels import _projected_point_hessian
+    from stiffness.batch.linalg import projected_point_hessian
 
     rng = np.random.default_rng(seed)
     lin, om = rng.standard_normal((3, s, 7)), rng.standard_normal((3, s, 7))
     proj, force = rng.standard_normal((s, n, 7)), rng.standard_normal(3) * 100
-    full = _projected_point_hessian(lin, om, proj)
-    along = _projected_point_hessian(lin, om, proj, along=force)
+    full = projected_point_hessian(lin, om, proj)
+    along = projected_point_hessian(lin, om, proj, along=force)
     np.testing.assert_allclose(along, np.einsum("krab,r->kab", full, force),
                                rtol=1e-12, atol=1e-12 * np.abs(full).max() * 100)
     np.testing.assert_allclose(along, np.swapaxes(along, 1, 2), rtol=0, atol=1e-12 * 100 * (

@@ -15,6 +15,7 @@ Units: SI (m, N, rad; ``K_theta`` N.m/rad or N/m; K_C N.m/rad).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NoReturn
 
 import numpy as np
 import pinocchio as pin
@@ -151,27 +152,41 @@ def solve_equilibria(robot: Robot, q0: np.ndarray, k_theta: np.ndarray, wrenches
     if running.size:
         i = int(running[0])
         start_k_c = np.einsum("k,kab->ab", wrench[i], base.k_c_basis[i])
-        lowest = _lowest_eigenvalue(kmat - start_k_c)
-        if lowest <= 0:
-            raise UnstableEquilibriumError(
-                f"the exact equilibrium of row {i + 1} did not converge in {max_iterations} "
-                f"iterations and K_theta - K_C under its load is already indefinite at the "
-                f"unloaded pose (eigenvalue {lowest:.3g}): loads this large exceed the buckling "
-                "load; reduce it or stiffen the joints")
-        raise ConvergenceError(
+        _raise_unconverged(i, kmat - start_k_c, residual[i], max_iterations)
+    _check_stable(kmat - k_c)
+    rot = np.array([pin.log3(r @ r0.T) for r, r0 in zip(rotation, base.rotation, strict=True)])
+    torque = np.einsum("mkn,mk->mn", jac, wrench)
+    return Equilibria(q, dtheta, position - base.position, rot, iterations, torque, jac, k_c)
+
+
+def _raise_unconverged(i: int, start_tangent: np.ndarray, residual: np.ndarray,
+                       max_iterations: int) -> NoReturn:
+    """Why row ``i`` did not converge: a load beyond buckling already at the unloaded pose
+    (``start_tangent`` = K_theta - K_C there not positive definite), else too few iterations
+    (``residual``: its last joint torque residual, N.m)."""
+    lowest = _lowest_eigenvalue(start_tangent)
+    if lowest <= 0:
+        raise UnstableEquilibriumError(
             f"the exact equilibrium of row {i + 1} did not converge in {max_iterations} "
-            f"iterations (residual {np.abs(residual[i]).max():.3g}): the load may exceed the "
-            "buckling load; reduce it or raise max_iterations")
-    lowest = _lowest_eigenvalue(kmat - k_c)
+            f"iterations and K_theta - K_C under its load is already indefinite at the "
+            f"unloaded pose (eigenvalue {lowest:.3g}): loads this large exceed the buckling "
+            "load; reduce it or stiffen the joints")
+    raise ConvergenceError(
+        f"the exact equilibrium of row {i + 1} did not converge in {max_iterations} "
+        f"iterations (residual {np.abs(residual).max():.3g}): the load may exceed the "
+        "buckling load; reduce it or raise max_iterations")
+
+
+def _check_stable(tangent: np.ndarray) -> None:
+    """Raise :class:`UnstableEquilibriumError` naming the first row whose tangent stiffness
+    K_theta - K_C (m, n, n) at its equilibrium is not positive definite."""
+    lowest = _lowest_eigenvalue(tangent)
     if np.any(lowest <= 0):
         i = int(np.argmin(lowest))
         raise UnstableEquilibriumError(
             f"the equilibrium found under the load of row {i + 1} is unstable (K_theta - K_C "
             f"has the eigenvalue {lowest[i]:.3g} there): the load exceeds the buckling load of "
             "the robot in this configuration; reduce the load or stiffen the joints")
-    rot = np.array([pin.log3(r @ r0.T) for r, r0 in zip(rotation, base.rotation, strict=True)])
-    torque = np.einsum("mkn,mk->mn", jac, wrench)
-    return Equilibria(q, dtheta, position - base.position, rot, iterations, torque, jac, k_c)
 
 
 def _lowest_eigenvalue(tangent: np.ndarray) -> np.ndarray:

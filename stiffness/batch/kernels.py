@@ -20,7 +20,7 @@ everything else is NumPy over the whole batch:
   velocity map S and the closure curvature dS_p computed once per distinct closure (they depend
   only on the loop coordinates, :class:`_ClosurePass`), from the loop points' frame
   Jacobians alone where every joint has one velocity coordinate
-  (:func:`_projected_point_hessian`), so the per-configuration Pinocchio work is the open
+  (:func:`projected_point_hessian`), so the per-configuration Pinocchio work is the open
   chain's.
 * Loop closures are the expensive part of a closed-chain configuration from coordinates:
   :func:`close_loops` closes each distinct value of the *loop coordinates* (the coordinates of
@@ -60,14 +60,19 @@ from stiffness.batch.linalg import (
     CONDITION_LIMIT,
     INVALID_CLASS,
     as_joint_stiffness,
+    as_load_cases,
     cartesian_stiffness,
     class_names,
     compliance,
     compliance_stack,
     critical_load_factor,
+    cross_axis0,
+    cross_matrices,
     definiteness_codes,
+    distinct_rows,
     load_definiteness,
     principal_stiffness,
+    projected_point_hessian,
     symmetric_eigenvalues,
     symmetric_stack,
     tangent_stiffness,
@@ -75,9 +80,11 @@ from stiffness.batch.linalg import (
 from stiffness.batch.loops import (
     LWA,
     ClosedConfigurations,
-    _loop_points,
     close_loops,
     loop_coordinate_indices,
+    loop_points,
+    point_supports,
+    support_mask,
     tree_configurations,
 )
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -172,7 +179,7 @@ def batch_kinematics(robot: Robot, q: np.ndarray, moments: bool = True,
             f"{robot.name} configurations have {robot.model.nq} values (Pinocchio q), got "
             f"{q.shape[1]}"
         )
-    frames = 1 + (0 if robot.loop.is_open_chain else len(_loop_points(robot)))
+    frames = 1 + (0 if robot.loop.is_open_chain else len(loop_points(robot)))
     per_configuration = 8 * 6 * robot.model.nv ** 2 * frames
     step = max(1, _RAW_BYTES // per_configuration)
     if q.shape[0] <= step:
@@ -279,24 +286,6 @@ def _jacobian_rows(jacobians: np.ndarray) -> np.ndarray:
     return jacobians[..., 0] if jacobians.shape[-1] == 1 else jacobians
 
 
-def _distinct_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First occurrence of each distinct row of ``values`` (m, c) and, per row, the index of
-    its distinct row in that list (``np.unique(values, axis=0, return_index=True,
-    return_inverse=True)`` without the row-wise structured sort; rows holding NaN are each
-    distinct)."""
-    m = values.shape[0]
-    if values.shape[1] == 0 or m == 0:
-        return np.zeros(min(m, 1), dtype=int), np.zeros(m, dtype=int)
-    order = np.lexsort(values.T[::-1])  # stable: the first of equal rows comes first
-    ordered = values[order]
-    new = np.ones(m, dtype=bool)
-    new[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
-    group = np.cumsum(new) - 1
-    inverse = np.empty(m, dtype=int)
-    inverse[order] = group
-    return order[new], inverse
-
-
 class _ClosurePass:
     """Closure derivatives of a block of closed configurations, once per distinct closure.
 
@@ -308,16 +297,16 @@ class _ClosurePass:
     visits it (:meth:`recorder`), and the derivatives broadcast to the others.
 
     Where every joint has one velocity coordinate of its own (revolute, prismatic, helical...),
-    they come from the points' frame Jacobians alone (:func:`_projected_point_hessian`, one
+    they come from the points' frame Jacobians alone (:func:`projected_point_hessian`, one
     Jacobian per point and closure); otherwise from Pinocchio's frame Jacobians and kinematic
     Hessians.
     """
 
     def __init__(self, robot: Robot, q: np.ndarray) -> None:
         self.robot = robot
-        self.points = _loop_points(robot)
+        self.points = loop_points(robot)
         key_q = _loop_key_q_indices(robot)
-        first, inverse = _distinct_rows(q[:, key_q])
+        first, inverse = distinct_rows(q[:, key_q])
         self.inverse = inverse
         self.first = first
         slot = np.full(q.shape[0], -1)
@@ -377,10 +366,10 @@ class _ClosurePass:
             proj, pinv, valid, _ = closed_loop.velocity_map(c, cv, pv, base, target_passive)
             proj_t = np.ascontiguousarray(proj.transpose(1, 2, 0))
             point_hss = []
-            for f, support in enumerate(_point_supports(robot)):  # its support columns only
+            for f, support in enumerate(point_supports(robot)):  # its support columns only
                 idx = np.flatnonzero(support)
                 point_j = np.ascontiguousarray(jac[f][:, :, idx].transpose(1, 2, 0))  # (6, s, k)
-                point_hss.append(_projected_point_hessian(point_j[:3], point_j[3:], proj_t[idx]))
+                point_hss.append(projected_point_hessian(point_j[:3], point_j[3:], proj_t[idx]))
             hss = np.concatenate([point_hss[p + 1] - point_hss[p] for p in pairs], axis=1)
         else:
             c = np.concatenate([self.jac[p + 1, :, :3] - self.jac[p, :, :3] for p in pairs],
@@ -402,7 +391,7 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray:
     the diagonal of :func:`batch_kinematics`'s ``k_c_basis``).
 
     ``K_C(e_k)[a, a] = d2 x_k / dq_a^2 = (omega_a x v_a)_k`` (the point Hessian of
-    :func:`_projected_point_hessian` on its diagonal), with ``[v_a; omega_a]`` the columns of the
+    :func:`projected_point_hessian` on its diagonal), with ``[v_a; omega_a]`` the columns of the
     (m, 6, n) Jacobian, rows [v; omega].
     """
     if not robot.loop.is_open_chain or not one_coordinate_joints(robot) \
@@ -412,7 +401,7 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray:
             "chains of one-coordinate joints, each its own coordinate; take the diagonal of "
             "batch_kinematics' k_c_basis")
     v, om = jacobian[:, :3], jacobian[:, 3:]
-    return _cross0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
+    return cross_axis0(om.transpose(1, 0, 2), v.transpose(1, 0, 2)).transpose(1, 0, 2)
 
 
 def _loop_key_q_indices(robot: Robot) -> np.ndarray:
@@ -426,7 +415,7 @@ def _loop_key_q_indices(robot: Robot) -> np.ndarray:
 
 
 def one_coordinate_joints(robot: Robot) -> bool:
-    """Whether the Jacobian-based Hessians apply (:func:`_projected_point_hessian`,
+    """Whether the Jacobian-based Hessians apply (:func:`projected_point_hessian`,
     :func:`unit_force_diagonal`): every joint of the model has one velocity coordinate of its
     own and none is a mimic or composite joint."""
     model = robot.model
@@ -435,55 +424,6 @@ def one_coordinate_joints(robot: Robot) -> bool:
         if joint.nv != 1 or "Mimic" in name or "Composite" in name:
             return False
     return True
-
-
-def _point_supports(robot: Robot) -> np.ndarray:
-    """(n_points, nv) masks of the velocity coordinates moving each loop point."""
-    model = robot.model
-    return np.array([_support_mask(model, model.frames[point[0]].parentJoint
-                                   if len(point) == 1 else point[0])
-                     for point in _loop_points(robot)], dtype=bool).reshape(-1, model.nv)
-
-
-def _support_mask(model: pin.Model, joint: int) -> np.ndarray:
-    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body."""
-    mask = np.zeros(model.nv, dtype=bool)
-    for j in list(model.supports[joint])[1:]:
-        mask[model.joints[j].idx_v] = True
-    return mask
-
-
-def _projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray,
-                             along: np.ndarray | None = None) -> np.ndarray:
-    """``H(p)[S_a, S_b]`` (k, 3, n, n) of a point's position Hessian, without forming it; with
-    ``along`` (3,), its component ``along . H(p)[S_a, S_b]`` (k, n, n), contracted first.
-
-    ``lin``, ``om`` (3, s, k) and ``proj`` (s, n, k), batch-last, on the point's support
-    columns: ``lin[:, a]`` = ``v_a(p)`` = dp/dq_a and ``om[:, a]`` = ``omega_a``, the columns
-    of the point's frame Jacobian (LOCAL_WORLD_ALIGNED; joints with one velocity coordinate
-    each, a support being a chain ordered by velocity index). With ``H_ij = d2p/dq_i dq_j =
-    omega_min(i,j) x v_max(i,j)``: ``A[a, b] = sum_j (sum_{i<=j} S_ia
-    omega_i) x v_j S_jb`` holds the terms with i <= j, and ``H[S_a, S_b] = A + A^T - D`` with
-    D the diagonal terms ``sum_j (omega_j x v_j) S_ja S_jb`` counted twice. Along a vector F,
-    ``F . (c x v) = c . (v x F)``.
-    """
-    cum = np.cumsum(om[:, :, None] * proj[None], axis=1)  # (3, s, n, k)
-    if along is None:
-        # y[r, j, a] = (cum_a(j) x v_j)_r, minus half the diagonal term (counted twice below)
-        y = _cross0(cum, lin[:, :, None]) - 0.5 * _cross0(om, lin)[:, :, None] * proj[None]
-        a = np.einsum("rsak,sbk->rabk", y, proj)  # (3, n, n, k)
-        return (a + a.transpose(0, 2, 1, 3)).transpose(3, 0, 1, 2)
-    w = _cross0(lin, np.asarray(along, dtype=float)[:, None, None])  # v_j x F, (3, s, k)
-    y = (np.einsum("rjak,rjk->jak", cum, w)
-         - 0.5 * np.einsum("rjk,rjk->jk", om, w)[:, None] * proj)  # (s, n, k)
-    a = np.einsum("jak,jbk->abk", y, proj)  # (n, n, k)
-    return (a + a.transpose(1, 0, 2)).transpose(2, 0, 1)
-
-
-def _cross0(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product along axis 0 (length 3), broadcast."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
 
 
 _POINT_MASS_MODELS: dict[int, tuple[pin.Model, pin.Model, pin.Data]] = {}
@@ -605,7 +545,7 @@ def _closed_point_force_block(robot: Robot, model: pin.Model, data: pin.Data, q:
 
     For a dead force F at the target p, the tree term of K_C is ``F . d2p/dq2``, which the
     target's Jacobian gives (``d2p/dq_a dq_b = omega_a x v_b(p)``), projected on the velocity
-    map S without forming it (:func:`_projected_point_hessian`, as for the loop points); the
+    map S without forming it (:func:`projected_point_hessian`, as for the loop points); the
     closure term is :func:`stiffness.mechanics.closed_loop.closure_term`.
     """
     m, fid = q.shape[0], robot.target_frame_id
@@ -621,38 +561,16 @@ def _closed_point_force_block(robot: Robot, model: pin.Model, data: pin.Data, q:
         if position is not None:
             position[i] = translation
     proj, curvature, valid = closure.derivatives(j_full)
-    support = _support_mask(model, model.frames[fid].parentJoint)
+    support = support_mask(model, model.frames[fid].parentJoint)
     target_j = np.ascontiguousarray(j_full[:, :, support].transpose(1, 2, 0))  # (6, s, m)
     proj_t = np.ascontiguousarray(proj[:, support].transpose(1, 2, 0))  # (s, n, m)
-    tree = _projected_point_hessian(target_j[:3], target_j[3:], proj_t, along=force)
+    tree = projected_point_hessian(target_j[:3], target_j[3:], proj_t, along=force)
     k_c = tree + closed_loop.closure_term((force @ j_full[:, :3])[:, robot.loop.passive_v],
                                           curvature)
     return j_full @ proj, k_c, valid, position
 
 
 # ------------------------------------------------------------------------------ stiffness
-
-
-def _as_loads(loads: np.ndarray, w: int) -> np.ndarray:
-    """Load cases (L, 3 or 6) as (L, w) wrench components, checked."""
-    loads = np.atleast_2d(np.asarray(loads, dtype=float))
-    if loads.ndim != 2 or loads.shape[1] not in (3, 6):
-        raise StiffnessError(
-            "load cases are rows of a force (fx,fy,fz in N) or a wrench (fx,fy,fz,mx,my,mz in N, "
-            f"N.m); got shape {loads.shape}"
-        )
-    if not np.all(np.isfinite(loads)):
-        raise StiffnessError("loads must be finite numbers")
-    if loads.shape[1] > w:
-        if np.any(loads[:, w:] != 0.0):
-            raise StiffnessError(
-                "the kinematics were computed for forces only (moments=False); recompute them "
-                "with moments=True to apply moments"
-            )
-        loads = loads[:, :w]
-    out = np.zeros((loads.shape[0], w))
-    out[:, : loads.shape[1]] = loads
-    return out
 
 
 def complementary_stiffness(kin: BatchKinematics, loads: np.ndarray,
@@ -669,27 +587,18 @@ def complementary_stiffness(kin: BatchKinematics, loads: np.ndarray,
         Return the Zefran-Kumar twist-basis K_C^tw instead (the wrench held fixed in the
         target's body axes), as ``TargetState.k_c_twist``.
     """
-    wrenches = _as_loads(loads, kin.k_c_basis.shape[1])
+    wrenches = as_load_cases(loads, kin.k_c_basis.shape[1])
     # basis[m, k, a, b] is stored as [m, b, a, k] for open chains: one matrix product
     k_c = np.matmul(kin.k_c_basis.transpose(0, 3, 2, 1), wrenches.T).transpose(0, 3, 2, 1)
     if twist:
         # F.(v_l x w_k) + M.(w_l x w_k) at [l, k], as in stiffness.mechanics.formulation
         v, om = kin.jacobian[:, :3], kin.jacobian[:, 3:]
-        f_cross = _cross_matrices(wrenches[:, :3])  # (L, 3, 3): [F x] with F.(a x b) = a^T X b
+        f_cross = cross_matrices(wrenches[:, :3])  # (L, 3, 3): [F x] with F.(a x b) = a^T X b
         k_c = k_c + np.einsum("mjl,Ljk,mkn->mLln", v, f_cross, om, optimize=True)
         if wrenches.shape[1] == 6:
-            m_cross = _cross_matrices(wrenches[:, 3:])
+            m_cross = cross_matrices(wrenches[:, 3:])
             k_c = k_c + np.einsum("mjl,Ljk,mkn->mLln", om, m_cross, om, optimize=True)
     return k_c
-
-
-def _cross_matrices(vectors: np.ndarray) -> np.ndarray:
-    """(L, 3, 3) matrices X with ``a^T X b = v . (a x b)`` for each row v."""
-    x = np.zeros((vectors.shape[0], 3, 3))
-    x[:, 0, 1], x[:, 1, 0] = vectors[:, 2], -vectors[:, 2]
-    x[:, 1, 2], x[:, 2, 1] = vectors[:, 0], -vectors[:, 0]
-    x[:, 2, 0], x[:, 0, 2] = vectors[:, 1], -vectors[:, 1]
-    return x
 
 
 @dataclass
@@ -768,7 +677,7 @@ def evaluate(robot: Robot, q: np.ndarray | BatchKinematics, loads: np.ndarray,
         raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
                                f"{formulation!r}", name=formulation, choices=FORMULATIONS)
     loads_arr = np.atleast_2d(np.asarray(loads, dtype=float))
-    wrenches = _as_loads(loads_arr, 6)
+    wrenches = as_load_cases(loads_arr, 6)
     moments = bool(np.any(wrenches[:, 3:] != 0.0))
     if rows is None:
         rows = 3 if loads_arr.shape[-1] == 3 else 6

@@ -630,3 +630,85 @@ def _inertia_codes(eig: np.ndarray, ratio: float, rtol: float, finite: np.ndarra
     sure = np.all(nonzero | zero, axis=-1) & finite
     codes = _codes_from_signs(nonzero & (eig > 0), nonzero & (eig < 0), finite)
     return codes, sure | ~finite
+
+
+def distinct_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First occurrence of each distinct row of ``values`` (m, c) and, per row, the index of
+    its distinct row in that list (``np.unique(values, axis=0, return_index=True,
+    return_inverse=True)`` without the row-wise structured sort; rows holding NaN are each
+    distinct)."""
+    m = values.shape[0]
+    if values.shape[1] == 0 or m == 0:
+        return np.zeros(min(m, 1), dtype=int), np.zeros(m, dtype=int)
+    order = np.lexsort(values.T[::-1])  # stable: the first of equal rows comes first
+    ordered = values[order]
+    new = np.ones(m, dtype=bool)
+    new[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    group = np.cumsum(new) - 1
+    inverse = np.empty(m, dtype=int)
+    inverse[order] = group
+    return order[new], inverse
+
+
+def projected_point_hessian(lin: np.ndarray, om: np.ndarray, proj: np.ndarray,
+                             along: np.ndarray | None = None) -> np.ndarray:
+    """``H(p)[S_a, S_b]`` (k, 3, n, n) of a point's position Hessian, without forming it; with
+    ``along`` (3,), its component ``along . H(p)[S_a, S_b]`` (k, n, n), contracted first.
+
+    ``lin``, ``om`` (3, s, k) and ``proj`` (s, n, k), batch-last, on the point's support
+    columns: ``lin[:, a]`` = ``v_a(p)`` = dp/dq_a and ``om[:, a]`` = ``omega_a``, the columns
+    of the point's frame Jacobian (LOCAL_WORLD_ALIGNED; joints with one velocity coordinate
+    each, a support being a chain ordered by velocity index). With ``H_ij = d2p/dq_i dq_j =
+    omega_min(i,j) x v_max(i,j)``: ``A[a, b] = sum_j (sum_{i<=j} S_ia
+    omega_i) x v_j S_jb`` holds the terms with i <= j, and ``H[S_a, S_b] = A + A^T - D`` with
+    D the diagonal terms ``sum_j (omega_j x v_j) S_ja S_jb`` counted twice. Along a vector F,
+    ``F . (c x v) = c . (v x F)``.
+    """
+    cum = np.cumsum(om[:, :, None] * proj[None], axis=1)  # (3, s, n, k)
+    if along is None:
+        # y[r, j, a] = (cum_a(j) x v_j)_r, minus half the diagonal term (counted twice below)
+        y = cross_axis0(cum, lin[:, :, None]) - 0.5 * cross_axis0(om, lin)[:, :, None] * proj[None]
+        a = np.einsum("rsak,sbk->rabk", y, proj)  # (3, n, n, k)
+        return (a + a.transpose(0, 2, 1, 3)).transpose(3, 0, 1, 2)
+    w = cross_axis0(lin, np.asarray(along, dtype=float)[:, None, None])  # v_j x F, (3, s, k)
+    y = (np.einsum("rjak,rjk->jak", cum, w)
+         - 0.5 * np.einsum("rjk,rjk->jk", om, w)[:, None] * proj)  # (s, n, k)
+    a = np.einsum("jak,jbk->abk", y, proj)  # (n, n, k)
+    return (a + a.transpose(1, 0, 2)).transpose(2, 0, 1)
+
+
+def cross_axis0(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product along axis 0 (length 3), broadcast."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
+
+
+def as_load_cases(loads: np.ndarray, w: int) -> np.ndarray:
+    """Load cases (L, 3 or 6) as (L, w) wrench components, checked."""
+    loads = np.atleast_2d(np.asarray(loads, dtype=float))
+    if loads.ndim != 2 or loads.shape[1] not in (3, 6):
+        raise StiffnessError(
+            "load cases are rows of a force (fx,fy,fz in N) or a wrench (fx,fy,fz,mx,my,mz in N, "
+            f"N.m); got shape {loads.shape}"
+        )
+    if not np.all(np.isfinite(loads)):
+        raise StiffnessError("loads must be finite numbers")
+    if loads.shape[1] > w:
+        if np.any(loads[:, w:] != 0.0):
+            raise StiffnessError(
+                "the kinematics were computed for forces only (moments=False); recompute them "
+                "with moments=True to apply moments"
+            )
+        loads = loads[:, :w]
+    out = np.zeros((loads.shape[0], w))
+    out[:, : loads.shape[1]] = loads
+    return out
+
+
+def cross_matrices(vectors: np.ndarray) -> np.ndarray:
+    """(L, 3, 3) matrices X with ``a^T X b = v . (a x b)`` for each row v."""
+    x = np.zeros((vectors.shape[0], 3, 3))
+    x[:, 0, 1], x[:, 1, 0] = vectors[:, 2], -vectors[:, 2]
+    x[:, 1, 2], x[:, 2, 1] = vectors[:, 0], -vectors[:, 0]
+    x[:, 2, 0], x[:, 0, 2] = vectors[:, 1], -vectors[:, 1]
+    return x

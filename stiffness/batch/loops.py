@@ -28,7 +28,7 @@ LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _FRAME_POINTS_M = (np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
 
 
-def _loop_points(robot: Robot) -> list[tuple]:
+def loop_points(robot: Robot) -> list[tuple]:
     """Points whose world positions make the loop residual, as ``getFrame*`` arguments.
 
     Consecutive entries (a, b) form the rows ``p_b - p_a``: a "3D" pair is its two frame
@@ -242,7 +242,7 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
     """Close the loop at each key by Newton from its anchor's closure, all keys at once.
 
     Predictor: the anchor's passive values plus their first-order rates times the key step.
-    Corrector: Gauss-Newton on the world-axes residual of :func:`_loop_points` (its zero set is
+    Corrector: Gauss-Newton on the world-axes residual of :func:`loop_points` (its zero set is
     the closed loop), least squares by pseudo-inverse. Returns the configurations and the mask
     of keys that converged within :data:`_NEWTON_JUMP` of the prediction.
     """
@@ -250,7 +250,7 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
 
     model, data = robot.model, robot.data
     loop = robot.loop
-    points = _loop_points(robot)
+    points = loop_points(robot)
     coordinate_v = robot.coordinate_v[keys_at]
     pv = loop.passive_v
     simple = all(robot.model.joints[robot.model.getJointId(j)].nq ==
@@ -322,3 +322,19 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
         done[active[np.linalg.norm(res, axis=1) < 1e3 * CLOSURE_TOLERANCE_M]] = True
     jump = np.abs(q[:, passive_q] - predicted).max(axis=1) if passive_q.size else 0.0
     return q, done & (jump <= _NEWTON_JUMP)
+
+
+def point_supports(robot: Robot) -> np.ndarray:
+    """(n_points, nv) masks of the velocity coordinates moving each loop point."""
+    model = robot.model
+    return np.array([support_mask(model, model.frames[point[0]].parentJoint
+                                   if len(point) == 1 else point[0])
+                     for point in loop_points(robot)], dtype=bool).reshape(-1, model.nv)
+
+
+def support_mask(model: pin.Model, joint: int) -> np.ndarray:
+    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body."""
+    mask = np.zeros(model.nv, dtype=bool)
+    for j in list(model.supports[joint])[1:]:
+        mask[model.joints[j].idx_v] = True
+    return mask

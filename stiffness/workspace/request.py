@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -97,8 +98,8 @@ def load_cases(wrench: Sequence[float] | Sequence[Sequence[float]] | None
     """
     if wrench is None or len(wrench) == 0:
         return [], []
-    loads = [[float(v) for v in w] for w in (
-        [wrench] if np.ndim(wrench) == 1 else wrench)]
+    cases = cast("Sequence[Sequence[float]]", [wrench] if np.ndim(wrench) == 1 else wrench)
+    loads = [[float(v) for v in w] for w in cases]
     for load in loads:
         if len(load) not in (3, 6):
             raise StiffnessError(f"--wrench (alias --load) takes fx,fy,fz (N) or "
@@ -223,9 +224,10 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
         raise StiffnessError(f"--rtol must be >= 0, got {rtol}")
     loads, names = load_cases(wrench)
     stored = parse_fields(fields)
-    common = {"robot": robot_spec, "coordinate_joints": list(robot.coordinate_joints),
-              "k_theta": k_theta, "rtol": rtol, "chunk_size": chunk_size, "fields": stored,
-              "dtype": dtype, "compression": compression}
+    common: dict[str, Any] = {
+        "robot": robot_spec, "coordinate_joints": list(robot.coordinate_joints),
+        "k_theta": k_theta, "rtol": rtol, "chunk_size": chunk_size, "fields": stored,
+        "dtype": dtype, "compression": compression}
     if preset is not None:
         if len(axes) or samples is not None:
             raise StiffnessError(f"--preset {preset.name} fixes the grid: drop --axis and "
