@@ -700,6 +700,7 @@ class Diagnosis:
             "loss": self.loss,
             "outlier_threshold": OUTLIER_THRESHOLD,
             "outliers": [o.to_dict() for o in self.outliers],
+            "rms_by_kind": self.rms_by_kind(),
         })
 
     def summary(self) -> dict:
@@ -739,7 +740,6 @@ class Diagnosis:
             "where_final_disagrees": self.final_disagreement,
             "cannot_tell_apart": [a.to_dict(c.units.length_to_si) for a in self.ambiguities],
             "elapsed_s": self.elapsed_s,
-            "rms_by_kind": self.rms_by_kind(),
             "rotation_unit": c.units.rotation,
             "rotation_noise_std": None if self.rotation_noise_std_rad is None
             else self.rotation_noise_std_rad / c.units.rotation_to_si,

@@ -14,7 +14,12 @@ kinematics of the deflection, ``dx = J dtheta + 1/2 sum_k e_k dtheta^T H_k dthet
 elastostatic equilibrium to second order in the deflection.
 
 With a :attr:`Hypothesis.rotation_weight` a hypothesis also predicts the rotation of the target
-frame, ``J_w dtheta`` plus each effect's rotational part.
+frame, ``J_w dtheta`` plus each effect's rotational part; with ``complementary_stiffness`` also
+its second-order term ``1/2 sum_{a<b} (w_a x w_b) dtheta_a dtheta_b`` (the product of the
+joints' exponentials to second order, Baker-Campbell-Hausdorff; ``w_a`` the world axes, chain
+order), which is ``1/2 sum_k e_k dtheta^T K_C(e_k moment) dtheta`` since
+``dw_b/dtheta_a = w_a x w_b`` for ``a`` before ``b``: rotations then match the exact
+equilibrium's rotation vector to third order in the load, like translations.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """
@@ -319,8 +324,9 @@ class Hypothesis:
 
     def predict(self, x: np.ndarray, detail: bool = False):
         """(m, 3) predicted measured displacements (m) for parameters ``x``; (m, 6)
-        ``[dx; w dphi]`` with a :attr:`rotation_weight` (first-order rotation ``J_w dtheta``
-        plus the effects' rotational parts).
+        ``[dx; w dphi]`` with a :attr:`rotation_weight` (rotation ``J_w dtheta``, with the
+        second-order kinematics also ``1/2 sum_k e_k dtheta^T K_C(e_k moment) dtheta``, plus
+        the effects' rotational parts).
 
         Effects with a :meth:`Effect.preload` (gravity) make the deflection the loaded minus
         the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
@@ -412,6 +418,11 @@ class Hypothesis:
             h_w = self.h[:, 3:]
             dphi = np.einsum("mkn,mn->mk", jw, dtheta)
             t_phi = jw @ t_theta if tangent else None
+            if self.second_order:  # 1/2 sum_{a<b} (w_a x w_b) dtheta_a dtheta_b
+                dphi = dphi + 0.5 * np.einsum("mkab,ma,mb->mk", h_w, dtheta, dtheta)
+                if tangent:
+                    t_phi = t_phi + 0.5 * (contract_hessian(h_w, dtheta, 2)
+                                           + contract_hessian(h_w, dtheta, 3)) @ t_theta
             if unloaded is not None:  # J_w at the preloaded pose: K_C of unit moments
                 dphi = dphi + np.einsum("mkab,ma,mb->mk", h_w, dtheta, unloaded)
                 if tangent:
