@@ -70,7 +70,9 @@ _ON_FIRST_USE = {
     "simulate": "stiffness.planning.simulate",
     "design": "stiffness.planning.design",
     # machining: compensation along a path, the stiffest posture
-    "ElasticModel": "stiffness.elastic.loaded",
+    "ElasticModel": "stiffness.elastic.model",
+    "ElasticState": "stiffness.elastic.model",
+    "load_model": "stiffness.elastic.model_file",
     "compensate": "stiffness.machining.compensation",
     "posture": "stiffness.machining.posture",
     # papers: the SK120 reproduction
@@ -97,6 +99,7 @@ def __dir__() -> list[str]:
 __all__ = [
     "Campaign",
     "ElasticModel",
+    "ElasticState",
     "Equilibrium",
     "Robot",
     "ScanSpec",
@@ -126,6 +129,7 @@ __all__ = [
     "joint_connection_stiffness",
     "joint_stiffness",
     "load_campaign",
+    "load_model",
     "load_robot",
     "load_scan",
     "platform_stiffness",

@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import math
 import os
 import re
 import shutil
@@ -42,6 +43,8 @@ import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
+
+import numpy as np
 
 from stiffness.errors import FileFormatError, MissingFileError, OutputError
 
@@ -446,3 +449,21 @@ def resolve_source(source: str, folder: Path) -> str:
     if looks_like_path(source) and not Path(source).is_absolute():
         return str((folder / source).resolve())
     return source
+
+
+def jsonable(value):
+    """JSON-ready: arrays to lists, numpy scalars to Python, non-finite floats to None,
+    recursively."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, np.bool_ | bool):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value

@@ -16,7 +16,8 @@ from scipy.optimize import root
 
 from stiffness.elastic.effects.geometry import Geometry, link_axes
 from stiffness.elastic.effects.link_bends import LinkCompliance
-from stiffness.elastic.loaded import ElasticModel, LinkBend, loaded_equilibrium
+from stiffness.elastic.loaded import LinkBend, loaded_equilibrium
+from stiffness.elastic.model import ElasticModel
 from stiffness.machining.compensation import compensate
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.robot import kinematics
@@ -385,9 +386,9 @@ def test_diagnosed_model_file_brings_its_effects(sk120):
     backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""
     from pathlib import Path
 
-    from stiffness.elastic.loaded import load_elastic_model
+    from stiffness.elastic.model_file import load_model
 
-    em = load_elastic_model(Path(__file__).parent / "data" / "sk120-final-model.json")
+    em = load_model(Path(__file__).parent / "data" / "sk120-final-model.json")
     assert em.law.backlash[em.robot.coordinate_joints.index("joint2")] > 0
     (bend,) = em.links
     assert (bend.a, bend.b) == ("joint2", "elbow")
@@ -414,8 +415,7 @@ def test_model_file_effects_enter_the_elastic_model(tmp_path, ur5):
     """A model file (the one schema of identify and diagnose) with every kind of effect: the
     robot's effects enter the law and the bends, the measurement ones are listed, and the
     compensation still lands on the nominal pose."""
-    from stiffness.elastic.loaded import load_elastic_model
-    from stiffness.elastic.model_file import ModelEffect, ModelFile
+    from stiffness.elastic.model_file import ModelEffect, ModelFile, load_model
 
     arm = JOINTS[:5]
     effects = (
@@ -437,7 +437,7 @@ def test_model_file_effects_enter_the_elastic_model(tmp_path, ur5):
     path = ModelFile("ur5", "tool0", [0.0, 0.0, 0.0], arm, UR5_K[:5], ["N.m/rad"] * 5,
                      "enhanced", effects=effects, produced_by="diagnose").write(
         tmp_path / "final-model.json")
-    em = load_elastic_model(path)
+    em = load_model(path)
     joints = list(em.robot.coordinate_joints)
     assert em.law.compliance[joints.index("wrist_3_joint")] == pytest.approx(1 / 3e4)
     assert em.law.beta[joints.index("shoulder_lift_joint")] == pytest.approx(1e-3)
@@ -473,8 +473,8 @@ def test_loaded_equilibrium_agrees_with_the_joint_law_solver(ur5):
 def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     """The first-order deflection the posture search minimises (link bends included) equals
     the model file's compliance times the load (model_file.model_compliance)."""
-    from stiffness.elastic.loaded import linear_deflection, load_elastic_model
-    from stiffness.elastic.model_file import ModelEffect, ModelFile, model_compliance
+    from stiffness.elastic.loaded import linear_deflection
+    from stiffness.elastic.model_file import ModelEffect, ModelFile, load_model, model_compliance
 
     bend = ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
                        [_parameter("stiffness_1", 1.5e5, "N.m/rad"),
@@ -482,7 +482,7 @@ def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     path = ModelFile("ur5", "tool0", [0.0, 0.1, 0.05], JOINTS, UR5_K, ["N.m/rad"] * 6,
                      "enhanced", effects=(bend,), produced_by="diagnose").write(
         tmp_path / "final-model.json")
-    em = load_elastic_model(path)
+    em = load_model(path)
     wrench = np.array([60.0, -30.0, -300.0, 0.0, 0.0, 0.0])
     for coords in UR5_PATH:
         theirs = model_compliance(path, coords, wrench).compliance6 @ wrench

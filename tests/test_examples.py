@@ -90,3 +90,10 @@ def test_pose_calibration_example_closes_the_gap_to_the_noise(outputs):
     text = outputs["07_pose_calibration.py"].stdout
     assert _number(r"from ([0-9.]+) um to", text) > 300.0
     assert _number(r"to ([0-9.]+) um \(noise", text) < 25.0
+
+
+def test_python_loop_example_finds_the_bend_and_its_stiffness(outputs):
+    text = outputs["06_python_loop.py"].stdout
+    assert "+ link_compliance(elbow_joint->wrist_1_joint)" in text
+    assert _number(r"K_X within ([0-9.]+)% of the true", text) < 2.0
+    assert _number(r"the springs alone: ([0-9.]+)% off", text) > 3.0

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stiffness.cli.main import main
-from stiffness.elastic.loaded import ElasticModel
+from stiffness.elastic.model import ElasticModel
 from stiffness.machining.poses import tool_frames
 from stiffness.machining.posture import posture
 from stiffness.mechanics.formulation import compliance, target_state

@@ -18,7 +18,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from stiffness.cli.main import main
-from stiffness.elastic.loaded import ElasticModel
+from stiffness.elastic.model import ElasticModel
 from stiffness.machining.posture import posture
 from stiffness.robot.robot import load_robot
 

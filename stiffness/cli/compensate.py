@@ -33,8 +33,8 @@ from stiffness.cli.flags import (
     stiffness_required,
     target_offset_from_args,
 )
-from stiffness.elastic.loaded import ElasticModel, elastic_model_of
-from stiffness.elastic.model_file import read_model_file
+from stiffness.elastic.model import ElasticModel
+from stiffness.elastic.model_file import elastic_model_of, read_model_file
 from stiffness.errors import OutputError, StiffnessError
 from stiffness.files import output_folder
 from stiffness.machining.compensation import WRENCH_FRAMES, compensate

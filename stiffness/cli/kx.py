@@ -23,29 +23,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from stiffness.cli import flags
-from stiffness.elastic.model_file import BEYOND_SPRINGS, CompliantModel, read_model_file
-from stiffness.errors import SingularConfigurationError, StiffnessError
+from stiffness.elastic.cartesian import cartesian_report
+from stiffness.elastic.model import ElasticModel
+from stiffness.elastic.model_file import ModelFile, elastic_model_of, read_model_file
+from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
-from stiffness.mechanics.formulation import (
-    FORMULATIONS,
-    cartesian_stiffness,
-    compliance,
-    definiteness,
-    ellipsoid,
-    joint_connection_stiffness,
-    joint_stiffness,
-    subspace_stiffness,
-    tangent_definiteness,
-    tangent_joint_stiffness,
-    target_state,
-    twist_basis_stiffness,
-)
-from stiffness.mechanics.wrench import TWIST_ORDERS, WRENCH_ORDERS, reorder_twist
+from stiffness.mechanics.formulation import FORMULATIONS, joint_stiffness
+from stiffness.mechanics.wrench import TWIST_ORDERS
 from stiffness.robot.assembly import Assembly
 from stiffness.robot.robot import Robot
 
-_BASIS_3 = ["vx", "vy", "vz"]
-_BASIS_6 = ["vx", "vy", "vz", "wx", "wy", "wz"]
 _LOAD_NAMES = ("fx", "fy", "fz", "mx", "my", "mz")
 
 
@@ -76,8 +63,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                                               "the inputs")
 
 
-def _identified_model(args: argparse.Namespace):
-    """The ``--model`` file's identified model, or None (read once per parsed command line)."""
+def model_file_from_args(args: argparse.Namespace) -> ModelFile | None:
+    """The ``--model`` file (checked against ``--robot``), or None (read once per parsed
+    command line)."""
     if getattr(args, "model", None) is None:
         return None
     if getattr(args, "_identified_model", None) is None:
@@ -88,24 +76,24 @@ def _identified_model(args: argparse.Namespace):
     return args._identified_model
 
 
-def compliant_model_from_args(args: argparse.Namespace) -> CompliantModel | None:
-    """The ``--model`` file with its stiffness effects applied, or None (no ``--model``, or
-    ``--kq`` / ``--compliant-joints`` replace the model's springs)."""
-    model = _identified_model(args)
+def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel | None:
+    """The ``--model`` file's elastic model, or None (no ``--model``, or ``--kq`` /
+    ``--compliant-joints`` replace the model's springs)."""
+    model = model_file_from_args(args)
     if model is None or args.kq is not None or args.compliant_joints is not None:
         return None
-    if getattr(args, "_compliant_model", None) is None:
-        args._compliant_model = CompliantModel(model, frame=args.frame,
+    if getattr(args, "_elastic_model", None) is None:
+        args._elastic_model = elastic_model_of(model, frame=args.frame,
                                                target_offset=flags.target_offset_from_args(args))
-    return args._compliant_model
+    return args._elastic_model
 
 
 def model_summary(args: argparse.Namespace) -> dict | None:
     """What the ``--model`` file contributes (JSON-ready), or None without ``--model``."""
-    model = _identified_model(args)
+    model = model_file_from_args(args)
     if model is None:
         return None
-    cm = compliant_model_from_args(args)
+    cm = elastic_model_from_args(args)
 
     def entry(e, reason=None):
         return {"effect": e.name, "where": e.where, "kind": e.kind,
@@ -138,7 +126,7 @@ class KxInputs:
     k_theta: np.ndarray
     load: np.ndarray
     load_source: str
-    model: CompliantModel | None = None
+    model: ElasticModel | None = None
     assembly: Assembly | None = None
     q_source: str = flags.FROM_FLAG
     k_theta_source: str = flags.FROM_FLAG
@@ -162,8 +150,8 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     StiffnessError
         On a bad flag value, or a missing flag the robot brings no default for.
     """
-    model = _identified_model(args)
-    cm = compliant_model_from_args(args)
+    model = model_file_from_args(args)
+    cm = elastic_model_from_args(args)
     robot = cm.robot if cm is not None else flags.robot_from_args(args, fallback=model)[0]
     reference = args.q is None and default_coordinates(robot) is None
     # without --q and robot defaults: the reference pose (zero, or the assembly found near it)
@@ -230,84 +218,29 @@ def echo_lines(summary: dict) -> list[str]:
 
 
 def compute(args: argparse.Namespace) -> dict:
-    """Evaluate the stiffness quantities of ``stiffness kx``; returns the JSON object."""
+    """Evaluate the stiffness quantities of ``stiffness kx``; returns the JSON object: the
+    elastic model at the pose and load (:meth:`stiffness.elastic.model.ElasticModel.at`)
+    reported by :func:`stiffness.elastic.cartesian.cartesian_report`, with the inputs."""
     inputs = resolve_inputs(args)
-    robot, coords, q, k_theta = inputs.robot, inputs.coords, inputs.q, inputs.k_theta
-    load, load_source = inputs.load, inputs.load_source
-    state = target_state(robot, q, load)
-    six = load.shape[0] == 6 or args.connection is not None
-    order = args.twist_order or robot.defaults.get("twist_order", "v-w")
-    if order not in TWIST_ORDERS:
-        raise StiffnessError(f"twist_order of {robot.name} must be one of {list(TWIST_ORDERS)}")
-    rows = slice(0, 6) if six else slice(0, 3)
-    tangent = tangent_joint_stiffness(k_theta, state.k_c, args.formulation)
-    undefined = None  # why K_X does not exist here (the compliance does)
-    at = None
-    if inputs.model is not None and args.connection is None:
-        at = inputs.model.at(q, load, args.formulation)
-    elif inputs.model is not None and any(
-            e.name in BEYOND_SPRINGS for e in inputs.model.applied):
-        raise StiffnessError("--connection gives the 6x6 stiffness of joint springs alone; the "
-                             "model's link_compliance, nonlinear_joint_stiffness or gravity "
-                             "effects cannot enter "
-                             "it: drop --connection")
-    if args.connection is not None:
-        jac = state.body_jacobian()
-        axes = "target frame body axes (left-invariant twist basis)"
-        k_c = state.k_c_twist if args.connection == "twist" else np.zeros_like(state.k_c)
-        try:
-            k_x = (joint_connection_stiffness(state, k_theta) if args.connection == "joint"
-                   else twist_basis_stiffness(state, k_theta))
-            c_x = np.linalg.inv(k_x)
-        except SingularConfigurationError as exc:  # J_b singular: C = J_b T^-1 J_b^T exists
-            k_x, undefined = None, str(exc)
-            c_x = compliance(jac, k_theta - k_c)
-    else:  # base axes: the model's compliance (its effects included), or the springs'
-        jac = state.jacobian[rows]
-        c_x = at.compliance(rows) if at is not None else compliance(jac, tangent)
-        axes = "base frame axes at the target"
-        k_c = state.k_c
-        try:
-            k_x = cartesian_stiffness(c_x)
-        except SingularConfigurationError as exc:
-            k_x, undefined = None, str(exc)
-    wrench = state.wrench[: 6 if six else 3]
-    if six:
-        c_x, wrench = reorder_twist(c_x, order), reorder_twist(wrench, order)
-        k_x = None if k_x is None else reorder_twist(k_x, order)
-        if order == "w-v":
-            jac = jac[[3, 4, 5, 0, 1, 2]]
-    ell = None if k_x is None else ellipsoid(k_x)
-    blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
-    trans = "N/m" if not six else f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
+    robot = inputs.robot
+    model = inputs.model or ElasticModel.joint_springs(robot, inputs.k_theta)
+    state = model.at(inputs.q, inputs.load, args.formulation)
+    report = cartesian_report(state, args.formulation, args.connection, args.twist_order)
+    trans = "N/m"
+    if len(report["basis"]) == 6:
+        order = state.twist_order(args.twist_order)
+        blocks = "N/m | N | N.m/rad" if order == "v-w" else "N.m/rad | N | N/m"
+        trans = f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
     out = {
         "robot": robot.name,
         "frame": robot.target_frame,
         "target_offset": robot.target_offset.tolist(),
         "compliant_joints": list(robot.compliant_joints),
-        "q": coords.tolist(),
-        "wrench": wrench.tolist(),
-        "wrench_basis": WRENCH_ORDERS[order] if six else ["fx", "fy", "fz"],
-        "load_source": load_source,
-        "formulation": args.formulation,
-        "connection": args.connection,
-        "basis": TWIST_ORDERS[order] if six else _BASIS_3,
-        "axes": axes,
-        "position": state.position.tolist(),
-        "J": jac.tolist(),
-        "K_theta": np.diag(k_theta).tolist(),
-        "K_C": k_c.tolist(),
-        "K_X": None if k_x is None else k_x.tolist(),
-        "K_X_undefined": undefined,
-        "K_X_subspace": None if k_x is not None else _subspace_json(c_x),
-        "compliance": c_x.tolist(),
-        "K_X_symmetric": None if ell is None else bool(ell.symmetric),
-        "eigenvalues": None if ell is None else ell.values.tolist(),
-        "eigenvectors": None if ell is None else ell.directions.tolist(),
-        "definiteness": {"K_C": definiteness(state.k_c), "K_theta_minus_K_C": tangent_definiteness(
-            k_theta, k_theta - state.k_c), "K_X": None if k_x is None else definiteness(k_x)},
+        "q": inputs.coords.tolist(),
+        "load_source": inputs.load_source,
+        **report,
         **inputs_summary(inputs),
-        "configuration": _configuration(robot, q),
+        "configuration": _configuration(robot, inputs.q),
         "closure": inputs.assembly.as_dict(),
         "notes": list(robot.notes),
         "units": {
@@ -320,27 +253,14 @@ def compute(args: argparse.Namespace) -> dict:
             "position": "m", "q": "rad (m prismatic)", "wrench": "N, N.m",
             "configuration": "rad (m prismatic); Pinocchio q values for multi-coordinate joints",
             "closure": "residual in m (rad for 6D rotation rows)",
+            "critical_load_factor": "1 (the factor on the wrench at which K_theta - K_C turns "
+                                    "singular; null: never along this wrench)",
         },
     }
     summary = model_summary(args)
     if summary is not None:
         out["model"] = summary
-        if at is not None:
-            out["K_theta_tangent"] = np.diag(at.k_tangent).tolist()
-            out["link_compliance"] = at.link_compliance[rows, rows].tolist()
     return out
-
-
-def _subspace_json(c_x: np.ndarray) -> dict:
-    """Where K_X is undefined (singular compliance): the stiffness on the moving subspace.
-
-    ``K_X`` is the pseudo-inverse of the compliance, ``eigenvalues`` its principal values on the
-    ``moving_directions`` (rows: unit displacement directions); along ``rigid_directions``
-    (rows: unit wrench directions) the target does not move, the stiffness is unbounded.
-    """
-    sub = subspace_stiffness(c_x)
-    return {"rank": sub.rank, "K_X": sub.stiffness.tolist(), "eigenvalues": sub.values.tolist(),
-            "moving_directions": sub.moving.T.tolist(), "rigid_directions": sub.rigid.T.tolist()}
 
 
 def _configuration(robot: Robot, q: np.ndarray) -> dict:
@@ -391,7 +311,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n"
               f"{np.array(result['K_X'])}")
-        print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
+        if result["stable"]:
+            print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
+        else:
+            factor = result["critical_load_factor"]
+            print(f"the arm is unstable under this load: K_theta - K_C turns singular at "
+                  f"{factor:.4g} times the wrench (critical load factor below 1), so K_X is "
+                  "not the stiffness of a stable equilibrium; reduce the load")
     print(f"definiteness: {result['definiteness']}")
     if "model" in result:
         m = result["model"]

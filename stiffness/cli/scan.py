@@ -56,8 +56,7 @@ import numpy as np
 
 from stiffness.cli import flags
 from stiffness.cli.flags import parse_list, robot_from_args, stiffness_required
-from stiffness.cli.kx import compliant_model_from_args
-from stiffness.elastic.model_file import BEYOND_SPRINGS, ModelFile, read_model_file
+from stiffness.cli.kx import elastic_model_from_args, model_file_from_args
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.papers.presets import PRESET_ROBOTS, SCAN_PRESETS
@@ -160,8 +159,7 @@ def _angle_scale(robot: Robot, index: int, deg: bool) -> float:
 def _refuse_unscannable(model) -> None:
     """The batched scan models joint springs only: refuse a model whose link or nonlinear
     effects would change K_X (kx and view apply them at chosen poses)."""
-    extra = [e.label for e in model.applied
-             if e.name in BEYOND_SPRINGS]
+    extra = list(model.beyond_springs)
     if extra:
         raise StiffnessError(
             f"scan --model: {', '.join(extra)} change K_X beyond joint springs, which the "
@@ -169,30 +167,21 @@ def _refuse_unscannable(model) -> None:
             "--model` at chosen poses, or give --kq to scan the springs alone")
 
 
-def _model_file(args: argparse.Namespace) -> ModelFile | None:
-    """The ``--model`` file (checked against ``--robot``), or None."""
-    if args.model is None:
-        return None
-    model = read_model_file(args.model)
-    if args.robot is not None:
-        model.check_robot(args.robot)
-    return model
-
-
 def _robot(args: argparse.Namespace) -> tuple[Robot, dict, list[float] | None]:
     """The robot of ``--model`` (with its stiffness effects) or of the robot flags, the
     arguments the chunks load it with, and its springs (N.m/rad, N/m; None: the robot's)."""
-    model = compliant_model_from_args(args)
+    model = elastic_model_from_args(args)
+    declared = model_file_from_args(args)
     kq = parse_list(args.kq, "--kq") if args.kq is not None else None
-    if model is not None:
+    if model is not None and declared is not None:
         robot = model.robot
         _refuse_unscannable(model)
-        robot_spec = {"source": model.model.source, "frame": robot.target_frame,
+        robot_spec = {"source": declared.source, "frame": robot.target_frame,
                       "target_offset": robot.target_offset.tolist(),
                       "compliant_joints": list(robot.compliant_joints),
-                      **{k: v for k, v in model.model.robot_options().items() if v}}
+                      **{k: v for k, v in declared.robot_options().items() if v}}
         return robot, robot_spec, model.k_theta.tolist() if kq is None else kq
-    fallback = _model_file(args)
+    fallback = declared
     robot, compliant, offset = robot_from_args(args, fallback=fallback)
     robot_spec = {"source": str(args.robot) if args.robot else robot.name,
                   "frame": args.frame if fallback is None else robot.target_frame,

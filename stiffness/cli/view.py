@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.cli import flags, kx
-from stiffness.elastic.model_file import BEYOND_SPRINGS, CompliantModel
+from stiffness.elastic.model import ElasticModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
 from stiffness.mechanics.formulation import target_state
@@ -185,11 +185,11 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
         rows = sweep_path(robot, coords, args.sweep, args.deg)
     elif args.path is not None:
         rows = read_path(robot, args.path, args.deg)
-    model = kx.compliant_model_from_args(args)
+    model = kx.elastic_model_from_args(args)
     options = {"live": live, "quantity": args.quantity, "size": args.size,
                "exaggeration": args.exaggeration, "host": args.host, "port": args.port,
                "open_browser": args.open and live}
-    if model is not None and any(e.name in BEYOND_SPRINGS for e in model.applied):
+    if model is not None and model.beyond_springs:
         viewer = ModelViewer(model, robot, k_theta, **options)
     else:
         viewer = StiffnessViewer(robot, k_theta, **options)
@@ -210,10 +210,10 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
 
 class ModelViewer(StiffnessViewer):
     """The viewer drawing a model file's compliance at each pose and load, its link
-    compliance and nonlinear springs' tangents included (:meth:`CompliantModel.at`); the
+    compliance and nonlinear springs' tangents included (:meth:`ElasticModel.at`); the
     drawn deflection is that of its joint springs."""
 
-    def __init__(self, model: CompliantModel, *args, **kwargs) -> None:
+    def __init__(self, model: ElasticModel, *args, **kwargs) -> None:
         self.compliant_model = model
         super().__init__(*args, **kwargs)
 

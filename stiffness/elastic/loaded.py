@@ -1,6 +1,6 @@
-"""The loaded robot: every effect of a model file that acts on it, and its exact equilibrium.
+"""The loaded robot's exact equilibrium, link bends included.
 
-The elastic model (:class:`ElasticModel`) holds:
+The elastic model (:class:`stiffness.elastic.model.ElasticModel`) holds:
 
 * a joint law over the coordinates, ``theta - theta_c = law(tau)`` with ``tau = J(theta)^T W``
   (linear springs, extra springs on joints the baseline holds rigid, nonlinear springs
@@ -27,20 +27,15 @@ Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.effects.geometry import link_axes
-from stiffness.errors import (
-    ConvergenceError,
-    StiffnessError,
-    UnstableEquilibriumError,
-)
+from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import as_wrench, target_state
-from stiffness.mechanics.ik import all_coordinates
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
 
@@ -49,7 +44,7 @@ from stiffness.robot.robot import Robot
 EQUILIBRIUM_TOLERANCE = 1e-14
 
 # ------------------------------------------------------------------------------------------
-# the elastic model
+# link bends
 
 
 @dataclass(frozen=True)
@@ -66,106 +61,26 @@ class LinkBend:
     stiffness: tuple[float, float]
 
 
-@dataclass
-class ElasticModel:
-    """What acts on the robot under a load: its joint law and its link bends.
-
-    Attributes
-    ----------
-    robot
-        The robot (its coordinates are the path's columns).
-    law
-        Joint law over ``robot.coordinate_joints`` (zero compliance: a rigid coordinate).
-    links
-        Link compliances, any order.
-    formulation
-        Formulation of the model's linear compliance (``enhanced`` with K_C, or
-        ``conventional``), used by the first-order compensation only.
-    ignored
-        Effects of the model file that do not act on the robot (measurement effects), by label.
-    source
-        The model file, if any.
-    """
+class LoadedRobot(Protocol):
+    """What the exact equilibrium reads of an elastic model
+    (:class:`stiffness.elastic.model.ElasticModel`)."""
 
     robot: Robot
     law: SpringLaw
-    links: tuple[LinkBend, ...] = ()
-    formulation: str = "enhanced"
-    ignored: tuple[str, ...] = ()
-    source: str | None = None
-    _full: Robot | None = field(default=None, repr=False)
-
-    @classmethod
-    def joint_springs(cls, robot: Robot, k_theta: np.ndarray | list[float],
-                      formulation: str = "enhanced") -> ElasticModel:
-        """Linear springs ``k_theta`` (N.m/rad, N/m) on the robot's compliant joints."""
-        k = np.asarray(k_theta, dtype=float)
-        k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
-        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise StiffnessError(
-                f"need one finite positive stiffness per compliant joint of {robot.name} "
-                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
-        n = robot.n_coordinates
-        compliance = np.zeros(n)
-        compliance[robot.compliant_in_coordinates] = 1.0 / k
-        return cls(robot, SpringLaw(compliance, np.zeros(n), np.zeros(n), np.ones(n)),
-                   formulation=formulation)
+    links: tuple[LinkBend, ...]
+    formulation: str
 
     @property
     def full(self) -> Robot:
-        """The robot with every coordinate compliant (Jacobians w.r.t. all coordinates)."""
-        if self._full is None:
-            self._full = all_coordinates(self.robot)
-        return self._full
-
-    @property
-    def joint_only(self) -> bool:
-        """Whether joint motions are the only effect (the compensation is closed-form)."""
-        return not self.links
+        """The robot with every coordinate compliant."""
+        ...
 
     def ordered_links(self) -> list[LinkBend]:
-        """Links from the base to the tip (by the chain position of ``b``, then ``a``)."""
-        model = self.robot.model
-        depth = {name: len(model.supports[model.getJointId(name)]) for name in model.names}
-        return sorted(self.links, key=lambda lk: (depth[lk.b], depth[lk.a]))
-
-    def describe(self) -> str:
-        """E.g. ``joint springs on joint1, joint2 + link bend joint2->joint3``."""
-        names = [j for j, c in zip(self.robot.coordinate_joints, self.law.compliance,
-                                   strict=True) if c > 0]
-        text = f"joint springs on {', '.join(names) or 'no joint'}"
-        if np.any(self.law.beta != 0):
-            text += " (nonlinear)"
-        if np.any(self.law.backlash != 0):
-            text += " + backlash"
-        return text + "".join(f" + link bend {lk.a}->{lk.b}" for lk in self.links)
+        """Links from the base to the tip."""
+        ...
 
 
-def as_elastic_model(model: ElasticModel | Robot | str | Path,
-                     k_theta: np.ndarray | list[float] | None = None) -> ElasticModel:
-    """An :class:`ElasticModel` from itself, a model file's path, or a robot with springs
-    ``k_theta`` (N.m/rad, N/m; default the shipped robot's).
-
-    Raises
-    ------
-    StiffnessError
-        A robot without springs, or springs given with a model.
-    """
-    if isinstance(model, Robot):
-        if k_theta is None:
-            from stiffness.mechanics.defaults import default_stiffness
-
-            k_theta = default_stiffness(model)
-            if k_theta is None:
-                raise StiffnessError(f"give k_theta: one stiffness per compliant joint of "
-                                     f"{model.name} ({', '.join(model.compliant_joints)})")
-        return ElasticModel.joint_springs(model, k_theta)
-    if k_theta is not None:
-        raise StiffnessError("k_theta goes with a robot; a model (file) brings its own springs")
-    return model if isinstance(model, ElasticModel) else load_elastic_model(model)
-
-
-def frozen_axes(em: ElasticModel, links: list[LinkBend]) -> list[np.ndarray]:
+def frozen_axes(em: LoadedRobot, links: list[LinkBend]) -> list[np.ndarray]:
     """Bend axes (2, 3) in each mounting body's frame, from the current placements."""
     model, data = em.full.model, em.full.data
     out = []
@@ -196,7 +111,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def bent_kinematics(em: ElasticModel, links: list[LinkBend], axes: list[np.ndarray],
+def bent_kinematics(em: LoadedRobot, links: list[LinkBend], axes: list[np.ndarray],
                 coords: np.ndarray, alpha: np.ndarray, wrench: np.ndarray,
                 seed_q: np.ndarray | None) -> BentKinematics:
     full = em.full
@@ -278,7 +193,7 @@ class Loaded:
     slope: np.ndarray = field(repr=False)
 
 
-def _law_z(em: ElasticModel, links: list[LinkBend], tau: np.ndarray
+def _law_z(em: LoadedRobot, links: list[LinkBend], tau: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
     n = em.full.n_coordinates
     value, slope = em.law(tau[:n])
@@ -287,7 +202,7 @@ def _law_z(em: ElasticModel, links: list[LinkBend], tau: np.ndarray
             np.concatenate([slope, c_link]))
 
 
-def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray,
+def loaded_equilibrium(em: LoadedRobot, command: np.ndarray, wrench: np.ndarray,
                        seed_q: np.ndarray | None = None, axes: list[np.ndarray] | None = None,
                        max_iterations: int = 60) -> Loaded:
     """Exact elastostatic equilibrium of the robot commanded at ``command`` under ``wrench``.
@@ -362,7 +277,7 @@ def loaded_equilibrium(em: ElasticModel, command: np.ndarray, wrench: np.ndarray
 # linear deflection
 
 
-def linear_shift(em: ElasticModel, links: list[LinkBend], kin: BentKinematics, wrench: np.ndarray
+def linear_shift(em: LoadedRobot, links: list[LinkBend], kin: BentKinematics, wrench: np.ndarray
             ) -> np.ndarray:
     """First-order target displacement ``C W`` (6,) [m; rad] of the model at ``kin``.
 
@@ -382,7 +297,7 @@ def linear_shift(em: ElasticModel, links: list[LinkBend], kin: BentKinematics, w
     return kin.jac @ dz
 
 
-def linear_deflection(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
+def linear_deflection(em: LoadedRobot, coords: np.ndarray, wrench: np.ndarray,
                       seed_q: np.ndarray | None = None) -> np.ndarray:
     """First-order deflection ``C W`` (6,) [m; rad] of the target at ``coords`` (rad, m)
     under the dead ``wrench`` (base axes), every effect of the model included."""
@@ -394,82 +309,3 @@ def linear_deflection(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     kin = bent_kinematics(em, links, axes, np.asarray(coords, dtype=float),
                       np.zeros(2 * len(links)), wrench, q)
     return linear_shift(em, links, kin, wrench)
-
-
-# ------------------------------------------------------------------------------------------
-# model files
-
-
-def load_elastic_model(path: str | Path, frame: str | None = None,
-                       target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
-    """The elastic model of a model file (``identified-model.json`` of ``stiffness identify``
-    or ``final-model.json`` of ``stiffness diagnose``, read by
-    :func:`stiffness.elastic.model_file.read_model_file`), see :func:`elastic_model_of`.
-
-    Raises
-    ------
-    StiffnessError
-        The file's errors (:class:`stiffness.elastic.model_file.ModelFileError`...).
-    """
-    from stiffness.elastic.model_file import read_model_file
-
-    em = elastic_model_of(read_model_file(path), frame, target_offset)
-    em.source = str(path)
-    return em
-
-
-def elastic_model_of(model, frame: str | None = None,
-                     target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
-    """Every effect of a model file (:class:`stiffness.elastic.model_file.ModelFile`) that
-    acts on the robot, as an :class:`ElasticModel`.
-
-    Joint springs (the baseline's and ``joint_compliance``), ``nonlinear_joint_stiffness``,
-    ``backlash`` (with its smoothing torque), ``link_compliance`` and ``target_offset`` (the
-    target moves, unless ``frame``/``target_offset`` give another target) act on the robot;
-    ``complementary_stiffness`` is in the exact equilibrium anyway; the measurement effects
-    (how the campaign observed the deflection) are listed in :attr:`ElasticModel.ignored`.
-    """
-    from stiffness.elastic.effects.geometry import Geometry
-    from stiffness.robot.robot import load_robot
-
-    stiffness = dict(zip(model.compliant_joints, model.k_theta, strict=True))
-    moved = frame is not None or target_offset is not None
-    offset = (model.target_offset_m.copy() if target_offset is None
-              else np.asarray(target_offset, dtype=float).reshape(3))
-    beta, backlash, smoothing, bends, ignored = {}, {}, {}, [], []
-    for e in model.effects:
-        if e.kind == "measurement":
-            ignored.append(e.label)
-        elif e.name == "joint_compliance":
-            stiffness[e.where] = e.value("stiffness")
-        elif e.name == "nonlinear_joint_stiffness":
-            beta[e.where] = e.value("beta")
-        elif e.name == "backlash":
-            backlash[e.where] = e.value("half_width")
-            smoothing[e.where] = float(e.settings.get("smoothing_torque", 1.0))
-        elif e.name == "link_compliance":
-            a, b = (part.strip() for part in str(e.where).split("->", 1))
-            bends.append((a, b, e.value("stiffness_1"), e.value("stiffness_2")))
-        elif e.name == "target_offset":
-            if moved:
-                ignored.append(f"{e.label} (another target was given)")
-            else:
-                offset = offset + e.values()[:3]
-    robot = load_robot(model.source, frame=frame or model.frame, target_offset=offset,
-                       compliant_joints=tuple(stiffness), **model.robot_options())
-    coords = list(robot.coordinate_joints)
-    n = robot.n_coordinates
-    law = SpringLaw(np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n))
-    for joint, k in stiffness.items():
-        law.compliance[coords.index(joint)] = 1.0 / k
-    for joint, value in beta.items():
-        law.beta[coords.index(joint)] = value
-    for joint, value in backlash.items():
-        law.backlash[coords.index(joint)] = value
-        law.smoothing[coords.index(joint)] = smoothing[joint]
-    links = ()
-    if bends:
-        columns = Geometry.of(robot).link_columns
-        links = tuple(LinkBend(a, b, columns[(a, b)], (k1, k2)) for a, b, k1, k2 in bends)
-    formulation = "conventional" if model.formulation == "conventional" else "enhanced"
-    return ElasticModel(robot, law, links, formulation, tuple(ignored))

@@ -1,4 +1,4 @@
-"""The model file: an identified or diagnosed stiffness model, and its use at any pose and load.
+"""The model file: an identified or diagnosed stiffness model, and the elastic model it makes.
 
 ``stiffness identify`` (``identified-model.json``) and ``stiffness diagnose --out``
 (``final-model.json``) write the same JSON schema, documented in ``docs/model-file.md``::
@@ -23,38 +23,28 @@ Public API
 ----------
 :func:`read_model_file` (path -> :class:`ModelFile`), :meth:`ModelFile.write`,
 :meth:`ModelFile.to_dict`, :meth:`ModelFile.check_robot` (refuses a model of another robot);
-:class:`CompliantModel` (a model file made usable: the robot the effects imply and
-:meth:`CompliantModel.at`, :meth:`CompliantModel.deflection`) and :func:`model_compliance`
-(one call: J, joint tangent stiffness, K_C, compliance and K_X at a pose and load, effects
-included, as a :class:`ModelCompliance`). Errors: :class:`ModelFileError` (a
+:func:`load_model` (a file's path, a :class:`ModelFile` or a robot with springs -> the one
+:class:`stiffness.elastic.model.ElasticModel`; :func:`elastic_model_of` for a read file);
+:func:`fitted_deflection` (the fitted model's prediction, lost motion and, on request, the
+measurement effects included). Errors: :class:`ModelFileError` (a
 :class:`~stiffness.errors.FileFormatError`: unknown schema, missing or malformed key) and
 :class:`ModelRobotError` (another robot than the model's, or an effect on a joint it lacks).
+``CompliantModel``, ``ModelCompliance`` and ``model_compliance`` are deprecated names of
+:func:`elastic_model_of`, :class:`~stiffness.elastic.model.ElasticState` and
+``load_model(path).at(q, load)``.
 
-How effects enter (``kind`` of :data:`stiffness.elastic.effects.base.EFFECT_KINDS`):
-
-* ``stiffness``: ``joint_compliance`` (the joint becomes a spring of the given stiffness),
-  ``link_compliance`` (a lumped rotational compliance at the distal joint's origin, about the
-  two axes normal to the segment; it adds ``G E diag(1/k) E^T G^T`` to the 6x6 compliance,
-  ``G = [-[r]x; I]``, ``r`` from that origin to the target), ``nonlinear_joint_stiffness``
-  (the joint's tangent stiffness at the load, ``1 / (c (1 + 2 beta |tau|))``),
-  ``target_offset`` (the target moves by ``delta``, target frame axes) and
-  ``complementary_stiffness`` (K_C, which the ``enhanced`` formulation has anyway): these
-  enter the compliance and K_X.
-* ``measurement``: ``frame_misalignment``, ``force_sensor_bias``, ``deflection_offset``: how
-  the campaign's deflections were observed; listed, not applied.
-* ``lost_motion``: ``backlash``: a deflection ``+-half_width`` that is not a stiffness; listed,
-  not applied to K_X (:meth:`CompliantModel.deflection` includes it).
-* ``gravity_compensator`` (``stiffness``): its torque ``tau_s(theta)`` joins the joint's load
-  (the operating point of a nonlinear spring) and ``-d tau_s / d theta`` adds to the joint's
-  stiffness (:func:`stiffness.mechanics.gravity.spring_balancer`; geometry in ``settings``).
-* ``preload``: ``gravity_preload``: the links' weight and the payload at the pose asked for.
-  Their torque joins the load on the joints (a nonlinear spring's operating point, in both
-  formulations), and in the ``enhanced`` formulation their ``K_g = -dg/dq`` joins ``K_C``:
-  ``C = J (K_t - K_C - K_g - K_s)^-1 J^T + C_link`` (``K_s`` the compensators').
+How each effect enters the elastic model is its class's business (its one hook,
+:meth:`stiffness.elastic.effects.base.Effect.contribute`; ``kind`` of
+:data:`stiffness.elastic.effects.base.EFFECT_KINDS`): ``stiffness`` and ``preload`` effects
+change the robot and its K_X; ``measurement`` effects (how the campaign observed its
+deflections) and ``lost_motion`` (backlash: a deflection, not a stiffness) are listed, not
+applied to K_X (the exact equilibrium and :func:`fitted_deflection` include the lost motion).
+docs/model-file.md gives the formulas.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -65,10 +55,10 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.elastic.effects import LIBRARY, make_effect
-from stiffness.elastic.effects.base import Parameter
-from stiffness.elastic.effects.geometry import Geometry, References, chain_placements, link_axes
+from stiffness.elastic.effects.base import ElasticParts, Parameter
+from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.elastic.effects.preloads import COMPENSATOR_GEOMETRY
+from stiffness.elastic.model import ElasticModel, ElasticState
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
@@ -78,28 +68,15 @@ from stiffness.errors import (
 )
 from stiffness.files import (
     atomic_write,
+    jsonable,
     looks_like_path,
     output_folder,
     read_json,
     resolve_source,
     written_path,
 )
-from stiffness.mechanics.equilibrium import (
-    SpringLaw,
-    deflected_configuration,
-    tangent_equilibrium,
-)
-from stiffness.mechanics.formulation import (
-    as_wrench,
-    cartesian_stiffness,
-    target_state,
-)
-from stiffness.mechanics.gravity import (
-    gravity_preload,
-    require_open_chain,
-    spring_balancer,
-    with_payload,
-)
+from stiffness.mechanics.defaults import default_stiffness
+from stiffness.mechanics.formulation import as_wrench
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.robot.sources import robots_directory, shipped_robots
 from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
@@ -118,12 +95,6 @@ _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
 #: Units an effect parameter of the current schema may name (the file is SI).
 SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
-
-
-#: Effects that change K_X beyond the joint springs' stiffness matrix (applied by
-#: :meth:`CompliantModel.at`; the batched scan and the 6x6 connection stiffness cannot).
-BEYOND_SPRINGS = ("link_compliance", "nonlinear_joint_stiffness", "gravity_compensator",
-                  "gravity_preload")
 
 
 class ModelFileError(FileFormatError):
@@ -177,7 +148,8 @@ class ModelEffect:
         for p in self.parameters:
             if p.name == name:
                 return float(p.value)
-        raise ModelFileError(f"effect {self.label} has no parameter {name!r}")
+        raise ModelFileError(f"effect {self.label} has no parameter {name!r}",
+                             path="model file")
 
     def values(self) -> np.ndarray:
         """SI values in the effect's parameter order."""
@@ -303,8 +275,9 @@ class ModelFile:
                   else self.source)
         joints = list(self.compliant_joints)
         determined = [j not in self.undetermined_joints for j in joints]
-        robot = {"source": source, "frame": self.frame, "target_offset_m": self.target_offset_m,
-                 "compliant_joints": joints}
+        robot: dict[str, object] = {"source": source, "frame": self.frame,
+                                    "target_offset_m": self.target_offset_m,
+                                    "compliant_joints": joints}
         if self.loops is not None:
             robot["loops"] = _relative(self.loops, relative_to)
         if self.fixed_base:
@@ -354,24 +327,6 @@ def _robot_identity(source: str) -> str:
                 return name
         return str(path)
     return source
-
-
-def jsonable(value):
-    """JSON-ready: arrays to lists, numpy scalars to Python, non-finite floats to None,
-    recursively."""
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
-    if isinstance(value, np.bool_ | bool):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    return value
 
 
 # ------------------------------------------------------------------------------------------
@@ -653,66 +608,17 @@ def _read_effect(r: _Reader, doc, where: str, si: bool) -> ModelEffect:
 
 
 # ------------------------------------------------------------------------------------------
-# the model at a pose
+# the elastic model of a file
+
+#: Why an effect of a kind that does not change the stiffness is not applied to K_X.
+_NOT_STIFFNESS = {"lost_motion": "lost motion: a deflection of +-half_width that does not "
+                                 "change the stiffness"}
 
 
-@dataclass
-class ModelCompliance:
-    """A model's stiffness at one pose and load (SI; base axes at the target).
-
-    Attributes
-    ----------
-    robot
-        The robot the effects imply (its compliant joints: the baseline's plus those of
-        ``joint_compliance``; its target moved by ``target_offset``).
-    q
-        Full configuration (loops closed).
-    load
-        Applied wrench [F (N); M (N.m)].
-    jacobian
-        (6, n) target Jacobian w.r.t. ``robot.compliant_joints``, rows [v; omega].
-    k_theta
-        (n,) nominal joint stiffness (N.m/rad, N/m).
-    k_tangent
-        (n, n) joint tangent stiffness at the load (a nonlinear spring's slope).
-    k_c
-        (n, n) complementary stiffness at the load (zero in the conventional formulation).
-    link_compliance
-        (6, 6) compliance the link effects add (m/N, rad/(N.m)).
-    compliance6
-        (6, 6) ``J (K_t - K_C - K_p)^-1 J^T + C_link``.
-    formulation
-        ``conventional`` or ``enhanced``.
-    preload_torque
-        (n,) torque of the weight and the compensators at the pose (zeros without them).
-    k_preload
-        (n, n) its derivative ``K_p`` (the compensators' stiffness enters as ``-K_p``).
-    """
-
-    robot: Robot
-    q: np.ndarray
-    load: np.ndarray
-    jacobian: np.ndarray
-    k_theta: np.ndarray
-    k_tangent: np.ndarray
-    k_c: np.ndarray
-    link_compliance: np.ndarray
-    compliance6: np.ndarray
-    formulation: str
-    preload_torque: np.ndarray | None = None
-    k_preload: np.ndarray | None = None
-
-    def compliance(self, rows: slice = slice(0, 3)) -> np.ndarray:
-        """Compliance block (default the 3x3 translational one, m/N)."""
-        return self.compliance6[rows, rows]
-
-    def k_x(self, rows: slice = slice(0, 3)) -> np.ndarray:
-        """Cartesian stiffness ``C[rows, rows]^-1`` (default 3x3, N/m)."""
-        return cartesian_stiffness(self.compliance(rows))
-
-
-class CompliantModel:
-    """A model file made usable at any pose and load, its stiffness effects applied.
+def elastic_model_of(model: ModelFile, frame: str | None = None,
+                     target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """The elastic model of a model file: each effect contributes through its class's one hook
+    (:meth:`stiffness.elastic.effects.base.Effect.contribute`).
 
     Parameters
     ----------
@@ -722,279 +628,169 @@ class CompliantModel:
         Another target (frame, offset in m in its axes) than the model's; the model's
         ``target_offset`` effect then does not apply (it moved the campaign's target).
 
-    Attributes
-    ----------
-    robot
-        The robot the effects imply.
-    k_theta
-        (n,) joint stiffness over ``robot.compliant_joints`` (baseline and added joints).
-    applied, not_applied
-        Effects that enter the stiffness, and ``(effect, reason)`` of those that do not.
+    Raises
+    ------
+    ModelFileError, UnknownJointError
+        A ``joint_compliance`` on a joint ``k_theta`` holds; a joint-law effect on a rigid one.
+    ModelRobotError
+        An effect names a joint the robot does not have.
     """
-
-    def __init__(self, model: ModelFile, frame: str | None = None,
-                 target_offset: np.ndarray | list[float] | None = None) -> None:
-        self.model = model
-        stiff = dict(zip(model.compliant_joints, model.k_theta, strict=True))
-        offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
-            target_offset, dtype=float).reshape(3)
-        moved = frame is not None or target_offset is not None
-        self.applied: list[ModelEffect] = []
-        self.not_applied: list[tuple[ModelEffect, str]] = []
-        self._beta: dict[str, float] = {}
-        self._links: list[tuple[str, str, float, float]] = []
-        self._payload: tuple[float, np.ndarray] | None = None
-        self._compensators: list[tuple[str, float, float, dict]] = []
-        for e in model.effects:
-            if e.kind == "measurement":
-                self.not_applied.append((e, "a measurement effect (how the campaign observed "
-                                            "the deflection), not a stiffness"))
-                continue
-            if e.kind == "lost_motion":
-                self.not_applied.append((e, "lost motion: a deflection of +-half_width that "
-                                            "does not change the stiffness"))
-                continue
-            if e.name == "joint_compliance":
-                if e.where in model.compliant_joints:
-                    raise ModelFileError(
-                        f"a joint_compliance effect on {e.where}, which is already a compliant "
-                        "joint of k_theta (two stiffnesses for one spring); give its stiffness "
-                        "in k_theta and drop the effect", path=model.path)
-                stiff[e.where] = e.value("stiffness")
-            elif e.name == "nonlinear_joint_stiffness":
-                self._beta[e.where] = e.value("beta")
-            elif e.name == "link_compliance":
-                a, b = _segment(e.where)
-                self._links.append((a, b, e.value("stiffness_1"), e.value("stiffness_2")))
-            elif e.name == "gravity_preload":
-                self._payload = (e.value("mass"), e.values()[1:4])
-            elif e.name == "gravity_compensator":
-                self._compensators.append((e.where, e.value("stiffness"), e.value("preload"),
-                                           {**COMPENSATOR_GEOMETRY, **e.settings}))
-            elif e.name == "target_offset":
-                if moved:
-                    self.not_applied.append((e, "the target given overrides the campaign's"))
-                    continue
-                offset = offset + e.values()[:3]
-            self.applied.append(e)
-        self.k_theta = np.array(list(stiff.values()), dtype=float)
-        self._where = f"{model.path}: " if model.path is not None else ""
-        if model.undetermined_joints:
-            names = ", ".join(model.undetermined_joints)
-            warnings.warn(f"{self._where}the stiffness of {names} is marked undetermined (its "
-                          "campaign did not load it): K_X in the directions it governs rests on "
-                          "an unidentified value", DataFileWarning, stacklevel=2)
+    where = f"{model.path}: " if model.path is not None else ""
+    parts = ElasticParts(dict(zip(model.compliant_joints, model.k_theta, strict=True)),
+                         keep_target=frame is None and target_offset is None)
+    applied, not_applied = [], []
+    for e in model.effects:
         try:
-            self.robot = load_robot(model.source, frame=frame or model.frame,
-                                    target_offset=offset, compliant_joints=tuple(stiff),
-                                    **model.robot_options())
+            LIBRARY[e.name].declared(e.where, e.settings).contribute(e.values(), parts)
         except StiffnessError as exc:
-            raise with_context(exc, f"{self._where}the model's robot with its effects") from exc
-        self._check_places()
-        self._chain: tuple[str, ...] = ()
-        self._columns: dict[tuple[str, str], int] = {}
-        self._declared: tuple[Robot, Geometry] | None = None
-        self._weighed = None
-        if self._payload is not None:
-            require_open_chain(self.robot, "gravity_preload")
-            self._weighed = with_payload(self.robot, *self._payload)
-        if self._links:
-            geometry = Geometry.of(self.robot)
-            self._chain, self._columns = geometry.chain, geometry.link_columns
-
-    def _check_places(self) -> None:
-        """Every effect's joint or segment must be a coordinate joint of the robot."""
-        joints = list(self.robot.coordinate_joints)
-        for e in self.model.effects:
-            names = list(_segment(e.where)) if e.name == "link_compliance" else (
-                [e.where] if e.where is not None else [])
-            for name in names:
-                if name not in joints:
-                    raise ModelRobotError(
-                        f"{self._where}effect {e.label} names {name!r}, not a coordinate joint "
-                        f"of {self.robot.name}; {did_you_mean(str(name), joints)}")
-
-    def configuration(self, q: np.ndarray) -> np.ndarray:
-        """Full configuration of coordinates (n_coordinates,) or of a full ``q`` (nq,)."""
-        q = np.asarray(q, dtype=float).reshape(-1)
-        if q.shape[0] == self.robot.n_coordinates:
-            return self.robot.configuration(q)
-        if q.shape[0] == self.robot.model.nq:
-            return q
-        raise StiffnessError(
-            f"give {self.robot.n_coordinates} coordinates of {self.robot.name} "
-            f"({', '.join(self.robot.coordinate_joints)}) or a full configuration of "
-            f"{self.robot.model.nq} values; got {q.shape[0]}")
-
-    def at(self, q: np.ndarray, load: np.ndarray | None = None,
-           formulation: str = "enhanced") -> ModelCompliance:
-        """J, tangent joint stiffness, K_C and compliance at a pose and load, effects included.
-
-        Parameters
-        ----------
-        q
-            Coordinates (rad, m) or a full configuration: the commanded pose (with a weight or a
-        compensator in the model, J and K_C are those of the pose they deflect it to,
-        :meth:`preloaded_configuration`).
-        load
-            Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default zero.
-        formulation
-            ``enhanced`` (K_t - K_C, A&S eq. 10) or ``conventional`` (K_t alone, eq. 8).
-        """
-        if formulation not in ("conventional", "enhanced"):
-            raise StiffnessError(f"formulation must be conventional or enhanced, got "
-                                 f"{formulation!r}")
-        robot = self.robot
-        wrench = as_wrench(np.zeros(3) if load is None else load)
-        qf = self.configuration(q)
-        if self._weighed is not None or self._compensators:
-            qf = self.preloaded_configuration(qf)
-        state = target_state(robot, qf, wrench)
-        k_c = state.k_c if formulation == "enhanced" else np.zeros_like(state.k_c)
-        tau_p, k_p = self.preload(qf, formulation)
-        slope = self._slope(state.jacobian.T @ wrench + tau_p, k_c + k_p)
-        k_tangent = np.diag(1.0 / slope)
-        try:
-            c6 = state.jacobian @ np.linalg.solve(k_tangent - k_c - k_p, state.jacobian.T)
-        except np.linalg.LinAlgError as exc:
-            raise StiffnessError("the tangent joint stiffness K_t - K_C is singular: the load "
-                                 "is at the buckling limit of this configuration") from exc
-        link = np.zeros((6, 6))
-        if self._links:
-            origins, rotations = chain_placements(robot, self._chain)
-            for a, b, k1, k2 in self._links:
-                ia, ib = self._chain.index(a), self._chain.index(b)
-                e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib],
-                                   self._columns[(a, b)])
-                r = state.position - origins[ib]
-                g = np.vstack([-_skew(r), np.eye(3)])  # twist of the target per rotation at b
-                e = np.column_stack([e1, e2])
-                link += g @ e @ np.diag([1.0 / k1, 1.0 / k2]) @ e.T @ g.T
-        return ModelCompliance(robot, qf, wrench, state.jacobian, self.k_theta.copy(), k_tangent,
-                               k_c, link, c6 + link, formulation, tau_p, k_p)
-
-    def preloaded_configuration(self, q: np.ndarray) -> np.ndarray:
-        """The unloaded pose under the weight and the compensators: the commanded full
-        configuration ``q`` deflected by ``dtheta_0 = f(tau_p + K_p dtheta_0)`` (the joint
-        law at frozen geometry), loops closed. :meth:`at` evaluates J and K_C there."""
-        tau_p, k_p = self.preload(q)
-        beta = np.array([self._beta.get(j, 0.0) for j in self.robot.compliant_joints])
-        law = SpringLaw(1.0 / self.k_theta, beta, np.zeros_like(beta), np.ones_like(beta))
-        dtheta0 = tangent_equilibrium(law, tau_p, k_p)
-        return deflected_configuration(self.robot, q, dtheta0, q)
-
-    def preload(self, q: np.ndarray, formulation: str = "enhanced"
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """Torque (n,) of the weight and the compensators on the compliant joints at the full
-        configuration ``q``, and its derivative (n, n): the compensators' always, the weight's
-        (``K_g``) in the ``enhanced`` formulation only (zeros without such effects)."""
-        robot = self.robot
-        n = robot.n_compliant
-        tau, k = np.zeros(n), np.zeros((n, n))
-        if self._weighed is not None:
-            tau, k = gravity_preload(robot, q, model=self._weighed)
-            if formulation != "enhanced":
-                k = np.zeros((n, n))
-        for joint, k_s, f0, g in self._compensators:
-            i = list(robot.compliant_joints).index(joint)
-            jm = robot.model.joints[robot.model.getJointId(joint)]
-            t, dt = spring_balancer(q[jm.idx_q], k_s, f0, g["lever_m"], g["base_m"],
-                                    g["angle0_rad"])
-            tau[i] += t
-            k[i, i] += dt
-        return tau, k
-
-    def _slope(self, tau0: np.ndarray, k_c: np.ndarray) -> np.ndarray:
-        """Joint compliance slopes d(dtheta)/d(tau) at the load (the law's tangent)."""
-        compliance = 1.0 / self.k_theta
-        if not self._beta:
-            return compliance
-        beta = np.array([self._beta.get(j, 0.0) for j in self.robot.compliant_joints])
-        law = SpringLaw(compliance, beta, np.zeros_like(beta), np.ones_like(beta))
-        dtheta = tangent_equilibrium(law, tau0, k_c)
-        return law(tau0 + k_c @ dtheta)[1]
-
-    def deflection(self, q: np.ndarray, load: np.ndarray, measured: bool = False
-                   ) -> np.ndarray:
-        """Predicted target displacement (3,) in m under a dead ``load`` (force or wrench),
-        as the fitted model predicts it: every effect applied, lost motion included;
-        measurement effects only with ``measured`` (what the campaign's instrument reads)."""
-        model = self.model
-        if self._declared is None:
-            declared = model.robot()
-            self._declared = (declared, Geometry.of(declared))
-        declared, geometry = self._declared
-        wrench = as_wrench(load)
-        coords = np.asarray(q, dtype=float).reshape(-1)
-        if coords.shape[0] != declared.n_coordinates:
-            raise StiffnessError(f"give the {declared.n_coordinates} coordinates of "
-                                 f"{declared.name} ({', '.join(declared.coordinate_joints)})")
-        rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:])
-        smoothing = np.ones(len(geometry.joints))
-        effects, values = [], []
-        for e in model.effects:
-            if e.kind == "measurement" and not measured:
-                continue
-            effect = make_effect(e.name, e.where, geometry)
-            if e.name == "gravity_compensator":
-                g = {**COMPENSATOR_GEOMETRY, **e.settings}
-                effect = type(effect)(joint_name=e.where, lever_m=g["lever_m"],
-                                      base_m=g["base_m"], angle0_rad=g["angle0_rad"])
-            if e.name == "backlash":
-                smoothing[geometry.joints.index(e.where)] = float(
-                    e.settings.get("smoothing_torque", 1.0))
-            effects.append(effect)
-            values.append(e.values())
-        refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing,
-                          1.0, 1.0, 1.0)
-        baseline = "conventional" if model.formulation == "conventional" else "enhanced"
-        if model.formulation == "exact" and not any(e.second_order for e in effects):
-            effects.insert(0, LIBRARY["complementary_stiffness"]())
-            values.insert(0, np.zeros(0))
-        fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
-        x = np.concatenate([np.log(model.k_theta)] + [
-            e.variables(v, refs) for e, v in zip(effects, values, strict=True)])
-        return fitted.predict(x)[0]
+            raise ModelFileError(str(exc), path=model.path or "model file") from exc
+        reason = parts.not_applied.get(e.label, _NOT_STIFFNESS.get(e.kind))
+        if reason is None:
+            applied.append(e)
+        else:
+            not_applied.append((e, reason))
+    parts.check_joints()
+    if model.undetermined_joints:
+        names = ", ".join(model.undetermined_joints)
+        warnings.warn(f"{where}the stiffness of {names} is marked undetermined (its campaign did "
+                      "not load it): K_X in the directions it governs rests on an unidentified "
+                      "value", DataFileWarning, stacklevel=3)
+    offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
+        target_offset, dtype=float).reshape(3)
+    try:
+        robot = load_robot(model.source, frame=frame or model.frame,
+                           target_offset=offset + parts.target_shift,
+                           compliant_joints=tuple(parts.springs), **model.robot_options())
+    except StiffnessError as exc:
+        raise with_context(exc, f"{where}the model's robot with its effects") from exc
+    joints = [j for j in robot.model.names[1:]]
+    for e in model.effects:  # every effect's joint or segment must be a joint of the robot
+        for name in LIBRARY[e.name].place_joints(e.where):
+            if name not in joints:
+                raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
+                                      f"{robot.name}; {did_you_mean(str(name), joints)}")
+    em = ElasticModel.of_parts(
+        robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
+        source=None if model.path is None else str(model.path), applied=tuple(applied),
+        not_applied=tuple(not_applied),
+        beyond_springs=tuple(e.label for e in applied if LIBRARY[e.name].beyond_springs))
+    em.fitted = functools.partial(fitted_deflection, model)
+    return em
 
 
-def _segment(where: str | None) -> tuple[str, str]:
-    for sep in ("->", "/", ","):
-        if where and sep in where:
-            a, b = (s.strip() for s in where.split(sep, 1))
-            return a, b
-    raise StiffnessError(f"link_compliance needs a segment A->B, got {where!r}")
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def model_compliance(model: ModelFile | CompliantModel | str | os.PathLike, q: np.ndarray,
-                     load: np.ndarray | None = None, formulation: str = "enhanced"
-                     ) -> ModelCompliance:
-    """The model's J, tangent joint stiffness, K_C, compliance and K_X at a pose and load.
+def load_model(source: ElasticModel | Robot | ModelFile | str | os.PathLike,
+               k: np.ndarray | list[float] | None = None, frame: str | None = None,
+               target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
+    """An elastic model from a model file, or a robot with joint springs.
 
     Parameters
     ----------
-    model
-        A :class:`ModelFile`, a :class:`CompliantModel` (reuse it for many poses: it loads the
-        robot once) or the path of a model file.
-    q
-        Coordinates (rad, m) of the model's robot, or a full configuration.
-    load
-        Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default zero.
-    formulation
-        ``enhanced`` (default) or ``conventional``.
+    source
+        A model file's path (``identified-model.json`` of ``stiffness identify``,
+        ``final-model.json`` of ``stiffness diagnose``) or its :class:`ModelFile`; a
+        :class:`~stiffness.robot.robot.Robot` or a robot source (shipped name,
+        example-robot-data name, URDF path); or an :class:`ElasticModel` (returned as is).
+    k
+        Joint stiffness (N.m/rad, N/m), one per compliant joint of a robot; default the
+        shipped robot's ``k_theta_SI``. Not with a model file (it brings its own springs).
+    frame, target_offset
+        Another target (frame; offset in m in its axes) than the file's or the robot's.
 
-    Examples
-    --------
-    >>> m = model_compliance("diagnosis/final-model.json", [0, -1.2, 1.5, -0.3, 1.57, 0],
-    ...                      [0, 0, -100])                                   # doctest: +SKIP
-    >>> m.k_x()            # 3x3 N/m, effects that change the stiffness included   # doctest: +SKIP
+    Raises
+    ------
+    StiffnessError
+        A robot without springs, springs given with a model, or the file's errors
+        (:class:`ModelFileError`, :class:`ModelRobotError`...).
     """
-    if isinstance(model, str | os.PathLike):
-        model = read_model_file(model)
-    if isinstance(model, ModelFile):
-        model = CompliantModel(model)
-    return model.at(q, load, formulation)
+    if isinstance(source, ElasticModel):
+        if k is not None or frame is not None or target_offset is not None:
+            raise StiffnessError("an elastic model brings its springs and target; give k, "
+                                 "frame or target_offset with a robot")
+        return source
+    if isinstance(source, str | os.PathLike) and (
+            Path(source).suffix.lower() == ".json" or Path(source).is_file()
+            and Path(source).read_bytes()[:64].lstrip().startswith(b"{")):
+        source = read_model_file(source)
+    if isinstance(source, ModelFile):
+        if k is not None:
+            raise StiffnessError("k goes with a robot; a model file brings its own springs")
+        return elastic_model_of(source, frame, target_offset)
+    robot = source if isinstance(source, Robot) else load_robot(
+        str(source), frame=frame, target_offset=target_offset)
+    if k is None:
+        k = default_stiffness(robot)
+        if k is None:
+            raise StiffnessError(f"give k: one stiffness per compliant joint of {robot.name} "
+                                 f"({', '.join(robot.compliant_joints)})")
+    return ElasticModel.joint_springs(robot, k)
 
+
+def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
+                      measured: bool = False) -> np.ndarray:
+    """Predicted target displacement (3,) in m under a dead ``load`` (force or wrench), as
+    the fitted model predicts it (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`):
+    every effect applied, lost motion included; measurement effects only with ``measured``
+    (what the campaign's instrument reads).
+
+    Raises
+    ------
+    StiffnessError
+        Not the coordinates of the model's declared robot.
+    """
+    declared = model.robot()
+    geometry = Geometry.of(declared)
+    wrench = as_wrench(load)
+    coords = np.asarray(q, dtype=float).reshape(-1)
+    if coords.shape[0] != declared.n_coordinates:
+        raise StiffnessError(f"give the {declared.n_coordinates} coordinates of "
+                             f"{declared.name} ({', '.join(declared.coordinate_joints)})")
+    rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:])
+    parts = ElasticParts({})
+    effects, values = [], []
+    for e in model.effects:
+        if e.kind == "measurement" and not measured:
+            continue
+        effect = make_effect(e.name, e.where, geometry).configured(e.settings)
+        effect.contribute(e.values(), parts)
+        effects.append(effect)
+        values.append(e.values())
+    smoothing = np.array([parts.smoothing.get(j, 1.0) for j in geometry.joints])
+    refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing,
+                      1.0, 1.0, 1.0)
+    baseline = "conventional" if model.formulation == "conventional" else "enhanced"
+    if model.formulation == "exact" and not any(e.second_order for e in effects):
+        effects.insert(0, LIBRARY["complementary_stiffness"]())
+        values.insert(0, np.zeros(0))
+    fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
+    x = np.concatenate([np.log(model.k_theta)] + [
+        e.variables(v, refs) for e, v in zip(effects, values, strict=True)])
+    return fitted.predict(x)[0]
+
+
+# ------------------------------------------------------------------------------------------
+# deprecated names (one release)
+
+
+def _model_compliance(model: ModelFile | ElasticModel | str | os.PathLike, q: np.ndarray,
+                      load: np.ndarray | None = None, formulation: str = "enhanced"
+                      ) -> ElasticState:
+    """Deprecated: ``load_model(model).at(q, load, formulation)``."""
+    return load_model(model).at(q, load, formulation)
+
+
+_DEPRECATED = {
+    "CompliantModel": (elastic_model_of, "stiffness.load_model(path) or "
+                                         "stiffness.elastic.model_file.elastic_model_of(file)"),
+    "ModelCompliance": (ElasticState, "stiffness.elastic.model.ElasticState"),
+    "model_compliance": (_model_compliance, "stiffness.load_model(path).at(q, wrench)"),
+}
+
+
+def __getattr__(name: str):
+    """The names this module had before the one elastic model, with a DeprecationWarning."""
+    if name in _DEPRECATED:
+        value, instead = _DEPRECATED[name]
+        warnings.warn(f"stiffness.elastic.model_file.{name} is deprecated; use {instead}",
+                      DeprecationWarning, stacklevel=2)
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

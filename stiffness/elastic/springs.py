@@ -9,6 +9,8 @@ Measurement effects (how a campaign was observed) are not properties of the robo
 
 from __future__ import annotations
 
+from stiffness.elastic.effects import LIBRARY
+from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.model_file import ModelFile
 
 #: Effect kinds that describe the measurement, not the robot.
@@ -17,13 +19,16 @@ _MEASUREMENT = "measurement"
 
 def model_springs(model: ModelFile) -> tuple[dict[str, float], list[str]]:
     """The joint springs of ``model`` (N.m/rad or N/m by joint name) and the labels of its
-    robot effects that are not joint springs (left out of an export)."""
-    springs = {name: float(k) for name, k in zip(model.compliant_joints, model.k_theta,
-                                                 strict=True)}
+    robot effects that are not joint springs (left out of an export). Each effect says what it
+    is through its class's one hook (:meth:`stiffness.elastic.effects.base.Effect.contribute`):
+    those that add a spring are joint springs."""
+    parts = ElasticParts({name: float(k) for name, k in zip(model.compliant_joints,
+                                                            model.k_theta, strict=True)})
     left_out = []
     for effect in model.effects:
-        if effect.name == "joint_compliance" and effect.where is not None:
-            springs[effect.where] = effect.value("stiffness")
-        elif effect.kind != _MEASUREMENT:
+        before = len(parts.springs)
+        LIBRARY[effect.name].declared(effect.where, effect.settings).contribute(
+            effect.values(), parts)
+        if len(parts.springs) == before and effect.kind != _MEASUREMENT:
             left_out.append(effect.label)
-    return springs, left_out
+    return parts.springs, left_out

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.elastic.loaded import ElasticModel, linear_deflection
+from stiffness.elastic.loaded import linear_deflection
+from stiffness.elastic.model import ElasticModel
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.formulation import target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik

@@ -35,13 +35,13 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.loaded import (
-    ElasticModel,
-    as_elastic_model,
     bent_kinematics,
     frozen_axes,
     linear_shift,
     loaded_equilibrium,
 )
+from stiffness.elastic.model import ElasticModel
+from stiffness.elastic.model_file import load_model
 from stiffness.errors import (
     ConvergenceError,
     FileFormatError,
@@ -364,7 +364,7 @@ def compensate(
     ----------
     model
         The elastic model (:meth:`ElasticModel.joint_springs`), a model file's path
-        (:func:`load_elastic_model`), or a robot with ``k_theta``.
+        (:func:`stiffness.elastic.model_file.load_model`), or a robot with ``k_theta``.
     path
         (m, n) nominal coordinates (rad, m), one row per point, model coordinate order; or a
         ``PATH.csv`` (:func:`read_joint_path`; ``deg`` for angles in degrees; its per-row loads
@@ -391,7 +391,7 @@ def compensate(
     StiffnessError
         A bad path or wrench, or a point where a solve fails (the message names the row).
     """
-    em = as_elastic_model(model, k_theta)
+    em = load_model(model, k_theta)
     table, path, wrench = _path_and_wrench(em.robot, path, wrench, deg)
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")

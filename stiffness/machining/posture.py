@@ -48,7 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.elastic.loaded import ElasticModel, as_elastic_model, linear_deflection
+from stiffness.elastic.model import ElasticModel
+from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
 from stiffness.machining.branches import (
@@ -330,7 +331,7 @@ def posture(
         Bad input, a point no candidate reaches (named by row), or no sequence within
         ``max_step_deg``.
     """
-    em = as_elastic_model(model, k_theta)
+    em = load_model(model, k_theta)
     full = em.full
     poses, w = _poses_and_wrench(positions, axes, quaternions, wrench)
     _check_search(full, steps, max_step_deg, singularity_margin, wrench_frame, branch)

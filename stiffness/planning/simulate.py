@@ -68,6 +68,7 @@ from stiffness.elastic.effects.geometry import (
     link_axes,
     rotation_matrix,
 )
+from stiffness.elastic.model import ElasticModel, joint_preload
 from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
@@ -78,8 +79,6 @@ from stiffness.files import atomic_write, staged_folder
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import (
-    gravity_preload,
-    spring_balancer,
     with_payload,
 )
 from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
@@ -182,8 +181,11 @@ class Truth:
     payload
         ``(mass kg, centre of mass (3,) m in target frame axes)`` of the payload.
     compensators
-        ``(joint, stiffness N/m, preload N, lever m, base m, angle0 rad)`` of hidden spring
-        gravity compensators.
+        ``(joint, stiffness N/m, preload N, geometry)`` of hidden spring gravity compensators
+        (:meth:`stiffness.elastic.effects.base.ElasticParts.add_compensator`).
+    model
+        The true robot as an elastic model (:class:`stiffness.elastic.model.ElasticModel`), of
+        which the truth holds the parts its deflections need.
     """
 
     robot: Robot
@@ -195,8 +197,17 @@ class Truth:
     deflection_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gravity: bool = False
     payload: tuple[float, np.ndarray] = (0.0, np.zeros(3))
-    compensators: list[tuple[str, float, float, float, float, float]] = field(
-        default_factory=list)
+    compensators: list[tuple[str, float, float, dict]] = field(default_factory=list)
+    model: ElasticModel | None = None
+
+    @classmethod
+    def of_model(cls, model: ElasticModel, chain: tuple[str, ...]) -> Truth:
+        """The truth of an elastic model (``chain``: the target chain's joints)."""
+        links = [(lk.a, lk.b, lk.column, *lk.stiffness) for lk in model.links]
+        payload = (0.0, np.zeros(3)) if model.payload is None else model.payload
+        return cls(model.robot, model.compliant_law(), links, chain, model.misalignment,
+                   model.force_bias, model.deflection_offset, model.payload is not None,
+                   payload, list(model.compensators), model)
 
     def __post_init__(self) -> None:
         self._weighed = None
@@ -206,18 +217,7 @@ class Truth:
     def preload(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Joint preload of the weight and the compensators at the configuration ``q``:
         torque (n,) and its derivative (n, n) over the compliant joints."""
-        robot = self.robot
-        n = robot.n_compliant
-        tau, k = np.zeros(n), np.zeros((n, n))
-        if self._weighed is not None:
-            tau, k = gravity_preload(robot, q, model=self._weighed)
-        for joint, k_s, f0, lever, base, angle0 in self.compensators:
-            i = list(robot.compliant_joints).index(joint)
-            jm = robot.model.joints[robot.model.getJointId(joint)]
-            t, dt = spring_balancer(q[jm.idx_q], k_s, f0, lever, base, angle0)
-            tau[i] += t
-            k[i, i] += dt
-        return tau, k
+        return joint_preload(self.robot, self._weighed, self.compensators, q)
 
     @property
     def preloaded(self) -> bool:
@@ -320,13 +320,8 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
     robot = cached_robot(declared.name, declared.target_frame,
                          tuple(declared.target_offset.copy() + parts.target_shift), compliant,
                          declared.loop_file, declared.fixed_base)
-    links = [(a, b, geometry.link_columns[(a, b)], k1, k2) for a, b, k1, k2 in parts.bends]
-    compensators = [(joint, k_s, f0, g["lever_m"], g["base_m"], g["angle0_rad"])
-                    for joint, k_s, f0, g in parts.compensators]
-    payload = (0.0, np.zeros(3)) if parts.payload is None else parts.payload
-    return Truth(robot, parts.law(compliant), links, geometry.chain, parts.misalignment,
-                 parts.force_bias, parts.deflection_offset, parts.payload is not None, payload,
-                 compensators)
+    model = ElasticModel.of_parts(robot, parts, link_columns=geometry.link_columns)
+    return Truth.of_model(model, geometry.chain)
 
 
 # ------------------------------------------------------------------------------------------

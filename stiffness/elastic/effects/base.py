@@ -119,6 +119,10 @@ class Effect:
         joints to check)."""
         return cls()
 
+    def configured(self, settings: dict) -> Effect:
+        """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
+        return self
+
     @classmethod
     def place_joints(cls, where: str | None) -> list[str]:
         """The joints ``where`` names (checked against the robot of a model file)."""

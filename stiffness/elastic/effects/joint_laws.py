@@ -10,6 +10,7 @@ Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import ClassVar, TypeVar
@@ -136,8 +137,11 @@ class Backlash(Effect):
 
     @classmethod
     def declared(cls, where, settings):
-        return cls(joint_name=str(where),
-                   smoothing_torque=float(settings.get("smoothing_torque", 1.0)))
+        return cls(joint_name=str(where)).configured(settings)
+
+    def configured(self, settings):
+        return dataclasses.replace(
+            self, smoothing_torque=float(settings.get("smoothing_torque", 1.0)))
 
     def file_settings(self, refs):
         return {"smoothing_torque": float(refs.tau_smoothing[refs.joints.index(self.joint_name)])}

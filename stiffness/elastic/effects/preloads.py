@@ -10,6 +10,7 @@ Units: SI (kg, m, N, N/m, N.m, rad).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -115,9 +116,12 @@ class GravityCompensator(Effect):
 
     @classmethod
     def declared(cls, where, settings):
+        return cls(joint_name=str(where)).configured(settings)
+
+    def configured(self, settings):
         g = {**COMPENSATOR_GEOMETRY, **settings}
-        return cls(joint_name=str(where), lever_m=g["lever_m"], base_m=g["base_m"],
-                   angle0_rad=g["angle0_rad"])
+        return dataclasses.replace(self, lever_m=g["lever_m"], base_m=g["base_m"],
+                                   angle0_rad=g["angle0_rad"])
 
     def file_settings(self, refs):
         return dict(self.settings)

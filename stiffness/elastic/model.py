@@ -1,0 +1,743 @@
+"""The elastic model: a robot with its joint laws, link bends, preloads, target and measurement.
+
+:class:`ElasticModel` is the one object a stiffness model becomes away from its campaign: built
+from joint springs (:meth:`ElasticModel.joint_springs`), from a model file
+(:func:`stiffness.elastic.model_file.load_model`), or from what a set of effects contributes
+(:meth:`ElasticModel.of_parts`, each effect through its one hook
+:meth:`stiffness.elastic.effects.base.Effect.contribute`). It holds
+
+* a joint law over the coordinates, ``theta - theta_c = law(tau)``: linear springs (the
+  baseline's and those effects add), nonlinear springs ``tau/k (1 + beta|tau|)``, backlash
+  ``b tanh(tau/tau_s)``; zero compliance for a rigid coordinate;
+* link bends (:class:`stiffness.elastic.loaded.LinkBend`): the segment ``a -> b`` bends at
+  ``b``'s origin about two axes normal to it;
+* preloads: the links' weight with a payload, and spring gravity compensators, whose torque
+  ``tau_p`` acts at every pose and whose derivative ``K_p`` adds to ``K_C``;
+* the target (moved by a ``target_offset``) and the measurement effects (how a campaign
+  observed its deflections: listed, not applied to the robot).
+
+At a pose and a load it answers (:meth:`ElasticModel.at`, an :class:`ElasticState`): the
+linearised quantities, ``C = J (K_t - K_C - K_p)^-1 J^T + C_link`` with ``K_t`` the joint
+law's tangent at the load, ``K_X = C^-1`` in both formulations (``enhanced`` with ``K_C``, A&S
+eq. 10; ``conventional`` without, eq. 8) and both 6x6 connections of Zefran & Kumar, the
+definiteness and the critical load factor along the wrench; and the exact loaded equilibrium
+(:func:`stiffness.elastic.loaded.loaded_equilibrium`, or under a preload
+:func:`stiffness.mechanics.equilibrium.solve_equilibrium`). With a preload, ``J`` and ``K_C``
+are those of the preloaded pose, the commanded one deflected by
+``dtheta_0 = f(tau_p + K_p dtheta_0)``.
+
+Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.batch.linalg import critical_load_factor
+from stiffness.elastic.effects.base import Effect, ElasticParts
+from stiffness.elastic.effects.geometry import Geometry, chain_placements, link_axes, skew
+from stiffness.elastic.loaded import LinkBend, Loaded, loaded_equilibrium
+from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.mechanics.equilibrium import (
+    SpringLaw,
+    deflected_configuration,
+    solve_equilibrium,
+    tangent_equilibrium,
+)
+from stiffness.mechanics.formulation import (
+    as_wrench,
+    cartesian_stiffness,
+    compliance,
+    definiteness,
+    joint_connection_stiffness,
+    tangent_definiteness,
+    target_state,
+    twist_basis_stiffness,
+)
+from stiffness.mechanics.gravity import (
+    gravity_preload,
+    require_open_chain,
+    spring_balancer,
+    with_payload,
+)
+from stiffness.mechanics.ik import all_coordinates
+from stiffness.mechanics.wrench import TWIST_ORDERS, reorder_twist
+from stiffness.robot.robot import Robot, load_robot
+
+#: Formulations of the linear answer.
+FORMULATIONS = ("conventional", "enhanced")
+#: 6x6 connections of Zefran & Kumar (target body axes).
+CONNECTIONS = ("joint", "twist")
+
+
+def joint_preload(robot: Robot, weighed: pin.Model | None,
+                  compensators: tuple | list, q: np.ndarray, weight_stiffness: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Torque (n,) of the weight and the spring compensators on the compliant joints at the
+    full configuration ``q``, and its derivative ``K_p`` (n, n).
+
+    Parameters
+    ----------
+    robot
+        The robot.
+    weighed
+        Its Pinocchio model with the payload (:func:`stiffness.mechanics.gravity.with_payload`),
+        or ``None`` (no weight).
+    compensators
+        ``(joint, stiffness N/m, tension N, geometry)``
+        (:meth:`stiffness.elastic.effects.base.ElasticParts.add_compensator`).
+    weight_stiffness
+        Whether the weight's derivative ``K_g = -dg/dq`` enters ``K_p`` (the ``enhanced``
+        formulation); the compensators' always does.
+    """
+    n = robot.n_compliant
+    tau, k = np.zeros(n), np.zeros((n, n))
+    if weighed is not None:
+        tau, k = gravity_preload(robot, q, model=weighed)
+        if not weight_stiffness:
+            k = np.zeros((n, n))
+    for joint, k_s, f0, g in compensators:
+        i = list(robot.compliant_joints).index(joint)
+        jm = robot.model.joints[robot.model.getJointId(joint)]
+        t, dt = spring_balancer(q[jm.idx_q], k_s, f0, g["lever_m"], g["base_m"], g["angle0_rad"])
+        tau[i] += t
+        k[i, i] += dt
+    return tau, k
+
+
+@dataclass
+class ElasticModel:
+    """A robot with what acts on it under a load (SI).
+
+    Attributes
+    ----------
+    robot
+        The robot: its compliant joints are the springs, its target the (moved) target.
+    law
+        Joint law over ``robot.coordinate_joints`` (zero compliance: a rigid coordinate).
+    links
+        Link bends, any order.
+    formulation
+        The formulation the model was identified with (``enhanced`` or ``conventional``): that
+        of the first-order deflection of :func:`stiffness.elastic.loaded.linear_deflection`.
+    ignored
+        Labels of the effects that do not act on the robot (measurement effects).
+    source
+        The model file, if any.
+    k_theta
+        (n,) stiffness of ``robot.compliant_joints`` (N.m/rad, N/m); default ``1 / compliance``.
+    payload
+        ``(mass kg, centre of mass (3,) m in target frame axes)`` when the links' weight and a
+        payload preload the joints, else ``None``.
+    compensators
+        Spring gravity compensators ``(joint, stiffness N/m, tension N, geometry)``.
+    misalignment, force_bias, deflection_offset
+        How a campaign observed the deflections (rad, N, m); not applied to the robot.
+    applied, not_applied
+        A model file's effects that enter the stiffness, and ``(effect, reason)`` of those
+        that do not (:class:`stiffness.elastic.model_file.ModelEffect`).
+    beyond_springs
+        Labels of the applied effects that a diagonal ``K_theta`` cannot carry (a nonlinear
+        spring, a link bend, a preload): the batched scan and the 6x6 connections refuse them.
+    fitted
+        A model file's fitted prediction ``(q, load, measured) -> dx``
+        (:func:`stiffness.elastic.model_file.fitted_deflection`), else ``None``.
+    """
+
+    robot: Robot
+    law: SpringLaw
+    links: tuple[LinkBend, ...] = ()
+    formulation: str = "enhanced"
+    ignored: tuple[str, ...] = ()
+    source: str | None = None
+    k_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    payload: tuple[float, np.ndarray] | None = None
+    compensators: tuple[tuple[str, float, float, dict], ...] = ()
+    misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    force_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    deflection_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    applied: tuple = ()
+    not_applied: tuple = ()
+    beyond_springs: tuple[str, ...] = ()
+    fitted: Callable[..., np.ndarray] | None = field(default=None, repr=False)
+    _full: Robot | None = field(default=None, repr=False)
+    _weighed: pin.Model | None = field(default=None, repr=False)
+    _geometry: Geometry | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.k_theta.size == 0:
+            self.k_theta = 1.0 / self.law.compliance[self.robot.compliant_in_coordinates]
+        if self.payload is not None:
+            require_open_chain(self.robot, "gravity_preload")
+            self._weighed = with_payload(self.robot, *self.payload)
+
+    # construction ------------------------------------------------------------------------
+    @classmethod
+    def joint_springs(cls, robot: Robot, k_theta: np.ndarray | list[float],
+                      formulation: str = "enhanced") -> ElasticModel:
+        """Linear springs ``k_theta`` (N.m/rad, N/m; a vector or a diagonal matrix) on the
+        robot's compliant joints.
+
+        Raises
+        ------
+        StiffnessError
+            Not one finite positive stiffness per compliant joint.
+        """
+        k = np.asarray(k_theta, dtype=float)
+        k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
+        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise StiffnessError(
+                f"need one finite positive stiffness per compliant joint of {robot.name} "
+                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+        n = robot.n_coordinates
+        compliance_ = np.zeros(n)
+        compliance_[robot.compliant_in_coordinates] = 1.0 / k
+        return cls(robot, SpringLaw(compliance_, np.zeros(n), np.zeros(n), np.ones(n)),
+                   formulation=formulation, k_theta=k.copy())
+
+    @classmethod
+    def of_parts(cls, robot: Robot, parts: ElasticParts, formulation: str = "enhanced",
+                 link_columns: dict[tuple[str, str], int] | None = None, **extra
+                 ) -> ElasticModel:
+        """The model of what effects contributed (:class:`ElasticParts`), on ``robot`` loaded
+        with ``parts.springs`` compliant and the target shifted by ``parts.target_shift``.
+
+        ``link_columns`` picks the bend axes (default those of the robot's geometry,
+        :attr:`stiffness.elastic.effects.geometry.Geometry.link_columns`); ``extra``: further
+        attributes (``source``, ``applied``, ``not_applied``, ``beyond_springs``).
+        """
+        geometry = None
+        if parts.bends and link_columns is None:
+            geometry = Geometry.of(robot)
+            link_columns = geometry.link_columns
+        links = tuple(LinkBend(a, b, link_columns[(a, b)], (k1, k2))
+                      for a, b, k1, k2 in parts.bends) if link_columns is not None else ()
+        return cls(robot, parts.law(robot.coordinate_joints), links, formulation,
+                   tuple(parts.not_applied), k_theta=np.array(
+                       [parts.springs[j] for j in robot.compliant_joints], dtype=float),
+                   payload=parts.payload, compensators=tuple(parts.compensators),
+                   misalignment=parts.misalignment, force_bias=parts.force_bias,
+                   deflection_offset=parts.deflection_offset, _geometry=geometry, **extra)
+
+    @classmethod
+    def with_effects(cls, robot: Robot, k_theta: np.ndarray | list[float],
+                     effects: list[tuple[Effect, np.ndarray]], formulation: str = "enhanced"
+                     ) -> ElasticModel:
+        """Joint springs ``k_theta`` (N.m/rad, N/m) on the robot's compliant joints plus
+        ``effects``, each ``(effect, SI parameter values)`` contributing through its one hook
+        (:meth:`stiffness.elastic.effects.base.Effect.contribute`); the robot is reloaded
+        with the springs effects add and its target moved by a target shift.
+
+        Raises
+        ------
+        StiffnessError
+            A bad stiffness, or an effect that does not fit the robot.
+        """
+        k = np.asarray(k_theta, dtype=float).reshape(-1)
+        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
+            raise StiffnessError(
+                f"need one finite positive stiffness per compliant joint of {robot.name} "
+                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+        parts = ElasticParts(dict(zip(robot.compliant_joints, k.tolist(), strict=True)))
+        for effect, values in effects:
+            effect.contribute(np.asarray(values, dtype=float), parts)
+        parts.check_joints()
+        loaded = load_robot(robot.name, frame=robot.target_frame,
+                            target_offset=robot.target_offset + parts.target_shift,
+                            compliant_joints=tuple(parts.springs), loops=robot.loop_file,
+                            fixed_base=robot.fixed_base)
+        return cls.of_parts(loaded, parts, formulation)
+
+    # what it is ------------------------------------------------------------------------
+    @property
+    def full(self) -> Robot:
+        """The robot with every coordinate compliant (Jacobians w.r.t. all coordinates)."""
+        if self._full is None:
+            self._full = all_coordinates(self.robot)
+        return self._full
+
+    @property
+    def joint_only(self) -> bool:
+        """Whether joint motions are the only effect (the compensation is closed-form)."""
+        return not self.links
+
+    @property
+    def preloaded(self) -> bool:
+        """Whether a preload (the weight, a compensator) acts at every pose."""
+        return self._weighed is not None or bool(self.compensators)
+
+    def compliant_law(self) -> SpringLaw:
+        """The joint law over ``robot.compliant_joints`` (the coordinates' law restricted)."""
+        idx = self.robot.compliant_in_coordinates
+        law = self.law
+        return SpringLaw(law.compliance[idx], law.beta[idx], law.backlash[idx],
+                         law.smoothing[idx])
+
+    def ordered_links(self) -> list[LinkBend]:
+        """Links from the base to the tip (by the chain position of ``b``, then ``a``)."""
+        model = self.robot.model
+        depth = {name: len(model.supports[model.getJointId(name)]) for name in model.names}
+        return sorted(self.links, key=lambda lk: (depth[lk.b], depth[lk.a]))
+
+    def describe(self) -> str:
+        """E.g. ``joint springs on joint1, joint2 + link bend joint2->joint3``."""
+        names = [j for j, c in zip(self.robot.coordinate_joints, self.law.compliance,
+                                   strict=True) if c > 0]
+        text = f"joint springs on {', '.join(names) or 'no joint'}"
+        if np.any(self.law.beta != 0):
+            text += " (nonlinear)"
+        if np.any(self.law.backlash != 0):
+            text += " + backlash"
+        return text + "".join(f" + link bend {lk.a}->{lk.b}" for lk in self.links)
+
+    def deflection(self, q: np.ndarray, load: np.ndarray, measured: bool = False
+                   ) -> np.ndarray:
+        """The fitted model's predicted target displacement (3,) in m at coordinates ``q``
+        under a dead ``load``: every effect applied, lost motion included, measurement effects
+        only with ``measured`` (a model read from a model file only).
+
+        Raises
+        ------
+        StiffnessError
+            A model not read from a model file.
+        """
+        if self.fitted is None:
+            raise StiffnessError("only a model read from a model file has a fitted prediction; "
+                                 "use .at(q, wrench).equilibrium() for the exact deflection")
+        return self.fitted(q, load, measured)
+
+    # at a pose ---------------------------------------------------------------------------
+    def configuration(self, q: np.ndarray | list[float]) -> np.ndarray:
+        """Full configuration of coordinates (n_coordinates,) or of a full ``q`` (nq,).
+
+        Raises
+        ------
+        StiffnessError
+            Neither length.
+        """
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape[0] == self.robot.n_coordinates:
+            return self.robot.configuration(q)
+        if q.shape[0] == self.robot.model.nq:
+            return q
+        raise StiffnessError(
+            f"give {self.robot.n_coordinates} coordinates of {self.robot.name} "
+            f"({', '.join(self.robot.coordinate_joints)}) or a full configuration of "
+            f"{self.robot.model.nq} values; got {q.shape[0]}")
+
+    def at(self, q: np.ndarray | list[float], wrench: np.ndarray | list[float] | None = None,
+           formulation: str = "enhanced") -> ElasticState:
+        """The model at a pose and a load.
+
+        Parameters
+        ----------
+        q
+            Coordinates (rad, m) in ``robot.coordinate_joints`` order, or a full configuration:
+            the commanded pose.
+        wrench
+            Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default zero.
+        formulation
+            Default formulation of the state's linear answers (``enhanced`` or
+            ``conventional``).
+        """
+        return ElasticState(self, q, np.zeros(3) if wrench is None else wrench, formulation)
+
+    def preload(self, q: np.ndarray, formulation: str = "enhanced"
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Torque (n,) of the weight and the compensators on the compliant joints at the full
+        configuration ``q``, and its derivative ``K_p`` (n, n): the compensators' always, the
+        weight's (``K_g``) in the ``enhanced`` formulation only (zeros without preloads)."""
+        return joint_preload(self.robot, self._weighed, self.compensators, q,
+                             weight_stiffness=formulation == "enhanced")
+
+    def preloaded_configuration(self, q: np.ndarray) -> np.ndarray:
+        """The unloaded pose under the weight and the compensators: the commanded full
+        configuration ``q`` deflected by ``dtheta_0 = f(tau_p + K_p dtheta_0)`` (the joint law
+        at frozen geometry, its nonlinear springs included), loops closed."""
+        tau_p, k_p = self.preload(q)
+        law = SpringLaw(1.0 / self.k_theta, self.compliant_law().beta,
+                        np.zeros(len(self.k_theta)), np.ones(len(self.k_theta)))
+        dtheta0 = tangent_equilibrium(law, tau_p, k_p)
+        return deflected_configuration(self.robot, q, dtheta0, q)
+
+    def tangent_stiffness(self, tau0: np.ndarray, k_c: np.ndarray) -> np.ndarray:
+        """(n, n) joint tangent stiffness ``K_t`` at the torques ``tau0 = J^T W (+ tau_p)``:
+        ``K_theta`` for linear springs, else the inverse slope of the law (backlash, lost
+        motion, left out) at the frozen-geometry equilibrium under ``K_c``."""
+        beta = self.compliant_law().beta
+        if not np.any(beta != 0):
+            return np.diag(self.k_theta)
+        law = SpringLaw(1.0 / self.k_theta, beta, np.zeros_like(beta), np.ones_like(beta))
+        dtheta = tangent_equilibrium(law, tau0, k_c)
+        return np.diag(1.0 / law(tau0 + k_c @ dtheta)[1])
+
+    def link_compliance(self, q: np.ndarray, position: np.ndarray) -> np.ndarray:
+        """(6, 6) compliance the link bends add at the full configuration ``q`` with the target
+        at ``position`` (m): ``G E diag(1/k) E^T G^T`` per bend, ``G = [-[r]x; I]``, ``r`` from
+        the bend's point to the target."""
+        link = np.zeros((6, 6))
+        if not self.links:
+            return link
+        if self._geometry is None:
+            self._geometry = Geometry.of(self.robot)
+        chain = self._geometry.chain
+        pin.forwardKinematics(self.robot.model, self.robot.data, q)
+        origins, rotations = chain_placements(self.robot, chain)
+        for lk in self.links:
+            ia, ib = chain.index(lk.a), chain.index(lk.b)
+            e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib], lk.column)
+            g = np.vstack([-skew(position - origins[ib]), np.eye(3)])
+            e = np.column_stack([e1, e2])
+            link += g @ e @ np.diag([1.0 / lk.stiffness[0], 1.0 / lk.stiffness[1]]) @ e.T @ g.T
+        return link
+
+
+@dataclass
+class Linearisation:
+    """The linear model at a pose and load in one formulation (SI; base axes at the target).
+
+    Attributes
+    ----------
+    formulation
+        ``enhanced`` or ``conventional``.
+    k_tangent
+        (n, n) joint tangent stiffness at the load.
+    k_c
+        (n, n) ``K_C`` entering the compliance (zero in the conventional formulation).
+    preload_torque, k_preload
+        (n,) torque of the weight and compensators, and its derivative ``K_p`` (n, n).
+    link_compliance
+        (6, 6) compliance of the link bends.
+    """
+
+    formulation: str
+    k_tangent: np.ndarray
+    k_c: np.ndarray
+    preload_torque: np.ndarray
+    k_preload: np.ndarray
+    link_compliance: np.ndarray
+
+    @property
+    def joint_stiffness(self) -> np.ndarray:
+        """``K_t - K_C - K_p`` (n, n)."""
+        return self.k_tangent - self.k_c - self.k_preload
+
+
+class ElasticState:
+    """An elastic model at a commanded pose under a wrench (SI; base axes at the target).
+
+    Attributes
+    ----------
+    model
+        The elastic model.
+    q_commanded
+        Commanded full configuration (loops closed).
+    q
+        Operating full configuration: ``q_commanded``, or with a preload the pose it sags to
+        (:meth:`ElasticModel.preloaded_configuration`); J and K_C are those of this pose.
+    load
+        The wrench as given: a force (3,) N or a wrench (6,) N, N.m.
+    wrench
+        The wrench [F (N); M (N.m)] (6,).
+    commanded
+        Target state at ``q`` under the wrench
+        (:class:`stiffness.mechanics.formulation.TargetState`).
+    operating
+        Target state at the operating pose: ``q``, or with a preload the pose it sags to
+        (:meth:`ElasticModel.preloaded_configuration`).
+    formulation
+        Default formulation of :meth:`compliance`, :meth:`stiffness` and the attributes of
+        the linearisation (``k_tangent``, ``compliance6``...).
+    """
+
+    def __init__(self, model: ElasticModel, q: np.ndarray | list[float],
+                 load: np.ndarray | list[float], formulation: str = "enhanced") -> None:
+        _check_formulation(formulation)
+        self.model, self.formulation = model, formulation
+        self.load = np.asarray(load, dtype=float).reshape(-1)
+        self.wrench = as_wrench(self.load)
+        self.q_commanded = model.configuration(q)
+        self.commanded = target_state(model.robot, self.q_commanded, self.wrench)
+        self.q = self.q_commanded
+        self.operating = self.commanded
+        if model.preloaded:
+            self.q = model.preloaded_configuration(self.q_commanded)
+            self.operating = target_state(model.robot, self.q, self.wrench)
+        self._linear: dict[str, Linearisation] = {}
+        self._link = model.link_compliance(self.q, self.operating.position)
+
+    # the pose ----------------------------------------------------------------------------
+    @property
+    def robot(self) -> Robot:
+        """The model's robot."""
+        return self.model.robot
+
+    @property
+    def jacobian(self) -> np.ndarray:
+        """(6, n) target Jacobian w.r.t. ``robot.compliant_joints`` at the operating pose, rows
+        [v (m/rad); omega (rad/rad)]."""
+        return self.operating.jacobian
+
+    @property
+    def k_c(self) -> np.ndarray:
+        """(n, n) complementary stiffness ``K_C`` of the wrench at the operating pose
+        (N.m/rad)."""
+        return self.operating.k_c
+
+    @property
+    def position(self) -> np.ndarray:
+        """Target position (m) at the operating pose."""
+        return self.operating.position
+
+    @property
+    def k_theta(self) -> np.ndarray:
+        """(n,) nominal joint stiffness (N.m/rad, N/m)."""
+        return self.model.k_theta
+
+    # the linear answer -------------------------------------------------------------------
+    def linearisation(self, formulation: str | None = None) -> Linearisation:
+        """The linear model in ``formulation`` (default :attr:`formulation`), computed once."""
+        formulation = formulation or self.formulation
+        _check_formulation(formulation)
+        if formulation not in self._linear:
+            state = self.operating
+            k_c = state.k_c if formulation == "enhanced" else np.zeros_like(state.k_c)
+            tau_p, k_p = self.model.preload(self.q, formulation)
+            k_t = self.model.tangent_stiffness(state.jacobian.T @ self.wrench + tau_p, k_c + k_p)
+            self._linear[formulation] = Linearisation(formulation, k_t, k_c, tau_p, k_p,
+                                                      self._link)
+        return self._linear[formulation]
+
+    def compliance(self, rows: slice = slice(0, 3), formulation: str | None = None
+                   ) -> np.ndarray:
+        """Compliance ``J (K_t - K_C - K_p)^-1 J^T + C_link`` on ``rows`` (default the 3x3
+        translational block, m/N; ``slice(0, 6)``: the 6x6, rows [v; omega]).
+
+        Raises
+        ------
+        SingularConfigurationError
+            If ``K_t - K_C - K_p`` is singular (the load is at the buckling limit).
+        """
+        lin = self.linearisation(formulation)
+        jac = self.jacobian[rows]
+        return compliance(jac, lin.joint_stiffness) + lin.link_compliance[rows, rows]
+
+    def stiffness(self, formulation: str = "enhanced", connection: str | None = None,
+                  dims: int | None = None, twist_order: str | None = None) -> np.ndarray:
+        """Cartesian stiffness K_X: what ``stiffness kx`` reports for the same model, pose and
+        wrench with the same flags (its default with no argument).
+
+        Parameters
+        ----------
+        formulation
+            ``enhanced`` (``K_t - K_C``, A&S eq. 10) or ``conventional`` (eq. 8).
+        connection
+            ``None``: ``C^-1`` in base axes at the target; ``joint`` or ``twist``: the 6x6
+            stiffness of Zefran & Kumar in the target's body axes (joint springs only).
+        dims
+            3 (N/m) or 6 (blocks N/m | N | N.m/rad); default 6 for a wrench given with six
+            components or a connection, else 3.
+        twist_order
+            Row order of a 6x6 (``v-w`` or ``w-v``); default the robot's own, else ``v-w``.
+
+        Raises
+        ------
+        SingularConfigurationError
+            Where K_X does not exist (singular compliance or Jacobian).
+        StiffnessError
+            A connection asked of a model with effects beyond joint springs.
+        """
+        dims = self.dims(connection, dims)
+        if connection is not None:
+            k_x = self.connection_stiffness(connection)
+        else:
+            k_x = cartesian_stiffness(self.compliance(slice(0, dims), formulation))
+        return k_x if dims == 3 else reorder_twist(k_x, self.twist_order(twist_order))
+
+    def dims(self, connection: str | None = None, dims: int | None = None) -> int:
+        """Rows of the answers: ``dims``, or 6 for a wrench or a connection, else 3.
+
+        Raises
+        ------
+        StiffnessError
+            ``dims`` not 3 or 6, or 3 with a connection.
+        """
+        if dims is None:
+            return 6 if self.load.shape[0] == 6 or connection is not None else 3
+        if dims not in (3, 6) or (connection is not None and dims != 6):
+            raise StiffnessError(f"dims must be 3 or 6 (6 with a connection), got {dims!r}")
+        return int(dims)
+
+    def twist_order(self, order: str | None = None) -> str:
+        """Row order of 6x6 answers: ``order``, else the robot's ``twist_order``, else ``v-w``.
+
+        Raises
+        ------
+        StiffnessError
+            An unknown order.
+        """
+        order = order or self.robot.defaults.get("twist_order", "v-w")
+        if order not in TWIST_ORDERS:
+            raise StiffnessError(f"twist_order of {self.robot.name} must be one of "
+                                 f"{list(TWIST_ORDERS)}, got {order!r}")
+        return order
+
+    def connection_stiffness(self, connection: str) -> np.ndarray:
+        """The 6x6 stiffness of Zefran & Kumar in the target's body axes, rows [v; omega]:
+        ``joint`` (``J_b^-T K_theta J_b^-1``) or ``twist`` (``J_b^-T (K_theta - K_C^tw)
+        J_b^-1``, asymmetric under load), at the commanded pose.
+
+        Raises
+        ------
+        StiffnessError
+            An unknown connection, or a model with effects beyond joint springs.
+        SingularConfigurationError
+            A singular body Jacobian (or not six compliant joints).
+        """
+        if connection not in CONNECTIONS:
+            raise UnknownNameError(f"connection must be one of {', '.join(CONNECTIONS)}, got "
+                                   f"{connection!r}", name=connection, choices=CONNECTIONS)
+        if self.model.beyond_springs or self.model.links or self.model.preloaded or np.any(
+                self.model.law.beta != 0):
+            raise StiffnessError("--connection gives the 6x6 stiffness of joint springs alone; "
+                                 "the model's link_compliance, nonlinear_joint_stiffness or "
+                                 "gravity effects cannot enter it: drop --connection")
+        k_theta = np.diag(self.k_theta)
+        if connection == "joint":
+            return joint_connection_stiffness(self.commanded, k_theta)
+        return twist_basis_stiffness(self.commanded, k_theta)
+
+    @property
+    def compliance6(self) -> np.ndarray:
+        """(6, 6) compliance in the default formulation, rows [v; omega]."""
+        return self.compliance(slice(0, 6))
+
+    @property
+    def k_tangent(self) -> np.ndarray:
+        """(n, n) joint tangent stiffness at the load (default formulation)."""
+        return self.linearisation().k_tangent
+
+    @property
+    def link_compliance(self) -> np.ndarray:
+        """(6, 6) compliance of the link bends."""
+        return self._link
+
+    @property
+    def preload_torque(self) -> np.ndarray:
+        """(n,) torque of the weight and compensators at the operating pose."""
+        return self.linearisation().preload_torque
+
+    @property
+    def k_preload(self) -> np.ndarray:
+        """(n, n) its derivative ``K_p`` (default formulation)."""
+        return self.linearisation().k_preload
+
+    def k_x(self, rows: slice = slice(0, 3)) -> np.ndarray:
+        """``C[rows, rows]^-1`` in the default formulation (default 3x3, N/m), base axes."""
+        return cartesian_stiffness(self.compliance(rows))
+
+    # stability ---------------------------------------------------------------------------
+    @property
+    def definiteness(self) -> dict[str, str]:
+        """Definiteness of ``K_C`` and of ``K_theta - K_C`` at the commanded pose
+        (:func:`stiffness.mechanics.formulation.definiteness`)."""
+        k_theta = np.diag(self.k_theta)
+        k_c = self.commanded.k_c
+        return {"K_C": definiteness(k_c),
+                "K_theta_minus_K_C": tangent_definiteness(k_theta, k_theta - k_c)}
+
+    @property
+    def critical_load_factor(self) -> float:
+        """Smallest ``lambda > 0`` with ``K_t - K_p - lambda K_C`` singular: the factor on the
+        wrench at which the arm buckles (inf if it never does along this wrench; 0 if the
+        preload alone does). Physical ``K_C`` and ``K_p`` (those of the enhanced formulation),
+        :func:`stiffness.batch.linalg.critical_load_factor`."""
+        lin = self.linearisation("enhanced")
+        base = lin.k_tangent - lin.k_preload
+        if np.count_nonzero(base - np.diag(np.diag(base))) == 0:
+            return float(critical_load_factor(base, self.k_c))
+        try:
+            chol = np.linalg.cholesky(0.5 * (base + base.T))
+        except np.linalg.LinAlgError:
+            return 0.0
+        whitened = np.linalg.solve(chol, np.linalg.solve(chol, self.k_c).T)
+        return float(critical_load_factor(np.eye(len(base)), whitened))
+
+    @property
+    def stable(self) -> bool:
+        """Whether the arm is stable under the wrench (critical load factor above 1)."""
+        return self.critical_load_factor > 1.0
+
+    # the exact answer --------------------------------------------------------------------
+    def equilibrium(self) -> Deflection:
+        """The exact loaded equilibrium at the commanded pose and its deflection from the
+        unloaded one (under a preload both are solved with it; link bends and a preload
+        together are not modelled).
+
+        Raises
+        ------
+        StiffnessError
+            No convergence, an unstable equilibrium, or link bends with a preload.
+        """
+        model = self.model
+        if not model.preloaded:
+            command = self.q_commanded
+            loaded = loaded_equilibrium(model, model.robot.coordinates_of(command), self.wrench,
+                                        seed_q=command)
+            rest = target_state(model.robot, command)
+            return Deflection(loaded.q, loaded.position, loaded.position - rest.position,
+                              pin.log3(loaded.rotation @ rest.rotation.T), loaded)
+        if model.links:
+            raise StiffnessError("the exact equilibrium of link bends under a preload (weight, "
+                                 "compensator) is not modelled; drop one of them")
+        law = model.compliant_law()
+        unloaded = solve_equilibrium(model.robot, self.q_commanded, law, np.zeros(6),
+                                     preload=model.preload)
+        eq = solve_equilibrium(model.robot, self.q_commanded, law, self.wrench,
+                               preload=model.preload)
+        before, after = target_state(model.robot, unloaded.q), target_state(model.robot, eq.q)
+        return Deflection(eq.q, after.position, after.position - before.position,
+                          pin.log3(after.rotation @ before.rotation.T), None)
+
+
+@dataclass
+class Deflection:
+    """The exact loaded equilibrium of an :class:`ElasticState`.
+
+    Attributes
+    ----------
+    q
+        Full configuration at equilibrium (loops closed; without the bends' rotation).
+    position
+        Target position (m) at equilibrium, base frame.
+    dx
+        (3,) target displacement from the unloaded equilibrium (m).
+    dphi
+        (3,) rotation vector of the target frame from the unloaded equilibrium (rad, base
+        axes).
+    loaded
+        The solver's state with link bends (:class:`stiffness.elastic.loaded.Loaded`), or
+        ``None`` under a preload.
+    """
+
+    q: np.ndarray
+    position: np.ndarray
+    dx: np.ndarray
+    dphi: np.ndarray
+    loaded: Loaded | None = None
+
+    @property
+    def twist(self) -> np.ndarray:
+        """(6,) ``[dx; dphi]`` (m; rad)."""
+        return np.concatenate([self.dx, self.dphi])
+
+
+def _check_formulation(formulation: str) -> None:
+    if formulation not in FORMULATIONS:
+        raise UnknownNameError(f"formulation must be one of {', '.join(FORMULATIONS)}, got "
+                               f"{formulation!r}", name=formulation, choices=FORMULATIONS)
+
