@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.elastic.loaded import linear_deflection
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
