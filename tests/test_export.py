@@ -95,11 +95,20 @@ def simulate_to_rest(xml: str, force: np.ndarray, armature: float, damping: np.n
     return d.site_xpos[site].copy(), d.qpos.copy()
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_mujoco_springs_hold_the_target_at_the_exact_equilibrium(seed):
+UR5_SPRINGS = {"shoulder_pan_joint": 8e4, "shoulder_lift_joint": 8e4, "elbow_joint": 5e4,
+               "wrist_1_joint": 2e4, "wrist_2_joint": 2e4, "wrist_3_joint": 2e4}
+
+
+@pytest.mark.parametrize("seed, compliant", [
+    (0, tuple(UR5_SPRINGS)), (1, tuple(UR5_SPRINGS)),
+    (2, ("shoulder_lift_joint", "elbow_joint", "wrist_2_joint")),  # the others welded rigid
+])
+def test_mujoco_springs_hold_the_target_at_the_exact_equilibrium(seed, compliant):
+    """Measured: 1.5e-12 to 5.4e-12 of deflections of 0.56 to 1.1 mm."""
     rng = np.random.default_rng(seed)
-    robot = load_robot("ur5", frame="tool0", target_offset=[0.0, 0.05, 0.1])
-    k = np.array([8e4, 8e4, 5e4, 2e4, 2e4, 2e4]) * rng.uniform(0.5, 2.0, 6)
+    robot = load_robot("ur5", frame="tool0", target_offset=[0.0, 0.05, 0.1],
+                       compliant_joints=compliant)
+    k = np.array([UR5_SPRINGS[j] for j in compliant]) * rng.uniform(0.5, 2.0, len(compliant))
     q0 = robot.configuration(np.array([0.3, -1.1, 1.4, -0.6, 1.2, 0.4])
                              + rng.uniform(-0.3, 0.3, 6))
     force = rng.uniform(-80.0, 80.0, 3)
@@ -110,37 +119,38 @@ def test_mujoco_springs_hold_the_target_at_the_exact_equilibrium(seed):
     assert np.linalg.norm(exact.dx) > 1e-4  # a deflection worth comparing (m)
     relative = np.linalg.norm(position - exact.position) / np.linalg.norm(exact.dx)
     assert relative < 1e-6, relative
-    np.testing.assert_allclose(qpos, exact.q, atol=1e-9)
+    np.testing.assert_allclose(qpos, exact.q[robot.compliant_v], atol=1e-9)
 
 
-def test_mjcf_sites_and_loops_agree_with_pinocchio_at_the_rest_keyframe(tmp_path):
-    """Every site where Pinocchio puts its frame, the loop closed (connect residual ~ 0), the
-    springs at rest: the SK120 (loops, massless links) and the Panda (a mimic follower)."""
+@pytest.mark.parametrize("name, compliant", [
+    ("panda", None),  # a mimic follower
+    ("panda", ("panda_joint2", "panda_joint4")),  # rigid joints welded, the gripper with them
+    ("ur5", ("shoulder_lift_joint", "wrist_3_joint")),
+])
+def test_mjcf_sites_agree_with_pinocchio_at_the_rest_keyframe(name, compliant):
+    """Every site where Pinocchio puts its frame, the mimic constraint satisfied, the springs
+    at rest; one MuJoCo joint per spring (rigid joints welded) and per free mimic follower."""
     import mujoco
 
-    for name in ("sk120", "panda"):
-        robot = load_robot(name)
-        coords = np.linspace(0.1, 0.3, robot.n_coordinates)
-        q = robot.configuration(coords)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RobotFileWarning)
-            xml = robot_mjcf(robot, {j: 1e5 for j in robot.compliant_joints}, q)
-        m = mujoco.MjModel.from_xml_string(xml)
-        d = mujoco.MjData(m)
-        mujoco.mj_resetDataKeyframe(m, d, 0)
-        mujoco.mj_forward(m, d)
-        data = robot.model.createData()
-        pin.framesForwardKinematics(robot.model, data, q)
-        for i in range(m.nsite):
-            placement = data.oMf[robot.model.getFrameId(m.site(i).name)]
-            np.testing.assert_allclose(d.site_xpos[i], placement.translation, atol=1e-12)
-            np.testing.assert_allclose(d.site_xmat[i].reshape(3, 3), placement.rotation,
-                                       atol=1e-12)
-        equality = d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
-        np.testing.assert_allclose(d.efc_pos[equality], 0.0, atol=1e-12)
-        assert m.neq == len(robot.loop.pairs) + len(robot.mimics) + \
-            len(set(robot.coordinate_joints) - set(robot.compliant_joints))
-        np.testing.assert_allclose(d.qfrc_spring, 0.0, atol=1e-9)
+    robot = load_robot(name, compliant_joints=compliant)
+    q = robot.configuration(np.linspace(0.1, 0.3, robot.n_coordinates))
+    xml = robot_mjcf(robot, {j: 1e5 for j in robot.compliant_joints}, q)
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    mujoco.mj_forward(m, d)
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, q)
+    for i in range(m.nsite):
+        placement = data.oMf[robot.model.getFrameId(m.site(i).name)]
+        np.testing.assert_allclose(d.site_xpos[i], placement.translation, atol=1e-12)
+        np.testing.assert_allclose(d.site_xmat[i].reshape(3, 3), placement.rotation,
+                                   atol=1e-12)
+    equality = d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    np.testing.assert_allclose(d.efc_pos[equality], 0.0, atol=1e-12)
+    followers = sum(mimic.leader in robot.compliant_joints for mimic in robot.mimics)
+    assert m.njnt == robot.n_compliant + followers and m.neq == followers
+    np.testing.assert_allclose(d.qfrc_spring, 0.0, atol=1e-9)
 
 
 def test_mjcf_from_a_model_file_carries_its_springs(tmp_path):
@@ -148,8 +158,8 @@ def test_mjcf_from_a_model_file_carries_its_springs(tmp_path):
 
     from stiffness.elastic.model_file import read_model_file
 
-    model = Path(__file__).resolve().parent / "data" / "sk120-final-model.json"
-    out = tmp_path / "sk120.xml"
+    model = Path(__file__).resolve().parents[1] / "docs" / "compensation" / "ur5-model.json"
+    out = tmp_path / "ur5.xml"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RobotFileWarning)
         assert main(["robot", "export", "--model", str(model), "--mjcf", str(out),
@@ -168,6 +178,7 @@ def test_mjcf_from_a_model_file_carries_its_springs(tmp_path):
     (["--robot", "ur5", "--mjcf", "OUT"], ["--kq is required"]),
     (["--robot", "ur5", "--mjcf", "OUT", "--kq", "1,2"], ["--kq needs 6"]),
     (["--robot", "nosuchrobot", "--urdf", "OUT"], ["nosuchrobot"]),
+    (["--robot", "sk120", "--mjcf", "OUT"], ["closed loops", "--urdf"]),
 ])
 def test_bad_input_gives_one_line(args, words, tmp_path, capsys):
     out = str(tmp_path / "out.xml")

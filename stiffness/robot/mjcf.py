@@ -9,17 +9,20 @@ forces can be applied and positions read where the toolkit reads them.
 Joints: revolute -> ``hinge`` (continuous ones unlimited), prismatic -> ``slide``, with the
 model's finite limits as ``range`` and its damping and friction. A compliant joint gets
 ``stiffness`` (its spring, N.m/rad or N/m) and ``springref`` (the spring's rest value, rad or m).
-What the elastostatic model holds rigid is held by MuJoCo equality constraints: a rigid
-coordinate joint is locked at its rest value (``<joint joint1 polycoef>``), a mimic follower
-follows its leader, and each loop closure is a ``<connect site1 site2>`` ("3D": the two points
-coincide) or a ``<weld site1 site2>`` ("6D": the two frames coincide) between the sites of its
-frame pair. MuJoCo's constraints are soft; these are made stiff (``solref``, ``solimp`` of
-:data:`STIFF_SOLREF`, :data:`STIFF_SOLIMP`), so that they give way by far less than the springs
-under the loads a robot carries. Passive loop joints are free. A keyframe ``rest`` holds the
-full configuration at the springs' rest (loops closed). Gravity is the model's.
+A rigid coordinate joint (not compliant) is written without a ``<joint>``: its body is welded
+at the joint's rest value, exactly as rigid as the elastostatic model holds it (so is the mimic
+follower of a rigid leader). A mimic follower of a compliant joint follows its leader by an
+equality constraint (``<joint joint1 joint2 polycoef>``, made stiff by :data:`STIFF_SOLREF`
+and :data:`STIFF_SOLIMP`). A keyframe ``rest`` holds the configuration at the springs' rest.
+Gravity is the model's.
 
-MuJoCo refuses a moving body without mass; massless links (a purely kinematic model such as
-the SK120's) are given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by the
+Closed loops are refused. MuJoCo closes a loop by a soft equality constraint (``connect``), whose
+stiffness scales with the bodies' effective inertia and the time step, not with the joint
+springs: on the SK120 under its paper load, damped to rest, the loop gave way by 0.1 mm to
+0.5 m depending on ``solref``/``solimp`` and the target missed the exact equilibrium by 47 % to
+3000x the deflection, so such an export would not be the robot's elastostatics.
+
+MuJoCo refuses a moving body without mass; massless links (a purely kinematic model) are given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by the
 compiler's ``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
 
 Units: SI (m, rad, kg, kg.m^2, N.m/rad, N/m).
@@ -135,38 +138,43 @@ def _sites(parent: etree._Element, robot: Robot, j: int, taken: set[str]) -> Non
 
 
 def _bodies(parent: etree._Element, robot: Robot, j: int, springs: dict[str, float],
-            rest: np.ndarray, order: list[int], massless: list[str], taken: set[str]) -> None:
-    """The bodies of the children of joint ``j``, depth first (MuJoCo's coordinate order)."""
+            rest: tuple[np.ndarray, pin.Data], order: list[int], massless: list[str],
+            taken: set[str]) -> None:
+    """The bodies of the children of joint ``j``, depth first (MuJoCo's coordinate order);
+    ``rest`` is the rest configuration and the model's data at it."""
     model = robot.model
+    q, data = rest
     for child in range(1, model.njoints):
         if model.parents[child] != j:
             continue
-        body = etree.SubElement(parent, "body", name=model.names[child])
-        _place(body, model.jointPlacements[child])
+        name = model.names[child]
+        body = etree.SubElement(parent, "body", name=name)
+        rigid = _rigid(robot, name, springs)
+        _place(body, data.oMi[j].actInv(data.oMi[child]) if rigid  # welded at rest
+               else model.jointPlacements[child])
         if not _inertial(body, model.inertias[child]):
-            massless.append(model.names[child])
-        _joint(body, robot, child, springs, rest)
-        order.append(child)
+            massless.append(name)
+        if not rigid:
+            _joint(body, robot, child, springs, q)
+            order.append(child)
         _sites(body, robot, child, taken)
         _bodies(body, robot, child, springs, rest, order, massless, taken)
 
 
-def _equalities(root: etree._Element, robot: Robot, springs: dict[str, float],
-                rest: np.ndarray) -> None:
-    """Loop closures, locked rigid joints and mimic followers as equality constraints."""
+def _rigid(robot: Robot, name: str, springs: dict[str, float]) -> bool:
+    """Whether joint ``name`` is held rigid: a coordinate without a spring, or the mimic
+    follower of one."""
+    leader = next((m.leader for m in robot.mimics if m.follower == name), name)
+    return leader in robot.coordinate_joints and leader not in springs
+
+
+def _equalities(root: etree._Element, robot: Robot, springs: dict[str, float]) -> None:
+    """Mimic followers of compliant leaders as equality constraints."""
     stiff = {"solref": numbers(STIFF_SOLREF), "solimp": numbers(STIFF_SOLIMP)}
     equality = etree.SubElement(root, "equality")
-    for pair in robot.loop.pairs:
-        etree.SubElement(equality, "connect" if pair.kind == "3D" else "weld",
-                         name=f"loop_{pair.frame_a}_{pair.frame_b}", site1=pair.frame_a,
-                         site2=pair.frame_b, **stiff)
-    model = robot.model
-    for name in robot.coordinate_joints:
-        if name not in springs:
-            value = _joint_value(model.joints[model.getJointId(name)], rest)
-            etree.SubElement(equality, "joint", name=f"rigid_{name}", joint1=name,
-                             polycoef=numbers([value, 0, 0, 0, 0]), **stiff)
     for m in robot.mimics:
+        if _rigid(robot, m.follower, springs):
+            continue
         etree.SubElement(equality, "joint", name=f"mimic_{m.follower}", joint1=m.follower,
                          joint2=m.leader, polycoef=numbers([m.offset, m.multiplier, 0, 0, 0]),
                          **stiff)
@@ -191,8 +199,14 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     Raises
     ------
     StiffnessError
-        A joint MJCF export does not write, a spring on a joint that is not a coordinate.
+        A closed loop, a joint MJCF export does not write, a spring on a joint that is not a
+        coordinate.
     """
+    if not robot.loop.is_open_chain:
+        raise StiffnessError(
+            f"{robot.name} has closed loops, which MuJoCo closes only by soft constraints that "
+            "give way under load more than its joint springs (docs/robot-files.md): the MJCF "
+            "export writes open chains only; export --urdf instead")
     _check_joints(robot)
     unknown = [name for name in springs if name not in robot.coordinate_joints]
     if unknown:
@@ -206,8 +220,10 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     order: list[int] = []
     massless: list[str] = []
     taken: set[str] = set()
+    data = model.createData()
+    pin.forwardKinematics(model, data, rest)
     _sites(world, robot, 0, taken)
-    _bodies(world, robot, 0, springs, rest, order, massless, taken)
+    _bodies(world, robot, 0, springs, (rest, data), order, massless, taken)
     if massless:
         compiler.set("boundmass", str(MASSLESS_BOUND_KG))
         compiler.set("boundinertia", str(MASSLESS_BOUND_KGM2))
@@ -215,7 +231,7 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
                       f"written with {MASSLESS_BOUND_KG} kg and {MASSLESS_BOUND_KGM2} kg.m^2, "
                       "as MuJoCo needs a mass on every moving body", RobotFileWarning,
                       stacklevel=2)
-    _equalities(root, robot, springs, rest)
+    _equalities(root, robot, springs)
     keyframe = etree.SubElement(root, "keyframe")
     etree.SubElement(keyframe, "key", name="rest", qpos=numbers(
         [_joint_value(model.joints[j], rest) for j in order]))
