@@ -22,8 +22,9 @@ springs: on the SK120 under its paper load, damped to rest, the loop gave way by
 0.5 m depending on ``solref``/``solimp`` and the target missed the exact equilibrium by 47 % to
 3000x the deflection, so such an export would not be the robot's elastostatics.
 
-MuJoCo refuses a moving body without mass; massless links (a purely kinematic model) are given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by the
-compiler's ``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
+MuJoCo refuses a moving body without mass; massless links (a purely kinematic model) are
+given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by the compiler's
+``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
 
 Units: SI (m, rad, kg, kg.m^2, N.m/rad, N/m).
 """
