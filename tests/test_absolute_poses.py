@@ -300,3 +300,56 @@ def test_calibrated_urdf_reproduces_the_rigid_positions(ur10, tmp_path, capsys):
         for k, m in enumerate(file.model.markers):
             seen = data.oMf[tracker].actInv(data.oMf[model.getFrameId(f"marker_{m.name}")])
             assert np.allclose(seen.translation, predicted[i, k], rtol=0, atol=1e-9)
+
+
+def _coverage_on(robot, markers, stiffness, seeds: int, n: int) -> tuple[int, int]:
+    """Interval hits and count of the compliance and zero offsets over ``seeds`` campaigns."""
+    fams = ["frame", "markers", "joint_offsets", "joint_compliance"]
+    hits = count = 0
+    joints = sum(robot.model.joints[j].nv == 1 for j in range(1, robot.model.njoints))
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                                  np.array([m.offset for m in markers])
+                                  + rng.normal(0, 2e-3, (len(markers), 3)),
+                                  rng.normal(0, 1e-3, joints), np.zeros((joints, 6)), stiffness)
+        c = simulate_pose_campaign(robot, markers, hidden, n, NOISE, seed=seed)
+        model = PoseModel(robot, markers, tuple(fams), starting_frame(c), None)
+        fit = fit_pose_model(model, c, rows_of(model, c), fams)
+        truth = _identifiable_truth(fit, _truth_without_geometry(model, hidden))
+        lo, hi = fit.interval()
+        for i in fit.identifiability.kept:
+            if model.parameters[i].family in ("joint_offsets", "joint_compliance"):
+                hits += int(lo[i] <= truth[i] <= hi[i])
+                count += 1
+    return hits, count
+
+
+def _truth_without_geometry(model: PoseModel, hidden: HiddenPoseErrors) -> np.ndarray:
+    x = np.zeros(model.size)
+    sl = model.slices()
+    x[sl["frame"].start + 3: sl["frame"].stop] = pin.log3(hidden.frame_rotation
+                                                          @ model.rotation0.T)
+    x[sl["frame"].start: sl["frame"].start + 3] = hidden.frame_translation - model.translation0
+    x[sl["markers"]] = (hidden.marker_offsets - np.array([m.offset for m in model.markers])
+                        ).reshape(-1)
+    x[sl["joint_offsets"]] = hidden.joint_offsets
+    x[sl["joint_compliance"]] = 1.0 / hidden.stiffness
+    return x
+
+
+def test_coverage_on_the_panda_and_a_two_arm_tree():
+    """20 seeds each: the Panda (arm joints compliant, fingers rigid) with one marker, and the
+    shipped two-arm torso (16 coordinates, a marker on each hand): zero offsets' and
+    compliances' 95 % intervals cover the truth at a binomially consistent rate."""
+    arm = tuple(f"panda_joint{i}" for i in range(1, 8))
+    panda = load_robot("panda", frame="panda_hand", compliant_joints=arm)
+    h1, n1 = _coverage_on(panda, [Marker("hand", "panda_hand", np.array([0.0, 0.0, 0.1]))],
+                          np.array([2e4, 2e4, 1.5e4, 1.5e4, 5e3, 5e3, 5e3]), 20, 30)
+    tree = load_robot("two-arm-torso")
+    hands = [Marker("right", "right_tcp", np.zeros(3)),
+             Marker("left", "left_tcp", np.array([0.0, 0.02, 0.0]))]
+    from stiffness.mechanics.defaults import default_stiffness
+    h2, n2 = _coverage_on(tree, hands, np.asarray(default_stiffness(tree)), 20, 30)
+    assert _binomial_consistent(h1, n1), (h1, n1)
+    assert _binomial_consistent(h2, n2), (h2, n2)

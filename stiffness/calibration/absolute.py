@@ -193,6 +193,13 @@ class PoseModel:
         self.compliant = [int(model.getJointId(n)) for n in robot.compliant_joints]
         self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
                          if c != _zero_component(model.joints[j].shortname())]
+        self._geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
+                                np.array([c for _, c in self.geometry], dtype=int))
+        self._joints_v = [model.joints[j].idx_v for j in self.joints]
+        self._compliant_vs = [model.joints[j].idx_v for j in self.compliant]
+        self._moves = {fid: np.array([j in set(model.supports[model.frames[fid].parentJoint])
+                                      for j in self.joints], dtype=float)
+                       for fid in set(self.frame_ids)}
         self.parameters = self._parameters()
         self._slices = self._family_slices()
 
@@ -341,7 +348,7 @@ class PoseModel:
                                "campaign's units and masses")
 
     def _compliant_v(self) -> list[int]:
-        return [self.robot.model.joints[j].idx_v for j in self._compliant()]
+        return self._compliant_vs
 
     def _lumped_columns(self, regressor: np.ndarray, v_index: list[int]) -> np.ndarray:
         """d(Delta q)/d theta (nv, n_theta): minus the regressor entries of each pair."""
@@ -359,7 +366,8 @@ class PoseModel:
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted positions (n, M, 3) in the measuring frame (m) and their Jacobian.
 
-        The Jacobian (n, M, 3, p) is d y / d x, exact at ``x``.
+        The Jacobian (n, M, 3, p) is d y / d x with the torques at the loaded configuration
+        held fixed (exact at zero compliance; module docstring).
         """
         x = np.asarray(x, dtype=float)
         model = self.perturbed_model(x)
@@ -369,12 +377,14 @@ class PoseModel:
         n, m = len(rows), len(self.markers)
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
+        jr = self._right_jacobians(x) if jacobian and "geometry" in sl else None
         for i, row in enumerate(rows):
             q, torques = self.loaded_configuration(model, data, x, row)
             pin.forwardKinematics(model, data, q)
             pin.updateFramePlacements(model, data)
             if jacobian:
                 pin.computeJointJacobians(model, data, q)
+            placement_frames = None if jr is None else self._placement_frames(model, data, jr)
             for k, fid in enumerate(self.frame_ids):
                 placement = data.oMf[fid]
                 offset = self.marker_offset(x, k)
@@ -382,8 +392,8 @@ class PoseModel:
                 world = self.rotation0 @ point
                 y[i, k] = rot_w @ world + self.translation0 + self._translation(x)
                 if jac is not None:
-                    jac[i, k] = self._columns(x, sl, model, data, torques, fid, point,
-                                              world, k, rot_w, d_omega)
+                    jac[i, k] = self._columns(sl, model, data, torques, placement_frames, fid,
+                                              point, world, k, rot_w, d_omega)
         return y, jac
 
     def _measuring_rotation(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -407,9 +417,11 @@ class PoseModel:
         rot, _ = self._measuring_rotation(x)
         return rot @ self.rotation0, self.translation0 + self._translation(x)
 
-    def _columns(self, x: np.ndarray, sl: dict[str, slice], model: pin.Model, data: pin.Data,
-                 torques: Torques | None, fid: int, point: np.ndarray, world: np.ndarray,
-                 k: int, rot_w: np.ndarray, d_omega: np.ndarray) -> np.ndarray:
+    def _columns(self, sl: dict[str, slice], model: pin.Model, data: pin.Data,
+                 torques: Torques | None,
+                 placement_frames: tuple[np.ndarray, np.ndarray, np.ndarray] | None, fid: int,
+                 point: np.ndarray, world: np.ndarray, k: int, rot_w: np.ndarray,
+                 d_omega: np.ndarray) -> np.ndarray:
         """d y / d x (3, p) of one marker on one row.
 
         The torques at the loaded configuration are held fixed (their change with the
@@ -435,13 +447,13 @@ class PoseModel:
                                                               * torque[v_index])
         if torques is not None and "gravity_lumped" in sl:
             cols[:, sl["gravity_lumped"]] = to_measuring @ j_point @ torques.lumped
-        if "geometry" in sl:
-            cols[:, sl["geometry"]] = to_measuring @ self._geometry_columns(x, sl, model, data,
-                                                                          fid, point)
+        if placement_frames is not None:
+            cols[:, sl["geometry"]] = to_measuring @ self._geometry_columns(placement_frames, fid,
+                                                                          point)
         return cols
 
     def _joint_v(self) -> list[int]:
-        return [self.robot.model.joints[j].idx_v for j in self.joints]
+        return self._joints_v
 
     @staticmethod
     def _point_jacobian(model: pin.Model, data: pin.Data, fid: int, point: np.ndarray
@@ -458,25 +470,36 @@ class PoseModel:
         eps[list(rows), list(cols)] = x[sl]
         return eps
 
-    def _geometry_columns(self, x: np.ndarray, sl: dict[str, slice], model: pin.Model,
-                          data: pin.Data, fid: int, point: np.ndarray) -> np.ndarray:
-        """d point / d epsilon (3, 6 n_joints): ``M_j exp(eps)`` perturbed on the right.
+    def _right_jacobians(self, x: np.ndarray) -> np.ndarray:
+        """(n_joints, 6, 6) right Jacobians of ``exp`` at each joint's placement error."""
+        eps = self._placement_errors(x, self.slices()["geometry"])
+        return np.array([pin.Jexp6(pin.Motion(e)) for e in eps])
+
+    def _placement_frames(self, model: pin.Model, data: pin.Data, jr: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per joint, ``a = oMi[parent] M_j exp(eps_j)``: ``R_a Jr[:3]``, ``R_a Jr[3:]`` (3, 6)
+        each and the origin of ``a`` (3,), stacked over the joints."""
+        frames = [data.oMi[model.parents[j]] * model.jointPlacements[j] for j in self.joints]
+        rot = np.array([f.rotation for f in frames])
+        origin = np.array([f.translation for f in frames])
+        return (np.einsum("jab,jbc->jac", rot, jr[:, :3, :]),
+                np.einsum("jab,jbc->jac", rot, jr[:, 3:, :]), origin)
+
+    def _geometry_columns(self, placement: tuple[np.ndarray, np.ndarray, np.ndarray],
+                          fid: int, point: np.ndarray) -> np.ndarray:
+        """d point / d epsilon (3, n_geometry): ``M_j exp(eps)`` perturbed on the right.
 
         With ``a = oMi[parent] M_j exp(eps)``: ``d point = R_a (d v + d w x r)`` for a twist
-        ``(d v, d w) = Jr(eps) d eps`` and ``r`` the point in frame ``a``.
+        ``(d v, d w) = Jr(eps) d eps`` and ``r`` the point in frame ``a``, i.e.
+        ``R_a Jr[:3] - [point - o_a]x R_a Jr[3:]``; zero for joints the point does not move with.
         """
-        eps = self._placement_errors(x, sl["geometry"])
-        support = set(model.supports[model.frames[fid].parentJoint])
-        out = np.zeros((3, 6 * len(self.joints)))
-        for n, j in enumerate(self.joints):
-            if j not in support:
-                continue
-            frame_a = data.oMi[model.parents[j]] * model.jointPlacements[j]
-            rot = frame_a.rotation
-            local = np.hstack([rot, -_skew(point - frame_a.translation) @ rot])
-            out[:, 6 * n:6 * n + 6] = local @ pin.Jexp6(pin.Motion(eps[n]))
-        return out[:, [6 * n + c for n, c in self.geometry]]
-
+        linear, angular, origin = placement
+        lx, ly, lz = (point[None, :] - origin).T[:, :, None]
+        ax, ay, az = angular[:, 0], angular[:, 1], angular[:, 2]
+        cols = linear - np.stack([ly * az - lz * ay, lz * ax - lx * az, lx * ay - ly * ax], axis=1)
+        cols = cols * self._moves[fid][:, None, None]
+        rows, comps = self._geometry_index
+        return cols[rows, :, comps].T
 
 def _zero_component(shortname: str) -> int | None:
     """Component of a placement error that is the joint's own zero offset, if any."""

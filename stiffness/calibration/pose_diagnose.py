@@ -143,21 +143,30 @@ def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
 
 
-def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray]
-         ) -> PoseFit:
+def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
+         start: PoseFit | None = None) -> PoseFit:
+    """Fit ``families``, starting from ``start``'s values of the parameters they share."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads)
-    return fit_pose_model(model, campaign, rows_of(model, campaign), families)
+    return fit_pose_model(model, campaign, rows_of(model, campaign), families,
+                          None if start is None else warm_start(model, start))
 
 
-def _cv_rms(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-            folds: list[np.ndarray]) -> float:
-    """Held-out RMS of the residual components, each fold fitted on the others."""
+def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
+    """``fit``'s parameter values laid out for ``model`` (zero for parameters it lacks)."""
+    values = {p.label: v for p, v in zip(fit.model.parameters, fit.x, strict=True)}
+    return np.array([values.get(p.label, 0.0) for p in model.parameters])
+
+
+def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
+            frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray]) -> float:
+    """Held-out RMS of the residual components, each fold fitted on the others (started from
+    the fit on every row)."""
     sq, count = 0.0, 0
     for test in folds:
         train = np.setdiff1d(np.arange(campaign.n_rows), test)
-        fit = _fit(campaign.subset(train), families, frame0)
+        part = _fit(campaign.subset(train), families, frame0, fit)
         held = campaign.subset(test)
-        err = held.positions - predict(fit.model, fit.x, held)
+        err = held.positions - predict(part.model, part.x, held)
         err = err[np.isfinite(err)]
         sq, count = sq + float(err @ err), count + err.size
     return float(np.sqrt(sq / max(count, 1)))
@@ -181,18 +190,18 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     folds = config_folds(tuple(campaign.labels), seed)
     families = list(BASE_FAMILIES)
     base = _fit(campaign, families, frame0)
-    cv = _cv_rms(campaign, families, frame0, folds)
+    cv = _cv_rms(campaign, base, families, frame0, folds)
     steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
     rejected: dict[str, float] = {}
     remaining = [f for f in CANDIDATES[masses] if f in FAMILIES]
     while remaining:
-        tried = {f: _fit(campaign, families + [f], frame0) for f in remaining}
+        tried = {f: _fit(campaign, families + [f], frame0, steps[-1].fit) for f in remaining}
         best = min(tried, key=lambda f: tried[f].bic())
         delta = tried[best].bic() - steps[-1].fit.bic()
         if delta >= -BIC_MARGIN:
             rejected.update({f: tried[f].bic() - steps[-1].fit.bic() for f in tried})
             break
-        cv_new = _cv_rms(campaign, families + [best], frame0, folds)
+        cv_new = _cv_rms(campaign, tried[best], families + [best], frame0, folds)
         if cv_new >= steps[-1].cv_rms:
             rejected[best] = delta
             break
