@@ -308,21 +308,44 @@ def run(args: argparse.Namespace) -> int:
 
 
 def k_x_lines(summary: dict) -> list[str]:
-    """The console lines on K_X per load case: its principal stiffness range (N/m) and where
-    it is undefined (the compliance is singular there)."""
+    """The console lines on K_X per load case: its principal stiffness ranges (N/m; N.m/rad
+    for the rotational block of a 6-D K_X) over the configurations neither near-singular nor
+    unstable, how many were left out and why, and where K_X is undefined."""
     lines = []
     valid = summary["valid_configurations"]
+    near = summary.get("near_singular", 0)
+    if any("k_x_undefined" in case for case in summary["load_cases"].values()) and near:
+        lines.append(f"left out of the K_X ranges: {near} of {valid} valid configurations "
+                     f"near a singularity (sigma_min/sigma_max of the translational Jacobian "
+                     f"below {summary['singularity_margin']:g}, where the largest principal "
+                     "stiffness grows without bound)")
     for name, case in summary["load_cases"].items():
         if "k_x_undefined" not in case:
             continue
         undefined = case["k_x_undefined"]
-        low, high = (case["min_principal_stiffness_N_per_m"],
-                     case["max_principal_stiffness_N_per_m"])
         count = "all" if undefined == valid else f"{undefined} of"
         where = ("" if not undefined else
                  f"undefined at {count} {valid} valid configurations (the compliance C is "
                  "singular there: a kinematic singularity, fewer compliant joints than "
                  "directions, or the buckling limit; see 'undefined' in summary.json)")
-        found = "" if low is None else f"principal stiffness {low:.4g} to {high:.4g} N/m"
-        lines.append(f"K_X, load case {name}: {'; '.join(t for t in (found, where) if t)}")
+        unstable = ("" if not case.get("unstable") else
+                    f"unstable (K_theta - K_C not positive definite) at {case['unstable']} of "
+                    f"{valid}, left out")
+        lines.append(f"K_X, load case {name}: "
+                     + "; ".join(t for t in (_ranges(case), unstable, where) if t))
     return lines
+
+
+def _ranges(case: dict) -> str:
+    """A load case's principal stiffness ranges, or why there is none."""
+    low, high = (case["min_principal_stiffness_N_per_m"],
+                 case["max_principal_stiffness_N_per_m"])
+    if low is None:
+        return "no principal stiffness (no configuration is regular, stable and clear of "\
+               "singularities)"
+    text = f"principal stiffness {low:.4g} to {high:.4g} N/m"
+    if "min_rotational_stiffness_Nm_per_rad" in case:
+        text = (f"translational principal stiffness {low:.4g} to {high:.4g} N/m, rotational "
+                f"{case['min_rotational_stiffness_Nm_per_rad']:.4g} to "
+                f"{case['max_rotational_stiffness_Nm_per_rad']:.4g} N.m/rad")
+    return text

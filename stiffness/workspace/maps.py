@@ -28,11 +28,23 @@ from stiffness.batch import kernels as batch
 from stiffness.robot.robot import Robot
 from stiffness.workspace.spec import COUNT_LABELS, UNDEFINED, ScanSpec
 
+#: Inverse condition number ``sigma_min / sigma_max`` of the target's translational Jacobian
+#: below which a configuration is near-singular: its principal stiffnesses (which grow without
+#: bound at the singularity) are left out of the summary's ranges, and counted.
+SINGULARITY_MARGIN = 0.01
+#: What the summary's principal stiffness ranges cover (summary.json ``principal_ranges``).
+PRINCIPAL_RANGES = (
+    "min/max_principal_stiffness_N_per_m over the valid configurations that are neither "
+    "near-singular (near_singular: sigma_min / sigma_max of the target's translational Jacobian "
+    "below singularity_margin, where the largest principal stiffness grows without bound) nor "
+    "unstable under the load case (unstable: K_theta - K_C not positive definite); for 6-D "
+    "loads, of the translational block of K_X (N/m), and min/max_rotational_stiffness_Nm_per_rad "
+    "of its rotational block (N.m/rad)")
 #: Fields computed together by one eigen-decomposition of the scaled K_C.
 DEFINITENESS_FIELDS = ("k_c_class", "tangent_class", "critical_factor", "k_c_det_positive")
 #: Per-load-case float fields that are NaN on invalid configurations.
 _NAN_WHEN_INVALID = ("position", "critical_factor", "k_c_diagonal", "k_x", "k_x_eigenvalues",
-                     "k_x_conventional", "k_x_conventional_eigenvalues")
+                     "k_x_conventional", "k_x_conventional_eigenvalues", "singularity_ratio")
 
 
 def needs(spec: ScanSpec) -> dict[str, bool]:
@@ -56,7 +68,9 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
         codes into DEFINITENESS_CLASSES (-1 invalid), ``critical_factor`` (c, L),
         ``k_c_det_positive`` (c, L); ``k_c_diagonal`` (c, 3, n) N.m/rad per N; ``k_x``
         (c, L, r, r) N/m, ``k_x_eigenvalues`` (c, L, r), ``k_x_class`` (c, L), ``regular``
-        (c, L); ``k_x_conventional`` (c, r, r) and ``k_x_conventional_eigenvalues`` (c, r).
+        (c, L), ``singularity_ratio`` (c,) (``sigma_min / sigma_max`` of the translational
+        Jacobian; not stored); ``k_x_conventional`` (c, r, r) and
+        ``k_x_conventional_eigenvalues`` (c, r).
     """
     want = needs(spec)
     loads = np.asarray(spec.loads, dtype=float)
@@ -98,7 +112,8 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
             _, k_x, ok = batch.symmetric_stack(k_theta, k_c, jac[:, :rows])
         eig = batch.symmetric_eigenvalues(k_x)
         out.update(k_x=k_x, k_x_eigenvalues=eig, regular=ok & valid[:, None],
-                   k_x_class=batch.definiteness_codes(eigenvalues=eig, rtol=spec.rtol))
+                   k_x_class=batch.definiteness_codes(eigenvalues=eig, rtol=spec.rtol),
+                   singularity_ratio=singularity_ratio(jac[:, :3]))
     if want["conventional"]:
         _, k_conv, ok_conv = batch.symmetric_stack(k_theta, None, jac[:, :rows])
         out["k_x_conventional"] = k_conv[:, 0]
@@ -116,6 +131,24 @@ def compute_maps(robot: Robot, spec: ScanSpec, ids: np.ndarray, coords: np.ndarr
         if "k_c_det_positive" in out:
             out["k_c_det_positive"][invalid] = False
     return out
+
+
+def singularity_ratio(jac: np.ndarray) -> np.ndarray:
+    """``sigma_min / sigma_max`` of each (3, n) translational Jacobian (0 at a singularity or
+    with fewer than three joints, 1 when the target moves alike in every direction)."""
+    values = np.linalg.svd(np.where(np.isfinite(jac), jac, 0.0), compute_uv=False)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(values[..., 0] > 0, values[..., -1] / values[..., 0], 0.0)
+    if jac.shape[-1] < jac.shape[-2]:
+        ratio = np.zeros(jac.shape[0])
+    return np.where(np.all(np.isfinite(jac), axis=(-2, -1)), ratio, np.nan)
+
+
+def block_eigenvalues(k_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal values of the translational (N/m) and rotational (N.m/rad) diagonal blocks
+    of 6x6 stiffnesses ``k_x`` (..., 6, 6), ascending (NaN where ``k_x`` is not finite)."""
+    return (batch.symmetric_eigenvalues(k_x[..., :3, :3]),
+            batch.symmetric_eigenvalues(k_x[..., 3:, 3:]))
 
 
 # ---------------------------------------------------------------------------------- storage
@@ -214,6 +247,10 @@ class MapAccumulator:
             "critical_argmin": np.full(n_loads, -1, dtype=np.int64),
             "k_x_min": np.full(n_loads, np.inf),
             "k_x_max": np.full(n_loads, -np.inf),
+            "k_x_rotational_min": np.full(n_loads, np.inf),
+            "k_x_rotational_max": np.full(n_loads, -np.inf),
+            "near_singular": np.zeros(1, dtype=np.int64),
+            "unstable": np.zeros(n_loads, dtype=np.int64),
             "k_x_conventional_min": np.full(1, np.inf),
             "k_x_conventional_max": np.full(1, -np.inf),
             "map_min_stiffness": np.full((*shape, n_loads), np.inf),
@@ -245,14 +282,11 @@ class MapAccumulator:
             parts["critical_min"] = crit[arg, np.arange(n_loads)]
             parts["critical_argmin"] = np.where(np.isfinite(parts["critical_min"]),
                                                 maps["index"][arg], -1)
-        low = high = conv = None
+        low = conv = None
         with np.errstate(invalid="ignore"):
             if "k_x_eigenvalues" in maps:
                 low = maps["k_x_eigenvalues"][..., 0]
-                high = maps["k_x_eigenvalues"][..., -1]
-                parts["k_x_min"] = np.fmin(parts["k_x_min"], _nanreduce(np.nanmin, low, np.inf))
-                parts["k_x_max"] = np.fmax(parts["k_x_max"],
-                                           _nanreduce(np.nanmax, high, -np.inf))
+                self._principal_ranges(parts, maps)
             if "k_x_conventional_eigenvalues" in maps:
                 conv = maps["k_x_conventional_eigenvalues"]
                 parts["k_x_conventional_min"][0] = _nanreduce(np.nanmin, conv[:, 0], np.inf)
@@ -260,6 +294,35 @@ class MapAccumulator:
         if self.edges:
             self._bin(parts, maps, low, conv)
         return parts
+
+    def _principal_ranges(self, parts: dict[str, np.ndarray], maps: dict[str, np.ndarray]
+                          ) -> None:
+        """The chunk's extreme principal stiffnesses over the configurations the summary keeps:
+        neither near-singular (:data:`SINGULARITY_MARGIN`) nor unstable (K_theta - K_C not
+        positive definite; K_X not positive definite when the tangent is not computed), each
+        counted. A 6x6 K_X gives its translational (N/m) and rotational (N.m/rad) blocks'."""
+        valid = maps["valid"]
+        ratio = maps.get("singularity_ratio")
+        near = np.zeros(valid.shape[0], dtype=bool) if ratio is None else \
+            np.nan_to_num(ratio, nan=np.inf) < SINGULARITY_MARGIN
+        stable_class = maps["tangent_class"] if "tangent_class" in maps else maps["k_x_class"]
+        unstable = (stable_class != batch.CLASS_CODES["PD"]) & valid[:, None]
+        parts["near_singular"][0] = int((near & valid).sum())
+        parts["unstable"] = unstable.sum(axis=0)
+        keep = ~near[:, None] & ~unstable
+        if self.spec.rows == 6:
+            translational, rotational = block_eigenvalues(maps["k_x"])
+            rot = np.where(keep[..., None], rotational, np.nan)
+            parts["k_x_rotational_min"] = np.fmin(parts["k_x_rotational_min"], _nanreduce(
+                np.nanmin, rot[..., 0], np.inf))
+            parts["k_x_rotational_max"] = np.fmax(parts["k_x_rotational_max"], _nanreduce(
+                np.nanmax, rot[..., -1], -np.inf))
+        else:
+            translational = maps["k_x_eigenvalues"]
+        kept = np.where(keep[..., None], translational, np.nan)
+        parts["k_x_min"] = np.fmin(parts["k_x_min"], _nanreduce(np.nanmin, kept[..., 0], np.inf))
+        parts["k_x_max"] = np.fmax(parts["k_x_max"], _nanreduce(np.nanmax, kept[..., -1],
+                                                                -np.inf))
 
     def _bin(self, parts: dict[str, np.ndarray], maps: dict[str, np.ndarray],
              low: np.ndarray | None, conv: np.ndarray | None) -> None:
@@ -292,16 +355,16 @@ class MapAccumulator:
         """Merge a chunk's contribution."""
         p = self.parts
         for key in ("n", "n_valid", "bytes", "k_c_counts", "tangent_counts", "k_x_counts",
-                    "det_positive", "map_k_c_counts"):
-            p[key] = p[key] + parts[key]
+                    "det_positive", "map_k_c_counts", "near_singular", "unstable"):
+            p[key] = p[key] + parts.get(key, 0)  # (aggregates of older scans lack some)
         better = parts["critical_min"] < p["critical_min"]
         p["critical_min"] = np.where(better, parts["critical_min"], p["critical_min"])
         p["critical_argmin"] = np.where(better, parts["critical_argmin"], p["critical_argmin"])
         for key in ("k_x_min", "k_x_conventional_min", "map_min_stiffness",
-                    "map_conventional_min", "map_min_ratio"):
-            p[key] = np.fmin(p[key], parts[key])
-        for key in ("k_x_max", "k_x_conventional_max"):
-            p[key] = np.fmax(p[key], parts[key])
+                    "map_conventional_min", "map_min_ratio", "k_x_rotational_min"):
+            p[key] = np.fmin(p[key], parts.get(key, np.inf))
+        for key in ("k_x_max", "k_x_conventional_max", "k_x_rotational_max"):
+            p[key] = np.fmax(p[key], parts.get(key, -np.inf))
 
     def summary(self) -> dict:
         """JSON-ready summary of the scan so far."""
@@ -326,9 +389,16 @@ class MapAccumulator:
                     "k_x_undefined": int(p["k_x_counts"][j][-1])
                     - int(p["n"][0] - p["n_valid"][0]),
                     "k_x": _counts(p["k_x_counts"][j]),
+                    "unstable": int(p["unstable"][j]),
                     "min_principal_stiffness_N_per_m": _finite_or_none(float(p["k_x_min"][j])),
                     "max_principal_stiffness_N_per_m": _finite_or_none(float(p["k_x_max"][j])),
                 })
+                if spec.rows == 6:
+                    case.update({
+                        "min_rotational_stiffness_Nm_per_rad": _finite_or_none(
+                            float(p["k_x_rotational_min"][j])),
+                        "max_rotational_stiffness_Nm_per_rad": _finite_or_none(
+                            float(p["k_x_rotational_max"][j]))})
             cases[name] = case
         out = {
             "robot": spec.robot["source"],
@@ -337,6 +407,10 @@ class MapAccumulator:
             "valid_configurations": int(p["n_valid"][0]),
             "load_cases": cases,
         }
+        if want["k_x"]:
+            out["near_singular"] = int(p["near_singular"][0])
+            out["singularity_margin"] = SINGULARITY_MARGIN
+            out["principal_ranges"] = PRINCIPAL_RANGES
         out["undefined"] = UNDEFINED
         if want["conventional"]:
             out["conventional_min_principal_stiffness_N_per_m"] = _finite_or_none(

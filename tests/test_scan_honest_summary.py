@@ -1,0 +1,81 @@
+"""Scan summaries that say what they cover (issue 30, items 3 and 6): principal stiffness
+ranges leave out the configurations near a singularity and those the load buckles, and count
+them; a 6-D K_X is summarised per block (N/m and N.m/rad).
+
+The expected numbers are computed pose by pose with the single-configuration functions and
+NumPy (SVD of J, eigenvalues of K_theta - K_C and of C^-1), not with the batched kernels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stiffness.mechanics.formulation import target_state
+from stiffness.robot.robot import load_robot
+from stiffness.workspace.engine import load_scan
+from stiffness.workspace.maps import SINGULARITY_MARGIN
+from stiffness.workspace.request import scan
+
+KQ = np.array([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
+#: Grid (rad): the elbow from 0.5 deg (almost stretched) to 150.5 deg.
+AXES = {"shoulder_lift_joint": (-np.pi / 2, 0.0, np.pi / 12),
+        "elbow_joint": (np.deg2rad(0.5), np.deg2rad(150.5), np.pi / 12)}
+
+
+def expected(robot, coords: np.ndarray, wrench: np.ndarray, kq: np.ndarray) -> dict:
+    """Counts and ranges of the summary, pose by pose."""
+    rows = 3 if wrench.shape[0] == 3 else 6
+    near = unstable = 0
+    trans, rot = [], []
+    for c in coords:
+        state = target_state(robot, robot.configuration(c), wrench)
+        s = np.linalg.svd(state.jacobian[:3], compute_uv=False)
+        is_near = s[-1] / s[0] < SINGULARITY_MARGIN
+        tangent = np.diag(kq) - state.k_c
+        is_unstable = np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0] <= 0
+        near += is_near
+        unstable += is_unstable
+        if is_near or is_unstable:
+            continue
+        jac = state.jacobian[:rows]
+        k_x = np.linalg.inv(jac @ np.linalg.solve(tangent, jac.T))
+        trans.append(np.linalg.eigvalsh(0.5 * (k_x[:3, :3] + k_x[:3, :3].T)))
+        if rows == 6:
+            rot.append(np.linalg.eigvalsh(0.5 * (k_x[3:, 3:] + k_x[3:, 3:].T)))
+    out = {"near": near, "unstable": unstable, "min": min(t[0] for t in trans),
+           "max": max(t[-1] for t in trans)}
+    if rot:
+        out.update(rot_min=min(r[0] for r in rot), rot_max=max(r[-1] for r in rot))
+    return out
+
+
+@pytest.mark.parametrize("wrench,springs", [([0.0, 0.0, -4e5], 3),
+                                            ([0.0, 0.0, -200.0, 0.0, 0.0, 1.0], 6)])
+def test_ranges_leave_out_near_singular_and_unstable_configurations(tmp_path, wrench, springs):
+    """Three springs (the arm's, the target at wrist 1: the elbow at 0.5 deg is near-singular)
+    under a force that buckles the upright poses; six springs under a wrench (block ranges)."""
+    joints = load_robot("ur5").coordinate_joints[:springs]
+    robot = load_robot("ur5", frame="wrist_1_link" if springs == 3 else None,
+                       compliant_joints=joints)
+    kq = KQ[:springs]
+    base = np.array([0.0, 0.0, 0.0, 0.0, np.pi / 3, 0.0])  # wrist 2 clear of its singularity
+    result = scan(robot, tmp_path / "s", k_theta=kq, axes=AXES, q=base, wrench=wrench,
+                  plots=False)
+    summary = result.to_dict()
+    coords = load_scan(tmp_path / "s")["coordinates"]
+    want = expected(robot, coords, np.array(wrench), kq)
+    case = summary["load_cases"]["1"]
+    assert summary["near_singular"] == want["near"]
+    assert want["near"] > 0 or springs == 6
+    assert summary["singularity_margin"] == SINGULARITY_MARGIN
+    assert case["unstable"] == want["unstable"]
+    assert case["min_principal_stiffness_N_per_m"] == pytest.approx(want["min"], rel=1e-6)
+    assert case["max_principal_stiffness_N_per_m"] == pytest.approx(want["max"], rel=1e-6)
+    if len(wrench) == 6:
+        assert case["min_rotational_stiffness_Nm_per_rad"] == pytest.approx(want["rot_min"],
+                                                                            rel=1e-6)
+        assert case["max_rotational_stiffness_Nm_per_rad"] == pytest.approx(want["rot_max"],
+                                                                            rel=1e-6)
+    else:
+        assert want["unstable"] > 0  # 4e5 N buckles the upright poses (critical 2.5e5 N)
