@@ -332,17 +332,19 @@ def k_x_lines(summary: dict) -> list[str]:
                     f"unstable (K_theta - K_C not positive definite) at {case['unstable']} of "
                     f"{valid}, left out")
         lines.append(f"K_X, load case {name}: "
-                     + "; ".join(t for t in (_ranges(case), unstable, where) if t))
+                     + "; ".join(t for t in (_ranges(case, valid), unstable, where) if t))
     return lines
 
 
-def _ranges(case: dict) -> str:
-    """A load case's principal stiffness ranges, or why there is none."""
+def _ranges(case: dict, valid: int) -> str:
+    """A load case's principal stiffness ranges, or why there is none (nothing when K_X is
+    undefined everywhere: the caller says so)."""
     low, high = (case["min_principal_stiffness_N_per_m"],
                  case["max_principal_stiffness_N_per_m"])
     if low is None:
-        return "no principal stiffness (no configuration is regular, stable and clear of "\
-               "singularities)"
+        return "" if case["k_x_undefined"] == valid else (
+            "no principal stiffness (every configuration where K_X exists is near a "
+            "singularity or unstable)")
     text = f"principal stiffness {low:.4g} to {high:.4g} N/m"
     if "min_rotational_stiffness_Nm_per_rad" in case:
         text = (f"translational principal stiffness {low:.4g} to {high:.4g} N/m, rotational "
