@@ -406,7 +406,7 @@ def test_identify_text_and_json_state_the_coordinates(tmp_path, capsys):
                     .replace('frame = "fixture_target"', 'frame = "tool"'))
     out = tmp_path / "model.json"
     assert main(["identify", str(folder), "--starts", "1", "--out", str(out)]) == 0
-    assert "stiffness in controller coordinates" in capsys.readouterr().out
+    assert capsys.readouterr().out.count("stiffness in controller coordinates") == 1
     assert main(["identify", str(folder), "--starts", "1", "--out", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["stiffness_coordinates"] == "controller"
 
@@ -530,3 +530,79 @@ def test_the_coupling_constant_is_in_the_angle_unit(tmp_path):
     assert abs(q[5] - (math.pi / 2 - 0.2)) < 1e-15
     with pytest.raises(StiffnessError, match="compliant joint 'j1'"):
         load_robot(robot.name, compliant_joints=["j1"])
+
+
+def test_the_urdf_writer_writes_a_dh_tree(tmp_path):
+    """A DH tree with fixed frames and inertias, exported by the one URDF writer and read back
+    by Pinocchio's parser: the same hand placements, Jacobian and mass matrix (the chain's
+    coordinates: a URDF has no controller coupling)."""
+    from stiffness.robot.export import robot_urdf
+
+    rng = np.random.default_rng(9)
+    dh, _, rows = tree_description(rng)
+    dh["links"] = [dict(parent=r["name"], mass=float(rng.uniform(1, 5)),
+                        com=rng.uniform(-0.1, 0.1, 3).tolist(),
+                        inertia=[0.05, 0.06, 0.07, 0.001, -0.002, 0.003]) for r in rows]
+    mine = load_robot(write_robot(tmp_path / "t" / "robot.toml", dh, {"frame": "l_hand"}))
+    urdf = tmp_path / "tree-export.urdf"
+    urdf.write_text(robot_urdf(mine))
+    back = load_robot(urdf, frame="l_hand")
+    # Pinocchio's URDF parser orders the branches its own way: match joints by name
+    at = np.array([back.coordinate_joints.index(n) for n in mine.coordinate_joints])
+    assert sorted(back.coordinate_joints) == sorted(mine.coordinate_joints)
+    for _ in range(5):
+        q = rng.uniform(-2, 2, mine.n_coordinates)
+        q_back = np.empty_like(q)
+        q_back[at] = q
+        a, b = mine.configuration(q), back.configuration(q_back)
+        wrench = rng.normal(0, 50, 6)
+        sa, sb = target_state(mine, a, wrench), target_state(back, b, wrench)
+        assert np.abs(sa.position - sb.position).max() < 1e-12
+        assert relative(sb.jacobian[:, at], sa.jacobian) < 1e-12
+        assert relative(sb.k_c[np.ix_(at, at)], sa.k_c) < 1e-12
+        m_a = pin.crba(mine.model, mine.data, a)
+        m_b = pin.crba(back.model, back.data, b)
+        m_a, m_b = np.triu(m_a) + np.triu(m_a, 1).T, np.triu(m_b) + np.triu(m_b, 1).T
+        assert relative(m_b[np.ix_(at, at)], m_a) < 1e-12
+
+
+def test_scan_of_the_coupled_sk120_equals_the_loop_scan(tmp_path):
+    """The batched route (close_loops, kernels, maps) through the coupling: a workspace scan of
+    the DH SK120 equals the closed-loop one, map by map."""
+    from stiffness.workspace.engine import load_scan
+
+    axes = ["--axis", "joint2=-60:60:60", "--axis", "joint3=-100:20:60", "--deg", "--quiet",
+            "--no-plots"]
+    for robot, out in ((str(SK120_DH), "dh"), ("sk120", "loop")):
+        assert main(["scan", "--robot", robot, *axes, "--out", str(tmp_path / out)]) == 0
+    dh, loop = load_scan(tmp_path / "dh"), load_scan(tmp_path / "loop")
+    for key in ("coordinates", "position", "k_c_diagonal", "k_x", "k_x_eigenvalues",
+                "critical_factor"):
+        assert relative(dh[key], loop[key]) < 1e-10, key
+    for key in ("k_c_class", "tangent_class", "k_x_class", "valid"):
+        assert np.array_equal(dh[key], loop[key]), key
+
+
+def test_exact_equilibria_through_the_coupling_equal_the_loop_ones():
+    """The exact elastostatic equilibrium (one pose, and batched) moves the coupled chain
+    joints with their controller coordinates: the deflections of the closed-loop SK120."""
+    from stiffness.batch.equilibrium import solve_equilibria
+    from stiffness.mechanics.equilibrium import solve_equilibrium
+
+    loop, dh = load_robot("sk120"), load_robot(SK120_DH)
+    k = np.diag(loop.defaults["k_theta_SI"])
+    rng = np.random.default_rng(12)
+    u = np.deg2rad(rng.uniform([-90, -60, -100, -90, -100, -90], [90, 60, 25, 90, 100, 90],
+                               (4, 6)))
+    forces = rng.normal(0, 3000, (4, 3))
+    q_loop = np.array([loop.configuration(x) for x in u])
+    q_dh = np.array([dh.configuration(x) for x in u])
+    batched = solve_equilibria(loop, q_loop, k, forces), solve_equilibria(dh, q_dh, k, forces)
+    assert relative(batched[1].dx, batched[0].dx) < 1e-9
+    assert relative(batched[1].dtheta, batched[0].dtheta) < 1e-9
+    for i in range(4):
+        one_dh = solve_equilibrium(dh, q_dh[i], k, forces[i])
+        one_loop = solve_equilibrium(loop, q_loop[i], k, forces[i])
+        # deflections of ~5 mm, equal to the loop closure's and the solvers' tolerances
+        assert np.abs(one_dh.dx - one_loop.dx).max() < 1e-10  # m
+        assert np.abs(one_dh.dx - batched[1].dx[i]).max() < 1e-10

@@ -86,9 +86,6 @@ def format_table(result: Identification) -> str:
         f"stiffness in {result.stiffness_coordinates} coordinates "
         + ("(the controller's, which the drives turn with)"
            if result.stiffness_coordinates == "controller" else "(the kinematic chain's joints)"),
-        f"stiffness in {result.stiffness_coordinates} coordinates "
-        + ("(the controller's, which the drives turn with)"
-           if result.stiffness_coordinates == "controller" else "(the kinematic chain's joints)"),
         f"formulation {result.formulation}, method {result.method}, {len(result.starts)} "
         f"least-squares runs: " + ("all agree" if result.starts_agree else "they DISAGREE")
         + ("" if result.methods_agree is None else

@@ -152,8 +152,8 @@ _AXIS = re.compile(r"^\s*([^=]+?)\s*=\s*([^:]+):([^:]+)(?::([^:]+))?\s*$")
 
 def _angle_scale(robot: Robot, index: int, deg: bool) -> float:
     """Factor to SI of a coordinate given on the command line (deg -> rad if revolute)."""
-    joint = robot.model.joints[robot.model.getJointId(robot.coordinate_joints[index])]
-    return np.pi / 180.0 if deg and not joint.shortname().startswith("JointModelP") else 1.0
+    prismatic = robot.is_prismatic(robot.coordinate_joints[index])
+    return np.pi / 180.0 if deg and not prismatic else 1.0
 
 
 def _refuse_unscannable(model) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import UnknownJointError
+from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.viewer.ellipsoid import PrincipalEllipsoid, RotationalBlock
 from stiffness.viewer.geometry import Pose, rotation_y_to, segment_pose
@@ -79,7 +80,6 @@ def random_coordinates(robot: Robot, n: int, base: np.ndarray, joints: Sequence[
                        seed: int) -> np.ndarray:
     """``n`` rows of coordinates: ``base`` with each of ``joints`` (default all) uniform within
     its limits, clipped to [-180, 180] deg (angles) or [-1, 1] m (prismatic joints)."""
-    model = robot.model
     names = list(robot.coordinate_joints) if joints is None else list(joints)
     unknown = [j for j in names if j not in robot.coordinate_joints]
     if unknown:
@@ -88,13 +88,13 @@ def random_coordinates(robot: Robot, n: int, base: np.ndarray, joints: Sequence[
                                 name=unknown[0], choices=robot.coordinate_joints)
     rng = np.random.default_rng(seed)
     rows = np.tile(base, (n, 1))
+    lower, upper = coordinate_limits(robot)  # +-inf for continuous joints
     for name in names:
         i = robot.coordinate_joints.index(name)
-        joint = model.joints[model.getJointId(name)]
-        lo, hi = model.lowerPositionLimit[joint.idx_q], model.upperPositionLimit[joint.idx_q]
+        lo, hi = lower[i], upper[i]
         bound = 1.0 if robot.is_prismatic(name) else np.pi
-        lo = lo if joint.nq == 1 and np.isfinite(lo) and lo > -bound else -bound
-        hi = hi if joint.nq == 1 and np.isfinite(hi) and hi < bound else bound
+        lo = lo if np.isfinite(lo) and lo > -bound else -bound
+        hi = hi if np.isfinite(hi) and hi < bound else bound
         rows[:, i] = rng.uniform(lo, hi, n)
     return rows
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.viewer.ellipsoid import QUANTITIES
 from stiffness.viewer.states import (
@@ -167,19 +168,18 @@ def field_legend(data: dict, fs: FieldState, quantity: str) -> None:
 def controls_spec(robot: Robot, st: SceneState, formulation: str, quantity: str) -> dict:
     """The live page's controls at the shown scene: joint sliders (deg or m, within the
     joint limits), the force (magnitude N, azimuth and elevation deg), formulation, quantity."""
-    model = robot.model
     joints = []
+    lower, upper = coordinate_limits(robot)  # +-inf for continuous joints
     for i, name in enumerate(robot.coordinate_joints):
-        joint = model.joints[model.getJointId(name)]
-        lo, hi = model.lowerPositionLimit[joint.idx_q], model.upperPositionLimit[joint.idx_q]
+        lo, hi = lower[i], upper[i]
         if robot.is_prismatic(name):
             lo = lo if np.isfinite(lo) and lo > -10 else -1.0
             hi = hi if np.isfinite(hi) and hi < 10 else 1.0
             joints.append({"name": name, "unit": "m", "to_si": 1.0, "min": lo, "max": hi,
                            "step": (hi - lo) / 1000, "digits": 3, "value": st.coords[i]})
         else:
-            lo = np.rad2deg(lo) if joint.nq == 1 and np.isfinite(lo) and lo > -7 else -180.0
-            hi = np.rad2deg(hi) if joint.nq == 1 and np.isfinite(hi) and hi < 7 else 180.0
+            lo = np.rad2deg(lo) if np.isfinite(lo) and lo > -7 else -180.0
+            hi = np.rad2deg(hi) if np.isfinite(hi) and hi < 7 else 180.0
             joints.append({"name": name, "unit": "deg", "to_si": np.pi / 180, "min": lo,
                            "max": hi, "step": 0.1, "digits": 1,
                            "value": float(np.rad2deg(st.coords[i]))})

@@ -32,8 +32,7 @@ def _axis_label(spec: ScanSpec, position: int) -> tuple[str, float]:
     """Label and display scale (rad -> deg for revolute joints) of a map axis."""
     axis = spec.axes[position]
     robot = worker_robot(spec.robot)
-    joint = robot.model.joints[robot.model.getJointId(axis["joint"])]
-    if joint.shortname().startswith("JointModelP"):
+    if robot.is_prismatic(axis["joint"]):
         return f"{axis['joint']} (m)", 1.0
     return f"{axis['joint']} (deg)", 180.0 / np.pi
 

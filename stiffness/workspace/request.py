@@ -22,6 +22,7 @@ import numpy as np
 from stiffness.batch import kernels as batch
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_stiffness
+from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot, coordinate_index, load_robot
 from stiffness.workspace.engine import run_scan
 from stiffness.workspace.spec import ScanSpec, grid_length, parse_fields
@@ -70,14 +71,11 @@ def joint_range(robot: Robot, index: int) -> tuple[float, float]:
     StiffnessError
         A prismatic joint without finite limits.
     """
-    model = robot.model
-    joint = model.joints[model.getJointId(robot.coordinate_joints[index])]
-    prismatic = joint.shortname().startswith("JointModelP")
-    if joint.nq == 1:
-        lo = float(model.lowerPositionLimit[joint.idx_q])
-        hi = float(model.upperPositionLimit[joint.idx_q])
-        if np.isfinite(lo) and np.isfinite(hi) and hi > lo and max(abs(lo), abs(hi)) < 1e3:
-            return lo, hi
+    prismatic = robot.is_prismatic(robot.coordinate_joints[index])
+    lower, upper = coordinate_limits(robot)  # +-inf for a continuous or unbounded joint
+    lo, hi = float(lower[index]), float(upper[index])
+    if np.isfinite(lo) and np.isfinite(hi) and hi > lo and max(abs(lo), abs(hi)) < 1e3:
+        return lo, hi
     if prismatic:
         raise StiffnessError(
             f"prismatic joint {robot.coordinate_joints[index]!r} has no finite limits: give its "
