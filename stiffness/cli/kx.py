@@ -224,7 +224,9 @@ def compute(args: argparse.Namespace) -> dict:
     inputs = resolve_inputs(args)
     robot = inputs.robot
     model = inputs.model or ElasticModel.joint_springs(robot, inputs.k_theta)
-    state = model.at(inputs.q, inputs.load, args.formulation)
+    # a coupled robot's full q has as many values as its (controller) coordinates: give those
+    pose = inputs.q if robot.coupling is None else inputs.coords
+    state = model.at(pose, inputs.load, args.formulation)
     report = cartesian_report(state, args.formulation, args.connection, args.twist_order)
     trans = "N/m"
     if len(report["basis"]) == 6:

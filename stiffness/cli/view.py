@@ -223,7 +223,8 @@ class ModelViewer(StiffnessViewer):
         state = target_state(self.robot, q, wrench)
         out = {}
         for name in formulations:
-            c = self.compliant_model.at(q, wrench, name).compliance()
+            pose = q if self.robot.coupling is None else self.robot.coordinates_of(q)
+            c = self.compliant_model.at(pose, wrench, name).compliance()
             values, vectors = np.linalg.eigh(0.5 * (c + c.T))
             # principal_ellipsoid draws F T^-1 F^T: C = F T^-1 F^T with F = V |L|^1/2 and
             # T = sign(L) (an indefinite compliance past the buckling load keeps its signs)

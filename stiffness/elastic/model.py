@@ -314,6 +314,10 @@ class ElasticModel:
     def configuration(self, q: np.ndarray | list[float]) -> np.ndarray:
         """Full configuration of coordinates (n_coordinates,) or of a full ``q`` (nq,).
 
+        When both have the same length the values are the coordinates: the same thing for
+        a robot whose coordinates are its joints, the controller's coordinates for a robot
+        with a ``[controller]`` coupling (give it ``robot.coordinates_of(q)``).
+
         Raises
         ------
         StiffnessError
