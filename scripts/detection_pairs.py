@@ -40,7 +40,8 @@ sys.path.insert(0, str(ROOT))
 
 from detection_rate import write_between_markers  # noqa: E402  (scripts/ is on sys.path)
 
-from stiffness.calibration.diagnose import GOF_LEVEL, diagnose  # noqa: E402
+from stiffness.calibration.diagnose import diagnose  # noqa: E402
+from stiffness.calibration.selection import GOF_LEVEL  # noqa: E402
 from stiffness.planning.simulate import parse_effect, simulate  # noqa: E402
 
 NOISE_MM = 0.005

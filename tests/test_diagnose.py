@@ -9,14 +9,10 @@ import numpy as np
 import pytest
 
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.diagnose import (
-    DIAGNOSIS_FILE,
-    FINAL_MODEL_FILE,
-    RESIDUALS_PLOT,
-    config_folds,
-    diagnose,
-    format_report,
-)
+from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.diagnosis import DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT
+from stiffness.calibration.diagnosis_report import format_report
+from stiffness.calibration.selection import config_folds
 from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
 from stiffness.planning.simulate import parse_effect, simulate
@@ -201,7 +197,7 @@ def test_diagnosis_page(tmp_path):
     import subprocess
     import tempfile
 
-    from stiffness.calibration.diagnose import DIAGNOSIS_PAGE
+    from stiffness.calibration.diagnosis import DIAGNOSIS_PAGE
 
     sim = _simulate(SK120, ["force_sensor_bias=8"], configs=6)
     result = diagnose(sim.campaign, propose=False)

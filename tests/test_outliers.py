@@ -18,7 +18,8 @@ import pytest
 from scipy.stats import binom
 
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.diagnose import diagnose, format_report
+from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fitting import LOSSES, covariance, fit_model, loss_terms
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.calibration.outliers import (

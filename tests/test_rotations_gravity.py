@@ -85,7 +85,7 @@ def test_undeclared_rotation_noise_is_estimated_per_kind():
     assert 0.6 * truth < r.rotation_sigma_rad < 1.5 * truth
     d = diagnose(c, propose=False)
     assert d.rotation_noise_source == "residuals"
-    rms = d.to_dict()["rms_by_kind"]["final"]
+    rms = d.record()["rms_by_kind"]["final"]
     assert rms["rotation"] == pytest.approx(truth * 180 / np.pi, rel=0.4)   # deg
     assert rms["translation"] == pytest.approx(NOISE * 1e3, rel=0.4)        # mm
 

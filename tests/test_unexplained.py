@@ -13,14 +13,11 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from stiffness.calibration.diagnose import (
-    correlation,
-    diagnose,
-    fit_baseline,
-    fit_model,
-    format_report,
-)
+from stiffness.calibration.breakdown import correlation
+from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_page import render_diagnosis
+from stiffness.calibration.diagnosis_report import format_report
+from stiffness.calibration.selection import fit_baseline, fit_model
 from stiffness.elastic.effects import candidates
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -107,7 +104,7 @@ def test_out_of_library_is_unexplained_and_names_nothing():
         (n, s, x.summary()["missing_effects"]) for n, s, good, x in runs if not good]
     # the report says where to look: the drift shows in the row order
     drift = next(x for n, _, good, x in runs if n == "temperature_drift" and good)
-    structure = drift.to_dict()["where_final_disagrees"]
+    structure = drift.record()["where_final_disagrees"]
     corr = structure["correlation"]
     assert corr["row_order"]["r2"] > 0.5 and corr["row_order"]["p_value"] < 1e-6
     assert set(corr["joint_torque"]) == set(corr["joint_angle"]) == set(drift.geometry.joints)
@@ -115,7 +112,7 @@ def test_out_of_library_is_unexplained_and_names_nothing():
             "by_row_order"} <= set(structure)
     text = format_report(drift)
     assert "UNEXPLAINED" in text and "row order: R2" in text
-    full = drift.to_dict()
+    full = drift.record()
     assert full["unexplained"] is True and full["missing_effects"] == []
     notes = drift.model_file().to_dict()
     assert notes["unexplained"] is True and "library does not model" in notes[

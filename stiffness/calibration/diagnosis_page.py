@@ -1,6 +1,6 @@
 """``diagnosis.html``: the page of ``stiffness diagnose --out``, in the report's template.
 
-Rendered from :meth:`stiffness.calibration.diagnose.Diagnosis.to_dict` (campaign units): the
+Rendered from :meth:`stiffness.calibration.diagnosis.Diagnosis.record` (campaign units): the
 residuals before and after, the effects added step by step with their BIC gain and RMS, the
 parameters with 95 % intervals, the verdict on what is left (explained to noise, or
 *unexplained*) with the final residual's structure (by load direction and row order, and its
@@ -143,7 +143,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     Parameters
     ----------
     d
-        :meth:`Diagnosis.to_dict` (lengths in the campaign's unit ``d["unit"]``).
+        :meth:`~stiffness.calibration.diagnosis.Diagnosis.record` (lengths in the campaign's
+        unit ``d["unit"]``).
     residuals_png
         The residual plot (before and after), embedded if given.
     prov

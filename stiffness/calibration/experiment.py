@@ -436,7 +436,7 @@ class Alternatives:
     Attributes
     ----------
     a, b
-        The fits (e.g. :class:`stiffness.calibration.diagnose.Fit`: the baseline plus each
+        The fits (e.g. :class:`stiffness.calibration.fitting.Fit`: the baseline plus each
         effect), anything with the fitted ``model`` (over the campaign's rows) and its ``x``.
     labels
         Their effect labels.

@@ -9,7 +9,7 @@ are unknown) that lowers BIC most, when it lowers BIC by more than
 :data:`~stiffness.calibration.diagnose.BIC_MARGIN` and the held-out RMS (cross-validation over
 configuration labels) falls. Only identifiable parameters are fitted
 (:mod:`stiffness.calibration.pose_fit`). At the end the residual is tested against the declared
-noise (chi-square at :data:`~stiffness.calibration.diagnose.GOF_LEVEL`): what is left above it
+noise (chi-square at :data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it
 is "unexplained", with its structure (per marker, per axis, along the row order).
 """
 
@@ -26,9 +26,10 @@ import pinocchio as pin
 from scipy import stats
 
 from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
-from stiffness.calibration.diagnose import BIC_MARGIN, GOF_LEVEL, config_folds
+from stiffness.calibration.diagnose import BIC_MARGIN
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, predict, rows_of, starting_frame
+from stiffness.calibration.selection import GOF_LEVEL, config_folds
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, read_json
 from stiffness.robot.robot import Robot, load_robot

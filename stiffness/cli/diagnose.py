@@ -23,7 +23,8 @@ import shlex
 import sys
 
 from stiffness.calibration.campaign import campaign_kind, load_campaign
-from stiffness.calibration.diagnose import MAX_STEPS, diagnose, format_report
+from stiffness.calibration.diagnose import MAX_STEPS, diagnose
+from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fitting import LOSSES
 from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses

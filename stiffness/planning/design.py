@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign, RobotSettings, Units, load_campaign
-from stiffness.calibration.diagnose import fit_baseline, fit_model, replicate_noise
 from stiffness.calibration.experiment import (
     CRITERIA,
     LOAD_DIRECTIONS,
@@ -39,6 +38,7 @@ from stiffness.calibration.experiment import (
     separation_statistics,
     standard_errors,
 )
+from stiffness.calibration.selection import fit_baseline, fit_model, replicate_noise
 from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis

@@ -1,0 +1,430 @@
+"""The result of :func:`stiffness.calibration.diagnose.diagnose`: the steps, the candidates
+and ambiguities, the final model (:class:`Diagnosis`: its ``--json`` object, the whole record,
+the model file and the ``--out`` folder).
+
+SI inside; the JSON and the files in the campaign's units.
+"""
+
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.campaign import Campaign, Units
+from stiffness.calibration.diagnosis_page import render_diagnosis
+from stiffness.calibration.fitting import Fit
+from stiffness.calibration.outliers import (
+    OUTLIER_THRESHOLD,
+    Outlier,
+)
+from stiffness.calibration.selection import GOF_LEVEL
+from stiffness.elastic.effects.base import Effect, Parameter
+from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
+from stiffness.files import atomic_write, staged_folder
+from stiffness.provenance import provenance
+
+#: Units of the model file's effect parameters (SI).
+SI_UNITS = Units(angle="rad", force="N", length="m")
+#: File names written by :meth:`Diagnosis.write`.
+DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
+    "diagnosis.json", "residuals.png", "final-model.json")
+#: The diagnosis as a page (:mod:`stiffness.calibration.diagnosis_page`).
+DIAGNOSIS_PAGE = "diagnosis.html"
+#: Noise sources.
+NOISE_SOURCES = ("declared", "replicates", "residuals")
+
+
+@dataclass
+class Candidate:
+    """One candidate extension at a step.
+
+    Attributes
+    ----------
+    effect
+        The effect.
+    fit
+        The extended model fitted.
+    bic, delta_bic
+        Its BIC and the change from the current model's.
+    cv_rms
+        Cross-validated RMS (m), when computed.
+    """
+
+    effect: Effect
+    fit: Fit
+    bic: float
+    delta_bic: float
+    cv_rms: float | None = None
+
+
+@dataclass
+class Ambiguity:
+    """Two effects the campaign cannot tell apart, and the measurements that would.
+
+    Attributes
+    ----------
+    step
+        Step (1-based) at which they competed.
+    chosen, other
+        Labels of the added effect and of its rival.
+    delta_bic
+        BIC of the rival minus the chosen one's.
+    similarity
+        Cosine similarity of their fitted residual reductions.
+    separation
+        RMS difference of their predictions over the campaign, noise units.
+    reason
+        Why they cannot be told apart.
+    cv_rms
+        Cross-validated RMS (m) of the chosen and of the other (None if not computed).
+    proposals
+        Extra measurements, best first: coordinates, force, predicted deflections of both, the
+        separation in noise units.
+    """
+
+    step: int
+    chosen: str
+    other: str
+    delta_bic: float
+    similarity: float
+    separation: float
+    reason: str = ""
+    cv_rms: tuple[float | None, float | None] = (None, None)
+    proposals: list[dict] = field(default_factory=list)
+
+    def to_dict(self, length_to_si: float = 1.0) -> dict:
+        """JSON-ready (CV RMS divided by ``length_to_si``)."""
+        return {"step": self.step, "chosen": self.chosen, "other": self.other,
+                "reason": self.reason, "delta_bic": self.delta_bic,
+                "similarity": self.similarity,
+                "cv_rms": [None if v is None else v / length_to_si for v in self.cv_rms],
+                "separation_noise_units": self.separation, "proposals": self.proposals}
+
+
+@dataclass
+class Step:
+    """One effect added.
+
+    Attributes
+    ----------
+    effect
+        The effect.
+    fit
+        The model after adding it.
+    rms
+        RMS residual (m).
+    bic, delta_bic, cv_rms
+        Its BIC, the BIC change, its cross-validated RMS (m).
+    parameters
+        The effect's parameters, campaign units.
+    ranking
+        The best candidates of the step: label, delta BIC, CV RMS (m) or None.
+    dispersion
+        The step's overdispersion
+        (:func:`~stiffness.calibration.selection.step_dispersion`): its BICs use the noise
+        variance times this.
+    """
+
+    effect: Effect
+    fit: Fit
+    rms: float
+    bic: float
+    delta_bic: float
+    cv_rms: float
+    parameters: list[Parameter]
+    ranking: list[dict]
+    dispersion: float = 1.0
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`~stiffness.calibration.diagnose.diagnose` (SI; :meth:`to_dict` and the
+    files use campaign units).
+
+    Attributes
+    ----------
+    campaign
+        The campaign diagnosed.
+    geometry
+        Its robot's shared geometry.
+    baseline
+        The baseline fitted.
+    baseline_stiffness
+        Baseline stiffnesses with uncertainties (N.m/rad or N/m).
+    final_stiffness
+        The same in the final model.
+    noise_std_m, noise_std_source, noise_note
+        The noise level (m), where it comes from (:data:`NOISE_SOURCES`) and what that means.
+    steps
+        Effects added, in order.
+    stop_reason
+        Why the search stopped.
+    baseline_disagreement, final_disagreement
+        Residual breakdowns (:func:`~stiffness.calibration.breakdown.disagreement`).
+    gof_baseline, gof_final
+        Chi-square p-values of the baseline and final fits (known noise only).
+    ambiguities
+        What the campaign cannot tell apart.
+    cv_baseline
+        Cross-validated RMS of the baseline (m).
+    elapsed_s
+        Wall time (s).
+    unexplained
+        ``True`` when the search ended (library exhausted, or nothing else passing BIC and
+        cross-validation) with the chi-square test still rejecting the final model: something
+        outside the library is in the data, and :attr:`final_disagreement` says where to look.
+        ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
+        from the residuals (no test available).
+    loss
+        The loss of every fit (:data:`stiffness.calibration.fitting.LOSSES`).
+    outliers, outlier_sigma_m
+        The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
+        (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
+        they are standardised by.
+    """
+
+    campaign: Campaign
+    geometry: Geometry
+    baseline: Fit
+    baseline_stiffness: list[Parameter]
+    final_stiffness: list[Parameter]
+    noise_std_m: float
+    noise_std_source: str
+    noise_note: str
+    steps: list[Step]
+    stop_reason: str
+    baseline_disagreement: dict
+    final_disagreement: dict
+    gof_baseline: float | None
+    gof_final: float | None
+    ambiguities: list[Ambiguity]
+    cv_baseline: float
+    elapsed_s: float
+    final_parameters: dict[str, list[Parameter]] = field(default_factory=dict)
+    final_parameters_si: dict[str, list[Parameter]] = field(default_factory=dict)
+    unexplained: bool | None = None
+    measured: np.ndarray | None = None
+    rotation_noise_std_rad: float | None = None
+    rotation_noise_source: str | None = None
+    loss: str = "linear"
+    outliers: list[Outlier] = field(default_factory=list)
+    outlier_sigma_m: float | None = None
+
+    def rms_by_kind(self) -> dict:
+        """RMS of the baseline's and the final model's residuals per kind: translations in
+        the length unit, rotations (when measured) in the campaign's rotation unit."""
+        measured = self.campaign.deflection if self.measured is None else self.measured
+        out = {}
+        for label, fit in (("baseline", self.baseline), ("final", self.final)):
+            t, r = fit.rms_by_kind(measured)
+            out[label] = {"translation": self._len(t), "rotation": None if r is None
+                          else r / self.campaign.units.rotation_to_si}
+        return out
+
+    @property
+    def final(self) -> Fit:
+        """The final fit."""
+        return self.steps[-1].fit if self.steps else self.baseline
+
+    @property
+    def unit(self) -> str:
+        """The campaign's length unit."""
+        return self.campaign.units.length
+
+    def _len(self, value_m: float) -> float:
+        return value_m / self.campaign.units.length_to_si
+
+    @property
+    def unexplained_note(self) -> str:
+        """One sentence on the verdict of :attr:`unexplained`."""
+        if self.unexplained is None:
+            return ("not tested: the noise is estimated from the final model's residuals, so "
+                    "whether something outside the library is left cannot be said")
+        if not self.unexplained:
+            return "the final model explains the data to noise (chi-square test)"
+        return (f"the residual is still above the noise (chi-square p = {self.gof_final:.3g} "
+                f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
+                "cross-validation: the data contain something the library does not model; "
+                "the residual's structure (where_final_disagrees) says where to look"
+                + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
+                   "fail the test (see outliers)" if self.outliers else ""))
+
+    @property
+    def missing_effects(self) -> list[str]:
+        """Names of the effects added."""
+        return [s.effect.name for s in self.steps]
+
+    def to_dict(self) -> dict:
+        """The object ``stiffness diagnose --json`` prints (campaign units): exactly the keys
+        of the issue; :meth:`record` has everything."""
+        return jsonable({
+            "baseline_rms": self._len(self.baseline.rms()),
+            "noise_std": self._len(self.noise_std_m),
+            "noise_std_source": self.noise_std_source,
+            "steps": [{"effect": s.effect.name, "where": s.effect.where,
+                       "rms": self._len(s.rms),
+                       "parameters": {p.name: p.to_dict() for p in s.parameters}}
+                      for s in self.steps],
+            "missing_effects": self.missing_effects,
+            "unexplained": self.unexplained,
+            "final_rms": self._len(self.final.rms()),
+            "unit": self.unit,
+            "loss": self.loss,
+            "outlier_threshold": OUTLIER_THRESHOLD,
+            "outliers": [o.to_dict() for o in self.outliers],
+            "rms_by_kind": self.rms_by_kind(),
+        })
+
+    def summary(self) -> dict:
+        """The ``--json`` object (:meth:`to_dict`)."""
+        return self.to_dict()
+
+    def record(self) -> dict:
+        """Everything (``diagnosis.json``): :meth:`to_dict` plus the breakdowns, rankings,
+        ambiguities, proposals."""
+        c = self.campaign
+        out = self.to_dict()
+        out.update({
+            "campaign": c.name,
+            "campaign_path": str(c.path) if c.path is not None else None,
+            "rows": c.n_rows,
+            "residual_components": (3 if c.rotation is None else 6) * c.n_rows,
+            "configurations": len(set(c.config)),
+            "baseline": self.baseline.model.describe(),
+            "final_model": self.final.model.describe(),
+            "noise_std_note": self.noise_note,
+            "fits_to_noise": {"baseline_p_value": self.gof_baseline,
+                              "final_p_value": self.gof_final, "level": GOF_LEVEL},
+            "stop_reason": self.stop_reason,
+            "unexplained_note": self.unexplained_note,
+            "cv_rms": {"baseline": self._len(self.cv_baseline),
+                       "steps": [self._len(s.cv_rms) for s in self.steps]},
+            "baseline_stiffness": {p.name: p.to_dict() for p in self.baseline_stiffness},
+            "final_stiffness": {p.name: p.to_dict() for p in self.final_stiffness},
+            "step_details": [{"effect": s.effect.name, "where": s.effect.where,
+                              "description": s.effect.describe(),
+                              "delta_bic": s.delta_bic, "dispersion": s.dispersion,
+                              "ranking": [
+                                  {**r, "cv_rms": None if r["cv_rms"] is None
+                                   else self._len(r["cv_rms"])} for r in s.ranking]}
+                             for s in self.steps],
+            "where_baseline_disagrees": self.baseline_disagreement,
+            "where_final_disagrees": self.final_disagreement,
+            "cannot_tell_apart": [a.to_dict(c.units.length_to_si) for a in self.ambiguities],
+            "elapsed_s": self.elapsed_s,
+            "rotation_unit": c.units.rotation,
+            "rotation_noise_std": None if self.rotation_noise_std_rad is None
+            else self.rotation_noise_std_rad / c.units.rotation_to_si,
+            "rotation_noise_std_source": self.rotation_noise_source,
+        })
+        return jsonable(out)
+
+    def model_file(self) -> ModelFile:
+        """The final model in the model-file schema (SI): baseline stiffnesses with their
+        intervals, each effect with its SI parameters and intervals, the noise."""
+        c, f = self.campaign, self.final
+        s = c.robot_settings
+        refs = f.model.refs
+        effects = []
+        for e in f.model.effects:
+            effects.append(ModelEffect(e.name, e.where, e.kind,
+                                       self.final_parameters_si.get(e.label, []),
+                                       e.file_settings(refs), e.describe()))
+        stiff = self.final_stiffness
+        return ModelFile(
+            source=c.resolved_source(), **c.robot_options(),
+            frame=self.geometry.robot.target_frame,
+            target_offset_m=s.target_offset_m, compliant_joints=tuple(f.model.compliant),
+            k_theta=np.array([p.value for p in stiff]), units=tuple(p.unit for p in stiff),
+            formulation=f.model.baseline,
+            standard_error=np.array([p.standard_error for p in stiff]),
+            ci95_low=np.array([p.ci95[0] for p in stiff]),
+            ci95_high=np.array([p.ci95[1] for p in stiff]),
+            effects=tuple(effects), noise_std_m=self.noise_std_m,
+            noise_source=self.noise_std_source, campaign=c.name, produced_by="diagnose",
+            undetermined_joints=tuple(p.name for p in stiff if not (
+                math.isfinite(p.ci95[1]) and p.ci95[0] > 0)),
+            extra={
+                "model": f.model.describe(), "rms": self._len(f.rms()),
+                "noise_std": self._len(self.noise_std_m),
+                "noise_std_source": self.noise_std_source, "unit": self.unit,
+                "unexplained": self.unexplained, "unexplained_note": self.unexplained_note,
+                "rotation_noise": None if self.rotation_noise_std_rad is None else {
+                    "std_rad": self.rotation_noise_std_rad,
+                    "source": self.rotation_noise_source,
+                    "weight_m_per_rad": f.model.rotation_weight},
+                "baseline": f.model.baseline, "compliant_joints": list(f.model.compliant),
+                "parameter_vector": f.x.tolist(),
+                "references": {"k_ref": refs.k_ref, "theta_ref": refs.theta_ref,
+                               "force_ref": refs.force_ref,
+                               "deflection_ref": refs.deflection_ref,
+                               "tau_max": dict(zip(refs.joints, refs.tau_max.tolist(),
+                                                   strict=True)),
+                               "tau_smoothing": dict(zip(refs.joints,
+                                                         refs.tau_smoothing.tolist(),
+                                                         strict=True))},
+            },
+        )
+
+    def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
+        """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
+        ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
+        (default: this process's command line)."""
+        folder = Path(folder)
+        record = self.record()
+        png = residual_plot(self)
+        with staged_folder(folder) as stage:  # published whole, by one rename
+            atomic_write(stage / DIAGNOSIS_FILE, json.dumps(record, indent=1) + "\n")
+            self.model_file().write(stage / FINAL_MODEL_FILE)
+            atomic_write(stage / RESIDUALS_PLOT, png)
+            atomic_write(stage / DIAGNOSIS_PAGE, render_diagnosis(record, png,
+                                                                  provenance(command)))
+        return {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
+                "final_model": folder / FINAL_MODEL_FILE, "page": folder / DIAGNOSIS_PAGE}
+
+
+def residual_plot(d: Diagnosis) -> bytes:
+    """PNG: residual components before (baseline) and after (final model), row by row."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lu = d.campaign.units.length_to_si
+    before = (d.baseline.predicted[:, :3] - d.campaign.deflection) / lu
+    after = (d.final.predicted[:, :3] - d.campaign.deflection) / lu
+    sigma = d.noise_std_m / lu
+    rows = np.arange(1, d.campaign.n_rows + 1)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    for k, ax in enumerate(axes):
+        ax.axhspan(-2 * sigma, 2 * sigma, color="0.9", label="±2 noise std")
+        ax.plot(rows, before[:, k], "x", color="0.45", label="baseline")
+        ax.plot(rows, after[:, k], "o", ms=3.5, color=f"C{k}", label="final model")
+        ax.axhline(0.0, color="0.3", lw=0.6)
+        ax.set_ylabel(f"d{'xyz'[k]} residual ({d.unit})")
+        ax.grid(alpha=0.3)
+    labels = d.campaign.config
+    starts = [i for i in range(len(labels)) if i == 0 or labels[i] != labels[i - 1]]
+    if len(starts) <= 30:
+        for ax in axes:
+            for i in starts[1:]:
+                ax.axvline(i + 0.5, color="0.8", lw=0.5)
+    axes[0].legend(fontsize=8, ncol=3, loc="upper right")
+    title = "missing: " + (", ".join(s.effect.label for s in d.steps) or "nothing")
+    axes[0].set_title(f"{d.campaign.name}: RMS {d.baseline.rms() / lu:.3g} -> "
+                      f"{d.final.rms() / lu:.3g} {d.unit} (noise {sigma:.3g}); {title}",
+                      fontsize=9)
+    axes[-1].set_xlabel("measurement row")
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()

@@ -1,0 +1,121 @@
+"""The diagnosis as text: the report ``stiffness diagnose`` prints."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from stiffness.calibration.breakdown import strongest_correlations
+from stiffness.calibration.outliers import describe_outliers
+from stiffness.calibration.selection import GOF_LEVEL
+
+if TYPE_CHECKING:  # annotations only
+    from stiffness.calibration.diagnosis import Diagnosis
+
+
+def _disagreement_lines(d: dict, unit: str, force_unit: str) -> list[str]:
+    def cell(g: dict) -> str:
+        return f"{g['rms']:.4g} ({g['ratio']:.2g}x)" if g["rows"] else "-"
+
+    lines = ["  by configuration: " + ", ".join(
+        f"{k} {cell(g)}" for k, g in d["by_configuration"].items())]
+    lines.append("  by axis: " + ", ".join(
+        f"{k} {g['rms']:.4g} ({g['ratio']:.2g}x, mean {g['mean']:+.3g})"
+        for k, g in d["by_axis"].items()))
+    lines.append("  by load magnitude: " + ", ".join(
+        f"[{g['force_range'][0]:.4g}, {g['force_range'][1]:.4g}] {force_unit} {cell(g)}"
+        for g in d["by_load_magnitude"]))
+    lines.append("  by load sign: " + ", ".join(
+        f"{k}>0 {cell(g['positive'])} {k}<0 {cell(g['negative'])}"
+        for k, g in d["by_load_sign"].items()))
+    if "by_load_direction" in d:
+        lines.append("  by load direction (nearest axis): " + ", ".join(
+            f"{k} {cell(g)}" for k, g in d["by_load_direction"].items()))
+        lines.append("  by row order: " + ", ".join(
+            f"rows {g['row_range'][0]}-{g['row_range'][1]} {cell(g)}"
+            for g in d["by_row_order"]))
+        strongest = strongest_correlations(d)
+        if strongest:
+            lines.append("  strongest correlations (share of the residual a straight line in "
+                         "the variable explains):")
+            for c in strongest:
+                lines.append(f"    {c['variable']}: R2 {c['r2']:.2g}, "
+                             f"{c['explained_ratio']:.2g} noise std RMS, "
+                             f"p = {c['p_value']:.2g}")
+    return lines
+
+
+def format_report(d: Diagnosis) -> str:
+    """The human-readable report of ``stiffness diagnose``."""
+    c, unit = d.campaign, d.unit
+    lu = c.units.length_to_si
+    lines = [
+        f"campaign {c.name}" + (f" ({c.path})" if c.path else "")
+        + f": {c.n_rows} rows, {len(set(c.config))} configurations, {3 * c.n_rows} residual "
+          f"components; lengths in {unit}",
+        f"baseline: {d.baseline.model.describe()}; RMS {d.baseline.rms() / lu:.4g} {unit}",
+        f"noise std: {d.noise_std_m / lu:.4g} {unit} ({d.noise_std_source}: {d.noise_note})",
+    ]
+    if d.gof_baseline is not None:
+        verdict = "fits" if d.gof_baseline > 1 - GOF_LEVEL else "does NOT fit"
+        lines.append(f"the baseline {verdict} to noise (chi-square p = {d.gof_baseline:.3g})")
+    lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
+    lines += _disagreement_lines(d.baseline_disagreement, unit, c.units.force)
+    lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {'RMS':>10} {'dBIC':>9} "
+                  f"{'CV RMS':>10}"]
+    lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
+                 f"{d.cv_baseline / lu:>10.4g}")
+    for i, s in enumerate(d.steps, start=1):
+        lines.append(f"{i:<5} {s.effect.name:<28} {s.effect.where or '':<30} "
+                     f"{s.rms / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
+    lines.append("")
+    if d.steps:
+        lines.append("identified effects (final model; 95 % intervals):")
+        for s in d.steps:
+            lines.append(f"  {s.effect.label}: {s.effect.describe()}")
+            for p in d.final_parameters.get(s.effect.label, []):
+                lines.append(f"    {p.name} = {p.value:.5g} +- {p.standard_error:.3g} {p.unit} "
+                             f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]")
+        lines.append("missing effects: " + ", ".join(s.effect.label for s in d.steps))
+    else:
+        lines.append("missing effects: none" + (
+            " (the baseline explains the data to noise)" if d.gof_baseline is not None
+            and d.gof_baseline > 1 - GOF_LEVEL else ""))
+    lines.append("stiffness (final model): " + ", ".join(
+        f"{p.name} {p.value:.5g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}"
+        for p in d.final_stiffness))
+    ratio = d.final.rms() / d.noise_std_m
+    lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
+                 f"stopped: {d.stop_reason}")
+    if d.loss != "linear":
+        lines.append(f"loss {d.loss} (every fit; intervals from Huber's sandwich covariance)")
+    lines += describe_outliers(d.outliers)
+    if d.unexplained:
+        lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",
+                  f"where the final model disagrees (RMS in {unit}, and in noise std):"]
+        lines += _disagreement_lines(d.final_disagreement, unit, c.units.force)
+    if d.rotation_noise_std_rad is not None:
+        kinds, ru = d.rms_by_kind(), d.campaign.units.rotation
+        lines.append(f"RMS by kind: translations {kinds['baseline']['translation']:.4g} -> "
+                     f"{kinds['final']['translation']:.4g} {unit}, rotations "
+                     f"{kinds['baseline']['rotation']:.4g} -> {kinds['final']['rotation']:.4g} "
+                     f"{ru} (rotation noise std "
+                     f"{d.rotation_noise_std_rad / d.campaign.units.rotation_to_si:.4g} {ru}, "
+                     f"{d.rotation_noise_source})")
+    if d.ambiguities:
+        lines += ["", "cannot tell apart:"]
+        for a in d.ambiguities:
+            cv = ", ".join("-" if v is None else f"{v / lu:.4g}" for v in a.cv_rms)
+            lines.append(f"  step {a.step}: {a.chosen} vs {a.other}: {a.reason}; dBIC "
+                         f"{a.delta_bic:+.3g}, CV RMS {cv} {unit}, signature similarity "
+                         f"{a.similarity:.3f}; their predictions differ by {a.separation:.3g} "
+                         "noise std RMS over this campaign")
+            for p in a.proposals:
+                if "note" in p:
+                    lines.append(f"    {p['note']}")
+                    continue
+                q = ", ".join(f"{v:.4g}" for v in p["q"])
+                f = ", ".join(f"{v:.4g}" for v in p["force"])
+                lines.append(f"    measure q = [{q}] {c.units.angle}, F = [{f}] "
+                             f"{c.units.force}: predicted difference "
+                             f"{p['separation_noise_units']:.3g} noise std")
+    return "\n".join(lines)

@@ -1,0 +1,181 @@
+"""Model selection for ``diagnose``: fitting a hypothesis (from a non-negative linear start),
+its information criterion and overdispersion, cross-validation over configurations, the
+chi-square test of fitting to noise, interval quantiles and the noise of replicate rows.
+
+SI inside (m, N, rad).
+"""
+
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import nnls
+from scipy.special import chdtrc, ndtri, stdtrit
+
+from stiffness.calibration import fitting
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.fitting import Fit, FitJob
+from stiffness.elastic.effects.hypothesis import Hypothesis
+
+#: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
+#: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
+GOF_LEVEL = 0.95
+#: Folds over configuration labels when there are more than :data:`LOCO_MAX` configurations.
+CV_FOLDS = 6
+#: Up to this many configurations, cross-validation leaves one configuration out at a time.
+LOCO_MAX = 12
+
+_MIN_REPLICATE_DOF = 9
+
+
+def fit_job(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
+            max_nfev: int | None = None, tolerance: float = 1e-10, loss: str = "linear",
+            f_scale: float = 1.0) -> FitJob:
+    """The fitting engine's bounded trf fit of ``model`` on ``measured`` (m, 3) from ``x0``
+    to the solver ``tolerance`` under ``loss`` (soft threshold ``f_scale`` in units of
+    ``scale``), to run (:class:`stiffness.calibration.fitting.FitJob`)."""
+    return FitJob(model, measured, scale, x0,
+                  {"max_nfev": max_nfev, "x_scale": 1.0, "tolerance": tolerance,
+                   "loss": loss, "f_scale": f_scale})
+
+
+def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
+              max_nfev: int | None = None, tolerance: float = 1e-10, loss: str = "linear",
+              f_scale: float = 1.0) -> Fit:
+    """:func:`fit_job`'s fit, in this process."""
+    return fit_job(model, measured, scale, x0, max_nfev, tolerance, loss, f_scale).run()
+
+
+def _linear_start(model: Hypothesis, measured: np.ndarray) -> np.ndarray:
+    """ln k from the conventional model, linear in the compliances (non-negative LS)."""
+    tau = model.rows.torques()[:, model.index[: len(model.compliant)]]
+    jac = model.jv if model.rotation_weight is None else np.concatenate(
+        [model.jv, model.rotation_weight * model.jw], axis=1)
+    design = (jac[:, :, : len(model.compliant)] * tau[:, None, :]).reshape(
+        -1, len(model.compliant))
+    c, _ = nnls(design, measured.reshape(-1))
+    k = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.nan)
+    fill = np.nanmax(k) * 100.0 if np.any(np.isfinite(k)) else 1e9
+    return np.log(np.where(np.isfinite(k), k, fill))
+
+
+def fit_baseline(model: Hypothesis, measured: np.ndarray, scale: float, loss: str = "linear"
+                 ) -> Fit:
+    """Baseline fit from the linear start and the paper's 1e5 N.m/rad start; the best kept
+    (a robust ``loss`` scaled by ``scale``, the noise std)."""
+    n = len(model.compliant)
+    starts = [_linear_start(model, measured), np.full(n, math.log(1e5))]
+    fits = [fit_model(model, measured, scale, x0, max_nfev=200 * (n + 1), loss=loss)
+            for x0 in starts]
+    return min(fits, key=lambda f: f.loss_rss)
+
+
+def information_criterion(rss: float, n: int, p: int, sigma: float | None) -> float:
+    """BIC: ``RSS / sigma^2 + p ln N`` (known sigma) or ``N ln(RSS / N) + p ln N``."""
+    if sigma is not None:
+        return rss / sigma ** 2 + p * math.log(n)
+    return n * math.log(max(rss, 1e-300) / n) + p * math.log(n)
+
+
+def step_dispersion(fits: list[Fit], n: int, sigma: float | None) -> float:
+    """Overdispersion of a selection step: ``c = max(1, min_f RSS_f / (sigma^2 (N - p_f)))``
+    over the current model and its extensions ``fits`` (1 with an unknown sigma).
+
+    What the best extension leaves above the noise is structure no candidate of the step
+    models; it acts as extra noise on every comparison of the step. The step's BICs therefore
+    use ``c sigma^2`` (a quasi-likelihood BIC), so that a candidate must explain a share of the
+    *remaining* misfit, not only beat the measurement noise, to be named. When one extension
+    fits to noise, ``c = 1`` and the BIC is the plain known-sigma one.
+    """
+    if sigma is None:
+        return 1.0
+    ratios = [f.loss_rss / (sigma ** 2 * max(n - f.model.penalty_params, 1)) for f in fits]
+    return max(1.0, min(ratios))
+
+
+def config_folds(labels: tuple[str, ...], seed: int = 0) -> list[np.ndarray]:
+    """Held-out row indices of each fold: one configuration label each, or
+    :data:`CV_FOLDS` groups of labels when there are more than :data:`LOCO_MAX`."""
+    labels_arr = np.asarray(labels)
+    unique = list(dict.fromkeys(labels))
+    if len(unique) < 2:
+        return []
+    if len(unique) <= LOCO_MAX:
+        groups = [[u] for u in unique]
+    else:
+        order = np.random.default_rng(seed).permutation(len(unique))
+        groups = [[unique[i] for i in order[f::CV_FOLDS]] for f in range(CV_FOLDS)]
+    return [np.flatnonzero(np.isin(labels_arr, g)) for g in groups]
+
+
+def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray],
+                   workers: int | None = None) -> list[float]:
+    """Cross-validated RMS residual (m) of each fit: each fold refitted without its rows, from
+    the fit's ``x`` (every refit of every fit one job of
+    :func:`stiffness.calibration.fitting.fit_models` on ``workers``)."""
+    if not folds:
+        return [math.nan] * len(fits)
+    m = measured.shape[0]
+    trains = [np.setdiff1d(np.arange(m), test) for test in folds]
+    subs = fitting.fit_models([fit_job(f.model.with_rows(f.model.rows.subset(train)),
+                                       measured[train], f.scale, f.x, loss=f.loss,
+                                       f_scale=f.f_scale)
+                               for f in fits for train in trains], workers)
+    out = []
+    for i, fit in enumerate(fits):
+        total = 0.0
+        for test, sub in zip(folds, subs[i * len(folds): (i + 1) * len(folds)], strict=True):
+            try:
+                with np.errstate(all="ignore"):
+                    pred = fit.model.with_rows(fit.model.rows.subset(test)).predict(sub.x)
+            except np.linalg.LinAlgError:
+                total = math.inf
+                break
+            if not np.all(np.isfinite(pred)):
+                total = math.inf
+                break
+            total += float(np.sum((pred - measured[test]) ** 2))
+        out.append(math.sqrt(total / measured.size))
+    return out
+
+
+def parameter_covariance(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray:
+    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+`` (a robust fit's sandwich)."""
+    return fitting.covariance(fit, sigma, measured).matrix
+
+
+def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | None:
+    if sigma is None or n <= p:
+        return None
+    return float(chdtrc(n - p, rss / sigma ** 2))
+
+
+def interval_quantile(sigma: float | None, n: int, p: int) -> float:
+    if sigma is not None:
+        return float(ndtri(0.975))
+    return float(stdtrit(max(n - p, 1), 0.975))
+
+
+def replicate_noise(campaign: Campaign, kind: str = "translation"
+                    ) -> tuple[float, int] | None:
+    """Pooled std (m; rad for ``kind="rotation"``) of replicate rows (same coordinates and
+    force) and its degrees of freedom, or ``None`` when the replicates give fewer than 9
+    degrees of freedom (or the campaign measures no rotations)."""
+    values = campaign.deflection if kind == "translation" else campaign.rotation
+    if values is None:
+        return None
+    groups: dict[tuple, list[int]] = {}
+    for i in range(campaign.n_rows):
+        key = tuple(np.round(campaign.q[i], 9)) + tuple(np.round(campaign.wrench[i], 6))
+        groups.setdefault(key, []).append(i)
+    ss, dof = 0.0, 0
+    for idx in groups.values():
+        if len(idx) > 1:
+            d = values[idx]
+            ss += float(np.sum((d - d.mean(axis=0)) ** 2))
+            dof += 3 * (len(idx) - 1)
+    if dof < _MIN_REPLICATE_DOF:
+        return None
+    return math.sqrt(ss / dof), dof
