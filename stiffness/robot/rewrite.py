@@ -18,9 +18,13 @@ placement.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 import pinocchio as pin
 
+from stiffness.errors import FloatingBaseError
 from stiffness.robot.kinematics import frame_id
 
 #: Joint types of Gepetto's ``joint_type`` key (upper case; files may use any case).
@@ -136,3 +140,42 @@ def _reducible(model: pin.Model) -> pin.Model:
         lower = np.where(lower > upper, -upper, lower)
         setattr(model, low, lower)
     return model
+
+
+#: Joints of a floating or planar base (fixed by :func:`fix_base`).
+BASE_JOINTS = {"JointModelFreeFlyer", "JointModelPlanar"}
+
+
+def fix_base(model: pin.Model, visual, name: str, fixed_base: bool
+              ) -> tuple[pin.Model, pin.GeometryModel | None, list[str]]:
+    """Lock floating or planar base joints at their neutral placement when ``fixed_base``."""
+    bases = [j for j in range(1, model.njoints)
+             if model.parents[j] == 0 and model.joints[j].shortname() in BASE_JOINTS]
+    if not bases:
+        return model, visual, []
+    described = ", ".join(f"{model.names[j]!r} ({model.joints[j].shortname()})" for j in bases)
+    if not fixed_base:
+        raise FloatingBaseError(
+            f"{name} has a floating or planar base, joint {described}: fix the base at its "
+            "neutral placement with --fixed-base (Python: load_robot(..., fixed_base=True))")
+    names = [model.names[j] for j in bases]
+    model, visual = lock_joints(model, visual, names)
+    return model, visual, [f"base joint {described} fixed at its neutral placement"]
+
+
+@dataclass(frozen=True)
+class EditedVisual:
+    """A source's visual geometry read on demand, with the joint rewrites and base fixing
+    that :func:`load_robot` applied to its model (picklable)."""
+
+    model: pin.Model
+    read: Callable[[], pin.GeometryModel | None]
+    rewrites: dict[str, str] | None
+    name: str
+    fixed_base: bool
+
+    def __call__(self) -> pin.GeometryModel | None:
+        model, visual = self.model, self.read()
+        if self.rewrites is not None:
+            model, visual = rewrite_joints(model, visual, self.rewrites)
+        return fix_base(model, visual, self.name, self.fixed_base)[1]

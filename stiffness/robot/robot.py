@@ -20,19 +20,16 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import (
-    FloatingBaseError,
     LoopClosureError,
     RobotFileError,
     StiffnessError,
-    UnknownFrameError,
     UnknownJointError,
     did_you_mean,
 )
@@ -42,13 +39,13 @@ from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
 from stiffness.robot.loops import (
     CLOSURE_TOLERANCE_M,
     LoopClosure,
+    LoopDeclaration,
     build_loop_closure,
-    read_loop_declaration,
 )
 from stiffness.robot.meshes import MissingMesh
-from stiffness.robot.rewrite import lock_joints, rewrite_joints
-from stiffness.robot.sources import resolve_source
-from stiffness.robot.targets import default_target_frame, moving_frames
+from stiffness.robot.rewrite import EditedVisual, fix_base, rewrite_joints
+from stiffness.robot.sources import RobotSource, loop_declaration, resolve_source
+from stiffness.robot.targets import branch_joints, checked_target_frame, gripper_joints
 from stiffness.robot.urdf import Mimic, warn
 
 #: Name of the operational frame added at the measurement target.
@@ -67,9 +64,6 @@ _SUPPORTED_JOINTS = {
     "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
     "JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned",
 }
-_BASE_JOINTS = {"JointModelFreeFlyer", "JointModelPlanar"}
-
-
 @dataclass
 class Robot:
     """A robot model ready for elastostatics.
@@ -513,65 +507,6 @@ class Robot:
         return self._reference
 
 
-#: Marks of loop-closure frame names in the tools that write closed-loop URDFs: Gepetto's
-#: example-parallel-robots (``closedloop<N>_A`` / ``_B``, formerly ``fermeture<N>``) and
-#: onshape-to-robot (``closing_``).
-LOOP_FRAME_MARKS = ("closedloop", "fermeture", "closing_")
-
-
-def _loop_declaration(source, loops: str | os.PathLike | None):
-    """The loop declaration to read: ``loops``, the shipped one, or the sidecar found; with
-    none, a warning if the URDF's frames are named as loop-closure frames
-    (:data:`LOOP_FRAME_MARKS`): its loops would otherwise be dropped in silence."""
-    if loops is not None:
-        return read_loop_declaration(Path(loops))
-    if source.loop_file is not None:
-        return read_loop_declaration(source.loop_file)
-    marked = [f.name for f in source.model.frames if f.type in (pin.BODY, pin.OP_FRAME)
-              and any(mark in f.name.lower() for mark in LOOP_FRAME_MARKS)]
-    if marked and source.urdf is not None:
-        warn(f"{source.urdf}: {len(marked)} frames are named as loop-closure frames (e.g. "
-             f"{marked[0]!r}) but no loop declaration is beside it: loaded as an open tree; "
-             f"declare the loops in {source.urdf.parent / 'robot.yaml'} or give --loops FILE "
-             "(docs/robot-files.md)")
-    return None
-
-
-@dataclass(frozen=True)
-class _EditedVisual:
-    """A source's visual geometry read on demand, with the joint rewrites and base fixing
-    that :func:`load_robot` applied to its model (picklable)."""
-
-    model: pin.Model
-    read: Callable[[], pin.GeometryModel | None]
-    rewrites: dict[str, str] | None
-    name: str
-    fixed_base: bool
-
-    def __call__(self) -> pin.GeometryModel | None:
-        model, visual = self.model, self.read()
-        if self.rewrites is not None:
-            model, visual = rewrite_joints(model, visual, self.rewrites)
-        return _fix_base(model, visual, self.name, self.fixed_base)[1]
-
-
-def _fix_base(model: pin.Model, visual, name: str, fixed_base: bool
-              ) -> tuple[pin.Model, pin.GeometryModel | None, list[str]]:
-    """Lock floating or planar base joints at their neutral placement when ``fixed_base``."""
-    bases = [j for j in range(1, model.njoints)
-             if model.parents[j] == 0 and model.joints[j].shortname() in _BASE_JOINTS]
-    if not bases:
-        return model, visual, []
-    described = ", ".join(f"{model.names[j]!r} ({model.joints[j].shortname()})" for j in bases)
-    if not fixed_base:
-        raise FloatingBaseError(
-            f"{name} has a floating or planar base, joint {described}: fix the base at its "
-            "neutral placement with --fixed-base (Python: load_robot(..., fixed_base=True))")
-    names = [model.names[j] for j in bases]
-    model, visual = lock_joints(model, visual, names)
-    return model, visual, [f"base joint {described} fixed at its neutral placement"]
-
-
 def _check_mimics(name: str, mimics: tuple[Mimic, ...], model: pin.Model, passive: set[str]
                   ) -> tuple[Mimic, ...]:
     """Mimic couplings that still apply after rewrites and locking (warn about the others)."""
@@ -632,21 +567,9 @@ def load_robot(
         (:class:`~stiffness.errors.FloatingBaseError`).
     """
     src = resolve_source(source)
-    name, model, visual, settings = src.name, src.model, src.visual, src.settings
-    notes = list(src.notes)
-    declaration = _loop_declaration(src, loops)
-    if declaration is not None:
-        model, visual = rewrite_joints(model, visual, declaration.rewrites)
-        if declaration.rewrites:
-            notes.append("joints rewritten: " + ", ".join(
-                f"{j} -> {k}" for j, k in declaration.rewrites.items()))
-    model, visual, base_notes = _fix_base(model, visual, name, fixed_base)
-    notes += base_notes
-    visual_loader = None
-    if src.visual_loader is not None:  # the same edits on the geometry, when it is drawn
-        visual_loader = _EditedVisual(pin.Model(src.model), src.visual_loader,
-                                      None if declaration is None else declaration.rewrites,
-                                      name, fixed_base)
+    name, settings = src.name, src.settings
+    declaration = loop_declaration(src, loops)
+    model, visual, visual_loader, notes = _edited_model(src, declaration, fixed_base)
     followers = tuple(m.follower for m in src.mimics)
     loop = LoopClosure.open_chain()
     if declaration is not None:
@@ -654,34 +577,8 @@ def load_robot(
     passive = set(loop.passive_joints)
     mimics = _check_mimics(name, src.mimics, model, passive)
     dependent = {m.follower for m in mimics}
-    coordinate_joints = []
-    for jid in range(1, model.njoints):
-        joint = model.joints[jid]
-        joint_name = model.names[jid]
-        if joint.nv == 0 or joint_name in passive or joint_name in dependent:
-            continue
-        if joint.shortname() not in _SUPPORTED_JOINTS:
-            raise StiffnessError(
-                f"joint {joint_name!r} is a {joint.shortname()} with {joint.nv} degrees of "
-                "freedom; only revolute, continuous and prismatic joints can be coordinates "
-                "(declare it passive in a loop file, or fix the base with --fixed-base)"
-            )
-        coordinate_joints.append(joint_name)
-    order = settings.get("coordinate_order")
-    if order is not None and loops is not None and sorted(order) != sorted(coordinate_joints):
-        warn(f"{name}: the coordinate_order of its robot.toml does not match the coordinates "
-             f"under the loop file {loops}; model order used, and its defaults for the "
-             "coordinates (q, compliant joints, springs) dropped")
-        settings = {k: v for k, v in settings.items() if k not in (
-            "coordinate_order", "q_SI", "q_deg", "rest_q_SI", "compliant_joints", "k_theta_SI")}
-        order = None
-    if order is not None:
-        if sorted(order) != sorted(coordinate_joints):
-            raise StiffnessError(
-                f"coordinate_order {order} of {name} must list exactly its coordinate joints "
-                f"{coordinate_joints}"
-            )
-        coordinate_joints = list(order)
+    coordinate_joints, settings = _ordered_coordinates(
+        name, settings, _free_joints(model, passive | dependent), loops)
     coupling = _controller(name, settings, model, coordinate_joints, not loop.is_open_chain,
                            mimics)
     spring_names = coordinate_joints
@@ -691,14 +588,10 @@ def load_robot(
             else list(coupling.chain)
 
     closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
-    gripper = _gripper_joints(model, src.all_mimics + src.mimics)
-    frame = _target_frame(name, model, frame if frame is not None else settings.get("frame"),
-                          closure, gripper)
-    if target_offset is None:
-        target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
-    offset = np.asarray(target_offset, dtype=float).reshape(-1)
-    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-        raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
+    gripper = gripper_joints(model, src.all_mimics + src.mimics)
+    frame = checked_target_frame(
+        name, model, frame if frame is not None else settings.get("frame"), closure, gripper)
+    offset = _target_offset(target_offset, settings)
 
     fid = kinematics.frame_id(model, frame)
     if compliant_joints is None:  # default: not the fingers of an end-effector branch
@@ -707,20 +600,7 @@ def load_robot(
         compliant_joints = settings.get(
             "compliant_joints", [j for j in spring_names if j not in branch])
     compliant_joints = tuple(compliant_joints)
-    for joint_name in compliant_joints:
-        if joint_name not in spring_names:
-            why = (" (it is a passive loop joint)" if joint_name in passive else
-                   " (it is a mimic follower: its leader carries the spring)"
-                   if joint_name in dependent else "")
-            if coupling is not None:
-                why = (f" (its springs act on the {coupling.springs_on}'s coordinates: "
-                       "[controller] springs_on)")
-            raise UnknownJointError(
-                f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
-                f"{did_you_mean(joint_name, spring_names)}", name=joint_name,
-                choices=spring_names)
-    if len(set(compliant_joints)) != len(compliant_joints):
-        raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
+    _check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
 
     parent = model.frames[fid]
     placement = parent.placement * pin.SE3(np.eye(3), offset)
@@ -750,6 +630,108 @@ def load_robot(
     )
 
 
+def _target_offset(target_offset: np.ndarray | list[float] | None, settings: dict
+                   ) -> np.ndarray:
+    """The target's position (3,) in its frame's axes (m): given, else the robot file's."""
+    if target_offset is None:
+        target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
+    offset = np.asarray(target_offset, dtype=float).reshape(-1)
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
+    return offset
+
+
+def _edited_model(src: RobotSource, declaration: LoopDeclaration | None, fixed_base: bool
+                  ) -> tuple[pin.Model, pin.GeometryModel | None, EditedVisual | None, list[str]]:
+    """The source's model and visual geometry with the loop file's joint rewrites and the
+    base fixed when ``fixed_base``; the same edits for the geometry read later (when drawn);
+    and the notes saying what was done."""
+    name, model, visual = src.name, src.model, src.visual
+    notes = list(src.notes)
+    if declaration is not None:
+        model, visual = rewrite_joints(model, visual, declaration.rewrites)
+        if declaration.rewrites:
+            notes.append("joints rewritten: " + ", ".join(
+                f"{j} -> {k}" for j, k in declaration.rewrites.items()))
+    model, visual, base_notes = fix_base(model, visual, name, fixed_base)
+    notes += base_notes
+    visual_loader = None
+    if src.visual_loader is not None:  # the same edits on the geometry, when it is drawn
+        visual_loader = EditedVisual(pin.Model(src.model), src.visual_loader,
+                                     None if declaration is None else declaration.rewrites,
+                                     name, fixed_base)
+    return model, visual, visual_loader, notes
+
+
+def _free_joints(model: pin.Model, excluded: set[str]) -> list[str]:
+    """Joints with a degree of freedom, in model order, but the ``excluded`` ones (passive
+    loop joints, mimic followers): the coordinate joints.
+
+    Raises
+    ------
+    StiffnessError
+        If one of them is neither revolute, continuous nor prismatic.
+    """
+    coordinate_joints = []
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        joint_name = model.names[jid]
+        if joint.nv == 0 or joint_name in excluded:
+            continue
+        if joint.shortname() not in _SUPPORTED_JOINTS:
+            raise StiffnessError(
+                f"joint {joint_name!r} is a {joint.shortname()} with {joint.nv} degrees of "
+                "freedom; only revolute, continuous and prismatic joints can be coordinates "
+                "(declare it passive in a loop file, or fix the base with --fixed-base)"
+            )
+        coordinate_joints.append(joint_name)
+    return coordinate_joints
+
+
+def _ordered_coordinates(name: str, settings: dict, coordinate_joints: list[str],
+                         loops: str | os.PathLike | None) -> tuple[list[str], dict]:
+    """The coordinate joints in the robot file's ``coordinate_order``, and the settings; a
+    ``coordinate_order`` that a ``loops`` file made wrong is dropped with the coordinates'
+    defaults (warned)."""
+    order = settings.get("coordinate_order")
+    if order is not None and loops is not None and sorted(order) != sorted(coordinate_joints):
+        warn(f"{name}: the coordinate_order of its robot.toml does not match the coordinates "
+             f"under the loop file {loops}; model order used, and its defaults for the "
+             "coordinates (q, compliant joints, springs) dropped")
+        settings = {k: v for k, v in settings.items() if k not in (
+            "coordinate_order", "q_SI", "q_deg", "rest_q_SI", "compliant_joints", "k_theta_SI")}
+        order = None
+    if order is not None:
+        if sorted(order) != sorted(coordinate_joints):
+            raise StiffnessError(
+                f"coordinate_order {order} of {name} must list exactly its coordinate joints "
+                f"{coordinate_joints}"
+            )
+        coordinate_joints = list(order)
+    return coordinate_joints, settings
+
+
+def _check_compliant(name: str, compliant_joints: tuple[str, ...], spring_names: list[str],
+                     passive: set[str], dependent: set[str], coupling: CoordinateMap | None
+                     ) -> None:
+    """Raise if a compliant joint carries no spring (not in ``spring_names``: the reason named)
+    or is listed twice."""
+    for joint_name in compliant_joints:
+        if joint_name not in spring_names:
+            why = (" (it is a passive loop joint)" if joint_name in passive else
+                   " (it is a mimic follower: its leader carries the spring)"
+                   if joint_name in dependent else "")
+            if coupling is not None:
+                why = (f" (its springs act on the {coupling.springs_on}'s coordinates: "
+                       "[controller] springs_on)")
+            raise UnknownJointError(
+                f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
+                f"{did_you_mean(joint_name, spring_names)}", name=joint_name,
+                choices=spring_names)
+    if len(set(compliant_joints)) != len(compliant_joints):
+        raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
+
+
 def _controller(name: str, settings: dict, model: pin.Model, chain: list[str], looped: bool,
                 mimics: tuple[Mimic, ...]) -> CoordinateMap | None:
     """The ``[controller]`` map of a robot file over its chain joints, or None without one."""
@@ -766,55 +748,6 @@ def _controller(name: str, settings: dict, model: pin.Model, chain: list[str], l
     units = {k: dh[k] for k in ("angle_unit", "length_unit")
              if isinstance(dh, dict) and k in dh}
     return read_coordinate_map(settings["controller"], path, kinds, units)
-
-
-def branch_joints(model: pin.Model, frame_id: int, coordinate_joints: Sequence[str],
-                  coupled: bool) -> tuple[str, ...]:
-    """Coordinate joints of an end-effector branch: they hang below the joint that moves frame
-    ``frame_id`` (fingers, a gripper's jaws), so that the frame does not depend on them. Other
-    limbs (an arm or leg branching off higher up) are not among them; none when ``coupled``
-    (closed loops or a controller map may tie every coordinate to the target)."""
-    parent = model.frames[frame_id].parentJoint
-    if coupled or parent == 0:
-        return ()
-    return tuple(name for name in coordinate_joints
-                 if (jid := model.getJointId(name)) != parent and parent in model.supports[jid])
-
-
-def _gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
-    """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
-    does not hang below its leader), which do not lengthen a chain for the default target."""
-    out: set[str] = set()
-    for m in mimics:
-        if model.existJointName(m.follower) and model.existJointName(m.leader) and \
-                model.getJointId(m.leader) in model.supports[model.getJointId(m.follower)]:
-            continue  # a serial coupling: the follower extends the leader's chain
-        out |= {m.leader, m.follower}
-    return frozenset(out)
-
-
-def _target_frame(name: str, model: pin.Model, frame: str | None,
-                  closure: frozenset[str], gripper: frozenset[str]) -> str:
-    """The requested target frame, checked, or the default one."""
-    frame_names = [f.name for f in model.frames]
-    moving = moving_frames(model)
-    if frame is None:
-        frame = default_target_frame(model, closure, gripper)
-        if frame is None:
-            raise StiffnessError(f"no joint of {name} moves any frame: it has no degree of "
-                                 "freedom left to be compliant (a fixed base leaves none when "
-                                 "the base was its only joint); choose a robot with joints")
-        return frame
-    if not model.existFrame(frame):
-        raise UnknownFrameError(
-            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}",
-            name=frame, choices=frame_names)
-    if frame not in moving:
-        raise UnknownFrameError(
-            f"frame {frame!r} of {name} is not moved by any joint (it is fixed to the base), so "
-            f"it has no stiffness to compute; choose a frame that moves: "
-            f"{did_you_mean(frame, moving)}", name=frame, choices=moving)
-    return frame
 
 
 def coordinate_index(robot: Robot, name: str, what: str) -> int:

@@ -31,6 +31,7 @@ from stiffness.errors import (
 )
 from stiffness.files import read_toml
 from stiffness.robot.dh import TOOL, build_dh_model, read_dh_table
+from stiffness.robot.loops import LoopDeclaration, read_loop_declaration
 from stiffness.robot.meshes import MissingMesh
 from stiffness.robot.urdf import Mimic, mimic_tags, read_urdf, warn
 
@@ -321,3 +322,28 @@ def _from_folder(folder: Path) -> RobotSource:
             else "no robot.toml and no URDF file")
     raise StiffnessError(f"{folder} is a folder holding {held}: give the path of one URDF file, "
                          "or a folder with a robot.toml or a single URDF")
+
+
+#: Marks of loop-closure frame names in the tools that write closed-loop URDFs: Gepetto's
+#: example-parallel-robots (``closedloop<N>_A`` / ``_B``, formerly ``fermeture<N>``) and
+#: onshape-to-robot (``closing_``).
+LOOP_FRAME_MARKS = ("closedloop", "fermeture", "closing_")
+
+
+def loop_declaration(source: RobotSource, loops: str | os.PathLike | None
+                     ) -> LoopDeclaration | None:
+    """The loop declaration to read: ``loops``, the shipped one, or the sidecar found; with
+    none, a warning if the URDF's frames are named as loop-closure frames
+    (:data:`LOOP_FRAME_MARKS`): its loops would otherwise be dropped in silence."""
+    if loops is not None:
+        return read_loop_declaration(Path(loops))
+    if source.loop_file is not None:
+        return read_loop_declaration(source.loop_file)
+    marked = [f.name for f in source.model.frames if f.type in (pin.BODY, pin.OP_FRAME)
+              and any(mark in f.name.lower() for mark in LOOP_FRAME_MARKS)]
+    if marked and source.urdf is not None:
+        warn(f"{source.urdf}: {len(marked)} frames are named as loop-closure frames (e.g. "
+             f"{marked[0]!r}) but no loop declaration is beside it: loaded as an open tree; "
+             f"declare the loops in {source.urdf.parent / 'robot.yaml'} or give --loops FILE "
+             "(docs/robot-files.md)")
+    return None

@@ -1,4 +1,5 @@
-"""The default target frame and the frames a robot's joints move.
+"""The target frame (the default one, or the requested one checked), the frames a robot's joints
+move, and the joints that do not move it (an end-effector branch, a gripper's jaws).
 
 Rule (docs/robot-files.md): the target is the tip frame of the longest chain of moving joints
 (joints with a degree of freedom, counted from the base); in a closed-loop robot, a branch
@@ -13,8 +14,13 @@ before a joint frame, the last in model order on a tie.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import pinocchio as pin
+
+from stiffness.errors import StiffnessError, UnknownFrameError, did_you_mean
+from stiffness.robot.urdf import Mimic
 
 
 def moving_depth(model: pin.Model, uncounted: frozenset[str] = frozenset()) -> list[int]:
@@ -103,3 +109,52 @@ def _below(model: pin.Model, frame_id: int, names: frozenset[str]) -> bool:
         frame_id = model.frames[frame_id].parentFrame
         seen += 1
     return False
+
+
+def checked_target_frame(name: str, model: pin.Model, frame: str | None,
+                  closure: frozenset[str], gripper: frozenset[str]) -> str:
+    """The requested target frame, checked, or the default one."""
+    frame_names = [f.name for f in model.frames]
+    moving = moving_frames(model)
+    if frame is None:
+        frame = default_target_frame(model, closure, gripper)
+        if frame is None:
+            raise StiffnessError(f"no joint of {name} moves any frame: it has no degree of "
+                                 "freedom left to be compliant (a fixed base leaves none when "
+                                 "the base was its only joint); choose a robot with joints")
+        return frame
+    if not model.existFrame(frame):
+        raise UnknownFrameError(
+            f"frame {frame!r} is not in {name}; {did_you_mean(frame, frame_names)}",
+            name=frame, choices=frame_names)
+    if frame not in moving:
+        raise UnknownFrameError(
+            f"frame {frame!r} of {name} is not moved by any joint (it is fixed to the base), so "
+            f"it has no stiffness to compute; choose a frame that moves: "
+            f"{did_you_mean(frame, moving)}", name=frame, choices=moving)
+    return frame
+
+
+def branch_joints(model: pin.Model, frame_id: int, coordinate_joints: Sequence[str],
+                  coupled: bool) -> tuple[str, ...]:
+    """Coordinate joints of an end-effector branch: they hang below the joint that moves frame
+    ``frame_id`` (fingers, a gripper's jaws), so that the frame does not depend on them. Other
+    limbs (an arm or leg branching off higher up) are not among them; none when ``coupled``
+    (closed loops or a controller map may tie every coordinate to the target)."""
+    parent = model.frames[frame_id].parentJoint
+    if coupled or parent == 0:
+        return ()
+    return tuple(name for name in coordinate_joints
+                 if (jid := model.getJointId(name)) != parent and parent in model.supports[jid])
+
+
+def gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
+    """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
+    does not hang below its leader), which do not lengthen a chain for the default target."""
+    out: set[str] = set()
+    for m in mimics:
+        if model.existJointName(m.follower) and model.existJointName(m.leader) and \
+                model.getJointId(m.leader) in model.supports[model.getJointId(m.follower)]:
+            continue  # a serial coupling: the follower extends the leader's chain
+        out |= {m.leader, m.follower}
+    return frozenset(out)
