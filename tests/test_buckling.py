@@ -69,3 +69,28 @@ def test_kx_says_indefinite_just_beyond_the_critical_load():
     critical = closed_form_factor(1.0, KQ[1], KQ[2])  # N, for a unit force
     assert kx_definiteness(0.99 * critical)["K_theta_minus_K_C"] == "PD"
     assert kx_definiteness(1.01 * critical)["K_theta_minus_K_C"] != "PD"
+
+
+def view_stability(force_n: float, tmp_path) -> dict:
+    """``view --export --json``'s stability of the upright UR5 under ``(0, 0, -force_n)``."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["view", "--robot", "ur5", "--kq", ",".join(map(repr, KQ.tolist())),
+                     "--q", ",".join(map(repr, UPRIGHT.tolist())),
+                     "--wrench", f"0,0,{-force_n!r}", "--export", str(tmp_path / "v.html"),
+                     "--json"])
+    assert code == 0, err.getvalue()
+    doc = json.loads(out.getvalue())
+    return {"stable": doc["stable"], "critical_load_factor": doc["critical_load_factor"]}
+
+
+def test_view_says_stable_or_not_with_the_critical_factor(tmp_path):
+    critical = closed_form_factor(1.0, KQ[1], KQ[2])  # N
+    below = view_stability(0.99 * critical, tmp_path)
+    assert below["stable"] is True
+    assert below["critical_load_factor"] == pytest.approx(1 / 0.99, rel=1e-9)
+    beyond = view_stability(1.01 * critical, tmp_path)
+    assert beyond["stable"] is False
+    assert beyond["critical_load_factor"] == pytest.approx(1 / 1.01, rel=1e-9)
+    # an upward force never buckles the upright arm: no critical factor (not round-off's 1e15)
+    assert view_stability(-100.0, tmp_path)["critical_load_factor"] is None

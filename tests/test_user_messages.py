@@ -101,3 +101,20 @@ def test_design_says_undetermined_not_inf(tmp_path):
 
     assert not re.search(r"\b(inf|nan)\b", out, re.IGNORECASE), out
     assert "undetermined: the rows leave that stiffness free" in out
+
+
+def test_diagnosis_page_says_undetermined_for_an_unbounded_interval():
+    """diagnosis.json writes an infinite bound as null: the page says 'undetermined' and what
+    is known, not '0 to —'."""
+    from stiffness.calibration.diagnosis_page import parameter_rows
+
+    rows = parameter_rows("joint stiffness", {
+        "joint2": {"value": 3.024e7, "standard_error": None, "ci95": [0.0, None],
+                   "unit": "N.m/rad"},
+        "joint3": {"value": 9.35e5, "standard_error": 1.2e4, "ci95": [9.1e5, 9.6e5],
+                   "unit": "N.m/rad"}})
+    undetermined, determined = rows
+    assert undetermined[3] == "undetermined"
+    assert undetermined[4].startswith("<b>undetermined</b> (at least 0, no upper bound")
+    assert "—" not in undetermined[4]
+    assert determined[3] == 1.2e4 and determined[4] == "9.1e+05 to 9.6e+05"

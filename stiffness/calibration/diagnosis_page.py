@@ -10,6 +10,8 @@ the poses and loads that would.
 
 from __future__ import annotations
 
+import math
+
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -36,13 +38,27 @@ SECTIONS = {
 }
 
 
-def _parameter_rows(where: str, parameters: dict) -> list[list]:
+def parameter_rows(where: str, parameters: dict) -> list[list]:
+    """Rows of the parameter table; an interval without a finite bound (JSON null) and an
+    infinite standard error are said to be undetermined, with what is known."""
     rows = []
     for name, p in parameters.items():
         lo, hi = p["ci95"] if p.get("ci95") else (None, None)
-        rows.append([esc(where), esc(name), p["value"], p.get("standard_error"),
-                     f"{num(lo)} to {num(hi)}", esc(p.get("unit", ""))])
+        se = p.get("standard_error")
+        if _finite(lo) and _finite(hi):
+            interval = f"{num(lo)} to {num(hi)}"
+        else:
+            known = f"at least {num(lo)}, " if _finite(lo) else ""
+            interval = f"<b>undetermined</b> ({known}no upper bound: the measurements do not " \
+                       "bound it)"
+        rows.append([esc(where), esc(name), p["value"],
+                     se if _finite(se) else "undetermined", interval, esc(p.get("unit", ""))])
     return rows
+
+
+def _finite(x) -> bool:
+    """Whether ``x`` is a finite number (None, inf and NaN are not)."""
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def _by_configuration(before: dict, after: dict, unit: str) -> str:
@@ -200,9 +216,9 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                                ["effect", "where", "ΔBIC", f"cross-validated RMS ({unit})"],
                                ranked, "The six best-ranked candidate effects of this step."))
     parts.append(heading("parameters", SECTIONS))
-    rows = _parameter_rows("joint stiffness", d["final_stiffness"])
+    rows = parameter_rows("joint stiffness", d["final_stiffness"])
     for s in d["steps"]:
-        rows += _parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
+        rows += parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
                                 s["parameters"])
     parts.append(table("Identified parameters of the final model",
                        ["part", "parameter", "value", "standard error", "95 % interval",

@@ -57,7 +57,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _g(value: float, digits: int = 5) -> str:
-    return f"{value:.{digits}g}" if value == value and abs(value) != float("inf") else "inf"
+    """A number, or the word for an unbounded (inf) or undetermined (NaN) one."""
+    if value != value:
+        return "undetermined"
+    return f"{value:.{digits}g}" if abs(value) != float("inf") else "unbounded"
 
 
 def format_table(result: Identification) -> str:

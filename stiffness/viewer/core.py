@@ -61,6 +61,7 @@ from stiffness.viewer.server import DEFAULT_TIMEOUT, LOOPBACK, LiveServer, Recor
 from stiffness.viewer.states import (
     AXIS_NAMES,
     DEFLECTED_NODE,
+    FIELD_CLIP,
     FIELD_NODE,
     ROBOT_NODE,
     ROTATIONAL_NODE,
@@ -637,14 +638,20 @@ class StiffnessViewer:
             scale = 0.45 * spacing / max(float(np.median(largest)), 1e-300)
             mg = _meshcat().geometry
             self._vis[FIELD_NODE].delete()
+            clipped = np.zeros(len(ells), dtype=bool)
             for i, (p, e) in enumerate(zip(positions_a, ells, strict=True)):
+                radii = ellipsoid_radii(e, scale)
+                clipped[i] = bool(np.any(radii > FIELD_CLIP * spacing))
                 rgb = color_of(COLORMAPS["field"], (kmin[i] - lo) / (hi - lo))
+                material = mg.MeshLambertMaterial(color=0x9A9A9A, opacity=0.35,
+                                                  transparent=True) if clipped[i] else \
+                    mg.MeshLambertMaterial(color=rgb_int(rgb))
                 node = self._vis[f"{FIELD_NODE}/e{i:04d}"]
-                node.set_object(mg.Sphere(1.0), mg.MeshLambertMaterial(color=rgb_int(rgb)))
-                radii = np.minimum(ellipsoid_radii(e, scale), 2.0 * spacing)
+                node.set_object(mg.Sphere(1.0), material)
+                radii = np.minimum(radii, FIELD_CLIP * spacing)
                 node.set_transform(ellipsoid_transform(p, e.directions, radii))
             self.field_state = FieldState(np.array(kept), positions_a, ells, kmin, scale,
-                                          len(rows) - len(kept), (lo, hi))
+                                          len(rows) - len(kept), (lo, hi), clipped)
             if self.state is not None and len(positions_a):
                 self._draw_floor(self.state, positions_a)  # under the field too
             self._send_overlay()

@@ -63,7 +63,8 @@ def style_objects(vis: Any, state: SceneState, color_range: tuple[float, float],
     :mod:`stiffness.viewer.legend`)."""
     mg = _meshcat().geometry
     lo, hi = color_range
-    vis[DEFLECTED_NODE].set_property("visible", state.deflected_q is not None)
+    if state.deflected_q is None:  # else as the user left it: off at first (the legend's box)
+        vis[DEFLECTED_NODE].set_property("visible", False)
     vis[f"{STIFFNESS_NODE}/deflection"].set_property("visible", state.deflection is not None)
     for name in FORMULATIONS:
         base = f"{STIFFNESS_NODE}/{name}"

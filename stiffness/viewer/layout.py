@@ -128,8 +128,9 @@ def floor_layout(points: np.ndarray, extra: np.ndarray | None, reach: float
 
 def camera_spec(robot: Robot, state: SceneState | None, field_positions: np.ndarray | None
                 ) -> dict:
-    """Camera looking at the robot, its ellipsoids and the field, from beside the target:
-    the page's ``{"target": [x, y, z], "position": [x, y, z]}`` (m)."""
+    """Camera looking at the target (at the whole field for a field view) from beside it, far
+    enough back to keep the robot and its ellipsoids in view: the page's
+    ``{"target": [x, y, z], "position": [x, y, z]}`` (m)."""
     model, data = robot.model, robot.data
     q = state.q if state is not None else pin.neutral(model)
     pin.forwardKinematics(model, data, q)
@@ -146,6 +147,10 @@ def camera_spec(robot: Robot, state: SceneState | None, field_positions: np.ndar
     lo, hi = points.min(axis=0), points.max(axis=0)
     center = 0.5 * (lo + hi)
     extent = max(0.5 * float(np.linalg.norm(hi - lo)), 0.3)
+    if state is not None and field_positions is None:
+        # framed on the target: looking at it, far enough back to keep the robot in view
+        center = np.asarray(target, dtype=float)
+        extent = max(0.75 * float(np.max(np.linalg.norm(points - center, axis=1))), 0.3)
     radial = np.array([target[0], target[1], 0.0])
     radial = radial / np.linalg.norm(radial) if np.linalg.norm(radial) > 1e-6 else \
         np.array([1.0, 0.0, 0.0])

@@ -15,6 +15,7 @@ from stiffness.viewer.ellipsoid import QUANTITIES
 from stiffness.viewer.states import (
     AXIS_NAMES,
     DEFLECTED_NODE,
+    FIELD_CLIP,
     FIELD_NODE,
     ROTATIONAL_NODE,
     SHOW_FORMULATIONS,
@@ -163,6 +164,11 @@ def field_legend(data: dict, fs: FieldState, quantity: str) -> None:
     if fs.skipped:
         data["notes"].append(f"field: {fs.skipped} samples skipped (loop cannot close "
                              "or singular stiffness)")
+    clipped = 0 if fs.clipped is None else int(np.sum(fs.clipped))
+    if clipped:
+        data["notes"].append(
+            f"field: {clipped} ellipsoids near a singularity (a principal value far beyond "
+            f"the others') clipped at {FIELD_CLIP:g} sample spacings and drawn grey")
 
 
 def controls_spec(robot: Robot, st: SceneState, formulation: str, quantity: str) -> dict:

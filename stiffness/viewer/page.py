@@ -416,7 +416,24 @@ _PAGE_JS = r"""
       o.material = tint(o.material);
       o.userData.stiffnessGhost = true;
     });
+    overTheRobot();
     viewer.set_dirty();
+  }
+  // The ellipsoids, their axes, the target and the load drawn over the robot's meshes (no
+  // depth test, drawn last): a wrist or a hand would otherwise hide an ellipsoid smaller than
+  // itself, and the translucent surfaces still show the robot behind them.
+  function overTheRobot() {
+    ["stiffness", "rotational"].forEach(function (root) {
+      var n = node(["meshcat", root]);
+      if (!n) { return; }
+      n.object.traverse(function (o) {
+        if (!o.material) { return; }
+        o.renderOrder = 10;
+        (Array.isArray(o.material) ? o.material : [o.material]).forEach(function (m) {
+          if (m.depthTest) { m.depthTest = false; m.needsUpdate = true; }
+        });
+      });
+    });
   }
   var ghostTimer = null;
   JSON.parse(document.getElementById("stiffness-commands").textContent).forEach(function (c) {

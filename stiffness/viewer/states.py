@@ -21,6 +21,8 @@ SHOW_FORMULATIONS = ("both", *FORMULATIONS)
 #: Scene paths (below meshcat's root ``/meshcat``).
 ROBOT_NODE = "robot"
 DEFLECTED_NODE = "deflected"
+#: Largest radius of a field ellipsoid, in sample spacings (beyond: clipped and marked).
+FIELD_CLIP = 2.0
 STIFFNESS_NODE = "stiffness"
 FIELD_NODE = "field"
 FLOOR_NODE = "floor"
@@ -115,6 +117,10 @@ class FieldState:
         Samples dropped (loop cannot close, singular tangent stiffness).
     color_range
         (lo, hi) of the colour scale of k_min (N/m).
+    clipped
+        (m,) whether each ellipsoid was clipped at :data:`FIELD_CLIP` sample spacings (a pose
+        near a singularity, whose largest principal value dwarfs the others'); drawn grey and
+        translucent.
     """
 
     coords: np.ndarray
@@ -124,3 +130,4 @@ class FieldState:
     scale: float
     skipped: int
     color_range: tuple[float, float]
+    clipped: np.ndarray | None = None
