@@ -20,13 +20,18 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from fuzzing import FUZZ, assert_reader_contract, csv_mutation, write_text
+from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
 from hypothesis import given
 from hypothesis import strategies as st
 
 from stiffness.calibration.campaign import RobotSettings, load_campaign
 from stiffness.calibration.identify import identify
-from stiffness.calibration.rig_import import ImportSettings, import_campaign
+from stiffness.calibration.rig_import import (
+    ImportSettings,
+    import_campaign,
+    parse_pairs,
+    read_mapping_file,
+)
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
 
@@ -267,3 +272,51 @@ def test_import_reader_contract(fuzz_folder, data):
             assert np.all(np.isfinite(campaign.q)) and np.all(np.isfinite(campaign.deflection))
     finally:
         (fuzz_folder / "rig.csv").write_text(text)
+
+
+MAPPING = """join = "sample"
+force_frame = "tool"
+deflection_frame = "base"
+[columns]
+q1 = "theta1"
+fx = "Tool_Fx"
+[units]
+angle = "deg"
+force = "N"
+length = "mm"
+"""
+
+
+def test_mapping_file_is_read_and_flags_override_it(tmp_path):
+    path = tmp_path / "map.toml"
+    path.write_text(MAPPING)
+    settings = read_mapping_file(path)
+    assert settings.column_map == {"q1": "theta1", "fx": "Tool_Fx"}
+    assert (settings.join, settings.force_frame, settings.units["length"]) == ("sample",
+                                                                               "tool", "mm")
+    path.write_text(MAPPING.replace('force_frame = "tool"', 'force_frame = "flange"'))
+    with pytest.raises(StiffnessError, match="map.toml: the force frame must be base or tool"):
+        read_mapping_file(path)
+
+
+@FUZZ
+@given(data=st.data())
+def test_mapping_file_reader_contract(tmp_path_factory, data):
+    folder = tmp_path_factory.mktemp("fuzz-map")
+    mutated = data.draw(toml_mutation(MAPPING))
+    write_text(folder / "map.toml", mutated)
+    result = assert_reader_contract(lambda: read_mapping_file(folder / "map.toml"), folder)
+    if result is not None:
+        assert result.force_frame in ("base", "tool")
+        assert all(isinstance(v, str) for v in result.column_map.values())
+
+
+@FUZZ
+@given(text=st.text(max_size=60))
+def test_map_and_units_flags_parse_or_refuse_in_one_line(text):
+    try:
+        pairs = parse_pairs(text, "--map")
+    except StiffnessError as exc:
+        assert "\n" not in str(exc)
+        return
+    assert all(k and v and "," not in k for k, v in pairs.items())

@@ -76,7 +76,7 @@ from stiffness.elastic.effects import candidates
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.errors import StiffnessError
 
 #: A candidate must lower BIC by more than this.
 BIC_MARGIN = 2.0
@@ -156,11 +156,8 @@ def diagnose(
         (:func:`stiffness.calibration.fitting.fit_models`; default the usable cores, 1 in this
         process); the result does not depend on it.
     loss
-        ``linear`` (least squares) or a robust loss of
-        :data:`stiffness.calibration.fitting.LOSSES` for every fit, scaled by the noise std
-        (declared, replicates', else a robust estimate); criteria then compare
-        :attr:`stiffness.calibration.fitting.Fit.loss_rss` and intervals come from Huber's
-        sandwich covariance.
+        ``linear`` or a robust loss for every fit, scaled by the noise std; criteria compare
+        :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
 
     Raises
     ------
@@ -231,10 +228,7 @@ def _check_options(max_steps: int, loss: str) -> None:
             or max_steps < 0:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
                              f"only), got {max_steps!r}")
-    if loss not in fitting.LOSSES:
-        raise UnknownNameError(f"unknown loss {loss!r}; valid losses: "
-                               f"{', '.join(fitting.LOSSES)}", name=loss,
-                               choices=fitting.LOSSES)
+    fitting.check_loss(loss)
 
 
 def _final_noise(final: Fit, n: int, sigma: float | None, note: str) -> tuple[float, str]:

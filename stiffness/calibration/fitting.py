@@ -55,7 +55,7 @@ from scipy.optimize import least_squares
 
 from stiffness.cores import forked_map
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownNameError
 
 #: Singular values of the whitened residual Jacobian below this fraction of the largest are
 #: zero: the data do not determine that direction.
@@ -100,6 +100,17 @@ def loss_terms(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
         t = 1.0 + z
         return np.log1p(z), 1.0 / t, -1.0 / t ** 2
     raise StiffnessError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}")
+
+
+def check_loss(loss: str, method: str = "trf") -> None:
+    """Refuse a loss not in :data:`LOSSES`, or a robust one with ``method`` ``lm`` or
+    ``both`` (Levenberg-Marquardt is least squares only), in one line."""
+    if loss not in LOSSES:
+        raise UnknownNameError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}",
+                               name=loss, choices=LOSSES)
+    if loss != "linear" and method != "trf":
+        raise StiffnessError(f"loss {loss} needs method trf (Levenberg-Marquardt is least "
+                             "squares only); use --method trf or --loss linear")
 
 
 @functools.cache
@@ -352,11 +363,7 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
     f_scale
         Soft threshold of a robust loss, in units of ``scale`` (the noise std / ``scale``).
     """
-    if loss not in LOSSES:
-        raise StiffnessError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}")
-    if loss != "linear" and method == "lm":
-        raise StiffnessError(f"loss {loss} needs method trf (Levenberg-Marquardt is least "
-                             "squares only); use --method trf or --loss linear")
+    check_loss(loss, method)
     objective = Objective(model, measured, scale, anchor)
     x0 = np.asarray(x0, dtype=float)
     kwargs: dict = {"method": method, "xtol": tolerance, "ftol": tolerance, "gtol": tolerance,

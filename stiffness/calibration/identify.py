@@ -66,9 +66,9 @@ from scipy.special import ndtri, stdtrit
 
 from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.fitting import (
-    LOSSES,
     Covariance,
     Fit,
+    check_loss,
     covariance,
     fit_model,
     kind_noise,
@@ -692,12 +692,7 @@ def _check_options(formulation: str, method: str, starts: int, loss: str = "line
                                name=method, choices=METHODS)
     if int(starts) < 1:
         raise StiffnessError(f"starts must be at least 1, got {starts}")
-    if loss not in LOSSES:
-        raise UnknownNameError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}",
-                               name=loss, choices=LOSSES)
-    if loss != "linear" and method != "trf":
-        raise StiffnessError(f"loss {loss} needs method trf (Levenberg-Marquardt is least "
-                             "squares only); use --method trf or --loss linear")
+    check_loss(loss, method)
 
 
 def _check_residual_count(campaign: Campaign, method: str, p: int, loss: str = "linear"
