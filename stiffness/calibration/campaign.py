@@ -14,6 +14,7 @@ simulate``)::
                                        # springs; the rest rigid (optional)
     loops = "robot.yaml"               # loop declaration, relative to this file (optional)
     fixed_base = false                 # fix a floating or planar base (optional)
+    joint_angles = "motor"             # motor | link: what the recorded angles are (optional)
     [units]
     angle = "deg"                      # deg | rad
     force = "N"                        # N | kN
@@ -24,6 +25,12 @@ simulate``)::
     data = "measurements.csv"
     noise_std = 0.005                  # measurement noise std, length unit (optional)
     rotation_noise_std = 0.001         # rotation noise std, rotation unit (optional)
+
+``joint_angles`` says what the recorded joint angles are. ``motor`` (the default): the drives'
+encoders, the commanded pose; static preloads (the links' weight, a spring compensator) sag the
+unloaded pose by ``(K - K_C)^-1 tau_p``, which enters the geometry. ``link``: the unloaded pose
+as measured; preloads set the joints' operating points and tangent stiffness but do not move
+the pose.
 
 Omitted optional keys take :func:`stiffness.robot.robot.load_robot`'s defaults (the shipped robot's
 frame and compliant joints, else the model's last frame and every coordinate joint). Unknown
@@ -87,6 +94,9 @@ CAMPAIGN_FILE = "campaign.toml"
 DEFAULT_DATA_FILE = "measurements.csv"
 #: Models a campaign may start from.
 BASELINES = ("conventional", "enhanced")
+#: What a campaign's joint angles are: the drives' encoders (the commanded pose, which static
+#: preloads sag) or the unloaded link pose as measured.
+JOINT_ANGLES = ("motor", "link")
 
 
 _FORCE_COLUMNS = ("fx", "fy", "fz")
@@ -96,7 +106,8 @@ _ROTATION_COLUMNS = ("rx", "ry", "rz")
 
 _TOML_KEYS = {
     "": {"kind", "name", "baseline", "robot", "units", "measurement"},
-    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base"},
+    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base",
+              "joint_angles"},
     "units": {"angle", "force", "length", "rotation", "moment"},
     "measurement": {"data", "noise_std", "rotation_noise_std"},
 }
@@ -215,6 +226,9 @@ class RobotSettings:
         ``source``), or ``None``.
     fixed_base
         Fix a floating or planar base at its neutral placement (docs/robot-files.md).
+    joint_angles
+        ``motor`` (the commanded pose; preloads sag it) or ``link`` (the unloaded pose as
+        measured), :data:`JOINT_ANGLES`.
     """
 
     source: str
@@ -223,6 +237,7 @@ class RobotSettings:
     compliant_joints: tuple[str, ...] | None = None
     loops: str | None = None
     fixed_base: bool = False
+    joint_angles: str = "motor"
 
     def __post_init__(self) -> None:
         self.source = str(self.source)
@@ -234,6 +249,9 @@ class RobotSettings:
         self.target_offset_m = offset
         if self.compliant_joints is not None:
             self.compliant_joints = tuple(str(j) for j in self.compliant_joints)
+        if self.joint_angles not in JOINT_ANGLES:
+            raise StiffnessError(f"joint_angles must be motor (the drives' encoders) or link "
+                                 f"(the link pose as measured), got {self.joint_angles!r}")
 
 
 @dataclass
@@ -856,8 +874,14 @@ def robot_section(doc: dict, toml: TomlFile, units: Units) -> RobotSettings:
     if not isinstance(fixed_base, bool):
         raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
                          "robot", "fixed_base")
+    joint_angles = r.get("joint_angles", "motor")
+    if joint_angles not in JOINT_ANGLES:
+        raise toml.error(f"[robot] joint_angles must be \"motor\" (the drives' encoders) or "
+                         f"\"link\" (the link pose as measured), got {joint_angles!r}", "robot",
+                         "joint_angles")
     return RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
-                         tuple(joints) if joints is not None else None, loops, fixed_base)
+                         tuple(joints) if joints is not None else None, loops, fixed_base,
+                         joint_angles)
 
 
 def noise_section(doc: dict, toml: TomlFile, units: Units) -> float | None:
@@ -1123,6 +1147,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
         toml.append(f"loops = {_toml_string(loops)}")
     if s.fixed_base:
         toml.append("fixed_base = true")
+    toml.append(f"joint_angles = {_toml_string(s.joint_angles)}")
     toml += [
         "",
         "[units]",

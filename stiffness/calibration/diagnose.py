@@ -173,7 +173,8 @@ def diagnose(
     compliant = tuple(campaign.robot().compliant_joints)
     geo = Geometry.of(campaign.robot())
     rows = geo.rows(campaign.q, campaign.force, campaign.moment,
-                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
+                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
+                    joint_angles=campaign.robot_settings.joint_angles)
     n = campaign.deflection.size * (1 if campaign.rotation is None else 2)
     if n <= len(compliant) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "

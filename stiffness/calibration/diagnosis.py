@@ -339,6 +339,7 @@ class Diagnosis:
         stiff = self.final_stiffness
         return ModelFile(
             source=c.resolved_source(), **c.robot_options(),
+            joint_angles=c.robot_settings.joint_angles,
             frame=self.geometry.robot.target_frame,
             target_offset_m=s.target_offset_m, compliant_joints=tuple(f.model.compliant),
             k_theta=np.array([p.value for p in stiff]), units=tuple(p.unit for p in stiff),

@@ -508,7 +508,8 @@ def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = 
     robot = robot if robot is not None else campaign.robot()
     geometry = Geometry.of(robot)
     rows = geometry.rows(campaign.q, campaign.force, campaign.moment,
-                         labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
+                         labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
+                         joint_angles=campaign.robot_settings.joint_angles)
     refs = References.of(geometry, rows, PAPER_START_SI, campaign.deflection)
     return Hypothesis(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs)
 

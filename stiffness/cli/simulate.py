@@ -68,6 +68,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline", choices=BASELINES,
                         help="declared baseline; default conventional when "
                              "complementary_stiffness is hidden, else enhanced")
+    parser.add_argument("--joint-angles", default="motor", metavar="motor|link",
+                        help="what the campaign records as joint angles: the commanded pose "
+                             "(motor, which a hidden weight or compensator sags) or the "
+                             "unloaded link pose (link); default motor")
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default="mm",
                         help="length unit of the files; default mm")
     flags.add_seed_flag(parser, "random seed; default 0")
@@ -95,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         rotations=args.rotations,
         rotation_noise_std_rad=None if args.rotation_noise is None
         else args.rotation_noise * units.angle_to_si,
-        loops=robot.loops, fixed_base=robot.fixed_base, plan=args.plan)
+        loops=robot.loops, fixed_base=robot.fixed_base, plan=args.plan,
+        joint_angles=args.joint_angles)
     path = sim.write(args.out)
     truth = sim.to_dict()
     if args.json:

@@ -146,6 +146,9 @@ class ElasticModel:
     fitted
         A model file's fitted prediction ``(q, load, measured) -> dx``
         (:func:`stiffness.elastic.model_file.fitted_deflection`), else ``None``.
+    joint_angles
+        What the poses given to :meth:`at` are: ``motor`` (commanded; a preload sags them) or
+        ``link`` (the unloaded pose already, the campaign's ``[robot] joint_angles``).
     """
 
     robot: Robot
@@ -164,6 +167,7 @@ class ElasticModel:
     not_applied: tuple = ()
     beyond_springs: tuple[str, ...] = ()
     fitted: Callable[..., np.ndarray] | None = field(default=None, repr=False)
+    joint_angles: str = "motor"
     _full: Robot | None = field(default=None, repr=False)
     _weighed: pin.Model | None = field(default=None, repr=False)
     _geometry: Geometry | None = field(default=None, repr=False)
@@ -468,7 +472,7 @@ class ElasticState:
         self.commanded = target_state(model.robot, self.q_commanded, self.wrench)
         self.q = self.q_commanded
         self.operating = self.commanded
-        if model.preloaded:
+        if model.preloaded and model.joint_angles == "motor":  # link poses are sagged already
             self.q = model.preloaded_configuration(self.q_commanded)
             self.operating = target_state(model.robot, self.q, self.wrench)
         self._linear: dict[str, Linearisation] = {}

@@ -5,7 +5,7 @@
 
     {"schema": "stiffness-model/1",
      "robot": {"source", "frame", "target_offset_m", "compliant_joints",
-               "loops", "fixed_base"},  # the last two only when given
+               "loops", "fixed_base", "joint_angles"},  # the last three only when given
      "formulation": "conventional" | "enhanced" | "exact",
      "k_theta": {"joints", "values", "unit", "standard_error", "ci95": {"low", "high"},
                  "determined"},
@@ -220,6 +220,7 @@ class ModelFile:
     path: Path | None = None
     loops: str | None = None
     fixed_base: bool = False
+    joint_angles: str = "motor"
 
     def __post_init__(self) -> None:
         n = len(self.compliant_joints)
@@ -282,6 +283,7 @@ class ModelFile:
             robot["loops"] = _relative(self.loops, relative_to)
         if self.fixed_base:
             robot["fixed_base"] = True
+        robot.update({"joint_angles": self.joint_angles} if self.joint_angles != "motor" else {})
         doc = {
             "schema": SCHEMA,
             "format": LEGACY_IDENTIFIED if self.produced_by == "identify" else LEGACY_DIAGNOSED,
@@ -423,19 +425,20 @@ def _relative(path: str, relative_to: str | os.PathLike | None) -> str:
 
 
 def _robot_options(r: _Reader) -> dict:
-    """The optional ``robot.loops`` (resolved against the file's folder) and
-    ``robot.fixed_base`` of a current model file."""
+    """The optional ``robot.loops`` (resolved against the file's folder), ``robot.fixed_base``
+    and ``robot.joint_angles`` of a current model file."""
     loops = r.get("robot", "loops", default=None)
     if loops is not None and not isinstance(loops, str):
         raise r.fail("robot.loops must be the path of a loop declaration (a string)")
     fixed = r.get("robot", "fixed_base", default=False)
     if not isinstance(fixed, bool):
         raise r.fail(f"robot.fixed_base must be true or false, got {fixed!r}")
-    folder = r.path.parent
-    return {"loops": None if loops is None else str((folder / loops).resolve()
-                                                    if not Path(loops).is_absolute()
-                                                    else Path(loops)),
-            "fixed_base": fixed}
+    angles = r.get("robot", "joint_angles", default="motor")
+    if angles not in ("motor", "link"):
+        raise r.fail(f"robot.joint_angles must be motor or link, got {angles!r}")
+    if loops is not None:  # relative to the file's folder
+        loops = str(Path(loops) if Path(loops).is_absolute() else (r.path.parent / loops).resolve())
+    return {"loops": loops, "fixed_base": fixed, "joint_angles": angles}
 
 
 def _robot_part(r: _Reader) -> tuple[str, str, np.ndarray]:
@@ -672,7 +675,7 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
     em = ElasticModel.of_parts(
         robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
         source=None if model.path is None else str(model.path), applied=tuple(applied),
-        not_applied=tuple(not_applied),
+        not_applied=tuple(not_applied), joint_angles=model.joint_angles,
         beyond_springs=tuple(e.label for e in applied if LIBRARY[e.name].beyond_springs))
     em.fitted = functools.partial(fitted_deflection, model)
     return em
@@ -744,7 +747,8 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
     if coords.shape[0] != declared.n_coordinates:
         raise StiffnessError(f"give the {declared.n_coordinates} coordinates of "
                              f"{declared.name} ({', '.join(declared.coordinate_joints)})")
-    rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:])
+    rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:],
+                         joint_angles=model.joint_angles)
     parts = ElasticParts({})
     effects, values = [], []
     for e in model.effects:

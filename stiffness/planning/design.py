@@ -133,7 +133,8 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
         raise StiffnessError(f"--separate needs two different effects, got {chosen[0].label} "
                              "twice")
     rows = geo.rows(campaign.q, campaign.force, campaign.moment,
-                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)])
+                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
+                    joint_angles=campaign.robot_settings.joint_angles)
     measured = campaign.deflection
     source = "given"
     if sigma is None and campaign.noise_std_m is not None:
@@ -549,7 +550,8 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
             "the robot's shipped k_theta_SI"
     elif existing is not None:
         geo = Geometry.of(existing.robot())
-        rows = geo.rows(existing.q, existing.force, existing.moment)
+        rows = geo.rows(existing.q, existing.force, existing.moment,
+                        joint_angles=existing.robot_settings.joint_angles)
         model0 = Hypothesis(geo, rows, existing.baseline, joints,
                        (), References.of(geo, rows, 1e5, existing.deflection))
         scale = existing.noise_std_m or max(float(np.sqrt(np.mean(existing.deflection ** 2)))
@@ -599,7 +601,8 @@ class _Search:
         info = _info_of(cands, model, x, sigma)
         prior, existing_pred = None, None
         if existing is not None:
-            ex_rows = cands.geometry.rows(existing.q, existing.force, existing.moment)
+            ex_rows = cands.geometry.rows(existing.q, existing.force, existing.moment,
+                                          joint_angles=existing.robot_settings.joint_angles)
             prior = row_information(sensitivities(model.with_rows(ex_rows), x),
                                     sigma).sum(axis=0)
             existing_pred = Prediction(standard_errors(prior))

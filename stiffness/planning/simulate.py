@@ -56,7 +56,13 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.campaign import Campaign, RobotSettings, Units, write_campaign
+from stiffness.calibration.campaign import (
+    JOINT_ANGLES,
+    Campaign,
+    RobotSettings,
+    Units,
+    write_campaign,
+)
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import ElasticParts
@@ -223,6 +229,24 @@ class Truth:
     def preloaded(self) -> bool:
         """Whether a preload (weight, compensator) acts."""
         return self._weighed is not None or bool(self.compensators)
+
+    def link_coordinates(self, coords: np.ndarray) -> np.ndarray:
+        """The coordinates (m, n_coordinates; rad, m) of the unloaded link pose at each
+        commanded row ``coords``: the exact equilibrium under the preload (the commanded ones
+        without a preload)."""
+        coords = np.asarray(coords, dtype=float)
+        if not self.preloaded:
+            return coords.copy()
+        out = np.empty_like(coords)
+        rest: dict[tuple, np.ndarray] = {}
+        for i, c in enumerate(coords):
+            key = tuple(c)
+            if key not in rest:
+                eq = solve_equilibrium(self.robot, self.robot.configuration(c), self.law,
+                                       np.zeros(6), preload=self.preload)
+                rest[key] = self.robot.coordinates_of(eq.q)
+            out[i] = rest[key]
+        return out
 
     def deflections(self, coords: np.ndarray, force: np.ndarray, mode: str = "exact",
                     rotations: bool = False) -> np.ndarray:
@@ -436,6 +460,7 @@ def simulate(
     declare_noise: bool = True, name: str | None = None, rotations: bool = False,
     rotation_noise_std_rad: float | None = None, loops: str | None = None,
     fixed_base: bool = False, plan: Plan | str | os.PathLike | None = None,
+    joint_angles: str = "motor",
 ) -> Simulation:
     """Simulate a campaign with hidden effects: ``stiffness simulate`` (:meth:`Simulation.
     to_dict` is its ``--json`` object, :meth:`Simulation.write` its ``--out`` folder).
@@ -486,6 +511,11 @@ def simulate(
         Rows to simulate exactly (:class:`stiffness.planning.plan.Plan`: coordinates,
         applied forces, labels, or the path of a plan written by ``stiffness design``)
         instead of drawing ``configs`` poses and their loads.
+    joint_angles
+        What the campaign records as joint angles, written as its ``[robot] joint_angles``:
+        ``motor`` (the commanded pose, which a hidden weight or compensator sags) or ``link``
+        (the unloaded link pose, the exact equilibrium under that preload). The deflections
+        are the same.
 
     Raises
     ------
@@ -514,15 +544,19 @@ def simulate(
     rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats, units)
     truth, smoothing, effect_rms, baseline_error, clean6 = _truth_and_sizes(
         declared, kq, hidden, rig.units, q, applied, baseline)
-    campaign = rig.campaign(given, declared, name, baseline, q, applied + truth.force_bias,
-                            clean6, row_labels, rng)
+    if joint_angles not in JOINT_ANGLES:
+        raise StiffnessError(f"joint angles must be motor (the drives' encoders) or link (the "
+                             f"link pose as measured), got {joint_angles!r}")
+    recorded_q = truth.link_coordinates(q) if joint_angles == "link" else q
+    campaign = rig.campaign(given, declared, name, baseline, recorded_q,
+                            applied + truth.force_bias, clean6, row_labels, rng, joint_angles)
     info = {"robot": {"source": str(given.source), "frame": declared.target_frame,
                       "target_offset_m": declared.target_offset.tolist()},
             **_request_record(plan, configs, loads_per_config, repeats, load_pattern,
                               max_force, row_labels, applied), "seed": seed,
             "declare_noise": declare_noise, "rotations": rotations,
             "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
-            "backlash_smoothing_Nm": smoothing}
+            "backlash_smoothing_Nm": smoothing, "joint_angles": joint_angles}
     return Simulation(campaign, hidden, kq, noise_std_m, effect_rms, info, baseline_error)
 
 
@@ -612,9 +646,11 @@ class _Rig:
 
     def campaign(self, given: PlannedRobot, declared: Robot, name: str | None, baseline: str,
                  q: np.ndarray, recorded: np.ndarray, clean6: np.ndarray,
-                 row_labels: list[str], rng: np.random.Generator) -> Campaign:
-        """The campaign the rig records: each row ``repeats`` times, noise added to the
-        noise-free deflections and rotations ``clean6`` (m, rad); ``recorded`` forces (N)."""
+                 row_labels: list[str], rng: np.random.Generator,
+                 joint_angles: str = "motor") -> Campaign:
+        """The campaign the rig records: each row ``repeats`` times at the coordinates ``q``
+        (of the kind ``joint_angles``), noise added to the noise-free deflections and rotations
+        ``clean6`` (m, rad); ``recorded`` forces (N)."""
         reps = np.repeat(np.arange(len(q)), self.repeats)
         measured = clean6[reps, :3] + rng.normal(scale=self.noise_std_m, size=(len(reps), 3))
         rotation = None
@@ -625,7 +661,8 @@ class _Rig:
         settings = RobotSettings(declared.name, frame=declared.target_frame,
                                  target_offset_m=declared.target_offset.copy(),
                                  compliant_joints=tuple(declared.compliant_joints),
-                                 loops=loops, fixed_base=given.fixed_base)
+                                 loops=loops, fixed_base=given.fixed_base,
+                                 joint_angles=joint_angles)
         return Campaign(
             name=name or f"simulated-{Path(str(given.source)).stem}",
             baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],

@@ -91,6 +91,10 @@ class Rows:
         (:func:`stiffness.mechanics.gravity.gravity_preload`); NaN for a robot with loops.
     gravity_stiffness
         (m, n, n) its derivative ``-dg/dq`` (N.m/rad); NaN for a robot with loops.
+    joint_angles
+        What ``coords`` are: ``motor`` (the commanded pose, which static preloads sag: the sag
+        enters the geometry) or ``link`` (the unloaded pose as measured: preloads set operating
+        points and tangent stiffness only), the campaign's ``[robot] joint_angles``.
     """
 
     jac: np.ndarray
@@ -105,6 +109,7 @@ class Rows:
     coords: np.ndarray
     gravity_torque: np.ndarray | None = None
     gravity_stiffness: np.ndarray | None = None
+    joint_angles: str = "motor"
 
     @property
     def n_rows(self) -> int:
@@ -116,7 +121,7 @@ class Rows:
         return Rows(*(getattr(self, f)[index] for f in (
             "jac", "k_c_unit", "position", "rotation", "chain_origin", "chain_rotation",
             "force", "moment", "config_index", "coords", "gravity_torque",
-            "gravity_stiffness")))
+            "gravity_stiffness")), joint_angles=self.joint_angles)
 
     def torques(self) -> np.ndarray:
         """(m, n) joint torques ``J^T W`` that hold the recorded loads (N.m or N)."""
@@ -194,8 +199,9 @@ class Geometry:
         return out
 
     def rows(self, coords: np.ndarray, force: np.ndarray, moment: np.ndarray | None = None,
-             labels: list[str] | None = None) -> Rows:
-        """Geometry of rows at coordinates ``coords`` (m, n) under ``force``/``moment`` (m, 3).
+             labels: list[str] | None = None, joint_angles: str = "motor") -> Rows:
+        """Geometry of rows at coordinates ``coords`` (m, n) under ``force``/``moment`` (m, 3);
+        ``joint_angles`` says what the coordinates are (:attr:`Rows.joint_angles`).
 
         Pinocchio runs once per distinct configuration.
 
@@ -238,7 +244,8 @@ class Geometry:
             if self.robot.loop.is_open_chain:
                 g_tau[c], g_k[c] = gravity_preload(self.robot, q)
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
-                    chain_rot[index], force, moment, index, coords, g_tau[index], g_k[index])
+                    chain_rot[index], force, moment, index, coords, g_tau[index], g_k[index],
+                    joint_angles)
 
     def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
         """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart

@@ -330,9 +330,12 @@ class Hypothesis:
 
         Effects with a :meth:`Effect.preload` (gravity) make the deflection the loaded minus
         the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
-        dtheta_1) - f(tau_p + K_p dtheta_0)``, seen through the kinematics of the preloaded
-        pose to first order in ``dtheta_0``: ``dx += sum_k e_k dtheta^T H_k dtheta_0`` and
-        ``dphi += sum_k e_k dtheta^T K_C(e_k moment) dtheta_0``.
+        dtheta_1) - f(tau_p + K_p dtheta_0)``. With motor-side joint angles (the rows'
+        :attr:`~stiffness.elastic.effects.geometry.Rows.joint_angles`) it is seen through the
+        kinematics of the preloaded pose to first order in ``dtheta_0``:
+        ``dx += sum_k e_k dtheta^T H_k dtheta_0`` and
+        ``dphi += sum_k e_k dtheta^T K_C(e_k moment) dtheta_0``; with link angles the rows'
+        pose already is the preloaded one.
 
         With ``detail``, also returns the joint deflections (m, n) and torques (m, n).
 
@@ -378,20 +381,8 @@ class Hypothesis:
                 pre_tau = pre[0] if pre_tau is None else pre_tau + pre[0]
                 pre_k = pre[1] if pre_k is None else pre_k + pre[1]
 
-        def equilibrium(torque, stiffness):
-            d = law.frozen_deflection(torque, stiffness, LAW_ITERATIONS)
-            return d, (law.deflection_tangent(torque, stiffness, d, *directions)
-                       if tangent else None)
-
-        if pre_tau is None:
-            dtheta, t_theta = equilibrium(tau0, k_c)
-            unloaded = t_unloaded = None
-        else:  # loaded minus unloaded equilibrium, both under the preload
-            loaded, t_loaded = equilibrium(tau0 + pre_tau,
-                                           pre_k if k_c is None else k_c + pre_k)
-            unloaded, t_unloaded = equilibrium(pre_tau, pre_k)
-            dtheta = loaded - unloaded
-            t_theta = t_loaded - t_unloaded if tangent else None
+        dtheta, t_theta, unloaded, t_unloaded = self._joint_deflection(
+            law, directions, tau0, k_c, pre_tau, pre_k)
         h_v = self.h[:, :3]
         dx = np.einsum("mkn,mn->mk", jv, dtheta)
         t_dx = jv @ t_theta if tangent else None
@@ -443,6 +434,48 @@ class Hypothesis:
         if torques:
             tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
         return dx, dtheta, tau, t_dx
+
+    def _joint_deflection(self, law: SpringLaw, directions: tuple | None, tau0: np.ndarray,
+                          k_c: np.ndarray | None, pre_tau: np.ndarray | None,
+                          pre_k: np.ndarray | None) -> tuple:
+        """Joint deflections (m, n) of the rows under the load torques ``tau0`` (frozen
+        geometry, ``K_C`` = ``k_c``), with ``directions`` their (m, n, P) tangent; under a
+        preload (torque ``pre_tau``, stiffness ``pre_k``) the loaded minus the unloaded
+        equilibrium, and the unloaded one (the sag) with its tangent when the rows' angles are
+        motor-side (else ``None``, the rows' pose being the preloaded one).
+
+        With link angles the load's ``K_C`` acts on the deflection beyond the recorded pose
+        only: loaded ``= f(tau_W + tau_p - K_C dtheta_0 + (K_C + K_p) dtheta_1)``, so that a
+        linear law gives ``(K - K_C - K_p)^-1 tau_W``.
+        """
+        tangent = directions is not None
+
+        def equilibrium(torque, stiffness):
+            d = law.frozen_deflection(torque, stiffness, LAW_ITERATIONS)
+            return d, (law.deflection_tangent(torque, stiffness, d, *directions)
+                       if tangent else None)
+
+        if pre_tau is None:
+            dtheta, t_theta = equilibrium(tau0, k_c)
+            return dtheta, t_theta, None, None
+        unloaded, t_unloaded = equilibrium(pre_tau, pre_k)
+        stiffness = pre_k if k_c is None else k_c + pre_k
+        if self.rows.joint_angles == "link" and k_c is not None:
+            torque = tau0 + pre_tau - np.einsum("mab,mb->ma", k_c, unloaded)
+            loaded, t_loaded = equilibrium(torque, stiffness)
+            if tangent:  # the torque moves with the unloaded deflection
+                slope = law(torque + np.einsum("mab,mb->ma", stiffness, loaded))[1]
+                eye = np.eye(slope.shape[-1])
+                response = np.linalg.solve(eye - slope[..., :, None] * stiffness,
+                                           slope[..., :, None] * eye)
+                t_loaded = t_loaded - response @ (k_c @ t_unloaded)
+        else:
+            loaded, t_loaded = equilibrium(tau0 + pre_tau, stiffness)
+        dtheta = loaded - unloaded
+        t_theta = t_loaded - t_unloaded if tangent else None
+        if self.rows.joint_angles == "link":
+            return dtheta, t_theta, None, None
+        return dtheta, t_theta, unloaded, t_unloaded
 
     def describe(self) -> str:
         """E.g. ``enhanced over joint1, joint2 + backlash(joint2)``."""
