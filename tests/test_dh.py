@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -606,3 +607,26 @@ def test_exact_equilibria_through_the_coupling_equal_the_loop_ones():
         # deflections of ~5 mm, equal to the loop closure's and the solvers' tolerances
         assert np.abs(one_dh.dx - one_loop.dx).max() < 1e-10  # m
         assert np.abs(one_dh.dx - batched[1].dx[i]).max() < 1e-10
+
+
+def test_mjcf_export_of_a_coupled_robot(tmp_path):
+    """MuJoCo's joint springs act on single joints: springs on the chain export (the rigid
+    chain joints welded), springs on controller coordinates are refused in one line."""
+    from stiffness.robot.mjcf import robot_mjcf
+
+    dh = load_robot(SK120_DH)
+    with pytest.raises(StiffnessError, match="springs_on = \"chain\"") as info:
+        robot_mjcf(dh, dict.fromkeys(dh.compliant_joints, 1e6), dh.configuration(np.zeros(6)))
+    assert "\n" not in str(info.value)
+    text = SK120_DH.read_text().replace('springs_on = "controller"', 'springs_on = "chain"')
+    text = text.replace('compliant_joints = ["joint1", "joint2", "joint3"]',
+                        'compliant_joints = ["waist", "shoulder", "elbow"]')
+    (tmp_path / "robot.toml").write_text(text)
+    chain = load_robot(tmp_path / "robot.toml")
+    u = np.deg2rad([10.0, 20.0, -30.0, 0.0, -60.0, 90.0])
+    xml = robot_mjcf(chain, dict(zip(chain.compliant_joints, [1e6, 2e6, 3e6], strict=True)),
+                     chain.configuration(u))
+    assert xml.count("<joint ") == 3 and 'stiffness="2000000.0"' in xml
+    # springref of the elbow: its chain angle -(q2 + q3)
+    elbow = re.search(r'<joint name="elbow"[^>]*springref="([^"]+)"', xml)
+    assert elbow is not None and abs(float(elbow.group(1)) - np.deg2rad(10.0)) < 1e-15

@@ -73,6 +73,22 @@ class PoseModelError(StiffnessError):
     """A robot or marker set that absolute-pose calibration cannot model."""
 
 
+def require_joint_springs(robot: Robot) -> None:
+    """Refuse springs on a ``[controller]``'s coordinates: the pose model and its simulator
+    put a spring on each compliant joint of the chain.
+
+    Raises
+    ------
+    PoseModelError
+        With ``[controller] springs_on = "controller"``.
+    """
+    if robot.springs_on_controller:
+        raise PoseModelError(
+            f"{robot.name}: its springs act on the controller's coordinates ([controller] "
+            "springs_on = \"controller\"); absolute-pose calibration puts them on the chain's "
+            "joints: set springs_on = \"chain\" and name chain joints in compliant_joints")
+
+
 @dataclass(frozen=True)
 class Marker:
     """A marker fixed to a frame of the robot.
@@ -177,6 +193,7 @@ class PoseModel:
             raise PoseModelError(
                 f"{robot.name} has closed loops; absolute-pose calibration handles open chains "
                 "only: calibrate a serial robot, or use a deflection campaign")
+        require_joint_springs(robot)
         unknown = [f for f in families if f not in FAMILIES]
         if unknown:
             raise PoseModelError(f"unknown parameter families {unknown}; valid: "

@@ -306,9 +306,7 @@ def _csv_text(c: PoseCampaign) -> str:
         f"{m.name}_{a}" for m in c.markers for a in "xyz"]
     if c.loads is not None:
         header += list(_WRENCH)
-    prismatic = np.array([c.robot.model.joints[c.robot.model.getJointId(j)].shortname()
-                          .startswith(("JointModelP", "JointModelPrismatic"))
-                          for j in c.robot.coordinate_joints])
+    prismatic = np.array([c.robot.is_prismatic(j) for j in c.robot.coordinate_joints])
     q = np.where(prismatic, c.q / u.length_to_si, c.q / u.angle_to_si)
     out = [",".join(header)]
     for i, label in enumerate(c.labels):

@@ -102,8 +102,8 @@ def joint_preload(robot: Robot, weighed: pin.Model | None,
             k = np.zeros((n, n))
     for joint, k_s, f0, g in compensators:
         i = list(robot.compliant_joints).index(joint)
-        jm = robot.model.joints[robot.model.getJointId(joint)]
-        t, dt = spring_balancer(q[jm.idx_q], k_s, f0, g["lever_m"], g["base_m"], g["angle0_rad"])
+        t, dt = spring_balancer(robot.value_of(q, joint), k_s, f0, g["lever_m"], g["base_m"],
+                                g["angle0_rad"])
         tau[i] += t
         k[i, i] += dt
     return tau, k

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Loads, Marker
+from stiffness.calibration.absolute import Loads, Marker, require_joint_springs
 from stiffness.calibration.campaign import RobotSettings, Units
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.poses import sample_coordinates
@@ -73,6 +73,7 @@ def sagged_configuration(model: pin.Model, robot: Robot, q_command: np.ndarray,
     """Exact joint springs' equilibrium under gravity and ``wrench`` (fixed point)."""
     if stiffness is None:
         return q_command
+    require_joint_springs(robot)
     data = model.createData()
     v_index = [model.joints[model.getJointId(n)].idx_v for n in robot.compliant_joints]
     fid = model.getFrameId(load_frame)

@@ -166,7 +166,7 @@ def _rigid(robot: Robot, name: str, springs: dict[str, float]) -> bool:
     """Whether joint ``name`` is held rigid: a coordinate without a spring, or the mimic
     follower of one."""
     leader = next((m.leader for m in robot.mimics if m.follower == name), name)
-    return leader in robot.coordinate_joints and leader not in springs
+    return leader in robot.spring_joints and leader not in springs
 
 
 def _equalities(root: etree._Element, robot: Robot, springs: dict[str, float]) -> None:
@@ -208,11 +208,16 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
             f"{robot.name} has closed loops, which MuJoCo closes only by soft constraints that "
             "give way under load more than its joint springs (docs/robot-files.md): the MJCF "
             "export writes open chains only; export --urdf instead")
+    if robot.springs_on_controller:
+        raise StiffnessError(
+            f"{robot.name}: its springs act on the controller's coordinates, each a combination "
+            "of chain joints ([controller] springs_on = \"controller\"), and MuJoCo's joint "
+            "springs act on single joints: export with springs_on = \"chain\", or --urdf")
     _check_joints(robot)
-    unknown = [name for name in springs if name not in robot.coordinate_joints]
+    unknown = [name for name in springs if name not in robot.spring_joints]
     if unknown:
         raise StiffnessError(f"a spring on {unknown[0]!r}, which is not a coordinate joint of "
-                             f"{robot.name} ({', '.join(robot.coordinate_joints)})")
+                             f"{robot.name} ({', '.join(robot.spring_joints)})")
     model = robot.model
     root = etree.Element("mujoco", model=model.name or robot.name)
     compiler = etree.SubElement(root, "compiler", angle="radian", autolimits="true")

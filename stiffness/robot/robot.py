@@ -262,6 +262,12 @@ class Robot:
         else:
             q[joint.idx_q] = value
 
+    def value_of(self, q: np.ndarray, name: str) -> float:
+        """The value (rad or m) of a coordinate or a joint in the full configuration ``q``."""
+        if self.coupling is not None and name in self.coupling.coordinates:
+            return float(self.coordinates_of(q)[self.coupling.coordinates.index(name)])
+        return self._value(q, name)
+
     def coordinates_of(self, q: np.ndarray) -> np.ndarray:
         """Coordinates (rad or m) of a full configuration ``q``."""
         if self.coupling is not None:
