@@ -251,18 +251,93 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
     g_jac_theta = g_jac_q * np.asarray(printed.signs[:3], dtype=float)[None, None, :]
     found_generic = find_convention(theta[generic_idx][:SEARCH_POSES],
                                     g_jac_theta[:SEARCH_POSES], generic_lengths)
-    conv = found_generic.best
-    check = _map_to_appendix(conv, printed, poses.q[search_idx], jac_q[search_idx],
-                             kc_q[search_idx])
-    check_errors = _element_errors(
-        check.jac, jacobian_from_terms(APPENDIX_TERMS, check.t, lengths))
-    if len(_matches(check_errors, SEARCH_REL)) < found.n_matching:
-        conv = found.best
+    conv = _kept_convention(found, found_generic, printed, poses.q[search_idx],
+                            jac_q[search_idx], kc_q[search_idx], lengths)
 
     # 3. comparison at Table I's lengths
     mapped = _map_to_appendix(conv, printed, poses.q, jac_q, kc_q)
     app_jac = jacobian_from_terms(APPENDIX_TERMS, mapped.t, lengths)
     elements = _element_errors(mapped.jac, app_jac)
+    mismatches, visible = _visible_typos(mapped, elements, lengths)
+
+    # 4. typos invisible at Table I's lengths: generic-length model + integrability
+    partly = apply_edits(APPENDIX_TERMS, visible)
+    g_mapped = _map_to_appendix(conv, printed, poses.q[generic_idx], g_jac_q, g_kc_q)
+    invisible_report, invisible = _invisible_typos(g_mapped, partly, generic_lengths, mapped,
+                                                   lengths)
+    all_edits = visible + invisible
+    corrected = apply_edits(APPENDIX_TERMS, all_edits)
+    g_corrected = _element_errors(
+        g_mapped.jac, jacobian_from_terms(corrected, g_mapped.t, generic_lengths))
+
+    corrected_elements = _element_errors(
+        mapped.jac, jacobian_from_terms(corrected, mapped.t, lengths))
+    corrections = [{**e.as_dict(), "visible_at_table1_lengths": e in visible}
+                   for e in all_edits]
+    conventions = _conventions_report(conv, printed, found, found_generic, len(search_idx),
+                                      poses, jac_q, kc_q, lengths)
+    return {
+        "unit": "mm/rad",
+        "kc_unit": "N.mm/rad per N (K_C for a 1 N force along each appendix axis)",
+        "n_poses": int(len(poses.q)),
+        "n_poses_by_kind": {k: int(len(poses.select(k))) for k in ("paper", "workspace",
+                                                                   "general")},
+        "relative_error": ("max over poses of |difference| / (largest |element| of the "
+                           "Pinocchio matrix at that pose); round-off threshold "
+                           f"{ROUND_OFF_REL:g}"),
+        "elements": elements,
+        "elements_by_pose_kind": {
+            kind: _element_errors(mapped.jac[poses.select(kind)], app_jac[poses.select(kind)])
+            for kind in ("paper", "workspace", "general") if len(poses.select(kind))},
+        "mismatches": mismatches,
+        "mismatch_elements": [m["element"] for m in mismatches],
+        "conventions": conventions,
+        "lengths_mm": lengths,
+        "length_mapping": _length_mapping(fixture_rows, mapped),
+        "corrections": corrections,
+        "invisible_typos": invisible_report,
+        "generic_lengths_mm": generic_lengths,
+        "elements_generic_lengths_corrected": g_corrected,
+        "integrability": {
+            "printed": integrability_violations(APPENDIX_TERMS),
+            "corrected": integrability_violations(corrected),
+        },
+        "elements_corrected": corrected_elements,
+        **_kc_report(mapped, corrected, lengths),
+    }
+
+
+def _kept_convention(found: ConventionSearch, found_generic: ConventionSearch,
+                     printed: AngleConvention, q: np.ndarray, jac_q: np.ndarray,
+                     kc_q: np.ndarray, lengths: Mapping[str, float]) -> AppendixConvention:
+    """The generic-length search's convention, unless at Table I's ``lengths`` (mm) it matches
+    fewer printed elements at the search poses (``q``, ``jac_q``, ``kc_q``) than the Table-I
+    search's best does."""
+    conv = found_generic.best
+    check = _map_to_appendix(conv, printed, q, jac_q, kc_q)
+    check_errors = _element_errors(
+        check.jac, jacobian_from_terms(APPENDIX_TERMS, check.t, lengths))
+    if len(_matches(check_errors, SEARCH_REL)) < found.n_matching:
+        conv = found.best
+    return conv
+
+
+def _length_mapping(fixture_rows: list[dict], mapped: _Mapped) -> dict:
+    """How the appendix's L_i, D_i follow from Table I, the fixture placements scored, and the
+    lengths (mm) identified by least squares from Pinocchio's Jacobians."""
+    return {
+        "text": ("L_i = a_i and D_i = d_i of Table I row i (L2 = the five-bar's lower arm, "
+                 "row 2b); the fixture extends row 6: D6 = d6 + a, L6 = b; D2 = 0"),
+        "fixture_search": fixture_rows,
+        "identified_by_least_squares_mm": _identify_lengths(
+            mapped.t, mapped.jac, APPENDIX_TERMS),
+    }
+
+
+def _visible_typos(mapped: _Mapped, elements: dict, lengths: Mapping[str, float]
+                   ) -> tuple[list[dict], list[Edit]]:
+    """The printed elements that disagree with Pinocchio at Table I's lengths (beyond
+    round-off), each with the edit of its printed terms that explains it; and those edits."""
     scale = np.abs(mapped.jac).max(axis=(1, 2))
     visible: list[Edit] = []
     mismatches = []
@@ -279,7 +354,7 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
             text = " and ".join(e.describe() for e in edits)
             entry["explanation"] = (
                 f"{text}; with this edit {name} matches Pinocchio to {err:.1g} mm/rad over "
-                f"{len(poses.q)} poses (it was off by up to {entry['max_abs']:.4g} mm/rad)")
+                f"{len(mapped.t)} poses (it was off by up to {entry['max_abs']:.4g} mm/rad)")
             entry["edits"] = [e.as_dict() for e in edits]
             entry["n_alternative_explanations"] = len(expl) - 1
             visible.extend(edits)
@@ -287,10 +362,15 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
             entry["explanation"] = ("no single edit or pair of edits of the printed terms "
                                     "explains it")
         mismatches.append(entry)
+    return mismatches, visible
 
-    # 4. typos invisible at Table I's lengths: generic-length model + integrability
-    partly = apply_edits(APPENDIX_TERMS, visible)
-    g_mapped = _map_to_appendix(conv, printed, poses.q[generic_idx], g_jac_q, g_kc_q)
+
+def _invisible_typos(g_mapped: _Mapped, partly: TermsByElement,
+                     generic_lengths: Mapping[str, float], mapped: _Mapped,
+                     lengths: Mapping[str, float]) -> tuple[list[dict], list[Edit]]:
+    """Typos invisible at Table I's lengths (``mapped``, ``lengths``: their terms vanish there)
+    found with the generic-length model (``g_mapped``, ``generic_lengths``) after the visible
+    edits (``partly``), each explained; and their edits."""
     g_scale = np.abs(g_mapped.jac).max(axis=(1, 2))
     g_elements = _element_errors(
         g_mapped.jac, jacobian_from_terms(partly, g_mapped.t, generic_lengths))
@@ -319,27 +399,35 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
         else:
             entry["explanation"] = "not explained by one or two edits"
         invisible_report.append(entry)
-    all_edits = visible + invisible
-    corrected = apply_edits(APPENDIX_TERMS, all_edits)
-    g_corrected = _element_errors(
-        g_mapped.jac, jacobian_from_terms(corrected, g_mapped.t, generic_lengths))
+    return invisible_report, invisible
 
-    # 5. K_C
+
+def _kc_report(mapped: _Mapped, corrected: TermsByElement, lengths: Mapping[str, float]
+               ) -> dict:
+    """K_C (N.mm/rad per N) of the printed and the corrected appendix against Pinocchio's:
+    per-element errors, their largest relative error, and the asymmetry of each."""
     kc_printed = _kc_of_terms(APPENDIX_TERMS, mapped.t, lengths)
     kc_fixed = _kc_of_terms(corrected, mapped.t, lengths)
     kc_elements = _element_errors(mapped.kc, kc_printed, prefix="K")
     kc_elements_corrected = _element_errors(mapped.kc, kc_fixed, prefix="K")
     asym = np.abs(kc_printed - np.swapaxes(kc_printed, -1, -2)).max(axis=(0, 1))
     pin_asym = float(np.abs(mapped.kc - np.swapaxes(mapped.kc, -1, -2)).max())
-    corrected_elements = _element_errors(
-        mapped.jac, jacobian_from_terms(corrected, mapped.t, lengths))
+    return {
+        "kc_elements": kc_elements,
+        "kc_elements_corrected": kc_elements_corrected,
+        "appendix_kc_max_rel": max(e["max_rel"] for e in kc_elements_corrected.values()),
+        "appendix_kc_printed_max_rel": max(e["max_rel"] for e in kc_elements.values()),
+        "kc_printed_max_asymmetry": float(asym.max()),
+        "kc_pinocchio_max_asymmetry": pin_asym,
+    }
 
-    corrections = []
-    for e in all_edits:
-        d = e.as_dict()
-        d["visible_at_table1_lengths"] = e in visible
-        corrections.append(d)
 
+def _conventions_report(conv: AppendixConvention, printed: AngleConvention,
+                        found: ConventionSearch, found_generic: ConventionSearch,
+                        n_search_poses: int, poses: PoseSet, jac_q: np.ndarray,
+                        kc_q: np.ndarray, lengths: Mapping[str, float]) -> dict:
+    """The convention kept (``conv``), how it maps the printed angles, how it was found (the
+    search at Table I's and at generic lengths) and how the plain conventions score."""
     plain = {
         "t = printed q": AppendixConvention(
             tuple(wrap_deg(-s * o) for s, o in zip(printed.signs, printed.offsets_deg,
@@ -375,7 +463,7 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
                        "angles); K_C,appendix = G^T K_C,q G"),
         "search": {
             "candidates": found.n_candidates,
-            "poses": int(len(search_idx)),
+            "poses": n_search_poses,
             "matching_elements": found.n_matching,
             "matching": found.matching,
             "equivalent_at_table1_lengths": found.n_equivalent,
@@ -386,46 +474,7 @@ def run_crosscheck(n_samples: int = 200, seed: int = 0) -> dict:
             "plain_conventions": plain_scores,
         },
     }
-    return {
-        "unit": "mm/rad",
-        "kc_unit": "N.mm/rad per N (K_C for a 1 N force along each appendix axis)",
-        "n_poses": int(len(poses.q)),
-        "n_poses_by_kind": {k: int(len(poses.select(k))) for k in ("paper", "workspace",
-                                                                   "general")},
-        "relative_error": ("max over poses of |difference| / (largest |element| of the "
-                           "Pinocchio matrix at that pose); round-off threshold "
-                           f"{ROUND_OFF_REL:g}"),
-        "elements": elements,
-        "elements_by_pose_kind": {
-            kind: _element_errors(mapped.jac[poses.select(kind)], app_jac[poses.select(kind)])
-            for kind in ("paper", "workspace", "general") if len(poses.select(kind))},
-        "mismatches": mismatches,
-        "mismatch_elements": [m["element"] for m in mismatches],
-        "conventions": conventions,
-        "lengths_mm": lengths,
-        "length_mapping": {
-            "text": ("L_i = a_i and D_i = d_i of Table I row i (L2 = the five-bar's lower arm, "
-                     "row 2b); the fixture extends row 6: D6 = d6 + a, L6 = b; D2 = 0"),
-            "fixture_search": fixture_rows,
-            "identified_by_least_squares_mm": _identify_lengths(
-                mapped.t, mapped.jac, APPENDIX_TERMS),
-        },
-        "corrections": corrections,
-        "invisible_typos": invisible_report,
-        "generic_lengths_mm": generic_lengths,
-        "elements_generic_lengths_corrected": g_corrected,
-        "integrability": {
-            "printed": integrability_violations(APPENDIX_TERMS),
-            "corrected": integrability_violations(corrected),
-        },
-        "elements_corrected": corrected_elements,
-        "kc_elements": kc_elements,
-        "kc_elements_corrected": kc_elements_corrected,
-        "appendix_kc_max_rel": max(e["max_rel"] for e in kc_elements_corrected.values()),
-        "appendix_kc_printed_max_rel": max(e["max_rel"] for e in kc_elements.values()),
-        "kc_printed_max_asymmetry": float(asym.max()),
-        "kc_pinocchio_max_asymmetry": pin_asym,
-    }
+    return conventions
 
 
 def _edit_error(name: str, terms: TermsByElement, edits: Sequence[Edit], mapped: _Mapped,
