@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.identify import identify
+from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.identify import Identification, identify
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, staged_folder
 from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
@@ -121,15 +121,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     meanwhile); default: computed here.
     """
     started = time.perf_counter()
-    campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
-    campaign = load_campaign(campaign_file)
-    if campaign.robot_settings.source != "sk120" or campaign.robot().compliant_joints != (
-            "joint1", "joint2", "joint3"):
-        raise StiffnessError(
-            f"stiffness report reproduces Alici & Shirinzadeh on the SK120: --campaign must be "
-            f"an SK120 campaign with compliant joints joint1..joint3 ({campaign_file} is not); "
-            "use `stiffness identify` or `stiffness diagnose` for other robots"
-        )
+    campaign_file, campaign = _sk120_campaign(campaign_path)
     robot = load_robot("sk120")
     paper_k = np.diag(robot.defaults["k_theta_SI"])
     summary: dict = {"robot": "sk120", "units": {
@@ -139,16 +131,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     audit: list[AuditEntry] = []
 
     fit = json.loads((robots_directory() / "sk120" / "convention_fit.json").read_text())
-    summary["printed_angle_convention"] = {
-        "chosen": fit["chosen_description"],
-        "criterion": fit["criterion"],
-        "alternatives": [
-            {"description": AngleConvention(tuple(c["signs"]), tuple(c["offsets_deg"])
-                                            ).describe(),
-             "tool_axis": c["tool_axis"], "rms_vs_measured_mm": c["rms_vs_measured_mm"]}
-            for c in fit["distinct_fits"][:6]
-        ],
-    }
+    summary["printed_angle_convention"] = _printed_convention_summary(fit)
 
     # their place in summary.json, filled at the end (``appendix``)
     summary.update(dict.fromkeys(("appendix_mismatches", "appendix_kc_max_rel", "appendix")))
@@ -157,16 +140,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     ident = identify(campaign, method="both", starts=6,
                      progress=None if quiet else _identify_progress())
     summary["campaign"] = str(campaign_file)
-    summary["identified_formulation"] = ident.formulation
-    summary["identified_k_theta_Nmm_per_rad"] = (ident.k * NMM).tolist()
-    summary["identified_k_theta_ci95_Nmm_per_rad"] = np.column_stack(
-        [ident.ci95_low * NMM, ident.ci95_high * NMM]).tolist()
-    summary["paper_k_theta_Nmm_per_rad"] = (np.diag(paper_k) * NMM).tolist()
-    summary["identified_undetermined_joints"] = list(ident.undetermined_joints)
-    summary["identified_residual_norm_mm2"] = ident.residual_ss_m2 * 1e6
-    summary["identified_rms_residual_mm"] = ident.rms_residual_m * 1e3
-    summary["paper_residual_norm"] = PAPER_RESIDUAL_NORM
-    summary["identification"] = json.loads(ident.to_json())
+    summary.update(_identification_summary(ident, paper_k))
 
     _log(quiet, "comparing the two tool-vertical angle conventions ...")
     conventions = compare_conventions(campaign, paper_k)
@@ -178,6 +152,93 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     audit.append(_identification_entry(summary))
 
     _log(quiet, "reproducing Tables II and III ...")
+    t2_rows = _table2_part(summary, audit, robot, paper_k, fit)
+    t3_rows = table3(robot, paper_k)
+    summary["table3"] = t3_rows
+    corrupt = table3_corrupt_rows(t3_rows)
+    summary["table3_corrupt_row"] = ({"config": corrupt[0]["config"], "row": corrupt[0]["row"]}
+                                     if corrupt else None)
+    summary["table3_corrupt_rows"] = corrupt
+    audit += audit_table3(t3_rows, {c.name: c.table3_rows_by_sign for c in conventions})
+
+    # Table IV and Section VI (the scan, its findings, Figs. 7-9) depend on no campaign: they
+    # come with the other such parts (``independent``, called last), in their place here
+    summary.update(dict.fromkeys(DEFINITENESS_KEYS))
+    definiteness_at = len(audit)
+    audit += printed_equation_audit()
+
+    _log(quiet, "drawing figures ...")
+    figures = _figures(summary, robot, paper_k, t2_rows, t3_rows, corrupt)
+    _log(quiet, "checking Appendix I against Pinocchio, scanning the Table IV grid ...")
+    parts = (independent or independent_parts)()
+    definiteness = parts["definiteness"]
+    summary.update(definiteness["summary"])
+    audit[definiteness_at:definiteness_at] = definiteness["audit"]
+    figures["partial_derivatives.png"] = definiteness["figure"]
+    cross = parts["appendix"]
+    summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
+    summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
+    summary["appendix"] = cross
+    audit = _appendix_entries(cross) + audit
+    summary["audit"] = [a.as_dict() for a in audit]
+    summary["findings_count"] = len(audit)
+    summary["findings_by_verdict"] = {v: n for v in VERDICTS
+                                      if (n := sum(a.verdict == v for a in audit))}
+    summary["claims"] = claims(summary)
+    summary["elapsed_s"] = time.perf_counter() - started
+    return summary, figures
+
+
+def _sk120_campaign(campaign_path: str | os.PathLike | None) -> tuple[Path, Campaign]:
+    """The report's campaign file (default: the shipped Table II campaign) and the campaign,
+    checked to be an SK120 one with compliant joints joint1..joint3."""
+    campaign_file = Path(campaign_path) if campaign_path else robots_directory() / DEFAULT_CAMPAIGN
+    campaign = load_campaign(campaign_file)
+    if campaign.robot_settings.source != "sk120" or campaign.robot().compliant_joints != (
+            "joint1", "joint2", "joint3"):
+        raise StiffnessError(
+            f"stiffness report reproduces Alici & Shirinzadeh on the SK120: --campaign must be "
+            f"an SK120 campaign with compliant joints joint1..joint3 ({campaign_file} is not); "
+            "use `stiffness identify` or `stiffness diagnose` for other robots"
+        )
+    return campaign_file, campaign
+
+
+def _printed_convention_summary(fit: dict) -> dict:
+    """The printed angles' convention chosen by the fit (robots/sk120/convention_fit.json) and
+    its six best alternatives with their RMS against the measured deflections (mm)."""
+    return {
+        "chosen": fit["chosen_description"],
+        "criterion": fit["criterion"],
+        "alternatives": [
+            {"description": AngleConvention(tuple(c["signs"]), tuple(c["offsets_deg"])
+                                            ).describe(),
+             "tool_axis": c["tool_axis"], "rms_vs_measured_mm": c["rms_vs_measured_mm"]}
+            for c in fit["distinct_fits"][:6]
+        ],
+    }
+
+
+def _identification_summary(ident: Identification, paper_k: np.ndarray) -> dict:
+    """The identified K_theta (N.mm/rad) with its 95 % intervals, the paper's, and the
+    residuals (mm), as summary.json holds them."""
+    return {
+        "identified_formulation": ident.formulation,
+        "identified_k_theta_Nmm_per_rad": (ident.k * NMM).tolist(),
+        "identified_k_theta_ci95_Nmm_per_rad": np.column_stack(
+            [ident.ci95_low * NMM, ident.ci95_high * NMM]).tolist(),
+        "paper_k_theta_Nmm_per_rad": (np.diag(paper_k) * NMM).tolist(),
+        "identified_undetermined_joints": list(ident.undetermined_joints),
+        "identified_residual_norm_mm2": ident.residual_ss_m2 * 1e6,
+        "identified_rms_residual_mm": ident.rms_residual_m * 1e3,
+        "paper_residual_norm": PAPER_RESIDUAL_NORM,
+        "identification": json.loads(ident.to_json()),
+    }
+
+
+def _table2_part(summary: dict, audit: list[AuditEntry], robot: Robot, paper_k: np.ndarray,
+                 fit: dict) -> list[dict]:
+    """Table II reproduced (into ``summary``) and its findings (onto ``audit``); its rows."""
     t2_rows = table2(robot, paper_k)
     summary["table2"] = t2_rows
     summary["table2_summary"] = table2_summary(t2_rows)
@@ -210,21 +271,13 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
                  f"{s2['rms_paper_calculated_vs_measured_mm'] * 1e3:.0f} um between the paper's "
                  "model and its measurements: Table II cannot show either formulation better"),
         numbers={}, verdict="undecidable from the paper"))
-    t3_rows = table3(robot, paper_k)
-    summary["table3"] = t3_rows
-    corrupt = table3_corrupt_rows(t3_rows)
-    summary["table3_corrupt_row"] = ({"config": corrupt[0]["config"], "row": corrupt[0]["row"]}
-                                     if corrupt else None)
-    summary["table3_corrupt_rows"] = corrupt
-    audit += audit_table3(t3_rows, {c.name: c.table3_rows_by_sign for c in conventions})
+    return t2_rows
 
-    # Table IV and Section VI (the scan, its findings, Figs. 7-9) depend on no campaign: they
-    # come with the other such parts (``independent``, called last), in their place here
-    summary.update(dict.fromkeys(DEFINITENESS_KEYS))
-    definiteness_at = len(audit)
-    audit += printed_equation_audit()
 
-    _log(quiet, "drawing figures ...")
+def _figures(summary: dict, robot: Robot, paper_k: np.ndarray, t2_rows: list[dict],
+             t3_rows: list[dict], corrupt: list[dict]) -> dict[str, bytes]:
+    """The report's figures (PNG bytes by file name; the partial derivatives' one is filled
+    later), and the linear predictions' departure rates into ``summary``."""
     direction = np.array(t2_rows[-1]["force_N"]) / np.linalg.norm(t2_rows[-1]["force_N"])
     q_a = robot.configuration(np.deg2rad(robot.defaults["q_deg"]))
     reference = np.array(robot.defaults["wrench_SI"])
@@ -244,24 +297,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
         "table2.png": plots.table2_comparison(t2_rows),
         "table3.png": plots.table3_work_per_load(t3_rows, corrupt),
     }
-    _log(quiet, "checking Appendix I against Pinocchio, scanning the Table IV grid ...")
-    parts = (independent or independent_parts)()
-    definiteness = parts["definiteness"]
-    summary.update(definiteness["summary"])
-    audit[definiteness_at:definiteness_at] = definiteness["audit"]
-    figures["partial_derivatives.png"] = definiteness["figure"]
-    cross = parts["appendix"]
-    summary["appendix_mismatches"] = [m["element"] for m in cross["mismatches"]]
-    summary["appendix_kc_max_rel"] = cross["appendix_kc_max_rel"]
-    summary["appendix"] = cross
-    audit = _appendix_entries(cross) + audit
-    summary["audit"] = [a.as_dict() for a in audit]
-    summary["findings_count"] = len(audit)
-    summary["findings_by_verdict"] = {v: n for v in VERDICTS
-                                      if (n := sum(a.verdict == v for a in audit))}
-    summary["claims"] = claims(summary)
-    summary["elapsed_s"] = time.perf_counter() - started
-    return summary, figures
+    return figures
 
 
 def _appendix_entries(cross: dict) -> list[AuditEntry]:
