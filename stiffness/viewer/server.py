@@ -22,6 +22,7 @@ import tempfile
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -311,18 +312,74 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
     bounds = limits or ServerLimits()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        import tornado.httpserver
         import tornado.ioloop
-        import tornado.netutil
-        import tornado.web
-        import tornado.websocket
         import zmq
-        from meshcat.servers.zmqserver import VIEWER_ROOT, StaticFileHandlerNoCache
         from zmq.eventloop.zmqstream import ZMQStream
 
     store = SceneStore()
     state: dict = {"overlay": None, "events": [], "pool": set()}
     loop = tornado.ioloop.IOLoop.current()
+    server, web_port, broadcast = _web_server(host, port, store, state, bounds)
+
+    context = zmq.Context()
+    rep = context.socket(zmq.REP)
+    rep.setsockopt(zmq.LINGER, 0)
+    rep.bind(f"tcp://{host}:*")
+    zmq_url = rep.getsockopt_string(zmq.LAST_ENDPOINT)
+    stream = ZMQStream(rep)
+
+    def stop() -> None:
+        server.stop()
+        loop.stop()
+
+    shown_host = f"[{host}]" if ":" in host else host
+    web_url = f"http://{shown_host}:{web_port}/"
+    stream.on_recv(_command_handler(store, state, broadcast, stream.send, web_url,
+                                    lambda: loop.add_callback(stop)))
+
+    def watch_parent() -> None:
+        if os.getppid() != parent_pid:
+            if log_path:
+                with contextlib.suppress(OSError):
+                    os.unlink(log_path)
+            stop()
+
+    tornado.ioloop.PeriodicCallback(watch_parent, 1000).start()
+    print(f"zmq_url={zmq_url}", flush=True)
+    print(f"web_url={web_url}", flush=True)
+    try:
+        loop.start()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stream.close()
+        context.term()
+    return 0
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]]``."""
+    if len(argv) in (4, 5, 6) and argv[0] == "--serve":
+        limits = ServerLimits(**json.loads(argv[5])) if len(argv) == 6 else None
+        return _serve(argv[1], int(argv[2]), int(argv[3]), argv[4] if len(argv) >= 5 else None,
+                      limits)
+    print("usage: python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]] "
+          "(started by StiffnessViewer; use `stiffness view`)", file=sys.stderr)
+    return 2
+
+
+def _web_server(host: str, port: int, store: SceneStore, state: dict, bounds: ServerLimits
+                ) -> tuple[Any, int, Callable[[bytes | str, bool], None]]:
+    """The web server of :func:`_serve`, listening on ``host`` (``port`` 0: a free one): our
+    page, meshcat's scripts and the websocket that replays ``store`` to each page. Returns the
+    server, its port and the function that sends a message to every page."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        import tornado.httpserver
+        import tornado.netutil
+        import tornado.web
+        import tornado.websocket
+        from meshcat.servers.zmqserver import VIEWER_ROOT, StaticFileHandlerNoCache
 
     class Page(tornado.web.RequestHandler):
         def get(self) -> None:
@@ -380,6 +437,31 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
         for socket in list(state["pool"]):
             send(socket, message, binary)
 
+    BoundedHTTPServer = _bounded_http_server(state, bounds)
+
+    app = tornado.web.Application([
+        (r"/", Page),
+        (r"/websocket", Socket),
+        (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT}),
+    ], websocket_max_message_size=bounds.max_message_bytes,
+        websocket_ping_interval=bounds.ping_interval_s,
+        websocket_ping_timeout=bounds.ping_interval_s)
+    sockets = tornado.netutil.bind_sockets(
+        port, address=host, backlog=max(128, bounds.max_connections))
+    server = BoundedHTTPServer(
+        app, idle_connection_timeout=bounds.idle_timeout_s, body_timeout=bounds.idle_timeout_s,
+        max_header_size=bounds.max_header_bytes, max_body_size=bounds.max_body_bytes)
+    server.add_sockets(sockets)
+    web_port = sockets[0].getsockname()[1]
+
+    return server, web_port, broadcast
+
+
+def _bounded_http_server(state: dict, bounds: ServerLimits) -> type:
+    """tornado's HTTP server keeping at most ``bounds.max_connections`` connections open (a
+    new one evicts the oldest that is not a page's websocket, ``state["pool"]``)."""
+    import tornado.httpserver
+
     class BoundedHTTPServer(tornado.httpserver.HTTPServer):
         """At most ``bounds.max_connections`` open: a new one evicts the oldest non-page one."""
 
@@ -401,31 +483,16 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
             streams[stream] = None
             super().handle_stream(stream, address)
 
-    app = tornado.web.Application([
-        (r"/", Page),
-        (r"/websocket", Socket),
-        (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT}),
-    ], websocket_max_message_size=bounds.max_message_bytes,
-        websocket_ping_interval=bounds.ping_interval_s,
-        websocket_ping_timeout=bounds.ping_interval_s)
-    sockets = tornado.netutil.bind_sockets(
-        port, address=host, backlog=max(128, bounds.max_connections))
-    server = BoundedHTTPServer(
-        app, idle_connection_timeout=bounds.idle_timeout_s, body_timeout=bounds.idle_timeout_s,
-        max_header_size=bounds.max_header_bytes, max_body_size=bounds.max_body_bytes)
-    server.add_sockets(sockets)
-    web_port = sockets[0].getsockname()[1]
+    return BoundedHTTPServer
 
-    context = zmq.Context()
-    rep = context.socket(zmq.REP)
-    rep.setsockopt(zmq.LINGER, 0)
-    rep.bind(f"tcp://{host}:*")
-    zmq_url = rep.getsockopt_string(zmq.LAST_ENDPOINT)
-    stream = ZMQStream(rep)
 
-    def stop() -> None:
-        server.stop()
-        loop.stop()
+def _command_handler(store: SceneStore, state: dict,
+                     broadcast: Callable[[bytes | str, bool], None],
+                     reply_to: Callable[[bytes], object], web_url: str,
+                     request_stop: Callable[[], object]) -> Callable[[list[bytes]], None]:
+    """What :func:`_serve` does with each command on its ZeroMQ socket (``frames``: the command,
+    then its arguments): record and broadcast scene commands, keep the overlay, answer queries
+    (pages connected, control events, the page's URL), stop; every command is answered."""
 
     def handle(frames: list[bytes]) -> None:
         kind = frames[0].decode()
@@ -450,41 +517,9 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
         elif kind == "url":
             reply = web_url.encode()
         elif kind == "stop":
-            loop.add_callback(stop)
+            request_stop()
         else:
             reply = b"error: unknown command " + frames[0]
-        stream.send(reply)
+        reply_to(reply)
 
-    stream.on_recv(handle)
-    shown_host = f"[{host}]" if ":" in host else host
-    web_url = f"http://{shown_host}:{web_port}/"
-
-    def watch_parent() -> None:
-        if os.getppid() != parent_pid:
-            if log_path:
-                with contextlib.suppress(OSError):
-                    os.unlink(log_path)
-            stop()
-
-    tornado.ioloop.PeriodicCallback(watch_parent, 1000).start()
-    print(f"zmq_url={zmq_url}", flush=True)
-    print(f"web_url={web_url}", flush=True)
-    try:
-        loop.start()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        stream.close()
-        context.term()
-    return 0
-
-
-def _main(argv: list[str]) -> int:
-    """``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]]``."""
-    if len(argv) in (4, 5, 6) and argv[0] == "--serve":
-        limits = ServerLimits(**json.loads(argv[5])) if len(argv) == 6 else None
-        return _serve(argv[1], int(argv[2]), int(argv[3]), argv[4] if len(argv) >= 5 else None,
-                      limits)
-    print("usage: python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]] "
-          "(started by StiffnessViewer; use `stiffness view`)", file=sys.stderr)
-    return 2
+    return handle
