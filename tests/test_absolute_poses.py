@@ -353,3 +353,32 @@ def test_coverage_on_the_panda_and_a_two_arm_tree():
     h2, n2 = _coverage_on(tree, hands, np.asarray(default_stiffness(tree)), 20, 30)
     assert _binomial_consistent(h1, n1), (h1, n1)
     assert _binomial_consistent(h2, n2), (h2, n2)
+
+
+def test_validate_a_deflection_model_on_another_campaign(tmp_path, capsys):
+    """identify on one simulated campaign, validate on another of the same arm: the 3-D error
+    is the noise's (sqrt(3) sigma); on a campaign with a hidden link bend it is larger."""
+    common = ["--robot", "ur5", "--frame", "tool0", "--kq", "8e4,6e4,4e4,1.2e4,1.2e4,1e4",
+              "--configs", "8", "--loads-per-config", "3", "--max-force", "300",
+              "--noise", "0.01", "--units", "mm", "--quiet"]
+    for name, seed, extra in (("a", "1", []), ("b", "2", []),
+                              ("c", "3", ["--effect", "link_compliance:shoulder_lift_joint->elbow_joint=2e-7"])):
+        assert main(["simulate", *common, "--seed", seed, "--out", str(tmp_path / name),
+                     *extra]) == 0
+    model = tmp_path / "identified-model.json"
+    assert main(["identify", str(tmp_path / "a"), "--out", str(model), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["validate", str(model), str(tmp_path / "b"), "--json"]) == 0
+    same = json.loads(capsys.readouterr().out)
+    assert same["unit"] == "mm" and set(same["markers"]) == {"target"}
+    assert same["rms"] < 1.6 * np.sqrt(3) * 0.01
+    assert main(["validate", str(model), str(tmp_path / "c"), "--json"]) == 0
+    bent = json.loads(capsys.readouterr().out)
+    assert bent["rms"] > 2 * same["rms"]
+    rng = np.random.default_rng(12)
+    poses = simulate_pose_campaign(load_robot("ur10", frame="tool0"), _markers(),
+                                   _hidden(load_robot("ur10", frame="tool0"), rng), 5, NOISE)
+    write_pose_campaign(poses, tmp_path / "poses")
+    assert main(["validate", str(model), str(tmp_path / "poses")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "deflection model" in err and "\n" not in err

@@ -30,6 +30,7 @@ from stiffness.calibration.diagnose import BIC_MARGIN
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, predict, rows_of, starting_frame
 from stiffness.calibration.selection import GOF_LEVEL, config_folds
+from stiffness.calibration.validation import error_summary
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, read_json
 from stiffness.robot.robot import Robot, load_robot
@@ -229,18 +230,8 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
                       (model.rotation0, model.translation0), campaign.loads)
     err = np.linalg.norm(campaign.positions - predict(model, x, campaign), axis=2)
     lu = campaign.units.length_to_si
-
-    def summary(e: np.ndarray) -> dict:
-        e = e[np.isfinite(e)] / lu
-        if not e.size:
-            return {"rms": None, "mean_error": None, "max_error": None, "rows": 0}
-        return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
-                "max_error": float(e.max()), "rows": int(e.size)}
-
-    out = summary(err)
-    out["rows"] = campaign.n_rows
-    out["unit"] = campaign.units.length
-    out["markers"] = {m.name: {**summary(err[:, k]), "unit": campaign.units.length}
+    out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
+    out["markers"] = {m.name: {**error_summary(err[:, k], lu), "unit": campaign.units.length}
                       for k, m in enumerate(campaign.markers)}
     return out
 

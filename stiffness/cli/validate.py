@@ -6,9 +6,11 @@ Example::
 
 For a pose campaign (``kind = "poses"``) the model is a pose calibration's
 ``final-model.json`` (its measuring frame and marker offsets are the model's) and the output is
-the 3-D position error, overall and per marker: RMS, mean and max, in the campaign's length
-unit. ``--json`` keys: ``rms``, ``mean_error``, ``max_error``, ``unit``, ``rows``, ``markers``
-(the same keys per marker).
+the 3-D position error, overall and per marker; for a deflection campaign the model is a model
+file of ``identify`` or ``diagnose`` and the error is the measured deflection minus the model's
+prediction under each row's load (the one marker is ``target``). Both in the campaign's length
+unit: RMS, mean and max. ``--json`` keys: ``rms``, ``mean_error``, ``max_error``, ``unit``,
+``rows``, ``markers`` (the same keys per marker).
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.calibration.campaign import campaign_kind
+from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign
-from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
+from stiffness.calibration.pose_diagnose import is_pose_model, read_pose_model, validation_errors
 from stiffness.calibration.pose_report import format_validation
+from stiffness.calibration.validation import deflection_errors
+from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
 
 
@@ -34,13 +38,19 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness validate``; returns the exit code."""
-    if campaign_kind(args.campaign) != "poses":
-        raise StiffnessError(f"{args.campaign} is a deflection campaign; validate takes a pose "
-                             "campaign (kind = \"poses\") and a pose calibration's model file; "
-                             "for deflection campaigns run stiffness diagnose on it")
-    campaign = load_pose_campaign(args.campaign)
-    model = read_pose_model(args.model, campaign.robot)
-    result = validation_errors(model.model, model.x, campaign)
+    pose_model = is_pose_model(args.model)
+    if (campaign_kind(args.campaign) == "poses") != pose_model:
+        raise StiffnessError(
+            f"{args.model} is {'a pose calibration' if pose_model else 'a deflection model'} "
+            f"and {args.campaign} is not a {'pose' if pose_model else 'deflection'} campaign; "
+            "validate a pose calibration on a pose campaign, a deflection model on a "
+            "deflection campaign")
+    if pose_model:
+        campaign = load_pose_campaign(args.campaign)
+        model = read_pose_model(args.model, campaign.robot)
+        result = validation_errors(model.model, model.x, campaign)
+    else:
+        result = deflection_errors(load_model(args.model), load_campaign(args.campaign))
     print(json.dumps(result, indent=1, allow_nan=False) if args.json
           else format_validation(result))
     return 0
