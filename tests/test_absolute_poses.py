@@ -361,8 +361,8 @@ def test_validate_a_deflection_model_on_another_campaign(tmp_path, capsys):
     common = ["--robot", "ur5", "--frame", "tool0", "--kq", "8e4,6e4,4e4,1.2e4,1.2e4,1e4",
               "--configs", "8", "--loads-per-config", "3", "--max-force", "300",
               "--noise", "0.01", "--units", "mm", "--quiet"]
-    for name, seed, extra in (("a", "1", []), ("b", "2", []),
-                              ("c", "3", ["--effect", "link_compliance:shoulder_lift_joint->elbow_joint=2e-7"])):
+    bend = ["--effect", "link_compliance:shoulder_lift_joint->elbow_joint=2e-7"]
+    for name, seed, extra in (("a", "1", []), ("b", "2", []), ("c", "3", bend)):
         assert main(["simulate", *common, "--seed", seed, "--out", str(tmp_path / name),
                      *extra]) == 0
     model = tmp_path / "identified-model.json"
