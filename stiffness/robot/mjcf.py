@@ -13,8 +13,11 @@ A rigid coordinate joint (not compliant) is written without a ``<joint>``: its b
 at the joint's rest value, exactly as rigid as the elastostatic model holds it (so is the mimic
 follower of a rigid leader). A mimic follower of a compliant joint follows its leader by an
 equality constraint (``<joint joint1 joint2 polycoef>``, made stiff by :data:`STIFF_SOLREF`
-and :data:`STIFF_SOLIMP`). A keyframe ``rest`` holds the configuration at the springs' rest.
-Gravity is the model's.
+and :data:`STIFF_SOLIMP`). A robot whose springs act on its controller's coordinates
+(``[controller]`` with ``springs_on = "controller"``, ``q_chain = A u + b``) gets a fixed
+``<tendon>`` per compliant coordinate, of length ``(A^-1 q)_i`` over the chain joints, with the
+spring's ``stiffness`` and its rest length as ``springlength`` (:func:`spring_plan`). A keyframe
+``rest`` holds the configuration at the springs' rest. Gravity is the model's.
 
 Closed loops are refused. MuJoCo closes a loop by a soft equality constraint (``connect``), whose
 stiffness scales with the bodies' effective inertia and the time step, not with the joint
@@ -32,6 +35,7 @@ Units: SI (m, rad, kg, kg.m^2, N.m/rad, N/m).
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -138,7 +142,7 @@ def _sites(parent: etree._Element, robot: Robot, j: int, taken: set[str]) -> Non
         _place(etree.SubElement(parent, "site", name=f.name), f.placement)
 
 
-def _bodies(parent: etree._Element, robot: Robot, j: int, springs: dict[str, float],
+def _bodies(parent: etree._Element, robot: Robot, j: int, plan: SpringPlan,
             rest: tuple[np.ndarray, pin.Data], order: list[int], massless: list[str],
             taken: set[str]) -> None:
     """The bodies of the children of joint ``j``, depth first (MuJoCo's coordinate order);
@@ -150,31 +154,102 @@ def _bodies(parent: etree._Element, robot: Robot, j: int, springs: dict[str, flo
             continue
         name = model.names[child]
         body = etree.SubElement(parent, "body", name=name)
-        rigid = _rigid(robot, name, springs)
+        rigid = name in plan.welded
         _place(body, data.oMi[j].actInv(data.oMi[child]) if rigid  # welded at rest
                else model.jointPlacements[child])
         if not _inertial(body, model.inertias[child]):
             massless.append(name)
         if not rigid:
-            _joint(body, robot, child, springs, q)
+            _joint(body, robot, child, plan.joints, q)
             order.append(child)
         _sites(body, robot, child, taken)
-        _bodies(body, robot, child, springs, rest, order, massless, taken)
+        _bodies(body, robot, child, plan, rest, order, massless, taken)
 
 
-def _rigid(robot: Robot, name: str, springs: dict[str, float]) -> bool:
-    """Whether joint ``name`` is held rigid: a coordinate without a spring, or the mimic
-    follower of one."""
-    leader = next((m.leader for m in robot.mimics if m.follower == name), name)
-    return leader in robot.spring_joints and leader not in springs
+@dataclass
+class SpringPlan:
+    """How a robot's springs and rigid coordinates become MuJoCo elements.
+
+    Attributes
+    ----------
+    joints
+        Stiffness (N.m/rad or N/m) of each model joint that carries its own spring.
+    tendons
+        Springs on controller coordinates: ``(name, {joint: coefficient}, stiffness)``, a
+        fixed tendon whose length is the coordinate (up to a constant) over the free joints.
+    welded
+        Model joints held at their rest value (no ``<joint>`` written).
+    """
+
+    joints: dict[str, float] = field(default_factory=dict)
+    tendons: list[tuple[str, dict[str, float], float]] = field(default_factory=list)
+    welded: set[str] = field(default_factory=set)
 
 
-def _equalities(root: etree._Element, robot: Robot, springs: dict[str, float]) -> None:
+def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
+    """The joint springs, tendons and welded joints of ``springs`` on ``robot``.
+
+    Without a controller map, or with springs on the chain, each spring is a joint spring and
+    each spring-less coordinate (and its mimic followers) is welded. With springs on controller
+    coordinates ``u`` (``q_chain = A u + b``), the coordinate ``u_i = (A^-1 (q - b))_i`` is a
+    fixed tendon of coefficients ``A^-1[i]``; a chain joint set by rigid coordinates alone is
+    welded, and a rigid coordinate that still moves with the free joints is refused.
+
+    Raises
+    ------
+    StiffnessError
+        A spring on a name that takes none, or a rigid controller coordinate that couples
+        joints the springs move.
+    """
+    names = robot.spring_joints
+    unknown = [name for name in springs if name not in names]
+    if unknown:
+        raise StiffnessError(f"a spring on {unknown[0]!r}, which is not a coordinate of "
+                             f"{robot.name} that takes one ({', '.join(names)})")
+    coupling = robot.coupling
+    if coupling is None or coupling.springs_on == "chain":
+        welded = {name for name in names if name not in springs}
+        welded |= {m.follower for m in robot.mimics if m.leader in welded}
+        return SpringPlan(dict(springs), [], welded)
+    rigid = [i for i, name in enumerate(coupling.coordinates) if name not in springs]
+    compliant = [i for i, name in enumerate(coupling.coordinates) if name in springs]
+    fixed = [j for j, row in enumerate(coupling.matrix) if not np.any(row[compliant])]
+    free = [j for j in range(len(coupling.chain)) if j not in fixed]
+    inverse = np.linalg.inv(coupling.matrix)
+    scale = np.abs(inverse).max()
+    for i in rigid:
+        if np.any(np.abs(inverse[i, free]) > 1e-12 * scale):
+            raise StiffnessError(
+                f"the rigid controller coordinate {coupling.coordinates[i]!r} of {robot.name} "
+                "moves with joints its springs move, which MuJoCo would hold only by a soft "
+                "constraint; give it a spring (--kq with --compliant-joints) to export it")
+    tendons = [(coupling.coordinates[i], {coupling.chain[j]: float(inverse[i, j]) for j in free
+                                          if inverse[i, j] != 0.0},
+                float(springs[coupling.coordinates[i]])) for i in compliant]
+    return SpringPlan({}, tendons, {coupling.chain[j] for j in fixed})
+
+
+def _tendons(root: etree._Element, robot: Robot, plan: SpringPlan, rest: np.ndarray) -> None:
+    """The springs on controller coordinates, as fixed tendons at rest at ``rest``."""
+    if not plan.tendons:
+        return
+    model = robot.model
+    tendon = etree.SubElement(root, "tendon")
+    for name, coefficients, stiffness in plan.tendons:
+        length = sum(c * _joint_value(model.joints[model.getJointId(j)], rest)
+                     for j, c in coefficients.items())
+        element = etree.SubElement(tendon, "fixed", name=name, stiffness=str(stiffness),
+                                   springlength=str(float(length)))
+        for joint, coefficient in coefficients.items():
+            etree.SubElement(element, "joint", joint=joint, coef=str(coefficient))
+
+
+def _equalities(root: etree._Element, robot: Robot, plan: SpringPlan) -> None:
     """Mimic followers of compliant leaders as equality constraints."""
     stiff = {"solref": numbers(STIFF_SOLREF), "solimp": numbers(STIFF_SOLIMP)}
     equality = etree.SubElement(root, "equality")
     for m in robot.mimics:
-        if _rigid(robot, m.follower, springs):
+        if m.follower in plan.welded:
             continue
         etree.SubElement(equality, "joint", name=f"mimic_{m.follower}", joint1=m.follower,
                          joint2=m.leader, polycoef=numbers([m.offset, m.multiplier, 0, 0, 0]),
@@ -208,16 +283,8 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
             f"{robot.name} has closed loops, which MuJoCo closes only by soft constraints that "
             "give way under load more than its joint springs (docs/robot-files.md): the MJCF "
             "export writes open chains only; export --urdf instead")
-    if robot.springs_on_controller:
-        raise StiffnessError(
-            f"{robot.name}: its springs act on the controller's coordinates, each a combination "
-            "of chain joints ([controller] springs_on = \"controller\"), and MuJoCo's joint "
-            "springs act on single joints: export with springs_on = \"chain\", or --urdf")
     _check_joints(robot)
-    unknown = [name for name in springs if name not in robot.spring_joints]
-    if unknown:
-        raise StiffnessError(f"a spring on {unknown[0]!r}, which is not a coordinate joint of "
-                             f"{robot.name} ({', '.join(robot.spring_joints)})")
+    plan = spring_plan(robot, springs)
     model = robot.model
     root = etree.Element("mujoco", model=model.name or robot.name)
     compiler = etree.SubElement(root, "compiler", angle="radian", autolimits="true")
@@ -229,7 +296,7 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     data = model.createData()
     pin.forwardKinematics(model, data, rest)
     _sites(world, robot, 0, taken)
-    _bodies(world, robot, 0, springs, (rest, data), order, massless, taken)
+    _bodies(world, robot, 0, plan, (rest, data), order, massless, taken)
     if massless:
         compiler.set("boundmass", str(MASSLESS_BOUND_KG))
         compiler.set("boundinertia", str(MASSLESS_BOUND_KGM2))
@@ -237,7 +304,8 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
                       f"written with {MASSLESS_BOUND_KG} kg and {MASSLESS_BOUND_KGM2} kg.m^2, "
                       "as MuJoCo needs a mass on every moving body", RobotFileWarning,
                       stacklevel=2)
-    _equalities(root, robot, springs)
+    _tendons(root, robot, plan, rest)
+    _equalities(root, robot, plan)
     keyframe = etree.SubElement(root, "keyframe")
     etree.SubElement(keyframe, "key", name="rest", qpos=numbers(
         [_joint_value(model.joints[j], rest) for j in order]))
