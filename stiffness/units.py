@@ -1,6 +1,9 @@
 """Unit names of user files and flags, and their factors to SI (rad, N, m, N.m)."""
 
 import math
+from dataclasses import dataclass
+
+from stiffness.errors import UnknownNameError
 
 #: Unit name -> factor to SI (rad, N, m).
 ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
@@ -9,3 +12,77 @@ LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
 #: Moment unit name -> factor to N.m (every force unit times every length unit).
 MOMENT_UNITS = {f"{f}.{ln}": FORCE_UNITS[f] * LENGTH_UNITS[ln]
                 for f in FORCE_UNITS for ln in LENGTH_UNITS}
+
+
+@dataclass(frozen=True)
+class Units:
+    """Units of a campaign's files (in memory everything is SI).
+
+    Attributes
+    ----------
+    angle
+        Unit of joint angles and measured rotations: ``deg`` or ``rad``.
+    force
+        Unit of forces: ``N`` or ``kN``.
+    length
+        Unit of deflections, the target offset, noise and prismatic coordinates:
+        ``mm``, ``m``, ``cm`` or ``um``.
+    rotation_unit
+        Unit of measured rotations and their noise (``deg`` or ``rad``), or ``None`` for the
+        angle unit.
+    moment_unit
+        Unit of applied moments, force.length (e.g. ``N.mm``, ``N.m``), or ``None`` for the
+        force unit times the length unit.
+    """
+
+    angle: str = "deg"
+    force: str = "N"
+    length: str = "mm"
+    rotation_unit: str | None = None
+    moment_unit: str | None = None
+
+    def __post_init__(self) -> None:
+        for kind, value, table in (("angle", self.angle, ANGLE_UNITS),
+                                   ("force", self.force, FORCE_UNITS),
+                                   ("length", self.length, LENGTH_UNITS),
+                                   ("rotation", self.rotation, ANGLE_UNITS),
+                                   ("moment", self.moment, MOMENT_UNITS)):
+            if value not in table:
+                raise UnknownNameError(
+                    f"unknown {kind} unit {value!r}; valid {kind} units: {', '.join(table)}",
+                    name=str(value), choices=list(table))
+
+    @property
+    def angle_to_si(self) -> float:
+        """Factor from the angle unit to rad."""
+        return ANGLE_UNITS[self.angle]
+
+    @property
+    def force_to_si(self) -> float:
+        """Factor from the force unit to N."""
+        return FORCE_UNITS[self.force]
+
+    @property
+    def length_to_si(self) -> float:
+        """Factor from the length unit to m."""
+        return LENGTH_UNITS[self.length]
+
+    @property
+    def moment_to_si(self) -> float:
+        """Factor from the moment unit (default force x length) to N.m."""
+        return MOMENT_UNITS[self.moment]
+
+    @property
+    def moment(self) -> str:
+        """Name of the moment unit, e.g. ``N.mm`` (``[units] moment``, default force.length)."""
+        return self.moment_unit or f"{self.force}.{self.length}"
+
+    @property
+    def rotation(self) -> str:
+        """Unit of measured rotations (``[units] rotation``, default the angle unit)."""
+        return self.rotation_unit or self.angle
+
+    @property
+    def rotation_to_si(self) -> float:
+        """Factor from the rotation unit to rad."""
+        return ANGLE_UNITS[self.rotation]

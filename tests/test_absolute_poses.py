@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
-from stiffness.calibration.campaign import Units, load_campaign
+from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
@@ -28,6 +28,7 @@ from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
+from stiffness.units import Units
 
 NOISE = 20e-6  # m, tracker-like
 PAYLOAD = np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0])  # N, N.m at tool0

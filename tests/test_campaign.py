@@ -9,16 +9,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from stiffness.calibration.campaign import (
-    CAMPAIGN_FILE,
-    Campaign,
-    RobotSettings,
-    Units,
-    load_campaign,
-    write_campaign,
-)
+from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.campaign_toml import CAMPAIGN_FILE, RobotSettings
+from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.errors import StiffnessError
 from stiffness.robot.sources import robots_directory
+from stiffness.units import Units
 
 TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
 

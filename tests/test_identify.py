@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from scipy.stats import binom, chi2
 
-from stiffness.calibration.campaign import Campaign, RobotSettings, load_campaign, write_campaign
+from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.campaign_toml import RobotSettings
+from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.cli.main import main
 from stiffness.elastic.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file

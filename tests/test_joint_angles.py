@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from stiffness.calibration.campaign import load_campaign, write_campaign
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.diagnose import diagnose
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.geometry import Geometry, References

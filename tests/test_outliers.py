@@ -137,7 +137,7 @@ def test_robust_intervals_cover_and_outliers_are_flagged(tmp_path):
 def test_identify_cli_reports_outliers_and_loss(tmp_path):
     c = simulated(tmp_path / "c", seed=2, configs=6, loads=3)
     c.deflection[4] += np.array([0.0, 0.0, 40 * NOISE_MM * 1e-3])
-    from stiffness.calibration.campaign import write_campaign
+    from stiffness.calibration.campaign_writer import write_campaign
     write_campaign(c, tmp_path / "bad")
     out = io.StringIO()
     with contextlib.redirect_stdout(out):

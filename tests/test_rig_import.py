@@ -24,7 +24,8 @@ from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, w
 from hypothesis import given
 from hypothesis import strategies as st
 
-from stiffness.calibration.campaign import RobotSettings, load_campaign
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.identify import identify
 from stiffness.calibration.rig_import import (
     ImportSettings,

@@ -14,7 +14,8 @@ import pinocchio as pin
 import pytest
 from scipy.stats import binom
 
-from stiffness.calibration.campaign import load_campaign, write_campaign
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.identify import identify
 from stiffness.cli.main import main

@@ -51,7 +51,7 @@ import numpy as np
 
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
-from stiffness.calibration.campaign import Campaign, Units, load_campaign
+from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Candidate, Diagnosis, Step
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.outliers import (
@@ -77,6 +77,7 @@ from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
+from stiffness.units import Units
 
 #: A candidate must lower BIC by more than this.
 BIC_MARGIN = 2.0

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.campaign import Campaign, Units
+from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit
 from stiffness.calibration.outliers import (
@@ -28,6 +28,7 @@ from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
+from stiffness.units import Units
 
 #: Units of the model file's effect parameters (SI).
 SI_UNITS = Units(angle="rad", force="N", length="m")

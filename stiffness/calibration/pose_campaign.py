@@ -19,22 +19,21 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.absolute import Loads, Marker
-from stiffness.calibration.campaign import (
+from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
     RobotSettings,
     TomlFile,
-    Units,
-    coordinates_in_si,
     noise_section,
-    parse_number,
     robot_section,
     settings_robot,
     typed_value,
     units_section,
 )
+from stiffness.calibration.measurements import coordinates_in_si, parse_number
 from stiffness.errors import FileFormatError, MissingFileError, did_you_mean
 from stiffness.files import atomic_write, read_text, read_toml, staged_folder
 from stiffness.robot.robot import Robot
+from stiffness.units import Units
 
 _KEYS = {
     "": {"kind", "name", "robot", "units", "measurement", "markers", "load"},

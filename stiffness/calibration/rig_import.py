@@ -3,7 +3,7 @@
 A rig writes one or several CSV files (joint readings, forces, tracker positions), with its
 own column names, units and frames. :func:`import_campaign` reads them into an ordinary
 :class:`stiffness.calibration.campaign.Campaign` (SI, base axes), which
-:func:`stiffness.calibration.campaign.write_campaign` writes for ``identify``, ``diagnose``
+:func:`stiffness.calibration.campaign_writer.write_campaign` writes for ``identify``, ``diagnose``
 and ``design --existing``:
 
 * **Joining.** The files' data rows are joined by row order (every file the same number of
@@ -19,7 +19,7 @@ and ``design --existing``:
   each pair one unloaded row and one or more loaded ones (each loaded row is a campaign row;
   its coordinates are the unloaded row's, and a loaded row reading other coordinates is
   refused).
-* **Units** (:class:`stiffness.calibration.campaign.Units`): given per kind, or read from the
+* **Units** (:class:`stiffness.units.Units`): given per kind, or read from the
   headers (``theta1 [deg]``, ``Fx (N)``); a header whose unit disagrees with the given one,
   or columns of one kind in different units, are refused. A kind the import needs and no
   one names is refused too: no unit is assumed.
@@ -45,19 +45,14 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.campaign import (
-    BASELINES,
-    MAX_CELL,
-    Campaign,
-    RobotSettings,
-    Units,
-    coordinates_in_si,
-)
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
+from stiffness.calibration.measurements import MAX_CELL, coordinates_in_si
 from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
 from stiffness.files import read_text, read_toml, resolve_path, resolve_source
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS, Units
 
 #: Frames forces and deflections may be given in.
 FRAMES = ("base", "tool")
@@ -199,7 +194,7 @@ class ImportReport:
         Per campaign column: its source ``FILE:COLUMN``, unit, and the range read (file
         units).
     units
-        The units used (:class:`stiffness.calibration.campaign.Units`).
+        The units used (:class:`stiffness.units.Units`).
     force_frame, deflection_frame
         The frames the files gave forces and deflections in.
     """

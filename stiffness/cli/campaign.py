@@ -19,7 +19,8 @@ import json
 
 import numpy as np
 
-from stiffness.calibration.campaign import BASELINES, RobotSettings, write_campaign
+from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
+from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.rig_import import (
     FRAMES,
     ImportSettings,

@@ -25,7 +25,7 @@ import math
 import sys
 from pathlib import Path
 
-from stiffness.calibration.campaign import Units, load_campaign
+from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.experiment import CRITERIA
 from stiffness.cli import flags
 from stiffness.elastic.effects.hypothesis import BASELINES
@@ -40,7 +40,7 @@ from stiffness.planning.design import (
     design_robot,
     parse_separate,
 )
-from stiffness.units import LENGTH_UNITS
+from stiffness.units import LENGTH_UNITS, Units
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

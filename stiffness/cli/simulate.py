@@ -19,11 +19,11 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.calibration.campaign import BASELINES, Units
+from stiffness.calibration.campaign_toml import BASELINES
 from stiffness.cli import flags
 from stiffness.elastic.effects import LIBRARY
 from stiffness.planning.simulate import LOAD_PATTERNS, TRUTH_FILE, simulate
-from stiffness.units import LENGTH_UNITS
+from stiffness.units import LENGTH_UNITS, Units
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.campaign import Campaign, RobotSettings, Units, load_campaign
+from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.experiment import (
     CRITERIA,
     LOAD_DIRECTIONS,
@@ -46,6 +47,7 @@ from stiffness.elastic.model_file import ModelFile, read_model_file
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
 from stiffness.planning.plan import Plan, write_plan
 from stiffness.robot.robot import Robot, load_robot
+from stiffness.units import Units
 
 #: Default number of candidate poses.
 DEFAULT_CANDIDATES = 200

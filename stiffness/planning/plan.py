@@ -28,24 +28,24 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.campaign import (
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
-    UNITS_COMMENT_EXAMPLE,
-    Campaign,
     RobotSettings,
-    Units,
-    campaign_toml,
-    check_units_comment,
-    coordinates_in_si,
     noise_section,
-    parse_number,
-    prismatic_mask,
     read_campaign_toml,
-    read_units_comment,
-    resolve_source,
     robot_section,
     settings_robot,
     units_section,
+)
+from stiffness.calibration.campaign_writer import campaign_toml
+from stiffness.calibration.measurements import (
+    UNITS_COMMENT_EXAMPLE,
+    check_units_comment,
+    coordinates_in_si,
+    parse_number,
+    prismatic_mask,
+    read_units_comment,
 )
 from stiffness.elastic.effects.geometry import cached_robot
 from stiffness.errors import (
@@ -54,8 +54,9 @@ from stiffness.errors import (
     MissingFileError,
     StiffnessError,
 )
-from stiffness.files import atomic_write, read_text, staged_folder
+from stiffness.files import atomic_write, read_text, resolve_source, staged_folder
 from stiffness.robot.robot import Robot
+from stiffness.units import Units
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"

@@ -56,13 +56,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.campaign import (
-    JOINT_ANGLES,
-    Campaign,
-    RobotSettings,
-    Units,
-    write_campaign,
-)
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.campaign_toml import JOINT_ANGLES, RobotSettings
+from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import ElasticParts
@@ -89,6 +85,7 @@ from stiffness.mechanics.gravity import (
 )
 from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
 from stiffness.robot.robot import Robot
+from stiffness.units import Units
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")

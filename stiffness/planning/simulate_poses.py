@@ -16,11 +16,12 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.absolute import Loads, Marker, require_joint_springs
-from stiffness.calibration.campaign import RobotSettings, Units
+from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.errors import ConvergenceError
 from stiffness.robot.robot import Robot
+from stiffness.units import Units
 
 #: Fixed-point tolerance of the sag (rad or m) and its iteration cap.
 _SAG_TOL = 1e-14

@@ -135,7 +135,7 @@ class Effect:
 
     def simulated_values(self, values: tuple[float, ...], units) -> np.ndarray:
         """SI parameter values of the values of ``stiffness simulate --effect NAME=...``, in
-        the campaign's ``units`` (:class:`stiffness.calibration.campaign.Units`).
+        the campaign's ``units`` (:class:`stiffness.units.Units`).
 
         Raises
         ------
@@ -250,7 +250,7 @@ class Effect:
     def report(self, u: np.ndarray, cov_u: np.ndarray, refs: References, units,
                quantile: float) -> list[Parameter]:
         """Parameters with uncertainties in the campaign's units (``units``:
-        :class:`stiffness.calibration.campaign.Units`). ``cov_u`` is the covariance of ``u``."""
+        :class:`stiffness.units.Units`). ``cov_u`` is the covariance of ``u``."""
         scale = self.scale(refs)
         se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
         value = self.physical(u, refs)

@@ -1,0 +1,282 @@
+"""``campaign.toml``: its keys and their types, the ``[units]``, ``[robot]`` and
+``[measurement]`` sections read into SI, and the robot a ``[robot]`` table names.
+"""
+
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.measurements import MAX_CELL
+from stiffness.errors import (
+    FileFormatError,
+    MissingFileError,
+    StiffnessError,
+    did_you_mean,
+    with_context,
+)
+from stiffness.files import (
+    read_text,
+    read_toml,
+    resolve_path,
+    resolve_source,
+)
+from stiffness.robot.robot import Robot, load_robot
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS, Units
+
+#: Campaign file name inside a campaign folder.
+CAMPAIGN_FILE = "campaign.toml"
+#: Default measurement file name.
+DEFAULT_DATA_FILE = "measurements.csv"
+#: Models a campaign may start from.
+BASELINES = ("conventional", "enhanced")
+#: What a campaign's joint angles are: the drives' encoders (the commanded pose, which static
+#: preloads sag) or the unloaded link pose as measured.
+JOINT_ANGLES = ("motor", "link")
+
+_TOML_KEYS = {
+    "": {"kind", "name", "baseline", "robot", "units", "measurement"},
+    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base",
+              "joint_angles"},
+    "units": {"angle", "force", "length", "rotation", "moment"},
+    "measurement": {"data", "noise_std", "rotation_noise_std"},
+}
+_REQUIRED_KEYS = {
+    "": ("name", "baseline", "robot", "units", "measurement"),
+    "robot": ("source",),
+    "units": ("angle", "force", "length"),
+    "measurement": ("data",),
+}
+_KEY_HELP = {
+    "name": 'a label for the campaign, e.g. name = "ur5-bench-2024"',
+    "baseline": f"the model to start from, one of {', '.join(BASELINES)}",
+    "robot": "a [robot] table with at least source",
+    "units": "a [units] table with angle, force and length",
+    "measurement": "a [measurement] table with data (the CSV file name)",
+    "source": "a shipped robot name, an example-robot-data name, or a URDF path relative to "
+              "the campaign file",
+    "angle": f"one of {', '.join(ANGLE_UNITS)}",
+    "force": f"one of {', '.join(FORCE_UNITS)}",
+    "length": f"one of {', '.join(LENGTH_UNITS)}",
+    "data": 'the measurement CSV beside the campaign file, e.g. data = "measurements.csv"',
+}
+
+
+@dataclass
+class RobotSettings:
+    """The ``[robot]`` table of a campaign.
+
+    Attributes
+    ----------
+    source
+        Shipped robot name, example-robot-data name, or URDF path (relative paths are relative
+        to the campaign file's folder, or to the working directory for an unsaved campaign).
+    frame
+        Frame carrying the target, or ``None`` for the robot's default.
+    target_offset_m
+        Target position in ``frame`` axes (m), shape (3,).
+    compliant_joints
+        Joints modelled as springs, or ``None`` for the robot's default.
+    loops
+        Loop declaration overriding the one beside the URDF (a path, relative like
+        ``source``), or ``None``.
+    fixed_base
+        Fix a floating or planar base at its neutral placement (docs/robot-files.md).
+    joint_angles
+        ``motor`` (the commanded pose; preloads sag it) or ``link`` (the unloaded pose as
+        measured), :data:`JOINT_ANGLES`.
+    """
+
+    source: str
+    frame: str | None = None
+    target_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    compliant_joints: tuple[str, ...] | None = None
+    loops: str | None = None
+    fixed_base: bool = False
+    joint_angles: str = "motor"
+
+    def __post_init__(self) -> None:
+        self.source = str(self.source)
+        offset = np.asarray(self.target_offset_m, dtype=float).reshape(-1)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            raise StiffnessError(
+                f"the target offset must be three finite lengths, got {offset.tolist()}"
+            )
+        self.target_offset_m = offset
+        if self.compliant_joints is not None:
+            self.compliant_joints = tuple(str(j) for j in self.compliant_joints)
+        if self.joint_angles not in JOINT_ANGLES:
+            raise StiffnessError(f"joint_angles must be motor (the drives' encoders) or link "
+                                 f"(the link pose as measured), got {self.joint_angles!r}")
+
+
+@dataclass
+class TomlFile:
+    """A campaign TOML file: its path and text, to point errors at the line of a key."""
+
+    path: Path
+    text: str
+
+    def position(self, section: str, key: str | None) -> tuple[int | None, int | None]:
+        """1-based line and column of ``key = ...`` in ``[section]`` ("" for the top level),
+        of the section header when ``key`` is None, or (None, None) when not found."""
+        current = ""
+        for number, raw in enumerate(self.text.splitlines(), start=1):
+            header = re.match(r"^\s*\[\s*([^\]]+?)\s*\]", raw)
+            if header:
+                current = header.group(1)
+                if key is None and current == section:
+                    return number, raw.index("[") + 1
+                continue
+            if key is not None and current == section:
+                match = re.match(rf"^(\s*)(\"?){re.escape(key)}\2\s*=", raw)
+                if match:
+                    return number, len(match.group(1)) + 1
+        return None, None
+
+    def error(self, problem: str, section: str = "", key: str | None = None
+              ) -> FileFormatError:
+        """A :class:`FileFormatError` at ``key`` of ``[section]`` (or at the section)."""
+        line, column = self.position(section, key)
+        label = None if key is None else (f"[{section}] {key}" if section else key)
+        return FileFormatError(problem, path=self.path, line=line, column=column, field=label)
+
+
+def _check_keys(table: dict, where: str, toml: TomlFile) -> None:
+    section = "" if where == "" else where
+    label = "top level" if where == "" else f"[{where}]"
+    for key in table:
+        if key not in _TOML_KEYS[section]:
+            raise toml.error(f"unknown key {key!r} in {label}; "
+                             f"{did_you_mean(key, sorted(_TOML_KEYS[section]))}", section, key)
+    for key in _REQUIRED_KEYS[section]:
+        if key not in table:
+            prefix = "" if where == "" else f"[{where}] "
+            raise toml.error(f"missing key {prefix}{key}: add {_KEY_HELP[key]}", section)
+
+
+def typed_value(value, kind: type | tuple, toml: TomlFile, section: str, key: str, what: str):
+    if not isinstance(value, kind) or isinstance(value, bool):
+        label = f"[{section}] {key}" if section else key
+        raise toml.error(f"{label} must be {what}, got {value!r}", section, key)
+    return value
+
+
+def read_campaign_toml(path: Path) -> tuple[dict, TomlFile]:
+    toml = TomlFile(path, read_text(path, "campaign file"))
+    doc = read_toml(path, "campaign file")
+    _check_keys(doc, "", toml)
+    for section in ("robot", "units", "measurement"):
+        if not isinstance(doc[section], dict):
+            raise toml.error(f"{section} must be a [{section}] table, got {doc[section]!r}",
+                             "", section)
+        _check_keys(doc[section], section, toml)
+    return doc, toml
+
+
+def campaign_toml_path(path: str | os.PathLike) -> Path:
+    p = Path(path)
+    if p.is_dir():
+        p = p / CAMPAIGN_FILE
+    if not p.is_file():
+        raise MissingFileError(
+            f"campaign {path} not found: give a {CAMPAIGN_FILE} or the folder holding one",
+            path=p)
+    if p.suffix.lower() == ".csv":
+        raise FileFormatError(f"{p.name} is a CSV file, not a campaign; give the {CAMPAIGN_FILE} "
+                              "that names it (or the folder holding both)", path=p)
+    return p
+
+
+def units_section(doc: dict, toml: TomlFile) -> Units:
+    """The ``[units]`` table of a campaign.toml, each unit checked (key named on error)."""
+    u = doc["units"]
+    for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
+                       ("length", LENGTH_UNITS)):
+        value = u[key]
+        if value not in table:
+            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
+                             f"{key} units: {', '.join(table)}", "units", key)
+    for key, table in (("rotation", ANGLE_UNITS), ("moment", MOMENT_UNITS)):
+        value = u.get(key)
+        if value is not None and value not in table:
+            raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
+                             f"{key} units: {', '.join(table)}; omit it for the default",
+                             "units", key)
+    return Units(u["angle"], u["force"], u["length"], u.get("rotation"), u.get("moment"))
+
+
+def robot_section(doc: dict, toml: TomlFile, units: Units) -> RobotSettings:
+    """The ``[robot]`` table of a campaign.toml, each key checked (key named on error)."""
+    r = doc["robot"]
+    source = typed_value(r["source"], str, toml, "robot", "source", "a string")
+    frame = r.get("frame")
+    if frame is not None:
+        typed_value(frame, str, toml, "robot", "frame", "a frame name (string)")
+    offset = r.get("target_offset", [0.0, 0.0, 0.0])
+    if (not isinstance(offset, list) or len(offset) != 3
+            or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                       and math.isfinite(v) and abs(v) <= MAX_CELL for v in offset)):
+        raise toml.error(f"[robot] target_offset must be three numbers in {units.length}, "
+                         f"finite and within +-{MAX_CELL:.0e}, got {offset!r}", "robot",
+                         "target_offset")
+    joints = r.get("compliant_joints")
+    if joints is not None and (not isinstance(joints, list) or not joints
+                               or not all(isinstance(j, str) for j in joints)):
+        raise toml.error(f"[robot] compliant_joints must be a non-empty list of joint names, "
+                         f"got {joints!r}", "robot", "compliant_joints")
+    loops = r.get("loops")
+    if loops is not None:
+        typed_value(loops, str, toml, "robot", "loops", "a loop-declaration path (string)")
+    fixed_base = r.get("fixed_base", False)
+    if not isinstance(fixed_base, bool):
+        raise toml.error(f"[robot] fixed_base must be true or false, got {fixed_base!r}",
+                         "robot", "fixed_base")
+    joint_angles = r.get("joint_angles", "motor")
+    if joint_angles not in JOINT_ANGLES:
+        raise toml.error(f"[robot] joint_angles must be \"motor\" (the drives' encoders) or "
+                         f"\"link\" (the link pose as measured), got {joint_angles!r}", "robot",
+                         "joint_angles")
+    return RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
+                         tuple(joints) if joints is not None else None, loops, fixed_base,
+                         joint_angles)
+
+
+def noise_section(doc: dict, toml: TomlFile, units: Units) -> float | None:
+    """``[measurement] noise_std`` in the file's length unit, or None (key named on error)."""
+    m = doc["measurement"]
+    noise = m.get("noise_std")
+    if noise is not None:
+        typed_value(noise, int | float, toml, "measurement", "noise_std",
+               f"a positive number in {units.length}")
+        if not (math.isfinite(noise) and noise > 0):
+            raise toml.error(f"[measurement] noise_std must be a positive finite number in "
+                             f"{units.length}, got {noise!r}; omit it if unknown",
+                             "measurement", "noise_std")
+    return noise
+
+
+def settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
+    """The robot a ``campaign.toml``'s ``[robot]`` names (paths relative to that file).
+
+    Raises
+    ------
+    StiffnessError
+        The robot cannot be loaded (the message starts with the file and ``[robot]``).
+    """
+    folder = toml_path.parent
+    try:
+        return load_robot(resolve_source(settings.source, folder), frame=settings.frame,
+                          target_offset=settings.target_offset_m,
+                          compliant_joints=settings.compliant_joints,
+                          loops=None if settings.loops is None else resolve_path(
+                              settings.loops, folder),
+                          fixed_base=settings.fixed_base)
+    except StiffnessError as exc:
+        raise with_context(exc, f"{toml_path}: [robot]") from exc
