@@ -522,6 +522,33 @@ def commands_seconds(rounds: int) -> dict[str, float]:
     return out
 
 
+def pose_diagnose_seconds(poses: int) -> float:
+    """Wall time (s) of diagnose on a simulated pose campaign: two markers (one per hand) on the
+    shipped two-arm torso (16 coordinates), hidden tracker placement, marker offsets, zero
+    offsets, link-length errors and joint compliance, 30 um noise; the full pose library
+    (issue 29's key: under 90 s for 1000 poses on 2 cores)."""
+    from stiffness.calibration.absolute import Marker
+    from stiffness.calibration.pose_diagnose import diagnose_poses
+    from stiffness.mechanics.defaults import default_stiffness
+    from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+
+    robot = load_robot("two-arm-torso")
+    markers = [Marker("right", "right_tcp", np.zeros(3)),
+               Marker("left", "left_tcp", np.array([0.0, 0.02, 0.0]))]
+    rng = np.random.default_rng(0)
+    n = robot.n_coordinates
+    eps = np.zeros((n, 6))
+    eps[:, :2] = rng.normal(0.0, 3e-4, (n, 2))
+    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                              np.array([m.offset for m in markers]) + 2e-3,
+                              rng.normal(0.0, 1e-3, n), eps,
+                              np.asarray(default_stiffness(robot), dtype=float))
+    campaign = simulate_pose_campaign(robot, markers, hidden, poses, 30e-6, seed=1)
+    start = time.perf_counter()
+    diagnose_poses(campaign)
+    return time.perf_counter() - start
+
+
 # ------------------------------------------------------------------------------ report
 
 
@@ -571,6 +598,8 @@ def main(argv: list[str] | None = None) -> int:
     scan = scan_over_kernel(samples, 2 if args.quick else 3)
     dask = dask_scaling(200000 if args.quick else 2000000, 1 if args.quick else 2)
     commands = commands_seconds(1 if args.quick else 2)
+    poses = 200 if args.quick else 1000
+    commands[f"pose_diagnose_{poses}_poses_s"] = pose_diagnose_seconds(poses)
     if args.json:
         out = {name: {k: float(v) for k, v in r.items()} for name, r in costs.items()}
         out["table4_scan_s"] = t4
