@@ -25,7 +25,7 @@ import urllib.request
 
 import numpy as np
 
-from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.deps import meshcat_modules
 from stiffness.viewer.server import LOOPBACK, LiveServer
 
 
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     with LiveServer() as server:
-        blob = _meshcat().msgpack.packb({"type": "set_object", "path": "/load",
+        blob = meshcat_modules().msgpack.packb({"type": "set_object", "path": "/load",
                                          "object": {"data": os.urandom(2**20)}})
         server.request([b"set_object", b"/load", blob])
         port = int(server.web_url.rsplit(":", 1)[1].strip("/"))

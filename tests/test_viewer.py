@@ -743,8 +743,8 @@ def test_cli_live_serves_for_its_duration():
 def test_import_keeps_warnings_local():
     """meshcat's zmq DeprecationWarning does not escape, even with warnings as errors."""
     code = ("import warnings; warnings.simplefilter('error')\n"
-            "from stiffness.viewer import _meshcat, _pinocchio_meshcat_visualizer\n"
-            "_meshcat(); _pinocchio_meshcat_visualizer()\n"
+            "from stiffness.viewer.deps import meshcat_modules, pinocchio_meshcat_visualizer\n"
+            "meshcat_modules(); pinocchio_meshcat_visualizer()\n"
             "try:\n"
             "    warnings.warn('still an error', DeprecationWarning)\n"
             "except DeprecationWarning:\n"

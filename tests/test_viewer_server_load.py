@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.deps import meshcat_modules
 from stiffness.viewer.server import LOOPBACK, LiveServer, ServerLimits
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
@@ -122,7 +122,7 @@ class Probe(threading.Thread):
 def server():
     with LiveServer(timeout=10.0, limits=LIMITS) as live:
         # a scene of ~1 MB, so every new page is sent real data
-        blob = _meshcat().msgpack.packb({"type": "set_object", "path": "/load",
+        blob = meshcat_modules().msgpack.packb({"type": "set_object", "path": "/load",
                                          "object": {"data": os.urandom(2**20)}})
         assert live.request([b"set_object", b"/load", blob]) == b"ok"
         yield live
@@ -285,7 +285,7 @@ def test_a_page_that_never_reads_is_dropped_and_memory_stays_bounded(server, pro
     stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     deadline = time.monotonic() + 20.0
     sent = 0
-    blob = _meshcat().msgpack.packb({"type": "set_object", "path": "/flood",
+    blob = meshcat_modules().msgpack.packb({"type": "set_object", "path": "/flood",
                                      "object": {"data": os.urandom(2**20)}})
     while server.clients() > 0 and time.monotonic() < deadline and sent < 200:
         server.request([b"set_object", b"/flood", blob])

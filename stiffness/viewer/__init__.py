@@ -59,10 +59,6 @@ Units: SI (m, N, rad; N/m, m/N; N.m/rad for joints).
 """
 
 from stiffness.viewer.core import StiffnessViewer
-
-# private helpers kept importable from here (tests import them)
-from stiffness.viewer.deps import _meshcat as _meshcat
-from stiffness.viewer.deps import _pinocchio_meshcat_visualizer as _pinocchio_meshcat_visualizer
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
     PrincipalEllipsoid,

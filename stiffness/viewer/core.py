@@ -35,7 +35,7 @@ from stiffness.mechanics.formulation import (
     target_state,
 )
 from stiffness.robot.robot import Robot
-from stiffness.viewer.deps import _meshcat, _pinocchio_meshcat_visualizer
+from stiffness.viewer.deps import meshcat_modules, pinocchio_meshcat_visualizer
 from stiffness.viewer.drawing import draw_floor, style_objects
 from stiffness.viewer.ellipsoid import (
     QUANTITIES,
@@ -159,7 +159,7 @@ class StiffnessViewer:
         self.arrow_scale: float | None = None
         self.server = LiveServer(host, port, timeout) if live else None
         self._window = RecordingWindow(self.server)
-        mc = _meshcat()
+        mc = meshcat_modules()
         self._vis = mc.meshcat.Visualizer(window=self._window)
         self._lock = threading.RLock()
         self._browser_thread: threading.Thread | None = None
@@ -206,14 +206,14 @@ class StiffnessViewer:
                 print(f"stiffness viewer: {line}", file=sys.stderr)
             self._missing_reported = True
         if self._meshes is not None:
-            visualizer = _pinocchio_meshcat_visualizer()
+            visualizer = pinocchio_meshcat_visualizer()
             self._viz = visualizer(self.robot.model, None, self._meshes)
             self._viz.initViewer(viewer=vis)
             self._viz.loadViewerModel(ROBOT_NODE)
             # the deflected robot reuses these meshes: the page copies them (see page._PAGE_JS)
             self._visual_data = self._meshes.createData()
         else:
-            mg = _meshcat().geometry
+            mg = meshcat_modules().geometry
             self._links = self._skeleton_links()
             for root, rgba in ((ROBOT_NODE, (0.55, 0.57, 0.6, 1.0)),
                                (DEFLECTED_NODE, DEFLECTED_RGBA)):
@@ -222,7 +222,7 @@ class StiffnessViewer:
                     vis[f"{root}/visuals/{name}"].set_object(
                         mg.Cylinder(1.0, 0.015 * self.reach), material)
         vis[DEFLECTED_NODE].set_property("visible", False)
-        mg = _meshcat().geometry
+        mg = meshcat_modules().geometry
         base = f"{STIFFNESS_NODE}"
         vis[f"{base}/target"].set_object(mg.Sphere(0.012 * self.reach),
                                          mg.MeshPhongMaterial(color=0x222222))
@@ -546,7 +546,7 @@ class StiffnessViewer:
         list of SceneState
             One per frame.
         """
-        mc = _meshcat()
+        mc = meshcat_modules()
         rows = np.atleast_2d(np.asarray(path, dtype=float))
         if rows.shape[1] != self.robot.n_coordinates or rows.shape[0] < 2:
             raise StiffnessError(
@@ -636,7 +636,7 @@ class StiffnessViewer:
                                 for e in ells])
             spacing = sample_spacing(positions_a)
             scale = 0.45 * spacing / max(float(np.median(largest)), 1e-300)
-            mg = _meshcat().geometry
+            mg = meshcat_modules().geometry
             self._vis[FIELD_NODE].delete()
             clipped = np.zeros(len(ells), dtype=bool)
             for i, (p, e) in enumerate(zip(positions_a, ells, strict=True)):
@@ -740,7 +740,7 @@ class StiffnessViewer:
 
     def commands(self) -> list[dict]:
         """The scene's meshcat commands, decoded, in replay order."""
-        unpack = _meshcat().msgpack.unpackb
+        unpack = meshcat_modules().msgpack.unpackb
         return [unpack(c) for c in self._window.scene.commands()]
 
     def _repr_html_(self) -> str:

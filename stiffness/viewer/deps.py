@@ -17,7 +17,7 @@ from typing import Any
 
 
 @functools.cache
-def _meshcat() -> Any:
+def meshcat_modules() -> Any:
     """meshcat and its submodules, imported with its zmq DeprecationWarning silenced locally."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
@@ -32,15 +32,16 @@ def _meshcat() -> Any:
         viewer_js=Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js")
 
 
-def _pinocchio_meshcat_visualizer() -> type:
-    """Pinocchio's ``MeshcatVisualizer`` class, imported after :func:`_meshcat` (same warning).
+def pinocchio_meshcat_visualizer() -> type:
+    """Pinocchio's ``MeshcatVisualizer`` class, imported after :func:`meshcat_modules` (same
+    warning).
 
     ``pinocchio.visualize`` imports every visualizer; its Viser one imports ``trimesh`` (1.3 s
     here) and then ``viser``, and is disabled when either is missing. Where ``viser`` is not
     installed, ``trimesh`` is kept out of that import (an ``ImportError`` at once: the same
     outcome, without loading it); ``trimesh`` imports normally afterwards.
     """
-    _meshcat()
+    meshcat_modules()
     skip_trimesh = "trimesh" not in sys.modules and importlib.util.find_spec("viser") is None
     if skip_trimesh:
         sys.modules["trimesh"] = None  # type: ignore[assignment]

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from stiffness.mechanics.formulation import FORMULATIONS
-from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.deps import meshcat_modules
 from stiffness.viewer.geometry import Pose
 from stiffness.viewer.states import (
     DEFLECTED_NODE,
@@ -25,7 +25,7 @@ from stiffness.viewer.style import COLORMAPS, ROTATIONAL_COLOR, color_of, rgb_in
 
 def axes_object() -> Any:
     """The three principal axes of a unit sphere (red, green, blue: axes 1, 2, 3)."""
-    mg = _meshcat().geometry
+    mg = meshcat_modules().geometry
     points = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]],
                       dtype=np.float32).T
     colors = np.array([[0.7, 0, 0]] * 2 + [[0, 0.5, 0]] * 2 + [[0, 0, 0.8]] * 2,
@@ -38,7 +38,7 @@ def draw_floor(vis: Any, z: float, center: np.ndarray, half: float, spacing: flo
                reach: float) -> None:
     """A plate at height ``z`` (m) centred on ``center`` (x, y), ``2 half`` wide, with a grid
     of ``spacing`` (m); thickness and grid offset scale with the robot's ``reach`` (m)."""
-    mg = _meshcat().geometry
+    mg = meshcat_modules().geometry
     thickness = 0.004 * reach
     vis[f"{FLOOR_NODE}/plate"].set_object(
         mg.Box([2 * half, 2 * half, thickness]),
@@ -61,7 +61,7 @@ def style_objects(vis: Any, state: SceneState, color_range: tuple[float, float],
     """Objects whose look depends on the values: ellipsoid colours (k_min on
     ``color_range``, N/m) and visibility (the labels are the page's, see
     :mod:`stiffness.viewer.legend`)."""
-    mg = _meshcat().geometry
+    mg = meshcat_modules().geometry
     lo, hi = color_range
     if state.deflected_q is None:  # else as the user left it: off at first (the legend's box)
         vis[DEFLECTED_NODE].set_property("visible", False)

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from stiffness.errors import StiffnessError
-from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.deps import meshcat_modules
 from stiffness.viewer.style import DEFLECTED_RGBA
 
 _PAGE_CSS = """
@@ -508,7 +508,7 @@ def render_page(commands: list[bytes], overlay: dict | None, title: str, live: b
     if live:
         viewer_script = '<script src="/static/main.min.js"></script>'
     else:
-        viewer_script = "<script>" + _meshcat().viewer_js.read_text() + "</script>"
+        viewer_script = "<script>" + meshcat_modules().viewer_js.read_text() + "</script>"
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         f"<title>{html_lib.escape(title)}</title>\n<style>{_PAGE_CSS}</style>\n</head>\n"
@@ -536,7 +536,7 @@ def scene_commands(page: str) -> list[dict]:
                       page, re.S)
     if match is None:
         raise StiffnessError("not a page written by stiffness.viewer (no embedded scene)")
-    unpack = _meshcat().msgpack.unpackb
+    unpack = meshcat_modules().msgpack.unpackb
     return [unpack(base64.b64decode(c)) for c in json.loads(match.group(1))]
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stiffness.errors import StiffnessError
-from stiffness.viewer.deps import _meshcat
+from stiffness.viewer.deps import meshcat_modules
 from stiffness.viewer.page import render_page
 from stiffness.viewer.scene import SceneStore
 
@@ -91,7 +91,7 @@ class RecordingWindow:
 
     def send(self, command: Any) -> None:
         data = command.lower()
-        packed = _meshcat().msgpack.packb(data)
+        packed = meshcat_modules().msgpack.packb(data)
         self.scene.apply(data["type"], data["path"], packed, data.get("property"))
         if self.server is not None:
             self.server.request([data["type"].encode(), data["path"].encode(), packed])
@@ -357,7 +357,7 @@ def _serve(host: str, port: int, parent_pid: int, log_path: str | None = None,
     return 0
 
 
-def _main(argv: list[str]) -> int:
+def main(argv: list[str]) -> int:
     """``python -m stiffness.viewer --serve HOST PORT PARENT_PID [LOG [LIMITS_JSON]]``."""
     if len(argv) in (4, 5, 6) and argv[0] == "--serve":
         limits = ServerLimits(**json.loads(argv[5])) if len(argv) == 6 else None
@@ -503,7 +503,7 @@ def _command_handler(store: SceneStore, state: dict,
             else:
                 key = None
                 if kind == "set_property":
-                    key = _meshcat().msgpack.unpackb(frames[2]).get("property")
+                    key = meshcat_modules().msgpack.unpackb(frames[2]).get("property")
                 store.apply(kind, frames[1].decode(), frames[2], key)
                 broadcast(frames[2], True)
         elif kind == "overlay":
