@@ -35,30 +35,38 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def force_deflection(curves: dict[str, dict]) -> bytes:
-    """Figs. 4-6: deflection components (mm) against the load magnitude (N) per configuration.
+def force_deflection(rows: list[dict]) -> bytes:
+    """Table II per configuration (each loaded along its own direction): each model's residual
+    against the measurement, ``|model - measured|`` (mm), against the load magnitude (N).
 
-    ``curves[name] = {"force_N": (k,), "conventional": (k, 3), "enhanced": (k, 3),
-    "exact": (k, 3), "direction": (3,)}`` in mm.
+    ``rows``: :func:`stiffness.papers.reproduction.table2` (``config``, ``force_N``, and the
+    deflections ``measured_mm``, ``paper_calculated_mm``, ``conventional_mm``,
+    ``enhanced_mm``, ``exact_mm``).
     """
-    fig = Figure(figsize=(5 * len(curves), 4.3))
-    axes = fig.subplots(1, len(curves), squeeze=False)
-    _margins(fig, 0.75, 0.15, 0.55, 0.55, wspace=0.3)
-    for ax, (name, c) in zip(axes[0], curves.items(), strict=True):
-        for i, (axis, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"), strict=True)):
-            ax.plot(c["force_N"], c["exact"][:, i], "-", color=colour,
-                    label=f"{axis}, exact equilibrium")
-            ax.plot(c["force_N"], c["enhanced"][:, i], "--", color=colour,
-                    label=f"{axis}, enhanced (eq. 10)")
-            ax.plot(c["force_N"], c["conventional"][:, i], ":", color=colour,
-                    label=f"{axis}, conventional (eq. 8)")
-        title = name.replace("fig", "Fig. ") + " configuration"
-        ax.set_title(f"{title}\nload direction ({', '.join(f'{v:.2f}' for v in c['direction'])})"
-                     , fontsize=10)
+    models = (("conventional_mm", "conventional (eq. 8)", "o:"),
+              ("enhanced_mm", "enhanced (eq. 10)", "^--"),
+              ("exact_mm", "exact equilibrium", "s-"),
+              ("paper_calculated_mm", "paper's calculated", "x-."))
+    configs = list(dict.fromkeys(r["config"] for r in rows))
+    fig = Figure(figsize=(4.6 * len(configs), 4.2))
+    axes = fig.subplots(1, len(configs), squeeze=False, sharey=True)
+    _margins(fig, 0.75, 0.15, 1.0, 0.55, wspace=0.08)
+    for ax, config in zip(axes[0], configs, strict=True):
+        mine = [r for r in rows if r["config"] == config]
+        force = np.array([r["force_N"] for r in mine])
+        magnitude = np.linalg.norm(force, axis=1)
+        measured = np.array([r["measured_mm"] for r in mine])
+        for key, label, style in models:
+            residual = np.linalg.norm(np.array([r[key] for r in mine]) - measured, axis=1)
+            ax.plot(magnitude, residual, style, label=label, mfc="none")
+        direction = force[-1] / magnitude[-1]
+        ax.set_title(f"configuration {config}: load along "
+                     f"({', '.join(f'{v:.2f}' for v in direction)})", fontsize=10)
         ax.set_xlabel("load magnitude (N)")
-        ax.set_ylabel("deflection component, base axes (mm)")
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
+    axes[0][0].set_ylabel("|model - measured| deflection (mm)")
+    fig.legend(*axes[0][0].get_legend_handles_labels(), loc="lower center", ncol=4,
+               fontsize=9, bbox_to_anchor=(0.5, 0.01))
     return _png(fig)
 
 
@@ -129,21 +137,40 @@ def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
     return _png(fig)
 
 
+#: Colour of the map cells without a value.
+NO_VALUE_GREY = "#b8b8b8"
+
+
 def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.ndarray,
                   ratio: np.ndarray, load_N: float) -> bytes:
-    """Minimum principal stiffness (N/mm) over (theta2, theta3), and enhanced/conventional."""
+    """Minimum principal stiffness (N/mm) over (theta2, theta3), and enhanced/conventional;
+    cells without a value (NaN: the flat parallelogram, a singular stiffness) grey, counted in
+    each panel's legend."""
+    import matplotlib
+    from matplotlib.patches import Patch
+
     fig = Figure(figsize=(12, 4.5))
     ax1, ax2 = fig.subplots(1, 2)
     _margins(fig, 0.75, 0.85, 0.55, 0.35, wspace=0.35)
-    mesh = ax1.pcolormesh(theta3_deg, theta2_deg, minimum * 1e-3, shading="auto", cmap="viridis")
-    fig.colorbar(mesh, ax=ax1, label="smallest principal stiffness (N/mm)")
-    ax1.set_title("conventional stiffness (eq. 8), q1 = 0, wrist vertical", fontsize=10)
-    mesh2 = ax2.pcolormesh(theta3_deg, theta2_deg, ratio, shading="auto", cmap="coolwarm")
-    fig.colorbar(mesh2, ax=ax2, label="smallest principal stiffness, enhanced / conventional")
-    ax2.set_title(f"effect of K_C under a {load_N:g} N load straight down", fontsize=10)
-    for ax in (ax1, ax2):
+    panels = ((ax1, minimum * 1e-3, "viridis", "smallest principal stiffness (N/mm)",
+               "conventional stiffness (eq. 8), q1 = 0, wrist vertical"),
+              (ax2, ratio, "coolwarm", "smallest principal stiffness, enhanced / conventional",
+               f"effect of K_C under a {load_N:g} N load straight down"))
+    for ax, values, name, label, title in panels:
+        cmap = matplotlib.colormaps[name].copy()
+        cmap.set_bad(NO_VALUE_GREY)
+        mesh = ax.pcolormesh(theta3_deg, theta2_deg, np.ma.masked_invalid(values),
+                             shading="auto", cmap=cmap)
+        fig.colorbar(mesh, ax=ax, label=label)
+        ax.set_title(title, fontsize=10)
         ax.set_xlabel("joint angle q3 (deg)")
         ax.set_ylabel("joint angle q2 (deg)")
+        missing = int(np.count_nonzero(~np.isfinite(values)))
+        if missing:
+            ax.legend(handles=[Patch(facecolor=NO_VALUE_GREY,
+                                     label=f"no value ({missing} cells): flat parallelogram "
+                                           "or singular stiffness")],
+                      loc="lower left", fontsize=7, framealpha=0.9)
     return _png(fig)
 
 

@@ -24,8 +24,7 @@ from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.identify import Identification, identify
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, staged_folder
-from stiffness.mechanics.equilibrium import linear_departure, solve_equilibrium
-from stiffness.mechanics.formulation import compliance, target_states
+from stiffness.mechanics.equilibrium import linear_departure
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
 from stiffness.papers.independent import DEFINITENESS_KEYS, independent_parts
@@ -46,7 +45,6 @@ from stiffness.papers.reproduction import (
     table3_corrupt_rows,
 )
 from stiffness.papers.sk120 import AngleConvention
-from stiffness.papers.tables import FIGURE_CONFIGURATIONS_DEG
 from stiffness.provenance import provenance
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.robot.sources import robots_directory
@@ -59,26 +57,6 @@ def _log(quiet: bool, text: str) -> None:
     """A progress line on the terminal (none under --quiet or when stderr is not a TTY)."""
     if not quiet and sys.stderr.isatty():
         print(text, file=sys.stderr)
-
-
-def _force_deflection_curves(robot: Robot, k_theta: np.ndarray, direction: np.ndarray) -> dict:
-    """Figs. 4-6 configurations: deflection against load, 0..50 kg of dead weight."""
-    curves = {}
-    forces = np.linspace(0.0, 50 * 9.81, 11)
-    for name, q_deg in FIGURE_CONFIGURATIONS_DEG.items():
-        q = robot.configuration(np.deg2rad(q_deg))
-        conv, enh, exact = [], [], []
-        for f in forces:
-            load = f * direction
-            (state,) = target_states(robot, q, [load])
-            jac = state.jacobian[:3]
-            conv.append(compliance(jac, k_theta) @ load)
-            enh.append(compliance(jac, k_theta - state.k_c) @ load)
-            exact.append(solve_equilibrium(robot, q, k_theta, load).dx)
-        curves[name] = {"force_N": forces, "direction": direction,
-                        "conventional": np.array(conv) * 1e3, "enhanced": np.array(enh) * 1e3,
-                        "exact": np.array(exact) * 1e3}
-    return curves
 
 
 def _stiffness_map(robot: Robot, k_theta: np.ndarray, load_N: float) -> tuple:
@@ -278,7 +256,6 @@ def _figures(summary: dict, robot: Robot, paper_k: np.ndarray, t2_rows: list[dic
              t3_rows: list[dict], corrupt: list[dict]) -> dict[str, bytes]:
     """The report's figures (PNG bytes by file name; the partial derivatives' one is filled
     later), and the linear predictions' departure rates into ``summary``."""
-    direction = np.array(t2_rows[-1]["force_N"]) / np.linalg.norm(t2_rows[-1]["force_N"])
     q_a = robot.configuration(np.deg2rad(robot.defaults["q_deg"]))
     reference = np.array(robot.defaults["wrench_SI"])
     departure = linear_departure(robot, q_a, paper_k, reference * 1000,
@@ -288,8 +265,7 @@ def _figures(summary: dict, robot: Robot, paper_k: np.ndarray, t2_rows: list[dic
                                   "reference_load_N": (reference * 1000).tolist()}
     t2g, t3g, minimum, ratio = _stiffness_map(robot, paper_k, 1000.0)
     figures = {
-        "force_deflection.png": plots.force_deflection(
-            _force_deflection_curves(robot, paper_k, direction)),
+        "force_deflection.png": plots.force_deflection(t2_rows),
         "partial_derivatives.png": b"",  # from the definiteness part, below
         "linear_vs_exact.png": plots.linear_vs_exact(departure, float(np.linalg.norm(
             reference * 1000))),

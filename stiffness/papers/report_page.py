@@ -45,9 +45,9 @@ SECTIONS = {
     "reproduce": "Reproduce this",
 }
 FIGURE_CAPTIONS = {
-    "force_deflection.png": "Figs. 4–6 configurations: deflection against load, exact "
-                            "equilibrium and the two linear models (the figures' load "
-                            "directions are not printed; Table II's last direction is used)",
+    "force_deflection.png": "Table II, one panel per configuration and its load direction: "
+                            "how far each model's deflection is from the laser-tracker "
+                            "measurement (norm of the difference, mm) as the load grows",
     "partial_derivatives.png": "Figs. 7–9: the parts of C11, C22, C33 (eq. 16), i.e. the "
                                "diagonal of K_C per newton of load along x, y and z, over the "
                                "printed angles q2 and q3 of the Table IV grid",
@@ -55,7 +55,11 @@ FIGURE_CAPTIONS = {
                            "equilibrium at configuration A, the largest Table II load scaled "
                            "up to 1000 times",
     "stiffness_map.png": "Smallest principal Cartesian stiffness over (q2, q3), and how much "
-                         "K_C changes it under a 1 kN load",
+                         "K_C changes it under a 1 kN load. Grey cells have no value: the "
+                         "diagonal bands are the flat parallelogram (q2 + q3 within 3 deg of "
+                         "+-90 deg), where the SK120's loop is singular and the grid leaves "
+                         "them out; an isolated grey cell is a pose whose stiffness is "
+                         "singular (a kinematic singularity)",
     "table2.png": "Table II row by row: measured, the paper's calculated and our deflections",
     "table3.png": "Table III row by row: printed eq. 14 work per squared load; within a "
                   "configuration it should be nearly constant",
