@@ -472,9 +472,9 @@ def test_loaded_equilibrium_agrees_with_the_joint_law_solver(ur5):
 
 def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     """The first-order deflection the posture search minimises (link bends included) equals
-    the model file's compliance times the load (model_file.model_compliance)."""
+    the model file's compliance times the load (ElasticModel.at)."""
     from stiffness.elastic.loaded import linear_deflection
-    from stiffness.elastic.model_file import ModelEffect, ModelFile, load_model, model_compliance
+    from stiffness.elastic.model_file import ModelEffect, ModelFile, load_model
 
     bend = ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
                        [_parameter("stiffness_1", 1.5e5, "N.m/rad"),
@@ -485,6 +485,6 @@ def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     em = load_model(path)
     wrench = np.array([60.0, -30.0, -300.0, 0.0, 0.0, 0.0])
     for coords in UR5_PATH:
-        theirs = model_compliance(path, coords, wrench).compliance6 @ wrench
+        theirs = load_model(path).at(coords, wrench).compliance6 @ wrench
         np.testing.assert_allclose(linear_deflection(em, coords, wrench), theirs,
                                    rtol=1e-9, atol=1e-14)

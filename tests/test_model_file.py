@@ -12,12 +12,12 @@ from stiffness.elastic.effects import LIBRARY
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.model_file import (
     SCHEMA,
-    CompliantModel,
     ModelEffect,
     ModelFile,
     ModelFileError,
     ModelRobotError,
-    model_compliance,
+    elastic_model_of,
+    load_model,
     read_model_file,
 )
 from stiffness.errors import UnknownJointError
@@ -119,7 +119,7 @@ def test_older_diagnosed_file_reads_in_its_units(tmp_path):
     model = read_model_file(path)
     np.testing.assert_allclose(model.effects[0].values(), [0.02, 0.0, -0.01])
     assert model.effects[0].parameters[0].unit == "m" and model.noise_std_m == 5e-6
-    compliant = CompliantModel(model)
+    compliant = elastic_model_of(model)
     np.testing.assert_allclose(compliant.robot.target_offset, [0.02, 0.0, 0.09])
 
 
@@ -141,7 +141,7 @@ def test_unknown_schema_and_other_robot_are_one_line_errors(tmp_path):
         wrong = _ur5_model(ModelEffect(name, "wrist_9_joint", "stiffness",
                                        [_p(LIBRARY[name].param_names[0], 1e4, "SI")]))
         with pytest.raises((UnknownJointError, ModelRobotError), match="wrist_9_joint"):
-            CompliantModel(wrong)
+            elastic_model_of(wrong)
     # a shipped robot by name or by the path of its URDF is the same robot
     sk120 = ModelFile(source="sk120", frame="fixture_target", target_offset_m=np.zeros(3),
                       compliant_joints=("joint1",), k_theta=[1e6], units=("N.m/rad",),
@@ -180,7 +180,7 @@ def test_joint_compliance_enters_k_x_like_a_spring():
     model = _ur5_model(ModelEffect("joint_compliance", "wrist_2_joint", "stiffness",
                                    [_p("stiffness", k_wrist, "N.m/rad")]))
     force = np.array([20.0, -10.0, -80.0])
-    result = model_compliance(model, Q, force)
+    result = load_model(model).at(Q, force)
     assert result.robot.compliant_joints == ARM + ("wrist_2_joint",)
     true = load_robot("ur5", frame="tool0", target_offset=[0, 0, 0.1],
                       compliant_joints=ARM + ("wrist_2_joint",))
@@ -198,7 +198,7 @@ def test_link_and_nonlinear_effects_are_the_tangent_of_the_fitted_deflection():
         ModelEffect("frame_misalignment", None, "measurement",
                     [_p("rx", 0.03, "rad"), _p("ry", 0.0, "rad"), _p("rz", 0.0, "rad")]))
     model.formulation = "conventional"
-    compliant = CompliantModel(model)
+    compliant = elastic_model_of(model)
     assert [e.name for e, _ in compliant.not_applied] == ["frame_misalignment"]
     force = np.array([30.0, 10.0, -60.0])
     at = compliant.at(Q, force, "conventional")
@@ -312,9 +312,9 @@ def test_view_model_draws_the_models_compliance(tmp_path, capsys):
     matrix = scene_transforms(scene_commands(page.read_text()))[
         "/meshcat/stiffness/enhanced/surface"]
     radii = np.sort(np.linalg.norm(matrix[:3, :3], axis=0))
-    with_link = np.linalg.eigvalsh(model_compliance(_link_model(), Q, force).compliance())
+    with_link = np.linalg.eigvalsh(load_model(_link_model()).at(Q, force).compliance())
     np.testing.assert_allclose(radii / with_link, radii[0] / with_link[0], rtol=1e-6)
-    springs = CompliantModel(_link_model())
+    springs = elastic_model_of(_link_model())
     at = springs.at(Q, force)
     joints_only = np.linalg.eigvalsh(at.compliance() - at.link_compliance[:3, :3])
     assert not np.allclose(radii / joints_only, radii[0] / joints_only[0], rtol=1e-3)
@@ -336,7 +336,7 @@ def test_scan_model_scans_the_models_springs(tmp_path, capsys):
     from stiffness.workspace.engine import load_scan
 
     chunk = load_scan(out)  # the stored maps, derived arrays and coordinates rebuilt
-    compliant = CompliantModel(model)
+    compliant = elastic_model_of(model)
     for i in range(2):
         expected = compliant.at(chunk["coordinates"][i], [0, 0, -100.0]).k_x()
         np.testing.assert_allclose(chunk["k_x"][i, 0], expected, rtol=1e-9)
@@ -363,9 +363,9 @@ def test_fixed_base_and_loop_file_travel_with_the_model(tmp_path):
     assert doc["robot"]["fixed_base"] is True and "loops" not in doc["robot"]
     back = read_model_file(path)
     assert back.fixed_base and back.loops is None
-    cm = CompliantModel(back)
+    cm = elastic_model_of(back)
     q = cm.robot.configuration(np.full(8, 0.4))
-    compliance = model_compliance(back, q, np.array([0.0, 0.0, -5.0])).compliance()
+    compliance = load_model(back).at(q, np.array([0.0, 0.0, -5.0])).compliance()
     assert np.all(np.isfinite(compliance)) and np.linalg.matrix_rank(compliance) == 2
     with_loops = ModelFile(**{**model.__dict__, "loops": str(loops), "path": None})
     doc = json.loads(with_loops.write(tmp_path / "models" / "l.json").read_text())
@@ -382,7 +382,7 @@ def test_joint_compliance_on_a_compliant_joint_is_refused(tmp_path):
     path = model.write(tmp_path / "m.json")
     with pytest.raises(ModelFileError, match="joint_compliance effect on elbow_joint, which is "
                        "already a compliant joint of k_theta") as info:
-        CompliantModel(read_model_file(path))
+        elastic_model_of(read_model_file(path))
     assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
 
 
@@ -395,5 +395,22 @@ def test_an_undetermined_stiffness_is_used_with_a_warning(tmp_path):
     assert json.loads(path.read_text())["k_theta"]["determined"] == [True, True, False]
     with pytest.warns(DataFileWarning, match="the stiffness of elbow_joint is marked "
                       "undetermined"):
-        compliant = CompliantModel(read_model_file(path))
+        compliant = elastic_model_of(read_model_file(path))
     np.testing.assert_array_equal(compliant.k_theta, K_ARM)
+
+
+def test_the_old_names_still_work_with_a_deprecation_warning():
+    """CompliantModel, ModelCompliance and model_compliance: one release more, same numbers."""
+    import stiffness.elastic.model_file as model_file
+    from stiffness.elastic.model import ElasticState
+
+    model, force = _ur5_model(), np.array([20.0, -10.0, -80.0])
+    with pytest.warns(DeprecationWarning, match="CompliantModel is deprecated"):
+        old = model_file.CompliantModel(model)
+    with pytest.warns(DeprecationWarning, match="model_compliance is deprecated"):
+        at = model_file.model_compliance(model, Q, force)
+    with pytest.warns(DeprecationWarning, match="ModelCompliance is deprecated"):
+        assert model_file.ModelCompliance is ElasticState
+    new = elastic_model_of(model).at(Q, force)
+    np.testing.assert_array_equal(old.at(Q, force).k_x(), new.stiffness())
+    np.testing.assert_array_equal(at.compliance6, new.compliance(slice(0, 6)))

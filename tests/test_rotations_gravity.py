@@ -22,7 +22,7 @@ from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.elastic.model_file import CompliantModel, read_model_file
+from stiffness.elastic.model_file import elastic_model_of, read_model_file
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.mechanics.gravity import gravity_preload, spring_balancer, with_payload
 from stiffness.planning.simulate import parse_effect, simulate
@@ -222,7 +222,7 @@ def test_payload_in_the_model_file_enters_k_x(tmp_path):
     model = read_model_file(tmp_path / "final-model.json")
     [grav] = [e for e in model.effects if e.name == "gravity_preload"]
     assert grav.kind == "preload"
-    cm = CompliantModel(model)
+    cm = elastic_model_of(model)
     assert grav in cm.applied
     q = sim.campaign.q[0]
     at = cm.at(q, np.zeros(3))
@@ -241,7 +241,7 @@ def test_compensator_in_the_model_file_enters_k_x(tmp_path):
     model = read_model_file(tmp_path / "final-model.json")
     comp = [e for e in model.effects if e.name == "gravity_compensator"]
     assert comp and comp[0].kind == "stiffness" and comp[0].settings["lever_m"] == 0.1
-    cm = CompliantModel(model)
+    cm = elastic_model_of(model)
     q = sim.campaign.q[0]
     at = cm.at(q, np.zeros(3))
     # the compliance is the derivative of the fitted model's deflection (finite differences);
