@@ -156,6 +156,7 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     reference = args.q is None and default_coordinates(robot) is None
     # without --q and robot defaults: the reference pose (zero, or the assembly found near it)
     coords = None if reference else flags.coordinates_from_args(robot, args)
+    kq: np.ndarray | list[float] | None
     if cm is not None:
         kq, kq_source = cm.k_theta, f"{flags.FROM_MODEL} {args.model}"
     elif args.kq is not None:
@@ -224,9 +225,7 @@ def compute(args: argparse.Namespace) -> dict:
     inputs = resolve_inputs(args)
     robot = inputs.robot
     model = inputs.model or ElasticModel.joint_springs(robot, inputs.k_theta)
-    # a coupled robot's full q has as many values as its (controller) coordinates: give those
-    pose = inputs.q if robot.coupling is None else inputs.coords
-    state = model.at(pose, inputs.load, args.formulation)
+    state = model.at(inputs.coords, inputs.load, args.formulation, closed=inputs.q)
     report = cartesian_report(state, args.formulation, args.connection, args.twist_order)
     trans = "N/m"
     if len(report["basis"]) == 6:
@@ -243,7 +242,7 @@ def compute(args: argparse.Namespace) -> dict:
         **report,
         **inputs_summary(inputs),
         "configuration": _configuration(robot, inputs.q),
-        "closure": inputs.assembly.as_dict(),
+        "closure": None if inputs.assembly is None else inputs.assembly.as_dict(),
         "notes": list(robot.notes),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",

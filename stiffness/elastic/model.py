@@ -338,7 +338,7 @@ class ElasticModel:
             f"{self.robot.model.nq} values; got {q.shape[0]}")
 
     def at(self, q: np.ndarray | list[float], wrench: np.ndarray | list[float] | None = None,
-           formulation: str = "enhanced") -> ElasticState:
+           formulation: str = "enhanced", closed: np.ndarray | None = None) -> ElasticState:
         """The model at a pose and a load.
 
         Parameters
@@ -351,8 +351,12 @@ class ElasticModel:
         formulation
             Default formulation of the state's linear answers (``enhanced`` or
             ``conventional``).
+        closed
+            The full closed configuration of ``q`` when already known (an assembly found
+            by :meth:`stiffness.robot.robot.Robot.assemble`); default ``robot.configuration(q)``.
         """
-        return ElasticState(self, q, np.zeros(3) if wrench is None else wrench, formulation)
+        return ElasticState(self, q, np.zeros(3) if wrench is None else wrench, formulation,
+                            closed)
 
     def preload(self, q: np.ndarray, formulation: str = "enhanced"
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -463,12 +467,14 @@ class ElasticState:
     """
 
     def __init__(self, model: ElasticModel, q: np.ndarray | list[float],
-                 load: np.ndarray | list[float], formulation: str = "enhanced") -> None:
+                 load: np.ndarray | list[float], formulation: str = "enhanced",
+                 closed: np.ndarray | None = None) -> None:
         _check_formulation(formulation)
         self.model, self.formulation = model, formulation
         self.load = np.asarray(load, dtype=float).reshape(-1)
         self.wrench = as_wrench(self.load)
-        self.q_commanded = model.configuration(q)
+        self.q_commanded = model.configuration(q) if closed is None else np.asarray(
+            closed, dtype=float)
         self.commanded = target_state(model.robot, self.q_commanded, self.wrench)
         self.q = self.q_commanded
         self.operating = self.commanded
