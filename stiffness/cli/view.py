@@ -26,11 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.batch.linalg import critical_load_factor
 from stiffness.cli import flags, kx
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
-from stiffness.mechanics.formulation import target_state
+from stiffness.mechanics.formulation import definiteness, target_state
 from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.viewer import (
     LOOPBACK,
@@ -244,11 +245,49 @@ def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
+#: A critical load factor this many times the inverse of K_C's size relative to K_theta comes
+#: from round-off (a K_C with no positive eigenvalue): no critical load.
+ROUND_OFF_FACTOR = 1e10
+
+
+def stability(inputs: kx.KxInputs) -> dict:
+    """Whether the drawn configuration is stable under its load, and the critical load factor.
+
+    ``stable``: K_theta - K_C positive definite; ``critical_load_factor``: the smallest
+    ``s > 0`` with K_theta - s K_C singular (None when no ``s`` is, to round-off: the load
+    never buckles the arm along its direction).
+    """
+    state = target_state(inputs.robot, inputs.q, inputs.load)
+    factor = float(critical_load_factor(inputs.k_theta, state.k_c))
+    scale = 1.0 / np.sqrt(np.diag(inputs.k_theta))
+    size = float(np.linalg.norm(state.k_c * scale[:, None] * scale[None, :], 2))
+    bounded = np.isfinite(factor) and factor * size < ROUND_OFF_FACTOR
+    return {"stable": definiteness(inputs.k_theta - state.k_c) == "PD",
+            "critical_load_factor": factor if bounded else None}
+
+
+def stability_line(found: dict) -> str:
+    """One line saying whether the arm is stable under the load, with the critical factor."""
+    factor = found["critical_load_factor"]
+    if factor is None:
+        return "stable under this load at any magnitude (K_theta - K_C stays positive definite)"
+    if found["stable"]:
+        return (f"stable under this load: K_theta - K_C is positive definite up to "
+                f"{factor:.4g} times it (the critical load factor)")
+    return (f"UNSTABLE under this load: K_theta - K_C is not positive definite (critical load "
+            f"factor {factor:.4g}: the arm buckles at {factor:.4g} times the load); the "
+            "enhanced ellipsoid is not a stiffness the arm has")
+
+
 def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str) -> None:
-    """Print where the page is (one JSON object with ``--json``) and echo the inputs."""
+    """Print where the page is (one JSON object with ``--json``), echo the inputs and say
+    whether the arm is stable under the load."""
     summary = {"robot": inputs.robot.name, "frame": inputs.robot.target_frame,
                "formulation": args.formulation, **where, **kx.inputs_summary(inputs),
                "notes": list(inputs.robot.notes)}
+    loaded = bool(np.any(inputs.load))
+    if loaded:
+        summary.update(stability(inputs))
     if args.json:
         print(json.dumps(summary), flush=True)
         return
@@ -256,6 +295,8 @@ def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str) -> None
         print(f"note: {note}", flush=True)
     if not args.quiet:
         print("\n".join(kx.echo_lines(summary)), flush=True)
+    if loaded:
+        print(stability_line(summary), flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
