@@ -81,16 +81,17 @@ def view_stability(force_n: float, tmp_path) -> dict:
                      "--json"])
     assert code == 0, err.getvalue()
     doc = json.loads(out.getvalue())
-    return {"stable": doc["stable"], "critical_load_factor": doc["critical_load_factor"]}
+    return {"stable": doc["stable"], "critical_load_factor": doc["critical_load_factor"],
+            "page_says_unstable": "UNSTABLE under this load" in (tmp_path / "v.html").read_text()}
 
 
 def test_view_says_stable_or_not_with_the_critical_factor(tmp_path):
     critical = closed_form_factor(1.0, KQ[1], KQ[2])  # N
     below = view_stability(0.99 * critical, tmp_path)
-    assert below["stable"] is True
+    assert below["stable"] is True and not below["page_says_unstable"]
     assert below["critical_load_factor"] == pytest.approx(1 / 0.99, rel=1e-9)
     beyond = view_stability(1.01 * critical, tmp_path)
-    assert beyond["stable"] is False
+    assert beyond["stable"] is False and beyond["page_says_unstable"]
     assert beyond["critical_load_factor"] == pytest.approx(1 / 1.01, rel=1e-9)
     # an upward force never buckles the upright arm: no critical factor (not round-off's 1e15)
     assert view_stability(-100.0, tmp_path)["critical_load_factor"] is None

@@ -140,6 +140,11 @@ def ellipsoid_legend(data: dict, st: SceneState, quantity: str,
             "min": format_value(lo, "N/m"), "max": format_value(hi, "N/m")})
         data["toggles"].append({"label": f"{name} ellipsoid",
                                 "path": ["meshcat", STIFFNESS_NODE, name]})
+        if name == "enhanced" and ell.min_stiffness < 0:
+            data["notes"].append(
+                "UNSTABLE under this load: the enhanced stiffness has a negative principal "
+                "value (K_theta - K_C is not positive definite), so the arm buckles; the "
+                "ellipsoid is drawn by magnitude and is not a stiffness the arm has")
     if len(st.ellipsoids) == 2:
         enh, conv = st.ellipsoids["enhanced"].values, st.ellipsoids["conventional"].values
         with np.errstate(invalid="ignore", divide="ignore"):
