@@ -54,12 +54,10 @@ residual Jacobian (singular value below ``t / asinh(1/2)``, or numerically zero)
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import ndtri, stdtrit
@@ -74,15 +72,19 @@ from stiffness.calibration.fitting import (
     kind_noise,
     observations,
 )
+from stiffness.calibration.identification import (
+    Identification,
+    StartResult,
+    UndeterminedDirection,
+    stiffness_unit,
+)
 from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
-    Outlier,
     flag_fit,
     robust_noise_scale,
 )
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.elastic.model_file import ModelFile, jsonable
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.robot.robot import Robot
 
@@ -98,345 +100,6 @@ REL_CI_WIDTH_LIMIT = 1.0
 AGREEMENT_TOL_LOG = 1e-3
 #: Default name of the identified-model file.
 MODEL_FILE = "identified-model.json"
-
-def _unit_of(robot: Robot, joint: str) -> str:
-    return "N/m" if robot.is_prismatic(joint) else "N.m/rad"
-
-
-def _paper_unit(unit: str) -> tuple[str, float]:
-    """The papers' unit for a stiffness unit and the factor from SI to it."""
-    return ("N.mm/rad", 1e3) if unit == "N.m/rad" else ("N/mm", 1e-3)
-
-
-# ----------------------------------------------------------------------------------------------
-# results
-
-
-@dataclass
-class StartResult:
-    """One least-squares run.
-
-    Attributes
-    ----------
-    start
-        Initial stiffnesses (SI) actually used.
-    method
-        ``trf`` or ``lm``.
-    k
-        Final stiffnesses (SI).
-    cost
-        Final sum of squared scaled residuals.
-    success, message, nfev
-        From :func:`scipy.optimize.least_squares`.
-    """
-
-    start: np.ndarray
-    method: str
-    k: np.ndarray
-    cost: float
-    success: bool
-    message: str
-    nfev: int
-
-
-@dataclass
-class UndeterminedDirection:
-    """A combination of ``ln k`` the data cannot determine.
-
-    Attributes
-    ----------
-    components
-        Joint name -> component of the unit direction in ``ln k`` space.
-    joints
-        Joints with a large component (>= 0.3).
-    relative_ci_width
-        95 % interval width along the direction, relative (inf if not excited at all).
-    description
-        E.g. ``+0.71 ln K_joint1 -0.71 ln K_joint2``.
-    """
-
-    components: dict[str, float]
-    joints: tuple[str, ...]
-    relative_ci_width: float
-    description: str
-
-
-@dataclass
-class Identification:
-    """Result of :func:`identify`; stiffnesses in SI (N.m/rad or N/m per joint).
-
-    Attributes
-    ----------
-    campaign
-        Campaign name.
-    campaign_path
-        Its ``campaign.toml`` (or ``None``).
-    robot_source, robot_frame, target_offset_m
-        The robot and its measurement target (offset in m, frame axes).
-    robot_loops, robot_fixed_base
-        The robot's loop declaration (absolute path) and whether its base was fixed.
-    joints
-        Identified (compliant) joints.
-    units
-        Unit of each stiffness: ``N.m/rad`` or ``N/m``.
-    formulation
-        ``conventional``, ``enhanced`` or ``exact``.
-    method
-        ``trf``, ``lm`` or ``both``.
-    k
-        Identified stiffnesses (SI).
-    standard_error
-        Delta-method standard errors ``k SE(ln k)`` (SI; inf if undetermined).
-    ci95_low, ci95_high
-        95 % confidence bounds ``k exp(-+t SE(ln k))`` (SI).
-    covariance_log
-        (p, p) covariance of ``ln k``.
-    sigma_m
-        Noise standard deviation used for the covariance (m).
-    sigma_source
-        ``declared noise_std`` or ``residuals (SS / (N - p))``.
-    sigma_residual_m
-        Estimate ``sqrt(SS / (N - p))`` from the residuals (m), or ``None`` when N <= p.
-    residual_ss_m2
-        Eq. 12: sum of squared residuals (m^2).
-    n_residuals, n_parameters, n_rows, n_configurations
-        Sizes of the problem.
-    condition_number
-        Condition number of the residual Jacobian w.r.t. ``ln k`` (scale-free).
-    singular_values
-        Singular values of the whitened residual Jacobian w.r.t. ``ln k``.
-    relative_ci_width
-        Per joint, ``(high - low) / k``.
-    undetermined_joints
-        Joints whose relative CI width exceeds :data:`REL_CI_WIDTH_LIMIT`.
-    undetermined_directions
-        Undetermined directions in ``ln k`` space.
-    starts
-        Every least-squares run.
-    starts_agree
-        Whether every run reached the best cost and the same determined stiffnesses.
-    methods_agree
-        With ``method="both"``: whether the best trf and lm solutions agree; else ``None``.
-    predicted, residuals
-        (m, 3) predicted displacements and ``predicted - measured`` at the optimum (m).
-    k_c_floor
-        Starts below this (SI) were raised to it: 2x the largest eigenvalue of K_C over the
-        rows, under which K - K_C can be singular (0 for the conventional formulation).
-    notes
-        Warnings (e.g. declared noise inconsistent with the residuals).
-    rotation_residuals
-        (m, 3) rotation residuals (rad) when the campaign measures rotations, else ``None``;
-        ``predicted`` and ``residuals`` are then the translations and ``residual_ss_m2`` sums
-        both kinds in translation-noise units (rotations weighted by
-        ``rotation_weight_m_per_rad = sigma_t / sigma_r``).
-    rotation_sigma_rad, rotation_sigma_source
-        The rotation noise std (rad) and where it comes from (``declared
-        rotation_noise_std`` or ``residuals``).
-    loss
-        The fit's loss (:data:`stiffness.calibration.fitting.LOSSES`).
-    outliers
-        Rows whose standardised residual exceeds :data:`OUTLIER_THRESHOLD`
-        (:mod:`stiffness.calibration.outliers`), flagged and kept.
-    outlier_sigma_m
-        The noise std the residuals are standardised by (m).
-    model_path
-        The identified-model file :meth:`write_model` wrote last, or ``None``.
-    stiffness_coordinates
-        The coordinates the stiffnesses refer to: ``"controller"`` (the springs act on the
-        controller's coordinates of a ``[controller]`` robot file) or ``"chain"`` (the
-        kinematic chain's joints).
-    """
-
-    campaign: str
-    campaign_path: str | None
-    robot_source: str
-    robot_frame: str
-    target_offset_m: np.ndarray
-    joints: tuple[str, ...]
-    units: tuple[str, ...]
-    formulation: str
-    method: str
-    k: np.ndarray
-    standard_error: np.ndarray
-    ci95_low: np.ndarray
-    ci95_high: np.ndarray
-    covariance_log: np.ndarray
-    sigma_m: float
-    sigma_source: str
-    sigma_residual_m: float | None
-    residual_ss_m2: float
-    n_residuals: int
-    n_parameters: int
-    n_rows: int
-    n_configurations: int
-    condition_number: float
-    singular_values: np.ndarray
-    relative_ci_width: np.ndarray
-    undetermined_joints: tuple[str, ...]
-    undetermined_directions: list[UndeterminedDirection]
-    starts: list[StartResult]
-    starts_agree: bool
-    methods_agree: bool | None
-    predicted: np.ndarray
-    residuals: np.ndarray
-    k_c_floor: float = 0.0
-    notes: list[str] = field(default_factory=list)
-    rotation_residuals: np.ndarray | None = None
-    rotation_sigma_rad: float | None = None
-    rotation_sigma_source: str | None = None
-    rotation_weight_m_per_rad: float | None = None
-    robot_loops: str | None = None
-    robot_fixed_base: bool = False
-    model_path: Path | None = None
-    loss: str = "linear"
-    outliers: list[Outlier] = field(default_factory=list)
-    outlier_sigma_m: float | None = None
-    stiffness_coordinates: str = "chain"
-
-    @property
-    def ci95_method(self) -> str:
-        """How the 95 % intervals are computed."""
-        if self.loss == "linear":
-            return ("delta method on ln k: k exp(+-t SE(ln k)); t = Student (N - p dof) if "
-                    "sigma is estimated, normal if declared")
-        return (f"Huber's sandwich covariance of the {self.loss} fit's ln k, delta method: "
-                "k exp(+-t SE(ln k)), t = Student (N - p dof)")
-
-    @property
-    def rms_by_kind(self) -> dict[str, float | None]:
-        """RMS residual component of the translations (m) and of the rotations (rad, ``None``
-        without measured rotations)."""
-        rot = self.rotation_residuals
-        return {"translation_m": float(np.sqrt(np.mean(self.residuals ** 2))),
-                "rotation_rad": None if rot is None else float(np.sqrt(np.mean(rot ** 2)))}
-
-    @property
-    def residual_ss_mm2(self) -> float:
-        """Eq. 12 in the paper's unit (mm^2)."""
-        return self.residual_ss_m2 * 1e6
-
-    @property
-    def rms_residual_m(self) -> float:
-        """Root mean square residual component (m)."""
-        return math.sqrt(self.residual_ss_m2 / self.n_residuals)
-
-    @property
-    def k_paper_units(self) -> np.ndarray:
-        """Stiffnesses in the paper's units (N.mm/rad or N/mm)."""
-        return np.array([v * _paper_unit(u)[1] for v, u in zip(self.k, self.units, strict=True)])
-
-    def to_dict(self) -> dict:
-        """JSON-ready dictionary (SI; eq. 12 also in mm^2; inf and NaN become null): the
-        object ``stiffness identify --json`` prints (``model_file``: the file
-        :meth:`write_model` wrote, ``None`` before)."""
-        return jsonable({
-            "campaign": self.campaign,
-            "campaign_path": self.campaign_path,
-            "robot": {"source": self.robot_source, "frame": self.robot_frame,
-                      "target_offset_m": self.target_offset_m,
-                      "compliant_joints": list(self.joints),
-                      **({"loops": self.robot_loops} if self.robot_loops else {}),
-                      **({"fixed_base": True} if self.robot_fixed_base else {})},
-            "formulation": self.formulation,
-            "method": self.method,
-            "stiffness_coordinates": self.stiffness_coordinates,
-            "joints": [
-                {"joint": j, "k": float(k), "unit": u, "k_paper_units": float(kp),
-                 "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
-                 "ci95": [float(lo), float(hi)], "relative_ci_width": float(w),
-                 "determined": j not in self.undetermined_joints}
-                for j, k, u, kp, se, lo, hi, w in zip(
-                    self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
-                    self.ci95_low, self.ci95_high, self.relative_ci_width, strict=True)
-            ],
-            "ci95_method": self.ci95_method,
-            "loss": self.loss,
-            "outlier_threshold": OUTLIER_THRESHOLD,
-            "outlier_sigma_m": self.outlier_sigma_m,
-            "outliers": [o.to_dict() for o in self.outliers],
-            "covariance_log": self.covariance_log,
-            "sigma_m": self.sigma_m,
-            "sigma_source": self.sigma_source,
-            "sigma_residual_m": self.sigma_residual_m,
-            "residual_norm": {"eq12_m2": self.residual_ss_m2, "eq12_mm2": self.residual_ss_mm2,
-                              "rms_m": self.rms_residual_m},
-            "n_residuals": self.n_residuals,
-            "n_parameters": self.n_parameters,
-            "n_rows": self.n_rows,
-            "n_configurations": self.n_configurations,
-            "condition_number": self.condition_number,
-            "singular_values": self.singular_values,
-            "undetermined_joints": list(self.undetermined_joints),
-            "undetermined_directions": [
-                {"components": d.components, "joints": list(d.joints),
-                 "relative_ci_width": d.relative_ci_width, "description": d.description}
-                for d in self.undetermined_directions
-            ],
-            "starts_agree": self.starts_agree,
-            "methods_agree": self.methods_agree,
-            "k_c_floor": self.k_c_floor,
-            "starts": [
-                {"method": s.method, "start": s.start, "k": s.k, "cost": s.cost,
-                 "success": s.success, "nfev": s.nfev, "message": s.message}
-                for s in self.starts
-            ],
-            "residuals_m": self.residuals,
-            "rms": self.rms_by_kind,
-            "rotations": None if self.rotation_residuals is None else {
-                "sigma_rad": self.rotation_sigma_rad, "sigma_source": self.rotation_sigma_source,
-                "weight_m_per_rad": self.rotation_weight_m_per_rad,
-                "rms_rad": self.rms_by_kind["rotation_rad"],
-                "residuals_rad": self.rotation_residuals},
-            "notes": list(self.notes),
-            "model_file": None if self.model_path is None else str(self.model_path),
-        })
-
-    def to_json(self, indent: int | None = 1) -> str:
-        """The result as JSON text (see :meth:`to_dict`)."""
-        return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
-
-    def model_file(self) -> ModelFile:
-        """The identified model (:class:`stiffness.elastic.model_file.ModelFile`)."""
-        return ModelFile(
-            source=self.robot_source, loops=self.robot_loops, fixed_base=self.robot_fixed_base,
-            frame=self.robot_frame,
-            target_offset_m=self.target_offset_m, compliant_joints=self.joints, k_theta=self.k,
-            units=self.units, formulation=self.formulation,
-            standard_error=self.standard_error, ci95_low=self.ci95_low,
-            ci95_high=self.ci95_high, noise_std_m=self.sigma_m,
-            noise_source="declared" if self.sigma_source.startswith("declared") else "residuals",
-            campaign=self.campaign, produced_by="identify",
-            undetermined_joints=self.undetermined_joints,
-            extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,
-                                     "eq12_mm2": self.residual_ss_mm2},
-                   **({} if self.rotation_residuals is None else {"rotation_noise": {
-                       "std_rad": self.rotation_sigma_rad,
-                       "source": self.rotation_sigma_source,
-                       "weight_m_per_rad": self.rotation_weight_m_per_rad}})},
-        )
-
-    def model_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
-        """The identified model as written by :meth:`write_model` (the model-file schema).
-
-        Parameters
-        ----------
-        relative_to
-            Folder a URDF source path is written relative to (the model file's folder).
-        """
-        return self.model_file().to_dict(relative_to)
-
-    def write_model(self, path: str | os.PathLike) -> Path:
-        """Write the identified model (``identified-model.json``) atomically; returns its path.
-
-        A URDF source is stored relative to the file's folder; read it back with
-        :func:`stiffness.elastic.model_file.read_model_file`; :attr:`model_path` is set.
-        """
-        self.model_path = self.model_file().write(path)
-        return self.model_path
-
-
-# ----------------------------------------------------------------------------------------------
-# identification
 
 
 def _starts(n: int, count: int, seed: int | None) -> list[np.ndarray]:
@@ -641,7 +304,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         robot_frame=rob.target_frame,
         target_offset_m=rob.target_offset.copy(),
         joints=tuple(rob.compliant_joints),
-        units=tuple(_unit_of(rob, j) for j in rob.compliant_joints),
+        units=tuple(stiffness_unit(rob, j) for j in rob.compliant_joints),
         formulation=formulation,
         method=method,
         k=best.k,
@@ -678,7 +341,6 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         outlier_sigma_m=flag_sigma,
         stiffness_coordinates=rob.stiffness_coordinates,
     )
-
 
 
 def _check_options(formulation: str, method: str, starts: int, loss: str = "linear") -> None:

@@ -19,13 +19,8 @@ import sys
 from pathlib import Path
 
 from stiffness.calibration.fitting import LOSSES
-from stiffness.calibration.identify import (
-    FORMULATIONS,
-    METHODS,
-    MODEL_FILE,
-    Identification,
-    identify,
-)
+from stiffness.calibration.identification import Identification
+from stiffness.calibration.identify import FORMULATIONS, METHODS, MODEL_FILE, identify
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.cli import flags
 

@@ -21,7 +21,8 @@ import numpy as np
 
 from stiffness.batch import kernels as batch
 from stiffness.calibration.campaign import Campaign, load_campaign
-from stiffness.calibration.identify import Identification, identify
+from stiffness.calibration.identification import Identification
+from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, staged_folder
 from stiffness.mechanics.equilibrium import linear_departure
