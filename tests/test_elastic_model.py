@@ -182,3 +182,18 @@ def test_linear_and_exact_deflections_agree_to_second_order(name):
     if name != "complementary_stiffness":  # the effect changes the answer it is tested in
         base = _model_with("complementary_stiffness").at(Q_UR5, force).equilibrium().dx
         assert np.linalg.norm(exact - base) > 1e-3 * np.linalg.norm(base)
+
+
+def test_kx_and_view_give_one_critical_factor(capsys, tmp_path):
+    """One piece of math: kx --json and view --json report the same stability, and a load that
+    never buckles the arm has no critical factor (not round-off's 1e15)."""
+    args = ["--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4", "--q",
+            f"0,{-np.pi / 2!r},0,0,0,0"]
+    for wrench in ("0,0,-3000", "0,0,100"):
+        from_kx = _kx(capsys, *args, "--wrench", wrench)
+        assert main(["view", *args, "--wrench", wrench, "--export", str(tmp_path / "v.html"),
+                     "--json"]) == 0
+        from_view = json.loads(capsys.readouterr().out)
+        assert from_kx["stable"] == from_view["stable"] is True
+        assert from_kx["critical_load_factor"] == from_view["critical_load_factor"]
+    assert from_kx["critical_load_factor"] is None

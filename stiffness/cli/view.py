@@ -21,17 +21,17 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import math
 import signal
 from pathlib import Path
 
 import numpy as np
 
-from stiffness.batch.linalg import critical_load_factor
 from stiffness.cli import flags, kx
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
-from stiffness.mechanics.formulation import definiteness, target_state
+from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.viewer import (
     LOOPBACK,
@@ -245,25 +245,15 @@ def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
-#: A critical load factor this many times the inverse of K_C's size relative to K_theta comes
-#: from round-off (a K_C with no positive eigenvalue): no critical load.
-ROUND_OFF_FACTOR = 1e10
-
-
 def stability(inputs: kx.KxInputs) -> dict:
-    """Whether the drawn configuration is stable under its load, and the critical load factor.
-
-    ``stable``: K_theta - K_C positive definite; ``critical_load_factor``: the smallest
-    ``s > 0`` with K_theta - s K_C singular (None when no ``s`` is, to round-off: the load
-    never buckles the arm along its direction).
-    """
-    state = target_state(inputs.robot, inputs.q, inputs.load)
-    factor = float(critical_load_factor(inputs.k_theta, state.k_c))
-    scale = 1.0 / np.sqrt(np.diag(inputs.k_theta))
-    size = float(np.linalg.norm(state.k_c * scale[:, None] * scale[None, :], 2))
-    bounded = np.isfinite(factor) and factor * size < ROUND_OFF_FACTOR
-    return {"stable": definiteness(inputs.k_theta - state.k_c) == "PD",
-            "critical_load_factor": factor if bounded else None}
+    """Whether the drawn configuration is stable under its load, and the critical load factor
+    (:attr:`stiffness.elastic.model.ElasticState.critical_load_factor`, None when the load
+    never buckles the arm along its direction)."""
+    model = inputs.model or ElasticModel.joint_springs(inputs.robot, inputs.k_theta)
+    state = model.at(inputs.coords, inputs.load, closed=inputs.q)
+    factor = state.critical_load_factor
+    return {"stable": state.stable, "critical_load_factor": factor if math.isfinite(factor)
+            else None}
 
 
 def stability_line(found: dict) -> str:

@@ -31,6 +31,7 @@ Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -72,6 +73,9 @@ from stiffness.robot.robot import Robot, load_robot
 FORMULATIONS = ("conventional", "enhanced")
 #: 6x6 connections of Zefran & Kumar (target body axes).
 CONNECTIONS = ("joint", "twist")
+#: A critical load factor this many times the inverse of K_C's size relative to K_theta comes
+#: from round-off (a K_C with no positive eigenvalue): no critical load.
+ROUND_OFF_FACTOR = 1e10
 
 
 def joint_preload(robot: Robot, weighed: pin.Model | None,
@@ -667,19 +671,25 @@ class ElasticState:
     @property
     def critical_load_factor(self) -> float:
         """Smallest ``lambda > 0`` with ``K_t - K_p - lambda K_C`` singular: the factor on the
-        wrench at which the arm buckles (inf if it never does along this wrench; 0 if the
-        preload alone does). Physical ``K_C`` and ``K_p`` (those of the enhanced formulation),
-        :func:`stiffness.batch.linalg.critical_load_factor`."""
+        wrench at which the arm buckles (inf if it never does along this wrench, to round-off:
+        :data:`ROUND_OFF_FACTOR`; 0 if the preload alone does). Physical ``K_C`` and ``K_p``
+        (those of the enhanced formulation), :func:`stiffness.batch.linalg.critical_load_factor`
+        on ``K_t - K_p`` whitened when it is not diagonal."""
         lin = self.linearisation("enhanced")
         base = lin.k_tangent - lin.k_preload
         if np.count_nonzero(base - np.diag(np.diag(base))) == 0:
-            return float(critical_load_factor(base, self.k_c))
-        try:
-            chol = np.linalg.cholesky(0.5 * (base + base.T))
-        except np.linalg.LinAlgError:
-            return 0.0
-        whitened = np.linalg.solve(chol, np.linalg.solve(chol, self.k_c).T)
-        return float(critical_load_factor(np.eye(len(base)), whitened))
+            factor = float(critical_load_factor(base, self.k_c))
+            scale = 1.0 / np.sqrt(np.diag(base))
+            scaled = self.k_c * scale[:, None] * scale[None, :]
+        else:
+            try:
+                chol = np.linalg.cholesky(0.5 * (base + base.T))
+            except np.linalg.LinAlgError:
+                return 0.0
+            scaled = np.linalg.solve(chol, np.linalg.solve(chol, self.k_c).T)
+            factor = float(critical_load_factor(np.eye(len(base)), scaled))
+        size = float(np.linalg.norm(scaled, 2))
+        return factor if math.isfinite(factor) and factor * size < ROUND_OFF_FACTOR else math.inf
 
     @property
     def stable(self) -> bool:
