@@ -190,3 +190,17 @@ def test_diagnose_flags_outliers_and_takes_a_robust_loss(tmp_path):
     page = paths["page"].read_text()
     assert "Rows flagged as outliers" in page and "sandwich" in page
     assert all(f"<td>{label}</td>" in page for label, _ in expected)
+
+
+def test_undeclared_noise_is_estimated_robustly(tmp_path):
+    """Without noise_std, a robust fit scales its loss by 1.4826 median |residual|: close to
+    the simulated 0.01 mm despite 20-50x outliers, which least squares' estimate is not."""
+    c = simulated(tmp_path / "c", seed=7, extra=["--undeclared-noise"])
+    rows = with_gross_outliers(c, seed=7)
+    robust = identify(c, loss="huber", starts=2)
+    plain = identify(c, starts=2)
+    assert robust.sigma_source.startswith("robust estimate")
+    assert robust.sigma_m == pytest.approx(NOISE_MM * 1e-3, rel=0.25)
+    assert plain.sigma_m > 3 * NOISE_MM * 1e-3
+    assert {c.config[i] for i in rows} <= {o.label for o in robust.outliers}
+    assert np.all((robust.ci95_low <= K_TRUE) & (robust.ci95_high >= K_TRUE))
