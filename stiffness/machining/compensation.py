@@ -119,6 +119,58 @@ def _pose_error(loaded_pos, loaded_rot, pos, rot, hold) -> np.ndarray:
     return e
 
 
+def _general_command(coords: np.ndarray, uncompensated, solve: Callable,
+                     nominal: tuple[np.ndarray, np.ndarray], hold: str):
+    """Newton on the command (rad, m) whose loaded equilibrium (``solve(command)``) holds the
+    nominal pose ``(position m, rotation)``: each step through the loaded Jacobian
+    ``J (I - diag(law') K_C)^-1`` (least squares); the best iterate within 40.
+
+    Returns
+    -------
+    The command, its loaded equilibrium and the iterations taken.
+
+    Raises
+    ------
+    ConvergenceError
+        The coordinates cannot move the held components, or no convergence (near buckling).
+    """
+    pos_n, rot_n = nominal
+    n = coords.shape[0]
+    rows = slice(0, 6 if hold == "pose" else 3)
+    command, loaded = coords.copy(), uncompensated
+    best = (np.inf, command, loaded)
+    for iterations in range(1, 41):  # noqa: B007 (reported)
+        err = _pose_error(loaded.position, loaded.rotation, pos_n, rot_n, hold)
+        size = float(np.abs(err).max())
+        if size < best[0]:
+            best = (size, command, loaded)
+        if size <= POSE_TOLERANCE:
+            break
+        kin = loaded.kin
+        a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
+        dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n])
+        jac = kin.jac[rows] @ dz_dc
+        if hold == "pose":
+            m_rot = loaded.rotation @ rot_n.T
+            jac = np.vstack([jac[:3], pin.Jlog3(m_rot) @ m_rot.T @ jac[3:]])
+        step = np.linalg.lstsq(jac, -err, rcond=1e-12)[0]
+        command = command + step
+        loaded = solve(command)
+    size, command, loaded = best
+    if size > 1e3 * POSE_TOLERANCE:
+        sv = np.linalg.svd(jac, compute_uv=False)
+        rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
+        if rank < jac.shape[0]:
+            raise ConvergenceError(
+                f"the coordinates cannot cancel this deflection: they move only {rank} of "
+                f"the {jac.shape[0]} held target components here ({size:.3g} m/rad "
+                "remains); hold fewer (--hold position) or move away from the singularity")
+        raise ConvergenceError(
+            f"the general compensation did not converge (target error {size:.3g} m/rad "
+            "remains): the load may be near the buckling load; reduce it")
+    return command, loaded, iterations
+
+
 def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
                      hold: str = "pose", method: str = "auto",
                      seed_q: np.ndarray | None = None) -> PointCompensation:
@@ -163,7 +215,6 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     axes = frozen_axes(em, links)
     nominal = bent_kinematics(em, links, axes, coords, np.zeros(2 * len(links)), wrench, q_n)
     pos_n, rot_n = nominal.position.copy(), nominal.rotation.copy()
-    rows = slice(0, 6 if hold == "pose" else 3)
 
     def solve(command):
         return loaded_equilibrium(em, command, wrench, seed_q=q_n, axes=axes)
@@ -173,37 +224,8 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     iterations = 0
     if method == "general" or (method == "auto" and not em.joint_only):
         used = "general"
-        command, loaded = coords.copy(), uncompensated
-        best = (np.inf, command, loaded)
-        for iterations in range(1, 41):  # noqa: B007 (reported)
-            err = _pose_error(loaded.position, loaded.rotation, pos_n, rot_n, hold)
-            size = float(np.abs(err).max())
-            if size < best[0]:
-                best = (size, command, loaded)
-            if size <= POSE_TOLERANCE:
-                break
-            kin = loaded.kin
-            a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
-            dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n])
-            jac = kin.jac[rows] @ dz_dc
-            if hold == "pose":
-                m_rot = loaded.rotation @ rot_n.T
-                jac = np.vstack([jac[:3], pin.Jlog3(m_rot) @ m_rot.T @ jac[3:]])
-            step = np.linalg.lstsq(jac, -err, rcond=1e-12)[0]
-            command = command + step
-            loaded = solve(command)
-        size, command, loaded = best
-        if size > 1e3 * POSE_TOLERANCE:
-            sv = np.linalg.svd(jac, compute_uv=False)
-            rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
-            if rank < jac.shape[0]:
-                raise ConvergenceError(
-                    f"the coordinates cannot cancel this deflection: they move only {rank} of "
-                    f"the {jac.shape[0]} held target components here ({size:.3g} m/rad "
-                    "remains); hold fewer (--hold position) or move away from the singularity")
-            raise ConvergenceError(
-                f"the general compensation did not converge (target error {size:.3g} m/rad "
-                "remains): the load may be near the buckling load; reduce it")
+        command, loaded, iterations = _general_command(coords, uncompensated, solve,
+                                                       (pos_n, rot_n), hold)
     else:
         used = "closed-form"
         command = coords - em.law(tau_n[:n])[0]

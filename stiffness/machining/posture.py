@@ -343,17 +343,12 @@ def posture(
     problem = PostureProblem(em, poses.positions, tool_frames(free, poses.axes, poses.quaternions),
                              free, w, wrench_frame, singularity_margin, np.deg2rad(max_step_deg),
                              angular, spacing)
-    ref = np.deg2rad(reference_angle_deg)
-    offsets = spacing * np.arange(steps)
-    offsets = np.where(offsets > np.pi, offsets - 2.0 * np.pi, offsets)
-    angles = ref + offsets
+    ref, angles, sweep = _candidate_angles(steps, reference_angle_deg)
     if start is None:
         start = default_coordinates(full)
-        start = np.zeros(full.n_coordinates) if start is None else start
-    start = np.asarray(start, dtype=float)
+    start = np.zeros(full.n_coordinates) if start is None else np.asarray(start, dtype=float)
     total = m * (2 if refine else 1)
     tick = (lambda n: progress(n, total)) if progress is not None else (lambda n: None)
-    sweep = sorted(range(steps), key=lambda k: (abs(offsets[k]), offsets[k]))
     # 1. candidate tracks of every branch
     tracks, origins = candidate_tracks(problem, angles, sweep, start, full.configuration(start),
                                        tick)
@@ -368,6 +363,17 @@ def posture(
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
                          float(np.deg2rad(max_step_deg)), notes, poses, angular,
                          {branch_label(b): o.coords for b, o in enumerate(origins)}, deg)
+
+
+def _candidate_angles(steps: int, reference_angle_deg: float
+                      ) -> tuple[float, np.ndarray, list[int]]:
+    """The reference angle (rad), the ``steps`` candidate angles about the free axis (rad,
+    the reference plus offsets in (-pi, pi]) and their order outward from the reference."""
+    ref = np.deg2rad(reference_angle_deg)
+    offsets = 2.0 * np.pi / steps * np.arange(steps)
+    offsets = np.where(offsets > np.pi, offsets - 2.0 * np.pi, offsets)
+    sweep = sorted(range(steps), key=lambda k: (abs(offsets[k]), offsets[k]))
+    return float(ref), ref + offsets, sweep
 
 
 def _chosen_points(problem: PostureProblem, layers: list[Layer], choice: list[int],

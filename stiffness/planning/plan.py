@@ -161,6 +161,54 @@ def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None
     return doc, units, settings, None if noise is None else float(noise) * units.length_to_si
 
 
+def _plan_lines(text: str, data: Path, toml_path: Path | None, units: Units
+                ) -> tuple[list[str] | None, int, list[tuple[int, list[str]]], Units, int | None]:
+    """The plan CSV's lines: its header (None if none) and header line, the rows with their
+    line numbers, the units (a units comment's, checked against ``campaign.toml``'s or an
+    earlier comment's) and the line of the comment that declared them (or None)."""
+    header, header_line, rows, declared_line = None, 0, [], None
+    for number, raw in enumerate(text.splitlines(), start=1):
+        stripped = raw.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            declared = read_units_comment(stripped, data, number)
+            if declared is None:
+                continue
+            if toml_path is not None or declared_line:
+                check_units_comment(declared, units, toml_path or f"line {declared_line}",
+                                    data, number)
+            units, declared_line = declared, number
+            continue
+        cells = next(csv.reader([raw]))
+        if header is None:
+            header = [c.strip() for c in cells]
+            header_line = number
+        else:
+            rows.append((number, cells))
+    return header, header_line, rows, units, declared_line
+
+
+def _check_header(header: list[str] | None, header_line: int, robot: Robot, data: Path) -> int:
+    """Refuse a missing header or one other than ``config,q1..qn,fx,fy,fz`` (optionally
+    then ``dx,dy,dz``), naming the first wrong column; returns the number of columns read."""
+    n_q = robot.n_coordinates
+    expected = _header(n_q)
+    if header is None:
+        raise FileFormatError(f"the plan is empty; it needs the header {','.join(expected)} "
+                              "and one row per measurement", path=data)
+    width = len(expected)
+    if header[:width] != expected or header[width:] not in ([], ["dx", "dy", "dz"]):
+        pairs = enumerate(zip(header, expected, strict=False))
+        bad = next((i for i, (a, b) in pairs if a != b), min(len(header), width))
+        got = repr(header[bad]) if bad < len(header) else "nothing"
+        raise FileFormatError(
+            f"got {got}; the plan header for {robot.name} ({n_q} coordinates) is "
+            f"{','.join(expected)} (optionally then dx,dy,dz, which are ignored)", path=data,
+            line=header_line, column=bad + 1)
+    return width
+
+
 def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan, Robot]:
     """Read a plan (a CSV, a folder holding ``campaign.toml``, or that file) and its robot.
 
@@ -206,41 +254,10 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
         data = p
     if robot is None:
         raise StiffnessError(f"plan {path} is a bare CSV: give its robot (--robot ...)")
-    text = read_text(data, "plan")
-    header, rows, declared_line = None, [], None
-    for number, raw in enumerate(text.splitlines(), start=1):
-        stripped = raw.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            declared = read_units_comment(stripped, data, number)
-            if declared is None:
-                continue
-            if toml_path is not None or declared_line:
-                check_units_comment(declared, units, toml_path or f"line {declared_line}",
-                                    data, number)
-            units, declared_line = declared, number
-            continue
-        cells = next(csv.reader([raw]))
-        if header is None:
-            header = [c.strip() for c in cells]
-            header_line = number
-        else:
-            rows.append((number, cells))
+    header, header_line, rows, units, declared_line = _plan_lines(
+        read_text(data, "plan"), data, toml_path, units)
     n_q = robot.n_coordinates
-    expected = _header(n_q)
-    if header is None:
-        raise FileFormatError(f"the plan is empty; it needs the header {','.join(expected)} "
-                              "and one row per measurement", path=data)
-    width = len(expected)
-    if header[:width] != expected or header[width:] not in ([], ["dx", "dy", "dz"]):
-        pairs = enumerate(zip(header, expected, strict=False))
-        bad = next((i for i, (a, b) in pairs if a != b), min(len(header), width))
-        got = repr(header[bad]) if bad < len(header) else "nothing"
-        raise FileFormatError(
-            f"got {got}; the plan header for {robot.name} ({n_q} coordinates) is "
-            f"{','.join(expected)} (optionally then dx,dy,dz, which are ignored)", path=data,
-            line=header_line, column=bad + 1)
+    width = _check_header(header, header_line, robot, data)
     if not rows:
         raise FileFormatError("no rows after the header", path=data, line=header_line + 1)
     labels, values = [], []

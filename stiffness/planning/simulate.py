@@ -467,21 +467,16 @@ def simulate(
     robot
         Robot source (shipped name, example-robot-data name, URDF path); may be omitted when
         ``plan`` is a plan folder (its ``campaign.toml`` names the robot).
-    kq
-        True stiffness of each declared compliant joint (N.m/rad, N/m); default the shipped
-        robot's ``k_theta_SI``.
-    effects
-        Hidden effects (:class:`HiddenEffect`, or their ``NAME[:WHERE]=VALUE`` text,
-        :func:`parse_effect`).
+    kq, effects
+        True stiffness of each declared compliant joint (N.m/rad, N/m; default the shipped
+        robot's ``k_theta_SI``); hidden effects (:class:`HiddenEffect`, or their
+        ``NAME[:WHERE]=VALUE`` text, :func:`parse_effect`).
     configs, loads_per_config, repeats
         Number of configurations, loads per configuration, and measurements per load (the
         repeats share the deflection and differ by their noise).
-    max_force
-        Largest force (N).
-    noise_std_m
-        Measurement noise std (m) on each deflection component.
-    seed
-        Random seed (poses, loads, noise).
+    max_force, noise_std_m, seed
+        Largest force (N); measurement noise std (m) on each deflection component; random
+        seed (poses, loads, noise).
     frame, target_offset_m, compliant_joints
         Declared target and springs (defaults: the robot's, or the plan folder's).
     baseline
@@ -527,23 +522,17 @@ def simulate(
         plan, given = plan_and_robot(plan, given)
     hidden = [parse_effect(e) if isinstance(e, str) else e for e in effects or []]
     _check_request(configs, loads_per_config, repeats, max_force, noise_std_m, load_pattern,
-                   None if plan is None else len(plan.q), hidden)
+                   None if plan is None else len(plan.q), hidden, joint_angles)
     declared = _declared_robot(given)
     kq = _true_stiffness(declared, kq, str(given.source))
     baseline = _declared_baseline(hidden, baseline)
     rng = np.random.default_rng(seed)
     q, applied, row_labels = _rows(declared, plan, configs, loads_per_config, load_pattern,
                                    max_force, rng)
-    if rotation_noise_std_rad is None:
-        rotation_noise_std_rad = noise_std_m / 0.1
-    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
-        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
+    rotation_noise_std_rad = _rotation_noise_std(rotation_noise_std_rad, noise_std_m)
     rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats, units)
     truth, smoothing, effect_rms, baseline_error, clean6 = _truth_and_sizes(
         declared, kq, hidden, rig.units, q, applied, baseline)
-    if joint_angles not in JOINT_ANGLES:
-        raise StiffnessError(f"joint angles must be motor (the drives' encoders) or link (the "
-                             f"link pose as measured), got {joint_angles!r}")
     recorded_q = truth.link_coordinates(q) if joint_angles == "link" else q
     campaign = rig.campaign(given, declared, name, baseline, recorded_q,
                             applied + truth.force_bias, clean6, row_labels, rng, joint_angles)
@@ -673,11 +662,25 @@ class _Rig:
         )
 
 
+def _rotation_noise_std(rotation_noise_std_rad: float | None, noise_std_m: float) -> float:
+    """The rotation noise std (rad): given, else ``noise_std_m / 0.1 m`` (a 6-D probe whose
+    markers are 0.1 m apart); refused when negative or not finite."""
+    if rotation_noise_std_rad is None:
+        rotation_noise_std_rad = noise_std_m / 0.1
+    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
+        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
+    return rotation_noise_std_rad
+
+
 def _check_request(configs: int, loads_per_config: int, repeats: int, max_force: float,
                    noise_std_m: float, load_pattern: str, plan_rows: int | None,
-                   hidden: list[HiddenEffect]) -> None:
-    """Refuse an unknown load pattern, sizes below one or beyond :data:`MAX_ROWS`, a
-    non-positive force (N), a negative noise (m) or an effect hidden twice, in one line."""
+                   hidden: list[HiddenEffect], joint_angles: str) -> None:
+    """Refuse an unknown load pattern or joint-angle kind, sizes below one or beyond
+    :data:`MAX_ROWS`, a non-positive force (N), a negative noise (m) or an effect hidden
+    twice, in one line."""
+    if joint_angles not in JOINT_ANGLES:
+        raise StiffnessError(f"joint angles must be motor (the drives' encoders) or link (the "
+                             f"link pose as measured), got {joint_angles!r}")
     if load_pattern not in LOAD_PATTERNS:
         raise UnknownNameError(f"unknown load pattern {load_pattern!r}; valid: "
                                f"{', '.join(LOAD_PATTERNS)}", name=load_pattern,
