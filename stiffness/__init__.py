@@ -6,9 +6,12 @@ without the load-dependent term, and the exact elastostatic equilibrium; evaluat
 configurations at once, scan a workspace, identify joint stiffness from measurements and find
 what a model misses, and draw stiffness ellipsoids. SI units throughout (m, N, rad, N.m/rad).
 
-The main functions and classes of every layer are here (see docs/architecture.md): the model
-and mechanics are imported with the package; the batch, scan, calibration, papers and viewer
-entries are imported on first use (they bring SciPy's optimisers, matplotlib, meshcat).
+The main functions and classes of every layer are here (see docs/architecture.md): the robot
+and mechanics are imported with the package; the batch, workspace, calibration, planning,
+machining, papers and viewer entries are imported on first use (they bring SciPy's optimisers,
+matplotlib, meshcat). The workflow commands are functions here too: ``identify``,
+``diagnose``, ``simulate``, ``design``, ``compensate``, ``posture`` and ``scan`` take Python
+objects (SI) and return results whose ``.to_dict()`` is the command's ``--json`` object.
 
 Example::
 
