@@ -20,7 +20,7 @@ import pytest
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.identify import identify
 from stiffness.cli.main import main
-from stiffness.errors import FileFormatError, StiffnessError
+from stiffness.errors import FileFormatError, RobotFileWarning, StiffnessError
 from stiffness.mechanics.formulation import (
     cartesian_stiffness,
     compliance,
@@ -624,9 +624,46 @@ def test_mjcf_export_of_a_coupled_robot(tmp_path):
     (tmp_path / "robot.toml").write_text(text)
     chain = load_robot(tmp_path / "robot.toml")
     u = np.deg2rad([10.0, 20.0, -30.0, 0.0, -60.0, 90.0])
-    xml = robot_mjcf(chain, dict(zip(chain.compliant_joints, [1e6, 2e6, 3e6], strict=True)),
-                     chain.configuration(u))
+    with pytest.warns(RobotFileWarning, match="massless links"):  # the example has no links
+        xml = robot_mjcf(chain, dict(zip(chain.compliant_joints, [1e6, 2e6, 3e6], strict=True)),
+                         chain.configuration(u))
     assert xml.count("<joint ") == 3 and 'stiffness="2000000.0"' in xml
     # springref of the elbow: its chain angle -(q2 + q3)
     elbow = re.search(r'<joint name="elbow"[^>]*springref="([^"]+)"', xml)
     assert elbow is not None and abs(float(elbow.group(1)) - np.deg2rad(10.0)) < 1e-15
+
+
+def test_millimetres_and_degrees_are_the_same_arm(tmp_path):
+    """The ARM table in mm and deg (limits too) equals it in m and rad; a prismatic joint's
+    limits are lengths."""
+    rows_si = [dict(r, lower=-1.5, upper=1.5) for r in ARM]
+    rows_mm = []
+    for r in rows_si:
+        travel = 1e3 if r["type"] == "prismatic" else 180.0 / math.pi
+        rows_mm.append(dict(r, alpha=math.degrees(r["alpha"]), theta=math.degrees(r["theta"]),
+                            a=r["a"] * 1e3, d=r["d"] * 1e3, lower=r["lower"] * travel,
+                            upper=r["upper"] * travel))
+    si = load_robot(write_robot(tmp_path / "si" / "robot.toml", {
+        "convention": "standard", "length_unit": "m", "angle_unit": "rad", "joints": rows_si,
+        "tool": {"xyz": [0.1, 0.0, 0.2], "rpy": [0.3, 0.0, 0.0]}}))
+    mm = load_robot(write_robot(tmp_path / "mm" / "robot.toml", {
+        "convention": "standard", "length_unit": "mm", "angle_unit": "deg", "joints": rows_mm,
+        "tool": {"xyz": [100.0, 0.0, 200.0], "rpy": [math.degrees(0.3), 0.0, 0.0]}}))
+    assert np.allclose(mm.model.lowerPositionLimit, -1.5, rtol=0, atol=1e-15)
+    q = np.random.default_rng(1).uniform(-1, 1, 5)
+    a, b = target_state(si, si.configuration(q), np.ones(6)), \
+        target_state(mm, mm.configuration(q), np.ones(6))
+    assert relative(b.jacobian, a.jacobian) < 1e-14 and relative(b.k_c, a.k_c) < 1e-14
+
+
+def test_compensation_through_the_coupling_equals_the_loop_model(tmp_path, capsys):
+    path = tmp_path / "path.csv"
+    path.write_text("joint1,joint2,joint3,joint4,joint5,joint6\n-30,10,-50,0,-40,-90\n"
+                    "-20,12,-48,0,-42,-90\n")
+    rows = {}
+    for robot, out in ((str(SK120_DH), "dh.csv"), ("sk120", "loop.csv")):
+        assert main(["compensate", "--robot", robot, "--path", str(path), "--deg", "--wrench",
+                     "0,0,-2000", "--out", str(tmp_path / out), "--quiet"]) == 0
+        text = (tmp_path / out).read_text().splitlines()
+        rows[out] = np.array([[float(v) for v in line.split(",")] for line in text[1:]])
+    assert relative(rows["dh.csv"], rows["loop.csv"]) < 1e-10
