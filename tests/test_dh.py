@@ -481,6 +481,14 @@ def test_unknown_parent(tmp_path):
     assert "row 4 (j4).parent" in text and "unknown parent 'j9'" in text
 
 
+def test_a_joint_on_a_frame_of_a_later_joint(tmp_path):
+    rows = ur_rows("ur5")
+    rows[1]["parent"] = "elbow_plate"
+    frames = [{"name": "elbow_plate", "parent": "j3", "xyz": [0, 0, 0], "rpy": [0, 0, 0]}]
+    text = _fails(tmp_path, dict(BASE, joints=rows, frames=frames))
+    assert "(elbow_plate).parent" in text and "'j3'" in text and "later in the table" in text
+
+
 def test_mixed_units(tmp_path):
     rows = ur_rows("ur5")
     rows[1]["a_mm"] = rows[1].pop("a") * 1e3
@@ -616,7 +624,9 @@ def test_mjcf_export_of_a_coupled_robot(tmp_path):
     from stiffness.robot.mjcf import robot_mjcf
 
     dh = load_robot(SK120_DH)
-    xml = robot_mjcf(dh, dict.fromkeys(dh.compliant_joints, 1e6), dh.configuration(np.zeros(6)))
+    with pytest.warns(RobotFileWarning, match="massless links"):  # the example has no links
+        xml = robot_mjcf(dh, dict.fromkeys(dh.compliant_joints, 1e6),
+                         dh.configuration(np.zeros(6)))
     assert xml.count("<fixed ") == 3 and "stiffness=" not in xml.split("<tendon>")[0]
     text = SK120_DH.read_text().replace('springs_on = "controller"', 'springs_on = "chain"')
     text = text.replace('compliant_joints = ["joint1", "joint2", "joint3"]',

@@ -385,6 +385,11 @@ def _frame_resolver(table: DhTable, placed: dict[str, tuple[int, pin.SE3]], path
             raise FileFormatError(f"the fixed frames {' -> '.join(visiting + (name,))} form a "
                                   "cycle; give each a parent up the tree", path=path,
                                   field=f"[dh].frames ({name}).parent")
+        if name not in frames:  # a joint row not built yet: it comes later in the table
+            raise FileFormatError(f"the joint {visiting[0]!r} hangs on {name!r} (through "
+                                  f"{' -> '.join(visiting)}), which comes later in the table; "
+                                  "list a joint after its parent", path=path,
+                                  field=f"[dh].frames ({visiting[-1]}).parent")
         frame = frames[name]
         joint, above = resolve(frame.parent, visiting + (name,))
         placed[name] = (joint, above * frame.placement)
