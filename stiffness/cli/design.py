@@ -164,9 +164,9 @@ def run(args: argparse.Namespace) -> int:
         model = read_model_file(args.model)
         if args.robot is not None:
             model.check_robot(args.robot)
-    robot = flags.robot_flags(args)
-    robot = design_robot(robot.source, robot.frame, robot.target_offset, robot.compliant_joints,
-                         robot.loops, robot.fixed_base, model=model, existing=existing)
+    given = flags.robot_flags(args)
+    robot = design_robot(given.source, given.frame, given.target_offset, given.compliant_joints,
+                         given.loops, given.fixed_base, model=model, existing=existing)
     units = existing.units if existing is not None else Units()
     if args.units is not None:
         units = Units(units.angle, units.force, args.units)

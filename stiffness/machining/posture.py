@@ -224,14 +224,12 @@ class PostureResult:
               ) -> list[Path]:
         """Write :meth:`csv` to ``out`` and :meth:`figure_png` to ``figure`` (either may be
         ``None``), both computed before either is written; returns the paths written."""
-        text = self.csv() if out is not None else None
-        png = self.figure_png() if figure is not None else None
-        written = []
+        files: list[tuple[str | os.PathLike, str | bytes]] = []
         if out is not None:
-            written.append(atomic_write(out, text))
+            files.append((out, self.csv()))
         if figure is not None:
-            written.append(atomic_write(figure, png))
-        return written
+            files.append((figure, self.figure_png()))
+        return [atomic_write(path, data) for path, data in files]
 
     def joint_path(self) -> np.ndarray:
         """(m, n) joint coordinates (rad, m)."""

@@ -28,6 +28,7 @@ from stiffness.calibration.experiment import (
     Alternatives,
     Candidates,
     Selection,
+    SeparationStatistics,
     baseline_model,
     candidate_set,
     random_selections,
@@ -593,7 +594,7 @@ class _Search:
     prior: np.ndarray | None
     existing: Prediction | None
     alternatives: Alternatives | None = None
-    sep: object | None = None
+    sep: SeparationStatistics | None = None
 
     @classmethod
     def of(cls, cands: Candidates, joints: tuple[str, ...], k: np.ndarray, formulation: str,

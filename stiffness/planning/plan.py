@@ -189,9 +189,11 @@ def _plan_lines(text: str, data: Path, toml_path: Path | None, units: Units
     return header, header_line, rows, units, declared_line
 
 
-def _check_header(header: list[str] | None, header_line: int, robot: Robot, data: Path) -> int:
+def _check_header(header: list[str] | None, header_line: int, robot: Robot, data: Path
+                  ) -> tuple[list[str], int]:
     """Refuse a missing header or one other than ``config,q1..qn,fx,fy,fz`` (optionally
-    then ``dx,dy,dz``), naming the first wrong column; returns the number of columns read."""
+    then ``dx,dy,dz``), naming the first wrong column; returns it and the number of columns
+    read."""
     n_q = robot.n_coordinates
     expected = _header(n_q)
     if header is None:
@@ -206,7 +208,7 @@ def _check_header(header: list[str] | None, header_line: int, robot: Robot, data
             f"got {got}; the plan header for {robot.name} ({n_q} coordinates) is "
             f"{','.join(expected)} (optionally then dx,dy,dz, which are ignored)", path=data,
             line=header_line, column=bad + 1)
-    return width
+    return header, width
 
 
 def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan, Robot]:
@@ -257,7 +259,7 @@ def read_plan(path: str | os.PathLike, robot: Robot | None = None) -> tuple[Plan
     header, header_line, rows, units, declared_line = _plan_lines(
         read_text(data, "plan"), data, toml_path, units)
     n_q = robot.n_coordinates
-    width = _check_header(header, header_line, robot, data)
+    header, width = _check_header(header, header_line, robot, data)
     if not rows:
         raise FileFormatError("no rows after the header", path=data, line=header_line + 1)
     labels, values = [], []

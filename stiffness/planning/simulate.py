@@ -530,7 +530,8 @@ def simulate(
     q, applied, row_labels = _rows(declared, plan, configs, loads_per_config, load_pattern,
                                    max_force, rng)
     rotation_noise_std_rad = _rotation_noise_std(rotation_noise_std_rad, noise_std_m)
-    rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats, units)
+    rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats,
+               units or Units())
     truth, smoothing, effect_rms, baseline_error, clean6 = _truth_and_sizes(
         declared, kq, hidden, rig.units, q, applied, baseline)
     recorded_q = truth.link_coordinates(q) if joint_angles == "link" else q
@@ -625,10 +626,7 @@ class _Rig:
     rotations: bool
     declare_noise: bool
     repeats: int
-    units: Units | None
-
-    def __post_init__(self) -> None:
-        self.units = self.units or Units()
+    units: Units = field(default_factory=Units)
 
     def campaign(self, given: PlannedRobot, declared: Robot, name: str | None, baseline: str,
                  q: np.ndarray, recorded: np.ndarray, clean6: np.ndarray,
