@@ -382,7 +382,21 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False,
         raise
     if keep_others and target.is_dir():
         _carry_over(target, staging)
+    if target.is_dir():
+        _keep_modes(target, staging)
     _publish(staging, target)
+
+
+def _keep_modes(target: Path, staging: Path) -> None:
+    """Give each rewritten file the permissions its old copy in ``target`` had (as
+    :func:`atomic_write` does for one file): a user's ``chmod`` survives the command."""
+    for old in target.rglob("*"):
+        new = staging / old.relative_to(target)
+        if old.is_file() and new.is_file() and not old.is_symlink():
+            try:
+                shutil.copymode(old, new)
+            except OSError:
+                continue  # a mode that cannot be set is no reason to lose the output
 
 
 def _carry_over(old: Path, new: Path) -> None:
