@@ -47,9 +47,10 @@ def add_model_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="M.json",
                         help="model file: identified-model.json (`stiffness identify`) or "
                              "final-model.json (`stiffness diagnose`, with its effects)")
-    add_robot_flags(parser, robot_help="shipped robot, example-robot-data name or URDF path, "
-                                       "instead of --model (or checked against it); with "
-                                       "--model, --frame and --target-offset move the target")
+    add_robot_flags(parser, robot_help="shipped robot, example-robot-data name, URDF path or "
+                                       "robot.toml, instead of --model (or checked against "
+                                       "it); with --model, --frame and --target-offset move "
+                                       "the target")
     add_stiffness_flag(parser, help="joint stiffness per compliant joint, N.m/rad (N/m "
                                     "prismatic), when no --model is given; default the robot's")
 

@@ -177,7 +177,8 @@ def add_robot_flags(parser: argparse.ArgumentParser, *, required: bool = False,
     parser.add_argument(
         "--robot", required=required,
         help=robot_help or "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data "
-                           "name (ur5, panda...) or URDF path")
+                           "name (ur5, panda...), URDF path or robot.toml (a URDF or a DH "
+                           "table)")
     parser.add_argument("--frame", help="frame carrying the target (default: the robot's own)")
     parser.add_argument("--target-offset", metavar="X,Y,Z",
                         help="target in the frame's axes, m (default: the robot's own, else 0)")
@@ -272,7 +273,7 @@ class RobotFlags:
         if self.source is None:
             raise StiffnessError(
                 "--robot is required" + (f" (or {self.alternative})" if self.alternative else "")
-                + ": a shipped robot, an example-robot-data name or a URDF path")
+                + ": a shipped robot, an example-robot-data name, a URDF path or a robot.toml")
         return load_robot(self.source, frame=self.frame, target_offset=self.target_offset,
                           compliant_joints=self.compliant_joints, loops=self.loops,
                           fixed_base=self.fixed_base)

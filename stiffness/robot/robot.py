@@ -71,7 +71,7 @@ class Robot:
     Attributes
     ----------
     name
-        Source name (shipped robot, example-robot-data name or URDF path).
+        Source name (shipped robot, example-robot-data name, URDF path or robot.toml).
     model, data
         Pinocchio model (with the target frame added) and its data.
     target_frame
@@ -550,8 +550,9 @@ def load_robot(
     ----------
     source
         A shipped robot name (``"sk120"``), a path to a URDF (a ``<name>.loops.yaml``,
-        ``<name>.yaml`` or ``robot.yaml`` beside it declares its loops), or an
-        example-robot-data name (``"ur5"``, ``"panda"``, ...).
+        ``<name>.yaml`` or ``robot.yaml`` beside it declares its loops), a ``robot.toml`` (or
+        its folder: a URDF's settings, or a DH table and controller coordinates,
+        docs/robot-files.md), or an example-robot-data name (``"ur5"``, ``"panda"``, ...).
     frame
         Frame carrying the measurement target; default: the shipped robot's target frame, else
         the tip frame of the longest chain of moving joints (:mod:`stiffness.robot.targets`).
