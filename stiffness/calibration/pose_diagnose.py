@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -175,7 +176,8 @@ def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
 
 
 def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
-                   validate: PoseCampaign | None = None) -> PoseDiagnosis:
+                   validate: PoseCampaign | None = None,
+                   progress: Callable[[str], None] | None = None) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -185,9 +187,13 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         or ``"unknown"`` (lumped compliance-times-mass-moment parameters).
     validate
         Another pose campaign of the same robot and markers, evaluated at every step.
+    progress
+        Called with one line of text as each step starts (``None``: quiet).
     """
+    say = progress or (lambda text: None)
     if masses not in CANDIDATES:
         raise StiffnessError(f"masses must be one of {', '.join(CANDIDATES)}, got {masses!r}")
+    say(f"pose diagnosis: {campaign.n_rows} rows, baseline (measuring frame and markers)")
     frame0 = starting_frame(campaign)
     folds = config_folds(tuple(campaign.labels), seed)
     families = list(BASE_FAMILIES)
@@ -197,6 +203,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     rejected: dict[str, float] = {}
     remaining = [f for f in CANDIDATES[masses] if f in FAMILIES]
     while remaining:
+        say(f"step {len(steps)}: trying {', '.join(remaining)}")
         tried = {f: _fit(campaign, families + [f], frame0, steps[-1].fit) for f in remaining}
         best = min(tried, key=lambda f: tried[f].bic())
         delta = tried[best].bic() - steps[-1].fit.bic()

@@ -113,7 +113,10 @@ def run_poses(args: argparse.Namespace) -> int:
     other = load_pose_campaign(args.validate) if args.validate else None
     if args.out:
         output_folder(args.out, create=False)
-    result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other)
+    show = sys.stderr.isatty() and not args.quiet
+    result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
+                            progress=(lambda text: print(text, file=sys.stderr, flush=True))
+                            if show else None)
     paths = write_pose_diagnosis(result, args.out) if args.out else None
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
