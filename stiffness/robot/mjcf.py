@@ -157,8 +157,8 @@ def _bodies(parent: etree._Element, robot: Robot, j: int, plan: SpringPlan,
         rigid = name in plan.welded
         _place(body, data.oMi[j].actInv(data.oMi[child]) if rigid  # welded at rest
                else model.jointPlacements[child])
-        if not _inertial(body, model.inertias[child]):
-            massless.append(name)
+        if not _inertial(body, model.inertias[child]) and not rigid:
+            massless.append(name)  # a moving body: MuJoCo needs its mass
         if not rigid:
             _joint(body, robot, child, plan.joints, q)
             order.append(child)
