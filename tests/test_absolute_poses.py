@@ -383,3 +383,40 @@ def test_validate_a_deflection_model_on_another_campaign(tmp_path, capsys):
     assert main(["validate", str(model), str(tmp_path / "poses")]) == 2
     err = capsys.readouterr().err.strip()
     assert "deflection model" in err and "\n" not in err
+
+
+def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
+    """A pose campaign split into the controller's file (key, angles in deg) and the tracker's
+    (key, renamed marker columns in mm, a marker unseen on a row, rows in another order)
+    imports back to the same rows (1e-12 relative)."""
+    rng = np.random.default_rng(13)
+    c = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, rng), 10, NOISE, seed=13)
+    c.positions[4, 1] = np.nan
+    q_deg, pos_mm = np.rad2deg(c.q), c.positions * 1e3
+    joints = ["id,j1 [deg],j2 [deg],j3 [deg],j4 [deg],j5 [deg],j6 [deg]"] + [
+        ",".join([f"k{i}"] + [repr(float(v)) for v in q]) for i, q in enumerate(q_deg)]
+    tracker = ["id,T_x,T_y,T_z,E_x,E_y,E_z"] + [
+        ",".join([f"k{i}"] + ["" if not np.isfinite(v) else repr(float(v))
+                              for v in pos_mm[i].reshape(-1)])
+        for i in reversed(range(c.n_rows))]
+    (tmp_path / "joints.csv").write_text("\n".join(joints) + "\n")
+    (tmp_path / "tracker.csv").write_text("\n".join(tracker) + "\n")
+    mapping = ",".join([f"q{i}=j{i} [deg]" for i in range(1, 7)]
+                       + [f"tip_{a}=T_{a}" for a in "xyz"] + [f"elbow_{a}=E_{a}" for a in "xyz"])
+    assert main(["campaign", "import", str(tmp_path / "joints.csv"), str(tmp_path / "tracker.csv"),
+                 "--kind", "poses", "--robot", "ur10", "--frame", "tool0", "--join", "id",
+                 "--map", mapping, "--units", "length=mm", "--marker", "tip=tool0@0,30,50",
+                 "--marker", "elbow=forearm_link@0,50,200", "--noise", "0.02",
+                 "--out", str(tmp_path / "campaign")]) == 0
+    back = load_pose_campaign(tmp_path / "campaign")
+    assert np.allclose(back.q, c.q, rtol=1e-12, atol=0)
+    assert np.allclose(back.positions, c.positions, rtol=1e-12, atol=0, equal_nan=True)
+    assert np.isnan(back.positions[4, 1]).all() and back.noise_std == pytest.approx(NOISE)
+    assert [m.name for m in back.markers] == ["tip", "elbow"]
+    tracker[3] = tracker[3].rsplit(",", 1)[0] + ","
+    (tmp_path / "tracker.csv").write_text("\n".join(tracker) + "\n")
+    assert main(["campaign", "import", str(tmp_path / "joints.csv"), str(tmp_path / "tracker.csv"),
+                 "--kind", "poses", "--robot", "ur10", "--join", "id", "--map", mapping,
+                 "--units", "length=mm", "--marker", "tip=tool0", "--marker", "elbow=forearm_link",
+                 "--out", str(tmp_path / "other")]) == 2
+    assert "some but not all" in capsys.readouterr().err

@@ -123,11 +123,14 @@ class Column:
         return FileFormatError(problem, path=self.path, line=self.lines[row],
                                column=self.index + 1, field=self.name)
 
-    def numbers(self) -> np.ndarray:
+    def numbers(self, empty_is_nan: bool = False) -> np.ndarray:
         """The cells as finite numbers within +-:data:`MAX_CELL` (file, line and column named
-        otherwise)."""
+        otherwise); with ``empty_is_nan`` an empty cell is NaN (a marker not seen)."""
         out = np.empty(len(self.cells))
         for i, cell in enumerate(self.cells):
+            if empty_is_nan and not cell.strip():
+                out[i] = math.nan
+                continue
             try:
                 value = float(cell)
             except ValueError:
@@ -367,7 +370,7 @@ def _bare(header: str) -> str:
         if match else header
 
 
-class _Mapper:
+class ColumnMapper:
     """Finds the file column of each campaign column and reads it, with its unit."""
 
     def __init__(self, columns: dict[str, list[Column]], settings: ImportSettings,
@@ -419,7 +422,8 @@ class _Mapper:
                                  f"({missing[0]}=COLUMN) or name a column {missing[0]}")
         return [c for c in found if c is not None]
 
-    def values(self, target: str, column: Column, kind: str) -> np.ndarray:
+    def values(self, target: str, column: Column, kind: str, empty_is_nan: bool = False
+               ) -> np.ndarray:
         """A numeric column; its header's unit (if any) noted for ``kind``."""
         match = _HEADER_UNIT.match(column.name)
         if match:
@@ -430,7 +434,7 @@ class _Mapper:
                                       f"{', '.join(_UNIT_TABLES[kind])}", path=column.path,
                                       column=column.index + 1, field=column.name)
             self.units_seen.setdefault(kind, []).append((unit, column))
-        return column.numbers()
+        return column.numbers(empty_is_nan)
 
     def unit(self, kind: str, needed: bool) -> str | None:
         """The unit of ``kind``: the one given, which every header must agree with, else the
@@ -558,16 +562,13 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
         raise StiffnessError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}")
     robot = robot if robot is not None else load_import_robot(robot_settings)
     tables = [read_table(f) for f in files]
-    _check_map(settings, robot)
+    check_map(settings, robot)
     columns, _ = join_tables(tables, settings.join)
-    mapper = _Mapper(columns, settings, [t.path for t in tables])
-    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
-    q_cols = mapper.group(tuple(f"q{i + 1}" for i in range(robot.n_coordinates)), True) or []
-    q_file = np.column_stack([mapper.values(c.name, c, "length" if p else "angle")
-                              for c, p in zip(q_cols, prismatic, strict=True)])
-    force = _block(mapper, FORCE, "force", True)
+    mapper = ColumnMapper(columns, settings, [t.path for t in tables])
+    q_cols, q_file, prismatic = read_coordinates(mapper, robot)
+    force = read_block(mapper, FORCE, "force", True)
     assert force is not None  # a required group is there or refused
-    moment = _block(mapper, MOMENT, "moment", False)
+    moment = read_block(mapper, MOMENT, "moment", False)
     mode, rows, unloaded, delta = _deflections(mapper, q_file)
     units = Units(mapper.unit("angle", bool((~prismatic).any())) or "deg",
                   mapper.unit("force", True) or "N", mapper.unit("length", True) or "mm",
@@ -575,7 +576,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     config = mapper.find("config")
     first = q_cols[0]
     lines = [first.lines[i] for i in rows]
-    labels = _labels(config, rows, q_file[unloaded])
+    labels = row_labels(config, rows, q_file[unloaded])
     q_si = coordinates_in_si(robot, q_file[unloaded], units, labels, lines, first.path)
     f_si = force[rows] * units.force_to_si
     m_si = None if moment is None else moment[rows] * units.moment_to_si
@@ -598,16 +599,27 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     return campaign, report
 
 
-def _check_map(settings: ImportSettings, robot: Robot) -> None:
-    """Refuse a map naming a campaign column that does not exist."""
-    valid = [*TARGETS, *(f"q{i + 1}" for i in range(robot.n_coordinates))]
+def read_coordinates(mapper: ColumnMapper, robot: Robot
+                     ) -> tuple[list[Column], np.ndarray, np.ndarray]:
+    """The q1..qn columns, their values in the files' units (n, n_q) and which are prismatic."""
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
+    q_cols = mapper.group(tuple(f"q{i + 1}" for i in range(robot.n_coordinates)), True) or []
+    q_file = np.column_stack([mapper.values(c.name, c, "length" if p else "angle")
+                              for c, p in zip(q_cols, prismatic, strict=True)])
+    return q_cols, q_file, prismatic
+
+
+def check_map(settings: ImportSettings, robot: Robot, targets: tuple[str, ...] = TARGETS
+              ) -> None:
+    """Refuse a map naming a campaign column that does not exist (``targets`` and q1..qn)."""
+    valid = [*targets, *(f"q{i + 1}" for i in range(robot.n_coordinates))]
     for target in settings.column_map:
         if target not in valid:
             raise StiffnessError(f"--map names {target!r}, not a campaign column; "
                                  f"{did_you_mean(target, valid)}")
 
 
-def _block(mapper: _Mapper, targets: tuple[str, ...], kind: str, required: bool
+def read_block(mapper: ColumnMapper, targets: tuple[str, ...], kind: str, required: bool
            ) -> np.ndarray | None:
     """(n, 3) values of a group of columns, or ``None`` when an optional group is absent."""
     cols = mapper.group(targets, required)
@@ -617,14 +629,14 @@ def _block(mapper: _Mapper, targets: tuple[str, ...], kind: str, required: bool
                                                                         strict=True)])
 
 
-def _deflections(mapper: _Mapper, q_file: np.ndarray
+def _deflections(mapper: ColumnMapper, q_file: np.ndarray
                  ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
     """How the deflections come, the joined rows made campaign rows, the row holding each
     one's unloaded pose, and the deflections (file length unit, file frame)."""
-    direct = _block(mapper, DIRECT, "length", False)
-    loaded = _block(mapper, LOADED, "length", False)
-    unloaded = _block(mapper, UNLOADED, "length", False)
-    position = _block(mapper, POSITION, "length", False)
+    direct = read_block(mapper, DIRECT, "length", False)
+    loaded = read_block(mapper, LOADED, "length", False)
+    unloaded = read_block(mapper, UNLOADED, "length", False)
+    position = read_block(mapper, POSITION, "length", False)
     given = [label for label, block in (("dx,dy,dz", direct), ("x_loaded..z_unloaded", loaded),
                                         ("x_unloaded..z_unloaded", unloaded),
                                         ("x,y,z", position)) if block is not None]
@@ -643,7 +655,7 @@ def _deflections(mapper: _Mapper, q_file: np.ndarray
                                                else " (found none)"))
 
 
-def _pairs(mapper: _Mapper, q_file: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pairs(mapper: ColumnMapper, q_file: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Paired rows: each loaded row and its pair's unloaded row (refused: another state, a
     pair with no or two unloaded rows or no loaded one, coordinates that differ)."""
     state = mapper.find("state")
@@ -682,7 +694,7 @@ def _pairs(mapper: _Mapper, q_file: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return rows, np.array([reference[pair.cells[i]] for i in loaded], dtype=int)
 
 
-def _labels(config: Column | None, rows: np.ndarray, q_file: np.ndarray) -> list[str]:
+def row_labels(config: Column | None, rows: np.ndarray, q_file: np.ndarray) -> list[str]:
     """The ``config`` cells of ``rows``, else ``P1``, ``P2``, ... per distinct pose (rows'
     coordinates ``q_file`` equal to :data:`SAME_POSE` relative)."""
     if config is not None:
@@ -711,7 +723,7 @@ def tool_rotations(robot: Robot, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def _column_report(mapper: _Mapper, units: Units, robot: Robot, prismatic: np.ndarray
+def _column_report(mapper: ColumnMapper, units: Units, robot: Robot, prismatic: np.ndarray
                    ) -> dict[str, dict]:
     """Per campaign column read: source, unit, range (file units)."""
     out = {}

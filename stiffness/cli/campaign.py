@@ -19,8 +19,12 @@ import json
 
 import numpy as np
 
+from stiffness.calibration.absolute import Marker
+from stiffness.calibration.campaign import CAMPAIGN_KINDS
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
+from stiffness.calibration.pose_campaign import write_pose_campaign
+from stiffness.calibration.pose_import import import_pose_campaign
 from stiffness.calibration.rig_import import (
     FRAMES,
     ImportSettings,
@@ -66,6 +70,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true",
                    help="print what was read as one JSON object")
     p.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
+    p.add_argument("--kind", choices=CAMPAIGN_KINDS, default="deflections",
+                   help="deflections (default) or poses: absolute marker positions in the "
+                        "measuring system's frame (docs/absolute-poses.md)")
+    p.add_argument("--marker", action="append", metavar="NAME=FRAME[@X,Y,Z]",
+                   help="--kind poses: a marker, its columns NAME_x, NAME_y, NAME_z, on the "
+                        "robot frame FRAME at the nominal offset X,Y,Z (the files' length "
+                        "unit; default 0); repeat for each marker")
 
 
 def _settings(args: argparse.Namespace) -> ImportSettings:
@@ -77,8 +88,50 @@ def _settings(args: argparse.Namespace) -> ImportSettings:
                           args.deflection_frame or base.deflection_frame)
 
 
+def _markers(texts: list[str] | None) -> list[Marker]:
+    """The ``--marker NAME=FRAME[@X,Y,Z]`` flags (offsets in the files' length unit)."""
+    out = []
+    for text in texts or []:
+        name, sep, rest = text.partition("=")
+        frame, _, offset = rest.partition("@")
+        if not sep or not name.strip() or not frame.strip():
+            raise StiffnessError(f"--marker {text!r}: write NAME=FRAME or NAME=FRAME@X,Y,Z")
+        xyz = flags.parse_list(offset, "--marker offset") if offset else [0.0, 0.0, 0.0]
+        if len(xyz) != 3 or not np.all(np.isfinite(xyz)):
+            raise StiffnessError(f"--marker {text!r}: the offset is three finite numbers")
+        out.append(Marker(name.strip(), frame.strip(), np.array(xyz, dtype=float)))
+    return out
+
+
+def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
+               settings: ImportSettings) -> int:
+    """``--kind poses``: write a pose campaign."""
+    if "tool" in (args.force_frame, args.deflection_frame):
+        raise StiffnessError("--kind poses reads absolute positions in the measuring system's "
+                             "frame and wrenches in world axes; drop --force-frame/"
+                             "--deflection-frame tool")
+    campaign = import_pose_campaign(args.files, robot_settings, settings,
+                                    _markers(args.marker), args.name, args.noise, robot)
+    path = write_pose_campaign(campaign, args.out)
+    seen = np.isfinite(campaign.positions).all(axis=2).sum(axis=0)
+    markers = {m.name: {"frame": m.frame, "rows_seen": int(n)}
+               for m, n in zip(campaign.markers, seen, strict=True)}
+    if args.json:
+        print(json.dumps({"campaign": str(path), "kind": "poses", "rows": campaign.n_rows,
+                          "markers": markers, "units": {"angle": campaign.units.angle,
+                                                        "length": campaign.units.length}},
+                         indent=1))
+    else:
+        print(f"wrote {path} ({campaign.n_rows} rows; " + ", ".join(
+            f"{k} on {v['frame']} seen on {v['rows_seen']}" for k, v in markers.items())
+            + f"; units {campaign.units.angle}, {campaign.units.length})")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness campaign import``; returns the exit code."""
+    if args.marker and args.kind != "poses":
+        raise StiffnessError("--marker is for --kind poses")
     robot_flags = flags.robot_flags(args)
     if robot_flags.source is None:
         raise StiffnessError("--robot is required: a shipped robot, an "
@@ -96,6 +149,8 @@ def run(args: argparse.Namespace) -> int:
     robot_settings.frame = robot.target_frame
     robot_settings.target_offset_m = robot.target_offset.copy()
     robot_settings.compliant_joints = tuple(robot.compliant_joints)
+    if args.kind == "poses":
+        return _run_poses(args, robot_settings, robot, settings)
     campaign, report = import_campaign(args.files, robot_settings, settings, args.name,
                                        args.baseline, args.noise, robot)
     path = write_campaign(campaign, args.out)

@@ -1,0 +1,112 @@
+"""A pose campaign from the CSV files a rig writes (``stiffness campaign import --kind poses``).
+
+The files are joined, mapped and read as for a deflection campaign
+(:mod:`stiffness.calibration.rig_import`: ``--join``, ``--map``, ``--units``, units in the
+headers). The campaign columns are ``config`` (optional), ``q1..qn``, each marker's
+``<marker>_x, <marker>_y, <marker>_z`` in the measuring system's frame (all three cells empty
+where it was not seen) and optionally the applied wrench ``fx, fy, fz[, mx, my, mz]`` (world
+axes, at the robot's target frame). Positions are absolute, so no frame is converted.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from stiffness.calibration.absolute import Loads, Marker
+from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.rig_import import (
+    FORCE,
+    MOMENT,
+    ColumnMapper,
+    ImportSettings,
+    check_map,
+    join_tables,
+    load_import_robot,
+    read_block,
+    read_coordinates,
+    read_table,
+    row_labels,
+)
+from stiffness.errors import StiffnessError
+from stiffness.robot.robot import Robot
+
+
+def marker_targets(markers: list[Marker]) -> tuple[str, ...]:
+    """The campaign columns of the markers: ``<marker>_x, _y, _z`` each."""
+    return tuple(f"{m.name}_{a}" for m in markers for a in "xyz")
+
+
+def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSettings,
+                         settings: ImportSettings, markers: list[Marker],
+                         name: str = "imported", noise_std: float | None = None,
+                         robot: Robot | None = None) -> PoseCampaign:
+    """Read a rig's CSV files into a pose campaign (SI).
+
+    Parameters
+    ----------
+    markers
+        The markers (name, frame, nominal offset in the files' length unit).
+    noise_std
+        Position noise std in the files' length unit, or ``None``.
+
+    Raises
+    ------
+    StiffnessError
+        Anything that cannot be mapped (file, line and column named), a marker with some but not
+        all of its three cells on a row, or a frame the robot lacks.
+    """
+    if not files:
+        raise StiffnessError("give at least one CSV file to import")
+    if not markers:
+        raise StiffnessError("a pose campaign needs at least one --marker NAME=FRAME")
+    robot = robot if robot is not None else load_import_robot(robot_settings)
+    for m in markers:
+        if not robot.model.existFrame(m.frame):
+            raise StiffnessError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
+                                 f"{robot.name}; name one of its frames")
+    tables = [read_table(f) for f in files]
+    check_map(settings, robot, ("config", *FORCE, *MOMENT, *marker_targets(markers)))
+    columns, _ = join_tables(tables, settings.join)
+    mapper = ColumnMapper(columns, settings, [t.path for t in tables])
+    q_cols, q_file, prismatic = read_coordinates(mapper, robot)
+    positions = np.stack([_marker(mapper, m) for m in markers], axis=1)
+    force = read_block(mapper, FORCE, "force", False)
+    moment = read_block(mapper, MOMENT, "moment", False) if force is not None else None
+    units = Units(mapper.unit("angle", bool((~prismatic).any())) or "rad",
+                  mapper.unit("force", force is not None) or "N",
+                  mapper.unit("length", True) or "m",
+                  moment_unit=mapper.unit("moment", moment is not None))
+    rows = np.arange(q_file.shape[0])
+    labels = row_labels(mapper.find("config"), rows, q_file)
+    q = coordinates_in_si(robot, q_file, units, labels, q_cols[0].lines, q_cols[0].path)
+    loads = None
+    if force is not None:
+        wrench = np.zeros((len(rows), 6))
+        wrench[:, :3] = force * units.force_to_si
+        if moment is not None:
+            wrench[:, 3:] = moment * units.moment_to_si
+        loads = Loads(robot.target_frame, wrench)
+    scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si)
+              for m in markers]
+    return PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,
+                        positions * units.length_to_si, loads,
+                        None if noise_std is None else noise_std * units.length_to_si)
+
+
+def _marker(mapper: ColumnMapper, marker: Marker) -> np.ndarray:
+    """(n, 3) positions of a marker in the files' unit, NaN where its cells are empty."""
+    targets = tuple(f"{marker.name}_{a}" for a in "xyz")
+    cols = mapper.group(targets, True) or []
+    values = np.column_stack([mapper.values(t, c, "length", empty_is_nan=True)
+                              for t, c in zip(targets, cols, strict=True)])
+    seen = np.isfinite(values)
+    partial = np.flatnonzero(seen.any(axis=1) & ~seen.all(axis=1))
+    if partial.size:
+        row = int(partial[0])
+        column = cols[int(np.flatnonzero(~seen[row])[0])]
+        raise column.error(row, f"marker {marker.name!r} has some but not all of its three "
+                                "cells on this row; leave all three empty where it was not seen")
+    return values
