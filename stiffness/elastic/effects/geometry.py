@@ -118,10 +118,10 @@ class Rows:
 
     def subset(self, index: np.ndarray) -> Rows:
         """The rows ``index`` (an integer or boolean index)."""
-        return Rows(*(getattr(self, f)[index] for f in (
+        return Rows(**{f: getattr(self, f)[index] for f in (
             "jac", "k_c_unit", "position", "rotation", "chain_origin", "chain_rotation",
             "force", "moment", "config_index", "coords", "gravity_torque",
-            "gravity_stiffness")), joint_angles=self.joint_angles)
+            "gravity_stiffness")}, joint_angles=self.joint_angles)
 
     def torques(self) -> np.ndarray:
         """(m, n) joint torques ``J^T W`` that hold the recorded loads (N.m or N)."""

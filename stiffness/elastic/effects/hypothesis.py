@@ -455,7 +455,7 @@ class Hypothesis:
             return d, (law.deflection_tangent(torque, stiffness, d, *directions)
                        if tangent else None)
 
-        if pre_tau is None:
+        if pre_tau is None or pre_k is None:
             dtheta, t_theta = equilibrium(tau0, k_c)
             return dtheta, t_theta, None, None
         unloaded, t_unloaded = equilibrium(pre_tau, pre_k)
