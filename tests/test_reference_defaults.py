@@ -128,3 +128,18 @@ def test_a_urdf_without_reference_takes_the_middle_of_limits_that_exclude_zero()
     np.testing.assert_array_equal(reference.coords, expected)
     assert "panda_joint4 at the middle of its limits" in reference.source
     assert np.all(reference.coords >= lo) and np.all(reference.coords <= hi)
+
+
+def test_view_path_rows_need_no_finger_values(tmp_path):
+    """``view --path``: rows of the Panda's 7 arm joints (deg); the finger keeps its reference."""
+    from stiffness.cli.view import read_path
+
+    robot = load_robot("panda")
+    path = tmp_path / "path.csv"
+    path.write_text("0,-45,0,-135,0,90,45\n10,-40,0,-130,0,92,46\n")
+    rows = read_path(robot, path, deg=True)
+    finger = robot.coordinate_joints.index("panda_finger_joint1")
+    reference = reference_configuration(robot).coords
+    assert rows.shape == (2, 8) and np.all(rows[:, finger] == reference[finger])
+    arm = [robot.coordinate_joints.index(j) for j in ARMS["panda"]]
+    np.testing.assert_allclose(rows[1, arm], np.deg2rad([10, -40, 0, -130, 0, 92, 46]))

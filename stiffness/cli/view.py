@@ -31,6 +31,7 @@ from stiffness.cli import flags, kx
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import read_text
+from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.viewer import (
@@ -144,7 +145,9 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
 
 
 def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
-    """Rows of coordinates from a CSV file (one configuration per line; ``#`` comments).
+    """Rows of coordinates from a CSV file (one configuration per line; ``#`` comments): one
+    value per coordinate, or per joint outside the end effector's fingers (which keep their
+    reference value).
 
     Raises
     ------
@@ -164,15 +167,22 @@ def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
     if rows.size == 0:
         raise FileFormatError(f"no rows; give one row of {robot.n_coordinates} coordinates per "
                               "line", path=path)
-    if rows.shape[1] != robot.n_coordinates:
+    given = list(robot.coordinate_joints) if rows.shape[1] == robot.n_coordinates else \
+        list(robot.chain_joints)
+    if rows.shape[1] != len(given):
+        chain = "" if not robot.branch_joints else (
+            f", or {len(robot.chain_joints)} without the end effector's fingers")
         raise FileFormatError(
             f"each row needs {robot.n_coordinates} values "
-            f"({', '.join(robot.coordinate_joints)}), this file has {rows.shape[1]}", path=path)
-    if deg:
-        for i, joint in enumerate(robot.coordinate_joints):
-            if _revolute(robot, joint):
-                rows[:, i] = np.deg2rad(rows[:, i])
-    return rows
+            f"({', '.join(robot.coordinate_joints)}){chain}, this file has {rows.shape[1]}",
+            path=path)
+    reference = default_coordinates(robot)
+    full = np.tile(np.zeros(robot.n_coordinates) if reference is None else reference,
+                   (rows.shape[0], 1))
+    for i, joint in enumerate(given):
+        scale = np.pi / 180.0 if deg and _revolute(robot, joint) else 1.0
+        full[:, robot.coordinate_joints.index(joint)] = rows[:, i] * scale
+    return full
 
 
 def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = None
