@@ -135,7 +135,9 @@ def test_unknown_robot_name_suggests_the_closest_names():
     message = str(info.value)
     assert "unknown robot 'ur55'" in message
     assert "not an existing URDF file" in message
-    assert "(griffis-duffy, hexapod, sk120, two-arm-torso)" in message
+    from stiffness.robot.sources import shipped_robots
+
+    assert f"not a shipped robot ({', '.join(shipped_robots())})" in message
     suggested = message.split("did you mean ")[1].split("?")[0].split(", ")
     assert suggested[0] == "ur5" and len(suggested) <= 4
     assert "panda" not in message and "talos" not in message

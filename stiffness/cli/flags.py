@@ -389,7 +389,7 @@ def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
                 f"{flag} mixes name=value pairs and bare values ({text!r}): give all values in "
                 "order, or name=value for each")
         seen: set[int] = set()
-        for match in pairs:
+        for match in (m for m in pairs if m is not None):
             index = coordinate_index(robot, match.group(1), flag)
             if index in seen:
                 raise StiffnessError(f"{flag} names {robot.coordinate_joints[index]} twice")
