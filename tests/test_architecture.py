@@ -10,6 +10,8 @@ function counts as much as one at the top. Layers, lowest first::
 from its own layer or lower ones, and only ``cli`` imports the top package (``__version__``).
 The layers below ``papers`` carry no paper-specific name (sk120, table<N>, appendix) in their
 module names, identifiers or in a string that is such a name on its own (a key, a preset).
+Across the whole package no function is longer than :data:`MAX_FUNCTION_LINES` lines and no
+module than :data:`MAX_MODULE_LINES` (a long workflow is a few named steps).
 """
 
 from __future__ import annotations
@@ -184,6 +186,43 @@ def _paper_name_violations() -> set[tuple[str, str, str]]:
     return out
 
 
+#: Longest function allowed, in lines from its ``def`` to its last line (docstring included).
+MAX_FUNCTION_LINES = 100
+#: Longest module allowed, in lines.
+MAX_MODULE_LINES = 800
+
+
+def _function_lengths(tree: ast.Module) -> dict[str, int]:
+    """Length in lines of every function and method of a module (``Class.method`` names)."""
+    out: dict[str, int] = {}
+
+    def visit(node: ast.AST, prefix: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                name = prefix + child.name
+                out[name] = max(out.get(name, 0), child.end_lineno - child.lineno + 1)
+                visit(child, name + ".")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, prefix + child.name + ".")
+            else:
+                visit(child, prefix)
+
+    visit(tree, "")
+    return out
+
+
+def _size_violations() -> set[tuple[str, str, int]]:
+    """(module, what, lines) of every module and function over its limit, package-wide."""
+    out: set[tuple[str, str, int]] = set()
+    for module, (path, tree) in MODULES.items():
+        lines = len(path.read_text().splitlines())
+        if lines > MAX_MODULE_LINES:
+            out.add((module, "module", lines))
+        out |= {(module, f"function {name}", n) for name, n in _function_lengths(tree).items()
+                if n > MAX_FUNCTION_LINES}
+    return out
+
+
 # ------------------------------------------------------------------------------------ tests
 
 
@@ -221,6 +260,13 @@ def test_no_paper_names_below_papers():
         f"{m}: {kind} {n!r}" for m, kind, n in sorted(found))
 
 
+def test_no_long_function_or_module():
+    """Every module of the package: no function over 100 lines, no module over 800."""
+    found = _size_violations()
+    assert not found, "too long (split into named steps or focused modules): " + "; ".join(
+        f"{m}: {what} has {n} lines" for m, what, n in sorted(found))
+
+
 def test_the_checks_catch_what_they_forbid(tmp_path):
     """Each rule fails on a module written to break it (the rules can fail)."""
     tree = ast.parse("from stiffness.papers.sk120 import read_table1\n"
@@ -232,6 +278,10 @@ def test_the_checks_catch_what_they_forbid(tmp_path):
     assert _imports("stiffness.robot.loops", relative) == {"stiffness.papers.report",
                                                             "stiffness.robot.robot"}
     assert not PAPER_NAME.search("stable_definiteness") and PAPER_NAME.search("TABLE_IV")
+    lines = "".join(f"        x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES - 1))
+    long = ast.parse("class C:\n    def m(self):\n" + lines
+                     + "def f():\n" + lines.replace("        ", "    ") + "    return 0\n")
+    assert _function_lengths(long) == {"C.m": MAX_FUNCTION_LINES, "f": MAX_FUNCTION_LINES + 1}
 
 
 # ------------------------------------------------------------------------ the public API
