@@ -46,3 +46,25 @@ def test_kx_flags_override_the_model(identified, capsys):
 def test_kx_without_robot_or_model_says_what_to_give(capsys):
     assert main(["kx", "--wrench", "1,2,3"]) == 2
     assert "--robot is required (or --model" in capsys.readouterr().err
+
+
+def test_six_dimensional_principal_values_are_reported_per_block(capsys):
+    """A 6-D load: principal stiffnesses per block in their own units (issue 30), equal to the
+    inverse eigenvalues of the printed compliance's translational and rotational blocks."""
+    cli = main
+    argv = ["kx", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4",
+            "--q", "0,-1.2,1.5,-0.3,1.57,0", "--wrench", "0,0,-200,0,5,0"]
+    assert cli([*argv, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    c = np.array(out["compliance"])
+    assert out["basis"][:3] == ["vx", "vy", "vz"]
+    blocks = out["principal_by_block"]
+    for key, block, unit in (("translational", c[:3, :3], "N/m"),
+                             ("rotational", c[3:, 3:], "N.m/rad")):
+        expected = np.sort(1.0 / np.linalg.eigvalsh(0.5 * (block + block.T)))
+        np.testing.assert_allclose(blocks[key]["values"], expected, rtol=1e-10)
+        assert blocks[key]["unit"] == unit
+    assert cli(argv) == 0
+    text = capsys.readouterr().out
+    assert "principal translational stiffnesses (N/m" in text
+    assert "principal rotational stiffnesses (N.m/rad" in text

@@ -312,7 +312,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"K_X ({result['units']['K_X']}), basis {result['basis']}:\n"
               f"{np.array(result['K_X'])}")
-        if result["stable"]:
+        blocks = result.get("principal_by_block")
+        if result["stable"] and blocks:
+            for name, block in blocks.items():
+                print(f"principal {name} stiffnesses ({block['unit']}, {block['note']}): "
+                      f"{np.array(block['values'])}")
+        elif result["stable"]:
             print(f"principal stiffnesses: {np.array(result['eigenvalues'])}")
         else:
             factor = result["critical_load_factor"]

@@ -69,6 +69,7 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
         except SingularConfigurationError as exc:
             k_x, undefined = None, str(exc)
     wrench = commanded.wrench[: 6 if six else 3]
+    blocks = _principal_by_block(c_x) if six and k_x is not None else None
     if six:
         c_x, wrench = reorder_twist(c_x, order), reorder_twist(wrench, order)
         k_x = None if k_x is None else reorder_twist(k_x, order)
@@ -94,6 +95,7 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
         "K_X_symmetric": None if ell is None else bool(ell.symmetric),
         "eigenvalues": None if ell is None else ell.values.tolist(),
         "eigenvectors": None if ell is None else ell.directions.tolist(),
+        "principal_by_block": blocks,
         "definiteness": {**state.definiteness,
                          "K_X": None if k_x is None else definiteness(k_x)},
         "stable": bool(state.stable),
@@ -104,6 +106,20 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
         out["K_theta_tangent"] = np.diag(lin.k_tangent).tolist()
         out["link_compliance"] = lin.link_compliance[rows, rows].tolist()
     return out
+
+
+def _principal_by_block(c_x: np.ndarray) -> dict:
+    """Principal stiffnesses of a 6-D compliance (translation rows first) block by block, each
+    in its own unit: translational (N/m) with the rotation free, the eigenvalues of the inverse
+    of the compliance's translational block, and rotational (N.m/rad) with the translation
+    free, those of the inverse of its rotational block."""
+    def values(block: np.ndarray) -> list[float]:
+        return sorted(1.0 / np.linalg.eigvalsh(0.5 * (block + block.T)).astype(float))
+
+    return {"translational": {"values": values(c_x[:3, :3]), "unit": "N/m",
+                              "note": "rotations free"},
+            "rotational": {"values": values(c_x[3:, 3:]), "unit": "N.m/rad",
+                           "note": "translations free"}}
 
 
 def _subspace_json(c_x: np.ndarray) -> dict:
