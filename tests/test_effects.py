@@ -186,3 +186,12 @@ def test_model_jacobian_with_effects_is_the_derivative(weight):
             assert not jac[..., ~model.analytic_columns].any()
             checked += 1
     assert checked > 60
+
+
+def test_an_unbounded_interval_is_marked_undetermined_in_json():
+    """A parameter whose interval the data do not bound says so (issue 30): ``determined``."""
+    from stiffness.elastic.effects.base import Parameter
+    loose = Parameter("k", 3.0e7, float("inf"), (0.0, float("inf")), "N.m/rad").to_dict()
+    tight = Parameter("k", 9.35e5, 1.2e4, (9.1e5, 9.6e5), "N.m/rad").to_dict()
+    assert loose["determined"] is False and loose["ci95"] == [0.0, None]
+    assert tight["determined"] is True

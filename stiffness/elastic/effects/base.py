@@ -58,12 +58,19 @@ class Parameter:
     ci95: tuple[float, float]
     unit: str
 
+    @property
+    def determined(self) -> bool:
+        """Whether the data bound the parameter: a finite standard error and interval."""
+        return all(math.isfinite(v) for v in (self.standard_error, *self.ci95))
+
     def to_dict(self) -> dict:
-        """JSON-ready (inf and NaN become ``None``)."""
+        """JSON-ready (inf and NaN become ``None``; ``determined`` says whether the interval
+        is bounded, "undetermined" where it is not)."""
         def num(v: float) -> float | None:
             return float(v) if math.isfinite(v) else None
         return {"value": num(self.value), "standard_error": num(self.standard_error),
-                "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit}
+                "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
+                "determined": self.determined}
 
 
 
