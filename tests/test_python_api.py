@@ -163,3 +163,16 @@ def test_scan(tmp_path, capsys):
     assert _without_timing({**doc, "out": None}) == _without_timing({**printed, "out": None})
     assert (json.loads((tmp_path / "py" / "manifest.json").read_text())["spec"]
             == json.loads((tmp_path / "cli" / "manifest.json").read_text())["spec"])
+
+
+def test_scan_of_a_model_file(tmp_path, capsys):
+    model = stiffness.identify(TABLE2, starts=1).write_model(tmp_path / "m.json")
+    argv = ["scan", "--model", str(model), "--axis", "q2=-0.5:0.5:0.5", "--axis",
+            "q3=-0.5:0:0.5", "--no-plots", "--out", str(tmp_path / "cli")]
+    printed = _command_json(capsys, argv)
+    result = stiffness.scan(model=model, out=tmp_path / "py", plots=False,
+                            axes={"q2": (-0.5, 0.5, 0.5), "q3": (-0.5, 0.0, 0.5)})
+    doc = _as_json(result)
+    assert _without_timing({**doc, "out": None}) == _without_timing({**printed, "out": None})
+    assert (json.loads((tmp_path / "py" / "manifest.json").read_text())["spec"]
+            == json.loads((tmp_path / "cli" / "manifest.json").read_text())["spec"])

@@ -20,6 +20,7 @@ from typing import Any, cast
 import numpy as np
 
 from stiffness.batch import kernels as batch
+from stiffness.elastic.model_file import ModelFile, elastic_model_of, read_model_file
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_stiffness
 from stiffness.mechanics.ik import coordinate_limits
@@ -290,7 +291,35 @@ class ScanResult:
         return {**self.summary, "out": str(self.out), "wall_seconds": self.wall_seconds}
 
 
-def scan(robot: Robot | str, out: str | os.PathLike | None = None, *,
+def model_robot(model: ModelFile | str | os.PathLike) -> tuple[Robot, dict, list[float]]:
+    """The robot of a model file (``identified-model.json``, ``final-model.json``) with its
+    joint-compliance and target effects, the arguments the chunks load it with, and its
+    springs (N.m/rad, N/m).
+
+    Raises
+    ------
+    StiffnessError
+        A model whose link or nonlinear effects change K_X beyond joint springs (the batched
+        scan models springs only).
+    """
+    declared = model if isinstance(model, ModelFile) else read_model_file(model)
+    elastic = elastic_model_of(declared)
+    extra = list(elastic.beyond_springs)
+    if extra:
+        raise StiffnessError(
+            f"scan --model: {', '.join(extra)} change K_X beyond joint springs, which the "
+            "batched scan does not model; use `stiffness kx --model` or `stiffness view "
+            "--model` at chosen poses, or give --kq to scan the springs alone")
+    robot = elastic.robot
+    robot_spec = {"source": declared.source, "frame": robot.target_frame,
+                  "target_offset": robot.target_offset.tolist(),
+                  "compliant_joints": list(robot.compliant_joints),
+                  **{k: v for k, v in declared.robot_options().items() if v}}
+    return robot, robot_spec, elastic.k_theta.tolist()
+
+
+def scan(robot: Robot | str | None = None, out: str | os.PathLike | None = None, *,
+         model: ModelFile | str | os.PathLike | None = None,
          k_theta: Sequence[float] | np.ndarray | None = None,
          axes: Mapping[str, Sequence[float]] | Sequence = (), samples: float | None = None,
          seed: int = 0, q: np.ndarray | None = None,
@@ -307,6 +336,9 @@ def scan(robot: Robot | str, out: str | os.PathLike | None = None, *,
         The robot, or its source (shipped name, example-robot-data name, URDF path). A loaded
         robot is reloaded by the chunks from its name, target and compliant joints unless
         ``robot_spec`` says how.
+    model
+        Instead of ``robot``: a model file (or its path), whose robot, target and springs are
+        scanned (:func:`model_robot`; ``k_theta`` replaces its springs).
     out
         Scan folder (an existing one with the same spec is resumed); default a new
         ``<robot>-<preset>`` folder here (:func:`default_out`).
@@ -333,6 +365,13 @@ def scan(robot: Robot | str, out: str | os.PathLike | None = None, *,
     unknown = sorted(set(options) - set(spec_keys) - set(run_keys))
     if unknown:
         raise TypeError(f"scan() got unexpected keyword arguments {', '.join(unknown)}")
+    if model is not None:
+        if robot is not None:
+            raise StiffnessError("give a robot or a model file, not both")
+        robot, robot_spec, springs = model_robot(model)
+        k_theta = springs if k_theta is None else k_theta
+    if robot is None:
+        raise StiffnessError("give a robot (or a model file)")
     if not isinstance(robot, Robot):
         robot_spec = robot_spec or {"source": str(robot), "frame": None,
                                     "target_offset": None, "compliant_joints": None}
