@@ -112,7 +112,7 @@ class Campaign:
     deflection
         (m, 3) measured target displacement from its unloaded position, base axes, m.
     config
-        (m,) configuration labels.
+        (m,) configuration labels (default: the row numbers ``1..m``).
     moment
         (m, 3) moment applied at the target, N.m, or ``None``.
     rotation
@@ -137,7 +137,7 @@ class Campaign:
     q: np.ndarray
     force: np.ndarray
     deflection: np.ndarray
-    config: tuple[str, ...] | None = None
+    config: tuple[str, ...] = ()
     moment: np.ndarray | None = None
     rotation: np.ndarray | None = None
     noise_std_m: float | None = None
@@ -172,7 +172,7 @@ class Campaign:
             setattr(self, label, arr)
         if not np.all(np.isfinite(self.q)):
             raise StiffnessError("campaign coordinates q must be finite numbers")
-        if self.config is None:
+        if not self.config:  # not given: the rows' numbers
             self.config = tuple(str(i + 1) for i in range(m))
         self.config = tuple(str(c) for c in self.config)
         for label in self.config:

@@ -10,6 +10,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import UnionType
 
 import numpy as np
 
@@ -161,7 +162,8 @@ def _check_keys(table: dict, where: str, toml: TomlFile) -> None:
             raise toml.error(f"missing key {prefix}{key}: add {_KEY_HELP[key]}", section)
 
 
-def typed_value(value, kind: type | tuple, toml: TomlFile, section: str, key: str, what: str):
+def typed_value(value, kind: type | UnionType | tuple, toml: TomlFile, section: str, key: str,
+                what: str):
     if not isinstance(value, kind) or isinstance(value, bool):
         label = f"[{section}] {key}" if section else key
         raise toml.error(f"{label} must be {what}, got {value!r}", section, key)

@@ -79,7 +79,7 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     if not isinstance(c, Campaign):
         c = Campaign(
             name=c.name, baseline=c.baseline, robot_settings=c.robot_settings, q=c.q,
-            force=c.force, deflection=c.deflection, config=getattr(c, "config", None),
+            force=c.force, deflection=c.deflection, config=tuple(getattr(c, "config", None) or ()),
             moment=getattr(c, "moment", None), rotation=getattr(c, "rotation", None),
             noise_std_m=getattr(c, "noise_std_m", None), units=getattr(c, "units", Units()),
             path=getattr(c, "path", None),

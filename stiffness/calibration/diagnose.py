@@ -414,7 +414,7 @@ def _ambiguities(raw: list[tuple[int, Candidate, Candidate, float]], sigma: floa
                  campaign: Campaign, geo: Geometry, seed: int | None) -> list[Ambiguity]:
     """The pairs the campaign cannot tell apart, with why, and (``seed`` not None, first
     three) the measurements that would (:func:`propose_measurements`); ``sigma`` in m."""
-    ambiguities = []
+    ambiguities: list[Ambiguity] = []
     for step_no, w, c, similarity in raw:
         sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma
         d_bic = c.bic - w.bic

@@ -109,13 +109,13 @@ def format_report(d: Diagnosis) -> str:
                          f"{a.delta_bic:+.3g}, CV RMS {cv} {unit}, signature similarity "
                          f"{a.similarity:.3f}; their predictions differ by {a.separation:.3g} "
                          "noise std RMS over this campaign")
-            for p in a.proposals:
-                if "note" in p:
-                    lines.append(f"    {p['note']}")
+            for proposal in a.proposals:
+                if "note" in proposal:
+                    lines.append(f"    {proposal['note']}")
                     continue
-                q = ", ".join(f"{v:.4g}" for v in p["q"])
-                f = ", ".join(f"{v:.4g}" for v in p["force"])
+                q = ", ".join(f"{v:.4g}" for v in proposal["q"])
+                f = ", ".join(f"{v:.4g}" for v in proposal["force"])
                 lines.append(f"    measure q = [{q}] {c.units.angle}, F = [{f}] "
                              f"{c.units.force}: predicted difference "
-                             f"{p['separation_noise_units']:.3g} noise std")
+                             f"{proposal['separation_noise_units']:.3g} noise std")
     return "\n".join(lines)

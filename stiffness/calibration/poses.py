@@ -365,7 +365,7 @@ def _generic_rank(robot: Robot, lo: np.ndarray, hi: np.ndarray, rules: Workspace
                   rng: np.random.Generator) -> tuple[int, float]:
     """The largest Jacobian rank over a few assembled probe poses (the rank in general), and
     the best ``sigma_r / sigma_1`` among them."""
-    svs = []
+    svs: list[np.ndarray] = []
     for attempt in range(50 * _RANK_PROBES):
         if len(svs) == _RANK_PROBES or (not svs and attempt >= _FIRST_POSE_TRIES):
             break

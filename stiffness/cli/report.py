@@ -106,7 +106,8 @@ def background_independent_parts() -> Iterator[Callable[[], dict]]:
         if child.poll() is None:
             child.kill()
         child.wait()
-        child.stdout.close()
+        if child.stdout is not None:
+            child.stdout.close()
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:

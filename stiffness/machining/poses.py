@@ -118,7 +118,9 @@ class Poses:
         values written in SI."""
         names = ["x", "y", "z"] + (["ax", "ay", "az"] if axes is not None
                                    else ["qw", "qx", "qy", "qz"])
-        values = np.column_stack([positions, axes if axes is not None else quaternions])
+        orientation = axes if axes is not None else quaternions
+        assert orientation is not None  # the caller gives the axes or the quaternions
+        values = np.column_stack([positions, orientation])
         return cls(names, [[repr(float(v)) for v in row] for row in values], positions, axes,
                    quaternions, None)
 
