@@ -200,6 +200,7 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
     options = {"live": live, "quantity": args.quantity, "size": args.size,
                "exaggeration": args.exaggeration, "host": args.host, "port": args.port,
                "open_browser": args.open and live}
+    viewer: StiffnessViewer
     if model is not None and model.beyond_springs:
         viewer = ModelViewer(model, robot, k_theta, **options)
     else:
@@ -279,7 +280,7 @@ def stability_line(found: dict) -> str:
             "enhanced ellipsoid is not a stiffness the arm has")
 
 
-def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str) -> None:
+def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str | None) -> None:
     """Print where the page is (one JSON object with ``--json``), echo the inputs and say
     whether the arm is stable under the load."""
     summary = {"robot": inputs.robot.name, "frame": inputs.robot.target_frame,

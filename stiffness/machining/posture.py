@@ -152,7 +152,7 @@ class PostureResult:
         """The object ``stiffness posture --json`` prints: ``joints``, ``rows`` (joint values
         in the written unit, the rest SI), ``summary``, ``notes``, ``units``, ``branches``
         (each branch's coordinates at the first point, in the unit of ``q``)."""
-        def num(v: float):
+        def num(v: float | np.floating) -> float | None:
             return float(v) if math.isfinite(v) else None
 
         scale = self._scale()
@@ -175,7 +175,7 @@ class PostureResult:
         """``OUT.csv`` of ``stiffness posture``: the input columns, the joints (written unit),
         the angle (deg), the deflections (m), the IK residuals (m, rad) and the branch per
         point."""
-        def num(value: float) -> str:
+        def num(value: float | np.floating) -> str:
             return repr(float(value)) if math.isfinite(value) else ""
 
         scale = self._scale()

@@ -134,8 +134,8 @@ def parse_effect(text: str) -> HiddenEffect:
         Unknown name, a missing value, a wrong number of values, or a non-number.
     """
     head, _, rest = text.partition("=")
-    name, _, where = head.strip().partition(":")
-    name, where = name.strip(), where.strip() or None
+    name, _, where_text = head.strip().partition(":")
+    name, where = name.strip(), where_text.strip() or None
     if name not in LIBRARY:
         raise UnknownEffectError(f"unknown effect {name!r} in --effect {text!r}; "
                                  f"{did_you_mean(name, list(LIBRARY))}", name=name,
