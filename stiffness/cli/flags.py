@@ -28,7 +28,7 @@ import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
@@ -63,8 +63,11 @@ class ArgumentParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self.commands: dict[str, ArgumentParser] = {}
 
-    def parse_known_args(self, args: Sequence[str] | None = None,
-                         namespace: argparse.Namespace | None = None):
+    # typeshed declares this method as three overloads on the namespace's type; one signature
+    # that accepts what they accept and returns what argparse returns overrides them all
+    def parse_known_args(  # type: ignore[override]
+            self, args: Sequence[str] | None = None,
+            namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
         """Parse like argparse, after joining negative values to their options."""
         args = sys.argv[1:] if args is None else list(args)
         return super().parse_known_args(join_negative_values(self, args), namespace)
@@ -290,7 +293,7 @@ def target_offset_from_args(args: argparse.Namespace) -> list[float] | None:
     return offset
 
 
-def robot_flags(args: argparse.Namespace, fallback: object | None = None) -> RobotFlags:
+def robot_flags(args: argparse.Namespace, fallback: Any = None) -> RobotFlags:
     """The robot flags of ``args``; ``fallback`` fills what they leave out.
 
     ``fallback`` is anything with ``source``, ``frame``, ``target_offset_m`` and

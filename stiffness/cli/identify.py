@@ -103,13 +103,16 @@ def format_table(result: Identification) -> str:
     ]
     if result.rotation_residuals is not None:
         kinds = result.rms_by_kind
-        sigma_r = result.rotation_sigma_rad
+        rms_t, rms_r = kinds["translation_m"], kinds["rotation_rad"]
+        sigma_r, weight = result.rotation_sigma_rad, result.rotation_weight_m_per_rad
+        # a campaign with rotations has both kinds and their weight
+        assert rms_t is not None and rms_r is not None and weight is not None
         lines.append(
-            f"RMS by kind: translations {_g(kinds['translation_m'] * 1e3, 4)} mm, rotations "
-            f"{_g(kinds['rotation_rad'], 4)} rad (rotation noise std "
+            f"RMS by kind: translations {_g(rms_t * 1e3, 4)} mm, rotations "
+            f"{_g(rms_r, 4)} rad (rotation noise std "
             f"{'-' if sigma_r is None else _g(sigma_r, 4)} rad from "
             f"{result.rotation_sigma_source}; rotations weighted by "
-            f"{_g(result.rotation_weight_m_per_rad, 4)} m/rad)")
+            f"{_g(weight, 4)} m/rad)")
     if result.undetermined_directions or result.undetermined_joints:
         lines.append("undetermined: " + (", ".join(result.undetermined_joints) or "no single "
                                           "stiffness, but combinations:"))

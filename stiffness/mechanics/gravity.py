@@ -71,7 +71,7 @@ def gravity_preload(robot: Robot, q: np.ndarray, model: pin.Model | None = None,
     return -(e.T @ g), -(e.T @ dg @ e)
 
 
-def spring_balancer(theta: np.ndarray, stiffness: float, preload: float, lever_m: float,
+def spring_balancer(theta: float | np.ndarray, stiffness: float, preload: float, lever_m: float,
                     base_m: float, angle0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Torque of a spring gravity compensator on its joint and the torque's angle derivative.
 
