@@ -351,6 +351,7 @@ class _Search:
                     ambiguities.append((len(steps) + 1, winner, c, similarity))
             steps.append(self.step(winner, results, dispersion, units))
             self.say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
+            assert winner.cv_rms is not None  # the winner was cross-validated
             current, cv_current = winner.fit, winner.cv_rms
 
     def candidates(self, current: Fit) -> tuple[list[Candidate], float]:
@@ -406,6 +407,7 @@ class _Search:
         params = _effect_parameters(fit, cov, quantile, units)
         ranking = [{"effect": c.effect.name, "where": c.effect.where,
                     "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
+        assert winner.cv_rms is not None  # the winner was cross-validated
         return Step(winner.effect, fit, fit.rms(), winner.bic, winner.delta_bic,
                     winner.cv_rms, params[winner.effect.label], ranking, dispersion)
 
@@ -467,6 +469,7 @@ def _rotation_noise(campaign: Campaign, sigma: float | None
     rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2))) or 1.0
     rms_r = float(np.sqrt(np.mean(campaign.rotation ** 2))) or 1.0
     s_t = sigma if sigma is not None else rms_t
+    rot: float | None
     if campaign.rotation_noise_std_rad is not None:
         rot, source = campaign.rotation_noise_std_rad, "declared"
     else:

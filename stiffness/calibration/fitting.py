@@ -220,10 +220,12 @@ def observations(deflection: np.ndarray, rotation: np.ndarray | None,
     return np.hstack([deflection, weight * np.asarray(rotation, dtype=float)])
 
 
-def kind_noise(residual: np.ndarray, n_total: int, p: int) -> float | None:
+def kind_noise(residual: np.ndarray | None, n_total: int, p: int) -> float | None:
     """Noise std of one kind from its residuals (any shape): ``sqrt(SS / (N_k - p N_k / N))``,
     the kind's share ``N_k / N`` of the ``p`` fitted parameters removed from its degrees of
-    freedom; ``None`` without degrees of freedom."""
+    freedom; ``None`` without degrees of freedom (or without residuals of the kind)."""
+    if residual is None:
+        return None
     n_k = residual.size
     dof = n_k - p * n_k / max(n_total, 1)
     if dof <= 0:
@@ -287,7 +289,7 @@ class Objective:
         finite differences (central, else forward) in the others."""
         x = np.asarray(x, dtype=float)
         self._evaluate(x)
-        if self._pred is None:
+        if self._pred is None or self._jac is None:  # the model failed: no prediction
             return np.zeros((self.n_res, self.p))
         out = (self._jac / self.scale).reshape(self.n_res, self.p)
         r0 = self._scaled(self._pred)
@@ -315,7 +317,7 @@ class Objective:
         :data:`UNSEEN_COLUMN` times the largest column's (none where the model fails)."""
         self._evaluate(x)
         mask = np.zeros(self.p, dtype=bool)
-        if self._pred is None:
+        if self._pred is None or self._jac is None:  # the model failed: no prediction
             return mask
         norms = np.linalg.norm(self._jac.reshape(-1, self.p), axis=0)
         mask[self.model.analytic_columns] = (norms <= UNSEEN_COLUMN * norms.max()
