@@ -435,7 +435,8 @@ def _noise_level(campaign: Campaign, ss_m2: float, dof: int, robust_sigma: float
             )
         # standard normal 97.5 % quantile
         return sigma, "declared noise_std", float(ndtri(0.975)), sigma_res, notes
-    # Student t, dof degrees of freedom
+    # Student t, dof degrees of freedom (> 0 without a declared noise: _check_residual_count)
+    assert sigma_res is not None
     return (sigma_res, "residuals (SS / (N - p))", float(stdtrit(dof, 0.975)), sigma_res,
             notes)
 
@@ -484,7 +485,9 @@ def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, opt
         weight = sigma_t / sigma_r
     else:
         rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2)))
-        rms_r = float(np.sqrt(np.mean(campaign.rotation ** 2)))
+        rotation = campaign.rotation
+        assert rotation is not None  # a campaign with rotations
+        rms_r = float(np.sqrt(np.mean(rotation ** 2)))
         weight = rms_t / rms_r if rms_t > 0 and rms_r > 0 else 1.0
         if sigma_t is not None:
             weight = sigma_t / rms_r if rms_r > 0 else 1.0
