@@ -335,7 +335,8 @@ class DesignResult:
                 "random_mean_noise_units": num(np.mean(rnd_sep)) if rnd_sep else None,
                 "existing_noise_units": None if self.existing is None
                 or self.existing.separation is None else num(self.existing.separation),
-                "rows_noise_units": [num(v) for v in self.row_separation],
+                "rows_noise_units": [] if self.row_separation is None
+                else [num(v) for v in self.row_separation],
             }
         return out
 
@@ -361,7 +362,7 @@ def design_robot(robot: str | None = None, frame: str | None = None,
     StiffnessError
         No robot from any of them.
     """
-    fallback = None
+    fallback: tuple[str, str | None, np.ndarray, tuple[str, ...]] | None = None
     if model is not None:
         fallback = (model.source, model.frame, model.target_offset_m, model.compliant_joints)
     elif existing is not None:
@@ -459,6 +460,7 @@ def design(
     search = _Search.of(cands, joints, k_arr, formulation, sigma, existing)
     alternatives = None
     if pair is not None:
+        assert existing is not None  # _check_request refuses a pair without one
         say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
         alternatives = fit_alternatives(existing, pair, noise_std_m)
         search.separate(alternatives)
@@ -615,6 +617,7 @@ class _Search:
         """Select for the separation of two alternatives fitted to the existing campaign."""
         self.alternatives = alternatives
         self.sep = separation_statistics(alternatives, self.cands)
+        assert self.existing is not None  # the alternatives were fitted to it
         self.existing.separation = float(np.sqrt(separation_score(self.sep.base)))
 
     def select(self, configs: int, loads_per_config: int, criterion: str) -> Selection:
@@ -637,7 +640,9 @@ class _Search:
         return pred
 
     def row_separation(self, selection: Selection) -> np.ndarray:
-        """(rows,) the predicted separation of each plan row, noise units."""
+        """(rows,) the predicted separation of each plan row, noise units (after
+        :meth:`separate`)."""
+        assert self.sep is not None  # called after separate()
         return self.sep.raw.reshape(-1)[selection.rows(self.cands.n_directions)]
 
     def notes(self, designed: Prediction, joints: tuple[str, ...]) -> list[str]:
