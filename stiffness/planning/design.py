@@ -459,8 +459,7 @@ def design(
         cands = candidate_set(robot, int(candidates), max_force, seed)
     search = _Search.of(cands, joints, k_arr, formulation, sigma, existing)
     alternatives = None
-    if pair is not None:
-        assert existing is not None  # _check_request refuses a pair without one
+    if pair is not None and existing is not None:  # _check_request: a pair has an existing
         say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
         alternatives = fit_alternatives(existing, pair, noise_std_m)
         search.separate(alternatives)
