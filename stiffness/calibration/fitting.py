@@ -48,7 +48,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -421,11 +421,11 @@ class FitJob:
 FORK_WORTH_S = 0.15
 
 
-def _sent_back(job: FitJob) -> Fit:
-    """``job``'s fit, without its model (a forked worker sends back only the arrays)."""
+def _sent_back(job: FitJob) -> dict:
+    """``job``'s fit without its model: the other fields of the :class:`Fit` (a forked worker
+    sends back only the arrays)."""
     fit = job.run()
-    fit.model = None
-    return fit
+    return {f.name: getattr(fit, f.name) for f in fields(fit) if f.name != "model"}
 
 
 def fit_models(jobs: list[FitJob], workers: int | None = None) -> list[Fit]:
@@ -451,10 +451,9 @@ def fit_models(jobs: list[FitJob], workers: int | None = None) -> list[Fit]:
     rest = jobs[1:]
     if (time.perf_counter() - start) * len(rest) < FORK_WORTH_S:
         return [first] + [job.run() for job in rest]
-    fits = forked_map([functools.partial(_sent_back, job) for job in rest], workers)
-    for fit, job in zip(fits, rest, strict=True):
-        fit.model = job.model
-    return [first] + fits
+    sent = forked_map([functools.partial(_sent_back, job) for job in rest], workers)
+    return [first] + [Fit(model=job.model, **values)
+                      for values, job in zip(sent, rest, strict=True)]
 
 
 @dataclass

@@ -265,7 +265,9 @@ class Hypothesis:
             return pred, jac
         k = np.exp(x[: len(self.compliant)])
         if self.baseline == "exact":
-            return self._exact(k)
+            exact, exact_jac = self._exact(k)
+            assert exact_jac is not None  # asked for
+            return exact, exact_jac
         a = np.broadcast_to(np.diag(k), (self.rows.n_rows, len(k), len(k))).copy()
         if self.baseline == "enhanced":
             a -= self.k_c()
@@ -403,7 +405,7 @@ class Hypothesis:
                 dx = dx + extra
         for e, p in zip(self.effects, params, strict=True):
             dx = e.adjust_output(p, dx)
-            if tangent:
+            if t_dx is not None:  # with the tangent
                 t_dx = e.output_tangent(p, t_dx)
         if self.rotation_weight is not None:
             h_w = self.h[:, 3:]
@@ -425,10 +427,10 @@ class Hypothesis:
                     dphi = dphi + extra
             for e, p in zip(self.effects, params, strict=True):
                 dphi = e.adjust_rotation(p, dphi)
-                if tangent:
+                if t_phi is not None:  # with the tangent
                     t_phi = e.rotation_tangent(p, t_phi)
             dx = np.hstack([dx, self.rotation_weight * dphi])
-            if tangent:
+            if t_dx is not None and t_phi is not None:  # with the tangent
                 t_dx = np.concatenate([t_dx, self.rotation_weight * t_phi], axis=1)
         tau = None
         if torques:
