@@ -51,6 +51,9 @@ import pinocchio as pin
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
 
+#: Whether a robot's link masses are trusted (joint compliance times gravity torque) or not
+#: (lumped compliance-times-mass-moment parameters): ``diagnose --masses``.
+MASSES = ("known", "unknown")
 #: Parameter families, in the order the columns are laid out.
 FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
             "gravity_lumped")

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy import stats
+from scipy import special
 
 from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
 from stiffness.calibration.diagnose import BIC_MARGIN
@@ -39,7 +39,7 @@ from stiffness.robot.robot import Robot, load_robot
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
 #: Families tried after the base, by whether the robot's masses are trusted.
-CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance"),
+CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance"),  # keys: MASSES
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
 #: Model-file kind of a pose calibration.
 POSE_MODEL_KIND = "pose-calibration"
@@ -81,7 +81,7 @@ class PoseDiagnosis:
         if noise is None:
             return None
         fit = self.final
-        return float(stats.chi2.sf(fit.rss() / noise ** 2, fit.n_observed - fit.n_fitted))
+        return float(special.chdtrc(fit.n_observed - fit.n_fitted, fit.rss() / noise ** 2))
 
     @property
     def unexplained(self) -> bool | None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, optimize, stats
+from scipy import linalg, optimize, special
 
 from stiffness.calibration.absolute import PoseModel, RowTerms, align_frames
 from stiffness.calibration.pose_campaign import PoseCampaign
@@ -28,7 +28,7 @@ from stiffness.errors import StiffnessError
 #: Smallest sine between a kept column and the span of the others (documented above).
 IDENTIFIABILITY_TOL = 1e-6
 #: Two-sided 95 % normal quantile.
-_Z95 = float(stats.norm.ppf(0.975))
+_Z95 = float(special.ndtri(0.975))
 
 
 @dataclass(frozen=True)

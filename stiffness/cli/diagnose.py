@@ -22,13 +22,11 @@ import json
 import shlex
 import sys
 
+from stiffness.calibration.absolute import MASSES
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fitting import LOSSES
-from stiffness.calibration.pose_campaign import load_pose_campaign
-from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
-from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 from stiffness.cli import flags
 from stiffness.errors import StiffnessError
 from stiffness.files import output_folder
@@ -57,7 +55,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="deflection campaigns: linear (least squares) or a robust loss "
                              "for every fit, scaled by the noise std, with intervals from "
                              "Huber's sandwich covariance; default linear")
-    parser.add_argument("--masses", choices=tuple(CANDIDATES), default="known",
+    parser.add_argument("--masses", choices=MASSES, default="known",
                         help="pose campaigns: whether the robot's link masses are trusted "
                              "(joint compliance times gravity torque) or unknown (lumped "
                              "compliance-times-mass-moment parameters); default known")
@@ -106,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
 
 def run_poses(args: argparse.Namespace) -> int:
     """``stiffness diagnose`` on a pose campaign (docs/absolute-poses.md)."""
+    from stiffness.calibration.pose_campaign import load_pose_campaign  # only for pose campaigns
+    from stiffness.calibration.pose_diagnose import diagnose_poses
+    from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
+
     if args.loss != "linear":
         raise StiffnessError("--loss takes deflection campaigns; pose campaigns are fitted by "
                              "least squares (drop --loss)")
