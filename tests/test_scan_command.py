@@ -631,3 +631,18 @@ def test_projected_bytes_bound_the_written_bytes_and_meet_the_free_space(tmp_pat
     assert not (tmp_path / "full").exists()
     monkeypatch.setattr(shutil_module, "disk_usage", lambda _: usage(10**9, 10**9, 600 * per))
     assert main([*argv, "--out", str(tmp_path / "fits")]) == 0
+
+
+def test_singularity_ratio_is_that_of_the_singular_values():
+    """sigma_min / sigma_max from J J^T's eigenvalues equals numpy's SVD (1e-12), 0 for a
+    rank-deficient or short Jacobian, NaN for a non-finite one."""
+    from stiffness.workspace.maps import singularity_ratio
+    rng = np.random.default_rng(4)
+    jac = rng.normal(size=(200, 3, 6))
+    jac[0, 2] = jac[0, 0] + jac[0, 1]  # rank 2: the ratio is (about) zero
+    jac[1, 0, 0] = np.nan
+    values = np.linalg.svd(np.nan_to_num(jac), compute_uv=False)
+    ratio = singularity_ratio(jac)
+    np.testing.assert_allclose(ratio[2:], values[2:, -1] / values[2:, 0], rtol=1e-12)
+    assert ratio[0] < 1e-7 and np.isnan(ratio[1])
+    assert np.all(singularity_ratio(rng.normal(size=(5, 3, 2))) == 0.0)
