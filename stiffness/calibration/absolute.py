@@ -209,14 +209,14 @@ class PoseModel:
         self.loads = loads
         model = robot.model
         self.frame_ids = [self._frame_id(m.frame) for m in markers]
-        self.joints = [j for j in range(1, model.njoints) if model.joints[j].nv == 1]
+        self.joints = one_dof_joints(model)
         self.compliant = [int(model.getJointId(n)) for n in robot.compliant_joints]
         self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
                          if c != _zero_component(model.joints[j].shortname())]
         self._geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
                                 np.array([c for _, c in self.geometry], dtype=int))
-        self._joints_v = [model.joints[j].idx_v for j in self.joints]
-        self._compliant_vs = [model.joints[j].idx_v for j in self.compliant]
+        self.joints_v = [model.joints[j].idx_v for j in self.joints]
+        self.compliant_v = [model.joints[j].idx_v for j in self.compliant]
         self._moves = {fid: np.array([j in set(model.supports[model.frames[fid].parentJoint])
                                       for j in self.joints], dtype=float)
                        for fid in set(self.frame_ids)}
@@ -250,20 +250,16 @@ class PoseModel:
                                   SCALES[fam], PLACEMENT_UNITS[c]) for n, c in self.geometry]
             elif fam == "joint_compliance":
                 out += [Parameter(fam, f"{names[j]} compliance", SCALES[fam],
-                                  self._unit(j, "rad/(N.m)", "m/N")) for j in self._compliant()]
+                                  self._unit(j, "rad/(N.m)", "m/N")) for j in self.compliant]
             else:
                 out += [Parameter(fam, f"{names[j]} x {names[k]} {p}", SCALES[fam],
                                   LUMPED_UNIT)
-                        for j in self._compliant() for k in self._downstream(j)
+                        for j in self.compliant for k in self._downstream(j)
                         for p in _GRAVITY_PARAMETERS]
         return out
 
     def _unit(self, joint: int, revolute: str, prismatic: str) -> str:
-        return prismatic if self.robot.model.joints[joint].shortname().startswith(
-            ("JointModelP", "JointModelPrismatic")) else revolute
-
-    def _compliant(self) -> list[int]:
-        return self.compliant
+        return prismatic if self.robot.is_prismatic(self.robot.model.names[joint]) else revolute
 
     def _downstream(self, joint: int) -> list[int]:
         """Joints whose links move with ``joint`` (its subtree, itself included)."""
@@ -316,7 +312,7 @@ class PoseModel:
         if "gravity_lumped" in self.families:
             regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(model.nv),
                                                         np.zeros(model.nv))
-            lumped = self._lumped_columns(regressor, self._compliant_v())
+            lumped = self._lumped_columns(regressor, self.compliant_v)
         return Torques(gravity, applied, lumped)
 
     def deflection(self, x: np.ndarray, torques: Torques) -> np.ndarray:
@@ -327,7 +323,7 @@ class PoseModel:
         """
         dq = np.zeros(self.robot.model.nv)
         sl = self.slices()
-        v_index = self._compliant_v()
+        v_index = self.compliant_v
         if "joint_compliance" in sl:
             torque = torques.wrench + (0.0 if "gravity_lumped" in sl else torques.gravity)
             dq[v_index] += x[sl["joint_compliance"]] * torque[v_index]
@@ -351,7 +347,7 @@ class PoseModel:
         offsets = np.zeros(model.nv)
         sl = self.slices().get("joint_offsets")
         if sl is not None:
-            offsets[self._joint_v()] = x[sl]
+            offsets[self.joints_v] = x[sl]
         if not self.elastic:
             return pin.integrate(model, row.q_full, offsets), None
         sag = np.zeros(model.nv)
@@ -367,14 +363,11 @@ class PoseModel:
                                "compliance is too large for the arm's weight; check the "
                                "campaign's units and masses")
 
-    def _compliant_v(self) -> list[int]:
-        return self._compliant_vs
-
     def _lumped_columns(self, regressor: np.ndarray, v_index: list[int]) -> np.ndarray:
         """d(Delta q)/d theta (nv, n_theta): minus the regressor entries of each pair."""
         nv = self.robot.model.nv
         cols = []
-        for j, vj in zip(self._compliant(), v_index, strict=True):
+        for j, vj in zip(self.compliant, v_index, strict=True):
             for k in self._downstream(j):
                 for p in range(len(_GRAVITY_PARAMETERS)):
                     col = np.zeros(nv)
@@ -459,10 +452,10 @@ class PoseModel:
             cols[:, start:start + 3] = to_measuring @ data.oMf[fid].rotation
         j_point = self._point_jacobian(model, data, fid, point)
         if "joint_offsets" in sl:
-            cols[:, sl["joint_offsets"]] = to_measuring @ j_point[:, self._joint_v()]
+            cols[:, sl["joint_offsets"]] = to_measuring @ j_point[:, self.joints_v]
         if torques is not None and "joint_compliance" in sl:
             torque = torques.wrench + (0.0 if "gravity_lumped" in sl else torques.gravity)
-            v_index = self._compliant_v()
+            v_index = self.compliant_v
             cols[:, sl["joint_compliance"]] = to_measuring @ (j_point[:, v_index]
                                                               * torque[v_index])
         if torques is not None and "gravity_lumped" in sl:
@@ -471,9 +464,6 @@ class PoseModel:
             cols[:, sl["geometry"]] = to_measuring @ self._geometry_columns(placement_frames, fid,
                                                                           point)
         return cols
-
-    def _joint_v(self) -> list[int]:
-        return self._joints_v
 
     @staticmethod
     def _point_jacobian(model: pin.Model, data: pin.Data, fid: int, point: np.ndarray
@@ -520,6 +510,12 @@ class PoseModel:
         cols = cols * self._moves[fid][:, None, None]
         rows, comps = self._geometry_index
         return cols[rows, :, comps].T
+
+def one_dof_joints(model: pin.Model) -> list[int]:
+    """Ids of the joints with one degree of freedom, in model order (those the geometry and
+    zero-offset families perturb)."""
+    return [j for j in range(1, model.njoints) if model.joints[j].nv == 1]
+
 
 def _zero_component(shortname: str) -> int | None:
     """Component of a placement error that is the joint's own zero offset, if any."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import UnionType
@@ -149,17 +150,26 @@ class TomlFile:
         return FileFormatError(problem, path=self.path, line=line, column=column, field=label)
 
 
-def _check_keys(table: dict, where: str, toml: TomlFile) -> None:
-    section = "" if where == "" else where
-    label = "top level" if where == "" else f"[{where}]"
+def _check_keys(table: dict, section: str, toml: TomlFile) -> None:
+    check_table_keys(table, section, toml, _TOML_KEYS[section], _REQUIRED_KEYS[section],
+                     lambda key, label: f"missing key {'' if section == '' else f'[{section}] '}"
+                                        f"{key}: add {_KEY_HELP[key]}")
+
+
+def check_table_keys(table: dict, section: str, toml: TomlFile, valid: set[str],
+                     required: tuple[str, ...], missing: Callable[[str, str], str],
+                     kind: str = "") -> None:
+    """Refuse an unknown key of ``[section]`` ("" the top level) with a did-you-mean, and a
+    missing required one with ``missing(key, label)``; ``kind`` follows the table's label in
+    the unknown-key message (e.g. " of a pose campaign")."""
+    label = "top level" if section == "" else f"[{section}]"
     for key in table:
-        if key not in _TOML_KEYS[section]:
-            raise toml.error(f"unknown key {key!r} in {label}; "
-                             f"{did_you_mean(key, sorted(_TOML_KEYS[section]))}", section, key)
-    for key in _REQUIRED_KEYS[section]:
+        if key not in valid:
+            raise toml.error(f"unknown key {key!r} in {label}{kind}; "
+                             f"{did_you_mean(key, sorted(valid))}", section, key)
+    for key in required:
         if key not in table:
-            prefix = "" if where == "" else f"[{where}] "
-            raise toml.error(f"missing key {prefix}{key}: add {_KEY_HELP[key]}", section)
+            raise toml.error(missing(key, label), section)
 
 
 def typed_value(value, kind: type | UnionType | tuple, toml: TomlFile, section: str, key: str,

@@ -23,6 +23,7 @@ from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
     RobotSettings,
     TomlFile,
+    check_table_keys,
     noise_section,
     robot_section,
     settings_robot,
@@ -30,7 +31,7 @@ from stiffness.calibration.campaign_toml import (
     units_section,
 )
 from stiffness.calibration.measurements import coordinates_in_si, parse_number
-from stiffness.errors import FileFormatError, MissingFileError, did_you_mean
+from stiffness.errors import FileFormatError, MissingFileError
 from stiffness.files import atomic_write, read_text, read_toml, staged_folder
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
@@ -110,15 +111,9 @@ class PoseCampaign:
 
 
 def _check_table(doc: dict, section: str, toml: TomlFile) -> None:
-    label = "top level" if section == "" else f"[{section}]"
-    for key in doc:
-        if key not in _KEYS[section]:
-            raise toml.error(f"unknown key {key!r} in {label} of a pose campaign; "
-                             f"{did_you_mean(key, sorted(_KEYS[section]))}", section, key)
-    for key in _REQUIRED[section]:
-        if key not in doc:
-            raise toml.error(f"missing key {key} in {label} of a pose campaign: see "
-                             "docs/absolute-poses.md", section)
+    check_table_keys(doc, section, toml, _KEYS[section], _REQUIRED[section],
+                     lambda key, label: f"missing key {key} in {label} of a pose campaign: "
+                                        "see docs/absolute-poses.md", " of a pose campaign")
 
 
 def _toml(path: Path) -> tuple[dict, TomlFile]:

@@ -7,7 +7,13 @@ import json
 import os
 from pathlib import Path
 
-from stiffness.calibration.pose_diagnose import PoseDiagnosis, write_pose_model
+from stiffness.calibration.pose_diagnose import (
+    PoseDiagnosis,
+    parameter_table,
+    residual_structure,
+    write_pose_model,
+)
+from stiffness.calibration.pose_fit import IDENTIFIABILITY_TOL
 from stiffness.files import atomic_write, staged_folder
 
 #: Files written by :func:`write_pose_diagnosis`.
@@ -33,11 +39,10 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): " + ", ".join(
             f"{f} ({v:+.3g})" for f, v in d.rejected.items()))
-    lines += ["", _verdict(d), "", "identifiability (tolerance "
-              f"{d.final.identifiability.to_dict(d.final.model)['tolerance']:g}):"]
+    lines += ["", _verdict(d), "", f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval):"]
-    for p in (p for p in d.to_dict()["parameters"] if p["fitted"]):
+    for p in (p for p in parameter_table(d.final) if p["fitted"]):
         lo, hi = p["interval_95"]
         lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
                      f"[{lo:.5g}, {hi:.5g}]")
@@ -51,7 +56,7 @@ def _verdict(d: PoseDiagnosis) -> str:
                 "cannot be said; declare [measurement] noise_std")
     if not d.unexplained:
         return f"explained to noise (chi-square p = {p:.3g})"
-    s = d.to_dict()["residual_structure"]
+    s = residual_structure(d.final, d.campaign)
     trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
     where = ("" if trend is None else
              f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")

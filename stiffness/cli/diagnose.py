@@ -21,6 +21,8 @@ import argparse
 import json
 import shlex
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
 from stiffness.calibration.absolute import MASSES
 from stiffness.calibration.campaign import campaign_kind, load_campaign
@@ -93,13 +95,7 @@ def run(args: argparse.Namespace) -> int:
                       propose=not args.no_proposals, progress=progress if show else None,
                       workers=args.workers, loss=args.loss)
     paths = result.write(args.out, command_line(args)) if args.out else None
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
-        return 0
-    print(format_report(result))
-    if paths:
-        print("written: " + ", ".join(str(p) for p in paths.values()))
-    return 0
+    return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
 
 
 def run_poses(args: argparse.Namespace) -> int:
@@ -120,10 +116,16 @@ def run_poses(args: argparse.Namespace) -> int:
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
                             if show else None)
     paths = write_pose_diagnosis(result, args.out) if args.out else None
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
+    return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
+
+
+def _emit(as_json: bool, record: dict, report: Callable[[], str],
+          paths: dict[str, Path] | None) -> int:
+    """Print ``record`` as JSON, or the text report and the files written."""
+    if as_json:
+        print(json.dumps(record, indent=1, allow_nan=False))
         return 0
-    print(format_pose_report(result))
+    print(report())
     if paths:
         print("written: " + ", ".join(str(p) for p in paths.values()))
     return 0

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Loads, Marker, require_joint_springs
+from stiffness.calibration.absolute import Loads, Marker, one_dof_joints, require_joint_springs
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.poses import sample_coordinates
@@ -56,14 +56,10 @@ class HiddenPoseErrors:
     drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
-def _joints(model: pin.Model) -> list[int]:
-    return [j for j in range(1, model.njoints) if model.joints[j].nv == 1]
-
-
 def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
     """The robot's model with the hidden placement errors applied (``M_j exp(eps_j)``)."""
     model = pin.Model(robot.model)
-    for j, eps in zip(_joints(model), hidden.placement_errors, strict=True):
+    for j, eps in zip(one_dof_joints(model), hidden.placement_errors, strict=True):
         model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(eps))
     return model
 
@@ -138,5 +134,5 @@ def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: n
              ) -> np.ndarray:
     """The configuration the links are at before sagging: commanded plus zero offsets."""
     offsets = np.zeros(model.nv)
-    offsets[[model.joints[j].idx_v for j in _joints(model)]] = hidden.joint_offsets
+    offsets[[model.joints[j].idx_v for j in one_dof_joints(model)]] = hidden.joint_offsets
     return pin.integrate(model, robot.configuration(coords), offsets)
