@@ -420,3 +420,18 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
                  "--units", "length=mm", "--marker", "tip=tool0", "--marker", "elbow=forearm_link",
                  "--out", str(tmp_path / "other")]) == 2
     assert "some but not all" in capsys.readouterr().err
+
+
+def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error():
+    """30 Panda poses cannot determine the lumped gravity parameters: trial steps and folds
+    whose sag diverges are refused (no ConvergenceError escapes), the family is not added."""
+    arm = tuple(f"panda_joint{i}" for i in range(1, 8))
+    panda = load_robot("panda", frame="panda_hand", compliant_joints=arm)
+    joints = sum(panda.model.joints[j].nv == 1 for j in range(1, panda.model.njoints))
+    marker = [Marker("hand", "panda_hand", np.array([0.0, 0.0, 0.1]))]
+    hidden = HiddenPoseErrors(np.eye(3), np.array([1.0, 0.0, 0.0]), np.array([[0, 0, 0.101]]),
+                              np.full(joints, 1e-3), np.zeros((joints, 6)), np.full(7, 2e4))
+    d = diagnose_poses(simulate_pose_campaign(panda, marker, hidden, 30, NOISE, seed=1),
+                       masses="unknown")
+    assert "gravity_lumped" not in d.families and "gravity_lumped" in d.rejected
+    assert d.unexplained is True

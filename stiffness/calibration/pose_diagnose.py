@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,7 +33,7 @@ from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, predict, rows_of, starting_frame
 from stiffness.calibration.selection import GOF_LEVEL, config_folds
 from stiffness.calibration.validation import error_summary
-from stiffness.errors import FileFormatError, StiffnessError
+from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.files import atomic_write, read_json
 from stiffness.robot.robot import Robot, load_robot
 
@@ -163,13 +164,17 @@ def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
 def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
             frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray]) -> float:
     """Held-out RMS of the residual components, each fold fitted on the others (started from
-    the fit on every row)."""
+    the fit on every row); infinite when a fold's model predicts a sag that does not converge
+    at a held-out pose (its family is then not added)."""
     sq, count = 0.0, 0
     for test in folds:
         train = np.setdiff1d(np.arange(campaign.n_rows), test)
         part = _fit(campaign.subset(train), families, frame0, fit)
         held = campaign.subset(test)
-        err = held.positions - predict(part.model, part.x, held)
+        try:
+            err = held.positions - predict(part.model, part.x, held)
+        except ConvergenceError:  # the fold's model sags without bound at a held-out pose
+            return math.inf
         err = err[np.isfinite(err)]
         sq, count = sq + float(err @ err), count + err.size
     return float(np.sqrt(sq / max(count, 1)))
@@ -286,11 +291,14 @@ def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLi
 
 
 def is_pose_model(path: str | os.PathLike) -> bool:
-    """Whether ``path`` is a pose calibration's model file (a JSON object of that kind)."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"))
-    except (OSError, ValueError):
-        return False
+    """Whether ``path`` is a pose calibration's model file (a JSON object of that kind).
+
+    Raises
+    ------
+    StiffnessError
+        The file is missing, unreadable or not JSON (named, whatever kind it was meant to be).
+    """
+    doc = read_json(path, "model file")
     return isinstance(doc, dict) and doc.get("kind") == POSE_MODEL_KIND
 
 

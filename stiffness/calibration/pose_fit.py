@@ -23,10 +23,13 @@ from scipy import linalg, optimize, special
 
 from stiffness.calibration.absolute import PoseModel, RowTerms, align_frames
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.errors import StiffnessError
+from stiffness.errors import ConvergenceError, StiffnessError
 
 #: Smallest sine between a kept column and the span of the others (documented above).
 IDENTIFIABILITY_TOL = 1e-6
+#: Residual (m, each component) of a trial step whose sag does not converge (an unphysically
+#: large compliance): far above any measured error, so the solver refuses the step.
+DIVERGED_RESIDUAL_M = 1.0
 #: Two-sided 95 % normal quantile.
 _Z95 = float(special.ndtri(0.975))
 
@@ -206,6 +209,20 @@ def observed_mask(campaign: PoseCampaign) -> np.ndarray:
     return np.isfinite(campaign.positions)
 
 
+def _identifiable(model: PoseModel, rows: list[RowTerms], observed: np.ndarray,
+                  order: list[str], x: np.ndarray) -> Identifiability:
+    """The identifiable parameters at ``x`` (at zero if the sag diverges there)."""
+    try:
+        _, jac = model.evaluate(x, rows)
+    except ConvergenceError:
+        _, jac = model.evaluate(np.zeros(model.size), rows)
+    assert jac is not None
+    sl = model.slices()
+    return reduce_columns(_scaled(jac, observed, model),
+                          [list(range(sl[f].start, sl[f].stop)) for f in order],
+                          np.array([p.scale for p in model.parameters]))
+
+
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
@@ -216,7 +233,9 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         The model's families in the order they were chosen (earlier families keep the
         directions they share with later ones).
     x0
-        Starting parameters (p,), default zero.
+        Starting parameters (p,), default zero. A start whose sag diverges once the parameters
+        this campaign cannot identify are zeroed (a warm start from a fit on other rows) falls
+        back to zero.
 
     Raises
     ------
@@ -225,22 +244,24 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     """
     x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
     observed = observed_mask(campaign)
-    _, jac = model.evaluate(x, rows)
-    assert jac is not None
-    scaled = _scaled(jac, observed, model)
-    sl = model.slices()
-    ident = reduce_columns(scaled, [list(range(sl[f].start, sl[f].stop)) for f in order],
-                           np.array([p.scale for p in model.parameters]))
+    ident = _identifiable(model, rows, observed, order, x)
     kept = ident.kept
     if len(kept) >= int(observed.sum()):
         raise StiffnessError(f"{len(kept)} identifiable parameters but only "
                              f"{int(observed.sum())} measured components; measure more poses")
     x[[d.index for d in ident.dropped]] = 0.0
+    try:
+        model.evaluate(x, rows, jacobian=False)
+    except ConvergenceError:
+        x[:] = 0.0
     measured = campaign.positions[observed]
 
     def residual(z: np.ndarray) -> np.ndarray:
         x[kept] = z
-        y, _ = model.evaluate(x, rows, jacobian=False)
+        try:
+            y, _ = model.evaluate(x, rows, jacobian=False)
+        except ConvergenceError:  # a trial step whose sag diverges: refused as a bad step
+            return np.full(measured.shape, DIVERGED_RESIDUAL_M)
         return y[observed] - measured
 
     def jacobian(z: np.ndarray) -> np.ndarray:
