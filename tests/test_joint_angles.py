@@ -33,7 +33,10 @@ ARMS = [
     ("kinova", ["j2s6s200_joint_1", "j2s6s200_joint_2", "j2s6s200_joint_3"], [2e4, 1.5e4, 1e4],
      "j2s6s200_joint_2"),
 ]
-COMPENSATOR = (1e5, 3000.0)  # N/m, N
+#: The hidden compensator: a zero-free-length spring (F0 = k (d - a) with the default lever
+#: a = 0.1 m and base d = 0.3 m: its tension is k times its length, the classical balancer),
+#: its angle measured from the link straight up (N/m, N)
+COMPENSATOR = (1e5, 2e4)
 
 
 def _sim(arm, seed, joint_angles="link", noise=NOISE):
@@ -109,9 +112,10 @@ def test_link_tangent_against_central_differences():
 
 @pytest.mark.parametrize("arm", ARMS, ids=[a[0] for a in ARMS])
 def test_hidden_compensator_named_first_and_covered_over_ten_seeds(arm):
-    """Link-angle campaigns with a hidden compensator: named first at its joint (measured 10 of
-    10 on both arms), no gravity preload named (none simulated), the stiffness and preload
-    intervals covering the truth at a rate consistent with 95 %."""
+    """Link-angle campaigns with a hidden compensator: named first at its joint (measured 9 of
+    10 on the UR5, 10 of 10 on the Kinova; in the UR5's seed 0 the refitted stiffnesses leave
+    nothing above the noise), no gravity preload named (none simulated), the stiffness and
+    preload intervals covering the truth at a rate consistent with 95 %."""
     named = covered = total = 0
     for seed in range(10):
         d = diagnose(_sim(arm, seed).campaign, propose=False)

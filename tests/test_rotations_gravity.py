@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 
 import numpy as np
 import pinocchio as pin
@@ -254,7 +255,12 @@ def test_compensator_in_the_model_file_enters_k_x(tmp_path):
     # the spring's angle derivative is the joint's extra stiffness at the preloaded angle
     i = cm.robot.compliant_joints.index("shoulder_lift_joint")
     jm = cm.robot.model.joints[cm.robot.model.getJointId("shoulder_lift_joint")]
-    _, dtau = spring_balancer(at.q[jm.idx_q], comp[0].value("stiffness"),
+    # its angle is measured from the link straight up (the UR5's upper arm lies along x at
+    # the joint's zero, so up is about -pi/2)
+    assert comp[0].settings["angle_reference"] == "upward"
+    angle_up = comp[0].settings["angle_up_rad"]
+    assert angle_up == pytest.approx(-math.pi / 2, abs=0.02)
+    _, dtau = spring_balancer(at.q[jm.idx_q] - angle_up, comp[0].value("stiffness"),
                               comp[0].value("preload"), 0.1, 0.3, 0.0)
     assert at.k_preload[i, i] == pytest.approx(dtau, rel=1e-12)
     assert abs(at.q[jm.idx_q] - q[1]) > 1e-6            # the spring's torque moved the arm

@@ -60,9 +60,9 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
 )
 from stiffness.mechanics.gravity import (
+    compensator_torque,
     gravity_preload,
     require_open_chain,
-    spring_balancer,
     with_payload,
 )
 from stiffness.mechanics.ik import all_coordinates
@@ -106,8 +106,7 @@ def joint_preload(robot: Robot, weighed: pin.Model | None,
             k = np.zeros((n, n))
     for joint, k_s, f0, g in compensators:
         i = list(robot.compliant_joints).index(joint)
-        t, dt = spring_balancer(robot.value_of(q, joint), k_s, f0, g["lever_m"], g["base_m"],
-                                g["angle0_rad"])
+        t, dt = compensator_torque(robot.value_of(q, joint), k_s, f0, g)
         tau[i] += t
         k[i, i] += dt
     return tau, k

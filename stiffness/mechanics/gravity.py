@@ -8,9 +8,16 @@ equilibrium under ``K dtheta = J^T W + tau_g(theta)``, linearised ``tau_g(theta_
 Both come from Pinocchio's analytical ``computeGeneralizedGravity`` and
 ``computeGeneralizedGravityDerivatives``. Open chains only: in a closed loop the passive joints'
 weight would have to be carried through the loop's constraint (not implemented; a typed error).
+
+A spring gravity compensator on a revolute joint (:func:`compensator_torque`) measures its angle
+from the link's upward direction at zero load (:func:`upward_angle`): the joint angle at which
+the centre of mass of everything the joint carries lies straight above its axis.
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
@@ -77,12 +84,13 @@ def spring_balancer(theta: float | np.ndarray, stiffness: float, preload: float,
 
     A spring runs from a point on the base side, ``base_m`` from the joint axis, to a point on
     the link's lever, ``lever_m`` from the axis; ``phi = theta + angle0`` is the angle between
-    the two at the axis (``angle0`` at the joint's zero). Its length and force are
+    the two at the axis, ``theta`` the joint's angle from its reference pose (the link straight
+    up, :func:`compensator_torque`; ``angle0`` the angle there). Its length and force are
 
     ``L^2 = a^2 + d^2 - 2 a d cos(phi)``, ``F = F_0 + k_s (L - L(theta = 0))``
 
     (``a = lever_m``, ``d = base_m``, ``k_s = stiffness`` N/m, ``F_0 = preload`` N, the tension
-    at the joint's zero). The torque on the joint and its derivative are
+    at the reference pose). The torque on the joint and its derivative are
 
     ``tau_s = -F L'``, ``d tau_s / d theta = -(k_s L'^2 + F L'')``, with ``L L' = a d sin(phi)``
     and ``L'^2 + L L'' = a d cos(phi)``,
@@ -92,7 +100,7 @@ def spring_balancer(theta: float | np.ndarray, stiffness: float, preload: float,
     Parameters
     ----------
     theta
-        Joint angles (rad), any shape.
+        Joint angles from the reference pose (rad), any shape.
 
     Returns
     -------
@@ -107,3 +115,92 @@ def spring_balancer(theta: float | np.ndarray, stiffness: float, preload: float,
     d2 = (a * d * np.cos(phi) - d1 ** 2) / length
     force = preload + stiffness * (length - length0)
     return -force * d1, -(stiffness * d1 ** 2 + force * d2)
+
+
+#: Where a compensator's angle is measured from: the link's upward direction at zero load, or
+#: the joint's zero where the model has no upward direction (:func:`upward_angle`).
+ANGLE_REFERENCES = ("upward", "joint_zero")
+#: Below this (m) the carried centre of mass is on the joint's axis.
+COM_ON_AXIS_M = 1e-6
+#: Below this sine the joint's axis is parallel to gravity (no direction is up).
+AXIS_ALONG_GRAVITY = 1e-6
+
+
+@dataclass(frozen=True)
+class UpwardAngle:
+    """Where a compensator's angle is measured from (:func:`upward_angle`).
+
+    Attributes
+    ----------
+    angle_rad
+        The joint angle (rad) at which the carried centre of mass is straight above the axis
+        (``upward``), or 0 (``joint_zero``).
+    reference
+        One of :data:`ANGLE_REFERENCES`.
+    reason
+        Why the joint's zero is the reference (empty for ``upward``).
+    """
+
+    angle_rad: float
+    reference: str
+    reason: str = ""
+
+
+def upward_angle(robot: Robot, joint: str) -> UpwardAngle:
+    """The angle of revolute ``joint`` at which the centre of mass of everything it carries
+    (its Pinocchio subtree, links' inertias) lies straight above its axis, the other joints at
+    the neutral configuration and no load.
+
+    The carried centre of mass ``c`` and the upward direction ``u = -g/|g|``
+    (``model.gravity``) are projected on the plane normal to the axis ``z`` through the joint
+    origin; turning the joint by ``atan2(z . (c x u), c . u)`` from its neutral angle brings
+    ``c`` above the axis.
+
+    Returns
+    -------
+    UpwardAngle
+        ``upward`` with that angle (rad), or ``joint_zero`` (angle 0) with the reason when no
+        direction is up: the axis parallel to gravity, no gravity, or the carried centre of
+        mass on the axis (e.g. a DH robot without masses).
+    """
+    model = robot.model
+    data = model.createData()
+    q = pin.neutral(model)
+    jid = model.getJointId(joint)
+    pin.centerOfMass(model, data, q, True)  # data.com[j]: subtree centre, joint j's frame
+    pin.computeJointJacobians(model, data, q)
+    jacobian = np.asarray(pin.getJointJacobian(model, data, jid, pin.LOCAL)).reshape(6, model.nv)
+    axis = jacobian[3:, model.joints[jid].idx_v]
+    axis = axis / np.linalg.norm(axis)
+    gravity = data.oMi[jid].rotation.T @ np.asarray(model.gravity.linear, dtype=float)
+    up = -gravity - axis * (axis @ -gravity)
+    com = np.asarray(data.com[jid], dtype=float)
+    com = com - axis * (axis @ com)
+    g_norm = float(np.linalg.norm(gravity))
+    if g_norm == 0.0 or np.linalg.norm(up) <= AXIS_ALONG_GRAVITY * g_norm:
+        return UpwardAngle(0.0, "joint_zero", "the axis is parallel to gravity (or the model "
+                                              "has none): no direction is up")
+    if not data.mass[jid] > 0.0:
+        return UpwardAngle(0.0, "joint_zero", f"{joint} carries no mass (a model without link "
+                                              "inertias): no direction is up")
+    if np.linalg.norm(com) <= COM_ON_AXIS_M:
+        return UpwardAngle(0.0, "joint_zero", f"the centre of mass {joint} carries is on its "
+                                              "axis: no direction is up")
+    turn = math.atan2(float(axis @ np.cross(com, up)), float(com @ up))
+    return UpwardAngle(robot.value_of(q, joint) + turn, "upward")
+
+
+def compensator_torque(theta: float | np.ndarray, stiffness: float, preload: float,
+                       geometry: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Torque (N.m) of a spring compensator at joint angles ``theta`` (rad) and its angle
+    derivative (N.m/rad): :func:`spring_balancer` at ``phi = theta - angle_up_rad +
+    angle0_rad``, the tension ``preload`` (N) at ``theta = angle_up_rad``.
+
+    ``geometry``: ``lever_m``, ``base_m`` (m), ``angle_up_rad`` (the reference angle,
+    :func:`upward_angle`; 0 at the joint's zero) and ``angle0_rad`` (the angle between lever
+    and base there; 0 when the lever points at the base point, as the upward reference places
+    it; a model file's older settings give it without ``angle_up_rad``).
+    """
+    relative = np.asarray(theta, dtype=float) - float(geometry.get("angle_up_rad", 0.0))
+    return spring_balancer(relative, stiffness, preload, geometry["lever_m"],
+                           geometry["base_m"], float(geometry.get("angle0_rad", 0.0)))

@@ -33,9 +33,10 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
   the joints; the deflection is the loaded minus the unloaded exact equilibrium under that
   weight (open chains only).
 * ``gravity_compensator:J=k,F0``: a spring compensator of stiffness k (N/m) and tension F0 (N)
-  at the joint's zero on the revolute compliant joint J, geometry
-  :data:`stiffness.elastic.effects.preloads.COMPENSATOR_GEOMETRY`
-  (:func:`stiffness.mechanics.gravity.spring_balancer`), in the exact equilibrium.
+  with the link straight up on the revolute compliant joint J, its angle measured from the
+  link's upward direction at zero load (:func:`stiffness.mechanics.gravity.upward_angle`),
+  lever and base :data:`stiffness.elastic.effects.preloads.COMPENSATOR_GEOMETRY`
+  (:func:`stiffness.mechanics.gravity.compensator_torque`), in the exact equilibrium.
 
 With ``rotations``, the campaign also records the rotation vector of the target frame between
 the unloaded and the loaded equilibrium (base axes; rotated by a hidden frame misalignment,

@@ -53,10 +53,10 @@ The library (:data:`LIBRARY`):
     axes) preload the joints (:meth:`Effect.preload`): the deflection is the loaded minus the
     unloaded equilibrium at the commanded pose (open chains only).
 ``gravity_compensator`` (where: a revolute compliant joint)
-    A spring between the base and a lever on the link
-    (:func:`stiffness.mechanics.gravity.spring_balancer`; parameters its stiffness N/m and its
-    tension N at the joint's zero): its torque preloads the joint, its angle derivative adds
-    to the joint's stiffness.
+    A spring between the base and a lever on the link, its angle measured from the link's
+    upward direction at zero load (:func:`stiffness.mechanics.gravity.compensator_torque`;
+    parameters its stiffness N/m and its tension N with the link straight up): its torque
+    preloads the joint, its angle derivative adds to the joint's stiffness.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """

@@ -313,7 +313,8 @@ class ElasticParts:
         preloads the joints, else ``None``.
     compensators
         ``(joint, stiffness N/m, tension N, geometry)`` spring gravity compensators (geometry:
-        ``lever_m``, ``base_m``, ``angle0_rad``).
+        ``lever_m``, ``base_m``, ``angle_up_rad``, ``angle0_rad``, ``angle_reference``:
+        :func:`stiffness.mechanics.gravity.compensator_torque`).
     target_shift
         (3,) m in target frame axes: where the true target is from the declared one.
     keep_target
@@ -379,7 +380,8 @@ class ElasticParts:
 
     def add_compensator(self, joint: str, stiffness: float, tension: float,
                         geometry: dict) -> None:
-        """A spring gravity compensator on ``joint`` (N/m, N at the joint's zero)."""
+        """A spring gravity compensator on ``joint`` (N/m, N with the link at its reference
+        angle; ``geometry``: :func:`stiffness.mechanics.gravity.compensator_torque`)."""
         self.compensators.append((joint, float(stiffness), float(tension), dict(geometry)))
 
     def shift_target(self, label: str, delta: np.ndarray) -> None:

@@ -19,12 +19,20 @@ import numpy as np
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
-from stiffness.mechanics.gravity import require_open_chain, spring_balancer
+from stiffness.mechanics.gravity import (
+    ANGLE_REFERENCES,
+    compensator_torque,
+    require_open_chain,
+    upward_angle,
+)
 
-#: Default geometry of ``gravity_compensator`` (m, m, rad): lever on the link, distance of the
-#: base attachment from the axis, angle between them at the joint's zero.
-COMPENSATOR_GEOMETRY = {"lever_m": 0.1, "base_m": 0.3, "angle0_rad": 0.0}
-
+#: Default geometry of ``gravity_compensator`` (m, m, rad, rad): lever on the link, distance of
+#: the base attachment from the axis, the reference angle (:func:`upward_angle`; 0: the joint's
+#: zero, as a model file written before the upward reference reads) and the angle between lever
+#: and base there.
+COMPENSATOR_GEOMETRY: dict[str, float | str] = {
+    "lever_m": 0.1, "base_m": 0.3, "angle_up_rad": 0.0, "angle0_rad": 0.0,
+    "angle_reference": "joint_zero"}
 
 class GravityPreload(Effect):
     """The robot's weight (URDF inertias) and a payload preload the joints at every pose."""
@@ -85,13 +93,18 @@ class GravityPreload(Effect):
 
 @dataclass(eq=False)
 class GravityCompensator(Effect):
-    """A spring between the base and a lever on the joint's link
-    (:func:`stiffness.mechanics.gravity.spring_balancer`)."""
+    """A spring between the base and a lever on the joint's link, its angle measured from the
+    link's upward direction at zero load
+    (:func:`stiffness.mechanics.gravity.compensator_torque`,
+    :func:`stiffness.mechanics.gravity.upward_angle`)."""
 
     joint_name: str = ""
-    lever_m: float = COMPENSATOR_GEOMETRY["lever_m"]
-    base_m: float = COMPENSATOR_GEOMETRY["base_m"]
-    angle0_rad: float = COMPENSATOR_GEOMETRY["angle0_rad"]
+    lever_m: float = float(COMPENSATOR_GEOMETRY["lever_m"])
+    base_m: float = float(COMPENSATOR_GEOMETRY["base_m"])
+    angle0_rad: float = float(COMPENSATOR_GEOMETRY["angle0_rad"])
+    angle_up_rad: float = float(COMPENSATOR_GEOMETRY["angle_up_rad"])
+    angle_reference: str = str(COMPENSATOR_GEOMETRY["angle_reference"])
+    reference_reason: str = ""
     name: ClassVar[str] = "gravity_compensator"
     param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
     beyond_springs: ClassVar[bool] = True
@@ -102,6 +115,10 @@ class GravityCompensator(Effect):
             raise StiffnessError(f"gravity_compensator:{self.joint_name} needs a lever and a "
                                  f"base distance that are positive and differ, got "
                                  f"{self.lever_m} and {self.base_m} m")
+        if self.angle_reference not in ANGLE_REFERENCES:
+            raise StiffnessError(f"gravity_compensator:{self.joint_name}: angle_reference must "
+                                 f"be one of {', '.join(ANGLE_REFERENCES)}, got "
+                                 f"{self.angle_reference!r}")
 
     @classmethod
     def at_place(cls, where, geometry):
@@ -112,7 +129,9 @@ class GravityCompensator(Effect):
                                     f"gravity_compensator:{revolute[0]}; "
                                     f"{did_you_mean(str(where), revolute)}", name=str(where),
                                     choices=revolute)
-        return cls(joint_name=where)
+        up = upward_angle(geometry.robot, where)
+        return cls(joint_name=where, angle_up_rad=up.angle_rad, angle_reference=up.reference,
+                   reference_reason=up.reason)
 
     @classmethod
     def declared(cls, where, settings):
@@ -120,8 +139,12 @@ class GravityCompensator(Effect):
 
     def configured(self, settings):
         g = {**COMPENSATOR_GEOMETRY, **settings}
-        return dataclasses.replace(self, lever_m=g["lever_m"], base_m=g["base_m"],
-                                   angle0_rad=g["angle0_rad"])
+        return dataclasses.replace(self, lever_m=float(g["lever_m"]), base_m=float(g["base_m"]),
+                                   angle0_rad=float(g["angle0_rad"]),
+                                   angle_up_rad=float(g["angle_up_rad"]),
+                                   angle_reference=str(g["angle_reference"]),
+                                   reference_reason="" if "angle_reference" in settings
+                                   else "a model file written before the upward reference")
 
     def file_settings(self, refs):
         return dict(self.settings)
@@ -135,8 +158,9 @@ class GravityCompensator(Effect):
 
     @property
     def settings(self) -> dict:
-        """The spring's geometry (SI)."""
-        return {"lever_m": self.lever_m, "base_m": self.base_m, "angle0_rad": self.angle0_rad}
+        """The spring's geometry (SI) and where its angle is measured from."""
+        return {"lever_m": self.lever_m, "base_m": self.base_m, "angle_up_rad": self.angle_up_rad,
+                "angle0_rad": self.angle0_rad, "angle_reference": self.angle_reference}
 
     def scale(self, refs):
         ad = self.lever_m * self.base_m
@@ -147,7 +171,7 @@ class GravityCompensator(Effect):
 
     def torque(self, p: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Spring torque (N.m) on the joint at angles ``theta`` (rad) and its derivative."""
-        return spring_balancer(theta, p[0], p[1], self.lever_m, self.base_m, self.angle0_rad)
+        return compensator_torque(theta, p[0], p[1], self.settings)
 
     def preload(self, p, model, rows):
         column = model.joints.index(self.joint_name)
@@ -163,5 +187,12 @@ class GravityCompensator(Effect):
         return [("N/m", 1.0), ("N", 1.0)]
 
     def describe(self) -> str:
-        return (f"a spring gravity compensator on {self.joint_name} adds its torque and its "
-                "angle derivative (a stiffness) to the joint")
+        if self.angle_reference == "upward":
+            origin = (f"its angle measured from the link's upward direction at zero load "
+                      f"({self.joint_name} = {self.angle_up_rad:.4g} rad)")
+        else:
+            why = f": {self.reference_reason}" if self.reference_reason else ""
+            origin = f"its angle measured from the joint's zero{why}"
+        return (f"a spring gravity compensator on {self.joint_name} (lever {self.lever_m:g} m, "
+                f"base {self.base_m:g} m, {origin}) adds its torque and its angle derivative "
+                "(a stiffness) to the joint")
