@@ -19,10 +19,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy import stats
 
-from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
+from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
@@ -72,7 +73,7 @@ def test_jacobian_matches_finite_differences(ur10, sagging):
     the torques at the loaded configuration fixed: the documented C dtau/dq approximation)."""
     rng = np.random.default_rng(0)
     frame0 = (pin.exp3(rng.normal(size=3)), np.array([1.0, 2.0, 0.5]))
-    model = PoseModel(ur10, _markers(), FAMILIES, frame0, Loads("tool0", np.zeros((0, 6))))
+    model = PoseModel(ur10, _markers(), tuple(FAMILIES), frame0, Loads("tool0", np.zeros((0, 6))))
     rows = [model.row_terms(ur10.configuration(rng.uniform(-2, 2, 6)), rng.normal(size=6) * 50)
             for _ in range(3)]
     scales = np.array([p.scale for p in model.parameters])

@@ -9,7 +9,7 @@ wrench. The prediction of marker ``m`` on row ``i`` is
     y_{im} = \\exp(\\omega) R_0 \\; {}^{0}M_{f_m}(q_i + \\delta_0 + \\Delta q_i;\\ \\varepsilon)
              \\,(o_m + \\delta o_m) + t_0 + t,
 
-with the parameter families of :data:`FAMILIES`:
+with the parameter families of :data:`stiffness.calibration.pose_families.FAMILIES`:
 
 ``frame``
     the measuring frame's placement relative to its starting estimate ``R_0, t_0``: ``t`` (m,
@@ -48,28 +48,24 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from stiffness.calibration.pose_families import FAMILIES
+from stiffness.calibration.pose_families.base import (
+    MarkerView,
+    Parameter,
+    PoseFamily,
+    RowTerms,
+    SagState,
+)
+from stiffness.calibration.pose_families.geometric import MeasuringFrame
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
 
 #: Whether a robot's link masses are trusted (joint compliance times gravity torque) or not
 #: (lumped compliance-times-mass-moment parameters): ``diagnose --masses``.
 MASSES = ("known", "unknown")
-#: Parameter families, in the order the columns are laid out.
-FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
-            "gravity_lumped")
-#: Typical size of one parameter of each family (SI), used to scale the regressor's columns.
-SCALES = {"frame": 1e-3, "markers": 1e-3, "joint_offsets": 1e-3, "geometry": 1e-3,
-          "joint_compliance": 1e-6, "gravity_lumped": 1e-6}
-#: Units of the six components of a placement (the frame's and the geometry's).
-PLACEMENT_UNITS = ("m", "m", "m", "rad", "rad", "rad")
-#: Unit of a lumped gravity parameter (compliance times a mass or a mass moment).
-LUMPED_UNIT = "rad/(N.m) x (kg or kg.m)"
-_AXES6 = ("x", "y", "z", "rx", "ry", "rz")
 #: Tolerance (rad or m) and iteration cap of the sag's fixed point.
 SAG_TOLERANCE = 1e-13
 SAG_ITERATIONS = 50
-#: Gravity parameters of a link in Pinocchio's order (m, m c_x, m c_y, m c_z, inertia...).
-_GRAVITY_PARAMETERS = ("m", "mcx", "mcy", "mcz")
 
 
 class PoseModelError(StiffnessError):
@@ -111,16 +107,6 @@ class Marker:
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
-@dataclass(frozen=True)
-class Parameter:
-    """One column of the regressor: its family, label, scale and unit."""
-
-    family: str
-    label: str
-    scale: float
-    unit: str
-
-
 @dataclass
 class Loads:
     """Applied wrenches of each row (world axes, at a frame's origin), or none.
@@ -137,41 +123,6 @@ class Loads:
     wrench: np.ndarray
 
 
-@dataclass(frozen=True)
-class RowTerms:
-    """What a row gives the model: the commanded configuration and the applied wrench.
-
-    Attributes
-    ----------
-    q_full
-        Commanded Pinocchio configuration (nq,).
-    wrench
-        Applied wrench (6,) in world axes at the load frame (N, N.m), or ``None``.
-    """
-
-    q_full: np.ndarray
-    wrench: np.ndarray | None
-
-
-@dataclass(frozen=True)
-class Torques:
-    """Generalised forces at a configuration (nv,), N.m or N.
-
-    Attributes
-    ----------
-    gravity
-        Gravity's generalised force ``-g(q)``.
-    wrench
-        The applied wrench's ``J_load(q)^T w``.
-    lumped
-        d(Delta q)/d theta of the lumped gravity parameters (nv, n_theta).
-    """
-
-    gravity: np.ndarray
-    wrench: np.ndarray
-    lumped: np.ndarray
-
-
 class PoseModel:
     """Predicted absolute marker positions and their analytic Jacobian.
 
@@ -182,16 +133,21 @@ class PoseModel:
     markers
         The markers the measuring system sees.
     families
-        Which parameter families are in the parameter vector (subset of :data:`FAMILIES`).
+        Which parameter families are in the parameter vector (names in
+        :data:`~stiffness.calibration.pose_families.FAMILIES`).
     loads
         Applied wrenches per row, or ``None`` (gravity alone).
     frame0
         Starting estimate of the measuring frame: (R_0 (3, 3), t_0 (3,)) mapping robot world
         coordinates to the measuring system's.
+    settings
+        Fixed settings of the families, SI (their keys are documented by the families that
+        read them), kept in the model file.
     """
 
     def __init__(self, robot: Robot, markers: list[Marker], families: tuple[str, ...],
-                 frame0: tuple[np.ndarray, np.ndarray], loads: Loads | None = None) -> None:
+                 frame0: tuple[np.ndarray, np.ndarray], loads: Loads | None = None,
+                 settings: dict | None = None) -> None:
         if not robot.loop.is_open_chain:
             raise PoseModelError(
                 f"{robot.name} has closed loops; absolute-pose calibration handles open chains "
@@ -203,7 +159,11 @@ class PoseModel:
                                  f"{', '.join(FAMILIES)}")
         self.robot = robot
         self.markers = markers
-        self.families = tuple(f for f in FAMILIES if f in families)
+        self.settings = dict(settings or {})
+        self.family_objects: list[PoseFamily] = [cls() for name, cls in FAMILIES.items()
+                                                 if name in families]
+        self.families = tuple(f.name for f in self.family_objects)
+        _check_combination(self.family_objects)
         self.rotation0, self.translation0 = (np.asarray(frame0[0], float),
                                              np.asarray(frame0[1], float))
         self.loads = loads
@@ -213,15 +173,19 @@ class PoseModel:
         self.compliant = [int(model.getJointId(n)) for n in robot.compliant_joints]
         self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
                          if c != _zero_component(model.joints[j].shortname())]
-        self._geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
-                                np.array([c for _, c in self.geometry], dtype=int))
+        self.geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
+                               np.array([c for _, c in self.geometry], dtype=int))
         self.joints_v = [model.joints[j].idx_v for j in self.joints]
         self.compliant_v = [model.joints[j].idx_v for j in self.compliant]
-        self._moves = {fid: np.array([j in set(model.supports[model.frames[fid].parentJoint])
-                                      for j in self.joints], dtype=float)
-                       for fid in set(self.frame_ids)}
-        self.parameters = self._parameters()
-        self._slices = self._family_slices()
+        self.moves = {fid: np.array([j in set(model.supports[model.frames[fid].parentJoint])
+                                     for j in self.joints], dtype=float)
+                      for fid in set(self.frame_ids)}
+        self.parameters: list[Parameter] = []
+        self._slices: dict[str, slice] = {}
+        for fam in self.family_objects:
+            own = fam.parameters(self)
+            self._slices[fam.name] = slice(len(self.parameters), len(self.parameters) + len(own))
+            self.parameters += own
 
     # ------------------------------------------------------------------ layout
 
@@ -232,36 +196,15 @@ class PoseModel:
                                  "name one of its frames in [markers]")
         return int(model.getFrameId(name))
 
-    def _parameters(self) -> list[Parameter]:
-        out: list[Parameter] = []
-        names = self.robot.model.names
-        for fam in self.families:
-            if fam == "frame":
-                out += [Parameter(fam, f"frame {a}", SCALES[fam], u)
-                        for a, u in zip(_AXES6, PLACEMENT_UNITS, strict=True)]
-            elif fam == "markers":
-                out += [Parameter(fam, f"{m.name} offset {a}", SCALES[fam], "m")
-                        for m in self.markers for a in "xyz"]
-            elif fam == "joint_offsets":
-                out += [Parameter(fam, f"{names[j]} zero", SCALES[fam], self._unit(j, "rad", "m"))
-                        for j in self.joints]
-            elif fam == "geometry":
-                out += [Parameter(fam, f"{names[self.joints[n]]} placement {_AXES6[c]}",
-                                  SCALES[fam], PLACEMENT_UNITS[c]) for n, c in self.geometry]
-            elif fam == "joint_compliance":
-                out += [Parameter(fam, f"{names[j]} compliance", SCALES[fam],
-                                  self._unit(j, "rad/(N.m)", "m/N")) for j in self.compliant]
-            else:
-                out += [Parameter(fam, f"{names[j]} x {names[k]} {p}", SCALES[fam],
-                                  LUMPED_UNIT)
-                        for j in self.compliant for k in self._downstream(j)
-                        for p in _GRAVITY_PARAMETERS]
-        return out
+    def frame_id(self, name: str) -> int:
+        """Id of a robot frame by name (a typed error naming it when it is missing)."""
+        return self._frame_id(name)
 
-    def _unit(self, joint: int, revolute: str, prismatic: str) -> str:
+    def joint_unit(self, joint: int, revolute: str, prismatic: str) -> str:
+        """``prismatic`` for a prismatic joint, else ``revolute``."""
         return prismatic if self.robot.is_prismatic(self.robot.model.names[joint]) else revolute
 
-    def _downstream(self, joint: int) -> list[int]:
+    def downstream(self, joint: int) -> list[int]:
         """Joints whose links move with ``joint`` (its subtree, itself included)."""
         return [int(k) for k in self.robot.model.subtrees[joint]]
 
@@ -274,23 +217,18 @@ class PoseModel:
         """Columns of each family."""
         return self._slices
 
-    def _family_slices(self) -> dict[str, slice]:
-        out, start = {}, 0
-        for fam in self.families:
-            n = sum(p.family == fam for p in self.parameters)
-            out[fam] = slice(start, start + n)
-            start += n
-        return out
+    def part(self, x: np.ndarray, family: str) -> np.ndarray | None:
+        """The parameters of ``family`` in ``x``, or ``None`` when the model lacks it."""
+        sl = self._slices.get(family)
+        return None if sl is None else x[sl]
 
     # ------------------------------------------------------------------ evaluation
 
     def perturbed_model(self, x: np.ndarray) -> pin.Model:
-        """The robot's Pinocchio model with the geometry part of ``x`` applied."""
+        """The robot's Pinocchio model with the geometric part of ``x`` applied."""
         model = pin.Model(self.robot.model)
-        sl = self.slices().get("geometry")
-        if sl is not None:
-            for j, e in zip(self.joints, self._placement_errors(x, sl), strict=True):
-                model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(e))
+        for fam in self.family_objects:
+            fam.perturb_model(self, x[self._slices[fam.name]], model)
         return model
 
     def row_terms(self, q_full: np.ndarray, wrench: np.ndarray | None) -> RowTerms:
@@ -298,9 +236,28 @@ class PoseModel:
         return RowTerms(np.asarray(q_full, dtype=float),
                         None if wrench is None or self.loads is None else np.asarray(wrench))
 
-    def torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
-                wrench: np.ndarray | None) -> Torques:
-        """Gravity's and the wrench's generalised forces at ``q`` for ``model``."""
+    def sag_state(self, model: pin.Model, data: pin.Data, x: np.ndarray, q: np.ndarray,
+                  wrench: np.ndarray | None) -> SagState:
+        """Gravity's, the wrench's and the families' torques at ``q`` for ``model``."""
+        gravity, applied = self._load_torques(model, data, q, wrench)
+        lumped = any(f.lumps_gravity for f in self.family_objects)
+        state = SagState(q, gravity, applied, applied + (0.0 if lumped else gravity),
+                         np.zeros(model.nv))
+        for fam in self.family_objects:
+            state.extras[fam.name] = fam.at_configuration(self, model, data, q)
+        for fam in self.family_objects:
+            extra = fam.joint_torque(self, x[self._slices[fam.name]], state)
+            if extra is not None:
+                state.torque = state.torque + extra
+        for fam in self.family_objects:
+            slope = fam.deflection_per_torque(self, x[self._slices[fam.name]], state)
+            if slope is not None:
+                state.per_torque = state.per_torque + slope
+        return state
+
+    def _load_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
+                      wrench: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Gravity's ``-g(q)`` and the applied wrench's ``J_load(q)^T w`` (nv,) each."""
         gravity = -pin.computeGeneralizedGravity(model, data, q).copy()
         applied = np.zeros(model.nv)
         if wrench is not None and self.loads is not None:
@@ -308,72 +265,64 @@ class PoseModel:
             pin.updateFramePlacements(model, data)
             applied = pin.getFrameJacobian(model, data, self._frame_id(self.loads.frame),
                                            pin.LOCAL_WORLD_ALIGNED).T @ wrench
-        lumped = np.zeros((model.nv, 0))
-        if "gravity_lumped" in self.families:
-            regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(model.nv),
-                                                        np.zeros(model.nv))
-            lumped = self._lumped_columns(regressor, self.compliant_v)
-        return Torques(gravity, applied, lumped)
+        return gravity, applied
 
-    def deflection(self, x: np.ndarray, torques: Torques) -> np.ndarray:
-        """Joint deflection ``Delta q`` (nv,) under ``torques`` for parameters ``x``.
+    def campaign_settings(self, rows: list[RowTerms]) -> dict:
+        """The families' fixed settings from a campaign's ``rows`` (every family of
+        :data:`~stiffness.calibration.pose_families.FAMILIES`, whether in this model or not),
+        from the torques the joints carry at the commanded poses under the nominal robot
+        (gravity with its inertias, and the applied wrench)."""
+        model = self.robot.model
+        data = model.createData()
+        torques = np.array([sum(self._load_torques(model, data, row.q_full, row.wrench))
+                            for row in rows])
+        out: dict = {}
+        for cls in FAMILIES.values():
+            out.update(cls.campaign_settings(torques.reshape(len(rows), model.nv), self))
+        return out
 
-        The compliance multiplies the applied wrench's torque, and gravity's too unless the
-        gravity part is lumped (``gravity_lumped``: masses unknown).
-        """
+    def deflection(self, x: np.ndarray, state: SagState) -> np.ndarray:
+        """Joint deflection ``Delta q`` (nv,) at ``state`` for parameters ``x``: the sum of the
+        elastic families' parts."""
         dq = np.zeros(self.robot.model.nv)
-        sl = self.slices()
-        v_index = self.compliant_v
-        if "joint_compliance" in sl:
-            torque = torques.wrench + (0.0 if "gravity_lumped" in sl else torques.gravity)
-            dq[v_index] += x[sl["joint_compliance"]] * torque[v_index]
-        if "gravity_lumped" in sl:
-            dq += torques.lumped @ x[sl["gravity_lumped"]]
+        for fam in self.family_objects:
+            part = fam.joint_deflection(self, x[self._slices[fam.name]], state)
+            if part is not None:
+                dq += part
         return dq
 
     @property
     def elastic(self) -> bool:
-        """Whether the model has a compliance family (the arm sags)."""
-        return bool({"joint_compliance", "gravity_lumped"} & set(self.families))
+        """Whether the model has an elastic family (the arm sags)."""
+        return any(f.kind == "elastic" for f in self.family_objects)
 
     def loaded_configuration(self, model: pin.Model, data: pin.Data, x: np.ndarray,
-                             row: RowTerms) -> tuple[np.ndarray, Torques | None]:
-        """The configuration the links are at, and the torques there.
+                             row: RowTerms) -> tuple[np.ndarray, SagState | None]:
+        """The configuration the links are at, and the sag's state there.
 
         ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved by fixed-point
         iteration (to :data:`SAG_TOLERANCE`; it contracts by about ``|C dtau/dq|``, 1e-3 for
         real arms).
         """
         offsets = np.zeros(model.nv)
-        sl = self.slices().get("joint_offsets")
-        if sl is not None:
-            offsets[self.joints_v] = x[sl]
+        for fam in self.family_objects:
+            shift = fam.configuration_offset(self, x[self._slices[fam.name]])
+            if shift is not None:
+                offsets += shift
         if not self.elastic:
             return pin.integrate(model, row.q_full, offsets), None
         sag = np.zeros(model.nv)
         for _ in range(SAG_ITERATIONS):
             q = pin.integrate(model, row.q_full, offsets + sag)
-            torques = self.torques(model, data, q, row.wrench)
-            new = self.deflection(x, torques)
+            state = self.sag_state(model, data, x, q, row.wrench)
+            new = self.deflection(x, state)
             converged = np.max(np.abs(new - sag)) <= SAG_TOLERANCE
             sag = new
             if converged:
-                return pin.integrate(model, row.q_full, offsets + sag), torques
+                return pin.integrate(model, row.q_full, offsets + sag), state
         raise ConvergenceError("the sag of the fitted compliance does not converge: the "
                                "compliance is too large for the arm's weight; check the "
                                "campaign's units and masses")
-
-    def _lumped_columns(self, regressor: np.ndarray, v_index: list[int]) -> np.ndarray:
-        """d(Delta q)/d theta (nv, n_theta): minus the regressor entries of each pair."""
-        nv = self.robot.model.nv
-        cols = []
-        for j, vj in zip(self.compliant, v_index, strict=True):
-            for k in self._downstream(j):
-                for p in range(len(_GRAVITY_PARAMETERS)):
-                    col = np.zeros(nv)
-                    col[vj] = -regressor[vj, 10 * (k - 1) + p]
-                    cols.append(col)
-        return np.array(cols).T if cols else np.zeros((nv, 0))
 
     def evaluate(self, x: np.ndarray, rows: list[RowTerms], jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -385,85 +334,59 @@ class PoseModel:
         x = np.asarray(x, dtype=float)
         model = self.perturbed_model(x)
         data = model.createData()
-        sl = self.slices()
-        rot_w, d_omega = self._measuring_rotation(x)
+        parts = {f.name: x[self._slices[f.name]] for f in self.family_objects}
+        rot_w, d_omega = MeasuringFrame.rotation(self.part(x, "frame"))
+        to_measuring = rot_w @ self.rotation0
+        translation = self.translation0 + MeasuringFrame.translation(self.part(x, "frame"))
         n, m = len(rows), len(self.markers)
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
-        jr = self._right_jacobians(x) if jacobian and "geometry" in sl else None
+        shared = {f.name: f.evaluation_cache(self, parts[f.name], jacobian)
+                  for f in self.family_objects}
         for i, row in enumerate(rows):
-            q, torques = self.loaded_configuration(model, data, x, row)
+            q, state = self.loaded_configuration(model, data, x, row)
             pin.forwardKinematics(model, data, q)
             pin.updateFramePlacements(model, data)
             if jacobian:
                 pin.computeJointJacobians(model, data, q)
-            placement_frames = None if jr is None else self._placement_frames(model, data, jr)
+            caches = {f.name: f.row_cache(self, parts[f.name], model, data, q, row,
+                                          shared[f.name], jacobian)
+                      for f in self.family_objects}
             for k, fid in enumerate(self.frame_ids):
-                placement = data.oMf[fid]
-                offset = self.marker_offset(x, k)
-                point = placement.act(offset)
-                world = self.rotation0 @ point
-                y[i, k] = rot_w @ world + self.translation0 + self._translation(x)
+                point = data.oMf[fid].act(self.marker_offset(x, k))
+                j_point = (self._point_jacobian(model, data, fid, point) if jacobian
+                           else np.zeros((3, 0)))
+                view = MarkerView(model, data, k, fid, point, np.zeros(3), to_measuring, rot_w,
+                                  d_omega, j_point, state, caches)
+                bent = point + self._displacement(parts, view)
+                view.world = self.rotation0 @ bent
+                y[i, k] = rot_w @ view.world + translation
                 if jac is not None:
-                    jac[i, k] = self._columns(sl, model, data, torques, placement_frames, fid,
-                                              point, world, k, rot_w, d_omega)
+                    for fam in self.family_objects:
+                        jac[i, k, :, self._slices[fam.name]] = fam.columns(self, parts[fam.name],
+                                                                          view)
         return y, jac
 
-    def _measuring_rotation(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """exp(omega) and d(exp(omega) v)/d omega = -exp(omega) [v]x Jr(omega) (without v)."""
-        sl = self.slices().get("frame")
-        omega = x[sl][3:] if sl is not None else np.zeros(3)
-        return pin.exp3(omega), pin.Jexp3(omega)
-
-    def _translation(self, x: np.ndarray) -> np.ndarray:
-        sl = self.slices().get("frame")
-        return x[sl][:3] if sl is not None else np.zeros(3)
+    def _displacement(self, parts: dict[str, np.ndarray], view: MarkerView) -> np.ndarray:
+        """The families' displacement of a marker (robot-world axes, m): the link bends."""
+        out = np.zeros(3)
+        for fam in self.family_objects:
+            shift = fam.marker_displacement(self, parts[fam.name], view)
+            if shift is not None:
+                out += shift
+        return out
 
     def marker_offset(self, x: np.ndarray, k: int) -> np.ndarray:
         """Offset (3,) of marker ``k`` in its frame's axes (m) for parameters ``x``."""
-        sl = self.slices().get("markers")
-        extra = x[sl][3 * k: 3 * k + 3] if sl is not None else np.zeros(3)
-        return np.asarray(self.markers[k].offset, dtype=float) + extra
+        extra = self.part(x, "markers")
+        nominal = np.asarray(self.markers[k].offset, dtype=float)
+        return nominal if extra is None else nominal + extra[3 * k: 3 * k + 3]
 
     def measuring_placement(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) with ``y = R p + t`` for a robot-world point ``p``, parameters ``x``."""
-        rot, _ = self._measuring_rotation(x)
-        return rot @ self.rotation0, self.translation0 + self._translation(x)
-
-    def _columns(self, sl: dict[str, slice], model: pin.Model, data: pin.Data,
-                 torques: Torques | None,
-                 placement_frames: tuple[np.ndarray, np.ndarray, np.ndarray] | None, fid: int,
-                 point: np.ndarray, world: np.ndarray, k: int, rot_w: np.ndarray,
-                 d_omega: np.ndarray) -> np.ndarray:
-        """d y / d x (3, p) of one marker on one row.
-
-        The torques at the loaded configuration are held fixed (their change with the
-        parameters, relative size ``|C dtau/dq|``, is left out of the derivative; the
-        prediction itself is the converged fixed point).
-        """
-        cols = np.zeros((3, self.size))
-        to_measuring = rot_w @ self.rotation0
-        if "frame" in sl:
-            start = sl["frame"].start
-            cols[:, start:start + 3] = np.eye(3)
-            cols[:, start + 3:start + 6] = -rot_w @ _skew(world) @ d_omega
-        if "markers" in sl:
-            start = sl["markers"].start + 3 * k
-            cols[:, start:start + 3] = to_measuring @ data.oMf[fid].rotation
-        j_point = self._point_jacobian(model, data, fid, point)
-        if "joint_offsets" in sl:
-            cols[:, sl["joint_offsets"]] = to_measuring @ j_point[:, self.joints_v]
-        if torques is not None and "joint_compliance" in sl:
-            torque = torques.wrench + (0.0 if "gravity_lumped" in sl else torques.gravity)
-            v_index = self.compliant_v
-            cols[:, sl["joint_compliance"]] = to_measuring @ (j_point[:, v_index]
-                                                              * torque[v_index])
-        if torques is not None and "gravity_lumped" in sl:
-            cols[:, sl["gravity_lumped"]] = to_measuring @ j_point @ torques.lumped
-        if placement_frames is not None:
-            cols[:, sl["geometry"]] = to_measuring @ self._geometry_columns(placement_frames, fid,
-                                                                          point)
-        return cols
+        frame = self.part(x, "frame")
+        rot, _ = MeasuringFrame.rotation(frame)
+        return rot @ self.rotation0, self.translation0 + MeasuringFrame.translation(frame)
 
     @staticmethod
     def _point_jacobian(model: pin.Model, data: pin.Data, fid: int, point: np.ndarray
@@ -473,43 +396,22 @@ class PoseModel:
         lever = point - data.oMf[fid].translation
         return jac[:3] - _skew(lever) @ jac[3:]
 
-    def _placement_errors(self, x: np.ndarray, sl: slice) -> np.ndarray:
-        """(n_joints, 6) placement errors from the geometry part of ``x``."""
-        eps = np.zeros((len(self.joints), 6))
-        rows, cols = zip(*self.geometry, strict=True) if self.geometry else ((), ())
-        eps[list(rows), list(cols)] = x[sl]
-        return eps
 
-    def _right_jacobians(self, x: np.ndarray) -> np.ndarray:
-        """(n_joints, 6, 6) right Jacobians of ``exp`` at each joint's placement error."""
-        eps = self._placement_errors(x, self.slices()["geometry"])
-        return np.array([pin.Jexp6(pin.Motion(e)) for e in eps])
+def _check_combination(families: list[PoseFamily]) -> None:
+    """Refuse families whose companions are missing, or that need masses beside a lumped
+    gravity (masses unknown)."""
+    names = {f.name for f in families}
+    for fam in families:
+        missing = [r for r in fam.requires if r not in names]
+        if missing:
+            raise PoseModelError(f"family {fam.name} acts through {', '.join(missing)}: add "
+                                 f"{', '.join(missing)} to the model's families")
+    lumped = [f.name for f in families if f.lumps_gravity]
+    needs = [f.name for f in families if f.needs_masses]
+    if lumped and needs:
+        raise PoseModelError(f"{', '.join(needs)} need the links' masses, but {lumped[0]} "
+                             "stands for unknown masses: use --masses known, or drop them")
 
-    def _placement_frames(self, model: pin.Model, data: pin.Data, jr: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per joint, ``a = oMi[parent] M_j exp(eps_j)``: ``R_a Jr[:3]``, ``R_a Jr[3:]`` (3, 6)
-        each and the origin of ``a`` (3,), stacked over the joints."""
-        frames = [data.oMi[model.parents[j]] * model.jointPlacements[j] for j in self.joints]
-        rot = np.array([f.rotation for f in frames])
-        origin = np.array([f.translation for f in frames])
-        return (np.einsum("jab,jbc->jac", rot, jr[:, :3, :]),
-                np.einsum("jab,jbc->jac", rot, jr[:, 3:, :]), origin)
-
-    def _geometry_columns(self, placement: tuple[np.ndarray, np.ndarray, np.ndarray],
-                          fid: int, point: np.ndarray) -> np.ndarray:
-        """d point / d epsilon (3, n_geometry): ``M_j exp(eps)`` perturbed on the right.
-
-        With ``a = oMi[parent] M_j exp(eps)``: ``d point = R_a (d v + d w x r)`` for a twist
-        ``(d v, d w) = Jr(eps) d eps`` and ``r`` the point in frame ``a``, i.e.
-        ``R_a Jr[:3] - [point - o_a]x R_a Jr[3:]``; zero for joints the point does not move with.
-        """
-        linear, angular, origin = placement
-        lx, ly, lz = (point[None, :] - origin).T[:, :, None]
-        ax, ay, az = angular[:, 0], angular[:, 1], angular[:, 2]
-        cols = linear - np.stack([ly * az - lz * ay, lz * ax - lx * az, lx * ay - ly * ax], axis=1)
-        cols = cols * self._moves[fid][:, None, None]
-        rows, comps = self._geometry_index
-        return cols[rows, :, comps].T
 
 def one_dof_joints(model: pin.Model) -> list[int]:
     """Ids of the joints with one degree of freedom, in model order (those the geometry and

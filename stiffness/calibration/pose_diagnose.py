@@ -27,10 +27,18 @@ import numpy as np
 import pinocchio as pin
 from scipy import special
 
-from stiffness.calibration.absolute import FAMILIES, Loads, Marker, PoseModel
+from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.diagnose import BIC_MARGIN
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, predict, rows_of, starting_frame
+from stiffness.calibration.pose_families import FAMILIES
+from stiffness.calibration.pose_fit import (
+    PoseFit,
+    campaign_settings,
+    fit_pose_model,
+    predict,
+    rows_of,
+    starting_frame,
+)
 from stiffness.calibration.selection import GOF_LEVEL, config_folds
 from stiffness.calibration.validation import error_summary
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
@@ -148,9 +156,10 @@ def _rms(values: np.ndarray) -> float:
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-         start: PoseFit | None = None) -> PoseFit:
+         settings: dict, start: PoseFit | None = None) -> PoseFit:
     """Fit ``families``, starting from ``start``'s values of the parameters they share."""
-    model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads)
+    model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
+                      settings)
     return fit_pose_model(model, campaign, rows_of(model, campaign), families,
                           None if start is None else warm_start(model, start))
 
@@ -169,7 +178,7 @@ def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
     sq, count = 0.0, 0
     for test in folds:
         train = np.setdiff1d(np.arange(campaign.n_rows), test)
-        part = _fit(campaign.subset(train), families, frame0, fit)
+        part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit)
         held = campaign.subset(test)
         try:
             err = held.positions - predict(part.model, part.x, held)
@@ -202,14 +211,16 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     frame0 = starting_frame(campaign)
     folds = config_folds(tuple(campaign.labels), seed)
     families = list(BASE_FAMILIES)
-    base = _fit(campaign, families, frame0)
+    settings = campaign_settings(campaign)
+    base = _fit(campaign, families, frame0, settings)
     cv = _cv_rms(campaign, base, families, frame0, folds)
     steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
     rejected: dict[str, float] = {}
     remaining = [f for f in CANDIDATES[masses] if f in FAMILIES]
     while remaining:
         say(f"step {len(steps)}: trying {', '.join(remaining)}")
-        tried = {f: _fit(campaign, families + [f], frame0, steps[-1].fit) for f in remaining}
+        tried = {f: _fit(campaign, families + [f], frame0, settings, steps[-1].fit)
+                 for f in remaining}
         best = min(tried, key=lambda f: tried[f].bic())
         delta = tried[best].bic() - steps[-1].fit.bic()
         if delta >= -BIC_MARGIN:
@@ -239,7 +250,7 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
     """
     campaign = _in_model_order(model.markers, campaign)
     model = PoseModel(campaign.robot, model.markers, model.families,
-                      (model.rotation0, model.translation0), campaign.loads)
+                      (model.rotation0, model.translation0), campaign.loads, model.settings)
     err = np.linalg.norm(campaign.positions - predict(model, x, campaign), axis=2)
     lu = campaign.units.length_to_si
     out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
@@ -281,6 +292,7 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign) -> dict:
                         for m in fit.model.markers],
             "load_frame": None if campaign.loads is None else campaign.loads.frame,
             "families": list(fit.model.families),
+            "settings": fit.model.settings,
             "parameters": parameter_table(fit)}
 
 
@@ -335,7 +347,8 @@ def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> Pose
                   np.array(doc["measuring_frame"]["translation_m"], float))
         load = doc["load_frame"]
         model = PoseModel(robot, markers, tuple(doc["families"]), frame0,
-                          None if load is None else Loads(load, np.zeros((0, 6))))
+                          None if load is None else Loads(load, np.zeros((0, 6))),
+                          doc.get("settings", {}))
         values = {p["parameter"]: float(p["value"]) for p in doc["parameters"]}
         x = np.array([values[p.label] for p in model.parameters])
     except (KeyError, TypeError, ValueError) as exc:

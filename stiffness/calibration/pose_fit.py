@@ -21,8 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg, optimize, special
 
-from stiffness.calibration.absolute import PoseModel, RowTerms, align_frames
+from stiffness.calibration.absolute import PoseModel, align_frames
 from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_families.base import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError
 
 #: Smallest sine between a kept column and the span of the others (documented above).
@@ -78,6 +79,14 @@ def rows_of(model: PoseModel, campaign: PoseCampaign) -> list[RowTerms]:
     return [model.row_terms(campaign.robot.configuration(q),
                             None if wrench is None else wrench[i])
             for i, q in enumerate(campaign.q)]
+
+
+def campaign_settings(campaign: PoseCampaign) -> dict:
+    """The families' fixed settings from ``campaign`` (:meth:`PoseModel.campaign_settings`:
+    the backlash smoothing torques), to build its models with."""
+    nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)),
+                        campaign.loads)
+    return nominal.campaign_settings(rows_of(nominal, campaign))
 
 
 def starting_frame(campaign: PoseCampaign) -> tuple[np.ndarray, np.ndarray]:

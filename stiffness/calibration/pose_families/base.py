@@ -1,0 +1,263 @@
+"""The base of the pose-model families (:class:`PoseFamily`), the parameter a family lays out
+(:class:`Parameter`), and what a family's hooks read: the sag's state at a configuration
+(:class:`SagState`) and one marker on one row (:class:`MarkerView`).
+
+A family is one class: its name, its kind (``"geometric"`` or ``"elastic"``), its parameters
+with their units and typical sizes, and its part of the prediction and of the Jacobian as
+methods. :class:`~stiffness.calibration.absolute.PoseModel` calls the hooks of the families it
+holds and never branches on a family's name.
+
+Units: SI (m, N, rad).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.robot.robot import Robot
+
+#: The kinds of family: geometry (where things are) or elasticity (how the arm gives).
+FAMILY_KINDS = ("geometric", "elastic")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One column of the regressor: its family, label, scale (typical size, SI) and unit."""
+
+    family: str
+    label: str
+    scale: float
+    unit: str
+
+
+@dataclass(frozen=True)
+class RowTerms:
+    """What a row gives the model: the commanded configuration and the applied wrench.
+
+    Attributes
+    ----------
+    q_full
+        Commanded Pinocchio configuration (nq,).
+    wrench
+        Applied wrench (6,) in world axes at the load frame (N, N.m), or ``None``.
+    """
+
+    q_full: np.ndarray
+    wrench: np.ndarray | None
+
+
+class PoseLayout(Protocol):
+    """What the families read of the model that holds them
+    (:class:`stiffness.calibration.absolute.PoseModel`): the robot, the markers, the joints'
+    layout, the loads and the fixed settings."""
+
+    robot: Robot
+    markers: list
+    settings: dict
+    loads: Any
+    frame_ids: list[int]
+    joints: list[int]
+    compliant: list[int]
+    joints_v: list[int]
+    compliant_v: list[int]
+    geometry: list[tuple[int, int]]
+    geometry_index: tuple[np.ndarray, np.ndarray]
+    moves: dict[int, np.ndarray]
+
+    def frame_id(self, name: str) -> int: ...
+
+    def joint_unit(self, joint: int, revolute: str, prismatic: str) -> str: ...
+
+    def downstream(self, joint: int) -> list[int]: ...
+
+
+@dataclass
+class SagState:
+    """Generalised forces (nv,) at a loaded configuration, and what families derive from it.
+
+    Attributes
+    ----------
+    q
+        The loaded configuration (nq,).
+    gravity
+        Gravity's generalised force ``-g(q)`` (N.m or N).
+    wrench
+        The applied wrench's ``J_load(q)^T w``.
+    torque
+        The torque the joints' springs carry: the wrench's, gravity's unless a family lumps
+        it (masses unknown), plus the families' own torques (a compensator's spring).
+    per_torque
+        d(Delta q)/d(torque) (nv,) of the families' joint deflections at that torque.
+    extras
+        Per-family quantities at ``q`` (:meth:`PoseFamily.at_configuration`).
+    """
+
+    q: np.ndarray
+    gravity: np.ndarray
+    wrench: np.ndarray
+    torque: np.ndarray
+    per_torque: np.ndarray
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class MarkerView:
+    """One marker on one row, at the loaded configuration: what a family's columns read.
+
+    Attributes
+    ----------
+    model, data
+        The perturbed Pinocchio model and its data (placements and joint Jacobians current).
+    k
+        Marker index.
+    fid
+        Frame id of the marker's frame.
+    point
+        Marker position in robot-world axes (m), before any link bend.
+    world
+        ``R_0`` times the bent marker position (m).
+    to_measuring
+        ``exp(omega) R_0``: robot-world to measuring axes.
+    rot_w, d_omega
+        ``exp(omega)`` and the right Jacobian of ``exp`` at ``omega``.
+    j_point
+        d point / d v (3, nv), world axes (empty when no Jacobian is asked for).
+    sag
+        The sag's state (``None``: a rigid model).
+    caches
+        Per-family per-row quantities (:meth:`PoseFamily.row_cache`).
+    """
+
+    model: pin.Model
+    data: pin.Data
+    k: int
+    fid: int
+    point: np.ndarray
+    world: np.ndarray
+    to_measuring: np.ndarray
+    rot_w: np.ndarray
+    d_omega: np.ndarray
+    j_point: np.ndarray
+    sag: SagState | None
+    caches: dict[str, Any]
+
+
+class PoseFamily:
+    """A parameter family of the pose model. Hooks default to contributing nothing.
+
+    Class attributes: :attr:`name` (the public name: JSON keys, diagnose's output),
+    :attr:`kind` (one of :data:`FAMILY_KINDS`), :attr:`scale` (typical size of a parameter,
+    SI; scales the regressor's columns).
+    """
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = "geometric"
+    scale: ClassVar[float] = 1e-3
+    #: whether the family stands in for gravity's torque (masses unknown): the springs then
+    #: carry only the applied wrench's known torque
+    lumps_gravity: ClassVar[bool] = False
+    #: whether the family needs the links' masses (gravity's torque known)
+    needs_masses: ClassVar[bool] = False
+    #: families that must be in the model with this one
+    requires: ClassVar[tuple[str, ...]] = ()
+
+    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+        """The family's parameters, in column order."""
+        raise NotImplementedError
+
+    @classmethod
+    def campaign_settings(cls, torques: np.ndarray, pm: PoseLayout) -> dict:
+        """Fixed settings the family takes from a campaign (SI), given the (rows, nv) torques
+        the joints carry at its commanded poses under the nominal robot; none by default."""
+        return {}
+
+    def param(self, label: str, unit: str) -> Parameter:
+        """A parameter of this family with its typical size."""
+        return Parameter(self.name, label, self.scale, unit)
+
+    # --- prediction hooks ---------------------------------------------------------------
+    def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray | None:
+        """A parameter-given shift of the commanded configuration (nv,), or ``None``."""
+        return None
+
+    def perturb_model(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model) -> None:
+        """Change ``model``'s geometry in place (the geometric families that have one)."""
+
+    def at_configuration(self, pm: PoseLayout, model: pin.Model, data: pin.Data,
+                         q: np.ndarray) -> Any:
+        """Per-family quantities at a configuration of the sag (kept in :class:`SagState`)."""
+        return None
+
+    def joint_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray | None:
+        """A torque (nv,) the family adds to what the joints' springs carry, or ``None``."""
+        return None
+
+    def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                         ) -> np.ndarray | None:
+        """The family's part (nv,) of the joints' deflection ``Delta q``, or ``None``."""
+        return None
+
+    def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                              ) -> np.ndarray | None:
+        """d(its joint deflection)/d(torque) (nv,), diagonal, or ``None``."""
+        return None
+
+    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool) -> Any:
+        """Quantities shared by every row of one evaluation (the geometry's right Jacobians),
+        ``jacobian`` whether the columns will be asked for."""
+        return None
+
+    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
+                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool) -> Any:
+        """Quantities shared by the markers of one row at its loaded configuration ``q``
+        (placements current; joint Jacobians too when ``jacobian``)."""
+        return None
+
+    def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
+                            ) -> np.ndarray | None:
+        """A displacement (3,) of the marker in robot-world axes (a link bend), or ``None``."""
+        return None
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        """d y / d x_f (3, n_f) of one marker on one row, measuring axes, the loaded
+        configuration held fixed."""
+        raise NotImplementedError
+
+
+class JointDeflectionFamily(PoseFamily):
+    """An elastic family acting through the joints' deflection ``Delta q`` (and torque).
+
+    Its columns follow from the chain rule at the loaded configuration:
+    ``d y / d x_f = T J_p (d Delta q / d x_f + diag(d Delta q / d tau) d tau / d x_f)``
+    with ``T`` to measuring axes and ``J_p`` the marker's point Jacobian.
+    """
+
+    kind: ClassVar[str] = "elastic"
+    scale: ClassVar[float] = 1e-6
+
+    def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                           ) -> np.ndarray | None:
+        """d(Delta q)/d x_f (nv, n_f) at fixed torque, or ``None``."""
+        return None
+
+    def torque_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                       ) -> np.ndarray | None:
+        """d(torque)/d x_f (nv, n_f), or ``None``."""
+        return None
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        n_f = x_f.size
+        if view.sag is None:
+            return np.zeros((3, n_f))
+        total = np.zeros((view.model.nv, n_f))
+        own = self.deflection_columns(pm, x_f, view.sag)
+        if own is not None:
+            total += own
+        torque = self.torque_columns(pm, x_f, view.sag)
+        if torque is not None:
+            total += view.sag.per_torque[:, None] * torque
+        return view.to_measuring @ (view.j_point @ total)

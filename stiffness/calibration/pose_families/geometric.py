@@ -1,0 +1,144 @@
+"""The geometric families of the pose model: the measuring frame (``frame``), the markers'
+offsets (``markers``), the joints' zero offsets (``joint_offsets``) and the joints' placement
+errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.absolute`.
+
+Units: SI (m, rad).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.calibration.pose_families.base import (
+    MarkerView,
+    Parameter,
+    PoseFamily,
+    PoseLayout,
+    RowTerms,
+)
+from stiffness.elastic.effects.geometry import skew
+
+#: Units of the six components of a placement (the frame's and the geometry's).
+PLACEMENT_UNITS = ("m", "m", "m", "rad", "rad", "rad")
+#: Names of the six components of a placement.
+PLACEMENT_AXES = ("x", "y", "z", "rx", "ry", "rz")
+
+
+class MeasuringFrame(PoseFamily):
+    """``frame``: the measuring frame's translation ``t`` (m) and rotation ``omega`` (rad)
+    relative to the starting estimate: ``y = exp(omega) R_0 p + t_0 + t``."""
+
+    name: ClassVar[str] = "frame"
+
+    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+        return [self.param(f"frame {a}", u)
+                for a, u in zip(PLACEMENT_AXES, PLACEMENT_UNITS, strict=True)]
+
+    @staticmethod
+    def rotation(x_f: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """``exp(omega)`` and its right Jacobian (``None``: no frame parameters)."""
+        omega = np.zeros(3) if x_f is None else x_f[3:]
+        return pin.exp3(omega), pin.Jexp3(omega)
+
+    @staticmethod
+    def translation(x_f: np.ndarray | None) -> np.ndarray:
+        """``t`` (m) (``None``: no frame parameters)."""
+        return np.zeros(3) if x_f is None else x_f[:3]
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        """``d y = d t - exp(omega) [R_0 p]x Jr(omega) d omega``."""
+        return np.hstack([np.eye(3), -view.rot_w @ skew(view.world) @ view.d_omega])
+
+
+class MarkerOffsets(PoseFamily):
+    """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes)."""
+
+    name: ClassVar[str] = "markers"
+
+    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+        return [self.param(f"{m.name} offset {a}", "m") for m in pm.markers for a in "xyz"]
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        cols = np.zeros((3, x_f.size))
+        cols[:, 3 * view.k: 3 * view.k + 3] = (view.to_measuring
+                                               @ view.data.oMf[view.fid].rotation)
+        return cols
+
+
+class JointOffsets(PoseFamily):
+    """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
+
+    name: ClassVar[str] = "joint_offsets"
+
+    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+        names = pm.robot.model.names
+        return [self.param(f"{names[j]} zero", pm.joint_unit(j, "rad", "m")) for j in pm.joints]
+
+    def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray:
+        out = np.zeros(pm.robot.model.nv)
+        out[pm.joints_v] = x_f
+        return out
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        return view.to_measuring @ view.j_point[:, pm.joints_v]
+
+
+class JointGeometry(PoseFamily):
+    """``geometry``: each 1-dof joint's placement error ``eps_j``, ``M_j exp(eps_j)``, without
+    the component along its own motion (its zero offset): 5 per joint along a frame axis."""
+
+    name: ClassVar[str] = "geometry"
+
+    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+        names = pm.robot.model.names
+        return [self.param(f"{names[pm.joints[n]]} placement {PLACEMENT_AXES[c]}",
+                           PLACEMENT_UNITS[c]) for n, c in pm.geometry]
+
+    def placement_errors(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray:
+        """(n_joints, 6) placement errors from the family's parameters."""
+        eps = np.zeros((len(pm.joints), 6))
+        rows, comps = pm.geometry_index
+        eps[rows, comps] = x_f
+        return eps
+
+    def perturb_model(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model) -> None:
+        for j, e in zip(pm.joints, self.placement_errors(pm, x_f), strict=True):
+            model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(e))
+
+    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
+                         ) -> np.ndarray | None:
+        """(n_joints, 6, 6) right Jacobians of ``exp`` at each joint's placement error."""
+        if not jacobian:
+            return None
+        return np.array([pin.Jexp6(pin.Motion(e)) for e in self.placement_errors(pm, x_f)])
+
+    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
+                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Per joint, ``a = oMi[parent] M_j exp(eps_j)``: ``R_a Jr[:3]``, ``R_a Jr[3:]`` (3, 6)
+        each and the origin of ``a`` (3,), stacked over the joints."""
+        if shared is None:
+            return None
+        frames = [data.oMi[model.parents[j]] * model.jointPlacements[j] for j in pm.joints]
+        rot = np.array([f.rotation for f in frames])
+        origin = np.array([f.translation for f in frames])
+        return (np.einsum("jab,jbc->jac", rot, shared[:, :3, :]),
+                np.einsum("jab,jbc->jac", rot, shared[:, 3:, :]), origin)
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        """d y / d eps: ``M_j exp(eps)`` perturbed on the right.
+
+        With ``a = oMi[parent] M_j exp(eps)``: ``d point = R_a (d v + d w x r)`` for a twist
+        ``(d v, d w) = Jr(eps) d eps`` and ``r`` the point in frame ``a``, i.e.
+        ``R_a Jr[:3] - [point - o_a]x R_a Jr[3:]``; zero for joints the point does not move with.
+        """
+        linear, angular, origin = view.caches[self.name]
+        lx, ly, lz = (view.point[None, :] - origin).T[:, :, None]
+        ax, ay, az = angular[:, 0], angular[:, 1], angular[:, 2]
+        cols = linear - np.stack([ly * az - lz * ay, lz * ax - lx * az, lx * ay - ly * ax], axis=1)
+        cols = cols * pm.moves[view.fid][:, None, None]
+        rows, comps = pm.geometry_index
+        return view.to_measuring @ cols[rows, :, comps].T
