@@ -505,7 +505,8 @@ def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Co
     if fit.loss != "linear":
         if measured is None:
             raise StiffnessError("the covariance of a robust fit needs its observations")
-        cov = sandwich_matrix(fit, measured, vt[~zero])
+        cov = sandwich_matrix(((fit.predicted - measured) / fit.scale).reshape(-1),
+                              fit.jacobian, fit.loss, fit.f_scale, vt[~zero])
     if zero.any():
         unseen = (np.abs(vt[zero]) > UNSEEN_COMPONENT).any(axis=0)
         cov[unseen, :] = np.inf
@@ -513,9 +514,11 @@ def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Co
     return Covariance(cov, s, vt, zero)
 
 
-def sandwich_matrix(fit: Fit, measured: np.ndarray, determined: np.ndarray) -> np.ndarray:
+def sandwich_matrix(residual: np.ndarray, jacobian: np.ndarray, loss: str, f_scale: float,
+                    determined: np.ndarray) -> np.ndarray:
     """Huber's sandwich covariance of a robust fit's ``x`` within the ``determined``
-    directions (see the module docstring).
+    directions (see the module docstring); any fit's: the deflection engine's
+    (:func:`covariance`) and the pose fit's (:mod:`stiffness.calibration.pose_fit`).
 
     ``A^+ B A^+`` with the bread ``A = mean(phi'') J^T J`` and the meat
     ``B = sum(phi'^2) / (N - p) J^T J``, times Huber's small-sample factor
@@ -526,23 +529,30 @@ def sandwich_matrix(fit: Fit, measured: np.ndarray, determined: np.ndarray) -> n
 
     Parameters
     ----------
-    fit
-        A fit with a loss of :data:`LOSSES`.
-    measured
-        The observations it was fitted to (m), to form its scaled residuals.
+    residual
+        (N,) residuals at the optimum divided by the fit's scale (dimensionless).
+    jacobian
+        (N, p) derivative of those scaled residuals w.r.t. ``x``.
+    loss, f_scale
+        The fit's loss (:data:`LOSSES`) and its soft threshold in units of the scale.
     determined
         (d, p) orthonormal directions of ``x`` the data determine.
+
+    Returns
+    -------
+    (p, p) covariance of ``x`` (``x``'s units squared); infinite without a positive mean
+    curvature of the loss or without more residuals than directions.
     """
-    r = ((fit.predicted - measured) / fit.scale).reshape(-1)
-    f = fit.f_scale
-    _, d_rho, dd_rho = loss_terms(fit.loss, (r / f) ** 2)
-    psi = d_rho * r                                # d phi / d r
-    dpsi = d_rho + 2.0 * (r / f) ** 2 * dd_rho     # d^2 phi / d r^2
-    jac = fit.jacobian @ determined.T              # (N, d)
+    r = np.asarray(residual, dtype=float).reshape(-1)
+    _, d_rho, dd_rho = loss_terms(loss, (r / f_scale) ** 2)
+    psi = d_rho * r                                      # d phi / d r
+    dpsi = d_rho + 2.0 * (r / f_scale) ** 2 * dd_rho     # d^2 phi / d r^2
+    jac = jacobian @ determined.T                        # (N, d)
     n, d = jac.shape
+    p = jacobian.shape[1]
     mean_dpsi = float(np.mean(dpsi))
     if mean_dpsi <= 0 or n <= d:
-        return np.full((fit.x.size, fit.x.size), np.inf)
+        return np.full((p, p), np.inf)
     k = 1.0 + d / n * float(np.var(dpsi)) / mean_dpsi ** 2
     factor = k ** 2 * float(np.sum(psi ** 2)) / (n - d) / mean_dpsi ** 2
     return determined.T @ (factor * np.linalg.pinv(jac.T @ jac)) @ determined

@@ -29,6 +29,7 @@ from scipy import special
 
 from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.diagnose import BIC_MARGIN
+from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import (
@@ -73,6 +74,7 @@ class PoseDiagnosis:
     masses: str
     steps: list[PoseStep]
     rejected: dict[str, float] = field(default_factory=dict)
+    loss: str = "linear"
 
     @property
     def final(self) -> PoseFit:
@@ -85,12 +87,13 @@ class PoseDiagnosis:
         return list(BASE_FAMILIES) + [s.family for s in self.steps[1:]]
 
     def gof(self) -> float | None:
-        """Chi-square p-value of the final residual against the declared noise, or None."""
+        """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
+        declared noise, or None."""
         noise = self.campaign.noise_std
         if noise is None:
             return None
         fit = self.final
-        return float(special.chdtrc(fit.n_observed - fit.n_fitted, fit.rss() / noise ** 2))
+        return float(special.chdtrc(fit.n_observed - fit.n_fitted, fit.loss_rss() / noise ** 2))
 
     @property
     def unexplained(self) -> bool | None:
@@ -102,6 +105,7 @@ class PoseDiagnosis:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit)."""
         lu = self.campaign.units.length_to_si
         return {"kind": "poses", "unit": self.campaign.units.length, "masses": self.masses,
+                "loss": self.loss,
                 "noise_std": None if self.campaign.noise_std is None
                 else self.campaign.noise_std / lu,
                 "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
@@ -156,12 +160,14 @@ def _rms(values: np.ndarray) -> float:
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-         settings: dict, start: PoseFit | None = None) -> PoseFit:
-    """Fit ``families``, starting from ``start``'s values of the parameters they share."""
+         settings: dict, start: PoseFit | None = None, loss: str = "linear",
+         scale: float | None = None) -> PoseFit:
+    """Fit ``families``, starting from ``start``'s values of the parameters they share, under
+    ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`)."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
                       settings)
     return fit_pose_model(model, campaign, rows_of(model, campaign), families,
-                          None if start is None else warm_start(model, start))
+                          None if start is None else warm_start(model, start), loss, scale)
 
 
 def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
@@ -173,12 +179,13 @@ def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
 def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
             frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray]) -> float:
     """Held-out RMS of the residual components, each fold fitted on the others (started from
-    the fit on every row); infinite when a fold's model predicts a sag that does not converge
-    at a held-out pose (its family is then not added)."""
+    the fit on every row, with its loss and scale); infinite when a fold's model predicts a sag
+    that does not converge at a held-out pose (its family is then not added)."""
     sq, count = 0.0, 0
     for test in folds:
         train = np.setdiff1d(np.arange(campaign.n_rows), test)
-        part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit)
+        part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit,
+                    fit.loss, fit.sigma)
         held = campaign.subset(test)
         try:
             err = held.positions - predict(part.model, part.x, held)
@@ -191,7 +198,8 @@ def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
 
 def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    validate: PoseCampaign | None = None,
-                   progress: Callable[[str], None] | None = None) -> PoseDiagnosis:
+                   progress: Callable[[str], None] | None = None,
+                   loss: str = "linear") -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -203,23 +211,30 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         Another pose campaign of the same robot and markers, evaluated at every step.
     progress
         Called with one line of text as each step starts (``None``: quiet).
+    loss
+        ``linear`` (least squares) or a robust loss of
+        :data:`~stiffness.calibration.fitting.LOSSES` for every fit (folds included), scaled
+        by the declared noise std, else by the baseline's robust estimate; BIC and the
+        fit-to-noise test compare :meth:`PoseFit.loss_rss` (:mod:`stiffness.calibration.pose_fit`).
     """
     say = progress or (lambda text: None)
     if masses not in CANDIDATES:
         raise StiffnessError(f"masses must be one of {', '.join(CANDIDATES)}, got {masses!r}")
+    check_loss(loss)
     say(f"pose diagnosis: {campaign.n_rows} rows, baseline (measuring frame and markers)")
     frame0 = starting_frame(campaign)
     folds = config_folds(tuple(campaign.labels), seed)
     families = list(BASE_FAMILIES)
     settings = campaign_settings(campaign)
-    base = _fit(campaign, families, frame0, settings)
+    base = _fit(campaign, families, frame0, settings, loss=loss)
+    scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     cv = _cv_rms(campaign, base, families, frame0, folds)
     steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
     rejected: dict[str, float] = {}
     remaining = [f for f in CANDIDATES[masses] if f in FAMILIES]
     while remaining:
         say(f"step {len(steps)}: trying {', '.join(remaining)}")
-        tried = {f: _fit(campaign, families + [f], frame0, settings, steps[-1].fit)
+        tried = {f: _fit(campaign, families + [f], frame0, settings, steps[-1].fit, loss, scale)
                  for f in remaining}
         best = min(tried, key=lambda f: tried[f].bic())
         delta = tried[best].bic() - steps[-1].fit.bic()
@@ -234,7 +249,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         remaining.remove(best)
         steps.append(PoseStep(best, tried[best], delta, cv_new,
                               _validation(tried[best], validate)))
-    return PoseDiagnosis(campaign, masses, steps, rejected)
+    return PoseDiagnosis(campaign, masses, steps, rejected, loss)
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

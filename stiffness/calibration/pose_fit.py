@@ -12,6 +12,19 @@ ones ("merged": the kept parameters absorb it with the least-squares coefficient
 Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian;
 covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or the residual variance when the
 campaign declares none; 95 % intervals from the normal quantile.
+
+Robust losses (``loss`` of :data:`~stiffness.calibration.fitting.LOSSES` other than
+``linear``): the deflection engine's mathematics, not a copy of it. The fit minimises
+``sum s^2 rho((r / s)^2)`` of the residual components ``r`` (m) by the trust-region reflective
+method from the least-squares optimum, ``s`` the noise std: the declared one, else a robust
+estimate
+(:func:`~stiffness.calibration.outliers.robust_noise` of a least-squares fit's residuals, then
+twice of the loss fit's, as the deflection diagnose does). The covariance is Huber's sandwich
+(:func:`~stiffness.calibration.fitting.sandwich_matrix`), and :meth:`PoseFit.loss_rss` (the
+loss sum over its Gaussian expectation,
+:func:`~stiffness.calibration.fitting.gaussian_loss_mean`) stands for the residual sum of
+squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` instead of
+``r^2``.
 """
 
 from __future__ import annotations
@@ -22,6 +35,8 @@ import numpy as np
 from scipy import linalg, optimize, special
 
 from stiffness.calibration.absolute import PoseModel, align_frames
+from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
+from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families.base import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError
@@ -165,7 +180,12 @@ class PoseFit:
     residual
         (n, M, 3) measured minus predicted (m); NaN where a marker was not seen.
     sigma
-        Noise standard deviation used for the covariance (m).
+        Noise standard deviation used for the covariance (m); a robust fit's loss scale.
+    sigma_source
+        ``"declared"``, ``"residual"`` (least squares' residual variance) or ``"robust"``
+        (the robust estimate scaling a robust loss).
+    loss
+        The loss the fit minimised (:data:`~stiffness.calibration.fitting.LOSSES`).
     """
 
     model: PoseModel
@@ -176,6 +196,7 @@ class PoseFit:
     sigma: float
     sigma_source: str = "declared"
     extras: dict = field(default_factory=dict)
+    loss: str = "linear"
 
     @property
     def n_observed(self) -> int:
@@ -196,10 +217,19 @@ class PoseFit:
         """RMS of the residual components (m)."""
         return float(np.sqrt(self.rss() / max(self.n_observed, 1)))
 
+    def loss_rss(self) -> float:
+        """The minimised objective as a sum of squares (m^2): :meth:`rss` for least squares;
+        for a robust loss ``sigma^2 sum rho((r / sigma)^2)`` over its Gaussian expectation
+        (as :attr:`stiffness.calibration.fitting.Fit.loss_rss`)."""
+        if self.loss == "linear":
+            return self.rss()
+        r = self.residual[np.isfinite(self.residual)] / self.sigma
+        return self.sigma ** 2 * loss_sum(r, self.loss, 1.0) / gaussian_loss_mean(self.loss)
+
     def bic(self) -> float:
-        """Bayesian information criterion ``n ln(RSS/n) + k ln n``."""
+        """Bayesian information criterion ``n ln(RSS/n) + k ln n`` (RSS: :meth:`loss_rss`)."""
         n = self.n_observed
-        return float(n * np.log(self.rss() / n) + self.n_fitted * np.log(n))
+        return float(n * np.log(self.loss_rss() / n) + self.n_fitted * np.log(n))
 
     def std(self) -> np.ndarray:
         """(p,) standard deviations; NaN for parameters not fitted."""
@@ -233,7 +263,8 @@ def _identifiable(model: PoseModel, rows: list[RowTerms], observed: np.ndarray,
 
 
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
-                   order: list[str], x0: np.ndarray | None = None) -> PoseFit:
+                   order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
+                   scale: float | None = None) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
     Parameters
@@ -245,12 +276,21 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         Starting parameters (p,), default zero. A start whose sag diverges once the parameters
         this campaign cannot identify are zeroed (a warm start from a fit on other rows) falls
         back to zero.
+    loss
+        ``linear`` (least squares) or a robust loss of
+        :data:`~stiffness.calibration.fitting.LOSSES` (module docstring).
+    scale
+        Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
+        robust estimate (module docstring). Ignored by least squares.
 
     Raises
     ------
     StiffnessError
-        Fewer measured components than identifiable parameters.
+        Fewer measured components than identifiable parameters, or an unknown loss.
     """
+    check_loss(loss)
+    if loss != "linear" and scale is None and campaign.noise_std is None:
+        return _fit_robust_scale(model, campaign, rows, order, x0, loss)
     x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
     observed = observed_mask(campaign)
     ident = _identifiable(model, rows, observed, order, x)
@@ -283,14 +323,45 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
                                  method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
     x[kept] = sol.x
-    return _finish(model, campaign, x, ident, sol.jac, sol.fun, observed)
+    if loss == "linear":
+        return _finish(model, campaign, x, ident, sol.jac, sol.fun, observed)
+    s = scale if scale is not None else campaign.noise_std
+    assert s is not None  # undeclared noise and no scale: _fit_robust_scale estimated it
+    # from the least-squares optimum: a few steps (from far, every residual is beyond the
+    # loss's scale and the robust steps crawl), and a start for cauchy's non-convex loss
+    sol = optimize.least_squares(residual, sol.x, jac=jacobian, x_scale=scales,
+                                 method="trf", loss=loss, f_scale=s,
+                                 xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead
+    fun, jac = residual(sol.x), jacobian(sol.x)
+    source = "declared" if scale is None or scale == campaign.noise_std else "robust"
+    return _finish(model, campaign, x, ident, jac, fun, observed, loss, (s, source))
+
+
+def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
+                      order: list[str], x0: np.ndarray | None, loss: str) -> PoseFit:
+    """A robust ``loss`` fit scaled by the robust noise estimate: from a least-squares fit's
+    residuals, then twice from the loss fit's."""
+    fit = fit_pose_model(model, campaign, rows, order, x0)
+    for _ in range(2):
+        r = fit.residual[np.isfinite(fit.residual)]
+        scale = robust_noise(r, fit.n_fitted) or max(fit.rms(), 1e-12)
+        fit = fit_pose_model(model, campaign, rows, order, fit.x, loss, scale)
+    return fit
 
 
 def _finish(model: PoseModel, campaign: PoseCampaign, x: np.ndarray, ident: Identifiability,
-            jac: np.ndarray, fun: np.ndarray, observed: np.ndarray) -> PoseFit:
+            jac: np.ndarray, fun: np.ndarray, observed: np.ndarray, loss: str = "linear",
+            robust_scale: tuple[float, str] | None = None) -> PoseFit:
+    """The fit at ``x`` from the residuals ``fun`` (predicted minus measured, m) and their
+    Jacobian; ``robust_scale`` the (noise std, source) scaling a robust ``loss``."""
     residual = np.full(campaign.positions.shape, np.nan)
     residual[observed] = -fun
     n, k = fun.size, len(ident.kept)
+    if robust_scale is not None:
+        sigma, source = robust_scale
+        cov = sandwich_matrix(fun / sigma, jac / sigma, loss, 1.0, np.eye(k))
+        return PoseFit(model, x.copy(), ident, cov, residual, sigma, source, loss=loss)
     if campaign.noise_std is not None:
         sigma, source = campaign.noise_std, "declared"
     else:

@@ -27,7 +27,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
     lines = [f"pose campaign {c.name}: {c.n_rows} rows, {len(c.markers)} marker(s) "
              f"({', '.join(m.name for m in c.markers)}), {c.n_observed} measured components; "
-             f"noise std {noise}; masses {d.masses}",
+             f"noise std {noise}; masses {d.masses}; loss {d.loss}",
              "", f"{'step':<5} {'family':<18} {'params':>6} {'RMS':>11} {'dBIC':>10} "
                  f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
     for i, s in enumerate(d.steps):

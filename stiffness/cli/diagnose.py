@@ -54,9 +54,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     parser.add_argument("--loss", choices=LOSSES, default="linear",
-                        help="deflection campaigns: linear (least squares) or a robust loss "
-                             "for every fit, scaled by the noise std, with intervals from "
-                             "Huber's sandwich covariance; default linear")
+                        help="linear (least squares) or a robust loss for every fit, scaled "
+                             "by the noise std, with intervals from Huber's sandwich "
+                             "covariance (deflection and pose campaigns); default linear")
     parser.add_argument("--masses", choices=MASSES, default="known",
                         help="pose campaigns: whether the robot's link masses are trusted "
                              "(joint compliance times gravity torque) or unknown (lumped "
@@ -104,9 +104,6 @@ def run_poses(args: argparse.Namespace) -> int:
     from stiffness.calibration.pose_diagnose import diagnose_poses
     from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 
-    if args.loss != "linear":
-        raise StiffnessError("--loss takes deflection campaigns; pose campaigns are fitted by "
-                             "least squares (drop --loss)")
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
     if args.out:
@@ -114,7 +111,7 @@ def run_poses(args: argparse.Namespace) -> int:
     show = sys.stderr.isatty() and not args.quiet
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
-                            if show else None)
+                            if show else None, loss=args.loss)
     paths = write_pose_diagnosis(result, args.out) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 

@@ -1,0 +1,172 @@
+"""Robust losses on pose campaigns (``diagnose --loss`` on tracker data, issue 29): gross
+outliers (a marker seen through a reflection, a mislabelled row) against least squares.
+
+Measured here (UR10, two markers, 50 poses, tracker noise 20 um declared, a 150 N payload;
+hidden measuring frame, marker offsets, zero offsets and joint compliance; 2 of the 100 marker
+positions moved by 50 x the noise in a random direction; seeds 0-7; the 8 zero offsets and
+compliances the fit keeps per seed, 64 intervals):
+
+============  ================  ==================================================
+loss          95 % coverage     held-out 3-D RMS / (sqrt(3) noise), clean campaign
+============  ================  ==================================================
+linear        22 / 64           1.52 mean (seeds 1.38 to 1.74)
+soft_l1       60 / 64           1.04 mean (seeds 0.93 to 1.18)
+============  ================  ==================================================
+
+Without outliers (40 poses; soft_l1 on seeds 0 and 1, huber with the noise undeclared on
+seed 2) the robust fits move each parameter by at most 0.72 of its least-squares standard
+deviation, their intervals are within 6 % of least squares' widths, and huber's robust noise
+estimate is 0.91 of the true noise.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy import stats
+
+from stiffness.calibration.absolute import Marker, PoseModel
+from stiffness.calibration.pose_campaign import write_pose_campaign
+from stiffness.calibration.pose_diagnose import validation_errors
+from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, rows_of, starting_frame
+from stiffness.cli.main import main
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.robot import load_robot
+
+NOISE = 20e-6  # m
+PAYLOAD = np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0])  # N at tool0
+FAMILIES = ["frame", "markers", "joint_offsets", "joint_compliance"]
+CHECKED = ("joint_offsets", "joint_compliance")
+MARKERS = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
+           Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return load_robot("ur10", frame="tool0")
+
+
+def _hidden(rng: np.random.Generator) -> HiddenPoseErrors:
+    return HiddenPoseErrors(
+        pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+        np.array([m.offset for m in MARKERS]) + rng.normal(0, 2e-3, (2, 3)),
+        rng.normal(0.0, 1e-3, 6), np.zeros((6, 6)),
+        stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
+
+
+def _with_outliers(c, share: float, size: float, rng: np.random.Generator) -> np.ndarray:
+    """Move ``share`` of the marker positions by ``size`` (m) in random directions; returns
+    the (row, marker) pairs moved."""
+    pairs = [(i, k) for i in range(c.n_rows) for k in range(len(c.markers))]
+    moved = rng.choice(len(pairs), max(1, round(share * len(pairs))), replace=False)
+    for p in moved:
+        d = rng.normal(size=3)
+        c.positions[pairs[p]] += size * d / np.linalg.norm(d)
+    return moved
+
+
+def _truth(model: PoseModel, hidden: HiddenPoseErrors, fit: PoseFit) -> np.ndarray:
+    """The hidden values in the model's layout, merged parameters folded into the kept ones."""
+    x = np.zeros(model.size)
+    sl = model.slices()
+    frame = sl["frame"].start
+    x[frame:frame + 3] = hidden.frame_translation - model.translation0
+    x[frame + 3:frame + 6] = pin.log3(hidden.frame_rotation @ model.rotation0.T)
+    x[sl["markers"]] = (hidden.marker_offsets - np.array([m.offset for m in MARKERS])).ravel()
+    x[sl["joint_offsets"]] = hidden.joint_offsets
+    x[sl["joint_compliance"]] = 1.0 / hidden.stiffness
+    out = x.copy()
+    for d in fit.identifiability.dropped:
+        for kept, coef in d.merged_into:
+            out[kept] += coef * x[d.index]
+    return out
+
+
+def _fit(robot, c, loss: str) -> tuple[PoseModel, PoseFit]:
+    model = PoseModel(robot, c.markers, tuple(FAMILIES), starting_frame(c), c.loads)
+    return model, fit_pose_model(model, c, rows_of(model, c), FAMILIES, loss=loss)
+
+
+def _binomial_consistent(hits: int, n: int, level: float = 0.95, alpha: float = 1e-3) -> bool:
+    return (stats.binom.cdf(hits, n, level) > alpha / 2
+            and stats.binom.sf(hits - 1, n, level) > alpha / 2)
+
+
+def test_soft_l1_recovers_the_truth_through_gross_outliers(ur10):
+    """8 seeds, 2 % of the marker positions 50 x the noise off: soft_l1's intervals cover the
+    hidden zero offsets and compliances at a binomially consistent 95 % rate and its held-out
+    RMS on a clean campaign of the same arm is the noise's; least squares' coverage is not
+    consistent with 95 % and its held-out RMS is a quarter above soft_l1's (numbers in the
+    module docstring)."""
+    hits = {"linear": 0, "soft_l1": 0}
+    held = {"linear": [], "soft_l1": []}
+    count = 0
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        hidden = _hidden(rng)
+        c = simulate_pose_campaign(ur10, MARKERS, hidden, 50, NOISE, seed=seed, payload=PAYLOAD)
+        clean = simulate_pose_campaign(ur10, MARKERS, hidden, 20, NOISE, seed=seed + 100,
+                                       payload=PAYLOAD)
+        _with_outliers(c, 0.02, 50 * NOISE, rng)
+        for loss in hits:
+            model, fit = _fit(ur10, c, loss)
+            truth = _truth(model, hidden, fit)
+            lo, hi = fit.interval()
+            kept = [i for i in fit.identifiability.kept if model.parameters[i].family in CHECKED]
+            hits[loss] += sum(int(lo[i] <= truth[i] <= hi[i]) for i in kept)
+            count += len(kept) if loss == "linear" else 0
+            held[loss].append(validation_errors(fit.model, fit.x, clean)["rms"]
+                              / (np.sqrt(3) * NOISE))
+    assert count >= 60
+    assert _binomial_consistent(hits["soft_l1"], count), hits
+    assert not _binomial_consistent(hits["linear"], count), hits
+    assert np.mean(held["soft_l1"]) < 1.1 and max(held["soft_l1"]) < 1.25, held
+    assert np.mean(held["linear"]) > 1.25 * np.mean(held["soft_l1"]), held
+
+
+def test_robust_fit_agrees_with_least_squares_without_outliers(ur10):
+    """No outliers: soft_l1 (declared noise, 2 seeds) and huber (noise undeclared, estimated
+    robustly) move each kept parameter by less than one least-squares standard deviation,
+    with intervals within 25 % of least squares' widths; the fit records its loss and the
+    scale's source."""
+    for seed, loss in ((0, "soft_l1"), (1, "soft_l1"), (2, "huber")):
+        rng = np.random.default_rng(seed)
+        c = simulate_pose_campaign(ur10, MARKERS, _hidden(rng), 40, NOISE, seed=seed,
+                                   payload=PAYLOAD)
+        _, ls = _fit(ur10, c, "linear")
+        if loss == "huber":
+            c.noise_std = None
+        _, robust = _fit(ur10, c, loss)
+        assert robust.loss == loss
+        if loss == "huber":
+            assert robust.sigma_source == "robust"
+            assert robust.sigma == pytest.approx(NOISE, rel=0.25)
+        else:
+            assert robust.sigma_source == "declared" and robust.sigma == NOISE
+        k = ls.identifiability.kept
+        assert robust.identifiability.kept == k
+        assert np.all(np.abs(robust.x[k] - ls.x[k]) < ls.std()[k])
+        assert np.all(np.abs(robust.std()[k] / ls.std()[k] - 1.0) < 0.25)
+
+
+def test_diagnose_loss_on_a_pose_campaign_file(ur10, tmp_path, capsys):
+    """``diagnose --loss huber --out`` on a pose campaign with an outlier: accepted, named in
+    the text report, recorded as ``loss`` in diagnosis.json; an unknown loss is refused."""
+    rng = np.random.default_rng(21)
+    hidden = _hidden(rng)
+    hidden.stiffness = None
+    c = simulate_pose_campaign(ur10, MARKERS, hidden, 15, NOISE, seed=21)
+    moved = _with_outliers(c, 0.04, 50 * NOISE, rng)
+    write_pose_campaign(c, tmp_path / "c")
+    assert len(moved) == 1
+    assert main(["diagnose", str(tmp_path / "c"), "--loss", "huber",
+                 "--out", str(tmp_path / "d")]) == 0
+    assert "loss huber" in capsys.readouterr().out
+    record = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert record["loss"] == "huber" and record["kind"] == "poses"
+    with pytest.raises(SystemExit):
+        main(["diagnose", str(tmp_path / "c"), "--loss", "l2"])
+    assert "invalid choice" in capsys.readouterr().err
