@@ -15,18 +15,27 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from scipy.stats import binom
 
+from stiffness.calibration.campaign_writer import write_campaign
+from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.diagnosis import SI_UNITS
+from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
+from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
-from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.preloads import GravityCompensator
-from stiffness.elastic.model_file import ModelEffect
+from stiffness.elastic.model_file import ModelEffect, elastic_model_of, read_model_file
 from stiffness.mechanics.gravity import spring_balancer, upward_angle
+from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.robot.robot import load_robot
 
 #: (robot, revolute joints whose axis is horizontal at the neutral configuration)
 ARMS = [("ur5", ["shoulder_lift_joint", "elbow_joint", "wrist_1_joint"]),
         ("kinova", ["j2s6s200_joint_2", "j2s6s200_joint_3", "j2s6s200_joint_5"])]
 SPRING = (1e5, 3000.0)  # N/m, N
+NOISE = 5e-6  # m
 
 
 def _at(robot, joint: str, angle: float) -> np.ndarray:
@@ -170,3 +179,110 @@ def test_a_model_file_written_before_the_upward_reference_keeps_its_meaning():
     np.testing.assert_allclose(tau, want, rtol=1e-14)
     np.testing.assert_allclose(dtau, dwant, rtol=1e-14)
     assert ModelEffect("gravity_compensator", "joint2", "preload", settings=old).settings == old
+
+
+# --- the lever and base lengths: declared, or the base fitted when the data determine it ---
+
+
+def test_the_torque_depends_on_the_lengths_only_through_f0_a_k_a2_and_their_ratio():
+    """Closed form behind holding the lever: scaling both lengths by s and F0, k by 1/s,
+    1/s^2 leaves the torque and its derivative unchanged (so the data can at most give a/d)."""
+    theta = np.linspace(-3.0, 3.0, 41)
+    k, f0, a, d = 2e5, 700.0, 0.12, 0.35
+    tau, dtau = spring_balancer(theta, k, f0, a, d, 0.0)
+    for s in (0.3, 1.7, 4.0):
+        t_s, dt_s = spring_balancer(theta, k / s ** 2, f0 / s, s * a, s * d, 0.0)
+        np.testing.assert_allclose(t_s, tau, rtol=1e-12, atol=1e-12 * np.abs(tau).max())
+        np.testing.assert_allclose(dt_s, dtau, rtol=1e-12, atol=1e-12 * np.abs(dtau).max())
+    # and the ratio matters: another a/d with F0 a and k a^2 kept changes the torque
+    other, _ = spring_balancer(theta, k, f0, a, 0.5, 0.0)
+    assert np.abs(other - tau).max() > 0.05 * np.abs(tau).max()
+
+
+KINOVA = ("kinova", ["j2s6s200_joint_1", "j2s6s200_joint_2", "j2s6s200_joint_3"],
+          [2e4, 1.5e4, 1e4], "j2s6s200_joint_2")
+#: A spring slack with the link up (F0 = 0), lever 0.3 m, base 0.4 m: a/d = 0.75 shapes the
+#: torque, so the data determine the base given the lever (N/m, N, m, m)
+SLACK_SPRING = (1e5, 0.0, 0.3, 0.4)
+
+
+def _slack_campaign(seed: int, configs: int = 10):
+    robot, joints, kq, where = KINOVA
+    spec = f"gravity_compensator:{where}=" + ",".join(f"{v:g}" for v in SLACK_SPRING)
+    return simulate(robot, kq=kq, compliant_joints=joints, max_force=100.0,
+                    noise_std_m=NOISE, effects=[parse_effect(spec)], configs=configs,
+                    loads_per_config=4, seed=seed, joint_angles="link").campaign
+
+
+def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
+    """Six seeds, the lever declared at 0.1 m (the default): the fitted base, stiffness and
+    preload are those of the true spring rescaled to that lever (d = 0.4 * 0.1/0.3 m,
+    k = 1e5 * 9, F0 = 0), their 95 % intervals covering them at a binomially consistent
+    rate."""
+    k, f0, a, d = SLACK_SPRING
+    s = 0.1 / a
+    truth = (k / s ** 2, f0 / s, d * s)
+    covered = total = 0
+    for seed in range(6):
+        campaign = _slack_campaign(seed)
+        robot = campaign.robot()
+        geo = Geometry.of(robot)
+        rows = geo.rows(campaign.q, campaign.force, campaign.moment, joint_angles="link")
+        refs = References.of(geo, rows, 2e4, campaign.deflection)
+        freed = make_effect("gravity_compensator", KINOVA[3], geo).settings_freed()
+        assert freed.parameter_names == ("stiffness", "preload", "base")
+        model = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (freed,), refs)
+        fit = fit_model(model, campaign.deflection, NOISE,
+                        np.concatenate([np.log(KINOVA[2]), freed.start()]))
+        cov = parameter_covariance(fit, NOISE, campaign.deflection)
+        params = freed.report(fit.x[3:], cov[3:, 3:], refs, SI_UNITS, interval_quantile(
+            NOISE, campaign.deflection.size, model.penalty_params))
+        for p, want in zip(params, truth, strict=True):
+            covered += int(p.ci95[0] <= want <= p.ci95[1])
+            total += 1
+    assert covered >= binom.ppf(0.001, total, 0.95), (covered, total)
+
+
+def test_diagnose_fits_the_base_or_holds_it_and_the_model_file_says_which(tmp_path):
+    """End to end: the slack spring's base is fitted (the model file's parameters carry it,
+    geometry_source fitted); the file's elastic model applies the fitted base."""
+    d = diagnose(_slack_campaign(1), propose=False)
+    comp = [e for e in d.final.model.effects if e.name == "gravity_compensator"]
+    assert comp and comp[0].settings["geometry_source"] == "fitted", d.final.model.describe()
+    path = d.model_file().write(tmp_path / "model.json")
+    model = read_model_file(path)
+    entry = next(e for e in model.effects if e.name == "gravity_compensator")
+    assert entry.settings["geometry_source"] == "fitted"
+    assert [p.name for p in entry.parameters] == ["stiffness", "preload", "base"]
+    elastic = elastic_model_of(model)
+    (_, k, f0, geometry), = elastic.compensators
+    assert geometry["base_m"] == pytest.approx(entry.value("base"), rel=1e-12)
+    assert geometry["lever_m"] == 0.1
+    assert (k, f0) == (entry.value("stiffness"), entry.value("preload"))
+
+
+def test_declared_geometry_flag_reaches_the_model_file_and_bad_values_are_one_line(tmp_path,
+                                                                                     capsys):
+    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4],
+                   compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"],
+                   max_force=100.0, noise_std_m=NOISE, configs=6, loads_per_config=4, seed=3,
+                   effects=[parse_effect("gravity_compensator:shoulder_lift_joint=1e5,2e4")],
+                   joint_angles="link")
+    write_campaign(sim.campaign, tmp_path / "c")
+    assert main(["diagnose", str(tmp_path / "c"), "--no-proposals", "--quiet", "--out",
+                 str(tmp_path / "out"), "--compensator-geometry",
+                 "shoulder_lift_joint=0.12,0.35"]) == 0
+    capsys.readouterr()
+    model = read_model_file(tmp_path / "out" / "final-model.json")
+    entry = next(e for e in model.effects if e.name == "gravity_compensator")
+    # a zero-free-length spring: its torque is k a d sin(phi), the ratio a/d never shows
+    assert entry.settings["lever_m"] == 0.12 and entry.settings["base_m"] == 0.35
+    assert entry.settings["geometry_source"] == "declared"
+    assert "do not determine the base" in entry.settings["geometry_note"]
+    assert "declared, held" in entry.description
+    for bad in ("shoulder_lift_joint=0.12", "wrist_3_joint=0.1,0.3",
+                "shoulder_lift_joint=0.2,0.2"):
+        assert main(["diagnose", str(tmp_path / "c"), "--no-proposals", "--quiet",
+                     "--compensator-geometry", bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and err, (bad, err)

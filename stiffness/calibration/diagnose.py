@@ -41,6 +41,7 @@ to the campaign's units.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -76,7 +77,7 @@ from stiffness.elastic.effects import candidates
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.units import Units
 
 #: A candidate must lower BIC by more than this.
@@ -134,6 +135,7 @@ def diagnose(
     progress: Callable[[str], None] | None = None,
     workers: int | None = None,
     loss: str = "linear",
+    effect_settings: dict[str, dict] | None = None,
 ) -> Diagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
@@ -159,6 +161,11 @@ def diagnose(
     loss
         ``linear`` or a robust loss for every fit, scaled by the noise std; criteria compare
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
+    effect_settings
+        Settings the user declares, by effect label (:meth:`Effect.declare`), e.g.
+        ``{"gravity_compensator(joint2)": {"lever_m": 0.12, "base_m": 0.35}}``. Declared
+        settings an effect can fit (a compensator's lever and base) are fitted when the
+        data determine them (:func:`_fit_settings`), else held and reported as declared.
 
     Raises
     ------
@@ -186,8 +193,9 @@ def diagnose(
                         References.of(geo, rows, 1e5, campaign.deflection)), n, sigma, loss)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
+    declared = _declared_settings(base, effect_settings or {})
     cv_base = cross_validate([base], measured, folds, workers)[0]
-    search = _Search(measured, folds, scale, n, sigma, workers, say)
+    search = _Search(measured, folds, scale, n, sigma, workers, say, declared)
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.model.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
@@ -231,6 +239,66 @@ def _check_options(max_steps: int, loss: str) -> None:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
                              f"only), got {max_steps!r}")
     fitting.check_loss(loss)
+
+
+def _declared_settings(base: Fit, settings: dict[str, dict]) -> dict[str, dict]:
+    """``settings`` by effect label, checked: each label a candidate of the campaign's model
+    and its settings ones the effect takes (:meth:`Effect.declare`; a typed error)."""
+    made = candidates(base.model, settings)
+    labels = [e.label for e in made]
+    for label in settings:
+        if label not in labels:
+            same = [e.label for e in made if e.name == label.partition("(")[0]] or labels
+            raise StiffnessError(f"effect settings for {label}, which is not a candidate of "
+                                 f"this campaign's model; {did_you_mean(label, same)}")
+    return dict(settings)
+
+
+#: A declared setting an effect can fit is fitted when the half-width of its 95 % interval is
+#: at most this fraction of its value; else it is held at the declared value.
+SETTING_PRECISION = 0.5
+
+
+def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: float | None,
+                  say: Callable[[str], None]) -> Fit:
+    """``fit`` with the declared settings of its last effect (a compensator's lever and base,
+    :meth:`Effect.settings_freed`) refitted as parameters and kept where the data determine
+    them (finite 95 % intervals within :data:`SETTING_PRECISION` of their values), else held
+    with why (:meth:`Effect.settings_held`)."""
+    effect = fit.model.effects[-1]
+    freed = effect.settings_freed()
+    if freed is None:
+        return fit
+    a, b = fit.model.offsets[-2], fit.model.offsets[-1]
+    extra = freed.start()[effect.n_params:]
+    trial = fit_model(fit.model.with_effects(fit.model.effects[:-1] + (freed,)), measured, scale,
+                      np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
+    p = trial.model.penalty_params
+    sig = sigma if sigma is not None else math.sqrt(trial.loss_rss / max(n - p, 1))
+    cov = parameter_covariance(trial, sig, measured)
+    quantile = interval_quantile(sigma if fit.loss == "linear" else None, n, p)
+    c = b + len(extra)
+    freed_params = freed.report(trial.x[a:c], cov[a:c, a:c], trial.model.refs, SI_UNITS,
+                                quantile)[effect.n_params:]
+    reason = _undetermined(freed_params)
+    if reason is None and trial.loss_rss <= fit.loss_rss * (1.0 + 1e-9):
+        say(f"{freed.label}: {', '.join(q.name for q in freed_params)} fitted")
+        return trial
+    held = effect.settings_held(reason or "freeing them did not lower the residual")
+    return dataclasses.replace(fit, model=fit.model.with_effects(fit.model.effects[:-1]
+                                                                 + (held,)))
+
+
+def _undetermined(params: list[Parameter]) -> str | None:
+    """Why the data do not determine ``params`` (SI), or ``None`` when they do: finite 95 %
+    intervals with half-widths within :data:`SETTING_PRECISION` of the values."""
+    for q in params:
+        half = 0.5 * (q.ci95[1] - q.ci95[0])
+        if not (q.determined and half <= SETTING_PRECISION * abs(q.value)):
+            interval = (f"[{q.ci95[0]:.3g}, {q.ci95[1]:.3g}] {q.unit}" if q.determined
+                        else "unbounded")
+            return f"the data do not determine the {q.name} (95 % interval {interval} when fitted)"
+    return None
 
 
 def _final_noise(final: Fit, n: int, sigma: float | None, note: str) -> tuple[float, str]:
@@ -311,6 +379,7 @@ class _Search:
     sigma: float | None
     workers: int | None
     say: Callable[[str], None]
+    declared: dict[str, dict]
 
     def run(self, base: Fit, cv_base: float, max_steps: int, units: Units
             ) -> tuple[Fit, list[Step], list[tuple[int, Candidate, Candidate, float]], str]:
@@ -349,6 +418,9 @@ class _Search:
                 if d_bic < AMBIGUITY_BIC or (similarity > SIMILARITY_LIMIT
                                              and d_bic < WEAK_BIC):
                     ambiguities.append((len(steps) + 1, winner, c, similarity))
+            winner.fit = _fit_settings(winner.fit, self.measured, self.scale, self.n,
+                                       self.sigma, self.say)
+            winner.effect = winner.fit.model.effects[-1]
             steps.append(self.step(winner, results, dispersion, units))
             self.say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
             assert winner.cv_rms is not None  # the winner was cross-validated
@@ -357,7 +429,7 @@ class _Search:
     def candidates(self, current: Fit) -> tuple[list[Candidate], float]:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
         by BIC, and the step's overdispersion."""
-        effects = candidates(current.model)
+        effects = candidates(current.model, self.declared)
         fits = list(zip(effects, fitting.fit_models(
             [fit_job(current.model.extended(e), self.measured, self.scale,
                      current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,

@@ -57,6 +57,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="linear (least squares) or a robust loss for every fit, scaled "
                              "by the noise std, with intervals from Huber's sandwich "
                              "covariance (deflection and pose campaigns); default linear")
+    parser.add_argument("--compensator-geometry", action="append", default=[],
+                        metavar="JOINT=LEVER_M,BASE_M",
+                        help="deflection campaigns, repeatable: the lever and base lengths (m) "
+                             "of a spring gravity compensator on JOINT, e.g. "
+                             "joint2=0.12,0.35; default 0.1,0.3. The base is fitted when the "
+                             "data determine it, else held; the lever always is the declared "
+                             "one (the torque depends on the lengths only through F0 a, k a^2 "
+                             "and a/d)")
     parser.add_argument("--masses", choices=MASSES, default="known",
                         help="pose campaigns: whether the robot's link masses are trusted "
                              "(joint compliance times gravity torque) or unknown (lumped "
@@ -72,7 +80,34 @@ def command_line(args: argparse.Namespace) -> str:
              "--max-steps", str(args.max_steps), "--seed", str(args.seed)]
     words += ["--no-proposals"] if args.no_proposals else []
     words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
+    for declared in getattr(args, "compensator_geometry", []):
+        words += ["--compensator-geometry", declared]
     return shlex.join(words)
+
+
+def compensator_geometry(declared: list[str]) -> dict[str, dict]:
+    """``--compensator-geometry JOINT=LEVER_M,BASE_M`` flags as ``diagnose``'s
+    ``effect_settings`` (m).
+
+    Raises
+    ------
+    StiffnessError
+        Not ``JOINT=LEVER_M,BASE_M`` with two numbers, or a joint given twice.
+    """
+    settings: dict[str, dict] = {}
+    for text in declared:
+        joint, _, lengths = text.partition("=")
+        try:
+            lever, base = (float(v) for v in lengths.split(","))
+        except ValueError:
+            raise StiffnessError(f"--compensator-geometry {text!r}: give JOINT=LEVER_M,BASE_M, "
+                                 "e.g. joint2=0.12,0.35") from None
+        label = f"gravity_compensator({joint.strip()})"
+        if label in settings:
+            raise StiffnessError(f"--compensator-geometry names {joint.strip()} twice; give "
+                                 "each joint once")
+        settings[label] = {"lever_m": lever, "base_m": base}
+    return settings
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if args.validate:
         raise StiffnessError("--validate takes pose campaigns; for a deflection campaign "
                              "diagnose reports the held-out (cross-validated) RMS of each step")
+    declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
     if args.out:
         output_folder(args.out, create=False)  # before the work: a bad --out fails at once
@@ -93,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
 
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None,
-                      workers=args.workers, loss=args.loss)
+                      workers=args.workers, loss=args.loss, effect_settings=declared)
     paths = result.write(args.out, command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
 
@@ -104,6 +140,9 @@ def run_poses(args: argparse.Namespace) -> int:
     from stiffness.calibration.pose_diagnose import diagnose_poses
     from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 
+    if args.compensator_geometry:
+        raise StiffnessError("--compensator-geometry takes deflection campaigns; a pose "
+                             "campaign has no compensator effect (drop it)")
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
     if args.out:

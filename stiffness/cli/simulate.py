@@ -46,7 +46,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "frame_misalignment=2 (deg), target_offset=20 (--units), "
                              "force_sensor_bias=5 (N), complementary_stiffness, "
                              "gravity_preload=20[,cx,cy,cz] (kg, --units), "
-                             "gravity_compensator:joint2=2e5,500 (N/m, N)")
+                             "gravity_compensator:joint2=2e5,500[,lever,base] (N/m, N, "
+                             "then m)")
     parser.add_argument("--configs", type=int, default=10, help="configurations; default 10")
     parser.add_argument("--loads-per-config", type=int, default=4,
                         help="loads per configuration; default 4")

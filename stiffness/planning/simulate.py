@@ -36,7 +36,8 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
   with the link straight up on the revolute compliant joint J, its angle measured from the
   link's upward direction at zero load (:func:`stiffness.mechanics.gravity.upward_angle`),
   lever and base :data:`stiffness.elastic.effects.preloads.COMPENSATOR_GEOMETRY`
-  (:func:`stiffness.mechanics.gravity.compensator_torque`), in the exact equilibrium.
+  (:func:`stiffness.mechanics.gravity.compensator_torque`), in the exact equilibrium;
+  ``J=k,F0,lever,base`` gives the lever and base lengths (m).
 
 With ``rotations``, the campaign also records the rotation vector of the target frame between
 the unloaded and the loaded equilibrium (base axes; rotated by a hidden frame misalignment,
@@ -413,7 +414,7 @@ class Simulation:
                 "force_sensor_bias": self.campaign.units.force,
                 "deflection_offset": self.campaign.units.length,
                 "gravity_preload": f"kg, then {self.campaign.units.length} (target frame)",
-                "gravity_compensator": "N/m, N"},
+                "gravity_compensator": "N/m, N, then lever and base in m"},
             "settings": self.settings,
             "model": ("exact elastostatic equilibrium of the true robot"
                       " (stiffness.planning.simulate)"),

@@ -111,12 +111,13 @@ def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
     return LIBRARY[name].at_place(where, geometry)
 
 
-def candidates(model: Hypothesis) -> list[Effect]:
+def candidates(model: Hypothesis, declared: dict[str, dict] | None = None) -> list[Effect]:
     """Every library effect that can extend ``model`` (each effect and place at most once).
 
     ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
     ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`); ``backlash``
-    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects.
+    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects. An
+    effect whose label ``declared`` names takes those settings (:meth:`Effect.declare`).
     """
     geo = model.geometry
     have = {e.key() for e in model.effects}
@@ -124,7 +125,8 @@ def candidates(model: Hypothesis) -> list[Effect]:
 
     def add(effect: Effect) -> None:
         if effect.key() not in have:
-            out.append(effect)
+            out.append(effect.declare(declared[effect.label]) if declared
+                       and effect.label in declared else effect)
 
     if not model.second_order:
         add(ComplementaryStiffness())

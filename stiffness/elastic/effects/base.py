@@ -130,6 +130,31 @@ class Effect:
         """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
         return self
 
+    def declare(self, settings: dict) -> Effect:
+        """This effect with settings its user declared (SI; ``stiffness diagnose``'s
+        ``effect_settings``, e.g. a compensator's ``lever_m`` and ``base_m``).
+
+        Raises
+        ------
+        StiffnessError
+            Settings the effect does not take (this default: any).
+        """
+        if settings:
+            raise StiffnessError(f"{self.label} takes no declared settings; drop "
+                                 f"{', '.join(settings)}")
+        return self
+
+    def settings_freed(self) -> Effect | None:
+        """This effect with its declared settings as further parameters, appended after
+        :attr:`parameter_names` (fitted when the data determine them), or ``None`` when it has
+        no such settings (this default)."""
+        return None
+
+    def settings_held(self, reason: str) -> Effect:
+        """This effect with its declared settings held, and ``reason`` (one clause: why the
+        data do not determine them) recorded."""
+        return self
+
     @classmethod
     def place_joints(cls, where: str | None) -> list[str]:
         """The joints ``where`` names (checked against the robot of a model file)."""
@@ -169,9 +194,15 @@ class Effect:
         return self.name if self.where is None else f"{self.name}({self.where})"
 
     @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of this effect's parameters: :attr:`param_names`, and the settings
+        :meth:`settings_freed` made parameters."""
+        return self.param_names
+
+    @property
     def n_params(self) -> int:
         """Number of parameters."""
-        return len(self.param_names)
+        return len(self.parameter_names)
 
     @property
     def penalty_params(self) -> int:
@@ -262,7 +293,7 @@ class Effect:
         se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
         value = self.physical(u, refs)
         out = []
-        for name, v, s, (unit, factor) in zip(self.param_names, value, se,
+        for name, v, s, (unit, factor) in zip(self.parameter_names, value, se,
                                               self._units(units), strict=True):
             out.append(Parameter(name, v / factor, s / factor,
                                  ((v - quantile * s) / factor, (v + quantile * s) / factor),

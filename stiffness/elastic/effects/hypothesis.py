@@ -141,6 +141,11 @@ class Hypothesis:
         return Hypothesis(self.geometry, self.rows, baseline, self.compliant, self.effects,
                           self.refs, self.rotation_weight)
 
+    def with_effects(self, effects: tuple[Effect, ...]) -> Hypothesis:
+        """The same model with other effects."""
+        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, effects,
+                          self.refs, self.rotation_weight)
+
     def with_rotation_weight(self, weight: float | None) -> Hypothesis:
         """The same model predicting rotations with weight ``weight`` (m/rad), or only
         translations (``None``)."""

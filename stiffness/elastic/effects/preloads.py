@@ -11,6 +11,7 @@ Units: SI (kg, m, N, N/m, N.m, rad).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -91,12 +92,27 @@ class GravityPreload(Effect):
                 "is loaded minus unloaded under that weight)")
 
 
+#: Where a compensator's lever and base lengths come from: the library's defaults
+#: (:data:`COMPENSATOR_GEOMETRY`), the user's declaration, or the fit (when the data determine
+#: them).
+GEOMETRY_SOURCES = ("default", "declared", "fitted")
+#: Bounds of the fitted base length, as multiples of its declared value (and on the declared
+#: side of the lever).
+GEOMETRY_RANGE = (0.05, 20.0)
+
+
 @dataclass(eq=False)
 class GravityCompensator(Effect):
     """A spring between the base and a lever on the joint's link, its angle measured from the
     link's upward direction at zero load
     (:func:`stiffness.mechanics.gravity.compensator_torque`,
-    :func:`stiffness.mechanics.gravity.upward_angle`)."""
+    :func:`stiffness.mechanics.gravity.upward_angle`). Its lever and base lengths are settings
+    (the library's defaults or the user's declaration). The torque depends on the stiffness
+    ``k``, the preload ``F0``, the lever ``a`` and the base ``d`` exactly through ``F0 a``,
+    ``k a^2`` and ``a / d`` (scaling both lengths by ``s`` and ``F0, k`` by ``1/s, 1/s^2``
+    leaves it unchanged): the lever is always the declared one (``k`` and ``F0`` are in its
+    terms), the base becomes the parameter ``base`` (m) after them when the data determine the
+    ratio (``geometry_source = "fitted"``, :meth:`settings_freed`)."""
 
     joint_name: str = ""
     lever_m: float = float(COMPENSATOR_GEOMETRY["lever_m"])
@@ -105,10 +121,12 @@ class GravityCompensator(Effect):
     angle_up_rad: float = float(COMPENSATOR_GEOMETRY["angle_up_rad"])
     angle_reference: str = str(COMPENSATOR_GEOMETRY["angle_reference"])
     reference_reason: str = ""
+    geometry_source: str = "default"
+    geometry_note: str = ""
     name: ClassVar[str] = "gravity_compensator"
     param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
     beyond_springs: ClassVar[bool] = True
-    value_counts: ClassVar[tuple[int, ...]] = (2,)
+    value_counts: ClassVar[tuple[int, ...]] = (2, 4)
 
     def __post_init__(self) -> None:
         if not (self.lever_m > 0 and self.base_m > 0 and abs(self.lever_m - self.base_m) > 1e-6):
@@ -119,6 +137,10 @@ class GravityCompensator(Effect):
             raise StiffnessError(f"gravity_compensator:{self.joint_name}: angle_reference must "
                                  f"be one of {', '.join(ANGLE_REFERENCES)}, got "
                                  f"{self.angle_reference!r}")
+        if self.geometry_source not in GEOMETRY_SOURCES:
+            raise StiffnessError(f"gravity_compensator:{self.joint_name}: geometry_source must "
+                                 f"be one of {', '.join(GEOMETRY_SOURCES)}, got "
+                                 f"{self.geometry_source!r}")
 
     @classmethod
     def at_place(cls, where, geometry):
@@ -144,34 +166,96 @@ class GravityCompensator(Effect):
                                    angle_up_rad=float(g["angle_up_rad"]),
                                    angle_reference=str(g["angle_reference"]),
                                    reference_reason="" if "angle_reference" in settings
-                                   else "a model file written before the upward reference")
+                                   else "a model file written before the upward reference",
+                                   geometry_source=str(settings.get("geometry_source",
+                                                                    "default")),
+                                   geometry_note=str(settings.get("geometry_note", "")))
+
+    def declare(self, settings):
+        unknown = sorted(set(settings) - {"lever_m", "base_m"})
+        if unknown:
+            raise StiffnessError(f"{self.label} takes lever_m and base_m (m), not "
+                                 f"{', '.join(unknown)}")
+        values = {k: float(v) for k, v in settings.items()}
+        if not all(math.isfinite(v) and v > 0 for v in values.values()):
+            raise StiffnessError(f"{self.label}: lever_m and base_m must be positive lengths "
+                                 f"in m, got {settings}")
+        return dataclasses.replace(self, **values, geometry_source="declared")
+
+    def settings_freed(self):
+        if self.geometry_source == "fitted":
+            return None
+        return dataclasses.replace(self, geometry_source="fitted",
+                                   geometry_note=f"base fitted from the {self.geometry_source} "
+                                                 f"{self.base_m:g} m, lever {self.lever_m:g} m "
+                                                 f"{self.geometry_source}")
+
+    def settings_held(self, reason):
+        return dataclasses.replace(self, geometry_note=(
+            f"{reason}: the torque depends on k, F0, lever a and base d only through F0 a, "
+            "k a^2 and a/d"))
 
     def file_settings(self, refs):
         return dict(self.settings)
 
+    def simulated_values(self, values, units):
+        if len(values) == 4 and not (values[2] > 0 and values[3] > 0
+                                     and abs(values[2] - values[3]) > 1e-6):
+            raise StiffnessError(f"gravity_compensator:{self.joint_name}=k,F0,lever,base needs "
+                                 f"a lever and a base (m) that are positive and differ, got "
+                                 f"{values[2]} and {values[3]}")
+        return np.asarray(values, dtype=float)
+
     def contribute(self, values, parts):
-        parts.add_compensator(self.joint_name, values[0], values[1], self.settings)
+        parts.add_compensator(self.joint_name, values[0], values[1], self.geometry(values))
 
     @property
     def where(self) -> str:
         return self.joint_name
 
     @property
+    def parameter_names(self) -> tuple[str, ...]:
+        fitted = ("base",) if self.geometry_source == "fitted" else ()
+        return self.param_names + fitted
+
+    @property
     def settings(self) -> dict:
-        """The spring's geometry (SI) and where its angle is measured from."""
+        """The spring's geometry (SI), where its angle is measured from, and where its lever
+        and base lengths come from (:data:`GEOMETRY_SOURCES`) with why."""
         return {"lever_m": self.lever_m, "base_m": self.base_m, "angle_up_rad": self.angle_up_rad,
-                "angle0_rad": self.angle0_rad, "angle_reference": self.angle_reference}
+                "angle0_rad": self.angle0_rad, "angle_reference": self.angle_reference,
+                "geometry_source": self.geometry_source, "geometry_note": self.geometry_note}
+
+    def geometry(self, values: np.ndarray) -> dict:
+        """:attr:`settings` with the lengths of SI ``values``: (stiffness, preload, base) of
+        a fitted base, or (stiffness, preload, lever, base) of ``stiffness simulate``."""
+        g = self.settings
+        if len(values) == 4:
+            g.update(lever_m=float(values[2]), base_m=float(values[3]))
+        elif len(values) == 3:
+            g.update(base_m=float(values[2]))
+        return g
 
     def scale(self, refs):
         ad = self.lever_m * self.base_m
-        return np.array([0.1 * refs.k_ref / ad, 0.1 * refs.k_ref / self.lever_m])
+        spring = [0.1 * refs.k_ref / ad, 0.1 * refs.k_ref / self.lever_m]
+        return np.array(spring + ([self.base_m] if self.n_params == 3 else []))
 
     def bounds(self):
-        return np.array([0.0, -1e4]), np.full(2, 1e4)
+        lo, hi = [0.0, -1e4], [1e4, 1e4]
+        if self.n_params == 3:  # the base stays on its side of the lever (L > 0)
+            ratio = self.lever_m / self.base_m
+            low, high = ((ratio * (1 + 1e-3), GEOMETRY_RANGE[1]) if ratio < 1
+                         else (GEOMETRY_RANGE[0], ratio * (1 - 1e-3)))
+            lo, hi = lo + [low], hi + [high]
+        return np.array(lo), np.array(hi)
+
+    def start(self):
+        return np.array([0.0, 0.0] + ([1.0] if self.n_params == 3 else []))
 
     def torque(self, p: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Spring torque (N.m) on the joint at angles ``theta`` (rad) and its derivative."""
-        return compensator_torque(theta, p[0], p[1], self.settings)
+        return compensator_torque(theta, p[0], p[1], self.geometry(p))
 
     def preload(self, p, model, rows):
         column = model.joints.index(self.joint_name)
@@ -184,7 +268,8 @@ class GravityCompensator(Effect):
         return tau, k
 
     def _units(self, units):
-        return [("N/m", 1.0), ("N", 1.0)]
+        return [("N/m", 1.0), ("N", 1.0)] + [(units.length, units.length_to_si)] * (
+            self.n_params - 2)
 
     def describe(self) -> str:
         if self.angle_reference == "upward":
@@ -193,6 +278,11 @@ class GravityCompensator(Effect):
         else:
             why = f": {self.reference_reason}" if self.reference_reason else ""
             origin = f"its angle measured from the joint's zero{why}"
-        return (f"a spring gravity compensator on {self.joint_name} (lever {self.lever_m:g} m, "
-                f"base {self.base_m:g} m, {origin}) adds its torque and its angle derivative "
-                "(a stiffness) to the joint")
+        if self.geometry_source == "fitted":
+            lengths = self.geometry_note
+        else:
+            held = f", held: {self.geometry_note}" if self.geometry_note else ""
+            lengths = (f"lever {self.lever_m:g} m and base {self.base_m:g} m "
+                       f"{self.geometry_source}{held}")
+        return (f"a spring gravity compensator on {self.joint_name} ({lengths}; {origin}) adds "
+                "its torque and its angle derivative (a stiffness) to the joint")
