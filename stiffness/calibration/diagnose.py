@@ -162,10 +162,7 @@ def diagnose(
         ``linear`` or a robust loss for every fit, scaled by the noise std; criteria compare
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
     effect_settings
-        Settings the user declares, by effect label (:meth:`Effect.declare`), e.g.
-        ``{"gravity_compensator(joint2)": {"lever_m": 0.12, "base_m": 0.35}}``. Declared
-        settings an effect can fit (a compensator's lever and base) are fitted when the
-        data determine them (:func:`_fit_settings`), else held and reported as declared.
+        Declared settings by effect label (:meth:`Effect.declare`; :func:`_fit_settings`).
 
     Raises
     ------
@@ -193,9 +190,9 @@ def diagnose(
                         References.of(geo, rows, 1e5, campaign.deflection)), n, sigma, loss)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
-    declared = _declared_settings(base, effect_settings or {})
     cv_base = cross_validate([base], measured, folds, workers)[0]
-    search = _Search(measured, folds, scale, n, sigma, workers, say, declared)
+    search = _Search(measured, folds, scale, n, sigma, workers, say,
+                     _declared_settings(base, effect_settings or {}))
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.model.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
