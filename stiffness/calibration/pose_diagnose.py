@@ -110,7 +110,7 @@ class PoseDiagnosis:
                 else self.campaign.noise_std / lu,
                 "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
-                           "n_parameters": s.fit.n_fitted,
+                           "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
                 "rejected": self.rejected, "families": self.families,

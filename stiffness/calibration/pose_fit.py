@@ -9,7 +9,9 @@ out either has no effect on any marker ("no effect": its column is below
 :data:`IDENTIFIABILITY_TOL` of the largest column of the family) or is a combination of kept
 ones ("merged": the kept parameters absorb it with the least-squares coefficients reported).
 
-Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian;
+Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian, at most
+:data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
+an ill-conditioned family whose trial steps keep meeting a diverging sag crawls for thousands);
 covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or the residual variance when the
 campaign declares none; 95 % intervals from the normal quantile.
 
@@ -46,6 +48,8 @@ IDENTIFIABILITY_TOL = 1e-6
 #: Residual (m, each component) of a trial step whose sag does not converge (an unphysically
 #: large compliance): far above any measured error, so the solver refuses the step.
 DIVERGED_RESIDUAL_M = 1.0
+#: Evaluations of the model after which a fit stops (not converged).
+MAX_EVALUATIONS = 500
 #: Two-sided 95 % normal quantile.
 _Z95 = float(special.ndtri(0.975))
 
@@ -186,6 +190,8 @@ class PoseFit:
         (the robust estimate scaling a robust loss).
     loss
         The loss the fit minimised (:data:`~stiffness.calibration.fitting.LOSSES`).
+    converged
+        Whether the solver met its tolerances within :data:`MAX_EVALUATIONS` evaluations.
     """
 
     model: PoseModel
@@ -197,6 +203,7 @@ class PoseFit:
     sigma_source: str = "declared"
     extras: dict = field(default_factory=dict)
     loss: str = "linear"
+    converged: bool = True
 
     @property
     def n_observed(self) -> int:
@@ -321,21 +328,26 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
 
     scales = np.array([model.parameters[i].scale for i in kept])
     sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
-                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                 max_nfev=MAX_EVALUATIONS)
     x[kept] = sol.x
     if loss == "linear":
-        return _finish(model, campaign, x, ident, sol.jac, sol.fun, observed)
+        fit = _finish(model, campaign, x, ident, sol.jac, sol.fun, observed)
+        fit.converged = bool(sol.status > 0)
+        return fit
     s = scale if scale is not None else campaign.noise_std
     assert s is not None  # undeclared noise and no scale: _fit_robust_scale estimated it
     # from the least-squares optimum: a few steps (from far, every residual is beyond the
     # loss's scale and the robust steps crawl), and a start for cauchy's non-convex loss
     sol = optimize.least_squares(residual, sol.x, jac=jacobian, x_scale=scales,
                                  method="trf", loss=loss, f_scale=s,
-                                 xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                                 xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=MAX_EVALUATIONS)
     # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead
     fun, jac = residual(sol.x), jacobian(sol.x)
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
-    return _finish(model, campaign, x, ident, jac, fun, observed, loss, (s, source))
+    fit = _finish(model, campaign, x, ident, jac, fun, observed, loss, (s, source))
+    fit.converged = bool(sol.status > 0)
+    return fit
 
 
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],

@@ -75,14 +75,13 @@ class GravityLumped(JointDeflectionFamily):
         """d(Delta q)/d theta (nv, n_theta): minus the regressor entries of each pair."""
         nv = model.nv
         regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(nv), np.zeros(nv))
-        cols = []
-        for j, vj in zip(pm.compliant, pm.compliant_v, strict=True):
-            for k in pm.downstream(j):
-                for p in range(len(GRAVITY_PARAMETERS)):
-                    col = np.zeros(nv)
-                    col[vj] = -regressor[vj, 10 * (k - 1) + p]
-                    cols.append(col)
-        return np.array(cols).T if cols else np.zeros((nv, 0))
+        pairs = np.array([(vj, 10 * (k - 1) + p)
+                          for j, vj in zip(pm.compliant, pm.compliant_v, strict=True)
+                          for k in pm.downstream(j) for p in range(len(GRAVITY_PARAMETERS))],
+                         dtype=int).reshape(-1, 2)
+        out = np.zeros((nv, len(pairs)))
+        out[pairs[:, 0], np.arange(len(pairs))] = -regressor[pairs[:, 0], pairs[:, 1]]
+        return out
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         return state.extras[self.name] @ x_f
