@@ -14,10 +14,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import root
 
+from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.effects.geometry import Geometry, link_axes
 from stiffness.elastic.effects.link_bends import LinkCompliance
 from stiffness.elastic.loaded import LinkBend, loaded_equilibrium
 from stiffness.elastic.model import ElasticModel
+from stiffness.errors import StiffnessError
 from stiffness.machining.compensation import compensate
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.robot import kinematics
@@ -488,3 +490,48 @@ def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
         theirs = load_model(path).at(coords, wrench).compliance6 @ wrench
         np.testing.assert_allclose(linear_deflection(em, coords, wrench), theirs,
                                    rtol=1e-9, atol=1e-14)
+
+
+def test_preloaded_model_cancels_the_weight_and_the_load(ur5):
+    """A model with the arm's weight and a 4 kg payload (a preload): the closed-form command
+    rests the target on the nominal pose under the process wrench *and* the weight. Checked by
+    the root finder on ``k (theta - theta_c) = J^T (W + m g) - g(theta)`` with Pinocchio's
+    generalised gravity, not the toolkit's preload."""
+    k = np.array(UR5_K)
+    em = ElasticModel.of_parts(
+        ur5, ElasticParts(dict(zip(ur5.coordinate_joints, UR5_K, strict=True)),
+                          payload=(4.0, np.zeros(3))))
+    assert em.preloaded
+    wrench = np.array([60.0, -40.0, -150.0, 2.0, -1.0, 1.0])
+    weight = np.concatenate([4.0 * ur5.model.gravity.linear, np.zeros(3)])
+    result = compensate(em, UR5_PATH, wrench)
+    model, data = ur5.model, ur5.model.createData()
+    for point, nominal in zip(result.points, UR5_PATH, strict=True):
+        seed = point.q_nominal
+
+        def balance(theta, command=point.command, seed=seed):
+            jac = _fd_jacobian(ur5, theta, seed, range(6))
+            gravity = pin.computeGeneralizedGravity(model, data, theta)
+            return k * (theta - command) - jac.T @ (wrench + weight) + gravity
+
+        sol = root(balance, nominal.copy(), method="hybr", tol=1e-14)
+        assert np.abs(balance(sol.x)).max() / k.min() < 1e-12, sol.message
+        p, r = _fk(ur5, sol.x, seed)
+        p_n, r_n = _fk(ur5, nominal, seed)
+        assert np.linalg.norm(p - p_n) < 1e-9
+        assert np.linalg.norm(pin.log3(r @ r_n.T)) < 1e-9
+        assert np.linalg.norm(point.residual) < 1e-9
+        # the weight's sag is part of what is cancelled: mm here, against um of residual
+        assert np.linalg.norm(point.deflection) > 1e-4
+        assert np.linalg.norm(point.residual_first_order) < 0.1 * np.linalg.norm(
+            point.deflection)
+
+
+def test_preloaded_model_with_link_bends_is_refused_in_one_line(ur5):
+    parts = ElasticParts(dict(zip(ur5.coordinate_joints, UR5_K, strict=True)),
+                         bends=[("elbow_joint", "wrist_1_joint", 5e4, 3e4)],
+                         payload=(4.0, np.zeros(3)))
+    em = ElasticModel.of_parts(ur5, parts)
+    with pytest.raises(StiffnessError) as err:
+        compensate(em, UR5_PATH, np.array([0.0, 0.0, -100.0]))
+    assert "preload" in str(err.value) and "\n" not in str(err.value)

@@ -50,6 +50,7 @@ from stiffness.errors import (
 )
 from stiffness.files import atomic_write, read_text
 from stiffness.mechanics.defaults import default_coordinates
+from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.robot import kinematics
@@ -216,6 +217,9 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     nominal = bent_kinematics(em, links, axes, coords, np.zeros(2 * len(links)), wrench, q_n)
     pos_n, rot_n = nominal.position.copy(), nominal.rotation.copy()
 
+    if em.preloaded:
+        return _preloaded_point(em, coords, wrench, hold, method, q_n, (pos_n, rot_n))
+
     def solve(command):
         return loaded_equilibrium(em, command, wrench, seed_q=q_n, axes=axes)
 
@@ -248,6 +252,54 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
         iterations=iterations,
         q_nominal=q_n,
     )
+
+
+def _preloaded_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray, hold: str,
+                     method: str, q_n: np.ndarray, nominal: tuple[np.ndarray, np.ndarray]
+                     ) -> PointCompensation:
+    """Compensation under a preload (the weight, a compensator): the load is the process
+    wrench *and* the preload, so the command also cancels the preload's sag.
+
+    Closed form (joint motions only): the links rest at ``theta_n`` exactly when the command is
+    ``theta_n - law(J(theta_n)^T W + tau_p(theta_n))``, ``tau_p`` the preload's torque there.
+    The first-order command shifts the pose by ``J law(...)`` through inverse kinematics. Each
+    is checked by the exact equilibrium under the load and the preload
+    (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`).
+
+    Raises
+    ------
+    StiffnessError
+        Link bends with a preload (not modelled), or ``method`` ``general``.
+    """
+    if not em.joint_only or method == "general":
+        raise StiffnessError("compensation under a preload (the weight, a compensator) is "
+                             "closed-form for joint compliance only; this model has link "
+                             "compliance or asks for the general method: drop one of them")
+    pos_n, rot_n = nominal
+    full, robot = em.full, em.robot
+    law = em.compliant_law()
+    idx = robot.compliant_in_coordinates
+
+    def rest(command: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = full.configuration(command, seed=q_n)
+        eq = solve_equilibrium(robot, q, law, wrench, preload=em.preload)
+        state = target_state(robot, eq.q)
+        return state.position, state.rotation
+
+    state = target_state(robot, q_n)
+    motion = np.zeros(coords.shape[0])
+    motion[idx] = law(state.jacobian.T @ wrench + em.preload(q_n)[0])[0]
+    command = coords - motion
+    shift = target_state(full, q_n).jacobian @ motion
+    target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
+    ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
+    (p_u, r_u), (p_c, r_c), (p_f, r_f) = rest(coords), rest(command), rest(ik.coords)
+    return PointCompensation(
+        command=command, command_first_order=ik.coords,
+        deflection=p_u - pos_n, rotation_deflection=pin.log3(r_u @ rot_n.T),
+        residual=p_c - pos_n, rotation_residual=pin.log3(r_c @ rot_n.T),
+        residual_first_order=p_f - pos_n, rotation_residual_first_order=pin.log3(r_f @ rot_n.T),
+        method="closed-form", iterations=0, q_nominal=q_n)
 
 
 # ------------------------------------------------------------------------------------------
