@@ -166,6 +166,35 @@ def test_no_upward_direction_falls_back_to_the_joint_zero_and_says_so(tmp_path):
     assert "on its axis" in upward_angle(on_axis, "hinge").reason
 
 
+def test_a_controller_coordinate_falls_back_to_its_zero(tmp_path):
+    """A robot.toml whose springs sit on controller coordinates (J2 drives j2 and j3): the
+    compensator's angle is measured from the coordinate's zero, said so (and no crash)."""
+    path = tmp_path / "arm" / "robot.toml"
+    path.parent.mkdir()
+    path.write_text("""[dh]
+convention = "modified"
+length_unit = "m"
+angle_unit = "rad"
+joints = [
+  { name = "j1", type = "revolute", alpha = 0.0, a = 0.0, theta = 0.0, d = 0.4 },
+  { name = "j2", type = "revolute", alpha = 1.5707963267948966, a = 0.1, theta = 0.0, d = 0.0 },
+  { name = "j3", type = "revolute", alpha = 0.0, a = 0.5, theta = 0.0, d = 0.0 },
+]
+tool = { xyz = [0.4, 0.0, 0.0], rpy = [0.0, 0.0, 0.0] }
+links = [ { mass = 5.0, com = [0.0, 0.0, 0.0] }, { mass = 4.0, com = [0.25, 0.0, 0.0] },
+          { mass = 3.0, com = [0.2, 0.0, 0.0] } ]
+[controller]
+coordinates = ["J1", "J2", "J3"]
+chain = { j1 = "J1", j2 = "J2", j3 = "-J2 - J3" }
+springs_on = "controller"
+""")
+    robot = load_robot(path)
+    effect = make_effect("gravity_compensator", "J2", Geometry.of(robot))
+    assert effect.settings["angle_reference"] == "joint_zero"
+    assert "controller coordinate" in effect.describe()
+    assert upward_angle(robot, "j2").reference == "upward"  # the chain joint has a link
+
+
 def test_a_model_file_written_before_the_upward_reference_keeps_its_meaning():
     """Settings without ``angle_reference`` (lever, base, ``angle0_rad`` only) read as the
     joint's zero: phi = theta + angle0_rad, the tension at the joint's zero."""

@@ -160,10 +160,14 @@ def upward_angle(robot: Robot, joint: str) -> UpwardAngle:
     -------
     UpwardAngle
         ``upward`` with that angle (rad), or ``joint_zero`` (angle 0) with the reason when no
-        direction is up: the axis parallel to gravity, no gravity, or the carried centre of
-        mass on the axis (e.g. a DH robot without masses).
+        direction is up: the axis parallel to gravity, no gravity, the carried centre of mass
+        on the axis (e.g. a DH robot without masses), or ``joint`` a controller coordinate
+        rather than one joint of the chain.
     """
     model = robot.model
+    if not model.existJointName(joint) or model.joints[model.getJointId(joint)].nv != 1:
+        return UpwardAngle(0.0, "joint_zero", f"{joint} is not one revolute joint of the chain "
+                                              "(a controller coordinate): no link to point up")
     data = model.createData()
     q = pin.neutral(model)
     jid = model.getJointId(joint)
