@@ -21,6 +21,8 @@ from stiffness.elastic.loaded import LinkBend, loaded_equilibrium
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import StiffnessError
 from stiffness.machining.compensation import compensate
+from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.formulation import target_state
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.robot import kinematics
 from stiffness.robot.robot import load_robot
@@ -535,3 +537,33 @@ def test_preloaded_model_with_link_bends_is_refused_in_one_line(ur5):
     with pytest.raises(StiffnessError) as err:
         compensate(em, UR5_PATH, np.array([0.0, 0.0, -100.0]))
     assert "preload" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_linear_deflection_under_a_preload_is_the_exact_equilibriums_slope(ur5):
+    """Posture's first-order deflection under a preload (weight, payload, a compensator) is, at
+    a small load (where ``K_C(W)`` vanishes), the load derivative of the exact equilibrium
+    under that preload: central differences of ``solve_equilibrium(..., preload=em.preload)``
+    at +-h W, to 1e-6 relative. Ignoring the preload's stiffness and operating point (the
+    behaviour before) is off by 1.1 % here."""
+    parts = ElasticParts(dict(zip(ur5.coordinate_joints, UR5_K, strict=True)),
+                         payload=(6.0, np.zeros(3)))
+    parts.add_compensator("shoulder_lift_joint", 2e5, 3000.0, {"lever_m": 0.1, "base_m": 0.3})
+    em = ElasticModel.of_parts(ur5, parts)
+    coords = UR5_PATH[0]
+    wrench = np.array([80.0, -50.0, -200.0, 3.0, -2.0, 1.0])
+    law = em.compliant_law()
+    q = em.full.configuration(coords)
+
+    def target(scale):
+        eq = solve_equilibrium(em.robot, q, law, scale * wrench, preload=em.preload)
+        m = target_state(em.robot, eq.q)
+        return m.position, m.rotation
+
+    h = 1e-3
+    (pp, rp), (pm, rm) = target(h), target(-h)
+    fd = np.concatenate([(pp - pm) / (2 * h), pin.log3(rp @ rm.T) / (2 * h)])
+    linear = em.linear_deflection(coords, 1e-6 * wrench) / 1e-6
+    np.testing.assert_allclose(linear, fd, rtol=0, atol=1e-6 * np.abs(fd).max())
+    springs = ElasticModel.joint_springs(ur5, UR5_K)
+    springs_only = springs.linear_deflection(coords, 1e-6 * wrench) / 1e-6
+    assert np.abs(springs_only - fd).max() > 1e-4 * np.abs(fd).max()

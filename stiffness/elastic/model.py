@@ -41,7 +41,7 @@ import pinocchio as pin
 from stiffness.batch.linalg import critical_load_factor
 from stiffness.elastic.effects.base import Effect, ElasticParts
 from stiffness.elastic.effects.geometry import Geometry, chain_placements, link_axes, skew
-from stiffness.elastic.loaded import LinkBend, Loaded, loaded_equilibrium
+from stiffness.elastic.loaded import LinkBend, Loaded, linear_deflection, loaded_equilibrium
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
@@ -368,6 +368,19 @@ class ElasticModel:
         weight's (``K_g``) in the ``enhanced`` formulation only (zeros without preloads)."""
         return joint_preload(self.robot, self._weighed, self.compensators, q,
                              weight_stiffness=formulation == "enhanced")
+
+    def linear_deflection(self, coords: np.ndarray, wrench: np.ndarray,
+                          seed_q: np.ndarray | None = None) -> np.ndarray:
+        """First-order target displacement ``C W`` (6,) [m; rad] under the dead ``wrench``
+        (base axes) at the commanded coordinates ``coords`` (rad, m), every effect included
+        (:func:`stiffness.elastic.loaded.linear_deflection`); under a preload (the weight, a
+        compensator) ``C`` is the tangent compliance at the preloaded operating point,
+        ``J (K_t - K_C - K_p)^-1 J^T`` (:meth:`ElasticState.compliance`)."""
+        if not self.preloaded:
+            return linear_deflection(self, coords, wrench, seed_q=seed_q)
+        w = as_wrench(wrench)
+        q = self.full.configuration(np.asarray(coords, dtype=float), seed=seed_q)
+        return self.at(coords, w, closed=q).compliance(slice(0, 6)) @ w
 
     def preloaded_configuration(self, q: np.ndarray) -> np.ndarray:
         """The unloaded pose under the weight and the compensators: the commanded full

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.elastic.loaded import linear_deflection
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.formulation import target_state
@@ -113,7 +112,7 @@ class PostureProblem:
         return w
 
     def deflection(self, i: int, psi: float, ik: IKResult) -> np.ndarray:
-        return linear_deflection(self.em, ik.coords, self.load(i, psi), seed_q=ik.q)[:3]
+        return self.em.linear_deflection(ik.coords, self.load(i, psi), seed_q=ik.q)[:3]
 
     def step_ok(self, a: np.ndarray, b: np.ndarray) -> bool:
         return bool(np.all(np.abs(a - b)[self.angular] <= self.max_step + 1e-12))

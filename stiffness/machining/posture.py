@@ -48,7 +48,6 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.elastic.loaded import linear_deflection
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
@@ -589,7 +588,7 @@ def _null_space_descent(problem: PostureProblem, i: int, chosen: list[IKResult],
     current = float(np.linalg.norm(defl[i]))
 
     def value_at(coords: np.ndarray, q: np.ndarray) -> float:
-        return float(np.linalg.norm(linear_deflection(problem.em, coords, load, seed_q=q)[:3]))
+        return float(np.linalg.norm(problem.em.linear_deflection(coords, load, seed_q=q)[:3]))
 
     for _ in range(iterations):
         ik = chosen[i]
