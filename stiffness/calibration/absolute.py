@@ -27,7 +27,11 @@ with the parameter families of :data:`stiffness.calibration.pose_families.FAMILI
 ``joint_compliance``
     each compliant joint's compliance ``c_j`` (rad/(N.m), or m/N): ``Delta q_j = c_j tau_j``
     with ``tau = J_load(q)^T w - g(q)``, the applied wrench's and gravity's torque at the loaded
-    configuration ``q`` itself (the sag's fixed point, :meth:`PoseModel.loaded_configuration`);
+    configuration ``q`` itself (the sag's fixed point, :meth:`PoseModel.loaded_configuration`).
+    Springs on a ``[controller]``'s coordinates ``u`` (``q_chain = A u + b``,
+    ``springs_on = "controller"``) act there: ``Delta u = C_u A^T tau``,
+    ``Delta q = A Delta u``; in general ``Delta q = S C S^T tau`` with ``S``
+    (:attr:`PoseModel.spring_map`) the joint rates per unit rate of each spring's coordinate;
 ``gravity_lumped``
     masses unknown: ``Delta q_j = - sum_k theta_jk Y_jk(q)``, with ``Y`` the gravity regressor
     (Pinocchio's joint-torque regressor at rest, at the loaded configuration) and
@@ -70,22 +74,6 @@ SAG_ITERATIONS = 50
 
 class PoseModelError(StiffnessError):
     """A robot or marker set that absolute-pose calibration cannot model."""
-
-
-def require_joint_springs(robot: Robot) -> None:
-    """Refuse springs on a ``[controller]``'s coordinates: the pose model and its simulator
-    put a spring on each compliant joint of the chain.
-
-    Raises
-    ------
-    PoseModelError
-        With ``[controller] springs_on = "controller"``.
-    """
-    if robot.springs_on_controller:
-        raise PoseModelError(
-            f"{robot.name}: its springs act on the controller's coordinates ([controller] "
-            "springs_on = \"controller\"); absolute-pose calibration puts them on the chain's "
-            "joints: set springs_on = \"chain\" and name chain joints in compliant_joints")
 
 
 @dataclass(frozen=True)
@@ -152,7 +140,6 @@ class PoseModel:
             raise PoseModelError(
                 f"{robot.name} has closed loops; absolute-pose calibration handles open chains "
                 "only: calibrate a serial robot, or use a deflection campaign")
-        require_joint_springs(robot)
         unknown = [f for f in families if f not in FAMILIES]
         if unknown:
             raise PoseModelError(f"unknown parameter families {unknown}; valid: "
@@ -170,7 +157,12 @@ class PoseModel:
         model = robot.model
         self.frame_ids = [self._frame_id(m.frame) for m in markers]
         self.joints = one_dof_joints(model)
-        self.compliant = [int(model.getJointId(n)) for n in robot.compliant_joints]
+        self.springs = tuple(robot.compliant_joints)
+        self.spring_map = robot.rate_projection(self.springs)
+        self._spring_links = [self._links_moved_by(c) for c in range(len(self.springs))]
+        # the compliant chain joints: none when the springs act on controller coordinates
+        self.compliant = ([] if robot.springs_on_controller else
+                          [int(model.getJointId(n)) for n in self.springs])
         self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
                          if c != _zero_component(model.joints[j].shortname())]
         self.geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
@@ -207,6 +199,17 @@ class PoseModel:
     def downstream(self, joint: int) -> list[int]:
         """Joints whose links move with ``joint`` (its subtree, itself included)."""
         return [int(k) for k in self.robot.model.subtrees[joint]]
+
+    def spring_downstream(self, spring: int) -> list[int]:
+        """Joints whose links move with spring ``spring``'s coordinate (the subtrees of the
+        joints it drives, in model order)."""
+        return self._spring_links[spring]
+
+    def _links_moved_by(self, spring: int) -> list[int]:
+        model = self.robot.model
+        driven = [j for j in range(1, model.njoints) if model.joints[j].nv == 1
+                  and self.spring_map[model.joints[j].idx_v, spring] != 0.0]
+        return sorted({k for j in driven for k in self.downstream(j)})
 
     @property
     def size(self) -> int:

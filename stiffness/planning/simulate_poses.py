@@ -5,7 +5,9 @@ The simulated truth is computed independently of the fitted model
 (:mod:`stiffness.calibration.absolute`): the joint placements are perturbed exactly
 (``M_j exp(eps_j)``), the sag is the exact static equilibrium of joint springs under gravity and
 the applied wrench, ``K (q_l - q_c - delta_0) = J(q_l)^T w - g(q_l)`` (fixed-point iteration to
-1e-14 rad), and the measuring frame is an arbitrary rigid placement.
+1e-14 rad; springs on a ``[controller]``'s coordinates ``u``, ``q_chain = A u + b``, hold
+``K_u Delta u = A^T (J^T w - g)`` with ``Delta q = A Delta u``), and the measuring frame is an
+arbitrary rigid placement.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Loads, Marker, one_dof_joints, require_joint_springs
+from stiffness.calibration.absolute import Loads, Marker, one_dof_joints
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.poses import sample_coordinates
@@ -67,12 +69,12 @@ def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
 def sagged_configuration(model: pin.Model, robot: Robot, q_command: np.ndarray,
                          stiffness: np.ndarray | None, wrench: np.ndarray | None,
                          load_frame: str) -> np.ndarray:
-    """Exact joint springs' equilibrium under gravity and ``wrench`` (fixed point)."""
+    """Exact joint springs' equilibrium under gravity and ``wrench`` (fixed point); the springs
+    act on the robot's compliant coordinates (joints, or a ``[controller]``'s coordinates)."""
     if stiffness is None:
         return q_command
-    require_joint_springs(robot)
     data = model.createData()
-    v_index = [model.joints[model.getJointId(n)].idx_v for n in robot.compliant_joints]
+    springs = robot.rate_projection(robot.compliant_joints)  # (nv, n_compliant) rates per spring
     fid = model.getFrameId(load_frame)
     dv = np.zeros(model.nv)
     for _ in range(_SAG_ITERATIONS):
@@ -83,8 +85,7 @@ def sagged_configuration(model: pin.Model, robot: Robot, q_command: np.ndarray,
             pin.updateFramePlacements(model, data)
             torque = torque + pin.getFrameJacobian(model, data, fid,
                                                    pin.LOCAL_WORLD_ALIGNED).T @ wrench
-        new = np.zeros(model.nv)
-        new[v_index] = torque[v_index] / stiffness
+        new = springs @ ((springs.T @ torque) / stiffness)
         if np.max(np.abs(new - dv)) < _SAG_TOL:
             return pin.integrate(model, q_command, new)
         dv = new

@@ -62,6 +62,8 @@ class PoseLayout(Protocol):
     frame_ids: list[int]
     joints: list[int]
     compliant: list[int]
+    springs: tuple[str, ...]
+    spring_map: np.ndarray
     joints_v: list[int]
     compliant_v: list[int]
     geometry: list[tuple[int, int]]
@@ -73,6 +75,8 @@ class PoseLayout(Protocol):
     def joint_unit(self, joint: int, revolute: str, prismatic: str) -> str: ...
 
     def downstream(self, joint: int) -> list[int]: ...
+
+    def spring_downstream(self, spring: int) -> list[int]: ...
 
 
 @dataclass
