@@ -1,6 +1,7 @@
 """The Python API equals the command line: for each workflow at the package top
 (``stiffness.identify``, ``diagnose``, ``simulate``, ``design``, ``compensate``, ``posture``,
-``scan``), the result's ``.to_dict()`` is the JSON object the command prints with ``--json``
+``scan``; ``diagnose`` of a pose campaign and ``validate``), the result's ``.to_dict()`` (or
+the dict ``validate`` returns) is the JSON object the command prints with ``--json``
 for the same inputs (the command run through ``stiffness.cli.main.main``), and what the command
 writes, the result's ``.write()`` writes the same.
 
@@ -176,3 +177,43 @@ def test_scan_of_a_model_file(tmp_path, capsys):
     assert _without_timing({**doc, "out": None}) == _without_timing({**printed, "out": None})
     assert (json.loads((tmp_path / "py" / "manifest.json").read_text())["spec"]
             == json.loads((tmp_path / "cli" / "manifest.json").read_text())["spec"])
+
+
+@pytest.fixture(scope="module")
+def pose_campaigns(tmp_path_factory) -> tuple[Path, Path]:
+    """Two small simulated UR10 pose campaigns (one tracker marker, hidden zero offsets and
+    a tracker placement): one to diagnose, one to validate on."""
+    robot = stiffness.load_robot("ur10", frame="tool0")
+    markers = [stiffness.Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    hidden = stiffness.HiddenPoseErrors(np.eye(3), np.array([1.5, -0.5, 0.2]),
+                                        np.array([[0.0, 0.031, 0.05]]),
+                                        np.linspace(-1e-3, 1e-3, 6), np.zeros((6, 6)),
+                                        np.full(6, 1e5))
+    folders = []
+    for seed in (1, 2):
+        c = stiffness.simulate_pose_campaign(robot, markers, hidden, 15, 2e-5, seed=seed)
+        folders.append(stiffness.write_pose_campaign(
+            c, tmp_path_factory.mktemp("poses") / f"c{seed}").parent)
+    return folders[0], folders[1]
+
+
+def test_diagnose_of_a_pose_campaign(tmp_path, capsys, pose_campaigns):
+    fit, other = pose_campaigns
+    printed = _command_json(capsys, ["diagnose", str(fit), "--validate", str(other)])
+    result = stiffness.diagnose(fit, validate=other)
+    assert _as_json(result) == printed
+    assert len(printed["steps"]) > 1, "families are added (else the test compares little)"
+    direct = stiffness.diagnose_poses(stiffness.load_pose_campaign(fit),
+                                      validate=stiffness.load_pose_campaign(other))
+    assert _as_json(direct) == printed
+
+
+def test_validate(tmp_path, capsys, pose_campaigns, campaign):
+    fit, other = pose_campaigns
+    assert main(["diagnose", str(fit), "--out", str(tmp_path / "D"), "--quiet"]) == 0
+    model = tmp_path / "D" / "final-model.json"
+    printed = _command_json(capsys, ["validate", str(model), str(other)])
+    assert json.loads(json.dumps(stiffness.validate(model, other))) == printed
+    assert printed["markers"]["tip"]["rows"] == 15
+    with pytest.raises(stiffness.StiffnessError, match="pose calibration"):
+        stiffness.validate(model, campaign)

@@ -47,19 +47,23 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
-from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Candidate, Diagnosis, Step
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise,
 )
+from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
+from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
 from stiffness.calibration.selection import (
+    BIC_MARGIN,
     GOF_LEVEL,
     config_folds,
     cross_validate,
@@ -80,8 +84,6 @@ from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.units import Units
 
-#: A candidate must lower BIC by more than this.
-BIC_MARGIN = 2.0
 #: Number of best-BIC candidates cross-validated per step.
 CV_TOP = 3
 #: Solver tolerance of the first fit of every candidate: a step stops once it lowers the cost
@@ -127,8 +129,33 @@ def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
     return out
 
 
+@overload
+def diagnose(campaign: Campaign, max_steps: int = ..., seed: int = ..., propose: bool = ...,
+             progress: Callable[[str], None] | None = ..., workers: int | None = ...,
+             loss: str = ..., effect_settings: dict[str, dict] | None = ...,
+             masses: str = ..., validate: PoseCampaign | str | os.PathLike | None = ...
+             ) -> Diagnosis: ...
+
+
+@overload
+def diagnose(campaign: PoseCampaign, max_steps: int = ..., seed: int = ...,
+             propose: bool = ..., progress: Callable[[str], None] | None = ...,
+             workers: int | None = ..., loss: str = ...,
+             effect_settings: dict[str, dict] | None = ..., masses: str = ...,
+             validate: PoseCampaign | str | os.PathLike | None = ...) -> PoseDiagnosis: ...
+
+
+@overload
+def diagnose(campaign: str | os.PathLike, max_steps: int = ..., seed: int = ...,
+             propose: bool = ..., progress: Callable[[str], None] | None = ...,
+             workers: int | None = ..., loss: str = ...,
+             effect_settings: dict[str, dict] | None = ..., masses: str = ...,
+             validate: PoseCampaign | str | os.PathLike | None = ...
+             ) -> Diagnosis | PoseDiagnosis: ...
+
+
 def diagnose(
-    campaign: Campaign | str | os.PathLike,
+    campaign: Campaign | PoseCampaign | str | os.PathLike,
     max_steps: int = MAX_STEPS,
     seed: int = 0,
     propose: bool = True,
@@ -136,17 +163,24 @@ def diagnose(
     workers: int | None = None,
     loss: str = "linear",
     effect_settings: dict[str, dict] | None = None,
-) -> Diagnosis:
+    masses: str = "known",
+    validate: PoseCampaign | str | os.PathLike | None = None,
+) -> Diagnosis | PoseDiagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
     The function behind ``stiffness diagnose``
     (:meth:`~stiffness.calibration.diagnosis.Diagnosis.to_dict` is its ``--json`` object,
     :meth:`~stiffness.calibration.diagnosis.Diagnosis.write` writes its ``--out`` folder).
+    A pose campaign (``kind = "poses"``) is diagnosed by
+    :func:`stiffness.calibration.pose_diagnose.diagnose_poses` (its ``PoseDiagnosis.to_dict``
+    is the command's ``--json`` there), with ``seed``, ``progress``, ``loss``, ``masses``
+    and ``validate``.
 
     Parameters
     ----------
     campaign
-        The campaign (SI rows), or the path of a ``campaign.toml`` (or of its folder).
+        The campaign (SI rows), or the path of a ``campaign.toml`` (or of its folder), of
+        either kind.
     max_steps
         Largest number of effects added.
     seed
@@ -163,6 +197,9 @@ def diagnose(
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
     effect_settings
         Declared settings by effect label (:meth:`Effect.declare`; :func:`_fit_settings`).
+    masses, validate
+        Pose campaigns only: whether the robot's link masses are trusted (``known``) or
+        lumped (``unknown``), and another pose campaign (or its path) evaluated at every step.
 
     Raises
     ------
@@ -170,9 +207,23 @@ def diagnose(
         If a configuration cannot be assembled, there are too few residuals, or
         ``max_steps`` is negative.
     """
+    if isinstance(campaign, PoseCampaign) or (
+            not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
+        return _diagnose_poses(campaign, seed, progress, loss, masses, validate)
+    if validate is not None:
+        raise StiffnessError("validate takes pose campaigns; for a deflection campaign "
+                             "diagnose reports the held-out (cross-validated) RMS of each step")
     _check_options(max_steps, loss)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
+    return _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
+                                 effect_settings or {})
+
+
+def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose: bool,
+                          progress: Callable[[str], None] | None, workers: int | None,
+                          loss: str, effect_settings: dict[str, dict]) -> Diagnosis:
+    """:func:`diagnose` on a deflection campaign."""
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
     compliant = tuple(campaign.robot().compliant_joints)
@@ -192,7 +243,7 @@ def diagnose(
     folds = config_folds(campaign.config, seed)
     cv_base = cross_validate([base], measured, folds, workers)[0]
     search = _Search(measured, folds, scale, n, sigma, workers, say,
-                     _declared_settings(base, effect_settings or {}))
+                     _declared_settings(base, effect_settings))
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.model.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
@@ -227,6 +278,18 @@ def diagnose(
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma,
     )
+
+
+def _diagnose_poses(campaign: PoseCampaign | str | os.PathLike, seed: int,
+                    progress: Callable[[str], None] | None, loss: str, masses: str,
+                    validate: PoseCampaign | str | os.PathLike | None) -> PoseDiagnosis:
+    """:func:`diagnose` on a pose campaign."""
+    if not isinstance(campaign, PoseCampaign):
+        campaign = load_pose_campaign(campaign)
+    if validate is not None and not isinstance(validate, PoseCampaign):
+        validate = load_pose_campaign(validate)
+    return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
+                          progress=progress, loss=loss)
 
 
 def _check_options(max_steps: int, loss: str) -> None:

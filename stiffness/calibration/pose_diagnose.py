@@ -28,7 +28,6 @@ import pinocchio as pin
 from scipy import special
 
 from stiffness.calibration.absolute import Loads, Marker, PoseModel
-from stiffness.calibration.diagnose import BIC_MARGIN
 from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families import FAMILIES
@@ -40,7 +39,7 @@ from stiffness.calibration.pose_fit import (
     rows_of,
     starting_frame,
 )
-from stiffness.calibration.selection import GOF_LEVEL, config_folds
+from stiffness.calibration.selection import BIC_MARGIN, GOF_LEVEL, config_folds
 from stiffness.calibration.validation import error_summary
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.files import atomic_write, read_json

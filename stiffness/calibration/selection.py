@@ -22,6 +22,8 @@ from stiffness.elastic.effects.hypothesis import Hypothesis
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
 #: ``RSS / sigma^2`` with ``N - p`` degrees of freedom does not reject at this level.
 GOF_LEVEL = 0.95
+#: A candidate (an effect, a pose family) must lower BIC by more than this to be added.
+BIC_MARGIN = 2.0
 #: Folds over configuration labels when there are more than :data:`LOCO_MAX` configurations.
 CV_FOLDS = 6
 #: Up to this many configurations, cross-validation leaves one configuration out at a time.

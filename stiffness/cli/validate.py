@@ -18,13 +18,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.calibration.campaign import campaign_kind, load_campaign
-from stiffness.calibration.pose_campaign import load_pose_campaign
-from stiffness.calibration.pose_diagnose import is_pose_model, read_pose_model, validation_errors
+from stiffness.calibration.evaluation import validate
 from stiffness.calibration.pose_report import format_validation
-from stiffness.calibration.validation import deflection_errors
-from stiffness.elastic.model_file import load_model
-from stiffness.errors import StiffnessError
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -38,19 +33,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness validate``; returns the exit code."""
-    pose_model = is_pose_model(args.model)
-    if (campaign_kind(args.campaign) == "poses") != pose_model:
-        raise StiffnessError(
-            f"{args.model} is {'a pose calibration' if pose_model else 'a deflection model'} "
-            f"and {args.campaign} is not a {'pose' if pose_model else 'deflection'} campaign; "
-            "validate a pose calibration on a pose campaign, a deflection model on a "
-            "deflection campaign")
-    if pose_model:
-        campaign = load_pose_campaign(args.campaign)
-        model = read_pose_model(args.model, campaign.robot)
-        result = validation_errors(model.model, model.x, campaign)
-    else:
-        result = deflection_errors(load_model(args.model), load_campaign(args.campaign))
+    result = validate(args.model, args.campaign)
     print(json.dumps(result, indent=1, allow_nan=False) if args.json
           else format_validation(result))
     return 0
