@@ -212,12 +212,12 @@ def units_section(doc: dict, toml: TomlFile) -> Units:
     for key, table in (("angle", ANGLE_UNITS), ("force", FORCE_UNITS),
                        ("length", LENGTH_UNITS)):
         value = u[key]
-        if value not in table:
+        if not isinstance(value, str) or value not in table:
             raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
                              f"{key} units: {', '.join(table)}", "units", key)
     for key, table in (("rotation", ANGLE_UNITS), ("moment", MOMENT_UNITS)):
         value = u.get(key)
-        if value is not None and value not in table:
+        if value is not None and (not isinstance(value, str) or value not in table):
             raise toml.error(f"[units] {key} = {value!r} is not a known {key} unit; valid "
                              f"{key} units: {', '.join(table)}; omit it for the default",
                              "units", key)

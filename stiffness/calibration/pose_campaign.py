@@ -31,7 +31,7 @@ from stiffness.calibration.campaign_toml import (
     units_section,
 )
 from stiffness.calibration.measurements import coordinates_in_si, parse_number
-from stiffness.errors import FileFormatError, MissingFileError
+from stiffness.errors import FileFormatError
 from stiffness.files import atomic_write, read_text, read_toml, staged_folder
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
@@ -154,8 +154,8 @@ def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
 
 
 def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
-            ) -> tuple[int, list[int], list[int]]:
-    """Check the header; (n_q, marker column starts, wrench columns)."""
+            ) -> tuple[int, list[list[int]], list[int]]:
+    """Check the header; (n_q, each marker's x, y, z columns, the wrench columns)."""
     n_q = robot.n_coordinates
     expected = ["config"] + [f"q{i + 1}" for i in range(n_q)]
     names = [c.strip() for c in cells]
@@ -163,38 +163,40 @@ def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
         raise FileFormatError(f"the header must start with {','.join(expected)} (the "
                               f"{n_q} coordinates of {robot.name} in its coordinate order: "
                               f"{', '.join(robot.coordinate_joints)})", path=data, line=1)
-    starts = []
+    twice = sorted({c for c in names if names.count(c) > 1})
+    if twice:
+        raise FileFormatError(f"column(s) {twice} appear more than once; keep one of each",
+                              path=data, line=1)
+    columns = []
     for m in markers:
         cols = [f"{m.name}_{a}" for a in "xyz"]
         if not all(c in names for c in cols):
             raise FileFormatError(f"marker {m.name!r} of [markers] has no columns "
                                   f"{', '.join(cols)}; add them (empty cells where it was not "
                                   "seen)", path=data, line=1)
-        starts.append(names.index(cols[0]))
-    wrench = [names.index(c) for c in _WRENCH if c in names]
+        columns.append([names.index(c) for c in cols])
+    present = [c for c in _WRENCH if c in names]
     known = set(expected) | {f"{m.name}_{a}" for m in markers for a in "xyz"} | set(_WRENCH)
     unknown = [c for c in names if c not in known]
     if unknown:
         raise FileFormatError(f"unknown column(s) {unknown}; a pose campaign has config, q1..qn, "
                               "<marker>_x/_y/_z per marker and optionally fx..mz", path=data,
                               line=1)
-    if wrench and len(wrench) not in (3, 6):
+    if present and present not in (list(_WRENCH[:3]), list(_WRENCH)):
         raise FileFormatError("give the applied wrench as fx,fy,fz or fx,fy,fz,mx,my,mz",
                               path=data, line=1)
-    return n_q, starts, wrench
+    return n_q, columns, [names.index(c) for c in present]
 
 
 def _rows(data: Path, robot: Robot, markers: list[Marker]
           ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray | None, list[int]]:
     """Labels, q (file units), positions (file units, NaN unseen), wrench (file units)."""
-    if not data.is_file():
-        raise MissingFileError(f"measurement file {data} does not exist; write it or fix "
-                               "[measurement] data", path=data)
-    lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(read_text(data, "CSV"))))
+    text = read_text(data, "measurement file ([measurement] data)")
+    lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(text)))
              if r and not r[0].lstrip().startswith("#")]
     if len(lines) < 2:
         raise FileFormatError("no data rows after the header", path=data)
-    n_q, starts, wrench_cols = _header(lines[0][1], data, robot, markers)
+    n_q, columns, wrench_cols = _header(lines[0][1], data, robot, markers)
     labels, q, pos, wrench, numbers = [], [], [], [], []
     for number, cells in lines[1:]:
         if len(cells) != len(lines[0][1]):
@@ -203,8 +205,8 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
         labels.append(cells[0].strip())
         q.append([parse_number(cells[j], data, number, j + 1, f"q{j}")
                   for j in range(1, n_q + 1)])
-        pos.append([_position(cells, s, data, number, m.name)
-                    for s, m in zip(starts, markers, strict=True)])
+        pos.append([_position(cells, c, data, number, m.name)
+                    for c, m in zip(columns, markers, strict=True)])
         wrench.append([parse_number(cells[j], data, number, j + 1, "load")
                        for j in wrench_cols])
         numbers.append(number)
@@ -212,14 +214,15 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
     return labels, np.array(q, float), np.array(pos, float), w, numbers
 
 
-def _position(cells: list[str], start: int, data: Path, line: int, name: str) -> list[float]:
-    raw = [c.strip() for c in cells[start:start + 3]]
+def _position(cells: list[str], columns: list[int], data: Path, line: int, name: str
+              ) -> list[float]:
+    raw = [cells[c].strip() for c in columns]
     if all(c == "" for c in raw):
         return [math.nan] * 3
     if any(c == "" for c in raw):
         raise FileFormatError(f"marker {name!r} has some but not all of its three cells; leave "
                               "all three empty where it was not seen", path=data, line=line)
-    return [parse_number(c, data, line, start + i + 1, f"{name}_{'xyz'[i]}")
+    return [parse_number(c, data, line, columns[i] + 1, f"{name}_{'xyz'[i]}")
             for i, c in enumerate(raw)]
 
 

@@ -368,7 +368,26 @@ def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> Pose
     except (KeyError, TypeError, ValueError) as exc:
         raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
                               "stiffness diagnose --out", path=path) from exc
+    _check_numbers(path, x, model, markers, frame0)
     return PoseModelFile(robot, model, x, path)
+
+
+def _check_numbers(path: Path, x: np.ndarray, model: PoseModel, markers: list[Marker],
+                   frame0: tuple[np.ndarray, np.ndarray]) -> None:
+    """Refuse a pose model file whose numbers are not finite or not of their shape: the
+    parameters, the marker offsets (3,) and the measuring frame (a 3x3 rotation, a 3-vector)."""
+    bad = [p.label for p, v in zip(model.parameters, x, strict=True) if not np.isfinite(v)]
+    bad += [f"marker {m.name} offset_m" for m in markers
+            if m.offset.shape != (3,) or not np.all(np.isfinite(m.offset))]
+    rotation, translation = frame0
+    if rotation.shape != (3, 3) or not np.all(np.isfinite(rotation)) or not np.allclose(
+            rotation.T @ rotation, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
+        bad.append("measuring_frame rotation (a 3x3 rotation matrix)")
+    if translation.shape != (3,) or not np.all(np.isfinite(translation)):
+        bad.append("measuring_frame translation_m")
+    if bad:
+        raise FileFormatError(f"pose model file: {bad[0]} is not a finite number of its shape; "
+                              "rewrite it with stiffness diagnose --out", path=path)
 
 
 #: Frame added by :func:`calibrated_robot` at the measuring system's origin.

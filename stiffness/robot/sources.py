@@ -270,6 +270,13 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
     if text in shipped:
         return _from_toml(robots_directory() / text, text)
     path = Path(text)
+    try:
+        path.exists()
+    except OSError as exc:  # a name the file system cannot even look up (too long)
+        raise UnknownRobotError(f"robot {text[:60]!r}... cannot be a file ({exc.strerror}) and "
+                                "is not a robot name; give a shipped robot, a URDF path or an "
+                                "example-robot-data name", name=text,
+                                choices=shipped) from None
     if path.suffix.lower() == ".toml" or (path.is_dir() and (path / "robot.toml").is_file()):
         toml = path if path.suffix.lower() == ".toml" else path / "robot.toml"
         if not toml.is_file():
