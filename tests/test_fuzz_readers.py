@@ -232,6 +232,23 @@ def test_urdf_mutations(four_bar, data):
         shutil.copy(ROBOTS / "sk120" / "sk120.urdf", urdf)
 
 
+SK120_DH = Path(__file__).resolve().parents[1] / "examples" / "sk120-dh" / "robot.toml"
+
+
+@FUZZ
+@given(data=st.data())
+def test_dh_robot_toml_mutations(tmp_path_factory, data):
+    """A DH robot.toml with controller coordinates (examples/sk120-dh): any mutation loads a
+    robot whose kinematics are finite at its default pose, or is refused in one line."""
+    folder = tmp_path_factory.mktemp("fuzz-dh")
+    toml = folder / "robot.toml"
+    write_text(toml, data.draw(toml_mutation(SK120_DH.read_text())))
+    robot = assert_reader_contract(lambda: load_robot(str(toml)), folder)
+    if robot is not None:
+        q = robot.configuration(np.zeros(robot.n_coordinates))
+        assert np.all(np.isfinite(q)) and robot.model.nq > 0
+
+
 # ------------------------------------------------------------------------------ model files
 
 

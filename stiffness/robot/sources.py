@@ -14,6 +14,7 @@ warning.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -127,6 +128,7 @@ def _from_toml(folder: Path, name: str, toml: Path | None = None) -> RobotSource
     ``urdf`` or its ``[dh]`` table (:mod:`stiffness.robot.dh`)."""
     toml = folder / "robot.toml" if toml is None else toml
     settings = read_toml(toml, "robot file")
+    check_settings(settings, toml)
     settings["_folder"], settings["_file"] = folder, toml
     if "dh" in settings:
         return _from_dh(toml, name, settings)
@@ -138,6 +140,54 @@ def _from_toml(folder: Path, name: str, toml: Path | None = None) -> RobotSource
     loop_file = folder / settings["loops"] if "loops" in settings else None
     return RobotSource(name, read.model, read.visual, settings, read.mimics, read.missing_meshes,
                        loop_file, urdf, all_mimics=read.all_mimics)
+
+
+#: Top-level keys of a ``robot.toml`` that hold text (docs/robot-files.md).
+TEXT_KEYS = ("name", "urdf", "loops", "frame", "twist_order")
+#: Keys that list names.
+NAME_LIST_KEYS = ("compliant_joints", "coordinate_order")
+#: Keys that list numbers (SI or their named unit), with the counts they take (None: any).
+NUMBER_LIST_KEYS = {"target_offset_m": (3,), "k_theta_SI": None, "q_deg": None, "q_SI": None,
+                    "rest_q_SI": None, "wrench_SI": (3, 6)}
+#: Keys that hold tables.
+TABLE_KEYS = ("dh", "controller", "workspace")
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
+        value)
+
+
+def check_settings(settings: dict, toml: Path) -> None:
+    """Refuse a ``robot.toml`` whose known top-level keys hold values of the wrong type (a
+    number where names are listed, text where numbers are), in one line naming the key.
+
+    Raises
+    ------
+    FileFormatError
+        The first key of the wrong type.
+    """
+    def refuse(key: str, what: str) -> None:
+        raise FileFormatError(f"{key} must be {what}, got {settings[key]!r:.60}", path=toml,
+                              field=key)
+
+    for key in TEXT_KEYS:
+        if key in settings and not isinstance(settings[key], str):
+            refuse(key, "text (a quoted string)")
+    for key in NAME_LIST_KEYS:
+        value = settings.get(key)
+        if key in settings and not (isinstance(value, list)
+                                    and all(isinstance(v, str) for v in value)):
+            refuse(key, "a list of names")
+    for key, counts in NUMBER_LIST_KEYS.items():
+        value = settings.get(key)
+        if key in settings and not (isinstance(value, list) and all(map(_is_number, value))
+                                    and (counts is None or len(value) in counts)):
+            size = "" if counts is None else " or ".join(map(str, counts)) + " "
+            refuse(key, f"a list of {size}finite numbers")
+    for key in TABLE_KEYS:
+        if key in settings and not isinstance(settings[key], dict):
+            refuse(key, f"a table ([{key}])")
 
 
 def _from_dh(toml: Path, name: str, settings: dict) -> RobotSource:
