@@ -459,7 +459,8 @@ def _stiffness_values(r: _Reader, k: np.ndarray, units) -> None:
     n = len(k)
     if not np.all(np.isfinite(k)) or np.any(k <= 0):
         raise r.fail(f"k_theta.values must be positive, got {k.tolist()}")
-    if not isinstance(units, list) or len(units) != n or not set(units) <= {"N.m/rad", "N/m"}:
+    if (not isinstance(units, list) or len(units) != n
+            or not all(u in ("N.m/rad", "N/m") for u in units)):
         raise r.fail("k_theta.unit must list N.m/rad or N/m per joint")
 
 
@@ -491,6 +492,9 @@ def _read_current(r: _Reader) -> ModelFile:
                      "k_theta.ci95.high", n, allow_null=True)
     high = np.where(np.isnan(high) & ~np.isnan(low), np.inf, high)
     determined = r.get("k_theta", "determined", default=[True] * n)
+    if not (isinstance(determined, list) and len(determined) == n
+            and all(isinstance(d, bool) for d in determined)):
+        raise r.fail("k_theta.determined must list true or false per joint")
     effects = []
     raw = r.get("effects", default=[])
     if not isinstance(raw, list):
