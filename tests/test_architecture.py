@@ -310,3 +310,16 @@ def test_importing_the_package_stays_light():
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True).stdout.split()
     assert not loaded, f"import stiffness loads {loaded}"
+
+
+def test_every_package_is_in_the_wheel():
+    """Every folder of ``stiffness/`` holding an ``__init__.py`` is listed in pyproject.toml's
+    ``[tool.setuptools] packages`` (a missing one leaves a non-editable install without it;
+    tests/test_wheel.py builds the wheel, this is the quick check)."""
+    from stiffness.files import read_toml
+
+    root = Path(__file__).resolve().parents[1]
+    listed = set(read_toml(root / "pyproject.toml")["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(root).parts)
+             for p in (root / "stiffness").rglob("__init__.py")}
+    assert found - listed == set(), f"packages missing from pyproject.toml: {found - listed}"
