@@ -66,32 +66,60 @@ def _campaign(robot, seed: int, n: int = 50, **kw):
                                           payload=PAYLOAD)
 
 
-@pytest.mark.parametrize("sagging", [False, True])
-def test_jacobian_matches_finite_differences(ur10, sagging):
-    """Every column of d y / d x, every family, against central differences: to 1e-6 at zero
-    compliance (where every column is exact), to 1e-2 on a sagging arm (the derivative holds
-    the torques at the loaded configuration fixed: the documented C dtau/dq approximation)."""
-    rng = np.random.default_rng(0)
+#: Every family that needs the links' masses known, and the lumped (masses unknown) set.
+KNOWN_MASSES = tuple(f for f in FAMILIES if f != "gravity_lumped")
+UNKNOWN_MASSES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
+                  "gravity_lumped", "gravity_compensator")
+
+
+def _jacobian_case(robot, families, seed: int = 0):
+    """A model of ``families`` (backlash smoothing from its rows), three loaded rows and random
+    parameters of their typical sizes."""
+    rng = np.random.default_rng(seed)
     frame0 = (pin.exp3(rng.normal(size=3)), np.array([1.0, 2.0, 0.5]))
-    model = PoseModel(ur10, _markers(), tuple(FAMILIES), frame0, Loads("tool0", np.zeros((0, 6))))
-    rows = [model.row_terms(ur10.configuration(rng.uniform(-2, 2, 6)), rng.normal(size=6) * 50)
+    loads = Loads("tool0", np.zeros((0, 6)))
+    nominal = PoseModel(robot, _markers(), (), frame0, loads)
+    rows = [nominal.row_terms(robot.configuration(rng.uniform(-2, 2, 6)), rng.normal(size=6) * 50)
             for _ in range(3)]
+    model = PoseModel(robot, _markers(), families, frame0, loads,
+                      nominal.campaign_settings(rows))
     scales = np.array([p.scale for p in model.parameters])
-    x = rng.normal(size=model.size) * scales * 3
-    elastic = np.array([p.family in ("joint_compliance", "gravity_lumped")
-                        for p in model.parameters])
-    if not sagging:
-        x[elastic] = 0.0
+    return model, rows, rng.normal(size=model.size) * scales * 3, scales
+
+
+def _assert_columns(model, rows, x, scales, tol, columns):
     _, jac = model.evaluate(x, rows)
-    for c in range(model.size):
-        h = (1.0 if elastic[c] else 1e-2) * scales[c]
+    for c in columns:
+        h = (1.0 if FAMILIES[model.parameters[c].family].kind == "elastic" else 1e-2) * scales[c]
         e = np.zeros(model.size)
         e[c] = h
         fd = (model.evaluate(x + e, rows, False)[0] - model.evaluate(x - e, rows, False)[0]) / (
             2 * h)
-        tol = 1e-2 if sagging else 1e-6
         assert np.abs(jac[..., c] - fd).max() <= tol * max(np.abs(fd).max(), 1e-3), \
             model.parameters[c].label
+
+
+@pytest.mark.parametrize("families", [KNOWN_MASSES, UNKNOWN_MASSES])
+@pytest.mark.parametrize("sagging", [False, True])
+def test_jacobian_matches_finite_differences(ur10, sagging, families):
+    """Every column of d y / d x, every family (masses known, and the lumped set), against
+    central differences: to 1e-6 at zero compliance (where every column is exact), to 1e-2 on
+    a sagging arm (the derivative holds the torques at the loaded configuration fixed: the
+    documented C dtau/dq approximation)."""
+    model, rows, x, scales = _jacobian_case(ur10, families)
+    elastic = np.array([FAMILIES[p.family].kind == "elastic" for p in model.parameters])
+    if not sagging:
+        x[elastic] = 0.0
+    _assert_columns(model, rows, x, scales, 1e-2 if sagging else 1e-6, range(model.size))
+
+
+def test_link_compliance_columns_exact(ur10):
+    """With the joints rigid, the links' bends do not move the loaded configuration: their
+    columns are exact (to 1e-6 of central differences) at any compliance."""
+    model, rows, x, scales = _jacobian_case(ur10, ("frame", "markers", "geometry",
+                                                   "link_compliance"), seed=1)
+    sl = model.slices()["link_compliance"]
+    _assert_columns(model, rows, x, scales, 1e-6, range(sl.start, sl.stop))
 
 
 def _truth(model: PoseModel, hidden: HiddenPoseErrors) -> np.ndarray:
@@ -158,7 +186,8 @@ def test_diagnose_names_the_hidden_families(ur10):
 
 
 def test_compliance_not_named_on_a_rigid_arm(ur10):
-    """No sag simulated: joint compliance is not added (8 seeds, at most 2 false names)."""
+    """No sag simulated: no elastic family (joint or link compliance, backlash, a compensator)
+    is added (8 seeds, at most 2 false names)."""
     false_names = 0
     for seed in range(8):
         rng = np.random.default_rng(seed)
@@ -166,7 +195,8 @@ def test_compliance_not_named_on_a_rigid_arm(ur10):
         hidden.stiffness = None
         c = simulate_pose_campaign(ur10, _markers(), hidden, 30, NOISE, seed=seed,
                                    payload=PAYLOAD)
-        false_names += "joint_compliance" in diagnose_poses(c).families
+        elastic = {"joint_compliance", "link_compliance", "backlash", "gravity_compensator"}
+        false_names += bool(elastic & set(diagnose_poses(c).families))
     assert false_names <= 2
 
 

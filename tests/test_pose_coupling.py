@@ -19,7 +19,8 @@ from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.planning.simulate_poses import (
     HiddenPoseErrors,
-    sagged_configuration,
+    hidden_elasticity,
+    loaded_arm,
     simulate_pose_campaign,
 )
 from stiffness.robot.robot import load_robot
@@ -104,13 +105,16 @@ def test_sag_equals_the_exact_equilibrium(robot):
                       Loads("tool", np.zeros((0, 6))))
     wrench = np.r_[FORCE, 0.0, 0.0, 0.0]
     data = robot.model.createData()
+    joints = robot.model.nv
+    springs = hidden_elasticity(robot, MARKERS, HiddenPoseErrors(
+        np.eye(3), np.zeros(3), np.zeros((len(MARKERS), 3)), np.zeros(joints),
+        np.zeros((joints, 6)), STIFFNESS), {})
     for _ in range(5):
         u = rng.uniform(-1.2, 1.2, 4)
         exact = _energy_equilibrium(robot, u)
         commanded = robot.configuration(u)
         assert np.abs(exact - commanded).max() > 2e-4  # a real sag
-        simulated = sagged_configuration(robot.model, robot, commanded, STIFFNESS, wrench,
-                                         "tool")
+        _, simulated = loaded_arm(robot.model, commanded, springs, wrench, "tool")
         assert np.abs(simulated - exact).max() < 1e-9
         y, _ = model.evaluate(1.0 / STIFFNESS, [model.row_terms(commanded, wrench)], False)
         pin.framesForwardKinematics(robot.model, data, exact)

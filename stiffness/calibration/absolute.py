@@ -172,6 +172,7 @@ class PoseModel:
         self.moves = {fid: np.array([j in set(model.supports[model.frames[fid].parentJoint])
                                      for j in self.joints], dtype=float)
                       for fid in set(self.frame_ids)}
+        self._sag_start: dict[int, np.ndarray] = {}  # a row's last converged sag
         self.parameters: list[Parameter] = []
         self._slices: dict[str, slice] = {}
         for fam in self.family_objects:
@@ -252,11 +253,17 @@ class PoseModel:
             extra = fam.joint_torque(self, x[self._slices[fam.name]], state)
             if extra is not None:
                 state.torque = state.torque + extra
+        return state
+
+    def deflection_slope(self, x: np.ndarray, state: SagState) -> np.ndarray:
+        """d(Delta q)/d(torque) (nv,) at ``state``: the sum of the families' (the columns of
+        a family that adds a torque need it)."""
+        out = np.zeros(state.torque.size)
         for fam in self.family_objects:
             slope = fam.deflection_per_torque(self, x[self._slices[fam.name]], state)
             if slope is not None:
-                state.per_torque = state.per_torque + slope
-        return state
+                out += slope
+        return out
 
     def _load_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
                       wrench: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -305,7 +312,8 @@ class PoseModel:
 
         ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved by fixed-point
         iteration (to :data:`SAG_TOLERANCE`; it contracts by about ``|C dtau/dq|``, 1e-3 for
-        real arms).
+        real arms), started from the row's last converged sag (an optimiser's next trial
+        differs little from its last), and from zero if that does not converge.
         """
         offsets = np.zeros(model.nv)
         for fam in self.family_objects:
@@ -314,15 +322,19 @@ class PoseModel:
                 offsets += shift
         if not self.elastic:
             return pin.integrate(model, row.q_full, offsets), None
-        sag = np.zeros(model.nv)
-        for _ in range(SAG_ITERATIONS):
-            q = pin.integrate(model, row.q_full, offsets + sag)
-            state = self.sag_state(model, data, x, q, row.wrench)
-            new = self.deflection(x, state)
-            converged = np.max(np.abs(new - sag)) <= SAG_TOLERANCE
-            sag = new
-            if converged:
-                return pin.integrate(model, row.q_full, offsets + sag), state
+        starts = [np.zeros(model.nv)]
+        if id(row) in self._sag_start:
+            starts.insert(0, self._sag_start[id(row)])
+        for sag in starts:
+            for _ in range(SAG_ITERATIONS):
+                q = pin.integrate(model, row.q_full, offsets + sag)
+                state = self.sag_state(model, data, x, q, row.wrench)
+                new = self.deflection(x, state)
+                converged = np.max(np.abs(new - sag)) <= SAG_TOLERANCE
+                sag = new
+                if converged:
+                    self._sag_start[id(row)] = sag
+                    return pin.integrate(model, row.q_full, offsets + sag), state
         raise ConvergenceError("the sag of the fitted compliance does not converge: the "
                                "compliance is too large for the arm's weight; check the "
                                "campaign's units and masses")
@@ -348,6 +360,8 @@ class PoseModel:
                   for f in self.family_objects}
         for i, row in enumerate(rows):
             q, state = self.loaded_configuration(model, data, x, row)
+            if jacobian and state is not None:
+                state.per_torque = self.deflection_slope(x, state)
             pin.forwardKinematics(model, data, q)
             pin.updateFramePlacements(model, data)
             if jacobian:

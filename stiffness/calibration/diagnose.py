@@ -64,7 +64,9 @@ from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
 from stiffness.calibration.selection import (
     BIC_MARGIN,
+    CV_TOP,
     GOF_LEVEL,
+    SCREEN_TOLERANCE,
     config_folds,
     cross_validate,
     fit_baseline,
@@ -84,13 +86,6 @@ from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, did_you_mean
 from stiffness.units import Units
 
-#: Number of best-BIC candidates cross-validated per step.
-CV_TOP = 3
-#: Solver tolerance of the first fit of every candidate: a step stops once it lowers the cost
-#: by less than this fraction, a change of about ``1e-6 N`` in ``RSS / sigma^2``, far inside
-#: :data:`BIC_MARGIN` (an extension that trades a joint's compliance against an equivalent
-#: one crawls along that valley for a hundred steps otherwise).
-SCREEN_TOLERANCE = 1e-6
 #: The best candidates of a step (by the first fits' BIC) refitted to the engine's tolerance
 #: from there: those ranked, cross-validated and compared.
 REFINE_TOP = 6

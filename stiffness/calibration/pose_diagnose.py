@@ -2,15 +2,21 @@
 family (docs/absolute-poses.md).
 
 Step 0 is the nominal rigid robot seen through a fitted measuring frame and marker offsets
-(the tracker is anywhere; its placement is always unknown). Each later step adds the parameter
-family (:data:`~stiffness.calibration.absolute.FAMILIES`: joint zero offsets, joint placement
-geometry, joint compliance under gravity and the applied loads, or its lumped form when the masses
-are unknown) that lowers BIC most, when it lowers BIC by more than
-:data:`~stiffness.calibration.diagnose.BIC_MARGIN` and the held-out RMS (cross-validation over
-configuration labels) falls. Only identifiable parameters are fitted
-(:mod:`stiffness.calibration.pose_fit`). At the end the residual is tested against the declared
-noise (chi-square at :data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it
-is "unexplained", with its structure (per marker, per axis, along the row order).
+(the tracker is anywhere; its placement is always unknown). Each later step tries the parameter
+families of :data:`CANDIDATES` (:data:`~stiffness.calibration.pose_families.FAMILIES`: joint
+zero offsets, joint placement geometry, and with the masses known joint compliance, link
+compliance and backlash under gravity and the applied loads, then a spring compensator once
+joint compliance is in; with the masses unknown the lumped compliance) and adds one by deflection
+diagnose's criteria: its BIC (:func:`~stiffness.calibration.selection.information_criterion`
+with the declared noise, inflated by the step's overdispersion) must fall by more than
+:data:`~stiffness.calibration.diagnose.BIC_MARGIN`, and of those the best
+:data:`~stiffness.calibration.diagnose.CV_TOP` are cross-validated over configuration labels
+(:func:`~stiffness.calibration.selection.config_folds`): the first whose held-out RMS falls is
+added. Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`). At the
+end the residual is tested against the declared noise
+(:func:`~stiffness.calibration.selection.goodness_of_fit` at
+:data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it is "unexplained",
+with its structure (per marker, per axis, along the row order).
 """
 
 from __future__ import annotations
@@ -25,13 +31,13 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy import special
 
 from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import (
+    FIT_TOLERANCE,
     PoseFit,
     campaign_settings,
     fit_pose_model,
@@ -39,7 +45,15 @@ from stiffness.calibration.pose_fit import (
     rows_of,
     starting_frame,
 )
-from stiffness.calibration.selection import BIC_MARGIN, GOF_LEVEL, config_folds
+from stiffness.calibration.selection import (
+    BIC_MARGIN,
+    CV_TOP,
+    GOF_LEVEL,
+    SCREEN_TOLERANCE,
+    config_folds,
+    dispersion,
+    goodness_of_fit,
+)
 from stiffness.calibration.validation import error_summary
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.files import atomic_write, read_json
@@ -48,7 +62,10 @@ from stiffness.robot.robot import Robot, load_robot
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
 #: Families tried after the base, by whether the robot's masses are trusted.
-CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance"),  # keys: MASSES
+#: (link_compliance and backlash need the links' masses; gravity_compensator acts through
+#: joint_compliance and is tried once that is in: docs/absolute-poses.md.)
+CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys: MASSES
+                        "link_compliance", "backlash", "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
 #: Model-file kind of a pose calibration.
 POSE_MODEL_KIND = "pose-calibration"
@@ -87,12 +104,10 @@ class PoseDiagnosis:
 
     def gof(self) -> float | None:
         """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
-        declared noise, or None."""
-        noise = self.campaign.noise_std
-        if noise is None:
-            return None
+        declared noise, or None (:func:`~stiffness.calibration.selection.goodness_of_fit`)."""
         fit = self.final
-        return float(special.chdtrc(fit.n_observed - fit.n_fitted, fit.loss_rss() / noise ** 2))
+        return goodness_of_fit(fit.loss_rss(), fit.n_observed, fit.n_fitted,
+                               self.campaign.noise_std)
 
     @property
     def unexplained(self) -> bool | None:
@@ -160,13 +175,15 @@ def _rms(values: np.ndarray) -> float:
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
          settings: dict, start: PoseFit | None = None, loss: str = "linear",
-         scale: float | None = None) -> PoseFit:
+         scale: float | None = None, tolerance: float = FIT_TOLERANCE) -> PoseFit:
     """Fit ``families``, starting from ``start``'s values of the parameters they share, under
-    ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`)."""
+    ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`), to ``tolerance`` (relative
+    change of the sum of squares)."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
                       settings)
     return fit_pose_model(model, campaign, rows_of(model, campaign), families,
-                          None if start is None else warm_start(model, start), loss, scale)
+                          None if start is None else warm_start(model, start), loss, scale,
+                          tolerance)
 
 
 def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
@@ -179,12 +196,16 @@ def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
             frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray]) -> float:
     """Held-out RMS of the residual components, each fold fitted on the others (started from
     the fit on every row, with its loss and scale); infinite when a fold's model predicts a sag
-    that does not converge at a held-out pose (its family is then not added)."""
+    that does not converge at a held-out pose, or a fold cannot be fitted (fewer measured
+    components than identifiable parameters): its family is then not added."""
     sq, count = 0.0, 0
     for test in folds:
         train = np.setdiff1d(np.arange(campaign.n_rows), test)
-        part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit,
-                    fit.loss, fit.sigma)
+        try:
+            part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit,
+                        fit.loss, fit.sigma)
+        except StiffnessError:  # the fold has fewer measured components than parameters
+            return math.inf
         held = campaign.subset(test)
         try:
             err = held.positions - predict(part.model, part.x, held)
@@ -230,25 +251,67 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     cv = _cv_rms(campaign, base, families, frame0, folds)
     steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
     rejected: dict[str, float] = {}
-    remaining = [f for f in CANDIDATES[masses] if f in FAMILIES]
-    while remaining:
-        say(f"step {len(steps)}: trying {', '.join(remaining)}")
-        tried = {f: _fit(campaign, families + [f], frame0, settings, steps[-1].fit, loss, scale)
-                 for f in remaining}
-        best = min(tried, key=lambda f: tried[f].bic())
-        delta = tried[best].bic() - steps[-1].fit.bic()
-        if delta >= -BIC_MARGIN:
-            rejected.update({f: tried[f].bic() - steps[-1].fit.bic() for f in tried})
+    remaining = list(CANDIDATES[masses])
+    while True:
+        ready = [f for f in remaining if set(FAMILIES[f].requires) <= set(families)]
+        if not ready:
             break
-        cv_new = _cv_rms(campaign, tried[best], families + [best], frame0, folds)
-        if cv_new >= steps[-1].cv_rms:
-            rejected[best] = delta
+        say(f"step {len(steps)}: trying {', '.join(ready)}")
+        tried = _screened(campaign, families, frame0, settings, steps[-1].fit, ready, scale)
+        delta = _delta_bic(campaign, steps[-1].fit, tried)
+        best, cv_new = _winner(campaign, families, frame0, folds, tried, delta, steps[-1].cv_rms)
+        if best is None:
+            rejected.update(delta)
             break
         families.append(best)
         remaining.remove(best)
-        steps.append(PoseStep(best, tried[best], delta, cv_new,
+        steps.append(PoseStep(best, tried[best], delta[best], cv_new,
                               _validation(tried[best], validate)))
     return PoseDiagnosis(campaign, masses, steps, rejected, loss)
+
+
+def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
+              settings: dict, current: PoseFit, ready: list[str], scale: float | None
+              ) -> dict[str, PoseFit]:
+    """Each of ``ready`` added to ``families``, as deflection diagnose screens its candidates:
+    fitted to :data:`~stiffness.calibration.diagnose.SCREEN_TOLERANCE`, then the best
+    :data:`~stiffness.calibration.diagnose.CV_TOP` by that BIC that pass
+    :data:`~stiffness.calibration.diagnose.BIC_MARGIN` refitted to the full tolerance (the
+    others cannot be added this step); every fit under ``current``'s loss and ``scale``."""
+    loss = current.loss
+    tried = {f: _fit(campaign, families + [f], frame0, settings, current, loss, scale,
+                     SCREEN_TOLERANCE) for f in ready}
+    delta = _delta_bic(campaign, current, tried)
+    best = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])[:CV_TOP]
+    return {f: _fit(campaign, families + [f], frame0, settings, tried[f], loss, scale)
+            if f in best else tried[f] for f in tried}
+
+
+def _delta_bic(campaign: PoseCampaign, current: PoseFit, tried: dict[str, PoseFit]
+               ) -> dict[str, float]:
+    """Each extension's BIC change, with deflection diagnose's criterion: the declared noise
+    inflated by the step's overdispersion (:func:`selection.dispersion`: what the best
+    extension leaves above the noise counts as noise in the step's comparisons)."""
+    fits = [current, *tried.values()]
+    sigma = campaign.noise_std
+    if sigma is not None:
+        sigma *= math.sqrt(dispersion([f.loss_rss() for f in fits], [f.n_fitted for f in fits],
+                                      current.n_observed, sigma))
+    return {f: fit.bic(sigma) - current.bic(sigma) for f, fit in tried.items()}
+
+
+def _winner(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
+            folds: list[np.ndarray], tried: dict[str, PoseFit], delta: dict[str, float],
+            cv_current: float) -> tuple[str | None, float]:
+    """As deflection diagnose: of the extensions past :data:`BIC_MARGIN`, the best
+    :data:`CV_TOP` by BIC are cross-validated in that order, and the first whose held-out RMS
+    beats ``cv_current`` wins (``None`` if none)."""
+    eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
+    for f in eligible[:CV_TOP]:
+        cv = _cv_rms(campaign, tried[f], families + [f], frame0, folds)
+        if cv < cv_current:
+            return f, cv
+    return None, math.nan
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

@@ -13,7 +13,9 @@ Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Ja
 :data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
 an ill-conditioned family whose trial steps keep meeting a diverging sag crawls for thousands);
 covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or the residual variance when the
-campaign declares none; 95 % intervals from the normal quantile.
+campaign declares none; 95 % intervals from the normal quantile (Student's t when the noise is
+not declared or the loss is robust), as deflection diagnose's
+(:func:`stiffness.calibration.selection.interval_quantile`).
 
 Robust losses (``loss`` of :data:`~stiffness.calibration.fitting.LOSSES` other than
 ``linear``): the deflection engine's mathematics, not a copy of it. The fit minimises
@@ -34,24 +36,25 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, optimize, special
+from scipy import linalg, optimize
 
 from stiffness.calibration.absolute import PoseModel, align_frames
 from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families.base import RowTerms
+from stiffness.calibration.selection import information_criterion, interval_quantile
 from stiffness.errors import ConvergenceError, StiffnessError
 
 #: Smallest sine between a kept column and the span of the others (documented above).
 IDENTIFIABILITY_TOL = 1e-6
+#: Relative change of the sum of squares at which a fit stops.
+FIT_TOLERANCE = 1e-12
 #: Residual (m, each component) of a trial step whose sag does not converge (an unphysically
 #: large compliance): far above any measured error, so the solver refuses the step.
 DIVERGED_RESIDUAL_M = 1.0
 #: Evaluations of the model after which a fit stops (not converged).
 MAX_EVALUATIONS = 500
-#: Two-sided 95 % normal quantile.
-_Z95 = float(special.ndtri(0.975))
 
 
 @dataclass(frozen=True)
@@ -233,10 +236,12 @@ class PoseFit:
         r = self.residual[np.isfinite(self.residual)] / self.sigma
         return self.sigma ** 2 * loss_sum(r, self.loss, 1.0) / gaussian_loss_mean(self.loss)
 
-    def bic(self) -> float:
-        """Bayesian information criterion ``n ln(RSS/n) + k ln n`` (RSS: :meth:`loss_rss`)."""
-        n = self.n_observed
-        return float(n * np.log(self.loss_rss() / n) + self.n_fitted * np.log(n))
+    def bic(self, sigma: float | None) -> float:
+        """Bayesian information criterion, as deflection diagnose's
+        (:func:`stiffness.calibration.selection.information_criterion`): ``RSS / sigma^2 +
+        k ln n`` with a known noise ``sigma`` (m), else ``n ln(RSS/n) + k ln n`` (RSS:
+        :meth:`loss_rss`)."""
+        return information_criterion(self.loss_rss(), self.n_observed, self.n_fitted, sigma)
 
     def std(self) -> np.ndarray:
         """(p,) standard deviations; NaN for parameters not fitted."""
@@ -245,9 +250,12 @@ class PoseFit:
         return out
 
     def interval(self) -> tuple[np.ndarray, np.ndarray]:
-        """95 % intervals (p,) each; NaN for parameters not fitted."""
+        """95 % intervals (p,) each; NaN for parameters not fitted (the normal quantile with
+        the declared noise, Student's without: :func:`selection.interval_quantile`)."""
         s = self.std()
-        return self.x - _Z95 * s, self.x + _Z95 * s
+        z = interval_quantile(self.sigma if self.sigma_source == "declared" else None,
+                              self.n_observed, self.n_fitted)
+        return self.x - z * s, self.x + z * s
 
 
 def observed_mask(campaign: PoseCampaign) -> np.ndarray:
@@ -271,7 +279,7 @@ def _identifiable(model: PoseModel, rows: list[RowTerms], observed: np.ndarray,
 
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
-                   scale: float | None = None) -> PoseFit:
+                   scale: float | None = None, tolerance: float = FIT_TOLERANCE) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
     Parameters
@@ -289,6 +297,9 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     scale
         Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
         robust estimate (module docstring). Ignored by least squares.
+    tolerance
+        The solver stops when a step lowers the sum of squares by less than this fraction
+        (a screening fit: :data:`stiffness.calibration.diagnose.SCREEN_TOLERANCE`).
 
     Raises
     ------
@@ -328,7 +339,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
 
     scales = np.array([model.parameters[i].scale for i in kept])
     sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
-                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                 method="lm", xtol=1e-12, ftol=tolerance, gtol=1e-12,
                                  max_nfev=MAX_EVALUATIONS)
     x[kept] = sol.x
     if loss == "linear":

@@ -24,6 +24,13 @@ from stiffness.elastic.effects.hypothesis import Hypothesis
 GOF_LEVEL = 0.95
 #: A candidate (an effect, a pose family) must lower BIC by more than this to be added.
 BIC_MARGIN = 2.0
+#: Number of best-BIC candidates (effects, pose families) cross-validated per step.
+CV_TOP = 3
+#: Solver tolerance of the first fit of every candidate: a step stops once it lowers the cost
+#: by less than this fraction, a change of about ``1e-6 N`` in ``RSS / sigma^2``, far inside
+#: :data:`BIC_MARGIN` (an extension that trades a joint's compliance against an equivalent
+#: one crawls along that valley for a hundred steps otherwise).
+SCREEN_TOLERANCE = 1e-6
 #: Folds over configuration labels when there are more than :data:`LOCO_MAX` configurations.
 CV_FOLDS = 6
 #: Up to this many configurations, cross-validation leaves one configuration out at a time.
@@ -91,9 +98,16 @@ def step_dispersion(fits: list[Fit], n: int, sigma: float | None) -> float:
     *remaining* misfit, not only beat the measurement noise, to be named. When one extension
     fits to noise, ``c = 1`` and the BIC is the plain known-sigma one.
     """
+    return dispersion([f.loss_rss for f in fits], [f.model.penalty_params for f in fits], n,
+                      sigma)
+
+
+def dispersion(rss: list[float], params: list[int], n: int, sigma: float | None) -> float:
+    """``max(1, min_f RSS_f / (sigma^2 (N - p_f)))`` over fits of ``rss`` (m^2) with ``params``
+    parameters each (1 with an unknown sigma): :func:`step_dispersion` for any model kind."""
     if sigma is None:
         return 1.0
-    ratios = [f.loss_rss / (sigma ** 2 * max(n - f.model.penalty_params, 1)) for f in fits]
+    ratios = [r / (sigma ** 2 * max(n - p, 1)) for r, p in zip(rss, params, strict=True)]
     return max(1.0, min(ratios))
 
 

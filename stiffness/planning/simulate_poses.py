@@ -7,7 +7,13 @@ The simulated truth is computed independently of the fitted model
 the applied wrench, ``K (q_l - q_c - delta_0) = J(q_l)^T w - g(q_l)`` (fixed-point iteration to
 1e-14 rad; springs on a ``[controller]``'s coordinates ``u``, ``q_chain = A u + b``, hold
 ``K_u Delta u = A^T (J^T w - g)`` with ``Delta q = A Delta u``), and the measuring frame is an
-arbitrary rigid placement.
+arbitrary rigid placement. Hidden elastic effects beyond the joint springs act in the same
+equilibrium: a spring compensator's torque
+(:class:`~stiffness.elastic.effects.preloads.GravityCompensator`) joins the joint's torque,
+backlash adds ``b tanh(tau / tau_s)`` to its deflection, and a link bend rotates the part of the
+arm beyond the link's distal joint exactly (its placement turned by ``omega``) under the moment
+that part's weight and the wrench exert there, taken from Pinocchio's recursive Newton-Euler
+forces (not from the centre-of-mass form the fitted model uses).
 """
 
 from __future__ import annotations
@@ -17,11 +23,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Loads, Marker, one_dof_joints
+from stiffness.calibration.absolute import Loads, Marker, PoseModel, one_dof_joints
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_families.bends import Link, marker_links
+from stiffness.calibration.pose_families.elastic import BacklashPose, CompensatorPose
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.errors import ConvergenceError
+from stiffness.elastic.effects.geometry import link_axes
+from stiffness.elastic.effects.preloads import GravityCompensator
+from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -47,6 +57,19 @@ class HiddenPoseErrors:
     stiffness
         (n_compliant,) joint stiffness (N.m/rad or N/m) of the robot's compliant joints, or
         ``None`` for a rigid arm.
+    drift
+        Drift of the measuring frame's origin over the campaign (m), linear along the rows.
+    link_compliance
+        ``"a->b"`` (joint names of a link of a marker's chain,
+        :func:`~stiffness.calibration.pose_families.bends.marker_links`) -> its two bending
+        compliances (rad/(N.m)).
+    backlash
+        (n_compliant,) backlash half-widths (rad or m), smoothed as the deflection library's
+        (``tau_s`` from the campaign's torques), or ``None``.
+    compensator
+        Revolute compliant joint name -> (stiffness N/m, tension N with the link up) of a
+        spring compensator with the library's default geometry
+        (:meth:`~stiffness.calibration.pose_families.elastic.CompensatorPose.spring`).
     """
 
     frame_rotation: np.ndarray
@@ -56,6 +79,9 @@ class HiddenPoseErrors:
     placement_errors: np.ndarray
     stiffness: np.ndarray | None = None
     drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    link_compliance: dict[str, np.ndarray] = field(default_factory=dict)
+    backlash: np.ndarray | None = None
+    compensator: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
@@ -66,31 +92,153 @@ def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
     return model
 
 
-def sagged_configuration(model: pin.Model, robot: Robot, q_command: np.ndarray,
-                         stiffness: np.ndarray | None, wrench: np.ndarray | None,
-                         load_frame: str) -> np.ndarray:
-    """Exact joint springs' equilibrium under gravity and ``wrench`` (fixed point); the springs
-    act on the robot's compliant coordinates (joints, or a ``[controller]``'s coordinates)."""
-    if stiffness is None:
-        return q_command
-    data = model.createData()
-    springs = robot.rate_projection(robot.compliant_joints)  # (nv, n_compliant) rates per spring
-    fid = model.getFrameId(load_frame)
+@dataclass
+class HiddenElasticity:
+    """The hidden elastic effects laid out for the equilibrium (SI).
+
+    Attributes
+    ----------
+    spring_map
+        (nv, n_compliant) joint rates per unit rate of each spring's coordinate (unit columns
+        for springs on joints: :meth:`Robot.rate_projection`).
+    stiffness
+        (n_compliant,) spring stiffness.
+    backlash, smoothing
+        (n_compliant,) backlash half-widths and smoothing torques.
+    compensators
+        (velocity index, joint id, spring, (stiffness, tension)) per compensated joint.
+    links
+        (link, its two compliances) per bending link.
+    """
+
+    spring_map: np.ndarray
+    stiffness: np.ndarray
+    backlash: np.ndarray
+    smoothing: np.ndarray
+    compensators: list[tuple[int, int, GravityCompensator, np.ndarray]]
+    links: list[tuple[Link, np.ndarray]]
+
+
+def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors,
+                      smoothing: dict[str, float]) -> HiddenElasticity | None:
+    """``hidden``'s elastic effects for :func:`loaded_arm` (``None``: a rigid arm).
+
+    Raises
+    ------
+    StiffnessError
+        A hidden link that is not a link of the markers' chains, or a compensator on a joint
+        that is not a revolute compliant joint.
+    """
+    if hidden.stiffness is None:
+        return None
+    model = robot.model
+    if robot.springs_on_controller and (hidden.backlash is not None or hidden.compensator):
+        raise StiffnessError("hidden backlash and compensators act on chain joints; this "
+                             "robot's springs act on its controller's coordinates")
+    names = list(robot.compliant_joints)
+    ids = [int(model.getJointId(n)) for n in names]
+    links = {f"{model.names[k.a]}->{model.names[k.b]}": k
+             for k in marker_links(model, [model.getFrameId(m.frame) for m in markers])}
+    unknown = [w for w in hidden.link_compliance if w not in links]
+    if unknown:
+        raise StiffnessError(f"hidden link_compliance on {unknown}: not links of the markers' "
+                             f"chains; valid: {', '.join(links)}")
+    wrong = [j for j in hidden.compensator if j not in names or robot.is_prismatic(j)]
+    if wrong:
+        raise StiffnessError(f"hidden gravity_compensator on {wrong}: name revolute compliant "
+                             f"joints ({', '.join(names)})")
+    n = len(names)
+    return HiddenElasticity(
+        robot.rate_projection(robot.compliant_joints), np.asarray(hidden.stiffness, dtype=float),
+        np.zeros(n) if hidden.backlash is None else np.asarray(hidden.backlash, dtype=float),
+        np.array([smoothing.get(j, 1.0) for j in names]),
+        [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
+          CompensatorPose.spring(robot, j), np.asarray(p, dtype=float))
+         for j, p in hidden.compensator.items()],
+        sorted(((links[w], np.asarray(c, dtype=float)) for w, c in hidden.link_compliance.items()),
+               key=lambda item: item[0].b))
+
+
+def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticity | None,
+               wrench: np.ndarray | None, load_frame: str) -> tuple[pin.Model, np.ndarray]:
+    """The exact equilibrium of the hidden elasticity under gravity and ``wrench``: the model
+    with its links bent and the loaded configuration (fixed point of joints and bends)."""
+    if springs is None:
+        return model, q_command
+    bends = np.zeros((len(springs.links), 3))
     dv = np.zeros(model.nv)
     for _ in range(_SAG_ITERATIONS):
-        q = pin.integrate(model, q_command, dv)
-        torque = -pin.computeGeneralizedGravity(model, data, q)
-        if wrench is not None:
-            pin.computeJointJacobians(model, data, q)
-            pin.updateFramePlacements(model, data)
-            torque = torque + pin.getFrameJacobian(model, data, fid,
-                                                   pin.LOCAL_WORLD_ALIGNED).T @ wrench
-        new = springs @ ((springs.T @ torque) / stiffness)
-        if np.max(np.abs(new - dv)) < _SAG_TOL:
-            return pin.integrate(model, q_command, new)
-        dv = new
+        bent = _bent(model, q_command, dv, springs, bends)
+        data = bent.createData()
+        q = pin.integrate(bent, q_command, dv)
+        torque = _joint_torque(bent, data, q, springs, wrench, load_frame)
+        tau = springs.spring_map.T @ torque  # the torque each spring carries
+        new = springs.spring_map @ (tau / springs.stiffness
+                                    + springs.backlash * np.tanh(tau / springs.smoothing))
+        new_bends = _bend_rotations(bent, data, q, springs, wrench, load_frame)
+        change = max(np.max(np.abs(new - dv)), np.max(np.abs(new_bends - bends), initial=0.0))
+        dv, bends = new, new_bends
+        if change < _SAG_TOL:
+            bent = _bent(model, q_command, dv, springs, bends)
+            return bent, pin.integrate(bent, q_command, dv)
     raise ConvergenceError("the simulated sag did not converge: the springs are too soft for "
                            "the arm's weight; raise the stiffness")
+
+
+def _joint_torque(model: pin.Model, data: pin.Data, q: np.ndarray, springs: HiddenElasticity,
+                  wrench: np.ndarray | None, load_frame: str) -> np.ndarray:
+    """Gravity's, the wrench's and the compensators' torque (nv,) at ``q``."""
+    torque = -pin.computeGeneralizedGravity(model, data, q)
+    if wrench is not None:
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        torque = torque + pin.getFrameJacobian(model, data, model.getFrameId(load_frame),
+                                               pin.LOCAL_WORLD_ALIGNED).T @ wrench
+    for v, joint, spring, p in springs.compensators:
+        jm = model.joints[joint]
+        theta = (np.arctan2(q[jm.idx_q + 1], q[jm.idx_q]) if jm.nq == 2 else q[jm.idx_q])
+        torque[v] += float(spring.torque(p, theta)[0])
+    return torque
+
+
+def _bent(model: pin.Model, q_command: np.ndarray, dv: np.ndarray, springs: HiddenElasticity,
+          bends: np.ndarray) -> pin.Model:
+    """``model`` with each link's distal placement turned by its bend (world rotation vector
+    about the distal joint's origin), base links first."""
+    if not springs.links:
+        return model
+    bent = pin.Model(model)
+    data = bent.createData()
+    q = pin.integrate(model, q_command, dv)
+    for (link, _), omega in zip(springs.links, bends, strict=True):
+        pin.forwardKinematics(bent, data, q)
+        mount = data.oMi[bent.parents[link.b]].rotation @ bent.jointPlacements[link.b].rotation
+        turn = pin.SE3(pin.exp3(mount.T @ omega), np.zeros(3))
+        bent.jointPlacements[link.b] = bent.jointPlacements[link.b] * turn
+    return bent
+
+
+def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: HiddenElasticity,
+                    wrench: np.ndarray | None, load_frame: str) -> np.ndarray:
+    """(L, 3) bend of each link: ``sum_i e_i c_i (e_i . M_b)``, ``M_b`` the moment about the
+    distal joint's origin of the weight beyond it (Newton-Euler: minus the force its parent
+    transmits) and of the wrench if it acts beyond."""
+    if not springs.links:
+        return np.zeros((0, 3))
+    zero = np.zeros(model.nv)
+    pin.rnea(model, data, q, zero, zero)
+    pin.updateFramePlacements(model, data)
+    fid = model.getFrameId(load_frame)
+    out = np.zeros((len(springs.links), 3))
+    for n, (link, c) in enumerate(springs.links):
+        p_b = data.oMi[link.b].translation
+        moment = -data.oMi[link.b].rotation @ data.f[link.b].angular
+        if wrench is not None and link.b in set(model.supports[model.frames[fid].parentJoint]):
+            moment = moment + np.cross(data.oMf[fid].translation - p_b, wrench[:3]) + wrench[3:]
+        e1, e2 = link_axes(data.oMi[link.a].translation, p_b,
+                           data.oMi[model.parents[link.b]].rotation, link.column)
+        out[n] = e1 * c[0] * (e1 @ moment) + e2 * c[1] * (e2 @ moment)
+    return out
 
 
 def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors,
@@ -111,24 +259,34 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
     rng = np.random.default_rng(seed)
     q = sample_coordinates(robot, n_poses, rng)
     model = true_model(robot, hidden)
-    data = model.createData()
+    loads = None if payload is None else Loads(robot.target_frame,
+                                               np.tile(payload, (n_poses, 1)))
+    springs = hidden_elasticity(robot, markers, hidden, _smoothing(robot, markers, q, loads))
     positions = np.empty((n_poses, len(markers), 3))
     for i, coords in enumerate(q):
         q_full = _command(robot, model, hidden, coords)
-        q_l = sagged_configuration(model, robot, q_full, hidden.stiffness, payload,
-                                   robot.target_frame)
-        pin.framesForwardKinematics(model, data, q_l)
+        bent, q_l = loaded_arm(model, q_full, springs, payload, robot.target_frame)
+        data = bent.createData()
+        pin.framesForwardKinematics(bent, data, q_l)
         for k, m in enumerate(markers):
-            point = data.oMf[model.getFrameId(m.frame)].act(hidden.marker_offsets[k])
+            point = data.oMf[bent.getFrameId(m.frame)].act(hidden.marker_offsets[k])
             positions[i, k] = (hidden.frame_rotation @ point + hidden.frame_translation
                                + hidden.drift * i / max(n_poses - 1, 1))
     positions += rng.normal(0.0, noise_std, positions.shape)
-    loads = None if payload is None else Loads(robot.target_frame,
-                                               np.tile(payload, (n_poses, 1)))
     settings = RobotSettings(robot.name, robot.target_frame,
                              compliant_joints=tuple(robot.compliant_joints))
     return PoseCampaign(name, robot, settings, units or Units("rad", "N", "m"), markers,
                         [f"p{i + 1}" for i in range(n_poses)], q, positions, loads, noise_std)
+
+
+def _smoothing(robot: Robot, markers: list[Marker], q: np.ndarray, loads: Loads | None
+               ) -> dict[str, float]:
+    """Backlash smoothing torque of each compliant joint over the simulated poses (the rule
+    the fitted model applies to the campaign: :meth:`PoseModel.campaign_settings`)."""
+    nominal = PoseModel(robot, markers, (), (np.eye(3), np.zeros(3)), loads)
+    rows = [nominal.row_terms(robot.configuration(c), None if loads is None else loads.wrench[i])
+            for i, c in enumerate(q)]
+    return nominal.campaign_settings(rows).get(BacklashPose.SETTING, {})
 
 
 def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: np.ndarray

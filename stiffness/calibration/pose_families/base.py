@@ -95,7 +95,8 @@ class SagState:
         The torque the joints' springs carry: the wrench's, gravity's unless a family lumps
         it (masses unknown), plus the families' own torques (a compensator's spring).
     per_torque
-        d(Delta q)/d(torque) (nv,) of the families' joint deflections at that torque.
+        d(Delta q)/d(torque) (nv,) of the families' joint deflections at that torque (filled
+        when the Jacobian is asked for: :meth:`PoseModel.deflection_slope`).
     extras
         Per-family quantities at ``q`` (:meth:`PoseFamily.at_configuration`).
     """
