@@ -15,9 +15,8 @@
      "noise": {"std_m", "source"},
      ...}
 
-Everything is SI (m, N, rad, N.m/rad, N/m); a parameter's ``unit`` names its unit. The older
-files (``format`` ``stiffness-identified-model`` and ``stiffness-diagnosed-model``, version 1)
-still read.
+Everything is SI (m, N, rad, N.m/rad, N/m); a parameter's ``unit`` names its unit; the older
+files (``format`` ``stiffness-identified-model``, ``-diagnosed-model``, version 1) still read.
 
 Public API
 ----------
@@ -386,8 +385,7 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
     FileFormatError
         Not JSON (with its line and column).
     ModelFileError
-        An unknown schema or version, or a missing or malformed key (one line naming the file
-        and the key).
+        An unknown schema or version, or a missing or malformed key (one line: file, key).
     """
     path = Path(path)
     doc = read_json(path, "model file (identified-model.json of `stiffness identify` or "
@@ -459,8 +457,7 @@ def _stiffness_values(r: _Reader, k: np.ndarray, units) -> None:
     n = len(k)
     if not np.all(np.isfinite(k)) or np.any(k <= 0):
         raise r.fail(f"k_theta.values must be positive, got {k.tolist()}")
-    if (not isinstance(units, list) or len(units) != n
-            or not all(u in ("N.m/rad", "N/m") for u in units)):
+    if not isinstance(units, list) or [u in ("N.m/rad", "N/m") for u in units] != [True] * n:
         raise r.fail("k_theta.unit must list N.m/rad or N/m per joint")
 
 
@@ -492,8 +489,7 @@ def _read_current(r: _Reader) -> ModelFile:
                      "k_theta.ci95.high", n, allow_null=True)
     high = np.where(np.isnan(high) & ~np.isnan(low), np.inf, high)
     determined = r.get("k_theta", "determined", default=[True] * n)
-    if not (isinstance(determined, list) and len(determined) == n
-            and all(isinstance(d, bool) for d in determined)):
+    if not isinstance(determined, list) or [type(d) for d in determined] != [bool] * n:
         raise r.fail("k_theta.determined must list true or false per joint")
     effects = []
     raw = r.get("effects", default=[])

@@ -142,7 +142,7 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None) -> li
                  "deflection_offset"):
         add(LIBRARY[name]())
     if geo.robot.loop.is_open_chain:  # the weight of passive loop joints is not modelled
-        add(GravityPreload())
+        add(make_effect("gravity_preload", None, geo))
     for j in model.joints:
         if not geo.prismatic[geo.joints.index(j)]:
             add(make_effect("gravity_compensator", j, geo))

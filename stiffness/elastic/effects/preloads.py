@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
@@ -35,21 +36,40 @@ COMPENSATOR_GEOMETRY: dict[str, float | str] = {
     "lever_m": 0.1, "base_m": 0.3, "angle_up_rad": 0.0, "angle0_rad": 0.0,
     "angle_reference": "joint_zero"}
 
-class GravityPreload(Effect):
-    """The robot's weight (URDF inertias) and a payload preload the joints at every pose."""
+def reach(model: pin.Model) -> float:
+    """The robot's reach (m): the longest chain of joint and frame placements from the base
+    (the sum of their lengths, whatever the pose), at least 0.1 m."""
+    chain = [0.0] * model.njoints
+    for j in range(1, model.njoints):
+        chain[j] = chain[model.parents[j]] + float(np.linalg.norm(
+            model.jointPlacements[j].translation))
+    frames = [chain[f.parentJoint] + float(np.linalg.norm(f.placement.translation))
+              for f in model.frames]
+    return max([0.1, *chain, *frames])
 
-    name = "gravity_preload"
-    kind = "preload"
-    param_names = ("mass", "com_x", "com_y", "com_z")
-    beyond_springs = True
-    value_counts = (1, 4)
+
+@dataclass(eq=False)
+class GravityPreload(Effect):
+    """The robot's weight (URDF inertias) and a payload preload the joints at every pose.
+
+    The payload's centre of mass is fitted within ``reach_m`` of the target frame's origin
+    along each axis (the robot's reach, :func:`reach`): a centre of mass tens of metres away
+    is no payload, and a small mass there mimics other effects' angle dependence.
+    """
+
+    reach_m: float = 1e3
+    name: ClassVar[str] = "gravity_preload"
+    kind: ClassVar[str] = "preload"
+    param_names: ClassVar[tuple[str, ...]] = ("mass", "com_x", "com_y", "com_z")
+    beyond_springs: ClassVar[bool] = True
+    value_counts: ClassVar[tuple[int, ...]] = (1, 4)
 
     @classmethod
     def at_place(cls, where, geometry):
         if where:
             raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
         require_open_chain(geometry.robot, cls.name)
-        return cls()
+        return cls(reach_m=reach(geometry.robot.model))
 
     def simulated_values(self, values, units):
         if values[0] < 0:
@@ -64,7 +84,8 @@ class GravityPreload(Effect):
         return np.array([refs.force_ref / 9.81, 0.1, 0.1, 0.1])
 
     def bounds(self):
-        return np.array([0.0, -1e4, -1e4, -1e4]), np.full(4, 1e4)
+        com = self.reach_m / 0.1  # variables: com / 0.1 m (scale)
+        return np.array([0.0, -com, -com, -com]), np.array([1e4, com, com, com])
 
     def start(self):
         return np.array([0.05, 0.0, 0.0, 0.0])
