@@ -3,8 +3,11 @@
 A pose campaign (``kind = "poses"`` in its ``campaign.toml``, docs/absolute-poses.md) holds, per
 row, a configuration label, the commanded coordinates ``q1..qn`` and the position of each marker
 in the measuring system's frame (``<marker>_x, <marker>_y, <marker>_z``; a marker's three cells
-empty where it was not seen), optionally the applied wrench ``fx, fy, fz[, mx, my, mz]`` (world
-axes, at ``[load] frame``). Gravity always acts. Units as in deflection campaigns; in memory SI.
+empty where it was not seen), optionally its orientation (``<marker>_rx, _ry, _rz``: the rotation
+vector of the marker's frame in the measuring frame, ``[units] rotation`` unit, default the
+angle unit; noise ``[measurement] noise_std_rotation`` in that unit), optionally the applied
+wrench ``fx, fy, fz[, mx, my, mz]`` (world axes, at ``[load] frame``). Gravity always acts.
+Units as in deflection campaigns; in memory SI.
 """
 
 from __future__ import annotations
@@ -40,13 +43,15 @@ _KEYS = {
     "": {"kind", "name", "robot", "units", "measurement", "markers", "load"},
     "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base"},
     "units": {"angle", "force", "length", "rotation", "moment"},
-    "measurement": {"data", "noise_std"},
+    "measurement": {"data", "noise_std", "noise_std_rotation"},
     "load": {"frame"},
 }
 _REQUIRED = {"": ("kind", "robot", "units", "measurement", "markers"),
              "robot": ("source",), "units": ("angle", "length"), "measurement": ("data",),
              "load": ()}
 _WRENCH = ("fx", "fy", "fz", "mx", "my", "mz")
+#: Suffixes of a marker's orientation columns (rotation vector, measuring frame).
+ROTATION_AXES = ("rx", "ry", "rz")
 
 
 @dataclass
@@ -77,6 +82,11 @@ class PoseCampaign:
         Declared position noise (m), or ``None``.
     path
         The campaign.toml, or ``None`` for a campaign built in memory.
+    rotations
+        (n, M, 3) measured orientations of the markers' frames in the measuring frame
+        (rotation vectors, rad); NaN where not measured; ``None`` without rotation columns.
+    noise_std_rotation
+        Declared rotation noise (rad, per component), or ``None``.
     """
 
     name: str
@@ -90,6 +100,8 @@ class PoseCampaign:
     loads: Loads | None = None
     noise_std: float | None = None
     path: Path | None = None
+    rotations: np.ndarray | None = None
+    noise_std_rotation: float | None = None
 
     @property
     def n_rows(self) -> int:
@@ -107,7 +119,9 @@ class PoseCampaign:
         loads = None if self.loads is None else Loads(self.loads.frame, self.loads.wrench[idx])
         return PoseCampaign(self.name, self.robot, self.settings, self.units, self.markers,
                             [self.labels[i] for i in idx], self.q[idx], self.positions[idx],
-                            loads, self.noise_std, self.path)
+                            loads, self.noise_std, self.path,
+                            None if self.rotations is None else self.rotations[idx],
+                            self.noise_std_rotation)
 
 
 def _check_table(doc: dict, section: str, toml: TomlFile) -> None:
@@ -154,8 +168,9 @@ def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
 
 
 def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
-            ) -> tuple[int, list[list[int]], list[int]]:
-    """Check the header; (n_q, each marker's x, y, z columns, the wrench columns)."""
+            ) -> tuple[int, list[list[int]], list[int], list[list[int] | None]]:
+    """Check the header; (n_q, each marker's x, y, z columns, the wrench columns, each
+    marker's rx, ry, rz columns or ``None``)."""
     n_q = robot.n_coordinates
     expected = ["config"] + [f"q{i + 1}" for i in range(n_q)]
     names = [c.strip() for c in cells]
@@ -176,28 +191,46 @@ def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
                                   "seen)", path=data, line=1)
         columns.append([names.index(c) for c in cols])
     present = [c for c in _WRENCH if c in names]
-    known = set(expected) | {f"{m.name}_{a}" for m in markers for a in "xyz"} | set(_WRENCH)
+    known = set(expected) | {f"{m.name}_{a}" for m in markers
+                             for a in ("x", "y", "z", *ROTATION_AXES)} | set(_WRENCH)
     unknown = [c for c in names if c not in known]
     if unknown:
         raise FileFormatError(f"unknown column(s) {unknown}; a pose campaign has config, q1..qn, "
-                              "<marker>_x/_y/_z per marker and optionally fx..mz", path=data,
-                              line=1)
+                              "<marker>_x/_y/_z per marker (optionally _rx/_ry/_rz) and "
+                              "optionally fx..mz", path=data, line=1)
     if present and present not in (list(_WRENCH[:3]), list(_WRENCH)):
         raise FileFormatError("give the applied wrench as fx,fy,fz or fx,fy,fz,mx,my,mz",
                               path=data, line=1)
-    return n_q, columns, [names.index(c) for c in present]
+    return n_q, columns, [names.index(c) for c in present], _rotation_columns(names, markers,
+                                                                            data)
+
+
+def _rotation_columns(names: list[str], markers: list[Marker], data: Path
+                      ) -> list[list[int] | None]:
+    """Each marker's rx, ry, rz columns, or ``None`` without them (some but not all refused)."""
+    out: list[list[int] | None] = []
+    for m in markers:
+        cols = [f"{m.name}_{a}" for a in ROTATION_AXES]
+        present = [c in names for c in cols]
+        if any(present) and not all(present):
+            raise FileFormatError(f"marker {m.name!r} has some of {', '.join(cols)}; give all "
+                                  "three rotation columns or none", path=data, line=1)
+        out.append([names.index(c) for c in cols] if all(present) else None)
+    return out
 
 
 def _rows(data: Path, robot: Robot, markers: list[Marker]
-          ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray | None, list[int]]:
-    """Labels, q (file units), positions (file units, NaN unseen), wrench (file units)."""
+          ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray | None, list[int],
+                     np.ndarray | None]:
+    """Labels, q (file units), positions (file units, NaN unseen), wrench (file units), line
+    numbers, rotations (file units, NaN unseen; ``None`` without rotation columns)."""
     text = read_text(data, "measurement file ([measurement] data)")
     lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(text)))
              if r and not r[0].lstrip().startswith("#")]
     if len(lines) < 2:
         raise FileFormatError("no data rows after the header", path=data)
-    n_q, columns, wrench_cols = _header(lines[0][1], data, robot, markers)
-    labels, q, pos, wrench, numbers = [], [], [], [], []
+    n_q, columns, wrench_cols, rot_columns = _header(lines[0][1], data, robot, markers)
+    labels, q, pos, wrench, numbers, rot = [], [], [], [], [], []
     for number, cells in lines[1:]:
         if len(cells) != len(lines[0][1]):
             raise FileFormatError(f"{len(cells)} cells, the header has {len(lines[0][1])}",
@@ -209,20 +242,24 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
                     for c, m in zip(columns, markers, strict=True)])
         wrench.append([parse_number(cells[j], data, number, j + 1, "load")
                        for j in wrench_cols])
+        rot.append([[math.nan] * 3 if c is None else _position(cells, c, data, number, m.name,
+                                                               ROTATION_AXES)
+                    for c, m in zip(rot_columns, markers, strict=True)])
         numbers.append(number)
     w = np.array(wrench, float) if wrench_cols else None
-    return labels, np.array(q, float), np.array(pos, float), w, numbers
+    r = np.array(rot, float) if any(c is not None for c in rot_columns) else None
+    return labels, np.array(q, float), np.array(pos, float), w, numbers, r
 
 
-def _position(cells: list[str], columns: list[int], data: Path, line: int, name: str
-              ) -> list[float]:
+def _position(cells: list[str], columns: list[int], data: Path, line: int, name: str,
+              axes: tuple[str, ...] = ("x", "y", "z")) -> list[float]:
     raw = [cells[c].strip() for c in columns]
     if all(c == "" for c in raw):
         return [math.nan] * 3
     if any(c == "" for c in raw):
         raise FileFormatError(f"marker {name!r} has some but not all of its three cells; leave "
                               "all three empty where it was not seen", path=data, line=line)
-    return [parse_number(c, data, line, columns[i] + 1, f"{name}_{'xyz'[i]}")
+    return [parse_number(c, data, line, columns[i] + 1, f"{name}_{axes[i]}")
             for i, c in enumerate(raw)]
 
 
@@ -254,7 +291,7 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     data_name = typed_value(doc["measurement"]["data"], str, toml, "measurement", "data",
                             "a file name")
     data = toml_path.parent / data_name
-    labels, q_file, pos, wrench, numbers = _rows(data, robot, markers)
+    labels, q_file, pos, wrench, numbers, rot = _rows(data, robot, markers)
     q = coordinates_in_si(robot, q_file, units, labels, numbers, data)
     noise = noise_section(doc, toml, units)
     loads = None
@@ -267,7 +304,27 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
         loads = Loads(str(frame), full)
     return PoseCampaign(str(doc.get("name", toml_path.parent.name)), robot, settings, units,
                         markers, labels, q, pos * units.length_to_si, loads,
-                        None if noise is None else noise * units.length_to_si, toml_path)
+                        None if noise is None else noise * units.length_to_si, toml_path,
+                        None if rot is None else rot * units.rotation_to_si,
+                        _rotation_noise(doc, toml, units, rot is not None))
+
+
+def _rotation_noise(doc: dict, toml: TomlFile, units: Units, measured: bool) -> float | None:
+    """``[measurement] noise_std_rotation`` in rad, or None; refused without rotation columns."""
+    noise = doc["measurement"].get("noise_std_rotation")
+    if noise is None:
+        return None
+    typed_value(noise, int | float, toml, "measurement", "noise_std_rotation",
+                f"a positive number in {units.rotation}")
+    if not (math.isfinite(noise) and noise > 0):
+        raise toml.error(f"[measurement] noise_std_rotation must be a positive finite number "
+                         f"in {units.rotation}, got {noise!r}; omit it if unknown",
+                         "measurement", "noise_std_rotation")
+    if not measured:
+        raise toml.error("[measurement] noise_std_rotation is given but no marker has "
+                         "<marker>_rx,_ry,_rz columns; add them or drop the key",
+                         "measurement", "noise_std_rotation")
+    return float(noise) * units.rotation_to_si
 
 
 def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
@@ -282,9 +339,14 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
         lines.append("compliant_joints = [" + ", ".join(
             f'"{j}"' for j in c.settings.compliant_joints) + "]")
     lines += ["", "[units]", f'angle = "{u.angle}"', f'force = "{u.force}"',
-              f'length = "{u.length}"', "", "[measurement]", 'data = "measurements.csv"']
+              f'length = "{u.length}"']
+    if c.rotations is not None:
+        lines.append(f'rotation = "{u.rotation}"')
+    lines += ["", "[measurement]", 'data = "measurements.csv"']
     if c.noise_std is not None:
         lines.append(f"noise_std = {c.noise_std / u.length_to_si!r}")
+    if c.noise_std_rotation is not None and c.rotations is not None:
+        lines.append(f"noise_std_rotation = {c.noise_std_rotation / u.rotation_to_si!r}")
     if c.loads is not None:
         lines += ["", "[load]", f'frame = "{c.loads.frame}"']
     lines += ["", "[markers]"] + [
@@ -301,6 +363,8 @@ def _csv_text(c: PoseCampaign) -> str:
     u = c.units
     header = ["config"] + [f"q{i + 1}" for i in range(c.q.shape[1])] + [
         f"{m.name}_{a}" for m in c.markers for a in "xyz"]
+    if c.rotations is not None:
+        header += [f"{m.name}_{a}" for m in c.markers for a in ROTATION_AXES]
     if c.loads is not None:
         header += list(_WRENCH)
     prismatic = np.array([c.robot.is_prismatic(j) for j in c.robot.coordinate_joints])
@@ -311,6 +375,8 @@ def _csv_text(c: PoseCampaign) -> str:
         for k in range(len(c.markers)):
             p = c.positions[i, k] / u.length_to_si
             cells += ["", "", ""] if not np.all(np.isfinite(p)) else [repr(float(v)) for v in p]
+        for r in ([] if c.rotations is None else c.rotations[i] / u.rotation_to_si):
+            cells += ["", "", ""] if not np.all(np.isfinite(r)) else [repr(float(v)) for v in r]
         if c.loads is not None:
             w = c.loads.wrench[i]
             cells += [repr(float(v / u.force_to_si)) for v in w[:3]]

@@ -45,6 +45,7 @@ from stiffness.calibration.pose_fit import (
     rows_of,
     starting_frame,
 )
+from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -323,7 +324,9 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
 
     Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``max_error``
     (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and ``markers``
-    (the same keys per marker).
+    (the same keys per marker); with measured orientations also ``rotation_rms``,
+    ``rotation_mean_error``, ``rotation_max_error`` (of the orientation error's angle) and
+    ``rotation_unit`` (the campaign's rotation unit), overall and per marker.
     """
     campaign = _in_model_order(model.markers, campaign)
     model = PoseModel(campaign.robot, model.markers, model.families,
@@ -333,7 +336,20 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
     out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
     out["markers"] = {m.name: {**error_summary(err[:, k], lu), "unit": campaign.units.length}
                       for k, m in enumerate(campaign.markers)}
+    if campaign.rotations is not None:
+        angle = orientation_errors(model, x, campaign, rows_of(model, campaign))
+        out.update(_rotation_summary(angle, campaign))
+        for k, m in enumerate(campaign.markers):
+            out["markers"][m.name].update(_rotation_summary(angle[:, k], campaign))
     return out
+
+
+def _rotation_summary(angle: np.ndarray, campaign: PoseCampaign) -> dict:
+    """``rotation_rms``, ``rotation_mean_error``, ``rotation_max_error`` of error angles (rad)
+    in the campaign's rotation unit, and ``rotation_unit``."""
+    summary = error_summary(angle, campaign.units.rotation_to_si)
+    return {**{f"rotation_{key}": summary[key] for key in ("rms", "mean_error", "max_error")},
+            "rotation_unit": campaign.units.rotation}
 
 
 def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:
@@ -350,7 +366,9 @@ def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaig
     order = [given[m.name] for m in fitted]
     return PoseCampaign(campaign.name, campaign.robot, campaign.settings, campaign.units,
                         list(fitted), campaign.labels, campaign.q, campaign.positions[:, order],
-                        campaign.loads, campaign.noise_std, campaign.path)
+                        campaign.loads, campaign.noise_std, campaign.path,
+                        None if campaign.rotations is None else campaign.rotations[:, order],
+                        campaign.noise_std_rotation)
 
 
 # ------------------------------------------------------------------------------------------

@@ -43,6 +43,7 @@ from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_s
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families.base import RowTerms
+from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import information_criterion, interval_quantile
 from stiffness.errors import ConvergenceError, StiffnessError
 
@@ -118,11 +119,6 @@ def starting_frame(campaign: PoseCampaign) -> tuple[np.ndarray, np.ndarray]:
     return align_frames(y.reshape(-1, 3), campaign.positions.reshape(-1, 3))
 
 
-def _scaled(jac: np.ndarray, observed: np.ndarray, model: PoseModel) -> np.ndarray:
-    scales = np.array([p.scale for p in model.parameters])
-    return jac.reshape(-1, model.size)[observed.reshape(-1)] * scales
-
-
 def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray
                    ) -> Identifiability:
     """Identifiable columns of ``a``, group by group (earlier groups first); see module doc.
@@ -195,6 +191,12 @@ class PoseFit:
         The loss the fit minimised (:data:`~stiffness.calibration.fitting.LOSSES`).
     converged
         Whether the solver met its tolerances within :data:`MAX_EVALUATIONS` evaluations.
+    rotation_residual
+        (n, M, 3) measured minus predicted orientations (rad, rotation vectors in measuring
+        axes; NaN where not measured), or ``None`` for a campaign without them.
+    rotation_weight
+        ``sigma_t / sigma_r`` (m/rad) the orientations were weighted by
+        (:mod:`stiffness.calibration.pose_orientation`), or ``None``.
     """
 
     model: PoseModel
@@ -207,11 +209,22 @@ class PoseFit:
     extras: dict = field(default_factory=dict)
     loss: str = "linear"
     converged: bool = True
+    rotation_residual: np.ndarray | None = None
+    rotation_weight: float | None = None
+
+    def components(self) -> np.ndarray:
+        """The residual components as fitted: positions (m), then the weighted orientations
+        (m, position-noise units)."""
+        r = self.residual[np.isfinite(self.residual)]
+        if self.rotation_residual is None or self.rotation_weight is None:
+            return r
+        rot = self.rotation_residual[np.isfinite(self.rotation_residual)]
+        return np.concatenate([r, self.rotation_weight * rot])
 
     @property
     def n_observed(self) -> int:
-        """Number of measured components."""
-        return int(np.isfinite(self.residual).sum())
+        """Number of measured components (positions and orientations)."""
+        return int(self.components().size)
 
     @property
     def n_fitted(self) -> int:
@@ -219,12 +232,13 @@ class PoseFit:
         return len(self.identifiability.kept)
 
     def rss(self) -> float:
-        """Sum of squared residual components (m^2)."""
-        r = self.residual[np.isfinite(self.residual)]
+        """Sum of squared residual components (m^2; orientations weighted)."""
+        r = self.components()
         return float(r @ r)
 
     def rms(self) -> float:
-        """RMS of the residual components (m)."""
+        """RMS of the residual components (m; orientations weighted into position-noise
+        units)."""
         return float(np.sqrt(self.rss() / max(self.n_observed, 1)))
 
     def loss_rss(self) -> float:
@@ -233,7 +247,7 @@ class PoseFit:
         (as :attr:`stiffness.calibration.fitting.Fit.loss_rss`)."""
         if self.loss == "linear":
             return self.rss()
-        r = self.residual[np.isfinite(self.residual)] / self.sigma
+        r = self.components() / self.sigma
         return self.sigma ** 2 * loss_sum(r, self.loss, 1.0) / gaussian_loss_mean(self.loss)
 
     def bic(self, sigma: float | None) -> float:
@@ -258,21 +272,16 @@ class PoseFit:
         return self.x - z * s, self.x + z * s
 
 
-def observed_mask(campaign: PoseCampaign) -> np.ndarray:
-    """(n, M, 3) True where a component was measured."""
-    return np.isfinite(campaign.positions)
-
-
-def _identifiable(model: PoseModel, rows: list[RowTerms], observed: np.ndarray,
-                  order: list[str], x: np.ndarray) -> Identifiability:
+def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray) -> Identifiability:
     """The identifiable parameters at ``x`` (at zero if the sag diverges there)."""
+    model = obs.model
     try:
-        _, jac = model.evaluate(x, rows)
+        _, jac = obs.evaluate(x)
     except ConvergenceError:
-        _, jac = model.evaluate(np.zeros(model.size), rows)
+        _, jac = obs.evaluate(np.zeros(model.size))
     assert jac is not None
     sl = model.slices()
-    return reduce_columns(_scaled(jac, observed, model),
+    return reduce_columns(jac * np.array([p.scale for p in model.parameters]),
                           [list(range(sl[f].start, sl[f].stop)) for f in order],
                           np.array([p.scale for p in model.parameters]))
 
@@ -310,32 +319,31 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     if loss != "linear" and scale is None and campaign.noise_std is None:
         return _fit_robust_scale(model, campaign, rows, order, x0, loss)
     x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
-    observed = observed_mask(campaign)
-    ident = _identifiable(model, rows, observed, order, x)
+    obs = PoseObservations(model, campaign, rows)
+    ident = _identifiable(obs, order, x)
     kept = ident.kept
-    if len(kept) >= int(observed.sum()):
+    if len(kept) >= obs.size:
         raise StiffnessError(f"{len(kept)} identifiable parameters but only "
-                             f"{int(observed.sum())} measured components; measure more poses")
+                             f"{obs.size} measured components; measure more poses")
     x[[d.index for d in ident.dropped]] = 0.0
     try:
         model.evaluate(x, rows, jacobian=False)
     except ConvergenceError:
         x[:] = 0.0
-    measured = campaign.positions[observed]
 
     def residual(z: np.ndarray) -> np.ndarray:
         x[kept] = z
         try:
-            y, _ = model.evaluate(x, rows, jacobian=False)
+            r, _ = obs.evaluate(x, jacobian=False)
         except ConvergenceError:  # a trial step whose sag diverges: refused as a bad step
-            return np.full(measured.shape, DIVERGED_RESIDUAL_M)
-        return y[observed] - measured
+            return np.full(obs.size, DIVERGED_RESIDUAL_M)
+        return r
 
     def jacobian(z: np.ndarray) -> np.ndarray:
         x[kept] = z
-        _, j = model.evaluate(x, rows)
+        _, j = obs.evaluate(x)
         assert j is not None
-        return j[observed][:, kept]
+        return j[:, kept]
 
     scales = np.array([model.parameters[i].scale for i in kept])
     sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
@@ -343,7 +351,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
                                  max_nfev=MAX_EVALUATIONS)
     x[kept] = sol.x
     if loss == "linear":
-        fit = _finish(model, campaign, x, ident, sol.jac, sol.fun, observed)
+        fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun)
         fit.converged = bool(sol.status > 0)
         return fit
     s = scale if scale is not None else campaign.noise_std
@@ -356,7 +364,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead
     fun, jac = residual(sol.x), jacobian(sol.x)
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
-    fit = _finish(model, campaign, x, ident, jac, fun, observed, loss, (s, source))
+    fit = _finish(obs, campaign, x, ident, jac, fun, loss, (s, source))
     fit.converged = bool(sol.status > 0)
     return fit
 
@@ -373,24 +381,25 @@ def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTe
     return fit
 
 
-def _finish(model: PoseModel, campaign: PoseCampaign, x: np.ndarray, ident: Identifiability,
-            jac: np.ndarray, fun: np.ndarray, observed: np.ndarray, loss: str = "linear",
+def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
+            ident: Identifiability, jac: np.ndarray, fun: np.ndarray, loss: str = "linear",
             robust_scale: tuple[float, str] | None = None) -> PoseFit:
-    """The fit at ``x`` from the residuals ``fun`` (predicted minus measured, m) and their
-    Jacobian; ``robust_scale`` the (noise std, source) scaling a robust ``loss``."""
-    residual = np.full(campaign.positions.shape, np.nan)
-    residual[observed] = -fun
+    """The fit at ``x`` from the residuals ``fun`` (predicted minus measured, m; orientations
+    weighted) and their Jacobian; ``robust_scale`` the (noise std, source) scaling a robust
+    ``loss``."""
+    residual, rotation = obs.split(fun)
     n, k = fun.size, len(ident.kept)
     if robust_scale is not None:
         sigma, source = robust_scale
         cov = sandwich_matrix(fun / sigma, jac / sigma, loss, 1.0, np.eye(k))
-        return PoseFit(model, x.copy(), ident, cov, residual, sigma, source, loss=loss)
-    if campaign.noise_std is not None:
-        sigma, source = campaign.noise_std, "declared"
     else:
-        sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
-    cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
-    return PoseFit(model, x.copy(), ident, cov, residual, sigma, source)
+        if campaign.noise_std is not None:
+            sigma, source = campaign.noise_std, "declared"
+        else:
+            sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
+        cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
+    return PoseFit(obs.model, x.copy(), ident, cov, residual, sigma, source, loss=loss,
+                   rotation_residual=rotation, rotation_weight=obs.weight)
 
 
 def predict(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> np.ndarray:

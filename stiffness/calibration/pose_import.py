@@ -4,7 +4,9 @@ The files are joined, mapped and read as for a deflection campaign
 (:mod:`stiffness.calibration.rig_import`: ``--join``, ``--map``, ``--units``, units in the
 headers). The campaign columns are ``config`` (optional), ``q1..qn``, each marker's
 ``<marker>_x, <marker>_y, <marker>_z`` in the measuring system's frame (all three cells empty
-where it was not seen) and optionally the applied wrench ``fx, fy, fz[, mx, my, mz]`` (world
+where it was not seen), optionally its orientation ``<marker>_rx, _ry, _rz`` (rotation vector
+of the marker's frame in the measuring frame, in the files' angle unit; all three columns or
+none, all three cells or none) and optionally the applied wrench ``fx, fy, fz[, mx, my, mz]`` (world
 axes, at the robot's target frame). Positions are absolute, so no frame is converted.
 """
 
@@ -16,7 +18,7 @@ import numpy as np
 
 from stiffness.calibration.absolute import Loads, Marker
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
-from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
 from stiffness.calibration.rig_import import (
     FORCE,
     MOMENT,
@@ -35,14 +37,16 @@ from stiffness.robot.robot import Robot
 
 
 def marker_targets(markers: list[Marker]) -> tuple[str, ...]:
-    """The campaign columns of the markers: ``<marker>_x, _y, _z`` each."""
-    return tuple(f"{m.name}_{a}" for m in markers for a in "xyz")
+    """The campaign columns of the markers: ``<marker>_x, _y, _z`` each, and the optional
+    ``<marker>_rx, _ry, _rz``."""
+    return tuple(f"{m.name}_{a}" for m in markers for a in ("x", "y", "z", *ROTATION_AXES))
 
 
 def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSettings,
                          settings: ImportSettings, markers: list[Marker],
                          name: str = "imported", noise_std: float | None = None,
-                         robot: Robot | None = None) -> PoseCampaign:
+                         robot: Robot | None = None,
+                         noise_std_rotation: float | None = None) -> PoseCampaign:
     """Read a rig's CSV files into a pose campaign (SI).
 
     Parameters
@@ -51,6 +55,9 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
         The markers (name, frame, nominal offset in the files' length unit).
     noise_std
         Position noise std in the files' length unit, or ``None``.
+    noise_std_rotation
+        Orientation noise std in the files' angle unit, or ``None`` (refused without
+        orientation columns).
 
     Raises
     ------
@@ -72,10 +79,18 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     columns, _ = join_tables(tables, settings.join)
     mapper = ColumnMapper(columns, settings, [t.path for t in tables])
     q_cols, q_file, prismatic = read_coordinates(mapper, robot)
-    positions = np.stack([_marker(mapper, m) for m in markers], axis=1)
+    seen = [_marker(mapper, m) for m in markers]
+    positions = np.stack([p for p in seen if p is not None], axis=1)  # required: all there
+    turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
+    rotations = (None if all(t is None for t in turns) else np.stack(
+        [np.full((positions.shape[0], 3), np.nan) if t is None else t for t in turns], axis=1))
+    if noise_std_rotation is not None and rotations is None:
+        raise StiffnessError("a rotation noise is given but no marker has orientation columns "
+                             "(<marker>_rx,_ry,_rz); map them or drop the rotation noise")
     force = read_block(mapper, FORCE, "force", False)
     moment = read_block(mapper, MOMENT, "moment", False) if force is not None else None
-    units = Units(mapper.unit("angle", bool((~prismatic).any())) or "rad",
+    units = Units(mapper.unit("angle", bool((~prismatic).any()) or rotations is not None)
+                  or "rad",
                   mapper.unit("force", force is not None) or "N",
                   mapper.unit("length", True) or "m",
                   moment_unit=mapper.unit("moment", moment is not None))
@@ -93,14 +108,21 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
               for m in markers]
     return PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,
                         positions * units.length_to_si, loads,
-                        None if noise_std is None else noise_std * units.length_to_si)
+                        None if noise_std is None else noise_std * units.length_to_si,
+                        rotations=None if rotations is None else rotations * units.angle_to_si,
+                        noise_std_rotation=None if noise_std_rotation is None
+                        else noise_std_rotation * units.angle_to_si)
 
 
-def _marker(mapper: ColumnMapper, marker: Marker) -> np.ndarray:
-    """(n, 3) positions of a marker in the files' unit, NaN where its cells are empty."""
-    targets = tuple(f"{marker.name}_{a}" for a in "xyz")
-    cols = mapper.group(targets, True) or []
-    values = np.column_stack([mapper.values(t, c, "length", empty_is_nan=True)
+def _marker(mapper: ColumnMapper, marker: Marker, axes: tuple[str, ...] = ("x", "y", "z"),
+            kind: str = "length", required: bool = True) -> np.ndarray | None:
+    """(n, 3) positions (or orientations: ``axes`` ``rx, ry, rz``, ``kind`` angle) of a marker
+    in the files' unit, NaN where its cells are empty; ``None`` for optional columns absent."""
+    targets = tuple(f"{marker.name}_{a}" for a in axes)
+    cols = mapper.group(targets, required)
+    if cols is None:
+        return None
+    values = np.column_stack([mapper.values(t, c, kind, empty_is_nan=True)
                               for t, c in zip(targets, cols, strict=True)])
     seen = np.isfinite(values)
     partial = np.flatnonzero(seen.any(axis=1) & ~seen.all(axis=1))

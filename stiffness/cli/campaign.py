@@ -64,6 +64,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                    help="frame of the deflections or positions; default base")
     p.add_argument("--noise", type=float, metavar="STD",
                    help="measurement noise std, in the files' length unit (noise_std)")
+    p.add_argument("--noise-rotation", type=float, metavar="STD",
+                   help="--kind poses with orientation columns: their noise std, in the files' "
+                        "angle unit (noise_std_rotation)")
     p.add_argument("--baseline", choices=BASELINES, default="enhanced",
                    help="the model identify starts from; default enhanced")
     p.add_argument("--name", default="imported", help="campaign name; default imported")
@@ -111,7 +114,8 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
                              "frame and wrenches in world axes; drop --force-frame/"
                              "--deflection-frame tool")
     campaign = import_pose_campaign(args.files, robot_settings, settings,
-                                    _markers(args.marker), args.name, args.noise, robot)
+                                    _markers(args.marker), args.name, args.noise, robot,
+                                    args.noise_rotation)
     path = write_pose_campaign(campaign, args.out)
     seen = np.isfinite(campaign.positions).all(axis=2).sum(axis=0)
     markers = {m.name: {"frame": m.frame, "rows_seen": int(n)}
@@ -137,6 +141,9 @@ def run(args: argparse.Namespace) -> int:
         raise StiffnessError("--robot is required: a shipped robot, an "
                                    "example-robot-data name or a URDF path")
     flags.check_noise_std(args.noise, "--noise", "the files' length unit")
+    flags.check_noise_std(args.noise_rotation, "--noise-rotation", "the files' angle unit")
+    if args.noise_rotation is not None and args.kind != "poses":
+        raise StiffnessError("--noise-rotation is for --kind poses")
     output_folder(args.out, create=False)
     settings = _settings(args)
     robot_settings = RobotSettings(

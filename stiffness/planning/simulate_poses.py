@@ -244,7 +244,8 @@ def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hi
 def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors,
                            n_poses: int, noise_std: float, seed: int = 0,
                            payload: np.ndarray | None = None, units: Units | None = None,
-                           name: str = "simulated-poses") -> PoseCampaign:
+                           name: str = "simulated-poses",
+                           rotation_noise_std: float | None = None) -> PoseCampaign:
     """A pose campaign of ``n_poses`` reachable poses seen through ``hidden``.
 
     Parameters
@@ -255,6 +256,10 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
         A constant wrench (6,) at the robot's target frame (world axes), or ``None``.
     noise_std
         Isotropic Gaussian noise of each position component (m).
+    rotation_noise_std
+        When given, the markers' orientations are measured too (rotation vectors of their
+        frames in the measuring frame), each with a rotation ``exp(n)``, ``n`` Gaussian of this
+        std per component (rad), applied on the measuring side.
     """
     rng = np.random.default_rng(seed)
     q = sample_coordinates(robot, n_poses, rng)
@@ -263,6 +268,7 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
                                                np.tile(payload, (n_poses, 1)))
     springs = hidden_elasticity(robot, markers, hidden, _smoothing(robot, markers, q, loads))
     positions = np.empty((n_poses, len(markers), 3))
+    orientations = np.empty((n_poses, len(markers), 3, 3))
     for i, coords in enumerate(q):
         q_full = _command(robot, model, hidden, coords)
         bent, q_l = loaded_arm(model, q_full, springs, payload, robot.target_frame)
@@ -270,13 +276,21 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
         pin.framesForwardKinematics(bent, data, q_l)
         for k, m in enumerate(markers):
             point = data.oMf[bent.getFrameId(m.frame)].act(hidden.marker_offsets[k])
+            orientations[i, k] = hidden.frame_rotation @ data.oMf[bent.getFrameId(m.frame)
+                                                                  ].rotation
             positions[i, k] = (hidden.frame_rotation @ point + hidden.frame_translation
                                + hidden.drift * i / max(n_poses - 1, 1))
     positions += rng.normal(0.0, noise_std, positions.shape)
+    rotations = None
+    if rotation_noise_std is not None:
+        noise = rng.normal(0.0, rotation_noise_std, positions.shape)
+        rotations = np.array([[pin.log3(pin.exp3(e) @ r) for e, r in zip(er, rr, strict=True)]
+                              for er, rr in zip(noise, orientations, strict=True)])
     settings = RobotSettings(robot.name, robot.target_frame,
                              compliant_joints=tuple(robot.compliant_joints))
     return PoseCampaign(name, robot, settings, units or Units("rad", "N", "m"), markers,
-                        [f"p{i + 1}" for i in range(n_poses)], q, positions, loads, noise_std)
+                        [f"p{i + 1}" for i in range(n_poses)], q, positions, loads, noise_std,
+                        rotations=rotations, noise_std_rotation=rotation_noise_std)
 
 
 def _smoothing(robot: Robot, markers: list[Marker], q: np.ndarray, loads: Loads | None
