@@ -28,7 +28,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
-import numpy as np
+# One BLAS thread per test process, set before NumPy loads: pytest-xdist runs a process per
+# core, and OpenBLAS's threads on top of them oversubscribe the machine (a 360x50 SVD took
+# 1.5 ms single-threaded and 26-73 ms oversubscribed on this 2-core machine).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 import pytest
 from hypothesis import HealthCheck, settings
 

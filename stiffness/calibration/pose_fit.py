@@ -11,7 +11,8 @@ ones ("merged": the kept parameters absorb it with the least-squares coefficient
 
 Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian, at most
 :data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
-an ill-conditioned family whose trial steps keep meeting a diverging sag crawls for thousands);
+an ill-conditioned fit crawls for thousands: a 57-parameter geometry fit on 30 poses, or a lumped
+gravity fit whose trial steps keep meeting a diverging sag);
 covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or the residual variance when the
 campaign declares none; 95 % intervals from the normal quantile (Student's t when the noise is
 not declared or the loss is robust), as deflection diagnose's
@@ -55,7 +56,7 @@ FIT_TOLERANCE = 1e-12
 #: large compliance): far above any measured error, so the solver refuses the step.
 DIVERGED_RESIDUAL_M = 1.0
 #: Evaluations of the model after which a fit stops (not converged).
-MAX_EVALUATIONS = 500
+MAX_EVALUATIONS = 200
 
 
 @dataclass(frozen=True)
