@@ -173,6 +173,14 @@ class PoseModel:
                                      for j in self.joints], dtype=float)
                       for fid in set(self.frame_ids)}
         self._sag_start: dict[int, np.ndarray] = {}  # a row's last converged sag
+        self._lumped = any(f.lumps_gravity for f in self.family_objects)
+        self._elastic = any(f.kind == "elastic" for f in self.family_objects)
+        # the families that implement each per-row hook (the others would add nothing)
+        self._hooked = {hook: [f for f in self.family_objects
+                               if getattr(type(f), hook) is not getattr(PoseFamily, hook)]
+                        for hook in ("configuration_offset", "at_configuration", "joint_torque",
+                                     "joint_deflection", "deflection_per_torque",
+                                     "marker_displacement")}
         self.parameters: list[Parameter] = []
         self._slices: dict[str, slice] = {}
         for fam in self.family_objects:
@@ -244,12 +252,11 @@ class PoseModel:
                   wrench: np.ndarray | None) -> SagState:
         """Gravity's, the wrench's and the families' torques at ``q`` for ``model``."""
         gravity, applied = self._load_torques(model, data, q, wrench)
-        lumped = any(f.lumps_gravity for f in self.family_objects)
-        state = SagState(q, gravity, applied, applied + (0.0 if lumped else gravity),
+        state = SagState(q, gravity, applied, applied + (0.0 if self._lumped else gravity),
                          np.zeros(model.nv))
-        for fam in self.family_objects:
+        for fam in self._hooked["at_configuration"]:
             state.extras[fam.name] = fam.at_configuration(self, model, data, q)
-        for fam in self.family_objects:
+        for fam in self._hooked["joint_torque"]:
             extra = fam.joint_torque(self, x[self._slices[fam.name]], state)
             if extra is not None:
                 state.torque = state.torque + extra
@@ -259,7 +266,7 @@ class PoseModel:
         """d(Delta q)/d(torque) (nv,) at ``state``: the sum of the families' (the columns of
         a family that adds a torque need it)."""
         out = np.zeros(state.torque.size)
-        for fam in self.family_objects:
+        for fam in self._hooked["deflection_per_torque"]:
             slope = fam.deflection_per_torque(self, x[self._slices[fam.name]], state)
             if slope is not None:
                 out += slope
@@ -295,7 +302,7 @@ class PoseModel:
         """Joint deflection ``Delta q`` (nv,) at ``state`` for parameters ``x``: the sum of the
         elastic families' parts."""
         dq = np.zeros(self.robot.model.nv)
-        for fam in self.family_objects:
+        for fam in self._hooked["joint_deflection"]:
             part = fam.joint_deflection(self, x[self._slices[fam.name]], state)
             if part is not None:
                 dq += part
@@ -304,7 +311,7 @@ class PoseModel:
     @property
     def elastic(self) -> bool:
         """Whether the model has an elastic family (the arm sags)."""
-        return any(f.kind == "elastic" for f in self.family_objects)
+        return self._elastic
 
     def loaded_configuration(self, model: pin.Model, data: pin.Data, x: np.ndarray,
                              row: RowTerms) -> tuple[np.ndarray, SagState | None]:
@@ -316,7 +323,7 @@ class PoseModel:
         differs little from its last), and from zero if that does not converge.
         """
         offsets = np.zeros(model.nv)
-        for fam in self.family_objects:
+        for fam in self._hooked["configuration_offset"]:
             shift = fam.configuration_offset(self, x[self._slices[fam.name]])
             if shift is not None:
                 offsets += shift
@@ -387,7 +394,7 @@ class PoseModel:
     def _displacement(self, parts: dict[str, np.ndarray], view: MarkerView) -> np.ndarray:
         """The families' displacement of a marker (robot-world axes, m): the link bends."""
         out = np.zeros(3)
-        for fam in self.family_objects:
+        for fam in self._hooked["marker_displacement"]:
             shift = fam.marker_displacement(self, parts[fam.name], view)
             if shift is not None:
                 out += shift

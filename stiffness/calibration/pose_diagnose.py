@@ -37,10 +37,10 @@ from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import (
-    FIT_TOLERANCE,
     PoseFit,
     campaign_settings,
     fit_pose_model,
+    linearised_rss,
     predict,
     rows_of,
     starting_frame,
@@ -50,10 +50,10 @@ from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
     GOF_LEVEL,
-    SCREEN_TOLERANCE,
     config_folds,
     dispersion,
     goodness_of_fit,
+    information_criterion,
 )
 from stiffness.calibration.validation import error_summary
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
@@ -176,15 +176,13 @@ def _rms(values: np.ndarray) -> float:
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
          settings: dict, start: PoseFit | None = None, loss: str = "linear",
-         scale: float | None = None, tolerance: float = FIT_TOLERANCE) -> PoseFit:
+         scale: float | None = None) -> PoseFit:
     """Fit ``families``, starting from ``start``'s values of the parameters they share, under
-    ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`), to ``tolerance`` (relative
-    change of the sum of squares)."""
+    ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`)."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
                       settings)
     return fit_pose_model(model, campaign, rows_of(model, campaign), families,
-                          None if start is None else warm_start(model, start), loss, scale,
-                          tolerance)
+                          None if start is None else warm_start(model, start), loss, scale)
 
 
 def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
@@ -258,9 +256,15 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         if not ready:
             break
         say(f"step {len(steps)}: trying {', '.join(ready)}")
-        tried = _screened(campaign, families, frame0, settings, steps[-1].fit, ready, scale)
-        delta = _delta_bic(campaign, steps[-1].fit, tried)
-        best, cv_new = _winner(campaign, families, frame0, folds, tried, delta, steps[-1].cv_rms)
+        tried, screened = _screened(campaign, families, frame0, settings, steps[-1].fit, ready,
+                                    scale)
+        delta = {**screened, **_delta_bic(campaign, steps[-1].fit,
+                                          {f: t.loss_rss() for f, t in tried.items()},
+                                          {f: t.n_fitted for f, t in tried.items()})}
+        best, cv_new, unfit = _winner(campaign, families, frame0, folds, tried, delta,
+                                      steps[-1].cv_rms)
+        rejected.update({f: delta[f] for f in unfit})
+        remaining = [f for f in remaining if f not in unfit]
         if best is None:
             rejected.update(delta)
             break
@@ -273,46 +277,58 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
 
 def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
               settings: dict, current: PoseFit, ready: list[str], scale: float | None
-              ) -> dict[str, PoseFit]:
-    """Each of ``ready`` added to ``families``, as deflection diagnose screens its candidates:
-    fitted to :data:`~stiffness.calibration.diagnose.SCREEN_TOLERANCE`, then the best
-    :data:`~stiffness.calibration.diagnose.CV_TOP` by that BIC that pass
-    :data:`~stiffness.calibration.diagnose.BIC_MARGIN` refitted to the full tolerance (the
-    others cannot be added this step); every fit under ``current``'s loss and ``scale``."""
-    loss = current.loss
-    tried = {f: _fit(campaign, families + [f], frame0, settings, current, loss, scale,
-                     SCREEN_TOLERANCE) for f in ready}
-    delta = _delta_bic(campaign, current, tried)
-    best = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])[:CV_TOP]
-    return {f: _fit(campaign, families + [f], frame0, settings, tried[f], loss, scale)
-            if f in best else tried[f] for f in tried}
+              ) -> tuple[dict[str, PoseFit], dict[str, float]]:
+    """Each of ``ready`` added to ``families``, screened by one Gauss-Newton step from
+    ``current`` (:func:`~stiffness.calibration.pose_fit.linearised_rss`: what its columns
+    explain of the residual, to first order); the best
+    :data:`~stiffness.calibration.selection.CV_TOP` by that BIC that pass
+    :data:`~stiffness.calibration.selection.BIC_MARGIN` are fitted (under ``current``'s loss
+    and ``scale``). Returns those fits and every candidate's screened BIC change."""
+    screen = {}
+    for f in ready:
+        model = PoseModel(campaign.robot, campaign.markers, tuple(families + [f]), frame0,
+                          campaign.loads, settings)
+        screen[f] = linearised_rss(model, campaign, rows_of(model, campaign), families + [f],
+                                   warm_start(model, current))
+    delta = _delta_bic(campaign, current, {f: rss for f, (rss, _) in screen.items()},
+                       {f: k for f, (_, k) in screen.items()})
+    best = sorted((f for f in ready if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])[:CV_TOP]
+    return {f: _fit(campaign, families + [f], frame0, settings, current, current.loss, scale)
+            for f in best}, delta
 
 
-def _delta_bic(campaign: PoseCampaign, current: PoseFit, tried: dict[str, PoseFit]
-               ) -> dict[str, float]:
-    """Each extension's BIC change, with deflection diagnose's criterion: the declared noise
-    inflated by the step's overdispersion (:func:`selection.dispersion`: what the best
-    extension leaves above the noise counts as noise in the step's comparisons)."""
-    fits = [current, *tried.values()]
+def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
+               params: dict[str, int]) -> dict[str, float]:
+    """Each extension's BIC change from its sum of squares ``rss`` (m^2) and its number of
+    fitted ``params``, with deflection diagnose's criterion: the declared noise inflated by the
+    step's overdispersion (:func:`selection.dispersion`: what the best extension leaves above
+    the noise counts as noise in the step's comparisons)."""
+    n = current.n_observed
     sigma = campaign.noise_std
     if sigma is not None:
-        sigma *= math.sqrt(dispersion([f.loss_rss() for f in fits], [f.n_fitted for f in fits],
-                                      current.n_observed, sigma))
-    return {f: fit.bic(sigma) - current.bic(sigma) for f, fit in tried.items()}
+        sigma *= math.sqrt(dispersion([current.loss_rss(), *rss.values()],
+                                      [current.n_fitted, *params.values()], n, sigma))
+    base = current.bic(sigma)
+    return {f: information_criterion(rss[f], n, params[f], sigma) - base for f in rss}
 
 
 def _winner(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
             folds: list[np.ndarray], tried: dict[str, PoseFit], delta: dict[str, float],
-            cv_current: float) -> tuple[str | None, float]:
+            cv_current: float) -> tuple[str | None, float, list[str]]:
     """As deflection diagnose: of the extensions past :data:`BIC_MARGIN`, the best
     :data:`CV_TOP` by BIC are cross-validated in that order, and the first whose held-out RMS
-    beats ``cv_current`` wins (``None`` if none)."""
+    beats ``cv_current`` wins (``None`` if none). Also returns those whose held-out RMS is
+    infinite (a fold cannot be fitted, or its sag diverges at a held-out pose): the campaign
+    cannot validate them, and the search drops them."""
     eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
+    unfit: list[str] = []
     for f in eligible[:CV_TOP]:
         cv = _cv_rms(campaign, tried[f], families + [f], frame0, folds)
         if cv < cv_current:
-            return f, cv
-    return None, math.nan
+            return f, cv, unfit
+        if math.isinf(cv):
+            unfit.append(f)
+    return None, math.nan, unfit
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

@@ -34,6 +34,7 @@ squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` i
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,8 +51,6 @@ from stiffness.errors import ConvergenceError, StiffnessError
 
 #: Smallest sine between a kept column and the span of the others (documented above).
 IDENTIFIABILITY_TOL = 1e-6
-#: Relative change of the sum of squares at which a fit stops.
-FIT_TOLERANCE = 1e-12
 #: Residual (m, each component) of a trial step whose sag does not converge (an unphysically
 #: large compliance): far above any measured error, so the solver refuses the step.
 DIVERGED_RESIDUAL_M = 1.0
@@ -281,15 +280,40 @@ def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray) -> Ide
     except ConvergenceError:
         _, jac = obs.evaluate(np.zeros(model.size))
     assert jac is not None
+    return _reduced(model, jac, order)
+
+
+def _reduced(model: PoseModel, jac: np.ndarray, order: list[str]) -> Identifiability:
+    """The identifiable columns of the observed Jacobian ``jac`` (N, p), ``order``'s families
+    first (:func:`reduce_columns`)."""
     sl = model.slices()
     return reduce_columns(jac * np.array([p.scale for p in model.parameters]),
                           [list(range(sl[f].start, sl[f].stop)) for f in order],
                           np.array([p.scale for p in model.parameters]))
 
 
+def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
+                   order: list[str], x0: np.ndarray) -> tuple[float, int]:
+    """One Gauss-Newton step from ``x0``: the sum of squares (m^2) it reaches and the number of
+    identifiable parameters. From a fit of some of ``model``'s families (``x0`` its optimum,
+    zero for the others), this is the score-test screen of adding the others: what their
+    columns explain of the residual beyond the fitted ones, to first order (infinite where the
+    sag diverges at ``x0``)."""
+    try:
+        residual, jac = PoseObservations(model, campaign, rows).evaluate(x0)
+    except ConvergenceError:
+        return math.inf, 0
+    assert jac is not None
+    kept = _reduced(model, jac, order).kept
+    columns = jac[:, kept]
+    step, *_ = np.linalg.lstsq(columns, residual, rcond=None)
+    rest = residual - columns @ step
+    return float(rest @ rest), len(kept)
+
+
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
-                   scale: float | None = None, tolerance: float = FIT_TOLERANCE) -> PoseFit:
+                   scale: float | None = None) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
     Parameters
@@ -307,9 +331,6 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     scale
         Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
         robust estimate (module docstring). Ignored by least squares.
-    tolerance
-        The solver stops when a step lowers the sum of squares by less than this fraction
-        (a screening fit: :data:`stiffness.calibration.diagnose.SCREEN_TOLERANCE`).
 
     Raises
     ------
@@ -348,7 +369,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
 
     scales = np.array([model.parameters[i].scale for i in kept])
     sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
-                                 method="lm", xtol=1e-12, ftol=tolerance, gtol=1e-12,
+                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
                                  max_nfev=MAX_EVALUATIONS)
     x[kept] = sol.x
     if loss == "linear":

@@ -138,6 +138,9 @@ class BacklashPose(JointDeflectionFamily):
                               for j, r in zip(pm.compliant, rms, strict=True)
                               if r > cls.NIL_TORQUE * top}}
 
+    def __init__(self) -> None:
+        self._layout: tuple[list[int], np.ndarray] | None = None
+
     def _joints(self, pm: PoseLayout) -> list[tuple[int, int, float]]:
         """(joint id, velocity index, smoothing torque) of each joint with a parameter."""
         given = pm.settings.get(self.SETTING)
@@ -152,9 +155,10 @@ class BacklashPose(JointDeflectionFamily):
     def _ratio(self, pm: PoseLayout, state: SagState) -> tuple[list[int], np.ndarray,
                                                                 np.ndarray]:
         """Velocity indices, ``tau_j / tau_s`` and ``tau_s`` of the joints with a parameter."""
-        joints = self._joints(pm)
-        v_index = [v for _, v, _ in joints]
-        smooth = np.array([s for _, _, s in joints])
+        if self._layout is None:  # built once per model
+            joints = self._joints(pm)
+            self._layout = ([v for _, v, _ in joints], np.array([s for _, _, s in joints]))
+        v_index, smooth = self._layout
         return v_index, state.torque[v_index] / smooth, smooth
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
@@ -232,8 +236,12 @@ class CompensatorPose(JointDeflectionFamily):
 
     def joint_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         out = np.zeros(state.torque.size)
-        for n, (v, unit) in enumerate(self._unit_torques(pm, state.q)):
-            out[v] += unit @ x_f[2 * n: 2 * n + 2]
+        model = pm.robot.model
+        for n, (j, spring) in enumerate(self._joints(pm)):
+            p = x_f[2 * n: 2 * n + 2]
+            if p.any():  # a spring without stiffness or tension adds nothing
+                theta = np.array(_joint_angle(model, j, state.q))
+                out[model.joints[j].idx_v] += float(spring.torque(p, theta)[0])
         return out
 
     def torque_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
