@@ -172,7 +172,9 @@ class PoseModel:
         self.moves = {fid: np.array([j in set(model.supports[model.frames[fid].parentJoint])
                                      for j in self.joints], dtype=float)
                       for fid in set(self.frame_ids)}
-        self._sag_start: dict[int, np.ndarray] = {}  # a row's last converged sag
+        # each row's last converged sag, with the row itself (kept alive, so that its id is
+        # never reused by another row: the starts, and so the results, are deterministic)
+        self._sag_start: dict[int, tuple[RowTerms, np.ndarray]] = {}
         self._lumped = any(f.lumps_gravity for f in self.family_objects)
         self._elastic = any(f.kind == "elastic" for f in self.family_objects)
         # the families that implement each per-row hook (the others would add nothing)
@@ -330,8 +332,9 @@ class PoseModel:
         if not self.elastic:
             return pin.integrate(model, row.q_full, offsets), None
         starts = [np.zeros(model.nv)]
-        if id(row) in self._sag_start:
-            starts.insert(0, self._sag_start[id(row)])
+        last = self._sag_start.get(id(row))
+        if last is not None and last[0] is row:
+            starts.insert(0, last[1])
         for sag in starts:
             for _ in range(SAG_ITERATIONS):
                 q = pin.integrate(model, row.q_full, offsets + sag)
@@ -340,7 +343,7 @@ class PoseModel:
                 converged = np.max(np.abs(new - sag)) <= SAG_TOLERANCE
                 sag = new
                 if converged:
-                    self._sag_start[id(row)] = sag
+                    self._sag_start[id(row)] = (row, sag)
                     return pin.integrate(model, row.q_full, offsets + sag), state
         raise ConvergenceError("the sag of the fitted compliance does not converge: the "
                                "compliance is too large for the arm's weight; check the "
