@@ -71,7 +71,7 @@ from stiffness.calibration.campaign_toml import (
     RobotSettings,
     TomlFile,
     campaign_toml_path,
-    noise_section,
+    measurement_noise,
     read_campaign_toml,
     robot_section,
     settings_robot,
@@ -334,15 +334,8 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     source = settings.source
     m = doc["measurement"]
     data_name = typed_value(m["data"], str, toml, "measurement", "data", "a file name")
-    noise = noise_section(doc, toml, units)
-    rot_noise = m.get("rotation_noise_std")
-    if rot_noise is not None:
-        typed_value(rot_noise, int | float, toml, "measurement", "rotation_noise_std",
-               f"a positive number in {units.rotation}")
-        if not (math.isfinite(rot_noise) and rot_noise > 0):
-            raise toml.error(f"[measurement] rotation_noise_std must be a positive finite number "
-                             f"in {units.rotation}, got {rot_noise!r}; omit it if unknown",
-                             "measurement", "rotation_noise_std")
+    noise = measurement_noise(doc, toml, "noise_std", units.length)
+    rot_noise = measurement_noise(doc, toml, "rotation_noise_std", units.rotation)
     data_path = toml_path.parent / data_name
 
     robot = settings_robot(settings, toml_path)

@@ -260,17 +260,15 @@ def robot_section(doc: dict, toml: TomlFile, units: Units) -> RobotSettings:
                          joint_angles)
 
 
-def noise_section(doc: dict, toml: TomlFile, units: Units) -> float | None:
-    """``[measurement] noise_std`` in the file's length unit, or None (key named on error)."""
-    m = doc["measurement"]
-    noise = m.get("noise_std")
+def measurement_noise(doc: dict, toml: TomlFile, key: str, unit: str) -> float | None:
+    """``[measurement] <key>``, a noise std in the file's ``unit`` (``noise_std`` in the
+    length unit, a rotation noise in the rotation unit), or None (key named on error)."""
+    noise = doc["measurement"].get(key)
     if noise is not None:
-        typed_value(noise, int | float, toml, "measurement", "noise_std",
-               f"a positive number in {units.length}")
+        typed_value(noise, int | float, toml, "measurement", key, f"a positive number in {unit}")
         if not (math.isfinite(noise) and noise > 0):
-            raise toml.error(f"[measurement] noise_std must be a positive finite number in "
-                             f"{units.length}, got {noise!r}; omit it if unknown",
-                             "measurement", "noise_std")
+            raise toml.error(f"[measurement] {key} must be a positive finite number in {unit}, "
+                             f"got {noise!r}; omit it if unknown", "measurement", key)
     return noise
 
 

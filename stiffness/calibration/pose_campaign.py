@@ -27,7 +27,7 @@ from stiffness.calibration.campaign_toml import (
     RobotSettings,
     TomlFile,
     check_table_keys,
-    noise_section,
+    measurement_noise,
     robot_section,
     settings_robot,
     typed_value,
@@ -293,7 +293,7 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     data = toml_path.parent / data_name
     labels, q_file, pos, wrench, numbers, rot = _rows(data, robot, markers)
     q = coordinates_in_si(robot, q_file, units, labels, numbers, data)
-    noise = noise_section(doc, toml, units)
+    noise = measurement_noise(doc, toml, "noise_std", units.length)
     loads = None
     if wrench is not None:
         full = np.zeros((len(labels), 6))
@@ -311,15 +311,9 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
 
 def _rotation_noise(doc: dict, toml: TomlFile, units: Units, measured: bool) -> float | None:
     """``[measurement] noise_std_rotation`` in rad, or None; refused without rotation columns."""
-    noise = doc["measurement"].get("noise_std_rotation")
+    noise = measurement_noise(doc, toml, "noise_std_rotation", units.rotation)
     if noise is None:
         return None
-    typed_value(noise, int | float, toml, "measurement", "noise_std_rotation",
-                f"a positive number in {units.rotation}")
-    if not (math.isfinite(noise) and noise > 0):
-        raise toml.error(f"[measurement] noise_std_rotation must be a positive finite number "
-                         f"in {units.rotation}, got {noise!r}; omit it if unknown",
-                         "measurement", "noise_std_rotation")
     if not measured:
         raise toml.error("[measurement] noise_std_rotation is given but no marker has "
                          "<marker>_rx,_ry,_rz columns; add them or drop the key",

@@ -32,7 +32,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
     RobotSettings,
-    noise_section,
+    measurement_noise,
     read_campaign_toml,
     robot_section,
     settings_robot,
@@ -157,7 +157,7 @@ def _settings(toml_path: Path) -> tuple[dict, Units, RobotSettings, float | None
     doc, toml = read_campaign_toml(toml_path)
     units = units_section(doc, toml)
     settings = robot_section(doc, toml, units)
-    noise = noise_section(doc, toml, units)
+    noise = measurement_noise(doc, toml, "noise_std", units.length)
     return doc, units, settings, None if noise is None else float(noise) * units.length_to_si
 
 
