@@ -11,6 +11,7 @@ Examples: a few dozen per reader in CI, thousands with
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from datetime import timedelta
@@ -132,3 +133,34 @@ def toml_mutation(draw, text: str) -> str:
 def write_text(path: Path, text: str) -> None:
     """Write ``text`` as UTF-8, surrogate escapes as the raw (invalid UTF-8) bytes."""
     path.write_bytes(text.encode("utf-8", errors="surrogateescape"))
+
+
+def json_mutations(doc: object) -> st.SearchStrategy:
+    """Strategies replacing one node of a JSON document by a value of another type."""
+    paths = []
+
+    def walk(node, path):
+        paths.append(path)
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, (*path, k))
+        elif isinstance(node, list):
+            for i, v in enumerate(node[:4]):
+                walk(v, (*path, i))
+
+    walk(doc, ())
+    nasty = st.sampled_from([None, "", "x", -1, 0, 1e308, [], {}, [None], True, "nan",
+                             "\u00e9", [1, "a"], {"a": 1}])
+    return st.tuples(st.sampled_from(paths), nasty)
+
+
+def replaced(doc, path, value):
+    """A copy of the JSON ``doc`` with the node at ``path`` set to ``value``."""
+    if not path:
+        return value
+    copy = json.loads(json.dumps(doc))
+    node = copy
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    return copy

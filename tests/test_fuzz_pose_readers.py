@@ -15,7 +15,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
+from fuzzing import (
+    FUZZ,
+    assert_reader_contract,
+    csv_mutation,
+    json_mutations,
+    replaced,
+    toml_mutation,
+    write_text,
+)
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -90,44 +98,15 @@ def test_pose_campaign_toml_mutations(pose_folder, data):
     _fuzz_file(pose_folder, data, "campaign.toml", toml_mutation)
 
 
-def _json_paths(doc: object) -> list[tuple]:
-    paths: list[tuple] = []
-
-    def walk(node, path):
-        paths.append(path)
-        if isinstance(node, dict):
-            for k, v in node.items():
-                walk(v, (*path, k))
-        elif isinstance(node, list):
-            for i, v in enumerate(node[:3]):
-                walk(v, (*path, i))
-
-    walk(doc, ())
-    return paths
-
-
-def _replaced(doc, path, value):
-    if not path:
-        return value
-    copy = json.loads(json.dumps(doc))
-    node = copy
-    for key in path[:-1]:
-        node = node[key]
-    node[path[-1]] = value
-    return copy
-
-
 @FUZZ
 @given(data=st.data())
 def test_pose_model_file_mutations(pose_folder, data):
     _, pristine, model = pose_folder
     doc = json.loads(model.read_text())
-    path = data.draw(st.sampled_from(_json_paths(doc)))
-    value = data.draw(st.sampled_from([None, "", "x", -1, 0, 1e308, [], {}, [None], True,
-                                       "nan", [1, "a"], {"a": 1}]))
+    path, value = data.draw(json_mutations(doc))
     target = model.parent / "mutated.json"
     kind = data.draw(st.sampled_from(["node", "truncate"]))
-    text = json.dumps(_replaced(doc, path, value))
+    text = json.dumps(replaced(doc, path, value))
     if kind == "truncate":
         text = json.dumps(doc)[:data.draw(st.integers(0, len(json.dumps(doc)) - 1))]
     target.write_text(text)

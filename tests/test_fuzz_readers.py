@@ -17,7 +17,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
+from fuzzing import (
+    FUZZ,
+    assert_reader_contract,
+    csv_mutation,
+    json_mutations,
+    replaced,
+    toml_mutation,
+    write_text,
+)
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -260,36 +268,6 @@ def model_file(tmp_path_factory) -> Path:
     path = folder / "identified-model.json"
     assert main(["identify", str(TABLE2), "--starts", "1", "--quiet", "--out", str(path)]) == 0
     return path
-
-
-def json_mutations(doc: object) -> st.SearchStrategy:
-    """Strategies replacing one node of a JSON document by a value of another type."""
-    paths = []
-
-    def walk(node, path):
-        paths.append(path)
-        if isinstance(node, dict):
-            for k, v in node.items():
-                walk(v, (*path, k))
-        elif isinstance(node, list):
-            for i, v in enumerate(node[:4]):
-                walk(v, (*path, i))
-
-    walk(doc, ())
-    nasty = st.sampled_from([None, "", "x", -1, 0, 1e308, [], {}, [None], True, "nan",
-                             "\u00e9", [1, "a"], {"a": 1}])
-    return st.tuples(st.sampled_from(paths), nasty)
-
-
-def replaced(doc, path, value):
-    if not path:
-        return value
-    copy = json.loads(json.dumps(doc))
-    node = copy
-    for key in path[:-1]:
-        node = node[key]
-    node[path[-1]] = value
-    return copy
 
 
 @FUZZ
