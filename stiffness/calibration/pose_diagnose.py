@@ -289,7 +289,7 @@ def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndar
         model = PoseModel(campaign.robot, campaign.markers, tuple(families + [f]), frame0,
                           campaign.loads, settings)
         screen[f] = linearised_rss(model, campaign, rows_of(model, campaign), families + [f],
-                                   warm_start(model, current))
+                                   warm_start(model, current), current.loss, current.sigma)
     delta = _delta_bic(campaign, current, {f: rss for f, (rss, _) in screen.items()},
                        {f: k for f, (_, k) in screen.items()})
     best = sorted((f for f in ready if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])[:CV_TOP]

@@ -245,10 +245,7 @@ class PoseFit:
         """The minimised objective as a sum of squares (m^2): :meth:`rss` for least squares;
         for a robust loss ``sigma^2 sum rho((r / sigma)^2)`` over its Gaussian expectation
         (as :attr:`stiffness.calibration.fitting.Fit.loss_rss`)."""
-        if self.loss == "linear":
-            return self.rss()
-        r = self.components() / self.sigma
-        return self.sigma ** 2 * loss_sum(r, self.loss, 1.0) / gaussian_loss_mean(self.loss)
+        return objective_rss(self.components(), self.loss, self.sigma)
 
     def bic(self, sigma: float | None) -> float:
         """Bayesian information criterion, as deflection diagnose's
@@ -292,13 +289,24 @@ def _reduced(model: PoseModel, jac: np.ndarray, order: list[str]) -> Identifiabi
                           np.array([p.scale for p in model.parameters]))
 
 
+def objective_rss(residual: np.ndarray, loss: str, sigma: float) -> float:
+    """The objective of the residual components (m) as a sum of squares (m^2): their sum of
+    squares for least squares; for a robust ``loss`` ``sigma^2 sum rho((r / sigma)^2)`` over
+    its Gaussian expectation (as :attr:`stiffness.calibration.fitting.Fit.loss_rss`)."""
+    if loss == "linear":
+        return float(residual @ residual)
+    return sigma ** 2 * loss_sum(residual / sigma, loss, 1.0) / gaussian_loss_mean(loss)
+
+
 def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
-                   order: list[str], x0: np.ndarray) -> tuple[float, int]:
-    """One Gauss-Newton step from ``x0``: the sum of squares (m^2) it reaches and the number of
-    identifiable parameters. From a fit of some of ``model``'s families (``x0`` its optimum,
-    zero for the others), this is the score-test screen of adding the others: what their
-    columns explain of the residual beyond the fitted ones, to first order (infinite where the
-    sag diverges at ``x0``)."""
+                   order: list[str], x0: np.ndarray, loss: str = "linear",
+                   sigma: float = 1.0) -> tuple[float, int]:
+    """One Gauss-Newton step from ``x0``: the objective it reaches (:func:`objective_rss`
+    under ``loss`` scaled by ``sigma``, m^2, comparable with the fit's
+    :meth:`PoseFit.loss_rss`) and the number of identifiable parameters. From a fit of some of
+    ``model``'s families (``x0`` its optimum, zero for the others), this is the score-test
+    screen of adding the others: what their columns explain of the residual beyond the fitted
+    ones, to first order (infinite where the sag diverges at ``x0``)."""
     try:
         residual, jac = PoseObservations(model, campaign, rows).evaluate(x0)
     except ConvergenceError:
@@ -307,8 +315,7 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     kept = _reduced(model, jac, order).kept
     columns = jac[:, kept]
     step, *_ = np.linalg.lstsq(columns, residual, rcond=None)
-    rest = residual - columns @ step
-    return float(rest @ rest), len(kept)
+    return objective_rss(residual - columns @ step, loss, sigma), len(kept)
 
 
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
@@ -383,8 +390,14 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     sol = optimize.least_squares(residual, sol.x, jac=jacobian, x_scale=scales,
                                  method="trf", loss=loss, f_scale=s,
                                  xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=MAX_EVALUATIONS)
-    # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead
-    fun, jac = residual(sol.x), jacobian(sol.x)
+    # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead;
+    # where the sag diverges there the residual is the diverged constant (the fit is not
+    # chosen) and scipy's Jacobian stands in, as least squares' does
+    fun = residual(sol.x)
+    try:
+        jac = jacobian(sol.x)
+    except ConvergenceError:
+        jac = sol.jac
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
     fit = _finish(obs, campaign, x, ident, jac, fun, loss, (s, source))
     fit.converged = bool(sol.status > 0)
