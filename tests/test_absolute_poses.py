@@ -25,6 +25,7 @@ from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_c
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_report import stage_table
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
@@ -250,9 +251,21 @@ def test_commands_on_a_written_campaign(ur10, tmp_path, capsys):
     assert main(["validate", str(tmp_path / "d" / "final-model.json"), str(tmp_path / "b"),
                  "--json"]) == 0
     val = json.loads(capsys.readouterr().out)
-    assert {"rms", "mean_error", "max_error", "unit", "rows", "markers"} <= set(val)
+    assert {"rms", "mean_error", "std_error", "max_error", "unit", "rows", "markers"} <= set(val)
     assert set(val["markers"]) == {"tip", "elbow"}
     assert val["rms"] == pytest.approx(out["steps"][-1]["validation"]["rms"], rel=1e-9)
+    for step in out["steps"]:  # the stage table: rms^2 = mean^2 + std^2, overall and per marker
+        for v in (step["validation"], *step["validation"]["markers"].values()):
+            assert {"mean_error", "std_error", "max_error", "rms"} <= set(v)
+            assert v["rms"] ** 2 == pytest.approx(v["mean_error"] ** 2 + v["std_error"] ** 2)
+            assert v["mean_error"] <= v["max_error"]
+    page = (tmp_path / "d" / "diagnosis.html").read_text()
+    assert "Held-out 3-D error per stage" in page and "data:image/png;base64," in page
+    assert main(["validate", str(tmp_path / "d" / "final-model.json"), str(tmp_path / "b")]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    last = stage_table([(f"{len(out['steps']) - 1} {out['steps'][-1]['family']}",
+                         out["steps"][-1]["validation"])])[-1]
+    assert printed[-1].split()[1:] == last.split()[2:]  # validate prints the step's line
 
 
 def test_unseen_markers_and_reader_errors(ur10, tmp_path):

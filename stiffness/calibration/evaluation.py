@@ -30,8 +30,8 @@ def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> dict:
     Returns
     -------
     dict
-        Keys ``rms``, ``mean_error``, ``max_error``, ``unit``, ``rows`` and ``markers`` (the
-        same keys per marker; a deflection campaign's one marker is ``target``).
+        Keys ``rms``, ``mean_error``, ``std_error``, ``max_error``, ``unit``, ``rows`` and
+        ``markers`` (the same keys per marker; a deflection campaign's one marker is ``target``).
 
     Raises
     ------

@@ -119,7 +119,8 @@ class PoseDiagnosis:
     def to_dict(self) -> dict:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit)."""
         lu = self.campaign.units.length_to_si
-        return {"kind": "poses", "unit": self.campaign.units.length, "masses": self.masses,
+        return {"kind": "poses", "campaign": self.campaign.name,
+                "unit": self.campaign.units.length, "masses": self.masses,
                 "loss": self.loss,
                 "noise_std": None if self.campaign.noise_std is None
                 else self.campaign.noise_std / lu,
@@ -338,9 +339,9 @@ def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:
 def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> dict:
     """3-D position errors of ``campaign`` under a fitted model, without refitting.
 
-    Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``max_error``
-    (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and ``markers``
-    (the same keys per marker); with measured orientations also ``rotation_rms``,
+    Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``std_error``,
+    ``max_error`` (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and
+    ``markers`` (the same keys per marker); with measured orientations also ``rotation_rms``,
     ``rotation_mean_error``, ``rotation_max_error`` (of the orientation error's angle) and
     ``rotation_unit`` (the campaign's rotation unit), overall and per marker.
     """

@@ -14,10 +14,13 @@ from stiffness.calibration.pose_diagnose import (
     write_pose_model,
 )
 from stiffness.calibration.pose_fit import IDENTIFIABILITY_TOL
+from stiffness.calibration.pose_page import render_pose_diagnosis, stage_plot
 from stiffness.files import atomic_write, staged_folder
+from stiffness.provenance import provenance
 
 #: Files written by :func:`write_pose_diagnosis`.
-POSE_DIAGNOSIS_FILES = {"diagnosis": "diagnosis.json", "model": "final-model.json"}
+POSE_DIAGNOSIS_FILES = {"diagnosis": "diagnosis.json", "model": "final-model.json",
+                        "page": "diagnosis.html"}
 
 
 def format_pose_report(d: PoseDiagnosis) -> str:
@@ -36,6 +39,9 @@ def format_pose_report(d: PoseDiagnosis) -> str:
         if s.validation:
             row += f"  {s.validation['rms']:.4g} (3-D, {s.validation['unit']})"
         lines.append(row)
+    if d.steps[0].validation:
+        lines += ["", *stage_table([(f"{i} {s.family}", s.validation)
+                                    for i, s in enumerate(d.steps) if s.validation])]
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): " + ", ".join(
             f"{f} ({v:+.3g})" for f, v in d.rejected.items()))
@@ -77,28 +83,61 @@ def _dropped_lines(d: PoseDiagnosis) -> list[str]:
     return lines
 
 
-def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike) -> dict[str, Path]:
-    """Write ``diagnosis.json`` and ``final-model.json`` into ``folder``."""
+def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
+                         command: str | None = None) -> dict[str, Path]:
+    """Write ``diagnosis.json``, ``final-model.json`` and ``diagnosis.html`` (the page, with
+    the stage figure when there is a validation campaign) into ``folder``; ``command`` is
+    recorded in the page's provenance (default: this process's command line)."""
+    record = d.to_dict()
     with staged_folder(folder) as stage:  # published whole, by one rename
         atomic_write(stage / POSE_DIAGNOSIS_FILES["diagnosis"],
-                     json.dumps(d.to_dict(), indent=1, allow_nan=False) + "\n")
+                     json.dumps(record, indent=1, allow_nan=False) + "\n")
         write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"])
+        atomic_write(stage / POSE_DIAGNOSIS_FILES["page"],
+                     render_pose_diagnosis(record, stage_plot(record), provenance(command)))
     return {key: Path(folder) / name for key, name in POSE_DIAGNOSIS_FILES.items()}
 
 
 def format_validation(result: dict) -> str:
-    """The text of ``stiffness validate``: overall and per-marker 3-D errors."""
+    """The text of ``stiffness validate``: overall and per-marker 3-D errors, then the line of
+    the stage table (:func:`stage_table`) for this one model."""
     unit = result["unit"]
     lines = [f"{result['rows']} rows; 3-D position error in {unit}:",
-             f"  {'':<12} {'RMS':>11} {'mean':>11} {'max':>11} {'seen':>6}"]
+             f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}"]
     lines.append(_validation_row("all", result))
     for name, m in result["markers"].items():
         lines.append(_validation_row(name, m))
-    return "\n".join(lines)
+    return "\n".join(lines + ["", *stage_table([("model", result)])])
 
 
 def _validation_row(name: str, r: dict) -> str:
     if r["rms"] is None:
         return f"  {name:<12} never seen"
-    return (f"  {name:<12} {r['rms']:>11.4g} {r['mean_error']:>11.4g} {r['max_error']:>11.4g} "
-            f"{r['rows']:>6}")
+    return (f"  {name:<12} {r['rms']:>11.4g} {r['mean_error']:>11.4g} {r['std_error']:>11.4g} "
+            f"{r['max_error']:>11.4g} {r['rows']:>6}")
+
+
+def stage_table(stages: list[tuple[str, dict]]) -> list[str]:
+    """The table calibration papers publish: per stage (a name and its validation object,
+    :func:`~stiffness.calibration.pose_diagnose.validation_errors`), the held-out 3-D error's
+    mean, standard deviation and maximum overall and per marker, in the campaign's unit. The
+    lines of ``diagnose --validate`` (one per step) and of ``stiffness validate`` (one model)."""
+    first = stages[0][1]
+    names = ["all", *first["markers"]]
+    cells = [[_stage_cell(c) for c in (r, *(r["markers"][n] for n in names[1:]))]
+             for _, r in stages]
+    width = [max(len(n), *(len(row[i]) for row in cells)) for i, n in enumerate(names)]
+    label = max(len("stage"), *(len(name) for name, _ in stages))
+    lines = [f"held-out 3-D error ({first['unit']}): mean ± std (max)",
+             f"  {'stage':<{label}}" + "".join(f"  {n:>{w}}" for n, w in zip(names, width,
+                                                                              strict=True))]
+    for (name, _), row in zip(stages, cells, strict=True):
+        lines.append(f"  {name:<{label}}" + "".join(f"  {c:>{w}}" for c, w in zip(row, width,
+                                                                                  strict=True)))
+    return lines
+
+
+def _stage_cell(r: dict) -> str:
+    if r["mean_error"] is None:
+        return "never seen"
+    return f"{r['mean_error']:.4g} ± {r['std_error']:.2g} ({r['max_error']:.3g})"

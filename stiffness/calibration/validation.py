@@ -20,22 +20,25 @@ TARGET = "target"
 
 
 def error_summary(errors: np.ndarray, length_to_si: float) -> dict:
-    """RMS, mean and max of 3-D error norms (m) in the campaign's unit, and how many were seen.
+    """RMS, mean, standard deviation and max of 3-D error norms (m) in the campaign's unit,
+    and how many were seen: the keys ``rms``, ``mean_error``, ``std_error`` (the spread of the
+    norms about their mean, divided by the count), ``max_error``, ``rows``.
 
     NaN entries (a marker not seen) are left out; all-NaN gives ``None`` values.
     """
     e = errors[np.isfinite(errors)] / length_to_si
     if not e.size:
-        return {"rms": None, "mean_error": None, "max_error": None, "rows": 0}
+        return {"rms": None, "mean_error": None, "std_error": None, "max_error": None,
+                "rows": 0}
     return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
-            "max_error": float(e.max()), "rows": int(e.size)}
+            "std_error": float(e.std()), "max_error": float(e.max()), "rows": int(e.size)}
 
 
 def deflection_errors(model: ElasticModel, campaign: Campaign) -> dict:
     """The ``stiffness validate --json`` object of a model file on a deflection campaign.
 
-    Keys ``rms``, ``mean_error``, ``max_error`` (of the 3-D deflection error), ``unit`` (the
-    campaign's length unit), ``rows`` and ``markers`` (``{"target": the same keys}``).
+    Keys ``rms``, ``mean_error``, ``std_error``, ``max_error`` (of the 3-D deflection error),
+    ``unit`` (the campaign's length unit), ``rows`` and ``markers`` (``{"target": the same keys}``).
     """
     wrench = np.hstack([campaign.force, campaign.moment if campaign.moment is not None
                         else np.zeros_like(campaign.force)])

@@ -85,6 +85,15 @@ def command_line(args: argparse.Namespace) -> str:
     return shlex.join(words)
 
 
+def pose_command_line(args: argparse.Namespace) -> str:
+    """The command that reproduces a pose diagnosis (recorded in its diagnosis.html)."""
+    words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
+             "--seed", str(args.seed), "--masses", args.masses]
+    words += ["--validate", str(args.validate)] if args.validate else []
+    words += ["--loss", args.loss] if args.loss != "linear" else []
+    return shlex.join(words)
+
+
 def compensator_geometry(declared: list[str]) -> dict[str, dict]:
     """``--compensator-geometry JOINT=LEVER_M,BASE_M`` flags as ``diagnose``'s
     ``effect_settings`` (m).
@@ -151,7 +160,7 @@ def run_poses(args: argparse.Namespace) -> int:
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
                             if show else None, loss=args.loss)
-    paths = write_pose_diagnosis(result, args.out) if args.out else None
+    paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 
 

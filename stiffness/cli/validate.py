@@ -9,8 +9,9 @@ For a pose campaign (``kind = "poses"``) the model is a pose calibration's
 the 3-D position error, overall and per marker; for a deflection campaign the model is a model
 file of ``identify`` or ``diagnose`` and the error is the measured deflection minus the model's
 prediction under each row's load (the one marker is ``target``). Both in the campaign's length
-unit: RMS, mean and max. ``--json`` keys: ``rms``, ``mean_error``, ``max_error``, ``unit``,
-``rows``, ``markers`` (the same keys per marker).
+unit: RMS, mean, std and max, then the stage table's line of this model (as ``diagnose
+--validate`` prints one per step). ``--json`` keys: ``rms``, ``mean_error``, ``std_error``,
+``max_error``, ``unit``, ``rows``, ``markers`` (the same keys per marker).
 """
 
 from __future__ import annotations

@@ -1,0 +1,157 @@
+"""The page of a pose diagnosis (``diagnosis.html``): the steps, the stage table with its
+figure (the held-out error after each step, bars per marker), the parameters and what the
+campaign cannot identify; built from :meth:`PoseDiagnosis.to_dict` with the house template
+(:mod:`stiffness.htmlpage`)."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from stiffness.htmlpage import (
+    contents,
+    esc,
+    figure,
+    heading,
+    num,
+    page,
+    provenance_block,
+    reproduce_block,
+    table,
+)
+
+SECTIONS = {"summary": "Summary", "provenance": "Provenance", "steps": "Steps",
+            "stages": "Held-out error per stage", "parameters": "Parameters",
+            "identifiability": "What the campaign cannot identify", "reproduce": "Reproduce"}
+#: The figure's file name inside the page (embedded, not written beside it).
+STAGE_FIGURE = "stages.png"
+
+
+def stage_plot(d: dict) -> bytes | None:
+    """PNG: the held-out mean 3-D error after each step, a bar per marker and one for all of
+    them, the standard deviation as a whisker and the maximum as a dot (campaign unit); ``None``
+    without a validation campaign."""
+    stages = [s for s in d["steps"] if s.get("validation")]
+    if not stages:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = ["all", *stages[0]["validation"]["markers"]]
+    width = 0.8 / len(names)
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * len(stages) + 2), 4.2))
+    x = np.arange(len(stages))
+    for n, name in enumerate(names):
+        cells = [s["validation"] if name == "all" else s["validation"]["markers"][name]
+                 for s in stages]
+        mean = np.array([np.nan if c["mean_error"] is None else c["mean_error"] for c in cells])
+        std = np.array([np.nan if c["std_error"] is None else c["std_error"] for c in cells])
+        top = np.array([np.nan if c["max_error"] is None else c["max_error"] for c in cells])
+        at = x - 0.4 + width * (n + 0.5)
+        ax.bar(at, mean, width, yerr=std, capsize=2, color=f"C{n}", label=name)
+        ax.plot(at, top, ".", color="0.2", ms=4)
+    noise = d.get("noise_std")
+    if noise:  # the 3-D error of pure noise: sigma sqrt(3) in RMS
+        ax.axhline(noise * np.sqrt(3), color="0.4", ls="--", lw=0.8,
+                   label="noise (RMS of 3-D)")
+    ax.set_xticks(x, [f"{i} {s['family']}" for i, s in enumerate(stages)], rotation=20,
+                  ha="right", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel(f"held-out 3-D error ({d['unit']})")
+    ax.set_title("mean ± std (bars), max (dots) after each step", fontsize=9)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _stage_rows(d: dict) -> tuple[list[str], list[list]]:
+    """Headers and rows of the stage table (mean, std, max per marker and overall)."""
+    stages = [(i, s) for i, s in enumerate(d["steps"]) if s.get("validation")]
+    names = ["all", *stages[0][1]["validation"]["markers"]]
+    headers = ["step", "family"] + [f"{n} {q}" for n in names for q in ("mean", "std", "max")]
+    rows = []
+    for i, s in stages:
+        v = s["validation"]
+        cells = [v if n == "all" else v["markers"][n] for n in names]
+        rows.append([str(i), esc(s["family"])]
+                    + [c[k] for c in cells for k in ("mean_error", "std_error", "max_error")])
+    return headers, rows
+
+
+def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict) -> str:
+    """The page of a pose diagnosis.
+
+    Parameters
+    ----------
+    d
+        :meth:`~stiffness.calibration.pose_diagnose.PoseDiagnosis.to_dict` (lengths in the
+        campaign's unit ``d["unit"]``).
+    stage_png
+        :func:`stage_plot`, embedded if given.
+    prov
+        :func:`stiffness.provenance.provenance`.
+    """
+    unit = d["unit"]
+    title = f"Pose diagnosis of campaign {d['campaign']}"
+    verdict = ("noise not declared" if d["unexplained"] is None else
+               "UNEXPLAINED" if d["unexplained"] else "explained to noise")
+    parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),
+             table("What the diagnosis finds", ["quantity", "value"], [
+                 ["families", esc(", ".join(d["families"]))],
+                 [f"final RMS residual ({unit})", d["steps"][-1]["rms"]],
+                 [f"noise standard deviation ({unit})", d["noise_std"]],
+                 ["chi-square p of the final residual", d["gof_p"]],
+                 ["verdict", esc(verdict)], ["masses", esc(d["masses"])],
+                 ["loss", esc(d["loss"])]],
+                 "RMS over all residual components, in the campaign's length unit."),
+             contents(SECTIONS), heading("provenance", SECTIONS), provenance_block(prov),
+             heading("steps", SECTIONS)]
+    rows = [[str(i), esc(s["family"]), s["n_parameters"], s["delta_bic"], s["rms"],
+             s["cv_rms"]] for i, s in enumerate(d["steps"])]
+    parts.append(table("Families added one at a time",
+                       ["step", "family", "parameters", "ΔBIC", f"RMS ({unit})",
+                        f"held-out RMS ({unit})"], rows,
+                       "Held-out RMS: the residual on configurations left out of the "
+                       "fit."))
+    if d["rejected"]:
+        parts.append("<p>Not added (ΔBIC or held-out RMS): " + esc(", ".join(
+            f"{f} ({num(v, 3)})" for f, v in d["rejected"].items())) + "</p>")
+    parts.append(heading("stages", SECTIONS))
+    if stage_png is None:
+        parts.append("<p>No validation campaign: run <code>stiffness diagnose --validate "
+                     "OTHER_CAMPAIGN</code> for the held-out error after each step.</p>")
+    else:
+        headers, rows = _stage_rows(d)
+        parts.append(table(f"Held-out 3-D error per stage ({unit})", headers, rows,
+                           "Each step's model evaluated on the validation campaign without "
+                           "refitting: mean, standard deviation and maximum of the 3-D marker "
+                           "error."))
+        parts.append(figure(STAGE_FIGURE, stage_png,
+                            f"Held-out 3-D marker error after each step ({unit})"))
+    parts.append(heading("parameters", SECTIONS))
+    rows = [[esc(p["family"]), esc(p["parameter"]), p["value"], p["std"],
+             "—" if p["interval_95"] is None else
+             f"[{num(p['interval_95'][0])}, {num(p['interval_95'][1])}]", esc(p["unit"])]
+            for p in d["parameters"] if p["fitted"]]
+    parts.append(table("Fitted parameters of the final model (SI)",
+                       ["family", "parameter", "value", "standard error", "95 % interval",
+                        "unit"], rows, "Only the identifiable parameters are fitted."))
+    parts.append(heading("identifiability", SECTIONS))
+    dropped = d["identifiability"]["dropped"]
+    rows = [[esc(x["parameter"]), esc(x["reason"]), esc(" + ".join(
+        f"{num(m['coefficient'], 3)} × {m['parameter']}" for m in x["merged_into"][:3]))]
+        for x in dropped]
+    parts.append(table("Parameters left out", ["parameter", "reason", "absorbed as"], rows,
+                       "No effect: it moves no marker; merged: a combination of kept ones.")
+                 if rows else "<p>Every parameter of the final model is identifiable.</p>")
+    parts.append(reproduce_block(prov, "reproduce", SECTIONS,
+                                 "The run writes this page, diagnosis.json and "
+                                 "final-model.json."))
+    return page(title, parts)
