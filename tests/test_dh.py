@@ -509,14 +509,19 @@ def _controller(chain: dict, coordinates=None) -> dict:
     return {"coordinates": coordinates or [f"J{i}" for i in range(1, 7)], "chain": chain}
 
 
-def test_coupling_of_the_wrong_size_or_singular(tmp_path):
+def test_coupling_that_loses_coordinates(tmp_path):
+    """More coordinates than chain joints, a coordinate no joint uses, two coordinates only
+    ever moved together: one line naming the coordinates lost (A without full column rank)."""
     dh = dict(BASE, joints=ur_rows("ur5"))
     chain = {f"j{i}": f"J{i}" for i in range(1, 7)}
     text = _fails(tmp_path, dh, _controller(chain, [f"J{i}" for i in range(1, 8)]))
-    assert "[controller].coordinates" in text and "wrong size" in text
+    assert "[controller].chain" in text and "'J7'" in text and "rank 6 for 7" in text
     singular = dict(chain, j3="J2")
     text = _fails(tmp_path, dh, _controller(singular))
-    assert "[controller].chain" in text and "singular" in text and "'J3'" in text
+    assert "[controller].chain" in text and "do not determine the coordinates 'J3'" in text
+    together = dict(chain, j2="J2 + J3", j3="-J2 - J3")
+    text = _fails(tmp_path, dh, _controller(together))
+    assert "'J2', 'J3'" in text and "(J2 - J3 moves no chain joint)" in text
     text = _fails(tmp_path, dh, _controller(dict(chain, j3="J2 * J3")))
     assert "[controller].chain.j3" in text and "not linear" in text
     text = _fails(tmp_path, dh, _controller(dict(chain, j3="__import__('os')")))

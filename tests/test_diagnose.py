@@ -11,11 +11,13 @@ import pytest
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT
+from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.selection import config_folds
 from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
 from stiffness.planning.simulate import parse_effect, simulate
+from stiffness.provenance import provenance
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 #: UR5 with a 10 cm tool: the arm joints compliant.
@@ -216,6 +218,11 @@ def test_diagnosis_page(tmp_path):
     fx = summary["steps"][0]["parameters"]["fx"]
     assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
     assert f"{summary['final_rms']:.4g}" in visible
+    # a proposal that could not be made (no reachable pose sampled) is said, not a KeyError
+    record = result.record()
+    record["cannot_tell_apart"] = [{"step": 1, "chosen": "a", "other": "b", "reason": "r",
+                                    "proposals": [{"note": "no reachable pose sampled"}]}]
+    assert "no reachable pose sampled" in render_diagnosis(record, None, provenance("test"))
     browser = shutil.which("chromium") or shutil.which("chromium-browser")
     if browser is None:
         pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")

@@ -639,7 +639,8 @@ def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit,
     sep = separation_statistics(Alternatives(a, b, labels, sigma, ""), cands)
     chosen = select_rows(sep.rows, sep.base, separation_score, min(n_best, cands.n_poses), 1)
     u = campaign.units
-    prismatic = geometry.prismatic
+    robot = geometry.robot
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints], dtype=bool)
     out = []
     for pose, load in zip(chosen.poses, chosen.loads[:, 0], strict=True):
         qc = cands.coords[pose].copy()

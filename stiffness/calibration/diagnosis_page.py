@@ -236,9 +236,11 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     for a in ambiguities:
         parts.append(f"<p>Step {a['step']}: <b>{esc(a['chosen'])}</b> against "
                      f"<b>{esc(a['other'])}</b>, {esc(a['reason'])}.</p>")
+        proposals = a.get("proposals", [])
+        parts += [f"<p>{esc(p['note'])}</p>" for p in proposals if "note" in p]
         rows = [[vec(p["q"], 2), vec(p["force"], 1), vec(p["deflection_chosen"]),
                  vec(p["deflection_other"]), p["separation_noise_units"]]
-                for p in a.get("proposals", [])]
+                for p in proposals if "note" not in p]
         if rows:
             parts.append(table(f"Poses and loads that would tell {a['chosen']} from "
                                f"{a['other']}",

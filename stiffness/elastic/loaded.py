@@ -2,7 +2,9 @@
 
 The elastic model (:class:`stiffness.elastic.model.ElasticModel`) holds:
 
-* a joint law over the coordinates, ``theta - theta_c = law(tau)`` with ``tau = J(theta)^T W``
+* a joint law over the spring joints (:attr:`stiffness.robot.robot.Robot.spring_joints`: the
+  coordinates, or a ``[controller]``'s chain joints), ``theta - theta_c = law(tau)`` with
+  ``tau = J(theta)^T W``
   (linear springs, extra springs on joints the baseline holds rigid, nonlinear springs
   ``tau/k (1 + beta|tau|)`` and backlash ``b tanh(tau/tau_s)``; zero for rigid coordinates);
   ``theta_c`` is the command (the springs' rest positions);
@@ -71,8 +73,8 @@ class LoadedRobot(Protocol):
     formulation: str
 
     @property
-    def full(self) -> Robot:
-        """The robot with every coordinate compliant."""
+    def springs(self) -> Robot:
+        """The robot whose coordinates are the spring joints, every one compliant."""
         ...
 
     def ordered_links(self) -> list[LinkBend]:
@@ -82,7 +84,7 @@ class LoadedRobot(Protocol):
 
 def frozen_axes(em: LoadedRobot, links: list[LinkBend]) -> list[np.ndarray]:
     """Bend axes (2, 3) in each mounting body's frame, from the current placements."""
-    model, data = em.full.model, em.full.data
+    model, data = em.springs.model, em.springs.data
     out = []
     for lk in links:
         ja, jb = model.getJointId(lk.a), model.getJointId(lk.b)
@@ -98,7 +100,8 @@ def frozen_axes(em: LoadedRobot, links: list[LinkBend]) -> list[np.ndarray]:
 
 @dataclass
 class BentKinematics:
-    """Target pose and Jacobians of the (bent) robot at ``z = [coords, alpha]``."""
+    """Target pose and Jacobians of the (bent) robot at ``z = [coords, alpha]`` (``coords``:
+    the spring joints' values, :attr:`stiffness.robot.robot.Robot.spring_joints`)."""
 
     q: np.ndarray
     position: np.ndarray
@@ -114,7 +117,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 def bent_kinematics(em: LoadedRobot, links: list[LinkBend], axes: list[np.ndarray],
                 coords: np.ndarray, alpha: np.ndarray, wrench: np.ndarray,
                 seed_q: np.ndarray | None) -> BentKinematics:
-    full = em.full
+    full = em.springs
     n, m = full.n_coordinates, 2 * len(links)
     q = full.configuration(coords, seed=seed_q)
     state = target_state(full, q, wrench)
@@ -167,7 +170,8 @@ class Loaded:
     q
         Full configuration at equilibrium (loops closed).
     coords
-        Coordinates at equilibrium (rad, m).
+        Spring joints' values at equilibrium (rad, m): the coordinates, or a
+        ``[controller]``'s chain joints for springs on the chain.
     alpha
         Bend angles of the link compliances (rad), two per link (base to tip).
     position, rotation
@@ -195,7 +199,7 @@ class Loaded:
 
 def _law_z(em: LoadedRobot, links: list[LinkBend], tau: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
-    n = em.full.n_coordinates
+    n = em.springs.n_coordinates
     value, slope = em.law(tau[:n])
     c_link = np.array([1.0 / k for lk in links for k in lk.stiffness])
     return (np.concatenate([value, c_link * tau[n:]]),
@@ -212,7 +216,8 @@ def loaded_equilibrium(em: LoadedRobot, command: np.ndarray, wrench: np.ndarray,
     em
         The elastic model.
     command
-        Commanded coordinates (rad, m): the joint springs' rest positions.
+        Commanded values of the spring joints (rad, m): the springs' rest positions
+        (:meth:`stiffness.robot.robot.Robot.spring_command` of the commanded coordinates).
     wrench
         Dead force (3,) N or wrench (6,) N, N.m at the target, base axes.
     seed_q
@@ -230,8 +235,8 @@ def loaded_equilibrium(em: LoadedRobot, command: np.ndarray, wrench: np.ndarray,
     command = np.asarray(command, dtype=float)
     n, m = command.shape[0], 2 * len(links)
     if axes is None:
-        kinematics.update_first_order(em.full.model, em.full.data,
-                                      em.full.configuration(command, seed=seed_q))
+        kinematics.update_first_order(em.springs.model, em.springs.data,
+                                      em.springs.configuration(command, seed=seed_q))
         axes = frozen_axes(em, links)
     z = np.concatenate([command, np.zeros(m)])
     base = np.concatenate([command, np.zeros(m)])
@@ -299,12 +304,13 @@ def linear_shift(em: LoadedRobot, links: list[LinkBend], kin: BentKinematics, wr
 
 def linear_deflection(em: LoadedRobot, coords: np.ndarray, wrench: np.ndarray,
                       seed_q: np.ndarray | None = None) -> np.ndarray:
-    """First-order deflection ``C W`` (6,) [m; rad] of the target at ``coords`` (rad, m)
+    """First-order deflection ``C W`` (6,) [m; rad] of the target at the spring joints'
+    values ``coords`` (rad, m; :meth:`stiffness.robot.robot.Robot.spring_command`)
     under the dead ``wrench`` (base axes), every effect of the model included."""
     wrench = as_wrench(wrench)
     links = em.ordered_links()
-    q = em.full.configuration(coords, seed=seed_q)
-    kinematics.update_first_order(em.full.model, em.full.data, q)
+    q = em.springs.configuration(coords, seed=seed_q)
+    kinematics.update_first_order(em.springs.model, em.springs.data, q)
     axes = frozen_axes(em, links)
     kin = bent_kinematics(em, links, axes, np.asarray(coords, dtype=float),
                       np.zeros(2 * len(links)), wrench, q)

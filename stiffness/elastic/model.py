@@ -6,9 +6,10 @@ from joint springs (:meth:`ElasticModel.joint_springs`), from a model file
 (:meth:`ElasticModel.of_parts`, each effect through its one hook
 :meth:`stiffness.elastic.effects.base.Effect.contribute`). It holds
 
-* a joint law over the coordinates, ``theta - theta_c = law(tau)``: linear springs (the
-  baseline's and those effects add), nonlinear springs ``tau/k (1 + beta|tau|)``, backlash
-  ``b tanh(tau/tau_s)``; zero compliance for a rigid coordinate;
+* a joint law over the spring joints (the coordinates, or the chain joints of a
+  ``[controller]`` with ``springs_on = "chain"``), ``theta - theta_c = law(tau)``: linear
+  springs (the baseline's and those effects add), nonlinear springs
+  ``tau/k (1 + beta|tau|)``, backlash ``b tanh(tau/tau_s)``; zero compliance for a rigid one;
 * link bends (:class:`stiffness.elastic.loaded.LinkBend`): the segment ``a -> b`` bends at
   ``b``'s origin about two axes normal to it;
 * preloads: the links' weight with a payload, and spring gravity compensators, whose torque
@@ -121,7 +122,7 @@ class ElasticModel:
     robot
         The robot: its compliant joints are the springs, its target the (moved) target.
     law
-        Joint law over ``robot.coordinate_joints`` (zero compliance: a rigid coordinate).
+        Joint law over ``robot.spring_joints`` (zero compliance: a rigid one).
     links
         Link bends, any order.
     formulation
@@ -172,12 +173,13 @@ class ElasticModel:
     fitted: Callable[..., np.ndarray] | None = field(default=None, repr=False)
     joint_angles: str = "motor"
     _full: Robot | None = field(default=None, repr=False)
+    _springs: Robot | None = field(default=None, repr=False)
     _weighed: pin.Model | None = field(default=None, repr=False)
     _geometry: Geometry | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.k_theta.size == 0:
-            self.k_theta = 1.0 / self.law.compliance[self.robot.compliant_in_coordinates]
+            self.k_theta = 1.0 / self.law.compliance[self.robot.compliant_in_springs]
         if self.payload is not None:
             require_open_chain(self.robot, "gravity_preload")
             self._weighed = with_payload(self.robot, *self.payload)
@@ -200,9 +202,9 @@ class ElasticModel:
             raise StiffnessError(
                 f"need one finite positive stiffness per compliant joint of {robot.name} "
                 f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
-        n = robot.n_coordinates
+        n = len(robot.spring_joints)
         compliance_ = np.zeros(n)
-        compliance_[robot.compliant_in_coordinates] = 1.0 / k
+        compliance_[robot.compliant_in_springs] = 1.0 / k
         return cls(robot, SpringLaw(compliance_, np.zeros(n), np.zeros(n), np.ones(n)),
                    formulation=formulation, k_theta=k.copy())
 
@@ -223,7 +225,7 @@ class ElasticModel:
             link_columns = geometry.link_columns
         links = tuple(LinkBend(a, b, link_columns[(a, b)], (k1, k2))
                       for a, b, k1, k2 in parts.bends) if link_columns is not None else ()
-        return cls(robot, parts.law(robot.coordinate_joints), links, formulation,
+        return cls(robot, parts.law(robot.spring_joints), links, formulation,
                    tuple(parts.not_applied), k_theta=np.array(
                        [parts.springs[j] for j in robot.compliant_joints], dtype=float),
                    payload=parts.payload, compensators=tuple(parts.compensators),
@@ -268,6 +270,15 @@ class ElasticModel:
         return self._full
 
     @property
+    def springs(self) -> Robot:
+        """The robot whose coordinates are the spring joints, every one compliant
+        (:meth:`stiffness.robot.robot.Robot.springs_robot`): the unknowns of the exact
+        equilibrium."""
+        if self._springs is None:
+            self._springs = self.robot.springs_robot()
+        return self._springs
+
+    @property
     def joint_only(self) -> bool:
         """Whether joint motions are the only effect (the compensation is closed-form)."""
         return not self.links
@@ -278,8 +289,8 @@ class ElasticModel:
         return self._weighed is not None or bool(self.compensators)
 
     def compliant_law(self) -> SpringLaw:
-        """The joint law over ``robot.compliant_joints`` (the coordinates' law restricted)."""
-        idx = self.robot.compliant_in_coordinates
+        """The joint law over ``robot.compliant_joints`` (the spring joints' law restricted)."""
+        idx = self.robot.compliant_in_springs
         law = self.law
         return SpringLaw(law.compliance[idx], law.beta[idx], law.backlash[idx],
                          law.smoothing[idx])
@@ -292,7 +303,7 @@ class ElasticModel:
 
     def describe(self) -> str:
         """E.g. ``joint springs on joint1, joint2 + link bend joint2->joint3``."""
-        names = [j for j, c in zip(self.robot.coordinate_joints, self.law.compliance,
+        names = [j for j, c in zip(self.robot.spring_joints, self.law.compliance,
                                    strict=True) if c > 0]
         text = f"joint springs on {', '.join(names) or 'no joint'}"
         if np.any(self.law.beta != 0):
@@ -377,7 +388,8 @@ class ElasticModel:
         compensator) ``C`` is the tangent compliance at the preloaded operating point,
         ``J (K_t - K_C - K_p)^-1 J^T`` (:meth:`ElasticState.compliance`)."""
         if not self.preloaded:
-            return linear_deflection(self, coords, wrench, seed_q=seed_q)
+            return linear_deflection(self, self.robot.spring_command(coords), wrench,
+                                     seed_q=seed_q)
         w = as_wrench(wrench)
         q = self.full.configuration(np.asarray(coords, dtype=float), seed=seed_q)
         return self.at(coords, w, closed=q).compliance(slice(0, 6)) @ w
@@ -722,7 +734,7 @@ class ElasticState:
         model = self.model
         if not model.preloaded:
             command = self.q_commanded
-            loaded = loaded_equilibrium(model, model.robot.coordinates_of(command), self.wrench,
+            loaded = loaded_equilibrium(model, model.robot.spring_values(command), self.wrench,
                                         seed_q=command)
             rest = target_state(model.robot, command)
             return Deflection(loaded.q, loaded.position, loaded.position - rest.position,

@@ -121,10 +121,13 @@ def _pose_error(loaded_pos, loaded_rot, pos, rot, hold) -> np.ndarray:
 
 
 def _general_command(coords: np.ndarray, uncompensated, solve: Callable,
-                     nominal: tuple[np.ndarray, np.ndarray], hold: str):
+                     nominal: tuple[np.ndarray, np.ndarray], hold: str,
+                     spring_map: np.ndarray):
     """Newton on the command (rad, m) whose loaded equilibrium (``solve(command)``) holds the
     nominal pose ``(position m, rotation)``: each step through the loaded Jacobian
-    ``J (I - diag(law') K_C)^-1`` (least squares); the best iterate within 40.
+    ``J (I - diag(law') K_C)^-1 M`` (least squares; ``M`` the spring joints' rates per
+    coordinate rate, :attr:`stiffness.robot.robot.Robot.spring_map`); the best iterate
+    within 40.
 
     Returns
     -------
@@ -136,7 +139,7 @@ def _general_command(coords: np.ndarray, uncompensated, solve: Callable,
         The coordinates cannot move the held components, or no convergence (near buckling).
     """
     pos_n, rot_n = nominal
-    n = coords.shape[0]
+    n = spring_map.shape[0]
     rows = slice(0, 6 if hold == "pose" else 3)
     command, loaded = coords.copy(), uncompensated
     best = (np.inf, command, loaded)
@@ -149,7 +152,7 @@ def _general_command(coords: np.ndarray, uncompensated, solve: Callable,
             break
         kin = loaded.kin
         a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
-        dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n])
+        dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n] @ spring_map)
         jac = kin.jac[rows] @ dz_dc
         if hold == "pose":
             m_rot = loaded.rotation @ rot_n.T
@@ -207,21 +210,23 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
         raise StiffnessError("the closed form holds for joint compliance only; this model has "
                              "link compliance: use method 'general'")
     wrench = as_wrench(wrench)
-    full = em.full
+    full, robot = em.full, em.robot
     coords = np.asarray(coords, dtype=float)
-    n = coords.shape[0]
+    n = len(robot.spring_joints)
     links = em.ordered_links()
     q_n = full.configuration(coords, seed=seed_q)
-    kinematics.update_first_order(full.model, full.data, q_n)
+    kinematics.update_first_order(em.springs.model, em.springs.data, q_n)
     axes = frozen_axes(em, links)
-    nominal = bent_kinematics(em, links, axes, coords, np.zeros(2 * len(links)), wrench, q_n)
+    nominal = bent_kinematics(em, links, axes, robot.spring_command(coords),
+                              np.zeros(2 * len(links)), wrench, q_n)
     pos_n, rot_n = nominal.position.copy(), nominal.rotation.copy()
 
     if em.preloaded:
         return _preloaded_point(em, coords, wrench, hold, method, q_n, (pos_n, rot_n))
 
     def solve(command):
-        return loaded_equilibrium(em, command, wrench, seed_q=q_n, axes=axes)
+        return loaded_equilibrium(em, robot.spring_command(command), wrench, seed_q=q_n,
+                                  axes=axes)
 
     uncompensated = solve(coords)
     tau_n = nominal.jac.T @ wrench
@@ -229,10 +234,10 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     if method == "general" or (method == "auto" and not em.joint_only):
         used = "general"
         command, loaded, iterations = _general_command(coords, uncompensated, solve,
-                                                       (pos_n, rot_n), hold)
+                                                       (pos_n, rot_n), hold, robot.spring_map)
     else:
         used = "closed-form"
-        command = coords - em.law(tau_n[:n])[0]
+        command = coords - robot.coordinate_motion(em.law(tau_n[:n])[0])
         loaded = solve(command)
     # first-order Cartesian compensation: command the pose shifted by -C W through IK
     shift = linear_shift(em, links, nominal, wrench)
@@ -278,7 +283,7 @@ def _preloaded_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray, h
     pos_n, rot_n = nominal
     full, robot = em.full, em.robot
     law = em.compliant_law()
-    idx = robot.compliant_in_coordinates
+    idx = robot.compliant_in_springs
 
     def rest(command: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = full.configuration(command, seed=q_n)
@@ -287,8 +292,9 @@ def _preloaded_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray, h
         return state.position, state.rotation
 
     state = target_state(robot, q_n)
-    motion = np.zeros(coords.shape[0])
-    motion[idx] = law(state.jacobian.T @ wrench + em.preload(q_n)[0])[0]
+    spring_motion = np.zeros(len(robot.spring_joints))
+    spring_motion[idx] = law(state.jacobian.T @ wrench + em.preload(q_n)[0])[0]
+    motion = robot.coordinate_motion(spring_motion)
     command = coords - motion
     shift = target_state(full, q_n).jacobian @ motion
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None

@@ -71,7 +71,7 @@ def holding_wrench(robot: Robot, q: np.ndarray, k_theta: np.ndarray,
             f"need one finite rest value per compliant joint ({robot.n_compliant}: "
             f"{', '.join(robot.compliant_joints)}), got {rest.tolist()}"
         )
-    theta = robot.coordinates_of(q)[robot.compliant_in_coordinates]
+    theta = robot.spring_values(q)[robot.compliant_in_springs]
     tau = k_theta @ (theta - rest)
     jac = target_state(robot, q).jacobian
     wrench = np.linalg.lstsq(jac.T, tau, rcond=1e-12)[0]

@@ -2,9 +2,11 @@
 
 The controller reports its own coordinates ``u``; each chain joint is a linear expression of
 them plus a constant, ``q_chain = A u + b`` (a parallelogram's ``j3 = "-J2 - J3"``, a flipped
-axis ``j4 = "-J4"``, an offset ``j6 = "J6 + 90"``). The map is constant, square and regular, so
-rates map as ``q_chain_dot = A u_dot``: the Jacobian in controller coordinates is ``J A`` and the
-load Hessian ``A^T H A`` (docs/robot-files.md, "Controller coordinates").
+axis ``j4 = "-J4"``, an offset ``j6 = "J6 + 90"``). The map is constant, and ``A`` has full column
+rank: square, or tall when a linkage drives passive chain joints (a torso's last pitch joint
+``t4 = "-T2 - T3"``: fewer coordinates than chain joints). Rates map as
+``q_chain_dot = A u_dot``: the Jacobian in controller coordinates is ``J A`` and the load
+Hessian ``A^T H A`` (docs/robot-files.md, "Controller coordinates").
 
 Expressions are read with :mod:`ast` and only linear ones are accepted: numbers, coordinate
 names, ``+``, ``-``, and ``*`` with a number on one side. Constants are in the chain joint's unit
@@ -24,7 +26,8 @@ from stiffness.units import ANGLE_UNITS, LENGTH_UNITS
 
 SPRINGS_ON = ("controller", "chain")
 _SECTION_KEYS = ("coordinates", "chain", "springs_on", "angle_unit", "length_unit")
-#: Condition number of A beyond which the map counts as singular.
+#: Condition number of A (ratio of its extreme singular values) beyond which the map counts
+#: as losing coordinates.
 _CONDITION_LIMIT = 1e10
 
 
@@ -39,9 +42,10 @@ class CoordinateMap:
     chain
         The chain joints (Pinocchio joints), order of the rows.
     matrix
-        (n, n) ``A``, regular.
+        (n_chain, n) ``A``, of full column rank (n <= n_chain: square, or tall with passive
+        chain joints).
     offset
-        (n,) ``b`` in rad or m.
+        (n_chain,) ``b`` in rad or m.
     springs_on
         ``"controller"`` (the springs act on ``u``, the drives) or ``"chain"``.
     prismatic
@@ -57,13 +61,26 @@ class CoordinateMap:
     prismatic: tuple[bool, ...]
 
     def chain_values(self, coordinates: np.ndarray) -> np.ndarray:
-        """Chain joint values (..., n) of controller coordinates (..., n)."""
+        """Chain joint values (..., n_chain) of controller coordinates (..., n)."""
         return np.asarray(coordinates, dtype=float) @ self.matrix.T + self.offset
 
     def coordinates_of(self, chain_values: np.ndarray) -> np.ndarray:
-        """Controller coordinates (..., n) of chain joint values (..., n)."""
+        """Controller coordinates (..., n) of chain joint values (..., n_chain): exact on the
+        map's range, the least-squares ones off it (a tall ``A``: chain values its passive
+        joints do not follow)."""
         rhs = np.asarray(chain_values, dtype=float) - self.offset
-        return np.linalg.solve(self.matrix, rhs.T).T
+        return np.linalg.lstsq(self.matrix, rhs.T, rcond=None)[0].T
+
+    @property
+    def passive(self) -> tuple[str, ...]:
+        """Chain joints that no coordinate sets alone and that add no direction of their own:
+        the rows of a tall ``A`` beyond a square regular subset (empty for a square map)."""
+        rank, kept = 0, []
+        for i in range(self.matrix.shape[0]):
+            if np.linalg.matrix_rank(self.matrix[kept + [i]]) > rank:
+                kept.append(i)
+                rank += 1
+        return tuple(j for i, j in enumerate(self.chain) if i not in kept)
 
     def limits(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Limits (rad or m) of the coordinates from the chain joints' ``lower``, ``upper``:
@@ -181,9 +198,6 @@ def read_coordinate_map(section: object, path: str | Path, chain: dict[str, str]
     if missing:
         raise fail(f"chain.{missing[0]}", f"the chain joint {missing[0]!r} has no expression: "
                    "give every chain joint one")
-    if len(names) != len(chain):
-        raise fail("coordinates", f"wrong size: {len(names)} controller coordinates for "
-                   f"{len(chain)} chain joints; the map q_chain = A u + b must be square")
     factors = _constant_factors(section, units, fail)
     matrix, offset = np.zeros((len(chain), len(names))), np.zeros(len(chain))
     for i, (joint, kind) in enumerate(chain.items()):
@@ -201,7 +215,7 @@ def read_coordinate_map(section: object, path: str | Path, chain: dict[str, str]
             raise fail(f"chain.{joint}", f"a constant needs its unit: give {unit} in "
                        "[controller] (or [dh])")
         offset[i] = constant * factors.get(kind, 1.0)
-    _check_regular(matrix, names, list(chain), fail)
+    _check_rank(matrix, names, list(chain), fail)
     return CoordinateMap(tuple(names), tuple(chain), matrix, offset, springs_on,
                          _coordinate_kinds(matrix, names, list(chain.values()), fail))
 
@@ -233,13 +247,32 @@ def _constant_factors(section: dict, units: dict[str, str], fail) -> dict[str, f
     return factors
 
 
-def _check_regular(matrix: np.ndarray, names: list[str], chain: list[str], fail) -> None:
-    """Refuse a singular map, naming a coordinate it cannot recover."""
-    cond = np.linalg.cond(matrix)
-    if np.isfinite(cond) and cond <= _CONDITION_LIMIT:
+def _check_rank(matrix: np.ndarray, names: list[str], chain: list[str], fail) -> None:
+    """Refuse a map without full column rank, naming the coordinates the chain loses."""
+    sv = np.linalg.svd(matrix, compute_uv=False)
+    if len(names) <= len(chain) and sv[-1] > 0 and sv[0] / sv[-1] <= _CONDITION_LIMIT:
         return
-    _, _, vt = np.linalg.svd(matrix)
-    worst = names[int(np.argmax(np.abs(vt[-1])))]
-    raise fail("chain", f"the map from the coordinates to the chain joints ({', '.join(chain)}) "
-               f"is singular (condition number {cond:.3g}): the chain does not determine "
-               f"{worst!r} (check the expressions that use it)")
+    _, s, vt = np.linalg.svd(matrix)
+    s = np.concatenate([s, np.zeros(len(names) - s.shape[0])])
+    null = vt[s <= s[0] / _CONDITION_LIMIT]
+    lost = [n for i, n in enumerate(names) if np.abs(null[:, i]).max() > 1e-6]
+    combination = _combination(null[0], names)
+    raise fail("chain", f"the chain joints ({', '.join(chain)}) do not determine the "
+               f"coordinates {', '.join(map(repr, lost))}: A of q_chain = A u + b has rank "
+               f"{len(names) - null.shape[0]} for {len(names)} coordinates ({combination} moves "
+               "no chain joint); each coordinate needs a chain joint that it moves apart from "
+               "the others")
+
+
+def _combination(vector: np.ndarray, names: list[str]) -> str:
+    """A direction of the coordinates as text, largest weight 1 and the first term positive:
+    ``J2 - J3``, ``J1 + 0.5 J4``."""
+    vector = vector / vector[np.flatnonzero(np.abs(vector) > 1e-6)[0]]
+    vector = vector / np.abs(vector).max()
+    terms = []
+    for c, name in zip(vector, names, strict=True):
+        if abs(c) <= 1e-6:
+            continue
+        size = "" if abs(abs(c) - 1.0) < 1e-9 else f"{abs(c):.3g} "
+        terms.append(("- " if c < 0 else "+ ") + size + name)
+    return " ".join(terms).removeprefix("+ ")

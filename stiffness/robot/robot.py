@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
@@ -243,8 +243,68 @@ class Robot:
 
     @property
     def compliant_in_coordinates(self) -> np.ndarray:
-        """Position of each compliant joint in the coordinate vector."""
-        return np.array([self.coordinate_joints.index(j) for j in self.compliant_joints], dtype=int)
+        """Position of each compliant joint in the coordinate vector.
+
+        Raises
+        ------
+        StiffnessError
+            When the springs act on the chain joints of a ``[controller]`` (they are not
+            coordinates: use :attr:`compliant_in_springs`).
+        """
+        if self.spring_joints != self.coordinate_joints:
+            raise StiffnessError(f"the springs of {self.name} act on its chain joints, not on "
+                                 "its coordinates ([controller] springs_on = \"chain\")")
+        return self.compliant_in_springs
+
+    @property
+    def compliant_in_springs(self) -> np.ndarray:
+        """Position of each compliant joint in :attr:`spring_joints`."""
+        return np.array([self.spring_joints.index(j) for j in self.compliant_joints], dtype=int)
+
+    @property
+    def spring_map(self) -> np.ndarray:
+        """(n_springs, n_coordinates) rates of the :attr:`spring_joints` per unit rate of the
+        coordinates: the coupling's ``A`` for springs on the chain, else the identity."""
+        if self.spring_joints != self.coordinate_joints and self.coupling is not None:
+            return self.coupling.matrix.copy()
+        return np.eye(self.n_coordinates)
+
+    def spring_command(self, coords: np.ndarray) -> np.ndarray:
+        """Values (..., n_springs) of the :attr:`spring_joints` at coordinates (..., n)
+        (rad, m): ``A u + b`` for springs on the chain, else the coordinates themselves."""
+        if self.spring_joints != self.coordinate_joints and self.coupling is not None:
+            return self.coupling.chain_values(coords)
+        return np.asarray(coords, dtype=float)
+
+    def spring_values(self, q: np.ndarray) -> np.ndarray:
+        """Values (rad, m) of the :attr:`spring_joints` in the full configuration ``q``."""
+        if self.spring_joints != self.coordinate_joints:
+            return np.array([self._value(q, name) for name in self.spring_joints])
+        return self.coordinates_of(q)
+
+    def coordinate_motion(self, spring_motion: np.ndarray) -> np.ndarray:
+        """The coordinates' motion (n,) (rad, m) that moves the :attr:`spring_joints` by
+        ``spring_motion`` (n_springs,): itself, or through the coupling's ``A`` (least
+        squares when ``A`` is tall: passive chain joints cannot be commanded apart)."""
+        if self.spring_joints != self.coordinate_joints and self.coupling is not None:
+            return np.linalg.lstsq(self.coupling.matrix, np.asarray(spring_motion, dtype=float),
+                                   rcond=None)[0]
+        return np.asarray(spring_motion, dtype=float)
+
+    def springs_robot(self) -> Robot:
+        """The same robot with every spring joint compliant and the spring joints as its
+        coordinates: itself (its coordinates already) with all of them compliant, or for
+        springs on a ``[controller]``'s chain the chain alone (no coupling). Shares the
+        Pinocchio model; gets its own ``data``."""
+        names = self.spring_joints
+        coupling = None if names != self.coordinate_joints else self.coupling
+        if coupling is not None:
+            coupling = replace(coupling, springs_on="controller")
+        if names == self.compliant_joints and coupling is self.coupling:
+            return self
+        return replace(self, coordinate_joints=names, compliant_joints=names,
+                       data=self.model.createData(), coupling=coupling, _reference=None,
+                       last_assembly=None)
 
     def _joint(self, name: str):
         return self.model.joints[self.model.getJointId(name)]

@@ -26,7 +26,7 @@ import pinocchio as pin
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.files import atomic_write
 from stiffness.mechanics.defaults import default_coordinates, default_load
-from stiffness.mechanics.equilibrium import solve_equilibrium
+from stiffness.mechanics.equilibrium import deflected_configuration, solve_equilibrium
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
     as_wrench,
@@ -308,10 +308,14 @@ class StiffnessViewer:
         if self.exaggeration is None:
             moved = float(np.linalg.norm(eq.dx))
             self.exaggeration = nice_below(0.08 * self.reach / moved) if moved > 0 else 1.0
-        dcoords = np.zeros(self.robot.n_coordinates)
-        dcoords[self.robot.compliant_in_coordinates] = eq.dtheta
+        robot = self.robot
         try:
-            shown = self.robot.configuration(coords + self.exaggeration * dcoords, seed=q)
+            if robot.loop.is_open_chain:  # springs on coordinates or on a coupled chain
+                shown = deflected_configuration(robot, q, self.exaggeration * eq.dtheta, q)
+            else:  # continuation along the coordinates keeps the loops' branch
+                dcoords = np.zeros(robot.n_coordinates)
+                dcoords[robot.compliant_in_coordinates] = eq.dtheta
+                shown = robot.configuration(coords + self.exaggeration * dcoords, seed=q)
         except StiffnessError as exc:
             return eq.dx, None, f"deflected pose x{self.exaggeration:g} not drawable: {exc}"
         return eq.dx, shown, ""

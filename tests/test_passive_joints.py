@@ -1,0 +1,153 @@
+"""Passive coupled joints (issue 36.1): a ``[controller]`` with fewer coordinates than chain
+joints, ``q_chain = A u + b`` with ``A`` tall (tests/data/torso-passive: the chest pitch
+``t4 = -T2 - T3`` follows a linkage), springs on the controller's coordinates or on the chain.
+
+The references are built here from Pinocchio's chain Jacobian, ``K_C`` of the chain by central
+differences of ``J^T W`` and the linkage's ``A`` written out by hand, never from the toolkit's
+coupling.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy import optimize
+
+from stiffness.elastic.model import ElasticModel
+from stiffness.robot.robot import load_robot
+
+TORSO = Path(__file__).parent / "data" / "torso-passive" / "robot.toml"
+#: The linkage by hand: rows t1, t2, t3, t4, a1, a2; columns T1, T2, T3, A1, A2.
+A = np.array([[1, 0, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 1, 0, 0], [0, -1, -1, 0, 0],
+              [0, 0, 0, 1, 0], [0, 0, 0, 0, 1]], dtype=float)
+#: Springs on the chain's six joints (N.m/rad): the chest's own, through its linkage, too.
+K_CHAIN = np.array([4.0e4, 2.5e4, 2.0e4, 1.5e4, 8.0e3, 6.0e3])
+K_CONTROLLER = np.array([4.0e4, 2.5e4, 2.0e4, 8.0e3, 6.0e3])
+FORCE = np.array([20.0, -15.0, -60.0])
+
+
+def torso(tmp_path: Path, springs_on: str) -> object:
+    """The torso with its springs on the controller's coordinates or on the chain."""
+    if springs_on == "controller":
+        return load_robot(TORSO)
+    text = TORSO.read_text().replace('springs_on = "controller"', 'springs_on = "chain"')
+    text = text.replace('compliant_joints = ["T1", "T2", "T3", "A1", "A2"]',
+                        'compliant_joints = ["t1", "t2", "t3", "t4", "a1", "a2"]')
+    text = text.replace("k_theta_SI = [4.0e4, 2.5e4, 2.0e4, 8.0e3, 6.0e3]",
+                        "k_theta_SI = [4.0e4, 2.5e4, 2.0e4, 1.5e4, 8.0e3, 6.0e3]")
+    path = tmp_path / "chain" / "robot.toml"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(text)
+    return load_robot(path)
+
+
+def chain_q(robot, chain: np.ndarray) -> np.ndarray:
+    """Full configuration with the chain joints t1..a2 at ``chain`` (rad), set by name."""
+    q = pin.neutral(robot.model)
+    for name, value in zip(("t1", "t2", "t3", "t4", "a1", "a2"), chain, strict=True):
+        q[robot.model.joints[robot.model.getJointId(name)].idx_q] = value
+    return q
+
+
+def chain_jacobian(robot, chain: np.ndarray) -> np.ndarray:
+    """(6, 6) target Jacobian over the chain joints, world axes at the target."""
+    model, data = robot.model, robot.model.createData()
+    j = pin.computeFrameJacobian(model, data, chain_q(robot, chain), robot.target_frame_id,
+                                 pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    v = [model.joints[model.getJointId(n)].idx_v for n in ("t1", "t2", "t3", "t4", "a1", "a2")]
+    return j[:, v]
+
+
+def chain_kc(robot, chain: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """K_C of the chain: central differences (h = 1e-6 rad) of ``J_pos^T F``."""
+    h = 1e-6
+    cols = [(chain_jacobian(robot, chain + h * e)[:3].T @ force
+             - chain_jacobian(robot, chain - h * e)[:3].T @ force) / (2 * h) for e in np.eye(6)]
+    return np.array(cols).T
+
+
+@pytest.mark.parametrize("springs_on", ["controller", "chain"])
+def test_kx_equals_the_hand_built_reference(tmp_path, springs_on):
+    """K_X (enhanced, force rows) at 4 random poses against ``C = J A (K - A^T K_C A)^-1
+    (J A)^T`` (springs on the controller) or ``J (K - K_C)^-1 J^T`` over the chain (springs on
+    the chain joints, the commanded pose ``A u + b``), to 1e-9 relative. Measured: 2.4e-13
+    and 3.2e-13 (the reference's K_C by central differences)."""
+    robot = torso(tmp_path, springs_on)
+    assert robot.n_coordinates == 5 and robot.coupling.matrix.shape == (6, 5)
+    k = K_CONTROLLER if springs_on == "controller" else K_CHAIN
+    model = ElasticModel.joint_springs(robot, k)
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        u = rng.uniform(-0.8, 0.8, 5)
+        chain = A @ u
+        j, k_c = chain_jacobian(robot, chain)[:3], chain_kc(robot, chain, FORCE)
+        if springs_on == "controller":
+            j, k_c = j @ A, A.T @ k_c @ A
+        reference = np.linalg.inv(j @ np.linalg.solve(np.diag(k) - k_c, j.T))
+        k_x = model.at(u, FORCE).k_x()
+        assert np.abs(k_x - reference).max() <= 1e-9 * np.abs(reference).max()
+
+
+def _energy_equilibrium(robot, u: np.ndarray, springs_on: str) -> np.ndarray:
+    """The chain joints at rest under FORCE, found here: the minimum of
+    ``d^T K d / 2 - F . p(q)`` over the spring deflections ``d`` (the controller's, moving the
+    chain by ``A d``, or the chain's own), by BFGS on central-difference gradients."""
+    model, data = robot.model, robot.model.createData()
+    k = K_CONTROLLER if springs_on == "controller" else K_CHAIN
+    spread = A if springs_on == "controller" else np.eye(6)
+
+    def energy(d: np.ndarray) -> float:
+        pin.framesForwardKinematics(model, data, chain_q(robot, A @ u + spread @ d))
+        return 0.5 * d @ (k * d) - FORCE @ data.oMf[robot.target_frame_id].translation
+
+    def gradient(d: np.ndarray) -> np.ndarray:
+        h = 1e-7
+        return np.array([(energy(d + h * e) - energy(d - h * e)) / (2 * h)
+                         for e in np.eye(len(k))])
+
+    sol = optimize.minimize(energy, np.zeros(len(k)), jac=gradient, method="BFGS",
+                            options={"gtol": 1e-9})
+    return A @ u + spread @ sol.x
+
+
+@pytest.mark.parametrize("springs_on", ["controller", "chain"])
+def test_exact_deflection_equals_the_energy_minimum(tmp_path, springs_on):
+    """The model's exact equilibrium (ElasticState.equilibrium) puts the chain joints where
+    the energy minimum does, to 1e-9 rad, at 3 poses with deflections over 1 mrad. With the
+    springs on the chain the chest t4 deflects on its own (off the linkage's A u + b).
+    Measured: 7.5e-12 rad (controller), 1.2e-10 rad (chain) of 2 mrad deflections."""
+    robot = torso(tmp_path, springs_on)
+    k = K_CONTROLLER if springs_on == "controller" else K_CHAIN
+    model = ElasticModel.joint_springs(robot, k)
+    rng = np.random.default_rng(4)
+    names = ("t1", "t2", "t3", "t4", "a1", "a2")
+    for _ in range(3):
+        u = rng.uniform(-0.8, 0.8, 5)
+        exact = _energy_equilibrium(robot, u, springs_on)
+        eq = model.at(u, FORCE).equilibrium()
+        got = np.array([eq.q[robot.model.joints[robot.model.getJointId(n)].idx_q]
+                        for n in names])
+        assert np.abs(exact - A @ u).max() > 1e-3
+        assert np.abs(got - exact).max() < 1e-9, np.abs(got - exact).max()
+
+
+def test_kx_command_with_springs_on_a_square_and_a_tall_chain(tmp_path, capsys):
+    """``stiffness kx --kq`` on a coupled robot with springs on the chain (it ended in
+    ``ValueError: tuple.index(x)``): the SK120 as a DH table with its parallelogram coupling
+    (square A) and the torso (tall A), exit 0 with K_X printed."""
+    from stiffness.cli.main import main
+
+    sk120 = Path(__file__).parents[1] / "examples" / "sk120-dh" / "robot.toml"
+    text = sk120.read_text().replace('springs_on = "controller"', 'springs_on = "chain"')
+    text = text.replace('compliant_joints = ["joint1", "joint2", "joint3"]',
+                        'compliant_joints = ["waist", "shoulder", "elbow"]')
+    square = tmp_path / "sk120" / "robot.toml"
+    square.parent.mkdir()
+    square.write_text(text)
+    tall = torso(tmp_path, "chain")
+    for path, kq in ((square, "1e6,1e6,1e6"), (tall.name, ",".join(map(str, K_CHAIN)))):
+        assert main(["kx", "--robot", str(path), "--kq", kq]) == 0
+        assert "K_X (N/m)" in capsys.readouterr().out
