@@ -71,17 +71,6 @@ class CoordinateMap:
         rhs = np.asarray(chain_values, dtype=float) - self.offset
         return np.linalg.lstsq(self.matrix, rhs.T, rcond=None)[0].T
 
-    @property
-    def passive(self) -> tuple[str, ...]:
-        """Chain joints that no coordinate sets alone and that add no direction of their own:
-        the rows of a tall ``A`` beyond a square regular subset (empty for a square map)."""
-        rank, kept = 0, []
-        for i in range(self.matrix.shape[0]):
-            if np.linalg.matrix_rank(self.matrix[kept + [i]]) > rank:
-                kept.append(i)
-                rank += 1
-        return tuple(j for i, j in enumerate(self.chain) if i not in kept)
-
     def limits(self, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Limits (rad or m) of the coordinates from the chain joints' ``lower``, ``upper``:
         a coordinate that alone sets a chain joint (``j = c u + b``) takes that joint's range;
