@@ -215,3 +215,66 @@ def test_bad_input_gives_one_line(args, words, tmp_path, capsys):
     for word in words:
         assert word in lines[0], lines[0]
     assert not (tmp_path / "out.xml").exists()
+
+
+POINT_MASS_ARM = """name = "point-mass-arm"
+compliant_joints = ["j1", "j2", "j3"]
+[dh]
+convention = "standard"
+length_unit = "m"
+angle_unit = "rad"
+joints = [
+  { name = "j1", alpha = 1.5707963267948966, a = 0.0, theta = 0.0, d = 0.4 },
+  { name = "j2", alpha = 0.0, a = 0.5, theta = 0.0, d = 0.0 },
+  { name = "j3", alpha = 0.0, a = 0.4, theta = 0.0, d = 0.0 },
+]
+tool = { xyz = [0.0, 0.0, 0.1], rpy = [0.0, 0.0, 0.0] }
+links = [ { mass = 5.0, com = [0.0, 0.0, 0.0] }, { mass = 4.0, com = [-0.25, 0.0, 0.0] },
+          { mass = 2.0, com = [-0.2, 0.0, 0.05] } ]
+"""
+
+
+def test_point_masses_export_and_sag_in_mujoco_as_in_the_exact_equilibrium(tmp_path):
+    """A DH table's links given as point masses (no ``inertia``, as docs/robot-files.md
+    allows): the URDF and the MJCF carry the 1 mm sphere's inertia (2/5 m r^2), and MuJoCo,
+    gravity on, comes to rest where the exact equilibrium under the links' weight puts the
+    target (measured: 3e-12 of a 1.4 mm sag)."""
+    import mujoco
+
+    from stiffness.mechanics.gravity import gravity_preload
+    from stiffness.robot.urdf_writer import POINT_MASS_RADIUS_M
+
+    toml = tmp_path / "robot.toml"
+    toml.write_text(POINT_MASS_ARM)
+    robot = load_robot(str(toml))
+    masses = [robot.model.inertias[j].mass for j in range(1, robot.model.njoints)]
+    urdf = exported(str(toml), tmp_path)
+    back = load_robot(str(urdf), frame=robot.target_frame)
+    for j, mass in enumerate(masses, start=1):
+        np.testing.assert_allclose(back.model.inertias[j].inertia,
+                                   0.4 * mass * POINT_MASS_RADIUS_M ** 2 * np.eye(3), rtol=1e-12)
+        np.testing.assert_allclose(back.model.inertias[j].lever, robot.model.inertias[j].lever,
+                                   atol=1e-12)
+    k = np.array([2e4, 1.5e4, 1e4])
+    q0 = robot.configuration(np.array([0.3, 0.4, -0.6]))
+    xml = robot_mjcf(robot, dict(zip(robot.compliant_joints, k, strict=True)), q0)
+    m = mujoco.MjModel.from_xml_string(xml)
+    m.opt.timestep = 1e-3
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    m.dof_armature[:] = 0.05
+    m.dof_damping[:] = 2.0 * np.sqrt(k * 0.5)
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    for step in range(1, 100_001):
+        mujoco.mj_step(m, d)
+        if step > 10 and np.abs(d.qvel).max() < 1e-13:
+            break
+    else:
+        raise AssertionError("MuJoCo did not come to rest")
+    mujoco.mj_forward(m, d)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "stiffness_target")
+    exact = solve_equilibrium(robot, q0, np.diag(k), np.zeros(3),
+                              preload=lambda q: gravity_preload(robot, q))
+    assert np.linalg.norm(exact.dx) > 1e-4  # a sag worth comparing (m)
+    relative = np.linalg.norm(d.site_xpos[site] - exact.position) / np.linalg.norm(exact.dx)
+    assert relative < 1e-6, relative

@@ -25,9 +25,11 @@ springs: on the SK120 under its paper load, damped to rest, the loop gave way by
 0.5 m depending on ``solref``/``solimp`` and the target missed the exact equilibrium by 47 % to
 3000x the deflection, so such an export would not be the robot's elastostatics.
 
-MuJoCo refuses a moving body without mass; massless links (a purely kinematic model) are
-given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by the compiler's
-``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
+MuJoCo refuses a moving body without mass, or with an inertia that is not positive definite: a
+point mass (a DH table's link without ``inertia``) is written with the inertia of a 1 mm
+sphere of its mass (:func:`stiffness.robot.urdf_writer.written_inertia`); massless links (a
+purely kinematic model) are given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by
+the compiler's ``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
 
 Units: SI (m, rad, kg, kg.m^2, N.m/rad, N/m).
 """
@@ -43,7 +45,7 @@ from lxml import etree
 
 from stiffness.errors import RobotFileWarning, StiffnessError
 from stiffness.robot.robot import Robot
-from stiffness.robot.urdf_writer import numbers
+from stiffness.robot.urdf_writer import numbers, written_inertia
 
 #: Equality constraints' solver reference (time constant s, damping ratio): the stiffest the
 #: default time step allows (MuJoCo keeps the time constant at least two time steps).
@@ -123,10 +125,11 @@ def _joint(body: etree._Element, robot: Robot, j: int, springs: dict[str, float]
 
 
 def _inertial(body: etree._Element, inertia: pin.Inertia) -> bool:
-    """Write the body's inertia; False when it is massless (nothing written)."""
+    """Write the body's inertia (a point mass's raised as :func:`written_inertia` says);
+    False when it is massless (nothing written)."""
     if inertia.mass <= 0.0:
         return False
-    i = inertia.inertia
+    i = written_inertia(inertia)
     etree.SubElement(body, "inertial", pos=numbers(inertia.lever), mass=str(float(inertia.mass)),
                      fullinertia=numbers([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]))
     return True

@@ -17,11 +17,30 @@ from lxml import etree
 
 #: The largest finite double: what an unbounded limit is written as.
 LARGEST = float(np.finfo(float).max)
+#: Radius (m) of the uniform sphere whose rotational inertia a point mass is given when written
+#: (docs/robot-files.md): MuJoCo refuses a body whose inertia is not positive definite, and
+#: statics see only a link's mass and centre of mass, never its rotational inertia.
+POINT_MASS_RADIUS_M = 1e-3
 
 
 def numbers(values) -> str:
     """A URDF vector attribute: each number as Python's shortest round-trip repr."""
     return " ".join(str(float(v)) for v in values)
+
+
+def written_inertia(inertia: pin.Inertia) -> np.ndarray:
+    """The rotational inertia (kg.m^2, about the centre of mass, 3x3) written for ``inertia``.
+
+    Its eigenvalues are raised by one common amount to at least those of a uniform sphere of
+    the link's mass and radius :data:`POINT_MASS_RADIUS_M` (``2/5 m r^2``): a point mass (zero
+    inertia, as a DH table's ``links`` allow) or a thin rod becomes positive definite and
+    still obeys the triangle inequality; any inertia already above that floor is unchanged.
+    Mass and centre of mass, all that statics read, are never changed.
+    """
+    rotational = np.asarray(inertia.inertia, dtype=float)
+    floor = 0.4 * float(inertia.mass) * POINT_MASS_RADIUS_M ** 2
+    lowest = float(np.linalg.eigvalsh(rotational).min())
+    return rotational + max(0.0, floor - lowest) * np.eye(3)
 
 
 def bounded(value: float) -> str:
@@ -60,13 +79,14 @@ class UrdfWriter:
              inertia: pin.Inertia | None = None) -> etree._Element:
         """Add a link, optionally with a box visual ``(size (m), origin transform)`` and the
         ``inertia`` of the link (mass kg, centre of mass m and rotational inertia about it
-        kg.m^2, in the link's frame; omitted when massless). Returns the link element."""
+        kg.m^2, in the link's frame, :func:`written_inertia`; omitted when massless). Returns
+        the link element."""
         element = etree.SubElement(self.robot, "link", name=name)
         if inertia is not None and inertia.mass > 0.0:
             inertial = etree.SubElement(element, "inertial")
             self.origin(inertial, transform(inertia.lever))
             etree.SubElement(inertial, "mass", value=str(float(inertia.mass)))
-            i = inertia.inertia
+            i = written_inertia(inertia)
             etree.SubElement(inertial, "inertia", **{
                 key: str(float(i[a, b])) for key, (a, b) in
                 (("ixx", (0, 0)), ("ixy", (0, 1)), ("ixz", (0, 2)), ("iyy", (1, 1)),
