@@ -60,7 +60,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtri, stdtrit
 
 from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.fitting import (
@@ -83,6 +82,7 @@ from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise_scale,
 )
+from stiffness.calibration.selection import interval_quantile
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -282,7 +282,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         if rot_source == "residuals":
             rot_sigma = kind_noise(rot_res, n_res, p)
     sigma, sigma_source, quantile, sigma_res, notes = _noise_level(campaign, best_fit.rss,
-                                                                   n_res - p, robust_sigma)
+                                                                   n_res, p, robust_sigma)
     unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, quantile,
                        rob.compliant_joints)
     outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, p,
@@ -414,17 +414,20 @@ def _least_squares_runs(model: Hypothesis, measured: np.ndarray, scale: float, f
     return runs, fits
 
 
-def _noise_level(campaign: Campaign, ss_m2: float, dof: int, robust_sigma: float | None = None
+def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
+                 robust_sigma: float | None = None
                  ) -> tuple[float, str, float, float | None, list[str]]:
     """The noise std (m) the covariance uses, its source, the 97.5 % quantile of the
-    intervals, the residuals' own estimate (m, or None) and a note when they disagree; with
+    intervals (:func:`selection.interval_quantile` over ``n`` residuals and ``p`` parameters),
+    the residuals' own estimate (m, or None) and a note when they disagree; with
     ``robust_sigma`` (m, a robust fit's scale) that one, and Student's t for the sandwich."""
+    dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     notes: list[str] = []
     if robust_sigma is not None:
         source = ("declared noise_std" if campaign.noise_std_m is not None
                   else "robust estimate (1.4826 median |residual|)")
-        return robust_sigma, source, float(stdtrit(dof, 0.975)), sigma_res, notes
+        return robust_sigma, source, interval_quantile(None, n, p), sigma_res, notes
     if campaign.noise_std_m is not None:
         sigma = campaign.noise_std_m
         if sigma_res is not None and sigma_res > 2.0 * sigma:
@@ -433,11 +436,10 @@ def _noise_level(campaign: Campaign, ss_m2: float, dof: int, robust_sigma: float
                 f"declared noise_std ({sigma * 1e3:.4g} mm): model error or underestimated noise; "
                 "the confidence intervals are too narrow"
             )
-        # standard normal 97.5 % quantile
-        return sigma, "declared noise_std", float(ndtri(0.975)), sigma_res, notes
+        return sigma, "declared noise_std", interval_quantile(sigma, n, p), sigma_res, notes
     # Student t, dof degrees of freedom (> 0 without a declared noise: _check_residual_count)
     assert sigma_res is not None
-    return (sigma_res, "residuals (SS / (N - p))", float(stdtrit(dof, 0.975)), sigma_res,
+    return (sigma_res, "residuals (SS / (N - p))", interval_quantile(None, n, p), sigma_res,
             notes)
 
 

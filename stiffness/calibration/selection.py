@@ -169,6 +169,10 @@ def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | 
 
 
 def interval_quantile(sigma: float | None, n: int, p: int) -> float:
+    """The 97.5 % quantile every reported 95 % interval uses (the one function for it):
+    the standard normal's when the noise std ``sigma`` is declared, Student's t with
+    ``n - p`` degrees of freedom (at least 1) when it is estimated from ``n`` residuals of a
+    fit of ``p`` parameters (``sigma`` None, or a robust fit's sandwich)."""
     if sigma is not None:
         return float(ndtri(0.975))
     return float(stdtrit(max(n - p, 1), 0.975))
