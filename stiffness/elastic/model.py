@@ -34,12 +34,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.linalg import critical_load_factor
+from stiffness.elastic.compensator import Compensator, retargeted
 from stiffness.elastic.effects.base import Effect, ElasticParts
 from stiffness.elastic.effects.geometry import Geometry, chain_placements, link_axes, skew
 from stiffness.elastic.loaded import LinkBend, Loaded, linear_deflection, loaded_equilibrium
@@ -327,6 +328,24 @@ class ElasticModel:
             raise StiffnessError("only a model read from a model file has a fitted prediction; "
                                  "use .at(q, wrench).equilibrium() for the exact deflection")
         return self.fitted(q, load, measured)
+
+    def compensator(self, frame: str | None = None, target_offset: np.ndarray | list[float] | None
+                    = None, hold: str = "auto", method: str = "auto") -> Compensator:
+        """A real-time deflection compensator (:class:`stiffness.elastic.compensator.Compensator`):
+        ``.command(q_target, wrench)`` is the joint command whose exact loaded equilibrium puts
+        the target on the pose of ``q_target``. ``frame``, ``target_offset`` (m, its axes):
+        another target (where the wrench acts, what is held; laws, bends and preloads, the
+        payload included, carry over); ``hold``: ``pose``, ``position`` or ``auto``;
+        ``method``: ``auto``, ``closed-form`` or ``general``.
+
+        Raises a :class:`StiffnessError` on an unknown frame, hold or method, the closed form
+        with link bends, link bends with a preload."""
+        model = self
+        if frame is not None or target_offset is not None:
+            model = replace(self, robot=retargeted(self.robot, frame, target_offset),
+                            _full=None, _geometry=None, k_theta=self.k_theta.copy())
+            model._weighed = self._weighed  # the payload stays where it is
+        return Compensator(model, hold, method)
 
     # at a pose ---------------------------------------------------------------------------
     def configuration(self, q: np.ndarray | list[float]) -> np.ndarray:

@@ -13,6 +13,8 @@ orientation when it is held: see :func:`compensate`):
   each evaluation an exact equilibrium, the Jacobian ``J (I - diag(law') K_C)^-1`` (minimum-norm
   steps when the pose leaves freedom).
 
+Both are the command of the model's real-time compensator
+(:class:`stiffness.elastic.compensator.Compensator`, one per path, warm started point to point).
 Beside it the usual first-order Cartesian compensation: command the pose shifted by
 ``-C W`` (``C`` the model's linear compliance at the nominal pose) through inverse kinematics;
 its residual grows as the square of the load.
@@ -34,6 +36,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from stiffness.elastic.compensator import Compensator, choose_hold
 from stiffness.elastic.loaded import (
     bent_kinematics,
     frozen_axes,
@@ -43,7 +46,6 @@ from stiffness.elastic.loaded import (
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import (
-    ConvergenceError,
     FileFormatError,
     StiffnessError,
     with_context,
@@ -56,8 +58,6 @@ from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
 
-#: Convergence of the general compensation solve (m, rad of the target error).
-POSE_TOLERANCE = 1e-12
 #: Wrench columns a path file may carry (N, N.m).
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
 #: Reference frames of a process wrench.
@@ -104,80 +104,10 @@ class PointCompensation:
     q_nominal: np.ndarray = field(repr=False)
 
 
-def choose_hold(em: ElasticModel, q: np.ndarray) -> str:
-    """``pose`` when the coordinates can hold position and orientation (6-row rank), else
-    ``position``."""
-    jac = target_state(em.full, q).jacobian
-    sv = np.linalg.svd(jac, compute_uv=False)
-    rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
-    return "pose" if rank == 6 else "position"
-
-
-def _pose_error(loaded_pos, loaded_rot, pos, rot, hold) -> np.ndarray:
-    e = loaded_pos - pos
-    if hold == "pose":
-        e = np.concatenate([e, pin.log3(loaded_rot @ rot.T)])
-    return e
-
-
-def _general_command(coords: np.ndarray, uncompensated, solve: Callable,
-                     nominal: tuple[np.ndarray, np.ndarray], hold: str,
-                     spring_map: np.ndarray):
-    """Newton on the command (rad, m) whose loaded equilibrium (``solve(command)``) holds the
-    nominal pose ``(position m, rotation)``: each step through the loaded Jacobian
-    ``J (I - diag(law') K_C)^-1 M`` (least squares; ``M`` the spring joints' rates per
-    coordinate rate, :attr:`stiffness.robot.robot.Robot.spring_map`); the best iterate
-    within 40.
-
-    Returns
-    -------
-    The command, its loaded equilibrium and the iterations taken.
-
-    Raises
-    ------
-    ConvergenceError
-        The coordinates cannot move the held components, or no convergence (near buckling).
-    """
-    pos_n, rot_n = nominal
-    n = spring_map.shape[0]
-    rows = slice(0, 6 if hold == "pose" else 3)
-    command, loaded = coords.copy(), uncompensated
-    best = (np.inf, command, loaded)
-    for iterations in range(1, 41):  # noqa: B007 (reported)
-        err = _pose_error(loaded.position, loaded.rotation, pos_n, rot_n, hold)
-        size = float(np.abs(err).max())
-        if size < best[0]:
-            best = (size, command, loaded)
-        if size <= POSE_TOLERANCE:
-            break
-        kin = loaded.kin
-        a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
-        dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n] @ spring_map)
-        jac = kin.jac[rows] @ dz_dc
-        if hold == "pose":
-            m_rot = loaded.rotation @ rot_n.T
-            jac = np.vstack([jac[:3], pin.Jlog3(m_rot) @ m_rot.T @ jac[3:]])
-        step = np.linalg.lstsq(jac, -err, rcond=1e-12)[0]
-        command = command + step
-        loaded = solve(command)
-    size, command, loaded = best
-    if size > 1e3 * POSE_TOLERANCE:
-        sv = np.linalg.svd(jac, compute_uv=False)
-        rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
-        if rank < jac.shape[0]:
-            raise ConvergenceError(
-                f"the coordinates cannot cancel this deflection: they move only {rank} of "
-                f"the {jac.shape[0]} held target components here ({size:.3g} m/rad "
-                "remains); hold fewer (--hold position) or move away from the singularity")
-        raise ConvergenceError(
-            f"the general compensation did not converge (target error {size:.3g} m/rad "
-            "remains): the load may be near the buckling load; reduce it")
-    return command, loaded, iterations
-
-
 def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
                      hold: str = "pose", method: str = "auto",
-                     seed_q: np.ndarray | None = None) -> PointCompensation:
+                     seed_q: np.ndarray | None = None,
+                     compensator: Compensator | None = None) -> PointCompensation:
     """Exact and first-order compensation at nominal coordinates ``coords`` (rad, m).
 
     Parameters
@@ -195,6 +125,10 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
         ``general``.
     seed_q
         A closed configuration near ``coords`` (the loop branch).
+    compensator
+        The compensator giving the exact command (:meth:`ElasticModel.compensator` with
+        ``hold`` and ``method``; along a path the same one, warm started from the last point);
+        default a new one.
 
     Raises
     ------
@@ -204,15 +138,11 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     """
     if hold not in HOLDS:
         raise StiffnessError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
-    if method not in ("auto", "closed-form", "general"):
-        raise StiffnessError(f"method must be auto, closed-form or general, got {method!r}")
-    if method == "closed-form" and not em.joint_only:
-        raise StiffnessError("the closed form holds for joint compliance only; this model has "
-                             "link compliance: use method 'general'")
+    if compensator is None:
+        compensator = em.compensator(hold=hold, method=method)
     wrench = as_wrench(wrench)
     full, robot = em.full, em.robot
     coords = np.asarray(coords, dtype=float)
-    n = len(robot.spring_joints)
     links = em.ordered_links()
     q_n = full.configuration(coords, seed=seed_q)
     kinematics.update_first_order(em.springs.model, em.springs.data, q_n)
@@ -222,23 +152,16 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     pos_n, rot_n = nominal.position.copy(), nominal.rotation.copy()
 
     if em.preloaded:
-        return _preloaded_point(em, coords, wrench, hold, method, q_n, (pos_n, rot_n))
+        return _preloaded_point(em, coords, wrench, hold, compensator.command(coords, wrench),
+                                q_n, (pos_n, rot_n))
 
     def solve(command):
         return loaded_equilibrium(em, robot.spring_command(command), wrench, seed_q=q_n,
                                   axes=axes)
 
     uncompensated = solve(coords)
-    tau_n = nominal.jac.T @ wrench
-    iterations = 0
-    if method == "general" or (method == "auto" and not em.joint_only):
-        used = "general"
-        command, loaded, iterations = _general_command(coords, uncompensated, solve,
-                                                       (pos_n, rot_n), hold, robot.spring_map)
-    else:
-        used = "closed-form"
-        command = coords - robot.coordinate_motion(em.law(tau_n[:n])[0])
-        loaded = solve(command)
+    command = compensator.command(coords, wrench)
+    loaded = solve(command)
     # first-order Cartesian compensation: command the pose shifted by -C W through IK
     shift = linear_shift(em, links, nominal, wrench)
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
@@ -253,37 +176,24 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
         rotation_residual=pin.log3(loaded.rotation @ rot_n.T),
         residual_first_order=first.position - pos_n,
         rotation_residual_first_order=pin.log3(first.rotation @ rot_n.T),
-        method=used,
-        iterations=iterations,
+        method=compensator.method,
+        iterations=compensator.iterations,
         q_nominal=q_n,
     )
 
 
 def _preloaded_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray, hold: str,
-                     method: str, q_n: np.ndarray, nominal: tuple[np.ndarray, np.ndarray]
-                     ) -> PointCompensation:
+                     command: np.ndarray, q_n: np.ndarray,
+                     nominal: tuple[np.ndarray, np.ndarray]) -> PointCompensation:
     """Compensation under a preload (the weight, a compensator): the load is the process
-    wrench *and* the preload, so the command also cancels the preload's sag.
-
-    Closed form (joint motions only): the links rest at ``theta_n`` exactly when the command is
-    ``theta_n - law(J(theta_n)^T W + tau_p(theta_n))``, ``tau_p`` the preload's torque there.
-    The first-order command shifts the pose by ``J law(...)`` through inverse kinematics. Each
-    is checked by the exact equilibrium under the load and the preload
-    (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`).
-
-    Raises
-    ------
-    StiffnessError
-        Link bends with a preload (not modelled), or ``method`` ``general``.
-    """
-    if not em.joint_only or method == "general":
-        raise StiffnessError("compensation under a preload (the weight, a compensator) is "
-                             "closed-form for joint compliance only; this model has link "
-                             "compliance or asks for the general method: drop one of them")
+    wrench *and* the preload, so the command (the compensator's closed form,
+    ``theta_n - law(J(theta_n)^T W + tau_p(theta_n))``) also cancels the preload's sag.
+    The first-order command shifts the pose by ``J law(...)`` through inverse kinematics.
+    Each is checked by the exact equilibrium under the load and the preload
+    (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`)."""
     pos_n, rot_n = nominal
     full, robot = em.full, em.robot
     law = em.compliant_law()
-    idx = robot.compliant_in_springs
 
     def rest(command: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = full.configuration(command, seed=q_n)
@@ -291,12 +201,7 @@ def _preloaded_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray, h
         state = target_state(robot, eq.q)
         return state.position, state.rotation
 
-    state = target_state(robot, q_n)
-    spring_motion = np.zeros(len(robot.spring_joints))
-    spring_motion[idx] = law(state.jacobian.T @ wrench + em.preload(q_n)[0])[0]
-    motion = robot.coordinate_motion(spring_motion)
-    command = coords - motion
-    shift = target_state(full, q_n).jacobian @ motion
+    shift = target_state(full, q_n).jacobian @ (coords - command)
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
     ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
     (p_u, r_u), (p_c, r_c), (p_f, r_f) = rest(coords), rest(command), rest(ik.coords)
@@ -492,17 +397,21 @@ def compensate(
     points: list[PointCompensation] = []
     seed = None
     chosen = hold
+    compensator = None
     for i, coords in enumerate(path):
         try:
             q = em.full.configuration(coords, seed=seed)
             if chosen == "auto":
                 chosen = choose_hold(em, q)
+            if compensator is None:
+                compensator = em.compensator(hold=chosen, method=method)
             load = w[i].copy()
             if wrench_frame == "target":
                 kinematics.update_first_order(em.full.model, em.full.data, q)
                 rot = em.full.data.oMf[em.full.target_frame_id].rotation
                 load = np.concatenate([rot @ load[:3], rot @ load[3:]])
-            point = compensate_point(em, coords, load, chosen, method, seed_q=q)
+            point = compensate_point(em, coords, load, chosen, method, seed_q=q,
+                                     compensator=compensator)
         except StiffnessError as exc:
             raise with_context(exc, f"path row {i + 1}") from exc
         points.append(point)

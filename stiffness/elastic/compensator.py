@@ -1,0 +1,505 @@
+"""A real-time deflection compensator: the joint command that puts the loaded tool where asked.
+
+:meth:`stiffness.elastic.model.ElasticModel.compensator` returns a :class:`Compensator`. Its
+:meth:`Compensator.command` maps the wanted coordinates ``theta_n`` (the unloaded program: the
+links are to rest there) and a dead wrench ``W`` at the target (base axes) to the command
+``theta_c`` whose exact elastostatic equilibrium, under the model's joint laws, preloads (the
+weight, a payload, spring compensators), couplings and ``W``, puts the target on the pose of
+``theta_n``:
+
+* joint motions only (no link bend): the links rest at ``theta_n`` exactly when
+  ``theta_c = theta_n - law(J(theta_n)^T W + tau_p(theta_n))``, the law evaluated at the
+  torque the links carry there. Exact for any joint law (nonlinear springs, backlash), not a
+  linearisation: the torque is known at the pose the links are to rest at. On an open chain
+  this is the *fast path*: one ``pin.computeFrameJacobian`` (and one
+  ``pin.computeGeneralizedGravity`` under the weight) writing into the compensator's own
+  ``pin.Data``, then vectorised NumPy on preallocated arrays (``out=``), no loop over joints;
+  :meth:`Compensator.command_path` does a whole path with one Pinocchio pass per pose and the
+  algebra batched over the path.
+* link bends (or the general method asked): Newton on ``theta_c`` with
+  ``x_loaded(theta_c) = x(theta_n)``, each evaluation an exact equilibrium of the joints and
+  the bends (:func:`stiffness.elastic.loaded.loaded_equilibrium`), the step through the loaded
+  Jacobian ``J (I - diag(law') K_C)^-1`` (least squares when the pose leaves freedom). Warm
+  started from the previous call's correction ``theta_c - theta_n``.
+* closed loops: the closed form, each loop closed from the previous call's configuration.
+
+The compensator lives in the elastic layer (it reads the elastic model's laws, preloads and
+bends, and the exact equilibrium); :mod:`stiffness.machining.compensation` uses it for
+``stiffness compensate`` and adds the residual checks and the first-order comparison.
+
+Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Protocol
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.elastic.loaded import (
+    Loaded,
+    LoadedRobot,
+    bent_kinematics,
+    frozen_axes,
+    loaded_equilibrium,
+)
+from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.mechanics.equilibrium import SpringLaw
+from stiffness.mechanics.formulation import compliant_projection, target_state
+from stiffness.mechanics.gravity import compensator_torque
+from stiffness.mechanics.ik import HOLDS
+from stiffness.robot import kinematics
+from stiffness.robot.robot import TARGET_FRAME, Robot
+from stiffness.robot.targets import checked_target_frame
+
+#: Convergence of the general solve (m, rad of the target error).
+POSE_TOLERANCE = 1e-12
+#: Methods of :class:`Compensator`.
+METHODS = ("auto", "closed-form", "general")
+
+
+class ElasticModel(LoadedRobot, Protocol):
+    """What the compensator reads of an elastic model
+    (:class:`stiffness.elastic.model.ElasticModel`, which imports this module)."""
+
+    compensators: tuple[tuple[str, float, float, dict], ...]
+    _weighed: pin.Model | None
+
+    @property
+    def full(self) -> Robot:
+        """The robot with every coordinate compliant."""
+        ...
+
+    @property
+    def joint_only(self) -> bool:
+        """Whether joint motions are the only effect."""
+        ...
+
+    @property
+    def preloaded(self) -> bool:
+        """Whether a preload acts at every pose."""
+        ...
+
+    def compliant_law(self) -> SpringLaw:
+        """The joint law over the compliant joints."""
+        ...
+
+    def preload(self, q: np.ndarray, formulation: str = "enhanced"
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Preload torque and its derivative at ``q``."""
+        ...
+
+
+def retargeted(robot: Robot, frame: str | None, target_offset: np.ndarray | list[float] | None
+               ) -> Robot:
+    """``robot`` with its target moved to ``frame`` (default its target frame) at
+    ``target_offset`` (m in the frame's axes, default none): a copy of its Pinocchio model
+    whose target frame (:data:`stiffness.robot.robot.TARGET_FRAME`) is placed there.
+
+    Raises
+    ------
+    UnknownFrameError
+        A frame the robot does not have, or one no joint moves.
+    """
+    frame = robot.target_frame if frame is None else frame
+    offset = np.zeros(3) if target_offset is None else np.asarray(
+        target_offset, dtype=float).reshape(3)
+    model = pin.Model(robot.model)
+    checked_target_frame(robot.name, model, frame, frozenset(), frozenset())
+    fid = kinematics.frame_id(model, frame)
+    parent = model.frames[fid]
+    model.frames[robot.target_frame_id] = pin.Frame(
+        TARGET_FRAME, parent.parentJoint, fid, parent.placement * pin.SE3(np.eye(3), offset),
+        pin.FrameType.OP_FRAME)
+    return replace(robot, model=model, data=model.createData(), target_frame=frame,
+                   target_offset=offset, _reference=None)
+
+
+def choose_hold(em: ElasticModel, q: np.ndarray) -> str:
+    """``pose`` when the coordinates can hold position and orientation (6-row rank at the full
+    configuration ``q``), else ``position``."""
+    jac = target_state(em.full, q).jacobian
+    sv = np.linalg.svd(jac, compute_uv=False)
+    rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
+    return "pose" if rank == 6 else "position"
+
+
+class Compensator:
+    """Joint commands that cancel a model's deflection, one call per controller tick.
+
+    Build it with :meth:`stiffness.elastic.model.ElasticModel.compensator`.
+
+    Attributes
+    ----------
+    model
+        The elastic model (its target is the point held and where the wrench acts).
+    hold
+        ``pose``, ``position`` or ``auto`` (link bends only: what Newton holds; ``auto``
+        chooses at the first call). Joint motions alone are cancelled exactly: every frame
+        of the arm then rests where ``theta_n`` puts it.
+    method
+        ``closed-form`` or ``general`` (resolved from ``auto``).
+    fast
+        Whether :meth:`command` runs the allocation-free fast path (open chain, closed form).
+    iterations
+        Newton steps of the last general solve (0 for the closed form).
+    loaded
+        The exact equilibrium at the last general command (None for the closed form).
+    """
+
+    def __init__(self, model: ElasticModel, hold: str = "auto", method: str = "auto") -> None:
+        if hold not in (*HOLDS, "auto"):
+            raise StiffnessError(f"hold must be one of auto, {', '.join(HOLDS)}, got {hold!r}")
+        if method not in METHODS:
+            raise StiffnessError(f"method must be auto, closed-form or general, got {method!r}")
+        if method == "closed-form" and not model.joint_only:
+            raise StiffnessError("the closed form holds for joint compliance only; this model "
+                                 "has link compliance: use method 'general'")
+        if model.preloaded and (not model.joint_only or method == "general"):
+            raise StiffnessError("compensation under a preload (the weight, a compensator) is "
+                                 "closed-form for joint compliance only; this model has link "
+                                 "compliance or asks for the general method: drop one of them")
+        self.model, self.hold = model, hold
+        self.method = "general" if method == "general" or not model.joint_only else "closed-form"
+        robot = model.robot
+        self.fast = self.method == "closed-form" and robot.loop.is_open_chain
+        self.iterations = 0
+        self.loaded: Loaded | None = None
+        n, nc = robot.n_coordinates, robot.n_compliant
+        law = model.compliant_law()
+        self._c, self._s = law.compliance.copy(), law.smoothing.copy()
+        self._cb, self._b = law.compliance * law.beta, law.backlash.copy()
+        self._nonlinear = not law.linear
+        springs = np.eye(len(robot.spring_joints))[:, robot.compliant_in_springs]
+        # coordinate motion per compliant joint's deflection (through a coupling's A)
+        self._select = np.column_stack([robot.coordinate_motion(e) for e in springs.T])
+        self._comp = [(robot.spring_joints.index(j), robot.compliant_joints.index(j), k, f, g)
+                      for j, k, f, g in model.compensators]  # (spring joint, column, ...)
+        self._wrench = np.zeros(6)
+        self._tau, self._dtheta = np.zeros(nc), np.zeros(nc)
+        self._work = (np.zeros(nc), np.zeros(nc))
+        self._shift, self._out = np.zeros(n), np.zeros(n)
+        self._q_prev: np.ndarray | None = None
+        self._every_coordinate = np.array_equal(self._select, np.eye(n))
+        self._correction = np.zeros(n)
+        if self.fast:
+            self._setup_fast()
+
+    # ------------------------------------------------------------------------------------
+    # set-up of the fast path
+
+    def _setup_fast(self) -> None:
+        robot, model = self.model.robot, self.model.robot.model
+        self._data = model.createData()
+        self._fid = robot.target_frame_id
+        weighed = self.model._weighed
+        self._weighed = None if weighed is None else (weighed, weighed.createData())
+        self._projection = np.ascontiguousarray(compliant_projection(robot))  # (nv, nc)
+        self._generalised = np.zeros(model.nv)
+        rows, offsets = self._joint_map()
+        self._q = pin.neutral(model)
+        one = [(j.idx_q, r, o) for j, r, o in zip(*self._joints(rows), offsets, strict=True)
+               if j.nq == 1]
+        two = [(j.idx_q, r, o) for j, r, o in zip(*self._joints(rows), offsets, strict=True)
+               if j.nq == 2]
+        n = robot.n_coordinates
+        self._one = (np.array([i for i, _, _ in one], dtype=int),
+                     np.array([r for _, r, _ in one]).reshape(len(one), n),
+                     np.array([o for _, _, o in one]))
+        self._two = (np.array([i for i, _, _ in two], dtype=int),
+                     np.array([r for _, r, _ in two]).reshape(len(two), n),
+                     np.array([o for _, _, o in two]))
+        self._direct = (len(two) == 0 and len(one) == model.nq == n
+                        and np.array_equal(self._one[0], np.arange(n))
+                        and np.array_equal(self._one[1], np.eye(n))
+                        and not np.any(self._one[2]))
+        self._angles1, self._angles2 = np.zeros(len(one)), np.zeros(len(two))
+        # every joint rate a compliant rate, in order (no BLAS call for the projection)
+        self._every_rate = np.array_equal(self._projection, np.eye(model.nv))
+
+    def _joint_map(self) -> tuple[list[tuple[str, np.ndarray]], list[float]]:
+        """Each joint the coordinates set, as ``(name, row)`` with its value ``row @ u +
+        offset`` (rad, m): the coordinate joints, or the chain joints through the coupling,
+        and the mimic followers."""
+        robot = self.model.robot
+        n = robot.n_coordinates
+        if robot.coupling is None:
+            rows = [(name, np.eye(n)[i]) for i, name in enumerate(robot.coordinate_joints)]
+            offsets = [0.0] * n
+        else:
+            c = robot.coupling
+            rows = [(name, c.matrix[i].astype(float)) for i, name in enumerate(c.chain)]
+            offsets = [float(v) for v in c.offset]
+        index = {name: i for i, (name, _) in enumerate(rows)}
+        for m in robot.mimics:
+            leader = index[m.leader]
+            rows.append((m.follower, m.multiplier * rows[leader][1]))
+            offsets.append(m.multiplier * offsets[leader] + m.offset)
+        return rows, offsets
+
+    def _joints(self, rows: list[tuple[str, np.ndarray]]) -> tuple[list, list[np.ndarray]]:
+        model = self.model.robot.model
+        return [model.joints[model.getJointId(name)] for name, _ in rows], [r for _, r in rows]
+
+    # ------------------------------------------------------------------------------------
+    # the command
+
+    def command(self, q_target: np.ndarray, wrench: np.ndarray | None = None,
+                out: np.ndarray | None = None) -> np.ndarray:
+        """The joint command (n,) (rad, m) whose loaded equilibrium holds the target on the
+        pose of ``q_target``.
+
+        Parameters
+        ----------
+        q_target
+            Wanted coordinates (n,) (rad, m), ``robot.coordinate_joints`` order: where the
+            links are to rest.
+        wrench
+            Dead force (3,) N or wrench (6,) N, N.m at the target, base axes; default none
+            (the preloads alone).
+        out
+            Array (n,) to write the command into (then the fast path allocates nothing of its
+            own); default a new array.
+
+        Raises
+        ------
+        StiffnessError
+            A general solve that does not converge, an unstable equilibrium, a loop that does
+            not close.
+        """
+        w = self._wrench
+        if wrench is None:
+            w.fill(0.0)
+        elif len(wrench) == 6:
+            np.copyto(w, wrench)
+        else:
+            w[3:] = 0.0
+            np.copyto(w[:3], wrench)
+        result = self._out if out is None else out
+        if self.fast:
+            self._fast(np.asarray(q_target, dtype=float), w, result)
+        elif self.method == "closed-form":
+            self._closed_form(np.asarray(q_target, dtype=float), w, result)
+        else:
+            self._general(np.asarray(q_target, dtype=float), w, result)
+        return result.copy() if out is None else result
+
+    def command_path(self, path: np.ndarray, wrench: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`command` of every row of ``path`` (m, n) (rad, m) under one wrench (3,) or
+        (6,), or one per row (m, 3) or (m, 6) (N, N.m, base axes): (m, n) commands. On the
+        fast path one Pinocchio pass per pose and the algebra over the whole path at once."""
+        path = np.atleast_2d(np.asarray(path, dtype=float))
+        m = path.shape[0]
+        w = np.zeros((m, 6))
+        if wrench is not None:
+            given = np.atleast_2d(np.asarray(wrench, dtype=float))
+            w[:, : given.shape[1]] = given
+        if not self.fast:
+            return np.array([self.command(row, wi) for row, wi in zip(path, w, strict=True)])
+        model, data, fid = self.model.robot.model, self._data, self._fid
+        qs = self._configurations(path)
+        gen = np.empty((m, model.nv))
+        frame_jacobian = pin.computeFrameJacobian
+        lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        for i in range(m):
+            np.dot(w[i], frame_jacobian(model, data, qs[i], fid, lwa), out=gen[i])
+        if self._weighed is not None:
+            weighed, wdata = self._weighed
+            gravity = pin.computeGeneralizedGravity
+            for i in range(m):
+                gen[i] -= gravity(weighed, wdata, qs[i])
+        tau = gen @ self._projection
+        self._add_compensators(path, tau)
+        return path - self._law(tau, np.empty_like(tau), (np.empty_like(tau),
+                                                          np.empty_like(tau))) @ self._select.T
+
+    # ------------------------------------------------------------------------------------
+    # the fast path
+
+    def _fast(self, u: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+        model = self.model.robot.model
+        q = self._configuration(u)
+        jac = pin.computeFrameJacobian(model, self._data, q, self._fid,
+                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        tau = self._tau
+        gen = tau if self._every_rate else self._generalised  # J^T W over the joint rates
+        np.dot(w, jac, out=gen)
+        if self._weighed is not None:
+            np.subtract(gen, pin.computeGeneralizedGravity(*self._weighed, q), out=gen)
+        if not self._every_rate:
+            np.dot(gen, self._projection, out=tau)
+        if self._comp:
+            self._add_compensators(u, tau)
+        self._law(tau, self._dtheta, self._work)
+        if self._every_coordinate:
+            np.subtract(u, self._dtheta, out=out)
+        else:
+            np.dot(self._select, self._dtheta, out=self._shift)
+            np.subtract(u, self._shift, out=out)
+
+    def _configuration(self, u: np.ndarray) -> np.ndarray:
+        """The full configuration of coordinates ``u`` (open chain), into the compensator's
+        buffer."""
+        q = self._q
+        if self._direct:
+            np.copyto(q, u)
+            return q
+        idx, rows, offsets = self._one
+        if idx.size:
+            np.dot(rows, u, out=self._angles1)
+            self._angles1 += offsets
+            q.put(idx, self._angles1)
+        idx, rows, offsets = self._two
+        if idx.size:
+            angles = self._angles2
+            np.dot(rows, u, out=angles)
+            angles += offsets
+            q.put(idx, np.cos(angles))
+            q.put(idx + 1, np.sin(angles))
+        return q
+
+    def _configurations(self, path: np.ndarray) -> np.ndarray:
+        """(m, nq) full configurations of the rows of ``path`` (open chain)."""
+        qs = np.repeat(self._q[None, :], path.shape[0], axis=0)
+        if self._direct:
+            qs[:] = path
+            return qs
+        idx, rows, offsets = self._one
+        if idx.size:
+            qs[:, idx] = path @ rows.T + offsets
+        idx, rows, offsets = self._two
+        if idx.size:
+            angles = path @ rows.T + offsets
+            qs[:, idx], qs[:, idx + 1] = np.cos(angles), np.sin(angles)
+        return qs
+
+    def _add_compensators(self, u: np.ndarray, tau: np.ndarray) -> None:
+        """Add the spring compensators' torque at coordinates ``u`` (..., n) to ``tau``
+        (..., nc), in place (one term per compensator, at its spring joint's value)."""
+        values = self.model.robot.spring_command(u)
+        for i, column, k_s, f0, geometry in self._comp:
+            tau[..., column] += compensator_torque(values[..., i], k_s, f0, geometry)[0]
+
+    def _law(self, tau: np.ndarray, out: np.ndarray,
+             work: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """The joint law's deflection ``c tau (1 + beta |tau|) + b tanh(tau / s)`` of torques
+        ``tau`` (..., nc) into ``out``, with two work arrays shaped like ``tau``
+        (:class:`stiffness.mechanics.equilibrium.SpringLaw`, computed in place)."""
+        if not self._nonlinear:
+            return np.multiply(self._c, tau, out=out)
+        a, t = work
+        np.multiply(self._cb, tau, out=out)
+        np.abs(tau, out=a)
+        out *= a
+        np.divide(tau, self._s, out=t)
+        np.tanh(t, out=t)
+        t *= self._b
+        out += t
+        np.multiply(self._c, tau, out=a)
+        out += a
+        return out
+
+    # ------------------------------------------------------------------------------------
+    # closed loops, link bends
+
+    def _closed_form(self, u: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+        """The closed form on a robot with closed loops (each closed from the last call's
+        configuration)."""
+        em = self.model
+        q = em.full.configuration(u, seed=self._q_prev)
+        self._q_prev = q
+        tau = target_state(em.robot, q).jacobian.T @ w
+        if em.preloaded:
+            tau = tau + em.preload(q)[0]
+        np.subtract(u, self._select @ em.compliant_law()(tau)[0], out=out)
+
+    def _general(self, u: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+        """Newton on the command with link bends, the bend axes frozen at ``u`` (as the
+        effect library's), started from the last call's correction."""
+        em = self.model
+        robot, links = em.robot, em.ordered_links()
+        q_n = em.full.configuration(u, seed=self._q_prev)
+        self._q_prev = q_n
+        kinematics.update_first_order(em.springs.model, em.springs.data, q_n)
+        axes = frozen_axes(em, links)
+        nominal = bent_kinematics(em, links, axes, robot.spring_command(u),
+                                  np.zeros(2 * len(links)), w, q_n)
+        if self.hold == "auto":
+            self.hold = choose_hold(em, q_n)
+
+        def solve(command: np.ndarray) -> Loaded:
+            return loaded_equilibrium(em, robot.spring_command(command), w, seed_q=q_n,
+                                      axes=axes)
+
+        start = u + self._correction
+        command, loaded, self.iterations = general_command(
+            start, solve(start), solve, (nominal.position.copy(), nominal.rotation.copy()),
+            self.hold, robot.spring_map)
+        self.loaded = loaded
+        self._correction = command - u
+        np.copyto(out, command)
+
+
+def _pose_error(loaded_pos, loaded_rot, pos, rot, hold) -> np.ndarray:
+    e = loaded_pos - pos
+    if hold == "pose":
+        e = np.concatenate([e, pin.log3(loaded_rot @ rot.T)])
+    return e
+
+
+def general_command(start: np.ndarray, loaded: Loaded, solve: Callable[[np.ndarray], Loaded],
+                    nominal: tuple[np.ndarray, np.ndarray], hold: str, spring_map: np.ndarray
+                    ) -> tuple[np.ndarray, Loaded, int]:
+    """Newton on the command (rad, m) whose loaded equilibrium (``solve(command)``) holds the
+    nominal pose ``(position m, rotation)``, from ``start`` (its equilibrium ``loaded``): each
+    step through the loaded Jacobian ``J (I - diag(law') K_C)^-1 M`` (least squares; ``M`` the
+    spring joints' rates per coordinate rate, :attr:`stiffness.robot.robot.Robot.spring_map`);
+    the best iterate within 40.
+
+    Returns
+    -------
+    The command, its loaded equilibrium and the iterations taken.
+
+    Raises
+    ------
+    ConvergenceError
+        The coordinates cannot move the held components, or no convergence (near buckling).
+    """
+    pos_n, rot_n = nominal
+    n = spring_map.shape[0]
+    rows = slice(0, 6 if hold == "pose" else 3)
+    command = start.copy()
+    best = (np.inf, command, loaded)
+    for iterations in range(1, 41):  # noqa: B007 (reported)
+        err = _pose_error(loaded.position, loaded.rotation, pos_n, rot_n, hold)
+        size = float(np.abs(err).max())
+        if size < best[0]:
+            best = (size, command, loaded)
+        if size <= POSE_TOLERANCE:
+            break
+        kin = loaded.kin
+        a = np.eye(kin.k_c.shape[0]) - loaded.slope[:, None] * kin.k_c
+        dz_dc = np.linalg.solve(a, np.eye(a.shape[0])[:, :n] @ spring_map)
+        jac = kin.jac[rows] @ dz_dc
+        if hold == "pose":
+            m_rot = loaded.rotation @ rot_n.T
+            jac = np.vstack([jac[:3], pin.Jlog3(m_rot) @ m_rot.T @ jac[3:]])
+        step = np.linalg.lstsq(jac, -err, rcond=1e-12)[0]
+        command = command + step
+        loaded = solve(command)
+    size, command, loaded = best
+    if size > 1e3 * POSE_TOLERANCE:
+        sv = np.linalg.svd(jac, compute_uv=False)
+        rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
+        if rank < jac.shape[0]:
+            raise ConvergenceError(
+                f"the coordinates cannot cancel this deflection: they move only {rank} of "
+                f"the {jac.shape[0]} held target components here ({size:.3g} m/rad "
+                "remains); hold fewer (--hold position) or move away from the singularity")
+        raise ConvergenceError(
+            f"the general compensation did not converge (target error {size:.3g} m/rad "
+            "remains): the load may be near the buckling load; reduce it")
+    return command, loaded, iterations
