@@ -61,12 +61,7 @@ from stiffness.mechanics.formulation import (
     target_state,
     twist_basis_stiffness,
 )
-from stiffness.mechanics.gravity import (
-    compensator_torque,
-    gravity_preload,
-    require_open_chain,
-    with_payload,
-)
+from stiffness.mechanics.gravity import joint_preload, require_open_chain, with_payload
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.mechanics.wrench import TWIST_ORDERS, reorder_twist
 from stiffness.robot.robot import Robot, load_robot
@@ -78,40 +73,6 @@ CONNECTIONS = ("joint", "twist")
 #: A critical load factor this many times the inverse of K_C's size relative to K_theta comes
 #: from round-off (a K_C with no positive eigenvalue): no critical load.
 ROUND_OFF_FACTOR = 1e10
-
-
-def joint_preload(robot: Robot, weighed: pin.Model | None,
-                  compensators: tuple | list, q: np.ndarray, weight_stiffness: bool = True
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Torque (n,) of the weight and the spring compensators on the compliant joints at the
-    full configuration ``q``, and its derivative ``K_p`` (n, n).
-
-    Parameters
-    ----------
-    robot
-        The robot.
-    weighed
-        Its Pinocchio model with the payload (:func:`stiffness.mechanics.gravity.with_payload`),
-        or ``None`` (no weight).
-    compensators
-        ``(joint, stiffness N/m, tension N, geometry)``
-        (:meth:`stiffness.elastic.effects.base.ElasticParts.add_compensator`).
-    weight_stiffness
-        Whether the weight's derivative ``K_g = -dg/dq`` enters ``K_p`` (the ``enhanced``
-        formulation); the compensators' always does.
-    """
-    n = robot.n_compliant
-    tau, k = np.zeros(n), np.zeros((n, n))
-    if weighed is not None:
-        tau, k = gravity_preload(robot, q, model=weighed)
-        if not weight_stiffness:
-            k = np.zeros((n, n))
-    for joint, k_s, f0, g in compensators:
-        i = list(robot.compliant_joints).index(joint)
-        t, dt = compensator_torque(robot.value_of(q, joint), k_s, f0, g)
-        tau[i] += t
-        k[i, i] += dt
-    return tau, k
 
 
 @dataclass
@@ -331,21 +292,17 @@ class ElasticModel:
 
     def compensator(self, frame: str | None = None, target_offset: np.ndarray | list[float] | None
                     = None, hold: str = "auto", method: str = "auto") -> Compensator:
-        """A real-time deflection compensator (:class:`stiffness.elastic.compensator.Compensator`):
-        ``.command(q_target, wrench)`` is the joint command whose exact loaded equilibrium puts
-        the target on the pose of ``q_target``. ``frame``, ``target_offset`` (m, its axes):
-        another target (where the wrench acts, what is held; laws, bends and preloads, the
-        payload included, carry over); ``hold``: ``pose``, ``position`` or ``auto``;
-        ``method``: ``auto``, ``closed-form`` or ``general``.
-
-        Raises a :class:`StiffnessError` on an unknown frame, hold or method, the closed form
-        with link bends, link bends with a preload."""
-        model = self
-        if frame is not None or target_offset is not None:
-            model = replace(self, robot=retargeted(self.robot, frame, target_offset),
-                            _full=None, _geometry=None, k_theta=self.k_theta.copy())
-            model._weighed = self._weighed  # the payload stays where it is
-        return Compensator(model, hold, method)
+        """The real-time compensator (:class:`stiffness.elastic.compensator.Compensator`) of the
+        model for the target ``frame`` at ``target_offset`` (m, its axes; default the model's
+        target: the wrench's point and what is held; laws, bends, preloads and the payload
+        carry over); ``hold`` ``pose``, ``position`` or ``auto``; ``method`` ``auto``,
+        ``closed-form`` or ``general``."""
+        if frame is None and target_offset is None:
+            return Compensator(self, hold, method)
+        moved = replace(self, robot=retargeted(self.robot, frame, target_offset), _full=None,
+                        _springs=None, _geometry=None, k_theta=self.k_theta.copy())
+        moved._weighed = self._weighed  # the payload stays where it is
+        return Compensator(moved, hold, method)
 
     # at a pose ---------------------------------------------------------------------------
     def configuration(self, q: np.ndarray | list[float]) -> np.ndarray:

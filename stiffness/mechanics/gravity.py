@@ -208,3 +208,37 @@ def compensator_torque(theta: float | np.ndarray, stiffness: float, preload: flo
     relative = np.asarray(theta, dtype=float) - float(geometry.get("angle_up_rad", 0.0))
     return spring_balancer(relative, stiffness, preload, geometry["lever_m"],
                            geometry["base_m"], float(geometry.get("angle0_rad", 0.0)))
+
+
+def joint_preload(robot: Robot, weighed: pin.Model | None,
+                  compensators: tuple | list, q: np.ndarray, weight_stiffness: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Torque (n,) of the weight and the spring compensators on the compliant joints at the
+    full configuration ``q``, and its derivative ``K_p`` (n, n).
+
+    Parameters
+    ----------
+    robot
+        The robot.
+    weighed
+        Its Pinocchio model with the payload (:func:`stiffness.mechanics.gravity.with_payload`),
+        or ``None`` (no weight).
+    compensators
+        ``(joint, stiffness N/m, tension N, geometry)``
+        (:meth:`stiffness.elastic.effects.base.ElasticParts.add_compensator`).
+    weight_stiffness
+        Whether the weight's derivative ``K_g = -dg/dq`` enters ``K_p`` (the ``enhanced``
+        formulation); the compensators' always does.
+    """
+    n = robot.n_compliant
+    tau, k = np.zeros(n), np.zeros((n, n))
+    if weighed is not None:
+        tau, k = gravity_preload(robot, q, model=weighed)
+        if not weight_stiffness:
+            k = np.zeros((n, n))
+    for joint, k_s, f0, g in compensators:
+        i = list(robot.compliant_joints).index(joint)
+        t, dt = compensator_torque(robot.value_of(q, joint), k_s, f0, g)
+        tau[i] += t
+        k[i, i] += dt
+    return tau, k

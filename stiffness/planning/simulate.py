@@ -72,7 +72,7 @@ from stiffness.elastic.effects.geometry import (
     link_axes,
     rotation_matrix,
 )
-from stiffness.elastic.model import ElasticModel, joint_preload
+from stiffness.elastic.model import ElasticModel
 from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
@@ -82,9 +82,7 @@ from stiffness.errors import (
 from stiffness.files import atomic_write, staged_folder
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
-from stiffness.mechanics.gravity import (
-    with_payload,
-)
+from stiffness.mechanics.gravity import joint_preload, with_payload
 from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
