@@ -449,13 +449,24 @@ def resolve_path(path: str, folder: Path) -> str:
     return path if Path(path).is_absolute() else str(folder / path)
 
 
-def written_path(resolved: str, folder: Path) -> str:
-    """An absolute path as written into a campaign file in ``folder`` (relative when possible)."""
+def written_path(path: str | os.PathLike[str], folder: Path, base: Path | None = None) -> str:
+    """A path as written into a file in ``folder``: relative to ``folder`` (POSIX separators;
+    absolute on another drive), so that the file and what it names travel together. A relative
+    ``path`` is taken relative to ``base`` (default the working directory), where it was given.
+    Readers resolve it against the file's folder (:func:`resolve_path`, :func:`resolve_source`).
+    """
+    resolved = Path(base or Path.cwd()) / path
     try:
-        written = os.path.relpath(Path(resolved), folder.resolve())
+        written = os.path.relpath(resolved.resolve(), folder.resolve())
     except ValueError:  # another drive on Windows
-        written = str(Path(resolved))
+        written = str(resolved.resolve())
     return Path(written).as_posix()
+
+
+def written_source(source: str, folder: Path, base: Path | None = None) -> str:
+    """A robot source as written into a file in ``folder``: a robot name as is, a path by
+    :func:`written_path` (relative to ``base``, default the working directory)."""
+    return written_path(source, folder, base) if looks_like_path(source) else source
 
 
 def resolve_source(source: str, folder: Path) -> str:

@@ -22,10 +22,9 @@ from stiffness.calibration.measurements import (
 )
 from stiffness.files import (
     atomic_write,
-    looks_like_path,
-    resolve_path,
     staged_folder,
     written_path,
+    written_source,
 )
 from stiffness.units import Units
 
@@ -122,14 +121,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
     folder = Path(folder)
     u = c.units
     s = c.robot_settings
-    source = s.source
-    if looks_like_path(source):
-        resolved = Path(c.resolved_source())
-        try:
-            source = os.path.relpath(resolved, folder.resolve())
-        except ValueError:  # another drive on Windows
-            source = str(resolved)
-        source = Path(source).as_posix()
+    source = written_source(s.source, folder, c.folder())
 
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     toml = [
@@ -148,7 +140,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
         joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
         toml.append(f"compliant_joints = [{joints}]")
     if s.loops is not None:
-        loops = written_path(resolve_path(s.loops, c.folder()), folder)
+        loops = written_path(s.loops, folder, c.folder())
         toml.append(f"loops = {_toml_string(loops)}")
     if s.fixed_base:
         toml.append("fixed_base = true")

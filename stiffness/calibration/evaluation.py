@@ -16,10 +16,11 @@ import os
 
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign
-from stiffness.calibration.pose_diagnose import is_pose_model, read_pose_model, validation_errors
+from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
 from stiffness.calibration.validation import deflection_errors
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
+from stiffness.robot.calibration import is_pose_calibration
 
 
 def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> dict:
@@ -39,7 +40,7 @@ def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> dict:
         A pose calibration with a deflection campaign or the other way round, or a file
         that cannot be read.
     """
-    pose_model = is_pose_model(model)
+    pose_model = is_pose_calibration(model)
     if (campaign_kind(campaign) == "poses") != pose_model:
         raise StiffnessError(
             f"{model} is {'a pose calibration' if pose_model else 'a deflection model'} "

@@ -35,7 +35,14 @@ from stiffness.calibration.campaign_toml import (
 )
 from stiffness.calibration.measurements import coordinates_in_si, parse_number
 from stiffness.errors import FileFormatError
-from stiffness.files import atomic_write, read_text, read_toml, staged_folder
+from stiffness.files import (
+    atomic_write,
+    read_text,
+    read_toml,
+    staged_folder,
+    written_path,
+    written_source,
+)
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -107,6 +114,11 @@ class PoseCampaign:
     def n_rows(self) -> int:
         """Number of rows."""
         return len(self.labels)
+
+    def folder(self) -> Path:
+        """Folder the ``[robot]`` paths are relative to (the campaign file's, else the working
+        directory: an imported campaign's paths are as given on the command line)."""
+        return self.path.parent if self.path is not None else Path.cwd()
 
     @property
     def n_observed(self) -> int:
@@ -322,16 +334,24 @@ def _rotation_noise(doc: dict, toml: TomlFile, units: Units, measured: bool) -> 
 
 
 def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
-    """Write ``c`` as ``folder/campaign.toml`` and ``measurements.csv`` in its units."""
+    """Write ``c`` as ``folder/campaign.toml`` and ``measurements.csv`` in its units (the
+    robot's paths relative to ``folder``, :func:`~stiffness.files.written_path`)."""
     folder = Path(folder)
-    u = c.units
+    u, s = c.units, c.settings
     lines = ['kind = "poses"', f'name = "{c.name}"', "", "[robot]",
-             f'source = "{c.settings.source}"']
-    if c.settings.frame:
-        lines.append(f'frame = "{c.settings.frame}"')
-    if c.settings.compliant_joints:
+             f'source = "{written_source(s.source, folder, c.folder())}"']
+    if s.frame:
+        lines.append(f'frame = "{s.frame}"')
+    if np.any(s.target_offset_m != 0):
+        lines.append("target_offset = [" + ", ".join(
+            repr(float(v / u.length_to_si)) for v in s.target_offset_m) + "]")
+    if s.compliant_joints:
         lines.append("compliant_joints = [" + ", ".join(
-            f'"{j}"' for j in c.settings.compliant_joints) + "]")
+            f'"{j}"' for j in s.compliant_joints) + "]")
+    if s.loops is not None:
+        lines.append(f'loops = "{written_path(s.loops, folder, c.folder())}"')
+    if s.fixed_base:
+        lines.append("fixed_base = true")
     lines += ["", "[units]", f'angle = "{u.angle}"', f'force = "{u.force}"',
               f'length = "{u.length}"']
     if c.rotations is not None:

@@ -21,7 +21,6 @@ with its structure (per marker, per axis, along the row order).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -30,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 
 from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.fitting import check_loss
@@ -57,7 +55,8 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.validation import error_summary
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
-from stiffness.files import atomic_write, read_json
+from stiffness.files import atomic_write, written_source
+from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
 from stiffness.robot.robot import Robot, load_robot
 
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
@@ -68,8 +67,6 @@ BASE_FAMILIES = ("frame", "markers")
 CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys: MASSES
                         "link_compliance", "backlash", "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
-#: Model-file kind of a pose calibration.
-POSE_MODEL_KIND = "pose-calibration"
 
 
 @dataclass
@@ -392,12 +389,17 @@ def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaig
 # the pose model file
 
 
-def pose_model_dict(fit: PoseFit, campaign: PoseCampaign) -> dict:
-    """The model file of a pose calibration: robot, measuring frame, markers, parameters (SI)."""
-    s = campaign.settings
+def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathLike) -> dict:
+    """The model file of a pose calibration written into ``folder``: robot (its source relative
+    to ``folder``, :func:`~stiffness.files.written_source`), measuring frame, markers,
+    parameters (SI); read by :func:`~stiffness.robot.calibration.read_pose_calibration`."""
+    s, robot = campaign.settings, campaign.robot
     return {"kind": POSE_MODEL_KIND, "version": 1, "units": "SI",
-            "robot": {"source": s.source, "frame": s.frame,
-                      "compliant_joints": list(campaign.robot.compliant_joints)},
+            "robot": {"source": written_source(s.source, Path(folder), campaign.folder()),
+                      "frame": robot.target_frame,
+                      "target_offset_m": robot.target_offset.tolist(),
+                      "compliant_joints": list(robot.compliant_joints),
+                      **({"fixed_base": True} if s.fixed_base else {})},
             "measuring_frame": {"rotation": fit.model.rotation0.tolist(),
                                 "translation_m": fit.model.translation0.tolist()},
             "markers": [{"name": m.name, "frame": m.frame, "offset_m": list(map(float, m.offset))}
@@ -410,20 +412,9 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign) -> dict:
 
 def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike) -> Path:
     """Write the pose model file (JSON, atomically)."""
-    atomic_write(Path(path), json.dumps(pose_model_dict(fit, campaign), indent=1) + "\n")
-    return Path(path)
-
-
-def is_pose_model(path: str | os.PathLike) -> bool:
-    """Whether ``path`` is a pose calibration's model file (a JSON object of that kind).
-
-    Raises
-    ------
-    StiffnessError
-        The file is missing, unreadable or not JSON (named, whatever kind it was meant to be).
-    """
-    doc = read_json(path, "model file")
-    return isinstance(doc, dict) and doc.get("kind") == POSE_MODEL_KIND
+    path = Path(path)
+    atomic_write(path, json.dumps(pose_model_dict(fit, campaign, path.parent), indent=1) + "\n")
+    return path
 
 
 @dataclass
@@ -437,89 +428,28 @@ class PoseModelFile:
 
 
 def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> PoseModelFile:
-    """Read a pose model file written by :func:`write_pose_model`.
+    """Read a pose model file written by :func:`write_pose_model`
+    (:func:`~stiffness.robot.calibration.read_pose_calibration`) into its marker-position
+    model on the nominal robot (``robot``: default the one the file names).
 
     Raises
     ------
     FileFormatError
         Not a pose model file, or a missing or malformed key (named).
     """
-    path = Path(path)
-    doc = read_json(path, "model file")
-    if not isinstance(doc, dict) or doc.get("kind") != POSE_MODEL_KIND:
-        raise FileFormatError(f"not a pose model file (kind {POSE_MODEL_KIND!r}); give the "
-                              "final-model.json of a pose diagnosis", path=path)
+    cal = read_pose_calibration(path)
     try:
-        r = doc["robot"]
-        robot = robot or load_robot(r["source"], frame=r["frame"],
-                                    compliant_joints=tuple(r["compliant_joints"]))
-        markers = [Marker(m["name"], m["frame"], np.array(m["offset_m"], float))
-                   for m in doc["markers"]]
-        frame0 = (np.array(doc["measuring_frame"]["rotation"], float),
-                  np.array(doc["measuring_frame"]["translation_m"], float))
-        load = doc["load_frame"]
-        model = PoseModel(robot, markers, tuple(doc["families"]), frame0,
-                          None if load is None else Loads(load, np.zeros((0, 6))),
-                          doc.get("settings", {}))
-        values = {p["parameter"]: float(p["value"]) for p in doc["parameters"]}
+        robot = robot or load_robot(cal.source, frame=cal.frame, target_offset=cal.target_offset_m,
+                                    compliant_joints=cal.compliant_joints,
+                                    fixed_base=cal.fixed_base)
+        markers = [Marker(name, frame, offset) for name, frame, offset in cal.markers]
+        model = PoseModel(robot, markers, cal.families, (cal.rotation, cal.translation),
+                          None if cal.load_frame is None else Loads(cal.load_frame,
+                                                                    np.zeros((0, 6))),
+                          cal.settings)
+        values = cal.values()
         x = np.array([values[p.label] for p in model.parameters])
     except (KeyError, TypeError, ValueError) as exc:
         raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
-                              "stiffness diagnose --out", path=path) from exc
-    _check_numbers(path, x, model, markers, frame0)
-    return PoseModelFile(robot, model, x, path)
-
-
-def _check_numbers(path: Path, x: np.ndarray, model: PoseModel, markers: list[Marker],
-                   frame0: tuple[np.ndarray, np.ndarray]) -> None:
-    """Refuse a pose model file whose numbers are not finite or not of their shape: the
-    parameters, the marker offsets (3,) and the measuring frame (a 3x3 rotation, a 3-vector)."""
-    bad = [p.label for p, v in zip(model.parameters, x, strict=True) if not np.isfinite(v)]
-    bad += [f"marker {m.name} offset_m" for m in markers
-            if m.offset.shape != (3,) or not np.all(np.isfinite(m.offset))]
-    rotation, translation = frame0
-    if rotation.shape != (3, 3) or not np.all(np.isfinite(rotation)) or not np.allclose(
-            rotation.T @ rotation, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
-        bad.append("measuring_frame rotation (a 3x3 rotation matrix)")
-    if translation.shape != (3,) or not np.all(np.isfinite(translation)):
-        bad.append("measuring_frame translation_m")
-    if bad:
-        raise FileFormatError(f"pose model file: {bad[0]} is not a finite number of its shape; "
-                              "rewrite it with stiffness diagnose --out", path=path)
-
-
-#: Frame added by :func:`calibrated_robot` at the measuring system's origin.
-MEASURING_FRAME = "measuring_frame"
-
-
-def calibrated_robot(file: PoseModelFile) -> Robot:
-    """The robot with its calibrated geometry, for other tools (``robot export --urdf``).
-
-    The placement errors and the zero offsets are folded into the joint placements
-    (``M_j exp(eps_j) M_joint(delta_j)``, so the written joint values are the commanded ones),
-    each marker becomes a frame ``marker_<name>`` at its calibrated offset, and the measuring
-    system's origin a frame :data:`MEASURING_FRAME` fixed to the world. The rigid positions of
-    the marker frames seen from :data:`MEASURING_FRAME` are the model's rigid predictions.
-    Compliance is not geometry: it stays in the model file.
-    """
-    pm, x = file.model, file.x
-    model = pm.perturbed_model(x)
-    sl = pm.slices().get("joint_offsets")
-    if sl is not None:
-        step = np.zeros(model.nv)
-        step[[model.joints[j].idx_v for j in pm.joints]] = x[sl]
-        data = model.createData()
-        pin.forwardKinematics(model, data, pin.integrate(model, pin.neutral(model), step))
-        for j in pm.joints:
-            model.jointPlacements[j] = pin.SE3(data.liMi[j])
-    for k, marker in enumerate(pm.markers):
-        frame = model.frames[model.getFrameId(marker.frame)]
-        offset = pin.SE3(np.eye(3), pm.marker_offset(x, k))
-        model.addFrame(pin.Frame(f"marker_{marker.name}", frame.parentJoint,
-                                 model.getFrameId(marker.frame), frame.placement * offset,
-                                 pin.FrameType.OP_FRAME))
-    rot, trans = pm.measuring_placement(x)
-    model.addFrame(pin.Frame(MEASURING_FRAME, 0, 0, pin.SE3(rot, trans).inverse(),
-                             pin.FrameType.OP_FRAME))
-    return dataclasses.replace(file.robot, model=model, data=model.createData(),
-                               name=f"{file.robot.name}-calibrated")
+                              "stiffness diagnose --out", path=cal.path) from exc
+    return PoseModelFile(robot, model, x, cal.path)

@@ -23,16 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.pose_diagnose import calibrated_robot, is_pose_model, read_pose_model
 from stiffness.cli import flags
 from stiffness.elastic.model_file import read_model_file
 from stiffness.elastic.springs import model_springs
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write
 from stiffness.mechanics.defaults import default_stiffness
+from stiffness.robot.calibration import (
+    is_pose_calibration,
+    read_pose_calibration,
+    with_marker_frames,
+)
 from stiffness.robot.export import loops_yaml, robot_urdf
 from stiffness.robot.mjcf import check_mjcf, robot_mjcf
-from stiffness.robot.robot import Robot
+from stiffness.robot.robot import Robot, load_robot
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -92,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stiffness robot export``."""
     if args.urdf is None and args.mjcf is None:
         raise StiffnessError("robot export needs --urdf OUT.urdf or --mjcf OUT.xml (or both)")
-    if args.model is not None and is_pose_model(args.model):
+    if args.model is not None and is_pose_calibration(args.model):
         return _export_calibrated(args)
     model = read_model_file(args.model) if args.model is not None else None
     if model is not None and args.robot is not None:
@@ -120,7 +124,8 @@ def _export_calibrated(args: argparse.Namespace) -> int:
     if args.mjcf is not None or args.urdf is None:
         raise StiffnessError("a pose calibration's model file exports its calibrated geometry "
                              "with --urdf OUT.urdf (its compliance stays in the model file)")
-    robot = calibrated_robot(read_pose_model(args.model))
+    cal = read_pose_calibration(args.model)
+    robot = with_marker_frames(load_robot(args.model, **cal.robot_options()), cal)
     path = atomic_write(args.urdf, robot_urdf(robot))
     if not args.quiet:
         print(f"wrote {path} (calibrated geometry; frames marker_<name> and measuring_frame)")

@@ -15,19 +15,16 @@
      "noise": {"std_m", "source"},
      ...}
 
-Everything is SI (m, N, rad, N.m/rad, N/m); a parameter's ``unit`` names its unit; the older
-files (``format`` ``stiffness-identified-model``, ``-diagnosed-model``, version 1) still read.
+Everything is SI; a parameter's ``unit`` names its unit; the older files (``format``
+``stiffness-identified-model``, ``-diagnosed-model``, version 1) still read, and so does a pose
+calibration's ``final-model.json`` (its robot the calibrated robot, its elastic families the
+library's effects: :mod:`stiffness.elastic.calibrated`).
 
-Public API
-----------
-:func:`read_model_file` (path -> :class:`ModelFile`), :meth:`ModelFile.write`,
-:meth:`ModelFile.to_dict`, :meth:`ModelFile.check_robot` (refuses a model of another robot);
-:func:`load_model` (a file's path, a :class:`ModelFile` or a robot with springs -> the one
-:class:`stiffness.elastic.model.ElasticModel`; :func:`elastic_model_of` for a read file);
-:func:`fitted_deflection` (the fitted model's prediction, lost motion and, on request, the
-measurement effects included). Errors: :class:`ModelFileError` (a
-:class:`~stiffness.errors.FileFormatError`: unknown schema, missing or malformed key) and
-:class:`ModelRobotError` (another robot than the model's, or an effect on a joint it lacks).
+Public API: :func:`read_model_file` (path -> :class:`ModelFile`: ``write``, ``to_dict``,
+``check_robot``); :func:`load_model` (a file, a :class:`ModelFile` or a robot with springs ->
+the one :class:`stiffness.elastic.model.ElasticModel`; :func:`elastic_model_of` for a read
+file); :func:`fitted_deflection`. Errors: :class:`ModelFileError` (unknown schema, missing or
+malformed key), :class:`ModelRobotError` (another robot, an effect on a joint it lacks).
 ``CompliantModel``, ``ModelCompliance`` and ``model_compliance`` are deprecated names of
 :func:`elastic_model_of`, :class:`~stiffness.elastic.model.ElasticState` and
 ``load_model(path).at(q, load)``.
@@ -53,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stiffness.elastic.calibrated import calibrated_elastics
 from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import ElasticParts, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -76,8 +74,8 @@ from stiffness.files import (
 )
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import as_wrench
+from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration, robot_identity
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.robot.sources import robots_directory, shipped_robots
 from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
 
 #: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
@@ -171,14 +169,13 @@ class ModelFile:
     ----------
     source, frame, target_offset_m
         The robot and its measurement target (offset in m, frame axes). A URDF source is an
-        absolute path in memory (relative to the file's folder on disk).
+        absolute path in memory (relative to the file's folder on disk); a pose calibration's
+        is the file itself (the calibrated robot).
     loops, fixed_base
         The robot's loop declaration (a path, like ``source``) and whether its floating or
         planar base is fixed: how the robot is loaded (:meth:`robot_options`).
-    compliant_joints
-        The baseline's compliant joints.
-    k_theta, units
-        Their stiffness (N.m/rad or N/m) and unit names.
+    compliant_joints, k_theta, units
+        The baseline's compliant joints, their stiffness (N.m/rad or N/m) and unit names.
     standard_error, ci95_low, ci95_high
         Uncertainty of ``k_theta`` (NaN or inf where undetermined).
     formulation
@@ -187,16 +184,12 @@ class ModelFile:
         Effects added by a diagnosis (none for an identification).
     noise_std_m, noise_source
         Measurement noise std (m) and where it comes from, or ``None``.
-    campaign
-        Campaign name.
-    produced_by
-        ``identify`` or ``diagnose``.
+    campaign, produced_by
+        Campaign name; ``identify`` or ``diagnose``.
     undetermined_joints
         Joints whose stiffness the campaign could not determine.
-    extra
-        Further keys kept as written (e.g. ``residual_norm``).
-    path
-        The file read, or ``None``.
+    extra, path
+        Further keys kept as written (e.g. ``residual_norm``); the file read, or ``None``.
     """
 
     source: str
@@ -257,12 +250,8 @@ class ModelFile:
     def check_robot(self, source: str | os.PathLike) -> None:
         """Refuse the model when ``source`` names another robot than the model's.
 
-        Raises
-        ------
-        ModelRobotError
-            If ``source`` and the model's source are different robots.
-        """
-        if _robot_identity(str(source)) != _robot_identity(self.source):
+        Raises ``ModelRobotError`` if ``source`` and the model's are different robots."""
+        if robot_identity(str(source)) != robot_identity(self.source):
             where = f" {self.path}" if self.path is not None else ""
             raise ModelRobotError(
                 f"the model file{where} is of robot {self.source!r}, not {str(source)!r}; drop "
@@ -314,20 +303,6 @@ class ModelFile:
         text = json.dumps(self.to_dict(path.parent), indent=1, allow_nan=False)
         atomic_write(path, text + "\n")
         return path
-
-
-def _robot_identity(source: str) -> str:
-    """A comparable name of a robot source: a shipped robot's name (also for a path to a file
-    in its folder), a resolved path, or the example-robot-data name."""
-    if source in shipped_robots():
-        return source
-    if looks_like_path(source) or Path(source).exists():
-        path = Path(source).resolve()
-        for name in shipped_robots():
-            if path.parent == (robots_directory() / name).resolve():
-                return name
-        return str(path)
-    return source
 
 
 # ------------------------------------------------------------------------------------------
@@ -394,7 +369,9 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
         raise ModelFileError("not a model file (not a JSON object)", path=path)
     reader = _Reader(doc, path)
     schema = doc.get("schema")
-    if schema is not None:
+    if doc.get("kind") == POSE_MODEL_KIND:
+        model = _read_calibration(path)
+    elif schema is not None:
         name, _, version = str(schema).partition("/")
         if name != SCHEMA_NAME or version != str(SCHEMA_VERSION):
             raise ModelFileError(
@@ -415,11 +392,29 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
     return model
 
 
+def _read_calibration(path: Path) -> ModelFile:
+    """A pose calibration's file: the calibrated robot (the file is its robot source) with the
+    springs and effects of :func:`~stiffness.elastic.calibrated.calibrated_elastics`."""
+    cal = read_pose_calibration(path)
+    parts = calibrated_elastics(cal)
+    if parts.undetermined:
+        warnings.warn(f"{path}: the compliance of {', '.join(parts.undetermined)} is not "
+                      "determined by the calibration: held rigid", DataFileWarning, stacklevel=3)
+    k = parts.stiffness
+    value, se, low, high = np.array([[p.value, p.standard_error, *p.ci95] for p in k],
+                                    dtype=float).reshape(-1, 4).T
+    return ModelFile(
+        source=str(path.resolve()), frame=cal.frame or load_robot(str(path)).target_frame,
+        target_offset_m=cal.target_offset_m, compliant_joints=tuple(p.name for p in k),
+        k_theta=value, units=tuple(p.unit for p in k), formulation="exact", standard_error=se,
+        ci95_low=low, ci95_high=high, produced_by="diagnose", fixed_base=cal.fixed_base,
+        effects=tuple(ModelEffect(n, w, LIBRARY[n].kind, ps, st, "of the pose calibration")
+                      for n, w, ps, st in parts.effects))
+
+
 def _relative(path: str, relative_to: str | os.PathLike | None) -> str:
-    """``path`` relative to the folder ``relative_to`` (POSIX separators), or as given."""
-    if relative_to is None:
-        return path
-    return written_path(str(Path(path).resolve()), Path(relative_to))
+    """``path`` (absolute) as written into a file in the folder ``relative_to``, or as given."""
+    return path if relative_to is None else written_path(path, Path(relative_to))
 
 
 def _robot_options(r: _Reader) -> dict:
@@ -639,6 +634,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         An effect names a joint the robot does not have.
     """
     where = f"{model.path}: " if model.path is not None else ""
+    if not model.compliant_joints:
+        raise StiffnessError(f"{where}no spring: a calibration of geometry only (or --masses "
+                             "unknown); diagnose it with --masses known for the stiffness")
     parts = ElasticParts(dict(zip(model.compliant_joints, model.k_theta, strict=True)),
                          keep_target=frame is None and target_offset is None)
     applied, not_applied = [], []

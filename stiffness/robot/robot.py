@@ -35,6 +35,7 @@ from stiffness.errors import (
 )
 from stiffness.robot import kinematics
 from stiffness.robot.assembly import Assembly, least_squares_assembly
+from stiffness.robot.calibration import calibrated_source, is_json
 from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
 from stiffness.robot.loops import (
     CLOSURE_TOLERANCE_M,
@@ -612,7 +613,8 @@ def load_robot(
         A shipped robot name (``"sk120"``), a path to a URDF (a ``<name>.loops.yaml``,
         ``<name>.yaml`` or ``robot.yaml`` beside it declares its loops), a ``robot.toml`` (or
         its folder: a URDF's settings, or a DH table and controller coordinates,
-        docs/robot-files.md), or an example-robot-data name (``"ur5"``, ``"panda"``, ...).
+        docs/robot-files.md), an example-robot-data name (``"ur5"``, ...), or a pose
+        calibration's ``final-model.json`` (:mod:`stiffness.robot.calibration`).
     frame
         Frame carrying the measurement target; default: the shipped robot's target frame, else
         the tip frame of the longest chain of moving joints (:mod:`stiffness.robot.targets`).
@@ -633,7 +635,7 @@ def load_robot(
         unknown frame or joint, unsupported joint type, floating base without ``fixed_base``
         (:class:`~stiffness.errors.FloatingBaseError`).
     """
-    src = resolve_source(source)
+    src = calibrated_source(source) if is_json(source) else resolve_source(source)
     name, settings = src.name, src.settings
     declaration = loop_declaration(src, loops)
     model, visual, visual_loader, notes = _edited_model(src, declaration, fixed_base)

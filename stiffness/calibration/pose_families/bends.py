@@ -37,6 +37,7 @@ from stiffness.calibration.pose_families.base import (
     PoseLayout,
     RowTerms,
 )
+from stiffness.elastic.calibrated import bend_label
 from stiffness.elastic.effects.geometry import MIN_SEGMENT_M, link_axes
 
 
@@ -90,7 +91,7 @@ class LinkCompliancePose(PoseFamily):
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
         names = pm.robot.model.names
-        return [self.param(f"{names[link.a]}->{names[link.b]} compliance {i}", "rad/(N.m)")
+        return [self.param(bend_label(names[link.a], names[link.b], i), "rad/(N.m)")
                 for link in self.links(pm) for i in (1, 2)]
 
     @staticmethod

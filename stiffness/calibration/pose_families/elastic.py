@@ -21,6 +21,12 @@ from stiffness.calibration.pose_families.base import (
     PoseLayout,
     SagState,
 )
+from stiffness.elastic.calibrated import (
+    BACKLASH_SETTING,
+    backlash_label,
+    compensator_label,
+    compliance_label,
+)
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING
 from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.errors import StiffnessError
@@ -42,7 +48,7 @@ class JointCompliancePose(JointDeflectionFamily):
     name: ClassVar[str] = "joint_compliance"
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
-        return [self.param(f"{n} compliance",
+        return [self.param(compliance_label(n),
                            "m/N" if pm.robot.is_prismatic(n) else "rad/(N.m)")
                 for n in pm.springs]
 
@@ -117,13 +123,13 @@ class BacklashPose(JointDeflectionFamily):
     scale: ClassVar[float] = 1e-4
     needs_masses: ClassVar[bool] = True
     #: the model setting naming each compliant joint's smoothing torque (N.m or N)
-    SETTING: ClassVar[str] = "backlash_smoothing_torque"
+    SETTING: ClassVar[str] = BACKLASH_SETTING
     #: RMS torque, relative to the largest joint's, below which a joint carries none
     NIL_TORQUE: ClassVar[float] = 1e-6
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
         names = pm.robot.model.names
-        return [self.param(f"{names[j]} backlash", pm.joint_unit(j, "rad", "m"))
+        return [self.param(backlash_label(names[j]), pm.joint_unit(j, "rad", "m"))
                 for j, _, _ in self._joints(pm)]
 
     @classmethod
@@ -217,7 +223,7 @@ class CompensatorPose(JointDeflectionFamily):
         return self._springs
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
-        return [Parameter(self.name, f"{spring.joint_name} compensator {what}", size, unit)
+        return [Parameter(self.name, compensator_label(spring.joint_name, what), size, unit)
                 for _, spring in self._joints(pm)
                 for what, size, unit in zip(("stiffness", "preload"), self.SIZES, ("N/m", "N"),
                                             strict=True)]

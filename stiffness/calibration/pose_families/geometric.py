@@ -20,11 +20,15 @@ from stiffness.calibration.pose_families.base import (
     RowTerms,
 )
 from stiffness.elastic.effects.geometry import skew
-
-#: Units of the six components of a placement (the frame's and the geometry's).
-PLACEMENT_UNITS = ("m", "m", "m", "rad", "rad", "rad")
-#: Names of the six components of a placement.
-PLACEMENT_AXES = ("x", "y", "z", "rx", "ry", "rz")
+from stiffness.robot.calibration import (
+    PLACEMENT_AXES,
+    PLACEMENT_UNITS,
+    frame_label,
+    marker_label,
+    perturbed_placement,
+    placement_label,
+    zero_label,
+)
 
 
 class MeasuringFrame(PoseFamily):
@@ -34,7 +38,7 @@ class MeasuringFrame(PoseFamily):
     name: ClassVar[str] = "frame"
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
-        return [self.param(f"frame {a}", u)
+        return [self.param(frame_label(a), u)
                 for a, u in zip(PLACEMENT_AXES, PLACEMENT_UNITS, strict=True)]
 
     @staticmethod
@@ -59,7 +63,7 @@ class MarkerOffsets(PoseFamily):
     name: ClassVar[str] = "markers"
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
-        return [self.param(f"{m.name} offset {a}", "m") for m in pm.markers for a in "xyz"]
+        return [self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         cols = np.zeros((3, x_f.size))
@@ -75,7 +79,8 @@ class JointOffsets(PoseFamily):
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
         names = pm.robot.model.names
-        return [self.param(f"{names[j]} zero", pm.joint_unit(j, "rad", "m")) for j in pm.joints]
+        return [self.param(zero_label(names[j]), pm.joint_unit(j, "rad", "m"))
+                for j in pm.joints]
 
     def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray:
         out = np.zeros(pm.robot.model.nv)
@@ -94,7 +99,7 @@ class JointGeometry(PoseFamily):
 
     def parameters(self, pm: PoseLayout) -> list[Parameter]:
         names = pm.robot.model.names
-        return [self.param(f"{names[pm.joints[n]]} placement {PLACEMENT_AXES[c]}",
+        return [self.param(placement_label(names[pm.joints[n]], PLACEMENT_AXES[c]),
                            PLACEMENT_UNITS[c]) for n, c in pm.geometry]
 
     def placement_errors(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray:
@@ -106,7 +111,7 @@ class JointGeometry(PoseFamily):
 
     def perturb_model(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model) -> None:
         for j, e in zip(pm.joints, self.placement_errors(pm, x_f), strict=True):
-            model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(e))
+            model.jointPlacements[j] = perturbed_placement(model.jointPlacements[j], e)
 
     def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
                          ) -> np.ndarray | None:

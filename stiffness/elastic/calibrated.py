@@ -1,0 +1,157 @@
+"""The elastic part of a pose calibration: its springs and effects, as a model file holds them.
+
+A pose calibration's ``final-model.json`` (:mod:`stiffness.robot.calibration`) is a model
+file like the others (:func:`stiffness.elastic.model_file.read_model_file`): its robot is the
+calibrated robot (the file itself as a robot source), and its elastic families become the
+deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose names they carry:
+
+``joint_compliance``
+    each spring's compliance ``c`` (rad/(N.m), m/N) becomes its stiffness ``1/c`` (standard
+    error ``s_c / c^2``, 95 % interval ``[1/c_high, 1/c_low]``); a spring the campaign did not
+    determine (not fitted, or ``c <= 0``) is held rigid and listed as undetermined;
+``gravity_preload``
+    with the masses known the springs carried the robot's weight in the calibration, so the
+    weight preloads them (no payload);
+``backlash``, ``link_compliance``, ``gravity_compensator``
+    the same effects, with the calibration's smoothing torques, ``1/c`` bend stiffnesses (a bend
+    off the target's chain does not act on it), and the compensator's default geometry with its
+    angle from the link's upward direction, as the calibration used them.
+
+``gravity_lumped`` (masses unknown) is compliance times unknown masses: no stiffness, so a
+calibration with it (and no ``joint_compliance``) has no springs. Units: SI.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.effects.preloads import GravityCompensator
+from stiffness.robot.calibration import PoseCalibration
+from stiffness.robot.robot import load_robot
+
+
+def compliance_label(joint: str) -> str:
+    """Label of a spring's compliance in a pose calibration."""
+    return f"{joint} compliance"
+
+
+def backlash_label(joint: str) -> str:
+    """Label of a joint's backlash half-width."""
+    return f"{joint} backlash"
+
+
+def compensator_label(joint: str, what: str) -> str:
+    """Label of a compensator's ``stiffness`` or ``preload`` on ``joint``."""
+    return f"{joint} compensator {what}"
+
+
+def bend_label(a: str, b: str, axis: int) -> str:
+    """Label of the compliance of link ``a -> b`` about its axis ``axis`` (1 or 2)."""
+    return f"{a}->{b} compliance {axis}"
+
+
+#: Setting of the backlash family: joint -> smoothing torque (N.m, N).
+BACKLASH_SETTING = "backlash_smoothing_torque"
+
+
+@dataclass
+class CalibratedElastics:
+    """The springs and effects of a pose calibration (SI).
+
+    Attributes
+    ----------
+    stiffness
+        One :class:`Parameter` per determined spring (named by its joint), N.m/rad or N/m.
+    effects
+        ``(name, where, parameters, settings)`` of each library effect.
+    undetermined
+        Springs the calibration did not determine, held rigid.
+    """
+
+    stiffness: list[Parameter] = field(default_factory=list)
+    effects: list[tuple[str, str | None, list[Parameter], dict]] = field(default_factory=list)
+    undetermined: list[str] = field(default_factory=list)
+
+
+def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
+    """The springs and effects of the calibration ``cal`` (module docstring)."""
+    rows = {p["parameter"]: p for p in cal.parameters}
+    out = CalibratedElastics()
+    if "joint_compliance" not in cal.families:
+        return out
+    for joint in cal.compliant_joints:
+        row = rows.get(compliance_label(joint))
+        unit = "N/m" if row is not None and row.get("unit") == "m/N" else "N.m/rad"
+        k = None if row is None else _inverse(row, joint, unit)
+        if k is None:
+            out.undetermined.append(joint)
+        else:
+            out.stiffness.append(k)
+    springs = {p.name for p in out.stiffness}
+    if "gravity_lumped" not in cal.families:
+        out.effects.append(("gravity_preload", None, [
+            Parameter(n, 0.0, 0.0, (0.0, 0.0), u)
+            for n, u in zip(("mass", "com_x", "com_y", "com_z"), ("kg", "m", "m", "m"),
+                            strict=True)], {}))
+    smoothing = cal.settings.get(BACKLASH_SETTING, {})
+    for joint in springs & set(smoothing):
+        row = rows.get(backlash_label(joint))
+        if row is not None:
+            out.effects.append(("backlash", joint, [_as_is(row, "half_width")],
+                                {"smoothing_torque": float(smoothing[joint])}))
+    if "gravity_compensator" in cal.families or "link_compliance" in cal.families:
+        _geometry_effects(cal, rows, springs, out)
+    return out
+
+
+def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[str],
+                      out: CalibratedElastics) -> None:
+    """The compensators (their geometry as the calibration built it, on the nominal robot) and
+    the link bends of the target's chain."""
+    nominal = load_robot(cal.source, frame=cal.frame, target_offset=cal.target_offset_m,
+                         compliant_joints=cal.compliant_joints, fixed_base=cal.fixed_base)
+    geometry = Geometry.of(nominal)
+    compensated = springs if "gravity_compensator" in cal.families else set()
+    for joint in sorted(compensated, key=list(cal.compliant_joints).index):
+        stiff, tension = (rows.get(compensator_label(joint, w)) for w in ("stiffness", "preload"))
+        spring = make_effect("gravity_compensator", joint, geometry)
+        if stiff is not None and tension is not None and isinstance(spring, GravityCompensator):
+            out.effects.append(("gravity_compensator", joint,
+                                [_as_is(stiff, "stiffness"), _as_is(tension, "preload")],
+                                spring.settings))
+    for a, b in geometry.link_columns:
+        pair = [row for row in (rows.get(bend_label(a, b, i)) for i in (1, 2)) if row]
+        if len(pair) < 2:
+            continue
+        k = [_inverse(row, f"stiffness_{i + 1}", "N.m/rad") for i, row in enumerate(pair)]
+        if any(v is not None for v in k):
+            out.effects.append(("link_compliance", f"{a}->{b}", [
+                v or Parameter(f"stiffness_{i + 1}", math.inf, math.nan, (math.nan, math.nan),
+                               "N.m/rad") for i, v in enumerate(k)], {}))
+
+
+def _inverse(row: dict, name: str, unit: str) -> Parameter | None:
+    """The stiffness ``1/c`` of a fitted compliance row (delta method), or ``None`` when the
+    calibration did not fit it or found it not positive."""
+    c = float(row["value"])
+    if not row.get("fitted", True) or not c > 0:
+        return None
+    std = row.get("std")
+    low, high = row.get("interval_95") or (math.nan, math.nan)
+    se = math.nan if std is None else float(std) / c ** 2
+    ci = (1.0 / high if high is not None and high > 0 else math.nan,
+          1.0 / low if low is not None and low > 0 else math.inf)
+    return Parameter(name, 1.0 / c, se, ci, unit)
+
+
+def _as_is(row: dict, name: str) -> Parameter:
+    """A fitted row's value, standard deviation and interval as a library parameter."""
+    std = row.get("std")
+    low, high = row.get("interval_95") or (None, None)
+    return Parameter(name, float(row["value"]), math.nan if std is None else float(std),
+                     (math.nan if low is None else float(low),
+                      math.nan if high is None else float(high)), str(row.get("unit", "SI")))
