@@ -613,8 +613,7 @@ def load_robot(
         A shipped robot name (``"sk120"``), a path to a URDF (a ``<name>.loops.yaml``,
         ``<name>.yaml`` or ``robot.yaml`` beside it declares its loops), a ``robot.toml`` (or
         its folder: a URDF's settings, or a DH table and controller coordinates,
-        docs/robot-files.md), an example-robot-data name (``"ur5"``, ...), or a pose
-        calibration's ``final-model.json`` (:mod:`stiffness.robot.calibration`).
+        docs/robot-files.md), an example-robot-data name (``"ur5"``) or a pose calibration.
     frame
         Frame carrying the measurement target; default: the shipped robot's target frame, else
         the tip frame of the longest chain of moving joints (:mod:`stiffness.robot.targets`).
