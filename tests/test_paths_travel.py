@@ -5,7 +5,6 @@ moves (both campaign kinds, the deflection and the pose model files)."""
 from __future__ import annotations
 
 import shutil
-import tomllib
 
 import numpy as np
 import pinocchio as pin
@@ -17,6 +16,7 @@ from stiffness.calibration.pose_diagnose import read_pose_model, write_pose_mode
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.cli.main import main
 from stiffness.elastic.model_file import read_model_file
+from stiffness.files import read_toml
 from stiffness.robot.robot import load_robot
 from stiffness.robot.sources import robots_directory
 
@@ -48,7 +48,7 @@ def test_pose_campaign_and_model_travel(tmp_path, monkeypatch, capsys):
     assert main(["campaign", "import", "rig.csv", "--kind", "poses", "--robot",
                  "rel/robot.toml", "--marker", "tip=right_tcp", "--units", "angle=rad,length=m",
                  "--out", "deep/dir"]) == 0
-    written = tomllib.loads((project / "deep" / "dir" / "campaign.toml").read_text())
+    written = read_toml(project / "deep" / "dir" / "campaign.toml")
     assert written["robot"]["source"] == "../../rel/robot.toml"
     monkeypatch.chdir(tmp_path)  # another working directory: diagnose finds the robot
     campaign = load_pose_campaign(project / "deep" / "dir")
