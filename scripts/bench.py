@@ -40,6 +40,15 @@ Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
 * ``diagnose_200_rows_s``, ``identify_exact_200_rows_s``, ``report_s``, ``import_s``: new
   processes, imports included (``import_s`` over a bare interpreter);
   ``diagnose_200_rows_with_effects_s``: ``diagnose`` on a campaign with hidden effects;
+* the real-time compensator (issue 39; ``--compensator`` runs these alone), on the UR5 and the
+  Panda's arm with the links' weight, a 3 kg payload, a softening spring and a backlash, over
+  256 poses and a 6-component wrench, against one bare ``pin.forwardKinematics`` +
+  ``pin.computeFrameJacobian`` per pose in the same interleaved rounds:
+  ``compensator_over_fk_jacobian`` (UR5, one ``command`` per pose, target <= 10),
+  ``compensator_panda_over_fk_jacobian`` (<= 10), ``compensator_path_over_fk_jacobian``
+  (UR5, ``command_path`` per pose, <= 3) and ``compensator_path_panda_over_fk_jacobian``;
+  the times ``compensator_ur5_us``, ``compensator_panda_us``, ``compensator_path_*_us``,
+  ``fk_jacobian_*_us``;
 * ``load_average``: ``os.getloadavg()`` before and after (the machine is shared);
   ``python_yardstick_s``: a fixed pure-Python loop (2e6 additions, best of three), the
   machine's speed for interpreted code in this run (the commands' times above are mostly
@@ -205,6 +214,66 @@ def per_configuration(quick: bool) -> dict[str, dict[str, float]]:
         result["ratio_to_bare"] = result["batched_kx_us"] / result["bare_pinocchio_us"]
         result["speedup_over_fd"] = result["finite_difference_us"] / result["batched_kx_us"]
         out[name] = result
+    return out
+
+
+def _compensated_models() -> dict:
+    """name -> (elastic model, wanted coordinates (m, n)) of the compensator benchmark: the
+    UR5 and the Panda's arm with their links' weight, a payload, a softening spring and a
+    backlash (the closed form with every preload and a nonlinear law)."""
+    from stiffness.elastic.effects.base import ElasticParts
+    from stiffness.elastic.model import ElasticModel
+
+    out = {}
+    for name, (robot, k_theta) in _robots().items():
+        if not robot.loop.is_open_chain:
+            continue
+        joints = robot.compliant_joints
+        parts = ElasticParts(dict(zip(joints, k_theta, strict=True)),
+                             beta={joints[1]: 1e-4}, backlash={joints[2]: 3e-4},
+                             smoothing={joints[2]: 2.0})
+        parts.weigh(3.0, np.zeros(3))
+        coords, _ = _configurations(robot, 256, seed=2)
+        out[name] = (ElasticModel.of_parts(robot, parts), coords)
+    return out
+
+
+def compensator_costs(rounds: int) -> dict[str, float]:
+    """The real-time compensator (issue 39) against one bare Pinocchio forward kinematics and
+    frame Jacobian per pose (``pin.forwardKinematics`` + ``pin.computeFrameJacobian``), in
+    interleaved rounds over the same 256 poses (best round): ``command`` per pose, and
+    ``command_path`` over the whole path per pose (us and ratios)."""
+    out = {}
+    wrench = np.array([120.0, -80.0, -250.0, 3.0, -2.0, 1.0])
+    for name, (em, coords) in _compensated_models().items():
+        robot = em.robot
+        model, data, fid = robot.model, robot.model.createData(), robot.target_frame_id
+        qs = [robot.configuration(c) for c in coords]
+        comp = em.compensator()
+        command_out = np.empty(robot.n_coordinates)
+
+        def bare(model=model, data=data, fid=fid, qs=qs):
+            for q in qs:
+                pin.forwardKinematics(model, data, q)
+                pin.computeFrameJacobian(model, data, q, fid, LWA)
+
+        def single(comp=comp, coords=coords, out=command_out):
+            for c in coords:
+                comp.command(c, wrench, out=out)
+
+        def path(comp=comp, coords=coords):
+            comp.command_path(coords, wrench)
+
+        m = len(coords)
+        best = _best({"bare": bare, "single": single, "path": path},
+                     {"bare": m, "single": m, "path": m}, rounds)
+        out[f"compensator_{name}_us"] = best["single"]
+        out[f"compensator_path_{name}_us"] = best["path"]
+        out[f"fk_jacobian_{name}_us"] = best["bare"]
+        out[f"compensator_{name}_over_fk_jacobian"] = best["single"] / best["bare"]
+        out[f"compensator_path_{name}_over_fk_jacobian"] = best["path"] / best["bare"]
+    out["compensator_over_fk_jacobian"] = out.pop("compensator_ur5_over_fk_jacobian")
+    out["compensator_path_over_fk_jacobian"] = out.pop("compensator_path_ur5_over_fk_jacobian")
     return out
 
 
@@ -581,6 +650,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print one JSON line")
     parser.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
+    parser.add_argument("--compensator", action="store_true",
+                        help="only the compensator's figures (one JSON line)")
     parser.add_argument("--plot", metavar="PNG",
                         help="only draw scan time against configurations (1e3 ... 1e7, in "
                              "process and two workers) into PNG")
@@ -592,6 +663,12 @@ def main(argv: list[str] | None = None) -> int:
         draw_scan_time(scan_time_rows(sizes), Path(args.plot))
         return 0
     load_before = os.getloadavg()
+    compensator = compensator_costs(5 if args.quick else 15)
+    if args.compensator:
+        compensator["load_average"] = {"before": list(load_before),
+                                       "after": list(os.getloadavg())}
+        print(json.dumps(compensator))
+        return 0
     costs = per_configuration(args.quick)
     t4 = table4_seconds(2 if args.quick else 3)
     samples = 50000 if args.quick else 400000
@@ -607,6 +684,7 @@ def main(argv: list[str] | None = None) -> int:
         out.update({k: v for k, v in dask.items() if k.startswith("dask_")})
         out["dask"] = dask
         out.update(commands)
+        out.update(compensator)
         out["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
         out["python_yardstick_s"] = python_yardstick_s()
         print(json.dumps(out))
@@ -628,6 +706,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{dask['task_overhead_s']}, chunk {dask['chunk_seconds']} s, "
           f"{dask['chunks_per_task']} chunks per task")
     print("Commands: " + ", ".join(f"{k} {v:.2f}" for k, v in commands.items()))
+    print("Compensator: " + ", ".join(f"{k} {v:.2f}" for k, v in compensator.items()))
     print(f"load average before/after: {load_before} / {os.getloadavg()}")
     if args.no_scaling:
         return 0

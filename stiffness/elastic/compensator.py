@@ -170,21 +170,25 @@ class Compensator:
         self.loaded: Loaded | None = None
         n, nc = robot.n_coordinates, robot.n_compliant
         law = model.compliant_law()
-        self._c, self._s = law.compliance.copy(), law.smoothing.copy()
-        self._cb, self._b = law.compliance * law.beta, law.backlash.copy()
-        self._nonlinear = not law.linear
         springs = np.eye(len(robot.spring_joints))[:, robot.compliant_in_springs]
         # coordinate motion per compliant joint's deflection (through a coupling's A)
-        self._select = np.column_stack([robot.coordinate_motion(e) for e in springs.T])
+        select = np.column_stack([robot.coordinate_motion(e) for e in springs.T])
+        # the law c tau + c beta tau |tau| + b tanh(tau / s) as one map of the stacked terms
+        # [tau, tau |tau|, tanh(tau / s)] (those present) to the coordinates' motion
+        self._softening, self._backlash = bool(np.any(law.beta)), bool(np.any(law.backlash))
+        blocks = [law.compliance] + [law.compliance * law.beta] * self._softening + [
+            law.backlash] * self._backlash
+        self._map = np.hstack([select * b for b in blocks])  # (n, k nc)
+        self._inverse_s = 1.0 / law.smoothing
+        self._stack = np.zeros(len(blocks) * nc)
+        self._views = self._split(self._stack, nc)  # (tau, tau |tau|, tanh(tau / s)) or None
         self._comp = [(robot.spring_joints.index(j), robot.compliant_joints.index(j), k, f, g)
                       for j, k, f, g in model.compensators]  # (spring joint, column, ...)
         self._wrench = np.zeros(6)
-        self._tau, self._dtheta = np.zeros(nc), np.zeros(nc)
-        self._work = (np.zeros(nc), np.zeros(nc))
         self._shift, self._out = np.zeros(n), np.zeros(n)
         self._q_prev: np.ndarray | None = None
-        self._every_coordinate = np.array_equal(self._select, np.eye(n))
         self._correction = np.zeros(n)
+        self._select = select
         if self.fast:
             self._setup_fast()
 
@@ -212,12 +216,14 @@ class Compensator:
         self._two = (np.array([i for i, _, _ in two], dtype=int),
                      np.array([r for _, r, _ in two]).reshape(len(two), n),
                      np.array([o for _, _, o in two]))
-        self._direct = (len(two) == 0 and len(one) == model.nq == n
-                        and np.array_equal(self._one[0], np.arange(n))
-                        and np.array_equal(self._one[1], np.eye(n))
-                        and not np.any(self._one[2]))
+        # every configuration entry a linear map of the coordinates: one product
+        self._linear = len(two) == 0 and len(one) == model.nq and not np.any(self._one[2])
+        self._q_map = np.zeros((model.nq, n))
+        if self._linear:
+            self._q_map[self._one[0]] = self._one[1]
+        self._direct = self._linear and np.array_equal(self._q_map, np.eye(n))
         self._angles1, self._angles2 = np.zeros(len(one)), np.zeros(len(two))
-        # every joint rate a compliant rate, in order (no BLAS call for the projection)
+        # every joint rate a compliant rate, in order (no product for the projection)
         self._every_rate = np.array_equal(self._projection, np.eye(model.nv))
 
     def _joint_map(self) -> tuple[list[tuple[str, np.ndarray]], list[float]]:
@@ -301,20 +307,25 @@ class Compensator:
             return np.array([self.command(row, wi) for row, wi in zip(path, w, strict=True)])
         model, data, fid = self.model.robot.model, self._data, self._fid
         qs = self._configurations(path)
-        gen = np.empty((m, model.nv))
+        jacobians = np.empty((m, 6, model.nv))
         frame_jacobian = pin.computeFrameJacobian
         lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        for i in range(m):
-            np.dot(w[i], frame_jacobian(model, data, qs[i], fid, lwa), out=gen[i])
+        for i, q in enumerate(qs):
+            jacobians[i] = frame_jacobian(model, data, q, fid, lwa)
+        gen = np.einsum("ik,ikv->iv", w, jacobians)
         if self._weighed is not None:
             weighed, wdata = self._weighed
             gravity = pin.computeGeneralizedGravity
-            for i in range(m):
-                gen[i] -= gravity(weighed, wdata, qs[i])
-        tau = gen @ self._projection
-        self._add_compensators(path, tau)
-        return path - self._law(tau, np.empty_like(tau), (np.empty_like(tau),
-                                                          np.empty_like(tau))) @ self._select.T
+            weights = np.empty((m, model.nv))
+            for i, q in enumerate(qs):
+                weights[i] = gravity(weighed, wdata, q)
+            gen -= weights
+        nc = self.model.robot.n_compliant
+        stack = np.empty((m, self._stack.shape[0]))
+        stack[:, :nc] = gen @ self._projection
+        self._add_compensators(path, stack[:, :nc])
+        self._terms(self._split(stack, nc))
+        return path - stack @ self._map.T
 
     # ------------------------------------------------------------------------------------
     # the fast path
@@ -324,7 +335,7 @@ class Compensator:
         q = self._configuration(u)
         jac = pin.computeFrameJacobian(model, self._data, q, self._fid,
                                        pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        tau = self._tau
+        tau = self._views[0]
         gen = tau if self._every_rate else self._generalised  # J^T W over the joint rates
         np.dot(w, jac, out=gen)
         if self._weighed is not None:
@@ -333,12 +344,27 @@ class Compensator:
             np.dot(gen, self._projection, out=tau)
         if self._comp:
             self._add_compensators(u, tau)
-        self._law(tau, self._dtheta, self._work)
-        if self._every_coordinate:
-            np.subtract(u, self._dtheta, out=out)
-        else:
-            np.dot(self._select, self._dtheta, out=self._shift)
-            np.subtract(u, self._shift, out=out)
+        self._terms(self._views)
+        np.dot(self._map, self._stack, out=self._shift)
+        np.subtract(u, self._shift, out=out)
+
+    def _split(self, stack: np.ndarray, nc: int) -> tuple:
+        """Views ``(tau, tau |tau|, tanh(tau / s))`` of ``stack`` (..., k nc) (``None`` for a
+        term the law does not have)."""
+        blocks = iter(range(nc, stack.shape[-1], nc))
+        square = stack[..., next(blocks):][..., :nc] if self._softening else None
+        smooth = stack[..., next(blocks):][..., :nc] if self._backlash else None
+        return stack[..., :nc], square, smooth
+
+    def _terms(self, views: tuple) -> None:
+        """Fill the law's nonlinear terms from the torques (views of :meth:`_split`)."""
+        tau, square, smooth = views
+        if square is not None:
+            np.abs(tau, out=square)
+            square *= tau
+        if smooth is not None:
+            np.multiply(tau, self._inverse_s, out=smooth)
+            np.tanh(smooth, out=smooth)
 
     def _configuration(self, u: np.ndarray) -> np.ndarray:
         """The full configuration of coordinates ``u`` (open chain), into the compensator's
@@ -347,6 +373,8 @@ class Compensator:
         if self._direct:
             np.copyto(q, u)
             return q
+        if self._linear:
+            return np.dot(self._q_map, u, out=q)
         idx, rows, offsets = self._one
         if idx.size:
             np.dot(rows, u, out=self._angles1)
@@ -382,25 +410,6 @@ class Compensator:
         values = self.model.robot.spring_command(u)
         for i, column, k_s, f0, geometry in self._comp:
             tau[..., column] += compensator_torque(values[..., i], k_s, f0, geometry)[0]
-
-    def _law(self, tau: np.ndarray, out: np.ndarray,
-             work: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """The joint law's deflection ``c tau (1 + beta |tau|) + b tanh(tau / s)`` of torques
-        ``tau`` (..., nc) into ``out``, with two work arrays shaped like ``tau``
-        (:class:`stiffness.mechanics.equilibrium.SpringLaw`, computed in place)."""
-        if not self._nonlinear:
-            return np.multiply(self._c, tau, out=out)
-        a, t = work
-        np.multiply(self._cb, tau, out=out)
-        np.abs(tau, out=a)
-        out *= a
-        np.divide(tau, self._s, out=t)
-        np.tanh(t, out=t)
-        t *= self._b
-        out += t
-        np.multiply(self._c, tau, out=a)
-        out += a
-        return out
 
     # ------------------------------------------------------------------------------------
     # closed loops, link bends
