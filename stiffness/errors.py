@@ -231,3 +231,13 @@ class DataFileWarning(UserWarning):
     """Something in a campaign, plan, path or model file that is read, but may not be what the
     user meant: a plan that declares no units, coordinates beyond the joint limits, a model
     stiffness marked undetermined."""
+
+
+class DataFileNote(DataFileWarning):
+    """What reading a campaign did that the user should hear once, though nothing is wrong:
+    coordinates without a column held at fixed or reference values."""
+
+
+class UnknownColumnWarning(DataFileWarning):
+    """Campaign CSV columns no reader knows (a rig's bookkeeping), ignored; the command line's
+    ``--strict`` refuses them."""

@@ -161,8 +161,8 @@ def test_rows_beyond_the_joint_limits_warn_once_naming_the_first(ur5, tmp_path):
     """Degrees read as radians: every row but the zero one is beyond +-2 pi."""
     _, caught = read(tmp_path, plan_text("# units: angle=rad force=N length=mm"), ur5)
     assert len(caught) == 1, caught
-    assert ("2 of 2 rows have coordinates beyond ur5's joint limits (first: line 3, q1 = "
-            "-25.09 rad, limits [-6.28319, 6.28319] rad)") in caught[0]
+    assert ("2 of 2 rows have coordinates beyond ur5's joint limits (first: line 3, q1 "
+            "(shoulder_pan_joint) = -25.09 rad, limits [-6.28319, 6.28319] rad)") in caught[0]
     _, caught = read(tmp_path, plan_text("# units: angle=deg force=N length=mm"), ur5)
     assert caught == []
 
@@ -171,8 +171,8 @@ def test_campaign_rows_beyond_the_elbow_limit_warn(tmp_path):
     folder = _campaign(tmp_path, "# a campaign")
     text = (folder / "measurements.csv").read_text().replace(",80.0,", ",190.0,")
     (folder / "measurements.csv").write_text(text)
-    with pytest.warns(DataFileWarning, match=r"1 of 2 rows .* \(first: line 4, q3 = 190 deg, "
-                      r"limits \[-180, 180\] deg\)"):
+    with pytest.warns(DataFileWarning, match=r"1 of 2 rows .* \(first: line 4, q3 "
+                      r"\(elbow_joint\) = 190 deg, limits \[-180, 180\] deg\)"):
         load_campaign(folder)
 
 

@@ -15,6 +15,8 @@ simulate``)::
     loops = "robot.yaml"               # loop declaration, relative to this file (optional)
     fixed_base = false                 # fix a floating or planar base (optional)
     joint_angles = "motor"             # motor | link: what the recorded angles are (optional)
+    fixed = { head_1_joint = 0.0 }     # coordinates without a CSV column, in the [units]
+                                       # angle (length for prismatic joints) (optional)
     [units]
     angle = "deg"                      # deg | rad
     force = "N"                        # N | kN
@@ -39,15 +41,22 @@ keys are errors (a misspelt ``noise_std`` would otherwise be silently ignored).
 The CSV has a header and the columns ``config,q1,...,qn,fx,fy,fz,dx,dy,dz``: a configuration
 label, the robot's coordinates in its coordinate order (``Robot.coordinate_joints``; angles in
 the angle unit, prismatic joints in the length unit), the force applied at the target and the
-measured displacement of the target from its unloaded position. The optional groups
-``mx,my,mz`` (applied moment, in the ``[units] moment`` unit, default force unit x length
-unit) and ``rx,ry,rz`` (measured small rotation vector of the target frame's deflection, base
-axes, in the ``[units] rotation`` unit, default the angle unit) may follow, in that order; each
-group comes whole (all three columns). ``rotation_noise_std`` needs the rotation columns.
-Lines starting with ``#`` and blank lines are skipped; a comment declaring units (as a plan
-file's ``# units: angle=deg force=N length=mm``) must agree with ``[units]``. Any other column,
-a missing column, or a cell that is not a finite number within +-1e12 is an error naming the
-file, the line and the column.
+measured displacement of the target from its unloaded position. Instead of ``q1..qn`` the
+coordinate columns may be named after the robot's coordinate joints, any subset in any order
+(as a controller logs them); a coordinate without a column is held at its ``[robot] fixed =
+{ joint = value }`` value (the angle unit, or the length unit for a prismatic joint), else at
+the robot's reference configuration (:mod:`stiffness.mechanics.defaults`), said once in a
+:class:`~stiffness.errors.DataFileNote` (:mod:`stiffness.calibration.coordinate_columns`).
+The optional groups ``mx,my,mz`` (applied moment, in the ``[units] moment`` unit, default force
+unit x length unit) and ``rx,ry,rz`` (measured small rotation vector of the target frame's
+deflection, base axes, in the ``[units] rotation`` unit, default the angle unit) may be given;
+each group comes whole (all three columns). Columns are found by name (``config`` first); other
+columns (a rig's time stamps) are ignored with one
+:class:`~stiffness.errors.UnknownColumnWarning` (refused by the commands' ``--strict``).
+``rotation_noise_std`` needs the rotation columns. Lines starting with ``#`` and blank lines
+are skipped; a comment declaring units (as a plan file's ``# units: angle=deg force=N
+length=mm``) must agree with ``[units]``. A missing column, one given twice, or a cell that is
+not a finite number within +-1e12 is an error naming the file, the line and the column.
 
 In memory everything is SI (rad, m, N, N.m); the declared units apply only to the files.
 This module holds the campaign and :func:`load_campaign`; the ``campaign.toml`` sections are
@@ -78,6 +87,7 @@ from stiffness.calibration.campaign_toml import (
     typed_value,
     units_section,
 )
+from stiffness.calibration.coordinate_columns import fixed_values
 from stiffness.calibration.measurements import coordinates_in_si, read_rows
 from stiffness.errors import (
     StiffnessError,
@@ -331,7 +341,6 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
                          f"{', '.join(BASELINES)}", "", "baseline")
     units = units_section(doc, toml)
     settings = robot_section(doc, toml, units)
-    source = settings.source
     m = doc["measurement"]
     data_name = typed_value(m["data"], str, toml, "measurement", "data", "a file name")
     noise = measurement_noise(doc, toml, "noise_std", units.length)
@@ -340,21 +349,18 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
 
     robot = settings_robot(settings, toml_path)
 
-    robot_text = f"robot {source} ({', '.join(robot.coordinate_joints)})"
-    k, has_moment, has_rotation, labels, values, lines = read_rows(
-        data_path, robot.n_coordinates, robot_text, units, toml_path, robot.coordinate_joints)
-    q = coordinates_in_si(robot, values[:, :k], units, labels, lines, data_path)
-    col = k
-    force = values[:, col: col + 3] * units.force_to_si
-    deflection = values[:, col + 3: col + 6] * units.length_to_si
-    col += 6
-    moment = rotation = None
-    if has_moment:
-        moment = values[:, col: col + 3] * units.moment_to_si
-        col += 3
-    if has_rotation:
-        rotation = values[:, col: col + 3] * units.rotation_to_si
-    elif rot_noise is not None:
+    fixed = fixed_values(settings.fixed, robot, units,
+                         lambda problem: toml.error(problem, "robot", "fixed"))
+    rows = read_rows(data_path, robot, units, toml_path, fixed,
+                     lambda problem: toml.error(problem, "robot", "fixed"))
+    labels, lines = rows.labels, rows.lines
+    q = coordinates_in_si(robot, rows.q, units, labels, lines, data_path)
+    force = rows.force * units.force_to_si
+    deflection = rows.deflection * units.length_to_si
+    moment = None if rows.moment is None else rows.moment * units.moment_to_si
+    rotation = None if rows.rotation is None else rows.rotation * units.rotation_to_si
+    has_moment, has_rotation = moment is not None, rotation is not None
+    if not has_rotation and rot_noise is not None:
         raise toml.error(f"[measurement] rotation_noise_std is given but {data_name} has no "
                          "rotation columns rx,ry,rz; add them after dz (or after mz) or drop "
                          "rotation_noise_std", "measurement", "rotation_noise_std")

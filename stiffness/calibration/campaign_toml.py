@@ -15,6 +15,7 @@ from types import UnionType
 
 import numpy as np
 
+from stiffness.calibration.coordinate_columns import check_fixed_table
 from stiffness.calibration.measurements import MAX_CELL
 from stiffness.errors import (
     FileFormatError,
@@ -45,7 +46,7 @@ JOINT_ANGLES = ("motor", "link")
 _TOML_KEYS = {
     "": {"kind", "name", "baseline", "robot", "units", "measurement"},
     "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base",
-              "joint_angles"},
+              "joint_angles", "fixed"},
     "units": {"angle", "force", "length", "rotation", "moment"},
     "measurement": {"data", "noise_std", "rotation_noise_std"},
 }
@@ -93,6 +94,10 @@ class RobotSettings:
     joint_angles
         ``motor`` (the commanded pose; preloads sag it) or ``link`` (the unloaded pose as
         measured), :data:`JOINT_ANGLES`.
+    fixed
+        Coordinates the measurement CSV has no column for, held at these values, in the
+        campaign's angle unit (its length unit for a prismatic joint); the others without a
+        column are held at the robot's reference configuration.
     """
 
     source: str
@@ -102,6 +107,7 @@ class RobotSettings:
     loops: str | None = None
     fixed_base: bool = False
     joint_angles: str = "motor"
+    fixed: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.source = str(self.source)
@@ -255,9 +261,13 @@ def robot_section(doc: dict, toml: TomlFile, units: Units) -> RobotSettings:
         raise toml.error(f"[robot] joint_angles must be \"motor\" (the drives' encoders) or "
                          f"\"link\" (the link pose as measured), got {joint_angles!r}", "robot",
                          "joint_angles")
+    fixed = r.get("fixed", {})
+    problem = check_fixed_table(fixed, units.length, units.angle)
+    if problem is not None:
+        raise toml.error(problem, "robot", "fixed")
     return RobotSettings(source, frame, np.array(offset, dtype=float) * units.length_to_si,
                          tuple(joints) if joints is not None else None, loops, fixed_base,
-                         joint_angles)
+                         joint_angles, {str(k): float(v) for k, v in fixed.items()})
 
 
 def measurement_noise(doc: dict, toml: TomlFile, key: str, unit: str) -> float | None:

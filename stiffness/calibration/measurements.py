@@ -10,10 +10,19 @@ import csv
 import math
 import re
 import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from stiffness.calibration.coordinate_columns import (
+    fill_held,
+    held_coordinates,
+    locate_coordinates,
+    near_miss,
+    warn_unknown,
+)
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
@@ -37,66 +46,80 @@ def expected_header(n_q: int) -> list[str]:
             *DEFLECTION_COLUMNS]
 
 
-def _parse_header(cells: list[str], data: Path, line: int, n_q: int | None,
-                  robot_text: str = "the robot", joints: tuple[str, ...] = ()
-                  ) -> tuple[int, bool, bool]:
-    """Check a CSV header; return (number of q columns, has moment, has rotation)."""
-    optional = "optional columns after dz: mx,my,mz (moment) then rx,ry,rz (rotation)"
+@dataclass(frozen=True)
+class Header:
+    """Where a deflection campaign's columns are (0-based header positions).
 
+    Attributes
+    ----------
+    coordinates
+        Each coordinate's column, ``None`` for one held (:mod:`coordinate_columns`).
+    force, deflection
+        The ``fx,fy,fz`` and ``dx,dy,dz`` columns.
+    moment, rotation
+        The ``mx,my,mz`` and ``rx,ry,rz`` columns, or ``None``.
+    """
+
+    coordinates: list[int | None]
+    force: list[int]
+    deflection: list[int]
+    moment: list[int] | None
+    rotation: list[int] | None
+
+
+_HEADER_HELP = ("the header is config, the coordinates (q1..qn, or columns named after the "
+                "joints), fx,fy,fz,dx,dy,dz, optionally mx,my,mz and rx,ry,rz")
+
+
+def _parse_header(cells: list[str], data: Path, line: int, robot: Robot) -> Header:
+    """Find the columns of a CSV header (any order but ``config`` first); columns no campaign
+    has are ignored with a warning (:func:`coordinate_columns.warn_unknown`).
+
+    Raises
+    ------
+    FileFormatError
+        No ``config`` first, coordinate columns that do not fit the robot, a required column
+        missing (or misspelt only in case), a group given in part, a column given twice.
+    """
     def fail(col: int, text: str) -> FileFormatError:
         return FileFormatError(text, path=data, line=line, column=col)
 
     if not cells or cells[0] != "config":
         got = repr(cells[0]) if cells else "nothing"
-        raise fail(1, f"the first column must be 'config', got {got}; the header is "
-                      f"config,q1,...,qn,fx,fy,fz,dx,dy,dz")
-    k = 0
-    while 1 + k < len(cells) and cells[1 + k].startswith("q") and cells[1 + k][1:].isdigit():
-        if cells[1 + k] != f"q{k + 1}":
-            raise fail(2 + k, f"got {cells[1 + k]!r}, expected 'q{k + 1}' "
-                              "(q columns are q1, q2, ... in order)")
-        k += 1
-    if n_q is not None and k != n_q:
-        named = cells[1 + k] if 1 + k < len(cells) else None
-        if named in joints:
-            raise fail(2 + k, f"got {named!r}, a joint name: coordinate columns are named by "
-                              f"position, q1..q{n_q}, in the order of {robot_text}")
-        raise fail(2 + min(k, n_q), f"{robot_text} has {n_q} coordinates but the header has {k} "
-                                    f"q columns; give q1..q{n_q} in that order")
-    if k == 0:
-        raise fail(2, f"got {cells[1]!r} where q1 was expected" if len(cells) > 1 else
-                   "column q1 is missing")
-    expected = expected_header(k)
-    for col, name in enumerate(expected, start=1):
-        if col > len(cells):
-            raise fail(col, f"column {name!r} is missing; the header must be "
-                            f"{','.join(expected)}")
-        if cells[col - 1] != name:
-            raise fail(col, f"got {cells[col - 1]!r}, expected {name!r}; the header must be "
-                            f"{','.join(expected)} (optionally then mx,my,mz and rx,ry,rz)")
-    rest = cells[len(expected):]
-    groups = {MOMENT_COLUMNS: "moment", ROTATION_COLUMNS: "rotation"}
-    found = {"moment": False, "rotation": False}
-    col = len(expected) + 1
-    allowed = [MOMENT_COLUMNS, ROTATION_COLUMNS]
-    while rest:
-        group = next((g for g in allowed if rest[0] == g[0]), None)
-        if group is None:
-            valid = [c for g in allowed for c in g[:1]]
-            hint = f"expected {' or '.join(repr(v) for v in valid)}; " if valid else ""
-            raise fail(col, f"column {rest[0]!r} is not a campaign column; {hint}{optional}")
-        for j, name in enumerate(group):
-            if j >= len(rest):
-                raise fail(col + j, f"column {name!r} is missing ({groups[group]} columns come "
-                                    f"as {','.join(group)})")
-            if rest[j] != name:
-                raise fail(col + j, f"got {rest[j]!r}, expected {name!r} "
-                                    f"({groups[group]} columns come as {','.join(group)})")
-        found[groups[group]] = True
-        allowed = allowed[allowed.index(group) + 1:]
-        rest = rest[3:]
-        col += 3
-    return k, found["moment"], found["rotation"]
+        raise fail(1, f"the first column must be 'config', got {got}; {_HEADER_HELP}")
+    coordinates = locate_coordinates(cells, robot, data, line)
+    campaign = (*FORCE_COLUMNS, *DEFLECTION_COLUMNS, *MOMENT_COLUMNS, *ROTATION_COLUMNS)
+    for name in campaign:
+        if cells.count(name) > 1:
+            raise fail(len(cells) - cells[::-1].index(name), f"column {name!r} appears twice; "
+                                                              "keep one")
+    taken = {0, *(i for i in coordinates if i is not None)}
+    unknown = [c for i, c in enumerate(cells) if i not in taken and c not in campaign]
+
+    def group(names: tuple[str, ...], required: bool, what: str) -> list[int] | None:
+        present = [n for n in names if n in cells]
+        if not present and not required:
+            return None
+        for name in names:
+            if name in cells:
+                continue
+            typo = near_miss(unknown, name)
+            if typo is not None:
+                raise fail(cells.index(typo) + 1, f"got {typo!r}, expected {name!r}; "
+                                                  f"{_HEADER_HELP}")
+            after = max((cells.index(n) for n in present), default=len(cells) - 1) + 2
+            raise fail(min(after, len(cells) + 1), f"column {name!r} is missing ({what}); "
+                                                   f"{_HEADER_HELP}")
+        return [cells.index(n) for n in names]
+
+    force = group(FORCE_COLUMNS, True, "the applied force fx,fy,fz")
+    deflection = group(DEFLECTION_COLUMNS, True, "the measured deflection dx,dy,dz")
+    moment = group(MOMENT_COLUMNS, False, "moment columns come as mx,my,mz")
+    rotation = group(ROTATION_COLUMNS, False, "rotation columns come as rx,ry,rz")
+    assert force is not None and deflection is not None  # required groups
+    warn_unknown(unknown, data, "a deflection campaign has config, the coordinates, "
+                 "fx..dz, mx..mz and rx..rz")
+    return Header(coordinates, force, deflection, moment, rotation)
 
 
 #: ``units:`` / ``units=`` in a comment: what follows declares the units.
@@ -190,8 +213,36 @@ def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float
     return value
 
 
-def read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_path: Path,
-               joints: tuple[str, ...] = ()):
+@dataclass
+class Rows:
+    """A deflection campaign's rows in the file's units.
+
+    Attributes
+    ----------
+    labels, lines
+        Each row's configuration label and file line.
+    q
+        (n, n_coordinates) coordinates, the held ones filled in.
+    force, deflection
+        (n, 3) each.
+    moment, rotation
+        (n, 3) each, or ``None`` without their columns.
+    """
+
+    labels: list[str]
+    lines: list[int]
+    q: np.ndarray
+    force: np.ndarray
+    deflection: np.ndarray
+    moment: np.ndarray | None
+    rotation: np.ndarray | None
+
+
+def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
+              fixed_si: dict[str, float], error: Callable[[str], StiffnessError]) -> Rows:
+    """The rows of a deflection campaign's CSV (file units; coordinates without a column
+    held at ``fixed_si`` (rad, m) or the robot's reference, ``error`` building the refusal of
+    a fixed joint that also has a column)."""
     text = read_text(data, "measurement file ([measurement] data)")
     header = None
     rows: list[tuple[int, list[str]]] = []
@@ -213,12 +264,14 @@ def read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_p
         raise FileFormatError("the file is empty; it needs a header "
                               "config,q1,...,qn,fx,fy,fz,dx,dy,dz and measurement rows",
                               path=data, line=1)
-    k, has_moment, has_rotation = _parse_header(header, data, header_line, n_q, robot_text,
-                                                joints)
+    where = _parse_header(header, data, header_line, robot)
     if not rows:
         raise FileFormatError("no measurement rows after the header; add one row per loaded "
                               "measurement", path=data, line=header_line + 1)
     width = len(header)
+    read = [i for i in where.coordinates if i is not None]
+    columns = [*read, *where.force, *where.deflection, *(where.moment or []),
+               *(where.rotation or [])]
     labels, values, lines = [], [], []
     for number, cells in rows:
         if len(cells) != width:
@@ -232,10 +285,22 @@ def read_rows(data: Path, n_q: int | None, robot_text: str, units: Units, toml_p
             raise FileFormatError("the configuration label is empty; give a label such as A",
                                   path=data, line=number, column=1, field="config")
         labels.append(label)
-        values.append([parse_number(c, data, number, j, header[j - 1])
-                       for j, c in enumerate(cells[1:], start=2)])
+        values.append([parse_number(cells[j], data, number, j + 1, header[j])
+                       for j in columns])
         lines.append(number)
-    return k, has_moment, has_rotation, labels, np.array(values, dtype=float), lines
+    table = np.array(values, dtype=float)
+    held = held_coordinates(robot, where.coordinates, fixed_si, units, data, error)
+    q = np.full((len(rows), robot.n_coordinates), np.nan)
+    q[:, [k for k, i in enumerate(where.coordinates) if i is not None]] = table[:, :len(read)]
+    col = len(read)
+    blocks = []
+    for group in (where.force, where.deflection, where.moment, where.rotation):
+        blocks.append(None if group is None else table[:, col: col + 3])
+        col += 0 if group is None else 3
+    force, deflection, moment, rotation = blocks
+    assert force is not None and deflection is not None
+    return Rows(labels, lines, fill_held(q, held, robot, units), force, deflection, moment,
+                rotation)
 
 
 def prismatic_mask(robot: Robot) -> np.ndarray:
@@ -301,7 +366,8 @@ def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[in
     scale, unit = _coordinate_unit(robot, units, j)
     warnings.warn(
         f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.name}'s joint "
-        f"limits (first: line {lines[i]}, q{j + 1} = {q[i, j] / scale:.6g} {unit}, limits "
+        f"limits (first: line {lines[i]}, q{j + 1} ({robot.coordinate_joints[j]}) = "
+        f"{q[i, j] / scale:.6g} {unit}, limits "
         f"[{lo[j] / scale:.6g}, {hi[j] / scale:.6g}] {unit}); check the angle and length "
         "units and the robot", DataFileWarning, stacklevel=4)
 

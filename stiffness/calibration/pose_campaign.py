@@ -33,6 +33,13 @@ from stiffness.calibration.campaign_toml import (
     typed_value,
     units_section,
 )
+from stiffness.calibration.coordinate_columns import (
+    fill_held,
+    fixed_values,
+    held_coordinates,
+    locate_coordinates,
+    warn_unknown,
+)
 from stiffness.calibration.measurements import coordinates_in_si, parse_number
 from stiffness.errors import FileFormatError
 from stiffness.files import (
@@ -48,7 +55,8 @@ from stiffness.units import Units
 
 _KEYS = {
     "": {"kind", "name", "robot", "units", "measurement", "markers", "load"},
-    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base"},
+    "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base",
+              "fixed"},
     "units": {"angle", "force", "length", "rotation", "moment"},
     "measurement": {"data", "noise_std", "noise_std_rotation"},
     "load": {"frame"},
@@ -180,20 +188,19 @@ def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
 
 
 def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
-            ) -> tuple[int, list[list[int]], list[int], list[list[int] | None]]:
-    """Check the header; (n_q, each marker's x, y, z columns, the wrench columns, each
-    marker's rx, ry, rz columns or ``None``)."""
-    n_q = robot.n_coordinates
-    expected = ["config"] + [f"q{i + 1}" for i in range(n_q)]
+            ) -> tuple[list[int | None], list[list[int]], list[int], list[list[int] | None]]:
+    """Check the header; (each coordinate's column or ``None`` when held, each marker's x, y,
+    z columns, the wrench columns, each marker's rx, ry, rz columns or ``None``)."""
     names = [c.strip() for c in cells]
-    if names[:n_q + 1] != expected:
-        raise FileFormatError(f"the header must start with {','.join(expected)} (the "
-                              f"{n_q} coordinates of {robot.name} in its coordinate order: "
-                              f"{', '.join(robot.coordinate_joints)})", path=data, line=1)
+    if not names or names[0] != "config":
+        raise FileFormatError(f"the first column must be config, got {names[0]!r}; then the "
+                              f"coordinates (q1..q{robot.n_coordinates}, or columns named after "
+                              "the joints) and the markers' columns", path=data, line=1)
     twice = sorted({c for c in names if names.count(c) > 1})
     if twice:
         raise FileFormatError(f"column(s) {twice} appear more than once; keep one of each",
                               path=data, line=1)
+    coordinates = locate_coordinates(names, robot, data, 1)
     columns = []
     for m in markers:
         cols = [f"{m.name}_{a}" for a in "xyz"]
@@ -203,18 +210,17 @@ def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
                                   "seen)", path=data, line=1)
         columns.append([names.index(c) for c in cols])
     present = [c for c in _WRENCH if c in names]
-    known = set(expected) | {f"{m.name}_{a}" for m in markers
-                             for a in ("x", "y", "z", *ROTATION_AXES)} | set(_WRENCH)
-    unknown = [c for c in names if c not in known]
-    if unknown:
-        raise FileFormatError(f"unknown column(s) {unknown}; a pose campaign has config, q1..qn, "
-                              "<marker>_x/_y/_z per marker (optionally _rx/_ry/_rz) and "
-                              "optionally fx..mz", path=data, line=1)
+    taken = {0, *(i for i in coordinates if i is not None)}
+    known = {f"{m.name}_{a}" for m in markers for a in ("x", "y", "z", *ROTATION_AXES)} | set(
+        _WRENCH)
+    warn_unknown([c for i, c in enumerate(names) if i not in taken and c not in known], data,
+                 "a pose campaign has config, the coordinates, <marker>_x/_y/_z per marker "
+                 "(optionally _rx/_ry/_rz) and optionally fx..mz")
     if present and present not in (list(_WRENCH[:3]), list(_WRENCH)):
         raise FileFormatError("give the applied wrench as fx,fy,fz or fx,fy,fz,mx,my,mz",
                               path=data, line=1)
-    return n_q, columns, [names.index(c) for c in present], _rotation_columns(names, markers,
-                                                                            data)
+    return coordinates, columns, [names.index(c) for c in present], _rotation_columns(
+        names, markers, data)
 
 
 def _rotation_columns(names: list[str], markers: list[Marker], data: Path
@@ -232,24 +238,27 @@ def _rotation_columns(names: list[str], markers: list[Marker], data: Path
 
 
 def _rows(data: Path, robot: Robot, markers: list[Marker]
-          ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray | None, list[int],
-                     np.ndarray | None]:
-    """Labels, q (file units), positions (file units, NaN unseen), wrench (file units), line
-    numbers, rotations (file units, NaN unseen; ``None`` without rotation columns)."""
+          ) -> tuple[list[str], list[int | None], np.ndarray, np.ndarray, np.ndarray | None,
+                     list[int], np.ndarray | None]:
+    """Labels, each coordinate's column (``None``: held), the read coordinates (file units,
+    NaN where held), positions (file units, NaN unseen), wrench (file units), line numbers,
+    rotations (file units, NaN unseen; ``None`` without rotation columns)."""
     text = read_text(data, "measurement file ([measurement] data)")
     lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(text)))
              if r and not r[0].lstrip().startswith("#")]
     if len(lines) < 2:
         raise FileFormatError("no data rows after the header", path=data)
-    n_q, columns, wrench_cols, rot_columns = _header(lines[0][1], data, robot, markers)
+    coordinates, columns, wrench_cols, rot_columns = _header(lines[0][1], data, robot, markers)
+    header = [c.strip() for c in lines[0][1]]
     labels, q, pos, wrench, numbers, rot = [], [], [], [], [], []
     for number, cells in lines[1:]:
         if len(cells) != len(lines[0][1]):
             raise FileFormatError(f"{len(cells)} cells, the header has {len(lines[0][1])}",
                                   path=data, line=number)
         labels.append(cells[0].strip())
-        q.append([parse_number(cells[j], data, number, j + 1, f"q{j}")
-                  for j in range(1, n_q + 1)])
+        q.append([math.nan if j is None else parse_number(cells[j], data, number, j + 1,
+                                                          header[j])
+                  for j in coordinates])
         pos.append([_position(cells, c, data, number, m.name)
                     for c, m in zip(columns, markers, strict=True)])
         wrench.append([parse_number(cells[j], data, number, j + 1, "load")
@@ -260,7 +269,8 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
         numbers.append(number)
     w = np.array(wrench, float) if wrench_cols else None
     r = np.array(rot, float) if any(c is not None for c in rot_columns) else None
-    return labels, np.array(q, float), np.array(pos, float), w, numbers, r
+    return (labels, coordinates, np.array(q, float).reshape(len(labels), -1),
+            np.array(pos, float), w, numbers, r)
 
 
 def _position(cells: list[str], columns: list[int], data: Path, line: int, name: str,
@@ -303,8 +313,13 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     data_name = typed_value(doc["measurement"]["data"], str, toml, "measurement", "data",
                             "a file name")
     data = toml_path.parent / data_name
-    labels, q_file, pos, wrench, numbers, rot = _rows(data, robot, markers)
-    q = coordinates_in_si(robot, q_file, units, labels, numbers, data)
+    labels, coordinates, q_read, pos, wrench, numbers, rot = _rows(data, robot, markers)
+    fixed = fixed_values(settings.fixed, robot, units,
+                         lambda problem: toml.error(problem, "robot", "fixed"))
+    held = held_coordinates(robot, coordinates, fixed, units, data,
+                            lambda problem: toml.error(problem, "robot", "fixed"))
+    q = coordinates_in_si(robot, fill_held(q_read, held, robot, units), units, labels,
+                          numbers, data)
     noise = measurement_noise(doc, toml, "noise_std", units.length)
     loads = None
     if wrench is not None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from stiffness.calibration.absolute import Loads, Marker
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
+from stiffness.calibration.coordinate_columns import fill_held
 from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
 from stiffness.calibration.rig_import import (
     FORCE,
@@ -78,7 +79,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     check_map(settings, robot, ("config", *FORCE, *MOMENT, *marker_targets(markers)))
     columns, _ = join_tables(tables, settings.join)
     mapper = ColumnMapper(columns, settings, [t.path for t in tables])
-    q_cols, q_file, prismatic = read_coordinates(mapper, robot)
+    q_cols, q_file, prismatic, held = read_coordinates(mapper, robot)
     seen = [_marker(mapper, m) for m in markers]
     positions = np.stack([p for p in seen if p is not None], axis=1)  # required: all there
     turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
@@ -96,6 +97,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                   moment_unit=mapper.unit("moment", moment is not None))
     rows = np.arange(q_file.shape[0])
     labels = row_labels(mapper.find("config"), rows, q_file)
+    q_file = fill_held(q_file, held, robot, units)
     q = coordinates_in_si(robot, q_file, units, labels, q_cols[0].lines, q_cols[0].path)
     loads = None
     if force is not None:

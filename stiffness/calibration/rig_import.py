@@ -47,6 +47,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
+from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
 from stiffness.calibration.measurements import MAX_CELL, coordinates_in_si
 from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
 from stiffness.files import read_text, read_toml, resolve_path, resolve_source
@@ -565,7 +566,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     check_map(settings, robot)
     columns, _ = join_tables(tables, settings.join)
     mapper = ColumnMapper(columns, settings, [t.path for t in tables])
-    q_cols, q_file, prismatic = read_coordinates(mapper, robot)
+    q_cols, q_file, prismatic, held = read_coordinates(mapper, robot)
     force = read_block(mapper, FORCE, "force", True)
     assert force is not None  # a required group is there or refused
     moment = read_block(mapper, MOMENT, "moment", False)
@@ -573,6 +574,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     units = Units(mapper.unit("angle", bool((~prismatic).any())) or "deg",
                   mapper.unit("force", True) or "N", mapper.unit("length", True) or "mm",
                   moment_unit=mapper.unit("moment", moment is not None))
+    q_file = fill_held(q_file, held, robot, units)
     config = mapper.find("config")
     first = q_cols[0]
     lines = [first.lines[i] for i in rows]
@@ -600,19 +602,52 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
 
 
 def read_coordinates(mapper: ColumnMapper, robot: Robot
-                     ) -> tuple[list[Column], np.ndarray, np.ndarray]:
-    """The q1..qn columns, their values in the files' units (n, n_q) and which are prismatic."""
+                     ) -> tuple[list[Column], np.ndarray, np.ndarray, np.ndarray]:
+    """The coordinate columns read (q1..qn, or named after the joints: any subset, the rest
+    held at the robot's reference configuration, said once), the coordinates (n, n_q) in the
+    files' units (the held ones at their SI value until :func:`fill_held` puts them in the
+    files' units), which are prismatic, and the held values (rad, m; NaN where read)."""
     prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
-    q_cols = mapper.group(tuple(f"q{i + 1}" for i in range(robot.n_coordinates)), True) or []
-    q_file = np.column_stack([mapper.values(c.name, c, "length" if p else "angle")
-                              for c, p in zip(q_cols, prismatic, strict=True)])
-    return q_cols, q_file, prismatic
+    names = robot.coordinate_joints
+    q_targets = tuple(f"q{i + 1}" for i in range(robot.n_coordinates))
+    by_q = [mapper.find(t) for t in q_targets]
+    by_joint = [mapper.find(j) for j in names]
+    files = ", ".join(str(f) for f in mapper.files)
+    if any(c is not None for c in by_q) and any(c is not None for c in by_joint):
+        raise StiffnessError(f"{files}: coordinates come both as q columns and by joint name; "
+                             "map or name each coordinate one way")
+    if any(c is not None for c in by_q):
+        missing = [f"{t} ({j})" for t, j, c in zip(q_targets, names, by_q, strict=True)
+                   if c is None]
+        if missing:
+            raise StiffnessError(f"no column for {listed(missing)} in {files}; map them "
+                                 f"({missing[0].split()[0]}=COLUMN) or map the joints by name "
+                                 "(JOINT=COLUMN; joints without a column are held)")
+        found = by_q
+    elif any(c is not None for c in by_joint):
+        found = by_joint
+    else:
+        raise StiffnessError(f"no coordinate column in {files}: map the joints read "
+                             f"(JOINT=COLUMN, e.g. {names[0]}=theta1) or name columns after "
+                             f"{robot.name}'s joints ({listed(names)}; any subset) or "
+                             f"q1..q{robot.n_coordinates}")
+    q_cols = [c for c in found if c is not None]
+    rows = len(q_cols[0].cells)
+    q_read = np.full((rows, robot.n_coordinates), np.nan)
+    for k, (c, p) in enumerate(zip(found, prismatic, strict=True)):
+        if c is not None:
+            q_read[:, k] = mapper.values(c.name, c, "length" if p else "angle")
+    index: list[int | None] = [None if c is None else k for k, c in enumerate(found)]
+    held = held_coordinates(robot, index, {}, Units(), q_cols[0].path, StiffnessError)
+    return q_cols, np.where(np.isfinite(held), held, q_read), prismatic, held
 
 
 def check_map(settings: ImportSettings, robot: Robot, targets: tuple[str, ...] = TARGETS
               ) -> None:
-    """Refuse a map naming a campaign column that does not exist (``targets`` and q1..qn)."""
-    valid = [*targets, *(f"q{i + 1}" for i in range(robot.n_coordinates))]
+    """Refuse a map naming a campaign column that does not exist (``targets``, q1..qn and the
+    robot's coordinate joints)."""
+    valid = [*targets, *(f"q{i + 1}" for i in range(robot.n_coordinates)),
+             *robot.coordinate_joints]
     for target in settings.column_map:
         if target not in valid:
             raise StiffnessError(f"--map names {target!r}, not a campaign column; "
@@ -731,6 +766,8 @@ def _column_report(mapper: ColumnMapper, units: Units, robot: Robot, prismatic: 
         unit = ""
         if target.startswith("q") and target[1:].isdigit():
             unit = units.length if prismatic[int(target[1:]) - 1] else units.angle
+        elif target in robot.coordinate_joints:
+            unit = units.length if robot.is_prismatic(target) else units.angle
         elif target in _KIND:
             unit = getattr(units, _KIND[target])
         values = column.numbers() if unit else None

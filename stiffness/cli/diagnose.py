@@ -53,6 +53,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "the usable cores; 1: all in this process); the result does not "
                              "depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    flags.add_strict_flag(parser)
     parser.add_argument("--loss", choices=LOSSES, default="linear",
                         help="linear (least squares) or a robust loss for every fit, scaled "
                              "by the noise std, with intervals from Huber's sandwich "

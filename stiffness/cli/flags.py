@@ -253,6 +253,14 @@ def add_output_flags(parser: argparse.ArgumentParser, json_help: str | None = No
                         help=quiet_help or "no progress and no echo of the inputs")
 
 
+def add_strict_flag(parser: argparse.ArgumentParser) -> None:
+    """``--strict``: refuse campaign CSV columns no reader knows (else ignored with a
+    warning; :class:`stiffness.errors.UnknownColumnWarning`)."""
+    parser.add_argument("--strict", action="store_true",
+                        help="refuse campaign CSV columns that are not campaign columns "
+                             "(default: ignored with a warning listing them)")
+
+
 # --- reading flags ---------------------------------------------------------------------------
 
 @dataclass

@@ -49,6 +49,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", metavar="FILE", default=MODEL_FILE,
                         help=f"identified-model file to write; default ./{MODEL_FILE}")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    flags.add_strict_flag(parser)
 
 
 def _g(value: float, digits: int = 5) -> str:

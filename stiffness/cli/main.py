@@ -15,7 +15,7 @@ from typing import NoReturn
 
 from stiffness import __version__
 from stiffness.cli.flags import ArgumentParser
-from stiffness.errors import StiffnessError
+from stiffness.errors import DataFileNote, StiffnessError, UnknownColumnWarning
 
 #: command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -63,8 +63,10 @@ def build_parser(only: str | None = None) -> ArgumentParser:
 
 
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:
-    """Warnings on the command line: one line each, no source excerpt."""
-    return f"stiffness: warning: {message}\n"
+    """Warnings on the command line: one line each, no source excerpt (a note, which reports
+    what was done rather than a doubt, as ``note``)."""
+    word = "note" if issubclass(category, DataFileNote) else "warning"
+    return f"stiffness: {word}: {message}\n"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,8 +96,11 @@ def _run(argv: list[str] | None) -> int:
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
-        return int(module.run(args) or 0)
-    except StiffnessError as exc:
+        with warnings.catch_warnings():
+            if getattr(args, "strict", False):
+                warnings.simplefilter("error", UnknownColumnWarning)
+            return int(module.run(args) or 0)
+    except (StiffnessError, UnknownColumnWarning) as exc:
         print(f"stiffness {args.command}: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader (| head) stopped: not an error of ours

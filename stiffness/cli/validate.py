@@ -21,6 +21,7 @@ import json
 
 from stiffness.calibration.evaluation import validate
 from stiffness.calibration.pose_report import format_validation
+from stiffness.cli import flags
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +31,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="campaign.toml, or the folder holding it")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (campaign units) and nothing else")
+    flags.add_strict_flag(parser)
 
 
 def run(args: argparse.Namespace) -> int:
