@@ -1,9 +1,9 @@
 """The Python API equals the command line: for each workflow at the package top
 (``stiffness.identify``, ``diagnose``, ``simulate``, ``design``, ``compensate``, ``posture``,
-``scan``; ``diagnose`` of a pose campaign and ``validate``), the result's ``.to_dict()`` (or
-the dict ``validate`` returns) is the JSON object the command prints with ``--json``
-for the same inputs (the command run through ``stiffness.cli.main.main``), and what the command
-writes, the result's ``.write()`` writes the same.
+``scan``; ``diagnose`` of a pose campaign and ``validate``), the result's ``.to_dict()`` is
+the JSON object the command prints with ``--json`` for the same inputs (the command run
+through ``stiffness.cli.main.main``), and what the command writes, the result's ``.write()``
+writes the same.
 
 Inputs are tiny (a few rows, poses and candidates) so that the file runs in seconds.
 """
@@ -213,7 +213,7 @@ def test_validate(tmp_path, capsys, pose_campaigns, campaign):
     assert main(["diagnose", str(fit), "--out", str(tmp_path / "D"), "--quiet"]) == 0
     model = tmp_path / "D" / "final-model.json"
     printed = _command_json(capsys, ["validate", str(model), str(other)])
-    assert json.loads(json.dumps(stiffness.validate(model, other))) == printed
+    assert _as_json(stiffness.validate(model, other)) == printed
     assert printed["markers"]["tip"]["rows"] == 15
     with pytest.raises(stiffness.StiffnessError, match="pose calibration"):
         stiffness.validate(model, campaign)

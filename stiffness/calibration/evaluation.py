@@ -8,34 +8,116 @@ for a deflection campaign the model is a model file of ``identify`` or ``diagnos
 error is the measured deflection minus the model's prediction under each row's load
 (:func:`stiffness.calibration.validation.deflection_errors`). Both in the campaign's length
 unit.
+
+The campaign must be of the model's robot: the same source, or the same coordinates and
+kinematics (:func:`stiffness.robot.calibration.kinematic_fingerprint`); another robot is
+refused with one line. With the campaign's declared noise ``sigma`` the verdict is a
+chi-square test of the position residual: ``chi2 = sum r^2 / sigma^2`` over the ``3 n`` seen
+components (nothing is refitted), its p-value against ``chi2(3 n)`` and the ratio
+``rms_3d / (sqrt(3) sigma)`` (1 for a model that predicts to the noise).
 """
 
 from __future__ import annotations
 
+import math
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
+from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
 from stiffness.calibration.validation import deflection_errors
-from stiffness.elastic.model_file import load_model
+from stiffness.elastic.model_file import ModelRobotError, load_model, read_model_file
 from stiffness.errors import StiffnessError
-from stiffness.robot.calibration import is_pose_calibration
+from stiffness.robot.calibration import (
+    is_pose_calibration,
+    kinematic_fingerprint,
+    read_pose_calibration,
+    robot_identity,
+)
+from stiffness.robot.robot import Robot
 
 
-def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> dict:
-    """The ``stiffness validate --json`` object: RMS, mean and max of the 3-D error of the
-    model file ``model`` on ``campaign`` (a ``campaign.toml`` or its folder), in the campaign's
-    length unit.
+@dataclass
+class Validation:
+    """A model file evaluated on a campaign, without refitting.
 
-    Returns
-    -------
-    dict
-        Keys ``rms``, ``mean_error``, ``std_error``, ``max_error``, ``unit``, ``rows`` and
-        ``markers`` (the same keys per marker; a deflection campaign's one marker is ``target``).
+    Attributes
+    ----------
+    model, campaign
+        The model file and the campaign (as given).
+    kind
+        ``poses`` or ``deflections``.
+    errors
+        The error summary in the campaign's length unit (``rms``, ``mean_error``,
+        ``std_error``, ``max_error``, ``unit``, ``rows``, ``markers``...:
+        :func:`~stiffness.calibration.pose_diagnose.validation_errors`,
+        :func:`~stiffness.calibration.validation.deflection_errors`).
+    robot
+        The robot both are of: ``source``, ``coordinates``, ``fingerprint``.
+    noise_std
+        The campaign's declared position noise std (campaign unit), or ``None``.
+    """
+
+    model: str
+    campaign: str
+    kind: str
+    errors: dict
+    robot: dict
+    noise_std: float | None
+
+    @property
+    def components(self) -> int:
+        """Seen residual components (3 per seen marker or row)."""
+        return 3 * int(self.errors["rows"] or 0)
+
+    @property
+    def chi2(self) -> float | None:
+        """``sum r^2 / sigma^2`` over the seen components, or ``None`` without a noise."""
+        if self.noise_std is None or self.errors["rms"] is None:
+            return None
+        return float((self.errors["rms"] / self.noise_std) ** 2 * self.components / 3)
+
+    def gof(self) -> float | None:
+        """Chi-square p-value of the residual against the declared noise, or ``None``."""
+        chi2 = self.chi2
+        if chi2 is None or self.noise_std is None:
+            return None
+        return goodness_of_fit(chi2 * self.noise_std ** 2, self.components, 0, self.noise_std)
+
+    @property
+    def verdict(self) -> str | None:
+        """``consistent with the noise`` or ``above the noise`` (chi-square test at
+        :data:`~stiffness.calibration.selection.GOF_LEVEL`), ``None`` without a noise."""
+        p = self.gof()
+        if p is None:
+            return None
+        return "above the noise" if p < 1 - GOF_LEVEL else "consistent with the noise"
+
+    def to_dict(self) -> dict:
+        """What ``stiffness validate --json`` prints: the error summary's keys, and
+        ``kind``, ``robot``, ``noise_std``, ``rms_over_noise`` (3-D RMS over ``sqrt(3)``
+        noise stds), ``chi2``, ``dof``, ``gof_p`` and ``verdict``."""
+        rms = self.errors["rms"]
+        ratio = (None if self.noise_std is None or rms is None
+                 else rms / (math.sqrt(3) * self.noise_std))
+        return {**self.errors, "kind": self.kind, "model": self.model,
+                "campaign": self.campaign, "robot": self.robot, "noise_std": self.noise_std,
+                "rms_over_noise": ratio, "chi2": self.chi2, "dof": self.components,
+                "gof_p": self.gof(), "verdict": self.verdict}
+
+
+def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> Validation:
+    """The model file ``model`` evaluated on ``campaign`` (a ``campaign.toml`` or its folder):
+    errors in the campaign's length unit and the verdict against its declared noise.
 
     Raises
     ------
+    ModelRobotError
+        The campaign is of another robot than the model's.
     StiffnessError
         A pose calibration with a deflection campaign or the other way round, or a file
         that cannot be read.
@@ -48,7 +130,46 @@ def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> dict:
             "validate a pose calibration on a pose campaign, a deflection model on a "
             "deflection campaign")
     if not pose_model:
-        return deflection_errors(load_model(model), load_campaign(campaign))
+        declared = read_model_file(model)
+        measured = load_campaign(campaign)
+        robot = same_robot(declared.source, declared.robot, measured.robot(),
+                           measured.resolved_source(), model, campaign)
+        errors = deflection_errors(load_model(declared), measured)
+        noise = None if measured.noise_std_m is None else (
+            measured.noise_std_m / measured.units.length_to_si)
+        return Validation(str(model), str(campaign), "deflections", errors, robot, noise)
     poses = load_pose_campaign(campaign)
+    cal = read_pose_calibration(model)
+    robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
+                       poses.robot.name, model, campaign)
     calibration = read_pose_model(model, poses.robot)
-    return validation_errors(calibration.model, calibration.x, poses)
+    errors = validation_errors(calibration.model, calibration.x, poses)
+    noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
+    return Validation(str(model), str(campaign), "poses", errors, robot, noise)
+
+
+def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,
+               campaign_source: str, model: str | os.PathLike,
+               campaign: str | os.PathLike) -> dict:
+    """The robot a model and a campaign are both of: the same source, or the same coordinates
+    and kinematics (a copy of the robot's files). Returns its ``source``, ``coordinates`` and
+    kinematic ``fingerprint``; ``model_robot`` loads the model's robot when the sources differ.
+
+    Raises
+    ------
+    ModelRobotError
+        Other coordinates or kinematics (one line naming both robots).
+    """
+    theirs = (campaign_robot.coordinate_joints, kinematic_fingerprint(campaign_robot.model))
+    if robot_identity(model_source) != robot_identity(campaign_source):
+        other = model_robot()
+        mine = (other.coordinate_joints, kinematic_fingerprint(other.model))
+        if mine != theirs:
+            what = "coordinates" if mine[0] != theirs[0] else "kinematics"
+            raise ModelRobotError(
+                f"{campaign} is a campaign of robot {Path(campaign_source).name!r} "
+                f"({len(theirs[0])} coordinates, kinematics {theirs[1]}), not of the model's "
+                f"{Path(model_source).name!r} ({len(mine[0])} coordinates, kinematics "
+                f"{mine[1]}): other {what}; validate {model} on a campaign of its robot")
+    return {"source": robot_identity(campaign_source), "coordinates": list(theirs[0]),
+            "fingerprint": theirs[1]}

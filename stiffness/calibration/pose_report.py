@@ -99,15 +99,25 @@ def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
 
 
 def format_validation(result: dict) -> str:
-    """The text of ``stiffness validate``: overall and per-marker 3-D errors, then the line of
-    the stage table (:func:`stage_table`) for this one model."""
+    """The text of ``stiffness validate``: overall and per-marker 3-D errors, the verdict
+    against the campaign's noise, then the line of the stage table (:func:`stage_table`) for
+    this one model."""
     unit = result["unit"]
     lines = [f"{result['rows']} rows; 3-D position error in {unit}:",
              f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}"]
     lines.append(_validation_row("all", result))
     for name, m in result["markers"].items():
         lines.append(_validation_row(name, m))
-    return "\n".join(lines + ["", *stage_table([("model", result)])])
+    return "\n".join(lines + [_noise_verdict(result), "", *stage_table([("model", result)])])
+
+
+def _noise_verdict(result: dict) -> str:
+    """The verdict line of ``stiffness validate`` against the campaign's declared noise."""
+    if result.get("verdict") is None:
+        return "no noise declared in the campaign: no verdict (declare [measurement] noise_std)"
+    return (f"verdict: {result['verdict'].upper()} (RMS {result['rms_over_noise']:.3g}x the "
+            f"noise {result['noise_std']:.4g} {result['unit']} per axis; chi-square "
+            f"{result['chi2']:.4g} on {result['dof']} components, p = {result['gof_p']:.3g})")
 
 
 def _validation_row(name: str, r: dict) -> str:

@@ -10,8 +10,12 @@ the 3-D position error, overall and per marker; for a deflection campaign the mo
 file of ``identify`` or ``diagnose`` and the error is the measured deflection minus the model's
 prediction under each row's load (the one marker is ``target``). Both in the campaign's length
 unit: RMS, mean, std and max, then the stage table's line of this model (as ``diagnose
---validate`` prints one per step). ``--json`` keys: ``rms``, ``mean_error``, ``std_error``,
-``max_error``, ``unit``, ``rows``, ``markers`` (the same keys per marker).
+--validate`` prints one per step), and the verdict against the campaign's declared noise (a
+chi-square test). The campaign must be of the model's robot (one line refuses another).
+``--json`` keys: ``rms``, ``mean_error``, ``std_error``, ``max_error``, ``unit``, ``rows``,
+``markers`` (the same keys per marker), ``kind``, ``model``, ``campaign``, ``robot``
+(``source``, ``coordinates``, ``fingerprint``), ``noise_std``, ``rms_over_noise``, ``chi2``,
+``dof``, ``gof_p``, ``verdict`` (:class:`stiffness.calibration.evaluation.Validation`).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness validate``; returns the exit code."""
-    result = validate(args.model, args.campaign)
+    result = validate(args.model, args.campaign).to_dict()
     print(json.dumps(result, indent=1, allow_nan=False) if args.json
           else format_validation(result))
     return 0
