@@ -129,7 +129,8 @@ def test_every_model_command_accepts_a_pose_model_file(calibration, tmp_path, ca
          "--out", str(tmp_path / "comp.csv")],
         ["posture", *model, "--path", str(poses), "--wrench", "0,0,100", "--steps", "4",
          "--max-step", "90", "--json"],
-        ["robot", "export", *model, "--urdf", str(tmp_path / "calibrated.urdf"), "--quiet"],
+        ["robot", "export", *model, "--urdf", str(tmp_path / "calibrated.urdf"), "--mjcf",
+         str(tmp_path / "calibrated.xml"), "--quiet"],
         ["validate", str(path), str(path.parent.parent / "campaign"), "--json"],
     ]
     for argv in commands:

@@ -36,7 +36,7 @@ from stiffness.robot.calibration import (
 )
 from stiffness.robot.export import loops_yaml, robot_urdf
 from stiffness.robot.mjcf import check_mjcf, robot_mjcf
-from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.robot import Robot
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -96,8 +96,6 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stiffness robot export``."""
     if args.urdf is None and args.mjcf is None:
         raise StiffnessError("robot export needs --urdf OUT.urdf or --mjcf OUT.xml (or both)")
-    if args.model is not None and is_pose_calibration(args.model):
-        return _export_calibrated(args)
     model = read_model_file(args.model) if args.model is not None else None
     if model is not None and args.robot is not None:
         model.check_robot(args.robot)
@@ -109,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         check_mjcf(text, robot.name)
         written.append(atomic_write(args.mjcf, text))
     if args.urdf is not None:
-        written.append(atomic_write(args.urdf, robot_urdf(robot)))
+        written.append(atomic_write(args.urdf, robot_urdf(_with_markers(robot, args))))
         loops = loops_yaml(robot)
         if loops is not None:
             written.append(atomic_write(Path(args.urdf).with_suffix(".loops.yaml"), loops))
@@ -119,14 +117,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export_calibrated(args: argparse.Namespace) -> int:
-    """``--model`` is a pose calibration: write its calibrated geometry as a URDF."""
-    if args.mjcf is not None or args.urdf is None:
-        raise StiffnessError("a pose calibration's model file exports its calibrated geometry "
-                             "with --urdf OUT.urdf (its compliance stays in the model file)")
-    cal = read_pose_calibration(args.model)
-    robot = with_marker_frames(load_robot(args.model, **cal.robot_options()), cal)
-    path = atomic_write(args.urdf, robot_urdf(robot))
+def _with_markers(robot: Robot, args: argparse.Namespace) -> Robot:
+    """A pose calibration's robot (``--model``) with its marker frames and the measuring
+    frame (:func:`~stiffness.robot.calibration.with_marker_frames`); other robots as they are."""
+    if args.model is None or not is_pose_calibration(args.model):
+        return robot
     if not args.quiet:
-        print(f"wrote {path} (calibrated geometry; frames marker_<name> and measuring_frame)")
-    return 0
+        print("calibrated geometry; frames marker_<name> and measuring_frame")
+    return with_marker_frames(robot, read_pose_calibration(args.model))
