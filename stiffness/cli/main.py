@@ -39,6 +39,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scan": ("stiffness.cli.scan", "stiffness and definiteness maps over a workspace"),
     "compensate": ("stiffness.cli.compensate",
                    "joint commands that cancel the deflection along a path"),
+    "track": ("stiffness.cli.track",
+              "a path tracked in MuJoCo, raw and with the compensator's commands"),
     "posture": ("stiffness.cli.posture",
                 "the stiffest posture about the tool axis along a path"),
     "robot": ("stiffness.cli.robot",

@@ -377,7 +377,7 @@ def compensate(
         A bad path or wrench, or a point where a solve fails (the message names the row).
     """
     em = load_model(model, k_theta)
-    table, path, wrench = _path_and_wrench(em.robot, path, wrench, deg)
+    table, path, wrench = path_and_wrench(em.robot, path, wrench, deg)
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
     w = np.asarray(wrench, dtype=float)
@@ -421,7 +421,7 @@ def compensate(
     return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em, table, deg)
 
 
-def _path_and_wrench(robot: Robot, path: np.ndarray | str | Path,
+def path_and_wrench(robot: Robot, path: np.ndarray | str | Path,
                      wrench: np.ndarray | list[float] | None, deg: bool
                      ) -> tuple[JointPath, np.ndarray, np.ndarray | list[float]]:
     """The path as a table, its coordinates (m, n) (SI, checked finite) and the wrench: the

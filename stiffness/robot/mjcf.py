@@ -82,7 +82,7 @@ def _axis(joint) -> np.ndarray:
     return np.asarray(joint.extract().axis, dtype=float)
 
 
-def _joint_value(joint, q: np.ndarray) -> float:
+def joint_value(joint, q: np.ndarray) -> float:
     """The MuJoCo coordinate (rad or m) of a one-degree-of-freedom joint at ``q``."""
     if joint.shortname() in _CONTINUOUS:
         cos, sin = q[joint.idx_q: joint.idx_q + 2]
@@ -121,7 +121,7 @@ def _joint(body: etree._Element, robot: Robot, j: int, springs: dict[str, float]
     name = model.names[j]
     if name in springs:
         element.set("stiffness", str(float(springs[name])))
-        element.set("springref", str(_joint_value(joint, rest)))
+        element.set("springref", str(joint_value(joint, rest)))
 
 
 def _inertial(body: etree._Element, inertia: pin.Inertia) -> bool:
@@ -239,7 +239,7 @@ def _tendons(root: etree._Element, robot: Robot, plan: SpringPlan, rest: np.ndar
     model = robot.model
     tendon = etree.SubElement(root, "tendon")
     for name, coefficients, stiffness in plan.tendons:
-        length = sum(c * _joint_value(model.joints[model.getJointId(j)], rest)
+        length = sum(c * joint_value(model.joints[model.getJointId(j)], rest)
                      for j, c in coefficients.items())
         element = etree.SubElement(tendon, "fixed", name=name, stiffness=str(stiffness),
                                    springlength=str(float(length)))
@@ -311,7 +311,7 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     _equalities(root, robot, plan)
     keyframe = etree.SubElement(root, "keyframe")
     etree.SubElement(keyframe, "key", name="rest", qpos=numbers(
-        [_joint_value(model.joints[j], rest) for j in order]))
+        [joint_value(model.joints[j], rest) for j in order]))
     return etree.tostring(root, pretty_print=True, encoding="unicode")
 
 
