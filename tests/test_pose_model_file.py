@@ -27,6 +27,7 @@ from stiffness.calibration.pose_fit import (
 )
 from stiffness.cli.main import main
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.calibration import read_pose_calibration
 from stiffness.robot.robot import load_robot
 
 FAMILIES = ["frame", "markers", "joint_offsets", "geometry", "joint_compliance"]
@@ -137,3 +138,66 @@ def test_every_model_command_accepts_a_pose_model_file(calibration, tmp_path, ca
         code = main(argv)
         err = capsys.readouterr().err
         assert code == 0, (argv[0], err)
+
+
+def _hand_written(model: PoseModel, x: np.ndarray, path) -> None:
+    """A pose model file written by hand from a model and its parameters (every parameter
+    fitted, no uncertainty)."""
+    robot = model.robot
+    path.write_text(json.dumps({
+        "kind": "pose-calibration", "version": 1, "units": "SI",
+        "robot": {"source": "ur10", "frame": robot.target_frame, "target_offset_m": [0, 0, 0],
+                  "compliant_joints": list(robot.compliant_joints)},
+        "measuring_frame": {"rotation": model.rotation0.tolist(),
+                            "translation_m": model.translation0.tolist()},
+        "markers": [{"name": m.name, "frame": m.frame, "offset_m": m.offset.tolist()}
+                    for m in model.markers],
+        "load_frame": None, "families": list(model.families), "settings": model.settings,
+        "parameters": [{"family": p.family, "parameter": p.label, "unit": p.unit,
+                        "value": float(v), "fitted": True, "std": 0.0,
+                        "interval_95": [float(v), float(v)]}
+                       for p, v in zip(model.parameters, x, strict=True)]}))
+
+
+def test_the_loaded_model_rests_where_the_calibration_predicts(calibration, tmp_path):
+    """With spring compensators and large zero offsets (0.05 rad), the elastic model's unloaded
+    pose (the weight and the compensators sag the springs) puts the marker where the
+    calibration's own model predicts it (its sag's fixed point): 2.2e-8 m (1e-7 asked); the
+    compensators' angles not corrected by the zero offsets put it 1.4e-4 m off."""
+    robot, _ = calibration
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    fams = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
+            "gravity_compensator")
+    model = PoseModel(robot, markers, fams, (pin.exp3(np.array([0.1, 0.2, 0.3])),
+                                             np.array([1.0, -0.5, 0.2])))
+    rng = np.random.default_rng(5)
+    values = {p.label: 0.0 for p in model.parameters}
+    for p in model.parameters:
+        if p.family in ("frame", "markers", "geometry"):
+            values[p.label] = rng.normal(0.0, 1e-3)
+        elif p.family == "joint_offsets":
+            values[p.label] = 0.05
+        elif p.family == "joint_compliance":
+            values[p.label] = 1.0 / 2e4
+        elif p.label.endswith("compensator stiffness"):
+            values[p.label] = 4e3
+        elif p.label.endswith("compensator preload"):
+            values[p.label] = 300.0
+    x = np.array([values[p.label] for p in model.parameters])
+    _hand_written(model, x, tmp_path / "final-model.json")
+    em = load_model(tmp_path / "final-model.json")
+    assert sorted(e.label for e in em.applied)[:2] == [
+        "gravity_compensator(elbow_joint)", "gravity_compensator(shoulder_lift_joint)"]
+    file = read_pose_calibration(tmp_path / "final-model.json")
+    rotation, translation = file.measuring_placement()
+    qs = np.array([[0.3, -1.0, 1.2, -0.4, 1.0, 0.2], [-0.5, -2.0, 0.7, 0.3, -1.1, 0.5]])
+    predicted = model.evaluate(x, [model.row_terms(robot.configuration(q), None) for q in qs],
+                               jacobian=False)[0][:, 0]
+    calibrated = em.robot
+    data = calibrated.model.createData()
+    tip = calibrated.model.getFrameId("tool0")
+    for q, expected in zip(qs, predicted, strict=True):
+        rest = em.preloaded_configuration(em.configuration(q))
+        pin.framesForwardKinematics(calibrated.model, data, rest)
+        seen = rotation @ data.oMf[tip].act(file.marker_offset(0)) + translation
+        assert np.linalg.norm(seen - expected) < 1e-7

@@ -15,7 +15,8 @@ deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose 
 ``backlash``, ``link_compliance``, ``gravity_compensator``
     the same effects, with the calibration's smoothing torques, ``1/c`` bend stiffnesses (a bend
     off the target's chain does not act on it), and the compensator's default geometry with its
-    angle from the link's upward direction, as the calibration used them.
+    angle from the link's upward direction, as the calibration used them (the upward angle less
+    the joint's zero offset: the calibrated robot's joint angles are the commanded ones).
 
 ``gravity_lumped`` (masses unknown) is compliance times unknown masses: no stiffness, so a
 calibration with it (and no ``joint_compliance``) has no springs. Units: SI.
@@ -30,7 +31,7 @@ from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.effects.preloads import GravityCompensator
-from stiffness.robot.calibration import PoseCalibration
+from stiffness.robot.calibration import PoseCalibration, zero_label
 from stiffness.robot.robot import load_robot
 
 
@@ -120,9 +121,12 @@ def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[
         stiff, tension = (rows.get(compensator_label(joint, w)) for w in ("stiffness", "preload"))
         spring = make_effect("gravity_compensator", joint, geometry)
         if stiff is not None and tension is not None and isinstance(spring, GravityCompensator):
+            offset = float(rows.get(zero_label(joint), {}).get("value", 0.0))
+            settings = {**spring.settings,  # the calibrated robot's angles exclude the offset
+                        "angle_up_rad": spring.settings["angle_up_rad"] - offset}
             out.effects.append(("gravity_compensator", joint,
                                 [_as_is(stiff, "stiffness"), _as_is(tension, "preload")],
-                                spring.settings))
+                                settings))
     for a, b in geometry.link_columns:
         pair = [row for row in (rows.get(bend_label(a, b, i)) for i in (1, 2)) if row]
         if len(pair) < 2:
