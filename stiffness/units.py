@@ -9,6 +9,10 @@ from stiffness.errors import UnknownNameError
 ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
 FORCE_UNITS = {"N": 1.0, "kN": 1e3}
 LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
+#: Largest magnitude of a number a user gives (a CSV cell, in the file's units; a flag value, in
+#: its unit): far beyond any measurement or setting in any supported unit (1e12 um is 1e6 m),
+#: and small enough that products of squares stay finite.
+MAX_CELL = 1e12
 #: Moment unit name -> factor to N.m (every force unit times every length unit).
 MOMENT_UNITS = {f"{f}.{ln}": FORCE_UNITS[f] * LENGTH_UNITS[ln]
                 for f in FORCE_UNITS for ln in LENGTH_UNITS}

@@ -198,15 +198,9 @@ def test_loop_closure_singular_convergence_unstable(non_grashof_four_bar, ur5):
      "measurements.csv is a CSV file, not a campaign; give the campaign.toml"),
     (["simulate", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--noise", "-1",
       "--out", "{tmp}/s"], "--noise must be a finite standard deviation >= 0, in mm; got -1"),
-    (["simulate", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--rotation-noise",
-      "nan", "--out", "{tmp}/s"], "--rotation-noise must be a finite standard deviation >= 0, "
-     "in deg; got nan"),
     (["design", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--configs", "2",
       "--max-force", "100", "--noise", "-0.01", "--units", "um", "--out", "{tmp}/d"],
      "--noise must be a finite standard deviation > 0, in um; got -0.01"),
-    (["posture", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--path",
-      str(DOCS_PATH), "--wrench", "0,0,300", "--singularity-margin", "nan", "--out",
-      "{tmp}/o.csv"], "--singularity-margin must be a finite number >= 0"),
     (["design", "--robot", "ur5", "--kq", "1e5,1e5,1e5,1e4,1e4,1e4", "--configs", "2",
       "--max-force", "100", "--candidates", "10001", "--out", "{tmp}/d"],
      "--candidates 10001 is more than 10000"),
@@ -220,6 +214,23 @@ def test_cli_turns_each_error_into_exit_2_and_one_line(tmp_path, capsys, argv, w
     (tmp_path / "bad.toml").write_text('name = "x"\nbaseline = \n')
     err = _one_line_error(capsys, [a.replace("{tmp}", str(tmp_path)) for a in argv])
     assert words in err
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["simulate", "--robot", "ur5", "--rotation-noise", "nan", "--out", "s"],
+     "argument --rotation-noise: 'nan' is not a finite number"),
+    (["posture", "--robot", "ur5", "--singularity-margin", "nan", "--out", "o.csv"],
+     "argument --singularity-margin: 'nan' is not a finite number"),
+    (["simulate", "--robot", "ur5", "--max-force", "1e13", "--out", "s"],
+     "argument --max-force: 1e13 is beyond +-1e+12"),
+])
+def test_one_number_flags_are_usage_errors_in_one_line(capsys, argv, words):
+    """A one-number flag that is not a finite number within +-1e12: the parser's usage error
+    (exit 2, one line), before anything runs."""
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    out, err = capsys.readouterr()
+    assert info.value.code == 2 and out == "" and err.count("\n") == 1 and words in err, err
 
 
 def test_cli_loop_that_cannot_close(non_grashof_four_bar, capsys):

@@ -18,10 +18,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.measurements import MAX_CELL
 from stiffness.errors import DataFileWarning, FileFormatError
 from stiffness.planning.plan import read_plan
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MAX_CELL
 
 HEADER = "config,q1,q2,q3,q4,q5,q6,fx,fy,fz"
 #: Two UR5 rows (deg, N) within the joint limits (+-360 deg, elbow +-180 deg).

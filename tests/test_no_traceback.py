@@ -1,5 +1,7 @@
 """No traceback, ever: ``posture``, ``compensate``, ``kx`` and ``view --export`` on random seeds,
-poses and loads of five example-robot-data arms end in exit 0, or in exit 2 with one error line.
+poses and loads of five example-robot-data arms end in exit 0, or in exit 2 with one error line;
+so do ``kx``, ``view --export`` and ``simulate`` given any flag value (NaN, infinities, 1e308,
+1e-308, zero, negative, text: issue 38 item 7, where ``--kq 1e308`` ended in ``LinAlgError``).
 
 Also the case that used to end in ``numpy.linalg.LinAlgError: Singular matrix`` (the Panda's
 damped IK step with the damping shrunk to ~1e-12 and the seed on joint 4's limit), and the
@@ -17,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from fuzzing import LONG
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -36,13 +39,23 @@ ARMS = {
 }
 #: Few examples per command: each runs a whole command (about 0.1-1 s).
 FEW = settings(max_examples=8, deadline=timedelta(seconds=20))
+#: Flag values: a dozen commands per test in CI, 300 under the ``long`` profile (about 2 min).
+FLAG_VALUES = settings(max_examples=300 if LONG else 12, deadline=timedelta(seconds=20))
+#: Numbers that break naive flag readers, written as a user would.
+NASTY_NUMBERS = ["nan", "inf", "-inf", "1e308", "-1e308", "1e309", "1e-308", "0", "-0", "-1",
+                 "1e12", "-1e12", "1e13", "1e-12", "abc", "", "0x10", "1e6"]
+number_text = st.one_of(st.sampled_from(NASTY_NUMBERS),
+                        st.floats(allow_nan=True, allow_infinity=True).map(repr))
 
 
 def run_cli(argv: list[str]) -> tuple[int, str]:
     """Exit status and stderr of ``stiffness ARGV`` run in this process."""
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        code = main(argv)
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # a usage error: argparse's one line and exit 2
+            code = exc.code if isinstance(exc.code, int) else 2
     return code, err.getvalue()
 
 
@@ -109,6 +122,49 @@ def test_kx_never_a_traceback(case):
     argv = ["kx", *robot_flags(name, rng), "--q", ",".join(f"{v:.6g}" for v in q),
             "--wrench", random_wrench(rng)]
     assert_clean_exit(*run_cli(argv))
+
+
+#: Valid values of the list flags on the UR5 (one of their items is replaced).
+VALID = {"--kq": ["1e4"] * 6, "--wrench": ["0", "0", "-10"],
+         "--q": ["0.1", "-1.2", "1.4", "-0.5", "1.2", "0.3"], "--target-offset": ["0", "0", "0.1"]}
+
+
+def flag_argv(command: str, flag: str, item: int, value: str, folder: str) -> list[str]:
+    """``command`` on the UR5 with valid flags but ``flag``'s ``item`` set to ``value``."""
+    if command == "simulate":
+        return ["simulate", "--robot", "ur5", "--compliant-joints", ",".join(ARMS["ur5"][:3]),
+                "--kq", "1e4,1e4,1e4", "--configs", "2", "--loads-per-config", "1", "--quiet",
+                "--out", str(Path(folder) / "sim"), f"{flag}={value}"]
+    values = {k: list(v) for k, v in VALID.items()}
+    values[flag][item % len(values[flag])] = value
+    argv = [command, "--robot", "ur5", "--compliant-joints", ",".join(ARMS["ur5"])]
+    for name, items in values.items():
+        argv.append(f"{name}={','.join(items)}")
+    return argv + (["--export", str(Path(folder) / "v.html")] if command == "view" else [])
+
+
+@pytest.mark.parametrize(("command", "flag", "value"), [
+    ("view", "--kq", "1e308"), ("kx", "--kq", "1e308"), ("kx", "--wrench", "1e308"),
+    ("view", "--q", "1e300"), ("simulate", "--noise", "nan"), ("simulate", "--max-force", "1e308"),
+])
+def test_flag_values_of_the_issue_end_in_one_line(command, flag, value, tmp_path):
+    """The values that ended in LinAlgError or a blamed singularity (issue 38 item 7)."""
+    code, err = run_cli(flag_argv(command, flag, 0, value, str(tmp_path)))
+    assert code == 2 and ("beyond +-1e+12" in err or "finite" in err), err
+    assert_clean_exit(code, err)
+
+
+@FLAG_VALUES
+@given(st.sampled_from(["kx", "view", "simulate"]), st.sampled_from(sorted(VALID)),
+       st.integers(0, 5), number_text,
+       st.sampled_from(["--noise", "--max-force", "--rotation-noise"]))
+def test_any_flag_value_never_a_traceback(command, flag, item, value, one_number_flag):
+    """kx and view --export with any item of --kq, --wrench, --q or --target-offset, and
+    simulate with any one-number flag: exit 0 or one error line."""
+    with tempfile.TemporaryDirectory() as folder:
+        argv = flag_argv(command, one_number_flag if command == "simulate" else flag, item,
+                         value, folder)
+        assert_clean_exit(*run_cli(argv))
 
 
 @FEW

@@ -16,7 +16,6 @@ from types import UnionType
 import numpy as np
 
 from stiffness.calibration.coordinate_columns import check_fixed_table
-from stiffness.calibration.measurements import MAX_CELL
 from stiffness.errors import (
     FileFormatError,
     MissingFileError,
@@ -31,7 +30,14 @@ from stiffness.files import (
     resolve_source,
 )
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS, Units
+from stiffness.units import (
+    ANGLE_UNITS,
+    FORCE_UNITS,
+    LENGTH_UNITS,
+    MAX_CELL,
+    MOMENT_UNITS,
+    Units,
+)
 
 #: Campaign file name inside a campaign folder.
 CAMPAIGN_FILE = "campaign.toml"

@@ -27,7 +27,7 @@ from stiffness.errors import (
 )
 from stiffness.mechanics.defaults import reference_configuration
 from stiffness.robot.robot import Robot
-from stiffness.units import Units
+from stiffness.units import MAX_CELL, Units
 
 #: A positional coordinate column: ``q1``, ``q2``, ...
 Q_COLUMN = re.compile(r"q(\d+)$")
@@ -188,7 +188,7 @@ def check_fixed_table(value, length: str, angle: str) -> str | None:
     """Why ``[robot] fixed`` is malformed (a table of finite numbers), or ``None``."""
     if not isinstance(value, dict) or not all(
             isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-            and abs(v) <= 1e12 for v in value.values()):
+            and abs(v) <= MAX_CELL for v in value.values()):
         return (f"[robot] fixed must be a table of joint = value, in {angle} (or {length} for "
                 f"a prismatic joint), e.g. fixed = {{ head_1_joint = 0.0 }}; got {value!r}")
     return None

@@ -33,7 +33,7 @@ from stiffness.files import (
 )
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
-from stiffness.units import Units
+from stiffness.units import MAX_CELL, Units
 
 FORCE_COLUMNS = ("fx", "fy", "fz")
 DEFLECTION_COLUMNS = ("dx", "dy", "dz")
@@ -187,11 +187,6 @@ def check_units_comment(declared: Units, expected: Units, source: object, path: 
     if said != known:
         raise FileFormatError(f"the units comment says {said} but {source} says {known}; make "
                               "them agree", path=path, line=line)
-
-
-#: Largest magnitude of a CSV cell, in the file's units: far beyond any measurement in any
-#: supported unit (1e12 um is 1e6 m), and small enough that products of squares stay finite.
-MAX_CELL = 1e12
 
 
 def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float:

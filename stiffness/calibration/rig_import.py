@@ -48,12 +48,19 @@ import numpy as np
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
-from stiffness.calibration.measurements import MAX_CELL, coordinates_in_si
+from stiffness.calibration.measurements import coordinates_in_si
 from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
 from stiffness.files import read_text, read_toml, resolve_path, resolve_source
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MOMENT_UNITS, Units
+from stiffness.units import (
+    ANGLE_UNITS,
+    FORCE_UNITS,
+    LENGTH_UNITS,
+    MAX_CELL,
+    MOMENT_UNITS,
+    Units,
+)
 
 #: Frames forces and deflections may be given in.
 FRAMES = ("base", "tool")

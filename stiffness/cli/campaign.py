@@ -62,9 +62,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         "each row's coordinates); default base")
     p.add_argument("--deflection-frame", choices=FRAMES,
                    help="frame of the deflections or positions; default base")
-    p.add_argument("--noise", type=float, metavar="STD",
+    p.add_argument("--noise", type=flags.number, metavar="STD",
                    help="measurement noise std, in the files' length unit (noise_std)")
-    p.add_argument("--noise-rotation", type=float, metavar="STD",
+    p.add_argument("--noise-rotation", type=flags.number, metavar="STD",
                    help="--kind poses with orientation columns: their noise std, in the files' "
                         "angle unit (noise_std_rotation)")
     p.add_argument("--baseline", choices=BASELINES, default="enhanced",

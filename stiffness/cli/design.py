@@ -59,7 +59,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="configurations in the plan")
     parser.add_argument("--loads-per-config", type=int, default=4, metavar="M",
                         help="load directions per configuration; default 4")
-    parser.add_argument("--max-force", type=float, required=True, metavar="F",
+    parser.add_argument("--max-force", type=flags.number, required=True, metavar="F",
                         help="load magnitude, N")
     parser.add_argument("--candidates", type=int, default=DEFAULT_CANDIDATES, metavar="K",
                         help=f"candidate poses drawn; default {DEFAULT_CANDIDATES}")
@@ -72,7 +72,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "joint2)")
     parser.add_argument("--existing", metavar="CAMPAIGN",
                         help="measured campaign whose rows count as already chosen")
-    parser.add_argument("--noise", type=float, metavar="STD",
+    parser.add_argument("--noise", type=flags.number, metavar="STD",
                         help="measurement noise std per deflection component, in --units; "
                              "default --existing's noise_std, else 0.005 mm")
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default=None,

@@ -15,6 +15,10 @@ flag has the same name, unit and syntax in every command:
 * ``--seed N`` (a non-negative integer, default 0);
 * ``--json`` (one JSON object on stdout) and ``--quiet`` (no progress, no echo of the inputs).
 
+Every number a flag takes is finite and within +-1e12 in its unit (``parse_list`` for lists,
+``number`` for one-number flags), the bound of a campaign's CSV cells: beyond it a value is no
+coordinate, load or stiffness, and the arithmetic that follows would overflow.
+
 Values that start with a minus sign are taken in the natural form (``--q -35,-60,95``,
 ``--wrench -10,0,-100``) by :class:`ArgumentParser`, which the ``stiffness`` dispatcher uses;
 plain :mod:`argparse` would read them as unknown options.
@@ -33,6 +37,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import numpy as np
 
 from stiffness.errors import StiffnessError
+from stiffness.units import MAX_CELL
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
     from stiffness.robot.robot import Robot
@@ -112,7 +117,9 @@ def parse_list(text: str, flag: str) -> list[float]:
     Raises
     ------
     StiffnessError
-        If an item is not a finite number.
+        If an item is not a finite number within +-:data:`~stiffness.units.MAX_CELL` (the
+        bound of a campaign's CSV cells: beyond any coordinate, load or stiffness, and small
+        enough for the arithmetic that follows).
     """
     values = []
     for item in text.split(","):
@@ -124,8 +131,28 @@ def parse_list(text: str, flag: str) -> list[float]:
             ) from None
         if not np.isfinite(value):
             raise StiffnessError(f"{flag} values must be finite, got {item.strip()!r}")
+        if abs(value) > MAX_CELL:
+            raise StiffnessError(f"{flag} value {item.strip()} is beyond +-{MAX_CELL:.0e}, "
+                                 "larger than any coordinate, load or stiffness (and too large "
+                                 "for the arithmetic); check the value and its unit")
         values.append(value)
     return values
+
+
+def number(text: str) -> float:
+    """An ``argparse`` type for one-number flags (``--noise``, ``--max-force``, ``--fps``...):
+    a finite number within +-:data:`~stiffness.units.MAX_CELL`, as :func:`parse_list` checks
+    each item of a list flag (the parser's usage error, one line, otherwise)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    if abs(value) > MAX_CELL:
+        raise argparse.ArgumentTypeError(f"{text} is beyond +-{MAX_CELL:.0e}, larger than any "
+                                         "setting (and too large for the arithmetic)")
+    return value
 
 
 def require_at_least_one(value: int | None, flag: str) -> None:

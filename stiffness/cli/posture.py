@@ -32,7 +32,7 @@ from stiffness.cli.compensate import (
     elastic_model_from_args,
     progress_printer,
 )
-from stiffness.cli.flags import add_output_flags, parse_list
+from stiffness.cli.flags import add_output_flags, number, parse_list
 from stiffness.errors import StiffnessError
 from stiffness.machining.compensation import angular_coordinates
 from stiffness.machining.posture import posture
@@ -50,12 +50,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     add_wrench_flags(parser)
     parser.add_argument("--steps", type=int, default=36,
                         help="candidate angles about the free axis per point; default 36")
-    parser.add_argument("--max-step", type=float, default=10.0, metavar="DEG",
+    parser.add_argument("--max-step", type=number, default=10.0, metavar="DEG",
                         help="largest joint change between consecutive points, deg; default 10")
-    parser.add_argument("--reference-angle", type=float, default=0.0, metavar="DEG",
+    parser.add_argument("--reference-angle", type=number, default=0.0, metavar="DEG",
                         help="the fixed angle compared with, deg; default 0 (the first point's "
                              "orientation, carried along the path)")
-    parser.add_argument("--singularity-margin", type=float, default=1e-3,
+    parser.add_argument("--singularity-margin", type=number, default=1e-3,
                         help="smallest admissible singular value of the target Jacobian "
                              "(m/rad); default 1e-3")
     parser.add_argument("--start", help="IK seed of the first point, one value per coordinate "

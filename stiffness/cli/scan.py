@@ -94,7 +94,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="swept coordinate (joint name or q1, q2...): a grid LO..HI by "
                              "STEP, or a sampling range without STEP (rad or m; --deg); "
                              "repeat for several axes")
-    parser.add_argument("--samples", type=float,
+    parser.add_argument("--samples", type=flags.number,
                         help="random configurations (uniform in the --axis ranges, else in the "
                              "joint limits) instead of a grid")
     flags.add_seed_flag(parser, "seed of --samples; default 0")
@@ -106,7 +106,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "repeat for several; --load is an alias; default "
         f"{','.join(f'{v:g}' for v in DEFAULT_LOAD_N)}"))
     flags.add_stiffness_flag(parser)
-    parser.add_argument("--rtol", type=float, default=1e-9,
+    parser.add_argument("--rtol", type=flags.number, default=1e-9,
                         help="relative eigenvalue tolerance of the definiteness classes")
     parser.add_argument("--map-axes", help="two swept coordinates the figures are drawn over "
                                            "(default: the two with the most values)")

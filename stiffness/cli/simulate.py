@@ -53,16 +53,16 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="loads per configuration; default 4")
     parser.add_argument("--repeats", type=int, default=1,
                         help="measurements per load (replicates); default 1")
-    parser.add_argument("--max-force", type=float, default=100.0,
+    parser.add_argument("--max-force", type=flags.number, default=100.0,
                         help="largest force, N; default 100")
     parser.add_argument("--load-pattern", choices=LOAD_PATTERNS, default="random",
                         help="random directions and magnitudes, a ramp along one direction per "
                              "configuration, or the six axis directions; default random")
-    parser.add_argument("--noise", type=float, default=0.005,
+    parser.add_argument("--noise", type=flags.number, default=0.005,
                         help="measurement noise std, in --units; default 0.005")
     parser.add_argument("--rotations", action="store_true",
                         help="also write the measured rotations rx, ry, rz of the target frame")
-    parser.add_argument("--rotation-noise", type=float, default=None,
+    parser.add_argument("--rotation-noise", type=flags.number, default=None,
                         help="rotation noise std, deg; default --noise / 100 mm")
     parser.add_argument("--undeclared-noise", action="store_true",
                         help="do not write noise_std into the campaign")

@@ -67,9 +67,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quantity", choices=QUANTITIES, default="stiffness",
                         help="draw the stiffness (N/m, default) or the compliance (m/N) "
                              "ellipsoid; radii are proportional to the principal values")
-    parser.add_argument("--size", type=float,
+    parser.add_argument("--size", type=flags.number,
                         help="largest ellipsoid radius, m (default: 12%% of the robot's reach)")
-    parser.add_argument("--exaggeration", type=float,
+    parser.add_argument("--exaggeration", type=flags.number,
                         help="factor applied to the drawn deflection (default: a round number "
                              "that moves the target about 8%% of the reach)")
     parser.add_argument("--sweep", metavar="JOINT=START:STOP[:N]",
@@ -79,7 +79,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--path", metavar="FILE.csv",
                         help="animate a path: one row of coordinates per frame, comma-separated "
                              "(rad, m prismatic; degrees with --deg)")
-    parser.add_argument("--fps", type=float, default=10.0,
+    parser.add_argument("--fps", type=flags.number, default=10.0,
                         help="frames per second of the animation (default 10)")
     parser.add_argument("--field", type=int, metavar="N",
                         help="ellipsoid field over N random configurations, coloured by the "
@@ -95,7 +95,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=0, help="web port (default: a free one)")
     parser.add_argument("--open", action="store_true",
                         help="open the live page in the system's browser (does not wait)")
-    parser.add_argument("--duration", type=float,
+    parser.add_argument("--duration", type=flags.number,
                         help="serve the live viewer this many seconds (default: until Ctrl-C)")
 
 

@@ -77,6 +77,9 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
             jac = jac[[3, 4, 5, 0, 1, 2]]
     ell = None if k_x is None else ellipsoid(k_x)
     critical = state.critical_load_factor
+    if undefined is not None and critical is not None and critical < 1.0:
+        undefined = (f"the arm is unstable under this load (K_theta - K_C turns singular at "
+                     f"{critical:.4g} times the wrench), and {undefined}")
     out = {
         "formulation": formulation,
         "connection": connection,
