@@ -201,3 +201,20 @@ def test_the_loaded_model_rests_where_the_calibration_predicts(calibration, tmp_
         pin.framesForwardKinematics(calibrated.model, data, rest)
         seen = rotation @ data.oMf[tip].act(file.marker_offset(0)) + translation
         assert np.linalg.norm(seen - expected) < 1e-7
+
+
+def test_a_geometric_calibration_has_no_springs(calibration, tmp_path, capsys):
+    """A calibration of geometry only: kx refuses it with one line (no spring), robot export
+    writes its geometry."""
+    robot, _ = calibration
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    model = PoseModel(robot, markers, ("frame", "markers", "joint_offsets"),
+                      (np.eye(3), np.zeros(3)))
+    _hand_written(model, np.full(model.size, 1e-3), tmp_path / "geometry.json")
+    capsys.readouterr()
+    assert main(["kx", "--model", str(tmp_path / "geometry.json"), "--q",
+                 ",".join(map(str, Q)), "--wrench", "0,0,-100"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no spring" in err and "\n" not in err, err
+    assert main(["robot", "export", "--model", str(tmp_path / "geometry.json"), "--urdf",
+                 str(tmp_path / "g.urdf"), "--quiet"]) == 0
