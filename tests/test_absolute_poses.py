@@ -23,10 +23,10 @@ from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
-from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_report import stage_table
 from stiffness.cli.main import main
+from stiffness.elastic.effects import FAMILIES
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
@@ -91,7 +91,8 @@ def _jacobian_case(robot, families, seed: int = 0):
 def _assert_columns(model, rows, x, scales, tol, columns):
     _, jac = model.evaluate(x, rows)
     for c in columns:
-        h = (1.0 if FAMILIES[model.parameters[c].family].kind == "elastic" else 1e-2) * scales[c]
+        elastic = FAMILIES[model.parameters[c].family].family_kind == "elastic"
+        h = (1.0 if elastic else 1e-2) * scales[c]
         e = np.zeros(model.size)
         e[c] = h
         fd = (model.evaluate(x + e, rows, False)[0] - model.evaluate(x - e, rows, False)[0]) / (
@@ -108,7 +109,7 @@ def test_jacobian_matches_finite_differences(ur10, sagging, families):
     a sagging arm (the derivative holds the torques at the loaded configuration fixed: the
     documented C dtau/dq approximation)."""
     model, rows, x, scales = _jacobian_case(ur10, families)
-    elastic = np.array([FAMILIES[p.family].kind == "elastic" for p in model.parameters])
+    elastic = np.array([FAMILIES[p.family].family_kind == "elastic" for p in model.parameters])
     if not sagging:
         x[elastic] = 0.0
     _assert_columns(model, rows, x, scales, 1e-2 if sagging else 1e-6, range(model.size))

@@ -9,7 +9,7 @@ wrench. The prediction of marker ``m`` on row ``i`` is
     y_{im} = \\exp(\\omega) R_0 \\; {}^{0}M_{f_m}(q_i + \\delta_0 + \\Delta q_i;\\ \\varepsilon)
              \\,(o_m + \\delta o_m) + t_0 + t,
 
-with the parameter families of :data:`stiffness.calibration.pose_families.FAMILIES`:
+with the parameter families of :data:`stiffness.elastic.effects.FAMILIES`:
 
 ``frame``
     the measuring frame's placement relative to its starting estimate ``R_0, t_0``: ``t`` (m,
@@ -52,15 +52,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.pose_families import FAMILIES
-from stiffness.calibration.pose_families.base import (
+from stiffness.elastic.effects import FAMILIES
+from stiffness.elastic.effects.kinematic_errors import MeasuringFrame
+from stiffness.elastic.effects.pose_face import (
+    FamilyParameter,
     MarkerView,
-    Parameter,
     PoseFamily,
     RowTerms,
     SagState,
 )
-from stiffness.calibration.pose_families.geometric import MeasuringFrame
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
 
@@ -122,7 +122,7 @@ class PoseModel:
         The markers the measuring system sees.
     families
         Which parameter families are in the parameter vector (names in
-        :data:`~stiffness.calibration.pose_families.FAMILIES`).
+        :data:`~stiffness.elastic.effects.FAMILIES`).
     loads
         Applied wrenches per row, or ``None`` (gravity alone).
     frame0
@@ -176,17 +176,17 @@ class PoseModel:
         # never reused by another row: the starts, and so the results, are deterministic)
         self._sag_start: dict[int, tuple[RowTerms, np.ndarray]] = {}
         self._lumped = any(f.lumps_gravity for f in self.family_objects)
-        self._elastic = any(f.kind == "elastic" for f in self.family_objects)
+        self._elastic = any(f.family_kind == "elastic" for f in self.family_objects)
         # the families that implement each per-row hook (the others would add nothing)
         self._hooked = {hook: [f for f in self.family_objects
                                if getattr(type(f), hook) is not getattr(PoseFamily, hook)]
                         for hook in ("configuration_offset", "at_configuration", "joint_torque",
                                      "joint_deflection", "deflection_per_torque",
                                      "marker_displacement")}
-        self.parameters: list[Parameter] = []
+        self.parameters: list[FamilyParameter] = []
         self._slices: dict[str, slice] = {}
         for fam in self.family_objects:
-            own = fam.parameters(self)
+            own = fam.family_parameters(self)
             self._slices[fam.name] = slice(len(self.parameters), len(self.parameters) + len(own))
             self.parameters += own
 
@@ -288,7 +288,7 @@ class PoseModel:
 
     def campaign_settings(self, rows: list[RowTerms]) -> dict:
         """The families' fixed settings from a campaign's ``rows`` (every family of
-        :data:`~stiffness.calibration.pose_families.FAMILIES`, whether in this model or not),
+        :data:`~stiffness.elastic.effects.FAMILIES`, whether in this model or not),
         from the torques the joints carry at the commanded poses under the nominal robot
         (gravity with its inertias, and the applied wrench)."""
         model = self.robot.model
@@ -360,9 +360,9 @@ class PoseModel:
         model = self.perturbed_model(x)
         data = model.createData()
         parts = {f.name: x[self._slices[f.name]] for f in self.family_objects}
-        rot_w, d_omega = MeasuringFrame.rotation(self.part(x, "frame"))
+        rot_w, d_omega = MeasuringFrame.frame_rotation(self.part(x, "frame"))
         to_measuring = rot_w @ self.rotation0
-        translation = self.translation0 + MeasuringFrame.translation(self.part(x, "frame"))
+        translation = self.translation0 + MeasuringFrame.frame_translation(self.part(x, "frame"))
         n, m = len(rows), len(self.markers)
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
@@ -412,8 +412,8 @@ class PoseModel:
     def measuring_placement(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) with ``y = R p + t`` for a robot-world point ``p``, parameters ``x``."""
         frame = self.part(x, "frame")
-        rot, _ = MeasuringFrame.rotation(frame)
-        return rot @ self.rotation0, self.translation0 + MeasuringFrame.translation(frame)
+        rot, _ = MeasuringFrame.frame_rotation(frame)
+        return rot @ self.rotation0, self.translation0 + MeasuringFrame.frame_translation(frame)
 
     @staticmethod
     def _point_jacobian(model: pin.Model, data: pin.Data, fid: int, point: np.ndarray

@@ -3,7 +3,7 @@ family (docs/absolute-poses.md).
 
 Step 0 is the nominal rigid robot seen through a fitted measuring frame and marker offsets
 (the tracker is anywhere; its placement is always unknown). Each later step tries the parameter
-families of :data:`CANDIDATES` (:data:`~stiffness.calibration.pose_families.FAMILIES`: joint
+families of :data:`CANDIDATES` (:data:`~stiffness.elastic.effects.FAMILIES`: joint
 zero offsets, joint placement geometry, and with the masses known joint compliance, link
 compliance and backlash under gravity and the applied loads, then a spring compensator once
 joint compliance is in; with the masses unknown the lumped compliance) and adds one by deflection
@@ -33,7 +33,6 @@ import numpy as np
 from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_families import FAMILIES
 from stiffness.calibration.pose_fit import (
     PoseFit,
     campaign_settings,
@@ -54,6 +53,7 @@ from stiffness.calibration.selection import (
     information_criterion,
 )
 from stiffness.calibration.validation import error_summary
+from stiffness.elastic.effects import FAMILIES
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration

@@ -44,9 +44,9 @@ from stiffness.calibration.absolute import PoseModel, align_frames
 from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_families.base import RowTerms
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import information_criterion, interval_quantile
+from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError
 
 #: Smallest sine between a kept column and the span of the others (documented above).

@@ -27,7 +27,7 @@ import pinocchio as pin
 
 from stiffness.calibration.absolute import Marker, PoseModel
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_families.base import RowTerms
+from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import StiffnessError
 
 #: Distance (m) of the auxiliary points from a marker along its frame's axes.

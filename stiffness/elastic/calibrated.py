@@ -30,33 +30,16 @@ from dataclasses import dataclass, field
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.effects.pose_face import (
+    BACKLASH_SETTING,
+    backlash_label,
+    bend_label,
+    compensator_label,
+    compliance_label,
+)
 from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.robot.calibration import PoseCalibration, zero_label
 from stiffness.robot.robot import load_robot
-
-
-def compliance_label(joint: str) -> str:
-    """Label of a spring's compliance in a pose calibration."""
-    return f"{joint} compliance"
-
-
-def backlash_label(joint: str) -> str:
-    """Label of a joint's backlash half-width."""
-    return f"{joint} backlash"
-
-
-def compensator_label(joint: str, what: str) -> str:
-    """Label of a compensator's ``stiffness`` or ``preload`` on ``joint``."""
-    return f"{joint} compensator {what}"
-
-
-def bend_label(a: str, b: str, axis: int) -> str:
-    """Label of the compliance of link ``a -> b`` about its axis ``axis`` (1 or 2)."""
-    return f"{a}->{b} compliance {axis}"
-
-
-#: Setting of the backlash family: joint -> smoothing torque (N.m, N).
-BACKLASH_SETTING = "backlash_smoothing_torque"
 
 
 @dataclass

@@ -26,10 +26,10 @@ import pinocchio as pin
 from stiffness.calibration.absolute import Loads, Marker, PoseModel, one_dof_joints
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_families.bends import Link, marker_links
-from stiffness.calibration.pose_families.elastic import BacklashPose, CompensatorPose
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import link_axes
+from stiffness.elastic.effects.joint_laws import Backlash
+from stiffness.elastic.effects.link_bends import Link, marker_links
 from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
@@ -61,7 +61,7 @@ class HiddenPoseErrors:
         Drift of the measuring frame's origin over the campaign (m), linear along the rows.
     link_compliance
         ``"a->b"`` (joint names of a link of a marker's chain,
-        :func:`~stiffness.calibration.pose_families.bends.marker_links`) -> its two bending
+        :func:`~stiffness.elastic.effects.link_bends.marker_links`) -> its two bending
         compliances (rad/(N.m)).
     backlash
         (n_compliant,) backlash half-widths (rad or m), smoothed as the deflection library's
@@ -69,7 +69,7 @@ class HiddenPoseErrors:
     compensator
         Revolute compliant joint name -> (stiffness N/m, tension N with the link up) of a
         spring compensator with the library's default geometry
-        (:meth:`~stiffness.calibration.pose_families.elastic.CompensatorPose.spring`).
+        (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.upward`).
     """
 
     frame_rotation: np.ndarray
@@ -153,7 +153,7 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
         np.zeros(n) if hidden.backlash is None else np.asarray(hidden.backlash, dtype=float),
         np.array([smoothing.get(j, 1.0) for j in names]),
         [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
-          CompensatorPose.spring(robot, j), np.asarray(p, dtype=float))
+          GravityCompensator.upward(robot, j), np.asarray(p, dtype=float))
          for j, p in hidden.compensator.items()],
         sorted(((links[w], np.asarray(c, dtype=float)) for w, c in hidden.link_compliance.items()),
                key=lambda item: item[0].b))
@@ -300,7 +300,7 @@ def _smoothing(robot: Robot, markers: list[Marker], q: np.ndarray, loads: Loads 
     nominal = PoseModel(robot, markers, (), (np.eye(3), np.zeros(3)), loads)
     rows = [nominal.row_terms(robot.configuration(c), None if loads is None else loads.wrench[i])
             for i, c in enumerate(q)]
-    return nominal.campaign_settings(rows).get(BacklashPose.SETTING, {})
+    return nominal.campaign_settings(rows).get(Backlash.SETTING, {})
 
 
 def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: np.ndarray

@@ -1,17 +1,20 @@
-"""The effect library: what a stiffness model may miss, one class per effect.
+"""The effect library: what a model of an elastic robot may miss, one class per effect.
 
 Each effect is one class in a module of its family: joint laws
 (:mod:`~stiffness.elastic.effects.joint_laws`), link bends
 (:mod:`~stiffness.elastic.effects.link_bends`), preloads
 (:mod:`~stiffness.elastic.effects.preloads`), the target and the measurement
-(:mod:`~stiffness.elastic.effects.measurement`), all subclasses of
-:class:`~stiffness.elastic.effects.base.Effect`. A class carries its prediction in a campaign's
-fit (:class:`~stiffness.elastic.effects.hypothesis.Hypothesis`) and its contribution to a model
-used away from its campaign (:meth:`Effect.contribute` into an
-:class:`~stiffness.elastic.effects.base.ElasticParts`). Adding an effect is one class, listed
-in :data:`LIBRARY`, and its test.
+(:mod:`~stiffness.elastic.effects.measurement`), the kinematic errors
+(:mod:`~stiffness.elastic.effects.kinematic_errors`), all subclasses of
+:class:`~stiffness.elastic.effects.base.Effect`. A class carries its prediction in a deflection
+campaign's fit (:class:`~stiffness.elastic.effects.hypothesis.Hypothesis`), its contribution to
+a model used away from its campaign (:meth:`Effect.contribute` into an
+:class:`~stiffness.elastic.effects.base.ElasticParts`) and, where it is a parameter family of
+an absolute-pose model, its pose face (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`
+hooks). Adding an effect is one class, listed in :data:`EFFECTS` (and in the view of the
+campaign kinds it serves: :data:`LIBRARY`, :data:`FAMILIES`), and its test.
 
-The library (:data:`LIBRARY`):
+The deflection campaigns' library (:data:`LIBRARY`):
 
 ``complementary_stiffness``
     Load-dependent geometry: ``K_C`` in the tangent stiffness *and* the second-order kinematics
@@ -58,6 +61,14 @@ The library (:data:`LIBRARY`):
     parameters its stiffness N/m and its tension N with the link straight up): its torque
     preloads the joint, its angle derivative adds to the joint's stiffness.
 
+The pose model's families (:data:`FAMILIES`, in column order; docs/absolute-poses.md):
+``frame``, ``markers``, ``joint_offsets``, ``geometry`` (geometric:
+:mod:`~stiffness.elastic.effects.kinematic_errors`); ``joint_compliance``, ``gravity_lumped``
+(masses unknown), ``link_compliance``, ``backlash``, ``gravity_compensator`` (elastic, the
+same classes as the deflection effects of those names). ``link_compliance`` and ``backlash``
+need the links' masses (not with ``gravity_lumped``); ``gravity_compensator`` acts through
+``joint_compliance``.
+
 Units: SI inside (m, N, rad, N.m/rad).
 """
 
@@ -72,6 +83,12 @@ from stiffness.elastic.effects.joint_laws import (
     JointCompliance,
     NonlinearJointStiffness,
 )
+from stiffness.elastic.effects.kinematic_errors import (
+    JointGeometry,
+    JointOffsets,
+    MarkerOffsets,
+    MeasuringFrame,
+)
 from stiffness.elastic.effects.link_bends import LinkCompliance
 from stiffness.elastic.effects.measurement import (
     DeflectionOffset,
@@ -79,15 +96,31 @@ from stiffness.elastic.effects.measurement import (
     FrameMisalignment,
     TargetOffset,
 )
-from stiffness.elastic.effects.preloads import GravityCompensator, GravityPreload
+from stiffness.elastic.effects.pose_face import PoseFamily
+from stiffness.elastic.effects.preloads import GravityCompensator, GravityLumped, GravityPreload
 from stiffness.errors import UnknownEffectError, did_you_mean
 
-#: Effect name -> class, in the order candidates are listed.
+#: Every effect of the library: name -> class. The effects with a pose face come in the order
+#: a pose model lays out their columns (:data:`FAMILIES`).
+EFFECTS: dict[str, type[Effect]] = {
+    cls.name: cls for cls in (MeasuringFrame, MarkerOffsets, JointOffsets, JointGeometry,
+                              ComplementaryStiffness, JointCompliance, GravityLumped,
+                              LinkCompliance, Backlash, NonlinearJointStiffness,
+                              FrameMisalignment, TargetOffset, ForceSensorBias, DeflectionOffset,
+                              GravityPreload, GravityCompensator)
+}
+#: The effects a deflection campaign may miss: name -> class, in the order candidates are
+#: listed.
 LIBRARY: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (ComplementaryStiffness, JointCompliance, LinkCompliance, Backlash,
-                              NonlinearJointStiffness, FrameMisalignment, TargetOffset,
-                              ForceSensorBias, DeflectionOffset, GravityPreload,
-                              GravityCompensator)
+    name: EFFECTS[name] for name in (
+        "complementary_stiffness", "joint_compliance", "link_compliance", "backlash",
+        "nonlinear_joint_stiffness", "frame_misalignment", "target_offset",
+        "force_sensor_bias", "deflection_offset", "gravity_preload", "gravity_compensator")
+}
+#: The parameter families of an absolute-pose model, the effects with a pose face: name ->
+#: class, in the order the columns are laid out.
+FAMILIES: dict[str, type[PoseFamily]] = {
+    name: cls for name, cls in EFFECTS.items() if issubclass(cls, PoseFamily)
 }
 #: Effects the issue requires (``deflection_offset`` is an extra).
 REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n != "deflection_offset")

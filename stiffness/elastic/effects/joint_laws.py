@@ -3,7 +3,11 @@
 ``nonlinear_joint_stiffness`` (a spring that softens or hardens).
 
 Each class carries its prediction hooks (:class:`stiffness.elastic.effects.base.Effect`) and
-its contribution to a model used away from its campaign (:meth:`Effect.contribute`).
+its contribution to a model used away from its campaign (:meth:`Effect.contribute`);
+``joint_compliance`` and ``backlash`` also their pose-model face
+(:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every compliant joint
+of a pose model, under gravity and the applied wrench, their part of the joints' deflection in
+the sag's fixed point, :meth:`stiffness.calibration.absolute.PoseModel.loaded_configuration`).
 
 Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
 """
@@ -12,13 +16,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, TypeVar
 
 import numpy as np
 
 from stiffness.elastic.effects.base import Effect, Parameter, stiffness_report
-from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
+from stiffness.elastic.effects.pose_face import (
+    BACKLASH_SETTING,
+    FamilyParameter,
+    JointDeflectionFamily,
+    PoseLayout,
+    SagState,
+    backlash_label,
+    compliance_label,
+)
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 
 JointEffect = TypeVar("JointEffect", "JointCompliance", "Backlash", "NonlinearJointStiffness")
@@ -56,8 +69,13 @@ class ComplementaryStiffness(Effect):
 
 
 @dataclass(eq=False)
-class JointCompliance(Effect):
-    """A joint declared rigid is a spring of stiffness ``k``."""
+class JointCompliance(Effect, JointDeflectionFamily):
+    """A joint declared rigid is a spring of stiffness ``k``.
+
+    Pose face: ``Delta q_j = c_j tau_j`` on each compliant joint (rad/(N.m), or m/N), ``tau``
+    the torque the springs carry at the loaded configuration; springs on controller
+    coordinates (``S``: :attr:`PoseLayout.spring_map`) give ``Delta q = S diag(c) S^T tau``.
+    """
 
     joint_name: str = ""
     prismatic: bool = False
@@ -113,15 +131,45 @@ class JointCompliance(Effect):
     def describe(self) -> str:
         return f"joint {self.joint_name}, declared rigid, is a spring"
 
+    # pose face ----------------------------------------------------------------------------
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        return [self.param(compliance_label(n),
+                           "m/N" if pm.robot.is_prismatic(n) else "rad/(N.m)")
+                for n in pm.springs]
+
+    def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
+        return pm.spring_map @ (x_f * (pm.spring_map.T @ state.torque))
+
+    def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                              ) -> np.ndarray:
+        """The diagonal of ``S diag(c) S^T``: exact for springs on joints; with springs on
+        controller coordinates the coupling's off-diagonal terms are left out (they would
+        matter only to a family adding its own torque on a chain joint)."""
+        return pm.spring_map ** 2 @ x_f
+
+    def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                           ) -> np.ndarray:
+        return pm.spring_map * (pm.spring_map.T @ state.torque)
+
 
 @dataclass(eq=False)
-class Backlash(Effect):
-    """Lost motion at a joint: ``dtheta += b tanh(tau / tau_s)``."""
+class Backlash(Effect, JointDeflectionFamily):
+    """Lost motion at a joint: ``dtheta += b tanh(tau / tau_s)``.
+
+    Pose face: on each compliant joint, ``Delta q_j += b_j tanh(tau_j / tau_s)`` (``tau_s`` =
+    :data:`~stiffness.elastic.effects.geometry.BACKLASH_SMOOTHING` times the joint's RMS torque
+    over the campaign, setting ``backlash_smoothing_torque``); ``b_j`` rad (m prismatic). A
+    joint whose torque is nil at every pose of the campaign (below :data:`NIL_TORQUE` of the
+    largest joint's RMS: a vertical base axis) has no parameter: its lost motion never shows.
+    """
 
     joint_name: str = ""
     prismatic: bool = False
     #: smoothing torque (N.m, N) a model file gives; ``None``: the campaign's
     smoothing_torque: float | None = None
+    #: the pose face's joints (velocity indices, smoothing torques), built once per model
+    _pose_layout: tuple[list[int], np.ndarray] | None = field(default=None, init=False,
+                                                              repr=False)
     name: ClassVar[str] = "backlash"
     kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
@@ -176,6 +224,71 @@ class Backlash(Effect):
 
     def describe(self) -> str:
         return f"joint {self.joint_name} has lost motion (a dead band around zero torque)"
+
+    # pose face ----------------------------------------------------------------------------
+    family_scale: ClassVar[float] = 1e-4
+    needs_masses: ClassVar[bool] = True
+    #: the model setting naming each compliant joint's smoothing torque (N.m or N)
+    SETTING: ClassVar[str] = BACKLASH_SETTING
+    #: RMS torque, relative to the largest joint's, below which a joint carries none
+    NIL_TORQUE: ClassVar[float] = 1e-6
+
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        names = pm.robot.model.names
+        return [self.param(backlash_label(names[j]), pm.joint_unit(j, "rad", "m"))
+                for j, _, _ in self._pose_joints(pm)]
+
+    @classmethod
+    def campaign_settings(cls, torques: np.ndarray, pm: PoseLayout) -> dict:
+        """``backlash_smoothing_torque``: joint name -> smoothing torque, from the (rows, nv)
+        torques the joints carry at the campaign's commanded poses (joints that carry none
+        left out)."""
+        names = pm.robot.model.names
+        rms = np.sqrt(np.mean(torques[:, pm.compliant_v] ** 2, axis=0))
+        top = float(rms.max(initial=0.0))
+        return {cls.SETTING: {names[j]: float(BACKLASH_SMOOTHING * r)
+                              for j, r in zip(pm.compliant, rms, strict=True)
+                              if r > cls.NIL_TORQUE * top}}
+
+    def _pose_joints(self, pm: PoseLayout) -> list[tuple[int, int, float]]:
+        """(joint id, velocity index, smoothing torque) of each joint with a parameter."""
+        given = pm.settings.get(self.SETTING)
+        if not isinstance(given, dict):
+            raise StiffnessError("backlash needs each compliant joint's smoothing torque "
+                                 f"(setting {self.SETTING}); build the model with "
+                                 "pose_fit.campaign_settings(campaign)")
+        names = pm.robot.model.names
+        return [(j, v, float(given[names[j]]))
+                for j, v in zip(pm.compliant, pm.compliant_v, strict=True) if names[j] in given]
+
+    def _ratio(self, pm: PoseLayout, state: SagState) -> tuple[list[int], np.ndarray,
+                                                                np.ndarray]:
+        """Velocity indices, ``tau_j / tau_s`` and ``tau_s`` of the joints with a parameter."""
+        if self._pose_layout is None:  # built once per model
+            joints = self._pose_joints(pm)
+            self._pose_layout = ([v for _, v, _ in joints], np.array([s for _, _, s in joints]))
+        v_index, smooth = self._pose_layout
+        return v_index, state.torque[v_index] / smooth, smooth
+
+    def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
+        v_index, ratio, _ = self._ratio(pm, state)
+        out = np.zeros(state.torque.size)
+        out[v_index] = x_f * np.tanh(ratio)
+        return out
+
+    def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                              ) -> np.ndarray:
+        v_index, ratio, smooth = self._ratio(pm, state)
+        out = np.zeros(state.torque.size)
+        out[v_index] = x_f * (1.0 - np.tanh(ratio) ** 2) / smooth
+        return out
+
+    def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                           ) -> np.ndarray:
+        v_index, ratio, _ = self._ratio(pm, state)
+        out = np.zeros((state.torque.size, x_f.size))
+        out[v_index, np.arange(x_f.size)] = np.tanh(ratio)
+        return out
 
 
 

@@ -6,18 +6,45 @@ The segment ``a -> b`` bends at ``b``'s origin ``p_b`` about the two axes normal
 ``(x_t - p_b) x F + M``, the part beyond ``p_b`` turns by ``omega = sum_i e_i (e_i . M_b) / k_i``
 and the target moves by ``omega x (x_t - p_b)``.
 
+Pose face (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`): each link of a marker's
+chain bends under the weight beyond it and the applied wrench. A *link* is a segment ``a -> b``
+between consecutive joints of a marker's chain whose origins are at least
+:data:`~stiffness.elastic.effects.geometry.MIN_SEGMENT_M` apart at the zero coordinates (of
+joints whose origins coincide, a spherical wrist, the first stands for the group). It bends at
+``b``'s origin ``p_b`` about the two axes ``e_1, e_2`` normal to it (:func:`link_axes`, the axis
+column chosen at the zero coordinates as for a deflection campaign). The moment there is the
+weight of everything beyond ``b`` and the applied wrench if it acts beyond ``b``,
+
+``M_b = m_b (c_b - p_b) x g + [(x_w - p_b) x F + M]``
+
+(``m_b, c_b``: mass and centre of mass of ``b``'s subtree, from the model's inertias); the part
+beyond ``p_b`` turns by ``omega_b = sum_i e_i c_i (e_i . M_b)`` and a marker beyond it moves by
+``omega_b x (x - p_b)``. Parameters the compliances ``c_1, c_2`` (rad/(N.m)) of each link:
+linear, so the columns are exact at a given loaded configuration. The bend is evaluated at the
+sag's loaded configuration; its own feedback on the joints' torques (the bent links' weight
+moving, relative size ``|c dtau/dq|``) is left out.
+
 Units: SI (m, N, N.m/rad).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.elastic.effects.base import Effect, stiffness_report
-from stiffness.elastic.effects.geometry import link_axes
+from stiffness.elastic.effects.geometry import MIN_SEGMENT_M, link_axes
+from stiffness.elastic.effects.pose_face import (
+    FamilyParameter,
+    MarkerView,
+    PoseFamily,
+    PoseLayout,
+    RowTerms,
+    bend_label,
+)
 from stiffness.errors import StiffnessError, UnknownNameError
 
 
@@ -30,9 +57,51 @@ def segment(where: str | None) -> tuple[str, str] | None:
     return None
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products along the last axis (broadcast), without ``np.cross``'s overhead."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+@dataclass(frozen=True)
+class Link:
+    """A bending link ``a -> b`` (joint ids) and the column of ``b``'s mounting body axes
+    that :func:`link_axes` makes normal to it."""
+
+    a: int
+    b: int
+    column: int
+
+
+def marker_links(model: pin.Model, frame_ids: list[int]) -> list[Link]:
+    """The links of the markers' chains (each once, base first), at the zero coordinates."""
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    out: list[Link] = []
+    for fid in dict.fromkeys(frame_ids):
+        chain = [j for j in model.supports[model.frames[fid].parentJoint]
+                 if j > 0 and model.joints[j].nv == 1]
+        groups: list[int] = []
+        for j in chain:
+            if not groups or np.linalg.norm(data.oMi[j].translation
+                                            - data.oMi[groups[-1]].translation) >= MIN_SEGMENT_M:
+                groups.append(j)
+        for a, b in zip(groups, groups[1:], strict=False):
+            seg = data.oMi[b].translation - data.oMi[a].translation
+            mount = data.oMi[model.parents[b]].rotation
+            link = Link(int(a), int(b), int(np.argmin(np.abs(mount.T @ seg))))
+            if link not in out:
+                out.append(link)
+    return out
+
+
 @dataclass(eq=False)
-class LinkCompliance(Effect):
-    """Lumped bending of the segment ``a -> b`` at ``b``'s origin, about two normal axes."""
+class LinkCompliance(Effect, PoseFamily):
+    """Lumped bending of the segment ``a -> b`` at ``b``'s origin, about two normal axes.
+
+    Pose face: each link of the markers' chains bends at its distal joint's origin about the
+    two axes normal to it, under the weight beyond and the applied wrench."""
 
     a: str = ""
     b: str = ""
@@ -115,3 +184,77 @@ class LinkCompliance(Effect):
     def describe(self) -> str:
         return (f"the segment {self.a} -> {self.b} bends at {self.b} about the two axes "
                 "normal to it")
+
+    # pose face ----------------------------------------------------------------------------
+    family_kind: ClassVar[str] = "elastic"
+    family_scale: ClassVar[float] = 1e-6
+    needs_masses: ClassVar[bool] = True
+
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        names = pm.robot.model.names
+        return [self.param(bend_label(names[link.a], names[link.b], i), "rad/(N.m)")
+                for link in self.links(pm) for i in (1, 2)]
+
+    @staticmethod
+    def links(pm: PoseLayout) -> list[Link]:
+        """The model's bending links (:func:`marker_links`)."""
+        return marker_links(pm.robot.model, pm.frame_ids)
+
+    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
+                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool
+                  ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
+        """Per link: ``p_b`` (L, 3) and ``e_i (e_i . M_b)`` (L, 2, 3), the rotation per unit
+        compliance (rad per rad/(N.m)), world axes; and which links each marker frame is
+        beyond."""
+        links, beyond = shared
+        pin.centerOfMass(model, data, q, True)  # subtree masses and centres (joint axes)
+        distal = [link.b for link in links]
+        origins = np.array([data.oMi[b].translation for b in distal]).reshape(-1, 3)
+        centres = np.array([data.oMi[b].act(data.com[b]) for b in distal]).reshape(-1, 3)
+        masses = np.array([data.mass[b] for b in distal])
+        gravity = np.asarray(model.gravity.linear, dtype=float)
+        moments = masses[:, None] * _cross(centres - origins, gravity)
+        if row.wrench is not None and pm.loads is not None:
+            fid = pm.frame_id(pm.loads.frame)
+            carried = set(model.supports[model.frames[fid].parentJoint])
+            loaded = np.array([b in carried for b in distal], dtype=float).reshape(-1, 1)
+            moments += loaded * (_cross(data.oMf[fid].translation - origins, row.wrench[:3])
+                                 + row.wrench[3:])
+        proximal = np.array([data.oMi[link.a].translation for link in links]).reshape(-1, 3)
+        mounts = np.array([data.oMi[model.parents[b]].rotation for b in distal]
+                          ).reshape(-1, 3, 3)
+        turns = np.zeros((len(links), 2, 3))
+        columns = np.array([link.column for link in links], dtype=int)
+        for column in set(columns.tolist()):
+            sel = columns == column
+            e1, e2 = link_axes(proximal[sel], origins[sel], mounts[sel], column)
+            turns[sel, 0] = e1 * np.sum(e1 * moments[sel], axis=1, keepdims=True)
+            turns[sel, 1] = e2 * np.sum(e2 * moments[sel], axis=1, keepdims=True)
+        return origins, turns, beyond
+
+    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
+                         ) -> tuple[list[Link], dict[int, np.ndarray]]:
+        """The links, and per marker frame whether it moves with each link's distal joint."""
+        model = pm.robot.model
+        links = self.links(pm)
+        beyond = {fid: np.array([link.b in set(model.supports[model.frames[fid].parentJoint])
+                                 for link in links], dtype=float).reshape(-1)
+                  for fid in set(pm.frame_ids)}
+        return links, beyond
+
+    def _lever(self, pm: PoseLayout, view: MarkerView) -> tuple[np.ndarray, np.ndarray]:
+        """Per link, the turn per unit compliance (L, 2, 3) of the links the marker is beyond
+        (zero for the others), and the marker's lever from ``p_b`` (L, 3)."""
+        origins, turns, beyond = view.caches[self.name]
+        return turns * beyond[view.fid][:, None, None], view.point[None, :] - origins
+
+    def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
+                            ) -> np.ndarray:
+        turns, lever = self._lever(pm, view)
+        omega = np.einsum("lik,li->lk", turns, x_f.reshape(-1, 2))
+        return _cross(omega, lever).sum(axis=0)
+
+    def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
+        turns, lever = self._lever(pm, view)
+        cols = _cross(turns, lever[:, None, :]).reshape(-1, 3).T  # (3, 2L)
+        return view.to_measuring @ cols

@@ -1,9 +1,13 @@
-"""Preloads: loads present at every pose. ``gravity_preload`` (the links' weight and a payload)
-and ``gravity_compensator`` (a spring between the base and a lever on a link).
+"""Preloads: loads present at every pose. ``gravity_preload`` (the links' weight and a payload),
+``gravity_compensator`` (a spring between the base and a lever on a link) and, for pose models
+whose links' masses are unknown, ``gravity_lumped`` (the weight's sag lumped with the joints'
+compliance).
 
 The measured deflection is then the loaded minus the unloaded equilibrium at the commanded
 pose; the preload's torque joins the joint load (a nonlinear spring's operating point) and its
-derivative the stiffness.
+derivative the stiffness. In a pose model (the pose face,
+:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`) a compensator's torque at
+the loaded joint angle joins what the joint's spring carries.
 
 Units: SI (kg, m, N, N/m, N.m, rad).
 """
@@ -12,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
@@ -20,6 +24,13 @@ import pinocchio as pin
 
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
+from stiffness.elastic.effects.pose_face import (
+    FamilyParameter,
+    JointDeflectionFamily,
+    PoseLayout,
+    SagState,
+    compensator_label,
+)
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 from stiffness.mechanics.gravity import (
     ANGLE_REFERENCES,
@@ -27,6 +38,7 @@ from stiffness.mechanics.gravity import (
     require_open_chain,
     upward_angle,
 )
+from stiffness.robot.robot import Robot
 
 #: Default geometry of ``gravity_compensator`` (m, m, rad, rad): lever on the link, distance of
 #: the base attachment from the axis, the reference angle (:func:`upward_angle`; 0: the joint's
@@ -35,6 +47,11 @@ from stiffness.mechanics.gravity import (
 COMPENSATOR_GEOMETRY: dict[str, float | str] = {
     "lever_m": 0.1, "base_m": 0.3, "angle_up_rad": 0.0, "angle0_rad": 0.0,
     "angle_reference": "joint_zero"}
+#: Unit of a lumped gravity parameter (compliance times a mass or a mass moment).
+LUMPED_UNIT = "rad/(N.m) x (kg or kg.m)"
+#: Gravity parameters of a link in Pinocchio's order (m, m c_x, m c_y, m c_z, inertia...).
+GRAVITY_PARAMETERS = ("m", "mcx", "mcy", "mcz")
+
 
 def reach(model: pin.Model) -> float:
     """The robot's reach (m): the longest chain of joint and frame placements from the base
@@ -123,7 +140,7 @@ GEOMETRY_RANGE = (0.05, 20.0)
 
 
 @dataclass(eq=False)
-class GravityCompensator(Effect):
+class GravityCompensator(Effect, JointDeflectionFamily):
     """A spring between the base and a lever on the joint's link, its angle measured from the
     link's upward direction at zero load
     (:func:`stiffness.mechanics.gravity.compensator_torque`,
@@ -133,7 +150,13 @@ class GravityCompensator(Effect):
     ``k a^2`` and ``a / d`` (scaling both lengths by ``s`` and ``F0, k`` by ``1/s, 1/s^2``
     leaves it unchanged): the lever is always the declared one (``k`` and ``F0`` are in its
     terms), the base becomes the parameter ``base`` (m) after them when the data determine the
-    ratio (``geometry_source = "fitted"``, :meth:`settings_freed`)."""
+    ratio (``geometry_source = "fitted"``, :meth:`settings_freed`).
+
+    Pose face: one compensator with its default geometry (:meth:`upward`) on each revolute
+    compliant joint; its torque at the loaded joint angle joins what the joint's spring
+    carries. Parameters per joint: the spring's stiffness (N/m) and its tension at the joint's
+    zero (N); the torque is linear in both. Needs ``joint_compliance`` (the torque acts
+    through the joint's compliance)."""
 
     joint_name: str = ""
     lever_m: float = float(COMPENSATOR_GEOMETRY["lever_m"])
@@ -144,6 +167,9 @@ class GravityCompensator(Effect):
     reference_reason: str = ""
     geometry_source: str = "default"
     geometry_note: str = ""
+    #: the pose face's joints (id) and their compensators, built once per model
+    _pose_springs: list[tuple[int, GravityCompensator]] | None = field(default=None,
+                                                                        init=False, repr=False)
     name: ClassVar[str] = "gravity_compensator"
     param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
     beyond_springs: ClassVar[bool] = True
@@ -307,3 +333,104 @@ class GravityCompensator(Effect):
                        f"{self.geometry_source}{held}")
         return (f"a spring gravity compensator on {self.joint_name} ({lengths}; {origin}) adds "
                 "its torque and its angle derivative (a stiffness) to the joint")
+
+    # pose face ----------------------------------------------------------------------------
+    requires: ClassVar[tuple[str, ...]] = ("joint_compliance",)
+    #: typical sizes of the stiffness (N/m) and the tension (N)
+    SIZES: ClassVar[tuple[float, float]] = (1e3, 1e2)
+
+    @classmethod
+    def upward(cls, robot: Robot, joint: str) -> GravityCompensator:
+        """The compensator on ``joint`` with its default geometry, its angle measured from the
+        link's upward direction (:func:`~stiffness.mechanics.gravity.upward_angle`)."""
+        up = upward_angle(robot, joint)
+        return cls(joint_name=joint, angle_up_rad=up.angle_rad, angle_reference=up.reference,
+                   reference_reason=up.reason)
+
+    def _pose_joints(self, pm: PoseLayout) -> list[tuple[int, GravityCompensator]]:
+        """Each revolute compliant joint (id) and its spring (built once per model)."""
+        if self._pose_springs is None:
+            names = pm.robot.model.names
+            self._pose_springs = [(j, self.upward(pm.robot, names[j])) for j in pm.compliant
+                                  if not pm.robot.is_prismatic(names[j])]
+        return self._pose_springs
+
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        return [FamilyParameter(self.name, compensator_label(spring.joint_name, what), size,
+                                unit)
+                for _, spring in self._pose_joints(pm)
+                for what, size, unit in zip(("stiffness", "preload"), self.SIZES, ("N/m", "N"),
+                                            strict=True)]
+
+    def _unit_torques(self, pm: PoseLayout, q: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """Per joint, its velocity index and the torque (N.m) per unit stiffness and per unit
+        tension at the loaded angle."""
+        model = pm.robot.model
+        out = []
+        for j, spring in self._pose_joints(pm):
+            theta = _joint_angle(model, j, q)
+            out.append((model.joints[j].idx_v,
+                        np.array([float(spring.torque(unit, np.array(theta))[0])
+                                  for unit in (np.array([1.0, 0.0]), np.array([0.0, 1.0]))])))
+        return out
+
+    def joint_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
+        out = np.zeros(state.torque.size)
+        model = pm.robot.model
+        for n, (j, spring) in enumerate(self._pose_joints(pm)):
+            p = x_f[2 * n: 2 * n + 2]
+            if p.any():  # a spring without stiffness or tension adds nothing
+                theta = np.array(_joint_angle(model, j, state.q))
+                out[model.joints[j].idx_v] += float(spring.torque(p, theta)[0])
+        return out
+
+    def torque_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
+        out = np.zeros((state.torque.size, x_f.size))
+        for n, (v, unit) in enumerate(self._unit_torques(pm, state.q)):
+            out[v, 2 * n: 2 * n + 2] = unit
+        return out
+
+
+def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> float:
+    """Angle (rad) of a revolute joint at ``q`` (a continuous joint's from its cos, sin)."""
+    jm = model.joints[joint]
+    if jm.nq == 2:
+        return float(np.arctan2(q[jm.idx_q + 1], q[jm.idx_q]))
+    return float(q[jm.idx_q])
+
+
+class GravityLumped(Effect, JointDeflectionFamily):
+    """``gravity_lumped`` (a pose model's family when the links' masses are unknown; no
+    deflection face): ``Delta q_j = - sum_k theta_jk Y_jk(q)``, ``Y`` the gravity regressor at
+    the loaded configuration, ``theta_jk = c_j pi_k`` lumped (``pi_k``: the mass and mass
+    moments of link ``k`` downstream of ``j``); for springs on controller coordinates
+    ``Delta q = - S_j theta_jk S_j^T Y_k`` (``S_j`` the spring's column of
+    :attr:`PoseLayout.spring_map`)."""
+
+    name: ClassVar[str] = "gravity_lumped"
+    lumps_gravity: ClassVar[bool] = True
+
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        names = pm.robot.model.names
+        return [self.param(f"{spring} x {names[k]} {p}", LUMPED_UNIT)
+                for c, spring in enumerate(pm.springs) for k in pm.spring_downstream(c)
+                for p in GRAVITY_PARAMETERS]
+
+    def at_configuration(self, pm: PoseLayout, model: pin.Model, data: pin.Data,
+                         q: np.ndarray) -> np.ndarray:
+        """d(Delta q)/d theta (nv, n_theta): ``-S_j (S_j^T Y_k)`` of each pair (minus the
+        regressor entry at a spring on a joint)."""
+        nv = model.nv
+        regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(nv), np.zeros(nv))
+        pairs = np.array([(c, 10 * (k - 1) + p) for c in range(len(pm.springs))
+                          for k in pm.spring_downstream(c)
+                          for p in range(len(GRAVITY_PARAMETERS))], dtype=int).reshape(-1, 2)
+        springs = pm.spring_map[:, pairs[:, 0]]  # each pair's spring column S_j (nv, n_theta)
+        return -springs * np.sum(springs * regressor[:, pairs[:, 1]], axis=0)
+
+    def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
+        return state.extras[self.name] @ x_f
+
+    def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                           ) -> np.ndarray:
+        return state.extras[self.name]

@@ -1,11 +1,15 @@
-"""The base of the pose-model families (:class:`PoseFamily`), the parameter a family lays out
-(:class:`Parameter`), and what a family's hooks read: the sag's state at a configuration
-(:class:`SagState`) and one marker on one row (:class:`MarkerView`).
+"""The pose-model face of an effect (:class:`PoseFamily`): the hooks through which an effect of
+the library (:data:`stiffness.elastic.effects.FAMILIES`) is a parameter family of an
+absolute-pose model, the parameter a family lays out (:class:`FamilyParameter`), and what the
+hooks read: a row (:class:`RowTerms`), the model's layout (:class:`PoseLayout`), the sag's state
+at a configuration (:class:`SagState`) and one marker on one row (:class:`MarkerView`).
 
-A family is one class: its name, its kind (``"geometric"`` or ``"elastic"``), its parameters
-with their units and typical sizes, and its part of the prediction and of the Jacobian as
-methods. :class:`~stiffness.calibration.absolute.PoseModel` calls the hooks of the families it
-holds and never branches on a family's name.
+A family is one effect class: its name, its family kind (``"geometric"`` or ``"elastic"``), its
+parameters with their units and typical sizes, and its part of the prediction and of the
+Jacobian as methods. The same class serves deflection campaigns through its
+:class:`~stiffness.elastic.effects.base.Effect` hooks; as a pose family one object of it acts on
+every joint (or link) the model lays out. :class:`~stiffness.calibration.absolute.PoseModel`
+calls the hooks of the families it holds and never branches on a family's name.
 
 Units: SI (m, N, rad).
 """
@@ -24,8 +28,32 @@ from stiffness.robot.robot import Robot
 FAMILY_KINDS = ("geometric", "elastic")
 
 
+def compliance_label(joint: str) -> str:
+    """Label of a spring's compliance in a pose calibration."""
+    return f"{joint} compliance"
+
+
+def backlash_label(joint: str) -> str:
+    """Label of a joint's backlash half-width."""
+    return f"{joint} backlash"
+
+
+def compensator_label(joint: str, what: str) -> str:
+    """Label of a compensator's ``stiffness`` or ``preload`` on ``joint``."""
+    return f"{joint} compensator {what}"
+
+
+def bend_label(a: str, b: str, axis: int) -> str:
+    """Label of the compliance of link ``a -> b`` about its axis ``axis`` (1 or 2)."""
+    return f"{a}->{b} compliance {axis}"
+
+
+#: Setting of the backlash family: joint -> smoothing torque (N.m, N).
+BACKLASH_SETTING = "backlash_smoothing_torque"
+
+
 @dataclass(frozen=True)
-class Parameter:
+class FamilyParameter:
     """One column of the regressor: its family, label, scale (typical size, SI) and unit."""
 
     family: str
@@ -152,16 +180,17 @@ class MarkerView:
 
 
 class PoseFamily:
-    """A parameter family of the pose model. Hooks default to contributing nothing.
+    """The pose-model face of an effect (a mixin of the effect's class). Hooks default to
+    contributing nothing.
 
     Class attributes: :attr:`name` (the public name: JSON keys, diagnose's output),
-    :attr:`kind` (one of :data:`FAMILY_KINDS`), :attr:`scale` (typical size of a parameter,
-    SI; scales the regressor's columns).
+    :attr:`family_kind` (one of :data:`FAMILY_KINDS`), :attr:`family_scale` (typical size of a
+    parameter, SI; scales the regressor's columns).
     """
 
     name: ClassVar[str] = ""
-    kind: ClassVar[str] = "geometric"
-    scale: ClassVar[float] = 1e-3
+    family_kind: ClassVar[str] = "geometric"
+    family_scale: ClassVar[float] = 1e-3
     #: whether the family stands in for gravity's torque (masses unknown): the springs then
     #: carry only the applied wrench's known torque
     lumps_gravity: ClassVar[bool] = False
@@ -170,7 +199,7 @@ class PoseFamily:
     #: families that must be in the model with this one
     requires: ClassVar[tuple[str, ...]] = ()
 
-    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
         raise NotImplementedError
 
@@ -180,9 +209,9 @@ class PoseFamily:
         the joints carry at its commanded poses under the nominal robot; none by default."""
         return {}
 
-    def param(self, label: str, unit: str) -> Parameter:
+    def param(self, label: str, unit: str) -> FamilyParameter:
         """A parameter of this family with its typical size."""
-        return Parameter(self.name, label, self.scale, unit)
+        return FamilyParameter(self.name, label, self.family_scale, unit)
 
     # --- prediction hooks ---------------------------------------------------------------
     def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray | None:
@@ -241,8 +270,8 @@ class JointDeflectionFamily(PoseFamily):
     with ``T`` to measuring axes and ``J_p`` the marker's point Jacobian.
     """
 
-    kind: ClassVar[str] = "elastic"
-    scale: ClassVar[float] = 1e-6
+    family_kind: ClassVar[str] = "elastic"
+    family_scale: ClassVar[float] = 1e-6
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray | None:

@@ -1,6 +1,9 @@
-"""The geometric families of the pose model: the measuring frame (``frame``), the markers'
-offsets (``markers``), the joints' zero offsets (``joint_offsets``) and the joints' placement
-errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.absolute`.
+"""Kinematic errors: the geometric effects of the library, families of the pose model
+(:class:`~stiffness.elastic.effects.pose_face.PoseFamily`): the measuring frame (``frame``),
+the markers' offsets (``markers``), the joints' zero offsets (``joint_offsets``) and the joints'
+placement errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.absolute`.
+They have no deflection face (the :class:`~stiffness.elastic.effects.base.Effect` hooks keep
+their defaults).
 
 Units: SI (m, rad).
 """
@@ -12,14 +15,15 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.pose_families.base import (
+from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.geometry import skew
+from stiffness.elastic.effects.pose_face import (
+    FamilyParameter,
     MarkerView,
-    Parameter,
     PoseFamily,
     PoseLayout,
     RowTerms,
 )
-from stiffness.elastic.effects.geometry import skew
 from stiffness.robot.calibration import (
     PLACEMENT_AXES,
     PLACEMENT_UNITS,
@@ -31,24 +35,24 @@ from stiffness.robot.calibration import (
 )
 
 
-class MeasuringFrame(PoseFamily):
+class MeasuringFrame(Effect, PoseFamily):
     """``frame``: the measuring frame's translation ``t`` (m) and rotation ``omega`` (rad)
     relative to the starting estimate: ``y = exp(omega) R_0 p + t_0 + t``."""
 
     name: ClassVar[str] = "frame"
 
-    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(frame_label(a), u)
                 for a, u in zip(PLACEMENT_AXES, PLACEMENT_UNITS, strict=True)]
 
     @staticmethod
-    def rotation(x_f: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def frame_rotation(x_f: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """``exp(omega)`` and its right Jacobian (``None``: no frame parameters)."""
         omega = np.zeros(3) if x_f is None else x_f[3:]
         return pin.exp3(omega), pin.Jexp3(omega)
 
     @staticmethod
-    def translation(x_f: np.ndarray | None) -> np.ndarray:
+    def frame_translation(x_f: np.ndarray | None) -> np.ndarray:
         """``t`` (m) (``None``: no frame parameters)."""
         return np.zeros(3) if x_f is None else x_f[:3]
 
@@ -57,12 +61,12 @@ class MeasuringFrame(PoseFamily):
         return np.hstack([np.eye(3), -view.rot_w @ skew(view.world) @ view.d_omega])
 
 
-class MarkerOffsets(PoseFamily):
+class MarkerOffsets(Effect, PoseFamily):
     """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes)."""
 
     name: ClassVar[str] = "markers"
 
-    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
@@ -72,12 +76,12 @@ class MarkerOffsets(PoseFamily):
         return cols
 
 
-class JointOffsets(PoseFamily):
+class JointOffsets(Effect, PoseFamily):
     """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
 
     name: ClassVar[str] = "joint_offsets"
 
-    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
         return [self.param(zero_label(names[j]), pm.joint_unit(j, "rad", "m"))
                 for j in pm.joints]
@@ -91,13 +95,13 @@ class JointOffsets(PoseFamily):
         return view.to_measuring @ view.j_point[:, pm.joints_v]
 
 
-class JointGeometry(PoseFamily):
+class JointGeometry(Effect, PoseFamily):
     """``geometry``: each 1-dof joint's placement error ``eps_j``, ``M_j exp(eps_j)``, without
     the component along its own motion (its zero offset): 5 per joint along a frame axis."""
 
     name: ClassVar[str] = "geometry"
 
-    def parameters(self, pm: PoseLayout) -> list[Parameter]:
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
         return [self.param(placement_label(names[pm.joints[n]], PLACEMENT_AXES[c]),
                            PLACEMENT_UNITS[c]) for n, c in pm.geometry]
