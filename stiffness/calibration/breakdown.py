@@ -25,7 +25,8 @@ _DIRECTION_NAMES = ("+fx", "-fx", "+fy", "-fy", "+fz", "-fz")
 
 
 def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float,
-                 rows: Rows | None = None, joints: tuple[str, ...] = ()) -> dict:
+                 rows: Rows | None = None, joints: dict[str, np.ndarray] | None = None
+                 ) -> dict:
     """Residual RMS by configuration, axis, load magnitude and load sign, in the campaign's
     length unit and in noise units (``ratio``); with ``rows`` and their ``joints``, also
     :func:`residual_structure` (load direction, row order, correlations)."""
@@ -61,7 +62,7 @@ def disagreement(residuals: np.ndarray, campaign: Campaign, sigma: float,
         pos = np.flatnonzero(force[:, k] > 1e-3 * scale)
         neg = np.flatnonzero(force[:, k] < -1e-3 * scale)
         out["by_load_sign"][name] = {"positive": group(pos), "negative": group(neg)}
-    if rows is not None:
+    if rows is not None and joints is not None:
         out.update(residual_structure(residuals, campaign, rows, joints, sigma))
     return out
 
@@ -115,7 +116,7 @@ def correlation(variable: np.ndarray, residuals: np.ndarray, sigma: float, lu: f
 
 
 def residual_structure(residuals: np.ndarray, campaign: Campaign, rows: Rows,
-                       joints: tuple[str, ...], sigma: float) -> dict:
+                       joints: dict[str, np.ndarray], sigma: float) -> dict:
     """Residual RMS by load direction and by row order, and the residual's correlation with
     each joint's torque, each joint's coordinate and the row order (:func:`correlation`).
 
@@ -128,7 +129,8 @@ def residual_structure(residuals: np.ndarray, campaign: Campaign, rows: Rows,
     rows
         The campaign's rows (:meth:`Geometry.rows`): the torques ``J^T W`` and coordinates.
     joints
-        The coordinate joints, the columns of ``rows``.
+        The spring joints, the columns of ``rows`` in order, each with its value per row (m,)
+        (rad or m: :meth:`stiffness.elastic.effects.geometry.Geometry.angles`).
     sigma
         Noise std (m).
     """
@@ -157,8 +159,8 @@ def residual_structure(residuals: np.ndarray, campaign: Campaign, rows: Rows,
         "correlation": {
             "joint_torque": {j: correlation(torques[:, i], residuals, sigma, lu)
                              for i, j in enumerate(joints)},
-            "joint_angle": {j: correlation(rows.coords[:, i], residuals, sigma, lu)
-                            for i, j in enumerate(joints)},
+            "joint_angle": {j: correlation(angle, residuals, sigma, lu)
+                            for j, angle in joints.items()},
             "load_direction": {name: correlation(unit[:, k], residuals, sigma, lu)
                                for k, name in enumerate(("fx", "fy", "fz"))},
             "load_magnitude": correlation(mag, residuals, sigma, lu),

@@ -260,9 +260,9 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
-                                           sigma_used, rows, geo.joints),
+                                           sigma_used, rows, geo.angles(rows)),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
-                                        sigma_used, rows, geo.joints),
+                                        sigma_used, rows, geo.angles(rows)),
         gof_baseline=goodness_of_fit(base.loss_rss, n, base.model.penalty_params, sigma),
         gof_final=gof_final, unexplained=None if gof_final is None
         else bool(gof_final <= 1.0 - GOF_LEVEL),

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stiffness.elastic.effects.geometry import cached_robot
 from stiffness.errors import (
     ConvergenceError,
     StiffnessError,
@@ -260,13 +259,6 @@ def sampling_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(lo, ref - span), np.minimum(hi, ref + span)
 
 
-def _all_coordinates(robot: Robot) -> Robot:
-    if tuple(robot.compliant_joints) == tuple(robot.coordinate_joints):
-        return robot
-    return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
-                        tuple(robot.coordinate_joints))
-
-
 def singular_values(robot: Robot, q: np.ndarray) -> np.ndarray:
     """Singular values of the target Jacobian over every coordinate joint, rows ``[v; L omega]``
     (``L`` the base-to-target distance, at least 0.1 m), m/rad; ``q`` closed.
@@ -276,7 +268,7 @@ def singular_values(robot: Robot, q: np.ndarray) -> np.ndarray:
     StiffnessError
         If the loop is singular at ``q``.
     """
-    full = _all_coordinates(robot)
+    full = ik.all_coordinates(robot)
     state = target_state(full, q)
     length = max(float(np.linalg.norm(state.position)), 0.1)
     jac = np.vstack([state.jacobian[:3], length * state.jacobian[3:]])

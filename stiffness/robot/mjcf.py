@@ -15,9 +15,12 @@ follower of a rigid leader). A mimic follower of a compliant joint follows its l
 equality constraint (``<joint joint1 joint2 polycoef>``, made stiff by :data:`STIFF_SOLREF`
 and :data:`STIFF_SOLIMP`). A robot whose springs act on its controller's coordinates
 (``[controller]`` with ``springs_on = "controller"``, ``q_chain = A u + b``) gets a fixed
-``<tendon>`` per compliant coordinate, of length ``(A^-1 q)_i`` over the chain joints, with the
-spring's ``stiffness`` and its rest length as ``springlength`` (:func:`spring_plan`). A keyframe
-``rest`` holds the configuration at the springs' rest. Gravity is the model's.
+``<tendon>`` per compliant coordinate, of length ``(A^+ q)_i`` over the chain joints (``A^+``
+its pseudo-inverse, a left inverse), with the spring's ``stiffness`` and its rest length as
+``springlength`` (:func:`spring_plan`); passive chain joints (a tall ``A``) follow the linkage
+by a stiff equality constraint per direction of ``A``'s left null space ``n``: a fixed tendon
+``n . q`` held at ``n . b``. A keyframe ``rest`` holds the configuration at the springs' rest.
+Gravity is the model's.
 
 Closed loops are refused. MuJoCo closes a loop by a soft equality constraint (``connect``), whose
 stiffness scales with the bodies' effective inertia and the time step, not with the joint
@@ -182,11 +185,15 @@ class SpringPlan:
         fixed tendon whose length is the coordinate (up to a constant) over the free joints.
     welded
         Model joints held at their rest value (no ``<joint>`` written).
+    linkages
+        Passive chain joints' linkages: ``({joint: coefficient}, value)``, a combination of
+        the chain joints held at ``value`` (rad, m) by the coupling (its left null space).
     """
 
     joints: dict[str, float] = field(default_factory=dict)
     tendons: list[tuple[str, dict[str, float], float]] = field(default_factory=list)
     welded: set[str] = field(default_factory=set)
+    linkages: list[tuple[dict[str, float], float]] = field(default_factory=list)
 
 
 def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
@@ -194,9 +201,11 @@ def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
 
     Without a controller map, or with springs on the chain, each spring is a joint spring and
     each spring-less coordinate (and its mimic followers) is welded. With springs on controller
-    coordinates ``u`` (``q_chain = A u + b``), the coordinate ``u_i = (A^-1 (q - b))_i`` is a
-    fixed tendon of coefficients ``A^-1[i]``; a chain joint set by rigid coordinates alone is
-    welded, and a rigid coordinate that still moves with the free joints is refused.
+    coordinates ``u`` (``q_chain = A u + b``), the coordinate ``u_i = (A^+ (q - b))_i`` is a
+    fixed tendon of coefficients ``A^+[i]`` (the pseudo-inverse: a left inverse of a tall
+    ``A``); a chain joint set by rigid coordinates alone is welded, and a rigid coordinate that
+    still moves with the free joints is refused. A tall ``A`` adds one linkage per direction
+    ``n`` of its left null space: ``n . q = n . b`` over the chain.
 
     Raises
     ------
@@ -218,7 +227,7 @@ def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
     compliant = [i for i, name in enumerate(coupling.coordinates) if name in springs]
     fixed = [j for j, row in enumerate(coupling.matrix) if not np.any(row[compliant])]
     free = [j for j in range(len(coupling.chain)) if j not in fixed]
-    inverse = np.linalg.inv(coupling.matrix)
+    inverse = np.linalg.pinv(coupling.matrix)
     scale = np.abs(inverse).max()
     for i in rigid:
         if np.any(np.abs(inverse[i, free]) > 1e-12 * scale):
@@ -229,12 +238,17 @@ def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
     tendons = [(coupling.coordinates[i], {coupling.chain[j]: float(inverse[i, j]) for j in free
                                           if inverse[i, j] != 0.0},
                 float(springs[coupling.coordinates[i]])) for i in compliant]
-    return SpringPlan({}, tendons, {coupling.chain[j] for j in fixed})
+    left, _, _ = np.linalg.svd(coupling.matrix)
+    linkages = [({coupling.chain[j]: float(n[j]) for j in range(len(n)) if abs(n[j]) > 1e-12},
+                 float(n @ coupling.offset)) for n in left[:, coupling.matrix.shape[1]:].T]
+    return SpringPlan({}, tendons, {coupling.chain[j] for j in fixed}, linkages)
 
 
 def _tendons(root: etree._Element, robot: Robot, plan: SpringPlan, rest: np.ndarray) -> None:
-    """The springs on controller coordinates, as fixed tendons at rest at ``rest``."""
-    if not plan.tendons:
+    """The springs on controller coordinates, as fixed tendons at rest at ``rest``, and the
+    passive joints' linkages as fixed tendons (held by :func:`_equalities`)."""
+    linkages = _linkages(robot, plan, rest)
+    if not plan.tendons and not linkages:
         return
     model = robot.model
     tendon = etree.SubElement(root, "tendon")
@@ -245,10 +259,32 @@ def _tendons(root: etree._Element, robot: Robot, plan: SpringPlan, rest: np.ndar
                                    springlength=str(float(length)))
         for joint, coefficient in coefficients.items():
             etree.SubElement(element, "joint", joint=joint, coef=str(coefficient))
+    for name, coefficients, _ in linkages:
+        element = etree.SubElement(tendon, "fixed", name=name)
+        for joint, coefficient in coefficients.items():
+            etree.SubElement(element, "joint", joint=joint, coef=str(coefficient))
 
 
-def _equalities(root: etree._Element, robot: Robot, plan: SpringPlan) -> None:
-    """Mimic followers of compliant leaders as equality constraints."""
+def _linkages(robot: Robot, plan: SpringPlan, rest: np.ndarray
+              ) -> list[tuple[str, dict[str, float], float]]:
+    """The linkages over the written joints: ``(tendon name, {joint: coefficient}, length)``,
+    the welded joints' terms moved into the length at their rest values."""
+    model = robot.model
+    out = []
+    for k, (coefficients, value) in enumerate(plan.linkages):
+        free = {j: c for j, c in coefficients.items() if j not in plan.welded}
+        if free:
+            held = sum(c * joint_value(model.joints[model.getJointId(j)], rest)
+                       for j, c in coefficients.items() if j in plan.welded)
+            out.append((f"linkage{k + 1}", free, value - held))
+    return out
+
+
+def _equalities(root: etree._Element, robot: Robot, plan: SpringPlan, rest: np.ndarray
+                ) -> None:
+    """Mimic followers of compliant leaders, and the passive joints' linkages (a tendon held
+    at its length: MuJoCo measures it from the joints' zero, their ``ref``), as equality
+    constraints."""
     stiff = {"solref": numbers(STIFF_SOLREF), "solimp": numbers(STIFF_SOLIMP)}
     equality = etree.SubElement(root, "equality")
     for m in robot.mimics:
@@ -257,6 +293,9 @@ def _equalities(root: etree._Element, robot: Robot, plan: SpringPlan) -> None:
         etree.SubElement(equality, "joint", name=f"mimic_{m.follower}", joint1=m.follower,
                          joint2=m.leader, polycoef=numbers([m.offset, m.multiplier, 0, 0, 0]),
                          **stiff)
+    for name, _, length in _linkages(robot, plan, rest):
+        etree.SubElement(equality, "tendon", name=name, tendon1=name,
+                         polycoef=numbers([length, 0, 0, 0, 0]), **stiff)
     if len(equality) == 0:
         root.remove(equality)
 
@@ -308,7 +347,7 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
                       "as MuJoCo needs a mass on every moving body", RobotFileWarning,
                       stacklevel=2)
     _tendons(root, robot, plan, rest)
-    _equalities(root, robot, plan)
+    _equalities(root, robot, plan, rest)
     keyframe = etree.SubElement(root, "keyframe")
     etree.SubElement(keyframe, "key", name="rest", qpos=numbers(
         [joint_value(model.joints[j], rest) for j in order]))

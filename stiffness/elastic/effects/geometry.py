@@ -198,6 +198,13 @@ class Geometry:
                 out[(a, self.chain[ib])] = int(np.argmin(np.abs(rotations[ib].T @ u)))
         return out
 
+    def angles(self, rows: Rows) -> dict[str, np.ndarray]:
+        """Each spring joint (:attr:`joints`, in order) and its value (m,) (rad or m) at the
+        rows: the coordinates, or the chain joints' ``A u + b`` for springs on a
+        ``[controller]``'s chain."""
+        values = self.robot.spring_command(rows.coords)
+        return {j: values[:, i] for i, j in enumerate(self.joints)}
+
     def rows(self, coords: np.ndarray, force: np.ndarray, moment: np.ndarray | None = None,
              labels: list[str] | None = None, joint_angles: str = "motor") -> Rows:
         """Geometry of rows at coordinates ``coords`` (m, n) under ``force``/``moment`` (m, 3);

@@ -306,7 +306,7 @@ class GravityCompensator(Effect, JointDeflectionFamily):
 
     def preload(self, p, model, rows):
         column = model.joints.index(self.joint_name)
-        theta = rows.coords[:, model.geometry.joints.index(self.joint_name)]
+        theta = model.geometry.angles(rows)[self.joint_name]
         tau_s, dtau = self.torque(p, theta)
         m, n = rows.n_rows, len(model.joints)
         tau, k = np.zeros((m, n)), np.zeros((m, n, n))
