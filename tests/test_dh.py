@@ -282,7 +282,8 @@ def test_two_arm_tree_equals_its_urdf(tmp_path):
     assert mine.coordinate_joints == tuple(controller["coordinates"])
     urdf = tmp_path / "tree.urdf"
     urdf.write_text(urdf_of_tree(rows, dh["frames"]))
-    theirs = load_robot(urdf, frame="r_hand_body")
+    every = load_robot(urdf, frame="r_hand_body").coordinate_joints  # springs on every joint
+    theirs = load_robot(urdf, frame="r_hand_body", compliant_joints=every)
     # the coupling written out: t1 = J1, t2 = -J1 - J2, r_i = R_i, l_i = L_i + 0.1, rows in
     # the URDF model's joint order
     order = [r["name"] for r in rows]
@@ -557,10 +558,12 @@ def test_the_urdf_writer_writes_a_dh_tree(tmp_path):
     dh["links"] = [dict(parent=r["name"], mass=float(rng.uniform(1, 5)),
                         com=rng.uniform(-0.1, 0.1, 3).tolist(),
                         inertia=[0.05, 0.06, 0.07, 0.001, -0.002, 0.003]) for r in rows]
-    mine = load_robot(write_robot(tmp_path / "t" / "robot.toml", dh, {"frame": "l_hand"}))
+    path = write_robot(tmp_path / "t" / "robot.toml", dh, {"frame": "l_hand"})
+    mine = load_robot(path, compliant_joints=load_robot(path).coordinate_joints)  # every joint
     urdf = tmp_path / "tree-export.urdf"
     urdf.write_text(robot_urdf(mine))
-    back = load_robot(urdf, frame="l_hand")
+    back = load_robot(urdf, frame="l_hand",
+                      compliant_joints=load_robot(urdf, frame="l_hand").coordinate_joints)
     # Pinocchio's URDF parser orders the branches its own way: match joints by name
     at = np.array([back.coordinate_joints.index(n) for n in mine.coordinate_joints])
     assert sorted(back.coordinate_joints) == sorted(mine.coordinate_joints)

@@ -214,8 +214,8 @@ def add_robot_flags(parser: argparse.ArgumentParser, *, required: bool = False,
                         help="target in the frame's axes, m (default: the robot's own, else 0)")
     parser.add_argument("--compliant-joints", metavar="J1,J2,...",
                         help="comma-separated joints modelled as springs (default: the robot's "
-                             "own, else every coordinate joint but the fingers "
-                             "or gripper of an end effector)")
+                             "own, else the joints of the chain from the base to the "
+                             "target, which move it: not a head, wheels or fingers)")
     parser.add_argument("--loops", metavar="FILE",
                         help="loop declaration (Gepetto's Extended-URDF YAML) instead of the "
                              "one beside the URDF (<name>.loops.yaml, <name>.yaml, robot.yaml)")
@@ -487,3 +487,22 @@ def coordinates_source(robot: Robot, args: argparse.Namespace, flag: str = "--q"
 def format_named(names: Sequence[str], values: Sequence[float], digits: int = 6) -> str:
     """``name=value`` pairs, comma-separated (the form ``--q`` takes back)."""
     return ",".join(f"{n}={v:.{digits}g}" for n, v in zip(names, values, strict=True))
+
+
+#: Echoes of more values than this are summarised (:func:`format_named_summary`).
+LONG_ECHO = 12
+
+
+def format_named_summary(names: Sequence[str], values: Sequence[float], keep: Sequence[str]
+                         ) -> str:
+    """:func:`format_named`, or past :data:`LONG_ECHO` values the ``keep`` names and the
+    non-zero values, then how many more are zero (a robot's head, wheels and fingers)."""
+    if len(names) <= LONG_ECHO:
+        return format_named(names, values)
+    shown = [(n, v) for n, v in zip(names, values, strict=True) if n in keep or v != 0]
+    zero = [n for n in names if n not in {s for s, _ in shown}]
+    text = format_named([n for n, _ in shown], [v for _, v in shown])
+    if zero:
+        text += (f" (and {len(zero)} more = 0: {', '.join(zero[:3])}"
+                 f"{', ...' if len(zero) > 3 else ''})")
+    return text

@@ -210,7 +210,8 @@ def echo_lines(summary: dict) -> list[str]:
     q = summary["q_named"]
     k = summary["K_theta_named"]
     return [
-        f"q [{sources['q']}] (rad, m prismatic): {flags.format_named(list(q), list(q.values()))}",
+        f"q [{sources['q']}] (rad, m prismatic): "
+        f"{flags.format_named_summary(list(q), list(q.values()), list(k))}",
         f"wrench [{sources['wrench']}] (N, N.m; base axes): "
         f"{flags.format_named(list(load), list(load.values()))}",
         f"K_theta [{sources['K_theta']}] (N.m/rad, N/m prismatic): "

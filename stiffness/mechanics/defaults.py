@@ -54,7 +54,10 @@ def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
         return None
     lo, hi = coordinate_limits(robot)
     outside = (lo > 0.0) | (hi < 0.0)
-    coords = np.where(outside, 0.5 * (lo + hi), 0.0)
+    coords = np.zeros(len(lo))
+    for i in np.flatnonzero(outside):  # the middle, or the one finite limit (no inf - inf)
+        finite = [v for v in (lo[i], hi[i]) if np.isfinite(v)]
+        coords[i] = sum(finite) / len(finite)
     if not outside.any():
         return ReferenceConfiguration(coords, "zero pose (the robot brings no configuration)")
     moved = ", ".join(np.asarray(robot.coordinate_joints)[outside])

@@ -45,8 +45,13 @@ from stiffness.robot.loops import (
 )
 from stiffness.robot.meshes import MissingMesh
 from stiffness.robot.rewrite import EditedVisual, fix_base, rewrite_joints
-from stiffness.robot.sources import RobotSource, loop_declaration, resolve_source
-from stiffness.robot.targets import branch_joints, checked_target_frame, gripper_joints
+from stiffness.robot.sources import RobotSource, check_counts, loop_declaration, resolve_source
+from stiffness.robot.targets import (
+    branch_joints,
+    checked_target_frame,
+    gripper_joints,
+    target_chain,
+)
 from stiffness.robot.urdf import Mimic, warn
 
 #: Name of the operational frame added at the measurement target.
@@ -620,8 +625,10 @@ def load_robot(
     target_offset
         Target position in ``frame`` axes (m); default zero (or the shipped robot's).
     compliant_joints
-        Joints modelled as springs; default: the shipped robot's, else the coordinate joints but
-        the fingers or gripper of an end-effector branch (:func:`branch_joints`).
+        Joints modelled as springs; default: the shipped robot's, else the coordinate joints on
+        the chain from the base to the target, which move it (not a head, wheels, fingers or
+        another limb; every coordinate of a robot with loops or controller coordinates;
+        :func:`stiffness.robot.targets.target_chain`).
     loops
         Loop declaration (YAML, Gepetto's Extended-URDF format) overriding the sidecar.
     fixed_base
@@ -662,12 +669,10 @@ def load_robot(
     offset = _target_offset(target_offset, settings)
 
     fid = kinematics.frame_id(model, frame)
-    if compliant_joints is None:  # default: not the fingers of an end-effector branch
-        branch = set() if coupling is not None else set(
-            branch_joints(model, fid, coordinate_joints, not loop.is_open_chain))
-        compliant_joints = settings.get(
-            "compliant_joints", [j for j in spring_names if j not in branch])
-    compliant_joints = tuple(compliant_joints)
+    springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
+        model, fid, spring_names, coupling is not None or not loop.is_open_chain))
+    check_counts(settings, coordinate_joints, springs)
+    compliant_joints = tuple(springs if compliant_joints is None else compliant_joints)
     _check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
 
     parent = model.frames[fid]

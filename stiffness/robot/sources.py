@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -29,6 +29,7 @@ from stiffness.errors import (
     MissingFileError,
     StiffnessError,
     UnknownRobotError,
+    did_you_mean,
 )
 from stiffness.files import read_toml
 from stiffness.robot.dh import TOOL, build_dh_model, read_dh_table
@@ -188,6 +189,32 @@ def check_settings(settings: dict, toml: Path) -> None:
     for key in TABLE_KEYS:
         if key in settings and not isinstance(settings[key], dict):
             refuse(key, f"a table ([{key}])")
+    known = sorted({*TEXT_KEYS, *NAME_LIST_KEYS, *NUMBER_LIST_KEYS, *TABLE_KEYS})
+    for key in settings:
+        if key not in known:
+            raise FileFormatError(f"unknown key {key!r}; {did_you_mean(key, known)} "
+                                  "(docs/robot-files.md)", path=toml, field=key)
+
+
+def check_counts(settings: dict, coordinates: Sequence[str], springs: Sequence[str]) -> None:
+    """Refuse a robot file's defaults of the wrong length, naming the file and the key:
+    ``q_deg``/``q_SI`` (one per coordinate), ``k_theta_SI``/``rest_q_SI`` (one per compliant
+    joint of the file, ``springs``).
+
+    Raises
+    ------
+    FileFormatError
+        The first key whose count differs.
+    """
+    for key, names, what in (("q_deg", coordinates, "coordinate"),
+                             ("q_SI", coordinates, "coordinate"),
+                             ("k_theta_SI", springs, "compliant joint"),
+                             ("rest_q_SI", springs, "compliant joint")):
+        if key in settings and len(settings[key]) != len(names):
+            listed = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+            raise FileFormatError(f"{key} has {len(settings[key])} values for "
+                                  f"{len(names)} {what}s ({listed}); give one per {what}",
+                                  path=settings.get("_file"), field=key)
 
 
 def _from_dh(toml: Path, name: str, settings: dict) -> RobotSource:

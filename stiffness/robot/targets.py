@@ -148,6 +148,17 @@ def branch_joints(model: pin.Model, frame_id: int, coordinate_joints: Sequence[s
                  if (jid := model.getJointId(name)) != parent and parent in model.supports[jid])
 
 
+def target_chain(model: pin.Model, frame_id: int, names: Sequence[str], coupled: bool
+                 ) -> tuple[str, ...]:
+    """The joints of ``names`` on the chain from the base to frame ``frame_id``: the joints
+    that move it (not a head, wheels, fingers or another limb); all of ``names`` when
+    ``coupled`` (closed loops or a controller map may tie every coordinate to the target)."""
+    if coupled:
+        return tuple(names)
+    supports = set(model.supports[model.frames[frame_id].parentJoint])
+    return tuple(name for name in names if model.getJointId(name) in supports)
+
+
 def gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
     """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
     does not hang below its leader), which do not lengthen a chain for the default target."""

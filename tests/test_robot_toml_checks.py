@@ -1,0 +1,79 @@
+"""A robot.toml is checked like a campaign.toml (issue 38 item 5), and robots with a base, a
+head and wheels load quietly with springs on the joints that move the target (item 8)."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stiffness.errors import FileFormatError
+from stiffness.mechanics.defaults import reference_configuration
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sk120-dh" / "robot.toml"
+
+
+def edited(tmp_path: Path, old: str, new: str) -> Path:
+    path = tmp_path / "robot.toml"
+    text = EXAMPLE.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+@pytest.mark.parametrize(("old", "new", "words"), [
+    ('frame = "tool"', 'fram = "tool"', "(fram): unknown key 'fram'; valid names: "),
+    ('compliant_joints = ', 'complaint_joints = ', "Did you mean compliant_joints?"),
+    ("k_theta_SI = [1.4098e6, 4.0076e5, 9.3528e5]", "k_theta_SI = [1.4098e6, 4.0076e5]",
+     "(k_theta_SI): k_theta_SI has 2 values for 3 compliant joints (joint1, joint2, joint3); "
+     "give one per compliant joint"),
+    ("q_deg = [-33.2004, 15.9, -55.5957, 0.0, -34.4045, -90.0]", "q_deg = [1.0, 2.0]",
+     "(q_deg): q_deg has 2 values for 6 coordinates (joint1, joint2, joint3, joint4"),
+    ('compliant_joints = ["joint1", "joint2", "joint3"]', 'compliant_joints = ["joint1"]',
+     "k_theta_SI has 3 values for 1 compliant joints (joint1)"),
+])
+def test_robot_toml_errors_name_file_and_field(tmp_path, old, new, words):
+    with pytest.raises(FileFormatError) as info:
+        load_robot(edited(tmp_path, old, new))
+    message = str(info.value)
+    assert message.startswith(str(tmp_path / "robot.toml")) and words in message, message
+
+
+def test_tiago_loads_quietly_with_springs_on_the_arm_chain():
+    """No 'invalid value encountered' (infinite limits' midpoint): the reference configuration
+    has finite values; the default springs are the 8 joints from the base to the hand (not the
+    head, wheels or 36 finger joints), each with a nonzero Jacobian column at a random pose,
+    and the head's and wheels' columns are zero."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        robot = load_robot("tiago")
+        reference = reference_configuration(robot)
+    assert reference is not None and np.all(np.isfinite(reference.coords))
+    assert robot.compliant_joints == ("torso_lift_joint", *(f"arm_{i}_joint" for i in
+                                                            range(1, 8)))
+    from stiffness.mechanics.formulation import target_state
+
+    every = load_robot("tiago", compliant_joints=robot.coordinate_joints)
+    coords = np.random.default_rng(3).uniform(-0.5, 0.5, every.n_coordinates)
+    coords[0] = 0.1  # the torso lift inside its limits
+    jac = target_state(every, every.configuration(coords), np.zeros(3)).jacobian
+    norms = dict(zip(every.compliant_joints, np.linalg.norm(jac, axis=0), strict=True))
+    assert all(norms[j] > 1e-3 for j in robot.compliant_joints), norms
+    assert all(norms[j] < 1e-12 for j in every.coordinate_joints
+               if j not in robot.compliant_joints), norms
+
+
+def test_a_urdf_robot_toml_is_checked_too(tmp_path):
+    """The shipped SK120's folder (a URDF, a loop file and a robot.toml), one key misspelt."""
+    shutil.copytree(robots_directory() / "sk120", tmp_path / "r")
+    toml = tmp_path / "r" / "robot.toml"
+    text = toml.read_text()
+    assert "\nframe = " in text
+    toml.write_text(text.replace("\nframe = ", "\nframes = ", 1))
+    with pytest.raises(FileFormatError, match="unknown key 'frames'.*Did you mean frame"):
+        load_robot(toml)
