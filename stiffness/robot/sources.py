@@ -214,7 +214,7 @@ def check_counts(settings: dict, coordinates: Sequence[str], springs: Sequence[s
             listed = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
             raise FileFormatError(f"{key} has {len(settings[key])} values for "
                                   f"{len(names)} {what}s ({listed}); give one per {what}",
-                                  path=settings.get("_file"), field=key)
+                                  path=settings.get("_file", "robot.toml"), field=key)
 
 
 def _from_dh(toml: Path, name: str, settings: dict) -> RobotSource:
