@@ -5,8 +5,8 @@ payload; diagnose closes the gap family by family (docs/absolute-poses.md)."""
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Marker
 from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.pose_report import format_pose_report
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot

@@ -596,8 +596,8 @@ def pose_diagnose_seconds(poses: int) -> float:
     shipped two-arm torso (16 coordinates), hidden tracker placement, marker offsets, zero
     offsets, link-length errors and joint compliance, 30 um noise; the full pose library
     (issue 29's key: under 90 s for 1000 poses on 2 cores)."""
-    from stiffness.calibration.absolute import Marker
     from stiffness.calibration.pose_diagnose import diagnose_poses
+    from stiffness.calibration.pose_model import Marker
     from stiffness.mechanics.defaults import default_stiffness
     from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 

@@ -70,12 +70,12 @@ _ON_FIRST_USE = {
     "identify": "stiffness.calibration.identify",
     "diagnose": "stiffness.calibration.diagnose",
     # calibration from absolute poses (docs/absolute-poses.md)
-    "Marker": "stiffness.calibration.absolute",
+    "Marker": "stiffness.calibration.pose_model",
     "PoseCampaign": "stiffness.calibration.pose_campaign",
     "load_pose_campaign": "stiffness.calibration.pose_campaign",
     "write_pose_campaign": "stiffness.calibration.pose_campaign",
     "diagnose_poses": "stiffness.calibration.pose_diagnose",
-    "validate": "stiffness.calibration.evaluation",
+    "validate": "stiffness.calibration.validation",
     # planning: synthetic campaigns, experiment design
     "simulate": "stiffness.planning.simulate",
     "HiddenPoseErrors": "stiffness.planning.simulate_poses",

@@ -19,11 +19,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy import stats
 
-from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import stage_table
 from stiffness.cli.main import main
 from stiffness.elastic.effects import FAMILIES

@@ -15,8 +15,8 @@ import pinocchio as pin
 import pytest
 from scipy import optimize, stats
 
-from stiffness.calibration.absolute import Loads, Marker, PoseModel
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.planning.simulate_poses import (
     HiddenPoseErrors,
     hidden_elasticity,

@@ -16,9 +16,9 @@ import pinocchio as pin
 import pytest
 from scipy import stats
 
-from stiffness.calibration.absolute import Marker, PoseModel
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import campaign_settings, rows_of
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot

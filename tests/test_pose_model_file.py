@@ -16,7 +16,6 @@ import pinocchio as pin
 import pytest
 
 from stiffness import load_model
-from stiffness.calibration.absolute import Marker, PoseModel
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_diagnose import write_pose_model
 from stiffness.calibration.pose_fit import (
@@ -25,6 +24,7 @@ from stiffness.calibration.pose_fit import (
     rows_of,
     starting_frame,
 )
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.cli.main import main
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.calibration import read_pose_calibration

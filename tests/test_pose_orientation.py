@@ -13,10 +13,10 @@ import pinocchio as pin
 import pytest
 from scipy import stats
 
-from stiffness.calibration.absolute import Marker, PoseModel
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import write_pose_model
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError

@@ -28,10 +28,10 @@ import pinocchio as pin
 import pytest
 from scipy import stats
 
-from stiffness.calibration.absolute import Marker, PoseModel
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.cli.main import main
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot

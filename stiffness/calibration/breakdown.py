@@ -1,7 +1,8 @@
 """Where a model and a campaign disagree: the residuals broken down by configuration, axis,
 load magnitude and sign against the noise (:func:`disagreement`), and the structure a final
 residual keeps (by load direction and row order, correlations with each joint's torque and
-angle: :func:`residual_structure`).
+angle: :func:`residual_structure`), and the summary of 3-D error norms a validation reports
+for either campaign kind (:func:`error_summary`).
 
 Residuals in m; the breakdowns in the campaign's units.
 """
@@ -184,3 +185,18 @@ def strongest_correlations(structure: dict, n: int = REPORTED_CORRELATIONS) -> l
     flat = [(v, c) for v, c in flat if c["r2"] is not None]
     flat.sort(key=lambda vc: -vc[1]["r2"])
     return [{"variable": v, **c} for v, c in flat[:n]]
+
+
+def error_summary(errors: np.ndarray, length_to_si: float) -> dict:
+    """RMS, mean, standard deviation and max of 3-D error norms (m) in the campaign's unit,
+    and how many were seen: the keys ``rms``, ``mean_error``, ``std_error`` (the spread of the
+    norms about their mean, divided by the count), ``max_error``, ``rows``.
+
+    NaN entries (a marker not seen) are left out; all-NaN gives ``None`` values.
+    """
+    e = errors[np.isfinite(errors)] / length_to_si
+    if not e.size:
+        return {"rms": None, "mean_error": None, "std_error": None, "max_error": None,
+                "rows": 0}
+    return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
+            "std_error": float(e.std()), "max_error": float(e.max()), "rows": int(e.size)}

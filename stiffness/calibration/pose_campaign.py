@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.absolute import Loads, Marker
 from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
     RobotSettings,
@@ -41,6 +40,7 @@ from stiffness.calibration.coordinate_columns import (
     warn_unknown,
 )
 from stiffness.calibration.measurements import coordinates_in_si, parse_number
+from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.errors import FileFormatError
 from stiffness.files import (
     atomic_write,

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.absolute import Loads, Marker, PoseModel
+from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import (
@@ -42,6 +42,7 @@ from stiffness.calibration.pose_fit import (
     rows_of,
     starting_frame,
 )
+from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.selection import (
     BIC_MARGIN,
@@ -52,7 +53,6 @@ from stiffness.calibration.selection import (
     goodness_of_fit,
     information_criterion,
 )
-from stiffness.calibration.validation import error_summary
 from stiffness.elastic.effects import FAMILIES
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source

@@ -1,4 +1,4 @@
-"""Fitting a :class:`~stiffness.calibration.absolute.PoseModel` to a pose campaign.
+"""Fitting a :class:`~stiffness.calibration.pose_model.PoseModel` to a pose campaign.
 
 Identifiability. Only an identifiable set of parameters is fitted. The regressor (d y / d x
 over every measured component, each column scaled by its parameter's typical size) is reduced
@@ -40,10 +40,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg, optimize
 
-from stiffness.calibration.absolute import PoseModel, align_frames
 from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import information_criterion, interval_quantile
 from stiffness.elastic.effects.pose_face import RowTerms

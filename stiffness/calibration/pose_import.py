@@ -16,10 +16,10 @@ import os
 
 import numpy as np
 
-from stiffness.calibration.absolute import Loads, Marker
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
 from stiffness.calibration.coordinate_columns import fill_held
 from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
+from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.rig_import import (
     FORCE,
     MOMENT,

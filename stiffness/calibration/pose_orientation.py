@@ -3,7 +3,7 @@
 Orientations (``<marker>_rx, _ry, _rz`` of a pose campaign: the rotation vector of the marker's
 frame in the measuring frame) are predicted from the pose model's own points, so every
 parameter family acts on them without a rotation hook of its own: each marker is evaluated as
-four points of an auxiliary :class:`~stiffness.calibration.absolute.PoseModel`, its position
+four points of an auxiliary :class:`~stiffness.calibration.pose_model.PoseModel`, its position
 ``p`` and the points ``a_i`` at its offset plus :data:`AXIS_LENGTH_M` along each axis ``e_i``
 of its frame, all four sharing the marker's offset correction. With ``v_i = a_i - p`` (measuring
 axes) the predicted orientation is the rotation nearest ``[v_x v_y v_z] / L`` (its polar
@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Marker, PoseModel
 from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import StiffnessError
 

@@ -1,37 +1,52 @@
-"""A model evaluated on another campaign without refitting (``stiffness validate``,
-``diagnose --validate``): the 3-D error of each row, summarised overall and per marker.
+"""A model file evaluated on another campaign of either kind, without refitting: the function
+behind ``stiffness validate`` (:func:`validate`; docs/absolute-poses.md), and the errors of a
+deflection model on a deflection campaign (:func:`deflection_errors`).
 
-For a deflection campaign the model is a model file of ``identify`` or ``diagnose`` and each
-row's error is the measured deflection minus the model's prediction under that row's load (every
-effect applied, measurement effects included: what the campaign's instrument reads); the one
-"marker" is the campaign's target. For a pose campaign see
-:func:`stiffness.calibration.pose_diagnose.validation_errors`.
+For a pose campaign (``kind = "poses"``) the model is a pose calibration's ``final-model.json``
+(its measuring frame and marker offsets are the model's) and the error is the 3-D position
+error, overall and per marker (:func:`stiffness.calibration.pose_diagnose.validation_errors`);
+for a deflection campaign the model is a model file of ``identify`` or ``diagnose`` and the
+error is the measured deflection minus the model's prediction under each row's load
+(:func:`deflection_errors`: every effect applied, measurement effects included, what the
+campaign's instrument reads; the one "marker" is the campaign's target). Both in the
+campaign's length unit.
+
+The campaign must be of the model's robot: the same source, or the same coordinates and
+kinematics (:func:`stiffness.robot.calibration.kinematic_fingerprint`); another robot is
+refused with one line. With the campaign's declared noise ``sigma`` the verdict is a
+chi-square test of the position residual: ``chi2 = sum r^2 / sigma^2`` over the ``3 n`` seen
+components (nothing is refitted), its p-value against ``chi2(3 n)`` and the ratio
+``rms_3d / (sqrt(3) sigma)`` (1 for a model that predicts to the noise).
 """
 
 from __future__ import annotations
 
+import math
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 
-from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.breakdown import error_summary
+from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
+from stiffness.calibration.pose_campaign import load_pose_campaign
+from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
+from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
 from stiffness.elastic.model import ElasticModel
+from stiffness.elastic.model_file import ModelRobotError, load_model, read_model_file
+from stiffness.errors import StiffnessError
+from stiffness.robot.calibration import (
+    is_pose_calibration,
+    kinematic_fingerprint,
+    read_pose_calibration,
+    robot_identity,
+)
+from stiffness.robot.robot import Robot
 
 #: The name under which a deflection campaign's target is reported.
 TARGET = "target"
-
-
-def error_summary(errors: np.ndarray, length_to_si: float) -> dict:
-    """RMS, mean, standard deviation and max of 3-D error norms (m) in the campaign's unit,
-    and how many were seen: the keys ``rms``, ``mean_error``, ``std_error`` (the spread of the
-    norms about their mean, divided by the count), ``max_error``, ``rows``.
-
-    NaN entries (a marker not seen) are left out; all-NaN gives ``None`` values.
-    """
-    e = errors[np.isfinite(errors)] / length_to_si
-    if not e.size:
-        return {"rms": None, "mean_error": None, "std_error": None, "max_error": None,
-                "rows": 0}
-    return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
-            "std_error": float(e.std()), "max_error": float(e.max()), "rows": int(e.size)}
 
 
 def deflection_errors(model: ElasticModel, campaign: Campaign) -> dict:
@@ -50,3 +65,137 @@ def deflection_errors(model: ElasticModel, campaign: Campaign) -> dict:
     out["markers"] = {TARGET: {**error_summary(errors, campaign.units.length_to_si),
                                "unit": unit}}
     return out
+
+
+@dataclass
+class Validation:
+    """A model file evaluated on a campaign, without refitting.
+
+    Attributes
+    ----------
+    model, campaign
+        The model file and the campaign (as given).
+    kind
+        ``poses`` or ``deflections``.
+    errors
+        The error summary in the campaign's length unit (``rms``, ``mean_error``,
+        ``std_error``, ``max_error``, ``unit``, ``rows``, ``markers``...:
+        :func:`~stiffness.calibration.pose_diagnose.validation_errors`,
+        :func:`deflection_errors`).
+    robot
+        The robot both are of: ``source``, ``coordinates``, ``fingerprint``.
+    noise_std
+        The campaign's declared position noise std (campaign unit), or ``None``.
+    """
+
+    model: str
+    campaign: str
+    kind: str
+    errors: dict
+    robot: dict
+    noise_std: float | None
+
+    @property
+    def components(self) -> int:
+        """Seen residual components (3 per seen marker or row)."""
+        return 3 * int(self.errors["rows"] or 0)
+
+    @property
+    def chi2(self) -> float | None:
+        """``sum r^2 / sigma^2`` over the seen components, or ``None`` without a noise."""
+        if self.noise_std is None or self.errors["rms"] is None:
+            return None
+        return float((self.errors["rms"] / self.noise_std) ** 2 * self.components / 3)
+
+    def gof(self) -> float | None:
+        """Chi-square p-value of the residual against the declared noise, or ``None``."""
+        chi2 = self.chi2
+        if chi2 is None or self.noise_std is None:
+            return None
+        return goodness_of_fit(chi2 * self.noise_std ** 2, self.components, 0, self.noise_std)
+
+    @property
+    def verdict(self) -> str | None:
+        """``consistent with the noise`` or ``above the noise`` (chi-square test at
+        :data:`~stiffness.calibration.selection.GOF_LEVEL`), ``None`` without a noise."""
+        p = self.gof()
+        if p is None:
+            return None
+        return "above the noise" if p < 1 - GOF_LEVEL else "consistent with the noise"
+
+    def to_dict(self) -> dict:
+        """What ``stiffness validate --json`` prints: the error summary's keys, and
+        ``kind``, ``robot``, ``noise_std``, ``rms_over_noise`` (3-D RMS over ``sqrt(3)``
+        noise stds), ``chi2``, ``dof``, ``gof_p`` and ``verdict``."""
+        rms = self.errors["rms"]
+        ratio = (None if self.noise_std is None or rms is None
+                 else rms / (math.sqrt(3) * self.noise_std))
+        return {**self.errors, "kind": self.kind, "model": self.model,
+                "campaign": self.campaign, "robot": self.robot, "noise_std": self.noise_std,
+                "rms_over_noise": ratio, "chi2": self.chi2, "dof": self.components,
+                "gof_p": self.gof(), "verdict": self.verdict}
+
+
+def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> Validation:
+    """The model file ``model`` evaluated on ``campaign`` (a ``campaign.toml`` or its folder):
+    errors in the campaign's length unit and the verdict against its declared noise.
+
+    Raises
+    ------
+    ModelRobotError
+        The campaign is of another robot than the model's.
+    StiffnessError
+        A pose calibration with a deflection campaign or the other way round, or a file
+        that cannot be read.
+    """
+    pose_model = is_pose_calibration(model)
+    if (campaign_kind(campaign) == "poses") != pose_model:
+        raise StiffnessError(
+            f"{model} is {'a pose calibration' if pose_model else 'a deflection model'} "
+            f"and {campaign} is not a {'pose' if pose_model else 'deflection'} campaign; "
+            "validate a pose calibration on a pose campaign, a deflection model on a "
+            "deflection campaign")
+    if not pose_model:
+        declared = read_model_file(model)
+        measured = load_campaign(campaign)
+        robot = same_robot(declared.source, declared.robot, measured.robot(),
+                           measured.resolved_source(), model, campaign)
+        errors = deflection_errors(load_model(declared), measured)
+        noise = None if measured.noise_std_m is None else (
+            measured.noise_std_m / measured.units.length_to_si)
+        return Validation(str(model), str(campaign), "deflections", errors, robot, noise)
+    poses = load_pose_campaign(campaign)
+    cal = read_pose_calibration(model)
+    robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
+                       poses.robot.name, model, campaign)
+    calibration = read_pose_model(model, poses.robot)
+    errors = validation_errors(calibration.model, calibration.x, poses)
+    noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
+    return Validation(str(model), str(campaign), "poses", errors, robot, noise)
+
+
+def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,
+               campaign_source: str, model: str | os.PathLike,
+               campaign: str | os.PathLike) -> dict:
+    """The robot a model and a campaign are both of: the same source, or the same coordinates
+    and kinematics (a copy of the robot's files). Returns its ``source``, ``coordinates`` and
+    kinematic ``fingerprint``; ``model_robot`` loads the model's robot when the sources differ.
+
+    Raises
+    ------
+    ModelRobotError
+        Other coordinates or kinematics (one line naming both robots).
+    """
+    theirs = (campaign_robot.coordinate_joints, kinematic_fingerprint(campaign_robot.model))
+    if robot_identity(model_source) != robot_identity(campaign_source):
+        other = model_robot()
+        mine = (other.coordinate_joints, kinematic_fingerprint(other.model))
+        if mine != theirs:
+            what = "coordinates" if mine[0] != theirs[0] else "kinematics"
+            raise ModelRobotError(
+                f"{campaign} is a campaign of robot {Path(campaign_source).name!r} "
+                f"({len(theirs[0])} coordinates, kinematics {theirs[1]}), not of the model's "
+                f"{Path(model_source).name!r} ({len(mine[0])} coordinates, kinematics "
+                f"{mine[1]}): other {what}; validate {model} on a campaign of its robot")
+    return {"source": robot_identity(campaign_source), "coordinates": list(theirs[0]),
+            "fingerprint": theirs[1]}

@@ -19,12 +19,12 @@ import json
 
 import numpy as np
 
-from stiffness.calibration.absolute import Marker
 from stiffness.calibration.campaign import CAMPAIGN_KINDS
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_import import import_pose_campaign
+from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.rig_import import (
     FRAMES,
     ImportSettings,

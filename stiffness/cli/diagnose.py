@@ -24,11 +24,11 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from stiffness.calibration.absolute import MASSES
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fitting import LOSSES
+from stiffness.calibration.pose_model import MASSES
 from stiffness.cli import flags
 from stiffness.errors import StiffnessError
 from stiffness.files import output_folder

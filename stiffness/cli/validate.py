@@ -15,7 +15,7 @@ chi-square test). The campaign must be of the model's robot (one line refuses an
 ``--json`` keys: ``rms``, ``mean_error``, ``std_error``, ``max_error``, ``unit``, ``rows``,
 ``markers`` (the same keys per marker), ``kind``, ``model``, ``campaign``, ``robot``
 (``source``, ``coordinates``, ``fingerprint``), ``noise_std``, ``rms_over_noise``, ``chi2``,
-``dof``, ``gof_p``, ``verdict`` (:class:`stiffness.calibration.evaluation.Validation`).
+``dof``, ``gof_p``, ``verdict`` (:class:`stiffness.calibration.validation.Validation`).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.calibration.evaluation import validate
 from stiffness.calibration.pose_report import format_validation
+from stiffness.calibration.validation import validate
 from stiffness.cli import flags
 
 

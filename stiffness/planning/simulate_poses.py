@@ -2,7 +2,7 @@
 elastic errors, under its weight and an optional payload.
 
 The simulated truth is computed independently of the fitted model
-(:mod:`stiffness.calibration.absolute`): the joint placements are perturbed exactly
+(:mod:`stiffness.calibration.pose_model`): the joint placements are perturbed exactly
 (``M_j exp(eps_j)``), the sag is the exact static equilibrium of joint springs under gravity and
 the applied wrench, ``K (q_l - q_c - delta_0) = J(q_l)^T w - g(q_l)`` (fixed-point iteration to
 1e-14 rad; springs on a ``[controller]``'s coordinates ``u``, ``q_chain = A u + b``, hold
@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.absolute import Loads, Marker, PoseModel, one_dof_joints
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_model import Loads, Marker, PoseModel, one_dof_joints
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import link_axes
 from stiffness.elastic.effects.joint_laws import Backlash

@@ -7,7 +7,7 @@ its contribution to a model used away from its campaign (:meth:`Effect.contribut
 ``joint_compliance`` and ``backlash`` also their pose-model face
 (:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every compliant joint
 of a pose model, under gravity and the applied wrench, their part of the joints' deflection in
-the sag's fixed point, :meth:`stiffness.calibration.absolute.PoseModel.loaded_configuration`).
+the sag's fixed point, :meth:`stiffness.calibration.pose_model.PoseModel.loaded_configuration`).
 
 Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
 """

@@ -1,7 +1,7 @@
 """Kinematic errors: the geometric effects of the library, families of the pose model
 (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`): the measuring frame (``frame``),
 the markers' offsets (``markers``), the joints' zero offsets (``joint_offsets``) and the joints'
-placement errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.absolute`.
+placement errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.pose_model`.
 They have no deflection face (the :class:`~stiffness.elastic.effects.base.Effect` hooks keep
 their defaults).
 

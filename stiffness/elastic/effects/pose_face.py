@@ -8,7 +8,7 @@ A family is one effect class: its name, its family kind (``"geometric"`` or ``"e
 parameters with their units and typical sizes, and its part of the prediction and of the
 Jacobian as methods. The same class serves deflection campaigns through its
 :class:`~stiffness.elastic.effects.base.Effect` hooks; as a pose family one object of it acts on
-every joint (or link) the model lays out. :class:`~stiffness.calibration.absolute.PoseModel`
+every joint (or link) the model lays out. :class:`~stiffness.calibration.pose_model.PoseModel`
 calls the hooks of the families it holds and never branches on a family's name.
 
 Units: SI (m, N, rad).
@@ -80,7 +80,7 @@ class RowTerms:
 
 class PoseLayout(Protocol):
     """What the families read of the model that holds them
-    (:class:`stiffness.calibration.absolute.PoseModel`): the robot, the markers, the joints'
+    (:class:`stiffness.calibration.pose_model.PoseModel`): the robot, the markers, the joints'
     layout, the loads and the fixed settings."""
 
     robot: Robot
