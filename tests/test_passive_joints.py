@@ -198,7 +198,7 @@ MARKERS = [("tip", "tool", [0.02, 0.0, 0.03]), ("chest", "t4_link", [0.05, 0.1, 
 
 
 def _pose_campaign(robot, k_true: np.ndarray, seed: int, n_poses: int):
-    from stiffness.calibration.absolute import Marker
+    from stiffness.calibration.pose_model import Marker
     from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 
     rng = np.random.default_rng(7)  # the same hidden errors in every campaign
@@ -220,8 +220,8 @@ def test_pose_campaign_identifies_and_reproduces_to_the_noise(tmp_path, springs_
     campaign of 20 poses to 1.3 x the noise. Measured over seeds 0, 2, 3 (held out: seed + 10):
     fit RMS 0.90 to 1.04 x noise, held out 0.94 to 1.15 x, compliance |z| <= 1.33, on each
     side."""
-    from stiffness.calibration.absolute import PoseModel
     from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+    from stiffness.calibration.pose_model import PoseModel
 
     robot = torso(tmp_path, springs_on)
     k_true = K_CONTROLLER if springs_on == "controller" else K_CHAIN
