@@ -272,3 +272,17 @@ def test_deflection_campaign_identifies_and_reproduces_to_the_noise(tmp_path, sp
     held = deflection_errors(load_model(path), runs[1].campaign)
     rms_m = held["rms"] * runs[1].campaign.units.length_to_si / np.sqrt(3)  # per component
     assert rms_m / 1e-5 < 1.3, rms_m / 1e-5
+
+
+def test_drawn_poses_keep_the_passive_joint_within_its_limits(tmp_path):
+    """The chest t4 = -T2 - T3 limited to +-30 deg while T2, T3 each range over +-60 deg:
+    every pose drawn for a campaign keeps |T2 + T3| within 30 deg (without the check, about
+    half of them would not)."""
+    from stiffness.calibration.poses import sample_coordinates
+
+    path = tmp_path / "tight" / "robot.toml"
+    path.parent.mkdir()
+    path.write_text(TORSO.read_text().replace("lower = -120, upper = 120",
+                                              "lower = -30, upper = 30"))
+    coords = sample_coordinates(load_robot(path), 20, np.random.default_rng(0))
+    assert np.abs(coords[:, 1] + coords[:, 2]).max() <= np.deg2rad(30.0) + 1e-12

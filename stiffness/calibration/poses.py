@@ -3,7 +3,8 @@
 :func:`sample_coordinates` draws coordinate vectors a rig could measure at. A pose is kept when
 
 * every coordinate is within its joint limits (revolute joints also within +-pi; joints without
-  limits: +-pi, or 0..0.1 m for a prismatic joint);
+  limits: +-pi, or 0..0.1 m for a prismatic joint), and so is every chain joint a
+  ``[controller]`` sets (a passive joint that follows a combination of coordinates too);
 * it follows the robot's workspace rules, where its ``robot.toml`` declares a ``[workspace]``
   table (:class:`Workspace`); otherwise the coordinates are uniform within the limits, or, for
   a closed-loop robot (whose limits say little about where it assembles), within
@@ -299,6 +300,7 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
     """
     rules = Workspace.of(robot)
     lo, hi = coordinate_limits(robot)
+    set_lo, set_hi = ik.set_joint_limits(robot)  # a passive chain joint's too
     box = sampling_box(robot)
     rank = None
     fold_floor = 0.0
@@ -316,6 +318,9 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
         if coords is None:
             continue
         if np.any(coords < lo - 1e-12) or np.any(coords > hi + 1e-12):
+            continue
+        values = robot.joint_values(coords)[1]
+        if np.any(values < set_lo - 1e-12) or np.any(values > set_hi + 1e-12):
             continue
         try:
             q = robot.configuration(coords)

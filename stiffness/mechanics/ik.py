@@ -80,6 +80,16 @@ def all_coordinates(robot: Robot) -> Robot:
 
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper position limits (rad, m) of the coordinates (+-inf where unbounded)."""
+    lo, hi = set_joint_limits(robot)
+    if robot.coupling is not None:  # the chain's limits, as the controller's coordinates
+        return robot.coupling.limits(lo, hi)
+    return lo, hi
+
+
+def set_joint_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper position limits (rad, m) of the joints the coordinates set
+    (:meth:`Robot.joint_values`: the coordinate joints, or a ``[controller]``'s chain joints),
+    +-inf where unbounded."""
     model = robot.model
     lo, hi = [], []
     names, _ = robot.joint_values(np.zeros(robot.n_coordinates))
@@ -93,8 +103,6 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
         bounded = np.isfinite(a) and np.isfinite(b) and b > a and abs(b - a) < 1e10
         lo.append(a if bounded else -np.inf)
         hi.append(b if bounded else np.inf)
-    if robot.coupling is not None:  # the chain's limits, as the controller's coordinates
-        return robot.coupling.limits(np.array(lo), np.array(hi))
     return np.array(lo), np.array(hi)
 
 
