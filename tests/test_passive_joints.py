@@ -286,3 +286,25 @@ def test_drawn_poses_keep_the_passive_joint_within_its_limits(tmp_path):
                                               "lower = -30, upper = 30"))
     coords = sample_coordinates(load_robot(path), 20, np.random.default_rng(0))
     assert np.abs(coords[:, 1] + coords[:, 2]).max() <= np.deg2rad(30.0) + 1e-12
+
+
+@pytest.mark.parametrize("springs_on", ["controller", "chain"])
+def test_scan_maps_equal_the_model_at_each_pose(tmp_path, springs_on):
+    """``stiffness scan`` (the batched kernels) over a 3 x 3 grid of T2, T3 gives at every
+    pose the K_X of the elastic model (checked against the hand-built reference above), to
+    1e-9 relative, under the scan's default load."""
+    from stiffness.cli.main import main
+    from stiffness.workspace.engine import load_scan
+
+    robot = torso(tmp_path, springs_on)
+    out = tmp_path / "scan"
+    assert main(["scan", "--robot", str(robot.name), "--axis", "T2=-0.5:0.5:0.5", "--axis",
+                 "T3=-0.5:0.5:0.5", "--wrench", "0,0,-100", "--quiet", "--no-plots",
+                 "--out", str(out)]) == 0
+    scan = load_scan(out)
+    model = ElasticModel.joint_springs(
+        robot, K_CONTROLLER if springs_on == "controller" else K_CHAIN)
+    assert scan["coordinates"].shape == (9, 5) and bool(np.all(scan["valid"]))
+    for coords, k_x in zip(scan["coordinates"], scan["k_x"][:, 0], strict=True):
+        reference = model.at(coords, [0.0, 0.0, -100.0]).k_x()
+        assert np.abs(k_x - reference).max() <= 1e-9 * np.abs(reference).max()
