@@ -141,7 +141,8 @@ class Compensator:
         chooses at the first call). Joint motions alone are cancelled exactly: every frame
         of the arm then rests where ``theta_n`` puts it.
     method
-        ``closed-form`` or ``general`` (resolved from ``auto``).
+        ``closed-form`` or ``general`` (resolved from ``auto``: ``general`` with link bends,
+        or with springs on passive chain joints, whose deflection no command moves alone).
     fast
         Whether :meth:`command` runs the allocation-free fast path (open chain, closed form).
     iterations
@@ -163,8 +164,12 @@ class Compensator:
                                  "closed-form for joint compliance only; this model has link "
                                  "compliance or asks for the general method: drop one of them")
         self.model, self.hold = model, hold
-        self.method = "general" if method == "general" or not model.joint_only else "closed-form"
         robot = model.robot
+        # springs on passive chain joints (a tall coupling): their deflection is no command,
+        # the closed form cancels it only in least squares
+        uncommandable = robot.spring_map.shape[0] > robot.spring_map.shape[1]
+        self.method = "general" if method == "general" or not model.joint_only or (
+            method == "auto" and uncommandable and not model.preloaded) else "closed-form"
         self.fast = self.method == "closed-form" and robot.loop.is_open_chain
         self.iterations = 0
         self.loaded: Loaded | None = None
