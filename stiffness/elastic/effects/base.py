@@ -1,14 +1,16 @@
 """The effect base class, its parameters, and what effects do to a robot (:class:`ElasticParts`).
 
-An :class:`Effect` is one thing a stiffness model may miss. It has two faces:
+An :class:`Effect` is one thing a stiffness model may miss. It has up to three faces:
 
 * in a campaign's fit (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`) it enters the
   array algebra through the prediction hooks (:meth:`Effect.adjust_law`,
-  :meth:`Effect.displacement`, :meth:`Effect.preload`...);
+  :meth:`Effect.target_motion`, :meth:`Effect.output_map`, :meth:`Effect.preload`...);
 * in a model used away from its campaign (:class:`stiffness.elastic.model.ElasticModel`, built
   from a model file or by ``stiffness simulate``) it contributes through one hook,
   :meth:`Effect.contribute`, to an :class:`ElasticParts`: a joint spring or joint-law term, a
-  link bend, a preload, a target shift, a measurement adjustment.
+  link bend, a preload, a target shift, a measurement adjustment;
+* where it is a parameter family of an absolute-pose model, through the hooks of its pose face
+  (:class:`stiffness.elastic.effects.pose_face.PoseFamily`).
 
 Nothing outside an effect's class branches on its name.
 
@@ -247,35 +249,19 @@ class Effect:
     def adjust_law(self, p: np.ndarray, law: SpringLaw, column: int, refs: References) -> None:
         """Change the law of the model joint at ``column`` (that of :attr:`joint`)."""
 
-    def displacement(self, p: np.ndarray, model: HypothesisArrays, rows: Rows, force: np.ndarray,
-                     moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
-        """(m, 3) extra target displacement (m)."""
+    def target_motion(self, p: np.ndarray, model: HypothesisArrays, rows: Rows,
+                      force: np.ndarray, moment: np.ndarray, point: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(m, 3) extra target displacement (m) and (m, 3) extra rotation of the target frame
+        (rad, base axes), or ``None``."""
         return None
 
-    def adjust_output(self, p: np.ndarray, dx: np.ndarray) -> np.ndarray:
-        """Measured displacement from the model's."""
-        return dx
-
-    def output_tangent(self, p: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Derivative of :meth:`adjust_output` along changes ``t`` (m, 3, P) of the model's
-        displacement."""
-        return t
-
-    def rotation(self, p: np.ndarray, model: HypothesisArrays, rows: Rows, force: np.ndarray,
-                 moment: np.ndarray, point: np.ndarray) -> np.ndarray | None:
-        """(m, 3) extra rotation of the target frame (rad, base axes), the rotational part of
-        :meth:`displacement`."""
-        return None
-
-    def adjust_rotation(self, p: np.ndarray, dphi: np.ndarray) -> np.ndarray:
-        """Measured rotation (m, 3) from the model's (the rotational part of
-        :meth:`adjust_output`)."""
-        return dphi
-
-    def rotation_tangent(self, p: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Derivative of :meth:`adjust_rotation` along changes ``t`` (m, 3, P) of the model's
-        rotation."""
-        return t
+    def output_map(self, p: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """How the instrument reads the model's output: a rotation ``R`` (3, 3) of both the
+        displacement and the rotation (``measured = R model``) and an offset (3,) m of the
+        displacement, each ``None`` when absent (this default). Affine, so its derivative
+        along changes ``t`` (m, 3, P) of the model's output is ``R t``."""
+        return None, None
 
     def preload(self, p: np.ndarray, model: HypothesisArrays, rows: Rows
                 ) -> tuple[np.ndarray, np.ndarray] | None:

@@ -254,7 +254,7 @@ class Hypothesis:
         With effects: the implicit function theorem on the frozen-geometry law
         (:meth:`stiffness.mechanics.equilibrium.SpringLaw.deflection_tangent`), carried through
         the second-order kinematics, the preload's unloaded equilibrium and the effects'
-        output maps (:meth:`Effect.output_tangent`).
+        output maps (:meth:`Effect.output_map`).
 
         Raises
         ------
@@ -404,14 +404,19 @@ class Hypothesis:
             if tangent:
                 t_dx = (t_dx + contract_hessian(h_v, unloaded, 3) @ t_theta
                         + contract_hessian(h_v, dtheta, 2) @ t_unloaded)
-        for e, p in zip(self.effects, params, strict=True):
-            extra = e.displacement(p, self, rows, force, moment, point)
+        motions = [e.target_motion(p, self, rows, force, moment, point)
+                   for e, p in zip(self.effects, params, strict=True)]
+        for extra in motions:
             if extra is not None:
-                dx = dx + extra
-        for e, p in zip(self.effects, params, strict=True):
-            dx = e.adjust_output(p, dx)
-            if t_dx is not None:  # with the tangent
-                t_dx = e.output_tangent(p, t_dx)
+                dx = dx + extra[0]
+        maps = [e.output_map(p) for e, p in zip(self.effects, params, strict=True)]
+        for rot, offset in maps:
+            if rot is not None:
+                dx = dx @ rot.T
+                if t_dx is not None:  # with the tangent
+                    t_dx = rot @ t_dx
+            if offset is not None:
+                dx = dx + offset
         if self.rotation_weight is not None:
             h_w = self.h[:, 3:]
             dphi = np.einsum("mkn,mn->mk", jw, dtheta)
@@ -426,14 +431,14 @@ class Hypothesis:
                 if tangent:
                     t_phi = (t_phi + contract_hessian(h_w, unloaded, 3) @ t_theta
                              + contract_hessian(h_w, dtheta, 2) @ t_unloaded)
-            for e, p in zip(self.effects, params, strict=True):
-                extra = e.rotation(p, self, rows, force, moment, point)
+            for extra in motions:
                 if extra is not None:
-                    dphi = dphi + extra
-            for e, p in zip(self.effects, params, strict=True):
-                dphi = e.adjust_rotation(p, dphi)
-                if t_phi is not None:  # with the tangent
-                    t_phi = e.rotation_tangent(p, t_phi)
+                    dphi = dphi + extra[1]
+            for rot, _ in maps:
+                if rot is not None:
+                    dphi = dphi @ rot.T
+                    if t_phi is not None:  # with the tangent
+                        t_phi = rot @ t_phi
             dx = np.hstack([dx, self.rotation_weight * dphi])
             if t_dx is not None and t_phi is not None:  # with the tangent
                 t_dx = np.concatenate([t_dx, self.rotation_weight * t_phi], axis=1)

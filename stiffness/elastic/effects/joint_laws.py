@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar, TypeVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -34,23 +34,43 @@ from stiffness.elastic.effects.pose_face import (
 )
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 
-JointEffect = TypeVar("JointEffect", "JointCompliance", "Backlash", "NonlinearJointStiffness")
 
+@dataclass(eq=False)
+class JointEffect(Effect):
+    """An effect on one coordinate joint's law, the shared part of the per-joint effects: the
+    joint (``joint_name``, whether it is prismatic), where it acts, its checked placement and
+    its reading from a model file."""
 
-def joint_effect(cls: type[JointEffect], where: str | None, geometry: Geometry) -> JointEffect:
-    """``cls`` at the coordinate joint ``where`` of ``geometry``.
+    joint_name: str = ""
+    prismatic: bool = False
 
-    Raises
-    ------
-    UnknownJointError
-        ``where`` is not a coordinate joint.
-    """
-    name = cls.name
-    if where not in geometry.joints:
-        raise UnknownJointError(f"{name} needs a joint, e.g. {name}:{geometry.joints[0]}; "
-                                f"{did_you_mean(str(where), list(geometry.joints))}",
-                                name=str(where), choices=geometry.joints)
-    return cls(joint_name=where, prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
+    def __post_init__(self) -> None:
+        self.joint = self.joint_name
+
+    @classmethod
+    def at_place(cls, where: str | None, geometry: Geometry) -> Effect:
+        """The effect at the coordinate joint ``where`` of ``geometry``.
+
+        Raises
+        ------
+        UnknownJointError
+            ``where`` is not a coordinate joint.
+        """
+        name = cls.name
+        if where not in geometry.joints:
+            raise UnknownJointError(f"{name} needs a joint, e.g. {name}:{geometry.joints[0]}; "
+                                    f"{did_you_mean(str(where), list(geometry.joints))}",
+                                    name=str(where), choices=geometry.joints)
+        return cls(joint_name=where,
+                   prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
+
+    @classmethod
+    def declared(cls, where: str | None, settings: dict) -> Effect:
+        return cls(joint_name=str(where)).configured(settings)
+
+    @property
+    def where(self) -> str:
+        return self.joint_name
 
 
 class ComplementaryStiffness(Effect):
@@ -69,7 +89,7 @@ class ComplementaryStiffness(Effect):
 
 
 @dataclass(eq=False)
-class JointCompliance(Effect, JointDeflectionFamily):
+class JointCompliance(JointEffect, JointDeflectionFamily):
     """A joint declared rigid is a spring of stiffness ``k``.
 
     Pose face: ``Delta q_j = c_j tau_j`` on each compliant joint (rad/(N.m), or m/N), ``tau``
@@ -77,24 +97,14 @@ class JointCompliance(Effect, JointDeflectionFamily):
     coordinates (``S``: :attr:`PoseLayout.spring_map`) give ``Delta q = S diag(c) S^T tau``.
     """
 
-    joint_name: str = ""
-    prismatic: bool = False
     name: ClassVar[str] = "joint_compliance"
     param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
     through_law: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         self.added_joint = self.joint_name
-        self.joint = self.joint_name
-
-    @classmethod
-    def at_place(cls, where, geometry):
-        return joint_effect(cls, where, geometry)
-
-    @classmethod
-    def declared(cls, where, settings):
-        return cls(joint_name=str(where))
 
     def simulated_values(self, values, units):
         if values[0] <= 0:
@@ -103,10 +113,6 @@ class JointCompliance(Effect, JointDeflectionFamily):
 
     def contribute(self, values, parts):
         parts.add_spring(self.joint_name, values[0])
-
-    @property
-    def where(self) -> str:
-        return self.joint_name
 
     def bounds(self):
         return np.zeros(1), np.full(1, 1e4)
@@ -153,7 +159,7 @@ class JointCompliance(Effect, JointDeflectionFamily):
 
 
 @dataclass(eq=False)
-class Backlash(Effect, JointDeflectionFamily):
+class Backlash(JointEffect, JointDeflectionFamily):
     """Lost motion at a joint: ``dtheta += b tanh(tau / tau_s)``.
 
     Pose face: on each compliant joint, ``Delta q_j += b_j tanh(tau_j / tau_s)`` (``tau_s`` =
@@ -163,8 +169,6 @@ class Backlash(Effect, JointDeflectionFamily):
     largest joint's RMS: a vertical base axis) has no parameter: its lost motion never shows.
     """
 
-    joint_name: str = ""
-    prismatic: bool = False
     #: smoothing torque (N.m, N) a model file gives; ``None``: the campaign's
     smoothing_torque: float | None = None
     #: the pose face's joints (velocity indices, smoothing torques), built once per model
@@ -175,17 +179,6 @@ class Backlash(Effect, JointDeflectionFamily):
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
     through_law: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
-
-    def __post_init__(self) -> None:
-        self.joint = self.joint_name
-
-    @classmethod
-    def at_place(cls, where, geometry):
-        return joint_effect(cls, where, geometry)
-
-    @classmethod
-    def declared(cls, where, settings):
-        return cls(joint_name=str(where)).configured(settings)
 
     def configured(self, settings):
         return dataclasses.replace(
@@ -200,10 +193,6 @@ class Backlash(Effect, JointDeflectionFamily):
 
     def contribute(self, values, parts):
         parts.add_backlash(self.joint_name, values[0], self.smoothing_torque)
-
-    @property
-    def where(self) -> str:
-        return self.joint_name
 
     def bounds(self):
         return np.zeros(1), np.full(1, 1e4)
@@ -293,34 +282,17 @@ class Backlash(Effect, JointDeflectionFamily):
 
 
 @dataclass(eq=False)
-class NonlinearJointStiffness(Effect):
+class NonlinearJointStiffness(JointEffect):
     """``dtheta = tau / k (1 + beta |tau|)``: the spring softens (beta > 0) or hardens."""
 
-    joint_name: str = ""
-    prismatic: bool = False
     name: ClassVar[str] = "nonlinear_joint_stiffness"
     param_names: ClassVar[tuple[str, ...]] = ("beta",)
     through_law: ClassVar[bool] = True
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
 
-    def __post_init__(self) -> None:
-        self.joint = self.joint_name
-
-    @classmethod
-    def at_place(cls, where, geometry):
-        return joint_effect(cls, where, geometry)
-
-    @classmethod
-    def declared(cls, where, settings):
-        return cls(joint_name=str(where))
-
     def contribute(self, values, parts):
         parts.soften(self.joint_name, values[0])
-
-    @property
-    def where(self) -> str:
-        return self.joint_name
 
     def bounds(self):
         return np.full(1, -0.95), np.full(1, 100.0)

@@ -169,12 +169,9 @@ class LinkCompliance(Effect, PoseFamily):
                  + e2 * (p[1] * np.sum(e2 * m_b, axis=1))[:, None])
         return omega, r
 
-    def displacement(self, p, model, rows, force, moment, point):
+    def target_motion(self, p, model, rows, force, moment, point):
         omega, r = self._omega(p, model, rows, force, moment, point)
-        return np.cross(omega, r)
-
-    def rotation(self, p, model, rows, force, moment, point):
-        return self._omega(p, model, rows, force, moment, point)[0]
+        return np.cross(omega, r), omega
 
     def report(self, u, cov_u, refs, units, quantile):
         return [stiffness_report(n, float(u[i]), float(cov_u[i, i]), 1.0 / refs.k_ref,

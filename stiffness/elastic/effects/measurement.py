@@ -42,17 +42,8 @@ class FrameMisalignment(Effect):
     def scale(self, refs):
         return np.full(3, 0.01)
 
-    def adjust_output(self, p, dx):
-        return dx @ rotation_matrix(p).T
-
-    def output_tangent(self, p, t):
-        return rotation_matrix(p) @ t
-
-    def adjust_rotation(self, p, dphi):
-        return dphi @ rotation_matrix(p).T
-
-    def rotation_tangent(self, p, t):
-        return rotation_matrix(p) @ t
+    def output_map(self, p):
+        return rotation_matrix(p), None
 
     def _units(self, units):
         return [(units.angle, units.angle_to_si)] * 3
@@ -131,8 +122,8 @@ class DeflectionOffset(Effect):
     def scale(self, refs):
         return np.full(3, 0.01 * refs.deflection_ref)
 
-    def adjust_output(self, p, dx):
-        return dx + p
+    def output_map(self, p):
+        return None, p
 
     def _units(self, units):
         return [(units.length, units.length_to_si)] * 3
