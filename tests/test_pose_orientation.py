@@ -86,6 +86,10 @@ def test_orientations_written_and_read_in_their_unit(ur10, tmp_path):
     back = load_pose_campaign(tmp_path / "a")
     assert np.allclose(back.rotations, c.rotations, rtol=0, atol=1e-12, equal_nan=True)
     assert back.noise_std_rotation == pytest.approx(NOISE_ROT, rel=1e-12)
+    toml_a = tmp_path / "a" / "campaign.toml"  # the deflection campaigns' spelling is written
+    toml_a.write_text(toml_a.read_text().replace("rotation_noise_std", "noise_std_rotation"))
+    assert load_pose_campaign(tmp_path / "a").noise_std_rotation == pytest.approx(
+        NOISE_ROT, rel=1e-12)
     csv = (tmp_path / "a" / "measurements.csv").read_text()
     assert "tip_rx,tip_ry,tip_rz" in csv.splitlines()[0]
     lines = csv.splitlines()

@@ -340,3 +340,19 @@ def test_malformed_rotation_columns_get_one_line_errors(tmp_path):
     assert "angle" in text
     no_rot = lambda t: "\n".join(",".join(r.split(",")[:-3]) for r in t.splitlines()) + "\n"  # noqa: E731
     assert "rotation_noise_std" in _break(tmp_path, csv_edit=no_rot)
+
+
+def test_both_spellings_of_the_rotation_noise_are_read(tmp_path):
+    """``rotation_noise_std`` (written) and ``noise_std_rotation`` (the pose campaigns'
+    spelling) give the same campaign; both at once are refused in one line."""
+    c = _sim(seed=0, configs=2).campaign
+    write_campaign(c, tmp_path / "c")
+    path = tmp_path / "c" / "campaign.toml"
+    written = path.read_text()
+    assert "rotation_noise_std = " in written
+    path.write_text(written.replace("rotation_noise_std = ", "noise_std_rotation = "))
+    assert load_campaign(tmp_path / "c").rotation_noise_std_rad == pytest.approx(
+        c.rotation_noise_std_rad, rel=1e-12)
+    text = _break(tmp_path, toml_edit=lambda t: t.replace(
+        "rotation_noise_std = ", "noise_std_rotation = 0.002\nrotation_noise_std = "))
+    assert "two spellings" in text and "noise_std_rotation" in text

@@ -53,10 +53,12 @@ deflection, base axes, in the ``[units] rotation`` unit, default the angle unit)
 each group comes whole (all three columns). Columns are found by name (``config`` first); other
 columns (a rig's time stamps) are ignored with one
 :class:`~stiffness.errors.UnknownColumnWarning` (refused by the commands' ``--strict``).
-``rotation_noise_std`` needs the rotation columns. Lines starting with ``#`` and blank lines
-are skipped; a comment declaring units (as a plan file's ``# units: angle=deg force=N
-length=mm``) must agree with ``[units]``. A missing column, one given twice, or a cell that is
-not a finite number within +-1e12 is an error naming the file, the line and the column.
+``rotation_noise_std`` (also read as ``noise_std_rotation``, the spelling pose campaigns used;
+both campaign kinds take either and write ``rotation_noise_std``) needs the rotation columns.
+Lines starting with ``#`` and blank lines are skipped; a comment declaring units (as a plan
+file's ``# units: angle=deg force=N length=mm``) must agree with ``[units]``. A missing column,
+one given twice, or a cell that is not a finite number within +-1e12 is an error naming the
+file, the line and the column.
 
 In memory everything is SI (rad, m, N, N.m); the declared units apply only to the files.
 This module holds the campaign and :func:`load_campaign`; the ``campaign.toml`` sections are
@@ -83,6 +85,7 @@ from stiffness.calibration.campaign_toml import (
     measurement_noise,
     read_campaign_toml,
     robot_section,
+    rotation_noise,
     settings_robot,
     typed_value,
     units_section,
@@ -344,7 +347,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     m = doc["measurement"]
     data_name = typed_value(m["data"], str, toml, "measurement", "data", "a file name")
     noise = measurement_noise(doc, toml, "noise_std", units.length)
-    rot_noise = measurement_noise(doc, toml, "rotation_noise_std", units.rotation)
+    rot_noise, rot_key = rotation_noise(doc, toml, units.rotation)
     data_path = toml_path.parent / data_name
 
     robot = settings_robot(settings, toml_path)
@@ -361,9 +364,9 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     rotation = None if rows.rotation is None else rows.rotation * units.rotation_to_si
     has_moment, has_rotation = moment is not None, rotation is not None
     if not has_rotation and rot_noise is not None:
-        raise toml.error(f"[measurement] rotation_noise_std is given but {data_name} has no "
+        raise toml.error(f"[measurement] {rot_key} is given but {data_name} has no "
                          "rotation columns rx,ry,rz; add them after dz (or after mz) or drop "
-                         "rotation_noise_std", "measurement", "rotation_noise_std")
+                         f"{rot_key}", "measurement", rot_key)
     if units.moment_unit is not None and not has_moment:
         raise toml.error(f"[units] moment is given but {data_name} has no moment columns "
                          "mx,my,mz; add them after dz or drop the key", "units", "moment")

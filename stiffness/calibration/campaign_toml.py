@@ -54,7 +54,7 @@ _TOML_KEYS = {
     "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base",
               "joint_angles", "fixed"},
     "units": {"angle", "force", "length", "rotation", "moment"},
-    "measurement": {"data", "noise_std", "rotation_noise_std"},
+    "measurement": {"data", "noise_std", "rotation_noise_std", "noise_std_rotation"},
 }
 _REQUIRED_KEYS = {
     "": ("name", "baseline", "robot", "units", "measurement"),
@@ -286,6 +286,28 @@ def measurement_noise(doc: dict, toml: TomlFile, key: str, unit: str) -> float |
             raise toml.error(f"[measurement] {key} must be a positive finite number in {unit}, "
                              f"got {noise!r}; omit it if unknown", "measurement", key)
     return noise
+
+
+#: The two spellings of the rotation noise key, in both campaign kinds: the one the writers
+#: write first (docs/diagnose.md, docs/absolute-poses.md).
+ROTATION_NOISE_KEYS = ("rotation_noise_std", "noise_std_rotation")
+
+
+def rotation_noise(doc: dict, toml: TomlFile, unit: str) -> tuple[float | None, str]:
+    """``[measurement] rotation_noise_std`` (or its other spelling, ``noise_std_rotation``), a
+    noise std in the rotation ``unit``, or None; and the key the file uses (to name in errors).
+
+    Raises
+    ------
+    FileFormatError
+        Both spellings given, or a value that is not a positive finite number.
+    """
+    given = [key for key in ROTATION_NOISE_KEYS if key in doc["measurement"]]
+    if len(given) > 1:
+        raise toml.error("[measurement] gives both rotation_noise_std and noise_std_rotation, "
+                         "two spellings of one key; keep one", "measurement", given[1])
+    key = given[0] if given else ROTATION_NOISE_KEYS[0]
+    return measurement_noise(doc, toml, key, unit), key
 
 
 def settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:

@@ -5,8 +5,9 @@ row, a configuration label, the commanded coordinates ``q1..qn`` and the positio
 in the measuring system's frame (``<marker>_x, <marker>_y, <marker>_z``; a marker's three cells
 empty where it was not seen), optionally its orientation (``<marker>_rx, _ry, _rz``: the rotation
 vector of the marker's frame in the measuring frame, ``[units] rotation`` unit, default the
-angle unit; noise ``[measurement] noise_std_rotation`` in that unit), optionally the applied
-wrench ``fx, fy, fz[, mx, my, mz]`` (world axes, at ``[load] frame``). Gravity always acts.
+angle unit; noise ``[measurement] rotation_noise_std``, or ``noise_std_rotation``, in that
+unit), optionally the applied wrench ``fx, fy, fz[, mx, my, mz]`` (world axes, at
+``[load] frame``). Gravity always acts.
 Units as in deflection campaigns; in memory SI.
 """
 
@@ -23,11 +24,13 @@ import numpy as np
 
 from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
+    ROTATION_NOISE_KEYS,
     RobotSettings,
     TomlFile,
     check_table_keys,
     measurement_noise,
     robot_section,
+    rotation_noise,
     settings_robot,
     typed_value,
     units_section,
@@ -58,7 +61,7 @@ _KEYS = {
     "robot": {"source", "frame", "target_offset", "compliant_joints", "loops", "fixed_base",
               "fixed"},
     "units": {"angle", "force", "length", "rotation", "moment"},
-    "measurement": {"data", "noise_std", "noise_std_rotation"},
+    "measurement": {"data", "noise_std", *ROTATION_NOISE_KEYS},
     "load": {"frame"},
 }
 _REQUIRED = {"": ("kind", "robot", "units", "measurement", "markers"),
@@ -337,14 +340,15 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
 
 
 def _rotation_noise(doc: dict, toml: TomlFile, units: Units, measured: bool) -> float | None:
-    """``[measurement] noise_std_rotation`` in rad, or None; refused without rotation columns."""
-    noise = measurement_noise(doc, toml, "noise_std_rotation", units.rotation)
+    """``[measurement] rotation_noise_std`` (or ``noise_std_rotation``) in rad, or None;
+    refused without rotation columns."""
+    noise, key = rotation_noise(doc, toml, units.rotation)
     if noise is None:
         return None
     if not measured:
-        raise toml.error("[measurement] noise_std_rotation is given but no marker has "
+        raise toml.error(f"[measurement] {key} is given but no marker has "
                          "<marker>_rx,_ry,_rz columns; add them or drop the key",
-                         "measurement", "noise_std_rotation")
+                         "measurement", key)
     return float(noise) * units.rotation_to_si
 
 
@@ -375,7 +379,7 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
     if c.noise_std is not None:
         lines.append(f"noise_std = {c.noise_std / u.length_to_si!r}")
     if c.noise_std_rotation is not None and c.rotations is not None:
-        lines.append(f"noise_std_rotation = {c.noise_std_rotation / u.rotation_to_si!r}")
+        lines.append(f"rotation_noise_std = {c.noise_std_rotation / u.rotation_to_si!r}")
     if c.loads is not None:
         lines += ["", "[load]", f'frame = "{c.loads.frame}"']
     lines += ["", "[markers]"] + [
