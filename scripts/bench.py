@@ -53,12 +53,18 @@ Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
   ``python_yardstick_s``: a fixed pure-Python loop (2e6 additions, best of three), the
   machine's speed for interpreted code in this run (the commands' times above are mostly
   interpreter and import work: compare days through it).
+* pose calibration (issues 29 and 37; ``--pose POSES`` runs these alone), on a simulated
+  1000-pose campaign of the two-arm torso with two markers: ``pose_diagnose_1000_poses_s``,
+  ``pose_fit_1000_poses_s`` (one full fit), ``pose_fk_1000_poses_s`` (one forward-kinematics
+  + frame-Jacobian pass over the rows and markers), ``pose_fit_1000_poses_over_fk`` (target
+  <= 100) and ``pose_diagnose_1000_poses_over_fit`` (target <= 15).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -591,12 +597,10 @@ def commands_seconds(rounds: int) -> dict[str, float]:
     return out
 
 
-def pose_diagnose_seconds(poses: int) -> float:
-    """Wall time (s) of diagnose on a simulated pose campaign: two markers (one per hand) on the
-    shipped two-arm torso (16 coordinates), hidden tracker placement, marker offsets, zero
-    offsets, link-length errors and joint compliance, 30 um noise; the full pose library
-    (issue 29's key: under 90 s for 1000 poses on 2 cores)."""
-    from stiffness.calibration.pose_diagnose import diagnose_poses
+def _pose_campaign(poses: int):
+    """A simulated pose campaign: two markers (one per hand) on the shipped two-arm torso (16
+    coordinates), hidden tracker placement, marker offsets, zero offsets, link-length errors
+    and joint compliance, 30 um noise."""
     from stiffness.calibration.pose_model import Marker
     from stiffness.mechanics.defaults import default_stiffness
     from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
@@ -612,10 +616,66 @@ def pose_diagnose_seconds(poses: int) -> float:
                               np.array([m.offset for m in markers]) + 2e-3,
                               rng.normal(0.0, 1e-3, n), eps,
                               np.asarray(default_stiffness(robot), dtype=float))
-    campaign = simulate_pose_campaign(robot, markers, hidden, poses, 30e-6, seed=1)
+    return simulate_pose_campaign(robot, markers, hidden, poses, 30e-6, seed=1)
+
+
+def _fk_jacobian_pass(campaign) -> None:
+    """One forward-kinematics + frame-Jacobian pass over a pose campaign's rows and markers
+    (``pin.computeJointJacobians``, ``pin.updateFramePlacements`` and one
+    ``pin.getFrameJacobian`` per marker): the floor of any evaluation of the pose model."""
+    robot = campaign.robot
+    model, data = robot.model, robot.model.createData()
+    fids = [model.getFrameId(m.frame) for m in campaign.markers]
+    jacobians, updates, frame_jacobian = (pin.computeJointJacobians, pin.updateFramePlacements,
+                                          pin.getFrameJacobian)
+    for q in campaign.q:
+        q_full = robot.configuration(q)
+        jacobians(model, data, q_full)
+        updates(model, data)
+        for fid in fids:
+            frame_jacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+
+
+def pose_calibration_costs(poses: int, rounds: int = 2) -> dict[str, float]:
+    """Issue 29's and 37's pose-calibration figures on :func:`_pose_campaign`, in one run:
+
+    * ``pose_diagnose_{poses}_poses_s``: wall time (s) of diagnose, the full pose library
+      (issue 29: under 90 s for 1000 poses on 2 cores);
+    * ``pose_fit_{poses}_poses_s``: one full fit (the families the diagnosis names: frame,
+      markers, joint_offsets, geometry, joint_compliance) from zero, best of ``rounds``;
+    * ``pose_fk_{poses}_poses_s``: :func:`_fk_jacobian_pass` over the same rows, best of
+      ``rounds`` interleaved with the fits;
+    * ``pose_fit_{poses}_poses_over_fk`` (issue 37 target <= 100) and
+      ``pose_diagnose_{poses}_poses_over_fit`` (target <= 15).
+    """
+    from stiffness.calibration.pose_diagnose import diagnose_poses
+    from stiffness.calibration.pose_fit import (
+        campaign_settings,
+        fit_pose_model,
+        rows_of,
+        starting_frame,
+    )
+    from stiffness.calibration.pose_model import PoseModel
+
+    campaign = _pose_campaign(poses)
+    families = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance")
+    frame0, settings = starting_frame(campaign), campaign_settings(campaign)
+    fk, fit = math.inf, math.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        _fk_jacobian_pass(campaign)
+        fk = min(fk, time.perf_counter() - start)
+        start = time.perf_counter()
+        model = PoseModel(campaign.robot, campaign.markers, families, frame0, campaign.loads,
+                          settings)
+        fit_pose_model(model, campaign, rows_of(model, campaign), list(families))
+        fit = min(fit, time.perf_counter() - start)
     start = time.perf_counter()
     diagnose_poses(campaign)
-    return time.perf_counter() - start
+    diagnose = time.perf_counter() - start
+    return {f"pose_diagnose_{poses}_poses_s": diagnose, f"pose_fit_{poses}_poses_s": fit,
+            f"pose_fk_{poses}_poses_s": fk, f"pose_fit_{poses}_poses_over_fk": fit / fk,
+            f"pose_diagnose_{poses}_poses_over_fit": diagnose / fit}
 
 
 # ------------------------------------------------------------------------------ report
@@ -652,6 +712,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-scaling", action="store_true", help="skip the scaling runs")
     parser.add_argument("--compensator", action="store_true",
                         help="only the compensator's figures (one JSON line)")
+    parser.add_argument("--pose", type=int, metavar="POSES",
+                        help="only the pose-calibration figures on POSES poses (one JSON line)")
     parser.add_argument("--plot", metavar="PNG",
                         help="only draw scan time against configurations (1e3 ... 1e7, in "
                              "process and two workers) into PNG")
@@ -663,6 +725,11 @@ def main(argv: list[str] | None = None) -> int:
         draw_scan_time(scan_time_rows(sizes), Path(args.plot))
         return 0
     load_before = os.getloadavg()
+    if args.pose:
+        pose = pose_calibration_costs(args.pose)
+        pose["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
+        print(json.dumps(pose))
+        return 0
     compensator = compensator_costs(5 if args.quick else 15)
     if args.compensator:
         compensator["load_average"] = {"before": list(load_before),
@@ -676,7 +743,7 @@ def main(argv: list[str] | None = None) -> int:
     dask = dask_scaling(200000 if args.quick else 2000000, 1 if args.quick else 2)
     commands = commands_seconds(1 if args.quick else 2)
     poses = 200 if args.quick else 1000
-    commands[f"pose_diagnose_{poses}_poses_s"] = pose_diagnose_seconds(poses)
+    commands.update(pose_calibration_costs(poses))
     if args.json:
         out = {name: {k: float(v) for k, v in r.items()} for name, r in costs.items()}
         out["table4_scan_s"] = t4

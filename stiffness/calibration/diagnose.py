@@ -186,7 +186,8 @@ def diagnose(
     workers
         Processes fitting a step's candidates and cross-validation folds side by side
         (:func:`stiffness.calibration.fitting.fit_models`; default the usable cores, 1 in this
-        process); the result does not depend on it.
+        process); for a pose campaign its folds (default in this process); the result does
+        not depend on it.
     loss
         ``linear`` or a robust loss for every fit, scaled by the noise std; criteria compare
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
@@ -204,7 +205,7 @@ def diagnose(
     """
     if isinstance(campaign, PoseCampaign) or (
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
-        return _diagnose_poses(campaign, seed, progress, loss, masses, validate)
+        return _diagnose_poses(campaign, seed, progress, loss, masses, validate, workers)
     if validate is not None:
         raise StiffnessError("validate takes pose campaigns; for a deflection campaign "
                              "diagnose reports the held-out (cross-validated) RMS of each step")
@@ -277,14 +278,15 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
 
 def _diagnose_poses(campaign: PoseCampaign | str | os.PathLike, seed: int,
                     progress: Callable[[str], None] | None, loss: str, masses: str,
-                    validate: PoseCampaign | str | os.PathLike | None) -> PoseDiagnosis:
+                    validate: PoseCampaign | str | os.PathLike | None,
+                    workers: int | None = None) -> PoseDiagnosis:
     """:func:`diagnose` on a pose campaign."""
     if not isinstance(campaign, PoseCampaign):
         campaign = load_pose_campaign(campaign)
     if validate is not None and not isinstance(validate, PoseCampaign):
         validate = load_pose_campaign(validate)
     return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
-                          progress=progress, loss=loss)
+                          progress=progress, loss=loss, workers=workers)
 
 
 def _check_options(max_steps: int, loss: str) -> None:

@@ -21,6 +21,7 @@ with its structure (per marker, per axis, along the row order).
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -53,6 +54,7 @@ from stiffness.calibration.selection import (
     goodness_of_fit,
     information_criterion,
 )
+from stiffness.cores import forked_map, one_blas_thread
 from stiffness.elastic.effects import FAMILIES
 from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
@@ -190,33 +192,56 @@ def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
 
 
 def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
-            frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray]) -> float:
+            frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray],
+            workers: int | None = None) -> float:
     """Held-out RMS of the residual components, each fold fitted on the others (started from
     the fit on every row, with its loss and scale); infinite when a fold's model predicts a sag
     that does not converge at a held-out pose, or a fold cannot be fitted (fewer measured
-    components than identifiable parameters): its family is then not added."""
+    components than identifiable parameters): its family is then not added. ``workers`` > 1:
+    the folds in that many forked processes (:func:`stiffness.cores.forked_map`; each fold is
+    self-contained, so the result is the same)."""
+    tasks = [functools.partial(_fold_error, campaign, fit, families, frame0, test)
+             for test in folds]
+    if workers is not None and workers > 1:
+        errors = forked_map(tasks, workers)
+    else:
+        errors = []
+        for task in tasks:
+            errors.append(task())
+            if math.isinf(errors[-1][0]):
+                break
     sq, count = 0.0, 0
-    for test in folds:
-        train = np.setdiff1d(np.arange(campaign.n_rows), test)
-        try:
-            part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit,
-                        fit.loss, fit.sigma)
-        except StiffnessError:  # the fold has fewer measured components than parameters
+    for fold_sq, fold_count in errors:
+        if math.isinf(fold_sq):
             return math.inf
-        held = campaign.subset(test)
-        try:
-            err = held.positions - predict(part.model, part.x, held)
-        except ConvergenceError:  # the fold's model sags without bound at a held-out pose
-            return math.inf
-        err = err[np.isfinite(err)]
-        sq, count = sq + float(err @ err), count + err.size
+        sq, count = sq + fold_sq, count + fold_count
     return float(np.sqrt(sq / max(count, 1)))
 
 
+def _fold_error(campaign: PoseCampaign, fit: PoseFit, families: list[str],
+                frame0: tuple[np.ndarray, np.ndarray], test: np.ndarray) -> tuple[float, int]:
+    """Sum of squares (m^2) and number of the held-out residual components of one fold
+    (:func:`_cv_rms`; infinite sum when the fold cannot be fitted or its sag diverges)."""
+    train = np.setdiff1d(np.arange(campaign.n_rows), test)
+    try:
+        part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit,
+                    fit.loss, fit.sigma)
+    except StiffnessError:  # the fold has fewer measured components than parameters
+        return math.inf, 0
+    held = campaign.subset(test)
+    try:
+        err = held.positions - predict(part.model, part.x, held)
+    except ConvergenceError:  # the fold's model sags without bound at a held-out pose
+        return math.inf, 0
+    err = err[np.isfinite(err)]
+    return float(err @ err), int(err.size)
+
+
+@one_blas_thread
 def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    validate: PoseCampaign | None = None,
                    progress: Callable[[str], None] | None = None,
-                   loss: str = "linear") -> PoseDiagnosis:
+                   loss: str = "linear", workers: int | None = None) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -233,6 +258,9 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         :data:`~stiffness.calibration.fitting.LOSSES` for every fit (folds included), scaled
         by the declared noise std, else by the baseline's robust estimate; BIC and the
         fit-to-noise test compare :meth:`PoseFit.loss_rss` (:mod:`stiffness.calibration.pose_fit`).
+    workers
+        Processes the cross-validation folds are fitted in side by side (``None`` or 1: in
+        this process); the result does not depend on it.
     """
     say = progress or (lambda text: None)
     if masses not in CANDIDATES:
@@ -245,7 +273,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     settings = campaign_settings(campaign)
     base = _fit(campaign, families, frame0, settings, loss=loss)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
-    cv = _cv_rms(campaign, base, families, frame0, folds)
+    cv = _cv_rms(campaign, base, families, frame0, folds, workers)
     steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
     rejected: dict[str, float] = {}
     remaining = list(CANDIDATES[masses])
@@ -260,7 +288,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                                           {f: t.loss_rss() for f, t in tried.items()},
                                           {f: t.n_fitted for f, t in tried.items()})}
         best, cv_new, unfit = _winner(campaign, families, frame0, folds, tried, delta,
-                                      steps[-1].cv_rms)
+                                      steps[-1].cv_rms, workers)
         rejected.update({f: delta[f] for f in unfit})
         remaining = [f for f in remaining if f not in unfit]
         if best is None:
@@ -312,7 +340,8 @@ def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
 
 def _winner(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
             folds: list[np.ndarray], tried: dict[str, PoseFit], delta: dict[str, float],
-            cv_current: float) -> tuple[str | None, float, list[str]]:
+            cv_current: float, workers: int | None = None
+            ) -> tuple[str | None, float, list[str]]:
     """As deflection diagnose: of the extensions past :data:`BIC_MARGIN`, the best
     :data:`CV_TOP` by BIC are cross-validated in that order, and the first whose held-out RMS
     beats ``cv_current`` wins (``None`` if none). Also returns those whose held-out RMS is
@@ -321,7 +350,7 @@ def _winner(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarra
     eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
     unfit: list[str] = []
     for f in eligible[:CV_TOP]:
-        cv = _cv_rms(campaign, tried[f], families + [f], frame0, folds)
+        cv = _cv_rms(campaign, tried[f], families + [f], frame0, folds, workers)
         if cv < cv_current:
             return f, cv, unfit
         if math.isinf(cv):

@@ -46,6 +46,7 @@ from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import information_criterion, interval_quantile
+from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError
 
@@ -298,6 +299,7 @@ def objective_rss(residual: np.ndarray, loss: str, sigma: float) -> float:
     return sigma ** 2 * loss_sum(residual / sigma, loss, 1.0) / gaussian_loss_mean(loss)
 
 
+@one_blas_thread
 def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray, loss: str = "linear",
                    sigma: float = 1.0) -> tuple[float, int]:
@@ -318,6 +320,7 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     return objective_rss(residual - columns @ step, loss, sigma), len(kept)
 
 
+@one_blas_thread
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
                    scale: float | None = None) -> PoseFit:

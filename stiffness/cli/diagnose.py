@@ -50,8 +50,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="do not propose extra poses and loads")
     parser.add_argument("--workers", type=int, metavar="N",
                         help="processes fitting a step's candidates side by side (default: "
-                             "the usable cores; 1: all in this process); the result does not "
-                             "depend on it")
+                             "the usable cores; 1: all in this process); for a pose campaign, "
+                             "its cross-validation folds (default: in this process); the "
+                             "result does not depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     flags.add_strict_flag(parser)
     parser.add_argument("--loss", choices=LOSSES, default="linear",
@@ -160,7 +161,7 @@ def run_poses(args: argparse.Namespace) -> int:
     show = sys.stderr.isatty() and not args.quiet
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
-                            if show else None, loss=args.loss)
+                            if show else None, loss=args.loss, workers=args.workers)
     paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 
