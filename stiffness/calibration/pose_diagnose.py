@@ -200,8 +200,9 @@ def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
     components than identifiable parameters): its family is then not added. ``workers`` > 1:
     the folds in that many forked processes (:func:`stiffness.cores.forked_map`; each fold is
     self-contained, so the result is the same)."""
-    tasks = [functools.partial(_fold_error, campaign, fit, families, frame0, test)
-             for test in folds]
+    tasks: list[Callable[[], tuple[float, int]]] = [
+        functools.partial(_fold_error, campaign, fit, families, frame0, test) for test in folds]
+    errors: list[tuple[float, int]]
     if workers is not None and workers > 1:
         errors = forked_map(tasks, workers)
     else:
