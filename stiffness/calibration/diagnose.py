@@ -22,7 +22,7 @@
    :data:`~stiffness.calibration.selection.GOF_LEVEL` with ``N - p`` degrees of freedom,
    known sigma only) or nothing helps. With a known sigma, each step's BICs use
    ``c sigma^2``, ``c`` the step's overdispersion
-   (:func:`~stiffness.calibration.selection.step_dispersion`): what the best extension leaves
+   (:func:`~stiffness.calibration.selection.step_criteria`): what the best extension leaves
    above the noise counts as noise. If the search ends with the chi-square test still
    rejecting, the result is *unexplained*
    (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the final residual's
@@ -73,11 +73,10 @@ from stiffness.calibration.selection import (
     fit_job,
     fit_model,
     goodness_of_fit,
-    information_criterion,
     interval_quantile,
     parameter_covariance,
     replicate_noise,
-    step_dispersion,
+    step_criteria,
 )
 from stiffness.elastic.effects import candidates
 from stiffness.elastic.effects.base import Effect, Parameter
@@ -575,14 +574,12 @@ def _ambiguities(raw: list[tuple[int, Candidate, Candidate, float]], sigma: floa
 def _ranked(current: Fit, fits: list[tuple[Effect, Fit]], n: int, sigma: float | None
             ) -> tuple[list[Candidate], float]:
     """A step's candidates by BIC (best first) under the step's overdispersion
-    (:func:`step_dispersion`), and that dispersion."""
-    dispersion = step_dispersion([current] + [f for _, f in fits], n, sigma)
-    s_step = None if sigma is None else sigma * math.sqrt(dispersion)
-    current_bic = information_criterion(current.loss_rss, n, current.model.penalty_params,
-                                        s_step)
-    results = [Candidate(e, f, b, b - current_bic) for e, f in fits
-               for b in [information_criterion(f.loss_rss, n, f.model.penalty_params,
-                                               s_step)]]
+    (:func:`step_criteria`), and that dispersion."""
+    current_bic, bics, dispersion = step_criteria(
+        (current.loss_rss, current.model.penalty_params),
+        [(f.loss_rss, f.model.penalty_params) for _, f in fits], n, sigma)
+    results = [Candidate(e, f, b, b - current_bic)
+               for (e, f), b in zip(fits, bics, strict=True)]
     results.sort(key=lambda c: c.bic)
     return results, dispersion
 

@@ -128,7 +128,7 @@ class Step:
         The best candidates of the step: label, delta BIC, CV RMS (m) or None.
     dispersion
         The step's overdispersion
-        (:func:`~stiffness.calibration.selection.step_dispersion`): its BICs use the noise
+        (:func:`~stiffness.calibration.selection.step_criteria`): its BICs use the noise
         variance times this.
     """
 

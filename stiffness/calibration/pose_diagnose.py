@@ -50,9 +50,8 @@ from stiffness.calibration.selection import (
     CV_TOP,
     GOF_LEVEL,
     config_folds,
-    dispersion,
     goodness_of_fit,
-    information_criterion,
+    step_criteria,
 )
 from stiffness.cores import forked_map, one_blas_thread
 from stiffness.elastic.effects import FAMILIES
@@ -328,15 +327,12 @@ def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
                params: dict[str, int]) -> dict[str, float]:
     """Each extension's BIC change from its sum of squares ``rss`` (m^2) and its number of
     fitted ``params``, with deflection diagnose's criterion: the declared noise inflated by the
-    step's overdispersion (:func:`selection.dispersion`: what the best extension leaves above
-    the noise counts as noise in the step's comparisons)."""
-    n = current.n_observed
-    sigma = campaign.noise_std
-    if sigma is not None:
-        sigma *= math.sqrt(dispersion([current.loss_rss(), *rss.values()],
-                                      [current.n_fitted, *params.values()], n, sigma))
-    base = current.bic(sigma)
-    return {f: information_criterion(rss[f], n, params[f], sigma) - base for f in rss}
+    step's overdispersion (:func:`selection.step_criteria`: what the best extension leaves
+    above the noise counts as noise in the step's comparisons)."""
+    base, bics, _ = step_criteria((current.loss_rss(), current.n_fitted),
+                                  [(rss[f], params[f]) for f in rss], current.n_observed,
+                                  campaign.noise_std)
+    return {f: b - base for f, b in zip(rss, bics, strict=True)}
 
 
 def _winner(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],

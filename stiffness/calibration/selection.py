@@ -88,23 +88,30 @@ def information_criterion(rss: float, n: int, p: int, sigma: float | None) -> fl
     return n * math.log(max(rss, 1e-300) / n) + p * math.log(n)
 
 
-def step_dispersion(fits: list[Fit], n: int, sigma: float | None) -> float:
-    """Overdispersion of a selection step: ``c = max(1, min_f RSS_f / (sigma^2 (N - p_f)))``
-    over the current model and its extensions ``fits`` (1 with an unknown sigma).
+def step_criteria(current: tuple[float, int], extensions: list[tuple[float, int]], n: int,
+                  sigma: float | None) -> tuple[float, list[float], float]:
+    """The information criteria of a selection step, for either campaign kind: the current
+    model's BIC, each extension's, and the step's overdispersion ``c``; models are given as
+    ``(RSS m^2, parameters)``.
 
-    What the best extension leaves above the noise is structure no candidate of the step
-    models; it acts as extra noise on every comparison of the step. The step's BICs therefore
-    use ``c sigma^2`` (a quasi-likelihood BIC), so that a candidate must explain a share of the
-    *remaining* misfit, not only beat the measurement noise, to be named. When one extension
-    fits to noise, ``c = 1`` and the BIC is the plain known-sigma one.
+    ``c = max(1, min_f RSS_f / (sigma^2 (N - p_f)))`` over the current model and its
+    extensions (1 with an unknown sigma): what the best extension leaves above the noise is
+    structure no candidate of the step models; it acts as extra noise on every comparison of
+    the step. The step's BICs therefore use ``c sigma^2`` (a quasi-likelihood BIC), so that a
+    candidate must explain a share of the *remaining* misfit, not only beat the measurement
+    noise, to be named. When one extension fits to noise, ``c = 1`` and the BIC is the plain
+    known-sigma one.
     """
-    return dispersion([f.loss_rss for f in fits], [f.model.penalty_params for f in fits], n,
-                      sigma)
+    models = [current, *extensions]
+    c = dispersion([r for r, _ in models], [p for _, p in models], n, sigma)
+    s_step = None if sigma is None else sigma * math.sqrt(c)
+    return (information_criterion(current[0], n, current[1], s_step),
+            [information_criterion(r, n, p, s_step) for r, p in extensions], c)
 
 
 def dispersion(rss: list[float], params: list[int], n: int, sigma: float | None) -> float:
     """``max(1, min_f RSS_f / (sigma^2 (N - p_f)))`` over fits of ``rss`` (m^2) with ``params``
-    parameters each (1 with an unknown sigma): :func:`step_dispersion` for any model kind."""
+    parameters each (1 with an unknown sigma): :func:`step_criteria`'s overdispersion."""
     if sigma is None:
         return 1.0
     ratios = [r / (sigma ** 2 * max(n - p, 1)) for r, p in zip(rss, params, strict=True)]
