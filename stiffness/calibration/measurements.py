@@ -352,19 +352,30 @@ def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[in
         The file line of each row.
     """
     lo, hi = coordinate_limits(robot)
-    slack = 1e-9 * (1.0 + np.abs(q))
-    beyond = (q < lo - slack) | (q > hi + slack)
+
+    def outside(values: np.ndarray) -> np.ndarray:
+        slack = 1e-9 * (1.0 + np.abs(values))
+        return (values < lo - slack) | (values > hi + slack)
+
+    beyond = outside(q)
     rows = np.flatnonzero(beyond.any(axis=1))
     if not rows.size:
         return
     i, j = rows[0], int(np.flatnonzero(beyond[rows[0]])[0])
     scale, unit = _coordinate_unit(robot, units, j)
+    hint = "check the angle and length units and the robot"
+    revolute = ~prismatic_mask(robot)
+    as_degrees = q.copy()
+    as_degrees[:, revolute] = np.deg2rad(q[:, revolute])
+    if units.angle == "rad" and revolute[beyond.any(axis=0)].all() \
+            and not outside(as_degrees).any():
+        hint = 'the angles look like degrees: [units] angle = "deg" (or --units angle=deg)'
     warnings.warn(
         f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.name}'s joint "
         f"limits (first: line {lines[i]}, q{j + 1} ({robot.coordinate_joints[j]}) = "
         f"{q[i, j] / scale:.6g} {unit}, limits "
-        f"[{lo[j] / scale:.6g}, {hi[j] / scale:.6g}] {unit}); check the angle and length "
-        "units and the robot", DataFileWarning, stacklevel=4)
+        f"[{lo[j] / scale:.6g}, {hi[j] / scale:.6g}] {unit}); {hint}", DataFileWarning,
+        stacklevel=4)
 
 
 def _warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,

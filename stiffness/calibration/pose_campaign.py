@@ -44,6 +44,7 @@ from stiffness.calibration.coordinate_columns import (
 )
 from stiffness.calibration.measurements import coordinates_in_si, parse_number
 from stiffness.calibration.pose_model import Loads, Marker
+from stiffness.calibration.unit_checks import check_marker_spread
 from stiffness.errors import FileFormatError
 from stiffness.files import (
     atomic_write,
@@ -324,6 +325,9 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     q = coordinates_in_si(robot, fill_held(q_read, held, robot, units), units, labels,
                           numbers, data)
     noise = measurement_noise(doc, toml, "noise_std", units.length)
+    check_marker_spread(robot, [m.frame for m in markers],
+                        np.array([m.offset for m in markers]), q, pos * units.length_to_si,
+                        units, data)
     loads = None
     if wrench is not None:
         full = np.zeros((len(labels), 6))

@@ -49,6 +49,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
 from stiffness.calibration.measurements import coordinates_in_si
+from stiffness.calibration.unit_checks import check_deflection_size
 from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
 from stiffness.files import read_text, read_toml, resolve_path, resolve_source
 from stiffness.robot.kinematics import frame_rotation, update_first_order
@@ -597,6 +598,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
             m_si = None if m_si is None else np.einsum("rij,rj->ri", turns, m_si)
         if settings.deflection_frame == "tool":
             d_si = np.einsum("rij,rj->ri", turns, d_si)
+    check_deflection_size(robot, d_si, f_si, units, first.path)
     campaign = Campaign(name=name, baseline=baseline, robot_settings=robot_settings, q=q_si,
                         force=f_si, deflection=d_si, config=tuple(labels), moment=m_si,
                         noise_std_m=None if noise_std is None else noise_std

@@ -396,8 +396,13 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
     values = _coordinates_of_flag(robot, args, required, flag)
     beyond = outside_limits(robot, values)
     if beyond:
+        revolute = np.array([_is_revolute(robot, j) for j in robot.coordinate_joints])
+        hint = ""
+        if not getattr(args, "deg", False) and revolute.any() and not outside_limits(
+                robot, np.where(revolute, np.deg2rad(values), values)):
+            hint = f" (the values look like degrees: add --deg to {flag})"
         warnings.warn(f"{robot.name}: the configuration is outside the joint limits: "
-                      f"{'; '.join(beyond)}", stacklevel=2)
+                      f"{'; '.join(beyond)}{hint}", stacklevel=2)
     return values
 
 

@@ -1,0 +1,147 @@
+"""Units caught: a campaign's measured lengths checked against its robot.
+
+Tracker data in mm declared as m puts markers a kilometre from a 0.9 m robot and makes
+``identify`` 1000x too soft. The readers check what the robot allows and warn (a
+:class:`~stiffness.errors.DataFileWarning`, once) with the length unit the data look like, as
+the joint-limit check does for angles:
+
+* **Pose campaigns.** The distance between two rows' positions of one marker does not depend on
+  where the measuring system stands: it is the distance the robot's kinematics moves the marker
+  between the two rows' coordinates. The median ratio of the measured to the nominal distance
+  (over row pairs) is about 1 (geometric errors change it by percents); outside
+  :data:`SPREAD_RATIO` the unit is wrong (or the robot, or the markers' frames).
+* **Deflection campaigns.** A loaded robot's target moves by micrometres to millimetres: the
+  median deflection is checked between :data:`SMALLEST_DEFLECTION_M` and
+  :data:`LARGEST_DEFLECTION` times the robot's reach (:func:`reach`).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.elastic.effects.preloads import reach
+from stiffness.errors import DataFileWarning, StiffnessError
+from stiffness.robot.robot import Robot
+from stiffness.units import LENGTH_UNITS, Units
+
+#: Accepted median ratio of measured to nominal marker displacements between rows.
+SPREAD_RATIO = (0.5, 2.0)
+#: Rows compared (evenly spaced through the campaign): enough for a median, cheap to evaluate.
+ROWS_CHECKED = 40
+#: The smallest median deflection a rig measures (m; 0.1 um, below any tracker's noise):
+#: below, the unit is too large.
+SMALLEST_DEFLECTION_M = 1e-7
+#: The largest median deflection, as a fraction of the robot's reach: beyond, no elastostatics.
+LARGEST_DEFLECTION = 0.02
+
+
+def likely_length_unit(factor: float, units: Units) -> str | None:
+    """The length unit (other than the declared one) that multiplies the data's SI values by
+    ``factor`` within a factor 2.2, or ``None``."""
+    wanted = units.length_to_si * factor
+    best = min(LENGTH_UNITS, key=lambda u: abs(math.log10(LENGTH_UNITS[u] / wanted)))
+    if best == units.length or abs(math.log10(LENGTH_UNITS[best] / wanted)) > 0.35:
+        return None
+    return best
+
+
+def _advice(unit: str | None) -> str:
+    if unit is None:
+        return "check the length unit, the robot and the markers' frames"
+    return f"the data look like {unit}: [units] length = \"{unit}\" (or --units length={unit})"
+
+
+def nominal_marker_positions(robot: Robot, frames: list[str], offsets: np.ndarray,
+                             q: np.ndarray) -> np.ndarray:
+    """(n, M, 3) positions (m, base frame) of markers on ``frames`` at ``offsets`` (M, 3) for
+    each row of coordinates ``q`` (n, n_coordinates), by the robot's nominal kinematics."""
+    ids = [robot.model.getFrameId(f) for f in frames]
+    out = np.empty((len(q), len(frames), 3))
+    seed = None
+    for r, coords in enumerate(q):
+        full = robot.configuration(coords, seed)
+        seed = None if robot.loop.is_open_chain else full
+        pin.framesForwardKinematics(robot.model, robot.data, full)
+        for k, fid in enumerate(ids):
+            out[r, k] = robot.data.oMf[fid].act(offsets[k])
+    return out
+
+
+def check_marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q: np.ndarray,
+                        positions: np.ndarray, units: Units, data: Path) -> None:
+    """Warn once when the measured marker positions (n, M, 3; m, NaN unseen) move between rows
+    by other distances than the nominal kinematics at ``q`` (rad, m) moves them.
+
+    Warns
+    -----
+    DataFileWarning
+        The median ratio of measured to nominal distances outside :data:`SPREAD_RATIO`, with
+        the length unit that would bring it to 1 (:func:`likely_length_unit`).
+    """
+    rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), ROWS_CHECKED)).astype(int))
+    size = reach(robot.model)
+    # the offsets are in the same unit: beyond the reach they are as wrong as the positions
+    offsets = np.where(np.linalg.norm(offsets, axis=1, keepdims=True) <= size, offsets, 0.0)
+    try:
+        nominal = nominal_marker_positions(robot, frames, offsets, q[rows])
+    except StiffnessError:  # a pose the loops cannot close: reported where it is used
+        return
+    measured = positions[rows]
+    floor = 1e-3 * size
+    ratios = []
+    for k in range(len(frames)):
+        for i in range(len(rows)):
+            for j in range(i + 1, len(rows)):
+                d_nom = np.linalg.norm(nominal[i, k] - nominal[j, k])
+                d_meas = np.linalg.norm(measured[i, k] - measured[j, k])
+                if d_nom > floor and np.isfinite(d_meas):
+                    ratios.append(d_meas / d_nom)
+    if not ratios:
+        return
+    ratio = float(np.median(ratios))
+    if SPREAD_RATIO[0] <= ratio <= SPREAD_RATIO[1]:
+        return
+    warnings.warn(
+        f"{data}: the measured marker positions move {ratio:.3g} times as far between rows as "
+        f"{robot.name}'s kinematics moves the markers (median over {len(ratios)} row pairs, "
+        f"length unit {units.length}); "
+        f"{_advice(likely_length_unit(1.0 / ratio, units) if ratio > 0 else None)}",
+        DataFileWarning, stacklevel=3)
+
+
+def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarray,
+                          units: Units, data: Path) -> None:
+    """Warn once when the median measured deflection (m) is beyond what a loaded robot of this
+    reach deflects (:data:`SMALLEST_DEFLECTION_M` to :data:`LARGEST_DEFLECTION` x reach).
+
+    Warns
+    -----
+    DataFileWarning
+        Naming the median deflection and load, and the length unit that brings the deflections
+        into the range.
+    """
+    sizes = np.linalg.norm(deflection, axis=1)
+    sizes = sizes[sizes > 0]
+    if not sizes.size:
+        return
+    size = float(np.median(sizes))
+    low, high = SMALLEST_DEFLECTION_M, LARGEST_DEFLECTION * reach(robot.model)
+    if low <= size <= high:
+        return
+    middle = math.sqrt(1e-6 * 1e-3)  # a rig's typical deflection: 1 um to 1 mm
+    fits = [u for u in LENGTH_UNITS if u != units.length
+            and low <= size * LENGTH_UNITS[u] / units.length_to_si <= high]
+    unit = min(fits, key=lambda u: abs(math.log10(
+        size * LENGTH_UNITS[u] / units.length_to_si / middle)), default=None)
+    load = float(np.median(np.linalg.norm(force, axis=1)))
+    side = "larger" if size > high else "smaller"
+    warnings.warn(
+        f"{data}: the median deflection is {size / units.length_to_si:.3g} {units.length} "
+        f"({size:.3g} m under a median load of {load:.3g} N), {side} than a loaded robot of "
+        f"{robot.name}'s reach ({reach(robot.model):.3g} m) deflects ({low:.0e} m to "
+        f"{high:.3g} m); {_advice(unit)}", DataFileWarning, stacklevel=3)

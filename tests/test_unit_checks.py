@@ -1,0 +1,97 @@
+"""Units caught (issue 38 item 4): measured lengths in the wrong unit are warned about with the
+unit they look like, for pose campaigns (marker displacements against the nominal kinematics,
+which do not depend on where the tracker stands) and deflection campaigns (deflections against
+the robot's reach); radians that look like degrees are told to use degrees.
+"""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
+from stiffness.calibration.pose_model import Marker
+from stiffness.errors import DataFileWarning
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
+from stiffness.units import Units
+
+TABLE2 = robots_directory() / "sk120" / "campaigns" / "table2"
+
+
+def caught(read) -> list[str]:
+    with warnings.catch_warnings(record=True) as found:
+        warnings.simplefilter("always")
+        read()
+    return [str(w.message) for w in found if issubclass(w.category, DataFileWarning)]
+
+
+@pytest.fixture(scope="module")
+def pose_folder(tmp_path_factory):
+    """A UR10 pose campaign in mm, tracker 3 m away and turned (hidden placement), 12 rows."""
+    robot = load_robot("ur10", frame="tool0")
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    hidden = HiddenPoseErrors(turn, np.array([3.0, -1.0, 0.4]), np.array([m.offset for m in
+                                                                          markers]),
+                              np.zeros(6), np.zeros((6, 6)), np.full(6, 2e5))
+    campaign = simulate_pose_campaign(robot, markers, hidden, 12, 2e-5, seed=4,
+                                      units=Units("deg", "N", "mm"))
+    folder = tmp_path_factory.mktemp("poses")
+    write_pose_campaign(campaign, folder)
+    return folder
+
+
+@pytest.mark.parametrize(("declared", "words"), [
+    ("mm", None), ("m", 'the data look like mm: [units] length = "mm"'),
+    ("um", 'the data look like mm: [units] length = "mm"'),
+])
+def test_pose_positions_in_the_wrong_unit(pose_folder, tmp_path, declared, words):
+    """The same numbers declared mm (right: no warning), m (1000x too far) or um."""
+    folder = tmp_path / declared
+    shutil.copytree(pose_folder, folder)
+    toml = folder / "campaign.toml"
+    text = toml.read_text()
+    assert 'length = "mm"' in text
+    toml.write_text(text.replace('length = "mm"', f'length = "{declared}"'))
+    messages = [m for m in caught(lambda: load_pose_campaign(folder)) if "marker positions" in m]
+    if words is None:
+        assert messages == []
+        return
+    assert len(messages) == 1 and words in messages[0], messages
+    ratio = 1000.0 if declared == "m" else 1e-3
+    assert f"move {ratio:.3g} times as far" in messages[0].replace("1e+03", "1e+03"), messages[0]
+
+
+@pytest.mark.parametrize(("declared", "words"), [
+    ("mm", None), ("m", 'the data look like mm: [units] length = "mm"'),
+])
+def test_deflections_in_the_wrong_unit(tmp_path, declared, words):
+    """The SK120's Table II (deflections of 0.03-0.3 mm in mm): declared m they are 3-30 cm,
+    beyond 2% of the robot's reach."""
+    folder = tmp_path / "t2"
+    shutil.copytree(TABLE2, folder)
+    toml = folder / "campaign.toml"
+    text = toml.read_text()
+    assert 'length = "mm"' in text
+    toml.write_text(text.replace('length = "mm"', f'length = "{declared}"'))
+    messages = [m for m in caught(lambda: load_campaign(folder)) if "median deflection" in m]
+    if words is None:
+        assert messages == []
+        return
+    assert len(messages) == 1 and words in messages[0] and "larger than" in messages[0], messages
+
+
+def test_radians_that_look_like_degrees_suggest_degrees(tmp_path):
+    folder = tmp_path / "t2"
+    shutil.copytree(TABLE2, folder)
+    toml = folder / "campaign.toml"
+    toml.write_text(toml.read_text().replace('angle = "deg"', 'angle = "rad"'))
+    messages = [m for m in caught(lambda: load_campaign(folder)) if "joint limits" in m]
+    assert len(messages) == 1 and 'the angles look like degrees: [units] angle = "deg"' in \
+        messages[0], messages
