@@ -41,7 +41,8 @@ def truth(model, hidden: HiddenPoseErrors) -> np.ndarray:
             x[labels[f"{where} compliance {k + 1}"]] = c[k]
     if hidden.backlash is not None and "backlash" in sl:
         for j, b in zip(model.robot.compliant_joints, hidden.backlash, strict=True):
-            x[labels[f"{j} backlash"]] = b
+            if f"{j} backlash" in labels:  # a joint carrying no torque has none
+                x[labels[f"{j} backlash"]] = b
     return x
 
 

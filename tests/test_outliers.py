@@ -3,7 +3,8 @@
 Numbers are checked against independent computations: the losses' derivatives by finite
 differences, the leverage by the explicit hat matrix, the sandwich of a robust fit whose
 residuals all sit in the loss's quadratic zone by the least-squares covariance with
-``sigma^2 = SS / (N - p)``; the coverage claim over 20 seeds against a binomial bound.
+``sigma^2 = SS / (N - p)``; the coverage claim over 25 campaigns against two-sided bounds
+(tests/stats.py).
 """
 
 from __future__ import annotations
@@ -15,9 +16,10 @@ import math
 
 import numpy as np
 import pytest
-from scipy.stats import binom
+from stats import Coverage, binomial_consistent
 
-from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fitting import LOSSES, covariance, fit_model, loss_terms
@@ -30,11 +32,12 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
+from stiffness.mechanics.formulation import deflection, target_state
+from stiffness.robot.robot import load_robot
 
 JOINTS = "shoulder_pan_joint,shoulder_lift_joint,elbow_joint"
 K_TRUE = np.array([3e4, 2e4, 1.5e4])
 NOISE_MM = 0.01
-SEEDS = 20
 
 
 def simulated(folder, seed: int, configs: int = 10, loads: int = 4, extra=()) -> object:
@@ -111,27 +114,54 @@ def test_sandwich_in_the_quadratic_zone_is_least_squares(tmp_path):
                                rtol=1e-6)
 
 
-def test_robust_intervals_cover_and_outliers_are_flagged(tmp_path):
-    """5 % gross outliers (20-50x the noise) over 20 seeds: soft_l1's 95 % intervals cover
-    the true k at a binomially consistent rate, least squares' do not, and every outlier row
-    is flagged by its label."""
-    covered = {"linear": 0, "soft_l1": 0}
-    for seed in range(SEEDS):
-        c = simulated(tmp_path / f"s{seed}", seed)
+#: All six UR5 joints (N.m/rad) and a target 7 cm off wrist_3's axis, for the coverage test.
+ALL_JOINTS = (*JOINTS.split(","), "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
+K_ALL = np.array([3e4, 2e4, 1.5e4, 5e3, 5e3, 4e3])
+OFFSET = np.array([0.05, 0.0, 0.05])
+
+
+def _conventional_campaign(robot, seed: int, configs: int = 6, loads: int = 4) -> Campaign:
+    """Deflections of the conventional model ``J K^-1 J^T f`` (the identified model is the
+    true one, so the intervals' coverage is testable) plus the declared noise, random poses
+    and forces up to 100 N."""
+    rng = np.random.default_rng(seed)
+    q, force, dx = [], [], []
+    for _ in range(configs):
+        coords = rng.uniform(-np.pi, np.pi, 6)
+        q0 = robot.configuration(coords)
+        for _ in range(loads):
+            f = rng.normal(size=3)
+            f *= rng.uniform(20.0, 100.0) / np.linalg.norm(f)
+            q.append(coords)
+            force.append(f)
+            dx.append(deflection(target_state(robot, q0, f), np.diag(K_ALL), "conventional")
+                      + rng.normal(scale=NOISE_MM * 1e-3, size=3))
+    settings = RobotSettings("ur5", target_offset_m=OFFSET, compliant_joints=ALL_JOINTS)
+    return Campaign("outliers", "conventional", settings, q=np.array(q), force=np.array(force),
+                    deflection=np.array(dx), noise_std_m=NOISE_MM * 1e-3,
+                    config=tuple(f"c{i // loads}" for i in range(configs * loads)),
+                    _robot=robot)
+
+
+def test_robust_intervals_cover_and_outliers_are_flagged():
+    """5 % gross outliers (20-50x the noise) over 25 campaigns of the six UR5 joints: soft_l1's
+    reported 95 % intervals (150) cover the true k two-sidedly (:meth:`stats.Coverage.check`),
+    least squares' do not, and every outlier row is flagged by its label."""
+    robot = load_robot("ur5", target_offset=OFFSET, compliant_joints=ALL_JOINTS)
+    cov = {"linear": Coverage(), "soft_l1": Coverage()}
+    for seed in range(25):
+        c = _conventional_campaign(robot, seed)
         rows = with_gross_outliers(c, seed)
-        for loss in covered:
-            r = identify(c, loss=loss, starts=2)
-            covered[loss] += int(np.sum((r.ci95_low <= K_TRUE) & (r.ci95_high >= K_TRUE)))
+        for loss in cov:
+            r = identify(c, loss=loss, starts=1)
+            for joint, truth in zip(r.to_dict()["joints"], K_ALL, strict=True):
+                cov[loss].add(joint["k"], joint["ci95"], truth)
             flagged = {(o.label, o.row) for o in r.outliers}
             assert {(c.config[i], i + 1) for i in rows} <= flagged, (seed, loss)
             assert all(abs(o.standardised_residual) > OUTLIER_THRESHOLD for o in r.outliers)
-    n = 3 * SEEDS
-    # at a true rate of 0.95, P(covered < 51 of 60) = 0.0024 (joints of one campaign are
-    # correlated, which widens the spread only mildly at 3 joints per campaign)
-    low = int(binom.ppf(0.0025, n, 0.95))
-    assert covered["soft_l1"] >= low, covered
-    # least squares under the declared noise: P(covered <= 40 of 60 | 0.95) < 1e-13
-    assert covered["linear"] <= 40, covered
+    cov["soft_l1"].check()
+    # least squares under the declared noise (measured 70 of 150 covered)
+    assert not binomial_consistent(cov["linear"].hits, cov["linear"].n), cov["linear"].summary()
 
 
 def test_identify_cli_reports_outliers_and_loss(tmp_path):

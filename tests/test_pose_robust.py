@@ -26,7 +26,8 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
-from scipy import stats
+from pose_truth import add_intervals
+from stats import Coverage, binomial_consistent
 
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_diagnose import validation_errors
@@ -39,7 +40,6 @@ from stiffness.robot.robot import load_robot
 NOISE = 20e-6  # m
 PAYLOAD = np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0])  # N at tool0
 FAMILIES = ["frame", "markers", "joint_offsets", "joint_compliance"]
-CHECKED = ("joint_offsets", "joint_compliance")
 MARKERS = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
            Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
 
@@ -68,31 +68,9 @@ def _with_outliers(c, share: float, size: float, rng: np.random.Generator) -> np
     return moved
 
 
-def _truth(model: PoseModel, hidden: HiddenPoseErrors, fit: PoseFit) -> np.ndarray:
-    """The hidden values in the model's layout, merged parameters folded into the kept ones."""
-    x = np.zeros(model.size)
-    sl = model.slices()
-    frame = sl["frame"].start
-    x[frame:frame + 3] = hidden.frame_translation - model.translation0
-    x[frame + 3:frame + 6] = pin.log3(hidden.frame_rotation @ model.rotation0.T)
-    x[sl["markers"]] = (hidden.marker_offsets - np.array([m.offset for m in MARKERS])).ravel()
-    x[sl["joint_offsets"]] = hidden.joint_offsets
-    x[sl["joint_compliance"]] = 1.0 / hidden.stiffness
-    out = x.copy()
-    for d in fit.identifiability.dropped:
-        for kept, coef in d.merged_into:
-            out[kept] += coef * x[d.index]
-    return out
-
-
 def _fit(robot, c, loss: str) -> tuple[PoseModel, PoseFit]:
     model = PoseModel(robot, c.markers, tuple(FAMILIES), starting_frame(c), c.loads)
     return model, fit_pose_model(model, c, rows_of(model, c), FAMILIES, loss=loss)
-
-
-def _binomial_consistent(hits: int, n: int, level: float = 0.95, alpha: float = 1e-3) -> bool:
-    return (stats.binom.cdf(hits, n, level) > alpha / 2
-            and stats.binom.sf(hits - 1, n, level) > alpha / 2)
 
 
 def test_soft_l1_recovers_the_truth_through_gross_outliers(ur10):
@@ -101,9 +79,8 @@ def test_soft_l1_recovers_the_truth_through_gross_outliers(ur10):
     RMS on a clean campaign of the same arm is the noise's; least squares' coverage is not
     consistent with 95 % and its held-out RMS is a quarter above soft_l1's (numbers in the
     module docstring)."""
-    hits = {"linear": 0, "soft_l1": 0}
+    cov = {"linear": Coverage(), "soft_l1": Coverage()}
     held = {"linear": [], "soft_l1": []}
-    count = 0
     for seed in range(8):
         rng = np.random.default_rng(seed)
         hidden = _hidden(rng)
@@ -111,18 +88,13 @@ def test_soft_l1_recovers_the_truth_through_gross_outliers(ur10):
         clean = simulate_pose_campaign(ur10, MARKERS, hidden, 20, NOISE, seed=seed + 100,
                                        payload=PAYLOAD)
         _with_outliers(c, 0.02, 50 * NOISE, rng)
-        for loss in hits:
-            model, fit = _fit(ur10, c, loss)
-            truth = _truth(model, hidden, fit)
-            lo, hi = fit.interval()
-            kept = [i for i in fit.identifiability.kept if model.parameters[i].family in CHECKED]
-            hits[loss] += sum(int(lo[i] <= truth[i] <= hi[i]) for i in kept)
-            count += len(kept) if loss == "linear" else 0
+        for loss in cov:
+            _, fit = _fit(ur10, c, loss)
+            add_intervals(cov[loss], fit, hidden)
             held[loss].append(validation_errors(fit.model, fit.x, clean)["rms"]
                               / (np.sqrt(3) * NOISE))
-    assert count >= 60
-    assert _binomial_consistent(hits["soft_l1"], count), hits
-    assert not _binomial_consistent(hits["linear"], count), hits
+    cov["soft_l1"].check()
+    assert not binomial_consistent(cov["linear"].hits, cov["linear"].n), cov["linear"].summary()
     assert np.mean(held["soft_l1"]) < 1.1 and max(held["soft_l1"]) < 1.25, held
     assert np.mean(held["linear"]) > 1.25 * np.mean(held["soft_l1"]), held
 

@@ -98,7 +98,9 @@ WEAK_BIC = 6.0
 SIMILARITY_LIMIT = 0.95
 
 
-def _stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float) -> list[Parameter]:
+def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float) -> list[Parameter]:
+    """The joint stiffnesses a diagnosis reports: ``k = exp(x)`` with the interval
+    ``k exp(+-quantile se)`` (``se`` of ``ln k`` from ``cov``), in N.m/rad or N/m."""
     model = fit.model
     out = []
     for i, j in enumerate(model.compliant):
@@ -254,9 +256,9 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                seed if propose else None)
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
-        baseline_stiffness=_stiffness_parameters(base, cov_base, interval_quantile(
+        baseline_stiffness=stiffness_parameters(base, cov_base, interval_quantile(
             known, n, base.model.penalty_params)),
-        final_stiffness=_stiffness_parameters(final, cov_final, quantile),
+        final_stiffness=stiffness_parameters(final, cov_final, quantile),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
