@@ -46,6 +46,7 @@ from stiffness.planning.design import design, fit_alternatives
 from stiffness.planning.plan import PLAN_FILE, read_plan, write_plan
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 UR5_ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
 UR5_K = np.array([3e4, 2e4, 1.5e4])
@@ -351,8 +352,9 @@ def _error_line(capsys, argv: list[str]) -> str:
 def test_bad_input_one_line(tmp_path, capsys):
     base = ["design", "--robot", "ur5", "--compliant-joints", ",".join(UR5_ARM), "--kq",
             "3e4,2e4,1.5e4", "--max-force", "100", "--out", str(tmp_path / "p.csv")]
-    err = _error_line(capsys, base + ["--configs", "2", "--existing", "robots/sk120/campaigns/"
-                                      "table2", "--separate", "backlashh:joint2,target_offset"])
+    err = _error_line(capsys, base + ["--configs", "2", "--existing",
+                                      str(robots_directory() / "sk120" / "campaigns" / "table2"),
+                                      "--separate", "backlashh:joint2,target_offset"])
     assert "unknown effect 'backlashh'" in err and "backlash" in err
     err = _error_line(capsys, base + ["--configs", "30", "--candidates", "20"])
     assert "larger than the 20 candidate poses" in err

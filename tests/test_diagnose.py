@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from browser import chromium
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import diagnose
@@ -18,6 +19,7 @@ from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.provenance import provenance
+from stiffness.robot.sources import robots_directory
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 #: UR5 with a 10 cm tool: the arm joints compliant.
@@ -164,7 +166,7 @@ def test_cli_json_and_files(tmp_path, capsys):
 
 
 def test_table2_runs():
-    camp = load_campaign("robots/sk120/campaigns/table2")
+    camp = load_campaign(robots_directory() / "sk120" / "campaigns" / "table2")
     s = diagnose(camp, propose=False).summary()
     assert set(s) == SUMMARY_KEYS
     assert s["noise_std_source"] == "residuals"
@@ -195,7 +197,6 @@ def test_diagnosis_page(tmp_path):
     captioned; Chromium renders it with its figure."""
     import html
     import re
-    import shutil
     import subprocess
     import tempfile
 
@@ -223,9 +224,7 @@ def test_diagnosis_page(tmp_path):
     record["cannot_tell_apart"] = [{"step": 1, "chosen": "a", "other": "b", "reason": "r",
                                     "proposals": [{"note": "no reachable pose sampled"}]}]
     assert "no reachable pose sampled" in render_diagnosis(record, None, provenance("test"))
-    browser = shutil.which("chromium") or shutil.which("chromium-browser")
-    if browser is None:
-        pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")
+    browser = chromium()
     probe = ("<script>window.addEventListener('load',()=>{document.body.setAttribute("
              "'data-images',[...document.images].filter(i=>i.naturalWidth>100).length);});"
              "</script>")

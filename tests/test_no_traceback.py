@@ -37,8 +37,9 @@ ARMS = {
     "z1": [f"joint{i}" for i in range(1, 7)],
     "kinova": [f"j2s6s200_joint_{i}" for i in range(1, 7)],
 }
-#: Few examples per command: each runs a whole command (about 0.1-1 s).
-FEW = settings(max_examples=8, deadline=timedelta(seconds=20))
+#: Examples per command: each runs a whole command (about 0.1-1 s), so 8 in CI's time budget;
+#: 300 under the ``long`` profile (some minutes).
+FEW = settings(max_examples=300 if LONG else 8, deadline=timedelta(seconds=20))
 #: Flag values: a dozen commands per test in CI, 300 under the ``long`` profile (about 2 min).
 FLAG_VALUES = settings(max_examples=300 if LONG else 12, deadline=timedelta(seconds=20))
 #: Numbers that break naive flag readers, written as a user would.

@@ -18,11 +18,12 @@ import pytest
 
 import stiffness
 from stiffness.cli.main import main
+from stiffness.robot.sources import robots_directory
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 ARM_K = [3e4, 2e4, 1.5e4]  # N.m/rad
 UR5_K = [3e5, 3e5, 2e5, 4e4, 4e4, 4e4]  # N.m/rad
-TABLE2 = "robots/sk120/campaigns/table2"
+TABLE2 = str(robots_directory() / "sk120" / "campaigns" / "table2")
 
 
 def _command_json(capsys, argv: list[str]) -> dict:

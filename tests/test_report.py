@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import subprocess
 import tempfile
 from html.parser import HTMLParser
@@ -12,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from browser import chromium
 
 from stiffness.cli.main import main
 from stiffness.mechanics.formulation import target_state
@@ -93,9 +93,7 @@ def test_definiteness_limit_is_consistent(summary):
 
 
 def test_report_renders_in_headless_chromium(report_dir, tmp_path):
-    browser = shutil.which("chromium") or shutil.which("chromium-browser")
-    if browser is None:
-        pytest.skip("no chromium on this machine (.ci/run installs Debian's chromium)")
+    browser = chromium()
     page = (report_dir / "report.html").read_text()
     n_figures = page.count("<figure")
     assert n_figures == 6

@@ -203,7 +203,8 @@ def test_gravity_model_matches_the_exact_equilibrium():
         meas = np.hstack([c.deflection, c.rotation])
         err = np.sqrt(np.mean((pred - meas)[:, :3] ** 2))
         size = np.sqrt(np.mean((bare - meas)[:, :3] ** 2))
-        assert size > 2 * NOISE and err < 0.2 * size, (effect, err, size)
+        # measured 10 % (payload) and 6.5 % (compensator) here; 4-8 % on 6 poses x 4 loads
+        assert size > 2 * NOISE and err < 0.12 * size, (effect, err, size)
 
 
 @pytest.mark.parametrize(("effect", "truth"), [
