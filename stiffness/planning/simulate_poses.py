@@ -8,8 +8,8 @@ the applied wrench, ``K (q_l - q_c - delta_0) = J(q_l)^T w - g(q_l)`` (fixed-poi
 1e-14 rad; springs on a ``[controller]``'s coordinates ``u``, ``q_chain = A u + b``, hold
 ``K_u Delta u = A^T (J^T w - g)`` with ``Delta q = A Delta u``), and the measuring frame is an
 arbitrary rigid placement. Hidden elastic effects beyond the joint springs act in the same
-equilibrium: a spring compensator's torque
-(:class:`~stiffness.elastic.effects.preloads.GravityCompensator`) joins the joint's torque,
+equilibrium: a spring compensator's torque (:func:`spring_compensator_torque`, from the
+spring's attachment points, not from the library's scalar law) joins the joint's torque,
 backlash adds ``b tanh(tau / tau_s)`` to its deflection, and a link bend rotates the part of the
 arm beyond the link's distal joint exactly (its placement turned by ``omega``) under the moment
 that part's weight and the wrench exert there, taken from Pinocchio's recursive Newton-Euler
@@ -30,14 +30,17 @@ from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import link_axes
 from stiffness.elastic.effects.joint_laws import Backlash
 from stiffness.elastic.effects.link_bends import Link, marker_links
-from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.mechanics.gravity import upward_angle
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
 #: Fixed-point tolerance of the sag (rad or m) and its iteration cap.
 _SAG_TOL = 1e-14
 _SAG_ITERATIONS = 200
+#: The hidden compensator's spring: lever on the link and base point on its parent, both from
+#: the joint axis (m), in line when the link points up (the library's default geometry).
+SPRING_LEVER_M, SPRING_BASE_M = 0.1, 0.3
 
 
 @dataclass
@@ -69,7 +72,8 @@ class HiddenPoseErrors:
     compensator
         Revolute compliant joint name -> (stiffness N/m, tension N with the link up) of a
         spring compensator with the library's default geometry
-        (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.upward`).
+        (:func:`spring_compensator_torque`, its angle from the link's upward direction:
+        :func:`~stiffness.mechanics.gravity.upward_angle`).
     """
 
     frame_rotation: np.ndarray
@@ -106,7 +110,8 @@ class HiddenElasticity:
     backlash, smoothing
         (n_compliant,) backlash half-widths and smoothing torques.
     compensators
-        (velocity index, joint id, spring, (stiffness, tension)) per compensated joint.
+        (velocity index, joint id, the joint's angle with the link up (rad), (stiffness N/m,
+        tension N)) per compensated joint.
     links
         (link, its two compliances) per bending link.
     """
@@ -115,7 +120,7 @@ class HiddenElasticity:
     stiffness: np.ndarray
     backlash: np.ndarray
     smoothing: np.ndarray
-    compensators: list[tuple[int, int, GravityCompensator, np.ndarray]]
+    compensators: list[tuple[int, int, float, np.ndarray]]
     links: list[tuple[Link, np.ndarray]]
 
 
@@ -153,7 +158,7 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
         np.zeros(n) if hidden.backlash is None else np.asarray(hidden.backlash, dtype=float),
         np.array([smoothing.get(j, 1.0) for j in names]),
         [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
-          GravityCompensator.upward(robot, j), np.asarray(p, dtype=float))
+          upward_angle(robot, j).angle_rad, np.asarray(p, dtype=float))
          for j, p in hidden.compensator.items()],
         sorted(((links[w], np.asarray(c, dtype=float)) for w, c in hidden.link_compliance.items()),
                key=lambda item: item[0].b))
@@ -194,11 +199,25 @@ def _joint_torque(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hidd
         pin.updateFramePlacements(model, data)
         torque = torque + pin.getFrameJacobian(model, data, model.getFrameId(load_frame),
                                                pin.LOCAL_WORLD_ALIGNED).T @ wrench
-    for v, joint, spring, p in springs.compensators:
+    for v, joint, up, (stiffness, tension) in springs.compensators:
         jm = model.joints[joint]
         theta = (np.arctan2(q[jm.idx_q + 1], q[jm.idx_q]) if jm.nq == 2 else q[jm.idx_q])
-        torque[v] += float(spring.torque(p, theta)[0])
+        torque[v] += spring_compensator_torque(theta - up, stiffness, tension)
     return torque
+
+
+def spring_compensator_torque(theta: float, stiffness: float, tension: float,
+                              lever_m: float = SPRING_LEVER_M, base_m: float = SPRING_BASE_M
+                              ) -> float:
+    """Torque (N.m) about its joint's axis of a spring from a base point ``base_m`` above the
+    axis to a point of the link ``lever_m`` from it, the link turned by ``theta`` (rad) from
+    up; the spring's tension is ``tension + stiffness (L - (base_m - lever_m))`` (N, N/m; L
+    its length). Computed from the two points in the joint's plane: ``z . (r x F)``."""
+    lever = lever_m * np.array([-np.sin(theta), np.cos(theta)])
+    span = np.array([0.0, base_m]) - lever
+    length = float(np.hypot(*span))
+    force = (tension + stiffness * (length - (base_m - lever_m))) * span / length
+    return float(lever[0] * force[1] - lever[1] * force[0])
 
 
 def _bent(model: pin.Model, q_command: np.ndarray, dv: np.ndarray, springs: HiddenElasticity,
@@ -227,6 +246,9 @@ def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hi
         return np.zeros((0, 3))
     zero = np.zeros(model.nv)
     pin.rnea(model, data, q, zero, zero)
+    # rnea leaves data.oMi as they were (set only by computeJointJacobians with a wrench):
+    # without a payload every link bend read identities and came out NaN
+    pin.forwardKinematics(model, data, q)
     pin.updateFramePlacements(model, data)
     fid = model.getFrameId(load_frame)
     out = np.zeros((len(springs.links), 3))
