@@ -165,12 +165,26 @@ def test_cli_json_and_files(tmp_path, capsys):
     assert "missing effects: force_sensor_bias" in capsys.readouterr().out
 
 
-def test_table2_runs():
+def test_table2_diagnosis_is_the_documented_one():
+    """docs/diagnose.md's Table II diagnosis: force_sensor_bias named (Delta BIC -22, held-out
+    RMS 0.096 mm), the RMS 0.081 -> 0.056 mm, the bias fx = 29 +- 6 N, fy = -16 +- 7 N,
+    fz = -39 +- 6 N, the noise estimated from the residuals."""
     camp = load_campaign(robots_directory() / "sk120" / "campaigns" / "table2")
-    s = diagnose(camp, propose=False).summary()
+    result = diagnose(camp, propose=False)
+    s = result.summary()
     assert set(s) == SUMMARY_KEYS
     assert s["noise_std_source"] == "residuals"
-    assert s["baseline_rms"] == pytest.approx(0.0814, abs=0.002)
+    assert s["missing_effects"] == ["force_sensor_bias"]
+    assert s["baseline_rms"] == pytest.approx(0.081, abs=5e-4)   # mm
+    assert s["final_rms"] == pytest.approx(0.056, abs=5e-4)
+    (step,) = result.steps
+    assert step.delta_bic == pytest.approx(-22, abs=0.5)
+    assert step.cv_rms == pytest.approx(0.096e-3, abs=5e-7)      # m
+    bias = {p.name: p for p in result.final_parameters_si[step.effect.label]}
+    for axis, value, se in (("fx", 29, 6), ("fy", -16, 7), ("fz", -39, 6)):
+        assert bias[axis].unit == "N"
+        assert bias[axis].value == pytest.approx(value, abs=0.5), axis
+        assert bias[axis].standard_error == pytest.approx(se, abs=0.5), axis
 
 
 def test_identification_is_diagnosis_without_effects():
