@@ -19,7 +19,7 @@ import pinocchio as pin
 import pytest
 from scipy import optimize
 
-from stiffness.calibration.absolute import Marker
+from stiffness.calibration.pose_model import Marker
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING
 from stiffness.mechanics.gravity import spring_balancer
 from stiffness.planning.simulate_poses import (
