@@ -11,7 +11,10 @@ and mechanics are imported with the package; the batch, workspace, calibration, 
 machining, papers and viewer entries are imported on first use (they bring SciPy's optimisers,
 matplotlib, meshcat). The workflow commands are functions here too: ``identify``,
 ``diagnose``, ``simulate``, ``design``, ``compensate``, ``posture`` and ``scan`` take Python
-objects (SI) and return results whose ``.to_dict()`` is the command's ``--json`` object.
+objects (SI) and return results whose ``.to_dict()`` is the command's ``--json`` object; the
+result classes (``Identification``, ``Diagnosis``, ``PoseDiagnosis``, ``Validation``...), the
+models (``ElasticModel``, ``PoseModel``) and every error and warning the package raises
+(``StiffnessError`` and its subclasses) are here too.
 
 Example::
 
@@ -30,7 +33,28 @@ __version__ = "0.1.0"
 
 import importlib
 
-from stiffness.errors import SingularConfigurationError, StiffnessError
+from stiffness.errors import (
+    ConvergenceError,
+    DataFileNote,
+    DataFileWarning,
+    FileFormatError,
+    FloatingBaseError,
+    LoopClosureError,
+    MissingFileError,
+    OutputError,
+    RobotFileError,
+    RobotFileWarning,
+    SingularConfigurationError,
+    StiffnessError,
+    UndeterminedMotionError,
+    UnknownColumnWarning,
+    UnknownEffectError,
+    UnknownFrameError,
+    UnknownJointError,
+    UnknownNameError,
+    UnknownRobotError,
+    UnstableEquilibriumError,
+)
 from stiffness.files import atomic_write
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.equilibrium import Equilibrium, solve_equilibrium
@@ -64,29 +88,43 @@ _ON_FIRST_USE = {
     "run_scan": "stiffness.workspace.engine",
     "load_scan": "stiffness.workspace.engine",
     "scan": "stiffness.workspace.request",
-    # calibration: campaigns, identification, diagnosis
+    "ScanResult": "stiffness.workspace.request",
+    # calibration: campaigns, identification, diagnosis, and their results and errors
     "Campaign": "stiffness.calibration.campaign",
+    "CampaignKindError": "stiffness.calibration.campaign",
     "load_campaign": "stiffness.calibration.campaign",
     "identify": "stiffness.calibration.identify",
+    "Identification": "stiffness.calibration.identification",
     "diagnose": "stiffness.calibration.diagnose",
+    "Diagnosis": "stiffness.calibration.diagnosis",
     # calibration from absolute poses (docs/absolute-poses.md)
     "Marker": "stiffness.calibration.pose_model",
     "PoseCampaign": "stiffness.calibration.pose_campaign",
     "load_pose_campaign": "stiffness.calibration.pose_campaign",
     "write_pose_campaign": "stiffness.calibration.pose_campaign",
+    "PoseModel": "stiffness.calibration.pose_model",
+    "PoseModelError": "stiffness.calibration.pose_model",
     "diagnose_poses": "stiffness.calibration.pose_diagnose",
+    "PoseDiagnosis": "stiffness.calibration.pose_diagnose",
     "validate": "stiffness.calibration.validation",
+    "Validation": "stiffness.calibration.validation",
     # planning: synthetic campaigns, experiment design
     "simulate": "stiffness.planning.simulate",
+    "Simulation": "stiffness.planning.simulate",
     "HiddenPoseErrors": "stiffness.planning.simulate_poses",
     "simulate_pose_campaign": "stiffness.planning.simulate_poses",
     "design": "stiffness.planning.design",
+    "DesignResult": "stiffness.planning.design",
     # machining: compensation along a path, the stiffest posture
     "ElasticModel": "stiffness.elastic.model",
     "ElasticState": "stiffness.elastic.model",
     "load_model": "stiffness.elastic.model_file",
+    "ModelFileError": "stiffness.elastic.model_file",
+    "ModelRobotError": "stiffness.elastic.model_file",
     "compensate": "stiffness.machining.compensation",
+    "PathCompensation": "stiffness.machining.compensation",
     "posture": "stiffness.machining.posture",
+    "PostureResult": "stiffness.machining.posture",
     # papers: the SK120 reproduction
     "build_report": "stiffness.papers.report",
     # viewer: stiffness ellipsoids in the browser
@@ -110,18 +148,50 @@ def __dir__() -> list[str]:
 
 __all__ = [
     "Campaign",
+    "CampaignKindError",
+    "ConvergenceError",
+    "DataFileNote",
+    "DataFileWarning",
+    "DesignResult",
+    "Diagnosis",
     "ElasticModel",
     "ElasticState",
     "Equilibrium",
+    "FileFormatError",
+    "FloatingBaseError",
     "HiddenPoseErrors",
+    "Identification",
+    "LoopClosureError",
     "Marker",
+    "MissingFileError",
+    "ModelFileError",
+    "ModelRobotError",
+    "OutputError",
+    "PathCompensation",
     "PoseCampaign",
+    "PoseDiagnosis",
+    "PoseModel",
+    "PoseModelError",
+    "PostureResult",
     "Robot",
+    "RobotFileError",
+    "RobotFileWarning",
+    "ScanResult",
     "ScanSpec",
+    "Simulation",
     "SingularConfigurationError",
     "StiffnessError",
     "StiffnessViewer",
     "TargetState",
+    "UndeterminedMotionError",
+    "UnknownColumnWarning",
+    "UnknownEffectError",
+    "UnknownFrameError",
+    "UnknownJointError",
+    "UnknownNameError",
+    "UnknownRobotError",
+    "UnstableEquilibriumError",
+    "Validation",
     "__version__",
     "atomic_write",
     "batch_kinematics",
