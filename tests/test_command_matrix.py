@@ -53,7 +53,8 @@ KINDS = {
 UR5_KQ = ["--kq", "8e4,8e4,5e4,2e4,2e4,2e4"]
 WRENCH = ["--wrench", "10,-20,-40"]
 COMMANDS = ("kx", "view", "scan", "simulate", "identify", "diagnose", "validate", "compensate",
-            "posture", "design", "export-urdf", "export-mjcf", "campaign-import")
+            "posture", "design", "export-urdf", "export-mjcf", "campaign-import",
+            "campaign-import-poses", "diagnose-poses")
 
 
 def run_cli(argv: list[str]) -> tuple[int, str]:
@@ -109,9 +110,24 @@ class Bench:
         self.poses = folder / "poses.csv"  # one target pose: the tool there
         self.poses.write_text("x,y,z,ax,ay,az\n" + ",".join(f"{v:.9g}" for v in (
             *placement.translation, *placement.rotation[:, 2])) + "\n")
+        self._pose_rig(robot, start)
         self.path = folder / "path.csv"
         self.path.write_text(",".join(robot.coordinate_joints) + "\n" + "\n".join(
             ",".join(f"{v:.6g}" for v in row) for row in coords) + "\n")
+
+    def _pose_rig(self, robot, start: np.ndarray) -> None:
+        """A tracker's file of 6 poses (deg; the tool's marker in mm, 20 um noise), as a rig
+        writes it for ``campaign import --kind poses``."""
+        rng = np.random.default_rng(2)
+        lines = [",".join([*robot.coordinate_joints, "tip_x", "tip_y", "tip_z"])]
+        for c in start + rng.uniform(-0.3, 0.3, (6, robot.n_coordinates)):
+            pin.framesForwardKinematics(robot.model, robot.data, robot.configuration(c))
+            tip = robot.data.oMf[robot.target_frame_id].act(np.array([0.0, 0.0, 0.02]))
+            tip = 1e3 * tip + rng.normal(0.0, 0.02, 3)
+            lines.append(",".join(f"{v:.9g}" for v in (*np.rad2deg(c), *tip)))
+        self.pose_rig = self.folder / "tracker.csv"
+        self.pose_rig.write_text("\n".join(lines) + "\n")
+        self.marker = f"tip={robot.target_frame}@0,0,20"
 
     def argv(self, command: str) -> list[str]:
         """The command line of one cell."""
@@ -138,6 +154,12 @@ class Bench:
             "campaign-import": ["campaign", "import", "--robot", self.robot, "--units",
                                 "angle=deg,force=N,length=mm", "--out", str(out),
                                 str(self.campaign / "measurements.csv")],
+            "campaign-import-poses": ["campaign", "import", "--kind", "poses", "--robot",
+                                      self.robot, "--units", "angle=deg,length=mm",
+                                      "--marker", self.marker, "--noise", "0.02", "--out",
+                                      str(self.folder / "poses"), str(self.pose_rig)],
+            "diagnose-poses": ["diagnose", str(self.folder / "poses"), "--max-steps", "1",
+                               "--workers", "1", "--quiet", "--out", str(out)],
         }[command]
 
 

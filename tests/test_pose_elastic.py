@@ -128,3 +128,31 @@ def test_new_families_refuse_what_they_cannot_model(ur10):
         PoseModel(ur10, _markers(), ("backlash",), frame0)
     with pytest.raises(StiffnessError, match="links of the markers"):
         _campaign(ur10, 0, 3, link_compliance={"shoulder_pan_joint->wrist_3_joint": np.ones(2)})
+
+
+def test_link_bends_of_a_massless_arm_are_finite():
+    """The SK120 as a DH table has no link masses: a subtree without mass has no centre
+    (Pinocchio's 0/0), which made every prediction of the pose family ``link_compliance`` NaN
+    and ended ``diagnose --out`` of its pose campaigns in a JSON error. Its bends carry the
+    payload's moment alone: finite predictions, and zero sag without a payload."""
+    from pathlib import Path
+
+    from stiffness.calibration.pose_model import Loads
+
+    robot = load_robot(Path(__file__).parents[1] / "examples" / "sk120-dh" / "robot.toml")
+    q = np.deg2rad([[-30.0, 15.0, -55.0, 0.0, -35.0, -90.0], [20.0, 30.0, -40.0, 10.0, -50.0,
+                                                                0.0]])
+    markers = [Marker("tip", "tool", np.zeros(3))]
+    for payload in (None, np.tile([0.0, 0.0, -500.0, 0.0, 0.0, 0.0], (2, 1))):
+        loads = None if payload is None else Loads("tool", payload)
+        model = PoseModel(robot, markers, ("frame", "markers", "link_compliance"),
+                          (np.eye(3), np.zeros(3)), loads)
+        rows = [model.row_terms(robot.configuration(c), None if payload is None else p)
+                for c, p in zip(q, payload if payload is not None else [None, None],
+                                strict=True)]
+        x = np.where([p.family == "link_compliance" for p in model.parameters], 1e-7, 0.0)
+        y, jac = model.evaluate(x, rows)
+        assert np.all(np.isfinite(y)) and np.all(np.isfinite(jac))
+        if payload is None:
+            y0, _ = model.evaluate(np.zeros(model.size), rows, False)
+            assert np.abs(y - y0).max() < 1e-15

@@ -207,8 +207,10 @@ class LinkCompliance(Effect, PoseFamily):
         pin.centerOfMass(model, data, q, True)  # subtree masses and centres (joint axes)
         distal = [link.b for link in links]
         origins = np.array([data.oMi[b].translation for b in distal]).reshape(-1, 3)
-        centres = np.array([data.oMi[b].act(data.com[b]) for b in distal]).reshape(-1, 3)
         masses = np.array([data.mass[b] for b in distal])
+        centres = np.array([data.oMi[b].act(data.com[b]) if m > 0 else data.oMi[b].translation
+                            for b, m in zip(distal, masses, strict=True)]).reshape(-1, 3)
+        # (a massless subtree has no centre: Pinocchio's 0/0; it carries no weight)
         gravity = np.asarray(model.gravity.linear, dtype=float)
         moments = masses[:, None] * _cross(centres - origins, gravity)
         if row.wrench is not None and pm.loads is not None:
