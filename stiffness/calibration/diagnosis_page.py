@@ -153,6 +153,32 @@ def _outliers(d: dict) -> list[str]:
                          "Standardised residual: predicted minus measured, in noise std.")]
 
 
+def _ambiguities(ambiguities: list[dict], unit: str) -> list[str]:
+    """The ambiguities section: each effect added against its runner-up, and the poses and
+    loads that would tell them apart."""
+    parts = []
+    if not ambiguities:
+        parts.append("<p>None: every effect added is distinguishable from its runner-up.</p>")
+    for a in ambiguities:
+        parts.append(f"<p>Step {a['step']}: <b>{esc(a['chosen'])}</b> against "
+                     f"<b>{esc(a['other'])}</b>, {esc(a['reason'])}.</p>")
+        proposals = a.get("proposals", [])
+        parts += [f"<p>{esc(p['note'])}</p>" for p in proposals if "note" in p]
+        rows = [[vec(p["q"], 2), vec(p["force"], 1), vec(p["deflection_chosen"]),
+                 vec(p["deflection_other"]), p["separation_noise_units"]]
+                for p in proposals if "note" not in p]
+        if rows:
+            parts.append(table(f"Poses and loads that would tell {a['chosen']} from "
+                               f"{a['other']}",
+                               ["q (deg; m prismatic)", "force (N)",
+                                f"deflection, {a['chosen']} ({unit})",
+                                f"deflection, {a['other']} ({unit})",
+                                "separation (noise std)"], rows,
+                               "Each row a proposed measurement; separation: the difference "
+                               "of the two predicted deflections over the noise."))
+    return parts
+
+
 def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     """The page.
 
@@ -230,26 +256,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts.append(heading("left", SECTIONS))
     parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))
-    ambiguities = d["cannot_tell_apart"]
-    if not ambiguities:
-        parts.append("<p>None: every effect added is distinguishable from its runner-up.</p>")
-    for a in ambiguities:
-        parts.append(f"<p>Step {a['step']}: <b>{esc(a['chosen'])}</b> against "
-                     f"<b>{esc(a['other'])}</b>, {esc(a['reason'])}.</p>")
-        proposals = a.get("proposals", [])
-        parts += [f"<p>{esc(p['note'])}</p>" for p in proposals if "note" in p]
-        rows = [[vec(p["q"], 2), vec(p["force"], 1), vec(p["deflection_chosen"]),
-                 vec(p["deflection_other"]), p["separation_noise_units"]]
-                for p in proposals if "note" not in p]
-        if rows:
-            parts.append(table(f"Poses and loads that would tell {a['chosen']} from "
-                               f"{a['other']}",
-                               ["q (deg; m prismatic)", "force (N)",
-                                f"deflection, {a['chosen']} ({unit})",
-                                f"deflection, {a['other']} ({unit})",
-                                "separation (noise std)"], rows,
-                               "Each row a proposed measurement; separation: the difference "
-                               "of the two predicted deflections over the noise."))
+    parts += _ambiguities(d["cannot_tell_apart"], unit)
     parts.append(reproduce_block(prov, "reproduce", SECTIONS,
                                  "The run writes this page, diagnosis.json, residuals.png and "
                                  "final-model.json."))

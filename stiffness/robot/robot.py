@@ -28,7 +28,6 @@ import pinocchio as pin
 
 from stiffness.errors import (
     LoopClosureError,
-    RobotFileError,
     StiffnessError,
     UnknownJointError,
     did_you_mean,
@@ -36,7 +35,15 @@ from stiffness.errors import (
 from stiffness.robot import kinematics
 from stiffness.robot.assembly import Assembly, least_squares_assembly
 from stiffness.robot.calibration import calibrated_source, is_json
-from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
+from stiffness.robot.coupling import CoordinateMap
+from stiffness.robot.declaration import (
+    check_compliant,
+    checked_mimics,
+    controller_map,
+    free_joints,
+    ordered_coordinates,
+    target_offset_of,
+)
 from stiffness.robot.loops import (
     CLOSURE_TOLERANCE_M,
     LoopClosure,
@@ -52,7 +59,7 @@ from stiffness.robot.targets import (
     gripper_joints,
     target_chain,
 )
-from stiffness.robot.urdf import Mimic, warn
+from stiffness.robot.urdf import Mimic
 
 #: Name of the operational frame added at the measurement target.
 TARGET_FRAME = "stiffness_target"
@@ -65,11 +72,6 @@ _BRANCH_JUMP = 0.05
 #: reference assembly steps on, into the loops' reach (see Robot._step_inside).
 _INSIDE_STEP = 0.1
 
-_SUPPORTED_JOINTS = {
-    "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
-    "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
-    "JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned",
-}
 @dataclass
 class Robot:
     """A robot model ready for elastostatics.
@@ -579,29 +581,6 @@ class Robot:
         return self._reference
 
 
-def _check_mimics(name: str, mimics: tuple[Mimic, ...], model: pin.Model, passive: set[str]
-                  ) -> tuple[Mimic, ...]:
-    """Mimic couplings that still apply after rewrites and locking (warn about the others)."""
-    kept = []
-    for m in mimics:
-        if not (model.existJointName(m.follower) and model.existJointName(m.leader)):
-            warn(f"{name}: mimic joint {m.follower!r} (leader {m.leader!r}) is not in the "
-                 "model after the joint rewrites; its coupling is ignored")
-            continue
-        if m.leader in passive or any(m.leader == other.follower for other in mimics):
-            raise StiffnessError(
-                f"{name}: mimic joint {m.follower!r} follows {m.leader!r}, which is a passive "
-                "loop joint or itself a mimic follower; make the leader an actuated joint "
-                "(name_mot) or declare the follower passive")
-        follower, leader = model.joints[model.getJointId(m.follower)], model.joints[
-            model.getJointId(m.leader)]
-        if follower.nv != 1 or leader.nv != 1:
-            raise StiffnessError(f"{name}: mimic joint {m.follower!r} and its leader "
-                                 f"{m.leader!r} must both have one degree of freedom")
-        kept.append(m)
-    return tuple(kept)
-
-
 def load_robot(
     source: str | os.PathLike,
     frame: str | None = None,
@@ -650,11 +629,11 @@ def load_robot(
     if declaration is not None:
         loop = build_loop_closure(model, declaration, dependent=followers)
     passive = set(loop.passive_joints)
-    mimics = _check_mimics(name, src.mimics, model, passive)
+    mimics = checked_mimics(name, src.mimics, model, passive)
     dependent = {m.follower for m in mimics}
-    coordinate_joints, settings = _ordered_coordinates(
-        name, settings, _free_joints(model, passive | dependent), loops)
-    coupling = _controller(name, settings, model, coordinate_joints, not loop.is_open_chain,
+    coordinate_joints, settings = ordered_coordinates(
+        name, settings, free_joints(model, passive | dependent), loops)
+    coupling = controller_map(name, settings, model, coordinate_joints, not loop.is_open_chain,
                            mimics)
     spring_names = coordinate_joints
     if coupling is not None:
@@ -666,14 +645,14 @@ def load_robot(
     gripper = gripper_joints(model, src.all_mimics + src.mimics)
     frame = checked_target_frame(
         name, model, frame if frame is not None else settings.get("frame"), closure, gripper)
-    offset = _target_offset(target_offset, settings)
+    offset = target_offset_of(target_offset, settings)
 
     fid = kinematics.frame_id(model, frame)
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
         model, fid, spring_names, coupling is not None or not loop.is_open_chain))
     check_counts(settings, coordinate_joints, springs)
     compliant_joints = tuple(springs if compliant_joints is None else compliant_joints)
-    _check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
+    check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
 
     parent = model.frames[fid]
     placement = parent.placement * pin.SE3(np.eye(3), offset)
@@ -703,17 +682,6 @@ def load_robot(
     )
 
 
-def _target_offset(target_offset: np.ndarray | list[float] | None, settings: dict
-                   ) -> np.ndarray:
-    """The target's position (3,) in its frame's axes (m): given, else the robot file's."""
-    if target_offset is None:
-        target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
-    offset = np.asarray(target_offset, dtype=float).reshape(-1)
-    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
-        raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
-    return offset
-
-
 def _edited_model(src: RobotSource, declaration: LoopDeclaration | None, fixed_base: bool
                   ) -> tuple[pin.Model, pin.GeometryModel | None, EditedVisual | None, list[str]]:
     """The source's model and visual geometry with the loop file's joint rewrites and the
@@ -734,93 +702,6 @@ def _edited_model(src: RobotSource, declaration: LoopDeclaration | None, fixed_b
                                      None if declaration is None else declaration.rewrites,
                                      name, fixed_base)
     return model, visual, visual_loader, notes
-
-
-def _free_joints(model: pin.Model, excluded: set[str]) -> list[str]:
-    """Joints with a degree of freedom, in model order, but the ``excluded`` ones (passive
-    loop joints, mimic followers): the coordinate joints.
-
-    Raises
-    ------
-    StiffnessError
-        If one of them is neither revolute, continuous nor prismatic.
-    """
-    coordinate_joints = []
-    for jid in range(1, model.njoints):
-        joint = model.joints[jid]
-        joint_name = model.names[jid]
-        if joint.nv == 0 or joint_name in excluded:
-            continue
-        if joint.shortname() not in _SUPPORTED_JOINTS:
-            raise StiffnessError(
-                f"joint {joint_name!r} is a {joint.shortname()} with {joint.nv} degrees of "
-                "freedom; only revolute, continuous and prismatic joints can be coordinates "
-                "(declare it passive in a loop file, or fix the base with --fixed-base)"
-            )
-        coordinate_joints.append(joint_name)
-    return coordinate_joints
-
-
-def _ordered_coordinates(name: str, settings: dict, coordinate_joints: list[str],
-                         loops: str | os.PathLike | None) -> tuple[list[str], dict]:
-    """The coordinate joints in the robot file's ``coordinate_order``, and the settings; a
-    ``coordinate_order`` that a ``loops`` file made wrong is dropped with the coordinates'
-    defaults (warned)."""
-    order = settings.get("coordinate_order")
-    if order is not None and loops is not None and sorted(order) != sorted(coordinate_joints):
-        warn(f"{name}: the coordinate_order of its robot.toml does not match the coordinates "
-             f"under the loop file {loops}; model order used, and its defaults for the "
-             "coordinates (q, compliant joints, springs) dropped")
-        settings = {k: v for k, v in settings.items() if k not in (
-            "coordinate_order", "q_SI", "q_deg", "rest_q_SI", "compliant_joints", "k_theta_SI")}
-        order = None
-    if order is not None:
-        if sorted(order) != sorted(coordinate_joints):
-            raise StiffnessError(
-                f"coordinate_order {order} of {name} must list exactly its coordinate joints "
-                f"{coordinate_joints}"
-            )
-        coordinate_joints = list(order)
-    return coordinate_joints, settings
-
-
-def _check_compliant(name: str, compliant_joints: tuple[str, ...], spring_names: list[str],
-                     passive: set[str], dependent: set[str], coupling: CoordinateMap | None
-                     ) -> None:
-    """Raise if a compliant joint carries no spring (not in ``spring_names``: the reason named)
-    or is listed twice."""
-    for joint_name in compliant_joints:
-        if joint_name not in spring_names:
-            why = (" (it is a passive loop joint)" if joint_name in passive else
-                   " (it is a mimic follower: its leader carries the spring)"
-                   if joint_name in dependent else "")
-            if coupling is not None:
-                why = (f" (its springs act on the {coupling.springs_on}'s coordinates: "
-                       "[controller] springs_on)")
-            raise UnknownJointError(
-                f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
-                f"{did_you_mean(joint_name, spring_names)}", name=joint_name,
-                choices=spring_names)
-    if len(set(compliant_joints)) != len(compliant_joints):
-        raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
-
-
-def _controller(name: str, settings: dict, model: pin.Model, chain: list[str], looped: bool,
-                mimics: tuple[Mimic, ...]) -> CoordinateMap | None:
-    """The ``[controller]`` map of a robot file over its chain joints, or None without one."""
-    if "controller" not in settings:
-        return None
-    path = settings.get("_file", name)
-    if looped or mimics or "coordinate_order" in settings:
-        what = "a closed loop" if looped else "mimic joints" if mimics else "coordinate_order"
-        raise RobotFileError(path, None, f"[controller] coordinates cannot be combined with "
-                             f"{what}: write the coupling in [controller] alone")
-    kinds = {j: "prismatic" if model.joints[model.getJointId(j)].shortname().startswith(
-        "JointModelP") else "revolute" for j in chain}
-    dh = settings.get("dh")
-    units = {k: dh[k] for k in ("angle_unit", "length_unit")
-             if isinstance(dh, dict) and k in dh}
-    return read_coordinate_map(settings["controller"], path, kinds, units)
 
 
 def coordinate_index(robot: Robot, name: str, what: str) -> int:

@@ -1,0 +1,149 @@
+"""What a robot file declares, checked while a robot loads
+(:func:`stiffness.robot.robot.load_robot`).
+
+The coordinate joints and their order, the compliant joints, the mimic couplings that survive
+the loop file's rewrites, the target offset and the ``[controller]`` coordinates
+(docs/robot-files.md). Each check raises a :class:`~stiffness.errors.StiffnessError` of one line
+naming the robot, the field and the fix.
+
+Units: SI (m, rad).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.errors import RobotFileError, StiffnessError, UnknownJointError, did_you_mean
+from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
+from stiffness.robot.urdf import Mimic, warn
+
+#: Pinocchio joints that can be coordinates: revolute, continuous and prismatic.
+SUPPORTED_JOINTS = {
+    "JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
+    "JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned",
+    "JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned",
+}
+
+
+def checked_mimics(name: str, mimics: tuple[Mimic, ...], model: pin.Model, passive: set[str]
+                  ) -> tuple[Mimic, ...]:
+    """Mimic couplings that still apply after rewrites and locking (warn about the others)."""
+    kept = []
+    for m in mimics:
+        if not (model.existJointName(m.follower) and model.existJointName(m.leader)):
+            warn(f"{name}: mimic joint {m.follower!r} (leader {m.leader!r}) is not in the "
+                 "model after the joint rewrites; its coupling is ignored")
+            continue
+        if m.leader in passive or any(m.leader == other.follower for other in mimics):
+            raise StiffnessError(
+                f"{name}: mimic joint {m.follower!r} follows {m.leader!r}, which is a passive "
+                "loop joint or itself a mimic follower; make the leader an actuated joint "
+                "(name_mot) or declare the follower passive")
+        follower, leader = model.joints[model.getJointId(m.follower)], model.joints[
+            model.getJointId(m.leader)]
+        if follower.nv != 1 or leader.nv != 1:
+            raise StiffnessError(f"{name}: mimic joint {m.follower!r} and its leader "
+                                 f"{m.leader!r} must both have one degree of freedom")
+        kept.append(m)
+    return tuple(kept)
+
+
+def target_offset_of(target_offset: np.ndarray | list[float] | None, settings: dict
+                   ) -> np.ndarray:
+    """The target's position (3,) in its frame's axes (m): given, else the robot file's."""
+    if target_offset is None:
+        target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
+    offset = np.asarray(target_offset, dtype=float).reshape(-1)
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
+    return offset
+
+
+def free_joints(model: pin.Model, excluded: set[str]) -> list[str]:
+    """Joints with a degree of freedom, in model order, but the ``excluded`` ones (passive
+    loop joints, mimic followers): the coordinate joints.
+
+    Raises
+    ------
+    StiffnessError
+        If one of them is neither revolute, continuous nor prismatic.
+    """
+    coordinate_joints = []
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        joint_name = model.names[jid]
+        if joint.nv == 0 or joint_name in excluded:
+            continue
+        if joint.shortname() not in SUPPORTED_JOINTS:
+            raise StiffnessError(
+                f"joint {joint_name!r} is a {joint.shortname()} with {joint.nv} degrees of "
+                "freedom; only revolute, continuous and prismatic joints can be coordinates "
+                "(declare it passive in a loop file, or fix the base with --fixed-base)"
+            )
+        coordinate_joints.append(joint_name)
+    return coordinate_joints
+
+
+def ordered_coordinates(name: str, settings: dict, coordinate_joints: list[str],
+                         loops: str | os.PathLike | None) -> tuple[list[str], dict]:
+    """The coordinate joints in the robot file's ``coordinate_order``, and the settings; a
+    ``coordinate_order`` that a ``loops`` file made wrong is dropped with the coordinates'
+    defaults (warned)."""
+    order = settings.get("coordinate_order")
+    if order is not None and loops is not None and sorted(order) != sorted(coordinate_joints):
+        warn(f"{name}: the coordinate_order of its robot.toml does not match the coordinates "
+             f"under the loop file {loops}; model order used, and its defaults for the "
+             "coordinates (q, compliant joints, springs) dropped")
+        settings = {k: v for k, v in settings.items() if k not in (
+            "coordinate_order", "q_SI", "q_deg", "rest_q_SI", "compliant_joints", "k_theta_SI")}
+        order = None
+    if order is not None:
+        if sorted(order) != sorted(coordinate_joints):
+            raise StiffnessError(
+                f"coordinate_order {order} of {name} must list exactly its coordinate joints "
+                f"{coordinate_joints}"
+            )
+        coordinate_joints = list(order)
+    return coordinate_joints, settings
+
+
+def check_compliant(name: str, compliant_joints: tuple[str, ...], spring_names: list[str],
+                     passive: set[str], dependent: set[str], coupling: CoordinateMap | None
+                     ) -> None:
+    """Raise if a compliant joint carries no spring (not in ``spring_names``: the reason named)
+    or is listed twice."""
+    for joint_name in compliant_joints:
+        if joint_name not in spring_names:
+            why = (" (it is a passive loop joint)" if joint_name in passive else
+                   " (it is a mimic follower: its leader carries the spring)"
+                   if joint_name in dependent else "")
+            if coupling is not None:
+                why = (f" (its springs act on the {coupling.springs_on}'s coordinates: "
+                       "[controller] springs_on)")
+            raise UnknownJointError(
+                f"compliant joint {joint_name!r} is not a coordinate joint of {name}{why}; "
+                f"{did_you_mean(joint_name, spring_names)}", name=joint_name,
+                choices=spring_names)
+    if len(set(compliant_joints)) != len(compliant_joints):
+        raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
+
+
+def controller_map(name: str, settings: dict, model: pin.Model, chain: list[str], looped: bool,
+                mimics: tuple[Mimic, ...]) -> CoordinateMap | None:
+    """The ``[controller]`` map of a robot file over its chain joints, or None without one."""
+    if "controller" not in settings:
+        return None
+    path = settings.get("_file", name)
+    if looped or mimics or "coordinate_order" in settings:
+        what = "a closed loop" if looped else "mimic joints" if mimics else "coordinate_order"
+        raise RobotFileError(path, None, f"[controller] coordinates cannot be combined with "
+                             f"{what}: write the coupling in [controller] alone")
+    kinds = {j: "prismatic" if model.joints[model.getJointId(j)].shortname().startswith(
+        "JointModelP") else "revolute" for j in chain}
+    dh = settings.get("dh")
+    units = {k: dh[k] for k in ("angle_unit", "length_unit")
+             if isinstance(dh, dict) and k in dh}
+    return read_coordinate_map(settings["controller"], path, kinds, units)
