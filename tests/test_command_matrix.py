@@ -3,13 +3,15 @@ traceback (issue 36.2).
 
 Commands: kx, view --export, scan, simulate, identify, diagnose --out (its text report and its
 page, the report of a diagnosis), validate, compensate, posture, design, robot export --urdf and
---mjcf, campaign import. Robots: a URDF (UR5), a URDF with loops (the shipped SK120), a DH
+--mjcf, campaign import, and for pose calibration campaign import --kind poses and diagnose of
+that pose campaign. Robots: a URDF (UR5), a URDF with loops (the shipped SK120), a DH
 table, a DH tree, DH tables with a square ``[controller]`` coupling (the SK120's
 parallelogram) with the springs on each side, and with passive chain joints (a tall coupling:
 tests/data/torso-passive) with the springs on each side.
 
-The inputs are the smallest valid ones (a campaign of 3 poses x 2 loads, 2 scan samples, 2
-path points), so the whole matrix costs a few seconds.
+The inputs are the smallest valid ones (a campaign of 3 poses x 2 loads, a tracker file of 6
+poses, 2 scan samples, 2 path points, one posture target), so the whole matrix costs about
+15 s of CPU.
 """
 
 from __future__ import annotations
@@ -174,7 +176,7 @@ def cell_problem(code: int, stderr: str) -> str | None:
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_every_command_on_a_robot_kind(tmp_path, kind):
-    """The 13 commands on one robot kind (one test per kind, so that a process builds each
+    """The 15 commands on one robot kind (one test per kind, so that a process builds each
     kind's campaign and diagnosis once); every unclean cell is named."""
     bench = Bench(kind, tmp_path)
     problems = {}
