@@ -53,6 +53,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.effects import FAMILIES
+from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.kinematic_errors import MeasuringFrame
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
@@ -421,7 +422,7 @@ class PoseModel:
         """d point / d v (3, nv), world axes, for a point fixed to frame ``fid``."""
         jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
         lever = point - data.oMf[fid].translation
-        return jac[:3] - _skew(lever) @ jac[3:]
+        return jac[:3] - skew(lever) @ jac[3:]
 
 
 def _check_combination(families: list[PoseFamily]) -> None:
@@ -453,10 +454,6 @@ def _zero_component(shortname: str) -> int | None:
         if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
             return base + "XYZ".index(kind[len(prefix):])
     return None
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def align_frames(world: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

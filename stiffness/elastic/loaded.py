@@ -34,7 +34,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
-from stiffness.elastic.effects.geometry import link_axes
+from stiffness.elastic.effects.geometry import link_axes, skew
 from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import as_wrench, target_state
@@ -110,10 +110,6 @@ class BentKinematics:
     k_c: np.ndarray  # (n + 2m, n + 2m): K_C of the coordinates (bend rows zero)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def bent_kinematics(em: LoadedRobot, links: list[LinkBend], axes: list[np.ndarray],
                 coords: np.ndarray, alpha: np.ndarray, wrench: np.ndarray,
                 seed_q: np.ndarray | None) -> BentKinematics:
@@ -153,7 +149,7 @@ def bent_kinematics(em: LoadedRobot, links: list[LinkBend], axes: list[np.ndarra
     position = cum.act(state.position)
     rotation = cum.rotation @ state.rotation
     spatial = np.hstack([bent @ state.projection, np.array(alpha_cols).T])
-    jac = np.vstack([spatial[:3] - _skew(position) @ spatial[3:], spatial[3:]])
+    jac = np.vstack([spatial[:3] - skew(position) @ spatial[3:], spatial[3:]])
     return BentKinematics(q, position, rotation, jac, k_c)
 
 
