@@ -52,6 +52,15 @@ from stiffness.errors import FileFormatError, MissingFileError, OutputError
 _TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
 
 
+def number_text(value: float) -> str:
+    """A number as a user file writes it: the shortest text that reads back the value rounded
+    to 15 significant digits, so a unit conversion's last-bit noise (0.1201274 m written in mm
+    as ``120.12740000000001``) is not written; ``-0.0`` is written ``0.0``. 15 digits keep
+    every measured digit (a float's round-off is 1e-16 relative)."""
+    rounded = float(f"{float(value):.15g}")
+    return repr(rounded + 0.0)  # + 0.0 turns -0.0 into 0.0
+
+
 def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
     """The UTF-8 text of ``path`` (``what`` names the file in the error, e.g. "campaign file"),
     without the byte-order mark that spreadsheets and some editors put at its start.

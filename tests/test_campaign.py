@@ -367,6 +367,24 @@ def test_write_accepts_a_campaign_like_object(tmp_path):
     assert back.robot().target_frame == "fixture_target"  # the shipped robot's default
 
 
+def test_written_numbers_carry_no_conversion_noise(tmp_path):
+    """Issue 38 item 10: 0.1201274 mm, -33.2004 deg and a force of -0.0 N are written as
+    such (not 120.12740000000001 or -0.0) and read back to 1e-15."""
+    q_deg = np.array([[-33.2004, 15.9, -55.5957, 0.0, -34.4045, -90.0]])
+    like = SimpleNamespace(
+        name="sim", baseline="enhanced", robot_settings=RobotSettings("sk120"),
+        q=np.deg2rad(q_deg), force=np.array([[-0.0, 2.0, 3.0]]),
+        deflection=np.array([[1.201274e-4, -2.2e-5, 3.3e-5]]))
+    out = write_campaign(like, tmp_path)
+    text = (tmp_path / "measurements.csv").read_text()
+    row = text.strip().splitlines()[-1].split(",")
+    assert row[1:7] == ["-33.2004", "15.9", "-55.5957", "0.0", "-34.4045", "-90.0"], row
+    assert row[7:] == ["0.0", "2.0", "3.0", "0.1201274", "-0.022", "0.033"], row
+    back = load_campaign(out)
+    np.testing.assert_allclose(back.deflection, like.deflection, rtol=1e-15)
+    np.testing.assert_allclose(back.q, like.q, rtol=1e-15)
+
+
 def test_coordinate_columns_named_by_joint_in_any_order(tmp_path):
     """Columns named after the joints, in another order and with a bookkeeping column, read
     the same coordinates as q1..q6 (the bookkeeping column ignored with one warning)."""

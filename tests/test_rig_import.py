@@ -34,7 +34,7 @@ from stiffness.calibration.rig_import import (
     read_mapping_file,
 )
 from stiffness.cli.main import main
-from stiffness.errors import StiffnessError
+from stiffness.errors import DataFileNote, StiffnessError
 
 JOINTS = "shoulder_pan_joint,shoulder_lift_joint,elbow_joint"
 MAP = ("config=label," + ",".join(f"q{i}=theta{i}" for i in range(1, 7))
@@ -321,3 +321,20 @@ def test_map_and_units_flags_parse_or_refuse_in_one_line(text):
         assert "\n" not in str(exc)
         return
     assert all(k and v and "," not in k for k, v in pairs.items())
+
+
+def test_quiet_and_a_rig_that_loads_along_z_only(tmp_path, capsys):
+    """Issue 38 item 10: ``campaign import --quiet`` prints only what it wrote; mapping only
+    ``fz`` is accepted, fx and fy written as 0 with one note."""
+    rig = tmp_path / "rig.csv"
+    rig.write_text("theta1,theta2,theta3,theta4,theta5,theta6,Fz,dx,dy,dz\n"
+                   "0,-60,90,0,45,0,3.5,0.1,0.2,0.3\n10,-50,80,0,45,0,-2,0.1,0.2,0.3\n")
+    argv = ["campaign", "import", str(rig), "--robot", "ur5", "--map",
+            ",".join(f"q{i}=theta{i}" for i in range(1, 7)) + ",fz=Fz",
+            "--units", "angle=deg,force=N,length=mm", "--out", str(tmp_path / "c"), "--quiet"]
+    with pytest.warns(DataFileNote, match="fx, fy: no column in .*taken as 0"):
+        assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and out.startswith("wrote "), out
+    campaign = load_campaign(tmp_path / "c")
+    np.testing.assert_allclose(campaign.force, [[0, 0, 3.5], [0, 0, -2.0]])

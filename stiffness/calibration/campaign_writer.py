@@ -22,6 +22,7 @@ from stiffness.calibration.measurements import (
 )
 from stiffness.files import (
     atomic_write,
+    number_text,
     staged_folder,
     written_path,
     written_source,
@@ -40,10 +41,6 @@ def _toml_string(text: str) -> str:
             out.append(ch)
     out.append('"')
     return "".join(out)
-
-
-def _num(x: float) -> str:
-    return repr(float(x))
 
 
 def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
@@ -108,7 +105,7 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(header)
     for label, row in zip(c.config, table, strict=True):
-        writer.writerow([label, *(_num(v) for v in row)])
+        writer.writerow([label, *(number_text(v) for v in row)])
     with staged_folder(folder, keep_others=True) as stage:  # published by one rename
         atomic_write(stage / data_name, out.getvalue())
         atomic_write(stage / CAMPAIGN_FILE, campaign_toml(c, folder))
@@ -134,7 +131,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
     ]
     if s.frame is not None:
         toml.append(f"frame = {_toml_string(s.frame)}")
-    offset = ", ".join(_num(v / u.length_to_si) for v in s.target_offset_m)
+    offset = ", ".join(number_text(v / u.length_to_si) for v in s.target_offset_m)
     toml.append(f"target_offset = [{offset}]")
     if s.compliant_joints is not None:
         joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
@@ -160,7 +157,8 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
         f"data = {_toml_string(data_name)}",
     ]
     if c.noise_std_m is not None:
-        toml.append(f"noise_std = {_num(c.noise_std_m / u.length_to_si)}")
+        toml.append(f"noise_std = {number_text(c.noise_std_m / u.length_to_si)}")
     if c.rotation_noise_std_rad is not None:
-        toml.append(f"rotation_noise_std = {_num(c.rotation_noise_std_rad / u.rotation_to_si)}")
+        noise = number_text(c.rotation_noise_std_rad / u.rotation_to_si)
+        toml.append(f"rotation_noise_std = {noise}")
     return "\n".join(toml) + "\n"

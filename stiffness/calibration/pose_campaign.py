@@ -48,6 +48,7 @@ from stiffness.calibration.unit_checks import check_marker_spread
 from stiffness.errors import FileFormatError
 from stiffness.files import (
     atomic_write,
+    number_text,
     read_text,
     read_toml,
     staged_folder,
@@ -367,7 +368,7 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
         lines.append(f'frame = "{s.frame}"')
     if np.any(s.target_offset_m != 0):
         lines.append("target_offset = [" + ", ".join(
-            repr(float(v / u.length_to_si)) for v in s.target_offset_m) + "]")
+            number_text(v / u.length_to_si) for v in s.target_offset_m) + "]")
     if s.compliant_joints:
         lines.append("compliant_joints = [" + ", ".join(
             f'"{j}"' for j in s.compliant_joints) + "]")
@@ -388,7 +389,7 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
         lines += ["", "[load]", f'frame = "{c.loads.frame}"']
     lines += ["", "[markers]"] + [
         f'{m.name} = {{ frame = "{m.frame}", offset = ['
-        + ", ".join(repr(float(v / u.length_to_si)) for v in m.offset) + "] }"
+        + ", ".join(number_text(v / u.length_to_si) for v in m.offset) + "] }"
         for m in c.markers]
     with staged_folder(folder, keep_others=True) as stage:  # published by one rename
         atomic_write(stage / CAMPAIGN_FILE, "\n".join(lines) + "\n")
@@ -408,15 +409,15 @@ def _csv_text(c: PoseCampaign) -> str:
     q = np.where(prismatic, c.q / u.length_to_si, c.q / u.angle_to_si)
     out = [",".join(header)]
     for i, label in enumerate(c.labels):
-        cells = [label] + [repr(float(v)) for v in q[i]]
+        cells = [label] + [number_text(v) for v in q[i]]
         for k in range(len(c.markers)):
             p = c.positions[i, k] / u.length_to_si
-            cells += ["", "", ""] if not np.all(np.isfinite(p)) else [repr(float(v)) for v in p]
+            cells += ["", "", ""] if not np.all(np.isfinite(p)) else [number_text(v) for v in p]
         for r in ([] if c.rotations is None else c.rotations[i] / u.rotation_to_si):
-            cells += ["", "", ""] if not np.all(np.isfinite(r)) else [repr(float(v)) for v in r]
+            cells += ["", "", ""] if not np.all(np.isfinite(r)) else [number_text(v) for v in r]
         if c.loads is not None:
             w = c.loads.wrench[i]
-            cells += [repr(float(v / u.force_to_si)) for v in w[:3]]
-            cells += [repr(float(v / u.moment_to_si)) for v in w[3:]]
+            cells += [number_text(v / u.force_to_si) for v in w[:3]]
+            cells += [number_text(v / u.moment_to_si) for v in w[3:]]
         out.append(",".join(cells))
     return "\n".join(out) + "\n"

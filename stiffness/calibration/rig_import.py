@@ -50,7 +50,13 @@ from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
 from stiffness.calibration.measurements import coordinates_in_si
 from stiffness.calibration.unit_checks import check_deflection_size
-from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
+from stiffness.errors import (
+    DataFileNote,
+    DataFileWarning,
+    FileFormatError,
+    StiffnessError,
+    did_you_mean,
+)
 from stiffness.files import read_text, read_toml, resolve_path, resolve_source
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot, load_robot
@@ -575,8 +581,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     columns, _ = join_tables(tables, settings.join)
     mapper = ColumnMapper(columns, settings, [t.path for t in tables])
     q_cols, q_file, prismatic, held = read_coordinates(mapper, robot)
-    force = read_block(mapper, FORCE, "force", True)
-    assert force is not None  # a required group is there or refused
+    force = read_force(mapper)
     moment = read_block(mapper, MOMENT, "moment", False)
     mode, rows, unloaded, delta = _deflections(mapper, q_file)
     units = Units(mapper.unit("angle", bool((~prismatic).any())) or "deg",
@@ -661,6 +666,28 @@ def check_map(settings: ImportSettings, robot: Robot, targets: tuple[str, ...] =
         if target not in valid:
             raise StiffnessError(f"--map names {target!r}, not a campaign column; "
                                  f"{did_you_mean(target, valid)}")
+
+
+def read_force(mapper: ColumnMapper) -> np.ndarray:
+    """(n, 3) applied forces (files' unit): a rig that loads along some axes only (``fz``
+    alone) gives those columns; the others are zero, said once (:class:`DataFileNote`).
+
+    Raises
+    ------
+    StiffnessError
+        No force column at all.
+    """
+    found = [mapper.find(t) for t in FORCE]
+    if all(c is None for c in found):
+        return read_block(mapper, FORCE, "force", True)  # refused, naming the columns
+    rows = len(next(c for c in found if c is not None).cells)
+    zero = [t for t, c in zip(FORCE, found, strict=True) if c is None]
+    if zero:
+        warnings.warn(f"{', '.join(zero)}: no column in {', '.join(str(f) for f in mapper.files)}"
+                      "; taken as 0 (the rig loads along the mapped axes only)", DataFileNote,
+                      stacklevel=3)
+    return np.column_stack([np.zeros(rows) if c is None else mapper.values(t, c, "force")
+                            for t, c in zip(FORCE, found, strict=True)])
 
 
 def read_block(mapper: ColumnMapper, targets: tuple[str, ...], kind: str, required: bool

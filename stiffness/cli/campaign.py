@@ -73,6 +73,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true",
                    help="print what was read as one JSON object")
     p.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
+    p.add_argument("--quiet", action="store_true",
+                   help="print only the line naming what was written (no column report)")
     p.add_argument("--kind", choices=CAMPAIGN_KINDS, default="deflections",
                    help="deflections (default) or poses: absolute marker positions in the "
                         "measuring system's frame (docs/absolute-poses.md)")
@@ -164,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({**report.to_dict(), "campaign": str(path)}, indent=1))
         return 0
-    print("\n".join(report.lines()))
+    if not args.quiet:
+        print("\n".join(report.lines()))
     print(f"wrote {path} ({campaign.n_rows} rows, {len(set(campaign.config or ()))} "
           f"configurations; units {campaign.units.angle}, {campaign.units.force}, "
           f"{campaign.units.length})")

@@ -50,7 +50,7 @@ from stiffness.errors import (
     StiffnessError,
     with_context,
 )
-from stiffness.files import atomic_write, read_text
+from stiffness.files import atomic_write, number_text, read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
@@ -294,9 +294,9 @@ class PathCompensation:
                         + ["dx", "dy", "dz", "ex", "ey", "ez", "ex1", "ey1", "ez1"])
         for cells, p in zip(table.cells, self.points, strict=True):
             cells = cells + [""] * (len(table.header) - len(cells))
-            command = [repr(float(v)) for v in p.command * scale]
+            command = [number_text(v) for v in p.command * scale]
             writer.writerow(cells[: len(table.header)] + command + (command if aliases else [])
-                            + [repr(float(v)) for v in np.concatenate(
+                            + [number_text(v) for v in np.concatenate(
                                 [p.deflection, p.residual, p.residual_first_order])])
         return buf.getvalue()
 

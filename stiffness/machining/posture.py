@@ -51,7 +51,7 @@ import numpy as np
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write
+from stiffness.files import atomic_write, number_text
 from stiffness.machining.branches import (
     Layer,
     PostureProblem,
@@ -175,7 +175,7 @@ class PostureResult:
         the angle (deg), the deflections (m), the IK residuals (m, rad) and the branch per
         point."""
         def num(value: float | np.floating) -> str:
-            return repr(float(value)) if math.isfinite(value) else ""
+            return number_text(value) if math.isfinite(value) else ""
 
         scale = self._scale()
         buf = io.StringIO()

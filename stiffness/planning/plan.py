@@ -54,7 +54,7 @@ from stiffness.errors import (
     MissingFileError,
     StiffnessError,
 )
-from stiffness.files import atomic_write, read_text, resolve_source, staged_folder
+from stiffness.files import atomic_write, number_text, read_text, resolve_source, staged_folder
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -125,7 +125,7 @@ def plan_csv(plan: Plan, robot: Robot) -> str:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(_header(plan.q.shape[1]))
     for label, qi, fi in zip(plan.config, q, plan.force / u.force_to_si, strict=True):
-        writer.writerow([label, *(repr(float(v)) for v in (*qi, *fi))])
+        writer.writerow([label, *(number_text(v) for v in (*qi, *fi))])
     return out.getvalue()
 
 
