@@ -679,7 +679,7 @@ def read_force(mapper: ColumnMapper) -> np.ndarray:
     """
     found = [mapper.find(t) for t in FORCE]
     if all(c is None for c in found):
-        return read_block(mapper, FORCE, "force", True)  # refused, naming the columns
+        mapper.group(FORCE, True)  # refused, naming the columns
     rows = len(next(c for c in found if c is not None).cells)
     zero = [t for t, c in zip(FORCE, found, strict=True) if c is None]
     if zero:

@@ -175,7 +175,7 @@ class PostureResult:
         the angle (deg), the deflections (m), the IK residuals (m, rad) and the branch per
         point."""
         def num(value: float | np.floating) -> str:
-            return number_text(value) if math.isfinite(value) else ""
+            return number_text(float(value)) if math.isfinite(value) else ""
 
         scale = self._scale()
         buf = io.StringIO()
