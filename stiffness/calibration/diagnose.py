@@ -45,7 +45,7 @@ import dataclasses
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import overload
 
@@ -129,7 +129,8 @@ def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
 def diagnose(campaign: Campaign, max_steps: int = ..., seed: int = ..., propose: bool = ...,
              progress: Callable[[str], None] | None = ..., workers: int | None = ...,
              loss: str = ..., effect_settings: dict[str, dict] | None = ...,
-             masses: str = ..., validate: PoseCampaign | str | os.PathLike | None = ...
+             masses: str = ..., validate: PoseCampaign | str | os.PathLike | None = ...,
+             families: Sequence[str] = ..., not_families: Sequence[str] = ...
              ) -> Diagnosis: ...
 
 
@@ -138,7 +139,9 @@ def diagnose(campaign: PoseCampaign, max_steps: int = ..., seed: int = ...,
              propose: bool = ..., progress: Callable[[str], None] | None = ...,
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
-             validate: PoseCampaign | str | os.PathLike | None = ...) -> PoseDiagnosis: ...
+             validate: PoseCampaign | str | os.PathLike | None = ...,
+             families: Sequence[str] = ..., not_families: Sequence[str] = ...
+             ) -> PoseDiagnosis: ...
 
 
 @overload
@@ -146,7 +149,8 @@ def diagnose(campaign: str | os.PathLike, max_steps: int = ..., seed: int = ...,
              propose: bool = ..., progress: Callable[[str], None] | None = ...,
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
-             validate: PoseCampaign | str | os.PathLike | None = ...
+             validate: PoseCampaign | str | os.PathLike | None = ...,
+             families: Sequence[str] = ..., not_families: Sequence[str] = ...
              ) -> Diagnosis | PoseDiagnosis: ...
 
 
@@ -161,6 +165,8 @@ def diagnose(
     effect_settings: dict[str, dict] | None = None,
     masses: str = "known",
     validate: PoseCampaign | str | os.PathLike | None = None,
+    families: Sequence[str] = (),
+    not_families: Sequence[str] = (),
 ) -> Diagnosis | PoseDiagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
@@ -169,8 +175,8 @@ def diagnose(
     :meth:`~stiffness.calibration.diagnosis.Diagnosis.write` writes its ``--out`` folder).
     A pose campaign (``kind = "poses"``) is diagnosed by
     :func:`stiffness.calibration.pose_diagnose.diagnose_poses` (its ``PoseDiagnosis.to_dict``
-    is the command's ``--json`` there), with ``seed``, ``progress``, ``loss``, ``masses``
-    and ``validate``.
+    is the command's ``--json`` there), with ``seed``, ``progress``, ``loss``, ``masses``,
+    ``validate``, ``families`` and ``not_families``.
 
     Parameters
     ----------
@@ -197,6 +203,9 @@ def diagnose(
     masses, validate
         Pose campaigns only: whether the robot's link masses are trusted (``known``) or
         lumped (``unknown``), and another pose campaign (or its path) evaluated at every step.
+    families, not_families
+        Pose campaigns only: families forced in (in order) and families never tried
+        (``diagnose --families``, ``--not``).
 
     Raises
     ------
@@ -206,10 +215,12 @@ def diagnose(
     """
     if isinstance(campaign, PoseCampaign) or (
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
-        return _diagnose_poses(campaign, seed, progress, loss, masses, validate, workers)
-    if validate is not None:
-        raise StiffnessError("validate takes pose campaigns; for a deflection campaign "
-                             "diagnose reports the held-out (cross-validated) RMS of each step")
+        return _diagnose_poses(campaign, seed, progress, loss, masses, validate,
+                               (families, not_families))
+    if validate is not None or families or not_families:
+        raise StiffnessError("validate, families and not_families take pose campaigns; for "
+                             "a deflection campaign diagnose reports the held-out "
+                             "(cross-validated) RMS of each step")
     _check_options(max_steps, loss)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
@@ -280,14 +291,15 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
 def _diagnose_poses(campaign: PoseCampaign | str | os.PathLike, seed: int,
                     progress: Callable[[str], None] | None, loss: str, masses: str,
                     validate: PoseCampaign | str | os.PathLike | None,
-                    workers: int | None = None) -> PoseDiagnosis:
-    """:func:`diagnose` on a pose campaign."""
+                    choice: tuple[Sequence[str], Sequence[str]]) -> PoseDiagnosis:
+    """:func:`diagnose` on a pose campaign (``choice``: the forced and forbidden families)."""
     if not isinstance(campaign, PoseCampaign):
         campaign = load_pose_campaign(campaign)
     if validate is not None and not isinstance(validate, PoseCampaign):
         validate = load_pose_campaign(validate)
     return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
-                          progress=progress, loss=loss, workers=workers)
+                          progress=progress, loss=loss, families=choice[0],
+                          not_families=choice[1])
 
 
 def _check_options(max_steps: int, loss: str) -> None:

@@ -10,9 +10,13 @@ joint compliance is in; with the masses unknown the lumped compliance) and adds 
 diagnose's criteria: its BIC (:func:`~stiffness.calibration.selection.information_criterion`
 with the declared noise, inflated by the step's overdispersion) must fall by more than
 :data:`~stiffness.calibration.diagnose.BIC_MARGIN`, and of those the best
-:data:`~stiffness.calibration.diagnose.CV_TOP` are cross-validated over configuration labels
-(:func:`~stiffness.calibration.selection.config_folds`): the first whose held-out RMS falls is
-added. Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`). At the
+:data:`~stiffness.calibration.diagnose.CV_TOP` are validated by leaving one configuration out
+at a time, from each fit's linearised hat matrix without refitting
+(:func:`~stiffness.calibration.pose_fit.held_out_rms`, stable on small campaigns where folds
+would leave about as many parameters as poses): the first whose held-out RMS falls is added.
+The user may force families in (added first, in order) and forbid others
+(``diagnose --families``, ``--not``; kept in the model file's ``selection``).
+Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`). At the
 end the residual is tested against the declared noise
 (:func:`~stiffness.calibration.selection.goodness_of_fit` at
 :data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it is "unexplained",
@@ -21,11 +25,10 @@ with its structure (per marker, per axis, along the row order).
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,6 +41,7 @@ from stiffness.calibration.pose_fit import (
     PoseFit,
     campaign_settings,
     fit_pose_model,
+    held_out_rms,
     linearised_rss,
     predict,
     rows_of,
@@ -49,13 +53,12 @@ from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
     GOF_LEVEL,
-    config_folds,
     goodness_of_fit,
     step_criteria,
 )
-from stiffness.cores import forked_map, one_blas_thread
+from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES
-from stiffness.errors import ConvergenceError, FileFormatError, StiffnessError
+from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
 from stiffness.robot.robot import Robot, load_robot
@@ -68,6 +71,9 @@ BASE_FAMILIES = ("frame", "markers")
 CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys: MASSES
                         "link_compliance", "backlash", "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
+#: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
+#: linearised hat matrix (:func:`~stiffness.calibration.pose_fit.held_out_rms`).
+HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
 
 
 @dataclass
@@ -79,6 +85,7 @@ class PoseStep:
     delta_bic: float
     cv_rms: float
     validation: dict | None = None
+    forced: bool = False
 
 
 @dataclass
@@ -90,6 +97,14 @@ class PoseDiagnosis:
     steps: list[PoseStep]
     rejected: dict[str, float] = field(default_factory=dict)
     loss: str = "linear"
+    forced: list[str] = field(default_factory=list)
+    forbidden: list[str] = field(default_factory=list)
+
+    def selection(self) -> dict:
+        """How the families were chosen (kept in the model file): ``forced`` and
+        ``forbidden`` (``--families``, ``--not``) and the ``held_out`` criterion."""
+        return {"forced": self.forced, "forbidden": self.forbidden,
+                "held_out": HELD_OUT_CRITERION}
 
     @property
     def final(self) -> PoseFit:
@@ -125,9 +140,11 @@ class PoseDiagnosis:
                 "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
                            "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
+                           "forced": s.forced,
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
                 "rejected": self.rejected, "families": self.families,
+                "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
                 "identifiability": self.final.identifiability.to_dict(self.final.model),
                 "parameters": parameter_table(self.final),
@@ -190,58 +207,12 @@ def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
     return np.array([values.get(p.label, 0.0) for p in model.parameters])
 
 
-def _cv_rms(campaign: PoseCampaign, fit: PoseFit, families: list[str],
-            frame0: tuple[np.ndarray, np.ndarray], folds: list[np.ndarray],
-            workers: int | None = None) -> float:
-    """Held-out RMS of the residual components, each fold fitted on the others (started from
-    the fit on every row, with its loss and scale); infinite when a fold's model predicts a sag
-    that does not converge at a held-out pose, or a fold cannot be fitted (fewer measured
-    components than identifiable parameters): its family is then not added. ``workers`` > 1:
-    the folds in that many forked processes (:func:`stiffness.cores.forked_map`; each fold is
-    self-contained, so the result is the same)."""
-    tasks: list[Callable[[], tuple[float, int]]] = [
-        functools.partial(_fold_error, campaign, fit, families, frame0, test) for test in folds]
-    errors: list[tuple[float, int]]
-    if workers is not None and workers > 1:
-        errors = forked_map(tasks, workers)
-    else:
-        errors = []
-        for task in tasks:
-            errors.append(task())
-            if math.isinf(errors[-1][0]):
-                break
-    sq, count = 0.0, 0
-    for fold_sq, fold_count in errors:
-        if math.isinf(fold_sq):
-            return math.inf
-        sq, count = sq + fold_sq, count + fold_count
-    return float(np.sqrt(sq / max(count, 1)))
-
-
-def _fold_error(campaign: PoseCampaign, fit: PoseFit, families: list[str],
-                frame0: tuple[np.ndarray, np.ndarray], test: np.ndarray) -> tuple[float, int]:
-    """Sum of squares (m^2) and number of the held-out residual components of one fold
-    (:func:`_cv_rms`; infinite sum when the fold cannot be fitted or its sag diverges)."""
-    train = np.setdiff1d(np.arange(campaign.n_rows), test)
-    try:
-        part = _fit(campaign.subset(train), families, frame0, fit.model.settings, fit,
-                    fit.loss, fit.sigma)
-    except StiffnessError:  # the fold has fewer measured components than parameters
-        return math.inf, 0
-    held = campaign.subset(test)
-    try:
-        err = held.positions - predict(part.model, part.x, held)
-    except ConvergenceError:  # the fold's model sags without bound at a held-out pose
-        return math.inf, 0
-    err = err[np.isfinite(err)]
-    return float(err @ err), int(err.size)
-
-
 @one_blas_thread
 def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    validate: PoseCampaign | None = None,
                    progress: Callable[[str], None] | None = None,
-                   loss: str = "linear", workers: int | None = None) -> PoseDiagnosis:
+                   loss: str = "linear", families: Sequence[str] = (),
+                   not_families: Sequence[str] = ()) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -249,56 +220,106 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     masses
         ``"known"`` (the robot's inertias are trusted: joint compliance times gravity torque)
         or ``"unknown"`` (lumped compliance-times-mass-moment parameters).
+    seed
+        Kept for the signature shared with deflection diagnose: the held-out criterion
+        (leave one configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`)
+        draws nothing at random.
     validate
         Another pose campaign of the same robot and markers, evaluated at every step.
     progress
         Called with one line of text as each step starts (``None``: quiet).
     loss
         ``linear`` (least squares) or a robust loss of
-        :data:`~stiffness.calibration.fitting.LOSSES` for every fit (folds included), scaled
-        by the declared noise std, else by the baseline's robust estimate; BIC and the
-        fit-to-noise test compare :meth:`PoseFit.loss_rss` (:mod:`stiffness.calibration.pose_fit`).
-    workers
-        Processes the cross-validation folds are fitted in side by side (``None`` or 1: in
-        this process); the result does not depend on it.
+        :data:`~stiffness.calibration.fitting.LOSSES` for every fit, scaled by the declared
+        noise std, else by the baseline's robust estimate; BIC and the fit-to-noise test
+        compare :meth:`PoseFit.loss_rss` (:mod:`stiffness.calibration.pose_fit`).
+    families
+        Families forced in (``diagnose --families``): added first, in this order, whatever
+        their BIC and held-out error (a family another one acts through must come before it).
+    not_families
+        Families never tried (``diagnose --not``).
+
+    Raises
+    ------
+    StiffnessError
+        An unknown ``masses`` or ``loss``; a forced or forbidden name that is not a candidate
+        family of ``masses``, or a family both forced and forbidden, or forced before the
+        family it acts through.
     """
     say = progress or (lambda text: None)
     if masses not in CANDIDATES:
         raise StiffnessError(f"masses must be one of {', '.join(CANDIDATES)}, got {masses!r}")
     check_loss(loss)
+    forced, forbidden = _choice(masses, families, not_families)
     say(f"pose diagnosis: {campaign.n_rows} rows, baseline (measuring frame and markers)")
     frame0 = starting_frame(campaign)
-    folds = config_folds(tuple(campaign.labels), seed)
-    families = list(BASE_FAMILIES)
+    chosen = list(BASE_FAMILIES)
     settings = campaign_settings(campaign)
-    base = _fit(campaign, families, frame0, settings, loss=loss)
+    base = _fit(campaign, chosen, frame0, settings, loss=loss)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
-    cv = _cv_rms(campaign, base, families, frame0, folds, workers)
-    steps = [PoseStep("baseline", base, 0.0, cv, _validation(base, validate))]
+    steps = [PoseStep("baseline", base, 0.0, held_out_rms(base, campaign),
+                      _validation(base, validate))]
+    for f in forced:
+        say(f"step {len(steps)}: {f} (forced)")
+        fit = _fit(campaign, chosen + [f], frame0, settings, steps[-1].fit, loss, scale)
+        delta = _delta_bic(campaign, steps[-1].fit, {f: fit.loss_rss()}, {f: fit.n_fitted})
+        chosen.append(f)
+        steps.append(PoseStep(f, fit, delta[f], held_out_rms(fit, campaign),
+                              _validation(fit, validate), forced=True))
+    remaining = [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden]
+    rejected = _search(campaign, chosen, frame0, settings, steps, remaining, scale, validate,
+                       say)
+    return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
+                         sorted(forbidden))
+
+
+def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
+            ) -> tuple[list[str], set[str]]:
+    """The forced families (in order) and the forbidden ones, checked (one-line errors)."""
+    valid = CANDIDATES[masses]
+    for flag, names in (("--families", families), ("--not", not_families)):
+        wrong = [f for f in names if f not in valid]
+        if wrong:
+            raise StiffnessError(f"{flag} {wrong[0]!r} is not a candidate family with masses "
+                                 f"{masses}; name some of {', '.join(valid)}")
+    both = [f for f in families if f in not_families]
+    if both:
+        raise StiffnessError(f"{both[0]} is both forced (--families) and forbidden (--not); "
+                             "name it in one of them")
+    for n, f in enumerate(families):
+        missing = [r for r in FAMILIES[f].requires if r not in families[:n]]
+        if missing:
+            raise StiffnessError(f"--families: {f} acts through {missing[0]}; force "
+                                 f"{missing[0]} before it")
+    return list(dict.fromkeys(families)), set(not_families)
+
+
+def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray, np.ndarray],
+            settings: dict, steps: list[PoseStep], remaining: list[str], scale: float | None,
+            validate: PoseCampaign | None, say: Callable[[str], None]) -> dict[str, float]:
+    """The family-by-family search from ``steps[-1]`` over ``remaining`` (``chosen`` and
+    ``steps`` extended in place); returns the rejected families' BIC changes."""
     rejected: dict[str, float] = {}
-    remaining = list(CANDIDATES[masses])
     while True:
-        ready = [f for f in remaining if set(FAMILIES[f].requires) <= set(families)]
+        ready = [f for f in remaining if set(FAMILIES[f].requires) <= set(chosen)]
         if not ready:
-            break
+            return rejected
         say(f"step {len(steps)}: trying {', '.join(ready)}")
-        tried, screened = _screened(campaign, families, frame0, settings, steps[-1].fit, ready,
+        tried, screened = _screened(campaign, chosen, frame0, settings, steps[-1].fit, ready,
                                     scale)
         delta = {**screened, **_delta_bic(campaign, steps[-1].fit,
                                           {f: t.loss_rss() for f, t in tried.items()},
                                           {f: t.n_fitted for f, t in tried.items()})}
-        best, cv_new, unfit = _winner(campaign, families, frame0, folds, tried, delta,
-                                      steps[-1].cv_rms, workers)
+        best, cv_new, unfit = _winner(campaign, tried, delta, steps[-1].cv_rms)
         rejected.update({f: delta[f] for f in unfit})
         remaining = [f for f in remaining if f not in unfit]
         if best is None:
             rejected.update(delta)
-            break
-        families.append(best)
+            return rejected
+        chosen.append(best)
         remaining.remove(best)
         steps.append(PoseStep(best, tried[best], delta[best], cv_new,
                               _validation(tried[best], validate)))
-    return PoseDiagnosis(campaign, masses, steps, rejected, loss)
 
 
 def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
@@ -335,19 +356,18 @@ def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
     return {f: b - base for f, b in zip(rss, bics, strict=True)}
 
 
-def _winner(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-            folds: list[np.ndarray], tried: dict[str, PoseFit], delta: dict[str, float],
-            cv_current: float, workers: int | None = None
-            ) -> tuple[str | None, float, list[str]]:
+def _winner(campaign: PoseCampaign, tried: dict[str, PoseFit], delta: dict[str, float],
+            cv_current: float) -> tuple[str | None, float, list[str]]:
     """As deflection diagnose: of the extensions past :data:`BIC_MARGIN`, the best
-    :data:`CV_TOP` by BIC are cross-validated in that order, and the first whose held-out RMS
-    beats ``cv_current`` wins (``None`` if none). Also returns those whose held-out RMS is
-    infinite (a fold cannot be fitted, or its sag diverges at a held-out pose): the campaign
-    cannot validate them, and the search drops them."""
+    :data:`CV_TOP` by BIC are validated in that order, and the first whose held-out RMS
+    (leave one configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`) beats
+    ``cv_current`` wins (``None`` if none). Also returns those whose held-out RMS is infinite
+    (a configuration alone determines some of their parameters): the campaign cannot
+    validate them, and the search drops them."""
     eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
     unfit: list[str] = []
     for f in eligible[:CV_TOP]:
-        cv = _cv_rms(campaign, tried[f], families + [f], frame0, folds, workers)
+        cv = held_out_rms(tried[f], campaign)
         if cv < cv_current:
             return f, cv, unfit
         if math.isinf(cv):
@@ -415,10 +435,13 @@ def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaig
 # the pose model file
 
 
-def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathLike) -> dict:
+def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathLike,
+                    selection: dict | None = None) -> dict:
     """The model file of a pose calibration written into ``folder``: robot (its source relative
     to ``folder``, :func:`~stiffness.files.written_source`), measuring frame, markers,
-    parameters (SI); read by :func:`~stiffness.robot.calibration.read_pose_calibration`."""
+    parameters (SI), and ``selection`` (:meth:`PoseDiagnosis.selection`: the forced and
+    forbidden families) when the fit comes from a diagnosis; read by
+    :func:`~stiffness.robot.calibration.read_pose_calibration`."""
     s, robot = campaign.settings, campaign.robot
     return {"kind": POSE_MODEL_KIND, "version": 1, "units": "SI",
             "robot": {"source": written_source(s.source, Path(folder), campaign.folder()),
@@ -433,13 +456,16 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathL
             "load_frame": None if campaign.loads is None else campaign.loads.frame,
             "families": list(fit.model.families),
             "settings": fit.model.settings,
+            **({} if selection is None else {"selection": selection}),
             "parameters": parameter_table(fit)}
 
 
-def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike) -> Path:
-    """Write the pose model file (JSON, atomically)."""
+def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike,
+                     selection: dict | None = None) -> Path:
+    """Write the pose model file (JSON, atomically; :func:`pose_model_dict`)."""
     path = Path(path)
-    atomic_write(path, json.dumps(pose_model_dict(fit, campaign, path.parent), indent=1) + "\n")
+    atomic_write(path, json.dumps(pose_model_dict(fit, campaign, path.parent, selection),
+                                  indent=1) + "\n")
     return path
 
 

@@ -57,6 +57,9 @@ IDENTIFIABILITY_TOL = 1e-6
 DIVERGED_RESIDUAL_M = 1.0
 #: Evaluations of the model after which a fit stops (not converged).
 MAX_EVALUATIONS = 200
+#: Smallest ``1 - leverage`` of a configuration's components for :func:`held_out_rms` (below
+#: it, leaving the configuration out leaves a direction of the parameters undetermined).
+LEVERAGE_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -198,6 +201,11 @@ class PoseFit:
     rotation_weight
         ``sigma_t / sigma_r`` (m/rad) the orientations were weighted by
         (:mod:`stiffness.calibration.pose_orientation`), or ``None``.
+    jacobian
+        (N, k) d(residual components)/d(kept parameters) at the optimum, the components in
+        :meth:`components`'s order (the held-out criterion's hat matrix, :func:`held_out_rms`).
+    component_rows
+        (N,) the campaign row of each residual component.
     """
 
     model: PoseModel
@@ -212,6 +220,8 @@ class PoseFit:
     converged: bool = True
     rotation_residual: np.ndarray | None = None
     rotation_weight: float | None = None
+    jacobian: np.ndarray | None = None
+    component_rows: np.ndarray | None = None
 
     def components(self) -> np.ndarray:
         """The residual components as fitted: positions (m), then the weighted orientations
@@ -318,6 +328,57 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     columns = jac[:, kept]
     step, *_ = np.linalg.lstsq(columns, residual, rcond=None)
     return objective_rss(residual - columns @ step, loss, sigma), len(kept)
+
+
+def held_out_rms(fit: PoseFit, campaign: PoseCampaign) -> float:
+    """Leave-one-configuration-out RMS of the position residual (m) without refitting: each
+    configuration predicted by the parameters the fit would reach without it, to first order.
+
+    With ``J`` the fit's Jacobian over its kept parameters at the optimum (:attr:`PoseFit.
+    jacobian`, full column rank by the identifiable reduction, ``J = Q R``) and ``r`` its
+    residual, leaving configuration ``G``'s components out moves the parameters by
+    ``dx_G = R^-1 Q_G^T (I - Q_G Q_G^T)^-1 r_G`` (the hat matrix's deletion formula, PRESS:
+    exact for a model linear in its parameters, the refit's Gauss-Newton step otherwise), and
+    ``G`` is predicted by the model itself at ``x - dx_G``: its sag and geometry in full, so a
+    fit whose neighbours sag without bound at a configuration is caught. The criterion is
+    ``sqrt(objective / n)`` of the held-out position components (:func:`objective_rss` under
+    the fit's loss and scale: their sum of squares for least squares). Infinite when a
+    configuration alone determines a direction of the parameters (its leverage reaches 1
+    within :data:`LEVERAGE_TOL`) or the sag diverges at the configuration: the campaign cannot
+    validate those parameters.
+
+    Parameters
+    ----------
+    campaign
+        The campaign the fit was made on: rows sharing a configuration label are left out
+        together.
+    """
+    jac, rows = fit.jacobian, fit.component_rows
+    if jac is None or rows is None:
+        raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
+    r = fit.components()
+    q, tri = np.linalg.qr(jac)
+    labels = np.asarray(campaign.labels)
+    names = labels[rows]
+    kept = fit.identifiability.kept
+    held: list[np.ndarray] = []
+    for label in dict.fromkeys(labels.tolist()):
+        g = np.flatnonzero(names == label)
+        qg = q[g]
+        a = np.eye(g.size) - qg @ qg.T
+        if g.size and np.linalg.eigvalsh(a)[0] < LEVERAGE_TOL:
+            return math.inf
+        x = fit.x.copy()
+        x[kept] -= linalg.solve_triangular(tri, qg.T @ np.linalg.solve(a, r[g]))
+        part = campaign.subset(np.flatnonzero(labels == label))
+        obs = PoseObservations(fit.model, part, rows_of(fit.model, part))
+        try:
+            e, _ = obs.evaluate(x, jacobian=False)
+        except ConvergenceError:
+            return math.inf
+        held.append(e[:int(obs.observed.sum())])
+    errors = np.concatenate(held) if held else np.zeros(0)
+    return math.sqrt(objective_rss(errors, fit.loss, fit.sigma) / max(errors.size, 1))
 
 
 @one_blas_thread
@@ -437,7 +498,8 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
             sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
         cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
     return PoseFit(obs.model, x.copy(), ident, cov, residual, sigma, source, loss=loss,
-                   rotation_residual=rotation, rotation_weight=obs.weight)
+                   rotation_residual=rotation, rotation_weight=obs.weight, jacobian=jac,
+                   component_rows=obs.component_rows())
 
 
 def predict(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> np.ndarray:

@@ -85,6 +85,11 @@ class PoseObservations:
         """Number of measured components (positions and rotations)."""
         return int(self.observed.sum() + self.seen_rotation.sum())
 
+    def component_rows(self) -> np.ndarray:
+        """(N,) the campaign row of each measured component, in :meth:`evaluate`'s order."""
+        return np.concatenate([np.nonzero(self.observed)[0],
+                               np.nonzero(self.seen_rotation)[0]])
+
     def evaluate(self, x: np.ndarray, jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted minus measured (N,): positions (m), then ``w`` times the orientation

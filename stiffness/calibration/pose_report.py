@@ -34,11 +34,14 @@ def format_pose_report(d: PoseDiagnosis) -> str:
              "", f"{'step':<5} {'family':<18} {'params':>6} {'RMS':>11} {'dBIC':>10} "
                  f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
     for i, s in enumerate(d.steps):
-        row = (f"{i:<5} {s.family:<18} {s.fit.n_fitted:>6} {s.fit.rms() / lu:>11.4g} "
-               f"{s.delta_bic:>10.4g} {s.cv_rms / lu:>11.4g}")
+        row = (f"{i:<5} {s.family + (' *' if s.forced else ''):<18} {s.fit.n_fitted:>6} "
+               f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} {s.cv_rms / lu:>11.4g}")
         if s.validation:
             row += f"  {s.validation['rms']:.4g} (3-D, {s.validation['unit']})"
         lines.append(row)
+    lines.append("CV RMS: leave one configuration out (linearised hat matrix)"
+                 + ("; * forced (--families)" if d.forced else "")
+                 + (f"; not tried (--not): {', '.join(d.forbidden)}" if d.forbidden else ""))
     if d.steps[0].validation:
         lines += ["", *stage_table([(f"{i} {s.family}", s.validation)
                                     for i, s in enumerate(d.steps) if s.validation])]
@@ -92,7 +95,8 @@ def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
     with staged_folder(folder) as stage:  # published whole, by one rename
         atomic_write(stage / POSE_DIAGNOSIS_FILES["diagnosis"],
                      json.dumps(record, indent=1, allow_nan=False) + "\n")
-        write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"])
+        write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"],
+                         d.selection())
         atomic_write(stage / POSE_DIAGNOSIS_FILES["page"],
                      render_pose_diagnosis(record, stage_plot(record), provenance(command)))
     return {key: Path(folder) / name for key, name in POSE_DIAGNOSIS_FILES.items()}

@@ -50,9 +50,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="do not propose extra poses and loads")
     parser.add_argument("--workers", type=int, metavar="N",
                         help="processes fitting a step's candidates side by side (default: "
-                             "the usable cores; 1: all in this process); for a pose campaign, "
-                             "its cross-validation folds (default: in this process); the "
-                             "result does not depend on it")
+                             "the usable cores; 1: all in this process); the result does not "
+                             "depend on it. A pose campaign refits nothing per held-out "
+                             "configuration (leave-one-out from the fit's Jacobian), so it "
+                             "runs in this process")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     flags.add_strict_flag(parser)
     parser.add_argument("--loss", choices=LOSSES, default="linear",
@@ -71,6 +72,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="pose campaigns: whether the robot's link masses are trusted "
                              "(joint compliance times gravity torque) or unknown (lumped "
                              "compliance-times-mass-moment parameters); default known")
+    parser.add_argument("--families", metavar="A,B",
+                        help="pose campaigns: families forced into the model, added first in "
+                             "this order whatever their BIC and held-out error (e.g. "
+                             "joint_offsets,geometry); recorded in final-model.json")
+    parser.add_argument("--not", dest="not_families", metavar="A,B",
+                        help="pose campaigns: families never tried (e.g. backlash); recorded "
+                             "in final-model.json")
     parser.add_argument("--validate", metavar="CAMPAIGN",
                         help="pose campaigns: another pose campaign evaluated at every step "
                              "without refitting (the gap shrinking on held-out data)")
@@ -93,6 +101,8 @@ def pose_command_line(args: argparse.Namespace) -> str:
              "--seed", str(args.seed), "--masses", args.masses]
     words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if args.loss != "linear" else []
+    words += ["--families", args.families] if args.families else []
+    words += ["--not", args.not_families] if args.not_families else []
     return shlex.join(words)
 
 
@@ -126,9 +136,10 @@ def run(args: argparse.Namespace) -> int:
     flags.require_at_least_one(args.workers, "--workers")
     if campaign_kind(args.campaign) == "poses":
         return run_poses(args)
-    if args.validate:
-        raise StiffnessError("--validate takes pose campaigns; for a deflection campaign "
-                             "diagnose reports the held-out (cross-validated) RMS of each step")
+    if args.validate or args.families or args.not_families:
+        raise StiffnessError("--validate, --families and --not take pose campaigns; for a "
+                             "deflection campaign diagnose reports the held-out "
+                             "(cross-validated) RMS of each step")
     declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
     if args.out:
@@ -161,7 +172,9 @@ def run_poses(args: argparse.Namespace) -> int:
     show = sys.stderr.isatty() and not args.quiet
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
-                            if show else None, loss=args.loss, workers=args.workers)
+                            if show else None, loss=args.loss,
+                            families=flags.parse_names(args.families) or (),
+                            not_families=flags.parse_names(args.not_families) or ())
     paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 
