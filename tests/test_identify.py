@@ -391,3 +391,16 @@ def test_cli_errors_exit_2(tmp_path, capsys):
     assert "campaign.toml" in capsys.readouterr().err
     assert main(["identify", str(TABLE2), "--starts", "0", "--out", str(tmp_path / "m")]) == 2
     assert "starts must be at least 1" in capsys.readouterr().err
+
+
+def test_identify_out_takes_a_folder_like_diagnose(tmp_path, capsys):
+    """Issue 38 item 10: ``identify --out DIR/`` writes DIR/identified-model.json (as
+    ``diagnose --out DIR`` writes in a folder); ``--out FILE`` and the default are unchanged."""
+    from stiffness.cli.main import main
+
+    table2 = robots_directory() / "sk120" / "campaigns" / "table2"
+    assert main(["identify", str(table2), "--quiet", "--starts", "1",
+                 "--out", f"{tmp_path / 'res'}/"]) == 0
+    assert (tmp_path / "res" / "identified-model.json").is_file()
+    assert "written to " + str(tmp_path / "res" / "identified-model.json") in \
+        capsys.readouterr().out

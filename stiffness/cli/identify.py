@@ -7,14 +7,17 @@ Example::
 prints the identified stiffness of each compliant joint (N.m/rad, and the papers' N.mm/rad)
 with its standard error and 95 % confidence interval, the residual norm of eq. 12, the
 condition number of the problem and the stiffnesses the data cannot determine, and writes the
-identified model (``identified-model.json``; ``--out`` to choose the file). ``--json`` prints
-one JSON object instead of the table.
+identified model (``identified-model.json``; ``--out`` to choose the file, or ``--out DIR/``,
+an existing folder or a path ending in ``/``, for ``DIR/identified-model.json``, as
+``diagnose --out DIR`` writes its files in a folder). ``--json`` prints one JSON object instead
+of the table.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -46,8 +49,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "covariance (method trf only); default linear")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (SI) instead of the table")
-    parser.add_argument("--out", metavar="FILE", default=MODEL_FILE,
-                        help=f"identified-model file to write; default ./{MODEL_FILE}")
+    parser.add_argument("--out", metavar="FILE|DIR/", default=MODEL_FILE,
+                        help=f"identified-model file to write, or a folder (an existing one, or "
+                             f"a path ending in /) for DIR/{MODEL_FILE}, as diagnose --out "
+                             f"DIR; default ./{MODEL_FILE}")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     flags.add_strict_flag(parser)
 
@@ -127,6 +132,14 @@ def format_table(result: Identification) -> str:
     return "\n".join(lines)
 
 
+def model_path(out: str) -> Path:
+    """Where ``--out`` writes the model: the file named, or ``identified-model.json`` in a
+    folder (an existing one, or a path ending in a separator)."""
+    if out.endswith(("/", os.sep)) or Path(out).is_dir():
+        return Path(out) / MODEL_FILE
+    return Path(out)
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness identify``; returns the exit code."""
     show = sys.stderr.isatty() and not args.quiet
@@ -138,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
     result = identify(args.campaign, formulation=args.formulation, method=args.method,
                       starts=args.starts, seed=args.seed, progress=progress if show else None,
                       loss=args.loss)
-    out = result.write_model(Path(args.out))
+    out = result.write_model(model_path(args.out))
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
     else:
