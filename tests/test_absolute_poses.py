@@ -10,6 +10,7 @@ model: exact joint placements, the exact sag of joint springs under gravity and 
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -398,6 +399,10 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
                  "--map", mapping, "--units", "length=mm", "--marker", "tip=tool0@0,30,50",
                  "--marker", "elbow=forearm_link@0,50,200", "--noise", "0.02",
                  "--out", str(tmp_path / "campaign")]) == 0
+    echo = capsys.readouterr().out  # every column listed, as the deflection import does
+    assert "campaign rows of absolute marker positions" in echo, echo
+    assert re.search(r"tip_x\s+<- tracker.csv:T_x\s+\S+ \.\. \S+ mm", echo), echo
+    assert re.search(r"q1\s+<- joints.csv:j1 \[deg\]\s+\S+ \.\. \S+ deg", echo), echo
     back = load_pose_campaign(tmp_path / "campaign")
     assert np.allclose(back.q, c.q, rtol=1e-12, atol=0)
     assert np.allclose(back.positions, c.positions, rtol=1e-12, atol=0, equal_nan=True)

@@ -24,8 +24,10 @@ from stiffness.calibration.rig_import import (
     FORCE,
     MOMENT,
     ColumnMapper,
+    ImportReport,
     ImportSettings,
     check_map,
+    column_report,
     join_tables,
     load_import_robot,
     read_block,
@@ -48,8 +50,10 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                          settings: ImportSettings, markers: list[Marker],
                          name: str = "imported", noise_std: float | None = None,
                          robot: Robot | None = None,
-                         noise_std_rotation: float | None = None) -> PoseCampaign:
-    """Read a rig's CSV files into a pose campaign (SI).
+                         noise_std_rotation: float | None = None
+                         ) -> tuple[PoseCampaign, ImportReport]:
+    """Read a rig's CSV files into a pose campaign (SI), and what was read (the report of
+    :func:`stiffness.calibration.rig_import.import_campaign`, each column listed).
 
     Parameters
     ----------
@@ -112,12 +116,20 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
         loads = Loads(robot.target_frame, wrench)
     scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si)
               for m in markers]
-    return PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,
-                        positions * units.length_to_si, loads,
-                        None if noise_std is None else noise_std * units.length_to_si,
-                        rotations=None if rotations is None else rotations * units.angle_to_si,
-                        noise_std_rotation=None if noise_std_rotation is None
-                        else noise_std_rotation * units.angle_to_si)
+    campaign = PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,
+                            positions * units.length_to_si, loads,
+                            None if noise_std is None else noise_std * units.length_to_si,
+                            rotations=None if rotations is None
+                            else rotations * units.angle_to_si,
+                            noise_std_rotation=None if noise_std_rotation is None
+                            else noise_std_rotation * units.angle_to_si)
+    kinds = {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {
+        f"{m.name}_{a}": "angle" for m in markers for a in ROTATION_AXES}
+    report = ImportReport([(str(t.path), len(t.rows)) for t in tables], campaign.n_rows,
+                          "none (absolute marker positions)",
+                          column_report(mapper, units, robot, prismatic, kinds), units, "world",
+                          "measuring system", kind="poses")
+    return campaign, report
 
 
 def _marker(mapper: ColumnMapper, marker: Marker, axes: tuple[str, ...] = ("x", "y", "z"),

@@ -215,6 +215,9 @@ class ImportReport:
         The units used (:class:`stiffness.units.Units`).
     force_frame, deflection_frame
         The frames the files gave forces and deflections in.
+    kind
+        ``deflections`` or ``poses`` (absolute marker positions: ``deflections`` and
+        ``deflection_frame`` then say so).
     """
 
     files: list[tuple[str, int]]
@@ -224,6 +227,7 @@ class ImportReport:
     units: Units
     force_frame: str
     deflection_frame: str
+    kind: str = "deflections"
 
     def to_dict(self) -> dict:
         """JSON-ready."""
@@ -235,9 +239,14 @@ class ImportReport:
 
     def lines(self) -> list[str]:
         """The report as text lines."""
-        out = [f"read {', '.join(f'{f} ({n} rows)' for f, n in self.files)}: {self.rows} "
-               f"campaign rows; deflections {self.deflections}; forces in the "
-               f"{self.force_frame} frame, deflections in the {self.deflection_frame} frame"]
+        read = f"read {', '.join(f'{f} ({n} rows)' for f, n in self.files)}: {self.rows} "
+        if self.kind == "poses":
+            out = [read + "campaign rows of absolute marker positions (measuring system's "
+                          "frame); forces in world axes"]
+        else:
+            out = [read + f"campaign rows; deflections {self.deflections}; forces in the "
+                          f"{self.force_frame} frame, deflections in the "
+                          f"{self.deflection_frame} frame"]
         width = max(len(t) for t in self.columns)
         for target, c in self.columns.items():
             span = "" if c["min"] is None else f"  {c['min']:.6g} .. {c['max']:.6g}"
@@ -609,7 +618,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
                         noise_std_m=None if noise_std is None else noise_std
                         * units.length_to_si, units=units, _robot=robot)
     report = ImportReport([(str(t.path), len(t.rows)) for t in tables], len(rows), mode,
-                          _column_report(mapper, units, robot, prismatic), units,
+                          column_report(mapper, units, robot, prismatic), units,
                           settings.force_frame, settings.deflection_frame)
     warn_unused(columns, report, settings.join)
     return campaign, report
@@ -794,9 +803,11 @@ def tool_rotations(robot: Robot, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def _column_report(mapper: ColumnMapper, units: Units, robot: Robot, prismatic: np.ndarray
-                   ) -> dict[str, dict]:
-    """Per campaign column read: source, unit, range (file units)."""
+def column_report(mapper: ColumnMapper, units: Units, robot: Robot, prismatic: np.ndarray,
+                  kinds: dict[str, str] | None = None) -> dict[str, dict]:
+    """Per campaign column read: source, unit, range (file units); ``kinds`` gives the unit
+    kind of columns beyond the deflection campaign's (a pose campaign's markers)."""
+    kinds = {**_KIND, **(kinds or {})}
     out = {}
     for target, column in mapper.used.items():
         unit = ""
@@ -804,12 +815,13 @@ def _column_report(mapper: ColumnMapper, units: Units, robot: Robot, prismatic: 
             unit = units.length if prismatic[int(target[1:]) - 1] else units.angle
         elif target in robot.coordinate_joints:
             unit = units.length if robot.is_prismatic(target) else units.angle
-        elif target in _KIND:
-            unit = getattr(units, _KIND[target])
-        values = column.numbers() if unit else None
+        elif target in kinds:
+            unit = getattr(units, kinds[target])
+        values = column.numbers(empty_is_nan=True) if unit else None
+        seen = None if values is None or not np.isfinite(values).any() else values
         out[target] = {"source": f"{column.path.name}:{column.name}", "unit": unit,
-                       "min": None if values is None else float(values.min()),
-                       "max": None if values is None else float(values.max())}
+                       "min": None if seen is None else float(np.nanmin(seen)),
+                       "max": None if seen is None else float(np.nanmax(seen))}
     return out
 
 

@@ -115,9 +115,9 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
         raise StiffnessError("--kind poses reads absolute positions in the measuring system's "
                              "frame and wrenches in world axes; drop --force-frame/"
                              "--deflection-frame tool")
-    campaign = import_pose_campaign(args.files, robot_settings, settings,
-                                    _markers(args.marker), args.name, args.noise, robot,
-                                    args.noise_rotation)
+    campaign, report = import_pose_campaign(args.files, robot_settings, settings,
+                                            _markers(args.marker), args.name, args.noise,
+                                            robot, args.noise_rotation)
     path = write_pose_campaign(campaign, args.out)
     seen = np.isfinite(campaign.positions).all(axis=2).sum(axis=0)
     markers = {m.name: {"frame": m.frame, "rows_seen": int(n)}
@@ -125,9 +125,12 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
     if args.json:
         print(json.dumps({"campaign": str(path), "kind": "poses", "rows": campaign.n_rows,
                           "markers": markers, "units": {"angle": campaign.units.angle,
-                                                        "length": campaign.units.length}},
+                                                        "length": campaign.units.length},
+                          "files": report.to_dict()["files"], "columns": report.columns},
                          indent=1))
     else:
+        if not args.quiet:
+            print("\n".join(report.lines()))
         print(f"wrote {path} ({campaign.n_rows} rows; " + ", ".join(
             f"{k} on {v['frame']} seen on {v['rows_seen']}" for k, v in markers.items())
             + f"; units {campaign.units.angle}, {campaign.units.length})")
