@@ -22,6 +22,7 @@ from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
     Outlier,
 )
+from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.selection import GOF_LEVEL
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry
@@ -392,41 +393,16 @@ class Diagnosis:
 
 
 def residual_plot(d: Diagnosis) -> bytes:
-    """PNG: residual components before (baseline) and after (final model), row by row."""
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """PNG: residual components (x, y, z) before (baseline) and after (final model), row by
+    row (:func:`~stiffness.calibration.residual_figures.residual_axes_png`)."""
     lu = d.campaign.units.length_to_si
     before = (d.baseline.predicted[:, :3] - d.campaign.deflection) / lu
     after = (d.final.predicted[:, :3] - d.campaign.deflection) / lu
     sigma = d.noise_std_m / lu
-    rows = np.arange(1, d.campaign.n_rows + 1)
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
-    for k, ax in enumerate(axes):
-        ax.axhspan(-2 * sigma, 2 * sigma, color="0.9", label="±2 noise std")
-        ax.plot(rows, before[:, k], "x", color="0.45", label="baseline")
-        ax.plot(rows, after[:, k], "o", ms=3.5, color=f"C{k}", label="final model")
-        ax.axhline(0.0, color="0.3", lw=0.6)
-        ax.set_ylabel(f"d{'xyz'[k]} residual ({d.unit})")
-        ax.grid(alpha=0.3)
     labels = d.campaign.config
     starts = [i for i in range(len(labels)) if i == 0 or labels[i] != labels[i - 1]]
-    if len(starts) <= 30:
-        for ax in axes:
-            for i in starts[1:]:
-                ax.axvline(i + 0.5, color="0.8", lw=0.5)
-    axes[0].legend(fontsize=8, ncol=3, loc="upper right")
     title = "missing: " + (", ".join(s.effect.label for s in d.steps) or "nothing")
-    axes[0].set_title(f"{d.campaign.name}: RMS {d.baseline.rms() / lu:.3g} -> "
-                      f"{d.final.rms() / lu:.3g} {d.unit} (noise {sigma:.3g}); {title}",
-                      fontsize=9)
-    axes[-1].set_xlabel("measurement row")
-    buf = io.BytesIO()
-    fig.tight_layout()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    return buf.getvalue()
+    return residual_axes_png(before, after, sigma, d.unit,
+                             f"{d.campaign.name}: RMS {d.baseline.rms() / lu:.3g} -> "
+                             f"{d.final.rms() / lu:.3g} {d.unit} (noise {sigma:.3g}); {title}",
+                             starts)

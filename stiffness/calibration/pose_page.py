@@ -1,6 +1,8 @@
-"""The page of a pose diagnosis (``diagnosis.html``): the steps, the stage table with its
-figure (the held-out error after each step, bars per marker), the parameters and what the
-campaign cannot identify; built from :meth:`PoseDiagnosis.to_dict` with the house template
+"""The page of a pose diagnosis (``diagnosis.html``, the report of a pose campaign): the steps,
+the residuals before and after per marker and axis (a figure per marker), the named families
+with how sure each is, the stage table with its figure (the held-out error after each step,
+bars per marker), the validation of the final model, the parameters and what the campaign
+cannot identify; built from :meth:`PoseDiagnosis.to_dict` with the house template
 (:mod:`stiffness.htmlpage`)."""
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from stiffness.htmlpage import (
 )
 
 SECTIONS = {"summary": "Summary", "provenance": "Provenance", "steps": "Steps",
-            "stages": "Held-out error per stage", "parameters": "Parameters",
+            "residuals": "Residuals before and after, per marker and axis",
+            "how-sure": "Named effects: how sure", "stages": "Held-out error per stage",
+            "validation": "Validation of the final model", "parameters": "Parameters",
             "identifiability": "What the campaign cannot identify", "reproduce": "Reproduce"}
 #: The figure's file name inside the page (embedded, not written beside it).
 STAGE_FIGURE = "stages.png"
@@ -85,7 +89,86 @@ def _stage_rows(d: dict) -> tuple[list[str], list[list]]:
     return headers, rows
 
 
-def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict) -> str:
+def _residuals(d: dict, residual_pngs: dict[str, bytes] | None) -> list[str]:
+    """The final residual by marker and axis, its trend along the rows, and a figure per
+    marker (before and after)."""
+    unit, rs = d["unit"], d["residual_structure"]
+    rows = ([[f"marker {esc(m)}", v] for m, v in rs["rms_by_marker"].items()]
+            + [[f"axis {esc(a)}", v] for a, v in rs["rms_by_axis"].items()])
+    parts = [table(f"Final residual RMS by marker and by axis ({unit})", ["where", "RMS"],
+                   rows, "Measured minus predicted marker positions under the final model, "
+                   "per component.")]
+    trend = [[esc(a), t["slope_per_row"], t["correlation"]]
+             for a, t in rs["row_trend"].items()]
+    if trend:
+        parts.append(table("Final residual's trend along the rows",
+                           ["axis", f"slope ({unit} per row)", "correlation with the row"],
+                           trend, "A drift in time (temperature, tracker) shows as a strong "
+                           "correlation."))
+    for name, png in (residual_pngs or {}).items():
+        parts.append(figure(f"residuals-{name}.png", png,
+                            f"Marker {name}: residual x, y, z ({unit}) per row, before (the "
+                            "tracker placement and marker offsets only) and after (the final "
+                            "model)"))
+    return parts
+
+
+def _how_sure(d: dict) -> list[str]:
+    """Each named family with how sure it is: the record's ``how_sure`` when it carries one,
+    else the evidence when the family was added (its BIC change and held-out RMS gain)."""
+    unit = d["unit"]
+    if d.get("how_sure"):
+        return [table("How sure: each named effect", [
+            "effect", "ΔBIC without it", f"held-out RMS change without it ({unit})",
+            "best alternative", "its ΔBIC", "stand-in"], [
+            [esc(c["effect"]), c["removal_delta_bic"], c["held_out_cost"],
+             esc(c["alternative"] or "none"), c["alternative_delta_bic"],
+             "yes: the data prefer this shape; its size is not physical" if c["stand_in"]
+             else "no"] for c in d["how_sure"]],
+            "Each effect removed from the final model and the rest refitted: the BIC change "
+            "(positive: the effect earns its parameters) and the change of the held-out RMS "
+            "(positive: worse without it). Best alternative: the best other candidate of the "
+            "step that named it, and its BIC minus the chosen one's.")]
+    steps = d["steps"]
+    rows = [[esc(s["family"]), s["delta_bic"], steps[i - 1]["cv_rms"] - s["cv_rms"]]
+            for i, s in enumerate(steps) if i > 0]
+    if not rows:
+        return ["<p>No effect named beyond the tracker placement and the marker offsets.</p>"]
+    return [table("The evidence for each named family when it was added",
+                  ["family", "ΔBIC on adding it", f"held-out RMS gain ({unit})"], rows,
+                  "ΔBIC: negative, the family earns its parameters (below -10: strong). "
+                  "Held-out RMS gain: how much the residual on configurations left out of the "
+                  "fit fell when it was added (positive: it predicts, not only fits).")]
+
+
+def _validation(d: dict) -> list[str]:
+    """The final model's 3-D errors on the validation campaign, overall and per marker."""
+    v = d["steps"][-1].get("validation")
+    if not v:
+        return ["<p>No validation campaign: run <code>stiffness diagnose CAMPAIGN --validate "
+                "OTHER_CAMPAIGN</code> (or <code>stiffness report CAMPAIGN --validate "
+                "OTHER_CAMPAIGN</code>) to evaluate the final model on measurements it was "
+                "not fitted to.</p>"]
+    unit = v["unit"]
+    keys = ["rms", "mean_error", "std_error", "max_error"]
+    headers = ["marker", "rows"] + [f"{k.split('_')[0]} ({unit})" for k in keys]
+    rotation = "rotation_rms" in v
+    if rotation:
+        headers += [f"rotation {k} ({v['rotation_unit']})" for k in ("RMS", "mean", "max")]
+
+    def row(name: str, cell: dict, rows) -> list:
+        out = [esc(name), rows] + [cell[k] for k in keys]
+        return out + ([cell.get(f"rotation_{k}") for k in ("rms", "mean_error", "max_error")]
+                      if rotation else [])
+
+    rows = [row("all", v, v["rows"])] + [row(n, m, "") for n, m in v["markers"].items()]
+    return [table(f"Final model on the validation campaign ({v['rows']} rows)", headers, rows,
+                  "3-D position error (measured minus predicted) of the final model without "
+                  "refitting: RMS, mean, standard deviation and maximum of its norm.")]
+
+
+def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
+                          residual_pngs: dict[str, bytes] | None = None) -> str:
     """The page of a pose diagnosis.
 
     Parameters
@@ -97,6 +180,9 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict) -> str:
         :func:`stage_plot`, embedded if given.
     prov
         :func:`stiffness.provenance.provenance`.
+    residual_pngs
+        :func:`~stiffness.calibration.residual_figures.marker_residual_plots`: a figure per
+        marker, embedded if given.
     """
     unit = d["unit"]
     title = f"Pose diagnosis of campaign {d['campaign']}"
@@ -123,7 +209,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict) -> str:
     if d["rejected"]:
         parts.append("<p>Not added (ΔBIC or held-out RMS): " + esc(", ".join(
             f"{f} ({num(v, 3)})" for f, v in d["rejected"].items())) + "</p>")
-    parts.append(heading("stages", SECTIONS))
+    parts += [heading("residuals", SECTIONS), *_residuals(d, residual_pngs),
+              heading("how-sure", SECTIONS), *_how_sure(d), heading("stages", SECTIONS)]
     if stage_png is None:
         parts.append("<p>No validation campaign: run <code>stiffness diagnose --validate "
                      "OTHER_CAMPAIGN</code> for the held-out error after each step.</p>")
@@ -135,15 +222,24 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict) -> str:
                            "error."))
         parts.append(figure(STAGE_FIGURE, stage_png,
                             f"Held-out 3-D marker error after each step ({unit})"))
-    parts.append(heading("parameters", SECTIONS))
+    parts += [heading("validation", SECTIONS), *_validation(d), heading("parameters", SECTIONS),
+              *_parameters(d)]
+    parts.append(reproduce_block(prov, "reproduce", SECTIONS,
+                                 "The run writes this page, diagnosis.json and "
+                                 "final-model.json."))
+    return page(title, parts)
+
+
+def _parameters(d: dict) -> list[str]:
+    """The fitted parameters with their intervals, then what the campaign cannot identify."""
     rows = [[esc(p["family"]), esc(p["parameter"]), p["value"], p["std"],
              "—" if p["interval_95"] is None else
              f"[{num(p['interval_95'][0])}, {num(p['interval_95'][1])}]", esc(p["unit"])]
             for p in d["parameters"] if p["fitted"]]
-    parts.append(table("Fitted parameters of the final model (SI)",
-                       ["family", "parameter", "value", "standard error", "95 % interval",
-                        "unit"], rows, "Only the identifiable parameters are fitted."))
-    parts.append(heading("identifiability", SECTIONS))
+    parts = [table("Fitted parameters of the final model (SI)",
+                   ["family", "parameter", "value", "standard error", "95 % interval",
+                    "unit"], rows, "Only the identifiable parameters are fitted."),
+             heading("identifiability", SECTIONS)]
     dropped = d["identifiability"]["dropped"]
     rows = [[esc(x["parameter"]), esc(x["reason"]), esc(" + ".join(
         f"{num(m['coefficient'], 3)} × {m['parameter']}" for m in x["merged_into"][:3]))]
@@ -151,7 +247,4 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict) -> str:
     parts.append(table("Parameters left out", ["parameter", "reason", "absorbed as"], rows,
                        "No effect: it moves no marker; merged: a combination of kept ones.")
                  if rows else "<p>Every parameter of the final model is identifiable.</p>")
-    parts.append(reproduce_block(prov, "reproduce", SECTIONS,
-                                 "The run writes this page, diagnosis.json and "
-                                 "final-model.json."))
-    return page(title, parts)
+    return parts

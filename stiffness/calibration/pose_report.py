@@ -15,6 +15,7 @@ from stiffness.calibration.pose_diagnose import (
 )
 from stiffness.calibration.pose_fit import IDENTIFIABILITY_TOL
 from stiffness.calibration.pose_page import render_pose_diagnosis, stage_plot
+from stiffness.calibration.residual_figures import marker_residual_plots
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
 
@@ -88,8 +89,9 @@ def _dropped_lines(d: PoseDiagnosis) -> list[str]:
 
 def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
                          command: str | None = None) -> dict[str, Path]:
-    """Write ``diagnosis.json``, ``final-model.json`` and ``diagnosis.html`` (the page, with
-    the stage figure when there is a validation campaign) into ``folder``; ``command`` is
+    """Write ``diagnosis.json``, ``final-model.json`` and ``diagnosis.html`` (the page, with a
+    residual figure per marker and the stage figure when there is a validation campaign) into
+    ``folder``; ``command`` is
     recorded in the page's provenance (default: this process's command line)."""
     record = d.to_dict()
     with staged_folder(folder) as stage:  # published whole, by one rename
@@ -98,7 +100,8 @@ def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
         write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"],
                          d.selection())
         atomic_write(stage / POSE_DIAGNOSIS_FILES["page"],
-                     render_pose_diagnosis(record, stage_plot(record), provenance(command)))
+                     render_pose_diagnosis(record, stage_plot(record), provenance(command),
+                                           marker_residual_plots(d)))
     return {key: Path(folder) / name for key, name in POSE_DIAGNOSIS_FILES.items()}
 
 

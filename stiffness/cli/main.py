@@ -25,7 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compare the printed Appendix I Jacobian and its K_C with Pinocchio's SK120",
     ),
     "identify": ("stiffness.cli.identify", "identify joint stiffness from a campaign"),
-    "report": ("stiffness.cli.report", "the SK120 paper-reproduction report (the main job)"),
+    "report": ("stiffness.cli.report", "the SK120 paper-reproduction report (the main job), or a "
+               "campaign's report"),
     "diagnose": ("stiffness.cli.diagnose",
                  "find and name what a model misses against a campaign's measurements"),
     "validate": ("stiffness.cli.validate",

@@ -1,4 +1,11 @@
-"""``stiffness report``: the SK120 paper-reproduction report (the main job) and its 3-D scene.
+"""``stiffness report``: the SK120 paper-reproduction report (the main job) and its 3-D scene;
+with a campaign, that campaign's report.
+
+``stiffness report CAMPAIGN --out DIR`` (a deflection or a pose campaign) runs ``stiffness
+diagnose CAMPAIGN --out DIR`` (:mod:`stiffness.cli.diagnose`) and writes the same folder:
+``diagnosis.html`` (the report: steps with held-out RMS, residuals before and after per axis and
+per marker, the named effects, the parameters with intervals, the validation), ``diagnosis.json``
+and ``final-model.json``. Without ``CAMPAIGN``:
 
 Writes ``report.html`` (summary of verdicts, contents, provenance, evidence, figures embedded),
 ``summary.json`` and the figures as PNG into ``--out`` (see :mod:`stiffness.papers.report`),
@@ -23,6 +30,7 @@ from pathlib import Path
 
 import stiffness
 from stiffness.cores import usable_cores
+from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
 
 # The report, the figures and the viewer are imported by the functions that use them: `run`
@@ -110,13 +118,63 @@ def background_independent_parts() -> Iterator[Callable[[], dict]]:
             child.stdout.close()
 
 
+#: Output folder of the SK120 report when ``--out`` is not given.
+SK120_OUT = "sk120-report"
+
+
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness report``."""
-    parser.add_argument("--out", default="sk120-report", help="output folder (default "
-                                                              "./sk120-report)")
-    parser.add_argument("--campaign", help="campaign to identify from (default: the shipped "
-                                           "Table II campaign)")
+    parser.add_argument("user_campaign", nargs="?", metavar="CAMPAIGN",
+                        help="a deflection or pose campaign (campaign.toml or its folder): "
+                             "write its report (diagnose's page and record) into --out "
+                             "instead of the SK120 report")
+    parser.add_argument("--out", help=f"output folder (default ./{SK120_OUT} for the SK120 "
+                                      "report; required with CAMPAIGN)")
+    parser.add_argument("--campaign", help="SK120 report: campaign to identify from (default: "
+                                           "the shipped Table II campaign)")
     parser.add_argument("--quiet", action="store_true", help="no progress on the terminal")
+    group = parser.add_argument_group("with CAMPAIGN (as stiffness diagnose)")
+    group.add_argument("--validate", metavar="CAMPAIGN",
+                       help="pose campaigns: another pose campaign the final model and every "
+                            "step are evaluated on without refitting")
+    # No choices here: the values are diagnose's (checked by run_campaign), and importing them
+    # would delay the SK120 report's second process by the fitting stack's import.
+    group.add_argument("--masses", help="pose campaigns: link masses known (default) or "
+                                        "unknown, as stiffness diagnose --masses")
+    group.add_argument("--loss", help="linear (default) or a robust loss, as stiffness "
+                                      "diagnose --loss")
+    group.add_argument("--seed", type=int, help="seed of the cross-validation folds; default 0")
+
+
+#: The flags that only a campaign's report takes.
+_CAMPAIGN_FLAGS = ("validate", "masses", "loss", "seed")
+
+
+def run_campaign(args: argparse.Namespace) -> int:
+    """``stiffness report CAMPAIGN --out DIR``: ``stiffness diagnose CAMPAIGN --out DIR`` with
+    the flags given (its text report on stdout, its folder written whole)."""
+    from stiffness.calibration.fitting import LOSSES
+    from stiffness.calibration.pose_model import MASSES
+    from stiffness.cli import diagnose
+
+    for flag, allowed in (("masses", MASSES), ("loss", LOSSES)):
+        value = getattr(args, flag)
+        if value is not None and value not in allowed:
+            raise StiffnessError(f"--{flag} {value!r}: give one of {', '.join(allowed)}")
+    if args.campaign:
+        raise StiffnessError("--campaign picks the SK120 report's campaign; for a report of "
+                             "your campaign give it alone: stiffness report CAMPAIGN --out DIR")
+    if not args.out:
+        raise StiffnessError("stiffness report CAMPAIGN needs --out DIR, the folder the "
+                             "report is written in")
+    words = [str(args.user_campaign), "--out", str(args.out)]
+    for flag in _CAMPAIGN_FLAGS:
+        value = getattr(args, flag)
+        words += [] if value is None else [f"--{flag}", str(value)]
+    words += ["--quiet"] if args.quiet else []
+    parser = argparse.ArgumentParser(prog="stiffness diagnose")
+    diagnose.configure_parser(parser)
+    return diagnose.run(parser.parse_args(words))
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -128,7 +186,15 @@ def command_line(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Build and write the report, then print a short summary."""
+    """Build and write the report (the SK120 one, or ``CAMPAIGN``'s: :func:`run_campaign`),
+    then print a short summary."""
+    if args.user_campaign:
+        return run_campaign(args)
+    given = [f"--{flag}" for flag in _CAMPAIGN_FLAGS if getattr(args, flag) is not None]
+    if given:
+        raise StiffnessError(f"{', '.join(given)} take(s) a campaign: stiffness report "
+                             "CAMPAIGN --out DIR (the SK120 report has no such option)")
+    args.out = args.out or SK120_OUT
     out = output_folder(args.out, create=False)  # before the work: a bad --out fails at once
     scene: dict[str, str] = {}
     with background_independent_parts() as collect:

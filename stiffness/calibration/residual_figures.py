@@ -1,0 +1,90 @@
+"""The residual figures of the diagnosis pages: the x, y and z components of a residual before
+and after the effects, row by row, against the noise (matplotlib, Agg, PNG bytes).
+
+One drawing for both campaign kinds: a deflection campaign's tool deflection
+(:func:`stiffness.calibration.diagnosis.residual_plot`) and each marker of a pose campaign
+(:func:`marker_residual_plots`).
+"""
+
+from __future__ import annotations
+
+import io
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from stiffness.calibration.pose_diagnose import PoseDiagnosis
+
+
+def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None, unit: str,
+                      title: str, boundaries: list[int] | None = None) -> bytes:
+    """PNG: the x, y and z residual of each row, before (left column, crosses) and after (right
+    column, dots), each panel on its own scale.
+
+    Parameters
+    ----------
+    before, after
+        (n, 3) residual components in ``unit``; NaN where not measured (not drawn).
+    sigma
+        Noise standard deviation in ``unit`` (a ±2 sigma band), or None (no band).
+    unit
+        Length unit of the values, named on the axes.
+    title
+        Title above the top panel.
+    boundaries
+        Row indices (0-based) where a new configuration starts: a thin vertical line before
+        each (at most 30 drawn, none beyond).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = np.arange(1, before.shape[0] + 1)
+    lines = boundaries[1:] if boundaries and len(boundaries) <= 30 else []
+    fig, axes = plt.subplots(3, 2, figsize=(11, 7.5), sharex=True)
+    for col, (values, word) in enumerate(((before, "before"), (after, "after"))):
+        for k in range(3):
+            ax = axes[k, col]
+            if sigma:
+                ax.axhspan(-2 * sigma, 2 * sigma, color="0.88", label="±2 noise std")
+            ax.plot(rows, values[:, k], "x" if col == 0 else "o", ms=4, color=f"C{k}")
+            ax.axhline(0.0, color="0.3", lw=0.6)
+            ax.set_ylabel(f"{'xyz'[k]} residual ({unit})")
+            ax.grid(alpha=0.3)
+            for i in lines:
+                ax.axvline(i + 0.5, color="0.8", lw=0.5)
+        axes[0, col].set_title(f"{word} (RMS {_rms(values):.3g} {unit})", fontsize=9)
+        axes[-1, col].set_xlabel("measurement row")
+    if sigma:
+        axes[0, 1].legend(fontsize=8, loc="upper right")
+    fig.suptitle(title, fontsize=9)
+    fig.subplots_adjust(left=0.09, right=0.99, top=0.92, bottom=0.07, hspace=0.1, wspace=0.3)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def marker_residual_plots(d: PoseDiagnosis) -> dict[str, bytes]:
+    """One :func:`residual_axes_png` per marker of a pose diagnosis: its measured minus
+    predicted position before (the first step: tracker placement and marker offsets only) and
+    after (the final model), in the campaign's length unit; keyed by marker name."""
+    c = d.campaign
+    lu = c.units.length_to_si
+    before, after = d.steps[0].fit.residual / lu, d.final.residual / lu
+    sigma = None if c.noise_std is None else c.noise_std / lu
+    plots = {}
+    for k, m in enumerate(c.markers):
+        plots[m.name] = residual_axes_png(
+            before[:, k], after[:, k], sigma, c.units.length,
+            f"{c.name}, marker {m.name}: before, the tracker placement and marker offsets "
+            f"fitted; after, with {', '.join(d.families[2:]) or 'nothing more'}")
+    return plots
+
+
+def _rms(values: np.ndarray) -> float:
+    """RMS of the finite values (NaN if none)."""
+    v = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")

@@ -1,0 +1,135 @@
+"""One report for any campaign (issue 38 item 9): ``stiffness report CAMPAIGN --out DIR`` writes
+diagnose's page for a deflection and for a pose campaign, with the steps, the residual figures
+per axis and per marker, the parameters with intervals, the named effects and the validation.
+
+Small simulated campaigns (a few seconds in all)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import re
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from stiffness.calibration.pose_campaign import write_pose_campaign
+from stiffness.cli.main import main
+from stiffness.planning.simulate import parse_effect, simulate
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.robot import load_robot
+
+NOISE = 2e-5  # m
+PAYLOAD = np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0])  # N, N.m at tool0
+
+
+def _visible(page: str) -> str:
+    return html.unescape(re.sub(r"<(script|style)[^>]*>.*?</\1>|<[^>]+>", " ", page, flags=re.S))
+
+
+def _figures(page: str) -> dict[str, bytes]:
+    """The embedded PNGs by their figure id."""
+    return {m.group(1): base64.b64decode(m.group(2)) for m in re.finditer(
+        r"<figure id='([^']+)'><img alt='[^']*' src='data:image/png;base64,([^']+)'>", page)}
+
+
+def _pose_campaigns(tmp_path) -> tuple:
+    """Two pose campaigns of the same UR10 (two markers, hidden joint offsets and a sagging
+    arm): the one fitted and the one it is validated on."""
+    robot = load_robot("ur10", frame="tool0")
+    markers_ = [("tip", "tool0", [0.0, 0.03, 0.05]), ("elbow", "forearm_link", [0.0, 0.05, 0.2])]
+    from stiffness.calibration.pose_model import Marker
+
+    markers = [Marker(n, f, np.array(o)) for n, f, o in markers_]
+    rng = np.random.default_rng(3)
+    hidden = HiddenPoseErrors(
+        frame_rotation=pin.exp3(rng.normal(size=3)), frame_translation=rng.uniform(-2, 2, 3),
+        marker_offsets=np.array([m.offset for m in markers]) + rng.normal(0, 2e-3, (2, 3)),
+        joint_offsets=rng.normal(0.0, 1e-3, 6), placement_errors=np.zeros((6, 6)),
+        stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]), drift=np.zeros(3))
+    folders = []
+    for name, seed in (("fit", 3), ("held", 4)):
+        c = simulate_pose_campaign(robot, markers, hidden, 16, NOISE, seed=seed, payload=PAYLOAD)
+        write_pose_campaign(c, tmp_path / name)
+        folders.append(tmp_path / name)
+    return folders
+
+
+def test_report_of_a_pose_campaign(tmp_path, capsys):
+    """Steps, residual figures per marker (x, y, z before and after), how sure, the stage table,
+    the validation per marker and the parameters with intervals; the folder written whole."""
+    fit, held = _pose_campaigns(tmp_path)
+    out = tmp_path / "rep"
+    assert main(["report", str(fit), "--out", str(out), "--validate", str(held),
+                 "--masses", "known", "--quiet"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fit", "held", "rep"]  # no staging
+    assert sorted(p.name for p in out.iterdir()) == ["diagnosis.html", "diagnosis.json",
+                                                     "final-model.json"]
+    record = json.loads((out / "diagnosis.json").read_text())
+    page = (out / "diagnosis.html").read_text()
+    for anchor in ("steps", "residuals", "how-sure", "stages", "validation", "parameters",
+                   "identifiability", "reproduce"):
+        assert f"id='{anchor}'" in page, anchor
+    figures = _figures(page)
+    assert {"residuals-tip.png", "residuals-elbow.png", "stages.png"} <= set(figures)
+    assert all(png.startswith(b"\x89PNG") for png in figures.values())
+    visible = _visible(page)
+    final = record["steps"][-1]
+    assert "joint_offsets" in record["families"], record["families"]
+    v = final["validation"]
+    for name in ("tip", "elbow"):  # the validation table names each marker with its RMS
+        assert re.search(rf"\b{name}\s+{v['markers'][name]['rms']:.4g}\b", visible), name
+    for axis, rms in record["residual_structure"]["rms_by_axis"].items():
+        assert re.search(rf"axis {axis}\s+{rms:.4g}\b", visible), axis
+    if "how_sure" not in record:  # the evidence when each family was added
+        step = next(i for i, s in enumerate(record["steps"]) if s["family"] == "joint_offsets")
+        gain = record["steps"][step - 1]["cv_rms"] - record["steps"][step]["cv_rms"]
+        dbic = record["steps"][step]["delta_bic"]
+        assert re.search(rf"joint_offsets\s+{dbic:.4g}\s+{gain:.4g}\b", visible)
+    p = next(p for p in record["parameters"] if p["fitted"] and p["family"] == "joint_offsets")
+    lo, hi = p["interval_95"]
+    assert f"[{lo:.4g}, {hi:.4g}]" in visible
+    said = capsys.readouterr().out
+    assert "written: " in said and "diagnosis.html" in said
+
+
+def test_report_of_a_deflection_campaign(tmp_path, capsys):
+    """The steps with their cross-validated RMS, the residual figure (x, y, z before and after)
+    and the parameters with intervals; the same page as diagnose --out."""
+    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4], effects=[parse_effect("force_sensor_bias=8")],
+                   configs=5, loads_per_config=3, noise_std_m=1e-5, seed=2,
+                   compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint",
+                                     "elbow_joint"])
+    campaign = sim.write(tmp_path / "c")
+    out = tmp_path / "rep"
+    assert main(["report", str(campaign), "--out", str(out), "--quiet"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["diagnosis.html", "diagnosis.json",
+                                                     "final-model.json", "residuals.png"]
+    page = (out / "diagnosis.html").read_text()
+    record = json.loads((out / "diagnosis.json").read_text())
+    for anchor in ("residuals", "steps", "parameters", "ambiguities"):
+        assert f"id='{anchor}'" in page, anchor
+    assert _figures(page)["residuals.png"] == (out / "residuals.png").read_bytes()
+    visible = _visible(page)
+    assert "cross-validated RMS" in visible
+    assert [s["effect"] for s in record["steps"]] == ["force_sensor_bias"]
+    assert f"{record['cv_rms']['steps'][0]:.4g}" in visible
+    fx = record["steps"][0]["parameters"]["fx"]
+    assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
+    assert "written: " in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["report", "CAMPAIGN"], "needs --out DIR"),
+    (["report", "CAMPAIGN", "--out", "d", "--campaign", "x"], "--campaign picks the SK120"),
+    (["report", "--validate", "x", "--out", "d"], "--validate take(s) a campaign"),
+    (["report", "CAMPAIGN", "--out", "d", "--masses", "some"], "--masses 'some': give one of"),
+])
+def test_report_flags_refused_in_one_line(argv, said, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert said in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "d").exists()
