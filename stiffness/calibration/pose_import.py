@@ -18,16 +18,16 @@ import numpy as np
 
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
 from stiffness.calibration.coordinate_columns import fill_held
+from stiffness.calibration.import_report import ImportReport, column_report
 from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.rig_import import (
     FORCE,
     MOMENT,
+    UNIT_KINDS,
     ColumnMapper,
-    ImportReport,
     ImportSettings,
     check_map,
-    column_report,
     join_tables,
     load_import_robot,
     read_block,
@@ -123,7 +123,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                             else rotations * units.angle_to_si,
                             noise_std_rotation=None if noise_std_rotation is None
                             else noise_std_rotation * units.angle_to_si)
-    kinds = {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {
+    kinds = UNIT_KINDS | {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {
         f"{m.name}_{a}": "angle" for m in markers for a in ROTATION_AXES}
     report = ImportReport([(str(t.path), len(t.rows)) for t in tables], campaign.n_rows,
                           "none (absolute marker positions)",

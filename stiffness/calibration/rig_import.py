@@ -48,11 +48,11 @@ import numpy as np
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
+from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
 from stiffness.calibration.unit_checks import check_deflection_size
 from stiffness.errors import (
     DataFileNote,
-    DataFileWarning,
     FileFormatError,
     StiffnessError,
     did_you_mean,
@@ -82,7 +82,7 @@ TARGETS = ("config", *FORCE, *MOMENT, *DIRECT, *LOADED, *UNLOADED, *POSITION, "s
 #: Values of the ``state`` column of paired rows.
 STATES = ("loaded", "unloaded")
 #: The kind of unit of each target (q columns: angle, or length for prismatic joints).
-_KIND = {**{t: "force" for t in FORCE}, **{t: "moment" for t in MOMENT},
+UNIT_KINDS = {**{t: "force" for t in FORCE}, **{t: "moment" for t in MOMENT},
          **{t: "length" for t in (*DIRECT, *LOADED, *UNLOADED, *POSITION)}}
 _UNIT_TABLES = {"angle": ANGLE_UNITS, "force": FORCE_UNITS, "length": LENGTH_UNITS,
                 "moment": MOMENT_UNITS}
@@ -194,64 +194,6 @@ class ImportSettings:
         for label, frame in (("force", self.force_frame), ("deflection", self.deflection_frame)):
             if frame not in FRAMES:
                 raise StiffnessError(f"the {label} frame must be base or tool, got {frame!r}")
-
-
-@dataclass
-class ImportReport:
-    """What an import read.
-
-    Attributes
-    ----------
-    files
-        The files and their data rows.
-    rows
-        Campaign rows made.
-    deflections
-        How the deflections were given (``direct``, ``two column sets``, ``paired rows``).
-    columns
-        Per campaign column: its source ``FILE:COLUMN``, unit, and the range read (file
-        units).
-    units
-        The units used (:class:`stiffness.units.Units`).
-    force_frame, deflection_frame
-        The frames the files gave forces and deflections in.
-    kind
-        ``deflections`` or ``poses`` (absolute marker positions: ``deflections`` and
-        ``deflection_frame`` then say so).
-    """
-
-    files: list[tuple[str, int]]
-    rows: int
-    deflections: str
-    columns: dict[str, dict]
-    units: Units
-    force_frame: str
-    deflection_frame: str
-    kind: str = "deflections"
-
-    def to_dict(self) -> dict:
-        """JSON-ready."""
-        return {"files": [{"file": f, "rows": n} for f, n in self.files], "rows": self.rows,
-                "deflections": self.deflections, "columns": self.columns,
-                "units": {"angle": self.units.angle, "force": self.units.force,
-                          "length": self.units.length, "moment": self.units.moment},
-                "force_frame": self.force_frame, "deflection_frame": self.deflection_frame}
-
-    def lines(self) -> list[str]:
-        """The report as text lines."""
-        read = f"read {', '.join(f'{f} ({n} rows)' for f, n in self.files)}: {self.rows} "
-        if self.kind == "poses":
-            out = [read + "campaign rows of absolute marker positions (measuring system's "
-                          "frame); forces in world axes"]
-        else:
-            out = [read + f"campaign rows; deflections {self.deflections}; forces in the "
-                          f"{self.force_frame} frame, deflections in the "
-                          f"{self.deflection_frame} frame"]
-        width = max(len(t) for t in self.columns)
-        for target, c in self.columns.items():
-            span = "" if c["min"] is None else f"  {c['min']:.6g} .. {c['max']:.6g}"
-            out.append(f"  {target.ljust(width)} <- {c['source']}{span} {c['unit']}".rstrip())
-        return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -618,7 +560,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
                         noise_std_m=None if noise_std is None else noise_std
                         * units.length_to_si, units=units, _robot=robot)
     report = ImportReport([(str(t.path), len(t.rows)) for t in tables], len(rows), mode,
-                          column_report(mapper, units, robot, prismatic), units,
+                          column_report(mapper, units, robot, prismatic, UNIT_KINDS), units,
                           settings.force_frame, settings.deflection_frame)
     warn_unused(columns, report, settings.join)
     return campaign, report
@@ -801,36 +743,3 @@ def tool_rotations(robot: Robot, q: np.ndarray) -> np.ndarray:
         out[r] = frame_rotation(robot.data, robot.target_frame_id)
         seed = full if robot.loop is not None else None
     return out
-
-
-def column_report(mapper: ColumnMapper, units: Units, robot: Robot, prismatic: np.ndarray,
-                  kinds: dict[str, str] | None = None) -> dict[str, dict]:
-    """Per campaign column read: source, unit, range (file units); ``kinds`` gives the unit
-    kind of columns beyond the deflection campaign's (a pose campaign's markers)."""
-    kinds = {**_KIND, **(kinds or {})}
-    out = {}
-    for target, column in mapper.used.items():
-        unit = ""
-        if target.startswith("q") and target[1:].isdigit():
-            unit = units.length if prismatic[int(target[1:]) - 1] else units.angle
-        elif target in robot.coordinate_joints:
-            unit = units.length if robot.is_prismatic(target) else units.angle
-        elif target in kinds:
-            unit = getattr(units, kinds[target])
-        values = column.numbers(empty_is_nan=True) if unit else None
-        seen = None if values is None or not np.isfinite(values).any() else values
-        out[target] = {"source": f"{column.path.name}:{column.name}", "unit": unit,
-                       "min": None if seen is None else float(np.nanmin(seen)),
-                       "max": None if seen is None else float(np.nanmax(seen))}
-    return out
-
-
-def warn_unused(columns: dict[str, list[Column]], report: ImportReport, key: str | None
-                ) -> None:
-    """Warn once about file columns no campaign column read (a map may have missed them)."""
-    used = {c["source"] for c in report.columns.values()}
-    left = [f"{c.path.name}:{c.name}" for cs in columns.values() for c in cs
-            if f"{c.path.name}:{c.name}" not in used and c.name != key]
-    if left:
-        warnings.warn(f"columns not imported: {', '.join(left[:8])}"
-                      + (", ..." if len(left) > 8 else ""), DataFileWarning, stacklevel=2)
