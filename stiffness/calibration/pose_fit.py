@@ -420,7 +420,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
                              f"{obs.size} measured components; measure more poses")
     x[[d.index for d in ident.dropped]] = 0.0
     try:
-        model.evaluate(x, rows, jacobian=False)
+        obs.evaluate(x, jacobian=False)
     except ConvergenceError:
         x[:] = 0.0
 

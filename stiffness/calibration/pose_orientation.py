@@ -67,6 +67,7 @@ class PoseObservations:
 
     def __init__(self, model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms]) -> None:
         self.model, self.rows = model, rows
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self.observed = np.isfinite(campaign.positions)
         self.measured = campaign.positions[self.observed]
         self.weight = rotation_weight(campaign)
@@ -93,7 +94,21 @@ class PoseObservations:
     def evaluate(self, x: np.ndarray, jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted minus measured (N,): positions (m), then ``w`` times the orientation
-        errors (rad), and its Jacobian (N, p) when asked for."""
+        errors (rad), and its Jacobian (N, p) when asked for.
+
+        The last result is kept: asked again at the same ``x`` (a fit's first residual and
+        Jacobian, at the start its identifiability check evaluated), it is not recomputed.
+        """
+        last = self._last
+        if last is not None and np.array_equal(last[0], x) and (last[2] is not None
+                                                                or not jacobian):
+            return last[1].copy(), last[2] if jacobian else None
+        residual, jac = self._evaluate(x, jacobian)
+        self._last = (np.array(x, dtype=float), residual, jac)
+        return residual.copy(), jac
+
+    def _evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`evaluate` without the kept result."""
         if self.aux is None:
             y, jac = self.model.evaluate(x, self.rows, jacobian)
             return (y[self.observed] - self.measured,

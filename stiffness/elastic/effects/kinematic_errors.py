@@ -118,24 +118,31 @@ class JointGeometry(Effect, PoseFamily):
             model.jointPlacements[j] = perturbed_placement(model.jointPlacements[j], e)
 
     def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
-                         ) -> np.ndarray | None:
-        """(n_joints, 6, 6) right Jacobians of ``exp`` at each joint's placement error."""
+                         ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The right Jacobian of ``exp`` at each joint's placement error, the column of each
+        parameter: its translation and rotation parts (n_f, 3) each."""
         if not jacobian:
             return None
-        return np.array([pin.Jexp6(pin.Motion(e)) for e in self.placement_errors(pm, x_f)])
+        right = np.array([pin.Jexp6(pin.Motion(e)) for e in self.placement_errors(pm, x_f)])
+        rows, comps = pm.geometry_index
+        return right[rows, :3, comps], right[rows, 3:, comps]
 
     def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
                   q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Per joint, ``a = oMi[parent] M_j exp(eps_j)``: ``R_a Jr[:3]``, ``R_a Jr[3:]`` (3, 6)
-        each and the origin of ``a`` (3,), stacked over the joints."""
+        """Per parameter, with ``a = oMi[parent] M_j exp(eps_j)`` of its joint: ``R_a``
+        times its column's translation and rotation parts and the origin of ``a`` (n_f, 3)
+        each."""
         if shared is None:
             return None
-        frames = [data.oMi[model.parents[j]] * model.jointPlacements[j] for j in pm.joints]
-        rot = np.array([f.rotation for f in frames])
-        origin = np.array([f.translation for f in frames])
-        return (np.einsum("jab,jbc->jac", rot, shared[:, :3, :]),
-                np.einsum("jab,jbc->jac", rot, shared[:, 3:, :]), origin)
+        parents = np.array([data.oMi[model.parents[j]].homogeneous for j in pm.joints])
+        own = np.array([model.jointPlacements[j].homogeneous for j in pm.joints])
+        rows, _ = pm.geometry_index
+        frames = parents[rows] @ own[rows]
+        rot = frames[:, :3, :3]
+        linear, angular = shared
+        return (np.einsum("gab,gb->ga", rot, linear), np.einsum("gab,gb->ga", rot, angular),
+                frames[:, :3, 3])
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         """d y / d eps: ``M_j exp(eps)`` perturbed on the right.
@@ -145,9 +152,7 @@ class JointGeometry(Effect, PoseFamily):
         ``R_a Jr[:3] - [point - o_a]x R_a Jr[3:]``; zero for joints the point does not move with.
         """
         linear, angular, origin = view.caches[self.name]
-        lx, ly, lz = (view.point[None, :] - origin).T[:, :, None]
-        ax, ay, az = angular[:, 0], angular[:, 1], angular[:, 2]
-        cols = linear - np.stack([ly * az - lz * ay, lz * ax - lx * az, lx * ay - ly * ax], axis=1)
-        cols = cols * pm.moves[view.fid][:, None, None]
-        rows, comps = pm.geometry_index
-        return view.to_measuring @ cols[rows, :, comps].T
+        lever = view.point[None, :] - origin
+        cols = linear - np.cross(lever, angular)
+        cols *= pm.moves[view.fid][pm.geometry_index[0]][:, None]
+        return view.to_measuring @ cols.T
