@@ -97,11 +97,14 @@ class PoseObservations:
         errors (rad), and its Jacobian (N, p) when asked for.
 
         The last result is kept: asked again at the same ``x`` (a fit's first residual and
-        Jacobian, at the start its identifiability check evaluated), it is not recomputed.
+        Jacobian, at the start its identifiability check evaluated), it is not recomputed
+        (a kept Jacobian is handed out once: no more than one extra is held).
         """
         last = self._last
         if last is not None and np.array_equal(last[0], x) and (last[2] is not None
                                                                 or not jacobian):
+            if jacobian:
+                self._last = (last[0], last[1], None)
             return last[1].copy(), last[2] if jacobian else None
         residual, jac = self._evaluate(x, jacobian)
         self._last = (np.array(x, dtype=float), residual, jac)
