@@ -373,10 +373,11 @@ class PoseModel:
             q, state = self.loaded_configuration(model, data, x, row)
             if jacobian and state is not None:
                 state.per_torque = self.deflection_slope(x, state)
-            pin.forwardKinematics(model, data, q)
-            pin.updateFramePlacements(model, data)
-            if jacobian:
+            if jacobian:  # the joint Jacobians' pass places the joints too
                 pin.computeJointJacobians(model, data, q)
+            else:
+                pin.forwardKinematics(model, data, q)
+            pin.updateFramePlacements(model, data)
             caches = {f.name: f.row_cache(self, parts[f.name], model, data, q, row,
                                           shared[f.name], jacobian)
                       for f in self.family_objects}
