@@ -115,7 +115,7 @@ class PoseObservations:
         if self.aux is None:
             y, jac = self.model.evaluate(x, self.rows, jacobian)
             return (y[self.observed] - self.measured,
-                    None if jac is None else jac[self.observed])
+                    None if jac is None else self._observed_rows(jac))
         y, rot, jac_p, jac_r = self.oriented(x, jacobian)
         w = self.weight
         assert w is not None  # orientations are fitted only with their weight
@@ -129,6 +129,13 @@ class PoseObservations:
         left = np.array([[_inverse_left_jacobian(e) for e in row] for row in error])
         jac_e = np.einsum("nmab,nmbp->nmap", left, jac_r)
         return residual, np.vstack([jac_p[self.observed], w * jac_e[self.seen_rotation]])
+
+    def _observed_rows(self, jac: np.ndarray) -> np.ndarray:
+        """The measured components' rows of a (n, M, 3, p) Jacobian: a view when every
+        component is measured (a large campaign's Jacobian is not copied)."""
+        if self.observed.all():
+            return jac.reshape(-1, jac.shape[-1])
+        return jac[self.observed]
 
     def split(self, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Measured minus predicted positions (n, M, 3) in m and orientations (n, M, 3) in
