@@ -39,6 +39,11 @@ def truth(model, hidden: HiddenPoseErrors) -> np.ndarray:
     for where, c in hidden.link_compliance.items():
         for k in range(2):
             x[labels[f"{where} compliance {k + 1}"]] = c[k]
+    for joint, c in hidden.transversal_compliance.items():
+        for k in range(2):
+            x[labels[f"{joint} transversal compliance {k + 1}"]] = c[k]
+    if hidden.base_tilt is not None and "base_tilt" in sl:
+        x[sl["base_tilt"]] = hidden.base_tilt
     if hidden.backlash is not None and "backlash" in sl:
         for j, b in zip(model.robot.compliant_joints, hidden.backlash, strict=True):
             if f"{j} backlash" in labels:  # a joint carrying no torque has none

@@ -58,6 +58,7 @@ from stiffness.calibration.selection import (
 )
 from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES
+from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
@@ -69,7 +70,8 @@ BASE_FAMILIES = ("frame", "markers")
 #: (link_compliance and backlash need the links' masses; gravity_compensator acts through
 #: joint_compliance and is tried once that is in: docs/absolute-poses.md.)
 CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys: MASSES
-                        "link_compliance", "backlash", "gravity_compensator"),
+                        "link_compliance", "transversal_compliance", "base_tilt", "backlash",
+                        "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
 #: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
 #: linearised hat matrix (:func:`~stiffness.calibration.pose_fit.held_out_rms`).
@@ -212,7 +214,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    validate: PoseCampaign | None = None,
                    progress: Callable[[str], None] | None = None,
                    loss: str = "linear", families: Sequence[str] = (),
-                   not_families: Sequence[str] = ()) -> PoseDiagnosis:
+                   not_families: Sequence[str] = (),
+                   base_tilt: Sequence[float] | None = None) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -238,6 +241,11 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         their BIC and held-out error (a family another one acts through must come before it).
     not_families
         Families never tried (``diagnose --not``).
+    base_tilt
+        A measured tilt ``(r_x, r_y)`` (rad) of the robot's base against gravity
+        (``diagnose --base-tilt``, deg there): every model of the diagnosis feels gravity
+        turned by it (model setting ``base_tilt_rad``, kept in the model file), and the
+        ``base_tilt`` family fits what remains.
 
     Raises
     ------
@@ -255,6 +263,9 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     frame0 = starting_frame(campaign)
     chosen = list(BASE_FAMILIES)
     settings = campaign_settings(campaign)
+    if base_tilt is not None:
+        settings[DECLARED_TILT] = [float(v) for v in base_tilt]
+        declared_tilt(settings)  # two finite angles, else a one-line error
     base = _fit(campaign, chosen, frame0, settings, loss=loss)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     steps = [PoseStep("baseline", base, 0.0, held_out_rms(base, campaign),

@@ -53,6 +53,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.effects import FAMILIES
+from stiffness.elastic.effects.base_tilt import declared_tilt, tilted_gravity
 from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.kinematic_errors import MeasuringFrame
 from stiffness.elastic.effects.pose_face import (
@@ -242,6 +243,10 @@ class PoseModel:
     def perturbed_model(self, x: np.ndarray) -> pin.Model:
         """The robot's Pinocchio model with the geometric part of ``x`` applied."""
         model = pin.Model(self.robot.model)
+        tilt = declared_tilt(self.settings)
+        if tilt.any():  # a declared base tilt turns gravity for every family
+            model.gravity = pin.Motion(tilted_gravity(model.gravity.linear, tilt)[0],
+                                       np.zeros(3))
         for fam in self.family_objects:
             fam.perturb_model(self, x[self._slices[fam.name]], model)
         return model

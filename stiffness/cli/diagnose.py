@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shlex
 import sys
 from collections.abc import Callable
@@ -79,6 +80,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--not", dest="not_families", metavar="A,B",
                         help="pose campaigns: families never tried (e.g. backlash); recorded "
                              "in final-model.json")
+    parser.add_argument("--base-tilt", metavar="RX,RY",
+                        help="pose campaigns: a measured tilt of the robot's base against "
+                             "gravity, two angles in deg (rotation exp([rx, ry, 0]) of the "
+                             "base's axes from level); every model feels gravity turned by "
+                             "it, the base_tilt family fits what remains")
     parser.add_argument("--validate", metavar="CAMPAIGN",
                         help="pose campaigns: another pose campaign evaluated at every step "
                              "without refitting (the gap shrinking on held-out data)")
@@ -103,6 +109,7 @@ def pose_command_line(args: argparse.Namespace) -> str:
     words += ["--loss", args.loss] if args.loss != "linear" else []
     words += ["--families", args.families] if args.families else []
     words += ["--not", args.not_families] if args.not_families else []
+    words += ["--base-tilt", args.base_tilt] if args.base_tilt else []
     return shlex.join(words)
 
 
@@ -136,10 +143,10 @@ def run(args: argparse.Namespace) -> int:
     flags.require_at_least_one(args.workers, "--workers")
     if campaign_kind(args.campaign) == "poses":
         return run_poses(args)
-    if args.validate or args.families or args.not_families:
-        raise StiffnessError("--validate, --families and --not take pose campaigns; for a "
-                             "deflection campaign diagnose reports the held-out "
-                             "(cross-validated) RMS of each step")
+    if args.validate or args.families or args.not_families or args.base_tilt:
+        raise StiffnessError("--validate, --families, --not and --base-tilt take pose "
+                             "campaigns; for a deflection campaign diagnose reports the "
+                             "held-out (cross-validated) RMS of each step")
     declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
     if args.out:
@@ -174,7 +181,10 @@ def run_poses(args: argparse.Namespace) -> int:
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
                             if show else None, loss=args.loss,
                             families=flags.parse_names(args.families) or (),
-                            not_families=flags.parse_names(args.not_families) or ())
+                            not_families=flags.parse_names(args.not_families) or (),
+                            base_tilt=None if args.base_tilt is None else [
+                                math.radians(v)
+                                for v in flags.parse_list(args.base_tilt, "--base-tilt")])
     paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 

@@ -13,7 +13,10 @@ spring's attachment points, not from the library's scalar law) joins the joint's
 backlash adds ``b tanh(tau / tau_s)`` to its deflection, and a link bend rotates the part of the
 arm beyond the link's distal joint exactly (its placement turned by ``omega``) under the moment
 that part's weight and the wrench exert there, taken from Pinocchio's recursive Newton-Euler
-forces (not from the centre-of-mass form the fitted model uses).
+forces (not from the centre-of-mass form the fitted model uses); a joint tilting in its bearing
+(transversal compliance) turns its placement the same way about the two axes of its mounting
+frame normal to its own. A tilted base turns the model's gravity into the base's axes, so
+every torque and every bend of the equilibrium sees it.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from stiffness.calibration.pose_model import Loads, Marker, PoseModel, one_dof_j
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import link_axes
 from stiffness.elastic.effects.joint_laws import Backlash
-from stiffness.elastic.effects.link_bends import Link, marker_links
+from stiffness.elastic.effects.link_bends import Link, marker_links, transversal_joints
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.gravity import upward_angle
 from stiffness.robot.robot import Robot
@@ -74,6 +77,13 @@ class HiddenPoseErrors:
         spring compensator with the library's default geometry
         (:func:`spring_compensator_torque`, its angle from the link's upward direction:
         :func:`~stiffness.mechanics.gravity.upward_angle`).
+    transversal_compliance
+        Compliant revolute joint name (of a marker's chain, its axis a frame axis:
+        :func:`~stiffness.elastic.effects.link_bends.transversal_joints`) -> its two tilting
+        compliances (rad/(N.m)) about the axes of its mounting frame normal to its own.
+    base_tilt
+        ``(r_x, r_y)`` (rad): the base's z axis turned from the vertical by
+        ``exp([r_x, r_y, 0])``, so the links' weight acts along ``exp(.)^T g``, or ``None``.
     """
 
     frame_rotation: np.ndarray
@@ -86,13 +96,19 @@ class HiddenPoseErrors:
     link_compliance: dict[str, np.ndarray] = field(default_factory=dict)
     backlash: np.ndarray | None = None
     compensator: dict[str, np.ndarray] = field(default_factory=dict)
+    transversal_compliance: dict[str, np.ndarray] = field(default_factory=dict)
+    base_tilt: np.ndarray | None = None
 
 
 def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
-    """The robot's model with the hidden placement errors applied (``M_j exp(eps_j)``)."""
+    """The robot's model with the hidden placement errors applied (``M_j exp(eps_j)``) and its
+    gravity turned into the tilted base's axes."""
     model = pin.Model(robot.model)
     for j, eps in zip(one_dof_joints(model), hidden.placement_errors, strict=True):
         model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(eps))
+    if hidden.base_tilt is not None:
+        tilt = pin.exp3(np.array([hidden.base_tilt[0], hidden.base_tilt[1], 0.0]))
+        model.gravity = pin.Motion(tilt.T @ model.gravity.linear, np.zeros(3))
     return model
 
 
@@ -113,7 +129,8 @@ class HiddenElasticity:
         (velocity index, joint id, the joint's angle with the link up (rad), (stiffness N/m,
         tension N)) per compensated joint.
     links
-        (link, its two compliances) per bending link.
+        (link, its two compliances) per bending link; a joint tilting in its bearing is the
+        link ``(j, j, axis column)``.
     """
 
     spring_map: np.ndarray
@@ -160,8 +177,31 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
         [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
           upward_angle(robot, j).angle_rad, np.asarray(p, dtype=float))
          for j, p in hidden.compensator.items()],
-        sorted(((links[w], np.asarray(c, dtype=float)) for w, c in hidden.link_compliance.items()),
-               key=lambda item: item[0].b))
+        sorted([(links[w], np.asarray(c, dtype=float)) for w, c in hidden.link_compliance.items()]
+               + _tilting(robot, markers, hidden), key=lambda item: item[0].b))
+
+
+def _tilting(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors
+             ) -> list[tuple[Link, np.ndarray]]:
+    """``hidden``'s joints tilting in their bearings as links ``(j, j, axis column)``.
+
+    Raises
+    ------
+    StiffnessError
+        A joint that is not a compliant revolute joint of the markers' chains with its axis
+        along a frame axis.
+    """
+    model = robot.model
+    joints = {model.names[k.b]: k for k in transversal_joints(
+        model, [model.getFrameId(m.frame) for m in markers],
+        [int(model.getJointId(n)) for n in robot.compliant_joints
+         if model.existJointName(n)])}
+    wrong = [j for j in hidden.transversal_compliance if j not in joints]
+    if wrong:
+        raise StiffnessError(f"hidden transversal_compliance on {wrong}: name compliant revolute "
+                             f"joints of the markers' chains ({', '.join(joints)})")
+    return [(joints[j], np.asarray(c, dtype=float))
+            for j, c in hidden.transversal_compliance.items()]
 
 
 def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticity | None,
@@ -257,8 +297,13 @@ def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hi
         moment = -data.oMi[link.b].rotation @ data.f[link.b].angular
         if wrench is not None and link.b in set(model.supports[model.frames[fid].parentJoint]):
             moment = moment + np.cross(data.oMf[fid].translation - p_b, wrench[:3]) + wrench[3:]
-        e1, e2 = link_axes(data.oMi[link.a].translation, p_b,
-                           data.oMi[model.parents[link.b]].rotation, link.column)
+        if link.a == link.b:  # a joint tilting: the bearing's axes normal to the joint's
+            mount = data.oMi[model.parents[link.b]].rotation @ model.jointPlacements[
+                link.b].rotation
+            e1, e2 = mount[:, (link.column + 1) % 3], mount[:, (link.column + 2) % 3]
+        else:
+            e1, e2 = link_axes(data.oMi[link.a].translation, p_b,
+                               data.oMi[model.parents[link.b]].rotation, link.column)
         out[n] = e1 * c[0] * (e1 @ moment) + e2 * c[1] * (e2 @ moment)
     return out
 

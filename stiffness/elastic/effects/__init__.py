@@ -63,11 +63,14 @@ The deflection campaigns' library (:data:`LIBRARY`):
 
 The pose model's families (:data:`FAMILIES`, in column order; docs/absolute-poses.md):
 ``frame``, ``markers``, ``joint_offsets``, ``geometry`` (geometric:
-:mod:`~stiffness.elastic.effects.kinematic_errors`); ``joint_compliance``, ``gravity_lumped``
-(masses unknown), ``link_compliance``, ``backlash``, ``gravity_compensator`` (elastic, the
-same classes as the deflection effects of those names). ``link_compliance`` and ``backlash``
-need the links' masses (not with ``gravity_lumped``); ``gravity_compensator`` acts through
-``joint_compliance``.
+:mod:`~stiffness.elastic.effects.kinematic_errors`); ``base_tilt`` (geometric, through every
+gravity torque: :mod:`~stiffness.elastic.effects.base_tilt`); ``joint_compliance``,
+``gravity_lumped`` (masses unknown), ``link_compliance``, ``backlash``, ``gravity_compensator``
+(elastic, the same classes as the deflection effects of those names);
+``transversal_compliance`` (elastic, a joint tilting in its bearing:
+:mod:`~stiffness.elastic.effects.link_bends`, pose model only). ``base_tilt``,
+``link_compliance``, ``transversal_compliance`` and ``backlash`` need the links' masses (not
+with ``gravity_lumped``); ``gravity_compensator`` acts through ``joint_compliance``.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """
@@ -75,6 +78,7 @@ Units: SI inside (m, N, rad, N.m/rad).
 from __future__ import annotations
 
 from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.base_tilt import BaseTilt
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.joint_laws import (
@@ -89,7 +93,7 @@ from stiffness.elastic.effects.kinematic_errors import (
     MarkerOffsets,
     MeasuringFrame,
 )
-from stiffness.elastic.effects.link_bends import LinkCompliance
+from stiffness.elastic.effects.link_bends import LinkCompliance, TransversalCompliance
 from stiffness.elastic.effects.measurement import (
     DeflectionOffset,
     ForceSensorBias,
@@ -104,8 +108,9 @@ from stiffness.errors import UnknownEffectError, did_you_mean
 #: a pose model lays out their columns (:data:`FAMILIES`).
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (MeasuringFrame, MarkerOffsets, JointOffsets, JointGeometry,
-                              ComplementaryStiffness, JointCompliance, GravityLumped,
-                              LinkCompliance, Backlash, NonlinearJointStiffness,
+                              BaseTilt, ComplementaryStiffness, JointCompliance, GravityLumped,
+                              LinkCompliance, TransversalCompliance, Backlash,
+                              NonlinearJointStiffness,
                               FrameMisalignment, TargetOffset, ForceSensorBias, DeflectionOffset,
                               GravityPreload, GravityCompensator)
 }

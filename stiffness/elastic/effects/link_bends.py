@@ -36,7 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.effects.base import Effect, stiffness_report
-from stiffness.elastic.effects.geometry import MIN_SEGMENT_M, link_axes
+from stiffness.elastic.effects.geometry import MIN_SEGMENT_M, link_axes, skew
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     MarkerView,
@@ -94,6 +94,67 @@ def marker_links(model: pin.Model, frame_ids: list[int]) -> list[Link]:
             if link not in out:
                 out.append(link)
     return out
+
+
+def carried_moments(pm: PoseLayout, model: pin.Model, data: pin.Data, q: np.ndarray,
+                    joints: list[int], row: RowTerms
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Origins ``p_b`` (L, 3) of ``joints``, the moment ``M_b`` (L, 3) about each that the
+    part beyond it carries: ``m_b (c_b - p_b) x g`` of its subtree's weight (the model's
+    gravity) plus the applied wrench's ``(x_w - p_b) x F + M`` when it acts beyond (N.m, world
+    axes; placements current at ``q``), and the weight's arm ``m_b (c_b - p_b)`` (L, 3; kg.m:
+    ``d M_b / d g = [m_b (c_b - p_b)]x``)."""
+    pin.centerOfMass(model, data, q, True)  # subtree masses and centres (joint axes)
+    origins = np.array([data.oMi[b].translation for b in joints]).reshape(-1, 3)
+    masses = np.array([data.mass[b] for b in joints])
+    centres = np.array([data.oMi[b].act(data.com[b]) if m > 0 else data.oMi[b].translation
+                        for b, m in zip(joints, masses, strict=True)]).reshape(-1, 3)
+    # (a massless subtree has no centre: Pinocchio's 0/0; it carries no weight)
+    gravity = np.asarray(model.gravity.linear, dtype=float)
+    arms = masses[:, None] * (centres - origins)
+    moments = _cross(arms, gravity)
+    if row.wrench is not None and pm.loads is not None:
+        fid = pm.frame_id(pm.loads.frame)
+        carried = set(model.supports[model.frames[fid].parentJoint])
+        loaded = np.array([b in carried for b in joints], dtype=float).reshape(-1, 1)
+        moments += loaded * (_cross(data.oMf[fid].translation - origins, row.wrench[:3])
+                             + row.wrench[3:])
+    return origins, moments, arms
+
+
+@dataclass
+class BendCache:
+    """One row's bends at its loaded configuration (world axes).
+
+    Attributes
+    ----------
+    origins
+        (L, 3) each bend's origin ``p_b`` (m).
+    turns
+        (L, 2, 3) ``e_i (e_i . M_b)``: the rotation per unit compliance (rad per rad/(N.m)).
+    beyond
+        Marker frame id -> (L,) whether it moves with each bend.
+    per_gravity
+        (L, 3, 3) d omega_b / d g at the family's compliances (rad per m/s^2): the bends'
+        change with the direction of gravity (``base_tilt``'s columns); ``None`` without a
+        Jacobian.
+    """
+
+    origins: np.ndarray
+    turns: np.ndarray
+    beyond: dict[int, np.ndarray]
+    per_gravity: np.ndarray | None
+
+
+def gravity_slope(cache: BendCache, view: MarkerView) -> np.ndarray:
+    """d(marker displacement)/d g (3, 3), world axes, of one bend family's row ``cache``:
+    ``sum_b -[x - p_b]x d omega_b / d g`` over the bends the marker is beyond."""
+    if cache.per_gravity is None:
+        return np.zeros((3, 3))
+    lever = view.point[None, :] - cache.origins
+    slopes = -np.einsum("lab,lbc->lac", np.array([skew(r) for r in lever]).reshape(-1, 3, 3),
+                        cache.per_gravity)
+    return np.einsum("l,lac->ac", cache.beyond[view.fid], slopes)
 
 
 @dataclass(eq=False)
@@ -198,38 +259,37 @@ class LinkCompliance(Effect, PoseFamily):
         return marker_links(pm.robot.model, pm.frame_ids)
 
     def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
-                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool
-                  ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
-        """Per link: ``p_b`` (L, 3) and ``e_i (e_i . M_b)`` (L, 2, 3), the rotation per unit
-        compliance (rad per rad/(N.m)), world axes; and which links each marker frame is
-        beyond."""
+                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool) -> BendCache:
+        """The row's bends (:class:`BendCache`) at its loaded configuration ``q``."""
         links, beyond = shared
-        pin.centerOfMass(model, data, q, True)  # subtree masses and centres (joint axes)
-        distal = [link.b for link in links]
-        origins = np.array([data.oMi[b].translation for b in distal]).reshape(-1, 3)
-        masses = np.array([data.mass[b] for b in distal])
-        centres = np.array([data.oMi[b].act(data.com[b]) if m > 0 else data.oMi[b].translation
-                            for b, m in zip(distal, masses, strict=True)]).reshape(-1, 3)
-        # (a massless subtree has no centre: Pinocchio's 0/0; it carries no weight)
-        gravity = np.asarray(model.gravity.linear, dtype=float)
-        moments = masses[:, None] * _cross(centres - origins, gravity)
-        if row.wrench is not None and pm.loads is not None:
-            fid = pm.frame_id(pm.loads.frame)
-            carried = set(model.supports[model.frames[fid].parentJoint])
-            loaded = np.array([b in carried for b in distal], dtype=float).reshape(-1, 1)
-            moments += loaded * (_cross(data.oMf[fid].translation - origins, row.wrench[:3])
-                                 + row.wrench[3:])
+        origins, moments, arms = carried_moments(pm, model, data, q, [link.b for link in links],
+                                                 row)
+        e1, e2 = self.bend_axes(model, data, links, origins)
+        turns = np.stack([e1 * np.sum(e1 * moments, axis=1, keepdims=True),
+                          e2 * np.sum(e2 * moments, axis=1, keepdims=True)], axis=1)
+        per_gravity = None
+        if jacobian:  # d omega_b / d g = sum_i c_i e_i e_i^T [m_b (c_b - p_b)]x
+            c = x_f.reshape(-1, 2)
+            axes = (c[:, 0, None, None] * np.einsum("la,lb->lab", e1, e1)
+                    + c[:, 1, None, None] * np.einsum("la,lb->lab", e2, e2))
+            per_gravity = np.einsum("lab,lbc->lac", axes,
+                                    np.array([skew(a) for a in arms]).reshape(-1, 3, 3))
+        return BendCache(origins, turns, beyond, per_gravity)
+
+    @staticmethod
+    def bend_axes(model: pin.Model, data: pin.Data, links: list[Link], origins: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """The two bending axes (L, 3) each of every link, world axes: normal to the link
+        (:func:`link_axes`)."""
+        e1, e2 = np.zeros((len(links), 3)), np.zeros((len(links), 3))
         proximal = np.array([data.oMi[link.a].translation for link in links]).reshape(-1, 3)
-        mounts = np.array([data.oMi[model.parents[b]].rotation for b in distal]
+        mounts = np.array([data.oMi[model.parents[link.b]].rotation for link in links]
                           ).reshape(-1, 3, 3)
-        turns = np.zeros((len(links), 2, 3))
         columns = np.array([link.column for link in links], dtype=int)
         for column in set(columns.tolist()):
             sel = columns == column
-            e1, e2 = link_axes(proximal[sel], origins[sel], mounts[sel], column)
-            turns[sel, 0] = e1 * np.sum(e1 * moments[sel], axis=1, keepdims=True)
-            turns[sel, 1] = e2 * np.sum(e2 * moments[sel], axis=1, keepdims=True)
-        return origins, turns, beyond
+            e1[sel], e2[sel] = link_axes(proximal[sel], origins[sel], mounts[sel], column)
+        return e1, e2
 
     def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
                          ) -> tuple[list[Link], dict[int, np.ndarray]]:
@@ -244,8 +304,9 @@ class LinkCompliance(Effect, PoseFamily):
     def _lever(self, pm: PoseLayout, view: MarkerView) -> tuple[np.ndarray, np.ndarray]:
         """Per link, the turn per unit compliance (L, 2, 3) of the links the marker is beyond
         (zero for the others), and the marker's lever from ``p_b`` (L, 3)."""
-        origins, turns, beyond = view.caches[self.name]
-        return turns * beyond[view.fid][:, None, None], view.point[None, :] - origins
+        cache = view.caches[self.name]
+        return (cache.turns * cache.beyond[view.fid][:, None, None],
+                view.point[None, :] - cache.origins)
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
                             ) -> np.ndarray:
@@ -257,3 +318,63 @@ class LinkCompliance(Effect, PoseFamily):
         turns, lever = self._lever(pm, view)
         cols = _cross(turns, lever[:, None, :]).reshape(-1, 3).T  # (3, 2L)
         return view.to_measuring @ cols
+
+
+def transversal_joints(model: pin.Model, frame_ids: list[int], compliant: list[int]
+                       ) -> list[Link]:
+    """The compliant revolute joints of the markers' chains whose axis is a frame axis, as
+    ``Link(j, j, axis column)`` (each once, base first)."""
+    moved = {int(j) for fid in frame_ids for j in model.supports[model.frames[fid].parentJoint]}
+    out = []
+    for j in sorted(set(compliant) & moved):
+        kind = model.joints[j].shortname().replace("JointModel", "")
+        for prefix in ("RUB", "R"):
+            if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
+                out.append(Link(j, j, "XYZ".index(kind[len(prefix):])))
+                break
+    return out
+
+
+def joint_normal_axes(model: pin.Model, data: pin.Data, joints: list[Link]
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The two axes (L, 3) each normal to each joint's rotation axis, world axes: the other two
+    columns of the joint's mounting frame ``oMi[parent] M_j`` (its bearing's, fixed in the
+    parent link)."""
+    e1, e2 = np.zeros((len(joints), 3)), np.zeros((len(joints), 3))
+    for n, link in enumerate(joints):
+        mount = data.oMi[model.parents[link.b]].rotation @ model.jointPlacements[link.b].rotation
+        e1[n], e2[n] = mount[:, (link.column + 1) % 3], mount[:, (link.column + 2) % 3]
+    return e1, e2
+
+
+class TransversalCompliance(LinkCompliance):
+    """``transversal_compliance``: each compliant revolute joint of the markers' chains tilts in
+    its bearing about the two axes normal to its rotation axis, under the moment the part beyond
+    it carries (its subtree's weight and the applied wrench beyond): the part beyond the joint's
+    origin ``p_j`` turns by ``omega_j = sum_i e_i c_i (e_i . M_j)``, ``e_i`` the bearing's axes
+    normal to the joint's (:func:`joint_normal_axes`); parameters ``c_1, c_2`` (rad/(N.m)) per
+    joint. The pose face of :class:`LinkCompliance` with the joint's axes instead of the link's:
+    where the two coincide the identifiable reduction reports them merged. A family of the pose
+    model only (not in the deflection library :data:`~stiffness.elastic.effects.LIBRARY`)."""
+
+    name: ClassVar[str] = "transversal_compliance"
+    #: typical size (rad/(N.m)): a crossed-roller bearing's tilting stiffness is about 1e7
+    #: N.m/rad on a 10 kg arm
+    family_scale: ClassVar[float] = 1e-7
+
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        names = pm.robot.model.names
+        return [self.param(f"{names[link.b]} transversal compliance {i}", "rad/(N.m)")
+                for link in self.links(pm) for i in (1, 2)]
+
+    @staticmethod
+    def links(pm: PoseLayout) -> list[Link]:
+        """The model's tilting joints (:func:`transversal_joints`)."""
+        return transversal_joints(pm.robot.model, pm.frame_ids, pm.compliant)
+
+    @staticmethod
+    def bend_axes(model: pin.Model, data: pin.Data, links: list[Link], origins: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """The bearing's two axes normal to each joint's rotation axis
+        (:func:`joint_normal_axes`)."""
+        return joint_normal_axes(model, data, links)

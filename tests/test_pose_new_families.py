@@ -1,0 +1,110 @@
+"""The pose families of issue 37 items 1 and 2: ``transversal_compliance`` (a joint tilting in
+its bearing under the moments normal to its axis) and ``base_tilt`` (gravity not along the
+base's -z). The simulator hides them from physics (RNEA moments, the model's gravity turned);
+the model reproduces it, and diagnose names them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pose_truth import truth
+from test_absolute_poses import NOISE, PAYLOAD, _hidden, _markers
+
+from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_fit import predict, starting_frame
+from stiffness.calibration.pose_model import PoseModel
+from stiffness.elastic.effects.base_tilt import DECLARED_TILT
+from stiffness.errors import StiffnessError
+from stiffness.planning.simulate_poses import simulate_pose_campaign
+from stiffness.robot.robot import load_robot
+
+#: The families every test here leaves out (not hidden; the search stays short).
+NOT_HIDDEN = ["geometry", "backlash", "gravity_compensator"]
+GEOMETRY = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance")
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return load_robot("ur10", frame="tool0")
+
+
+def _tilting(rng) -> dict[str, np.ndarray]:
+    return {j: rng.uniform(4, 8, 2) * 1e-6
+            for j in ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint")}
+
+
+def _reproduced(model: PoseModel, x: np.ndarray, campaign) -> float:
+    """Largest distance (m) between the model's prediction at ``x`` and a noise-free campaign."""
+    return float(np.nanmax(np.abs(predict(model, x, campaign) - campaign.positions)))
+
+
+def test_the_model_reproduces_the_simulated_physics(ur10):
+    """At the truth, the model reproduces the simulator's exact equilibrium (RNEA moments,
+    links' placements turned; gravity turned by the tilt): a declared tilt to 1e-9 m, the
+    joints' bearing tilts (about 0.1 mm) to their first-order bend approximation, 1 um."""
+    rng = np.random.default_rng(4)
+    hidden = _hidden(ur10, rng)
+    hidden.base_tilt = np.array([0.03, -0.05])
+    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 8, 0.0, seed=4, payload=PAYLOAD)
+    frame0 = starting_frame(campaign)
+    model = PoseModel(ur10, _markers(), GEOMETRY, frame0, campaign.loads,
+                      {DECLARED_TILT: hidden.base_tilt.tolist()})
+    assert _reproduced(model, truth(model, hidden), campaign) < 1e-9
+    level = PoseModel(ur10, _markers(), GEOMETRY, frame0, campaign.loads)
+    assert _reproduced(level, truth(level, hidden), campaign) > 1e-5  # the tilt shows
+    hidden.base_tilt = None
+    hidden.transversal_compliance = _tilting(rng)
+    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 8, 0.0, seed=4, payload=PAYLOAD)
+    model = PoseModel(ur10, _markers(), (*GEOMETRY, "transversal_compliance"),
+                      starting_frame(campaign), campaign.loads)
+    x = truth(model, hidden)
+    assert _reproduced(model, x, campaign) < 1e-6
+    sl = model.slices()["transversal_compliance"]
+    bare = x.copy()
+    bare[sl] = 0.0
+    assert _reproduced(model, bare, campaign) > 3e-5  # the tilts show
+
+
+def test_hidden_transversal_compliance_is_named(ur10):
+    """UR10, 30 poses, two markers, 20 um: hidden bearing tilts (4-8e-6 rad/(N.m) on three
+    joints) are named as transversal_compliance, not as link bends nor a base tilt (both
+    tried: under rejected), and the held-out RMS reaches the noise (3 seeds measured: named
+    3 of 3, held-out 1.04-1.16 x the noise; one seed here)."""
+    rng = np.random.default_rng(2)
+    hidden = _hidden(ur10, rng, geometry=False)
+    hidden.transversal_compliance = _tilting(rng)
+    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 30, NOISE, seed=2,
+                                      payload=PAYLOAD)
+    d = diagnose_poses(campaign, families=["joint_offsets", "joint_compliance"],
+                       not_families=NOT_HIDDEN)
+    assert d.families[-1] == "transversal_compliance"
+    assert {"link_compliance", "base_tilt"} <= set(d.to_dict()["rejected"])
+    assert d.steps[-1].cv_rms < 1.2 * NOISE
+
+
+def test_hidden_base_tilt_is_named_and_covered(ur10):
+    """A base tilted by 2-3 degrees on a softer UR10 (joint stiffness / 4): base_tilt is named,
+    its 95 % intervals cover the two angles, and the held-out RMS comes down to the noise
+    (3 seeds measured: named 3 of 3, 5 of 6 angles covered)."""
+    rng = np.random.default_rng(2)
+    hidden = _hidden(ur10, rng, geometry=False)
+    hidden.stiffness = hidden.stiffness / 4
+    hidden.base_tilt = rng.choice([-1, 1], 2) * rng.uniform(0.03, 0.06, 2)
+    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 30, NOISE, seed=2,
+                                      payload=PAYLOAD)
+    d = diagnose_poses(campaign, families=["joint_offsets", "joint_compliance"],
+                       not_families=NOT_HIDDEN)
+    assert "base_tilt" in d.families
+    table = {p["parameter"]: p for p in d.to_dict()["parameters"]}
+    for axis, angle in zip(("rx", "ry"), hidden.base_tilt, strict=True):
+        lo, hi = table[f"base tilt {axis}"]["interval_95"]
+        assert lo < angle < hi
+    assert d.steps[-1].cv_rms < 1.3 * NOISE
+
+
+def test_a_declared_tilt_must_be_two_finite_angles(ur10):
+    campaign = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, np.random.default_rng(1)),
+                                      6, NOISE, seed=1)
+    for bad in ([0.01], [0.01, float("nan")]):
+        with pytest.raises(StiffnessError, match="two finite angles"):
+            diagnose_poses(campaign, base_tilt=bad)
