@@ -26,6 +26,7 @@ from stiffness.calibration.pose_fit import (
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.cli.main import main
+from stiffness.errors import DataFileWarning
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.calibration import read_pose_calibration
 from stiffness.robot.robot import load_robot
@@ -218,3 +219,19 @@ def test_a_geometric_calibration_has_no_springs(calibration, tmp_path, capsys):
     assert "no spring" in err and "\n" not in err, err
     assert main(["robot", "export", "--model", str(tmp_path / "geometry.json"), "--urdf",
                  str(tmp_path / "g.urdf"), "--quiet"]) == 0
+
+
+def test_families_without_a_deflection_effect_are_announced(calibration, tmp_path):
+    """A calibration holding base_tilt (no deflection effect yet) is read with a warning
+    naming it: the elastic model leaves it out rather than silently."""
+    _, path = calibration
+    doc = json.loads(path.read_text())
+    doc["families"] = [*doc["families"], "base_tilt"]
+    doc["parameters"] += [{"family": "base_tilt", "parameter": f"base tilt {a}", "unit": "rad",
+                           "value": 0.01, "fitted": True, "std": 1e-3,
+                           "interval_95": [0.008, 0.012]} for a in ("rx", "ry")]
+    tilted = tmp_path / "diagnosis" / "final-model.json"
+    tilted.parent.mkdir()
+    tilted.write_text(json.dumps(doc))
+    with pytest.warns(DataFileWarning, match="base_tilt of the calibration are not carried"):
+        load_model(tilted)

@@ -19,7 +19,10 @@ deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose 
     the joint's zero offset: the calibrated robot's joint angles are the commanded ones).
 
 ``gravity_lumped`` (masses unknown) is compliance times unknown masses: no stiffness, so a
-calibration with it (and no ``joint_compliance``) has no springs. Units: SI.
+calibration with it (and no ``joint_compliance``) has no springs. The families of
+:data:`NOT_CARRIED` (the joints' bearing tilts, the base's tilt) have no effect of the deflection
+library yet: they are listed in :attr:`CalibratedElastics.left_out` (the reader warns). Units:
+SI.
 """
 
 from __future__ import annotations
@@ -41,6 +44,11 @@ from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.robot.calibration import PoseCalibration, zero_label
 from stiffness.robot.robot import load_robot
 
+#: Pose families with no deflection-library effect: the elastic model built from a calibration
+#: leaves them out (a stiffness prediction then ignores the bearings' tilts and takes gravity
+#: along the base's -z).
+NOT_CARRIED = ("transversal_compliance", "base_tilt")
+
 
 @dataclass
 class CalibratedElastics:
@@ -54,17 +62,20 @@ class CalibratedElastics:
         ``(name, where, parameters, settings)`` of each library effect.
     undetermined
         Springs the calibration did not determine, held rigid.
+    left_out
+        Families of the calibration the elastic model does not carry (:data:`NOT_CARRIED`).
     """
 
     stiffness: list[Parameter] = field(default_factory=list)
     effects: list[tuple[str, str | None, list[Parameter], dict]] = field(default_factory=list)
     undetermined: list[str] = field(default_factory=list)
+    left_out: list[str] = field(default_factory=list)
 
 
 def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
     """The springs and effects of the calibration ``cal`` (module docstring)."""
     rows = {p["parameter"]: p for p in cal.parameters}
-    out = CalibratedElastics()
+    out = CalibratedElastics(left_out=[f for f in NOT_CARRIED if f in cal.families])
     if "joint_compliance" not in cal.families:
         return out
     for joint in cal.compliant_joints:
