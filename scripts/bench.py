@@ -57,10 +57,7 @@ Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
   1000-pose campaign of the two-arm torso with two markers: ``pose_diagnose_1000_poses_s``,
   ``pose_fit_1000_poses_s`` (one full fit), ``pose_fk_1000_poses_s`` (one forward-kinematics
   + frame-Jacobian pass over the rows and markers), ``pose_fit_1000_poses_over_fk`` (target
-  <= 100) and ``pose_diagnose_1000_poses_over_fit`` (target <= 15); the folds of that fit's
-  cross-validation in process and on two forked workers (``diagnose --workers 2``):
-  ``pose_folds_in_process_s``, ``pose_folds_two_workers_s``,
-  ``pose_folds_two_workers_efficiency`` (1: perfect scaling).
+  <= 100) and ``pose_diagnose_1000_poses_over_fit`` (target <= 15).
 """
 
 from __future__ import annotations
@@ -676,31 +673,9 @@ def pose_calibration_costs(poses: int, rounds: int = 2) -> dict[str, float]:
     start = time.perf_counter()
     diagnose_poses(campaign)
     diagnose = time.perf_counter() - start
-    out = {f"pose_diagnose_{poses}_poses_s": diagnose, f"pose_fit_{poses}_poses_s": fit,
-           f"pose_fk_{poses}_poses_s": fk, f"pose_fit_{poses}_poses_over_fk": fit / fk,
-           f"pose_diagnose_{poses}_poses_over_fit": diagnose / fit}
-    return out | pose_fold_costs(campaign, families, frame0, settings)
-
-
-def pose_fold_costs(campaign, families: tuple[str, ...], frame0, settings) -> dict[str, float]:
-    """The cross-validation of one model (its six folds refitted, warm started from the fit on
-    every row) in this process and on two forked workers (``diagnose --workers 2``):
-    ``pose_folds_in_process_s``, ``pose_folds_two_workers_s`` and
-    ``pose_folds_two_workers_efficiency`` (in-process time over twice the two workers' time:
-    1 is perfect scaling; the machine's load counts against it)."""
-    from stiffness.calibration.pose_diagnose import _cv_rms, _fit
-    from stiffness.calibration.selection import config_folds
-
-    fit = _fit(campaign, list(families), frame0, settings)
-    folds = config_folds(tuple(campaign.labels), 0)
-    start = time.perf_counter()
-    _cv_rms(campaign, fit, list(families), frame0, folds)
-    here = time.perf_counter() - start
-    start = time.perf_counter()
-    _cv_rms(campaign, fit, list(families), frame0, folds, workers=2)
-    two = time.perf_counter() - start
-    return {"pose_folds_in_process_s": here, "pose_folds_two_workers_s": two,
-            "pose_folds_two_workers_efficiency": here / (2 * two)}
+    return {f"pose_diagnose_{poses}_poses_s": diagnose, f"pose_fit_{poses}_poses_s": fit,
+            f"pose_fk_{poses}_poses_s": fk, f"pose_fit_{poses}_poses_over_fk": fit / fk,
+            f"pose_diagnose_{poses}_poses_over_fit": diagnose / fit}
 
 
 # ------------------------------------------------------------------------------ report
