@@ -152,7 +152,9 @@ class JointGeometry(Effect, PoseFamily):
         ``R_a Jr[:3] - [point - o_a]x R_a Jr[3:]``; zero for joints the point does not move with.
         """
         linear, angular, origin = view.caches[self.name]
-        lever = view.point[None, :] - origin
-        cols = linear - np.cross(lever, angular)
+        lx, ly, lz = (view.point[None, :] - origin).T
+        ax, ay, az = angular.T
+        cols = linear - np.stack([ly * az - lz * ay, lz * ax - lx * az, lx * ay - ly * ax],
+                                 axis=1)
         cols *= pm.moves[view.fid][pm.geometry_index[0]][:, None]
         return view.to_measuring @ cols.T
