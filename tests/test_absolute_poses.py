@@ -211,7 +211,7 @@ def test_masses_unknown_lumped_fit_predicts_held_out_poses(ur10):
     from stiffness.calibration.pose_diagnose import validation_errors
     held = validation_errors(fit.model, fit.x, test)
     assert held["rms"] < 1.4 * np.sqrt(3) * NOISE  # 3-D error RMS of pure noise: sqrt(3) sigma
-    dropped = fit.identifiability.to_dict(model)["dropped"]
+    dropped = fit.identifiability.to_dict([p.label for p in model.parameters])["dropped"]
     assert any(d["reason"] == "merged" for d in dropped)
     assert any(d["reason"] == "no effect" for d in dropped)
 

@@ -55,7 +55,7 @@ from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Candidate, Diagnosis, Step
-from stiffness.calibration.fitting import Fit, kind_noise, observations
+from stiffness.calibration.fitting import Fit, kind_noise, observations, parameter_labels
 from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise,
@@ -111,8 +111,19 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float) -> list[Par
             ci = (k * math.exp(-quantile * se) if math.isfinite(se) else 0.0,
                   k * math.exp(quantile * se) if math.isfinite(se) and quantile * se < 700
                   else math.inf)
-        out.append(Parameter(j, k, k * se, ci, "N/m" if prismatic else "N.m/rad"))
+        out.append(_held(fit, i, Parameter(j, k, k * se, ci,
+                                           "N/m" if prismatic else "N.m/rad")))
     return out
+
+
+def _held(fit: Fit, index: int, parameter: Parameter) -> Parameter:
+    """``parameter`` (column ``index`` of ``fit.x``) as held, with why, when the fit did not
+    identify it (:attr:`Fit.identifiability`), else marked when at its bound
+    (:attr:`Fit.at_bound`)."""
+    dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
+    if dropped is None:
+        return dataclasses.replace(parameter, at_bound=index in fit.at_bound)
+    return parameter.held_as(dropped.describe(parameter_labels(fit.model)))
 
 
 def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
@@ -121,7 +132,8 @@ def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
     out = {}
     for i, e in enumerate(model.effects):
         a, b = model.offsets[i + 1], model.offsets[i + 2]
-        out[e.label] = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
+        out[e.label] = [_held(fit, a + k, p) for k, p in enumerate(
+            e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile))]
     return out
 
 
@@ -253,14 +265,14 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     search = _Search(measured, folds, scale, n, sigma, workers, say,
                      _declared_settings(base, effect_settings))
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
-    p_final = final.model.penalty_params
+    p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
     sigma_used, note = _final_noise(final, n, sigma, note)
     known = sigma if loss == "linear" else None  # a sandwich estimates its spread: t
     quantile = interval_quantile(known, n, p_final)
     cov_final = parameter_covariance(final, sigma_used, measured)
     cov_base = parameter_covariance(base, sigma_used if sigma is not None else math.sqrt(
-        base.loss_rss / max(n - base.model.penalty_params, 1)), measured)
+        base.loss_rss / max(n - base.penalty_params, 1)), measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(ambiguities_raw, sigma_used, campaign, geo,
@@ -268,7 +280,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(base, cov_base, interval_quantile(
-            known, n, base.model.penalty_params)),
+            known, n, base.penalty_params)),
         final_stiffness=stiffness_parameters(final, cov_final, quantile),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
@@ -276,7 +288,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                            sigma_used, rows, geo.angles(rows)),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
                                         sigma_used, rows, geo.angles(rows)),
-        gof_baseline=goodness_of_fit(base.loss_rss, n, base.model.penalty_params, sigma),
+        gof_baseline=goodness_of_fit(base.loss_rss, n, base.penalty_params, sigma),
         gof_final=gof_final, unexplained=None if gof_final is None
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
@@ -343,7 +355,7 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: f
     extra = freed.start()[effect.n_params:]
     trial = fit_model(fit.model.with_effects(fit.model.effects[:-1] + (freed,)), measured, scale,
                       np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
-    p = trial.model.penalty_params
+    p = trial.penalty_params
     sig = sigma if sigma is not None else math.sqrt(trial.loss_rss / max(n - p, 1))
     cov = parameter_covariance(trial, sig, measured)
     quantile = interval_quantile(sigma if fit.loss == "linear" else None, n, p)
@@ -376,7 +388,7 @@ def _final_noise(final: Fit, n: int, sigma: float | None, note: str) -> tuple[fl
     final model's residual scatter over its ``n - p`` degrees of freedom (said so)."""
     if sigma is not None:
         return sigma, note
-    p_final = final.model.penalty_params
+    p_final = final.penalty_params
     return (math.sqrt(final.loss_rss / max(n - p_final, 1)),
             f"estimated from the residuals of the final model ({final.model.describe()}, "
             f"{n - p_final} degrees of freedom): it includes any model error left, so the "
@@ -464,7 +476,7 @@ class _Search:
         steps: list[Step] = []
         ambiguities: list[tuple[int, Candidate, Candidate, float]] = []
         while True:
-            gof = goodness_of_fit(current.loss_rss, self.n, current.model.penalty_params,
+            gof = goodness_of_fit(current.loss_rss, self.n, current.penalty_params,
                                   self.sigma)
             if gof is not None and gof > 1.0 - GOF_LEVEL:
                 return current, steps, ambiguities, (
@@ -542,10 +554,10 @@ class _Search:
         ranking."""
         fit = winner.fit
         sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
-            self.n - fit.model.penalty_params, 1))
+            self.n - fit.penalty_params, 1))
         cov = parameter_covariance(fit, sig, self.measured)
         quantile = interval_quantile(self.sigma if fit.loss == "linear" else None, self.n,
-                             fit.model.penalty_params)
+                             fit.penalty_params)
         params = _effect_parameters(fit, cov, quantile, units)
         ranking = [{"effect": c.effect.name, "where": c.effect.where,
                     "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
@@ -567,7 +579,7 @@ def _ambiguities(raw: list[tuple[int, Candidate, Candidate, float]], sigma: floa
                       "better than the current model (cross-validation)")
         elif d_bic < AMBIGUITY_BIC:
             reason = f"BIC within {AMBIGUITY_BIC:g}"
-        elif c.fit.model.penalty_params > w.fit.model.penalty_params:
+        elif c.fit.penalty_params > w.fit.penalty_params:
             reason = (f"similar signatures (cosine {similarity:.3f}); the chosen one wins by "
                       "parsimony (fewer parameters), hardly by fit")
         else:
@@ -590,8 +602,8 @@ def _ranked(current: Fit, fits: list[tuple[Effect, Fit]], n: int, sigma: float |
     """A step's candidates by BIC (best first) under the step's overdispersion
     (:func:`step_criteria`), and that dispersion."""
     current_bic, bics, dispersion = step_criteria(
-        (current.loss_rss, current.model.penalty_params),
-        [(f.loss_rss, f.model.penalty_params) for _, f in fits], n, sigma)
+        (current.loss_rss, current.penalty_params),
+        [(f.loss_rss, f.penalty_params) for _, f in fits], n, sigma)
     results = [Candidate(e, f, b, b - current_bic)
                for (e, f), b in zip(fits, bics, strict=True)]
     results.sort(key=lambda c: c.bic)

@@ -17,7 +17,8 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.diagnosis_page import render_diagnosis
-from stiffness.calibration.fitting import Fit
+from stiffness.calibration.fitting import Fit, parameter_labels
+from stiffness.calibration.identifiability import Identifiability
 from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
     Outlier,
@@ -281,7 +282,16 @@ class Diagnosis:
             "outlier_threshold": OUTLIER_THRESHOLD,
             "outliers": [o.to_dict() for o in self.outliers],
             "rms_by_kind": self.rms_by_kind(),
+            "identifiability": self.identifiability(),
         })
+
+    def identifiability(self) -> dict:
+        """The final fit's fitted and held parameters
+        (:meth:`stiffness.calibration.identifiability.Identifiability.to_dict`; the
+        baseline's compliances as ``compliance(joint)``, effects' as ``label.parameter``)."""
+        f = self.final
+        ident = f.identifiability or Identifiability.full(f.x.size)
+        return ident.to_dict(parameter_labels(f.model))
 
     def summary(self) -> dict:
         """The ``--json`` object (:meth:`to_dict`)."""

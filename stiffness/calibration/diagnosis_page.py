@@ -40,19 +40,23 @@ SECTIONS = {
 
 def parameter_rows(where: str, parameters: dict) -> list[list]:
     """Rows of the parameter table; an interval without a finite bound (JSON null) and an
-    infinite standard error are said to be undetermined, with what is known."""
+    infinite standard error are said to be undetermined, with what is known; a parameter the
+    fit held (not identifiable) is said to be, with why."""
     rows = []
     for name, p in parameters.items():
         lo, hi = p["ci95"] if p.get("ci95") else (None, None)
         se = p.get("standard_error")
-        if _finite(lo) and _finite(hi):
+        if p.get("held"):
+            interval = f"<b>not fitted</b> (held at this value: {esc(p['held'])})"
+        elif _finite(lo) and _finite(hi):
             interval = f"{num(lo)} to {num(hi)}"
         else:
             known = f"at least {num(lo)}, " if _finite(lo) else ""
             interval = f"<b>undetermined</b> ({known}no upper bound: the measurements do not " \
                        "bound it)"
-        rows.append([esc(where), esc(name), p["value"],
-                     se if _finite(se) else "undetermined", interval, esc(p.get("unit", ""))])
+        spread = se if _finite(se) else "-" if p.get("held") else "undetermined"
+        rows.append([esc(where), esc(name), p["value"], spread, interval,
+                     esc(p.get("unit", ""))])
     return rows
 
 

@@ -73,8 +73,7 @@ def format_report(d: Diagnosis) -> str:
         for s in d.steps:
             lines.append(f"  {s.effect.label}: {s.effect.describe()}")
             for p in d.final_parameters.get(s.effect.label, []):
-                lines.append(f"    {p.name} = {p.value:.5g} +- {p.standard_error:.3g} {p.unit} "
-                             f"[{p.ci95[0]:.5g}, {p.ci95[1]:.5g}]")
+                lines.append(f"    {p.text()}")
         lines.append("missing effects: " + ", ".join(s.effect.label for s in d.steps))
     else:
         lines.append("missing effects: none" + (
@@ -82,7 +81,8 @@ def format_report(d: Diagnosis) -> str:
             and d.gof_baseline > 1 - GOF_LEVEL else ""))
     lines.append("stiffness (final model): " + ", ".join(
         f"{p.name} {p.value:.5g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}"
-        for p in d.final_stiffness))
+        for p in d.final_stiffness if p.determined))
+    lines += [f"  {p.text()}" for p in d.final_stiffness if not p.determined]
     ratio = d.final.rms() / d.noise_std_m
     lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
                  f"stopped: {d.stop_reason}")

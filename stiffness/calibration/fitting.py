@@ -11,9 +11,13 @@ dz component, ``s`` a fixed scale (the declared noise std when known), minimised
 :func:`scipy.optimize.least_squares` over the model's parameter vector ``x`` (``ln k`` of the
 stiffnesses, then each effect's scaled variables). The model's analytic Jacobian is used for
 ``ln k`` and the effects acting through the joint law, finite differences for the other
-effects' variables. A parameter the data do not see at the start (its analytic Jacobian
-column below :data:`UNSEEN_COLUMN` of the largest: the stiffness of a joint whose axis passes
-through every load's line) is held there. Optional pseudo-residuals
+effects' variables. Only the parameters the data identify at the start are fitted
+(:func:`identifiable`: the one reduction of both campaign kinds,
+:mod:`stiffness.calibration.identifiability`, over the baseline's compliances and then each
+effect's variables in the order added); the others (no effect on the data: the stiffness of
+a joint whose axis passes through every load's line; or merged: a link bend about an axis
+parallel to a joint's, which that joint's compliance absorbs) are held at their start and
+reported as such (:attr:`Fit.identifiability`). Optional pseudo-residuals
 ``PRIOR_WEIGHT (x - x_anchor)`` keep directions the data do not see at the start instead of
 letting them drift on round-off; they are left out of every reported quantity. Where the
 model cannot be evaluated (a buckling load, a singular tangent) the residuals are a large
@@ -48,11 +52,12 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 
+from stiffness.calibration.identifiability import Identifiability, reduce_columns
 from stiffness.cores import forked_map
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -63,9 +68,6 @@ SINGULAR_RTOL = 1e-10
 #: A parameter with a component above this along an undetermined direction has infinite
 #: variance.
 UNSEEN_COMPONENT = 1e-8
-#: A parameter whose Jacobian column at the start has a norm below this fraction of the
-#: largest is not seen by the data: :func:`fit_model` holds it at its start.
-UNSEEN_COLUMN = 1e-10
 #: Weight of the anchoring pseudo-residuals ``w (x - x_anchor)``: they move a determined
 #: ``ln k`` by about ``w^2 / s^2`` of its distance to the anchor (s >~ 1).
 PRIOR_WEIGHT = 1e-6
@@ -155,6 +157,12 @@ class Fit:
         The loss (:data:`LOSSES`) and its soft threshold in units of ``scale``.
     loss_value
         ``sum f^2 rho((r / f)^2)`` of the scaled residuals at the optimum (:func:`loss_sum`).
+    identifiability
+        The parameters fitted and those held at their start (:func:`identifiable`; every one
+        fitted when ``None``).
+    at_bound
+        Columns of ``x`` the bounded solver left at a bound (:meth:`Hypothesis.bounds`: a
+        compliance at 0, a stiffness at the 1e14 rigid bound, a mass at 0).
     """
 
     model: Hypothesis
@@ -169,6 +177,22 @@ class Fit:
     loss: str = "linear"
     f_scale: float = 1.0
     loss_value: float | None = None
+    identifiability: Identifiability | None = None
+    at_bound: list[int] = field(default_factory=list)
+
+    @property
+    def kept(self) -> list[int]:
+        """Columns of ``x`` the fit moved (:attr:`identifiability`)."""
+        if self.identifiability is None:
+            return list(range(self.x.size))
+        return list(self.identifiability.kept)
+
+    @property
+    def penalty_params(self) -> int:
+        """Parameters the information criterion counts: the model's
+        (:attr:`Hypothesis.penalty_params`) less those held as not identifiable."""
+        held = 0 if self.identifiability is None else len(self.identifiability.dropped)
+        return self.model.penalty_params - held
 
     @property
     def n_residuals(self) -> int:
@@ -312,18 +336,6 @@ class Objective:
             return r
         return np.concatenate([r, PRIOR_WEIGHT * (x - self.anchor)])
 
-    def unseen(self, x: np.ndarray) -> np.ndarray:
-        """(p,) mask of the analytic parameters whose Jacobian column at ``x`` has a norm below
-        :data:`UNSEEN_COLUMN` times the largest column's (none where the model fails)."""
-        self._evaluate(x)
-        mask = np.zeros(self.p, dtype=bool)
-        if self._pred is None or self._jac is None:  # the model failed: no prediction
-            return mask
-        norms = np.linalg.norm(self._jac.reshape(-1, self.p), axis=0)
-        mask[self.model.analytic_columns] = (norms <= UNSEEN_COLUMN * norms.max()
-                                             )[self.model.analytic_columns]
-        return mask
-
     def jac(self, x: np.ndarray) -> np.ndarray:
         """Their Jacobian (forward differences in the numeric columns)."""
         j = self.data_jacobian(x, central=False)
@@ -335,7 +347,8 @@ class Objective:
 def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
               method: str = "trf", bounded: bool = True, anchor: np.ndarray | None = None,
               tolerance: float = 1e-10, max_nfev: int | None = None,
-              x_scale: float | None = None, loss: str = "linear", f_scale: float = 1.0) -> Fit:
+              x_scale: float | None = None, loss: str = "linear", f_scale: float = 1.0,
+              resolution: float = 0.0) -> Fit:
     """Least squares of ``model`` on ``measured`` (m, 3) from ``x0``.
 
     Parameters
@@ -364,6 +377,9 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
         One of :data:`LOSSES` (robust ones need ``method="trf"``).
     f_scale
         Soft threshold of a robust loss, in units of ``scale`` (the noise std / ``scale``).
+    resolution
+        Near aliases an effect's columns must be told from (:func:`identifiable`; ``scale``
+        the noise std), 0 for none.
     """
     check_loss(loss, method)
     objective = Objective(model, measured, scale, anchor)
@@ -377,9 +393,11 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
         kwargs["x_scale"] = x_scale
     if loss != "linear":
         kwargs.update(loss=loss, f_scale=float(f_scale))
-    # parameters the data do not see at the start stay there: their huge Gauss-Newton step
-    # would otherwise take the trust region and the solver would crawl
-    free = ~objective.unseen(x0)
+    # parameters the data do not identify at the start stay there: their huge Gauss-Newton
+    # step would otherwise take the trust region and the solver would crawl
+    ident = identifiable(objective, x0, resolution)
+    free = np.zeros(model.n_params, dtype=bool)
+    free[ident.kept] = True
     if bounded:
         kwargs["bounds"] = (lo[free], hi[free])
 
@@ -392,13 +410,55 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
         sol = least_squares(lambda z: objective.fun(full(z)), x0[free],
                             jac=lambda z: objective.jac(full(z))[:, free], **kwargs)
         x, success, message, nfev = full(sol.x), bool(sol.success), str(sol.message), sol.nfev
+        at_bound = [int(i) for i in np.flatnonzero(free)[np.flatnonzero(sol.active_mask)]]
     else:
         x, success, message, nfev = x0, True, "no parameter is seen by the data", 1
+        at_bound = []
     r = objective.data(x)
     pred = measured + r.reshape(measured.shape) * scale
     return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), objective.data_jacobian(x),
                scale, success, message, int(nfev), loss, float(f_scale),
-               loss_sum(r, loss, f_scale))
+               loss_sum(r, loss, f_scale), ident, at_bound)
+
+
+def parameter_labels(model: Hypothesis) -> list[str]:
+    """Each column of ``model``'s parameter vector named: ``compliance(joint)`` for the
+    baseline's ``ln k``, ``label.parameter`` for an effect's variable."""
+    return [f"compliance({j})" for j in model.compliant] + [
+        f"{e.label}.{name}" for e in model.effects for name in e.parameter_names]
+
+
+def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0
+                 ) -> Identifiability:
+    """The parameters ``objective``'s data identify at ``x``
+    (:func:`stiffness.calibration.identifiability.reduce_columns`): the baseline's
+    compliances first (every one with an effect on the data kept: their undetermined
+    combinations are the covariance's, :func:`covariance`), then each effect's variables in
+    the order added. The columns are in
+    the fitted variables' physical units times their typical size: a compliance ``1 / k``
+    (``-k d r / d ln k``, typical ``1 / k_ref``, so a stiff joint is not mistaken for one
+    without effect), an effect's SI value (typical :meth:`Effect.scale`); merge coefficients
+    are in those units. With a ``resolution`` (noise std per typical size; the residuals
+    scaled by the noise std) an effect's near alias of the columns before it is merged too
+    (:data:`stiffness.calibration.identifiability.NEAR_ALIAS_SINE`). Every parameter is kept
+    where the model cannot be evaluated."""
+    model = objective.model
+    p = model.n_params
+    jac = objective.data_jacobian(x, central=False)
+    if p == 0 or objective.data(x)[0] == PENALTY or not np.any(jac):
+        return Identifiability.full(p)
+    n0 = len(model.compliant)
+    refs = model.refs
+    a = jac.copy()
+    a[:, :n0] *= -np.exp(x[:n0]) / refs.k_ref
+    scales = np.concatenate([np.full(n0, 1.0 / refs.k_ref)]
+                            + [e.scale(refs) for e in model.effects])
+    groups = [list(range(n0))] + [list(range(model.offsets[i + 1], model.offsets[i + 2]))
+                                  for i in range(len(model.effects))]
+    floors = [0.0] + [resolution] * len(model.effects)
+    kept_groups = [(g, f) for g, f in zip(groups, floors, strict=True) if g]
+    return reduce_columns(a, [g for g, _ in kept_groups], scales,
+                          [f for _, f in kept_groups], keep_first=n0 > 0)
 
 
 @dataclass
@@ -491,7 +551,24 @@ def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Co
     """The covariance of ``fit.x`` for a noise std ``sigma`` (m), with one cut-off
     (:data:`SINGULAR_RTOL`) for undetermined directions; for a robust loss, given the fitted
     observations ``measured``, the sandwich (:func:`sandwich_matrix`) in the determined
-    directions instead of ``sigma^2 (J^T J)^+``."""
+    directions instead of ``sigma^2 (J^T J)^+``. Over the fitted parameters only
+    (:attr:`Fit.kept`): one held as not identifiable has infinite variance, a zero singular
+    value and its own axis as direction."""
+    kept = fit.kept
+    full_p = fit.jacobian.shape[1]
+    if len(kept) < full_p:
+        sub = covariance(replace(fit, jacobian=fit.jacobian[:, kept],
+                                             x=fit.x[kept], identifiability=None),
+                         sigma, measured)
+        held = np.setdiff1d(np.arange(full_p), kept)
+        matrix = np.full((full_p, full_p), np.inf)
+        matrix[np.ix_(kept, kept)] = sub.matrix
+        directions = np.zeros((full_p, full_p))
+        directions[: len(kept), kept] = sub.directions
+        directions[len(kept) + np.arange(held.size), held] = 1.0
+        return Covariance(matrix, np.concatenate([sub.singular_values, np.zeros(held.size)]),
+                          directions, np.concatenate([sub.undetermined,
+                                                      np.ones(held.size, dtype=bool)]))
     white = fit.jacobian * (fit.scale / sigma)
     p = white.shape[1]
     # the (N, N) left vectors are never used: all p right vectors are there unless N < p

@@ -148,20 +148,23 @@ class PoseDiagnosis:
                 "rejected": self.rejected, "families": self.families,
                 "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
-                "identifiability": self.final.identifiability.to_dict(self.final.model),
+                "identifiability": self.final.identifiability.to_dict(
+                    [p.label for p in self.final.model.parameters]),
                 "parameters": parameter_table(self.final),
                 "residual_structure": residual_structure(self.final, self.campaign)}
 
 
 def parameter_table(fit: PoseFit) -> list[dict]:
-    """Each parameter with its value, standard deviation and 95 % interval (SI, unit named)."""
+    """Each parameter with its value, standard deviation and 95 % interval (SI, unit named),
+    and whether it sits at its physical lower bound (its interval then one-sided)."""
     lo, hi = fit.interval()
     std = fit.std()
     kept = set(fit.identifiability.kept)
     return [{"family": p.family, "parameter": p.label, "unit": p.unit,
              "value": float(fit.x[i]), "fitted": i in kept,
              "std": None if i not in kept else float(std[i]),
-             "interval_95": None if i not in kept else [float(lo[i]), float(hi[i])]}
+             "interval_95": None if i not in kept else [float(lo[i]), float(hi[i])],
+             "at_bound": i in fit.at_bound}
             for i, p in enumerate(fit.model.parameters)]
 
 

@@ -1,13 +1,10 @@
 """Fitting a :class:`~stiffness.calibration.pose_model.PoseModel` to a pose campaign.
 
-Identifiability. Only an identifiable set of parameters is fitted. The regressor (d y / d x
+Identifiability. Only an identifiable set of parameters is fitted: the regressor (d y / d x
 over every measured component, each column scaled by its parameter's typical size) is reduced
-family by family, in the order the families were chosen: a column joins when the part of it
-orthogonal to the columns already kept is at least :data:`IDENTIFIABILITY_TOL` of its own norm
-(the sine of its angle to their span; column-pivoted QR within the family). A parameter left
-out either has no effect on any marker ("no effect": its column is below
-:data:`IDENTIFIABILITY_TOL` of the largest column of the family) or is a combination of kept
-ones ("merged": the kept parameters absorb it with the least-squares coefficients reported).
+family by family, in the order the families were chosen, by the one reduction of both
+campaign kinds (:func:`stiffness.calibration.identifiability.reduce_columns`: "no effect" and
+"merged" parameters, the merges' coefficients reported).
 
 Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian, at most
 :data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
@@ -41,6 +38,7 @@ import numpy as np
 from scipy import linalg, optimize
 
 from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
+from stiffness.calibration.identifiability import Identifiability, reduce_columns
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
@@ -50,8 +48,6 @@ from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError
 
-#: Smallest sine between a kept column and the span of the others (documented above).
-IDENTIFIABILITY_TOL = 1e-6
 #: Residual (m, each component) of a trial step whose sag does not converge (an unphysically
 #: large compliance): far above any measured error, so the solver refuses the step.
 DIVERGED_RESIDUAL_M = 1.0
@@ -60,44 +56,6 @@ MAX_EVALUATIONS = 200
 #: Smallest ``1 - leverage`` of a configuration's components for :func:`held_out_rms` (below
 #: it, leaving the configuration out leaves a direction of the parameters undetermined).
 LEVERAGE_TOL = 1e-9
-
-
-@dataclass(frozen=True)
-class Dropped:
-    """A parameter left out of the fit, and why.
-
-    Attributes
-    ----------
-    index
-        Column of the parameter.
-    reason
-        ``"no effect"`` or ``"merged"``.
-    merged_into
-        For a merged parameter: (kept column, coefficient) pairs, largest first; the kept
-        parameters absorb ``coefficient x`` this one (in their own units).
-    """
-
-    index: int
-    reason: str
-    merged_into: tuple[tuple[int, float], ...] = ()
-
-
-@dataclass
-class Identifiability:
-    """The identifiable columns of a regressor and the dropped ones."""
-
-    kept: list[int]
-    dropped: list[Dropped]
-
-    def to_dict(self, model: PoseModel) -> dict:
-        """JSON form: kept labels, and each dropped label with its reason and combination."""
-        labels = [p.label for p in model.parameters]
-        return {"tolerance": IDENTIFIABILITY_TOL,
-                "kept": [labels[i] for i in self.kept],
-                "dropped": [{"parameter": labels[d.index], "reason": d.reason,
-                             "merged_into": [{"parameter": labels[i], "coefficient": c}
-                                             for i, c in d.merged_into]}
-                            for d in self.dropped]}
 
 
 def rows_of(model: PoseModel, campaign: PoseCampaign) -> list[RowTerms]:
@@ -121,53 +79,6 @@ def starting_frame(campaign: PoseCampaign) -> tuple[np.ndarray, np.ndarray]:
     nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)))
     y, _ = nominal.evaluate(np.zeros(0), rows_of(nominal, campaign), jacobian=False)
     return align_frames(y.reshape(-1, 3), campaign.positions.reshape(-1, 3))
-
-
-def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray
-                   ) -> Identifiability:
-    """Identifiable columns of ``a``, group by group (earlier groups first); see module doc.
-
-    ``a`` holds the regressor's columns multiplied by ``scales`` (each parameter's typical
-    size); merge coefficients are returned in the parameters' own units.
-    """
-    kept: list[int] = []
-    dropped: list[Dropped] = []
-    for group in groups:
-        norms = np.linalg.norm(a[:, group], axis=0)
-        big = norms.max() if len(group) else 0.0
-        candidates = [c for c, nrm in zip(group, norms, strict=True)
-                      if nrm > IDENTIFIABILITY_TOL * big and nrm > 0]
-        dropped += [Dropped(c, "no effect") for c in group if c not in candidates]
-        if not candidates:
-            continue
-        rest = a[:, candidates]
-        if kept:
-            basis, _ = np.linalg.qr(a[:, kept])
-            rest = rest - basis @ (basis.T @ rest)
-        _, r, piv = linalg.qr(rest, mode="economic", pivoting=True)
-        own = np.linalg.norm(a[:, candidates], axis=0)[piv]
-        diag = np.abs(np.diag(r)) if r.size else np.zeros(0)
-        joined = [candidates[p] for p, d, o in zip(piv, diag, own, strict=False)
-                  if d >= IDENTIFIABILITY_TOL * o]
-        kept += joined
-        dropped += _merged(a, kept, [c for c in candidates if c not in joined], scales)
-    return Identifiability(kept, dropped)
-
-
-def _merged(a: np.ndarray, kept: list[int], columns: list[int], scales: np.ndarray
-            ) -> list[Dropped]:
-    """Each of ``columns`` as a combination of the ``kept`` ones (parameters' own units)."""
-    if not columns:
-        return []
-    coefs, *_ = np.linalg.lstsq(a[:, kept], a[:, columns], rcond=None)
-    out = []
-    for column, coef in zip(columns, coefs.T, strict=True):
-        coef = coef * scales[kept] / scales[column]
-        order = np.argsort(-np.abs(coef))
-        pairs = tuple((kept[i], float(coef[i])) for i in order
-                      if abs(coef[i]) * scales[column] > 1e-6 * scales[kept[i]])
-        out.append(Dropped(column, "merged", pairs))
-    return out
 
 
 @dataclass
@@ -222,6 +133,7 @@ class PoseFit:
     rotation_weight: float | None = None
     jacobian: np.ndarray | None = None
     component_rows: np.ndarray | None = None
+    at_bound: list[int] = field(default_factory=list)
 
     def components(self) -> np.ndarray:
         """The residual components as fitted: positions (m), then the weighted orientations
@@ -273,11 +185,19 @@ class PoseFit:
 
     def interval(self) -> tuple[np.ndarray, np.ndarray]:
         """95 % intervals (p,) each; NaN for parameters not fitted (the normal quantile with
-        the declared noise, Student's without: :func:`selection.interval_quantile`)."""
+        the declared noise, Student's without: :func:`selection.interval_quantile`), none
+        below a parameter's physical lower bound. A parameter at its bound
+        (:attr:`at_bound`) has the one-sided interval from the bound to its 95 % upper
+        limit."""
         s = self.std()
-        z = interval_quantile(self.sigma if self.sigma_source == "declared" else None,
-                              self.n_observed, self.n_fitted)
-        return self.x - z * s, self.x + z * s
+        known = self.sigma if self.sigma_source == "declared" else None
+        z = interval_quantile(known, self.n_observed, self.n_fitted)
+        lower = np.array([p.lower for p in self.model.parameters])
+        lo, hi = np.maximum(self.x - z * s, lower), self.x + z * s
+        one_sided = interval_quantile(known, self.n_observed, self.n_fitted, 0.95)
+        for i in self.at_bound:
+            lo[i], hi[i] = self.x[i], self.x[i] + one_sided * s[i]
+        return lo, hi
 
 
 def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray) -> Identifiability:
@@ -439,12 +359,19 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         return j[:, kept]
 
     scales = np.array([model.parameters[i].scale for i in kept])
+    lower = np.array([model.parameters[i].lower for i in kept])
     sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
                                  method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
                                  max_nfev=MAX_EVALUATIONS)
+    if np.any(sol.x < lower):  # past a physical bound: the fit under the bounds instead
+        sol = optimize.least_squares(residual, np.maximum(sol.x, lower), jac=jacobian,
+                                     x_scale=scales, method="trf", bounds=(lower, np.inf),
+                                     xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                     max_nfev=MAX_EVALUATIONS)
     x[kept] = sol.x
     if loss == "linear":
-        fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun)
+        fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun,
+                      at_bound=_at_bound(model, x, kept, sol.active_mask))
         fit.converged = bool(sol.status > 0)
         return fit
     s = scale if scale is not None else campaign.noise_std
@@ -452,7 +379,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     # from the least-squares optimum: a few steps (from far, every residual is beyond the
     # loss's scale and the robust steps crawl), and a start for cauchy's non-convex loss
     sol = optimize.least_squares(residual, sol.x, jac=jacobian, x_scale=scales,
-                                 method="trf", loss=loss, f_scale=s,
+                                 method="trf", loss=loss, f_scale=s, bounds=(lower, np.inf),
                                  xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=MAX_EVALUATIONS)
     # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead;
     # where the sag diverges there the residual is the diverged constant (the fit is not
@@ -463,9 +390,20 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     except ConvergenceError:
         jac = sol.jac
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
-    fit = _finish(obs, campaign, x, ident, jac, fun, loss, (s, source))
+    fit = _finish(obs, campaign, x, ident, jac, fun, loss, (s, source),
+                  _at_bound(model, x, kept, sol.active_mask))
     fit.converged = bool(sol.status > 0)
     return fit
+
+
+def _at_bound(model: PoseModel, x: np.ndarray, kept: list[int], active: np.ndarray
+              ) -> list[int]:
+    """The parameters (model columns) the solver left at their bound (scipy's
+    ``active_mask``; none after an unbounded Levenberg-Marquardt fit), set exactly there in
+    ``x`` (the solver stops within round-off of it)."""
+    out = [kept[i] for i in np.flatnonzero(active)]
+    x[out] = [model.parameters[i].lower for i in out]
+    return out
 
 
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
@@ -482,24 +420,40 @@ def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTe
 
 def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
             ident: Identifiability, jac: np.ndarray, fun: np.ndarray, loss: str = "linear",
-            robust_scale: tuple[float, str] | None = None) -> PoseFit:
+            robust_scale: tuple[float, str] | None = None, at_bound: list[int] | None = None
+            ) -> PoseFit:
     """The fit at ``x`` from the residuals ``fun`` (predicted minus measured, m; orientations
     weighted) and their Jacobian; ``robust_scale`` the (noise std, source) scaling a robust
-    ``loss``."""
+    ``loss``; ``at_bound`` the parameters at their physical bound (the others' covariance
+    holds them there; theirs is their marginal one, for a one-sided interval)."""
     residual, rotation = obs.split(fun)
     n, k = fun.size, len(ident.kept)
+    bound = [c for c, i in enumerate(ident.kept) if i in (at_bound or [])]
+    free = [c for c in range(k) if c not in bound]
     if robust_scale is not None:
         sigma, source = robust_scale
-        cov = sandwich_matrix(fun / sigma, jac / sigma, loss, 1.0, np.eye(k))
+
+        def spread(columns: list[int]) -> np.ndarray:
+            return sandwich_matrix(fun / sigma, jac[:, columns] / sigma, loss, 1.0,
+                                   np.eye(len(columns)))
     else:
         if campaign.noise_std is not None:
             sigma, source = campaign.noise_std, "declared"
         else:
             sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
-        cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
+
+        def spread(columns: list[int]) -> np.ndarray:
+            return sigma ** 2 * np.linalg.pinv(jac[:, columns].T @ jac[:, columns])
+    cov = spread(list(range(k)))
+    if bound:
+        marginal = np.diag(cov)[bound]
+        cov = np.zeros((k, k))
+        cov[np.ix_(free, free)] = spread(free)
+        cov[bound, bound] = marginal
     return PoseFit(obs.model, x.copy(), ident, cov, residual, sigma, source, loss=loss,
                    rotation_residual=rotation, rotation_weight=obs.weight, jacobian=jac,
-                   component_rows=obs.component_rows())
+                   component_rows=obs.component_rows(),
+                   at_bound=list(at_bound or []))
 
 
 def predict(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> np.ndarray:

@@ -7,13 +7,13 @@ import json
 import os
 from pathlib import Path
 
+from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.pose_diagnose import (
     PoseDiagnosis,
     parameter_table,
     residual_structure,
     write_pose_model,
 )
-from stiffness.calibration.pose_fit import IDENTIFIABILITY_TOL
 from stiffness.calibration.pose_page import render_pose_diagnosis, stage_plot
 from stiffness.calibration.residual_figures import marker_residual_plots
 from stiffness.files import atomic_write, staged_folder
@@ -51,11 +51,12 @@ def format_pose_report(d: PoseDiagnosis) -> str:
             f"{f} ({v:+.3g})" for f, v in d.rejected.items()))
     lines += ["", _verdict(d), "", f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
-    lines += ["", "fitted parameters (SI, 95 % interval):"]
+    lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
     for p in (p for p in parameter_table(d.final) if p["fitted"]):
         lo, hi = p["interval_95"]
         lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
-                     f"[{lo:.5g}, {hi:.5g}]")
+                     f"[{lo:.5g}, {hi:.5g}]" + ("  at its lower bound" if p["at_bound"]
+                                                else ""))
     return "\n".join(lines)
 
 
@@ -75,16 +76,11 @@ def _verdict(d: PoseDiagnosis) -> str:
 
 
 def _dropped_lines(d: PoseDiagnosis) -> list[str]:
-    ident = d.final.identifiability.to_dict(d.final.model)
-    lines = [f"  fitted: {len(ident['kept'])} parameters"]
-    for item in ident["dropped"]:
-        if item["reason"] == "no effect":
-            lines.append(f"  dropped {item['parameter']}: no effect on any marker")
-        else:
-            combo = " + ".join(f"{m['coefficient']:.3g} x {m['parameter']}"
-                               for m in item["merged_into"][:3]) or "(negligible)"
-            lines.append(f"  merged {item['parameter']}: absorbed as {combo}")
-    return lines
+    ident = d.final.identifiability
+    labels = [p.label for p in d.final.model.parameters]
+    return [f"  fitted: {len(ident.kept)} parameters"] + [
+        f"  {'dropped' if item.reason == 'no effect' else 'merged'} {labels[item.index]}: "
+        f"{item.describe(labels)}" for item in ident.dropped]
 
 
 def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,

@@ -37,6 +37,11 @@ CV_FOLDS = 6
 LOCO_MAX = 12
 
 _MIN_REPLICATE_DOF = 9
+#: An effect's parameter the data tell from the columns before it by less than this many noise
+#: std per typical size, while nearly their alias, is merged into them
+#: (:mod:`stiffness.calibration.identifiability`): about the 95 % normal quantile, so a merged
+#: parameter's 95 % interval, given the others, would be wider than its typical size.
+NEAR_ALIAS_RESOLUTION = 2.0
 
 
 def fit_job(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
@@ -47,7 +52,7 @@ def fit_job(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarra
     ``scale``), to run (:class:`stiffness.calibration.fitting.FitJob`)."""
     return FitJob(model, measured, scale, x0,
                   {"max_nfev": max_nfev, "x_scale": 1.0, "tolerance": tolerance,
-                   "loss": loss, "f_scale": f_scale})
+                   "loss": loss, "f_scale": f_scale, "resolution": NEAR_ALIAS_RESOLUTION})
 
 
 def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
@@ -175,14 +180,15 @@ def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | 
     return float(chdtrc(n - p, rss / sigma ** 2))
 
 
-def interval_quantile(sigma: float | None, n: int, p: int) -> float:
-    """The 97.5 % quantile every reported 95 % interval uses (the one function for it):
-    the standard normal's when the noise std ``sigma`` is declared, Student's t with
-    ``n - p`` degrees of freedom (at least 1) when it is estimated from ``n`` residuals of a
-    fit of ``p`` parameters (``sigma`` None, or a robust fit's sandwich)."""
+def interval_quantile(sigma: float | None, n: int, p: int, level: float = 0.975) -> float:
+    """The ``level`` quantile every reported interval uses (the one function for it; 0.975:
+    a two-sided 95 % interval's, 0.95: a one-sided one's): the standard normal's when the
+    noise std ``sigma`` is declared, Student's t with ``n - p`` degrees of freedom (at least
+    1) when it is estimated from ``n`` residuals of a fit of ``p`` parameters (``sigma``
+    None, or a robust fit's sandwich)."""
     if sigma is not None:
-        return float(ndtri(0.975))
-    return float(stdtrit(max(n - p, 1), 0.975))
+        return float(ndtri(level))
+    return float(stdtrit(max(n - p, 1), level))
 
 
 def replicate_noise(campaign: Campaign, kind: str = "translation"

@@ -157,7 +157,7 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
             for e in chosen]
     if sigma is None:
         best = min(fits, key=lambda f: f.rss)
-        dof = max(measured.size - best.model.penalty_params, 1)
+        dof = max(measured.size - best.penalty_params, 1)
         sigma, source = math.sqrt(best.rss / dof), "residual scatter of the better fit"
     return Alternatives(fits[0], fits[1], (chosen[0].label, chosen[1].label), float(sigma),
                         source)

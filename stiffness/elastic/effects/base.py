@@ -52,27 +52,67 @@ EFFECT_KINDS = ("stiffness", "measurement", "lost_motion", "preload")
 
 @dataclass
 class Parameter:
-    """A reported parameter: value, standard error and 95 % interval in ``unit``."""
+    """A reported parameter: value, standard error and 95 % interval in ``unit``.
+
+    Attributes
+    ----------
+    at_bound
+        Whether the fit left it at its physical bound (a compliance at 0: a rigid spring; a
+        mass at 0); its interval is then one-sided.
+    held
+        Why the fit did not move it (not identifiable: "no effect on the data", or merged
+        into others, :mod:`stiffness.calibration.identifiability`), "" when fitted: its value
+        is then the one it was held at, not a measurement.
+    """
 
     name: str
     value: float
     standard_error: float
     ci95: tuple[float, float]
     unit: str
+    held: str = ""
+    at_bound: bool = False
 
     @property
     def determined(self) -> bool:
-        """Whether the data bound the parameter: a finite standard error and interval."""
-        return all(math.isfinite(v) for v in (self.standard_error, *self.ci95))
+        """Whether the data bound the parameter: fitted, with a finite standard error and
+        interval."""
+        return not self.held and all(math.isfinite(v)
+                                     for v in (self.standard_error, *self.ci95))
 
     def to_dict(self) -> dict:
         """JSON-ready (inf and NaN become ``None``; ``determined`` says whether the interval
-        is bounded, "undetermined" where it is not)."""
+        is bounded, "undetermined" where it is not; ``held`` why the fit did not move it, or
+        ``None``; ``at_bound`` whether it sits at its physical bound, its interval then
+        one-sided)."""
         def num(v: float) -> float | None:
             return float(v) if math.isfinite(v) else None
         return {"value": num(self.value), "standard_error": num(self.standard_error),
                 "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
-                "determined": self.determined}
+                "determined": self.determined, "held": self.held or None,
+                "at_bound": self.at_bound}
+
+    def held_as(self, reason: str) -> Parameter:
+        """This parameter held by the fit at its value, for ``reason``: no uncertainty."""
+        return Parameter(self.name, self.value, math.nan, (math.nan, math.nan), self.unit,
+                         reason)
+
+    def text(self) -> str:
+        """One line: ``name = value +- se unit [low, high]``, or what the parameter was held
+        at and why, or that the data do not bound it."""
+        if self.held:
+            return f"{self.name} not fitted (held at {self.value:.5g} {self.unit}): {self.held}"
+        if self.at_bound:
+            return (f"{self.name} at its physical bound ({self.value:.5g} {self.unit}; one-sided "
+                    f"95 % interval [{self.ci95[0]:.5g}, {self.ci95[1]:.5g}])")
+        if not self.determined:
+            known = "; ".join(f"{side} {v:.5g}" for side, v in zip(("above", "below"),
+                                                                    self.ci95, strict=True)
+                              if math.isfinite(v) and v != 0)
+            return (f"{self.name} = {self.value:.5g} {self.unit}, undetermined (the data do not "
+                    f"bound it{': ' + known if known else ''})")
+        return (f"{self.name} = {self.value:.5g} +- {self.standard_error:.3g} {self.unit} "
+                f"[{self.ci95[0]:.5g}, {self.ci95[1]:.5g}]")
 
 
 

@@ -138,6 +138,8 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
         return f"joint {self.joint_name}, declared rigid, is a spring"
 
     # pose face ----------------------------------------------------------------------------
+    family_lower: ClassVar[float] = 0.0
+
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(compliance_label(n),
                            "m/N" if pm.robot.is_prismatic(n) else "rad/(N.m)")
@@ -216,6 +218,7 @@ class Backlash(JointEffect, JointDeflectionFamily):
 
     # pose face ----------------------------------------------------------------------------
     family_scale: ClassVar[float] = 1e-4
+    family_lower: ClassVar[float] = 0.0
     needs_masses: ClassVar[bool] = True
     #: the model setting naming each compliant joint's smoothing torque (N.m or N)
     SETTING: ClassVar[str] = BACKLASH_SETTING

@@ -246,6 +246,7 @@ class LinkCompliance(Effect, PoseFamily):
     # pose face ----------------------------------------------------------------------------
     family_kind: ClassVar[str] = "elastic"
     family_scale: ClassVar[float] = 1e-6
+    family_lower: ClassVar[float] = 0.0
     needs_masses: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:

@@ -16,6 +16,7 @@ Units: SI (m, N, rad).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
@@ -54,12 +55,15 @@ BACKLASH_SETTING = "backlash_smoothing_torque"
 
 @dataclass(frozen=True)
 class FamilyParameter:
-    """One column of the regressor: its family, label, scale (typical size, SI) and unit."""
+    """One column of the regressor: its family, label, scale (typical size, SI), unit and
+    physical lower bound (SI; a compliance, a backlash or a spring's stiffness is never
+    negative)."""
 
     family: str
     label: str
     scale: float
     unit: str
+    lower: float = -math.inf
 
 
 @dataclass(frozen=True)
@@ -191,6 +195,8 @@ class PoseFamily:
     name: ClassVar[str] = ""
     family_kind: ClassVar[str] = "geometric"
     family_scale: ClassVar[float] = 1e-3
+    #: physical lower bound of its parameters (SI): 0 for compliances and lost motion
+    family_lower: ClassVar[float] = -math.inf
     #: whether the family stands in for gravity's torque (masses unknown): the springs then
     #: carry only the applied wrench's known torque
     lumps_gravity: ClassVar[bool] = False
@@ -210,8 +216,8 @@ class PoseFamily:
         return {}
 
     def param(self, label: str, unit: str) -> FamilyParameter:
-        """A parameter of this family with its typical size."""
-        return FamilyParameter(self.name, label, self.family_scale, unit)
+        """A parameter of this family with its typical size and lower bound."""
+        return FamilyParameter(self.name, label, self.family_scale, unit, self.family_lower)
 
     # --- prediction hooks ---------------------------------------------------------------
     def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray | None:

@@ -357,10 +357,11 @@ class GravityCompensator(Effect, JointDeflectionFamily):
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [FamilyParameter(self.name, compensator_label(spring.joint_name, what), size,
-                                unit)
+                                unit, lower)
                 for _, spring in self._pose_joints(pm)
-                for what, size, unit in zip(("stiffness", "preload"), self.SIZES, ("N/m", "N"),
-                                            strict=True)]
+                for what, size, unit, lower in zip(("stiffness", "preload"), self.SIZES,
+                                                   ("N/m", "N"), (0.0, -math.inf),
+                                                   strict=True)]
 
     def _unit_torques(self, pm: PoseLayout, q: np.ndarray) -> list[tuple[int, np.ndarray]]:
         """Per joint, its velocity index and the torque (N.m) per unit stiffness and per unit
