@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from scipy import stats
-from stiffness.calibration.absolute import Marker, PoseModel
+from stiffness.calibration.pose_model import Marker, PoseModel
 
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_report import format_report

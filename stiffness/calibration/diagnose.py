@@ -54,6 +54,7 @@ import numpy as np
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
+from stiffness.calibration.certainty import certainty
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Candidate, Diagnosis, Step
 from stiffness.calibration.fitting import Fit, kind_noise, observations, parameter_labels
 from stiffness.calibration.outliers import (
@@ -277,6 +278,9 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(ambiguities_raw, sigma_used, campaign, geo,
                                seed if propose else None)
+    final_parameters = _effect_parameters(final, cov_final, quantile, campaign.units)
+    sure = certainty(final, steps, final_parameters, measured, folds,
+                     steps[-1].cv_rms if steps else cv_base, n, sigma, workers)
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(base, cov_base, interval_quantile(
@@ -293,7 +297,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0,
-        final_parameters=_effect_parameters(final, cov_final, quantile, campaign.units),
+        final_parameters=final_parameters, certainty=sure,
         final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma,
@@ -536,6 +540,10 @@ class _Search:
         if not eligible:
             return None, (f"no candidate improves BIC by more than {BIC_MARGIN:g}" if results
                           else "no candidate left")
+        eligible = [c for c in eligible if self.namable(c.fit)]
+        if not eligible:
+            return None, ("the candidates that improve BIC determine none of their parameters "
+                          "within its physical scale with an interval excluding zero")
         winner = None
         tried = eligible[:CV_TOP]
         for c, cv in zip(tried, cross_validate([c.fit for c in tried], self.measured,
@@ -548,17 +556,28 @@ class _Search:
                           "for held-out configurations (cross-validation)")
         return winner, ""
 
+    def parameters(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
+        """Each effect's parameters in ``fit`` with their intervals."""
+        sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
+            self.n - fit.penalty_params, 1))
+        cov = parameter_covariance(fit, sig, self.measured)
+        quantile = interval_quantile(self.sigma if fit.loss == "linear" else None, self.n,
+                                     fit.penalty_params)
+        return _effect_parameters(fit, cov, quantile, units)
+
+    def namable(self, fit: Fit) -> bool:
+        """Whether the effect ``fit`` adds may be named: it has no parameter (a switch), or at
+        least one is determined (:attr:`Parameter.determined`: within its physical scale) with
+        an interval excluding zero."""
+        params = self.parameters(fit, SI_UNITS)[fit.model.effects[-1].label]
+        return not params or any(p.determined and p.excludes_zero for p in params)
+
     def step(self, winner: Candidate, results: list[Candidate], dispersion: float,
              units: Units) -> Step:
         """The :class:`Step` that adds ``winner``: its parameters with intervals, the step's
         ranking."""
         fit = winner.fit
-        sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
-            self.n - fit.penalty_params, 1))
-        cov = parameter_covariance(fit, sig, self.measured)
-        quantile = interval_quantile(self.sigma if fit.loss == "linear" else None, self.n,
-                             fit.penalty_params)
-        params = _effect_parameters(fit, cov, quantile, units)
+        params = self.parameters(fit, units)
         ranking = [{"effect": c.effect.name, "where": c.effect.where,
                     "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
         assert winner.cv_rms is not None  # the winner was cross-validated

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.certainty import Certainty, is_stand_in
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit, parameter_labels
 from stiffness.calibration.identifiability import Identifiability
@@ -186,6 +187,9 @@ class Diagnosis:
         from the residuals (no test available).
     loss
         The loss of every fit (:data:`stiffness.calibration.fitting.LOSSES`).
+    certainty
+        How sure each named effect is (:mod:`stiffness.calibration.certainty`: held-out cost
+        of removing it, best alternative, stand-in), in the order added.
     outliers, outlier_sigma_m
         The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
         (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
@@ -218,6 +222,7 @@ class Diagnosis:
     loss: str = "linear"
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
+    certainty: list[Certainty] = field(default_factory=list)
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -272,7 +277,8 @@ class Diagnosis:
             "noise_std_source": self.noise_std_source,
             "steps": [{"effect": s.effect.name, "where": s.effect.where,
                        "rms": self._len(s.rms),
-                       "parameters": {p.name: p.to_dict() for p in s.parameters}}
+                       "parameters": {p.name: p.to_dict() for p in s.parameters},
+                       "stand_in": self.stand_in(s.effect.label)}
                       for s in self.steps],
             "missing_effects": self.missing_effects,
             "unexplained": self.unexplained,
@@ -283,7 +289,13 @@ class Diagnosis:
             "outliers": [o.to_dict() for o in self.outliers],
             "rms_by_kind": self.rms_by_kind(),
             "identifiability": self.identifiability(),
+            "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.certainty],
         })
+
+    def stand_in(self, label: str) -> bool:
+        """Whether the named effect ``label`` is a stand-in (a determined parameter of the
+        final model beyond its physical scale: :mod:`stiffness.calibration.certainty`)."""
+        return is_stand_in(self.final_parameters.get(label, []))
 
     def identifiability(self) -> dict:
         """The final fit's fitted and held parameters

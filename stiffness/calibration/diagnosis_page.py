@@ -183,6 +183,48 @@ def _ambiguities(ambiguities: list[dict], unit: str) -> list[str]:
     return parts
 
 
+def _steps(d: dict, unit: str) -> list[str]:
+    """The steps' table and each step's best candidates."""
+    parts: list[str] = []
+    cv = d["cv_rms"]
+    rows = [["0", "baseline", "", "", d["baseline_rms"], cv["baseline"]]]
+    for i, (s, detail) in enumerate(zip(d["steps"], d["step_details"], strict=True)):
+        rows.append([str(i + 1), esc(s["effect"]), esc(s.get("where") or ""),
+                     detail["delta_bic"], s["rms"], cv["steps"][i]])
+    parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",
+                       f"RMS ({unit})", f"cross-validated RMS ({unit})"], rows,
+                       "ΔBIC: change of the Bayesian information criterion from the "
+                       "previous step (negative: the effect earns its parameters). "
+                       "Cross-validated RMS: residual on configurations left out of the "
+                       "fit."))
+    for i, detail in enumerate(d["step_details"]):
+        ranked = [[esc(r.get("effect", "")), esc(r.get("where") or ""), r.get("delta_bic"),
+                   r.get("cv_rms")] for r in detail["ranking"][:6]]
+        if ranked:
+            parts.append(table(f"Step {i + 1}: the best candidates",
+                               ["effect", "where", "ΔBIC", f"cross-validated RMS ({unit})"],
+                               ranked, "The six best-ranked candidate effects of this step."))
+    return parts
+
+
+def _how_sure(d: dict, unit: str) -> list[str]:
+    """The table of how sure each named effect is (:mod:`stiffness.calibration.certainty`)."""
+    if not d.get("how_sure"):
+        return []
+    return [table("How sure: each named effect", [
+        "effect", "ΔBIC without it", f"held-out RMS change without it ({unit})",
+        "best alternative", "its ΔBIC", "stand-in"], [
+        [esc(c["effect"]), c["removal_delta_bic"], c["held_out_cost"],
+         esc(c["alternative"] or "none"), c["alternative_delta_bic"],
+         "yes: the data prefer this shape; its size is not physical" if c["stand_in"]
+         else "no"] for c in d["how_sure"]],
+        "Each effect removed from the final model and the rest refitted: the BIC change "
+        "(positive: the effect earns its parameters) and the change of the RMS predicted "
+        "for configurations left out (positive: worse without it). Best alternative: the "
+        "best other candidate of the step that named it, and its BIC minus the chosen "
+        "one's (a few units: a coin toss).")]
+
+
 def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     """The page.
 
@@ -227,24 +269,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts.append(_by_configuration(d["where_baseline_disagrees"], d["where_final_disagrees"],
                                    unit))
     parts.append(heading("steps", SECTIONS))
-    cv = d["cv_rms"]
-    rows = [["0", "baseline", "", "", d["baseline_rms"], cv["baseline"]]]
-    for i, (s, detail) in enumerate(zip(d["steps"], d["step_details"], strict=True)):
-        rows.append([str(i + 1), esc(s["effect"]), esc(s.get("where") or ""),
-                     detail["delta_bic"], s["rms"], cv["steps"][i]])
-    parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",
-                       f"RMS ({unit})", f"cross-validated RMS ({unit})"], rows,
-                       "ΔBIC: change of the Bayesian information criterion from the "
-                       "previous step (negative: the effect earns its parameters). "
-                       "Cross-validated RMS: residual on configurations left out of the "
-                       "fit."))
-    for i, detail in enumerate(d["step_details"]):
-        ranked = [[esc(r.get("effect", "")), esc(r.get("where") or ""), r.get("delta_bic"),
-                   r.get("cv_rms")] for r in detail["ranking"][:6]]
-        if ranked:
-            parts.append(table(f"Step {i + 1}: the best candidates",
-                               ["effect", "where", "ΔBIC", f"cross-validated RMS ({unit})"],
-                               ranked, "The six best-ranked candidate effects of this step."))
+    parts += _steps(d, unit)
+    parts += _how_sure(d, unit)
     parts.append(heading("parameters", SECTIONS))
     rows = parameter_rows("joint stiffness", d["final_stiffness"])
     for s in d["steps"]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from stiffness.calibration.breakdown import strongest_correlations
+from stiffness.calibration.certainty import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.selection import GOF_LEVEL
 
@@ -71,10 +72,18 @@ def format_report(d: Diagnosis) -> str:
     if d.steps:
         lines.append("identified effects (final model; 95 % intervals):")
         for s in d.steps:
-            lines.append(f"  {s.effect.label}: {s.effect.describe()}")
+            stand_in = f" STAND-IN: {STAND_IN_NOTE}" if d.stand_in(s.effect.label) else ""
+            lines.append(f"  {s.effect.label}: {s.effect.describe()}{stand_in}")
             for p in d.final_parameters.get(s.effect.label, []):
                 lines.append(f"    {p.text()}")
-        lines.append("missing effects: " + ", ".join(s.effect.label for s in d.steps))
+        found = [s.effect.label for s in d.steps if not d.stand_in(s.effect.label)]
+        lines.append("missing effects: " + (", ".join(found) or "none found physical"))
+        stand_ins = [s.effect.label for s in d.steps if d.stand_in(s.effect.label)]
+        if stand_ins:
+            lines.append(f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins))
+        lines.append("how sure (each effect removed from the final model; the best other "
+                     "candidate of its step):")
+        lines += [c.text(unit, lu) for c in d.certainty]
     else:
         lines.append("missing effects: none" + (
             " (the baseline explains the data to noise)" if d.gof_baseline is not None

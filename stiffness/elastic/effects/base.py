@@ -56,6 +56,10 @@ class Parameter:
 
     Attributes
     ----------
+    resolved, scale_note, beyond_scale
+        Whether its 95 % interval is narrower than its physical scale
+        (:meth:`Effect.physical_scale`), that comparison in words, and whether its value is
+        beyond that scale (a compliance: larger than it).
     at_bound
         Whether the fit left it at its physical bound (a compliance at 0: a rigid spring; a
         mass at 0); its interval is then one-sided.
@@ -72,13 +76,24 @@ class Parameter:
     unit: str
     held: str = ""
     at_bound: bool = False
+    resolved: bool = True
+    scale_note: str = ""
+    beyond_scale: bool = False
 
     @property
     def determined(self) -> bool:
-        """Whether the data bound the parameter: fitted, with a finite standard error and
-        interval."""
-        return not self.held and all(math.isfinite(v)
-                                     for v in (self.standard_error, *self.ci95))
+        """Whether the data determine the parameter: fitted, with a finite standard error and
+        a finite interval narrower than its physical scale (:attr:`resolved`,
+        :meth:`Effect.physical_scale`)."""
+        return not self.held and self.resolved and all(
+            math.isfinite(v) for v in (self.standard_error, *self.ci95))
+
+    @property
+    def excludes_zero(self) -> bool:
+        """Whether its 95 % interval excludes zero (both ends finite and of one sign, or a
+        stiffness's lower end above zero)."""
+        low, high = self.ci95
+        return bool((low > 0 and math.isfinite(high)) or high < 0)
 
     def to_dict(self) -> dict:
         """JSON-ready (inf and NaN become ``None``; ``determined`` says whether the interval
@@ -90,12 +105,12 @@ class Parameter:
         return {"value": num(self.value), "standard_error": num(self.standard_error),
                 "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
                 "determined": self.determined, "held": self.held or None,
-                "at_bound": self.at_bound}
+                "at_bound": self.at_bound, "physical_scale": self.scale_note or None}
 
     def held_as(self, reason: str) -> Parameter:
         """This parameter held by the fit at its value, for ``reason``: no uncertainty."""
         return Parameter(self.name, self.value, math.nan, (math.nan, math.nan), self.unit,
-                         reason)
+                         reason, resolved=False)
 
     def text(self) -> str:
         """One line: ``name = value +- se unit [low, high]``, or what the parameter was held
@@ -105,6 +120,9 @@ class Parameter:
         if self.at_bound:
             return (f"{self.name} at its physical bound ({self.value:.5g} {self.unit}; one-sided "
                     f"95 % interval [{self.ci95[0]:.5g}, {self.ci95[1]:.5g}])")
+        if not self.resolved and math.isfinite(self.standard_error):
+            return (f"{self.name} = {self.value:.5g} +- {self.standard_error:.3g} {self.unit}, "
+                    f"undetermined ({self.scale_note})")
         if not self.determined:
             known = "; ".join(f"{side} {v:.5g}" for side, v in zip(("above", "below"),
                                                                     self.ci95, strict=True)
@@ -263,6 +281,13 @@ class Effect:
         """Start of the optimiser variables (the effect nearly absent)."""
         return np.zeros(self.n_params)
 
+    def physical_scale(self, refs: References) -> np.ndarray:
+        """SI size of each parameter beyond which it is not physical on this campaign
+        (:attr:`Parameter.determined` needs a 95 % interval narrower than it; a value beyond
+        it makes the effect a stand-in). This default: :data:`PHYSICAL_FACTOR` times
+        :meth:`scale` (the size of a sizeable effect)."""
+        return PHYSICAL_FACTOR * self.scale(refs)
+
     def physical(self, u: np.ndarray, refs: References) -> np.ndarray:
         """SI parameter values of optimiser variables ``u``."""
         return np.asarray(u, dtype=float) * self.scale(refs)
@@ -319,11 +344,15 @@ class Effect:
         se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
         value = self.physical(u, refs)
         out = []
-        for name, v, s, (unit, factor) in zip(self.parameter_names, value, se,
-                                              self._units(units), strict=True):
+        for name, v, s, (unit, factor), size in zip(
+                self.parameter_names, value, se, self._units(units),
+                self.physical_scale(refs), strict=True):
+            width = 2.0 * quantile * s
             out.append(Parameter(name, v / factor, s / factor,
                                  ((v - quantile * s) / factor, (v + quantile * s) / factor),
-                                 unit))
+                                 unit, resolved=bool(width < size),
+                                 scale_note=scale_note(width / factor, size / factor, unit),
+                                 beyond_scale=bool(abs(v) > size)))
         return out
 
     def _units(self, units) -> list[tuple[str, float]]:
@@ -335,9 +364,22 @@ class Effect:
 
 
 
+#: The physical scale of a parameter (:meth:`Effect.physical_scale`) is this many times the
+#: size of a sizeable effect (:meth:`Effect.scale`) unless its effect says otherwise.
+PHYSICAL_FACTOR = 10.0
+
+
+def scale_note(width: float, size: float, unit: str) -> str:
+    """The comparison of a 95 % interval's ``width`` with a physical scale ``size``."""
+    relation = "narrower than" if width < size else "wider than"
+    return f"95 % interval {width:.3g} {unit} wide, {relation} its physical scale {size:.3g}"
+
+
 def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
                       quantile: float) -> Parameter:
-    """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method."""
+    """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method; its
+    interval is determined when the compliance's is narrower than the physical scale
+    ``PHYSICAL_FACTOR scale`` (ten times the baseline's mean compliance ``1 / k_ref``)."""
     se_u = math.sqrt(max(var_u, 0.0)) if math.isfinite(var_u) else math.inf
     c = u * scale
     k = 1.0 / c if c > 0 else math.inf
@@ -346,7 +388,13 @@ def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
     lo_c = (u - quantile * se_u) * scale
     low = 1.0 / hi_c if hi_c > 0 and math.isfinite(hi_c) else 0.0
     high = 1.0 / lo_c if lo_c > 0 else math.inf
-    return Parameter(name, k, se_k, (low, high), unit)
+    width = 2.0 * quantile * se_u * scale
+    compliance_unit = "m/N" if unit == "N/m" else "rad/(N.m)"
+    return Parameter(name, k, se_k, (low, high), unit,
+                     resolved=bool(width < PHYSICAL_FACTOR * scale),
+                     beyond_scale=bool(c > PHYSICAL_FACTOR * scale),
+                     scale_note="compliance's " + scale_note(width, PHYSICAL_FACTOR * scale,
+                                                             compliance_unit))
 
 
 @dataclass

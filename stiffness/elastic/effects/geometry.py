@@ -338,7 +338,7 @@ class References:
     theta_ref
         Typical joint deflection (rad).
     force_ref
-        RMS applied force (N).
+        RMS applied force (N): the campaign's load range.
     deflection_ref
         RMS measured deflection (m).
     """

@@ -303,6 +303,9 @@ class NonlinearJointStiffness(JointEffect):
     def scale(self, refs):
         return np.full(1, 1.0 / refs.max_torque(self.joint_name))
 
+    def physical_scale(self, refs):
+        return self.scale(refs)  # the spring's compliance doubled at the largest torque
+
     def adjust_law(self, p, law, column, refs):
         law.beta[column] = p[0]
 

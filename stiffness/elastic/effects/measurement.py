@@ -95,6 +95,9 @@ class ForceSensorBias(Effect):
     def scale(self, refs):
         return np.full(3, 0.01 * refs.force_ref)
 
+    def physical_scale(self, refs):
+        return np.full(3, refs.force_ref)  # the campaign's load range
+
     def adjust_load(self, p, force, moment):
         return force - p, moment
 
@@ -121,6 +124,9 @@ class DeflectionOffset(Effect):
 
     def scale(self, refs):
         return np.full(3, 0.01 * refs.deflection_ref)
+
+    def physical_scale(self, refs):
+        return np.full(3, refs.deflection_ref)  # the campaign's largest deflection
 
     def output_map(self, p):
         return None, p
