@@ -364,7 +364,12 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
                                  method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
                                  max_nfev=MAX_EVALUATIONS)
     if np.any(sol.x < lower):  # past a physical bound: the fit under the bounds instead
-        sol = optimize.least_squares(residual, np.maximum(sol.x, lower), jac=jacobian,
+        start = np.maximum(sol.x, lower)
+        if np.all(residual(start) == DIVERGED_RESIDUAL_M):
+            # the clipped optimum's sag diverges (a negative compliance held it): from the
+            # bounded parameters at their bound (rigid springs) instead
+            start = np.where(np.isfinite(lower), lower, sol.x)
+        sol = optimize.least_squares(residual, start, jac=jacobian,
                                      x_scale=scales, method="trf", bounds=(lower, np.inf),
                                      xtol=1e-12, ftol=1e-12, gtol=1e-12,
                                      max_nfev=MAX_EVALUATIONS)
