@@ -11,12 +11,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from scipy import stats
-from stiffness.calibration.pose_model import Marker, PoseModel
 
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.identifiability import reduce_columns
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
