@@ -259,7 +259,8 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign) -> float:
     residual, leaving configuration ``G``'s components out moves the parameters by
     ``dx_G = R^-1 Q_G^T (I - Q_G Q_G^T)^-1 r_G`` (the hat matrix's deletion formula, PRESS:
     exact for a model linear in its parameters, the refit's Gauss-Newton step otherwise), and
-    ``G`` is predicted by the model itself at ``x - dx_G``: its sag and geometry in full, so a
+    ``G`` is predicted by the model itself at ``x - dx_G`` (a parameter at its physical bound
+    held there): its sag and geometry in full, so a
     fit whose neighbours sag without bound at a configuration is caught. The criterion is
     ``sqrt(objective / n)`` of the held-out position components (:func:`objective_rss` under
     the fit's loss and scale: their sum of squares for least squares). Infinite when a
@@ -277,10 +278,13 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign) -> float:
     if jac is None or rows is None:
         raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
     r = fit.components()
-    q, tri = np.linalg.qr(jac)
+    # a parameter at its physical bound stays there in the refits: the deletion step moves
+    # the others only
+    free = [c for c, i in enumerate(fit.identifiability.kept) if i not in fit.at_bound]
+    q, tri = np.linalg.qr(jac[:, free])
     labels = np.asarray(campaign.labels)
     names = labels[rows]
-    kept = fit.identifiability.kept
+    kept = [fit.identifiability.kept[c] for c in free]
     held: list[np.ndarray] = []
     for label in dict.fromkeys(labels.tolist()):
         g = np.flatnonzero(names == label)
