@@ -80,7 +80,7 @@ def test_report_of_a_pose_campaign(tmp_path, capsys):
     assert "joint_offsets" in record["families"], record["families"]
     v = final["validation"]
     for name in ("tip", "elbow"):  # the validation table names each marker with its RMS
-        assert re.search(rf"\b{name}\s+{v['markers'][name]['rms']:.4g}\b", visible), name
+        assert re.search(rf"\b{name}\s+\d+\s+{v['markers'][name]['rms']:.4g}\b", visible), name
     for axis, rms in record["residual_structure"]["rms_by_axis"].items():
         assert re.search(rf"axis {axis}\s+{rms:.4g}\b", visible), axis
     if "how_sure" not in record:  # the evidence when each family was added
@@ -96,15 +96,21 @@ def test_report_of_a_pose_campaign(tmp_path, capsys):
 
 
 def test_report_of_a_deflection_campaign(tmp_path, capsys):
-    """The steps with their cross-validated RMS, the residual figure (x, y, z before and after)
-    and the parameters with intervals; the same page as diagnose --out."""
-    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4], effects=[parse_effect("force_sensor_bias=8")],
-                   configs=5, loads_per_config=3, noise_std_m=1e-5, seed=2,
-                   compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint",
-                                     "elbow_joint"])
-    campaign = sim.write(tmp_path / "c")
+    """The steps with their cross-validated RMS, the residual figure (x, y, z before and after),
+    the parameters with intervals and the validation on another campaign (the same numbers as
+    ``stiffness validate`` of the written final-model.json); the same page as diagnose --out."""
+    campaigns = []
+    for seed in (2, 3):
+        sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4],
+                       effects=[parse_effect("force_sensor_bias=8")], configs=5,
+                       loads_per_config=3, noise_std_m=1e-5, seed=seed,
+                       compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint",
+                                         "elbow_joint"])
+        campaigns.append(sim.write(tmp_path / f"c{seed}"))
+    campaign, other = campaigns
     out = tmp_path / "rep"
-    assert main(["report", str(campaign), "--out", str(out), "--quiet"]) == 0
+    assert main(["report", str(campaign), "--out", str(out), "--validate", str(other),
+                 "--quiet"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["diagnosis.html", "diagnosis.json",
                                                      "final-model.json", "residuals.png"]
     page = (out / "diagnosis.html").read_text()
@@ -119,6 +125,13 @@ def test_report_of_a_deflection_campaign(tmp_path, capsys):
     fx = record["steps"][0]["parameters"]["fx"]
     assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
     assert "written: " in capsys.readouterr().out
+    assert main(["validate", str(out / "final-model.json"), str(other), "--json"]) == 0
+    val = json.loads(capsys.readouterr().out)
+    v = record["validation"]
+    assert v["rms"] == pytest.approx(val["rms"], rel=1e-9) and v["verdict"] == val["verdict"]
+    assert "id='validation'" in page
+    assert re.search(rf"target\s+{v['rows']}\s+{v['rms']:.4g}\b", visible)
+    assert re.search(rf"Verdict:\s+{v['verdict']}", visible)
 
 
 @pytest.mark.parametrize(("argv", "said"), [

@@ -397,12 +397,15 @@ class Diagnosis:
             },
         )
 
-    def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
+    def write(self, folder: str | Path, command: str | None = None,
+              validation: dict | None = None) -> dict[str, Path]:
         """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
         ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
-        (default: this process's command line)."""
+        (default: this process's command line); ``validation``
+        (:meth:`~stiffness.calibration.validation.Validation.to_dict` of the final model on
+        another campaign) is recorded under ``validation`` and shown on the page."""
         folder = Path(folder)
-        record = self.record()
+        record = self.record() | ({"validation": validation} if validation else {})
         png = residual_plot(self)
         with staged_folder(folder) as stage:  # published whole, by one rename
             atomic_write(stage / DIAGNOSIS_FILE, json.dumps(record, indent=1) + "\n")

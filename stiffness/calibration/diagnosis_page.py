@@ -5,13 +5,14 @@ residuals before and after, the effects added step by step with their BIC gain a
 parameters with 95 % intervals, the verdict on what is left (explained to noise, or
 *unexplained*) with the final residual's structure (by load direction and row order, and its
 correlation with each joint's torque and angle), and what the campaign cannot tell apart with
-the poses and loads that would.
+the poses and loads that would, and the final model on a validation campaign (``--validate``).
 """
 
 from __future__ import annotations
 
 import math
 
+from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -34,8 +35,15 @@ SECTIONS = {
     "outliers": "Rows flagged as outliers",
     "left": "What is left: the final residual's structure",
     "ambiguities": "What this campaign cannot tell apart",
+    "validation": "Validation of the final model",
     "reproduce": "Reproduce this",
 }
+
+
+#: What the validation section says without a validation campaign.
+HOW = ("the cross-validated RMS of each step (above) is the held-out check within this "
+       "campaign; <code>stiffness diagnose CAMPAIGN --validate OTHER_CAMPAIGN</code> evaluates "
+       "the final model on another campaign of the same robot without refitting")
 
 
 def parameter_rows(where: str, parameters: dict) -> list[list]:
@@ -287,6 +295,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))
     parts += _ambiguities(d["cannot_tell_apart"], unit)
+    parts += [heading("validation", SECTIONS), *validation_section(d.get("validation"), HOW)]
     parts.append(reproduce_block(prov, "reproduce", SECTIONS,
                                  "The run writes this page, diagnosis.json, residuals.png and "
                                  "final-model.json."))

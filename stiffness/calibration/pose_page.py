@@ -11,6 +11,7 @@ import io
 
 import numpy as np
 
+from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -141,32 +142,6 @@ def _how_sure(d: dict) -> list[str]:
                   "fit fell when it was added (positive: it predicts, not only fits).")]
 
 
-def _validation(d: dict) -> list[str]:
-    """The final model's 3-D errors on the validation campaign, overall and per marker."""
-    v = d["steps"][-1].get("validation")
-    if not v:
-        return ["<p>No validation campaign: run <code>stiffness diagnose CAMPAIGN --validate "
-                "OTHER_CAMPAIGN</code> (or <code>stiffness report CAMPAIGN --validate "
-                "OTHER_CAMPAIGN</code>) to evaluate the final model on measurements it was "
-                "not fitted to.</p>"]
-    unit = v["unit"]
-    keys = ["rms", "mean_error", "std_error", "max_error"]
-    headers = ["marker", "rows"] + [f"{k.split('_')[0]} ({unit})" for k in keys]
-    rotation = "rotation_rms" in v
-    if rotation:
-        headers += [f"rotation {k} ({v['rotation_unit']})" for k in ("RMS", "mean", "max")]
-
-    def row(name: str, cell: dict, rows) -> list:
-        out = [esc(name), rows] + [cell[k] for k in keys]
-        return out + ([cell.get(f"rotation_{k}") for k in ("rms", "mean_error", "max_error")]
-                      if rotation else [])
-
-    rows = [row("all", v, v["rows"])] + [row(n, m, "") for n, m in v["markers"].items()]
-    return [table(f"Final model on the validation campaign ({v['rows']} rows)", headers, rows,
-                  "3-D position error (measured minus predicted) of the final model without "
-                  "refitting: RMS, mean, standard deviation and maximum of its norm.")]
-
-
 def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                           residual_pngs: dict[str, bytes] | None = None) -> str:
     """The page of a pose diagnosis.
@@ -222,7 +197,12 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                            "error."))
         parts.append(figure(STAGE_FIGURE, stage_png,
                             f"Held-out 3-D marker error after each step ({unit})"))
-    parts += [heading("validation", SECTIONS), *_validation(d), heading("parameters", SECTIONS),
+    how = ("run <code>stiffness diagnose CAMPAIGN --validate OTHER_CAMPAIGN</code> (or "
+           "<code>stiffness report CAMPAIGN --validate OTHER_CAMPAIGN</code>) to evaluate the "
+           "final model on measurements it was not fitted to")
+    parts += [heading("validation", SECTIONS),
+              *validation_section(d["steps"][-1].get("validation"), how),
+              heading("parameters", SECTIONS),
               *_parameters(d)]
     parts.append(reproduce_block(prov, "reproduce", SECTIONS,
                                  "The run writes this page, diagnosis.json and "

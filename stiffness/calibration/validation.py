@@ -35,7 +35,12 @@ from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
 from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
 from stiffness.elastic.model import ElasticModel
-from stiffness.elastic.model_file import ModelRobotError, load_model, read_model_file
+from stiffness.elastic.model_file import (
+    ModelFile,
+    ModelRobotError,
+    load_model,
+    read_model_file,
+)
 from stiffness.errors import StiffnessError
 from stiffness.robot.calibration import (
     is_pose_calibration,
@@ -156,14 +161,7 @@ def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> Validatio
             "validate a pose calibration on a pose campaign, a deflection model on a "
             "deflection campaign")
     if not pose_model:
-        declared = read_model_file(model)
-        measured = load_campaign(campaign)
-        robot = same_robot(declared.source, declared.robot, measured.robot(),
-                           measured.resolved_source(), model, campaign)
-        errors = deflection_errors(load_model(declared), measured)
-        noise = None if measured.noise_std_m is None else (
-            measured.noise_std_m / measured.units.length_to_si)
-        return Validation(str(model), str(campaign), "deflections", errors, robot, noise)
+        return validate_deflection_model(read_model_file(model), str(model), campaign)
     poses = load_pose_campaign(campaign)
     cal = read_pose_calibration(model)
     robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
@@ -172,6 +170,28 @@ def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> Validatio
     errors = validation_errors(calibration.model, calibration.x, poses)
     noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
     return Validation(str(model), str(campaign), "poses", errors, robot, noise)
+
+
+def validate_deflection_model(declared: ModelFile, model: str,
+                              campaign: str | os.PathLike) -> Validation:
+    """A deflection model file (read, or built in memory: a diagnosis's final model) evaluated
+    on the deflection campaign ``campaign``; ``model`` names the model in messages and the
+    result.
+
+    Raises
+    ------
+    ModelRobotError
+        The campaign is of another robot than the model's.
+    StiffnessError
+        ``campaign`` cannot be read as a deflection campaign.
+    """
+    measured = load_campaign(campaign)
+    robot = same_robot(declared.source, declared.robot, measured.robot(),
+                       measured.resolved_source(), model, campaign)
+    errors = deflection_errors(load_model(declared), measured)
+    noise = None if measured.noise_std_m is None else (
+        measured.noise_std_m / measured.units.length_to_si)
+    return Validation(model, str(campaign), "deflections", errors, robot, noise)
 
 
 def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,

@@ -86,8 +86,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "base's axes from level); every model feels gravity turned by "
                              "it, the base_tilt family fits what remains")
     parser.add_argument("--validate", metavar="CAMPAIGN",
-                        help="pose campaigns: another pose campaign evaluated at every step "
-                             "without refitting (the gap shrinking on held-out data)")
+                        help="another campaign of the same kind and robot the final model is "
+                             "evaluated on without refitting (a pose campaign: every step, "
+                             "the gap shrinking on held-out data)")
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -95,6 +96,7 @@ def command_line(args: argparse.Namespace) -> str:
     words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
              "--max-steps", str(args.max_steps), "--seed", str(args.seed)]
     words += ["--no-proposals"] if args.no_proposals else []
+    words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
     for declared in getattr(args, "compensator_geometry", []):
         words += ["--compensator-geometry", declared]
@@ -143,12 +145,17 @@ def run(args: argparse.Namespace) -> int:
     flags.require_at_least_one(args.workers, "--workers")
     if campaign_kind(args.campaign) == "poses":
         return run_poses(args)
-    if args.validate or args.families or args.not_families or args.base_tilt:
-        raise StiffnessError("--validate, --families, --not and --base-tilt take pose "
-                             "campaigns; for a deflection campaign diagnose reports the "
-                             "held-out (cross-validated) RMS of each step")
+    if args.families or args.not_families or args.base_tilt:
+        raise StiffnessError("--families, --not and --base-tilt take pose campaigns; a "
+                             "deflection diagnosis chooses among every effect of the library")
     declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
+    if args.validate:  # read before the work: a bad one fails at once
+        if campaign_kind(args.validate) == "poses":
+            raise StiffnessError(f"--validate {args.validate} is a pose campaign; a "
+                                 "deflection campaign is validated on another deflection "
+                                 "campaign of the same robot")
+        load_campaign(args.validate)
     if args.out:
         output_folder(args.out, create=False)  # before the work: a bad --out fails at once
     show = sys.stderr.isatty() and not args.quiet
@@ -159,8 +166,18 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None,
                       workers=args.workers, loss=args.loss, effect_settings=declared)
-    paths = result.write(args.out, command_line(args)) if args.out else None
-    return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
+    if not args.validate:
+        paths = result.write(args.out, command_line(args)) if args.out else None
+        return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
+    from stiffness.calibration.pose_report import format_validation  # only with --validate
+    from stiffness.calibration.validation import validate_deflection_model
+
+    validation = validate_deflection_model(result.model_file(), "the final model",
+                                           args.validate).to_dict()
+    paths = result.write(args.out, command_line(args), validation) if args.out else None
+    return _emit(args.json, {**result.to_dict(), "validation": validation},
+                 lambda: f"{format_report(result)}\n\nvalidation on {args.validate}:\n"
+                         f"{format_validation(validation)}", paths)
 
 
 def run_poses(args: argparse.Namespace) -> int:

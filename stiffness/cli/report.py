@@ -135,8 +135,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     group = parser.add_argument_group("with CAMPAIGN (as stiffness diagnose)")
     group.add_argument("--validate", metavar="CAMPAIGN",
-                       help="pose campaigns: another pose campaign the final model and every "
-                            "step are evaluated on without refitting")
+                       help="another campaign of the same kind and robot the final model is "
+                            "evaluated on without refitting (a pose campaign: every step)")
     # No choices here: the values are diagnose's (checked by run_campaign), and importing them
     # would delay the SK120 report's second process by the fitting stack's import.
     group.add_argument("--masses", help="pose campaigns: link masses known (default) or "

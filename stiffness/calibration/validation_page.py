@@ -1,0 +1,51 @@
+"""The validation section of the diagnosis pages (either campaign kind): the final model's 3-D
+error on a campaign it was not fitted to, overall and per marker (a deflection campaign's one
+"marker" is its target), and the verdict against that campaign's noise when there is one."""
+
+from __future__ import annotations
+
+from stiffness.htmlpage import esc, num, table
+
+#: The error keys of a validation record, in the table's order.
+ERROR_KEYS = ("rms", "mean_error", "std_error", "max_error")
+
+
+def validation_section(v: dict | None, how: str) -> list[str]:
+    """The section's HTML parts.
+
+    Parameters
+    ----------
+    v
+        :func:`~stiffness.calibration.pose_diagnose.validation_errors`,
+        :func:`~stiffness.calibration.validation.deflection_errors` or
+        :meth:`~stiffness.calibration.validation.Validation.to_dict` (campaign length unit);
+        ``None``: no validation campaign.
+    how
+        HTML saying how to give one (shown when ``v`` is None).
+    """
+    if not v:
+        return [f"<p>No validation campaign: {how}.</p>"]
+    unit = v["unit"]
+    headers = ["marker", "rows"] + [f"{k.split('_')[0]} ({unit})" for k in ERROR_KEYS]
+    rotation = "rotation_rms" in v
+    if rotation:
+        headers += [f"rotation {k} ({v['rotation_unit']})" for k in ("RMS", "mean", "max")]
+
+    def row(name: str, cell: dict) -> list:
+        out = [esc(name), cell.get("rows", "")] + [cell[k] for k in ERROR_KEYS]
+        return out + ([cell.get(f"rotation_{k}") for k in ("rms", "mean_error", "max_error")]
+                      if rotation else [])
+
+    parts = []
+    if v.get("campaign"):
+        parts.append(f"<p>Validation campaign: <code>{esc(v['campaign'])}</code>.</p>")
+    parts.append(table(f"Final model on the validation campaign ({v['rows']} rows)", headers,
+                       [row("all", v)] + [row(n, m) for n, m in v["markers"].items()],
+                       "3-D position error (measured minus predicted) of the final model "
+                       "without refitting: RMS, mean, standard deviation and maximum of its "
+                       "norm."))
+    if v.get("verdict"):
+        parts.append(f"<p>Verdict: <b>{esc(v['verdict'])}</b> (RMS {num(v['rms_over_noise'], 3)}"
+                     f" times the 3-D noise √3 σ, σ = {num(v['noise_std'])} {esc(unit)}; "
+                     f"chi-square p = {num(v['gof_p'], 3)}).</p>")
+    return parts
