@@ -124,6 +124,9 @@ def test_report_of_a_deflection_campaign(tmp_path, capsys):
     assert f"{record['cv_rms']['steps'][0]:.4g}" in visible
     fx = record["steps"][0]["parameters"]["fx"]
     assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
+    (sure,) = record["how_sure"]  # how sure the named effect is, on the page
+    assert re.search(rf"{sure['effect']}\s+{sure['removal_delta_bic']:.4g}\s+"
+                     rf"{sure['held_out_cost']:.4g}\b", visible)
     assert "written: " in capsys.readouterr().out
     assert main(["validate", str(out / "final-model.json"), str(other), "--json"]) == 0
     val = json.loads(capsys.readouterr().out)

@@ -215,7 +215,7 @@ def _steps(d: dict, unit: str) -> list[str]:
     return parts
 
 
-def _how_sure(d: dict, unit: str) -> list[str]:
+def how_sure_table(d: dict, unit: str) -> list[str]:
     """The table of how sure each named effect is (:mod:`stiffness.calibration.certainty`)."""
     if not d.get("how_sure"):
         return []
@@ -278,7 +278,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                                    unit))
     parts.append(heading("steps", SECTIONS))
     parts += _steps(d, unit)
-    parts += _how_sure(d, unit)
+    parts += how_sure_table(d, unit)
     parts.append(heading("parameters", SECTIONS))
     rows = parameter_rows("joint stiffness", d["final_stiffness"])
     for s in d["steps"]:

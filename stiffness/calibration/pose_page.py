@@ -11,6 +11,7 @@ import io
 
 import numpy as np
 
+from stiffness.calibration.diagnosis_page import how_sure_table
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -119,17 +120,7 @@ def _how_sure(d: dict) -> list[str]:
     else the evidence when the family was added (its BIC change and held-out RMS gain)."""
     unit = d["unit"]
     if d.get("how_sure"):
-        return [table("How sure: each named effect", [
-            "effect", "ΔBIC without it", f"held-out RMS change without it ({unit})",
-            "best alternative", "its ΔBIC", "stand-in"], [
-            [esc(c["effect"]), c["removal_delta_bic"], c["held_out_cost"],
-             esc(c["alternative"] or "none"), c["alternative_delta_bic"],
-             "yes: the data prefer this shape; its size is not physical" if c["stand_in"]
-             else "no"] for c in d["how_sure"]],
-            "Each effect removed from the final model and the rest refitted: the BIC change "
-            "(positive: the effect earns its parameters) and the change of the held-out RMS "
-            "(positive: worse without it). Best alternative: the best other candidate of the "
-            "step that named it, and its BIC minus the chosen one's.")]
+        return how_sure_table(d, unit)
     steps = d["steps"]
     rows = [[esc(s["family"]), s["delta_bic"], steps[i - 1]["cv_rms"] - s["cv_rms"]]
             for i, s in enumerate(steps) if i > 0]
