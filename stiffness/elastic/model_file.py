@@ -66,11 +66,11 @@ from stiffness.errors import (
 from stiffness.files import (
     atomic_write,
     jsonable,
-    looks_like_path,
     output_folder,
     read_json,
     resolve_source,
     written_path,
+    written_source,
 )
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import as_wrench
@@ -260,15 +260,15 @@ class ModelFile:
     # writing ---------------------------------------------------------------------------
     def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
         """The file's JSON object (a URDF source relative to ``relative_to`` when given)."""
-        source = (_relative(self.source, relative_to) if looks_like_path(self.source)
-                  else self.source)
+        folder = None if relative_to is None else Path(relative_to)
+        source = self.source if folder is None else written_source(self.source, folder)
         joints = list(self.compliant_joints)
         determined = [j not in self.undetermined_joints for j in joints]
         robot: dict[str, object] = {"source": source, "frame": self.frame,
                                     "target_offset_m": self.target_offset_m,
                                     "compliant_joints": joints}
         if self.loops is not None:
-            robot["loops"] = _relative(self.loops, relative_to)
+            robot["loops"] = self.loops if folder is None else written_path(self.loops, folder)
         if self.fixed_base:
             robot["fixed_base"] = True
         robot.update({"joint_angles": self.joint_angles} if self.joint_angles != "motor" else {})
@@ -414,11 +414,6 @@ def _read_calibration(path: Path) -> ModelFile:
         ci95_low=low, ci95_high=high, produced_by="diagnose", fixed_base=cal.fixed_base,
         effects=tuple(ModelEffect(n, w, LIBRARY[n].kind, ps, st, "of the pose calibration")
                       for n, w, ps, st in parts.effects))
-
-
-def _relative(path: str, relative_to: str | os.PathLike | None) -> str:
-    """``path`` (absolute) as written into a file in the folder ``relative_to``, or as given."""
-    return path if relative_to is None else written_path(path, Path(relative_to))
 
 
 def _robot_options(r: _Reader) -> dict:
