@@ -148,8 +148,9 @@ def _left(d: dict, unit: str) -> list[str]:
     return parts
 
 
-def _outliers(d: dict) -> list[str]:
-    """The rows beyond the outlier threshold (flagged, none dropped)."""
+def outliers_section(d: dict) -> list[str]:
+    """The rows beyond the outlier threshold (flagged, none dropped): the section of both
+    campaign kinds' pages, from their ``outlier_threshold``, ``outliers`` and ``loss`` keys."""
     threshold = d.get("outlier_threshold")
     intro = (f"<p>Rows of the final model whose standardised residual (residual over the "
              f"noise std and its leverage) exceeds {num(threshold)} in some component; "
@@ -290,7 +291,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                        "Intervals from the fit's covariance at the stated noise (a robust "
                        "loss: Huber's sandwich covariance)."))
     parts.append(heading("outliers", SECTIONS))
-    parts += _outliers(d)
+    parts += outliers_section(d)
     parts.append(heading("left", SECTIONS))
     parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))

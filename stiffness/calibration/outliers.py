@@ -10,11 +10,17 @@ outliers do not inflate). A row's standardised residual is its component of larg
 magnitude. For Gaussian noise a clean component passes 4 with probability 6.3e-5, so a
 campaign of 100 rows of three components has a false flag about 2 % of the time. Flags are
 reported, never acted on: no row is dropped.
+
+Both campaign kinds flag by this one rule (:func:`flag_residuals`): a deflection campaign's
+row is one configuration and load (components ``dx`` ... ``rz``), a pose campaign's one pose
+(components ``<marker>_x`` ... ``<marker>_rz``, the CSV's columns, unobserved ones NaN;
+:func:`stiffness.calibration.pose_fit.flag_pose_outliers`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,11 +46,12 @@ class Outlier:
     label
         Its configuration label.
     row
-        1-based row number in the campaign.
+        1-based row number in the campaign (a pose campaign's row: one pose).
     line
         Its line in the measurement CSV, or ``None`` for a campaign built in memory.
     component
-        The component with the largest standardised residual (``dx`` ... ``rz``).
+        The component with the largest standardised residual (``dx`` ... ``rz``; on a pose
+        campaign ``<marker>_x`` ... ``<marker>_rz``).
     standardised_residual
         That component's standardised residual (signed, noise stds).
     """
@@ -90,46 +97,67 @@ def standardised_residuals(residuals: np.ndarray, jacobian: np.ndarray, sigma: f
     """Residuals (m, k) in m over ``sigma sqrt(1 - h)``, ``h`` the leverage of each component
     (``jacobian``: the fit's (m k, p) residual Jacobian, any scaling)."""
     e = np.asarray(residuals, dtype=float)
-    h = leverage(jacobian).reshape(e.shape)
-    return e / (sigma * np.sqrt(np.maximum(1.0 - h, 1e-6)))
+    return _standardise(e, leverage(jacobian).reshape(e.shape), sigma)
+
+
+def _standardise(residuals: np.ndarray, h: np.ndarray, sigma: float) -> np.ndarray:
+    """``residuals / (sigma sqrt(1 - h))`` (``1 - h`` floored at 1e-6)."""
+    return residuals / (sigma * np.sqrt(np.maximum(1.0 - h, 1e-6)))
 
 
 def flag_outliers(standardised: np.ndarray, labels: tuple[str, ...],
                   lines: tuple[int, ...] | None,
-                  threshold: float = OUTLIER_THRESHOLD) -> list[Outlier]:
-    """The rows of ``standardised`` (m, k) with a component beyond ``threshold`` in
-    magnitude, in row order."""
+                  threshold: float = OUTLIER_THRESHOLD,
+                  names: Sequence[str] = COMPONENTS) -> list[Outlier]:
+    """The rows of ``standardised`` (m, k; NaN where a component was not observed) with a
+    component beyond ``threshold`` in magnitude, in row order; ``names`` the k columns'."""
     z = np.asarray(standardised, dtype=float)
+    size = np.where(np.isfinite(z), np.abs(z), 0.0)
     out = []
-    for i in np.flatnonzero(np.max(np.abs(z), axis=1) > threshold):
-        j = int(np.argmax(np.abs(z[i])))
+    for i in np.flatnonzero(np.max(size, axis=1, initial=0.0) > threshold):
+        j = int(np.argmax(size[i]))
         out.append(Outlier(labels[i], int(i) + 1, None if lines is None else int(lines[i]),
-                           COMPONENTS[j], float(z[i, j])))
+                           names[j], float(z[i, j])))
     return out
+
+
+def flag_residuals(residuals: np.ndarray, h: np.ndarray, declared_m: float | None,
+                   n_parameters: int, labels: tuple[str, ...], lines: tuple[int, ...] | None,
+                   names: Sequence[str] = COMPONENTS) -> tuple[list[Outlier], float | None]:
+    """The rows beyond :data:`OUTLIER_THRESHOLD`, and the noise std (m) they were
+    standardised by: the declared ``declared_m``, else :func:`robust_noise` of the observed
+    residuals (``None``, with no flags, when every residual is zero). The rule of both
+    campaign kinds.
+
+    Parameters
+    ----------
+    residuals
+        (m, k) predicted minus measured (m; rotations weighted into translation-noise units),
+        NaN where not observed.
+    h
+        (m, k) leverage of each component (:func:`leverage` of the fit's Jacobian).
+    n_parameters
+        Parameters fitted (the robust noise's degrees of freedom).
+    labels, lines
+        Configuration label and CSV line (or ``None``) of each row.
+    names
+        The k components' names.
+    """
+    e = np.asarray(residuals, dtype=float)
+    sigma = declared_m if declared_m is not None else robust_noise(e[np.isfinite(e)],
+                                                                   n_parameters)
+    if sigma is None:
+        return [], None
+    return flag_outliers(_standardise(e, h, sigma), labels, lines, names=names), sigma
 
 
 def flag_fit(fit: Fit, measured: np.ndarray, declared_m: float | None, n_parameters: int,
              labels: tuple[str, ...], lines: tuple[int, ...] | None
              ) -> tuple[list[Outlier], float | None]:
-    """The rows of ``fit`` beyond :data:`OUTLIER_THRESHOLD`, standardised by the declared
-    noise std ``declared_m`` (m), else by :func:`robust_noise` of its residuals; and that
-    noise std (m; ``None``, with no flags, when every residual is zero).
-
-    Parameters
-    ----------
-    fit
-        The fit; ``measured`` its observations (m).
-    n_parameters
-        Parameters fitted (the robust noise's degrees of freedom).
-    labels, lines
-        Configuration label and CSV line (or ``None``) of each row.
-    """
+    """:func:`flag_residuals` of a deflection fit (``measured``: its observations, m)."""
     residual = fit.predicted - measured
-    sigma = declared_m if declared_m is not None else robust_noise(residual, n_parameters)
-    if sigma is None:
-        return [], None
-    return flag_outliers(standardised_residuals(residual, fit.jacobian, sigma), labels,
-                         lines), sigma
+    return flag_residuals(residual, leverage(fit.jacobian).reshape(residual.shape), declared_m,
+                          n_parameters, labels, lines)
 
 
 def describe_outliers(outliers: list[Outlier], threshold: float = OUTLIER_THRESHOLD,

@@ -107,6 +107,8 @@ class PoseCampaign:
         (rotation vectors, rad); NaN where not measured; ``None`` without rotation columns.
     noise_std_rotation
         Declared rotation noise (rad, per component), or ``None``.
+    lines
+        Each row's line in the measurement CSV, or ``None`` for a campaign built in memory.
     """
 
     name: str
@@ -122,6 +124,7 @@ class PoseCampaign:
     path: Path | None = None
     rotations: np.ndarray | None = None
     noise_std_rotation: float | None = None
+    lines: tuple[int, ...] | None = None
 
     @property
     def n_rows(self) -> int:
@@ -146,7 +149,8 @@ class PoseCampaign:
                             [self.labels[i] for i in idx], self.q[idx], self.positions[idx],
                             loads, self.noise_std, self.path,
                             None if self.rotations is None else self.rotations[idx],
-                            self.noise_std_rotation)
+                            self.noise_std_rotation,
+                            None if self.lines is None else tuple(self.lines[i] for i in idx))
 
 
 def _check_table(doc: dict, section: str, toml: TomlFile) -> None:
@@ -341,7 +345,7 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
                         markers, labels, q, pos * units.length_to_si, loads,
                         None if noise is None else noise * units.length_to_si, toml_path,
                         None if rot is None else rot * units.rotation_to_si,
-                        _rotation_noise(doc, toml, units, rot is not None))
+                        _rotation_noise(doc, toml, units, rot is not None), tuple(numbers))
 
 
 def _rotation_noise(doc: dict, toml: TomlFile, units: Units, measured: bool) -> float | None:

@@ -36,11 +36,13 @@ import numpy as np
 
 from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.fitting import check_loss
+from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import (
     PoseFit,
     campaign_settings,
     fit_pose_model,
+    flag_pose_outliers,
     held_out_rms,
     linearised_rss,
     predict,
@@ -92,7 +94,10 @@ class PoseStep:
 
 @dataclass
 class PoseDiagnosis:
-    """The steps, the final fit and the verdict of a pose diagnosis."""
+    """The steps, the final fit and the verdict of a pose diagnosis; ``outliers`` the poses
+    the final fit does not explain and ``outlier_sigma_m`` the noise std (m) they were
+    standardised by (:func:`~stiffness.calibration.pose_fit.flag_pose_outliers`; flagged,
+    none dropped)."""
 
     campaign: PoseCampaign
     masses: str
@@ -101,6 +106,8 @@ class PoseDiagnosis:
     loss: str = "linear"
     forced: list[str] = field(default_factory=list)
     forbidden: list[str] = field(default_factory=list)
+    outliers: list[Outlier] = field(default_factory=list)
+    outlier_sigma_m: float | None = None
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -148,6 +155,8 @@ class PoseDiagnosis:
                 "rejected": self.rejected, "families": self.families,
                 "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
+                "outlier_threshold": OUTLIER_THRESHOLD,
+                "outliers": [o.to_dict() for o in self.outliers],
                 "identifiability": self.final.identifiability.to_dict(
                     [p.label for p in self.final.model.parameters]),
                 "parameters": parameter_table(self.final),
@@ -283,8 +292,9 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     remaining = [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden]
     rejected = _search(campaign, chosen, frame0, settings, steps, remaining, scale, validate,
                        say)
+    outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
     return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
-                         sorted(forbidden))
+                         sorted(forbidden), outliers, outlier_sigma)
 
 
 def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
@@ -442,7 +452,7 @@ def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaig
                         list(fitted), campaign.labels, campaign.q, campaign.positions[:, order],
                         campaign.loads, campaign.noise_std, campaign.path,
                         None if campaign.rotations is None else campaign.rotations[:, order],
-                        campaign.noise_std_rotation)
+                        campaign.noise_std_rotation, campaign.lines)
 
 
 # ------------------------------------------------------------------------------------------

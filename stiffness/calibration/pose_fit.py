@@ -39,7 +39,7 @@ from scipy import linalg, optimize
 
 from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
 from stiffness.calibration.identifiability import Identifiability, reduce_columns
-from stiffness.calibration.outliers import robust_noise
+from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
@@ -463,6 +463,44 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
                    rotation_residual=rotation, rotation_weight=obs.weight, jacobian=jac,
                    component_rows=obs.component_rows(),
                    at_bound=list(at_bound or []))
+
+
+def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign
+                       ) -> tuple[list[Outlier], float | None]:
+    """The poses (rows) ``fit`` does not explain, by deflection campaigns' rule
+    (:func:`~stiffness.calibration.outliers.flag_residuals`), and the noise std (m) they were
+    standardised by.
+
+    Each measured component, predicted minus measured (orientations weighted into
+    position-noise units as the fit sees them), over ``sigma sqrt(1 - h)``: ``h`` its leverage
+    in the fit's Jacobian, ``sigma`` the declared noise std, else the robust estimate of the
+    residuals. A pose is flagged when a component of it exceeds
+    :data:`~stiffness.calibration.outliers.OUTLIER_THRESHOLD`; components are named as the
+    CSV's columns (``<marker>_x`` ... ``<marker>_rz``).
+
+    Parameters
+    ----------
+    campaign
+        The campaign the fit was made on (its labels and CSV lines name the rows).
+    """
+    if fit.jacobian is None:
+        raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
+    h = leverage(fit.jacobian)
+    n = fit.residual.shape[0]
+    parts: list[tuple[np.ndarray, tuple[str, ...]]] = [(-fit.residual, ("x", "y", "z"))]
+    if fit.rotation_residual is not None and fit.rotation_weight is not None:
+        parts.append((-fit.rotation_weight * fit.rotation_residual, ("rx", "ry", "rz")))
+    residual, lev, names, used = [], [], [], 0
+    for e, axes in parts:
+        seen = np.isfinite(e)
+        scattered = np.full(e.shape, np.nan)
+        scattered[seen] = h[used:used + int(seen.sum())]
+        used += int(seen.sum())
+        residual.append(e.reshape(n, -1))
+        lev.append(scattered.reshape(n, -1))
+        names += [f"{m.name}_{a}" for m in fit.model.markers for a in axes]
+    return flag_residuals(np.hstack(residual), np.hstack(lev), campaign.noise_std,
+                          fit.n_fitted, tuple(campaign.labels), campaign.lines, names)
 
 
 def predict(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> np.ndarray:

@@ -1,9 +1,9 @@
 """The page of a pose diagnosis (``diagnosis.html``, the report of a pose campaign): the steps,
 the residuals before and after per marker and axis (a figure per marker), the named families
 with how sure each is, the stage table with its figure (the held-out error after each step,
-bars per marker), the validation of the final model, the parameters and what the campaign
-cannot identify; built from :meth:`PoseDiagnosis.to_dict` with the house template
-(:mod:`stiffness.htmlpage`)."""
+bars per marker), the validation of the final model, the parameters, what the campaign
+cannot identify and the poses flagged as outliers; built from :meth:`PoseDiagnosis.to_dict`
+with the house template (:mod:`stiffness.htmlpage`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import io
 
 import numpy as np
 
-from stiffness.calibration.diagnosis_page import how_sure_table
+from stiffness.calibration.diagnosis_page import how_sure_table, outliers_section
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -29,7 +29,8 @@ SECTIONS = {"summary": "Summary", "provenance": "Provenance", "steps": "Steps",
             "residuals": "Residuals before and after, per marker and axis",
             "how-sure": "Named effects: how sure", "stages": "Held-out error per stage",
             "validation": "Validation of the final model", "parameters": "Parameters",
-            "identifiability": "What the campaign cannot identify", "reproduce": "Reproduce"}
+            "identifiability": "What the campaign cannot identify",
+            "outliers": "Poses flagged as outliers", "reproduce": "Reproduce"}
 #: The figure's file name inside the page (embedded, not written beside it).
 STAGE_FIGURE = "stages.png"
 
@@ -161,6 +162,7 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                  [f"noise standard deviation ({unit})", d["noise_std"]],
                  ["chi-square p of the final residual", d["gof_p"]],
                  ["verdict", esc(verdict)], ["masses", esc(d["masses"])],
+                 ["poses flagged as outliers", len(d.get("outliers", []))],
                  ["loss", esc(d["loss"])]],
                  "RMS over all residual components, in the campaign's length unit."),
              contents(SECTIONS), heading("provenance", SECTIONS), provenance_block(prov),
@@ -195,6 +197,7 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
               *validation_section(d["steps"][-1].get("validation"), how),
               heading("parameters", SECTIONS),
               *_parameters(d)]
+    parts += [heading("outliers", SECTIONS), *outliers_section(d)]
     parts.append(reproduce_block(prov, "reproduce", SECTIONS,
                                  "The run writes this page, diagnosis.json and "
                                  "final-model.json."))

@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
+from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnose import (
     PoseDiagnosis,
     parameter_table,
@@ -49,7 +50,8 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): " + ", ".join(
             f"{f} ({v:+.3g})" for f, v in d.rejected.items()))
-    lines += ["", _verdict(d), "", f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
+    lines += ["", _verdict(d), *describe_outliers(d.outliers), "",
+              f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
     for p in (p for p in parameter_table(d.final) if p["fitted"]):
@@ -72,7 +74,9 @@ def _verdict(d: PoseDiagnosis) -> str:
     where = ("" if trend is None else
              f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
     return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS by "
-            f"marker {s['rms_by_marker']}, by axis {s['rms_by_axis']}{where}")
+            f"marker {s['rms_by_marker']}, by axis {s['rms_by_axis']}{where}"
+            + (f"; {len(d.outliers)} pose(s) are flagged as outliers, which alone can fail "
+               "the test (see outliers)" if d.outliers else ""))
 
 
 def _dropped_lines(d: PoseDiagnosis) -> list[str]:
