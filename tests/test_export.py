@@ -70,13 +70,16 @@ def test_urdf_reloads_to_the_same_kinematics_and_inertias(name, tmp_path):
                                        atol=TOLERANCE, err_msg=frame.name)
 
 
-def simulate_to_rest(xml: str, force: np.ndarray, armature: float, damping: np.ndarray):
-    """MuJoCo, gravity off, ``force`` (N, world axes) held at the site ``stiffness_target``,
-    damped until every joint velocity is below 1e-13: the site's position and qpos."""
+def simulate_to_rest(xml: str, force: np.ndarray, armature: float, damping: np.ndarray,
+                     gravity: bool = False):
+    """MuJoCo, gravity off (on with ``gravity``), ``force`` (N, world axes) held at the site
+    ``stiffness_target``, damped until every joint velocity is below 1e-13: the site's position
+    and qpos."""
     import mujoco
 
     m = mujoco.MjModel.from_xml_string(xml)
-    m.opt.gravity[:] = 0.0
+    if not gravity:
+        m.opt.gravity[:] = 0.0
     m.opt.timestep = 1e-3
     m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     m.dof_armature[:] = armature  # rotor inertia: slows the wrist, does not change statics
@@ -239,8 +242,6 @@ def test_point_masses_export_and_sag_in_mujoco_as_in_the_exact_equilibrium(tmp_p
     allows): the URDF and the MJCF carry the 1 mm sphere's inertia (2/5 m r^2), and MuJoCo,
     gravity on, comes to rest where the exact equilibrium under the links' weight puts the
     target (measured: 3e-12 of a 1.4 mm sag)."""
-    import mujoco
-
     from stiffness.mechanics.gravity import gravity_preload
     from stiffness.robot.urdf_writer import POINT_MASS_RADIUS_M
 
@@ -258,23 +259,10 @@ def test_point_masses_export_and_sag_in_mujoco_as_in_the_exact_equilibrium(tmp_p
     k = np.array([2e4, 1.5e4, 1e4])
     q0 = robot.configuration(np.array([0.3, 0.4, -0.6]))
     xml = robot_mjcf(robot, dict(zip(robot.compliant_joints, k, strict=True)), q0)
-    m = mujoco.MjModel.from_xml_string(xml)
-    m.opt.timestep = 1e-3
-    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    m.dof_armature[:] = 0.05
-    m.dof_damping[:] = 2.0 * np.sqrt(k * 0.5)
-    d = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, d, 0)
-    for step in range(1, 100_001):
-        mujoco.mj_step(m, d)
-        if step > 10 and np.abs(d.qvel).max() < 1e-13:
-            break
-    else:
-        raise AssertionError("MuJoCo did not come to rest")
-    mujoco.mj_forward(m, d)
-    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "stiffness_target")
+    position, _ = simulate_to_rest(xml, np.zeros(3), armature=0.05,
+                                   damping=2.0 * np.sqrt(k * 0.5), gravity=True)
     exact = solve_equilibrium(robot, q0, np.diag(k), np.zeros(3),
                               preload=lambda q: gravity_preload(robot, q))
     assert np.linalg.norm(exact.dx) > 1e-4  # a sag worth comparing (m)
-    relative = np.linalg.norm(d.site_xpos[site] - exact.position) / np.linalg.norm(exact.dx)
+    relative = np.linalg.norm(position - exact.position) / np.linalg.norm(exact.dx)
     assert relative < 1e-6, relative
