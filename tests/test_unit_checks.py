@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import shutil
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -47,18 +48,24 @@ def pose_folder(tmp_path_factory):
     return folder
 
 
+def declared_as(source: Path, folder: Path, declared: str) -> Path:
+    """A copy of the millimetre campaign ``source`` at ``folder`` whose campaign.toml declares
+    its lengths in ``declared`` instead (the numbers unchanged)."""
+    shutil.copytree(source, folder)
+    toml = folder / "campaign.toml"
+    text = toml.read_text()
+    assert 'length = "mm"' in text
+    toml.write_text(text.replace('length = "mm"', f'length = "{declared}"'))
+    return folder
+
+
 @pytest.mark.parametrize(("declared", "words"), [
     ("mm", None), ("m", 'the data look like mm: [units] length = "mm"'),
     ("um", 'the data look like mm: [units] length = "mm"'),
 ])
 def test_pose_positions_in_the_wrong_unit(pose_folder, tmp_path, declared, words):
     """The same numbers declared mm (right: no warning), m (1000x too far) or um."""
-    folder = tmp_path / declared
-    shutil.copytree(pose_folder, folder)
-    toml = folder / "campaign.toml"
-    text = toml.read_text()
-    assert 'length = "mm"' in text
-    toml.write_text(text.replace('length = "mm"', f'length = "{declared}"'))
+    folder = declared_as(pose_folder, tmp_path / declared, declared)
     messages = [m for m in caught(lambda: load_pose_campaign(folder)) if "marker positions" in m]
     if words is None:
         assert messages == []
@@ -74,12 +81,7 @@ def test_pose_positions_in_the_wrong_unit(pose_folder, tmp_path, declared, words
 def test_deflections_in_the_wrong_unit(tmp_path, declared, words):
     """The SK120's Table II (deflections of 0.03-0.3 mm in mm): declared m they are 3-30 cm,
     beyond 2% of the robot's reach."""
-    folder = tmp_path / "t2"
-    shutil.copytree(TABLE2, folder)
-    toml = folder / "campaign.toml"
-    text = toml.read_text()
-    assert 'length = "mm"' in text
-    toml.write_text(text.replace('length = "mm"', f'length = "{declared}"'))
+    folder = declared_as(TABLE2, tmp_path / "t2", declared)
     messages = [m for m in caught(lambda: load_campaign(folder)) if "median deflection" in m]
     if words is None:
         assert messages == []
