@@ -590,7 +590,7 @@ def commands_seconds(rounds: int) -> dict[str, float]:
                        check=True, capture_output=True)
         out["diagnose_200_rows_with_effects_s"] = _wall(
             [*cli, "diagnose", str(hidden), "--json"], rounds, cwd=tmp)
-        out["identify_exact_200_rows_s"] = _wall(  # in tmp: it writes identified-model.json
+        out["identify_exact_200_rows_s"] = _wall(
             [*cli, "identify", str(campaign), "--formulation", "exact", "--json"], rounds,
             cwd=tmp)
         out["report_s"] = _wall([*cli, "report", "--out", str(Path(tmp) / "report")], rounds)

@@ -391,16 +391,25 @@ def test_cli_errors_exit_2(tmp_path, capsys):
     assert "campaign.toml" in capsys.readouterr().err
     assert main(["identify", str(TABLE2), "--starts", "0", "--out", str(tmp_path / "m")]) == 2
     assert "starts must be at least 1" in capsys.readouterr().err
+    assert not (tmp_path / "m").exists()  # a refused run leaves no folder
 
 
-def test_identify_out_takes_a_folder_like_diagnose(tmp_path, capsys):
-    """Issue 38 item 10: ``identify --out DIR/`` writes DIR/identified-model.json (as
-    ``diagnose --out DIR`` writes in a folder); ``--out FILE`` and the default are unchanged."""
-    from stiffness.cli.main import main
-
+def test_identify_writes_only_with_out_a_folder_like_diagnose(tmp_path, capsys, monkeypatch):
+    """Issue 38 item 10: without ``--out`` identify writes nothing (and says how to); ``--out
+    DIR`` (missing, or ending in /) writes DIR/identified-model.json as ``diagnose --out DIR``
+    writes in a folder; ``--out FILE.json`` writes that file; a file in the way is refused at
+    once."""
+    monkeypatch.chdir(tmp_path)
     table2 = robots_directory() / "sk120" / "campaigns" / "table2"
-    assert main(["identify", str(table2), "--quiet", "--starts", "1",
-                 "--out", f"{tmp_path / 'res'}/"]) == 0
-    assert (tmp_path / "res" / "identified-model.json").is_file()
-    assert "written to " + str(tmp_path / "res" / "identified-model.json") in \
-        capsys.readouterr().out
+    assert main(["identify", str(table2), "--quiet", "--starts", "1"]) == 0
+    assert list(tmp_path.iterdir()) == []
+    assert "model not written (--out DIR or --out FILE.json" in capsys.readouterr().out
+    for out, written in (("res", "res/identified-model.json"),
+                         ("res2/", "res2/identified-model.json"), ("a/m.json", "a/m.json")):
+        assert main(["identify", str(table2), "--quiet", "--starts", "1", "--out", out]) == 0
+        assert list(read_model_file(tmp_path / written).compliant_joints) == \
+            ["joint1", "joint2", "joint3"]
+        assert f"identified model written to {written}\n" in capsys.readouterr().out
+    (tmp_path / "plain").write_text("")
+    assert main(["identify", str(table2), "--starts", "1", "--out", "plain/x"]) == 2
+    assert "cannot write into plain/x: plain is a file" in capsys.readouterr().err

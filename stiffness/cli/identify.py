@@ -6,11 +6,11 @@ Example::
 
 prints the identified stiffness of each compliant joint (N.m/rad, and the papers' N.mm/rad)
 with its standard error and 95 % confidence interval, the residual norm of eq. 12, the
-condition number of the problem and the stiffnesses the data cannot determine, and writes the
-identified model (``identified-model.json``; ``--out`` to choose the file, or ``--out DIR/``,
-an existing folder or a path ending in ``/``, for ``DIR/identified-model.json``, as
-``diagnose --out DIR`` writes its files in a folder). ``--json`` prints one JSON object instead
-of the table.
+condition number of the problem and the stiffnesses the data cannot determine. Nothing is
+written unless ``--out`` is given, as for ``diagnose``: ``--out DIR`` writes
+``DIR/identified-model.json`` (the folder made if missing, as ``diagnose --out DIR`` writes its
+files in a folder), ``--out FILE.json`` that file. ``--json`` prints one JSON object instead of
+the table.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from stiffness.calibration.identification import Identification
 from stiffness.calibration.identify import FORMULATIONS, METHODS, MODEL_FILE, identify
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.cli import flags
+from stiffness.files import output_folder
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -49,10 +50,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "covariance (method trf only); default linear")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (SI) instead of the table")
-    parser.add_argument("--out", metavar="FILE|DIR/", default=MODEL_FILE,
-                        help=f"identified-model file to write, or a folder (an existing one, or "
-                             f"a path ending in /) for DIR/{MODEL_FILE}, as diagnose --out "
-                             f"DIR; default ./{MODEL_FILE}")
+    parser.add_argument("--out", metavar="DIR|FILE.json",
+                        help=f"write the identified model: DIR/{MODEL_FILE} in the folder DIR "
+                             f"(made if missing, as diagnose --out DIR), or FILE.json (a name "
+                             f"ending in .json); default: nothing written")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     flags.add_strict_flag(parser)
 
@@ -133,11 +134,19 @@ def format_table(result: Identification) -> str:
 
 
 def model_path(out: str) -> Path:
-    """Where ``--out`` writes the model: the file named, or ``identified-model.json`` in a
-    folder (an existing one, or a path ending in a separator)."""
-    if out.endswith(("/", os.sep)) or Path(out).is_dir():
-        return Path(out) / MODEL_FILE
-    return Path(out)
+    """Where ``--out`` writes the model: the file named when it ends in ``.json`` (and is not
+    a folder), else ``identified-model.json`` in the folder ``out``, as ``diagnose --out``.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be written into (checked before the fit, nothing made).
+    """
+    path = Path(out)
+    is_file = path.suffix.lower() == ".json" and not out.endswith(("/", os.sep)) \
+        and not path.is_dir()
+    output_folder(path.parent if is_file else path, create=False)
+    return path if is_file else path / MODEL_FILE
 
 
 def run(args: argparse.Namespace) -> int:
@@ -148,13 +157,15 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"\rleast-squares run {done}/{total}" + ("\n" if done == total else ""))
         sys.stderr.flush()
 
+    path = None if args.out is None else model_path(args.out)  # a bad --out fails at once
     result = identify(args.campaign, formulation=args.formulation, method=args.method,
                       starts=args.starts, seed=args.seed, progress=progress if show else None,
                       loss=args.loss)
-    out = result.write_model(model_path(args.out))
+    out = None if path is None else result.write_model(path)
     if args.json:
         print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
     else:
         print(format_table(result))
-        print(f"identified model written to {out}")
+        print("identified model not written (--out DIR or --out FILE.json writes it)"
+              if out is None else f"identified model written to {out}")
     return 0
