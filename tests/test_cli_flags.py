@@ -225,3 +225,20 @@ def test_missing_stiffness_names_the_joints_and_both_units(capsys, tmp_path, com
     assert err[-1] == (f"stiffness {command}: error: --kq is required for ur5: one stiffness per "
                        "compliant joint (shoulder_pan_joint, elbow_joint), N.m/rad (N/m "
                        "prismatic)")
+
+
+@pytest.mark.parametrize(("command", "output"), [("compensate", "--out"), ("posture", "--out"),
+                                                 ("track", "--plot")])
+def test_model_driven_commands_share_the_model_check(capsys, tmp_path, command, output):
+    """compensate, posture and track read --model/--robot through one helper: the same line
+    when neither is given, and an output that cannot be written refused before the model file
+    is read (the model file named here does not exist)."""
+    path = ["--path", str(tmp_path / "path.csv")]
+    assert main([command, *path]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"stiffness {command}: error: --model M.json is required (the identified or diagnosed "
+        "model), or --robot R with --kq")
+    (tmp_path / "plain").write_text("")
+    bad = str(tmp_path / "plain" / "out.csv")
+    assert main([command, *path, "--model", str(tmp_path / "none.json"), output, bad]) == 2
+    assert "plain: it is a file, not a folder" in capsys.readouterr().err

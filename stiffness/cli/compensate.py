@@ -19,40 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
-
-import numpy as np
 
 from stiffness.cli.flags import (
+    add_model_flags,
     add_output_flags,
-    add_robot_flags,
-    add_stiffness_flag,
     add_wrench_flag,
+    model_from_args,
     parse_list,
-    robot_from_args,
-    stiffness_required,
-    target_offset_from_args,
 )
-from stiffness.elastic.model import ElasticModel
-from stiffness.elastic.model_file import elastic_model_of, read_model_file
-from stiffness.errors import OutputError, StiffnessError
-from stiffness.files import output_folder
 from stiffness.machining.compensation import WRENCH_FRAMES, compensate
-from stiffness.mechanics.defaults import default_stiffness
-from stiffness.mechanics.formulation import joint_stiffness
-
-
-def add_model_flags(parser: argparse.ArgumentParser) -> None:
-    """``--model`` and the shared robot and stiffness flags (:mod:`stiffness.cli.flags`)."""
-    parser.add_argument("--model", metavar="M.json",
-                        help="model file: identified-model.json (`stiffness identify`) or "
-                             "final-model.json (`stiffness diagnose`, with its effects)")
-    add_robot_flags(parser, robot_help="shipped robot, example-robot-data name, URDF path or "
-                                       "robot.toml, instead of --model (or checked against "
-                                       "it); with --model, --frame and --target-offset move "
-                                       "the target")
-    add_stiffness_flag(parser, help="joint stiffness per compliant joint, N.m/rad (N/m "
-                                    "prismatic), when no --model is given; default the robot's")
 
 
 def add_wrench_flags(parser: argparse.ArgumentParser) -> None:
@@ -62,35 +37,6 @@ def add_wrench_flags(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wrench-frame", choices=WRENCH_FRAMES, default="base",
                         help="axes of --wrench (and of per-row loads): base, or target (the "
                              "target frame at each nominal pose); default base")
-
-
-def elastic_model_from_args(args: argparse.Namespace) -> ElasticModel:
-    """The elastic model of ``--model`` (checked against ``--robot``), or of the robot flags
-    with ``--kq`` (or the shipped springs).
-
-    Raises
-    ------
-    StiffnessError
-        Neither given, a ``--robot`` that is not the model file's, a missing ``--kq``.
-    """
-    if args.model is not None:
-        for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
-            if value is not None:
-                raise StiffnessError(f"{flag} conflicts with --model, which brings the springs; "
-                                     f"drop {flag} (or --model)")
-        model = read_model_file(args.model)
-        if args.robot is not None:
-            model.check_robot(args.robot)
-        em = elastic_model_of(model, args.frame, target_offset_from_args(args))
-        em.source = str(args.model)
-        return em
-    if args.robot is None:
-        raise StiffnessError("give --model M.json (or --robot R with --kq)")
-    robot, _, _ = robot_from_args(args)
-    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
-    if kq is None:
-        raise stiffness_required(robot)
-    return ElasticModel.joint_springs(robot, np.diag(joint_stiffness(kq, robot.n_compliant)))
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -113,19 +59,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     add_output_flags(parser, quiet_help="no progress on stderr")
 
 
-def check_outputs(*paths: str | None) -> None:
-    """Refuse, before any work, output files that cannot be written (a folder in the way, a
-    read-only or missing-and-uncreatable folder): one-line :class:`OutputError`."""
-    for name in paths:
-        if name is None:
-            continue
-        target = Path(name)
-        if target.is_dir():
-            raise OutputError(f"cannot write {target}: it is a folder; give a file name",
-                              path=target)
-        output_folder(target.parent, create=False)
-
-
 def progress_printer(args: argparse.Namespace, what: str):
     """A ``(done, total)`` progress callback on stderr when a TTY, else None (``--quiet``)."""
     if args.quiet or not sys.stderr.isatty():
@@ -140,10 +73,7 @@ def progress_printer(args: argparse.Namespace, what: str):
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness compensate``; returns the exit code."""
-    if args.model is None and args.robot is None:
-        raise StiffnessError("--model M.json is required (the identified or diagnosed model)")
-    check_outputs(args.out)
-    em = elastic_model_from_args(args)
+    em = model_from_args(args, args.out)
     result = compensate(em, args.path,
                         None if args.wrench is None else parse_list(args.wrench, "--wrench"),
                         wrench_frame=args.wrench_frame, hold=args.hold, method=args.method,

@@ -32,14 +32,17 @@ import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import OutputError, StiffnessError
+from stiffness.files import output_folder
 from stiffness.units import MAX_CELL
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
+    from stiffness.elastic.model import ElasticModel
     from stiffness.robot.robot import Robot
 
 #: A command-line token that is a value starting with a minus sign (a negative number or a list
@@ -280,6 +283,20 @@ def add_output_flags(parser: argparse.ArgumentParser, json_help: str | None = No
                         help=quiet_help or "no progress and no echo of the inputs")
 
 
+def add_model_flags(parser: argparse.ArgumentParser) -> None:
+    """``--model`` with the robot and stiffness flags, for the commands driven by a model file
+    (``compensate``, ``posture``, ``track``; read back with :func:`model_from_args`)."""
+    parser.add_argument("--model", metavar="M.json",
+                        help="model file: identified-model.json (`stiffness identify`) or "
+                             "final-model.json (`stiffness diagnose`, with its effects)")
+    add_robot_flags(parser, robot_help="shipped robot, example-robot-data name, URDF path or "
+                                       "robot.toml, instead of --model (or checked against "
+                                       "it); with --model, --frame and --target-offset move "
+                                       "the target")
+    add_stiffness_flag(parser, help="joint stiffness per compliant joint, N.m/rad (N/m "
+                                    "prismatic), when no --model is given; default the robot's")
+
+
 def add_strict_flag(parser: argparse.ArgumentParser) -> None:
     """``--strict``: refuse campaign CSV columns no reader knows (else ignored with a
     warning; :class:`stiffness.errors.UnknownColumnWarning`)."""
@@ -359,6 +376,58 @@ def robot_from_args(args: argparse.Namespace, fallback: object | None = None
     """
     flags = robot_flags(args, fallback)
     return flags.load(), flags.compliant_joints, flags.target_offset
+
+
+def check_outputs(*paths: str | None) -> None:
+    """Refuse, before any work, output files that cannot be written (a folder in the way, a
+    read-only or missing-and-uncreatable folder): one-line :class:`OutputError`."""
+    for name in paths:
+        if name is None:
+            continue
+        target = Path(name)
+        if target.is_dir():
+            raise OutputError(f"cannot write {target}: it is a folder; give a file name",
+                              path=target)
+        output_folder(target.parent, create=False)
+
+
+def model_from_args(args: argparse.Namespace, *outputs: str | None) -> ElasticModel:
+    """The elastic model of a command the :func:`add_model_flags` declare: the ``--model``
+    file's (checked against ``--robot``), or the robot flags' with ``--kq`` (or the robot's
+    own springs); the ``outputs`` files are checked writable first (:func:`check_outputs`), so
+    a bad output fails before the model is built.
+
+    Raises
+    ------
+    StiffnessError
+        Neither ``--model`` nor ``--robot``, ``--kq`` or ``--compliant-joints`` beside
+        ``--model``, a ``--robot`` that is not the model file's, a missing ``--kq``.
+    """
+    from stiffness.elastic.model import ElasticModel
+    from stiffness.elastic.model_file import elastic_model_of, read_model_file
+    from stiffness.mechanics.defaults import default_stiffness
+    from stiffness.mechanics.formulation import joint_stiffness
+
+    if args.model is None and args.robot is None:
+        raise StiffnessError("--model M.json is required (the identified or diagnosed model), "
+                             "or --robot R with --kq")
+    check_outputs(*outputs)
+    if args.model is not None:
+        for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
+            if value is not None:
+                raise StiffnessError(f"{flag} conflicts with --model, which brings the springs; "
+                                     f"drop {flag} (or --model)")
+        model = read_model_file(args.model)
+        if args.robot is not None:
+            model.check_robot(args.robot)
+        em = elastic_model_of(model, args.frame, target_offset_from_args(args))
+        em.source = str(args.model)
+        return em
+    robot, _, _ = robot_from_args(args)
+    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
+    if kq is None:
+        raise stiffness_required(robot)
+    return ElasticModel.joint_springs(robot, np.diag(joint_stiffness(kq, robot.n_compliant)))
 
 
 def _is_revolute(robot: Robot, joint: str) -> bool:

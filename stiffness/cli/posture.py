@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.cli.compensate import (
+from stiffness.cli.compensate import add_wrench_flags, progress_printer
+from stiffness.cli.flags import (
     add_model_flags,
-    add_wrench_flags,
-    check_outputs,
-    elastic_model_from_args,
-    progress_printer,
+    add_output_flags,
+    model_from_args,
+    number,
+    parse_list,
 )
-from stiffness.cli.flags import add_output_flags, number, parse_list
 from stiffness.errors import StiffnessError
 from stiffness.machining.compensation import angular_coordinates
 from stiffness.machining.posture import posture
@@ -79,8 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if args.figure and Path(args.figure).suffix.lower() != ".png":
         raise StiffnessError(f"--figure {args.figure}: the figure is a PNG image; give a file "
                              "name ending in .png")
-    check_outputs(args.out, figure)
-    em = elastic_model_from_args(args)
+    em = model_from_args(args, args.out, figure)
     start = None
     if args.start is not None:
         full = em.full

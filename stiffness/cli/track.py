@@ -17,9 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.cli.compensate import add_model_flags, check_outputs, elastic_model_from_args
-from stiffness.cli.flags import add_output_flags, add_wrench_flag, parse_list
-from stiffness.errors import StiffnessError
+from stiffness.cli.flags import (
+    add_model_flags,
+    add_output_flags,
+    add_wrench_flag,
+    model_from_args,
+    parse_list,
+)
 from stiffness.machining.tracking import TIMESTEP, track
 
 
@@ -44,10 +48,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness track``; returns the exit code."""
-    if args.model is None and args.robot is None:
-        raise StiffnessError("--model M.json is required (or --robot R with --kq)")
-    check_outputs(args.plot)
-    em = elastic_model_from_args(args)
+    em = model_from_args(args, args.plot)
     result = track(em, args.path,
                    None if args.wrench is None else parse_list(args.wrench, "--wrench"),
                    deg=args.deg, segment_time=args.segment_time, settle_time=args.settle_time,
