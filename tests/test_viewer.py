@@ -5,8 +5,9 @@
   scale times its eigenvalues as radii.
 * The static page is self-contained: headless Chromium (Debian's ``chromium``, SwiftShader
   WebGL, network disabled) loads it, finds the robot's links and the ellipsoids in
-  ``viewer.scene_tree``, and its screenshots show them (pixels change where they project when
-  they are hidden; the ellipsoids add their colours).
+  ``viewer.scene_tree``, and its renderings show them (pixels change where they project when
+  they are hidden; the ellipsoids add their colours; every variant of a page is rendered in
+  one browser run).
 * The live server listens on 127.0.0.1 only (its listening sockets, and a refused connection to
   the machine's non-loopback address), serves the page that Chromium connects to, takes the
   page's controls, never blocks on an unresponsive server, and stops with its owner.
@@ -91,11 +92,6 @@ def png_pixels(path: Path) -> np.ndarray:
 
     assert path.is_file(), "chromium wrote no screenshot"
     return np.asarray(Image.open(path).convert("RGB"), dtype=float)
-
-
-def screenshot(page: Path, out: Path, *extra: str) -> np.ndarray:
-    run_chromium(page.as_uri(), *OFFLINE_FLAGS, f"--screenshot={out}", *extra)
-    return png_pixels(out)
 
 
 def page_overlay(page: str) -> dict:
@@ -358,17 +354,53 @@ window.addEventListener("load", function () { setTimeout(function () {
 </script>
 """.replace("CANVAS", json.dumps(CANVAS))
 
-HIDE = FIX_CANVAS + """
+#: Renders the scene once per variant, each with its own scene nodes hidden (VARIANTS: name ->
+#: paths in the scene tree; the legend and labels hidden in all), and appends every canvas as a
+#: PNG data URL to the page: the variants come from one browser run, not one run each.
+RENDER_VARIANTS = FIX_CANVAS + """
 <script>
 window.addEventListener("load", function () { setTimeout(function () {
-  document.getElementById("stiffness-overlay").style.display = "none";
-  HIDDEN.forEach(function (path) { var n = viewer.scene_tree;
-    path.forEach(function (p) { n = n && n.children[p]; });
-    if (n) { n.object.visible = false; } });
+  ["stiffness-overlay", "stiffness-labels"].forEach(function (id) {
+    var e = document.getElementById(id); if (e) { e.style.display = "none"; } });
+  function node(path) { var n = viewer.scene_tree;
+    path.forEach(function (p) { n = n && n.children[p]; }); return n; }
+  var out = {};
+  Object.keys(VARIANTS).forEach(function (key) {
+    var hidden = VARIANTS[key].map(node).filter(function (n) { return n; });
+    hidden.forEach(function (n) { n.object.visible = false; });
+    viewer.render();
+    out[key] = viewer.renderer.domElement.toDataURL("image/png");
+    hidden.forEach(function (n) { n.object.visible = true; });
+  });
   viewer.set_dirty();
+  var pre = document.createElement("pre"); pre.id = "variants"; pre.hidden = true;
+  pre.textContent = JSON.stringify(out); document.body.appendChild(pre);
 }, 300); });
 </script>
-""".replace("CANVAS", json.dumps(CANVAS))
+"""
+
+
+def render_variants(page: str, variants: dict[str, list[list[str]]], folder: Path,
+                    script: str = "", *extra: str) -> tuple[str, dict[str, np.ndarray]]:
+    """The canvas pixels (H, W, 3) of ``page`` rendered with each variant's scene nodes hidden,
+    all from one headless chromium run (``--dump-dom``, with ``extra`` flags), and the page's
+    DOM after the run; ``script`` is added to the page after the variants' script."""
+    import base64
+    import html
+    import io
+
+    from PIL import Image
+
+    extra_html = RENDER_VARIANTS.replace("VARIANTS", json.dumps(variants)) + script
+    (folder / "variants.html").write_text(page.replace("</body>", extra_html + "</body>"))
+    dom = run_chromium((folder / "variants.html").as_uri(), *OFFLINE_FLAGS, "--dump-dom", *extra)
+    match = re.search(r'<pre id="variants"[^>]*>(.*?)</pre>', dom, re.S)
+    assert match, "the variants were not rendered: the page did not load or WebGL failed"
+    shots = {}
+    for key, url in json.loads(html.unescape(match.group(1))).items():
+        png = base64.b64decode(url.split(",", 1)[1])
+        shots[key] = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=float)
+    return dom, shots
 
 
 def test_static_page_renders_in_headless_chromium(sk120_page, sk120, tmp_path):
@@ -387,16 +419,12 @@ def test_static_page_renders_in_headless_chromium(sk120_page, sk120, tmp_path):
                         for a in np.linspace(0.0, 2 * np.pi, 8, endpoint=False)]
     points = pin_points + inside["enhanced"] + inside["conventional"]
     probe = PROBE.replace("POINTS", json.dumps([list(map(float, p)) for p in points]))
-    # three pages: everything, no robot, no ellipsoids (overlay hidden in each); the first
-    # also runs the probe (hidden output), read from the same browser run as its screenshot
-    hidden_paths = {"all": [], "no_robot": robot_paths, "no_ellipsoids": ellipsoid_paths}
-    for key, hidden in hidden_paths.items():
-        extra = HIDE.replace("HIDDEN", json.dumps(hidden))
-        if key == "all":
-            extra += probe[len(FIX_CANVAS):]
-        (tmp_path / f"{key}.html").write_text(page.replace("</body>", extra + "</body>"))
-    dom = run_chromium((tmp_path / "all.html").as_uri(), *OFFLINE_FLAGS, "--dump-dom",
-                       f"--screenshot={tmp_path / 'all.png'}")
+    # three renderings from one browser run: everything, no robot, no ellipsoids (overlay
+    # hidden); the probe (hidden output) runs in the same page, and the window's screenshot
+    # is the canvas the user sees
+    dom, variants = render_variants(
+        page, {"all": [], "no_robot": robot_paths, "no_ellipsoids": ellipsoid_paths}, tmp_path,
+        probe[len(FIX_CANVAS):], f"--screenshot={tmp_path / 'all.png'}")
     match = re.search(r'<pre id="probe"[^>]*>(.*?)</pre>', dom, re.S)
     assert match, "the probe did not run: the page did not load or WebGL failed"
     import html
@@ -412,11 +440,12 @@ def test_static_page_renders_in_headless_chromium(sk120_page, sk120, tmp_path):
         matrix = np.array(found["ellipsoids"][name]["matrix"]).reshape(4, 4).T
         assert_ellipsoid(matrix, k_x[name], state.scale)
     # pixels: hide the robot (resp. the ellipsoids) and the pixels where they project change
-    variants = {key: screenshot(tmp_path / f"{key}.html", tmp_path / f"{key}.png")
-                for key in ("no_robot", "no_ellipsoids")}
-    full = variants["all"] = png_pixels(tmp_path / "all.png")
-    assert full.shape[:2] == (WINDOW[1], WINDOW[0])
-    assert full.std() > 5, "blank screenshot: WebGL did not render"
+    window = png_pixels(tmp_path / "all.png")
+    assert window.shape[:2] == (WINDOW[1], WINDOW[0])
+    full = variants["all"]
+    assert full.shape[:2] == (CANVAS[1], CANVAS[0])
+    assert window.std() > 5, "blank window screenshot: WebGL did not render"
+    assert full.std() > 5, "blank canvas: WebGL did not render"
     px = np.array(found["points"])
 
     def patch(image, p):

@@ -3,18 +3,18 @@ Chromium: in the default UR5 and Panda scenes, the part of the enhanced ellipsoi
 that robot meshes do not cover is at least half of its area.
 
 The ellipsoid's area: pixels that change when it is hidden, with the robot hidden; its
-uncovered area: the same with the robot shown. Skipped without chromium.
+uncovered area: the same with the robot shown (the four renderings of a scene come from one
+browser run). Skipped without chromium.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
-import json
 
 import numpy as np
 import pytest
-from test_viewer import FIX_CANVAS, screenshot
+from test_viewer import render_variants
 
 from stiffness.cli.main import main
 
@@ -26,23 +26,9 @@ SCENES = {
 ROBOT = [["meshcat", "robot"], ["meshcat", "deflected"]]
 ENHANCED = [["meshcat", "stiffness", "enhanced"]]
 
-#: Hides the legend, the labels and the scene nodes of HIDDEN.
-HIDE = FIX_CANVAS + """
-<script>
-window.addEventListener("load", function () { setTimeout(function () {
-  document.getElementById("stiffness-overlay").style.display = "none";
-  document.getElementById("stiffness-labels").style.display = "none";
-  HIDDEN.forEach(function (path) { var n = viewer.scene_tree;
-    path.forEach(function (p) { n = n && n.children[p]; });
-    if (n) { n.object.visible = false; } });
-  viewer.set_dirty();
-}, 300); });
-</script>
-"""
-
 
 def changed(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pixels that differ between two screenshots (summed RGB difference above 30)."""
+    """Pixels that differ between two renderings (summed RGB difference above 30)."""
     return np.abs(a - b).sum(axis=2) > 30
 
 
@@ -52,14 +38,9 @@ def test_default_scene_shows_most_of_the_ellipsoid(name, tmp_path):
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         assert main(["view", "--robot", name, *SCENES[name], "--wrench", "0,0,-200",
                      "--export", str(page)]) == 0
-    html = page.read_text()
-    shots = {}
-    for key, hidden in {"robot": ROBOT, "robot_no_ell": ROBOT + ENHANCED,
-                        "all": [], "no_ell": ENHANCED}.items():
-        variant = tmp_path / f"{key}.html"
-        variant.write_text(html.replace("</body>",
-                                        HIDE.replace("HIDDEN", json.dumps(hidden)) + "</body>"))
-        shots[key] = screenshot(variant, tmp_path / f"{key}.png")
+    _, shots = render_variants(page.read_text(), {
+        "robot": ROBOT, "robot_no_ell": ROBOT + ENHANCED, "all": [], "no_ell": ENHANCED},
+        tmp_path)
     area = changed(shots["robot"], shots["robot_no_ell"]).sum()
     uncovered = changed(shots["all"], shots["no_ell"]).sum()
     assert area > 200, f"the ellipsoid covers only {area} pixels: the scene is not framed on it"
