@@ -31,7 +31,8 @@ UR5_SOFT = {**UR5, "kq": [1e4, 1e4, 8e3], "max_force": 150.0}
 SK120 = {"robot": "sk120", "max_force": 400.0}
 NOISE = 5e-6
 SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missing_effects",
-                "unexplained", "final_rms", "unit", "loss", "outlier_threshold", "outliers",
+                "unexplained", "final_rms", "unit", "loss", "masses", "outlier_threshold",
+                "outliers",
                 "rms_by_kind", "identifiability", "how_sure"}
 
 #: Each library effect hidden at a clearly detectable size (3 to 25 noise std RMS).

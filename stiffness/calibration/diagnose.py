@@ -79,7 +79,7 @@ from stiffness.calibration.selection import (
     replicate_noise,
     step_criteria,
 )
-from stiffness.elastic.effects import candidates
+from stiffness.elastic.effects import MASSES, candidates
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -213,9 +213,12 @@ def diagnose(
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
     effect_settings
         Declared settings by effect label (:meth:`Effect.declare`; :func:`_fit_settings`).
-    masses, validate
-        Pose campaigns only: whether the robot's link masses are trusted (``known``) or
-        lumped (``unknown``), and another pose campaign (or its path) evaluated at every step.
+    masses
+        Whether the robot's link masses are trusted (``known``) or not (``unknown``): the
+        weight is then lumped (a pose model's ``gravity_lumped`` family; a deflection
+        campaign's candidate ``gravity_lumped`` instead of ``gravity_preload``).
+    validate
+        Pose campaigns only: another pose campaign (or its path) evaluated at every step.
     families, not_families
         Pose campaigns only: families forced in (in order) and families never tried
         (``diagnose --families``, ``--not``).
@@ -234,16 +237,17 @@ def diagnose(
         raise StiffnessError("validate, families and not_families take pose campaigns; for "
                              "a deflection campaign diagnose reports the held-out "
                              "(cross-validated) RMS of each step")
-    _check_options(max_steps, loss)
+    _check_options(max_steps, loss, masses)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     return _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
-                                 effect_settings or {})
+                                 effect_settings or {}, masses)
 
 
 def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose: bool,
                           progress: Callable[[str], None] | None, workers: int | None,
-                          loss: str, effect_settings: dict[str, dict]) -> Diagnosis:
+                          loss: str, effect_settings: dict[str, dict], masses: str
+                          ) -> Diagnosis:
     """:func:`diagnose` on a deflection campaign."""
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
@@ -264,7 +268,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     folds = config_folds(campaign.config, seed)
     cv_base = cross_validate([base], measured, folds, workers)[0]
     search = _Search(measured, folds, scale, n, sigma, workers, say,
-                     _declared_settings(base, effect_settings))
+                     _declared_settings(base, effect_settings), masses)
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
@@ -300,7 +304,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         final_parameters=final_parameters, certainty=sure,
         final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
-        loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma,
+        loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
     )
 
 
@@ -318,8 +322,11 @@ def _diagnose_poses(campaign: PoseCampaign | str | os.PathLike, seed: int,
                           not_families=choice[1])
 
 
-def _check_options(max_steps: int, loss: str) -> None:
-    """Refuse a negative or non-integer ``max_steps`` or an unknown loss (one line)."""
+def _check_options(max_steps: int, loss: str, masses: str) -> None:
+    """Refuse a negative or non-integer ``max_steps``, an unknown loss or an unknown
+    ``masses`` (one line)."""
+    if masses not in MASSES:
+        raise StiffnessError(f"masses must be one of {', '.join(MASSES)}, got {masses!r}")
     if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer) \
             or max_steps < 0:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
@@ -466,6 +473,7 @@ class _Search:
     workers: int | None
     say: Callable[[str], None]
     declared: dict[str, dict]
+    masses: str = "known"
 
     def run(self, base: Fit, cv_base: float, max_steps: int, units: Units
             ) -> tuple[Fit, list[Step], list[tuple[int, Candidate, Candidate, float]], str]:
@@ -515,7 +523,7 @@ class _Search:
     def candidates(self, current: Fit) -> tuple[list[Candidate], float]:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
         by BIC, and the step's overdispersion."""
-        effects = candidates(current.model, self.declared)
+        effects = candidates(current.model, self.declared, self.masses)
         fits = list(zip(effects, fitting.fit_models(
             [fit_job(current.model.extended(e), self.measured, self.scale,
                      current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,

@@ -185,8 +185,10 @@ class Diagnosis:
         outside the library is in the data, and :attr:`final_disagreement` says where to look.
         ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
         from the residuals (no test available).
-    loss
-        The loss of every fit (:data:`stiffness.calibration.fitting.LOSSES`).
+    loss, masses
+        The loss of every fit (:data:`stiffness.calibration.fitting.LOSSES`); whether the
+        robot's link masses were trusted (``known``: the weight is ``gravity_preload``) or
+        not (``unknown``: ``gravity_lumped``).
     certainty
         How sure each named effect is (:mod:`stiffness.calibration.certainty`: held-out cost
         of removing it, best alternative, stand-in), in the order added.
@@ -222,6 +224,7 @@ class Diagnosis:
     loss: str = "linear"
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
+    masses: str = "known"
     certainty: list[Certainty] = field(default_factory=list)
 
     def rms_by_kind(self) -> dict:
@@ -285,6 +288,7 @@ class Diagnosis:
             "final_rms": self._len(self.final.rms()),
             "unit": self.unit,
             "loss": self.loss,
+            "masses": self.masses,
             "outlier_threshold": OUTLIER_THRESHOLD,
             "outliers": [o.to_dict() for o in self.outliers],
             "rms_by_kind": self.rms_by_kind(),

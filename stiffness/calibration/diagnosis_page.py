@@ -262,6 +262,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                  ["final model", esc(d["final_model"])],
                  ["why it stopped", esc(d["stop_reason"])],
                  ["loss", esc(d.get("loss", "linear"))],
+                 ["link masses", esc(d.get("masses", "known"))],
                  ["rows flagged as outliers", len(d.get("outliers", []))],
                  ["unexplained", _verdict(d)],
                  ["measurements", f"{d['rows']} rows, {d['configurations']} configurations"],

@@ -66,9 +66,6 @@ from stiffness.elastic.effects.pose_face import (
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
 
-#: Whether a robot's link masses are trusted (joint compliance times gravity torque) or not
-#: (lumped compliance-times-mass-moment parameters): ``diagnose --masses``.
-MASSES = ("known", "unknown")
 #: Tolerance (rad or m) and iteration cap of the sag's fixed point.
 SAG_TOLERANCE = 1e-13
 SAG_ITERATIONS = 50

@@ -29,8 +29,8 @@ from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fitting import LOSSES
-from stiffness.calibration.pose_model import MASSES
 from stiffness.cli import flags
+from stiffness.elastic.effects import MASSES
 from stiffness.errors import StiffnessError
 from stiffness.files import output_folder
 
@@ -70,9 +70,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "one (the torque depends on the lengths only through F0 a, k a^2 "
                              "and a/d)")
     parser.add_argument("--masses", choices=MASSES, default="known",
-                        help="pose campaigns: whether the robot's link masses are trusted "
-                             "(joint compliance times gravity torque) or unknown (lumped "
-                             "compliance-times-mass-moment parameters); default known")
+                        help="whether the robot's link masses are trusted or unknown: the "
+                             "weight is then fitted from lumped gravity parameters (a pose "
+                             "model's compliance-times-mass-moment family gravity_lumped; a "
+                             "deflection campaign's candidate gravity_lumped, the links' "
+                             "masses and mass moments, instead of gravity_preload); default "
+                             "known")
     parser.add_argument("--families", metavar="A,B",
                         help="pose campaigns: families forced into the model, added first in "
                              "this order whatever their BIC and held-out error (e.g. "
@@ -98,6 +101,7 @@ def command_line(args: argparse.Namespace) -> str:
     words += ["--no-proposals"] if args.no_proposals else []
     words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
+    words += ["--masses", args.masses] if getattr(args, "masses", "known") != "known" else []
     for declared in getattr(args, "compensator_geometry", []):
         words += ["--compensator-geometry", declared]
     return shlex.join(words)
@@ -165,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
 
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None,
-                      workers=args.workers, loss=args.loss, effect_settings=declared)
+                      workers=args.workers, loss=args.loss, effect_settings=declared,
+                      masses=args.masses)
     if not args.validate:
         paths = result.write(args.out, command_line(args)) if args.out else None
         return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)

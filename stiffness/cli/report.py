@@ -139,8 +139,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                             "evaluated on without refitting (a pose campaign: every step)")
     # No choices here: the values are diagnose's (checked by run_campaign), and importing them
     # would delay the SK120 report's second process by the fitting stack's import.
-    group.add_argument("--masses", help="pose campaigns: link masses known (default) or "
-                                        "unknown, as stiffness diagnose --masses")
+    group.add_argument("--masses", help="link masses known (default) or unknown, as "
+                                        "stiffness diagnose --masses")
     group.add_argument("--loss", help="linear (default) or a robust loss, as stiffness "
                                       "diagnose --loss")
     group.add_argument("--seed", type=int, help="seed of the cross-validation folds; default 0")
@@ -154,8 +154,8 @@ def run_campaign(args: argparse.Namespace) -> int:
     """``stiffness report CAMPAIGN --out DIR``: ``stiffness diagnose CAMPAIGN --out DIR`` with
     the flags given (its text report on stdout, its folder written whole)."""
     from stiffness.calibration.fitting import LOSSES
-    from stiffness.calibration.pose_model import MASSES
     from stiffness.cli import diagnose
+    from stiffness.elastic.effects import MASSES
 
     for flag, allowed in (("masses", MASSES), ("loss", LOSSES)):
         value = getattr(args, flag)

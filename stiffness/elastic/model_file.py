@@ -91,7 +91,8 @@ FORMULATIONS = ("conventional", "enhanced", "exact")
 _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/m": 1.0,
                "1/(N.m)": 1.0, "1/N": 1.0, "1": 1.0, "SI": 1.0}
 #: Units an effect parameter of the current schema may name (the file is SI).
-SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "1", "SI")
+SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "kg.m",
+                      "1", "SI")
 
 
 class ModelFileError(FileFormatError):

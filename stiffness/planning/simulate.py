@@ -151,6 +151,10 @@ def parse_effect(text: str) -> HiddenEffect:
     if not all(math.isfinite(v) for v in values):
         raise StiffnessError(f"--effect {text!r}: values must be finite")
     value_counts = LIBRARY[name].value_counts
+    if not value_counts:
+        raise StiffnessError(f"--effect {text!r}: {name} is not simulated ("
+                             f"{LIBRARY[name]().describe()}); hide the robot's weight as "
+                             "gravity_preload")
     if len(values) not in value_counts:
         counts = " or ".join(str(c) for c in value_counts)
         raise StiffnessError(f"--effect {text!r}: {name} takes {counts} value(s), got "

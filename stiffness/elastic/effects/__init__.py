@@ -55,6 +55,11 @@ The deflection campaigns' library (:data:`LIBRARY`):
     The links' weight (URDF inertias) and a payload (mass kg, centre of mass m in target frame
     axes) preload the joints (:meth:`Effect.preload`): the deflection is the loaded minus the
     unloaded equilibrium at the commanded pose (open chains only).
+``gravity_lumped`` (``--masses unknown``, instead of ``gravity_preload``)
+    The links' weight with their masses unknown: each weighed link's mass and mass moments
+    (kg, kg.m) fitted through the gravity regressor
+    (:func:`stiffness.mechanics.gravity.gravity_regressor`), on the chain's springs or a
+    ``[controller]``'s; not applied to a model used away from its campaign.
 ``gravity_compensator`` (where: a revolute compliant joint)
     A spring between the base and a lever on the link, its angle measured from the link's
     upward direction at zero load (:func:`stiffness.mechanics.gravity.compensator_torque`;
@@ -120,15 +125,20 @@ LIBRARY: dict[str, type[Effect]] = {
     name: EFFECTS[name] for name in (
         "complementary_stiffness", "joint_compliance", "link_compliance", "backlash",
         "nonlinear_joint_stiffness", "frame_misalignment", "target_offset",
-        "force_sensor_bias", "deflection_offset", "gravity_preload", "gravity_compensator")
+        "force_sensor_bias", "deflection_offset", "gravity_preload", "gravity_lumped",
+        "gravity_compensator")
 }
 #: The parameter families of an absolute-pose model, the effects with a pose face: name ->
 #: class, in the order the columns are laid out.
 FAMILIES: dict[str, type[PoseFamily]] = {
     name: cls for name, cls in EFFECTS.items() if issubclass(cls, PoseFamily)
 }
-#: Effects the issue requires (``deflection_offset`` is an extra).
-REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n != "deflection_offset")
+#: Effects the issue requires (``deflection_offset`` and ``gravity_lumped``, the weight of
+#: unknown masses, are extras).
+REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n not in ("deflection_offset", "gravity_lumped"))
+#: What a campaign's robot's link masses are: ``known`` (the URDF's inertias: the weight is
+#: ``gravity_preload``) or ``unknown`` (``gravity_lumped`` fits their gravity parameters).
+MASSES = ("known", "unknown")
 
 
 def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
@@ -149,13 +159,16 @@ def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
     return LIBRARY[name].at_place(where, geometry)
 
 
-def candidates(model: Hypothesis, declared: dict[str, dict] | None = None) -> list[Effect]:
+def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
+               masses: str = "known") -> list[Effect]:
     """Every library effect that can extend ``model`` (each effect and place at most once).
 
     ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
     ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`); ``backlash``
-    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects. An
-    effect whose label ``declared`` names takes those settings (:meth:`Effect.declare`).
+    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects, the
+    weight as ``gravity_preload`` with the ``masses`` known, else ``gravity_lumped``
+    (:data:`MASSES`). An effect whose label ``declared`` names takes those settings
+    (:meth:`Effect.declare`).
     """
     geo = model.geometry
     have = {e.key() for e in model.effects}
@@ -180,7 +193,8 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None) -> li
                  "deflection_offset"):
         add(LIBRARY[name]())
     if geo.robot.loop.is_open_chain:  # the weight of passive loop joints is not modelled
-        add(make_effect("gravity_preload", None, geo))
+        add(make_effect("gravity_preload" if masses == "known" else "gravity_lumped", None,
+                        geo))
     for j in model.joints:
         if not geo.prismatic[geo.joints.index(j)]:
             add(make_effect("gravity_compensator", j, geo))

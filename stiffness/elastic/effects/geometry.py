@@ -22,7 +22,7 @@ import pinocchio as pin
 
 from stiffness.errors import StiffnessError, with_context
 from stiffness.mechanics.formulation import target_states
-from stiffness.mechanics.gravity import gravity_preload
+from stiffness.mechanics.gravity import gravity_preload, gravity_regressor, weight_bases
 from stiffness.robot.robot import Robot, load_robot
 
 #: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
@@ -110,6 +110,9 @@ class Rows:
     gravity_torque: np.ndarray | None = None
     gravity_stiffness: np.ndarray | None = None
     joint_angles: str = "motor"
+    #: the weight's preload per unit gravity parameter, by weighed links
+    #: (:meth:`Geometry.weight_regressor`)
+    weights: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n_rows(self) -> int:
@@ -154,6 +157,8 @@ class Geometry:
     chain: tuple[str, ...]
     prismatic: np.ndarray
     link_columns: dict[tuple[str, str], int] = field(default_factory=dict)
+    #: weighed links -> their weight bases and the regressor per distinct configuration
+    _weights: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def of(cls, robot: Robot) -> Geometry:
@@ -253,6 +258,27 @@ class Geometry:
         return Rows(jac[index], k_c[index], pos[index], rot[index], origin[index],
                     chain_rot[index], force, moment, index, coords, g_tau[index], g_k[index],
                     joint_angles)
+
+    def weight_regressor(self, rows: Rows, links: tuple[str, ...]
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The weight's preload per unit gravity parameter of the bodies of ``links`` (joint
+        names) at the rows: (m, n, P) N.m per kg or kg.m and (m, n, n, P) its derivative
+        (:func:`stiffness.mechanics.gravity.gravity_regressor`), Pinocchio run once per
+        distinct configuration of the geometry and the stacked arrays kept with the rows."""
+        if links not in rows.weights:
+            model = self.robot.model
+            if links not in self._weights:
+                self._weights[links] = (weight_bases(self.robot, [model.getJointId(j)
+                                                                  for j in links]), {})
+            bases, done = self._weights[links]
+            keys = [tuple(c) for c in rows.coords]
+            for key in dict.fromkeys(keys):
+                if key not in done:
+                    done[key] = gravity_regressor(
+                        self.robot, self.robot.configuration(np.array(key)), bases)
+            rows.weights[links] = (np.array([done[k][0] for k in keys]),
+                                   np.array([done[k][1] for k in keys]))
+        return rows.weights[links]
 
     def link_segments(self, min_length: float = MIN_SEGMENT_M) -> list[tuple[str, str]]:
         """Joint pairs ``(a, b)`` of the chain whose origins are at least ``min_length`` apart

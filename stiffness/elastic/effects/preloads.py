@@ -34,9 +34,11 @@ from stiffness.elastic.effects.pose_face import (
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 from stiffness.mechanics.gravity import (
     ANGLE_REFERENCES,
+    GRAVITY_PARAMETERS,
     compensator_torque,
     require_open_chain,
     upward_angle,
+    weighed_bodies,
 )
 from stiffness.robot.robot import Robot
 
@@ -49,8 +51,6 @@ COMPENSATOR_GEOMETRY: dict[str, float | str] = {
     "angle_reference": "joint_zero"}
 #: Unit of a lumped gravity parameter (compliance times a mass or a mass moment).
 LUMPED_UNIT = "rad/(N.m) x (kg or kg.m)"
-#: Gravity parameters of a link in Pinocchio's order (m, m c_x, m c_y, m c_z, inertia...).
-GRAVITY_PARAMETERS = ("m", "mcx", "mcy", "mcz")
 
 
 def reach(model: pin.Model) -> float:
@@ -400,16 +400,74 @@ def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> float:
     return float(q[jm.idx_q])
 
 
+@dataclass(eq=False)
 class GravityLumped(Effect, JointDeflectionFamily):
-    """``gravity_lumped`` (a pose model's family when the links' masses are unknown; no
-    deflection face): ``Delta q_j = - sum_k theta_jk Y_jk(q)``, ``Y`` the gravity regressor at
-    the loaded configuration, ``theta_jk = c_j pi_k`` lumped (``pi_k``: the mass and mass
-    moments of link ``k`` downstream of ``j``); for springs on controller coordinates
+    """``gravity_lumped``: the links' weight when their masses are unknown (``--masses
+    unknown``), linear in each weighed link's gravity parameters (mass and mass moments,
+    :data:`~stiffness.mechanics.gravity.GRAVITY_PARAMETERS`) through the gravity regressor.
+
+    Deflection face (a deflection campaign's candidate instead of ``gravity_preload``): the
+    weight ``tau_g = Y(q) pi`` and its stiffness ``K_g = Y_K(q) pi`` preload the joints
+    (:meth:`preload`, :func:`stiffness.mechanics.gravity.gravity_regressor`), ``pi`` the
+    gravity parameters of :attr:`links` (kg, kg.m in each link's joint frame); combinations the
+    campaign cannot tell apart are merged by the fit's identifiability.
+
+    Pose face: ``Delta q_j = - sum_k theta_jk Y_jk(q)``, ``Y`` the gravity regressor at the
+    loaded configuration, ``theta_jk = c_j pi_k`` lumped (``pi_k``: the mass and mass moments
+    of link ``k`` downstream of ``j``); for springs on controller coordinates
     ``Delta q = - S_j theta_jk S_j^T Y_k`` (``S_j`` the spring's column of
     :attr:`PoseLayout.spring_map`)."""
 
+    #: the weighed links (the joints of their bodies), in model order
+    links: tuple[str, ...] = ()
     name: ClassVar[str] = "gravity_lumped"
+    kind: ClassVar[str] = "preload"
+    beyond_springs: ClassVar[bool] = True
+    value_counts: ClassVar[tuple[int, ...]] = ()
     lumps_gravity: ClassVar[bool] = True
+
+    @classmethod
+    def at_place(cls, where, geometry):
+        if where:
+            raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
+        require_open_chain(geometry.robot, cls.name)
+        names = geometry.robot.model.names
+        return cls(links=tuple(names[k] for k in weighed_bodies(geometry.robot)))
+
+    @classmethod
+    def declared(cls, where, settings):
+        return cls(links=tuple(settings.get("links", ())))
+
+    def configured(self, settings):
+        return dataclasses.replace(self, links=tuple(settings.get("links", self.links)))
+
+    def file_settings(self, refs):
+        return {"links": list(self.links)}
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(f"{link}_{p}" for link in self.links for p in GRAVITY_PARAMETERS)
+
+    def scale(self, refs):
+        mass = refs.force_ref / 9.81  # the load's size: 0.1 m levers
+        return np.tile([mass, 0.1 * mass, 0.1 * mass, 0.1 * mass], len(self.links))
+
+    def preload(self, p, model, rows):
+        y, y_k = model.geometry.weight_regressor(rows, self.links)
+        idx = model.index
+        return y[:, idx] @ p, y_k[:, idx][:, :, idx] @ p
+
+    def contribute(self, values, parts):
+        parts.skip(self.label, "the weight of unknown masses, lumped: its parameters are "
+                               "combinations of the links' masses the campaign determines, "
+                               "which the robot's inertias cannot hold")
+
+    def _units(self, units):
+        return [("kg", 1.0), ("kg.m", 1.0), ("kg.m", 1.0), ("kg.m", 1.0)] * len(self.links)
+
+    def describe(self) -> str:
+        return ("the links' weight, their masses unknown (fitted gravity parameters), preloads "
+                "the joints (the measured deflection is loaded minus unloaded under it)")
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
