@@ -29,7 +29,7 @@ from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import stage_table
 from stiffness.cli.main import main
 from stiffness.elastic.effects import FAMILIES
-from stiffness.errors import StiffnessError
+from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 from stiffness.units import Units
@@ -403,8 +403,8 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
     c = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, rng), 10, NOISE, seed=13)
     c.positions[4, 1] = np.nan
     q_deg, pos_mm = np.rad2deg(c.q), c.positions * 1e3
-    joints = ["id,j1 [deg],j2 [deg],j3 [deg],j4 [deg],j5 [deg],j6 [deg]"] + [
-        ",".join([f"k{i}"] + [repr(float(v)) for v in q]) for i, q in enumerate(q_deg)]
+    joints = ["id,j1 [deg],j2 [deg],j3 [deg],j4 [deg],j5 [deg],j6 [deg],temp"] + [
+        ",".join([f"k{i}"] + [repr(float(v)) for v in q] + ["21.5"]) for i, q in enumerate(q_deg)]
     tracker = ["id,T_x,T_y,T_z,E_x,E_y,E_z"] + [
         ",".join([f"k{i}"] + ["" if not np.isfinite(v) else repr(float(v))
                               for v in pos_mm[i].reshape(-1)])
@@ -413,13 +413,16 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
     (tmp_path / "tracker.csv").write_text("\n".join(tracker) + "\n")
     mapping = ",".join([f"q{i}=j{i} [deg]" for i in range(1, 7)]
                        + [f"tip_{a}=T_{a}" for a in "xyz"] + [f"elbow_{a}=E_{a}" for a in "xyz"])
-    assert main(["campaign", "import", str(tmp_path / "joints.csv"), str(tmp_path / "tracker.csv"),
-                 "--kind", "poses", "--robot", "ur10", "--frame", "tool0", "--join", "id",
-                 "--map", mapping, "--units", "length=mm", "--marker", "tip=tool0@0,30,50",
-                 "--marker", "elbow=forearm_link@0,50,200", "--noise", "0.02",
-                 "--out", str(tmp_path / "campaign")]) == 0
+    # a column no campaign has is named, as the deflection import does
+    with pytest.warns(DataFileWarning, match="columns not imported: joints.csv:temp$"):
+        assert main(["campaign", "import", str(tmp_path / "joints.csv"),
+                     str(tmp_path / "tracker.csv"), "--kind", "poses", "--robot", "ur10",
+                     "--frame", "tool0", "--join", "id", "--map", mapping, "--units",
+                     "length=mm", "--marker", "tip=tool0@0,30,50", "--marker",
+                     "elbow=forearm_link@0,50,200", "--noise", "0.02",
+                     "--out", str(tmp_path / "campaign")]) == 0
     echo = capsys.readouterr().out  # every column listed, as the deflection import does
-    assert "campaign rows of absolute marker positions" in echo, echo
+    assert "campaign rows of absolute marker positions (measuring system's frame)\n" in echo, echo
     assert re.search(r"tip_x\s+<- tracker.csv:T_x\s+\S+ \.\. \S+ mm", echo), echo
     assert re.search(r"q1\s+<- joints.csv:j1 \[deg\]\s+\S+ \.\. \S+ deg", echo), echo
     back = load_pose_campaign(tmp_path / "campaign")

@@ -60,7 +60,7 @@ class ImportReport:
         read = f"read {', '.join(f'{f} ({n} rows)' for f, n in self.files)}: {self.rows} "
         if self.kind == "poses":
             out = [read + "campaign rows of absolute marker positions (measuring system's "
-                          "frame); forces in world axes"]
+                          "frame)" + ("; forces in world axes" if "fx" in self.columns else "")]
         else:
             out = [read + f"campaign rows; deflections {self.deflections}; forces in the "
                           f"{self.force_frame} frame, deflections in the "

@@ -18,7 +18,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
 from stiffness.calibration.coordinate_columns import fill_held
-from stiffness.calibration.import_report import ImportReport, column_report
+from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.rig_import import (
@@ -129,6 +129,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                           "none (absolute marker positions)",
                           column_report(mapper, units, robot, prismatic, kinds), units, "world",
                           "measuring system", kind="poses")
+    warn_unused(columns, report, settings.join)
     return campaign, report
 
 

@@ -138,7 +138,7 @@ def parse_list(text: str, flag: str) -> list[float]:
             raise StiffnessError(f"{flag} value {item.strip()} is beyond +-{MAX_CELL:.0e}, "
                                  "larger than any coordinate, load or stiffness (and too large "
                                  "for the arithmetic); check the value and its unit")
-        values.append(value)
+        values.append(value + 0.0)  # -0 is 0 (as number does)
     return values
 
 
@@ -155,7 +155,7 @@ def number(text: str) -> float:
     if abs(value) > MAX_CELL:
         raise argparse.ArgumentTypeError(f"{text} is beyond +-{MAX_CELL:.0e}, larger than any "
                                          "setting (and too large for the arithmetic)")
-    return value
+    return value + 0.0  # -0 is 0: NumPy refuses a noise scale of -0.0 (a ValueError)
 
 
 def require_at_least_one(value: int | None, flag: str) -> None:
