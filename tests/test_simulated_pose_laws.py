@@ -19,14 +19,26 @@ import pinocchio as pin
 import pytest
 from scipy import optimize
 
-from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_model import Loads, Marker, PoseModel
+from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING
+from stiffness.elastic.effects.joint_laws import Backlash
+from stiffness.elastic.effects.link_bends import (
+    LinkCompliance,
+    joint_normal_axes,
+    marker_links,
+    transversal_joints,
+)
 from stiffness.mechanics.gravity import spring_balancer
 from stiffness.planning.simulate_poses import (
     SPRING_BASE_M,
     SPRING_LEVER_M,
     HiddenPoseErrors,
+    bend_axes,
+    link_column,
+    rotation_axis_column,
     simulate_pose_campaign,
+    smoothing_torques,
     spring_compensator_torque,
 )
 from stiffness.robot.robot import load_robot
@@ -143,3 +155,62 @@ def test_link_bend_of_a_cantilever_is_the_closed_form(tmp_path):
         tip = hinge + pin.exp3(omega) @ (tool * turn)
         assert np.linalg.norm(tip - (hinge + tool * turn)) > 1e-4
         np.testing.assert_allclose(seen, tip, rtol=0, atol=1e-12)
+
+
+def _robots_with_markers():
+    """The UR10, the Panda and the two-arm torso with markers on their hands and forearms."""
+    arm = tuple(f"panda_joint{i}" for i in range(1, 8))
+    return [(load_robot("ur10", frame="tool0"), ["tool0", "forearm_link"]),
+            (load_robot("panda", frame="panda_hand", compliant_joints=arm),
+             ["panda_hand", "panda_link4"]),
+            (load_robot("two-arm-torso"), ["right_tcp", "left_tcp"])]
+
+
+def test_simulator_and_fitted_model_derive_the_same_axes_and_smoothing():
+    """What a hidden bend's or backlash's parameter means is a convention both sides must
+    share; the simulator derives it on its own (:func:`link_column`, :func:`bend_axes`,
+    :func:`rotation_axis_column`, :func:`smoothing_torques`). On three robots: every link of
+    the markers' chains gets the fitted model's column, and at 20 random configurations the
+    same two bending axes (1e-12); every compliant revolute joint of the chains the same
+    tilting axes; the smoothing torques over 15 poses under a payload the fitted model's
+    campaign settings (1e-12 relative)."""
+    rng = np.random.default_rng(7)
+    for robot, frames in _robots_with_markers():
+        model = robot.model
+        fids = [model.getFrameId(f) for f in frames]
+        links = marker_links(model, fids)
+        compliant = [int(model.getJointId(n)) for n in robot.compliant_joints
+                     if model.existJointName(n)]
+        tilting = transversal_joints(model, fids, compliant)
+        assert len(links) >= 3 and len(tilting) >= 5, robot.name
+        assert [link_column(model, k.a, k.b) for k in links] == [k.column for k in links]
+        moved = {j for f in fids for j in model.supports[model.frames[f].parentJoint]}
+        ours = [j for j in compliant if j in moved and rotation_axis_column(model, j) is not None]
+        assert ours == [k.b for k in tilting], robot.name
+        assert [rotation_axis_column(model, k.b) for k in tilting] == [k.column for k in tilting]
+        data = model.createData()
+        for q in sample_coordinates(robot, 20, rng):
+            pin.forwardKinematics(model, data, robot.configuration(q))
+            origins = np.array([data.oMi[k.b].translation for k in links])
+            e1, e2 = LinkCompliance.bend_axes(model, data, links, origins)
+            for n, k in enumerate(links):
+                mine = bend_axes(data.oMi[k.a].translation, origins[n],
+                                 data.oMi[model.parents[k.b]].rotation, k.column)
+                np.testing.assert_allclose(np.array(mine), [e1[n], e2[n]], rtol=0, atol=1e-12)
+            t1, t2 = joint_normal_axes(model, data, tilting)
+            for n, k in enumerate(tilting):
+                mount = (data.oMi[model.parents[k.b]].rotation
+                         @ model.jointPlacements[k.b].rotation)
+                assert np.allclose(t1[n], mount[:, (k.column + 1) % 3], rtol=0, atol=1e-15)
+                assert np.allclose(t2[n], mount[:, (k.column + 2) % 3], rtol=0, atol=1e-15)
+        payload = np.concatenate([rng.normal(0, 50, 3), rng.normal(0, 5, 3)])
+        q = sample_coordinates(robot, 15, rng)
+        loads = Loads(robot.target_frame, np.tile(payload, (len(q), 1)))
+        nominal = PoseModel(robot, [Marker(f, f, np.zeros(3)) for f in frames], (),
+                            (np.eye(3), np.zeros(3)), loads)
+        fitted = nominal.campaign_settings([nominal.row_terms(robot.configuration(c), payload)
+                                            for c in q])[Backlash.SETTING]
+        simulated = smoothing_torques(robot, q, payload)
+        assert fitted and set(fitted) <= set(simulated), robot.name
+        for name, tau_s in fitted.items():
+            assert simulated[name] == pytest.approx(tau_s, rel=1e-12), (robot.name, name)

@@ -10,13 +10,19 @@ the applied wrench, ``K (q_l - q_c - delta_0) = J(q_l)^T w - g(q_l)`` (fixed-poi
 arbitrary rigid placement. Hidden elastic effects beyond the joint springs act in the same
 equilibrium: a spring compensator's torque (:func:`spring_compensator_torque`, from the
 spring's attachment points, not from the library's scalar law) joins the joint's torque,
-backlash adds ``b tanh(tau / tau_s)`` to its deflection, and a link bend rotates the part of the
+backlash adds ``b tanh(tau / tau_s)`` to its deflection (``tau_s`` computed here from the
+commanded poses' torques: :func:`smoothing_torques`), and a link bend rotates the part of the
 arm beyond the link's distal joint exactly (its placement turned by ``omega``) under the moment
 that part's weight and the wrench exert there, taken from Pinocchio's recursive Newton-Euler
-forces (not from the centre-of-mass form the fitted model uses); a joint tilting in its bearing
+forces (not from the centre-of-mass form the fitted model uses), about two axes normal to the
+link derived here (:func:`link_column`, :func:`bend_axes`); a joint tilting in its bearing
 (transversal compliance) turns its placement the same way about the two axes of its mounting
-frame normal to its own. A tilted base turns the model's gravity into the base's axes, so
-every torque and every bend of the equilibrium sees it.
+frame normal to its own (its rotation axis from its motion subspace:
+:func:`rotation_axis_column`). What a parameter means (which axes, which ``tau_s``) must be the
+fitted model's; these derivations are this module's own and a test checks they agree. The
+fitted model's code supplies only which joint pairs are links (their names). A tilted base
+turns the model's gravity into the base's axes, so every torque and every bend of the
+equilibrium sees it.
 """
 
 from __future__ import annotations
@@ -28,11 +34,9 @@ import pinocchio as pin
 
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_model import Loads, Marker, PoseModel, one_dof_joints
+from stiffness.calibration.pose_model import Loads, Marker, one_dof_joints
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.elastic.effects.geometry import link_axes
-from stiffness.elastic.effects.joint_laws import Backlash
-from stiffness.elastic.effects.link_bends import Link, marker_links, transversal_joints
+from stiffness.elastic.effects.link_bends import marker_links
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.gravity import upward_angle
 from stiffness.robot.robot import Robot
@@ -41,6 +45,11 @@ from stiffness.units import Units
 #: Fixed-point tolerance of the sag (rad or m) and its iteration cap.
 _SAG_TOL = 1e-14
 _SAG_ITERATIONS = 200
+#: Backlash's smoothing torque over the joint's RMS torque at the campaign's commanded poses:
+#: part of the definition of the half-width ``b`` of ``b tanh(tau / tau_s)`` (the fitted
+#: model's :data:`~stiffness.elastic.effects.geometry.BACKLASH_SMOOTHING`; the simulator
+#: computes ``tau_s`` itself, :func:`smoothing_torques`, and a test checks the two agree).
+SMOOTHING_FRACTION = 0.02
 #: The hidden compensator's spring: lever on the link and base point on its parent, both from
 #: the joint axis (m), in line when the link points up (the library's default geometry).
 SPRING_LEVER_M, SPRING_BASE_M = 0.1, 0.3
@@ -80,7 +89,8 @@ class HiddenPoseErrors:
     transversal_compliance
         Compliant revolute joint name (of a marker's chain, its axis a frame axis:
         :func:`~stiffness.elastic.effects.link_bends.transversal_joints`) -> its two tilting
-        compliances (rad/(N.m)) about the axes of its mounting frame normal to its own.
+        compliances (rad/(N.m)) about the axes of its mounting frame normal to its own (the
+        simulator finds the axis itself: :func:`rotation_axis_column`).
     base_tilt
         ``(r_x, r_y)`` (rad): the base's z axis turned from the vertical by
         ``exp([r_x, r_y, 0])``, so the links' weight acts along ``exp(.)^T g``, or ``None``.
@@ -129,8 +139,7 @@ class HiddenElasticity:
         (velocity index, joint id, the joint's angle with the link up (rad), (stiffness N/m,
         tension N)) per compensated joint.
     links
-        (link, its two compliances) per bending link; a joint tilting in its bearing is the
-        link ``(j, j, axis column)``.
+        (bend, its two compliances) per bending link or joint tilting in its bearing.
     """
 
     spring_map: np.ndarray
@@ -138,7 +147,57 @@ class HiddenElasticity:
     backlash: np.ndarray
     smoothing: np.ndarray
     compensators: list[tuple[int, int, float, np.ndarray]]
-    links: list[tuple[Link, np.ndarray]]
+    links: list[tuple[Bend, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Bend:
+    """A part of the arm turning about two axes at joint ``b``'s origin (joint ids): the link
+    ``a -> b`` bending (``a != b``; axes normal to the segment: :func:`bend_axes` from the
+    ``column``-th axis of the body ``b`` is mounted on) or joint ``b`` tilting in its bearing
+    (``a == b``; the two axes of its mounting frame other than its rotation axis, the
+    ``column``-th)."""
+
+    a: int
+    b: int
+    column: int
+
+
+def bend_axes(p_a: np.ndarray, p_b: np.ndarray, mount_rotation: np.ndarray, column: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The two unit axes (3,) a link ``p_a -> p_b`` (m, world) bends about: ``e_2`` normal to
+    both the link and the mounting body's ``column``-th axis ``r`` (``u x r / |u x r|``, ``u``
+    the link's direction), ``e_1 = e_2 x u`` (``r`` with its part along the link removed)."""
+    u = (p_b - p_a) / np.linalg.norm(p_b - p_a)
+    e2 = np.cross(u, mount_rotation[:, column])
+    e2 = e2 / np.linalg.norm(e2)
+    return np.cross(e2, u), e2
+
+
+def link_column(model: pin.Model, a: int, b: int) -> int:
+    """The axis (0, 1, 2) of the body joint ``b`` is mounted on that is most nearly normal to
+    the link ``a -> b`` at the zero coordinates (the smallest ``|u . r_i|``, ``u`` the link's
+    direction; of two normal ones, the one nearer by rounding, as the fitted model picks)."""
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    seg = data.oMi[b].translation - data.oMi[a].translation
+    mount = data.oMi[model.parents[b]].rotation
+    return int(np.argmin(np.abs(mount.T @ (seg / np.linalg.norm(seg)))))
+
+
+def rotation_axis_column(model: pin.Model, joint: int) -> int | None:
+    """The frame axis (0, 1, 2) a revolute joint turns about, from its motion subspace (its
+    local Jacobian's column), or ``None`` when it is not revolute about a frame axis."""
+    jm = model.joints[joint]
+    if jm.nv != 1:
+        return None
+    data = model.createData()
+    jac = pin.computeJointJacobian(model, data, pin.neutral(model), joint).reshape(6, -1)
+    s = jac[:, jm.idx_v]
+    column = int(np.argmax(np.abs(s[3:])))
+    if np.linalg.norm(s[:3]) > 1e-12 or abs(abs(s[3 + column]) - 1.0) > 1e-12:
+        return None
+    return column
 
 
 def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors,
@@ -159,7 +218,9 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
                              "robot's springs act on its controller's coordinates")
     names = list(robot.compliant_joints)
     ids = [int(model.getJointId(n)) for n in names]
-    links = {f"{model.names[k.a]}->{model.names[k.b]}": k
+    # which joint pairs are links is the fitted model's naming (the parameters it reports);
+    # the axes a link bends about are this module's own (link_column, bend_axes)
+    links = {f"{model.names[k.a]}->{model.names[k.b]}": (k.a, k.b)
              for k in marker_links(model, [model.getFrameId(m.frame) for m in markers])}
     unknown = [w for w in hidden.link_compliance if w not in links]
     if unknown:
@@ -170,6 +231,8 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
         raise StiffnessError(f"hidden gravity_compensator on {wrong}: name revolute compliant "
                              f"joints ({', '.join(names)})")
     n = len(names)
+    bends = [(Bend(*links[w], link_column(model, *links[w])), np.asarray(c, dtype=float))
+             for w, c in hidden.link_compliance.items()]
     return HiddenElasticity(
         robot.rate_projection(robot.compliant_joints), np.asarray(hidden.stiffness, dtype=float),
         np.zeros(n) if hidden.backlash is None else np.asarray(hidden.backlash, dtype=float),
@@ -177,13 +240,12 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
         [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
           upward_angle(robot, j).angle_rad, np.asarray(p, dtype=float))
          for j, p in hidden.compensator.items()],
-        sorted([(links[w], np.asarray(c, dtype=float)) for w, c in hidden.link_compliance.items()]
-               + _tilting(robot, markers, hidden), key=lambda item: item[0].b))
+        sorted(bends + _tilting(robot, markers, hidden), key=lambda item: item[0].b))
 
 
 def _tilting(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors
-             ) -> list[tuple[Link, np.ndarray]]:
-    """``hidden``'s joints tilting in their bearings as links ``(j, j, axis column)``.
+             ) -> list[tuple[Bend, np.ndarray]]:
+    """``hidden``'s joints tilting in their bearings as bends ``(j, j, axis column)``.
 
     Raises
     ------
@@ -192,14 +254,19 @@ def _tilting(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors
         along a frame axis.
     """
     model = robot.model
-    joints = {model.names[k.b]: k for k in transversal_joints(
-        model, [model.getFrameId(m.frame) for m in markers],
-        [int(model.getJointId(n)) for n in robot.compliant_joints
-         if model.existJointName(n)])}
+    moved = {int(j) for m in markers
+             for j in model.supports[model.frames[model.getFrameId(m.frame)].parentJoint]}
+    joints = {}
+    for name in robot.compliant_joints:
+        j = int(model.getJointId(name)) if model.existJointName(name) else -1
+        column = rotation_axis_column(model, j) if j in moved else None
+        if column is not None:
+            joints[name] = Bend(j, j, column)
     wrong = [j for j in hidden.transversal_compliance if j not in joints]
     if wrong:
         raise StiffnessError(f"hidden transversal_compliance on {wrong}: name compliant revolute "
-                             f"joints of the markers' chains ({', '.join(joints)})")
+                             f"joints of the markers' chains turning about a frame axis "
+                             f"({', '.join(joints)})")
     return [(joints[j], np.asarray(c, dtype=float))
             for j, c in hidden.transversal_compliance.items()]
 
@@ -302,7 +369,7 @@ def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hi
                 link.b].rotation
             e1, e2 = mount[:, (link.column + 1) % 3], mount[:, (link.column + 2) % 3]
         else:
-            e1, e2 = link_axes(data.oMi[link.a].translation, p_b,
+            e1, e2 = bend_axes(data.oMi[link.a].translation, p_b,
                                data.oMi[model.parents[link.b]].rotation, link.column)
         out[n] = e1 * c[0] * (e1 @ moment) + e2 * c[1] * (e2 @ moment)
     return out
@@ -333,7 +400,7 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
     model = true_model(robot, hidden)
     loads = None if payload is None else Loads(robot.target_frame,
                                                np.tile(payload, (n_poses, 1)))
-    springs = hidden_elasticity(robot, markers, hidden, _smoothing(robot, markers, q, loads))
+    springs = hidden_elasticity(robot, markers, hidden, smoothing_torques(robot, q, payload))
     positions = np.empty((n_poses, len(markers), 3))
     orientations = np.empty((n_poses, len(markers), 3, 3))
     for i, coords in enumerate(q):
@@ -360,14 +427,32 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
                         rotations=rotations, noise_std_rotation=rotation_noise_std)
 
 
-def _smoothing(robot: Robot, markers: list[Marker], q: np.ndarray, loads: Loads | None
-               ) -> dict[str, float]:
-    """Backlash smoothing torque of each compliant joint over the simulated poses (the rule
-    the fitted model applies to the campaign: :meth:`PoseModel.campaign_settings`)."""
-    nominal = PoseModel(robot, markers, (), (np.eye(3), np.zeros(3)), loads)
-    rows = [nominal.row_terms(robot.configuration(c), None if loads is None else loads.wrench[i])
-            for i, c in enumerate(q)]
-    return nominal.campaign_settings(rows).get(Backlash.SETTING, {})
+def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
+                      ) -> dict[str, float]:
+    """Backlash smoothing torque ``tau_s`` (N.m, N) of each compliant joint: the
+    :data:`SMOOTHING_FRACTION` of the RMS torque it carries at the commanded poses ``q``
+    (coordinates, rad or m) of the nominal robot, ``-g(q) + J(q)^T w`` under its weight and
+    the ``payload`` wrench at the target frame (world axes; ``None``: none). A joint that
+    carries none gets 1 (its backlash never opens)."""
+    model = robot.model
+    data = model.createData()
+    fid = model.getFrameId(robot.target_frame)
+    torques = np.empty((len(q), model.nv))
+    for i, coords in enumerate(q):
+        q_full = robot.configuration(coords)
+        torques[i] = -pin.computeGeneralizedGravity(model, data, q_full)
+        if payload is not None:
+            pin.computeJointJacobians(model, data, q_full)
+            pin.updateFramePlacements(model, data)
+            torques[i] += pin.getFrameJacobian(model, data, fid,
+                                               pin.LOCAL_WORLD_ALIGNED).T @ payload
+    rms = np.sqrt(np.mean(torques ** 2, axis=0))
+    out = {}
+    for name in robot.compliant_joints:
+        if model.existJointName(name):
+            r = rms[model.joints[model.getJointId(name)].idx_v]
+            out[name] = float(SMOOTHING_FRACTION * r) if r > 0 else 1.0
+    return out
 
 
 def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: np.ndarray
