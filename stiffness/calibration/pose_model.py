@@ -52,6 +52,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import (
+    frame_jacobians,
+    frame_placements,
+    generalized_gravity,
+    integrate,
+    joint_placements,
+    point_jacobians,
+)
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base_tilt import declared_tilt, tilted_gravity
 from stiffness.elastic.effects.geometry import skew
@@ -69,6 +77,11 @@ from stiffness.robot.robot import Robot
 #: Tolerance (rad or m) and iteration cap of the sag's fixed point.
 SAG_TOLERANCE = 1e-13
 SAG_ITERATIONS = 50
+#: Rows a model of row-at-once families evaluates together (bounds the arrays a large
+#: campaign's evaluation holds besides its Jacobian).
+ROW_BLOCK = 1024
+SAG_DIVERGES = ("the sag of the fitted compliance does not converge: the compliance is too "
+                "large for the arm's weight; check the campaign's units and masses")
 
 
 class PoseModelError(StiffnessError):
@@ -176,6 +189,7 @@ class PoseModel:
         self._sag_start: dict[int, tuple[RowTerms, np.ndarray]] = {}
         self._lumped = any(f.lumps_gravity for f in self.family_objects)
         self._elastic = any(f.family_kind == "elastic" for f in self.family_objects)
+        self._at_once = all(f.rows_at_once for f in self.family_objects)
         # the families that implement each per-row hook (the others would add nothing)
         self._hooked = {hook: [f for f in self.family_objects
                                if getattr(type(f), hook) is not getattr(PoseFamily, hook)]
@@ -257,10 +271,16 @@ class PoseModel:
                   wrench: np.ndarray | None) -> SagState:
         """Gravity's, the wrench's and the families' torques at ``q`` for ``model``."""
         gravity, applied = self._load_torques(model, data, q, wrench)
+        extras = {fam.name: fam.at_configuration(self, model, data, q)
+                  for fam in self._hooked["at_configuration"]}
+        return self._state(x, q, gravity, applied, extras)
+
+    def _state(self, x: np.ndarray, q: np.ndarray, gravity: np.ndarray, applied: np.ndarray,
+               extras: dict) -> SagState:
+        """The sag's state from gravity's and the wrench's torques (one row: (nv,) each; a
+        batch of rows: (n, nv)): the torque the springs carry, with the families' own."""
         state = SagState(q, gravity, applied, applied + (0.0 if self._lumped else gravity),
-                         np.zeros(model.nv))
-        for fam in self._hooked["at_configuration"]:
-            state.extras[fam.name] = fam.at_configuration(self, model, data, q)
+                         np.zeros(gravity.shape), extras)
         for fam in self._hooked["joint_torque"]:
             extra = fam.joint_torque(self, x[self._slices[fam.name]], state)
             if extra is not None:
@@ -270,7 +290,7 @@ class PoseModel:
     def deflection_slope(self, x: np.ndarray, state: SagState) -> np.ndarray:
         """d(Delta q)/d(torque) (nv,) at ``state``: the sum of the families' (the columns of
         a family that adds a torque need it)."""
-        out = np.zeros(state.torque.size)
+        out = np.zeros(state.torque.shape)
         for fam in self._hooked["deflection_per_torque"]:
             slope = fam.deflection_per_torque(self, x[self._slices[fam.name]], state)
             if slope is not None:
@@ -306,7 +326,7 @@ class PoseModel:
     def deflection(self, x: np.ndarray, state: SagState) -> np.ndarray:
         """Joint deflection ``Delta q`` (nv,) at ``state`` for parameters ``x``: the sum of the
         elastic families' parts."""
-        dq = np.zeros(self.robot.model.nv)
+        dq = np.zeros(state.torque.shape)
         for fam in self._hooked["joint_deflection"]:
             part = fam.joint_deflection(self, x[self._slices[fam.name]], state)
             if part is not None:
@@ -318,6 +338,15 @@ class PoseModel:
         """Whether the model has an elastic family (the arm sags)."""
         return self._elastic
 
+    def _offsets(self, x: np.ndarray) -> np.ndarray:
+        """The families' shift (nv,) of every commanded configuration (the zero offsets)."""
+        offsets = np.zeros(self.robot.model.nv)
+        for fam in self._hooked["configuration_offset"]:
+            shift = fam.configuration_offset(self, x[self._slices[fam.name]])
+            if shift is not None:
+                offsets += shift
+        return offsets
+
     def loaded_configuration(self, model: pin.Model, data: pin.Data, x: np.ndarray,
                              row: RowTerms) -> tuple[np.ndarray, SagState | None]:
         """The configuration the links are at, and the sag's state there.
@@ -327,11 +356,7 @@ class PoseModel:
         real arms), started from the row's last converged sag (an optimiser's next trial
         differs little from its last), and from zero if that does not converge.
         """
-        offsets = np.zeros(model.nv)
-        for fam in self._hooked["configuration_offset"]:
-            shift = fam.configuration_offset(self, x[self._slices[fam.name]])
-            if shift is not None:
-                offsets += shift
+        offsets = self._offsets(x)
         if not self.elastic:
             return pin.integrate(model, row.q_full, offsets), None
         starts = [np.zeros(model.nv)]
@@ -348,59 +373,150 @@ class PoseModel:
                 if converged:
                     self._sag_start[id(row)] = (row, sag)
                     return pin.integrate(model, row.q_full, offsets + sag), state
-        raise ConvergenceError("the sag of the fitted compliance does not converge: the "
-                               "compliance is too large for the arm's weight; check the "
-                               "campaign's units and masses")
+        raise ConvergenceError(SAG_DIVERGES)
 
     def evaluate(self, x: np.ndarray, rows: list[RowTerms], jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted positions (n, M, 3) in the measuring frame (m) and their Jacobian.
 
         The Jacobian (n, M, 3, p) is d y / d x with the torques at the loaded configuration
-        held fixed (exact at zero compliance; module docstring).
+        held fixed (exact at zero compliance; module docstring). A model whose families all
+        take rows at once (:attr:`~stiffness.elastic.effects.pose_face.PoseFamily.
+        rows_at_once`) evaluates blocks of :data:`ROW_BLOCK` rows as arrays (Pinocchio in a
+        tight loop, :mod:`stiffness.batch.poses`); the others row by row.
         """
         x = np.asarray(x, dtype=float)
         model = self.perturbed_model(x)
-        data = model.createData()
         parts = {f.name: x[self._slices[f.name]] for f in self.family_objects}
         rot_w, d_omega = MeasuringFrame.frame_rotation(self.part(x, "frame"))
-        to_measuring = rot_w @ self.rotation0
-        translation = self.translation0 + MeasuringFrame.frame_translation(self.part(x, "frame"))
+        shift = MeasuringFrame.frame_translation(self.part(x, "frame"))
+        ev = _Evaluation(model, model.createData(), x, parts, rot_w, d_omega,
+                         rot_w @ self.rotation0, self.translation0 + shift,
+                         {f.name: f.evaluation_cache(self, parts[f.name], jacobian)
+                          for f in self.family_objects}, jacobian)
         n, m = len(rows), len(self.markers)
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
-        shared = {f.name: f.evaluation_cache(self, parts[f.name], jacobian)
-                  for f in self.family_objects}
-        for i, row in enumerate(rows):
-            q, state = self.loaded_configuration(model, data, x, row)
-            if jacobian and state is not None:
-                state.per_torque = self.deflection_slope(x, state)
-            if jacobian:  # the joint Jacobians' pass places the joints too
-                pin.computeJointJacobians(model, data, q)
-            else:
-                pin.forwardKinematics(model, data, q)
-            pin.updateFramePlacements(model, data)
-            caches = {f.name: f.row_cache(self, parts[f.name], model, data, q, row,
-                                          shared[f.name], jacobian)
-                      for f in self.family_objects}
-            for k, fid in enumerate(self.frame_ids):
-                point = data.oMf[fid].act(self.marker_offset(x, k))
-                j_point = (self._point_jacobian(model, data, fid, point) if jacobian
-                           else np.zeros((3, 0)))
-                view = MarkerView(model, data, k, fid, point, np.zeros(3), to_measuring, rot_w,
-                                  d_omega, j_point, state, caches)
-                bent = point + self._displacement(parts, view)
-                view.world = self.rotation0 @ bent
-                y[i, k] = rot_w @ view.world + translation
-                if jac is not None:
-                    for fam in self.family_objects:
-                        jac[i, k, :, self._slices[fam.name]] = fam.columns(self, parts[fam.name],
-                                                                          view)
+        if self._at_once:
+            for s in range(0, n, ROW_BLOCK):
+                self._evaluate_block(ev, rows[s:s + ROW_BLOCK], y[s:s + ROW_BLOCK],
+                                     None if jac is None else jac[s:s + ROW_BLOCK])
+        else:
+            for i, row in enumerate(rows):
+                self._evaluate_row(ev, row, y[i], None if jac is None else jac[i])
         return y, jac
+
+    def _evaluate_row(self, ev: _Evaluation, row: RowTerms, y: np.ndarray,
+                      jac: np.ndarray | None) -> None:
+        """One row of :meth:`evaluate` into ``y`` (M, 3) and ``jac`` (M, 3, p)."""
+        model, data, x, parts = ev.model, ev.data, ev.x, ev.parts
+        q, state = self.loaded_configuration(model, data, x, row)
+        if ev.jacobian and state is not None:
+            state.per_torque = self.deflection_slope(x, state)
+        if ev.jacobian:  # the joint Jacobians' pass places the joints too
+            pin.computeJointJacobians(model, data, q)
+        else:
+            pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        caches = {f.name: f.row_cache(self, parts[f.name], model, data, q, row,
+                                      ev.shared[f.name], ev.jacobian)
+                  for f in self.family_objects}
+        selectors = np.eye(len(self.markers))
+        for k, fid in enumerate(self.frame_ids):
+            point = data.oMf[fid].act(self.marker_offset(x, k))
+            j_point = (self._point_jacobian(model, data, fid, point) if ev.jacobian
+                       else np.zeros((3, 0)))
+            view = MarkerView(model, data, k, fid, point, np.zeros(3), ev.to_measuring,
+                              ev.rot_w, ev.d_omega, j_point, state, caches,
+                              data.oMf[fid].rotation, self.moves[fid], selectors[k])
+            bent = point + self._displacement(parts, view)
+            view.world = self.rotation0 @ bent
+            y[k] = ev.rot_w @ view.world + ev.translation
+            if jac is not None:
+                for fam in self.family_objects:
+                    jac[k, :, self._slices[fam.name]] = fam.columns(self, parts[fam.name], view)
+
+    def _evaluate_block(self, ev: _Evaluation, rows: list[RowTerms], y: np.ndarray,
+                        jac: np.ndarray | None) -> None:
+        """A block of rows of :meth:`evaluate` at once into ``y`` (n, M, 3) and ``jac``
+        (n, M, 3, p): the families' hooks on arrays with leading (row, marker) axes."""
+        model, x, parts = ev.model, ev.x, ev.parts
+        q, state = self._loaded_rows(model, ev.data, x, rows)
+        if ev.jacobian and state is not None:
+            state.per_torque = self.deflection_slope(x, state)
+        kin = joint_placements(model, ev.data, q, ev.jacobian)
+        rotation, translation = frame_placements(model, kin, self.frame_ids)
+        offsets = np.array([self.marker_offset(x, k) for k in range(len(self.markers))])
+        point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
+        j_point = (point_jacobians(model, kin, self.frame_ids, point) if ev.jacobian
+                   else np.zeros(point.shape + (0,)))
+        caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, ev.shared[f.name],
+                                       ev.jacobian)
+                  for f in self.family_objects}
+        view = MarkerView(model, ev.data, -1, -1, point, np.zeros(3), ev.to_measuring,
+                          ev.rot_w, ev.d_omega, j_point, state, caches, rotation,
+                          np.array([self.moves[f] for f in self.frame_ids]),
+                          np.eye(len(self.markers)))
+        bent = point + self._displacement(parts, view)
+        view.world = bent @ self.rotation0.T
+        y[:] = view.world @ ev.rot_w.T + ev.translation
+        if jac is not None:
+            for fam in self.family_objects:
+                jac[..., self._slices[fam.name]] = fam.columns(self, parts[fam.name], view)
+
+    def _loaded_rows(self, model: pin.Model, data: pin.Data, x: np.ndarray,
+                     rows: list[RowTerms]) -> tuple[np.ndarray, SagState | None]:
+        """:meth:`loaded_configuration` of every row at once: (n, nq) and the sag's state
+        with (n, 1, nv) arrays; each row iterates until its own sag converges, as alone."""
+        commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
+        offsets = self._offsets(x)
+        if not self.elastic:
+            return integrate(model, commanded, offsets), None
+        n, nv = len(rows), model.nv
+        wrench = (None if self.loads is None or all(r.wrench is None for r in rows) else
+                  np.array([np.zeros(6) if r.wrench is None else r.wrench for r in rows]))
+        sag, warm = np.zeros((n, nv)), np.zeros(n, dtype=bool)
+        for i, row in enumerate(rows):
+            last = self._sag_start.get(id(row))
+            if last is not None and last[0] is row:
+                sag[i], warm[i] = last[1], True
+        at, gravity, applied = np.empty((n, model.nq)), np.empty((n, nv)), np.empty((n, nv))
+        pending = np.arange(n)
+        for attempt in range(2):  # from the last converged sag, then from zero
+            for _ in range(SAG_ITERATIONS):
+                if not pending.size:
+                    break
+                q = integrate(model, commanded[pending], offsets + sag[pending])
+                g, w = self._row_torques(model, data, q,
+                                         None if wrench is None else wrench[pending])
+                new = self.deflection(x, self._state(x, q, g, w, {}))
+                done = np.max(np.abs(new - sag[pending]), axis=1) <= SAG_TOLERANCE
+                sag[pending] = new
+                finished = pending[done]
+                at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
+                pending = pending[~done]
+            if not pending.size or attempt or not warm[pending].all():
+                break
+            sag[pending] = 0.0
+        if pending.size:
+            raise ConvergenceError(SAG_DIVERGES)
+        for i, row in enumerate(rows):
+            self._sag_start[id(row)] = (row, sag[i])
+        return (integrate(model, commanded, offsets + sag),
+                self._state(x, at, gravity[:, None], applied[:, None], {}))
+
+    def _row_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
+                     wrench: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_load_torques` of (n, nq) configurations: (n, nv) each."""
+        gravity = -generalized_gravity(model, data, q)
+        if wrench is None or self.loads is None:
+            return gravity, np.zeros(gravity.shape)
+        jac = frame_jacobians(model, data, q, self._frame_id(self.loads.frame))
+        return gravity, np.einsum("nkv,nk->nv", jac, wrench)
 
     def _displacement(self, parts: dict[str, np.ndarray], view: MarkerView) -> np.ndarray:
         """The families' displacement of a marker (robot-world axes, m): the link bends."""
-        out = np.zeros(3)
+        out = np.zeros(view.point.shape)
         for fam in self._hooked["marker_displacement"]:
             shift = fam.marker_displacement(self, parts[fam.name], view)
             if shift is not None:
@@ -426,6 +542,26 @@ class PoseModel:
         jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
         lever = point - data.oMf[fid].translation
         return jac[:3] - skew(lever) @ jac[3:]
+
+
+@dataclass
+class _Evaluation:
+    """What every row of one :meth:`PoseModel.evaluate` shares: the perturbed model and its
+    data, the parameters (``x``, per family ``parts``), the measuring frame (``exp(omega)``,
+    its right Jacobian, robot-world to measuring axes, translation, m), the families'
+    :meth:`~stiffness.elastic.effects.pose_face.PoseFamily.evaluation_cache`, and whether
+    the Jacobian is asked for."""
+
+    model: pin.Model
+    data: pin.Data
+    x: np.ndarray
+    parts: dict[str, np.ndarray]
+    rot_w: np.ndarray
+    d_omega: np.ndarray
+    to_measuring: np.ndarray
+    translation: np.ndarray
+    shared: dict
+    jacobian: bool
 
 
 def _check_combination(families: list[PoseFamily]) -> None:

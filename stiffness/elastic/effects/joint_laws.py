@@ -98,6 +98,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     """
 
     name: ClassVar[str] = "joint_compliance"
+    rows_at_once: ClassVar[bool] = True
     param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
     through_law: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
@@ -146,7 +147,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
                 for n in pm.springs]
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
-        return pm.spring_map @ (x_f * (pm.spring_map.T @ state.torque))
+        return (x_f * (state.torque @ pm.spring_map)) @ pm.spring_map.T
 
     def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                               ) -> np.ndarray:
@@ -157,7 +158,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray:
-        return pm.spring_map * (pm.spring_map.T @ state.torque)
+        return pm.spring_map * (state.torque @ pm.spring_map)[..., None, :]
 
 
 @dataclass(eq=False)

@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import JointPlacements
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.pose_face import (
@@ -40,6 +41,7 @@ class MeasuringFrame(Effect, PoseFamily):
     relative to the starting estimate: ``y = exp(omega) R_0 p + t_0 + t``."""
 
     name: ClassVar[str] = "frame"
+    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(frame_label(a), u)
@@ -58,28 +60,31 @@ class MeasuringFrame(Effect, PoseFamily):
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         """``d y = d t - exp(omega) [R_0 p]x Jr(omega) d omega``."""
-        return np.hstack([np.eye(3), -view.rot_w @ skew(view.world) @ view.d_omega])
+        turn = -view.rot_w @ skew(view.world) @ view.d_omega
+        return np.concatenate([np.broadcast_to(np.eye(3), turn.shape), turn], axis=-1)
 
 
 class MarkerOffsets(Effect, PoseFamily):
     """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes)."""
 
     name: ClassVar[str] = "markers"
+    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
-        cols = np.zeros((3, x_f.size))
-        cols[:, 3 * view.k: 3 * view.k + 3] = (view.to_measuring
-                                               @ view.data.oMf[view.fid].rotation)
-        return cols
+        """``d y = exp(omega) R_0 R_frame d o`` in the marker's own three columns."""
+        turn = view.to_measuring @ view.frame_rotation
+        cols = turn[..., :, None, :] * view.selector[..., None, :, None]
+        return cols.reshape(turn.shape[:-1] + (x_f.size,))
 
 
 class JointOffsets(Effect, PoseFamily):
     """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
 
     name: ClassVar[str] = "joint_offsets"
+    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
@@ -92,7 +97,7 @@ class JointOffsets(Effect, PoseFamily):
         return out
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
-        return view.to_measuring @ view.j_point[:, pm.joints_v]
+        return view.to_measuring @ view.j_point[..., pm.joints_v]
 
 
 class JointGeometry(Effect, PoseFamily):
@@ -100,6 +105,7 @@ class JointGeometry(Effect, PoseFamily):
     the component along its own motion (its zero offset): 5 per joint along a frame axis."""
 
     name: ClassVar[str] = "geometry"
+    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
@@ -135,14 +141,42 @@ class JointGeometry(Effect, PoseFamily):
         each."""
         if shared is None:
             return None
-        parents = np.array([data.oMi[model.parents[j]].homogeneous for j in pm.joints])
-        own = np.array([model.jointPlacements[j].homogeneous for j in pm.joints])
+        parents = [data.oMi[model.parents[j]] for j in pm.joints]
+        return self._placement_columns(pm, model, np.array([p.rotation for p in parents]),
+                                       np.array([p.translation for p in parents]), shared)
+
+    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
+                   kin: JointPlacements, shared: Any, jacobian: bool
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """:meth:`row_cache` of every row: (n, 1, n_f, 3) each."""
+        if shared is None:
+            return None
+        parents = [int(model.parents[j]) for j in pm.joints]
+        out = self._placement_columns(pm, model, kin.rotation[:, parents],
+                                      kin.translation[:, parents], shared)
+        return out[0][:, None], out[1][:, None], out[2][:, None]
+
+    @staticmethod
+    def _placement_columns(pm: PoseLayout, model: pin.Model, parent_rot: np.ndarray,
+                           parent_t: np.ndarray, shared: tuple[np.ndarray, np.ndarray]
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`row_cache` from the parents' placements (..., n_joints, 3, 3) and
+        (..., n_joints, 3) (world, m)."""
+        own = [model.jointPlacements[j] for j in pm.joints]
+        own_rot = np.array([m.rotation for m in own]).reshape(-1, 3, 3)
+        own_t = np.array([m.translation for m in own]).reshape(-1, 3)
         rows, _ = pm.geometry_index
-        frames = parents[rows] @ own[rows]
-        rot = frames[:, :3, :3]
         linear, angular = shared
-        return (np.einsum("gab,gb->ga", rot, linear), np.einsum("gab,gb->ga", rot, angular),
-                frames[:, :3, 3])
+        # R_a v = R_parent (R_j v): the joints' own placements turn the columns once
+        local = np.stack([own_t[rows], np.einsum("gab,gb->ga", own_rot[rows], linear),
+                          np.einsum("gab,gb->ga", own_rot[rows], angular)], axis=1)
+        lead = parent_rot.shape[:-3]
+        world = np.empty(lead + (rows.size, 3, 3))  # (..., parameter, [o, v, w], axis)
+        for n in np.unique(rows):  # one matrix product per joint over every row
+            g = np.flatnonzero(rows == n)
+            turned = parent_rot[..., n, :, :].reshape(-1, 3) @ local[g].reshape(-1, 3).T
+            world[..., g, :, :] = np.moveaxis(turned.reshape(lead + (3, g.size, 3)), -3, -1)
+        return world[..., 1, :], world[..., 2, :], world[..., 0, :] + parent_t[..., rows, :]
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         """d y / d eps: ``M_j exp(eps)`` perturbed on the right.
@@ -152,9 +186,10 @@ class JointGeometry(Effect, PoseFamily):
         ``R_a Jr[:3] - [point - o_a]x R_a Jr[3:]``; zero for joints the point does not move with.
         """
         linear, angular, origin = view.caches[self.name]
-        lx, ly, lz = (view.point[None, :] - origin).T
-        ax, ay, az = angular.T
+        lever = view.point[..., None, :] - origin
+        lx, ly, lz = lever[..., 0], lever[..., 1], lever[..., 2]
+        ax, ay, az = angular[..., 0], angular[..., 1], angular[..., 2]
         cols = linear - np.stack([ly * az - lz * ay, lz * ax - lx * az, lx * ay - ly * ax],
-                                 axis=1)
-        cols *= pm.moves[view.fid][pm.geometry_index[0]][:, None]
-        return view.to_measuring @ cols.T
+                                 axis=-1)
+        cols *= view.moving[..., pm.geometry_index[0]][..., None]
+        return view.to_measuring @ np.swapaxes(cols, -1, -2)

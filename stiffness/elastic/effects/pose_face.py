@@ -23,6 +23,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import JointPlacements
 from stiffness.robot.robot import Robot
 
 #: The kinds of family: geometry (where things are) or elasticity (how the arm gives).
@@ -167,6 +168,19 @@ class MarkerView:
         The sag's state (``None``: a rigid model).
     caches
         Per-family per-row quantities (:meth:`PoseFamily.row_cache`).
+    frame_rotation
+        Rotation (3, 3) of the marker's frame in the world.
+    moving
+        (n_joints,) 1 for the 1-dof joints (:attr:`PoseLayout.joints`) that move the marker's
+        frame, else 0.
+    selector
+        (M,) one-hot: the marker among the model's markers.
+
+    Over a batch of rows (:attr:`PoseFamily.rows_at_once`) the per-marker fields carry
+    leading (n, M) axes (rows, markers: ``point`` (n, M, 3), ``j_point`` (n, M, 3, nv),
+    ``frame_rotation`` (n, M, 3, 3), ``moving`` (M, n_joints), ``selector`` (M, M)), the
+    sag's arrays (n, 1, nv) and the caches those of :meth:`PoseFamily.rows_cache`; ``k`` and
+    ``fid`` are then -1 and ``data`` holds no particular row.
     """
 
     model: pin.Model
@@ -181,6 +195,9 @@ class MarkerView:
     j_point: np.ndarray
     sag: SagState | None
     caches: dict[str, Any]
+    frame_rotation: np.ndarray
+    moving: np.ndarray
+    selector: np.ndarray
 
 
 class PoseFamily:
@@ -204,6 +221,10 @@ class PoseFamily:
     needs_masses: ClassVar[bool] = False
     #: families that must be in the model with this one
     requires: ClassVar[tuple[str, ...]] = ()
+    #: whether the family's hooks also take a batch of rows at once (arrays with leading
+    #: row and marker axes, :class:`MarkerView`; :meth:`rows_cache` for :meth:`row_cache`):
+    #: a model of such families evaluates every row without a Python loop over them
+    rows_at_once: ClassVar[bool] = False
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
@@ -257,6 +278,12 @@ class PoseFamily:
         (placements current; joint Jacobians too when ``jacobian``)."""
         return None
 
+    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
+                   kin: JointPlacements, shared: Any, jacobian: bool) -> Any:
+        """:meth:`row_cache` of a batch of rows at their loaded configurations (the joints'
+        placements ``kin`` with a leading row axis), for :attr:`rows_at_once` families."""
+        return None
+
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
                             ) -> np.ndarray | None:
         """A displacement (3,) of the marker in robot-world axes (a link bend), or ``None``."""
@@ -292,12 +319,12 @@ class JointDeflectionFamily(PoseFamily):
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         n_f = x_f.size
         if view.sag is None:
-            return np.zeros((3, n_f))
-        total = np.zeros((view.model.nv, n_f))
+            return np.zeros(view.point.shape + (n_f,))
+        total = np.zeros(view.sag.torque.shape + (n_f,))
         own = self.deflection_columns(pm, x_f, view.sag)
         if own is not None:
             total += own
         torque = self.torque_columns(pm, x_f, view.sag)
         if torque is not None:
-            total += view.sag.per_torque[:, None] * torque
+            total += view.sag.per_torque[..., None] * torque
         return view.to_measuring @ (view.j_point @ total)

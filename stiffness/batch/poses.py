@@ -1,0 +1,190 @@
+"""Placements, joint Jacobians and gravity torques of many configurations of one Pinocchio
+model, for array algebra over the rows (the pose model's evaluation,
+:mod:`stiffness.calibration.pose_model`).
+
+Pinocchio is called once per configuration in a tight loop that copies its results into
+preallocated arrays (``data.oMi``'s members and ``data.J`` are NumPy views on Pinocchio's
+memory, read without a copy of their own); everything derived from them (frame placements,
+the Jacobian of a point fixed to a frame) is NumPy over the whole batch.
+
+Shapes: ``m`` configurations, ``F`` frames (or points), ``nj`` joints (the universe
+included). Units: SI (m, rad).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.batch.linalg import cross_matrices
+from stiffness.batch.loops import support_mask
+
+
+@dataclass
+class JointPlacements:
+    """Every joint's placement in the world of ``m`` configurations.
+
+    Attributes
+    ----------
+    rotation
+        (m, nj, 3, 3) ``data.oMi[j].rotation``.
+    translation
+        (m, nj, 3) ``data.oMi[j].translation`` (m).
+    jacobian
+        (m, 6, nv) Pinocchio's joint Jacobians ``data.J`` (world axes, the spatial velocity
+        at the world origin: rows [v (m/rad); omega (rad/rad)]), or ``None`` when not asked.
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    jacobian: np.ndarray | None
+
+
+def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool = True
+                     ) -> JointPlacements:
+    """Joint placements (and joint Jacobians) of the (m, nq) configurations ``q``.
+
+    A model whose joints all turn or slide along a fixed axis (Pinocchio's ``R{X,Y,Z}``,
+    ``P{X,Y,Z}``, ``RevoluteUnaligned``, ``PrismaticUnaligned``) is placed by array algebra over
+    the configurations, joint after joint (:func:`_axis_joints`):
+    ``oMi[j] = oMi[parent] M_j exp(q_j a_j)``, and the
+    Jacobian column of joint ``j`` is ``[o_j x w_j; w_j]`` (revolute, ``w_j = R_j a_j``) or
+    ``[R_j a_j; 0]`` (prismatic), Pinocchio's to round-off (tests). Any other model calls
+    ``pin.computeJointJacobians`` (``pin.forwardKinematics`` without Jacobians) per
+    configuration; ``data`` is then scratch space.
+    """
+    axes = _axis_joints(model)
+    if axes is None:
+        return _pinocchio_placements(model, data, q, jacobians)
+    m, nj = q.shape[0], model.njoints
+    rotation = np.empty((m, nj, 3, 3))
+    translation = np.empty((m, nj, 3))
+    rotation[:, 0], translation[:, 0] = np.eye(3), 0.0
+    jacobian = np.zeros((m, 6, model.nv)) if jacobians else None
+    for j, (revolute, local) in enumerate(axes, start=1):
+        parent, placement = model.parents[j], model.jointPlacements[j]
+        rot = rotation[:, parent] @ placement.rotation
+        translation[:, j] = rotation[:, parent] @ placement.translation + translation[:, parent]
+        value = q[:, model.joints[j].idx_q]
+        axis = rot @ local  # world axes; the joint's own motion keeps it
+        if revolute:
+            rotation[:, j] = rot @ _axis_rotations(local, value)
+        else:
+            rotation[:, j] = rot
+            translation[:, j] += axis * value[:, None]
+        if jacobian is not None:
+            v = model.joints[j].idx_v
+            if revolute:
+                jacobian[:, 3:, v] = axis
+                jacobian[:, :3, v] = np.cross(translation[:, j], axis)
+            else:
+                jacobian[:, :3, v] = axis
+    return JointPlacements(rotation, translation, jacobian)
+
+
+def _axis_joints(model: pin.Model) -> list[tuple[bool, np.ndarray]] | None:
+    """(revolute, unit axis (3,) in the joint's frame) of each joint after the universe, or
+    ``None`` when one is not a revolute or prismatic joint about or along a fixed axis."""
+    out = []
+    for j in range(1, model.njoints):
+        kind = model.joints[j].shortname().replace("JointModel", "")
+        if kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
+            out.append((kind[0] == "R", np.asarray(model.joints[j].extract().axis, float)))
+        elif len(kind) == 2 and kind[0] in "RP" and kind[1] in "XYZ":
+            out.append((kind[0] == "R", np.eye(3)["XYZ".index(kind[1])]))
+        else:
+            return None
+    return out
+
+
+def _axis_rotations(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) rotations by ``angle`` (m,) (rad) about the unit ``axis`` (3,) (Rodrigues:
+    ``I + sin K + (1 - cos) K^2``)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                  [-axis[1], axis[0], 0.0]])
+    return (np.eye(3) + np.sin(angle)[:, None, None] * k
+            + (1.0 - np.cos(angle))[:, None, None] * (k @ k))
+
+
+def _pinocchio_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool
+                          ) -> JointPlacements:
+    """:func:`joint_placements` by one Pinocchio call per configuration."""
+    m, nj = q.shape[0], model.njoints
+    rotation = np.empty((m, nj, 3, 3))
+    translation = np.empty((m, nj, 3))
+    jacobian = np.empty((m, 6, model.nv)) if jacobians else None
+    rot_views = [data.oMi[j].rotation for j in range(nj)]
+    trans_views = [data.oMi[j].translation for j in range(nj)]
+    j_view = np.reshape(data.J, (6, model.nv))  # a view (squeezed when nv = 1)
+    for i in range(m):
+        if jacobian is not None:
+            pin.computeJointJacobians(model, data, q[i])
+            jacobian[i] = j_view
+        else:
+            pin.forwardKinematics(model, data, q[i])
+        rotation[i] = rot_views
+        translation[i] = trans_views
+    return JointPlacements(rotation, translation, jacobian)
+
+
+def frame_placements(model: pin.Model, kin: JointPlacements, frame_ids: list[int]
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (m, F, 3, 3) and translations (m, F, 3) of frames ``frame_ids`` in the world
+    (``oMi[parent] * placement``, as ``pin.updateFramePlacements``)."""
+    parents = [int(model.frames[f].parentJoint) for f in frame_ids]
+    local_rot = np.array([model.frames[f].placement.rotation for f in frame_ids]).reshape(-1, 3, 3)
+    local_t = np.array([model.frames[f].placement.translation for f in frame_ids]).reshape(-1, 3)
+    rot_p, t_p = kin.rotation[:, parents], kin.translation[:, parents]
+    return rot_p @ local_rot, np.einsum("mfab,fb->mfa", rot_p, local_t) + t_p
+
+
+def point_jacobians(model: pin.Model, kin: JointPlacements, frame_ids: list[int],
+                    points: np.ndarray) -> np.ndarray:
+    """d point / d v (m, F, 3, nv), world axes, of points (m, F, 3) (world, m) fixed to
+    frames ``frame_ids``: ``J_v - [p]x J_omega`` over the joints that move each frame (the
+    columns of ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` moved to the point)."""
+    assert kin.jacobian is not None
+    masks = np.array([support_mask(model, int(model.frames[f].parentJoint)) for f in frame_ids],
+                     dtype=float).reshape(len(frame_ids), model.nv)
+    j_v, j_w = kin.jacobian[:, None, :3], kin.jacobian[:, None, 3:]
+    lever = cross_matrices(points.reshape(-1, 3)).reshape(points.shape + (3,))
+    # cross_matrices(p) is -[p]x: J_v + X J_omega = J_v - [p]x J_omega
+    return (j_v + lever @ j_w) * masks[None, :, None, :]
+
+
+def generalized_gravity(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+    """(m, nv) ``pin.computeGeneralizedGravity`` of the (m, nq) configurations ``q`` (N.m or
+    N)."""
+    out = np.empty((q.shape[0], model.nv))
+    gravity = pin.computeGeneralizedGravity
+    for i in range(q.shape[0]):
+        out[i] = gravity(model, data, q[i])
+    return out
+
+
+def integrate(model: pin.Model, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(m, nq) ``pin.integrate`` of each (m, nq) configuration by its (m, nv) or (nv,)
+    displacement."""
+    v = np.broadcast_to(v, (q.shape[0], model.nv))
+    if _axis_joints(model) is not None:  # q and v are the same coordinates
+        return q + v
+    out = np.empty_like(q)
+    step = pin.integrate
+    for i in range(q.shape[0]):
+        out[i] = step(model, q[i], v[i])
+    return out
+
+
+def frame_jacobians(model: pin.Model, data: pin.Data, q: np.ndarray, frame_id: int
+                    ) -> np.ndarray:
+    """(m, 6, nv) ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of one frame at the
+    (m, nq) configurations ``q`` (after ``pin.computeJointJacobians``)."""
+    out = np.empty((q.shape[0], 6, model.nv))
+    rows = out[..., 0] if model.nv == 1 else out  # one coordinate: Pinocchio squeezes to (6,)
+    jacobians, frame_jacobian = pin.computeJointJacobians, pin.getFrameJacobian
+    for i in range(q.shape[0]):
+        jacobians(model, data, q[i])
+        rows[i] = frame_jacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
+    return out
