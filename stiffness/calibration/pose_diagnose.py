@@ -65,6 +65,7 @@ from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
 from stiffness.robot.robot import Robot, load_robot
+from stiffness.workspace.distributed import run_chunks
 
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
@@ -75,6 +76,8 @@ CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys
                         "link_compliance", "transversal_compliance", "base_tilt", "backlash",
                         "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
+#: A progress-bar factory: given a label, a ``(done, total)`` callback or ``None``.
+Bar = Callable[[str], Callable[[int, int], None] | None]
 #: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
 #: linearised hat matrix (:func:`~stiffness.calibration.pose_fit.held_out_rms`).
 HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
@@ -205,20 +208,36 @@ def _rms(values: np.ndarray) -> float:
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-         settings: dict, start: PoseFit | None = None, loss: str = "linear",
-         scale: float | None = None) -> PoseFit:
-    """Fit ``families``, starting from ``start``'s values of the parameters they share, under
-    ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`)."""
+         settings: dict, start: PoseFit | dict[str, float] | None = None,
+         loss: str = "linear", scale: float | None = None) -> PoseFit:
+    """Fit ``families``, starting from ``start``'s values of the parameters they share (a fit,
+    or its values by label), under ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`)."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
                       settings)
     return fit_pose_model(model, campaign, rows_of(model, campaign), families,
                           None if start is None else warm_start(model, start), loss, scale)
 
 
-def warm_start(model: PoseModel, fit: PoseFit) -> np.ndarray:
+def warm_start(model: PoseModel, fit: PoseFit | dict[str, float]) -> np.ndarray:
     """``fit``'s parameter values laid out for ``model`` (zero for parameters it lacks)."""
-    values = {p.label: v for p, v in zip(fit.model.parameters, fit.x, strict=True)}
+    values = fit if isinstance(fit, dict) else _values(fit)
     return np.array([values.get(p.label, 0.0) for p in model.parameters])
+
+
+def _values(fit: PoseFit) -> dict[str, float]:
+    """A fit's parameter values by label."""
+    return {p.label: float(v) for p, v in zip(fit.model.parameters, fit.x, strict=True)}
+
+
+def candidate_fit(campaign: PoseCampaign, families: list[str],
+                  frame0: tuple[np.ndarray, np.ndarray], settings: dict, start: dict[str, float],
+                  loss: str, scale: float | None, candidates: list[str], index: int
+                  ) -> tuple[PoseFit, float]:
+    """One task of a step's candidates (module-level: it runs on Dask workers): candidate
+    ``candidates[index]`` added to ``families``, fitted from ``start`` (values by label), and
+    its held-out RMS (m, :func:`held_out_rms`)."""
+    fit = _fit(campaign, families + [candidates[index]], frame0, settings, start, loss, scale)
+    return fit, held_out_rms(fit, campaign)
 
 
 @one_blas_thread
@@ -227,7 +246,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    progress: Callable[[str], None] | None = None,
                    loss: str = "linear", families: Sequence[str] = (),
                    not_families: Sequence[str] = (),
-                   base_tilt: Sequence[float] | None = None) -> PoseDiagnosis:
+                   base_tilt: Sequence[float] | None = None, workers: int | None = None,
+                   bar: Bar | None = None) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -258,6 +278,14 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         (``diagnose --base-tilt``, deg there): every model of the diagnosis feels gravity
         turned by it (model setting ``base_tilt_rad``, kept in the model file), and the
         ``base_tilt`` family fits what remains.
+    workers
+        Above 1, a step's candidate fits (each with its held-out RMS) run side by side on a
+        Dask LocalCluster of that many single-threaded processes
+        (:func:`~stiffness.workspace.distributed.run_chunks`, as ``scan --workers``); ``None``
+        or 1, in this process. The result does not depend on it.
+    bar
+        Given a label, a progress callback ``(done, total)`` for the held-out criterion's
+        configurations (``diagnose`` draws a bar on a terminal), or ``None``.
 
     Raises
     ------
@@ -280,18 +308,19 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         declared_tilt(settings)  # two finite angles, else a one-line error
     base = _fit(campaign, chosen, frame0, settings, loss=loss)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
-    steps = [PoseStep("baseline", base, 0.0, held_out_rms(base, campaign),
+    draw = bar or (lambda label: None)
+    steps = [PoseStep("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
                       _validation(base, validate))]
     for f in forced:
         say(f"step {len(steps)}: {f} (forced)")
         fit = _fit(campaign, chosen + [f], frame0, settings, steps[-1].fit, loss, scale)
         delta = _delta_bic(campaign, steps[-1].fit, {f: fit.loss_rss()}, {f: fit.n_fitted})
         chosen.append(f)
-        steps.append(PoseStep(f, fit, delta[f], held_out_rms(fit, campaign),
+        steps.append(PoseStep(f, fit, delta[f], held_out_rms(fit, campaign, draw(f"held-out {f}")),
                               _validation(fit, validate), forced=True))
     remaining = [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden]
     rejected = _search(campaign, chosen, frame0, settings, steps, remaining, scale, validate,
-                       say)
+                       say, workers, draw)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
     return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
                          sorted(forbidden), outliers, outlier_sigma)
@@ -320,21 +349,24 @@ def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
 
 def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray, np.ndarray],
             settings: dict, steps: list[PoseStep], remaining: list[str], scale: float | None,
-            validate: PoseCampaign | None, say: Callable[[str], None]) -> dict[str, float]:
+            validate: PoseCampaign | None, say: Callable[[str], None], workers: int | None,
+            bar: Bar) -> dict[str, float]:
     """The family-by-family search from ``steps[-1]`` over ``remaining`` (``chosen`` and
-    ``steps`` extended in place); returns the rejected families' BIC changes."""
+    ``steps`` extended in place), the candidates' fits on ``workers`` Dask workers above 1,
+    ``bar`` the held-out criterion's progress bars; returns the rejected families' BIC
+    changes."""
     rejected: dict[str, float] = {}
     while True:
         ready = [f for f in remaining if set(FAMILIES[f].requires) <= set(chosen)]
         if not ready:
             return rejected
         say(f"step {len(steps)}: trying {', '.join(ready)}")
-        tried, screened = _screened(campaign, chosen, frame0, settings, steps[-1].fit, ready,
-                                    scale)
+        tried, held_out, screened = _screened(campaign, chosen, frame0, settings,
+                                              steps[-1].fit, ready, scale, workers)
         delta = {**screened, **_delta_bic(campaign, steps[-1].fit,
                                           {f: t.loss_rss() for f, t in tried.items()},
                                           {f: t.n_fitted for f, t in tried.items()})}
-        best, cv_new, unfit = _winner(campaign, tried, delta, steps[-1].cv_rms)
+        best, cv_new, unfit = _winner(campaign, tried, delta, steps[-1].cv_rms, held_out, bar)
         rejected.update({f: delta[f] for f in unfit})
         remaining = [f for f in remaining if f not in unfit]
         if best is None:
@@ -347,14 +379,17 @@ def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray,
 
 
 def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-              settings: dict, current: PoseFit, ready: list[str], scale: float | None
-              ) -> tuple[dict[str, PoseFit], dict[str, float]]:
+              settings: dict, current: PoseFit, ready: list[str], scale: float | None,
+              workers: int | None = None
+              ) -> tuple[dict[str, PoseFit], dict[str, float], dict[str, float]]:
     """Each of ``ready`` added to ``families``, screened by one Gauss-Newton step from
     ``current`` (:func:`~stiffness.calibration.pose_fit.linearised_rss`: what its columns
     explain of the residual, to first order); the best
     :data:`~stiffness.calibration.selection.CV_TOP` by that BIC that pass
     :data:`~stiffness.calibration.selection.BIC_MARGIN` are fitted (under ``current``'s loss
-    and ``scale``). Returns those fits and every candidate's screened BIC change."""
+    and ``scale``), on ``workers`` Dask workers above 1 (:func:`candidate_fit`). Returns those
+    fits, their held-out RMS when computed on workers (else none: computed as needed), and
+    every candidate's screened BIC change."""
     screen = {}
     for f in ready:
         model = PoseModel(campaign.robot, campaign.markers, tuple(families + [f]), frame0,
@@ -364,8 +399,17 @@ def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndar
     delta = _delta_bic(campaign, current, {f: rss for f, (rss, _) in screen.items()},
                        {f: k for f, (_, k) in screen.items()})
     best = sorted((f for f in ready if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])[:CV_TOP]
-    return {f: _fit(campaign, families + [f], frame0, settings, current, current.loss, scale)
-            for f in best}, delta
+    if workers is None or workers <= 1 or len(best) < 2:
+        return {f: _fit(campaign, families + [f], frame0, settings, current, current.loss, scale)
+                for f in best}, {}, delta
+    # side by side on Dask workers, each fit with its held-out RMS (the in-process search
+    # validates lazily, in BIC order, until one wins: the same winner)
+    done: dict[int, tuple[PoseFit, float]] = {}
+    run_chunks(candidate_fit, (campaign, families, frame0, settings, _values(current),
+                               current.loss, scale, best), range(len(best)),
+               lambda i, result: done.__setitem__(i, result), workers=workers)
+    return ({f: done[i][0] for i, f in enumerate(best)},
+            {f: done[i][1] for i, f in enumerate(best)}, delta)
 
 
 def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
@@ -381,17 +425,20 @@ def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
 
 
 def _winner(campaign: PoseCampaign, tried: dict[str, PoseFit], delta: dict[str, float],
-            cv_current: float) -> tuple[str | None, float, list[str]]:
+            cv_current: float, held_out: dict[str, float], bar: Bar
+            ) -> tuple[str | None, float, list[str]]:
     """As deflection diagnose: of the extensions past :data:`BIC_MARGIN`, the best
     :data:`CV_TOP` by BIC are validated in that order, and the first whose held-out RMS
     (leave one configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`) beats
     ``cv_current`` wins (``None`` if none). Also returns those whose held-out RMS is infinite
     (a configuration alone determines some of their parameters): the campaign cannot
-    validate them, and the search drops them."""
+    validate them, and the search drops them. ``held_out`` holds those computed already (on
+    workers); ``bar`` makes a progress bar of the others."""
     eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
     unfit: list[str] = []
     for f in eligible[:CV_TOP]:
-        cv = held_out_rms(tried[f], campaign)
+        cv = held_out[f] if f in held_out else held_out_rms(tried[f], campaign,
+                                                            bar(f"held-out {f}"))
         if cv < cv_current:
             return f, cv, unfit
         if math.isinf(cv):

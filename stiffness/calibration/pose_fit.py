@@ -32,6 +32,7 @@ squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` i
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -250,7 +251,8 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     return objective_rss(residual - columns @ step, loss, sigma), len(kept)
 
 
-def held_out_rms(fit: PoseFit, campaign: PoseCampaign) -> float:
+def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
+                 progress: Callable[[int, int], None] | None = None) -> float:
     """Leave-one-configuration-out RMS of the position residual (m) without refitting: each
     configuration predicted by the parameters the fit would reach without it, to first order.
 
@@ -273,6 +275,9 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign) -> float:
     campaign
         The campaign the fit was made on: rows sharing a configuration label are left out
         together.
+    progress
+        Called with (configurations done, configurations) as each is predicted (a progress
+        bar), or ``None``.
     """
     jac, rows = fit.jacobian, fit.component_rows
     if jac is None or rows is None:
@@ -282,27 +287,40 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign) -> float:
     # the others only
     free = [c for c, i in enumerate(fit.identifiability.kept) if i not in fit.at_bound]
     q, tri = np.linalg.qr(jac[:, free])
-    labels = np.asarray(campaign.labels)
-    names = labels[rows]
+    # each configuration's rows and components, in the order the labels first appear
+    _, first, group = np.unique(np.asarray(campaign.labels), return_index=True,
+                                return_inverse=True)
+    order = np.argsort(first)
+    rows_of_group = _members(group, order)
+    components_of_group = _members(group[rows], order)
     kept = [fit.identifiability.kept[c] for c in free]
     held: list[np.ndarray] = []
-    for label in dict.fromkeys(labels.tolist()):
-        g = np.flatnonzero(names == label)
+    for done, (g, members) in enumerate(zip(components_of_group, rows_of_group, strict=True)):
         qg = q[g]
         a = np.eye(g.size) - qg @ qg.T
         if g.size and np.linalg.eigvalsh(a)[0] < LEVERAGE_TOL:
             return math.inf
         x = fit.x.copy()
         x[kept] -= linalg.solve_triangular(tri, qg.T @ np.linalg.solve(a, r[g]))
-        part = campaign.subset(np.flatnonzero(labels == label))
+        part = campaign.subset(members)
         obs = PoseObservations(fit.model, part, rows_of(fit.model, part))
         try:
             e, _ = obs.evaluate(x, jacobian=False)
         except ConvergenceError:
             return math.inf
         held.append(e[:int(obs.observed.sum())])
+        if progress is not None:
+            progress(done + 1, len(rows_of_group))
     errors = np.concatenate(held) if held else np.zeros(0)
     return math.sqrt(objective_rss(errors, fit.loss, fit.sigma) / max(errors.size, 1))
+
+
+def _members(group: np.ndarray, order: np.ndarray) -> list[np.ndarray]:
+    """The indices (ascending) of each group of ``group`` (each item's group number), the
+    groups in ``order``."""
+    index = np.argsort(group, kind="stable")
+    bounds = np.searchsorted(group[index], np.arange(order.size + 1))
+    return [index[bounds[k]:bounds[k + 1]] for k in order]
 
 
 @one_blas_thread

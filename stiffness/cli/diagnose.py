@@ -33,6 +33,7 @@ from stiffness.cli import flags
 from stiffness.elastic.effects import MASSES
 from stiffness.errors import StiffnessError
 from stiffness.files import output_folder
+from stiffness.workspace.definiteness import terminal_progress
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -52,9 +53,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, metavar="N",
                         help="processes fitting a step's candidates side by side (default: "
                              "the usable cores; 1: all in this process); the result does not "
-                             "depend on it. A pose campaign refits nothing per held-out "
-                             "configuration (leave-one-out from the fit's Jacobian), so it "
-                             "runs in this process")
+                             "depend on it. A pose campaign's candidates (each fit with its "
+                             "held-out RMS) go to a Dask LocalCluster of N single-threaded "
+                             "workers, as scan --workers (default: all in this process)")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     flags.add_strict_flag(parser)
     parser.add_argument("--loss", choices=LOSSES, default="linear",
@@ -201,7 +202,8 @@ def run_poses(args: argparse.Namespace) -> int:
     show = sys.stderr.isatty() and not args.quiet
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
-                            if show else None, loss=args.loss,
+                            if show else None, loss=args.loss, workers=args.workers,
+                            bar=lambda label: terminal_progress(label, args.quiet),
                             families=flags.parse_names(args.families) or (),
                             not_families=flags.parse_names(args.not_families) or (),
                             base_tilt=None if args.base_tilt is None else [
