@@ -21,7 +21,12 @@ from scipy import optimize
 
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING
+from stiffness.elastic.effects.geometry import (
+    BACKLASH_SMOOTHING,
+    Geometry,
+    chain_placements,
+    link_axes,
+)
 from stiffness.elastic.effects.joint_laws import Backlash
 from stiffness.elastic.effects.link_bends import (
     LinkCompliance,
@@ -214,3 +219,29 @@ def test_simulator_and_fitted_model_derive_the_same_axes_and_smoothing():
         assert fitted and set(fitted) <= set(simulated), robot.name
         for name, tau_s in fitted.items():
             assert simulated[name] == pytest.approx(tau_s, rel=1e-12), (robot.name, name)
+
+
+def test_deflection_simulator_derives_the_fitted_link_columns():
+    """The deflection simulator's hidden bends (:func:`stiffness.planning.simulate.build_truth`)
+    take their axis column from :func:`link_column` at the robot's reference pose: for every
+    segment of the target chain of the UR5, the SK120 (closed loop) and the Panda, the column
+    the fitted model's geometry chose, and the same axes as its ``link_axes`` at 10 random
+    configurations each (1e-12)."""
+    rng = np.random.default_rng(3)
+    for name in ("ur5", "sk120", "panda"):
+        robot = load_robot(name)
+        geo = Geometry.of(robot)
+        model = geo.robot.model
+        reference = geo.robot.assemble(None).q
+        ids = {j: int(model.getJointId(j)) for j in geo.chain}
+        assert len(geo.link_columns) >= 10, name
+        for (a, b), column in geo.link_columns.items():
+            assert link_column(model, ids[a], ids[b], reference) == column, (name, a, b)
+        for coords in sample_coordinates(geo.robot, 10, rng):
+            pin.forwardKinematics(model, geo.robot.data, geo.robot.configuration(coords))
+            origins, mounts = chain_placements(geo.robot, geo.chain)
+            for (a, b), column in geo.link_columns.items():
+                ia, ib = geo.chain.index(a), geo.chain.index(b)
+                fitted = link_axes(origins[ia], origins[ib], mounts[ib], column)
+                np.testing.assert_allclose(bend_axes(origins[ia], origins[ib], mounts[ib], column),
+                                           fitted, rtol=0, atol=1e-12)

@@ -16,7 +16,10 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
 * ``link_compliance:A->B=k[,k2]``: after the joint equilibrium, the part beyond B's origin turns
   by ``sum_i e_i (e_i . M_B) / k_i`` (N.m/rad; one value for both axes), with the moment and
   the axes at the deflected configuration (the coupling back into the joint torques is
-  second order and neglected).
+  second order and neglected); the axes are derived here
+  (:func:`stiffness.planning.simulate_poses.link_column` at the reference pose,
+  :func:`~stiffness.planning.simulate_poses.bend_axes`), not taken from the fitted model's
+  geometry (a test checks the two agree).
 * ``backlash:J=b``: ``dtheta_J += b tanh(tau_J / tau_s)`` (b in the campaign's angle unit;
   tau_s as in :mod:`stiffness.elastic.effects`), solved exactly with the rest.
 * ``nonlinear_joint_stiffness:J=beta``: ``dtheta_J = tau_J / k_J (1 + beta |tau_J|)``
@@ -69,7 +72,6 @@ from stiffness.elastic.effects.geometry import (
     References,
     cached_robot,
     chain_placements,
-    link_axes,
     rotation_matrix,
 )
 from stiffness.elastic.model import ElasticModel
@@ -84,6 +86,7 @@ from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangen
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import joint_preload, with_payload
 from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
+from stiffness.planning.simulate_poses import bend_axes, link_column
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -318,7 +321,7 @@ class Truth:
             origins, rotations = chain_placements(robot, self.chain)
             for a, b, column, k1, k2 in self.links:
                 ia, ib = self.chain.index(a), self.chain.index(b)
-                e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib], column)
+                e1, e2 = bend_axes(origins[ia], origins[ib], rotations[ib], column)
                 r = x - origins[ib]
                 m_b = np.cross(r, force)
                 omega = e1 * (e1 @ m_b) / k1 + e2 * (e2 @ m_b) / k2
@@ -345,7 +348,11 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
     robot = cached_robot(declared.name, declared.target_frame,
                          tuple(declared.target_offset.copy() + parts.target_shift), compliant,
                          declared.loop_file, declared.fixed_base)
-    model = ElasticModel.of_parts(robot, parts, link_columns=geometry.link_columns)
+    reference = declared.assemble(None).q
+    columns = {(a, b): link_column(declared.model, declared.model.getJointId(a),
+                                   declared.model.getJointId(b), reference)
+               for a, b, _, _ in parts.bends}
+    model = ElasticModel.of_parts(robot, parts, link_columns=columns)
     return Truth.of_model(model, geometry.chain)
 
 

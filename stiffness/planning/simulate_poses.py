@@ -174,12 +174,13 @@ def bend_axes(p_a: np.ndarray, p_b: np.ndarray, mount_rotation: np.ndarray, colu
     return np.cross(e2, u), e2
 
 
-def link_column(model: pin.Model, a: int, b: int) -> int:
+def link_column(model: pin.Model, a: int, b: int, q: np.ndarray | None = None) -> int:
     """The axis (0, 1, 2) of the body joint ``b`` is mounted on that is most nearly normal to
-    the link ``a -> b`` at the zero coordinates (the smallest ``|u . r_i|``, ``u`` the link's
-    direction; of two normal ones, the one nearer by rounding, as the fitted model picks)."""
+    the link ``a -> b`` at the configuration ``q`` (default the zero coordinates; the smallest
+    ``|u . r_i|``, ``u`` the link's direction; of two normal ones, the one nearer by rounding,
+    as the fitted model picks)."""
     data = model.createData()
-    pin.forwardKinematics(model, data, pin.neutral(model))
+    pin.forwardKinematics(model, data, pin.neutral(model) if q is None else q)
     seg = data.oMi[b].translation - data.oMi[a].translation
     mount = data.oMi[model.parents[b]].rotation
     return int(np.argmin(np.abs(mount.T @ (seg / np.linalg.norm(seg)))))
