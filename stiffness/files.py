@@ -89,6 +89,24 @@ def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
                               path=path) from exc
 
 
+def check_csv_header(cells: list[str], path: str | os.PathLike[str], line: int) -> None:
+    """Refuse a CSV header that is one cell holding semicolons or tabs: a file written with
+    another separator (a spreadsheet's ``;`` with decimal commas, a tab-separated export),
+    whose every line would otherwise read as one column.
+
+    Raises
+    ------
+    FileFormatError
+        The header is one cell with ``;`` or a tab in it.
+    """
+    if len(cells) == 1:
+        for separator, name in ((";", "';'"), ("\t", "tabs")):
+            if separator in cells[0]:
+                raise FileFormatError(f"the columns are separated by {name}, not commas; write "
+                                      "the file as CSV with commas (and '.' as the decimal "
+                                      "point)", path=path, line=line, column=1)
+
+
 def read_toml(path: str | os.PathLike[str], what: str = "TOML file") -> dict[str, Any]:
     """The table of a TOML file; syntax errors carry their line and column."""
     if sys.version_info >= (3, 11):

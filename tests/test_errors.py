@@ -260,3 +260,41 @@ def test_main_maps_every_type_to_one_line(monkeypatch, capsys, cls):
     monkeypatch.setitem(__import__("sys").modules, "boom_command", Command)
     err = _one_line_error(capsys, ["boom", "--q", "-1,2"])
     assert err.rstrip().endswith("first line second line")
+
+
+@pytest.mark.parametrize("separator", [";", "\t"])
+def test_csv_with_another_separator_is_named(tmp_path, separator):
+    """A spreadsheet's ';' (decimal commas) or a tab-separated export: every CSV reader says
+    which separator it found, in one line, instead of a missing 'config' or coordinate column
+    (campaign, pose campaign, rig import, joint path, plan)."""
+    from stiffness.calibration.pose_campaign import load_pose_campaign
+    from stiffness.calibration.rig_import import read_table
+    from stiffness.machining.compensation import read_joint_path
+    from stiffness.planning.plan import read_plan
+
+    def semi(source: Path, target: Path) -> Path:
+        target.write_text(source.read_text().replace(",", separator))
+        return target
+
+    word = "';'" if separator == ";" else "tabs"
+    campaign = tmp_path / "c"
+    campaign.mkdir()
+    (campaign / "campaign.toml").write_text((TABLE2 / "campaign.toml").read_text())
+    semi(TABLE2 / "measurements.csv", campaign / "measurements.csv")
+    poses = tmp_path / "p"
+    poses.mkdir()
+    (poses / "campaign.toml").write_text(
+        'kind = "poses"\n[robot]\nsource = "sk120"\n[units]\nangle = "deg"\nlength = "mm"\n'
+        '[measurement]\ndata = "m.csv"\n[markers]\ntip = { frame = "fixture_target" }\n')
+    (poses / "m.csv").write_text(separator.join(["config", "q1", "tip_x"]) + "\n"
+                                 + separator.join(["A", "1", "2"]) + "\n")
+    robot = load_robot("sk120")
+    readers = [lambda: load_campaign(campaign), lambda: load_pose_campaign(poses),
+               lambda: read_table(campaign / "measurements.csv"),
+               lambda: read_joint_path(semi(DOCS_PATH.parent / "sk120-path.csv",
+                                            tmp_path / "path.csv"), robot),
+               lambda: read_plan(campaign / "measurements.csv", robot)]
+    for read in readers:
+        with pytest.raises(FileFormatError, match=f"separated by {word}, not commas") as info:
+            read()
+        assert "\n" not in str(info.value)

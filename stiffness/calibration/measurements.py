@@ -28,9 +28,7 @@ from stiffness.errors import (
     FileFormatError,
     StiffnessError,
 )
-from stiffness.files import (
-    read_text,
-)
+from stiffness.files import check_csv_header, read_text
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.units import MAX_CELL, Units
@@ -253,6 +251,7 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
         if header is None:
             header = [c.strip() for c in cells]
             header_line = number
+            check_csv_header(header, data, number)
             continue
         rows.append((number, cells))
     if header is None:

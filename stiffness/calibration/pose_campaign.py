@@ -48,6 +48,7 @@ from stiffness.calibration.unit_checks import check_marker_spread
 from stiffness.errors import FileFormatError
 from stiffness.files import (
     atomic_write,
+    check_csv_header,
     number_text,
     read_text,
     read_toml,
@@ -255,6 +256,8 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
     text = read_text(data, "measurement file ([measurement] data)")
     lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(text)))
              if r and not r[0].lstrip().startswith("#")]
+    if lines:
+        check_csv_header(lines[0][1], data, lines[0][0])
     if len(lines) < 2:
         raise FileFormatError("no data rows after the header", path=data)
     coordinates, columns, wrench_cols, rot_columns = _header(lines[0][1], data, robot, markers)

@@ -57,7 +57,7 @@ from stiffness.errors import (
     StiffnessError,
     did_you_mean,
 )
-from stiffness.files import read_text, read_toml, resolve_path, resolve_source
+from stiffness.files import check_csv_header, read_text, read_toml, resolve_path, resolve_source
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.units import (
@@ -237,6 +237,7 @@ def read_table(path: str | os.PathLike) -> Table:
 
 
 def _check_header(cells: list[str], path: Path, line: int) -> None:
+    check_csv_header(cells, path, line)
     seen: dict[str, int] = {}
     for i, name in enumerate(cells):
         if not name:

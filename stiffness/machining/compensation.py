@@ -50,7 +50,7 @@ from stiffness.errors import (
     StiffnessError,
     with_context,
 )
-from stiffness.files import atomic_write, number_text, read_text
+from stiffness.files import atomic_write, check_csv_header, number_text, read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
@@ -578,6 +578,7 @@ def read_table(path: str | Path, what: str) -> Table:
         raise FileFormatError(f"no {what} rows: give a header line and one row per point",
                               path=path)
     header = [h.strip() for h in rows[0]]
+    check_csv_header(header, path, lines[0])
     for k, name in enumerate(header):
         if name and name in header[:k]:
             raise FileFormatError(f"the column {name!r} appears twice (columns "

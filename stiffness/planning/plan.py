@@ -54,7 +54,14 @@ from stiffness.errors import (
     MissingFileError,
     StiffnessError,
 )
-from stiffness.files import atomic_write, number_text, read_text, resolve_source, staged_folder
+from stiffness.files import (
+    atomic_write,
+    check_csv_header,
+    number_text,
+    read_text,
+    resolve_source,
+    staged_folder,
+)
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -184,6 +191,7 @@ def _plan_lines(text: str, data: Path, toml_path: Path | None, units: Units
         if header is None:
             header = [c.strip() for c in cells]
             header_line = number
+            check_csv_header(header, data, number)
         else:
             rows.append((number, cells))
     return header, header_line, rows, units, declared_line
