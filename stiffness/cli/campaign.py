@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     robot_flags = flags.robot_flags(args)
     if robot_flags.source is None:
         raise StiffnessError("--robot is required: a shipped robot, an "
-                                   "example-robot-data name or a URDF path")
+                                   "example-robot-data name, a URDF path or a robot.toml")
     flags.check_noise_std(args.noise, "--noise", "the files' length unit")
     flags.check_noise_std(args.noise_rotation, "--noise-rotation", "the files' angle unit")
     if args.noise_rotation is not None and args.kind != "poses":

@@ -45,8 +45,9 @@ from stiffness.units import LENGTH_UNITS, Units
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness design``."""
-    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name or "
-                                             "URDF path (default: --model's or --existing's)")
+    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name, "
+                                             "URDF path or robot.toml (default: --model's or "
+                                             "--existing's)")
     parser.add_argument("--model", metavar="FILE",
                         help="identified model (identified-model.json): robot, target, "
                              "compliant joints and the nominal K_theta")

@@ -80,7 +80,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness scan``."""
     flags.add_robot_flags(parser, robot_help=(
         "shipped robot (sk120, griffis-duffy, hexapod), example-robot-data name (ur5, "
-        "panda...) or URDF path (required unless --model gives it)"))
+        "panda...), URDF path or robot.toml (required unless --model gives it)"))
     parser.add_argument("--model", metavar="FILE",
                         help="model file of `stiffness identify` or `stiffness diagnose --out`: "
                              "its robot, target, springs and joint-compliance and target-offset "

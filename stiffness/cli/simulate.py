@@ -28,9 +28,9 @@ from stiffness.units import LENGTH_UNITS, Units
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Flags of ``stiffness simulate``."""
-    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name "
-                                             "or URDF path (required unless --plan is a folder "
-                                             "naming it)")
+    flags.add_robot_flags(parser, robot_help="shipped robot (sk120), example-robot-data name, "
+                                             "URDF path or robot.toml (required unless --plan "
+                                             "is a folder naming it)")
     parser.add_argument("--plan", metavar="PLAN",
                         help="simulate exactly these rows: a PLAN.csv written by `stiffness "
                              "design`, or its folder (whose campaign.toml gives the robot "
