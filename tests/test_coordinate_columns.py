@@ -230,6 +230,7 @@ def test_strict_refuses_unknown_columns_in_one_line(tmp_path):
     assert code == 2
     assert err.getvalue().count("\n") == 1 and "column(s) temp are not campaign columns" in \
         err.getvalue() and "Traceback" not in err.getvalue(), err.getvalue()
+    assert "ignored, refused under --strict; remove or rename them" in err.getvalue()
     assert not (tmp_path / "m.json").exists()
 
 

@@ -173,9 +173,10 @@ def warn_unknown(names: list[str], data: Path, what: str) -> None:
     """Say once that header columns ``names`` are ignored (``what``: the columns the file may
     have); :class:`UnknownColumnWarning`, an error under ``--strict``."""
     if names:
-        warnings.warn(f"{data}: column(s) {listed(names)} are not campaign columns and are "
-                      f"ignored ({what}; --strict refuses them)", UnknownColumnWarning,
-                      stacklevel=3)
+        # read as a warning (ignored) and, under --strict, as the error: says both
+        warnings.warn(f"{data}: column(s) {listed(names)} are not campaign columns ({what}): "
+                      "ignored, refused under --strict; remove or rename them",
+                      UnknownColumnWarning, stacklevel=3)
 
 
 def near_miss(unknown: list[str], wanted: str) -> str | None:
