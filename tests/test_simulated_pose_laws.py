@@ -24,6 +24,7 @@ from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import (
     BACKLASH_SMOOTHING,
     Geometry,
+    References,
     chain_placements,
     link_axes,
 )
@@ -35,6 +36,7 @@ from stiffness.elastic.effects.link_bends import (
     transversal_joints,
 )
 from stiffness.mechanics.gravity import spring_balancer
+from stiffness.planning.simulate import row_smoothing_torques
 from stiffness.planning.simulate_poses import (
     SPRING_BASE_M,
     SPRING_LEVER_M,
@@ -245,3 +247,18 @@ def test_deflection_simulator_derives_the_fitted_link_columns():
                 fitted = link_axes(origins[ia], origins[ib], mounts[ib], column)
                 np.testing.assert_allclose(bend_axes(origins[ia], origins[ib], mounts[ib], column),
                                            fitted, rtol=0, atol=1e-12)
+
+
+def test_deflection_simulator_derives_the_fitted_smoothing_torques():
+    """Backlash's smoothing torque in the deflection simulator
+    (:func:`stiffness.planning.simulate.row_smoothing_torques`, from the target Jacobian) is the
+    fitted model's (:meth:`References.of` over the campaign's rows) on the UR5, the SK120
+    (closed loop) and the hexapod (1e-12 relative): 6 configurations x 2 random forces."""
+    rng = np.random.default_rng(5)
+    for name in ("ur5", "sk120", "hexapod"):
+        geo = Geometry.of(load_robot(name))
+        q = np.repeat(sample_coordinates(geo.robot, 6, rng), 2, axis=0)
+        force = rng.normal(0.0, 100.0, (len(q), 3))
+        fitted = References.of(geo, geo.rows(q, force), 1.0, np.ones((1, 3))).tau_smoothing
+        np.testing.assert_allclose(row_smoothing_torques(geo.robot, q, force), fitted, rtol=1e-12,
+                                   err_msg=name)

@@ -21,7 +21,8 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
   :func:`~stiffness.planning.simulate_poses.bend_axes`), not taken from the fitted model's
   geometry (a test checks the two agree).
 * ``backlash:J=b``: ``dtheta_J += b tanh(tau_J / tau_s)`` (b in the campaign's angle unit;
-  tau_s as in :mod:`stiffness.elastic.effects`), solved exactly with the rest.
+  tau_s as in :mod:`stiffness.elastic.effects`, computed here: :func:`row_smoothing_torques`),
+  solved exactly with the rest.
 * ``nonlinear_joint_stiffness:J=beta``: ``dtheta_J = tau_J / k_J (1 + beta |tau_J|)``
   (beta in 1/(N.m); > 0 softens).
 * ``frame_misalignment=r`` or ``=rx,ry,rz``: the deflections are measured in a frame rotated by
@@ -69,7 +70,6 @@ from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.effects.geometry import (
     Geometry,
-    References,
     cached_robot,
     chain_placements,
     rotation_matrix,
@@ -86,7 +86,7 @@ from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangen
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import joint_preload, with_payload
 from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
-from stiffness.planning.simulate_poses import bend_axes, link_column
+from stiffness.planning.simulate_poses import SMOOTHING_FRACTION, bend_axes, link_column
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -615,8 +615,7 @@ def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect]
     geometry = Geometry.of(declared)
     truth = build_truth(declared, kq, list(hidden), units, np.zeros(len(geometry.joints)),
                         geometry)
-    rows = geometry.rows(q, applied + truth.force_bias)
-    smoothing = References.of(geometry, rows, 1.0, np.ones((1, 3))).tau_smoothing
+    smoothing = row_smoothing_torques(geometry.robot, q, applied + truth.force_bias)
     truth = build_truth(declared, kq, hidden, units, smoothing, geometry)
     clean6 = truth.deflections(q, applied, rotations=True)
     effect_rms = _effect_sizes(truth, declared, hidden, kq, units, smoothing, geometry, q,
@@ -625,6 +624,22 @@ def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect]
     baseline_error = float(np.sqrt(np.mean((clean6[:, :3] - linear) ** 2)))
     return (truth, dict(zip(geometry.joints, smoothing.tolist(), strict=True)), effect_rms,
             baseline_error, clean6)
+
+
+def row_smoothing_torques(robot: Robot, q: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """Backlash smoothing torque ``tau_s`` (N.m, N) of each of ``robot``'s compliant joints:
+    :data:`~stiffness.planning.simulate_poses.SMOOTHING_FRACTION` of the RMS torque
+    ``J^T F`` the recorded forces ``force`` (rows, 3; N) put on it at the rows' coordinates
+    ``q`` (rad, m), at least 1e-9 of it. What backlash's ``b`` means; computed here from the
+    target Jacobian, and a test checks it is the fitted model's."""
+    jac: dict[tuple, np.ndarray] = {}
+    torques = np.empty((len(q), robot.n_compliant))
+    for i, (c, f) in enumerate(zip(q, force, strict=True)):
+        key = tuple(c)
+        if key not in jac:
+            jac[key] = target_state(robot, robot.configuration(c)).jacobian[:3]
+        torques[i] = jac[key].T @ f
+    return SMOOTHING_FRACTION * np.maximum(np.sqrt(np.mean(torques ** 2, axis=0)), 1e-9)
 
 
 @dataclass
