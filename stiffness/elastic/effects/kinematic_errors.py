@@ -141,9 +141,8 @@ class JointGeometry(Effect, PoseFamily):
         each."""
         if shared is None:
             return None
-        parents = [data.oMi[model.parents[j]] for j in pm.joints]
-        return self._placement_columns(pm, model, np.array([p.rotation for p in parents]),
-                                       np.array([p.translation for p in parents]), shared)
+        parents = np.array([data.oMi[model.parents[j]].homogeneous for j in pm.joints])
+        return self._placement_columns(pm, model, parents[:, :3, :3], parents[:, :3, 3], shared)
 
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, shared: Any, jacobian: bool
@@ -162,20 +161,16 @@ class JointGeometry(Effect, PoseFamily):
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`row_cache` from the parents' placements (..., n_joints, 3, 3) and
         (..., n_joints, 3) (world, m)."""
-        own = [model.jointPlacements[j] for j in pm.joints]
-        own_rot = np.array([m.rotation for m in own]).reshape(-1, 3, 3)
-        own_t = np.array([m.translation for m in own]).reshape(-1, 3)
+        own = np.array([model.jointPlacements[j].homogeneous for j in pm.joints]
+                       ).reshape(-1, 4, 4)
+        own_rot, own_t = own[:, :3, :3], own[:, :3, 3]
         rows, _ = pm.geometry_index
         linear, angular = shared
         # R_a v = R_parent (R_j v): the joints' own placements turn the columns once
         local = np.stack([own_t[rows], np.einsum("gab,gb->ga", own_rot[rows], linear),
                           np.einsum("gab,gb->ga", own_rot[rows], angular)], axis=1)
-        lead = parent_rot.shape[:-3]
-        world = np.empty(lead + (rows.size, 3, 3))  # (..., parameter, [o, v, w], axis)
-        for n in np.unique(rows):  # one matrix product per joint over every row
-            g = np.flatnonzero(rows == n)
-            turned = parent_rot[..., n, :, :].reshape(-1, 3) @ local[g].reshape(-1, 3).T
-            world[..., g, :, :] = np.moveaxis(turned.reshape(lead + (3, g.size, 3)), -3, -1)
+        # (..., parameter, [o, v, w], axis): rows of local times R_parent^T
+        world = local @ np.swapaxes(parent_rot[..., rows, :, :], -1, -2)
         return world[..., 1, :], world[..., 2, :], world[..., 0, :] + parent_t[..., rows, :]
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
