@@ -244,10 +244,6 @@ class ModelFile:
         """Diagonal joint stiffness of the baseline's compliant joints (SI)."""
         return np.diag(self.k_theta)
 
-    def effects_of_kind(self, kind: str) -> list[ModelEffect]:
-        """The effects of one kind (``stiffness``, ``measurement``, ``lost_motion``)."""
-        return [e for e in self.effects if e.kind == kind]
-
     def check_robot(self, source: str | os.PathLike) -> None:
         """Refuse the model when ``source`` names another robot than the model's.
 

@@ -11,6 +11,7 @@ Units: SI (m, rad, N).
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import numpy as np
 
@@ -25,16 +26,29 @@ def diagonal_vector(values: tuple[float, ...]) -> np.ndarray:
     return values[0] * _DIAGONAL if len(values) == 1 else np.array(values, dtype=float)
 
 
-class FrameMisalignment(Effect):
+class VectorEffect(Effect):
+    """An effect of one three-vector in the campaign's unit of :attr:`quantity` (``angle``,
+    ``length`` or ``force``: :class:`stiffness.units.Units`): ``stiffness simulate`` takes its
+    three values, or one along (1, 1, 1)/sqrt(3)."""
+
+    quantity: ClassVar[str] = "length"
+    value_counts = (1, 3)
+
+    def simulated_values(self, values, units):
+        return diagonal_vector(values) * getattr(units, f"{self.quantity}_to_si")
+
+    def _units(self, units):
+        return [(getattr(units, self.quantity),
+                 getattr(units, f"{self.quantity}_to_si"))] * 3
+
+
+class FrameMisalignment(VectorEffect):
     """Measured ``dx = R(phi) dx_model``."""
 
     name = "frame_misalignment"
     kind = "measurement"
     param_names = ("rx", "ry", "rz")
-    value_counts = (1, 3)
-
-    def simulated_values(self, values, units):
-        return diagonal_vector(values) * units.angle_to_si
+    quantity = "angle"
 
     def contribute(self, values, parts):
         parts.measure(self.label, rotation=values[:3])
@@ -45,22 +59,15 @@ class FrameMisalignment(Effect):
     def output_map(self, p):
         return rotation_matrix(p), None
 
-    def _units(self, units):
-        return [(units.angle, units.angle_to_si)] * 3
-
     def describe(self) -> str:
         return "the instrument's frame is rotated against the robot base"
 
 
-class TargetOffset(Effect):
+class TargetOffset(VectorEffect):
     """The target is ``delta`` (target frame axes) away from the declared one."""
 
     name = "target_offset"
     param_names = ("dx", "dy", "dz")
-    value_counts = (1, 3)
-
-    def simulated_values(self, values, units):
-        return diagonal_vector(values) * units.length_to_si
 
     def contribute(self, values, parts):
         parts.shift_target(self.label, values[:3])
@@ -71,23 +78,17 @@ class TargetOffset(Effect):
     def target_shift(self, p, rows):
         return rows.rotation @ p
 
-    def _units(self, units):
-        return [(units.length, units.length_to_si)] * 3
-
     def describe(self) -> str:
         return "the measured target is not where the campaign says (target frame axes)"
 
 
-class ForceSensorBias(Effect):
+class ForceSensorBias(VectorEffect):
     """The recorded force is ``F + b``."""
 
     name = "force_sensor_bias"
     kind = "measurement"
     param_names = ("fx", "fy", "fz")
-    value_counts = (1, 3)
-
-    def simulated_values(self, values, units):
-        return diagonal_vector(values) * units.force_to_si
+    quantity = "force"
 
     def contribute(self, values, parts):
         parts.measure(self.label, force_bias=values[:3])
@@ -101,23 +102,16 @@ class ForceSensorBias(Effect):
     def adjust_load(self, p, force, moment):
         return force - p, moment
 
-    def _units(self, units):
-        return [(units.force, units.force_to_si)] * 3
-
     def describe(self) -> str:
         return "the recorded force carries a constant offset (base axes)"
 
 
-class DeflectionOffset(Effect):
+class DeflectionOffset(VectorEffect):
     """The measured deflections carry a constant offset."""
 
     name = "deflection_offset"
     kind = "measurement"
     param_names = ("dx", "dy", "dz")
-    value_counts = (1, 3)
-
-    def simulated_values(self, values, units):
-        return diagonal_vector(values) * units.length_to_si
 
     def contribute(self, values, parts):
         parts.measure(self.label, deflection_offset=values[:3])
@@ -130,9 +124,6 @@ class DeflectionOffset(Effect):
 
     def output_map(self, p):
         return None, p
-
-    def _units(self, units):
-        return [(units.length, units.length_to_si)] * 3
 
     def describe(self) -> str:
         return "the measured deflections carry a constant offset (the reference moved)"
