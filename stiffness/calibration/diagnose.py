@@ -73,6 +73,7 @@ from stiffness.calibration.selection import (
     fit_baseline,
     fit_job,
     fit_model,
+    fits_to_noise,
     goodness_of_fit,
     interval_quantile,
     parameter_covariance,
@@ -488,12 +489,9 @@ class _Search:
         steps: list[Step] = []
         ambiguities: list[tuple[int, Candidate, Candidate, float]] = []
         while True:
-            gof = goodness_of_fit(current.loss_rss, self.n, current.penalty_params,
-                                  self.sigma)
-            if gof is not None and gof > 1.0 - GOF_LEVEL:
-                return current, steps, ambiguities, (
-                    f"the model explains the data to noise (chi-square p = {gof:.3g} > "
-                    f"{1 - GOF_LEVEL:.2g})")
+            noise = fits_to_noise(current.loss_rss, self.n, current.penalty_params, self.sigma)
+            if noise is not None:
+                return current, steps, ambiguities, noise
             if len(steps) >= max_steps:
                 return (current, steps, ambiguities,
                         f"stopped after {max_steps} effects (max_steps)")

@@ -55,6 +55,7 @@ from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
     GOF_LEVEL,
+    fits_to_noise,
     goodness_of_fit,
     step_criteria,
 )
@@ -111,6 +112,7 @@ class PoseDiagnosis:
     forbidden: list[str] = field(default_factory=list)
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
+    stop_reason: str = ""
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -156,6 +158,7 @@ class PoseDiagnosis:
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
                 "rejected": self.rejected, "families": self.families,
+                "stop_reason": self.stop_reason,
                 "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
                 "outlier_threshold": OUTLIER_THRESHOLD,
@@ -319,11 +322,11 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         steps.append(PoseStep(f, fit, delta[f], held_out_rms(fit, campaign, draw(f"held-out {f}")),
                               _validation(fit, validate), forced=True))
     remaining = [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden]
-    rejected = _search(campaign, chosen, frame0, settings, steps, remaining, scale, validate,
-                       say, workers, draw)
+    rejected, stop = _search(campaign, chosen, frame0, settings, steps, remaining, scale,
+                             validate, say, workers, draw)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
     return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
-                         sorted(forbidden), outliers, outlier_sigma)
+                         sorted(forbidden), outliers, outlier_sigma, stop)
 
 
 def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
@@ -350,16 +353,22 @@ def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
 def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray, np.ndarray],
             settings: dict, steps: list[PoseStep], remaining: list[str], scale: float | None,
             validate: PoseCampaign | None, say: Callable[[str], None], workers: int | None,
-            bar: Bar) -> dict[str, float]:
+            bar: Bar) -> tuple[dict[str, float], str]:
     """The family-by-family search from ``steps[-1]`` over ``remaining`` (``chosen`` and
     ``steps`` extended in place), the candidates' fits on ``workers`` Dask workers above 1,
-    ``bar`` the held-out criterion's progress bars; returns the rejected families' BIC
-    changes."""
+    ``bar`` the held-out criterion's progress bars, until the model fits to noise
+    (:func:`~stiffness.calibration.selection.fits_to_noise`, deflection diagnose's stop rule)
+    or nothing helps; returns the families tried and not added, with their last BIC change,
+    and why it stopped."""
     rejected: dict[str, float] = {}
     while True:
+        fit = steps[-1].fit
+        noise = fits_to_noise(fit.loss_rss(), fit.n_observed, fit.n_fitted, campaign.noise_std)
+        if noise is not None:
+            return rejected, noise
         ready = [f for f in remaining if set(FAMILIES[f].requires) <= set(chosen)]
         if not ready:
-            return rejected
+            return rejected, "no candidate family left"
         say(f"step {len(steps)}: trying {', '.join(ready)}")
         tried, held_out, screened = _screened(campaign, chosen, frame0, settings,
                                               steps[-1].fit, ready, scale, workers)
@@ -371,7 +380,10 @@ def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray,
         remaining = [f for f in remaining if f not in unfit]
         if best is None:
             rejected.update(delta)
-            return rejected
+            return rejected, ("no family improves BIC by more than "
+                              f"{BIC_MARGIN:g} and the held-out error")
+        rejected.update({f: d for f, d in delta.items() if f != best})  # tried, not added
+        rejected.pop(best, None)
         chosen.append(best)
         remaining.remove(best)
         steps.append(PoseStep(best, tried[best], delta[best], cv_new,

@@ -50,6 +50,8 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): " + ", ".join(
             f"{f} ({v:+.3g})" for f, v in d.rejected.items()))
+    if d.stop_reason:
+        lines.append(f"search stopped: {d.stop_reason}")
     lines += ["", _verdict(d), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)

@@ -175,9 +175,21 @@ def parameter_covariance(fit: Fit, sigma: float, measured: np.ndarray) -> np.nda
 
 
 def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | None:
+    """Chi-square p-value of ``rss / sigma^2`` with ``n - p`` degrees of freedom, or ``None``
+    without a known noise std ``sigma`` (m) or degrees of freedom."""
     if sigma is None or n <= p:
         return None
     return float(chdtrc(n - p, rss / sigma ** 2))
+
+
+def fits_to_noise(rss: float, n: int, p: int, sigma: float | None) -> str | None:
+    """The stop rule of both campaign kinds' searches: why a search stops because its current
+    model explains the data to the noise (:func:`goodness_of_fit` above ``1 - GOF_LEVEL``,
+    known ``sigma`` only), or ``None`` when it goes on."""
+    gof = goodness_of_fit(rss, n, p, sigma)
+    if gof is None or gof <= 1.0 - GOF_LEVEL:
+        return None
+    return f"the model explains the data to noise (chi-square p = {gof:.3g} > {1 - GOF_LEVEL:.2g})"
 
 
 def interval_quantile(sigma: float | None, n: int, p: int, level: float = 0.975) -> float:
