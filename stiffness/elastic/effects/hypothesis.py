@@ -390,20 +390,8 @@ class Hypothesis:
 
         dtheta, t_theta, unloaded, t_unloaded = self._joint_deflection(
             law, directions, tau0, k_c, pre_tau, pre_k)
-        h_v = self.h[:, :3]
-        dx = np.einsum("mkn,mn->mk", jv, dtheta)
-        t_dx = jv @ t_theta if tangent else None
-        if self.second_order:
-            dx = dx + 0.5 * np.einsum("mkab,ma,mb->mk", h_v, dtheta, dtheta)
-            if tangent:
-                t_dx = t_dx + 0.5 * (contract_hessian(h_v, dtheta, 2)
-                                     + contract_hessian(h_v, dtheta, 3)
-                                     ) @ t_theta
-        if unloaded is not None:  # the load acts on the arm already deflected by the preload
-            dx = dx + np.einsum("mkab,ma,mb->mk", h_v, dtheta, unloaded)
-            if tangent:
-                t_dx = (t_dx + contract_hessian(h_v, unloaded, 3) @ t_theta
-                        + contract_hessian(h_v, dtheta, 2) @ t_unloaded)
+        sag = (dtheta, t_theta, unloaded, t_unloaded)
+        dx, t_dx = self._output(jv, self.h[:, :3], *sag)
         motions = [e.target_motion(p, self, rows, force, moment, point)
                    for e, p in zip(self.effects, params, strict=True)]
         for extra in motions:
@@ -417,20 +405,8 @@ class Hypothesis:
                     t_dx = rot @ t_dx
             if offset is not None:
                 dx = dx + offset
-        if self.rotation_weight is not None:
-            h_w = self.h[:, 3:]
-            dphi = np.einsum("mkn,mn->mk", jw, dtheta)
-            t_phi = jw @ t_theta if tangent else None
-            if self.second_order:  # 1/2 sum_{a<b} (w_a x w_b) dtheta_a dtheta_b
-                dphi = dphi + 0.5 * np.einsum("mkab,ma,mb->mk", h_w, dtheta, dtheta)
-                if tangent:
-                    t_phi = t_phi + 0.5 * (contract_hessian(h_w, dtheta, 2)
-                                           + contract_hessian(h_w, dtheta, 3)) @ t_theta
-            if unloaded is not None:  # J_w at the preloaded pose: K_C of unit moments
-                dphi = dphi + np.einsum("mkab,ma,mb->mk", h_w, dtheta, unloaded)
-                if tangent:
-                    t_phi = (t_phi + contract_hessian(h_w, unloaded, 3) @ t_theta
-                             + contract_hessian(h_w, dtheta, 2) @ t_unloaded)
+        if self.rotation_weight is not None:  # K_C of unit moments: the rotation's H
+            dphi, t_phi = self._output(jw, self.h[:, 3:], *sag)
             for extra in motions:
                 if extra is not None:
                     dphi = dphi + extra[1]
@@ -446,6 +422,30 @@ class Hypothesis:
         if torques:
             tau = tau0 if k_c is None else tau0 + np.einsum("mab,mb->ma", k_c, dtheta)
         return dx, dtheta, tau, t_dx
+
+    def _output(self, j: np.ndarray, h: np.ndarray, dtheta: np.ndarray,
+                t_theta: np.ndarray | None, unloaded: np.ndarray | None,
+                t_unloaded: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """One part of a row's output from the joint deflections ``dtheta`` (m, n): the
+        translation (``j`` = J_v, ``h`` the Hessians H_k) or the rotation (J_w, ``K_C`` of the
+        unit moments: ``1/2 sum_{a<b} (w_a x w_b) dtheta_a dtheta_b``). ``J dtheta``, with the
+        second-order kinematics ``1/2 sum_k e_k dtheta^T H_k dtheta``, and with a preload's
+        ``unloaded`` deflection the load seen on the arm it already deflected,
+        ``sum_k e_k dtheta^T H_k dtheta_0``; and its tangent along the analytic parameters
+        when ``t_theta`` (m, n, P) is given (``None`` otherwise)."""
+        d = np.einsum("mkn,mn->mk", j, dtheta)
+        t = None if t_theta is None else j @ t_theta
+        if self.second_order:
+            d = d + 0.5 * np.einsum("mkab,ma,mb->mk", h, dtheta, dtheta)
+            if t is not None:
+                t = t + 0.5 * (contract_hessian(h, dtheta, 2)
+                               + contract_hessian(h, dtheta, 3)) @ t_theta
+        if unloaded is not None:
+            d = d + np.einsum("mkab,ma,mb->mk", h, dtheta, unloaded)
+            if t is not None:
+                t = (t + contract_hessian(h, unloaded, 3) @ t_theta
+                     + contract_hessian(h, dtheta, 2) @ t_unloaded)
+        return d, t
 
     def _joint_deflection(self, law: SpringLaw, directions: tuple | None, tau0: np.ndarray,
                           k_c: np.ndarray | None, pre_tau: np.ndarray | None,
