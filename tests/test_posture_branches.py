@@ -25,7 +25,7 @@ from stiffness.robot.robot import load_robot
 K = np.array([8e4, 6e4, 4e4, 1.2e4, 1.2e4, 1e4])  # N.m/rad
 FORCE = np.array([0.0, 0.0, -300.0])  # N, base axes
 OFFSET = [0.06, 0.0, 0.1]  # m, in tool0
-M = 30
+M = 15
 #: Tool axis down: the reference frame is the half turn about y (free axis z onto -z).
 R0 = np.diag([-1.0, 1.0, -1.0])
 
