@@ -42,6 +42,7 @@ HIDDEN = [
     (UR5, "joint_compliance:wrist_1_joint=1e4"),
     (SK120, "link_compliance:joint2->elbow=2e6"),
     (UR5, "link_compliance:elbow_joint->wrist_1_joint=5e4"),
+    (UR5, "transversal_compliance:elbow_joint=3e4,2e4"),
     (SK120, "backlash:joint2=0.003"),
     (UR5, "nonlinear_joint_stiffness:elbow_joint=0.005"),
     (SK120, "nonlinear_joint_stiffness:joint3=0.001"),

@@ -33,9 +33,10 @@ def _model(robot, coords, forces, baseline="enhanced", effects=()):
 
 def test_library_names():
     assert set(REQUIRED_EFFECTS) == {
-        "complementary_stiffness", "joint_compliance", "link_compliance", "backlash",
-        "nonlinear_joint_stiffness", "frame_misalignment", "target_offset",
-        "force_sensor_bias", "gravity_preload", "gravity_compensator"}
+        "complementary_stiffness", "joint_compliance", "link_compliance",
+        "transversal_compliance", "backlash", "nonlinear_joint_stiffness",
+        "frame_misalignment", "target_offset", "force_sensor_bias", "gravity_preload",
+        "gravity_compensator"}
     assert set(REQUIRED_EFFECTS) < set(LIBRARY)
 
 

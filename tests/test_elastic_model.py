@@ -38,6 +38,7 @@ ROBOT_EFFECTS = {
     "complementary_stiffness": (None, []),
     "joint_compliance": ("wrist_1_joint", [1e4]),
     "link_compliance": ("elbow_joint->wrist_1_joint", [5e4, 3e4]),
+    "transversal_compliance": ("elbow_joint", [5e4, 3e4]),
     "nonlinear_joint_stiffness": ("elbow_joint", [1e-3]),
     "target_offset": (None, [0.02, -0.01, 0.03]),
     "gravity_preload": (None, [2.0, 0.0, 0.0, 0.05]),
@@ -165,7 +166,8 @@ def test_the_robot_effects_are_those_that_change_the_robot():
         parts = ElasticParts(dict(zip(ARM, K_ARM, strict=True)))
         effect.contribute(np.full(effect.n_params, 0.01), parts)
         assert parts.springs == dict(zip(ARM, K_ARM, strict=True)) and not parts.beta
-        assert not parts.bends and parts.payload is None and not parts.compensators
+        assert not parts.bends and not parts.tilts and parts.payload is None
+        assert not parts.compensators
         assert not np.any(parts.target_shift)
 
 

@@ -235,3 +235,37 @@ def test_families_without_a_deflection_effect_are_announced(calibration, tmp_pat
     tilted.write_text(json.dumps(doc))
     with pytest.warns(DataFileWarning, match="base_tilt of the calibration are not carried"):
         load_model(tilted)
+
+
+def test_a_calibrated_bearing_tilt_enters_the_compliance(calibration, tmp_path):
+    """A calibration holding transversal_compliance (elbow: 2e-6 rad/(N.m) about both axes
+    normal to its axis) is carried into the elastic model: its 3x3 compliance gains
+    ``[r]x c (I - w w^T) [r]x^T`` (``w`` the elbow's axis from the Jacobian, ``r`` from its
+    origin to the target, at the model's operating pose), 1e-9 relative."""
+    robot, path = calibration
+    doc = json.loads(path.read_text())
+    doc["families"] = [*doc["families"], "transversal_compliance"]
+    c = 2e-6
+    doc["parameters"] += [{"family": "transversal_compliance",
+                           "parameter": f"elbow_joint transversal compliance {i}",
+                           "unit": "rad/(N.m)", "value": c, "fitted": True, "std": 1e-7,
+                           "interval_95": [c - 2e-7, c + 2e-7]} for i in (1, 2)]
+    tilted = tmp_path / "tilted" / "final-model.json"
+    tilted.parent.mkdir()
+    tilted.write_text(json.dumps(doc))
+    with pytest.warns(UserWarning, match="held rigid"):
+        plain, em = load_model(path), load_model(tilted)
+    (tilt,) = em.links
+    assert tilt.tilt and tilt.b == "elbow_joint" and tilt.stiffness == (1 / c, 1 / c)
+    state = em.at(Q, np.zeros(3))
+    added = (state.compliance(formulation="conventional")
+             - plain.at(Q, np.zeros(3)).compliance(formulation="conventional"))
+    model, data = em.robot.model, em.robot.model.createData()
+    joint = model.getJointId("elbow_joint")
+    pin.computeJointJacobians(model, data, state.q)
+    jac = pin.getJointJacobian(model, data, joint, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+    w = jac[3:, model.joints[joint].idx_v]
+    r = state.position - data.oMi[joint].translation
+    skew = pin.skew(r)
+    expected = skew @ (c * (np.eye(3) - np.outer(w, w))) @ skew.T
+    assert np.linalg.norm(added - expected) < 1e-9 * np.linalg.norm(expected)

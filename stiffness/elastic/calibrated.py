@@ -12,17 +12,17 @@ deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose 
 ``gravity_preload``
     with the masses known the springs carried the robot's weight in the calibration, so the
     weight preloads them (no payload);
-``backlash``, ``link_compliance``, ``gravity_compensator``
-    the same effects, with the calibration's smoothing torques, ``1/c`` bend stiffnesses (a bend
-    off the target's chain does not act on it), and the compensator's default geometry with its
-    angle from the link's upward direction, as the calibration used them (the upward angle less
-    the joint's zero offset: the calibrated robot's joint angles are the commanded ones).
+``backlash``, ``link_compliance``, ``transversal_compliance``, ``gravity_compensator``
+    the same effects, with the calibration's smoothing torques, ``1/c`` bend and bearing-tilt
+    stiffnesses (a bend or a tilt off the target's chain does not act on it), and the
+    compensator's default geometry with its angle from the link's upward direction, as the
+    calibration used them (the upward angle less the joint's zero offset: the calibrated
+    robot's joint angles are the commanded ones).
 
 ``gravity_lumped`` (masses unknown) is compliance times unknown masses: no stiffness, so a
 calibration with it (and no ``joint_compliance``) has no springs. The families of
-:data:`NOT_CARRIED` (the joints' bearing tilts, the base's tilt) have no effect of the deflection
-library yet: they are listed in :attr:`CalibratedElastics.left_out` (the reader warns). Units:
-SI.
+:data:`NOT_CARRIED` (the base's tilt) have no effect of the deflection library: they are
+listed in :attr:`CalibratedElastics.left_out` (the reader warns). Units: SI.
 """
 
 from __future__ import annotations
@@ -39,15 +39,15 @@ from stiffness.elastic.effects.pose_face import (
     bend_label,
     compensator_label,
     compliance_label,
+    tilt_label,
 )
 from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.robot.calibration import PoseCalibration, zero_label
 from stiffness.robot.robot import load_robot
 
 #: Pose families with no deflection-library effect: the elastic model built from a calibration
-#: leaves them out (a stiffness prediction then ignores the bearings' tilts and takes gravity
-#: along the base's -z).
-NOT_CARRIED = ("transversal_compliance", "base_tilt")
+#: leaves them out (a stiffness prediction then takes gravity along the base's -z).
+NOT_CARRIED = ("base_tilt",)
 
 
 @dataclass
@@ -98,15 +98,15 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
         if row is not None:
             out.effects.append(("backlash", joint, [_as_is(row, "half_width")],
                                 {"smoothing_torque": float(smoothing[joint])}))
-    if "gravity_compensator" in cal.families or "link_compliance" in cal.families:
+    if {"gravity_compensator", "link_compliance", "transversal_compliance"} & set(cal.families):
         _geometry_effects(cal, rows, springs, out)
     return out
 
 
 def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[str],
                       out: CalibratedElastics) -> None:
-    """The compensators (their geometry as the calibration built it, on the nominal robot) and
-    the link bends of the target's chain."""
+    """The compensators (their geometry as the calibration built it, on the nominal robot), the
+    link bends and the joints' bearing tilts of the target's chain."""
     nominal = load_robot(cal.source, frame=cal.frame, target_offset=cal.target_offset_m,
                          compliant_joints=cal.compliant_joints, fixed_base=cal.fixed_base)
     geometry = Geometry.of(nominal)
@@ -123,13 +123,22 @@ def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[
                                 settings))
     for a, b in geometry.link_columns:
         pair = [row for row in (rows.get(bend_label(a, b, i)) for i in (1, 2)) if row]
-        if len(pair) < 2:
-            continue
-        k = [_inverse(row, f"stiffness_{i + 1}", "N.m/rad") for i, row in enumerate(pair)]
-        if any(v is not None for v in k):
-            out.effects.append(("link_compliance", f"{a}->{b}", [
-                v or Parameter(f"stiffness_{i + 1}", math.inf, math.nan, (math.nan, math.nan),
-                               "N.m/rad") for i, v in enumerate(k)], {}))
+        _add_bend(out, "link_compliance", f"{a}->{b}", pair)
+    for joint in geometry.tilt_columns:
+        pair = [row for row in (rows.get(tilt_label(joint, i)) for i in (1, 2)) if row]
+        _add_bend(out, "transversal_compliance", joint, pair)
+
+
+def _add_bend(out: CalibratedElastics, name: str, where: str, pair: list[dict]) -> None:
+    """The bend ``name`` at ``where`` of its two fitted compliance rows (stiffnesses ``1/c``;
+    one not determined is rigid, ``inf``), unless neither is determined."""
+    if len(pair) < 2:
+        return
+    k = [_inverse(row, f"stiffness_{i + 1}", "N.m/rad") for i, row in enumerate(pair)]
+    if any(v is not None for v in k):
+        out.effects.append((name, where, [
+            v or Parameter(f"stiffness_{i + 1}", math.inf, math.nan, (math.nan, math.nan),
+                           "N.m/rad") for i, v in enumerate(k)], {}))
 
 
 def _inverse(row: dict, name: str, unit: str) -> Parameter | None:

@@ -14,7 +14,9 @@ The elastic model (:class:`stiffness.elastic.model.ElasticModel`) holds:
   :func:`stiffness.elastic.effects.geometry.link_axes` at a reference configuration (the nominal one
   of a path point, :func:`frozen_axes`), fixed in the body joint ``b`` is mounted on. The bend
   rotates everything beyond it; loops are closed on the unbent kinematics (as in the effect
-  library).
+  library). A joint tilting in its bearing (``transversal_compliance``) is the same bend at the
+  joint's origin about the two axes of its mounting frame normal to its rotation axis
+  (:func:`stiffness.elastic.effects.geometry.tilt_axes`; :attr:`LinkBend.tilt`).
 
 Exact equilibrium (:func:`loaded_equilibrium`) under a dead wrench ``W`` at the target: unknowns
 ``z = [theta, alpha]``, equations ``theta - theta_c = law(J_theta^T W)``,
@@ -34,7 +36,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
-from stiffness.elastic.effects.geometry import link_axes, skew
+from stiffness.elastic.effects.geometry import link_axes, skew, tilt_axes
 from stiffness.errors import ConvergenceError, UnstableEquilibriumError
 from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import as_wrench, target_state
@@ -54,13 +56,21 @@ class LinkBend:
     """A link compliance: the segment ``a -> b`` bends at ``b``'s origin.
 
     ``column`` picks the mounting body's axis that :func:`link_axes` makes normal to the
-    segment; ``stiffness`` (2,) N.m/rad about ``e_1`` and ``e_2``.
+    segment; ``stiffness`` (2,) N.m/rad about ``e_1`` and ``e_2``. With ``tilt`` the joint
+    ``b`` (``a == b``) tilts in its bearing: ``column`` is its rotation axis and the bend's axes
+    the other two of its mounting frame (:func:`tilt_axes`).
     """
 
     a: str
     b: str
     column: int
     stiffness: tuple[float, float]
+    tilt: bool = False
+
+    @property
+    def label(self) -> str:
+        """``link bend a->b`` or ``transversal compliance b``."""
+        return f"transversal compliance {self.b}" if self.tilt else f"link bend {self.a}->{self.b}"
 
 
 class LoadedRobot(Protocol):
@@ -82,14 +92,29 @@ class LoadedRobot(Protocol):
         ...
 
 
+def bend_frame(model: pin.Model, data: pin.Data, lk: LinkBend
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bend's point (``b``'s origin, m) and its two axes ``e_1, e_2`` (world) from the
+    current placements ``data``: normal to the segment ``a -> b`` (:func:`link_axes`), or for a
+    tilt the joint's bearing axes (:func:`tilt_axes`)."""
+    jb = model.getJointId(lk.b)
+    point = np.array(data.oMi[jb].translation)
+    mount = data.oMi[model.parents[jb]].rotation
+    if lk.tilt:
+        e1, e2 = tilt_axes(mount @ model.jointPlacements[jb].rotation, lk.column)
+    else:
+        e1, e2 = link_axes(data.oMi[model.getJointId(lk.a)].translation, point, mount,
+                           lk.column)
+    return point, e1, e2
+
+
 def frozen_axes(em: LoadedRobot, links: list[LinkBend]) -> list[np.ndarray]:
     """Bend axes (2, 3) in each mounting body's frame, from the current placements."""
     model, data = em.springs.model, em.springs.data
     out = []
     for lk in links:
-        ja, jb = model.getJointId(lk.a), model.getJointId(lk.b)
-        mount = data.oMi[model.parents[jb]].rotation
-        e1, e2 = link_axes(data.oMi[ja].translation, data.oMi[jb].translation, mount, lk.column)
+        mount = data.oMi[model.parents[model.getJointId(lk.b)]].rotation
+        _, e1, e2 = bend_frame(model, data, lk)
         out.append(np.vstack([mount.T @ e1, mount.T @ e2]))
     return out
 

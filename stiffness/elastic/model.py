@@ -11,7 +11,8 @@ from joint springs (:meth:`ElasticModel.joint_springs`), from a model file
   springs (the baseline's and those effects add), nonlinear springs
   ``tau/k (1 + beta|tau|)``, backlash ``b tanh(tau/tau_s)``; zero compliance for a rigid one;
 * link bends (:class:`stiffness.elastic.loaded.LinkBend`): the segment ``a -> b`` bends at
-  ``b``'s origin about two axes normal to it;
+  ``b``'s origin about two axes normal to it, or a joint tilts in its bearing about the two
+  axes normal to its rotation axis (``transversal_compliance``);
 * preloads: the links' weight with a payload, and spring gravity compensators, whose torque
   ``tau_p`` acts at every pose and whose derivative ``K_p`` adds to ``K_C``;
 * the target (moved by a ``target_offset``) and the measurement effects (how a campaign
@@ -42,8 +43,14 @@ import pinocchio as pin
 from stiffness.batch.linalg import critical_load_factor
 from stiffness.elastic.compensator import Compensator, retargeted
 from stiffness.elastic.effects.base import Effect, ElasticParts
-from stiffness.elastic.effects.geometry import Geometry, chain_placements, link_axes, skew
-from stiffness.elastic.loaded import LinkBend, Loaded, linear_deflection, loaded_equilibrium
+from stiffness.elastic.effects.geometry import Geometry, joint_axis_column, skew
+from stiffness.elastic.loaded import (
+    LinkBend,
+    Loaded,
+    bend_frame,
+    linear_deflection,
+    loaded_equilibrium,
+)
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
@@ -137,7 +144,6 @@ class ElasticModel:
     _full: Robot | None = field(default=None, repr=False)
     _springs: Robot | None = field(default=None, repr=False)
     _weighed: pin.Model | None = field(default=None, repr=False)
-    _geometry: Geometry | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.k_theta.size == 0:
@@ -181,18 +187,18 @@ class ElasticModel:
         :attr:`stiffness.elastic.effects.geometry.Geometry.link_columns`); ``extra``: further
         attributes (``source``, ``applied``, ``not_applied``, ``beyond_springs``).
         """
-        geometry = None
         if parts.bends and link_columns is None:
-            geometry = Geometry.of(robot)
-            link_columns = geometry.link_columns
+            link_columns = Geometry.of(robot).link_columns
         links = tuple(LinkBend(a, b, link_columns[(a, b)], (k1, k2))
                       for a, b, k1, k2 in parts.bends) if link_columns is not None else ()
+        links += tuple(LinkBend(j, j, _tilt_column(robot, j), (k1, k2), tilt=True)
+                       for j, k1, k2 in parts.tilts)
         return cls(robot, parts.law(robot.spring_joints), links, formulation,
                    tuple(parts.not_applied), k_theta=np.array(
                        [parts.springs[j] for j in robot.compliant_joints], dtype=float),
                    payload=parts.payload, compensators=tuple(parts.compensators),
                    misalignment=parts.misalignment, force_bias=parts.force_bias,
-                   deflection_offset=parts.deflection_offset, _geometry=geometry, **extra)
+                   deflection_offset=parts.deflection_offset, **extra)
 
     @classmethod
     def with_effects(cls, robot: Robot, k_theta: np.ndarray | list[float],
@@ -272,7 +278,7 @@ class ElasticModel:
             text += " (nonlinear)"
         if np.any(self.law.backlash != 0):
             text += " + backlash"
-        return text + "".join(f" + link bend {lk.a}->{lk.b}" for lk in self.links)
+        return text + "".join(f" + {lk.label}" for lk in self.links)
 
     def deflection(self, q: np.ndarray, load: np.ndarray, measured: bool = False
                    ) -> np.ndarray:
@@ -300,7 +306,7 @@ class ElasticModel:
         if frame is None and target_offset is None:
             return Compensator(self, hold, method)
         moved = replace(self, robot=retargeted(self.robot, frame, target_offset), _full=None,
-                        _springs=None, _geometry=None, k_theta=self.k_theta.copy())
+                        _springs=None, k_theta=self.k_theta.copy())
         moved._weighed = self._weighed  # the payload stays where it is
         return Compensator(moved, hold, method)
 
@@ -393,20 +399,16 @@ class ElasticModel:
 
     def link_compliance(self, q: np.ndarray, position: np.ndarray) -> np.ndarray:
         """(6, 6) compliance the link bends add at the full configuration ``q`` with the target
-        at ``position`` (m): ``G E diag(1/k) E^T G^T`` per bend, ``G = [-[r]x; I]``, ``r`` from
-        the bend's point to the target."""
+        at ``position`` (m): ``G E diag(1/k) E^T G^T`` per bend (a joint's tilt included),
+        ``G = [-[r]x; I]``, ``r`` from the bend's point to the target, ``E = [e_1 e_2]`` its
+        axes (:func:`stiffness.elastic.loaded.bend_frame`)."""
         link = np.zeros((6, 6))
         if not self.links:
             return link
-        if self._geometry is None:
-            self._geometry = Geometry.of(self.robot)
-        chain = self._geometry.chain
         pin.forwardKinematics(self.robot.model, self.robot.data, q)
-        origins, rotations = chain_placements(self.robot, chain)
         for lk in self.links:
-            ia, ib = chain.index(lk.a), chain.index(lk.b)
-            e1, e2 = link_axes(origins[ia], origins[ib], rotations[ib], lk.column)
-            g = np.vstack([-skew(position - origins[ib]), np.eye(3)])
+            point, e1, e2 = bend_frame(self.robot.model, self.robot.data, lk)
+            g = np.vstack([-skew(position - point), np.eye(3)])
             e = np.column_stack([e1, e2])
             link += g @ e @ np.diag([1.0 / lk.stiffness[0], 1.0 / lk.stiffness[1]]) @ e.T @ g.T
         return link
@@ -758,6 +760,26 @@ class Deflection:
     def twist(self) -> np.ndarray:
         """(6,) ``[dx; dphi]`` (m; rad)."""
         return np.concatenate([self.dx, self.dphi])
+
+
+def _tilt_column(robot: Robot, joint: str) -> int:
+    """The rotation axis's column of a joint tilting in its bearing.
+
+    Raises
+    ------
+    UnknownNameError
+        Not a revolute joint of ``robot`` about an axis of its frame.
+    """
+    model = robot.model
+    column = (joint_axis_column(model, model.getJointId(joint))
+              if model.existJointName(joint) else None)
+    if column is None:
+        joints = [n for j, n in enumerate(model.names) if j > 0
+                  and joint_axis_column(model, j) is not None]
+        raise UnknownNameError(f"transversal_compliance needs a revolute joint of {robot.name} "
+                               f"about an axis of its frame, got {joint!r}; valid names: "
+                               f"{', '.join(joints)}", name=joint, choices=joints)
+    return column
 
 
 def _check_formulation(formulation: str) -> None:

@@ -399,7 +399,7 @@ def _read_calibration(path: Path) -> ModelFile:
                       "determined by the calibration: held rigid", DataFileWarning, stacklevel=3)
     if parts.left_out:
         warnings.warn(f"{path}: {', '.join(parts.left_out)} of the calibration are not carried "
-                      "into the elastic model (no deflection effect yet): its predictions leave "
+                      "into the elastic model (no deflection effect): its predictions leave "
                       "them out", DataFileWarning, stacklevel=3)
     k = parts.stiffness
     value, se, low, high = np.array([[p.value, p.standard_error, *p.ci95] for p in k],

@@ -20,6 +20,9 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
   (:func:`stiffness.planning.simulate_poses.link_column` at the reference pose,
   :func:`~stiffness.planning.simulate_poses.bend_axes`), not taken from the fitted model's
   geometry (a test checks the two agree).
+* ``transversal_compliance:J=k[,k2]``: the same turn of the part beyond J's origin, about the two
+  axes of J's mounting frame normal to its rotation axis, which is found here from J's motion
+  subspace (:func:`_tilt_axes`).
 * ``backlash:J=b``: ``dtheta_J += b tanh(tau_J / tau_s)`` (b in the campaign's angle unit;
   tau_s as in :mod:`stiffness.elastic.effects`, computed here: :func:`row_smoothing_torques`),
   solved exactly with the rest.
@@ -86,7 +89,12 @@ from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangen
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import joint_preload, with_payload
 from stiffness.planning.plan import Plan, PlannedRobot, plan_and_robot
-from stiffness.planning.simulate_poses import SMOOTHING_FRACTION, bend_axes, link_column
+from stiffness.planning.simulate_poses import (
+    SMOOTHING_FRACTION,
+    bend_axes,
+    link_column,
+    rotation_axis_column,
+)
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -177,7 +185,8 @@ class Truth:
     law
         Joint law over ``robot.compliant_joints``.
     links
-        ``(a, b, column, k1, k2)`` hidden link compliances.
+        ``(a, b, column, k1, k2)`` hidden link compliances, and joints tilting in their bearings
+        (``a == b``).
     chain
         The target chain's joints.
     misalignment
@@ -320,14 +329,33 @@ class Truth:
             pin.forwardKinematics(robot.model, robot.data, q)
             origins, rotations = chain_placements(robot, self.chain)
             for a, b, column, k1, k2 in self.links:
-                ia, ib = self.chain.index(a), self.chain.index(b)
-                e1, e2 = bend_axes(origins[ia], origins[ib], rotations[ib], column)
+                ib = self.chain.index(b)
+                if a == b:  # a joint tilting in its bearing (axes derived here)
+                    e1, e2 = _tilt_axes(robot.model, b, rotations[ib])
+                else:
+                    e1, e2 = bend_axes(origins[self.chain.index(a)], origins[ib], rotations[ib],
+                                       column)
                 r = x - origins[ib]
                 m_b = np.cross(r, force)
                 omega = e1 * (e1 @ m_b) / k1 + e2 * (e2 @ m_b) / k2
                 dx = dx + np.cross(omega, r)
                 rot = rot + omega
         return np.concatenate([dx, rot])
+
+
+def _tilt_axes(model: pin.Model, joint: str, parent_rotation: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The two axes (world) a joint tilts about in its bearing: the axes of its mounting frame
+    (``parent_rotation`` times its placement's) other than the one it turns about, found from
+    its motion subspace (:func:`~stiffness.planning.simulate_poses.rotation_axis_column`), in
+    cyclic order."""
+    jid = model.getJointId(joint)
+    axis = rotation_axis_column(model, jid)
+    if axis is None:
+        raise StiffnessError(f"transversal_compliance on {joint}: not a revolute joint about an "
+                             "axis of its frame")
+    mount = parent_rotation @ model.jointPlacements[jid].rotation
+    return mount[:, (axis + 1) % 3], mount[:, (axis + 2) % 3]
 
 
 def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], units: Units,

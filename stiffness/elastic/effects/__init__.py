@@ -32,6 +32,13 @@ The deflection campaigns' library (:data:`LIBRARY`):
     Parameters the stiffnesses ``k_1, k_2`` (N.m/rad) about ``e_1, e_2`` (:func:`link_axes`).
     In a closed loop the rotation is taken as in a serial chain (the loop's reaction to it is
     neglected).
+``transversal_compliance`` (where: a compliant revolute joint of the target's chain)
+    The joint tilts in its bearing at its origin ``p_j`` about the two axes ``e_1, e_2`` of its
+    mounting frame normal to its rotation axis (:func:`~.geometry.tilt_axes`): under the moment
+    ``M_j = (x_t - p_j) x F + M`` the part beyond turns by ``omega = sum_i e_i (e_i . M_j) /
+    k_i`` and the target moves by ``omega x (x_t - p_j)``. Parameters the tilting stiffnesses
+    ``k_1, k_2`` (N.m/rad). Where the segment ending at the joint lies along its axis the
+    same two axes bend ``link_compliance``: identifiability reports the two merged.
 ``backlash`` (where: a compliant joint)
     Lost motion: ``dtheta_j += b tanh(tau_j / tau_s)``, a dead band of half-width ``b`` (rad)
     smoothed over ``tau_s`` = :data:`BACKLASH_SMOOTHING` times the joint's RMS torque over the
@@ -73,7 +80,7 @@ gravity torque: :mod:`~stiffness.elastic.effects.base_tilt`); ``joint_compliance
 ``gravity_lumped`` (masses unknown), ``link_compliance``, ``backlash``, ``gravity_compensator``
 (elastic, the same classes as the deflection effects of those names);
 ``transversal_compliance`` (elastic, a joint tilting in its bearing:
-:mod:`~stiffness.elastic.effects.link_bends`, pose model only). ``base_tilt``,
+:mod:`~stiffness.elastic.effects.link_bends`, also a deflection effect). ``base_tilt``,
 ``link_compliance``, ``transversal_compliance`` and ``backlash`` need the links' masses (not
 with ``gravity_lumped``); ``gravity_compensator`` acts through ``joint_compliance``.
 
@@ -123,7 +130,8 @@ EFFECTS: dict[str, type[Effect]] = {
 #: listed.
 LIBRARY: dict[str, type[Effect]] = {
     name: EFFECTS[name] for name in (
-        "complementary_stiffness", "joint_compliance", "link_compliance", "backlash",
+        "complementary_stiffness", "joint_compliance", "link_compliance",
+        "transversal_compliance", "backlash",
         "nonlinear_joint_stiffness", "frame_misalignment", "target_offset",
         "force_sensor_bias", "deflection_offset", "gravity_preload", "gravity_lumped",
         "gravity_compensator")
@@ -164,11 +172,12 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     """Every library effect that can extend ``model`` (each effect and place at most once).
 
     ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
-    ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`); ``backlash``
-    and ``nonlinear_joint_stiffness`` of each compliant joint; then the global effects, the
-    weight as ``gravity_preload`` with the ``masses`` known, else ``gravity_lumped``
-    (:data:`MASSES`). An effect whose label ``declared`` names takes those settings
-    (:meth:`Effect.declare`).
+    ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`);
+    ``transversal_compliance`` of each compliant revolute chain joint whose axis is a frame axis
+    (:attr:`Geometry.tilt_columns`); ``backlash`` and ``nonlinear_joint_stiffness`` of each
+    compliant joint; then the global effects, the weight as ``gravity_preload`` with the
+    ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`). An effect whose label
+    ``declared`` names takes those settings (:meth:`Effect.declare`).
     """
     geo = model.geometry
     have = {e.key() for e in model.effects}
@@ -186,6 +195,9 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
             add(make_effect("joint_compliance", j, geo))
     for a, b in geo.link_segments():
         add(LinkCompliance(a=a, b=b, column=geo.link_columns[(a, b)]))
+    for j in model.joints:
+        if j in geo.tilt_columns:
+            add(TransversalCompliance(a=j, b=j, column=geo.tilt_columns[j]))
     for j in model.joints:
         add(make_effect("backlash", j, geo))
         add(make_effect("nonlinear_joint_stiffness", j, geo))

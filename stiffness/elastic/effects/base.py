@@ -154,6 +154,10 @@ class Effect:
     #: (:meth:`adjust_law` of :meth:`physical`): the model then differentiates the prediction
     #: with respect to them analytically (:meth:`Hypothesis.predict_with_jacobian`)
     through_law: ClassVar[bool] = False
+    #: whether the variables enter only through :meth:`target_motion`, linearly (a bend): the
+    #: model then takes their columns exactly, as the motion at unit variables
+    #: (:attr:`Hypothesis.analytic_columns`)
+    linear_motion: ClassVar[bool] = False
     #: how the effect enters a model used away from its campaign
     #: (:mod:`stiffness.elastic.model_file`): one of :data:`EFFECT_KINDS`
     kind: ClassVar[str] = "stiffness"
@@ -413,6 +417,8 @@ class ElasticParts:
         Joint -> torque (N.m, N) over which a backlash is smoothed (1 where not given).
     bends
         ``(a, b, k_1, k_2)`` link bends (N.m/rad), in order.
+    tilts
+        ``(joint, k_1, k_2)`` joints tilting in their bearings (N.m/rad), in order.
     payload
         ``(mass kg, centre of mass (3,) m in target frame axes)`` when the robot's weight
         preloads the joints, else ``None``.
@@ -437,6 +443,7 @@ class ElasticParts:
     backlash: dict[str, float] = field(default_factory=dict)
     smoothing: dict[str, float] = field(default_factory=dict)
     bends: list[tuple[str, str, float, float]] = field(default_factory=list)
+    tilts: list[tuple[str, float, float]] = field(default_factory=list)
     payload: tuple[float, np.ndarray] | None = None
     compensators: list[tuple[str, float, float, dict]] = field(default_factory=list)
     target_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -477,6 +484,11 @@ class ElasticParts:
         """The segment ``a -> b`` bends at ``b``'s origin, stiffnesses ``k_1, k_2``
         (N.m/rad)."""
         self.bends.append((a, b, float(k_1), float(k_2)))
+
+    def add_tilt(self, joint: str, k_1: float, k_2: float) -> None:
+        """The revolute ``joint`` tilts in its bearing at its origin about the two axes normal
+        to its rotation axis, stiffnesses ``k_1, k_2`` (N.m/rad)."""
+        self.tilts.append((joint, float(k_1), float(k_2)))
 
     def weigh(self, mass: float, centre: np.ndarray) -> None:
         """The links' weight and a payload of ``mass`` (kg) with its centre of mass at

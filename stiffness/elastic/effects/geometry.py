@@ -150,6 +150,11 @@ class Geometry:
     link_columns
         ``(a, b) -> column`` of ``b``'s mounting body axes used for :func:`link_axes`, chosen
         at the zero coordinates (so a simulator and a diagnosis agree on the axes).
+    tilt_columns
+        Revolute chain joint whose axis is an axis of its frame -> that axis's column
+        (:func:`joint_axis_column`): the joints whose bearing may tilt
+        (``transversal_compliance``, :func:`tilt_axes`); of such joints whose origins coincide
+        the last stands for the group (:func:`last_of_groups`).
     """
 
     robot: Robot
@@ -157,6 +162,7 @@ class Geometry:
     chain: tuple[str, ...]
     prismatic: np.ndarray
     link_columns: dict[tuple[str, str], int] = field(default_factory=dict)
+    tilt_columns: dict[str, int] = field(default_factory=dict)
     #: weighed links -> their weight bases and the regressor per distinct configuration
     _weights: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -175,6 +181,7 @@ class Geometry:
         prismatic = np.array([full.is_prismatic(j) for j in full.spring_joints], dtype=bool)
         geo = cls(full, tuple(full.spring_joints), chain, prismatic)
         geo.link_columns = geo._choose_link_columns()
+        geo.tilt_columns = geo._choose_tilt_columns()
         return geo
 
     def _placements(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,6 +209,14 @@ class Geometry:
                 u = seg / norm
                 out[(a, self.chain[ib])] = int(np.argmin(np.abs(rotations[ib].T @ u)))
         return out
+
+    def _choose_tilt_columns(self) -> dict[str, int]:
+        origins, _ = self._placements(self._reference_q())
+        model = self.robot.model
+        columns = [joint_axis_column(model, model.getJointId(name)) for name in self.chain]
+        return {name: column for name, column, last in zip(
+                    self.chain, columns, last_of_groups(origins, columns), strict=True)
+                if column is not None and last}
 
     def angles(self, rows: Rows) -> dict[str, np.ndarray]:
         """Each spring joint (:attr:`joints`, in order) and its value (m,) (rad or m) at the
@@ -341,6 +356,39 @@ def link_axes(p_a: np.ndarray, p_b: np.ndarray, mount_rotation: np.ndarray, colu
     e1 = ref - np.sum(ref * u, axis=-1, keepdims=True) * u
     e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
     return e1, np.cross(u, e1)
+
+
+def joint_axis_column(model: pin.Model, joint: int) -> int | None:
+    """The column (0, 1, 2 for x, y, z) of a revolute joint's axis in its own frame, or
+    ``None`` for another joint or a revolute joint about an arbitrary axis."""
+    kind = model.joints[joint].shortname().replace("JointModel", "")
+    for prefix in ("RUB", "R"):
+        if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
+            return "XYZ".index(kind[len(prefix):])
+    return None
+
+
+def last_of_groups(origins: np.ndarray, columns: list[int | None]) -> list[bool]:
+    """Per joint of a chain (base to tip; ``origins`` (c, 3) m at the reference pose,
+    ``columns`` :func:`joint_axis_column`), whether it is not followed by a tilting joint whose
+    origin is within :data:`MIN_SEGMENT_M` of its own. Two joints whose origins coincide (the
+    Panda's first two, a wrist) turn about one point: the first one's tilts in its bearing, about
+    axes fixed in its parent, are the second one's rotation and tilt there when both tilt alike
+    (an exact alias under vertical loads), so only the last of such a group tilts."""
+    out = []
+    for i in range(len(columns)):
+        nxt = i + 1
+        out.append(not (nxt < len(columns) and columns[nxt] is not None
+                        and np.linalg.norm(origins[nxt] - origins[i]) < MIN_SEGMENT_M))
+    return out
+
+
+def tilt_axes(mount_rotation: np.ndarray, column: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two unit axes (each (..., 3)) about which a revolute joint tilts in its bearing:
+    the columns of its mounting frame ``oMi[parent] M_j`` (rotation ``mount_rotation``, fixed in
+    the parent link) other than its rotation axis ``column``, in cyclic order (so
+    ``e_1 x e_2`` is the joint's axis)."""
+    return mount_rotation[..., :, (column + 1) % 3], mount_rotation[..., :, (column + 2) % 3]
 
 
 # ------------------------------------------------------------------------------------------

@@ -236,13 +236,33 @@ class Hypothesis:
 
     @property
     def analytic_columns(self) -> np.ndarray:
-        """(p,) mask of the parameters :meth:`predict_with_jacobian` differentiates: ``ln k``
-        and the variables of effects acting through the joint law (:attr:`Effect.through_law`);
-        the fitting engine differentiates the others numerically."""
+        """(p,) mask of the parameters :meth:`predict_with_jacobian` differentiates: ``ln k``,
+        the variables of effects acting through the joint law (:attr:`Effect.through_law`) and
+        those of effects moving the target linearly (:attr:`Effect.linear_motion`); the fitting
+        engine differentiates the others numerically."""
         mask = np.ones(self.n_params, dtype=bool)
         for i, e in enumerate(self.effects):
-            mask[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law
+            mask[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law or e.linear_motion
         return mask
+
+    def _motion_columns(self, rows: Rows, force: np.ndarray, moment: np.ndarray,
+                        point: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """The columns of the effects moving the target linearly (:attr:`Effect.linear_motion`):
+        ``(position among the analytic columns, d dx / d u (m, 3), d dphi / d u (m, 3))`` per
+        variable, exact (the motion at the unit variable: it is linear in its variables)."""
+        analytic = np.cumsum(self.analytic_columns) - 1
+        out = []
+        for i, e in enumerate(self.effects):
+            if not e.linear_motion:
+                continue
+            for k in range(e.n_params):
+                unit = np.zeros(e.n_params)
+                unit[k] = 1.0
+                motion = e.target_motion(e.physical(unit, self.refs), self, rows, force, moment,
+                                         point)
+                assert motion is not None  # a linear motion moves the target
+                out.append((int(analytic[self.offsets[i + 1] + k]), motion[0], motion[1]))
+        return out
 
     def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted displacements (m, 3) and their derivatives (m, 3, p) w.r.t. ``x`` in
@@ -294,7 +314,12 @@ class Hypothesis:
         d = np.zeros((3, len(columns), n))
         n0 = len(self.compliant)
         d[0, np.arange(n0), np.arange(n0)] = -law.compliance[:n0]
+        through = np.zeros(self.n_params, dtype=bool)
+        for i, e in enumerate(self.effects):
+            through[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law
         for row, column in enumerate(columns[n0:], start=n0):
+            if not through[column]:  # a linear motion: the law does not move
+                continue
             step = x.copy()
             step[column] += 1.0
             moved = self.law(step)
@@ -397,6 +422,11 @@ class Hypothesis:
         for extra in motions:
             if extra is not None:
                 dx = dx + extra[0]
+        moving = []
+        if t_dx is not None:  # with the tangent
+            moving = self._motion_columns(rows, force, moment, point)
+            for column, d_dx, _ in moving:
+                t_dx[:, :, column] += d_dx
         maps = [e.output_map(p) for e, p in zip(self.effects, params, strict=True)]
         for rot, offset in maps:
             if rot is not None:
@@ -410,6 +440,9 @@ class Hypothesis:
             for extra in motions:
                 if extra is not None:
                     dphi = dphi + extra[1]
+            for column, _, d_phi in moving:
+                if t_phi is not None:  # with the tangent
+                    t_phi[:, :, column] += d_phi
             for rot, _ in maps:
                 if rot is not None:
                     dphi = dphi @ rot.T

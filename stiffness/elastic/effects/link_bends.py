@@ -36,7 +36,16 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.elastic.effects.base import Effect, stiffness_report
-from stiffness.elastic.effects.geometry import MIN_SEGMENT_M, link_axes, skew
+from stiffness.elastic.effects.geometry import (
+    MIN_SEGMENT_M,
+    Geometry,
+    Rows,
+    joint_axis_column,
+    last_of_groups,
+    link_axes,
+    skew,
+    tilt_axes,
+)
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     MarkerView,
@@ -44,6 +53,7 @@ from stiffness.elastic.effects.pose_face import (
     PoseLayout,
     RowTerms,
     bend_label,
+    tilt_label,
 )
 from stiffness.errors import StiffnessError, UnknownNameError
 
@@ -171,6 +181,7 @@ class LinkCompliance(Effect, PoseFamily):
     param_names: ClassVar[tuple[str, ...]] = ("stiffness_1", "stiffness_2")
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1, 2)
+    linear_motion: ClassVar[bool] = True
 
     @classmethod
     def at_place(cls, where, geometry):
@@ -198,7 +209,7 @@ class LinkCompliance(Effect, PoseFamily):
     def simulated_values(self, values, units):
         k = np.array([values[0], values[0]] if len(values) == 1 else values, dtype=float)
         if np.any(k <= 0):
-            raise StiffnessError(f"link_compliance:{self.where} needs positive stiffnesses")
+            raise StiffnessError(f"{self.name}:{self.where} needs positive stiffnesses")
         return k
 
     def contribute(self, values, parts):
@@ -220,10 +231,18 @@ class LinkCompliance(Effect, PoseFamily):
     def variables(self, values, refs):
         return (1.0 / np.asarray(values, dtype=float)[:2]) / self.scale(refs)
 
+    def bend_at(self, geometry: Geometry, rows: Rows
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The bend's point ``p_b`` and its two axes (each (m, 3), world) at the rows: ``b``'s
+        origin, the axes normal to the segment (:func:`link_axes`)."""
+        ia, ib = geometry.chain.index(self.a), geometry.chain.index(self.b)
+        p_b = rows.chain_origin[:, ib]
+        e1, e2 = link_axes(rows.chain_origin[:, ia], p_b, rows.chain_rotation[:, ib],
+                           self.column)
+        return p_b, e1, e2
+
     def _omega(self, p, model, rows, force, moment, point):
-        ia, ib = model.geometry.chain.index(self.a), model.geometry.chain.index(self.b)
-        p_a, p_b = rows.chain_origin[:, ia], rows.chain_origin[:, ib]
-        e1, e2 = link_axes(p_a, p_b, rows.chain_rotation[:, ib], self.column)
+        p_b, e1, e2 = self.bend_at(model.geometry, rows)
         r = point - p_b
         m_b = np.cross(r, force) + moment
         omega = (e1 * (p[0] * np.sum(e1 * m_b, axis=1))[:, None]
@@ -324,48 +343,104 @@ class LinkCompliance(Effect, PoseFamily):
 def transversal_joints(model: pin.Model, frame_ids: list[int], compliant: list[int]
                        ) -> list[Link]:
     """The compliant revolute joints of the markers' chains whose axis is a frame axis, as
-    ``Link(j, j, axis column)`` (each once, base first)."""
-    moved = {int(j) for fid in frame_ids for j in model.supports[model.frames[fid].parentJoint]}
-    out = []
-    for j in sorted(set(compliant) & moved):
-        kind = model.joints[j].shortname().replace("JointModel", "")
-        for prefix in ("RUB", "R"):
-            if kind.startswith(prefix) and kind[len(prefix):] in ("X", "Y", "Z"):
-                out.append(Link(j, j, "XYZ".index(kind[len(prefix):])))
-                break
-    return out
+    ``Link(j, j, axis column)`` (each once, base first; :func:`joint_axis_column`); of such
+    joints whose origins coincide at the zero coordinates only the last tilts
+    (:func:`last_of_groups`)."""
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    tilting: set[int] = set()
+    for fid in dict.fromkeys(frame_ids):
+        chain = [j for j in model.supports[model.frames[fid].parentJoint]
+                 if j > 0 and model.joints[j].nv == 1]
+        columns = [joint_axis_column(model, j) for j in chain]
+        origins = np.array([data.oMi[j].translation for j in chain]).reshape(-1, 3)
+        tilting |= {j for j, column, last in zip(chain, columns, last_of_groups(origins, columns),
+                                                 strict=True) if column is not None and last}
+    return [Link(j, j, column) for j in sorted(tilting & set(compliant))
+            if (column := joint_axis_column(model, j)) is not None]
 
 
 def joint_normal_axes(model: pin.Model, data: pin.Data, joints: list[Link]
                       ) -> tuple[np.ndarray, np.ndarray]:
-    """The two axes (L, 3) each normal to each joint's rotation axis, world axes: the other two
-    columns of the joint's mounting frame ``oMi[parent] M_j`` (its bearing's, fixed in the
-    parent link)."""
+    """The two axes (L, 3) each normal to each joint's rotation axis, world axes
+    (:func:`tilt_axes` of the joint's mounting frame ``oMi[parent] M_j``, its bearing's, fixed
+    in the parent link)."""
     e1, e2 = np.zeros((len(joints), 3)), np.zeros((len(joints), 3))
     for n, link in enumerate(joints):
         mount = data.oMi[model.parents[link.b]].rotation @ model.jointPlacements[link.b].rotation
-        e1[n], e2[n] = mount[:, (link.column + 1) % 3], mount[:, (link.column + 2) % 3]
+        e1[n], e2[n] = tilt_axes(mount, link.column)
     return e1, e2
 
 
 class TransversalCompliance(LinkCompliance):
-    """``transversal_compliance``: each compliant revolute joint of the markers' chains tilts in
-    its bearing about the two axes normal to its rotation axis, under the moment the part beyond
-    it carries (its subtree's weight and the applied wrench beyond): the part beyond the joint's
-    origin ``p_j`` turns by ``omega_j = sum_i e_i c_i (e_i . M_j)``, ``e_i`` the bearing's axes
-    normal to the joint's (:func:`joint_normal_axes`); parameters ``c_1, c_2`` (rad/(N.m)) per
-    joint. The pose face of :class:`LinkCompliance` with the joint's axes instead of the link's:
-    where the two coincide the identifiable reduction reports them merged. A family of the pose
-    model only (not in the deflection library :data:`~stiffness.elastic.effects.LIBRARY`)."""
+    """``transversal_compliance`` (where: a revolute joint of the target's chain): the joint
+    tilts in its bearing about the two axes ``e_1, e_2`` normal to its rotation axis (the other
+    two axes of its mounting frame ``oMi[parent] M_j``, fixed in the parent link:
+    :func:`~stiffness.elastic.effects.geometry.tilt_axes`), at its origin ``p_j``, under the
+    moment the part beyond it carries: the part beyond turns by
+    ``omega_j = sum_i e_i (e_i . M_j) / k_i``.
+
+    Deflection face: ``M_j = (x_t - p_j) x F + M`` of the applied wrench, the target moves by
+    ``omega_j x (x_t - p_j)``; parameters the tilting stiffnesses ``k_1, k_2`` (N.m/rad). Pose
+    face: each compliant revolute joint of the markers' chains tilts under its subtree's weight
+    and the applied wrench beyond (:func:`joint_normal_axes`); parameters the compliances
+    ``c_1, c_2`` (rad/(N.m)) per joint. In a model used away from its campaign it is a bend at
+    ``p_j`` about those axes (:class:`stiffness.elastic.loaded.LinkBend` with ``tilt``), in
+    ``K_X`` and the exact equilibrium. It is :class:`LinkCompliance` with the joint's axes
+    instead of the link's: where the two coincide the identifiable reduction reports them
+    merged."""
 
     name: ClassVar[str] = "transversal_compliance"
     #: typical size (rad/(N.m)): a crossed-roller bearing's tilting stiffness is about 1e7
     #: N.m/rad on a 10 kg arm
     family_scale: ClassVar[float] = 1e-7
 
+    @classmethod
+    def at_place(cls, where, geometry):
+        if where not in geometry.tilt_columns:
+            joints = list(geometry.tilt_columns)
+            raise UnknownNameError(
+                f"transversal_compliance needs a revolute joint of the target's chain (its axis "
+                f"an axis of its frame); got {where!r}; valid names: {', '.join(joints)}",
+                name=str(where), choices=joints)
+        return cls(a=where, b=where, column=geometry.tilt_columns[where])
+
+    @classmethod
+    def declared(cls, where, settings):
+        (joint,) = cls.place_joints(where)
+        return cls(a=joint, b=joint)  # the axis comes from the robot (ElasticModel)
+
+    @classmethod
+    def place_joints(cls, where):
+        if not where or segment(where) is not None:
+            raise StiffnessError(f"transversal_compliance needs one joint, got {where!r}")
+        return [where]
+
+    def contribute(self, values, parts):
+        parts.add_tilt(self.b, values[0], values[1])
+
+    @property
+    def where(self) -> str:
+        return self.b
+
+    def describe(self) -> str:
+        return (f"joint {self.b} tilts in its bearing about the two axes normal to its "
+                "rotation axis")
+
+    def bend_at(self, geometry: Geometry, rows: Rows
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The joint's origin ``p_j`` and its bearing's two axes (each (m, 3), world) at the
+        rows (:func:`~stiffness.elastic.effects.geometry.tilt_axes`)."""
+        ib = geometry.chain.index(self.b)
+        model = geometry.robot.model
+        placement = model.jointPlacements[model.getJointId(self.b)].rotation
+        e1, e2 = tilt_axes(rows.chain_rotation[:, ib] @ placement, self.column)
+        return rows.chain_origin[:, ib], e1, e2
+
+    # pose face ----------------------------------------------------------------------------
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
-        return [self.param(f"{names[link.b]} transversal compliance {i}", "rad/(N.m)")
+        return [self.param(tilt_label(names[link.b], i), "rad/(N.m)")
                 for link in self.links(pm) for i in (1, 2)]
 
     @staticmethod

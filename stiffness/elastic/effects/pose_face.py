@@ -50,6 +50,11 @@ def bend_label(a: str, b: str, axis: int) -> str:
     return f"{a}->{b} compliance {axis}"
 
 
+def tilt_label(joint: str, axis: int) -> str:
+    """Label of the compliance of ``joint``'s bearing tilt about its axis ``axis`` (1 or 2)."""
+    return f"{joint} transversal compliance {axis}"
+
+
 #: Setting of the backlash family: joint -> smoothing torque (N.m, N).
 BACKLASH_SETTING = "backlash_smoothing_torque"
 
