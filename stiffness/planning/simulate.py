@@ -22,7 +22,7 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
   geometry (a test checks the two agree).
 * ``transversal_compliance:J=k[,k2]``: the same turn of the part beyond J's origin, about the two
   axes of J's mounting frame normal to its rotation axis, which is found here from J's motion
-  subspace (:func:`_tilt_axes`).
+  subspace (:func:`joint_tilt_axes`).
 * ``backlash:J=b``: ``dtheta_J += b tanh(tau_J / tau_s)`` (b in the campaign's angle unit;
   tau_s as in :mod:`stiffness.elastic.effects`, computed here: :func:`row_smoothing_torques`),
   solved exactly with the rest.
@@ -331,7 +331,7 @@ class Truth:
             for a, b, column, k1, k2 in self.links:
                 ib = self.chain.index(b)
                 if a == b:  # a joint tilting in its bearing (axes derived here)
-                    e1, e2 = _tilt_axes(robot.model, b, rotations[ib])
+                    e1, e2 = joint_tilt_axes(robot.model, b, rotations[ib])
                 else:
                     e1, e2 = bend_axes(origins[self.chain.index(a)], origins[ib], rotations[ib],
                                        column)
@@ -343,7 +343,7 @@ class Truth:
         return np.concatenate([dx, rot])
 
 
-def _tilt_axes(model: pin.Model, joint: str, parent_rotation: np.ndarray
+def joint_tilt_axes(model: pin.Model, joint: str, parent_rotation: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
     """The two axes (world) a joint tilts about in its bearing: the axes of its mounting frame
     (``parent_rotation`` times its placement's) other than the one it turns about, found from
