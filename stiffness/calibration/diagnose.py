@@ -80,7 +80,7 @@ from stiffness.calibration.selection import (
     replicate_noise,
     step_criteria,
 )
-from stiffness.elastic.effects import MASSES, candidates
+from stiffness.elastic.effects import candidates, check_masses
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -326,8 +326,7 @@ def _diagnose_poses(campaign: PoseCampaign | str | os.PathLike, seed: int,
 def _check_options(max_steps: int, loss: str, masses: str) -> None:
     """Refuse a negative or non-integer ``max_steps``, an unknown loss or an unknown
     ``masses`` (one line)."""
-    if masses not in MASSES:
-        raise StiffnessError(f"masses must be one of {', '.join(MASSES)}, got {masses!r}")
+    check_masses(masses)
     if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer) \
             or max_steps < 0:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "

@@ -60,7 +60,7 @@ from stiffness.calibration.selection import (
     step_criteria,
 )
 from stiffness.cores import one_blas_thread
-from stiffness.elastic.effects import FAMILIES
+from stiffness.elastic.effects import FAMILIES, check_masses
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
@@ -298,8 +298,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         family it acts through.
     """
     say = progress or (lambda text: None)
-    if masses not in CANDIDATES:
-        raise StiffnessError(f"masses must be one of {', '.join(CANDIDATES)}, got {masses!r}")
+    check_masses(masses)
     check_loss(loss)
     forced, forbidden = _choice(masses, families, not_families)
     say(f"pose diagnosis: {campaign.n_rows} rows, baseline (measuring frame and markers)")

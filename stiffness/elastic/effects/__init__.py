@@ -114,7 +114,7 @@ from stiffness.elastic.effects.measurement import (
 )
 from stiffness.elastic.effects.pose_face import PoseFamily
 from stiffness.elastic.effects.preloads import GravityCompensator, GravityLumped, GravityPreload
-from stiffness.errors import UnknownEffectError, did_you_mean
+from stiffness.errors import StiffnessError, UnknownEffectError, did_you_mean
 
 #: Every effect of the library: name -> class. The effects with a pose face come in the order
 #: a pose model lays out their columns (:data:`FAMILIES`).
@@ -147,6 +147,12 @@ REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n not in ("deflection_offset", "g
 #: What a campaign's robot's link masses are: ``known`` (the URDF's inertias: the weight is
 #: ``gravity_preload``) or ``unknown`` (``gravity_lumped`` fits their gravity parameters).
 MASSES = ("known", "unknown")
+
+
+def check_masses(masses: str) -> None:
+    """Refuse a ``masses`` not in :data:`MASSES` (one line)."""
+    if masses not in MASSES:
+        raise StiffnessError(f"masses must be one of {', '.join(MASSES)}, got {masses!r}")
 
 
 def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
