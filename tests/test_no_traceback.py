@@ -39,8 +39,8 @@ ARMS = {
     "z1": [f"joint{i}" for i in range(1, 7)],
     "kinova": [f"j2s6s200_joint_{i}" for i in range(1, 7)],
 }
-#: Examples per command: each runs a whole command (about 0.1-1 s), so 8 in CI's time budget;
-#: 300 under the ``long`` profile (some minutes).
+#: Examples per command: each runs a whole command (about 0.1-6 s), so 8 in CI's time budget;
+#: 300 under the ``long`` profile (about 50 min for all five tests: tests/conftest.py).
 FEW = settings(max_examples=300 if LONG else 8, deadline=timedelta(seconds=20))
 #: Flag values: a dozen commands per test in CI, 300 under the ``long`` profile (about 2 min).
 FLAG_VALUES = settings(max_examples=300 if LONG else 12, deadline=timedelta(seconds=20))
