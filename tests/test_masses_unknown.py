@@ -23,7 +23,7 @@ from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
-from stiffness.planning.simulate import parse_effect, simulate
+from stiffness.planning.simulate import simulate
 from stiffness.robot.robot import load_robot
 
 TORSO = Path(__file__).parent / "data" / "torso-passive" / "robot.toml"
@@ -150,6 +150,7 @@ def test_the_lumped_weight_is_not_simulated_and_masses_are_checked():
     from stiffness.calibration.diagnose import diagnose
 
     with pytest.raises(StiffnessError, match="gravity_lumped is not simulated"):
-        parse_effect("gravity_lumped")
+        simulate(str(TORSO), kq=K_TORSO, effects=["gravity_lumped"], configs=2,
+                 loads_per_config=1)
     with pytest.raises(StiffnessError, match="masses must be one of known, unknown"):
         diagnose(TORSO, masses="some")

@@ -26,19 +26,16 @@ How each hidden effect enters the truth (see :mod:`stiffness.elastic.effects` fo
 * ``backlash:J=b``: ``dtheta_J += b tanh(tau_J / tau_s)`` (b in the campaign's angle unit;
   tau_s as in :mod:`stiffness.elastic.effects`, computed here: :func:`row_smoothing_torques`),
   solved exactly with the rest.
-* ``nonlinear_joint_stiffness:J=beta``: ``dtheta_J = tau_J / k_J (1 + beta |tau_J|)``
-  (beta in 1/(N.m); > 0 softens).
-* ``frame_misalignment=r`` or ``=rx,ry,rz``: the deflections are measured in a frame rotated by
-  that rotation vector (angle unit; one value turns about (1, 1, 1)/sqrt(3)).
-* ``target_offset=d`` or ``=dx,dy,dz``: the true target is that far from the declared one
-  (length unit, target frame axes; one value along (1, 1, 1)/sqrt(3)).
-* ``force_sensor_bias=b`` or ``=bx,by,bz``: the recorded force is the applied one plus b
-  (force unit; one value along (1, 1, 1)/sqrt(3)).
-* ``deflection_offset=d`` or ``=dx,dy,dz``: the measured deflections carry that offset.
+* ``nonlinear_joint_stiffness:J=beta``: ``dtheta_J = tau_J / k_J (1 + beta |tau_J|)``, 1/(N.m).
+* ``frame_misalignment=rx,ry,rz``: the deflections are measured in a frame rotated by that
+  rotation vector (angle unit); ``target_offset=dx,dy,dz``: the true target is that far from
+  the declared one (length unit, target frame axes); ``force_sensor_bias=bx,by,bz``: the
+  recorded force is the applied one plus b (force unit); ``deflection_offset=dx,dy,dz``: the
+  measured deflections carry that offset. One value instead is along (1, 1, 1)/sqrt(3).
 * ``gravity_preload=m`` or ``=m,cx,cy,cz``: the robot's weight (URDF inertias) and a payload of
   m kg with its centre of mass at c (length unit, target frame axes, from the target) preload
   the joints; the deflection is the loaded minus the unloaded exact equilibrium under that
-  weight (open chains only).
+  weight (open chains only); ``gravity_lumped`` (that weight with the masses unknown) is not.
 * ``gravity_compensator:J=k,F0``: a spring compensator of stiffness k (N/m) and tension F0 (N)
   with the link straight up on the revolute compliant joint J, its angle measured from the
   link's upward direction at zero load (:func:`stiffness.mechanics.gravity.upward_angle`),
@@ -162,10 +159,6 @@ def parse_effect(text: str) -> HiddenEffect:
     if not all(math.isfinite(v) for v in values):
         raise StiffnessError(f"--effect {text!r}: values must be finite")
     value_counts = LIBRARY[name].value_counts
-    if not value_counts:
-        raise StiffnessError(f"--effect {text!r}: {name} is not simulated ("
-                             f"{LIBRARY[name]().describe()}); hide the robot's weight as "
-                             "gravity_preload")
     if len(values) not in value_counts:
         counts = " or ".join(str(c) for c in value_counts)
         raise StiffnessError(f"--effect {text!r}: {name} takes {counts} value(s), got "

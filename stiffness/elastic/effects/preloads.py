@@ -423,7 +423,6 @@ class GravityLumped(Effect, JointDeflectionFamily):
     name: ClassVar[str] = "gravity_lumped"
     kind: ClassVar[str] = "preload"
     beyond_springs: ClassVar[bool] = True
-    value_counts: ClassVar[tuple[int, ...]] = ()
     lumps_gravity: ClassVar[bool] = True
 
     @classmethod
@@ -443,6 +442,10 @@ class GravityLumped(Effect, JointDeflectionFamily):
 
     def file_settings(self, refs):
         return {"links": list(self.links)}
+
+    def simulated_values(self, values, units):
+        raise StiffnessError("gravity_lumped is not simulated (its parameters are combinations "
+                             "of masses); hide the robot's weight as gravity_preload")
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
