@@ -397,8 +397,8 @@ def test_cli_errors_exit_2(tmp_path, capsys):
 def test_identify_writes_only_with_out_a_folder_like_diagnose(tmp_path, capsys, monkeypatch):
     """Issue 38 item 10: without ``--out`` identify writes nothing (and says how to); ``--out
     DIR`` (missing, or ending in /) writes DIR/identified-model.json as ``diagnose --out DIR``
-    writes in a folder; ``--out FILE.json`` writes that file; a file in the way is refused at
-    once."""
+    writes in a folder; ``--out FILE.json`` writes that file (diagnose refuses it: it writes a
+    folder); a file in the way is refused at once."""
     monkeypatch.chdir(tmp_path)
     table2 = robots_directory() / "sk120" / "campaigns" / "table2"
     assert main(["identify", str(table2), "--quiet", "--starts", "1"]) == 0
@@ -413,3 +413,7 @@ def test_identify_writes_only_with_out_a_folder_like_diagnose(tmp_path, capsys, 
     (tmp_path / "plain").write_text("")
     assert main(["identify", str(table2), "--starts", "1", "--out", "plain/x"]) == 2
     assert "cannot write into plain/x: plain is a file" in capsys.readouterr().err
+    # diagnose's --out is a folder: the file form of identify is refused before any work
+    assert main(["diagnose", str(table2), "--out", "d.json"]) == 2
+    assert "--out d.json: diagnose writes a folder" in capsys.readouterr().err
+    assert not (tmp_path / "d.json").exists()

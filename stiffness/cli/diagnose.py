@@ -43,8 +43,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (campaign units) and nothing else")
     parser.add_argument("--out", metavar="DIR",
-                        help="write diagnosis.json, residuals.png, final-model.json and "
-                             "diagnosis.html (the page) here")
+                        help="folder to write diagnosis.json, residuals.png, final-model.json "
+                             "and diagnosis.html (the page) into (made if missing); default: "
+                             "nothing written")
     parser.add_argument("--max-steps", type=int, default=MAX_STEPS,
                         help=f"largest number of effects added; default {MAX_STEPS}")
     flags.add_seed_flag(parser, "seed of the cross-validation folds and proposed poses; default 0")
@@ -161,8 +162,7 @@ def run(args: argparse.Namespace) -> int:
                                  "deflection campaign is validated on another deflection "
                                  "campaign of the same robot")
         load_campaign(args.validate)
-    if args.out:
-        output_folder(args.out, create=False)  # before the work: a bad --out fails at once
+    check_out_folder(args.out)  # before the work: a bad --out fails at once
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(text: str) -> None:
@@ -186,6 +186,25 @@ def run(args: argparse.Namespace) -> int:
                          f"{format_validation(validation)}", paths)
 
 
+def check_out_folder(out: str | None) -> None:
+    """Refuse, before any work, an ``--out`` that cannot hold the diagnosis: a file in the
+    way, or a name ending in ``.json`` (not an existing folder), the form ``identify --out
+    FILE.json`` takes for its one file, where diagnose writes several.
+
+    Raises
+    ------
+    StiffnessError
+        The name ends in ``.json``; :class:`~stiffness.errors.OutputError` for a file in the way.
+    """
+    if out is None:
+        return
+    if Path(out).suffix.lower() == ".json" and not Path(out).is_dir():
+        raise StiffnessError(f"--out {out}: diagnose writes a folder (diagnosis.json, "
+                             f"final-model.json, diagnosis.html...), not one JSON file; give a "
+                             f"folder name, e.g. --out {Path(out).with_suffix('')}")
+    output_folder(out, create=False)
+
+
 def run_poses(args: argparse.Namespace) -> int:
     """``stiffness diagnose`` on a pose campaign (docs/absolute-poses.md)."""
     from stiffness.calibration.pose_campaign import load_pose_campaign  # only for pose campaigns
@@ -197,8 +216,7 @@ def run_poses(args: argparse.Namespace) -> int:
                              "campaign has no compensator effect (drop it)")
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
-    if args.out:
-        output_folder(args.out, create=False)
+    check_out_folder(args.out)
     show = sys.stderr.isatty() and not args.quiet
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
                             progress=(lambda text: print(text, file=sys.stderr, flush=True))
