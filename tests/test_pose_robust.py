@@ -148,13 +148,10 @@ def test_diagnose_loss_on_a_pose_campaign_file(ur10, tmp_path, capsys):
     assert "invalid choice" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("loss", ["soft_l1", "huber"])
-def test_robust_diagnose_screens_families_as_least_squares_does(loss):
-    """With no outliers, a robust diagnosis adds the same families as least squares. The
-    screen compares each candidate's linearised objective under the fit's loss with the
-    current fit's: comparing a sum of squares with a robust loss sum (as once) rejected every
-    family whose first step leaves the residual well above the noise (here the zero offsets,
-    with the sag still unexplained: +186 instead of -60) and ended unexplained."""
+@pytest.fixture(scope="module")
+def xarm_least_squares():
+    """An xArm7 campaign (40 poses, hidden frame, marker, zero offsets and springs) and its
+    least-squares diagnosis, shared by the robust losses' tests."""
     from stiffness.calibration.pose_diagnose import diagnose_poses
 
     arm = load_robot("xarm7")
@@ -164,7 +161,20 @@ def test_robust_diagnose_screens_families_as_least_squares_does(loss):
     c = simulate_pose_campaign(arm, [Marker("tip", arm.target_frame, np.array([0, 0, 0.05]))],
                                hidden, 40, NOISE, seed=1)
     least = diagnose_poses(c)
-    robust = diagnose_poses(c, loss=loss)
     assert least.families == ["frame", "markers", "joint_offsets", "joint_compliance"]
+    return c, least
+
+
+@pytest.mark.parametrize("loss", ["soft_l1", "huber"])
+def test_robust_diagnose_screens_families_as_least_squares_does(loss, xarm_least_squares):
+    """With no outliers, a robust diagnosis adds the same families as least squares. The
+    screen compares each candidate's linearised objective under the fit's loss with the
+    current fit's: comparing a sum of squares with a robust loss sum (as once) rejected every
+    family whose first step leaves the residual well above the noise (here the zero offsets,
+    with the sag still unexplained: +186 instead of -60) and ended unexplained."""
+    from stiffness.calibration.pose_diagnose import diagnose_poses
+
+    c, least = xarm_least_squares
+    robust = diagnose_poses(c, loss=loss)
     assert robust.families == least.families
     assert robust.unexplained is False
