@@ -243,9 +243,6 @@ def _slack_campaign(seed: int, configs: int = 10, loads: int = 4):
                     loads_per_config=loads, seed=seed, joint_angles="link").campaign
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "regression, issue 36 open: since ef279b2 (one identifiability for deflection fits) the "
-    "freed compensator's reported intervals cover 73/150 (standardised variance 970)"))
 def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
     """25 small campaigns (6 poses x 3 loads), the lever declared at 0.1 m (the default): the
     fitted base, stiffness and preload are those of the true spring rescaled to that lever

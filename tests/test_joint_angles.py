@@ -125,9 +125,6 @@ def _fitted_parameters(arm, seed: int) -> list:
             *comp.report(fit.x[3:], matrix[3:, 3:], model.refs, SI_UNITS, quantile)]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "regression, issue 36 open: since ef279b2 (one identifiability for deflection fits) "
-    "diagnose fits the compensator's base where the zero-free-length spring cannot show it"))
 def test_hidden_compensator_named_first_and_covered():
     """Link-angle campaigns with a hidden compensator, 10 seeds per arm: named first at its
     joint (measured 9 of 10 on the UR5, 10 of 10 on the Kinova; in the UR5's seed 0 the

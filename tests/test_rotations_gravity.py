@@ -220,9 +220,13 @@ def test_hidden_gravity_is_named_first_and_recovered(effect, truth):
         assert result.steps[0].effect.where == hidden.where
         params = result.final_parameters_si[result.steps[0].effect.label]
         for p, t in zip(params, truth, strict=False):
+            if p.held:  # not determined, held at its nominal value: no interval to cover
+                continue
             covered += int(p.ci95[0] <= t <= p.ci95[1])
             total += 1
-    # at 95 % per interval, missing more than one of these few is a 3 % event
+    # at 95 % per interval, missing more than one of these few is a 3 % event (the payload's
+    # seed 1 holds com_z, its interval 1.03 m wide against a 1 m scale: 7 intervals, 6 covered)
+    assert total >= 2 * len(truth) - 1
     assert covered >= total - 1
 
 

@@ -75,6 +75,7 @@ from stiffness.calibration.selection import (
     fit_model,
     fits_to_noise,
     goodness_of_fit,
+    held_at_bounds,
     interval_quantile,
     parameter_covariance,
     replicate_noise,
@@ -100,42 +101,68 @@ WEAK_BIC = 6.0
 SIMILARITY_LIMIT = 0.95
 
 
-def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float) -> list[Parameter]:
+def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float,
+                         held_cov: np.ndarray | None = None) -> list[Parameter]:
     """The joint stiffnesses a diagnosis reports: ``k = exp(x)`` with the interval
-    ``k exp(+-quantile se)`` (``se`` of ``ln k`` from ``cov``), in N.m/rad or N/m."""
+    ``k exp(+-quantile se)`` (``se`` of ``ln k`` from ``cov``), in N.m/rad or N/m; with
+    ``held_cov`` (:func:`held_at_bounds`) each end bounded as :func:`_held` says."""
     model = fit.model
-    out = []
-    for i, j in enumerate(model.compliant):
+
+    def one(i: int, j: str, matrix: np.ndarray) -> Parameter:
         k = math.exp(fit.x[i])
-        se = math.sqrt(cov[i, i]) if math.isfinite(cov[i, i]) else math.inf
+        se = math.sqrt(matrix[i, i]) if math.isfinite(matrix[i, i]) else math.inf
         prismatic = bool(model.geometry.prismatic[model.geometry.joints.index(j)])
         with np.errstate(over="ignore"):
             ci = (k * math.exp(-quantile * se) if math.isfinite(se) else 0.0,
                   k * math.exp(quantile * se) if math.isfinite(se) and quantile * se < 700
                   else math.inf)
-        out.append(_held(fit, i, Parameter(j, k, k * se, ci,
-                                           "N/m" if prismatic else "N.m/rad")))
-    return out
+        return Parameter(j, k, k * se, ci, "N/m" if prismatic else "N.m/rad")
+
+    return [_held(fit, i, one(i, j, cov), cov,
+                  None if held_cov is None else one(i, j, held_cov))
+            for i, j in enumerate(model.compliant)]
 
 
-def _held(fit: Fit, index: int, parameter: Parameter) -> Parameter:
-    """``parameter`` (column ``index`` of ``fit.x``) as held, with why, when the fit did not
-    identify it (:attr:`Fit.identifiability`), else marked when at its bound
-    (:attr:`Fit.at_bound`)."""
+def _held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
+          bounded: Parameter | None = None) -> Parameter:
+    """``parameter`` (column ``index`` of ``fit.x``, its interval from the covariance ``cov``)
+    as held, with why, when the fit did not identify it (:attr:`Fit.identifiability`); at its
+    physical bound (:attr:`Fit.at_bound`) with a one-sided interval from the bound (the
+    two-sided interval's other end); else, ``bounded`` being the parameter reported with the
+    parameters at their bound held there, with each end of its interval from ``bounded``
+    where moving it that way would take one of those past its bound (its covariance with
+    them, ``cov``): an interval that respects the bounds."""
     dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
-    if dropped is None:
-        return dataclasses.replace(parameter, at_bound=index in fit.at_bound)
-    return parameter.held_as(dropped.describe(parameter_labels(fit.model)))
+    if dropped is not None:
+        return parameter.held_as(dropped.describe(parameter_labels(fit.model)))
+    lo, hi = fit.model.bounds()
+    inward = {b: 1.0 if abs(fit.x[b] - lo[b]) <= abs(fit.x[b] - hi[b]) else -1.0
+              for b in fit.at_bound}
+    if index in fit.at_bound:
+        ci = ((parameter.value, parameter.ci95[1]) if inward[index] > 0
+              else (parameter.ci95[0], parameter.value))
+        return dataclasses.replace(parameter, at_bound=True, ci95=ci)
+    if bounded is None:
+        return parameter
+    pull = [cov[index, b] * inward[b] for b in fit.at_bound if math.isfinite(cov[index, b])]
+    low = bounded.ci95[0] if any(c > 0 for c in pull) else parameter.ci95[0]
+    high = bounded.ci95[1] if any(c < 0 for c in pull) else parameter.ci95[1]
+    return dataclasses.replace(parameter, ci95=(low, high))
 
 
-def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units
-                       ) -> dict[str, list[Parameter]]:
+def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units,
+                       held_cov: np.ndarray | None = None) -> dict[str, list[Parameter]]:
+    """Each effect's parameters in ``fit`` with their intervals (from ``cov``, each end
+    bounded by ``held_cov`` as :func:`_held` says)."""
     model = fit.model
     out = {}
     for i, e in enumerate(model.effects):
         a, b = model.offsets[i + 1], model.offsets[i + 2]
-        out[e.label] = [_held(fit, a + k, p) for k, p in enumerate(
-            e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile))]
+        free = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
+        held = (free if held_cov is None else
+                e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
+        out[e.label] = [_held(fit, a + k, p, cov, None if held_cov is None else q)
+                        for k, (p, q) in enumerate(zip(free, held, strict=True))]
     return out
 
 
@@ -277,20 +304,23 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     known = sigma if loss == "linear" else None  # a sandwich estimates its spread: t
     quantile = interval_quantile(known, n, p_final)
     cov_final = parameter_covariance(final, sigma_used, measured)
-    cov_base = parameter_covariance(base, sigma_used if sigma is not None else math.sqrt(
-        base.loss_rss / max(n - base.penalty_params, 1)), measured)
+    held_final = held_at_bounds(final, sigma_used, measured)
+    sigma_base = sigma_used if sigma is not None else math.sqrt(
+        base.loss_rss / max(n - base.penalty_params, 1))
+    cov_base = parameter_covariance(base, sigma_base, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(ambiguities_raw, sigma_used, campaign, geo,
                                seed if propose else None)
-    final_parameters = _effect_parameters(final, cov_final, quantile, campaign.units)
+    final_parameters = _effect_parameters(final, cov_final, quantile, campaign.units,
+                                          held_final)
     sure = certainty(final, steps, final_parameters, measured, folds,
                      steps[-1].cv_rms if steps else cv_base, n, sigma, workers)
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(base, cov_base, interval_quantile(
-            known, n, base.penalty_params)),
-        final_stiffness=stiffness_parameters(final, cov_final, quantile),
+            known, n, base.penalty_params), held_at_bounds(base, sigma_base, measured)),
+        final_stiffness=stiffness_parameters(final, cov_final, quantile, held_final),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
@@ -303,7 +333,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, certainty=sure,
-        final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS),
+        final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS,
+                                               held_final),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
     )
@@ -380,6 +411,12 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: f
     held = effect.settings_held(reason or "freeing them did not lower the residual")
     return dataclasses.replace(fit, model=fit.model.with_effects(fit.model.effects[:-1]
                                                                  + (held,)))
+
+
+def _looseness(p: Parameter, size: float) -> float:
+    """The width of ``p``'s 95 % interval over its physical scale ``size`` (inf unbounded)."""
+    width = p.ci95[1] - p.ci95[0]
+    return width / size if math.isfinite(width) and size > 0 else math.inf
 
 
 def _undetermined(params: list[Parameter]) -> str | None:
@@ -539,18 +576,19 @@ class _Search:
 
     def winner(self, results: list[Candidate], cv_current: float
                ) -> tuple[Candidate | None, str]:
-        """The lowest-BIC candidate past :data:`BIC_MARGIN` whose cross-validated error beats
-        ``cv_current`` (m), or ``None`` and why not."""
+        """The lowest-BIC candidate past :data:`BIC_MARGIN` that is namable as fitted and
+        still once :meth:`settled` (holding parameters never makes a candidate namable), whose
+        settled model's cross-validated error beats ``cv_current`` (m), or ``None`` and why
+        not. The ranking keeps each candidate's BIC fitted in full."""
         eligible = [c for c in results if c.delta_bic < -BIC_MARGIN]
         if not eligible:
             return None, (f"no candidate improves BIC by more than {BIC_MARGIN:g}" if results
                           else "no candidate left")
-        eligible = [c for c in eligible if self.namable(c.fit)]
-        if not eligible:
+        tried = [c for c in eligible if self.namable(c.fit) and self.settled(c)][:CV_TOP]
+        if not tried:
             return None, ("the candidates that improve BIC determine none of their parameters "
                           "within its physical scale with an interval excluding zero")
         winner = None
-        tried = eligible[:CV_TOP]
         for c, cv in zip(tried, cross_validate([c.fit for c in tried], self.measured,
                                                self.folds, self.workers), strict=True):
             c.cv_rms = cv
@@ -561,6 +599,34 @@ class _Search:
                           "for held-out configurations (cross-validation)")
         return winner, ""
 
+    def settled(self, c: Candidate) -> bool:
+        """Issue 36.4 inside a family: the parameters of ``c``'s effect that the data do not
+        determine (:attr:`Parameter.determined`) held at their nominal value (the effect's
+        start, :meth:`Effect.start`: a compensator's stiffness or preload 0, its base the
+        declared one), the least determined first (widest 95 % interval for its physical
+        scale), each time the fit redone, until the others are determined or one is left
+        (``c.fit`` replaced; the step's ranking keeps the BIC of the effect fitted in full).
+        Whether the effect may still be named (:meth:`namable`)."""
+        fit = c.fit
+        effect = fit.model.effects[-1]
+        start, sizes = fit.model.offsets[-2], effect.physical_scale(fit.model.refs)
+        while True:
+            params = self.parameters(fit, SI_UNITS)[effect.label]
+            free = [k for k, p in enumerate(params) if not p.held]
+            loose = [k for k in free if not params[k].determined]
+            if not loose or len(free) < 2:
+                break
+            worst = max(loose, key=lambda k: _looseness(params[k], float(sizes[k])))
+            p = params[worst]
+            why = (f"held at its nominal value: the data do not determine it "
+                   f"({p.scale_note or 'its 95 % interval is unbounded'}, fitted)")
+            x = fit.x.copy()
+            x[start + worst] = effect.start()[worst]
+            fit = fit_job(fit.model.holding({f"{effect.label}.{p.name}": why}), self.measured,
+                          self.scale, x, loss=fit.loss, f_scale=fit.f_scale).run()
+        c.fit = fit
+        return self.namable(fit)
+
     def parameters(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""
         sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
@@ -568,7 +634,8 @@ class _Search:
         cov = parameter_covariance(fit, sig, self.measured)
         quantile = interval_quantile(self.sigma if fit.loss == "linear" else None, self.n,
                                      fit.penalty_params)
-        return _effect_parameters(fit, cov, quantile, units)
+        return _effect_parameters(fit, cov, quantile, units,
+                                  held_at_bounds(fit, sig, self.measured))
 
     def namable(self, fit: Fit) -> bool:
         """Whether the effect ``fit`` adds may be named: it has no parameter (a switch), or at

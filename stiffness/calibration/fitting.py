@@ -11,13 +11,14 @@ dz component, ``s`` a fixed scale (the declared noise std when known), minimised
 :func:`scipy.optimize.least_squares` over the model's parameter vector ``x`` (``ln k`` of the
 stiffnesses, then each effect's scaled variables). The model's analytic Jacobian is used for
 ``ln k`` and the effects acting through the joint law, finite differences for the other
-effects' variables. Only the parameters the data identify at the start are fitted
-(:func:`identifiable`: the one reduction of both campaign kinds,
-:mod:`stiffness.calibration.identifiability`, over the baseline's compliances and then each
-effect's variables in the order added); the others (no effect on the data: the stiffness of
-a joint whose axis passes through every load's line; or merged: a link bend about an axis
-parallel to a joint's, which that joint's compliance absorbs) are held at their start and
-reported as such (:attr:`Fit.identifiability`). Optional pseudo-residuals
+effects' variables. Only the parameters the data identify are fitted (:func:`identifiable`:
+the one reduction of both campaign kinds, :mod:`stiffness.calibration.identifiability`, over
+the baseline's compliances and then each effect's variables in the order added, at the
+start's :func:`representative` point; near aliases judged again at the optimum); the others
+(no effect on the data: the stiffness of a joint whose axis passes through every load's line;
+merged: a link bend about an axis parallel to a joint's, which that joint's compliance
+absorbs; or undetermined: held by the diagnosis, :attr:`Hypothesis.held`) are held at their
+start and reported as such (:attr:`Fit.identifiability`). Optional pseudo-residuals
 ``PRIOR_WEIGHT (x - x_anchor)`` keep directions the data do not see at the start instead of
 letting them drift on round-off; they are left out of every reported quantity. Where the
 model cannot be evaluated (a buckling load, a singular tangent) the residuals are a large
@@ -380,6 +381,9 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
     resolution
         Near aliases an effect's columns must be told from (:func:`identifiable`; ``scale``
         the noise std), 0 for none.
+
+    The parameters of ``model.held`` (:attr:`Hypothesis.held`) stay at ``x0``, reported as
+    undetermined with why (:meth:`Identifiability.holding`).
     """
     check_loss(loss, method)
     objective = Objective(model, measured, scale, anchor)
@@ -393,32 +397,53 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
         kwargs["x_scale"] = x_scale
     if loss != "linear":
         kwargs.update(loss=loss, f_scale=float(f_scale))
-    # parameters the data do not identify at the start stay there: their huge Gauss-Newton
-    # step would otherwise take the trust region and the solver would crawl
-    ident = identifiable(objective, x0, resolution)
-    free = np.zeros(model.n_params, dtype=bool)
-    free[ident.kept] = True
-    if bounded:
-        kwargs["bounds"] = (lo[free], hi[free])
+    # parameters the data do not identify stay at the start: their huge Gauss-Newton step
+    # would otherwise take the trust region and the solver would crawl
+    labels = parameter_labels(model)
+    hold = {i: model.held[label] for i, label in enumerate(labels) if label in model.held}
+    ident = identifiable(objective, x0).holding(hold)
+    bounds = (lo, hi) if bounded else None
+    x, success, message, nfev, at_bound = _solve(objective, x0, ident.kept, bounds, kwargs)
+    jac = objective.data_jacobian(x)
+    if resolution > 0:
+        # near aliases where the data put the effects (how well the data tell a parameter
+        # from others may depend on the fitted sizes): those merged there are held at their
+        # start and the others refitted
+        near = identifiable(objective, x, resolution, jac).holding(hold)
+        if set(near.kept) != set(ident.kept):
+            ident = near
+            x = np.where(np.isin(np.arange(x.size), ident.kept), x, x0)
+            x, success, message, more, at_bound = _solve(objective, x, ident.kept, bounds,
+                                                         kwargs)
+            nfev += more
+            jac = objective.data_jacobian(x)
+    r = objective.data(x)
+    pred = measured + r.reshape(measured.shape) * scale
+    return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), jac, scale, success, message,
+               int(nfev), loss, float(f_scale), loss_sum(r, loss, f_scale), ident, at_bound)
+
+
+def _solve(objective: Objective, x0: np.ndarray, kept: list[int],
+           bounds: tuple[np.ndarray, np.ndarray] | None, kwargs: dict
+           ) -> tuple[np.ndarray, bool, str, int, list[int]]:
+    """:func:`fit_model`'s solver call over the ``kept`` columns of ``x`` (the others held at
+    ``x0``): the optimum, success, message, evaluations and the columns left at a bound."""
+    free = np.zeros(x0.size, dtype=bool)
+    free[kept] = True
+    if not free.any():
+        return x0, True, "no parameter is seen by the data", 1, []
+    if bounds is not None:
+        kwargs = {**kwargs, "bounds": (bounds[0][free], bounds[1][free])}
 
     def full(z: np.ndarray) -> np.ndarray:
         x = x0.copy()
         x[free] = z
         return x
 
-    if free.any():
-        sol = least_squares(lambda z: objective.fun(full(z)), x0[free],
-                            jac=lambda z: objective.jac(full(z))[:, free], **kwargs)
-        x, success, message, nfev = full(sol.x), bool(sol.success), str(sol.message), sol.nfev
-        at_bound = [int(i) for i in np.flatnonzero(free)[np.flatnonzero(sol.active_mask)]]
-    else:
-        x, success, message, nfev = x0, True, "no parameter is seen by the data", 1
-        at_bound = []
-    r = objective.data(x)
-    pred = measured + r.reshape(measured.shape) * scale
-    return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), objective.data_jacobian(x),
-               scale, success, message, int(nfev), loss, float(f_scale),
-               loss_sum(r, loss, f_scale), ident, at_bound)
+    sol = least_squares(lambda z: objective.fun(full(z)), x0[free],
+                        jac=lambda z: objective.jac(full(z))[:, free], **kwargs)
+    at_bound = [int(i) for i in np.flatnonzero(free)[np.flatnonzero(sol.active_mask)]]
+    return full(sol.x), bool(sol.success), str(sol.message), int(sol.nfev), at_bound
 
 
 def parameter_labels(model: Hypothesis) -> list[str]:
@@ -428,23 +453,35 @@ def parameter_labels(model: Hypothesis) -> list[str]:
         f"{e.label}.{name}" for e in model.effects for name in e.parameter_names]
 
 
-def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0
-                 ) -> Identifiability:
-    """The parameters ``objective``'s data identify at ``x``
+def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0,
+                 jacobian: np.ndarray | None = None) -> Identifiability:
+    """The parameters ``objective``'s data identify near ``x``
     (:func:`stiffness.calibration.identifiability.reduce_columns`): the baseline's
     compliances first (every one with an effect on the data kept: their undetermined
-    combinations are the covariance's, :func:`covariance`), then each effect's variables in
-    the order added. The columns are in
-    the fitted variables' physical units times their typical size: a compliance ``1 / k``
-    (``-k d r / d ln k``, typical ``1 / k_ref``, so a stiff joint is not mistaken for one
-    without effect), an effect's SI value (typical :meth:`Effect.scale`); merge coefficients
-    are in those units. With a ``resolution`` (noise std per typical size; the residuals
-    scaled by the noise std) an effect's near alias of the columns before it is merged too
-    (:data:`stiffness.calibration.identifiability.NEAR_ALIAS_SINE`). Every parameter is kept
-    where the model cannot be evaluated."""
+    combinations are the covariance's, :func:`covariance`), then each effect's own variables
+    in the order added, each followed by the settings :meth:`Effect.settings_freed` made
+    parameters (a compensator's base: it joins only where the data tell it from the
+    effect's stiffness and preload). The columns are in the fitted variables' physical units
+    times their typical size: a compliance ``1 / k`` (``-k d r / d ln k``, typical
+    ``1 / k_ref``, so a stiff joint is not mistaken for one without effect), an effect's SI
+    value (typical :meth:`Effect.scale`); merge coefficients are in those units. With a
+    ``resolution`` (noise std per typical size; the residuals scaled by the noise std) an
+    effect's own variable nearly aliasing the columns before the effect is merged too
+    (:data:`stiffness.calibration.identifiability.NEAR_ALIAS_SINE`); a freed setting is not
+    (diagnose keeps it only where its interval is narrow).
+
+    The columns are taken at :func:`representative` ``x``: each effect present at its
+    typical size where ``x`` has it absent, so that a parameter acting only through the
+    effect's size (a compensator's base, zero column while its stiffness and preload are 0)
+    is judged as the data see it once the effect is there. Every parameter is kept where the
+    model cannot be evaluated. ``jacobian``: the data Jacobian at ``x`` when known (used
+    where ``x`` is its own representative point)."""
     model = objective.model
     p = model.n_params
-    jac = objective.data_jacobian(x, central=False)
+    point = representative(objective, x)
+    if jacobian is None or not np.array_equal(point, x):
+        jacobian = objective.data_jacobian(point, central=False)
+    x, jac = point, jacobian
     if p == 0 or objective.data(x)[0] == PENALTY or not np.any(jac):
         return Identifiability.full(p)
     n0 = len(model.compliant)
@@ -453,12 +490,36 @@ def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0
     a[:, :n0] *= -np.exp(x[:n0]) / refs.k_ref
     scales = np.concatenate([np.full(n0, 1.0 / refs.k_ref)]
                             + [e.scale(refs) for e in model.effects])
-    groups = [list(range(n0))] + [list(range(model.offsets[i + 1], model.offsets[i + 2]))
-                                  for i in range(len(model.effects))]
-    floors = [0.0] + [resolution] * len(model.effects)
+    groups: list[list[int]] = [list(range(n0))]
+    for i, e in enumerate(model.effects):
+        start, own, stop = (model.offsets[i + 1], model.offsets[i + 1] + len(e.param_names),
+                            model.offsets[i + 2])
+        groups += [list(range(start, min(own, stop))), list(range(own, stop))]
+    # a freed setting is judged by its interval (diagnose), not as a near alias
+    floors = [0.0] + [resolution, 0.0] * len(model.effects)
     kept_groups = [(g, f) for g, f in zip(groups, floors, strict=True) if g]
     return reduce_columns(a, [g for g, _ in kept_groups], scales,
                           [f for _, f in kept_groups], keep_first=n0 > 0)
+
+
+def representative(objective: Objective, x: np.ndarray) -> np.ndarray:
+    """``x`` with every effect that is absent there (its own variables, :attr:`Effect.
+    param_names`, all 0) present at its typical size: its variables that are 0 at one unit
+    (:meth:`Effect.scale`), clipped into its bounds;
+    ``x`` itself where the model cannot be evaluated there. The point where
+    :func:`identifiable` takes the columns: at 0 an effect's parameters that act only through
+    its size have zero columns although the data see them once it is present."""
+    model = objective.model
+    out = np.array(x, dtype=float)
+    for i, e in enumerate(model.effects):
+        a, b = model.offsets[i + 1], model.offsets[i + 2]
+        if b == a or np.any(out[a: a + len(e.param_names)] != 0.0):
+            continue
+        lo, hi = e.bounds()
+        out[a:b] = np.where(out[a:b] == 0.0, np.clip(1.0, lo, hi), out[a:b])
+    if np.array_equal(out, x) or objective.data(out)[0] == PENALTY:
+        return np.asarray(x, dtype=float)
+    return out
 
 
 @dataclass

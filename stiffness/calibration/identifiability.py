@@ -16,12 +16,17 @@ in the parameters' own units). A left-out parameter is held at its start and rep
 such, never as a value the data gave.
 
 Near aliases. A fit whose columns are whitened (residuals divided by the noise std) may also
-give a ``resolution`` per group: a column nearly in the span of the kept ones (sine below
-:data:`NEAR_ALIAS_SINE`) whose orthogonal part is below that resolution (in noise std per
-typical size of the parameter: the data tell it from the kept ones by less than that) is
-merged too. A link bend about an axis parallel to a joint's differs from that joint's spring
-only through the second-order kinematics; on a campaign where that difference is below the
-noise the two are one compliance, and the joint's absorbs the bend's.
+give a ``resolution`` per group: a column nearly in the span of the columns kept from the
+earlier groups (sine below :data:`NEAR_ALIAS_SINE`) whose part orthogonal to them is below
+that resolution (in noise std per typical size of the parameter: the data tell it from them
+by less than that) is merged too. A link bend about an axis parallel to a joint's differs
+from that joint's spring only through the second-order kinematics; on a campaign where that
+difference is below the noise the two are one compliance, and the joint's absorbs the
+bend's. Only against earlier groups: within a group (one effect's parameters) only exact
+aliases are merged, so that which of two nearly collinear parameters of one effect is held
+is not decided by their column norms at one point; an effect's parameters the data do not
+determine are held by the diagnosis, with why (:mod:`stiffness.calibration.diagnose`,
+reason ``undetermined``).
 """
 
 from __future__ import annotations
@@ -46,20 +51,28 @@ class Dropped:
     index
         Column of the parameter.
     reason
-        ``"no effect"`` or ``"merged"``.
+        ``"no effect"``, ``"merged"`` or ``"undetermined"`` (a fit of it left its 95 %
+        interval wider than its physical scale: held at its nominal value by the caller,
+        :func:`stiffness.calibration.diagnose.settled`, ``note`` saying so).
     merged_into
         For a merged parameter: (kept column, coefficient) pairs, largest first; the kept
         parameters absorb ``coefficient x`` this one (in their own units).
+    note
+        For an undetermined parameter: why, in words.
     """
 
     index: int
     reason: str
     merged_into: tuple[tuple[int, float], ...] = ()
+    note: str = ""
 
     def describe(self, labels: list[str]) -> str:
-        """One clause: ``no effect on the data`` or ``merged: absorbed as 1 x joint2``."""
+        """One clause: ``no effect on the data``, ``merged: absorbed as 1 x joint2`` or the
+        note of an undetermined parameter."""
         if self.reason == "no effect":
             return "no effect on the data"
+        if self.reason == "undetermined":
+            return self.note
         big = max((abs(c) for _, c in self.merged_into), default=0.0)
         combo = " + ".join(f"{c:.3g} x {labels[i]}" for i, c in self.merged_into[:3]
                            if abs(c) >= 1e-3 * big)
@@ -78,6 +91,14 @@ class Identifiability:
         """Every one of ``p`` columns kept."""
         return cls(list(range(p)), [])
 
+    def holding(self, held: dict[int, str]) -> Identifiability:
+        """This reduction with the columns of ``held`` (column: why) dropped as
+        ``undetermined``."""
+        return Identifiability([i for i in self.kept if i not in held],
+                               [d for d in self.dropped if d.index not in held]
+                               + [Dropped(i, "undetermined", note=why)
+                                  for i, why in held.items()])
+
     def dropped_at(self, index: int) -> Dropped | None:
         """The :class:`Dropped` of column ``index``, or ``None`` when it is kept."""
         return next((d for d in self.dropped if d.index == index), None)
@@ -88,6 +109,7 @@ class Identifiability:
         return {"tolerance": IDENTIFIABILITY_TOL,
                 "kept": [labels[i] for i in self.kept],
                 "dropped": [{"parameter": labels[d.index], "reason": d.reason,
+                             "note": d.note or None,
                              "merged_into": [{"parameter": labels[i], "coefficient": c}
                                              for i, c in d.merged_into]}
                             for d in self.dropped]}
@@ -123,12 +145,17 @@ def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,
         if kept:
             basis, _ = np.linalg.qr(a[:, kept])
             rest = rest - basis @ (basis.T @ rest)
-        _, r, piv = linalg.qr(rest, mode="economic", pivoting=True)
-        own = np.linalg.norm(a[:, candidates], axis=0)[piv]
-        diag = np.abs(np.diag(r)) if r.size else np.zeros(0)
-        joined = [candidates[p] for p, d, o in zip(piv, diag, own, strict=False)
-                  if d >= IDENTIFIABILITY_TOL * o
-                  and (d >= floor or d >= NEAR_ALIAS_SINE * o)]
+        own = np.linalg.norm(a[:, candidates], axis=0)
+        earlier = np.linalg.norm(rest, axis=0)  # the part the earlier groups do not explain
+        alias = [i for i, (e, o) in enumerate(zip(earlier, own, strict=True))
+                 if e < floor and e < NEAR_ALIAS_SINE * o]
+        inside = [i for i in range(len(candidates)) if i not in alias]
+        joined = []
+        if inside:
+            _, r, piv = linalg.qr(rest[:, inside], mode="economic", pivoting=True)
+            joined = [candidates[inside[p]] for p, d in zip(piv, np.abs(np.diag(r)),
+                                                            strict=False)
+                      if d >= IDENTIFIABILITY_TOL * own[inside[p]]]
         kept += joined
         dropped += _merged(a, kept, [c for c in candidates if c not in joined], scales)
     return Identifiability(kept, dropped)

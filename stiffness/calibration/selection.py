@@ -9,6 +9,7 @@ SI inside (m, N, rad).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import nnls
@@ -17,6 +18,7 @@ from scipy.special import chdtrc, ndtri, stdtrit
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import Fit, FitJob
+from stiffness.calibration.identifiability import Identifiability
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
@@ -172,6 +174,18 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
 def parameter_covariance(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray:
     """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+`` (a robust fit's sandwich)."""
     return fitting.covariance(fit, sigma, measured).matrix
+
+
+def held_at_bounds(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray | None:
+    """:func:`parameter_covariance` with the parameters the fit left at their physical bound
+    (:attr:`Fit.at_bound`) held there, or ``None`` when none is: how the others are determined
+    where moving them would take one of those past its bound (a pose fit's covariance)."""
+    bound = [i for i in fit.at_bound if i in fit.kept]
+    if not bound:
+        return None
+    ident = fit.identifiability or Identifiability.full(fit.x.size)
+    return parameter_covariance(replace(fit, identifiability=ident.holding(
+        {i: "at its bound" for i in bound})), sigma, measured)
 
 
 def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | None:

@@ -91,9 +91,10 @@ class Parameter:
     @property
     def excludes_zero(self) -> bool:
         """Whether its 95 % interval excludes zero (both ends finite and of one sign, or a
-        stiffness's lower end above zero)."""
+        stiffness's lower end above zero); never at its physical bound (:attr:`at_bound`: a
+        compliance, stiffness or mass the fit left at 0 is not shown to differ from it)."""
         low, high = self.ci95
-        return bool((low > 0 and math.isfinite(high)) or high < 0)
+        return not self.at_bound and bool((low > 0 and math.isfinite(high)) or high < 0)
 
     def to_dict(self) -> dict:
         """JSON-ready (inf and NaN become ``None``; ``determined`` says whether the interval

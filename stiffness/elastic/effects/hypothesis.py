@@ -80,11 +80,17 @@ class Hypothesis:
         predicts (m, 6) rows ``[dx; w dphi]``, the rotation ``dphi`` of the target frame
         (rad, base axes) in translation-noise units (``w = sigma_t / sigma_r``), so that one
         residual scale whitens both kinds (:mod:`stiffness.calibration.fitting`).
+    held
+        Parameters held at their nominal value because the data do not determine them, by
+        label (``compliance(joint)`` or ``effect_label.parameter``) with why
+        (:func:`stiffness.calibration.fitting.fit_model` keeps them at the start; carried to
+        every model derived from this one).
     """
 
     def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
                  compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References,
-                 rotation_weight: float | None = None) -> None:
+                 rotation_weight: float | None = None, held: dict[str, str] | None = None
+                 ) -> None:
         if baseline not in BASELINES:
             raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
                                    name=baseline, choices=BASELINES)
@@ -94,6 +100,7 @@ class Hypothesis:
         self.geometry, self.rows, self.baseline = geometry, rows, baseline
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
         self.rotation_weight = None if rotation_weight is None else float(rotation_weight)
+        self.held = dict(held or {})
         self.joints = self.compliant + tuple(e.added_joint for e in self.effects
                                              if e.added_joint is not None)
         self.index = np.array([geometry.joints.index(j) for j in self.joints], dtype=int)
@@ -124,33 +131,38 @@ class Hypothesis:
     def with_rows(self, rows: Rows) -> Hypothesis:
         """The same model over other rows."""
         return Hypothesis(self.geometry, rows, self.baseline, self.compliant, self.effects,
-                          self.refs, self.rotation_weight)
+                          self.refs, self.rotation_weight, self.held)
 
     def extended(self, effect: Effect) -> Hypothesis:
         """This model plus ``effect``."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant,
-                          self.effects + (effect,), self.refs, self.rotation_weight)
+                          self.effects + (effect,), self.refs, self.rotation_weight, self.held)
 
     def with_refs(self, refs: References) -> Hypothesis:
         """The same model with other variable scales."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
-                          refs, self.rotation_weight)
+                          refs, self.rotation_weight, self.held)
 
     def with_baseline(self, baseline: str) -> Hypothesis:
         """The same model under another baseline."""
         return Hypothesis(self.geometry, self.rows, baseline, self.compliant, self.effects,
-                          self.refs, self.rotation_weight)
+                          self.refs, self.rotation_weight, self.held)
 
     def with_effects(self, effects: tuple[Effect, ...]) -> Hypothesis:
         """The same model with other effects."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, effects,
-                          self.refs, self.rotation_weight)
+                          self.refs, self.rotation_weight, self.held)
+
+    def holding(self, held: dict[str, str]) -> Hypothesis:
+        """The same model with the parameters of ``held`` (label: why) held too."""
+        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
+                          self.refs, self.rotation_weight, {**self.held, **held})
 
     def with_rotation_weight(self, weight: float | None) -> Hypothesis:
         """The same model predicting rotations with weight ``weight`` (m/rad), or only
         translations (``None``)."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
-                          self.refs, weight)
+                          self.refs, weight, self.held)
 
     @property
     def n_outputs(self) -> int:
