@@ -19,6 +19,7 @@ from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.robot.robot import load_robot
 
 AT_ONCE = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance")
+BENDS = ("link_compliance", "transversal_compliance")
 
 
 def _mixed_chain() -> tuple[pin.Model, list[int]]:
@@ -83,22 +84,28 @@ def loaded_case():
     frame0 = (pin.exp3(rng.normal(size=3)), np.array([1.0, 2.0, 0.5]))
     loads = Loads("tool0", np.zeros((0, 6)))
     model = PoseModel(robot, markers, AT_ONCE, frame0, loads)
-    rows = [model.row_terms(robot.configuration(rng.uniform(-2, 2, 6)), rng.normal(size=6) * 50)
-            for _ in range(4)]
+    draws = [(rng.uniform(-2, 2, 6), rng.normal(size=6) * 50) for _ in range(4)]
+    rows = [model.row_terms(robot.configuration(q), None if i == 2 else wrench)
+            for i, (q, wrench) in enumerate(draws)]  # one row unloaded
     scales = np.array([p.scale for p in model.parameters])
     x = np.abs(rng.normal(size=model.size)) * scales * 3
     return robot, markers, frame0, loads, rows, x, scales
 
 
-def test_rows_at_once_equal_row_by_row(loaded_case):
+@pytest.mark.parametrize("families", [AT_ONCE, AT_ONCE + BENDS])
+def test_rows_at_once_equal_row_by_row(loaded_case, families):
     """The same prediction and Jacobian columns when a family that is evaluated row by row
     (backlash, at zero) joins the model: the two paths of :meth:`PoseModel.evaluate` agree to
-    round-off, on a sagging arm under a wrench, and on a second evaluation (warm sag starts)."""
-    robot, markers, frame0, loads, rows, x, _ = loaded_case
-    at_once = PoseModel(robot, markers, AT_ONCE, frame0, loads)
-    by_row = PoseModel(robot, markers, AT_ONCE + ("backlash",), frame0, loads,
+    round-off, on a sagging arm under a wrench (one row without it), and on a second
+    evaluation (warm sag starts); with the link bends and joint tilts too, at parameters of
+    their typical sizes (their displacements tens of micrometres and more)."""
+    robot, markers, frame0, loads, rows, _, _ = loaded_case
+    at_once = PoseModel(robot, markers, families, frame0, loads)
+    by_row = PoseModel(robot, markers, families + ("backlash",), frame0, loads,
                        at_once.campaign_settings(rows))
-    assert not type(by_row.family_objects[-1]).rows_at_once
+    assert at_once._at_once and not by_row._at_once
+    x = (np.abs(np.random.default_rng(7).normal(size=at_once.size))
+         * np.array([p.scale for p in at_once.parameters]) * 3)
     index = {p.label: i for i, p in enumerate(by_row.parameters)}
     shared = [index[p.label] for p in at_once.parameters]
     x_row = np.zeros(by_row.size)
@@ -109,6 +116,11 @@ def test_rows_at_once_equal_row_by_row(loaded_case):
         assert j1 is not None and j2 is not None
         assert np.abs(y1 - y2).max() <= 1e-12
         assert np.abs(j1 - j2[..., shared]).max() <= 1e-12 * np.abs(j1).max()
+    if BENDS[0] in families:  # the bends move the markers: the test sees their terms
+        bent = x.copy()
+        for f in BENDS:
+            bent[at_once.slices()[f]] = 0.0
+        assert np.abs(at_once.evaluate(bent, rows, False)[0] - y1).max() > 1e-5
 
 
 def test_rows_at_once_columns_match_finite_differences(loaded_case):

@@ -450,8 +450,8 @@ class PoseModel:
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
         j_point = (point_jacobians(model, kin, self.frame_ids, point) if ev.jacobian
                    else np.zeros(point.shape + (0,)))
-        caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, ev.shared[f.name],
-                                       ev.jacobian)
+        caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows,
+                                       ev.shared[f.name], ev.jacobian)
                   for f in self.family_objects}
         view = MarkerView(model, ev.data, -1, -1, point, np.zeros(3), ev.to_measuring,
                           ev.rot_w, ev.d_omega, j_point, state, caches, rotation,

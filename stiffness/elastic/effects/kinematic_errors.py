@@ -145,7 +145,7 @@ class JointGeometry(Effect, PoseFamily):
         return self._placement_columns(pm, model, parents[:, :3, :3], parents[:, :3, 3], shared)
 
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
-                   kin: JointPlacements, shared: Any, jacobian: bool
+                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """:meth:`row_cache` of every row: (n, 1, n_f, 3) each."""
         if shared is None:

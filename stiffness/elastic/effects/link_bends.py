@@ -35,6 +35,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import JointPlacements, frame_placements
 from stiffness.elastic.effects.base import Effect, stiffness_report
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
@@ -132,6 +133,35 @@ def carried_moments(pm: PoseLayout, model: pin.Model, data: pin.Data, q: np.ndar
     return origins, moments, arms
 
 
+def carried_moments_rows(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
+                         joints: list[int], rows: list[RowTerms]
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`carried_moments` of a batch of rows from their joints' placements ``kin``:
+    (n, L, 3) each; the weight's arm ``m_b (c_b - p_b)`` as ``sum_k m_k c_k - m_b p_b`` over
+    the bodies ``k`` of ``b``'s subtree (no division: a massless subtree carries nothing)."""
+    origins = kin.translation[:, joints]
+    masses = np.array([model.inertias[k].mass for k in range(model.njoints)])
+    levers = np.array([model.inertias[k].lever for k in range(model.njoints)])
+    centres = np.einsum("nkab,kb->nka", kin.rotation, levers) + kin.translation
+    subtree = np.zeros((len(joints), model.njoints))
+    for n, b in enumerate(joints):
+        subtree[n, list(model.subtrees[b])] = 1.0
+    weights = subtree * masses
+    arms = (np.einsum("lk,nka->nla", weights, centres)
+            - weights.sum(axis=1)[None, :, None] * origins)
+    moments = _cross(arms, np.asarray(model.gravity.linear, dtype=float))
+    loaded = [i for i, row in enumerate(rows) if row.wrench is not None]
+    if loaded and pm.loads is not None:
+        fid = pm.frame_id(pm.loads.frame)
+        carried = set(model.supports[model.frames[fid].parentJoint])
+        beyond = np.array([b in carried for b in joints], dtype=float).reshape(-1, 1)
+        wrench = np.array([rows[i].wrench for i in loaded]).reshape(-1, 6)
+        x_w = frame_placements(model, kin, [fid])[1][loaded]  # (n_loaded, 1, 3)
+        moments[loaded] += beyond * (_cross(x_w - origins[loaded], wrench[:, None, :3])
+                                     + wrench[:, None, 3:])
+    return origins, moments, arms
+
+
 @dataclass
 class BendCache:
     """One row's bends at its loaded configuration (world axes).
@@ -143,7 +173,8 @@ class BendCache:
     turns
         (L, 2, 3) ``e_i (e_i . M_b)``: the rotation per unit compliance (rad per rad/(N.m)).
     beyond
-        Marker frame id -> (L,) whether it moves with each bend.
+        Marker frame id -> (L,) whether it moves with each bend (over a batch of rows, -1 ->
+        (M, L) for the model's markers, and the other arrays with leading (n, 1) axes).
     per_gravity
         (L, 3, 3) d omega_b / d g at the family's compliances (rad per m/s^2): the bends'
         change with the direction of gravity (``base_tilt``'s columns); ``None`` without a
@@ -182,6 +213,7 @@ class LinkCompliance(Effect, PoseFamily):
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1, 2)
     linear_motion: ClassVar[bool] = True
+    rows_at_once: ClassVar[bool] = True
 
     @classmethod
     def at_place(cls, where, geometry):
@@ -296,6 +328,20 @@ class LinkCompliance(Effect, PoseFamily):
                                     np.array([skew(a) for a in arms]).reshape(-1, 3, 3))
         return BendCache(origins, turns, beyond, per_gravity)
 
+    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
+                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
+                   ) -> BendCache:
+        """:meth:`row_cache` of every row (:func:`carried_moments_rows`), without the
+        gravity slope (``base_tilt``, whose models go row by row)."""
+        links, beyond = shared
+        joints = [link.b for link in links]
+        origins, moments, _ = carried_moments_rows(pm, model, kin, joints, rows)
+        e1, e2 = self.rows_bend_axes(model, kin, links, origins)
+        turns = np.stack([e1 * np.sum(e1 * moments, axis=-1, keepdims=True),
+                          e2 * np.sum(e2 * moments, axis=-1, keepdims=True)], axis=-2)
+        markers = np.array([beyond[fid] for fid in pm.frame_ids]).reshape(-1, len(links))
+        return BendCache(origins[:, None], turns[:, None], {-1: markers}, None)
+
     @staticmethod
     def bend_axes(model: pin.Model, data: pin.Data, links: list[Link], origins: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
@@ -309,6 +355,20 @@ class LinkCompliance(Effect, PoseFamily):
         for column in set(columns.tolist()):
             sel = columns == column
             e1[sel], e2[sel] = link_axes(proximal[sel], origins[sel], mounts[sel], column)
+        return e1, e2
+
+    @staticmethod
+    def rows_bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
+                       origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`bend_axes` of a batch of rows: (n, L, 3) each."""
+        e1, e2 = np.zeros(origins.shape), np.zeros(origins.shape)
+        proximal = kin.translation[:, [link.a for link in links]]
+        mounts = kin.rotation[:, [int(model.parents[link.b]) for link in links]]
+        columns = np.array([link.column for link in links], dtype=int)
+        for column in set(columns.tolist()):
+            sel = columns == column
+            e1[:, sel], e2[:, sel] = link_axes(proximal[:, sel], origins[:, sel],
+                                               mounts[:, sel], column)
         return e1, e2
 
     def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
@@ -325,19 +385,19 @@ class LinkCompliance(Effect, PoseFamily):
         """Per link, the turn per unit compliance (L, 2, 3) of the links the marker is beyond
         (zero for the others), and the marker's lever from ``p_b`` (L, 3)."""
         cache = view.caches[self.name]
-        return (cache.turns * cache.beyond[view.fid][:, None, None],
-                view.point[None, :] - cache.origins)
+        return (cache.turns * cache.beyond[view.fid][..., None, None],
+                view.point[..., None, :] - cache.origins)
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
                             ) -> np.ndarray:
         turns, lever = self._lever(pm, view)
-        omega = np.einsum("lik,li->lk", turns, x_f.reshape(-1, 2))
-        return _cross(omega, lever).sum(axis=0)
+        omega = np.einsum("...lik,li->...lk", turns, x_f.reshape(-1, 2))
+        return _cross(omega, lever).sum(axis=-2)
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         turns, lever = self._lever(pm, view)
-        cols = _cross(turns, lever[:, None, :]).reshape(-1, 3).T  # (3, 2L)
-        return view.to_measuring @ cols
+        cols = _cross(turns, lever[..., None, :]).reshape(turns.shape[:-3] + (-1, 3))
+        return view.to_measuring @ np.swapaxes(cols, -1, -2)  # (..., 3, 2L)
 
 
 def transversal_joints(model: pin.Model, frame_ids: list[int], compliant: list[int]
@@ -454,3 +514,14 @@ class TransversalCompliance(LinkCompliance):
         """The bearing's two axes normal to each joint's rotation axis
         (:func:`joint_normal_axes`)."""
         return joint_normal_axes(model, data, links)
+
+    @staticmethod
+    def rows_bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
+                       origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`bend_axes` of a batch of rows: (n, L, 3) each."""
+        e1, e2 = np.zeros(origins.shape), np.zeros(origins.shape)
+        for n, link in enumerate(links):
+            mount = (kin.rotation[:, int(model.parents[link.b])]
+                     @ model.jointPlacements[link.b].rotation)
+            e1[:, n], e2[:, n] = tilt_axes(mount, link.column)
+        return e1, e2

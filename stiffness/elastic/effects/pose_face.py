@@ -284,9 +284,11 @@ class PoseFamily:
         return None
 
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
-                   kin: JointPlacements, shared: Any, jacobian: bool) -> Any:
-        """:meth:`row_cache` of a batch of rows at their loaded configurations (the joints'
-        placements ``kin`` with a leading row axis), for :attr:`rows_at_once` families."""
+                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
+                   ) -> Any:
+        """:meth:`row_cache` of a batch of ``rows`` at their loaded configurations (the
+        joints' placements ``kin`` with a leading row axis), for :attr:`rows_at_once`
+        families."""
         return None
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
