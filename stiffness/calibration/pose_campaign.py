@@ -18,6 +18,7 @@ import io
 import math
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,12 @@ class PoseCampaign:
     def n_rows(self) -> int:
         """Number of rows."""
         return len(self.labels)
+
+    @cached_property
+    def configurations(self) -> np.ndarray:
+        """(n, nq) each row's full Pinocchio configuration (:meth:`Robot.configuration`, loops
+        closed), computed once: every model of a diagnosis reads them."""
+        return np.array([self.robot.configuration(q) for q in self.q]).reshape(self.n_rows, -1)
 
     def folder(self) -> Path:
         """Folder the ``[robot]`` paths are relative to (the campaign file's, else the working

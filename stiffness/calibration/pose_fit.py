@@ -62,9 +62,8 @@ LEVERAGE_TOL = 1e-9
 def rows_of(model: PoseModel, campaign: PoseCampaign) -> list[RowTerms]:
     """The parameter-independent terms of every row of ``campaign``."""
     wrench = None if campaign.loads is None else campaign.loads.wrench
-    return [model.row_terms(campaign.robot.configuration(q),
-                            None if wrench is None else wrench[i])
-            for i, q in enumerate(campaign.q)]
+    return [model.row_terms(q, None if wrench is None else wrench[i])
+            for i, q in enumerate(campaign.configurations)]
 
 
 def campaign_settings(campaign: PoseCampaign) -> dict:
