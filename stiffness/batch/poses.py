@@ -42,9 +42,30 @@ class JointPlacements:
     jacobian: np.ndarray | None
 
 
-def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool = True
-                     ) -> JointPlacements:
-    """Joint placements (and joint Jacobians) of the (m, nq) configurations ``q``.
+@dataclass(frozen=True)
+class JointKinds:
+    """What the array kinematics read of a model's joints (:func:`joint_kinds`): read once
+    for the copies of a model that differ only in placements, gravity or inertias.
+
+    Attributes
+    ----------
+    axes
+        (revolute, unit axis (3,) in the joint's frame) of each joint after the universe, or
+        ``None`` when one is not a revolute or prismatic joint about or along a fixed axis.
+    """
+
+    axes: list[tuple[bool, np.ndarray]] | None
+
+
+def joint_kinds(model: pin.Model) -> JointKinds:
+    """The model's :class:`JointKinds`."""
+    return JointKinds(_axis_joints(model))
+
+
+def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool = True,
+                     kinds: JointKinds | None = None) -> JointPlacements:
+    """Joint placements (and joint Jacobians) of the (m, nq) configurations ``q``; ``kinds``
+    the model's :func:`joint_kinds` when known (else read from ``model``).
 
     A model whose joints all turn or slide along a fixed axis (Pinocchio's ``R{X,Y,Z}``,
     ``P{X,Y,Z}``, ``RevoluteUnaligned``, ``PrismaticUnaligned``) is placed by array algebra over
@@ -55,7 +76,7 @@ def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians:
     ``pin.computeJointJacobians`` (``pin.forwardKinematics`` without Jacobians) per
     configuration; ``data`` is then scratch space.
     """
-    axes = _axis_joints(model)
+    axes = _axis_joints(model) if kinds is None else kinds.axes
     if axes is None:
         return _pinocchio_placements(model, data, q, jacobians)
     m, nj = q.shape[0], model.njoints
@@ -164,11 +185,13 @@ def generalized_gravity(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.n
     return out
 
 
-def integrate(model: pin.Model, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+def integrate(model: pin.Model, q: np.ndarray, v: np.ndarray, kinds: JointKinds | None = None
+              ) -> np.ndarray:
     """(m, nq) ``pin.integrate`` of each (m, nq) configuration by its (m, nv) or (nv,)
-    displacement."""
+    displacement; ``kinds`` as for :func:`joint_placements`."""
     v = np.broadcast_to(v, (q.shape[0], model.nv))
-    if _axis_joints(model) is not None:  # q and v are the same coordinates
+    axes = _axis_joints(model) if kinds is None else kinds.axes
+    if axes is not None:  # q and v are the same coordinates
         return q + v
     out = np.empty_like(q)
     step = pin.integrate

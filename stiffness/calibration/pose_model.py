@@ -57,6 +57,7 @@ from stiffness.batch.poses import (
     frame_placements,
     generalized_gravity,
     integrate,
+    joint_kinds,
     joint_placements,
     point_jacobians,
 )
@@ -190,6 +191,8 @@ class PoseModel:
         self._lumped = any(f.lumps_gravity for f in self.family_objects)
         self._elastic = any(f.family_kind == "elastic" for f in self.family_objects)
         self._at_once = all(f.rows_at_once for f in self.family_objects)
+        # the perturbed copies of the model differ in placements and gravity only
+        self._kinds = joint_kinds(model)
         # the families that implement each per-row hook (the others would add nothing)
         self._hooked = {hook: [f for f in self.family_objects
                                if getattr(type(f), hook) is not getattr(PoseFamily, hook)]
@@ -444,7 +447,7 @@ class PoseModel:
         q, state = self._loaded_rows(model, ev.data, x, rows)
         if ev.jacobian and state is not None:
             state.per_torque = self.deflection_slope(x, state)
-        kin = joint_placements(model, ev.data, q, ev.jacobian)
+        kin = joint_placements(model, ev.data, q, ev.jacobian, self._kinds)
         rotation, translation = frame_placements(model, kin, self.frame_ids)
         offsets = np.array([self.marker_offset(x, k) for k in range(len(self.markers))])
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
@@ -471,7 +474,7 @@ class PoseModel:
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
         if not self.elastic:
-            return integrate(model, commanded, offsets), None
+            return integrate(model, commanded, offsets, self._kinds), None
         n, nv = len(rows), model.nv
         wrench = (None if self.loads is None or all(r.wrench is None for r in rows) else
                   np.array([np.zeros(6) if r.wrench is None else r.wrench for r in rows]))
@@ -486,7 +489,7 @@ class PoseModel:
             for _ in range(SAG_ITERATIONS):
                 if not pending.size:
                     break
-                q = integrate(model, commanded[pending], offsets + sag[pending])
+                q = integrate(model, commanded[pending], offsets + sag[pending], self._kinds)
                 g, w = self._row_torques(model, data, q,
                                          None if wrench is None else wrench[pending])
                 new = self.deflection(x, self._state(x, q, g, w, {}))
@@ -502,7 +505,7 @@ class PoseModel:
             raise ConvergenceError(SAG_DIVERGES)
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
-        return (integrate(model, commanded, offsets + sag),
+        return (integrate(model, commanded, offsets + sag, self._kinds),
                 self._state(x, at, gravity[:, None], applied[:, None], {}))
 
     def _row_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
