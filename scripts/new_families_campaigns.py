@@ -99,7 +99,9 @@ def _tilting_joints(robot, markers) -> list[str]:
     return names[1:4] if len(names) > 3 else names
 
 
-def _hidden(robot, markers, stiffness, family: str, rng) -> HiddenPoseErrors:
+def hidden_errors(robot, markers, stiffness, family: str, rng) -> HiddenPoseErrors:
+    """What a campaign hides: the frame, markers, zero offsets and joint stiffness, and
+    ``family`` (module docstring)."""
     n = sum(robot.model.joints[j].nv == 1 for j in range(1, robot.model.njoints))
     hidden = HiddenPoseErrors(
         pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
@@ -120,7 +122,7 @@ def run_one(robot, markers, stiffness, payload, family: str, mode: str, seed: in
     """One campaign of ``poses`` poses and its diagnosis: what was named, coverage, held-out
     RMS / noise."""
     rng = np.random.default_rng(seed)
-    hidden = _hidden(robot, markers, stiffness, family, rng)
+    hidden = hidden_errors(robot, markers, stiffness, family, rng)
     campaign = simulate_pose_campaign(robot, markers, hidden, poses, NOISE, seed=seed,
                                       payload=payload)
     refused = NOT_HIDDEN + (["transversal_compliance"] if mode == "not-offered" else [])

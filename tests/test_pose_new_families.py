@@ -14,7 +14,13 @@ from pose_truth import truth
 from test_absolute_poses import NOISE, PAYLOAD, _hidden, _markers
 
 from stiffness.calibration.pose_diagnose import diagnose_poses
-from stiffness.calibration.pose_fit import predict, starting_frame
+from stiffness.calibration.pose_fit import (
+    campaign_settings,
+    fit_pose_model,
+    predict,
+    rows_of,
+    starting_frame,
+)
 from stiffness.calibration.pose_model import PoseModel
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT
 from stiffness.errors import StiffnessError
@@ -107,9 +113,13 @@ def test_hidden_tilts_not_offered_end_unexplained(tilted):
 
 
 def test_hidden_base_tilt_is_named_and_covered(ur10):
-    """A base tilted by 2-3 degrees on a softer UR10 (joint stiffness / 4): base_tilt is named,
-    its 95 % intervals cover the two angles, and the held-out RMS comes down to the noise
-    (3 seeds measured: named 3 of 3, 5 of 6 angles covered)."""
+    """A base tilted by 2-3 degrees on a softer UR10 (joint stiffness / 4): base_tilt is named
+    last, no stand-in after it, its 95 % intervals cover the two angles, and the held-out RMS
+    comes down to the noise (3 seeds measured: named 3 of 3, 5 of 6 angles covered). The
+    base-tilt fit, warm-started level, starts again from its optimum: at the level start the
+    shoulder pan joint's compliance has no effect (no gravity torque about a vertical axis), at
+    the tilted optimum it has; without the restart the step stopped short and link_compliance
+    stood in after it."""
     rng = np.random.default_rng(2)
     hidden = _hidden(ur10, rng, geometry=False)
     hidden.stiffness = hidden.stiffness / 4
@@ -118,7 +128,7 @@ def test_hidden_base_tilt_is_named_and_covered(ur10):
                                       payload=PAYLOAD)
     d = diagnose_poses(campaign, families=["joint_offsets", "joint_compliance"],
                        not_families=NOT_HIDDEN)
-    assert "base_tilt" in d.families
+    assert d.families[-1] == "base_tilt", d.families
     table = {p["parameter"]: p for p in d.to_dict()["parameters"]}
     for axis, angle in zip(("rx", "ry"), hidden.base_tilt, strict=True):
         lo, hi = table[f"base tilt {axis}"]["interval_95"]
@@ -134,22 +144,47 @@ def test_a_declared_tilt_must_be_two_finite_angles(ur10):
             diagnose_poses(campaign, base_tilt=bad)
 
 
-def test_the_campaigns_script_names_a_tilt_on_the_torso_with_a_passive_joint(tmp_path,
-                                                                             monkeypatch):
+@pytest.fixture(scope="module")
+def script():
+    """scripts/new_families_campaigns.py as a module (it puts tests/ on the path itself)."""
+    spec = importlib.util.spec_from_file_location("_new_families",
+                                                  ROOT / "scripts" / "new_families_campaigns.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_campaigns_script_names_a_tilt_on_the_torso_with_a_passive_joint(script, tmp_path):
     """One campaign of scripts/new_families_campaigns.py (which measures 10 seeds of 30 poses on
     four robots), smaller: the torso with a passive chest joint (springs on its six chain
     joints), 20 poses, bearing tilts hidden on three joints, is diagnosed with
     transversal_compliance named, every reported interval of the family covering its
     (identifiable) truth and the held-out RMS within 1.3x the noise (seed 0: 11 of 11, 1.17x;
     2 s of CPU)."""
-    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
-    spec = importlib.util.spec_from_file_location("_new_families",
-                                                  ROOT / "scripts" / "new_families_campaigns.py")
-    assert spec is not None and spec.loader is not None
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
     run = script.run_one(*script.robot_setup("torso-passive", tmp_path),
                          "transversal_compliance", "offered", 0, poses=20)
     assert run["named"] and run["intervals"] >= 6, run
     assert run["covered"] == run["intervals"], run
     assert run["held_out_over_noise"][-1] < 1.3, run
+
+
+def test_a_tilt_fit_from_a_level_start_reaches_the_noise(script, tmp_path):
+    """The script's Panda base-tilt campaign (seed 0: 2.6 and 2.0 degrees, a quarter of the
+    joint stiffness) fitted from the truth with the base level, as diagnose's warm start has
+    it: at that start the vertical first joint carries no gravity torque, so its compliance
+    has no effect and is not fitted; the fit starts again from its optimum, where it has one,
+    and reaches the noise (without the restart it stopped at 3.2x the noise, the tilt at 85 %
+    of the truth)."""
+    robot, markers, k, payload = script.robot_setup("panda", tmp_path)
+    hidden = script.hidden_errors(robot, markers, k, "base_tilt", np.random.default_rng(0))
+    campaign = simulate_pose_campaign(robot, markers, hidden, 30, NOISE, seed=0,
+                                      payload=payload)
+    families = [*GEOMETRY[:3], "joint_compliance", "base_tilt"]
+    model = PoseModel(robot, markers, tuple(families), starting_frame(campaign), campaign.loads,
+                      campaign_settings(campaign))
+    level = truth(model, hidden)
+    level[model.slices()["base_tilt"]] = 0.0
+    fit = fit_pose_model(model, campaign, rows_of(model, campaign), families, level)
+    assert fit.rms() < 1.1 * NOISE, fit.rms() / NOISE
+    np.testing.assert_allclose(fit.x[model.slices()["base_tilt"]], hidden.base_tilt, rtol=0.05)

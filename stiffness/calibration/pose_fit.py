@@ -4,7 +4,10 @@ Identifiability. Only an identifiable set of parameters is fitted: the regressor
 over every measured component, each column scaled by its parameter's typical size) is reduced
 family by family, in the order the families were chosen, by the one reduction of both
 campaign kinds (:func:`stiffness.calibration.identifiability.reduce_columns`: "no effect" and
-"merged" parameters, the merges' coefficients reported).
+"merged" parameters, the merges' coefficients reported), at the start; a parameter with no
+effect there (its column zero: a vertical base joint's compliance on a level base) that has one
+at the optimum (the base tilted by ``base_tilt``) is fitted by a second fit from the optimum
+(:func:`_more_identifiable`).
 
 Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian, at most
 :data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
@@ -211,6 +214,16 @@ def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray) -> Ide
     return _reduced(model, jac, order)
 
 
+def _more_identifiable(obs: PoseObservations, order: list[str], x: np.ndarray,
+                       ident: Identifiability) -> bool:
+    """Whether a parameter ``ident`` found with no effect (a zero column at the start) is
+    identifiable at ``x``, the fit's optimum (its column no longer zero there)."""
+    idle = {d.index for d in ident.dropped if not d.merged_into}
+    if not idle:
+        return False
+    return bool(idle & set(_identifiable(obs, order, x).kept))
+
+
 def _reduced(model: PoseModel, jac: np.ndarray, order: list[str]) -> Identifiability:
     """The identifiable columns of the observed Jacobian ``jac`` (N, p), ``order``'s families
     first (:func:`reduce_columns`)."""
@@ -325,7 +338,7 @@ def _members(group: np.ndarray, order: np.ndarray) -> list[np.ndarray]:
 @one_blas_thread
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
-                   scale: float | None = None) -> PoseFit:
+                   scale: float | None = None, refits: int = 1) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
     Parameters
@@ -343,6 +356,9 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     scale
         Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
         robust estimate (module docstring). Ignored by least squares.
+    refits
+        How many times a least-squares fit starts again from its optimum when a parameter with
+        no effect at the start has one there (:func:`_more_identifiable`).
 
     Raises
     ------
@@ -399,6 +415,8 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun,
                       at_bound=_at_bound(model, x, kept, sol.active_mask))
         fit.converged = bool(sol.status > 0)
+        if refits > 0 and _more_identifiable(obs, order, x, ident):
+            return fit_pose_model(model, campaign, rows, order, x.copy(), refits=refits - 1)
         return fit
     s = scale if scale is not None else campaign.noise_std
     assert s is not None  # undeclared noise and no scale: _fit_robust_scale estimated it
