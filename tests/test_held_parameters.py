@@ -10,11 +10,16 @@ UR5 campaign with a hidden compensator whose stiffness the data put at 0 (seed 3
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from test_joint_angles import ARMS, NOISE, _model, _sim
 
 from stiffness.calibration.diagnose import _effect_parameters, stiffness_parameters
 from stiffness.calibration.diagnosis import SI_UNITS
-from stiffness.calibration.fitting import parameter_labels
+from stiffness.calibration.fitting import (
+    NOMINAL_STIFFNESS,
+    nominal_log_stiffness,
+    parameter_labels,
+)
 from stiffness.calibration.selection import (
     fit_model,
     held_at_bounds,
@@ -78,3 +83,52 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
                        stiffness_parameters(fit, cov, quantile),
                        stiffness_parameters(fit, held, quantile), strict=True):
         assert p.ci95[0] in (f.ci95[0], h.ci95[0]) and p.ci95[1] in (f.ci95[1], h.ci95[1])
+
+
+def test_a_joint_the_loads_do_not_move_is_held_at_one_nominal_by_identify_and_diagnose():
+    """Issue 38 item 10: wrist_3 of a UR5 under forces at its own axis moves no measurement;
+    identify (from the paper's 1e5 start) and diagnose's baseline (the better of the linear and
+    the 1e5 starts) both hold it at the nominal stiffness, where diagnose's linear start used
+    to leave it at another arbitrary value, and report it held."""
+    from stiffness.calibration.diagnose import _baseline_fit
+    from stiffness.calibration.identify import identify
+    from stiffness.elastic.effects.geometry import Geometry, References
+    from stiffness.elastic.effects.hypothesis import Hypothesis
+    from stiffness.planning.simulate import simulate
+
+    joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
+              "wrist_2_joint", "wrist_3_joint"]
+    c = simulate("ur5", kq=[3e4, 2e4, 1.5e4, 5e3, 5e3, 5e3], compliant_joints=joints,
+                 max_force=100.0, noise_std_m=NOISE, configs=4, loads_per_config=3,
+                 seed=1).campaign
+    robot = c.robot()
+    ident = identify(c, starts=1)
+    geo = Geometry.of(robot)
+    rows = geo.rows(c.q, c.force, c.moment)
+    base = _baseline_fit(c, Hypothesis(geo, rows, c.baseline, tuple(joints), (),
+                                       References.of(geo, rows, 1e5, c.deflection)),
+                         c.deflection.size, NOISE, "linear")[0]
+    nominal = float(np.exp(nominal_log_stiffness(base.model)[5]))
+    assert "k_theta_SI" not in robot.defaults
+    assert nominal == pytest.approx(NOMINAL_STIFFNESS, rel=1e-12)
+    assert ident.k[5] == pytest.approx(nominal, rel=1e-12)
+    assert np.exp(base.x[5]) == pytest.approx(nominal, rel=1e-12)
+    assert base.identifiability.dropped_at(5).reason == "no effect"
+    # the other joints agree between the two to the solvers' tolerance
+    np.testing.assert_allclose(ident.k[:5], np.exp(base.x[:5]), rtol=1e-6)
+
+
+def test_the_nominal_is_the_robots_declared_stiffness():
+    from stiffness.elastic.effects.geometry import Geometry, References
+    from stiffness.elastic.effects.hypothesis import Hypothesis
+    from stiffness.robot.robot import load_robot
+
+    robot = load_robot("sk120")
+    declared = robot.defaults["k_theta_SI"]
+    geo = Geometry.of(robot)
+    q = np.full((1, len(robot.coordinate_joints)), 0.3)  # rad
+    force, moment = np.array([[0.0, 0.0, 10.0]]), np.zeros((1, 3))
+    rows = geo.rows(q, force, moment)
+    model = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (),
+                       References.of(geo, rows, 1e5, np.full((1, 3), 1e-4)))
+    np.testing.assert_allclose(np.exp(nominal_log_stiffness(model)), declared, rtol=1e-12)

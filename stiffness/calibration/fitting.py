@@ -80,6 +80,9 @@ _MAX_X = 230.0
 _FD_STEP = 1e-6
 #: Relative step of the solver's forward differences there (``sqrt(eps)``, as scipy's).
 _FORWARD_STEP = float(np.sqrt(np.finfo(float).eps))
+#: Stiffness (SI: N.m/rad or N/m) a baseline joint whose compliance moves no measurement is
+#: held at when its robot declares none (``k_theta_SI``): identify's paper start, 1e8 N.mm/rad.
+NOMINAL_STIFFNESS = 1e5
 #: Losses of :func:`fit_model` (scipy.optimize.least_squares'): ``linear`` is least squares.
 LOSSES = ("linear", "soft_l1", "huber", "cauchy")
 
@@ -402,6 +405,13 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
     labels = parameter_labels(model)
     hold = {i: model.held[label] for i, label in enumerate(labels) if label in model.held}
     ident = identifiable(objective, x0).holding(hold)
+    # a joint whose compliance moves no measurement has no value but the one it is held at:
+    # the same nominal for every fit (identify, diagnose), not its start
+    unseen = [d.index for d in ident.dropped
+              if d.index < len(model.compliant) and d.reason == "no effect"]
+    if unseen:
+        x0 = x0.copy()
+        x0[unseen] = nominal_log_stiffness(model)[unseen]
     bounds = (lo, hi) if bounded else None
     x, success, message, nfev, at_bound = _solve(objective, x0, ident.kept, bounds, kwargs)
     jac = objective.data_jacobian(x)
@@ -444,6 +454,19 @@ def _solve(objective: Objective, x0: np.ndarray, kept: list[int],
                         jac=lambda z: objective.jac(full(z))[:, free], **kwargs)
     at_bound = [int(i) for i in np.flatnonzero(free)[np.flatnonzero(sol.active_mask)]]
     return full(sol.x), bool(sol.success), str(sol.message), int(sol.nfev), at_bound
+
+
+def nominal_log_stiffness(model: Hypothesis) -> np.ndarray:
+    """``ln k`` of each baseline joint's nominal stiffness: the robot's declared ``k_theta_SI``
+    (one per compliant joint its declaration names, positive), else
+    :data:`NOMINAL_STIFFNESS`."""
+    robot = model.geometry.robot
+    springs = list(robot.defaults.get("compliant_joints", robot.compliant_joints))
+    declared = robot.defaults.get("k_theta_SI")
+    values = dict(zip(springs, declared, strict=True)) if (
+        declared is not None and len(declared) == len(springs)) else {}
+    return np.log([float(values[j]) if float(values.get(j, 0.0)) > 0 else NOMINAL_STIFFNESS
+                   for j in model.compliant])
 
 
 def parameter_labels(model: Hypothesis) -> list[str]:
