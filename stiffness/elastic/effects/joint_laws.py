@@ -178,6 +178,7 @@ class Backlash(JointEffect, JointDeflectionFamily):
     _pose_layout: tuple[list[int], np.ndarray] | None = field(default=None, init=False,
                                                               repr=False)
     name: ClassVar[str] = "backlash"
+    rows_at_once: ClassVar[bool] = True
     kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
     through_law: ClassVar[bool] = True
@@ -256,31 +257,32 @@ class Backlash(JointEffect, JointDeflectionFamily):
 
     def _ratio(self, pm: PoseLayout, state: SagState) -> tuple[list[int], np.ndarray,
                                                                 np.ndarray]:
-        """Velocity indices, ``tau_j / tau_s`` and ``tau_s`` of the joints with a parameter."""
+        """Velocity indices, ``tau_j / tau_s`` and ``tau_s`` of the joints with a parameter
+        (the torques (nv,) of a row or (..., nv) of a batch of rows)."""
         if self._pose_layout is None:  # built once per model
             joints = self._pose_joints(pm)
             self._pose_layout = ([v for _, v, _ in joints], np.array([s for _, _, s in joints]))
         v_index, smooth = self._pose_layout
-        return v_index, state.torque[v_index] / smooth, smooth
+        return v_index, state.torque[..., v_index] / smooth, smooth
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         v_index, ratio, _ = self._ratio(pm, state)
-        out = np.zeros(state.torque.size)
-        out[v_index] = x_f * np.tanh(ratio)
+        out = np.zeros(state.torque.shape)
+        out[..., v_index] = x_f * np.tanh(ratio)
         return out
 
     def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                               ) -> np.ndarray:
         v_index, ratio, smooth = self._ratio(pm, state)
-        out = np.zeros(state.torque.size)
-        out[v_index] = x_f * (1.0 - np.tanh(ratio) ** 2) / smooth
+        out = np.zeros(state.torque.shape)
+        out[..., v_index] = x_f * (1.0 - np.tanh(ratio) ** 2) / smooth
         return out
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray:
         v_index, ratio, _ = self._ratio(pm, state)
-        out = np.zeros((state.torque.size, x_f.size))
-        out[v_index, np.arange(x_f.size)] = np.tanh(ratio)
+        out = np.zeros(state.torque.shape + (x_f.size,))
+        out[..., v_index, np.arange(x_f.size)] = np.tanh(ratio)
         return out
 
 
