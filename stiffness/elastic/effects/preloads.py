@@ -15,6 +15,7 @@ Units: SI (kg, m, N, N/m, N.m, rad).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -484,9 +485,8 @@ class GravityLumped(Effect, JointDeflectionFamily):
         regressor entry at a spring on a joint)."""
         nv = model.nv
         regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(nv), np.zeros(nv))
-        pairs = np.array([(c, 10 * (k - 1) + p) for c in range(len(pm.springs))
-                          for k in pm.spring_downstream(c)
-                          for p in range(len(GRAVITY_PARAMETERS))], dtype=int).reshape(-1, 2)
+        pairs = _lumped_pairs(tuple(tuple(pm.spring_downstream(c))
+                                    for c in range(len(pm.springs))))
         springs = pm.spring_map[:, pairs[:, 0]]  # each pair's spring column S_j (nv, n_theta)
         return -springs * np.sum(springs * regressor[:, pairs[:, 1]], axis=0)
 
@@ -496,3 +496,14 @@ class GravityLumped(Effect, JointDeflectionFamily):
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray:
         return state.extras[self.name]
+
+
+@functools.lru_cache(maxsize=64)
+def _lumped_pairs(links: tuple[tuple[int, ...], ...]) -> np.ndarray:
+    """(spring, regressor column) of each lumped gravity parameter, in the family's parameter
+    order, for springs moving the joints ``links[spring]``: built once per layout, not at each
+    of a fit's sag iterations (read-only)."""
+    pairs = np.array([(c, 10 * (k - 1) + p) for c, moved in enumerate(links) for k in moved
+                      for p in range(len(GRAVITY_PARAMETERS))], dtype=int).reshape(-1, 2)
+    pairs.setflags(write=False)
+    return pairs
