@@ -397,19 +397,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
 
     scales = np.array([model.parameters[i].scale for i in kept])
     lower = np.array([model.parameters[i].lower for i in kept])
-    sol = optimize.least_squares(residual, x[kept], jac=jacobian, x_scale=scales,
-                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                 max_nfev=MAX_EVALUATIONS)
-    if np.any(sol.x < lower):  # past a physical bound: the fit under the bounds instead
-        start = np.maximum(sol.x, lower)
-        if np.all(residual(start) == DIVERGED_RESIDUAL_M):
-            # the clipped optimum's sag diverges (a negative compliance held it): from the
-            # bounded parameters at their bound (rigid springs) instead
-            start = np.where(np.isfinite(lower), lower, sol.x)
-        sol = optimize.least_squares(residual, start, jac=jacobian,
-                                     x_scale=scales, method="trf", bounds=(lower, np.inf),
-                                     xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                     max_nfev=MAX_EVALUATIONS)
+    sol = _least_squares(residual, jacobian, x[kept], scales, lower)
     x[kept] = sol.x
     if loss == "linear":
         fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun,
@@ -438,6 +426,27 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
                   _at_bound(model, x, kept, sol.active_mask))
     fit.converged = bool(sol.status > 0)
     return fit
+
+
+def _least_squares(residual: Callable[[np.ndarray], np.ndarray],
+                   jacobian: Callable[[np.ndarray], np.ndarray], start: np.ndarray,
+                   scales: np.ndarray, lower: np.ndarray) -> optimize.OptimizeResult:
+    """The least-squares optimum from ``start``: Levenberg-Marquardt, then, when that optimum
+    is past a physical bound (``lower``), the fit under the bounds from the clipped optimum
+    (or, when the clipped optimum's sag diverges because a negative compliance held it, from
+    the bounded parameters at their bound: rigid springs)."""
+    sol = optimize.least_squares(residual, start, jac=jacobian, x_scale=scales,
+                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                 max_nfev=MAX_EVALUATIONS)
+    if np.all(sol.x >= lower):
+        return sol
+    start = np.maximum(sol.x, lower)
+    if np.all(residual(start) == DIVERGED_RESIDUAL_M):
+        start = np.where(np.isfinite(lower), lower, sol.x)
+    return optimize.least_squares(residual, start, jac=jacobian, x_scale=scales,
+                                  method="trf", bounds=(lower, np.inf),
+                                  xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                  max_nfev=MAX_EVALUATIONS)
 
 
 def _at_bound(model: PoseModel, x: np.ndarray, kept: list[int], active: np.ndarray
