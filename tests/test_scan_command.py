@@ -12,6 +12,7 @@ stiffness.workspace.definiteness.definiteness_scan
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import numpy as np
@@ -647,3 +648,24 @@ def test_singularity_ratio_is_that_of_the_singular_values():
     np.testing.assert_allclose(ratio[2:], values[2:, -1] / values[2:, 0], rtol=1e-12)
     assert ratio[0] < 1e-7 and np.isnan(ratio[1])
     assert np.all(singularity_ratio(rng.normal(size=(5, 3, 2))) == 0.0)
+
+
+# ------------------------------------------------------------------------------ default load
+
+
+@pytest.mark.parametrize("robot_name", ["sk120", "ur5"])
+def test_default_load_is_the_robots_as_in_kx(robot_name):
+    """Without --wrench a scan takes the robot's declared wrench_SI (the load kx and view use)
+    and says so; a robot declaring none gets 0,0,-100 N, echoed as the default."""
+    parser = argparse.ArgumentParser()
+    scan_command.configure_parser(parser)
+    args = parser.parse_args(["--robot", robot_name, "--samples", "2"]
+                             + ([] if robot_name == "sk120" else ["--kq", UR5_KQ]))
+    spec, robot = scan_command.build_spec(args)
+    declared = robot.defaults.get("wrench_SI")
+    expected = [0.0, 0.0, -100.0] if declared is None else [float(v) for v in declared]
+    assert [list(map(float, load)) for load in spec.loads] == [expected]
+    wrench_line = next(line for line in scan_command.echo_lines(spec, robot, args)
+                       if line.startswith("wrench"))
+    assert ("wrench_SI" in wrench_line) == (declared is not None)
+    assert robot_name != "sk120" or declared is not None  # the shipped SK120 declares its load

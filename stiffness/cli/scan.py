@@ -103,8 +103,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
         "pairs (joint names or q1, q2...); default the robot's default pose, else zero"))
     flags.add_wrench_flag(parser, repeat=True, help=(
         "dead load case at the target, base axes: fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m); "
-        "repeat for several; --load is an alias; default "
-        f"{','.join(f'{v:g}' for v in DEFAULT_LOAD_N)}"))
+        "repeat for several; --load is an alias; default the robot's wrench_SI (as kx and "
+        f"view), else {','.join(f'{v:g}' for v in DEFAULT_LOAD_N)}"))
     flags.add_stiffness_flag(parser)
     parser.add_argument("--rtol", type=flags.number, default=1e-9,
                         help="relative eigenvalue tolerance of the definiteness classes")
@@ -245,7 +245,8 @@ def echo_lines(spec: ScanSpec, robot: Robot, args: argparse.Namespace) -> list[s
     """The scan's inputs: fixed coordinates (name=value), load cases and K_theta, with sources."""
     preset = f"preset {spec.preset}" if spec.preset in PRESETS else None
     q_source = preset or flags.coordinates_source(robot, args)
-    load_source = f"{flags.FROM_FLAG} --wrench" if args.wrench else (preset or "default")
+    load_source = f"{flags.FROM_FLAG} --wrench" if args.wrench else (
+        preset or (f"{flags.FROM_ROBOT} wrench_SI" if "wrench_SI" in robot.defaults else "default"))
     k_source = f"{flags.FROM_FLAG} --kq" if args.kq is not None else flags.FROM_ROBOT
     swept = ", ".join(a["joint"] for a in spec.axes)
     loads = "; ".join(f"{name}: {','.join(f'{v:g}' for v in load)}"

@@ -171,6 +171,15 @@ def figure_axes(robot: Robot, axes: list[dict], names: Sequence[str] | None,
     return sorted(k for k in order[:2] if lengths[k] > 1)
 
 
+def default_scan_load(robot: Robot) -> list[float]:
+    """The load of a scan given none: the robot's declared ``wrench_SI`` (N, or N and N.m;
+    base axes), the load ``kx`` and ``view`` use, else :data:`DEFAULT_LOAD_N`. A load held
+    against springs at rest (``rest_q_SI``) depends on the configuration, so a scan does not
+    take it as its one load case."""
+    declared = robot.defaults.get("wrench_SI")
+    return [float(v) for v in (DEFAULT_LOAD_N if declared is None else declared)]
+
+
 def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndarray | None,
               *, preset: ScanPreset | None = None,
               axes: Mapping[str, Sequence[float]] | Sequence = (),
@@ -199,7 +208,8 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
         Coordinates of the joints not swept (rad, m); default the robot's shipped pose, else
         zero.
     wrench
-        Load cases (:func:`load_cases`); default the preset's, else :data:`DEFAULT_LOAD_N`.
+        Load cases (:func:`load_cases`); default the preset's, else the robot's own
+        (:func:`default_scan_load`).
     rtol, chunk_size, map_axes, fields, dtype, compression
         Definiteness tolerance, configurations per chunk, the figures' coordinates, stored
         fields (:func:`~stiffness.workspace.spec.parse_fields` text), storage type and codec.
@@ -237,7 +247,7 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
                         seed=0, loads=loads, load_names=names, map_axes=preset.map_axes,
                         couplings=preset.couplings, **common)
     if not loads:
-        loads, names = [list(DEFAULT_LOAD_N)], ["1"]
+        loads, names = [default_scan_load(robot)], ["1"]
     if samples is not None:
         if not math.isfinite(samples) or samples < 1 or samples != int(samples):
             raise StiffnessError(f"--samples must be a positive integer, got {samples:g}")
