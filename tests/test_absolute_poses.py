@@ -18,6 +18,7 @@ import pytest
 from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
 from hypothesis import given
 from hypothesis import strategies as st
+from pose_columns import assert_columns
 from pose_truth import add_intervals
 from stats import Coverage
 
@@ -90,19 +91,6 @@ def _jacobian_case(robot, families, seed: int = 0):
     return model, rows, rng.normal(size=model.size) * scales * 3, scales
 
 
-def _assert_columns(model, rows, x, scales, tol, columns):
-    _, jac = model.evaluate(x, rows)
-    for c in columns:
-        elastic = FAMILIES[model.parameters[c].family].family_kind == "elastic"
-        h = (1.0 if elastic else 1e-2) * scales[c]
-        e = np.zeros(model.size)
-        e[c] = h
-        fd = (model.evaluate(x + e, rows, False)[0] - model.evaluate(x - e, rows, False)[0]) / (
-            2 * h)
-        assert np.abs(jac[..., c] - fd).max() <= tol * max(np.abs(fd).max(), 1e-3), \
-            model.parameters[c].label
-
-
 @pytest.mark.parametrize("families", [KNOWN_MASSES, UNKNOWN_MASSES])
 @pytest.mark.parametrize("sagging", [False, True])
 def test_jacobian_matches_finite_differences(ur10, sagging, families):
@@ -116,7 +104,7 @@ def test_jacobian_matches_finite_differences(ur10, sagging, families):
     elastic = np.array([FAMILIES[p.family].family_kind == "elastic" for p in model.parameters])
     if not sagging:
         x[elastic] = 0.0
-    _assert_columns(model, rows, x, scales, 1e-2 if sagging else 1e-6, range(model.size))
+    assert_columns(model, rows, x, scales, 1e-2 if sagging else 1e-6, range(model.size))
 
 
 @pytest.mark.parametrize("bends", ["link_compliance", "transversal_compliance"])
@@ -128,7 +116,7 @@ def test_bend_columns_exact(ur10, bends):
                                             seed=1)
     sl = model.slices()[bends]
     assert sl.stop - sl.start >= 8  # two per link, or per compliant joint
-    _assert_columns(model, rows, x, scales, 1e-6, range(sl.start, sl.stop))
+    assert_columns(model, rows, x, scales, 1e-6, range(sl.start, sl.stop))
 
 
 def test_base_tilt_columns(ur10):
@@ -140,7 +128,7 @@ def test_base_tilt_columns(ur10):
     model, rows, x, scales = _jacobian_case(ur10, fams, seed=2)
     sl = model.slices()["base_tilt"]
     x[sl] = [0.01, -0.02]
-    _assert_columns(model, rows, x, scales, 1e-2, range(sl.start, sl.stop))
+    assert_columns(model, rows, x, scales, 1e-2, range(sl.start, sl.stop))
     _, jac = model.evaluate(x, rows)
     assert np.abs(jac[..., sl]).max() > 1e-5  # the tilt moves the markers (m/rad)
 
