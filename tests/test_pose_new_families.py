@@ -116,10 +116,10 @@ def test_hidden_base_tilt_is_named_and_covered(ur10):
     """A base tilted by 2-3 degrees on a softer UR10 (joint stiffness / 4): base_tilt is named
     last, no stand-in after it, its 95 % intervals cover the two angles, and the held-out RMS
     comes down to the noise (3 seeds measured: named 3 of 3, 5 of 6 angles covered). The
-    base-tilt fit, warm-started level, starts again from its optimum: at the level start the
-    shoulder pan joint's compliance has no effect (no gravity torque about a vertical axis), at
-    the tilted optimum it has; without the restart the step stopped short and link_compliance
-    stood in after it."""
+    base-tilt fit, warm-started level, judges the shoulder pan joint's compliance with the base
+    tilted (identifiability's representative point): at the level start it has no effect (no
+    gravity torque about a vertical axis); judged there, the step stopped short and
+    link_compliance stood in after it."""
     rng = np.random.default_rng(2)
     hidden = _hidden(ur10, rng, geometry=False)
     hidden.stiffness = hidden.stiffness / 4
@@ -172,10 +172,10 @@ def test_the_campaigns_script_names_a_tilt_on_the_torso_with_a_passive_joint(scr
 def test_a_tilt_fit_from_a_level_start_reaches_the_noise(script, tmp_path):
     """The script's Panda base-tilt campaign (seed 0: 2.6 and 2.0 degrees, a quarter of the
     joint stiffness) fitted from the truth with the base level, as diagnose's warm start has
-    it: at that start the vertical first joint carries no gravity torque, so its compliance
-    has no effect and is not fitted; the fit starts again from its optimum, where it has one,
-    and reaches the noise (without the restart it stopped at 3.2x the noise, the tilt at 85 %
-    of the truth)."""
+    it: at that start the vertical first joint carries no gravity torque, but judged at the
+    representative point (the base tilted by its typical size) its compliance is fitted, and
+    the fit reaches the noise (judged at the level start it was held, and the fit stopped at
+    3.2x the noise, the tilt at 85 % of the truth)."""
     robot, markers, k, payload = script.robot_setup("panda", tmp_path)
     hidden = script.hidden_errors(robot, markers, k, "base_tilt", np.random.default_rng(0))
     campaign = simulate_pose_campaign(robot, markers, hidden, 30, NOISE, seed=0,

@@ -14,7 +14,8 @@ stiffnesses, then each effect's scaled variables). The model's analytic Jacobian
 effects' variables. Only the parameters the data identify are fitted (:func:`identifiable`:
 the one reduction of both campaign kinds, :mod:`stiffness.calibration.identifiability`, over
 the baseline's compliances and then each effect's variables in the order added, at the
-start's :func:`representative` point; near aliases judged again at the optimum); the others
+start's representative point, every absent effect at its typical size; near aliases judged
+again at the optimum); the others
 (no effect on the data: the stiffness of a joint whose axis passes through every load's line;
 merged: a link bend about an axis parallel to a joint's, which that joint's compliance
 absorbs; or undetermined: held by the diagnosis, :attr:`Hypothesis.held`) are held at their
@@ -58,7 +59,8 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from stiffness.calibration.identifiability import Identifiability, reduce_columns
+from stiffness.calibration.identifiability import Identifiability, Layout
+from stiffness.calibration.identifiability import identifiable as judge
 from stiffness.cores import forked_map
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -476,73 +478,58 @@ def parameter_labels(model: Hypothesis) -> list[str]:
         f"{e.label}.{name}" for e in model.effects for name in e.parameter_names]
 
 
-def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0,
-                 jacobian: np.ndarray | None = None) -> Identifiability:
-    """The parameters ``objective``'s data identify near ``x``
-    (:func:`stiffness.calibration.identifiability.reduce_columns`): the baseline's
-    compliances first (every one with an effect on the data kept: their undetermined
-    combinations are the covariance's, :func:`covariance`), then each effect's own variables
-    in the order added, each followed by the settings :meth:`Effect.settings_freed` made
-    parameters (a compensator's base: it joins only where the data tell it from the
-    effect's stiffness and preload). The columns are in the fitted variables' physical units
-    times their typical size: a compliance ``1 / k`` (``-k d r / d ln k``, typical
-    ``1 / k_ref``, so a stiff joint is not mistaken for one without effect), an effect's SI
-    value (typical :meth:`Effect.scale`); merge coefficients are in those units. With a
-    ``resolution`` (noise std per typical size; the residuals scaled by the noise std) an
-    effect's own variable nearly aliasing the columns before the effect is merged too
-    (:data:`stiffness.calibration.identifiability.NEAR_ALIAS_SINE`); a freed setting is not
-    (diagnose keeps it only where its interval is narrow).
-
-    The columns are taken at :func:`representative` ``x``: each effect present at its
-    typical size where ``x`` has it absent, so that a parameter acting only through the
-    effect's size (a compensator's base, zero column while its stiffness and preload are 0)
-    is judged as the data see it once the effect is there. Every parameter is kept where the
-    model cannot be evaluated. ``jacobian``: the data Jacobian at ``x`` when known (used
-    where ``x`` is its own representative point)."""
-    model = objective.model
-    p = model.n_params
-    point = representative(objective, x)
-    if jacobian is None or not np.array_equal(point, x):
-        jacobian = objective.data_jacobian(point, central=False)
-    x, jac = point, jacobian
-    if p == 0 or objective.data(x)[0] == PENALTY or not np.any(jac):
-        return Identifiability.full(p)
+def layout(model: Hypothesis) -> Layout:
+    """How :func:`identifiable` judges ``model``'s parameters
+    (:class:`stiffness.calibration.identifiability.Layout`): the baseline's compliances first
+    (every one with an effect on the data kept: their undetermined combinations are the
+    covariance's, :func:`covariance`), then each effect's own variables in the order added
+    (near aliases of the columns before them merged), each followed by the settings
+    :meth:`Effect.settings_freed` made parameters (a compensator's base: judged by its interval
+    in diagnose, not as a near alias). Typical sizes: a compliance ``1 / k_ref``, an effect's
+    variable one unit (:meth:`Effect.scale`); an absent effect is present at one unit clipped
+    into its bounds."""
     n0 = len(model.compliant)
     refs = model.refs
-    a = jac.copy()
-    a[:, :n0] *= -np.exp(x[:n0]) / refs.k_ref
+    groups: list[list[int]] = [list(range(n0))]
+    effects: list[tuple[list[int], list[int]]] = []
+    typical = np.zeros(model.n_params)
+    for i, e in enumerate(model.effects):
+        start, stop = model.offsets[i + 1], model.offsets[i + 2]
+        own = min(start + len(e.param_names), stop)
+        groups += [list(range(start, own)), list(range(own, stop))]
+        effects.append((list(range(start, own)), list(range(start, stop))))
+        lo, hi = e.bounds()
+        typical[start:stop] = np.clip(1.0, lo, hi)
     scales = np.concatenate([np.full(n0, 1.0 / refs.k_ref)]
                             + [e.scale(refs) for e in model.effects])
-    groups: list[list[int]] = [list(range(n0))]
-    for i, e in enumerate(model.effects):
-        start, own, stop = (model.offsets[i + 1], model.offsets[i + 1] + len(e.param_names),
-                            model.offsets[i + 2])
-        groups += [list(range(start, min(own, stop))), list(range(own, stop))]
-    # a freed setting is judged by its interval (diagnose), not as a near alias
-    floors = [0.0] + [resolution, 0.0] * len(model.effects)
-    kept_groups = [(g, f) for g, f in zip(groups, floors, strict=True) if g]
-    return reduce_columns(a, [g for g, _ in kept_groups], scales,
-                          [f for _, f in kept_groups], keep_first=n0 > 0)
+    return Layout(groups, [False] + [True, False] * len(model.effects), scales, typical,
+                  effects, keep_first=True)
 
 
-def representative(objective: Objective, x: np.ndarray) -> np.ndarray:
-    """``x`` with every effect that is absent there (its own variables, :attr:`Effect.
-    param_names`, all 0) present at its typical size: its variables that are 0 at one unit
-    (:meth:`Effect.scale`), clipped into its bounds;
-    ``x`` itself where the model cannot be evaluated there. The point where
-    :func:`identifiable` takes the columns: at 0 an effect's parameters that act only through
-    its size have zero columns although the data see them once it is present."""
+def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0,
+                 jacobian: np.ndarray | None = None) -> Identifiability:
+    """The parameters ``objective``'s data identify near ``x``: the one judgement of both
+    campaign kinds (:func:`stiffness.calibration.identifiability.identifiable`) by
+    :func:`layout`, at the representative point of ``x`` (an absent effect present at its
+    typical size, so that a parameter acting only through its size, a compensator's base, is
+    judged as the data see it once the effect is there). The columns are in the fitted
+    variables' physical units times their typical size: a compliance ``1 / k``
+    (``-k d r / d ln k`` times ``1 / k_ref``, so a stiff joint is not mistaken for one without
+    effect), an effect's SI value; merge coefficients are in those units. ``resolution``:
+    noise std per typical size (the residuals scaled by the noise std), 0 for no near-alias
+    merges. ``jacobian``: the data Jacobian at ``x`` when known."""
     model = objective.model
-    out = np.array(x, dtype=float)
-    for i, e in enumerate(model.effects):
-        a, b = model.offsets[i + 1], model.offsets[i + 2]
-        if b == a or np.any(out[a: a + len(e.param_names)] != 0.0):
-            continue
-        lo, hi = e.bounds()
-        out[a:b] = np.where(out[a:b] == 0.0, np.clip(1.0, lo, hi), out[a:b])
-    if np.array_equal(out, x) or objective.data(out)[0] == PENALTY:
-        return np.asarray(x, dtype=float)
-    return out
+    n0 = len(model.compliant)
+
+    def columns(point: np.ndarray) -> np.ndarray | None:
+        if objective.data(point)[0] == PENALTY:
+            return None
+        given = jacobian is not None and np.array_equal(point, x)
+        a = np.array(jacobian if given else objective.data_jacobian(point, central=False))
+        a[:, :n0] *= -np.exp(point[:n0]) / model.refs.k_ref
+        return a
+
+    return judge(layout(model), np.asarray(x, dtype=float), columns, resolution)
 
 
 @dataclass

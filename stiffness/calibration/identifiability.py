@@ -27,11 +27,22 @@ aliases are merged, so that which of two nearly collinear parameters of one effe
 is not decided by their column norms at one point; an effect's parameters the data do not
 determine are held by the diagnosis, with why (:mod:`stiffness.calibration.diagnose`,
 reason ``undetermined``).
+
+Where the columns are taken. A parameter that acts only through an effect's size (a
+compensator's base, whose torque scales with a stiffness that is 0 at the start; a vertical base
+joint's compliance, which carries gravity's torque only once the base is tilted) has a zero
+column where that effect is absent, although the data see it once the effect is there. Every fit
+therefore judges its columns at :meth:`Layout.representative` of its start: each effect absent
+there (its own parameters all 0) present at its typical size within its bounds
+(:func:`identifiable`). The campaign kind supplies the :class:`Layout` (which columns form a
+group, which groups merge near aliases, each parameter's typical size, which effects may be
+absent) and its columns; the judgement is this module's, one for both kinds.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
@@ -40,6 +51,11 @@ from scipy import linalg
 IDENTIFIABILITY_TOL = 1e-6
 #: Largest sine of a near alias (module docstring): an angle of about 3 degrees.
 NEAR_ALIAS_SINE = 0.05
+#: An effect's parameter the data tell from the columns before it by less than this many noise
+#: std per typical size, while nearly their alias, is merged into them
+#: (:mod:`stiffness.calibration.identifiability`): about the 95 % normal quantile, so a merged
+#: parameter's 95 % interval, given the others, would be wider than its typical size.
+NEAR_ALIAS_RESOLUTION = 2.0
 
 
 @dataclass(frozen=True)
@@ -113,6 +129,80 @@ class Identifiability:
                              "merged_into": [{"parameter": labels[i], "coefficient": c}
                                              for i, c in d.merged_into]}
                             for d in self.dropped]}
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How a fit's parameters are judged: what a campaign kind tells :func:`identifiable`.
+
+    Attributes
+    ----------
+    groups
+        The columns of each group, in the order they are reduced (earlier groups keep the
+        directions they share with later ones).
+    near_alias
+        Per group: whether a column nearly aliasing the earlier groups' is merged under a
+        ``resolution`` (an effect's own parameters: yes; a freed setting: no).
+    scales
+        (p,) each parameter's typical size (its own units): the columns handed to
+        :func:`identifiable` are the regressor's times these.
+    typical
+        (p,) each parameter's value at its typical size within its bounds (the
+        representative point's value where its effect is absent).
+    effects
+        Per effect that may be absent: its own columns (all 0: absent) and every column it
+        sets at the representative point (its own and the settings it frees).
+    keep_first
+        Keep every column of the first group with an effect (:func:`reduce_columns`).
+    """
+
+    groups: list[list[int]]
+    near_alias: list[bool]
+    scales: np.ndarray
+    typical: np.ndarray
+    effects: list[tuple[list[int], list[int]]] = field(default_factory=list)
+    keep_first: bool = False
+
+    def reduce(self, a: np.ndarray, resolution: float = 0.0) -> Identifiability:
+        """:func:`reduce_columns` of the scaled columns ``a`` (N, p) by this layout."""
+        kept = [(g, resolution if near else 0.0)
+                for g, near in zip(self.groups, self.near_alias, strict=True) if g]
+        return reduce_columns(a, [g for g, _ in kept], self.scales, [f for _, f in kept],
+                              keep_first=self.keep_first and bool(self.groups[0]))
+
+    def representative(self, x: np.ndarray) -> np.ndarray:
+        """``x`` with every effect absent there (its own columns all 0) at its typical size:
+        its columns that are 0 set to :attr:`typical`."""
+        out = np.array(x, dtype=float)
+        for own, every in self.effects:
+            if every and not np.any(out[own]):
+                out[every] = np.where(out[every] == 0.0, self.typical[every], out[every])
+        return out
+
+
+def identifiable(layout: Layout, x: np.ndarray,
+                 columns: Callable[[np.ndarray], np.ndarray | None],
+                 resolution: float = 0.0) -> Identifiability:
+    """The parameters a campaign identifies near ``x``: :meth:`Layout.reduce` of its columns
+    at :meth:`Layout.representative` ``x`` (at ``x`` itself where the model cannot be
+    evaluated there; every parameter kept where it cannot be evaluated at ``x`` either).
+
+    Parameters
+    ----------
+    columns
+        The campaign's regressor at a point, each column times its parameter's typical size
+        (whitened by the noise std when ``resolution`` is given), or ``None`` where the model
+        cannot be evaluated.
+    resolution
+        Near aliases an effect's own columns must be told from (module docstring), 0 for none.
+    """
+    point = layout.representative(x)
+    a = columns(point) if not np.array_equal(point, x) else None
+    if a is None:
+        a = columns(np.asarray(x, dtype=float))
+    if a is None or not np.any(a):
+        return Identifiability.full(layout.scales.size)
+    return layout.reduce(a, resolution)
 
 
 def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,

@@ -1,13 +1,13 @@
 """Fitting a :class:`~stiffness.calibration.pose_model.PoseModel` to a pose campaign.
 
-Identifiability. Only an identifiable set of parameters is fitted: the regressor (d y / d x
-over every measured component, each column scaled by its parameter's typical size) is reduced
-family by family, in the order the families were chosen, by the one reduction of both
-campaign kinds (:func:`stiffness.calibration.identifiability.reduce_columns`: "no effect" and
-"merged" parameters, the merges' coefficients reported), at the start; a parameter with no
-effect there (its column zero: a vertical base joint's compliance on a level base) that has one
-at the optimum (the base tilted by ``base_tilt``) is fitted by a second fit from the optimum
-(:func:`_more_identifiable`).
+Identifiability. Only an identifiable set of parameters is fitted, judged as deflection fits
+judge theirs (:func:`stiffness.calibration.identifiability.identifiable`): the regressor (d y
+/ d x over every measured component, each column scaled by its parameter's typical size) is
+reduced family by family, in the order the families were chosen ("no effect" and "merged"
+parameters, the merges' coefficients reported), at the start's representative point, where
+every elastic family absent at the start and a level base's tilt are at their typical size: a
+parameter acting only through them (a vertical base joint's compliance, which carries
+gravity's torque only on a tilted base) is judged as the data see it once they are there.
 
 Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian, at most
 :data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
@@ -42,7 +42,8 @@ import numpy as np
 from scipy import linalg, optimize
 
 from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
-from stiffness.calibration.identifiability import Identifiability, reduce_columns
+from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability, Layout
+from stiffness.calibration.identifiability import identifiable as judge
 from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
@@ -203,34 +204,45 @@ class PoseFit:
         return lo, hi
 
 
-def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray) -> Identifiability:
-    """The identifiable parameters at ``x`` (at zero if the sag diverges there)."""
-    model = obs.model
-    try:
-        _, jac = obs.evaluate(x)
-    except ConvergenceError:
-        _, jac = obs.evaluate(np.zeros(model.size))
-    assert jac is not None
-    return _reduced(model, jac, order)
-
-
-def _more_identifiable(obs: PoseObservations, order: list[str], x: np.ndarray,
-                       ident: Identifiability) -> bool:
-    """Whether a parameter ``ident`` found with no effect (a zero column at the start) is
-    identifiable at ``x``, the fit's optimum (its column no longer zero there)."""
-    idle = {d.index for d in ident.dropped if not d.merged_into}
-    if not idle:
-        return False
-    return bool(idle & set(_identifiable(obs, order, x).kept))
-
-
-def _reduced(model: PoseModel, jac: np.ndarray, order: list[str]) -> Identifiability:
-    """The identifiable columns of the observed Jacobian ``jac`` (N, p), ``order``'s families
-    first (:func:`reduce_columns`)."""
+def layout(model: PoseModel, order: list[str]) -> Layout:
+    """How identifiability judges ``model``'s parameters
+    (:class:`~stiffness.calibration.identifiability.Layout`): one group per family in
+    ``order``, each parameter's typical size :attr:`FamilyParameter.scale` (at or above its
+    lower bound at the representative point), and the families whose zero is an absent effect
+    (:meth:`PoseFamily.absent_at_zero`: the elastic ones and the base tilt) present at their
+    typical size there."""
     sl = model.slices()
-    return reduce_columns(jac * np.array([p.scale for p in model.parameters]),
-                          [list(range(sl[f].start, sl[f].stop)) for f in order],
-                          np.array([p.scale for p in model.parameters]))
+    groups = [list(range(sl[f].start, sl[f].stop)) for f in order]
+    absent = {f.name for f in model.family_objects if f.absent_at_zero()}
+    return Layout(groups, [True] * len(groups),
+                  np.array([p.scale for p in model.parameters]),
+                  np.array([max(p.scale, p.lower) for p in model.parameters]),
+                  [(g, g) for f, g in zip(order, groups, strict=True) if f in absent])
+
+
+def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray,
+                  noise: float | None = None) -> Identifiability:
+    """The identifiable parameters near ``x`` (near zero if the sag diverges at ``x``): the
+    one judgement of both campaign kinds
+    (:func:`stiffness.calibration.identifiability.identifiable`) by :func:`layout`; with a
+    known ``noise`` std (m) near aliases are merged too
+    (:data:`~stiffness.calibration.identifiability.NEAR_ALIAS_RESOLUTION`)."""
+    plan = layout(obs.model, order)
+    whiten = plan.scales / (noise or 1.0)
+
+    def columns(point: np.ndarray) -> np.ndarray | None:
+        try:
+            _, jac = obs.evaluate(point)
+        except ConvergenceError:
+            return None
+        assert jac is not None
+        return jac * whiten
+
+    try:
+        obs.evaluate(x, jacobian=False)
+    except ConvergenceError:
+        x = np.zeros(obs.model.size)
+    return judge(plan, x, columns, NEAR_ALIAS_RESOLUTION if noise else 0.0)
 
 
 def objective_rss(residual: np.ndarray, loss: str, sigma: float) -> float:
@@ -257,7 +269,8 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     except ConvergenceError:
         return math.inf, 0
     assert jac is not None
-    kept = _reduced(model, jac, order).kept
+    plan = layout(model, order)
+    kept = plan.reduce(jac * plan.scales).kept
     columns = jac[:, kept]
     step, *_ = np.linalg.lstsq(columns, residual, rcond=None)
     return objective_rss(residual - columns @ step, loss, sigma), len(kept)
@@ -338,7 +351,7 @@ def _members(group: np.ndarray, order: np.ndarray) -> list[np.ndarray]:
 @one_blas_thread
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
-                   scale: float | None = None, refits: int = 1) -> PoseFit:
+                   scale: float | None = None) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
     Parameters
@@ -356,9 +369,6 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     scale
         Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
         robust estimate (module docstring). Ignored by least squares.
-    refits
-        How many times a least-squares fit starts again from its optimum when a parameter with
-        no effect at the start has one there (:func:`_more_identifiable`).
 
     Raises
     ------
@@ -370,83 +380,102 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         return _fit_robust_scale(model, campaign, rows, order, x0, loss)
     x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
     obs = PoseObservations(model, campaign, rows)
-    ident = _identifiable(obs, order, x)
-    kept = ident.kept
-    if len(kept) >= obs.size:
-        raise StiffnessError(f"{len(kept)} identifiable parameters but only "
-                             f"{obs.size} measured components; measure more poses")
-    x[[d.index for d in ident.dropped]] = 0.0
-    try:
-        obs.evaluate(x, jacobian=False)
-    except ConvergenceError:
-        x[:] = 0.0
-
-    def residual(z: np.ndarray) -> np.ndarray:
-        x[kept] = z
-        try:
-            r, _ = obs.evaluate(x, jacobian=False)
-        except ConvergenceError:  # a trial step whose sag diverges: refused as a bad step
-            return np.full(obs.size, DIVERGED_RESIDUAL_M)
-        return r
-
-    def jacobian(z: np.ndarray) -> np.ndarray:
-        x[kept] = z
-        _, j = obs.evaluate(x)
-        assert j is not None
-        return j[:, kept]
-
-    scales = np.array([model.parameters[i].scale for i in kept])
-    lower = np.array([model.parameters[i].lower for i in kept])
-    sol = _least_squares(residual, jacobian, x[kept], scales, lower)
-    x[kept] = sol.x
+    noise = scale if scale is not None else campaign.noise_std
+    ident = _identifiable(obs, order, x, noise)
+    free = _Free(obs, x, ident)
+    sol = _least_squares(free)
+    if noise is not None:
+        # near aliases where the data put the parameters, as a deflection fit judges them
+        near = _identifiable(obs, order, free.x, noise)
+        if set(near.kept) != set(ident.kept):
+            ident = near
+            free = _Free(obs, free.x, ident)
+            sol = _least_squares(free)
+    x, kept = free.x, ident.kept
     if loss == "linear":
         fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun,
                       at_bound=_at_bound(model, x, kept, sol.active_mask))
         fit.converged = bool(sol.status > 0)
-        if refits > 0 and _more_identifiable(obs, order, x, ident):
-            return fit_pose_model(model, campaign, rows, order, x.copy(), refits=refits - 1)
         return fit
-    s = scale if scale is not None else campaign.noise_std
-    assert s is not None  # undeclared noise and no scale: _fit_robust_scale estimated it
+    assert noise is not None  # undeclared noise and no scale: _fit_robust_scale estimated it
     # from the least-squares optimum: a few steps (from far, every residual is beyond the
     # loss's scale and the robust steps crawl), and a start for cauchy's non-convex loss
-    sol = optimize.least_squares(residual, sol.x, jac=jacobian, x_scale=scales,
-                                 method="trf", loss=loss, f_scale=s, bounds=(lower, np.inf),
-                                 xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=MAX_EVALUATIONS)
+    sol = optimize.least_squares(free.residual, sol.x, jac=free.jacobian, x_scale=free.scales,
+                                 method="trf", loss=loss, f_scale=noise,
+                                 bounds=(free.lower, np.inf), xtol=1e-12, ftol=1e-12,
+                                 gtol=1e-12, max_nfev=MAX_EVALUATIONS)
     # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead;
     # where the sag diverges there the residual is the diverged constant (the fit is not
     # chosen) and scipy's Jacobian stands in, as least squares' does
-    fun = residual(sol.x)
+    fun = free.residual(sol.x)
     try:
-        jac = jacobian(sol.x)
+        jac = free.jacobian(sol.x)
     except ConvergenceError:
         jac = sol.jac
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
-    fit = _finish(obs, campaign, x, ident, jac, fun, loss, (s, source),
+    fit = _finish(obs, campaign, x, ident, jac, fun, loss, (noise, source),
                   _at_bound(model, x, kept, sol.active_mask))
     fit.converged = bool(sol.status > 0)
     return fit
 
 
-def _least_squares(residual: Callable[[np.ndarray], np.ndarray],
-                   jacobian: Callable[[np.ndarray], np.ndarray], start: np.ndarray,
-                   scales: np.ndarray, lower: np.ndarray) -> optimize.OptimizeResult:
-    """The least-squares optimum from ``start``: Levenberg-Marquardt, then, when that optimum
-    is past a physical bound (``lower``), the fit under the bounds from the clipped optimum
+class _Free:
+    """The residual and Jacobian of ``obs`` over the kept parameters of ``ident``, the others
+    held at zero (``x``: the full parameter vector, updated in place by every evaluation; a
+    start whose sag diverges with the held parameters zeroed falls back to zero)."""
+
+    def __init__(self, obs: PoseObservations, x: np.ndarray, ident: Identifiability) -> None:
+        model = obs.model
+        self.obs, self.kept = obs, ident.kept
+        if len(self.kept) >= obs.size:
+            raise StiffnessError(f"{len(self.kept)} identifiable parameters but only "
+                                 f"{obs.size} measured components; measure more poses")
+        self.x = np.array(x, dtype=float)
+        self.x[[d.index for d in ident.dropped]] = 0.0
+        try:
+            obs.evaluate(self.x, jacobian=False)
+        except ConvergenceError:
+            self.x[:] = 0.0
+        self.scales = np.array([model.parameters[i].scale for i in self.kept])
+        self.lower = np.array([model.parameters[i].lower for i in self.kept])
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """Predicted minus measured (m) with the kept parameters at ``z``."""
+        self.x[self.kept] = z
+        try:
+            r, _ = self.obs.evaluate(self.x, jacobian=False)
+        except ConvergenceError:  # a trial step whose sag diverges: refused as a bad step
+            return np.full(self.obs.size, DIVERGED_RESIDUAL_M)
+        return r
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Its derivative w.r.t. the kept parameters."""
+        self.x[self.kept] = z
+        _, j = self.obs.evaluate(self.x)
+        assert j is not None
+        return j[:, self.kept]
+
+
+def _least_squares(free: _Free) -> optimize.OptimizeResult:
+    """The least-squares optimum of ``free`` from its start: Levenberg-Marquardt, then, when
+    that optimum is past a physical bound, the fit under the bounds from the clipped optimum
     (or, when the clipped optimum's sag diverges because a negative compliance held it, from
-    the bounded parameters at their bound: rigid springs)."""
-    sol = optimize.least_squares(residual, start, jac=jacobian, x_scale=scales,
-                                 method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                 max_nfev=MAX_EVALUATIONS)
-    if np.all(sol.x >= lower):
-        return sol
-    start = np.maximum(sol.x, lower)
-    if np.all(residual(start) == DIVERGED_RESIDUAL_M):
-        start = np.where(np.isfinite(lower), lower, sol.x)
-    return optimize.least_squares(residual, start, jac=jacobian, x_scale=scales,
-                                  method="trf", bounds=(lower, np.inf),
-                                  xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                  max_nfev=MAX_EVALUATIONS)
+    the bounded parameters at their bound: rigid springs). ``free.x`` is left at the
+    optimum."""
+    residual, jacobian, lower = free.residual, free.jacobian, free.lower
+    sol = optimize.least_squares(residual, free.x[free.kept], jac=jacobian,
+                                 x_scale=free.scales, method="lm", xtol=1e-12, ftol=1e-12,
+                                 gtol=1e-12, max_nfev=MAX_EVALUATIONS)
+    if np.any(sol.x < lower):
+        start = np.maximum(sol.x, lower)
+        if np.all(residual(start) == DIVERGED_RESIDUAL_M):
+            start = np.where(np.isfinite(lower), lower, sol.x)
+        sol = optimize.least_squares(residual, start, jac=jacobian, x_scale=free.scales,
+                                     method="trf", bounds=(lower, np.inf),
+                                     xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                     max_nfev=MAX_EVALUATIONS)
+    free.x[free.kept] = sol.x
+    return sol
 
 
 def _at_bound(model: PoseModel, x: np.ndarray, kept: list[int], active: np.ndarray

@@ -18,7 +18,7 @@ from scipy.special import chdtrc, ndtri, stdtrit
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import Fit, FitJob
-from stiffness.calibration.identifiability import Identifiability
+from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
@@ -39,11 +39,6 @@ CV_FOLDS = 6
 LOCO_MAX = 12
 
 _MIN_REPLICATE_DOF = 9
-#: An effect's parameter the data tell from the columns before it by less than this many noise
-#: std per typical size, while nearly their alias, is merged into them
-#: (:mod:`stiffness.calibration.identifiability`): about the 95 % normal quantile, so a merged
-#: parameter's 95 % interval, given the others, would be wider than its typical size.
-NEAR_ALIAS_RESOLUTION = 2.0
 
 
 def fit_job(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,

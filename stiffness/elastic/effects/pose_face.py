@@ -231,6 +231,16 @@ class PoseFamily:
     #: a model of such families evaluates every row without a Python loop over them
     rows_at_once: ClassVar[bool] = False
 
+    @classmethod
+    def absent_at_zero(cls) -> bool:
+        """Whether the family at zero is absent rather than the nominal robot: an elastic
+        family (a rigid arm) or one that turns gravity (a level base), whose size the other
+        families' columns depend on (identifiability judges them with it present,
+        :meth:`stiffness.calibration.identifiability.Layout.representative`). A geometric
+        correction at zero is the nominal geometry: at a typical 1 mrad a joint placement
+        error would tell apart parameters that parallel axes make one."""
+        return cls.family_kind == "elastic"
+
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
         raise NotImplementedError
