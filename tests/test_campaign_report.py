@@ -72,6 +72,8 @@ def test_report_of_a_pose_campaign(tmp_path, capsys):
     for anchor in ("steps", "residuals", "how-sure", "stages", "validation", "parameters",
                    "identifiability", "reproduce"):
         assert f"id='{anchor}'" in page, anchor
+    assert record["robot_name"] == "ur10" and "<title>Pose diagnosis of campaign " in page
+    assert "(ur10)</title>" in page  # the robot named in the title
     figures = _figures(page)
     assert {"residuals-tip.png", "residuals-elbow.png", "stages.png"} <= set(figures)
     assert all(png.startswith(b"\x89PNG") for png in figures.values())
@@ -118,6 +120,8 @@ def test_report_of_a_deflection_campaign(tmp_path, capsys):
     for anchor in ("residuals", "steps", "parameters", "ambiguities"):
         assert f"id='{anchor}'" in page, anchor
     assert _figures(page)["residuals.png"] == (out / "residuals.png").read_bytes()
+    assert record["robot_name"] == "ur5" and "(ur5)</title>" in page
+    assert json.loads((out / "final-model.json").read_text())["robot"]["name"] == "ur5"
     visible = _visible(page)
     assert "cross-validated RMS" in visible
     assert [s["effect"] for s in record["steps"]] == ["force_sensor_bias"]

@@ -176,7 +176,7 @@ def batch_kinematics(robot: Robot, q: np.ndarray, moments: bool = True,
     q = np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float)))
     if q.shape[1] != robot.model.nq:
         raise StiffnessError(
-            f"{robot.name} configurations have {robot.model.nq} values (Pinocchio q), got "
+            f"{robot.title} configurations have {robot.model.nq} values (Pinocchio q), got "
             f"{q.shape[1]}"
         )
     frames = 1 + (0 if robot.loop.is_open_chain else len(loop_points(robot)))
@@ -397,7 +397,7 @@ def unit_force_diagonal(robot: Robot, jacobian: np.ndarray) -> np.ndarray:
     if not robot.loop.is_open_chain or not one_coordinate_joints(robot) \
             or robot.springs_on_controller:  # a controller coordinate's column mixes joints
         raise StiffnessError(
-            f"{robot.name}: the unit-force K_C diagonal is read off the Jacobian only for open "
+            f"{robot.title}: the unit-force K_C diagonal is read off the Jacobian only for open "
             "chains of one-coordinate joints, each its own coordinate; take the diagonal of "
             "batch_kinematics' k_c_basis")
     v, om = jacobian[:, :3], jacobian[:, 3:]

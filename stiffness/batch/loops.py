@@ -157,7 +157,7 @@ def close_loops(robot: Robot, coordinates: np.ndarray) -> ClosedConfigurations:
     coordinates = np.atleast_2d(np.asarray(coordinates, dtype=float))
     if coordinates.shape[1] != robot.n_coordinates:
         raise StiffnessError(
-            f"{robot.name} has {robot.n_coordinates} coordinates "
+            f"{robot.title} has {robot.n_coordinates} coordinates "
             f"({', '.join(robot.coordinate_joints)}), got {coordinates.shape[1]} per row"
         )
     if not np.all(np.isfinite(coordinates)):

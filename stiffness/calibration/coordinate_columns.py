@@ -81,13 +81,13 @@ def locate_coordinates(names: list[str], robot: Robot, data: Path, line: int
                               "... in order)")
         if len(q_at) != n:
             col = q_at[min(len(q_at), n)] if len(q_at) > n else q_at[-1] + 1
-            raise fail(col, f"{robot.name} has {n} coordinates ({joints_text(robot)}) but the "
+            raise fail(col, f"{robot.title} has {n} coordinates ({joints_text(robot)}) but the "
                             f"header has {len(q_at)} q columns; give q1..q{n} in that order, or "
                             "name the columns after the joints")
         return list(q_at)
     if not by_name:
         raise fail(1 if len(names) > 1 else 0,
-                   f"no coordinate column: name the columns after {robot.name}'s joints "
+                   f"no coordinate column: name the columns after {robot.title}'s joints "
                    f"({joints_text(robot)}; any subset, any order) or q1..q{n} in that order")
     index: list[int | None] = [None] * n
     for i in by_name:
@@ -108,7 +108,7 @@ def fixed_values(fixed: dict[str, float], robot: Robot, units: Units,
     for name, value in fixed.items():
         if name not in robot.coordinate_joints:
             raise error(f"[robot] fixed names {name!r}, not a coordinate joint of "
-                        f"{robot.name}; {did_you_mean(name, robot.coordinate_joints)}")
+                        f"{robot.title}; {did_you_mean(name, robot.coordinate_joints)}")
         scale = units.length_to_si if robot.is_prismatic(name) else units.angle_to_si
         out[name] = float(value) * scale
     return out

@@ -320,6 +320,7 @@ class Diagnosis:
         out = self.to_dict()
         out.update({
             "campaign": c.name,
+            "robot_name": self.geometry.robot.title,
             "campaign_path": str(c.path) if c.path is not None else None,
             "rows": c.n_rows,
             "residual_components": (3 if c.rotation is None else 6) * c.n_rows,
@@ -367,7 +368,7 @@ class Diagnosis:
         stiff = self.final_stiffness
         return ModelFile(
             source=c.resolved_source(), **c.robot_options(),
-            joint_angles=c.robot_settings.joint_angles,
+            joint_angles=c.robot_settings.joint_angles, robot_name=self.geometry.robot.title,
             frame=self.geometry.robot.target_frame,
             target_offset_m=s.target_offset_m, compliant_joints=tuple(f.model.compliant),
             k_theta=np.array([p.value for p in stiff]), units=tuple(p.unit for p in stiff),

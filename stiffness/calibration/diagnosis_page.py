@@ -248,7 +248,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
         :func:`stiffness.provenance.provenance`.
     """
     unit = d["unit"]
-    title = f"Diagnosis of campaign {d['campaign']}"
+    title = f"Diagnosis of campaign {d['campaign']}" + (
+        f" ({d['robot_name']})" if d.get("robot_name") else "")
     effects = ", ".join(f"{s['effect']} ({s['where']})" if s.get("where") else s["effect"]
                         for s in d["steps"]) or "none"
     parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),

@@ -51,8 +51,8 @@ def format_report(d: Diagnosis) -> str:
     lu = c.units.length_to_si
     lines = [
         f"campaign {c.name}" + (f" ({c.path})" if c.path else "")
-        + f": {c.n_rows} rows, {len(set(c.config))} configurations, {3 * c.n_rows} residual "
-          f"components; lengths in {unit}",
+        + f" of {d.geometry.robot.title}: {c.n_rows} rows, {len(set(c.config))} "
+          f"configurations, {3 * c.n_rows} residual components; lengths in {unit}",
         f"baseline: {d.baseline.model.describe()}; RMS {d.baseline.rms() / lu:.4g} {unit}",
         f"noise std: {d.noise_std_m / lu:.4g} {unit} ({d.noise_std_source}: {d.noise_note})",
     ]

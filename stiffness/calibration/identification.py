@@ -98,6 +98,8 @@ class Identification:
         The robot and its measurement target (offset in m, frame axes).
     robot_loops, robot_fixed_base
         The robot's loop declaration (absolute path) and whether its base was fixed.
+    robot_name
+        The robot's name for the user (:attr:`stiffness.robot.robot.Robot.title`).
     joints
         Identified (compliant) joints.
     units
@@ -213,6 +215,7 @@ class Identification:
     robot_fixed_base: bool = False
     model_path: Path | None = None
     loss: str = "linear"
+    robot_name: str = ""
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
     stiffness_coordinates: str = "chain"
@@ -259,6 +262,7 @@ class Identification:
             "robot": {"source": self.robot_source, "frame": self.robot_frame,
                       "target_offset_m": self.target_offset_m,
                       "compliant_joints": list(self.joints),
+                      **({"name": self.robot_name} if self.robot_name else {}),
                       **({"loops": self.robot_loops} if self.robot_loops else {}),
                       **({"fixed_base": True} if self.robot_fixed_base else {})},
             "formulation": self.formulation,
@@ -323,7 +327,7 @@ class Identification:
         """The identified model (:class:`stiffness.elastic.model_file.ModelFile`)."""
         return ModelFile(
             source=self.robot_source, loops=self.robot_loops, fixed_base=self.robot_fixed_base,
-            frame=self.robot_frame,
+            frame=self.robot_frame, robot_name=self.robot_name,
             target_offset_m=self.target_offset_m, compliant_joints=self.joints, k_theta=self.k,
             units=self.units, formulation=self.formulation,
             standard_error=self.standard_error, ci95_low=self.ci95_low,

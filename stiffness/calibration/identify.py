@@ -300,7 +300,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         campaign_path=str(campaign.path) if campaign.path is not None else None,
         robot_source=campaign.resolved_source(),
         robot_loops=options["loops"],
-        robot_fixed_base=options["fixed_base"],
+        robot_fixed_base=options["fixed_base"], robot_name=rob.title,
         robot_frame=rob.target_frame,
         target_offset_m=rob.target_offset.copy(),
         joints=tuple(rob.compliant_joints),

@@ -370,7 +370,7 @@ def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[in
             and not outside(as_degrees).any():
         hint = 'the angles look like degrees: [units] angle = "deg" (or --units angle=deg)'
     warnings.warn(
-        f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.name}'s joint "
+        f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.title}'s joint "
         f"limits (first: line {lines[i]}, q{j + 1} ({robot.coordinate_joints[j]}) = "
         f"{q[i, j] / scale:.6g} {unit}, limits "
         f"[{lo[j] / scale:.6g}, {hi[j] / scale:.6g}] {unit}); {hint}", DataFileWarning,

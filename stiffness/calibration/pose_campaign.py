@@ -328,7 +328,7 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     for m in markers:
         if not robot.model.existFrame(m.frame):
             raise toml.error(f"[markers] {m.name}: frame {m.frame!r} is not a frame of "
-                             f"{robot.name}", "markers", m.name)
+                             f"{robot.title}", "markers", m.name)
     data_name = typed_value(doc["measurement"]["data"], str, toml, "measurement", "data",
                             "a file name")
     data = toml_path.parent / data_name

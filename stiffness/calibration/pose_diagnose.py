@@ -147,6 +147,7 @@ class PoseDiagnosis:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit)."""
         lu = self.campaign.units.length_to_si
         return {"kind": "poses", "campaign": self.campaign.name,
+                "robot_name": self.campaign.robot.title,
                 "unit": self.campaign.units.length, "masses": self.masses,
                 "loss": self.loss,
                 "noise_std": None if self.campaign.noise_std is None
@@ -529,7 +530,7 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathL
             "robot": {"source": written_source(s.source, Path(folder), campaign.folder()),
                       "frame": robot.target_frame,
                       "target_offset_m": robot.target_offset.tolist(),
-                      "compliant_joints": list(robot.compliant_joints),
+                      "compliant_joints": list(robot.compliant_joints), "name": robot.title,
                       **({"fixed_base": True} if s.fixed_base else {})},
             "measuring_frame": {"rotation": fit.model.rotation0.tolist(),
                                 "translation_m": fit.model.translation0.tolist()},

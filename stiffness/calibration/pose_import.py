@@ -79,7 +79,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     for m in markers:
         if not robot.model.existFrame(m.frame):
             raise StiffnessError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
-                                 f"{robot.name}; name one of its frames")
+                                 f"{robot.title}; name one of its frames")
     tables = [read_table(f) for f in files]
     check_map(settings, robot, ("config", *FORCE, *MOMENT, *marker_targets(markers)))
     columns, _ = join_tables(tables, settings.join)

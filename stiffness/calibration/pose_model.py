@@ -151,7 +151,7 @@ class PoseModel:
                  settings: dict | None = None) -> None:
         if not robot.loop.is_open_chain:
             raise PoseModelError(
-                f"{robot.name} has closed loops; absolute-pose calibration handles open chains "
+                f"{robot.title} has closed loops; absolute-pose calibration handles open chains "
                 "only: calibrate a serial robot, or use a deflection campaign")
         unknown = [f for f in families if f not in FAMILIES]
         if unknown:
@@ -211,7 +211,7 @@ class PoseModel:
     def _frame_id(self, name: str) -> int:
         model = self.robot.model
         if not model.existFrame(name):
-            raise PoseModelError(f"marker frame {name!r} is not a frame of {self.robot.name}; "
+            raise PoseModelError(f"marker frame {name!r} is not a frame of {self.robot.title}; "
                                  "name one of its frames in [markers]")
         return int(model.getFrameId(name))
 

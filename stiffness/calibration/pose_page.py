@@ -152,7 +152,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
         marker, embedded if given.
     """
     unit = d["unit"]
-    title = f"Pose diagnosis of campaign {d['campaign']}"
+    title = f"Pose diagnosis of campaign {d['campaign']}" + (
+        f" ({d['robot_name']})" if d.get("robot_name") else "")
     verdict = ("noise not declared" if d["unexplained"] is None else
                "UNEXPLAINED" if d["unexplained"] else "explained to noise")
     parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),

@@ -30,9 +30,10 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     c = d.campaign
     unit, lu = c.units.length, c.units.length_to_si
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
-    lines = [f"pose campaign {c.name}: {c.n_rows} rows, {len(c.markers)} marker(s) "
-             f"({', '.join(m.name for m in c.markers)}), {c.n_observed} measured components; "
-             f"noise std {noise}; masses {d.masses}; loss {d.loss}",
+    lines = [f"pose campaign {c.name} of {c.robot.title}: {c.n_rows} rows, "
+             f"{len(c.markers)} marker(s) ({', '.join(m.name for m in c.markers)}), "
+             f"{c.n_observed} measured components; noise std {noise}; masses {d.masses}; "
+             f"loss {d.loss}",
              "", f"{'step':<5} {'family':<18} {'params':>6} {'RMS':>11} {'dBIC':>10} "
                  f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
     for i, s in enumerate(d.steps):

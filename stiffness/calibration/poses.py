@@ -116,7 +116,7 @@ class Workspace:
         table = robot.defaults.get("workspace")
         if table is None:
             return cls()
-        where = f"[workspace] of {robot.name}"
+        where = f"[workspace] of {robot.title}"
         if not isinstance(table, dict):
             raise StiffnessError(f"{where} must be a table")
         unknown = set(table) - set(WORKSPACE_KEYS)
@@ -135,7 +135,7 @@ class Workspace:
         def index(name) -> int:
             if name not in names:
                 raise UnknownJointError(f"{where}: {name!r} is not a coordinate of "
-                                        f"{robot.name}; {did_you_mean(str(name), names)}",
+                                        f"{robot.title}; {did_you_mean(str(name), names)}",
                                         name=str(name), choices=names)
             return names.index(name)
 
@@ -339,7 +339,7 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
             continue
         out.append(coords)
     if len(out) < n:
-        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.name}"
+        raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.title}"
                                + (" away from singularities and folds" if singularity_margin > 0
                                   or fold_margin > 0 else "")
                                + "; ask for fewer configurations, or check the joint limits")
@@ -374,7 +374,7 @@ def _generic_rank(robot: Robot, lo: np.ndarray, hi: np.ndarray, rules: Workspace
         except StiffnessError:
             continue
     if not svs:
-        raise ConvergenceError(f"no pose of {robot.name} drawn within its joint limits "
+        raise ConvergenceError(f"no pose of {robot.title} drawn within its joint limits "
                                f"assembles (in {_FIRST_POSE_TRIES} draws); check the limits, or "
                                "declare a [workspace] in its robot.toml")
     rank = max(int(np.sum(sv > _RANK_RTOL * max(sv[0], 1e-300))) for sv in svs)

@@ -25,7 +25,6 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -88,7 +87,8 @@ class Validation:
         :func:`~stiffness.calibration.pose_diagnose.validation_errors`,
         :func:`deflection_errors`).
     robot
-        The robot both are of: ``source``, ``coordinates``, ``fingerprint``.
+        The robot both are of: ``source``, ``name`` (:attr:`Robot.title`), ``coordinates``,
+        ``fingerprint``.
     noise_std
         The campaign's declared position noise std (campaign unit), or ``None``.
     """
@@ -198,8 +198,9 @@ def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_rob
                campaign_source: str, model: str | os.PathLike,
                campaign: str | os.PathLike) -> dict:
     """The robot a model and a campaign are both of: the same source, or the same coordinates
-    and kinematics (a copy of the robot's files). Returns its ``source``, ``coordinates`` and
-    kinematic ``fingerprint``; ``model_robot`` loads the model's robot when the sources differ.
+    and kinematics (a copy of the robot's files). Returns its ``source``, ``name``,
+    ``coordinates`` and kinematic ``fingerprint``; ``model_robot`` loads the model's robot when
+    the sources differ.
 
     Raises
     ------
@@ -213,9 +214,9 @@ def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_rob
         if mine != theirs:
             what = "coordinates" if mine[0] != theirs[0] else "kinematics"
             raise ModelRobotError(
-                f"{campaign} is a campaign of robot {Path(campaign_source).name!r} "
+                f"{campaign} is a campaign of robot {campaign_robot.title!r} "
                 f"({len(theirs[0])} coordinates, kinematics {theirs[1]}), not of the model's "
-                f"{Path(model_source).name!r} ({len(mine[0])} coordinates, kinematics "
+                f"{other.title!r} ({len(mine[0])} coordinates, kinematics "
                 f"{mine[1]}): other {what}; validate {model} on a campaign of its robot")
-    return {"source": robot_identity(campaign_source), "coordinates": list(theirs[0]),
-            "fingerprint": theirs[1]}
+    return {"source": robot_identity(campaign_source), "name": campaign_robot.title,
+            "coordinates": list(theirs[0]), "fingerprint": theirs[1]}

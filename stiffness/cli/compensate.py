@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, allow_nan=False))
         return 0
     s = doc["summary"]
-    print(f"{em.robot.name}: {s['points']} points, {s['model']}; holds the {s['hold']}, "
+    print(f"{em.robot.title}: {s['points']} points, {s['model']}; holds the {s['hold']}, "
           f"{'/'.join(s['method'])}")
     if s["ignored_effects"]:
         print(f"not compensated (measurement effects): {', '.join(s['ignored_effects'])}")

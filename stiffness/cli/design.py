@@ -92,7 +92,7 @@ def format_report(result: DesignResult) -> str:
     d = result.to_dict()
     rel = d["predicted_relative_se"]
     lines = [
-        f"{result.robot.name}: {d['configs']} configurations x "
+        f"{result.robot.title}: {d['configs']} configurations x "
         f"{d['rows'] // max(d['configs'], 1)} loads = {d['rows']} rows chosen from "
         f"{d['candidates']} candidate poses x {d['load_directions']} load directions at "
         f"{d['max_force_N']:.4g} N ({d['criterion']}-optimal, {d['formulation']} model, "

@@ -190,7 +190,7 @@ def check_noise_std(value: float | None, flag: str, unit: str, *, zero: bool = F
 def stiffness_required(robot: Robot) -> StiffnessError:
     """The error of a command that needs ``--kq`` for a robot with no stiffness of its own."""
     return StiffnessError(
-        f"--kq is required for {robot.name}: one stiffness per compliant joint "
+        f"--kq is required for {robot.title}: one stiffness per compliant joint "
         f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)")
 
 
@@ -470,7 +470,7 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
         if not getattr(args, "deg", False) and revolute.any() and not outside_limits(
                 robot, np.where(revolute, np.deg2rad(values), values)):
             hint = f" (the values look like degrees: add --deg to {flag})"
-        warnings.warn(f"{robot.name}: the configuration is outside the joint limits: "
+        warnings.warn(f"{robot.title}: the configuration is outside the joint limits: "
                       f"{'; '.join(beyond)}{hint}", stacklevel=2)
     return values
 
@@ -488,7 +488,7 @@ def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
             return shipped
         if required:
             raise StiffnessError(
-                f"{flag} is required for {robot.name}: give {robot.n_coordinates} joint values "
+                f"{flag} is required for {robot.title}: give {robot.n_coordinates} joint values "
                 f"({', '.join(robot.coordinate_joints)}) or name=value pairs")
         return np.zeros(robot.n_coordinates)
     deg = bool(getattr(args, "deg", False))
@@ -537,7 +537,7 @@ def _names_of_values(robot: Robot, count: int, flag: str) -> list[str]:
         f", or {len(robot.chain_joints)} without the end-effector branch "
         f"({', '.join(robot.chain_joints)})")
     raise StiffnessError(
-        f"{flag} needs {robot.n_coordinates} values for {robot.name} "
+        f"{flag} needs {robot.n_coordinates} values for {robot.title} "
         f"({', '.join(robot.coordinate_joints)}){chain}, got {count}; or name=value pairs")
 
 

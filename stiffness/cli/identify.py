@@ -86,6 +86,7 @@ def format_table(result: Identification) -> str:
     lines = [
         f"campaign {result.campaign}"
         + (f" ({result.campaign_path})" if result.campaign_path else "")
+        + (f" of {result.robot_name}" if result.robot_name else "")
         + f": {result.n_rows} rows, {result.n_configurations} configurations, "
           f"{result.n_residuals} residuals, {result.n_parameters} stiffnesses",
         f"stiffness in {result.stiffness_coordinates} coordinates "

@@ -235,6 +235,7 @@ def compute(args: argparse.Namespace) -> dict:
         trans = f"{blocks} blocks ([{order.replace('-', '; ')}] order)"
     out = {
         "robot": robot.name,
+        "robot_name": robot.title,
         "frame": robot.target_frame,
         "target_offset": robot.target_offset.tolist(),
         "compliant_joints": list(robot.compliant_joints),
@@ -289,7 +290,7 @@ def run(args: argparse.Namespace) -> int:
     np.set_printoptions(precision=5, suppress=False, linewidth=120)
     for note in result["notes"]:
         print(f"note: {note}")
-    print(f"{result['robot']} target at {result['frame']} + {result['target_offset']} m; "
+    print(f"{result['robot_name']} target at {result['frame']} + {result['target_offset']} m; "
           f"{result['formulation']} formulation"
           + (f", {result['connection']} connection" if result["connection"] else ""))
     if not args.quiet:

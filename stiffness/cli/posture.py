@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, allow_nan=False))
         return 0
     s = doc["summary"]
-    print(f"{em.robot.name}: {s['points']} points, {args.steps} angles, max joint step "
+    print(f"{em.robot.title}: {s['points']} points, {args.steps} angles, max joint step "
           f"{s['max_joint_step_deg']:.3g} deg (bound {args.max_step:g})")
     print(f"max deflection: {s['max_deflection_m']:.4g} m chosen, "
           f"{_g(s['max_deflection_fixed_m'])} m fixed angle "

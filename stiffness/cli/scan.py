@@ -285,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
         json.dump(summary, sys.stdout)
         sys.stdout.write("\n")
         return 0
-    print(f"{summary['robot']} {spec.preset}: {summary['configurations']} configurations "
+    print(f"{robot.title} {spec.preset}: {summary['configurations']} configurations "
           f"({summary['valid_configurations']} valid) x {len(spec.loads)} load cases in "
           f"{summary['wall_seconds']:.2f} s -> {out}")
     print(f"stored: {', '.join(spec.fields)} ({spec.dtype}); "

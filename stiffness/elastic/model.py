@@ -168,7 +168,7 @@ class ElasticModel:
         k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
         if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
             raise StiffnessError(
-                f"need one finite positive stiffness per compliant joint of {robot.name} "
+                f"need one finite positive stiffness per compliant joint of {robot.title} "
                 f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
         n = len(robot.spring_joints)
         compliance_ = np.zeros(n)
@@ -217,7 +217,7 @@ class ElasticModel:
         k = np.asarray(k_theta, dtype=float).reshape(-1)
         if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
             raise StiffnessError(
-                f"need one finite positive stiffness per compliant joint of {robot.name} "
+                f"need one finite positive stiffness per compliant joint of {robot.title} "
                 f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
         parts = ElasticParts(dict(zip(robot.compliant_joints, k.tolist(), strict=True)))
         for effect, values in effects:
@@ -329,7 +329,7 @@ class ElasticModel:
         if q.shape[0] == self.robot.model.nq:
             return q
         raise StiffnessError(
-            f"give {self.robot.n_coordinates} coordinates of {self.robot.name} "
+            f"give {self.robot.n_coordinates} coordinates of {self.robot.title} "
             f"({', '.join(self.robot.coordinate_joints)}) or a full configuration of "
             f"{self.robot.model.nq} values; got {q.shape[0]}")
 
@@ -602,7 +602,7 @@ class ElasticState:
         """
         order = order or self.robot.defaults.get("twist_order", "v-w")
         if order not in TWIST_ORDERS:
-            raise StiffnessError(f"twist_order of {self.robot.name} must be one of "
+            raise StiffnessError(f"twist_order of {self.robot.title} must be one of "
                                  f"{list(TWIST_ORDERS)}, got {order!r}")
         return order
 
@@ -776,7 +776,7 @@ def _tilt_column(robot: Robot, joint: str) -> int:
     if column is None:
         joints = [n for j, n in enumerate(model.names) if j > 0
                   and joint_axis_column(model, j) is not None]
-        raise UnknownNameError(f"transversal_compliance needs a revolute joint of {robot.name} "
+        raise UnknownNameError(f"transversal_compliance needs a revolute joint of {robot.title} "
                                f"about an axis of its frame, got {joint!r}; valid names: "
                                f"{', '.join(joints)}", name=joint, choices=joints)
     return column

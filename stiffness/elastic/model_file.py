@@ -5,7 +5,7 @@
 
     {"schema": "stiffness-model/1",
      "robot": {"source", "frame", "target_offset_m", "compliant_joints",
-               "loops", "fixed_base", "joint_angles"},  # the last three only when given
+               "loops", "fixed_base", "joint_angles", "name"},  # the last four when given
      "formulation": "conventional" | "enhanced" | "exact",
      "k_theta": {"joints", "values", "unit", "standard_error", "ci95": {"low", "high"},
                  "determined"},
@@ -172,9 +172,10 @@ class ModelFile:
         The robot and its measurement target (offset in m, frame axes). A URDF source is an
         absolute path in memory (relative to the file's folder on disk); a pose calibration's
         is the file itself (the calibrated robot).
-    loops, fixed_base
+    loops, fixed_base, robot_name
         The robot's loop declaration (a path, like ``source``) and whether its floating or
-        planar base is fixed: how the robot is loaded (:meth:`robot_options`).
+        planar base is fixed: how the robot is loaded (:meth:`robot_options`); its name for
+        the user (:attr:`stiffness.robot.robot.Robot.title`), or "".
     compliant_joints, k_theta, units
         The baseline's compliant joints, their stiffness (N.m/rad or N/m) and unit names.
     standard_error, ci95_low, ci95_high
@@ -214,6 +215,7 @@ class ModelFile:
     loops: str | None = None
     fixed_base: bool = False
     joint_angles: str = "motor"
+    robot_name: str = ""
 
     def __post_init__(self) -> None:
         n = len(self.compliant_joints)
@@ -250,8 +252,10 @@ class ModelFile:
         Raises ``ModelRobotError`` if ``source`` and the model's are different robots."""
         if robot_identity(str(source)) != robot_identity(self.source):
             where = f" {self.path}" if self.path is not None else ""
+            mine = repr(self.source) if self.robot_name in ("", self.source) else (
+                f"{self.robot_name!r} ({self.source})")
             raise ModelRobotError(
-                f"the model file{where} is of robot {self.source!r}, not {str(source)!r}; drop "
+                f"the model file{where} is of robot {mine}, not {str(source)!r}; drop "
                 "--robot (the model names its robot) or give the model of that robot")
 
     # writing ---------------------------------------------------------------------------
@@ -269,6 +273,7 @@ class ModelFile:
         if self.fixed_base:
             robot["fixed_base"] = True
         robot.update({"joint_angles": self.joint_angles} if self.joint_angles != "motor" else {})
+        robot.update({"name": self.robot_name} if self.robot_name else {})
         doc = {
             "schema": SCHEMA,
             "format": LEGACY_IDENTIFIED if self.produced_by == "identify" else LEGACY_DIAGNOSED,
@@ -415,7 +420,7 @@ def _read_calibration(path: Path) -> ModelFile:
 
 def _robot_options(r: _Reader) -> dict:
     """The optional ``robot.loops`` (resolved against the file's folder), ``robot.fixed_base``
-    and ``robot.joint_angles`` of a current model file."""
+    ``robot.joint_angles`` and ``robot.name`` of a current model file."""
     loops = r.get("robot", "loops", default=None)
     if loops is not None and not isinstance(loops, str):
         raise r.fail("robot.loops must be the path of a loop declaration (a string)")
@@ -427,7 +432,8 @@ def _robot_options(r: _Reader) -> dict:
         raise r.fail(f"robot.joint_angles must be motor or link, got {angles!r}")
     if loops is not None:  # relative to the file's folder
         loops = str(Path(loops) if Path(loops).is_absolute() else (r.path.parent / loops).resolve())
-    return {"loops": loops, "fixed_base": fixed, "joint_angles": angles}
+    return {"loops": loops, "fixed_base": fixed, "joint_angles": angles,
+            "robot_name": str(r.get("robot", "name", default=""))}
 
 
 def _robot_part(r: _Reader) -> tuple[str, str, np.ndarray]:
@@ -665,7 +671,7 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         for name in LIBRARY[e.name].place_joints(e.where):
             if name not in joints:
                 raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
-                                      f"{robot.name}; {did_you_mean(str(name), joints)}")
+                                      f"{robot.title}; {did_you_mean(str(name), joints)}")
     em = ElasticModel.of_parts(
         robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
         source=None if model.path is None else str(model.path), applied=tuple(applied),
@@ -717,7 +723,7 @@ def load_model(source: ElasticModel | Robot | ModelFile | str | os.PathLike,
     if k is None:
         k = default_stiffness(robot)
         if k is None:
-            raise StiffnessError(f"give k: one stiffness per compliant joint of {robot.name} "
+            raise StiffnessError(f"give k: one stiffness per compliant joint of {robot.title} "
                                  f"({', '.join(robot.compliant_joints)})")
     return ElasticModel.joint_springs(robot, k)
 

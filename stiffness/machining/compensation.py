@@ -445,7 +445,7 @@ def path_and_wrench(robot: Robot, path: np.ndarray | str | Path,
     n = robot.n_coordinates
     if path.shape[1] != n or path.shape[0] == 0:
         raise StiffnessError(
-            f"the path needs one column per coordinate of {robot.name} "
+            f"the path needs one column per coordinate of {robot.title} "
             f"({', '.join(robot.coordinate_joints)}); got shape {path.shape}")
     if not np.all(np.isfinite(path)):
         row = int(np.argwhere(~np.isfinite(path))[0, 0])
@@ -618,7 +618,7 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
         other = "" if set(header) & set(joints + by_index) else (
             " (its columns name none of them: is the model file of another robot?)")
         raise FileFormatError(
-            f"lacks the coordinate column(s) {', '.join(shown)} of {robot.name}{other}: name "
+            f"lacks the coordinate column(s) {', '.join(shown)} of {robot.title}{other}: name "
             f"one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})",
             path=table.path, line=1)
     angular = angular_coordinates(robot)

@@ -318,7 +318,7 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
                 "timestep_s": timestep, "gravity": exported_robot(em)[1],
                 "model": em.describe(),
                 "compensator_model": (compensator_model or em).describe()}
-    return Tracking(robot.name, coords.shape[0], runs[0], runs[1], settings)
+    return Tracking(robot.title, coords.shape[0], runs[0], runs[1], settings)
 
 
 def _schedule(coords: np.ndarray, wrenches: np.ndarray, segment_time: float, timestep: float

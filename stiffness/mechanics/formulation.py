@@ -158,7 +158,7 @@ def _require_determined(robot: Robot, valid: np.ndarray) -> None:
     joints = _joints_of(robot, idle[:, int(np.argmax(moved))]) if idle.shape[1] else \
         list(robot.loop.passive_joints[:3])
     raise UndeterminedMotionError(
-        f"the loop of {robot.name} is singular here: the target's position depends on an "
+        f"the loop of {robot.title} is singular here: the target's position depends on an "
         f"undetermined motion ({k} passive motion(s) that the loop constraints leave "
         f"free move the target; mostly joints {', '.join(joints)}): the pose is a "
         "flattened or folded assembly (move away from it), or these joints belong in "

@@ -30,7 +30,7 @@ from stiffness.robot.robot import Robot
 def require_open_chain(robot: Robot, what: str = "gravity effects") -> None:
     """Raise a one-line :class:`StiffnessError` when ``robot`` has closed loops."""
     if not robot.loop.is_open_chain:
-        raise StiffnessError(f"{what} need an open chain; {robot.name} has closed loops (the "
+        raise StiffnessError(f"{what} need an open chain; {robot.title} has closed loops (the "
                              "weight of passive loop joints is not modelled); drop the effect")
 
 

@@ -87,7 +87,7 @@ def solve_pose(robot: Robot, pose: pin.SE3, seed: np.ndarray, max_iterations: in
         jac = np.vstack([robot.loop.jacobian(model, data), jt])
         q = pin.integrate(model, q, -np.linalg.lstsq(jac, res, rcond=1e-10)[0])
     raise ConvergenceError(
-        f"the target frame of {robot.name} cannot reach the pose {pose.translation.round(6)} m "
+        f"the target frame of {robot.title} cannot reach the pose {pose.translation.round(6)} m "
         f"(residual {np.linalg.norm(res):.3g} after {max_iterations} iterations): outside "
         "the workspace, or a singular pose"
     )
@@ -185,7 +185,7 @@ def stiffness_map(robot: Robot, poses: list[pin.SE3], k_theta: np.ndarray,
     """
     if seed is None:
         if "q_SI" not in robot.defaults:
-            raise StiffnessError(f"{robot.name} ships no q_SI: give a closed seed configuration")
+            raise StiffnessError(f"{robot.title} ships no q_SI: give a closed seed configuration")
         seed = robot.configuration(np.asarray(robot.defaults["q_SI"], dtype=float))
     q = seed
     out: dict[str, list] = {k: [] for k in StiffnessMap.__dataclass_fields__}

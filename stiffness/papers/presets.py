@@ -37,7 +37,7 @@ def table4_preset(robot: Robot) -> ScanPreset:
     if robot.n_coordinates != 6 or robot.n_compliant != 3:
         raise StiffnessError(
             "--preset table4 is the SK120 grid of A&S Table IV (six coordinates, three "
-            f"compliant joints); {robot.name} has {robot.n_coordinates} and "
+            f"compliant joints); {robot.title} has {robot.n_coordinates} and "
             f"{robot.n_compliant}"
         )
     ranges = [(-np.pi, np.pi), (np.deg2rad(-70.0), np.deg2rad(70.0)),

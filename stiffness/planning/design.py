@@ -514,7 +514,7 @@ def _check_request(robot: Robot, configs: int, max_force: float, loads_per_confi
         raise UnknownNameError(f"unknown criterion {criterion!r}; valid: {', '.join(CRITERIA)}",
                                name=criterion, choices=CRITERIA)
     if robot.n_compliant == 0:
-        raise StiffnessError(f"{robot.name} has no compliant joint: there is no stiffness to "
+        raise StiffnessError(f"{robot.title} has no compliant joint: there is no stiffness to "
                              "design for; name the springs with --compliant-joints")
     check_sizes(configs, loads_per_config,
                 candidates.n_poses if isinstance(candidates, Candidates) else candidates)
@@ -524,7 +524,7 @@ def _check_request(robot: Robot, configs: int, max_force: float, loads_per_confi
         raise StiffnessError(f"--random-plans must be at least 1, got {random_plans}")
     if existing is not None and existing.robot().coordinate_joints != robot.coordinate_joints:
         raise StiffnessError(f"the existing campaign {existing.name!r} is of another robot "
-                             f"({existing.robot().name}) than {robot.name}")
+                             f"({existing.robot().title}) than {robot.title}")
     if separate is not None and existing is not None and (
             existing.robot().target_frame != robot.target_frame
             or not np.allclose(existing.robot().target_offset, robot.target_offset)):
@@ -675,6 +675,6 @@ def _plan(robot: Robot, cands: Candidates, selection: Selection, configs: int,
         robot.name, frame=robot.target_frame, target_offset_m=robot.target_offset.copy(),
         compliant_joints=tuple(robot.compliant_joints)))
     return Plan(q=q, force=force, config=labels, units=units, robot_settings=settings,
-                name=(f"{existing.name}-plan" if existing is not None else f"plan-{robot.name}"),
+                name=(f"{existing.name}-plan" if existing is not None else f"plan-{robot.title}"),
                 baseline=existing.baseline if existing is not None else formulation,
                 noise_std_m=sigma)

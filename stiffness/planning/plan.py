@@ -213,7 +213,7 @@ def _check_header(header: list[str] | None, header_line: int, robot: Robot, data
         bad = next((i for i, (a, b) in pairs if a != b), min(len(header), width))
         got = repr(header[bad]) if bad < len(header) else "nothing"
         raise FileFormatError(
-            f"got {got}; the plan header for {robot.name} ({n_q} coordinates) is "
+            f"got {got}; the plan header for {robot.title} ({n_q} coordinates) is "
             f"{','.join(expected)} (optionally then dx,dy,dz, which are ignored)", path=data,
             line=header_line, column=bad + 1)
     return header, width

@@ -695,7 +695,7 @@ class _Rig:
                                  loops=loops, fixed_base=given.fixed_base,
                                  joint_angles=joint_angles)
         return Campaign(
-            name=name or f"simulated-{Path(str(given.source)).stem}",
+            name=name or f"simulated-{declared.title}",
             baseline=baseline, robot_settings=settings, q=q[reps], force=recorded[reps],
             deflection=measured, config=tuple(row_labels[i] for i in reps),
             noise_std_m=(self.noise_std_m if self.declare_noise and self.noise_std_m > 0

@@ -152,7 +152,7 @@ def link_tree(robot: Robot) -> LinkTree:
         kind = model.joints[j].shortname()
         if kind not in _JOINT_KINDS and not _is_mimic(robot, model.names[j]):
             raise StiffnessError(
-                f"joint {model.names[j]!r} of {robot.name} is a {kind}, which a URDF cannot "
+                f"joint {model.names[j]!r} of {robot.title} is a {kind}, which a URDF cannot "
                 "hold; export the robot without the loop file's joint rewrites (or fix its "
                 "base with --fixed-base)")
     own = _own_links(model)
@@ -226,7 +226,7 @@ def robot_urdf(robot: Robot, visuals: bool = True) -> str:
     """
     model = robot.model
     tree = link_tree(robot)
-    urdf = UrdfWriter(robot.model.name or robot.name)
+    urdf = UrdfWriter(robot.title)
     elements = {}
     for name, link in tree.links.items():
         own = tree.joint_links.get(link.joint) == name
@@ -297,5 +297,5 @@ def loops_yaml(robot: Robot) -> str | None:
         "name_mot": list(robot.coordinate_joints),
         "passive_joints": list(robot.loop.passive_joints),
     }
-    return (f"# Loops of {robot.name}, written by `stiffness robot export`.\n"
+    return (f"# Loops of {robot.title}, written by `stiffness robot export`.\n"
             + yaml.safe_dump(declaration, default_flow_style=None, sort_keys=False))

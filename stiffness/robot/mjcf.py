@@ -99,7 +99,7 @@ def _check_joints(robot: Robot) -> None:
         kind = model.joints[j].shortname()
         if kind not in _HINGES | _CONTINUOUS | _SLIDES:
             raise StiffnessError(
-                f"joint {model.names[j]!r} of {robot.name} is a {kind}; the MJCF export "
+                f"joint {model.names[j]!r} of {robot.title} is a {kind}; the MJCF export "
                 "writes revolute, continuous and prismatic joints only (export the robot "
                 "without the loop file's joint rewrites)")
 
@@ -217,7 +217,7 @@ def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
     unknown = [name for name in springs if name not in names]
     if unknown:
         raise StiffnessError(f"a spring on {unknown[0]!r}, which is not a coordinate of "
-                             f"{robot.name} that takes one ({', '.join(names)})")
+                             f"{robot.title} that takes one ({', '.join(names)})")
     coupling = robot.coupling
     if coupling is None or coupling.springs_on == "chain":
         welded = {name for name in names if name not in springs}
@@ -232,7 +232,7 @@ def spring_plan(robot: Robot, springs: dict[str, float]) -> SpringPlan:
     for i in rigid:
         if np.any(np.abs(inverse[i, free]) > 1e-12 * scale):
             raise StiffnessError(
-                f"the rigid controller coordinate {coupling.coordinates[i]!r} of {robot.name} "
+                f"the rigid controller coordinate {coupling.coordinates[i]!r} of {robot.title} "
                 "moves with joints its springs move, which MuJoCo would hold only by a soft "
                 "constraint; give it a spring (--kq with --compliant-joints) to export it")
     tendons = [(coupling.coordinates[i], {coupling.chain[j]: float(inverse[i, j]) for j in free
@@ -322,13 +322,13 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     """
     if not robot.loop.is_open_chain:
         raise StiffnessError(
-            f"{robot.name} has closed loops, which MuJoCo closes only by soft constraints that "
+            f"{robot.title} has closed loops, which MuJoCo closes only by soft constraints that "
             "give way under load more than its joint springs (docs/robot-files.md): the MJCF "
             "export writes open chains only; export --urdf instead")
     _check_joints(robot)
     plan = spring_plan(robot, springs)
     model = robot.model
-    root = etree.Element("mujoco", model=model.name or robot.name)
+    root = etree.Element("mujoco", model=robot.title)
     compiler = etree.SubElement(root, "compiler", angle="radian", autolimits="true")
     etree.SubElement(root, "option", gravity=numbers(model.gravity.linear))
     world = etree.SubElement(root, "worldbody")
@@ -342,7 +342,7 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     if massless:
         compiler.set("boundmass", str(MASSLESS_BOUND_KG))
         compiler.set("boundinertia", str(MASSLESS_BOUND_KGM2))
-        warnings.warn(f"{robot.name}: {len(massless)} massless links ({', '.join(massless)}) "
+        warnings.warn(f"{robot.title}: {len(massless)} massless links ({', '.join(massless)}) "
                       f"written with {MASSLESS_BOUND_KG} kg and {MASSLESS_BOUND_KGM2} kg.m^2, "
                       "as MuJoCo needs a mass on every moving body", RobotFileWarning,
                       stacklevel=2)

@@ -22,6 +22,7 @@ import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -150,6 +151,26 @@ class Robot:
         return self._visual
 
     @property
+    def title(self) -> str:
+        """The robot's name for the user (echo lines, messages, reports, page titles): the
+        ``name`` its ``robot.toml`` declares; else a shipped or example-robot-data robot's
+        name; else, for a file, the URDF's robot name (or the file's stem) or the folder of a
+        ``robot.toml``, never a path."""
+        declared = self.defaults.get("name")
+        if isinstance(declared, str) and declared.strip():
+            return declared.strip()
+        name = self.name
+        if not ("/" in name or "\\" in name or "." in Path(name).name or os.path.isdir(name)):
+            return name
+        path = Path(name)
+        if path.suffix.lower() == ".toml" or path.is_dir():
+            folder = path.resolve() if path.is_dir() else path.resolve().parent
+            return folder.name or name
+        if path.suffix.lower() in (".urdf", ".xml") and self.model.name:
+            return self.model.name
+        return path.stem or name
+
+    @property
     def n_coordinates(self) -> int:
         """Number of coordinates (independent joints)."""
         return len(self.coordinate_joints)
@@ -177,7 +198,7 @@ class Robot:
     def joint_v_index(self, joint: str) -> int:
         """Velocity index of a one-degree-of-freedom joint."""
         if not self.model.existJointName(joint):
-            raise StiffnessError(f"{joint!r} is a controller coordinate of {self.name}, not a "
+            raise StiffnessError(f"{joint!r} is a controller coordinate of {self.title}, not a "
                                  "joint: it has no velocity index (use rate_projection)")
         return self.model.joints[self.model.getJointId(joint)].idx_v
 
@@ -260,7 +281,7 @@ class Robot:
             coordinates: use :attr:`compliant_in_springs`).
         """
         if self.spring_joints != self.coordinate_joints:
-            raise StiffnessError(f"the springs of {self.name} act on its chain joints, not on "
+            raise StiffnessError(f"the springs of {self.title} act on its chain joints, not on "
                                  "its coordinates ([controller] springs_on = \"chain\")")
         return self.compliant_in_springs
 
@@ -396,7 +417,7 @@ class Robot:
         coords = np.asarray(coords, dtype=float).reshape(-1)
         if coords.shape[0] != self.n_coordinates:
             raise StiffnessError(
-                f"{self.name} has {self.n_coordinates} coordinates "
+                f"{self.title} has {self.n_coordinates} coordinates "
                 f"({', '.join(self.coordinate_joints)}) but {coords.shape[0]} values were given"
             )
         if not np.all(np.isfinite(coords)):
@@ -446,7 +467,7 @@ class Robot:
         if residual > 1e3 * CLOSURE_TOLERANCE_M:
             name, worst = max(loop.loop_residuals(model, data), key=lambda item: item[1])
             raise LoopClosureError(
-                f"{self.name} has no assembly near coordinates "
+                f"{self.title} has no assembly near coordinates "
                 f"{np.round(coords, 6).tolist()}: even moving every joint, the loop {name} keeps "
                 f"a residual of {worst:.3g} m (total {residual:.3g}); check the loop file's "
                 "frame pairs and the joint values", loop=name, residual=worst)
@@ -465,7 +486,7 @@ class Robot:
             return loop.close(model, data, closest)
         name, worst = max(loop.loop_residuals(model, data), key=lambda item: item[1])
         raise LoopClosureError(
-            f"{self.name}: the loop {name} cannot be closed at coordinates "
+            f"{self.title}: the loop {name} cannot be closed at coordinates "
             f"{np.round(coords, 6).tolist()}: the closest the passive joints reach leaves a "
             f"residual of {worst:.3g} m (an assembly exists at "
             f"{np.round(self.coordinates_of(found), 6).tolist()}); the pose is out of the "
@@ -519,7 +540,7 @@ class Robot:
                     name, worst = max(self.loop.loop_residuals(self.model, self.data),
                                       key=lambda item: item[1])
                     raise LoopClosureError(
-                        f"the loops of {self.name} cannot be closed continuously from "
+                        f"the loops of {self.title} cannot be closed continuously from "
                         f"coordinates {np.round(start, 6).tolist()} to "
                         f"{np.round(coords, 6).tolist()}: the "
                         "path meets a fold of the loop (the pose is unreachable on this branch)",
@@ -572,7 +593,7 @@ class Robot:
                     name, worst = max(self.loop.loop_residuals(self.model, self.data),
                                       key=lambda item: item[1])
                     raise LoopClosureError(
-                        f"{self.name} has no assembly near its zero pose: even moving every "
+                        f"{self.title} has no assembly near its zero pose: even moving every "
                         f"joint, the loop {name} keeps a residual of {worst:.3g} m; check the "
                         "loop file's frame pairs", loop=name, residual=worst) from None
                 q0, searched = self._step_inside(coords, self.loop.close(
@@ -722,5 +743,5 @@ def coordinate_index(robot: Robot, name: str, what: str) -> int:
     passive = not robot.loop.is_open_chain and name in robot.loop.passive_joints
     why = " (a passive loop joint: it follows the others)" if passive else ""
     raise UnknownJointError(
-        f"{what}: {name!r} is not a coordinate of {robot.name}{why}; use a joint name or q1..q"
+        f"{what}: {name!r} is not a coordinate of {robot.title}{why}; use a joint name or q1..q"
         f"{len(names)}: {did_you_mean(name, names)}", name=name, choices=names)

@@ -69,7 +69,6 @@ from stiffness.viewer.states import (
     STIFFNESS_NODE,
     FieldState,
     SceneState,
-    display_name,
 )
 from stiffness.viewer.style import (
     COLORMAPS,
@@ -147,7 +146,7 @@ class StiffnessViewer:
         self.k_theta = k if k.ndim == 2 else joint_stiffness(k, robot.n_compliant)
         if self.k_theta.shape != (robot.n_compliant, robot.n_compliant):
             raise StiffnessError(f"k_theta must be ({robot.n_compliant}, {robot.n_compliant}) "
-                                 f"for {robot.name}, got {self.k_theta.shape}")
+                                 f"for {robot.title}, got {self.k_theta.shape}")
         self.robot = robot
         self.quantity = quantity
         self.reach = self._reach()
@@ -496,7 +495,7 @@ class StiffnessViewer:
     def overlay(self) -> dict:
         """Legend (and live controls) of the current scene, as the page's JSON."""
         robot, st = self.robot, self.state
-        data: dict = {"title": f"{display_name(robot)}: {self.quantity} ellipsoids at "
+        data: dict = {"title": f"{robot.title}: {self.quantity} ellipsoids at "
                                f"{robot.target_frame}", "lines": [], "legend": [],
                       "colorbars": [], "toggles": [], "notes": [], "labels": []}
         if self._error:
@@ -732,7 +731,7 @@ class StiffnessViewer:
     def html(self, title: str | None = None) -> str:
         """The scene as a self-contained static HTML page (opens offline)."""
         with self._lock:
-            title = title or f"{display_name(self.robot)} stiffness ({self.quantity})"
+            title = title or f"{self.robot.title} stiffness ({self.quantity})"
             return render_page(self._window.scene.commands(), self.overlay(), title)
 
     def export(self, path: str | os.PathLike, title: str | None = None) -> Path:

@@ -83,7 +83,7 @@ def random_coordinates(robot: Robot, n: int, base: np.ndarray, joints: Sequence[
     names = list(robot.coordinate_joints) if joints is None else list(joints)
     unknown = [j for j in names if j not in robot.coordinate_joints]
     if unknown:
-        raise UnknownJointError(f"{', '.join(unknown)} are not coordinates of {robot.name}; "
+        raise UnknownJointError(f"{', '.join(unknown)} are not coordinates of {robot.title}; "
                                 f"coordinates: {', '.join(robot.coordinate_joints)}",
                                 name=unknown[0], choices=robot.coordinate_joints)
     rng = np.random.default_rng(seed)

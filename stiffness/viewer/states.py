@@ -7,12 +7,10 @@ Units: SI (m, N, rad; N/m, m/N; N.m/rad for joints).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from stiffness.mechanics.formulation import FORMULATIONS
-from stiffness.robot.robot import Robot
 from stiffness.viewer.ellipsoid import PrincipalEllipsoid, RotationalBlock
 from stiffness.viewer.geometry import Pose
 
@@ -30,14 +28,6 @@ ROTATIONAL_NODE = "rotational"
 
 #: Names of the principal axes (axis i along eigenvector i; the page labels k1, k2, k3).
 AXIS_NAMES = ("1", "2", "3")
-
-
-def display_name(robot: Robot) -> str:
-    """The robot's name for titles: its source name, or the URDF's robot name (never a path)."""
-    name = robot.name
-    if "/" in name or "\\" in name or name.lower().endswith((".urdf", ".xml")):
-        name = robot.model.name or Path(name).stem
-    return name
 
 
 @dataclass

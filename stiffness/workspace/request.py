@@ -223,7 +223,7 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
         k_theta = default_stiffness(robot)
         if k_theta is None:
             raise StiffnessError(
-                f"--kq is required for {robot.name}: one stiffness per compliant joint "
+                f"--kq is required for {robot.title}: one stiffness per compliant joint "
                 f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)")
     k_theta = [float(v) for v in np.asarray(k_theta, dtype=float).reshape(-1)]
     batch.as_joint_stiffness(k_theta, robot.n_compliant)  # validates
