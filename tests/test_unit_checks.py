@@ -97,3 +97,75 @@ def test_radians_that_look_like_degrees_suggest_degrees(tmp_path):
     messages = [m for m in caught(lambda: load_campaign(folder)) if "joint limits" in m]
     assert len(messages) == 1 and 'the angles look like degrees: [units] angle = "deg"' in \
         messages[0], messages
+
+
+def scaled_forces(source: Path, folder: Path, factor: float, declared: str | None = None
+                  ) -> Path:
+    """A copy of campaign ``source`` at ``folder`` whose fx, fy, fz numbers are multiplied by
+    ``factor`` and, when given, whose force unit is declared ``declared``."""
+    shutil.copytree(source, folder)
+    data = folder / "measurements.csv"
+    lines = data.read_text().splitlines()
+    header = lines[0].split(",")
+    forces = [header.index(k) for k in ("fx", "fy", "fz")]
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        for i in forces:
+            cells[i] = repr(float(cells[i]) * factor)
+        out.append(",".join(cells))
+    data.write_text("\n".join(out) + "\n")
+    if declared is not None:
+        toml = folder / "campaign.toml"
+        toml.write_text(toml.read_text().replace('force = "N"', f'force = "{declared}"'))
+    return folder
+
+
+def force_messages(folder: Path) -> list[str]:
+    return [m for m in caught(lambda: load_campaign(folder)) if "per unit load" in m]
+
+
+@pytest.mark.parametrize(("factor", "declared", "words"), [
+    (1.0, None, None),
+    (1.0, "kN", 'the forces look like N: [units] force = "N"'),  # N data declared kN
+    (1e-3, None, 'the forces look like kN: [units] force = "kN"'),  # kN data declared N
+    (1e-3, "kN", None),  # kN data declared kN
+])
+def test_forces_in_the_wrong_unit_against_declared_springs(tmp_path, factor, declared, words):
+    """The SK120's Table II against its declared k_theta_SI (measured over predicted deflection
+    0.95): a force unit read wrong makes it ~1000x softer or stiffer, told with the unit."""
+    messages = force_messages(scaled_forces(TABLE2, tmp_path / "t2", factor, declared))
+    if words is None:
+        assert messages == []
+        return
+    assert len(messages) == 1 and words in messages[0], messages
+    assert "its declared k_theta_SI" in messages[0]
+    assert ("stiffer" if declared == "kN" else "softer") in messages[0]
+
+
+@pytest.fixture(scope="module")
+def soft_ur5(tmp_path_factory):
+    """A UR5 campaign (no declared springs: compared with the nominal 1e5 SI) of a robot 20x
+    softer than nominal, 3 configurations x 2 loads, in N."""
+    from stiffness.planning.simulate import simulate
+
+    folder = tmp_path_factory.mktemp("ur5") / "c"
+    simulate("ur5", kq=[5e3] * 6, configs=3, loads_per_config=2, seed=2).write(folder)
+    return folder
+
+
+def test_forces_in_kn_read_as_n_against_nominal_springs(soft_ur5, tmp_path):
+    """A soft robot without declared springs is no false alarm in N; its forces written in kN
+    and read as N (1000x smaller) are told to be kN, and the import of such a rig file too."""
+    assert force_messages(soft_ur5) == []
+    folder = scaled_forces(soft_ur5, tmp_path / "kn", 1e-3)
+    messages = force_messages(folder)
+    assert len(messages) == 1 and 'the forces look like kN' in messages[0], messages
+    assert "a nominal 1e5 SI per joint" in messages[0] and "softer" in messages[0]
+    from stiffness.calibration.campaign_toml import RobotSettings
+    from stiffness.calibration.rig_import import ImportSettings, import_campaign
+
+    imported = caught(lambda: import_campaign(
+        [folder / "measurements.csv"], RobotSettings("ur5"),
+        ImportSettings(units={"angle": "deg", "force": "N", "length": "mm"})))
+    assert [m for m in imported if "the forces look like kN" in m], imported

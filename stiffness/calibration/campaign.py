@@ -92,7 +92,7 @@ from stiffness.calibration.campaign_toml import (
 )
 from stiffness.calibration.coordinate_columns import fixed_values
 from stiffness.calibration.measurements import coordinates_in_si, read_rows
-from stiffness.calibration.unit_checks import check_deflection_size
+from stiffness.calibration.unit_checks import check_deflection_size, check_force_unit
 from stiffness.errors import (
     StiffnessError,
     UnknownNameError,
@@ -364,7 +364,8 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     moment = None if rows.moment is None else rows.moment * units.moment_to_si
     rotation = None if rows.rotation is None else rows.rotation * units.rotation_to_si
     has_moment, has_rotation = moment is not None, rotation is not None
-    check_deflection_size(robot, deflection, force, units, data_path)
+    if check_deflection_size(robot, deflection, force, units, data_path):
+        check_force_unit(robot, q, force, moment, deflection, units, data_path)
     if not has_rotation and rot_noise is not None:
         raise toml.error(f"[measurement] {rot_key} is given but {data_name} has no "
                          "rotation columns rx,ry,rz; add them after dz (or after mz) or drop "

@@ -54,6 +54,7 @@ from __future__ import annotations
 import functools
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -64,6 +65,7 @@ from stiffness.calibration.identifiability import identifiable as judge
 from stiffness.cores import forked_map
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.robot.robot import Robot
 
 #: Singular values of the whitened residual Jacobian below this fraction of the largest are
 #: zero: the data do not determine that direction.
@@ -459,16 +461,20 @@ def _solve(objective: Objective, x0: np.ndarray, kept: list[int],
 
 
 def nominal_log_stiffness(model: Hypothesis) -> np.ndarray:
-    """``ln k`` of each baseline joint's nominal stiffness: the robot's declared ``k_theta_SI``
+    """``ln k`` of each baseline joint's nominal stiffness (:func:`nominal_stiffness`)."""
+    return np.log(nominal_stiffness(model.geometry.robot, model.compliant))
+
+
+def nominal_stiffness(robot: Robot, joints: Sequence[str]) -> np.ndarray:
+    """Each joint's nominal stiffness (N.m/rad, N/m): the robot's declared ``k_theta_SI``
     (one per compliant joint its declaration names, positive), else
     :data:`NOMINAL_STIFFNESS`."""
-    robot = model.geometry.robot
     springs = list(robot.defaults.get("compliant_joints", robot.compliant_joints))
     declared = robot.defaults.get("k_theta_SI")
     values = dict(zip(springs, declared, strict=True)) if (
         declared is not None and len(declared) == len(springs)) else {}
-    return np.log([float(values[j]) if float(values.get(j, 0.0)) > 0 else NOMINAL_STIFFNESS
-                   for j in model.compliant])
+    return np.array([float(values[j]) if float(values.get(j, 0.0)) > 0 else NOMINAL_STIFFNESS
+                     for j in joints])
 
 
 def parameter_labels(model: Hypothesis) -> list[str]:

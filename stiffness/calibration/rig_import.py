@@ -50,7 +50,7 @@ from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
-from stiffness.calibration.unit_checks import check_deflection_size
+from stiffness.calibration.unit_checks import check_deflection_size, check_force_unit
 from stiffness.errors import (
     DataFileNote,
     FileFormatError,
@@ -555,7 +555,8 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
             m_si = None if m_si is None else np.einsum("rij,rj->ri", turns, m_si)
         if settings.deflection_frame == "tool":
             d_si = np.einsum("rij,rj->ri", turns, d_si)
-    check_deflection_size(robot, d_si, f_si, units, first.path)
+    if check_deflection_size(robot, d_si, f_si, units, first.path):
+        check_force_unit(robot, q_si, f_si, m_si, d_si, units, first.path)
     campaign = Campaign(name=name, baseline=baseline, robot_settings=robot_settings, q=q_si,
                         force=f_si, deflection=d_si, config=tuple(labels), moment=m_si,
                         noise_std_m=None if noise_std is None else noise_std
@@ -595,7 +596,7 @@ def read_coordinates(mapper: ColumnMapper, robot: Robot
     else:
         raise StiffnessError(f"no coordinate column in {files}: map the joints read "
                              f"(JOINT=COLUMN, e.g. {names[0]}=theta1) or name columns after "
-                             f"{robot.name}'s joints ({listed(names)}; any subset) or "
+                             f"{robot.title}'s joints ({listed(names)}; any subset) or "
                              f"q1..q{robot.n_coordinates}")
     q_cols = [c for c in found if c is not None]
     rows = len(q_cols[0].cells)

@@ -13,6 +13,13 @@ the joint-limit check does for angles:
 * **Deflection campaigns.** A loaded robot's target moves by micrometres to millimetres: the
   median deflection is checked between :data:`SMALLEST_DEFLECTION_M` and
   :data:`LARGEST_DEFLECTION` times the robot's reach (:func:`reach`).
+* **Forces.** With the lengths plausible, the deflection per unit load is compared with the one
+  the robot's nominal joint springs give (its declared ``k_theta_SI``, else 1e5 SI:
+  :func:`~stiffness.calibration.fitting.nominal_stiffness`) at the rows' coordinates and
+  loads: a force unit read 1000x off (kN data declared N makes the robot look 1000x softer, N
+  data declared kN 1000x stiffer) puts the median ratio outside :data:`COMPLIANCE_RATIO`
+  (:data:`NOMINAL_COMPLIANCE_RATIO` without declared springs, whose stiffness is a guess),
+  and the other force unit brings it back inside.
 """
 
 from __future__ import annotations
@@ -24,10 +31,13 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from stiffness.calibration.fitting import nominal_stiffness
 from stiffness.elastic.effects.preloads import reach
+from stiffness.elastic.model import ElasticModel
 from stiffness.errors import DataFileWarning, StiffnessError
+from stiffness.mechanics.defaults import default_stiffness
 from stiffness.robot.robot import Robot
-from stiffness.units import LENGTH_UNITS, Units
+from stiffness.units import FORCE_UNITS, LENGTH_UNITS, Units
 
 #: Accepted median ratio of measured to nominal marker displacements between rows.
 SPREAD_RATIO = (0.5, 2.0)
@@ -38,6 +48,11 @@ ROWS_CHECKED = 40
 SMALLEST_DEFLECTION_M = 1e-7
 #: The largest median deflection, as a fraction of the robot's reach: beyond, no elastostatics.
 LARGEST_DEFLECTION = 0.02
+#: Accepted median ratio of measured to predicted deflection at the robot's declared springs:
+#: a campaign identifies them, so they may be off by a factor, but not by a force unit's 1000.
+COMPLIANCE_RATIO = (1 / 30, 30.0)
+#: The same without declared springs (the nominal 1e5 SI is a guess for any robot).
+NOMINAL_COMPLIANCE_RATIO = (1 / 200, 200.0)
 
 
 def likely_length_unit(factor: float, units: Units) -> str | None:
@@ -108,16 +123,17 @@ def check_marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q:
         return
     warnings.warn(
         f"{data}: the measured marker positions move {ratio:.3g} times as far between rows as "
-        f"{robot.name}'s kinematics moves the markers (median over {len(ratios)} row pairs, "
+        f"{robot.title}'s kinematics moves the markers (median over {len(ratios)} row pairs, "
         f"length unit {units.length}); "
         f"{_advice(likely_length_unit(1.0 / ratio, units) if ratio > 0 else None)}",
         DataFileWarning, stacklevel=3)
 
 
 def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarray,
-                          units: Units, data: Path) -> None:
+                          units: Units, data: Path) -> bool:
     """Warn once when the median measured deflection (m) is beyond what a loaded robot of this
-    reach deflects (:data:`SMALLEST_DEFLECTION_M` to :data:`LARGEST_DEFLECTION` x reach).
+    reach deflects (:data:`SMALLEST_DEFLECTION_M` to :data:`LARGEST_DEFLECTION` x reach);
+    returns whether it is within (or there is no deflection).
 
     Warns
     -----
@@ -128,11 +144,11 @@ def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarra
     sizes = np.linalg.norm(deflection, axis=1)
     sizes = sizes[sizes > 0]
     if not sizes.size:
-        return
+        return True
     size = float(np.median(sizes))
     low, high = SMALLEST_DEFLECTION_M, LARGEST_DEFLECTION * reach(robot.model)
     if low <= size <= high:
-        return
+        return True
     middle = math.sqrt(1e-6 * 1e-3)  # a rig's typical deflection: 1 um to 1 mm
     fits = [u for u in LENGTH_UNITS if u != units.length
             and low <= size * LENGTH_UNITS[u] / units.length_to_si <= high]
@@ -143,5 +159,61 @@ def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarra
     warnings.warn(
         f"{data}: the median deflection is {size / units.length_to_si:.3g} {units.length} "
         f"({size:.3g} m under a median load of {load:.3g} N), {side} than a loaded robot of "
-        f"{robot.name}'s reach ({reach(robot.model):.3g} m) deflects ({low:.0e} m to "
+        f"{robot.title}'s reach ({reach(robot.model):.3g} m) deflects ({low:.0e} m to "
         f"{high:.3g} m); {_advice(unit)}", DataFileWarning, stacklevel=3)
+    return False
+
+
+def compliance_ratio(robot: Robot, q: np.ndarray, force: np.ndarray, moment: np.ndarray | None,
+                     deflection: np.ndarray) -> float | None:
+    """Median over loaded rows (at most :data:`ROWS_CHECKED`) of the measured deflection's size
+    over the one the robot's nominal joint springs predict to first order (``|C W|``, m) at
+    the row's coordinates ``q`` (rad, m) and load (N, N.m); ``None`` when no row tells."""
+    loaded = np.flatnonzero((np.linalg.norm(force, axis=1) > 0)
+                            & (np.linalg.norm(deflection, axis=1) > 0))
+    rows = loaded[np.unique(np.linspace(0, loaded.size - 1,
+                                        min(loaded.size, ROWS_CHECKED)).astype(int))]
+    model = ElasticModel.joint_springs(robot, nominal_stiffness(robot, robot.compliant_joints))
+    ratios = []
+    for r in rows if loaded.size else ():
+        wrench = np.concatenate([force[r], np.zeros(3) if moment is None else moment[r]])
+        try:
+            predicted = float(np.linalg.norm(model.linear_deflection(q[r], wrench)[:3]))
+        except StiffnessError:  # a pose the loops cannot close: reported where it is used
+            continue
+        if predicted > 0 and np.isfinite(predicted):
+            ratios.append(float(np.linalg.norm(deflection[r])) / predicted)
+    return float(np.median(ratios)) if ratios else None
+
+
+def check_force_unit(robot: Robot, q: np.ndarray, force: np.ndarray, moment: np.ndarray | None,
+                     deflection: np.ndarray, units: Units, data: Path) -> None:
+    """Warn once when the deflection per unit load (SI rows: coordinates ``q``, ``force`` N,
+    ``moment`` N.m, ``deflection`` m) is 1000x off the robot's nominal springs in the way a
+    force unit read wrong makes it (:func:`compliance_ratio` outside
+    :data:`COMPLIANCE_RATIO`, :data:`NOMINAL_COMPLIANCE_RATIO` without declared springs, and
+    inside with the other force unit).
+
+    Warns
+    -----
+    DataFileWarning
+        Naming the ratio, the springs compared with and the force unit the data look like.
+    """
+    ratio = compliance_ratio(robot, q, force, moment, deflection)
+    if ratio is None:
+        return
+    declared = default_stiffness(robot) is not None
+    low, high = COMPLIANCE_RATIO if declared else NOMINAL_COMPLIANCE_RATIO
+    if low <= ratio <= high:
+        return
+    likely = [u for u in FORCE_UNITS if u != units.force and low <= ratio * units.force_to_si
+              / FORCE_UNITS[u] <= high]
+    if not likely:
+        return
+    springs = "its declared k_theta_SI" if declared else "a nominal 1e5 SI per joint"
+    side = "softer" if ratio > 1 else "stiffer"
+    warnings.warn(
+        f"{data}: the deflections per unit load make {robot.title} {max(ratio, 1 / ratio):.3g} "
+        f"times {side} than {springs} (median over the loaded rows, force unit "
+        f"{units.force}); the forces look like {likely[0]}: [units] force = \"{likely[0]}\" "
+        f"(or --units force={likely[0]})", DataFileWarning, stacklevel=3)
