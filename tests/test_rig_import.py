@@ -34,7 +34,7 @@ from stiffness.calibration.rig_import import (
     read_mapping_file,
 )
 from stiffness.cli.main import main
-from stiffness.errors import DataFileNote, StiffnessError
+from stiffness.errors import DataFileNote, StiffnessError, UnknownColumnWarning
 
 JOINTS = "shoulder_pan_joint,shoulder_lift_joint,elbow_joint"
 MAP = ("config=label," + ",".join(f"q{i}=theta{i}" for i in range(1, 7))
@@ -338,3 +338,36 @@ def test_quiet_and_a_rig_that_loads_along_z_only(tmp_path, capsys):
     assert out.count("\n") == 1 and out.startswith("wrote "), out
     campaign = load_campaign(tmp_path / "c")
     np.testing.assert_allclose(campaign.force, [[0, 0, 3.5], [0, 0, -2.0]])
+
+
+def test_the_column_echo_writes_minus_zero_as_zero(tmp_path, capsys):
+    """A rig column of -0.0 (a spreadsheet's negative zero) is echoed 0 .. 0, not -0 .. -0
+    (issue 38 item 10: no float noise in what is printed or written)."""
+    rig = tmp_path / "rig.csv"
+    rig.write_text("theta1,theta2,theta3,theta4,theta5,theta6,Fz,dx,dy,dz\n"
+                   "0,-60,90,0,45,0,3.5,0.1,-0.0,0.3\n10,-50,80,0,45,0,-2,0.1,-0.0,0.3\n")
+    argv = ["campaign", "import", str(rig), "--robot", "ur5", "--map",
+            ",".join(f"q{i}=theta{i}" for i in range(1, 7)) + ",fz=Fz",
+            "--units", "angle=deg,force=N,length=mm", "--out", str(tmp_path / "c")]
+    with pytest.warns(DataFileNote):
+        assert main(argv) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.lstrip().startswith("dy"))
+    assert line.endswith("0 .. 0 mm") and "-0" not in line, line
+
+
+def test_import_strict_refuses_columns_it_does_not_import(tmp_path, capsys):
+    """Issue 38 item 1: a rig's bookkeeping column is listed and ignored by campaign import,
+    refused under --strict (one line, nothing written), as identify/diagnose/validate do."""
+    rig = tmp_path / "rig.csv"
+    rig.write_text("shoulder_pan_joint,shoulder_lift_joint,elbow_joint,wrist_1_joint,"
+                   "wrist_2_joint,wrist_3_joint,operator,fx,fy,fz,dx,dy,dz\n"
+                   "0,-60,90,0,45,0,bob,1,2,30,0.01,0.02,0.03\n")
+    argv = ["campaign", "import", str(rig), "--robot", "ur5", "--units",
+            "angle=deg,force=N,length=mm", "--out", str(tmp_path / "c"), "--quiet"]
+    assert main([*argv, "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "rig.csv:operator" in err and "--strict" in err, err
+    assert not (tmp_path / "c").exists()
+    with pytest.warns(UnknownColumnWarning, match="columns not imported: rig.csv:operator "):
+        assert main(argv) == 0
+    assert load_campaign(tmp_path / "c").n_rows == 1

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from stiffness.errors import DataFileWarning
+from stiffness.errors import UnknownColumnWarning
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -90,17 +90,21 @@ def column_report(mapper: Any, units: Units, robot: Robot, prismatic: np.ndarray
         values = column.numbers(empty_is_nan=True) if unit else None
         seen = None if values is None or not np.isfinite(values).any() else values
         out[target] = {"source": f"{column.path.name}:{column.name}", "unit": unit,
-                       "min": None if seen is None else float(np.nanmin(seen)),
-                       "max": None if seen is None else float(np.nanmax(seen))}
+                       "min": None if seen is None else float(np.nanmin(seen)) + 0.0,
+                       "max": None if seen is None else float(np.nanmax(seen)) + 0.0}  # -0 as 0
     return out
 
 
 def warn_unused(columns: dict[str, list[Any]], report: ImportReport, key: str | None
                 ) -> None:
-    """Warn once about file columns no campaign column read (a map may have missed them)."""
+    """Warn once about file columns no campaign column read (a map may have missed them): an
+    :class:`~stiffness.errors.UnknownColumnWarning`, which ``campaign import --strict``
+    refuses."""
     used = {c["source"] for c in report.columns.values()}
     left = [f"{c.path.name}:{c.name}" for cs in columns.values() for c in cs
             if f"{c.path.name}:{c.name}" not in used and c.name != key]
     if left:
         warnings.warn(f"columns not imported: {', '.join(left[:8])}"
-                      + (", ..." if len(left) > 8 else ""), DataFileWarning, stacklevel=2)
+                      + (", ..." if len(left) > 8 else "") + " (ignored, refused under "
+                      "--strict; map them with --map or remove them)", UnknownColumnWarning,
+                      stacklevel=2)

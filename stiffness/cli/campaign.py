@@ -75,6 +75,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="campaign folder to write")
     p.add_argument("--quiet", action="store_true",
                    help="print only the line naming what was written (no column report)")
+    flags.add_strict_flag(p)
     p.add_argument("--kind", choices=CAMPAIGN_KINDS, default="deflections",
                    help="deflections (default) or poses: absolute marker positions in the "
                         "measuring system's frame (docs/absolute-poses.md)")
