@@ -61,6 +61,8 @@ MAX_EVALUATIONS = 200
 #: Smallest ``1 - leverage`` of a configuration's components for :func:`held_out_rms` (below
 #: it, leaving the configuration out leaves a direction of the parameters undetermined).
 LEVERAGE_TOL = 1e-9
+#: Configurations :func:`held_out_rms` treats as one array (bounds its memory).
+HELD_OUT_BLOCK = 4096
 
 
 def rows_of(model: PoseModel, campaign: PoseCampaign) -> list[RowTerms]:
@@ -282,18 +284,21 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     configuration predicted by the parameters the fit would reach without it, to first order.
 
     With ``J`` the fit's Jacobian over its kept parameters at the optimum (:attr:`PoseFit.
-    jacobian`, full column rank by the identifiable reduction, ``J = Q R``) and ``r`` its
-    residual, leaving configuration ``G``'s components out moves the parameters by
-    ``dx_G = R^-1 Q_G^T (I - Q_G Q_G^T)^-1 r_G`` (the hat matrix's deletion formula, PRESS:
-    exact for a model linear in its parameters, the refit's Gauss-Newton step otherwise), and
-    ``G`` is predicted by the model itself at ``x - dx_G`` (a parameter at its physical bound
-    held there): its sag and geometry in full, so a
-    fit whose neighbours sag without bound at a configuration is caught. The criterion is
-    ``sqrt(objective / n)`` of the held-out position components (:func:`objective_rss` under
-    the fit's loss and scale: their sum of squares for least squares). Infinite when a
-    configuration alone determines a direction of the parameters (its leverage reaches 1
-    within :data:`LEVERAGE_TOL`) or the sag diverges at the configuration: the campaign cannot
-    validate those parameters.
+    jacobian`, full column rank by the identifiable reduction; a parameter at its physical
+    bound held there: its column left out) and ``r`` its residual, leaving configuration
+    ``G``'s components out moves the parameters by ``dx_G = R^-1 Q_G^T (I - H_G)^-1 r_G``
+    (``J = Q R``, ``H_G = Q_G Q_G^T`` the hat matrix's block of ``G``: the deletion formula),
+    and ``G``'s residual there is, to first order, ``r_G - J_G dx_G = (I - H_G)^-1 r_G``
+    (PRESS: exact for a model linear in its parameters, the refit's Gauss-Newton step
+    otherwise). The criterion is ``sqrt(objective / n)`` of the held-out position components
+    (:func:`objective_rss` under the fit's loss and scale: their sum of squares for least
+    squares). Infinite when a configuration alone determines a direction of the parameters
+    (its leverage reaches 1 within :data:`LEVERAGE_TOL`): the campaign cannot validate those
+    parameters.
+
+    No model evaluation: ``R`` by a QR of ``J`` in blocks of rows, then the configurations'
+    blocks ``H_G`` and solves as stacked arrays, :data:`HELD_OUT_BLOCK` configurations at a
+    time (memory bounded besides ``J`` itself).
 
     Parameters
     ----------
@@ -301,51 +306,62 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
         The campaign the fit was made on: rows sharing a configuration label are left out
         together.
     progress
-        Called with (configurations done, configurations) as each is predicted (a progress
-        bar), or ``None``.
+        Called with (configurations done, configurations) after each block of them (a
+        progress bar), or ``None``.
     """
     jac, rows = fit.jacobian, fit.component_rows
     if jac is None or rows is None:
         raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
     r = fit.components()
-    # a parameter at its physical bound stays there in the refits: the deletion step moves
-    # the others only
     free = [c for c, i in enumerate(fit.identifiability.kept) if i not in fit.at_bound]
-    q, tri = np.linalg.qr(jac[:, free])
-    # each configuration's rows and components, in the order the labels first appear
-    _, first, group = np.unique(np.asarray(campaign.labels), return_index=True,
-                                return_inverse=True)
-    order = np.argsort(first)
-    rows_of_group = _members(group, order)
-    components_of_group = _members(group[rows], order)
-    kept = [fit.identifiability.kept[c] for c in free]
-    held: list[np.ndarray] = []
-    for done, (g, members) in enumerate(zip(components_of_group, rows_of_group, strict=True)):
-        qg = q[g]
-        a = np.eye(g.size) - qg @ qg.T
-        if g.size and np.linalg.eigvalsh(a)[0] < LEVERAGE_TOL:
+    tri = _triangular(jac, free)
+    # each configuration's components (in order), padded to the largest group with -1
+    _, group = np.unique(np.asarray(campaign.labels), return_inverse=True)
+    members = _padded(group.ravel()[rows])
+    positions = int(np.isfinite(fit.residual).sum())
+    held, count = [], 0
+    for start in range(0, members.shape[0], HELD_OUT_BLOCK):
+        block = members[start:start + HELD_OUT_BLOCK]
+        pad = block < 0
+        index = np.where(pad, 0, block)
+        # Q_G = J_G R^-1 (padding: zero rows, so that I - H_G is 1 there)
+        qg = linalg.solve_triangular(tri, jac[np.ix_(index.ravel(), free)].T, trans="T").T
+        qg = qg.reshape(block.shape + (len(free),)) * ~pad[..., None]
+        a = np.eye(block.shape[1]) - qg @ np.swapaxes(qg, 1, 2)
+        if np.linalg.eigvalsh(a)[:, 0].min(initial=1.0) < LEVERAGE_TOL:
             return math.inf
-        x = fit.x.copy()
-        x[kept] -= linalg.solve_triangular(tri, qg.T @ np.linalg.solve(a, r[g]))
-        part = campaign.subset(members)
-        obs = PoseObservations(fit.model, part, rows_of(fit.model, part))
-        try:
-            e, _ = obs.evaluate(x, jacobian=False)
-        except ConvergenceError:
-            return math.inf
-        held.append(e[:int(obs.observed.sum())])
+        press = np.linalg.solve(a, np.where(pad, 0.0, r[index])[..., None])[..., 0]
+        keep = ~pad & (index < positions)
+        held.append(press[keep])
+        count += block.shape[0]
         if progress is not None:
-            progress(done + 1, len(rows_of_group))
+            progress(count, members.shape[0])
     errors = np.concatenate(held) if held else np.zeros(0)
     return math.sqrt(objective_rss(errors, fit.loss, fit.sigma) / max(errors.size, 1))
 
 
-def _members(group: np.ndarray, order: np.ndarray) -> list[np.ndarray]:
-    """The indices (ascending) of each group of ``group`` (each item's group number), the
-    groups in ``order``."""
+def _triangular(jac: np.ndarray, columns: list[int]) -> np.ndarray:
+    """``R`` (k, k) of ``jac[:, columns] = Q R``, by QR of blocks of :data:`HELD_OUT_BLOCK`
+    rows stacked under the ``R`` so far (no copy of the whole Jacobian)."""
+    tri = np.zeros((0, len(columns)))
+    for start in range(0, jac.shape[0], 16 * HELD_OUT_BLOCK):
+        stacked = np.vstack([tri, jac[start:start + 16 * HELD_OUT_BLOCK][:, columns]])
+        tri = np.linalg.qr(stacked, mode="r")[:len(columns)]
+    return tri
+
+
+def _padded(group: np.ndarray) -> np.ndarray:
+    """(groups, largest size) indices of each group's items (``group``: each item's group
+    number), ascending, padded with -1."""
     index = np.argsort(group, kind="stable")
-    bounds = np.searchsorted(group[index], np.arange(order.size + 1))
-    return [index[bounds[k]:bounds[k + 1]] for k in order]
+    sizes = np.bincount(group)
+    sizes = sizes[sizes > 0]
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+    out = np.full((sizes.size, int(sizes.max(initial=0))), -1)
+    for column in range(out.shape[1]):
+        has = sizes > column
+        out[has, column] = index[starts[has] + column]
+    return out
 
 
 @one_blas_thread
