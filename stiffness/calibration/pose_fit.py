@@ -63,6 +63,9 @@ MAX_EVALUATIONS = 200
 LEVERAGE_TOL = 1e-9
 #: Configurations :func:`held_out_rms` treats as one array (bounds its memory).
 HELD_OUT_BLOCK = 4096
+#: Largest deletion step (in typical sizes of a parameter) :func:`held_out_rms` takes to
+#: first order; a configuration whose step is larger is predicted by the model itself.
+HELD_OUT_LINEAR_STEPS = 10.0
 
 
 def rows_of(model: PoseModel, campaign: PoseCampaign) -> list[RowTerms]:
@@ -287,18 +290,21 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     jacobian`, full column rank by the identifiable reduction; a parameter at its physical
     bound held there: its column left out) and ``r`` its residual, leaving configuration
     ``G``'s components out moves the parameters by ``dx_G = R^-1 Q_G^T (I - H_G)^-1 r_G``
-    (``J = Q R``, ``H_G = Q_G Q_G^T`` the hat matrix's block of ``G``: the deletion formula),
-    and ``G``'s residual there is, to first order, ``r_G - J_G dx_G = (I - H_G)^-1 r_G``
-    (PRESS: exact for a model linear in its parameters, the refit's Gauss-Newton step
-    otherwise). The criterion is ``sqrt(objective / n)`` of the held-out position components
+    (``J = Q R``, ``H_G = Q_G Q_G^T`` the hat matrix's block of ``G``: the deletion formula,
+    exact for a model linear in its parameters, the refit's Gauss-Newton step otherwise), and
+    ``G``'s residual there is, to first order, ``r_G - J_G dx_G = (I - H_G)^-1 r_G`` (PRESS).
+    A configuration whose step moves a parameter by more than :data:`HELD_OUT_LINEAR_STEPS`
+    of its typical sizes is predicted by the model itself at ``x - dx_G`` instead: its sag
+    and geometry in full, so a fit whose neighbours sag without bound there is caught. The
+    criterion is ``sqrt(objective / n)`` of the held-out position components
     (:func:`objective_rss` under the fit's loss and scale: their sum of squares for least
     squares). Infinite when a configuration alone determines a direction of the parameters
-    (its leverage reaches 1 within :data:`LEVERAGE_TOL`): the campaign cannot validate those
-    parameters.
+    (its leverage reaches 1 within :data:`LEVERAGE_TOL`) or the sag diverges at a
+    configuration's shifted parameters: the campaign cannot validate those parameters.
 
-    No model evaluation: ``R`` by a QR of ``J`` in blocks of rows, then the configurations'
-    blocks ``H_G`` and solves as stacked arrays, :data:`HELD_OUT_BLOCK` configurations at a
-    time (memory bounded besides ``J`` itself).
+    ``R`` comes from a QR of ``J`` in blocks of rows, then the configurations' blocks ``H_G``
+    and solves are stacked arrays, :data:`HELD_OUT_BLOCK` configurations at a time (memory
+    bounded besides ``J`` itself): no model evaluation but for the far steps.
 
     Parameters
     ----------
@@ -314,30 +320,57 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
         raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
     r = fit.components()
     free = [c for c, i in enumerate(fit.identifiability.kept) if i not in fit.at_bound]
+    kept = [fit.identifiability.kept[c] for c in free]
+    scale = np.array([fit.model.parameters[i].scale for i in kept])
     tri = _triangular(jac, free)
-    # each configuration's components (in order), padded to the largest group with -1
-    _, group = np.unique(np.asarray(campaign.labels), return_inverse=True)
-    members = _padded(group.ravel()[rows])
+    _, label_group = np.unique(np.asarray(campaign.labels), return_inverse=True)
+    label_group = label_group.ravel()
+    members = _padded(label_group[rows])  # each configuration's components, -1 padded
     positions = int(np.isfinite(fit.residual).sum())
-    held, count = [], 0
+    held, far = [], []
     for start in range(0, members.shape[0], HELD_OUT_BLOCK):
         block = members[start:start + HELD_OUT_BLOCK]
-        pad = block < 0
-        index = np.where(pad, 0, block)
-        # Q_G = J_G R^-1 (padding: zero rows, so that I - H_G is 1 there)
-        qg = linalg.solve_triangular(tri, jac[np.ix_(index.ravel(), free)].T, trans="T").T
-        qg = qg.reshape(block.shape + (len(free),)) * ~pad[..., None]
-        a = np.eye(block.shape[1]) - qg @ np.swapaxes(qg, 1, 2)
-        if np.linalg.eigvalsh(a)[:, 0].min(initial=1.0) < LEVERAGE_TOL:
+        deleted = _deletion(jac[:, free], tri, r, block)
+        if deleted is None:
             return math.inf
-        press = np.linalg.solve(a, np.where(pad, 0.0, r[index])[..., None])[..., 0]
-        keep = ~pad & (index < positions)
-        held.append(press[keep])
-        count += block.shape[0]
+        press, step = deleted
+        near = np.max(np.abs(step) / scale, axis=1, initial=0.0) <= HELD_OUT_LINEAR_STEPS
+        held.append(press[(block >= 0) & (block < positions) & near[:, None]])
+        far += [(np.flatnonzero(label_group == label_group[rows[block[b, 0]]]), step[b])
+                for b in np.flatnonzero(~near)]
         if progress is not None:
-            progress(count, members.shape[0])
+            progress(start + block.shape[0], members.shape[0])
+    for config_rows, step in far:
+        x = fit.x.copy()
+        x[kept] -= step
+        part = campaign.subset(config_rows)
+        obs = PoseObservations(fit.model, part, rows_of(fit.model, part))
+        try:
+            e, _ = obs.evaluate(x, jacobian=False)
+        except ConvergenceError:
+            return math.inf
+        held.append(e[:int(obs.observed.sum())])
     errors = np.concatenate(held) if held else np.zeros(0)
     return math.sqrt(objective_rss(errors, fit.loss, fit.sigma) / max(errors.size, 1))
+
+
+def _deletion(jac: np.ndarray, tri: np.ndarray, r: np.ndarray, block: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """For each configuration of ``block`` (its components' indices, -1 padded), the PRESS
+    residual ``(I - H_G)^-1 r_G`` (padded like ``block``, zero at the padding) and the
+    deletion step ``dx_G`` (k,) (:func:`held_out_rms`; ``jac = Q tri``); ``None`` when a
+    leverage reaches 1 within :data:`LEVERAGE_TOL`."""
+    pad = block < 0
+    index = np.where(pad, 0, block)
+    # Q_G = J_G R^-1, zero rows at the padding (where I - H_G is then 1)
+    qg = linalg.solve_triangular(tri, jac[index.ravel()].T, trans="T").T
+    qg = qg.reshape(block.shape + (tri.shape[0],)) * ~pad[..., None]
+    a = np.eye(block.shape[1]) - qg @ np.swapaxes(qg, 1, 2)
+    if np.linalg.eigvalsh(a)[:, 0].min(initial=1.0) < LEVERAGE_TOL:
+        return None
+    press = np.linalg.solve(a, np.where(pad, 0.0, r[index])[..., None])
+    step = linalg.solve_triangular(tri, (np.swapaxes(qg, 1, 2) @ press)[..., 0].T).T
+    return press[..., 0], step
 
 
 def _triangular(jac: np.ndarray, columns: list[int]) -> np.ndarray:
