@@ -14,6 +14,7 @@ from stiffness.batch.poses import (
     frame_placements,
     integrate,
     joint_placements,
+    mass_jacobians,
     point_jacobians,
 )
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
@@ -72,6 +73,8 @@ def test_array_kinematics_match_pinocchio():
         assert np.allclose(jac[i, 0], j6[:3] + np.cross(j6[3:].T, lever).T, atol=1e-12)
         assert np.allclose(integrate(model, q[i:i + 1], q[i])[0],
                            pin.integrate(model, q[i], q[i]), atol=0.0)
+        j_com = pin.jacobianCenterOfMass(model, data, q[i], False) * data.mass[0]
+        assert np.abs(mass_jacobians(model, kin)[i] - j_com).max() <= 1e-12 * np.abs(j_com).max()
 
 
 @pytest.fixture(scope="module")
@@ -93,35 +96,38 @@ def loaded_case():
     return robot, markers, frame0, loads, rows, x, scales
 
 
-@pytest.mark.parametrize("families", [AT_ONCE, AT_ONCE + BENDS, AT_ONCE + ("backlash",)])
+@pytest.mark.parametrize("families", [AT_ONCE, AT_ONCE + BENDS + ("base_tilt",),
+                                      AT_ONCE + ("backlash", "gravity_compensator"),
+                                      AT_ONCE + ("gravity_lumped",)])
 def test_rows_at_once_equal_row_by_row(loaded_case, families):
-    """The same prediction and Jacobian columns when a family that is evaluated row by row
-    (base_tilt, at zero) joins the model: the two paths of :meth:`PoseModel.evaluate` agree
-    to round-off, on a sagging arm under a wrench (one row without it), and on a second
-    evaluation (warm sag starts); with the link bends and joint tilts, or backlash, too, at
-    parameters of their typical sizes (their displacements tens of micrometres and more)."""
+    """Every family takes rows at once: the same prediction and Jacobian columns as the same
+    model evaluated row by row (its row path forced): the two paths of
+    :meth:`PoseModel.evaluate` agree to round-off, on a sagging arm under a wrench (one row
+    without it), and on a second evaluation (warm sag starts); with the link bends and joint
+    tilts under a tilted base (the bends' gravity slope in the tilt's columns), backlash
+    and the gravity compensators, or the lumped gravity (masses unknown), too, at parameters of their typical sizes (the tilt's ten
+    times: their displacements tens of micrometres and more)."""
     robot, markers, frame0, loads, rows, _, _ = loaded_case
     settings = PoseModel(robot, markers, AT_ONCE, frame0, loads).campaign_settings(rows)
     at_once = PoseModel(robot, markers, families, frame0, loads, settings)
-    by_row = PoseModel(robot, markers, families + ("base_tilt",), frame0, loads, settings)
-    assert at_once._at_once and not by_row._at_once
+    by_row = PoseModel(robot, markers, families, frame0, loads, settings)
+    by_row._at_once = False
+    assert at_once._at_once
     x = (np.abs(np.random.default_rng(7).normal(size=at_once.size))
          * np.array([p.scale for p in at_once.parameters]) * 3)
-    index = {p.label: i for i, p in enumerate(by_row.parameters)}
-    shared = [index[p.label] for p in at_once.parameters]
-    x_row = np.zeros(by_row.size)
-    x_row[shared] = x
+    if "base_tilt" in families:
+        x[at_once.slices()["base_tilt"]] *= 10.0
     for _ in range(2):
         y1, j1 = at_once.evaluate(x, rows)
-        y2, j2 = by_row.evaluate(x_row, rows)
+        y2, j2 = by_row.evaluate(x, rows)
         assert j1 is not None and j2 is not None
         assert np.abs(y1 - y2).max() <= 1e-12
-        assert np.abs(j1 - j2[..., shared]).max() <= 1e-12 * np.abs(j1).max()
-    if len(families) > len(AT_ONCE):  # the added families move the markers: the test sees them
+        for f, sl in at_once.slices().items():  # each family to its own columns' size
+            assert np.abs(j1[..., sl] - j2[..., sl]).max() <= 1e-12 * np.abs(j1[..., sl]).max(), f
+    for f in families[len(AT_ONCE):]:  # each added family moves the markers: the test sees it
         bare = x.copy()
-        for f in families[len(AT_ONCE):]:
-            bare[at_once.slices()[f]] = 0.0
-        assert np.abs(at_once.evaluate(bare, rows, False)[0] - y1).max() > 1e-5
+        bare[at_once.slices()[f]] = 0.0
+        assert np.abs(at_once.evaluate(bare, rows, False)[0] - y1).max() > 1e-5, f
 
 
 def test_rows_at_once_columns_match_finite_differences(loaded_case):

@@ -211,3 +211,33 @@ def frame_jacobians(model: pin.Model, data: pin.Data, q: np.ndarray, frame_id: i
         jacobians(model, data, q[i])
         rows[i] = frame_jacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
     return out
+
+
+def mass_jacobians(model: pin.Model, kin: JointPlacements) -> np.ndarray:
+    """(m, 3, nv) ``sum_k m_k J_k``, ``J_k`` the world-axes Jacobian of body ``k``'s centre of
+    mass (kg.m/rad or kg), from the joint Jacobians ``kin`` (``data.mass[0]`` times
+    ``pin.jacobianCenterOfMass``): column ``v`` of joint ``j`` is ``W_j J_v + J_omega x C_j``
+    with ``W_j`` the mass and ``C_j`` the mass moment ``sum m_k c_k`` (world, kg.m) of ``j``'s
+    subtree."""
+    assert kin.jacobian is not None
+    masses = np.array([model.inertias[k].mass for k in range(model.njoints)])
+    levers = np.array([model.inertias[k].lever for k in range(model.njoints)])
+    moments = masses[None, :, None] * (np.einsum("nkab,kb->nka", kin.rotation, levers)
+                                       + kin.translation)  # (m, nj, 3)
+    carried = np.zeros((model.nv, model.njoints))  # column v -> the bodies it moves
+    for j in range(1, model.njoints):
+        first = model.joints[j].idx_v
+        carried[first:first + model.joints[j].nv, list(model.subtrees[j])] = 1.0
+    weight = carried @ masses  # (nv,)
+    moment = np.einsum("vk,nka->nav", carried, moments)  # (m, 3, nv)
+    return weight * kin.jacobian[:, :3] + np.cross(kin.jacobian[:, 3:], moment, axis=1)
+
+
+def torque_regressors(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+    """(m, nv, 10 (njoints - 1)) ``pin.computeJointTorqueRegressor`` at rest (zero velocity
+    and acceleration: the gravity regressor) of the (m, nq) configurations ``q``."""
+    out = np.empty((q.shape[0], model.nv, 10 * (model.njoints - 1)))
+    regressor, rest = pin.computeJointTorqueRegressor, np.zeros(model.nv)
+    for i in range(q.shape[0]):
+        out[i] = regressor(model, data, q[i], rest, rest)
+    return out

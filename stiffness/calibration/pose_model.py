@@ -492,7 +492,7 @@ class PoseModel:
                 q = integrate(model, commanded[pending], offsets + sag[pending], self._kinds)
                 g, w = self._row_torques(model, data, q,
                                          None if wrench is None else wrench[pending])
-                new = self.deflection(x, self._state(x, q, g, w, {}))
+                new = self.deflection(x, self._state(x, q, g, w, self._extras(model, data, q)))
                 done = np.max(np.abs(new - sag[pending]), axis=1) <= SAG_TOLERANCE
                 sag[pending] = new
                 finished = pending[done]
@@ -505,8 +505,15 @@ class PoseModel:
             raise ConvergenceError(SAG_DIVERGES)
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
+        extras = {f: e[:, None] for f, e in self._extras(model, data, at).items()}
         return (integrate(model, commanded, offsets + sag, self._kinds),
-                self._state(x, at, gravity[:, None], applied[:, None], {}))
+                self._state(x, at, gravity[:, None], applied[:, None], extras))
+
+    def _extras(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> dict:
+        """The families' :meth:`~stiffness.elastic.effects.pose_face.PoseFamily.
+        at_configuration` quantities at the (n, nq) configurations ``q`` (leading axis n)."""
+        return {fam.name: fam.at_configuration(self, model, data, q)
+                for fam in self._hooked["at_configuration"]}
 
     def _row_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
                      wrench: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import JointPlacements, mass_jacobians
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.link_bends import BendCache, gravity_slope
@@ -87,6 +88,7 @@ class BaseTilt(Effect, JointDeflectionFamily):
     family_kind: ClassVar[str] = "geometric"
     family_scale: ClassVar[float] = 1e-3
     needs_masses: ClassVar[bool] = True
+    rows_at_once: ClassVar[bool] = True
 
     @classmethod
     def absent_at_zero(cls) -> bool:
@@ -122,14 +124,23 @@ class BaseTilt(Effect, JointDeflectionFamily):
         jcom = pin.jacobianCenterOfMass(model, data, q, False)
         return data.mass[0] * (jcom.T @ shared), shared
 
+    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
+                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`row_cache` of every row: (n, 1, nv, 2) (:func:`~stiffness.batch.poses.
+        mass_jacobians`)."""
+        if shared is None:
+            return None
+        return (np.swapaxes(mass_jacobians(model, kin), 1, 2) @ shared)[:, None], shared
+
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         """``T (J_p diag(d Delta q / d tau) d tau / d(r_x, r_y) + d bends / d g  dg)``: the
         joints' sag and the bends (:func:`~stiffness.elastic.effects.link_bends.gravity_slope`
         of every bend family in the model) under the turned gravity."""
         if view.sag is None:
-            return np.zeros((3, 2))
+            return np.zeros(view.point.shape + (2,))
         torque, dg = view.caches[self.name]
-        dq = view.sag.per_torque[:, None] * torque
+        dq = view.sag.per_torque[..., None] * torque
         bends = sum((gravity_slope(cache, view) for cache in view.caches.values()
-                     if isinstance(cache, BendCache)), np.zeros((3, 3)))
+                     if isinstance(cache, BendCache)), np.zeros(view.point.shape + (3,)))
         return view.to_measuring @ (view.j_point @ dq + bends @ dg)

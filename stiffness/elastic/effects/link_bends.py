@@ -35,6 +35,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.linalg import cross_matrices
 from stiffness.batch.poses import JointPlacements, frame_placements
 from stiffness.elastic.effects.base import Effect, stiffness_report
 from stiffness.elastic.effects.geometry import (
@@ -189,13 +190,14 @@ class BendCache:
 
 def gravity_slope(cache: BendCache, view: MarkerView) -> np.ndarray:
     """d(marker displacement)/d g (3, 3), world axes, of one bend family's row ``cache``:
-    ``sum_b -[x - p_b]x d omega_b / d g`` over the bends the marker is beyond."""
+    ``sum_b -[x - p_b]x d omega_b / d g`` over the bends the marker is beyond ((n, M, 3, 3)
+    over a batch of rows)."""
     if cache.per_gravity is None:
-        return np.zeros((3, 3))
-    lever = view.point[None, :] - cache.origins
-    slopes = -np.einsum("lab,lbc->lac", np.array([skew(r) for r in lever]).reshape(-1, 3, 3),
-                        cache.per_gravity)
-    return np.einsum("l,lac->ac", cache.beyond[view.fid], slopes)
+        return np.zeros(view.point.shape + (3,))
+    lever = view.point[..., None, :] - cache.origins
+    # cross_matrices(r) is -[r]x
+    slopes = cross_matrices(lever.reshape(-1, 3)).reshape(lever.shape + (3,)) @ cache.per_gravity
+    return np.einsum("...l,...lac->...ac", cache.beyond[view.fid], slopes)
 
 
 @dataclass(eq=False)
@@ -331,16 +333,22 @@ class LinkCompliance(Effect, PoseFamily):
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
                    ) -> BendCache:
-        """:meth:`row_cache` of every row (:func:`carried_moments_rows`), without the
-        gravity slope (``base_tilt``, whose models go row by row)."""
+        """:meth:`row_cache` of every row (:func:`carried_moments_rows`)."""
         links, beyond = shared
         joints = [link.b for link in links]
-        origins, moments, _ = carried_moments_rows(pm, model, kin, joints, rows)
+        origins, moments, arms = carried_moments_rows(pm, model, kin, joints, rows)
         e1, e2 = self.rows_bend_axes(model, kin, links, origins)
         turns = np.stack([e1 * np.sum(e1 * moments, axis=-1, keepdims=True),
                           e2 * np.sum(e2 * moments, axis=-1, keepdims=True)], axis=-2)
         markers = np.array([beyond[fid] for fid in pm.frame_ids]).reshape(-1, len(links))
-        return BendCache(origins[:, None], turns[:, None], {-1: markers}, None)
+        per_gravity = None
+        if jacobian:  # as row_cache's; cross_matrices(a) is -[a]x
+            c = x_f.reshape(-1, 2)
+            axes = (c[:, 0, None, None] * e1[..., :, None] * e1[..., None, :]
+                    + c[:, 1, None, None] * e2[..., :, None] * e2[..., None, :])
+            per_gravity = -(axes @ cross_matrices(arms.reshape(-1, 3)).reshape(axes.shape))
+            per_gravity = per_gravity[:, None]
+        return BendCache(origins[:, None], turns[:, None], {-1: markers}, per_gravity)
 
     @staticmethod
     def bend_axes(model: pin.Model, data: pin.Data, links: list[Link], origins: np.ndarray

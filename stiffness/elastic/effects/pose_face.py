@@ -265,7 +265,9 @@ class PoseFamily:
 
     def at_configuration(self, pm: PoseLayout, model: pin.Model, data: pin.Data,
                          q: np.ndarray) -> Any:
-        """Per-family quantities at a configuration of the sag (kept in :class:`SagState`)."""
+        """Per-family quantities at a configuration of the sag (kept in :class:`SagState`);
+        for a :attr:`rows_at_once` family also at a batch (n, nq) of configurations, with a
+        leading row axis."""
         return None
 
     def joint_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray | None:

@@ -23,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import torque_regressors
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.pose_face import (
@@ -337,6 +338,7 @@ class GravityCompensator(Effect, JointDeflectionFamily):
 
     # pose face ----------------------------------------------------------------------------
     requires: ClassVar[tuple[str, ...]] = ("joint_compliance",)
+    rows_at_once: ClassVar[bool] = True
     #: typical sizes of the stiffness (N/m) and the tension (N)
     SIZES: ClassVar[tuple[float, float]] = (1e3, 1e2)
 
@@ -364,41 +366,39 @@ class GravityCompensator(Effect, JointDeflectionFamily):
                                                    ("N/m", "N"), (0.0, -math.inf),
                                                    strict=True)]
 
-    def _unit_torques(self, pm: PoseLayout, q: np.ndarray) -> list[tuple[int, np.ndarray]]:
-        """Per joint, its velocity index and the torque (N.m) per unit stiffness and per unit
-        tension at the loaded angle."""
-        model = pm.robot.model
-        out = []
-        for j, spring in self._pose_joints(pm):
-            theta = _joint_angle(model, j, q)
-            out.append((model.joints[j].idx_v,
-                        np.array([float(spring.torque(unit, np.array(theta))[0])
-                                  for unit in (np.array([1.0, 0.0]), np.array([0.0, 1.0]))])))
-        return out
-
     def joint_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
-        out = np.zeros(state.torque.size)
+        """The springs' torques at the loaded angles: (nv,) of a row, or the shape of
+        ``state.torque`` over a batch of rows (``state.q`` (n, nq))."""
+        out = np.zeros(state.torque.shape)
         model = pm.robot.model
         for n, (j, spring) in enumerate(self._pose_joints(pm)):
             p = x_f[2 * n: 2 * n + 2]
             if p.any():  # a spring without stiffness or tension adds nothing
-                theta = np.array(_joint_angle(model, j, state.q))
-                out[model.joints[j].idx_v] += float(spring.torque(p, theta)[0])
+                v = model.joints[j].idx_v
+                torque = spring.torque(p, _joint_angle(model, j, state.q))[0]
+                out[..., v] += torque.reshape(out[..., v].shape)
         return out
 
     def torque_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
-        out = np.zeros((state.torque.size, x_f.size))
-        for n, (v, unit) in enumerate(self._unit_torques(pm, state.q)):
-            out[v, 2 * n: 2 * n + 2] = unit
+        """d torque / d(stiffness, tension) of each spring: its torque per unit stiffness and
+        per unit tension at the loaded angle (the torque is linear in both)."""
+        out = np.zeros(state.torque.shape + (x_f.size,))
+        model = pm.robot.model
+        for n, (j, spring) in enumerate(self._pose_joints(pm)):
+            v, theta = model.joints[j].idx_v, _joint_angle(model, j, state.q)
+            for c, unit in enumerate((np.array([1.0, 0.0]), np.array([0.0, 1.0]))):
+                out[..., v, 2 * n + c] = spring.torque(unit, theta)[0].reshape(
+                    out[..., v, 2 * n + c].shape)
         return out
 
 
-def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> float:
-    """Angle (rad) of a revolute joint at ``q`` (a continuous joint's from its cos, sin)."""
+def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> np.ndarray:
+    """Angle (rad) of a revolute joint at ``q`` (nq,), or at each of a batch (..., nq) (a
+    continuous joint's from its cos, sin)."""
     jm = model.joints[joint]
     if jm.nq == 2:
-        return float(np.arctan2(q[jm.idx_q + 1], q[jm.idx_q]))
-    return float(q[jm.idx_q])
+        return np.arctan2(q[..., jm.idx_q + 1], q[..., jm.idx_q])
+    return np.asarray(q[..., jm.idx_q], dtype=float)
 
 
 @dataclass(eq=False)
@@ -425,6 +425,7 @@ class GravityLumped(Effect, JointDeflectionFamily):
     kind: ClassVar[str] = "preload"
     beyond_springs: ClassVar[bool] = True
     lumps_gravity: ClassVar[bool] = True
+    rows_at_once: ClassVar[bool] = True
 
     @classmethod
     def at_place(cls, where, geometry):
@@ -482,13 +483,14 @@ class GravityLumped(Effect, JointDeflectionFamily):
     def at_configuration(self, pm: PoseLayout, model: pin.Model, data: pin.Data,
                          q: np.ndarray) -> np.ndarray:
         """d(Delta q)/d theta (nv, n_theta): ``-S_j (S_j^T Y_k)`` of each pair (minus the
-        regressor entry at a spring on a joint)."""
-        nv = model.nv
-        regressor = pin.computeJointTorqueRegressor(model, data, q, np.zeros(nv), np.zeros(nv))
+        regressor entry at a spring on a joint); (n, nv, n_theta) at a batch (n, nq) of
+        configurations."""
+        regressor = torque_regressors(model, data, q.reshape(-1, model.nq)).reshape(
+            q.shape[:-1] + (model.nv, -1))
         pairs = _lumped_pairs(tuple(tuple(pm.spring_downstream(c))
                                     for c in range(len(pm.springs))))
         springs = pm.spring_map[:, pairs[:, 0]]  # each pair's spring column S_j (nv, n_theta)
-        return -springs * np.sum(springs * regressor[:, pairs[:, 1]], axis=0)
+        return -springs * np.sum(springs * regressor[..., pairs[:, 1]], axis=-2)[..., None, :]
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         return state.extras[self.name] @ x_f
