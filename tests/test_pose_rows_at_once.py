@@ -105,8 +105,9 @@ def test_rows_at_once_equal_row_by_row(loaded_case, families):
     :meth:`PoseModel.evaluate` agree to round-off, on a sagging arm under a wrench (one row
     without it), and on a second evaluation (warm sag starts); with the link bends and joint
     tilts under a tilted base (the bends' gravity slope in the tilt's columns), backlash
-    and the gravity compensators, or the lumped gravity (masses unknown), too, at parameters of their typical sizes (the tilt's ten
-    times: their displacements tens of micrometres and more)."""
+    and the gravity compensators, or the lumped gravity (masses unknown), too, at
+    parameters of their typical sizes (the tilt's ten times: their displacements tens of
+    micrometres and more)."""
     robot, markers, frame0, loads, rows, _, _ = loaded_case
     settings = PoseModel(robot, markers, AT_ONCE, frame0, loads).campaign_settings(rows)
     at_once = PoseModel(robot, markers, families, frame0, loads, settings)
