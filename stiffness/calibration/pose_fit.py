@@ -330,7 +330,7 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     held, far = [], []
     for start in range(0, members.shape[0], HELD_OUT_BLOCK):
         block = members[start:start + HELD_OUT_BLOCK]
-        deleted = _deletion(jac[:, free], tri, r, block)
+        deleted = _deletion(jac, free, tri, r, block)
         if deleted is None:
             return math.inf
         press, step = deleted
@@ -354,16 +354,17 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     return math.sqrt(objective_rss(errors, fit.loss, fit.sigma) / max(errors.size, 1))
 
 
-def _deletion(jac: np.ndarray, tri: np.ndarray, r: np.ndarray, block: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray] | None:
+def _deletion(jac: np.ndarray, free: list[int], tri: np.ndarray, r: np.ndarray,
+              block: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """For each configuration of ``block`` (its components' indices, -1 padded), the PRESS
     residual ``(I - H_G)^-1 r_G`` (padded like ``block``, zero at the padding) and the
-    deletion step ``dx_G`` (k,) (:func:`held_out_rms`; ``jac = Q tri``); ``None`` when a
+    deletion step ``dx_G`` (k,) (:func:`held_out_rms`; ``jac[:, free] = Q tri``); ``None`` when a
     leverage reaches 1 within :data:`LEVERAGE_TOL`."""
     pad = block < 0
     index = np.where(pad, 0, block)
     # Q_G = J_G R^-1, zero rows at the padding (where I - H_G is then 1)
-    qg = linalg.solve_triangular(tri, jac[index.ravel()].T, trans="T").T
+    qg = linalg.solve_triangular(tri, jac[np.ix_(index.ravel(), np.asarray(free, dtype=int))].T,
+                                trans="T").T
     qg = qg.reshape(block.shape + (tri.shape[0],)) * ~pad[..., None]
     a = np.eye(block.shape[1]) - qg @ np.swapaxes(qg, 1, 2)
     if np.linalg.eigvalsh(a)[:, 0].min(initial=1.0) < LEVERAGE_TOL:
@@ -379,7 +380,7 @@ def _triangular(jac: np.ndarray, columns: list[int]) -> np.ndarray:
     tri = np.zeros((0, len(columns)))
     for start in range(0, jac.shape[0], 16 * HELD_OUT_BLOCK):
         stacked = np.vstack([tri, jac[start:start + 16 * HELD_OUT_BLOCK][:, columns]])
-        tri = np.linalg.qr(stacked, mode="r")[:len(columns)]
+        tri = linalg.qr(stacked, mode="r")[0][:len(columns)]
     return tri
 
 
