@@ -36,6 +36,8 @@ def edited(tmp_path: Path, old: str, new: str) -> Path:
      "(q_deg): q_deg has 2 values for 6 coordinates (joint1, joint2, joint3, joint4"),
     ('compliant_joints = ["joint1", "joint2", "joint3"]', 'compliant_joints = ["joint1"]',
      "k_theta_SI has 3 values for 1 compliant joints (joint1)"),
+    ("uniform = { joint1", "unifrom = { joint1",  # at load, not when poses are drawn
+     "([workspace].unifrom): unknown key 'unifrom'; valid names: "),
 ])
 def test_robot_toml_errors_name_file_and_field(tmp_path, old, new, words):
     with pytest.raises(FileFormatError) as info:

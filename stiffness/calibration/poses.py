@@ -45,6 +45,7 @@ from stiffness.mechanics import ik
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
+from stiffness.robot.sources import WORKSPACE_KEYS
 
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 MAX_JACOBIAN = 10.0
@@ -57,8 +58,6 @@ _FIRST_POSE_TRIES = 50
 #: Probe poses used to find the rank the robot's Jacobian reaches in general.
 _RANK_PROBES = 8
 _RANK_RTOL = 1e-8
-#: Keys of a robot's ``[workspace]`` table.
-WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
 
 
 @dataclass

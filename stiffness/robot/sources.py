@@ -152,6 +152,8 @@ NUMBER_LIST_KEYS = {"target_offset_m": (3,), "k_theta_SI": None, "q_deg": None, 
                     "rest_q_SI": None, "wrench_SI": (3, 6)}
 #: Keys that hold tables.
 TABLE_KEYS = ("dh", "controller", "workspace")
+#: Keys of a robot's ``[workspace]`` table (read by :mod:`stiffness.calibration.poses`).
+WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
 
 
 def _is_number(value: object) -> bool:
@@ -161,7 +163,8 @@ def _is_number(value: object) -> bool:
 
 def check_settings(settings: dict, toml: Path) -> None:
     """Refuse a ``robot.toml`` whose known top-level keys hold values of the wrong type (a
-    number where names are listed, text where numbers are), in one line naming the key.
+    number where names are listed, text where numbers are) or an unknown key (top-level or of
+    ``[workspace]``), in one line naming the key.
 
     Raises
     ------
@@ -194,6 +197,10 @@ def check_settings(settings: dict, toml: Path) -> None:
         if key not in known:
             raise FileFormatError(f"unknown key {key!r}; {did_you_mean(key, known)} "
                                   "(docs/robot-files.md)", path=toml, field=key)
+    for key in settings.get("workspace", {}):
+        if key not in WORKSPACE_KEYS:
+            raise FileFormatError(f"unknown key {key!r}; {did_you_mean(key, WORKSPACE_KEYS)} "
+                                  "(docs/design.md)", path=toml, field=f"[workspace].{key}")
 
 
 def check_counts(settings: dict, coordinates: Sequence[str], springs: Sequence[str]) -> None:
