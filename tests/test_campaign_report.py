@@ -74,6 +74,7 @@ def test_report_of_a_pose_campaign(tmp_path, capsys):
         assert f"id='{anchor}'" in page, anchor
     assert record["robot_name"] == "ur10" and "<title>Pose diagnosis of campaign " in page
     assert "(ur10)</title>" in page  # the robot named in the title
+    assert load_robot(str(out / "final-model.json")).title == "ur10"  # not 'final-model'
     figures = _figures(page)
     assert {"residuals-tip.png", "residuals-elbow.png", "stages.png"} <= set(figures)
     assert all(png.startswith(b"\x89PNG") for png in figures.values())

@@ -154,8 +154,8 @@ class Robot:
     def title(self) -> str:
         """The robot's name for the user (echo lines, messages, reports, page titles): the
         ``name`` its ``robot.toml`` declares; else a shipped or example-robot-data robot's
-        name; else, for a file, the URDF's robot name (or the file's stem) or the folder of a
-        ``robot.toml``, never a path."""
+        name; else, for a file, the URDF's robot name (a pose calibration's: its model's; else
+        the file's stem) or the folder of a ``robot.toml``, never a path."""
         declared = self.defaults.get("name")
         if isinstance(declared, str) and declared.strip():
             return declared.strip()
@@ -166,7 +166,7 @@ class Robot:
         if path.suffix.lower() == ".toml" or path.is_dir():
             folder = path.resolve() if path.is_dir() else path.resolve().parent
             return folder.name or name
-        if path.suffix.lower() in (".urdf", ".xml") and self.model.name:
+        if path.suffix.lower() in (".urdf", ".xml", ".json") and self.model.name:
             return self.model.name
         return path.stem or name
 
