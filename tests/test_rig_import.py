@@ -371,3 +371,34 @@ def test_import_strict_refuses_columns_it_does_not_import(tmp_path, capsys):
     with pytest.warns(UnknownColumnWarning, match="columns not imported: rig.csv:operator "):
         assert main(argv) == 0
     assert load_campaign(tmp_path / "c").n_rows == 1
+
+
+def test_import_fixed_holds_the_joints_without_a_column(tmp_path, capsys):
+    """Issue 38 item 1: campaign import --fixed JOINT=VALUE (files' unit), or fixed = {...} in
+    the mapping file, holds the coordinates the rig did not log, as a campaign's [robot]
+    fixed; the others stay at the reference configuration; a fixed joint with a column and
+    an unknown joint are refused."""
+    rig = tmp_path / "rig.csv"
+    rig.write_text("shoulder_pan_joint,shoulder_lift_joint,elbow_joint,wrist_1_joint,"
+                   "fx,fy,fz,dx,dy,dz\n0,-60,90,0,1,2,30,0.01,0.02,0.03\n"
+                   "10,-50,80,5,1,2,30,0.01,0.02,0.03\n")
+    argv = ["campaign", "import", str(rig), "--robot", "ur5", "--units",
+            "angle=deg,force=N,length=mm", "--quiet"]
+    with pytest.warns(DataFileNote, match=r"wrist_2_joint = 45 deg \(--fixed\); wrist_3_joint "
+                                          r"at the reference configuration"):
+        assert main([*argv, "--fixed", "wrist_2_joint=45", "--out", str(tmp_path / "a")]) == 0
+    q = load_campaign(tmp_path / "a").q
+    np.testing.assert_allclose(q[:, 4], np.radians(45.0), rtol=1e-15)
+    np.testing.assert_allclose(q[:, 5], 0.0)  # the UR5's reference configuration
+    mapping = tmp_path / "map.toml"
+    mapping.write_text("fixed = { wrist_3_joint = -90.0 }\n")
+    with pytest.warns(DataFileNote):
+        assert main([*argv, "--map-file", str(mapping), "--out", str(tmp_path / "b")]) == 0
+    np.testing.assert_allclose(load_campaign(tmp_path / "b").q[:, 5], np.radians(-90.0))
+    capsys.readouterr()
+    for fixed, words in (("elbow_joint=3", "--fixed holds elbow_joint, which rig.csv also "
+                                           "reads"),
+                         ("wrist_9_joint=3", "--fixed names 'wrist_9_joint', not a coordinate")):
+        assert main([*argv, "--fixed", fixed, "--out", str(tmp_path / "c")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and words in err, err

@@ -99,15 +99,16 @@ def locate_coordinates(names: list[str], robot: Robot, data: Path, line: int
 
 
 def fixed_values(fixed: dict[str, float], robot: Robot, units: Units,
-                 error) -> dict[str, float]:
+                 error, what: str = "[robot] fixed") -> dict[str, float]:
     """``[robot] fixed`` (file units) in SI (rad, m), each name a coordinate joint.
 
-    ``error(problem)`` builds the exception naming the file and key.
+    ``error(problem)`` builds the exception naming the file and key; ``what`` names the
+    input (``campaign import --fixed``).
     """
     out = {}
     for name, value in fixed.items():
         if name not in robot.coordinate_joints:
-            raise error(f"[robot] fixed names {name!r}, not a coordinate joint of "
+            raise error(f"{what} names {name!r}, not a coordinate joint of "
                         f"{robot.title}; {did_you_mean(name, robot.coordinate_joints)}")
         scale = units.length_to_si if robot.is_prismatic(name) else units.angle_to_si
         out[name] = float(value) * scale
@@ -115,9 +116,10 @@ def fixed_values(fixed: dict[str, float], robot: Robot, units: Units,
 
 
 def held_coordinates(robot: Robot, index: list[int | None], fixed_si: dict[str, float],
-                     units: Units, data: Path, error) -> np.ndarray:
+                     units: Units, data: Path, error, what: str = "[robot] fixed"
+                     ) -> np.ndarray:
     """The value (rad, m) of each coordinate without a column (NaN where read); says once
-    which are held and at what (:class:`DataFileNote`).
+    which are held and at what (:class:`DataFileNote`; ``what`` names the fixed values).
 
     Raises
     ------
@@ -128,7 +130,7 @@ def held_coordinates(robot: Robot, index: list[int | None], fixed_si: dict[str, 
     both = [robot.coordinate_joints[k] for k, i in enumerate(index)
             if i is not None and robot.coordinate_joints[k] in fixed_si]
     if both:
-        raise error(f"[robot] fixed holds {', '.join(both)}, which {data.name} also reads; "
+        raise error(f"{what} holds {', '.join(both)}, which {data.name} also reads; "
                     "drop the column or the fixed value")
     missing = [k for k, i in enumerate(index) if i is None]
     if not missing:
@@ -149,7 +151,7 @@ def held_coordinates(robot: Robot, index: list[int | None], fixed_si: dict[str, 
             at_reference.append(names[k])
     parts = []
     if pinned:
-        parts.append(f"{', '.join(pinned)} ([robot] fixed)")
+        parts.append(f"{', '.join(pinned)} ({what})")
     if at_reference:
         parts.append(f"{listed(at_reference)} at the reference configuration ({source})")
     warnings.warn(f"{data}: {len(missing)} of {robot.n_coordinates} coordinates have no "

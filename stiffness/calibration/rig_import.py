@@ -47,7 +47,12 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
-from stiffness.calibration.coordinate_columns import fill_held, held_coordinates, listed
+from stiffness.calibration.coordinate_columns import (
+    fill_held,
+    fixed_values,
+    held_coordinates,
+    listed,
+)
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
 from stiffness.calibration.unit_checks import check_deflection_size, check_force_unit
@@ -174,6 +179,10 @@ class ImportSettings:
         Key column joining the files, or ``None`` for row order.
     force_frame, deflection_frame
         ``base`` or ``tool``.
+    fixed
+        Values of coordinates without a column (joint -> value in the files' angle or length
+        unit), as a campaign's ``[robot] fixed``; the others without one are held at the
+        robot's reference configuration.
     """
 
     column_map: dict[str, str] = field(default_factory=dict)
@@ -181,6 +190,7 @@ class ImportSettings:
     join: str | None = None
     force_frame: str = "base"
     deflection_frame: str = "base"
+    fixed: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for kind, value in self.units.items():
@@ -451,7 +461,8 @@ def parse_pairs(text: str | None, flag: str) -> dict[str, str]:
 
 def read_mapping_file(path: str | os.PathLike) -> ImportSettings:
     """A mapping file: TOML with ``[columns]`` (campaign column = file column), ``[units]``
-    (kind = unit) and the optional ``join``, ``force_frame`` and ``deflection_frame``.
+    (kind = unit), the optional ``join``, ``force_frame`` and ``deflection_frame``, and
+    ``fixed = { joint = value }`` (the files' unit).
 
     Raises
     ------
@@ -459,11 +470,18 @@ def read_mapping_file(path: str | os.PathLike) -> ImportSettings:
         Invalid TOML, an unknown key, or a value that is not a string.
     """
     doc = read_toml(path, "mapping file")
-    known = {"columns", "units", "join", "force_frame", "deflection_frame"}
+    known = {"columns", "units", "join", "force_frame", "deflection_frame", "fixed"}
     for key, value in doc.items():
         if key not in known:
             raise FileFormatError(f"unknown key {key!r}; {did_you_mean(key, sorted(known))}",
                                   path=path, field=key)
+        if key == "fixed":
+            if not (isinstance(value, dict) and all(
+                    isinstance(v, int | float) and not isinstance(v, bool)
+                    and math.isfinite(v) for v in value.values())):
+                raise FileFormatError("fixed must be a table of finite numbers, e.g. fixed = "
+                                      "{ joint6 = 0.0 }", path=path, field=key)
+            continue
         tables = ("columns", "units")
         if key in tables and not (isinstance(value, dict)
                                   and all(isinstance(v, str) for v in value.values())):
@@ -475,7 +493,8 @@ def read_mapping_file(path: str | os.PathLike) -> ImportSettings:
     try:
         return ImportSettings(dict(doc.get("columns", {})), dict(doc.get("units", {})),
                               doc.get("join"), doc.get("force_frame", "base"),
-                              doc.get("deflection_frame", "base"))
+                              doc.get("deflection_frame", "base"),
+                              {k: float(v) for k, v in doc.get("fixed", {}).items()})
     except StiffnessError as exc:
         raise FileFormatError(str(exc), path=path) from exc
 
@@ -605,7 +624,13 @@ def read_coordinates(mapper: ColumnMapper, robot: Robot
         if c is not None:
             q_read[:, k] = mapper.values(c.name, c, "length" if p else "angle")
     index: list[int | None] = [None if c is None else k for k, c in enumerate(found)]
-    held = held_coordinates(robot, index, {}, Units(), q_cols[0].path, StiffnessError)
+    fixed = mapper.settings.fixed
+    turns = [j for j in fixed if j in names and not robot.is_prismatic(j)]
+    units = Units(mapper.unit("angle", bool(turns)) or "deg", "N",
+                  mapper.unit("length", len(turns) < len(fixed)) or "mm") if fixed else Units()
+    held = held_coordinates(robot, index,
+                            fixed_values(fixed, robot, units, StiffnessError, "--fixed"),
+                            units, q_cols[0].path, StiffnessError, "--fixed")
     return q_cols, np.where(np.isfinite(held), held, q_read), prismatic, held
 
 

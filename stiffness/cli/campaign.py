@@ -50,8 +50,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         "for a name in several files); unmapped columns are read by their own "
                         "name")
     p.add_argument("--map-file", metavar="TOML",
-                   help="[columns], [units], join, force_frame, deflection_frame in a TOML "
-                        "file; the flags override it")
+                   help="[columns], [units], join, force_frame, deflection_frame, fixed in a "
+                        "TOML file; the flags override it")
+    p.add_argument("--fixed", metavar="JOINT=VALUE,...",
+                   help="values of coordinates the files have no column for, in the files' "
+                        "angle or length unit (as a campaign's [robot] fixed); default: the "
+                        "robot's reference configuration")
     p.add_argument("--units", metavar="KIND=UNIT,...",
                    help="units of the files, e.g. angle=deg,force=N,length=mm (moment=N.mm); "
                         "default: the headers' own ('Fx [N]'); none is assumed")
@@ -88,10 +92,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def _settings(args: argparse.Namespace) -> ImportSettings:
     """The mapping file's settings with the flags over them."""
     base = read_mapping_file(args.map_file) if args.map_file else ImportSettings()
+    fixed = {k: flags.parse_list(v, "--fixed")[0]
+             for k, v in parse_pairs(args.fixed, "--fixed").items()}
     return ImportSettings({**base.column_map, **parse_pairs(args.map, "--map")},
                           {**base.units, **parse_pairs(args.units, "--units")},
                           args.join or base.join, args.force_frame or base.force_frame,
-                          args.deflection_frame or base.deflection_frame)
+                          args.deflection_frame or base.deflection_frame,
+                          {**base.fixed, **fixed})
 
 
 def _markers(texts: list[str] | None) -> list[Marker]:
