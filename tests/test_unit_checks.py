@@ -139,7 +139,8 @@ def test_forces_in_the_wrong_unit_against_declared_springs(tmp_path, factor, dec
         assert messages == []
         return
     assert len(messages) == 1 and words in messages[0], messages
-    assert "its declared k_theta_SI" in messages[0]
+    assert "its declared k_theta_SI" in messages[0] and "else check the robot's k_theta_SI" \
+        in messages[0]  # declared springs in N.mm/rad would look the same
     assert ("stiffer" if declared == "kN" else "softer") in messages[0]
 
 

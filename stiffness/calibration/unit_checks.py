@@ -216,4 +216,6 @@ def check_force_unit(robot: Robot, q: np.ndarray, force: np.ndarray, moment: np.
         f"{data}: the deflections per unit load make {robot.title} {max(ratio, 1 / ratio):.3g} "
         f"times {side} than {springs} (median over the loaded rows, force unit "
         f"{units.force}); the forces look like {likely[0]}: [units] force = \"{likely[0]}\" "
-        f"(or --units force={likely[0]})", DataFileWarning, stacklevel=3)
+        f"(or --units force={likely[0]})"
+        + ("; else check the robot's k_theta_SI (SI: N.m/rad, N/m)" if declared else ""),
+        DataFileWarning, stacklevel=3)
