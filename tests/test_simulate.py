@@ -30,6 +30,10 @@ def test_parse_effect():
         parse_effect("backlash:joint2=abc")
     with pytest.raises(StiffnessError, match="1 or 3"):
         parse_effect("target_offset=1,2")
+    # an effect value gets a flag's bound (issue 38 item 7): backlash 1e300 deg was blamed on
+    # the load ('the exact equilibrium did not converge ... buckling load')
+    with pytest.raises(StiffnessError, match=r"values must be finite, within \+-1e\+12"):
+        parse_effect("backlash:joint2=1e300")
 
 
 def test_sk120_poses_keep_the_tool_vertical():

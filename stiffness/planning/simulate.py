@@ -93,7 +93,7 @@ from stiffness.planning.simulate_poses import (
     rotation_axis_column,
 )
 from stiffness.robot.robot import Robot
-from stiffness.units import Units
+from stiffness.units import MAX_CELL, Units
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")
@@ -156,8 +156,8 @@ def parse_effect(text: str) -> HiddenEffect:
             except ValueError:
                 raise StiffnessError(f"--effect {text!r}: {item.strip()!r} is not a number"
                                      ) from None
-    if not all(math.isfinite(v) for v in values):
-        raise StiffnessError(f"--effect {text!r}: values must be finite")
+    if not all(math.isfinite(v) and abs(v) <= MAX_CELL for v in values):
+        raise StiffnessError(f"--effect {text!r}: values must be finite, within +-{MAX_CELL:.0e}")
     value_counts = LIBRARY[name].value_counts
     if len(values) not in value_counts:
         counts = " or ".join(str(c) for c in value_counts)
