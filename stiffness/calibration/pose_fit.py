@@ -566,7 +566,7 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
         sigma, source = robust_scale
 
         def spread(columns: list[int]) -> np.ndarray:
-            return sandwich_matrix(fun / sigma, jac[:, columns] / sigma, loss, 1.0,
+            return sandwich_matrix(fun / sigma, _columns(jac, columns) / sigma, loss, 1.0,
                                    np.eye(len(columns)))
     else:
         if campaign.noise_std is not None:
@@ -575,7 +575,8 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
             sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
 
         def spread(columns: list[int]) -> np.ndarray:
-            return sigma ** 2 * np.linalg.pinv(jac[:, columns].T @ jac[:, columns])
+            sub = _columns(jac, columns)
+            return sigma ** 2 * np.linalg.pinv(sub.T @ sub)
     cov = spread(list(range(k)))
     if bound:
         marginal = np.diag(cov)[bound]
@@ -586,6 +587,12 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
                    rotation_residual=rotation, rotation_weight=obs.weight, jacobian=jac,
                    component_rows=obs.component_rows(),
                    at_bound=list(at_bound or []))
+
+
+def _columns(jac: np.ndarray, columns: list[int]) -> np.ndarray:
+    """``jac[:, columns]``: ``jac`` itself (no copy of a large campaign's Jacobian) when those
+    are all its columns in order."""
+    return jac if columns == list(range(jac.shape[1])) else jac[:, columns]
 
 
 def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign
