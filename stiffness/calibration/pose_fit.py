@@ -275,8 +275,10 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         return math.inf, 0
     assert jac is not None
     plan = layout(model, order)
-    kept = plan.reduce(jac * plan.scales).kept
+    jac *= plan.scales  # in place: a large campaign's Jacobian is not copied to be scaled
+    kept = plan.reduce(jac).kept
     columns = jac[:, kept]
+    del jac
     step, *_ = np.linalg.lstsq(columns, residual, rcond=None)
     return objective_rss(residual - columns @ step, loss, sigma), len(kept)
 
