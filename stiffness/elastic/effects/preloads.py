@@ -25,7 +25,7 @@ import pinocchio as pin
 
 from stiffness.batch.poses import torque_regressors
 from stiffness.elastic.effects.base import Effect
-from stiffness.elastic.effects.geometry import skew
+from stiffness.elastic.effects.geometry import cross, skew
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     JointDeflectionFamily,
@@ -117,7 +117,7 @@ class GravityPreload(Effect):
         k_g = rows.gravity_stiffness[:, idx][:, :, idx]
         f = p[0] * np.asarray(model.geometry.robot.model.gravity.linear, dtype=float)
         r = rows.rotation @ p[1:4]
-        moment = np.cross(r, f)
+        moment = cross(r, f)
         wrench = np.hstack([np.broadcast_to(f, moment.shape), moment])
         tau = tau + model.jv.transpose(0, 2, 1) @ f + np.einsum("mkn,mk->mn", model.jw, moment)
         k_p = np.einsum("mk,mkab->mab", wrench, model.h)
