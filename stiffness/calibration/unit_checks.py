@@ -53,6 +53,9 @@ LARGEST_DEFLECTION = 0.02
 COMPLIANCE_RATIO = (1 / 30, 30.0)
 #: The same without declared springs (the nominal 1e5 SI is a guess for any robot).
 NOMINAL_COMPLIANCE_RATIO = (1 / 200, 200.0)
+#: Configurations whose compliance is evaluated (evenly spaced; every loaded row of each): a
+#: closed chain's assembly costs ~10 ms, and a unit 1000x off shows at any of them.
+CONFIGS_CHECKED = 6
 
 
 def likely_length_unit(factor: float, units: Units) -> str | None:
@@ -166,23 +169,29 @@ def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarra
 
 def compliance_ratio(robot: Robot, q: np.ndarray, force: np.ndarray, moment: np.ndarray | None,
                      deflection: np.ndarray) -> float | None:
-    """Median over loaded rows (at most :data:`ROWS_CHECKED`) of the measured deflection's size
-    over the one the robot's nominal joint springs predict to first order (``|C W|``, m) at
-    the row's coordinates ``q`` (rad, m) and load (N, N.m); ``None`` when no row tells."""
+    """Median over loaded rows of the measured deflection's size over the one the robot's
+    nominal joint springs predict to first order (``|C W|``, m) at the row's coordinates ``q``
+    (rad, m) and load (N, N.m), the compliance ``C`` taken once per configuration (at most
+    :data:`CONFIGS_CHECKED` of them); ``None`` when no row tells."""
     loaded = np.flatnonzero((np.linalg.norm(force, axis=1) > 0)
                             & (np.linalg.norm(deflection, axis=1) > 0))
-    rows = loaded[np.unique(np.linspace(0, loaded.size - 1,
-                                        min(loaded.size, ROWS_CHECKED)).astype(int))]
+    if not loaded.size:
+        return None
+    configs, which = np.unique(q[loaded], axis=0, return_inverse=True)
+    which = which.reshape(-1)
     model = ElasticModel.joint_springs(robot, nominal_stiffness(robot, robot.compliant_joints))
     ratios = []
-    for r in rows if loaded.size else ():
-        wrench = np.concatenate([force[r], np.zeros(3) if moment is None else moment[r]])
+    for k in np.unique(np.linspace(0, len(configs) - 1,
+                                   min(len(configs), CONFIGS_CHECKED)).astype(int)):
         try:
-            predicted = float(np.linalg.norm(model.linear_deflection(q[r], wrench)[:3]))
+            c = model.at(configs[k]).compliance(slice(0, 6))[:3]
         except StiffnessError:  # a pose the loops cannot close: reported where it is used
             continue
-        if predicted > 0 and np.isfinite(predicted):
-            ratios.append(float(np.linalg.norm(deflection[r])) / predicted)
+        for r in loaded[which == k]:
+            wrench = np.concatenate([force[r], np.zeros(3) if moment is None else moment[r]])
+            predicted = float(np.linalg.norm(c @ wrench))
+            if predicted > 0 and np.isfinite(predicted):
+                ratios.append(float(np.linalg.norm(deflection[r])) / predicted)
     return float(np.median(ratios)) if ratios else None
 
 
