@@ -154,3 +154,21 @@ def test_report_flags_refused_in_one_line(argv, said, tmp_path, monkeypatch, cap
     err = capsys.readouterr().err
     assert said in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "d").exists()
+
+
+def test_report_strict_refuses_unknown_columns(tmp_path, monkeypatch, capsys):
+    """``report CAMPAIGN --strict`` refuses a rig's bookkeeping column as diagnose --strict does
+    (issue 38 item 1), before any work."""
+    import shutil
+
+    from stiffness.robot.sources import robots_directory
+
+    shutil.copytree(robots_directory() / "sk120" / "campaigns" / "table2", tmp_path / "c")
+    data = tmp_path / "c" / "measurements.csv"
+    lines = data.read_text().splitlines()
+    data.write_text("\n".join([lines[0] + ",operator"] + [s + ",bob" for s in lines[1:]]) + "\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["report", "c", "--out", "d", "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert "operator" in err and "--strict" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "d").exists()

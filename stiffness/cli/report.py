@@ -144,6 +144,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--loss", help="linear (default) or a robust loss, as stiffness "
                                       "diagnose --loss")
     group.add_argument("--seed", type=int, help="seed of the cross-validation folds; default 0")
+    group.add_argument("--strict", action="store_true",  # applied by cli.main to the run
+                       help="refuse campaign CSV columns that are not campaign columns, as "
+                            "stiffness diagnose --strict")
 
 
 #: The flags that only a campaign's report takes.
