@@ -157,8 +157,8 @@ def test_report_flags_refused_in_one_line(argv, said, tmp_path, monkeypatch, cap
 
 
 def test_report_strict_refuses_unknown_columns(tmp_path, monkeypatch, capsys):
-    """``report CAMPAIGN --strict`` refuses a rig's bookkeeping column as diagnose --strict does
-    (issue 38 item 1), before any work."""
+    """``report CAMPAIGN --strict`` (and ``design --existing CAMPAIGN --strict``) refuse a rig's
+    bookkeeping column as diagnose --strict does (issue 38 item 1), before any work."""
     import shutil
 
     from stiffness.robot.sources import robots_directory
@@ -168,7 +168,10 @@ def test_report_strict_refuses_unknown_columns(tmp_path, monkeypatch, capsys):
     lines = data.read_text().splitlines()
     data.write_text("\n".join([lines[0] + ",operator"] + [s + ",bob" for s in lines[1:]]) + "\n")
     monkeypatch.chdir(tmp_path)
-    assert main(["report", "c", "--out", "d", "--strict"]) == 2
-    err = capsys.readouterr().err
-    assert "operator" in err and "--strict" in err and len(err.strip().splitlines()) == 1, err
-    assert not (tmp_path / "d").exists()
+    for argv in (["report", "c", "--out", "d", "--strict"],  # design's --existing too
+                 ["design", "--existing", "c", "--max-force", "200", "--configs", "2", "--out",
+                  "d", "--strict"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "operator" in err and "--strict" in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "d").exists()

@@ -73,6 +73,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "joint2)")
     parser.add_argument("--existing", metavar="CAMPAIGN",
                         help="measured campaign whose rows count as already chosen")
+    flags.add_strict_flag(parser)  # of --existing's CSV
     parser.add_argument("--noise", type=flags.number, metavar="STD",
                         help="measurement noise std per deflection component, in --units; "
                              "default --existing's noise_std, else 0.005 mm")
