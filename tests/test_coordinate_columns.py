@@ -114,7 +114,7 @@ def test_tiago_joint_columns_any_order_with_bookkeeping(tmp_path, tiago):
     notes = [str(w.message) for w in caught if w.category is DataFileNote]
     unknown = [str(w.message) for w in caught if w.category is UnknownColumnWarning]
     assert len(notes) == 1 and "40 of 48 coordinates have no column and are held" in notes[0]
-    assert "... and 32 more at the reference configuration (zero pose" in notes[0], notes[0]
+    assert "... and 32 more at the reference configuration, the zero pose" in notes[0], notes[0]
     assert len(unknown) == 1 and "column(s) stamp are not campaign columns" in unknown[0]
     # q1..q48 in the robot's order: the same campaign
     full = np.where([tiago.is_prismatic(j) for j in tiago.coordinate_joints], want * 1000,

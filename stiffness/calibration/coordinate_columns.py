@@ -153,7 +153,7 @@ def held_coordinates(robot: Robot, index: list[int | None], fixed_si: dict[str, 
     if pinned:
         parts.append(f"{', '.join(pinned)} ({what})")
     if at_reference:
-        parts.append(f"{listed(at_reference)} at the reference configuration ({source})")
+        parts.append(f"{listed(at_reference)} at the reference configuration, the {source}")
     warnings.warn(f"{data}: {len(missing)} of {robot.n_coordinates} coordinates have no "
                   f"column and are held: {'; '.join(parts)}", DataFileNote, stacklevel=3)
     return held
