@@ -68,6 +68,7 @@ class PoseObservations:
     def __init__(self, model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms]) -> None:
         self.model, self.rows = model, rows
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        self._handed = False  # whether a Jacobian was computed (only the first is kept)
         self.observed = np.isfinite(campaign.positions)
         self.measured = campaign.positions[self.observed]
         self.weight = rotation_weight(campaign)
@@ -97,8 +98,9 @@ class PoseObservations:
         errors (rad), and its Jacobian (N, p) when asked for.
 
         The last result is kept: asked again at the same ``x`` (a fit's first residual and
-        Jacobian, at the start its identifiability check evaluated), it is not recomputed
-        (a kept Jacobian is handed out once: no more than one extra is held).
+        Jacobian, at the start its identifiability check evaluated), it is not recomputed.
+        Only the first Jacobian is kept, and handed out once: the later ones (a fit's steps)
+        are never asked for again, and a large campaign's solver then holds no extra copy.
         """
         last = self._last
         if last is not None and np.array_equal(last[0], x) and (last[2] is not None
@@ -107,7 +109,8 @@ class PoseObservations:
                 self._last = (last[0], last[1], None)
             return last[1].copy(), last[2] if jacobian else None
         residual, jac = self._evaluate(x, jacobian)
-        self._last = (np.array(x, dtype=float), residual, jac)
+        self._last = (np.array(x, dtype=float), residual, None if self._handed else jac)
+        self._handed = self._handed or jac is not None
         return residual.copy(), jac
 
     def _evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
