@@ -22,7 +22,7 @@ from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_report import format_report
-from stiffness.calibration.fitting import LOSSES, covariance, fit_model, loss_terms
+from stiffness.calibration.fitting import covariance, fit_model
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
@@ -30,6 +30,7 @@ from stiffness.calibration.outliers import (
     robust_noise,
     standardised_residuals,
 )
+from stiffness.calibration.solver import LOSSES, loss_terms
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.formulation import deflection, target_state

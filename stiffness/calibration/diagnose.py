@@ -81,6 +81,7 @@ from stiffness.calibration.selection import (
     replicate_noise,
     step_criteria,
 )
+from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import candidates, check_masses
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -362,7 +363,7 @@ def _check_options(max_steps: int, loss: str, masses: str) -> None:
             or max_steps < 0:
         raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
                              f"only), got {max_steps!r}")
-    fitting.check_loss(loss)
+    check_loss(loss)
 
 
 def _declared_settings(base: Fit, settings: dict[str, dict]) -> dict[str, dict]:

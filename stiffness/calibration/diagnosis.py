@@ -186,7 +186,7 @@ class Diagnosis:
         ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
         from the residuals (no test available).
     loss, masses
-        The loss of every fit (:data:`stiffness.calibration.fitting.LOSSES`); whether the
+        The loss of every fit (:data:`stiffness.calibration.solver.LOSSES`); whether the
         robot's link masses were trusted (``known``: the weight is ``gravity_preload``) or
         not (``unknown``: ``gravity_lumped``).
     certainty

@@ -1,29 +1,29 @@
-"""The fitting engine: one objective, one least-squares call, one covariance.
+"""Deflection campaigns' fits: the observation, the fit, its result and its covariance.
 
-Every fit of the toolkit (``stiffness identify``: the baseline's stiffnesses from several
-starts; ``stiffness diagnose``: the baseline extended by effects, and its cross-validation)
-goes through :func:`fit_model` on a :class:`stiffness.elastic.effects.hypothesis.Hypothesis` (an
-identification is a diagnosis with no effects) and gets its uncertainty from
-:func:`covariance`.
+Every fit of a deflection campaign (``stiffness identify``: the baseline's stiffnesses from
+several starts; ``stiffness diagnose``: the baseline extended by effects, and its
+cross-validation) goes through :func:`fit_model` on a
+:class:`stiffness.elastic.effects.hypothesis.Hypothesis` (an identification is a diagnosis with
+no effects) and gets its uncertainty from :func:`covariance`. The campaign kind supplies only
+its observation, :class:`Objective`; the least-squares driver, identifiability, robust losses
+and the covariance are the one engine of both campaign kinds
+(:mod:`stiffness.calibration.solver`).
 
 Objective (A&S eq. 12-13): the residuals ``r = (predicted - measured) / s`` of every dx, dy,
-dz component, ``s`` a fixed scale (the declared noise std when known), minimised by
-:func:`scipy.optimize.least_squares` over the model's parameter vector ``x`` (``ln k`` of the
-stiffnesses, then each effect's scaled variables). The model's analytic Jacobian is used for
-``ln k`` and the effects acting through the joint law, finite differences for the other
-effects' variables. Only the parameters the data identify are fitted (:func:`identifiable`:
-the one reduction of both campaign kinds, :mod:`stiffness.calibration.identifiability`, over
-the baseline's compliances and then each effect's variables in the order added, at the
-start's representative point, every absent effect at its typical size; near aliases judged
-again at the optimum); the others
-(no effect on the data: the stiffness of a joint whose axis passes through every load's line;
-merged: a link bend about an axis parallel to a joint's, which that joint's compliance
-absorbs; or undetermined: held by the diagnosis, :attr:`Hypothesis.held`) are held at their
-start and reported as such (:attr:`Fit.identifiability`). Optional pseudo-residuals
-``PRIOR_WEIGHT (x - x_anchor)`` keep directions the data do not see at the start instead of
-letting them drift on round-off; they are left out of every reported quantity. Where the
-model cannot be evaluated (a buckling load, a singular tangent) the residuals are a large
-constant, so the solver backs off.
+dz component, ``s`` a fixed scale (the declared noise std when known), minimised over the
+model's parameter vector ``x`` (``ln k`` of the stiffnesses, then each effect's scaled
+variables). The model's analytic Jacobian is used for ``ln k`` and the effects acting through
+the joint law, finite differences for the other effects' variables. Only the parameters the
+data identify are fitted (:func:`layout`: the baseline's compliances and then each effect's
+variables in the order added, judged at the start's representative point, every absent effect
+at its typical size; near aliases judged again at the optimum); the others (no effect on the
+data: the stiffness of a joint whose axis passes through every load's line; merged: a link bend
+about an axis parallel to a joint's, which that joint's compliance absorbs; or undetermined:
+held by the diagnosis, :attr:`Hypothesis.held`) are held at their start and reported as such
+(:attr:`Fit.identifiability`). Optional pseudo-residuals ``PRIOR_WEIGHT (x - x_anchor)`` keep
+directions the data do not see at the start instead of letting them drift on round-off; they
+are left out of every reported quantity. Where the model cannot be evaluated (a buckling load,
+a singular tangent) the residuals are a large constant, so the solver backs off.
 
 Rotations: a campaign that also measures the target frame's rotation is fitted on rows
 ``[dx; w dphi]`` (:attr:`stiffness.elastic.effects.hypothesis.Hypothesis.rotation_weight`,
@@ -34,19 +34,10 @@ below (RSS, chi-square, covariance, information criteria) holds in translation-n
 known from replicates; :meth:`Fit.rms_by_kind` reports the RMS of each kind.
 
 Covariance: ``cov(x) = sigma^2 (J^T J)^+`` with ``J`` the derivative of the residuals in
-metres at the optimum; singular values of the whitened ``J / sigma`` below
-:data:`SINGULAR_RTOL` times the largest are undetermined directions (not inverted), and a
-parameter with a component above :data:`UNSEEN_COMPONENT` along one of them has infinite
-variance.
-
-Robust losses (:data:`LOSSES`): ``loss`` other than ``linear`` minimises
-``sum f^2 rho((r / f)^2)`` of the scaled residuals ``r`` with scipy's ``rho`` (``soft_l1``,
-``huber``, ``cauchy``) and ``f`` the noise std in scaled units, so a residual beyond about
-``f`` weighs less than its square. Such a fit's covariance is Huber's sandwich (M-estimator)
-covariance ``K^2 [sum phi'^2 / (N - p)] / mean(phi'')^2 (J^T J)^+`` with
-``phi(r) = f^2 rho((r / f)^2) / 2`` (:func:`sandwich_matrix`): it takes the spread from the
-residuals themselves through the loss, not from an assumed noise, so its intervals stay
-honest when the data hold outliers or the noise is not the declared one.
+metres at the optimum, or, for a robust loss (``loss`` of
+:data:`~stiffness.calibration.solver.LOSSES` other than ``linear``, its soft threshold
+``f_scale`` in units of ``s``), Huber's sandwich
+(:func:`stiffness.calibration.solver.covariance_matrix`).
 """
 
 from __future__ import annotations
@@ -58,21 +49,21 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from stiffness.calibration import solver
 from stiffness.calibration.identifiability import Identifiability, Layout
-from stiffness.calibration.identifiability import identifiable as judge
+from stiffness.calibration.solver import (
+    Covariance,
+    check_loss,
+    covariance_matrix,
+    gaussian_loss_mean,
+    loss_sum,
+)
 from stiffness.cores import forked_map
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.errors import StiffnessError
 from stiffness.robot.robot import Robot
 
-#: Singular values of the whitened residual Jacobian below this fraction of the largest are
-#: zero: the data do not determine that direction.
-SINGULAR_RTOL = 1e-10
-#: A parameter with a component above this along an undetermined direction has infinite
-#: variance.
-UNSEEN_COMPONENT = 1e-8
 #: Weight of the anchoring pseudo-residuals ``w (x - x_anchor)``: they move a determined
 #: ``ln k`` by about ``w^2 / s^2`` of its distance to the anchor (s >~ 1).
 PRIOR_WEIGHT = 1e-6
@@ -87,58 +78,6 @@ _FORWARD_STEP = float(np.sqrt(np.finfo(float).eps))
 #: Stiffness (SI: N.m/rad or N/m) a baseline joint whose compliance moves no measurement is
 #: held at when its robot declares none (``k_theta_SI``): identify's paper start, 1e8 N.mm/rad.
 NOMINAL_STIFFNESS = 1e5
-#: Losses of :func:`fit_model` (scipy.optimize.least_squares'): ``linear`` is least squares.
-LOSSES = ("linear", "soft_l1", "huber", "cauchy")
-
-
-def loss_terms(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``rho(z)``, ``rho'(z)`` and ``rho''(z)`` of a loss of :data:`LOSSES` at ``z = (r/f)^2``
-    (scipy's definitions: ``soft_l1`` ``2 (sqrt(1 + z) - 1)``, ``huber`` ``z`` up to 1 then
-    ``2 sqrt(z) - 1``, ``cauchy`` ``ln(1 + z)``)."""
-    z = np.asarray(z, dtype=float)
-    if loss == "linear":
-        return z, np.ones_like(z), np.zeros_like(z)
-    if loss == "soft_l1":
-        t = 1.0 + z
-        return 2.0 * (np.sqrt(t) - 1.0), t ** -0.5, -0.5 * t ** -1.5
-    if loss == "huber":
-        small = z <= 1.0
-        root = np.sqrt(np.where(small, 1.0, z))
-        return (np.where(small, z, 2.0 * root - 1.0), np.where(small, 1.0, 1.0 / root),
-                np.where(small, 0.0, -0.5 / root ** 3))
-    if loss == "cauchy":
-        t = 1.0 + z
-        return np.log1p(z), 1.0 / t, -1.0 / t ** 2
-    raise StiffnessError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}")
-
-
-def check_loss(loss: str, method: str = "trf") -> None:
-    """Refuse a loss not in :data:`LOSSES`, or a robust one with ``method`` ``lm`` or
-    ``both`` (Levenberg-Marquardt is least squares only), in one line."""
-    if loss not in LOSSES:
-        raise UnknownNameError(f"unknown loss {loss!r}; valid losses: {', '.join(LOSSES)}",
-                               name=loss, choices=LOSSES)
-    if loss != "linear" and method != "trf":
-        raise StiffnessError(f"loss {loss} needs method trf (Levenberg-Marquardt is least "
-                             "squares only); use --method trf or --loss linear")
-
-
-@functools.cache
-def gaussian_loss_mean(loss: str) -> float:
-    """``E[rho(Z^2)]`` for a standard normal ``Z`` (1 for ``linear``; Gauss-Hermite, 80
-    nodes): the expected loss of a residual at the noise scale, so that
-    ``loss_value / gaussian_loss_mean`` counts like a sum of squares over the noise."""
-    nodes, weights = np.polynomial.hermite_e.hermegauss(80)
-    return float(np.sum(weights * loss_terms(loss, nodes ** 2)[0]) / math.sqrt(2.0 * math.pi))
-
-
-def loss_sum(residuals: np.ndarray, loss: str, f_scale: float) -> float:
-    """``sum f^2 rho((r / f)^2)`` of scaled residuals ``r`` (the sum of squares for
-    ``linear``; twice scipy's ``cost``)."""
-    r = np.asarray(residuals, dtype=float).reshape(-1)
-    if loss == "linear":
-        return float(np.sum(r ** 2))
-    return float(f_scale ** 2 * np.sum(loss_terms(loss, (r / f_scale) ** 2)[0]))
 
 
 @dataclass
@@ -162,11 +101,12 @@ class Fit:
     success, message, nfev
         From :func:`scipy.optimize.least_squares`.
     loss, f_scale
-        The loss (:data:`LOSSES`) and its soft threshold in units of ``scale``.
+        The loss (:data:`~stiffness.calibration.solver.LOSSES`) and its soft threshold in
+        units of ``scale``.
     loss_value
         ``sum f^2 rho((r / f)^2)`` of the scaled residuals at the optimum (:func:`loss_sum`).
     identifiability
-        The parameters fitted and those held at their start (:func:`identifiable`; every one
+        The parameters fitted and those held at their start (:func:`layout`; every one
         fitted when ``None``).
     at_bound
         Columns of ``x`` the bounded solver left at a bound (:meth:`Hypothesis.bounds`: a
@@ -266,8 +206,10 @@ def kind_noise(residual: np.ndarray | None, n_total: int, p: int) -> float | Non
 
 
 class Objective:
-    """Scaled residuals ``(predicted - measured) / scale`` of a model over ``x`` and their
-    Jacobian; with ``anchor``, the pseudo-residuals ``PRIOR_WEIGHT (x - anchor)`` appended.
+    """A deflection campaign's observation (:class:`stiffness.calibration.solver.Problem`):
+    scaled residuals ``(predicted - measured) / scale`` of a model over ``x`` and their
+    Jacobian; with ``anchor``, the pseudo-residuals ``PRIOR_WEIGHT (x - anchor)`` appended;
+    the model's bounds unless not ``bounded``.
 
     The Jacobian is the model's analytic one (:meth:`Hypothesis.predict_with_jacobian`) in its
     :attr:`Hypothesis.analytic_columns`; the other columns are finite differences (central for the
@@ -275,13 +217,16 @@ class Objective:
     """
 
     def __init__(self, model: Hypothesis, measured: np.ndarray, scale: float,
-                 anchor: np.ndarray | None = None) -> None:
+                 anchor: np.ndarray | None = None, bounded: bool = True) -> None:
         self.model, self.measured, self.scale, self.anchor = model, measured, scale, anchor
         self.n_res, self.p = measured.size, model.n_params
         self.numeric = np.flatnonzero(~model.analytic_columns)
+        self.layout = layout(model)
+        self._bounds = model.bounds() if bounded else None
         self._key: bytes | None = None
         self._pred: np.ndarray | None = None
         self._jac: np.ndarray | None = None
+        self._central: tuple[bytes, np.ndarray] | None = None
 
     def _predict(self, x: np.ndarray, jacobian: bool
                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -320,6 +265,8 @@ class Objective:
         """(N, p) derivative of the scaled data residuals w.r.t. ``x``: analytic columns and
         finite differences (central, else forward) in the others."""
         x = np.asarray(x, dtype=float)
+        if central and self._central is not None and self._central[0] == x.tobytes():
+            return self._central[1].copy()
         self._evaluate(x)
         if self._pred is None or self._jac is None:  # the model failed: no prediction
             return np.zeros((self.n_res, self.p))
@@ -335,6 +282,8 @@ class Objective:
                 out[:, i] = (plus - minus) / (2.0 * h)
             else:
                 out[:, i] = (plus - r0) / h
+        if central:
+            self._central = (x.tobytes(), out.copy())
         return out
 
     def fun(self, x: np.ndarray) -> np.ndarray:
@@ -350,6 +299,37 @@ class Objective:
         if self.anchor is None:
             return j
         return np.vstack([j, PRIOR_WEIGHT * np.eye(self.p)])
+
+    def failed(self, x: np.ndarray) -> bool:
+        """Whether the model cannot be evaluated at ``x``."""
+        return bool(self.data(x)[0] == PENALTY)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The model's bounds (:meth:`Hypothesis.bounds`), ``None`` for an unbounded fit."""
+        return self._bounds
+
+    def columns(self, x: np.ndarray, final: bool) -> np.ndarray | None:
+        """The columns identifiability judges at ``x`` (:func:`layout`): the data Jacobian in
+        the fitted variables' physical units times their typical size, a compliance ``1 / k``
+        (``-k d r / d ln k`` times ``1 / k_ref``, so a stiff joint is not mistaken for one
+        without effect), an effect's SI value; ``None`` where the model fails. ``final``: the
+        central differences of the reported Jacobian, else forward ones."""
+        if self.failed(x):
+            return None
+        a = self.data_jacobian(x, central=final)
+        n0 = len(self.model.compliant)
+        a[:, :n0] *= -np.exp(x[:n0]) / self.model.refs.k_ref
+        return a
+
+    def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
+        """``x`` with a baseline joint whose compliance moves no measurement at its nominal
+        stiffness (:func:`nominal_log_stiffness`: the same for every fit, identify's and
+        diagnose's, not its start); the other parameters left out stay at ``x``."""
+        unseen = [d.index for d in ident.dropped
+                  if d.index < len(self.model.compliant) and d.reason == "no effect"]
+        x = np.array(x, dtype=float)
+        x[unseen] = nominal_log_stiffness(self.model)[unseen]
+        return x
 
 
 def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndarray,
@@ -382,82 +362,34 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
     x_scale
         Variable scale of the solver (default scipy's).
     loss
-        One of :data:`LOSSES` (robust ones need ``method="trf"``).
+        One of :data:`~stiffness.calibration.solver.LOSSES` (robust ones need
+        ``method="trf"``).
     f_scale
         Soft threshold of a robust loss, in units of ``scale`` (the noise std / ``scale``).
     resolution
-        Near aliases an effect's columns must be told from (:func:`identifiable`; ``scale``
-        the noise std), 0 for none.
+        Near aliases an effect's columns must be told from
+        (:func:`stiffness.calibration.identifiability.identifiable`; ``scale`` the noise std),
+        0 for none.
 
     The parameters of ``model.held`` (:attr:`Hypothesis.held`) stay at ``x0``, reported as
     undetermined with why (:meth:`Identifiability.holding`).
     """
     check_loss(loss, method)
-    objective = Objective(model, measured, scale, anchor)
+    objective = Objective(model, measured, scale, anchor, bounded)
     x0 = np.asarray(x0, dtype=float)
-    kwargs: dict = {"method": method, "xtol": tolerance, "ftol": tolerance, "gtol": tolerance,
-                    "max_nfev": max_nfev or 40 * (model.n_params + 1)}
     if bounded:
-        lo, hi = model.bounds()
-        x0 = np.clip(x0, lo, hi)
-    if x_scale is not None:
-        kwargs["x_scale"] = x_scale
-    if loss != "linear":
-        kwargs.update(loss=loss, f_scale=float(f_scale))
-    # parameters the data do not identify stay at the start: their huge Gauss-Newton step
-    # would otherwise take the trust region and the solver would crawl
+        x0 = np.clip(x0, *model.bounds())
     labels = parameter_labels(model)
     hold = {i: model.held[label] for i, label in enumerate(labels) if label in model.held}
-    ident = identifiable(objective, x0).holding(hold)
-    # a joint whose compliance moves no measurement has no value but the one it is held at:
-    # the same nominal for every fit (identify, diagnose), not its start
-    unseen = [d.index for d in ident.dropped
-              if d.index < len(model.compliant) and d.reason == "no effect"]
-    if unseen:
-        x0 = x0.copy()
-        x0[unseen] = nominal_log_stiffness(model)[unseen]
-    bounds = (lo, hi) if bounded else None
-    x, success, message, nfev, at_bound = _solve(objective, x0, ident.kept, bounds, kwargs)
+    sol = solver.fit(objective, x0, solver.Options(method, tolerance, max_nfev, x_scale, loss,
+                                                   f_scale), resolution, hold)
+    x = sol.x
     jac = objective.data_jacobian(x)
-    if resolution > 0:
-        # near aliases where the data put the effects (how well the data tell a parameter
-        # from others may depend on the fitted sizes): those merged there are held at their
-        # start and the others refitted
-        near = identifiable(objective, x, resolution, jac).holding(hold)
-        if set(near.kept) != set(ident.kept):
-            ident = near
-            x = np.where(np.isin(np.arange(x.size), ident.kept), x, x0)
-            x, success, message, more, at_bound = _solve(objective, x, ident.kept, bounds,
-                                                         kwargs)
-            nfev += more
-            jac = objective.data_jacobian(x)
     r = objective.data(x)
     pred = measured + r.reshape(measured.shape) * scale
-    return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), jac, scale, success, message,
-               int(nfev), loss, float(f_scale), loss_sum(r, loss, f_scale), ident, at_bound)
-
-
-def _solve(objective: Objective, x0: np.ndarray, kept: list[int],
-           bounds: tuple[np.ndarray, np.ndarray] | None, kwargs: dict
-           ) -> tuple[np.ndarray, bool, str, int, list[int]]:
-    """:func:`fit_model`'s solver call over the ``kept`` columns of ``x`` (the others held at
-    ``x0``): the optimum, success, message, evaluations and the columns left at a bound."""
-    free = np.zeros(x0.size, dtype=bool)
-    free[kept] = True
-    if not free.any():
-        return x0, True, "no parameter is seen by the data", 1, []
-    if bounds is not None:
-        kwargs = {**kwargs, "bounds": (bounds[0][free], bounds[1][free])}
-
-    def full(z: np.ndarray) -> np.ndarray:
-        x = x0.copy()
-        x[free] = z
-        return x
-
-    sol = least_squares(lambda z: objective.fun(full(z)), x0[free],
-                        jac=lambda z: objective.jac(full(z))[:, free], **kwargs)
-    at_bound = [int(i) for i in np.flatnonzero(free)[np.flatnonzero(sol.active_mask)]]
-    return full(sol.x), bool(sol.success), str(sol.message), int(sol.nfev), at_bound
+    return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), jac, scale, sol.success,
+               sol.message, sol.nfev, loss, float(f_scale), loss_sum(r, loss, f_scale),
+               sol.identifiability, sol.at_bound)
 
 
 def nominal_log_stiffness(model: Hypothesis) -> np.ndarray:
@@ -485,7 +417,7 @@ def parameter_labels(model: Hypothesis) -> list[str]:
 
 
 def layout(model: Hypothesis) -> Layout:
-    """How :func:`identifiable` judges ``model``'s parameters
+    """How identifiability judges ``model``'s parameters
     (:class:`stiffness.calibration.identifiability.Layout`): the baseline's compliances first
     (every one with an effect on the data kept: their undetermined combinations are the
     covariance's, :func:`covariance`), then each effect's own variables in the order added
@@ -510,32 +442,6 @@ def layout(model: Hypothesis) -> Layout:
                             + [e.scale(refs) for e in model.effects])
     return Layout(groups, [False] + [True, False] * len(model.effects), scales, typical,
                   effects, keep_first=True)
-
-
-def identifiable(objective: Objective, x: np.ndarray, resolution: float = 0.0,
-                 jacobian: np.ndarray | None = None) -> Identifiability:
-    """The parameters ``objective``'s data identify near ``x``: the one judgement of both
-    campaign kinds (:func:`stiffness.calibration.identifiability.identifiable`) by
-    :func:`layout`, at the representative point of ``x`` (an absent effect present at its
-    typical size, so that a parameter acting only through its size, a compensator's base, is
-    judged as the data see it once the effect is there). The columns are in the fitted
-    variables' physical units times their typical size: a compliance ``1 / k``
-    (``-k d r / d ln k`` times ``1 / k_ref``, so a stiff joint is not mistaken for one without
-    effect), an effect's SI value; merge coefficients are in those units. ``resolution``:
-    noise std per typical size (the residuals scaled by the noise std), 0 for no near-alias
-    merges. ``jacobian``: the data Jacobian at ``x`` when known."""
-    model = objective.model
-    n0 = len(model.compliant)
-
-    def columns(point: np.ndarray) -> np.ndarray | None:
-        if objective.data(point)[0] == PENALTY:
-            return None
-        given = jacobian is not None and np.array_equal(point, x)
-        a = np.array(jacobian if given else objective.data_jacobian(point, central=False))
-        a[:, :n0] *= -np.exp(point[:n0]) / model.refs.k_ref
-        return a
-
-    return judge(layout(model), np.asarray(x, dtype=float), columns, resolution)
 
 
 @dataclass
@@ -593,50 +499,17 @@ def fit_models(jobs: list[FitJob], workers: int | None = None) -> list[Fit]:
                       for values, job in zip(sent, rest, strict=True)]
 
 
-@dataclass
-class Covariance:
-    """Covariance of a fit's parameters and the SVD it comes from.
-
-    Attributes
-    ----------
-    matrix
-        (p, p) ``sigma^2 (J^T J)^+`` (inf rows/columns for parameters along undetermined
-        directions).
-    singular_values
-        (p,) singular values of the whitened residual Jacobian ``J / sigma`` (zeros appended
-        when there are fewer residuals than parameters), descending.
-    directions
-        (p, p) right-singular vectors (rows), in the order of ``singular_values``.
-    undetermined
-        (p,) mask of the singular values below :data:`SINGULAR_RTOL` times the largest.
-    """
-
-    matrix: np.ndarray
-    singular_values: np.ndarray
-    directions: np.ndarray
-    undetermined: np.ndarray
-
-    @property
-    def condition_number(self) -> float:
-        """Largest over smallest singular value (inf with an undetermined direction)."""
-        if self.undetermined.any() or not self.singular_values.size:
-            return math.inf
-        return float(self.singular_values.max() / self.singular_values.min())
-
-
 def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Covariance:
-    """The covariance of ``fit.x`` for a noise std ``sigma`` (m), with one cut-off
-    (:data:`SINGULAR_RTOL`) for undetermined directions; for a robust loss, given the fitted
-    observations ``measured``, the sandwich (:func:`sandwich_matrix`) in the determined
-    directions instead of ``sigma^2 (J^T J)^+``. Over the fitted parameters only
+    """The covariance of ``fit.x`` for a noise std ``sigma`` (m): the one covariance of both
+    campaign kinds (:func:`stiffness.calibration.solver.covariance_matrix`; for a robust loss,
+    given the fitted observations ``measured``, the sandwich). Over the fitted parameters only
     (:attr:`Fit.kept`): one held as not identifiable has infinite variance, a zero singular
     value and its own axis as direction."""
     kept = fit.kept
     full_p = fit.jacobian.shape[1]
     if len(kept) < full_p:
         sub = covariance(replace(fit, jacobian=fit.jacobian[:, kept],
-                                             x=fit.x[kept], identifiability=None),
-                         sigma, measured)
+                                 x=fit.x[kept], identifiability=None), sigma, measured)
         held = np.setdiff1d(np.arange(full_p), kept)
         matrix = np.full((full_p, full_p), np.inf)
         matrix[np.ix_(kept, kept)] = sub.matrix
@@ -646,67 +519,8 @@ def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Co
         return Covariance(matrix, np.concatenate([sub.singular_values, np.zeros(held.size)]),
                           directions, np.concatenate([sub.undetermined,
                                                       np.ones(held.size, dtype=bool)]))
-    white = fit.jacobian * (fit.scale / sigma)
-    p = white.shape[1]
-    # the (N, N) left vectors are never used: all p right vectors are there unless N < p
-    _, sv, vt = np.linalg.svd(white, full_matrices=white.shape[0] < p)
-    s = np.zeros(p)
-    s[: len(sv)] = sv
-    smax = float(s.max()) if p else 0.0
-    zero = s <= SINGULAR_RTOL * smax if smax > 0 else np.ones(p, dtype=bool)
-    inv_s2 = np.where(zero, 0.0, 1.0 / np.where(zero, 1.0, s) ** 2)
-    cov = (vt.T * inv_s2) @ vt
-    if fit.loss != "linear":
-        if measured is None:
-            raise StiffnessError("the covariance of a robust fit needs its observations")
-        cov = sandwich_matrix(((fit.predicted - measured) / fit.scale).reshape(-1),
-                              fit.jacobian, fit.loss, fit.f_scale, vt[~zero])
-    if zero.any():
-        unseen = (np.abs(vt[zero]) > UNSEEN_COMPONENT).any(axis=0)
-        cov[unseen, :] = np.inf
-        cov[:, unseen] = np.inf
-    return Covariance(cov, s, vt, zero)
-
-
-def sandwich_matrix(residual: np.ndarray, jacobian: np.ndarray, loss: str, f_scale: float,
-                    determined: np.ndarray) -> np.ndarray:
-    """Huber's sandwich covariance of a robust fit's ``x`` within the ``determined``
-    directions (see the module docstring); any fit's: the deflection engine's
-    (:func:`covariance`) and the pose fit's (:mod:`stiffness.calibration.pose_fit`).
-
-    ``A^+ B A^+`` with the bread ``A = mean(phi'') J^T J`` and the meat
-    ``B = sum(phi'^2) / (N - p) J^T J``, times Huber's small-sample factor
-    ``K^2 = (1 + p var(phi'') / (N mean(phi'')^2))^2`` (Huber 1981, sec. 7.6): the spread is
-    taken from the residuals through the loss, so gross outliers do not inflate it and the
-    declared noise is not assumed. For the linear loss it is ``sigma_res^2 (J^T J)^+`` with
-    ``sigma_res^2 = SS / (N - p)``.
-
-    Parameters
-    ----------
-    residual
-        (N,) residuals at the optimum divided by the fit's scale (dimensionless).
-    jacobian
-        (N, p) derivative of those scaled residuals w.r.t. ``x``.
-    loss, f_scale
-        The fit's loss (:data:`LOSSES`) and its soft threshold in units of the scale.
-    determined
-        (d, p) orthonormal directions of ``x`` the data determine.
-
-    Returns
-    -------
-    (p, p) covariance of ``x`` (``x``'s units squared); infinite without a positive mean
-    curvature of the loss or without more residuals than directions.
-    """
-    r = np.asarray(residual, dtype=float).reshape(-1)
-    _, d_rho, dd_rho = loss_terms(loss, (r / f_scale) ** 2)
-    psi = d_rho * r                                      # d phi / d r
-    dpsi = d_rho + 2.0 * (r / f_scale) ** 2 * dd_rho     # d^2 phi / d r^2
-    jac = jacobian @ determined.T                        # (N, d)
-    n, d = jac.shape
-    p = jacobian.shape[1]
-    mean_dpsi = float(np.mean(dpsi))
-    if mean_dpsi <= 0 or n <= d:
-        return np.full((p, p), np.inf)
-    k = 1.0 + d / n * float(np.var(dpsi)) / mean_dpsi ** 2
-    factor = k ** 2 * float(np.sum(psi ** 2)) / (n - d) / mean_dpsi ** 2
-    return determined.T @ (factor * np.linalg.pinv(jac.T @ jac)) @ determined
+    if fit.loss != "linear" and measured is None:
+        raise StiffnessError("the covariance of a robust fit needs its observations")
+    residual = None if measured is None else (fit.predicted - measured).reshape(-1)
+    return covariance_matrix(fit.jacobian * fit.scale, sigma, fit.loss, residual,
+                             fit.f_scale * fit.scale)

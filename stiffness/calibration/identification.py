@@ -159,7 +159,7 @@ class Identification:
         The rotation noise std (rad) and where it comes from (``declared
         rotation_noise_std`` or ``residuals``).
     loss
-        The fit's loss (:data:`stiffness.calibration.fitting.LOSSES`).
+        The fit's loss (:data:`stiffness.calibration.solver.LOSSES`).
     outliers
         Rows whose standardised residual exceeds :data:`OUTLIER_THRESHOLD`
         (:mod:`stiffness.calibration.outliers`), flagged and kept.

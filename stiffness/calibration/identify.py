@@ -63,9 +63,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.fitting import (
-    Covariance,
     Fit,
-    check_loss,
     covariance,
     fit_model,
     kind_noise,
@@ -83,6 +81,7 @@ from stiffness.calibration.outliers import (
     robust_noise_scale,
 )
 from stiffness.calibration.selection import interval_quantile
+from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError

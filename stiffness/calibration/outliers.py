@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.calibration.fitting import SINGULAR_RTOL, Fit, fit_model
+from stiffness.calibration.fitting import Fit, fit_model
+from stiffness.calibration.solver import SINGULAR_RTOL
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 

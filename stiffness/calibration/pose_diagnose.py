@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.breakdown import error_summary
-from stiffness.calibration.fitting import check_loss
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import (
@@ -59,6 +58,7 @@ from stiffness.calibration.selection import (
     goodness_of_fit,
     step_criteria,
 )
+from stiffness.calibration.solver import check_loss
 from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES, check_masses
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
@@ -269,7 +269,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         Called with one line of text as each step starts (``None``: quiet).
     loss
         ``linear`` (least squares) or a robust loss of
-        :data:`~stiffness.calibration.fitting.LOSSES` for every fit, scaled by the declared
+        :data:`~stiffness.calibration.solver.LOSSES` for every fit, scaled by the declared
         noise std, else by the baseline's robust estimate; BIC and the fit-to-noise test
         compare :meth:`PoseFit.loss_rss` (:mod:`stiffness.calibration.pose_fit`).
     families

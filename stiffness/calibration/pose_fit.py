@@ -1,5 +1,9 @@
 """Fitting a :class:`~stiffness.calibration.pose_model.PoseModel` to a pose campaign.
 
+A pose campaign's observation is :class:`PoseProblem` (predicted minus measured marker
+positions and orientations, their analytic Jacobian, the parameters' bounds and layout); the
+fit is the one engine of both campaign kinds (:mod:`stiffness.calibration.solver`).
+
 Identifiability. Only an identifiable set of parameters is fitted, judged as deflection fits
 judge theirs (:func:`stiffness.calibration.identifiability.identifiable`): the regressor (d y
 / d x over every measured component, each column scaled by its parameter's typical size) is
@@ -8,26 +12,28 @@ parameters, the merges' coefficients reported), at the start's representative po
 every elastic family absent at the start and a level base's tilt are at their typical size: a
 parameter acting only through them (a vertical base joint's compliance, which carries
 gravity's torque only on a tilted base) is judged as the data see it once they are there.
+With a known noise std, near aliases of the earlier families are merged too, at the start and
+again at the optimum.
 
-Fit. ``scipy.optimize.least_squares`` (Levenberg-Marquardt) with the analytic Jacobian, at most
-:data:`MAX_EVALUATIONS` evaluations (a fit stopped there is reported ``converged: false``:
-an ill-conditioned fit crawls for thousands: a 57-parameter geometry fit on 30 poses, or a lumped
-gravity fit whose trial steps keep meeting a diverging sag);
-covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or the residual variance when the
-campaign declares none; 95 % intervals from the normal quantile (Student's t when the noise is
-not declared or the loss is robust), as deflection diagnose's
+Fit. Levenberg-Marquardt with the analytic Jacobian (then trust-region reflective under the
+physical bounds when its optimum is past one), at most :data:`MAX_EVALUATIONS` evaluations
+(a fit stopped there is reported ``converged: false``: an ill-conditioned fit crawls for
+thousands: a 57-parameter geometry fit on 30 poses, or a lumped gravity fit whose trial steps
+keep meeting a diverging sag); covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or
+the residual variance when the campaign declares none; 95 % intervals from the normal quantile
+(Student's t when the noise is not declared or the loss is robust), as deflection diagnose's
 (:func:`stiffness.calibration.selection.interval_quantile`).
 
-Robust losses (``loss`` of :data:`~stiffness.calibration.fitting.LOSSES` other than
+Robust losses (``loss`` of :data:`~stiffness.calibration.solver.LOSSES` other than
 ``linear``): the deflection engine's mathematics, not a copy of it. The fit minimises
 ``sum s^2 rho((r / s)^2)`` of the residual components ``r`` (m) by the trust-region reflective
 method from the least-squares optimum, ``s`` the noise std: the declared one, else a robust
 estimate
 (:func:`~stiffness.calibration.outliers.robust_noise` of a least-squares fit's residuals, then
 twice of the loss fit's, as the deflection diagnose does). The covariance is Huber's sandwich
-(:func:`~stiffness.calibration.fitting.sandwich_matrix`), and :meth:`PoseFit.loss_rss` (the
+(:func:`~stiffness.calibration.solver.sandwich_matrix`), and :meth:`PoseFit.loss_rss` (the
 loss sum over its Gaussian expectation,
-:func:`~stiffness.calibration.fitting.gaussian_loss_mean`) stands for the residual sum of
+:func:`~stiffness.calibration.solver.gaussian_loss_mean`) stands for the residual sum of
 squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` instead of
 ``r^2``.
 """
@@ -39,16 +45,22 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, optimize
+from scipy import linalg
 
-from stiffness.calibration.fitting import check_loss, gaussian_loss_mean, loss_sum, sandwich_matrix
+from stiffness.calibration import solver
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability, Layout
-from stiffness.calibration.identifiability import identifiable as judge
 from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import information_criterion, interval_quantile
+from stiffness.calibration.solver import (
+    Options,
+    Solution,
+    check_loss,
+    covariance_matrix,
+    objective_rss,
+)
 from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError
@@ -112,7 +124,7 @@ class PoseFit:
         ``"declared"``, ``"residual"`` (least squares' residual variance) or ``"robust"``
         (the robust estimate scaling a robust loss).
     loss
-        The loss the fit minimised (:data:`~stiffness.calibration.fitting.LOSSES`).
+        The loss the fit minimised (:data:`~stiffness.calibration.solver.LOSSES`).
     converged
         Whether the solver met its tolerances within :data:`MAX_EVALUATIONS` evaluations.
     rotation_residual
@@ -176,7 +188,7 @@ class PoseFit:
     def loss_rss(self) -> float:
         """The minimised objective as a sum of squares (m^2): :meth:`rss` for least squares;
         for a robust loss ``sigma^2 sum rho((r / sigma)^2)`` over its Gaussian expectation
-        (as :attr:`stiffness.calibration.fitting.Fit.loss_rss`)."""
+        (:func:`~stiffness.calibration.solver.objective_rss`)."""
         return objective_rss(self.components(), self.loss, self.sigma)
 
     def bic(self, sigma: float | None) -> float:
@@ -223,40 +235,6 @@ def layout(model: PoseModel, order: list[str]) -> Layout:
                   np.array([p.scale for p in model.parameters]),
                   np.array([max(p.scale, p.lower) for p in model.parameters]),
                   [(g, g) for f, g in zip(order, groups, strict=True) if f in absent])
-
-
-def _identifiable(obs: PoseObservations, order: list[str], x: np.ndarray,
-                  noise: float | None = None) -> Identifiability:
-    """The identifiable parameters near ``x`` (near zero if the sag diverges at ``x``): the
-    one judgement of both campaign kinds
-    (:func:`stiffness.calibration.identifiability.identifiable`) by :func:`layout`; with a
-    known ``noise`` std (m) near aliases are merged too
-    (:data:`~stiffness.calibration.identifiability.NEAR_ALIAS_RESOLUTION`)."""
-    plan = layout(obs.model, order)
-    whiten = plan.scales / (noise or 1.0)
-
-    def columns(point: np.ndarray) -> np.ndarray | None:
-        try:
-            _, jac = obs.evaluate(point)
-        except ConvergenceError:
-            return None
-        assert jac is not None
-        return jac * whiten
-
-    try:
-        obs.evaluate(x, jacobian=False)
-    except ConvergenceError:
-        x = np.zeros(obs.model.size)
-    return judge(plan, x, columns, NEAR_ALIAS_RESOLUTION if noise else 0.0)
-
-
-def objective_rss(residual: np.ndarray, loss: str, sigma: float) -> float:
-    """The objective of the residual components (m) as a sum of squares (m^2): their sum of
-    squares for least squares; for a robust ``loss`` ``sigma^2 sum rho((r / sigma)^2)`` over
-    its Gaussian expectation (as :attr:`stiffness.calibration.fitting.Fit.loss_rss`)."""
-    if loss == "linear":
-        return float(residual @ residual)
-    return sigma ** 2 * loss_sum(residual / sigma, loss, 1.0) / gaussian_loss_mean(loss)
 
 
 @one_blas_thread
@@ -417,7 +395,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         back to zero.
     loss
         ``linear`` (least squares) or a robust loss of
-        :data:`~stiffness.calibration.fitting.LOSSES` (module docstring).
+        :data:`~stiffness.calibration.solver.LOSSES` (module docstring).
     scale
         Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
         robust estimate (module docstring). Ignored by least squares.
@@ -433,111 +411,97 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
     obs = PoseObservations(model, campaign, rows)
     noise = scale if scale is not None else campaign.noise_std
-    ident = _identifiable(obs, order, x, noise)
-    free = _Free(obs, x, ident)
-    sol = _least_squares(free)
-    if noise is not None:
-        # near aliases where the data put the parameters, as a deflection fit judges them
-        near = _identifiable(obs, order, free.x, noise)
-        if set(near.kept) != set(ident.kept):
-            ident = near
-            free = _Free(obs, free.x, ident)
-            sol = _least_squares(free)
-    x, kept = free.x, ident.kept
+    problem = PoseProblem(obs, order, noise)
+    if problem.failed(x):
+        x[:] = 0.0
+    options = Options("lm", 1e-12, MAX_EVALUATIONS, problem.layout.scales)
+    # near aliases judged at the start too: off the rigid arm the model's first-order
+    # Jacobian tells apart, by a sine of 1e-5, parameters the data cannot (a base joint's zero
+    # offset and the measuring frame's rotation), which would cost every fit a second one
+    sol = solver.fit(problem, x, options, NEAR_ALIAS_RESOLUTION if noise else 0.0,
+                     near_at_start=True)
     if loss == "linear":
-        fit = _finish(obs, campaign, x, ident, sol.jac, sol.fun,
-                      at_bound=_at_bound(model, x, kept, sol.active_mask))
-        fit.converged = bool(sol.status > 0)
-        return fit
+        return _finish(obs, campaign, sol, sol.jac, sol.fun)
     assert noise is not None  # undeclared noise and no scale: _fit_robust_scale estimated it
     # from the least-squares optimum: a few steps (from far, every residual is beyond the
     # loss's scale and the robust steps crawl), and a start for cauchy's non-convex loss
-    sol = optimize.least_squares(free.residual, sol.x, jac=free.jacobian, x_scale=free.scales,
-                                 method="trf", loss=loss, f_scale=noise,
-                                 bounds=(free.lower, np.inf), xtol=1e-12, ftol=1e-12,
-                                 gtol=1e-12, max_nfev=MAX_EVALUATIONS)
+    options.method, options.loss, options.f_scale = "trf", loss, noise
+    sol = solver.solve(problem, sol.x, sol.identifiability, options)
     # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead;
     # where the sag diverges there the residual is the diverged constant (the fit is not
     # chosen) and scipy's Jacobian stands in, as least squares' does
-    fun = free.residual(sol.x)
+    fun = problem.fun(sol.x)
     try:
-        jac = free.jacobian(sol.x)
+        jac = problem.jac(sol.x)[:, sol.identifiability.kept]
     except ConvergenceError:
         jac = sol.jac
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
-    fit = _finish(obs, campaign, x, ident, jac, fun, loss, (noise, source),
-                  _at_bound(model, x, kept, sol.active_mask))
-    fit.converged = bool(sol.status > 0)
-    return fit
+    return _finish(obs, campaign, sol, jac, fun, loss, (noise, source))
 
 
-class _Free:
-    """The residual and Jacobian of ``obs`` over the kept parameters of ``ident``, the others
-    held at zero (``x``: the full parameter vector, updated in place by every evaluation; a
-    start whose sag diverges with the held parameters zeroed falls back to zero)."""
+class PoseProblem:
+    """A pose campaign's observation (:class:`stiffness.calibration.solver.Problem`):
+    predicted minus measured components (m; orientations weighted) of ``obs`` and their
+    Jacobian over the model's parameters, the families laid out in ``order``
+    (:func:`layout`), the columns whitened by ``noise`` (m) when known; a parameter left out
+    is held at zero, and a start whose sag diverges so falls back to zero."""
 
-    def __init__(self, obs: PoseObservations, x: np.ndarray, ident: Identifiability) -> None:
-        model = obs.model
-        self.obs, self.kept = obs, ident.kept
-        if len(self.kept) >= obs.size:
-            raise StiffnessError(f"{len(self.kept)} identifiable parameters but only "
-                                 f"{obs.size} measured components; measure more poses")
-        self.x = np.array(x, dtype=float)
-        self.x[[d.index for d in ident.dropped]] = 0.0
+    def __init__(self, obs: PoseObservations, order: list[str], noise: float | None) -> None:
+        self.obs, self.noise = obs, noise
+        self.layout = layout(obs.model, order)
+        self.lower = np.array([p.lower for p in obs.model.parameters])
+
+    def fun(self, x: np.ndarray) -> np.ndarray:
+        """Predicted minus measured (m); :data:`DIVERGED_RESIDUAL_M` where the sag diverges
+        (a trial step refused as a bad one)."""
         try:
-            obs.evaluate(self.x, jacobian=False)
+            r, _ = self.obs.evaluate(x, jacobian=False)
         except ConvergenceError:
-            self.x[:] = 0.0
-        self.scales = np.array([model.parameters[i].scale for i in self.kept])
-        self.lower = np.array([model.parameters[i].lower for i in self.kept])
-
-    def residual(self, z: np.ndarray) -> np.ndarray:
-        """Predicted minus measured (m) with the kept parameters at ``z``."""
-        self.x[self.kept] = z
-        try:
-            r, _ = self.obs.evaluate(self.x, jacobian=False)
-        except ConvergenceError:  # a trial step whose sag diverges: refused as a bad step
             return np.full(self.obs.size, DIVERGED_RESIDUAL_M)
         return r
 
-    def jacobian(self, z: np.ndarray) -> np.ndarray:
-        """Its derivative w.r.t. the kept parameters."""
-        self.x[self.kept] = z
-        _, j = self.obs.evaluate(self.x)
+    def jac(self, x: np.ndarray) -> np.ndarray:
+        """d(residual)/dx (N, p)."""
+        _, j = self.obs.evaluate(x)
         assert j is not None
-        return j[:, self.kept]
+        return j
 
+    def failed(self, x: np.ndarray) -> bool:
+        """Whether the sag diverges at ``x``."""
+        try:
+            self.obs.evaluate(x, jacobian=False)
+        except ConvergenceError:
+            return True
+        return False
 
-def _least_squares(free: _Free) -> optimize.OptimizeResult:
-    """The least-squares optimum of ``free`` from its start: Levenberg-Marquardt, then, when
-    that optimum is past a physical bound, the fit under the bounds from the clipped optimum
-    (or, when the clipped optimum's sag diverges because a negative compliance held it, from
-    the bounded parameters at their bound: rigid springs). ``free.x`` is left at the
-    optimum."""
-    residual, jacobian, lower = free.residual, free.jacobian, free.lower
-    sol = optimize.least_squares(residual, free.x[free.kept], jac=jacobian,
-                                 x_scale=free.scales, method="lm", xtol=1e-12, ftol=1e-12,
-                                 gtol=1e-12, max_nfev=MAX_EVALUATIONS)
-    if np.any(sol.x < lower):
-        start = np.maximum(sol.x, lower)
-        if np.all(residual(start) == DIVERGED_RESIDUAL_M):
-            start = np.where(np.isfinite(lower), lower, sol.x)
-        sol = optimize.least_squares(residual, start, jac=jacobian, x_scale=free.scales,
-                                     method="trf", bounds=(lower, np.inf),
-                                     xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                     max_nfev=MAX_EVALUATIONS)
-    free.x[free.kept] = sol.x
-    return sol
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parameters' physical lower bounds; no upper ones."""
+        return self.lower, np.full(self.lower.size, np.inf)
 
+    def columns(self, x: np.ndarray, final: bool) -> np.ndarray | None:
+        """The regressor at ``x`` times the typical sizes, over the noise std when known."""
+        try:
+            _, jac = self.obs.evaluate(x)
+        except ConvergenceError:
+            return None
+        assert jac is not None
+        return jac * (self.layout.scales / (self.noise or 1.0))
 
-def _at_bound(model: PoseModel, x: np.ndarray, kept: list[int], active: np.ndarray
-              ) -> list[int]:
-    """The parameters (model columns) the solver left at their bound (scipy's
-    ``active_mask``; none after an unbounded Levenberg-Marquardt fit), set exactly there in
-    ``x`` (the solver stops within round-off of it)."""
-    out = [kept[i] for i in np.flatnonzero(active)]
-    x[out] = [model.parameters[i].lower for i in out]
-    return out
+    def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
+        """``x`` with the parameters left out at zero (all at zero where the sag diverges
+        so).
+
+        Raises
+        ------
+        StiffnessError
+            Fewer measured components than identifiable parameters.
+        """
+        if len(ident.kept) >= self.obs.size:
+            raise StiffnessError(f"{len(ident.kept)} identifiable parameters but only "
+                                 f"{self.obs.size} measured components; measure more poses")
+        x = np.array(x, dtype=float)
+        x[[d.index for d in ident.dropped]] = 0.0
+        return np.zeros(x.size) if self.failed(x) else x
 
 
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
@@ -552,49 +516,44 @@ def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTe
     return fit
 
 
-def _finish(obs: PoseObservations, campaign: PoseCampaign, x: np.ndarray,
-            ident: Identifiability, jac: np.ndarray, fun: np.ndarray, loss: str = "linear",
-            robust_scale: tuple[float, str] | None = None, at_bound: list[int] | None = None
-            ) -> PoseFit:
-    """The fit at ``x`` from the residuals ``fun`` (predicted minus measured, m; orientations
-    weighted) and their Jacobian; ``robust_scale`` the (noise std, source) scaling a robust
-    ``loss``; ``at_bound`` the parameters at their physical bound (the others' covariance
-    holds them there; theirs is their marginal one, for a one-sided interval)."""
+def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: np.ndarray,
+            fun: np.ndarray, loss: str = "linear",
+            robust_scale: tuple[float, str] | None = None) -> PoseFit:
+    """The fit at the solver's optimum ``sol`` from the residuals ``fun`` (predicted minus
+    measured, m; orientations weighted) and their Jacobian ``jac`` over the kept parameters;
+    ``robust_scale`` the (noise std, source) scaling a robust ``loss``. The covariance is the
+    engine's (:func:`~stiffness.calibration.solver.covariance_matrix`, in the parameters'
+    typical sizes), of the declared noise, else the residual's (least squares), or the
+    sandwich; the parameters at their physical bound (``sol.at_bound``) are held there in the
+    others' covariance, theirs is their marginal one (for a one-sided interval)."""
+    ident = sol.identifiability
     residual, rotation = obs.split(fun)
     n, k = fun.size, len(ident.kept)
-    bound = [c for c, i in enumerate(ident.kept) if i in (at_bound or [])]
+    bound = [c for c, i in enumerate(ident.kept) if i in sol.at_bound]
     free = [c for c in range(k) if c not in bound]
     if robust_scale is not None:
         sigma, source = robust_scale
-
-        def spread(columns: list[int]) -> np.ndarray:
-            return sandwich_matrix(fun / sigma, _columns(jac, columns) / sigma, loss, 1.0,
-                                   np.eye(len(columns)))
+    elif campaign.noise_std is not None:
+        sigma, source = campaign.noise_std, "declared"
     else:
-        if campaign.noise_std is not None:
-            sigma, source = campaign.noise_std, "declared"
-        else:
-            sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
+        sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
+    sizes = np.array([obs.model.parameters[i].scale for i in ident.kept])
 
-        def spread(columns: list[int]) -> np.ndarray:
-            sub = _columns(jac, columns)
-            return sigma ** 2 * np.linalg.pinv(sub.T @ sub)
+    def spread(columns: list[int]) -> np.ndarray:
+        typical = sizes[columns]
+        cov = covariance_matrix(jac[:, columns] * typical, sigma, loss, fun, sigma).matrix
+        return cov * np.outer(typical, typical)
+
     cov = spread(list(range(k)))
     if bound:
         marginal = np.diag(cov)[bound]
         cov = np.zeros((k, k))
         cov[np.ix_(free, free)] = spread(free)
         cov[bound, bound] = marginal
-    return PoseFit(obs.model, x.copy(), ident, cov, residual, sigma, source, loss=loss,
-                   rotation_residual=rotation, rotation_weight=obs.weight, jacobian=jac,
-                   component_rows=obs.component_rows(),
-                   at_bound=list(at_bound or []))
-
-
-def _columns(jac: np.ndarray, columns: list[int]) -> np.ndarray:
-    """``jac[:, columns]``: ``jac`` itself (no copy of a large campaign's Jacobian) when those
-    are all its columns in order."""
-    return jac if columns == list(range(jac.shape[1])) else jac[:, columns]
+    return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, sigma, source, loss=loss,
+                   converged=sol.status > 0, rotation_residual=rotation,
+                   rotation_weight=obs.weight, jacobian=jac,
+                   component_rows=obs.component_rows(), at_bound=list(sol.at_bound))
 
 
 def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign

@@ -28,7 +28,7 @@ from pathlib import Path
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose
 from stiffness.calibration.diagnosis_report import format_report
-from stiffness.calibration.fitting import LOSSES
+from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
 from stiffness.elastic.effects import MASSES
 from stiffness.errors import StiffnessError

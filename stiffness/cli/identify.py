@@ -21,10 +21,10 @@ import os
 import sys
 from pathlib import Path
 
-from stiffness.calibration.fitting import LOSSES
 from stiffness.calibration.identification import Identification
 from stiffness.calibration.identify import FORMULATIONS, METHODS, MODEL_FILE, identify
 from stiffness.calibration.outliers import describe_outliers
+from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
 from stiffness.files import output_folder
 

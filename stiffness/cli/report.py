@@ -156,7 +156,7 @@ _CAMPAIGN_FLAGS = ("validate", "masses", "loss", "seed")
 def run_campaign(args: argparse.Namespace) -> int:
     """``stiffness report CAMPAIGN --out DIR``: ``stiffness diagnose CAMPAIGN --out DIR`` with
     the flags given (its text report on stdout, its folder written whole)."""
-    from stiffness.calibration.fitting import LOSSES
+    from stiffness.calibration.solver import LOSSES
     from stiffness.cli import diagnose
     from stiffness.elastic.effects import MASSES
 

@@ -1,0 +1,98 @@
+"""The one least-squares driver of both campaign kinds (stiffness.calibration.solver), on small
+problems with closed-form answers: its bounded refit after Levenberg-Marquardt, the columns it
+reports at a bound, and identifiability judged at the representative point."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import nnls
+
+from stiffness.calibration.identifiability import Identifiability, Layout
+from stiffness.calibration.solver import Options, covariance_matrix, fit, solve
+
+
+class Linear:
+    """Residuals ``A x - b`` with ``x >= 0`` (a solver Problem)."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray) -> None:
+        self.a, self.b = a, b
+        p = a.shape[1]
+        self.layout = Layout([list(range(p))], [False], np.ones(p), np.ones(p))
+
+    def fun(self, x):
+        return self.a @ x - self.b
+
+    def jac(self, x):
+        return self.a
+
+    def failed(self, x):
+        return False
+
+    def bounds(self):
+        p = self.a.shape[1]
+        return np.zeros(p), np.full(p, np.inf)
+
+    def columns(self, x, final):
+        return self.a.copy()
+
+    def start(self, x, ident):
+        return np.array(x, dtype=float)
+
+
+def test_levenberg_marquardt_past_a_bound_is_refitted_under_it_as_nnls():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(30, 4))
+    b = a @ np.array([1.0, -0.5, 2.0, 0.3]) + 0.01 * rng.normal(size=30)
+    problem = Linear(a, b)
+    sol = solve(problem, np.zeros(4), Identifiability.full(4), Options("lm", 1e-12))
+    expected, _ = nnls(a, b)
+    np.testing.assert_allclose(sol.x, expected, atol=1e-8)
+    assert sol.at_bound == [1] and sol.x[1] == 0.0
+    # unbounded Levenberg-Marquardt alone would have gone negative
+    free, *_ = np.linalg.lstsq(a, b, rcond=None)
+    assert free[1] < 0
+
+
+def test_covariance_is_sigma_squared_inverse_normal_matrix():
+    rng = np.random.default_rng(1)
+    j = rng.normal(size=(40, 3))
+    cov = covariance_matrix(j, 0.1).matrix
+    np.testing.assert_allclose(cov, 0.01 * np.linalg.inv(j.T @ j), rtol=1e-10)
+
+
+class Bilinear:
+    """``y = a t + a b t^2`` over ``(a, b)``: ``b`` moves nothing while ``a`` is 0 (an
+    effect's setting that acts only through its size), one effect of two parameters."""
+
+    def __init__(self, t: np.ndarray, y: np.ndarray) -> None:
+        self.t, self.y = t, y
+        self.layout = Layout([[0], [1]], [False, False], np.ones(2), np.ones(2),
+                             [([0], [0, 1])])
+
+    def fun(self, x):
+        return x[0] * self.t + x[0] * x[1] * self.t ** 2 - self.y
+
+    def jac(self, x):
+        return np.column_stack([self.t + x[1] * self.t ** 2, x[0] * self.t ** 2])
+
+    def failed(self, x):
+        return False
+
+    def bounds(self):
+        return None
+
+    def columns(self, x, final):
+        return self.jac(x)
+
+    def start(self, x, ident):
+        return np.array(x, dtype=float)
+
+
+def test_a_parameter_acting_through_an_absent_effect_is_judged_with_it_present():
+    t = np.linspace(0.1, 1.0, 20)
+    problem = Bilinear(t, 0.7 * t + 0.7 * 0.4 * t ** 2)
+    # at the start a = 0: b's column is zero, yet at the representative point (a = 1) it is seen
+    assert not np.any(problem.columns(np.zeros(2), False)[:, 1])
+    sol = fit(problem, np.zeros(2), Options("lm", 1e-12))
+    assert sol.identifiability.kept == [0, 1]
+    np.testing.assert_allclose(sol.x, [0.7, 0.4], rtol=1e-8)
