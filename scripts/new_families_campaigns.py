@@ -15,9 +15,22 @@ Mode ``not-offered`` (``--not transversal_compliance`` as well, the tilts hidden
 diagnosis ends with instead (unexplained, or the stand-in families) and its held-out RMS over
 the noise.
 
+Deflection campaigns (``--families deflection,deflection-not-offered``): the same robots,
+the target's chain compliant (:data:`DEFLECTION`), a campaign of 15 configurations x 4 random
+loads at the target (20 um noise, the exact equilibrium of the true robot:
+:func:`stiffness.planning.simulate.simulate`) hiding the tilts of the 2nd to 4th compliant
+tilting joints of the target's chain at 0.5-1x their joint's compliance, diagnosed as
+``stiffness diagnose`` does (every library effect a candidate; ``--not
+transversal_compliance`` in the second mode). It records whether a tilt is named first and
+which hidden tilts are named at their joints, the 95 % intervals of the named ones against the
+truth, what else is named, and the last step's held-out RMS (cross-validated over
+configurations) over the noise.
+
 Not part of the test suite (minutes); run as::
 
     PYTHONPATH=. python scripts/new_families_campaigns.py --seeds 10 --json out.json
+    PYTHONPATH=. python scripts/new_families_campaigns.py --seeds 10 \
+        --families deflection,deflection-not-offered
 
 Units: SI inside; the report prints ratios and counts.
 """
@@ -39,10 +52,13 @@ sys.path.insert(0, str(ROOT / "tests"))  # the suite's coverage helpers (stats, 
 from pose_truth import add_intervals  # noqa: E402
 from stats import Coverage, binomial_consistent  # noqa: E402
 
+from stiffness.calibration.diagnose import diagnose  # noqa: E402
 from stiffness.calibration.pose_diagnose import diagnose_poses, parameter_table  # noqa: E402
 from stiffness.calibration.pose_model import Marker  # noqa: E402
+from stiffness.elastic.effects.geometry import Geometry  # noqa: E402
 from stiffness.elastic.effects.link_bends import transversal_joints  # noqa: E402
 from stiffness.mechanics.defaults import default_stiffness  # noqa: E402
+from stiffness.planning.simulate import HiddenEffect, simulate  # noqa: E402
 from stiffness.planning.simulate_poses import (  # noqa: E402
     HiddenPoseErrors,
     simulate_pose_campaign,
@@ -54,6 +70,20 @@ POSES = 30
 FORCED = ["joint_offsets", "joint_compliance"]
 NOT_HIDDEN = ["geometry", "backlash", "gravity_compensator"]
 TORSO = ROOT / "tests" / "data" / "torso-passive" / "robot.toml"
+#: Deflection campaigns: robot -> (target frame, compliant joints (the target's chain), their
+#: stiffness N.m/rad, the largest load at the target N); the torso's robot file is the one of
+#: :func:`robot_setup` (springs on its six chain joints).
+DEFLECTION = {
+    "ur10": ("tool0", None, [3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4], 300.0),
+    "panda": ("panda_hand", [f"panda_joint{i}" for i in range(1, 8)],
+              [2e4, 2e4, 1.5e4, 1.5e4, 5e3, 5e3, 5e3], 50.0),
+    "two-arm-torso": ("right_tcp", ["torso_yaw", "torso_pitch", "right_shoulder_pitch",
+                                    "right_shoulder_roll", "right_shoulder_yaw", "right_elbow"],
+                      [2e4, 3e4, 8e3, 8e3, 6e3, 5e3], 50.0),
+    "torso-passive": ("tool", None, [4.0e4, 2.5e4, 2.0e4, 1.5e4, 8.0e3, 6.0e3], 100.0),
+}
+#: Deflection campaigns: configurations, loads per configuration.
+CONFIGS, LOADS = 15, 4
 
 
 def robot_setup(name: str, tmp: Path) -> tuple:
@@ -144,6 +174,48 @@ def run_one(robot, markers, stiffness, payload, family: str, mode: str, seed: in
                 else [("base_tilt", hidden.base_tilt)])}}
 
 
+def deflection_one(name: str, source: str, mode: str, seed: int) -> dict:
+    """One deflection campaign of ``name`` (robot file or name ``source``) hiding three
+    bearing tilts, diagnosed with every library effect (``mode`` ``deflection``) or all but
+    ``transversal_compliance`` (``deflection-not-offered``): named first, which hidden tilts
+    are named, their intervals against the truth, held-out RMS / noise (module docstring)."""
+    frame, compliant, kq, max_force = DEFLECTION[name]
+    robot = load_robot(source, frame=frame, compliant_joints=compliant)
+    k = dict(zip(robot.compliant_joints, kq, strict=True))
+    tilting = [j for j in Geometry.of(robot).tilt_columns if j in k][1:4]
+    rng = np.random.default_rng(seed)
+    truth = {j: k[j] / rng.uniform(0.5, 1.0, 2) for j in tilting}  # N.m/rad
+    sim = simulate(source, kq=kq, frame=frame, compliant_joints=compliant,
+                   target_offset_m=[0.0, 0.0, 0.1], max_force=max_force, configs=CONFIGS,
+                   loads_per_config=LOADS, noise_std_m=NOISE, seed=seed,
+                   effects=[HiddenEffect("transversal_compliance", j, tuple(v))
+                            for j, v in truth.items()])
+    start = time.perf_counter()
+    d = diagnose(sim.campaign, propose=False, workers=1,
+                 not_families=["transversal_compliance"] if mode.endswith("not-offered")
+                 else ())
+    seconds = time.perf_counter() - start
+    labels = [s.effect.label for s in d.steps]
+    cov = Coverage()
+    for j, k_true in truth.items():
+        named = d.final_parameters_si.get(f"transversal_compliance({j})")
+        for p, t in zip(named or [], k_true, strict=bool(named)):
+            if not p.held:
+                cov.add(p.value, p.ci95, t)
+    held_out = d.steps[-1].cv_rms if d.steps else d.cv_baseline
+    aliases = {a.other for a in d.ambiguities if a.chosen in labels}  # told apart from none
+    return {"seed": seed, "families": ["baseline", *labels],
+            "named": bool(labels) and labels[0].startswith("transversal_compliance("),
+            "tilts_named": sum(f"transversal_compliance({j})" in labels for j in truth),
+            "tilts_named_or_alias": sum(f"transversal_compliance({j})" in set(labels) | aliases
+                                        for j in truth),
+            "tilts_hidden": len(truth), "unexplained": d.unexplained, "covered": cov.hits,
+            "intervals": cov.n, "z": cov.z, "held_out_over_noise": [held_out / NOISE],
+            "fit_rms_over_noise": d.final.rms() / NOISE, "seconds": seconds,
+            "tilt_sizes_over_noise": [v / NOISE for v in sim.effect_rms_m.values()],
+            "hidden": {j: v.tolist() for j, v in truth.items()}}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
@@ -156,12 +228,16 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.robots.split(","):
             robot, markers, stiffness, payload = robot_setup(name, Path(tmp))
+            source = robot.name if name != "torso-passive" else str(
+                Path(tmp) / "torso-passive-chain.toml")
             for what in args.families.split(","):
                 family = "transversal_compliance" if what == "not-offered" else what
                 mode = "not-offered" if what == "not-offered" else "offered"
                 runs = []
                 for seed in range(args.seeds):
-                    r = run_one(robot, markers, stiffness, payload, family, mode, seed)
+                    r = (deflection_one(name, source, what, seed)
+                         if what.startswith("deflection") else
+                         run_one(robot, markers, stiffness, payload, family, mode, seed))
                     runs.append(r)
                     print(f"{name} {what} seed {seed}: {'+'.join(r['families'][1:])}; "
                           f"unexplained {r['unexplained']}; covered {r['covered']}/"
@@ -183,6 +259,11 @@ def _summary(name: str, what: str, runs: list[dict]) -> None:
     hits, n = sum(r["covered"] for r in runs), sum(r["intervals"] for r in runs)
     ratio = [r["held_out_over_noise"][-1] for r in runs]
     z2 = float(np.sum(np.square([z for r in runs for z in r["z"]]))) if n else float("nan")
+    if "tilts_named" in runs[0]:
+        print(f"SUMMARY {name} {what}: hidden tilts named "
+              f"{sum(r['tilts_named'] for r in runs)}/{sum(r['tilts_hidden'] for r in runs)}"
+              f", named or reported as not told apart from the one named "
+              f"{sum(r['tilts_named_or_alias'] for r in runs)}", flush=True)
     print(f"SUMMARY {name} {what}: named {named}/{len(runs)}; covered {hits}/{n} "
           f"(binomially consistent with 95 %: {binomial_consistent(hits, n) if n else None}; "
           f"sum z^2 / n = {z2 / max(n, 1):.3g}); held-out/noise "

@@ -152,3 +152,22 @@ def test_export_names_the_tilt_as_left_out(diagnosed, tmp_path, capsys):
                  "--mjcf", str(tmp_path / "ur5.xml"), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "transversal_compliance(elbow_joint)" in err and "left out" in err
+
+
+def test_a_tilt_not_offered_is_not_named_and_the_choice_is_recorded(diagnosed, capsys):
+    """``diagnose --not transversal_compliance`` on the campaign hiding the elbow's tilt: no
+    tilt is tried (the search names something else or nothing), and the choice is in
+    ``--json`` and the model file (``selection.forbidden``); an unknown name is one line."""
+    folder, _ = diagnosed
+    assert main(["diagnose", str(folder / "camp"), "--not", "transversal_compliance",
+                 "--max-steps", "1", "--no-proposals", "--json", "--out",
+                 str(folder / "not")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["selection"] == {"forbidden": ["transversal_compliance"]}
+    assert all(s["effect"] != "transversal_compliance" for s in out["steps"])
+    ranked = json.loads((folder / "not" / "diagnosis.json").read_text())["step_details"]
+    assert all(r["effect"] != "transversal_compliance" for s in ranked for r in s["ranking"])
+    model = json.loads((folder / "not" / "final-model.json").read_text())
+    assert model["selection"] == {"forbidden": ["transversal_compliance"]}
+    with pytest.raises(StiffnessError, match="not an effect of the library"):
+        diagnose(load_campaign(folder / "camp"), not_families=["transversal"])

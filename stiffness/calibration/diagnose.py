@@ -76,13 +76,14 @@ from stiffness.calibration.selection import (
     fits_to_noise,
     goodness_of_fit,
     held_at_bounds,
+    held_ends,
     interval_quantile,
     parameter_covariance,
     replicate_noise,
     step_criteria,
 )
 from stiffness.calibration.solver import check_loss
-from stiffness.elastic.effects import candidates, check_masses
+from stiffness.elastic.effects import LIBRARY, candidates, check_masses
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -145,9 +146,9 @@ def _held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
         return dataclasses.replace(parameter, at_bound=True, ci95=ci)
     if bounded is None:
         return parameter
-    pull = [cov[index, b] * inward[b] for b in fit.at_bound if math.isfinite(cov[index, b])]
-    low = bounded.ci95[0] if any(c > 0 for c in pull) else parameter.ci95[0]
-    high = bounded.ci95[1] if any(c < 0 for c in pull) else parameter.ci95[1]
+    held_low, held_high = held_ends([cov[index, b] * inward[b] for b in fit.at_bound])
+    low = bounded.ci95[0] if held_low.any() else parameter.ci95[0]
+    high = bounded.ci95[1] if held_high.any() else parameter.ci95[1]
     return dataclasses.replace(parameter, ci95=(low, high))
 
 
@@ -249,8 +250,9 @@ def diagnose(
     validate
         Pose campaigns only: another pose campaign (or its path) evaluated at every step.
     families, not_families
-        Pose campaigns only: families forced in (in order) and families never tried
-        (``diagnose --families``, ``--not``).
+        Families forced in (in order; pose campaigns only) and families never tried
+        (``diagnose --families``, ``--not``; a deflection campaign's are effect names of the
+        library, recorded as ``forbidden``).
 
     Raises
     ------
@@ -262,22 +264,35 @@ def diagnose(
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
         return _diagnose_poses(campaign, seed, progress, loss, masses, validate,
                                (families, not_families))
-    if validate is not None or families or not_families:
-        raise StiffnessError("validate, families and not_families take pose campaigns; for "
-                             "a deflection campaign diagnose reports the held-out "
-                             "(cross-validated) RMS of each step")
+    if validate is not None or families:
+        raise StiffnessError("validate and families take pose campaigns; for a deflection "
+                             "campaign diagnose reports the held-out (cross-validated) RMS of "
+                             "each step and chooses among the library's effects (--not "
+                             "forbids some)")
     _check_options(max_steps, loss, masses)
+    forbidden = _forbidden(not_families)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     return _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
-                                 effect_settings or {}, masses)
+                                 effect_settings or {}, masses, forbidden)
+
+
+def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:
+    """The deflection effects never tried (``--not``), checked against the library (one
+    line naming the valid ones)."""
+    for name in not_families:
+        if name not in LIBRARY:
+            raise StiffnessError(f"--not {name!r} is not an effect of the library; "
+                                 f"{did_you_mean(name, list(LIBRARY))}")
+    return tuple(sorted(set(not_families)))
 
 
 def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose: bool,
                           progress: Callable[[str], None] | None, workers: int | None,
-                          loss: str, effect_settings: dict[str, dict], masses: str
-                          ) -> Diagnosis:
-    """:func:`diagnose` on a deflection campaign."""
+                          loss: str, effect_settings: dict[str, dict], masses: str,
+                          forbidden: tuple[str, ...] = ()) -> Diagnosis:
+    """:func:`diagnose` on a deflection campaign, the effects named ``forbidden`` never
+    tried."""
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
     compliant = tuple(campaign.robot().compliant_joints)
@@ -297,7 +312,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     folds = config_folds(campaign.config, seed)
     cv_base = cross_validate([base], measured, folds, workers)[0]
     search = _Search(measured, folds, scale, n, sigma, workers, say,
-                     _declared_settings(base, effect_settings), masses)
+                     _declared_settings(base, effect_settings), masses, forbidden)
     final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
     p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
@@ -338,6 +353,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                                held_final),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
+        forbidden=list(forbidden),
     )
 
 
@@ -512,6 +528,7 @@ class _Search:
     say: Callable[[str], None]
     declared: dict[str, dict]
     masses: str = "known"
+    forbidden: tuple[str, ...] = ()
 
     def run(self, base: Fit, cv_base: float, max_steps: int, units: Units
             ) -> tuple[Fit, list[Step], list[tuple[int, Candidate, Candidate, float]], str]:
@@ -558,7 +575,8 @@ class _Search:
     def candidates(self, current: Fit) -> tuple[list[Candidate], float]:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
         by BIC, and the step's overdispersion."""
-        effects = candidates(current.model, self.declared, self.masses)
+        effects = [e for e in candidates(current.model, self.declared, self.masses)
+                   if e.name not in self.forbidden]
         fits = list(zip(effects, fitting.fit_models(
             [fit_job(current.model.extended(e), self.measured, self.scale,
                      current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,

@@ -196,6 +196,9 @@ class Diagnosis:
         The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
         (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
         they are standardised by.
+    forbidden
+        The library's effects never tried (``diagnose --not``), kept in ``--json`` and the
+        model file as ``selection.forbidden`` (a pose diagnosis's key).
     """
 
     campaign: Campaign
@@ -226,6 +229,7 @@ class Diagnosis:
     outlier_sigma_m: float | None = None
     masses: str = "known"
     certainty: list[Certainty] = field(default_factory=list)
+    forbidden: list[str] = field(default_factory=list)
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -294,6 +298,7 @@ class Diagnosis:
             "rms_by_kind": self.rms_by_kind(),
             "identifiability": self.identifiability(),
             "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.certainty],
+            "selection": {"forbidden": self.forbidden},
         })
 
     def stand_in(self, label: str) -> bool:
@@ -385,6 +390,7 @@ class Diagnosis:
                 "noise_std": self._len(self.noise_std_m),
                 "noise_std_source": self.noise_std_source, "unit": self.unit,
                 "unexplained": self.unexplained, "unexplained_note": self.unexplained_note,
+                "selection": {"forbidden": self.forbidden},
                 "rotation_noise": None if self.rotation_noise_std_rad is None else {
                     "std_rad": self.rotation_noise_std_rad,
                     "source": self.rotation_noise_source,

@@ -53,7 +53,11 @@ from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, ro
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
-from stiffness.calibration.selection import information_criterion, interval_quantile
+from stiffness.calibration.selection import (
+    bounded_intervals,
+    information_criterion,
+    interval_quantile,
+)
 from stiffness.calibration.solver import (
     Options,
     Solution,
@@ -138,6 +142,9 @@ class PoseFit:
         :meth:`components`'s order (the held-out criterion's hat matrix, :func:`held_out_rms`).
     component_rows
         (N,) the campaign row of each residual component.
+    unbounded_covariance
+        With parameters at their bound, the (k, k) covariance of the kept parameters none of
+        them held (:meth:`interval`); else ``None``.
     """
 
     model: PoseModel
@@ -155,6 +162,7 @@ class PoseFit:
     jacobian: np.ndarray | None = None
     component_rows: np.ndarray | None = None
     at_bound: list[int] = field(default_factory=list)
+    unbounded_covariance: np.ndarray | None = None
 
     def components(self) -> np.ndarray:
         """The residual components as fitted: positions (m), then the weighted orientations
@@ -209,15 +217,19 @@ class PoseFit:
         the declared noise, Student's without: :func:`selection.interval_quantile`), none
         below a parameter's physical lower bound. A parameter at its bound
         (:attr:`at_bound`) has the one-sided interval from the bound to its 95 % upper
-        limit."""
-        s = self.std()
+        limit. The others' :attr:`covariance` holds those at their bound; each end of an
+        interval holds only those that moving the parameter that way would take past their
+        bound (:func:`~stiffness.calibration.selection.bounded_intervals` on
+        :attr:`unbounded_covariance`)."""
         known = self.sigma if self.sigma_source == "declared" else None
-        z = interval_quantile(known, self.n_observed, self.n_fitted)
         lower = np.array([p.lower for p in self.model.parameters])
-        lo, hi = np.maximum(self.x - z * s, lower), self.x + z * s
-        one_sided = interval_quantile(known, self.n_observed, self.n_fitted, 0.95)
-        for i in self.at_bound:
-            lo[i], hi[i] = self.x[i], self.x[i] + one_sided * s[i]
+        kept = self.identifiability.kept
+        lo, hi = np.full(self.model.size, np.nan), np.full(self.model.size, np.nan)
+        lo[kept], hi[kept] = bounded_intervals(
+            self.x[kept], lower[kept], self.covariance if self.unbounded_covariance is None
+            else self.unbounded_covariance, [kept.index(i) for i in self.at_bound],
+            interval_quantile(known, self.n_observed, self.n_fitted),
+            interval_quantile(known, self.n_observed, self.n_fitted, 0.95))
         return lo, hi
 
 
@@ -544,16 +556,16 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
         cov = covariance_matrix(jac[:, columns] * typical, sigma, loss, fun, sigma).matrix
         return cov * np.outer(typical, typical)
 
-    cov = spread(list(range(k)))
+    cov = unbounded = spread(list(range(k)))
     if bound:
-        marginal = np.diag(cov)[bound]
         cov = np.zeros((k, k))
         cov[np.ix_(free, free)] = spread(free)
-        cov[bound, bound] = marginal
+        cov[bound, bound] = np.diag(unbounded)[bound]
     return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, sigma, source, loss=loss,
                    converged=sol.status > 0, rotation_residual=rotation,
                    rotation_weight=obs.weight, jacobian=jac,
-                   component_rows=obs.component_rows(), at_bound=list(sol.at_bound))
+                   component_rows=obs.component_rows(), at_bound=list(sol.at_bound),
+                   unbounded_covariance=unbounded if bound else None)
 
 
 def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign

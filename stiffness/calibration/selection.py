@@ -183,6 +183,47 @@ def held_at_bounds(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray |
         {i: "at its bound" for i in bound})), sigma, measured)
 
 
+def held_ends(pull: list[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which parameters at their bound hold each end of another parameter's 95 % interval:
+    ``(low, high)`` masks over them, true where moving the parameter that way (down, up)
+    would take that one past its bound. ``pull``: the parameter's covariance with each of
+    them (none held) times that one's inward direction (+1 at a lower bound, -1 at an upper
+    one; NaN: none). Both campaign kinds' intervals (deflection diagnose,
+    :func:`bounded_intervals`)."""
+    values = np.nan_to_num(np.asarray(pull, dtype=float), nan=0.0)
+    return values > 0, values < 0
+
+
+def bounded_intervals(x: np.ndarray, lower: np.ndarray, covariance: np.ndarray,
+                      at_bound: list[int], quantile: float, one_sided: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """95 % intervals ``(low, high)`` of parameters ``x`` (lower bounds ``lower``,
+    ``covariance`` with none held), some (positions ``at_bound``) at their bound: those from
+    the bound to ``x + one_sided se``; each end of the others' ``x -+ quantile se`` with
+    ``se`` conditional on the parameters at their bound that moving it that way would take
+    past it (:func:`held_ends`) held there (the Schur complement: the covariance of a fit
+    with them held), so that a parameter that took the share of a near alias sitting at its
+    bound reaches back to sharing it; none below a bound."""
+    se = np.sqrt(np.diag(covariance))
+    low, high = x - quantile * se, x + quantile * se
+    bound = np.asarray(at_bound, dtype=int)
+    for c in range(x.size):
+        if c in at_bound:
+            continue
+        for mask, sign in zip(held_ends(covariance[c, bound]), (-1.0, 1.0), strict=True):
+            held = bound[mask]
+            if held.size == 0:
+                continue
+            row = covariance[c, held]
+            var = covariance[c, c] - row @ np.linalg.lstsq(covariance[np.ix_(held, held)], row,
+                                                           rcond=None)[0]
+            end = x[c] + sign * quantile * np.sqrt(max(var, 0.0))
+            low[c], high[c] = (end, high[c]) if sign < 0 else (low[c], end)
+    low = np.maximum(low, lower)
+    low[bound], high[bound] = x[bound], x[bound] + one_sided * se[bound]
+    return low, high
+
+
 def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | None:
     """Chi-square p-value of ``rss / sigma^2`` with ``n - p`` degrees of freedom, or ``None``
     without a known noise std ``sigma`` (m) or degrees of freedom."""

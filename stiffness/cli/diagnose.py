@@ -83,8 +83,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "this order whatever their BIC and held-out error (e.g. "
                              "joint_offsets,geometry); recorded in final-model.json")
     parser.add_argument("--not", dest="not_families", metavar="A,B",
-                        help="pose campaigns: families never tried (e.g. backlash); recorded "
-                             "in final-model.json")
+                        help="families never tried (e.g. backlash; a deflection campaign's "
+                             "are the library's effect names, e.g. transversal_compliance); "
+                             "recorded in final-model.json")
     parser.add_argument("--base-tilt", metavar="RX,RY",
                         help="pose campaigns: a measured tilt of the robot's base against "
                              "gravity, two angles in deg (rotation exp([rx, ry, 0]) of the "
@@ -104,6 +105,7 @@ def command_line(args: argparse.Namespace) -> str:
     words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
     words += ["--masses", args.masses] if getattr(args, "masses", "known") != "known" else []
+    words += ["--not", args.not_families] if getattr(args, "not_families", None) else []
     for declared in getattr(args, "compensator_geometry", []):
         words += ["--compensator-geometry", declared]
     return shlex.join(words)
@@ -151,9 +153,10 @@ def run(args: argparse.Namespace) -> int:
     flags.require_at_least_one(args.workers, "--workers")
     if campaign_kind(args.campaign) == "poses":
         return run_poses(args)
-    if args.families or args.not_families or args.base_tilt:
-        raise StiffnessError("--families, --not and --base-tilt take pose campaigns; a "
-                             "deflection diagnosis chooses among every effect of the library")
+    if args.families or args.base_tilt:
+        raise StiffnessError("--families and --base-tilt take pose campaigns; a deflection "
+                             "diagnosis chooses among the library's effects (--not forbids "
+                             "some)")
     declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
     if args.validate:  # read before the work: a bad one fails at once
@@ -171,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None,
                       workers=args.workers, loss=args.loss, effect_settings=declared,
-                      masses=args.masses)
+                      masses=args.masses,
+                      not_families=flags.parse_names(args.not_families) or ())
     if not args.validate:
         paths = result.write(args.out, command_line(args)) if args.out else None
         return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
