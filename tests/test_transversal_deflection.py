@@ -171,3 +171,56 @@ def test_a_tilt_not_offered_is_not_named_and_the_choice_is_recorded(diagnosed, c
     assert model["selection"] == {"forbidden": ["transversal_compliance"]}
     with pytest.raises(StiffnessError, match="not an effect of the library"):
         diagnose(load_campaign(folder / "camp"), not_families=["transversal"])
+
+
+def test_a_rigid_bearing_is_never_fitted_negative_and_the_others_cover():
+    """Issue 36's must-show for deflection campaigns: UR5 campaigns (4 configurations x 3
+    loads, 20 um) whose truth has a rigid bearing at the elbow (tilting compliance 0), fitted
+    with the elbow's tilt, 24 seeds: no tilting compliance is fitted negative, the ones at
+    their bound (stiffness infinite) report the one-sided interval from it, and the 95 %
+    intervals off their bounds (the three joint stiffnesses, the tilts' whose upper end must
+    reach the rigid truth) cover at a rate consistent with 95 % (binomial, alpha 1e-3)."""
+    from stats import binomial_consistent
+
+    from stiffness.calibration.diagnose import _effect_parameters, stiffness_parameters
+    from stiffness.calibration.diagnosis import SI_UNITS
+    from stiffness.calibration.selection import (
+        fit_model,
+        held_at_bounds,
+        interval_quantile,
+        parameter_covariance,
+    )
+    from stiffness.elastic.effects.geometry import References
+    from stiffness.planning.simulate import simulate
+
+    noise, hits, count, at_bound = 2e-5, 0, 0, 0
+    for seed in range(24):
+        c = simulate("ur5", kq=K_ARM, compliant_joints=ARM, target_offset_m=[0.0, 0.0, 0.1],
+                     max_force=100.0, noise_std_m=noise, configs=4, loads_per_config=3,
+                     seed=seed).campaign
+        geo = Geometry.of(c.robot())
+        rows = geo.rows(c.q, c.force, c.moment)
+        tilt = make_effect("transversal_compliance", "elbow_joint", geo)
+        model = Hypothesis(geo, rows, "enhanced", ARM, (tilt,),
+                           References.of(geo, rows, 2e4, c.deflection))
+        fit = fit_model(model, c.deflection, noise,
+                        np.concatenate([np.full(3, np.log(2e4)), tilt.start()]))
+        assert np.all(fit.x[3:] >= 0.0)  # compliances (scaled): never negative
+        cov = parameter_covariance(fit, noise, c.deflection)
+        held = held_at_bounds(fit, noise, c.deflection)
+        quantile = interval_quantile(noise, c.deflection.size, fit.penalty_params)
+        tilts = _effect_parameters(fit, cov, quantile, SI_UNITS, held)[tilt.label]
+        for k, p in enumerate(tilts):
+            assert p.value > 0.0 and p.ci95[0] >= 0.0
+            if 3 + k in fit.at_bound:
+                at_bound += 1
+                assert p.at_bound and p.ci95 == (p.value, np.inf) \
+                    and 1.0 / p.value < 1e-9 / K_ARM.max()  # compliance ~0
+                continue
+            hits += int(p.ci95[1] == np.inf)
+            count += 1
+        for p, k in zip(stiffness_parameters(fit, cov, quantile, held), K_ARM, strict=True):
+            hits += int(p.ci95[0] <= k <= p.ci95[1])
+            count += 1
+    assert at_bound >= 2  # the rigid bearing sits at its bound in some seeds
+    assert count >= 80 and binomial_consistent(hits, count), (hits, count, at_bound)
