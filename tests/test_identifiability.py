@@ -131,10 +131,10 @@ def test_a_near_alias_at_its_bound_leaves_an_interval_that_covers():
     ``lsq_linear``: x0 free, x1 (truth 0.3) and x2 (truth 0) bounded below by 0; x0's column
     and x1's are 0.9995 alike (a near alias: when x1 sits at 0, x0 takes its share) and x2's
     moves with x0 (correlation 0.53). x0's interval from :func:`bounded_intervals` covers the
-    truth at a rate of at least 95 % (binomial, alpha 1e-3); with every parameter at its bound
-    held on a side where one of them is pushed past it (x1 held too when only x2 is pushed:
-    the Panda's two wrist tilts, docs/absolute-poses.md) it covered 89 %, and that rule is
-    shown to fail here."""
+    truth at a rate of at least 95 % (binomial, alpha 1e-3; measured 997/1000); with every
+    parameter at its bound held on a side where one of them is pushed past it (x1 held too
+    when only x2 is pushed: the Panda's two wrist tilts, docs/absolute-poses.md) it covered
+    888/1000, and that rule is shown to fail here."""
     from scipy.optimize import lsq_linear
 
     t = np.linspace(0.0, 1.0, 40)
