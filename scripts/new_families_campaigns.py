@@ -223,6 +223,8 @@ def deflection_one(name: str, source: str, mode: str, seed: int) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds first-seed .. first-seed + seeds - 1 (split a study)")
     parser.add_argument("--robots", default="ur10,panda,two-arm-torso,torso-passive")
     parser.add_argument("--families", default="transversal_compliance,base_tilt,not-offered")
     parser.add_argument("--json", help="write every run here")
@@ -238,7 +240,7 @@ def main() -> int:
                 family = "transversal_compliance" if what == "not-offered" else what
                 mode = "not-offered" if what == "not-offered" else "offered"
                 runs = []
-                for seed in range(args.seeds):
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
                     r = (deflection_one(name, source, what, seed)
                          if what.startswith("deflection") else
                          run_one(robot, markers, stiffness, payload, family, mode, seed))
