@@ -88,7 +88,8 @@ def pytest_configure(config) -> None:
         "PYTEST_XDIST_WORKER_COUNT")
     if worker is None or count is None or not hasattr(os, "sched_setaffinity"):
         return
-    cpus, index, n = sorted(os.sched_getaffinity(0)), int(worker.removeprefix("gw")), int(count)
+    cpus, n = sorted(os.sched_getaffinity(0)), int(count)
+    index = int(worker.removeprefix("gw")) % n  # a worker xdist restarts is numbered on: gw2
     os.sched_setaffinity(0, cpus[index::n] if n <= len(cpus) else [cpus[index % len(cpus)]])
 
 
