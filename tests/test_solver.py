@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import nnls
 
-from stiffness.calibration.identifiability import Identifiability, Layout
+from stiffness.calibration.identifiability import Identifiability, Layout, same_span
 from stiffness.calibration.solver import Options, covariance_matrix, fit, solve
 
 
@@ -96,3 +96,12 @@ def test_a_parameter_acting_through_an_absent_effect_is_judged_with_it_present()
     sol = fit(problem, np.zeros(2), Options("lm", 1e-12))
     assert sol.identifiability.kept == [0, 1]
     np.testing.assert_allclose(sol.x, [0.7, 0.4], rtol=1e-8)
+
+
+def test_reductions_keeping_other_members_of_exact_aliases_are_the_same_model():
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(12, 3))
+    a = np.column_stack([a[:, 0], 2.0 * a[:, 0], a[:, 1], a[:, 1] + 1e-3 * a[:, 2]])
+    assert same_span(a, [0, 2], [1, 2])          # 1 is 2 x column 0: the same model
+    assert not same_span(a, [0, 2], [0, 3])      # 3 differs from 2 by a sine of ~1e-3
+    assert not same_span(a, [0, 2], [0, 1, 2])

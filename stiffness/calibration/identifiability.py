@@ -205,6 +205,21 @@ def identifiable(layout: Layout, x: np.ndarray,
     return layout.reduce(a, resolution)
 
 
+def same_span(a: np.ndarray, first: list[int], second: list[int]) -> bool:
+    """Whether the columns ``first`` and ``second`` of ``a`` span the same space: as many,
+    and each of ``second`` in the span of ``first`` (sine of its angle to it below
+    :data:`IDENTIFIABILITY_TOL`). Two reductions that merely keep different members of exact
+    aliases fit the same model."""
+    if len(first) != len(second):
+        return False
+    if not second:
+        return True
+    basis, _ = np.linalg.qr(a[:, first])
+    part = a[:, second] - basis @ (basis.T @ a[:, second])
+    norms = np.linalg.norm(a[:, second], axis=0)
+    return bool(np.all(np.linalg.norm(part, axis=0) <= IDENTIFIABILITY_TOL * norms))
+
+
 def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,
                    resolution: list[float] | None = None, keep_first: bool = False
                    ) -> Identifiability:

@@ -41,7 +41,12 @@ from typing import Protocol
 import numpy as np
 from scipy.optimize import least_squares
 
-from stiffness.calibration.identifiability import Identifiability, Layout, identifiable
+from stiffness.calibration.identifiability import (
+    Identifiability,
+    Layout,
+    identifiable,
+    same_span,
+)
 from stiffness.errors import StiffnessError, UnknownNameError
 
 #: Losses of every fit (scipy.optimize.least_squares'): ``linear`` is least squares.
@@ -193,18 +198,25 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
     optimum, and at the start too with ``near_at_start``), those of ``held`` (column: why)
     held as undetermined, the others held at :meth:`Problem.start`, and :func:`solve`. When
     the near aliases at the optimum are not those of the start, the fit is redone from the
-    optimum with them held."""
+    optimum with them held (unless the optimum's reduction keeps the same span, other members
+    of exact aliases: the same model)."""
     ident = identifiable(problem.layout, x0, lambda p: problem.columns(p, False),
                          resolution if near_at_start else 0.0).holding(held or {})
     start = problem.start(np.asarray(x0, dtype=float), ident)
     sol = solve(problem, start, ident, options)
     if resolution <= 0:
         return sol
-    near = identifiable(problem.layout, sol.x,
-                        lambda p: problem.columns(p, np.array_equal(p, sol.x)),
-                        resolution).holding(held or {})
-    if set(near.kept) == set(ident.kept):
-        return sol
+    seen: list[np.ndarray] = []
+
+    def columns(point: np.ndarray) -> np.ndarray | None:
+        a = problem.columns(point, np.array_equal(point, sol.x))
+        seen[:] = [] if a is None else [a]
+        return a
+
+    near = identifiable(problem.layout, sol.x, columns, resolution).holding(held or {})
+    if set(near.kept) == set(ident.kept) or (
+            seen and same_span(seen[0], ident.kept, near.kept)):
+        return sol  # the same model (at most other members of exact aliases kept)
     x = np.where(np.isin(np.arange(sol.x.size), near.kept), sol.x, start)
     again = solve(problem, problem.start(x, near), near, options)
     again.nfev += sol.nfev
