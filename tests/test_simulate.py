@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,9 +13,11 @@ import pytest
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
+from stiffness.files import resolve_source
 from stiffness.planning.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
 from stiffness.robot.robot import load_robot
 
+ROOT = Path(__file__).resolve().parents[1]
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 
 
@@ -124,6 +128,26 @@ def test_simulate_cli(tmp_path, capsys):
     camp = load_campaign(out)
     assert camp.n_rows == 6 and camp.noise_std_m == pytest.approx(4e-6)
     assert (out / TRUTH_FILE).is_file()
+
+
+def test_truth_json_paths_are_relative_to_its_folder(tmp_path, monkeypatch):
+    """truth.json's robot path, given relative to the working directory, travels with it."""
+    robot_dir = tmp_path / "a" / "robot"
+    robot_dir.mkdir(parents=True)
+    shutil.copy(ROOT / "examples" / "sk120-dh" / "robot.toml", robot_dir)
+    (tmp_path / "a" / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "a" / "work")
+    sim = simulate("../robot/robot.toml", configs=2, loads_per_config=1, seed=3)
+    sim.write(tmp_path / "a" / "out" / "deep")
+    assert sim.truth()["robot"]["source"] == "../robot/robot.toml"  # --json: as given
+    (tmp_path / "a").rename(tmp_path / "b")
+    monkeypatch.chdir(tmp_path)
+    folder = tmp_path / "b" / "out" / "deep"
+    truth = json.loads((folder / TRUTH_FILE).read_text())
+    assert truth["robot"]["source"] == "../../robot/robot.toml"
+    assert truth["settings"]["robot"]["source"] == "../../robot/robot.toml"
+    assert Path(resolve_source(truth["robot"]["source"], folder)) == (
+        tmp_path / "b" / "robot" / "robot.toml").resolve()
 
 
 @pytest.mark.parametrize(("configs", "loads", "repeats", "rows"), [

@@ -22,7 +22,8 @@ import json
 from stiffness.calibration.campaign_toml import BASELINES
 from stiffness.cli import flags
 from stiffness.elastic.effects import LIBRARY
-from stiffness.planning.simulate import LOAD_PATTERNS, TRUTH_FILE, simulate
+from stiffness.planning.simulate import TRUTH_FILE, simulate
+from stiffness.planning.simulate_request import LOAD_PATTERNS
 from stiffness.units import LENGTH_UNITS, Units
 
 

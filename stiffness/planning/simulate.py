@@ -63,7 +63,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.campaign_toml import JOINT_ANGLES, RobotSettings
+from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects import LIBRARY, make_effect
@@ -81,7 +81,7 @@ from stiffness.errors import (
     UnknownNameError,
     did_you_mean,
 )
-from stiffness.files import atomic_write, staged_folder
+from stiffness.files import atomic_write, staged_folder, written_path, written_source
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import joint_preload, with_payload
@@ -92,11 +92,16 @@ from stiffness.planning.simulate_poses import (
     link_column,
     rotation_axis_column,
 )
+from stiffness.planning.simulate_request import (
+    check_request,
+    draw_loads,
+    request_record,
+    rotation_noise_std,
+    true_stiffness,
+)
 from stiffness.robot.robot import Robot
 from stiffness.units import MAX_CELL, Units
 
-#: Load patterns of :func:`simulate`.
-LOAD_PATTERNS = ("random", "ramp", "axes")
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
 
@@ -417,12 +422,20 @@ class Simulation:
         """The object ``stiffness simulate --json`` prints: :meth:`truth`."""
         return self.truth()
 
-    def truth(self) -> dict:
-        """The hidden truth (JSON-ready), documented in ``truth.json``."""
+    def truth(self, folder: Path | None = None) -> dict:
+        """The hidden truth (JSON-ready), documented in ``truth.json``: the robot and plan
+        paths as given, or relative to ``folder`` (where ``truth.json`` is written;
+        :func:`~stiffness.files.written_source`)."""
         lu = self.campaign.units.length_to_si
+        settings = self.settings
+        if folder is not None:
+            robot = {**settings["robot"], "source": written_source(
+                settings["robot"]["source"], folder)}
+            settings = {**settings, "robot": robot, "plan": None if settings["plan"] is None
+                        else written_path(settings["plan"], folder)}
         return {
             "format": "stiffness-simulation-truth",
-            "robot": self.settings["robot"],
+            "robot": settings["robot"],
             "baseline": self.campaign.baseline,
             "compliant_joints": list(self.campaign.robot().compliant_joints),
             "k_theta_SI": self.kq.tolist(),
@@ -445,7 +458,7 @@ class Simulation:
                 "deflection_offset": self.campaign.units.length,
                 "gravity_preload": f"kg, then {self.campaign.units.length} (target frame)",
                 "gravity_compensator": "N/m, N, then lever and base in m"},
-            "settings": self.settings,
+            "settings": settings,
             "model": ("exact elastostatic equilibrium of the true robot"
                       " (stiffness.planning.simulate)"),
         }
@@ -455,27 +468,11 @@ class Simulation:
         folder = Path(folder)
         with staged_folder(folder, keep_others=True) as stage:  # published by one rename
             written = write_campaign(self.campaign, stage)
-            atomic_write(stage / TRUTH_FILE, json.dumps(self.truth(), indent=1) + "\n")
+            atomic_write(stage / TRUTH_FILE,
+                         json.dumps(self.truth(folder), indent=1) + "\n")
         path = folder / written.name
         self.campaign.path = path
         return path
-
-
-def _loads(pattern: str, n: int, max_force: float, rng: np.random.Generator) -> np.ndarray:
-    if pattern == "random":
-        d = rng.normal(size=(n, 3))
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        return d * rng.uniform(0.25, 1.0, size=(n, 1)) * max_force
-    if pattern == "ramp":
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        return np.outer(np.arange(1, n + 1) / n, d) * max_force
-    axes = np.vstack([np.eye(3), -np.eye(3)])
-    return axes[np.arange(n) % 6] * max_force
-
-
-#: Most rows a simulated campaign may have (each is an equilibrium solve; ~1e2-1e3 on a rig).
-MAX_ROWS = 1_000_000
 
 
 def simulate(
@@ -553,15 +550,15 @@ def simulate(
     if plan is not None and not isinstance(plan, Plan):
         plan, given = plan_and_robot(plan, given)
     hidden = [parse_effect(e) if isinstance(e, str) else e for e in effects or []]
-    _check_request(configs, loads_per_config, repeats, max_force, noise_std_m, load_pattern,
-                   None if plan is None else len(plan.q), hidden, joint_angles)
+    check_request(configs, loads_per_config, repeats, max_force, noise_std_m, load_pattern,
+                  None if plan is None else len(plan.q), [h.label for h in hidden], joint_angles)
     declared = _declared_robot(given)
-    kq = _true_stiffness(declared, kq, str(given.source))
+    kq = true_stiffness(declared, kq, str(given.source))
     baseline = _declared_baseline(hidden, baseline)
     rng = np.random.default_rng(seed)
     q, applied, row_labels = _rows(declared, plan, configs, loads_per_config, load_pattern,
                                    max_force, rng)
-    rotation_noise_std_rad = _rotation_noise_std(rotation_noise_std_rad, noise_std_m)
+    rotation_noise_std_rad = rotation_noise_std(rotation_noise_std_rad, noise_std_m)
     rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats,
                units or Units())
     truth, smoothing, effect_rms, baseline_error, clean6 = _truth_and_sizes(
@@ -571,26 +568,12 @@ def simulate(
                             applied + truth.force_bias, clean6, row_labels, rng, joint_angles)
     info = {"robot": {"source": str(given.source), "frame": declared.target_frame,
                       "target_offset_m": declared.target_offset.tolist()},
-            **_request_record(plan, configs, loads_per_config, repeats, load_pattern,
+            **request_record(plan, configs, loads_per_config, repeats, load_pattern,
                               max_force, row_labels, applied), "seed": seed,
             "declare_noise": declare_noise, "rotations": rotations,
             "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
             "backlash_smoothing_Nm": smoothing, "joint_angles": joint_angles}
     return Simulation(campaign, hidden, kq, noise_std_m, effect_rms, info, baseline_error)
-
-
-def _request_record(plan: Plan | None, configs: int, loads_per_config: int, repeats: int,
-                    load_pattern: str, max_force: float, row_labels: list[str],
-                    applied: np.ndarray) -> dict:
-    """What was asked for (``truth.json``'s settings): the plan's sizes and largest force
-    (N), or the drawn ones."""
-    if plan is None:
-        return {"configs": configs, "loads_per_config": loads_per_config, "plan": None,
-                "repeats": repeats, "max_force_N": max_force, "load_pattern": load_pattern}
-    return {"configs": len(dict.fromkeys(row_labels)), "loads_per_config": None,
-            "plan": str(plan.path) if plan.path is not None else None, "repeats": repeats,
-            "max_force_N": float(np.linalg.norm(applied, axis=1).max()),
-            "load_pattern": None}
 
 
 def _declared_robot(given: PlannedRobot) -> Robot:
@@ -707,64 +690,6 @@ class _Rig:
         )
 
 
-def _rotation_noise_std(rotation_noise_std_rad: float | None, noise_std_m: float) -> float:
-    """The rotation noise std (rad): given, else ``noise_std_m / 0.1 m`` (a 6-D probe whose
-    markers are 0.1 m apart); refused when negative or not finite."""
-    if rotation_noise_std_rad is None:
-        rotation_noise_std_rad = noise_std_m / 0.1
-    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
-        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
-    return rotation_noise_std_rad
-
-
-def _check_request(configs: int, loads_per_config: int, repeats: int, max_force: float,
-                   noise_std_m: float, load_pattern: str, plan_rows: int | None,
-                   hidden: list[HiddenEffect], joint_angles: str) -> None:
-    """Refuse an unknown load pattern or joint-angle kind, sizes below one or beyond
-    :data:`MAX_ROWS`, a non-positive force (N), a negative noise (m) or an effect hidden
-    twice, in one line."""
-    if joint_angles not in JOINT_ANGLES:
-        raise StiffnessError(f"joint angles must be motor (the drives' encoders) or link (the "
-                             f"link pose as measured), got {joint_angles!r}")
-    if load_pattern not in LOAD_PATTERNS:
-        raise UnknownNameError(f"unknown load pattern {load_pattern!r}; valid: "
-                               f"{', '.join(LOAD_PATTERNS)}", name=load_pattern,
-                               choices=LOAD_PATTERNS)
-    if configs < 1 or loads_per_config < 1 or repeats < 1:
-        raise StiffnessError("configs, loads per config and repeats must be at least 1")
-    rows = (plan_rows if plan_rows is not None else configs * loads_per_config) * repeats
-    if rows > MAX_ROWS:
-        raise StiffnessError(
-            f"the campaign would have {rows:.3g} rows ("
-            + ("plan rows" if plan_rows is not None else "configs x loads per config")
-            + f" x repeats), more than {MAX_ROWS:.0e}, far beyond any rig's campaign and hours "
-            "of equilibrium solves; ask for fewer")
-    if not (max_force > 0 and math.isfinite(max_force)):
-        raise StiffnessError(f"max force must be positive, got {max_force}")
-    if not (noise_std_m >= 0 and math.isfinite(noise_std_m)):
-        raise StiffnessError(f"noise std must be >= 0, got {noise_std_m}")
-    labels = [h.label for h in hidden]
-    if len(set(labels)) != len(labels):
-        raise StiffnessError(f"an effect is hidden twice: {labels}")
-
-
-def _true_stiffness(declared: Robot, kq: list[float] | np.ndarray | None, source: str
-                    ) -> np.ndarray:
-    """The true stiffness per declared compliant joint (SI): ``kq``, else the shipped
-    robot's ``k_theta_SI``; refused unless one positive value per joint."""
-    if kq is None:
-        if "k_theta_SI" not in declared.defaults:
-            raise StiffnessError(f"give the true joint stiffness of {source} (--kq), one per "
-                                 f"compliant joint: {', '.join(declared.compliant_joints)}")
-        kq = declared.defaults["k_theta_SI"]
-    kq = np.asarray(kq, dtype=float).reshape(-1)
-    if kq.shape[0] != declared.n_compliant or np.any(kq <= 0) or not np.all(np.isfinite(kq)):
-        raise StiffnessError(f"need {declared.n_compliant} positive stiffnesses (one per "
-                             f"compliant joint {', '.join(declared.compliant_joints)}), got "
-                             f"{kq.tolist()}")
-    return kq
-
-
 def _rows(declared: Robot, plan: Plan | None, configs: int, loads_per_config: int,
           load_pattern: str, max_force: float, rng: np.random.Generator
           ) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -773,7 +698,7 @@ def _rows(declared: Robot, plan: Plan | None, configs: int, loads_per_config: in
     if plan is None:
         coords = sample_coordinates(declared, configs, rng)
         q = np.repeat(coords, loads_per_config, axis=0)
-        applied = np.vstack([_loads(load_pattern, loads_per_config, max_force, rng)
+        applied = np.vstack([draw_loads(load_pattern, loads_per_config, max_force, rng)
                              for _ in range(configs)])
         return q, applied, [f"C{i // loads_per_config + 1}" for i in range(len(q))]
     if plan.q.shape[1] != declared.n_coordinates:

@@ -1,0 +1,106 @@
+"""What ``stiffness simulate`` is asked for: the request's checks, its drawn loads and its
+record in ``truth.json``'s settings (:mod:`stiffness.planning.simulate`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stiffness.calibration.campaign_toml import JOINT_ANGLES
+from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.planning.plan import Plan
+from stiffness.robot.robot import Robot
+
+#: Load patterns of :func:`simulate`.
+LOAD_PATTERNS = ("random", "ramp", "axes")
+
+
+#: Most rows a simulated campaign may have (each is an equilibrium solve; ~1e2-1e3 on a rig).
+MAX_ROWS = 1_000_000
+
+
+def draw_loads(pattern: str, n: int, max_force: float, rng: np.random.Generator) -> np.ndarray:
+    """``n`` forces (N, rows of 3) of the load pattern ``pattern`` (:data:`LOAD_PATTERNS`), at
+    most ``max_force`` (N) each."""
+    if pattern == "random":
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return d * rng.uniform(0.25, 1.0, size=(n, 1)) * max_force
+    if pattern == "ramp":
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        return np.outer(np.arange(1, n + 1) / n, d) * max_force
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    return axes[np.arange(n) % 6] * max_force
+
+
+def check_request(configs: int, loads_per_config: int, repeats: int, max_force: float,
+                   noise_std_m: float, load_pattern: str, plan_rows: int | None,
+                   labels: list[str], joint_angles: str) -> None:
+    """Refuse an unknown load pattern or joint-angle kind, sizes below one or beyond
+    :data:`MAX_ROWS`, a non-positive force (N), a negative noise (m) or an effect hidden
+    twice (``labels``, the hidden effects' labels), in one line."""
+    if joint_angles not in JOINT_ANGLES:
+        raise StiffnessError(f"joint angles must be motor (the drives' encoders) or link (the "
+                             f"link pose as measured), got {joint_angles!r}")
+    if load_pattern not in LOAD_PATTERNS:
+        raise UnknownNameError(f"unknown load pattern {load_pattern!r}; valid: "
+                               f"{', '.join(LOAD_PATTERNS)}", name=load_pattern,
+                               choices=LOAD_PATTERNS)
+    if configs < 1 or loads_per_config < 1 or repeats < 1:
+        raise StiffnessError("configs, loads per config and repeats must be at least 1")
+    rows = (plan_rows if plan_rows is not None else configs * loads_per_config) * repeats
+    if rows > MAX_ROWS:
+        raise StiffnessError(
+            f"the campaign would have {rows:.3g} rows ("
+            + ("plan rows" if plan_rows is not None else "configs x loads per config")
+            + f" x repeats), more than {MAX_ROWS:.0e}, far beyond any rig's campaign and hours "
+            "of equilibrium solves; ask for fewer")
+    if not (max_force > 0 and math.isfinite(max_force)):
+        raise StiffnessError(f"max force must be positive, got {max_force}")
+    if not (noise_std_m >= 0 and math.isfinite(noise_std_m)):
+        raise StiffnessError(f"noise std must be >= 0, got {noise_std_m}")
+    if len(set(labels)) != len(labels):
+        raise StiffnessError(f"an effect is hidden twice: {labels}")
+
+
+def rotation_noise_std(rotation_noise_std_rad: float | None, noise_std_m: float) -> float:
+    """The rotation noise std (rad): given, else ``noise_std_m / 0.1 m`` (a 6-D probe whose
+    markers are 0.1 m apart); refused when negative or not finite."""
+    if rotation_noise_std_rad is None:
+        rotation_noise_std_rad = noise_std_m / 0.1
+    if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
+        raise StiffnessError(f"rotation noise std must be >= 0, got {rotation_noise_std_rad}")
+    return rotation_noise_std_rad
+
+
+def true_stiffness(declared: Robot, kq: list[float] | np.ndarray | None, source: str
+                    ) -> np.ndarray:
+    """The true stiffness per declared compliant joint (SI): ``kq``, else the shipped
+    robot's ``k_theta_SI``; refused unless one positive value per joint."""
+    if kq is None:
+        if "k_theta_SI" not in declared.defaults:
+            raise StiffnessError(f"give the true joint stiffness of {source} (--kq), one per "
+                                 f"compliant joint: {', '.join(declared.compliant_joints)}")
+        kq = declared.defaults["k_theta_SI"]
+    kq = np.asarray(kq, dtype=float).reshape(-1)
+    if kq.shape[0] != declared.n_compliant or np.any(kq <= 0) or not np.all(np.isfinite(kq)):
+        raise StiffnessError(f"need {declared.n_compliant} positive stiffnesses (one per "
+                             f"compliant joint {', '.join(declared.compliant_joints)}), got "
+                             f"{kq.tolist()}")
+    return kq
+
+
+def request_record(plan: Plan | None, configs: int, loads_per_config: int, repeats: int,
+                    load_pattern: str, max_force: float, row_labels: list[str],
+                    applied: np.ndarray) -> dict:
+    """What was asked for (``truth.json``'s settings): the plan's sizes and largest force
+    (N), or the drawn ones."""
+    if plan is None:
+        return {"configs": configs, "loads_per_config": loads_per_config, "plan": None,
+                "repeats": repeats, "max_force_N": max_force, "load_pattern": load_pattern}
+    return {"configs": len(dict.fromkeys(row_labels)), "loads_per_config": None,
+            "plan": str(plan.path) if plan.path is not None else None, "repeats": repeats,
+            "max_force_N": float(np.linalg.norm(applied, axis=1).max()),
+            "load_pattern": None}
