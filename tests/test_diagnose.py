@@ -4,6 +4,7 @@ campaigns."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.selection import config_folds
 from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
+from stiffness.files import resolve_path
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.provenance import provenance
 from stiffness.robot.sources import robots_directory
@@ -138,11 +140,13 @@ def test_config_folds():
         assert len({many[i] for i in f}) * 2 == len(f)
 
 
-def test_cli_json_and_files(tmp_path, capsys):
+def test_cli_json_and_files(tmp_path, capsys, monkeypatch):
     sim = _simulate(SK120, ["force_sensor_bias=8"], configs=8)
     sim.write(tmp_path / "camp")
     out = tmp_path / "out"
-    assert main(["diagnose", str(tmp_path / "camp"), "--json", "--out", str(out)]) == 0
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")  # paths given relative to another folder
+    assert main(["diagnose", "../camp", "--json", "--out", "../out"]) == 0
     text = capsys.readouterr().out
     summary = json.loads(text)
     assert set(summary) == SUMMARY_KEYS
@@ -163,8 +167,19 @@ def test_cli_json_and_files(tmp_path, capsys):
     full = json.loads((out / DIAGNOSIS_FILE).read_text())
     assert "where_baseline_disagrees" in full and "by_load_sign" in full[
         "where_baseline_disagrees"]
-    assert main(["diagnose", str(tmp_path / "camp"), "--quiet"]) == 0
+    assert main(["diagnose", "../camp", "--quiet", "--validate", "../camp",
+                 "--out", "../out2/deep"]) == 0
     assert "missing effects: force_sensor_bias" in capsys.readouterr().out
+    # recorded paths are relative to diagnosis.json's folder, whatever the working directory
+    monkeypatch.chdir(tmp_path / "camp")
+    camp = (tmp_path / "camp" / "campaign.toml").resolve()
+    assert full["campaign_path"] == "../camp/campaign.toml"
+    assert Path(resolve_path(full["campaign_path"], out)).resolve() == camp
+    deep = tmp_path / "out2" / "deep"
+    full = json.loads((deep / DIAGNOSIS_FILE).read_text())
+    assert Path(resolve_path(full["campaign_path"], deep)).resolve() == camp
+    assert Path(resolve_path(full["validation"]["campaign"], deep)).resolve() == camp.parent
+    assert full["validation"]["robot"]["source"] == "sk120"
 
 
 def test_table2_diagnosis_is_the_documented_one():

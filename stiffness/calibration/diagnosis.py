@@ -29,7 +29,7 @@ from stiffness.calibration.selection import GOF_LEVEL
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
-from stiffness.files import atomic_write, staged_folder
+from stiffness.files import atomic_write, staged_folder, written_path, written_source
 from stiffness.provenance import provenance
 from stiffness.units import Units
 
@@ -318,15 +318,17 @@ class Diagnosis:
         """The ``--json`` object (:meth:`to_dict`)."""
         return self.to_dict()
 
-    def record(self) -> dict:
+    def record(self, folder: Path | None = None) -> dict:
         """Everything (``diagnosis.json``): :meth:`to_dict` plus the breakdowns, rankings,
-        ambiguities, proposals."""
+        ambiguities, proposals; ``campaign_path`` as given, or relative to ``folder`` (where
+        ``diagnosis.json`` is written; :func:`~stiffness.files.written_path`)."""
         c = self.campaign
         out = self.to_dict()
         out.update({
             "campaign": c.name,
             "robot_name": self.geometry.robot.title,
-            "campaign_path": str(c.path) if c.path is not None else None,
+            "campaign_path": None if c.path is None else str(c.path) if folder is None
+            else written_path(c.path, folder),
             "rows": c.n_rows,
             "residual_components": (3 if c.rotation is None else 6) * c.n_rows,
             "configurations": len(set(c.config)),
@@ -416,7 +418,8 @@ class Diagnosis:
         (:meth:`~stiffness.calibration.validation.Validation.to_dict` of the final model on
         another campaign) is recorded under ``validation`` and shown on the page."""
         folder = Path(folder)
-        record = self.record() | ({"validation": validation} if validation else {})
+        record = self.record(folder) | ({"validation": _validation_in(validation, folder)}
+                                        if validation else {})
         png = residual_plot(self)
         with staged_folder(folder) as stage:  # published whole, by one rename
             atomic_write(stage / DIAGNOSIS_FILE, json.dumps(record, indent=1) + "\n")
@@ -426,6 +429,15 @@ class Diagnosis:
                                                                   provenance(command)))
         return {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
                 "final_model": folder / FINAL_MODEL_FILE, "page": folder / DIAGNOSIS_PAGE}
+
+
+def _validation_in(validation: dict, folder: Path) -> dict:
+    """A validation object (:meth:`~stiffness.calibration.validation.Validation.to_dict`) as
+    written into ``folder``: its campaign path and robot source relative to ``folder``."""
+    robot = validation.get("robot") or {}
+    return {**validation, "campaign": written_path(validation["campaign"], folder),
+            **({"robot": {**robot, "source": written_source(robot["source"], folder)}}
+               if "source" in robot else {})}
 
 
 def residual_plot(d: Diagnosis) -> bytes:
