@@ -132,3 +132,23 @@ def test_the_nominal_is_the_robots_declared_stiffness():
     model = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (),
                        References.of(geo, rows, 1e5, np.full((1, 3), 1e-4)))
     np.testing.assert_allclose(np.exp(nominal_log_stiffness(model)), declared, rtol=1e-12)
+
+
+def test_a_quantity_derived_from_a_variable_beside_a_bound_is_reported():
+    """``nonlinear_joint_stiffness`` reports two quantities (``beta``, its relative change at
+    the largest torque) from one variable; added last to the fit whose compensator stiffness
+    sits at its bound, both are reported, the derived one bounded as ``beta`` is (it indexed
+    past the covariance and diagnose ended in an IndexError)."""
+    from stiffness.elastic.effects import make_effect
+
+    fit, c = _fit()
+    effect = make_effect("nonlinear_joint_stiffness", ARMS[0][1][2], fit.model.geometry)
+    model = fit.model.extended(effect)
+    fit = fit_model(model, c.deflection, NOISE, model.extend_x(fit.x, effect))
+    assert fit.at_bound  # the compensator's stiffness still at 0
+    cov = parameter_covariance(fit, NOISE, c.deflection)
+    quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
+    beta, change = _effect_parameters(fit, cov, quantile, SI_UNITS,
+                                      held_at_bounds(fit, NOISE, c.deflection))[effect.label]
+    assert (beta.name, change.name) == ("beta", "relative_change_at_max_torque")
+    assert beta.ci95[0] <= beta.value <= beta.ci95[1]

@@ -155,7 +155,9 @@ def _held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
 def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units,
                        held_cov: np.ndarray | None = None) -> dict[str, list[Parameter]]:
     """Each effect's parameters in ``fit`` with their intervals (from ``cov``, each end
-    bounded by ``held_cov`` as :func:`_held` says)."""
+    bounded by ``held_cov`` as :func:`_held` says). A reported quantity beyond the effect's
+    variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``) is held,
+    at its bound or bounded as its last variable is."""
     model = fit.model
     out = {}
     for i, e in enumerate(model.effects):
@@ -163,7 +165,8 @@ def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units,
         free = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
         held = (free if held_cov is None else
                 e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
-        out[e.label] = [_held(fit, a + k, p, cov, None if held_cov is None else q)
+        out[e.label] = [_held(fit, a + min(k, b - a - 1), p, cov,
+                              None if held_cov is None else q)
                         for k, (p, q) in enumerate(zip(free, held, strict=True))]
     return out
 
