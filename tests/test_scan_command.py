@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,6 +35,7 @@ from stiffness.robot.robot import load_robot
 from stiffness.workspace import engine
 from stiffness.workspace.spec import ScanSpec
 
+ROOT = Path(__file__).resolve().parents[1]
 UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
 GRID = ["--axis", "shoulder_lift_joint=-90:0:30", "--axis", "elbow_joint=20:140:40",
         "--axis", "wrist_1_joint=-60:60:60", "--deg"]
@@ -201,6 +204,28 @@ def test_resume_recomputes_only_missing_chunks(tmp_path):
     # another scan into the same folder is refused
     assert main(["scan", "--robot", "ur5", "--kq", UR5_KQ, *GRID, "--load", "1,2,3",
                  "--out", str(out), "--quiet"]) == 2
+
+
+def test_robot_paths_are_relative_to_the_scan_folder(tmp_path, monkeypatch):
+    """manifest.json and summary.json name a robot file relative to their folder: a scan given
+    the same robot by another relative path resumes it, and the spec read back finds it."""
+    (tmp_path / "r").mkdir()
+    shutil.copy(ROOT / "examples" / "sk120-dh" / "robot.toml", tmp_path / "r")
+    (tmp_path / "work" / "sub").mkdir(parents=True)
+    common = ["scan", "--axis", "joint2=-30:30:30", "--deg", "--chunk-size", "2", "--no-plots",
+              "--quiet", "--json"]
+    monkeypatch.chdir(tmp_path / "work")
+    assert main([*common, "--robot", "../r/robot.toml", "--out", "../out/deep"]) == 0
+    folder = tmp_path / "out" / "deep"
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["spec"]["robot"]["source"] == "../../r/robot.toml"
+    assert json.loads((folder / "summary.json").read_text())["robot"] == "../../r/robot.toml"
+    monkeypatch.chdir(tmp_path / "work" / "sub")
+    assert engine.run_scan(ScanSpec.from_dict(manifest["spec"], folder), "../../out/deep",
+                           plots=False)["chunks"]["resumed"] == 2
+    assert main([*common, "--robot", "../../r/robot.toml", "--out", "../../out/deep"]) == 0
+    assert engine._manifest_spec(folder).robot["source"] == str(
+        (tmp_path / "r" / "robot.toml").resolve())
 
 
 # ------------------------------------------------------------------------------ Dask

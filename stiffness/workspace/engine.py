@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.errors import MissingFileError, StiffnessError
-from stiffness.files import atomic_write, atomic_write_with, staged_folder
+from stiffness.files import atomic_write, atomic_write_with, staged_folder, written_source
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 from stiffness.workspace.distributed import run_chunks, warm_worker, worker_robot
 from stiffness.workspace.maps import MapAccumulator, compute_maps, derive, stored_arrays
@@ -275,7 +275,7 @@ def _manifest_spec(out: Path) -> ScanSpec:
             f"{out} was written with chunk layout {data.get('layout')}; this version reads "
             f"layout {LAYOUT_VERSION}: rerun the scan into a new folder"
         )
-    return ScanSpec.from_dict(data["spec"])
+    return ScanSpec.from_dict(data["spec"], out)
 
 
 # ---------------------------------------------------------------------------------- run
@@ -398,13 +398,13 @@ def _scan_into(spec: ScanSpec, out: Path, shown: Path, formats: tuple[str, ...],
                progress: Callable[[int, int], None] | None, write_on_workers: bool | None,
                chunks_per_task: int | None) -> dict:
     """:func:`run_scan` into the folder ``out`` being built (``shown`` in messages)."""
-    manifest = {"layout": LAYOUT_VERSION, "spec": spec.to_dict(), "formats": list(formats),
+    manifest = {"layout": LAYOUT_VERSION, "spec": spec.to_dict(shown), "formats": list(formats),
                 "n_configurations": spec.n_configurations, "n_chunks": spec.n_chunks,
                 "units": _UNITS, "classes": list(DEFINITENESS_CLASSES), "undefined": UNDEFINED}
     manifest_file = out / "manifest.json"
     if manifest_file.is_file():
         previous = json.loads(manifest_file.read_text())
-        if previous.get("spec") != json.loads(json.dumps(spec.to_dict())):
+        if previous.get("spec") != json.loads(json.dumps(manifest["spec"])):
             raise StiffnessError(
                 f"{shown} holds a different scan (its manifest.json differs); give a new --out "
                 "folder, or the same options to resume it"
@@ -483,7 +483,8 @@ def _scan_into(spec: ScanSpec, out: Path, shown: Path, formats: tuple[str, ...],
         for name, png in all_figures(spec, acc).items():
             atomic_write(out / name, png)
         summary["plot_seconds"] = time.perf_counter() - t1
-    atomic_write(out / "summary.json", json.dumps(summary, indent=1))
+    atomic_write(out / "summary.json", json.dumps(  # its robot path relative to the folder
+        {**summary, "robot": written_source(summary["robot"], shown)}, indent=1))
     return summary
 
 

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from stiffness.errors import StiffnessError
+from stiffness.files import resolve_path, resolve_source, written_path, written_source
 from stiffness.mechanics.formulation import DEFINITENESS_CLASSES
 
 #: Version of the chunk layout (2: stored fields chosen, packed symmetric K_X, no derivable
@@ -197,13 +199,27 @@ class ScanSpec:
     layout: int = LAYOUT_VERSION
 
     @classmethod
-    def from_dict(cls, data: dict) -> ScanSpec:
-        """Rebuild a spec from :meth:`to_dict` output."""
-        return cls(**data)
+    def from_dict(cls, data: dict, folder: Path | None = None) -> ScanSpec:
+        """Rebuild a spec from :meth:`to_dict` output; with ``folder`` (where the file holding
+        it is), the robot's paths written relative to it are resolved against it."""
+        if folder is None:
+            return cls(**data)
+        robot = dict(data["robot"])
+        robot["source"] = resolve_source(robot["source"], folder)
+        if robot.get("loops"):
+            robot["loops"] = resolve_path(robot["loops"], folder)
+        return cls(**{**data, "robot": robot})
 
-    def to_dict(self) -> dict:
-        """JSON-ready form."""
-        return asdict(self)
+    def to_dict(self, folder: Path | None = None) -> dict:
+        """JSON-ready form; with ``folder`` (where it is written), the robot's source and loop
+        file relative to it (:func:`~stiffness.files.written_source`)."""
+        data = asdict(self)
+        if folder is not None:
+            robot = data["robot"]
+            robot["source"] = written_source(robot["source"], folder)
+            if robot.get("loops"):
+                robot["loops"] = written_path(robot["loops"], folder)
+        return data
 
     @property
     def axis_lengths(self) -> list[int]:
