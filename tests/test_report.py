@@ -17,6 +17,7 @@ from stiffness.cli.main import main
 from stiffness.mechanics.formulation import target_state
 from stiffness.papers.tables import read_paper_table, read_table4
 from stiffness.robot.robot import load_robot
+from stiffness.robot.sources import robots_directory
 
 CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 
@@ -41,6 +42,10 @@ def test_files_written_without_leftovers(report_dir):
     assert "report.html" in names and "summary.json" in names and "sk120-scene.html" in names
     assert "href='sk120-scene.html'" in (report_dir / "report.html").read_text()
     assert not [n for n in names if n.startswith(".")], names
+    recorded = json.loads((report_dir / "summary.json").read_text())["campaign"]
+    assert not Path(recorded).is_absolute()  # relative to the report's folder
+    assert (report_dir / recorded).resolve() == (
+        robots_directory() / "sk120" / "campaigns" / "table2").resolve()
 
 
 def test_summary_has_the_required_keys(summary):

@@ -24,7 +24,7 @@ from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.identification import Identification
 from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, staged_folder
+from stiffness.files import atomic_write, staged_folder, written_path
 from stiffness.mechanics.equilibrium import linear_departure
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
@@ -392,12 +392,15 @@ def _identify_progress():
 def write_report(out: Path, summary: dict, figures: dict[str, bytes],
                  scene: Callable[[Path], object] | None = None) -> None:
     """Write report.html, summary.json, the PNGs and the 3-D scene into ``out``, published as
-    one folder (:func:`stiffness.files.staged_folder`).
+    one folder (:func:`stiffness.files.staged_folder`); the campaign's path is written relative
+    to ``out`` (:func:`stiffness.files.written_path`).
 
     ``scene(path)`` writes the 3-D scene of :func:`scene_robot` to ``out / SCENE_FILE`` (the
     ``stiffness report`` command passes the viewer's export: the viewer sits above this layer);
     None writes no scene.
     """
+    if summary.get("campaign"):  # written relative to the report's folder
+        summary = {**summary, "campaign": written_path(summary["campaign"], out)}
     with staged_folder(out) as folder:  # published whole, by one rename
         if scene is not None:
             scene(folder / SCENE_FILE)
