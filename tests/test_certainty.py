@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from stiffness.calibration.certainty import is_stand_in
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
+from stiffness.calibration.naming import is_stand_in
 from stiffness.elastic.effects.base import PHYSICAL_FACTOR
 from stiffness.elastic.effects.geometry import References
 from stiffness.elastic.effects.joint_laws import JointCompliance

@@ -13,6 +13,9 @@ For each effect of the final model:
   determined`) but beyond its physical scale: the data prefer the effect's shape, its size is
   not physical (a finding only of that shape).
 
+The rules (stand-in, best alternative) are :mod:`stiffness.calibration.naming`'s, shared with
+pose diagnoses; this module refits a deflection campaign's final model without each effect.
+
 SI inside; :meth:`Certainty.to_dict` in the campaign's length unit.
 """
 
@@ -25,11 +28,9 @@ import numpy as np
 
 from stiffness.calibration import fitting
 from stiffness.calibration.fitting import Fit
+from stiffness.calibration.naming import STAND_IN_NOTE, alternative, is_stand_in
 from stiffness.calibration.selection import cross_validate, fit_job, information_criterion
 from stiffness.elastic.effects.base import Parameter
-
-#: What a stand-in is, as the report says it.
-STAND_IN_NOTE = "the data prefer this shape; its size is not physical"
 
 
 @dataclass
@@ -79,11 +80,6 @@ class Certainty:
                 f"{alt}{verdict}")
 
 
-def is_stand_in(parameters: list[Parameter]) -> bool:
-    """Whether a determined parameter of an effect is beyond its physical scale."""
-    return any(p.determined and p.beyond_scale for p in parameters)
-
-
 def certainty(final: Fit, steps: list, parameters: dict[str, list[Parameter]],
               measured: np.ndarray, folds: list[np.ndarray], cv_final: float, n: int,
               sigma: float | None, workers: int | None = None) -> list[Certainty]:
@@ -108,11 +104,11 @@ def certainty(final: Fit, steps: list, parameters: dict[str, list[Parameter]],
     for i, (effect, fit, cv_without) in enumerate(zip(model.effects, without, cv,
                                                       strict=True)):
         step = steps[i] if i < len(steps) else None
-        alternative, d_alt = _alternative(step)
+        other, d_alt = _alternative(step)
         out.append(Certainty(
             effect.label, cv_without - cv_final,
             information_criterion(fit.loss_rss, n, fit.penalty_params, sigma) - bic_final,
-            alternative, d_alt, is_stand_in(parameters.get(effect.label, []))))
+            other, d_alt, is_stand_in(parameters.get(effect.label, []))))
     return out
 
 
@@ -120,9 +116,6 @@ def _alternative(step) -> tuple[str | None, float | None]:
     """The best other candidate of ``step``'s ranking and its BIC minus the chosen one's."""
     if step is None:
         return None, None
-    chosen = (step.effect.name, step.effect.where)
-    for r in step.ranking:
-        if (r["effect"], r["where"]) != chosen:
-            label = r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})"
-            return label, float(r["delta_bic"] - step.delta_bic)
-    return None, None
+    ranking = [(r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})",
+                r["delta_bic"]) for r in step.ranking]
+    return alternative(ranking, step.effect.label, step.delta_bic)

@@ -57,6 +57,7 @@ from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaig
 from stiffness.calibration.certainty import certainty
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Candidate, Diagnosis, Step
 from stiffness.calibration.fitting import Fit, kind_noise, observations, parameter_labels
+from stiffness.calibration.naming import namable, one_sided, settle
 from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise,
@@ -77,6 +78,7 @@ from stiffness.calibration.selection import (
     goodness_of_fit,
     held_at_bounds,
     held_ends,
+    information_criterion,
     interval_quantile,
     parameter_covariance,
     replicate_noise,
@@ -141,9 +143,7 @@ def _held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
     inward = {b: 1.0 if abs(fit.x[b] - lo[b]) <= abs(fit.x[b] - hi[b]) else -1.0
               for b in fit.at_bound}
     if index in fit.at_bound:
-        ci = ((parameter.value, parameter.ci95[1]) if inward[index] > 0
-              else (parameter.ci95[0], parameter.value))
-        return dataclasses.replace(parameter, at_bound=True, ci95=ci)
+        return one_sided(parameter, inward[index] > 0)
     if bounded is None:
         return parameter
     held_low, held_high = held_ends([cov[index, b] * inward[b] for b in fit.at_bound])
@@ -433,12 +433,6 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: f
                                                                  + (held,)))
 
 
-def _looseness(p: Parameter, size: float) -> float:
-    """The width of ``p``'s 95 % interval over its physical scale ``size`` (inf unbounded)."""
-    width = p.ci95[1] - p.ci95[0]
-    return width / size if math.isfinite(width) and size > 0 else math.inf
-
-
 def _undetermined(params: list[Parameter]) -> str | None:
     """Why the data do not determine ``params`` (SI), or ``None`` when they do: finite 95 %
     intervals with half-widths within :data:`SETTING_PRECISION` of the values."""
@@ -622,32 +616,28 @@ class _Search:
         return winner, ""
 
     def settled(self, c: Candidate) -> bool:
-        """Issue 36.4 inside a family: the parameters of ``c``'s effect that the data do not
-        determine (:attr:`Parameter.determined`) held at their nominal value (the effect's
-        start, :meth:`Effect.start`: a compensator's stiffness or preload 0, its base the
-        declared one), the least determined first (widest 95 % interval for its physical
-        scale), each time the fit redone, until the others are determined or one is left
+        """Issue 36.4 inside a family (:func:`stiffness.calibration.naming.settle`): the
+        parameters of ``c``'s effect that the data do not determine held at their nominal
+        value (the effect's start, :meth:`Effect.start`: a compensator's stiffness or preload
+        0, its base the declared one), the least determined first, each time the fit redone
         (``c.fit`` replaced; the step's ranking keeps the BIC of the effect fitted in full).
         Whether the effect may still be named (:meth:`namable`)."""
-        fit = c.fit
-        effect = fit.model.effects[-1]
-        start, sizes = fit.model.offsets[-2], effect.physical_scale(fit.model.refs)
-        while True:
-            params = self.parameters(fit, SI_UNITS)[effect.label]
-            free = [k for k, p in enumerate(params) if not p.held]
-            loose = [k for k in free if not params[k].determined]
-            if not loose or len(free) < 2:
-                break
-            worst = max(loose, key=lambda k: _looseness(params[k], float(sizes[k])))
-            p = params[worst]
-            why = (f"held at its nominal value: the data do not determine it "
-                   f"({p.scale_note or 'its 95 % interval is unbounded'}, fitted)")
+        effect = c.fit.model.effects[-1]
+        start = c.fit.model.offsets[-2]
+
+        def hold(fit: Fit, ks: list[int], ps: list[Parameter], whys: list[str]) -> Fit:
             x = fit.x.copy()
-            x[start + worst] = effect.start()[worst]
-            fit = fit_job(fit.model.holding({f"{effect.label}.{p.name}": why}), self.measured,
-                          self.scale, x, loss=fit.loss, f_scale=fit.f_scale).run()
-        c.fit = fit
-        return self.namable(fit)
+            for k in ks:
+                x[start + k] = effect.start()[k]
+            held = {f"{effect.label}.{p.name}": why for p, why in zip(ps, whys, strict=True)}
+            return fit_job(fit.model.holding(held), self.measured, self.scale, x,
+                           loss=fit.loss, f_scale=fit.f_scale).run()
+
+        full = c.fit
+        c.fit = settle(c.fit, lambda fit: self.parameters(fit, SI_UNITS)[effect.label],
+                       effect.physical_scale(c.fit.model.refs), hold)
+        c.settled = c.fit is not full
+        return self.namable(c.fit)
 
     def parameters(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""
@@ -663,19 +653,24 @@ class _Search:
         """Whether the effect ``fit`` adds may be named: it has no parameter (a switch), or at
         least one is determined (:attr:`Parameter.determined`: within its physical scale) with
         an interval excluding zero."""
-        params = self.parameters(fit, SI_UNITS)[fit.model.effects[-1].label]
-        return not params or any(p.determined and p.excludes_zero for p in params)
+        return namable(self.parameters(fit, SI_UNITS)[fit.model.effects[-1].label])
 
     def step(self, winner: Candidate, results: list[Candidate], dispersion: float,
              units: Units) -> Step:
         """The :class:`Step` that adds ``winner``: its parameters with intervals, the step's
-        ranking."""
+        ranking; its BIC change that of the fit it adds (a settled one's when parameters are
+        held, the step's ranking keeping the full fit's)."""
         fit = winner.fit
         params = self.parameters(fit, units)
         ranking = [{"effect": c.effect.name, "where": c.effect.where,
                     "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
         assert winner.cv_rms is not None  # the winner was cross-validated
-        return Step(winner.effect, fit, fit.rms(), winner.bic, winner.delta_bic,
+        bic, delta = winner.bic, winner.delta_bic
+        if winner.settled:  # the settled fit's BIC, under the step's overdispersion
+            sigma = None if self.sigma is None else self.sigma * math.sqrt(dispersion)
+            bic = information_criterion(fit.loss_rss, self.n, fit.penalty_params, sigma)
+            delta = bic - (winner.bic - winner.delta_bic)
+        return Step(winner.effect, fit, fit.rms(), bic, delta,
                     winner.cv_rms, params[winner.effect.label], ranking, dispersion)
 
 

@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.certainty import Certainty, is_stand_in
+from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit, parameter_labels
 from stiffness.calibration.identifiability import Identifiability
+from stiffness.calibration.naming import is_stand_in
 from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
     Outlier,
@@ -58,6 +59,10 @@ class Candidate:
         Its BIC and the change from the current model's.
     cv_rms
         Cross-validated RMS (m), when computed.
+    settled
+        Whether ``fit`` holds parameters of the effect at nominal
+        (:func:`stiffness.calibration.naming.settle`); ``bic`` and ``delta_bic`` stay those of
+        the effect fitted in full (the step's ranking).
     """
 
     effect: Effect
@@ -65,6 +70,7 @@ class Candidate:
     bic: float
     delta_bic: float
     cv_rms: float | None = None
+    settled: bool = False
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from stiffness.calibration.breakdown import strongest_correlations
-from stiffness.calibration.certainty import STAND_IN_NOTE
+from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.selection import GOF_LEVEL
 

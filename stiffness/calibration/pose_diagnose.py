@@ -25,6 +25,7 @@ with its structure (per marker, per axis, along the row order).
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -35,6 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.breakdown import error_summary
+from stiffness.calibration.certainty import Certainty
+from stiffness.calibration.naming import alternative, is_stand_in, namable, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import (
@@ -50,6 +53,7 @@ from stiffness.calibration.pose_fit import (
 )
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_orientation import orientation_errors
+from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -61,6 +65,7 @@ from stiffness.calibration.selection import (
 from stiffness.calibration.solver import check_loss
 from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES, check_masses
+from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import atomic_write, written_source
@@ -77,6 +82,9 @@ CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys
                         "link_compliance", "transversal_compliance", "base_tilt", "backlash",
                         "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
+#: Why a search stops when the families that pass BIC may not be named (issue 36.4).
+NOT_NAMABLE = ("the families that improve BIC determine none of their parameters within its "
+               "physical scale with an interval excluding zero")
 #: A progress-bar factory: given a label, a ``(done, total)`` callback or ``None``.
 Bar = Callable[[str], Callable[[int, int], None] | None]
 #: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
@@ -94,6 +102,7 @@ class PoseStep:
     cv_rms: float
     validation: dict | None = None
     forced: bool = False
+    ranking: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -113,6 +122,8 @@ class PoseDiagnosis:
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
     stop_reason: str = ""
+    judge: PoseJudge | None = None
+    how_sure: list[Certainty] = field(default_factory=list)
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -155,7 +166,7 @@ class PoseDiagnosis:
                 "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
                            "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
-                           "forced": s.forced,
+                           "forced": s.forced, **self._named(s),
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
                 "rejected": self.rejected, "families": self.families,
@@ -166,21 +177,45 @@ class PoseDiagnosis:
                 "outliers": [o.to_dict() for o in self.outliers],
                 "identifiability": self.final.identifiability.to_dict(
                     [p.label for p in self.final.model.parameters]),
-                "parameters": parameter_table(self.final),
+                "parameters": parameter_table(self.final, self.judge),
+                "how_sure": [c.to_dict(lu) for c in self.how_sure],
                 "residual_structure": residual_structure(self.final, self.campaign)}
 
+    def stand_in(self, family: str) -> bool:
+        """Whether the final model's ``family`` is a stand-in (its size is not physical:
+        :func:`stiffness.calibration.naming.is_stand_in`)."""
+        if self.judge is None:
+            return False
+        return is_stand_in(self.judge.parameters(self.final).get(family, []))
 
-def parameter_table(fit: PoseFit) -> list[dict]:
+    def _named(self, step: PoseStep) -> dict:
+        """A step's ``parameters`` (its family's, as that step fitted them, SI) and
+        ``stand_in`` (in the final model), the keys of a deflection diagnosis's steps."""
+        if self.judge is None or step.family == "baseline":
+            return {}
+        params = self.judge.parameters(step.fit)[step.family]
+        return {"parameters": {p.name: p.to_dict() for p in params},
+                "stand_in": self.stand_in(step.family)}
+
+
+def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
     """Each parameter with its value, standard deviation and 95 % interval (SI, unit named),
-    and whether it sits at its physical lower bound (its interval then one-sided)."""
+    and whether it sits at its physical lower bound (its interval then one-sided); with the
+    campaign's ``judge``, also the keys of a deflection diagnosis's parameters
+    (:meth:`~stiffness.elastic.effects.base.Parameter.to_dict`: ``standard_error``, ``ci95``,
+    ``determined``, ``held``, ``physical_scale``)."""
     lo, hi = fit.interval()
     std = fit.std()
     kept = set(fit.identifiability.kept)
+    judged = ({} if judge is None else
+              {p.name: p for ps in judge.parameters(fit).values() for p in ps})
     return [{"family": p.family, "parameter": p.label, "unit": p.unit,
              "value": float(fit.x[i]), "fitted": i in kept,
              "std": None if i not in kept else float(std[i]),
              "interval_95": None if i not in kept else [float(lo[i]), float(hi[i])],
-             "at_bound": i in fit.at_bound}
+             "at_bound": i in fit.at_bound,
+             **({k: v for k, v in judged[p.label].to_dict().items()
+                 if k not in ("value", "unit", "at_bound")} if p.label in judged else {})}
             for i, p in enumerate(fit.model.parameters)]
 
 
@@ -213,13 +248,46 @@ def _rms(values: np.ndarray) -> float:
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
          settings: dict, start: PoseFit | dict[str, float] | None = None,
-         loss: str = "linear", scale: float | None = None) -> PoseFit:
+         loss: str = "linear", scale: float | None = None,
+         held: dict[str, str] | None = None) -> PoseFit:
     """Fit ``families``, starting from ``start``'s values of the parameters they share (a fit,
-    or its values by label), under ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`)."""
+    or its values by label), under ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`),
+    the parameters of ``held`` (label: why; default those ``start`` held) held at nominal."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
                       settings)
+    if held is None:
+        held = held_labels(start) if isinstance(start, PoseFit) else {}
+    index = {p.label: i for i, p in enumerate(model.parameters)}
     return fit_pose_model(model, campaign, rows_of(model, campaign), families,
-                          None if start is None else warm_start(model, start), loss, scale)
+                          None if start is None else warm_start(model, start), loss, scale,
+                          held={index[k]: why for k, why in held.items() if k in index})
+
+
+def held_labels(fit: PoseFit) -> dict[str, str]:
+    """The parameters ``fit`` holds at nominal because the data do not determine them
+    (label: why)."""
+    labels = [p.label for p in fit.model.parameters]
+    return {labels[d.index]: d.note for d in fit.identifiability.dropped
+            if d.reason == "undetermined"}
+
+
+def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: PoseJudge,
+            scale: float | None) -> PoseFit:
+    """``fit`` (of ``families``, in the order chosen) with the parameters of its last family
+    that the data do not determine held at nominal, the least determined first
+    (:func:`stiffness.calibration.naming.settle`, as deflection diagnose's effects)."""
+    model, family = fit.model, families[-1]
+    frame0 = (model.rotation0, model.translation0)
+
+    def hold(trial: PoseFit, ks: list[int], ps: list[Parameter], whys: list[str]) -> PoseFit:
+        return _fit(campaign, families, frame0, model.settings, trial, trial.loss, scale,
+                    {**held_labels(trial), **{p.name: why for p, why in zip(ps, whys,
+                                                                           strict=True)}})
+
+    sizes = model.family_objects[model.families.index(family)].physical_sizes(
+        model, judge.references(fit))
+    return settle(fit, lambda trial: judge.parameters(trial)[family], sizes, hold,
+                  lambda loose: loose)
 
 
 def warm_start(model: PoseModel, fit: PoseFit | dict[str, float]) -> np.ndarray:
@@ -310,23 +378,49 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         settings[DECLARED_TILT] = [float(v) for v in base_tilt]
         declared_tilt(settings)  # two finite angles, else a one-line error
     base = _fit(campaign, chosen, frame0, settings, loss=loss)
+    judge = PoseJudge.of(campaign)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
     steps = [PoseStep("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
                       _validation(base, validate))]
     for f in forced:
         say(f"step {len(steps)}: {f} (forced)")
-        fit = _fit(campaign, chosen + [f], frame0, settings, steps[-1].fit, loss, scale)
-        delta = _delta_bic(campaign, steps[-1].fit, {f: fit.loss_rss()}, {f: fit.n_fitted})
         chosen.append(f)
+        fit = settled(campaign, _fit(campaign, chosen, frame0, settings, steps[-1].fit, loss,
+                                     scale), chosen, judge, scale)
+        delta = _delta_bic(campaign, steps[-1].fit, {f: fit.loss_rss()}, {f: fit.n_fitted})
         steps.append(PoseStep(f, fit, delta[f], held_out_rms(fit, campaign, draw(f"held-out {f}")),
-                              _validation(fit, validate), forced=True))
+                              _validation(fit, validate), forced=True, ranking=delta))
     remaining = [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden]
     rejected, stop = _search(campaign, chosen, frame0, settings, steps, remaining, scale,
-                             validate, say, workers, draw)
+                             validate, say, workers, draw, judge)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
-    return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
-                         sorted(forbidden), outliers, outlier_sigma, stop)
+    d = PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
+                      sorted(forbidden), outliers, outlier_sigma, stop, judge)
+    d.how_sure = _how_sure(d, chosen, scale)
+    return d
+
+
+def _how_sure(d: PoseDiagnosis, chosen: list[str], scale: float | None) -> list[Certainty]:
+    """How sure ``d`` is of each family it added (``chosen``: the final model's families in
+    order), as deflection diagnose's effects (:mod:`stiffness.calibration.certainty`): the
+    final model refitted without it (and the families acting through it), its BIC change and
+    held-out RMS change; the best other family of its step and its BIC change minus the
+    chosen one's; whether it is a stand-in."""
+    final, campaign = d.final, d.campaign
+    frame0 = (final.model.rotation0, final.model.translation0)
+    out = []
+    for step in d.steps[1:]:
+        keep = [f for f in chosen if f != step.family
+                and step.family not in FAMILIES[f].requires]
+        without = _fit(campaign, keep, frame0, final.model.settings, final, final.loss, scale)
+        ranking = sorted(step.ranking.items(), key=lambda item: item[1])
+        other, d_other = alternative(ranking, step.family, step.delta_bic)
+        out.append(Certainty(step.family,
+                             held_out_rms(without, campaign) - d.steps[-1].cv_rms,
+                             without.bic(campaign.noise_std) - final.bic(campaign.noise_std),
+                             other, d_other, d.stand_in(step.family)))
+    return out
 
 
 def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
@@ -353,10 +447,12 @@ def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
 def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray, np.ndarray],
             settings: dict, steps: list[PoseStep], remaining: list[str], scale: float | None,
             validate: PoseCampaign | None, say: Callable[[str], None], workers: int | None,
-            bar: Bar) -> tuple[dict[str, float], str]:
+            bar: Bar, judge: PoseJudge) -> tuple[dict[str, float], str]:
     """The family-by-family search from ``steps[-1]`` over ``remaining`` (``chosen`` and
     ``steps`` extended in place), the candidates' fits on ``workers`` Dask workers above 1,
-    ``bar`` the held-out criterion's progress bars, until the model fits to noise
+    ``bar`` the held-out criterion's progress bars, each candidate that may be named
+    (``judge``: :func:`stiffness.calibration.naming.namable`) :func:`settled`, until the model
+    fits to noise
     (:func:`~stiffness.calibration.selection.fits_to_noise`, deflection diagnose's stop rule)
     or nothing helps; returns the families tried and not added, with their last BIC change,
     and why it stopped."""
@@ -375,19 +471,39 @@ def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray,
         delta = {**screened, **_delta_bic(campaign, steps[-1].fit,
                                           {f: t.loss_rss() for f, t in tried.items()},
                                           {f: t.n_fitted for f, t in tried.items()})}
-        best, cv_new, unfit = _winner(campaign, tried, delta, steps[-1].cv_rms, held_out, bar)
+        full = {f: (t.loss_rss(), t.n_fitted) for f, t in tried.items()}
+        best, cv_new, unfit, namable_any = _winner(
+            campaign, tried, delta, steps[-1].cv_rms, held_out, bar,
+            functools.partial(_named_fit, campaign, chosen, judge, scale))
         rejected.update({f: delta[f] for f in unfit})
         remaining = [f for f in remaining if f not in unfit]
         if best is None:
             rejected.update(delta)
-            return rejected, ("no family improves BIC by more than "
-                              f"{BIC_MARGIN:g} and the held-out error")
+            return rejected, (f"no family improves BIC by more than {BIC_MARGIN:g} and the "
+                              "held-out error" if namable_any else NOT_NAMABLE)
         rejected.update({f: d for f, d in delta.items() if f != best})  # tried, not added
         rejected.pop(best, None)
         chosen.append(best)
         remaining.remove(best)
-        steps.append(PoseStep(best, tried[best], delta[best], cv_new,
-                              _validation(tried[best], validate)))
+        fit = tried[best]
+        # a settled fit's own BIC change, under the step's overdispersion (the ranking keeps
+        # the full fit's)
+        settled_delta = _delta_bic(campaign, steps[-1].fit,
+                                   {**{f: r for f, (r, _) in full.items()}, "": fit.loss_rss()},
+                                   {**{f: k for f, (_, k) in full.items()}, "": fit.n_fitted})
+        steps.append(PoseStep(best, fit, delta[best] if fit.n_fitted == full[best][1]
+                              else settled_delta[""], cv_new,
+                              _validation(fit, validate), ranking=delta))
+
+
+def _named_fit(campaign: PoseCampaign, chosen: list[str], judge: PoseJudge,
+               scale: float | None, family: str, fit: PoseFit) -> PoseFit | None:
+    """The candidate ``family``'s ``fit`` :func:`settled`, or ``None`` when it may not be named
+    as fitted or once settled (:func:`stiffness.calibration.naming.namable`)."""
+    if not namable(judge.parameters(fit)[family]):
+        return None
+    fit = settled(campaign, fit, chosen + [family], judge, scale)
+    return fit if namable(judge.parameters(fit)[family]) else None
 
 
 def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
@@ -437,25 +553,36 @@ def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
 
 
 def _winner(campaign: PoseCampaign, tried: dict[str, PoseFit], delta: dict[str, float],
-            cv_current: float, held_out: dict[str, float], bar: Bar
-            ) -> tuple[str | None, float, list[str]]:
-    """As deflection diagnose: of the extensions past :data:`BIC_MARGIN`, the best
-    :data:`CV_TOP` by BIC are validated in that order, and the first whose held-out RMS
-    (leave one configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`) beats
-    ``cv_current`` wins (``None`` if none). Also returns those whose held-out RMS is infinite
-    (a configuration alone determines some of their parameters): the campaign cannot
-    validate them, and the search drops them. ``held_out`` holds those computed already (on
-    workers); ``bar`` makes a progress bar of the others."""
+            cv_current: float, held_out: dict[str, float], bar: Bar,
+            named: Callable[[str, PoseFit], PoseFit | None]
+            ) -> tuple[str | None, float, list[str], bool]:
+    """As deflection diagnose: of the extensions past :data:`BIC_MARGIN` that may be named
+    (``named``: the settled fit, or ``None``; taken in BIC order, as needed), the best
+    :data:`CV_TOP` are validated in that order, and the first whose held-out RMS (leave one
+    configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`, of its settled
+    fit, which replaces the full one in ``tried``) beats ``cv_current`` wins (``None`` if
+    none). Also returns those whose held-out RMS is infinite (a configuration alone
+    determines some of their parameters): the campaign cannot validate them, and the search
+    drops them; and whether any could be named. ``held_out`` holds those computed already (on
+    workers, of the full fits); ``bar`` makes a progress bar of the others."""
     eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
     unfit: list[str] = []
-    for f in eligible[:CV_TOP]:
-        cv = held_out[f] if f in held_out else held_out_rms(tried[f], campaign,
+    validated = 0
+    for f in eligible:
+        fit = named(f, tried[f]) if validated < CV_TOP else None
+        if fit is None:
+            continue
+        validated += 1
+        if fit is not tried[f]:
+            tried[f] = fit
+            held_out.pop(f, None)
+        cv = held_out[f] if f in held_out else held_out_rms(fit, campaign,
                                                             bar(f"held-out {f}"))
         if cv < cv_current:
-            return f, cv, unfit
+            return f, cv, unfit, True
         if math.isinf(cv):
             unfit.append(f)
-    return None, math.nan, unfit
+    return None, math.nan, unfit, validated > 0
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

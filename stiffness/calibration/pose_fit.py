@@ -393,7 +393,8 @@ def _padded(group: np.ndarray) -> np.ndarray:
 @one_blas_thread
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
-                   scale: float | None = None) -> PoseFit:
+                   scale: float | None = None, held: dict[int, str] | None = None
+                   ) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
     Parameters
@@ -411,6 +412,9 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     scale
         Noise std (m) scaling a robust loss; default the campaign's declared noise, else the
         robust estimate (module docstring). Ignored by least squares.
+    held
+        Parameters (model columns) held at zero, their nominal value, with why: not fitted,
+        reported ``undetermined`` with that note (:func:`stiffness.calibration.naming.settle`).
 
     Raises
     ------
@@ -419,7 +423,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     """
     check_loss(loss)
     if loss != "linear" and scale is None and campaign.noise_std is None:
-        return _fit_robust_scale(model, campaign, rows, order, x0, loss)
+        return _fit_robust_scale(model, campaign, rows, order, x0, loss, held)
     x = np.zeros(model.size) if x0 is None else np.array(x0, dtype=float)
     obs = PoseObservations(model, campaign, rows)
     noise = scale if scale is not None else campaign.noise_std
@@ -430,7 +434,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     # near aliases judged at the start too: off the rigid arm the model's first-order
     # Jacobian tells apart, by a sine of 1e-5, parameters the data cannot (a base joint's zero
     # offset and the measuring frame's rotation), which would cost every fit a second one
-    sol = solver.fit(problem, x, options, NEAR_ALIAS_RESOLUTION if noise else 0.0,
+    sol = solver.fit(problem, x, options, NEAR_ALIAS_RESOLUTION if noise else 0.0, held,
                      near_at_start=True)
     if loss == "linear":
         return _finish(obs, campaign, sol, sol.jac, sol.fun)
@@ -517,14 +521,15 @@ class PoseProblem:
 
 
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
-                      order: list[str], x0: np.ndarray | None, loss: str) -> PoseFit:
+                      order: list[str], x0: np.ndarray | None, loss: str,
+                      held: dict[int, str] | None = None) -> PoseFit:
     """A robust ``loss`` fit scaled by the robust noise estimate: from a least-squares fit's
-    residuals, then twice from the loss fit's."""
-    fit = fit_pose_model(model, campaign, rows, order, x0)
+    residuals, then twice from the loss fit's (``held`` held throughout)."""
+    fit = fit_pose_model(model, campaign, rows, order, x0, held=held)
     for _ in range(2):
         r = fit.residual[np.isfinite(fit.residual)]
         scale = robust_noise(r, fit.n_fitted) or max(fit.rms(), 1e-12)
-        fit = fit_pose_model(model, campaign, rows, order, fit.x, loss, scale)
+        fit = fit_pose_model(model, campaign, rows, order, fit.x, loss, scale, held)
     return fit
 
 

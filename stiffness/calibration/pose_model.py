@@ -317,14 +317,20 @@ class PoseModel:
         :data:`~stiffness.elastic.effects.FAMILIES`, whether in this model or not),
         from the torques the joints carry at the commanded poses under the nominal robot
         (gravity with its inertias, and the applied wrench)."""
+        torques = self.nominal_torques(rows)
+        out: dict = {}
+        for cls in FAMILIES.values():
+            out.update(cls.campaign_settings(torques, self))
+        return out
+
+    def nominal_torques(self, rows: list[RowTerms]) -> np.ndarray:
+        """(rows, nv) the torques (N.m, N) the joints carry at the commanded poses of ``rows``
+        under the nominal robot (gravity with its inertias, and the applied wrench)."""
         model = self.robot.model
         data = model.createData()
         torques = np.array([sum(self._load_torques(model, data, row.q_full, row.wrench))
                             for row in rows])
-        out: dict = {}
-        for cls in FAMILIES.values():
-            out.update(cls.campaign_settings(torques.reshape(len(rows), model.nv), self))
-        return out
+        return torques.reshape(len(rows), model.nv)
 
     def deflection(self, x: np.ndarray, state: SagState) -> np.ndarray:
         """Joint deflection ``Delta q`` (nv,) at ``state`` for parameters ``x``: the sum of the

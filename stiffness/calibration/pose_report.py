@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
+from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnose import (
     PoseDiagnosis,
@@ -57,12 +58,31 @@ def format_pose_report(d: PoseDiagnosis) -> str:
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
-    for p in (p for p in parameter_table(d.final) if p["fitted"]):
+    for p in (p for p in parameter_table(d.final, d.judge) if p["fitted"]):
         lo, hi = p["interval_95"]
         lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
                      f"[{lo:.5g}, {hi:.5g}]" + ("  at its lower bound" if p["at_bound"]
-                                                else ""))
-    return "\n".join(lines)
+                                                else "")
+                     + ("" if p.get("determined", True) else
+                        f"  undetermined ({p['physical_scale']})"))
+    return "\n".join(lines + _how_sure_lines(d))
+
+
+def _how_sure_lines(d: PoseDiagnosis) -> list[str]:
+    """The held parameters and how sure the diagnosis is of each family it added, in the
+    words of a deflection diagnosis's report."""
+    held = [p for ps in ({} if d.judge is None else d.judge.parameters(d.final)).values()
+            for p in ps if p.held.startswith("held at its nominal value")]
+    lines = ["", "held at nominal (the data do not determine them):",
+             *[f"  {p.text()}" for p in held]] if held else []
+    if d.how_sure:
+        lines += ["", "how sure (each family removed from the final model, the rest refitted):",
+                  *[c.text(d.campaign.units.length, d.campaign.units.length_to_si)
+                    for c in d.how_sure]]
+    stand_ins = [c.effect for c in d.how_sure if c.stand_in]
+    if stand_ins:
+        lines.append(f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins))
+    return lines
 
 
 def _verdict(d: PoseDiagnosis) -> str:
@@ -82,11 +102,15 @@ def _verdict(d: PoseDiagnosis) -> str:
                "the test (see outliers)" if d.outliers else ""))
 
 
+#: How the identifiability lines name a parameter left out, by its reason.
+_DROPPED = {"no effect": "dropped", "undetermined": "held"}
+
+
 def _dropped_lines(d: PoseDiagnosis) -> list[str]:
     ident = d.final.identifiability
     labels = [p.label for p in d.final.model.parameters]
     return [f"  fitted: {len(ident.kept)} parameters"] + [
-        f"  {'dropped' if item.reason == 'no effect' else 'merged'} {labels[item.index]}: "
+        f"  {_DROPPED.get(item.reason, 'merged')} {labels[item.index]}: "
         f"{item.describe(labels)}" for item in ident.dropped]
 
 

@@ -352,12 +352,9 @@ class Effect:
         for name, v, s, (unit, factor), size in zip(
                 self.parameter_names, value, se, self._units(units),
                 self.physical_scale(refs), strict=True):
-            width = 2.0 * quantile * s
-            out.append(Parameter(name, v / factor, s / factor,
-                                 ((v - quantile * s) / factor, (v + quantile * s) / factor),
-                                 unit, resolved=bool(width < size),
-                                 scale_note=scale_note(width / factor, size / factor, unit),
-                                 beyond_scale=bool(abs(v) > size)))
+            out.append(judged(name, v / factor, s / factor,
+                              ((v - quantile * s) / factor, (v + quantile * s) / factor),
+                              unit, size / factor, quantile))
         return out
 
     def _units(self, units) -> list[tuple[str, float]]:
@@ -378,6 +375,18 @@ def scale_note(width: float, size: float, unit: str) -> str:
     """The comparison of a 95 % interval's ``width`` with a physical scale ``size``."""
     relation = "narrower than" if width < size else "wider than"
     return f"95 % interval {width:.3g} {unit} wide, {relation} its physical scale {size:.3g}"
+
+
+def judged(name: str, value: float, standard_error: float, ci95: tuple[float, float],
+           unit: str, size: float, quantile: float) -> Parameter:
+    """A reported parameter judged against its physical scale ``size`` (its ``unit``):
+    resolved when its two-sided interval, ``2 quantile standard_error`` wide, is narrower
+    than ``size``, beyond its scale when ``|value|`` exceeds it (both campaign kinds' test,
+    :mod:`stiffness.calibration.naming`)."""
+    width = 2.0 * quantile * standard_error
+    return Parameter(name, value, standard_error, ci95, unit, resolved=bool(width < size),
+                     scale_note=scale_note(width, size, unit),
+                     beyond_scale=bool(abs(value) > size))
 
 
 def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,

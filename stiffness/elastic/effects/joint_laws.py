@@ -22,7 +22,7 @@ from typing import ClassVar
 import numpy as np
 
 from stiffness.elastic.effects.base import Effect, Parameter, stiffness_report
-from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
+from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry, References
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
     FamilyParameter,
@@ -141,6 +141,9 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     # pose face ----------------------------------------------------------------------------
     family_lower: ClassVar[float] = 0.0
 
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        return self.effect_sizes(pm, refs)  # the deflection effect's scale
+
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(compliance_label(n),
                            "m/N" if pm.robot.is_prismatic(n) else "rad/(N.m)")
@@ -226,6 +229,9 @@ class Backlash(JointEffect, JointDeflectionFamily):
     SETTING: ClassVar[str] = BACKLASH_SETTING
     #: RMS torque, relative to the largest joint's, below which a joint carries none
     NIL_TORQUE: ClassVar[float] = 1e-6
+
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        return self.effect_sizes(pm, refs)  # the deflection effect's scale
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names

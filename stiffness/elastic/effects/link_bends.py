@@ -41,6 +41,7 @@ from stiffness.elastic.effects.base import Effect, stiffness_report
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
+    References,
     Rows,
     cross,
     joint_axis_column,
@@ -295,6 +296,9 @@ class LinkCompliance(Effect, PoseFamily):
     family_scale: ClassVar[float] = 1e-6
     family_lower: ClassVar[float] = 0.0
     needs_masses: ClassVar[bool] = True
+
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        return self.effect_sizes(pm, refs)  # the deflection effect's scale
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names

@@ -24,7 +24,12 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements
+from stiffness.elastic.effects.geometry import References
 from stiffness.robot.robot import Robot
+
+#: A geometric parameter's physical scale is this many times its typical size
+#: (:attr:`PoseFamily.family_scale`): ten times a sizeable error, itself ten typical sizes.
+POSE_PHYSICAL_FACTOR = 100.0
 
 #: The kinds of family: geometry (where things are) or elasticity (how the arm gives).
 FAMILY_KINDS = ("geometric", "elastic")
@@ -250,6 +255,21 @@ class PoseFamily:
         """Fixed settings the family takes from a campaign (SI), given the (rows, nv) torques
         the joints carry at its commanded poses under the nominal robot; none by default."""
         return {}
+
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        """The physical scale (SI) of each parameter, in :meth:`family_parameters`' order:
+        beyond it a value is not physical on this campaign, and an interval wider than it
+        leaves the parameter undetermined (:mod:`stiffness.calibration.naming`). This
+        default, for the geometric families: :data:`POSE_PHYSICAL_FACTOR` times the typical
+        size (0.1 m, 0.1 rad)."""
+        return np.full(len(self.family_parameters(pm)), POSE_PHYSICAL_FACTOR * self.family_scale)
+
+    def effect_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        """:meth:`physical_sizes` of a family whose parameters are, per joint or link, its
+        effect's own (:meth:`~stiffness.elastic.effects.base.Effect.physical_scale`, the
+        scale the deflection campaigns judge them by)."""
+        sizes = self.physical_scale(refs)  # type: ignore[attr-defined]  # an Effect's
+        return np.resize(sizes, len(self.family_parameters(pm)))
 
     def param(self, label: str, unit: str) -> FamilyParameter:
         """A parameter of this family with its typical size and lower bound."""

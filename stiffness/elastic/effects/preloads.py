@@ -25,7 +25,7 @@ import pinocchio as pin
 
 from stiffness.batch.poses import torque_regressors
 from stiffness.elastic.effects.base import Effect
-from stiffness.elastic.effects.geometry import cross, skew
+from stiffness.elastic.effects.geometry import References, cross, skew
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     JointDeflectionFamily,
@@ -357,6 +357,11 @@ class GravityCompensator(Effect, JointDeflectionFamily):
             self._pose_springs = [(j, self.upward(pm.robot, names[j])) for j in pm.compliant
                                   if not pm.robot.is_prismatic(names[j])]
         return self._pose_springs
+
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        # each spring's own (its lever and base): the deflection effect's scale
+        return np.concatenate([spring.physical_scale(refs)[:2]
+                               for _, spring in self._pose_joints(pm)] or [np.zeros(0)])
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [FamilyParameter(self.name, compensator_label(spring.joint_name, what), size,

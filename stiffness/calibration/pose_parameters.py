@@ -1,0 +1,118 @@
+"""A pose fit's parameters as the naming rules read them (:mod:`stiffness.calibration.naming`):
+each family's parameters with their 95 % intervals, judged against their physical scales.
+
+The physical scale of each parameter is its family's (:meth:`~stiffness.elastic.effects.
+pose_face.PoseFamily.physical_sizes`) on the campaign's references
+(:class:`~stiffness.elastic.effects.geometry.References`), the ones deflection campaigns judge
+the same effects by:
+
+* ``k_ref``, the stiffness compliances are measured against: one over the median of the
+  fit's own positive joint compliances when ``joint_compliance`` is in its model (as a
+  deflection campaign's baseline stiffnesses; the median, so that neither a nearly rigid
+  joint nor a wildly undetermined one moves it), else the geometric mean of the robot's
+  declared ``k_theta_SI``, else :data:`~stiffness.calibration.fitting.NOMINAL_STIFFNESS`: a
+  joint, link or bearing compliance's scale is ``10 / k_ref``;
+* the torques each spring carries at the commanded poses under the nominal robot (gravity and
+  the applied wrench): the typical joint deflection ``theta_ref`` (RMS torque over ``k_ref``),
+  whose ten times is a backlash's scale; a compensator's stiffness ``k_ref / (lever base)``
+  and preload ``k_ref / lever``;
+* the geometric families: 100 times their typical size (0.1 m, 0.1 rad).
+
+SI throughout.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from stiffness.calibration.fitting import NOMINAL_STIFFNESS
+from stiffness.calibration.naming import one_sided
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_fit import PoseFit, rows_of
+from stiffness.calibration.pose_model import PoseModel
+from stiffness.calibration.selection import interval_quantile
+from stiffness.elastic.effects.base import Parameter, judged
+from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, References
+from stiffness.mechanics.defaults import default_stiffness
+
+#: The family whose fitted compliances give ``k_ref`` (module docstring).
+SPRINGS = "joint_compliance"
+
+
+@dataclass
+class PoseJudge:
+    """What a pose campaign gives the physical scales: the joints' torques at its commanded
+    poses under the nominal robot (rows, nv; N.m, N) and its RMS applied force (N)."""
+
+    torques: np.ndarray
+    force_rms: float
+
+    @classmethod
+    def of(cls, campaign: PoseCampaign) -> PoseJudge:
+        """The judge of ``campaign``'s fits."""
+        nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)),
+                            campaign.loads)
+        torques = nominal.nominal_torques(rows_of(nominal, campaign))
+        force = (np.zeros((1, 3)) if campaign.loads is None
+                 else np.asarray(campaign.loads.wrench)[:, :3])
+        return cls(torques, float(np.sqrt(np.mean(np.sum(force ** 2, axis=1)))) if force.size
+                   else 0.0)
+
+    def references(self, fit: PoseFit) -> References:
+        """The references of ``fit``'s physical scales (module docstring), over its model's
+        springs."""
+        model = fit.model
+        tau = np.abs(self.torques @ model.spring_map)
+        tau_max = np.maximum(tau.max(axis=0, initial=0.0), 1e-9)
+        tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9) if tau.size else tau_max
+        k_ref = _k_ref(fit)
+        theta = float(np.sqrt(np.mean(tau_rms ** 2))) / k_ref if tau_rms.size else 1e-9
+        return References(tuple(model.springs), k_ref, tau_max, BACKLASH_SMOOTHING * tau_rms,
+                          max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12)
+
+    def parameters(self, fit: PoseFit) -> dict[str, list[Parameter]]:
+        """Each family's parameters in ``fit`` (by family name, in the model's order) with
+        their 95 % intervals, judged against their physical scales; a parameter the fit did
+        not move is held with why, one at its physical bound one-sided."""
+        model, refs = fit.model, self.references(fit)
+        lo, hi = fit.interval()
+        std = fit.std()
+        known = fit.sigma if fit.sigma_source == "declared" else None
+        z = interval_quantile(known, fit.n_observed, fit.n_fitted)
+        labels = [p.label for p in model.parameters]
+        out: dict[str, list[Parameter]] = {}
+        for family in model.family_objects:
+            cut = model.slices()[family.name]
+            sizes = family.physical_sizes(model, refs)
+            params = []
+            for i, size in zip(range(cut.start, cut.stop), sizes, strict=True):
+                p = model.parameters[i]
+                dropped = fit.identifiability.dropped_at(i)
+                if dropped is not None:
+                    params.append(Parameter(p.label, float(fit.x[i]), math.nan,
+                                            (math.nan, math.nan), p.unit).held_as(
+                                                dropped.describe(labels)))
+                    continue
+                q = judged(p.label, float(fit.x[i]), float(std[i]),
+                           (float(lo[i]), float(hi[i])), p.unit, float(size), z)
+                params.append(one_sided(q, True) if i in fit.at_bound else q)
+            out[family.name] = params
+        return out
+
+
+def _k_ref(fit: PoseFit) -> float:
+    """The stiffness compliances are measured against (module docstring), N.m/rad."""
+    model = fit.model
+    if SPRINGS in model.families:
+        cut = model.slices()[SPRINGS]
+        kept = set(fit.identifiability.kept)
+        c = [fit.x[i] for i in range(cut.start, cut.stop) if i in kept and fit.x[i] > 0]
+        if c:
+            return float(1.0 / np.median(c))
+    declared = default_stiffness(model.robot)
+    if declared is not None and np.all(declared > 0):
+        return float(np.exp(np.mean(np.log(declared))))
+    return NOMINAL_STIFFNESS
