@@ -30,6 +30,8 @@ import math
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
+import numpy as np
+
 from stiffness.elastic.effects.base import Parameter
 
 #: What a stand-in is, as the reports say it.
@@ -62,7 +64,8 @@ def held_reason(p: Parameter) -> str:
             f"({p.scale_note or 'its 95 % interval is unbounded'}, fitted)")
 
 
-def settle(fit: F, parameters: Callable[[F], list[Parameter]], sizes: Sequence[float],
+def settle(fit: F, parameters: Callable[[F], list[Parameter]],
+           sizes: Sequence[float] | np.ndarray,
            hold: Callable[[F, list[int], list[Parameter], list[str]], F],
            batch: Callable[[int], int] = lambda loose: 1) -> F:
     """``fit`` with the parameters of one effect that the data do not determine held at their

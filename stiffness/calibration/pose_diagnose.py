@@ -123,7 +123,13 @@ class PoseDiagnosis:
     outlier_sigma_m: float | None = None
     stop_reason: str = ""
     judge: PoseJudge | None = None
-    how_sure: list[Certainty] = field(default_factory=list)
+    loss_scale: float | None = None
+
+    @functools.cached_property
+    def how_sure(self) -> list[Certainty]:
+        """How sure the diagnosis is of each family it added (:func:`_how_sure`; computed
+        when first asked: it refits the final model without each)."""
+        return _how_sure(self, self.families, self.loss_scale)
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -395,10 +401,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     rejected, stop = _search(campaign, chosen, frame0, settings, steps, remaining, scale,
                              validate, say, workers, draw, judge)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
-    d = PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
-                      sorted(forbidden), outliers, outlier_sigma, stop, judge)
-    d.how_sure = _how_sure(d, chosen, scale)
-    return d
+    return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
+                         sorted(forbidden), outliers, outlier_sigma, stop, judge, scale)
 
 
 def _how_sure(d: PoseDiagnosis, chosen: list[str], scale: float | None) -> list[Certainty]:
