@@ -67,7 +67,7 @@ def held_reason(p: Parameter) -> str:
 def settle(fit: F, parameters: Callable[[F], list[Parameter]],
            sizes: Sequence[float] | np.ndarray,
            hold: Callable[[F, list[int], list[Parameter], list[str]], F],
-           batch: Callable[[int], int] = lambda loose: 1) -> F:
+           batch: Callable[[F, list[int]], list[int]] | None = None) -> F:
     """``fit`` with the parameters of one effect that the data do not determine held at their
     nominal value, the least determined first, the fit redone each time (module docstring).
 
@@ -81,10 +81,12 @@ def settle(fit: F, parameters: Callable[[F], list[Parameter]],
         The fit redone with parameters ``k`` of the effect (reported as the parameters given)
         held at their nominal value, for the reasons given (:func:`held_reason`), as lists.
     batch
-        How many of ``n`` undetermined parameters each refit holds, the least determined
-        first (default one: an effect of a deflection campaign, a few parameters; a pose
-        family of one parameter per joint or link holds the looser half of them at a time,
-        so that its refits grow with the log of their number).
+        Which of the undetermined parameters (least determined first) one refit holds: by
+        default the first alone (an effect of a deflection campaign, a few parameters); a
+        pose family of one parameter per joint or link holds, at each refit, the least
+        determined and every other undetermined one nearly uncorrelated with those chosen, so
+        that of two parameters the data confuse only the looser is held before the refit
+        judges the other again.
     """
     while True:
         params = parameters(fit)
@@ -93,7 +95,8 @@ def settle(fit: F, parameters: Callable[[F], list[Parameter]],
         if not loose or len(free) < 2:
             return fit
         loose.sort(key=lambda k: -looseness(params[k], float(sizes[k])))
-        worst = loose[:max(1, min(batch(len(loose)), len(free) - 1))]
+        chosen = loose[:1] if batch is None else batch(fit, loose) or loose[:1]
+        worst = chosen[:max(1, len(free) - 1)]
         fit = hold(fit, worst, [params[k] for k in worst],
                    [held_reason(params[k]) for k in worst])
 

@@ -292,8 +292,32 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
 
     sizes = model.family_objects[model.families.index(family)].physical_sizes(
         model, judge.references(fit))
+    start = model.slices()[family].start
     return settle(fit, lambda trial: judge.parameters(trial)[family], sizes, hold,
-                  lambda loose: loose)
+                  lambda trial, loose: _uncorrelated(trial, [start + k for k in loose],
+                                                     loose))
+
+
+#: Parameters held together in one refit (:func:`settled`) are correlated by less than this.
+HOLD_CORRELATION = 0.3
+
+
+def _uncorrelated(fit: PoseFit, columns: list[int], loose: list[int]) -> list[int]:
+    """Of ``loose`` (the undetermined parameters, least determined first; ``columns`` their
+    model columns), the first and each next one whose correlation with every one chosen is
+    below :data:`HOLD_CORRELATION` in ``fit``'s covariance."""
+    place = {i: c for c, i in enumerate(fit.identifiability.kept)}
+    cov = fit.covariance
+    chosen: list[int] = []
+    for k, i in zip(loose, columns, strict=True):
+        if i not in place:
+            continue
+        a = place[i]
+        if all(abs(cov[a, place[j]]) < HOLD_CORRELATION * math.sqrt(cov[a, a] * cov[place[j],
+                                                                                  place[j]])
+               for j in (columns[loose.index(m)] for m in chosen)):
+            chosen.append(k)
+    return chosen
 
 
 def warm_start(model: PoseModel, fit: PoseFit | dict[str, float]) -> np.ndarray:
