@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 
 import numpy as np
 import pinocchio as pin
@@ -41,6 +42,7 @@ from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
 )
+from stiffness.files import read_toml
 from stiffness.mechanics.formulation import target_state
 from stiffness.planning.design import design, fit_alternatives
 from stiffness.planning.plan import PLAN_FILE, read_plan, write_plan
@@ -326,6 +328,29 @@ def test_cli_design_then_simulate_the_plan(tmp_path, capsys):
     assert not set(extra.config) & set(camp.config)
     rel = more["predicted_relative_se"]
     assert all(rel["plan"][j] < rel["existing"][j] for j in UR5_ARM)
+
+
+def test_a_plan_completing_a_campaign_names_its_robot_from_its_own_folder(tmp_path, capsys,
+                                                                           monkeypatch):
+    """design --existing: the plan folder's campaign.toml names the existing campaign's robot
+    file relative to the plan folder, whatever the working directories."""
+    (tmp_path / "r").mkdir()
+    shutil.copy(robots_directory().parent / "examples" / "sk120-dh" / "robot.toml",
+                tmp_path / "r")
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    assert main(["simulate", "--robot", "../r/robot.toml", "--configs", "3",
+                 "--loads-per-config", "2", "--noise", "0.005", "--seed", "1", "--out",
+                 "../camp/a"]) == 0
+    monkeypatch.chdir(tmp_path)
+    assert main(["design", "--existing", "camp/a", "--configs", "2", "--loads-per-config", "1",
+                 "--max-force", "300", "--candidates", "10", "--random-plans", "3", "--out",
+                 "plans/b", "--quiet"]) == 0
+    capsys.readouterr()
+    plan = tmp_path / "plans" / "b"
+    source = read_toml(plan / "campaign.toml")["robot"]["source"]
+    assert source == "../../r/robot.toml"
+    assert (plan / source).resolve() == (tmp_path / "r" / "robot.toml").resolve()
 
 
 def test_python_api_at_package_top(pools):

@@ -12,6 +12,7 @@ Units: SI inside (m, N, rad, N.m/rad).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Callable
@@ -671,7 +672,9 @@ def _plan(robot: Robot, cands: Candidates, selection: Selection, configs: int,
     labels = tuple(f"{prefix}{i // loads_per_config + 1}" for i in range(len(q)))
     if units is None:
         units = existing.units if existing is not None else Units()
-    settings = (existing.robot_settings if existing is not None else RobotSettings(
+    settings = (dataclasses.replace(  # its paths as from here (the plan rebases them)
+        existing.robot_settings, source=existing.resolved_source(),
+        loops=existing.robot_options()["loops"]) if existing is not None else RobotSettings(
         robot.name, frame=robot.target_frame, target_offset_m=robot.target_offset.copy(),
         compliant_joints=tuple(robot.compliant_joints)))
     return Plan(q=q, force=force, config=labels, units=units, robot_settings=settings,
