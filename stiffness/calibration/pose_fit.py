@@ -496,12 +496,13 @@ class PoseProblem:
 
     def columns(self, x: np.ndarray, final: bool) -> np.ndarray | None:
         """The regressor at ``x`` times the typical sizes, over the noise std when known."""
-        try:
-            _, jac = self.obs.evaluate(x)
+        try:  # not kept, and whitened in place: no copy of a large campaign's Jacobian
+            _, jac = self.obs.evaluate(x, keep=False)
         except ConvergenceError:
             return None
         assert jac is not None
-        return jac * (self.layout.scales / (self.noise or 1.0))
+        jac *= self.layout.scales / (self.noise or 1.0)
+        return jac
 
     def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
         """``x`` with the parameters left out at zero (all at zero where the sag diverges

@@ -92,15 +92,16 @@ class PoseObservations:
         return np.concatenate([np.nonzero(self.observed)[0],
                                np.nonzero(self.seen_rotation)[0]])
 
-    def evaluate(self, x: np.ndarray, jacobian: bool = True
+    def evaluate(self, x: np.ndarray, jacobian: bool = True, keep: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted minus measured (N,): positions (m), then ``w`` times the orientation
         errors (rad), and its Jacobian (N, p) when asked for.
 
         The last result is kept: asked again at the same ``x`` (a fit's first residual and
         Jacobian, at the start its identifiability check evaluated), it is not recomputed.
-        Only the first Jacobian is kept, and handed out once: the later ones (a fit's steps)
-        are never asked for again, and a large campaign's solver then holds no extra copy.
+        Only the first Jacobian is kept (none when ``keep`` is false: the caller may then
+        change it in place), and handed out once: the later ones (a fit's steps) are never
+        asked for again, and a large campaign's solver then holds no extra copy.
         """
         last = self._last
         if last is not None and np.array_equal(last[0], x) and (last[2] is not None
@@ -109,7 +110,8 @@ class PoseObservations:
                 self._last = (last[0], last[1], None)
             return last[1].copy(), last[2] if jacobian else None
         residual, jac = self._evaluate(x, jacobian)
-        self._last = (np.array(x, dtype=float), residual, None if self._handed else jac)
+        self._last = (np.array(x, dtype=float), residual,
+                      None if self._handed or not keep else jac)
         self._handed = self._handed or jac is not None
         return residual.copy(), jac
 
