@@ -304,6 +304,8 @@ def test_cli_design_then_simulate_the_plan(tmp_path, capsys):
     assert main(["simulate", "--plan", str(tmp_path / "plan"), "--kq", "3e4,2e4,1.5e4",
                  "--noise", "0.005", "--out", str(tmp_path / "sim")]) == 0
     camp = load_campaign(tmp_path / "sim")
+    truth = json.loads((tmp_path / "sim" / "truth.json").read_text())
+    assert truth["settings"]["plan"] == "../plan/campaign.toml"  # relative to truth.json
     plan, _ = read_plan(tmp_path / "p.csv", camp.robot())
     np.testing.assert_allclose(camp.q, plan.q, atol=1e-12)
     np.testing.assert_allclose(camp.force, plan.force, atol=1e-12)
