@@ -35,7 +35,7 @@ NOISE = 5e-6
 SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missing_effects",
                 "unexplained", "final_rms", "unit", "loss", "masses", "outlier_threshold",
                 "outliers",
-                "rms_by_kind", "identifiability", "how_sure"}
+                "rms_by_kind", "identifiability", "how_sure", "selection"}
 
 #: Each library effect hidden at a clearly detectable size (3 to 25 noise std RMS).
 HIDDEN = [
