@@ -56,6 +56,8 @@ NEAR_ALIAS_SINE = 0.05
 #: (:mod:`stiffness.calibration.identifiability`): about the 95 % normal quantile, so a merged
 #: parameter's 95 % interval, given the others, would be wider than its typical size.
 NEAR_ALIAS_RESOLUTION = 2.0
+#: Rows of a regressor per block of :func:`triangular`'s QR (its one copy: this many rows).
+TRIANGULAR_BLOCK = 8192
 
 
 @dataclass(frozen=True)
@@ -220,6 +222,18 @@ def same_span(a: np.ndarray, first: list[int], second: list[int]) -> bool:
     return bool(np.all(np.linalg.norm(part, axis=0) <= IDENTIFIABILITY_TOL * norms))
 
 
+def triangular(a: np.ndarray, columns: list[int] | None = None) -> np.ndarray:
+    """``R`` (min(N, k), k) of ``a[:, columns] = Q R`` (every column by default), by QR of
+    blocks of :data:`TRIANGULAR_BLOCK` rows stacked under the ``R`` so far: no copy of the
+    whole (N, p) ``a``. ``R`` keeps every inner product of the columns (``a^T a = R^T R``)."""
+    index = np.arange(a.shape[1]) if columns is None else np.asarray(columns, dtype=int)
+    tri = np.zeros((0, index.size))
+    for start in range(0, a.shape[0], TRIANGULAR_BLOCK):
+        stacked = np.vstack([tri, a[start:start + TRIANGULAR_BLOCK][:, index]])
+        tri = linalg.qr(stacked, mode="r")[0][:index.size]
+    return tri
+
+
 def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,
                    resolution: list[float] | None = None, keep_first: bool = False
                    ) -> Identifiability:
@@ -231,7 +245,13 @@ def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,
     ``keep_first`` every column of the first group with an effect on the data is kept (a
     fit that reports its own undetermined directions among them: the deflection baseline's
     stiffnesses, :func:`stiffness.calibration.fitting.covariance`).
+
+    Every quantity used (column norms, the part of a column the kept ones do not explain,
+    its pivoted QR, the merge coefficients) depends on ``a`` only through ``a^T a``, so the
+    reduction runs on ``a``'s :func:`triangular` factor (p, p) instead of its N rows: a large
+    campaign's memory is not multiplied here.
     """
+    a = triangular(a)
     kept: list[int] = []
     dropped: list[Dropped] = []
     floors = resolution if resolution is not None else [0.0] * len(groups)

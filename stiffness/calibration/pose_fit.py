@@ -48,7 +48,12 @@ import numpy as np
 from scipy import linalg
 
 from stiffness.calibration import solver
-from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability, Layout
+from stiffness.calibration.identifiability import (
+    NEAR_ALIAS_RESOLUTION,
+    Identifiability,
+    Layout,
+    triangular,
+)
 from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
@@ -314,7 +319,7 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     free = [c for c, i in enumerate(fit.identifiability.kept) if i not in fit.at_bound]
     kept = [fit.identifiability.kept[c] for c in free]
     scale = np.array([fit.model.parameters[i].scale for i in kept])
-    tri = _triangular(jac, free)
+    tri = triangular(jac, free)
     _, label_group = np.unique(np.asarray(campaign.labels), return_inverse=True)
     label_group = label_group.ravel()
     members = _padded(label_group[rows])  # each configuration's components, -1 padded
@@ -364,16 +369,6 @@ def _deletion(jac: np.ndarray, free: list[int], tri: np.ndarray, r: np.ndarray,
     press = np.linalg.solve(a, np.where(pad, 0.0, r[index])[..., None])
     step = linalg.solve_triangular(tri, (np.swapaxes(qg, 1, 2) @ press)[..., 0].T).T
     return press[..., 0], step
-
-
-def _triangular(jac: np.ndarray, columns: list[int]) -> np.ndarray:
-    """``R`` (k, k) of ``jac[:, columns] = Q R``, by QR of blocks of :data:`HELD_OUT_BLOCK`
-    rows stacked under the ``R`` so far (no copy of the whole Jacobian)."""
-    tri = np.zeros((0, len(columns)))
-    for start in range(0, jac.shape[0], 16 * HELD_OUT_BLOCK):
-        stacked = np.vstack([tri, jac[start:start + 16 * HELD_OUT_BLOCK][:, columns]])
-        tri = linalg.qr(stacked, mode="r")[0][:len(columns)]
-    return tri
 
 
 def _padded(group: np.ndarray) -> np.ndarray:

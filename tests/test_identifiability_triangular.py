@@ -1,0 +1,112 @@
+"""The reduction on the triangular factor (:func:`identifiability.reduce_columns` runs on
+``R`` of ``a = Q R``, not on ``a``'s N rows) decides as the reduction on the full columns:
+the same kept columns in the same order, the same dropped ones and reasons, merge
+coefficients equal to 1e-10. The reference below is the reduction on the full matrix
+(projections by a full ``Q`` of the kept columns), independent of ``triangular``. (Exact
+aliases whose unexplained parts are equal, a tie of the pivoting, may keep the other
+member: round-off decides in both, the same model.)"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import linalg
+
+from stiffness.calibration.identifiability import (
+    IDENTIFIABILITY_TOL,
+    NEAR_ALIAS_SINE,
+    TRIANGULAR_BLOCK,
+    reduce_columns,
+    triangular,
+)
+
+
+def _reference(a, groups, scales, floors, keep_first):
+    """The reduction on the full (N, p) columns: (kept, [(index, reason, {kept: coef})])."""
+    kept, dropped = [], []
+    for number, (group, floor) in enumerate(zip(groups, floors, strict=True)):
+        norms = np.linalg.norm(a[:, group], axis=0)
+        big = norms.max()
+        candidates = [c for c, n in zip(group, norms, strict=True)
+                      if n > IDENTIFIABILITY_TOL * big and n > 0]
+        dropped += [(c, "no effect", {}) for c in group if c not in candidates]
+        if (number == 0 and keep_first) or not candidates:
+            kept += candidates if number == 0 and keep_first else []
+            continue
+        rest = a[:, candidates]
+        if kept:
+            basis, _ = np.linalg.qr(a[:, kept])
+            rest = rest - basis @ (basis.T @ rest)
+        own = np.linalg.norm(a[:, candidates], axis=0)
+        earlier = np.linalg.norm(rest, axis=0)
+        inside = [i for i in range(len(candidates))
+                  if not (earlier[i] < floor and earlier[i] < NEAR_ALIAS_SINE * own[i])]
+        joined = []
+        if inside:
+            _, r, piv = linalg.qr(rest[:, inside], mode="economic", pivoting=True)
+            joined = [candidates[inside[p]] for p, d in zip(piv, np.abs(np.diag(r)),
+                                                            strict=False)
+                      if d >= IDENTIFIABILITY_TOL * own[inside[p]]]
+        kept += joined
+        merged = [c for c in candidates if c not in joined]
+        if merged and kept:
+            coefs = np.linalg.lstsq(a[:, kept], a[:, merged], rcond=None)[0]
+            for c, coef in zip(merged, coefs.T, strict=True):
+                coef = coef * scales[kept] / scales[c]
+                big = {kept[i]: coef[i] for i in range(len(kept))
+                       if abs(coef[i]) * scales[c] > 1e-6 * scales[kept[i]]}
+                dropped.append((c, "merged", big))
+        dropped += [(c, "merged", {}) for c in merged if not kept]
+    return kept, dropped
+
+
+def _campaign(rng, rows):
+    """Random columns in 3 groups with exact aliases (combinations, within and across
+    groups), near aliases of the earlier groups at 0.5-2 x NEAR_ALIAS_SINE, a zero and a
+    tiny column, random scales (no two aliases with equal unexplained parts: no pivoting
+    tie)."""
+    a = rng.normal(size=(rows, 14)) * rng.uniform(0.1, 10.0, 14)
+    a[:, 4] = 2.0 * a[:, 0] - 3.0 * a[:, 1]                      # group 1 from group 0
+    a[:, 5] = 0.0                                                 # no effect
+    a[:, 6] = 0.5 * a[:, 3]                                       # alias within group 1
+    for column, sine in ((7, 0.5), (8, 2.0), (11, 0.8)):          # near aliases of earlier
+        along = a[:, :3] @ rng.normal(size=3)
+        other = rng.normal(size=rows)
+        other -= along * (along @ other) / (along @ along)
+        a[:, column] = along + sine * NEAR_ALIAS_SINE * other * np.linalg.norm(along) \
+            / np.linalg.norm(other)
+    a[:, 12] = 1e-9 * a[:, 13]                                    # tiny beside its group
+    a[:, 10] = 2.0 * a[:, 9] - a[:, 3] + a[:, 7]                  # alias across groups
+    return a
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_triangular_reduction_decides_as_the_full_one(seed):
+    rng = np.random.default_rng(seed)
+    rows = (300, 9, 40)[seed % 3]  # 9 rows: fewer than columns, R is (9, 14)
+    a = _campaign(rng, rows)
+    groups = [[0, 1, 2], [3, 4, 5, 6, 7, 8], [9, 10, 11, 12, 13]]
+    scales = rng.uniform(1e-3, 1e2, 14)
+    # resolutions around the near aliases' orthogonal parts: some merged, some told apart
+    floors = [0.0] + list(rng.uniform(0.0, 2.0, 2)
+                          * NEAR_ALIAS_SINE * np.linalg.norm(a[:, 7]))
+    for keep_first in (False, True):
+        for floor in (floors, None):
+            got = reduce_columns(a, groups, scales, floor, keep_first=keep_first)
+            kept, dropped = _reference(a, groups, scales, floor or [0.0] * 3, keep_first)
+            assert got.kept == kept
+            assert [(d.index, d.reason) for d in got.dropped] == [(i, r) for i, r, _ in dropped]
+            for d, (_, _, coefs) in zip(got.dropped, dropped, strict=True):
+                assert {i for i, _ in d.merged_into} == set(coefs)
+                for i, c in d.merged_into:
+                    assert c == pytest.approx(coefs[i], rel=1e-10, abs=1e-10)
+
+
+def test_triangular_factor_over_blocks_keeps_the_inner_products():
+    """``triangular`` over several row blocks: R upper triangular, R^T R = a^T a."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(2 * TRIANGULAR_BLOCK + 5, 6))
+    tri = triangular(a, [4, 0, 2])
+    assert tri.shape == (3, 3) and np.allclose(np.tril(tri, -1), 0.0)
+    sub = a[:, [4, 0, 2]]
+    np.testing.assert_allclose(tri.T @ tri, sub.T @ sub, rtol=1e-12)
