@@ -42,10 +42,23 @@ def test_files_written_without_leftovers(report_dir):
     assert "report.html" in names and "summary.json" in names and "sk120-scene.html" in names
     assert "href='sk120-scene.html'" in (report_dir / "report.html").read_text()
     assert not [n for n in names if n.startswith(".")], names
+    # the shipped campaign by its name: the same in every install and output folder
     recorded = json.loads((report_dir / "summary.json").read_text())["campaign"]
-    assert not Path(recorded).is_absolute()  # relative to the report's folder
-    assert (report_dir / recorded).resolve() == (
-        robots_directory() / "sk120" / "campaigns" / "table2").resolve()
+    assert recorded == "shipped with stiffness: robots/sk120/campaigns/table2"
+    assert (robots_directory() / recorded.rpartition("robots/")[2] / "campaign.toml").is_file()
+
+
+def test_a_given_campaign_is_recorded_relative_to_the_report(tmp_path, monkeypatch):
+    from stiffness.files import resolve_path
+    from stiffness.papers import report
+    from stiffness.papers.report import write_report
+    campaign = tmp_path / "data" / "table2"
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(report, "render_html", lambda summary, figures: "")  # the record only
+    write_report(tmp_path / "out" / "r", {"campaign": "data/table2", "provenance": {}}, {})
+    recorded = json.loads((tmp_path / "out" / "r" / "summary.json").read_text())["campaign"]
+    assert recorded == "../../data/table2"
+    assert Path(resolve_path(recorded, tmp_path / "out" / "r")).resolve() == campaign.resolve()
 
 
 def test_summary_has_the_required_keys(summary):

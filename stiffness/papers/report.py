@@ -52,6 +52,9 @@ from stiffness.robot.sources import robots_directory
 
 NMM = 1e3  # N.m/rad -> N.mm/rad
 DEFAULT_CAMPAIGN = "sk120/campaigns/table2"
+#: How summary.json names the shipped campaign: not a path (one that differs per install and
+#: per output folder), the campaign's place among the shipped robots' files.
+SHIPPED_CAMPAIGN = f"shipped with stiffness: robots/{DEFAULT_CAMPAIGN}"
 
 
 def _log(quiet: bool, text: str) -> None:
@@ -118,7 +121,7 @@ def build_report(campaign_path: str | os.PathLike | None = None, quiet: bool = F
     _log(quiet, "identifying K_theta from the Table II campaign ...")
     ident = identify(campaign, method="both", starts=6,
                      progress=None if quiet else _identify_progress())
-    summary["campaign"] = str(campaign_file)
+    summary["campaign"] = str(campaign_file) if campaign_path else SHIPPED_CAMPAIGN
     summary.update(_identification_summary(ident, paper_k))
 
     _log(quiet, "comparing the two tool-vertical angle conventions ...")
@@ -392,14 +395,15 @@ def _identify_progress():
 def write_report(out: Path, summary: dict, figures: dict[str, bytes],
                  scene: Callable[[Path], object] | None = None) -> None:
     """Write report.html, summary.json, the PNGs and the 3-D scene into ``out``, published as
-    one folder (:func:`stiffness.files.staged_folder`); the campaign's path is written relative
-    to ``out`` (:func:`stiffness.files.written_path`).
+    one folder (:func:`stiffness.files.staged_folder`); a campaign given by its path is written
+    relative to ``out`` (:func:`stiffness.files.written_path`), the shipped one by its name
+    (:data:`SHIPPED_CAMPAIGN`, the same in every install and output folder).
 
     ``scene(path)`` writes the 3-D scene of :func:`scene_robot` to ``out / SCENE_FILE`` (the
     ``stiffness report`` command passes the viewer's export: the viewer sits above this layer);
     None writes no scene.
     """
-    if summary.get("campaign"):  # written relative to the report's folder
+    if summary.get("campaign") not in (None, SHIPPED_CAMPAIGN):  # relative to the report
         summary = {**summary, "campaign": written_path(summary["campaign"], out)}
     with staged_folder(out) as folder:  # published whole, by one rename
         if scene is not None:
