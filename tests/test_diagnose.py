@@ -217,7 +217,7 @@ def test_identification_is_diagnosis_without_effects():
     np.testing.assert_allclose([p.value for p in stiff], ident.k, rtol=1e-6)
     np.testing.assert_allclose([p.ci95[0] for p in stiff], ident.ci95_low, rtol=1e-4)
     np.testing.assert_allclose([p.ci95[1] for p in stiff], ident.ci95_high, rtol=1e-4)
-    a, b = diagnosis.model_file().to_dict(), ident.model_dict()
+    a, b = diagnosis.model_file().to_dict(), ident.model_file().to_dict()
     assert a["schema"] == b["schema"] and set(a["k_theta"]) == set(b["k_theta"])
     np.testing.assert_allclose(a["k_theta"]["values"], b["k_theta"]["values"], rtol=1e-6)
 

@@ -309,7 +309,6 @@ def test_shipped_table2_identification(table2, tmp_path):
     assert model.compliant_joints == ("joint1", "joint2", "joint3")
     robot = model.robot()
     assert robot.target_frame == "fixture_target" and robot.n_compliant == 3
-    np.testing.assert_allclose(model.k_theta_matrix(), np.diag(result.k))
 
 
 def test_model_file_keeps_a_relative_urdf_usable(tmp_path, table2):
@@ -351,7 +350,7 @@ def test_read_model_file_errors(tmp_path, content, error, words):
 
 def test_read_model_file_rejects_bad_values(tmp_path, table2):
     result = identify(table2, starts=1)
-    doc = result.model_dict()
+    doc = result.model_file().to_dict()
     doc["k_theta"]["values"][1] = -5.0
     path = tmp_path / "m.json"
     path.write_text(json.dumps(doc))

@@ -26,9 +26,9 @@ from stiffness.calibration.fitting import covariance, fit_model
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
+    flag_residuals,
     leverage,
     robust_noise,
-    standardised_residuals,
 )
 from stiffness.calibration.solver import LOSSES, loss_terms
 from stiffness.cli.main import main
@@ -84,8 +84,12 @@ def test_leverage_is_the_hat_matrix_diagonal():
     hat = jac @ np.linalg.inv(jac.T @ jac) @ jac.T
     np.testing.assert_allclose(leverage(jac), np.diag(hat), rtol=1e-12)
     e = rng.normal(size=(10, 3))
-    z = standardised_residuals(e, jac, 2.0)
-    np.testing.assert_allclose(z.reshape(-1), e.reshape(-1) / (2.0 * np.sqrt(1 - np.diag(hat))))
+    e[4, 1] = 30.0  # the one row flagged, standardised by its leverage: e / (sigma sqrt(1 - h))
+    h = leverage(jac).reshape(e.shape)
+    flagged, sigma = flag_residuals(e, h, 2.0, 4, tuple("abcdefghij"), None)
+    assert sigma == 2.0 and [(o.row, o.component) for o in flagged] == [(5, "dy")]
+    assert flagged[0].standardised_residual == pytest.approx(
+        30.0 / (2.0 * math.sqrt(1 - np.diag(hat)[13])), rel=1e-12)
 
 
 def test_robust_noise_ignores_gross_outliers():

@@ -13,7 +13,7 @@ if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
 
 
-def _disagreement_lines(d: dict, unit: str, force_unit: str) -> list[str]:
+def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
     def cell(g: dict) -> str:
         return f"{g['rms']:.4g} ({g['ratio']:.2g}x)" if g["rows"] else "-"
 
@@ -60,7 +60,7 @@ def format_report(d: Diagnosis) -> str:
         verdict = "fits" if d.gof_baseline > 1 - GOF_LEVEL else "does NOT fit"
         lines.append(f"the baseline {verdict} to noise (chi-square p = {d.gof_baseline:.3g})")
     lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
-    lines += _disagreement_lines(d.baseline_disagreement, unit, c.units.force)
+    lines += _disagreement_lines(d.baseline_disagreement, c.units.force)
     lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {'RMS':>10} {'dBIC':>9} "
                   f"{'CV RMS':>10}"]
     lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
@@ -101,7 +101,7 @@ def format_report(d: Diagnosis) -> str:
     if d.unexplained:
         lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",
                   f"where the final model disagrees (RMS in {unit}, and in noise std):"]
-        lines += _disagreement_lines(d.final_disagreement, unit, c.units.force)
+        lines += _disagreement_lines(d.final_disagreement, c.units.force)
     if d.rotation_noise_std_rad is not None:
         kinds, ru = d.rms_by_kind(), d.campaign.units.rotation
         lines.append(f"RMS by kind: translations {kinds['baseline']['translation']:.4g} -> "

@@ -343,16 +343,6 @@ class Identification:
                        "weight_m_per_rad": self.rotation_weight_m_per_rad}})},
         )
 
-    def model_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
-        """The identified model as written by :meth:`write_model` (the model-file schema).
-
-        Parameters
-        ----------
-        relative_to
-            Folder a URDF source path is written relative to (the model file's folder).
-        """
-        return self.model_file().to_dict(relative_to)
-
     def write_model(self, path: str | os.PathLike) -> Path:
         """Write the identified model (``identified-model.json``) atomically; returns its path.
 

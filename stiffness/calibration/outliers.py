@@ -93,14 +93,6 @@ def leverage(jacobian: np.ndarray) -> np.ndarray:
     return np.sum(u[:, keep] ** 2, axis=1)
 
 
-def standardised_residuals(residuals: np.ndarray, jacobian: np.ndarray, sigma: float
-                           ) -> np.ndarray:
-    """Residuals (m, k) in m over ``sigma sqrt(1 - h)``, ``h`` the leverage of each component
-    (``jacobian``: the fit's (m k, p) residual Jacobian, any scaling)."""
-    e = np.asarray(residuals, dtype=float)
-    return _standardise(e, leverage(jacobian).reshape(e.shape), sigma)
-
-
 def _standardise(residuals: np.ndarray, h: np.ndarray, sigma: float) -> np.ndarray:
     """``residuals / (sigma sqrt(1 - h))`` (``1 - h`` floored at 1e-6)."""
     return residuals / (sigma * np.sqrt(np.maximum(1.0 - h, 1e-6)))

@@ -242,10 +242,6 @@ class ModelFile:
         return load_robot(self.source, frame=self.frame, target_offset=self.target_offset_m,
                           compliant_joints=self.compliant_joints, **self.robot_options())
 
-    def k_theta_matrix(self) -> np.ndarray:
-        """Diagonal joint stiffness of the baseline's compliant joints (SI)."""
-        return np.diag(self.k_theta)
-
     def check_robot(self, source: str | os.PathLike) -> None:
         """Refuse the model when ``source`` names another robot than the model's.
 
