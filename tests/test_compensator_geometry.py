@@ -199,7 +199,7 @@ def test_a_model_file_written_before_the_upward_reference_keeps_its_meaning():
     """Settings without ``angle_reference`` (lever, base, ``angle0_rad`` only) read as the
     joint's zero: phi = theta + angle0_rad, the tension at the joint's zero."""
     old = {"lever_m": 0.12, "base_m": 0.25, "angle0_rad": 0.2}
-    effect = GravityCompensator.declared("joint2", old)
+    effect = GravityCompensator.at_place("joint2").configured(old)
     assert effect.settings["angle_reference"] == "joint_zero"
     assert "before the upward reference" in effect.describe()
     theta = np.linspace(-2.0, 2.0, 9)

@@ -51,8 +51,8 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.elastic.calibrated import calibrated_elastics
-from stiffness.elastic.effects import LIBRARY, make_effect
-from stiffness.elastic.effects.base import ElasticParts, Parameter
+from stiffness.elastic.effects import LIBRARY
+from stiffness.elastic.effects.base import Effect, ElasticParts, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model import ElasticModel, ElasticState
@@ -152,6 +152,10 @@ class ModelEffect:
     def values(self) -> np.ndarray:
         """SI values in the effect's parameter order."""
         return np.array([p.value for p in self.parameters], dtype=float)
+
+    def effect(self, geometry: Geometry | None = None) -> Effect:
+        """The library's effect with its settings, placed on ``geometry`` (unchecked without)."""
+        return LIBRARY[self.name].at_place(self.where, geometry).configured(self.settings)
 
     def to_dict(self) -> dict:
         """JSON-ready."""
@@ -640,7 +644,7 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
     applied, not_applied = [], []
     for e in model.effects:
         try:
-            LIBRARY[e.name].declared(e.where, e.settings).contribute(e.values(), parts)
+            e.effect().contribute(e.values(), parts)
         except StiffnessError as exc:
             raise ModelFileError(str(exc), path=model.path or "model file") from exc
         reason = parts.not_applied.get(e.label, _NOT_STIFFNESS.get(e.kind))
@@ -750,7 +754,7 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
     for e in model.effects:
         if e.kind == "measurement" and not measured:
             continue
-        effect = make_effect(e.name, e.where, geometry).configured(e.settings)
+        effect = e.effect(geometry)
         effect.contribute(e.values(), parts)
         effects.append(effect)
         values.append(e.values())

@@ -9,7 +9,6 @@ Measurement effects (how a campaign was observed) are not properties of the robo
 
 from __future__ import annotations
 
-from stiffness.elastic.effects import LIBRARY
 from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.model_file import ModelFile
 
@@ -27,8 +26,7 @@ def model_springs(model: ModelFile) -> tuple[dict[str, float], list[str]]:
     left_out = []
     for effect in model.effects:
         before = len(parts.springs)
-        LIBRARY[effect.name].declared(effect.where, effect.settings).contribute(
-            effect.values(), parts)
+        effect.effect().contribute(effect.values(), parts)
         if len(parts.springs) == before and effect.kind != _MEASUREMENT:
             left_out.append(effect.label)
     return parts.springs, left_out

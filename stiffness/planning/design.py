@@ -133,7 +133,7 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
     robot = campaign.robot()
     geo = Geometry.of(robot)
     chosen = [make_effect(name, where, geo) for name, where in effects]
-    if chosen[0].key() == chosen[1].key():
+    if chosen[0].label == chosen[1].label:
         raise StiffnessError(f"--separate needs two different effects, got {chosen[0].label} "
                              "twice")
     rows = geo.rows(campaign.q, campaign.force, campaign.moment,

@@ -186,11 +186,11 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     ``declared`` names takes those settings (:meth:`Effect.declare`).
     """
     geo = model.geometry
-    have = {e.key() for e in model.effects}
+    have = {e.label for e in model.effects}
     out: list[Effect] = []
 
     def add(effect: Effect) -> None:
-        if effect.key() not in have:
+        if effect.label not in have:
             out.append(effect.declare(declared[effect.label]) if declared
                        and effect.label in declared else effect)
 

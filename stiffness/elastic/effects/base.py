@@ -136,23 +136,36 @@ class Parameter:
 
 
 class Effect:
-    """An effect a model may miss: its name, where it acts, its parameters and its prediction.
+    """An effect a model may miss. Its interface, in four parts (hooks default to nothing):
 
-    Optimiser variables ``u`` are scaled (:meth:`scale`) so that ``u ~ 1`` is a sizeable effect;
-    :meth:`physical` turns them into SI values. Hooks default to doing nothing.
+    * what it is: :attr:`name`, :attr:`kind`, :attr:`where`, :attr:`label`, :meth:`describe`;
+      placed on a robot by :meth:`at_place` (from a model file, unchecked, with its fixed
+      settings: :meth:`configured`, :meth:`file_settings`, :meth:`place_joints`);
+    * its parameters: :attr:`parameter_names`, their sizes :meth:`scale` (SI value of one
+      optimiser unit: ``u ~ 1`` is a sizeable effect, SI ``u * scale``) and physical scales
+      :meth:`physical_scale`, :meth:`bounds`, :meth:`start`, :meth:`report` with units and
+      its inverse :meth:`variables`;
+    * its contribution to a model used away from its campaign: :meth:`contribute`;
+    * its part of a deflection campaign's prediction, whose Jacobian columns
+      :class:`~stiffness.elastic.effects.hypothesis.Hypothesis` takes analytically where
+      :attr:`through_law` or :attr:`linear_motion` says they are affine: :meth:`adjust_law`,
+      :meth:`adjust_load`, :meth:`target_shift`, :meth:`target_motion`, :meth:`output_map`,
+      :meth:`preload`.
+
+    The per-joint effects share :class:`~stiffness.elastic.effects.joint_laws.JointEffect`;
+    the pose model's families add the hooks of
+    :class:`~stiffness.elastic.effects.pose_face.PoseFamily`.
     """
 
     name: ClassVar[str] = ""
-    #: names of the parameters (SI values from :meth:`physical`)
+    #: names of the parameters (SI values: the variables times :meth:`scale`)
     param_names: ClassVar[tuple[str, ...]] = ()
     #: whether the model gets ``K_C`` and the second-order kinematics
     second_order: ClassVar[bool] = False
-    #: a rigid joint this effect makes compliant
-    added_joint: str | None = None
-    #: the joint whose law this effect changes
-    joint: str | None = None
-    #: whether the variables enter only through that joint's law, affinely
-    #: (:meth:`adjust_law` of :meth:`physical`): the model then differentiates the prediction
+    #: whether the effect makes its joint (:attr:`where`), rigid in the baseline, a spring
+    adds_spring: ClassVar[bool] = False
+    #: whether the variables enter only through the law of the joint :attr:`where`, affinely
+    #: (:meth:`adjust_law` of the SI values): the model then differentiates the prediction
     #: with respect to them analytically (:meth:`Hypothesis.predict_with_jacobian`)
     through_law: ClassVar[bool] = False
     #: whether the variables enter only through :meth:`target_motion`, linearly (a bend): the
@@ -171,9 +184,11 @@ class Effect:
 
     # construction ----------------------------------------------------------------------------
     @classmethod
-    def at_place(cls, where: str | None, geometry: Geometry) -> Effect:
+    def at_place(cls, where: str | None, geometry: Geometry | None = None) -> Effect:
         """The effect acting at ``where`` (a joint, ``a->b``, or ``None``), checked against the
-        robot's ``geometry`` (:func:`stiffness.elastic.effects.make_effect`).
+        robot's ``geometry`` (:func:`stiffness.elastic.effects.make_effect`); with no
+        ``geometry``, as a model file declares it, unchecked (:meth:`place_joints` names the
+        joints to check; :meth:`configured` adds the file's settings).
 
         Raises
         ------
@@ -182,13 +197,6 @@ class Effect:
         """
         if where:
             raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
-        return cls()
-
-    @classmethod
-    def declared(cls, where: str | None, settings: dict) -> Effect:
-        """The effect as a model file declares it: at ``where`` with its fixed ``settings``
-        (:meth:`file_settings`), unchecked against a robot (:meth:`place_joints` names the
-        joints to check)."""
         return cls()
 
     def configured(self, settings: dict) -> Effect:
@@ -226,7 +234,7 @@ class Effect:
         return [] if where is None else [where]
 
     def file_settings(self, refs: References) -> dict:
-        """Fixed settings a model file keeps beside the parameters (SI; :meth:`declared`
+        """Fixed settings a model file keeps beside the parameters (SI; :meth:`configured`
         reads them back)."""
         return {}
 
@@ -269,15 +277,6 @@ class Effect:
         """Number of parameters."""
         return len(self.parameter_names)
 
-    @property
-    def penalty_params(self) -> int:
-        """Parameters counted by the information criterion (a switch counts as one)."""
-        return max(self.n_params, 1)
-
-    def key(self) -> tuple:
-        """Identity of the effect (name and where)."""
-        return (self.name, self.where)
-
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of the optimiser variables."""
         return np.full(self.n_params, -1e4), np.full(self.n_params, 1e4)
@@ -292,10 +291,6 @@ class Effect:
         it makes the effect a stand-in). This default: :data:`PHYSICAL_FACTOR` times
         :meth:`scale` (the size of a sizeable effect)."""
         return PHYSICAL_FACTOR * self.scale(refs)
-
-    def physical(self, u: np.ndarray, refs: References) -> np.ndarray:
-        """SI parameter values of optimiser variables ``u``."""
-        return np.asarray(u, dtype=float) * self.scale(refs)
 
     def scale(self, refs: References) -> np.ndarray:
         """SI value of one unit of each optimiser variable."""
@@ -317,7 +312,8 @@ class Effect:
         return None
 
     def adjust_law(self, p: np.ndarray, law: SpringLaw, column: int, refs: References) -> None:
-        """Change the law of the model joint at ``column`` (that of :attr:`joint`)."""
+        """Change the law of the model joint at ``column`` (that of :attr:`where`; called
+        when :attr:`through_law`)."""
 
     def target_motion(self, p: np.ndarray, model: HypothesisArrays, rows: Rows,
                       force: np.ndarray, moment: np.ndarray, point: np.ndarray
@@ -347,7 +343,7 @@ class Effect:
         :class:`stiffness.units.Units`). ``cov_u`` is the covariance of ``u``."""
         scale = self.scale(refs)
         se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
-        value = self.physical(u, refs)
+        value = np.asarray(u, dtype=float) * scale
         out = []
         for name, v, s, (unit, factor), size in zip(
                 self.parameter_names, value, se, self._units(units),

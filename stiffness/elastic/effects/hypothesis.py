@@ -59,7 +59,7 @@ class Hypothesis:
     rows of a campaign (the model the fitting engine fits and compares).
 
     The parameter vector ``x`` is ``ln k`` of the baseline's compliant joints followed by each
-    effect's scaled variables (:meth:`Effect.physical`).
+    effect's scaled variables (SI values: the variables times :meth:`Effect.scale`).
 
     Parameters
     ----------
@@ -101,8 +101,7 @@ class Hypothesis:
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
         self.rotation_weight = None if rotation_weight is None else float(rotation_weight)
         self.held = dict(held or {})
-        self.joints = self.compliant + tuple(e.added_joint for e in self.effects
-                                             if e.added_joint is not None)
+        self.joints = self.compliant + tuple(str(e.where) for e in self.effects if e.adds_spring)
         self.index = np.array([geometry.joints.index(j) for j in self.joints], dtype=int)
         self.tangent = baseline == "enhanced" or any(e.second_order for e in self.effects)
         self.second_order = any(e.second_order for e in self.effects)
@@ -203,8 +202,9 @@ class Hypothesis:
 
     @property
     def penalty_params(self) -> int:
-        """Parameters counted by the information criterion."""
-        return len(self.compliant) + sum(e.penalty_params for e in self.effects)
+        """Parameters counted by the information criterion (an effect without parameters, a
+        switch, counts as one)."""
+        return len(self.compliant) + sum(max(e.n_params, 1) for e in self.effects)
 
     def extend_x(self, x: np.ndarray, effect: Effect) -> np.ndarray:
         """Start vector of :meth:`extended` from this model's ``x``."""
@@ -225,8 +225,7 @@ class Hypothesis:
         return x[self.offsets[i + 1]: self.offsets[i + 2]]
 
     def _effect_params(self, x: np.ndarray) -> list[np.ndarray]:
-        return [e.physical(self.effect_vars(x, i), self.refs)
-                for i, e in enumerate(self.effects)]
+        return [self.effect_vars(x, i) * e.scale(self.refs) for i, e in enumerate(self.effects)]
 
     def stiffness(self, x: np.ndarray) -> np.ndarray:
         """Baseline stiffnesses (SI) of parameter vector ``x``."""
@@ -242,8 +241,8 @@ class Hypothesis:
         law = SpringLaw(compliance, np.zeros(n), np.zeros(n),
                   self.refs.tau_smoothing[self.index].copy())
         for e, p in zip(self.effects, params, strict=True):
-            if e.joint is not None:
-                e.adjust_law(p, law, self.joints.index(e.joint), self.refs)
+            if e.through_law:
+                e.adjust_law(p, law, self.joints.index(e.where), self.refs)
         return law
 
     @property
@@ -270,7 +269,7 @@ class Hypothesis:
             for k in range(e.n_params):
                 unit = np.zeros(e.n_params)
                 unit[k] = 1.0
-                motion = e.target_motion(e.physical(unit, self.refs), self, rows, force, moment,
+                motion = e.target_motion(unit * e.scale(self.refs), self, rows, force, moment,
                                          point)
                 assert motion is not None  # a linear motion moves the target
                 out.append((int(analytic[self.offsets[i + 1] + k]), motion[0], motion[1]))

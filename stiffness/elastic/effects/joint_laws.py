@@ -22,7 +22,7 @@ from typing import ClassVar
 import numpy as np
 
 from stiffness.elastic.effects.base import Effect, Parameter, stiffness_report
-from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry, References
+from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
     FamilyParameter,
@@ -37,36 +37,36 @@ from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 
 @dataclass(eq=False)
 class JointEffect(Effect):
-    """An effect on one coordinate joint's law, the shared part of the per-joint effects: the
-    joint (``joint_name``, whether it is prismatic), where it acts, its checked placement and
-    its reading from a model file."""
+    """The shared part of the per-joint effects (the joint laws, a spring compensator): the
+    joint (``joint_name``, whether it is prismatic), where it acts (:attr:`where`: the joint)
+    and its placement checked against the robot (a revolute joint where
+    :attr:`revolute_only`)."""
 
     joint_name: str = ""
     prismatic: bool = False
-
-    def __post_init__(self) -> None:
-        self.joint = self.joint_name
+    #: whether the effect needs a revolute joint
+    revolute_only: ClassVar[bool] = False
 
     @classmethod
-    def at_place(cls, where: str | None, geometry: Geometry) -> Effect:
-        """The effect at the coordinate joint ``where`` of ``geometry``.
+    def at_place(cls, where: str | None, geometry: Geometry | None = None) -> Effect:
+        """The effect at the coordinate joint ``where`` of ``geometry`` (unchecked without).
 
         Raises
         ------
         UnknownJointError
-            ``where`` is not a coordinate joint.
+            ``where`` is not a coordinate joint (a revolute one where :attr:`revolute_only`).
         """
-        name = cls.name
-        if where not in geometry.joints:
-            raise UnknownJointError(f"{name} needs a joint, e.g. {name}:{geometry.joints[0]}; "
-                                    f"{did_you_mean(str(where), list(geometry.joints))}",
-                                    name=str(where), choices=geometry.joints)
+        if geometry is None:
+            return cls(joint_name=str(where))
+        joints = [j for j, p in zip(geometry.joints, geometry.prismatic, strict=True)
+                  if not (p and cls.revolute_only)]
+        if where not in joints:
+            kind = "a revolute joint" if cls.revolute_only else "a joint"
+            raise UnknownJointError(f"{cls.name} needs {kind}, e.g. {cls.name}:{joints[0]}; "
+                                    f"{did_you_mean(str(where), joints)}", name=str(where),
+                                    choices=joints)
         return cls(joint_name=where,
                    prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
-
-    @classmethod
-    def declared(cls, where: str | None, settings: dict) -> Effect:
-        return cls(joint_name=str(where)).configured(settings)
 
     @property
     def where(self) -> str:
@@ -100,12 +100,9 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     name: ClassVar[str] = "joint_compliance"
     rows_at_once: ClassVar[bool] = True
     param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
+    adds_spring: ClassVar[bool] = True
     through_law: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.added_joint = self.joint_name
 
     def simulated_values(self, values, units):
         if values[0] <= 0:
@@ -140,9 +137,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
 
     # pose face ----------------------------------------------------------------------------
     family_lower: ClassVar[float] = 0.0
-
-    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
-        return self.effect_sizes(pm, refs)  # the deflection effect's scale
+    sized_as_effect: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(compliance_label(n),
@@ -224,14 +219,12 @@ class Backlash(JointEffect, JointDeflectionFamily):
     # pose face ----------------------------------------------------------------------------
     family_scale: ClassVar[float] = 1e-4
     family_lower: ClassVar[float] = 0.0
+    sized_as_effect: ClassVar[bool] = True
     needs_masses: ClassVar[bool] = True
     #: the model setting naming each compliant joint's smoothing torque (N.m or N)
     SETTING: ClassVar[str] = BACKLASH_SETTING
     #: RMS torque, relative to the largest joint's, below which a joint carries none
     NIL_TORQUE: ClassVar[float] = 1e-6
-
-    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
-        return self.effect_sizes(pm, refs)  # the deflection effect's scale
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names

@@ -41,7 +41,6 @@ from stiffness.elastic.effects.base import Effect, stiffness_report
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
-    References,
     Rows,
     cross,
     joint_axis_column,
@@ -213,7 +212,10 @@ class LinkCompliance(Effect, PoseFamily):
     rows_at_once: ClassVar[bool] = True
 
     @classmethod
-    def at_place(cls, where, geometry):
+    def at_place(cls, where, geometry=None):
+        if geometry is None:  # the bend axes come from the robot (ElasticModel)
+            a, b = cls.place_joints(where)
+            return cls(a=a, b=b)
         parts = segment(where)
         if parts is None or parts not in geometry.link_columns:
             pairs = [f"{a}->{b}" for a, b in geometry.link_segments()]
@@ -222,11 +224,6 @@ class LinkCompliance(Effect, PoseFamily):
                 f"A->B (or A/B); got {where!r}; valid segments: {', '.join(pairs)}",
                 name=str(where), choices=pairs)
         return cls(a=parts[0], b=parts[1], column=geometry.link_columns[parts])
-
-    @classmethod
-    def declared(cls, where, settings):
-        a, b = cls.place_joints(where)
-        return cls(a=a, b=b)  # the bend axes come from the robot (ElasticModel)
 
     @classmethod
     def place_joints(cls, where):
@@ -296,9 +293,7 @@ class LinkCompliance(Effect, PoseFamily):
     family_scale: ClassVar[float] = 1e-6
     family_lower: ClassVar[float] = 0.0
     needs_masses: ClassVar[bool] = True
-
-    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
-        return self.effect_sizes(pm, refs)  # the deflection effect's scale
+    sized_as_effect: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
@@ -462,7 +457,10 @@ class TransversalCompliance(LinkCompliance):
     family_scale: ClassVar[float] = 1e-7
 
     @classmethod
-    def at_place(cls, where, geometry):
+    def at_place(cls, where, geometry=None):
+        if geometry is None:  # the axis comes from the robot (ElasticModel)
+            (joint,) = cls.place_joints(where)
+            return cls(a=joint, b=joint)
         if where not in geometry.tilt_columns:
             joints = list(geometry.tilt_columns)
             raise UnknownNameError(
@@ -470,11 +468,6 @@ class TransversalCompliance(LinkCompliance):
                 f"an axis of its frame); got {where!r}; valid names: {', '.join(joints)}",
                 name=str(where), choices=joints)
         return cls(a=where, b=where, column=geometry.tilt_columns[where])
-
-    @classmethod
-    def declared(cls, where, settings):
-        (joint,) = cls.place_joints(where)
-        return cls(a=joint, b=joint)  # the axis comes from the robot (ElasticModel)
 
     @classmethod
     def place_joints(cls, where):

@@ -235,6 +235,9 @@ class PoseFamily:
     #: row and marker axes, :class:`MarkerView`; :meth:`rows_cache` for :meth:`row_cache`):
     #: a model of such families evaluates every row without a Python loop over them
     rows_at_once: ClassVar[bool] = False
+    #: whether its parameters are, per joint or link, its deflection effect's own, judged by
+    #: that effect's :meth:`~stiffness.elastic.effects.base.Effect.physical_scale`
+    sized_as_effect: ClassVar[bool] = False
 
     @classmethod
     def absent_at_zero(cls) -> bool:
@@ -260,16 +263,13 @@ class PoseFamily:
         """The physical scale (SI) of each parameter, in :meth:`family_parameters`' order:
         beyond it a value is not physical on this campaign, and an interval wider than it
         leaves the parameter undetermined (:mod:`stiffness.calibration.naming`). This
-        default, for the geometric families: :data:`POSE_PHYSICAL_FACTOR` times the typical
-        size (0.1 m, 0.1 rad)."""
-        return np.full(len(self.family_parameters(pm)), POSE_PHYSICAL_FACTOR * self.family_scale)
-
-    def effect_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
-        """:meth:`physical_sizes` of a family whose parameters are, per joint or link, its
-        effect's own (:meth:`~stiffness.elastic.effects.base.Effect.physical_scale`, the
-        scale the deflection campaigns judge them by)."""
-        sizes = self.physical_scale(refs)  # type: ignore[attr-defined]  # an Effect's
-        return np.resize(sizes, len(self.family_parameters(pm)))
+        default: the effect's own scale, repeated over the joints or links, where
+        :attr:`sized_as_effect` (the scale the deflection campaigns judge them by), else
+        :data:`POSE_PHYSICAL_FACTOR` times the typical size (0.1 m, 0.1 rad)."""
+        n = len(self.family_parameters(pm))
+        if self.sized_as_effect:
+            return np.resize(self.physical_scale(refs), n)  # type: ignore[attr-defined]
+        return np.full(n, POSE_PHYSICAL_FACTOR * self.family_scale)
 
     def param(self, label: str, unit: str) -> FamilyParameter:
         """A parameter of this family with its typical size and lower bound."""

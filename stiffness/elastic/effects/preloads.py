@@ -26,6 +26,7 @@ import pinocchio as pin
 from stiffness.batch.poses import torque_regressors
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import References, cross, skew
+from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     JointDeflectionFamily,
@@ -33,7 +34,7 @@ from stiffness.elastic.effects.pose_face import (
     SagState,
     compensator_label,
 )
-from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
+from stiffness.errors import StiffnessError
 from stiffness.mechanics.gravity import (
     ANGLE_REFERENCES,
     GRAVITY_PARAMETERS,
@@ -84,9 +85,10 @@ class GravityPreload(Effect):
     value_counts: ClassVar[tuple[int, ...]] = (1, 4)
 
     @classmethod
-    def at_place(cls, where, geometry):
-        if where:
-            raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
+    def at_place(cls, where, geometry=None):
+        placed = super().at_place(where, geometry)
+        if geometry is None:
+            return placed
         require_open_chain(geometry.robot, cls.name)
         return cls(reach_m=reach(geometry.robot.model))
 
@@ -142,7 +144,7 @@ GEOMETRY_RANGE = (0.05, 20.0)
 
 
 @dataclass(eq=False)
-class GravityCompensator(Effect, JointDeflectionFamily):
+class GravityCompensator(JointEffect, JointDeflectionFamily):
     """A spring between the base and a lever on the joint's link, its angle measured from the
     link's upward direction at zero load
     (:func:`stiffness.mechanics.gravity.compensator_torque`,
@@ -160,7 +162,6 @@ class GravityCompensator(Effect, JointDeflectionFamily):
     zero (N); the torque is linear in both. Needs ``joint_compliance`` (the torque acts
     through the joint's compliance)."""
 
-    joint_name: str = ""
     lever_m: float = float(COMPENSATOR_GEOMETRY["lever_m"])
     base_m: float = float(COMPENSATOR_GEOMETRY["base_m"])
     angle0_rad: float = float(COMPENSATOR_GEOMETRY["angle0_rad"])
@@ -176,6 +177,7 @@ class GravityCompensator(Effect, JointDeflectionFamily):
     param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (2, 4)
+    revolute_only: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         if not (self.lever_m > 0 and self.base_m > 0 and abs(self.lever_m - self.base_m) > 1e-6):
@@ -192,21 +194,9 @@ class GravityCompensator(Effect, JointDeflectionFamily):
                                  f"{self.geometry_source!r}")
 
     @classmethod
-    def at_place(cls, where, geometry):
-        if where not in geometry.joints or geometry.prismatic[geometry.joints.index(where)]:
-            revolute = [j for j, p in zip(geometry.joints, geometry.prismatic, strict=True)
-                        if not p]
-            raise UnknownJointError(f"gravity_compensator needs a revolute joint, e.g. "
-                                    f"gravity_compensator:{revolute[0]}; "
-                                    f"{did_you_mean(str(where), revolute)}", name=str(where),
-                                    choices=revolute)
-        up = upward_angle(geometry.robot, where)
-        return cls(joint_name=where, angle_up_rad=up.angle_rad, angle_reference=up.reference,
-                   reference_reason=up.reason)
-
-    @classmethod
-    def declared(cls, where, settings):
-        return cls(joint_name=str(where)).configured(settings)
+    def at_place(cls, where, geometry=None):
+        placed = super().at_place(where, geometry)  # checked: a revolute joint
+        return placed if geometry is None else cls.upward(geometry.robot, str(where))
 
     def configured(self, settings):
         g = {**COMPENSATOR_GEOMETRY, **settings}
@@ -257,10 +247,6 @@ class GravityCompensator(Effect, JointDeflectionFamily):
 
     def contribute(self, values, parts):
         parts.add_compensator(self.joint_name, values[0], values[1], self.geometry(values))
-
-    @property
-    def where(self) -> str:
-        return self.joint_name
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -433,16 +419,13 @@ class GravityLumped(Effect, JointDeflectionFamily):
     rows_at_once: ClassVar[bool] = True
 
     @classmethod
-    def at_place(cls, where, geometry):
-        if where:
-            raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
+    def at_place(cls, where, geometry=None):
+        placed = super().at_place(where, geometry)
+        if geometry is None:
+            return placed
         require_open_chain(geometry.robot, cls.name)
         names = geometry.robot.model.names
         return cls(links=tuple(names[k] for k in weighed_bodies(geometry.robot)))
-
-    @classmethod
-    def declared(cls, where, settings):
-        return cls(links=tuple(settings.get("links", ())))
 
     def configured(self, settings):
         return dataclasses.replace(self, links=tuple(settings.get("links", self.links)))
