@@ -6,14 +6,15 @@ without the load-dependent term, and the exact elastostatic equilibrium; evaluat
 configurations at once, scan a workspace, identify joint stiffness from measurements and find
 what a model misses, and draw stiffness ellipsoids. SI units throughout (m, N, rad, N.m/rad).
 
-The main functions and classes of every layer are here (see docs/architecture.md): the robot
-and mechanics are imported with the package; the batch, workspace, calibration, planning,
-machining, papers and viewer entries are imported on first use (they bring SciPy's optimisers,
-matplotlib, meshcat). The workflow commands are functions here too: ``identify``,
-``diagnose``, ``simulate``, ``design``, ``compensate``, ``posture`` and ``scan`` take Python
-objects (SI) and return results whose ``.to_dict()`` is the command's ``--json`` object; the
-result classes (``Identification``, ``Diagnosis``, ``PoseDiagnosis``, ``Validation``...), the
-models (``ElasticModel``, ``PoseModel``) and every error and warning the package raises
+The main functions and classes of every layer are here (see docs/architecture.md), not their
+low-level helpers (those stay in their modules): the robot and mechanics are imported with the
+package; the batch, workspace, calibration, planning, machining, papers and viewer entries are
+imported on first use (they bring SciPy's optimisers, matplotlib, meshcat). The workflow
+commands are functions here too: ``identify``, ``diagnose``, ``simulate``, ``design``,
+``compensate``, ``posture``, ``track`` and ``scan`` take Python objects (SI) and return results
+whose ``.to_dict()`` is the command's ``--json`` object; the result classes
+(``Identification``, ``Diagnosis``, ``PoseDiagnosis``, ``Validation``...), the models
+(``ElasticModel``, ``PoseModel``) and every error and warning the package raises
 (``StiffnessError`` and its subclasses) are here too.
 
 Example::
@@ -55,7 +56,6 @@ from stiffness.errors import (
     UnknownRobotError,
     UnstableEquilibriumError,
 )
-from stiffness.files import atomic_write
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.equilibrium import Equilibrium, solve_equilibrium
 from stiffness.mechanics.formulation import (
@@ -73,7 +73,7 @@ from stiffness.mechanics.formulation import (
     work_balance,
 )
 from stiffness.mechanics.platform import platform_stiffness, solve_pose
-from stiffness.mechanics.wrench import holding_wrench, reorder_twist
+from stiffness.mechanics.wrench import holding_wrench
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.robot.sources import shipped_robots
 
@@ -125,6 +125,8 @@ _ON_FIRST_USE = {
     "PathCompensation": "stiffness.machining.compensation",
     "posture": "stiffness.machining.posture",
     "PostureResult": "stiffness.machining.posture",
+    "track": "stiffness.machining.tracking",
+    "Tracking": "stiffness.machining.tracking",
     # papers: the SK120 reproduction
     "build_report": "stiffness.papers.report",
     # viewer: stiffness ellipsoids in the browser
@@ -183,6 +185,7 @@ __all__ = [
     "StiffnessError",
     "StiffnessViewer",
     "TargetState",
+    "Tracking",
     "UndeterminedMotionError",
     "UnknownColumnWarning",
     "UnknownEffectError",
@@ -193,7 +196,6 @@ __all__ = [
     "UnstableEquilibriumError",
     "Validation",
     "__version__",
-    "atomic_write",
     "batch_kinematics",
     "build_report",
     "cartesian_stiffness",
@@ -221,7 +223,6 @@ __all__ = [
     "load_scan",
     "platform_stiffness",
     "posture",
-    "reorder_twist",
     "run_scan",
     "scan",
     "shipped_robots",
@@ -231,6 +232,7 @@ __all__ = [
     "solve_pose",
     "target_state",
     "target_states",
+    "track",
     "twist_basis_stiffness",
     "validate",
     "work_balance",
