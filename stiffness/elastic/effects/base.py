@@ -181,6 +181,9 @@ class Effect:
     beyond_springs: ClassVar[bool] = False
     #: how many values ``stiffness simulate --effect NAME=...`` takes
     value_counts: ClassVar[tuple[int, ...]] = (0,)
+    #: whether the parameters are never negative (a compliance, a lost motion): the variables
+    #: then start small and positive, and so does a pose family's lower bound (0)
+    nonnegative: ClassVar[bool] = False
 
     # construction ----------------------------------------------------------------------------
     @classmethod
@@ -278,12 +281,14 @@ class Effect:
         return len(self.parameter_names)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds of the optimiser variables."""
-        return np.full(self.n_params, -1e4), np.full(self.n_params, 1e4)
+        """Bounds of the optimiser variables (0 below where :attr:`nonnegative`)."""
+        return (np.full(self.n_params, 0.0 if self.nonnegative else -1e4),
+                np.full(self.n_params, 1e4))
 
     def start(self) -> np.ndarray:
-        """Start of the optimiser variables (the effect nearly absent)."""
-        return np.zeros(self.n_params)
+        """Start of the optimiser variables (the effect nearly absent: 1e-3 where
+        :attr:`nonnegative`, else 0)."""
+        return np.full(self.n_params, 1e-3 if self.nonnegative else 0.0)
 
     def physical_scale(self, refs: References) -> np.ndarray:
         """SI size of each parameter beyond which it is not physical on this campaign

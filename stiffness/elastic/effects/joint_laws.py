@@ -102,6 +102,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
     adds_spring: ClassVar[bool] = True
     through_law: ClassVar[bool] = True
+    nonnegative: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
 
     def simulated_values(self, values, units):
@@ -111,12 +112,6 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
 
     def contribute(self, values, parts):
         parts.add_spring(self.joint_name, values[0])
-
-    def bounds(self):
-        return np.zeros(1), np.full(1, 1e4)
-
-    def start(self):
-        return np.full(1, 1e-3)
 
     def scale(self, refs):
         return np.full(1, 1.0 / refs.k_ref)  # compliance
@@ -136,7 +131,6 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
         return f"joint {self.joint_name}, declared rigid, is a spring"
 
     # pose face ----------------------------------------------------------------------------
-    family_lower: ClassVar[float] = 0.0
     sized_as_effect: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
@@ -180,6 +174,7 @@ class Backlash(JointEffect, JointDeflectionFamily):
     kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
     through_law: ClassVar[bool] = True
+    nonnegative: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
 
     def configured(self, settings):
@@ -195,12 +190,6 @@ class Backlash(JointEffect, JointDeflectionFamily):
 
     def contribute(self, values, parts):
         parts.add_backlash(self.joint_name, values[0], self.smoothing_torque)
-
-    def bounds(self):
-        return np.zeros(1), np.full(1, 1e4)
-
-    def start(self):
-        return np.full(1, 1e-3)
 
     def scale(self, refs):
         return np.full(1, refs.theta_ref)
@@ -218,7 +207,6 @@ class Backlash(JointEffect, JointDeflectionFamily):
 
     # pose face ----------------------------------------------------------------------------
     family_scale: ClassVar[float] = 1e-4
-    family_lower: ClassVar[float] = 0.0
     sized_as_effect: ClassVar[bool] = True
     needs_masses: ClassVar[bool] = True
     #: the model setting naming each compliant joint's smoothing torque (N.m or N)

@@ -210,6 +210,7 @@ class LinkCompliance(Effect, PoseFamily):
     value_counts: ClassVar[tuple[int, ...]] = (1, 2)
     linear_motion: ClassVar[bool] = True
     rows_at_once: ClassVar[bool] = True
+    nonnegative: ClassVar[bool] = True
 
     @classmethod
     def at_place(cls, where, geometry=None):
@@ -244,12 +245,6 @@ class LinkCompliance(Effect, PoseFamily):
     @property
     def where(self) -> str:
         return f"{self.a}->{self.b}"
-
-    def bounds(self):
-        return np.zeros(2), np.full(2, 1e4)
-
-    def start(self):
-        return np.full(2, 1e-3)
 
     def scale(self, refs):
         return np.full(2, 1.0 / refs.k_ref)
@@ -291,7 +286,6 @@ class LinkCompliance(Effect, PoseFamily):
     # pose face ----------------------------------------------------------------------------
     family_kind: ClassVar[str] = "elastic"
     family_scale: ClassVar[float] = 1e-6
-    family_lower: ClassVar[float] = 0.0
     needs_masses: ClassVar[bool] = True
     sized_as_effect: ClassVar[bool] = True
 

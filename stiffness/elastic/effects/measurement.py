@@ -37,6 +37,9 @@ class VectorEffect(Effect):
     def simulated_values(self, values, units):
         return diagonal_vector(values) * getattr(units, f"{self.quantity}_to_si")
 
+    def scale(self, refs):
+        return np.full(3, 0.01)  # 10 mrad, 10 mm
+
     def _units(self, units):
         return [(getattr(units, self.quantity),
                  getattr(units, f"{self.quantity}_to_si"))] * 3
@@ -53,9 +56,6 @@ class FrameMisalignment(VectorEffect):
     def contribute(self, values, parts):
         parts.measure(self.label, rotation=values[:3])
 
-    def scale(self, refs):
-        return np.full(3, 0.01)
-
     def output_map(self, p):
         return rotation_matrix(p), None
 
@@ -71,9 +71,6 @@ class TargetOffset(VectorEffect):
 
     def contribute(self, values, parts):
         parts.shift_target(self.label, values[:3])
-
-    def scale(self, refs):
-        return np.full(3, 0.01)
 
     def target_shift(self, p, rows):
         return rows.rotation @ p

@@ -222,8 +222,9 @@ class PoseFamily:
     name: ClassVar[str] = ""
     family_kind: ClassVar[str] = "geometric"
     family_scale: ClassVar[float] = 1e-3
-    #: physical lower bound of its parameters (SI): 0 for compliances and lost motion
-    family_lower: ClassVar[float] = -math.inf
+    #: whether its parameters are never negative (compliances, lost motion: lower bound 0),
+    #: as :attr:`stiffness.elastic.effects.base.Effect.nonnegative`
+    nonnegative: ClassVar[bool] = False
     #: whether the family stands in for gravity's torque (masses unknown): the springs then
     #: carry only the applied wrench's known torque
     lumps_gravity: ClassVar[bool] = False
@@ -273,7 +274,8 @@ class PoseFamily:
 
     def param(self, label: str, unit: str) -> FamilyParameter:
         """A parameter of this family with its typical size and lower bound."""
-        return FamilyParameter(self.name, label, self.family_scale, unit, self.family_lower)
+        return FamilyParameter(self.name, label, self.family_scale, unit,
+                               0.0 if self.nonnegative else -math.inf)
 
     # --- prediction hooks ---------------------------------------------------------------
     def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray | None:
