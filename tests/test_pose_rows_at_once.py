@@ -1,6 +1,6 @@
 """Pose-model evaluation over every row at once (issue 37 item 4): the array kinematics of
-:mod:`stiffness.batch.poses` against Pinocchio's own calls, and a model of row-at-once families
-against the same model evaluated row by row and against finite differences."""
+:mod:`stiffness.batch.poses` against Pinocchio's own calls, and the model's columns against
+finite differences (every family's: tests/test_absolute_poses.py)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,6 @@ from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.robot.robot import load_robot
 
 AT_ONCE = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance")
-BENDS = ("link_compliance", "transversal_compliance")
 
 
 def _mixed_chain() -> tuple[pin.Model, list[int]]:
@@ -94,41 +93,6 @@ def loaded_case():
     scales = np.array([p.scale for p in model.parameters])
     x = np.abs(rng.normal(size=model.size)) * scales * 3
     return robot, markers, frame0, loads, rows, x, scales
-
-
-@pytest.mark.parametrize("families", [AT_ONCE, AT_ONCE + BENDS + ("base_tilt",),
-                                      AT_ONCE + ("backlash", "gravity_compensator"),
-                                      AT_ONCE + ("gravity_lumped",)])
-def test_rows_at_once_equal_row_by_row(loaded_case, families):
-    """Every family takes rows at once: the same prediction and Jacobian columns as the same
-    model evaluated row by row (its row path forced): the two paths of
-    :meth:`PoseModel.evaluate` agree to round-off, on a sagging arm under a wrench (one row
-    without it), and on a second evaluation (warm sag starts); with the link bends and joint
-    tilts under a tilted base (the bends' gravity slope in the tilt's columns), backlash
-    and the gravity compensators, or the lumped gravity (masses unknown), too, at
-    parameters of their typical sizes (the tilt's ten times: their displacements tens of
-    micrometres and more)."""
-    robot, markers, frame0, loads, rows, _, _ = loaded_case
-    settings = PoseModel(robot, markers, AT_ONCE, frame0, loads).campaign_settings(rows)
-    at_once = PoseModel(robot, markers, families, frame0, loads, settings)
-    by_row = PoseModel(robot, markers, families, frame0, loads, settings)
-    by_row._at_once = False
-    assert at_once._at_once
-    x = (np.abs(np.random.default_rng(7).normal(size=at_once.size))
-         * np.array([p.scale for p in at_once.parameters]) * 3)
-    if "base_tilt" in families:
-        x[at_once.slices()["base_tilt"]] *= 10.0
-    for _ in range(2):
-        y1, j1 = at_once.evaluate(x, rows)
-        y2, j2 = by_row.evaluate(x, rows)
-        assert j1 is not None and j2 is not None
-        assert np.abs(y1 - y2).max() <= 1e-12
-        for f, sl in at_once.slices().items():  # each family to its own columns' size
-            assert np.abs(j1[..., sl] - j2[..., sl]).max() <= 1e-12 * np.abs(j1[..., sl]).max(), f
-    for f in families[len(AT_ONCE):]:  # each added family moves the markers: the test sees it
-        bare = x.copy()
-        bare[at_once.slices()[f]] = 0.0
-        assert np.abs(at_once.evaluate(bare, rows, False)[0] - y1).max() > 1e-5, f
 
 
 def test_rows_at_once_columns_match_finite_differences(loaded_case):

@@ -19,6 +19,7 @@ import pinocchio as pin
 import pytest
 from scipy import optimize
 
+from stiffness.batch.poses import joint_placements
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import (
@@ -33,7 +34,7 @@ from stiffness.elastic.effects.geometry import (
 from stiffness.elastic.effects.joint_laws import Backlash
 from stiffness.elastic.effects.link_bends import (
     LinkCompliance,
-    joint_normal_axes,
+    TransversalCompliance,
     marker_links,
     transversal_joints,
 )
@@ -210,12 +211,14 @@ def test_simulator_and_fitted_model_derive_the_same_axes_and_smoothing():
         for q in sample_coordinates(robot, 20, rng):
             pin.forwardKinematics(model, data, robot.configuration(q))
             origins = np.array([data.oMi[k.b].translation for k in links])
-            e1, e2 = LinkCompliance.bend_axes(model, data, links, origins)
+            kin = joint_placements(model, data, robot.configuration(q)[None], False)
+            e1, e2 = (a[0] for a in LinkCompliance.bend_axes(model, kin, links, origins[None]))
             for n, k in enumerate(links):
                 mine = bend_axes(data.oMi[k.a].translation, origins[n],
                                  data.oMi[model.parents[k.b]].rotation, k.column)
                 np.testing.assert_allclose(np.array(mine), [e1[n], e2[n]], rtol=0, atol=1e-12)
-            t1, t2 = joint_normal_axes(model, data, tilting)
+            t1, t2 = (a[0] for a in TransversalCompliance.bend_axes(
+                model, kin, tilting, np.zeros((1, len(tilting), 3))))
             for n, k in enumerate(tilting):
                 mount = (data.oMi[model.parents[k.b]].rotation
                          @ model.jointPlacements[k.b].rotation)

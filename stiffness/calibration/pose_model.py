@@ -27,7 +27,7 @@ with the parameter families of :data:`stiffness.elastic.effects.FAMILIES`:
 ``joint_compliance``
     each compliant joint's compliance ``c_j`` (rad/(N.m), or m/N): ``Delta q_j = c_j tau_j``
     with ``tau = J_load(q)^T w - g(q)``, the applied wrench's and gravity's torque at the loaded
-    configuration ``q`` itself (the sag's fixed point, :meth:`PoseModel.loaded_configuration`).
+    configuration ``q`` itself (the sag's fixed point, :meth:`PoseModel._loaded_rows`).
     Springs on a ``[controller]``'s coordinates ``u`` (``q_chain = A u + b``,
     ``springs_on = "controller"``) act there: ``Delta u = C_u A^T tau``,
     ``Delta q = A Delta u``; in general ``Delta q = S C S^T tau`` with ``S``
@@ -63,7 +63,6 @@ from stiffness.batch.poses import (
 )
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base_tilt import declared_tilt, tilted_gravity
-from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.kinematic_errors import MeasuringFrame
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
@@ -190,7 +189,6 @@ class PoseModel:
         self._sag_start: dict[int, tuple[RowTerms, np.ndarray]] = {}
         self._lumped = any(f.lumps_gravity for f in self.family_objects)
         self._elastic = any(f.family_kind == "elastic" for f in self.family_objects)
-        self._at_once = all(f.rows_at_once for f in self.family_objects)
         # the perturbed copies of the model differ in placements and gravity only
         self._kinds = joint_kinds(model)
         # the families that implement each per-row hook (the others would add nothing)
@@ -270,14 +268,6 @@ class PoseModel:
         return RowTerms(np.asarray(q_full, dtype=float),
                         None if wrench is None or self.loads is None else np.asarray(wrench))
 
-    def sag_state(self, model: pin.Model, data: pin.Data, x: np.ndarray, q: np.ndarray,
-                  wrench: np.ndarray | None) -> SagState:
-        """Gravity's, the wrench's and the families' torques at ``q`` for ``model``."""
-        gravity, applied = self._load_torques(model, data, q, wrench)
-        extras = {fam.name: fam.at_configuration(self, model, data, q)
-                  for fam in self._hooked["at_configuration"]}
-        return self._state(x, q, gravity, applied, extras)
-
     def _state(self, x: np.ndarray, q: np.ndarray, gravity: np.ndarray, applied: np.ndarray,
                extras: dict) -> SagState:
         """The sag's state from gravity's and the wrench's torques (one row: (nv,) each; a
@@ -356,43 +346,13 @@ class PoseModel:
                 offsets += shift
         return offsets
 
-    def loaded_configuration(self, model: pin.Model, data: pin.Data, x: np.ndarray,
-                             row: RowTerms) -> tuple[np.ndarray, SagState | None]:
-        """The configuration the links are at, and the sag's state there.
-
-        ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved by fixed-point
-        iteration (to :data:`SAG_TOLERANCE`; it contracts by about ``|C dtau/dq|``, 1e-3 for
-        real arms), started from the row's last converged sag (an optimiser's next trial
-        differs little from its last), and from zero if that does not converge.
-        """
-        offsets = self._offsets(x)
-        if not self.elastic:
-            return pin.integrate(model, row.q_full, offsets), None
-        starts = [np.zeros(model.nv)]
-        last = self._sag_start.get(id(row))
-        if last is not None and last[0] is row:
-            starts.insert(0, last[1])
-        for sag in starts:
-            for _ in range(SAG_ITERATIONS):
-                q = pin.integrate(model, row.q_full, offsets + sag)
-                state = self.sag_state(model, data, x, q, row.wrench)
-                new = self.deflection(x, state)
-                converged = np.max(np.abs(new - sag)) <= SAG_TOLERANCE
-                sag = new
-                if converged:
-                    self._sag_start[id(row)] = (row, sag)
-                    return pin.integrate(model, row.q_full, offsets + sag), state
-        raise ConvergenceError(SAG_DIVERGES)
-
     def evaluate(self, x: np.ndarray, rows: list[RowTerms], jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Predicted positions (n, M, 3) in the measuring frame (m) and their Jacobian.
 
         The Jacobian (n, M, 3, p) is d y / d x with the torques at the loaded configuration
-        held fixed (exact at zero compliance; module docstring). A model whose families all
-        take rows at once (:attr:`~stiffness.elastic.effects.pose_face.PoseFamily.
-        rows_at_once`) evaluates blocks of :data:`ROW_BLOCK` rows as arrays (Pinocchio in a
-        tight loop, :mod:`stiffness.batch.poses`); the others row by row.
+        held fixed (exact at zero compliance; module docstring). Blocks of :data:`ROW_BLOCK`
+        rows are evaluated as arrays (Pinocchio in a tight loop, :mod:`stiffness.batch.poses`).
         """
         x = np.asarray(x, dtype=float)
         model = self.perturbed_model(x)
@@ -406,44 +366,10 @@ class PoseModel:
         n, m = len(rows), len(self.markers)
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
-        if self._at_once:
-            for s in range(0, n, ROW_BLOCK):
-                self._evaluate_block(ev, rows[s:s + ROW_BLOCK], y[s:s + ROW_BLOCK],
-                                     None if jac is None else jac[s:s + ROW_BLOCK])
-        else:
-            for i, row in enumerate(rows):
-                self._evaluate_row(ev, row, y[i], None if jac is None else jac[i])
+        for s in range(0, n, ROW_BLOCK):
+            self._evaluate_block(ev, rows[s:s + ROW_BLOCK], y[s:s + ROW_BLOCK],
+                                 None if jac is None else jac[s:s + ROW_BLOCK])
         return y, jac
-
-    def _evaluate_row(self, ev: _Evaluation, row: RowTerms, y: np.ndarray,
-                      jac: np.ndarray | None) -> None:
-        """One row of :meth:`evaluate` into ``y`` (M, 3) and ``jac`` (M, 3, p)."""
-        model, data, x, parts = ev.model, ev.data, ev.x, ev.parts
-        q, state = self.loaded_configuration(model, data, x, row)
-        if ev.jacobian and state is not None:
-            state.per_torque = self.deflection_slope(x, state)
-        if ev.jacobian:  # the joint Jacobians' pass places the joints too
-            pin.computeJointJacobians(model, data, q)
-        else:
-            pin.forwardKinematics(model, data, q)
-        pin.updateFramePlacements(model, data)
-        caches = {f.name: f.row_cache(self, parts[f.name], model, data, q, row,
-                                      ev.shared[f.name], ev.jacobian)
-                  for f in self.family_objects}
-        selectors = np.eye(len(self.markers))
-        for k, fid in enumerate(self.frame_ids):
-            point = data.oMf[fid].act(self.marker_offset(x, k))
-            j_point = (self._point_jacobian(model, data, fid, point) if ev.jacobian
-                       else np.zeros((3, 0)))
-            view = MarkerView(model, data, k, fid, point, np.zeros(3), ev.to_measuring,
-                              ev.rot_w, ev.d_omega, j_point, state, caches,
-                              data.oMf[fid].rotation, self.moves[fid], selectors[k])
-            bent = point + self._displacement(parts, view)
-            view.world = self.rotation0 @ bent
-            y[k] = ev.rot_w @ view.world + ev.translation
-            if jac is not None:
-                for fam in self.family_objects:
-                    jac[k, :, self._slices[fam.name]] = fam.columns(self, parts[fam.name], view)
 
     def _evaluate_block(self, ev: _Evaluation, rows: list[RowTerms], y: np.ndarray,
                         jac: np.ndarray | None) -> None:
@@ -462,7 +388,7 @@ class PoseModel:
         caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows,
                                        ev.shared[f.name], ev.jacobian)
                   for f in self.family_objects}
-        view = MarkerView(model, ev.data, -1, -1, point, np.zeros(3), ev.to_measuring,
+        view = MarkerView(model, ev.data, point, np.zeros(3), ev.to_measuring,
                           ev.rot_w, ev.d_omega, j_point, state, caches, rotation,
                           np.array([self.moves[f] for f in self.frame_ids]),
                           np.eye(len(self.markers)))
@@ -475,8 +401,12 @@ class PoseModel:
 
     def _loaded_rows(self, model: pin.Model, data: pin.Data, x: np.ndarray,
                      rows: list[RowTerms]) -> tuple[np.ndarray, SagState | None]:
-        """:meth:`loaded_configuration` of every row at once: (n, nq) and the sag's state
-        with (n, 1, nv) arrays; each row iterates until its own sag converges, as alone."""
+        """The configurations the links are at, (n, nq), and the sag's state there, with
+        (n, 1, nv) arrays: ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved
+        by fixed-point iteration (to :data:`SAG_TOLERANCE`; it contracts by about
+        ``|C dtau/dq|``, 1e-3 for real arms), each row until its own sag converges, started
+        from the row's last converged sag (an optimiser's next trial differs little from its
+        last), and from zero if that does not converge."""
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
         if not self.elastic:
@@ -551,13 +481,6 @@ class PoseModel:
         rot, _ = MeasuringFrame.frame_rotation(frame)
         return rot @ self.rotation0, self.translation0 + MeasuringFrame.frame_translation(frame)
 
-    @staticmethod
-    def _point_jacobian(model: pin.Model, data: pin.Data, fid: int, point: np.ndarray
-                        ) -> np.ndarray:
-        """d point / d v (3, nv), world axes, for a point fixed to frame ``fid``."""
-        jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
-        lever = point - data.oMf[fid].translation
-        return jac[:3] - skew(lever) @ jac[3:]
 
 
 @dataclass

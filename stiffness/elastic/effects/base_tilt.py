@@ -88,7 +88,6 @@ class BaseTilt(Effect, JointDeflectionFamily):
     family_kind: ClassVar[str] = "geometric"
     family_scale: ClassVar[float] = 1e-3
     needs_masses: ClassVar[bool] = True
-    rows_at_once: ClassVar[bool] = True
 
     @classmethod
     def absent_at_zero(cls) -> bool:
@@ -114,21 +113,12 @@ class BaseTilt(Effect, JointDeflectionFamily):
         g_0 = np.asarray(pm.robot.model.gravity.linear, dtype=float)
         return tilted_gravity(g_0, declared_tilt(pm.settings) + x_f)[1]
 
-    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
-                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool
-                  ) -> tuple[np.ndarray, np.ndarray] | None:
-        """d tau / d(r_x, r_y) (nv, 2) at the loaded configuration ``q`` (``M J_com^T dg``)
-        and ``dg`` = d g_b / d(r_x, r_y) (3, 2)."""
-        if shared is None:
-            return None
-        jcom = pin.jacobianCenterOfMass(model, data, q, False)
-        return data.mass[0] * (jcom.T @ shared), shared
-
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
                    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """:meth:`row_cache` of every row: (n, 1, nv, 2) (:func:`~stiffness.batch.poses.
-        mass_jacobians`)."""
+        """d tau / d(r_x, r_y) (n, 1, nv, 2) at each row's loaded configuration
+        (``M J_com^T dg``, :func:`~stiffness.batch.poses.mass_jacobians`) and ``dg`` =
+        d g_b / d(r_x, r_y) (3, 2)."""
         if shared is None:
             return None
         return (np.swapaxes(mass_jacobians(model, kin), 1, 2) @ shared)[:, None], shared

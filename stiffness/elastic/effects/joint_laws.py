@@ -98,7 +98,6 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     """
 
     name: ClassVar[str] = "joint_compliance"
-    rows_at_once: ClassVar[bool] = True
     param_names: ClassVar[tuple[str, ...]] = ("stiffness",)
     adds_spring: ClassVar[bool] = True
     through_law: ClassVar[bool] = True
@@ -170,7 +169,6 @@ class Backlash(JointEffect, JointDeflectionFamily):
     _pose_layout: tuple[list[int], np.ndarray] | None = field(default=None, init=False,
                                                               repr=False)
     name: ClassVar[str] = "backlash"
-    rows_at_once: ClassVar[bool] = True
     kind: ClassVar[str] = "lost_motion"
     param_names: ClassVar[tuple[str, ...]] = ("half_width",)
     through_law: ClassVar[bool] = True

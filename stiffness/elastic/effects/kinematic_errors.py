@@ -41,7 +41,6 @@ class MeasuringFrame(Effect, PoseFamily):
     relative to the starting estimate: ``y = exp(omega) R_0 p + t_0 + t``."""
 
     name: ClassVar[str] = "frame"
-    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(frame_label(a), u)
@@ -68,7 +67,6 @@ class MarkerOffsets(Effect, PoseFamily):
     """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes)."""
 
     name: ClassVar[str] = "markers"
-    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
@@ -84,7 +82,6 @@ class JointOffsets(Effect, PoseFamily):
     """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
 
     name: ClassVar[str] = "joint_offsets"
-    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
@@ -105,7 +102,6 @@ class JointGeometry(Effect, PoseFamily):
     the component along its own motion (its zero offset): 5 per joint along a frame axis."""
 
     name: ClassVar[str] = "geometry"
-    rows_at_once: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
@@ -133,21 +129,12 @@ class JointGeometry(Effect, PoseFamily):
         rows, comps = pm.geometry_index
         return right[rows, :3, comps], right[rows, 3:, comps]
 
-    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
-                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Per parameter, with ``a = oMi[parent] M_j exp(eps_j)`` of its joint: ``R_a``
-        times its column's translation and rotation parts and the origin of ``a`` (n_f, 3)
-        each."""
-        if shared is None:
-            return None
-        parents = np.array([data.oMi[model.parents[j]].homogeneous for j in pm.joints])
-        return self._placement_columns(pm, model, parents[:, :3, :3], parents[:, :3, 3], shared)
-
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """:meth:`row_cache` of every row: (n, 1, n_f, 3) each."""
+        """Per row and parameter, with ``a = oMi[parent] M_j exp(eps_j)`` of its joint:
+        ``R_a`` times its column's translation and rotation parts and the origin of ``a``,
+        (n, 1, n_f, 3) each."""
         if shared is None:
             return None
         parents = [int(model.parents[j]) for j in pm.joints]
@@ -159,8 +146,8 @@ class JointGeometry(Effect, PoseFamily):
     def _placement_columns(pm: PoseLayout, model: pin.Model, parent_rot: np.ndarray,
                            parent_t: np.ndarray, shared: tuple[np.ndarray, np.ndarray]
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`row_cache` from the parents' placements (..., n_joints, 3, 3) and
-        (..., n_joints, 3) (world, m)."""
+        """:meth:`rows_cache` from the parents' placements (n, n_joints, 3, 3) and
+        (n, n_joints, 3) (world, m)."""
         own = np.array([model.jointPlacements[j].homogeneous for j in pm.joints]
                        ).reshape(-1, 4, 4)
         own_rot, own_t = own[:, :3, :3], own[:, :3, 3]

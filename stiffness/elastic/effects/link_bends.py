@@ -46,7 +46,6 @@ from stiffness.elastic.effects.geometry import (
     joint_axis_column,
     last_of_groups,
     link_axes,
-    skew,
     tilt_axes,
 )
 from stiffness.elastic.effects.pose_face import (
@@ -102,38 +101,16 @@ def marker_links(model: pin.Model, frame_ids: list[int]) -> list[Link]:
     return out
 
 
-def carried_moments(pm: PoseLayout, model: pin.Model, data: pin.Data, q: np.ndarray,
-                    joints: list[int], row: RowTerms
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Origins ``p_b`` (L, 3) of ``joints``, the moment ``M_b`` (L, 3) about each that the
-    part beyond it carries: ``m_b (c_b - p_b) x g`` of its subtree's weight (the model's
-    gravity) plus the applied wrench's ``(x_w - p_b) x F + M`` when it acts beyond (N.m, world
-    axes; placements current at ``q``), and the weight's arm ``m_b (c_b - p_b)`` (L, 3; kg.m:
-    ``d M_b / d g = [m_b (c_b - p_b)]x``)."""
-    pin.centerOfMass(model, data, q, True)  # subtree masses and centres (joint axes)
-    origins = np.array([data.oMi[b].translation for b in joints]).reshape(-1, 3)
-    masses = np.array([data.mass[b] for b in joints])
-    centres = np.array([data.oMi[b].act(data.com[b]) if m > 0 else data.oMi[b].translation
-                        for b, m in zip(joints, masses, strict=True)]).reshape(-1, 3)
-    # (a massless subtree has no centre: Pinocchio's 0/0; it carries no weight)
-    gravity = np.asarray(model.gravity.linear, dtype=float)
-    arms = masses[:, None] * (centres - origins)
-    moments = cross(arms, gravity)
-    if row.wrench is not None and pm.loads is not None:
-        fid = pm.frame_id(pm.loads.frame)
-        carried = set(model.supports[model.frames[fid].parentJoint])
-        loaded = np.array([b in carried for b in joints], dtype=float).reshape(-1, 1)
-        moments += loaded * (cross(data.oMf[fid].translation - origins, row.wrench[:3])
-                             + row.wrench[3:])
-    return origins, moments, arms
-
-
-def carried_moments_rows(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
+def carried_moments(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
                          joints: list[int], rows: list[RowTerms]
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`carried_moments` of a batch of rows from their joints' placements ``kin``:
-    (n, L, 3) each; the weight's arm ``m_b (c_b - p_b)`` as ``sum_k m_k c_k - m_b p_b`` over
-    the bodies ``k`` of ``b``'s subtree (no division: a massless subtree carries nothing)."""
+    """Over a batch of rows, from their joints' placements ``kin``: the origins ``p_b`` of
+    ``joints``, the moment ``M_b`` about each that the part beyond it carries, ``m_b (c_b -
+    p_b) x g`` of its subtree's weight (the model's gravity) plus the applied wrench's
+    ``(x_w - p_b) x F + M`` when it acts beyond (N.m, world axes), and the weight's arm
+    ``m_b (c_b - p_b)`` (kg.m: ``d M_b / d g = [m_b (c_b - p_b)]x``), (n, L, 3) each; the arm
+    as ``sum_k m_k c_k - m_b p_b`` over the bodies ``k`` of ``b``'s subtree (no division: a
+    massless subtree carries nothing)."""
     origins = kin.translation[:, joints]
     masses = np.array([model.inertias[k].mass for k in range(model.njoints)])
     levers = np.array([model.inertias[k].lever for k in range(model.njoints)])
@@ -159,39 +136,38 @@ def carried_moments_rows(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
 
 @dataclass
 class BendCache:
-    """One row's bends at its loaded configuration (world axes).
+    """A batch of n rows' bends at their loaded configurations (world axes).
 
     Attributes
     ----------
     origins
-        (L, 3) each bend's origin ``p_b`` (m).
+        (n, 1, L, 3) each bend's origin ``p_b`` (m).
     turns
-        (L, 2, 3) ``e_i (e_i . M_b)``: the rotation per unit compliance (rad per rad/(N.m)).
+        (n, 1, L, 2, 3) ``e_i (e_i . M_b)``: the rotation per unit compliance (rad per
+        rad/(N.m)).
     beyond
-        Marker frame id -> (L,) whether it moves with each bend (over a batch of rows, -1 ->
-        (M, L) for the model's markers, and the other arrays with leading (n, 1) axes).
+        (M, L) whether each of the model's markers moves with each bend.
     per_gravity
-        (L, 3, 3) d omega_b / d g at the family's compliances (rad per m/s^2): the bends'
-        change with the direction of gravity (``base_tilt``'s columns); ``None`` without a
-        Jacobian.
+        (n, 1, L, 3, 3) d omega_b / d g at the family's compliances (rad per m/s^2): the
+        bends' change with the direction of gravity (``base_tilt``'s columns); ``None``
+        without a Jacobian.
     """
 
     origins: np.ndarray
     turns: np.ndarray
-    beyond: dict[int, np.ndarray]
+    beyond: np.ndarray
     per_gravity: np.ndarray | None
 
 
 def gravity_slope(cache: BendCache, view: MarkerView) -> np.ndarray:
-    """d(marker displacement)/d g (3, 3), world axes, of one bend family's row ``cache``:
-    ``sum_b -[x - p_b]x d omega_b / d g`` over the bends the marker is beyond ((n, M, 3, 3)
-    over a batch of rows)."""
+    """d(marker displacement)/d g (n, M, 3, 3), world axes, of one bend family's ``cache``:
+    ``sum_b -[x - p_b]x d omega_b / d g`` over the bends each marker is beyond."""
     if cache.per_gravity is None:
         return np.zeros(view.point.shape + (3,))
     lever = view.point[..., None, :] - cache.origins
     # cross_matrices(r) is -[r]x
     slopes = cross_matrices(lever.reshape(-1, 3)).reshape(lever.shape + (3,)) @ cache.per_gravity
-    return np.einsum("...l,...lac->...ac", cache.beyond[view.fid], slopes)
+    return np.einsum("...l,...lac->...ac", cache.beyond, slopes)
 
 
 @dataclass(eq=False)
@@ -209,7 +185,6 @@ class LinkCompliance(Effect, PoseFamily):
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1, 2)
     linear_motion: ClassVar[bool] = True
-    rows_at_once: ClassVar[bool] = True
     nonnegative: ClassVar[bool] = True
 
     @classmethod
@@ -299,63 +274,33 @@ class LinkCompliance(Effect, PoseFamily):
         """The model's bending links (:func:`marker_links`)."""
         return marker_links(pm.robot.model, pm.frame_ids)
 
-    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
-                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool) -> BendCache:
-        """The row's bends (:class:`BendCache`) at its loaded configuration ``q``."""
-        links, beyond = shared
-        origins, moments, arms = carried_moments(pm, model, data, q, [link.b for link in links],
-                                                 row)
-        e1, e2 = self.bend_axes(model, data, links, origins)
-        turns = np.stack([e1 * np.sum(e1 * moments, axis=1, keepdims=True),
-                          e2 * np.sum(e2 * moments, axis=1, keepdims=True)], axis=1)
-        per_gravity = None
-        if jacobian:  # d omega_b / d g = sum_i c_i e_i e_i^T [m_b (c_b - p_b)]x
-            c = x_f.reshape(-1, 2)
-            axes = (c[:, 0, None, None] * np.einsum("la,lb->lab", e1, e1)
-                    + c[:, 1, None, None] * np.einsum("la,lb->lab", e2, e2))
-            per_gravity = np.einsum("lab,lbc->lac", axes,
-                                    np.array([skew(a) for a in arms]).reshape(-1, 3, 3))
-        return BendCache(origins, turns, beyond, per_gravity)
-
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
                    ) -> BendCache:
-        """:meth:`row_cache` of every row (:func:`carried_moments_rows`)."""
+        """The rows' bends (:class:`BendCache`) at their loaded configurations
+        (:func:`carried_moments`)."""
         links, beyond = shared
         joints = [link.b for link in links]
-        origins, moments, arms = carried_moments_rows(pm, model, kin, joints, rows)
-        e1, e2 = self.rows_bend_axes(model, kin, links, origins)
+        origins, moments, arms = carried_moments(pm, model, kin, joints, rows)
+        e1, e2 = self.bend_axes(model, kin, links, origins)
         turns = np.stack([e1 * np.sum(e1 * moments, axis=-1, keepdims=True),
                           e2 * np.sum(e2 * moments, axis=-1, keepdims=True)], axis=-2)
         markers = np.array([beyond[fid] for fid in pm.frame_ids]).reshape(-1, len(links))
         per_gravity = None
-        if jacobian:  # as row_cache's; cross_matrices(a) is -[a]x
+        if jacobian:  # d omega_b / d g = sum_i c_i e_i e_i^T [m_b (c_b - p_b)]x
+            # (cross_matrices(a) is -[a]x)
             c = x_f.reshape(-1, 2)
             axes = (c[:, 0, None, None] * e1[..., :, None] * e1[..., None, :]
                     + c[:, 1, None, None] * e2[..., :, None] * e2[..., None, :])
             per_gravity = -(axes @ cross_matrices(arms.reshape(-1, 3)).reshape(axes.shape))
             per_gravity = per_gravity[:, None]
-        return BendCache(origins[:, None], turns[:, None], {-1: markers}, per_gravity)
+        return BendCache(origins[:, None], turns[:, None], markers, per_gravity)
 
     @staticmethod
-    def bend_axes(model: pin.Model, data: pin.Data, links: list[Link], origins: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """The two bending axes (L, 3) each of every link, world axes: normal to the link
-        (:func:`link_axes`)."""
-        e1, e2 = np.zeros((len(links), 3)), np.zeros((len(links), 3))
-        proximal = np.array([data.oMi[link.a].translation for link in links]).reshape(-1, 3)
-        mounts = np.array([data.oMi[model.parents[link.b]].rotation for link in links]
-                          ).reshape(-1, 3, 3)
-        columns = np.array([link.column for link in links], dtype=int)
-        for column in set(columns.tolist()):
-            sel = columns == column
-            e1[sel], e2[sel] = link_axes(proximal[sel], origins[sel], mounts[sel], column)
-        return e1, e2
-
-    @staticmethod
-    def rows_bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
+    def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
                        origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`bend_axes` of a batch of rows: (n, L, 3) each."""
+        """The two bending axes (n, L, 3) each of every link over a batch of rows, world
+        axes: normal to the link (:func:`link_axes`)."""
         e1, e2 = np.zeros(origins.shape), np.zeros(origins.shape)
         proximal = kin.translation[:, [link.a for link in links]]
         mounts = kin.rotation[:, [int(model.parents[link.b]) for link in links]]
@@ -380,7 +325,7 @@ class LinkCompliance(Effect, PoseFamily):
         """Per link, the turn per unit compliance (L, 2, 3) of the links the marker is beyond
         (zero for the others), and the marker's lever from ``p_b`` (L, 3)."""
         cache = view.caches[self.name]
-        return (cache.turns * cache.beyond[view.fid][..., None, None],
+        return (cache.turns * cache.beyond[..., None, None],
                 view.point[..., None, :] - cache.origins)
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
@@ -415,18 +360,6 @@ def transversal_joints(model: pin.Model, frame_ids: list[int], compliant: list[i
             if (column := joint_axis_column(model, j)) is not None]
 
 
-def joint_normal_axes(model: pin.Model, data: pin.Data, joints: list[Link]
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """The two axes (L, 3) each normal to each joint's rotation axis, world axes
-    (:func:`tilt_axes` of the joint's mounting frame ``oMi[parent] M_j``, its bearing's, fixed
-    in the parent link)."""
-    e1, e2 = np.zeros((len(joints), 3)), np.zeros((len(joints), 3))
-    for n, link in enumerate(joints):
-        mount = data.oMi[model.parents[link.b]].rotation @ model.jointPlacements[link.b].rotation
-        e1[n], e2[n] = tilt_axes(mount, link.column)
-    return e1, e2
-
-
 class TransversalCompliance(LinkCompliance):
     """``transversal_compliance`` (where: a revolute joint of the target's chain): the joint
     tilts in its bearing about the two axes ``e_1, e_2`` normal to its rotation axis (the other
@@ -438,8 +371,8 @@ class TransversalCompliance(LinkCompliance):
     Deflection face: ``M_j = (x_t - p_j) x F + M`` of the applied wrench, the target moves by
     ``omega_j x (x_t - p_j)``; parameters the tilting stiffnesses ``k_1, k_2`` (N.m/rad). Pose
     face: each compliant revolute joint of the markers' chains tilts under its subtree's weight
-    and the applied wrench beyond (:func:`joint_normal_axes`); parameters the compliances
-    ``c_1, c_2`` (rad/(N.m)) per joint. In a model used away from its campaign it is a bend at
+    and the applied wrench beyond (:meth:`bend_axes`); parameters the compliances ``c_1, c_2``
+    (rad/(N.m)) per joint. In a model used away from its campaign it is a bend at
     ``p_j`` about those axes (:class:`stiffness.elastic.loaded.LinkBend` with ``tilt``), in
     ``K_X`` and the exact equilibrium. It is :class:`LinkCompliance` with the joint's axes
     instead of the link's: where the two coincide the identifiable reduction reports them
@@ -502,16 +435,11 @@ class TransversalCompliance(LinkCompliance):
         return transversal_joints(pm.robot.model, pm.frame_ids, pm.compliant)
 
     @staticmethod
-    def bend_axes(model: pin.Model, data: pin.Data, links: list[Link], origins: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """The bearing's two axes normal to each joint's rotation axis
-        (:func:`joint_normal_axes`)."""
-        return joint_normal_axes(model, data, links)
-
-    @staticmethod
-    def rows_bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
+    def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
                        origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`bend_axes` of a batch of rows: (n, L, 3) each."""
+        """The bearing's two axes (n, L, 3) each normal to each joint's rotation axis over a
+        batch of rows, world axes (:func:`tilt_axes` of the joint's mounting frame
+        ``oMi[parent] M_j``, fixed in the parent link)."""
         e1, e2 = np.zeros(origins.shape), np.zeros(origins.shape)
         for n, link in enumerate(links):
             mount = (kin.rotation[:, int(model.parents[link.b])]

@@ -154,49 +154,38 @@ class SagState:
 
 @dataclass
 class MarkerView:
-    """One marker on one row, at the loaded configuration: what a family's columns read.
+    """The markers on a batch of n rows, at their loaded configurations: what a family's
+    columns read (leading (n, M) axes: rows, markers).
 
     Attributes
     ----------
     model, data
-        The perturbed Pinocchio model and its data (placements and joint Jacobians current).
-    k
-        Marker index.
-    fid
-        Frame id of the marker's frame.
+        The perturbed Pinocchio model and its data (a workspace: it holds no particular row).
     point
-        Marker position in robot-world axes (m), before any link bend.
+        (n, M, 3) marker positions in robot-world axes (m), before any link bend.
     world
-        ``R_0`` times the bent marker position (m).
+        ``R_0`` times the bent marker positions (m).
     to_measuring
         ``exp(omega) R_0``: robot-world to measuring axes.
     rot_w, d_omega
         ``exp(omega)`` and the right Jacobian of ``exp`` at ``omega``.
     j_point
-        d point / d v (3, nv), world axes (empty when no Jacobian is asked for).
+        (n, M, 3, nv) d point / d v, world axes (empty when no Jacobian is asked for).
     sag
-        The sag's state (``None``: a rigid model).
+        The sag's state, arrays (n, 1, nv) (``None``: a rigid model).
     caches
-        Per-family per-row quantities (:meth:`PoseFamily.row_cache`).
+        Per-family quantities of the rows (:meth:`PoseFamily.rows_cache`).
     frame_rotation
-        Rotation (3, 3) of the marker's frame in the world.
+        (n, M, 3, 3) rotations of the markers' frames in the world.
     moving
-        (n_joints,) 1 for the 1-dof joints (:attr:`PoseLayout.joints`) that move the marker's
-        frame, else 0.
+        (M, n_joints) 1 for the 1-dof joints (:attr:`PoseLayout.joints`) that move each
+        marker's frame, else 0.
     selector
-        (M,) one-hot: the marker among the model's markers.
-
-    Over a batch of rows (:attr:`PoseFamily.rows_at_once`) the per-marker fields carry
-    leading (n, M) axes (rows, markers: ``point`` (n, M, 3), ``j_point`` (n, M, 3, nv),
-    ``frame_rotation`` (n, M, 3, 3), ``moving`` (M, n_joints), ``selector`` (M, M)), the
-    sag's arrays (n, 1, nv) and the caches those of :meth:`PoseFamily.rows_cache`; ``k`` and
-    ``fid`` are then -1 and ``data`` holds no particular row.
+        (M, M) one-hot: each marker among the model's markers.
     """
 
     model: pin.Model
     data: pin.Data
-    k: int
-    fid: int
     point: np.ndarray
     world: np.ndarray
     to_measuring: np.ndarray
@@ -232,10 +221,6 @@ class PoseFamily:
     needs_masses: ClassVar[bool] = False
     #: families that must be in the model with this one
     requires: ClassVar[tuple[str, ...]] = ()
-    #: whether the family's hooks also take a batch of rows at once (arrays with leading
-    #: row and marker axes, :class:`MarkerView`; :meth:`rows_cache` for :meth:`row_cache`):
-    #: a model of such families evaluates every row without a Python loop over them
-    rows_at_once: ClassVar[bool] = False
     #: whether its parameters are, per joint or link, its deflection effect's own, judged by
     #: that effect's :meth:`~stiffness.elastic.effects.base.Effect.physical_scale`
     sized_as_effect: ClassVar[bool] = False
@@ -287,9 +272,8 @@ class PoseFamily:
 
     def at_configuration(self, pm: PoseLayout, model: pin.Model, data: pin.Data,
                          q: np.ndarray) -> Any:
-        """Per-family quantities at a configuration of the sag (kept in :class:`SagState`);
-        for a :attr:`rows_at_once` family also at a batch (n, nq) of configurations, with a
-        leading row axis."""
+        """Per-family quantities at a batch (n, nq) of configurations of the sag, with a
+        leading row axis (kept in :class:`SagState`)."""
         return None
 
     def joint_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray | None:
@@ -311,18 +295,12 @@ class PoseFamily:
         ``jacobian`` whether the columns will be asked for."""
         return None
 
-    def row_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model, data: pin.Data,
-                  q: np.ndarray, row: RowTerms, shared: Any, jacobian: bool) -> Any:
-        """Quantities shared by the markers of one row at its loaded configuration ``q``
-        (placements current; joint Jacobians too when ``jacobian``)."""
-        return None
-
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
                    ) -> Any:
-        """:meth:`row_cache` of a batch of ``rows`` at their loaded configurations (the
-        joints' placements ``kin`` with a leading row axis), for :attr:`rows_at_once`
-        families."""
+        """Quantities shared by the markers of each of a batch of ``rows`` at their loaded
+        configurations (the joints' placements ``kin``, with a leading row axis; their
+        Jacobians too when ``jacobian``)."""
         return None
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView

@@ -324,7 +324,6 @@ class GravityCompensator(JointEffect, JointDeflectionFamily):
 
     # pose face ----------------------------------------------------------------------------
     requires: ClassVar[tuple[str, ...]] = ("joint_compliance",)
-    rows_at_once: ClassVar[bool] = True
     #: typical sizes of the stiffness (N/m) and the tension (N)
     SIZES: ClassVar[tuple[float, float]] = (1e3, 1e2)
 
@@ -416,7 +415,6 @@ class GravityLumped(Effect, JointDeflectionFamily):
     kind: ClassVar[str] = "preload"
     beyond_springs: ClassVar[bool] = True
     lumps_gravity: ClassVar[bool] = True
-    rows_at_once: ClassVar[bool] = True
 
     @classmethod
     def at_place(cls, where, geometry=None):
