@@ -165,7 +165,7 @@ def run_one(robot, markers, stiffness, payload, family: str, mode: str, seed: in
     labels = []
     extra = [f for f in d.families if f not in ("frame", "markers", *FORCED)]
     if family in d.families:
-        add_intervals(cov, d.final, hidden, (family,))
+        add_intervals(cov, d.final, hidden, campaign, (family,))
         labels = [row["parameter"] for row in parameter_table(d.final)
                   if row["fitted"] and row["family"] == family]
     return {"seed": seed, "families": d.families, "labels": labels,

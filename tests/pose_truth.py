@@ -2,10 +2,12 @@
 intervals as the user sees them (issue 40, item 6: one copy for the pose test files).
 
 :func:`truth` lays a :class:`HiddenPoseErrors` out as the model's parameters;
-:func:`identifiable_truth` folds the truth of each dropped parameter into the kept ones it
-merges into (what a kept parameter stands for); :func:`add_intervals` adds a fit's reported
-intervals (:func:`parameter_table`'s ``interval_95``, what ``diagnose`` writes) of chosen
-families to a :class:`stats.Coverage`.
+:func:`identifiable_truth` folds the truth of each dropped parameter into the kept ones that
+stand for it: a merged one's by its merge coefficients, a held one's (undetermined, held at
+nominal by the naming rules) by its column's least-squares projection on the kept columns at
+the fit (what the kept parameters' estimates absorb of it, to first order);
+:func:`add_intervals` adds a fit's reported intervals (:func:`parameter_table`'s
+``interval_95``, what ``diagnose`` writes) of chosen families to a :class:`stats.Coverage`.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ import pinocchio as pin
 from stats import Coverage
 
 from stiffness.calibration.pose_diagnose import parameter_table
+from stiffness.calibration.pose_fit import rows_of
+from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.planning.simulate_poses import HiddenPoseErrors
 
 
@@ -51,20 +55,45 @@ def truth(model, hidden: HiddenPoseErrors) -> np.ndarray:
     return x
 
 
-def identifiable_truth(fit, x: np.ndarray) -> np.ndarray:
-    """``x`` with each dropped parameter's truth folded into the kept ones it merges into."""
+def identifiable_truth(fit, x: np.ndarray, campaign=None) -> np.ndarray:
+    """``x`` with each dropped parameter's truth folded into the kept ones it merges into,
+    and each held one's (``undetermined``) into the kept ones by the least-squares projection
+    ``c = argmin |J_kept c - J_held|`` of its column at ``fit.x`` (``campaign``'s Jacobian;
+    the fit's kept estimates are biased by ``c x_held``, exactly so for a linear model): the
+    truth compared with a held parameter's neighbours is then what they stand for. The result
+    is kept within the parameters' physical lower bounds (where their estimates stay).
+
+    Raises
+    ------
+    ValueError
+        ``fit`` holds parameters and no ``campaign`` is given.
+    """
     out = x.copy()
+    held = []
     for d in fit.identifiability.dropped:
+        if d.reason == "undetermined":
+            held.append(d.index)
         for kept, coef in d.merged_into:
             out[kept] += coef * x[d.index]
-    return out
+    if held and np.any(x[held]):
+        if campaign is None:
+            raise ValueError("a fit holding parameters needs its campaign to fold them in")
+        _, jac = PoseObservations(fit.model, campaign, rows_of(fit.model, campaign)).evaluate(
+            fit.x)
+        kept = fit.identifiability.kept
+        coefs, *_ = np.linalg.lstsq(jac[:, kept], jac[:, held], rcond=None)
+        out[kept] += coefs @ x[held]
+    # an estimate never leaves its physical lower bound, nor does what it stands for (a
+    # truth of 0 at the bound, folded to -1e-10 by a held column's projection, is at it)
+    return np.maximum(out, [p.lower for p in fit.model.parameters])
 
 
-def add_intervals(coverage: Coverage, fit, hidden: HiddenPoseErrors,
+def add_intervals(coverage: Coverage, fit, hidden: HiddenPoseErrors, campaign,
                   families: tuple[str, ...] | None = None) -> int:
     """Add ``fit``'s reported 95 % intervals of ``families`` (every fitted one if ``None``)
-    with the identifiable truth; returns how many were added."""
-    want = identifiable_truth(fit, truth(fit.model, hidden))
+    with the identifiable truth (``campaign``: the fit's, for its held parameters); returns
+    how many were added."""
+    want = identifiable_truth(fit, truth(fit.model, hidden), campaign)
     added = 0
     for i, row in enumerate(parameter_table(fit)):
         if row["fitted"] and (families is None or row["family"] in families):

@@ -142,7 +142,7 @@ def test_hidden_parameters_recovered_at_their_interval_rate(ur10):
     for seed in range(5):
         hidden, c = _campaign(ur10, seed)
         model = PoseModel(ur10, c.markers, tuple(fams), starting_frame(c), c.loads)
-        add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden)
+        add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden, c)
     cov.check()
 
 
@@ -333,7 +333,7 @@ def _coverage_on(cov: Coverage, robot, markers, stiffness, seeds: int, n: int) -
                                   rng.normal(0, 1e-3, joints), np.zeros((joints, 6)), stiffness)
         c = simulate_pose_campaign(robot, markers, hidden, n, NOISE, seed=seed)
         model = PoseModel(robot, markers, tuple(fams), starting_frame(c), None)
-        add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden)
+        add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden, c)
 
 
 def test_coverage_on_the_panda_and_a_two_arm_tree():

@@ -184,5 +184,5 @@ def test_hidden_controller_compliances_recovered(robot):
         c = simulate_pose_campaign(robot, MARKERS, hidden, 30, 20e-6, seed=seed,
                                    payload=np.r_[FORCE, 0.0, 0.0, 0.0])
         model = PoseModel(robot, c.markers, tuple(fams), starting_frame(c), c.loads)
-        add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden)
+        add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden, c)
     cov.check()

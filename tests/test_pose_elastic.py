@@ -68,7 +68,7 @@ def _run(robot, seeds: range, n: int, hidden_family: str, **elastic) -> dict:
         out["named"] += hidden_family in d.families
         out["others"] += bool((NEW - {hidden_family}) & set(d.families))
         out["reached"] += d.steps[-1].cv_rms < 1.3 * NOISE
-        add_intervals(out["coverage"], d.final, hidden)
+        add_intervals(out["coverage"], d.final, hidden, c)
     return out
 
 

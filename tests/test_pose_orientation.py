@@ -126,7 +126,7 @@ def test_fit_with_orientations_recovers_the_truth(ur10):
         fit = fit_pose_model(model, c, rows_of(model, c), list(FAMILIES))
         rot = fit.rotation_residual[np.isfinite(fit.rotation_residual)]
         assert np.sqrt(np.mean(rot ** 2)) == pytest.approx(NOISE_ROT, rel=0.15)
-        add_intervals(cov, fit, hidden)
+        add_intervals(cov, fit, hidden, c)
         c.rotations, c.noise_std_rotation = None, None
         plain = fit_pose_model(model, c, rows_of(model, c), list(FAMILIES))
         both = [i for i in plain.identifiability.kept if i in fit.identifiability.kept]

@@ -94,7 +94,7 @@ def test_soft_l1_recovers_the_truth_through_gross_outliers(ur10):
         _with_outliers(c, 0.02, 50 * NOISE, rng)
         for loss in cov:
             _, fit = _fit(ur10, c, loss)
-            add_intervals(cov[loss], fit, hidden)
+            add_intervals(cov[loss], fit, hidden, c)
             held[loss].append(validation_errors(fit.model, fit.x, clean)["rms"]
                               / (np.sqrt(3) * NOISE))
     cov["soft_l1"].check()
