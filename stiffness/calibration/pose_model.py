@@ -313,12 +313,14 @@ class PoseModel:
             out.update(cls.campaign_settings(torques, self))
         return out
 
-    def nominal_torques(self, rows: list[RowTerms]) -> np.ndarray:
+    def nominal_torques(self, rows: list[RowTerms], wrench: bool = True) -> np.ndarray:
         """(rows, nv) the torques (N.m, N) the joints carry at the commanded poses of ``rows``
-        under the nominal robot (gravity with its inertias, and the applied wrench)."""
+        under the nominal robot (gravity with its inertias, and the applied wrench unless
+        ``wrench`` is false)."""
         model = self.robot.model
         data = model.createData()
-        torques = np.array([sum(self._load_torques(model, data, row.q_full, row.wrench))
+        torques = np.array([sum(self._load_torques(model, data, row.q_full,
+                                                   row.wrench if wrench else None))
                             for row in rows])
         return torques.reshape(len(rows), model.nv)
 

@@ -14,8 +14,10 @@ the same effects by:
   joint, link or bearing compliance's scale is ``10 / k_ref``;
 * the torques each spring carries at the commanded poses under the nominal robot (gravity and
   the applied wrench): the typical joint deflection ``theta_ref`` (RMS torque over ``k_ref``),
-  whose ten times is a backlash's scale; a compensator's stiffness ``k_ref / (lever base)``
-  and preload ``k_ref / lever``;
+  whose ten times is a backlash's scale;
+* the torques the links' weight puts on each joint at those poses (the nominal inertias): a
+  compensator's preload and stiffness balance at most the largest of its joint's
+  (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.physical_scale`);
 * the geometric families: 100 times their typical size (0.1 m, 0.1 rad).
 
 SI throughout.
@@ -35,7 +37,7 @@ from stiffness.calibration.pose_fit import PoseFit, rows_of
 from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.selection import interval_quantile
 from stiffness.elastic.effects.base import Parameter, judged
-from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, References
+from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, References, weight_torques
 from stiffness.mechanics.defaults import default_stiffness
 
 #: The family whose fitted compliances give ``k_ref`` (module docstring).
@@ -45,21 +47,24 @@ SPRINGS = "joint_compliance"
 @dataclass
 class PoseJudge:
     """What a pose campaign gives the physical scales: the joints' torques at its commanded
-    poses under the nominal robot (rows, nv; N.m, N) and its RMS applied force (N)."""
+    poses under the nominal robot (rows, nv; N.m, N), its RMS applied force (N) and the
+    weight's part of those torques (rows, nv; N.m, N)."""
 
     torques: np.ndarray
     force_rms: float
+    weight: np.ndarray
 
     @classmethod
     def of(cls, campaign: PoseCampaign) -> PoseJudge:
         """The judge of ``campaign``'s fits."""
         nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)),
                             campaign.loads)
-        torques = nominal.nominal_torques(rows_of(nominal, campaign))
+        rows = rows_of(nominal, campaign)
         force = (np.zeros((1, 3)) if campaign.loads is None
                  else np.asarray(campaign.loads.wrench)[:, :3])
-        return cls(torques, float(np.sqrt(np.mean(np.sum(force ** 2, axis=1)))) if force.size
-                   else 0.0)
+        return cls(nominal.nominal_torques(rows),
+                   float(np.sqrt(np.mean(np.sum(force ** 2, axis=1)))) if force.size else 0.0,
+                   nominal.nominal_torques(rows, wrench=False))
 
     def references(self, fit: PoseFit) -> References:
         """The references of ``fit``'s physical scales (module docstring), over its model's
@@ -70,8 +75,12 @@ class PoseJudge:
         tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9) if tau.size else tau_max
         k_ref = _k_ref(fit)
         theta = float(np.sqrt(np.mean(tau_rms ** 2))) / k_ref if tau_rms.size else 1e-9
+        pin_model = model.robot.model
+        single = [j for j in range(1, pin_model.njoints) if pin_model.joints[j].nv == 1]
+        weight = weight_torques([pin_model.names[j] for j in single],
+                                self.weight[:, [pin_model.joints[j].idx_v for j in single]])
         return References(tuple(model.springs), k_ref, tau_max, BACKLASH_SMOOTHING * tau_rms,
-                          max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12)
+                          max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12, weight)
 
     def parameters(self, fit: PoseFit) -> dict[str, list[Parameter]]:
         """Each family's parameters in ``fit`` (by family name, in the model's order) with

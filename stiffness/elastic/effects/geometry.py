@@ -424,6 +424,11 @@ class References:
         RMS applied force (N): the campaign's load range.
     deflection_ref
         RMS measured deflection (m).
+    weight_torque
+        Joint name -> largest |torque| (N.m) the links' weight puts on it over the campaign
+        (:attr:`Rows.gravity_torque`: the robot's inertias, no payload), for every joint where
+        the model gives it; empty where it does not (a robot with loops, or whose links weigh
+        nothing).
     """
 
     joints: tuple[str, ...]
@@ -433,6 +438,7 @@ class References:
     theta_ref: float
     force_ref: float
     deflection_ref: float
+    weight_torque: dict[str, float] = field(default_factory=dict)
 
     @classmethod
     def of(cls, geometry: Geometry, rows: Rows, k_ref: float, deflection: np.ndarray
@@ -445,11 +451,25 @@ class References:
         return cls(geometry.joints, float(k_ref), tau_max, BACKLASH_SMOOTHING * tau_rms,
                    max(theta, 1e-9),
                    max(float(np.sqrt(np.mean(np.sum(rows.force ** 2, axis=1)))), 1e-9),
-                   max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12))
+                   max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12),
+                   weight_torques(geometry.joints, rows.gravity_torque))
 
     def max_torque(self, joint: str) -> float:
         """Largest |torque| of ``joint`` over the campaign."""
         return float(self.tau_max[self.joints.index(joint)])
+
+
+def weight_torques(joints: tuple[str, ...] | list[str], torques: np.ndarray | None
+                   ) -> dict[str, float]:
+    """:attr:`References.weight_torque` of the weight's torques (rows, n) on ``joints`` (N.m,
+    N): each joint's largest |torque|; empty when they are unknown (``None``, NaN: a robot
+    with loops) or all zero (links that weigh nothing)."""
+    if torques is None or not torques.size or not np.all(np.isfinite(torques)):
+        return {}
+    largest = np.abs(torques).max(axis=0)
+    if not np.any(largest > 0):
+        return {}
+    return {j: float(t) for j, t in zip(joints, largest, strict=True)}
 
 
 # ------------------------------------------------------------------------------------------

@@ -141,6 +141,9 @@ GEOMETRY_SOURCES = ("default", "declared", "fitted")
 #: Bounds of the fitted base length, as multiples of its declared value (and on the declared
 #: side of the lever).
 GEOMETRY_RANGE = (0.05, 20.0)
+#: A compensator's physical scale takes its joint's weight torque as at least this fraction of
+#: the largest one the weight puts on any joint (:meth:`GravityCompensator.physical_scale`).
+WEIGHT_FLOOR = 0.01
 
 
 @dataclass(eq=False)
@@ -275,6 +278,34 @@ class GravityCompensator(JointEffect, JointDeflectionFamily):
         ad = self.lever_m * self.base_m
         spring = [0.1 * refs.k_ref / ad, 0.1 * refs.k_ref / self.lever_m]
         return np.array(spring + ([self.base_m] if self.n_params == 3 else []))
+
+    def physical_scale(self, refs):
+        """The spring that balances the weight its joint carries (SI): with ``tau_w`` (N.m)
+        the largest torque the links' weight puts on the joint over the campaign
+        (:attr:`References.weight_torque`) and ``r = min(a, d)`` (m) the largest moment arm
+        the spring reaches (``a d sin(phi) / L``, the lever ``a`` with the default geometry),
+
+        * preload ``tau_w / r`` (N): the tension that balances that torque at that arm; a
+          larger one turns the link against its weight at every angle;
+        * stiffness ``tau_w / r^2`` (N/m): the spring whose tension grows by that much over
+          ``r`` of stretch (its stroke is ``2 r``); the classical zero-free-length balancer
+          of the whole weight, ``k a d = tau_w``, has ``k = tau_w / (a d)``, within it;
+        * a fitted base: 10 times its length (:meth:`Effect.physical_scale`).
+
+        ``tau_w`` is at least :data:`WEIGHT_FLOOR` times the largest the weight puts on any
+        joint (a joint that carries almost nothing still gets a scale). Where the model does
+        not give the weight (a robot with loops, or whose links weigh nothing) the scales are
+        the joint spring's instead: the stiffness ``k_ref / (a d)`` whose torque derivative
+        ``k a d`` equals the baseline stiffness ``k_ref`` (N.m/rad), the preload
+        ``k_ref / a``."""
+        a, d = self.lever_m, self.base_m
+        base = list(super().physical_scale(refs)[2:])
+        weight = refs.weight_torque
+        if not weight or self.joint_name not in weight:
+            return np.array([refs.k_ref / (a * d), refs.k_ref / a] + base)
+        tau = max(weight[self.joint_name], WEIGHT_FLOOR * max(weight.values()))
+        arm = min(a, d)
+        return np.array([tau / arm ** 2, tau / arm] + base)
 
     def bounds(self):
         lo, hi = [0.0, -1e4], [1e4, 1e4]
