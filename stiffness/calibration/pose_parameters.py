@@ -18,7 +18,11 @@ the same effects by:
 * the torques the links' weight puts on each joint at those poses (the nominal inertias): a
   compensator's preload and stiffness balance at most the largest of its joint's
   (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.physical_scale`);
-* the geometric families: 100 times their typical size (0.1 m, 0.1 rad).
+* the robot's reach (:func:`~stiffness.elastic.effects.geometry.reach`): a marker's offset
+  (a marker farther than that from where the campaign puts it is not on the robot) and a
+  prismatic joint's zero offset; a revolute joint's zero offset: half a turn (pi rad, beyond
+  it another zero, not an error);
+* the other geometric families: 100 times their typical size (0.1 m, 0.1 rad).
 
 SI throughout.
 """
@@ -37,7 +41,12 @@ from stiffness.calibration.pose_fit import PoseFit, rows_of
 from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.selection import interval_quantile
 from stiffness.elastic.effects.base import Parameter, judged
-from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, References, weight_torques
+from stiffness.elastic.effects.geometry import (
+    BACKLASH_SMOOTHING,
+    References,
+    reach,
+    weight_torques,
+)
 from stiffness.mechanics.defaults import default_stiffness
 
 #: The family whose fitted compliances give ``k_ref`` (module docstring).
@@ -80,7 +89,8 @@ class PoseJudge:
         weight = weight_torques([pin_model.names[j] for j in single],
                                 self.weight[:, [pin_model.joints[j].idx_v for j in single]])
         return References(tuple(model.springs), k_ref, tau_max, BACKLASH_SMOOTHING * tau_rms,
-                          max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12, weight)
+                          max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12, weight,
+                          reach(pin_model))
 
     def parameters(self, fit: PoseFit) -> dict[str, list[Parameter]]:
         """Each family's parameters in ``fit`` (by family name, in the model's order) with

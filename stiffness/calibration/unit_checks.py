@@ -32,7 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.fitting import nominal_stiffness
-from stiffness.elastic.effects.preloads import reach
+from stiffness.elastic.effects.geometry import reach
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.mechanics.defaults import default_stiffness

@@ -400,6 +400,18 @@ def tilt_axes(mount_rotation: np.ndarray, column: int) -> tuple[np.ndarray, np.n
     return mount_rotation[..., :, (column + 1) % 3], mount_rotation[..., :, (column + 2) % 3]
 
 
+def reach(model: pin.Model) -> float:
+    """The robot's reach (m): the longest chain of joint and frame placements from the base
+    (the sum of their lengths, whatever the pose), at least 0.1 m."""
+    chain = [0.0] * model.njoints
+    for j in range(1, model.njoints):
+        chain[j] = chain[model.parents[j]] + float(np.linalg.norm(
+            model.jointPlacements[j].translation))
+    frames = [chain[f.parentJoint] + float(np.linalg.norm(f.placement.translation))
+              for f in model.frames]
+    return max([0.1, *chain, *frames])
+
+
 # ------------------------------------------------------------------------------------------
 # references (scales of the optimiser's variables)
 
@@ -429,6 +441,9 @@ class References:
         (:attr:`Rows.gravity_torque`: the robot's inertias, no payload), for every joint where
         the model gives it; empty where it does not (a robot with loops, or whose links weigh
         nothing).
+    reach_m
+        The robot's reach (m, :func:`reach`): how far a target or marker can be from where a
+        campaign declares it (1 m where references are built without a robot).
     """
 
     joints: tuple[str, ...]
@@ -439,6 +454,7 @@ class References:
     force_ref: float
     deflection_ref: float
     weight_torque: dict[str, float] = field(default_factory=dict)
+    reach_m: float = 1.0
 
     @classmethod
     def of(cls, geometry: Geometry, rows: Rows, k_ref: float, deflection: np.ndarray
@@ -452,7 +468,8 @@ class References:
                    max(theta, 1e-9),
                    max(float(np.sqrt(np.mean(np.sum(rows.force ** 2, axis=1)))), 1e-9),
                    max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12),
-                   weight_torques(geometry.joints, rows.gravity_torque))
+                   weight_torques(geometry.joints, rows.gravity_torque),
+                   reach(geometry.robot.model))
 
     def max_torque(self, joint: str) -> float:
         """Largest |torque| of ``joint`` over the campaign."""

@@ -10,6 +10,7 @@ Units: SI (m, rad).
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -17,7 +18,7 @@ import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements
 from stiffness.elastic.effects.base import Effect
-from stiffness.elastic.effects.geometry import skew
+from stiffness.elastic.effects.geometry import References, skew
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     MarkerView,
@@ -71,6 +72,12 @@ class MarkerOffsets(Effect, PoseFamily):
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
 
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        """The robot's reach (m, :attr:`References.reach_m`), as a deflection campaign's
+        ``target_offset``: a marker farther than that from where the campaign puts it is
+        not on the robot."""
+        return np.full(3 * len(pm.markers), refs.reach_m)
+
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         """``d y = exp(omega) R_0 R_frame d o`` in the marker's own three columns."""
         turn = view.to_measuring @ view.frame_rotation
@@ -87,6 +94,13 @@ class JointOffsets(Effect, PoseFamily):
         names = pm.robot.model.names
         return [self.param(zero_label(names[j]), pm.joint_unit(j, "rad", "m"))
                 for j in pm.joints]
+
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        """Half a turn (pi rad) for a revolute joint: beyond it the offset is another zero,
+        not an error; the robot's reach (m, :attr:`References.reach_m`) for a prismatic one."""
+        names = pm.robot.model.names
+        return np.array([refs.reach_m if pm.robot.is_prismatic(names[j]) else math.pi
+                         for j in pm.joints])
 
     def configuration_offset(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray:
         out = np.zeros(pm.robot.model.nv)

@@ -72,6 +72,11 @@ class TargetOffset(VectorEffect):
     def contribute(self, values, parts):
         parts.shift_target(self.label, values[:3])
 
+    def physical_scale(self, refs):
+        """The robot's reach (m, :attr:`References.reach_m`): a target farther than that from
+        the declared one is not on the robot."""
+        return np.full(3, refs.reach_m)
+
     def target_shift(self, p, rows):
         return rows.rotation @ p
 
@@ -94,7 +99,9 @@ class ForceSensorBias(VectorEffect):
         return np.full(3, 0.01 * refs.force_ref)
 
     def physical_scale(self, refs):
-        return np.full(3, refs.force_ref)  # the campaign's load range
+        """The campaign's load range (N, :attr:`References.force_ref`, the RMS applied
+        force): a bias larger than the loads it is read with is no sensor offset."""
+        return np.full(3, refs.force_ref)
 
     def adjust_load(self, p, force, moment):
         return force - p, moment

@@ -24,8 +24,8 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import torque_regressors
-from stiffness.elastic.effects.base import Effect
-from stiffness.elastic.effects.geometry import References, cross, skew
+from stiffness.elastic.effects.base import PHYSICAL_FACTOR, Effect
+from stiffness.elastic.effects.geometry import References, cross, reach, skew
 from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
@@ -54,18 +54,10 @@ COMPENSATOR_GEOMETRY: dict[str, float | str] = {
     "angle_reference": "joint_zero"}
 #: Unit of a lumped gravity parameter (compliance times a mass or a mass moment).
 LUMPED_UNIT = "rad/(N.m) x (kg or kg.m)"
-
-
-def reach(model: pin.Model) -> float:
-    """The robot's reach (m): the longest chain of joint and frame placements from the base
-    (the sum of their lengths, whatever the pose), at least 0.1 m."""
-    chain = [0.0] * model.njoints
-    for j in range(1, model.njoints):
-        chain[j] = chain[model.parents[j]] + float(np.linalg.norm(
-            model.jointPlacements[j].translation))
-    frames = [chain[f.parentJoint] + float(np.linalg.norm(f.placement.translation))
-              for f in model.frames]
-    return max([0.1, *chain, *frames])
+#: Lower bound of each gravity parameter (:data:`GRAVITY_PARAMETERS`) in ``gravity_lumped``:
+#: a mass is never negative; a mass moment ``m c_i`` takes the sign of the centre's
+#: coordinate ``c_i`` in the link's joint frame, either.
+MASS_LOWER = {"m": 0.0, "mcx": -math.inf, "mcy": -math.inf, "mcz": -math.inf}
 
 
 @dataclass(eq=False)
@@ -103,6 +95,12 @@ class GravityPreload(Effect):
 
     def scale(self, refs):
         return np.array([refs.force_ref / 9.81, 0.1, 0.1, 0.1])
+
+    def physical_scale(self, refs):
+        """A payload :data:`~stiffness.elastic.effects.base.PHYSICAL_FACTOR` times the weight
+        of the campaign's load range (kg, ``force_ref / g``), its centre of mass
+        within the robot's reach (m, :attr:`References.reach_m`) of the target."""
+        return np.array([PHYSICAL_FACTOR * refs.force_ref / 9.81] + [refs.reach_m] * 3)
 
     def bounds(self):
         com = self.reach_m / 0.1  # variables: com / 0.1 m (scale)
@@ -474,6 +472,12 @@ class GravityLumped(Effect, JointDeflectionFamily):
         mass = refs.force_ref / 9.81  # the load's size: 0.1 m levers
         return np.tile([mass, 0.1 * mass, 0.1 * mass, 0.1 * mass], len(self.links))
 
+    def bounds(self):
+        """Each link's mass (:data:`MASS_LOWER`) at least 0; its mass moments ``m c`` are
+        signed (a centre of mass on either side of the joint's origin)."""
+        lower = np.tile([MASS_LOWER[p] for p in GRAVITY_PARAMETERS], len(self.links))
+        return np.maximum(lower, -1e4), np.full(lower.size, 1e4)
+
     def preload(self, p, model, rows):
         y, y_k = model.geometry.weight_regressor(rows, self.links)
         idx = model.index
@@ -492,8 +496,12 @@ class GravityLumped(Effect, JointDeflectionFamily):
                 "the joints (the measured deflection is loaded minus unloaded under it)")
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        """Per spring and link downstream of it, ``c_j pi_k`` of each gravity parameter: the
+        spring's compliance (>= 0) times the link's mass (>= 0) is at least 0; times a mass
+        moment it is signed (:data:`MASS_LOWER`)."""
         names = pm.robot.model.names
-        return [self.param(f"{spring} x {names[k]} {p}", LUMPED_UNIT)
+        return [FamilyParameter(self.name, f"{spring} x {names[k]} {p}", self.family_scale,
+                                LUMPED_UNIT, MASS_LOWER[p])
                 for c, spring in enumerate(pm.springs) for k in pm.spring_downstream(c)
                 for p in GRAVITY_PARAMETERS]
 
