@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from massless import massless
 from stats import Coverage
 
 from stiffness.calibration.campaign_writer import write_campaign
@@ -235,8 +236,8 @@ KINOVA = ("kinova", ["j2s6s200_joint_1", "j2s6s200_joint_2", "j2s6s200_joint_3"]
 SLACK_SPRING = (1e5, 0.0, 0.3, 0.4)
 
 
-def _slack_campaign(seed: int, configs: int = 10, loads: int = 4):
-    robot, joints, kq, where = KINOVA
+def _slack_campaign(seed: int, configs: int = 10, loads: int = 4, robot: str = KINOVA[0]):
+    _, joints, kq, where = KINOVA
     spec = f"gravity_compensator:{where}=" + ",".join(f"{v:g}" for v in SLACK_SPRING)
     return simulate(robot, kq=kq, compliant_joints=joints, max_force=100.0,
                     noise_std_m=NOISE, effects=[parse_effect(spec)], configs=configs,
@@ -275,8 +276,10 @@ def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
 
 def test_diagnose_fits_the_base_or_holds_it_and_the_model_file_says_which(tmp_path):
     """End to end: the slack spring's base is fitted (the model file's parameters carry it,
-    geometry_source fitted); the file's elastic model applies the fitted base."""
-    d = diagnose(_slack_campaign(1), propose=False)
+    geometry_source fitted); the file's elastic model applies the fitted base. The arm without
+    its masses (:func:`massless.massless`): the spring, far stronger than the Kinova's weight
+    needs, is judged against its joint springs (its angle from the joint's zero)."""
+    d = diagnose(_slack_campaign(1, robot=massless(KINOVA[0])), propose=False)
     comp = [e for e in d.final.model.effects if e.name == "gravity_compensator"]
     assert comp and comp[0].settings["geometry_source"] == "fitted", d.final.model.describe()
     path = d.model_file().write(tmp_path / "model.json")
@@ -293,7 +296,9 @@ def test_diagnose_fits_the_base_or_holds_it_and_the_model_file_says_which(tmp_pa
 
 def test_declared_geometry_flag_reaches_the_model_file_and_bad_values_are_one_line(tmp_path,
                                                                                      capsys):
-    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4],
+    # the UR5 without its masses (:func:`massless.massless`): the spring, 35 times the weight
+    # the shoulder carries, is judged against the joint springs
+    sim = simulate(massless("ur5"), kq=[3e4, 2e4, 1.5e4],
                    compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"],
                    max_force=100.0, noise_std_m=NOISE, configs=6, loads_per_config=4, seed=3,
                    effects=[parse_effect("gravity_compensator:shoulder_lift_joint=1e5,2e4")],

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from massless import massless
 from stats import Coverage
 
 from stiffness.calibration.campaign import load_campaign
@@ -34,17 +35,20 @@ KQ = np.array([3e4, 2e4, 1.5e4])
 NOISE = 5e-6
 
 
-def _sim(effects=(), seed=0, configs=4, loads=2, **kw):
+def _sim(effects=(), seed=0, configs=4, loads=2, robot="ur5", **kw):
     args = {"kq": KQ, "compliant_joints": ARM, "max_force": 100.0, "noise_std_m": NOISE,
             "rotations": True, **kw}
-    return simulate("ur5", effects=[parse_effect(e) for e in effects], configs=configs,
+    return simulate(robot, effects=[parse_effect(e) for e in effects], configs=configs,
                     loads_per_config=loads, seed=seed, **args)
 
 
 @functools.lru_cache(maxsize=8)
 def _diagnosed(effect: str, seed: int):
-    """A diagnosed campaign of 6 poses x 4 loads with ``effect`` hidden (shared by tests)."""
-    sim = _sim([effect], seed=seed, configs=6, loads=4)
+    """A diagnosed campaign of 6 poses x 4 loads with ``effect`` hidden (shared by tests); a
+    compensator on the UR5 without its masses (:func:`massless.massless`: the spring, 3.4 times
+    the weight the real arm's shoulder carries, is judged against the joint springs)."""
+    robot = massless("ur5") if effect.startswith("gravity_compensator") else "ur5"
+    sim = _sim([effect], seed=seed, configs=6, loads=4, robot=robot)
     return sim, diagnose(sim.campaign, propose=False)
 
 
@@ -268,11 +272,15 @@ def test_compensator_in_the_model_file_enters_k_x(tmp_path):
     # the spring's angle derivative is the joint's extra stiffness at the preloaded angle
     i = cm.robot.compliant_joints.index("shoulder_lift_joint")
     jm = cm.robot.model.joints[cm.robot.model.getJointId("shoulder_lift_joint")]
-    # its angle is measured from the link straight up (the UR5's upper arm lies along x at
-    # the joint's zero, so up is about -pi/2)
-    assert comp[0].settings["angle_reference"] == "upward"
+    # its angle is measured from the joint's zero: the arm without its masses has no upward
+    # direction (the upward reference on the arm with them: tests/test_compensator_geometry.py)
+    assert comp[0].settings["angle_reference"] == "joint_zero"
     angle_up = comp[0].settings["angle_up_rad"]
-    assert angle_up == pytest.approx(-math.pi / 2, abs=0.02)
+    assert angle_up == 0.0
+    # on the UR5 with its masses, up is about -pi/2 (its upper arm lies along x at zero)
+    real = make_effect("gravity_compensator", "shoulder_lift_joint", Geometry.of(load_robot("ur5")))
+    assert real.settings["angle_reference"] == "upward"
+    assert real.settings["angle_up_rad"] == pytest.approx(-math.pi / 2, abs=0.02)
     _, dtau = spring_balancer(at.q[jm.idx_q] - angle_up, comp[0].value("stiffness"),
                               comp[0].value("preload"), 0.1, 0.3, 0.0)
     assert at.k_preload[i, i] == pytest.approx(dtau, rel=1e-12)
