@@ -489,7 +489,7 @@ def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     em = load_model(path)
     wrench = np.array([60.0, -30.0, -300.0, 0.0, 0.0, 0.0])
     for coords in UR5_PATH:
-        theirs = load_model(path).at(coords, wrench).compliance6 @ wrench
+        theirs = load_model(path).at(coords, wrench).compliance(slice(0, 6)) @ wrench
         np.testing.assert_allclose(linear_deflection(em, coords, wrench), theirs,
                                    rtol=1e-9, atol=1e-14)
 

@@ -469,7 +469,7 @@ class ElasticState:
         (:meth:`ElasticModel.preloaded_configuration`).
     formulation
         Default formulation of :meth:`compliance`, :meth:`stiffness` and the attributes of
-        the linearisation (``k_tangent``, ``compliance6``...).
+        the linearisation (``k_tangent``, ``compliance``...).
     """
 
     def __init__(self, model: ElasticModel, q: np.ndarray | list[float],
@@ -630,11 +630,6 @@ class ElasticState:
         if connection == "joint":
             return joint_connection_stiffness(self.commanded, k_theta)
         return twist_basis_stiffness(self.commanded, k_theta)
-
-    @property
-    def compliance6(self) -> np.ndarray:
-        """(6, 6) compliance in the default formulation, rows [v; omega]."""
-        return self.compliance(slice(0, 6))
 
     @property
     def k_tangent(self) -> np.ndarray:
