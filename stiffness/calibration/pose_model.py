@@ -362,9 +362,7 @@ class PoseModel:
         rot_w, d_omega = MeasuringFrame.frame_rotation(self.part(x, "frame"))
         shift = MeasuringFrame.frame_translation(self.part(x, "frame"))
         ev = _Evaluation(model, model.createData(), x, parts, rot_w, d_omega,
-                         rot_w @ self.rotation0, self.translation0 + shift,
-                         {f.name: f.evaluation_cache(self, parts[f.name], jacobian)
-                          for f in self.family_objects}, jacobian)
+                         rot_w @ self.rotation0, self.translation0 + shift, jacobian)
         n, m = len(rows), len(self.markers)
         y = np.empty((n, m, 3))
         jac = np.zeros((n, m, 3, self.size)) if jacobian else None
@@ -387,8 +385,7 @@ class PoseModel:
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
         j_point = (point_jacobians(model, kin, self.frame_ids, point) if ev.jacobian
                    else np.zeros(point.shape + (0,)))
-        caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows,
-                                       ev.shared[f.name], ev.jacobian)
+        caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows, ev.jacobian)
                   for f in self.family_objects}
         view = MarkerView(model, ev.data, point, np.zeros(3), ev.to_measuring,
                           ev.rot_w, ev.d_omega, j_point, state, caches, rotation,
@@ -489,9 +486,8 @@ class PoseModel:
 class _Evaluation:
     """What every row of one :meth:`PoseModel.evaluate` shares: the perturbed model and its
     data, the parameters (``x``, per family ``parts``), the measuring frame (``exp(omega)``,
-    its right Jacobian, robot-world to measuring axes, translation, m), the families'
-    :meth:`~stiffness.elastic.effects.pose_face.PoseFamily.evaluation_cache`, and whether
-    the Jacobian is asked for."""
+    its right Jacobian, robot-world to measuring axes, translation, m), and whether the
+    Jacobian is asked for."""
 
     model: pin.Model
     data: pin.Data
@@ -501,7 +497,6 @@ class _Evaluation:
     d_omega: np.ndarray
     to_measuring: np.ndarray
     translation: np.ndarray
-    shared: dict
     jacobian: bool
 
 

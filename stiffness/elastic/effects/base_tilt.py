@@ -26,7 +26,7 @@ Units: SI (rad, m/s^2).
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -105,23 +105,17 @@ class BaseTilt(Effect, JointDeflectionFamily):
         g_b, _ = tilted_gravity(g_0, declared_tilt(pm.settings) + x_f)
         model.gravity = pin.Motion(g_b, np.zeros(3))
 
-    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
-                         ) -> np.ndarray | None:
-        """d g_b / d(r_x, r_y) (3, 2) at the evaluation's tilt."""
+    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
+                   kin: JointPlacements, rows: list[RowTerms], jacobian: bool
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+        """With the Jacobian: d tau / d(r_x, r_y) (n, 1, nv, 2) at each row's loaded
+        configuration (``M J_com^T dg``, :func:`~stiffness.batch.poses.mass_jacobians`) and
+        ``dg`` = d g_b / d(r_x, r_y) (3, 2) at the tilt."""
         if not jacobian:
             return None
         g_0 = np.asarray(pm.robot.model.gravity.linear, dtype=float)
-        return tilted_gravity(g_0, declared_tilt(pm.settings) + x_f)[1]
-
-    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
-                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
-        """d tau / d(r_x, r_y) (n, 1, nv, 2) at each row's loaded configuration
-        (``M J_com^T dg``, :func:`~stiffness.batch.poses.mass_jacobians`) and ``dg`` =
-        d g_b / d(r_x, r_y) (3, 2)."""
-        if shared is None:
-            return None
-        return (np.swapaxes(mass_jacobians(model, kin), 1, 2) @ shared)[:, None], shared
+        dg = tilted_gravity(g_0, declared_tilt(pm.settings) + x_f)[1]
+        return (np.swapaxes(mass_jacobians(model, kin), 1, 2) @ dg)[:, None], dg
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
         """``T (J_p diag(d Delta q / d tau) d tau / d(r_x, r_y) + d bends / d g  dg)``: the

@@ -11,7 +11,7 @@ Units: SI (m, rad).
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -133,27 +133,21 @@ class JointGeometry(Effect, PoseFamily):
         for j, e in zip(pm.joints, self.placement_errors(pm, x_f), strict=True):
             model.jointPlacements[j] = perturbed_placement(model.jointPlacements[j], e)
 
-    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
-                         ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The right Jacobian of ``exp`` at each joint's placement error, the column of each
-        parameter: its translation and rotation parts (n_f, 3) each."""
+    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
+                   kin: JointPlacements, rows: list[RowTerms], jacobian: bool
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """With the Jacobian, per row and parameter, with ``a = oMi[parent] M_j exp(eps_j)``
+        of its joint: ``R_a`` times its column's translation and rotation parts (the column
+        of the right Jacobian of ``exp`` at the joint's placement error) and the origin of
+        ``a``, (n, 1, n_f, 3) each."""
         if not jacobian:
             return None
         right = np.array([pin.Jexp6(pin.Motion(e)) for e in self.placement_errors(pm, x_f)])
-        rows, comps = pm.geometry_index
-        return right[rows, :3, comps], right[rows, 3:, comps]
-
-    def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
-                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Per row and parameter, with ``a = oMi[parent] M_j exp(eps_j)`` of its joint:
-        ``R_a`` times its column's translation and rotation parts and the origin of ``a``,
-        (n, 1, n_f, 3) each."""
-        if shared is None:
-            return None
+        index, comps = pm.geometry_index
         parents = [int(model.parents[j]) for j in pm.joints]
         out = self._placement_columns(pm, model, kin.rotation[:, parents],
-                                      kin.translation[:, parents], shared)
+                                      kin.translation[:, parents],
+                                      (right[index, :3, comps], right[index, 3:, comps]))
         return out[0][:, None], out[1][:, None], out[2][:, None]
 
     @staticmethod

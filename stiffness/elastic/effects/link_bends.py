@@ -30,7 +30,7 @@ Units: SI (m, N, N.m/rad).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -275,17 +275,19 @@ class LinkCompliance(Effect, PoseFamily):
         return marker_links(pm.robot.model, pm.frame_ids)
 
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
-                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
+                   kin: JointPlacements, rows: list[RowTerms], jacobian: bool
                    ) -> BendCache:
         """The rows' bends (:class:`BendCache`) at their loaded configurations
         (:func:`carried_moments`)."""
-        links, beyond = shared
+        links = self.links(pm)
         joints = [link.b for link in links]
         origins, moments, arms = carried_moments(pm, model, kin, joints, rows)
         e1, e2 = self.bend_axes(model, kin, links, origins)
         turns = np.stack([e1 * np.sum(e1 * moments, axis=-1, keepdims=True),
                           e2 * np.sum(e2 * moments, axis=-1, keepdims=True)], axis=-2)
-        markers = np.array([beyond[fid] for fid in pm.frame_ids]).reshape(-1, len(links))
+        markers = np.array([[link.b in set(model.supports[model.frames[fid].parentJoint])
+                             for link in links] for fid in pm.frame_ids],
+                           dtype=float).reshape(-1, len(links))
         per_gravity = None
         if jacobian:  # d omega_b / d g = sum_i c_i e_i e_i^T [m_b (c_b - p_b)]x
             # (cross_matrices(a) is -[a]x)
@@ -298,7 +300,7 @@ class LinkCompliance(Effect, PoseFamily):
 
     @staticmethod
     def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
-                       origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The two bending axes (n, L, 3) each of every link over a batch of rows, world
         axes: normal to the link (:func:`link_axes`)."""
         e1, e2 = np.zeros(origins.shape), np.zeros(origins.shape)
@@ -310,16 +312,6 @@ class LinkCompliance(Effect, PoseFamily):
             e1[:, sel], e2[:, sel] = link_axes(proximal[:, sel], origins[:, sel],
                                                mounts[:, sel], column)
         return e1, e2
-
-    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool
-                         ) -> tuple[list[Link], dict[int, np.ndarray]]:
-        """The links, and per marker frame whether it moves with each link's distal joint."""
-        model = pm.robot.model
-        links = self.links(pm)
-        beyond = {fid: np.array([link.b in set(model.supports[model.frames[fid].parentJoint])
-                                 for link in links], dtype=float).reshape(-1)
-                  for fid in set(pm.frame_ids)}
-        return links, beyond
 
     def _lever(self, pm: PoseLayout, view: MarkerView) -> tuple[np.ndarray, np.ndarray]:
         """Per link, the turn per unit compliance (L, 2, 3) of the links the marker is beyond
@@ -436,7 +428,7 @@ class TransversalCompliance(LinkCompliance):
 
     @staticmethod
     def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
-                       origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The bearing's two axes (n, L, 3) each normal to each joint's rotation axis over a
         batch of rows, world axes (:func:`tilt_axes` of the joint's mounting frame
         ``oMi[parent] M_j``, fixed in the parent link)."""

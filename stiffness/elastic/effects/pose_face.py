@@ -290,17 +290,11 @@ class PoseFamily:
         """d(its joint deflection)/d(torque) (nv,), diagonal, or ``None``."""
         return None
 
-    def evaluation_cache(self, pm: PoseLayout, x_f: np.ndarray, jacobian: bool) -> Any:
-        """Quantities shared by every row of one evaluation (the geometry's right Jacobians),
-        ``jacobian`` whether the columns will be asked for."""
-        return None
-
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
-                   kin: JointPlacements, rows: list[RowTerms], shared: Any, jacobian: bool
-                   ) -> Any:
+                   kin: JointPlacements, rows: list[RowTerms], jacobian: bool) -> Any:
         """Quantities shared by the markers of each of a batch of ``rows`` at their loaded
         configurations (the joints' placements ``kin``, with a leading row axis; their
-        Jacobians too when ``jacobian``)."""
+        Jacobians too when ``jacobian``, whether the columns will be asked for)."""
         return None
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
