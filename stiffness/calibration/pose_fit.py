@@ -442,10 +442,7 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     # where the sag diverges there the residual is the diverged constant (the fit is not
     # chosen) and scipy's Jacobian stands in, as least squares' does
     fun = problem.fun(sol.x)
-    try:
-        jac = problem.jac(sol.x)[:, sol.identifiability.kept]
-    except ConvergenceError:
-        jac = sol.jac
+    jac = sol.jac if problem.failed(sol.x) else problem.jac(sol.x)[:, sol.identifiability.kept]
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
     return _finish(obs, campaign, sol, jac, fun, loss, (noise, source))
 
@@ -472,8 +469,13 @@ class PoseProblem:
         return r
 
     def jac(self, x: np.ndarray) -> np.ndarray:
-        """d(residual)/dx (N, p)."""
-        _, j = self.obs.evaluate(x)
+        """d(residual)/dx (N, p); zero where the sag diverges (the residual there is the
+        diverged constant, :meth:`fun`: a bounded refit whose strictly feasible start, just
+        inside a bound, lands there stops at once instead of raising)."""
+        try:
+            _, j = self.obs.evaluate(x)
+        except ConvergenceError:
+            return np.zeros((self.obs.size, self.obs.model.size))
         assert j is not None
         return j
 

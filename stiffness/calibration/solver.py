@@ -204,8 +204,8 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
                          resolution if near_at_start else 0.0).holding(held or {})
     start = problem.start(np.asarray(x0, dtype=float), ident)
     sol = solve(problem, start, ident, options)
-    if resolution <= 0:
-        return sol
+    if resolution <= 0 or problem.failed(sol.x):
+        return sol  # a fit ending where the model diverges is not judged again (never chosen)
     seen: list[np.ndarray] = []
 
     def columns(point: np.ndarray) -> np.ndarray | None:
