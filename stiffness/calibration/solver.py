@@ -199,7 +199,9 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
     held as undetermined, the others held at :meth:`Problem.start`, and :func:`solve`. When
     the near aliases at the optimum are not those of the start, the fit is redone from the
     optimum with them held (unless the optimum's reduction keeps the same span, other members
-    of exact aliases: the same model)."""
+    of exact aliases: the same model). A fit that ends where the model diverges (a bounded
+    refit from a bound) is returned as it ended: its residual is the diverged constant, and
+    the caller never chooses it."""
     ident = identifiable(problem.layout, x0, lambda p: problem.columns(p, False),
                          resolution if near_at_start else 0.0).holding(held or {})
     start = problem.start(np.asarray(x0, dtype=float), ident)
