@@ -184,6 +184,10 @@ class Effect:
     #: whether the parameters are never negative (a compliance, a lost motion): the variables
     #: then start small and positive, and so does a pose family's lower bound (0)
     nonnegative: ClassVar[bool] = False
+    #: whether the parameters are stiffnesses (N.m/rad, N/m) whose variables are their
+    #: compliances in units of the baseline's mean compliance ``1 / k_ref`` (reported by
+    #: :func:`stiffness_report`, in the units :meth:`_units` names)
+    compliance_variables: ClassVar[bool] = False
 
     # construction ----------------------------------------------------------------------------
     @classmethod
@@ -298,13 +302,15 @@ class Effect:
         return PHYSICAL_FACTOR * self.scale(refs)
 
     def scale(self, refs: References) -> np.ndarray:
-        """SI value of one unit of each optimiser variable."""
-        return np.ones(self.n_params)
+        """SI value of one unit of each optimiser variable (``1 / k_ref`` where
+        :attr:`compliance_variables`, else 1)."""
+        return np.full(self.n_params, 1.0 / refs.k_ref if self.compliance_variables else 1.0)
 
     def variables(self, values: np.ndarray, refs: References) -> np.ndarray:
         """Optimiser variables of reported SI parameter values (the inverse of :meth:`report`
         with SI units; only the first :attr:`n_params` values are used)."""
-        return np.asarray(values, dtype=float)[: self.n_params] / self.scale(refs)
+        values = np.asarray(values, dtype=float)[: self.n_params]
+        return (1.0 / values if self.compliance_variables else values) / self.scale(refs)
 
     # hooks ---------------------------------------------------------------------------------
     def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
@@ -347,6 +353,11 @@ class Effect:
         """Parameters with uncertainties in the campaign's units (``units``:
         :class:`stiffness.units.Units`). ``cov_u`` is the covariance of ``u``."""
         scale = self.scale(refs)
+        if self.compliance_variables:
+            return [stiffness_report(name, float(u[i]), float(cov_u[i, i]), float(scale[i]),
+                                     unit, quantile)
+                    for i, (name, (unit, _)) in enumerate(
+                        zip(self.parameter_names, self._units(units), strict=True))]
         se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
         value = np.asarray(u, dtype=float) * scale
         out = []

@@ -21,7 +21,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from stiffness.elastic.effects.base import Effect, Parameter, stiffness_report
+from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
@@ -102,6 +102,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     adds_spring: ClassVar[bool] = True
     through_law: ClassVar[bool] = True
     nonnegative: ClassVar[bool] = True
+    compliance_variables: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
 
     def simulated_values(self, values, units):
@@ -112,19 +113,11 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     def contribute(self, values, parts):
         parts.add_spring(self.joint_name, values[0])
 
-    def scale(self, refs):
-        return np.full(1, 1.0 / refs.k_ref)  # compliance
-
     def adjust_law(self, p, law, column, refs):
         law.compliance[column] = p[0]
 
-    def variables(self, values, refs):
-        return (1.0 / np.asarray(values, dtype=float)[:1]) / self.scale(refs)
-
-    def report(self, u, cov_u, refs, units, quantile):
-        unit = "N/m" if self.prismatic else "N.m/rad"
-        return [stiffness_report("stiffness", float(u[0]), float(cov_u[0, 0]),
-                                  1.0 / refs.k_ref, unit, quantile)]
+    def _units(self, units):
+        return [("N/m" if self.prismatic else "N.m/rad", 1.0)]
 
     def describe(self) -> str:
         return f"joint {self.joint_name}, declared rigid, is a spring"

@@ -37,7 +37,7 @@ import pinocchio as pin
 
 from stiffness.batch.linalg import cross_matrices
 from stiffness.batch.poses import JointPlacements, frame_placements
-from stiffness.elastic.effects.base import Effect, stiffness_report
+from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
@@ -186,6 +186,7 @@ class LinkCompliance(Effect, PoseFamily):
     value_counts: ClassVar[tuple[int, ...]] = (1, 2)
     linear_motion: ClassVar[bool] = True
     nonnegative: ClassVar[bool] = True
+    compliance_variables: ClassVar[bool] = True
 
     @classmethod
     def at_place(cls, where, geometry=None):
@@ -221,11 +222,8 @@ class LinkCompliance(Effect, PoseFamily):
     def where(self) -> str:
         return f"{self.a}->{self.b}"
 
-    def scale(self, refs):
-        return np.full(2, 1.0 / refs.k_ref)
-
-    def variables(self, values, refs):
-        return (1.0 / np.asarray(values, dtype=float)[:2]) / self.scale(refs)
+    def _units(self, units):
+        return [("N.m/rad", 1.0)] * 2
 
     def bend_at(self, geometry: Geometry, rows: Rows
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -248,11 +246,6 @@ class LinkCompliance(Effect, PoseFamily):
     def target_motion(self, p, model, rows, force, moment, point):
         omega, r = self._omega(p, model, rows, force, moment, point)
         return cross(omega, r), omega
-
-    def report(self, u, cov_u, refs, units, quantile):
-        return [stiffness_report(n, float(u[i]), float(cov_u[i, i]), 1.0 / refs.k_ref,
-                                  "N.m/rad", quantile)
-                for i, n in enumerate(self.param_names)]
 
     def describe(self) -> str:
         return (f"the segment {self.a} -> {self.b} bends at {self.b} about the two axes "
