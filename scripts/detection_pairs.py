@@ -30,7 +30,6 @@ import dataclasses
 import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +37,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from detection_rate import write_between_markers  # noqa: E402  (scripts/ is on sys.path)
+from detection_rate import run_jobs, write_between_markers  # noqa: E402  (scripts/ is on sys.path)
 
 from stiffness.calibration.diagnose import diagnose  # noqa: E402
 from stiffness.calibration.selection import GOF_LEVEL  # noqa: E402
@@ -234,20 +233,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--configs", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-write", action="store_true", help="do not update docs/diagnose.md")
+    parser.add_argument("--json", type=Path, default=None,
+                        help="also write each run's record to this JSON file")
     parser.add_argument("--unexplained", action="store_true",
                         help="measure the unexplained verdict on out-of-library campaigns")
     args = parser.parse_args(argv)
     if args.unexplained:
         jobs = [(robot, kind, 400 + seed, args.configs) for robot in ROBOTS
                 for kind in [*OUT_OF_LIBRARY, None] for seed in range(args.seeds)]
-        with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            results = list(pool.map(run_out, jobs, chunksize=1))
+        jobs.sort(key=lambda job: job[2])  # seed by seed: a partial run covers every cell
+        results = run_jobs(run_out, jobs, args.workers, args.json)
         text, start, end = out_table(results, args.seeds, args.configs), OUT_START, OUT_END
     else:
         jobs = [(robot, pair, 300 + seed, args.configs) for robot, pairs in PAIRS.items()
                 for pair in pairs for seed in range(args.seeds)]
-        with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            results = list(pool.map(run_one, jobs, chunksize=1))
+        jobs.sort(key=lambda job: job[2])  # seed by seed: a partial run covers every pair
+        results = run_jobs(run_one, jobs, args.workers, args.json)
         text, start, end = table(results, args.seeds, args.configs), MARK_START, MARK_END
     print(text)
     if not args.no_write:

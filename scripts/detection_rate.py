@@ -17,10 +17,12 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import re
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -178,6 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--configs", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-write", action="store_true", help="do not update docs/diagnose.md")
+    parser.add_argument("--json", type=Path, default=None,
+                        help="also write each run's record to this JSON file")
     args = parser.parse_args(argv)
     jobs = []
     for robot, effects in EFFECTS.items():
@@ -189,13 +193,33 @@ def main(argv: list[str] | None = None) -> int:
         for noise in NOISES_MM:
             for seed in range(args.null_seeds):
                 jobs.append((robot, None, 0.0, noise, 200 + seed, args.configs))
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        results = list(pool.map(run_one, jobs, chunksize=4))
+    jobs.sort(key=lambda job: job[4] % 100)  # seed by seed: a partial run covers every row
+    results = run_jobs(run_one, jobs, args.workers, args.json)
     text = tables(results, args.seeds, args.configs)
     print(text)
     if not args.no_write:
         return write_between_markers(ROOT / "docs" / "diagnose.md", MARK_START, MARK_END, text)
     return 0
+
+
+def run_jobs(run: Callable[[tuple], dict], jobs: list[tuple], workers: int,
+             json_path: Path | None) -> list[dict]:
+    """``run`` over ``jobs`` on ``workers`` processes, in order; the count done on stderr and
+    (``json_path`` given) every record so far in that file after each job."""
+    results = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for result in pool.map(run, jobs):
+            results.append(result)
+            print(f"{len(results)}/{len(jobs)} campaigns", file=sys.stderr, flush=True)
+            if json_path is not None:
+                write_records(json_path, results)
+    return results
+
+
+def write_records(path: Path, results: list[dict]) -> None:
+    """Write each run's record to ``path`` as JSON (NumPy scalars as Python numbers)."""
+    path.write_text(json.dumps(results, indent=1,
+                               default=lambda o: o.item() if hasattr(o, "item") else str(o)))
 
 
 def write_between_markers(doc: Path, start: str, end: str, text: str) -> int:
