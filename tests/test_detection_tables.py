@@ -6,10 +6,10 @@ at 1 % each side: the reduced count must be one the documented rate makes likely
 
 * Large effects (the hidden effect 4 noise std RMS or more: the UR5's and the SK120's
   backlash rows at their largest size) are named first at their place at the table's rate
-  for that range (55/57 today).
+  for that range (56/57 today).
 * Tiny effects (below 0.5 noise std, five rows at their smallest size) are not, at the
   table's rate (4/139): a search that names effects the data cannot show fails here.
-* Nothing hidden: ``missing_effects`` empty at the rate of the table's null rows (38/40).
+* Nothing hidden: ``missing_effects`` empty at the rate of the table's null rows (98/100).
 * Two hidden at once: both named at their places at the pair table's rate (56/60) and the
   final model passes the chi-square test at its rate (60/60).
 
