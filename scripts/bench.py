@@ -227,7 +227,7 @@ def _compensated_models() -> dict:
     """name -> (elastic model, wanted coordinates (m, n)) of the compensator benchmark: the
     UR5 and the Panda's arm with their links' weight, a payload, a softening spring and a
     backlash (the closed form with every preload and a nonlinear law)."""
-    from stiffness.elastic.effects.base import ElasticParts
+    from stiffness.elastic.effects.parts import ElasticParts
     from stiffness.elastic.model import ElasticModel
 
     out = {}

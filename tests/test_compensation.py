@@ -14,9 +14,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import root
 
-from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.effects.geometry import Geometry, link_axes
 from stiffness.elastic.effects.link_bends import LinkCompliance
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.loaded import LinkBend, loaded_equilibrium
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import StiffnessError

@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.elastic.effects.base import ElasticParts
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.loaded import loaded_equilibrium
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import RobotFileWarning, StiffnessError

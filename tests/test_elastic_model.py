@@ -20,8 +20,8 @@ import pytest
 import stiffness
 from stiffness.cli.main import main
 from stiffness.elastic.effects import LIBRARY, make_effect
-from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import SingularConfigurationError
 from stiffness.mechanics.wrench import reorder_twist

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from stiffness.cli.main import main
-from stiffness.elastic.effects.base import ElasticParts
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import RobotFileWarning, StiffnessError
 from stiffness.machining.tracking import MujocoArm, track

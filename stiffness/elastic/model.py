@@ -42,8 +42,9 @@ import pinocchio as pin
 
 from stiffness.batch.linalg import critical_load_factor
 from stiffness.elastic.compensator import Compensator, retargeted
-from stiffness.elastic.effects.base import Effect, ElasticParts
+from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import Geometry, joint_axis_column, skew
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.loaded import (
     LinkBend,
     Loaded,

@@ -52,9 +52,10 @@ import numpy as np
 
 from stiffness.elastic.calibrated import calibrated_elastics
 from stiffness.elastic.effects import LIBRARY
-from stiffness.elastic.effects.base import Effect, ElasticParts, Parameter
+from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel, ElasticState
 from stiffness.errors import (
     DataFileWarning,
@@ -146,8 +147,7 @@ class ModelEffect:
         for p in self.parameters:
             if p.name == name:
                 return float(p.value)
-        raise ModelFileError(f"effect {self.label} has no parameter {name!r}",
-                             path="model file")
+        raise ModelFileError(f"effect {self.label} has no parameter {name!r}", path="model file")
 
     def values(self) -> np.ndarray:
         """SI values in the effect's parameter order."""

@@ -9,7 +9,7 @@ Measurement effects (how a campaign was observed) are not properties of the robo
 
 from __future__ import annotations
 
-from stiffness.elastic.effects.base import ElasticParts
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model_file import ModelFile
 
 #: Effect kinds that describe the measurement, not the robot.

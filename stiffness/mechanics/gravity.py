@@ -276,7 +276,7 @@ def joint_preload(robot: Robot, weighed: pin.Model | None,
         or ``None`` (no weight).
     compensators
         ``(joint, stiffness N/m, tension N, geometry)``
-        (:meth:`stiffness.elastic.effects.base.ElasticParts.add_compensator`).
+        (:meth:`stiffness.elastic.effects.parts.ElasticParts.add_compensator`).
     weight_stiffness
         Whether the weight's derivative ``K_g = -dg/dq`` enters ``K_p`` (the ``enhanced``
         formulation); the compensators' always does.

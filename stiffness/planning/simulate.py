@@ -67,13 +67,13 @@ from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects import LIBRARY, make_effect
-from stiffness.elastic.effects.base import ElasticParts
 from stiffness.elastic.effects.geometry import (
     Geometry,
     cached_robot,
     chain_placements,
     rotation_matrix,
 )
+from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import (
     StiffnessError,
@@ -199,7 +199,7 @@ class Truth:
         ``(mass kg, centre of mass (3,) m in target frame axes)`` of the payload.
     compensators
         ``(joint, stiffness N/m, preload N, geometry)`` of hidden spring gravity compensators
-        (:meth:`stiffness.elastic.effects.base.ElasticParts.add_compensator`).
+        (:meth:`stiffness.elastic.effects.parts.ElasticParts.add_compensator`).
     model
         The true robot as an elastic model (:class:`stiffness.elastic.model.ElasticModel`), of
         which the truth holds the parts its deflections need.

@@ -9,7 +9,7 @@ Each effect is one class in a module of its family: joint laws
 :class:`~stiffness.elastic.effects.base.Effect`. A class carries its prediction in a deflection
 campaign's fit (:class:`~stiffness.elastic.effects.hypothesis.Hypothesis`), its contribution to
 a model used away from its campaign (:meth:`Effect.contribute` into an
-:class:`~stiffness.elastic.effects.base.ElasticParts`) and, where it is a parameter family of
+:class:`~stiffness.elastic.effects.parts.ElasticParts`) and, where it is a parameter family of
 an absolute-pose model, its pose face (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`
 hooks). Adding an effect is one class, listed in :data:`EFFECTS` (and in the view of the
 campaign kinds it serves: :data:`LIBRARY`, :data:`FAMILIES`), and its test.
