@@ -17,6 +17,7 @@ module than :data:`MAX_MODULE_LINES` (a long workflow is a few named steps).
 from __future__ import annotations
 
 import ast
+import functools
 import re
 import subprocess
 import sys
@@ -52,16 +53,16 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+@functools.cache
 def _modules() -> dict[str, tuple[Path, ast.Module]]:
+    """Every module of the package: its file and syntax tree (read when a test first asks,
+    not at collection: each test process collects this file, one runs its tests)."""
     return {_module_name(p): (p, ast.parse(p.read_text(), filename=str(p)))
             for p in sorted(PACKAGE.rglob("*.py"))}
 
 
-MODULES = _modules()
-
-
 def _is_package(name: str) -> bool:
-    return MODULES.get(name, (Path(),))[0].name == "__init__.py"
+    return _modules().get(name, (Path(),))[0].name == "__init__.py"
 
 
 def _imports(name: str, tree: ast.Module) -> set[str]:
@@ -79,11 +80,14 @@ def _imports(name: str, tree: ast.Module) -> set[str]:
                 target = node.module or ""
             for alias in node.names:
                 sub = f"{target}.{alias.name}"
-                out.add(sub if sub in MODULES else target)
+                out.add(sub if sub in _modules() else target)
     return {m for m in out if m == "stiffness" or m.startswith("stiffness.")}
 
 
-IMPORTS = {name: _imports(name, tree) for name, (_, tree) in MODULES.items()}
+@functools.cache
+def _package_imports() -> dict[str, set[str]]:
+    """:func:`_imports` of every module of the package (read-only)."""
+    return {name: _imports(name, tree) for name, (_, tree) in _modules().items()}
 
 
 def _layer(module: str) -> int:
@@ -106,8 +110,8 @@ def _cycles() -> list[list[str]]:
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w in sorted(IMPORTS.get(v, ())):
-            if w not in MODULES:
+        for w in sorted(_package_imports().get(v, ())):
+            if w not in _modules():
                 continue
             if w not in index:
                 visit(w)
@@ -122,10 +126,10 @@ def _cycles() -> list[list[str]]:
                 component.append(w)
                 if w == v:
                     break
-            if len(component) > 1 or v in IMPORTS.get(v, ()):
+            if len(component) > 1 or v in _package_imports().get(v, ()):
                 found.append(sorted(component))
 
-    for v in sorted(MODULES):
+    for v in sorted(_modules()):
         if v not in index:
             visit(v)
     return found
@@ -133,14 +137,14 @@ def _cycles() -> list[list[str]]:
 
 def _layer_violations() -> set[tuple[str, str, str]]:
     out = set()
-    for module, targets in IMPORTS.items():
+    for module, targets in _package_imports().items():
         if module == "stiffness":
             continue
         for target in targets:
             if target == "stiffness":
                 if _layer(module) != LAYERS["cli"]:
                     out.add((module, "import", target))
-            elif target in MODULES and _layer(target) > _layer(module):
+            elif target in _modules() and _layer(target) > _layer(module):
                 out.add((module, "import", target))
     return out
 
@@ -176,7 +180,7 @@ def _name_strings(tree: ast.Module) -> set[str]:
 
 def _paper_name_violations() -> set[tuple[str, str, str]]:
     out = set()
-    for module, (path, tree) in MODULES.items():
+    for module, (path, tree) in _modules().items():
         if module == "stiffness" or _layer(module) not in {LAYERS[g] for g in GENERAL}:
             continue
         if PAPER_NAME.search(path.relative_to(PACKAGE).as_posix()):
@@ -214,7 +218,7 @@ def _function_lengths(tree: ast.Module) -> dict[str, int]:
 def _size_violations() -> set[tuple[str, str, int]]:
     """(module, what, lines) of every module and function over its limit, package-wide."""
     out: set[tuple[str, str, int]] = set()
-    for module, (path, tree) in MODULES.items():
+    for module, (path, tree) in _modules().items():
         lines = len(path.read_text().splitlines())
         if lines > MAX_MODULE_LINES:
             out.add((module, "module", lines))
@@ -227,17 +231,18 @@ def _size_violations() -> set[tuple[str, str, int]]:
 
 
 def test_every_module_belongs_to_a_layer():
-    for module in MODULES:
+    for module in _modules():
         if module != "stiffness":
             _layer(module)
 
 
 def test_the_reader_sees_the_imports_it_must():
     """The checks below are only as good as the import reader: it finds known edges."""
-    assert "stiffness.robot.robot" in IMPORTS["stiffness.mechanics.formulation"]
-    assert "stiffness.robot.kinematics" in IMPORTS["stiffness.mechanics.platform"]
-    assert "stiffness.viewer" in IMPORTS["stiffness.cli.report"]
-    assert {"stiffness.robot.robot", "stiffness.mechanics.formulation"} <= IMPORTS["stiffness"]
+    imports = _package_imports()
+    assert "stiffness.robot.robot" in imports["stiffness.mechanics.formulation"]
+    assert "stiffness.robot.kinematics" in imports["stiffness.mechanics.platform"]
+    assert "stiffness.viewer" in imports["stiffness.cli.report"]
+    assert {"stiffness.robot.robot", "stiffness.mechanics.formulation"} <= imports["stiffness"]
     # a lazy import inside a function counts
     lazy = ast.parse("def f():\n    from stiffness.viewer import StiffnessViewer\n")
     assert _imports("stiffness.robot.robot", lazy) == {"stiffness.viewer"}
