@@ -41,7 +41,7 @@ absent) and its columns; the judgement is this module's, one for both kinds.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +56,9 @@ NEAR_ALIAS_SINE = 0.05
 #: (:mod:`stiffness.calibration.identifiability`): about the 95 % normal quantile, so a merged
 #: parameter's 95 % interval, given the others, would be wider than its typical size.
 NEAR_ALIAS_RESOLUTION = 2.0
+#: Relative difference below which two columns' unexplained parts tie in the pivoted
+#: reduction (:func:`_pivoted`): the earlier column is kept.
+PIVOT_TIE = 1e-9
 #: Rows of a regressor per block of :func:`triangular`'s QR (its one copy: this many rows).
 TRIANGULAR_BLOCK = 8192
 
@@ -227,10 +230,18 @@ def triangular(a: np.ndarray, columns: list[int] | None = None) -> np.ndarray:
     blocks of :data:`TRIANGULAR_BLOCK` rows stacked under the ``R`` so far: no copy of the
     whole (N, p) ``a``. ``R`` keeps every inner product of the columns (``a^T a = R^T R``)."""
     index = np.arange(a.shape[1]) if columns is None else np.asarray(columns, dtype=int)
-    tri = np.zeros((0, index.size))
-    for start in range(0, a.shape[0], TRIANGULAR_BLOCK):
-        stacked = np.vstack([tri, a[start:start + TRIANGULAR_BLOCK][:, index]])
-        tri = linalg.qr(stacked, mode="r")[0][:index.size]
+    return stacked_triangular((a[start:start + TRIANGULAR_BLOCK][:, index]
+                               for start in range(0, a.shape[0], TRIANGULAR_BLOCK)),
+                              index.size)
+
+
+def stacked_triangular(blocks: Iterable[np.ndarray], k: int) -> np.ndarray:
+    """``R`` (at most (k, k)) of the rows of ``blocks`` (each (rows, k)) stacked: each block's
+    QR under the ``R`` so far, so only one block of rows is ever held (``A^T A = R^T R`` for
+    ``A`` the blocks stacked)."""
+    tri = np.zeros((0, k))
+    for block in blocks:
+        tri = linalg.qr(np.vstack([tri, block]), mode="r")[0][:k]
     return tri
 
 
@@ -277,13 +288,34 @@ def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,
         inside = [i for i in range(len(candidates)) if i not in alias]
         joined = []
         if inside:
-            _, r, piv = linalg.qr(rest[:, inside], mode="economic", pivoting=True)
-            joined = [candidates[inside[p]] for p, d in zip(piv, np.abs(np.diag(r)),
-                                                            strict=False)
-                      if d >= IDENTIFIABILITY_TOL * own[inside[p]]]
+            joined = [candidates[inside[p]] for p in _pivoted(
+                rest[:, inside], IDENTIFIABILITY_TOL * own[inside])]
         kept += joined
         dropped += _merged(a, kept, [c for c in candidates if c not in joined], scales)
     return Identifiability(kept, dropped)
+
+
+def _pivoted(a: np.ndarray, floors: np.ndarray) -> list[int]:
+    """The columns of ``a`` (n, m) a column-pivoted Gram-Schmidt joins, in order: each step
+    joins, of the columns whose part orthogonal to those joined is at least their ``floors``
+    (m,), the one with the largest part (``|R_ii|`` of a pivoted QR), the earliest among those
+    within :data:`PIVOT_TIE` of it: exact aliases (equal parts in exact arithmetic) are told
+    apart by their order, not by round-off, so the columns kept do not depend on how ``a``
+    was computed (a full regressor or its triangular factor, rows in blocks of any size)."""
+    basis = np.zeros((a.shape[0], 0))
+    left = list(range(a.shape[1]))
+    out: list[int] = []
+    while left:
+        part = a[:, left] - basis @ (basis.T @ a[:, left])
+        part -= basis @ (basis.T @ part)  # twice: orthogonal to the working precision
+        norms = np.linalg.norm(part, axis=0)
+        able = (norms >= floors[left]) & (norms > 0.0)
+        if not able.any():
+            break
+        pick = int(np.flatnonzero(able & (norms >= (1.0 - PIVOT_TIE) * norms[able].max()))[0])
+        out.append(left.pop(pick))
+        basis = np.column_stack([basis, part[:, pick] / norms[pick]])
+    return out
 
 
 def _merged(a: np.ndarray, kept: list[int], columns: list[int], scales: np.ndarray

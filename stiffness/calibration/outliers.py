@@ -82,15 +82,17 @@ def robust_noise(residuals: np.ndarray, n_parameters: int) -> float | None:
     return value if value > 0 else None
 
 
-def leverage(jacobian: np.ndarray) -> np.ndarray:
+def leverage(jacobian: np.ndarray, factor: np.ndarray | None = None) -> np.ndarray:
     """(N,) diagonal of the hat matrix ``J (J^T J)^+ J^T`` of a residual Jacobian (N, p),
     over its determined directions (singular values above ``SINGULAR_RTOL`` of the
-    largest)."""
+    largest): ``|J V_d S_d^-1|^2`` per row, from the SVD ``U S V^T`` of ``J``, or of
+    ``factor`` (any (m, p) matrix with the same ``J^T J``: ``jacobian`` may then be some of
+    ``J``'s rows only)."""
     if jacobian.size == 0:
         return np.zeros(jacobian.shape[0])
-    u, s, _ = np.linalg.svd(jacobian, full_matrices=False)
+    _, s, vt = np.linalg.svd(jacobian if factor is None else factor, full_matrices=False)
     keep = s > SINGULAR_RTOL * s.max() if s.size and s.max() > 0 else np.zeros(s.size, bool)
-    return np.sum(u[:, keep] ** 2, axis=1)
+    return np.sum((jacobian @ (vt[keep].T / s[keep])) ** 2, axis=1)
 
 
 def _standardise(residuals: np.ndarray, h: np.ndarray, sigma: float) -> np.ndarray:

@@ -52,6 +52,7 @@ from stiffness.calibration.identifiability import (
     NEAR_ALIAS_RESOLUTION,
     Identifiability,
     Layout,
+    stacked_triangular,
     triangular,
 )
 from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_noise
@@ -82,8 +83,9 @@ MAX_EVALUATIONS = 200
 #: Smallest ``1 - leverage`` of a configuration's components for :func:`held_out_rms` (below
 #: it, leaving the configuration out leaves a direction of the parameters undetermined).
 LEVERAGE_TOL = 1e-9
-#: Configurations :func:`held_out_rms` treats as one array (bounds its memory).
-HELD_OUT_BLOCK = 4096
+#: Configurations :func:`held_out_rms` treats as one array (bounds its memory: their rows of
+#: the Jacobian and hat blocks).
+HELD_OUT_BLOCK = 1024
 #: Largest deletion step (in typical sizes of a parameter) :func:`held_out_rms` takes to
 #: first order; a configuration whose step is larger is predicted by the model itself.
 HELD_OUT_LINEAR_STEPS = 10.0
@@ -142,11 +144,14 @@ class PoseFit:
     rotation_weight
         ``sigma_t / sigma_r`` (m/rad) the orientations were weighted by
         (:mod:`stiffness.calibration.pose_orientation`), or ``None``.
-    jacobian
-        (N, k) d(residual components)/d(kept parameters) at the optimum, the components in
-        :meth:`components`'s order (the held-out criterion's hat matrix, :func:`held_out_rms`).
-    component_rows
-        (N,) the campaign row of each residual component.
+    factor
+        (m, k) a matrix whose ``F^T F`` is ``J^T J`` for ``J`` the (N, k) d(residual
+        components)/d(kept parameters) at the optimum (the solver's factor, never ``J``
+        itself: a large campaign's Jacobian is not kept): the held-out criterion's hat
+        matrix (:func:`held_out_rms`) and the leverages (:func:`flag_pose_outliers`).
+    observations
+        What the fit compared: ``J``'s rows are evaluated again from it at ``x``, a block
+        at a time.
     unbounded_covariance
         With parameters at their bound, the (k, k) covariance of the kept parameters none of
         them held (:meth:`interval`); else ``None``.
@@ -164,8 +169,8 @@ class PoseFit:
     converged: bool = True
     rotation_residual: np.ndarray | None = None
     rotation_weight: float | None = None
-    jacobian: np.ndarray | None = None
-    component_rows: np.ndarray | None = None
+    factor: np.ndarray | None = None
+    observations: PoseObservations | None = None
     at_bound: list[int] = field(default_factory=list)
     unbounded_covariance: np.ndarray | None = None
 
@@ -264,18 +269,24 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     ``model``'s families (``x0`` its optimum, zero for the others), this is the score-test
     screen of adding the others: what their columns explain of the residual beyond the fitted
     ones, to first order (infinite where the sag diverges at ``x0``)."""
-    try:
-        residual, jac = PoseObservations(model, campaign, rows).evaluate(x0)
+    obs = PoseObservations(model, campaign, rows)
+    plan = layout(model, order)
+    try:  # the residual and the Jacobian through their factor R (observed_factor)
+        tri = observed_factor(obs, x0)
     except ConvergenceError:
         return math.inf, 0
-    assert jac is not None
-    plan = layout(model, order)
-    jac *= plan.scales  # in place: a large campaign's Jacobian is not copied to be scaled
-    kept = plan.reduce(jac).kept
-    columns = jac[:, kept]
-    del jac
-    step, *_ = np.linalg.lstsq(columns, residual, rcond=None)
-    return objective_rss(residual - columns @ step, loss, sigma), len(kept)
+    kept = plan.reduce(tri[:, 1:] * plan.scales).kept
+    # |r - J_kept s| = |R_r - R_kept s| for every s: the least squares on the factor
+    scales = plan.scales[kept]  # the step in typical sizes: lstsq's cut-off is relative
+    columns = tri[:, [1 + c for c in kept]] * scales
+    step, *_ = np.linalg.lstsq(columns, tri[:, 0], rcond=None)
+    if loss == "linear":
+        left = tri[:, 0] - columns @ step
+        return float(left @ left), len(kept)
+    after = np.empty(obs.size)  # a robust loss needs the residuals: a second pass
+    for index, r, j in obs.blocks(x0):
+        after[index] = r - (j[:, kept] * scales) @ step
+    return objective_rss(after, loss, sigma), len(kept)
 
 
 def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
@@ -283,9 +294,9 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     """Leave-one-configuration-out RMS of the position residual (m) without refitting: each
     configuration predicted by the parameters the fit would reach without it, to first order.
 
-    With ``J`` the fit's Jacobian over its kept parameters at the optimum (:attr:`PoseFit.
-    jacobian`, full column rank by the identifiable reduction; a parameter at its physical
-    bound held there: its column left out) and ``r`` its residual, leaving configuration
+    With ``J`` the fit's Jacobian over its kept parameters at the optimum (full column rank
+    by the identifiable reduction; a parameter at its physical bound held there: its column
+    left out) and ``r`` its residual, leaving configuration
     ``G``'s components out moves the parameters by ``dx_G = R^-1 Q_G^T (I - H_G)^-1 r_G``
     (``J = Q R``, ``H_G = Q_G Q_G^T`` the hat matrix's block of ``G``: the deletion formula,
     exact for a model linear in its parameters, the refit's Gauss-Newton step otherwise), and
@@ -299,9 +310,10 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     (its leverage reaches 1 within :data:`LEVERAGE_TOL`) or the sag diverges at a
     configuration's shifted parameters: the campaign cannot validate those parameters.
 
-    ``R`` comes from a QR of ``J`` in blocks of rows, then the configurations' blocks ``H_G``
-    and solves are stacked arrays, :data:`HELD_OUT_BLOCK` configurations at a time (memory
-    bounded besides ``J`` itself): no model evaluation but for the far steps.
+    ``R`` comes from the fit's factor (:attr:`PoseFit.factor`), then the configurations'
+    blocks ``H_G`` and solves are stacked arrays, :data:`HELD_OUT_BLOCK` configurations at a
+    time, their rows of ``J`` evaluated again at the optimum (memory bounded: ``J`` is never
+    held whole), and the far steps' predictions.
 
     Parameters
     ----------
@@ -312,14 +324,15 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
         Called with (configurations done, configurations) after each block of them (a
         progress bar), or ``None``.
     """
-    jac, rows = fit.jacobian, fit.component_rows
-    if jac is None or rows is None:
+    obs = fit.observations
+    if fit.factor is None or obs is None:
         raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
+    rows = obs.component_rows()
     r = fit.components()
     free = [c for c, i in enumerate(fit.identifiability.kept) if i not in fit.at_bound]
     kept = [fit.identifiability.kept[c] for c in free]
     scale = np.array([fit.model.parameters[i].scale for i in kept])
-    tri = triangular(jac, free)
+    tri = triangular(fit.factor, free)
     _, label_group = np.unique(np.asarray(campaign.labels), return_inverse=True)
     label_group = label_group.ravel()
     members = _padded(label_group[rows])  # each configuration's components, -1 padded
@@ -327,7 +340,13 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     held, far = [], []
     for start in range(0, members.shape[0], HELD_OUT_BLOCK):
         block = members[start:start + HELD_OUT_BLOCK]
-        deleted = _deletion(jac, free, tri, r, block)
+        index = np.unique(block[block >= 0])
+        try:
+            jac = obs.jacobian_rows(fit.x, index)[:, kept]
+        except ConvergenceError:  # the sag diverges at the optimum: not a fit to choose
+            return math.inf
+        deleted = _deletion(jac, tri, r[index],
+                            np.where(block >= 0, np.searchsorted(index, block), -1))
         if deleted is None:
             return math.inf
         press, step = deleted
@@ -351,17 +370,17 @@ def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
     return math.sqrt(objective_rss(errors, fit.loss, fit.sigma) / max(errors.size, 1))
 
 
-def _deletion(jac: np.ndarray, free: list[int], tri: np.ndarray, r: np.ndarray,
-              block: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """For each configuration of ``block`` (its components' indices, -1 padded), the PRESS
-    residual ``(I - H_G)^-1 r_G`` (padded like ``block``, zero at the padding) and the
-    deletion step ``dx_G`` (k,) (:func:`held_out_rms`; ``jac[:, free] = Q tri``); ``None`` when a
-    leverage reaches 1 within :data:`LEVERAGE_TOL`."""
+def _deletion(jac: np.ndarray, tri: np.ndarray, r: np.ndarray, block: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """For each configuration of ``block`` (its components' indices into ``jac``'s rows and
+    ``r``, -1 padded), the PRESS residual ``(I - H_G)^-1 r_G`` (padded like ``block``, zero
+    at the padding) and the deletion step ``dx_G`` (k,) (:func:`held_out_rms`; the fit's
+    Jacobian ``J = Q tri``, ``jac`` some of its rows); ``None`` when a leverage reaches 1
+    within :data:`LEVERAGE_TOL`."""
     pad = block < 0
     index = np.where(pad, 0, block)
     # Q_G = J_G R^-1, zero rows at the padding (where I - H_G is then 1)
-    qg = linalg.solve_triangular(tri, jac[np.ix_(index.ravel(), np.asarray(free, dtype=int))].T,
-                                trans="T").T
+    qg = linalg.solve_triangular(tri, jac[index.ravel()].T, trans="T").T
     qg = qg.reshape(block.shape + (tri.shape[0],)) * ~pad[..., None]
     a = np.eye(block.shape[1]) - qg @ np.swapaxes(qg, 1, 2)
     if np.linalg.eigvalsh(a)[:, 0].min(initial=1.0) < LEVERAGE_TOL:
@@ -447,6 +466,21 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     return _finish(obs, campaign, sol, jac, fun, loss, (noise, source))
 
 
+def observed_factor(obs: PoseObservations, x: np.ndarray) -> np.ndarray:
+    """``R`` (at most (p + 1, p + 1)) of ``[r, J] = Q R`` at ``x``: ``obs``'s residuals and
+    Jacobian, by QR of blocks of rows stacked
+    (:func:`~stiffness.calibration.identifiability.stacked_triangular`): a large campaign's
+    Jacobian is never held whole.
+
+    Raises
+    ------
+    ConvergenceError
+        The sag diverges at ``x``.
+    """
+    return stacked_triangular((np.column_stack([r, j]) for _, r, j in obs.blocks(x)),
+                              obs.model.size + 1)
+
+
 class PoseProblem:
     """A pose campaign's observation (:class:`stiffness.calibration.solver.Problem`):
     predicted minus measured components (m; orientations weighted) of ``obs`` and their
@@ -458,6 +492,7 @@ class PoseProblem:
         self.obs, self.noise = obs, noise
         self.layout = layout(obs.model, order)
         self.lower = np.array([p.lower for p in obs.model.parameters])
+        self._factor: tuple[np.ndarray, np.ndarray] | None = None
 
     def fun(self, x: np.ndarray) -> np.ndarray:
         """Predicted minus measured (m); :data:`DIVERGED_RESIDUAL_M` where the sag diverges
@@ -491,15 +526,21 @@ class PoseProblem:
         """The parameters' physical lower bounds; no upper ones."""
         return self.lower, np.full(self.lower.size, np.inf)
 
+    def factor(self, x: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """``R`` of ``[r, J[:, columns]] = Q R`` at ``x`` (:class:`~stiffness.calibration.
+        solver.Factored`), from :func:`observed_factor` (kept for the last ``x``)."""
+        if self._factor is None or not np.array_equal(self._factor[0], x):
+            self._factor = (np.array(x, dtype=float), observed_factor(self.obs, x))
+        return triangular(self._factor[1], [0] + [1 + int(c) for c in columns])
+
     def columns(self, x: np.ndarray, final: bool) -> np.ndarray | None:
-        """The regressor at ``x`` times the typical sizes, over the noise std when known."""
-        try:  # not kept, and whitened in place: no copy of a large campaign's Jacobian
-            _, jac = self.obs.evaluate(x, keep=False)
+        """The regressor at ``x`` times the typical sizes, over the noise std when known: a
+        (p + 1, p) matrix with its inner products (``a^T a``), what identifiability uses."""
+        try:
+            tri = self.factor(x, np.arange(self.obs.model.size))
         except ConvergenceError:
             return None
-        assert jac is not None
-        jac *= self.layout.scales / (self.noise or 1.0)
-        return jac
+        return tri[:, 1:] * (self.layout.scales / (self.noise or 1.0))
 
     def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
         """``x`` with the parameters left out at zero (all at zero where the sag diverges
@@ -535,7 +576,8 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
             fun: np.ndarray, loss: str = "linear",
             robust_scale: tuple[float, str] | None = None) -> PoseFit:
     """The fit at the solver's optimum ``sol`` from the residuals ``fun`` (predicted minus
-    measured, m; orientations weighted) and their Jacobian ``jac`` over the kept parameters;
+    measured, m; orientations weighted) and their Jacobian ``jac`` over the kept parameters
+    (or a factor of it with the same ``J^T J``: the solver's, :class:`PoseProblem`);
     ``robust_scale`` the (noise std, source) scaling a robust ``loss``. The covariance is the
     engine's (:func:`~stiffness.calibration.solver.covariance_matrix`, in the parameters'
     typical sizes), of the declared noise, else the residual's (least squares), or the
@@ -566,8 +608,9 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
         cov[bound, bound] = np.diag(unbounded)[bound]
     return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, sigma, source, loss=loss,
                    converged=sol.status > 0, rotation_residual=rotation,
-                   rotation_weight=obs.weight, jacobian=jac,
-                   component_rows=obs.component_rows(), at_bound=list(sol.at_bound),
+                   rotation_weight=obs.weight,
+                   factor=jac if jac.shape[0] <= k + 1 else triangular(jac), observations=obs,
+                   at_bound=list(sol.at_bound),
                    unbounded_covariance=unbounded if bound else None)
 
 
@@ -589,9 +632,12 @@ def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign
     campaign
         The campaign the fit was made on (its labels and CSV lines name the rows).
     """
-    if fit.jacobian is None:
+    obs = fit.observations
+    if fit.factor is None or obs is None:
         raise StiffnessError("this fit keeps no Jacobian; fit it with fit_pose_model")
-    h = leverage(fit.jacobian)
+    h = np.empty(obs.size)  # the Jacobian's rows a block at a time
+    for index, _, jac in obs.blocks(fit.x):
+        h[index] = leverage(jac[:, fit.identifiability.kept], fit.factor)
     n = fit.residual.shape[0]
     parts: list[tuple[np.ndarray, tuple[str, ...]]] = [(-fit.residual, ("x", "y", "z"))]
     if fit.rotation_residual is not None and fit.rotation_weight is not None:

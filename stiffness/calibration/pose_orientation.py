@@ -22,11 +22,13 @@ Units: SI (m, rad).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model import ROW_BLOCK, Marker, PoseModel
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import StiffnessError
 
@@ -70,7 +72,7 @@ class PoseObservations:
         self._last: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._handed = False  # whether a Jacobian was computed (only the first is kept)
         self.observed = np.isfinite(campaign.positions)
-        self.measured = campaign.positions[self.observed]
+        self.positions = campaign.positions
         self.weight = rotation_weight(campaign)
         self.shape = campaign.positions.shape
         if self.weight is None or campaign.rotations is None:
@@ -109,38 +111,88 @@ class PoseObservations:
             if jacobian:
                 self._last = (last[0], last[1], None)
             return last[1].copy(), last[2] if jacobian else None
-        residual, jac = self._evaluate(x, jacobian)
+        residual = np.empty(self.size)
+        jac = np.empty((self.size, self.model.size)) if jacobian else None
+        for rows in self._row_blocks():
+            index = self.components_of(rows)
+            residual[index], part = self._evaluate(x, jacobian, rows)
+            if jac is not None and part is not None:
+                jac[index] = part
         self._last = (np.array(x, dtype=float), residual,
                       None if self._handed or not keep else jac)
         self._handed = self._handed or jac is not None
         return residual.copy(), jac
 
-    def _evaluate(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`evaluate` without the kept result."""
+    def blocks(self, x: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """:meth:`evaluate` in blocks of :data:`~stiffness.calibration.pose_model.ROW_BLOCK`
+        rows, what a large campaign's fit holds at once: per block, its components' indices
+        in :meth:`evaluate`'s vector, their residuals and Jacobian (components, p)."""
+        for rows in self._row_blocks():
+            residual, jac = self._evaluate(x, True, rows)
+            assert jac is not None
+            yield self.components_of(rows), residual, jac
+
+    def _row_blocks(self) -> Iterator[np.ndarray]:
+        """The campaign rows in blocks of :data:`~stiffness.calibration.pose_model.
+        ROW_BLOCK` (a model of row-at-once families evaluates that many together)."""
+        n = self.shape[0]
+        for start in range(0, n, ROW_BLOCK):
+            yield np.arange(start, min(n, start + ROW_BLOCK))
+
+    def jacobian_rows(self, x: np.ndarray, components: np.ndarray) -> np.ndarray:
+        """The rows ``components`` (indices into :meth:`evaluate`'s vector) of the Jacobian
+        (len(components), p) at ``x``: only their campaign rows evaluated."""
+        rows = np.unique(self.component_rows()[components])
+        _, jac = self._evaluate(x, True, rows)
+        assert jac is not None
+        return jac[np.searchsorted(self.components_of(rows), components)]
+
+    def components_of(self, rows: np.ndarray) -> np.ndarray:
+        """The indices into :meth:`evaluate`'s vector of the components of ``rows``
+        (ascending campaign rows), ascending: what :meth:`_evaluate` of them returns."""
+        counts = [self.observed.reshape(self.shape[0], -1).sum(axis=1),
+                  self.seen_rotation.reshape(self.shape[0], -1).sum(axis=1)]
+        out, before = [], 0
+        for count in counts:
+            starts = np.concatenate([[0], np.cumsum(count)[:-1]]) + before
+            sizes = count[rows]
+            out.append(np.repeat(starts[rows] - np.cumsum(sizes) + sizes, sizes)
+                       + np.arange(sizes.sum()))
+            before += int(count.sum())
+        return np.concatenate(out).astype(int)
+
+    def _evaluate(self, x: np.ndarray, jacobian: bool, rows: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`evaluate`'s components of ``rows`` (ascending campaign rows) alone."""
+        terms = [self.rows[i] for i in rows]
+        observed = self.observed[rows]
+        measured = self.positions[rows][observed]
         if self.aux is None:
-            y, jac = self.model.evaluate(x, self.rows, jacobian)
-            return (y[self.observed] - self.measured,
-                    None if jac is None else self._observed_rows(jac))
-        y, rot, jac_p, jac_r = self.oriented(x, jacobian)
+            y, jac = self.model.evaluate(x, terms, jacobian)
+            return (y[observed] - measured,
+                    None if jac is None else self._observed_rows(jac, observed))
+        y, rot, jac_p, jac_r = self.oriented(x, jacobian, terms)
         w = self.weight
         assert w is not None  # orientations are fitted only with their weight
+        seen = self.seen_rotation[rows]
         error = np.array([[pin.log3(r @ inv) for r, inv in zip(rr, ii, strict=True)]
-                          for rr, ii in zip(rot, self.inverse_measured, strict=True)])
-        residual = np.concatenate([y[self.observed] - self.measured,
-                                   w * error[self.seen_rotation]])
+                          for rr, ii in zip(rot, self.inverse_measured[rows], strict=True)])
+        error = error.reshape(rot.shape[:3])
+        residual = np.concatenate([y[observed] - measured, w * error[seen]])
         if not jacobian:
             return residual, None
         assert jac_p is not None and jac_r is not None
         left = np.array([[_inverse_left_jacobian(e) for e in row] for row in error])
-        jac_e = np.einsum("nmab,nmbp->nmap", left, jac_r)
-        return residual, np.vstack([jac_p[self.observed], w * jac_e[self.seen_rotation]])
+        jac_e = np.einsum("nmab,nmbp->nmap", left.reshape(rot.shape[:2] + (3, 3)), jac_r)
+        return residual, np.vstack([jac_p[observed], w * jac_e[seen]])
 
-    def _observed_rows(self, jac: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _observed_rows(jac: np.ndarray, observed: np.ndarray) -> np.ndarray:
         """The measured components' rows of a (n, M, 3, p) Jacobian: a view when every
         component is measured (a large campaign's Jacobian is not copied)."""
-        if self.observed.all():
+        if observed.all():
             return jac.reshape(-1, jac.shape[-1])
-        return jac[self.observed]
+        return jac[observed]
 
     def split(self, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Measured minus predicted positions (n, M, 3) in m and orientations (n, M, 3) in
@@ -156,13 +208,15 @@ class PoseObservations:
         rot[self.seen_rotation] = -residual[n_pos:] / self.weight
         return pos, rot
 
-    def oriented(self, x: np.ndarray, jacobian: bool = True
+    def oriented(self, x: np.ndarray, jacobian: bool = True,
+                 rows: list[RowTerms] | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """Positions (n, M, 3), orientations (n, M, 3, 3), both in measuring axes, and their
         Jacobians: d y / d x (n, M, 3, p) and the rotation vector's d theta / d x
-        (n, M, 3, p) (module docstring)."""
+        (n, M, 3, p) (module docstring), of ``rows`` (default every row)."""
         assert self.aux is not None
-        y4, j4 = self.aux.evaluate(self.expand @ x, self.rows, jacobian)
+        rows = self.rows if rows is None else rows
+        y4, j4 = self.aux.evaluate(self.expand @ x, rows, jacobian)
         n, m = y4.shape[0], y4.shape[1] // 4
         y4 = y4.reshape(n, m, 4, 3)
         axes, rot = _frames(y4)

@@ -36,7 +36,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -156,6 +156,17 @@ class Problem(Protocol):
         ...
 
 
+@runtime_checkable
+class Factored(Problem, Protocol):
+    """A problem whose Jacobian is never held whole (a large pose campaign's): its least
+    squares runs on a triangular factor of it (:func:`solve`), computed from blocks of rows."""
+
+    def factor(self, x: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """``R`` (at most (k + 1, k + 1), upper triangular) of ``[r, J[:, columns]] = Q R``
+        at ``x``: ``r`` :meth:`fun`'s residuals, ``J`` :meth:`jac`'s Jacobian."""
+        ...
+
+
 @dataclass
 class Options:
     """The solver's settings: ``method`` (``trf``, or ``lm``: Levenberg-Marquardt, least
@@ -178,7 +189,8 @@ class Solution:
     scipy's ``success``, ``status`` and ``message``, the evaluations (``nfev``), the columns left
     at a bound (``at_bound``, set exactly there in ``x``), and scipy's residuals ``fun`` and
     Jacobian ``jac`` over the kept columns at the optimum (``jac`` reweighted by a robust
-    loss)."""
+    loss; for a :class:`Factored` problem's least squares the (k + 1, k) factor
+    ``[r^T J / |r|; R_2]`` instead, :func:`solve`: the same ``J^T J`` and ``J^T r``)."""
 
     x: np.ndarray
     identifiability: Identifiability
@@ -228,7 +240,18 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
 def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
           options: Options) -> Solution:
     """:func:`scipy.optimize.least_squares` of ``problem`` over the kept columns of ``ident``,
-    the others held at ``x0`` (module docstring)."""
+    the others held at ``x0`` (module docstring).
+
+    A :class:`Factored` problem's least squares (linear loss) is handed to scipy on k + 1
+    rows: the residuals ``[|r|, 0, ..., 0]`` and the Jacobian ``[r^T J / |r|; R_2]``, the
+    factor ``R`` of ``[r, J] = Q R`` (:meth:`Factored.factor`) without its first column.
+    Its ``J^T J`` and ``J^T r`` are the full problem's, and so is ``|r|``: every quantity
+    Levenberg-Marquardt and trust-region reflective use (the steps, which depend on the
+    Jacobian only through ``J^T J`` and ``J^T r``; the predicted and actual reductions; the
+    column-norm scaling; the gradient test) is the full problem's, while only a block of the
+    Jacobian's rows is ever held (``sol.fun`` is then the full residual at the optimum, and
+    ``sol.jac`` that factor).
+    """
     free = np.asarray(ident.kept, dtype=int)  # the solver's variables, in the kept order
     if not free.size:
         fun = problem.fun(x0)
@@ -252,11 +275,27 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
         x[free] = z
         return x
 
+    factored = options.loss == "linear" and isinstance(problem, Factored)
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        if not factored:
+            return problem.fun(full(z))
+        out = np.zeros(free.size + 1)
+        out[0] = np.linalg.norm(problem.fun(full(z)))
+        return out
+
+    def jacobian(z: np.ndarray) -> np.ndarray:
+        if not isinstance(problem, Factored) or not factored:
+            return problem.jac(full(z))[:, free]
+        tri = problem.factor(full(z), free)
+        tri[0] *= -1.0 if tri[0, 0] < 0 else 1.0  # R[0, 0] = |r|: r = Q[:, 0] |r|
+        out = np.zeros((free.size + 1, free.size))
+        out[:tri.shape[0]] = tri[:, 1:]
+        return out
+
     def run(z0: np.ndarray, method: str, bounded: bool):
         extra = {"bounds": (lo, hi)} if bounded and bounds is not None else {}
-        return least_squares(lambda z: problem.fun(full(z)), z0,
-                             jac=lambda z: problem.jac(full(z))[:, free], method=method,
-                             **kwargs, **extra)
+        return least_squares(residual, z0, jac=jacobian, method=method, **kwargs, **extra)
 
     sol = run(x0[free], options.method, options.method == "trf")
     nfev = int(sol.nfev)
@@ -271,7 +310,8 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
     active = np.flatnonzero(sol.active_mask)
     z = np.where(sol.active_mask < 0, lo, np.where(sol.active_mask > 0, hi, sol.x))
     return Solution(full(z), ident, bool(sol.success), int(sol.status), str(sol.message), nfev,
-                    [int(i) for i in free[active]], sol.fun, sol.jac)
+                    [int(i) for i in free[active]],
+                    problem.fun(full(sol.x)) if factored else sol.fun, sol.jac)
 
 
 @dataclass
