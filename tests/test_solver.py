@@ -8,7 +8,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from stiffness.calibration.identifiability import Identifiability, Layout, same_span
-from stiffness.calibration.solver import Options, covariance_matrix, fit, solve
+from stiffness.calibration.solver import Factored, Options, covariance_matrix, fit, solve
 
 
 class Linear:
@@ -37,6 +37,54 @@ class Linear:
 
     def start(self, x, ident):
         return np.array(x, dtype=float)
+
+
+class Curve(Linear):
+    """Residuals ``x0 exp(-x1 t) + x2 sin(x3 t) - y`` over 400 samples, ``x >= 0``: a
+    nonlinear problem handing scipy its full Jacobian."""
+
+    def __init__(self, y: np.ndarray) -> None:
+        super().__init__(np.zeros((y.size, 4)), y)
+        self.t = np.linspace(0.0, 4.0, y.size)
+
+    def fun(self, x):
+        return x[0] * np.exp(-x[1] * self.t) + x[2] * np.sin(x[3] * self.t) - self.b
+
+    def jac(self, x):
+        e, s = np.exp(-x[1] * self.t), np.sin(x[3] * self.t)
+        return np.column_stack([e, -x[0] * self.t * e, s,
+                                x[2] * self.t * np.cos(x[3] * self.t)])
+
+
+class FactoredCurve(Curve):
+    """The same problem as a :class:`Factored` one: R of ``[r, J]`` from two row blocks."""
+
+    def factor(self, x, columns):
+        whole = np.column_stack([self.fun(x), self.jac(x)[:, columns]])
+        top = np.linalg.qr(whole[:150], mode="r")
+        return np.linalg.qr(np.vstack([top, whole[150:]]), mode="r")
+
+
+def test_a_factored_problem_takes_the_full_problems_steps():
+    """Levenberg-Marquardt and trust-region reflective (a bound active) on the (k + 1)-row
+    factor reach the full problem's optimum in the same number of evaluations (the same
+    steps), its residual returned whole and a factor with its J^T J."""
+    t = np.linspace(0.0, 4.0, 400)
+    rng = np.random.default_rng(4)
+    for truth, method in (([2.0, 0.7, 0.5, 3.0], "lm"), ([2.0, -0.2, 0.5, 3.0], "trf")):
+        y = truth[0] * np.exp(-truth[1] * t) + truth[2] * np.sin(truth[3] * t)
+        y = y + 0.01 * rng.normal(size=t.size)
+        full, factored = Curve(y), FactoredCurve(y)
+        assert isinstance(factored, Factored) and not isinstance(full, Factored)
+        x0 = np.array([1.0, 1.0, 0.3, 2.9])
+        a = solve(full, x0, Identifiability.full(4), Options(method, 1e-12))
+        b = solve(factored, x0, Identifiability.full(4), Options(method, 1e-12))
+        np.testing.assert_allclose(b.x, a.x, rtol=1e-9, atol=1e-12)
+        assert (a.nfev, a.at_bound) == (b.nfev, b.at_bound)
+        assert b.at_bound == ([1] if method == "trf" else [])
+        np.testing.assert_allclose(b.fun, full.fun(b.x), atol=1e-15)
+        assert b.jac.shape == (5, 4)
+        np.testing.assert_allclose(b.jac.T @ b.jac, a.jac.T @ a.jac, rtol=1e-8)
 
 
 def test_levenberg_marquardt_past_a_bound_is_refitted_under_it_as_nnls():
