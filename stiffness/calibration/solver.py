@@ -301,10 +301,11 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
     nfev = int(sol.nfev)
     if options.method == "lm" and np.any((sol.x < lo) | (sol.x > hi)):
         # past a bound: the bounded fit from the clipped optimum (or, where the model cannot
-        # be evaluated there, from the bounded parameters at their bound)
-        start = np.clip(sol.x, lo, hi)
-        if problem.failed(full(start)):
-            start = np.where(np.isfinite(lo), lo, np.where(np.isfinite(hi), hi, sol.x))
+        # be evaluated there, from the bounded parameters at their bound, else from the start)
+        starts = [np.clip(sol.x, lo, hi),
+                  np.where(np.isfinite(lo), lo, np.where(np.isfinite(hi), hi, sol.x)),
+                  np.clip(x0[free], lo, hi)]
+        start = next((z for z in starts[:-1] if not problem.failed(full(z))), starts[-1])
         sol = run(start, "trf", True)
         nfev += int(sol.nfev)
     active = np.flatnonzero(sol.active_mask)
