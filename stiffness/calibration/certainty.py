@@ -3,9 +3,10 @@
 For each effect of the final model:
 
 * **held-out cost of removing it**: the final model refitted without it (from the final
-  parameters), cross-validated over the same configuration folds; the cost is that model's
-  cross-validated RMS minus the final model's (m): what predicting unseen configurations
-  loses without the effect. Its in-sample counterpart is the BIC change of the removal
+  parameters), judged by the kind's held-out criterion (a deflection campaign's configuration
+  folds, a pose campaign's leave-one-configuration-out); the cost is that model's held-out RMS
+  minus the final model's (m): what predicting unseen configurations loses without the
+  effect. Its in-sample counterpart is the BIC change of the removal
   (positive: the effect earns its parameters).
 * **best alternative**: the best-ranked other candidate of the step that named it, and its BIC
   minus the chosen one's (a few units: a coin toss; tens: solid).
@@ -13,8 +14,8 @@ For each effect of the final model:
   determined`) but beyond its physical scale: the data prefer the effect's shape, its size is
   not physical (a finding only of that shape).
 
-The rules (stand-in, best alternative) are :mod:`stiffness.calibration.naming`'s, shared with
-pose diagnoses; this module refits a deflection campaign's final model without each effect.
+The rules (stand-in, best alternative) are :mod:`stiffness.calibration.naming`'s; the removals
+and their held-out RMS the campaign kind's (:class:`~stiffness.calibration.search.SearchKind`).
 
 SI inside; :meth:`Certainty.to_dict` in the campaign's length unit.
 """
@@ -22,15 +23,16 @@ SI inside; :meth:`Certainty.to_dict` in the campaign's length unit.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
-import numpy as np
+from stiffness.calibration.naming import STAND_IN_NOTE, alternative
+from stiffness.calibration.search import SearchKind
+from stiffness.calibration.selection import information_criterion
 
-from stiffness.calibration import fitting
-from stiffness.calibration.fitting import Fit
-from stiffness.calibration.naming import STAND_IN_NOTE, alternative, is_stand_in
-from stiffness.calibration.selection import cross_validate, fit_job, information_criterion
-from stiffness.elastic.effects.base import Parameter
+E = TypeVar("E")
+F = TypeVar("F")
 
 
 @dataclass
@@ -80,42 +82,23 @@ class Certainty:
                 f"{alt}{verdict}")
 
 
-def certainty(final: Fit, steps: list, parameters: dict[str, list[Parameter]],
-              measured: np.ndarray, folds: list[np.ndarray], cv_final: float, n: int,
-              sigma: float | None, workers: int | None = None) -> list[Certainty]:
-    """The :class:`Certainty` of each effect of ``final`` (in order), from the diagnosis's
-    ``steps`` (:class:`~stiffness.calibration.diagnosis.Step`: their rankings), the final
-    ``parameters`` by effect label, the fitted observations (m), the folds, the final
-    model's cross-validated RMS (m), the residual count and the noise std (m, or None)."""
-    model = final.model
-    if not model.effects:
+def how_sure(kind: SearchKind[E, F], final: F, cv_final: float,
+             named: Sequence[tuple[str, Sequence[tuple[str, float]], float, bool]]
+             ) -> list[Certainty]:
+    """The :class:`Certainty` of each effect ``named`` by a diagnosis whose final fit is
+    ``final`` (held-out RMS ``cv_final``, m): its label, its step's ranking ``(label, delta
+    BIC)`` best first, its own BIC change and whether it is a stand-in; removed in turn
+    (:meth:`~stiffness.calibration.search.SearchKind.without`, judged held out by
+    :meth:`~stiffness.calibration.search.SearchKind.held_out_of`)."""
+    if not named:
         return []
-    jobs = []
-    for i in range(len(model.effects)):
-        keep = tuple(e for j, e in enumerate(model.effects) if j != i)
-        x = np.delete(final.x, np.arange(model.offsets[i + 1], model.offsets[i + 2]))
-        jobs.append(fit_job(model.with_effects(keep), measured, final.scale, x,
-                            loss=final.loss, f_scale=final.f_scale))
-    without = fitting.fit_models(jobs, workers)
-    cv = cross_validate(without, measured, folds, workers) if folds else [math.nan] * len(
-        without)
-    bic_final = information_criterion(final.loss_rss, n, final.penalty_params, sigma)
-    out = []
-    for i, (effect, fit, cv_without) in enumerate(zip(model.effects, without, cv,
-                                                      strict=True)):
-        step = steps[i] if i < len(steps) else None
-        other, d_alt = _alternative(step)
-        out.append(Certainty(
-            effect.label, cv_without - cv_final,
-            information_criterion(fit.loss_rss, n, fit.penalty_params, sigma) - bic_final,
-            other, d_alt, is_stand_in(parameters.get(effect.label, []))))
-    return out
 
+    def bic(fit: F) -> float:
+        rss, p = kind.terms(fit)
+        return information_criterion(rss, kind.n, p, kind.sigma)
 
-def _alternative(step) -> tuple[str | None, float | None]:
-    """The best other candidate of ``step``'s ranking and its BIC minus the chosen one's."""
-    if step is None:
-        return None, None
-    ranking = [(r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})",
-                r["delta_bic"]) for r in step.ranking]
-    return alternative(ranking, step.effect.label, step.delta_bic)
+    without = kind.without(final)
+    return [Certainty(label, cv - cv_final, bic(fit) - bic(final),
+                      *alternative(ranking, label, delta), stand_in)
+            for (label, ranking, delta, stand_in), fit, cv
+            in zip(named, without, kind.held_out_of(without), strict=True)]

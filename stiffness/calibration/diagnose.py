@@ -7,27 +7,21 @@
 2. Break the baseline's residuals down by configuration, axis, load magnitude and load sign,
    against the noise level: the declared ``noise_std``, else the pooled scatter of replicate
    rows (same configuration and force), else (said so) the residual scatter of the final model.
-3. Extend the current model by each candidate of
-   :func:`stiffness.elastic.effects.candidates` (its own parameters identified jointly
-   with the stiffnesses; every candidate fitted to :data:`SCREEN_TOLERANCE`, the best
-   :data:`REFINE_TOP` refitted to the engine's tolerance, side by side in forked workers by
-   :func:`stiffness.calibration.fitting.fit_models`), rank them by BIC
-   (``RSS / sigma^2 + p ln N`` with a known sigma, ``N ln(RSS / N) + p ln N`` otherwise;
-   a parameter-free switch counts one parameter), keep those improving BIC by more than
-   :data:`BIC_MARGIN`, cross-validate the best :data:`CV_TOP` over configurations
-   (leave-one-configuration-out, or :data:`~stiffness.calibration.selection.CV_FOLDS`-fold
-   over configuration labels when there are many) and add the lowest-BIC one whose
-   cross-validated error beats the current model's.
-   Repeat until the model fits to noise (chi-square test of ``RSS / sigma^2`` at
-   :data:`~stiffness.calibration.selection.GOF_LEVEL` with ``N - p`` degrees of freedom,
-   known sigma only) or nothing helps. With a known sigma, each step's BICs use
-   ``c sigma^2``, ``c`` the step's overdispersion
-   (:func:`~stiffness.calibration.selection.step_criteria`): what the best extension leaves
-   above the noise counts as noise. If the search ends with the chi-square test still
-   rejecting, the result is *unexplained*
-   (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the final residual's
-   structure (:func:`~stiffness.calibration.breakdown.residual_structure`: by load direction
-   and row order, correlations with each joint's torque and angle) says where to look.
+3. Search (:func:`stiffness.calibration.search.search`, with :class:`DeflectionSearch`):
+   extend the current model by each candidate of :func:`stiffness.elastic.effects.candidates`
+   (its own parameters identified jointly with the stiffnesses; every candidate fitted to
+   :data:`SCREEN_TOLERANCE`, the best :data:`REFINE_TOP` refitted to the engine's tolerance,
+   side by side in forked workers by :func:`stiffness.calibration.fitting.fit_models`), rank
+   them by BIC (``RSS / sigma^2 + p ln N`` with a known sigma, ``N ln(RSS / N) + p ln N``
+   otherwise, under the step's overdispersion; a parameter-free switch counts one parameter),
+   cross-validate the best over configurations (leave-one-configuration-out, or
+   :data:`~stiffness.calibration.selection.CV_FOLDS`-fold over configuration labels when there
+   are many) and add the first that beats the current model's; until the model fits to noise
+   or nothing helps. If the search ends with the chi-square test still rejecting, the result
+   is *unexplained* (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the
+   final residual's structure (:func:`~stiffness.calibration.breakdown.residual_structure`:
+   by load direction and row order, correlations with each joint's torque and angle) says
+   where to look.
 4. Report the RMS after each step, each added effect's parameters with standard errors and 95 %
    intervals, the residuals before and after, the final model.
 5. Report the candidates the campaign cannot tell from the winner (BIC within
@@ -45,25 +39,26 @@ import dataclasses
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import overload
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar, overload
 
 import numpy as np
 
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
-from stiffness.calibration.certainty import certainty
-from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Candidate, Diagnosis, Step
+from stiffness.calibration.certainty import how_sure
+from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis, Step
 from stiffness.calibration.fitting import Fit, kind_noise, observations, parameter_labels
-from stiffness.calibration.naming import namable, one_sided, settle
+from stiffness.calibration.naming import is_stand_in, one_sided, settle
 from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise,
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
+from stiffness.calibration.search import Candidate, Stop, ranked, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -74,7 +69,6 @@ from stiffness.calibration.selection import (
     fit_baseline,
     fit_job,
     fit_model,
-    fits_to_noise,
     goodness_of_fit,
     held_at_bounds,
     held_ends,
@@ -82,7 +76,6 @@ from stiffness.calibration.selection import (
     interval_quantile,
     parameter_covariance,
     replicate_noise,
-    step_criteria,
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses
@@ -103,6 +96,8 @@ AMBIGUITY_BIC = 2.0
 WEAK_BIC = 6.0
 #: Cosine similarity of fitted residual reductions above which signatures are "similar".
 SIMILARITY_LIMIT = 0.95
+#: A deflection campaign's candidate: an effect of the library and its fit.
+Found = Candidate[Effect, Fit]
 
 
 def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float,
@@ -265,8 +260,13 @@ def diagnose(
     """
     if isinstance(campaign, PoseCampaign) or (
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
-        return _diagnose_poses(campaign, seed, progress, loss, masses, validate,
-                               (families, not_families))
+        if not isinstance(campaign, PoseCampaign):
+            campaign = load_pose_campaign(campaign)
+        if validate is not None and not isinstance(validate, PoseCampaign):
+            validate = load_pose_campaign(validate)
+        return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
+                              progress=progress, loss=loss, families=families,
+                              not_families=not_families)
     if validate is not None or families:
         raise StiffnessError("validate and families take pose campaigns; for a deflection "
                              "campaign diagnose reports the held-out (cross-validated) RMS of "
@@ -314,9 +314,11 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
     cv_base = cross_validate([base], measured, folds, workers)[0]
-    search = _Search(measured, folds, scale, n, sigma, workers, say,
-                     _declared_settings(base, effect_settings), masses, forbidden)
-    final, steps, ambiguities_raw, stop = search.run(base, cv_base, max_steps, campaign.units)
+    kind = DeflectionSearch(measured, folds, scale, n, sigma, workers, say,
+                            _declared_settings(base, effect_settings), campaign.units, masses,
+                            forbidden)
+    final, stop = search(kind, base, cv_base, max_steps)
+    steps = kind.steps
     p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
     sigma_used, note = _final_noise(final, n, sigma, note)
@@ -329,12 +331,15 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     cov_base = parameter_covariance(base, sigma_base, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
                                        tuple(campaign.config or ()), campaign.lines)
-    ambiguities = _ambiguities(ambiguities_raw, sigma_used, campaign, geo,
+    ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
                                seed if propose else None)
     final_parameters = _effect_parameters(final, cov_final, quantile, campaign.units,
                                           held_final)
-    sure = certainty(final, steps, final_parameters, measured, folds,
-                     steps[-1].cv_rms if steps else cv_base, n, sigma, workers)
+    sure = how_sure(kind, final, steps[-1].cv_rms if steps else cv_base, [
+        (e.label, [(r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})",
+                    r["delta_bic"]) for r in s.ranking], s.delta_bic,
+         is_stand_in(final_parameters.get(e.label, [])))
+        for e, s in zip(final.model.effects, steps, strict=True)])
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(base, cov_base, interval_quantile(
@@ -358,20 +363,6 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
         forbidden=list(forbidden),
     )
-
-
-def _diagnose_poses(campaign: PoseCampaign | str | os.PathLike, seed: int,
-                    progress: Callable[[str], None] | None, loss: str, masses: str,
-                    validate: PoseCampaign | str | os.PathLike | None,
-                    choice: tuple[Sequence[str], Sequence[str]]) -> PoseDiagnosis:
-    """:func:`diagnose` on a pose campaign (``choice``: the forced and forbidden families)."""
-    if not isinstance(campaign, PoseCampaign):
-        campaign = load_pose_campaign(campaign)
-    if validate is not None and not isinstance(validate, PoseCampaign):
-        validate = load_pose_campaign(validate)
-    return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
-                          progress=progress, loss=loss, families=choice[0],
-                          not_families=choice[1])
 
 
 def _check_options(max_steps: int, loss: str, masses: str) -> None:
@@ -512,9 +503,13 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
 
 
 @dataclass
-class _Search:
+class DeflectionSearch:
     """The effect search of :func:`diagnose` over fixed observations (m), cross-validation
-    folds, residual scale (m), residual count, noise std (m, or None) and workers."""
+    folds, residual scale (m), residual count, noise std (m, or None) and workers: a
+    deflection campaign's :class:`~stiffness.calibration.search.SearchKind` (the library's
+    effects screened by loose full fits, the best refined; held out over configuration
+    folds). Its :attr:`steps` and raw :attr:`ambiguities` ``(step, winner, other,
+    similarity)`` grow as :func:`~stiffness.calibration.search.search` adds effects."""
 
     measured: np.ndarray
     folds: list[np.ndarray]
@@ -524,54 +519,26 @@ class _Search:
     workers: int | None
     say: Callable[[str], None]
     declared: dict[str, dict]
+    units: Units
     masses: str = "known"
     forbidden: tuple[str, ...] = ()
+    steps: list[Step] = field(default_factory=list)
+    ambiguities: list[tuple[int, Found, Found, float]] = field(default_factory=list)
+    dispersion: float = 1.0
+    stops: ClassVar[dict[Stop, str]] = {
+        Stop.LEFT: "no candidate left",
+        Stop.BIC: f"no candidate improves BIC by more than {BIC_MARGIN:g}",
+        Stop.NAMED: ("the candidates that improve BIC determine none of their parameters "
+                     "within its physical scale with an interval excluding zero"),
+        Stop.HELD_OUT: ("no candidate that improves BIC also improves the error predicted "
+                        "for held-out configurations (cross-validation)")}
 
-    def run(self, base: Fit, cv_base: float, max_steps: int, units: Units
-            ) -> tuple[Fit, list[Step], list[tuple[int, Candidate, Candidate, float]], str]:
-        """Add effects until the model fits to noise, ``max_steps`` or nothing helps.
+    def terms(self, fit: Fit) -> tuple[float, int]:
+        return fit.loss_rss, fit.penalty_params
 
-        Returns
-        -------
-        The final fit, the steps, the raw ambiguities ``(step, winner, other, similarity)``
-        and why the search stopped.
-        """
-        current, cv_current = base, cv_base
-        steps: list[Step] = []
-        ambiguities: list[tuple[int, Candidate, Candidate, float]] = []
-        while True:
-            noise = fits_to_noise(current.loss_rss, self.n, current.penalty_params, self.sigma)
-            if noise is not None:
-                return current, steps, ambiguities, noise
-            if len(steps) >= max_steps:
-                return (current, steps, ambiguities,
-                        f"stopped after {max_steps} effects (max_steps)")
-            results, dispersion = self.candidates(current)
-            self.say(f"step {len(steps) + 1}: {len(results)} candidates; best "
-                     + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}"
-                                 for c in results[:3]))
-            winner, stop = self.winner(results, cv_current)
-            if winner is None:
-                return current, steps, ambiguities, stop
-            for c in results[:CV_TOP]:
-                if c is winner:
-                    continue
-                similarity = _similarity(current, winner.fit, c.fit, self.scale)
-                d_bic = c.bic - winner.bic
-                if d_bic < AMBIGUITY_BIC or (similarity > SIMILARITY_LIMIT
-                                             and d_bic < WEAK_BIC):
-                    ambiguities.append((len(steps) + 1, winner, c, similarity))
-            winner.fit = _fit_settings(winner.fit, self.measured, self.scale, self.n,
-                                       self.sigma, self.say)
-            winner.effect = winner.fit.model.effects[-1]
-            steps.append(self.step(winner, results, dispersion, units))
-            self.say(f"added {winner.effect.label}: RMS {winner.fit.rms():.4g} m")
-            assert winner.cv_rms is not None  # the winner was cross-validated
-            current, cv_current = winner.fit, winner.cv_rms
-
-    def candidates(self, current: Fit) -> tuple[list[Candidate], float]:
+    def candidates(self, current: Fit) -> list[Found] | None:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
-        by BIC, and the step's overdispersion."""
+        by BIC (the step's overdispersion kept), or ``None`` when there is none."""
         effects = [e for e in candidates(current.model, self.declared, self.masses)
                    if e.name not in self.forbidden]
         fits = list(zip(effects, fitting.fit_models(
@@ -579,7 +546,7 @@ class _Search:
                      current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,
                      loss=current.loss, f_scale=current.f_scale)
              for e in effects], self.workers), strict=True))
-        results, _ = _ranked(current, fits, self.n, self.sigma)
+        results, _ = ranked(self, current, fits)
         best = {id(c.effect) for c in results[:REFINE_TOP]}
         refine = [i for i, (e, _) in enumerate(fits) if id(e) in best]
         refined = fitting.fit_models([fit_job(fits[i][1].model, self.measured, self.scale,
@@ -588,40 +555,20 @@ class _Search:
                                      self.workers)
         for i, fit in zip(refine, refined, strict=True):
             fits[i] = (fits[i][0], fit)
-        return _ranked(current, fits, self.n, self.sigma)
+        results, self.dispersion = ranked(self, current, fits)
+        self.say(f"step {len(self.steps) + 1}: {len(results)} candidates; best "
+                 + ", ".join(f"{c.effect.label} dBIC {c.delta_bic:.3g}" for c in results[:3]))
+        return results or None
 
-    def winner(self, results: list[Candidate], cv_current: float
-               ) -> tuple[Candidate | None, str]:
-        """The lowest-BIC candidate past :data:`BIC_MARGIN` that is namable as fitted and
-        still once :meth:`settled` (holding parameters never makes a candidate namable), whose
-        settled model's cross-validated error beats ``cv_current`` (m), or ``None`` and why
-        not. The ranking keeps each candidate's BIC fitted in full."""
-        eligible = [c for c in results if c.delta_bic < -BIC_MARGIN]
-        if not eligible:
-            return None, (f"no candidate improves BIC by more than {BIC_MARGIN:g}" if results
-                          else "no candidate left")
-        tried = [c for c in eligible if self.namable(c.fit) and self.settled(c)][:CV_TOP]
-        if not tried:
-            return None, ("the candidates that improve BIC determine none of their parameters "
-                          "within its physical scale with an interval excluding zero")
-        winner = None
-        for c, cv in zip(tried, cross_validate([c.fit for c in tried], self.measured,
-                                               self.folds, self.workers), strict=True):
-            c.cv_rms = cv
-            if winner is None and (not self.folds or c.cv_rms < cv_current):
-                winner = c
-        if winner is None:
-            return None, ("no candidate that improves BIC also improves the error predicted "
-                          "for held-out configurations (cross-validation)")
-        return winner, ""
+    def parameters(self, c: Found) -> list[Parameter]:
+        return self.reported(c.fit, SI_UNITS)[c.fit.model.effects[-1].label]
 
-    def settled(self, c: Candidate) -> bool:
+    def settle(self, c: Found) -> Fit:
         """Issue 36.4 inside a family (:func:`stiffness.calibration.naming.settle`): the
         parameters of ``c``'s effect that the data do not determine held at their nominal
         value (the effect's start, :meth:`Effect.start`: a compensator's stiffness or preload
-        0, its base the declared one), the least determined first, each time the fit redone
-        (``c.fit`` replaced; the step's ranking keeps the BIC of the effect fitted in full).
-        Whether the effect may still be named (:meth:`namable`)."""
+        0, its base the declared one), the least determined first, each time the fit
+        redone."""
         effect = c.fit.model.effects[-1]
         start = c.fit.model.offsets[-2]
 
@@ -633,13 +580,61 @@ class _Search:
             return fit_job(fit.model.holding(held), self.measured, self.scale, x,
                            loss=fit.loss, f_scale=fit.f_scale).run()
 
-        full = c.fit
-        c.fit = settle(c.fit, lambda fit: self.parameters(fit, SI_UNITS)[effect.label],
-                       effect.physical_scale(c.fit.model.refs), hold)
-        c.settled = c.fit is not full
-        return self.namable(c.fit)
+        return settle(c.fit, lambda fit: self.reported(fit, SI_UNITS)[effect.label],
+                      effect.physical_scale(c.fit.model.refs), hold)
 
-    def parameters(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
+    def held_out(self, named: Iterator[Found]) -> Iterator[Found]:
+        """All cross-validated together over the folds (NaN without folds)."""
+        tried = list(named)
+        if tried:
+            for c, cv in zip(tried, cross_validate([c.fit for c in tried], self.measured,
+                                                   self.folds, self.workers), strict=True):
+                c.cv_rms = cv
+        return iter(tried)
+
+    def accept(self, current: Fit, winner: Found, ranking: list[Found]) -> Fit:
+        """The :class:`Step` adding ``winner`` (its declared settings fitted where the data
+        determine them, :func:`_fit_settings`): its parameters, the step's ranking, its BIC
+        change that of the fit it adds (a settled one's under the step's overdispersion, the
+        ranking keeping the full fit's); and the candidates it cannot be told from."""
+        for c in ranking[:CV_TOP]:
+            similarity = _similarity(current, winner.fit, c.fit, self.scale)
+            d_bic = c.bic - winner.bic
+            if c is not winner and (d_bic < AMBIGUITY_BIC or (similarity > SIMILARITY_LIMIT
+                                                              and d_bic < WEAK_BIC)):
+                self.ambiguities.append((len(self.steps) + 1, winner, c, similarity))
+        fit = winner.fit = _fit_settings(winner.fit, self.measured, self.scale, self.n,
+                                         self.sigma, self.say)
+        effect = winner.effect = fit.model.effects[-1]
+        bic, delta = winner.bic, winner.delta_bic
+        if winner.settled:
+            sigma = None if self.sigma is None else self.sigma * math.sqrt(self.dispersion)
+            bic = information_criterion(fit.loss_rss, self.n, fit.penalty_params, sigma)
+            delta = bic - (winner.bic - winner.delta_bic)
+        assert winner.cv_rms is not None  # judged held out
+        self.steps.append(Step(effect, fit, fit.rms(), bic, delta, winner.cv_rms,
+                               self.reported(fit, self.units)[effect.label],
+                               [{"effect": c.effect.name, "where": c.effect.where,
+                                 "delta_bic": c.delta_bic, "cv_rms": c.cv_rms}
+                                for c in ranking[:6]], self.dispersion))
+        self.say(f"added {effect.label}: RMS {fit.rms():.4g} m")
+        return fit
+
+    def reject(self, ranking: list[Found]) -> None:
+        """Nothing: a deflection diagnosis keeps the added steps only."""
+
+    def without(self, final: Fit) -> list[Fit]:
+        model = final.model
+        return fitting.fit_models([fit_job(
+            model.with_effects(model.effects[:i] + model.effects[i + 1:]), self.measured,
+            final.scale, np.delete(final.x, np.arange(model.offsets[i + 1], model.offsets[i + 2])),
+            loss=final.loss, f_scale=final.f_scale) for i in range(len(model.effects))],
+            self.workers)
+
+    def held_out_of(self, fits: list[Fit]) -> list[float]:
+        return cross_validate(fits, self.measured, self.folds, self.workers)
+
+    def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""
         sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
             self.n - fit.penalty_params, 1))
@@ -649,32 +644,8 @@ class _Search:
         return _effect_parameters(fit, cov, quantile, units,
                                   held_at_bounds(fit, sig, self.measured))
 
-    def namable(self, fit: Fit) -> bool:
-        """Whether the effect ``fit`` adds may be named: it has no parameter (a switch), or at
-        least one is determined (:attr:`Parameter.determined`: within its physical scale) with
-        an interval excluding zero."""
-        return namable(self.parameters(fit, SI_UNITS)[fit.model.effects[-1].label])
 
-    def step(self, winner: Candidate, results: list[Candidate], dispersion: float,
-             units: Units) -> Step:
-        """The :class:`Step` that adds ``winner``: its parameters with intervals, the step's
-        ranking; its BIC change that of the fit it adds (a settled one's when parameters are
-        held, the step's ranking keeping the full fit's)."""
-        fit = winner.fit
-        params = self.parameters(fit, units)
-        ranking = [{"effect": c.effect.name, "where": c.effect.where,
-                    "delta_bic": c.delta_bic, "cv_rms": c.cv_rms} for c in results[:6]]
-        assert winner.cv_rms is not None  # the winner was cross-validated
-        bic, delta = winner.bic, winner.delta_bic
-        if winner.settled:  # the settled fit's BIC, under the step's overdispersion
-            sigma = None if self.sigma is None else self.sigma * math.sqrt(dispersion)
-            bic = information_criterion(fit.loss_rss, self.n, fit.penalty_params, sigma)
-            delta = bic - (winner.bic - winner.delta_bic)
-        return Step(winner.effect, fit, fit.rms(), bic, delta,
-                    winner.cv_rms, params[winner.effect.label], ranking, dispersion)
-
-
-def _ambiguities(raw: list[tuple[int, Candidate, Candidate, float]], sigma: float,
+def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,
                  campaign: Campaign, geo: Geometry, seed: int | None) -> list[Ambiguity]:
     """The pairs the campaign cannot tell apart, with why, and (``seed`` not None, first
     three) the measurements that would (:func:`propose_measurements`); ``sigma`` in m."""
@@ -703,19 +674,6 @@ def _ambiguities(raw: list[tuple[int, Candidate, Candidate, float]], sigma: floa
                 amb.proposals = [{"note": str(exc)}]
         ambiguities.append(amb)
     return ambiguities
-
-
-def _ranked(current: Fit, fits: list[tuple[Effect, Fit]], n: int, sigma: float | None
-            ) -> tuple[list[Candidate], float]:
-    """A step's candidates by BIC (best first) under the step's overdispersion
-    (:func:`step_criteria`), and that dispersion."""
-    current_bic, bics, dispersion = step_criteria(
-        (current.loss_rss, current.penalty_params),
-        [(f.loss_rss, f.penalty_params) for _, f in fits], n, sigma)
-    results = [Candidate(e, f, b, b - current_bic)
-               for (e, f), b in zip(fits, bics, strict=True)]
-    results.sort(key=lambda c: c.bic)
-    return results, dispersion
 
 
 def _rotation_noise(campaign: Campaign, sigma: float | None

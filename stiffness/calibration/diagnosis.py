@@ -46,34 +46,6 @@ NOISE_SOURCES = ("declared", "replicates", "residuals")
 
 
 @dataclass
-class Candidate:
-    """One candidate extension at a step.
-
-    Attributes
-    ----------
-    effect
-        The effect.
-    fit
-        The extended model fitted.
-    bic, delta_bic
-        Its BIC and the change from the current model's.
-    cv_rms
-        Cross-validated RMS (m), when computed.
-    settled
-        Whether ``fit`` holds parameters of the effect at nominal
-        (:func:`stiffness.calibration.naming.settle`); ``bic`` and ``delta_bic`` stay those of
-        the effect fitted in full (the step's ranking).
-    """
-
-    effect: Effect
-    fit: Fit
-    bic: float
-    delta_bic: float
-    cv_rms: float | None = None
-    settled: bool = False
-
-
-@dataclass
 class Ambiguity:
     """Two effects the campaign cannot tell apart, and the measurements that would.
 

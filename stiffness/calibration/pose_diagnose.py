@@ -6,18 +6,15 @@ Step 0 is the nominal rigid robot seen through a fitted measuring frame and mark
 families of :data:`CANDIDATES` (:data:`~stiffness.elastic.effects.FAMILIES`: joint
 zero offsets, joint placement geometry, and with the masses known joint compliance, link
 compliance and backlash under gravity and the applied loads, then a spring compensator once
-joint compliance is in; with the masses unknown the lumped compliance) and adds one by deflection
-diagnose's criteria: its BIC (:func:`~stiffness.calibration.selection.information_criterion`
-with the declared noise, inflated by the step's overdispersion) must fall by more than
-:data:`~stiffness.calibration.diagnose.BIC_MARGIN`, and of those the best
-:data:`~stiffness.calibration.diagnose.CV_TOP` are validated by leaving one configuration out
-at a time, from each fit's linearised hat matrix without refitting
+joint compliance is in; with the masses unknown the lumped compliance) in deflection
+diagnose's loop (:func:`stiffness.calibration.search.search`, with :class:`PoseSearch`):
+screened by one Gauss-Newton step, the best fitted, held out by leaving one configuration out
+at a time from each fit's linearised hat matrix without refitting
 (:func:`~stiffness.calibration.pose_fit.held_out_rms`, stable on small campaigns where folds
-would leave about as many parameters as poses): the first whose held-out RMS falls is added.
-The user may force families in (added first, in order) and forbid others
-(``diagnose --families``, ``--not``; kept in the model file's ``selection``).
-Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`). At the
-end the residual is tested against the declared noise
+would leave about as many parameters as poses). The user may force families in (added first,
+in order) and forbid others (``diagnose --families``, ``--not``; kept in the model file's
+``selection``). Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`).
+At the end the residual is tested against the declared noise
 (:func:`~stiffness.calibration.selection.goodness_of_fit` at
 :data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it is "unexplained",
 with its structure (per marker, per axis, along the row order).
@@ -29,15 +26,17 @@ import functools
 import json
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
+from stiffness.calibration import certainty
 from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.certainty import Certainty
-from stiffness.calibration.naming import alternative, is_stand_in, namable, settle
+from stiffness.calibration.naming import is_stand_in, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import (
@@ -54,11 +53,11 @@ from stiffness.calibration.pose_fit import (
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
+from stiffness.calibration.search import Candidate, Stop, ranked, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
     GOF_LEVEL,
-    fits_to_noise,
     goodness_of_fit,
     step_criteria,
 )
@@ -123,13 +122,17 @@ class PoseDiagnosis:
     outlier_sigma_m: float | None = None
     stop_reason: str = ""
     judge: PoseJudge | None = None
-    loss_scale: float | None = None
+    search: PoseSearch | None = None
 
     @functools.cached_property
     def how_sure(self) -> list[Certainty]:
-        """How sure the diagnosis is of each family it added (:func:`_how_sure`; computed
-        when first asked: it refits the final model without each)."""
-        return _how_sure(self, self.families, self.loss_scale)
+        """How sure the diagnosis is of each family it added
+        (:func:`stiffness.calibration.certainty.how_sure`; computed when first asked: it
+        refits the final model without each, and the families acting through it)."""
+        return [] if self.search is None else certainty.how_sure(
+            self.search, self.final, self.steps[-1].cv_rms,
+            [(s.family, sorted(s.ranking.items(), key=lambda item: item[1]), s.delta_bic,
+              self.stand_in(s.family)) for s in self.steps[1:]])
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -411,44 +414,18 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     judge = PoseJudge.of(campaign)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
-    steps = [PoseStep("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
-                      _validation(base, validate))]
+    kind = PoseSearch(campaign, chosen, frame0, settings, scale, validate, say, workers, draw,
+                      judge, base.n_observed, campaign.noise_std,
+                      [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden])
+    steps = kind.steps
+    steps.append(PoseStep("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
+                          _validation(base, validate)))
     for f in forced:
-        say(f"step {len(steps)}: {f} (forced)")
-        chosen.append(f)
-        fit = settled(campaign, _fit(campaign, chosen, frame0, settings, steps[-1].fit, loss,
-                                     scale), chosen, judge, scale)
-        delta = _delta_bic(campaign, steps[-1].fit, {f: fit.loss_rss()}, {f: fit.n_fitted})
-        steps.append(PoseStep(f, fit, delta[f], held_out_rms(fit, campaign, draw(f"held-out {f}")),
-                              _validation(fit, validate), forced=True, ranking=delta))
-    remaining = [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden]
-    rejected, stop = _search(campaign, chosen, frame0, settings, steps, remaining, scale,
-                             validate, say, workers, draw, judge)
+        kind.force(f, loss)
+    _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
-    return PoseDiagnosis(campaign, masses, steps, rejected, loss, list(forced),
-                         sorted(forbidden), outliers, outlier_sigma, stop, judge, scale)
-
-
-def _how_sure(d: PoseDiagnosis, chosen: list[str], scale: float | None) -> list[Certainty]:
-    """How sure ``d`` is of each family it added (``chosen``: the final model's families in
-    order), as deflection diagnose's effects (:mod:`stiffness.calibration.certainty`): the
-    final model refitted without it (and the families acting through it), its BIC change and
-    held-out RMS change; the best other family of its step and its BIC change minus the
-    chosen one's; whether it is a stand-in."""
-    final, campaign = d.final, d.campaign
-    frame0 = (final.model.rotation0, final.model.translation0)
-    out = []
-    for step in d.steps[1:]:
-        keep = [f for f in chosen if f != step.family
-                and step.family not in FAMILIES[f].requires]
-        without = _fit(campaign, keep, frame0, final.model.settings, final, final.loss, scale)
-        ranking = sorted(step.ranking.items(), key=lambda item: item[1])
-        other, d_other = alternative(ranking, step.family, step.delta_bic)
-        out.append(Certainty(step.family,
-                             held_out_rms(without, campaign) - d.steps[-1].cv_rms,
-                             without.bic(campaign.noise_std) - final.bic(campaign.noise_std),
-                             other, d_other, d.stand_in(step.family)))
-    return out
+    return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, list(forced),
+                         sorted(forbidden), outliers, outlier_sigma, stop, judge, kind)
 
 
 def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
@@ -472,145 +449,153 @@ def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
     return list(dict.fromkeys(families)), set(not_families)
 
 
-def _search(campaign: PoseCampaign, chosen: list[str], frame0: tuple[np.ndarray, np.ndarray],
-            settings: dict, steps: list[PoseStep], remaining: list[str], scale: float | None,
-            validate: PoseCampaign | None, say: Callable[[str], None], workers: int | None,
-            bar: Bar, judge: PoseJudge) -> tuple[dict[str, float], str]:
-    """The family-by-family search from ``steps[-1]`` over ``remaining`` (``chosen`` and
-    ``steps`` extended in place), the candidates' fits on ``workers`` Dask workers above 1,
-    ``bar`` the held-out criterion's progress bars, each candidate that may be named
-    (``judge``: :func:`stiffness.calibration.naming.namable`) :func:`settled`, until the model
-    fits to noise
-    (:func:`~stiffness.calibration.selection.fits_to_noise`, deflection diagnose's stop rule)
-    or nothing helps; returns the families tried and not added, with their last BIC change,
-    and why it stopped."""
-    rejected: dict[str, float] = {}
-    while True:
-        fit = steps[-1].fit
-        noise = fits_to_noise(fit.loss_rss(), fit.n_observed, fit.n_fitted, campaign.noise_std)
-        if noise is not None:
-            return rejected, noise
-        ready = [f for f in remaining if set(FAMILIES[f].requires) <= set(chosen)]
+#: A pose campaign's candidate: a family's name and its fit.
+Family = Candidate[str, PoseFit]
+
+
+@dataclass
+class PoseSearch:
+    """The family-by-family search of :func:`diagnose_poses`, a pose campaign's
+    :class:`~stiffness.calibration.search.SearchKind`: the ``remaining`` families whose
+    requirements are ``chosen`` screened by one Gauss-Newton step, the best fitted (on
+    ``workers`` Dask workers above 1), each judged held out by leaving one configuration out
+    from its fit's hat matrix (:func:`held_out_rms`; ``bar``: its progress bars) and dropped
+    when no configuration's removal can validate it (infinite). ``steps`` (from the
+    baseline), ``chosen`` and ``rejected`` (families tried and not added, with their last BIC
+    change) grow as the search goes; ``delta`` holds the step's BIC changes (screened or
+    fitted), ``full`` the fitted candidates' :meth:`terms`."""
+
+    campaign: PoseCampaign
+    chosen: list[str]
+    frame0: tuple[np.ndarray, np.ndarray]
+    settings: dict
+    scale: float | None
+    validate: PoseCampaign | None
+    say: Callable[[str], None]
+    workers: int | None
+    bar: Bar
+    judge: PoseJudge
+    n: int
+    sigma: float | None
+    remaining: list[str]
+    steps: list[PoseStep] = field(default_factory=list)
+    rejected: dict[str, float] = field(default_factory=dict)
+    delta: dict[str, float] = field(default_factory=dict)
+    full: dict[str, tuple[float, int]] = field(default_factory=dict)
+    stops: ClassVar[dict[Stop, str]] = {
+        Stop.LEFT: "no candidate family left", Stop.BIC: NOT_NAMABLE, Stop.NAMED: NOT_NAMABLE,
+        Stop.HELD_OUT: (f"no family improves BIC by more than {BIC_MARGIN:g} and the held-out "
+                        "error")}
+
+    def terms(self, fit: PoseFit) -> tuple[float, int]:
+        return fit.loss_rss(), fit.n_fitted
+
+    def force(self, family: str, loss: str) -> None:
+        """Add ``family`` whatever its BIC and held-out error (``diagnose --families``)."""
+        self.say(f"step {len(self.steps)}: {family} (forced)")
+        self.chosen.append(family)
+        current = self.steps[-1].fit
+        fit = settled(self.campaign, _fit(self.campaign, self.chosen, self.frame0, self.settings,
+                                          current, loss, self.scale),
+                      self.chosen, self.judge, self.scale)
+        delta = self.deltas(current, {family: self.terms(fit)})
+        self.steps.append(PoseStep(family, fit, delta[family],
+                                   held_out_rms(fit, self.campaign,
+                                                self.bar(f"held-out {family}")),
+                                   _validation(fit, self.validate), forced=True, ranking=delta))
+
+    def candidates(self, current: PoseFit) -> list[Family] | None:
+        """Each ready family added to :attr:`chosen`, screened from ``current`` by one
+        Gauss-Newton step (:func:`~stiffness.calibration.pose_fit.linearised_rss`: what its
+        columns explain of the residual, to first order); the best
+        :data:`~stiffness.calibration.selection.CV_TOP` by that BIC that pass
+        :data:`~stiffness.calibration.selection.BIC_MARGIN` fitted under ``current``'s loss
+        and :attr:`scale` (on Dask workers with their held-out RMS, :func:`candidate_fit`)."""
+        ready = [f for f in self.remaining if set(FAMILIES[f].requires) <= set(self.chosen)]
         if not ready:
-            return rejected, "no candidate family left"
-        say(f"step {len(steps)}: trying {', '.join(ready)}")
-        tried, held_out, screened = _screened(campaign, chosen, frame0, settings,
-                                              steps[-1].fit, ready, scale, workers)
-        delta = {**screened, **_delta_bic(campaign, steps[-1].fit,
-                                          {f: t.loss_rss() for f, t in tried.items()},
-                                          {f: t.n_fitted for f, t in tried.items()})}
-        full = {f: (t.loss_rss(), t.n_fitted) for f, t in tried.items()}
-        best, cv_new, unfit, namable_any = _winner(
-            campaign, tried, delta, steps[-1].cv_rms, held_out, bar,
-            functools.partial(_named_fit, campaign, chosen, judge, scale))
-        rejected.update({f: delta[f] for f in unfit})
-        remaining = [f for f in remaining if f not in unfit]
-        if best is None:
-            rejected.update(delta)
-            return rejected, (f"no family improves BIC by more than {BIC_MARGIN:g} and the "
-                              "held-out error" if namable_any else NOT_NAMABLE)
-        rejected.update({f: d for f, d in delta.items() if f != best})  # tried, not added
-        rejected.pop(best, None)
-        chosen.append(best)
-        remaining.remove(best)
-        fit = tried[best]
-        # a settled fit's own BIC change, under the step's overdispersion (the ranking keeps
-        # the full fit's)
-        settled_delta = _delta_bic(campaign, steps[-1].fit,
-                                   {**{f: r for f, (r, _) in full.items()}, "": fit.loss_rss()},
-                                   {**{f: k for f, (_, k) in full.items()}, "": fit.n_fitted})
-        steps.append(PoseStep(best, fit, delta[best] if fit.n_fitted == full[best][1]
-                              else settled_delta[""], cv_new,
-                              _validation(fit, validate), ranking=delta))
+            return None
+        self.say(f"step {len(self.steps)}: trying {', '.join(ready)}")
+        c, families, held_out = self.campaign, self.chosen, {}
+        screen = {}
+        for f in ready:
+            model = PoseModel(c.robot, c.markers, tuple(families + [f]), self.frame0, c.loads,
+                              self.settings)
+            screen[f] = linearised_rss(model, c, rows_of(model, c), families + [f],
+                                       warm_start(model, current), current.loss, current.sigma)
+        self.delta = self.deltas(current, screen)
+        best = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN),
+                      key=lambda f: self.delta[f])[:CV_TOP]
+        if self.workers is None or self.workers <= 1 or len(best) < 2:
+            fits = [(f, _fit(c, families + [f], self.frame0, self.settings, current,
+                             current.loss, self.scale)) for f in best]
+        else:  # side by side, each with its held-out RMS (in process: as needed, in order)
+            done: dict[int, tuple[PoseFit, float]] = {}
+            run_chunks(candidate_fit, (c, families, self.frame0, self.settings,
+                                       _values(current), current.loss, self.scale, best),
+                       range(len(best)), lambda i, result: done.__setitem__(i, result),
+                       workers=self.workers)
+            fits = [(f, done[i][0]) for i, f in enumerate(best)]
+            held_out = {f: done[i][1] for i, f in enumerate(best)}
+        ranking, _ = ranked(self, current, fits)
+        for candidate in ranking:
+            candidate.cv_rms = held_out.get(candidate.effect)
+            self.delta[candidate.effect] = candidate.delta_bic
+        self.full = {f: self.terms(fit) for f, fit in fits}
+        return ranking
 
+    def parameters(self, c: Family) -> list[Parameter]:
+        return self.judge.parameters(c.fit)[c.effect]
 
-def _named_fit(campaign: PoseCampaign, chosen: list[str], judge: PoseJudge,
-               scale: float | None, family: str, fit: PoseFit) -> PoseFit | None:
-    """The candidate ``family``'s ``fit`` :func:`settled`, or ``None`` when it may not be named
-    as fitted or once settled (:func:`stiffness.calibration.naming.namable`)."""
-    if not namable(judge.parameters(fit)[family]):
-        return None
-    fit = settled(campaign, fit, chosen + [family], judge, scale)
-    return fit if namable(judge.parameters(fit)[family]) else None
+    def settle(self, c: Family) -> PoseFit:
+        return settled(self.campaign, c.fit, self.chosen + [c.effect], self.judge, self.scale)
 
+    def held_out(self, named: Iterator[Family]) -> Iterator[Family]:
+        """Computed as needed, in order; a family that did not win and that the campaign
+        cannot validate (infinite) is rejected and never tried again."""
+        for c in named:
+            if c.cv_rms is None:
+                c.cv_rms = held_out_rms(c.fit, self.campaign, self.bar(f"held-out {c.effect}"))
+            yield c
+            if math.isinf(c.cv_rms):
+                self.rejected[c.effect] = self.delta[c.effect]
+                self.remaining.remove(c.effect)
 
-def _screened(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
-              settings: dict, current: PoseFit, ready: list[str], scale: float | None,
-              workers: int | None = None
-              ) -> tuple[dict[str, PoseFit], dict[str, float], dict[str, float]]:
-    """Each of ``ready`` added to ``families``, screened by one Gauss-Newton step from
-    ``current`` (:func:`~stiffness.calibration.pose_fit.linearised_rss`: what its columns
-    explain of the residual, to first order); the best
-    :data:`~stiffness.calibration.selection.CV_TOP` by that BIC that pass
-    :data:`~stiffness.calibration.selection.BIC_MARGIN` are fitted (under ``current``'s loss
-    and ``scale``), on ``workers`` Dask workers above 1 (:func:`candidate_fit`). Returns those
-    fits, their held-out RMS when computed on workers (else none: computed as needed), and
-    every candidate's screened BIC change."""
-    screen = {}
-    for f in ready:
-        model = PoseModel(campaign.robot, campaign.markers, tuple(families + [f]), frame0,
-                          campaign.loads, settings)
-        screen[f] = linearised_rss(model, campaign, rows_of(model, campaign), families + [f],
-                                   warm_start(model, current), current.loss, current.sigma)
-    delta = _delta_bic(campaign, current, {f: rss for f, (rss, _) in screen.items()},
-                       {f: k for f, (_, k) in screen.items()})
-    best = sorted((f for f in ready if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])[:CV_TOP]
-    if workers is None or workers <= 1 or len(best) < 2:
-        return {f: _fit(campaign, families + [f], frame0, settings, current, current.loss, scale)
-                for f in best}, {}, delta
-    # side by side on Dask workers, each fit with its held-out RMS (the in-process search
-    # validates lazily, in BIC order, until one wins: the same winner)
-    done: dict[int, tuple[PoseFit, float]] = {}
-    run_chunks(candidate_fit, (campaign, families, frame0, settings, _values(current),
-                               current.loss, scale, best), range(len(best)),
-               lambda i, result: done.__setitem__(i, result), workers=workers)
-    return ({f: done[i][0] for i, f in enumerate(best)},
-            {f: done[i][1] for i, f in enumerate(best)}, delta)
+    def accept(self, current: PoseFit, winner: Family, ranking: list[Family]) -> PoseFit:
+        """Its BIC change that of the fit it adds (a settled fit's own, under the step's
+        overdispersion; the ranking keeps the full fit's); the others tried rejected."""
+        best, fit = winner.effect, winner.fit
+        assert winner.cv_rms is not None  # judged held out
+        self.rejected.update({f: d for f, d in self.delta.items() if f != best})
+        self.rejected.pop(best, None)
+        self.chosen.append(best)
+        self.remaining.remove(best)
+        settled_delta = self.deltas(current, {**self.full, "": self.terms(fit)})[""]
+        self.steps.append(PoseStep(best, fit, self.delta[best]
+                                   if fit.n_fitted == self.full[best][1] else settled_delta,
+                                   winner.cv_rms, _validation(fit, self.validate),
+                                   ranking=self.delta))
+        return fit
 
+    def reject(self, ranking: list[Family]) -> None:
+        self.rejected.update(self.delta)
 
-def _delta_bic(campaign: PoseCampaign, current: PoseFit, rss: dict[str, float],
-               params: dict[str, int]) -> dict[str, float]:
-    """Each extension's BIC change from its sum of squares ``rss`` (m^2) and its number of
-    fitted ``params``, with deflection diagnose's criterion: the declared noise inflated by the
-    step's overdispersion (:func:`selection.step_criteria`: what the best extension leaves
-    above the noise counts as noise in the step's comparisons)."""
-    base, bics, _ = step_criteria((current.loss_rss(), current.n_fitted),
-                                  [(rss[f], params[f]) for f in rss], current.n_observed,
-                                  campaign.noise_std)
-    return {f: b - base for f, b in zip(rss, bics, strict=True)}
+    def without(self, final: PoseFit) -> list[PoseFit]:
+        frame0 = (final.model.rotation0, final.model.translation0)
+        return [_fit(self.campaign, [f for f in self.chosen if f != s.family
+                                     and s.family not in FAMILIES[f].requires],
+                     frame0, final.model.settings, final, final.loss, self.scale)
+                for s in self.steps[1:]]
 
+    def held_out_of(self, fits: list[PoseFit]) -> list[float]:
+        return [held_out_rms(fit, self.campaign) for fit in fits]
 
-def _winner(campaign: PoseCampaign, tried: dict[str, PoseFit], delta: dict[str, float],
-            cv_current: float, held_out: dict[str, float], bar: Bar,
-            named: Callable[[str, PoseFit], PoseFit | None]
-            ) -> tuple[str | None, float, list[str], bool]:
-    """As deflection diagnose: of the extensions past :data:`BIC_MARGIN` that may be named
-    (``named``: the settled fit, or ``None``; taken in BIC order, as needed), the best
-    :data:`CV_TOP` are validated in that order, and the first whose held-out RMS (leave one
-    configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`, of its settled
-    fit, which replaces the full one in ``tried``) beats ``cv_current`` wins (``None`` if
-    none). Also returns those whose held-out RMS is infinite (a configuration alone
-    determines some of their parameters): the campaign cannot validate them, and the search
-    drops them; and whether any could be named. ``held_out`` holds those computed already (on
-    workers, of the full fits); ``bar`` makes a progress bar of the others."""
-    eligible = sorted((f for f in tried if delta[f] < -BIC_MARGIN), key=lambda f: delta[f])
-    unfit: list[str] = []
-    validated = 0
-    for f in eligible:
-        fit = named(f, tried[f]) if validated < CV_TOP else None
-        if fit is None:
-            continue
-        validated += 1
-        if fit is not tried[f]:
-            tried[f] = fit
-            held_out.pop(f, None)
-        cv = held_out[f] if f in held_out else held_out_rms(fit, campaign,
-                                                            bar(f"held-out {f}"))
-        if cv < cv_current:
-            return f, cv, unfit, True
-        if math.isinf(cv):
-            unfit.append(f)
-    return None, math.nan, unfit, validated > 0
+    def deltas(self, current: PoseFit, terms: dict[str, tuple[float, int]]
+               ) -> dict[str, float]:
+        """Each extension's BIC change from its :meth:`terms`, under the step's
+        overdispersion (:func:`selection.step_criteria`)."""
+        base, bics, _ = step_criteria(self.terms(current), list(terms.values()), self.n,
+                                      self.sigma)
+        return {f: b - base for f, b in zip(terms, bics, strict=True)}
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

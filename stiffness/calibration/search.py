@@ -1,0 +1,162 @@
+"""The one selection loop of ``diagnose``, for both campaign kinds (:func:`search`).
+
+From the current model, each step stops when it fits to the noise (:func:`~stiffness.
+calibration.selection.fits_to_noise`) or ``max_steps`` were added; else the kind fits its
+candidate extensions, ranked by BIC under the step's overdispersion (:func:`ranked`). Of those
+improving BIC by more than :data:`~stiffness.calibration.selection.BIC_MARGIN` (in BIC order),
+the first :data:`~stiffness.calibration.selection.CV_TOP` that may be named as fitted and once
+their undetermined parameters are held at nominal (:mod:`stiffness.calibration.naming`) are
+judged held out, and the first whose held-out RMS beats the current model's is added; else the
+search stops and says why (:class:`Stop`, in the kind's words).
+
+A campaign kind is a small object (:class:`SearchKind`): its candidates and their fits, its
+reported parameters, how it settles a candidate, its held-out criterion, how it records a step
+and how it removes an added effect again (:func:`stiffness.calibration.certainty.how_sure`):
+:class:`stiffness.calibration.diagnose.DeflectionSearch`,
+:class:`stiffness.calibration.pose_diagnose.PoseSearch`.
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import ClassVar, Generic, Protocol, TypeVar
+
+from stiffness.calibration.naming import namable
+from stiffness.calibration.selection import BIC_MARGIN, CV_TOP, fits_to_noise, step_criteria
+from stiffness.elastic.effects.base import Parameter
+
+E = TypeVar("E")
+F = TypeVar("F")
+
+
+@dataclass(eq=False)
+class Candidate(Generic[E, F]):
+    """One candidate of a step: what it adds (an effect; a pose family's name), its fit, its
+    BIC and change from the current model's (the step's ranking: of the fit in full, even
+    when ``settled``, ``fit`` then holding undetermined parameters at nominal) and its
+    held-out RMS (m) once judged."""
+
+    effect: E
+    fit: F
+    bic: float
+    delta_bic: float
+    cv_rms: float | None = None
+    settled: bool = False
+
+
+class Stop(enum.Enum):
+    """Why a step adds nothing."""
+
+    LEFT = "nothing left to try"
+    BIC = "no candidate past the BIC margin"
+    NAMED = "none of those may be named"
+    HELD_OUT = "none of those beats the held-out error"
+
+
+class SearchKind(Protocol[E, F]):
+    """What a campaign kind supplies to :func:`search`: its residual count ``n`` and noise
+    std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, and the
+    methods below."""
+
+    stops: ClassVar[dict[Stop, str]]
+
+    @property
+    def n(self) -> int: ...
+
+    @property
+    def sigma(self) -> float | None: ...
+
+    def terms(self, fit: F) -> tuple[float, int]:
+        """``fit``'s objective as a sum of squares (m^2) and its parameter count."""
+
+    def candidates(self, current: F) -> list[Candidate[E, F]] | None:
+        """The extensions of ``current`` fitted, :func:`ranked` (``None``: none left)."""
+
+    def parameters(self, c: Candidate[E, F]) -> list[Parameter]:
+        """The reported parameters (SI) of what ``c`` adds, in ``c.fit``."""
+
+    def settle(self, c: Candidate[E, F]) -> F:
+        """``c.fit`` with the undetermined parameters of what it adds held at nominal
+        (:func:`~stiffness.calibration.naming.settle`)."""
+
+    def held_out(self, named: Iterator[Candidate[E, F]]) -> Iterator[Candidate[E, F]]:
+        """The ``named`` candidates in order, each with its held-out RMS ``cv_rms`` (m)."""
+
+    def accept(self, current: F, winner: Candidate[E, F], ranking: list[Candidate[E, F]]
+               ) -> F:
+        """The step adding ``winner`` to ``current`` recorded; the new current fit."""
+
+    def reject(self, ranking: list[Candidate[E, F]]) -> None:
+        """The last step's candidates recorded, none added."""
+
+    def without(self, final: F) -> list[F]:
+        """``final`` refitted without each effect it added, in order (how sure a diagnosis
+        is, :func:`~stiffness.calibration.certainty.how_sure`)."""
+
+    def held_out_of(self, fits: list[F]) -> list[float]:
+        """The held-out RMS (m) of each of ``fits``."""
+
+
+def search(kind: SearchKind[E, F], current: F, cv_current: float,
+           max_steps: int | None = None) -> tuple[F, str]:
+    """Add ``kind``'s candidates to ``current`` (held-out RMS ``cv_current``, m) as the
+    module docstring says; the final fit and why the search stopped."""
+    added = 0
+    while True:
+        rss, p = kind.terms(current)
+        noise = fits_to_noise(rss, kind.n, p, kind.sigma)
+        if noise is not None:
+            return current, noise
+        if max_steps is not None and added >= max_steps:
+            return current, f"stopped after {max_steps} effects (max_steps)"
+        ranking = kind.candidates(current)
+        if ranking is None:
+            return current, kind.stops[Stop.LEFT]
+        winner, why = _winner(kind, ranking, cv_current)
+        if winner is None or winner.cv_rms is None:
+            kind.reject(ranking)
+            return current, kind.stops[why]
+        current, cv_current = kind.accept(current, winner, ranking), winner.cv_rms
+        added += 1
+
+
+def _winner(kind: SearchKind[E, F], ranking: list[Candidate[E, F]], cv_current: float
+            ) -> tuple[Candidate[E, F] | None, Stop]:
+    """The step's winner (a held-out RMS ``cv_current`` not known, NaN, holds none back), or
+    ``None`` and why."""
+    eligible = [c for c in ranking if c.delta_bic < -BIC_MARGIN]
+    if not eligible:
+        return None, Stop.BIC
+    why = Stop.NAMED
+    for c in kind.held_out(itertools.islice((c for c in eligible if _named(kind, c)), CV_TOP)):
+        why = Stop.HELD_OUT
+        if c.cv_rms is not None and (c.cv_rms < cv_current or math.isnan(cv_current)):
+            return c, why
+    return None, why
+
+
+def _named(kind: SearchKind[E, F], c: Candidate[E, F]) -> bool:
+    """Whether ``c`` may be named as fitted and still once settled (then ``c.fit``, its held-out
+    RMS forgotten); holding parameters never makes a candidate namable."""
+    if not namable(kind.parameters(c)):
+        return False
+    full = c.fit
+    c.fit = kind.settle(c)
+    if c.fit is not full:
+        c.settled, c.cv_rms = True, None
+    return namable(kind.parameters(c))
+
+
+def ranked(kind: SearchKind[E, F], current: F, fits: Sequence[tuple[E, F]]
+           ) -> tuple[list[Candidate[E, F]], float]:
+    """A step's candidates ``(effect, fit)`` by BIC (best first) under the step's
+    overdispersion (:func:`~stiffness.calibration.selection.step_criteria`), and that."""
+    current_bic, bics, dispersion = step_criteria(
+        kind.terms(current), [kind.terms(f) for _, f in fits], kind.n, kind.sigma)
+    out = [Candidate(e, f, b, b - current_bic) for (e, f), b in zip(fits, bics, strict=True)]
+    out.sort(key=lambda c: c.bic)
+    return out, dispersion
