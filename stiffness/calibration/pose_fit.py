@@ -61,7 +61,6 @@ from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import (
     bounded_intervals,
-    information_criterion,
     interval_quantile,
 )
 from stiffness.calibration.solver import (
@@ -208,13 +207,6 @@ class PoseFit:
         for a robust loss ``sigma^2 sum rho((r / sigma)^2)`` over its Gaussian expectation
         (:func:`~stiffness.calibration.solver.objective_rss`)."""
         return objective_rss(self.components(), self.loss, self.sigma)
-
-    def bic(self, sigma: float | None) -> float:
-        """Bayesian information criterion, as deflection diagnose's
-        (:func:`stiffness.calibration.selection.information_criterion`): ``RSS / sigma^2 +
-        k ln n`` with a known noise ``sigma`` (m), else ``n ln(RSS/n) + k ln n`` (RSS:
-        :meth:`loss_rss`)."""
-        return information_criterion(self.loss_rss(), self.n_observed, self.n_fitted, sigma)
 
     def std(self) -> np.ndarray:
         """(p,) standard deviations; NaN for parameters not fitted."""

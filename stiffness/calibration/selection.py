@@ -105,19 +105,11 @@ def step_criteria(current: tuple[float, int], extensions: list[tuple[float, int]
     known-sigma one.
     """
     models = [current, *extensions]
-    c = dispersion([r for r, _ in models], [p for _, p in models], n, sigma)
+    c = 1.0 if sigma is None else max(1.0, min(r / (sigma ** 2 * max(n - p, 1))
+                                               for r, p in models))
     s_step = None if sigma is None else sigma * math.sqrt(c)
     return (information_criterion(current[0], n, current[1], s_step),
             [information_criterion(r, n, p, s_step) for r, p in extensions], c)
-
-
-def dispersion(rss: list[float], params: list[int], n: int, sigma: float | None) -> float:
-    """``max(1, min_f RSS_f / (sigma^2 (N - p_f)))`` over fits of ``rss`` (m^2) with ``params``
-    parameters each (1 with an unknown sigma): :func:`step_criteria`'s overdispersion."""
-    if sigma is None:
-        return 1.0
-    ratios = [r / (sigma ** 2 * max(n - p, 1)) for r, p in zip(rss, params, strict=True)]
-    return max(1.0, min(ratios))
 
 
 def config_folds(labels: tuple[str, ...], seed: int = 0) -> list[np.ndarray]:
