@@ -30,7 +30,7 @@ from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import stage_table
 from stiffness.cli.main import main
 from stiffness.elastic.effects import FAMILIES
-from stiffness.errors import DataFileWarning, StiffnessError
+from stiffness.errors import ConvergenceError, DataFileWarning, StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 from stiffness.units import Units
@@ -427,19 +427,32 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
     assert "some but not all" in capsys.readouterr().err
 
 
-def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error():
-    """30 Panda poses cannot determine most lumped gravity parameters: trial steps and folds
-    whose sag diverges are refused (no ConvergenceError escapes), and the family is added only
-    with the parameters the data do not determine held at nominal (issue 36.4; before that
-    rule its held-out RMS was infinite and it was not added)."""
+def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error(monkeypatch):
+    """22 Panda poses cannot determine most lumped gravity parameters: trial steps and folds
+    whose sag diverges (the campaign meets them: counted) are refused (no ConvergenceError
+    escapes), and the family is added only with the parameters the data do not determine held
+    at nominal (issue 36.4; before that rule its held-out RMS was infinite and it was not
+    added). The user's case was 30 poses (101 diverging sags, 12 s of CPU on the test's
+    machine); 22 poses of seed 2 meet 36 in 4.4 s."""
+    diverged, loaded_rows = [], PoseModel._loaded_rows
+
+    def counted(*args):
+        try:
+            return loaded_rows(*args)
+        except ConvergenceError:
+            diverged.append(True)
+            raise
+
+    monkeypatch.setattr(PoseModel, "_loaded_rows", counted)
     arm = tuple(f"panda_joint{i}" for i in range(1, 8))
     panda = load_robot("panda", frame="panda_hand", compliant_joints=arm)
     joints = sum(panda.model.joints[j].nv == 1 for j in range(1, panda.model.njoints))
     marker = [Marker("hand", "panda_hand", np.array([0.0, 0.0, 0.1]))]
     hidden = HiddenPoseErrors(np.eye(3), np.array([1.0, 0.0, 0.0]), np.array([[0, 0, 0.101]]),
                               np.full(joints, 1e-3), np.zeros((joints, 6)), np.full(7, 2e4))
-    d = diagnose_poses(simulate_pose_campaign(panda, marker, hidden, 30, NOISE, seed=1),
+    d = diagnose_poses(simulate_pose_campaign(panda, marker, hidden, 22, NOISE, seed=2),
                        masses="unknown")
+    assert diverged, "no diverging sag met: the case no longer tests what it is for"
     assert d.unexplained is not None
     if "gravity_lumped" in d.families:  # as the step that added it fitted it
         step = next(s for s in d.steps if s.family == "gravity_lumped")
