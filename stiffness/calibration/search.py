@@ -62,13 +62,9 @@ class SearchKind(Protocol[E, F]):
     std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, and the
     methods below."""
 
+    n: int
+    sigma: float | None
     stops: ClassVar[dict[Stop, str]]
-
-    @property
-    def n(self) -> int: ...
-
-    @property
-    def sigma(self) -> float | None: ...
 
     def terms(self, fit: F) -> tuple[float, int]:
         """``fit``'s objective as a sum of squares (m^2) and its parameter count."""
