@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import pickle
+import subprocess
+import sys
 
 import numpy as np
 import pinocchio as pin
@@ -70,3 +72,34 @@ def test_candidates_on_dask_workers_give_the_same_diagnosis(monkeypatch):
     remote = diagnose_poses(campaign, workers=2).to_dict()
     assert tasks and all(n >= 2 for n in tasks)
     assert json.dumps(remote) == json.dumps(local)  # NaN-safe: the same text
+
+
+RUN_TWICE = """
+import sys
+from stiffness.workspace import distributed as d
+
+def local(scheduler, workers):  # as d._dask_client: distributed imported inside the context
+    from distributed import Client, LocalCluster
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                           dashboard_address=None)
+    return Client(cluster), cluster
+
+d._dask_client = local
+assert "distributed" not in sys.modules
+for _ in range(2):
+    out = {}
+    d.run_chunks(abs, (), [-1, -2], out.__setitem__, workers=2)
+    assert out == {-1: 1, -2: 2}, out
+import dask
+print(dask.config.get("distributed.comm.require-encryption"))
+"""
+
+
+def test_a_second_run_on_workers_keeps_dasks_settings():
+    """A diagnosis runs on workers once per step: the first run in a process must not lose
+    Dask distributed's settings (``dask.config.set`` entered before distributed was imported
+    removed them on exit, and the second step's cluster raised ``KeyError: 'comm'``)."""
+    pytest.importorskip("distributed")
+    done = subprocess.run([sys.executable, "-c", RUN_TWICE], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -92,12 +92,8 @@ def _dask_client(scheduler: str | None, workers: int | None):
     (:data:`WORKER_ENVIRONMENT`); an external cluster should be started the same way
     (``dask worker ADDRESS --nworkers N --nthreads 1``, see docs/performance.md).
     """
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise StiffnessError(
-            "--scheduler and --workers need Dask distributed: pip install \"dask[distributed]\""
-        ) from exc
+    from distributed import Client, LocalCluster
+
     if scheduler is not None:
         try:
             return Client(scheduler, timeout="20s"), None
@@ -241,6 +237,12 @@ def run_chunks(
             result = func(*args, (index,))[index] if grouped else func(*args, index)
             on_result(index, result)
         return len(indices)
+    try:  # before dask.config.set: importing distributed later drops its defaults
+        import distributed  # noqa: F401  (e.g. distributed.comm: KeyError 'comm')
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise StiffnessError(
+            "--scheduler and --workers need Dask distributed: pip install \"dask[distributed]\""
+        ) from exc
     import dask
 
     with dask.config.set(CLUSTER_CONFIG):
