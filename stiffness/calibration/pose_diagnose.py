@@ -81,9 +81,6 @@ CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys
                         "link_compliance", "transversal_compliance", "base_tilt", "backlash",
                         "gravity_compensator"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
-#: Why a search stops when the families that pass BIC may not be named (issue 36.4).
-NOT_NAMABLE = ("the families that improve BIC determine none of their parameters within its "
-               "physical scale with an interval excluding zero")
 #: A progress-bar factory: given a label, a ``(done, total)`` callback or ``None``.
 Bar = Callable[[str], Callable[[int, int], None] | None]
 #: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
@@ -483,7 +480,10 @@ class PoseSearch:
     delta: dict[str, float] = field(default_factory=dict)
     full: dict[str, tuple[float, int]] = field(default_factory=dict)
     stops: ClassVar[dict[Stop, str]] = {
-        Stop.LEFT: "no candidate family left", Stop.BIC: NOT_NAMABLE, Stop.NAMED: NOT_NAMABLE,
+        Stop.LEFT: "no candidate family left",
+        Stop.BIC: f"no family improves BIC by more than {BIC_MARGIN:g}",
+        Stop.NAMED: ("the families that improve BIC determine none of their parameters within "
+                     "its physical scale with an interval excluding zero"),
         Stop.HELD_OUT: (f"no family improves BIC by more than {BIC_MARGIN:g} and the held-out "
                         "error")}
 
