@@ -520,16 +520,32 @@ class PoseProblem:
 
     def factor(self, x: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """``R`` of ``[r, J[:, columns]] = Q R`` at ``x`` (:class:`~stiffness.calibration.
-        solver.Factored`), from :func:`observed_factor` (kept for the last ``x``)."""
+        solver.Factored`), from :func:`observed_factor` (kept for the last ``x``); where the
+        sag diverges, that of the diverged constant and a zero Jacobian (as :meth:`jac`)."""
+        try:
+            whole = self._whole_factor(x)
+        except ConvergenceError:
+            whole = np.zeros((self.obs.model.size + 1,) * 2)
+            whole[0, 0] = np.linalg.norm(self.fun(x))
+        return triangular(whole, [0] + [1 + int(c) for c in columns])
+
+    def _whole_factor(self, x: np.ndarray) -> np.ndarray:
+        """:func:`observed_factor` at ``x``, kept for the last ``x``.
+
+        Raises
+        ------
+        ConvergenceError
+            The sag diverges at ``x``.
+        """
         if self._factor is None or not np.array_equal(self._factor[0], x):
             self._factor = (np.array(x, dtype=float), observed_factor(self.obs, x))
-        return triangular(self._factor[1], [0] + [1 + int(c) for c in columns])
+        return self._factor[1]
 
     def columns(self, x: np.ndarray, final: bool) -> np.ndarray | None:
         """The regressor at ``x`` times the typical sizes, over the noise std when known: a
         (p + 1, p) matrix with its inner products (``a^T a``), what identifiability uses."""
         try:
-            tri = self.factor(x, np.arange(self.obs.model.size))
+            tri = self._whole_factor(x)
         except ConvergenceError:
             return None
         return tri[:, 1:] * (self.layout.scales / (self.noise or 1.0))
