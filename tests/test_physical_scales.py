@@ -16,8 +16,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.naming import is_stand_in
+from stiffness.calibration.pose_diagnose import CANDIDATES
 from stiffness.calibration.pose_fit import campaign_settings, fit_pose_model, rows_of
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_parameters import PoseJudge
@@ -134,9 +136,29 @@ def test_backlash_and_link_compliance_scales(ur5_campaign):
     assert _stand_in(bend, refs, np.array([2e4 / 10.2, 2e4]))
 
 
-def test_pose_scales_markers_offsets_and_compensator():
-    """A pose campaign's markers against the reach, revolute zero offsets against half a
-    turn, the compensator against the weight its joint carries at the commanded poses."""
+def test_compensator_with_the_masses_unknown_takes_the_joint_spring_scale(ur5_campaign):
+    """``diagnose --masses unknown`` on a deflection campaign: the URDF's weight is not
+    trusted, so the compensator's scale is the joint spring's, k_ref / (a d) and k_ref / a
+    (lever 0.1 m, base 0.3 m); with the masses known, the weight its joint carries (the
+    largest of Pinocchio's gravity torque on it over the campaign, over a and a^2)."""
+    robot, geo, _, campaign = ur5_campaign
+    lift = _weight_torques(robot, campaign)[
+        :, robot.model.joints[robot.model.getJointId("shoulder_lift_joint")].idx_v].max()
+    comp = make_effect("gravity_compensator", "shoulder_lift_joint", geo)
+    for masses in ("unknown", "known"):
+        refs = diagnose(campaign, max_steps=0, masses=masses).baseline.model.refs
+        k_ref = refs.k_ref
+        assert 1.4e4 < k_ref < 3.1e4  # the geometric mean of 3e4, 2e4, 1.5e4 N.m/rad
+        expected = ([k_ref / (0.1 * 0.3), k_ref / 0.1] if masses == "unknown"
+                    else [lift / 0.01, lift / 0.1])
+        np.testing.assert_allclose(comp.physical_scale(refs), expected, rtol=1e-9,
+                                   err_msg=masses)
+
+
+@pytest.fixture(scope="module")
+def ur5_pose_fit():
+    """A UR5 pose campaign without load (markers, compliant joints) and its fit with joint
+    compliance and a compensator on every joint."""
     robot = load_robot("ur5", frame="tool0")
     markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
                Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
@@ -146,7 +168,36 @@ def test_pose_scales_markers_offsets_and_compensator():
     families = ("frame", "markers", "joint_offsets", "joint_compliance", "gravity_compensator")
     model = PoseModel(robot, c.markers, families, (np.eye(3), np.zeros(3)), c.loads,
                       campaign_settings(c))
-    fit = fit_pose_model(model, c, rows_of(model, c), list(families))
+    return robot, c, model, fit_pose_model(model, c, rows_of(model, c), list(families))
+
+
+def test_pose_compensator_with_the_masses_unknown_takes_the_joint_spring_scale(ur5_pose_fit):
+    """A pose diagnosis with the masses unknown judges a compensator by the joint spring's
+    scales k_ref / (a d) and k_ref / a on every joint, not by the nominal weight (the judge
+    of ``diagnose(..., masses="unknown")``, every candidate family forbidden to keep it
+    cheap); with the masses known, by the weight."""
+    robot, c, model, fit = ur5_pose_fit
+    cut = model.slices()["gravity_compensator"]
+    lift = _weight_torques(robot, c).max(axis=0)[1]
+    labels = [p.label for p in model.parameters]
+    k = labels.index("shoulder_lift_joint compensator stiffness") - cut.start
+    for masses in ("unknown", "known"):
+        judge = diagnose(c, masses=masses, not_families=CANDIDATES[masses]).judge
+        refs = judge.references(fit)
+        sizes = next(f for f in model.family_objects
+                     if f.name == "gravity_compensator").physical_sizes(model, refs)
+        assert sizes.size == 12
+        if masses == "unknown":
+            np.testing.assert_allclose(sizes, np.tile([refs.k_ref / (0.1 * 0.3),
+                                                       refs.k_ref / 0.1], 6), rtol=1e-9)
+        else:
+            np.testing.assert_allclose(sizes[k: k + 2], [lift / 0.01, lift / 0.1], rtol=1e-9)
+
+
+def test_pose_scales_markers_offsets_and_compensator(ur5_pose_fit):
+    """A pose campaign's markers against the reach, revolute zero offsets against half a
+    turn, the compensator against the weight its joint carries at the commanded poses."""
+    robot, c, model, fit = ur5_pose_fit
     refs = PoseJudge.of(c).references(fit)
     assert refs.reach_m == pytest.approx(UR5_REACH, rel=1e-9)
     by_family = {f.name: f.physical_sizes(model, refs) for f in model.family_objects}

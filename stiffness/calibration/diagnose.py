@@ -308,9 +308,10 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
                              f"{len(compliant)} stiffnesses; add measurement rows")
     sigma, source, note = _translation_noise(campaign)
+    refs0 = References.of(geo, rows, 1e5, campaign.deflection, masses)
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
-        campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (),
-                        References.of(geo, rows, 1e5, campaign.deflection)), n, sigma, loss)
+        campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (), refs0), n, sigma,
+        loss, masses)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed)
     cv_base = cross_validate([base], measured, folds, workers)[0]
@@ -462,10 +463,11 @@ def _translation_noise(campaign: Campaign) -> tuple[float | None, str, str]:
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
-                  loss: str = "linear"
+                  loss: str = "linear", masses: str = "known"
                   ) -> tuple[Fit, np.ndarray, float, float | None, str | None]:
     """The campaign's baseline ``model0`` fitted (rotations weighted by their noise, estimated
-    from the baseline's residuals when not known), with the references of its stiffness;
+    from the baseline's residuals when not known), with the references of its stiffness and
+    of the robot's link ``masses`` (``unknown``: no weight to judge a compensator against);
     under a robust ``loss`` scaled by ``sigma`` (m), else by a robust estimate
     (:func:`stiffness.calibration.outliers.robust_noise`, twice).
 
@@ -492,7 +494,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
                                 loss if sigma is not None else "linear")
     k_ref = float(np.exp(np.mean(base.x)))
     base.model = base.model.with_refs(References.of(model0.geometry, model0.rows, k_ref,
-                                                    deflection))
+                                                    deflection, masses))
     if sigma is None and loss == "linear":
         scale = max(base.rms(), 1e-12)
         base = fit_model(base.model, measured, scale, base.x)

@@ -408,7 +408,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         settings[DECLARED_TILT] = [float(v) for v in base_tilt]
         declared_tilt(settings)  # two finite angles, else a one-line error
     base = _fit(campaign, chosen, frame0, settings, loss=loss)
-    judge = PoseJudge.of(campaign)
+    judge = PoseJudge.of(campaign, masses)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
     kind = PoseSearch(campaign, chosen, frame0, settings, scale, validate, say, workers, draw,

@@ -17,7 +17,9 @@ the same effects by:
   whose ten times is a backlash's scale;
 * the torques the links' weight puts on each joint at those poses (the nominal inertias): a
   compensator's preload and stiffness balance at most the largest of its joint's
-  (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.physical_scale`);
+  (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.physical_scale`); with the
+  masses unknown that weight is not trusted and the compensator takes the joint spring's
+  scales instead;
 * the robot's reach (:func:`~stiffness.elastic.effects.geometry.reach`): a marker's offset
   (a marker farther than that from where the campaign puts it is not on the robot) and a
   prismatic joint's zero offset; a revolute joint's zero offset: half a turn (pi rad, beyond
@@ -56,16 +58,18 @@ SPRINGS = "joint_compliance"
 @dataclass
 class PoseJudge:
     """What a pose campaign gives the physical scales: the joints' torques at its commanded
-    poses under the nominal robot (rows, nv; N.m, N), its RMS applied force (N) and the
-    weight's part of those torques (rows, nv; N.m, N)."""
+    poses under the nominal robot (rows, nv; N.m, N), its RMS applied force (N), the
+    weight's part of those torques (rows, nv; N.m, N) and whether the robot's link masses
+    are ``known`` or ``unknown`` (unknown: nothing is judged against that weight)."""
 
     torques: np.ndarray
     force_rms: float
     weight: np.ndarray
+    masses: str = "known"
 
     @classmethod
-    def of(cls, campaign: PoseCampaign) -> PoseJudge:
-        """The judge of ``campaign``'s fits."""
+    def of(cls, campaign: PoseCampaign, masses: str = "known") -> PoseJudge:
+        """The judge of ``campaign``'s fits, its robot's link masses ``masses``."""
         nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)),
                             campaign.loads)
         rows = rows_of(nominal, campaign)
@@ -73,7 +77,7 @@ class PoseJudge:
                  else np.asarray(campaign.loads.wrench)[:, :3])
         return cls(nominal.nominal_torques(rows),
                    float(np.sqrt(np.mean(np.sum(force ** 2, axis=1)))) if force.size else 0.0,
-                   nominal.nominal_torques(rows, wrench=False))
+                   nominal.nominal_torques(rows, wrench=False), masses)
 
     def references(self, fit: PoseFit) -> References:
         """The references of ``fit``'s physical scales (module docstring), over its model's
@@ -87,7 +91,8 @@ class PoseJudge:
         pin_model = model.robot.model
         single = [j for j in range(1, pin_model.njoints) if pin_model.joints[j].nv == 1]
         weight = weight_torques([pin_model.names[j] for j in single],
-                                self.weight[:, [pin_model.joints[j].idx_v for j in single]])
+                                self.weight[:, [pin_model.joints[j].idx_v for j in single]],
+                                self.masses)
         return References(tuple(model.springs), k_ref, tau_max, BACKLASH_SMOOTHING * tau_rms,
                           max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12, weight,
                           reach(pin_model))

@@ -440,7 +440,8 @@ class References:
         Joint name -> largest |torque| (N.m) the links' weight puts on it over the campaign
         (:attr:`Rows.gravity_torque`: the robot's inertias, no payload), for every joint where
         the model gives it; empty where it does not (a robot with loops, or whose links weigh
-        nothing).
+        nothing) or where the campaign declares its masses unknown (``--masses unknown``: the
+        model's weight is not trusted).
     reach_m
         The robot's reach (m, :func:`reach`): how far a target or marker can be from where a
         campaign declares it (1 m where references are built without a robot).
@@ -457,9 +458,10 @@ class References:
     reach_m: float = 1.0
 
     @classmethod
-    def of(cls, geometry: Geometry, rows: Rows, k_ref: float, deflection: np.ndarray
-           ) -> References:
-        """References from a campaign's rows, its baseline stiffness scale and deflections."""
+    def of(cls, geometry: Geometry, rows: Rows, k_ref: float, deflection: np.ndarray,
+           masses: str = "known") -> References:
+        """References from a campaign's rows, its baseline stiffness scale and deflections,
+        the robot's link masses ``known`` or ``unknown`` (:func:`weight_torques`)."""
         tau = np.abs(rows.torques())
         tau_max = np.maximum(tau.max(axis=0), 1e-9)
         tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9)
@@ -468,7 +470,7 @@ class References:
                    max(theta, 1e-9),
                    max(float(np.sqrt(np.mean(np.sum(rows.force ** 2, axis=1)))), 1e-9),
                    max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12),
-                   weight_torques(geometry.joints, rows.gravity_torque),
+                   weight_torques(geometry.joints, rows.gravity_torque, masses),
                    reach(geometry.robot.model))
 
     def max_torque(self, joint: str) -> float:
@@ -476,12 +478,15 @@ class References:
         return float(self.tau_max[self.joints.index(joint)])
 
 
-def weight_torques(joints: tuple[str, ...] | list[str], torques: np.ndarray | None
-                   ) -> dict[str, float]:
+def weight_torques(joints: tuple[str, ...] | list[str], torques: np.ndarray | None,
+                   masses: str = "known") -> dict[str, float]:
     """:attr:`References.weight_torque` of the weight's torques (rows, n) on ``joints`` (N.m,
-    N): each joint's largest |torque|; empty when they are unknown (``None``, NaN: a robot
-    with loops) or all zero (links that weigh nothing)."""
-    if torques is None or not torques.size or not np.all(np.isfinite(torques)):
+    N) under the model's link masses: each joint's largest |torque|; empty when the masses
+    are ``unknown`` (``--masses unknown``: the model's weight is not trusted, so nothing is
+    judged against it), when the torques are unknown (``None``, NaN: a robot with loops) or
+    all zero (links that weigh nothing)."""
+    if (masses != "known" or torques is None or not torques.size
+            or not np.all(np.isfinite(torques))):
         return {}
     largest = np.abs(torques).max(axis=0)
     if not np.any(largest > 0):
