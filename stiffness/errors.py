@@ -180,6 +180,11 @@ class ConvergenceError(StiffnessError):
     """An iterative solver (equilibrium, inverse kinematics, fit) did not converge."""
 
 
+class TooFewMeasurementsError(StiffnessError):
+    """A fit with at least as many identifiable parameters as measured components: the data do
+    not determine it (measure more poses or rows)."""
+
+
 class UnstableEquilibriumError(StiffnessError):
     """The load buckles the robot: the equilibrium is unstable or the tangent stiffness singular."""
 

@@ -427,6 +427,27 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
     assert "some but not all" in capsys.readouterr().err
 
 
+def test_a_candidate_the_campaign_cannot_determine_is_rejected_not_raised():
+    """10 UR10 poses of one marker (30 components), masses unknown: geometry and the lumped
+    gravity parameters would keep at least 30 identifiable parameters. Such a candidate is
+    not fitted and is rejected; the diagnosis ends with its verdict (it raised "30
+    identifiable parameters but only 30 measured components" from the candidate's fit)."""
+    robot = load_robot("ur10", frame="tool0")
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    rng = np.random.default_rng(2)
+    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                              np.array([m.offset for m in markers]) + 2e-3,
+                              rng.normal(0.0, 1e-3, 6), rng.normal(0.0, 2e-4, (6, 6)),
+                              stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
+    said: list[str] = []
+    d = diagnose_poses(simulate_pose_campaign(robot, markers, hidden, 10, NOISE, seed=2),
+                       masses="unknown", progress=said.append)
+    assert any("more identifiable parameters than measured components" in s for s in said)
+    assert {"geometry", "gravity_lumped"} <= set(d.rejected) | set(d.families)
+    assert "gravity_lumped" in d.rejected
+    assert d.to_dict()["steps"]
+
+
 def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error(monkeypatch):
     """22 Panda poses cannot determine most lumped gravity parameters: trial steps and folds
     whose sag diverges (the campaign meets them: counted) are refused (no ConvergenceError

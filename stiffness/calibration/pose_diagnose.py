@@ -66,7 +66,7 @@ from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES, check_masses
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
-from stiffness.errors import FileFormatError, StiffnessError
+from stiffness.errors import FileFormatError, StiffnessError, TooFewMeasurementsError
 from stiffness.files import atomic_write, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
 from stiffness.robot.robot import Robot, load_robot
@@ -334,12 +334,26 @@ def _values(fit: PoseFit) -> dict[str, float]:
 def candidate_fit(campaign: PoseCampaign, families: list[str],
                   frame0: tuple[np.ndarray, np.ndarray], settings: dict, start: dict[str, float],
                   loss: str, scale: float | None, candidates: list[str], index: int
-                  ) -> tuple[PoseFit, float]:
+                  ) -> tuple[PoseFit | None, float]:
     """One task of a step's candidates (module-level: it runs on Dask workers): candidate
     ``candidates[index]`` added to ``families``, fitted from ``start`` (values by label), and
-    its held-out RMS (m, :func:`held_out_rms`)."""
-    fit = _fit(campaign, families + [candidates[index]], frame0, settings, start, loss, scale)
-    return fit, held_out_rms(fit, campaign)
+    its held-out RMS (m, :func:`held_out_rms`); ``(None, inf)`` where it cannot be fitted
+    (:func:`_candidate`)."""
+    fit = _candidate(campaign, families + [candidates[index]], frame0, settings, start, loss,
+                     scale)
+    return fit, (math.inf if fit is None else held_out_rms(fit, campaign))
+
+
+def _candidate(campaign: PoseCampaign, families: list[str],
+               frame0: tuple[np.ndarray, np.ndarray], settings: dict,
+               start: PoseFit | dict[str, float], loss: str, scale: float | None
+               ) -> PoseFit | None:
+    """:func:`_fit` of a candidate, ``None`` where it keeps at least as many identifiable
+    parameters as the campaign has measured components (it cannot be judged: not tried)."""
+    try:
+        return _fit(campaign, families, frame0, settings, start, loss, scale)
+    except TooFewMeasurementsError:
+        return None
 
 
 @one_blas_thread
@@ -525,17 +539,22 @@ class PoseSearch:
         self.delta = self.deltas(current, screen)
         best = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN),
                       key=lambda f: self.delta[f])[:CV_TOP]
+        tried: list[tuple[str, PoseFit | None]]
         if self.workers is None or self.workers <= 1 or len(best) < 2:
-            fits = [(f, _fit(c, families + [f], self.frame0, self.settings, current,
-                             current.loss, self.scale)) for f in best]
+            tried = [(f, _candidate(c, families + [f], self.frame0, self.settings, current,
+                                   current.loss, self.scale)) for f in best]
         else:  # side by side, each with its held-out RMS (in process: as needed, in order)
-            done: dict[int, tuple[PoseFit, float]] = {}
+            done: dict[int, tuple[PoseFit | None, float]] = {}
             run_chunks(candidate_fit, (c, families, self.frame0, self.settings,
                                        _values(current), current.loss, self.scale, best),
                        range(len(best)), lambda i, result: done.__setitem__(i, result),
                        workers=self.workers)
-            fits = [(f, done[i][0]) for i, f in enumerate(best)]
+            tried = [(f, done[i][0]) for i, f in enumerate(best)]
             held_out = {f: done[i][1] for i, f in enumerate(best)}
+        for f in (f for f, fit in tried if fit is None):
+            self.say(f"  {f}: more identifiable parameters than measured components; not "
+                     "fitted")
+        fits = [(f, fit) for f, fit in tried if fit is not None]
         ranking, _ = ranked(self, current, fits)
         for candidate in ranking:
             candidate.cv_rms = held_out.get(candidate.effect)

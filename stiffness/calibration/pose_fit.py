@@ -72,7 +72,7 @@ from stiffness.calibration.solver import (
 )
 from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects.pose_face import RowTerms
-from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.errors import ConvergenceError, StiffnessError, TooFewMeasurementsError
 
 #: Residual (m, each component) of a trial step whose sag does not converge (an unphysically
 #: large compliance): far above any measured error, so the solver refuses the step.
@@ -556,11 +556,11 @@ class PoseProblem:
 
         Raises
         ------
-        StiffnessError
+        TooFewMeasurementsError
             Fewer measured components than identifiable parameters.
         """
         if len(ident.kept) >= self.obs.size:
-            raise StiffnessError(f"{len(ident.kept)} identifiable parameters but only "
+            raise TooFewMeasurementsError(f"{len(ident.kept)} identifiable parameters but only "
                                  f"{self.obs.size} measured components; measure more poses")
         x = np.array(x, dtype=float)
         x[[d.index for d in ident.dropped]] = 0.0
