@@ -18,6 +18,7 @@ import pytest
 from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
 from hypothesis import given
 from hypothesis import strategies as st
+from pose_campaigns import ur10_tip_campaign
 from pose_columns import assert_columns
 from pose_truth import add_intervals
 from stats import Coverage
@@ -432,16 +433,8 @@ def test_a_candidate_the_campaign_cannot_determine_is_rejected_not_raised():
     gravity parameters would keep at least 30 identifiable parameters. Such a candidate is
     not fitted and is rejected; the diagnosis ends with its verdict (it raised "30
     identifiable parameters but only 30 measured components" from the candidate's fit)."""
-    robot = load_robot("ur10", frame="tool0")
-    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
-    rng = np.random.default_rng(2)
-    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
-                              np.array([m.offset for m in markers]) + 2e-3,
-                              rng.normal(0.0, 1e-3, 6), rng.normal(0.0, 2e-4, (6, 6)),
-                              stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
     said: list[str] = []
-    d = diagnose_poses(simulate_pose_campaign(robot, markers, hidden, 10, NOISE, seed=2),
-                       masses="unknown", progress=said.append)
+    d = diagnose_poses(ur10_tip_campaign(10), masses="unknown", progress=said.append)
     assert any("more identifiable parameters than measured components" in s for s in said)
     assert {"geometry", "gravity_lumped"} <= set(d.rejected) | set(d.families)
     assert "gravity_lumped" in d.rejected

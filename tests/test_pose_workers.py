@@ -10,17 +10,13 @@ import pickle
 import subprocess
 import sys
 
-import numpy as np
-import pinocchio as pin
 import pytest
+from pose_campaigns import ur10_tip_campaign
 from threadpoolctl import threadpool_info
 
 from stiffness.calibration import pose_diagnose
 from stiffness.calibration.pose_diagnose import diagnose_poses
-from stiffness.calibration.pose_model import Marker
 from stiffness.cores import one_blas_thread
-from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
-from stiffness.robot.robot import load_robot
 from stiffness.workspace.distributed import run_chunks
 
 
@@ -39,15 +35,7 @@ def test_candidates_on_dask_workers_give_the_same_diagnosis(monkeypatch):
     held-out RMS, and the diagnosis (steps, BIC changes, held-out RMS, parameters) equals the
     in-process one; the held-out criterion draws its progress to the end in process."""
     distributed = pytest.importorskip("distributed")
-    robot = load_robot("ur10", frame="tool0")
-    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
-    rng = np.random.default_rng(2)
-    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
-                              np.array([m.offset for m in markers]) + 2e-3,
-                              rng.normal(0.0, 1e-3, 6), rng.normal(0.0, 2e-4, (6, 6)),
-                              stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
-    campaign = simulate_pose_campaign(robot, markers, hidden, 24, 20e-6, seed=2,
-                                      payload=np.array([0.0, 0.0, -300.0, 0, 0, 0]))
+    campaign = ur10_tip_campaign(24, payload_n=300.0)
     bars: dict[str, tuple[int, int]] = {}
 
     def bar(label: str):
