@@ -551,9 +551,11 @@ class PoseSearch:
                        workers=self.workers)
             tried = [(f, done[i][0]) for i, f in enumerate(best)]
             held_out = {f: done[i][1] for i, f in enumerate(best)}
-        for f in (f for f, fit in tried if fit is None):
+        for f in (f for f, fit in tried if fit is None):  # later steps only add parameters
             self.say(f"  {f}: more identifiable parameters than measured components; not "
-                     "fitted")
+                     "fitted, never tried again")
+            self.rejected[f] = self.delta[f]
+            self.remaining.remove(f)
         fits = [(f, fit) for f, fit in tried if fit is not None]
         ranking, _ = ranked(self, current, fits)
         for candidate in ranking:
