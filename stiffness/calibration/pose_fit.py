@@ -525,8 +525,8 @@ class PoseProblem:
         try:
             whole = self._whole_factor(x)
         except ConvergenceError:
-            whole = np.zeros((self.obs.model.size + 1,) * 2)
-            whole[0, 0] = np.linalg.norm(self.fun(x))
+            whole = np.zeros((self.obs.model.size + 1,) * 2)  # |fun(x)|, not evaluated again
+            whole[0, 0] = np.linalg.norm(np.full(self.obs.size, DIVERGED_RESIDUAL_M))
         return triangular(whole, [0] + [1 + int(c) for c in columns])
 
     def _whole_factor(self, x: np.ndarray) -> np.ndarray:
