@@ -375,6 +375,27 @@ def test_fixed_base_and_loop_file_travel_with_the_model(tmp_path):
     assert "fixed_base" not in plain and "loops" not in plain  # files as before
 
 
+def test_commands_taking_the_robot_from_a_model_file_load_it_with_its_fixed_base(tmp_path):
+    """`robot export --model`, `kx --model --kq` and `scan --model --kq` take the robot from
+    the model file as a fallback of the robot flags: with its fixed base too (they refused
+    the solo8 of a `--fixed-base` campaign's model: 'fix the base ... with --fixed-base')."""
+    from stiffness.cli.main import main
+
+    model = ModelFile(source="solo8", frame="FL_FOOT", target_offset_m=np.zeros(3),
+                      compliant_joints=("FL_HFE", "FL_KFE"), k_theta=np.full(2, 50.0),
+                      units=("N.m/rad",) * 2, formulation="enhanced", fixed_base=True)
+    path = str(model.write(tmp_path / "m.json"))
+    assert main(["robot", "export", "--model", path, "--urdf", str(tmp_path / "s.urdf"),
+                 "--quiet"]) == 0
+    assert 'name="root_joint"' not in (tmp_path / "s.urdf").read_text()
+    assert main(["kx", "--model", path, "--kq", "60,60", "--q", "FL_HFE=0.4,FL_KFE=-0.8",
+                 "--wrench", "0,0,-5", "--json"]) == 0
+    out = tmp_path / "scan"
+    assert main(["scan", "--model", path, "--kq", "60,60", "--samples", "4", "--no-plots",
+                 "--quiet", "--out", str(out)]) == 0
+    assert json.loads((out / "manifest.json").read_text())["spec"]["robot"]["fixed_base"]
+
+
 def test_joint_compliance_on_a_compliant_joint_is_refused(tmp_path):
     """Two stiffnesses for one spring: the effect would silently replace k_theta's."""
     model = _ur5_model(ModelEffect("joint_compliance", "elbow_joint", "stiffness",

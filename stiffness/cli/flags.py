@@ -349,7 +349,8 @@ def robot_flags(args: argparse.Namespace, fallback: Any = None) -> RobotFlags:
     """The robot flags of ``args``; ``fallback`` fills what they leave out.
 
     ``fallback`` is anything with ``source``, ``frame``, ``target_offset_m`` and
-    ``compliant_joints`` attributes (an identified model file), or None.
+    ``compliant_joints`` attributes, and optionally ``loops`` and ``fixed_base`` (a model
+    file, which loads its robot with them), or None.
     """
     flags = RobotFlags(getattr(args, "robot", None), getattr(args, "frame", None),
                        target_offset_from_args(args),
@@ -364,6 +365,8 @@ def robot_flags(args: argparse.Namespace, fallback: Any = None) -> RobotFlags:
             flags.target_offset = [float(v) for v in fallback.target_offset_m]
         if flags.compliant_joints is None:
             flags.compliant_joints = list(fallback.compliant_joints)
+        flags.loops = flags.loops or getattr(fallback, "loops", None)
+        flags.fixed_base = flags.fixed_base or bool(getattr(fallback, "fixed_base", False))
     return flags
 
 

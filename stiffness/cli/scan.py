@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.cli import flags
-from stiffness.cli.flags import parse_list, robot_from_args, stiffness_required
+from stiffness.cli.flags import parse_list, robot_flags, robot_from_args, stiffness_required
 from stiffness.cli.kx import elastic_model_from_args, model_file_from_args
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
@@ -188,9 +188,10 @@ def _robot(args: argparse.Namespace) -> tuple[Robot, dict, list[float] | None]:
                   "target_offset": offset, "compliant_joints": compliant}
     # the workers load the same robot: its loop file and fixed base too (keys only when
     # given, so that the manifests of earlier scans still match for a resume)
-    if getattr(args, "loops", None):
-        robot_spec["loops"] = str(Path(args.loops).resolve())
-    if getattr(args, "fixed_base", False):
+    given = robot_flags(args, fallback)
+    if given.loops:
+        robot_spec["loops"] = str(Path(given.loops).resolve())
+    if given.fixed_base:
         robot_spec["fixed_base"] = True
     if kq is None and default_stiffness(robot) is None:
         raise stiffness_required(robot)
