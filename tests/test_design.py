@@ -36,6 +36,7 @@ from stiffness.calibration.experiment import (
 from stiffness.calibration.identify import identify
 from stiffness.calibration.poses import coordinate_limits
 from stiffness.cli.main import main
+from stiffness.elastic.model_file import ModelFile
 from stiffness.errors import (
     FileFormatError,
     MissingFileError,
@@ -353,6 +354,34 @@ def test_a_plan_completing_a_campaign_names_its_robot_from_its_own_folder(tmp_pa
     source = read_toml(plan / "campaign.toml")["robot"]["source"]
     assert source == "../../r/robot.toml"
     assert (plan / source).resolve() == (tmp_path / "r" / "robot.toml").resolve()
+
+
+def test_design_and_plans_keep_the_fixed_base_of_their_robot(tmp_path, capsys):
+    """A floating-base robot fixed with --fixed-base travels through design and simulate
+    --plan: design --model (a model file's fixed base), design --existing with a flag (the
+    campaign's), simulate --plan FOLDER (the plan's campaign.toml) and simulate --plan CSV
+    --robot --fixed-base were all refused ('fix the base ... with --fixed-base')."""
+    base = ["--kq", "3000,3000", "--max-force", "20", "--candidates", "8", "--random-plans", "2",
+            "--quiet"]
+    assert main(["simulate", "--robot", "solo8", "--fixed-base", "--configs", "2",
+                 "--loads-per-config", "2", "--out", str(tmp_path / "c"), *base[:4]]) == 0
+    model = ModelFile(source="solo8", frame="FL_FOOT", target_offset_m=np.zeros(3),
+                      compliant_joints=("FL_HFE", "FL_KFE"), k_theta=np.full(2, 3000.0),
+                      units=("N.m/rad",) * 2, formulation="enhanced", fixed_base=True)
+    path = str(model.write(tmp_path / "m.json"))
+    design = ["design", "--configs", "2", "--loads-per-config", "1", *base]
+    assert main([*design, "--model", path, "--out", str(tmp_path / "a.csv")]) == 0
+    assert main([*design, "--existing", str(tmp_path / "c"), "--frame", "FL_FOOT",
+                 "--out", str(tmp_path / "plan")]) == 0
+    assert read_toml(tmp_path / "plan" / "campaign.toml")["robot"]["fixed_base"] is True
+    simulate = ["simulate", *base[:2], "--quiet"]
+    assert main([*simulate, "--plan", str(tmp_path / "plan"), "--out", str(tmp_path / "s1")]) == 0
+    assert main([*simulate, "--plan", str(tmp_path / "a.csv"), "--robot", "solo8",
+                 "--fixed-base", "--compliant-joints", "FL_HFE,FL_KFE",
+                 "--out", str(tmp_path / "s2")]) == 0
+    for sim in ("s1", "s2"):
+        assert load_campaign(tmp_path / sim).robot().fixed_base
+    capsys.readouterr()
 
 
 def test_python_api_at_package_top(pools):

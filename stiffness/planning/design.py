@@ -366,13 +366,17 @@ def design_robot(robot: str | None = None, frame: str | None = None,
     fallback: tuple[str, str | None, np.ndarray, tuple[str, ...]] | None = None
     if model is not None:
         fallback = (model.source, model.frame, model.target_offset_m, model.compliant_joints)
+        options = model.robot_options()
     elif existing is not None:
         if all(v is None for v in (robot, frame, target_offset_m, compliant_joints)):
             return existing.robot()
         s = existing.robot_settings
         fallback = (existing.resolved_source(), s.frame, s.target_offset_m,
                     s.compliant_joints or existing.robot().compliant_joints)
-    if fallback is not None:
+        options = existing.robot_options()
+    if fallback is not None:  # the model's or campaign's loop file and fixed base too
+        loops = loops or options["loops"]
+        fixed_base = fixed_base or options["fixed_base"]
         robot = robot or fallback[0]
         frame = frame or fallback[1]
         if target_offset_m is None:

@@ -59,6 +59,7 @@ from stiffness.files import (
     check_csv_header,
     number_text,
     read_text,
+    resolve_path,
     resolve_source,
     staged_folder,
 )
@@ -323,7 +324,8 @@ def plan_and_robot(path: str | os.PathLike, robot: PlannedRobot) -> tuple[Plan, 
         declared = cached_robot(robot.source, robot.frame, None if robot.target_offset_m is None
                                 else tuple(robot.target_offset_m), None
                                 if robot.compliant_joints is None
-                                else tuple(robot.compliant_joints))
+                                else tuple(robot.compliant_joints), None if robot.loops is None
+                                else str(Path(robot.loops).resolve()), robot.fixed_base)
     plan, _ = read_plan(path, declared)
     s = plan.robot_settings
     if robot.source is None and s is not None:
@@ -332,5 +334,8 @@ def plan_and_robot(path: str | os.PathLike, robot: PlannedRobot) -> tuple[Plan, 
             robot.target_offset_m if robot.target_offset_m is not None
             else [float(v) for v in s.target_offset_m],
             robot.compliant_joints if robot.compliant_joints is not None
-            else (None if s.compliant_joints is None else list(s.compliant_joints)))
+            else (None if s.compliant_joints is None else list(s.compliant_joints)),
+            robot.loops or (None if s.loops is None or plan.path is None
+                            else resolve_path(s.loops, plan.path.parent)),
+            robot.fixed_base or s.fixed_base)
     return plan, robot
