@@ -43,12 +43,7 @@ from stiffness.calibration.pose_fit import PoseFit, rows_of
 from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.selection import interval_quantile
 from stiffness.elastic.effects.base import Parameter, judged
-from stiffness.elastic.effects.geometry import (
-    BACKLASH_SMOOTHING,
-    References,
-    reach,
-    weight_torques,
-)
+from stiffness.elastic.effects.geometry import References, reach, rms_force, weight_torques
 from stiffness.mechanics.defaults import default_stiffness
 
 #: The family whose fitted compliances give ``k_ref`` (module docstring).
@@ -75,27 +70,21 @@ class PoseJudge:
         rows = rows_of(nominal, campaign)
         force = (np.zeros((1, 3)) if campaign.loads is None
                  else np.asarray(campaign.loads.wrench)[:, :3])
-        return cls(nominal.nominal_torques(rows),
-                   float(np.sqrt(np.mean(np.sum(force ** 2, axis=1)))) if force.size else 0.0,
+        return cls(nominal.nominal_torques(rows), rms_force(force),
                    nominal.nominal_torques(rows, wrench=False), masses)
 
     def references(self, fit: PoseFit) -> References:
         """The references of ``fit``'s physical scales (module docstring), over its model's
         springs."""
         model = fit.model
-        tau = np.abs(self.torques @ model.spring_map)
-        tau_max = np.maximum(tau.max(axis=0, initial=0.0), 1e-9)
-        tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9) if tau.size else tau_max
-        k_ref = _k_ref(fit)
-        theta = float(np.sqrt(np.mean(tau_rms ** 2))) / k_ref if tau_rms.size else 1e-9
         pin_model = model.robot.model
         single = [j for j in range(1, pin_model.njoints) if pin_model.joints[j].nv == 1]
         weight = weight_torques([pin_model.names[j] for j in single],
                                 self.weight[:, [pin_model.joints[j].idx_v for j in single]],
                                 self.masses)
-        return References(tuple(model.springs), k_ref, tau_max, BACKLASH_SMOOTHING * tau_rms,
-                          max(theta, 1e-9), max(self.force_rms, 1e-9), 1e-12, weight,
-                          reach(pin_model))
+        return References.scaled(tuple(model.springs), _k_ref(fit),
+                                 self.torques @ model.spring_map, self.force_rms, 1e-12, weight,
+                                 reach(pin_model))
 
     def parameters(self, fit: PoseFit) -> dict[str, list[Parameter]]:
         """Each family's parameters in ``fit`` (by family name, in the model's order) with

@@ -462,20 +462,34 @@ class References:
            masses: str = "known") -> References:
         """References from a campaign's rows, its baseline stiffness scale and deflections,
         the robot's link masses ``known`` or ``unknown`` (:func:`weight_torques`)."""
-        tau = np.abs(rows.torques())
-        tau_max = np.maximum(tau.max(axis=0), 1e-9)
-        tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9)
-        theta = float(np.sqrt(np.mean(tau_rms ** 2))) / k_ref
-        return cls(geometry.joints, float(k_ref), tau_max, BACKLASH_SMOOTHING * tau_rms,
-                   max(theta, 1e-9),
-                   max(float(np.sqrt(np.mean(np.sum(rows.force ** 2, axis=1)))), 1e-9),
-                   max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12),
-                   weight_torques(geometry.joints, rows.gravity_torque, masses),
-                   reach(geometry.robot.model))
+        return cls.scaled(geometry.joints, float(k_ref), rows.torques(), rms_force(rows.force),
+                          max(float(np.sqrt(np.mean(deflection ** 2))), 1e-12),
+                          weight_torques(geometry.joints, rows.gravity_torque, masses),
+                          reach(geometry.robot.model))
+
+    @classmethod
+    def scaled(cls, joints: tuple[str, ...], k_ref: float, torques: np.ndarray,
+               force_rms: float, deflection_ref: float, weight_torque: dict[str, float],
+               reach_m: float) -> References:
+        """References from the springs' torques (rows, n; N.m, N) and the RMS applied force
+        (N, :func:`rms_force`) over a campaign, either kind: ``tau_max`` each joint's largest
+        |torque|, the smoothing from its RMS, ``theta_ref`` the RMS torque over ``k_ref`` (each
+        at least 1e-9)."""
+        tau = np.abs(torques)
+        tau_max = np.maximum(tau.max(axis=0, initial=0.0), 1e-9)
+        tau_rms = np.maximum(np.sqrt(np.mean(tau ** 2, axis=0)), 1e-9) if tau.size else tau_max
+        theta = float(np.sqrt(np.mean(tau_rms ** 2))) / k_ref if tau_rms.size else 1e-9
+        return cls(joints, k_ref, tau_max, BACKLASH_SMOOTHING * tau_rms, max(theta, 1e-9),
+                   max(force_rms, 1e-9), deflection_ref, weight_torque, reach_m)
 
     def max_torque(self, joint: str) -> float:
         """Largest |torque| of ``joint`` over the campaign."""
         return float(self.tau_max[self.joints.index(joint)])
+
+
+def rms_force(force: np.ndarray) -> float:
+    """RMS norm of the applied forces (rows, 3; N), 0 without any."""
+    return float(np.sqrt(np.mean(np.sum(force ** 2, axis=1)))) if force.size else 0.0
 
 
 def weight_torques(joints: tuple[str, ...] | list[str], torques: np.ndarray | None,
