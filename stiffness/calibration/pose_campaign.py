@@ -343,14 +343,9 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     check_marker_spread(robot, [m.frame for m in markers],
                         np.array([m.offset for m in markers]), q, pos * units.length_to_si,
                         units, data)
-    loads = None
-    if wrench is not None:
-        full = np.zeros((len(labels), 6))
-        full[:, :3] = wrench[:, :3] * units.force_to_si
-        if wrench.shape[1] == 6:
-            full[:, 3:] = wrench[:, 3:] * units.moment_to_si
-        frame = doc.get("load", {}).get("frame", robot.target_frame)
-        loads = Loads(str(frame), full)
+    loads = None if wrench is None else Loads.read(
+        str(doc.get("load", {}).get("frame", robot.target_frame)), wrench[:, :3],
+        wrench[:, 3:] if wrench.shape[1] == 6 else None, units)
     return PoseCampaign(str(doc.get("name", toml_path.parent.name)), robot, settings, units,
                         markers, labels, q, pos * units.length_to_si, loads,
                         None if noise is None else noise * units.length_to_si, toml_path,

@@ -107,13 +107,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     check_marker_spread(robot, [m.frame for m in markers],
                         np.array([m.offset for m in markers], float) * units.length_to_si, q,
                         positions * units.length_to_si, units, q_cols[0].path)
-    loads = None
-    if force is not None:
-        wrench = np.zeros((len(rows), 6))
-        wrench[:, :3] = force * units.force_to_si
-        if moment is not None:
-            wrench[:, 3:] = moment * units.moment_to_si
-        loads = Loads(robot.target_frame, wrench)
+    loads = None if force is None else Loads.read(robot.target_frame, force, moment, units)
     scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si)
               for m in markers]
     campaign = PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,

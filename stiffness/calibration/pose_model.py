@@ -73,6 +73,7 @@ from stiffness.elastic.effects.pose_face import (
 )
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.robot.robot import Robot
+from stiffness.units import Units
 
 #: Tolerance (rad or m) and iteration cap of the sag's fixed point.
 SAG_TOLERANCE = 1e-13
@@ -121,6 +122,17 @@ class Loads:
 
     frame: str
     wrench: np.ndarray
+
+    @classmethod
+    def read(cls, frame: str, force: np.ndarray, moment: np.ndarray | None, units: Units
+             ) -> Loads:
+        """The loads of a campaign's forces (n, 3) and moments (n, 3, or ``None``: zero) in
+        the files' ``units``."""
+        wrench = np.zeros((len(force), 6))
+        wrench[:, :3] = force * units.force_to_si
+        if moment is not None:
+            wrench[:, 3:] = moment * units.moment_to_si
+        return cls(frame, wrench)
 
 
 class PoseModel:
