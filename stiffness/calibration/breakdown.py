@@ -187,6 +187,12 @@ def strongest_correlations(structure: dict, n: int = REPORTED_CORRELATIONS) -> l
     return [{"variable": v, **c} for v, c in flat[:n]]
 
 
+def finite_rms(values: np.ndarray) -> float:
+    """RMS of the finite values (NaN if none): a marker not seen is left out."""
+    v = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
+
+
 def error_summary(errors: np.ndarray, length_to_si: float) -> dict:
     """RMS, mean, standard deviation and max of 3-D error norms (m) in the campaign's unit,
     and how many were seen: the keys ``rms``, ``mean_error``, ``std_error`` (the spread of the

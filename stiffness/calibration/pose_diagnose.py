@@ -34,7 +34,7 @@ from typing import ClassVar
 import numpy as np
 
 from stiffness.calibration import certainty
-from stiffness.calibration.breakdown import error_summary
+from stiffness.calibration.breakdown import error_summary, finite_rms
 from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.naming import is_stand_in, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
@@ -233,8 +233,8 @@ def residual_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:
     """
     r = fit.residual
     lu = campaign.units.length_to_si
-    per_marker = {m.name: _rms(r[:, k]) / lu for k, m in enumerate(campaign.markers)}
-    per_axis = {a: _rms(r[:, :, i]) / lu for i, a in enumerate("xyz")}
+    per_marker = {m.name: finite_rms(r[:, k]) / lu for k, m in enumerate(campaign.markers)}
+    per_axis = {a: finite_rms(r[:, :, i]) / lu for i, a in enumerate("xyz")}
     rows = np.arange(r.shape[0], dtype=float)
     trend = {}
     for i, a in enumerate("xyz"):
@@ -245,11 +245,6 @@ def residual_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:
             trend[a] = {"slope_per_row": slope / lu,
                         "correlation": float(np.corrcoef(rows[ok], values[ok])[0, 1])}
     return {"rms_by_marker": per_marker, "rms_by_axis": per_axis, "row_trend": trend}
-
-
-def _rms(values: np.ndarray) -> float:
-    v = values[np.isfinite(values)]
-    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stiffness.calibration.breakdown import finite_rms
+
 if TYPE_CHECKING:
     from stiffness.calibration.pose_diagnose import PoseDiagnosis
 
@@ -55,7 +57,7 @@ def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None
             ax.grid(alpha=0.3)
             for i in lines:
                 ax.axvline(i + 0.5, color="0.8", lw=0.5)
-        axes[0, col].set_title(f"{word} (RMS {_rms(values):.3g} {unit})", fontsize=9)
+        axes[0, col].set_title(f"{word} (RMS {finite_rms(values):.3g} {unit})", fontsize=9)
         axes[-1, col].set_xlabel("measurement row")
     if sigma:
         axes[0, 1].legend(fontsize=8, loc="upper right")
@@ -82,9 +84,3 @@ def marker_residual_plots(d: PoseDiagnosis) -> dict[str, bytes]:
             f"{c.name}, marker {m.name}: before, the tracker placement and marker offsets "
             f"fitted; after, with {', '.join(d.families[2:]) or 'nothing more'}")
     return plots
-
-
-def _rms(values: np.ndarray) -> float:
-    """RMS of the finite values (NaN if none)."""
-    v = values[np.isfinite(values)]
-    return float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan")
