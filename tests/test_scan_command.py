@@ -589,6 +589,27 @@ def test_scan_of_a_fixed_floating_base_robot_and_its_resume(tmp_path):
     assert summary["chunks"]["resumed"] == 2 and summary["valid_configurations"] == 40
 
 
+def test_python_scan_of_a_loaded_robot_reloads_it_with_its_base_and_loop_file(tmp_path):
+    """stiffness.scan(robot=Robot): the chunks reload the robot from its name, with its fixed
+    base (a fixed solo8 raised FloatingBaseError) and a loop file other than the one its
+    source finds (the SK120's own stays out of the spec, as before)."""
+    import stiffness
+
+    solo = load_robot("solo8", fixed_base=True)
+    result = stiffness.scan(robot=solo, k_theta=[50, 50], samples=4, out=tmp_path / "s",
+                            plots=False)
+    assert result.to_dict()["valid_configurations"] == 4
+    manifest = json.loads((tmp_path / "s" / "manifest.json").read_text())
+    assert manifest["spec"]["robot"]["fixed_base"] is True
+    from stiffness.workspace.request import _reload_options
+
+    sk120 = load_robot("sk120")
+    assert _reload_options(sk120) == {}
+    copy = tmp_path / "copy.loops.yaml"
+    copy.write_text(Path(sk120.loop_file).read_text())
+    assert _reload_options(load_robot("sk120", loops=copy)) == {"loops": str(copy.resolve())}
+
+
 # ------------------------------------------------------------------------------ scan size
 
 

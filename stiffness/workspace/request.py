@@ -25,6 +25,7 @@ from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_stiffness
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot, coordinate_index, load_robot
+from stiffness.robot.sources import resolve_source
 from stiffness.workspace.engine import run_scan
 from stiffness.workspace.spec import ScanSpec, grid_length, parse_fields
 
@@ -328,6 +329,18 @@ def model_robot(model: ModelFile | str | os.PathLike) -> tuple[Robot, dict, list
     return robot, robot_spec, elastic.k_theta.tolist()
 
 
+def _reload_options(robot: Robot) -> dict:
+    """What the chunks need beyond its name to reload ``robot`` as loaded: ``fixed_base``
+    when its base was fixed, ``loops`` when its loop file is not the one its source finds
+    by itself (keys only then, so that the specs of earlier scans still match)."""
+    options: dict[str, Any] = {"fixed_base": True} if robot.fixed_base else {}
+    if robot.loop_file is not None:
+        found = resolve_source(robot.name).loop_file
+        if found is None or Path(found).resolve() != Path(robot.loop_file).resolve():
+            options["loops"] = str(Path(robot.loop_file).resolve())
+    return options
+
+
 def scan(robot: Robot | str | None = None, out: str | os.PathLike | None = None, *,
          model: ModelFile | str | os.PathLike | None = None,
          k_theta: Sequence[float] | np.ndarray | None = None,
@@ -388,7 +401,8 @@ def scan(robot: Robot | str | None = None, out: str | os.PathLike | None = None,
         robot = load_robot(robot)
     robot_spec = robot_spec or {"source": robot.name, "frame": robot.target_frame,
                                 "target_offset": robot.target_offset.tolist(),
-                                "compliant_joints": list(robot.compliant_joints)}
+                                "compliant_joints": list(robot.compliant_joints),
+                                **_reload_options(robot)}
     spec = scan_spec(robot, robot_spec, k_theta, preset=preset, axes=axes, samples=samples,
                      seed=seed, q=q, wrench=wrench,
                      **{k: options[k] for k in spec_keys if k in options})
