@@ -316,6 +316,19 @@ def test_sidecar_order_and_the_loops_flag(tmp_path):
         assert load_robot(path).loop_file.endswith("robot.yaml")
 
 
+def test_a_robot_toml_naming_a_urdf_finds_the_sidecar_beside_it(tmp_path):
+    """A robot.toml with urdf = "..." and no loops key closes the loops of the sidecar beside
+    that URDF, as the URDF's own path does (it loaded the mechanism as an open tree, with a
+    warning to declare the loops in the robot.yaml that was there); loops = "..." still wins."""
+    folder = tmp_path / "r"
+    path = _write(folder, _rssr_urdf(ROD), _rssr_yaml("spherical"), "arm.urdf", "robot.yaml")
+    (folder / "leg.toml").write_text('urdf = "arm.urdf"\n')
+    by_path, by_toml = load_robot(path), load_robot(folder / "leg.toml")
+    assert by_toml.loop_file == by_path.loop_file == str(folder / "robot.yaml")
+    assert by_toml.coordinate_joints == by_path.coordinate_joints
+    assert len(by_toml.loop.pairs) == len(by_path.loop.pairs) == 1
+
+
 def test_loop_frames_without_a_declaration_are_named_in_a_warning(tmp_path):
     """A URDF whose frames carry Gepetto's loop-frame names (closedloop<N>_A/_B) but has no
     loop declaration loads as an open tree, with a warning that says so and how to declare

@@ -7,7 +7,8 @@ robot: it brings the same settings (coordinate order, loop file, defaults) as wh
 by name, so one robot has one coordinate order.
 
 Loop sidecars beside ``<folder>/<name>.urdf``, first found wins: ``<name>.loops.yaml``,
-``<name>.yaml``, ``robot.yaml`` (Gepetto's example-parallel-robots). A ``<name>.yaml`` or
+``<name>.yaml``, ``robot.yaml`` (Gepetto's example-parallel-robots), also for a ``robot.toml``
+naming the URDF without a ``loops`` key. A ``<name>.yaml`` or
 ``robot.yaml`` without the key ``closed_loop`` is not a loop declaration: it is skipped with a
 warning.
 """
@@ -138,7 +139,8 @@ def _from_toml(folder: Path, name: str, toml: Path | None = None) -> RobotSource
                               "(docs/robot-files.md)", path=toml)
     urdf = folder / settings["urdf"]
     read = read_urdf(urdf)
-    loop_file = folder / settings["loops"] if "loops" in settings else None
+    # without a loops key, the sidecar beside its URDF, as for the URDF's own path
+    loop_file = folder / settings["loops"] if "loops" in settings else find_loop_sidecar(urdf)
     return RobotSource(name, read.model, read.visual, settings, read.mimics, read.missing_meshes,
                        loop_file, urdf, all_mimics=read.all_mimics)
 
