@@ -192,15 +192,21 @@ def typed_value(value, kind: type | UnionType | tuple, toml: TomlFile, section: 
     return value
 
 
-def read_campaign_toml(path: Path) -> tuple[dict, TomlFile]:
+def read_campaign_toml(path: Path, check: Callable[[dict, str, TomlFile], None] | None = None,
+                       sections: tuple[str, ...] = ("robot", "units", "measurement")
+                       ) -> tuple[dict, TomlFile]:
+    """A campaign file's tables, each key checked by ``check(table, section, toml)``
+    (default: a deflection campaign's keys) at the top level and in each of ``sections``
+    present, which must be tables."""
+    check = check or _check_keys
     toml = TomlFile(path, read_text(path, "campaign file"))
     doc = read_toml(path, "campaign file")
-    _check_keys(doc, "", toml)
-    for section in ("robot", "units", "measurement"):
+    check(doc, "", toml)
+    for section in (s for s in sections if s in doc):
         if not isinstance(doc[section], dict):
             raise toml.error(f"{section} must be a [{section}] table, got {doc[section]!r}",
                              "", section)
-        _check_keys(doc[section], section, toml)
+        check(doc[section], section, toml)
     return doc, toml
 
 

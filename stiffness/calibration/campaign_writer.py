@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.campaign_toml import CAMPAIGN_FILE, DEFAULT_DATA_FILE
+from stiffness.calibration.campaign_toml import CAMPAIGN_FILE, DEFAULT_DATA_FILE, RobotSettings
 from stiffness.calibration.measurements import (
     MOMENT_COLUMNS,
     ROTATION_COLUMNS,
@@ -112,37 +112,43 @@ def write_campaign(campaign_like, folder: str | os.PathLike) -> Path:
     return folder / CAMPAIGN_FILE
 
 
+def robot_toml(s: RobotSettings, u: Units, folder: Path, campaign_folder: Path,
+               deflections: bool = True) -> list[str]:
+    """The ``[robot]`` table of a campaign written into ``folder`` (its paths, relative to
+    ``campaign_folder``, made relative to ``folder``), lengths in ``u``; a pose campaign's
+    (``deflections`` false) writes its target offset only when not zero and no
+    ``joint_angles``."""
+    source = written_source(s.source, folder, campaign_folder)
+    toml = ["[robot]", f"source = {_toml_string(source)}"]
+    if s.frame is not None:
+        toml.append(f"frame = {_toml_string(s.frame)}")
+    if deflections or np.any(s.target_offset_m != 0):
+        offset = ", ".join(number_text(v / u.length_to_si) for v in s.target_offset_m)
+        toml.append(f"target_offset = [{offset}]")
+    if s.compliant_joints is not None:
+        joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
+        toml.append(f"compliant_joints = [{joints}]")
+    if s.loops is not None:
+        toml.append(f"loops = {_toml_string(written_path(s.loops, folder, campaign_folder))}")
+    if s.fixed_base:
+        toml.append("fixed_base = true")
+    if deflections:
+        toml.append(f"joint_angles = {_toml_string(s.joint_angles)}")
+    return toml
+
+
 def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
     """The ``campaign.toml`` text of ``c`` written into ``folder`` (a relative URDF source is
     made relative to ``folder``); its ``[measurement] data`` is ``c.data_file``'s name."""
     folder = Path(folder)
     u = c.units
-    s = c.robot_settings
-    source = written_source(s.source, folder, c.folder())
-
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     toml = [
         "# Measurement campaign (see stiffness/campaign.py for the format).",
         f"name = {_toml_string(c.name)}",
         f"baseline = {_toml_string(c.baseline)}",
         "",
-        "[robot]",
-        f"source = {_toml_string(source)}",
-    ]
-    if s.frame is not None:
-        toml.append(f"frame = {_toml_string(s.frame)}")
-    offset = ", ".join(number_text(v / u.length_to_si) for v in s.target_offset_m)
-    toml.append(f"target_offset = [{offset}]")
-    if s.compliant_joints is not None:
-        joints = ", ".join(_toml_string(j) for j in s.compliant_joints)
-        toml.append(f"compliant_joints = [{joints}]")
-    if s.loops is not None:
-        loops = written_path(s.loops, folder, c.folder())
-        toml.append(f"loops = {_toml_string(loops)}")
-    if s.fixed_base:
-        toml.append("fixed_base = true")
-    toml.append(f"joint_angles = {_toml_string(s.joint_angles)}")
-    toml += [
+        *robot_toml(c.robot_settings, u, folder, c.folder()),
         "",
         "[units]",
         f"angle = {_toml_string(u.angle)}",

@@ -30,12 +30,14 @@ from stiffness.calibration.campaign_toml import (
     TomlFile,
     check_table_keys,
     measurement_noise,
+    read_campaign_toml,
     robot_section,
     rotation_noise,
     settings_robot,
     typed_value,
     units_section,
 )
+from stiffness.calibration.campaign_writer import robot_toml
 from stiffness.calibration.coordinate_columns import (
     fill_held,
     fixed_values,
@@ -52,10 +54,7 @@ from stiffness.files import (
     check_csv_header,
     number_text,
     read_text,
-    read_toml,
     staged_folder,
-    written_path,
-    written_source,
 )
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
@@ -165,19 +164,6 @@ def _check_table(doc: dict, section: str, toml: TomlFile) -> None:
     check_table_keys(doc, section, toml, _KEYS[section], _REQUIRED[section],
                      lambda key, label: f"missing key {key} in {label} of a pose campaign: "
                                         "see docs/absolute-poses.md", " of a pose campaign")
-
-
-def _toml(path: Path) -> tuple[dict, TomlFile]:
-    toml = TomlFile(path, read_text(path, "campaign file"))
-    doc = read_toml(path, "campaign file")
-    _check_table(doc, "", toml)
-    for section in ("robot", "units", "measurement", "load"):
-        if section in doc:
-            if not isinstance(doc[section], dict):
-                raise toml.error(f"{section} must be a [{section}] table", "", section)
-            _check_table(doc[section], section, toml)
-    doc["units"].setdefault("force", "N")
-    return doc, toml
 
 
 def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
@@ -317,7 +303,9 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     toml_path = Path(path)
     if toml_path.is_dir():
         toml_path = toml_path / CAMPAIGN_FILE
-    doc, toml = _toml(toml_path)
+    doc, toml = read_campaign_toml(toml_path, _check_table, ("robot", "units", "measurement",
+                                                             "load"))
+    doc["units"].setdefault("force", "N")
     if doc["kind"] != "poses":
         raise toml.error(f"kind = {doc['kind']!r}: this reader takes pose campaigns "
                          '(kind = "poses")', "", "kind")
@@ -370,23 +358,10 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
     """Write ``c`` as ``folder/campaign.toml`` and ``measurements.csv`` in its units (the
     robot's paths relative to ``folder``, :func:`~stiffness.files.written_path`)."""
     folder = Path(folder)
-    u, s = c.units, c.settings
-    lines = ['kind = "poses"', f'name = "{c.name}"', "", "[robot]",
-             f'source = "{written_source(s.source, folder, c.folder())}"']
-    if s.frame:
-        lines.append(f'frame = "{s.frame}"')
-    if np.any(s.target_offset_m != 0):
-        lines.append("target_offset = [" + ", ".join(
-            number_text(v / u.length_to_si) for v in s.target_offset_m) + "]")
-    if s.compliant_joints:
-        lines.append("compliant_joints = [" + ", ".join(
-            f'"{j}"' for j in s.compliant_joints) + "]")
-    if s.loops is not None:
-        lines.append(f'loops = "{written_path(s.loops, folder, c.folder())}"')
-    if s.fixed_base:
-        lines.append("fixed_base = true")
-    lines += ["", "[units]", f'angle = "{u.angle}"', f'force = "{u.force}"',
-              f'length = "{u.length}"']
+    u = c.units
+    lines = ['kind = "poses"', f'name = "{c.name}"', "",
+             *robot_toml(c.settings, u, folder, c.folder(), deflections=False), "", "[units]",
+             f'angle = "{u.angle}"', f'force = "{u.force}"', f'length = "{u.length}"']
     if c.rotations is not None:
         lines.append(f'rotation = "{u.rotation}"')
     lines += ["", "[measurement]", 'data = "measurements.csv"']
