@@ -77,6 +77,35 @@ def test_a_robot_declares_its_workspace_in_its_robot_toml():
         Workspace.of(robot)
 
 
+HANGING_ARM = """<robot name="hanging"><link name="base"/>
+<link name="upper"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01"
+ ixy="0" ixz="0" iyz="0"/></inertial></link>
+<link name="lower"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01"
+ ixy="0" ixz="0" iyz="0"/></inertial></link><link name="tool"/>
+<joint name="j1" type="revolute"><parent link="base"/><child link="upper"/><axis xyz="0 1 0"/>
+ <limit lower="-0.5" upper="0.5" effort="1" velocity="1"/></joint>
+<joint name="j2" type="revolute"><parent link="upper"/><child link="lower"/>
+ <origin xyz="0 0 -0.4"/><axis xyz="0 1 0"/>
+ <limit lower="-0.5" upper="0.5" effort="1" velocity="1"/></joint>
+<joint name="t" type="fixed"><parent link="lower"/><child link="tool"/>
+ <origin xyz="0 0 -0.3"/></joint></robot>"""
+
+
+def test_a_target_always_below_the_base_is_named_as_the_reason_no_pose_is_found(tmp_path):
+    """A hanging arm (a leg) has its target below the base plane in every pose: the refusal
+    says so and names the fix (it said 'check the joint limits'), which then works."""
+    (tmp_path / "hanging.urdf").write_text(HANGING_ARM)
+    robot = load_robot(tmp_path / "hanging.urdf")
+    with pytest.raises(StiffnessError, match=r"found only 0 of 3 reachable poses of hanging; "
+                       r"the target was below the base plane \(z < 0\) in (\d+) of \1 poses "
+                       r"that assembled: .* target_above_base = false in a robot.toml"):
+        sample_coordinates(robot, 3, np.random.default_rng(0))
+    (tmp_path / "robot.toml").write_text(
+        'urdf = "hanging.urdf"\n[workspace]\ntarget_above_base = false\n')
+    coords = sample_coordinates(load_robot(tmp_path / "robot.toml"), 3, np.random.default_rng(0))
+    assert coords.shape == (3, 2) and np.abs(coords).max() <= 0.5
+
+
 def test_simulate_writes_a_loadable_campaign(tmp_path):
     sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=UR5_ARM,
                    effects=[parse_effect("backlash:shoulder_lift_joint=0.005")], configs=3,

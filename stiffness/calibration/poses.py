@@ -310,6 +310,7 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
         rank, best_ratio = _generic_rank(robot, *box, rules, probe)
         singularity_floor = singularity_margin * best_ratio
     out: list[np.ndarray] = []
+    below = assembled = 0  # poses that assembled, and those of them with the target below z = 0
     for attempt in range(max_tries * n):
         if len(out) == n or (not out and attempt >= _FIRST_POSE_TRIES + 10 * n):
             break
@@ -326,7 +327,9 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
             state = target_state(robot, q)
             if np.abs(state.jacobian[:3]).max() > MAX_JACOBIAN:
                 continue
+            assembled += 1
             if rules.target_above_base and state.position[2] < 0.0:
+                below += 1
                 continue
             if fold_floor > 0 and fold_ratio(robot, q) < fold_floor:
                 continue
@@ -340,9 +343,20 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
     if len(out) < n:
         raise ConvergenceError(f"found only {len(out)} of {n} reachable poses of {robot.title}"
                                + (" away from singularities and folds" if singularity_margin > 0
-                                  or fold_margin > 0 else "")
-                               + "; ask for fewer configurations, or check the joint limits")
+                                  or fold_margin > 0 else "") + _shortfall_reason(below,
+                                                                                assembled))
     return np.array(out)
+
+
+def _shortfall_reason(below: int, assembled: int) -> str:
+    """Why too few poses were found, and the fix: the target below the base plane in most
+    poses that assembled (a leg, a hanging arm), else the joint limits."""
+    if below > assembled / 2:
+        return (f"; the target was below the base plane (z < 0) in {below} of {assembled} poses "
+                "that assembled: if it works there (a leg, a hanging arm), declare [workspace] "
+                "target_above_base = false in a robot.toml naming the URDF "
+                "(urdf = \"<file>.urdf\", docs/design.md)")
+    return "; ask for fewer configurations, or check the joint limits"
 
 
 def _reference_fold_ratio(robot: Robot) -> float:
