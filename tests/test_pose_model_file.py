@@ -9,6 +9,7 @@ weight's sag solved by fixed-point iteration, and ``C = J diag(c) J^T`` at the s
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -26,7 +27,7 @@ from stiffness.calibration.pose_fit import (
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.cli.main import main
-from stiffness.errors import DataFileWarning
+from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.calibration import read_pose_calibration
 from stiffness.robot.robot import load_robot
@@ -219,6 +220,29 @@ def test_a_geometric_calibration_has_no_springs(calibration, tmp_path, capsys):
     assert "no spring" in err and "\n" not in err, err
     assert main(["robot", "export", "--model", str(tmp_path / "geometry.json"), "--urdf",
                  str(tmp_path / "g.urdf"), "--quiet"]) == 0
+
+
+def test_a_calibration_without_springs_says_why(calibration, tmp_path):
+    """No spring, each case named with its fix (the sweep of issue 47: a 12-pose Talos arm
+    diagnosis named link_compliance alone and load_model said "geometry only"): link bends
+    without joint springs, every joint compliance held, geometry only."""
+    robot, _ = calibration
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    cases = [(("frame", "markers", "link_compliance"), "named link_compliance but no joint_c"),
+             (("frame", "markers", "joint_compliance"), "determined none of the joint comp"),
+             (("frame", "markers", "joint_offsets"), "geometry only")]
+    for n, (families, says) in enumerate(cases):
+        model = PoseModel(robot, markers, families, (np.eye(3), np.zeros(3)))
+        path = tmp_path / f"c{n}.json"
+        _hand_written(model, np.full(model.size, 1e-5), path)
+        doc = json.loads(path.read_text())
+        for p in doc["parameters"]:
+            p["fitted"] = p["family"] != "joint_compliance"  # every spring held at nominal
+        path.write_text(json.dumps(doc))
+        warns = pytest.warns(DataFileWarning) if n == 1 else contextlib.nullcontext()
+        with warns, pytest.raises(StiffnessError, match="no spring") as err:
+            load_model(path)
+        assert says in str(err.value) and "\n" not in str(err.value), str(err.value)
 
 
 def test_families_without_a_deflection_effect_are_announced(calibration, tmp_path):

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects import FAMILIES, make_effect
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.effects.pose_face import (
@@ -64,18 +64,22 @@ class CalibratedElastics:
         Springs the calibration did not determine, held rigid.
     left_out
         Families of the calibration the elastic model does not carry (:data:`NOT_CARRIED`).
+    no_spring
+        Without springs, why, naming the fix (one line); else "".
     """
 
     stiffness: list[Parameter] = field(default_factory=list)
     effects: list[tuple[str, str | None, list[Parameter], dict]] = field(default_factory=list)
     undetermined: list[str] = field(default_factory=list)
     left_out: list[str] = field(default_factory=list)
+    no_spring: str = ""
 
 
 def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
     """The springs and effects of the calibration ``cal`` (module docstring)."""
     rows = {p["parameter"]: p for p in cal.parameters}
-    out = CalibratedElastics(left_out=[f for f in NOT_CARRIED if f in cal.families])
+    out = CalibratedElastics(left_out=[f for f in NOT_CARRIED if f in cal.families],
+                             no_spring=_no_spring(cal))
     if "joint_compliance" not in cal.families:
         return out
     for joint in cal.compliant_joints:
@@ -87,6 +91,10 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
         else:
             out.stiffness.append(k)
     springs = {p.name for p in out.stiffness}
+    if not springs:
+        out.no_spring = (f"the calibration determined none of the joint compliances "
+                         f"({', '.join(out.undetermined)}); a campaign whose poses or payload "
+                         "load the joints more determines them")
     if "gravity_lumped" not in cal.families:
         out.effects.append(("gravity_preload", None, [
             Parameter(n, 0.0, 0.0, (0.0, 0.0), u)
@@ -101,6 +109,20 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
     if {"gravity_compensator", "link_compliance", "transversal_compliance"} & set(cal.families):
         _geometry_effects(cal, rows, springs, out)
     return out
+
+
+def _no_spring(cal: PoseCalibration) -> str:
+    """Why a calibration without ``joint_compliance`` has no spring, naming the fix."""
+    if "gravity_lumped" in cal.families:
+        return ("a calibration with --masses unknown (compliance times unknown masses: no "
+                "stiffness); diagnose it with --masses known for the stiffness")
+    elastic = [f for f in cal.families if FAMILIES[f].family_kind == "elastic"]
+    if elastic:
+        return (f"the calibration named {', '.join(elastic)} but no joint_compliance, and the "
+                "elastic model rests on joint springs; diagnose it with --families "
+                "joint_compliance")
+    return ("a calibration of geometry only (no elastic family named); diagnose it with "
+            "--masses known, or force the springs with --families joint_compliance")
 
 
 def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[str],

@@ -192,8 +192,8 @@ class ModelFile:
         Measurement noise std (m) and where it comes from, or ``None``.
     campaign, produced_by
         Campaign name; ``identify`` or ``diagnose``.
-    undetermined_joints
-        Joints whose stiffness the campaign could not determine.
+    undetermined_joints, no_spring
+        Joints whose stiffness the campaign could not determine; why a calibration has none.
     extra, path
         Further keys kept as written (e.g. ``residual_norm``); the file read, or ``None``.
     """
@@ -220,6 +220,7 @@ class ModelFile:
     fixed_base: bool = False
     joint_angles: str = "motor"
     robot_name: str = ""
+    no_spring: str = ""
 
     def __post_init__(self) -> None:
         n = len(self.compliant_joints)
@@ -414,6 +415,7 @@ def _read_calibration(path: Path) -> ModelFile:
         target_offset_m=cal.target_offset_m, compliant_joints=tuple(p.name for p in k),
         k_theta=value, units=tuple(p.unit for p in k), formulation="exact", standard_error=se,
         ci95_low=low, ci95_high=high, produced_by="diagnose", fixed_base=cal.fixed_base,
+        no_spring=parts.no_spring,
         effects=tuple(ModelEffect(n, w, LIBRARY[n].kind, ps, st, "of the pose calibration")
                       for n, w, ps, st in parts.effects))
 
@@ -637,8 +639,7 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
     """
     where = f"{model.path}: " if model.path is not None else ""
     if not model.compliant_joints:
-        raise StiffnessError(f"{where}no spring: a calibration of geometry only (or --masses "
-                             "unknown); diagnose it with --masses known for the stiffness")
+        raise StiffnessError(f"{where}no spring: {model.no_spring or 'the file holds none'}")
     parts = ElasticParts(dict(zip(model.compliant_joints, model.k_theta, strict=True)),
                          keep_target=frame is None and target_offset is None)
     applied, not_applied = [], []
@@ -759,8 +760,7 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
         effects.append(effect)
         values.append(e.values())
     smoothing = np.array([parts.smoothing.get(j, 1.0) for j in geometry.joints])
-    refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing,
-                      1.0, 1.0, 1.0)
+    refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing, 1.0, 1.0, 1.0)
     baseline = "conventional" if model.formulation == "conventional" else "enhanced"
     if model.formulation == "exact" and not any(e.second_order for e in effects):
         effects.insert(0, LIBRARY["complementary_stiffness"]())
