@@ -2,6 +2,7 @@
 
 import math
 from dataclasses import dataclass
+from typing import TypeGuard
 
 from stiffness.errors import UnknownNameError
 
@@ -13,6 +14,21 @@ LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
 #: its unit): far beyond any measurement or setting in any supported unit (1e12 um is 1e6 m),
 #: and small enough that products of squares stay finite.
 MAX_CELL = 1e12
+
+
+def finite_number(value: object, limit: float = math.inf) -> TypeGuard[int | float]:
+    """Whether ``value`` (a file's or flag's value) is a finite number within +-``limit``
+    (a bool, None, a string, inf and NaN are not)."""
+    return (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value) and abs(value) <= limit)
+
+
+def three_numbers(value: object, limit: float = math.inf) -> bool:
+    """Whether ``value`` is a list of three :func:`finite_number` (an offset in a file)."""
+    return isinstance(value, list) and len(value) == 3 and all(
+        finite_number(v, limit) for v in value)
+
+
 #: Moment unit name -> factor to N.m (every force unit times every length unit).
 MOMENT_UNITS = {f"{f}.{ln}": FORCE_UNITS[f] * LENGTH_UNITS[ln]
                 for f in FORCE_UNITS for ln in LENGTH_UNITS}

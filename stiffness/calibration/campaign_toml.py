@@ -37,6 +37,7 @@ from stiffness.units import (
     MAX_CELL,
     MOMENT_UNITS,
     Units,
+    three_numbers,
 )
 
 #: Campaign file name inside a campaign folder.
@@ -250,9 +251,7 @@ def robot_section(doc: dict, toml: TomlFile, units: Units) -> RobotSettings:
     if frame is not None:
         typed_value(frame, str, toml, "robot", "frame", "a frame name (string)")
     offset = r.get("target_offset", [0.0, 0.0, 0.0])
-    if (not isinstance(offset, list) or len(offset) != 3
-            or not all(isinstance(v, int | float) and not isinstance(v, bool)
-                       and math.isfinite(v) and abs(v) <= MAX_CELL for v in offset)):
+    if not three_numbers(offset, MAX_CELL):
         raise toml.error(f"[robot] target_offset must be three numbers in {units.length}, "
                          f"finite and within +-{MAX_CELL:.0e}, got {offset!r}", "robot",
                          "target_offset")

@@ -12,7 +12,6 @@ for a prismatic joint), else at the robot's reference configuration
 
 from __future__ import annotations
 
-import math
 import re
 import warnings
 from pathlib import Path
@@ -27,7 +26,7 @@ from stiffness.errors import (
 )
 from stiffness.mechanics.defaults import reference_configuration
 from stiffness.robot.robot import Robot
-from stiffness.units import MAX_CELL, Units
+from stiffness.units import MAX_CELL, Units, finite_number
 
 #: A positional coordinate column: ``q1``, ``q2``, ...
 Q_COLUMN = re.compile(r"q(\d+)$")
@@ -189,9 +188,8 @@ def near_miss(unknown: list[str], wanted: str) -> str | None:
 
 def check_fixed_table(value, length: str, angle: str) -> str | None:
     """Why ``[robot] fixed`` is malformed (a table of finite numbers), or ``None``."""
-    if not isinstance(value, dict) or not all(
-            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-            and abs(v) <= MAX_CELL for v in value.values()):
+    if not isinstance(value, dict) or not all(finite_number(v, MAX_CELL)
+                                              for v in value.values()):
         return (f"[robot] fixed must be a table of joint = value, in {angle} (or {length} for "
                 f"a prismatic joint), e.g. fixed = {{ head_1_joint = 0.0 }}; got {value!r}")
     return None

@@ -10,8 +10,6 @@ the poses and loads that would, and the final model on a validation campaign (``
 
 from __future__ import annotations
 
-import math
-
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -25,6 +23,7 @@ from stiffness.htmlpage import (
     table,
     vec,
 )
+from stiffness.units import finite_number
 
 SECTIONS = {
     "summary": "Summary",
@@ -56,21 +55,16 @@ def parameter_rows(where: str, parameters: dict) -> list[list]:
         se = p.get("standard_error")
         if p.get("held"):
             interval = f"<b>not fitted</b> (held at this value: {esc(p['held'])})"
-        elif _finite(lo) and _finite(hi):
+        elif finite_number(lo) and finite_number(hi):
             interval = f"{num(lo)} to {num(hi)}"
         else:
-            known = f"at least {num(lo)}, " if _finite(lo) else ""
+            known = f"at least {num(lo)}, " if finite_number(lo) else ""
             interval = f"<b>undetermined</b> ({known}no upper bound: the measurements do not " \
                        "bound it)"
-        spread = se if _finite(se) else "-" if p.get("held") else "undetermined"
+        spread = se if finite_number(se) else "-" if p.get("held") else "undetermined"
         rows.append([esc(where), esc(name), p["value"], spread, interval,
                      esc(p.get("unit", ""))])
     return rows
-
-
-def _finite(x) -> bool:
-    """Whether ``x`` is a finite number (None, inf and NaN are not)."""
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def _by_configuration(before: dict, after: dict, unit: str) -> str:

@@ -57,7 +57,7 @@ from stiffness.files import (
     staged_folder,
 )
 from stiffness.robot.robot import Robot
-from stiffness.units import Units
+from stiffness.units import Units, three_numbers
 
 _KEYS = {
     "": {"kind", "name", "robot", "units", "measurement", "markers", "load"},
@@ -181,9 +181,7 @@ def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
             raise toml.error(f"[markers] {name}: unknown key(s) {sorted(extra)}; valid: frame, "
                              "offset", "markers", name)
         offset = spec.get("offset", [0.0, 0.0, 0.0])
-        if (not isinstance(offset, list) or len(offset) != 3 or not all(
-                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-                for v in offset)):
+        if not three_numbers(offset):
             raise toml.error(f"[markers] {name}: offset must be three finite numbers in "
                              f"{units.length}, got {offset!r}", "markers", name)
         out.append(Marker(name, spec["frame"], np.array(offset, float) * units.length_to_si))

@@ -46,6 +46,7 @@ from stiffness.mechanics.formulation import target_state
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
 from stiffness.robot.sources import WORKSPACE_KEYS
+from stiffness.units import finite_number
 
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 MAX_JACOBIAN = 10.0
@@ -139,8 +140,7 @@ class Workspace:
             return names.index(name)
 
         def number(value, what: str) -> float:
-            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
-                    value):
+            if not finite_number(value):
                 raise StiffnessError(f"{where}: {what} must be a finite number, got {value!r}")
             return float(value)
 

@@ -72,6 +72,7 @@ from stiffness.units import (
     MAX_CELL,
     MOMENT_UNITS,
     Units,
+    finite_number,
 )
 
 #: Frames forces and deflections may be given in.
@@ -476,9 +477,7 @@ def read_mapping_file(path: str | os.PathLike) -> ImportSettings:
             raise FileFormatError(f"unknown key {key!r}; {did_you_mean(key, sorted(known))}",
                                   path=path, field=key)
         if key == "fixed":
-            if not (isinstance(value, dict) and all(
-                    isinstance(v, int | float) and not isinstance(v, bool)
-                    and math.isfinite(v) for v in value.values())):
+            if not (isinstance(value, dict) and all(finite_number(v) for v in value.values())):
                 raise FileFormatError("fixed must be a table of finite numbers, e.g. fixed = "
                                       "{ joint6 = 0.0 }", path=path, field=key)
             continue

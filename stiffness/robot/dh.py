@@ -26,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import FileFormatError, did_you_mean
-from stiffness.units import ANGLE_UNITS, LENGTH_UNITS
+from stiffness.units import ANGLE_UNITS, LENGTH_UNITS, finite_number
 
 CONVENTIONS = ("modified", "standard")
 JOINT_TYPES = ("revolute", "prismatic")
@@ -126,8 +126,7 @@ class _Reader:
         self.angle = ANGLE_UNITS[self.angle_unit]
 
     def number(self, where: str, value: object) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not math.isfinite(value):
+        if not finite_number(value):
             raise self.fail(where, f"{value!r} is not a finite number")
         return float(value)
 

@@ -15,7 +15,6 @@ warning.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from stiffness.robot.dh import TOOL, build_dh_model, read_dh_table
 from stiffness.robot.loops import LoopDeclaration, read_loop_declaration
 from stiffness.robot.meshes import MissingMesh
 from stiffness.robot.urdf import Mimic, mimic_tags, read_urdf, warn
+from stiffness.units import finite_number
 
 if TYPE_CHECKING:
     from example_robot_data.utils import RobotLoader
@@ -158,11 +158,6 @@ TABLE_KEYS = ("dh", "controller", "workspace")
 WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_above_base")
 
 
-def _is_number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(
-        value)
-
-
 def check_settings(settings: dict, toml: Path) -> None:
     """Refuse a ``robot.toml`` whose known top-level keys hold values of the wrong type (a
     number where names are listed, text where numbers are) or an unknown key (top-level or of
@@ -187,7 +182,7 @@ def check_settings(settings: dict, toml: Path) -> None:
             refuse(key, "a list of names")
     for key, counts in NUMBER_LIST_KEYS.items():
         value = settings.get(key)
-        if key in settings and not (isinstance(value, list) and all(map(_is_number, value))
+        if key in settings and not (isinstance(value, list) and all(map(finite_number, value))
                                     and (counts is None or len(value) in counts)):
             size = "" if counts is None else " or ".join(map(str, counts)) + " "
             refuse(key, f"a list of {size}finite numbers")
