@@ -287,6 +287,18 @@ def test_example_robot_data_model_without_meshes_is_the_loaders(name):
     assert robot.visual_model is geometry  # read once
 
 
+def test_ur3_is_a_ur3():
+    """example-robot-data's name table gives "ur3" the UR5's loader; "ur3" is the UR3 (upper arm
+    0.24365 m, its URDF's shoulder-to-elbow length; the UR5's is 0.425 m) and its model is
+    UR3Loader's."""
+    from example_robot_data import robots_loader
+
+    ur3 = load_robot("ur3")
+    elbow = ur3.model.getJointId("elbow_joint")
+    assert ur3.model.jointPlacements[elbow].translation[2] == pytest.approx(0.24365)
+    assert resolve_source("ur3").model == robots_loader.UR3Loader().robot.model
+
+
 @pytest.mark.parametrize("name", ["anymal_c", "b1_z1", "so100", "talos_legs"])
 def test_example_robots_pinocchio_cannot_reduce_as_given(name):
     """Robots whose models ``pin.buildReducedModel`` refuses as they come (a link and a joint

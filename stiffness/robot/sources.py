@@ -248,20 +248,30 @@ def _toml_naming(path: Path) -> bool:
     return declared is not None and (path.parent / declared).resolve() == path.resolve()
 
 
-def _from_example_robot_data(name: str) -> RobotSource:
+def _loader(name: str) -> type[RobotLoader]:
+    """example-robot-data's loader class of ``name``; its table gives "ur3" the UR5's loader
+    (4.x: a UR5 read for a UR3, 0.425 m upper arm for 0.244 m), so "ur3" takes ``UR3Loader``."""
     from example_robot_data import robots_loader
 
-    plain = _plain_urdf_loader(robots_loader.ROBOTS[name])
+    cls: type[RobotLoader] = robots_loader.ROBOTS[name]
+    if name == "ur3" and cls is getattr(robots_loader, "UR5Loader", None):
+        return robots_loader.UR3Loader  # type: ignore[no-any-return]
+    return cls
+
+
+def _from_example_robot_data(name: str) -> RobotSource:
+    loader_class = _loader(name)
+    plain = _plain_urdf_loader(loader_class)
     if plain is not None:  # the model now, the meshes when the viewer asks
         model, path, visual_loader = plain
         visual = None
     else:  # a loader of its own (it builds and edits the model itself): run it
         try:
-            loader = robots_loader.ROBOTS[name]()
+            loader = loader_class()
         except (ImportError, ValueError, RuntimeError, OSError) as exc:
             why = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
             fix = ("it is an SDF model, which stiffness cannot read: choose a robot described "
-                   "by a URDF" if getattr(robots_loader.ROBOTS[name], "sdf_filename", None)
+                   "by a URDF" if getattr(loader_class, "sdf_filename", None)
                    else "load its URDF file instead, or choose another robot")
             raise StiffnessError(f"example-robot-data cannot build {name!r} here "
                                  f"({type(exc).__name__}: {why}); {fix}") from exc
@@ -274,7 +284,7 @@ def _from_example_robot_data(name: str) -> RobotSource:
         mimics = tuple(m for m in tags if model.existJointName(m.follower)
                        and model.existJointName(m.leader)
                        and model.joints[model.getJointId(m.follower)].nv == 1)
-    posture = getattr(robots_loader.ROBOTS[name], "ref_posture", None)
+    posture = getattr(loader_class, "ref_posture", None)
     settings = {"reference_posture": posture} if posture and any(
         entry.key() == posture for entry in model.referenceConfigurations) else {}
     return RobotSource(name, model, visual, settings, mimics, (), None,
