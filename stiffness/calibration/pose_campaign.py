@@ -17,7 +17,7 @@ import csv
 import io
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -151,13 +151,11 @@ class PoseCampaign:
     def subset(self, rows: np.ndarray) -> PoseCampaign:
         """The campaign restricted to ``rows`` (indices or a mask)."""
         idx = np.arange(self.n_rows)[rows]
-        loads = None if self.loads is None else Loads(self.loads.frame, self.loads.wrench[idx])
-        return PoseCampaign(self.name, self.robot, self.settings, self.units, self.markers,
-                            [self.labels[i] for i in idx], self.q[idx], self.positions[idx],
-                            loads, self.noise_std, self.path,
-                            None if self.rotations is None else self.rotations[idx],
-                            self.noise_std_rotation,
-                            None if self.lines is None else tuple(self.lines[i] for i in idx))
+        return replace(self, labels=[self.labels[i] for i in idx], q=self.q[idx],
+                       positions=self.positions[idx], loads=None if self.loads is None
+                       else Loads(self.loads.frame, self.loads.wrench[idx]),
+                       rotations=None if self.rotations is None else self.rotations[idx],
+                       lines=None if self.lines is None else tuple(self.lines[i] for i in idx))
 
 
 def _check_table(doc: dict, section: str, toml: TomlFile) -> None:

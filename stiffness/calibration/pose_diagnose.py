@@ -27,7 +27,7 @@ import json
 import math
 import os
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -663,11 +663,9 @@ def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaig
         raise StiffnessError(f"the campaign has markers {list(given)}, the model "
                              f"{[m.name for m in fitted]}: validate with the same markers")
     order = [given[m.name] for m in fitted]
-    return PoseCampaign(campaign.name, campaign.robot, campaign.settings, campaign.units,
-                        list(fitted), campaign.labels, campaign.q, campaign.positions[:, order],
-                        campaign.loads, campaign.noise_std, campaign.path,
-                        None if campaign.rotations is None else campaign.rotations[:, order],
-                        campaign.noise_std_rotation, campaign.lines)
+    return replace(campaign, markers=list(fitted), positions=campaign.positions[:, order],
+                   rotations=None if campaign.rotations is None
+                   else campaign.rotations[:, order])
 
 
 # ------------------------------------------------------------------------------------------
