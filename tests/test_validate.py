@@ -48,6 +48,26 @@ def test_a_model_of_another_robot_is_refused(ur5, tmp_path, capsys):
         stiffness.validate(sk120, ur5 / "c2")
 
 
+@pytest.mark.parametrize("swap", [("c1", "model.json"), ("c1/campaign.toml", "model.json")])
+def test_a_campaign_and_a_model_given_the_wrong_way_round_are_named(ur5, swap, capsys):
+    """validate CAMPAIGN MODEL (and kx/identify with the other kind of file): each is named
+    as the wrong kind, with the order; they said 'model file ... is a folder, not a file' or
+    'the file is not JSON; fix the syntax there' of a well-formed campaign.toml."""
+    campaign, model = (str(ur5 / name) for name in swap)
+    assert main(["validate", campaign, model]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("a campaign, not a model file; give the identified-model.json of "
+                        "`stiffness identify` or the final-model.json of `stiffness diagnose "
+                        "--out` (stiffness validate takes MODEL, then CAMPAIGN)"), err
+    assert main(["kx", "--model", campaign, "--wrench", "0,0,-10"]) == 2
+    assert "a campaign, not a model file" in capsys.readouterr().err
+    assert main(["identify", model]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("model.json: a JSON file (a model file?), not a campaign; give a "
+                        "campaign.toml or the folder holding one (stiffness validate takes "
+                        "MODEL, then CAMPAIGN)"), err
+
+
 def test_verdict_against_the_declared_noise(ur5, tmp_path, capsys):
     """The identified model predicts the other campaign to its noise (chi-square p above
     0.001, RMS about sqrt(3) noise stds); with its springs twice as stiff it is above the

@@ -222,6 +222,10 @@ def campaign_toml_path(path: str | os.PathLike) -> Path:
     if p.suffix.lower() == ".csv":
         raise FileFormatError(f"{p.name} is a CSV file, not a campaign; give the {CAMPAIGN_FILE} "
                               "that names it (or the folder holding both)", path=p)
+    if p.suffix.lower() == ".json":
+        raise FileFormatError("a JSON file (a model file?), not a campaign; give a "
+                              f"{CAMPAIGN_FILE} or the folder holding one (stiffness validate "
+                              "takes MODEL, then CAMPAIGN)", path=p)
     return p
 
 

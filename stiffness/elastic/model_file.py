@@ -75,7 +75,12 @@ from stiffness.files import (
 )
 from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import as_wrench
-from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration, robot_identity
+from stiffness.robot.calibration import (
+    POSE_MODEL_KIND,
+    read_pose_calibration,
+    refuse_campaign,
+    robot_identity,
+)
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
 
@@ -366,6 +371,7 @@ def read_model_file(path: str | os.PathLike) -> ModelFile:
         An unknown schema or version, or a missing or malformed key (one line: file, key).
     """
     path = Path(path)
+    refuse_campaign(path)
     doc = read_json(path, "model file (identified-model.json of `stiffness identify` or "
                           "final-model.json of `stiffness diagnose --out`)")
     if not isinstance(doc, dict):

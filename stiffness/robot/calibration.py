@@ -152,8 +152,26 @@ def is_pose_calibration(path: str | os.PathLike) -> bool:
     StiffnessError
         The file is missing, unreadable or not JSON (named, whatever kind it was meant to be).
     """
+    refuse_campaign(path)
     doc = read_json(path, "model file")
     return isinstance(doc, dict) and doc.get("kind") == POSE_MODEL_KIND
+
+
+def refuse_campaign(path: str | os.PathLike) -> None:
+    """Refuse a campaign (a ``.toml`` file, or a folder holding a ``campaign.toml``) given
+    where a model file is expected, in those words (it was 'not JSON; fix the syntax').
+
+    Raises
+    ------
+    FileFormatError
+        ``path`` is a campaign.
+    """
+    p = Path(path)
+    if p.suffix.lower() == ".toml" or (p / "campaign.toml").is_file():
+        raise FileFormatError("a campaign, not a model file; give the identified-model.json of "
+                              "`stiffness identify` or the final-model.json of `stiffness "
+                              "diagnose --out` (stiffness validate takes MODEL, then CAMPAIGN)",
+                              path=p)
 
 
 def read_pose_calibration(path: str | os.PathLike) -> PoseCalibration:
