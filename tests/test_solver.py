@@ -108,6 +108,22 @@ def test_covariance_is_sigma_squared_inverse_normal_matrix():
     np.testing.assert_allclose(cov, 0.01 * np.linalg.inv(j.T @ j), rtol=1e-10)
 
 
+def test_a_robust_covariance_keeps_a_weakly_determined_direction():
+    """Huber's sandwich of a fit whose residuals all lie within the loss's quadratic zone is
+    the least-squares ``SS / (N - p) (J^T J)^-1``; with a column 1e-9 of the other's (a wrist
+    joint's compliance on a Kinova arm, torques of 1e-4 N.m: found by the pose sweep of issue
+    47) ``(J^T J)^+`` squared that to 1e-18, below pinv's cut-off, and the weak parameter's
+    variance came out 0 (its interval zero wide, the parameter taken as determined)."""
+    rng = np.random.default_rng(4)
+    q, _ = np.linalg.qr(rng.normal(size=(60, 2)))
+    s = np.array([1.0, 1e-9])
+    j = q * s  # J^T J = diag(s^2) exactly
+    r = rng.normal(0.0, 0.01, 60)
+    cov = covariance_matrix(j, 0.01, "huber", r, 10.0).matrix
+    expected = r @ r / 58 / s ** 2
+    np.testing.assert_allclose(np.diag(cov), expected, rtol=1e-6)
+
+
 class Bilinear:
     """``y = a t + a b t^2`` over ``(a, b)``: ``b`` moves nothing while ``a`` is 0 (an
     effect's setting that acts only through its size), one effect of two parameters."""

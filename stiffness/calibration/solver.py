@@ -417,4 +417,7 @@ def sandwich_matrix(residual: np.ndarray, jacobian: np.ndarray, loss: str, f_sca
         return np.full((p, p), np.inf)
     k = 1.0 + d / n * float(np.var(dpsi)) / mean_dpsi ** 2
     factor = k ** 2 * float(np.sum(psi ** 2)) / (n - d) / mean_dpsi ** 2
-    return determined.T @ (factor * np.linalg.pinv(jac.T @ jac)) @ determined
+    # (J^T J)^-1 from J's singular values: pinv of J^T J (condition number squared) dropped a
+    # determined direction weaker than 1e-8 of the strongest, its variance then 0
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    return determined.T @ (factor * (vt.T / sv ** 2) @ vt) @ determined
