@@ -103,7 +103,7 @@ from stiffness.files import (
     resolve_path,
     resolve_source,
 )
-from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
 
@@ -259,13 +259,10 @@ class Campaign:
             If the robot cannot be loaded or its coordinate count differs from ``q``'s columns.
         """
         if self._robot is None:
-            s = self.robot_settings
-            robot = load_robot(self.resolved_source(), frame=s.frame,
-                               target_offset=s.target_offset_m,
-                               compliant_joints=s.compliant_joints, **self.robot_options())
+            robot = self.robot_settings.load(self.folder())
             if robot.n_coordinates != self.q.shape[1]:
                 raise StiffnessError(
-                    f"robot {s.source} has {robot.n_coordinates} coordinates "
+                    f"robot {self.robot_settings.source} has {robot.n_coordinates} coordinates "
                     f"({', '.join(robot.coordinate_joints)}) but campaign {self.name!r} has "
                     f"{self.q.shape[1]} q values per row; give one q per coordinate joint"
                 )

@@ -130,6 +130,14 @@ class RobotSettings:
             raise StiffnessError(f"joint_angles must be motor (the drives' encoders) or link "
                                  f"(the link pose as measured), got {self.joint_angles!r}")
 
+    def load(self, folder: Path) -> Robot:
+        """The robot these settings name, relative paths against ``folder``
+        (:func:`stiffness.robot.robot.load_robot`)."""
+        return load_robot(resolve_source(self.source, folder), frame=self.frame,
+                          target_offset=self.target_offset_m,
+                          compliant_joints=self.compliant_joints, fixed_base=self.fixed_base,
+                          loops=None if self.loops is None else resolve_path(self.loops, folder))
+
 
 @dataclass
 class TomlFile:
@@ -327,13 +335,7 @@ def settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
     StiffnessError
         The robot cannot be loaded (the message starts with the file and ``[robot]``).
     """
-    folder = toml_path.parent
     try:
-        return load_robot(resolve_source(settings.source, folder), frame=settings.frame,
-                          target_offset=settings.target_offset_m,
-                          compliant_joints=settings.compliant_joints,
-                          loops=None if settings.loops is None else resolve_path(
-                              settings.loops, folder),
-                          fixed_base=settings.fixed_base)
+        return settings.load(toml_path.parent)
     except StiffnessError as exc:
         raise with_context(exc, f"{toml_path}: [robot]") from exc

@@ -62,9 +62,9 @@ from stiffness.errors import (
     StiffnessError,
     did_you_mean,
 )
-from stiffness.files import check_csv_header, read_text, read_toml, resolve_path, resolve_source
+from stiffness.files import check_csv_header, read_text, read_toml
 from stiffness.robot.kinematics import frame_rotation, update_first_order
-from stiffness.robot.robot import Robot, load_robot
+from stiffness.robot.robot import Robot
 from stiffness.units import (
     ANGLE_UNITS,
     FORCE_UNITS,
@@ -501,13 +501,7 @@ def read_mapping_file(path: str | os.PathLike) -> ImportSettings:
 def load_import_robot(settings: RobotSettings, folder: Path | None = None) -> Robot:
     """The robot of an import (relative paths against ``folder``, default the working
     directory)."""
-    folder = Path.cwd() if folder is None else folder
-    return load_robot(resolve_source(settings.source, folder), frame=settings.frame,
-                      target_offset=settings.target_offset_m,
-                      compliant_joints=settings.compliant_joints,
-                      loops=None if settings.loops is None else resolve_path(settings.loops,
-                                                                             folder),
-                      fixed_base=settings.fixed_base)
+    return settings.load(Path.cwd() if folder is None else folder)
 
 
 def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSettings,
