@@ -385,6 +385,32 @@ def test_bad_path_errors_are_typed(tmp_path, ur5):
     assert "path row 1" in str(info.value)
 
 
+def test_path_columns_may_name_their_unit_in_brackets(ur5, tmp_path):
+    """`elbow_joint [deg]`, `fx [N]`, `mx [Nm]` are those columns when the unit is the one they
+    are read in (the same coordinates and loads as without units); another unit is refused
+    with its fix. The columns were taken as unknown ('its columns name none of them: is the
+    model file of another robot?', 'per-row loads need the columns fx, fy, fz')."""
+    from stiffness.errors import FileFormatError
+    from stiffness.machining.compensation import read_joint_path
+
+    joints = list(ur5.coordinate_joints)
+    rows = np.column_stack([UR5_PATH, np.tile([1.0, -2.0, 30.0, 0.5, 0.0, 0.0], (2, 1))])
+    loads = ["fx", "fy", "fz", "mx", "my", "mz"]
+    plain = read_joint_path(_path_csv(tmp_path / "a.csv", rows, joints + loads), ur5, deg=True)
+    with_units = [f"{j} [deg]" for j in joints] + ["fx [N]", "fy", "fz", "mx [Nm]", "my", "mz"]
+    read = read_joint_path(_path_csv(tmp_path / "b.csv", rows, with_units), ur5, deg=True)
+    np.testing.assert_array_equal(read.coords, plain.coords)
+    np.testing.assert_array_equal(read.wrench, plain.wrench)
+    assert read.header == with_units and read.column_of == joints
+    with pytest.raises(FileFormatError, match=r"column 1 \(shoulder_pan_joint \[deg\]\): the "
+                       "header says deg but shoulder_pan_joint is read in rad; give --deg"):
+        read_joint_path(tmp_path / "b.csv", ur5)
+    kilo = with_units[:6] + ["fx [kN]"] + with_units[7:]
+    with pytest.raises(FileFormatError, match="the header says kN but fx is read in N; "
+                       "convert the column to N"):
+        read_joint_path(_path_csv(tmp_path / "c.csv", rows, kilo), ur5, deg=True)
+
+
 def test_diagnosed_model_file_brings_its_effects(sk120):
     """A final-model.json of `stiffness diagnose` (simulated SK120 campaign with a hidden
     backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""

@@ -29,6 +29,7 @@ import csv
 import io
 import math
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -601,6 +602,8 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
         (named by line and column).
     """
     table = read_table(path, "path file")
+    written = table.header  # the input's own column names, carried to the output
+    table.header = _without_units(table, robot, deg)
     header = table.header
     joints = list(robot.coordinate_joints)
     chain = list(robot.chain_joints)
@@ -631,5 +634,44 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
         values = table.column(column)
         coords[:, k] = np.deg2rad(values) if deg and angular[k] else values
     wrench = table.wrenches()
-    return JointPath(header, [list(r) for r in table.rows], coords, wrench, column_of, angular,
+    return JointPath(written, [list(r) for r in table.rows], coords, wrench, column_of, angular,
                      table.lines)
+
+
+#: A column name with its unit in brackets: ``elbow_joint [deg]``, ``fx [N]``.
+_HEADER_UNIT = re.compile(r"^(.*?)\s*\[\s*([^\[\]\s]+)\s*\]$")
+
+
+def _without_units(table: Table, robot: Robot, deg: bool) -> list[str]:
+    """The header with the unit in brackets of each coordinate and load column dropped
+    (``elbow_joint [deg]`` -> ``elbow_joint``), each unit checked against the one the path is
+    read in: rad (deg with ``--deg``), m for a prismatic joint, N, N.m (or Nm).
+
+    Raises
+    ------
+    FileFormatError
+        A unit that is not the one the column is read in (the fix named), or a column named
+        twice once the units are dropped.
+    """
+    angular = angular_coordinates(robot)
+    expected = {c: "N" for c in WRENCH_COLUMNS[:3]} | {c: "N.m" for c in WRENCH_COLUMNS[3:]}
+    for k, joint in enumerate(robot.coordinate_joints):
+        expected[joint] = expected[f"q{k + 1}"] = ("deg" if deg else "rad") if angular[k] else "m"
+    bare: list[str] = []
+    for k, name in enumerate(table.header):
+        match = _HEADER_UNIT.match(name)
+        column, unit = match.groups() if match else (name, None)
+        if unit is None or column not in expected:
+            bare.append(name)
+            continue
+        want = expected[column]
+        if unit != want and {unit, want} != {"N.m", "Nm"}:
+            fix = {("deg", "rad"): "give --deg", ("rad", "deg"): "drop --deg"}.get(
+                (unit, want), f"convert the column to {want}")
+            raise FileFormatError(f"the header says {unit} but {column} is read in {want}; "
+                                  f"{fix}", path=table.path, line=1, column=k + 1, field=name)
+        if column in bare or column in table.header[k + 1:]:
+            raise FileFormatError(f"the column {column!r} appears twice; name each column once",
+                                  path=table.path, line=1, column=k + 1, field=name)
+        bare.append(column)
+    return bare
