@@ -28,7 +28,7 @@ from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_c
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
-from stiffness.calibration.pose_report import stage_table
+from stiffness.calibration.pose_report import format_pose_report, stage_table
 from stiffness.cli.main import main
 from stiffness.elastic.effects import FAMILIES
 from stiffness.errors import ConvergenceError, DataFileWarning, StiffnessError
@@ -440,6 +440,11 @@ def test_a_candidate_the_campaign_cannot_determine_is_rejected_not_raised():
     assert {"geometry", "gravity_lumped"} <= set(d.rejected) | set(d.families)
     assert "gravity_lumped" in d.rejected
     assert d.to_dict()["steps"]
+    # the report says why, not a screened BIC change of a fit never made (a 25-pose Panda
+    # printed "gravity_lumped (-9.78e+03)" beside "no family improves BIC by more than 2")
+    assert d.to_dict()["not_judged"]["gravity_lumped"].startswith("not fitted: as many")
+    assert "gravity_lumped (not fitted: as many identifiable parameters as the 30 measured" \
+        in format_pose_report(d)
 
 
 def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error(monkeypatch):

@@ -120,6 +120,7 @@ class PoseDiagnosis:
     stop_reason: str = ""
     judge: PoseJudge | None = None
     search: PoseSearch | None = None
+    not_judged: dict[str, str] = field(default_factory=dict)
 
     @functools.cached_property
     def how_sure(self) -> list[Certainty]:
@@ -175,7 +176,8 @@ class PoseDiagnosis:
                            "forced": s.forced, **self._named(s),
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
-                "rejected": self.rejected, "families": self.families,
+                "rejected": self.rejected, "not_judged": self.not_judged,
+                "families": self.families,
                 "stop_reason": self.stop_reason,
                 "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
@@ -431,7 +433,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
     return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, list(forced),
-                         sorted(forbidden), outliers, outlier_sigma, stop, judge, kind)
+                         sorted(forbidden), outliers, outlier_sigma, stop, judge, kind,
+                         kind.not_judged)
 
 
 def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
@@ -486,6 +489,7 @@ class PoseSearch:
     remaining: list[str]
     steps: list[PoseStep] = field(default_factory=list)
     rejected: dict[str, float] = field(default_factory=dict)
+    not_judged: dict[str, str] = field(default_factory=dict)
     delta: dict[str, float] = field(default_factory=dict)
     full: dict[str, tuple[float, int]] = field(default_factory=dict)
     stops: ClassVar[dict[Stop, str]] = {
@@ -550,6 +554,8 @@ class PoseSearch:
             self.say(f"  {f}: more identifiable parameters than measured components; not "
                      "fitted, never tried again")
             self.rejected[f] = self.delta[f]
+            self.not_judged[f] = (f"not fitted: as many identifiable parameters as the {self.n} "
+                                  "measured components, or more")
             self.remaining.remove(f)
         fits = [(f, fit) for f, fit in tried if fit is not None]
         ranking, _ = ranked(self, current, fits)
@@ -574,6 +580,8 @@ class PoseSearch:
             yield c
             if math.isinf(c.cv_rms):
                 self.rejected[c.effect] = self.delta[c.effect]
+                self.not_judged[c.effect] = ("held-out RMS infinite: one configuration alone "
+                                             "determines some of its parameters")
                 self.remaining.remove(c.effect)
 
     def accept(self, current: PoseFit, winner: Family, ranking: list[Family]) -> PoseFit:
@@ -612,6 +620,14 @@ class PoseSearch:
         base, bics, _ = step_criteria(self.terms(current), list(terms.values()), self.n,
                                       self.sigma)
         return {f: b - base for f, b in zip(terms, bics, strict=True)}
+
+
+def not_added(rejected: dict[str, float], not_judged: dict[str, str]) -> str:
+    """The families tried and not added, each with its last BIC change, or why the search
+    dropped it without judging it (a screened BIC change of a fit that could not be made is
+    no verdict)."""
+    return ", ".join(f"{f} ({not_judged[f]})" if f in not_judged else f"{f} ({v:+.3g})"
+                     for f, v in rejected.items())
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

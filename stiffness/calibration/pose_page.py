@@ -12,6 +12,7 @@ import io
 import numpy as np
 
 from stiffness.calibration.diagnosis_page import how_sure_table, outliers_section
+from stiffness.calibration.pose_diagnose import not_added
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -176,8 +177,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                        "Held-out RMS: the residual on configurations left out of the "
                        "fit."))
     if d["rejected"]:
-        parts.append("<p>Not added (ΔBIC or held-out RMS): " + esc(", ".join(
-            f"{f} ({num(v, 3)})" for f, v in d["rejected"].items())) + "</p>")
+        parts.append("<p>Not added (ΔBIC or held-out RMS): "
+                     + esc(not_added(d["rejected"], d.get("not_judged", {}))) + "</p>")
     parts += [heading("residuals", SECTIONS), *_residuals(d, residual_pngs),
               heading("how-sure", SECTIONS), *_how_sure(d), heading("stages", SECTIONS)]
     if stage_png is None:

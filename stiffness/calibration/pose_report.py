@@ -12,6 +12,7 @@ from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnose import (
     PoseDiagnosis,
+    not_added,
     parameter_table,
     residual_structure,
     write_pose_model,
@@ -50,8 +51,8 @@ def format_pose_report(d: PoseDiagnosis) -> str:
         lines += ["", *stage_table([(f"{i} {s.family}", s.validation)
                                     for i, s in enumerate(d.steps) if s.validation])]
     if d.rejected:
-        lines.append("not added (dBIC or held-out RMS): " + ", ".join(
-            f"{f} ({v:+.3g})" for f, v in d.rejected.items()))
+        lines.append("not added (dBIC or held-out RMS): "
+                     + not_added(d.rejected, d.not_judged))
     if d.stop_reason:
         lines.append(f"search stopped: {d.stop_reason}")
     lines += ["", _verdict(d), *describe_outliers(d.outliers), "",
