@@ -30,8 +30,10 @@ Robust losses (``loss`` of :data:`~stiffness.calibration.solver.LOSSES` other th
 method from the least-squares optimum, ``s`` the noise std: the declared one, else a robust
 estimate
 (:func:`~stiffness.calibration.outliers.robust_noise` of a least-squares fit's residuals, then
-twice of the loss fit's, as the deflection diagnose does). The covariance is Huber's sandwich
-(:func:`~stiffness.calibration.solver.sandwich_matrix`), and :meth:`PoseFit.loss_rss` (the
+twice of the loss fit's, as the deflection diagnose does), its steps on the factor of the
+loss-reweighted Jacobian over blocks of rows (:meth:`PoseProblem.robust_factor`), as least
+squares' on that of ``[r, J]``. The covariance is Huber's sandwich
+(:func:`~stiffness.calibration.solver.sandwich_matrix`, on the factor of ``J``), and :meth:`PoseFit.loss_rss` (the
 loss sum over its Gaussian expectation,
 :func:`~stiffness.calibration.solver.gaussian_loss_mean`) stands for the residual sum of
 squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` instead of
@@ -449,11 +451,13 @@ def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     # loss's scale and the robust steps crawl), and a start for cauchy's non-convex loss
     options.method, options.loss, options.f_scale = "trf", loss, noise
     sol = solver.solve(problem, sol.x, sol.identifiability, options)
-    # scipy's sol.jac is reweighted by the loss: the plain Jacobian at the optimum instead;
-    # where the sag diverges there the residual is the diverged constant (the fit is not
-    # chosen) and scipy's Jacobian stands in, as least squares' does
+    # the solver's factor is of the Jacobian reweighted by the loss: the plain Jacobian's at
+    # the optimum instead (the sandwich needs only its J^T J); where the sag diverges there
+    # the residual is the diverged constant (the fit is not chosen) and the solver's factor
+    # stands in, as least squares' does
     fun = problem.fun(sol.x)
-    jac = sol.jac if problem.failed(sol.x) else problem.jac(sol.x)[:, sol.identifiability.kept]
+    jac = (sol.jac if problem.failed(sol.x)
+           else problem.factor(sol.x, np.asarray(sol.identifiability.kept))[:, 1:])
     source = "declared" if scale is None or scale == campaign.noise_std else "robust"
     return _finish(obs, campaign, sol, jac, fun, loss, (noise, source))
 
@@ -528,6 +532,25 @@ class PoseProblem:
             whole = np.zeros((self.obs.model.size + 1,) * 2)  # |fun(x)|, not evaluated again
             whole[0, 0] = np.linalg.norm(np.full(self.obs.size, DIVERGED_RESIDUAL_M))
         return triangular(whole, [0] + [1 + int(c) for c in columns])
+
+    def robust_factor(self, x: np.ndarray, columns: np.ndarray, scaling: solver.RowScaling
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """A robust loss's gradient ``J[:, columns]^T psi`` and ``R`` of ``diag(w)
+        J[:, columns]`` at ``x``, ``(psi, w) = scaling(r)`` (:class:`~stiffness.calibration.
+        solver.Factored`), block by block; where the sag diverges, zero (as :meth:`jac`)."""
+        gradient = np.zeros(len(columns))
+
+        def rows(r: np.ndarray, j: np.ndarray) -> np.ndarray:
+            psi, w = scaling(r)
+            gradient[:] += psi @ j[:, columns]
+            return w[:, None] * j[:, columns]
+
+        try:
+            tri = stacked_triangular((rows(r, j) for _, r, j in self.obs.blocks(x)),
+                                     len(columns))
+        except ConvergenceError:
+            return np.zeros(len(columns)), np.zeros((len(columns),) * 2)
+        return gradient, tri
 
     def _whole_factor(self, x: np.ndarray) -> np.ndarray:
         """:func:`observed_factor` at ``x``, kept for the last ``x``.

@@ -16,7 +16,9 @@ parameter left out is held at. A deflection campaign's is
 * :func:`solve`: :func:`scipy.optimize.least_squares` over the kept columns within the
   parameters' bounds: trust-region reflective, or Levenberg-Marquardt followed, when its optimum
   is past a bound, by the bounded fit from the clipped optimum; under a robust loss
-  (:data:`LOSSES`); the columns it leaves at a bound reported (their intervals one-sided);
+  (:data:`LOSSES`); the columns it leaves at a bound reported (their intervals one-sided); a
+  :class:`Factored` problem (a large pose campaign's) handed to scipy on k + 1 rows with the
+  full problem's steps, under least squares or a robust loss (:class:`Handed`);
 * the losses (:func:`loss_terms`, :func:`loss_sum`, :func:`objective_rss`), and the
   covariance (:func:`covariance_matrix`: ``sigma^2 (J^T J)^+`` with one cut-off for
   undetermined directions, or Huber's sandwich, :func:`sandwich_matrix`, for a robust loss).
@@ -28,17 +30,20 @@ Such a fit's covariance is Huber's sandwich (M-estimator) covariance
 ``K^2 [sum phi'^2 / (N - p)] / mean(phi'')^2 (J^T J)^+`` with ``phi(r) = f^2 rho((r / f)^2) /
 2``: it takes the spread from the residuals themselves through the loss, not from an assumed
 noise, so its intervals stay honest when the data hold outliers or the noise is not the
-declared one.
+declared one. It needs only the residuals and ``J^T J``: a :class:`Factored` problem's
+comes from its triangular factor.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from scipy import linalg
 from scipy.optimize import least_squares
 
 from stiffness.calibration.identifiability import (
@@ -57,6 +62,11 @@ SINGULAR_RTOL = 1e-10
 #: A parameter with a component above this along an undetermined direction has infinite
 #: variance.
 UNSEEN_COMPONENT = 1e-8
+
+
+#: A robust loss's rows from their residuals: their gradient factors and weights
+#: (:func:`robust_rows`).
+RowScaling = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 def loss_terms(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -122,6 +132,43 @@ def objective_rss(residual: np.ndarray, loss: str, sigma: float) -> float:
         loss)
 
 
+def robust_rows(loss: str, f_scale: float) -> RowScaling:
+    """scipy's scaling of a robust ``loss``'s rows (``least_squares``' own, done row by row):
+    from residuals ``r``, their gradient factors ``psi = rho' r`` (``J^T psi`` is the
+    objective's gradient over 2) and the weights ``w = sqrt(max(rho' + 2 z rho'', eps))`` of
+    their Jacobian's rows (``(w J)^T (w J)`` is the Gauss-Newton matrix of the trust-region
+    steps; ``z = (r / f_scale)^2``, ``eps`` the float64 machine epsilon); scipy's scaled
+    residuals are ``psi / w``."""
+
+    def scaling(residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = np.asarray(residual, dtype=float)
+        z = (r / f_scale) ** 2
+        _, d_rho, dd_rho = loss_terms(loss, z)
+        return d_rho * r, np.sqrt(np.maximum(d_rho + 2.0 * dd_rho * z, np.finfo(float).eps))
+
+    return scaling
+
+
+def carried_loss(z: np.ndarray) -> np.ndarray:
+    """The loss (scipy's callable form: ``rho``, ``rho'``, ``rho''`` (3, m) at ``z``) under
+    which a :class:`Factored` problem's robust fit is handed to scipy (:func:`solve`): the
+    last residual carries the objective (its square is the cost; weight 0 in the steps), the
+    others weigh as in least squares and cost nothing."""
+    rho = np.zeros((3, z.size))
+    rho[0, -1] = z[-1]
+    rho[1, :-1] = 1.0
+    return rho
+
+
+def projected_residual(tri: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """``f`` (k,) with ``tri^T f = gradient``: the residual whose least squares on the
+    Jacobian ``tri`` (k, k), upper triangular, has that gradient (the minimum-norm one
+    where ``tri`` is singular)."""
+    if np.all(np.diag(tri) != 0):
+        return linalg.solve_triangular(tri, gradient, trans="T")
+    return np.linalg.lstsq(tri.T, gradient, rcond=None)[0]
+
+
 class Problem(Protocol):
     """A campaign's observation, what :func:`fit` and :func:`solve` need of it."""
 
@@ -158,12 +205,19 @@ class Problem(Protocol):
 
 @runtime_checkable
 class Factored(Problem, Protocol):
-    """A problem whose Jacobian is never held whole (a large pose campaign's): its least
-    squares runs on a triangular factor of it (:func:`solve`), computed from blocks of rows."""
+    """A problem whose Jacobian is never held whole (a large pose campaign's): its fit runs on
+    triangular factors of it (:func:`solve`), computed from blocks of rows."""
 
     def factor(self, x: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """``R`` (at most (k + 1, k + 1), upper triangular) of ``[r, J[:, columns]] = Q R``
         at ``x``: ``r`` :meth:`fun`'s residuals, ``J`` :meth:`jac`'s Jacobian."""
+        ...
+
+    def robust_factor(self, x: np.ndarray, columns: np.ndarray,
+                      scaling: RowScaling) -> tuple[np.ndarray, np.ndarray]:
+        """A robust loss's gradient ``J[:, columns]^T psi`` (k,) and ``R`` (at most (k, k),
+        upper triangular) of ``diag(w) J[:, columns]`` at ``x``, ``(psi, w) = scaling(r)``
+        row by row (:func:`robust_rows`)."""
         ...
 
 
@@ -189,8 +243,9 @@ class Solution:
     scipy's ``success``, ``status`` and ``message``, the evaluations (``nfev``), the columns left
     at a bound (``at_bound``, set exactly there in ``x``), and scipy's residuals ``fun`` and
     Jacobian ``jac`` over the kept columns at the optimum (``jac`` reweighted by a robust
-    loss; for a :class:`Factored` problem's least squares the (k + 1, k) factor
-    ``[r^T J / |r|; R_2]`` instead, :func:`solve`: the same ``J^T J`` and ``J^T r``)."""
+    loss; for a :class:`Factored` problem the (k + 1, k) factor ``[r^T J / |r|; R_2]``
+    instead, :func:`solve`: the same ``J^T J`` and ``J^T r``; under a robust loss ``[R; 0]``,
+    ``R`` the factor of the loss's reweighted Jacobian)."""
 
     x: np.ndarray
     identifiability: Identifiability
@@ -237,10 +292,9 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
     return again
 
 
-def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
-          options: Options) -> Solution:
-    """:func:`scipy.optimize.least_squares` of ``problem`` over the kept columns of ``ident``,
-    the others held at ``x0`` (module docstring).
+class Handed:
+    """What :func:`solve` hands scipy for ``problem`` over its columns ``free``, the others
+    held at ``x0``: the residuals and Jacobian, or a :class:`Factored` problem's few rows.
 
     A :class:`Factored` problem's least squares (linear loss) is handed to scipy on k + 1
     rows: the residuals ``[|r|, 0, ..., 0]`` and the Jacobian ``[r^T J / |r|; R_2]``, the
@@ -249,53 +303,112 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
     Levenberg-Marquardt and trust-region reflective use (the steps, which depend on the
     Jacobian only through ``J^T J`` and ``J^T r``; the predicted and actual reductions; the
     column-norm scaling; the gradient test) is the full problem's, while only a block of the
-    Jacobian's rows is ever held (``sol.fun`` is then the full residual at the optimum, and
-    ``sol.jac`` that factor).
+    Jacobian's rows is ever held.
+
+    Under a robust loss, scipy's trust-region reflective sees the problem only through the
+    objective ``sum f^2 rho((r / f)^2) / 2`` (its cost), the gradient ``g = J^T psi`` and the
+    Gauss-Newton matrix ``J^T diag(w^2) J`` of the rows scaled by the loss
+    (:func:`robust_rows`). A :class:`Factored` problem's is handed to it on k + 1 rows: the
+    Jacobian ``[R; 0]``, ``R`` the factor of ``diag(w) J``, and the residuals
+    ``[R^-T g; sqrt(2 cost)]`` (:meth:`Factored.robust_factor`, :func:`projected_residual`)
+    under :func:`carried_loss` (the last residual's square is the cost; the others weigh as in
+    least squares): the same cost, gradient and Gauss-Newton matrix, so the same steps,
+    reductions and tests, one block of rows held at a time. scipy's own scaled residuals
+    ``psi / w`` are huge where a loss's curvature vanishes (``w = sqrt(eps)``: huber's and
+    cauchy's far residuals) and cost the steps digits wherever they are mixed with the
+    Jacobian; ``R^-T g`` has none of them. Each residual evaluation evaluates the
+    Jacobian's blocks too (for ``R^-T g``), once per point.
+    """
+
+    def __init__(self, problem: Problem, x0: np.ndarray, free: np.ndarray,
+                 options: Options) -> None:
+        self.problem, self.x0, self.free = problem, x0, free
+        self.loss, self.f_scale = options.loss, float(options.f_scale)
+        self.factored = isinstance(problem, Factored)
+        self.scaling = robust_rows(self.loss, self.f_scale)
+        self._weighted: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def loss_options(self) -> dict:
+        """scipy's ``loss`` and ``f_scale`` arguments."""
+        if self.loss == "linear":
+            return {}
+        if self.factored:
+            return {"loss": carried_loss}
+        return {"loss": self.loss, "f_scale": self.f_scale}
+
+    def full(self, z: np.ndarray) -> np.ndarray:
+        """The parameters (p,) with the solver's variables ``z`` (k,) at their columns."""
+        x = self.x0.copy()
+        x[self.free] = z
+        return x
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """The residuals handed to scipy at ``z``."""
+        r = self.problem.fun(self.full(z))
+        if not self.factored:
+            return r
+        out = np.zeros(self.free.size + 1)
+        if self.loss == "linear":
+            out[0] = np.linalg.norm(r)
+            return out
+        out[:-1] = self._robust(z)[1]
+        out[-1] = math.sqrt(loss_sum(r, self.loss, self.f_scale))
+        return out
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Their Jacobian at ``z``."""
+        if not isinstance(self.problem, Factored):
+            return self.problem.jac(self.full(z))[:, self.free]
+        if self.loss != "linear":
+            return self._robust(z)[0]
+        tri = self.problem.factor(self.full(z), self.free)
+        tri[0] *= -1.0 if tri[0, 0] < 0 else 1.0  # R[0, 0] = |r|: r = Q[:, 0] |r|
+        out = np.zeros((self.free.size + 1, self.free.size))
+        out[:tri.shape[0]] = tri[:, 1:]
+        return out
+
+    def _robust(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``[R; 0]`` and ``R^-T g`` at ``z``, kept for the last ``z`` (scipy asks for the
+        residuals, then for the Jacobian of an accepted point)."""
+        if self._weighted is None or not np.array_equal(self._weighted[0], z):
+            assert isinstance(self.problem, Factored)
+            gradient, tri = self.problem.robust_factor(self.full(z), self.free, self.scaling)
+            out = np.zeros((self.free.size + 1, self.free.size))
+            out[:tri.shape[0]] = tri
+            self._weighted = (z.copy(), out, projected_residual(out[:-1], gradient))
+        return self._weighted[1], self._weighted[2]
+
+
+def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
+          options: Options) -> Solution:
+    """:func:`scipy.optimize.least_squares` of ``problem`` over the kept columns of ``ident``,
+    the others held at ``x0`` (module docstring). A :class:`Factored` problem is handed to
+    scipy on k + 1 rows with the full problem's steps (:class:`Handed`); ``sol.fun`` is then
+    the full residual at the optimum, and ``sol.jac`` the factor scipy was handed.
     """
     free = np.asarray(ident.kept, dtype=int)  # the solver's variables, in the kept order
     if not free.size:
         fun = problem.fun(x0)
         return Solution(x0, ident, True, 1, "no parameter is seen by the data", 1, [], fun,
                         np.zeros((fun.size, 0)))
+    handed = Handed(problem, x0, free, options)
     kwargs: dict = {"xtol": options.tolerance, "ftol": options.tolerance,
                     "gtol": options.tolerance,
-                    "max_nfev": options.max_nfev or 40 * (x0.size + 1)}
+                    "max_nfev": options.max_nfev or 40 * (x0.size + 1),
+                    **handed.loss_options()}
     if options.x_scale is not None:
         kwargs["x_scale"] = (options.x_scale if np.ndim(options.x_scale) == 0
                              else np.asarray(options.x_scale)[free])
-    if options.loss != "linear":
-        kwargs.update(loss=options.loss, f_scale=float(options.f_scale))
     bounds = problem.bounds()
     lo, hi = ((np.full(x0.size, -np.inf), np.full(x0.size, np.inf)) if bounds is None
               else bounds)
     lo, hi = lo[free], hi[free]
-
-    def full(z: np.ndarray) -> np.ndarray:
-        x = x0.copy()
-        x[free] = z
-        return x
-
-    factored = options.loss == "linear" and isinstance(problem, Factored)
-
-    def residual(z: np.ndarray) -> np.ndarray:
-        if not factored:
-            return problem.fun(full(z))
-        out = np.zeros(free.size + 1)
-        out[0] = np.linalg.norm(problem.fun(full(z)))
-        return out
-
-    def jacobian(z: np.ndarray) -> np.ndarray:
-        if not isinstance(problem, Factored) or not factored:
-            return problem.jac(full(z))[:, free]
-        tri = problem.factor(full(z), free)
-        tri[0] *= -1.0 if tri[0, 0] < 0 else 1.0  # R[0, 0] = |r|: r = Q[:, 0] |r|
-        out = np.zeros((free.size + 1, free.size))
-        out[:tri.shape[0]] = tri[:, 1:]
-        return out
+    full = handed.full
 
     def run(z0: np.ndarray, method: str, bounded: bool):
         extra = {"bounds": (lo, hi)} if bounded and bounds is not None else {}
-        return least_squares(residual, z0, jac=jacobian, method=method, **kwargs, **extra)
+        return least_squares(handed.residual, z0, jac=handed.jacobian, method=method,
+                             **kwargs, **extra)
 
     sol = run(x0[free], options.method, options.method == "trf")
     nfev = int(sol.nfev)
@@ -312,7 +425,7 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
     z = np.where(sol.active_mask < 0, lo, np.where(sol.active_mask > 0, hi, sol.x))
     return Solution(full(z), ident, bool(sol.success), int(sol.status), str(sol.message), nfev,
                     [int(i) for i in free[active]],
-                    problem.fun(full(sol.x)) if factored else sol.fun, sol.jac)
+                    problem.fun(full(sol.x)) if handed.factored else sol.fun, sol.jac)
 
 
 @dataclass
@@ -349,8 +462,9 @@ class Covariance:
 def covariance_matrix(jacobian: np.ndarray, sigma: float, loss: str = "linear",
                       residual: np.ndarray | None = None, f_scale: float = 1.0
                       ) -> Covariance:
-    """The covariance of parameters whose residuals have the Jacobian ``jacobian`` (N, p), for
-    a noise std ``sigma`` in the residuals' units: ``sigma^2 (J^T J)^+`` with one cut-off
+    """The covariance of parameters whose residuals have the Jacobian ``jacobian`` (N, p) (or
+    any (m, p) matrix with its ``J^T J``: a triangular factor), for a noise std ``sigma`` in
+    the residuals' units: ``sigma^2 (J^T J)^+`` with one cut-off
     (:data:`SINGULAR_RTOL`) for undetermined directions; for a robust ``loss`` Huber's
     sandwich (:func:`sandwich_matrix`, of the ``residual`` (N,) at the optimum and the loss's
     ``f_scale``, both in the residuals' units) in the determined directions instead. A
@@ -394,7 +508,8 @@ def sandwich_matrix(residual: np.ndarray, jacobian: np.ndarray, loss: str, f_sca
     residual
         (N,) residuals at the optimum (any unit).
     jacobian
-        (N, p) derivative of those residuals w.r.t. ``x``.
+        (N, p) derivative of those residuals w.r.t. ``x``, or any (m, p) matrix with its
+        ``J^T J`` (a triangular factor: only ``J^T J`` is used).
     loss, f_scale
         The fit's loss (:data:`LOSSES`) and its soft threshold in the residuals' unit.
     determined
@@ -409,9 +524,8 @@ def sandwich_matrix(residual: np.ndarray, jacobian: np.ndarray, loss: str, f_sca
     _, d_rho, dd_rho = loss_terms(loss, (r / f_scale) ** 2)
     psi = d_rho * r                                      # d phi / d r
     dpsi = d_rho + 2.0 * (r / f_scale) ** 2 * dd_rho     # d^2 phi / d r^2
-    jac = jacobian @ determined.T                        # (N, d)
-    n, d = jac.shape
-    p = jacobian.shape[1]
+    jac = jacobian @ determined.T                        # (N or m, d): its J^T J
+    n, (d, p) = r.size, determined.shape
     mean_dpsi = float(np.mean(dpsi))
     if mean_dpsi <= 0 or n <= d:
         return np.full((p, p), np.inf)
