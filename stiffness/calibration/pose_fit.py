@@ -33,8 +33,8 @@ estimate
 twice of the loss fit's, as the deflection diagnose does), its steps on the factor of the
 loss-reweighted Jacobian over blocks of rows (:meth:`PoseProblem.robust_factor`), as least
 squares' on that of ``[r, J]``. The covariance is Huber's sandwich
-(:func:`~stiffness.calibration.solver.sandwich_matrix`, on the factor of ``J``), and :meth:`PoseFit.loss_rss` (the
-loss sum over its Gaussian expectation,
+(:func:`~stiffness.calibration.solver.sandwich_matrix`, on the factor of ``J``), and
+:meth:`PoseFit.loss_rss` (the loss sum over its Gaussian expectation,
 :func:`~stiffness.calibration.solver.gaussian_loss_mean`) stands for the residual sum of
 squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` instead of
 ``r^2``.
