@@ -18,9 +18,11 @@ from pose_truth import add_intervals
 from scipy import optimize
 from stats import Coverage
 
+from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.elastic.effects import FAMILIES
+from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import (
     HiddenPoseErrors,
     hidden_elasticity,
@@ -186,3 +188,19 @@ def test_hidden_controller_compliances_recovered(robot):
         model = PoseModel(robot, c.markers, tuple(fams), starting_frame(c), c.loads)
         add_intervals(cov, fit_pose_model(model, c, rows_of(model, c), fams), hidden, c)
     cov.check()
+
+
+def test_a_family_without_parameters_is_not_a_candidate(robot):
+    """Springs on controller coordinates leave no chain joint to tilt in its bearing:
+    transversal_compliance has no parameter. Diagnose ended in a traceback ("cannot reshape
+    array of size 0", the sweep of issue 47 on the torso with a passive joint); now the family
+    is not tried, and forcing it is a one-line error."""
+    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in MARKERS]),
+                              np.zeros(4), np.zeros((4, 6)), STIFFNESS)
+    c = simulate_pose_campaign(robot, MARKERS, hidden, 8, 20e-6, seed=0)
+    others = [f for f in CANDIDATES["known"] if f != "transversal_compliance"]
+    d = diagnose_poses(c, not_families=others)
+    assert d.families == ["frame", "markers"] and "transversal_compliance" not in d.rejected
+    with pytest.raises(StiffnessError, match="transversal_compliance has no parameter") as err:
+        diagnose_poses(c, families=["transversal_compliance"])
+    assert "\n" not in str(err.value)

@@ -418,13 +418,19 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     if base_tilt is not None:
         settings[DECLARED_TILT] = [float(v) for v in base_tilt]
         declared_tilt(settings)  # two finite angles, else a one-line error
+    empty = _empty(campaign, frame0, settings, CANDIDATES[masses])
+    if empty & set(forced):
+        f = next(f for f in forced if f in empty)
+        raise StiffnessError(f"--families {f}: {f} has no parameter on {campaign.robot.title} "
+                             "with these markers (docs/absolute-poses.md, Limits); drop it")
     base = _fit(campaign, chosen, frame0, settings, loss=loss)
     judge = PoseJudge.of(campaign, masses)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
     kind = PoseSearch(campaign, chosen, frame0, settings, scale, validate, say, workers, draw,
                       judge, base.n_observed, campaign.noise_std,
-                      [f for f in CANDIDATES[masses] if f not in forced and f not in forbidden])
+                      [f for f in CANDIDATES[masses]
+                       if f not in forced and f not in forbidden and f not in empty])
     steps = kind.steps
     steps.append(PoseStep("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
                           _validation(base, validate)))
@@ -435,6 +441,20 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, list(forced),
                          sorted(forbidden), outliers, outlier_sigma, stop, judge, kind,
                          kind.not_judged)
+
+
+def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settings: dict,
+           families: Sequence[str]) -> set[str]:
+    """The ``families`` with no parameter on the campaign's robot and markers (bearing tilts
+    and backlash of springs on controller coordinates: nothing to try)."""
+    out = set()
+    for f in families:
+        with_it = (*BASE_FAMILIES, *FAMILIES[f].requires, f)
+        sl = PoseModel(campaign.robot, campaign.markers, with_it, frame0, campaign.loads,
+                       settings).slices()[f]
+        if sl.stop == sl.start:
+            out.add(f)
+    return out
 
 
 def _choice(masses: str, families: Sequence[str], not_families: Sequence[str]
