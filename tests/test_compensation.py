@@ -175,6 +175,24 @@ def test_link_compliance_needs_the_general_solver(ur5):
         assert np.linalg.norm(left.position - p_n) > 1e-4
 
 
+def test_a_method_the_model_cannot_take_is_refused_naming_its_bends_not_a_row(ur5):
+    """method='closed-form' on a model that bends beyond its joints: one line naming the
+    bends (a bearing tilt was called 'link compliance') and no path row (it said 'path row
+    1: ...', though no row is at fault)."""
+    from stiffness.elastic.model import _tilt_column
+
+    _, linked, _ = _ur5_link_model(ur5)
+    tilt = LinkBend("elbow_joint", "elbow_joint", _tilt_column(ur5, "elbow_joint"), (1e6, 1e6),
+                    tilt=True)
+    both = ElasticModel(ur5, linked.law, (*linked.links, tilt))
+    with pytest.raises(StiffnessError) as info:
+        compensate(both, UR5_PATH, [0.0, 0.0, -100.0], method="closed-form")
+    assert str(info.value) == (
+        "the closed form holds for joint compliance only; this model bends beyond its joints "
+        "(link bend shoulder_lift_joint->elbow_joint, transversal compliance elbow_joint): use "
+        "method 'general'")
+
+
 def test_link_bend_matches_the_effect_library_to_first_order(ur5):
     """The exact bend at a small load equals the library's linear link-compliance term."""
     joints, linked, geometry = _ur5_link_model(ur5)

@@ -156,13 +156,15 @@ class Compensator:
             raise StiffnessError(f"hold must be one of auto, {', '.join(HOLDS)}, got {hold!r}")
         if method not in METHODS:
             raise StiffnessError(f"method must be auto, closed-form or general, got {method!r}")
+        bends = ", ".join(lk.label for lk in model.links)
         if method == "closed-form" and not model.joint_only:
             raise StiffnessError("the closed form holds for joint compliance only; this model "
-                                 "has link compliance: use method 'general'")
+                                 f"bends beyond its joints ({bends}): use method 'general'")
         if model.preloaded and (not model.joint_only or method == "general"):
             raise StiffnessError("compensation under a preload (the weight, a compensator) is "
-                                 "closed-form for joint compliance only; this model has link "
-                                 "compliance or asks for the general method: drop one of them")
+                                 "closed-form for joint compliance only; this model "
+                                 + (f"bends beyond its joints ({bends})" if bends else
+                                    "asks for the general method") + ": drop one of them")
         self.model, self.hold = model, hold
         robot = model.robot
         # springs on passive chain joints (a tall coupling): their deflection is no command,

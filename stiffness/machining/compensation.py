@@ -404,8 +404,11 @@ def compensate(
             q = em.full.configuration(coords, seed=seed)
             if chosen == "auto":
                 chosen = choose_hold(em, q)
-            if compensator is None:
-                compensator = em.compensator(hold=chosen, method=method)
+        except StiffnessError as exc:
+            raise with_context(exc, f"path row {i + 1}") from exc
+        if compensator is None:  # refuses a method the model cannot take: not the row's fault
+            compensator = em.compensator(hold=chosen, method=method)
+        try:
             load = w[i].copy()
             if wrench_frame == "target":
                 kinematics.update_first_order(em.full.model, em.full.data, q)
