@@ -19,7 +19,8 @@ from massless import massless
 from stats import Coverage
 
 from stiffness.calibration.campaign_writer import write_campaign
-from stiffness.calibration.diagnose import diagnose, stiffness_parameters
+from stiffness.calibration.deflection_parameters import stiffness_parameters
+from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
 from stiffness.cli.main import main
@@ -267,7 +268,8 @@ def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
                         np.concatenate([np.log(KINOVA[2]), freed.start()]))
         matrix = parameter_covariance(fit, NOISE, campaign.deflection)
         quantile = interval_quantile(NOISE, campaign.deflection.size, model.penalty_params)
-        params = [*stiffness_parameters(fit, matrix, quantile),
+        edge = interval_quantile(NOISE, campaign.deflection.size, model.penalty_params, 0.95)
+        params = [*stiffness_parameters(fit, matrix, quantile, edge),
                   *freed.report(fit.x[3:], matrix[3:, 3:], refs, SI_UNITS, quantile)]
         for p, want in zip(params, truth, strict=True):
             cov.add(p.value, p.ci95, want)

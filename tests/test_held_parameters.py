@@ -3,8 +3,8 @@
 A parameter the diagnosis holds (:attr:`Hypothesis.held`: the data do not determine it) stays
 at its start in every fit of the model and is reported as held with why; a parameter the
 solver leaves at its bound gets a one-sided interval and the others' intervals respect the
-bound on the side where they would need it crossed (``diagnose._held``). One small link-angle
-UR5 campaign with a hidden compensator whose stiffness the data put at 0 (seed 3).
+bound on the side where they would need it crossed (``deflection_parameters.held``). One
+small link-angle UR5 campaign with a hidden compensator whose stiffness the data put at 0 (seed 3).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from test_joint_angles import ARMS, NOISE, _model, _sim
 
-from stiffness.calibration.diagnose import _effect_parameters, stiffness_parameters
+from stiffness.calibration.deflection_parameters import effect_parameters, stiffness_parameters
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.fitting import (
     NOMINAL_STIFFNESS,
@@ -52,7 +52,8 @@ def test_a_held_parameter_stays_at_its_start_and_says_why():
     assert fit.penalty_params == fit.model.penalty_params - 1
     cov = parameter_covariance(fit, NOISE, c.deflection)
     quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
-    stiffness, preload = _effect_parameters(fit, cov, quantile, SI_UNITS)[
+    edge = interval_quantile(NOISE, c.deflection.size, fit.penalty_params, 0.95)
+    stiffness, preload = effect_parameters(fit, cov, quantile, edge, SI_UNITS)[
         f"gravity_compensator({ARMS[0][3]})"]
     assert stiffness.held == "held at its nominal value: test" and not stiffness.determined
     assert "not fitted (held at 0 N/m)" in stiffness.text()
@@ -73,9 +74,10 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
     cov = parameter_covariance(fit, NOISE, c.deflection)
     held = held_at_bounds(fit, NOISE, c.deflection)
     quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
-    free = _effect_parameters(fit, cov, quantile, SI_UNITS)
-    both = _effect_parameters(fit, cov, quantile, SI_UNITS, held)
-    only = _effect_parameters(fit, held, quantile, SI_UNITS)
+    edge = interval_quantile(NOISE, c.deflection.size, fit.penalty_params, 0.95)
+    free = effect_parameters(fit, cov, quantile, edge, SI_UNITS)
+    both = effect_parameters(fit, cov, quantile, edge, SI_UNITS, held)
+    only = effect_parameters(fit, held, quantile, edge, SI_UNITS)
     label = f"gravity_compensator({ARMS[0][3]})"
     stiffness, preload = both[label]
     assert stiffness.at_bound and stiffness.ci95[0] == stiffness.value
@@ -84,9 +86,9 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
     assert preload.ci95 == (only[label][1].ci95[0], free[label][1].ci95[1])
     assert preload.ci95[0] < 2e4 < preload.ci95[1] and preload.excludes_zero
     # the joint stiffnesses follow the same rule
-    for p, f, h in zip(stiffness_parameters(fit, cov, quantile, held),
-                       stiffness_parameters(fit, cov, quantile),
-                       stiffness_parameters(fit, held, quantile), strict=True):
+    for p, f, h in zip(stiffness_parameters(fit, cov, quantile, edge, held),
+                       stiffness_parameters(fit, cov, quantile, edge),
+                       stiffness_parameters(fit, held, quantile, edge), strict=True):
         assert p.ci95[0] in (f.ci95[0], h.ci95[0]) and p.ci95[1] in (f.ci95[1], h.ci95[1])
 
 
@@ -153,7 +155,8 @@ def test_a_quantity_derived_from_a_variable_beside_a_bound_is_reported():
     assert fit.at_bound  # the compensator's stiffness still at 0
     cov = parameter_covariance(fit, NOISE, c.deflection)
     quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
-    beta, change = _effect_parameters(fit, cov, quantile, SI_UNITS,
+    edge = interval_quantile(NOISE, c.deflection.size, fit.penalty_params, 0.95)
+    beta, change = effect_parameters(fit, cov, quantile, edge, SI_UNITS,
                                       held_at_bounds(fit, NOISE, c.deflection))[effect.label]
     assert (beta.name, change.name) == ("beta", "relative_change_at_max_torque")
     assert beta.ci95[0] <= beta.value <= beta.ci95[1]

@@ -20,7 +20,8 @@ from stats import Coverage
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.campaign_writer import write_campaign
-from stiffness.calibration.diagnose import diagnose, stiffness_parameters
+from stiffness.calibration.deflection_parameters import stiffness_parameters
+from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
 from stiffness.elastic.effects import make_effect
@@ -139,7 +140,8 @@ def _fitted_parameters(arm, seed: int) -> list:
     fit = fit_model(model, c.deflection, NOISE, np.concatenate([np.log(arm[2]), comp.start()]))
     matrix = parameter_covariance(fit, NOISE, c.deflection)
     quantile = interval_quantile(NOISE, c.deflection.size, model.penalty_params)
-    return [*stiffness_parameters(fit, matrix, quantile),
+    edge = interval_quantile(NOISE, c.deflection.size, model.penalty_params, 0.95)
+    return [*stiffness_parameters(fit, matrix, quantile, edge),
             *comp.report(fit.x[3:], matrix[3:, 3:], model.refs, SI_UNITS, quantile)]
 
 

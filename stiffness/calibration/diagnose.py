@@ -49,9 +49,14 @@ from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.certainty import how_sure
+from stiffness.calibration.deflection_parameters import (
+    effect_parameters,
+    share,
+    stiffness_parameters,
+)
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis, Step
-from stiffness.calibration.fitting import Fit, kind_noise, observations, parameter_labels
-from stiffness.calibration.naming import is_stand_in, one_sided, settle
+from stiffness.calibration.fitting import Fit, kind_noise, observations
+from stiffness.calibration.naming import is_stand_in, settle
 from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise,
@@ -71,7 +76,6 @@ from stiffness.calibration.selection import (
     fit_model,
     goodness_of_fit,
     held_at_bounds,
-    held_ends,
     information_criterion,
     interval_quantile,
     parameter_covariance,
@@ -98,72 +102,6 @@ WEAK_BIC = 6.0
 SIMILARITY_LIMIT = 0.95
 #: A deflection campaign's candidate: an effect of the library and its fit.
 Found = Candidate[Effect, Fit]
-
-
-def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float,
-                         held_cov: np.ndarray | None = None) -> list[Parameter]:
-    """The joint stiffnesses a diagnosis reports: ``k = exp(x)`` with the interval
-    ``k exp(+-quantile se)`` (``se`` of ``ln k`` from ``cov``), in N.m/rad or N/m; with
-    ``held_cov`` (:func:`held_at_bounds`) each end bounded as :func:`_held` says."""
-    model = fit.model
-
-    def one(i: int, j: str, matrix: np.ndarray) -> Parameter:
-        k = math.exp(fit.x[i])
-        se = math.sqrt(matrix[i, i]) if math.isfinite(matrix[i, i]) else math.inf
-        prismatic = bool(model.geometry.prismatic[model.geometry.joints.index(j)])
-        with np.errstate(over="ignore"):
-            ci = (k * math.exp(-quantile * se) if math.isfinite(se) else 0.0,
-                  k * math.exp(quantile * se) if math.isfinite(se) and quantile * se < 700
-                  else math.inf)
-        return Parameter(j, k, k * se, ci, "N/m" if prismatic else "N.m/rad")
-
-    return [_held(fit, i, one(i, j, cov), cov,
-                  None if held_cov is None else one(i, j, held_cov))
-            for i, j in enumerate(model.compliant)]
-
-
-def _held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
-          bounded: Parameter | None = None) -> Parameter:
-    """``parameter`` (column ``index`` of ``fit.x``, its interval from the covariance ``cov``)
-    as held, with why, when the fit did not identify it (:attr:`Fit.identifiability`); at its
-    physical bound (:attr:`Fit.at_bound`) with a one-sided interval from the bound (the
-    two-sided interval's other end); else, ``bounded`` being the parameter reported with the
-    parameters at their bound held there, with each end of its interval from ``bounded``
-    where moving it that way would take one of those past its bound (its covariance with
-    them, ``cov``): an interval that respects the bounds."""
-    dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
-    if dropped is not None:
-        return parameter.held_as(dropped.describe(parameter_labels(fit.model)))
-    lo, hi = fit.model.bounds()
-    inward = {b: 1.0 if abs(fit.x[b] - lo[b]) <= abs(fit.x[b] - hi[b]) else -1.0
-              for b in fit.at_bound}
-    if index in fit.at_bound:
-        return one_sided(parameter, inward[index] > 0)
-    if bounded is None:
-        return parameter
-    held_low, held_high = held_ends([cov[index, b] * inward[b] for b in fit.at_bound])
-    low = bounded.ci95[0] if held_low.any() else parameter.ci95[0]
-    high = bounded.ci95[1] if held_high.any() else parameter.ci95[1]
-    return dataclasses.replace(parameter, ci95=(low, high))
-
-
-def _effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, units,
-                       held_cov: np.ndarray | None = None) -> dict[str, list[Parameter]]:
-    """Each effect's parameters in ``fit`` with their intervals (from ``cov``, each end
-    bounded by ``held_cov`` as :func:`_held` says). A reported quantity beyond the effect's
-    variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``) is held,
-    at its bound or bounded as its last variable is."""
-    model = fit.model
-    out = {}
-    for i, e in enumerate(model.effects):
-        a, b = model.offsets[i + 1], model.offsets[i + 2]
-        free = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
-        held = (free if held_cov is None else
-                e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
-        out[e.label] = [_held(fit, a + min(k, b - a - 1), p, cov,
-                              None if held_cov is None else q)
-                        for k, (p, q) in enumerate(zip(free, held, strict=True))]
-    return out
 
 
 @overload
@@ -325,6 +263,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     sigma_used, note = _final_noise(final, n, sigma, note)
     known = sigma if loss == "linear" else None  # a sandwich estimates its spread: t
     quantile = interval_quantile(known, n, p_final)
+    edge = interval_quantile(known, n, p_final, 0.95)
     cov_final = parameter_covariance(final, sigma_used, measured)
     held_final = held_at_bounds(final, sigma_used, measured)
     sigma_base = sigma_used if sigma is not None else math.sqrt(
@@ -334,7 +273,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
                                seed if propose else None)
-    final_parameters = _effect_parameters(final, cov_final, quantile, campaign.units,
+    final_parameters = effect_parameters(final, cov_final, quantile, edge, campaign.units,
                                           held_final)
     sure = how_sure(kind, final, steps[-1].cv_rms if steps else cv_base, [
         (e.label, [(r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})",
@@ -343,9 +282,11 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         for e, s in zip(final.model.effects, steps, strict=True)])
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
-        baseline_stiffness=stiffness_parameters(base, cov_base, interval_quantile(
-            known, n, base.penalty_params), held_at_bounds(base, sigma_base, measured)),
-        final_stiffness=stiffness_parameters(final, cov_final, quantile, held_final),
+        baseline_stiffness=stiffness_parameters(
+            base, cov_base, interval_quantile(known, n, base.penalty_params),
+            interval_quantile(known, n, base.penalty_params, 0.95),
+            held_at_bounds(base, sigma_base, measured)),
+        final_stiffness=stiffness_parameters(final, cov_final, quantile, edge, held_final),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
@@ -358,7 +299,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, certainty=sure,
-        final_parameters_si=_effect_parameters(final, cov_final, quantile, SI_UNITS,
+        final_parameters_si=effect_parameters(final, cov_final, quantile, edge, SI_UNITS,
                                                held_final),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
@@ -578,7 +519,9 @@ class DeflectionSearch:
             x = fit.x.copy()
             for k in ks:
                 x[start + k] = effect.start()[k]
-            held = {f"{effect.label}.{p.name}": why for p, why in zip(ps, whys, strict=True)}
+            cov = self.covariance(fit)[0]
+            held = {f"{effect.label}.{p.name}": why + share(fit, start + k, cov)
+                    for k, p, why in zip(ks, ps, whys, strict=True)}
             return fit_job(fit.model.holding(held), self.measured, self.scale, x,
                            loss=fit.loss, f_scale=fit.f_scale).run()
 
@@ -636,15 +579,20 @@ class DeflectionSearch:
     def held_out_of(self, fits: list[Fit]) -> list[float]:
         return cross_validate(fits, self.measured, self.folds, self.workers)
 
-    def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
-        """Each effect's parameters in ``fit`` with their intervals."""
+    def covariance(self, fit: Fit) -> tuple[np.ndarray, float]:
+        """The covariance of ``fit.x`` (:func:`parameter_covariance`) and the noise std (m)
+        it is for: the declared one, else estimated from ``fit``'s residuals."""
         sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
             self.n - fit.penalty_params, 1))
-        cov = parameter_covariance(fit, sig, self.measured)
-        quantile = interval_quantile(self.sigma if fit.loss == "linear" else None, self.n,
-                                     fit.penalty_params)
-        return _effect_parameters(fit, cov, quantile, units,
-                                  held_at_bounds(fit, sig, self.measured))
+        return parameter_covariance(fit, sig, self.measured), sig
+
+    def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
+        """Each effect's parameters in ``fit`` with their intervals."""
+        cov, sig = self.covariance(fit)
+        known = self.sigma if fit.loss == "linear" else None
+        return effect_parameters(fit, cov, interval_quantile(known, self.n, fit.penalty_params),
+                                  interval_quantile(known, self.n, fit.penalty_params, 0.95),
+                                  units, held_at_bounds(fit, sig, self.measured))
 
 
 def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,

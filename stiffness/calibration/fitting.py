@@ -64,6 +64,10 @@ from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 from stiffness.robot.robot import Robot
 
+#: A baseline compliance within this many typical sizes (``1 / k_ref``) of zero is at its
+#: bound, rigid to the data: the fit moves ``ln k``, whose column vanishes with the compliance,
+#: so the solver stops short of the 1e14 bound wherever the data no longer see the joint.
+RIGID_COMPLIANCE = 1e-6
 #: Weight of the anchoring pseudo-residuals ``w (x - x_anchor)``: they move a determined
 #: ``ln k`` by about ``w^2 / s^2`` of its distance to the anchor (s >~ 1).
 PRIOR_WEIGHT = 1e-6
@@ -383,13 +387,32 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
     hold = {i: model.held[label] for i, label in enumerate(labels) if label in model.held}
     sol = solver.fit(objective, x0, solver.Options(method, tolerance, max_nfev, x_scale, loss,
                                                    f_scale), resolution, hold)
-    x = sol.x
+    x, at_bound = sol.x, list(sol.at_bound)
+    if bounded:
+        x, at_bound = _rigid(model, x, at_bound, sol.identifiability.kept)
     jac = objective.data_jacobian(x)
     r = objective.data(x)
     pred = measured + r.reshape(measured.shape) * scale
     return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), jac, scale, sol.success,
                sol.message, sol.nfev, loss, float(f_scale), loss_sum(r, loss, f_scale),
-               sol.identifiability, sol.at_bound)
+               sol.identifiability, at_bound)
+
+
+def _rigid(model: Hypothesis, x: np.ndarray, at_bound: list[int], kept: Sequence[int]
+           ) -> tuple[np.ndarray, list[int]]:
+    """``x`` with each fitted baseline compliance within :data:`RIGID_COMPLIANCE` typical
+    sizes of zero set at its bound (the stiffness's upper bound) and listed in ``at_bound``:
+    the bound judged in compliance units, where the data see the parameter."""
+    n0 = len(model.compliant)
+    hi = model.bounds()[1]
+    u = model.refs.k_ref * (np.exp(-x[:n0]) - np.exp(-hi[:n0]))
+    rigid = [i for i in range(n0) if i in kept and i not in at_bound
+             and u[i] <= RIGID_COMPLIANCE]
+    if not rigid:
+        return x, at_bound
+    x = x.copy()
+    x[rigid] = hi[rigid]
+    return x, sorted(at_bound + rigid)
 
 
 def nominal_log_stiffness(model: Hypothesis) -> np.ndarray:
@@ -497,6 +520,23 @@ def fit_models(jobs: list[FitJob], workers: int | None = None) -> list[Fit]:
     sent = forked_map([functools.partial(_sent_back, job) for job in rest], workers)
     return [first] + [Fit(model=job.model, **values)
                       for values, job in zip(sent, rest, strict=True)]
+
+
+def compliance_covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None
+                          ) -> np.ndarray:
+    """:func:`covariance`'s matrix of ``fit.x``, computed with the baseline's columns in
+    compliance units ``u = k_ref / k`` (``dr/du = -dr/d ln k / u``) and carried back to
+    ``ln k`` (``d ln k = -du / u``): the same matrix wherever the problem is well conditioned,
+    and a stiff joint's compliance stays a parameter the data see, so that a near alias of it
+    is not judged as if that joint were held (its ``ln k`` column vanishes with its
+    compliance). An infinite entry (a parameter along an undetermined direction) stays
+    ``+inf``."""
+    n0 = len(fit.model.compliant)
+    slope = np.ones(fit.x.size)
+    slope[:n0] = -fit.model.refs.k_ref * np.exp(-fit.x[:n0])  # d u / d ln k
+    matrix = covariance(replace(fit, jacobian=fit.jacobian / slope), sigma, measured).matrix
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isinf(matrix), np.inf, matrix / np.outer(slope, slope))
 
 
 def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Covariance:

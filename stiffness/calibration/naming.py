@@ -60,8 +60,8 @@ def looseness(p: Parameter, size: float) -> float:
 def held_reason(p: Parameter) -> str:
     """Why a parameter is held at its nominal value, in words (the ``held`` of the report and
     the ``note`` of its ``identifiability.dropped`` entry)."""
-    return ("held at its nominal value: the data do not determine it "
-            f"({p.scale_note or 'its 95 % interval is unbounded'}, fitted)")
+    why = p.scale_note if p.scale_note and not p.resolved else "its 95 % interval is unbounded"
+    return f"held at its nominal value: the data do not determine it ({why}, fitted)"
 
 
 def settle(fit: F, parameters: Callable[[F], list[Parameter]],

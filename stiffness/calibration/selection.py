@@ -159,8 +159,10 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
 
 
 def parameter_covariance(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray:
-    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+`` (a robust fit's sandwich)."""
-    return fitting.covariance(fit, sigma, measured).matrix
+    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+`` (a robust fit's sandwich),
+    the baseline's compliances judged in compliance units
+    (:func:`~stiffness.calibration.fitting.compliance_covariance`)."""
+    return fitting.compliance_covariance(fit, sigma, measured)
 
 
 def held_at_bounds(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray | None:

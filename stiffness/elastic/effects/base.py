@@ -119,6 +119,9 @@ class Parameter:
         at and why, or that the data do not bound it."""
         if self.held:
             return f"{self.name} not fitted (held at {self.value:.5g} {self.unit}): {self.held}"
+        if self.at_bound and math.isinf(self.ci95[1]):  # a stiffness of zero compliance
+            return (f"{self.name} rigid to the data: its compliance at its bound, zero (one-sided"
+                    f" 95 % interval: stiffness above {self.ci95[0]:.5g} {self.unit})")
         if self.at_bound:
             return (f"{self.name} at its physical bound ({self.value:.5g} {self.unit}; one-sided "
                     f"95 % interval [{self.ci95[0]:.5g}, {self.ci95[1]:.5g}])")
@@ -406,7 +409,9 @@ def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
                       quantile: float) -> Parameter:
     """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method; its
     interval is determined when the compliance's is narrower than the physical scale
-    ``PHYSICAL_FACTOR scale`` (ten times the baseline's mean compliance ``1 / k_ref``)."""
+    ``PHYSICAL_FACTOR scale`` (ten times the baseline's mean compliance ``1 / k_ref``). At a
+    compliance of zero, its bound, the stiffness is infinite and its interval one-sided,
+    from ``1 / (quantile se)`` up (:attr:`Parameter.at_bound`)."""
     se_u = math.sqrt(max(var_u, 0.0)) if math.isfinite(var_u) else math.inf
     c = u * scale
     k = 1.0 / c if c > 0 else math.inf
@@ -417,7 +422,7 @@ def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
     high = 1.0 / lo_c if lo_c > 0 else math.inf
     width = 2.0 * quantile * se_u * scale
     compliance_unit = "m/N" if unit == "N/m" else "rad/(N.m)"
-    return Parameter(name, k, se_k, (low, high), unit,
+    return Parameter(name, k, se_k, (low, high), unit, at_bound=c <= 0,
                      resolved=bool(width < PHYSICAL_FACTOR * scale),
                      beyond_scale=bool(c > PHYSICAL_FACTOR * scale),
                      scale_note="compliance's " + scale_note(width, PHYSICAL_FACTOR * scale,

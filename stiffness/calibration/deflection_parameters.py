@@ -1,0 +1,125 @@
+"""The parameters a deflection diagnosis reports: the baseline's joint stiffnesses and each
+effect's parameters, with their 95 % intervals from the fit's covariance
+(:func:`stiffness.calibration.selection.parameter_covariance`), one-sided at a physical bound,
+each end of the others' respecting the bounds (:func:`held`), and what takes a held
+parameter's share (:func:`share`). The pose campaigns' counterpart is
+:mod:`stiffness.calibration.pose_parameters`; the naming rules both follow are
+:mod:`stiffness.calibration.naming`.
+
+Units: the stiffnesses SI (N.m/rad, N/m), the effects' in the units asked for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from stiffness.calibration.fitting import Fit, parameter_labels
+from stiffness.calibration.naming import one_sided
+from stiffness.calibration.selection import held_ends
+from stiffness.elastic.effects.base import Parameter, stiffness_report
+
+#: Correlation of two estimates above which holding one gives its share to the other (the
+#: held reason names it: a near alias the data do not split).
+ALIAS_CORRELATION = 0.9
+
+
+def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float,
+                         held_cov: np.ndarray | None = None) -> list[Parameter]:
+    """The joint stiffnesses a diagnosis reports: ``k = exp(x)`` with the interval of its
+    compliance ``c = 1 / k`` (``c -+ quantile se_c``, ``se_c = c se`` with ``se`` that of
+    ``ln k`` from ``cov``; a predicted deflection is linear in the compliances) carried to
+    the stiffness, ``[1 / (c + quantile se_c), 1 / (c - quantile se_c)]`` (unbounded above
+    when the compliance's interval reaches zero), in N.m/rad or N/m; a joint at its rigid bound
+    (:func:`~stiffness.calibration.fitting.fit_model`) one-sided from there, with the one-sided
+    quantile ``edge``; with ``held_cov`` (:func:`held_at_bounds`) each end bounded as
+    :func:`held` says."""
+    model = fit.model
+    refs, top = model.refs, model.bounds()[1]
+
+    def one(i: int, j: str, matrix: np.ndarray, q: float) -> Parameter:
+        k = math.exp(fit.x[i])
+        prismatic = bool(model.geometry.prismatic[model.geometry.joints.index(j)])
+        u = refs.k_ref / k  # the compliance in its typical size, 1 / k_ref
+        p = stiffness_report(j, u, float(matrix[i, i]) * u ** 2, 1.0 / refs.k_ref,
+                             "N/m" if prismatic else "N.m/rad", q)
+        return Parameter(j, k, p.standard_error, p.ci95, p.unit,
+                         at_bound=i in fit.at_bound and fit.x[i] >= top[i])
+
+    return [held(fit, i, one(i, j, cov, quantile), cov,
+                  None if held_cov is None else one(i, j, held_cov, quantile),
+                  edge=one(i, j, cov, edge))
+            for i, j in enumerate(model.compliant)]
+
+
+def held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
+          bounded: Parameter | None = None, reciprocal: bool = False,
+          edge: Parameter | None = None) -> Parameter:
+    """``parameter`` (column ``index`` of ``fit.x``, its interval from the covariance ``cov``)
+    as held, with why, when the fit did not identify it (:attr:`Fit.identifiability`); at its
+    physical bound (:attr:`Fit.at_bound`) with a one-sided 95 % interval from the bound
+    (``edge``'s other end: the parameter reported with the one-sided quantile, as a pose fit
+    reports it, :func:`~stiffness.calibration.selection.bounded_intervals`); else,
+    ``bounded`` being the parameter reported with the
+    parameters at their bound held there, with each end of its interval from ``bounded``
+    where moving it that way would take one of those past its bound (its covariance with
+    them, ``cov``): an interval that respects the bounds. ``reciprocal``: the parameter
+    falls as its variable rises (a stiffness reported from a compliance variable), so the
+    variable's low end is the parameter's high end."""
+    dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
+    if dropped is not None:
+        return parameter.held_as(dropped.describe(parameter_labels(fit.model)))
+    lo, hi = fit.model.bounds()
+    inward = {b: 1.0 if abs(fit.x[b] - lo[b]) <= abs(fit.x[b] - hi[b]) else -1.0
+              for b in fit.at_bound}
+    if index in fit.at_bound:  # one reported from a compliance at zero is one-sided already
+        side = parameter if edge is None else edge
+        return side if side.at_bound else one_sided(side, inward[index] > 0)
+    if bounded is None:
+        return parameter
+    held_low, held_high = held_ends([cov[index, b] * inward[b] for b in fit.at_bound])
+    if reciprocal:
+        held_low, held_high = held_high, held_low
+    low = bounded.ci95[0] if held_low.any() else parameter.ci95[0]
+    high = bounded.ci95[1] if held_high.any() else parameter.ci95[1]
+    return dataclasses.replace(parameter, ci95=(low, high))
+
+
+def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, units,
+                       held_cov: np.ndarray | None = None) -> dict[str, list[Parameter]]:
+    """Each effect's parameters in ``fit`` with their intervals (from ``cov`` with the
+    two-sided ``quantile``, or one-sided from a bound with the one-sided ``edge``; each end
+    bounded by ``held_cov`` as :func:`held` says). A reported quantity beyond the effect's
+    variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``) is held,
+    at its bound or bounded as its last variable is."""
+    model = fit.model
+    out = {}
+    for i, e in enumerate(model.effects):
+        a, b = model.offsets[i + 1], model.offsets[i + 2]
+        free = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
+        bounded = (free if held_cov is None else
+                   e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
+        sided = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
+        out[e.label] = [held(fit, a + min(k, b - a - 1), p, cov,
+                             None if held_cov is None else q,
+                             e.compliance_variables and k < b - a, one)
+                        for k, (p, q, one) in enumerate(zip(free, bounded, sided, strict=True))]
+    return out
+
+
+def share(fit: Fit, column: int, cov: np.ndarray) -> str:
+    """What takes the share of parameter ``column`` of ``fit`` once it is held: the fitted
+    parameters its estimate is correlated with beyond :data:`ALIAS_CORRELATION` (``cov``, the
+    fit's covariance), as a clause of its held reason ("" for none)."""
+    var = np.diag(cov)
+    if not math.isfinite(var[column]) or var[column] <= 0:
+        return ""
+    labels = parameter_labels(fit.model)
+    others = [i for i in fit.kept if i != column and math.isfinite(var[i]) and var[i] > 0
+              and abs(cov[column, i]) >= ALIAS_CORRELATION * math.sqrt(var[column] * var[i])]
+    if not others:
+        return ""
+    return (f"; not told apart from {', '.join(labels[i] for i in others)}, which "
+            f"{'takes' if len(others) == 1 else 'take'} its share")
