@@ -184,6 +184,11 @@ def test_drift_outside_the_library_is_unexplained(ur10):
     assert d.unexplained is True
     trend = d.to_dict()["residual_structure"]["row_trend"]
     assert abs(trend["x"]["correlation"]) > 0.5
+    verdict = next(line for line in format_pose_report(d).splitlines()
+                   if line.startswith("UNEXPLAINED"))  # numbers, not a Python dict's repr
+    assert re.search(r"RMS \(m\) by marker tip [\d.e-]{3,9}, elbow [\d.e-]{3,9}, by axis x ",
+                     verdict) and "{" not in verdict, verdict
+    assert "too many for stray measurements, the model misses something" in verdict
 
 
 def test_masses_unknown_lumped_fit_predicts_held_out_poses(ur10):

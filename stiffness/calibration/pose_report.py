@@ -97,10 +97,22 @@ def _verdict(d: PoseDiagnosis) -> str:
     trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
     where = ("" if trend is None else
              f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
-    return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS by "
-            f"marker {s['rms_by_marker']}, by axis {s['rms_by_axis']}{where}"
-            + (f"; {len(d.outliers)} pose(s) are flagged as outliers, which alone can fail "
-               "the test (see outliers)" if d.outliers else ""))
+    marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
+                    for key in ("rms_by_marker", "rms_by_axis"))
+    return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
+            f"({d.campaign.units.length}) by marker {marker}, by axis {axis}{where}"
+            + _flagged(len(d.outliers), d.campaign.n_rows))
+
+
+def _flagged(n: int, rows: int) -> str:
+    """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
+    test alone; more than a tenth of the poses are a pattern the model misses."""
+    if not n:
+        return ""
+    if n > rows / 10:
+        return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
+                "stray measurements, the model misses something")
+    return f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
 
 
 #: How the identifiability lines name a parameter left out, by its reason.
