@@ -295,11 +295,18 @@ class PoseModel:
     def deflection_slope(self, x: np.ndarray, state: SagState) -> np.ndarray:
         """d(Delta q)/d(torque) (nv,) at ``state``: the sum of the families' (the columns of
         a family that adds a torque need it)."""
-        out = np.zeros(state.torque.shape)
-        for fam in self._hooked["deflection_per_torque"]:
-            slope = fam.deflection_per_torque(self, x[self._slices[fam.name]], state)
-            if slope is not None:
-                out += slope
+        return self._summed("deflection_per_torque", state.torque.shape, x, state)
+
+    def _summed(self, hook: str, shape: tuple[int, ...], x: np.ndarray | dict[str, np.ndarray],
+                *args) -> np.ndarray:
+        """The sum of the families' ``hook`` (each given its parameters: its slice of ``x``, or
+        ``x[name]`` of a dict, then ``args``), zeros of ``shape`` where none contributes."""
+        out = np.zeros(shape)
+        for fam in self._hooked[hook]:
+            own = x[fam.name] if isinstance(x, dict) else x[self._slices[fam.name]]
+            part = getattr(fam, hook)(self, own, *args)
+            if part is not None:
+                out += part
         return out
 
     def _load_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
@@ -339,12 +346,7 @@ class PoseModel:
     def deflection(self, x: np.ndarray, state: SagState) -> np.ndarray:
         """Joint deflection ``Delta q`` (nv,) at ``state`` for parameters ``x``: the sum of the
         elastic families' parts."""
-        dq = np.zeros(state.torque.shape)
-        for fam in self._hooked["joint_deflection"]:
-            part = fam.joint_deflection(self, x[self._slices[fam.name]], state)
-            if part is not None:
-                dq += part
-        return dq
+        return self._summed("joint_deflection", state.torque.shape, x, state)
 
     @property
     def elastic(self) -> bool:
@@ -353,12 +355,7 @@ class PoseModel:
 
     def _offsets(self, x: np.ndarray) -> np.ndarray:
         """The families' shift (nv,) of every commanded configuration (the zero offsets)."""
-        offsets = np.zeros(self.robot.model.nv)
-        for fam in self._hooked["configuration_offset"]:
-            shift = fam.configuration_offset(self, x[self._slices[fam.name]])
-            if shift is not None:
-                offsets += shift
-        return offsets
+        return self._summed("configuration_offset", (self.robot.model.nv,), x)
 
     def evaluate(self, x: np.ndarray, rows: list[RowTerms], jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -473,12 +470,7 @@ class PoseModel:
 
     def _displacement(self, parts: dict[str, np.ndarray], view: MarkerView) -> np.ndarray:
         """The families' displacement of a marker (robot-world axes, m): the link bends."""
-        out = np.zeros(view.point.shape)
-        for fam in self._hooked["marker_displacement"]:
-            shift = fam.marker_displacement(self, parts[fam.name], view)
-            if shift is not None:
-                out += shift
-        return out
+        return self._summed("marker_displacement", view.point.shape, parts, view)
 
     def marker_offset(self, x: np.ndarray, k: int) -> np.ndarray:
         """Offset (3,) of marker ``k`` in its frame's axes (m) for parameters ``x``."""
