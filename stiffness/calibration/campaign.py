@@ -81,14 +81,11 @@ from stiffness.calibration.campaign_toml import (
     DEFAULT_DATA_FILE,
     RobotSettings,
     TomlFile,
+    campaign_robot,
     campaign_toml_path,
-    measurement_noise,
     read_campaign_toml,
-    robot_section,
     rotation_noise,
-    settings_robot,
     typed_value,
-    units_section,
 )
 from stiffness.calibration.coordinate_columns import fixed_values
 from stiffness.calibration.measurements import coordinates_in_si, read_rows
@@ -340,16 +337,9 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     if baseline not in BASELINES:
         raise toml.error(f"unknown baseline {baseline!r}; valid baselines: "
                          f"{', '.join(BASELINES)}", "", "baseline")
-    units = units_section(doc, toml)
-    settings = robot_section(doc, toml, units)
-    m = doc["measurement"]
-    data_name = typed_value(m["data"], str, toml, "measurement", "data", "a file name")
-    noise = measurement_noise(doc, toml, "noise_std", units.length)
+    units, settings, robot, data_name, noise = campaign_robot(doc, toml, toml_path)
     rot_noise, rot_key = rotation_noise(doc, toml, units.rotation)
     data_path = toml_path.parent / data_name
-
-    robot = settings_robot(settings, toml_path)
-
     fixed = fixed_values(settings.fixed, robot, units,
                          lambda problem: toml.error(problem, "robot", "fixed"))
     rows = read_rows(data_path, robot, units, toml_path, fixed,

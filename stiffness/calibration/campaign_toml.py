@@ -327,6 +327,20 @@ def rotation_noise(doc: dict, toml: TomlFile, unit: str) -> tuple[float | None, 
     return measurement_noise(doc, toml, key, unit), key
 
 
+def campaign_robot(doc: dict, toml: TomlFile, toml_path: Path
+                   ) -> tuple[Units, RobotSettings, Robot, str, float | None]:
+    """What both kinds of campaign.toml give alike, each key checked: the ``[units]``, the
+    ``[robot]`` settings and the robot they name (:func:`settings_robot`), the measurement
+    file's name (``[measurement] data``) and the position noise std (``noise_std``, the
+    file's length unit, or None)."""
+    units = units_section(doc, toml)
+    settings = robot_section(doc, toml, units)
+    data = typed_value(doc["measurement"]["data"], str, toml, "measurement", "data",
+                       "a file name")
+    noise = measurement_noise(doc, toml, "noise_std", units.length)
+    return units, settings, settings_robot(settings, toml_path), data, noise
+
+
 def settings_robot(settings: RobotSettings, toml_path: Path) -> Robot:
     """The robot a ``campaign.toml``'s ``[robot]`` names (paths relative to that file).
 

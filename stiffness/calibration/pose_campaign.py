@@ -28,14 +28,10 @@ from stiffness.calibration.campaign_toml import (
     ROTATION_NOISE_KEYS,
     RobotSettings,
     TomlFile,
+    campaign_robot,
     check_table_keys,
-    measurement_noise,
     read_campaign_toml,
-    robot_section,
     rotation_noise,
-    settings_robot,
-    typed_value,
-    units_section,
 )
 from stiffness.calibration.campaign_writer import robot_toml
 from stiffness.calibration.coordinate_columns import (
@@ -305,16 +301,12 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     if doc["kind"] != "poses":
         raise toml.error(f"kind = {doc['kind']!r}: this reader takes pose campaigns "
                          '(kind = "poses")', "", "kind")
-    units = units_section(doc, toml)
-    settings = robot_section(doc, toml, units)
-    robot = settings_robot(settings, toml_path)
+    units, settings, robot, data_name, noise = campaign_robot(doc, toml, toml_path)
     markers = _markers(doc, toml, units)
     for m in markers:
         if not robot.model.existFrame(m.frame):
             raise toml.error(f"[markers] {m.name}: frame {m.frame!r} is not a frame of "
                              f"{robot.title}", "markers", m.name)
-    data_name = typed_value(doc["measurement"]["data"], str, toml, "measurement", "data",
-                            "a file name")
     data = toml_path.parent / data_name
     labels, coordinates, q_read, pos, wrench, numbers, rot = _rows(data, robot, markers)
     fixed = fixed_values(settings.fixed, robot, units,
@@ -323,7 +315,6 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
                             lambda problem: toml.error(problem, "robot", "fixed"))
     q = coordinates_in_si(robot, fill_held(q_read, held, robot, units), units, labels,
                           numbers, data)
-    noise = measurement_noise(doc, toml, "noise_std", units.length)
     check_marker_spread(robot, [m.frame for m in markers],
                         np.array([m.offset for m in markers]), q, pos * units.length_to_si,
                         units, data)
