@@ -416,3 +416,17 @@ def test_identify_writes_only_with_out_a_folder_like_diagnose(tmp_path, capsys, 
     assert main(["diagnose", str(table2), "--out", "d.json"]) == 2
     assert "--out d.json: diagnose writes a folder" in capsys.readouterr().err
     assert not (tmp_path / "d.json").exists()
+
+
+def test_identify_on_a_pose_campaign_points_to_diagnose(tmp_path, capsys):
+    """A pose campaign given to identify: one line naming the command that calibrates it (it
+    said "read it with load_pose_campaign", a Python function, to a command-line user)."""
+    from pose_campaigns import ur10_tip_campaign
+
+    from stiffness.calibration.pose_campaign import write_pose_campaign
+
+    write_pose_campaign(ur10_tip_campaign(4), tmp_path / "poses")
+    assert main(["identify", str(tmp_path / "poses")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "stiffness diagnose" in err and "--families joint_compliance" in err, err
+    assert "\n" not in err and "load_pose_campaign" not in err

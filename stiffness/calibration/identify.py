@@ -61,7 +61,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.calibration.campaign import Campaign, load_campaign
+from stiffness.calibration.campaign import (
+    Campaign,
+    CampaignKindError,
+    campaign_kind,
+    load_campaign,
+)
 from stiffness.calibration.fitting import (
     Fit,
     covariance,
@@ -230,6 +235,10 @@ def identify(
         at least as many residuals as stiffnesses; without a declared noise, sigma needs more
         residuals than stiffnesses), or a row whose configuration cannot be assembled.
     """
+    if isinstance(campaign, str | os.PathLike) and campaign_kind(campaign) == "poses":
+        raise CampaignKindError(f"{campaign} is a pose campaign: identify fits joint stiffness "
+                                "to deflection campaigns; calibrate it with `stiffness diagnose "
+                                f"{campaign} --families joint_compliance`", kind="poses")
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     formulation = campaign.baseline if formulation is None else formulation
