@@ -409,6 +409,12 @@ def test_xml_header_version_0_0_loads_with_one_warning(tmp_path):
      "names the parent link 'l9'"),
     (_planar_arm().replace("<link name=\"l2\"/>", "<link name=\"l2\">"), 13,
      "not well-formed XML: Opening and ending tag mismatch: link line 3"),
+    # taken by Pinocchio's parser, but the joint cannot move as declared (they loaded)
+    (_planar_arm().replace('<origin xyz="0.4 0 0"/><axis xyz="0 0 1"/>',
+                           '<origin xyz="0.4 0 0"/><axis xyz="0 0 0"/>'), 10,
+     "joint 'j2' has the zero axis xyz='0 0 0': it would move nothing; give the direction"),
+    (_planar_arm().replace('lower="-3" upper="3"', 'lower="3" upper="-3"'), 8,
+     "joint 'j1' has lower=3 above upper=-3; swap them"),
 ])
 def test_malformed_urdf_is_one_line_with_file_and_line(tmp_path, text, line, problem):
     path = tmp_path / "bad.urdf"

@@ -143,6 +143,31 @@ def _structure_problem(root) -> tuple[str, int] | None:
     return None
 
 
+def _joint_problem(root) -> tuple[str, int] | None:
+    """First moving joint that Pinocchio's parser takes but that cannot move as declared: a
+    zero ``<axis>`` (the joint would move nothing) or a ``<limit>`` whose lower bound is above
+    its upper one; with the element's line."""
+    for joint in root.iter("joint"):
+        if joint.get("type") not in ("revolute", "continuous", "prismatic"):
+            continue
+        name, axis, limit = joint.get("name"), joint.find("axis"), joint.find("limit")
+        try:
+            direction = [float(v) for v in (axis.get("xyz") or "1 0 0").split()] \
+                if axis is not None else [1.0]
+            bounds = [float(limit.get(b)) for b in ("lower", "upper")] \
+                if limit is not None and None not in (limit.get("lower"), limit.get("upper")) \
+                else None
+        except ValueError:  # Pinocchio's parser has read them: not reached
+            continue
+        if axis is not None and not any(direction):
+            return (f"joint {name!r} has the zero axis xyz={axis.get('xyz')!r}: it would move "
+                    "nothing; give the direction it turns about or slides along"), axis.sourceline
+        if bounds is not None and joint.get("type") != "continuous" and bounds[0] > bounds[1]:
+            return (f"joint {name!r} has lower={limit.get('lower')} above "
+                    f"upper={limit.get('upper')}; swap them"), limit.sourceline
+    return None
+
+
 def mimic_tags(root, include_fixed: bool = False) -> tuple[Mimic, ...]:
     """The ``<mimic>`` couplings of a parsed URDF (lxml root); those of fixed joints (which
     couple nothing) only with ``include_fixed``."""
@@ -213,6 +238,9 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
             path, line or _element_line(root, problem),
             f"not a valid URDF (Pinocchio's parser refuses it): {problem}") from failure
     root = _parse_tree(path, raw, strict=False)
+    bad = _joint_problem(root)
+    if bad is not None:
+        raise RobotFileError(path, bad[1], bad[0])
     _warn_ignored(path, raw, root, model)
     mimics = []
     for mimic in mimic_tags(root):
