@@ -227,6 +227,20 @@ def test_missing_stiffness_names_the_joints_and_both_units(capsys, tmp_path, com
                        "prismatic)")
 
 
+@pytest.mark.parametrize("command", ["kx", "simulate", "robot"])
+def test_compliant_joints_naming_no_joint_is_refused_as_such(capsys, tmp_path, command):
+    """--compliant-joints '' (or ','): one line saying it names no joint (kx said 'need one
+    joint stiffness per compliant joint (0), got 1'; others loaded a robot without springs)."""
+    argv = {"kx": ["kx", "--wrench", "0,0,-1"],
+            "simulate": ["simulate", "--out", str(tmp_path / "c")],
+            "robot": ["robot", "export", "--urdf", str(tmp_path / "r.urdf")]}[command]
+    assert main([*argv, "--robot", "ur5", "--compliant-joints", " , ", "--kq", "1e5"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"stiffness {command}: error: --compliant-joints names no joint; give at least one "
+        "(j1,j2,...), or leave the flag out for the robot's own springs")
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize(("command", "output"), [("compensate", "--out"), ("posture", "--out"),
                                                  ("track", "--plot")])
 def test_model_driven_commands_share_the_model_check(capsys, tmp_path, command, output):

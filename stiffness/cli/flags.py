@@ -352,9 +352,12 @@ def robot_flags(args: argparse.Namespace, fallback: Any = None) -> RobotFlags:
     ``compliant_joints`` attributes, and optionally ``loops`` and ``fixed_base`` (a model
     file, which loads its robot with them), or None.
     """
+    joints = parse_names(getattr(args, "compliant_joints", None))
+    if joints == []:
+        raise StiffnessError("--compliant-joints names no joint; give at least one (j1,j2,...), "
+                             "or leave the flag out for the robot's own springs")
     flags = RobotFlags(getattr(args, "robot", None), getattr(args, "frame", None),
-                       target_offset_from_args(args),
-                       parse_names(getattr(args, "compliant_joints", None)),
+                       target_offset_from_args(args), joints,
                        "--model FILE from `stiffness identify`" if hasattr(args, "model")
                        else None, getattr(args, "loops", None),
                        bool(getattr(args, "fixed_base", False)))
