@@ -126,6 +126,20 @@ def test_a_rigid_joint_never_gets_a_negative_compliance():
     assert count >= 25 and _binomial_consistent(hits, count), (hits, count)
 
 
+def test_a_bound_parameter_the_data_do_not_determine_holds_no_interval():
+    """A parameter at its bound whose variance is infinite (along a direction the data do not
+    determine: its covariance row and column inf) cannot be held: the others' intervals are
+    conditional on the determined ones alone (closed form, the Schur complement). It crashed
+    with "SVD did not converge" (the pose sweep of issue 47: an xarm7 compensator candidate
+    with springs the campaign could not load)."""
+    cov = np.array([[4.0, np.inf, 1.0], [np.inf, np.inf, np.inf], [1.0, np.inf, 2.0]])
+    x, lower = np.array([1.0, 0.0, 0.0]), np.array([-np.inf, 0.0, 0.0])
+    lo, hi = bounded_intervals(x, lower, cov, [1, 2], 1.96, 1.645)
+    assert lo[0] == pytest.approx(1.0 - 1.96 * np.sqrt(4.0 - 1.0 / 2.0))  # x2 pushed: held
+    assert hi[0] == pytest.approx(1.0 + 1.96 * 2.0)  # x2 pulled off its bound: free
+    assert (lo[1], hi[1]) == (0.0, np.inf) and hi[2] == pytest.approx(1.645 * np.sqrt(2.0))
+
+
 def test_a_near_alias_at_its_bound_leaves_an_interval_that_covers():
     """A linear least-squares fit under bounds, 1000 seeds, closed form by scipy's
     ``lsq_linear``: x0 free, x1 (truth 0.3) and x2 (truth 0) bounded below by 0; x0's column

@@ -201,11 +201,12 @@ def bounded_intervals(x: np.ndarray, lower: np.ndarray, covariance: np.ndarray,
     se = np.sqrt(np.diag(covariance))
     low, high = x - quantile * se, x + quantile * se
     bound = np.asarray(at_bound, dtype=int)
+    determined = np.isfinite(se)  # an undetermined one (inf) is held by nothing, holds nothing
     for c in range(x.size):
-        if c in at_bound:
+        if c in at_bound or not determined[c]:
             continue
         for mask, sign in zip(held_ends(covariance[c, bound]), (-1.0, 1.0), strict=True):
-            held = bound[mask]
+            held = bound[mask & determined[bound]]
             if held.size == 0:
                 continue
             row = covariance[c, held]
