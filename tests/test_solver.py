@@ -70,7 +70,7 @@ class FactoredCurve(Curve):
         psi, w = scaling(self.fun(x))
         weighted = w[:, None] * self.jac(x)[:, columns]
         top = np.linalg.qr(weighted[:150], mode="r")
-        return (self.jac(x)[:, columns].T @ psi,
+        return (self.fun(x), self.jac(x)[:, columns].T @ psi,
                 np.linalg.qr(np.vstack([top, weighted[150:]]), mode="r"))
 
 

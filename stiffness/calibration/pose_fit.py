@@ -534,23 +534,26 @@ class PoseProblem:
         return triangular(whole, [0] + [1 + int(c) for c in columns])
 
     def robust_factor(self, x: np.ndarray, columns: np.ndarray, scaling: solver.RowScaling
-                      ) -> tuple[np.ndarray, np.ndarray]:
-        """A robust loss's gradient ``J[:, columns]^T psi`` and ``R`` of ``diag(w)
-        J[:, columns]`` at ``x``, ``(psi, w) = scaling(r)`` (:class:`~stiffness.calibration.
-        solver.Factored`), block by block; where the sag diverges, zero (as :meth:`jac`)."""
-        gradient = np.zeros(len(columns))
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The residuals (as :meth:`fun`), a robust loss's gradient ``J[:, columns]^T psi``
+        and ``R`` of ``diag(w) J[:, columns]`` at ``x``, ``(psi, w) = scaling(r)``
+        (:class:`~stiffness.calibration.solver.Factored`), block by block; where the sag
+        diverges, the diverged constant and zero (as :meth:`fun` and :meth:`jac`)."""
+        residual, gradient = np.empty(self.obs.size), np.zeros(len(columns))
 
-        def rows(r: np.ndarray, j: np.ndarray) -> np.ndarray:
+        def rows(index: np.ndarray, r: np.ndarray, j: np.ndarray) -> np.ndarray:
+            residual[index] = r
             psi, w = scaling(r)
             gradient[:] += psi @ j[:, columns]
             return w[:, None] * j[:, columns]
 
         try:
-            tri = stacked_triangular((rows(r, j) for _, r, j in self.obs.blocks(x)),
+            tri = stacked_triangular((rows(*block) for block in self.obs.blocks(x)),
                                      len(columns))
         except ConvergenceError:
-            return np.zeros(len(columns)), np.zeros((len(columns),) * 2)
-        return gradient, tri
+            return (np.full(self.obs.size, DIVERGED_RESIDUAL_M), np.zeros(len(columns)),
+                    np.zeros((len(columns),) * 2))
+        return residual, gradient, tri
 
     def _whole_factor(self, x: np.ndarray) -> np.ndarray:
         """:func:`observed_factor` at ``x``, kept for the last ``x``.

@@ -213,11 +213,12 @@ class Factored(Problem, Protocol):
         at ``x``: ``r`` :meth:`fun`'s residuals, ``J`` :meth:`jac`'s Jacobian."""
         ...
 
-    def robust_factor(self, x: np.ndarray, columns: np.ndarray,
-                      scaling: RowScaling) -> tuple[np.ndarray, np.ndarray]:
-        """A robust loss's gradient ``J[:, columns]^T psi`` (k,) and ``R`` (at most (k, k),
-        upper triangular) of ``diag(w) J[:, columns]`` at ``x``, ``(psi, w) = scaling(r)``
-        row by row (:func:`robust_rows`)."""
+    def robust_factor(self, x: np.ndarray, columns: np.ndarray, scaling: RowScaling
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`fun`'s residuals ``r`` (N,) at ``x``, a robust loss's gradient
+        ``J[:, columns]^T psi`` (k,) and ``R`` (at most (k, k), upper triangular) of
+        ``diag(w) J[:, columns]``, ``(psi, w) = scaling(r)`` row by row
+        (:func:`robust_rows`), in one pass over blocks of rows."""
         ...
 
 
@@ -317,7 +318,7 @@ class Handed:
     ``psi / w`` are huge where a loss's curvature vanishes (``w = sqrt(eps)``: huber's and
     cauchy's far residuals) and cost the steps digits wherever they are mixed with the
     Jacobian; ``R^-T g`` has none of them. Each residual evaluation evaluates the
-    Jacobian's blocks too (for ``R^-T g``), once per point.
+    Jacobian's blocks too (for ``R^-T g``, with the residuals), once per point.
     """
 
     def __init__(self, problem: Problem, x0: np.ndarray, free: np.ndarray,
@@ -344,15 +345,13 @@ class Handed:
 
     def residual(self, z: np.ndarray) -> np.ndarray:
         """The residuals handed to scipy at ``z``."""
+        if self.factored and self.loss != "linear":
+            return self._robust(z)[1]
         r = self.problem.fun(self.full(z))
         if not self.factored:
             return r
         out = np.zeros(self.free.size + 1)
-        if self.loss == "linear":
-            out[0] = np.linalg.norm(r)
-            return out
-        out[:-1] = self._robust(z)[1]
-        out[-1] = math.sqrt(loss_sum(r, self.loss, self.f_scale))
+        out[0] = np.linalg.norm(r)
         return out
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
@@ -368,14 +367,18 @@ class Handed:
         return out
 
     def _robust(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``[R; 0]`` and ``R^-T g`` at ``z``, kept for the last ``z`` (scipy asks for the
-        residuals, then for the Jacobian of an accepted point)."""
+        """The Jacobian ``[R; 0]`` and the residuals ``[R^-T g; sqrt(2 cost)]`` at ``z``, kept
+        for the last ``z`` (scipy asks for the residuals, then for the Jacobian of an
+        accepted point)."""
         if self._weighted is None or not np.array_equal(self._weighted[0], z):
             assert isinstance(self.problem, Factored)
-            gradient, tri = self.problem.robust_factor(self.full(z), self.free, self.scaling)
-            out = np.zeros((self.free.size + 1, self.free.size))
-            out[:tri.shape[0]] = tri
-            self._weighted = (z.copy(), out, projected_residual(out[:-1], gradient))
+            r, gradient, tri = self.problem.robust_factor(self.full(z), self.free,
+                                                          self.scaling)
+            jac = np.zeros((self.free.size + 1, self.free.size))
+            jac[:tri.shape[0]] = tri
+            out = np.append(projected_residual(jac[:-1], gradient),
+                            math.sqrt(loss_sum(r, self.loss, self.f_scale)))
+            self._weighted = (z.copy(), jac, out)
         return self._weighted[1], self._weighted[2]
 
 
