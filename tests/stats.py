@@ -14,9 +14,9 @@ Both count ``n / design_effect`` independent intervals (default 2: the parameter
 campaign are correlated, see :meth:`Coverage.check`).
 
 A half-width is measured where the interval is symmetric about the reported value: on the
-value's own scale, on its logarithm (``k exp(+-q s)``, the stiffnesses of ``identify``) or on
-its reciprocal (a stiffness from a compliance); an interval symmetric on none (one side at a
-bound) is measured on the truth's side.
+value's own scale, on its logarithm (``k exp(+-q s)``) or on its reciprocal (a stiffness from
+its compliance's interval, as ``identify`` and ``diagnose`` report every stiffness); an
+interval symmetric on none (one side at a bound) is measured on the truth's side.
 """
 
 from __future__ import annotations

@@ -113,7 +113,9 @@ class Identification:
     standard_error
         Delta-method standard errors ``k SE(ln k)`` (SI; inf if undetermined).
     ci95_low, ci95_high
-        95 % confidence bounds ``k exp(-+t SE(ln k))`` (SI).
+        95 % confidence bounds, the compliance's ``c -+ t SE(c)`` (``SE(c) = c SE(ln k)``)
+        carried to ``k = 1 / c``: ``k / (1 + t SE(ln k))``, ``k / (1 - t SE(ln k))`` (inf
+        when the compliance's interval reaches zero) (SI).
     covariance_log
         (p, p) covariance of ``ln k``.
     sigma_m
@@ -224,10 +226,11 @@ class Identification:
     def ci95_method(self) -> str:
         """How the 95 % intervals are computed."""
         if self.loss == "linear":
-            return ("delta method on ln k: k exp(+-t SE(ln k)); t = Student (N - p dof) if "
-                    "sigma is estimated, normal if declared")
-        return (f"Huber's sandwich covariance of the {self.loss} fit's ln k, delta method: "
-                "k exp(+-t SE(ln k)), t = Student (N - p dof)")
+            return ("the compliance's interval c -+ t SE(c), SE(c) = c SE(ln k), carried to "
+                    "k = 1/c: k / (1 +- t SE(ln k)); t = Student (N - p dof) if sigma is "
+                    "estimated, normal if declared")
+        return (f"Huber's sandwich covariance of the {self.loss} fit's ln k; the compliance's "
+                "interval carried to k = 1/c: k / (1 +- t SE(ln k)), t = Student (N - p dof)")
 
     @property
     def rms_by_kind(self) -> dict[str, float | None]:

@@ -29,10 +29,12 @@ are then whitened and ``sigma = noise_std``); otherwise ``s`` is a fixed scale a
 ``sigma^2 = SS / (N - p)`` is estimated from the residual sum of squares ``SS`` of the ``N``
 residuals and ``p`` stiffnesses. The covariance of ``ln k`` is the engine's
 ``sigma^2 (J_r^T J_r)^+`` (:func:`stiffness.calibration.fitting.covariance`) with ``J_r`` the
-residual Jacobian at the optimum; standard errors and 95 % confidence
-intervals of ``k`` follow by the delta method on ``ln k``: ``SE(k) = k SE(ln k)`` and
-``CI = k exp(+-t SE(ln k))`` (``t`` Student's with ``N - p`` degrees of freedom when sigma is
-estimated, normal when declared), so the intervals are asymmetric and stay positive.
+residual Jacobian at the optimum; standard errors follow by the delta method on ``ln k``,
+``SE(k) = k SE(ln k)``, and a 95 % confidence interval of ``k`` is its compliance's, ``c -+ t
+SE(c)`` with ``SE(c) = c SE(ln k)``, carried to ``k = 1 / c``: ``CI = [k / (1 + t SE(ln k)),
+k / (1 - t SE(ln k))]`` (``t`` Student's with ``N - p`` degrees of freedom when sigma is
+estimated, normal when declared; unbounded above when the compliance's interval reaches zero),
+as diagnose reports it: a deflection is linear in the compliances.
 
 A campaign with measured rotations (``rx, ry, rz``) is fitted on translations and rotations
 together: the rotation residuals are weighted by ``w = sigma_t / sigma_r``
@@ -133,11 +135,16 @@ class _Uncertainty:
 
 def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[str, ...]
                  ) -> _Uncertainty:
-    """Intervals and undetermined directions from the fitting engine's covariance of ln k."""
+    """Intervals and undetermined directions from the fitting engine's covariance of ln k:
+    each stiffness's interval is its compliance's, ``c -+ quantile se_c`` with ``se_c = c
+    se(ln k)``, carried to ``k = 1 / c`` (a deflection is linear in the compliances; unbounded
+    above when the compliance's interval reaches zero), as diagnose reports it
+    (:func:`stiffness.calibration.deflection_parameters.stiffness_parameters`)."""
     se_log = np.sqrt(np.diag(cov.matrix))
-    with np.errstate(over="ignore", invalid="ignore"):
-        low = k * np.exp(-quantile * se_log)
-        high = k * np.exp(quantile * se_log)
+    reach = quantile * se_log  # the compliance's half-width over the compliance, q se_c / c
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        low = k / (1.0 + reach)
+        high = np.where(reach < 1.0, k / (1.0 - reach), np.inf)
         width = (high - low) / k
     width = np.where(np.isfinite(width), width, np.inf)
     directions = []
