@@ -203,3 +203,23 @@ def test_more_steps_than_the_search_can_take_are_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and "--steps 3601 is more than 3600" in err and "\n" not in err, err
     assert not out.exists()
+
+
+def test_pose_columns_may_name_their_unit_in_brackets(tmp_path):
+    """`x [m]`, `fx [N]` are those columns (read as without units, written back as given);
+    `x [mm]` is refused with its fix. They were 'lacks the column(s) x, y, z'."""
+    from stiffness.errors import FileFormatError
+    from stiffness.machining.poses import read_poses
+
+    rows = "0.45,-0.2,0.3,0,0,-1,1,2,-30\n0.45,-0.19,0.3,0,0,-1,1,2,-30\n"
+    (tmp_path / "a.csv").write_text("x,y,z,ax,ay,az,fx,fy,fz\n" + rows)
+    header = "x [m],y [m],z [m],ax,ay,az,fx [N],fy,fz"
+    (tmp_path / "b.csv").write_text(header + "\n" + rows)
+    plain, read = read_poses(tmp_path / "a.csv"), read_poses(tmp_path / "b.csv")
+    np.testing.assert_array_equal(read.positions, plain.positions)
+    np.testing.assert_array_equal(read.wrench, plain.wrench)
+    assert read.header == header.split(",")
+    (tmp_path / "c.csv").write_text(header.replace("x [m]", "x [mm]") + "\n" + rows)
+    with pytest.raises(FileFormatError, match=r"line 1, column 1 \(x \[mm\]\): the header says "
+                       "mm but x is read in m; convert the column to m"):
+        read_poses(tmp_path / "c.csv")

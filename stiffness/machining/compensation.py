@@ -646,9 +646,21 @@ _HEADER_UNIT = re.compile(r"^(.*?)\s*\[\s*([^\[\]\s]+)\s*\]$")
 
 
 def _without_units(table: Table, robot: Robot, deg: bool) -> list[str]:
-    """The header with the unit in brackets of each coordinate and load column dropped
-    (``elbow_joint [deg]`` -> ``elbow_joint``), each unit checked against the one the path is
-    read in: rad (deg with ``--deg``), m for a prismatic joint, N, N.m (or Nm).
+    """The path's header without the units in brackets of its coordinate and load columns,
+    each checked against the unit it is read in: rad (deg with ``--deg``), m for a prismatic
+    joint, N and N.m (:func:`header_without_units`)."""
+    angular = angular_coordinates(robot)
+    expected = {}
+    for k, joint in enumerate(robot.coordinate_joints):
+        expected[joint] = expected[f"q{k + 1}"] = ("deg" if deg else "rad") if angular[k] else "m"
+    return header_without_units(table, expected)
+
+
+def header_without_units(table: Table, expected: dict[str, str]) -> list[str]:
+    """``table``'s header with the unit in brackets dropped from the columns of ``expected``
+    and the load columns (``elbow_joint [deg]`` -> ``elbow_joint``, ``fx [N]`` -> ``fx``), each
+    unit checked against the one the column is read in (``expected``'s, N and N.m or Nm for
+    the loads).
 
     Raises
     ------
@@ -656,10 +668,8 @@ def _without_units(table: Table, robot: Robot, deg: bool) -> list[str]:
         A unit that is not the one the column is read in (the fix named), or a column named
         twice once the units are dropped.
     """
-    angular = angular_coordinates(robot)
-    expected = {c: "N" for c in WRENCH_COLUMNS[:3]} | {c: "N.m" for c in WRENCH_COLUMNS[3:]}
-    for k, joint in enumerate(robot.coordinate_joints):
-        expected[joint] = expected[f"q{k + 1}"] = ("deg" if deg else "rad") if angular[k] else "m"
+    expected = {c: "N" for c in WRENCH_COLUMNS[:3]} | {c: "N.m" for c in WRENCH_COLUMNS[3:]} \
+        | expected
     bare: list[str] = []
     for k, name in enumerate(table.header):
         match = _HEADER_UNIT.match(name)

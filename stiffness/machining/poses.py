@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import FileFormatError, StiffnessError
-from stiffness.machining.compensation import read_table
+from stiffness.machining.compensation import header_without_units, read_table
 
 #: Named free axes (target frame).
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),
@@ -135,6 +135,8 @@ def read_poses(path: str | Path) -> Poses:
         Unreadable file, missing columns, a value that is not a finite number (line, column).
     """
     table = read_table(path, "pose file")
+    written = table.header  # the input's own column names, carried to the output
+    table.header = header_without_units(table, {"x": "m", "y": "m", "z": "m"})
     header = table.header
     missing = [c for c in ("x", "y", "z") if c not in header]
     if missing:
@@ -149,7 +151,7 @@ def read_poses(path: str | Path) -> Poses:
     def block(names) -> np.ndarray:
         return np.column_stack([table.column(c) for c in names])
 
-    return Poses(header, [list(r) for r in table.rows], block(("x", "y", "z")),
+    return Poses(written, [list(r) for r in table.rows], block(("x", "y", "z")),
                  block(("ax", "ay", "az")) if has_axis else None,
                  block(("qw", "qx", "qy", "qz")) if has_quat else None, table.wrenches())
 
