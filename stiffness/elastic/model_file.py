@@ -232,13 +232,9 @@ class ModelFile:
         self.compliant_joints = tuple(self.compliant_joints)
         self.target_offset_m = np.asarray(self.target_offset_m, dtype=float).reshape(3)
         self.k_theta = np.asarray(self.k_theta, dtype=float).reshape(n)
-        nan = np.full(n, np.nan)
-        self.standard_error = nan.copy() if self.standard_error is None else np.asarray(
-            self.standard_error, dtype=float).reshape(n)
-        self.ci95_low = nan.copy() if self.ci95_low is None else np.asarray(
-            self.ci95_low, dtype=float).reshape(n)
-        self.ci95_high = nan.copy() if self.ci95_high is None else np.asarray(
-            self.ci95_high, dtype=float).reshape(n)
+        self.standard_error, self.ci95_low, self.ci95_high = (
+            np.full(n, np.nan) if v is None else np.asarray(v, dtype=float).reshape(n)
+            for v in (self.standard_error, self.ci95_low, self.ci95_high))
         self.effects = tuple(self.effects)
 
     # views -----------------------------------------------------------------------------
@@ -486,12 +482,9 @@ def _read_current(r: _Reader) -> ModelFile:
     source, frame, offset, joints, k, units = _robot_and_stiffness(
         r, "robot.compliant_joints must name at least one joint")
     n = len(joints)
-    se = r.numbers(r.get("k_theta", "standard_error", default=[None] * n),
-                   "k_theta.standard_error", n, allow_null=True)
-    low = r.numbers(r.get("k_theta", "ci95", "low", default=[None] * n), "k_theta.ci95.low", n,
-                    allow_null=True)
-    high = r.numbers(r.get("k_theta", "ci95", "high", default=[None] * n),
-                     "k_theta.ci95.high", n, allow_null=True)
+    se, low, high = (r.numbers(r.get("k_theta", *key, default=[None] * n),
+                               ".".join(("k_theta", *key)), n, allow_null=True)
+                     for key in (("standard_error",), ("ci95", "low"), ("ci95", "high")))
     high = np.where(np.isnan(high) & ~np.isnan(low), np.inf, high)
     determined = r.get("k_theta", "determined", default=[True] * n)
     if not isinstance(determined, list) or [type(d) for d in determined] != [bool] * n:
