@@ -33,6 +33,11 @@ def test_a_force_bias_is_determined_against_the_load_range():
         assert p.standard_error == pytest.approx(se_n)
         assert p.determined is determined
         assert ("narrower than" if determined else "wider than") in p.scale_note
+    # an undetermined direction (infinite variance) is said so, not "inf N wide" (the pose
+    # sweep of issue 47: compensator springs no pose loaded)
+    p = e.report(np.array([0.5, 0.0, 0.0]), np.diag([np.inf, 1.0, 1.0]), REFS, SI_UNITS, Z)[0]
+    assert not p.determined and p.scale_note.startswith("no finite 95 % interval"), p.scale_note
+    assert "inf" not in p.scale_note
     big = e.report(np.array([150.0, 0.0, 0.0]), np.eye(3) * 1e-4, REFS, SI_UNITS, Z)
     assert big[0].determined and big[0].beyond_scale and is_stand_in(big)
     small = e.report(np.array([5.0, 0.0, 0.0]), np.eye(3) * 1e-4, REFS, SI_UNITS, Z)

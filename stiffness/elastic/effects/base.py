@@ -388,7 +388,10 @@ PHYSICAL_FACTOR = 10.0
 
 
 def scale_note(width: float, size: float, unit: str) -> str:
-    """The comparison of a 95 % interval's ``width`` with a physical scale ``size``."""
+    """The comparison of a 95 % interval's ``width`` with a physical scale ``size`` (an
+    infinite width, a direction the data do not determine, said so: not a number)."""
+    if not math.isfinite(width):
+        return f"no finite 95 % interval, its physical scale {size:.3g} {unit}"
     relation = "narrower than" if width < size else "wider than"
     return f"95 % interval {width:.3g} {unit} wide, {relation} its physical scale {size:.3g}"
 
