@@ -429,6 +429,35 @@ def test_path_columns_may_name_their_unit_in_brackets(ur5, tmp_path):
         read_joint_path(_path_csv(tmp_path / "c.csv", rows, kilo), ur5, deg=True)
 
 
+def test_a_path_names_the_joints_that_move_the_target_and_the_other_limbs_are_held(tmp_path):
+    """A fixed solo8 whose target is a foot: a path of that leg's two joints reads as all eight
+    coordinates, the other legs held at the reference configuration (said in a note); a path
+    that leaves out a joint of the leg is refused naming it. It needed all eight columns
+    ('lacks the coordinate column(s) FR_HFE, ...')."""
+    import warnings
+
+    from stiffness.errors import DataFileNote, FileFormatError
+    from stiffness.machining.compensation import read_joint_path
+    from stiffness.mechanics.defaults import default_coordinates
+
+    solo = load_robot("solo8", fixed_base=True)
+    leg = np.array([[0.5, -1.0], [0.6, -1.1]])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read = read_joint_path(_path_csv(tmp_path / "leg.csv", leg, ["FL_HFE", "FL_KFE"],
+                                         deg=False), solo)
+    held = [w for w in caught if w.category is DataFileNote]
+    assert len(held) == 1 and "6 of 8 coordinates have no column and are held at the " \
+        "reference configuration (they do not move the target): FR_HFE" in str(held[0].message)
+    full = np.tile(default_coordinates(solo), (2, 1))
+    full[:, :2] = leg
+    np.testing.assert_array_equal(read.coords, full)
+    assert read.column_of == ["FL_HFE", "FL_KFE"]
+    with pytest.raises(FileFormatError, match=r"lacks the coordinate column\(s\) FL_HFE of "):
+        read_joint_path(_path_csv(tmp_path / "knee.csv", leg[:, 1:], ["FL_KFE"], deg=False),
+                        solo)
+
+
 def test_diagnosed_model_file_brings_its_effects(sk120):
     """A final-model.json of `stiffness diagnose` (simulated SK120 campaign with a hidden
     backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""

@@ -30,6 +30,7 @@ import io
 import math
 import os
 import re
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from stiffness.calibration.coordinate_columns import listed
 from stiffness.elastic.compensator import Compensator, choose_hold
 from stiffness.elastic.loaded import (
     bent_kinematics,
@@ -47,6 +49,7 @@ from stiffness.elastic.loaded import (
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import (
+    DataFileNote,
     FileFormatError,
     StiffnessError,
     with_context,
@@ -594,9 +597,10 @@ def read_table(path: str | Path, what: str) -> Table:
 def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointPath:
     """Read ``PATH.csv``: one column per coordinate, named by joint name or ``q1..qn`` (model
     coordinate order), or one per joint outside the end-effector branch
-    (``robot.chain_joints``: the fingers then keep their reference value), one row per point;
-    optional
-    ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
+    (``robot.chain_joints``: the fingers then keep their reference value), or, by joint name,
+    at least every joint that moves the target (:func:`target_chain`; the others, another
+    limb's, keep their reference value, said in a :class:`DataFileNote`), one row per point;
+    optional ``fx,fy,fz[,mx,my,mz]`` (N, N.m) per row.
 
     Raises
     ------
@@ -617,8 +621,14 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False) -> JointP
         column_of = by_index
     elif robot.branch_joints and all(j in header for j in chain):
         column_of = chain  # the fingers of an end effector keep their reference value
+    elif all(j in header for j in target_chain(robot)) and not set(by_index) & set(header):
+        column_of = [j for j in joints if j in header]  # the other limbs keep theirs
+        held = [j for j in joints if j not in header]
+        warnings.warn(f"{table.path}: {len(held)} of {len(joints)} coordinates have no column "
+                      f"and are held at the reference configuration (they do not move the "
+                      f"target): {listed(held)}", DataFileNote, stacklevel=2)
     else:
-        missing = [j for j in chain if j not in header]
+        missing = [j for j in target_chain(robot) if j not in header]
         missing_q = [q for q in by_index if q not in header]
         shown = missing if len(missing) <= len(missing_q) else missing_q
         other = "" if set(header) & set(joints + by_index) else (
@@ -688,3 +698,16 @@ def header_without_units(table: Table, expected: dict[str, str]) -> list[str]:
                                   path=table.path, line=1, column=k + 1, field=name)
         bare.append(column)
     return bare
+
+
+def target_chain(robot: Robot) -> list[str]:
+    """The coordinate joints that move the target: those of its chain from the base and the
+    leaders of mimic followers on it, in coordinate order; every coordinate of a robot with
+    closed loops or a controller map (the target may depend on any of them)."""
+    if not robot.loop.is_open_chain or robot.coupling is not None:
+        return list(robot.coordinate_joints)
+    model = robot.model
+    support = {model.names[i] for i in model.supports[model.frames[robot.target_frame_id]
+                                                       .parentJoint]}
+    support |= {m.leader for m in robot.mimics if m.follower in support}
+    return [j for j in robot.coordinate_joints if j in support]
