@@ -3,8 +3,9 @@
 A parameter the diagnosis holds (:attr:`Hypothesis.held`: the data do not determine it) stays
 at its start in every fit of the model and is reported as held with why; a parameter the
 solver leaves at its bound gets a one-sided interval and the others' intervals respect the
-bound on the side where they would need it crossed (``deflection_parameters.held``). One
-small link-angle UR5 campaign with a hidden compensator whose stiffness the data put at 0 (seed 3).
+bound on the side where they would need it crossed (``deflection_parameters.with_bounds``).
+One small link-angle UR5 campaign with a hidden compensator whose stiffness the data put at 0
+(seed 3).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The parameters a deflection diagnosis reports: the baseline's joint stiffnesses and each
 effect's parameters, with their 95 % intervals from the fit's covariance
 (:func:`stiffness.calibration.selection.parameter_covariance`), one-sided at a physical bound,
-each end of the others' respecting the bounds (:func:`held`), and what takes a held
+each end of the others' respecting the bounds (:func:`with_bounds`), and what takes a held
 parameter's share (:func:`share`). The pose campaigns' counterpart is
 :mod:`stiffness.calibration.pose_parameters`; the naming rules both follow are
 :mod:`stiffness.calibration.naming`.
@@ -34,8 +34,9 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
     the stiffness, ``[1 / (c + quantile se_c), 1 / (c - quantile se_c)]`` (unbounded above
     when the compliance's interval reaches zero), in N.m/rad or N/m; a joint at its rigid bound
     (:func:`~stiffness.calibration.fitting.fit_model`) one-sided from there, with the one-sided
-    quantile ``edge``; with ``held_cov`` (:func:`held_at_bounds`) each end bounded as
-    :func:`held` says."""
+    quantile ``edge``; with ``held_cov``
+    (:func:`~stiffness.calibration.selection.held_at_bounds`) each end bounded as
+    :func:`with_bounds` says."""
     model = fit.model
     refs, top = model.refs, model.bounds()[1]
 
@@ -48,22 +49,22 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
         return Parameter(j, k, p.standard_error, p.ci95, p.unit,
                          at_bound=i in fit.at_bound and fit.x[i] >= top[i])
 
-    return [held(fit, i, one(i, j, cov, quantile), cov,
-                  None if held_cov is None else one(i, j, held_cov, quantile),
-                  edge=one(i, j, cov, edge))
+    return [with_bounds(fit, i, one(i, j, cov, quantile), cov,
+                        None if held_cov is None else one(i, j, held_cov, quantile),
+                        edge=one(i, j, cov, edge))
             for i, j in enumerate(model.compliant)]
 
 
-def held(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
-          bounded: Parameter | None = None, reciprocal: bool = False,
-          edge: Parameter | None = None) -> Parameter:
+def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
+                bounded: Parameter | None = None, reciprocal: bool = False,
+                edge: Parameter | None = None) -> Parameter:
     """``parameter`` (column ``index`` of ``fit.x``, its interval from the covariance ``cov``)
     as held, with why, when the fit did not identify it (:attr:`Fit.identifiability`); at its
     physical bound (:attr:`Fit.at_bound`) with a one-sided 95 % interval from the bound
     (``edge``'s other end: the parameter reported with the one-sided quantile, as a pose fit
     reports it, :func:`~stiffness.calibration.selection.bounded_intervals`); else,
-    ``bounded`` being the parameter reported with the
-    parameters at their bound held there, with each end of its interval from ``bounded``
+    ``bounded`` being the parameter reported with the parameters at their bound held there,
+    with each end of its interval from ``bounded``
     where moving it that way would take one of those past its bound (its covariance with
     them, ``cov``): an interval that respects the bounds. ``reciprocal``: the parameter
     falls as its variable rises (a stiffness reported from a compliance variable), so the
@@ -91,9 +92,9 @@ def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, u
                        held_cov: np.ndarray | None = None) -> dict[str, list[Parameter]]:
     """Each effect's parameters in ``fit`` with their intervals (from ``cov`` with the
     two-sided ``quantile``, or one-sided from a bound with the one-sided ``edge``; each end
-    bounded by ``held_cov`` as :func:`held` says). A reported quantity beyond the effect's
-    variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``) is held,
-    at its bound or bounded as its last variable is."""
+    bounded by ``held_cov`` as :func:`with_bounds` says). A reported quantity beyond the
+    effect's variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``)
+    is held, at its bound or bounded as its last variable is."""
     model = fit.model
     out = {}
     for i, e in enumerate(model.effects):
@@ -102,9 +103,9 @@ def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, u
         bounded = (free if held_cov is None else
                    e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
         sided = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
-        out[e.label] = [held(fit, a + min(k, b - a - 1), p, cov,
-                             None if held_cov is None else q,
-                             e.compliance_variables and k < b - a, one)
+        out[e.label] = [with_bounds(fit, a + min(k, b - a - 1), p, cov,
+                                    None if held_cov is None else q,
+                                    e.compliance_variables and k < b - a, one)
                         for k, (p, q, one) in enumerate(zip(free, bounded, sided, strict=True))]
     return out
 
