@@ -458,6 +458,20 @@ def test_a_path_names_the_joints_that_move_the_target_and_the_other_limbs_are_he
                         solo)
 
 
+def test_a_singular_pose_is_compensated_exactly_and_first_order_as_near_as_ik_gets():
+    """A fixed solo8's leg stretched (a singular pose): the exact command (no inverse
+    kinematics) cancels the deflection; the first-order comparison's shifted pose is out of
+    reach by second order, so it is commanded at the closest pose IK finds and its residual
+    says so (the whole path was refused: 'the target pose is out of reach ... move the pose
+    into the workspace', a pose the robot reaches)."""
+    solo = load_robot("solo8", fixed_base=True)
+    model = ElasticModel.joint_springs(solo, [300.0, 300.0])
+    point = compensate(model, np.zeros((1, 8)), [3.0, 0.0, 0.0]).points[0]
+    deflection = np.linalg.norm(point.deflection)
+    assert deflection > 1e-3 and np.linalg.norm(point.residual) < 1e-9 * deflection
+    assert 0.0 < np.linalg.norm(point.residual_first_order) < 0.1 * deflection
+
+
 def test_diagnosed_model_file_brings_its_effects(sk120):
     """A final-model.json of `stiffness diagnose` (simulated SK120 campaign with a hidden
     backlash on joint2 and a bend joint2->elbow of 2e6 N.m/rad): both reach the compensation."""

@@ -137,8 +137,9 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     Raises
     ------
     StiffnessError
-        Unstable or non-convergent equilibrium, a first-order pose out of reach, or the closed
-        form asked for a model with link compliance.
+        Unstable or non-convergent equilibrium, or the closed form asked for a model with link
+        compliance. (A first-order pose out of reach, at a singular pose, is commanded at the
+        closest pose inverse kinematics finds: its residual includes the miss.)
     """
     if hold not in HOLDS:
         raise StiffnessError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
@@ -169,7 +170,10 @@ def compensate_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray,
     # first-order Cartesian compensation: command the pose shifted by -C W through IK
     shift = linear_shift(em, links, nominal, wrench)
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
-    ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
+    # at a singular pose the shifted pose is out of reach by second order (a stretched arm):
+    # the first-order method commands IK's closest pose there, and its residual says so
+    ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False,
+                  raise_on_failure=False)
     first = solve(ik.coords)
     return PointCompensation(
         command=command,
@@ -207,7 +211,8 @@ def _preloaded_point(em: ElasticModel, coords: np.ndarray, wrench: np.ndarray, h
 
     shift = target_state(full, q_n).jacobian @ (coords - command)
     target_rot = pin.exp3(-shift[3:]) @ rot_n if hold == "pose" else None
-    ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False)
+    ik = solve_ik(full, pos_n - shift[:3], target_rot, seed=coords, seed_q=q_n, limits=False,
+                  raise_on_failure=False)  # its closest pose, as above
     (p_u, r_u), (p_c, r_c), (p_f, r_f) = rest(coords), rest(command), rest(ik.coords)
     return PointCompensation(
         command=command, command_first_order=ik.coords,
