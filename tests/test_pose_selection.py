@@ -4,13 +4,14 @@ forbidden, recorded in the model file."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
 from stiffness.calibration.pose_fit import (
     campaign_settings,
     fit_pose_model,
@@ -20,7 +21,7 @@ from stiffness.calibration.pose_fit import (
     starting_frame,
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
-from stiffness.calibration.pose_report import write_pose_diagnosis
+from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 from stiffness.calibration.selection import BIC_MARGIN
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
@@ -114,3 +115,19 @@ def test_joint_placement_accepted_on_a_small_one_marker_campaign(ur10):
     validation = d.steps[-1].validation
     assert validation is not None  # 3-D error RMS of pure noise: sqrt(3) sigma
     assert validation["rms"] < 1.3 * np.sqrt(3) * NOISE < 0.5 * d.steps[-2].validation["rms"]
+
+
+def test_the_step_table_aligns_long_family_names(ur10):
+    """A forced gravity_compensator ('gravity_compensator *', 21 characters) pushed its row's
+    numbers past the header's columns (the family column was 18 wide): every row's parameter
+    count now ends where the header's 'params' does (the baseline's step relabelled: the
+    table's layout alone is under test)."""
+    d = diagnose_poses(_campaign(ur10, 8, 4), not_families=CANDIDATES["known"])
+    long = dataclasses.replace(d.steps[0], family="gravity_compensator", forced=True)
+    lines = format_pose_report(dataclasses.replace(d, steps=[d.steps[0], long],
+                                                   search=None)).splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("step "))
+    end = lines[header].index("params") + len("params")
+    rows = lines[header + 1:header + 3]
+    assert rows[-1].split()[1] == "gravity_compensator"
+    assert all(row[end - 1].isdigit() and row[end] == " " for row in rows), rows

@@ -32,14 +32,15 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     c = d.campaign
     unit, lu = c.units.length, c.units.length_to_si
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
+    w = max(18, *(len(s.family) + 2 for s in d.steps))  # the family column: the longest name
     lines = [f"pose campaign {c.name} of {c.robot.title}: {c.n_rows} rows, "
              f"{len(c.markers)} marker(s) ({', '.join(m.name for m in c.markers)}), "
              f"{c.n_observed} measured components; noise std {noise}; masses {d.masses}; "
              f"loss {d.loss}",
-             "", f"{'step':<5} {'family':<18} {'params':>6} {'RMS':>11} {'dBIC':>10} "
+             "", f"{'step':<5} {'family':<{w}} {'params':>6} {'RMS':>11} {'dBIC':>10} "
                  f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
     for i, s in enumerate(d.steps):
-        row = (f"{i:<5} {s.family + (' *' if s.forced else ''):<18} {s.fit.n_fitted:>6} "
+        row = (f"{i:<5} {s.family + (' *' if s.forced else ''):<{w}} {s.fit.n_fitted:>6} "
                f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} {s.cv_rms / lu:>11.4g}")
         if s.validation:
             row += f"  {s.validation['rms']:.4g} (3-D, {s.validation['unit']})"
