@@ -588,6 +588,27 @@ def test_batch_kernels_allow_idle_motions_and_follow_mimics(spinning, tmp_path):
             np.testing.assert_allclose(k_c, state.k_c, atol=1e-10 * np.abs(state.k_c).max())
 
 
+def test_a_folder_named_like_a_robot_does_not_hide_it(tmp_path, monkeypatch):
+    """A campaign simulated into a folder named after its robot ("ur5") is read from the
+    folder above it: the campaign's source "ur5" and --robot ur5 are the robot, not the
+    folder (they said 'ur5 is a folder holding no robot.toml and no URDF file'); written as a
+    path (./ur5) it is the folder, and a folder holding a URDF is still that robot."""
+    from stiffness.calibration.campaign import load_campaign
+    from stiffness.planning.simulate import simulate
+
+    monkeypatch.chdir(tmp_path)
+    simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=["shoulder_pan_joint",
+             "shoulder_lift_joint", "elbow_joint"], configs=2, loads_per_config=1,
+             seed=1).write("ur5")
+    assert load_campaign("ur5").robot().coordinate_joints[0] == "shoulder_pan_joint"
+    assert load_robot("ur5").n_coordinates == 6
+    with pytest.raises(StiffnessError, match="ur5 is a folder holding no robot.toml"):
+        load_robot("./ur5")
+    (tmp_path / "panda").mkdir()
+    (tmp_path / "panda" / "arm.urdf").write_text(_planar_arm())
+    assert load_robot("panda").coordinate_joints == ("j1", "j2")
+
+
 def test_example_robot_data_defaults_and_floating_base():
     """The default target of robots people use: the gripper of talos_arm (not a jaw or its motor
     link), tiago's grasping frame (not the sonar ring on its base); solo12's free flyer needs

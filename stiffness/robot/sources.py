@@ -31,7 +31,7 @@ from stiffness.errors import (
     UnknownRobotError,
     did_you_mean,
 )
-from stiffness.files import read_toml
+from stiffness.files import looks_like_path, read_toml
 from stiffness.robot.dh import TOOL, build_dh_model, read_dh_table
 from stiffness.robot.loops import LoopDeclaration, read_loop_declaration
 from stiffness.robot.meshes import MissingMesh
@@ -374,9 +374,13 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
             raise MissingFileError(f"robot file {toml} does not exist; give the path of a "
                                    "robot.toml", path=toml)
         return _from_toml(toml.parent, text, toml)
-    if path.is_dir():
+    # a folder or file named like an example-robot-data robot (a campaign folder "ur5") is
+    # that robot unless it holds a robot or is written as a path
+    named = not looks_like_path(text) and text.lower() in {
+        n.lower() for n in example_robot_names()}
+    if path.is_dir() and not (named and not any(path.glob("*.urdf"))):
         return _from_folder(path)
-    if path.suffix.lower() in (".urdf", ".xml") or path.exists():
+    if (path.suffix.lower() in (".urdf", ".xml") or path.exists()) and not named:
         if path.is_file() and _toml_naming(path):
             found = _from_toml(path.parent, text)
             found.notes.append(f"settings from {path.parent / 'robot.toml'}")
