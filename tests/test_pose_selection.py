@@ -131,3 +131,24 @@ def test_the_step_table_aligns_long_family_names(ur10):
     rows = lines[header + 1:header + 3]
     assert rows[-1].split()[1] == "gravity_compensator"
     assert all(row[end - 1].isdigit() and row[end] == " " for row in rows), rows
+
+
+def test_an_infinite_interval_is_written_as_null_and_said(ur10, tmp_path):
+    """A fitted parameter the data do not determine at the optimum has an infinite standard
+    deviation: diagnose --out ended in a traceback ("Out of range float values are not JSON
+    compliant: inf": a prism-jointed arm and a 12-pose Talos arm of the sweep of issue 47);
+    the files write null, as the model file's undetermined bounds, and the text 'no bound'."""
+    d = diagnose_poses(_campaign(ur10, 8, 4), not_families=CANDIDATES["known"])
+    fit = d.final
+    cov = fit.covariance.copy()
+    cov[0, :], cov[:, 0] = np.inf, np.inf
+    step = dataclasses.replace(d.steps[0], fit=dataclasses.replace(fit, covariance=cov))
+    blind = dataclasses.replace(d, steps=[step], search=None)
+    written = write_pose_diagnosis(blind, tmp_path / "out")
+    row = json.loads(written["diagnosis"].read_text())["parameters"][0]
+    assert row["std"] is None and row["interval_95"][1] is None
+    model = json.loads(written["model"].read_text())["parameters"][0]
+    assert model["interval_95"][1] is None
+    line = next(x for x in format_pose_report(blind).splitlines()
+                if x.strip().startswith(row["parameter"]))
+    assert "no bound]" in line and "inf" not in line, line

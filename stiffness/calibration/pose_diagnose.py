@@ -219,12 +219,17 @@ def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
               {p.name: p for ps in judge.parameters(fit).values() for p in ps})
     return [{"family": p.family, "parameter": p.label, "unit": p.unit,
              "value": float(fit.x[i]), "fitted": i in kept,
-             "std": None if i not in kept else float(std[i]),
-             "interval_95": None if i not in kept else [float(lo[i]), float(hi[i])],
+             "std": None if i not in kept else _finite(std[i]),
+             "interval_95": None if i not in kept else [_finite(lo[i]), _finite(hi[i])],
              "at_bound": i in fit.at_bound,
              **({k: v for k, v in judged[p.label].to_dict().items()
                  if k not in ("value", "unit", "at_bound")} if p.label in judged else {})}
             for i, p in enumerate(fit.model.parameters)]
+
+
+def _finite(v: float) -> float | None:
+    """``v``, or ``None`` (JSON null: no bound) where it is infinite."""
+    return float(v) if math.isfinite(v) else None
 
 
 def residual_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:

@@ -61,9 +61,9 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
     for p in (p for p in parameter_table(d.final, d.judge) if p["fitted"]):
-        lo, hi = p["interval_95"]
+        lo, hi = ("no bound" if v is None else f"{v:.5g}" for v in p["interval_95"])
         lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
-                     f"[{lo:.5g}, {hi:.5g}]" + ("  at its lower bound" if p["at_bound"]
+                     f"[{lo}, {hi}]" + ("  at its lower bound" if p["at_bound"]
                                                 else "")
                      + ("" if p.get("determined", True) else
                         f"  undetermined ({p['physical_scale']})"))
