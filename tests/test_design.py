@@ -419,7 +419,7 @@ def test_bad_input_one_line(tmp_path, capsys):
     err = _error_line(capsys, ["design", "--robot", "ur5", "--compliant-joints", "",
                                "--configs", "2", "--max-force", "100", "--out",
                                str(tmp_path / "p.csv")])
-    assert "no compliant joint" in err
+    assert "--compliant-joints names no joint" in err
     err = _error_line(capsys, ["design", "--robot", "ur5", "--configs", "2", "--max-force",
                                "100", "--out", str(tmp_path / "p.csv")])
     assert "--kq is required" in err
