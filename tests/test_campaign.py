@@ -187,6 +187,11 @@ def csv_error(tmp_path, text: str) -> str:
     ("config,q1,q2,q3,q4,q5,q6,q7,fx,fy,fz,dx,dy,dz", 1, 8, "has 7 q columns"),
     ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,mx,my", 1, 16, "'mz' is missing"),
     ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,rx,rz", 1, 16, "'ry' is missing"),
+    # a unit in the header (what a rig writes): named as such, not 'dx' missing
+    ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx [mm],dy [mm],dz [mm]", 1, 11,
+     "got 'dx [mm]': a campaign's columns carry no unit (the [units] of its campaign.toml give "
+     "them); name it 'dx', or read the rig's file with `stiffness campaign import`"),
+    ("config,q1 (deg),q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz", 1, 2, "got 'q1 (deg)': a campaign's"),
 ])
 def test_header_errors_name_file_line_column(tmp_path, header, line, column, words):
     n_cells = len(header.split(","))

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.coordinate_columns import (
+    Q_COLUMN,
     fill_held,
     held_coordinates,
     locate_coordinates,
@@ -65,6 +66,9 @@ class Header:
     rotation: list[int] | None
 
 
+#: A column name with a unit in brackets: ``dx [mm]``, ``q1 (deg)``.
+_WITH_UNIT = re.compile(r"^(.*?)\s*[\[(]\s*[^\[\]()\s]+\s*[\])]$")
+
 _HEADER_HELP = ("the header is config, the coordinates (q1..qn, or columns named after the "
                 "joints), fx,fy,fz,dx,dy,dz, optionally mx,my,mz and rx,ry,rz")
 
@@ -85,8 +89,16 @@ def _parse_header(cells: list[str], data: Path, line: int, robot: Robot) -> Head
     if not cells or cells[0] != "config":
         got = repr(cells[0]) if cells else "nothing"
         raise fail(1, f"the first column must be 'config', got {got}; {_HEADER_HELP}")
-    coordinates = locate_coordinates(cells, robot, data, line)
     campaign = (*FORCE_COLUMNS, *DEFLECTION_COLUMNS, *MOMENT_COLUMNS, *ROTATION_COLUMNS)
+    for i, cell in enumerate(cells):
+        match = _WITH_UNIT.match(cell)
+        if match and (match.group(1) in campaign or match.group(1) in robot.coordinate_joints
+                      or Q_COLUMN.match(match.group(1))):
+            raise fail(i + 1, f"got {cell!r}: a campaign's columns carry no unit (the "
+                              f"[units] of its campaign.toml give them); name it "
+                              f"{match.group(1)!r}, or read the rig's file with `stiffness "
+                              "campaign import`, which reads units in headers")
+    coordinates = locate_coordinates(cells, robot, data, line)
     for name in campaign:
         if cells.count(name) > 1:
             raise fail(len(cells) - cells[::-1].index(name), f"column {name!r} appears twice; "
