@@ -188,7 +188,13 @@ def validate_deflection_model(declared: ModelFile, model: str,
     measured = load_campaign(campaign)
     robot = same_robot(declared.source, declared.robot, measured.robot(),
                        measured.resolved_source(), model, campaign)
-    errors = deflection_errors(load_model(declared), measured)
+    # the campaign measured its own target: the model evaluated there (moved only where the
+    # campaign's differs, so that a diagnosed target_offset stays otherwise)
+    target = measured.robot()
+    same = target.target_frame == declared.frame and np.allclose(
+        target.target_offset, declared.target_offset_m, rtol=0.0, atol=1e-12)
+    errors = deflection_errors(load_model(declared) if same else load_model(
+        declared, frame=target.target_frame, target_offset=target.target_offset), measured)
     noise = None if measured.noise_std_m is None else (
         measured.noise_std_m / measured.units.length_to_si)
     return Validation(model, str(campaign), "deflections", errors, robot, noise)

@@ -45,7 +45,7 @@ import json
 import math
 import os
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -654,10 +654,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
             not_applied.append((e, reason))
     parts.check_joints()
     if model.undetermined_joints:
-        names = ", ".join(model.undetermined_joints)
-        warnings.warn(f"{where}the stiffness of {names} is marked undetermined (its campaign did "
-                      "not load it): K_X in the directions it governs rests on an unidentified "
-                      "value", DataFileWarning, stacklevel=3)
+        warnings.warn(f"{where}the stiffness of {', '.join(model.undetermined_joints)} is marked "
+                      "undetermined (its campaign did not load it): K_X in the directions it "
+                      "governs rests on an unidentified value", DataFileWarning, stacklevel=3)
     offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
         target_offset, dtype=float).reshape(3)
     try:
@@ -677,7 +676,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         source=None if model.path is None else str(model.path), applied=tuple(applied),
         not_applied=tuple(not_applied), joint_angles=model.joint_angles,
         beyond_springs=tuple(e.label for e in applied if LIBRARY[e.name].beyond_springs))
-    em.fitted = functools.partial(fitted_deflection, model)
+    em.fitted = functools.partial(fitted_deflection, model if parts.keep_target else replace(
+        model, frame=robot.target_frame, target_offset_m=offset,  # predicted there too
+        effects=tuple(e for e in model.effects if e.name != "target_offset")))
     return em
 
 
