@@ -24,3 +24,29 @@ def ur10_tip_campaign(poses: int, payload_n: float | None = None) -> PoseCampaig
                               stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
     payload = None if payload_n is None else np.array([0.0, 0.0, -payload_n, 0, 0, 0])
     return simulate_pose_campaign(robot, markers, hidden, poses, 20e-6, seed=2, payload=payload)
+
+
+#: A DH arm with two prismatic joints (a vertical lift and a radial slide); ``{}`` the two
+#: prismatic rows' ``lower = 0.0`` (TOML inline tables hold to one line).
+PRISM_ARM = """name = "prism-arm"
+frame = "tool"
+[dh]
+convention = "standard"
+length_unit = "m"
+angle_unit = "deg"
+joints = [
+  { name = "j1", alpha = 0, a = 0.0, theta = 0, d = 0.4, lower = -170, upper = 170 },
+  { name = "j2", type = "prismatic", alpha = -90, a = 0.1, theta = 0, d = 0.3, {}upper = 0.5 },
+  { name = "j3", alpha = 90, a = 0.4, theta = 0, d = 0.0, lower = -120, upper = 120 },
+  { name = "j4", type = "prismatic", alpha = -90, a = 0.0, theta = 0, d = 0.2, {}upper = 0.3 },
+  { name = "j5", alpha = 0, a = 0.15, theta = 0, d = 0.0, lower = -150, upper = 150 },
+]
+tool = { xyz = [0.0, 0.0, 0.05], rpy = [0.0, 0.0, 0.0] }
+links = [
+  { mass = 8.0, com = [0.0, 0.0, -0.1] },
+  { mass = 6.0, com = [-0.05, 0.0, 0.0] },
+  { mass = 5.0, com = [-0.2, 0.0, 0.0] },
+  { mass = 3.0, com = [0.0, 0.0, -0.1] },
+  { mass = 1.5, com = [-0.07, 0.0, 0.0] },
+]
+""".replace("{}", "lower = 0.0, ")

@@ -10,8 +10,9 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
+from pose_campaigns import PRISM_ARM
 
-from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
+from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses, parameter_table
 from stiffness.calibration.pose_fit import (
     campaign_settings,
     fit_pose_model,
@@ -152,3 +153,37 @@ def test_an_infinite_interval_is_written_as_null_and_said(ur10, tmp_path):
     line = next(x for x in format_pose_report(blind).splitlines()
                 if x.strip().startswith(row["parameter"]))
     assert "no bound]" in line and "inf" not in line, line
+
+
+def test_a_parameter_the_data_leave_without_bound_is_held(tmp_path):
+    """A vertical base joint's compliance and its compensator's springs are kept at the
+    representative point (the compensator's torque loads the joint); once the naming rule
+    holds some of them at 0, nothing loads the joint at the optimum: a column zero, its
+    variance infinite. The forced compensator step's held-out criterion ended in a traceback
+    ("singular matrix"; with geometry and a robust loss the compliance printed 0.173
+    rad/(N.m), interval [0, inf]: the pose sweep of issue 47, a DH arm with two prismatic
+    joints, 12 poses, 10 N). Such a parameter, of any family, is held at nominal."""
+    path = tmp_path / "robot.toml"
+    path.write_text(PRISM_ARM)
+    robot = load_robot(str(path))
+    markers = [Marker("tip", "tool", np.array([0.0, 0.03, 0.05]))]
+    rng = np.random.default_rng(1000)
+    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                              np.array([m.offset for m in markers]) + 1e-3,
+                              rng.normal(0, 1e-3, 5), rng.normal(0, 2e-4, (5, 6)),
+                              np.array([1008.6659014339884, 287881.5815933359,
+                                        26532.846327144798, 81184.52545600462,
+                                        3821.674448909354]))
+    geometry = PoseModel(robot, markers, ("geometry",), (np.eye(3), np.zeros(3))).geometry
+    mask = np.zeros((5, 6))
+    mask[tuple(np.array(geometry).T)] = 1.0  # none along a joint's own motion
+    hidden.placement_errors *= mask
+    c = simulate_pose_campaign(robot, markers, hidden, 12, NOISE, seed=0,
+                               payload=np.array([0.0, 0.0, -10.0, 0.0, 0.0, 0.0]))
+    forced = ["joint_compliance", "gravity_compensator"]
+    d = diagnose_poses(c, families=forced,
+                       not_families=[f for f in CANDIDATES["known"] if f not in forced])
+    table = parameter_table(d.final, d.judge)
+    assert all(row["std"] is not None for row in table if row["fitted"])
+    assert any(row["parameter"] == "j1 compensator preload" and row["held"].startswith(
+        "held at its nominal value") for row in table)

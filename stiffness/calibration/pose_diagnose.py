@@ -36,7 +36,7 @@ import numpy as np
 from stiffness.calibration import certainty
 from stiffness.calibration.breakdown import error_summary, finite_rms
 from stiffness.calibration.certainty import Certainty
-from stiffness.calibration.naming import is_stand_in, settle
+from stiffness.calibration.naming import held_reason, is_stand_in, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import (
@@ -283,7 +283,8 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
             scale: float | None) -> PoseFit:
     """``fit`` (of ``families``, in the order chosen) with the parameters of its last family
     that the data do not determine held at nominal, the least determined first
-    (:func:`stiffness.calibration.naming.settle`, as deflection diagnose's effects)."""
+    (:func:`stiffness.calibration.naming.settle`, as deflection diagnose's effects), then
+    any parameter left with an infinite variance."""
     model, family = fit.model, families[-1]
     frame0 = (model.rotation0, model.translation0)
 
@@ -295,9 +296,18 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
     sizes = model.family_objects[model.families.index(family)].physical_sizes(
         model, judge.references(fit))
     start = model.slices()[family].start
-    return settle(fit, lambda trial: judge.parameters(trial)[family], sizes, hold,
-                  lambda trial, loose: _uncorrelated(trial, [start + k for k in loose],
-                                                     loose))
+    fit = settle(fit, lambda trial: judge.parameters(trial)[family], sizes, hold,
+                 lambda trial, loose: _uncorrelated(trial, [start + k for k in loose], loose))
+    # a parameter the data leave without any bound at this fit (its column zero: a vertical
+    # joint's compensator held at 0 leaves the joint's compliance, kept for the compensator's
+    # torque, and a last free spring of it unloaded) is held too, of any family
+    for _ in range(model.size):  # each pass holds at least one more
+        blind = [p for f in families for p in judge.parameters(fit).get(f, [])
+                 if not p.held and not math.isfinite(p.standard_error)]
+        if not blind:
+            break
+        fit = hold(fit, [], blind, [held_reason(p) for p in blind])
+    return fit
 
 
 #: Parameters held together in one refit (:func:`settled`) are correlated by less than this.
