@@ -15,6 +15,7 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
+from pose_campaigns import PRISM_ARM
 
 from stiffness import load_model
 from stiffness.calibration.pose_campaign import write_pose_campaign
@@ -243,6 +244,27 @@ def test_a_calibration_without_springs_says_why(calibration, tmp_path):
         with warns, pytest.raises(StiffnessError, match="no spring") as err:
             load_model(path)
         assert says in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_a_compensator_beside_a_prismatic_spring_loads(tmp_path):
+    """A calibration with gravity compensators on a robot with prismatic springs (compensators
+    on its revolute joints only): load_model raised "gravity_compensator needs a revolute
+    joint" for the prismatic ones (the pose sweep of issue 47, a DH arm with a lift and a
+    slide); the compensated revolute joints' effects load."""
+    (tmp_path / "robot.toml").write_text(PRISM_ARM)
+    robot = load_robot(str(tmp_path / "robot.toml"))
+    markers = [Marker("tip", "tool", np.array([0.0, 0.03, 0.05]))]
+    model = PoseModel(robot, markers, ("frame", "markers", "joint_compliance",
+                                       "gravity_compensator"), (np.eye(3), np.zeros(3)))
+    path = tmp_path / "final-model.json"
+    _hand_written(model, np.full(model.size, 1e-4), path)
+    doc = json.loads(path.read_text())
+    doc["robot"].update(source="robot.toml", frame="tool")
+    path.write_text(json.dumps(doc))
+    em = load_model(path)
+    assert [e.label for e in em.applied] == ["gravity_preload", "gravity_compensator(j1)",
+                                             "gravity_compensator(j3)",
+                                             "gravity_compensator(j5)"]
 
 
 def test_families_without_a_deflection_effect_are_announced(calibration, tmp_path):

@@ -135,8 +135,10 @@ def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[
     compensated = springs if "gravity_compensator" in cal.families else set()
     for joint in sorted(compensated, key=list(cal.compliant_joints).index):
         stiff, tension = (rows.get(compensator_label(joint, w)) for w in ("stiffness", "preload"))
+        if stiff is None or tension is None:  # a prismatic spring has no compensator
+            continue
         spring = make_effect("gravity_compensator", joint, geometry)
-        if stiff is not None and tension is not None and isinstance(spring, GravityCompensator):
+        if isinstance(spring, GravityCompensator):
             offset = float(rows.get(zero_label(joint), {}).get("value", 0.0))
             settings = {**spring.settings,  # the calibrated robot's angles exclude the offset
                         "angle_up_rad": spring.settings["angle_up_rad"] - offset}
