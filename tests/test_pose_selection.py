@@ -143,11 +143,14 @@ def test_an_infinite_interval_is_written_as_null_and_said(ur10, tmp_path):
     fit = d.final
     cov = fit.covariance.copy()
     cov[0, :], cov[:, 0] = np.inf, np.inf
-    step = dataclasses.replace(d.steps[0], fit=dataclasses.replace(fit, covariance=cov))
+    step = dataclasses.replace(d.steps[0], fit=dataclasses.replace(fit, covariance=cov),
+                               cv_rms=np.inf)  # a forced family one configuration determines
     blind = dataclasses.replace(d, steps=[step], search=None)
     written = write_pose_diagnosis(blind, tmp_path / "out")
-    row = json.loads(written["diagnosis"].read_text())["parameters"][0]
+    record = json.loads(written["diagnosis"].read_text())
+    row = record["parameters"][0]
     assert row["std"] is None and row["interval_95"][1] is None
+    assert record["steps"][0]["cv_rms"] is None
     model = json.loads(written["model"].read_text())["parameters"][0]
     assert model["interval_95"][1] is None
     line = next(x for x in format_pose_report(blind).splitlines()

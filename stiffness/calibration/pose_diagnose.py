@@ -67,7 +67,7 @@ from stiffness.elastic.effects import FAMILIES, check_masses
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
 from stiffness.errors import FileFormatError, StiffnessError, TooFewMeasurementsError
-from stiffness.files import atomic_write, written_source
+from stiffness.files import atomic_write, jsonable, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.workspace.distributed import run_chunks
@@ -162,9 +162,11 @@ class PoseDiagnosis:
         return None if p is None else p < 1 - GOF_LEVEL
 
     def to_dict(self) -> dict:
-        """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit)."""
+        """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
+        an infinite number, a forced family's held-out RMS that one configuration determines,
+        as null)."""
         lu = self.campaign.units.length_to_si
-        return {"kind": "poses", "campaign": self.campaign.name,
+        return jsonable({"kind": "poses", "campaign": self.campaign.name,
                 "robot_name": self.campaign.robot.title,
                 "unit": self.campaign.units.length, "masses": self.masses,
                 "loss": self.loss,
@@ -187,7 +189,7 @@ class PoseDiagnosis:
                     [p.label for p in self.final.model.parameters]),
                 "parameters": parameter_table(self.final, self.judge),
                 "how_sure": [c.to_dict(lu) for c in self.how_sure],
-                "residual_structure": residual_structure(self.final, self.campaign)}
+                "residual_structure": residual_structure(self.final, self.campaign)})
 
     def stand_in(self, family: str) -> bool:
         """Whether the final model's ``family`` is a stand-in (its size is not physical:
