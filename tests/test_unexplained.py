@@ -98,9 +98,9 @@ def test_out_of_library_is_unexplained_and_names_nothing():
             runs.append((name, seed, s["unexplained"] is True and s["missing_effects"] == [],
                          r))
     ok = sum(run[2] for run in runs)
-    # measured 105/120 over three robots, 20 seeds each (docs/diagnose.md): fewer successes
-    # than the 1 % quantile of Binomial(n, 0.875) fails
-    assert ok >= binom.ppf(0.01, len(runs), 105 / 120), [
+    # measured 107/120 over three robots, 20 seeds each (docs/diagnose.md): fewer successes
+    # than the 1 % quantile of Binomial(n, 0.892) fails
+    assert ok >= binom.ppf(0.01, len(runs), 107 / 120), [
         (n, s, x.summary()["missing_effects"]) for n, s, good, x in runs if not good]
     # the report says where to look: the drift shows in the row order
     drift = next(x for n, _, good, x in runs if n == "temperature_drift" and good)
