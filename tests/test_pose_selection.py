@@ -156,6 +156,8 @@ def test_an_infinite_interval_is_written_as_null_and_said(ur10, tmp_path):
     line = next(x for x in format_pose_report(blind).splitlines()
                 if x.strip().startswith(row["parameter"]))
     assert "no bound]" in line and "inf" not in line, line
+    step_row = next(x for x in format_pose_report(blind).splitlines() if x.startswith("0 "))
+    assert step_row.split()[-1] == "unbounded", step_row
 
 
 def test_a_parameter_the_data_leave_without_bound_is_held(tmp_path):

@@ -4,6 +4,7 @@ campaign) and of ``stiffness validate``."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -41,11 +42,13 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                  f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
     for i, s in enumerate(d.steps):
         row = (f"{i:<5} {s.family + (' *' if s.forced else ''):<{w}} {s.fit.n_fitted:>6} "
-               f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} {s.cv_rms / lu:>11.4g}")
+               f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} "
+               + (f"{s.cv_rms / lu:>11.4g}" if math.isfinite(s.cv_rms) else f"{'unbounded':>11}"))
         if s.validation:
             row += f"  {s.validation['rms']:.4g} (3-D, {s.validation['unit']})"
         lines.append(row)
-    lines.append("CV RMS: leave one configuration out (linearised hat matrix)"
+    lines.append("CV RMS: leave one configuration out (linearised hat matrix; unbounded: one "
+                 "configuration alone determines a parameter)"
                  + ("; * forced (--families)" if d.forced else "")
                  + (f"; not tried (--not): {', '.join(d.forbidden)}" if d.forbidden else ""))
     if d.steps[0].validation:
