@@ -245,7 +245,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     if n <= len(compliant) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
                              f"{len(compliant)} stiffnesses; add measurement rows")
-    sigma, source, note = _translation_noise(campaign)
+    sigma, source, note = _translation_noise(campaign, loss)
     refs0 = References.of(geo, rows, 1e5, campaign.deflection, masses)
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
         campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (), refs0), n, sigma,
@@ -391,16 +391,21 @@ def _final_noise(final: Fit, n: int, sigma: float | None, note: str) -> tuple[fl
             "candidate helped")
 
 
-def _translation_noise(campaign: Campaign) -> tuple[float | None, str, str]:
+def _translation_noise(campaign: Campaign, loss: str = "linear"
+                       ) -> tuple[float | None, str, str]:
     """The translation noise std (m; ``None`` when only the residuals can tell), its source
-    (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter."""
+    (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter (robust
+    under a robust ``loss``: :func:`~stiffness.calibration.selection.replicate_noise`)."""
     if campaign.noise_std_m is not None:
         return campaign.noise_std_m, "declared", "declared noise_std of the campaign"
-    rep = replicate_noise(campaign)
-    if rep is not None:
+    rep = replicate_noise(campaign, robust=loss != "linear")
+    if rep is None:
+        return None, "residuals", ""
+    if loss != "linear":
         return (rep[0], "replicates",
-                f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)")
-    return None, "residuals", ""
+                "robust scatter of replicate rows (1.4826 median |deviation from the group "
+                f"mean|, {rep[1]} degrees of freedom)")
+    return rep[0], "replicates", f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)"
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
@@ -420,7 +425,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     deflection = campaign.deflection
     rms_meas = float(np.sqrt(np.mean(deflection ** 2)))
     scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
-    rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma)
+    rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma, loss)
     measured = observations(deflection, campaign.rotation, weight)
     model0 = model0.with_rotation_weight(weight)
     base = fit_baseline(model0, measured, scale, loss if sigma is not None else "linear")
@@ -626,12 +631,12 @@ def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,
     return ambiguities
 
 
-def _rotation_noise(campaign: Campaign, sigma: float | None
+def _rotation_noise(campaign: Campaign, sigma: float | None, loss: str = "linear"
                     ) -> tuple[float | None, str | None, float | None]:
     """Rotation noise std (rad), its source and the rotation weight ``sigma_t / sigma_r``
-    (m/rad) of a campaign with rotations (``None``s without): declared, else replicates,
-    else ``residuals`` (then the weight is a first guess, the ratio of the measured RMS of
-    each kind, refined from the baseline's residuals)."""
+    (m/rad) of a campaign with rotations (``None``s without): declared, else replicates
+    (robust under a robust ``loss``), else ``residuals`` (then the weight is a first guess,
+    the ratio of the measured RMS of each kind, refined from the baseline's residuals)."""
     if campaign.rotation is None:
         return None, None, None
     rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2))) or 1.0
@@ -641,7 +646,7 @@ def _rotation_noise(campaign: Campaign, sigma: float | None
     if campaign.rotation_noise_std_rad is not None:
         rot, source = campaign.rotation_noise_std_rad, "declared"
     else:
-        rep = replicate_noise(campaign, "rotation")
+        rep = replicate_noise(campaign, "rotation", robust=loss != "linear")
         rot, source = (rep[0], "replicates") if rep is not None else (None, "residuals")
     return rot, source, s_t / (rot if rot is not None else rms_r)
 

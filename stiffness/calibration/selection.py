@@ -19,6 +19,7 @@ from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import Fit, FitJob
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability
+from stiffness.calibration.outliers import robust_noise
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
@@ -248,11 +249,18 @@ def interval_quantile(sigma: float | None, n: int, p: int, level: float = 0.975)
     return float(stdtrit(max(n - p, 1), level))
 
 
-def replicate_noise(campaign: Campaign, kind: str = "translation"
+def replicate_noise(campaign: Campaign, kind: str = "translation", robust: bool = False
                     ) -> tuple[float, int] | None:
-    """Pooled std (m; rad for ``kind="rotation"``) of replicate rows (same coordinates and
-    force) and its degrees of freedom, or ``None`` when the replicates give fewer than 9
-    degrees of freedom (or the campaign measures no rotations)."""
+    """Std (m; rad for ``kind="rotation"``) of replicate rows (same coordinates and force)
+    and its degrees of freedom, or ``None`` when the replicates give fewer than 9 degrees of
+    freedom (or the campaign measures no rotations).
+
+    The pooled scatter, ``sqrt(sum (d - mean)^2 / dof)``; with ``robust`` (for a robust
+    loss), :func:`stiffness.calibration.outliers.robust_noise` of the deviations from their
+    group's mean, each times ``sqrt(m / (m - 1))`` for its group of ``m`` rows (a deviation's
+    std is ``sigma sqrt((m - 1) / m)``), which one gross outlier does not inflate (the pooled
+    scatter when more than half the deviations are zero).
+    """
     values = campaign.deflection if kind == "translation" else campaign.rotation
     if values is None:
         return None
@@ -260,12 +268,14 @@ def replicate_noise(campaign: Campaign, kind: str = "translation"
     for i in range(campaign.n_rows):
         key = tuple(np.round(campaign.q[i], 9)) + tuple(np.round(campaign.wrench[i], 6))
         groups.setdefault(key, []).append(i)
-    ss, dof = 0.0, 0
+    ss, dof, scaled = 0.0, 0, []
     for idx in groups.values():
         if len(idx) > 1:
-            d = values[idx]
-            ss += float(np.sum((d - d.mean(axis=0)) ** 2))
+            d = values[idx] - values[idx].mean(axis=0)
+            ss += float(np.sum(d ** 2))
             dof += 3 * (len(idx) - 1)
+            scaled.append(d.reshape(-1) * math.sqrt(len(idx) / (len(idx) - 1)))
     if dof < _MIN_REPLICATE_DOF:
         return None
-    return math.sqrt(ss / dof), dof
+    sigma = robust_noise(np.concatenate(scaled), 0) if robust else None
+    return (sigma if sigma is not None else math.sqrt(ss / dof)), dof
