@@ -1,6 +1,7 @@
 """Unit names of user files and flags, and their factors to SI (rad, N, m, N.m)."""
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TypeGuard
 
@@ -32,6 +33,36 @@ def three_numbers(value: object, limit: float = math.inf) -> bool:
 #: Moment unit name -> factor to N.m (every force unit times every length unit).
 MOMENT_UNITS = {f"{f}.{ln}": FORCE_UNITS[f] * LENGTH_UNITS[ln]
                 for f in FORCE_UNITS for ln in LENGTH_UNITS}
+
+#: SI unit of a joint spring's stiffness by kind of joint (a model file's ``k_theta.unit``).
+JOINT_STIFFNESS_UNITS = {"revolute": "N.m/rad", "prismatic": "N/m"}
+
+
+def wrong_stiffness_unit(joints: Sequence[str], units: Sequence[str],
+                         prismatic: Callable[[str], bool]) -> str | None:
+    """The one-line problem of the first joint whose stiffness unit is not of its kind.
+
+    Parameters
+    ----------
+    joints, units
+        Joint names and the unit of each one's stiffness (e.g. a model file's ``k_theta``).
+    prismatic
+        Whether a joint is prismatic (its stiffness in N/m) rather than revolute (N.m/rad).
+
+    Returns
+    -------
+    str or None
+        The joint, the unit found, the unit expected and the fix; ``None`` when every unit is
+        :data:`JOINT_STIFFNESS_UNITS` of its joint's kind.
+    """
+    for joint, unit in zip(joints, units, strict=True):
+        kind = "prismatic" if prismatic(joint) else "revolute"
+        expected = JOINT_STIFFNESS_UNITS[kind]
+        if unit != expected:
+            return (f"k_theta of {kind} joint {joint!r} is in {unit!r}, expected {expected!r}; "
+                    f"the stiffness is of another kind of joint: give {joint}'s in {expected} "
+                    "or rewrite the file with `stiffness identify` on this robot")
+    return None
 
 
 @dataclass(frozen=True)

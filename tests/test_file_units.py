@@ -20,7 +20,13 @@ from hypothesis import strategies as st
 from stiffness.calibration.campaign import load_campaign
 from stiffness.errors import DataFileWarning, FileFormatError
 from stiffness.planning.plan import read_plan
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, MAX_CELL
+from stiffness.units import (
+    ANGLE_UNITS,
+    FORCE_UNITS,
+    LENGTH_UNITS,
+    MAX_CELL,
+    wrong_stiffness_unit,
+)
 
 HEADER = "config,q1,q2,q3,q4,q5,q6,fx,fy,fz"
 #: Two UR5 rows (deg, N) within the joint limits (+-360 deg, elbow +-180 deg).
@@ -237,3 +243,21 @@ def test_prose_comments_are_not_units_declarations(ur5, tmp_path, prose):
     np.testing.assert_allclose(plan.force, F_N)
     _, caught = read(tmp_path, plan_text(prose), ur5)
     assert len(caught) == 1 and "declares no units" in caught[0], caught
+
+
+@given(st.lists(st.tuples(st.booleans(), st.sampled_from(["N.m/rad", "N/m", "N.mm/rad"])),
+                max_size=6))
+def test_a_stiffness_unit_is_refused_exactly_when_not_of_its_joints_kind(springs):
+    """``wrong_stiffness_unit`` names the first joint whose unit is not N/m (prismatic) or
+    N.m/rad (revolute), and nothing when every one is."""
+    joints = [f"j{i}" for i in range(len(springs))]
+    kinds = dict(zip(joints, (p for p, _ in springs), strict=True))
+    units = [u for _, u in springs]
+    bad = [j for j, (p, u) in zip(joints, springs, strict=True)
+           if u != ("N/m" if p else "N.m/rad")]
+    problem = wrong_stiffness_unit(joints, units, kinds.__getitem__)
+    if not bad:
+        assert problem is None
+    else:
+        assert problem is not None and f"joint {bad[0]!r}" in problem
+        assert repr(units[joints.index(bad[0])]) in problem

@@ -458,3 +458,43 @@ def test_the_old_names_still_work_with_a_deprecation_warning():
     new = elastic_model_of(model).at(Q, force)
     np.testing.assert_array_equal(old.at(Q, force).k_x(), new.stiffness())
     np.testing.assert_array_equal(at.compliance(slice(0, 6)), new.compliance(slice(0, 6)))
+
+
+SLIDER_URDF = """<?xml version="1.0"?>
+<robot name="slider">
+  <link name="base_link"/><link name="carriage"/><link name="arm"/><link name="tip"/>
+  <joint name="slide" type="prismatic"><parent link="base_link"/><child link="carriage"/>
+    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="1 0 0"/>
+    <limit effort="100" velocity="1" lower="-2" upper="2"/></joint>
+  <joint name="swing" type="revolute"><parent link="carriage"/><child link="arm"/>
+    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/>
+    <limit effort="100" velocity="1" lower="-3" upper="3"/></joint>
+  <joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/>
+    <origin xyz="0.5 0 0" rpy="0 0 0"/></joint>
+</robot>
+"""
+
+
+@pytest.mark.parametrize(("joint", "wrong", "expected"), [("slide", "N.m/rad", "N/m"),
+                                                           ("swing", "N/m", "N.m/rad")])
+def test_a_stiffness_unit_of_the_wrong_kind_of_joint_is_refused(tmp_path, joint, wrong,
+                                                                 expected):
+    """A written model file edited to give the prismatic joint's stiffness in N.m/rad, or the
+    revolute one's in N/m, is refused naming the joint and both units; as written it loads
+    (a 1e5 N/m slide along x under 10 N along x deflects 1e-4 m)."""
+    (tmp_path / "slider.urdf").write_text(SLIDER_URDF)
+    model = ModelFile(source=str(tmp_path / "slider.urdf"), frame="tip",
+                      target_offset_m=[0.0, 0.0, 0.0], compliant_joints=("slide", "swing"),
+                      k_theta=[1e5, 2e3], units=("N/m", "N.m/rad"), formulation="conventional")
+    path = model.write(tmp_path / "model.json")
+    moved = load_model(path).deflection(np.zeros(2), np.array([10.0, 0.0, 0.0]))
+    assert np.allclose(moved, [1e-4, 0.0, 0.0], rtol=1e-9, atol=1e-15)
+    doc = json.loads(path.read_text())
+    units = doc["k_theta"]["unit"]
+    units[doc["k_theta"]["joints"].index(joint)] = wrong
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError) as info:
+        load_model(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert all(s in message for s in (repr(joint), repr(wrong), repr(expected)))

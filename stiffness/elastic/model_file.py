@@ -82,7 +82,7 @@ from stiffness.robot.calibration import (
     robot_identity,
 )
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, wrong_stiffness_unit
 
 #: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
 SCHEMA_NAME = "stiffness-model"
@@ -455,10 +455,9 @@ def _formulation(r: _Reader, value) -> str:
 
 
 def _stiffness_values(r: _Reader, k: np.ndarray, units) -> None:
-    n = len(k)
     if not np.all(np.isfinite(k)) or np.any(k <= 0):
         raise r.fail(f"k_theta.values must be positive, got {k.tolist()}")
-    if not isinstance(units, list) or [u in ("N.m/rad", "N/m") for u in units] != [True] * n:
+    if not isinstance(units, list) or [u in ("N.m/rad", "N/m") for u in units] != [True] * len(k):
         raise r.fail("k_theta.unit must list N.m/rad or N/m per joint")
 
 
@@ -489,12 +488,10 @@ def _read_current(r: _Reader) -> ModelFile:
     determined = r.get("k_theta", "determined", default=[True] * n)
     if not isinstance(determined, list) or [type(d) for d in determined] != [bool] * n:
         raise r.fail("k_theta.determined must list true or false per joint")
-    effects = []
     raw = r.get("effects", default=[])
     if not isinstance(raw, list):
         raise r.fail("effects must be a list")
-    for i, e in enumerate(raw):
-        effects.append(_read_effect(r, e, f"effects[{i}]", si=True))
+    effects = [_read_effect(r, e, f"effects[{i}]", si=True) for i, e in enumerate(raw)]
     noise = r.get("noise", default={}) or {}
     std = noise.get("std_m") if isinstance(noise, dict) else None
     known = {"schema", "format", "version", "produced_by", "campaign", "robot", "formulation",
@@ -665,6 +662,8 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
                            compliant_joints=tuple(parts.springs), **model.robot_options())
     except StiffnessError as exc:
         raise with_context(exc, f"{where}the model's robot with its effects") from exc
+    if problem := wrong_stiffness_unit(model.compliant_joints, model.units, robot.is_prismatic):
+        raise ModelFileError(problem, path=model.path or "model file")
     joints = [j for j in robot.model.names[1:]]
     for e in model.effects:  # every effect's joint or segment must be a joint of the robot
         for name in LIBRARY[e.name].place_joints(e.where):
