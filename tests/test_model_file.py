@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
+from test_campaign import SLIDER_URDF
 
 from stiffness.elastic.effects import LIBRARY
 from stiffness.elastic.effects.base import Parameter
@@ -458,21 +459,6 @@ def test_the_old_names_still_work_with_a_deprecation_warning():
     new = elastic_model_of(model).at(Q, force)
     np.testing.assert_array_equal(old.at(Q, force).k_x(), new.stiffness())
     np.testing.assert_array_equal(at.compliance(slice(0, 6)), new.compliance(slice(0, 6)))
-
-
-SLIDER_URDF = """<?xml version="1.0"?>
-<robot name="slider">
-  <link name="base_link"/><link name="carriage"/><link name="arm"/><link name="tip"/>
-  <joint name="slide" type="prismatic"><parent link="base_link"/><child link="carriage"/>
-    <origin xyz="0 0 0" rpy="0 0 0"/><axis xyz="1 0 0"/>
-    <limit effort="100" velocity="1" lower="-2" upper="2"/></joint>
-  <joint name="swing" type="revolute"><parent link="carriage"/><child link="arm"/>
-    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/>
-    <limit effort="100" velocity="1" lower="-3" upper="3"/></joint>
-  <joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/>
-    <origin xyz="0.5 0 0" rpy="0 0 0"/></joint>
-</robot>
-"""
 
 
 @pytest.mark.parametrize(("joint", "wrong", "expected"), [("slide", "N.m/rad", "N/m"),
