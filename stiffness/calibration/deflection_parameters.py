@@ -51,7 +51,7 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
 
     return [with_bounds(fit, i, one(i, j, cov, quantile), cov,
                         None if held_cov is None else one(i, j, held_cov, quantile),
-                        edge=one(i, j, cov, edge))
+                        edge=one(i, j, cov, edge) if i in fit.at_bound else None)
             for i, j in enumerate(model.compliant)]
 
 
@@ -102,7 +102,8 @@ def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, u
         free = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
         bounded = (free if held_cov is None else
                    e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
-        sided = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
+        sided = (e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
+                 if any(a <= c < b for c in fit.at_bound) else free)  # one-sided at a bound
         out[e.label] = [with_bounds(fit, a + min(k, b - a - 1), p, cov,
                                     None if held_cov is None else q,
                                     e.compliance_variables and k < b - a, one)
