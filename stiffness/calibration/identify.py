@@ -89,6 +89,7 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.selection import interval_quantile
 from stiffness.calibration.solver import Covariance, check_loss
+from stiffness.elastic.effects.base import stiffness_interval
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -141,10 +142,10 @@ def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[
     above when the compliance's interval reaches zero), as diagnose reports it
     (:func:`stiffness.calibration.deflection_parameters.stiffness_parameters`)."""
     se_log = np.sqrt(np.diag(cov.matrix))
-    reach = quantile * se_log  # the compliance's half-width over the compliance, q se_c / c
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        low = k / (1.0 + reach)
-        high = np.where(reach < 1.0, k / (1.0 - reach), np.inf)
+    # the compliance 1 / k in units of itself: 1 +- quantile se(ln k)
+    low, high = np.array([stiffness_interval(1.0, float(s), 1.0 / float(kk), quantile)
+                          for s, kk in zip(se_log, k, strict=True)]).reshape(-1, 2).T
+    with np.errstate(invalid="ignore"):
         width = (high - low) / k
     width = np.where(np.isfinite(width), width, np.inf)
     directions = []

@@ -408,6 +408,18 @@ def judged(name: str, value: float, standard_error: float, ci95: tuple[float, fl
                      beyond_scale=bool(abs(value) > size))
 
 
+def stiffness_interval(u: float, se_u: float, scale: float, quantile: float
+                       ) -> tuple[float, float]:
+    """The interval of a stiffness ``1 / (u scale)``: its compliance's, ``(u -+ quantile se_u)
+    scale``, carried to the stiffness (0 below when that is unbounded, unbounded above when it
+    reaches zero): the one rule of every reported stiffness (a deflection is linear in the
+    compliances)."""
+    hi_c = (u + quantile * se_u) * scale
+    lo_c = (u - quantile * se_u) * scale
+    return (1.0 / hi_c if hi_c > 0 and math.isfinite(hi_c) else 0.0,
+            1.0 / lo_c if lo_c > 0 else math.inf)
+
+
 def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
                       quantile: float) -> Parameter:
     """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method; its
@@ -419,10 +431,7 @@ def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
     c = u * scale
     k = 1.0 / c if c > 0 else math.inf
     se_k = se_u * scale / c ** 2 if c > 0 else math.inf
-    hi_c = (u + quantile * se_u) * scale
-    lo_c = (u - quantile * se_u) * scale
-    low = 1.0 / hi_c if hi_c > 0 and math.isfinite(hi_c) else 0.0
-    high = 1.0 / lo_c if lo_c > 0 else math.inf
+    low, high = stiffness_interval(u, se_u, scale, quantile)
     width = 2.0 * quantile * se_u * scale
     compliance_unit = "m/N" if unit == "N/m" else "rad/(N.m)"
     return Parameter(name, k, se_k, (low, high), unit, at_bound=c <= 0,
