@@ -192,3 +192,20 @@ def test_a_parameter_the_data_leave_without_bound_is_held(tmp_path):
     assert all(row["std"] is not None for row in table if row["fitted"])
     assert any(row["parameter"] == "j1 compensator preload" and row["held"].startswith(
         "held at its nominal value") for row in table)
+
+
+def test_max_steps_limits_the_pose_search(ur10):
+    """``max_steps`` counts the families the search adds after the forced ones (it was
+    ignored for pose campaigns): 0 keeps the baseline and the forced family, 1 adds the
+    unlimited search's first family and stops there, naming the limit."""
+    campaign = _campaign(ur10, 15, 4)
+    free = diagnose_poses(campaign, families=["joint_compliance"], not_families=["geometry"])
+    forced = free.families.index("joint_compliance") + 1
+    assert len(free.families) > forced  # the search adds something past the forced family
+    for limit in (0, 1):
+        d = diagnose_poses(campaign, families=["joint_compliance"], not_families=["geometry"],
+                           max_steps=limit)
+        assert d.families == free.families[:forced + limit]
+        assert "max_steps" in d.stop_reason
+    with pytest.raises(StiffnessError, match="non-negative integer"):
+        diagnose_poses(campaign, max_steps=-1)

@@ -63,7 +63,7 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
-from stiffness.calibration.search import Candidate, Stop, ranked, search
+from stiffness.calibration.search import Candidate, Stop, check_max_steps, ranked, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -105,7 +105,7 @@ Found = Candidate[Effect, Fit]
 
 
 @overload
-def diagnose(campaign: Campaign, max_steps: int = ..., seed: int = ..., propose: bool = ...,
+def diagnose(campaign: Campaign, max_steps: int | None = ..., seed: int = ..., propose: bool = ...,
              progress: Callable[[str], None] | None = ..., workers: int | None = ...,
              loss: str = ..., effect_settings: dict[str, dict] | None = ...,
              masses: str = ..., validate: PoseCampaign | str | os.PathLike | None = ...,
@@ -114,7 +114,7 @@ def diagnose(campaign: Campaign, max_steps: int = ..., seed: int = ..., propose:
 
 
 @overload
-def diagnose(campaign: PoseCampaign, max_steps: int = ..., seed: int = ...,
+def diagnose(campaign: PoseCampaign, max_steps: int | None = ..., seed: int = ...,
              propose: bool = ..., progress: Callable[[str], None] | None = ...,
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
@@ -124,7 +124,7 @@ def diagnose(campaign: PoseCampaign, max_steps: int = ..., seed: int = ...,
 
 
 @overload
-def diagnose(campaign: str | os.PathLike, max_steps: int = ..., seed: int = ...,
+def diagnose(campaign: str | os.PathLike, max_steps: int | None = ..., seed: int = ...,
              propose: bool = ..., progress: Callable[[str], None] | None = ...,
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
@@ -135,7 +135,7 @@ def diagnose(campaign: str | os.PathLike, max_steps: int = ..., seed: int = ...,
 
 def diagnose(
     campaign: Campaign | PoseCampaign | str | os.PathLike,
-    max_steps: int = MAX_STEPS,
+    max_steps: int | None = None,
     seed: int = 0,
     propose: bool = True,
     progress: Callable[[str], None] | None = None,
@@ -154,8 +154,8 @@ def diagnose(
     :meth:`~stiffness.calibration.diagnosis.Diagnosis.write` writes its ``--out`` folder).
     A pose campaign (``kind = "poses"``) is diagnosed by
     :func:`stiffness.calibration.pose_diagnose.diagnose_poses` (its ``PoseDiagnosis.to_dict``
-    is the command's ``--json`` there), with ``seed``, ``progress``, ``loss``, ``masses``,
-    ``validate``, ``families`` and ``not_families``.
+    is the command's ``--json`` there), with ``max_steps``, ``seed``, ``progress``,
+    ``loss``, ``masses``, ``validate``, ``families`` and ``not_families``.
 
     Parameters
     ----------
@@ -163,7 +163,9 @@ def diagnose(
         The campaign (SI rows), or the path of a ``campaign.toml`` (or of its folder), of
         either kind.
     max_steps
-        Largest number of effects added.
+        Largest number of effects the search adds (a pose campaign's families, forced ones
+        not counted); ``None``: :data:`MAX_STEPS` for a deflection campaign, no limit for a
+        pose campaign (its families are few).
     seed
         Seed of the fold assignment and of the poses sampled for experiment proposals.
     propose, progress
@@ -204,12 +206,13 @@ def diagnose(
             validate = load_pose_campaign(validate)
         return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
                               progress=progress, loss=loss, families=families,
-                              not_families=not_families)
+                              not_families=not_families, max_steps=max_steps)
     if validate is not None or families:
         raise StiffnessError("validate and families take pose campaigns; for a deflection "
                              "campaign diagnose reports the held-out (cross-validated) RMS of "
                              "each step and chooses among the library's effects (--not "
                              "forbids some)")
+    max_steps = MAX_STEPS if max_steps is None else max_steps
     _check_options(max_steps, loss, masses)
     forbidden = _forbidden(not_families)
     if not isinstance(campaign, Campaign):
@@ -311,10 +314,7 @@ def _check_options(max_steps: int, loss: str, masses: str) -> None:
     """Refuse a negative or non-integer ``max_steps``, an unknown loss or an unknown
     ``masses`` (one line)."""
     check_masses(masses)
-    if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer) \
-            or max_steps < 0:
-        raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
-                             f"only), got {max_steps!r}")
+    check_max_steps(max_steps)
     check_loss(loss)
 
 

@@ -143,7 +143,8 @@ def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[
     (:func:`stiffness.calibration.deflection_parameters.stiffness_parameters`)."""
     se_log = np.sqrt(np.diag(cov.matrix))
     # the compliance 1 / k in units of itself: 1 +- quantile se(ln k)
-    low, high = np.array([stiffness_interval(1.0, float(s), 1.0 / float(kk), quantile)
+    low, high = np.array([stiffness_interval((1.0 - quantile * s) * (1.0 / kk),
+                                             (1.0 + quantile * s) * (1.0 / kk))
                           for s, kk in zip(se_log, k, strict=True)]).reshape(-1, 2).T
     with np.errstate(invalid="ignore"):
         width = (high - low) / k

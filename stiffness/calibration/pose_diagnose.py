@@ -53,7 +53,7 @@ from stiffness.calibration.pose_fit import (
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
-from stiffness.calibration.search import Candidate, Stop, ranked, search
+from stiffness.calibration.search import Candidate, Stop, check_max_steps, ranked, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -221,17 +221,12 @@ def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
               {p.name: p for ps in judge.parameters(fit).values() for p in ps})
     return [{"family": p.family, "parameter": p.label, "unit": p.unit,
              "value": float(fit.x[i]), "fitted": i in kept,
-             "std": None if i not in kept else _finite(std[i]),
-             "interval_95": None if i not in kept else [_finite(lo[i]), _finite(hi[i])],
+             "std": None if i not in kept else jsonable(std[i]),
+             "interval_95": None if i not in kept else jsonable([lo[i], hi[i]]),
              "at_bound": i in fit.at_bound,
              **({k: v for k, v in judged[p.label].to_dict().items()
                  if k not in ("value", "unit", "at_bound")} if p.label in judged else {})}
             for i, p in enumerate(fit.model.parameters)]
-
-
-def _finite(v: float) -> float | None:
-    """``v``, or ``None`` (JSON null: no bound) where it is infinite."""
-    return float(v) if math.isfinite(v) else None
 
 
 def residual_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:
@@ -377,7 +372,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    loss: str = "linear", families: Sequence[str] = (),
                    not_families: Sequence[str] = (),
                    base_tilt: Sequence[float] | None = None, workers: int | None = None,
-                   bar: Bar | None = None) -> PoseDiagnosis:
+                   bar: Bar | None = None, max_steps: int | None = None) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -416,16 +411,20 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     bar
         Given a label, a progress callback ``(done, total)`` for the held-out criterion's
         configurations (``diagnose`` draws a bar on a terminal), or ``None``.
+    max_steps
+        Largest number of families the search adds after the forced ones (``diagnose
+        --max-steps``; 0: the baseline and the forced families); ``None``: no limit.
 
     Raises
     ------
     StiffnessError
         An unknown ``masses`` or ``loss``; a forced or forbidden name that is not a candidate
         family of ``masses``, or a family both forced and forbidden, or forced before the
-        family it acts through.
+        family it acts through; a negative ``max_steps``.
     """
     say = progress or (lambda text: None)
     check_masses(masses)
+    check_max_steps(max_steps)
     check_loss(loss)
     forced, forbidden = _choice(masses, families, not_families)
     say(f"pose diagnosis: {campaign.n_rows} rows, baseline (measuring frame and markers)")
@@ -453,7 +452,7 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                           _validation(base, validate)))
     for f in forced:
         kind.force(f, loss)
-    _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms)
+    _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms, max_steps)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
     return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, list(forced),
                          sorted(forbidden), outliers, outlier_sigma, stop, judge, kind,

@@ -25,9 +25,12 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import ClassVar, Generic, Protocol, TypeVar
 
+import numpy as np
+
 from stiffness.calibration.naming import namable
 from stiffness.calibration.selection import BIC_MARGIN, CV_TOP, fits_to_noise, step_criteria
 from stiffness.elastic.effects.base import Parameter
+from stiffness.errors import StiffnessError
 
 E = TypeVar("E")
 F = TypeVar("F")
@@ -95,6 +98,23 @@ class SearchKind(Protocol[E, F]):
 
     def held_out_of(self, fits: list[F]) -> list[float]:
         """The held-out RMS (m) of each of ``fits``."""
+
+
+def check_max_steps(max_steps: int | None) -> None:
+    """Refuse a ``max_steps`` (``diagnose --max-steps``) that is not ``None`` or a
+    non-negative integer (one line).
+
+    Raises
+    ------
+    StiffnessError
+        A negative, non-integer or boolean ``max_steps``.
+    """
+    if max_steps is None:
+        return
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer) \
+            or max_steps < 0:
+        raise StiffnessError(f"--max-steps must be a non-negative integer (0: the baseline "
+                             f"only), got {max_steps!r}")
 
 
 def search(kind: SearchKind[E, F], current: F, cv_current: float,

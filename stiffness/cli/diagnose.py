@@ -46,8 +46,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="folder to write diagnosis.json, residuals.png, final-model.json "
                              "and diagnosis.html (the page) into (made if missing); default: "
                              "nothing written")
-    parser.add_argument("--max-steps", type=int, default=MAX_STEPS,
-                        help=f"largest number of effects added; default {MAX_STEPS}")
+    parser.add_argument("--max-steps", type=int,
+                        help=f"largest number of effects the search adds (a pose campaign's "
+                             f"families, those forced by --families not counted; 0: the "
+                             f"baseline only); default {MAX_STEPS} for a deflection campaign, "
+                             f"no limit for a pose campaign")
     flags.add_seed_flag(parser, "seed of the cross-validation folds and proposed poses; default 0")
     parser.add_argument("--no-proposals", action="store_true",
                         help="do not propose extra poses and loads")
@@ -99,8 +102,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 def command_line(args: argparse.Namespace) -> str:
     """The command that reproduces this run (recorded in diagnosis.html)."""
+    steps = MAX_STEPS if args.max_steps is None else args.max_steps
     words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
-             "--max-steps", str(args.max_steps), "--seed", str(args.seed)]
+             "--max-steps", str(steps), "--seed", str(args.seed)]
     words += ["--no-proposals"] if args.no_proposals else []
     words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
@@ -117,6 +121,7 @@ def pose_command_line(args: argparse.Namespace) -> str:
              "--seed", str(args.seed), "--masses", args.masses]
     words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if args.loss != "linear" else []
+    words += ["--max-steps", str(args.max_steps)] if args.max_steps is not None else []
     words += ["--families", args.families] if args.families else []
     words += ["--not", args.not_families] if args.not_families else []
     words += ["--base-tilt", args.base_tilt] if args.base_tilt else []
@@ -230,7 +235,8 @@ def run_poses(args: argparse.Namespace) -> int:
                             not_families=flags.parse_names(args.not_families) or (),
                             base_tilt=None if args.base_tilt is None else [
                                 math.radians(v)
-                                for v in flags.parse_list(args.base_tilt, "--base-tilt")])
+                                for v in flags.parse_list(args.base_tilt, "--base-tilt")],
+                            max_steps=args.max_steps)
     paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 

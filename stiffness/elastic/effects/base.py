@@ -408,34 +408,41 @@ def judged(name: str, value: float, standard_error: float, ci95: tuple[float, fl
                      beyond_scale=bool(abs(value) > size))
 
 
-def stiffness_interval(u: float, se_u: float, scale: float, quantile: float
-                       ) -> tuple[float, float]:
-    """The interval of a stiffness ``1 / (u scale)``: its compliance's, ``(u -+ quantile se_u)
-    scale``, carried to the stiffness (0 below when that is unbounded, unbounded above when it
-    reaches zero): the one rule of every reported stiffness (a deflection is linear in the
-    compliances)."""
-    hi_c = (u + quantile * se_u) * scale
-    lo_c = (u - quantile * se_u) * scale
-    return (1.0 / hi_c if hi_c > 0 and math.isfinite(hi_c) else 0.0,
-            1.0 / lo_c if lo_c > 0 else math.inf)
+def stiffness_interval(low_c: float, high_c: float) -> tuple[float, float]:
+    """The 95 % interval of a stiffness ``k = 1 / c`` from its compliance's ``[low_c,
+    high_c]``: ``[1 / high_c, 1 / low_c]``, 0 below when ``high_c`` is unbounded, unbounded
+    above when ``low_c`` reaches zero. The one rule of every reported stiffness (a
+    deflection is linear in the compliances, so the compliance's interval is the one a
+    linear fit gives)."""
+    return (1.0 / high_c if high_c > 0 and math.isfinite(high_c) else 0.0,
+            1.0 / low_c if low_c > 0 else math.inf)
 
 
 def stiffness_report(name: str, u: float, var_u: float, scale: float, unit: str,
                       quantile: float) -> Parameter:
-    """A stiffness ``1 / (u scale)`` from a compliance variable ``u``, delta method; its
-    interval is determined when the compliance's is narrower than the physical scale
-    ``PHYSICAL_FACTOR scale`` (ten times the baseline's mean compliance ``1 / k_ref``). At a
-    compliance of zero, its bound, the stiffness is infinite and its interval one-sided,
-    from ``1 / (quantile se)`` up (:attr:`Parameter.at_bound`)."""
+    """A stiffness ``1 / (u scale)`` from a compliance variable ``u`` (:func:`reciprocal` of
+    the compliance ``u scale`` judged against the physical scale ``PHYSICAL_FACTOR scale``,
+    ten times the baseline's mean compliance ``1 / k_ref``)."""
     se_u = math.sqrt(max(var_u, 0.0)) if math.isfinite(var_u) else math.inf
-    c = u * scale
-    k = 1.0 / c if c > 0 else math.inf
-    se_k = se_u * scale / c ** 2 if c > 0 else math.inf
-    low, high = stiffness_interval(u, se_u, scale, quantile)
-    width = 2.0 * quantile * se_u * scale
     compliance_unit = "m/N" if unit == "N/m" else "rad/(N.m)"
-    return Parameter(name, k, se_k, (low, high), unit, at_bound=c <= 0,
-                     resolved=bool(width < PHYSICAL_FACTOR * scale),
-                     beyond_scale=bool(c > PHYSICAL_FACTOR * scale),
-                     scale_note="compliance's " + scale_note(width, PHYSICAL_FACTOR * scale,
-                                                             compliance_unit))
+    ci = ((u - quantile * se_u) * scale, (u + quantile * se_u) * scale)
+    return reciprocal(judged(name, u * scale, se_u * scale, ci, compliance_unit,
+                             PHYSICAL_FACTOR * scale, quantile), unit)
+
+
+def reciprocal(compliance: Parameter, unit: str) -> Parameter:
+    """The stiffness ``k = 1 / c`` (``unit``) of a reported compliance ``c``: its standard
+    error by the delta method, ``se_c / c^2``, and its interval the compliance's carried to
+    ``k`` (:func:`stiffness_interval`). At a compliance of zero, its bound, the stiffness is
+    infinite and its interval one-sided, from ``1 / c_high`` up (:attr:`Parameter.at_bound`);
+    held, resolved and the scale note are the compliance's."""
+    c, se_c = compliance.value, compliance.standard_error
+    k, se_k = (1.0 / c, se_c / c ** 2) if c > 0 else (math.inf, math.inf)
+    ci = stiffness_interval(*compliance.ci95)
+    if compliance.held:
+        return Parameter(compliance.name, k, math.nan, (math.nan, math.nan), unit,
+                         compliance.held, resolved=False)
+    return Parameter(compliance.name, k, se_k, ci, unit,
+                     at_bound=compliance.at_bound or c <= 0, resolved=compliance.resolved,
+                     beyond_scale=compliance.beyond_scale,
+                     scale_note="compliance's " + compliance.scale_note)
