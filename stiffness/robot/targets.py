@@ -7,9 +7,12 @@ whose last joint carries a loop-closing frame is not a candidate (it closes a lo
 branches are such ones. Of several equally long chains the first in model order is taken,
 except that chains branching off it with fewer moving joints below the branch than above it (a
 hand's fingers) move the tip up to their last common joint (the wrist); joints of
-``<mimic>`` couplings (a gripper's jaws) do not lengthen a chain. The tip frame is, among the
-frames carried by the tip joint, the one farthest from the joint's origin, a link or tool frame
-before a joint frame, the last in model order on a tie.
+``<mimic>`` couplings (a gripper's jaws) and a last joint named as a jaw (``grip`` or ``jaw``
+in its name or its link's, on an arm: z1's ``jointGripper``, so100's ``gripper``) do not lengthen
+a chain. The tip frame is, among the frames carried by the tip joint, the one farthest from the
+joint's origin, a link or tool frame before a joint frame, the last in model order on a tie.
+When every such frame sits at the joint's origin (double_pendulum's ``link2``), the default
+target is the tip link's centre of mass, off the joint's axis, instead of that origin.
 """
 
 from __future__ import annotations
@@ -49,8 +52,8 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
     jaws), which do not lengthen a chain.
     """
     depth = moving_depth(model, gripper)
-    if max(depth) == 0:
-        return None
+    if max(depth) == 0:  # a robot that is only a gripper (pr2_gripper): its jaws are the chain
+        return default_target_frame(model, closure_frames) if gripper else None
     has_child = {model.parents[j] for j in range(1, model.njoints)}
     leaves = [j for j in range(1, model.njoints) if j not in has_child and depth[j] > 0]
     closing = {f.parentJoint for f in model.frames if f.name in closure_frames}
@@ -104,7 +107,8 @@ def _below(model: pin.Model, frame_id: int, names: frozenset[str]) -> bool:
     links of a gripper's locked jaws."""
     seen = 0
     while frame_id > 0 and seen < len(model.frames):
-        if model.frames[frame_id].name in names:
+        frame = model.frames[frame_id]  # a joint's name, not a link's that is spelled the same
+        if frame.name in names and frame.type != pin.FrameType.BODY:
             return True
         frame_id = model.frames[frame_id].parentFrame
         seen += 1
@@ -159,13 +163,66 @@ def target_chain(model: pin.Model, frame_id: int, names: Sequence[str], coupled:
     return tuple(name for name in names if model.getJointId(name) in supports)
 
 
+def default_target_offset(model: pin.Model, frame_id: int) -> np.ndarray:
+    """The default target's position (3,) in the axes of frame ``frame_id`` (m): the frame's
+    origin, unless it is the link of a last joint that carries no other frame and sits at the
+    joint's origin (double_pendulum's ``link2``), where that joint's spring would not move it;
+    then the centre of mass of that link (zero when that is at the origin too, or massless).
+    A tool frame at the joint's origin (xarm7's ``link_eef`` on the flange) is kept there."""
+    frame = model.frames[frame_id]
+    body = model.inertias[frame.parentJoint]
+    attached = [f for f in model.frames if f.parentJoint == frame.parentJoint
+                and f.type not in (pin.FrameType.JOINT, pin.FrameType.BODY)]
+    if attached or np.linalg.norm(frame.placement.translation) > _AT_ORIGIN_M \
+            or body.mass <= 0.0 or np.linalg.norm(body.lever) <= _AT_ORIGIN_M:
+        return np.zeros(3)  # a tool frame at the origin (xarm7's flange) is meant there
+    return np.asarray(frame.placement.actInv(body.lever), dtype=float).copy()
+
+
 def gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
     """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
-    does not hang below its leader), which do not lengthen a chain for the default target."""
-    out: set[str] = set()
+    does not hang below its leader) and a last joint named as a jaw (:func:`jaw_joints`), which
+    do not lengthen a chain for the default target."""
+    out: set[str] = set(jaw_joints(model))
     for m in mimics:
         if model.existJointName(m.follower) and model.existJointName(m.leader) and \
                 model.getJointId(m.leader) in model.supports[model.getJointId(m.follower)]:
             continue  # a serial coupling: the follower extends the leader's chain
         out |= {m.leader, m.follower}
     return frozenset(out)
+
+
+_AT_ORIGIN_M = 1e-9  # a frame this close to its joint's origin sits at it (m)
+_JAW_WORDS = ("grip", "jaw")
+
+
+def jaw_joints(model: pin.Model) -> frozenset[str]:
+    """Last joints of a chain (no joint with a degree of freedom below them) carried by other
+    moving joints, whose name or link's name says it is a gripper's jaw (``grip`` or ``jaw`` in
+    it) and that move it against a link named so too (the gripper's body, or fixed jaw): a
+    gripper without a ``<mimic>`` coupling (z1's ``jointGripper`` on ``gripperStator``,
+    so100's ``gripper`` moving the ``jaw`` link on the ``gripper`` link). A last joint moving
+    a gripper as a whole (hextilt's, icub's) is not one, nor a hand's finger (the hand rule
+    handles fingers)."""
+    depth = moving_depth(model)
+    parents_of_moving = {model.parents[j] for j in range(1, model.njoints)
+                         if model.joints[j].nv > 0}
+    out = set()
+    for j in range(1, model.njoints):
+        if model.joints[j].nv == 0 or j in parents_of_moving or depth[model.parents[j]] == 0:
+            continue
+        if _jaw_named([model.names[j]] + _links(model, j)) and \
+                _jaw_named(_links(model, model.parents[j])):
+            out.add(model.names[j])
+    return frozenset(out)
+
+
+def _links(model: pin.Model, joint: int) -> list[str]:
+    """Names of the links (body frames) that joint ``joint`` carries, fixed ones included."""
+    return [f.name for f in model.frames
+            if f.parentJoint == joint and f.type == pin.FrameType.BODY]
+
+
+def _jaw_named(names: list[str]) -> bool:
+    """Whether one of ``names`` says it is part of a gripper (``grip`` or ``jaw`` in it)."""
+    return any(word in name.lower() for name in names for word in _JAW_WORDS)
