@@ -29,7 +29,7 @@ from stiffness.errors import (
     FileFormatError,
     StiffnessError,
 )
-from stiffness.files import check_csv_header, read_text
+from stiffness.files import check_csv_header, csv_float, read_text
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.units import MAX_CELL, Units
@@ -202,8 +202,11 @@ def check_units_comment(declared: Units, expected: Units, source: object, path: 
 def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float:
     text = cell.strip()
     try:
-        value = float(text)
-    except ValueError:
+        value = csv_float(text)
+    except ValueError as exc:
+        if "_" in text:  # 1_000: float() would read 1000
+            raise FileFormatError(str(exc), path=data, line=line, column=col, field=name
+                                  ) from None
         value = None
     if value is None or not math.isfinite(value):
         shown = repr(cell) if text else "an empty cell"

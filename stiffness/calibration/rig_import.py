@@ -62,7 +62,7 @@ from stiffness.errors import (
     StiffnessError,
     did_you_mean,
 )
-from stiffness.files import check_csv_header, read_text, read_toml
+from stiffness.files import check_csv_header, csv_float, read_text, read_toml
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot
 from stiffness.units import (
@@ -153,11 +153,12 @@ class Column:
                 out[i] = math.nan
                 continue
             try:
-                value = float(cell)
-            except ValueError:
+                value = csv_float(cell)
+            except ValueError as exc:
+                if "_" in cell:  # 1_000: float() would read 1000
+                    raise self.error(i, str(exc)) from None
                 value = math.nan
-            if not (math.isfinite(value) and abs(value) <= MAX_CELL) or not cell.strip() \
-                    or not re.fullmatch(r"\s*[-+]?[0-9.eE+-]+\s*", cell):
+            if not (math.isfinite(value) and abs(value) <= MAX_CELL):
                 raise self.error(i, f"{cell!r} is not a number; give a finite number within "
                                     f"+-{MAX_CELL:.0e}")
             out[i] = value

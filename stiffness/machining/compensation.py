@@ -54,7 +54,7 @@ from stiffness.errors import (
     StiffnessError,
     with_context,
 )
-from stiffness.files import atomic_write, check_csv_header, number_text, read_text
+from stiffness.files import atomic_write, check_csv_header, csv_float, number_text, read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
@@ -541,11 +541,12 @@ class Table:
         for r, (row, line) in enumerate(zip(self.rows, self.lines, strict=True)):
             cell = row[k].strip() if k < len(row) else ""
             try:
-                value = float(cell)
-            except ValueError:
-                raise FileFormatError(f"{cell!r} is not a number; every value must be one",
-                                      path=self.path, line=line, column=k + 1, field=name
-                                      ) from None
+                value = csv_float(cell)
+            except ValueError as exc:
+                problem = str(exc) if "_" in cell else \
+                    f"{cell!r} is not a number; every value must be one"
+                raise FileFormatError(problem, path=self.path, line=line, column=k + 1,
+                                      field=name) from None
             if not math.isfinite(value):
                 raise FileFormatError(f"{cell!r}: every value must be a finite number",
                                       path=self.path, line=line, column=k + 1, field=name)

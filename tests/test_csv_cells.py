@@ -1,0 +1,76 @@
+"""CSV cells are read as written: ``1_000`` (which Python's ``float`` reads as 1000) is refused by
+every CSV reader (a deflection or pose campaign's measurements, a rig's file, a joint path)
+with one line naming the file, line, column, the cell and the fix, never read as a number."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_campaign import HEADER, ROW_A, ROW_B, csv_error
+from test_rig_import import BASE_ROWS, refusal
+
+from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
+from stiffness.calibration.pose_model import Marker
+from stiffness.errors import FileFormatError
+from stiffness.files import csv_float
+from stiffness.machining.compensation import read_joint_path
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.robot import load_robot
+
+FIX = "'1_000' has '_' digit separators, which a CSV number cannot have; write 1000"
+
+
+@pytest.mark.parametrize(("cell", "value"), [("1000", 1000.0), (" -1.5e-3 ", -1.5e-3),
+                                             ("+.5", 0.5), ("7.", 7.0), ("1E+02", 100.0)])
+def test_plain_decimal_cells_are_read(cell, value):
+    assert csv_float(cell) == value
+
+
+@pytest.mark.parametrize("cell", ["1_000", "0x10", "1e", "--1", "١٢", "1.2.3", "", "1 000"])
+def test_other_cells_are_not_numbers(cell):
+    """Python's float reads the first and the Arabic-Indic digits; a CSV number is neither."""
+    with pytest.raises(ValueError, match="digit separators|is not a number"):
+        csv_float(cell)
+    assert math.isnan(csv_float("nan")) and csv_float("-inf") == -math.inf  # refused by name
+
+
+def test_deflection_campaign_refuses_digit_separators(tmp_path):
+    cells = ROW_B.split(",")
+    cells[8] = "1_000"
+    msg = csv_error(tmp_path, f"{HEADER}\n{ROW_A}\n{','.join(cells)}\n")
+    assert "measurements.csv, line 3, column 9 (fy): " + FIX in msg and "\n" not in msg
+
+
+def test_rig_file_refuses_digit_separators(tmp_path):
+    rows = list(BASE_ROWS)
+    rows[2] = "0,-80,90,0,90,0,0,1_000,0,0,0.1,0"
+    assert "rig.csv, line 3, column 8 (fy): " + FIX in refusal(tmp_path, "\n".join(rows))
+
+
+def test_pose_campaign_refuses_digit_separators(tmp_path):
+    robot = load_robot("ur5")
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in markers]),
+                              np.zeros(6), np.zeros((6, 6)), np.full(6, 2e5))
+    write_pose_campaign(simulate_pose_campaign(robot, markers, hidden, 3, 1e-5, seed=1),
+                        tmp_path)
+    data = tmp_path / "measurements.csv"
+    lines = data.read_text().splitlines()
+    row = next(i for i, line in enumerate(lines) if line and not line.startswith("#")) + 1
+    cells = lines[row].split(",")
+    cells[-1] = "1_000"
+    lines[row] = ",".join(cells)
+    data.write_text("\n".join(lines) + "\n")
+    with pytest.raises(FileFormatError, match=FIX) as info:
+        load_pose_campaign(tmp_path)
+    assert info.value.line == row + 1 and info.value.column == len(cells)
+
+
+def test_joint_path_refuses_digit_separators(tmp_path):
+    path = tmp_path / "path.csv"
+    path.write_text("q1,q2,q3,q4,q5,q6\n0,-1.2,1.5,-0.3,1.57,0\n0,-1.2,1_000,-0.3,1.57,0\n")
+    with pytest.raises(FileFormatError, match=FIX) as info:
+        read_joint_path(path, load_robot("ur5"))
+    assert (info.value.line, info.value.column) == (3, 3)
