@@ -55,6 +55,7 @@ from stiffness.elastic.effects import LIBRARY
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.link_bends import segment
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel, ElasticState
 from stiffness.errors import (
@@ -666,7 +667,7 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         raise ModelFileError(problem, path=model.path or "model file")
     joints = [j for j in robot.model.names[1:]]
     for e in model.effects:  # every effect's joint or segment must be a joint of the robot
-        for name in LIBRARY[e.name].place_joints(e.where):
+        for name in segment(e.where) or ([] if e.where is None else [e.where]):
             if name not in joints:
                 raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
                                       f"{robot.title}; {did_you_mean(str(name), joints)}")

@@ -144,7 +144,7 @@ class Effect:
 
     * what it is: :attr:`name`, :attr:`kind`, :attr:`where`, :attr:`label`, :meth:`describe`;
       placed on a robot by :meth:`at_place` (from a model file, unchecked, with its fixed
-      settings: :meth:`configured`, :meth:`file_settings`, :meth:`place_joints`);
+      settings: :meth:`configured`, :meth:`file_settings`);
     * its parameters: :attr:`parameter_names`, their sizes :meth:`scale` (SI value of one
       optimiser unit: ``u ~ 1`` is a sizeable effect, SI ``u * scale``) and physical scales
       :meth:`physical_scale`, :meth:`bounds`, :meth:`start`, :meth:`report` with units and
@@ -198,8 +198,8 @@ class Effect:
     def at_place(cls, where: str | None, geometry: Geometry | None = None) -> Effect:
         """The effect acting at ``where`` (a joint, ``a->b``, or ``None``), checked against the
         robot's ``geometry`` (:func:`stiffness.elastic.effects.make_effect`); with no
-        ``geometry``, as a model file declares it, unchecked (:meth:`place_joints` names the
-        joints to check; :meth:`configured` adds the file's settings).
+        ``geometry``, as a model file declares it, unchecked (:meth:`configured` adds the file's
+        settings).
 
         Raises
         ------
@@ -238,11 +238,6 @@ class Effect:
         """This effect with its declared settings held, and ``reason`` (one clause: why the
         data do not determine them) recorded."""
         return self
-
-    @classmethod
-    def place_joints(cls, where: str | None) -> list[str]:
-        """The joints ``where`` names (checked against the robot of a model file)."""
-        return [] if where is None else [where]
 
     def file_settings(self, refs: References) -> dict:
         """Fixed settings a model file keeps beside the parameters (SI; :meth:`configured`

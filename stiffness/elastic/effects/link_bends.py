@@ -190,24 +190,18 @@ class LinkCompliance(Effect, PoseFamily):
 
     @classmethod
     def at_place(cls, where, geometry=None):
-        if geometry is None:  # the bend axes come from the robot (ElasticModel)
-            a, b = cls.place_joints(where)
-            return cls(a=a, b=b)
         parts = segment(where)
-        if parts is None or parts not in geometry.link_columns:
+        if geometry is None:  # the bend axes come from the robot (ElasticModel)
+            if parts is None:
+                raise StiffnessError(f"link_compliance needs a segment A->B, got {where!r}")
+            return cls(a=parts[0], b=parts[1])
+        if parts not in geometry.link_columns:
             pairs = [f"{a}->{b}" for a, b in geometry.link_segments()]
             raise UnknownNameError(
                 f"link_compliance needs two joints of the target's chain, proximal first, as "
                 f"A->B (or A/B); got {where!r}; valid segments: {', '.join(pairs)}",
                 name=str(where), choices=pairs)
         return cls(a=parts[0], b=parts[1], column=geometry.link_columns[parts])
-
-    @classmethod
-    def place_joints(cls, where):
-        parts = segment(where)
-        if parts is None:
-            raise StiffnessError(f"link_compliance needs a segment A->B, got {where!r}")
-        return list(parts)
 
     def simulated_values(self, values, units):
         k = np.array([values[0], values[0]] if len(values) == 1 else values, dtype=float)
@@ -371,8 +365,9 @@ class TransversalCompliance(LinkCompliance):
     @classmethod
     def at_place(cls, where, geometry=None):
         if geometry is None:  # the axis comes from the robot (ElasticModel)
-            (joint,) = cls.place_joints(where)
-            return cls(a=joint, b=joint)
+            if not where or segment(where) is not None:
+                raise StiffnessError(f"transversal_compliance needs one joint, got {where!r}")
+            return cls(a=where, b=where)
         if where not in geometry.tilt_columns:
             joints = list(geometry.tilt_columns)
             raise UnknownNameError(
@@ -380,12 +375,6 @@ class TransversalCompliance(LinkCompliance):
                 f"an axis of its frame); got {where!r}; valid names: {', '.join(joints)}",
                 name=str(where), choices=joints)
         return cls(a=where, b=where, column=geometry.tilt_columns[where])
-
-    @classmethod
-    def place_joints(cls, where):
-        if not where or segment(where) is not None:
-            raise StiffnessError(f"transversal_compliance needs one joint, got {where!r}")
-        return [where]
 
     def contribute(self, values, parts):
         parts.add_tilt(self.b, values[0], values[1])
