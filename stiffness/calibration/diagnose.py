@@ -83,7 +83,7 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses
-from stiffness.elastic.effects.base import Effect, Parameter
+from stiffness.elastic.effects.base import Effect, Parameter, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, did_you_mean
@@ -320,7 +320,7 @@ def _check_options(max_steps: int, loss: str, masses: str) -> None:
 
 def _declared_settings(base: Fit, settings: dict[str, dict]) -> dict[str, dict]:
     """``settings`` by effect label, checked: each label a candidate of the campaign's model
-    and its settings ones the effect takes (:meth:`Effect.declare`; a typed error)."""
+    and its settings ones the effect takes (:meth:`Settings.declare`; a typed error)."""
     made = candidates(base.model, settings)
     labels = [e.label for e in made]
     for label in settings:
@@ -339,12 +339,11 @@ SETTING_PRECISION = 0.5
 def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: float | None,
                   say: Callable[[str], None]) -> Fit:
     """``fit`` with the declared settings of its last effect (a compensator's lever and base,
-    :meth:`Effect.settings_freed`) refitted as parameters and kept where the data determine
+    :meth:`Settings.settings_freed`) refitted as parameters and kept where the data determine
     them (finite 95 % intervals within :data:`SETTING_PRECISION` of their values), else held
-    with why (:meth:`Effect.settings_held`)."""
+    with why (:meth:`Settings.settings_held`)."""
     effect = fit.model.effects[-1]
-    freed = effect.settings_freed()
-    if freed is None:
+    if not isinstance(effect, Settings) or (freed := effect.settings_freed()) is None:
         return fit
     a, b = fit.model.offsets[-2], fit.model.offsets[-1]
     extra = freed.start()[effect.n_params:]

@@ -27,7 +27,7 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.selection import GOF_LEVEL
-from stiffness.elastic.effects.base import Effect, Parameter
+from stiffness.elastic.effects.base import Effect, Parameter, Settings
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.files import atomic_write, staged_folder, written_path, written_source
@@ -349,7 +349,8 @@ class Diagnosis:
         for e in f.model.effects:
             effects.append(ModelEffect(e.name, e.where, e.kind,
                                        self.final_parameters_si.get(e.label, []),
-                                       e.file_settings(refs), e.describe()))
+                                       e.file_settings(refs) if isinstance(e, Settings)
+                                       else {}, e.describe()))
         stiff = self.final_stiffness
         return ModelFile(
             source=c.resolved_source(), **c.robot_options(),

@@ -52,7 +52,7 @@ import numpy as np
 
 from stiffness.elastic.calibrated import calibrated_elastics
 from stiffness.elastic.effects import LIBRARY
-from stiffness.elastic.effects.base import Effect, Parameter
+from stiffness.elastic.effects.base import Effect, Parameter, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.link_bends import segment
@@ -161,7 +161,8 @@ class ModelEffect:
 
     def effect(self, geometry: Geometry | None = None) -> Effect:
         """The library's effect with its settings, placed on ``geometry`` (unchecked without)."""
-        return LIBRARY[self.name].at_place(self.where, geometry).configured(self.settings)
+        effect = LIBRARY[self.name].at_place(self.where, geometry)
+        return effect.configured(self.settings) if isinstance(effect, Settings) else effect
 
     def to_dict(self) -> dict:
         """JSON-ready."""
@@ -667,10 +668,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         raise ModelFileError(problem, path=model.path or "model file")
     joints = [j for j in robot.model.names[1:]]
     for e in model.effects:  # every effect's joint or segment must be a joint of the robot
-        for name in segment(e.where) or ([] if e.where is None else [e.where]):
-            if name not in joints:
-                raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
-                                      f"{robot.title}; {did_you_mean(str(name), joints)}")
+        for name in [n for n in segment(e.where) or [e.where] if n is not None and n not in joints]:
+            raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
+                                  f"{robot.title}; {did_you_mean(str(name), joints)}")
     em = ElasticModel.of_parts(
         robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
         source=None if model.path is None else str(model.path), applied=tuple(applied),

@@ -143,8 +143,8 @@ class Effect:
     """An effect a model may miss. Its interface, in four parts (hooks default to nothing):
 
     * what it is: :attr:`name`, :attr:`kind`, :attr:`where`, :attr:`label`, :meth:`describe`;
-      placed on a robot by :meth:`at_place` (from a model file, unchecked, with its fixed
-      settings: :meth:`configured`, :meth:`file_settings`);
+      placed on a robot by :meth:`at_place` (from a model file, unchecked; an effect with fixed
+      settings beside its parameters derives from :class:`Settings` too);
     * its parameters: :attr:`parameter_names`, their sizes :meth:`scale` (SI value of one
       optimiser unit: ``u ~ 1`` is a sizeable effect, SI ``u * scale``) and physical scales
       :meth:`physical_scale`, :meth:`bounds`, :meth:`start`, :meth:`report` with units and
@@ -198,8 +198,8 @@ class Effect:
     def at_place(cls, where: str | None, geometry: Geometry | None = None) -> Effect:
         """The effect acting at ``where`` (a joint, ``a->b``, or ``None``), checked against the
         robot's ``geometry`` (:func:`stiffness.elastic.effects.make_effect`); with no
-        ``geometry``, as a model file declares it, unchecked (:meth:`configured` adds the file's
-        settings).
+        ``geometry``, as a model file declares it, unchecked (:meth:`Settings.configured` adds
+        the file's settings).
 
         Raises
         ------
@@ -209,40 +209,6 @@ class Effect:
         if where:
             raise StiffnessError(f"{cls.name} acts on the whole campaign; drop ':{where}'")
         return cls()
-
-    def configured(self, settings: dict) -> Effect:
-        """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
-        return self
-
-    def declare(self, settings: dict) -> Effect:
-        """This effect with settings its user declared (SI; ``stiffness diagnose``'s
-        ``effect_settings``, e.g. a compensator's ``lever_m`` and ``base_m``).
-
-        Raises
-        ------
-        StiffnessError
-            Settings the effect does not take (this default: any).
-        """
-        if settings:
-            raise StiffnessError(f"{self.label} takes no declared settings; drop "
-                                 f"{', '.join(settings)}")
-        return self
-
-    def settings_freed(self) -> Effect | None:
-        """This effect with its declared settings as further parameters, appended after
-        :attr:`parameter_names` (fitted when the data determine them), or ``None`` when it has
-        no such settings (this default)."""
-        return None
-
-    def settings_held(self, reason: str) -> Effect:
-        """This effect with its declared settings held, and ``reason`` (one clause: why the
-        data do not determine them) recorded."""
-        return self
-
-    def file_settings(self, refs: References) -> dict:
-        """Fixed settings a model file keeps beside the parameters (SI; :meth:`configured`
-        reads them back)."""
-        return {}
 
     def simulated_values(self, values: tuple[float, ...], units) -> np.ndarray:
         """SI parameter values of the values of ``stiffness simulate --effect NAME=...``, in
@@ -275,7 +241,7 @@ class Effect:
     @property
     def parameter_names(self) -> tuple[str, ...]:
         """Names of this effect's parameters: :attr:`param_names`, and the settings
-        :meth:`settings_freed` made parameters."""
+        :meth:`Settings.settings_freed` made parameters."""
         return self.param_names
 
     @property
@@ -375,6 +341,58 @@ class Effect:
         """One line on what the effect is."""
         return self.label
 
+
+
+class Settings(Effect):
+    """An effect with fixed settings beside its parameters (SI: a backlash's smoothing torque,
+    a compensator's geometry, the links ``gravity_lumped`` weighs); the effects without derive
+    from :class:`Effect` alone. A model file keeps them (:meth:`file_settings`) and reads them
+    back (:meth:`configured`); where a user may declare them (:meth:`declare`: a compensator's
+    lever and base, ``stiffness diagnose``'s ``effect_settings``), a fit frees them as further
+    parameters (:meth:`settings_freed`) or holds them (:meth:`settings_held`)."""
+
+    def configured(self, settings: dict) -> Effect:
+        """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
+        return self
+
+    def file_settings(self, refs: References) -> dict:
+        """Fixed settings a model file keeps beside the parameters (SI)."""
+        return {}
+
+    def declare(self, settings: dict) -> Effect:
+        """This effect with settings its user declared (SI).
+
+        Raises
+        ------
+        StiffnessError
+            Settings the effect does not take (this default: any).
+        """
+        return undeclared(self, settings)
+
+    def settings_freed(self) -> Effect | None:
+        """This effect with its declared settings as further parameters, appended after
+        :attr:`parameter_names` (fitted when the data determine them), or ``None`` when it has
+        no such settings (this default)."""
+        return None
+
+    def settings_held(self, reason: str) -> Effect:
+        """This effect with its declared settings held, and ``reason`` (one clause: why the
+        data do not determine them) recorded."""
+        return self
+
+
+def undeclared(effect: Effect, settings: dict) -> Effect:
+    """``effect``, which takes no declared settings, when ``settings`` declares none.
+
+    Raises
+    ------
+    StiffnessError
+        Declared settings.
+    """
+    if settings:
+        raise StiffnessError(f"{effect.label} takes no declared settings; drop "
+                             f"{', '.join(settings)}")
+    return effect
 
 
 #: The physical scale of a parameter (:meth:`Effect.physical_scale`) is this many times the

@@ -21,7 +21,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from stiffness.elastic.effects.base import Effect, Parameter
+from stiffness.elastic.effects.base import Effect, Parameter, Settings
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
@@ -146,7 +146,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
 
 
 @dataclass(eq=False)
-class Backlash(JointEffect, JointDeflectionFamily):
+class Backlash(JointEffect, Settings, JointDeflectionFamily):
     """Lost motion at a joint: ``dtheta += b tanh(tau / tau_s)``.
 
     Pose face: on each compliant joint, ``Delta q_j += b_j tanh(tau_j / tau_s)`` (``tau_s`` =

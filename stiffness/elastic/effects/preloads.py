@@ -24,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import torque_regressors
-from stiffness.elastic.effects.base import PHYSICAL_FACTOR, Effect
+from stiffness.elastic.effects.base import PHYSICAL_FACTOR, Effect, Settings
 from stiffness.elastic.effects.geometry import References, cross, reach, skew
 from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.pose_face import (
@@ -145,7 +145,7 @@ WEIGHT_FLOOR = 0.01
 
 
 @dataclass(eq=False)
-class GravityCompensator(JointEffect, JointDeflectionFamily):
+class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
     """A spring between the base and a lever on the joint's link, its angle measured from the
     link's upward direction at zero load
     (:func:`stiffness.mechanics.gravity.compensator_torque`,
@@ -421,7 +421,7 @@ def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> np.ndarray:
 
 
 @dataclass(eq=False)
-class GravityLumped(Effect, JointDeflectionFamily):
+class GravityLumped(Settings, JointDeflectionFamily):
     """``gravity_lumped``: the links' weight when their masses are unknown (``--masses
     unknown``), linear in each weighed link's gravity parameters (mass and mass moments,
     :data:`~stiffness.mechanics.gravity.GRAVITY_PARAMETERS`) through the gravity regressor.
