@@ -39,7 +39,8 @@ JOINT_STIFFNESS_UNITS = {"revolute": "N.m/rad", "prismatic": "N/m"}
 
 
 def wrong_stiffness_unit(joints: Sequence[str], units: Sequence[str],
-                         prismatic: Callable[[str], bool]) -> str | None:
+                         prismatic: Callable[[str], bool], what: str = "k_theta",
+                         writer: str = "`stiffness identify`") -> str | None:
     """The one-line problem of the first joint whose stiffness unit is not of its kind.
 
     Parameters
@@ -48,6 +49,8 @@ def wrong_stiffness_unit(joints: Sequence[str], units: Sequence[str],
         Joint names and the unit of each one's stiffness (e.g. a model file's ``k_theta``).
     prismatic
         Whether a joint is prismatic (its stiffness in N/m) rather than revolute (N.m/rad).
+    what, writer
+        What the stiffnesses are, and the command that writes them (in the message).
 
     Returns
     -------
@@ -59,9 +62,9 @@ def wrong_stiffness_unit(joints: Sequence[str], units: Sequence[str],
         kind = "prismatic" if prismatic(joint) else "revolute"
         expected = JOINT_STIFFNESS_UNITS[kind]
         if unit != expected:
-            return (f"k_theta of {kind} joint {joint!r} is in {unit!r}, expected {expected!r}; "
+            return (f"{what} of {kind} joint {joint!r} is in {unit!r}, expected {expected!r}; "
                     f"the stiffness is of another kind of joint: give {joint}'s in {expected} "
-                    "or rewrite the file with `stiffness identify` on this robot")
+                    f"or rewrite the file with {writer} on this robot")
     return None
 
 

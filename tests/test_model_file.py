@@ -484,3 +484,39 @@ def test_a_stiffness_unit_of_the_wrong_kind_of_joint_is_refused(tmp_path, joint,
     message = str(info.value)
     assert "\n" not in message
     assert all(s in message for s in (repr(joint), repr(wrong), repr(expected)))
+
+
+@pytest.mark.parametrize(("unit", "refused"), [("N/m", False), ("SI", False),
+                                               ("N.m/rad", True)])
+def test_an_effects_stiffness_unit_of_the_wrong_kind_of_joint_is_refused(tmp_path, unit,
+                                                                        refused):
+    """A joint_compliance effect makes the prismatic slide a 1e5 N/m spring (10 N along it
+    deflects the tip 1e-4 m; the swing's 2e3 N.m/rad spring is not loaded: the force passes
+    through its axis); written in N/m or "SI" it loads, in N.m/rad it is refused naming the
+    effect, the joint and both units."""
+    (tmp_path / "slider.urdf").write_text(SLIDER_URDF)
+    effect = ModelEffect("joint_compliance", "slide", "stiffness", [_p("stiffness", 1e5, unit)])
+    path = ModelFile(source=str(tmp_path / "slider.urdf"), frame="tip",
+                     target_offset_m=[0.0, 0.0, 0.0], compliant_joints=("swing",),
+                     k_theta=[2e3], units=("N.m/rad",), formulation="conventional",
+                     effects=(effect,)).write(tmp_path / "model.json")
+    if not refused:
+        moved = load_model(path).deflection(np.zeros(2), np.array([10.0, 0.0, 0.0]))
+        np.testing.assert_allclose(moved, [1e-4, 0.0, 0.0], rtol=1e-9, atol=1e-15)
+        return
+    with pytest.raises(ModelFileError) as info:
+        load_model(path)
+    message = str(info.value)
+    assert "\n" not in message and "effects[0] (joint_compliance(slide)) stiffness" in message
+    assert all(s in message for s in ("'slide'", "'N.m/rad'", "'N/m'"))
+
+
+def test_a_compensators_spring_in_a_joints_unit_is_refused(tmp_path):
+    """A gravity compensator's spring is linear (N/m) on a revolute joint: N.m/rad is not its
+    unit, whatever the joint."""
+    model = _ur5_model(ModelEffect("gravity_compensator", "shoulder_lift_joint",
+                                   LIBRARY["gravity_compensator"].kind,
+                                   [_p("stiffness", 1e4, "N.m/rad"), _p("preload", 50.0, "N")]))
+    with pytest.raises(ModelFileError, match=r"gravity_compensator\(shoulder_lift_joint\)\) "
+                       r"stiffness is in 'N.m/rad', expected 'N/m'"):
+        elastic_model_of(read_model_file(model.write(tmp_path / "m.json")))

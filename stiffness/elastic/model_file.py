@@ -58,6 +58,7 @@ from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.link_bends import segment
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel, ElasticState
+from stiffness.elastic.stiffness_units import wrong_model_stiffness_unit
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
@@ -83,7 +84,7 @@ from stiffness.robot.calibration import (
     robot_identity,
 )
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS, wrong_stiffness_unit
+from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
 
 #: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
 SCHEMA_NAME = "stiffness-model"
@@ -664,7 +665,7 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
                            compliant_joints=tuple(parts.springs), **model.robot_options())
     except StiffnessError as exc:
         raise with_context(exc, f"{where}the model's robot with its effects") from exc
-    if problem := wrong_stiffness_unit(model.compliant_joints, model.units, robot.is_prismatic):
+    if problem := wrong_model_stiffness_unit(model, robot.is_prismatic):
         raise ModelFileError(problem, path=model.path or "model file")
     joints = [j for j in robot.model.names[1:]]
     for e in model.effects:  # every effect's joint or segment must be a joint of the robot

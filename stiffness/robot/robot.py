@@ -665,13 +665,12 @@ def load_robot(
 
     closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
     gripper = gripper_joints(model, src.all_mimics + src.mimics)
-    defaulted = frame is None and settings.get("frame") is None
+    defaulted = frame is target_offset is None and not {"frame", "target_offset_m"} & {*settings}
     frame = checked_target_frame(
         name, model, frame if frame is not None else settings.get("frame"), closure, gripper)
-    fid = kinematics.frame_id(model, frame)
-    offset = target_offset_of(target_offset, settings)
-    if defaulted and target_offset is None and "target_offset_m" not in settings:
-        offset = default_target_offset(model, fid)  # off the tip joint's origin
+    fid = kinematics.frame_id(model, frame)  # a default target is off the tip joint's origin
+    offset = default_target_offset(model, fid) if defaulted else target_offset_of(
+        target_offset, settings)
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
         model, fid, spring_names, coupling is not None or not loop.is_open_chain))
     check_counts(settings, coordinate_joints, springs)
