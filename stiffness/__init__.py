@@ -107,6 +107,7 @@ _ON_FIRST_USE = {
     "PoseModelError": "stiffness.calibration.pose_model",
     "diagnose_poses": "stiffness.calibration.pose_diagnose",
     "PoseDiagnosis": "stiffness.calibration.pose_diagnose",
+    "PoseIdentification": "stiffness.calibration.pose_identify",
     "validate": "stiffness.calibration.validation",
     "Validation": "stiffness.calibration.validation",
     # planning: synthetic campaigns, experiment design
@@ -173,6 +174,7 @@ __all__ = [
     "PathCompensation",
     "PoseCampaign",
     "PoseDiagnosis",
+    "PoseIdentification",
     "PoseModel",
     "PoseModelError",
     "PostureResult",

@@ -60,15 +60,11 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
-from stiffness.calibration.campaign import (
-    Campaign,
-    CampaignKindError,
-    campaign_kind,
-    load_campaign,
-)
+from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.fitting import (
     Fit,
     covariance,
@@ -87,6 +83,8 @@ from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise_scale,
 )
+from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
+from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
 from stiffness.calibration.selection import interval_quantile
 from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects.base import stiffness_interval
@@ -190,8 +188,29 @@ def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = 
     return Hypothesis(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs)
 
 
+@overload
+def identify(campaign: Campaign, formulation: str | None = ..., method: str = ...,
+             starts: int = ..., seed: int | None = ..., robot: Robot | None = ...,
+             progress: Callable[[int, int, str], None] | None = ..., loss: str = ...
+             ) -> Identification: ...
+
+
+@overload
+def identify(campaign: PoseCampaign, formulation: str | None = ..., method: str = ...,
+             starts: int = ..., seed: int | None = ..., robot: Robot | None = ...,
+             progress: Callable[[int, int, str], None] | None = ..., loss: str = ...
+             ) -> PoseIdentification: ...
+
+
+@overload
+def identify(campaign: str | os.PathLike, formulation: str | None = ..., method: str = ...,
+             starts: int = ..., seed: int | None = ..., robot: Robot | None = ...,
+             progress: Callable[[int, int, str], None] | None = ..., loss: str = ...
+             ) -> Identification | PoseIdentification: ...
+
+
 def identify(
-    campaign: Campaign | str | os.PathLike,
+    campaign: Campaign | PoseCampaign | str | os.PathLike,
     formulation: str | None = None,
     method: str = "trf",
     starts: int = 8,
@@ -199,16 +218,21 @@ def identify(
     robot: Robot | None = None,
     progress: Callable[[int, int, str], None] | None = None,
     loss: str = "linear",
-) -> Identification:
+) -> Identification | PoseIdentification:
     """Identify the compliant joints' stiffnesses from a campaign (A&S eq. 11-13).
 
     The function behind ``stiffness identify`` (:meth:`Identification.to_dict` is its
     ``--json`` object once :meth:`Identification.write_model` has written the model file).
+    A pose campaign (``kind = "poses"``) is identified by
+    :func:`stiffness.calibration.pose_identify.identify_poses` (the pose diagnosis with the
+    springs forced in and nothing searched), with ``loss``; it takes no ``formulation``,
+    ``method`` other than ``trf`` or ``robot``, and draws no starts.
 
     Parameters
     ----------
     campaign
-        The measurements (SI), or the path of a ``campaign.toml`` (or of its folder).
+        The measurements (SI), or the path of a ``campaign.toml`` (or of its folder), of
+        either kind.
     formulation
         ``conventional``, ``enhanced`` or ``exact``; default the campaign's baseline.
     method
@@ -233,8 +257,9 @@ def identify(
 
     Returns
     -------
-    Identification
-        Best solution over all starts and methods, with its uncertainty.
+    Identification or PoseIdentification
+        Best solution over all starts and methods, with its uncertainty (a pose campaign:
+        the springs' stiffnesses with the pose fit behind them).
 
     Raises
     ------
@@ -242,12 +267,14 @@ def identify(
         Unknown formulation, method or loss (or a robust loss with ``lm``), fewer than one
         start, too few residuals (``lm`` needs
         at least as many residuals as stiffnesses; without a declared noise, sigma needs more
-        residuals than stiffnesses), or a row whose configuration cannot be assembled.
+        residuals than stiffnesses), or a row whose configuration cannot be assembled; a
+        ``formulation``, a ``method`` other than ``trf`` or a ``robot`` with a pose campaign.
     """
-    if isinstance(campaign, str | os.PathLike) and campaign_kind(campaign) == "poses":
-        raise CampaignKindError(f"{campaign} is a pose campaign: identify fits joint stiffness "
-                                "to deflection campaigns; calibrate it with `stiffness diagnose "
-                                f"{campaign} --families joint_compliance`", kind="poses")
+    if isinstance(campaign, PoseCampaign) or (
+            not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
+        _check_pose_options(formulation, method, robot)
+        return identify_poses(campaign if isinstance(campaign, PoseCampaign)
+                              else load_pose_campaign(campaign), loss=loss)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     formulation = campaign.baseline if formulation is None else formulation
@@ -358,6 +385,20 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         outlier_sigma_m=flag_sigma,
         stiffness_coordinates=rob.stiffness_coordinates,
     )
+
+
+def _check_pose_options(formulation: str | None, method: str, robot: Robot | None) -> None:
+    """Refuse the options a pose campaign does not take (one line each): its model is the
+    sag's exact fixed point under its own robot, fitted by the pose engine."""
+    if formulation is not None:
+        raise StiffnessError(f"--formulation {formulation}: a pose campaign's springs are "
+                             "fitted at the sag's exact fixed point; drop --formulation")
+    if method != "trf":
+        raise StiffnessError(f"--method {method}: a pose campaign is fitted by the pose "
+                             "engine's trust-region solver; drop --method")
+    if robot is not None:
+        raise StiffnessError("robot=: a pose campaign names its robot in campaign.toml; "
+                             "drop robot=")
 
 
 def _check_options(formulation: str, method: str, starts: int, loss: str = "linear") -> None:

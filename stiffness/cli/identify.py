@@ -10,7 +10,9 @@ condition number of the problem and the stiffnesses the data cannot determine. N
 written unless ``--out`` is given, as for ``diagnose``: ``--out DIR`` writes
 ``DIR/identified-model.json`` (the folder made if missing, as ``diagnose --out DIR`` writes its
 files in a folder), ``--out FILE.json`` that file. ``--json`` prints one JSON object instead of
-the table.
+the table. A pose campaign's springs are fitted with its measuring frame and markers
+(:func:`stiffness.calibration.pose_identify.identify_poses`); ``--out`` then writes the pose
+model file.
 """
 
 from __future__ import annotations
@@ -19,13 +21,16 @@ import argparse
 import json
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
+from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.identification import Identification
 from stiffness.calibration.identify import FORMULATIONS, METHODS, MODEL_FILE, identify
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
+from stiffness.errors import StiffnessError
 from stiffness.files import output_folder
 
 
@@ -37,12 +42,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="deflection model: conventional (J K^-1 J^T F), enhanced "
                              "(J (K - K_C)^-1 J^T F, A&S eq. 10) or exact (elastostatic "
                              "equilibrium, slower); default: the campaign's baseline")
-    parser.add_argument("--method", choices=METHODS, default="trf",
+    parser.add_argument("--method", choices=METHODS,
                         help="least-squares solver: trf, lm (Levenberg-Marquardt) or both; "
-                             "default trf")
-    parser.add_argument("--starts", type=int, default=8,
+                             "default trf (deflection campaigns)")
+    parser.add_argument("--starts", type=int,
                         help="number of starts: the paper's 1e8 N.mm/rad then log-uniform "
-                             "random starts over 1e2..1e8 N.m/rad; default 8")
+                             "random starts over 1e2..1e8 N.m/rad; default 8 (deflection "
+                             "campaigns)")
     flags.add_seed_flag(parser, "seed of the random starts; default 0")
     parser.add_argument("--loss", choices=LOSSES, default="linear",
                         help="linear (least squares) or a robust loss scaled by the declared "
@@ -159,14 +165,42 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.flush()
 
     path = None if args.out is None else model_path(args.out)  # a bad --out fails at once
-    result = identify(args.campaign, formulation=args.formulation, method=args.method,
-                      starts=args.starts, seed=args.seed, progress=progress if show else None,
-                      loss=args.loss)
+    if campaign_kind(args.campaign) == "poses":
+        return _run_poses(args, path)
+    result = identify(load_campaign(args.campaign), formulation=args.formulation,
+                      method=args.method or "trf", starts=8 if args.starts is None else args.starts,
+                      seed=args.seed, progress=progress if show else None, loss=args.loss)
     out = None if path is None else result.write_model(path)
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
-    else:
-        print(format_table(result))
-        print("identified model not written (--out DIR or --out FILE.json writes it)"
-              if out is None else f"identified model written to {out}")
+    _emit(args.json, result.to_dict(), lambda: format_table(result), out)
     return 0
+
+
+def _run_poses(args: argparse.Namespace, path: Path | None) -> int:
+    """``stiffness identify`` on a pose campaign: the springs with the measuring frame and
+    markers (:func:`~stiffness.calibration.pose_identify.identify_poses`)."""
+    from stiffness.calibration.pose_campaign import load_pose_campaign  # pose campaigns only
+    from stiffness.calibration.pose_identify import identify_poses
+
+    for flag, value in (("--formulation", args.formulation), ("--method", args.method),
+                        ("--starts", args.starts)):
+        if value is not None:
+            raise StiffnessError(f"{flag} takes deflection campaigns; {args.campaign} is a "
+                                 f"pose campaign, fitted at the sag's exact fixed point by "
+                                 f"the pose engine: drop {flag}")
+    show = sys.stderr.isatty() and not args.quiet
+    result = identify_poses(load_pose_campaign(args.campaign), loss=args.loss,
+                            progress=(lambda text: print(text, file=sys.stderr, flush=True))
+                            if show else None)
+    out = None if path is None else result.write_model(path)
+    _emit(args.json, result.to_dict(), result.format, out)
+    return 0
+
+
+def _emit(as_json: bool, record: dict, report: Callable[[], str], out: Path | None) -> None:
+    """Print ``record`` as JSON, or the text report and where the model went."""
+    if as_json:
+        print(json.dumps(record, indent=1, allow_nan=False))
+        return
+    print(report())
+    print("identified model not written (--out DIR or --out FILE.json writes it)"
+          if out is None else f"identified model written to {out}")

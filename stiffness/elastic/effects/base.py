@@ -118,7 +118,8 @@ class Parameter:
         """One line: ``name = value +- se unit [low, high]``, or what the parameter was held
         at and why, or that the data do not bound it."""
         if self.held:
-            return f"{self.name} not fitted (held at {self.value:.5g} {self.unit}): {self.held}"
+            at = "rigid" if math.isinf(self.value) else f"at {self.value:.5g} {self.unit}"
+            return f"{self.name} not fitted (held {at}): {self.held}"
         if self.at_bound and math.isinf(self.ci95[1]):  # a stiffness of zero compliance
             return (f"{self.name} rigid to the data: its compliance at its bound, zero (one-sided"
                     f" 95 % interval: stiffness above {self.ci95[0]:.5g} {self.unit})")

@@ -1,0 +1,150 @@
+"""Joint stiffness from a pose campaign (``stiffness identify`` on a tracker's marker positions).
+
+Identification is a diagnosis with no effects, for either campaign kind: on a deflection
+campaign the baseline's stiffnesses alone (:func:`stiffness.calibration.identify.identify`);
+on a pose campaign the pose diagnosis's baseline (measuring frame, marker offsets) with the
+springs forced in and nothing searched, :func:`~stiffness.calibration.pose_diagnose.
+diagnose_poses` with ``families=["joint_compliance"]`` and ``max_steps=0``: the same fit, the
+same naming rules and the same outlier flags as ``diagnose``. The springs' compliances ``c``
+are fitted under gravity and the applied wrench at the sag's fixed point
+(:class:`~stiffness.calibration.pose_model.PoseModel`); each spring's stiffness ``k = 1 / c``
+is reported with its compliance's 95 % interval carried to ``k``
+(:func:`~stiffness.elastic.effects.base.reciprocal`), as a deflection identification reports
+it; a compliance at its bound, zero, is "rigid to the data", its interval one-sided.
+
+The chi-square verdict says whether the nominal geometry with these springs explains the
+measured poses to their noise. Where it does not, the stiffnesses have absorbed what the model
+misses (joint offsets, joint placements, bends), and ``stiffness diagnose`` finds that.
+
+SI inside (m, N, rad, N.m/rad, N/m).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from stiffness.calibration.outliers import OUTLIER_THRESHOLD, describe_outliers
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_diagnose import (
+    PoseDiagnosis,
+    diagnose_poses,
+    parameter_table,
+    write_pose_model,
+)
+from stiffness.calibration.pose_parameters import SPRINGS
+from stiffness.elastic.effects.base import Parameter, reciprocal
+from stiffness.elastic.effects.pose_face import compliance_label
+from stiffness.files import jsonable
+
+#: A compliance's unit -> its stiffness's.
+STIFFNESS_UNITS = {"rad/(N.m)": "N.m/rad", "m/N": "N/m"}
+
+
+@dataclass
+class PoseIdentification:
+    """The springs' stiffnesses identified from a pose campaign, with the fit behind them
+    (:attr:`diagnosis`: its baseline and the forced ``joint_compliance`` step) and the model
+    file :meth:`write_model` wrote (``None`` before)."""
+
+    diagnosis: PoseDiagnosis
+    model_path: Path | None = None
+
+    @property
+    def stiffnesses(self) -> list[Parameter]:
+        """Each spring's stiffness (N.m/rad or N/m, by joint name) with its 95 % interval,
+        from its compliance's (:func:`~stiffness.elastic.effects.base.reciprocal`)."""
+        d = self.diagnosis
+        assert d.judge is not None  # every pose diagnosis has its campaign's judge
+        springs = {p.name: p for p in d.judge.parameters(d.final).get(SPRINGS, [])}
+        out = []
+        for joint in d.final.model.springs:
+            c = springs[compliance_label(joint)]
+            out.append(replace(reciprocal(c, STIFFNESS_UNITS[c.unit]), name=joint))
+        return out
+
+    def write_model(self, path: str | os.PathLike) -> Path:
+        """Write the pose model file of the fit (read by :func:`stiffness.load_model`,
+        ``validate`` and every ``--model``), atomically; :attr:`model_path` is set."""
+        d = self.diagnosis
+        self.model_path = write_pose_model(d.final, d.campaign, path, d.selection())
+        return self.model_path
+
+    def to_dict(self) -> dict:
+        """What ``stiffness identify --json`` prints for a pose campaign (SI): the keys of a
+        deflection identification where they mean the same (``joints`` with ``k``,
+        ``unit``, ``standard_error``, ``ci95``, ``relative_ci_width``, ``determined``), and
+        the pose fit's (``families``, ``parameters``, ``gof_p``, ``unexplained``)."""
+        d, fit = self.diagnosis, self.diagnosis.final
+        return jsonable({
+            "kind": "poses", "campaign": d.campaign.name,
+            "robot": {"name": d.campaign.robot.title,
+                      "compliant_joints": list(fit.model.springs)},
+            "families": d.families, "loss": d.loss,
+            "joints": [{"joint": p.name, "k": p.value, "unit": p.unit,
+                        "standard_error": p.standard_error, "ci95": list(p.ci95),
+                        "relative_ci_width": (p.ci95[1] - p.ci95[0]) / p.value,
+                        "determined": p.determined, "at_bound": p.at_bound,
+                        "held": p.held or None}
+                       for p in self.stiffnesses],
+            "undetermined_joints": [p.name for p in self.stiffnesses if not p.determined],
+            "sigma_m": fit.sigma, "sigma_source": fit.sigma_source, "rms_m": fit.rms(),
+            "gof_p": d.gof(), "unexplained": d.unexplained,
+            "n_residuals": fit.n_observed, "n_parameters": fit.n_fitted,
+            "n_rows": d.campaign.n_rows,
+            "outlier_threshold": OUTLIER_THRESHOLD, "outlier_sigma_m": d.outlier_sigma_m,
+            "outliers": [o.to_dict() for o in d.outliers],
+            "parameters": parameter_table(fit, d.judge),
+            "model_file": None if self.model_path is None else str(self.model_path)})
+
+    def format(self) -> str:
+        """The human-readable report (SI)."""
+        d, fit = self.diagnosis, self.diagnosis.final
+        c = d.campaign
+        lines = [f"pose campaign {c.name} of {c.robot.title}: {c.n_rows} poses, "
+                 f"{len(c.markers)} marker(s), {fit.n_observed} measured components, "
+                 f"{fit.n_fitted} parameters ({', '.join(d.families)}); loss {d.loss}",
+                 "the springs' stiffness with the measuring frame and markers, nothing else "
+                 "fitted (stiffness diagnose searches the rest)", ""]
+        lines += [f"  {p.text()}" for p in self.stiffnesses]
+        lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
+                      f"({fit.sigma_source}); " + _verdict(d)]
+        lines += describe_outliers(d.outliers)
+        return "\n".join(lines)
+
+
+def _verdict(d: PoseDiagnosis) -> str:
+    """Whether the springs and the nominal geometry explain the poses to their noise."""
+    p = d.gof()
+    if p is None:
+        return "noise not declared: no verdict (declare [measurement] noise_std)"
+    if not d.unexplained:
+        return f"explained to noise (chi-square p = {p:.3g})"
+    return (f"UNEXPLAINED (chi-square p = {p:.3g}): the stiffnesses absorb what the model "
+            f"misses; run stiffness diagnose {d.campaign.name} to find it")
+
+
+def identify_poses(campaign: PoseCampaign, loss: str = "linear",
+                   progress: Callable[[str], None] | None = None) -> PoseIdentification:
+    """The springs' stiffnesses from a pose campaign (module docstring).
+
+    Parameters
+    ----------
+    campaign
+        The pose campaign (SI).
+    loss
+        ``linear`` (least squares) or a robust loss of
+        :data:`~stiffness.calibration.solver.LOSSES`, as ``diagnose --loss``.
+    progress
+        Called with a line of text as each fit starts (``None``: quiet).
+
+    Raises
+    ------
+    StiffnessError
+        An unknown loss; a robot whose springs the campaign cannot load (no masses and no
+        applied wrench: ``joint_compliance`` has no parameter).
+    """
+    return PoseIdentification(diagnose_poses(campaign, loss=loss, families=[SPRINGS],
+                                             max_steps=0, progress=progress))
