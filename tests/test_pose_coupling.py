@@ -130,10 +130,12 @@ def test_sag_equals_the_exact_equilibrium(robot):
 
 
 def test_jacobian_of_the_coupled_springs_by_central_differences(robot):
-    """Every column (all families, masses known and lumped) against central differences at
-    zero compliance, where the columns are exact: to 1e-6."""
+    """Every column (all families, masses known and lumped; the bearing tilts of the chain
+    joints the springs turn, j1 to j3) against central differences at zero compliance, where
+    the columns are exact: to 1e-6."""
     rng = np.random.default_rng(1)
-    for families in (("frame", "markers", "joint_offsets", "geometry", "joint_compliance"),
+    for families in (("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
+                      "transversal_compliance"),
                      ("frame", "markers", "gravity_lumped")):
         model = PoseModel(robot, MARKERS, families, (pin.exp3(rng.normal(size=3)),
                                                      np.array([1.0, 0.5, 0.2])),
@@ -141,9 +143,15 @@ def test_jacobian_of_the_coupled_springs_by_central_differences(robot):
         rows = [model.row_terms(robot.configuration(rng.uniform(-1, 1, 4)),
                                 rng.normal(size=6) * 40) for _ in range(3)]
         scales = np.array([p.scale for p in model.parameters])
+        tilts = model.slices().get("transversal_compliance", slice(0, 0))
+        assert tilts.stop - tilts.start == (6 if "transversal_compliance" in families else 0)
         x = np.where([FAMILIES[p.family].family_kind == "elastic" for p in model.parameters],
                      0.0, rng.normal(size=model.size) * scales * 3)
         assert_columns(model, rows, x, scales, 1e-6)
+        if tilts.stop > tilts.start:  # linear in the tilts: exact at a sag too (2e-8)
+            x[model.slices()["joint_compliance"]] = 1.0 / STIFFNESS
+            x[tilts] = 2e-6
+            assert_columns(model, rows, x, scales, 1e-6, range(tilts.start, tilts.stop))
 
 
 def test_lumped_gravity_with_the_true_products_is_the_known_mass_sag(robot):
@@ -190,14 +198,19 @@ def test_hidden_controller_compliances_recovered(robot):
     cov.check()
 
 
-def test_a_family_without_parameters_is_not_a_candidate(robot):
-    """Springs on controller coordinates leave no chain joint to tilt in its bearing:
-    transversal_compliance has no parameter. Diagnose ended in a traceback ("cannot reshape
-    array of size 0", the sweep of issue 47 on the torso with a passive joint); now the family
-    is not tried, and forcing it is a one-line error."""
-    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in MARKERS]),
-                              np.zeros(4), np.zeros((4, 6)), STIFFNESS)
-    c = simulate_pose_campaign(robot, MARKERS, hidden, 8, 20e-6, seed=0)
+def test_a_family_without_parameters_is_not_a_candidate(tmp_path):
+    """A family with no parameter on a campaign is not tried, and forcing it is a one-line
+    error: the spring on U4 alone turns j4, which no marker's chain holds (the marker on
+    j3's link), so no joint a spring turns can tilt in its bearing there. Before issue 35 every
+    controller-spring robot was such a case (the tilts were looked for among the compliant
+    joints, here controller coordinates); diagnose then ended in a traceback ("cannot reshape
+    array of size 0", the sweep of issue 47 on the torso with a passive joint)."""
+    (tmp_path / "robot.toml").write_text(ROBOT)
+    u4 = load_robot(str(tmp_path / "robot.toml"), compliant_joints=["U4"])
+    fore = [m for m in MARKERS if m.name == "fore"]
+    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in fore]),
+                              np.zeros(4), np.zeros((4, 6)), STIFFNESS[:1])
+    c = simulate_pose_campaign(u4, fore, hidden, 8, 20e-6, seed=0)
     others = [f for f in CANDIDATES["known"] if f != "transversal_compliance"]
     d = diagnose_poses(c, not_families=others)
     assert d.families == ["frame", "markers"] and "transversal_compliance" not in d.rejected

@@ -87,8 +87,10 @@ class HiddenPoseErrors:
         (:func:`spring_compensator_torque`, its angle from the link's upward direction:
         :func:`~stiffness.mechanics.gravity.upward_angle`).
     transversal_compliance
-        Compliant revolute joint name (of a marker's chain, its axis a frame axis:
-        :func:`~stiffness.elastic.effects.link_bends.transversal_joints`) -> its two tilting
+        Name of a revolute joint the springs turn (a compliant joint, or a chain joint a
+        compliant controller coordinate drives: :meth:`Robot.driven_joints`) of a marker's
+        chain, its axis a frame axis
+        (:func:`~stiffness.elastic.effects.link_bends.transversal_joints`) -> its two tilting
         compliances (rad/(N.m)) about the axes of its mounting frame normal to its own (the
         simulator finds the axis itself: :func:`rotation_axis_column`).
     base_tilt
@@ -251,22 +253,23 @@ def _tilting(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors
     Raises
     ------
     StiffnessError
-        A joint that is not a compliant revolute joint of the markers' chains with its axis
+        A joint that is not a revolute joint the springs turn (a compliant joint, or a chain
+        joint a compliant controller coordinate drives) of the markers' chains with its axis
         along a frame axis.
     """
     model = robot.model
     moved = {int(j) for m in markers
              for j in model.supports[model.frames[model.getFrameId(m.frame)].parentJoint]}
     joints = {}
-    for name in robot.compliant_joints:
-        j = int(model.getJointId(name)) if model.existJointName(name) else -1
+    for name in robot.driven_joints(robot.compliant_joints):
+        j = int(model.getJointId(name))
         column = rotation_axis_column(model, j) if j in moved else None
         if column is not None:
             joints[name] = Bend(j, j, column)
     wrong = [j for j in hidden.transversal_compliance if j not in joints]
     if wrong:
-        raise StiffnessError(f"hidden transversal_compliance on {wrong}: name compliant revolute "
-                             f"joints of the markers' chains turning about a frame axis "
+        raise StiffnessError(f"hidden transversal_compliance on {wrong}: name revolute joints "
+                             f"the springs turn on the markers' chains, about a frame axis "
                              f"({', '.join(joints)})")
     return [(joints[j], np.asarray(c, dtype=float))
             for j, c in hidden.transversal_compliance.items()]

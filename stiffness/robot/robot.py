@@ -264,6 +264,21 @@ class Robot:
                     out[self.joint_v_index(m.follower), i] += m.multiplier
         return out
 
+    def driven_joints(self, names: tuple[str, ...] | list[str]) -> tuple[str, ...]:
+        """The model's joints the named coordinates or joints turn or slide, each once: the
+        named joints themselves (the names' order), then the chain joints the named controller
+        coordinates move (a non-zero entry in their columns of ``A``; a passive chain joint,
+        ``t4 = -T2 - T3``, with them), in chain order."""
+        coupling = self.coupling
+        coordinates = () if coupling is None else coupling.coordinates
+        joints = tuple(dict.fromkeys(n for n in names if n not in coordinates))
+        if coupling is None:
+            return joints
+        rates = np.array([coupling.column(n) for n in names if n in coordinates]).reshape(
+            -1, len(coupling.chain))
+        return joints + tuple(j for j, moved in zip(coupling.chain, np.any(rates != 0.0, axis=0),
+                                                    strict=True) if moved and j not in joints)
+
     def joint_values(self, coords: np.ndarray) -> tuple[tuple[str, ...], np.ndarray]:
         """The joints the coordinates set and their values (..., n) (rad or m): the
         coordinate joints themselves, or the chain joints through the ``coupling``."""

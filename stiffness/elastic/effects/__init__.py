@@ -179,7 +179,9 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
 
     ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
     ``link_compliance`` of each chain segment (:meth:`Geometry.link_segments`);
-    ``transversal_compliance`` of each compliant revolute chain joint whose axis is a frame axis
+    ``transversal_compliance`` of each revolute chain joint a compliant spring turns (the
+    joint, or the chain joints a controller coordinate drives:
+    :meth:`~stiffness.robot.robot.Robot.driven_joints`) whose axis is a frame axis
     (:attr:`Geometry.tilt_columns`); ``backlash`` and ``nonlinear_joint_stiffness`` of each
     compliant joint; then the global effects, the weight as ``gravity_preload`` with the
     ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`). An effect whose label
@@ -205,7 +207,7 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
             add(make_effect("joint_compliance", j, geo))
     for a, b in geo.link_segments():
         add(LinkCompliance(a=a, b=b, column=geo.link_columns[(a, b)]))
-    for j in model.joints:
+    for j in geo.robot.driven_joints(model.joints):
         if j in geo.tilt_columns:
             add(TransversalCompliance(a=j, b=j, column=geo.tilt_columns[j]))
     for j in model.joints:

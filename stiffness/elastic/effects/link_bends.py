@@ -321,10 +321,10 @@ class LinkCompliance(Effect, PoseFamily):
 
 def transversal_joints(model: pin.Model, frame_ids: list[int], compliant: list[int]
                        ) -> list[Link]:
-    """The compliant revolute joints of the markers' chains whose axis is a frame axis, as
-    ``Link(j, j, axis column)`` (each once, base first; :func:`joint_axis_column`); of such
-    joints whose origins coincide at the zero coordinates only the last tilts
-    (:func:`last_of_groups`)."""
+    """The revolute joints among ``compliant`` (joint ids: the joints the springs turn) of the
+    markers' chains whose axis is a frame axis, as ``Link(j, j, axis column)`` (each once,
+    base first; :func:`joint_axis_column`); of such joints whose origins coincide at the zero
+    coordinates only the last tilts (:func:`last_of_groups`)."""
     data = model.createData()
     pin.forwardKinematics(model, data, pin.neutral(model))
     tilting: set[int] = set()
@@ -405,8 +405,12 @@ class TransversalCompliance(LinkCompliance):
 
     @staticmethod
     def links(pm: PoseLayout) -> list[Link]:
-        """The model's tilting joints (:func:`transversal_joints`)."""
-        return transversal_joints(pm.robot.model, pm.frame_ids, pm.compliant)
+        """The model's tilting joints (:func:`transversal_joints`) among the joints its springs
+        turn (the compliant joints, or the chain joints of compliant controller coordinates:
+        :meth:`~stiffness.robot.robot.Robot.driven_joints`)."""
+        model = pm.robot.model
+        return transversal_joints(model, pm.frame_ids, [
+            int(model.getJointId(j)) for j in pm.robot.driven_joints(pm.springs)])
 
     @staticmethod
     def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],
