@@ -186,3 +186,29 @@ def test_campaigns_larger_than_any_rig_are_refused_at_once(configs, loads, repea
                        r"\(configs x loads per config x repeats\), more than 1e\+06"):
         simulate("ur5", kq=[3e4, 2e4, 1e4, 5e3, 5e3, 5e3], configs=configs,
                  loads_per_config=loads, repeats=repeats)
+
+
+def test_a_loaded_robot_is_simulated_as_its_source_with_its_target_and_springs(tmp_path):
+    """``simulate(robot)`` with a loaded Robot (the README: a robot or its name) simulates its
+    source with its own target and springs, and the same rows as its name and flags give; it
+    said the robot's repr was not a robot name."""
+    robot = load_robot("ur5", frame="forearm_link", target_offset=[0.1, 0.0, 0.0],
+                       compliant_joints=UR5_ARM)
+    by_object = simulate(robot, kq=[3e4, 2e4, 1.5e4], configs=2, loads_per_config=2, seed=4)
+    by_name = simulate("ur5", kq=[3e4, 2e4, 1.5e4], configs=2, loads_per_config=2, seed=4,
+                       frame="forearm_link", target_offset_m=[0.1, 0.0, 0.0],
+                       compliant_joints=UR5_ARM)
+    np.testing.assert_array_equal(by_object.campaign.deflection, by_name.campaign.deflection)
+    camp = load_campaign(by_object.write(tmp_path / "sim"))
+    assert camp.robot().target_frame == "forearm_link"
+    assert camp.robot().compliant_joints == tuple(UR5_ARM)
+
+
+def test_backlash_on_a_joint_the_loads_do_not_turn_is_refused_in_one_line():
+    """The target on wrist_3's axis (tool0): forces put no torque on it, so a backlash there
+    cannot show; refused naming the joint and the fix, instead of the exact equilibrium's
+    'did not converge ... may exceed the buckling load' (baxter's left_w2 said so)."""
+    with pytest.raises(StiffnessError, match=r"^backlash:wrist_3_joint: the forces of the "
+                       r"campaign put no torque on wrist_3_joint .*--target-offset\)$"):
+        simulate("ur5", kq=[3e4] * 6, configs=2, loads_per_config=2,
+                 effects=["backlash:wrist_3_joint=0.002"])

@@ -476,7 +476,7 @@ class Simulation:
 
 
 def simulate(
-    robot: str | None = None, kq: list[float] | np.ndarray | None = None,
+    robot: Robot | str | None = None, kq: list[float] | np.ndarray | None = None,
     effects: list[HiddenEffect | str] | None = None, configs: int = 10,
     loads_per_config: int = 4, max_force: float = 100.0, noise_std_m: float = 1e-5,
     seed: int = 0, frame: str | None = None,
@@ -494,8 +494,9 @@ def simulate(
     Parameters
     ----------
     robot
-        Robot source (shipped name, example-robot-data name, URDF path); may be omitted when
-        ``plan`` is a plan folder (its ``campaign.toml`` names the robot).
+        Robot source (shipped name, example-robot-data name, URDF path), or a loaded robot
+        (its source, with its target, springs, loops and base unless given); may be omitted
+        when ``plan`` is a plan folder (its ``campaign.toml`` names the robot).
     kq, effects
         True stiffness of each declared compliant joint (N.m/rad, N/m; default the shipped
         robot's ``k_theta_SI``); hidden effects (:class:`HiddenEffect`, or their
@@ -544,9 +545,7 @@ def simulate(
         On bad inputs (unknown effect place, non-positive stiffness, unknown pattern, no
         robot) or when no reachable pose can be found.
     """
-    given = PlannedRobot(robot, frame, None if target_offset_m is None else [
-        float(v) for v in np.asarray(target_offset_m, dtype=float).reshape(-1)],
-        None if compliant_joints is None else list(compliant_joints), loops, fixed_base)
+    given = _given_robot(robot, frame, target_offset_m, compliant_joints, loops, fixed_base)
     if plan is not None and not isinstance(plan, Plan):
         plan, given = plan_and_robot(plan, given)
     hidden = [parse_effect(e) if isinstance(e, str) else e for e in effects or []]
@@ -574,6 +573,25 @@ def simulate(
             "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
             "backlash_smoothing_Nm": smoothing, "joint_angles": joint_angles}
     return Simulation(campaign, hidden, kq, noise_std_m, effect_rms, info, baseline_error)
+
+
+def _given_robot(robot: Robot | str | None, frame: str | None,
+                 target_offset_m: np.ndarray | list[float] | None,
+                 compliant_joints: list[str] | tuple[str, ...] | None, loops: str | None,
+                 fixed_base: bool) -> PlannedRobot:
+    """The robot asked for: a source with the target, springs, loops and base given; a loaded
+    :class:`Robot` stands for its source (``Robot.name``) with its own target, springs, loop
+    file and base where they are not given (the campaign written names them)."""
+    if isinstance(robot, Robot):
+        frame = robot.target_frame if frame is None else frame
+        target_offset_m = robot.target_offset if target_offset_m is None else target_offset_m
+        compliant_joints = robot.compliant_joints if compliant_joints is None \
+            else compliant_joints
+        loops = robot.loop_file if loops is None else loops
+        robot, fixed_base = robot.name, fixed_base or robot.fixed_base
+    return PlannedRobot(robot, frame, None if target_offset_m is None else [
+        float(v) for v in np.asarray(target_offset_m, dtype=float).reshape(-1)],
+        None if compliant_joints is None else list(compliant_joints), loops, fixed_base)
 
 
 def _declared_robot(given: PlannedRobot) -> Robot:
@@ -620,6 +638,7 @@ def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect]
     truth = build_truth(declared, kq, list(hidden), units, np.zeros(len(geometry.joints)),
                         geometry)
     smoothing = row_smoothing_torques(geometry.robot, q, applied + truth.force_bias)
+    _check_backlash_turned(hidden, geometry.joints, smoothing)
     truth = build_truth(declared, kq, hidden, units, smoothing, geometry)
     clean6 = truth.deflections(q, applied, rotations=True)
     effect_rms = _effect_sizes(truth, declared, hidden, kq, units, smoothing, geometry, q,
@@ -628,6 +647,26 @@ def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect]
     baseline_error = float(np.sqrt(np.mean((clean6[:, :3] - linear) ** 2)))
     return (truth, dict(zip(geometry.joints, smoothing.tolist(), strict=True)), effect_rms,
             baseline_error, clean6)
+
+
+def _check_backlash_turned(hidden: list[HiddenEffect], joints: tuple[str, ...],
+                           smoothing: np.ndarray) -> None:
+    """Refuse a hidden backlash on a joint the rows' forces put no torque on (the target on
+    its axis: baxter's ``left_w2`` under its ``left_gripper``): it cannot show in the
+    deflections, and its dead band, smoothed over no torque, leaves the exact equilibrium
+    without a solution to round-off (Newton stalled, said to be a buckling load)."""
+    for h in hidden:
+        if h.name == "backlash" and h.where in joints and \
+                smoothing[joints.index(str(h.where))] <= SMOOTHING_FRACTION * _NO_TORQUE:
+            raise StiffnessError(
+                f"backlash:{h.where}: the forces of the campaign put no torque on {h.where} (the "
+                f"target lies on its axis), so its backlash cannot show in the deflections; "
+                "hide it on a joint the loads turn, or move the target off that axis "
+                "(--target-offset)")
+
+
+#: An RMS joint torque (N.m, N) below this is none: the round-off of a target on the axis.
+_NO_TORQUE = 1e-9
 
 
 def row_smoothing_torques(robot: Robot, q: np.ndarray, force: np.ndarray) -> np.ndarray:
@@ -643,7 +682,7 @@ def row_smoothing_torques(robot: Robot, q: np.ndarray, force: np.ndarray) -> np.
         if key not in jac:
             jac[key] = target_state(robot, robot.configuration(c)).jacobian[:3]
         torques[i] = jac[key].T @ f
-    return SMOOTHING_FRACTION * np.maximum(np.sqrt(np.mean(torques ** 2, axis=0)), 1e-9)
+    return SMOOTHING_FRACTION * np.maximum(np.sqrt(np.mean(torques ** 2, axis=0)), _NO_TORQUE)
 
 
 @dataclass
