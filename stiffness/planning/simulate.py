@@ -588,8 +588,9 @@ def _given_robot(robot: Robot | str | None, frame: str | None,
         compliant_joints = robot.compliant_joints if compliant_joints is None \
             else compliant_joints
         loops = robot.loop_file if loops is None else loops
-        robot, fixed_base = robot.name, fixed_base or robot.fixed_base
-    return PlannedRobot(robot, frame, None if target_offset_m is None else [
+        fixed_base = fixed_base or robot.fixed_base
+    source = robot.name if isinstance(robot, Robot) else robot
+    return PlannedRobot(source, frame, None if target_offset_m is None else [
         float(v) for v in np.asarray(target_offset_m, dtype=float).reshape(-1)],
         None if compliant_joints is None else list(compliant_joints), loops, fixed_base)
 
