@@ -12,7 +12,7 @@ from scipy import stats
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.naming import is_stand_in
-from stiffness.elastic.effects.base import PHYSICAL_FACTOR
+from stiffness.elastic.effects.base import PHYSICAL_FACTOR, effect_report
 from stiffness.elastic.effects.geometry import References
 from stiffness.elastic.effects.joint_laws import JointCompliance
 from stiffness.elastic.effects.measurement import ForceSensorBias
@@ -28,19 +28,20 @@ def test_a_force_bias_is_determined_against_the_load_range():
     e = ForceSensorBias()
     scale = e.scale(REFS)[0]  # 1 N per unit variable
     for se_n, determined in ((20.0, True), (30.0, False)):  # widths 78 N and 118 N
-        p = e.report(np.array([0.5, 0.0, 0.0]), np.eye(3) * (se_n / scale) ** 2, REFS,
-                     SI_UNITS, Z)[0]
+        p = effect_report(e, np.array([0.5, 0.0, 0.0]), np.eye(3) * (se_n / scale) ** 2,
+                          REFS, SI_UNITS, Z)[0]
         assert p.standard_error == pytest.approx(se_n)
         assert p.determined is determined
         assert ("narrower than" if determined else "wider than") in p.scale_note
     # an undetermined direction (infinite variance) is said so, not "inf N wide" (the pose
     # sweep of issue 47: compensator springs no pose loaded)
-    p = e.report(np.array([0.5, 0.0, 0.0]), np.diag([np.inf, 1.0, 1.0]), REFS, SI_UNITS, Z)[0]
+    p = effect_report(e, np.array([0.5, 0.0, 0.0]), np.diag([np.inf, 1.0, 1.0]), REFS, SI_UNITS,
+                      Z)[0]
     assert not p.determined and p.scale_note.startswith("no finite 95 % interval"), p.scale_note
     assert "inf" not in p.scale_note
-    big = e.report(np.array([150.0, 0.0, 0.0]), np.eye(3) * 1e-4, REFS, SI_UNITS, Z)
+    big = effect_report(e, np.array([150.0, 0.0, 0.0]), np.eye(3) * 1e-4, REFS, SI_UNITS, Z)
     assert big[0].determined and big[0].beyond_scale and is_stand_in(big)
-    small = e.report(np.array([5.0, 0.0, 0.0]), np.eye(3) * 1e-4, REFS, SI_UNITS, Z)
+    small = effect_report(e, np.array([5.0, 0.0, 0.0]), np.eye(3) * 1e-4, REFS, SI_UNITS, Z)
     assert not is_stand_in(small) and small[0].excludes_zero and not small[1].excludes_zero
 
 
@@ -50,14 +51,14 @@ def test_a_stiffness_is_determined_on_its_compliance():
     rad/(N.m) here) and its interval excludes a zero compliance only with a finite top."""
     e = JointCompliance(joint_name="j")
     c_ref = 1.0 / REFS.k_ref
-    ok = e.report(np.array([0.5]), np.array([[0.01]]), REFS, SI_UNITS, Z)[0]
+    ok = effect_report(e, np.array([0.5]), np.array([[0.01]]), REFS, SI_UNITS, Z)[0]
     assert ok.value == pytest.approx(1.0 / (0.5 * c_ref))
     assert ok.determined and ok.excludes_zero and not ok.beyond_scale
     width = 2 * Z * np.sqrt(6.0) * c_ref  # 9.6 c_ref: still within 10
     assert width < PHYSICAL_FACTOR * c_ref
-    wide = e.report(np.array([0.5]), np.array([[7.0]]), REFS, SI_UNITS, Z)[0]
+    wide = effect_report(e, np.array([0.5]), np.array([[7.0]]), REFS, SI_UNITS, Z)[0]
     assert not wide.determined and not wide.excludes_zero  # reaches zero compliance
-    soft = e.report(np.array([20.0]), np.array([[0.01]]), REFS, SI_UNITS, Z)
+    soft = effect_report(e, np.array([20.0]), np.array([[0.01]]), REFS, SI_UNITS, Z)
     assert soft[0].determined and soft[0].beyond_scale and is_stand_in(soft)
 
 

@@ -25,6 +25,7 @@ from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
 from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.base import effect_report
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.preloads import GravityCompensator
@@ -270,7 +271,7 @@ def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
         quantile = interval_quantile(NOISE, campaign.deflection.size, model.penalty_params)
         edge = interval_quantile(NOISE, campaign.deflection.size, model.penalty_params, 0.95)
         params = [*stiffness_parameters(fit, matrix, quantile, edge),
-                  *freed.report(fit.x[3:], matrix[3:, 3:], refs, SI_UNITS, quantile)]
+                  *effect_report(freed, fit.x[3:], matrix[3:, 3:], refs, SI_UNITS, quantile)]
         for p, want in zip(params, truth, strict=True):
             cov.add(p.value, p.ci95, want)
     cov.check()

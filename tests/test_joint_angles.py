@@ -25,6 +25,7 @@ from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
 from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.base import effect_report, effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import FileFormatError
@@ -108,7 +109,7 @@ def test_each_kind_of_angle_is_predicted_by_its_own_model():
         c = _sim(soft, 2, kind, 0.0, max_force=10.0).campaign
         own, made = _model(c, [("gravity_compensator", arm[3])], kind)
         wrong, _ = _model(c, [("gravity_compensator", arm[3])], other)
-        x = np.concatenate([np.log(soft[2]), made[0].variables(np.array(arm[4]), own.refs)])
+        x = np.concatenate([np.log(soft[2]), effect_variables(made[0], np.array(arm[4]), own.refs)])
         err_own = np.sqrt(np.mean((own.predict(x) - c.deflection) ** 2))
         err_wrong = np.sqrt(np.mean((wrong.predict(x) - c.deflection) ** 2))
         # measured (deflections up to 1.8 mm): link 0.89 um against 13.1 um read as motor;
@@ -121,8 +122,8 @@ def test_link_tangent_against_central_differences():
     c = _sim(arm, 3, "link", 0.0).campaign
     model, made = _model(c, [("gravity_compensator", arm[3]),
                              ("nonlinear_joint_stiffness", arm[3])], "link")
-    x = np.concatenate([np.log(arm[2]), made[0].variables(np.array(arm[4]), model.refs),
-                        made[1].variables(np.array([2e-4]), model.refs)])
+    x = np.concatenate([np.log(arm[2]), effect_variables(made[0], np.array(arm[4]), model.refs),
+                        effect_variables(made[1], np.array([2e-4]), model.refs)])
     _, jac = model.predict_with_jacobian(x)
     h = 1e-6
     for i in np.flatnonzero(model.analytic_columns):
@@ -142,7 +143,7 @@ def _fitted_parameters(arm, seed: int) -> list:
     quantile = interval_quantile(NOISE, c.deflection.size, model.penalty_params)
     edge = interval_quantile(NOISE, c.deflection.size, model.penalty_params, 0.95)
     return [*stiffness_parameters(fit, matrix, quantile, edge),
-            *comp.report(fit.x[3:], matrix[3:, 3:], model.refs, SI_UNITS, quantile)]
+            *effect_report(comp, fit.x[3:], matrix[3:, 3:], model.refs, SI_UNITS, quantile)]
 
 
 def test_a_physical_compensator_is_below_these_campaigns_and_the_true_model_covers():

@@ -19,6 +19,7 @@ import pytest
 from stiffness.calibration.selection import fit_model
 from stiffness.cli.main import main
 from stiffness.elastic.effects import candidates, make_effect
+from stiffness.elastic.effects.base import effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import load_model
@@ -61,7 +62,7 @@ def test_lumped_weight_at_the_urdf_masses_is_the_robot_weight(source, compliant,
         effect = make_effect(name, None, geo)
         model = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (effect,),
                            refs)
-        return model.predict(np.concatenate([k, effect.variables(values, refs)]))
+        return model.predict(np.concatenate([k, effect_variables(effect, values, refs)]))
 
     lumped = make_effect("gravity_lumped", None, geo)
     assert len(lumped.links) >= 3 and lumped.n_params == 4 * len(lumped.links)

@@ -24,6 +24,7 @@ from stiffness.calibration.pose_fit import campaign_settings, fit_pose_model, ro
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.base import effect_report, effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.planning.simulate import simulate
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
@@ -50,9 +51,9 @@ def ur5_campaign():
 
 def _stand_in(effect, refs, values: np.ndarray) -> bool:
     """Whether ``effect`` with SI ``values`` known to 0.1 % reads as a stand-in."""
-    u = effect.variables(values, refs)
+    u = effect_variables(effect, values, refs)
     cov = np.diag((1e-3 * np.maximum(np.abs(u), 1e-12)) ** 2)
-    return is_stand_in(effect.report(u, cov, refs, SI_UNITS, 1.96))
+    return is_stand_in(effect_report(effect, u, cov, refs, SI_UNITS, 1.96))
 
 
 def _weight_torques(robot, campaign) -> np.ndarray:

@@ -22,6 +22,7 @@ from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.identify import identify
 from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.base import effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.model_file import elastic_model_of, read_model_file
@@ -128,8 +129,8 @@ def test_effects_rotational_parts():
     # a target offset moves where the point is measured: under pure moments the rotations stay
     off = make_effect("target_offset", None, geo)
     m = base.extended(off)
-    out = m.predict(np.concatenate([x0, off.variables(np.array([0.05, -0.02, 0.03]),
-                                                      m.refs)]))
+    out = m.predict(np.concatenate([x0, effect_variables(off, np.array([0.05, -0.02, 0.03]),
+                                                         m.refs)]))
     np.testing.assert_allclose(out[:, 3:], ref[:, 3:], rtol=1e-12, atol=1e-15)
     assert np.abs(out[:, :3] - ref[:, :3]).max() > 1e-7
     # a frame misalignment turns the measured rotation like the measured translation
@@ -149,8 +150,8 @@ def test_link_compliance_rotation_matches_the_exact_simulation():
     robot = c.robot()
     link = make_effect("link_compliance", "elbow_joint->wrist_1_joint", Geometry.of(robot))
     m = _model(robot, c.q, c.force, None, (link,))
-    pred = m.predict(np.concatenate([np.log(KQ), link.variables(np.array([5e4, 5e4]),
-                                                                m.refs)]))
+    pred = m.predict(np.concatenate([np.log(KQ), effect_variables(link, np.array([5e4, 5e4]),
+                                                                  m.refs)]))
     size = np.abs(c.rotation - plain.campaign.rotation).max()
     assert size > 1e-5                          # the bend turns the frame
     assert np.abs(pred[:, 3:] - c.rotation).max() < 0.05 * size
@@ -204,7 +205,8 @@ def test_gravity_model_matches_the_exact_equilibrium():
         robot = c.robot()
         e = make_effect(h.name, h.where, Geometry.of(robot))
         m = _model(robot, c.q, c.force, None, (e,))
-        pred = m.predict(np.concatenate([np.log(KQ), e.variables(np.array(values), m.refs)]))
+        pred = m.predict(np.concatenate([np.log(KQ),
+                                         effect_variables(e, np.array(values), m.refs)]))
         bare = _model(robot, c.q, c.force, None, ()).predict(np.log(KQ))
         meas = np.hstack([c.deflection, c.rotation])
         err = np.sqrt(np.mean((pred - meas)[:, :3] ** 2))

@@ -21,6 +21,7 @@ from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import diagnose
 from stiffness.cli.main import main
 from stiffness.elastic.effects import candidates, make_effect
+from stiffness.elastic.effects.base import effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.joint_laws import ComplementaryStiffness
@@ -102,7 +103,7 @@ def test_the_fitted_tilt_is_the_exact_equilibrium_to_second_order(ur5):
         rows = geo.rows(Q[:1], force[None])
         refs = References.of(geo, rows, 2e4, np.full((1, 3), 1e-3))
         fitted = Hypothesis(geo, rows, "enhanced", ARM, (ComplementaryStiffness(), tilt), refs)
-        x = np.concatenate([np.log(K_ARM), tilt.variables(k_tilt, refs)])
+        x = np.concatenate([np.log(K_ARM), effect_variables(tilt, k_tilt, refs)])
         gaps.append(np.linalg.norm(fitted.predict(x)[0] - exact))
         shares.append(np.linalg.norm(exact - plain.at(Q[0], force).equilibrium().dx))
     slope = np.polyfit(np.log([0.25, 0.5, 1.0]), np.log(gaps), 1)[0]

@@ -19,7 +19,7 @@ import numpy as np
 from stiffness.calibration.fitting import Fit, parameter_labels
 from stiffness.calibration.naming import one_sided
 from stiffness.calibration.selection import held_ends
-from stiffness.elastic.effects.base import Parameter, stiffness_report
+from stiffness.elastic.effects.base import Parameter, effect_report, stiffness_report
 
 #: Correlation of two estimates above which holding one gives its share to the other (the
 #: held reason names it: a near alias the data do not split).
@@ -99,10 +99,10 @@ def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, u
     out = {}
     for i, e in enumerate(model.effects):
         a, b = model.offsets[i + 1], model.offsets[i + 2]
-        free = e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
-        bounded = (free if held_cov is None else
-                   e.report(fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
-        sided = (e.report(fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
+        free = effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
+        bounded = (free if held_cov is None else effect_report(
+            e, fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
+        sided = (effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
                  if any(a <= c < b for c in fit.at_bound) else free)  # one-sided at a bound
         out[e.label] = [with_bounds(fit, a + min(k, b - a - 1), p, cov,
                                     None if held_cov is None else q,

@@ -83,7 +83,7 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses
-from stiffness.elastic.effects.base import Effect, Parameter, Settings
+from stiffness.elastic.effects.base import Effect, Parameter, Settings, effect_report
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, did_you_mean
@@ -354,8 +354,8 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: f
     cov = parameter_covariance(trial, sig, measured)
     quantile = interval_quantile(sigma if fit.loss == "linear" else None, n, p)
     c = b + len(extra)
-    freed_params = freed.report(trial.x[a:c], cov[a:c, a:c], trial.model.refs, SI_UNITS,
-                                quantile)[effect.n_params:]
+    freed_params = effect_report(freed, trial.x[a:c], cov[a:c, a:c], trial.model.refs,
+                                 SI_UNITS, quantile)[effect.n_params:]
     reason = _undetermined(freed_params)
     if reason is None and trial.loss_rss <= fit.loss_rss * (1.0 + 1e-9):
         say(f"{freed.label}: {', '.join(q.name for q in freed_params)} fitted")

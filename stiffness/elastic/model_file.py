@@ -52,7 +52,7 @@ import numpy as np
 
 from stiffness.elastic.calibrated import calibrated_elastics
 from stiffness.elastic.effects import LIBRARY
-from stiffness.elastic.effects.base import Effect, Parameter, Settings
+from stiffness.elastic.effects.base import Effect, Parameter, Settings, effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.link_bends import segment
@@ -113,8 +113,7 @@ class ModelRobotError(StiffnessError):
     robot does not have."""
 
 
-# ------------------------------------------------------------------------------------------
-# the model
+# the model ----------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -312,8 +311,7 @@ class ModelFile:
         return path
 
 
-# ------------------------------------------------------------------------------------------
-# reading
+# reading ------------------------------------------------------------------------------------------
 
 
 class _Reader:
@@ -608,8 +606,7 @@ def _read_effect(r: _Reader, doc, where: str, si: bool) -> ModelEffect:
                        dict(settings), str(doc.get("description", "")))
 
 
-# ------------------------------------------------------------------------------------------
-# the elastic model of a file
+# the elastic model of a file ----------------------------------------------------------------------
 
 #: Why an effect of a kind that does not change the stiffness is not applied to K_X.
 _NOT_STIFFNESS = {"lost_motion": "lost motion: a deflection of +-half_width that does not "
@@ -768,12 +765,11 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
         values.insert(0, np.zeros(0))
     fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
     x = np.concatenate([np.log(model.k_theta)] + [
-        e.variables(v, refs) for e, v in zip(effects, values, strict=True)])
+        effect_variables(e, v, refs) for e, v in zip(effects, values, strict=True)])
     return fitted.predict(x)[0]
 
 
-# ------------------------------------------------------------------------------------------
-# deprecated names (one release)
+# deprecated names (one release) -------------------------------------------------------------------
 
 
 def _model_compliance(model: ModelFile | ElasticModel | str | os.PathLike, q: np.ndarray,

@@ -148,8 +148,8 @@ class Effect:
       settings beside its parameters derives from :class:`Settings` too);
     * its parameters: :attr:`parameter_names`, their sizes :meth:`scale` (SI value of one
       optimiser unit: ``u ~ 1`` is a sizeable effect, SI ``u * scale``) and physical scales
-      :meth:`physical_scale`, :meth:`bounds`, :meth:`start`, :meth:`report` with units and
-      its inverse :meth:`variables`;
+      :meth:`physical_scale`, :meth:`bounds`, :meth:`start`, their :meth:`units` (reported
+      by :func:`effect_report`, whose inverse is :func:`effect_variables`);
     * its contribution to a model used away from its campaign: :meth:`contribute`;
     * its part of a deflection campaign's prediction, whose Jacobian columns
       :class:`~stiffness.elastic.effects.hypothesis.Hypothesis` takes analytically where
@@ -191,8 +191,11 @@ class Effect:
     nonnegative: ClassVar[bool] = False
     #: whether the parameters are stiffnesses (N.m/rad, N/m) whose variables are their
     #: compliances in units of the baseline's mean compliance ``1 / k_ref`` (reported by
-    #: :func:`stiffness_report`, in the units :meth:`_units` names)
+    #: :func:`stiffness_report`, in the units :meth:`units` names)
     compliance_variables: ClassVar[bool] = False
+    #: the name of a dimensionless quantity reported after the parameters, the first optimiser
+    #: variable itself (:func:`effect_report`), or ""
+    relative_change: ClassVar[str] = ""
 
     # construction ----------------------------------------------------------------------------
     @classmethod
@@ -272,12 +275,6 @@ class Effect:
         :attr:`compliance_variables`, else 1)."""
         return np.full(self.n_params, 1.0 / refs.k_ref if self.compliance_variables else 1.0)
 
-    def variables(self, values: np.ndarray, refs: References) -> np.ndarray:
-        """Optimiser variables of reported SI parameter values (the inverse of :meth:`report`
-        with SI units; only the first :attr:`n_params` values are used)."""
-        values = np.asarray(values, dtype=float)[: self.n_params]
-        return (1.0 / values if self.compliance_variables else values) / self.scale(refs)
-
     # hooks ---------------------------------------------------------------------------------
     def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -313,29 +310,9 @@ class Effect:
         then the loaded minus the unloaded equilibrium (:meth:`Hypothesis.predict`)."""
         return None
 
-    # reporting ------------------------------------------------------------------------------
-    def report(self, u: np.ndarray, cov_u: np.ndarray, refs: References, units,
-               quantile: float) -> list[Parameter]:
-        """Parameters with uncertainties in the campaign's units (``units``:
-        :class:`stiffness.units.Units`). ``cov_u`` is the covariance of ``u``."""
-        scale = self.scale(refs)
-        if self.compliance_variables:
-            return [stiffness_report(name, float(u[i]), float(cov_u[i, i]), float(scale[i]),
-                                     unit, quantile)
-                    for i, (name, (unit, _)) in enumerate(
-                        zip(self.parameter_names, self._units(units), strict=True))]
-        se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
-        value = np.asarray(u, dtype=float) * scale
-        out = []
-        for name, v, s, (unit, factor), size in zip(
-                self.parameter_names, value, se, self._units(units),
-                self.physical_scale(refs), strict=True):
-            out.append(judged(name, v / factor, s / factor,
-                              ((v - quantile * s) / factor, (v + quantile * s) / factor),
-                              unit, size / factor, quantile))
-        return out
-
-    def _units(self, units) -> list[tuple[str, float]]:
+    def units(self, units) -> list[tuple[str, float]]:
+        """Each parameter's unit in the campaign's ``units`` (:class:`stiffness.units.Units`)
+        and that unit's SI value (``SI``, 1 by default)."""
         return [("SI", 1.0)] * self.n_params
 
     def describe(self) -> str:
@@ -460,3 +437,40 @@ def reciprocal(compliance: Parameter, unit: str) -> Parameter:
                      at_bound=compliance.at_bound or c <= 0, resolved=compliance.resolved,
                      beyond_scale=compliance.beyond_scale,
                      scale_note="compliance's " + compliance.scale_note)
+
+
+def effect_report(effect: Effect, u: np.ndarray, cov_u: np.ndarray, refs: References, units,
+                  quantile: float) -> list[Parameter]:
+    """``effect``'s parameters with uncertainties in the campaign's ``units``
+    (:class:`stiffness.units.Units`, :meth:`Effect.units`) from its optimiser variables ``u``
+    and their covariance ``cov_u``: stiffnesses from their compliances
+    (:attr:`Effect.compliance_variables`, :func:`stiffness_report`), the others judged against
+    their physical scales (:func:`judged`); then its relative quantity
+    (:attr:`Effect.relative_change`: the first variable, 1), if any."""
+    scale = effect.scale(refs)
+    if effect.compliance_variables:
+        return [stiffness_report(name, float(u[i]), float(cov_u[i, i]), float(scale[i]),
+                                 unit, quantile)
+                for i, (name, (unit, _)) in enumerate(
+                    zip(effect.parameter_names, effect.units(units), strict=True))]
+    se = np.sqrt(np.maximum(np.diag(cov_u), 0.0)) * scale
+    value = np.asarray(u, dtype=float) * scale
+    out = [judged(name, v / factor, s / factor,
+                  ((v - quantile * s) / factor, (v + quantile * s) / factor), unit,
+                  size / factor, quantile)
+           for name, v, s, (unit, factor), size in zip(
+               effect.parameter_names, value, se, effect.units(units),
+               effect.physical_scale(refs), strict=True)]
+    if effect.relative_change:
+        se_u, rel = math.sqrt(max(float(cov_u[0, 0]), 0.0)), float(u[0])
+        out.append(Parameter(effect.relative_change, rel, se_u,
+                             (rel - quantile * se_u, rel + quantile * se_u), "1"))
+    return out
+
+
+def effect_variables(effect: Effect, values: np.ndarray, refs: References) -> np.ndarray:
+    """``effect``'s optimiser variables of its reported SI parameter ``values`` (the inverse of
+    :func:`effect_report` with SI units; only the first :attr:`Effect.n_params` values are
+    used)."""
+    values = np.asarray(values, dtype=float)[: effect.n_params]
+    return (1.0 / values if effect.compliance_variables else values) / effect.scale(refs)

@@ -15,13 +15,12 @@ Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
 
-from stiffness.elastic.effects.base import Effect, Parameter, Settings
+from stiffness.elastic.effects.base import Effect, Settings
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
@@ -116,7 +115,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
     def adjust_law(self, p, law, column, refs):
         law.compliance[column] = p[0]
 
-    def _units(self, units):
+    def units(self, units):
         return [("N/m" if self.prismatic else "N.m/rad", 1.0)]
 
     def describe(self) -> str:
@@ -188,7 +187,7 @@ class Backlash(JointEffect, Settings, JointDeflectionFamily):
     def adjust_law(self, p, law, column, refs):
         law.backlash[column] = p[0]
 
-    def _units(self, units):
+    def units(self, units):
         if self.prismatic:
             return [(units.length, units.length_to_si)]
         return [(units.angle, units.angle_to_si)]
@@ -274,6 +273,8 @@ class NonlinearJointStiffness(JointEffect):
     through_law: ClassVar[bool] = True
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (1,)
+    #: beta times the campaign's largest torque on the joint
+    relative_change: ClassVar[str] = "relative_change_at_max_torque"
 
     def contribute(self, values, parts):
         parts.soften(self.joint_name, values[0])
@@ -290,14 +291,7 @@ class NonlinearJointStiffness(JointEffect):
     def adjust_law(self, p, law, column, refs):
         law.beta[column] = p[0]
 
-    def report(self, u, cov_u, refs, units, quantile):
-        beta = super().report(u, cov_u, refs, units, quantile)[0]
-        se_u = math.sqrt(max(float(cov_u[0, 0]), 0.0))
-        rel = float(u[0])
-        return [beta, Parameter("relative_change_at_max_torque", rel, se_u,
-                                (rel - quantile * se_u, rel + quantile * se_u), "1")]
-
-    def _units(self, units):
+    def units(self, units):
         return [("1/N" if self.prismatic else "1/(N.m)", 1.0)]
 
     def describe(self) -> str:

@@ -216,7 +216,7 @@ class LinkCompliance(Effect, PoseFamily):
     def where(self) -> str:
         return f"{self.a}->{self.b}"
 
-    def _units(self, units):
+    def units(self, units):
         return [("N.m/rad", 1.0)] * 2
 
     def bend_at(self, geometry: Geometry, rows: Rows

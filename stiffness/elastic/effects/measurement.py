@@ -40,7 +40,7 @@ class VectorEffect(Effect):
     def scale(self, refs):
         return np.full(3, 0.01)  # 10 mrad, 10 mm
 
-    def _units(self, units):
+    def units(self, units):
         return [(getattr(units, self.quantity),
                  getattr(units, f"{self.quantity}_to_si"))] * 3
 

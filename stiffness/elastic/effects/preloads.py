@@ -124,7 +124,7 @@ class GravityPreload(Effect):
         k_p += model.jw.transpose(0, 2, 1) @ (skew(f) @ skew(r)) @ model.jw
         return tau, k_g + k_p
 
-    def _units(self, units):
+    def units(self, units):
         return [("kg", 1.0)] + [(units.length, units.length_to_si)] * 3
 
     def describe(self) -> str:
@@ -331,7 +331,7 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
         k[:, column, column] = dtau
         return tau, k
 
-    def _units(self, units):
+    def units(self, units):
         return [("N/m", 1.0), ("N", 1.0)] + [(units.length, units.length_to_si)] * (
             self.n_params - 2)
 
@@ -488,7 +488,7 @@ class GravityLumped(Settings, JointDeflectionFamily):
                                "combinations of the links' masses the campaign determines, "
                                "which the robot's inertias cannot hold")
 
-    def _units(self, units):
+    def units(self, units):
         return [("kg", 1.0), ("kg.m", 1.0), ("kg.m", 1.0), ("kg.m", 1.0)] * len(self.links)
 
     def describe(self) -> str:
