@@ -32,7 +32,6 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements, mass_jacobians
-from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import skew
 from stiffness.elastic.effects.link_bends import BendCache, gravity_slope
 from stiffness.elastic.effects.pose_face import (
@@ -78,7 +77,7 @@ def tilted_gravity(gravity: np.ndarray, tilt: np.ndarray) -> tuple[np.ndarray, n
     return g_b, skew(g_b) @ pin.Jexp3(omega)[:, :2]
 
 
-class BaseTilt(Effect, JointDeflectionFamily):
+class BaseTilt(JointDeflectionFamily):
     """``base_tilt``: the two angles ``(r_x, r_y)`` (rad) between the base's z axis and the
     upward vertical, beyond any declared tilt; acts through every gravity torque. A family of
     the pose model (no deflection face, as the kinematic errors: a deflection campaign's

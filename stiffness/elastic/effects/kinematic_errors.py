@@ -17,7 +17,6 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements
-from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import References, skew
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
@@ -37,7 +36,7 @@ from stiffness.robot.calibration import (
 )
 
 
-class MeasuringFrame(Effect, PoseFamily):
+class MeasuringFrame(PoseFamily):
     """``frame``: the measuring frame's translation ``t`` (m) and rotation ``omega`` (rad)
     relative to the starting estimate: ``y = exp(omega) R_0 p + t_0 + t``."""
 
@@ -64,7 +63,7 @@ class MeasuringFrame(Effect, PoseFamily):
         return np.concatenate([np.broadcast_to(np.eye(3), turn.shape), turn], axis=-1)
 
 
-class MarkerOffsets(Effect, PoseFamily):
+class MarkerOffsets(PoseFamily):
     """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes)."""
 
     name: ClassVar[str] = "markers"
@@ -85,7 +84,7 @@ class MarkerOffsets(Effect, PoseFamily):
         return cols.reshape(turn.shape[:-1] + (x_f.size,))
 
 
-class JointOffsets(Effect, PoseFamily):
+class JointOffsets(PoseFamily):
     """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
 
     name: ClassVar[str] = "joint_offsets"
@@ -111,7 +110,7 @@ class JointOffsets(Effect, PoseFamily):
         return view.to_measuring @ view.j_point[..., pm.joints_v]
 
 
-class JointGeometry(Effect, PoseFamily):
+class JointGeometry(PoseFamily):
     """``geometry``: each 1-dof joint's placement error ``eps_j``, ``M_j exp(eps_j)``, without
     the component along its own motion (its zero offset): 5 per joint along a frame axis."""
 

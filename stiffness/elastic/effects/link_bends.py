@@ -37,7 +37,6 @@ import pinocchio as pin
 
 from stiffness.batch.linalg import cross_matrices
 from stiffness.batch.poses import JointPlacements, frame_placements
-from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
@@ -171,7 +170,7 @@ def gravity_slope(cache: BendCache, view: MarkerView) -> np.ndarray:
 
 
 @dataclass(eq=False)
-class LinkCompliance(Effect, PoseFamily):
+class LinkCompliance(PoseFamily):
     """Lumped bending of the segment ``a -> b`` at ``b``'s origin, about two normal axes.
 
     Pose face: each link of the markers' chains bends at its distal joint's origin about the

@@ -24,6 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements
+from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.geometry import References
 from stiffness.robot.robot import Robot
 
@@ -199,21 +200,17 @@ class MarkerView:
     selector: np.ndarray
 
 
-class PoseFamily:
-    """The pose-model face of an effect (a mixin of the effect's class). Hooks default to
-    contributing nothing.
+class PoseFamily(Effect):
+    """An effect with a pose-model face: a parameter family of absolute-pose models. Hooks
+    default to contributing nothing.
 
-    Class attributes: :attr:`name` (the public name: JSON keys, diagnose's output),
-    :attr:`family_kind` (one of :data:`FAMILY_KINDS`), :attr:`family_scale` (typical size of a
-    parameter, SI; scales the regressor's columns).
+    Class attributes: :attr:`family_kind` (one of :data:`FAMILY_KINDS`), :attr:`family_scale`
+    (typical size of a parameter, SI; scales the regressor's columns); its parameters are never
+    negative (lower bound 0) where :attr:`Effect.nonnegative`.
     """
 
-    name: ClassVar[str] = ""
     family_kind: ClassVar[str] = "geometric"
     family_scale: ClassVar[float] = 1e-3
-    #: whether its parameters are never negative (compliances, lost motion: lower bound 0),
-    #: as :attr:`stiffness.elastic.effects.base.Effect.nonnegative`
-    nonnegative: ClassVar[bool] = False
     #: whether the family stands in for gravity's torque (masses unknown): the springs then
     #: carry only the applied wrench's known torque
     lumps_gravity: ClassVar[bool] = False
@@ -254,7 +251,7 @@ class PoseFamily:
         :data:`POSE_PHYSICAL_FACTOR` times the typical size (0.1 m, 0.1 rad)."""
         n = len(self.family_parameters(pm))
         if self.sized_as_effect:
-            return np.resize(self.physical_scale(refs), n)  # type: ignore[attr-defined]
+            return np.resize(self.physical_scale(refs), n)
         return np.full(n, POSE_PHYSICAL_FACTOR * self.family_scale)
 
     def param(self, label: str, unit: str) -> FamilyParameter:
