@@ -143,3 +143,30 @@ def test_view_path_rows_need_no_finger_values(tmp_path):
     assert rows.shape == (2, 8) and np.all(rows[:, finger] == reference[finger])
     arm = [robot.coordinate_joints.index(j) for j in ARMS["panda"]]
     np.testing.assert_allclose(rows[1, arm], np.deg2rad([10, -40, 0, -130, 0, 92, 46]))
+
+
+def test_a_reference_posture_outside_a_revolute_limit_is_moved_by_a_turn_into_it():
+    """kinova's posture 'arm_up' has j2s6s200_joint_3 at -1.5707 rad, outside its URDF limits
+    [0.3316, 5.9516]; the reference is the same pose with that joint at -1.5707 + 2 pi (the
+    target where the loader's q0 puts it, by forward kinematics), so kx warns of no limit."""
+    import pinocchio as pin
+
+    robot = load_robot("kinova")
+    reference = reference_configuration(robot)
+    raw = robot.coordinates_of(loader_q0("kinova"))
+    joint = robot.coordinate_joints.index("j2s6s200_joint_3")
+    assert raw[joint] == pytest.approx(-1.5707)
+    expected = raw.copy()
+    expected[joint] += 2 * np.pi
+    np.testing.assert_allclose(reference.coords, expected, rtol=0, atol=1e-15)
+    assert "j2s6s200_joint_3 moved by whole turns into its limits" in reference.source
+    placed = []
+    for coords in (raw, reference.coords):
+        pin.framesForwardKinematics(robot.model, robot.data, robot.configuration(coords))
+        placed.append(robot.data.oMf[robot.target_frame_id].homogeneous.copy())
+    np.testing.assert_allclose(placed[0], placed[1], rtol=0, atol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code, _, err = run_cli(["kx", "--robot", "kinova", "--kq", ",".join(["1e5"] * 6),
+                                "--wrench", "0,0,-100", "--json"])
+    assert code == 0, err

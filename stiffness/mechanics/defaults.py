@@ -47,9 +47,10 @@ def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
     posture = robot.defaults.get("reference_posture")
     for entry in robot.model.referenceConfigurations if posture else ():
         if entry.key() == posture and entry.data().shape[0] == robot.model.nq:
-            return ReferenceConfiguration(robot.coordinates_of(np.asarray(entry.data())),
-                                          f"robot default (example-robot-data reference posture "
-                                          f"{posture!r})")
+            coords, turned = _turned_into_limits(robot, robot.coordinates_of(
+                np.asarray(entry.data())))
+            return ReferenceConfiguration(coords, f"robot default (example-robot-data reference "
+                                                  f"posture {posture!r}{turned})")
     if not robot.loop.is_open_chain or robot.coupling is not None:
         return None
     lo, hi = coordinate_limits(robot)
@@ -63,6 +64,25 @@ def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
     moved = ", ".join(np.asarray(robot.coordinate_joints)[outside])
     return ReferenceConfiguration(coords, f"zero pose with {moved} at the middle of its limits "
                                           "(zero is outside them)")
+
+
+def _turned_into_limits(robot: Robot, coords: np.ndarray) -> tuple[np.ndarray, str]:
+    """``coords`` with each revolute coordinate outside its limits turned by a multiple of
+    2 pi into them where that fits (the same pose: kinova's posture has j2s6s200_joint_3 at
+    -pi/2, its limits are [0.33, 5.95] rad), and the note saying which (empty if none)."""
+    if robot.coupling is not None:
+        return coords, ""
+    lo, hi = coordinate_limits(robot)
+    out, turned = coords.copy(), []
+    for i, name in enumerate(robot.coordinate_joints):
+        if robot.is_prismatic(name) or lo[i] <= coords[i] <= hi[i]:
+            continue
+        inside = coords[i] + 2.0 * np.pi * np.ceil((lo[i] - coords[i]) / (2.0 * np.pi))
+        if inside <= hi[i]:
+            out[i] = inside
+            turned.append(name)
+    note = f"; {', '.join(turned)} moved by whole turns into its limits" if turned else ""
+    return out, note
 
 
 def default_coordinates(robot: Robot) -> np.ndarray | None:
