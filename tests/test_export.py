@@ -266,3 +266,30 @@ def test_point_masses_export_and_sag_in_mujoco_as_in_the_exact_equilibrium(tmp_p
     assert np.linalg.norm(exact.dx) > 1e-4  # a sag worth comparing (m)
     relative = np.linalg.norm(position - exact.position) / np.linalg.norm(exact.dx)
     assert relative < 1e-6, relative
+
+
+def test_mjcf_of_a_link_with_an_impossible_inertia_compiles_with_a_warning(tmp_path):
+    """A URDF link whose principal moments break the triangle inequality (1 + 1 < 3 kg.m^2, as
+    fetch's finger links): MuJoCo refused the export ('report this with the robot file'); it
+    is balanced by MuJoCo's compiler, with a warning naming the link's joint, and still holds
+    the spring."""
+    import mujoco
+
+    from stiffness.robot.mjcf import check_mjcf
+
+    path = tmp_path / "odd.urdf"
+    path.write_text("""<?xml version="1.0"?><robot name="odd"><link name="base"/>
+  <link name="arm"><inertial><origin xyz="0.2 0 0"/><mass value="1"/>
+    <inertia ixx="1" iyy="1" izz="3" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="tip"/>
+  <joint name="swing" type="revolute"><parent link="base"/><child link="arm"/>
+    <axis xyz="0 1 0"/><limit effort="1" velocity="1" lower="-1" upper="1"/></joint>
+  <joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/>
+    <origin xyz="0.4 0 0"/></joint></robot>""")
+    robot = load_robot(path)
+    with pytest.warns(RobotFileWarning, match="the inertia of the links of swing breaks the "
+                                              "triangle inequality"):
+        xml = robot_mjcf(robot, {"swing": 123.0}, pin.neutral(robot.model))
+    check_mjcf(xml, robot.name)
+    model = mujoco.MjModel.from_xml_string(xml)
+    assert model.jnt_stiffness.tolist() == [123.0]

@@ -33,6 +33,8 @@ point mass (a DH table's link without ``inertia``) is written with the inertia o
 sphere of its mass (:func:`stiffness.robot.urdf_writer.written_inertia`); massless links (a
 purely kinematic model) are given :data:`MASSLESS_BOUND_KG` and :data:`MASSLESS_BOUND_KGM2` by
 the compiler's ``boundmass``/``boundinertia``, and a warning says so (statics do not see them).
+An inertia that breaks the triangle inequality (a robot file's error: fetch's finger links) is
+balanced by the compiler's ``balanceinertia``, with a warning naming the links.
 
 Units: SI (m, rad, kg, kg.m^2, N.m/rad, N/m).
 """
@@ -125,6 +127,16 @@ def _joint(body: etree._Element, robot: Robot, j: int, springs: dict[str, float]
     if name in springs:
         element.set("stiffness", str(float(springs[name])))
         element.set("springref", str(joint_value(joint, rest)))
+
+
+def impossible_inertia(inertia: pin.Inertia) -> bool:
+    """Whether a body's rotational inertia breaks the triangle inequality (its largest
+    principal moment above the sum of the other two: no mass distribution has it; fetch's
+    ``l_gripper_finger_link``), which MuJoCo refuses unless its compiler balances it."""
+    if inertia.mass <= 0.0:
+        return False
+    moments = np.linalg.eigvalsh(written_inertia(inertia))
+    return bool(moments[0] + moments[1] < moments[2])
 
 
 def _inertial(body: etree._Element, inertia: pin.Inertia) -> bool:
@@ -339,6 +351,16 @@ def robot_mjcf(robot: Robot, springs: dict[str, float], rest: np.ndarray) -> str
     pin.forwardKinematics(model, data, rest)
     _sites(world, robot, 0, taken)
     _bodies(world, robot, 0, plan, (rest, data), order, massless, taken)
+    impossible = [model.names[j] for j in range(1, model.njoints)
+                  if impossible_inertia(model.inertias[j])]
+    if impossible:
+        compiler.set("balanceinertia", "true")
+        warnings.warn(f"{robot.title}: the inertia of the links of {', '.join(impossible)} "
+                      "breaks the triangle inequality (a principal moment above the sum of the "
+                      "other two, which no body has); MuJoCo's balanceinertia raises the smaller "
+                      "moments "
+                      "(statics do not see them); correct the robot file's <inertia> to keep "
+                      "its own", RobotFileWarning, stacklevel=2)
     if massless:
         compiler.set("boundmass", str(MASSLESS_BOUND_KG))
         compiler.set("boundinertia", str(MASSLESS_BOUND_KGM2))
