@@ -180,7 +180,7 @@ def diagnose(
         ``linear`` or a robust loss for every fit, scaled by the noise std; criteria compare
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
     effect_settings
-        Declared settings by effect label (:meth:`Effect.declare`; :func:`_fit_settings`).
+        Declared settings by effect label (:meth:`Settings.declare`; :func:`_fit_settings`).
     masses
         Whether the robot's link masses are trusted (``known``) or not (``unknown``): the
         weight is then lumped (a pose model's ``gravity_lumped`` family; a deflection

@@ -445,7 +445,7 @@ def layout(model: Hypothesis) -> Layout:
     (every one with an effect on the data kept: their undetermined combinations are the
     covariance's, :func:`covariance`), then each effect's own variables in the order added
     (near aliases of the columns before them merged), each followed by the settings
-    :meth:`Effect.settings_freed` made parameters (a compensator's base: judged by its interval
+    :meth:`Settings.settings_freed` made parameters (a compensator's base: judged by its interval
     in diagnose, not as a near alias). Typical sizes: a compliance ``1 / k_ref``, an effect's
     variable one unit (:meth:`Effect.scale`); an absent effect is present at one unit clipped
     into its bounds."""

@@ -242,11 +242,11 @@ def layout(model: PoseModel, order: list[str]) -> Layout:
     (:class:`~stiffness.calibration.identifiability.Layout`): one group per family in
     ``order``, each parameter's typical size :attr:`FamilyParameter.scale` (at or above its
     lower bound at the representative point), and the families whose zero is an absent effect
-    (:meth:`PoseFamily.absent_at_zero`: the elastic ones and the base tilt) present at their
+    (:attr:`PoseFamily.absent_at_zero`: the elastic ones and the base tilt) present at their
     typical size there."""
     sl = model.slices()
     groups = [list(range(sl[f].start, sl[f].stop)) for f in order]
-    absent = {f.name for f in model.family_objects if f.absent_at_zero()}
+    absent = {f.name for f in model.family_objects if f.absent_at_zero}
     return Layout(groups, [True] * len(groups),
                   np.array([p.scale for p in model.parameters]),
                   np.array([max(p.scale, p.lower) for p in model.parameters]),

@@ -331,11 +331,11 @@ class Settings(Effect):
 
     def configured(self, settings: dict) -> Effect:
         """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
-        return self
+        raise NotImplementedError
 
     def file_settings(self, refs: References) -> dict:
         """Fixed settings a model file keeps beside the parameters (SI)."""
-        return {}
+        raise NotImplementedError
 
     def declare(self, settings: dict) -> Effect:
         """This effect with settings its user declared (SI).
@@ -355,8 +355,9 @@ class Settings(Effect):
 
     def settings_held(self, reason: str) -> Effect:
         """This effect with its declared settings held, and ``reason`` (one clause: why the
-        data do not determine them) recorded."""
-        return self
+        data do not determine them) recorded (an effect whose :meth:`settings_freed` frees
+        some)."""
+        raise NotImplementedError
 
 
 def undeclared(effect: Effect, settings: dict) -> Effect:

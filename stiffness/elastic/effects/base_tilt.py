@@ -87,12 +87,9 @@ class BaseTilt(JointDeflectionFamily):
     family_kind: ClassVar[str] = "geometric"
     family_scale: ClassVar[float] = 1e-3
     needs_masses: ClassVar[bool] = True
-
-    @classmethod
-    def absent_at_zero(cls) -> bool:
-        """A level base is the absent tilt: a vertical base joint carries gravity's torque
-        only once the base is tilted."""
-        return True
+    #: a level base is the absent tilt (a vertical base joint carries gravity's torque only
+    #: once the base is tilted), as the elastic families' rigid arm
+    absent_at_zero: ClassVar[bool] = True
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param("base tilt rx", "rad"), self.param("base tilt ry", "rad")]

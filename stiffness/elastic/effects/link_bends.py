@@ -246,6 +246,7 @@ class LinkCompliance(PoseFamily):
 
     # pose face ----------------------------------------------------------------------------
     family_kind: ClassVar[str] = "elastic"
+    absent_at_zero: ClassVar[bool] = True
     family_scale: ClassVar[float] = 1e-6
     needs_masses: ClassVar[bool] = True
     sized_as_effect: ClassVar[bool] = True

@@ -221,16 +221,13 @@ class PoseFamily(Effect):
     #: whether its parameters are, per joint or link, its deflection effect's own, judged by
     #: that effect's :meth:`~stiffness.elastic.effects.base.Effect.physical_scale`
     sized_as_effect: ClassVar[bool] = False
-
-    @classmethod
-    def absent_at_zero(cls) -> bool:
-        """Whether the family at zero is absent rather than the nominal robot: an elastic
-        family (a rigid arm) or one that turns gravity (a level base), whose size the other
-        families' columns depend on (identifiability judges them with it present,
-        :meth:`stiffness.calibration.identifiability.Layout.representative`). A geometric
-        correction at zero is the nominal geometry: at a typical 1 mrad a joint placement
-        error would tell apart parameters that parallel axes make one."""
-        return cls.family_kind == "elastic"
+    #: whether the family at zero is absent rather than the nominal robot: an elastic family (a
+    #: rigid arm) or one that turns gravity (a level base), whose size the other families'
+    #: columns depend on (identifiability judges them with it present,
+    #: :meth:`stiffness.calibration.identifiability.Layout.representative`). A geometric
+    #: correction at zero is the nominal geometry: at a typical 1 mrad a joint placement error
+    #: would tell apart parameters that parallel axes make one.
+    absent_at_zero: ClassVar[bool] = False
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
@@ -315,6 +312,7 @@ class JointDeflectionFamily(PoseFamily):
 
     family_kind: ClassVar[str] = "elastic"
     family_scale: ClassVar[float] = 1e-6
+    absent_at_zero: ClassVar[bool] = True
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray | None:
