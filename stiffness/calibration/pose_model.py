@@ -72,6 +72,7 @@ from stiffness.elastic.effects.pose_face import (
     SagState,
 )
 from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.robot.kinematics import frame_id
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -223,7 +224,7 @@ class PoseModel:
         if not model.existFrame(name):
             raise PoseModelError(f"marker frame {name!r} is not a frame of {self.robot.title}; "
                                  "name one of its frames in [markers]")
-        return int(model.getFrameId(name))
+        return int(frame_id(model, name))
 
     def frame_id(self, name: str) -> int:
         """Id of a robot frame by name (a typed error naming it when it is missing)."""

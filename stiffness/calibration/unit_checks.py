@@ -36,6 +36,7 @@ from stiffness.elastic.effects.geometry import reach
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
+from stiffness.robot.kinematics import frame_id
 from stiffness.robot.robot import Robot
 from stiffness.units import FORCE_UNITS, LENGTH_UNITS, Units
 
@@ -78,7 +79,7 @@ def nominal_marker_positions(robot: Robot, frames: list[str], offsets: np.ndarra
                              q: np.ndarray) -> np.ndarray:
     """(n, M, 3) positions (m, base frame) of markers on ``frames`` at ``offsets`` (M, 3) for
     each row of coordinates ``q`` (n, n_coordinates), by the robot's nominal kinematics."""
-    ids = [robot.model.getFrameId(f) for f in frames]
+    ids = [frame_id(robot.model, f) for f in frames]
     out = np.empty((len(q), len(frames), 3))
     seed = None
     for r, coords in enumerate(q):

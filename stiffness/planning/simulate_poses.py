@@ -39,6 +39,7 @@ from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.link_bends import marker_links
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.gravity import upward_angle
+from stiffness.robot.kinematics import frame_id
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -224,7 +225,7 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
     # which joint pairs are links is the fitted model's naming (the parameters it reports);
     # the axes a link bends about are this module's own (link_column, bend_axes)
     links = {f"{model.names[k.a]}->{model.names[k.b]}": (k.a, k.b)
-             for k in marker_links(model, [model.getFrameId(m.frame) for m in markers])}
+             for k in marker_links(model, [frame_id(model, m.frame) for m in markers])}
     unknown = [w for w in hidden.link_compliance if w not in links]
     if unknown:
         raise StiffnessError(f"hidden link_compliance on {unknown}: not links of the markers' "
@@ -259,7 +260,7 @@ def _tilting(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors
     """
     model = robot.model
     moved = {int(j) for m in markers
-             for j in model.supports[model.frames[model.getFrameId(m.frame)].parentJoint]}
+             for j in model.supports[model.frames[frame_id(model, m.frame)].parentJoint]}
     joints = {}
     for name in robot.driven_joints(robot.compliant_joints):
         j = int(model.getJointId(name))
@@ -308,7 +309,7 @@ def _joint_torque(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hidd
     if wrench is not None:
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
-        torque = torque + pin.getFrameJacobian(model, data, model.getFrameId(load_frame),
+        torque = torque + pin.getFrameJacobian(model, data, frame_id(model, load_frame),
                                                pin.LOCAL_WORLD_ALIGNED).T @ wrench
     for v, joint, up, (stiffness, tension) in springs.compensators:
         jm = model.joints[joint]
@@ -361,7 +362,7 @@ def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hi
     # without a payload every link bend read identities and came out NaN
     pin.forwardKinematics(model, data, q)
     pin.updateFramePlacements(model, data)
-    fid = model.getFrameId(load_frame)
+    fid = frame_id(model, load_frame)
     out = np.zeros((len(springs.links), 3))
     for n, (link, c) in enumerate(springs.links):
         p_b = data.oMi[link.b].translation
@@ -413,8 +414,8 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
         data = bent.createData()
         pin.framesForwardKinematics(bent, data, q_l)
         for k, m in enumerate(markers):
-            point = data.oMf[bent.getFrameId(m.frame)].act(hidden.marker_offsets[k])
-            orientations[i, k] = hidden.frame_rotation @ data.oMf[bent.getFrameId(m.frame)
+            point = data.oMf[frame_id(bent, m.frame)].act(hidden.marker_offsets[k])
+            orientations[i, k] = hidden.frame_rotation @ data.oMf[frame_id(bent, m.frame)
                                                                   ].rotation
             positions[i, k] = (hidden.frame_rotation @ point + hidden.frame_translation
                                + hidden.drift * i / max(n_poses - 1, 1))
@@ -440,7 +441,7 @@ def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
     carries none gets 1 (its backlash never opens)."""
     model = robot.model
     data = model.createData()
-    fid = model.getFrameId(robot.target_frame)
+    fid = frame_id(model, robot.target_frame)
     torques = np.empty((len(q), model.nv))
     for i, coords in enumerate(q):
         q_full = robot.configuration(coords)

@@ -31,6 +31,7 @@ import pinocchio as pin
 
 from stiffness.errors import FileFormatError
 from stiffness.files import looks_like_path, read_json, resolve_source
+from stiffness.robot.kinematics import frame_id
 from stiffness.robot.sources import (
     RobotSource,
     robots_directory,
@@ -298,10 +299,10 @@ def with_marker_frames(robot, cal: PoseCalibration):
     seen from it are the calibration's rigid predictions (``robot export --urdf``)."""
     model = pin.Model(robot.model)
     for k, (name, frame_name, _) in enumerate(cal.markers):
-        frame = model.frames[model.getFrameId(frame_name)]
+        frame = model.frames[frame_id(model, frame_name)]
         offset = pin.SE3(np.eye(3), cal.marker_offset(k))
         model.addFrame(pin.Frame(f"marker_{name}", frame.parentJoint,
-                                 model.getFrameId(frame_name), frame.placement * offset,
+                                 frame_id(model, frame_name), frame.placement * offset,
                                  pin.FrameType.OP_FRAME))
     rot, trans = cal.measuring_placement()
     model.addFrame(pin.Frame(MEASURING_FRAME, 0, 0, pin.SE3(rot, trans).inverse(),
