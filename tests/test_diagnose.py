@@ -154,7 +154,8 @@ def test_cli_json_and_files(tmp_path, capsys, monkeypatch):
     assert summary["unit"] == "mm" and summary["noise_std_source"] == "declared"
     assert summary["missing_effects"] == ["force_sensor_bias"]
     step = summary["steps"][0]
-    assert set(step) == {"effect", "where", "rms", "parameters", "stand_in"}
+    assert set(step) == {"effect", "where", "rms", "parameters", "stand_in",
+                         "removed"}
     assert set(step["parameters"]) == {"fx", "fy", "fz"}
     assert step["parameters"]["fx"]["unit"] == "N"
     for name in (DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -209,3 +210,47 @@ def test_max_steps_limits_the_pose_search(ur10):
         assert "max_steps" in d.stop_reason
     with pytest.raises(StiffnessError, match="non-negative integer"):
         diagnose_poses(campaign, max_steps=-1)
+
+
+def _backlash_stand_in_campaign():
+    """UR5, 20 poses, one marker, 100 N payload, soft joints (2e4..3e3 N.m/rad), 1 mm joint
+    placement errors, frame, marker and zero offsets hidden; no backlash: the greedy search
+    adds ``backlash`` first (it takes a share of the placement errors and the sag), then
+    ``geometry`` and ``joint_compliance``, after which the model is better without it."""
+    robot = load_robot("ur5", frame="tool0")
+    rng = np.random.default_rng(4)
+    eps = np.zeros((6, 6))
+    eps[:, :2] = rng.normal(0, 1e-3, (6, 2))
+    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                              np.array([m.offset for m in MARKERS]) + rng.normal(0, 2e-3, (1, 3)),
+                              rng.normal(0, 1e-3, 6), eps,
+                              stiffness=np.array([2e4, 1.5e4, 1e4, 3e3, 3e3, 3e3]))
+    return simulate_pose_campaign(robot, MARKERS, hidden, 20, NOISE, seed=4,
+                                  payload=np.array([0, 0, -100.0, 0, 0, 0]))
+
+
+def test_backward_elimination_removes_a_family_the_final_model_is_better_without():
+    """The search adds ``backlash`` first, then the hidden geometry and joint compliance;
+    backward elimination (:func:`stiffness.calibration.search.eliminate`) removes the
+    backlash again: BIC falls by more than the margin under the step's overdispersion and
+    the held-out RMS does not rise. The final model names what is hidden, the removal is a
+    step marked ``removed`` (``--json``), the stop reason says so, and how sure the diagnosis
+    is judges the final model (removing geometry or the springs costs). Forced, the
+    backlash stays."""
+    campaign = _backlash_stand_in_campaign()
+    d = diagnose_poses(campaign)
+    assert d.families == ["frame", "markers", "geometry", "joint_compliance"], d.families
+    added = [s.family for s in d.steps[1:] if not s.removed]
+    assert added[0] == "backlash" and set(added) == {"backlash", "geometry", "joint_compliance"}
+    last = d.steps[-1]
+    assert last.removed and last.family == "backlash" and last.fit is d.final
+    assert last.delta_bic < -BIC_MARGIN and last.cv_rms <= d.steps[-2].cv_rms
+    assert "backlash" not in d.final.model.families and not d.unexplained
+    assert "then removed backlash" in d.stop_reason
+    out = d.to_dict()
+    assert [s["removed"] for s in out["steps"]] == [False] * 4 + [True]
+    assert [c["effect"] for c in out["how_sure"]] == ["geometry", "joint_compliance"]
+    assert all(c["removal_delta_bic"] > 0 for c in out["how_sure"])
+    assert re.search(r"^4 +removed backlash +31 ", format_pose_report(d), re.M)
+    forced = diagnose_poses(campaign, families=["backlash"])
+    assert "backlash" in forced.families and not any(s.removed for s in forced.steps)

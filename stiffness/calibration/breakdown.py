@@ -1,8 +1,9 @@
 """Where a model and a campaign disagree: the residuals broken down by configuration, axis,
 load magnitude and sign against the noise (:func:`disagreement`), and the structure a final
 residual keeps (by load direction and row order, correlations with each joint's torque and
-angle: :func:`residual_structure`), and the summary of 3-D error norms a validation reports
-for either campaign kind (:func:`error_summary`).
+angle: :func:`residual_structure`; a pose fit's per marker, per axis and along the rows:
+:func:`marker_structure`), and the summary of 3-D error norms a validation reports for either
+campaign kind (:func:`error_summary`).
 
 Residuals in m; the breakdowns in the campaign's units.
 """
@@ -11,12 +12,17 @@ Residuals in m; the breakdowns in the campaign's units.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import fdtrc
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.elastic.effects.geometry import Rows
+
+if TYPE_CHECKING:  # a pose fit is judged here; its module imports this one
+    from stiffness.calibration.pose_campaign import PoseCampaign
+    from stiffness.calibration.pose_fit import PoseFit
 
 #: Consecutive blocks of rows (in file order) of the ``by_row_order`` breakdown.
 ROW_BLOCKS = 4
@@ -206,3 +212,25 @@ def error_summary(errors: np.ndarray, length_to_si: float) -> dict:
                 "rows": 0}
     return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
             "std_error": float(e.std()), "max_error": float(e.max()), "rows": int(e.size)}
+
+
+def marker_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:
+    """Where a pose fit's residual sits: RMS per marker and per axis, and its trend along the rows.
+
+    ``row_trend`` is the slope of each axis's residual against the row index (m per row) and
+    the correlation coefficient: a drift (temperature, tracker) shows as a strong trend.
+    """
+    r = fit.residual
+    lu = campaign.units.length_to_si
+    per_marker = {m.name: finite_rms(r[:, k]) / lu for k, m in enumerate(campaign.markers)}
+    per_axis = {a: finite_rms(r[:, :, i]) / lu for i, a in enumerate("xyz")}
+    rows = np.arange(r.shape[0], dtype=float)
+    trend = {}
+    for i, a in enumerate("xyz"):
+        values = np.nanmean(r[:, :, i], axis=1)
+        ok = np.isfinite(values)
+        if ok.sum() > 2 and np.std(values[ok]) > 0:
+            slope = float(np.polyfit(rows[ok], values[ok], 1)[0])
+            trend[a] = {"slope_per_row": slope / lu,
+                        "correlation": float(np.corrcoef(rows[ok], values[ok])[0, 1])}
+    return {"rms_by_marker": per_marker, "rms_by_axis": per_axis, "row_trend": trend}

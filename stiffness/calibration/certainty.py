@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 from stiffness.calibration.naming import STAND_IN_NOTE, alternative
-from stiffness.calibration.search import SearchKind
+from stiffness.calibration.search import Removals, SearchKind
 from stiffness.calibration.selection import information_criterion
 
 E = TypeVar("E")
@@ -89,7 +89,9 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float,
     ``final`` (held-out RMS ``cv_final``, m): its label, its step's ranking ``(label, delta
     BIC)`` best first, its own BIC change and whether it is a stand-in; removed in turn
     (:meth:`~stiffness.calibration.search.SearchKind.without`, judged held out by
-    :meth:`~stiffness.calibration.search.SearchKind.held_out_of`)."""
+    :meth:`~stiffness.calibration.search.SearchKind.held_out_of`: those the search's
+    backward elimination made of ``final``, :attr:`~stiffness.calibration.search.SearchKind.
+    removals`, read, not made again)."""
     if not named:
         return []
 
@@ -97,8 +99,10 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float,
         rss, p = kind.terms(fit)
         return information_criterion(rss, kind.n, p, kind.sigma)
 
-    without = kind.without(final)
+    out = kind.removals
+    if out is None or out.final is not final:
+        out = kind.removals = Removals(final, kind.without(final), {})
     return [Certainty(label, cv - cv_final, bic(fit) - bic(final),
                       *alternative(ranking, label, delta), stand_in)
             for (label, ranking, delta, stand_in), fit, cv
-            in zip(named, without, kind.held_out_of(without), strict=True)]
+            in zip(named, out.fits, out.held_out(kind, range(len(out.fits))), strict=True)]

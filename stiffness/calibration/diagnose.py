@@ -17,9 +17,12 @@
    cross-validate the best over configurations (leave-one-configuration-out, or
    :data:`~stiffness.calibration.selection.CV_FOLDS`-fold over configuration labels when there
    are many) and add the first that beats the current model's; until the model fits to noise
-   or nothing helps. If the search ends with the chi-square test still rejecting, the result
-   is *unexplained* (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the
-   final residual's structure (:func:`~stiffness.calibration.breakdown.residual_structure`:
+   or nothing helps; then remove, one at a time, any effect the final model is better
+   without (BIC and cross-validation: :func:`stiffness.calibration.search.eliminate`, a
+   :class:`~stiffness.calibration.diagnosis.Step` marked ``removed``). If the search ends
+   with the chi-square test still rejecting, the result is *unexplained*
+   (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the final residual's
+   structure (:func:`~stiffness.calibration.breakdown.residual_structure`:
    by load direction and row order, correlations with each joint's torque and angle) says
    where to look.
 4. Report the RMS after each step, each added effect's parameters with standard errors and 95 %
@@ -54,7 +57,7 @@ from stiffness.calibration.deflection_parameters import (
     share,
     stiffness_parameters,
 )
-from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis, Step
+from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis, Step, kept_steps
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.naming import is_stand_in, settle
 from stiffness.calibration.outliers import (
@@ -63,7 +66,7 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
-from stiffness.calibration.search import Candidate, Stop, check_max_steps, ranked, search
+from stiffness.calibration.search import Candidate, Removals, Stop, check_max_steps, ranked, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -282,7 +285,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         (e.label, [(r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})",
                     r["delta_bic"]) for r in s.ranking], s.delta_bic,
          is_stand_in(final_parameters.get(e.label, [])))
-        for e, s in zip(final.model.effects, steps, strict=True)])
+        for e, s in zip(final.model.effects, kept_steps(steps), strict=True)])
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(
@@ -472,6 +475,7 @@ class DeflectionSearch:
     steps: list[Step] = field(default_factory=list)
     ambiguities: list[tuple[int, Found, Found, float]] = field(default_factory=list)
     dispersion: float = 1.0
+    removals: Removals[Fit] | None = None
     stops: ClassVar[dict[Stop, str]] = {
         Stop.LEFT: "no candidate left",
         Stop.BIC: f"no candidate improves BIC by more than {BIC_MARGIN:g}",
@@ -582,6 +586,22 @@ class DeflectionSearch:
 
     def held_out_of(self, fits: list[Fit]) -> list[float]:
         return cross_validate(fits, self.measured, self.folds, self.workers)
+
+    def removable(self, final: Fit) -> list[bool]:
+        """Every effect (none is forced, none acts through another)."""
+        return [True] * len(final.model.effects)
+
+    def remove(self, final: Fit, index: int, fit: Fit, delta_bic: float, cv_rms: float,
+               dispersion: float) -> str:
+        """A :class:`Step` marked ``removed``: its effect, the fit without it, its BIC (under
+        the overdispersion ``dispersion``) and change, its held-out RMS (m)."""
+        effect = final.model.effects[index]
+        sigma = None if self.sigma is None else self.sigma * math.sqrt(dispersion)
+        self.steps.append(Step(effect, fit, fit.rms(), information_criterion(
+            fit.loss_rss, self.n, fit.penalty_params, sigma), delta_bic, cv_rms, [], [],
+            dispersion, removed=True))
+        self.say(f"removed {effect.label}: RMS {fit.rms():.4g} m")
+        return effect.label
 
     def covariance(self, fit: Fit) -> tuple[np.ndarray, float]:
         """The covariance of ``fit.x`` (:func:`parameter_covariance`) and the noise std (m)

@@ -91,7 +91,8 @@ class Ambiguity:
 
 @dataclass
 class Step:
-    """One effect added.
+    """One effect added, or (``removed``) removed again by the search's backward elimination
+    (:func:`stiffness.calibration.search.eliminate`).
 
     Attributes
     ----------
@@ -111,6 +112,9 @@ class Step:
         The step's overdispersion
         (:func:`~stiffness.calibration.selection.step_criteria`): its BICs use the noise
         variance times this.
+    removed
+        Whether the step removes ``effect`` (then ``fit`` is the model without it, no
+        parameters nor ranking).
     """
 
     effect: Effect
@@ -122,6 +126,13 @@ class Step:
     parameters: list[Parameter]
     ranking: list[dict]
     dispersion: float = 1.0
+    removed: bool = False
+
+
+def kept_steps(steps: list[Step]) -> list[Step]:
+    """The steps adding the effects of the last one's model (none removed again), in order."""
+    labels = {e.label for e in steps[-1].fit.model.effects} if steps else set()
+    return [s for s in steps if not s.removed and s.effect.label in labels]
 
 
 @dataclass
@@ -144,7 +155,7 @@ class Diagnosis:
     noise_std_m, noise_std_source, noise_note
         The noise level (m), where it comes from (:data:`NOISE_SOURCES`) and what that means.
     steps
-        Effects added, in order.
+        Effects added, in order, then those removed again (:attr:`Step.removed`).
     stop_reason
         Why the search stopped.
     baseline_disagreement, final_disagreement
@@ -249,9 +260,14 @@ class Diagnosis:
                    "fail the test (see outliers)" if self.outliers else ""))
 
     @property
+    def named_steps(self) -> list[Step]:
+        """The steps adding the final model's effects (:func:`kept_steps`)."""
+        return kept_steps(self.steps)
+
+    @property
     def missing_effects(self) -> list[str]:
-        """Names of the effects added."""
-        return [s.effect.name for s in self.steps]
+        """Names of the effects of the final model (added, not removed again)."""
+        return [s.effect.name for s in self.named_steps]
 
     def to_dict(self) -> dict:
         """The object ``stiffness diagnose --json`` prints (campaign units): exactly the keys
@@ -263,7 +279,8 @@ class Diagnosis:
             "steps": [{"effect": s.effect.name, "where": s.effect.where,
                        "rms": self._len(s.rms),
                        "parameters": {p.name: p.to_dict() for p in s.parameters},
-                       "stand_in": self.stand_in(s.effect.label)}
+                       "stand_in": not s.removed and self.stand_in(s.effect.label),
+                       "removed": s.removed}
                       for s in self.steps],
             "missing_effects": self.missing_effects,
             "unexplained": self.unexplained,
@@ -428,7 +445,7 @@ def residual_plot(d: Diagnosis) -> bytes:
     sigma = d.noise_std_m / lu
     labels = d.campaign.config
     starts = [i for i in range(len(labels)) if i == 0 or labels[i] != labels[i - 1]]
-    title = "missing: " + (", ".join(s.effect.label for s in d.steps) or "nothing")
+    title = "missing: " + (", ".join(s.effect.label for s in d.named_steps) or "nothing")
     return residual_axes_png(before, after, sigma, d.unit,
                              f"{d.campaign.name}: RMS {d.baseline.rms() / lu:.3g} -> "
                              f"{d.final.rms() / lu:.3g} {d.unit} (noise {sigma:.3g}); {title}",

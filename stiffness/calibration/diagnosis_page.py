@@ -186,13 +186,21 @@ def _ambiguities(ambiguities: list[dict], unit: str) -> list[str]:
     return parts
 
 
+def _kept(steps: list[dict]) -> list[dict]:
+    """The steps (``--json`` objects) adding the final model's effects: not a removal
+    (``removed``), not removed by a later one."""
+    gone = {(s["effect"], s.get("where")) for s in steps if s.get("removed")}
+    return [s for s in steps if (s["effect"], s.get("where")) not in gone]
+
+
 def _steps(d: dict, unit: str) -> list[str]:
     """The steps' table and each step's best candidates."""
     parts: list[str] = []
     cv = d["cv_rms"]
     rows = [["0", "baseline", "", "", d["baseline_rms"], cv["baseline"]]]
     for i, (s, detail) in enumerate(zip(d["steps"], d["step_details"], strict=True)):
-        rows.append([str(i + 1), esc(s["effect"]), esc(s.get("where") or ""),
+        rows.append([str(i + 1), esc(("removed " if s.get("removed") else "") + s["effect"]),
+                     esc(s.get("where") or ""),
                      detail["delta_bic"], s["rms"], cv["steps"][i]])
     parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",
                        f"RMS ({unit})", f"cross-validated RMS ({unit})"], rows,
@@ -245,7 +253,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     title = f"Diagnosis of campaign {d['campaign']}" + (
         f" ({d['robot_name']})" if d.get("robot_name") else "")
     effects = ", ".join(f"{s['effect']} ({s['where']})" if s.get("where") else s["effect"]
-                        for s in d["steps"]) or "none"
+                        for s in _kept(d["steps"])) or "none"
     parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),
              table("What the diagnosis finds", ["quantity", "value"], [
                  ["baseline model", esc(d["baseline"])],
@@ -278,7 +286,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts += how_sure_table(d, unit)
     parts.append(heading("parameters", SECTIONS))
     rows = parameter_rows("joint stiffness", d["final_stiffness"])
-    for s in d["steps"]:
+    for s in _kept(d["steps"]):
         rows += parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
                                 s["parameters"])
     parts.append(table("Identified parameters of the final model",

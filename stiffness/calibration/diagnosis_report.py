@@ -66,19 +66,20 @@ def format_report(d: Diagnosis) -> str:
     lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
                  f"{d.cv_baseline / lu:>10.4g}")
     for i, s in enumerate(d.steps, start=1):
-        lines.append(f"{i:<5} {s.effect.name:<28} {s.effect.where or '':<30} "
+        name = f"removed {s.effect.name}" if s.removed else s.effect.name
+        lines.append(f"{i:<5} {name:<28} {s.effect.where or '':<30} "
                      f"{s.rms / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
     lines.append("")
-    if d.steps:
+    if d.named_steps:
         lines.append("identified effects (final model; 95 % intervals):")
-        for s in d.steps:
+        for s in d.named_steps:
             stand_in = f" STAND-IN: {STAND_IN_NOTE}" if d.stand_in(s.effect.label) else ""
             lines.append(f"  {s.effect.label}: {s.effect.describe()}{stand_in}")
             for p in d.final_parameters.get(s.effect.label, []):
                 lines.append(f"    {p.text()}")
-        found = [s.effect.label for s in d.steps if not d.stand_in(s.effect.label)]
+        found = [s.effect.label for s in d.named_steps if not d.stand_in(s.effect.label)]
         lines.append("missing effects: " + (", ".join(found) or "none found physical"))
-        stand_ins = [s.effect.label for s in d.steps if d.stand_in(s.effect.label)]
+        stand_ins = [s.effect.label for s in d.named_steps if d.stand_in(s.effect.label)]
         if stand_ins:
             lines.append(f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins))
         lines.append("how sure (each effect removed from the final model; the best other "

@@ -11,7 +11,9 @@ diagnose's loop (:func:`stiffness.calibration.search.search`, with :class:`PoseS
 screened by one Gauss-Newton step, the best fitted, held out by leaving one configuration out
 at a time from each fit's linearised hat matrix without refitting
 (:func:`~stiffness.calibration.pose_fit.held_out_rms`, stable on small campaigns where folds
-would leave about as many parameters as poses). The user may force families in (added first,
+would leave about as many parameters as poses), then removes any the final model is better
+without (:func:`~stiffness.calibration.search.eliminate`; a :class:`PoseStep` marked
+``removed``, never a forced family). The user may force families in (added first,
 in order) and forbid others (``diagnose --families``, ``--not``; kept in the model file's
 ``selection``). Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`).
 At the end the residual is tested against the declared noise
@@ -34,7 +36,7 @@ from typing import ClassVar
 import numpy as np
 
 from stiffness.calibration import certainty
-from stiffness.calibration.breakdown import error_summary, finite_rms
+from stiffness.calibration.breakdown import error_summary, marker_structure
 from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.naming import held_reason, is_stand_in, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
@@ -53,7 +55,7 @@ from stiffness.calibration.pose_fit import (
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
-from stiffness.calibration.search import Candidate, Stop, check_max_steps, ranked, search
+from stiffness.calibration.search import Candidate, Removals, Stop, check_max_steps, ranked, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -90,7 +92,8 @@ HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
 
 @dataclass
 class PoseStep:
-    """One step of a pose diagnosis."""
+    """One step of a pose diagnosis: a family added, or (``removed``) removed again by the
+    search's backward elimination (``fit`` then without it)."""
 
     family: str
     fit: PoseFit
@@ -99,6 +102,7 @@ class PoseStep:
     validation: dict | None = None
     forced: bool = False
     ranking: dict[str, float] = field(default_factory=dict)
+    removed: bool = False
 
 
 @dataclass
@@ -130,7 +134,7 @@ class PoseDiagnosis:
         return [] if self.search is None else certainty.how_sure(
             self.search, self.final, self.steps[-1].cv_rms,
             [(s.family, sorted(s.ranking.items(), key=lambda item: item[1]), s.delta_bic,
-              self.stand_in(s.family)) for s in self.steps[1:]])
+              self.stand_in(s.family)) for s in self.named_steps])
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -144,9 +148,15 @@ class PoseDiagnosis:
         return self.steps[-1].fit
 
     @property
+    def named_steps(self) -> list[PoseStep]:
+        """The steps adding the final model's families (none removed again), in order."""
+        return [s for s in self.steps[1:] if not s.removed
+                and s.family in self.final.model.families]
+
+    @property
     def families(self) -> list[str]:
         """Families of the final model, in the order chosen."""
-        return list(BASE_FAMILIES) + [s.family for s in self.steps[1:]]
+        return list(BASE_FAMILIES) + [s.family for s in self.named_steps]
 
     def gof(self) -> float | None:
         """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
@@ -175,7 +185,7 @@ class PoseDiagnosis:
                 "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
                            "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
-                           "forced": s.forced, **self._named(s),
+                           "forced": s.forced, "removed": s.removed, **self._named(s),
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
                 "rejected": self.rejected, "not_judged": self.not_judged,
@@ -189,7 +199,7 @@ class PoseDiagnosis:
                     [p.label for p in self.final.model.parameters]),
                 "parameters": parameter_table(self.final, self.judge),
                 "how_sure": [c.to_dict(lu) for c in self.how_sure],
-                "residual_structure": residual_structure(self.final, self.campaign)})
+                "residual_structure": marker_structure(self.final, self.campaign)})
 
     def stand_in(self, family: str) -> bool:
         """Whether the final model's ``family`` is a stand-in (its size is not physical:
@@ -201,7 +211,7 @@ class PoseDiagnosis:
     def _named(self, step: PoseStep) -> dict:
         """A step's ``parameters`` (its family's, as that step fitted them, SI) and
         ``stand_in`` (in the final model), the keys of a deflection diagnosis's steps."""
-        if self.judge is None or step.family == "baseline":
+        if self.judge is None or step.family == "baseline" or step.removed:
             return {}
         params = self.judge.parameters(step.fit)[step.family]
         return {"parameters": {p.name: p.to_dict() for p in params},
@@ -229,26 +239,9 @@ def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
             for i, p in enumerate(fit.model.parameters)]
 
 
-def residual_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:
-    """Where the residual sits: RMS per marker and per axis, and its trend along the rows.
-
-    ``row_trend`` is the slope of each axis's residual against the row index (m per row) and
-    the correlation coefficient: a drift (temperature, tracker) shows as a strong trend.
-    """
-    r = fit.residual
-    lu = campaign.units.length_to_si
-    per_marker = {m.name: finite_rms(r[:, k]) / lu for k, m in enumerate(campaign.markers)}
-    per_axis = {a: finite_rms(r[:, :, i]) / lu for i, a in enumerate("xyz")}
-    rows = np.arange(r.shape[0], dtype=float)
-    trend = {}
-    for i, a in enumerate("xyz"):
-        values = np.nanmean(r[:, :, i], axis=1)
-        ok = np.isfinite(values)
-        if ok.sum() > 2 and np.std(values[ok]) > 0:
-            slope = float(np.polyfit(rows[ok], values[ok], 1)[0])
-            trend[a] = {"slope_per_row": slope / lu,
-                        "correlation": float(np.corrcoef(rows[ok], values[ok])[0, 1])}
-    return {"rms_by_marker": per_marker, "rms_by_axis": per_axis, "row_trend": trend}
+def _finite(v: float) -> float | None:
+    """``v``, or ``None`` (JSON null: no bound) where it is infinite."""
+    return float(v) if math.isfinite(v) else None
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
@@ -528,6 +521,7 @@ class PoseSearch:
     not_judged: dict[str, str] = field(default_factory=dict)
     delta: dict[str, float] = field(default_factory=dict)
     full: dict[str, tuple[float, int]] = field(default_factory=dict)
+    removals: Removals[PoseFit] | None = None
     stops: ClassVar[dict[Stop, str]] = {
         Stop.LEFT: "no candidate family left",
         Stop.BIC: f"no family improves BIC by more than {BIC_MARGIN:g}",
@@ -641,10 +635,24 @@ class PoseSearch:
 
     def without(self, final: PoseFit) -> list[PoseFit]:
         frame0 = (final.model.rotation0, final.model.translation0)
-        return [_fit(self.campaign, [f for f in self.chosen if f != s.family
-                                     and s.family not in FAMILIES[f].requires],
+        return [_fit(self.campaign, [f for f in self.chosen if f != s
+                                     and s not in FAMILIES[f].requires],
                      frame0, final.model.settings, final, final.loss, self.scale)
-                for s in self.steps[1:]]
+                for s in self.chosen[len(BASE_FAMILIES):]]
+
+    def removable(self, final: PoseFit) -> list[bool]:
+        """Not forced (``--families``), no other chosen family acting through it."""
+        forced = {s.family for s in self.steps if s.forced}
+        return [f not in forced and not any(f in FAMILIES[g].requires for g in self.chosen)
+                for f in self.chosen[len(BASE_FAMILIES):]]
+
+    def remove(self, final: PoseFit, index: int, fit: PoseFit, delta_bic: float,
+               cv_rms: float, dispersion: float) -> str:
+        family = self.chosen.pop(len(BASE_FAMILIES) + index)
+        self.steps.append(PoseStep(family, fit, delta_bic, cv_rms,
+                                   _validation(fit, self.validate), removed=True))
+        self.say(f"removed {family}: the model is better without it")
+        return family
 
     def held_out_of(self, fits: list[PoseFit]) -> list[float]:
         return [held_out_rms(fit, self.campaign) for fit in fits]
@@ -656,14 +664,6 @@ class PoseSearch:
         base, bics, _ = step_criteria(self.terms(current), list(terms.values()), self.n,
                                       self.sigma)
         return {f: b - base for f, b in zip(terms, bics, strict=True)}
-
-
-def not_added(rejected: dict[str, float], not_judged: dict[str, str]) -> str:
-    """The families tried and not added, each with its last BIC change, or why the search
-    dropped it without judging it (a screened BIC change of a fit that could not be made is
-    no verdict)."""
-    return ", ".join(f"{f} ({not_judged[f]})" if f in not_judged else f"{f} ({v:+.3g})"
-                     for f, v in rejected.items())
 
 
 def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:

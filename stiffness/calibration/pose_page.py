@@ -12,7 +12,6 @@ import io
 import numpy as np
 
 from stiffness.calibration.diagnosis_page import how_sure_table, outliers_section
-from stiffness.calibration.pose_diagnose import not_added
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -34,6 +33,14 @@ SECTIONS = {"summary": "Summary", "provenance": "Provenance", "steps": "Steps",
             "outliers": "Poses flagged as outliers", "reproduce": "Reproduce"}
 #: The figure's file name inside the page (embedded, not written beside it).
 STAGE_FIGURE = "stages.png"
+
+
+def not_added(rejected: dict[str, float], not_judged: dict[str, str]) -> str:
+    """The families tried and not added, each with its last BIC change, or why the search
+    dropped it without judging it (a screened BIC change of a fit that could not be made is
+    no verdict)."""
+    return ", ".join(f"{f} ({not_judged[f]})" if f in not_judged else f"{f} ({v:+.3g})"
+                     for f, v in rejected.items())
 
 
 def stage_plot(d: dict) -> bytes | None:
@@ -125,7 +132,8 @@ def _how_sure(d: dict) -> list[str]:
         return how_sure_table(d, unit)
     steps = d["steps"]
     rows = [[esc(s["family"]), s["delta_bic"], steps[i - 1]["cv_rms"] - s["cv_rms"]]
-            for i, s in enumerate(steps) if i > 0]
+            for i, s in enumerate(steps) if i > 0 and s["family"] in d["families"]
+            and not s.get("removed")]
     if not rows:
         return ["<p>No effect named beyond the tracker placement and the marker offsets.</p>"]
     return [table("The evidence for each named family when it was added",
@@ -169,7 +177,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                  "RMS over all residual components, in the campaign's length unit."),
              contents(SECTIONS), heading("provenance", SECTIONS), provenance_block(prov),
              heading("steps", SECTIONS)]
-    rows = [[str(i), esc(s["family"]), s["n_parameters"], s["delta_bic"], s["rms"],
+    rows = [[str(i), esc(("removed " if s.get("removed") else "") + s["family"]),
+             s["n_parameters"], s["delta_bic"], s["rms"],
              s["cv_rms"]] for i, s in enumerate(d["steps"])]
     parts.append(table("Families added one at a time",
                        ["step", "family", "parameters", "ΔBIC", f"RMS ({unit})",

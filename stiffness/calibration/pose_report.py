@@ -8,17 +8,16 @@ import math
 import os
 from pathlib import Path
 
+from stiffness.calibration.breakdown import marker_structure
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnose import (
     PoseDiagnosis,
-    not_added,
     parameter_table,
-    residual_structure,
     write_pose_model,
 )
-from stiffness.calibration.pose_page import render_pose_diagnosis, stage_plot
+from stiffness.calibration.pose_page import not_added, render_pose_diagnosis, stage_plot
 from stiffness.calibration.residual_figures import marker_residual_plots
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
@@ -33,15 +32,18 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     c = d.campaign
     unit, lu = c.units.length, c.units.length_to_si
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
-    w = max(18, *(len(s.family) + 2 for s in d.steps))  # the family column: the longest name
+    names = [f"removed {s.family}" if s.removed else s.family + (" *" if s.forced else "")
+             for s in d.steps]
+    w = max(18, *(max(len(s.family) + 2, len(name))  # the family column: the longest name
+                  for s, name in zip(d.steps, names, strict=True)))
     lines = [f"pose campaign {c.name} of {c.robot.title}: {c.n_rows} rows, "
              f"{len(c.markers)} marker(s) ({', '.join(m.name for m in c.markers)}), "
              f"{c.n_observed} measured components; noise std {noise}; masses {d.masses}; "
              f"loss {d.loss}",
              "", f"{'step':<5} {'family':<{w}} {'params':>6} {'RMS':>11} {'dBIC':>10} "
                  f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
-    for i, s in enumerate(d.steps):
-        row = (f"{i:<5} {s.family + (' *' if s.forced else ''):<{w}} {s.fit.n_fitted:>6} "
+    for i, (s, name) in enumerate(zip(d.steps, names, strict=True)):
+        row = (f"{i:<5} {name:<{w}} {s.fit.n_fitted:>6} "
                f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} "
                + (f"{s.cv_rms / lu:>11.4g}" if math.isfinite(s.cv_rms) else f"{'unbounded':>11}"))
         if s.validation:
@@ -97,7 +99,7 @@ def _verdict(d: PoseDiagnosis) -> str:
                 "cannot be said; declare [measurement] noise_std")
     if not d.unexplained:
         return f"explained to noise (chi-square p = {p:.3g})"
-    s = residual_structure(d.final, d.campaign)
+    s = marker_structure(d.final, d.campaign)
     trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
     where = ("" if trend is None else
              f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")

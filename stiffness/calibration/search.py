@@ -9,6 +9,19 @@ their undetermined parameters are held at nominal (:mod:`stiffness.calibration.n
 judged held out, and the first whose held-out RMS beats the current model's is added; else the
 search stops and says why (:class:`Stop`, in the kind's words).
 
+Then backward elimination (:func:`eliminate`): a greedy search can keep an effect that a later
+one made redundant (an early stand-in for what the later ones model). The final fit is refitted
+without each effect it added (:meth:`SearchKind.without`, except the forced ones and those
+another one acts through: :meth:`SearchKind.removable`); those whose removal lowers BIC by more
+than :data:`~stiffness.calibration.selection.BIC_MARGIN` under the same overdispersion rule
+(:func:`~stiffness.calibration.selection.step_criteria`, the final fit as the current model)
+are judged held out in BIC order, the first :data:`~stiffness.calibration.selection.CV_TOP`,
+and the first whose held-out RMS is not above the final's is removed (recorded as a step,
+:meth:`SearchKind.remove`), and so on until none is. The stop reason then says what was
+removed after the forward search stopped. The refits of the last final are kept
+(:attr:`SearchKind.removals`): how sure the diagnosis is of each effect
+(:func:`stiffness.calibration.certainty.how_sure`) reads them instead of refitting.
+
 A campaign kind is a small object (:class:`SearchKind`): its candidates and their fits, its
 reported parameters, how it settles a candidate, its held-out criterion, how it records a step
 and how it removes an added effect again (:func:`stiffness.calibration.certainty.how_sure`):
@@ -23,7 +36,7 @@ import itertools
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import ClassVar, Generic, Protocol, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -60,14 +73,34 @@ class Stop(enum.Enum):
     HELD_OUT = "none of those beats the held-out error"
 
 
+@dataclass(eq=False)
+class Removals(Generic[F]):
+    """A final fit refitted without each effect it added (:meth:`SearchKind.without`, in
+    order) and the held-out RMS (m) of those judged so far, by position."""
+
+    final: F
+    fits: list[F]
+    cv_rms: dict[int, float]
+
+    def held_out(self, kind: SearchKind[Any, F], which: Sequence[int]) -> list[float]:
+        """The held-out RMS (m) of the refits at positions ``which``, each judged once."""
+        missing = [i for i in which if i not in self.cv_rms]
+        if missing:
+            self.cv_rms.update(zip(missing, kind.held_out_of([self.fits[i] for i in missing]),
+                                   strict=True))
+        return [self.cv_rms[i] for i in which]
+
+
 class SearchKind(Protocol[E, F]):
     """What a campaign kind supplies to :func:`search`: its residual count ``n`` and noise
-    std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, and the
-    methods below."""
+    std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, the last
+    final fit's :class:`Removals` (``None`` before :func:`eliminate`), and the methods
+    below."""
 
     n: int
     sigma: float | None
     stops: ClassVar[dict[Stop, str]]
+    removals: Removals[F] | None
 
     def terms(self, fit: F) -> tuple[float, int]:
         """``fit``'s objective as a sum of squares (m^2) and its parameter count."""
@@ -99,6 +132,16 @@ class SearchKind(Protocol[E, F]):
     def held_out_of(self, fits: list[F]) -> list[float]:
         """The held-out RMS (m) of each of ``fits``."""
 
+    def removable(self, final: F) -> list[bool]:
+        """Whether each effect ``final`` added (in :meth:`without`'s order) may be removed:
+        not forced, and no other effect acts through it."""
+
+    def remove(self, final: F, index: int, fit: F, delta_bic: float, cv_rms: float,
+               dispersion: float) -> str:
+        """The step removing ``final``'s effect ``index`` recorded (``fit`` without it, its
+        BIC change under the overdispersion ``dispersion`` and its held-out RMS, m); the
+        effect's label."""
+
 
 def check_max_steps(max_steps: int | None) -> None:
     """Refuse a ``max_steps`` (``diagnose --max-steps``) that is not ``None`` or a
@@ -119,25 +162,66 @@ def check_max_steps(max_steps: int | None) -> None:
 
 def search(kind: SearchKind[E, F], current: F, cv_current: float,
            max_steps: int | None = None) -> tuple[F, str]:
-    """Add ``kind``'s candidates to ``current`` (held-out RMS ``cv_current``, m) as the
-    module docstring says; the final fit and why the search stopped."""
+    """Add ``kind``'s candidates to ``current`` (held-out RMS ``cv_current``, m), then remove
+    those the final model is better without (:func:`eliminate`), as the module docstring
+    says; the final fit and why the search stopped."""
+    final, cv_final, stop = _forward(kind, current, cv_current, max_steps)
+    final, removed = eliminate(kind, final, cv_final)
+    if removed:
+        stop += (f"; then removed {', '.join(removed)}: the final model is better without "
+                 f"(BIC lower by more than {BIC_MARGIN:g}, held-out error not higher)")
+    return final, stop
+
+
+def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: int | None
+             ) -> tuple[F, float, str]:
+    """The forward search: the last fit, its held-out RMS (m) and why it stopped."""
     added = 0
     while True:
         rss, p = kind.terms(current)
         noise = fits_to_noise(rss, kind.n, p, kind.sigma)
         if noise is not None:
-            return current, noise
+            return current, cv_current, noise
         if max_steps is not None and added >= max_steps:
-            return current, f"stopped after {max_steps} effects (max_steps)"
+            return current, cv_current, f"stopped after {max_steps} effects (max_steps)"
         ranking = kind.candidates(current)
         if ranking is None:
-            return current, kind.stops[Stop.LEFT]
+            return current, cv_current, kind.stops[Stop.LEFT]
         winner, why = _winner(kind, ranking, cv_current)
         if winner is None or winner.cv_rms is None:
             kind.reject(ranking)
-            return current, kind.stops[why]
+            return current, cv_current, kind.stops[why]
         current, cv_current = kind.accept(current, winner, ranking), winner.cv_rms
         added += 1
+
+
+def eliminate(kind: SearchKind[E, F], final: F, cv_final: float) -> tuple[F, list[str]]:
+    """Remove from ``final`` (held-out RMS ``cv_final``, m) the effects it is better without,
+    one at a time (the module docstring); the last fit and the labels removed, in order.
+    Leaves the last fit's :class:`Removals` in ``kind.removals``."""
+    removed: list[str] = []
+    while True:
+        which = [i for i, ok in enumerate(kind.removable(final)) if ok]
+        if not which:
+            return final, removed
+        out = kind.removals = Removals(final, kind.without(final), {})
+        base, bics, dispersion = step_criteria(
+            kind.terms(final), [kind.terms(out.fits[i]) for i in which], kind.n, kind.sigma)
+        delta = {i: b - base for i, b in zip(which, bics, strict=True)}
+        eligible = sorted((i for i in which if delta[i] < -BIC_MARGIN), key=delta.__getitem__)
+        drop = next((i for i in eligible[:CV_TOP] if _not_worse(
+            out.held_out(kind, [i])[0], cv_final)), None)
+        if drop is None:
+            return final, removed
+        removed.append(kind.remove(final, drop, out.fits[drop], delta[drop], out.cv_rms[drop],
+                                   dispersion))
+        final, cv_final = out.fits[drop], out.cv_rms[drop]
+
+
+def _not_worse(cv: float, cv_final: float) -> bool:
+    """Whether a held-out RMS ``cv`` (m) is not above ``cv_final`` (either NaN: no folds to
+    judge by, not held against it)."""
+    return math.isnan(cv_final) or math.isnan(cv) or cv <= cv_final
 
 
 def _winner(kind: SearchKind[E, F], ranking: list[Candidate[E, F]], cv_current: float
