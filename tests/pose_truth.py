@@ -48,6 +48,11 @@ def truth(model, hidden: HiddenPoseErrors) -> np.ndarray:
             x[labels[f"{joint} transversal compliance {k + 1}"]] = c[k]
     if hidden.base_tilt is not None and "base_tilt" in sl:
         x[sl["base_tilt"]] = hidden.base_tilt
+    if hidden.nonlinear is not None and hidden.stiffness is not None:
+        for j, beta, k in zip(model.robot.compliant_joints, hidden.nonlinear, hidden.stiffness,
+                              strict=True):
+            if f"{j} nonlinear compliance" in labels:  # gamma = c beta
+                x[labels[f"{j} nonlinear compliance"]] = beta / k
     if hidden.backlash is not None and "backlash" in sl:
         for j, b in zip(model.robot.compliant_joints, hidden.backlash, strict=True):
             if f"{j} backlash" in labels:  # a joint carrying no torque has none

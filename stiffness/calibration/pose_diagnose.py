@@ -5,9 +5,9 @@ Step 0 is the nominal rigid robot seen through a fitted measuring frame and mark
 (the tracker is anywhere; its placement is always unknown). Each later step tries the parameter
 families of :data:`CANDIDATES` (:data:`~stiffness.elastic.effects.FAMILIES`: joint
 zero offsets, joint placement geometry, and with the masses known joint compliance, link
-compliance and backlash under gravity and the applied loads, then a spring compensator once
-joint compliance is in; with the masses unknown the lumped compliance) in deflection
-diagnose's loop (:func:`stiffness.calibration.search.search`, with :class:`PoseSearch`):
+compliance and backlash under gravity and the applied loads, then a spring compensator or a
+nonlinear spring once joint compliance is in; with the masses unknown the lumped compliance) in
+deflection diagnose's loop (:func:`stiffness.calibration.search.search`, with :class:`PoseSearch`):
 screened by one Gauss-Newton step, the best fitted, held out by leaving one configuration out
 at a time from each fit's linearised hat matrix without refitting
 (:func:`~stiffness.calibration.pose_fit.held_out_rms`, stable on small campaigns where folds
@@ -77,11 +77,11 @@ from stiffness.workspace.distributed import run_chunks
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
 #: Families tried after the base, by whether the robot's masses are trusted.
-#: (link_compliance and backlash need the links' masses; gravity_compensator acts through
-#: joint_compliance and is tried once that is in: docs/absolute-poses.md.)
+#: (link_compliance and backlash need the links' masses; gravity_compensator and
+#: nonlinear_joint_stiffness act through joint_compliance, tried once it is in: absolute-poses.md)
 CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys: MASSES
                         "link_compliance", "transversal_compliance", "base_tilt", "backlash",
-                        "gravity_compensator"),
+                        "gravity_compensator", "nonlinear_joint_stiffness"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
 #: A progress-bar factory: given a label, a ``(done, total)`` callback or ``None``.
 Bar = Callable[[str], Callable[[int, int], None] | None]

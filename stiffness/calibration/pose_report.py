@@ -19,6 +19,7 @@ from stiffness.calibration.pose_diagnose import (
 )
 from stiffness.calibration.pose_page import not_added, render_pose_diagnosis, stage_plot
 from stiffness.calibration.residual_figures import marker_residual_plots
+from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_label
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
 
@@ -65,14 +66,29 @@ def format_pose_report(d: PoseDiagnosis) -> str:
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
-    for p in (p for p in parameter_table(d.final, d.judge) if p["fitted"]):
+    table = parameter_table(d.final, d.judge)
+    for p in (p for p in table if p["fitted"]):
         lo, hi = ("no bound" if v is None else f"{v:.5g}" for v in p["interval_95"])
         lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
                      f"[{lo}, {hi}]" + ("  at its lower bound" if p["at_bound"]
                                                 else "")
                      + ("" if p.get("determined", True) else
-                        f"  undetermined ({p['physical_scale']})"))
+                        f"  undetermined ({p['physical_scale']})") + _softening(p, table))
     return "\n".join(lines + _how_sure_lines(d))
+
+
+def _softening(p: dict, table: list[dict]) -> str:
+    """Beside a nonlinear spring's ``gamma``, the deflection library's ``beta = gamma / c``
+    (1/(N.m), 1/N prismatic) with its spring's compliance ``c``, where that was fitted
+    positive; else ""."""
+    if p["family"] != "nonlinear_joint_stiffness":
+        return ""
+    spring = compliance_label(p["parameter"].removesuffix(nonlinear_label("")))
+    c = next((r["value"] for r in table if r["parameter"] == spring and r["fitted"]), 0.0)
+    if not c > 0:
+        return ""
+    unit = "1/N" if p["unit"] == "m/N^2" else "1/(N.m)"
+    return f"  beta = gamma/c = {p['value'] / c:.4g} {unit}"
 
 
 def _how_sure_lines(d: PoseDiagnosis) -> list[str]:

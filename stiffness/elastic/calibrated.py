@@ -18,6 +18,11 @@ deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose 
     compensator's default geometry with its angle from the link's upward direction, as the
     calibration used them (the upward angle less the joint's zero offset: the calibrated
     robot's joint angles are the commanded ones).
+``nonlinear_joint_stiffness``
+    each determined spring's compliance per unit torque ``gamma`` (rad/(N.m)^2, m/N^2)
+    becomes the deflection library's ``beta = gamma / c`` (1/(N.m), 1/N), with the spring's
+    compliance ``c``: ``dtheta = tau / k (1 + beta |tau|)``; its standard error and interval
+    are ``gamma``'s over ``c`` (``c``'s own uncertainty left out).
 
 ``gravity_lumped`` (masses unknown) is compliance times unknown masses: no stiffness, so a
 calibration with it (and no ``joint_compliance``) has no springs. The families of
@@ -39,6 +44,7 @@ from stiffness.elastic.effects.pose_face import (
     bend_label,
     compensator_label,
     compliance_label,
+    nonlinear_label,
     tilt_label,
 )
 from stiffness.elastic.effects.preloads import GravityCompensator
@@ -106,6 +112,11 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
         if row is not None:
             out.effects.append(("backlash", joint, [_as_is(row, "half_width")],
                                 {"smoothing_torque": float(smoothing[joint])}))
+    for joint in [j for j in cal.compliant_joints if j in springs]:
+        row = rows.get(nonlinear_label(joint))
+        if row is not None and row.get("fitted", True):
+            out.effects.append(("nonlinear_joint_stiffness", joint, [
+                _softening(row, float(rows[compliance_label(joint)]["value"]))], {}))
     if {"gravity_compensator", "link_compliance", "transversal_compliance"} & set(cal.families):
         _geometry_effects(cal, rows, springs, out)
     return out
@@ -177,6 +188,16 @@ def _inverse(row: dict, name: str, unit: str) -> Parameter | None:
     ci = (1.0 / high if high is not None and high > 0 else math.nan,
           1.0 / low if low is not None and low > 0 else math.inf)
     return Parameter(name, 1.0 / c, se, ci, unit)
+
+
+def _softening(row: dict, c: float) -> Parameter:
+    """The deflection library's ``beta = gamma / c`` (1/(N.m), 1/N) of a fitted nonlinear
+    spring's row ``gamma`` and its spring's compliance ``c > 0`` (module docstring)."""
+    gamma = _as_is(row, "beta")
+    unit = "1/N" if gamma.unit == "m/N^2" else "1/(N.m)"
+    low, high = gamma.ci95
+    return Parameter("beta", gamma.value / c, gamma.standard_error / c, (low / c, high / c),
+                     unit)
 
 
 def _as_is(row: dict, name: str) -> Parameter:

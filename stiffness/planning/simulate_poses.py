@@ -6,10 +6,12 @@ The simulated truth is computed independently of the fitted model
 (``M_j exp(eps_j)``), the sag is the exact static equilibrium of joint springs under gravity and
 the applied wrench, ``K (q_l - q_c - delta_0) = J(q_l)^T w - g(q_l)`` (fixed-point iteration to
 1e-14 rad; springs on a ``[controller]``'s coordinates ``u``, ``q_chain = A u + b``, hold
-``K_u Delta u = A^T (J^T w - g)`` with ``Delta q = A Delta u``), and the measuring frame is an
-arbitrary rigid placement. Hidden elastic effects beyond the joint springs act in the same
-equilibrium: a spring compensator's torque (:func:`spring_compensator_torque`, from the
-spring's attachment points, not from the library's scalar law) joins the joint's torque,
+``K_u Delta u = A^T (J^T w - g)`` with ``Delta q = A Delta u``; a nonlinear spring's
+``Delta u = t / k (1 + beta |t|)`` at the torque ``t = A^T (J^T w - g)`` it carries), and the
+measuring frame is an arbitrary rigid placement. Hidden elastic effects beyond the joint
+springs act in the same equilibrium: a spring compensator's torque
+(:func:`spring_compensator_torque`, from the spring's attachment points, not from the
+library's scalar law) joins the joint's torque,
 backlash adds ``b tanh(tau / tau_s)`` to its deflection (``tau_s`` computed here from the
 commanded poses' torques: :func:`smoothing_torques`), and a link bend rotates the part of the
 arm beyond the link's distal joint exactly (its placement turned by ``omega``) under the moment
@@ -97,6 +99,10 @@ class HiddenPoseErrors:
     base_tilt
         ``(r_x, r_y)`` (rad): the base's z axis turned from the vertical by
         ``exp([r_x, r_y, 0])``, so the links' weight acts along ``exp(.)^T g``, or ``None``.
+    nonlinear
+        (n_compliant,) each spring's ``beta`` (1/(N.m), 1/N prismatic) of a nonlinear spring,
+        ``Delta u = t / k (1 + beta |t|)`` with ``t`` the torque it carries (``beta > 0``
+        softens, ``< 0`` hardens; the deflection library's law), or ``None``: linear springs.
     """
 
     frame_rotation: np.ndarray
@@ -111,6 +117,7 @@ class HiddenPoseErrors:
     compensator: dict[str, np.ndarray] = field(default_factory=dict)
     transversal_compliance: dict[str, np.ndarray] = field(default_factory=dict)
     base_tilt: np.ndarray | None = None
+    nonlinear: np.ndarray | None = None
 
 
 def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
@@ -136,6 +143,8 @@ class HiddenElasticity:
         for springs on joints: :meth:`Robot.rate_projection`).
     stiffness
         (n_compliant,) spring stiffness.
+    beta
+        (n_compliant,) each spring's softening (1/(N.m), 1/N; 0: linear).
     backlash, smoothing
         (n_compliant,) backlash half-widths and smoothing torques.
     compensators
@@ -147,6 +156,7 @@ class HiddenElasticity:
 
     spring_map: np.ndarray
     stiffness: np.ndarray
+    beta: np.ndarray
     backlash: np.ndarray
     smoothing: np.ndarray
     compensators: list[tuple[int, int, float, np.ndarray]]
@@ -239,6 +249,7 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
              for w, c in hidden.link_compliance.items()]
     return HiddenElasticity(
         robot.rate_projection(robot.compliant_joints), np.asarray(hidden.stiffness, dtype=float),
+        np.zeros(n) if hidden.nonlinear is None else np.asarray(hidden.nonlinear, dtype=float),
         np.zeros(n) if hidden.backlash is None else np.asarray(hidden.backlash, dtype=float),
         np.array([smoothing.get(j, 1.0) for j in names]),
         [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
@@ -290,7 +301,7 @@ def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticit
         q = pin.integrate(bent, q_command, dv)
         torque = _joint_torque(bent, data, q, springs, wrench, load_frame)
         tau = springs.spring_map.T @ torque  # the torque each spring carries
-        new = springs.spring_map @ (tau / springs.stiffness
+        new = springs.spring_map @ (tau / springs.stiffness * (1.0 + springs.beta * np.abs(tau))
                                     + springs.backlash * np.tanh(tau / springs.smoothing))
         new_bends = _bend_rotations(bent, data, q, springs, wrench, load_frame)
         change = max(np.max(np.abs(new - dv)), np.max(np.abs(new_bends - bends), initial=0.0))

@@ -77,12 +77,13 @@ The pose model's families (:data:`FAMILIES`, in column order; docs/absolute-pose
 ``frame``, ``markers``, ``joint_offsets``, ``geometry`` (geometric:
 :mod:`~stiffness.elastic.effects.kinematic_errors`); ``base_tilt`` (geometric, through every
 gravity torque: :mod:`~stiffness.elastic.effects.base_tilt`); ``joint_compliance``,
-``gravity_lumped`` (masses unknown), ``link_compliance``, ``backlash``, ``gravity_compensator``
-(elastic, the same classes as the deflection effects of those names);
-``transversal_compliance`` (elastic, a joint tilting in its bearing:
-:mod:`~stiffness.elastic.effects.link_bends`, also a deflection effect). ``base_tilt``,
-``link_compliance``, ``transversal_compliance`` and ``backlash`` need the links' masses (not
-with ``gravity_lumped``); ``gravity_compensator`` acts through ``joint_compliance``.
+``gravity_lumped`` (masses unknown), ``link_compliance``, ``backlash``,
+``nonlinear_joint_stiffness``, ``gravity_compensator`` (elastic, the same classes as the
+deflection effects of those names); ``transversal_compliance`` (elastic, a joint tilting in its
+bearing: :mod:`~stiffness.elastic.effects.link_bends`, also a deflection effect).
+``base_tilt``, ``link_compliance``, ``transversal_compliance``, ``backlash`` and
+``nonlinear_joint_stiffness`` need the links' masses (not with ``gravity_lumped``);
+``gravity_compensator`` and ``nonlinear_joint_stiffness`` act through ``joint_compliance``.
 
 Units: SI inside (m, N, rad, N.m/rad).
 """

@@ -4,10 +4,11 @@
 
 Each class carries its prediction hooks (:class:`stiffness.elastic.effects.base.Effect`) and
 its contribution to a model used away from its campaign (:meth:`Effect.contribute`);
-``joint_compliance`` and ``backlash`` also their pose-model face
-(:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every compliant joint
-of a pose model, under gravity and the applied wrench, their part of the joints' deflection in
-the sag's fixed point, :meth:`stiffness.calibration.pose_model.PoseModel.loaded_configuration`).
+``joint_compliance``, ``backlash`` and ``nonlinear_joint_stiffness`` also their pose-model
+face (:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every compliant
+joint of a pose model, under gravity and the applied wrench, their part of the joints'
+deflection in the sag's fixed point,
+:meth:`stiffness.calibration.pose_model.PoseModel.loaded_configuration`).
 
 Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
 """
@@ -21,15 +22,17 @@ from typing import ClassVar
 import numpy as np
 
 from stiffness.elastic.effects.base import Effect, Settings
-from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry
+from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry, References
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
+    NONLINEAR_SETTING,
     FamilyParameter,
     JointDeflectionFamily,
     PoseLayout,
     SagState,
     backlash_label,
     compliance_label,
+    nonlinear_label,
 )
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 
@@ -263,11 +266,30 @@ class Backlash(JointEffect, Settings, JointDeflectionFamily):
         return out
 
 
-
 @dataclass(eq=False)
-class NonlinearJointStiffness(JointEffect):
-    """``dtheta = tau / k (1 + beta |tau|)``: the spring softens (beta > 0) or hardens."""
+class NonlinearJointStiffness(JointEffect, JointDeflectionFamily):
+    """``dtheta = tau / k (1 + beta |tau|)``: the spring softens (beta > 0) or hardens.
 
+    Pose face: on each spring, ``Delta u_j += gamma_j t_j |t_j|`` with ``t = S^T tau`` the
+    torque the spring carries and ``Delta q = S Delta u`` (``S``:
+    :attr:`PoseLayout.spring_map`, the unit columns for springs on joints), so that with
+    ``joint_compliance``'s ``c_j t_j`` the spring's secant compliance is ``c_j + gamma_j
+    |t_j|``. The parameter is ``gamma_j = c_j beta_j`` (rad/(N.m)^2, m/N^2 prismatic): a hook
+    sees only its own family's parameters, and the deflection is linear in ``gamma``; a model
+    used away from the campaign takes ``beta = gamma / c``
+    (:mod:`stiffness.elastic.calibrated`). Typical size :attr:`family_scale` over the
+    spring's largest torque ``tau_max`` at the campaign's commanded poses (setting
+    :data:`~stiffness.elastic.effects.pose_face.NONLINEAR_SETTING`), physical scale
+    ``1 / (k_ref tau_max)`` (the compliance doubled at ``tau_max``: the deflection face's
+    ``1 / tau_max`` over ``k_ref``). A spring carrying no torque in the campaign (below
+    :data:`NIL_TORQUE` of the largest) has no parameter. Needs ``joint_compliance`` (whose
+    spring it bends) and the links' masses (it acts on the torque the springs carry).
+    """
+
+    #: the pose face's springs (columns of the spring map) and their largest torques,
+    #: built once per model
+    _pose_layout: tuple[list[int], np.ndarray] | None = field(default=None, init=False,
+                                                              repr=False)
     name: ClassVar[str] = "nonlinear_joint_stiffness"
     param_names: ClassVar[tuple[str, ...]] = ("beta",)
     through_law: ClassVar[bool] = True
@@ -297,3 +319,67 @@ class NonlinearJointStiffness(JointEffect):
     def describe(self) -> str:
         return f"joint {self.joint_name}'s spring softens or hardens with the load"
 
+    # pose face ----------------------------------------------------------------------------
+    requires: ClassVar[tuple[str, ...]] = ("joint_compliance",)
+    needs_masses: ClassVar[bool] = True
+    #: the model setting naming each spring's largest torque (N.m or N)
+    SETTING: ClassVar[str] = NONLINEAR_SETTING
+    #: largest torque, relative to the largest spring's, below which a spring carries none
+    NIL_TORQUE: ClassVar[float] = 1e-6
+
+    def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
+        columns, largest = self._springs(pm)
+        return [FamilyParameter(self.name, nonlinear_label(pm.springs[s]), self.family_scale / t,
+                                "m/N^2" if pm.robot.is_prismatic(pm.springs[s])
+                                else "rad/(N.m)^2")
+                for s, t in zip(columns, largest, strict=True)]
+
+    @classmethod
+    def campaign_settings(cls, torques: np.ndarray, pm: PoseLayout) -> dict:
+        """:data:`~stiffness.elastic.effects.pose_face.NONLINEAR_SETTING`: spring name ->
+        the largest |torque| it carries at the campaign's commanded poses (``S^T tau`` of the
+        (rows, nv) ``torques``; springs that carry none left out)."""
+        largest = np.abs(torques @ pm.spring_map).max(axis=0, initial=0.0)
+        top = float(largest.max(initial=0.0))
+        return {cls.SETTING: {n: float(t) for n, t in zip(pm.springs, largest, strict=True)
+                              if t > cls.NIL_TORQUE * top}}
+
+    def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
+        columns, _ = self._springs(pm)
+        return np.array([NonlinearJointStiffness(joint_name=pm.springs[s]).physical_scale(
+            refs)[0] / refs.k_ref for s in columns])
+
+    def _springs(self, pm: PoseLayout) -> tuple[list[int], np.ndarray]:
+        """The columns of the spring map with a parameter and their largest torques."""
+        if self._pose_layout is None:  # built once per model
+            given = pm.settings.get(self.SETTING)
+            if not isinstance(given, dict):
+                raise StiffnessError("nonlinear_joint_stiffness needs each spring's largest "
+                                     f"torque (setting {self.SETTING}); build the model with "
+                                     "pose_fit.campaign_settings(campaign)")
+            columns = [s for s, n in enumerate(pm.springs) if n in given]
+            self._pose_layout = (columns, np.array([float(given[pm.springs[s]])
+                                                    for s in columns]))
+        return self._pose_layout
+
+    def _carried(self, pm: PoseLayout, state: SagState) -> tuple[np.ndarray, np.ndarray]:
+        """The spring map's columns (nv, n_f) of the springs with a parameter and the torques
+        (..., n_f) they carry at ``state``."""
+        columns, _ = self._springs(pm)
+        spring_map = pm.spring_map[:, columns]
+        return spring_map, state.torque @ spring_map
+
+    def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
+        spring_map, t = self._carried(pm, state)
+        return (x_f * t * np.abs(t)) @ spring_map.T
+
+    def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                              ) -> np.ndarray:
+        """The diagonal of ``S diag(2 gamma |t|) S^T`` (as ``joint_compliance``'s)."""
+        spring_map, t = self._carried(pm, state)
+        return (2.0 * x_f * np.abs(t)) @ (spring_map ** 2).T
+
+    def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
+                           ) -> np.ndarray:
+        spring_map, t = self._carried(pm, state)
+        return spring_map * (t * np.abs(t))[..., None, :]

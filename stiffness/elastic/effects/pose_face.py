@@ -46,6 +46,11 @@ def backlash_label(joint: str) -> str:
     return f"{joint} backlash"
 
 
+def nonlinear_label(joint: str) -> str:
+    """Label of a spring's compliance per unit torque ``gamma`` (a nonlinear spring)."""
+    return f"{joint} nonlinear compliance"
+
+
 def compensator_label(joint: str, what: str) -> str:
     """Label of a compensator's ``stiffness`` or ``preload`` on ``joint``."""
     return f"{joint} compensator {what}"
@@ -63,6 +68,8 @@ def tilt_label(joint: str, axis: int) -> str:
 
 #: Setting of the backlash family: joint -> smoothing torque (N.m, N).
 BACKLASH_SETTING = "backlash_smoothing_torque"
+#: Setting of the nonlinear spring family: spring -> largest torque it carries (N.m, N).
+NONLINEAR_SETTING = "nonlinear_largest_torque"
 
 
 @dataclass(frozen=True)
