@@ -61,3 +61,17 @@ def test_a_tool_frame_at_a_joints_origin_is_kept_there():
     robot = load_robot("xarm7")
     assert robot.target_frame == "link_eef"
     assert robot.target_offset.tolist() == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize(("name", "frame"), [("g1_with_hands", "left_hand_palm_link"),
+                                             ("alex_psyonic_hands", "Left_thumb_base")])
+def test_default_target_of_a_hand_with_a_longer_thumb_is_on_the_palm(name, frame):
+    """g1's thumb has three joints, its fingers two: the longest chain ended on the thumb's tip,
+    whose joints were springs. Three or more short chains branching off the arm are a hand:
+    the target is on the palm, which no finger moves, and the fingers are not springs."""
+    robot = load_robot(name, fixed_base=True)
+    assert robot.target_frame == frame
+    fingers = [j for j in robot.coordinate_joints if "thumb" in j or "index" in j]
+    assert fingers and not set(fingers) & set(robot.compliant_joints)
+    coords = np.full(robot.n_coordinates, 0.2)
+    assert max(_moves(robot, j, coords) for j in fingers) < 1e-9

@@ -6,7 +6,8 @@ Rule (docs/robot-files.md): the target is the tip frame of the longest chain of 
 whose last joint carries a loop-closing frame is not a candidate (it closes a loop) unless all
 branches are such ones. Of several equally long chains the first in model order is taken,
 except that chains branching off it with fewer moving joints below the branch than above it (a
-hand's fingers) move the tip up to their last common joint (the wrist); joints of
+hand's fingers) move the tip up to their last common joint (the wrist), as do three or more such
+chains of any lengths (a hand whose thumb is longer than its fingers: g1's); joints of
 ``<mimic>`` couplings (a gripper's jaws) and a last joint named as a jaw (``grip`` or ``jaw``
 in its name or its link's, on an arm: z1's ``jointGripper``, so100's ``gripper``) do not lengthen
 a chain. The tip frame is, among the frames carried by the tip joint, the one farthest from the
@@ -71,6 +72,7 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
         if branch and longest - depth[branch] <= depth[branch] \
                 and branch in model.supports[tip] and branch != tip:
             tip = branch  # fingers or jaws of one hand: their last common joint
+    tip = _palm(model, depth, tip, longest)
     # a loop-closing frame and the fixed-joint frame that carries it are not targets
     closing_frames = set(closure_frames) | {
         model.frames[model.frames[i].parentFrame].name for i in range(len(model.frames))
@@ -226,3 +228,15 @@ def _links(model: pin.Model, joint: int) -> list[str]:
 def _jaw_named(names: list[str]) -> bool:
     """Whether one of ``names`` says it is part of a gripper (``grip`` or ``jaw`` in it)."""
     return any(word in name.lower() for name in names for word in _JAW_WORDS)
+
+
+def _palm(model: pin.Model, depth: list[int], tip: int, longest: int) -> int:
+    """The joint of ``tip``'s chain from which three or more chains branch that are shorter
+    than the chain carrying it (a hand: a thumb and fingers, g1's thumb one joint longer than
+    its fingers), else ``tip``."""
+    joint = model.parents[tip]
+    while joint and longest - depth[joint] <= depth[joint]:
+        if sum(1 for c in range(1, model.njoints) if model.parents[c] == joint) >= 3:
+            return joint
+        joint = model.parents[joint]
+    return tip
