@@ -520,3 +520,18 @@ def test_a_compensators_spring_in_a_joints_unit_is_refused(tmp_path):
     with pytest.raises(ModelFileError, match=r"gravity_compensator\(shoulder_lift_joint\)\) "
                        r"stiffness is in 'N.m/rad', expected 'N/m'"):
         elastic_model_of(read_model_file(model.write(tmp_path / "m.json")))
+
+
+@pytest.mark.parametrize(("effect", "param", "kind", "wrong", "expected"), [
+    ("backlash", "half_width", "lost_motion", "m", "rad"),
+    ("nonlinear_joint_stiffness", "beta", "stiffness", "1/N", "1/(N.m)")])
+def test_a_joint_effects_unit_of_a_prismatic_joint_on_a_revolute_one_is_refused(
+        tmp_path, effect, param, kind, expected, wrong):
+    """A backlash half width in m (or a softening beta in 1/N) on the revolute elbow would be
+    read as rad (1/(N.m)): refused naming the effect, the joint and both units."""
+    model = _ur5_model(ModelEffect(effect, "elbow_joint", kind, [_p(param, 1e-4, wrong)]))
+    with pytest.raises(ModelFileError) as info:
+        elastic_model_of(read_model_file(model.write(tmp_path / "m.json")))
+    message = str(info.value)
+    assert f"effects[0] ({effect}(elbow_joint)) {param} is in {wrong!r}, expected " \
+           f"{expected!r} (of revolute joint 'elbow_joint')" in message and "\n" not in message
