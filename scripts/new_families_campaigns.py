@@ -11,6 +11,10 @@ It records whether the hidden family is named, the 95 % intervals of its paramet
 the truth (identifiable truth: merged parameters folded in), and the final held-out RMS
 (leave one configuration out) over the noise.
 
+Family ``nonlinear_joint_stiffness`` (not run by default; ``--families
+nonlinear_joint_stiffness``): the two springs that carry the largest torques at the commanded
+poses harden by 40 % at those torques (:func:`hardening`), diagnosed with the same flags.
+
 Mode ``not-offered`` (``--not transversal_compliance`` as well, the tilts hidden): what the
 diagnosis ends with instead (unexplained, or the stand-in families) and its held-out RMS over
 the noise. Mode ``nothing`` (``--families nothing``): the same campaigns with neither family
@@ -56,9 +60,11 @@ from stats import Coverage, binomial_consistent  # noqa: E402
 
 from stiffness.calibration.diagnose import diagnose  # noqa: E402
 from stiffness.calibration.pose_diagnose import diagnose_poses, parameter_table  # noqa: E402
+from stiffness.calibration.pose_fit import campaign_settings  # noqa: E402
 from stiffness.calibration.pose_model import Marker  # noqa: E402
 from stiffness.elastic.effects.geometry import Geometry  # noqa: E402
 from stiffness.elastic.effects.link_bends import transversal_joints  # noqa: E402
+from stiffness.elastic.effects.pose_face import NONLINEAR_SETTING  # noqa: E402
 from stiffness.mechanics.defaults import default_stiffness  # noqa: E402
 from stiffness.planning.simulate import HiddenEffect, simulate  # noqa: E402
 from stiffness.planning.simulate_poses import (  # noqa: E402
@@ -157,6 +163,10 @@ def run_one(robot, markers, stiffness, payload, family: str, mode: str, seed: in
     hidden = hidden_errors(robot, markers, stiffness, family, rng)
     campaign = simulate_pose_campaign(robot, markers, hidden, poses, NOISE, seed=seed,
                                       payload=payload)
+    if family == "nonlinear_joint_stiffness":  # the same poses, the springs hardening
+        hidden.nonlinear = hardening(robot, campaign)
+        campaign = simulate_pose_campaign(robot, markers, hidden, poses, NOISE, seed=seed,
+                                          payload=payload)
     refused = NOT_HIDDEN + (["transversal_compliance"] if mode == "not-offered" else [])
     start = time.perf_counter()
     d = diagnose_poses(campaign, families=FORCED, not_families=refused)
@@ -175,7 +185,19 @@ def run_one(robot, markers, stiffness, payload, family: str, mode: str, seed: in
             "fit_rms_over_noise": d.final.rms() / NOISE, "seconds": seconds,
             "hidden": {k: np.asarray(v).tolist() for k, v in (
                 [("base_tilt", hidden.base_tilt)] if family == "base_tilt"
+                else [("beta", hidden.nonlinear)] if hidden.nonlinear is not None
                 else hidden.transversal_compliance.items())}}
+
+
+def hardening(robot, campaign) -> np.ndarray:
+    """``beta`` (1/(N.m)) of each spring: the two that carry the largest torques at the
+    ``campaign``'s commanded poses harden by 40 % at those torques (``beta = -0.4 /
+    tau_max``), the others linear."""
+    largest = campaign_settings(campaign)[NONLINEAR_SETTING]
+    beta = np.zeros(len(robot.compliant_joints))
+    for joint in sorted(largest, key=largest.get)[-2:]:
+        beta[list(robot.compliant_joints).index(joint)] = -0.4 / largest[joint]
+    return beta
 
 
 def deflection_one(name: str, source: str, mode: str, seed: int) -> dict:
