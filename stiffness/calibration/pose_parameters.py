@@ -14,7 +14,8 @@ the same effects by:
   joint, link or bearing compliance's scale is ``10 / k_ref``;
 * the torques each spring carries at the commanded poses under the nominal robot (gravity and
   the applied wrench): the typical joint deflection ``theta_ref`` (RMS torque over ``k_ref``),
-  whose ten times is a backlash's scale;
+  whose ten times is a backlash's scale; the largest, ``tau_max``: a nonlinear spring's
+  ``gamma`` scale ``1 / (k_ref tau_max)`` (the compliance doubled at ``tau_max``);
 * the torques the links' weight puts on each joint at those poses (the nominal inertias): a
   compensator's preload and stiffness balance at most the largest of its joint's
   (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.physical_scale`); with the
