@@ -250,6 +250,7 @@ def test_the_model_file_carries_beta(ur10, tmp_path, capsys):
     table = {r["parameter"]: r["value"] for r in parameter_table(d.final)}
     beta = (table["elbow_joint nonlinear compliance"] / table["elbow_joint compliance"])
     assert "rad/(N.m)^2" in line and f"beta = gamma/c = {beta:.4g} 1/(N.m)" in line, line
+    _check_physical_scales(d, c)
     write_pose_campaign(c, tmp_path / "campaign")
     path = write_pose_model(d.final, c, tmp_path / "d" / "final-model.json")
     assert FAMILY in json.loads(path.read_text())["families"]
@@ -258,6 +259,34 @@ def test_the_model_file_carries_beta(ur10, tmp_path, capsys):
         assert main(["kx", "--model", str(path), "--q", "0.1,-1.2,1.0,-0.5,1.2,0.3",
                      "--wrench", "0,0,-100"]) == 0
     capsys.readouterr()
+
+
+def _check_physical_scales(d, c) -> None:
+    """Each ``gamma``'s physical scale is ``1 / (k_ref tau_max)``: ``k_ref`` one over the median
+    of the fit's positive kept compliances, ``tau_max`` the largest torque the joint carries at
+    the commanded poses (``-g(q) + J^T w``, computed here with Pinocchio)."""
+    fit, robot = d.final, c.robot
+    data = robot.model.createData()
+    torques = []
+    for q, w in zip(c.q, c.loads.wrench, strict=True):
+        q_full = robot.configuration(q)
+        pin.computeJointJacobians(robot.model, data, q_full)
+        pin.updateFramePlacements(robot.model, data)
+        jac = pin.getFrameJacobian(robot.model, data, robot.model.getFrameId("tool0"),
+                                   pin.LOCAL_WORLD_ALIGNED)
+        torques.append(jac.T @ w - pin.computeGeneralizedGravity(robot.model, data, q_full))
+    tau_max = np.abs(np.array(torques)).max(axis=0)
+    cut = fit.model.slices()["joint_compliance"]
+    kept = set(fit.identifiability.kept)
+    k_ref = 1.0 / np.median([fit.x[i] for i in range(cut.start, cut.stop)
+                             if i in kept and fit.x[i] > 0])
+    family = next(f for f in fit.model.family_objects if f.name == FAMILY)
+    sizes = family.physical_sizes(fit.model, d.judge.references(fit))
+    joints = [p.label.removesuffix(" nonlinear compliance") for p in fit.model.parameters
+              if p.family == FAMILY]
+    expected = [1.0 / (k_ref * tau_max[robot.model.joints[robot.model.getJointId(j)].idx_v])
+                for j in joints]
+    assert np.allclose(sizes, expected, rtol=1e-9), (sizes, expected)
 
 
 def test_without_its_torques_or_with_unknown_masses_it_is_refused(ur10):
