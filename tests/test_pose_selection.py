@@ -229,7 +229,7 @@ def _backlash_stand_in_campaign():
                                   payload=np.array([0, 0, -100.0, 0, 0, 0]))
 
 
-def test_backward_elimination_removes_a_family_the_final_model_is_better_without():
+def test_backward_elimination_removes_a_family_the_final_model_is_better_without(tmp_path):
     """The search adds ``backlash`` first, then the hidden geometry and joint compliance;
     backward elimination (:func:`stiffness.calibration.search.eliminate`) removes the
     backlash again: BIC falls by more than the margin under the step's overdispersion and
@@ -252,5 +252,9 @@ def test_backward_elimination_removes_a_family_the_final_model_is_better_without
     assert [c["effect"] for c in out["how_sure"]] == ["geometry", "joint_compliance"]
     assert all(c["removal_delta_bic"] > 0 for c in out["how_sure"])
     assert re.search(r"^4 +removed backlash +31 ", format_pose_report(d), re.M)
+    written = write_pose_diagnosis(d, tmp_path / "out")
+    model = json.loads(written["model"].read_text())
+    assert model["families"] == ["frame", "markers", "geometry", "joint_compliance"]
+    assert "<td>removed backlash</td>" in written["page"].read_text()
     forced = diagnose_poses(campaign, families=["backlash"])
     assert "backlash" in forced.families and not any(s.removed for s in forced.steps)

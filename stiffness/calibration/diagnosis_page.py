@@ -205,7 +205,8 @@ def _steps(d: dict, unit: str) -> list[str]:
     parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",
                        f"RMS ({unit})", f"cross-validated RMS ({unit})"], rows,
                        "ΔBIC: change of the Bayesian information criterion from the "
-                       "previous step (negative: the effect earns its parameters). "
+                       "previous step (negative: the effect earns its parameters; a "
+                       "\"removed\" step: the final model is better without the effect). "
                        "Cross-validated RMS: residual on configurations left out of the "
                        "fit."))
     for i, detail in enumerate(d["step_details"]):

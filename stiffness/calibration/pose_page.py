@@ -184,7 +184,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                        ["step", "family", "parameters", "ΔBIC", f"RMS ({unit})",
                         f"held-out RMS ({unit})"], rows,
                        "Held-out RMS: the residual on configurations left out of the "
-                       "fit."))
+                       "fit. A \"removed\" step: the final model is better without the "
+                       "family (lower BIC, held-out RMS not higher)."))
     if d["rejected"]:
         parts.append("<p>Not added (ΔBIC or held-out RMS): "
                      + esc(not_added(d["rejected"], d.get("not_judged", {}))) + "</p>")
