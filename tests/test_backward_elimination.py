@@ -1,0 +1,74 @@
+"""Backward elimination in the one selection loop (:func:`stiffness.calibration.search.
+eliminate`) for a deflection campaign: an effect the final model is better without is removed
+and recorded as a step marked ``removed`` (the pose kind's campaign, where the greedy search
+adds a stand-in by itself: ``tests/test_pose_selection.py``)."""
+
+from __future__ import annotations
+
+from stiffness.calibration.diagnose import DeflectionSearch, _baseline_fit
+from stiffness.calibration.diagnosis import kept_steps
+from stiffness.calibration.search import Candidate, eliminate, search
+from stiffness.calibration.selection import (
+    BIC_MARGIN,
+    config_folds,
+    cross_validate,
+    fit_model,
+    information_criterion,
+)
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.measurement import ForceSensorBias
+from stiffness.planning.simulate import simulate
+
+NOISE = 5e-6  # m
+ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
+
+
+def _search_with_a_stand_in():
+    """A UR5 campaign (arm joints compliant, 6 configurations x 4 loads up to 100 N, 5 um)
+    hiding a wrist_1 spring (30000 N.m/rad) and no force bias; the deflection search started
+    as if a step had added a force-sensor bias (fitted jointly with the springs): the kind, its
+    start and the start's held-out RMS (m)."""
+    c = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=list(ARM),
+                 target_offset_m=[0.0, 0.0, 0.1], max_force=100.0, configs=6,
+                 loads_per_config=4, noise_std_m=NOISE, seed=0,
+                 effects=["joint_compliance:wrist_1_joint=30000"]).campaign
+    geo = Geometry.of(c.robot())
+    rows = geo.rows(c.q, c.force, c.moment, labels=[c.describe_row(i) for i in range(c.n_rows)])
+    n = c.deflection.size
+    base, measured, scale, _, _ = _baseline_fit(c, Hypothesis(
+        geo, rows, c.baseline, ARM, (), References.of(geo, rows, 1e5, c.deflection)), n, NOISE)
+    folds = config_folds(c.config)
+    kind = DeflectionSearch(measured, folds, scale, n, NOISE, 1, lambda text: None, {},
+                            c.units)
+    bias = ForceSensorBias()
+    fit = fit_model(base.model.extended(bias), measured, scale,
+                    base.model.extend_x(base.x, bias))
+    bic = [information_criterion(f.loss_rss, n, f.penalty_params, NOISE) for f in (base, fit)]
+    added = Candidate(bias, fit, bic[1], bic[1] - bic[0],
+                      cross_validate([fit], measured, folds, 1)[0])
+    current = kind.accept(base, added, [added])
+    return kind, current, added.cv_rms
+
+
+def test_backward_elimination_removes_a_deflection_effect_the_final_model_is_better_without():
+    """From the bias, the search adds the hidden wrist_1 spring and stops at the noise; the
+    bias, which nothing hidden needs, is then removed (BIC lower by more than the margin
+    under the step overdispersion rule, held-out RMS not higher): the final model is the
+    spring alone, the removal the last step, marked ``removed``, and the stop reason says so.
+    Without the elimination the bias stays (the search alone)."""
+    kind, current, cv = _search_with_a_stand_in()
+    final, stop = search(kind, current, cv)
+    labels = [s.effect.label for s in kind.steps]
+    assert labels == ["force_sensor_bias", "joint_compliance(wrist_1_joint)",
+                      "force_sensor_bias"], labels
+    assert [s.removed for s in kind.steps] == [False, False, True]
+    assert [e.label for e in final.model.effects] == ["joint_compliance(wrist_1_joint)"]
+    removal = kind.steps[-1]
+    assert removal.fit is final and removal.delta_bic < -BIC_MARGIN
+    assert removal.cv_rms <= kind.steps[-2].cv_rms and "then removed force_sensor_bias" in stop
+    assert [s.effect.label for s in kept_steps(kind.steps)] == ["joint_compliance(wrist_1_joint)"]
+    # the refits of the final model are kept for how_sure: one, without the spring
+    assert kind.removals is not None and kind.removals.final is final
+    assert len(kind.removals.fits) == 1 and kind.removals.fits[0].model.effects == ()
+    assert eliminate(kind, final, removal.cv_rms) == (final, [])  # nothing more to remove
