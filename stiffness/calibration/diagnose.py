@@ -191,9 +191,11 @@ def diagnose(
     validate
         Pose campaigns only: another pose campaign (or its path) evaluated at every step.
     families, not_families
-        Families forced in (in order; pose campaigns only) and families never tried
-        (``diagnose --families``, ``--not``; a deflection campaign's are effect names of the
-        library, recorded as ``forbidden``).
+        Families forced in, in order (``diagnose --families``: added first, whatever their
+        BIC and held-out error, and never removed again; a deflection campaign's are effect
+        names of the library, each at its best place by BIC, or labels ``name(where)``), and
+        families never tried (``--not``); recorded under ``selection`` as ``forced`` and
+        ``forbidden``.
 
     Raises
     ------
@@ -210,18 +212,18 @@ def diagnose(
         return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
                               progress=progress, loss=loss, families=families,
                               not_families=not_families, max_steps=max_steps)
-    if validate is not None or families:
-        raise StiffnessError("validate and families take pose campaigns; for a deflection "
-                             "campaign diagnose reports the held-out (cross-validated) RMS of "
-                             "each step and chooses among the library's effects (--not "
-                             "forbids some)")
+    if validate is not None:
+        raise StiffnessError("validate takes pose campaigns; a deflection campaign's diagnosis "
+                             "reports the held-out (cross-validated) RMS of each step, and "
+                             "stiffness validate MODEL CAMPAIGN evaluates its model file")
     max_steps = MAX_STEPS if max_steps is None else max_steps
     _check_options(max_steps, loss, masses)
     forbidden = _forbidden(not_families)
+    forced = _forced(families, forbidden)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     return _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
-                                 effect_settings or {}, masses, forbidden)
+                                 effect_settings or {}, masses, forbidden, forced)
 
 
 def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:
@@ -234,12 +236,28 @@ def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:
     return tuple(sorted(set(not_families)))
 
 
+def _forced(families: Sequence[str], forbidden: tuple[str, ...]) -> tuple[str, ...]:
+    """The deflection effects forced in (``--families``: names of the library, or labels
+    ``name(where)`` naming the place), in order, each once, checked (one line): a name of the
+    library, not forbidden too."""
+    for label in families:
+        name = label.partition("(")[0]
+        if name not in LIBRARY:
+            raise StiffnessError(f"--families {label!r} is not an effect of the library; "
+                                 f"{did_you_mean(name, list(LIBRARY))}")
+        if name in forbidden:
+            raise StiffnessError(f"{name} is both forced (--families) and forbidden (--not); "
+                                 "name it in one of them")
+    return tuple(dict.fromkeys(families))
+
+
 def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose: bool,
                           progress: Callable[[str], None] | None, workers: int | None,
                           loss: str, effect_settings: dict[str, dict], masses: str,
-                          forbidden: tuple[str, ...] = ()) -> Diagnosis:
-    """:func:`diagnose` on a deflection campaign, the effects named ``forbidden`` never
-    tried."""
+                          forbidden: tuple[str, ...] = (), forced: Sequence[str] = ()
+                          ) -> Diagnosis:
+    """:func:`diagnose` on a deflection campaign, the effects ``forced`` added first (names
+    or labels, in order), those named ``forbidden`` never tried."""
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
     compliant = tuple(campaign.robot().compliant_joints)
@@ -262,7 +280,11 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     kind = DeflectionSearch(measured, folds, scale, n, sigma, workers, say,
                             _declared_settings(base, effect_settings), campaign.units, masses,
                             forbidden)
-    final, stop = search(kind, base, cv_base, max_steps)
+    current, cv_current = base, cv_base
+    for name in forced:
+        say(f"step {len(kind.steps) + 1}: {name} (forced)")
+        current, cv_current = kind.force(current, name)
+    final, stop = search(kind, current, cv_current, max_steps)
     steps = kind.steps
     p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
@@ -487,11 +509,12 @@ class DeflectionSearch:
     def terms(self, fit: Fit) -> tuple[float, int]:
         return fit.loss_rss, fit.penalty_params
 
-    def candidates(self, current: Fit) -> list[Found] | None:
+    def candidates(self, current: Fit, only: str | None = None) -> list[Found] | None:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
-        by BIC (the step's overdispersion kept), or ``None`` when there is none."""
+        by BIC (the step's overdispersion kept), or ``None`` when there is none; with
+        ``only``, those of that effect name or label."""
         effects = [e for e in candidates(current.model, self.declared, self.masses)
-                   if e.name not in self.forbidden]
+                   if e.name not in self.forbidden and only in (None, e.name, e.label)]
         fits = list(zip(effects, fitting.fit_models(
             [fit_job(current.model.extended(e), self.measured, self.scale,
                      current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,
@@ -587,9 +610,36 @@ class DeflectionSearch:
     def held_out_of(self, fits: list[Fit]) -> list[float]:
         return cross_validate(fits, self.measured, self.folds, self.workers)
 
+    def force(self, current: Fit, name: str) -> tuple[Fit, float]:
+        """``current`` with the effect ``name`` added whatever its BIC and held-out error
+        (``diagnose --families``): of its places (a label, ``name(where)``, names one), the
+        best by BIC, its undetermined parameters held at nominal; the step marked forced.
+        The new fit and its held-out RMS (m).
+
+        Raises
+        ------
+        StiffnessError
+            ``name`` is no candidate of ``current``'s model (one line naming the valid ones).
+        """
+        ranking = self.candidates(current, only=name)
+        if ranking is None:
+            valid = sorted({e.name for e in candidates(current.model, self.declared,
+                                                        self.masses)} - set(self.forbidden))
+            raise StiffnessError(f"--families {name}: no candidate of this campaign's model "
+                                 f"(a name or a label name(where)); valid: {', '.join(valid)}")
+        winner = ranking[0]
+        full, winner.fit = winner.fit, self.settle(winner)
+        winner.settled = winner.fit is not full
+        winner.cv_rms = cross_validate([winner.fit], self.measured, self.folds,
+                                       self.workers)[0]
+        fit = self.accept(current, winner, ranking)
+        self.steps[-1].forced = True
+        return fit, winner.cv_rms
+
     def removable(self, final: Fit) -> list[bool]:
-        """Every effect (none is forced, none acts through another)."""
-        return [True] * len(final.model.effects)
+        """Every effect not forced (``--families``; none acts through another)."""
+        forced = {s.effect.label for s in self.steps if s.forced}
+        return [e.label not in forced for e in final.model.effects]
 
     def remove(self, final: Fit, index: int, fit: Fit, delta_bic: float, cv_rms: float,
                dispersion: float) -> str:

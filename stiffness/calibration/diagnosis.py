@@ -115,6 +115,9 @@ class Step:
     removed
         Whether the step removes ``effect`` (then ``fit`` is the model without it, no
         parameters nor ranking).
+    forced
+        Whether ``effect`` was forced in (``diagnose --families``: added first, whatever its
+        BIC and held-out error; never removed again).
     """
 
     effect: Effect
@@ -127,6 +130,7 @@ class Step:
     ranking: list[dict]
     dispersion: float = 1.0
     removed: bool = False
+    forced: bool = False
 
 
 def kept_steps(steps: list[Step]) -> list[Step]:
@@ -280,7 +284,7 @@ class Diagnosis:
                        "rms": self._len(s.rms),
                        "parameters": {p.name: p.to_dict() for p in s.parameters},
                        "stand_in": not s.removed and self.stand_in(s.effect.label),
-                       "removed": s.removed}
+                       "removed": s.removed, "forced": s.forced}
                       for s in self.steps],
             "missing_effects": self.missing_effects,
             "unexplained": self.unexplained,
@@ -293,8 +297,14 @@ class Diagnosis:
             "rms_by_kind": self.rms_by_kind(),
             "identifiability": self.identifiability(),
             "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.certainty],
-            "selection": {"forbidden": self.forbidden},
+            "selection": self.selection(),
         })
+
+    def selection(self) -> dict:
+        """How the effects were chosen (kept in the model file, a pose diagnosis's keys):
+        ``forced`` and ``forbidden`` (``--families``, ``--not``)."""
+        return {"forced": [s.effect.label for s in self.steps if s.forced],
+                "forbidden": self.forbidden}
 
     def stand_in(self, label: str) -> bool:
         """Whether the named effect ``label`` is a stand-in (a determined parameter of the
@@ -388,7 +398,7 @@ class Diagnosis:
                 "noise_std": self._len(self.noise_std_m),
                 "noise_std_source": self.noise_std_source, "unit": self.unit,
                 "unexplained": self.unexplained, "unexplained_note": self.unexplained_note,
-                "selection": {"forbidden": self.forbidden},
+                "selection": self.selection(),
                 "rotation_noise": None if self.rotation_noise_std_rad is None else {
                     "std_rad": self.rotation_noise_std_rad,
                     "source": self.rotation_noise_source,

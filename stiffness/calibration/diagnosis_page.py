@@ -199,7 +199,8 @@ def _steps(d: dict, unit: str) -> list[str]:
     cv = d["cv_rms"]
     rows = [["0", "baseline", "", "", d["baseline_rms"], cv["baseline"]]]
     for i, (s, detail) in enumerate(zip(d["steps"], d["step_details"], strict=True)):
-        rows.append([str(i + 1), esc(("removed " if s.get("removed") else "") + s["effect"]),
+        rows.append([str(i + 1), esc(("removed " if s.get("removed") else "") + s["effect"]
+                                     + (" (forced)" if s.get("forced") else "")),
                      esc(s.get("where") or ""),
                      detail["delta_bic"], s["rms"], cv["steps"][i]])
     parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",

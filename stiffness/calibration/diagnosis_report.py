@@ -66,9 +66,11 @@ def format_report(d: Diagnosis) -> str:
     lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
                  f"{d.cv_baseline / lu:>10.4g}")
     for i, s in enumerate(d.steps, start=1):
-        name = f"removed {s.effect.name}" if s.removed else s.effect.name
-        lines.append(f"{i:<5} {name:<28} {s.effect.where or '':<30} "
+        name = s.effect.name + (" *" if s.forced else "")
+        lines.append(f"{i:<5} {'removed ' * s.removed + name:<28} {s.effect.where or '':<30} "
                      f"{s.rms / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
+    if any(s.forced for s in d.steps):
+        lines.append("* forced (--families): added first, whatever its BIC and held-out error")
     lines.append("")
     if d.named_steps:
         lines.append("identified effects (final model; 95 % intervals):")

@@ -82,9 +82,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "masses and mass moments, instead of gravity_preload); default "
                              "known")
     parser.add_argument("--families", metavar="A,B",
-                        help="pose campaigns: families forced into the model, added first in "
-                             "this order whatever their BIC and held-out error (e.g. "
-                             "joint_offsets,geometry); recorded in final-model.json")
+                        help="families forced into the model, added first in this order "
+                             "whatever their BIC and held-out error, never removed again "
+                             "(e.g. joint_offsets,geometry; a deflection campaign's are "
+                             "effect names, each at its best place, or labels such as "
+                             "'transversal_compliance(joint3)'); recorded in final-model.json")
     parser.add_argument("--not", dest="not_families", metavar="A,B",
                         help="families never tried (e.g. backlash; a deflection campaign's "
                              "are the library's effect names, e.g. transversal_compliance); "
@@ -109,6 +111,7 @@ def command_line(args: argparse.Namespace) -> str:
     words += ["--validate", str(args.validate)] if args.validate else []
     words += ["--loss", args.loss] if getattr(args, "loss", "linear") != "linear" else []
     words += ["--masses", args.masses] if getattr(args, "masses", "known") != "known" else []
+    words += ["--families", args.families] if getattr(args, "families", None) else []
     words += ["--not", args.not_families] if getattr(args, "not_families", None) else []
     for declared in getattr(args, "compensator_geometry", []):
         words += ["--compensator-geometry", declared]
@@ -158,10 +161,10 @@ def run(args: argparse.Namespace) -> int:
     flags.require_at_least_one(args.workers, "--workers")
     if campaign_kind(args.campaign) == "poses":
         return run_poses(args)
-    if args.families or args.base_tilt:
-        raise StiffnessError("--families and --base-tilt take pose campaigns; a deflection "
-                             "diagnosis chooses among the library's effects (--not forbids "
-                             "some)")
+    if args.base_tilt:
+        raise StiffnessError("--base-tilt takes pose campaigns: a deflection campaign's "
+                             "loaded-minus-unloaded positions do not see the base's tilt "
+                             "against gravity to first order; drop it")
     declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
     if args.validate:  # read before the work: a bad one fails at once
@@ -180,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
                       propose=not args.no_proposals, progress=progress if show else None,
                       workers=args.workers, loss=args.loss, effect_settings=declared,
                       masses=args.masses,
+                      families=flags.parse_names(args.families) or (),
                       not_families=flags.parse_names(args.not_families) or ())
     if not args.validate:
         paths = result.write(args.out, command_line(args)) if args.out else None
