@@ -155,7 +155,7 @@ def test_cli_json_and_files(tmp_path, capsys, monkeypatch):
     assert summary["missing_effects"] == ["force_sensor_bias"]
     step = summary["steps"][0]
     assert set(step) == {"effect", "where", "rms", "parameters", "stand_in",
-                         "removed"}
+                         "removed", "forced"}
     assert set(step["parameters"]) == {"fx", "fy", "fz"}
     assert step["parameters"]["fx"]["unit"] == "N"
     for name in (DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT):

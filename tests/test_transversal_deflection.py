@@ -164,12 +164,12 @@ def test_a_tilt_not_offered_is_not_named_and_the_choice_is_recorded(diagnosed, c
                  "--max-steps", "1", "--no-proposals", "--json", "--out",
                  str(folder / "not")]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["selection"] == {"forbidden": ["transversal_compliance"]}
+    assert out["selection"] == {"forced": [], "forbidden": ["transversal_compliance"]}
     assert all(s["effect"] != "transversal_compliance" for s in out["steps"])
     ranked = json.loads((folder / "not" / "diagnosis.json").read_text())["step_details"]
     assert all(r["effect"] != "transversal_compliance" for s in ranked for r in s["ranking"])
     model = json.loads((folder / "not" / "final-model.json").read_text())
-    assert model["selection"] == {"forbidden": ["transversal_compliance"]}
+    assert model["selection"] == {"forced": [], "forbidden": ["transversal_compliance"]}
     with pytest.raises(StiffnessError, match="not an effect of the library"):
         diagnose(load_campaign(folder / "camp"), not_families=["transversal"])
 
