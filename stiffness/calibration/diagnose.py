@@ -86,7 +86,8 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses
-from stiffness.elastic.effects.base import Effect, Parameter, Settings, effect_report
+from stiffness.elastic.effects.base import Parameter, effect_report
+from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, did_you_mean
@@ -104,7 +105,7 @@ WEAK_BIC = 6.0
 #: Cosine similarity of fitted residual reductions above which signatures are "similar".
 SIMILARITY_LIMIT = 0.95
 #: A deflection campaign's candidate: an effect of the library and its fit.
-Found = Candidate[Effect, Fit]
+Found = Candidate[DeflectionEffect, Fit]
 
 
 @overload

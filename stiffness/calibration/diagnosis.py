@@ -27,7 +27,8 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.selection import GOF_LEVEL
-from stiffness.elastic.effects.base import Effect, Parameter, Settings
+from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
 from stiffness.files import atomic_write, staged_folder, written_path, written_source
@@ -120,7 +121,7 @@ class Step:
         BIC and held-out error; never removed again).
     """
 
-    effect: Effect
+    effect: DeflectionEffect
     fit: Fit
     rms: float
     bic: float

@@ -52,7 +52,8 @@ import numpy as np
 
 from stiffness.elastic.calibrated import calibrated_elastics
 from stiffness.elastic.effects import LIBRARY
-from stiffness.elastic.effects.base import Effect, Parameter, Settings, effect_variables
+from stiffness.elastic.effects.base import Parameter, effect_variables
+from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.link_bends import segment
@@ -159,7 +160,7 @@ class ModelEffect:
         """SI values in the effect's parameter order."""
         return np.array([p.value for p in self.parameters], dtype=float)
 
-    def effect(self, geometry: Geometry | None = None) -> Effect:
+    def effect(self, geometry: Geometry | None = None) -> DeflectionEffect:
         """The library's effect with its settings, placed on ``geometry`` (unchecked without)."""
         effect = LIBRARY[self.name].at_place(self.where, geometry)
         return effect.configured(self.settings) if isinstance(effect, Settings) else effect

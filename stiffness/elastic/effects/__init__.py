@@ -90,8 +90,9 @@ Units: SI inside (m, N, rad, N.m/rad).
 
 from __future__ import annotations
 
-from stiffness.elastic.effects.base import Effect, Settings, undeclared
+from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.base_tilt import BaseTilt
+from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings, undeclared
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.joint_laws import (
@@ -129,13 +130,11 @@ EFFECTS: dict[str, type[Effect]] = {
 }
 #: The effects a deflection campaign may miss: name -> class, in the order candidates are
 #: listed.
-LIBRARY: dict[str, type[Effect]] = {
-    name: EFFECTS[name] for name in (
-        "complementary_stiffness", "joint_compliance", "link_compliance",
-        "transversal_compliance", "backlash",
-        "nonlinear_joint_stiffness", "frame_misalignment", "target_offset",
-        "force_sensor_bias", "deflection_offset", "gravity_preload", "gravity_lumped",
-        "gravity_compensator")
+LIBRARY: dict[str, type[DeflectionEffect]] = {
+    cls.name: cls for cls in (ComplementaryStiffness, JointCompliance, LinkCompliance,
+                              TransversalCompliance, Backlash, NonlinearJointStiffness,
+                              FrameMisalignment, TargetOffset, ForceSensorBias, DeflectionOffset,
+                              GravityPreload, GravityLumped, GravityCompensator)
 }
 #: The parameter families of an absolute-pose model, the effects with a pose face: name ->
 #: class, in the order the columns are laid out.
@@ -156,7 +155,7 @@ def check_masses(masses: str) -> None:
         raise StiffnessError(f"masses must be one of {', '.join(MASSES)}, got {masses!r}")
 
 
-def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
+def make_effect(name: str, where: str | None, geometry: Geometry) -> DeflectionEffect:
     """An effect by name and place, checked against the robot (:meth:`Effect.at_place`).
 
     Raises
@@ -175,7 +174,7 @@ def make_effect(name: str, where: str | None, geometry: Geometry) -> Effect:
 
 
 def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
-               masses: str = "known") -> list[Effect]:
+               masses: str = "known") -> list[DeflectionEffect]:
     """Every library effect that can extend ``model`` (each effect and place at most once).
 
     ``complementary_stiffness``; ``joint_compliance`` of each rigid coordinate joint;
@@ -190,9 +189,9 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     """
     geo = model.geometry
     have = {e.label for e in model.effects}
-    out: list[Effect] = []
+    out: list[DeflectionEffect] = []
 
-    def add(effect: Effect) -> None:
+    def add(effect: DeflectionEffect) -> None:
         if effect.label in have:
             return
         if declared and effect.label in declared:

@@ -2,9 +2,9 @@
 
 An :class:`Effect` is one thing a stiffness model may miss. It has up to three faces:
 
-* in a campaign's fit (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`) it enters the
-  array algebra through the prediction hooks (:meth:`Effect.adjust_law`,
-  :meth:`Effect.target_motion`, :meth:`Effect.output_map`, :meth:`Effect.preload`...);
+* in a deflection campaign's fit (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`) it
+  enters the array algebra through the prediction hooks of its deflection face
+  (:class:`stiffness.elastic.effects.deflection_face.DeflectionEffect`);
 * in a model used away from its campaign (:class:`stiffness.elastic.model.ElasticModel`, built
   from a model file or by ``stiffness simulate``) it contributes through one hook,
   :meth:`Effect.contribute`, to an :class:`~stiffness.elastic.effects.parts.ElasticParts`: a
@@ -21,28 +21,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar, Protocol
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
-from stiffness.elastic.effects.geometry import Geometry, References, Rows
+from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.errors import StiffnessError
-from stiffness.mechanics.equilibrium import SpringLaw
 
-
-class HypothesisArrays(Protocol):
-    """What the prediction hooks read of the hypothesis they extend
-    (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`): the shared geometry, the joints
-    of its law and their columns, and the rows' Jacobians and ``K_C`` over those joints."""
-
-    geometry: Geometry
-    joints: tuple[str, ...]
-    index: np.ndarray
-    jv: np.ndarray
-    jw: np.ndarray
-    h: np.ndarray
-
+#: An effect's own class (:meth:`Effect.at_place`).
+E = TypeVar("E", bound="Effect")
 #: How an effect enters a model used away from its campaign: ``stiffness`` (it changes the
 #: robot's stiffness and enters K_X), ``measurement`` (how the deflection was observed: listed,
 #: not applied), ``lost_motion`` (a deflection that is not a stiffness: listed, not applied),
@@ -141,42 +129,27 @@ class Parameter:
 
 
 class Effect:
-    """An effect a model may miss. Its interface, in four parts (hooks default to nothing):
+    """An effect a model may miss. Its interface, in three parts (hooks default to nothing):
 
     * what it is: :attr:`name`, :attr:`kind`, :attr:`where`, :attr:`label`, :meth:`describe`;
-      placed on a robot by :meth:`at_place` (from a model file, unchecked; an effect with fixed
-      settings beside its parameters derives from :class:`Settings` too);
+      placed on a robot by :meth:`at_place` (from a model file, unchecked);
     * its parameters: :attr:`parameter_names`, their sizes :meth:`scale` (SI value of one
       optimiser unit: ``u ~ 1`` is a sizeable effect, SI ``u * scale``) and physical scales
       :meth:`physical_scale`, :meth:`bounds`, :meth:`start`, their :meth:`units` (reported
       by :func:`effect_report`, whose inverse is :func:`effect_variables`);
-    * its contribution to a model used away from its campaign: :meth:`contribute`;
-    * its part of a deflection campaign's prediction, whose Jacobian columns
-      :class:`~stiffness.elastic.effects.hypothesis.Hypothesis` takes analytically where
-      :attr:`through_law` or :attr:`linear_motion` says they are affine: :meth:`adjust_law`,
-      :meth:`adjust_load`, :meth:`target_shift`, :meth:`target_motion`, :meth:`output_map`,
-      :meth:`preload`.
+    * its contribution to a model used away from its campaign: :meth:`contribute`.
 
-    The per-joint effects share :class:`~stiffness.elastic.effects.joint_laws.JointEffect`;
-    the pose model's families add the hooks of
-    :class:`~stiffness.elastic.effects.pose_face.PoseFamily`.
+    Its part of a campaign's prediction, with its Jacobian columns, is a face of each campaign
+    kind it serves: a deflection campaign's
+    (:class:`~stiffness.elastic.effects.deflection_face.DeflectionEffect`), a pose model's
+    (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`). The per-joint effects share
+    :class:`~stiffness.elastic.effects.joint_laws.JointEffect`, the effects with fixed
+    settings :class:`~stiffness.elastic.effects.deflection_face.Settings`.
     """
 
     name: ClassVar[str] = ""
     #: names of the parameters (SI values: the variables times :meth:`scale`)
     param_names: ClassVar[tuple[str, ...]] = ()
-    #: whether the model gets ``K_C`` and the second-order kinematics
-    second_order: ClassVar[bool] = False
-    #: whether the effect makes its joint (:attr:`where`), rigid in the baseline, a spring
-    adds_spring: ClassVar[bool] = False
-    #: whether the variables enter only through the law of the joint :attr:`where`, affinely
-    #: (:meth:`adjust_law` of the SI values): the model then differentiates the prediction
-    #: with respect to them analytically (:meth:`Hypothesis.predict_with_jacobian`)
-    through_law: ClassVar[bool] = False
-    #: whether the variables enter only through :meth:`target_motion`, linearly (a bend): the
-    #: model then takes their columns exactly, as the motion at unit variables
-    #: (:attr:`Hypothesis.analytic_columns`)
-    linear_motion: ClassVar[bool] = False
     #: how the effect enters a model used away from its campaign
     #: (:mod:`stiffness.elastic.model_file`): one of :data:`EFFECT_KINDS`
     kind: ClassVar[str] = "stiffness"
@@ -199,11 +172,11 @@ class Effect:
 
     # construction ----------------------------------------------------------------------------
     @classmethod
-    def at_place(cls, where: str | None, geometry: Geometry | None = None) -> Effect:
+    def at_place(cls: type[E], where: str | None, geometry: Geometry | None = None) -> E:
         """The effect acting at ``where`` (a joint, ``a->b``, or ``None``), checked against the
         robot's ``geometry`` (:func:`stiffness.elastic.effects.make_effect`); with no
-        ``geometry``, as a model file declares it, unchecked (:meth:`Settings.configured` adds
-        the file's settings).
+        ``geometry``, as a model file declares it, unchecked (a model file's settings added by
+        :meth:`~stiffness.elastic.effects.deflection_face.Settings.configured`).
 
         Raises
         ------
@@ -275,41 +248,6 @@ class Effect:
         :attr:`compliance_variables`, else 1)."""
         return np.full(self.n_params, 1.0 / refs.k_ref if self.compliance_variables else 1.0)
 
-    # hooks ---------------------------------------------------------------------------------
-    def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Applied load from the recorded one."""
-        return force, moment
-
-    def target_shift(self, p: np.ndarray, rows: Rows) -> np.ndarray | None:
-        """(m, 3) displacement of the true target from the declared one, world axes."""
-        return None
-
-    def adjust_law(self, p: np.ndarray, law: SpringLaw, column: int, refs: References) -> None:
-        """Change the law of the model joint at ``column`` (that of :attr:`where`; called
-        when :attr:`through_law`)."""
-
-    def target_motion(self, p: np.ndarray, model: HypothesisArrays, rows: Rows,
-                      force: np.ndarray, moment: np.ndarray, point: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray] | None:
-        """(m, 3) extra target displacement (m) and (m, 3) extra rotation of the target frame
-        (rad, base axes), or ``None``."""
-        return None
-
-    def output_map(self, p: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """How the instrument reads the model's output: a rotation ``R`` (3, 3) of both the
-        displacement and the rotation (``measured = R model``) and an offset (3,) m of the
-        displacement, each ``None`` when absent (this default). Affine, so its derivative
-        along changes ``t`` (m, 3, P) of the model's output is ``R t``."""
-        return None, None
-
-    def preload(self, p: np.ndarray, model: HypothesisArrays, rows: Rows
-                ) -> tuple[np.ndarray, np.ndarray] | None:
-        """A torque present at the unloaded pose: ``(tau_p (m, n), K_p (m, n, n))`` over the
-        model's joints, ``K_p = d tau_p / d theta``, or ``None``. The measured deflection is
-        then the loaded minus the unloaded equilibrium (:meth:`Hypothesis.predict`)."""
-        return None
-
     def units(self, units) -> list[tuple[str, float]]:
         """Each parameter's unit in the campaign's ``units`` (:class:`stiffness.units.Units`)
         and that unit's SI value (``SI``, 1 by default)."""
@@ -319,59 +257,6 @@ class Effect:
         """One line on what the effect is."""
         return self.label
 
-
-
-class Settings(Effect):
-    """An effect with fixed settings beside its parameters (SI: a backlash's smoothing torque,
-    a compensator's geometry, the links ``gravity_lumped`` weighs); the effects without derive
-    from :class:`Effect` alone. A model file keeps them (:meth:`file_settings`) and reads them
-    back (:meth:`configured`); where a user may declare them (:meth:`declare`: a compensator's
-    lever and base, ``stiffness diagnose``'s ``effect_settings``), a fit frees them as further
-    parameters (:meth:`settings_freed`) or holds them (:meth:`settings_held`)."""
-
-    def configured(self, settings: dict) -> Effect:
-        """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
-        raise NotImplementedError
-
-    def file_settings(self, refs: References) -> dict:
-        """Fixed settings a model file keeps beside the parameters (SI)."""
-        raise NotImplementedError
-
-    def declare(self, settings: dict) -> Effect:
-        """This effect with settings its user declared (SI).
-
-        Raises
-        ------
-        StiffnessError
-            Settings the effect does not take (this default: any).
-        """
-        return undeclared(self, settings)
-
-    def settings_freed(self) -> Effect | None:
-        """This effect with its declared settings as further parameters, appended after
-        :attr:`parameter_names` (fitted when the data determine them), or ``None`` when it has
-        no such settings (this default)."""
-        return None
-
-    def settings_held(self, reason: str) -> Effect:
-        """This effect with its declared settings held, and ``reason`` (one clause: why the
-        data do not determine them) recorded (an effect whose :meth:`settings_freed` frees
-        some)."""
-        raise NotImplementedError
-
-
-def undeclared(effect: Effect, settings: dict) -> Effect:
-    """``effect``, which takes no declared settings, when ``settings`` declares none.
-
-    Raises
-    ------
-    StiffnessError
-        Declared settings.
-    """
-    if settings:
-        raise StiffnessError(f"{effect.label} takes no declared settings; drop "
-                             f"{', '.join(settings)}")
-    return effect
 
 
 #: The physical scale of a parameter (:meth:`Effect.physical_scale`) is this many times the

@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from stiffness.batch.equilibrium import solve_equilibria, unloaded_kinematics
-from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import (
     Geometry,
     References,
@@ -88,8 +88,9 @@ class Hypothesis:
     """
 
     def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
-                 compliant: tuple[str, ...], effects: tuple[Effect, ...], refs: References,
-                 rotation_weight: float | None = None, held: dict[str, str] | None = None
+                 compliant: tuple[str, ...], effects: tuple[DeflectionEffect, ...],
+                 refs: References, rotation_weight: float | None = None,
+                 held: dict[str, str] | None = None
                  ) -> None:
         if baseline not in BASELINES:
             raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
@@ -132,7 +133,7 @@ class Hypothesis:
         return Hypothesis(self.geometry, rows, self.baseline, self.compliant, self.effects,
                           self.refs, self.rotation_weight, self.held)
 
-    def extended(self, effect: Effect) -> Hypothesis:
+    def extended(self, effect: DeflectionEffect) -> Hypothesis:
         """This model plus ``effect``."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant,
                           self.effects + (effect,), self.refs, self.rotation_weight, self.held)
@@ -147,7 +148,7 @@ class Hypothesis:
         return Hypothesis(self.geometry, self.rows, baseline, self.compliant, self.effects,
                           self.refs, self.rotation_weight, self.held)
 
-    def with_effects(self, effects: tuple[Effect, ...]) -> Hypothesis:
+    def with_effects(self, effects: tuple[DeflectionEffect, ...]) -> Hypothesis:
         """The same model with other effects."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, effects,
                           self.refs, self.rotation_weight, self.held)
@@ -206,7 +207,7 @@ class Hypothesis:
         switch, counts as one)."""
         return len(self.compliant) + sum(max(e.n_params, 1) for e in self.effects)
 
-    def extend_x(self, x: np.ndarray, effect: Effect) -> np.ndarray:
+    def extend_x(self, x: np.ndarray, effect: DeflectionEffect) -> np.ndarray:
         """Start vector of :meth:`extended` from this model's ``x``."""
         return np.concatenate([x, effect.start()])
 
@@ -248,9 +249,10 @@ class Hypothesis:
     @property
     def analytic_columns(self) -> np.ndarray:
         """(p,) mask of the parameters :meth:`predict_with_jacobian` differentiates: ``ln k``,
-        the variables of effects acting through the joint law (:attr:`Effect.through_law`) and
-        those of effects moving the target linearly (:attr:`Effect.linear_motion`); the fitting
-        engine differentiates the others numerically."""
+        the variables of effects acting through the joint law
+        (:attr:`DeflectionEffect.through_law`) and those of effects moving the target linearly
+        (:attr:`DeflectionEffect.linear_motion`); the fitting engine differentiates the others
+        numerically."""
         mask = np.ones(self.n_params, dtype=bool)
         for i, e in enumerate(self.effects):
             mask[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law or e.linear_motion
@@ -258,9 +260,10 @@ class Hypothesis:
 
     def _motion_columns(self, rows: Rows, force: np.ndarray, moment: np.ndarray,
                         point: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
-        """The columns of the effects moving the target linearly (:attr:`Effect.linear_motion`):
-        ``(position among the analytic columns, d dx / d u (m, 3), d dphi / d u (m, 3))`` per
-        variable, exact (the motion at the unit variable: it is linear in its variables)."""
+        """The columns of the effects moving the target linearly
+        (:attr:`DeflectionEffect.linear_motion`): ``(position among the analytic columns,
+        d dx / d u (m, 3), d dphi / d u (m, 3))`` per variable, exact (the motion at the unit
+        variable: it is linear in its variables)."""
         analytic = np.cumsum(self.analytic_columns) - 1
         out = []
         for i, e in enumerate(self.effects):
@@ -285,7 +288,7 @@ class Hypothesis:
         With effects: the implicit function theorem on the frozen-geometry law
         (:meth:`stiffness.mechanics.equilibrium.SpringLaw.deflection_tangent`), carried through
         the second-order kinematics, the preload's unloaded equilibrium and the effects'
-        output maps (:meth:`Effect.output_map`).
+        output maps (:meth:`DeflectionEffect.output_map`).
 
         Raises
         ------
@@ -371,8 +374,8 @@ class Hypothesis:
         second-order kinematics also ``1/2 sum_k e_k dtheta^T K_C(e_k moment) dtheta``, plus
         the effects' rotational parts).
 
-        Effects with a :meth:`Effect.preload` (gravity) make the deflection the loaded minus
-        the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
+        Effects with a :meth:`DeflectionEffect.preload` (gravity) make the deflection the loaded
+        minus the unloaded frozen-geometry equilibrium, ``dtheta = f(tau_W + tau_p + (K_C + K_p)
         dtheta_1) - f(tau_p + K_p dtheta_0)``. With motor-side joint angles (the rows'
         :attr:`~stiffness.elastic.effects.geometry.Rows.joint_angles`) it is seen through the
         kinematics of the preloaded pose to first order in ``dtheta_0``:

@@ -2,8 +2,9 @@
 ``joint_compliance`` (a rigid joint is a spring), ``backlash`` (lost motion) and
 ``nonlinear_joint_stiffness`` (a spring that softens or hardens).
 
-Each class carries its prediction hooks (:class:`stiffness.elastic.effects.base.Effect`) and
-its contribution to a model used away from its campaign (:meth:`Effect.contribute`);
+Each class carries its prediction hooks
+(:class:`stiffness.elastic.effects.deflection_face.DeflectionEffect`) and its contribution to a
+model used away from its campaign (:meth:`Effect.contribute`);
 ``joint_compliance``, ``backlash`` and ``nonlinear_joint_stiffness`` also their pose-model
 face (:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every compliant
 joint of a pose model, under gravity and the applied wrench, their part of the joints'
@@ -17,11 +18,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
-from stiffness.elastic.effects.base import Effect, Settings
+from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import BACKLASH_SMOOTHING, Geometry, References
 from stiffness.elastic.effects.pose_face import (
     BACKLASH_SETTING,
@@ -36,9 +37,12 @@ from stiffness.elastic.effects.pose_face import (
 )
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 
+#: A per-joint effect's own class (:meth:`JointEffect.at_place`).
+J = TypeVar("J", bound="JointEffect")
+
 
 @dataclass(eq=False)
-class JointEffect(Effect):
+class JointEffect(DeflectionEffect):
     """The shared part of the per-joint effects (the joint laws, a spring compensator): the
     joint (``joint_name``, whether it is prismatic), where it acts (:attr:`where`: the joint)
     and its placement checked against the robot (a revolute joint where
@@ -50,7 +54,7 @@ class JointEffect(Effect):
     revolute_only: ClassVar[bool] = False
 
     @classmethod
-    def at_place(cls, where: str | None, geometry: Geometry | None = None) -> Effect:
+    def at_place(cls: type[J], where: str | None, geometry: Geometry | None = None) -> J:
         """The effect at the coordinate joint ``where`` of ``geometry`` (unchecked without).
 
         Raises
@@ -75,7 +79,7 @@ class JointEffect(Effect):
         return self.joint_name
 
 
-class ComplementaryStiffness(Effect):
+class ComplementaryStiffness(DeflectionEffect):
     """Load-dependent geometry: ``K_C`` and the second-order kinematics of the deflection."""
 
     name = "complementary_stiffness"

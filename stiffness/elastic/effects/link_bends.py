@@ -37,6 +37,7 @@ import pinocchio as pin
 
 from stiffness.batch.linalg import cross_matrices
 from stiffness.batch.poses import JointPlacements, frame_placements
+from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
@@ -170,7 +171,7 @@ def gravity_slope(cache: BendCache, view: MarkerView) -> np.ndarray:
 
 
 @dataclass(eq=False)
-class LinkCompliance(PoseFamily):
+class LinkCompliance(DeflectionEffect, PoseFamily):
     """Lumped bending of the segment ``a -> b`` at ``b``'s origin, about two normal axes.
 
     Pose face: each link of the markers' chains bends at its distal joint's origin about the

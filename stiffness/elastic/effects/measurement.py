@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from stiffness.elastic.effects.base import Effect
+from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import rotation_matrix
 
 _DIAGONAL = np.ones(3) / math.sqrt(3.0)
@@ -26,7 +26,7 @@ def diagonal_vector(values: tuple[float, ...]) -> np.ndarray:
     return values[0] * _DIAGONAL if len(values) == 1 else np.array(values, dtype=float)
 
 
-class VectorEffect(Effect):
+class VectorEffect(DeflectionEffect):
     """An effect of one three-vector in the campaign's unit of :attr:`quantity` (``angle``,
     ``length`` or ``force``: :class:`stiffness.units.Units`): ``stiffness simulate`` takes its
     three values, or one along (1, 1, 1)/sqrt(3)."""

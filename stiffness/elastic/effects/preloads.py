@@ -24,7 +24,8 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import torque_regressors
-from stiffness.elastic.effects.base import PHYSICAL_FACTOR, Effect, Settings
+from stiffness.elastic.effects.base import PHYSICAL_FACTOR
+from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import References, cross, reach, skew
 from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.pose_face import (
@@ -61,7 +62,7 @@ MASS_LOWER = {"m": 0.0, "mcx": -math.inf, "mcy": -math.inf, "mcz": -math.inf}
 
 
 @dataclass(eq=False)
-class GravityPreload(Effect):
+class GravityPreload(DeflectionEffect):
     """The robot's weight (URDF inertias) and a payload preload the joints at every pose.
 
     The payload's centre of mass is fitted within ``reach_m`` of the target frame's origin
@@ -421,7 +422,7 @@ def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> np.ndarray:
 
 
 @dataclass(eq=False)
-class GravityLumped(Settings, JointDeflectionFamily):
+class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
     """``gravity_lumped``: the links' weight when their masses are unknown (``--masses
     unknown``), linear in each weighed link's gravity parameters (mass and mass moments,
     :data:`~stiffness.mechanics.gravity.GRAVITY_PARAMETERS`) through the gravity regressor.
