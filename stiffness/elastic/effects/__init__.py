@@ -7,7 +7,8 @@ Each effect is one class in a module of its family: joint laws
 (:mod:`~stiffness.elastic.effects.measurement`), the kinematic errors
 (:mod:`~stiffness.elastic.effects.kinematic_errors`), all subclasses of
 :class:`~stiffness.elastic.effects.base.Effect`. A class carries its prediction in a deflection
-campaign's fit (:class:`~stiffness.elastic.effects.hypothesis.Hypothesis`), its contribution to
+campaign's fit (:class:`~stiffness.elastic.effects.hypothesis.Hypothesis`, through its deflection
+face, :class:`~stiffness.elastic.effects.deflection_face.DeflectionEffect`), its contribution to
 a model used away from its campaign (:meth:`Effect.contribute` into an
 :class:`~stiffness.elastic.effects.parts.ElasticParts`) and, where it is a parameter family of
 an absolute-pose model, its pose face (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`
