@@ -59,9 +59,10 @@ from pose_truth import add_intervals  # noqa: E402
 from stats import Coverage, binomial_consistent  # noqa: E402
 
 from stiffness.calibration.diagnose import diagnose  # noqa: E402
-from stiffness.calibration.pose_diagnose import diagnose_poses, parameter_table  # noqa: E402
+from stiffness.calibration.pose_diagnose import diagnose_poses  # noqa: E402
 from stiffness.calibration.pose_fit import campaign_settings  # noqa: E402
 from stiffness.calibration.pose_model import Marker  # noqa: E402
+from stiffness.calibration.pose_model_file import parameter_table  # noqa: E402
 from stiffness.elastic.effects.geometry import Geometry  # noqa: E402
 from stiffness.elastic.effects.link_bends import transversal_joints  # noqa: E402
 from stiffness.elastic.effects.pose_face import NONLINEAR_SETTING  # noqa: E402

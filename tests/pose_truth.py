@@ -16,8 +16,8 @@ import numpy as np
 import pinocchio as pin
 from stats import Coverage
 
-from stiffness.calibration.pose_diagnose import parameter_table
 from stiffness.calibration.pose_fit import rows_of
+from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.planning.simulate_poses import HiddenPoseErrors
 

@@ -314,7 +314,7 @@ def test_calibrated_urdf_reproduces_the_rigid_positions(ur10, tmp_path, capsys):
     out = tmp_path / "calibrated.urdf"
     assert main(["robot", "export", "--model", str(tmp_path / "d" / "final-model.json"),
                  "--urdf", str(out)]) == 0
-    from stiffness.calibration.pose_diagnose import read_pose_model
+    from stiffness.calibration.pose_model_file import read_pose_model
     file = read_pose_model(tmp_path / "d" / "final-model.json")
     predicted = file.model.evaluate(file.x, rows_of(file.model, c), jacobian=False)[0]
     written = load_robot(str(out))

@@ -28,8 +28,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_diagnose import diagnose_poses, read_pose_model, write_pose_model
+from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_model_file import read_pose_model, write_pose_model
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 

@@ -11,9 +11,9 @@ import pinocchio as pin
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_diagnose import read_pose_model, write_pose_model
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model_file import read_pose_model, write_pose_model
 from stiffness.cli.main import main
 from stiffness.elastic.model_file import read_model_file
 from stiffness.files import read_toml

@@ -19,7 +19,6 @@ from pose_campaigns import PRISM_ARM
 
 from stiffness import load_model
 from stiffness.calibration.pose_campaign import write_pose_campaign
-from stiffness.calibration.pose_diagnose import write_pose_model
 from stiffness.calibration.pose_fit import (
     campaign_settings,
     fit_pose_model,
@@ -27,6 +26,7 @@ from stiffness.calibration.pose_fit import (
     starting_frame,
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.cli.main import main
 from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign

@@ -28,13 +28,10 @@ from test_pose_model_file import _hand_written
 
 from stiffness import load_model
 from stiffness.calibration.pose_campaign import write_pose_campaign
-from stiffness.calibration.pose_diagnose import (
-    diagnose_poses,
-    parameter_table,
-    write_pose_model,
-)
+from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import campaign_settings, predict
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
+from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
 from stiffness.calibration.pose_report import format_pose_report
 from stiffness.cli.main import main
 from stiffness.elastic.effects.pose_face import SagState

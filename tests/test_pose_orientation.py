@@ -15,9 +15,9 @@ from pose_truth import add_intervals
 from stats import Coverage
 
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_diagnose import write_pose_model
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError

@@ -13,7 +13,7 @@ import pinocchio as pin
 import pytest
 from pose_campaigns import PRISM_ARM
 
-from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses, parameter_table
+from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
 from stiffness.calibration.pose_fit import (
     campaign_settings,
     fit_pose_model,
@@ -23,6 +23,7 @@ from stiffness.calibration.pose_fit import (
     starting_frame,
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 from stiffness.calibration.selection import BIC_MARGIN
 from stiffness.errors import StiffnessError

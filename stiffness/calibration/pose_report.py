@@ -12,11 +12,8 @@ from stiffness.calibration.breakdown import marker_structure
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
-from stiffness.calibration.pose_diagnose import (
-    PoseDiagnosis,
-    parameter_table,
-    write_pose_model,
-)
+from stiffness.calibration.pose_diagnose import PoseDiagnosis
+from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
 from stiffness.calibration.pose_page import not_added, render_pose_diagnosis, stage_plot
 from stiffness.calibration.residual_figures import marker_residual_plots
 from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_label

@@ -31,7 +31,8 @@ import numpy as np
 from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign
-from stiffness.calibration.pose_diagnose import read_pose_model, validation_errors
+from stiffness.calibration.pose_diagnose import validation_errors
+from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import (

@@ -1,0 +1,116 @@
+"""The model file of a pose calibration (``final-model.json``): what it holds and how it is
+written (:func:`write_pose_model`) and read back into its marker-position model
+(:func:`read_pose_model`, through :func:`stiffness.robot.calibration.read_pose_calibration`,
+which :func:`stiffness.load_model` reads too), and the parameter table it and ``diagnose
+--json`` carry (:func:`parameter_table`). SI throughout."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_fit import PoseFit
+from stiffness.calibration.pose_model import Loads, Marker, PoseModel
+from stiffness.calibration.pose_parameters import PoseJudge
+from stiffness.errors import FileFormatError
+from stiffness.files import atomic_write, jsonable, written_source
+from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
+from stiffness.robot.robot import Robot, load_robot
+
+
+def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
+    """Each parameter with its value, standard deviation and 95 % interval (SI, unit named),
+    and whether it sits at its physical lower bound (its interval then one-sided); with the
+    campaign's ``judge``, also the keys of a deflection diagnosis's parameters
+    (:meth:`~stiffness.elastic.effects.base.Parameter.to_dict`: ``standard_error``, ``ci95``,
+    ``determined``, ``held``, ``physical_scale``)."""
+    lo, hi = fit.interval()
+    std = fit.std()
+    kept = set(fit.identifiability.kept)
+    judged = ({} if judge is None else
+              {p.name: p for ps in judge.parameters(fit).values() for p in ps})
+    return [{"family": p.family, "parameter": p.label, "unit": p.unit,
+             "value": float(fit.x[i]), "fitted": i in kept,
+             "std": None if i not in kept else jsonable(std[i]),
+             "interval_95": None if i not in kept else jsonable([lo[i], hi[i]]),
+             "at_bound": i in fit.at_bound,
+             **({k: v for k, v in judged[p.label].to_dict().items()
+                 if k not in ("value", "unit", "at_bound")} if p.label in judged else {})}
+            for i, p in enumerate(fit.model.parameters)]
+
+
+def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathLike,
+                    selection: dict | None = None) -> dict:
+    """The model file of a pose calibration written into ``folder``: robot (its source relative
+    to ``folder``, :func:`~stiffness.files.written_source`), measuring frame, markers,
+    parameters (SI), and ``selection`` (:meth:`PoseDiagnosis.selection`: the forced and
+    forbidden families) when the fit comes from a diagnosis; read by
+    :func:`~stiffness.robot.calibration.read_pose_calibration`."""
+    s, robot = campaign.settings, campaign.robot
+    return {"kind": POSE_MODEL_KIND, "version": 1, "units": "SI",
+            "robot": {"source": written_source(s.source, Path(folder), campaign.folder()),
+                      "frame": robot.target_frame,
+                      "target_offset_m": robot.target_offset.tolist(),
+                      "compliant_joints": list(robot.compliant_joints), "name": robot.title,
+                      **({"fixed_base": True} if s.fixed_base else {})},
+            "measuring_frame": {"rotation": fit.model.rotation0.tolist(),
+                                "translation_m": fit.model.translation0.tolist()},
+            "markers": [{"name": m.name, "frame": m.frame, "offset_m": list(map(float, m.offset))}
+                        for m in fit.model.markers],
+            "load_frame": None if campaign.loads is None else campaign.loads.frame,
+            "families": list(fit.model.families),
+            "settings": fit.model.settings,
+            **({} if selection is None else {"selection": selection}),
+            "parameters": parameter_table(fit)}
+
+
+def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike,
+                     selection: dict | None = None) -> Path:
+    """Write the pose model file (JSON, atomically; :func:`pose_model_dict`)."""
+    path = Path(path)
+    atomic_write(path, json.dumps(pose_model_dict(fit, campaign, path.parent, selection),
+                                  indent=1) + "\n")
+    return path
+
+
+@dataclass
+class PoseModelFile:
+    """A pose model file read back: its robot, its model and parameters."""
+
+    robot: Robot
+    model: PoseModel
+    x: np.ndarray
+    path: Path
+
+
+def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> PoseModelFile:
+    """Read a pose model file written by :func:`write_pose_model`
+    (:func:`~stiffness.robot.calibration.read_pose_calibration`) into its marker-position
+    model on the nominal robot (``robot``: default the one the file names).
+
+    Raises
+    ------
+    FileFormatError
+        Not a pose model file, or a missing or malformed key (named).
+    """
+    cal = read_pose_calibration(path)
+    try:
+        robot = robot or load_robot(cal.source, frame=cal.frame, target_offset=cal.target_offset_m,
+                                    compliant_joints=cal.compliant_joints,
+                                    fixed_base=cal.fixed_base)
+        markers = [Marker(name, frame, offset) for name, frame, offset in cal.markers]
+        model = PoseModel(robot, markers, cal.families, (cal.rotation, cal.translation),
+                          None if cal.load_frame is None else Loads(cal.load_frame,
+                                                                    np.zeros((0, 6))),
+                          cal.settings)
+        values = cal.values()
+        x = np.array([values[p.label] for p in model.parameters])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
+                              "stiffness diagnose --out", path=cal.path) from exc
+    return PoseModelFile(robot, model, x, cal.path)
