@@ -218,3 +218,28 @@ def test_validate(tmp_path, capsys, pose_campaigns, campaign):
     assert printed["markers"]["tip"]["rows"] == 15
     with pytest.raises(stiffness.StiffnessError, match="pose calibration"):
         stiffness.validate(model, campaign)
+
+
+def test_validate_takes_a_model_and_campaigns_loaded(tmp_path, capsys, pose_campaigns,
+                                                     campaign):
+    """``stiffness.validate`` takes what the other workflows take (the README: a campaign or
+    its path): a ModelFile read and a Campaign or PoseCampaign loaded give the command's
+    object; it raised TypeError ('expected str, bytes or os.PathLike object, not ModelFile')."""
+    model = tmp_path / "m.json"
+    stiffness.identify(campaign).write_model(model)
+    printed = _command_json(capsys, ["validate", str(model), str(campaign)])
+    from stiffness.elastic.model_file import read_model_file
+
+    read = read_model_file(model)
+    result = _as_json(stiffness.validate(read, stiffness.load_campaign(campaign)))
+    assert result.pop("campaign") == str(campaign / "campaign.toml")  # the loaded one's file
+    assert result == {k: v for k, v in printed.items() if k != "campaign"}
+    fit, other = pose_campaigns
+    assert main(["diagnose", str(fit), "--out", str(tmp_path / "D"), "--quiet"]) == 0
+    pose_model = tmp_path / "D" / "final-model.json"
+    printed = _command_json(capsys, ["validate", str(pose_model), str(other)])
+    loaded = _as_json(stiffness.validate(pose_model, stiffness.load_pose_campaign(other)))
+    loaded.pop("campaign"), printed.pop("campaign")
+    assert loaded == printed
+    with pytest.raises(stiffness.StiffnessError, match="deflection model"):
+        stiffness.validate(read, stiffness.load_pose_campaign(other))

@@ -25,12 +25,13 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
 from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
-from stiffness.calibration.pose_campaign import load_pose_campaign
+from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
@@ -142,8 +143,10 @@ class Validation:
                 "gof_p": self.gof(), "verdict": self.verdict}
 
 
-def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> Validation:
-    """The model file ``model`` evaluated on ``campaign`` (a ``campaign.toml`` or its folder):
+def validate(model: ModelFile | str | os.PathLike,
+             campaign: Campaign | PoseCampaign | str | os.PathLike) -> Validation:
+    """The model file ``model`` (a path, or a deflection model read: :class:`ModelFile`)
+    evaluated on ``campaign`` (a ``campaign.toml`` or its folder, or a campaign loaded):
     errors in the campaign's length unit and the verdict against its declared noise.
 
     Raises
@@ -154,27 +157,40 @@ def validate(model: str | os.PathLike, campaign: str | os.PathLike) -> Validatio
         A pose calibration with a deflection campaign or the other way round, or a file
         that cannot be read.
     """
-    pose_model = is_pose_calibration(model)
-    if (campaign_kind(campaign) == "poses") != pose_model:
+    pose_model = not isinstance(model, ModelFile) and is_pose_calibration(model)
+    kind = "poses" if isinstance(campaign, PoseCampaign) else "deflections" if isinstance(
+        campaign, Campaign) else campaign_kind(campaign)
+    name = str(model.path or "the model") if isinstance(model, ModelFile) else str(model)
+    if (kind == "poses") != pose_model:
         raise StiffnessError(
-            f"{model} is {'a pose calibration' if pose_model else 'a deflection model'} "
-            f"and {campaign} is not a {'pose' if pose_model else 'deflection'} campaign; "
-            "validate a pose calibration on a pose campaign, a deflection model on a "
+            f"{name} is {'a pose calibration' if pose_model else 'a deflection model'} "
+            f"and {_campaign_name(campaign)} is not a {'pose' if pose_model else 'deflection'} "
+            "campaign; validate a pose calibration on a pose campaign, a deflection model on a "
             "deflection campaign")
-    if not pose_model:
-        return validate_deflection_model(read_model_file(model), str(model), campaign)
-    poses = load_pose_campaign(campaign)
+    if isinstance(model, ModelFile) or not pose_model:
+        declared = model if isinstance(model, ModelFile) else read_model_file(model)
+        return validate_deflection_model(  # a deflection campaign: kind said so
+            declared, name, cast("Campaign | str | os.PathLike", campaign))
+    poses = campaign if isinstance(campaign, PoseCampaign) else load_pose_campaign(
+        cast("str | os.PathLike", campaign))
     cal = read_pose_calibration(model)
     robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
-                       poses.robot.name, model, campaign)
+                       poses.robot.name, model, _campaign_name(campaign))
     calibration = read_pose_model(model, poses.robot)
     errors = validation_errors(calibration.model, calibration.x, poses)
     noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
-    return Validation(str(model), str(campaign), "poses", errors, robot, noise)
+    return Validation(name, _campaign_name(campaign), "poses", errors, robot, noise)
+
+
+def _campaign_name(campaign: Campaign | PoseCampaign | str | os.PathLike) -> str:
+    """How messages and results name a campaign: its path (a loaded one's, else its name)."""
+    if isinstance(campaign, Campaign | PoseCampaign):
+        return str(campaign.path) if campaign.path is not None else f"campaign {campaign.name!r}"
+    return str(campaign)
 
 
 def validate_deflection_model(declared: ModelFile, model: str,
-                              campaign: str | os.PathLike) -> Validation:
+                              campaign: Campaign | str | os.PathLike) -> Validation:
     """A deflection model file (read, or built in memory: a diagnosis's final model) evaluated
     on the deflection campaign ``campaign``; ``model`` names the model in messages and the
     result.
@@ -186,9 +202,9 @@ def validate_deflection_model(declared: ModelFile, model: str,
     StiffnessError
         ``campaign`` cannot be read as a deflection campaign.
     """
-    measured = load_campaign(campaign)
+    measured = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     robot = same_robot(declared.source, declared.robot, measured.robot(),
-                       measured.resolved_source(), model, campaign)
+                       measured.resolved_source(), model, _campaign_name(campaign))
     # the campaign measured its own target: the model evaluated there (moved only where the
     # campaign's differs, so that a diagnosed target_offset stays otherwise)
     target = measured.robot()
@@ -198,7 +214,7 @@ def validate_deflection_model(declared: ModelFile, model: str,
         declared, frame=target.target_frame, target_offset=target.target_offset), measured)
     noise = None if measured.noise_std_m is None else (
         measured.noise_std_m / measured.units.length_to_si)
-    return Validation(model, str(campaign), "deflections", errors, robot, noise)
+    return Validation(model, _campaign_name(campaign), "deflections", errors, robot, noise)
 
 
 def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,
