@@ -212,7 +212,8 @@ def diagnose(
             validate = load_pose_campaign(validate)
         return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
                               progress=progress, loss=loss, families=families,
-                              not_families=not_families, max_steps=max_steps)
+                              not_families=not_families, max_steps=max_steps,
+                              effect_settings=effect_settings)
     if validate is not None:
         raise StiffnessError("validate takes pose campaigns; a deflection campaign's diagnosis "
                              "reports the held-out (cross-validated) RMS of each step, and "

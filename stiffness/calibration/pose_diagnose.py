@@ -66,6 +66,7 @@ from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES, check_masses
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
+from stiffness.elastic.effects.preloads import GravityCompensator, declared_geometry
 from stiffness.errors import StiffnessError, TooFewMeasurementsError
 from stiffness.files import jsonable
 from stiffness.workspace.distributed import run_chunks
@@ -340,7 +341,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    loss: str = "linear", families: Sequence[str] = (),
                    not_families: Sequence[str] = (),
                    base_tilt: Sequence[float] | None = None, workers: int | None = None,
-                   bar: Bar | None = None, max_steps: int | None = None) -> PoseDiagnosis:
+                   bar: Bar | None = None, max_steps: int | None = None,
+                   effect_settings: dict[str, dict] | None = None) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -382,6 +384,11 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     max_steps
         Largest number of families the search adds after the forced ones (``diagnose
         --max-steps``; 0: the baseline and the forced families); ``None``: no limit.
+    effect_settings
+        Declared settings by effect label, as a deflection campaign's: the ``lever_m`` and
+        ``base_m`` (m) of a ``gravity_compensator(JOINT)`` (``diagnose
+        --compensator-geometry``; model setting ``compensator_geometry_m``, kept in the model
+        file); default the library's geometry.
 
     Raises
     ------
@@ -402,6 +409,9 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     if base_tilt is not None:
         settings[DECLARED_TILT] = [float(v) for v in base_tilt]
         declared_tilt(settings)  # two finite angles, else a one-line error
+    if effect_settings:
+        settings[GravityCompensator.GEOMETRY_SETTING] = declared_geometry(
+            campaign.robot, effect_settings)
     empty = _empty(campaign, frame0, settings, CANDIDATES[masses])
     if empty & set(forced):
         f = next(f for f in forced if f in empty)

@@ -68,12 +68,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "covariance (deflection and pose campaigns); default linear")
     parser.add_argument("--compensator-geometry", action="append", default=[],
                         metavar="JOINT=LEVER_M,BASE_M",
-                        help="deflection campaigns, repeatable: the lever and base lengths (m) "
-                             "of a spring gravity compensator on JOINT, e.g. "
-                             "joint2=0.12,0.35; default 0.1,0.3. The base is fitted when the "
-                             "data determine it, else held; the lever always is the declared "
-                             "one (the torque depends on the lengths only through F0 a, k a^2 "
-                             "and a/d)")
+                        help="repeatable: the lever and base lengths (m) of a spring gravity "
+                             "compensator on JOINT, e.g. joint2=0.12,0.35; default 0.1,0.3. "
+                             "In a deflection campaign the base is fitted when the data "
+                             "determine it, else held (a pose campaign holds both); the lever "
+                             "always is the declared one (the torque depends on the lengths "
+                             "only through F0 a, k a^2 and a/d)")
     parser.add_argument("--masses", choices=MASSES, default="known",
                         help="whether the robot's link masses are trusted or unknown: the "
                              "weight is then fitted from lumped gravity parameters (a pose "
@@ -128,6 +128,8 @@ def pose_command_line(args: argparse.Namespace) -> str:
     words += ["--families", args.families] if args.families else []
     words += ["--not", args.not_families] if args.not_families else []
     words += ["--base-tilt", args.base_tilt] if args.base_tilt else []
+    for declared in args.compensator_geometry:
+        words += ["--compensator-geometry", declared]
     return shlex.join(words)
 
 
@@ -224,9 +226,6 @@ def run_poses(args: argparse.Namespace) -> int:
     from stiffness.calibration.pose_diagnose import diagnose_poses
     from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
 
-    if args.compensator_geometry:
-        raise StiffnessError("--compensator-geometry takes deflection campaigns; a pose "
-                             "campaign has no compensator effect (drop it)")
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
     check_out_folder(args.out)
@@ -240,7 +239,8 @@ def run_poses(args: argparse.Namespace) -> int:
                             base_tilt=None if args.base_tilt is None else [
                                 math.radians(v)
                                 for v in flags.parse_list(args.base_tilt, "--base-tilt")],
-                            max_steps=args.max_steps)
+                            max_steps=args.max_steps,
+                            effect_settings=compensator_geometry(args.compensator_geometry))
     paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 

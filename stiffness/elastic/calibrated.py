@@ -15,9 +15,9 @@ deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose 
 ``backlash``, ``link_compliance``, ``transversal_compliance``, ``gravity_compensator``
     the same effects, with the calibration's smoothing torques, ``1/c`` bend and bearing-tilt
     stiffnesses (a bend or a tilt off the target's chain does not act on it), and the
-    compensator's default geometry with its angle from the link's upward direction, as the
-    calibration used them (the upward angle less the joint's zero offset: the calibrated
-    robot's joint angles are the commanded ones).
+    compensator's geometry (the default one, or its declared lever and base) with its angle
+    from the link's upward direction, as the calibration used them (the upward angle less
+    the joint's zero offset: the calibrated robot's joint angles are the commanded ones).
 ``nonlinear_joint_stiffness``
     each determined spring's compliance per unit torque ``gamma`` (rad/(N.m)^2, m/N^2)
     becomes the deflection library's ``beta = gamma / c`` (1/(N.m), 1/N), with the spring's
@@ -150,6 +150,8 @@ def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[
             continue
         spring = make_effect("gravity_compensator", joint, geometry)
         if isinstance(spring, GravityCompensator):
+            declared = cal.settings.get(GravityCompensator.GEOMETRY_SETTING, {})
+            spring = spring.declare(declared[joint]) if joint in declared else spring
             offset = float(rows.get(zero_label(joint), {}).get("value", 0.0))
             settings = {**spring.settings,  # the calibrated robot's angles exclude the offset
                         "angle_up_rad": spring.settings["angle_up_rad"] - offset}

@@ -158,7 +158,8 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
     terms), the base becomes the parameter ``base`` (m) after them when the data determine the
     ratio (``geometry_source = "fitted"``, :meth:`settings_freed`).
 
-    Pose face: one compensator with its default geometry (:meth:`upward`) on each revolute
+    Pose face: one compensator with its default geometry (:meth:`upward`), or the one the
+    model's setting :data:`GEOMETRY_SETTING` declares (:meth:`declared_at`), on each revolute
     compliant joint; its torque at the loaded joint angle joins what the joint's spring
     carries. Parameters per joint: the spring's stiffness (N/m) and its tension at the joint's
     zero (N); the torque is linear in both. Needs ``joint_compliance`` (the torque acts
@@ -356,6 +357,8 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
     requires: ClassVar[tuple[str, ...]] = ("joint_compliance",)
     #: typical sizes of the stiffness (N/m) and the tension (N)
     SIZES: ClassVar[tuple[float, float]] = (1e3, 1e2)
+    #: the model setting declaring compensators' geometry: joint -> {lever_m, base_m} (m)
+    GEOMETRY_SETTING: ClassVar[str] = "compensator_geometry_m"
 
     @classmethod
     def upward(cls, robot: Robot, joint: str) -> GravityCompensator:
@@ -366,12 +369,22 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
                    reference_reason=up.reason)
 
     def _pose_joints(self, pm: PoseLayout) -> list[tuple[int, GravityCompensator]]:
-        """Each revolute compliant joint (id) and its spring (built once per model)."""
+        """Each revolute compliant joint (id) and its spring (built once per model), its
+        lever and base those the model's setting :data:`GEOMETRY_SETTING` declares for it,
+        else the library's defaults."""
         if self._pose_springs is None:
-            names = pm.robot.model.names
-            self._pose_springs = [(j, self.upward(pm.robot, names[j])) for j in pm.compliant
-                                  if not pm.robot.is_prismatic(names[j])]
+            names, declared = pm.robot.model.names, pm.settings.get(self.GEOMETRY_SETTING, {})
+            self._pose_springs = [(j, self.declared_at(pm.robot, names[j], declared))
+                                  for j in pm.compliant if not pm.robot.is_prismatic(names[j])]
         return self._pose_springs
+
+    @classmethod
+    def declared_at(cls, robot: Robot, joint: str, declared: dict[str, dict]
+                    ) -> GravityCompensator:
+        """The compensator on ``joint`` (:meth:`upward`) with the lever and base (m)
+        ``declared[joint]`` gives (``diagnose --compensator-geometry``), if any."""
+        spring = cls.upward(robot, joint)
+        return spring if joint not in declared else spring.declare(declared[joint])
 
     def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
         # each spring's own (its lever and base): the deflection effect's scale
@@ -410,6 +423,33 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
                 out[..., v, 2 * n + c] = spring.torque(unit, theta)[0].reshape(
                     out[..., v, 2 * n + c].shape)
         return out
+
+
+def declared_geometry(robot: Robot, settings: dict[str, dict]) -> dict[str, dict]:
+    """Compensators' declared lever and base (m) by joint, from declared settings by effect
+    label (``gravity_compensator(JOINT)``: ``diagnose --compensator-geometry``), checked:
+    each a revolute compliant joint of ``robot``, two positive lengths
+    (:meth:`GravityCompensator.declare`); the pose model's setting
+    :attr:`GravityCompensator.GEOMETRY_SETTING`.
+
+    Raises
+    ------
+    StiffnessError
+        Another effect's label, a joint that carries no compensator, or lengths that are not
+        two positive ones.
+    """
+    valid = [j for j in robot.compliant_joints if not robot.is_prismatic(j)]
+    out = {}
+    for label, lengths in settings.items():
+        name, _, where = label.partition("(")
+        joint = where[:-1]
+        if name != "gravity_compensator" or joint not in valid:
+            raise StiffnessError(f"declared settings {label}: a pose campaign takes those of "
+                                 f"gravity_compensator(JOINT), JOINT a revolute compliant joint "
+                                 f"of {robot.title}: {', '.join(valid) or 'none'}")
+        spring = GravityCompensator(joint_name=joint).declare(lengths)
+        out[joint] = {"lever_m": spring.lever_m, "base_m": spring.base_m}
+    return out
 
 
 def _joint_angle(model: pin.Model, joint: int, q: np.ndarray) -> np.ndarray:
