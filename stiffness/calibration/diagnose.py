@@ -184,7 +184,7 @@ def diagnose(
         ``linear`` or a robust loss for every fit, scaled by the noise std; criteria compare
         :attr:`stiffness.calibration.fitting.Fit.loss_rss` (docs/outliers.md).
     effect_settings
-        Declared settings by effect label (:meth:`Settings.declare`; :func:`_fit_settings`).
+        Declared settings by effect label (:meth:`DeflectionEffect.declare`; :func:`_fit_settings`).
     masses
         Whether the robot's link masses are trusted (``known``) or not (``unknown``): the
         weight is then lumped (a pose model's ``gravity_lumped`` family; a deflection
@@ -347,7 +347,7 @@ def _check_options(max_steps: int, loss: str, masses: str) -> None:
 
 def _declared_settings(base: Fit, settings: dict[str, dict]) -> dict[str, dict]:
     """``settings`` by effect label, checked: each label a candidate of the campaign's model
-    and its settings ones the effect takes (:meth:`Settings.declare`; a typed error)."""
+    and its settings ones the effect takes (:meth:`DeflectionEffect.declare`; a typed error)."""
     made = candidates(base.model, settings)
     labels = [e.label for e in made]
     for label in settings:

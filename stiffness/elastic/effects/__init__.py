@@ -93,7 +93,7 @@ from __future__ import annotations
 
 from stiffness.elastic.effects.base import Effect
 from stiffness.elastic.effects.base_tilt import BaseTilt
-from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings, undeclared
+from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.joint_laws import (
@@ -186,20 +186,16 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     (:attr:`Geometry.tilt_columns`); ``backlash`` and ``nonlinear_joint_stiffness`` of each
     compliant joint; then the global effects, the weight as ``gravity_preload`` with the
     ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`). An effect whose label
-    ``declared`` names takes those settings (:meth:`Settings.declare`).
+    ``declared`` names takes those settings (:meth:`DeflectionEffect.declare`).
     """
     geo = model.geometry
     have = {e.label for e in model.effects}
     out: list[DeflectionEffect] = []
 
     def add(effect: DeflectionEffect) -> None:
-        if effect.label in have:
-            return
-        if declared and effect.label in declared:
-            settings = declared[effect.label]
-            effect = (effect.declare(settings) if isinstance(effect, Settings)
-                      else undeclared(effect, settings))
-        out.append(effect)
+        if effect.label not in have:
+            out.append(effect.declare(declared[effect.label]) if declared
+                       and effect.label in declared else effect)
 
     if not model.second_order:
         add(ComplementaryStiffness())

@@ -89,15 +89,28 @@ class DeflectionEffect(Effect):
         then the loaded minus the unloaded equilibrium (:meth:`Hypothesis.predict`)."""
         return None
 
+    def declare(self, settings: dict) -> DeflectionEffect:
+        """This effect with settings its user declared (SI; ``stiffness diagnose``'s
+        ``effect_settings``: a compensator's lever and base, :class:`Settings`).
+
+        Raises
+        ------
+        StiffnessError
+            Settings the effect does not take (this default: any).
+        """
+        if settings:
+            raise StiffnessError(f"{self.label} takes no declared settings; drop "
+                                 f"{', '.join(settings)}")
+        return self
+
 
 class Settings(DeflectionEffect):
     """An effect with fixed settings beside its parameters (SI: a backlash's smoothing torque,
     a compensator's geometry, the links ``gravity_lumped`` weighs); the effects without derive
     from :class:`DeflectionEffect` alone. A model file keeps them (:meth:`file_settings`) and
-    reads them back (:meth:`configured`); where a user may declare them (:meth:`declare`: a
-    compensator's lever and base, ``stiffness diagnose``'s ``effect_settings``), a fit frees
-    them as further parameters (:meth:`settings_freed`) or holds them (:meth:`settings_held`).
-    """
+    reads them back (:meth:`configured`); where a user declared them
+    (:meth:`DeflectionEffect.declare`: a compensator's lever and base), a fit frees them as
+    further parameters (:meth:`settings_freed`) or holds them (:meth:`settings_held`)."""
 
     def configured(self, settings: dict) -> DeflectionEffect:
         """This effect with a model file's fixed ``settings`` (:meth:`file_settings`)."""
@@ -106,16 +119,6 @@ class Settings(DeflectionEffect):
     def file_settings(self, refs: References) -> dict:
         """Fixed settings a model file keeps beside the parameters (SI)."""
         raise NotImplementedError
-
-    def declare(self, settings: dict) -> DeflectionEffect:
-        """This effect with settings its user declared (SI).
-
-        Raises
-        ------
-        StiffnessError
-            Settings the effect does not take (this default: any).
-        """
-        return undeclared(self, settings)
 
     def settings_freed(self) -> DeflectionEffect | None:
         """This effect with its declared settings as further parameters, appended after
@@ -129,16 +132,3 @@ class Settings(DeflectionEffect):
         some)."""
         raise NotImplementedError
 
-
-def undeclared(effect: DeflectionEffect, settings: dict) -> DeflectionEffect:
-    """``effect``, which takes no declared settings, when ``settings`` declares none.
-
-    Raises
-    ------
-    StiffnessError
-        Declared settings.
-    """
-    if settings:
-        raise StiffnessError(f"{effect.label} takes no declared settings; drop "
-                             f"{', '.join(settings)}")
-    return effect
