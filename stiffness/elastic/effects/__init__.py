@@ -61,8 +61,8 @@ The deflection campaigns' library (:data:`LIBRARY`):
     an instrument zero drift).
 ``gravity_preload``
     The links' weight (URDF inertias) and a payload (mass kg, centre of mass m in target frame
-    axes) preload the joints (:meth:`Effect.preload`): the deflection is the loaded minus the
-    unloaded equilibrium at the commanded pose (open chains only).
+    axes) preload the joints (:meth:`DeflectionEffect.preload`): the deflection is the loaded
+    minus the unloaded equilibrium at the commanded pose (open chains only).
 ``gravity_lumped`` (``--masses unknown``, instead of ``gravity_preload``)
     The links' weight with their masses unknown: each weighed link's mass and mass moments
     (kg, kg.m) fitted through the gravity regressor

@@ -2,8 +2,8 @@
 (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`): the measuring frame (``frame``),
 the markers' offsets (``markers``), the joints' zero offsets (``joint_offsets``) and the joints'
 placement errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.pose_model`.
-They have no deflection face (the :class:`~stiffness.elastic.effects.base.Effect` hooks keep
-their defaults).
+They have no deflection face (no
+:class:`~stiffness.elastic.effects.deflection_face.DeflectionEffect`).
 
 Units: SI (m, rad).
 """
