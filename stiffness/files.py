@@ -47,6 +47,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from stiffness.errors import FileFormatError, MissingFileError, OutputError
+from stiffness.units import plain_float
 
 #: Where tomllib (and tomli) put the position in their messages.
 _TOML_POSITION = re.compile(r"\s*\(at line (\d+), column (\d+)\)")
@@ -89,15 +90,9 @@ def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
                               path=path) from exc
 
 
-#: A CSV cell's number as a rig or a spreadsheet writes it: an optional sign, decimal digits
-#: with at most one point, an optional exponent (or nan, inf, which the readers refuse as not
-#: finite, by name). Python's ``float`` reads more: ``1_000`` (1000), other scripts' digits.
-_CSV_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
-                         r"|[+-]?(?:nan|inf|infinity)", re.IGNORECASE)
-
-
 def csv_float(cell: str) -> float:
-    """The number a CSV cell holds (surrounding spaces ignored), read as written.
+    """The number a CSV cell holds (surrounding spaces ignored), read as written
+    (:func:`stiffness.units.plain_float`: no ``1_000``).
 
     Raises
     ------
@@ -105,13 +100,7 @@ def csv_float(cell: str) -> float:
         The cell is not a plain decimal number; the message names the cell and, for digit
         separators (``1_000``, which ``float`` would read as 1000), the fix.
     """
-    text = cell.strip()
-    if _CSV_NUMBER.fullmatch(text):
-        return float(text)
-    if "_" in text and _CSV_NUMBER.fullmatch(text.replace("_", "")):
-        raise ValueError(f"{text!r} has '_' digit separators, which a CSV number cannot have; "
-                         f"write {text.replace('_', '')}")
-    raise ValueError(f"{cell!r} is not a number")
+    return plain_float(cell, "a CSV number")
 
 
 def check_csv_header(cells: list[str], path: str | os.PathLike[str], line: int) -> None:

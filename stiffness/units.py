@@ -1,6 +1,8 @@
-"""Unit names of user files and flags, and their factors to SI (rad, N, m, N.m)."""
+"""Unit names of user files and flags, and their factors to SI (rad, N, m, N.m); how a user
+writes a number (a CSV cell, a flag's value) and how large it may be."""
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TypeGuard
@@ -15,6 +17,56 @@ LENGTH_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "um": 1e-6}
 #: its unit): far beyond any measurement or setting in any supported unit (1e12 um is 1e6 m),
 #: and small enough that products of squares stay finite.
 MAX_CELL = 1e12
+
+
+#: A number as a rig, a spreadsheet or a person writes it: an optional sign, decimal digits with
+#: at most one point, an optional exponent (or nan, inf, which the readers refuse as not finite,
+#: by name). Python's ``float`` and ``int`` read more: ``1_000`` (1000), other scripts' digits.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                     r"|[+-]?(?:nan|inf|infinity)", re.IGNORECASE)
+#: An integer as a person writes it: an optional sign and decimal digits.
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+
+
+def plain_float(text: str, where: str) -> float:
+    """The number ``text`` holds (surrounding spaces ignored), read as written: the one rule of
+    the CSV readers (:func:`stiffness.files.csv_float`) and the command line's number flags.
+
+    Parameters
+    ----------
+    where
+        What holds the number, for the message: ``"a CSV number"``, ``"a flag's number"``.
+
+    Raises
+    ------
+    ValueError
+        ``text`` is not a plain decimal number; the message names it and, for digit separators
+        (``1_000``, which ``float`` would read as 1000), the fix.
+    """
+    return float(_plain(text, _NUMBER, where, "a number"))
+
+
+def plain_int(text: str, where: str) -> int:
+    """The integer ``text`` holds (surrounding spaces ignored): optional sign and decimal
+    digits, as :func:`plain_float` reads numbers (no ``1_000``, which ``int`` reads as 1000).
+
+    Raises
+    ------
+    ValueError
+        ``text`` is not a plain integer; the message names it and, for digit separators, the fix.
+    """
+    return int(_plain(text, _INTEGER, where, "an integer"))
+
+
+def _plain(text: str, rule: re.Pattern[str], where: str, what: str) -> str:
+    """``text`` stripped, when ``rule`` matches it; else the ValueError of :func:`plain_float`."""
+    stripped = text.strip()
+    if rule.fullmatch(stripped):
+        return stripped
+    if "_" in stripped and rule.fullmatch(stripped.replace("_", "")):
+        raise ValueError(f"{stripped!r} has '_' digit separators, which {where} cannot have; "
+                         f"write {stripped.replace('_', '')}")
+    raise ValueError(f"{text!r} is not {what}")
 
 
 def finite_number(value: object, limit: float = math.inf) -> TypeGuard[int | float]:

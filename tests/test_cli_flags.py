@@ -161,6 +161,37 @@ def test_parse_list_errors():
         flags.parse_list("1,nan", "--x")
 
 
+SEPARATORS = "'1_0' has '_' digit separators, which a command-line number cannot have; write 10"
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["kx", "--robot", "ur5", "--kq", "1_0,2e4,2e4,1e4,1e4,1e4"],  # parse_list
+     f"--kq takes comma-separated numbers; {SEPARATORS}"),
+    (["simulate", "--robot", "ur5", "--max-force", "1_0", "--out", "s"],  # number
+     f"argument --max-force: {SEPARATORS}"),
+    (["design", "--robot", "ur5", "--configs", "1_0", "--max-force", "9", "--out", "d"],
+     f"argument --configs: {SEPARATORS}"),  # integer
+    (["identify", "c", "--seed", "1_0"], f"argument --seed: {SEPARATORS}"),
+    (["view", "--robot", "ur5", "--kq", UR5_KQ, "--sweep", "q1=0:1:1_0", "--export", "v.html"],
+     f"--sweep: the frame count must be an integer; {SEPARATORS}"),
+    (["scan", "--robot", "ur5", "--workers", "١٢", "--out", "s"],
+     "argument --workers: '١٢' is not an integer"),
+    (["track", "--robot", "ur5", "--path", "p.csv", "--timestep", "nan"],
+     "argument --timestep: 'nan' is not a finite number"),
+])
+def test_flag_numbers_are_read_as_csv_cells_are(capsys, tmp_path, monkeypatch, argv, words):
+    """Every number flag (lists, one number, counts, seeds) reads numbers by the CSV readers'
+    rule (stiffness.units.plain_float): ``1_0`` (which Python reads as 10) and other scripts'
+    digits are refused in one line naming the fix, never read as another number."""
+    monkeypatch.chdir(tmp_path)
+    try:
+        code = main(argv)
+    except SystemExit as info:  # argparse's usage error
+        code = info.code
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and words in err, err
+
+
 def test_warnings_print_on_one_line_and_the_callers_format_is_restored(monkeypatch):
     """While ``main`` runs, a warning is formatted as one ``stiffness: warning:`` line; after
     it, the caller's own warning format is back (``main`` is called from Python too)."""

@@ -21,7 +21,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Options of ``stiffness check-jacobian``."""
     flags.add_output_flags(parser, json_help="print one JSON object (and nothing else) on stdout",
                            quiet_help="print only the elements that disagree (one line each)")
-    parser.add_argument("--samples", type=int, default=200, metavar="N",
+    parser.add_argument("--samples", type=flags.integer, default=200, metavar="N",
                         help="random vertical-wrist workspace poses (default 200)")
     flags.add_seed_flag(parser, "seed of the workspace sample")
 

@@ -56,13 +56,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--formulation", choices=BASELINES, default=None,
                         help="deflection model: enhanced (K - K_C) or conventional; default "
                              "--existing's baseline, else --model's, else enhanced")
-    parser.add_argument("--configs", type=int, required=True, metavar="N",
+    parser.add_argument("--configs", type=flags.integer, required=True, metavar="N",
                         help="configurations in the plan")
-    parser.add_argument("--loads-per-config", type=int, default=4, metavar="M",
+    parser.add_argument("--loads-per-config", type=flags.integer, default=4, metavar="M",
                         help="load directions per configuration; default 4")
     parser.add_argument("--max-force", type=flags.number, required=True, metavar="F",
                         help="load magnitude, N")
-    parser.add_argument("--candidates", type=int, default=DEFAULT_CANDIDATES, metavar="K",
+    parser.add_argument("--candidates", type=flags.integer, default=DEFAULT_CANDIDATES, metavar="K",
                         help=f"candidate poses drawn; default {DEFAULT_CANDIDATES}")
     parser.add_argument("--criterion", choices=CRITERIA, default="D",
                         help="D (log det of the Fisher information, default), A (sum of the "
@@ -80,7 +80,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default=None,
                         help="length unit of --noise and of the plan's campaign.toml; default "
                              "--existing's, else mm")
-    parser.add_argument("--random-plans", type=int, default=DEFAULT_RANDOM_PLANS,
+    parser.add_argument("--random-plans", type=flags.integer, default=DEFAULT_RANDOM_PLANS,
                         help=f"random plans compared with; default {DEFAULT_RANDOM_PLANS}")
     flags.add_seed_flag(parser, "random seed; default 0")
     parser.add_argument("--out", required=True, metavar="PLAN.csv",

@@ -46,7 +46,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="folder to write diagnosis.json, residuals.png, final-model.json "
                              "and diagnosis.html (the page) into (made if missing); default: "
                              "nothing written")
-    parser.add_argument("--max-steps", type=int,
+    parser.add_argument("--max-steps", type=flags.integer,
                         help=f"largest number of effects the search adds (a pose campaign's "
                              f"families, those forced by --families not counted; 0: the "
                              f"baseline only); default {MAX_STEPS} for a deflection campaign, "
@@ -54,7 +54,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     flags.add_seed_flag(parser, "seed of the cross-validation folds and proposed poses; default 0")
     parser.add_argument("--no-proposals", action="store_true",
                         help="do not propose extra poses and loads")
-    parser.add_argument("--workers", type=int, metavar="N",
+    parser.add_argument("--workers", type=flags.integer, metavar="N",
                         help="processes fitting a step's candidates side by side (default: "
                              "the usable cores; 1: all in this process); the result does not "
                              "depend on it. A pose campaign's candidates (each fit with its "
@@ -144,12 +144,13 @@ def compensator_geometry(declared: list[str]) -> dict[str, dict]:
     """
     settings: dict[str, dict] = {}
     for text in declared:
-        joint, _, lengths = text.partition("=")
-        try:
-            lever, base = (float(v) for v in lengths.split(","))
-        except ValueError:
+        joint, sep, lengths = text.partition("=")
+        values = flags.parse_list(lengths, "--compensator-geometry") if sep and lengths.strip() \
+            else []
+        if len(values) != 2:
             raise StiffnessError(f"--compensator-geometry {text!r}: give JOINT=LEVER_M,BASE_M, "
-                                 "e.g. joint2=0.12,0.35") from None
+                                 "e.g. joint2=0.12,0.35")
+        lever, base = values
         label = f"gravity_compensator({joint.strip()})"
         if label in settings:
             raise StiffnessError(f"--compensator-geometry names {joint.strip()} twice; give "

@@ -15,8 +15,10 @@ flag has the same name, unit and syntax in every command:
 * ``--seed N`` (a non-negative integer, default 0);
 * ``--json`` (one JSON object on stdout) and ``--quiet`` (no progress, no echo of the inputs).
 
-Every number a flag takes is finite and within +-1e12 in its unit (``parse_list`` for lists,
-``number`` for one-number flags), the bound of a campaign's CSV cells: beyond it a value is no
+Every number a flag takes is written as a campaign's CSV cells are (``1000``, ``1e3``; not
+``1_000``, which Python would read as 1000; :func:`stiffness.units.plain_float`), finite and
+within +-1e12 in its unit (``parse_list`` for lists, ``number`` for one-number flags,
+``integer`` for counts), the bound of a campaign's CSV cells: beyond it a value is no
 coordinate, load or stiffness, and the arithmetic that follows would overflow.
 
 Values that start with a minus sign are taken in the natural form (``--q -35,-60,95``,
@@ -39,7 +41,7 @@ import numpy as np
 
 from stiffness.errors import OutputError, StiffnessError
 from stiffness.files import output_folder
-from stiffness.units import MAX_CELL
+from stiffness.units import MAX_CELL, plain_float, plain_int
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
     from stiffness.elastic.model import ElasticModel
@@ -50,6 +52,9 @@ if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is re
 _NEGATIVE_VALUE = re.compile(r"^-(?:\.?\d|inf\b|nan\b)", re.IGNORECASE)
 #: ``--q`` items of the form ``name=value``.
 _PAIR = re.compile(r"^\s*([^=\s][^=]*?)\s*=\s*(\S.*?)\s*$")
+
+#: What holds a flag's number, in :func:`~stiffness.units.plain_float`'s messages.
+FLAG_NUMBER = "a command-line number"
 
 #: Where a value came from, as echoed by the commands.
 FROM_FLAG = "flag"
@@ -115,23 +120,22 @@ def join_negative_values(parser: argparse.ArgumentParser, argv: Sequence[str]) -
 
 
 def parse_list(text: str, flag: str) -> list[float]:
-    """Comma-separated numbers of a flag, e.g. ``"1,2.5,-3"``.
+    """Comma-separated numbers of a flag, e.g. ``"1,2.5,-3"``, each written as a CSV cell's
+    (:func:`~stiffness.units.plain_float`: no ``1_000``).
 
     Raises
     ------
     StiffnessError
-        If an item is not a finite number within +-:data:`~stiffness.units.MAX_CELL` (the
-        bound of a campaign's CSV cells: beyond any coordinate, load or stiffness, and small
-        enough for the arithmetic that follows).
+        If an item is not a plain number, or not a finite number within
+        +-:data:`~stiffness.units.MAX_CELL` (the bound of a campaign's CSV cells: beyond any
+        coordinate, load or stiffness, and small enough for the arithmetic that follows).
     """
     values = []
     for item in text.split(","):
         try:
-            value = float(item)
-        except ValueError:
-            raise StiffnessError(
-                f"{flag} takes comma-separated numbers; {item.strip()!r} is not a number"
-            ) from None
+            value = plain_float(item, FLAG_NUMBER)
+        except ValueError as exc:
+            raise StiffnessError(f"{flag} takes comma-separated numbers; {exc}") from None
         if not np.isfinite(value):
             raise StiffnessError(f"{flag} values must be finite, got {item.strip()!r}")
         if abs(value) > MAX_CELL:
@@ -147,15 +151,25 @@ def number(text: str) -> float:
     a finite number within +-:data:`~stiffness.units.MAX_CELL`, as :func:`parse_list` checks
     each item of a list flag (the parser's usage error, one line, otherwise)."""
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        value = plain_float(text, FLAG_NUMBER)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
     if abs(value) > MAX_CELL:
         raise argparse.ArgumentTypeError(f"{text} is beyond +-{MAX_CELL:.0e}, larger than any "
                                          "setting (and too large for the arithmetic)")
     return value + 0.0  # -0 is 0: NumPy refuses a noise scale of -0.0 (a ValueError)
+
+
+def integer(text: str) -> int:
+    """An ``argparse`` type for integer flags (``--configs``, ``--workers``, ``--port``...):
+    optional sign and decimal digits (:func:`~stiffness.units.plain_int`: no ``1_000``, which
+    ``int`` reads as 1000; the parser's usage error, one line, otherwise)."""
+    try:
+        return plain_int(text, FLAG_NUMBER)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def require_at_least_one(value: int | None, flag: str) -> None:
@@ -266,8 +280,10 @@ def add_seed_flag(parser: argparse.ArgumentParser, help: str) -> None:
 def _seed(text: str) -> int:
     """The ``--seed`` value (an argparse ``type``: refused in argparse's one-line form)."""
     try:
-        value = int(text)
-    except ValueError:
+        value = plain_int(text, FLAG_NUMBER)
+    except ValueError as exc:
+        if "_" in text:
+            raise argparse.ArgumentTypeError(str(exc)) from None
         value = None
     if value is None or value < 0:
         raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")

@@ -45,7 +45,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=METHODS,
                         help="least-squares solver: trf, lm (Levenberg-Marquardt) or both; "
                              "default trf (deflection campaigns)")
-    parser.add_argument("--starts", type=int,
+    parser.add_argument("--starts", type=flags.integer,
                         help="number of starts: the paper's 1e8 N.mm/rad then log-uniform "
                              "random starts over 1e2..1e8 N.m/rad; default 8 (deflection "
                              "campaigns)")

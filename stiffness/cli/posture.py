@@ -29,6 +29,7 @@ from stiffness.cli.compensate import add_wrench_flags, progress_printer
 from stiffness.cli.flags import (
     add_model_flags,
     add_output_flags,
+    integer,
     model_from_args,
     number,
     parse_list,
@@ -48,7 +49,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="the target frame's axis the process is symmetric about: x, y, z "
                              "or ax,ay,az; default z")
     add_wrench_flags(parser)
-    parser.add_argument("--steps", type=int, default=36,
+    parser.add_argument("--steps", type=integer, default=36,
                         help="candidate angles about the free axis per point; default 36")
     parser.add_argument("--max-step", type=number, default=10.0, metavar="DEG",
                         help="largest joint change between consecutive points, deg; default 10")

@@ -29,6 +29,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import stiffness
+from stiffness.cli import flags
 from stiffness.cores import usable_cores
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write, output_folder
@@ -143,7 +144,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                                         "stiffness diagnose --masses")
     group.add_argument("--loss", help="linear (default) or a robust loss, as stiffness "
                                       "diagnose --loss")
-    group.add_argument("--seed", type=int, help="seed of the cross-validation folds; default 0")
+    group.add_argument("--seed", type=flags.integer,
+                       help="seed of the cross-validation folds; default 0")
     group.add_argument("--strict", action="store_true",  # applied by cli.main to the run
                        help="refuse campaign CSV columns that are not campaign columns, as "
                             "stiffness diagnose --strict")

@@ -110,7 +110,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="relative eigenvalue tolerance of the definiteness classes")
     parser.add_argument("--map-axes", help="two swept coordinates the figures are drawn over "
                                            "(default: the two with the most values)")
-    parser.add_argument("--chunk-size", type=int, default=8192,
+    parser.add_argument("--chunk-size", type=flags.integer, default=8192,
                         help="configurations per chunk (memory and the work a killed worker "
                              "loses); default 8192")
     parser.add_argument("--format", choices=FORMATS, default="npz",
@@ -127,7 +127,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compression", choices=COMPRESSIONS,
                         help="Parquet codec (default snappy); NPZ files are deflated with any "
                              "value but none (default: not compressed)")
-    parser.add_argument("--chunks-per-task", type=int,
+    parser.add_argument("--chunks-per-task", type=flags.integer,
                         help="with Dask: consecutive chunks per task (default: chosen from the "
                              "measured per-task overhead)")
     parser.add_argument("--out", help="output folder (default: a new folder <robot>-<preset> "
@@ -139,7 +139,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="with --scheduler: the workers share the --out folder's filesystem "
                              "and write their chunks there themselves (default: the chunks "
                              "travel back and this process writes them)")
-    parser.add_argument("--workers", type=int,
+    parser.add_argument("--workers", type=flags.integer,
                         help="without --scheduler: a Dask LocalCluster of N worker processes "
                              "on this machine (default: this process only)")
     parser.add_argument("--no-plots", action="store_true", help="write no figures")

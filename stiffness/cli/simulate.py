@@ -49,10 +49,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "gravity_preload=20[,cx,cy,cz] (kg, --units), "
                              "gravity_compensator:joint2=2e5,500[,lever,base] (N/m, N, "
                              "then m)")
-    parser.add_argument("--configs", type=int, default=10, help="configurations; default 10")
-    parser.add_argument("--loads-per-config", type=int, default=4,
+    parser.add_argument("--configs", type=flags.integer, default=10,
+                        help="configurations; default 10")
+    parser.add_argument("--loads-per-config", type=flags.integer, default=4,
                         help="loads per configuration; default 4")
-    parser.add_argument("--repeats", type=int, default=1,
+    parser.add_argument("--repeats", type=flags.integer, default=1,
                         help="measurements per load (replicates); default 1")
     parser.add_argument("--max-force", type=flags.number, default=100.0,
                         help="largest force, N; default 100")

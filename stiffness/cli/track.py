@@ -22,6 +22,7 @@ from stiffness.cli.flags import (
     add_output_flags,
     add_wrench_flag,
     model_from_args,
+    number,
     parse_list,
 )
 from stiffness.machining.tracking import TIMESTEP, track
@@ -36,11 +37,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     add_wrench_flag(parser, help="process wrench at the target, base axes: fx,fy,fz (N) or "
                                  "fx,fy,fz,mx,my,mz (N, N.m); --load is an alias")
     parser.add_argument("--deg", action="store_true", help="angles of PATH.csv in degrees")
-    parser.add_argument("--segment-time", type=float, default=1.0, metavar="S",
+    parser.add_argument("--segment-time", type=number, default=1.0, metavar="S",
                         help="time from one path point to the next, s (default 1)")
-    parser.add_argument("--settle-time", type=float, default=0.5, metavar="S",
+    parser.add_argument("--settle-time", type=number, default=0.5, metavar="S",
                         help="time at the first point before the path, s (default 0.5)")
-    parser.add_argument("--timestep", type=float, default=TIMESTEP, metavar="S",
+    parser.add_argument("--timestep", type=number, default=TIMESTEP, metavar="S",
                         help=f"MuJoCo's step and the controller's tick, s (default {TIMESTEP})")
     parser.add_argument("--plot", metavar="PNG", help="draw both errors along the path here")
     add_output_flags(parser)

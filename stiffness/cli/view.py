@@ -34,6 +34,7 @@ from stiffness.files import read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
+from stiffness.units import plain_int
 from stiffness.viewer import (
     LOOPBACK,
     QUANTITIES,
@@ -81,7 +82,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "(rad, m prismatic; degrees with --deg)")
     parser.add_argument("--fps", type=flags.number, default=10.0,
                         help="frames per second of the animation (default 10)")
-    parser.add_argument("--field", type=int, metavar="N",
+    parser.add_argument("--field", type=flags.integer, metavar="N",
                         help="ellipsoid field over N random configurations, coloured by the "
                              "smallest principal stiffness")
     parser.add_argument("--field-joints",
@@ -92,7 +93,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default=LOOPBACK,
                         help="address of the live server (default 127.0.0.1, this machine "
                              "only; another address exposes the viewer to the network)")
-    parser.add_argument("--port", type=int, default=0, help="web port (default: a free one)")
+    parser.add_argument("--port", type=flags.integer, default=0,
+                        help="web port (default: a free one)")
     parser.add_argument("--open", action="store_true",
                         help="open the live page in the system's browser (does not wait)")
     parser.add_argument("--duration", type=flags.number,
@@ -131,10 +133,9 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     name = robot.coordinate_joints[index]
     start, stop = flags.parse_list(",".join(parts[:2]), "--sweep")
     try:
-        n = int(parts[2]) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
-    except ValueError:
-        raise StiffnessError(f"--sweep: the frame count must be an integer, got {parts[2]!r}"
-                             ) from None
+        n = plain_int(parts[2], flags.FLAG_NUMBER) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
+    except ValueError as exc:
+        raise StiffnessError(f"--sweep: the frame count must be an integer; {exc}") from None
     if n < 2:
         raise StiffnessError(f"--sweep needs at least 2 frames, got {n}")
     if deg and _revolute(robot, name):
