@@ -37,7 +37,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from detection_rate import run_jobs, write_between_markers  # noqa: E402  (scripts/ is on sys.path)
+from detection_rate import (  # noqa: E402  (scripts/ is on sys.path)
+    kept_steps,
+    run_jobs,
+    write_between_markers,
+)
 
 from stiffness.calibration.diagnose import diagnose  # noqa: E402
 from stiffness.calibration.selection import GOF_LEVEL  # noqa: E402
@@ -168,7 +172,7 @@ def run_one(job: tuple) -> dict:
                    noise_std_m=NOISE_MM * 1e-3, seed=seed, **setup)
     result = diagnose(sim.campaign, propose=False)
     s = result.summary()
-    named = [(st["effect"], st["where"]) for st in s["steps"]]
+    named = [(st["effect"], st["where"]) for st in kept_steps(s)]
     truth = [(h.name, h.where) for h in hidden]
     return {"robot": robot, "pair": pair, "seed": seed,
             "both": all(t in named for t in truth),

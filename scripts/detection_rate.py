@@ -70,6 +70,13 @@ SNR_BINS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, math.inf)
 MARK_START, MARK_END = "<!-- detection-rate:start -->", "<!-- detection-rate:end -->"
 
 
+def kept_steps(summary: dict) -> list[dict]:
+    """The ``--json`` steps adding the final model's effects: not a step removing one
+    (``removed``, backward elimination), not one a later step removed."""
+    gone = {(st["effect"], st["where"]) for st in summary["steps"] if st.get("removed")}
+    return [st for st in summary["steps"] if (st["effect"], st["where"]) not in gone]
+
+
 def run_one(job: tuple) -> dict:
     """Simulate and diagnose one campaign."""
     robot, spec, size, noise_mm, seed, configs = job
@@ -87,7 +94,8 @@ def run_one(job: tuple) -> dict:
                    noise_std_m=noise_mm * 1e-3, seed=seed, **setup)
     result = diagnose(sim.campaign, propose=False)
     s = result.summary()
-    first = s["steps"][0] if s["steps"] else None
+    kept = kept_steps(s)
+    first = s["steps"][0] if s["steps"] and s["steps"][0] in kept else None
     hidden = effects[0] if effects else None
     detected = (hidden is not None and first is not None
                 and (first["effect"], first["where"]) == (hidden.name, hidden.where))
@@ -96,7 +104,7 @@ def run_one(job: tuple) -> dict:
     snr = (next(iter(sim.effect_rms_m.values())) / sim.noise_std_m) if effects else 0.0
     return {"robot": robot, "spec": spec, "size": size, "noise": noise_mm, "seed": seed,
             "detected": detected, "name_first": named_first,
-            "named": [st["effect"] for st in s["steps"]],
+            "named": [st["effect"] for st in kept],
             "fits": s["final_rms"] <= 1.5 * s["noise_std"], "snr": snr,
             "baseline_error": sim.baseline_error_m / sim.noise_std_m,
             "seconds": time.perf_counter() - t0}

@@ -222,7 +222,8 @@ def deflection_one(name: str, source: str, mode: str, seed: int) -> dict:
                  not_families=["transversal_compliance"] if mode.endswith("not-offered")
                  else ())
     seconds = time.perf_counter() - start
-    labels = [s.effect.label for s in d.steps]
+    labels = [s.effect.label for s in d.named_steps]  # the final model's (none removed)
+    first = d.steps[0].effect.label if d.steps else ""
     cov = Coverage()
     for j, k_true in truth.items():
         named = d.final_parameters_si.get(f"transversal_compliance({j})")
@@ -232,7 +233,7 @@ def deflection_one(name: str, source: str, mode: str, seed: int) -> dict:
     held_out = d.steps[-1].cv_rms if d.steps else d.cv_baseline
     aliases = {a.other for a in d.ambiguities if a.chosen in labels}  # told apart from none
     return {"seed": seed, "families": ["baseline", *labels],
-            "named": bool(labels) and labels[0].startswith("transversal_compliance("),
+            "named": first.startswith("transversal_compliance("),
             "tilts_named": sum(f"transversal_compliance({j})" in labels for j in truth),
             "tilts_named_or_alias": sum(f"transversal_compliance({j})" in set(labels) | aliases
                                         for j in truth),
