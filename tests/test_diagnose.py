@@ -18,6 +18,7 @@ from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.selection import config_folds
 from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
+from stiffness.errors import StiffnessError
 from stiffness.files import resolve_path
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.provenance import provenance
@@ -298,3 +299,41 @@ def test_the_diagnosis_does_not_depend_on_the_workers(monkeypatch):
     assert alone.missing_effects == forked.missing_effects == ["backlash"]
     assert json.dumps(alone.summary()) == json.dumps(forked.summary())
     assert alone.record()["step_details"] == forked.record()["step_details"]
+
+
+def test_validate_evaluates_every_step_on_another_campaign(tmp_path):
+    """``diagnose(campaign, validate=OTHER)`` of a deflection campaign (issue 35, as a pose
+    campaign's): the baseline's and each step's fitted model on another simulated campaign of
+    the same UR5 (another seed, the same hidden wrist spring), nothing refitted. The 3-D error
+    RMS shrinks at the step naming the hidden spring from 7x the noise (sqrt(3) sigma) to
+    about 1.2x; the last stage is the final model file's validation (the CLI's ``validation``
+    key) to 1e-9; a pose campaign is refused with one line."""
+    hidden = ["joint_compliance:wrist_1_joint=1e4"]
+    fit = _simulate(UR5, hidden, configs=8)
+    other = _simulate(UR5, hidden, configs=8, seed=2)
+    result = diagnose(fit.campaign, propose=False, validate=other.campaign)
+    noise = np.sqrt(3) * NOISE * 1e3  # mm
+    assert result.missing_effects == ["joint_compliance"], format_report(result)
+    base, (step,) = result.baseline_validation, result.steps
+    assert base is not None and step.validation is not None
+    assert base["rms"] > 5 * noise and base["verdict"] == "above the noise"
+    assert step.validation["rms"] < 1.5 * noise < base["rms"] / 4
+    assert step.validation["rms_over_noise"] == pytest.approx(step.validation["rms"] / noise)
+    final = result.validation
+    assert final is not None and final["model"] == "the final model"
+    for key in ("rms", "mean_error", "std_error", "max_error", "chi2", "gof_p"):
+        assert step.validation[key] == pytest.approx(final[key], rel=1e-9, abs=1e-300), key
+    summary = result.to_dict()
+    assert summary["steps"][0]["validation"]["rms"] == step.validation["rms"]
+    assert summary["baseline_validation"]["rms"] == base["rms"]
+    assert summary["validation"]["rms"] == final["rms"]
+    report = format_report(result)
+    assert "held-out 3-D error (mm)" in report and "1 joint_compliance(wrist_1_joint)" in report
+    page = render_diagnosis(result.record(), None, provenance("test"))
+    assert "model on the validation campaign (mm)" in page and "consistent with" not in page
+    poses = tmp_path / "poses"
+    poses.mkdir()
+    (poses / "campaign.toml").write_text('kind = "poses"\n')
+    with pytest.raises(StiffnessError, match="is a pose campaign") as caught:
+        diagnose(fit.campaign, validate=poses)
+    assert "\n" not in str(caught.value)

@@ -57,6 +57,7 @@ from stiffness.calibration.deflection_parameters import (
     share,
     stiffness_parameters,
 )
+from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis, Step, kept_steps
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.naming import is_stand_in, settle
@@ -112,7 +113,7 @@ Found = Candidate[DeflectionEffect, Fit]
 def diagnose(campaign: Campaign, max_steps: int | None = ..., seed: int = ..., propose: bool = ...,
              progress: Callable[[str], None] | None = ..., workers: int | None = ...,
              loss: str = ..., effect_settings: dict[str, dict] | None = ...,
-             masses: str = ..., validate: PoseCampaign | str | os.PathLike | None = ...,
+             masses: str = ..., validate: Campaign | PoseCampaign | str | os.PathLike | None = ...,
              families: Sequence[str] = ..., not_families: Sequence[str] = ...
              ) -> Diagnosis: ...
 
@@ -122,7 +123,7 @@ def diagnose(campaign: PoseCampaign, max_steps: int | None = ..., seed: int = ..
              propose: bool = ..., progress: Callable[[str], None] | None = ...,
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
-             validate: PoseCampaign | str | os.PathLike | None = ...,
+             validate: Campaign | PoseCampaign | str | os.PathLike | None = ...,
              families: Sequence[str] = ..., not_families: Sequence[str] = ...
              ) -> PoseDiagnosis: ...
 
@@ -132,7 +133,7 @@ def diagnose(campaign: str | os.PathLike, max_steps: int | None = ..., seed: int
              propose: bool = ..., progress: Callable[[str], None] | None = ...,
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
-             validate: PoseCampaign | str | os.PathLike | None = ...,
+             validate: Campaign | PoseCampaign | str | os.PathLike | None = ...,
              families: Sequence[str] = ..., not_families: Sequence[str] = ...
              ) -> Diagnosis | PoseDiagnosis: ...
 
@@ -147,7 +148,7 @@ def diagnose(
     loss: str = "linear",
     effect_settings: dict[str, dict] | None = None,
     masses: str = "known",
-    validate: PoseCampaign | str | os.PathLike | None = None,
+    validate: Campaign | PoseCampaign | str | os.PathLike | None = None,
     families: Sequence[str] = (),
     not_families: Sequence[str] = (),
 ) -> Diagnosis | PoseDiagnosis:
@@ -190,7 +191,9 @@ def diagnose(
         weight is then lumped (a pose model's ``gravity_lumped`` family; a deflection
         campaign's candidate ``gravity_lumped`` instead of ``gravity_preload``).
     validate
-        Pose campaigns only: another pose campaign (or its path) evaluated at every step.
+        Another campaign of the same kind and robot (or its path), every step's model
+        evaluated on it without refitting (a deflection campaign's:
+        :func:`stiffness.calibration.deflection_validation.validated`).
     families, not_families
         Families forced in, in order (``diagnose --families``: added first, whatever their
         BIC and held-out error, and never removed again; a deflection campaign's are effect
@@ -208,24 +211,25 @@ def diagnose(
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
         if not isinstance(campaign, PoseCampaign):
             campaign = load_pose_campaign(campaign)
+        if isinstance(validate, Campaign):
+            raise StiffnessError("validate a pose campaign's diagnosis on another pose "
+                                 f"campaign, not on the deflection campaign {validate.name!r}")
         if validate is not None and not isinstance(validate, PoseCampaign):
             validate = load_pose_campaign(validate)
         return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
                               progress=progress, loss=loss, families=families,
                               not_families=not_families, max_steps=max_steps,
                               effect_settings=effect_settings)
-    if validate is not None:
-        raise StiffnessError("validate takes pose campaigns; a deflection campaign's diagnosis "
-                             "reports the held-out (cross-validated) RMS of each step, and "
-                             "stiffness validate MODEL CAMPAIGN evaluates its model file")
     max_steps = MAX_STEPS if max_steps is None else max_steps
     _check_options(max_steps, loss, masses)
     forbidden = _forbidden(not_families)
     forced = _forced(families, forbidden)
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
-    return _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
-                                 effect_settings or {}, masses, forbidden, forced)
+    other = None if validate is None else other_campaign(campaign, validate)  # before the work
+    result = _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
+                                   effect_settings or {}, masses, forbidden, forced)
+    return result if other is None or validate is None else validated(result, other, validate)
 
 
 def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:

@@ -119,6 +119,10 @@ class Step:
     forced
         Whether ``effect`` was forced in (``diagnose --families``: added first, whatever its
         BIC and held-out error; never removed again).
+    validation
+        Its model (not refitted) on a validation campaign (``diagnose --validate``: the keys
+        of :meth:`~stiffness.calibration.validation.Validation.to_dict` but ``model``,
+        ``campaign``, ``robot`` and ``kind``), or ``None``.
     """
 
     effect: DeflectionEffect
@@ -132,6 +136,7 @@ class Step:
     dispersion: float = 1.0
     removed: bool = False
     forced: bool = False
+    validation: dict | None = None
 
 
 def kept_steps(steps: list[Step]) -> list[Step]:
@@ -193,6 +198,11 @@ class Diagnosis:
     forbidden
         The library's effects never tried (``diagnose --not``), kept in ``--json`` and the
         model file as ``selection.forbidden`` (a pose diagnosis's key).
+    validation, baseline_validation
+        With a validation campaign (``diagnose --validate``,
+        :mod:`stiffness.calibration.deflection_validation`): the final model file on it
+        (:meth:`~stiffness.calibration.validation.Validation.to_dict`) and the baseline's
+        (as :attr:`Step.validation`); else ``None``.
     """
 
     campaign: Campaign
@@ -224,6 +234,8 @@ class Diagnosis:
     masses: str = "known"
     certainty: list[Certainty] = field(default_factory=list)
     forbidden: list[str] = field(default_factory=list)
+    validation: dict | None = None
+    baseline_validation: dict | None = None
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -285,7 +297,8 @@ class Diagnosis:
                        "rms": self._len(s.rms),
                        "parameters": {p.name: p.to_dict() for p in s.parameters},
                        "stand_in": not s.removed and self.stand_in(s.effect.label),
-                       "removed": s.removed, "forced": s.forced}
+                       "removed": s.removed, "forced": s.forced,
+                       **({"validation": s.validation} if s.validation else {})}
                       for s in self.steps],
             "missing_effects": self.missing_effects,
             "unexplained": self.unexplained,
@@ -299,6 +312,9 @@ class Diagnosis:
             "identifiability": self.identifiability(),
             "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.certainty],
             "selection": self.selection(),
+            **({"baseline_validation": self.baseline_validation}
+               if self.baseline_validation else {}),
+            **({"validation": self.validation} if self.validation else {}),
         })
 
     def selection(self) -> dict:
@@ -417,16 +433,14 @@ class Diagnosis:
             },
         )
 
-    def write(self, folder: str | Path, command: str | None = None,
-              validation: dict | None = None) -> dict[str, Path]:
+    def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
         """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
         ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
-        (default: this process's command line); ``validation``
-        (:meth:`~stiffness.calibration.validation.Validation.to_dict` of the final model on
-        another campaign) is recorded under ``validation`` and shown on the page."""
+        (default: this process's command line); :attr:`validation` is recorded under
+        ``validation`` (paths relative to ``folder``) and shown on the page with the stages."""
         folder = Path(folder)
-        record = self.record(folder) | ({"validation": _validation_in(validation, folder)}
-                                        if validation else {})
+        record = self.record(folder) | ({"validation": _validation_in(self.validation, folder)}
+                                        if self.validation else {})
         png = residual_plot(self)
         with staged_folder(folder) as stage:  # published whole, by one rename
             atomic_write(stage / DIAGNOSIS_FILE, json.dumps(record, indent=1) + "\n")

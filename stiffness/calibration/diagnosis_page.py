@@ -5,7 +5,8 @@ residuals before and after, the effects added step by step with their BIC gain a
 parameters with 95 % intervals, the verdict on what is left (explained to noise, or
 *unexplained*) with the final residual's structure (by load direction and row order, and its
 correlation with each joint's torque and angle), and what the campaign cannot tell apart with
-the poses and loads that would, and the final model on a validation campaign (``--validate``).
+the poses and loads that would, and each step's model and the final model on a validation
+campaign (``--validate``).
 """
 
 from __future__ import annotations
@@ -220,6 +221,25 @@ def _steps(d: dict, unit: str) -> list[str]:
     return parts
 
 
+def _stages(d: dict, unit: str) -> list[str]:
+    """The stage table of ``diagnose --validate``: the baseline's and each step's model on the
+    validation campaign without refitting (3-D error RMS, mean, std, max, ratio to the noise);
+    none without one (or with another target: only the final model moved there)."""
+    if not d.get("baseline_validation"):
+        return []
+    stages = [("0", "baseline", d["baseline_validation"])] + [
+        (str(i), ("removed " if s.get("removed") else "") + s["effect"]
+         + (f"({s['where']})" if s.get("where") else ""), s["validation"])
+        for i, s in enumerate(d["steps"], start=1) if s.get("validation")]
+    rows = [[i, esc(name), v["rms"], v["mean_error"], v["std_error"], v["max_error"],
+             v["rms_over_noise"], esc(v["verdict"] or "")] for i, name, v in stages]
+    return [table(f"Each step's model on the validation campaign ({unit})",
+                  ["step", "model", "RMS", "mean", "std", "max", "RMS / noise", "verdict"],
+                  rows, "3-D deflection error of every row of the validation campaign under "
+                  "the step's fitted model, nothing refitted; RMS / noise: over sqrt(3) "
+                  "noise std (1 for a model that predicts to the noise).")]
+
+
 def how_sure_table(d: dict, unit: str) -> list[str]:
     """The table of how sure each named effect is (:mod:`stiffness.calibration.certainty`)."""
     if not d.get("how_sure"):
@@ -302,7 +322,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))
     parts += _ambiguities(d["cannot_tell_apart"], unit)
-    parts += [heading("validation", SECTIONS), *validation_section(d.get("validation"), HOW)]
+    parts += [heading("validation", SECTIONS), *_stages(d, unit),
+              *validation_section(d.get("validation"), HOW)]
     parts.append(reproduce_block(prov, "reproduce", SECTIONS,
                                  "The run writes this page, diagnosis.json, residuals.png and "
                                  "final-model.json."))

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 from stiffness.calibration.breakdown import strongest_correlations
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
+from stiffness.calibration.pose_report import stage_table
 from stiffness.calibration.selection import GOF_LEVEL
 
 if TYPE_CHECKING:  # annotations only
@@ -71,6 +72,10 @@ def format_report(d: Diagnosis) -> str:
                      f"{s.rms / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
     if any(s.forced for s in d.steps):
         lines.append("* forced (--families): added first, whatever its BIC and held-out error")
+    if d.baseline_validation:  # diagnose --validate: each step's model on the other campaign
+        lines += ["", *stage_table([("0 baseline", d.baseline_validation)] + [
+            (f"{i} {'removed ' * s.removed}{s.effect.label}", s.validation)
+            for i, s in enumerate(d.steps, start=1) if s.validation])]
     lines.append("")
     if d.named_steps:
         lines.append("identified effects (final model; 95 % intervals):")

@@ -65,6 +65,12 @@ def deflection_errors(model: ElasticModel, campaign: Campaign) -> dict:
                         else np.zeros_like(campaign.force)])
     predicted = np.array([model.deflection(q, w, measured=True)
                           for q, w in zip(campaign.q, wrench, strict=True)])
+    return error_keys(campaign, predicted)
+
+
+def error_keys(campaign: Campaign, predicted: np.ndarray) -> dict:
+    """The keys of :func:`deflection_errors` for the deflections (m, 3) in m ``predicted`` at
+    ``campaign``'s rows."""
     errors = np.linalg.norm(campaign.deflection - predicted, axis=1)
     unit = campaign.units.length
     out = {**error_summary(errors, campaign.units.length_to_si), "unit": unit}
@@ -164,7 +170,7 @@ def validate(model: ModelFile | str | os.PathLike,
     if (kind == "poses") != pose_model:
         raise StiffnessError(
             f"{name} is {'a pose calibration' if pose_model else 'a deflection model'} "
-            f"and {_campaign_name(campaign)} is not a {'pose' if pose_model else 'deflection'} "
+            f"and {campaign_name(campaign)} is not a {'pose' if pose_model else 'deflection'} "
             "campaign; validate a pose calibration on a pose campaign, a deflection model on a "
             "deflection campaign")
     if isinstance(model, ModelFile) or not pose_model:
@@ -175,14 +181,14 @@ def validate(model: ModelFile | str | os.PathLike,
         cast("str | os.PathLike", campaign))
     cal = read_pose_calibration(model)
     robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
-                       poses.robot.name, model, _campaign_name(campaign))
+                       poses.robot.name, model, campaign_name(campaign))
     calibration = read_pose_model(model, poses.robot)
     errors = validation_errors(calibration.model, calibration.x, poses)
     noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
-    return Validation(name, _campaign_name(campaign), "poses", errors, robot, noise)
+    return Validation(name, campaign_name(campaign), "poses", errors, robot, noise)
 
 
-def _campaign_name(campaign: Campaign | PoseCampaign | str | os.PathLike) -> str:
+def campaign_name(campaign: Campaign | PoseCampaign | str | os.PathLike) -> str:
     """How messages and results name a campaign: its path (a loaded one's, else its name)."""
     if isinstance(campaign, Campaign | PoseCampaign):
         return str(campaign.path) if campaign.path is not None else f"campaign {campaign.name!r}"
@@ -204,7 +210,7 @@ def validate_deflection_model(declared: ModelFile, model: str,
     """
     measured = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
     robot = same_robot(declared.source, declared.robot, measured.robot(),
-                       measured.resolved_source(), model, _campaign_name(campaign))
+                       measured.resolved_source(), model, campaign_name(campaign))
     # the campaign measured its own target: the model evaluated there (moved only where the
     # campaign's differs, so that a diagnosed target_offset stays otherwise)
     target = measured.robot()
@@ -214,7 +220,7 @@ def validate_deflection_model(declared: ModelFile, model: str,
         declared, frame=target.target_frame, target_offset=target.target_offset), measured)
     noise = None if measured.noise_std_m is None else (
         measured.noise_std_m / measured.units.length_to_si)
-    return Validation(model, _campaign_name(campaign), "deflections", errors, robot, noise)
+    return Validation(model, campaign_name(campaign), "deflections", errors, robot, noise)
 
 
 def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,

@@ -97,9 +97,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "base's axes from level); every model feels gravity turned by "
                              "it, the base_tilt family fits what remains")
     parser.add_argument("--validate", metavar="CAMPAIGN",
-                        help="another campaign of the same kind and robot the final model is "
-                             "evaluated on without refitting (a pose campaign: every step, "
-                             "the gap shrinking on held-out data)")
+                        help="another campaign of the same kind and robot every step's model "
+                             "is evaluated on without refitting (the stage table: the gap "
+                             "shrinking on held-out data; a deflection campaign's final "
+                             "model file too, under validation)")
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -170,12 +171,6 @@ def run(args: argparse.Namespace) -> int:
                              "against gravity to first order; drop it")
     declared = compensator_geometry(args.compensator_geometry)
     campaign = load_campaign(args.campaign)
-    if args.validate:  # read before the work: a bad one fails at once
-        if campaign_kind(args.validate) == "poses":
-            raise StiffnessError(f"--validate {args.validate} is a pose campaign; a "
-                                 "deflection campaign is validated on another deflection "
-                                 "campaign of the same robot")
-        load_campaign(args.validate)
     check_out_folder(args.out)  # before the work: a bad --out fails at once
     show = sys.stderr.isatty() and not args.quiet
 
@@ -185,19 +180,16 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(campaign, max_steps=args.max_steps, seed=args.seed,
                       propose=not args.no_proposals, progress=progress if show else None,
                       workers=args.workers, loss=args.loss, effect_settings=declared,
-                      masses=args.masses,
+                      masses=args.masses, validate=args.validate or None,
                       families=flags.parse_names(args.families) or (),
                       not_families=flags.parse_names(args.not_families) or ())
-    if not args.validate:
-        paths = result.write(args.out, command_line(args)) if args.out else None
+    paths = result.write(args.out, command_line(args)) if args.out else None
+    if result.validation is None:
         return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
     from stiffness.calibration.pose_report import format_validation  # only with --validate
-    from stiffness.calibration.validation import validate_deflection_model
 
-    validation = validate_deflection_model(result.model_file(), "the final model",
-                                           args.validate).to_dict()
-    paths = result.write(args.out, command_line(args), validation) if args.out else None
-    return _emit(args.json, {**result.to_dict(), "validation": validation},
+    validation = result.validation
+    return _emit(args.json, result.to_dict(),
                  lambda: f"{format_report(result)}\n\nvalidation on {args.validate}:\n"
                          f"{format_validation(validation)}", paths)
 

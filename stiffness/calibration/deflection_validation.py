@@ -1,0 +1,89 @@
+"""``diagnose --validate OTHER`` on a deflection campaign: the baseline's and each step's fitted
+model evaluated on another deflection campaign of the same robot without refitting (the stage
+table of a pose diagnosis, issue 35), and the final model file on it (the ``validation`` key,
+:func:`~stiffness.calibration.validation.validate_deflection_model`).
+
+A step's model is its fitted :class:`~stiffness.elastic.effects.hypothesis.Hypothesis` over the
+other campaign's rows (:meth:`Hypothesis.with_rows`), every effect applied, measurement effects
+included (what the other campaign's instrument reads); its errors, noise and verdict are those
+of :class:`~stiffness.calibration.validation.Validation`. The last stage is the final model:
+its numbers are the ``validation`` key's (to rounding).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
+from stiffness.calibration.diagnosis import Diagnosis
+from stiffness.calibration.fitting import Fit
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.validation import (
+    Validation,
+    campaign_name,
+    error_keys,
+    same_robot,
+    validate_deflection_model,
+)
+from stiffness.elastic.effects.geometry import Rows
+from stiffness.errors import StiffnessError
+
+#: The keys of a stage's validation: the errors', the noise's and the verdict's (not the model,
+#: campaign and robot, which are the final ``validation``'s).
+_NOT_STAGE_KEYS = ("model", "campaign", "robot", "kind")
+
+
+def other_campaign(campaign: Campaign,
+                   validate: Campaign | PoseCampaign | str | os.PathLike) -> Campaign:
+    """``validate`` read as a deflection campaign of ``campaign``'s robot, before the work.
+
+    Raises
+    ------
+    StiffnessError
+        A pose campaign (one line).
+    ModelRobotError
+        A campaign of another robot.
+    """
+    if isinstance(validate, PoseCampaign) or (
+            not isinstance(validate, Campaign) and campaign_kind(validate) == "poses"):
+        raise StiffnessError(f"--validate {campaign_name(validate)} is a pose campaign; a "
+                             "deflection campaign is validated on another deflection campaign "
+                             "of the same robot")
+    other = validate if isinstance(validate, Campaign) else load_campaign(validate)
+    same_robot(campaign.resolved_source(), campaign.robot, other.robot(),
+               other.resolved_source(), f"the diagnosis of {campaign.name}",
+               campaign_name(validate))
+    return other
+
+
+def validated(d: Diagnosis, other: Campaign,
+              validate: Campaign | str | os.PathLike) -> Diagnosis:
+    """``d`` with its final model file evaluated on ``other`` (``validate`` read:
+    :attr:`Diagnosis.validation`) and, when ``other`` measured the same target as ``d``'s
+    campaign, the baseline and each step too (:attr:`Diagnosis.baseline_validation`,
+    :attr:`Step.validation`)."""
+    final = validate_deflection_model(d.model_file(), "the final model", validate)
+    d.validation = final.to_dict()
+    robot, target = other.robot(), d.geometry.robot
+    if robot.target_frame != target.target_frame or not np.allclose(
+            robot.target_offset, target.target_offset, rtol=0.0, atol=1e-12):
+        return d  # another target: only the model file moves there
+    rows = d.geometry.rows(other.q, other.force, other.moment,
+                           labels=[other.describe_row(i) for i in range(other.n_rows)],
+                           joint_angles=other.robot_settings.joint_angles)
+    d.baseline_validation = _stage(d.baseline, rows, other, final)
+    for step in d.steps:
+        step.validation = _stage(step.fit, rows, other, final)
+    return d
+
+
+def _stage(fit: Fit, rows: Rows, other: Campaign, final: Validation) -> dict:
+    """The validation keys of ``fit`` (its parameters, not refitted) on ``other``'s ``rows``,
+    against the noise ``final`` states."""
+    predicted = fit.model.with_rows(rows).predict(fit.x)[:, :3]
+    stage = Validation(final.model, final.campaign, final.kind, error_keys(other, predicted),
+                       final.robot, final.noise_std).to_dict()
+    return {k: v for k, v in stage.items() if k not in _NOT_STAGE_KEYS}
+
