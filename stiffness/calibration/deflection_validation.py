@@ -59,12 +59,13 @@ def other_campaign(campaign: Campaign,
 
 
 def validated(d: Diagnosis, other: Campaign,
-              validate: Campaign | str | os.PathLike) -> Diagnosis:
-    """``d`` with its final model file evaluated on ``other`` (``validate`` read:
-    :attr:`Diagnosis.validation`) and, when ``other`` measured the same target as ``d``'s
-    campaign, the baseline and each step too (:attr:`Diagnosis.baseline_validation`,
-    :attr:`Step.validation`)."""
-    final = validate_deflection_model(d.model_file(), "the final model", validate)
+              validate: Campaign | PoseCampaign | str | os.PathLike) -> Diagnosis:
+    """``d`` with its final model file evaluated on ``other`` (``validate`` read by
+    :func:`other_campaign`, which names it: :attr:`Diagnosis.validation`) and, when ``other``
+    measured the same target as ``d``'s campaign, the baseline and each step too
+    (:attr:`Diagnosis.baseline_validation`, :attr:`Step.validation`)."""
+    final = validate_deflection_model(d.model_file(), "the final model", other if isinstance(
+        validate, Campaign | PoseCampaign) else validate)
     d.validation = final.to_dict()
     robot, target = other.robot(), d.geometry.robot
     if robot.target_frame != target.target_frame or not np.allclose(
