@@ -238,6 +238,11 @@ class DataFileWarning(UserWarning):
     stiffness marked undetermined."""
 
 
+class FlagValueWarning(UserWarning):
+    """A flag's value that is read, but may not be what the user meant: a noise std in the
+    files' length unit (``--noise``) that is no rig's, finer than 10 nm or coarser than 1 cm."""
+
+
 class DataFileNote(DataFileWarning):
     """What reading a campaign did that the user should hear once, though nothing is wrong:
     coordinates without a column held at fixed or reference values."""

@@ -11,7 +11,7 @@ import pytest
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli import flags
 from stiffness.cli.main import build_parser, main
-from stiffness.errors import StiffnessError, UnknownJointError
+from stiffness.errors import FlagValueWarning, StiffnessError, UnknownJointError
 
 UR5_KQ = "3e5,3e5,2e5,4e4,4e4,4e4"
 UR5_DEG = [-35.0, -60.0, 95.0, -40.0, -70.0, 15.0]
@@ -190,6 +190,44 @@ def test_flag_numbers_are_read_as_csv_cells_are(capsys, tmp_path, monkeypatch, a
         code = info.code
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and words in err, err
+
+
+SMALL_SIMULATION = ["simulate", "--robot", "ur5", "--kq", UR5_KQ, "--configs", "1",
+                    "--loads-per-config", "1", "--quiet"]
+SMALL_DESIGN = ["design", "--robot", "ur5", "--kq", UR5_KQ, "--configs", "2", "--max-force",
+                "50", "--loads-per-config", "1", "--candidates", "12", "--random-plans", "2",
+                "--quiet"]
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    ([*SMALL_SIMULATION, "--noise", "2e-6"],  # meant in m: 2 nm in the default mm
+     "--noise 2e-06 mm is 2e-09 m, below 10 nm, finer than any rig measures: --noise is in the "
+     "files' length unit (--units, here mm); give it in mm (5 um is 0.005 mm)"),
+    ([*SMALL_SIMULATION, "--units", "m", "--noise", "0.05"],  # meant in mm: 5 cm in m
+     "--noise 0.05 m is 0.05 m, above 1 cm, coarser than any rig worth calibrating with"),
+    ([*SMALL_DESIGN, "--noise", "20", "--units", "mm"], "--noise 20 mm is 0.02 m, above 1 cm"),
+    ([*SMALL_DESIGN, "--noise", "0.001", "--units", "um"], "--noise 0.001 um is 1e-09 m"),
+])
+def test_noise_no_rig_has_is_warned_in_the_flags_unit_and_m(tmp_path, argv, words):
+    """``--noise`` is in the files' length unit: a std finer than 10 nm or coarser than 1 cm
+    (a value meant in another unit) is warned about in one line, in that unit and in m."""
+    with pytest.warns(FlagValueWarning) as record:
+        assert main([*argv, "--out", str(tmp_path / "out")]) == 0
+    messages = [str(w.message) for w in record if w.category is FlagValueWarning]
+    assert len(messages) == 1 and words in messages[0], messages
+
+
+def test_simulate_default_noise_is_5_um_in_every_unit(tmp_path, recwarn):
+    """The default noise is 0.005 mm whatever ``--units`` (it was 0.005 in --units: 5 nm in um,
+    5 mm in m), and a noise in the rig range is not warned about."""
+    for units, noise in (("um", None), ("m", None), ("mm", "0.005")):
+        out = tmp_path / units
+        assert main([*SMALL_SIMULATION, "--units", units, "--out", str(out),
+                     *(["--noise", noise] if noise else [])]) == 0
+        truth = json.loads((out / "truth.json").read_text())
+        assert truth["noise_std"] * {"um": 1e-6, "m": 1.0, "mm": 1e-3}[units] == \
+            pytest.approx(5e-6, rel=1e-12)
+    assert not [w for w in recwarn if w.category is FlagValueWarning]
 
 
 def test_warnings_print_on_one_line_and_the_callers_format_is_restored(monkeypatch):

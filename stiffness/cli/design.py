@@ -75,8 +75,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="measured campaign whose rows count as already chosen")
     flags.add_strict_flag(parser)  # of --existing's CSV
     parser.add_argument("--noise", type=flags.number, metavar="STD",
-                        help="measurement noise std per deflection component, in --units; "
-                             "default --existing's noise_std, else 0.005 mm")
+                        help="measurement noise std per deflection component, in the files' "
+                             "length unit (--units); default --existing's noise_std, else "
+                             "0.005 mm")
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default=None,
                         help="length unit of --noise and of the plan's campaign.toml; default "
                              "--existing's, else mm")
@@ -173,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
     if args.units is not None:
         units = Units(units.angle, units.force, args.units)
     flags.check_noise_std(args.noise, "--noise", units.length)
+    flags.warn_rig_noise(args.noise, "--noise", units.length, units.length_to_si)
     show = sys.stderr.isatty() and not args.quiet
 
     def progress(text: str) -> None:

@@ -32,6 +32,7 @@ import argparse
 import math
 import re
 import sys
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +40,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
-from stiffness.errors import OutputError, StiffnessError
+from stiffness.errors import FlagValueWarning, OutputError, StiffnessError
 from stiffness.files import output_folder
 from stiffness.units import MAX_CELL, plain_float, plain_int
 
@@ -199,6 +200,29 @@ def check_noise_std(value: float | None, flag: str, unit: str, *, zero: bool = F
         bound = ">= 0" if zero else "> 0"
         raise StiffnessError(f"{flag} must be a finite standard deviation {bound}, in {unit}; "
                              f"got {value:g}")
+
+
+#: Range (m) of a deflection rig's noise std: finer than 10 nm no rig measures a robot's
+#: deflection, coarser than 1 cm none is worth calibrating with.
+RIG_NOISE_RANGE_M = (1e-8, 1e-2)
+
+
+def warn_rig_noise(value: float | None, flag: str, unit: str, to_si: float) -> None:
+    """Warn (:class:`~stiffness.errors.FlagValueWarning`, one line) when a length noise std
+    flag given in the files' length unit ``unit`` (``to_si`` m each) is outside
+    :data:`RIG_NOISE_RANGE_M`: ``--noise 2e-6`` in mm is 2 nm, likely meant in m. ``None``
+    (not given) and 0 (noise-free) are not warned about."""
+    if not value:
+        return
+    metres = value * to_si
+    low, high = RIG_NOISE_RANGE_M
+    if low <= metres <= high:
+        return
+    where = ("below 10 nm, finer than any rig measures" if metres < low
+             else "above 1 cm, coarser than any rig worth calibrating with")
+    warnings.warn(f"{flag} {value:g} {unit} is {metres:.3g} m, {where}: {flag} is in the files' "
+                  f"length unit (--units, here {unit}); give it in {unit} (5 um is "
+                  f"{5e-6 / to_si:g} {unit})", FlagValueWarning, stacklevel=2)
 
 
 def stiffness_required(robot: Robot) -> StiffnessError:
@@ -480,8 +504,6 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
     StiffnessError
         On a malformed value or a wrong count; :class:`UnknownJointError` on an unknown name.
     """
-    import warnings
-
     from stiffness.mechanics.ik import outside_limits
 
     values = _coordinates_of_flag(robot, args, required, flag)

@@ -22,6 +22,7 @@ import json
 from stiffness.calibration.campaign_toml import BASELINES
 from stiffness.cli import flags
 from stiffness.elastic.effects import LIBRARY
+from stiffness.planning.design import DEFAULT_NOISE_STD_M
 from stiffness.planning.simulate import TRUTH_FILE, simulate
 from stiffness.planning.simulate_request import LOAD_PATTERNS
 from stiffness.units import LENGTH_UNITS, Units
@@ -60,12 +61,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--load-pattern", choices=LOAD_PATTERNS, default="random",
                         help="random directions and magnitudes, a ramp along one direction per "
                              "configuration, or the six axis directions; default random")
-    parser.add_argument("--noise", type=flags.number, default=0.005,
-                        help="measurement noise std, in --units; default 0.005")
+    parser.add_argument("--noise", type=flags.number, metavar="STD",
+                        help="measurement noise std per deflection component, in the files' "
+                             "length unit (--units, default mm); default 0.005 mm")
     parser.add_argument("--rotations", action="store_true",
                         help="also write the measured rotations rx, ry, rz of the target frame")
     parser.add_argument("--rotation-noise", type=flags.number, default=None,
-                        help="rotation noise std, deg; default --noise / 100 mm")
+                        help="rotation noise std, deg; default --noise / 100 mm (rad)")
     parser.add_argument("--undeclared-noise", action="store_true",
                         help="do not write noise_std into the campaign")
     parser.add_argument("--baseline", choices=BASELINES,
@@ -76,7 +78,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "(motor, which a hidden weight or compensator sags) or the "
                              "unloaded link pose (link); default motor")
     parser.add_argument("--units", choices=tuple(LENGTH_UNITS), default="mm",
-                        help="length unit of the files; default mm")
+                        help="length unit of the files, of --noise and of the lengths of "
+                             "--effect; default mm")
     flags.add_seed_flag(parser, "random seed; default 0")
     parser.add_argument("--name", help="campaign name")
     flags.add_output_flags(parser, json_help="print the truth as one JSON object",
@@ -88,13 +91,15 @@ def run(args: argparse.Namespace) -> int:
     """Run ``stiffness simulate``; returns the exit code."""
     units = Units(length=args.units)
     flags.check_noise_std(args.noise, "--noise", args.units, zero=True)
+    flags.warn_rig_noise(args.noise, "--noise", args.units, units.length_to_si)
+    noise_std_m = DEFAULT_NOISE_STD_M if args.noise is None else args.noise * units.length_to_si
     flags.check_noise_std(args.rotation_noise, "--rotation-noise", units.angle, zero=True)
     robot = flags.robot_flags(args)
     kq = flags.parse_list(args.kq, "--kq") if args.kq else None
     sim = simulate(
         robot.source, kq=kq, effects=args.effect,
         configs=args.configs, loads_per_config=args.loads_per_config,
-        max_force=args.max_force, noise_std_m=args.noise * units.length_to_si, seed=args.seed,
+        max_force=args.max_force, noise_std_m=noise_std_m, seed=args.seed,
         frame=robot.frame, target_offset_m=robot.target_offset,
         compliant_joints=robot.compliant_joints,
         baseline=args.baseline, units=units, load_pattern=args.load_pattern,

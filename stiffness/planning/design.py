@@ -57,6 +57,9 @@ DEFAULT_CANDIDATES = 200
 MAX_CANDIDATES = 10_000
 #: Default number of random plans the design is compared with.
 DEFAULT_RANDOM_PLANS = 50
+#: Default measurement noise std per deflection component, m (0.005 mm: a dial gauge's or a
+#: laser tracker's), of a design and of ``stiffness simulate``.
+DEFAULT_NOISE_STD_M = 5e-6
 
 
 def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | None]]:
@@ -422,7 +425,7 @@ def design(
         ``k_theta_SI``, else the baseline fitted to ``existing``.
     noise_std_m
         Noise std per deflection component (m); default the existing campaign's declared one,
-        else 5e-6 m.
+        else :data:`DEFAULT_NOISE_STD_M`.
     existing
         A measured campaign (or its path) whose rows count as already chosen (the plan
         completes it).
@@ -584,7 +587,7 @@ def _noise_level(noise_std_m: float | None, existing: Campaign | None) -> tuple[
     elif existing is not None and existing.noise_std_m is not None:
         sigma, noise_source = existing.noise_std_m, "declared noise_std of the existing campaign"
     else:
-        sigma, noise_source = 5e-6, "default (5e-6 m)"
+        sigma, noise_source = DEFAULT_NOISE_STD_M, f"default ({DEFAULT_NOISE_STD_M:g} m)"
     if not (math.isfinite(sigma) and sigma > 0):
         raise StiffnessError(f"the noise std must be a positive length, got {sigma}")
     return sigma, noise_source
