@@ -11,6 +11,7 @@ import pytest
 from browser import chromium
 
 from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.deflection_validation import validated
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT
 from stiffness.calibration.diagnosis_page import render_diagnosis
@@ -307,7 +308,8 @@ def test_validate_evaluates_every_step_on_another_campaign(tmp_path):
     the same UR5 (another seed, the same hidden wrist spring), nothing refitted. The 3-D error
     RMS shrinks at the step naming the hidden spring from 7x the noise (sqrt(3) sigma) to
     about 1.2x; the last stage is the final model file's validation (the CLI's ``validation``
-    key) to 1e-9; a pose campaign is refused with one line."""
+    key) to 1e-9, also on a campaign declaring another target offset; a pose campaign is
+    refused with one line."""
     hidden = ["joint_compliance:wrist_1_joint=1e4"]
     fit = _simulate(UR5, hidden, configs=8)
     other = _simulate(UR5, hidden, configs=8, seed=2)
@@ -331,6 +333,12 @@ def test_validate_evaluates_every_step_on_another_campaign(tmp_path):
     assert "held-out 3-D error (mm)" in report and "1 joint_compliance(wrist_1_joint)" in report
     page = render_diagnosis(result.record(), None, provenance("test"))
     assert "model on the validation campaign (mm)" in page and "consistent with" not in page
+    # at another target offset, each step at OTHER's target as the model file moved there
+    moved = _simulate(UR5, hidden, configs=8, seed=2, target_offset_m=[0.0, 0.03, 0.15])
+    validated(result, moved.campaign, moved.campaign)
+    assert result.validation["rms"] == pytest.approx(result.steps[-1].validation["rms"],
+                                                     rel=1e-9)
+    assert result.validation["rms"] < 1.5 * noise < result.baseline_validation["rms"] / 4
     poses = tmp_path / "poses"
     poses.mkdir()
     (poses / "campaign.toml").write_text('kind = "poses"\n')

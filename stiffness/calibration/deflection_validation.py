@@ -4,8 +4,9 @@ table of a pose diagnosis, issue 35), and the final model file on it (the ``vali
 :func:`~stiffness.calibration.validation.validate_deflection_model`).
 
 A step's model is its fitted :class:`~stiffness.elastic.effects.hypothesis.Hypothesis` over the
-other campaign's rows (:meth:`Hypothesis.with_rows`), every effect applied, measurement effects
-included (what the other campaign's instrument reads); its errors, noise and verdict are those
+other campaign's rows, every effect applied, measurement effects included (what the other
+campaign's instrument reads; at another declared target offset, its own, without a fitted
+``target_offset``, as the model file moved there); its errors, noise and verdict are those
 of :class:`~stiffness.calibration.validation.Validation`. The last stage is the final model:
 its numbers are the ``validation`` key's (to rounding).
 """
@@ -27,7 +28,8 @@ from stiffness.calibration.validation import (
     same_robot,
     validate_deflection_model,
 )
-from stiffness.elastic.effects.geometry import Rows
+from stiffness.elastic.effects.geometry import Geometry, Rows
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 
 #: The keys of a stage's validation: the errors', the noise's and the verdict's (not the model,
@@ -62,29 +64,39 @@ def validated(d: Diagnosis, other: Campaign,
               validate: Campaign | PoseCampaign | str | os.PathLike) -> Diagnosis:
     """``d`` with its final model file evaluated on ``other`` (``validate`` read by
     :func:`other_campaign`, which names it: :attr:`Diagnosis.validation`) and, when ``other``
-    measured the same target as ``d``'s campaign, the baseline and each step too
-    (:attr:`Diagnosis.baseline_validation`, :attr:`Step.validation`)."""
+    measured the same target frame as ``d``'s campaign (at any offset), the baseline and each
+    step too (:attr:`Diagnosis.baseline_validation`, :attr:`Step.validation`)."""
     final = validate_deflection_model(d.model_file(), "the final model", other if isinstance(
         validate, Campaign | PoseCampaign) else validate)
     d.validation = final.to_dict()
-    robot, target = other.robot(), d.geometry.robot
-    if robot.target_frame != target.target_frame or not np.allclose(
-            robot.target_offset, target.target_offset, rtol=0.0, atol=1e-12):
-        return d  # another target: only the model file moves there
-    rows = d.geometry.rows(other.q, other.force, other.moment,
-                           labels=[other.describe_row(i) for i in range(other.n_rows)],
-                           joint_angles=other.robot_settings.joint_angles)
-    d.baseline_validation = _stage(d.baseline, rows, other, final)
+    robot = other.robot()
+    if robot.target_frame != d.geometry.robot.target_frame:
+        return d  # another target frame: only the model file moves there
+    moved = not np.allclose(robot.target_offset, d.geometry.robot.target_offset, rtol=0.0,
+                            atol=1e-12)
+    geometry = Geometry.of(robot) if moved else d.geometry
+    rows = geometry.rows(other.q, other.force, other.moment,
+                         labels=[other.describe_row(i) for i in range(other.n_rows)],
+                         joint_angles=other.robot_settings.joint_angles)
+    d.baseline_validation = _stage(d.baseline, geometry, rows, other, final, moved)
     for step in d.steps:
-        step.validation = _stage(step.fit, rows, other, final)
+        step.validation = _stage(step.fit, geometry, rows, other, final, moved)
     return d
 
 
-def _stage(fit: Fit, rows: Rows, other: Campaign, final: Validation) -> dict:
-    """The validation keys of ``fit`` (its parameters, not refitted) on ``other``'s ``rows``,
-    against the noise ``final`` states."""
-    predicted = fit.model.with_rows(rows).predict(fit.x)[:, :3]
-    stage = Validation(final.model, final.campaign, final.kind, error_keys(other, predicted),
-                       final.robot, final.noise_std).to_dict()
+def _stage(fit: Fit, geometry: Geometry, rows: Rows, other: Campaign, final: Validation,
+           moved: bool) -> dict:
+    """The validation keys of ``fit`` (its parameters, not refitted) on ``other``'s ``rows``
+    of ``geometry``, against the noise ``final`` states; ``moved``: ``other`` declared
+    another target offset, its own, so a fitted ``target_offset`` (which moved this
+    campaign's) does not apply, as in the model file moved there
+    (:func:`~stiffness.elastic.model_file.elastic_model_of`)."""
+    m, x = fit.model, fit.x
+    kept = [i for i, e in enumerate(m.effects) if not (moved and e.name == "target_offset")]
+    x = np.concatenate([x[:m.offsets[1]], *(x[m.offsets[i + 1]:m.offsets[i + 2]] for i in kept)])
+    model = Hypothesis(geometry, rows, m.baseline, m.compliant,
+                       tuple(m.effects[i] for i in kept), m.refs, m.rotation_weight, m.held)
+    stage = Validation(final.model, final.campaign, final.kind,
+                       error_keys(other, model.predict(x)[:, :3]), final.robot,
+                       final.noise_std).to_dict()
     return {k: v for k, v in stage.items() if k not in _NOT_STAGE_KEYS}
-
