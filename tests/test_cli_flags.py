@@ -202,7 +202,7 @@ SMALL_DESIGN = ["design", "--robot", "ur5", "--kq", UR5_KQ, "--configs", "2", "-
 @pytest.mark.parametrize(("argv", "words"), [
     ([*SMALL_SIMULATION, "--noise", "2e-6"],  # meant in m: 2 nm in the default mm
      "--noise 2e-06 mm is 2e-09 m, below 10 nm, finer than any rig measures: --noise is in the "
-     "files' length unit (--units, here mm); give it in mm (5 um is 0.005 mm)"),
+     "files' length unit (here mm); give it in mm (5 um is 0.005 mm)"),
     ([*SMALL_SIMULATION, "--units", "m", "--noise", "0.05"],  # meant in mm: 5 cm in m
      "--noise 0.05 m is 0.05 m, above 1 cm, coarser than any rig worth calibrating with"),
     ([*SMALL_DESIGN, "--noise", "20", "--units", "mm"], "--noise 20 mm is 0.02 m, above 1 cm"),

@@ -34,7 +34,7 @@ from stiffness.calibration.rig_import import (
     read_mapping_file,
 )
 from stiffness.cli.main import main
-from stiffness.errors import DataFileNote, StiffnessError, UnknownColumnWarning
+from stiffness.errors import DataFileNote, FlagValueWarning, StiffnessError, UnknownColumnWarning
 
 JOINTS = "shoulder_pan_joint,shoulder_lift_joint,elbow_joint"
 MAP = ("config=label," + ",".join(f"q{i}=theta{i}" for i in range(1, 7))
@@ -338,6 +338,20 @@ def test_quiet_and_a_rig_that_loads_along_z_only(tmp_path, capsys):
     assert out.count("\n") == 1 and out.startswith("wrote "), out
     campaign = load_campaign(tmp_path / "c")
     np.testing.assert_allclose(campaign.force, [[0, 0, 3.5], [0, 0, -2.0]])
+
+
+def test_a_noise_no_rig_has_is_warned_in_the_files_unit_and_m(tmp_path):
+    """``campaign import --noise`` is in the files' length unit (here from --units): 2e-6 mm
+    (2 nm, meant in m) is warned about in one line, in mm and in m, and written as given."""
+    rig = tmp_path / "rig.csv"
+    rig.write_text("theta1,theta2,theta3,theta4,theta5,theta6,Fz,dx,dy,dz\n"
+                   "0,-60,90,0,45,0,3.5,0.1,0.2,0.3\n")
+    argv = ["campaign", "import", str(rig), "--robot", "ur5", "--map",
+            ",".join(f"q{i}=theta{i}" for i in range(1, 7)) + ",fz=Fz", "--noise", "2e-6",
+            "--units", "angle=deg,force=N,length=mm", "--out", str(tmp_path / "c"), "--quiet"]
+    with pytest.warns(FlagValueWarning, match=r"^--noise 2e-06 mm is 2e-09 m, below 10 nm"):
+        assert main(argv) == 0
+    assert load_campaign(tmp_path / "c").noise_std_m == pytest.approx(2e-9, rel=1e-12)
 
 
 def test_the_column_echo_writes_minus_zero_as_zero(tmp_path, capsys):

@@ -126,6 +126,7 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
     campaign, report = import_pose_campaign(args.files, robot_settings, settings,
                                             _markers(args.marker), args.name, args.noise,
                                             robot, args.noise_rotation)
+    flags.warn_rig_noise(args.noise, "--noise", campaign.units.length, campaign.units.length_to_si)
     path = write_pose_campaign(campaign, args.out)
     seen = np.isfinite(campaign.positions).all(axis=2).sum(axis=0)
     markers = {m.name: {"frame": m.frame, "rows_seen": int(n)}
@@ -173,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_poses(args, robot_settings, robot, settings)
     campaign, report = import_campaign(args.files, robot_settings, settings, args.name,
                                        args.baseline, args.noise, robot)
+    flags.warn_rig_noise(args.noise, "--noise", campaign.units.length, campaign.units.length_to_si)
     path = write_campaign(campaign, args.out)
     if args.json:
         print(json.dumps({**report.to_dict(), "campaign": str(path)}, indent=1))

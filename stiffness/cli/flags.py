@@ -221,7 +221,7 @@ def warn_rig_noise(value: float | None, flag: str, unit: str, to_si: float) -> N
     where = ("below 10 nm, finer than any rig measures" if metres < low
              else "above 1 cm, coarser than any rig worth calibrating with")
     warnings.warn(f"{flag} {value:g} {unit} is {metres:.3g} m, {where}: {flag} is in the files' "
-                  f"length unit (--units, here {unit}); give it in {unit} (5 um is "
+                  f"length unit (here {unit}); give it in {unit} (5 um is "
                   f"{5e-6 / to_si:g} {unit})", FlagValueWarning, stacklevel=2)
 
 
