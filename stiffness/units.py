@@ -26,6 +26,8 @@ _NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
                      r"|[+-]?(?:nan|inf|infinity)", re.IGNORECASE)
 #: An integer as a person writes it: an optional sign and decimal digits.
 _INTEGER = re.compile(r"[+-]?[0-9]+")
+#: What holds a flag's number (``--kq``, ``--effect``...), in :func:`plain_float`'s messages.
+FLAG_NUMBER = "a command-line number"
 
 
 def plain_float(text: str, where: str) -> float:

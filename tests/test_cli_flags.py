@@ -176,6 +176,8 @@ SEPARATORS = "'1_0' has '_' digit separators, which a command-line number cannot
      f"--sweep: the frame count must be an integer; {SEPARATORS}"),
     (["scan", "--robot", "ur5", "--workers", "١٢", "--out", "s"],
      "argument --workers: '١٢' is not an integer"),
+    (["simulate", "--robot", "ur5", "--effect", "backlash:q2=1_0", "--out", "s"],
+     f"--effect 'backlash:q2=1_0': {SEPARATORS}"),
     (["track", "--robot", "ur5", "--path", "p.csv", "--timestep", "nan"],
      "argument --timestep: 'nan' is not a finite number"),
 ])

@@ -42,7 +42,7 @@ import numpy as np
 
 from stiffness.errors import FlagValueWarning, OutputError, StiffnessError
 from stiffness.files import output_folder
-from stiffness.units import MAX_CELL, plain_float, plain_int
+from stiffness.units import FLAG_NUMBER, MAX_CELL, plain_float, plain_int
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
     from stiffness.elastic.model import ElasticModel
@@ -53,9 +53,6 @@ if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is re
 _NEGATIVE_VALUE = re.compile(r"^-(?:\.?\d|inf\b|nan\b)", re.IGNORECASE)
 #: ``--q`` items of the form ``name=value``.
 _PAIR = re.compile(r"^\s*([^=\s][^=]*?)\s*=\s*(\S.*?)\s*$")
-
-#: What holds a flag's number, in :func:`~stiffness.units.plain_float`'s messages.
-FLAG_NUMBER = "a command-line number"
 
 #: Where a value came from, as echoed by the commands.
 FROM_FLAG = "flag"

@@ -34,7 +34,7 @@ from stiffness.files import read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
-from stiffness.units import plain_int
+from stiffness.units import FLAG_NUMBER, plain_int
 from stiffness.viewer import (
     LOOPBACK,
     QUANTITIES,
@@ -133,7 +133,7 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     name = robot.coordinate_joints[index]
     start, stop = flags.parse_list(",".join(parts[:2]), "--sweep")
     try:
-        n = plain_int(parts[2], flags.FLAG_NUMBER) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
+        n = plain_int(parts[2], FLAG_NUMBER) if len(parts) == 3 else DEFAULT_SWEEP_FRAMES
     except ValueError as exc:
         raise StiffnessError(f"--sweep: the frame count must be an integer; {exc}") from None
     if n < 2:

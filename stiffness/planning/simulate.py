@@ -100,7 +100,7 @@ from stiffness.planning.simulate_request import (
     true_stiffness,
 )
 from stiffness.robot.robot import Robot
-from stiffness.units import MAX_CELL, Units
+from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, plain_float
 
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
@@ -157,10 +157,9 @@ def parse_effect(text: str) -> HiddenEffect:
     if rest.strip():
         for item in rest.split(","):
             try:
-                values.append(float(item))
-            except ValueError:
-                raise StiffnessError(f"--effect {text!r}: {item.strip()!r} is not a number"
-                                     ) from None
+                values.append(plain_float(item, FLAG_NUMBER))
+            except ValueError as exc:
+                raise StiffnessError(f"--effect {text!r}: {exc}") from None
     if not all(math.isfinite(v) and abs(v) <= MAX_CELL for v in values):
         raise StiffnessError(f"--effect {text!r}: values must be finite, within +-{MAX_CELL:.0e}")
     value_counts = LIBRARY[name].value_counts
