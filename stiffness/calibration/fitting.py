@@ -385,8 +385,9 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
         x0 = np.clip(x0, *model.bounds())
     labels = parameter_labels(model)
     hold = {i: model.held[label] for i, label in enumerate(labels) if label in model.held}
+    logs = tuple(range(len(model.compliant))) if bounded and method == "trf" else ()
     sol = solver.fit(objective, x0, solver.Options(method, tolerance, max_nfev, x_scale, loss,
-                                                   f_scale), resolution, hold)
+                                                   f_scale, logs), resolution, hold)
     x, at_bound = sol.x, list(sol.at_bound)
     if bounded:
         x, at_bound = _rigid(model, x, at_bound, sol.identifiability.kept)
