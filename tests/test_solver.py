@@ -9,7 +9,14 @@ import pytest
 from scipy.optimize import nnls
 
 from stiffness.calibration.identifiability import Identifiability, Layout, same_span
-from stiffness.calibration.solver import Factored, Options, covariance_matrix, fit, solve
+from stiffness.calibration.solver import (
+    CRAWL_NFEV,
+    Factored,
+    Options,
+    covariance_matrix,
+    fit,
+    solve,
+)
 
 
 class Linear:
@@ -222,8 +229,9 @@ class LogCompliance(Linear):
 def test_a_log_stiffness_is_solved_over_its_compliance_to_the_same_optimum():
     """``Options.log_columns``: where a near alias (column 1, column 0 plus 1 %) takes the
     compliance's share, the best fit makes the joint rigid (``ln k`` at its upper bound, the
-    others the least squares without it); solved over the compliance, the fit gets there in
-    10 evaluations (over ``ln k`` it crawled for 153). Where the
+    others the least squares without it); after ``CRAWL_NFEV`` evaluations over ``ln k`` the
+    fit goes on over the compliance and gets there within 15 more (over ``ln k`` alone it
+    crawled for 153). Where the
     optimum is inside the bounds, both give the same one (the closed form)."""
     rng = np.random.default_rng(3)
     a = rng.normal(size=(40, 3))
@@ -234,8 +242,9 @@ def test_a_log_stiffness_is_solved_over_its_compliance_to_the_same_optimum():
     rest, *_ = np.linalg.lstsq(a[:, 1:], rigid.b, rcond=None)
     assert np.exp(-sol.x[0]) < 1e-6  # rigid to the tolerance (fitting's _rigid: at the bound)
     np.testing.assert_allclose(sol.x[1:], rest, rtol=1e-5)
-    assert sol.nfev <= 20
-    np.testing.assert_allclose(sol.jac, rigid.jac(sol.x), rtol=1e-9, atol=1e-12)
+    assert sol.nfev <= CRAWL_NFEV + 15
+    np.testing.assert_allclose(sol.jac[:, 1:], rigid.jac(sol.x)[:, 1:], rtol=1e-12)
+    assert np.abs(sol.jac[:, 0]).max() < 1e-9  # in ln k again (scipy's, before the bound)
     inside = LogCompliance(a, a @ np.array([0.3, 1.0, 0.5]))
     for logs in ((), (0,)):
         sol = solve(inside, x0, Identifiability.full(3), Options("trf", 1e-12, log_columns=logs))

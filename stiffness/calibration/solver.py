@@ -230,7 +230,8 @@ class Options:
     (p,) values, or ``None`` for scipy's default), ``loss`` (:data:`LOSSES`), ``f_scale``
     (a robust loss's soft threshold, in the residuals' units) and ``log_columns`` (parameters
     that are the logarithm of a positive quantity, a joint's ``ln k``: a bounded trf solve
-    runs over their reciprocals, :func:`_reciprocal_run`)."""
+    not converged after :data:`CRAWL_NFEV` evaluations goes on over their reciprocals,
+    :func:`_reciprocal_run`)."""
 
     method: str = "trf"
     tolerance: float = 1e-10
@@ -414,11 +415,18 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
     logs = np.flatnonzero(np.isin(free, options.log_columns))
 
     def run(z0: np.ndarray, method: str, bounded: bool):
-        if method == "trf" and bounded and bounds is not None and logs.size:
-            return _reciprocal_run(handed, z0, logs, lo, hi, kwargs)
         extra = {"bounds": (lo, hi)} if bounded and bounds is not None else {}
-        return least_squares(handed.residual, z0, jac=handed.jacobian, method=method,
-                             **kwargs, **extra)
+        if not (method == "trf" and extra and logs.size and kwargs["max_nfev"] > CRAWL_NFEV):
+            return least_squares(handed.residual, z0, jac=handed.jacobian, method=method,
+                                 **kwargs, **extra)
+        first = least_squares(handed.residual, z0, jac=handed.jacobian, method=method,
+                              **{**kwargs, "max_nfev": CRAWL_NFEV}, **extra)
+        if first.status != 0:  # converged within CRAWL_NFEV evaluations
+            return first
+        rest = {**kwargs, "max_nfev": kwargs["max_nfev"] - CRAWL_NFEV}
+        sol = _reciprocal_run(handed, np.clip(first.x, lo, hi), logs, lo, hi, rest)
+        sol.nfev += first.nfev
+        return sol
 
     sol = run(x0[free], options.method, options.method == "trf")
     nfev = int(sol.nfev)
@@ -436,6 +444,11 @@ def solve(problem: Problem, x0: np.ndarray, ident: Identifiability,
     return Solution(full(z), ident, bool(sol.success), int(sol.status), str(sol.message), nfev,
                     [int(i) for i in free[active]],
                     problem.fun(full(sol.x)) if handed.factored else sol.fun, sol.jac)
+
+
+#: Evaluations after which a bounded trf fit with :attr:`Options.log_columns` goes on over
+#: their reciprocals (:func:`_reciprocal_run`): a fit converging sooner is untouched.
+CRAWL_NFEV = 30
 
 
 def _reciprocal_run(handed: Handed, z0: np.ndarray, logs: np.ndarray, lo: np.ndarray,
