@@ -18,7 +18,9 @@ parameter left out is held at. A deflection campaign's is
   is past a bound, by the bounded fit from the clipped optimum; under a robust loss
   (:data:`LOSSES`); the columns it leaves at a bound reported (their intervals one-sided); a
   :class:`Factored` problem (a large pose campaign's) handed to scipy on k + 1 rows with the
-  full problem's steps, under least squares or a robust loss (:class:`Handed`);
+  full problem's steps, under least squares or a robust loss (:class:`Handed`); logarithmic
+  parameters (a deflection model's ``ln k``) taken over their reciprocals when a bounded fit
+  has not converged after :data:`CRAWL_NFEV` evaluations (:func:`_reciprocal_run`);
 * the losses (:func:`loss_terms`, :func:`loss_sum`, :func:`objective_rss`), and the
   covariance (:func:`covariance_matrix`: ``sigma^2 (J^T J)^+`` with one cut-off for
   undetermined directions, or Huber's sandwich, :func:`sandwich_matrix`, for a robust loss).
