@@ -16,7 +16,8 @@ campaign are correlated, see :meth:`Coverage.check`).
 A half-width is measured where the interval is symmetric about the reported value: on the
 value's own scale, on its logarithm (``k exp(+-q s)``) or on its reciprocal (a stiffness from
 its compliance's interval, as ``identify`` and ``diagnose`` report every stiffness); an
-interval symmetric on none (one side at a bound) is measured on the truth's side.
+interval symmetric on none (one side at a bound; or its ends pulled unequally by parameters at
+their bounds) is measured on the truth's side.
 """
 
 from __future__ import annotations
@@ -53,11 +54,11 @@ def standardised_error(value: float, low: float, high: float, truth: float) -> f
     for g in _SCALES if math.isfinite(high - low) else ():
         if low <= 0.0 and g is not _SCALES[0]:
             continue
-        if truth <= 0.0 and g is not _SCALES[0]:
-            return math.inf
         gl, gv, gh = (float(g(v)) for v in (low, value, high))
         half = 0.5 * abs(gh - gl)
         if half > 0 and abs(abs(gh - gv) - abs(gv - gl)) <= 1e-6 * half:
+            if truth <= 0.0 and g is not _SCALES[0]:
+                return math.inf  # a positive quantity's truth at 0 lies off its scale
             return float(abs(gv - g(truth)) / (half / Z95))
     side = (value - low) if truth < value else (high - value)
     if side == 0.0:

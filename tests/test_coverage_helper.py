@@ -44,3 +44,17 @@ def test_too_few_intervals_fail_and_one_sided_intervals_are_measured_on_the_trut
     assert standardised_error(0.0, 0.0, Z95, -0.5) == np.inf
     with pytest.raises(AssertionError, match="not an interval"):
         standardised_error(2.0, 0.0, 1.0, 0.5)
+
+
+def test_an_interval_pulled_unequally_is_measured_on_the_truths_side():
+    """A pose fit's interval whose ends a parameter at its bound pulls unequally (symmetric
+    on no scale) about a positive value, its truth at the bound 0: measured on the truth's
+    side, z = 2.1 (it was infinite: the truth was taken to the log scale first; UR10 tilt
+    campaign, seed 2, of docs/absolute-poses.md)."""
+    z = standardised_error(4.221960955552629e-07, 2.854098504723621e-08,
+                           8.152619261063945e-07, 0.0)
+    assert z == pytest.approx(4.221960955552629e-07 / ((4.221960955552629e-07
+                                                       - 2.854098504723621e-08) / Z95))
+    assert 2.0 < z < 2.2
+    # a stiffness interval (symmetric in its compliance) with its truth at 0 is off its scale
+    assert standardised_error(1.0, 1.0 / 1.5, 1.0 / 0.5, 0.0) == np.inf
