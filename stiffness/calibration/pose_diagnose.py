@@ -619,8 +619,15 @@ class PoseSearch:
         self.rejected.update(self.delta)
 
     def without(self, final: PoseFit) -> list[PoseFit]:
+        """``final`` refitted without each family it added; without the last one added by
+        the step that made ``final``, that step's current fit (the same model, whose held-out
+        error the step beat), not refitted."""
         frame0 = (final.model.rotation0, final.model.translation0)
-        return [_fit(self.campaign, [f for f in self.chosen if f != s
+        last = self.steps[-1]
+        before = (self.steps[-2].fit if len(self.steps) > 1 and last.fit is final
+                  and not last.removed else None)
+        return [before if before is not None and s == last.family else
+                _fit(self.campaign, [f for f in self.chosen if f != s
                                      and s not in FAMILIES[f].requires],
                      frame0, final.model.settings, final, final.loss, self.scale)
                 for s in self.chosen[len(BASE_FAMILIES):]]
@@ -640,7 +647,10 @@ class PoseSearch:
         return family
 
     def held_out_of(self, fits: list[PoseFit]) -> list[float]:
-        return [held_out_rms(fit, self.campaign) for fit in fits]
+        """Each fit's held-out RMS (m); a step's own fit's, the one its step recorded."""
+        known = {id(s.fit): s.cv_rms for s in self.steps}
+        return [known[id(fit)] if id(fit) in known else held_out_rms(fit, self.campaign)
+                for fit in fits]
 
     def deltas(self, current: PoseFit, terms: dict[str, tuple[float, int]]
                ) -> dict[str, float]:
