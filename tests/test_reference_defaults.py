@@ -145,6 +145,28 @@ def test_view_path_rows_need_no_finger_values(tmp_path):
     np.testing.assert_allclose(rows[1, arm], np.deg2rad([10, -40, 0, -130, 0, 92, 46]))
 
 
+def test_view_path_cells_are_read_as_the_campaign_readers_read_them(tmp_path):
+    """``view --path``: a NaN coordinate was read by numpy (and drawn as nothing), '1_0' was
+    refused in numpy's words; each is now one line naming the line of the file, as the
+    campaign readers say it; comments and blank lines are skipped."""
+    from stiffness.cli.view import read_path
+    from stiffness.errors import FileFormatError
+
+    robot = load_robot("panda")
+    path = tmp_path / "path.csv"
+    path.write_text("# arm joints, deg\n0,-45,0,-135,0,90,45\n\n")
+    assert read_path(robot, path, deg=True).shape == (1, 8)
+    for bad, words in (("nan", "not a row of finite numbers"), ("1_0", "digit separators"),
+                       ("x", "line 2")):
+        path.write_text(f"0,-45,0,-135,0,90,45\n10,-40,0,{bad},0,92,46\n")
+        with pytest.raises(FileFormatError, match=words) as info:
+            read_path(robot, path, deg=True)
+        assert "line 2" in str(info.value) and "\n" not in str(info.value)
+    path.write_text("0,-45,0,-135,0,90,45\n10,-40,0\n")
+    with pytest.raises(FileFormatError, match="line 2"):
+        read_path(robot, path, deg=True)
+
+
 def test_a_reference_posture_outside_a_revolute_limit_is_moved_by_a_turn_into_it():
     """kinova's posture 'arm_up' has j2s6s200_joint_3 at -1.5707 rad, outside its URDF limits
     [0.3316, 5.9516]; the reference is the same pose with that joint at -1.5707 + 2 pi (the

@@ -19,7 +19,6 @@ parser adds them here); SI units throughout (m, N, rad, N.m/rad; degrees with ``
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
 import signal
@@ -30,7 +29,7 @@ import numpy as np
 from stiffness.cli import flags, kx
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import FileFormatError, StiffnessError
-from stiffness.files import read_text
+from stiffness.files import csv_float, read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
@@ -145,6 +144,33 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     return rows
 
 
+def _csv_rows(text: str, path: Path, n: int) -> np.ndarray:
+    """The rows of finite numbers of a CSV text (``#`` comments, blank lines skipped), read
+    as the campaign readers read a cell (:func:`~stiffness.files.csv_float`).
+
+    Raises
+    ------
+    FileFormatError
+        A cell that is not a finite plain number, or rows of unequal length (the line named).
+    """
+    rows: list[list[float]] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        cells = line.split("#", 1)[0].strip()
+        if not cells:
+            continue
+        try:
+            row = [csv_float(cell) for cell in cells.split(",")]
+        except ValueError as exc:
+            raise FileFormatError(f"line {number}: {exc}; give one row of {n} coordinates per "
+                                  "line", path=path) from exc
+        if not all(math.isfinite(v) for v in row) or (rows and len(row) != len(rows[0])):
+            raise FileFormatError(f"line {number}: {cells!r} is not a row of finite numbers "
+                                  f"as long as the first; give one row of {n} coordinates per "
+                                  "line", path=path)
+        rows.append(row)
+    return np.atleast_2d(np.array(rows, dtype=float))
+
+
 def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
     """Rows of coordinates from a CSV file (one configuration per line; ``#`` comments): one
     value per coordinate, or per joint outside the end effector's fingers (which keep their
@@ -158,13 +184,7 @@ def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
         If a value is not a number or a row has the wrong number of values.
     """
     path = Path(path)
-    text = read_text(path, "--path file")
-    try:
-        rows = np.atleast_2d(np.loadtxt(io.StringIO(text), delimiter=",", comments="#",
-                                        dtype=float))
-    except ValueError as exc:
-        raise FileFormatError(f"not a CSV of numbers ({exc}); give one row of "
-                              f"{robot.n_coordinates} coordinates per line", path=path) from exc
+    rows = _csv_rows(read_text(path, "--path file"), path, robot.n_coordinates)
     if rows.size == 0:
         raise FileFormatError(f"no rows; give one row of {robot.n_coordinates} coordinates per "
                               "line", path=path)
