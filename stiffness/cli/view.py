@@ -151,7 +151,7 @@ def _csv_rows(text: str, path: Path, n: int) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        A cell that is not a finite plain number, or rows of unequal length (the line named).
+        A cell that is not a finite plain number, or rows of unequal length (its ``line``).
     """
     rows: list[list[float]] = []
     for number, line in enumerate(text.splitlines(), start=1):
@@ -161,12 +161,12 @@ def _csv_rows(text: str, path: Path, n: int) -> np.ndarray:
         try:
             row = [csv_float(cell) for cell in cells.split(",")]
         except ValueError as exc:
-            raise FileFormatError(f"line {number}: {exc}; give one row of {n} coordinates per "
-                                  "line", path=path) from exc
+            raise FileFormatError(f"{exc}; give one row of {n} coordinates per line",
+                                  path=path, line=number) from exc
         if not all(math.isfinite(v) for v in row) or (rows and len(row) != len(rows[0])):
-            raise FileFormatError(f"line {number}: {cells!r} is not a row of finite numbers "
-                                  f"as long as the first; give one row of {n} coordinates per "
-                                  "line", path=path)
+            raise FileFormatError(f"{cells!r} is not a row of finite numbers as long as the "
+                                  f"first; give one row of {n} coordinates per line",
+                                  path=path, line=number)
         rows.append(row)
     return np.atleast_2d(np.array(rows, dtype=float))
 
