@@ -16,6 +16,7 @@ from stiffness.calibration.pose_diagnose import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
 from stiffness.calibration.pose_page import not_added, render_pose_diagnosis, stage_plot
 from stiffness.calibration.residual_figures import marker_residual_plots
+from stiffness.elastic.calibrated import softening
 from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_label
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
@@ -84,8 +85,8 @@ def _softening(p: dict, table: list[dict]) -> str:
     c = next((r["value"] for r in table if r["parameter"] == spring and r["fitted"]), 0.0)
     if not c > 0:
         return ""
-    unit = "1/N" if p["unit"] == "m/N^2" else "1/(N.m)"
-    return f"  beta = gamma/c = {p['value'] / c:.4g} {unit}"
+    beta = softening(p, c)
+    return f"  beta = gamma/c = {beta.value:.4g} {beta.unit}"
 
 
 def _how_sure_lines(d: PoseDiagnosis) -> list[str]:

@@ -116,7 +116,7 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
         row = rows.get(nonlinear_label(joint))
         if row is not None and row.get("fitted", True):
             out.effects.append(("nonlinear_joint_stiffness", joint, [
-                _softening(row, float(rows[compliance_label(joint)]["value"]))], {}))
+                softening(row, float(rows[compliance_label(joint)]["value"]))], {}))
     if {"gravity_compensator", "link_compliance", "transversal_compliance"} & set(cal.families):
         _geometry_effects(cal, rows, springs, out)
     return out
@@ -192,7 +192,7 @@ def _inverse(row: dict, name: str, unit: str) -> Parameter | None:
     return Parameter(name, 1.0 / c, se, ci, unit)
 
 
-def _softening(row: dict, c: float) -> Parameter:
+def softening(row: dict, c: float) -> Parameter:
     """The deflection library's ``beta = gamma / c`` (1/(N.m), 1/N) of a fitted nonlinear
     spring's row ``gamma`` and its spring's compliance ``c > 0`` (module docstring)."""
     gamma = _as_is(row, "beta")
