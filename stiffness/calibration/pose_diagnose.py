@@ -168,6 +168,26 @@ class PoseDiagnosis:
         p = self.gof()
         return None if p is None else p < 1 - GOF_LEVEL
 
+    def verdict(self) -> str:
+        """Whether the final model explains the poses to their noise (chi-square against the
+        declared noise), in words; where it does not, where the residual sits (RMS by marker
+        and axis, the strongest trend along the rows) and the poses flagged as outliers."""
+        p = self.gof()
+        if p is None:
+            return ("noise not declared: whether the final model explains the data to noise "
+                    "cannot be said; declare [measurement] noise_std")
+        if not self.unexplained:
+            return f"explained to noise (chi-square p = {p:.3g})"
+        s = marker_structure(self.final, self.campaign)
+        trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
+        where = ("" if trend is None else
+                 f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
+        marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
+                        for key in ("rms_by_marker", "rms_by_axis"))
+        return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
+                f"({self.campaign.units.length}) by marker {marker}, by axis {axis}{where}"
+                + _flagged(len(self.outliers), self.campaign.n_rows))
+
     def to_dict(self) -> dict:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
         an infinite number, a forced family's held-out RMS that one configuration determines,
@@ -218,6 +238,17 @@ class PoseDiagnosis:
 def _finite(v: float) -> float | None:
     """``v``, or ``None`` (JSON null: no bound) where it is infinite."""
     return float(v) if math.isfinite(v) else None
+
+
+def _flagged(n: int, rows: int) -> str:
+    """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
+    test alone; more than a tenth of the poses are a pattern the model misses."""
+    if not n:
+        return ""
+    if n > rows / 10:
+        return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
+                "stray measurements, the model misses something")
+    return f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],

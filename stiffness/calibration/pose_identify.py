@@ -106,20 +106,12 @@ class PoseIdentification:
                  "fitted (stiffness diagnose searches the rest)", ""]
         lines += [f"  {p.text()}" for p in self.stiffnesses]
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
-                      f"({fit.sigma_source}); " + _verdict(d)]
+                      f"({fit.sigma_source}); " + d.verdict()]
+        if d.unexplained:
+            lines.append(f"the stiffnesses absorb what the model misses; run stiffness "
+                         f"diagnose {c.name} to find it")
         lines += describe_outliers(d.outliers)
         return "\n".join(lines)
-
-
-def _verdict(d: PoseDiagnosis) -> str:
-    """Whether the springs and the nominal geometry explain the poses to their noise."""
-    p = d.gof()
-    if p is None:
-        return "noise not declared: no verdict (declare [measurement] noise_std)"
-    if not d.unexplained:
-        return f"explained to noise (chi-square p = {p:.3g})"
-    return (f"UNEXPLAINED (chi-square p = {p:.3g}): the stiffnesses absorb what the model "
-            f"misses; run stiffness diagnose {d.campaign.name} to find it")
 
 
 def identify_poses(campaign: PoseCampaign, loss: str = "linear",

@@ -8,7 +8,6 @@ import math
 import os
 from pathlib import Path
 
-from stiffness.calibration.breakdown import marker_structure
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
@@ -60,7 +59,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                      + not_added(d.rejected, d.not_judged))
     if d.stop_reason:
         lines.append(f"search stopped: {d.stop_reason}")
-    lines += ["", _verdict(d), *describe_outliers(d.outliers), "",
+    lines += ["", d.verdict(), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
@@ -104,35 +103,6 @@ def _how_sure_lines(d: PoseDiagnosis) -> list[str]:
     if stand_ins:
         lines.append(f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins))
     return lines
-
-
-def _verdict(d: PoseDiagnosis) -> str:
-    p = d.gof()
-    if p is None:
-        return ("noise not declared: whether the final model explains the data to noise "
-                "cannot be said; declare [measurement] noise_std")
-    if not d.unexplained:
-        return f"explained to noise (chi-square p = {p:.3g})"
-    s = marker_structure(d.final, d.campaign)
-    trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
-    where = ("" if trend is None else
-             f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
-    marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
-                    for key in ("rms_by_marker", "rms_by_axis"))
-    return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
-            f"({d.campaign.units.length}) by marker {marker}, by axis {axis}{where}"
-            + _flagged(len(d.outliers), d.campaign.n_rows))
-
-
-def _flagged(n: int, rows: int) -> str:
-    """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
-    test alone; more than a tenth of the poses are a pattern the model misses."""
-    if not n:
-        return ""
-    if n > rows / 10:
-        return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
-                "stray measurements, the model misses something")
-    return f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
 
 
 #: How the identifiability lines name a parameter left out, by its reason.
