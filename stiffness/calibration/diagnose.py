@@ -236,9 +236,7 @@ def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:
     """The deflection effects never tried (``--not``), checked against the library (one
     line naming the valid ones)."""
     for name in not_families:
-        if name not in LIBRARY:
-            raise StiffnessError(f"--not {name!r} is not an effect of the library; "
-                                 f"{did_you_mean(name, list(LIBRARY))}")
+        _library_name("--not", name, name)
     return tuple(sorted(set(not_families)))
 
 
@@ -248,13 +246,19 @@ def _forced(families: Sequence[str], forbidden: tuple[str, ...]) -> tuple[str, .
     library, not forbidden too."""
     for label in families:
         name = label.partition("(")[0]
-        if name not in LIBRARY:
-            raise StiffnessError(f"--families {label!r} is not an effect of the library; "
-                                 f"{did_you_mean(name, list(LIBRARY))}")
+        _library_name("--families", label, name)
         if name in forbidden:
             raise StiffnessError(f"{name} is both forced (--families) and forbidden (--not); "
                                  "name it in one of them")
     return tuple(dict.fromkeys(families))
+
+
+def _library_name(flag: str, label: str, name: str) -> None:
+    """Refuse ``label``, given to ``flag``, unless ``name`` (its effect's) is of the library
+    (one line naming the valid ones)."""
+    if name not in LIBRARY:
+        raise StiffnessError(f"{flag} {label!r} is not an effect of the library; "
+                             f"{did_you_mean(name, list(LIBRARY))}")
 
 
 def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose: bool,
