@@ -11,6 +11,12 @@ from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_ca
 from stiffness.robot.robot import load_robot
 
 
+def ur10_markers() -> list[Marker]:
+    """Two tracker markers on a UR10: on its tool and on its forearm (offsets in m)."""
+    return [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
+            Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
+
+
 def ur10_tip_campaign(poses: int, payload_n: float | None = None) -> PoseCampaign:
     """``poses`` UR10 poses of one marker on tool0 (20 um noise, seed 2) with a hidden frame,
     marker offset, zero offsets, link geometry errors and joint springs, under a downward

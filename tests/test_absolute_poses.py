@@ -18,7 +18,7 @@ import pytest
 from fuzzing import FUZZ, assert_reader_contract, csv_mutation, toml_mutation, write_text
 from hypothesis import given
 from hypothesis import strategies as st
-from pose_campaigns import ur10_tip_campaign
+from pose_campaigns import ur10_markers, ur10_tip_campaign
 from pose_columns import assert_columns
 from pose_truth import add_intervals
 from stats import Coverage
@@ -45,17 +45,12 @@ def ur10():
     return load_robot("ur10", frame="tool0")
 
 
-def _markers() -> list[Marker]:
-    return [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
-            Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
-
-
 def _hidden(robot, rng, geometry: bool = True, drift=None) -> HiddenPoseErrors:
     n = sum(robot.model.joints[j].nv == 1 for j in range(1, robot.model.njoints))
     eps = np.zeros((n, 6))
     if geometry:  # link-length errors: translations of the placements (not along the axis)
         eps[:, :2] = rng.normal(0.0, 4e-4, (n, 2))
-    markers = _markers()
+    markers = ur10_markers()
     return HiddenPoseErrors(
         frame_rotation=pin.exp3(rng.normal(size=3)), frame_translation=rng.uniform(-2, 2, 3),
         marker_offsets=np.array([m.offset for m in markers]) + rng.normal(0, 2e-3, (2, 3)),
@@ -67,7 +62,7 @@ def _hidden(robot, rng, geometry: bool = True, drift=None) -> HiddenPoseErrors:
 def _campaign(robot, seed: int, n: int = 50, **kw):
     rng = np.random.default_rng(seed)
     hidden = _hidden(robot, rng, **kw)
-    return hidden, simulate_pose_campaign(robot, _markers(), hidden, n, NOISE, seed=seed,
+    return hidden, simulate_pose_campaign(robot, ur10_markers(), hidden, n, NOISE, seed=seed,
                                           payload=PAYLOAD)
 
 
@@ -83,10 +78,10 @@ def _jacobian_case(robot, families, seed: int = 0):
     rng = np.random.default_rng(seed)
     frame0 = (pin.exp3(rng.normal(size=3)), np.array([1.0, 2.0, 0.5]))
     loads = Loads("tool0", np.zeros((0, 6)))
-    nominal = PoseModel(robot, _markers(), (), frame0, loads)
+    nominal = PoseModel(robot, ur10_markers(), (), frame0, loads)
     rows = [nominal.row_terms(robot.configuration(rng.uniform(-2, 2, 6)), rng.normal(size=6) * 50)
             for _ in range(3)]
-    model = PoseModel(robot, _markers(), families, frame0, loads,
+    model = PoseModel(robot, ur10_markers(), families, frame0, loads,
                       nominal.campaign_settings(rows))
     scales = np.array([p.scale for p in model.parameters])
     return model, rows, rng.normal(size=model.size) * scales * 3, scales
@@ -167,7 +162,7 @@ def test_compliance_not_named_on_a_rigid_arm(ur10):
         rng = np.random.default_rng(seed)
         hidden = _hidden(ur10, rng, geometry=False)
         hidden.stiffness = None
-        c = simulate_pose_campaign(ur10, _markers(), hidden, 30, NOISE, seed=seed,
+        c = simulate_pose_campaign(ur10, ur10_markers(), hidden, 30, NOISE, seed=seed,
                                    payload=PAYLOAD)
         elastic = {"joint_compliance", "link_compliance", "backlash", "gravity_compensator"}
         named = elastic & set(diagnose_poses(c).families)
@@ -197,8 +192,8 @@ def test_masses_unknown_lumped_fit_predicts_held_out_poses(ur10):
     rng = np.random.default_rng(3)
     hidden = _hidden(ur10, rng, geometry=False)
     hidden.joint_offsets[:] = 0.0
-    train = simulate_pose_campaign(ur10, _markers(), hidden, 80, NOISE, seed=3)
-    test = simulate_pose_campaign(ur10, _markers(), hidden, 40, NOISE, seed=4)
+    train = simulate_pose_campaign(ur10, ur10_markers(), hidden, 80, NOISE, seed=3)
+    test = simulate_pose_campaign(ur10, ur10_markers(), hidden, 40, NOISE, seed=4)
     fams = ["frame", "markers", "gravity_lumped"]
     model = PoseModel(ur10, train.markers, tuple(fams), starting_frame(train), None)
     fit = fit_pose_model(model, train, rows_of(model, train), fams)
@@ -215,11 +210,11 @@ def test_commands_on_a_written_campaign(ur10, tmp_path, capsys):
     rng = np.random.default_rng(5)
     hidden = _hidden(ur10, rng)
     for name, seed in (("a", 5), ("b", 6)):
-        c = simulate_pose_campaign(ur10, _markers(), hidden, 40, NOISE, seed=seed,
+        c = simulate_pose_campaign(ur10, ur10_markers(), hidden, 40, NOISE, seed=seed,
                                    payload=PAYLOAD, units=Units("deg", "N", "mm"))
         write_pose_campaign(c, tmp_path / name)
     back = load_pose_campaign(tmp_path / "a")
-    again = simulate_pose_campaign(ur10, _markers(), hidden, 40, NOISE, seed=5, payload=PAYLOAD)
+    again = simulate_pose_campaign(ur10, ur10_markers(), hidden, 40, NOISE, seed=5, payload=PAYLOAD)
     assert np.allclose(back.positions, again.positions, rtol=0, atol=1e-12)
     assert np.allclose(back.q, again.q, rtol=0, atol=1e-12)
     assert main(["diagnose", str(tmp_path / "a"), "--json", "--out", str(tmp_path / "d"),
@@ -251,7 +246,7 @@ def test_commands_on_a_written_campaign(ur10, tmp_path, capsys):
 def test_unseen_markers_and_reader_errors(ur10, tmp_path):
     """Empty cells are unseen markers; partial cells, unknown frames and kinds are refused."""
     rng = np.random.default_rng(8)
-    c = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, rng), 12, NOISE, seed=8)
+    c = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, rng), 12, NOISE, seed=8)
     c.positions[3, 1] = np.nan
     write_pose_campaign(c, tmp_path)
     back = load_pose_campaign(tmp_path)
@@ -278,7 +273,7 @@ def test_unseen_markers_and_reader_errors(ur10, tmp_path):
 def pose_folder(ur10, tmp_path_factory):
     folder = tmp_path_factory.mktemp("fuzz-poses")
     rng = np.random.default_rng(9)
-    c = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, rng), 6, NOISE, seed=9)
+    c = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, rng), 6, NOISE, seed=9)
     write_pose_campaign(c, folder)
     return folder, (folder / "campaign.toml").read_text(), (
         folder / "measurements.csv").read_text()
@@ -308,7 +303,7 @@ def test_calibrated_urdf_reproduces_the_rigid_positions(ur10, tmp_path, capsys):
     rng = np.random.default_rng(11)
     hidden = _hidden(ur10, rng)
     hidden.stiffness = None
-    c = simulate_pose_campaign(ur10, _markers(), hidden, 40, NOISE, seed=11)
+    c = simulate_pose_campaign(ur10, ur10_markers(), hidden, 40, NOISE, seed=11)
     write_pose_campaign(c, tmp_path / "c")
     assert main(["diagnose", str(tmp_path / "c"), "--out", str(tmp_path / "d")]) == 0
     out = tmp_path / "calibrated.urdf"
@@ -381,7 +376,7 @@ def test_validate_a_deflection_model_on_another_campaign(tmp_path, capsys):
     bent = json.loads(capsys.readouterr().out)
     assert bent["rms"] > 2 * same["rms"]
     rng = np.random.default_rng(12)
-    poses = simulate_pose_campaign(load_robot("ur10", frame="tool0"), _markers(),
+    poses = simulate_pose_campaign(load_robot("ur10", frame="tool0"), ur10_markers(),
                                    _hidden(load_robot("ur10", frame="tool0"), rng), 5, NOISE)
     write_pose_campaign(poses, tmp_path / "poses")
     assert main(["validate", str(model), str(tmp_path / "poses")]) == 2
@@ -394,7 +389,7 @@ def test_campaign_import_of_a_rigs_pose_files(ur10, tmp_path, capsys):
     (key, renamed marker columns in mm, a marker unseen on a row, rows in another order)
     imports back to the same rows (1e-12 relative)."""
     rng = np.random.default_rng(13)
-    c = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, rng), 10, NOISE, seed=13)
+    c = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, rng), 10, NOISE, seed=13)
     c.positions[4, 1] = np.nan
     q_deg, pos_mm = np.rad2deg(c.q), c.positions * 1e3
     joints = ["id,j1 [deg],j2 [deg],j3 [deg],j4 [deg],j5 [deg],j6 [deg],temp"] + [

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from pose_campaigns import ur10_markers
 from pose_truth import add_intervals, truth
 from stats import Coverage
 
@@ -40,20 +41,15 @@ def ur10():
     return load_robot("ur10", frame="tool0")
 
 
-def _markers() -> list[Marker]:
-    return [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
-            Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
-
-
 def _campaign(robot, seed: int, n: int, **elastic):
     """A tracker anywhere, marker offsets off by mm, joint springs, and ``elastic``."""
     rng = np.random.default_rng(seed)
     joints = robot.model.nv
     hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
-                              np.array([m.offset for m in _markers()])
+                              np.array([m.offset for m in ur10_markers()])
                               + rng.normal(0, 2e-3, (2, 3)),
                               np.zeros(joints), np.zeros((joints, 6)), STIFFNESS, **elastic)
-    return hidden, simulate_pose_campaign(robot, _markers(), hidden, n, NOISE, seed=seed,
+    return hidden, simulate_pose_campaign(robot, ur10_markers(), hidden, n, NOISE, seed=seed,
                                           payload=PAYLOAD)
 
 
@@ -98,9 +94,9 @@ def test_compensator_in_the_sag_reproduces_the_simulated_arm(ur10):
     values reproduces the simulated arm to 1e-9 m, and without the spring's tension misses it
     by more than the tracker's noise."""
     comp = {"shoulder_lift_joint": np.array([5e3, 800.0])}
-    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in _markers()]),
+    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in ur10_markers()]),
                               np.zeros(6), np.zeros((6, 6)), STIFFNESS, compensator=comp)
-    c = simulate_pose_campaign(ur10, _markers(), hidden, 20, 0.0, seed=3, payload=PAYLOAD)
+    c = simulate_pose_campaign(ur10, ur10_markers(), hidden, 20, 0.0, seed=3, payload=PAYLOAD)
     model = PoseModel(ur10, c.markers, ("frame", "markers", "joint_compliance",
                                         "gravity_compensator"),
                       (np.eye(3), np.zeros(3)), c.loads, campaign_settings(c))
@@ -121,11 +117,11 @@ def test_new_families_refuse_what_they_cannot_model(ur10):
     typed errors."""
     frame0 = (np.eye(3), np.zeros(3))
     with pytest.raises(StiffnessError, match="masses"):
-        PoseModel(ur10, _markers(), ("gravity_lumped", "link_compliance"), frame0)
+        PoseModel(ur10, ur10_markers(), ("gravity_lumped", "link_compliance"), frame0)
     with pytest.raises(StiffnessError, match="joint_compliance"):
-        PoseModel(ur10, _markers(), ("gravity_compensator",), frame0)
+        PoseModel(ur10, ur10_markers(), ("gravity_compensator",), frame0)
     with pytest.raises(StiffnessError, match="smoothing"):
-        PoseModel(ur10, _markers(), ("backlash",), frame0)
+        PoseModel(ur10, ur10_markers(), ("backlash",), frame0)
     with pytest.raises(StiffnessError, match="links of the markers"):
         _campaign(ur10, 0, 3, link_compliance={"shoulder_pan_joint->wrist_3_joint": np.ones(2)})
 

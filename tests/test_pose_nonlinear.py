@@ -17,6 +17,7 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
+from pose_campaigns import ur10_markers
 from pose_columns import assert_columns
 from pose_truth import add_intervals, truth
 from scipy import optimize
@@ -62,15 +63,10 @@ def ur10():
     return load_robot("ur10", frame="tool0")
 
 
-def _markers() -> list[Marker]:
-    return [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
-            Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
-
-
 def _campaign(robot, seed: int, n: int, beta: np.ndarray | None, noise: float = NOISE):
     """A tracker anywhere, marker offsets off by mm, joint springs (``beta``: nonlinear)."""
     rng = np.random.default_rng(seed)
-    markers = _markers()
+    markers = ur10_markers()
     hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
                               np.array([m.offset for m in markers])
                               + rng.normal(0, 2e-3, (2, 3)),
@@ -291,8 +287,8 @@ def test_without_its_torques_or_with_unknown_masses_it_is_refused(ur10):
     gravity of unknown masses: one-line typed errors."""
     frame0 = (np.eye(3), np.zeros(3))
     with pytest.raises(StiffnessError, match="largest torque") as err:
-        PoseModel(ur10, _markers(), ("joint_compliance", FAMILY), frame0)
+        PoseModel(ur10, ur10_markers(), ("joint_compliance", FAMILY), frame0)
     assert "\n" not in str(err.value)
     with pytest.raises(StiffnessError, match="masses"):
-        PoseModel(ur10, _markers(), ("gravity_lumped", "joint_compliance", FAMILY), frame0,
+        PoseModel(ur10, ur10_markers(), ("gravity_lumped", "joint_compliance", FAMILY), frame0,
                   settings={"nonlinear_largest_torque": {}})
