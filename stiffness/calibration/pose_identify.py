@@ -108,8 +108,9 @@ class PoseIdentification:
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
                       f"({fit.sigma_source}); " + d.verdict()]
         if d.unexplained:
-            lines.append(f"the stiffnesses absorb what the model misses; run stiffness "
-                         f"diagnose {c.name} to find it")
+            where = c.name if c.path is None else str(c.path.parent)
+            lines.append(f"the stiffnesses absorb what the model misses and their intervals "
+                         f"are too narrow; run stiffness diagnose {where} to find it")
         lines += describe_outliers(d.outliers)
         return "\n".join(lines)
 
