@@ -63,10 +63,14 @@ def test_stiffness_intervals_cover_the_truth_at_their_rate(ur10):
 
 def test_missing_geometry_is_unexplained(ur10):
     """Joint placement errors of 1e-4 (m, rad), which identification does not fit: the
-    verdict says the poses are not explained and names diagnose."""
+    verdict says the poses are not explained and names diagnose, and the stiffness table is
+    headed as not to be trusted (not when the poses are explained)."""
     result = identify(_campaign(ur10, 3, placement=1e-4))
     assert result.diagnosis.unexplained
-    assert "UNEXPLAINED" in result.format() and "stiffness diagnose" in result.format()
+    text = result.format()
+    assert "UNEXPLAINED" in text and "stiffness diagnose" in text
+    assert text.index("NOT TO BE TRUSTED") < text.index("shoulder_lift_joint =")  # the table
+    assert "NOT TO BE TRUSTED" not in identify(_campaign(ur10, 0)).format()
 
 
 def test_identify_command_on_a_pose_campaign(ur10, tmp_path, capsys):

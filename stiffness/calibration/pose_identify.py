@@ -104,6 +104,9 @@ class PoseIdentification:
                  f"{fit.n_fitted} parameters ({', '.join(d.families)}); loss {d.loss}",
                  "the springs' stiffness with the measuring frame and markers, nothing else "
                  "fitted (stiffness diagnose searches the rest)", ""]
+        if d.unexplained:
+            lines.append("NOT TO BE TRUSTED: the model does not explain the poses (verdict "
+                         "below); these stiffnesses take what it misses")
         lines += [f"  {p.text()}" for p in self.stiffnesses]
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
                       f"({fit.sigma_source}); " + d.verdict()]
