@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pose_campaigns import ur10_markers
 from pose_truth import truth
-from test_absolute_poses import NOISE, PAYLOAD, _hidden, _markers
+from test_absolute_poses import NOISE, PAYLOAD, _hidden
 
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import (
@@ -55,17 +56,17 @@ def test_the_model_reproduces_the_simulated_physics(ur10):
     rng = np.random.default_rng(4)
     hidden = _hidden(ur10, rng)
     hidden.base_tilt = np.array([0.03, -0.05])
-    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 8, 0.0, seed=4, payload=PAYLOAD)
+    campaign = simulate_pose_campaign(ur10, ur10_markers(), hidden, 8, 0.0, seed=4, payload=PAYLOAD)
     frame0 = starting_frame(campaign)
-    model = PoseModel(ur10, _markers(), GEOMETRY, frame0, campaign.loads,
+    model = PoseModel(ur10, ur10_markers(), GEOMETRY, frame0, campaign.loads,
                       {DECLARED_TILT: hidden.base_tilt.tolist()})
     assert _reproduced(model, truth(model, hidden), campaign) < 1e-9
-    level = PoseModel(ur10, _markers(), GEOMETRY, frame0, campaign.loads)
+    level = PoseModel(ur10, ur10_markers(), GEOMETRY, frame0, campaign.loads)
     assert _reproduced(level, truth(level, hidden), campaign) > 1e-5  # the tilt shows
     hidden.base_tilt = None
     hidden.transversal_compliance = _tilting(rng)
-    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 8, 0.0, seed=4, payload=PAYLOAD)
-    model = PoseModel(ur10, _markers(), (*GEOMETRY, "transversal_compliance"),
+    campaign = simulate_pose_campaign(ur10, ur10_markers(), hidden, 8, 0.0, seed=4, payload=PAYLOAD)
+    model = PoseModel(ur10, ur10_markers(), (*GEOMETRY, "transversal_compliance"),
                       starting_frame(campaign), campaign.loads)
     x = truth(model, hidden)
     assert _reproduced(model, x, campaign) < 1e-6
@@ -82,7 +83,7 @@ def tilted(ur10):
     rng = np.random.default_rng(2)
     hidden = _hidden(ur10, rng, geometry=False)
     hidden.transversal_compliance = _tilting(rng)
-    return simulate_pose_campaign(ur10, _markers(), hidden, 30, NOISE, seed=2, payload=PAYLOAD)
+    return simulate_pose_campaign(ur10, ur10_markers(), hidden, 30, NOISE, seed=2, payload=PAYLOAD)
 
 
 def test_hidden_transversal_compliance_is_named(tilted):
@@ -124,7 +125,7 @@ def test_hidden_base_tilt_is_named_and_covered(ur10):
     hidden = _hidden(ur10, rng, geometry=False)
     hidden.stiffness = hidden.stiffness / 4
     hidden.base_tilt = rng.choice([-1, 1], 2) * rng.uniform(0.03, 0.06, 2)
-    campaign = simulate_pose_campaign(ur10, _markers(), hidden, 30, NOISE, seed=2,
+    campaign = simulate_pose_campaign(ur10, ur10_markers(), hidden, 30, NOISE, seed=2,
                                       payload=PAYLOAD)
     d = diagnose_poses(campaign, families=["joint_offsets", "joint_compliance"],
                        not_families=NOT_HIDDEN)
@@ -137,7 +138,7 @@ def test_hidden_base_tilt_is_named_and_covered(ur10):
 
 
 def test_a_declared_tilt_must_be_two_finite_angles(ur10):
-    campaign = simulate_pose_campaign(ur10, _markers(), _hidden(ur10, np.random.default_rng(1)),
+    campaign = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, np.random.default_rng(1)),
                                       6, NOISE, seed=1)
     for bad in ([0.01], [0.01, float("nan")]):
         with pytest.raises(StiffnessError, match="two finite angles"):
