@@ -307,6 +307,27 @@ def test_the_package_top_exports_every_layer():
     assert set(stiffness.__all__) <= set(dir(stiffness))
 
 
+def test_the_package_top_exports_every_error_and_warning():
+    """Every :class:`~stiffness.errors.StiffnessError` subclass and every warning class the
+    package defines is in ``stiffness.__all__`` (a user catches what the package raises without
+    knowing its modules)."""
+    import importlib
+    import pkgutil
+
+    from stiffness.errors import StiffnessError
+
+    missing = set()
+    for info in pkgutil.walk_packages(stiffness.__path__, "stiffness."):
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            if (isinstance(value, type) and value.__module__ == module.__name__
+                    and issubclass(value, (StiffnessError, Warning))
+                    and not name.startswith("_")):
+                missing |= {f"{module.__name__}.{name}"} - {
+                    f"{module.__name__}.{n}" for n in stiffness.__all__}
+    assert not missing, f"errors and warnings missing from stiffness.__all__: {sorted(missing)}"
+
+
 def test_importing_the_package_stays_light():
     """``import stiffness`` (every command does) loads no optimiser, plotting or viewer."""
     heavy = ("scipy.optimize", "matplotlib", "meshcat", "stiffness.calibration.identify",
