@@ -206,8 +206,8 @@ def test_the_model_file_carries_beta(ur10, tmp_path, capsys):
     nonlinear_joint_stiffness with ``beta = gamma / c`` on each spring, and the elastic model's
     rest pose (the weight sagging the nonlinear springs) puts the marker where the
     calibration's own model predicts it, to 1e-7 m; a diagnosis naming the family reports
-    ``beta = gamma / c`` beside ``gamma``, is written, validated on its campaign and read by
-    kx --model (exit 0)."""
+    ``beta = gamma / c`` beside ``gamma`` in its text and in its --json parameter row, is
+    written, validated on its campaign and read by kx --model (exit 0)."""
     _, c = _campaign(ur10, 1, 12, BETA, noise=0.0)
     markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
     model = PoseModel(ur10, markers, ("frame", "markers", "joint_offsets", "joint_compliance",
@@ -243,6 +243,13 @@ def test_the_model_file_carries_beta(ur10, tmp_path, capsys):
     table = {r["parameter"]: r["value"] for r in parameter_table(d.final)}
     beta = (table["elbow_joint nonlinear compliance"] / table["elbow_joint compliance"])
     assert "rad/(N.m)^2" in line and f"beta = gamma/c = {beta:.4g} 1/(N.m)" in line, line
+    rows = {r["parameter"]: r for r in json.loads(json.dumps(d.to_dict()))["parameters"]}
+    assert rows["elbow_joint nonlinear compliance"]["beta"] == {  # what --json prints
+        "value": pytest.approx(beta, rel=1e-12), "unit": "1/(N.m)",
+        "of": "gamma / c (elbow_joint compliance)"}
+    assert rows["elbow_joint nonlinear compliance"]["value"] == table[
+        "elbow_joint nonlinear compliance"]  # gamma kept under its own keys
+    assert "beta" not in rows["elbow_joint compliance"]
     _check_physical_scales(d, c)
     write_pose_campaign(c, tmp_path / "campaign")
     path = write_pose_model(d.final, c, tmp_path / "d" / "final-model.json")

@@ -17,6 +17,8 @@ from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_parameters import PoseJudge
+from stiffness.elastic.calibrated import softening
+from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_label
 from stiffness.errors import FileFormatError
 from stiffness.files import atomic_write, jsonable, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
@@ -34,14 +36,31 @@ def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
     kept = set(fit.identifiability.kept)
     judged = ({} if judge is None else
               {p.name: p for ps in judge.parameters(fit).values() for p in ps})
-    return [{"family": p.family, "parameter": p.label, "unit": p.unit,
-             "value": float(fit.x[i]), "fitted": i in kept,
-             "std": None if i not in kept else jsonable(std[i]),
-             "interval_95": None if i not in kept else jsonable([lo[i], hi[i]]),
-             "at_bound": i in fit.at_bound,
-             **({k: v for k, v in judged[p.label].to_dict().items()
-                 if k not in ("value", "unit", "at_bound")} if p.label in judged else {})}
-            for i, p in enumerate(fit.model.parameters)]
+    table = [{"family": p.family, "parameter": p.label, "unit": p.unit,
+              "value": float(fit.x[i]), "fitted": i in kept,
+              "std": None if i not in kept else jsonable(std[i]),
+              "interval_95": None if i not in kept else jsonable([lo[i], hi[i]]),
+              "at_bound": i in fit.at_bound,
+              **({k: v for k, v in judged[p.label].to_dict().items()
+                  if k not in ("value", "unit", "at_bound")} if p.label in judged else {})}
+             for i, p in enumerate(fit.model.parameters)]
+    for row in table:
+        row.update(_softening(row, table))
+    return table
+
+
+def _softening(row: dict, table: list[dict]) -> dict:
+    """A fitted nonlinear spring's row ``gamma`` gets ``beta``, the deflection library's
+    softening ``gamma / c`` (value and unit, 1/(N.m) or 1/N, :func:`softening`) with ``c`` its
+    spring's fitted compliance, where that was fitted positive; every other row nothing."""
+    if row["family"] != "nonlinear_joint_stiffness" or not row["fitted"]:
+        return {}
+    spring = compliance_label(row["parameter"].removesuffix(nonlinear_label("")))
+    c = next((r["value"] for r in table if r["parameter"] == spring and r["fitted"]), 0.0)
+    if not c > 0:
+        return {}
+    beta = softening(row, c)
+    return {"beta": {"value": beta.value, "unit": beta.unit, "of": f"gamma / c ({spring})"}}
 
 
 def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathLike,

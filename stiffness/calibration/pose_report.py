@@ -15,8 +15,6 @@ from stiffness.calibration.pose_diagnose import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
 from stiffness.calibration.pose_page import not_added, render_pose_diagnosis, stage_plot
 from stiffness.calibration.residual_figures import marker_residual_plots
-from stiffness.elastic.calibrated import softening
-from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_label
 from stiffness.files import atomic_write, staged_folder
 from stiffness.provenance import provenance
 
@@ -70,22 +68,15 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                      f"[{lo}, {hi}]" + ("  at its lower bound" if p["at_bound"]
                                                 else "")
                      + ("" if p.get("determined", True) else
-                        f"  undetermined ({p['physical_scale']})") + _softening(p, table))
+                        f"  undetermined ({p['physical_scale']})") + _softening(p))
     return "\n".join(lines + _how_sure_lines(d))
 
 
-def _softening(p: dict, table: list[dict]) -> str:
-    """Beside a nonlinear spring's ``gamma``, the deflection library's ``beta = gamma / c``
-    (1/(N.m), 1/N prismatic) with its spring's compliance ``c``, where that was fitted
-    positive; else ""."""
-    if p["family"] != "nonlinear_joint_stiffness":
-        return ""
-    spring = compliance_label(p["parameter"].removesuffix(nonlinear_label("")))
-    c = next((r["value"] for r in table if r["parameter"] == spring and r["fitted"]), 0.0)
-    if not c > 0:
-        return ""
-    beta = softening(p, c)
-    return f"  beta = gamma/c = {beta.value:.4g} {beta.unit}"
+def _softening(p: dict) -> str:
+    """Beside a nonlinear spring's ``gamma``, its row's ``beta = gamma / c``
+    (:func:`~stiffness.calibration.pose_model_file.parameter_table`), where it has one."""
+    beta = p.get("beta")
+    return "" if beta is None else f"  beta = gamma/c = {beta['value']:.4g} {beta['unit']}"
 
 
 def _how_sure_lines(d: PoseDiagnosis) -> list[str]:
