@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -429,6 +430,42 @@ def test_joint_compliance_on_a_compliant_joint_is_refused(tmp_path):
                        "already a compliant joint of k_theta") as info:
         elastic_model_of(read_model_file(path))
     assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_an_effect_on_a_controller_coordinate_loads(tmp_path):
+    """A robot whose springs act on its [controller] coordinates (tests/data/torso-passive):
+    diagnose names backlash(T2) there, and the model file it wrote was refused ("names 'T2',
+    not a joint of torso-passive"), though T2 is the spring the effect acts on. The nonlinear
+    spring on T2 enters K_X as the tangent of the fitted deflection. A bend's or a tilt's joint
+    must be a joint of the chain, not a coordinate."""
+    torso = robots_directory().parent / "tests" / "data" / "torso-passive" / "robot.toml"
+    springs = ("T1", "T2", "T3", "A1", "A2")
+    model = ModelFile(
+        source=str(torso), frame="tool", target_offset_m=[0.0, 0.0, 0.0],
+        compliant_joints=springs, k_theta=np.array([4e4, 2.5e4, 2e4, 8e3, 6e3]),
+        units=("N.m/rad",) * 5, formulation="conventional", noise_std_m=5e-6,
+        noise_source="declared", campaign="test", produced_by="diagnose", effects=(
+            ModelEffect("backlash", "T2", "lost_motion", [_p("half_width", 1e-4, "rad")]),
+            ModelEffect("nonlinear_joint_stiffness", "T2", "stiffness",
+                        [_p("beta", 0.01, "1/(N.m)")])))
+    compliant = elastic_model_of(read_model_file(model.write(tmp_path / "m.json")))
+    assert [e.label for e, _ in compliant.not_applied] == ["backlash(T2)"]
+    q, force = np.radians([10.0, 20.0, 15.0, -30.0, 40.0]), np.array([20.0, -15.0, -60.0])
+    spring = elastic_model_of(replace(model, effects=model.effects[1:]))  # no lost motion
+    h = 1e-3
+    fd = np.column_stack([(spring.deflection(q, force + h * e)
+                           - spring.deflection(q, force - h * e)) / (2 * h)
+                          for e in np.eye(3)])
+    plain = load_model(str(torso), k=[4e4, 2.5e4, 2e4, 8e3, 6e3]).at(q, force, "conventional")
+    at = compliant.at(q, force, "conventional")
+    np.testing.assert_allclose(at.compliance(), fd, rtol=1e-8, atol=0)
+    assert np.abs(at.compliance() - plain.compliance()).max() > 0.05 * np.abs(fd).max()
+    for effect, where, name in (("link_compliance", "t1->T9", "T9"),
+                                ("transversal_compliance", "T2", "T2")):  # tilts a joint
+        other = replace(model, effects=(ModelEffect(effect, where, "stiffness", [
+            _p("stiffness_1", 1e5, "N.m/rad"), _p("stiffness_2", 1e5, "N.m/rad")]),))
+        with pytest.raises(ModelRobotError, match=f"names '{name}', not a joint of torso-passive"):
+            elastic_model_of(other)
 
 
 def test_an_undetermined_stiffness_is_used_with_a_warning(tmp_path):

@@ -56,6 +56,7 @@ from stiffness.elastic.effects.base import Parameter, effect_variables
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.link_bends import segment
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel, ElasticState
@@ -665,8 +666,10 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         raise with_context(exc, f"{where}the model's robot with its effects") from exc
     if problem := wrong_model_stiffness_unit(model, robot.is_prismatic):
         raise ModelFileError(problem, path=model.path or "model file")
-    joints = [j for j in robot.model.names[1:]]
-    for e in model.effects:  # every effect's joint or segment must be a joint of the robot
+    for e in model.effects:  # a bend's or tilt's joints are the robot's, a joint law's a
+        # spring of it (a controller coordinate: backlash(T2) on tests/data/torso-passive)
+        joints = list(dict.fromkeys([*robot.model.names[1:], *(
+            robot.compliant_joints if isinstance(e.effect(), JointEffect) else ())]))
         for name in [n for n in segment(e.where) or [e.where] if n is not None and n not in joints]:
             raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
                                   f"{robot.title}; {did_you_mean(str(name), joints)}")
