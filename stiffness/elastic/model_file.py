@@ -666,10 +666,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         raise with_context(exc, f"{where}the model's robot with its effects") from exc
     if problem := wrong_model_stiffness_unit(model, robot.is_prismatic):
         raise ModelFileError(problem, path=model.path or "model file")
-    for e in model.effects:  # a bend's or tilt's joints are the robot's, a joint law's a
-        # spring of it (a controller coordinate: backlash(T2) on tests/data/torso-passive)
-        joints = list(dict.fromkeys([*robot.model.names[1:], *(
-            robot.compliant_joints if isinstance(e.effect(), JointEffect) else ())]))
+    for e in model.effects:  # a bend's or tilt's joints are the chain's, a joint law's a spring
+        law = robot.compliant_joints if isinstance(e.effect(), JointEffect) else ()
+        joints = list(dict.fromkeys([*robot.model.names[1:], *law]))  # backlash(T2): a coordinate
         for name in [n for n in segment(e.where) or [e.where] if n is not None and n not in joints]:
             raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
                                   f"{robot.title}; {did_you_mean(str(name), joints)}")
