@@ -698,7 +698,9 @@ class ElasticState:
     def equilibrium(self) -> Deflection:
         """The exact loaded equilibrium at the commanded pose and its deflection from the
         unloaded one (under a preload both are solved with it; link bends and a preload
-        together are not modelled).
+        together are not modelled). With ``link`` joint angles the pose given is the unloaded
+        equilibrium itself: the springs rest at ``q - law(tau_p(q))``, from which the load
+        is solved (:meth:`rest_configuration`).
 
         Raises
         ------
@@ -717,13 +719,24 @@ class ElasticState:
             raise StiffnessError("the exact equilibrium of link bends under a preload (weight, "
                                  "compensator) is not modelled; drop one of them")
         law = model.compliant_law()
-        unloaded = solve_equilibrium(model.robot, self.q_commanded, law, np.zeros(6),
-                                     preload=model.preload)
-        eq = solve_equilibrium(model.robot, self.q_commanded, law, self.wrench,
-                               preload=model.preload)
-        before, after = target_state(model.robot, unloaded.q), target_state(model.robot, eq.q)
+        springs_rest = self.rest_configuration()
+        unloaded = (self.q_commanded if model.joint_angles == "link" else solve_equilibrium(
+            model.robot, springs_rest, law, np.zeros(6), preload=model.preload).q)
+        eq = solve_equilibrium(model.robot, springs_rest, law, self.wrench, preload=model.preload)
+        before, after = target_state(model.robot, unloaded), target_state(model.robot, eq.q)
         return Deflection(eq.q, after.position, after.position - before.position,
                           pin.log3(after.rotation @ before.rotation.T), None)
+
+    def rest_configuration(self) -> np.ndarray:
+        """Where the springs rest (full configuration, loops closed): the commanded pose, or
+        with ``link`` joint angles under a preload the pose given (the unloaded equilibrium
+        ``q``) less the joint law's deflection under the preload there, ``q - law(tau_p(q))``
+        (exact: the unloaded equilibrium solves ``q - q_rest = law(tau_p(q))``)."""
+        model = self.model
+        if not (model.preloaded and model.joint_angles == "link"):
+            return self.q_commanded
+        sag = model.compliant_law()(model.preload(self.q_commanded)[0])[0]
+        return deflected_configuration(model.robot, self.q_commanded, -sag, self.q_commanded)
 
 
 @dataclass
