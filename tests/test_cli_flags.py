@@ -219,6 +219,28 @@ def test_noise_no_rig_has_is_warned_in_the_flags_unit_and_m(tmp_path, argv, word
     assert len(messages) == 1 and words in messages[0], messages
 
 
+@pytest.mark.parametrize(("argv", "words"), [
+    (["--units", "m", "--effect", "target_offset=20"],  # meant in mm: 20 m on a 1.33 m arm
+     "--effect target_offset=20: its length 20 m is beyond ur5's reach (1.33 m), no "
+     "target_offset on it; --effect lengths are in the files' length unit (--units, here m): "
+     "give them in m, or give --units the unit they are in (--units mm reads them as 0.02 m)"),
+    (["--units", "cm", "--effect", "gravity_preload=2,0,0,300"],  # its centre of mass: 3 m
+     "--effect gravity_preload=2,0,0,300: its length 300 cm (3 m) is beyond ur5's reach"),
+    (["--units", "m", "--effect", "target_offset=0.02"], None),
+    (["--effect", "target_offset=20", "--effect", "gravity_preload=2,0,0,50"], None),  # mm
+])
+def test_effect_lengths_beyond_the_reach_are_warned(tmp_path, recwarn, argv, words):
+    """``--effect`` lengths are in ``--units``: a target offset or a payload's centre of mass
+    farther than the robot's reach (the UR5's, 1.3287 m, summed from its URDF in
+    test_physical_scales) was meant in a smaller unit, and is warned about in one line naming
+    the value, the reach and the fix; within the reach (20 mm, 0.02 m, a 50 mm centre of
+    mass) it is not."""
+    assert main([*SMALL_SIMULATION, *argv, "--out", str(tmp_path / "out")]) == 0
+    messages = [str(w.message) for w in recwarn if w.category is FlagValueWarning]
+    assert messages == [] if words is None else (len(messages) == 1 and words in messages[0]), \
+        messages
+
+
 def test_simulate_default_noise_is_5_um_in_every_unit(tmp_path, recwarn):
     """The default noise is 0.005 mm whatever ``--units`` (it was 0.005 in --units: 5 nm in um,
     5 mm in m), and a noise in the rig range is not warned about."""

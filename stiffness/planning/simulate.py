@@ -98,6 +98,7 @@ from stiffness.planning.simulate_request import (
     request_record,
     rotation_noise_std,
     true_stiffness,
+    warn_effect_lengths,
 )
 from stiffness.robot.robot import Robot
 from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, plain_float
@@ -635,6 +636,7 @@ def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect]
     and rotations (rows, 6; m, rad).
     """
     geometry = Geometry.of(declared)
+    warn_effect_lengths(hidden, geometry, units)
     truth = build_truth(declared, kq, list(hidden), units, np.zeros(len(geometry.joints)),
                         geometry)
     smoothing = row_smoothing_torques(geometry.robot, q, applied + truth.force_bias)
