@@ -636,7 +636,7 @@ def _truth_and_sizes(declared: Robot, kq: np.ndarray, hidden: list[HiddenEffect]
     and rotations (rows, 6; m, rad).
     """
     geometry = Geometry.of(declared)
-    warn_effect_lengths(hidden, geometry, units)
+    warn_effect_lengths([(h.name, h.where, h.values) for h in hidden], geometry, units)
     truth = build_truth(declared, kq, list(hidden), units, np.zeros(len(geometry.joints)),
                         geometry)
     smoothing = row_smoothing_torques(geometry.robot, q, applied + truth.force_bias)

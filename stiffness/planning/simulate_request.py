@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,9 +15,6 @@ from stiffness.errors import FlagValueWarning, StiffnessError, UnknownNameError
 from stiffness.planning.plan import Plan
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
-
-if TYPE_CHECKING:
-    from stiffness.planning.simulate import HiddenEffect
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")
@@ -73,32 +69,33 @@ def check_request(configs: int, loads_per_config: int, repeats: int, max_force: 
         raise StiffnessError(f"an effect is hidden twice: {labels}")
 
 
-def warn_effect_lengths(hidden: list[HiddenEffect], geometry: Geometry, units: Units) -> None:
+def warn_effect_lengths(hidden: list[tuple[str, str | None, tuple[float, ...]]],
+                        geometry: Geometry, units: Units) -> None:
     """Warn (:class:`~stiffness.errors.FlagValueWarning`, one line per effect) when a hidden
     effect's lengths, given in the files' length unit ``units.length`` (a target offset, a
     payload's centre of mass, a deflection offset, a prismatic joint's backlash), put it
     farther than the robot's reach (:func:`~stiffness.elastic.effects.geometry.reach`, the
     physical scale of a target offset and of a centre of mass): no effect on this robot is
     that large, the value was meant in a smaller unit (``target_offset=20`` in m, meant in
-    mm). The values are checked as
+    mm). ``hidden``: each effect's name, place (or ``None``) and values as given, checked as
     :meth:`~stiffness.elastic.effects.base.Effect.simulated_values` reads them."""
     size = reach(geometry.robot.model)
-    for h in hidden:
-        effect = make_effect(h.name, h.where, geometry)
-        si = effect.simulated_values(h.values, units)
+    for name, where, values in hidden:
+        effect = make_effect(name, where, geometry)
+        si = effect.simulated_values(values, units)
         lengths = [v for v, (unit, to_si) in zip(si, effect.units(units), strict=False)
                    if unit == units.length and to_si == units.length_to_si]
         metres = float(np.linalg.norm(lengths)) if lengths else 0.0
         if metres <= size:
             continue
-        given = ",".join(f"{v:g}" for v in h.values)
+        given = (f"{name}:{where}" if where else name) + "=" + ",".join(f"{v:g}" for v in values)
         si_note = "" if units.length == "m" else f" ({metres:.3g} m)"
         example = ("" if units.length == "mm" else
                    f" (--units mm reads them as {metres * 1e-3 / units.length_to_si:.3g} m)")
         warnings.warn(
-            f"--effect {h.label}={given}: its length {metres / units.length_to_si:.3g} "
+            f"--effect {given}: its length {metres / units.length_to_si:.3g} "
             f"{units.length}{si_note} is beyond {geometry.robot.title}'s reach ({size:.3g} m), "
-            f"no {h.name} on it; --effect lengths are in the files' length unit (--units, here "
+            f"no {name} on it; --effect lengths are in the files' length unit (--units, here "
             f"{units.length}): give them in {units.length}, or give --units the unit they are "
             f"in{example}", FlagValueWarning, stacklevel=3)
 
