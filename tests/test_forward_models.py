@@ -7,9 +7,11 @@ equilibrium (``ElasticModel.with_effects(...).at(q, wrench).equilibrium()``, eac
 its one hook ``Effect.contribute``) give the same tool displacement at the same parameters.
 
 Arms: the UR5 with its three arm joints compliant and a 0.1 m tool (as
-``scripts/detection_rate.py``), and the torso of ``tests/data/torso-passive`` (five springs on
-controller coordinates driving six chain joints; the pose model takes no closed loop), at three
-random configurations under three random wrenches (force ~100 N, moment ~10 N.m at the tool).
+``scripts/detection_rate.py``), the torso of ``tests/data/torso-passive`` (five springs on
+controller coordinates driving six chain joints; the pose model takes no closed loop) and the
+DH arm with two prismatic joints of ``tests/pose_campaigns.py`` (springs in N/m, compliances in
+m/N, a backlash in m), each at three random configurations under three random wrenches (force
+~100 N, moment ~10 N.m at the tool).
 
 Parameters, one value per effect in each side's units: a spring's stiffness ``k`` (deflection
 and elastic) is the compliance ``1 / k`` of the pose model; a nonlinear spring's ``beta``
@@ -70,10 +72,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from pose_campaigns import PRISM_ARM
 
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.elastic.effects import (
-    Backlash,
     GravityCompensator,
     GravityPreload,
     NonlinearJointStiffness,
@@ -167,10 +169,14 @@ class Arm:
 
 
 def _arm(robot_of, k: np.ndarray, seed: int, spread: float) -> Arm:
+    """Three rows of coordinates within ``spread`` (rad; half as many metres from the lower
+    limit 0 for a prismatic joint)."""
     robot, flat = robot_of(), robot_of()
     flat.model.gravity = pin.Motion.Zero()
     rng = np.random.default_rng(seed)
     coords = rng.uniform(-spread, spread, (3, robot.n_coordinates))
+    slides = [robot.is_prismatic(j) for j in robot.coordinate_joints]
+    coords[:, slides] = 0.5 * np.abs(coords[:, slides])
     wrench = rng.normal(size=(3, 6)) * np.r_[100.0, 100.0, 100.0, 10.0, 10.0, 10.0]
     return Arm(robot, flat, k, coords, wrench)
 
@@ -186,6 +192,13 @@ def ur5() -> Arm:
 def torso() -> Arm:
     return _arm(lambda: load_robot(str(TORSO)), np.array([4.0e4, 2.5e4, 2.0e4, 8.0e3, 6.0e3]),
                 2, 0.8)
+
+
+@pytest.fixture(scope="module")
+def prism(tmp_path_factory) -> Arm:
+    path = tmp_path_factory.mktemp("prism") / "robot.toml"
+    path.write_text(PRISM_ARM)
+    return _arm(lambda: load_robot(str(path)), np.array([3e4, 2e6, 1.5e4, 1e6, 8e3]), 3, 0.5)
 
 
 def _gap(a: np.ndarray, b: np.ndarray) -> float:
@@ -210,7 +223,7 @@ def _second_order(pair, relative: float) -> None:
     assert rel < relative, rel
 
 
-@pytest.mark.parametrize("name", ["ur5", "torso"])
+@pytest.mark.parametrize("name", ["ur5", "torso", "prism"])
 def test_joint_springs_exact_on_three_sides(name, request):
     """Joint springs alone (``joint_compliance``): the deflection fit's exact baseline, the
     pose model's sag and the elastic model's equilibrium agree to 1e-12 m (and the fit's and the
@@ -234,17 +247,16 @@ def test_joint_compliance_effect_is_the_baseline_spring(ur5):
     assert np.abs(own).max() > 2e-3 and _gap(added, own) < 1e-17
 
 
-@pytest.mark.parametrize("name", ["ur5", "torso"])
-def test_nonlinear_spring(name, request):
-    """``nonlinear_joint_stiffness`` (``beta`` 2e-3 1/(N.m) on the UR5's elbow, 2e-2 on the
-    torso's T3, which carries less torque): the pose model (``gamma = beta / k``) and the
+@pytest.mark.parametrize(("name", "joint", "beta"), [("ur5", "elbow_joint", 2e-3),
+                                                     ("torso", "T3", 2e-2), ("prism", "j4", 5e-3)])
+def test_nonlinear_spring(name, joint, beta, request):
+    """``nonlinear_joint_stiffness`` (``beta`` 1/(N.m), or 1/N on the prismatic j4; larger on
+    the torso's T3, which carries less torque): the pose model (``gamma = beta / k``) and the
     elastic model agree to 1e-12 m, the spring's change showing by over 10 um; the deflection
     fit is off at second order."""
     arm = request.getfixturevalue(name)
-    joint = "elbow_joint" if name == "ur5" else "T3"
     c = arm.springs.index(joint)
     geo = Geometry.of(arm.robot)
-    beta = 2e-3 if name == "ur5" else 2e-2
     exact = arm.elastic([NonlinearJointStiffness(joint_name=joint)], [[beta]])
     pose = arm.pose(("joint_compliance", "nonlinear_joint_stiffness"),
                     {**arm.compliances(), nonlinear_label(joint): beta / arm.k[c]},
@@ -257,20 +269,24 @@ def test_nonlinear_spring(name, request):
                                          size=s)), 0.01)
 
 
-def test_backlash(ur5):
-    """``backlash`` of 2 mrad on the elbow, smoothed over 5 N.m on every side: the pose model
-    and the elastic model agree to 1e-12 m; the deflection fit is off at second order (the
-    compliances and the half-width scaled together)."""
-    effect = make_effect("backlash", "elbow_joint", Geometry.of(ur5.robot))
-    elastic = Backlash(joint_name="elbow_joint", smoothing_torque=SMOOTHING)
-    exact = ur5.elastic([elastic], [[2e-3]])
-    pose = ur5.pose(("joint_compliance", "backlash"),
-                    {**ur5.compliances(), backlash_label("elbow_joint"): 2e-3},
-                    {BACKLASH_SETTING: {"elbow_joint": SMOOTHING}})
+@pytest.mark.parametrize(("name", "joint", "half_width"), [("ur5", "elbow_joint", 2e-3),
+                                                           ("prism", "j4", 1e-4)])
+def test_backlash(name, joint, half_width, request):
+    """``backlash`` of 2 mrad on the UR5's elbow, 0.1 mm on the prismatic j4, smoothed over 5
+    N.m (N) on every side: the pose model and the elastic model agree to 1e-12 m; the
+    deflection fit is off at second order (the compliances and the half-width scaled
+    together)."""
+    arm = request.getfixturevalue(name)
+    effect = dataclasses.replace(make_effect("backlash", joint, Geometry.of(arm.robot)),
+                                 smoothing_torque=SMOOTHING)
+    exact = arm.elastic([effect], [[half_width]])
+    pose = arm.pose(("joint_compliance", "backlash"),
+                    {**arm.compliances(), backlash_label(joint): half_width},
+                    {BACKLASH_SETTING: {joint: SMOOTHING}})
     assert _gap(pose, exact[:, :3]) < EXACT
-    assert _gap(exact, ur5.elastic()) > 1e-4
-    _second_order(lambda s: (ur5.hypothesis([effect], [[2e-3 * s]], size=s),
-                             ur5.elastic([elastic], [[2e-3 * s]], size=s)), 0.01)
+    assert _gap(exact, arm.elastic()) > 5e-5
+    _second_order(lambda s: (arm.hypothesis([effect], [[half_width * s]], size=s),
+                             arm.elastic([effect], [[half_width * s]], size=s)), 0.01)
 
 
 @pytest.mark.parametrize("gravity", [False, True])
@@ -303,7 +319,7 @@ def _true_masses(robot: Robot, link: str) -> np.ndarray:
     return np.r_[inertia.mass, inertia.mass * inertia.lever]
 
 
-@pytest.mark.parametrize("name", ["ur5", "torso"])
+@pytest.mark.parametrize("name", ["ur5", "torso", "prism"])
 def test_gravity_lumped_is_the_known_weight(name, request):
     """``gravity_lumped`` at the robot's true masses: the pose model's (``c_j pi_k``) sag is
     the known weight's, equal to the elastic model's loaded minus unloaded equilibrium under
@@ -335,6 +351,7 @@ def test_gravity_lumped_is_the_known_weight(name, request):
 
 BENDS = [("link_compliance", "elbow_joint->wrist_1_joint", "ur5"),
          ("transversal_compliance", "elbow_joint", "ur5"),
+         ("link_compliance", "t2->t3", "torso"),
          ("transversal_compliance", "t3", "torso")]
 
 
