@@ -57,10 +57,12 @@ What is not compared, and why:
 * ``joint_angles = "link"`` (the recorded pose the unloaded one): the pose model's rows are
   commanded poses; the deflection fit and the elastic model are compared.
 
-The analytic Jacobian columns are checked against central differences elsewhere, not here: the
-deflection fit's for every candidate (``test_effects.py``) and its exact baseline
-(``test_identify.py``); the pose model's for every family (``test_absolute_poses.py``) and
-controller springs (``test_pose_coupling.py``, ``test_transversal_controller.py``).
+The analytic Jacobian columns are checked against central differences elsewhere: the
+deflection fit's for every candidate on the UR5 (``test_effects.py``), its exact baseline
+(``test_identify.py``) and controller springs (``test_transversal_controller.py``); the pose
+model's for every family (``test_absolute_poses.py``), controller springs
+(``test_pose_coupling.py``) and every joint kind (``test_pose_rows_at_once.py``). Only the
+deflection fit's on prismatic springs (m/N, a backlash in m, 1/N) were not: they are here.
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from deflection_columns import assert_columns
 from pose_campaigns import PRISM_ARM
 
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
@@ -402,3 +405,22 @@ def test_link_angles(ur5):
     _second_order(lambda s: (ur5.hypothesis(fitted, values, load=s, coords=link,
                                             joint_angles="link"),
                              ur5.elastic(effects, values, load=s)), 0.01)
+
+
+@pytest.mark.parametrize("rotation_weight", [None, 0.2])
+def test_deflection_columns_on_prismatic_springs(prism, rotation_weight):
+    """The deflection fit's analytic columns on the prismatic arm (springs on the slides j2 and,
+    added by ``joint_compliance``, j4; a backlash on j2, a nonlinear spring on j4, a link bend
+    j3 -> j4 and the second-order kinematics), translations and rotations: equal to central
+    differences of the prediction to 1e-6."""
+    geo = Geometry.of(prism.robot)
+    effects = tuple(make_effect(name, where, geo) for name, where in (
+        ("complementary_stiffness", None), ("joint_compliance", "j4"), ("backlash", "j2"),
+        ("nonlinear_joint_stiffness", "j4"), ("link_compliance", "j3->j4")))
+    rows = geo.rows(prism.coords, prism.wrench[:, :3], prism.wrench[:, 3:])
+    refs = References.of(geo, rows, 2e4, np.full((1, 3), 1e-3))
+    model = Hypothesis(geo, rows, "enhanced", ("j1", "j2", "j3", "j5"), effects, refs,
+                       rotation_weight)
+    assert model.analytic_columns.all()
+    x = np.concatenate([np.log(prism.k[[0, 1, 2, 4]]), [0.4], [0.5], [0.3], [0.6, 0.7]])
+    assert_columns(model, x)
