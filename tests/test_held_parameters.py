@@ -93,6 +93,28 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
         assert p.ci95[0] in (f.ci95[0], h.ci95[0]) and p.ci95[1] in (f.ci95[1], h.ci95[1])
 
 
+def test_an_interval_never_reaches_below_the_physical_bound():
+    """A compensator stiffness fitted small against its standard error (never negative, as a
+    mass or a backlash): its 95 % interval starts at 0, where the covariance's normal interval
+    went below (on the torso with springs on its controller, a link's lumped mass printed
+    0.081 +- 0.332 kg [-0.569, 0.732]); the upper end and the preload, signed, keep theirs."""
+    import dataclasses
+
+    fit, c = _fit()
+    k = parameter_labels(fit.model).index(f"gravity_compensator({ARMS[0][3]}).stiffness")
+    inside = dataclasses.replace(fit, x=fit.x.copy(), at_bound=[])
+    inside.x[k] = 0.1  # one tenth of a sizeable spring, its standard error ten times that
+    cov = np.diag(np.full(fit.x.size, 1e-6))
+    cov[k, k], cov[k + 1, k + 1] = 1.0, 1.0
+    quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
+    stiffness, preload = effect_parameters(inside, cov, quantile, quantile, SI_UNITS)[
+        f"gravity_compensator({ARMS[0][3]})"]
+    scale = stiffness.value / 0.1
+    assert stiffness.ci95 == (0.0, pytest.approx((0.1 + quantile) * scale, rel=1e-12))
+    assert preload.ci95[0] == pytest.approx(preload.value - quantile * preload.standard_error)
+    assert preload.ci95[0] < 0 < preload.ci95[1] and not stiffness.at_bound
+
+
 def test_a_joint_the_loads_do_not_move_is_held_at_one_nominal_by_identify_and_diagnose():
     """Issue 38 item 10: wrist_3 of a UR5 under forces at its own axis moves no measurement;
     identify (from the paper's 1e5 start) and diagnose's baseline (the better of the linear and

@@ -104,11 +104,22 @@ def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, u
             e, fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
         sided = (effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
                  if any(a <= c < b for c in fit.at_bound) else free)  # one-sided at a bound
-        out[e.label] = [with_bounds(fit, a + min(k, b - a - 1), p, cov,
-                                    None if held_cov is None else q,
-                                    e.compliance_variables and k < b - a, one)
-                        for k, (p, q, one) in enumerate(zip(free, bounded, sided, strict=True))]
+        floor = [-math.inf] * len(free) if e.compliance_variables else [  # a stiffness's is 0
+            p.value for p in effect_report(e, e.bounds()[0], np.zeros((b - a, b - a)),
+                                           model.refs, units, quantile)]
+        out[e.label] = [_above(with_bounds(fit, a + min(k, b - a - 1), p, cov,
+                                           None if held_cov is None else q,
+                                           e.compliance_variables and k < b - a, one), low)
+                        for k, (p, q, one, low) in enumerate(zip(free, bounded, sided, floor,
+                                                                 strict=True))]
     return out
+
+
+def _above(parameter: Parameter, floor: float) -> Parameter:
+    """``parameter`` with its interval's low end at ``floor`` (its physical lower bound in
+    its unit: a mass, backlash or compensator stiffness is never negative) or above."""
+    low, high = parameter.ci95
+    return parameter if not low < floor else dataclasses.replace(parameter, ci95=(floor, high))
 
 
 def share(fit: Fit, column: int, cov: np.ndarray) -> str:
