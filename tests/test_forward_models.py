@@ -8,10 +8,11 @@ its one hook ``Effect.contribute``) give the same tool displacement at the same 
 
 Arms: the UR5 with its three arm joints compliant and a 0.1 m tool (as
 ``scripts/detection_rate.py``), the torso of ``tests/data/torso-passive`` (five springs on
-controller coordinates driving six chain joints; the pose model takes no closed loop) and the
-DH arm with two prismatic joints of ``tests/pose_campaigns.py`` (springs in N/m, compliances in
-m/N, a backlash in m), each at three random configurations under three random wrenches (force
-~100 N, moment ~10 N.m at the tool).
+controller coordinates driving six chain joints; the pose model takes no closed loop), the same
+torso with its springs on the six chain joints (``springs_on = "chain"``) and the DH arm with
+two prismatic joints of ``tests/pose_campaigns.py`` (springs in N/m, compliances in m/N, a
+backlash in m), each at three random configurations under three random wrenches (force ~100 N,
+moment ~10 N.m at the tool).
 
 Parameters, one value per effect in each side's units: a spring's stiffness ``k`` (deflection
 and elastic) is the compliance ``1 / k`` of the pose model; a nonlinear spring's ``beta``
@@ -26,8 +27,9 @@ How they must agree:
 
 * exact against exact (the pose model's sag fixed point ``dq = law(tau(q + dq))`` and the elastic
   model's Newton equilibrium; the deflection fit's ``exact`` baseline of joint springs): to
-  1e-12 m on displacements of 4-7 mm (measured: at most 3e-15 m, and 4e-15 rad between the
-  deflection fit's exact baseline and the elastic model);
+  1e-12 m on displacements of 4-7 mm (measured: at most 3e-15 m, 8e-14 m with springs on the
+  chain joints of a coupling, and 4e-15 rad between the deflection fit's exact baseline and the
+  elastic model);
 * a first-order model against the exact one: the error is second order in the deflection, so it
   falls by 16 when the deflection falls by 4 (log-log slope 2 +- 0.1 between sizes 1 and 1/4;
   measured 1.99-2.03; the error at size 1 0.1-2 % of the displacement). The deflection fit's
@@ -198,6 +200,19 @@ def torso() -> Arm:
 
 
 @pytest.fixture(scope="module")
+def chain(tmp_path_factory) -> Arm:
+    """The torso with a spring on each of its six chain joints (the controller's coordinates
+    drive them)."""
+    path = tmp_path_factory.mktemp("chain") / "robot.toml"
+    path.write_text(TORSO.read_text().replace('springs_on = "controller"', 'springs_on = "chain"')
+                    .replace('compliant_joints = ["T1", "T2", "T3", "A1", "A2"]',
+                             'compliant_joints = ["t1", "t2", "t3", "t4", "a1", "a2"]')
+                    .replace("k_theta_SI", "# k_theta_SI"))
+    return _arm(lambda: load_robot(str(path)),
+                np.array([4.0e4, 2.5e4, 2.0e4, 1.0e4, 8.0e3, 6.0e3]), 2, 0.8)
+
+
+@pytest.fixture(scope="module")
 def prism(tmp_path_factory) -> Arm:
     path = tmp_path_factory.mktemp("prism") / "robot.toml"
     path.write_text(PRISM_ARM)
@@ -226,7 +241,7 @@ def _second_order(pair, relative: float) -> None:
     assert rel < relative, rel
 
 
-@pytest.mark.parametrize("name", ["ur5", "torso", "prism"])
+@pytest.mark.parametrize("name", ["ur5", "torso", "chain", "prism"])
 def test_joint_springs_exact_on_three_sides(name, request):
     """Joint springs alone (``joint_compliance``): the deflection fit's exact baseline, the
     pose model's sag and the elastic model's equilibrium agree to 1e-12 m (and the fit's and the
@@ -273,12 +288,13 @@ def test_nonlinear_spring(name, joint, beta, request):
 
 
 @pytest.mark.parametrize(("name", "joint", "half_width"), [("ur5", "elbow_joint", 2e-3),
+                                                           ("chain", "t3", 1e-3),
                                                            ("prism", "j4", 1e-4)])
 def test_backlash(name, joint, half_width, request):
-    """``backlash`` of 2 mrad on the UR5's elbow, 0.1 mm on the prismatic j4, smoothed over 5
-    N.m (N) on every side: the pose model and the elastic model agree to 1e-12 m; the
-    deflection fit is off at second order (the compliances and the half-width scaled
-    together)."""
+    """``backlash`` of 2 mrad on the UR5's elbow, 1 mrad on the chain spring t3, 0.1 mm on the
+    prismatic j4, smoothed over 5 N.m (N) on every side: the pose model and the elastic model
+    agree to 1e-12 m; the deflection fit is off at second order (the compliances and the
+    half-width scaled together)."""
     arm = request.getfixturevalue(name)
     effect = dataclasses.replace(make_effect("backlash", joint, Geometry.of(arm.robot)),
                                  smoothing_torque=SMOOTHING)
