@@ -315,3 +315,30 @@ def test_a_calibrated_bearing_tilt_enters_the_compliance(calibration, tmp_path):
     skew = pin.skew(r)
     expected = skew @ (c * (np.eye(3) - np.outer(w, w))) @ skew.T
     assert np.linalg.norm(added - expected) < 1e-9 * np.linalg.norm(expected)
+
+
+def test_backlash_follows_the_springs_order_and_is_named_when_left_out(calibration, tmp_path):
+    """A calibration with backlash on every spring (bravo7_no_ee: joint6's compliance held at
+    0, its backlash fitted): the elastic model listed the others in a set's order (joint2,
+    joint4, joint3, joint5 in one run: each process its own) and dropped joint6's silently;
+    now in the springs' order, and the warning on the rigid spring names its backlash."""
+    _, path = calibration
+    doc = json.loads(path.read_text())
+    joints = list(doc["robot"]["compliant_joints"])
+    doc["families"] = [*doc["families"], "backlash"]
+    doc["settings"]["backlash_smoothing_torque"] = {j: 0.5 for j in reversed(joints)}
+    doc["parameters"] += [{"family": "backlash", "parameter": f"{j} backlash", "unit": "rad",
+                           "value": 1e-4, "fitted": True, "std": 1e-5,
+                           "interval_95": [8e-5, 1.2e-4]} for j in joints]
+    for row in doc["parameters"]:
+        if row["parameter"] == f"{joints[-1]} compliance":
+            row.update(value=0.0, fitted=False, std=None, interval_95=None)
+    rigid = tmp_path / "rigid" / "final-model.json"
+    rigid.parent.mkdir()
+    rigid.write_text(json.dumps(doc))
+    first, last = joints[0], joints[-1]  # the base joint's: the weight does not load it
+    with pytest.warns(DataFileWarning, match=rf"the compliance of {first}, {last} is not "
+                      rf"determined by the calibration: held rigid; backlash\({first}\), "
+                      rf"backlash\({last}\) left out with them"):
+        em = load_model(rigid)
+    assert [e.label for e, _ in em.not_applied] == [f"backlash({j})" for j in joints[1:-1]]

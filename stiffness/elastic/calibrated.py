@@ -79,6 +79,14 @@ class CalibratedElastics:
     undetermined: list[str] = field(default_factory=list)
     left_out: list[str] = field(default_factory=list)
     no_spring: str = ""
+    #: the fitted joint laws (backlash, nonlinear spring) of springs held rigid, not carried
+    with_rigid: list[str] = field(default_factory=list)
+
+    def rigid_note(self) -> str:
+        """The springs held rigid, and their fitted joint laws left out with them (one line)."""
+        laws = f"; {', '.join(self.with_rigid)} left out with them" if self.with_rigid else ""
+        return (f"the compliance of {', '.join(self.undetermined)} is not determined by the "
+                f"calibration: held rigid{laws}")
 
 
 def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
@@ -107,9 +115,9 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
             for n, u in zip(("mass", "com_x", "com_y", "com_z"), ("kg", "m", "m", "m"),
                             strict=True)], {}))
     smoothing = cal.settings.get(BACKLASH_SETTING, {})
-    for joint in springs & set(smoothing):
+    for joint in cal.compliant_joints:  # in the springs' order
         row = rows.get(backlash_label(joint))
-        if row is not None:
+        if row is not None and joint in springs and joint in smoothing:
             out.effects.append(("backlash", joint, [_as_is(row, "half_width")],
                                 {"smoothing_torque": float(smoothing[joint])}))
     for joint in [j for j in cal.compliant_joints if j in springs]:
@@ -117,6 +125,11 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
         if row is not None and row.get("fitted", True):
             out.effects.append(("nonlinear_joint_stiffness", joint, [
                 softening(row, float(rows[compliance_label(joint)]["value"]))], {}))
+    out.with_rigid = [f"{name}({joint})" for joint in out.undetermined
+                      for name, row in (("backlash", rows.get(backlash_label(joint))),
+                                        ("nonlinear_joint_stiffness",
+                                         rows.get(nonlinear_label(joint))))
+                      if row is not None and row.get("fitted", True) and row["value"] != 0.0]
     if {"gravity_compensator", "link_compliance", "transversal_compliance"} & set(cal.families):
         _geometry_effects(cal, rows, springs, out)
     return out

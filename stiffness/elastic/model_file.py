@@ -406,8 +406,7 @@ def _read_calibration(path: Path) -> ModelFile:
     cal = read_pose_calibration(path)
     parts = calibrated_elastics(cal)
     if parts.undetermined:
-        warnings.warn(f"{path}: the compliance of {', '.join(parts.undetermined)} is not "
-                      "determined by the calibration: held rigid", DataFileWarning, stacklevel=3)
+        warnings.warn(f"{path}: {parts.rigid_note()}", DataFileWarning, stacklevel=3)
     if parts.left_out:
         warnings.warn(f"{path}: {', '.join(parts.left_out)} of the calibration are not carried "
                       "into the elastic model (no deflection effect): its predictions leave "
