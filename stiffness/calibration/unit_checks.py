@@ -227,5 +227,7 @@ def check_force_unit(robot: Robot, q: np.ndarray, force: np.ndarray, moment: np.
         f"times {side} than {springs} (median over the loaded rows, force unit "
         f"{units.force}); the forces look like {likely[0]}: [units] force = \"{likely[0]}\" "
         f"(or --units force={likely[0]})"
-        + ("; else check the robot's k_theta_SI (SI: N.m/rad, N/m)" if declared else ""),
+        + ("; else check the robot's k_theta_SI (SI: N.m/rad, N/m)" if declared else
+           f"; else {robot.title} is that much {side} than the guess: declare its k_theta_SI "
+           "in a robot.toml naming its URDF (docs/robot-files.md) to compare with those"),
         DataFileWarning, stacklevel=3)
