@@ -546,6 +546,31 @@ def test_default_target_on_a_hand_is_the_wrist_tip(tmp_path):
     assert load_robot(path).target_frame == "tip"
 
 
+def test_declared_springs_of_an_arm_with_fingers_are_its_default(tmp_path, capsys):
+    """A robot.toml naming a URDF with fingers beside the target's chain, declaring k_theta_SI
+    for the chain's joints (its default springs, which the count check takes): the springs
+    were compared with every coordinate, fingers included, and dropped, so kx asked for --kq
+    (so101 with a robot.toml beside example-robot-data's URDF: 'k_theta_SI = [300, ...]'
+    counted and ignored)."""
+    from stiffness.mechanics.defaults import default_stiffness
+
+    fingers = "".join(f"""
+  <link name="f{i}"/>
+  <joint name="finger{i}" type="revolute"><parent link="l2"/><child link="f{i}"/>
+    <origin xyz="0.3 {0.02 * (2 * i - 1)} 0"/><axis xyz="0 1 0"/>
+    <limit effort="1" velocity="1" lower="-1" upper="1"/></joint>""" for i in (0, 1))
+    (tmp_path / "hand.urdf").write_text(_planar_arm(fingers))
+    (tmp_path / "robot.toml").write_text('urdf = "hand.urdf"\nframe = "tip"\n'
+                                         "k_theta_SI = [2000.0, 1000.0]\n")
+    robot = load_robot(tmp_path / "robot.toml")
+    assert robot.coordinate_joints == ("j1", "j2", "finger0", "finger1")
+    assert robot.compliant_joints == ("j1", "j2")
+    np.testing.assert_array_equal(default_stiffness(robot), [2000.0, 1000.0])
+    assert main(["kx", "--robot", str(tmp_path / "robot.toml"), "--wrench", "0,10,0"]) == 0
+    assert "K_theta [robot default] (N.m/rad, N/m prismatic): j1=2000,j2=1000" in \
+        capsys.readouterr().out
+
+
 # ------------------------------------------------------------------ one order per robot
 
 
