@@ -688,9 +688,7 @@ def load_robot(
         target_offset, settings)
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
         model, fid, spring_names, coupling is not None or not loop.is_open_chain))
-    check_counts(settings, coordinate_joints, springs)
-    if {"k_theta_SI", "rest_q_SI"} & {*settings}:  # the springs they were counted against
-        settings = {"compliant_joints": list(springs), **settings}
+    settings = check_counts(settings, coordinate_joints, springs)
     compliant_joints = tuple(springs if compliant_joints is None else compliant_joints)
     check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
 

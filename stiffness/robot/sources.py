@@ -200,10 +200,12 @@ def check_settings(settings: dict, toml: Path) -> None:
                                   "(docs/design.md)", path=toml, field=f"[workspace].{key}")
 
 
-def check_counts(settings: dict, coordinates: Sequence[str], springs: Sequence[str]) -> None:
+def check_counts(settings: dict, coordinates: Sequence[str], springs: Sequence[str]) -> dict:
     """Refuse a robot file's defaults of the wrong length, naming the file and the key:
     ``q_deg``/``q_SI`` (one per coordinate), ``k_theta_SI``/``rest_q_SI`` (one per compliant
-    joint of the file, ``springs``).
+    joint of the file, ``springs``); return the settings, their ``compliant_joints`` the
+    ``springs`` the per-spring keys were counted against when the file gives those keys alone
+    (a robot.toml beside a URDF with fingers: its target's chain, not every coordinate).
 
     Raises
     ------
@@ -219,6 +221,9 @@ def check_counts(settings: dict, coordinates: Sequence[str], springs: Sequence[s
             raise FileFormatError(f"{key} has {len(settings[key])} values for "
                                   f"{len(names)} {what}s ({listed}); give one per {what}",
                                   path=settings.get("_file", "robot.toml"), field=key)
+    if {"k_theta_SI", "rest_q_SI"} & {*settings}:
+        return {"compliant_joints": list(springs), **settings}
+    return settings
 
 
 def _from_dh(toml: Path, name: str, settings: dict) -> RobotSource:
