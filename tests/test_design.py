@@ -109,6 +109,13 @@ def test_sensitivities_match_the_closed_form_and_identify(pools):
         np.testing.assert_allclose(sens[r], expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
 
 
+def test_load_directions_have_no_negative_zero():
+    """-eye(3) holds -0.0: diagnose proposed 'F = [-0, -0, -99.71] N' (the torso-passive's
+    cannot-tell-apart measurements, each component printed with .4g)."""
+    assert not np.signbit(LOAD_DIRECTIONS[LOAD_DIRECTIONS == 0.0]).any()
+    assert ", ".join(f"{v:.4g}" for v in LOAD_DIRECTIONS[5] * 99.71) == "0, 0, -99.71"
+
+
 def test_criteria_and_standard_errors_closed_forms():
     rng = np.random.default_rng(1)
     a = rng.normal(size=(5, 4, 4))

@@ -54,7 +54,7 @@ from stiffness.errors import StiffnessError, UnknownNameError, UnstableEquilibri
 from stiffness.robot.robot import Robot
 
 #: Load directions of the candidates: the six axes, then the eight cube diagonals (unit).
-LOAD_DIRECTIONS = np.vstack([np.eye(3), -np.eye(3)] + [
+LOAD_DIRECTIONS = np.vstack([np.eye(3), 0.0 - np.eye(3)] + [  # 0 - 0: no -0 printed
     np.array([sx, sy, sz]) / math.sqrt(3.0)
     for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)])
 #: Design criteria.
