@@ -51,11 +51,15 @@ def test_a_label_forces_its_place(tilted):
 
 
 def test_forced_names_are_checked(tilted, tmp_path, capsys):
-    """A name outside the library, one also forbidden, a place with no candidate: one line
-    each; the command line records --families in the model file."""
+    """A name outside the library, one also forbidden, a place with no candidate, a place in
+    simulate's spelling (it said 'not an effect of the library ... Did you mean backlash?',
+    which forces backlash anywhere): one line each; the command line records --families in the
+    model file."""
     for families, forbid, words in ((["target_ofset"], [], "not an effect of the library"),
                                     (["backlash"], ["backlash"], "both forced"),
-                                    (["backlash(wrist_3_joint)"], [], "no candidate")):
+                                    (["backlash(wrist_3_joint)"], [], "no candidate"),
+                                    (["backlash:elbow_joint"], [], r"a place is written "
+                                     r"backlash\(elbow_joint\), not with a colon")):
         with pytest.raises(StiffnessError, match=words):
             diagnose(tilted.campaign, propose=False, workers=1, families=families,
                      not_families=forbid)

@@ -246,6 +246,10 @@ def _forced(families: Sequence[str], forbidden: tuple[str, ...]) -> tuple[str, .
     library, not forbidden too."""
     for label in families:
         name = label.partition("(")[0]
+        effect, colon, where = name.partition(":")  # simulate's NAME:WHERE=VALUE spelling
+        if colon and effect in LIBRARY:
+            raise StiffnessError(f"--families {label!r}: a place is written "
+                                 f"{effect}({where.partition('=')[0]}), not with a colon")
         _library_name("--families", label, name)
         if name in forbidden:
             raise StiffnessError(f"{name} is both forced (--families) and forbidden (--not); "
