@@ -3,6 +3,7 @@ campaigns."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -113,6 +114,11 @@ def test_cannot_tell_apart_and_proposals():
     assert amb.similarity > 0.95
     assert 1 <= len(amb.proposals) <= 3
     assert all(len(p["q"]) == 6 and len(p["force"]) == 3 for p in amb.proposals)
+    # a rival not cross-validated is said so, each error with its unit (it printed
+    # 'CV RMS 0.05755, - mm' on the passive torso)
+    unseen = dataclasses.replace(amb, cv_rms=(amb.cv_rms[0], None))
+    report = format_report(dataclasses.replace(result, ambiguities=[unseen]))
+    assert f"CV RMS {amb.cv_rms[0] * 1e3:.4g} mm against not cross-validated, " in report
 
 
 def test_unknown_noise_is_estimated_and_said_so():
