@@ -13,12 +13,13 @@ included). Units: SI (m, rad).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from stiffness.batch.linalg import cross_matrices
+from stiffness.batch.linalg import cross, cross_matrices
 from stiffness.batch.loops import support_mask
 
 
@@ -99,7 +100,7 @@ def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians:
             v = model.joints[j].idx_v
             if revolute:
                 jacobian[:, 3:, v] = axis
-                jacobian[:, :3, v] = np.cross(translation[:, j], axis)
+                jacobian[:, :3, v] = cross(translation[:, j], axis)
             else:
                 jacobian[:, :3, v] = axis
     return JointPlacements(rotation, translation, jacobian)
@@ -123,10 +124,21 @@ def _axis_joints(model: pin.Model) -> list[tuple[bool, np.ndarray]] | None:
 def _axis_rotations(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """(m, 3, 3) rotations by ``angle`` (m,) (rad) about the unit ``axis`` (3,) (Rodrigues:
     ``I + sin K + (1 - cos) K^2``)."""
+    eye, k, k2 = _axis_matrices(tuple(float(a) for a in axis))
+    return eye + np.sin(angle)[:, None, None] * k + (1.0 - np.cos(angle))[:, None, None] * k2
+
+
+@functools.lru_cache(maxsize=256)
+def _axis_matrices(axis: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``I``, ``K`` and ``K^2`` (3, 3) of :func:`_axis_rotations` for a joint axis, built once
+    per axis (read-only): at each joint of each array kinematics they cost as much as the
+    rotations."""
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
                   [-axis[1], axis[0], 0.0]])
-    return (np.eye(3) + np.sin(angle)[:, None, None] * k
-            + (1.0 - np.cos(angle))[:, None, None] * (k @ k))
+    out = (np.eye(3), k, k @ k)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _pinocchio_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool

@@ -48,6 +48,7 @@ throughout.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -180,6 +181,7 @@ class PoseModel:
                                              np.asarray(frame0[1], float))
         self.loads = loads
         model = robot.model
+        self._frame_ids_by_name: dict[str, int] = {}
         self.frame_ids = [self._frame_id(m.frame) for m in markers]
         self.joints = one_dof_joints(model)
         self.springs = tuple(robot.compliant_joints)
@@ -200,6 +202,8 @@ class PoseModel:
         # each row's last converged sag, with the row itself (kept alive, so that its id is
         # never reused by another row: the starts, and so the results, are deterministic)
         self._sag_start: dict[int, tuple[RowTerms, np.ndarray]] = {}
+        # what families derive from the layout alone, computed at their first evaluation
+        self.layout_cache: dict[str, Any] = {}
         self._lumped = any(f.lumps_gravity for f in self.family_objects)
         self._elastic = any(f.family_kind == "elastic" for f in self.family_objects)
         # the perturbed copies of the model differ in placements and gravity only
@@ -220,11 +224,15 @@ class PoseModel:
     # ------------------------------------------------------------------ layout
 
     def _frame_id(self, name: str) -> int:
+        known = self._frame_ids_by_name
+        if name in known:  # looked up at each sag iteration (the load's frame): a frame scan
+            return known[name]
         model = self.robot.model
         if not model.existFrame(name):
             raise PoseModelError(f"marker frame {name!r} is not a frame of {self.robot.title}; "
                                  "name one of its frames in [markers]")
-        return int(frame_id(model, name))
+        known[name] = int(frame_id(model, name))
+        return known[name]
 
     def frame_id(self, name: str) -> int:
         """Id of a robot frame by name (a typed error naming it when it is missing)."""

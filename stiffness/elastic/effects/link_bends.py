@@ -35,14 +35,13 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
-from stiffness.batch.linalg import cross_matrices
+from stiffness.batch.linalg import cross, cross_matrices
 from stiffness.batch.poses import JointPlacements, frame_placements
 from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import (
     MIN_SEGMENT_M,
     Geometry,
     Rows,
-    cross,
     joint_axis_column,
     last_of_groups,
     link_axes,
@@ -55,6 +54,7 @@ from stiffness.elastic.effects.pose_face import (
     PoseLayout,
     RowTerms,
     bend_label,
+    layout_cached,
     tilt_label,
 )
 from stiffness.errors import StiffnessError, UnknownNameError
@@ -257,10 +257,10 @@ class LinkCompliance(DeflectionEffect, PoseFamily):
         return [self.param(bend_label(names[link.a], names[link.b], i), "rad/(N.m)")
                 for link in self.links(pm) for i in (1, 2)]
 
-    @staticmethod
-    def links(pm: PoseLayout) -> list[Link]:
-        """The model's bending links (:func:`marker_links`)."""
-        return marker_links(pm.robot.model, pm.frame_ids)
+    def links(self, pm: PoseLayout) -> list[Link]:
+        """The model's bending links (:func:`marker_links`; computed once per model)."""
+        return layout_cached(pm, f"{self.name} links",
+                             lambda: marker_links(pm.robot.model, pm.frame_ids))
 
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], jacobian: bool
@@ -273,9 +273,9 @@ class LinkCompliance(DeflectionEffect, PoseFamily):
         e1, e2 = self.bend_axes(model, kin, links, origins)
         turns = np.stack([e1 * np.sum(e1 * moments, axis=-1, keepdims=True),
                           e2 * np.sum(e2 * moments, axis=-1, keepdims=True)], axis=-2)
-        markers = np.array([[link.b in set(model.supports[model.frames[fid].parentJoint])
-                             for link in links] for fid in pm.frame_ids],
-                           dtype=float).reshape(-1, len(links))
+        markers = layout_cached(pm, f"{self.name} beyond", lambda: np.array(
+            [[link.b in set(model.supports[model.frames[fid].parentJoint]) for link in links]
+             for fid in pm.frame_ids], dtype=float).reshape(-1, len(links)))
         per_gravity = None
         if jacobian:  # d omega_b / d g = sum_i c_i e_i e_i^T [m_b (c_b - p_b)]x
             # (cross_matrices(a) is -[a]x)
@@ -404,14 +404,14 @@ class TransversalCompliance(LinkCompliance):
         return [self.param(tilt_label(names[link.b], i), "rad/(N.m)")
                 for link in self.links(pm) for i in (1, 2)]
 
-    @staticmethod
-    def links(pm: PoseLayout) -> list[Link]:
+    def links(self, pm: PoseLayout) -> list[Link]:
         """The model's tilting joints (:func:`transversal_joints`) among the joints its springs
         turn (the compliant joints, or the chain joints of compliant controller coordinates:
-        :meth:`~stiffness.robot.robot.Robot.driven_joints`)."""
+        :meth:`~stiffness.robot.robot.Robot.driven_joints`); computed once per model."""
         model = pm.robot.model
-        return transversal_joints(model, pm.frame_ids, [
-            int(model.getJointId(j)) for j in pm.robot.driven_joints(pm.springs)])
+        return layout_cached(pm, f"{self.name} links", lambda: transversal_joints(
+            model, pm.frame_ids,
+            [int(model.getJointId(j)) for j in pm.robot.driven_joints(pm.springs)]))
 
     @staticmethod
     def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],

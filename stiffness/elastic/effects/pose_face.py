@@ -17,6 +17,7 @@ Units: SI (m, N, rad).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
@@ -120,6 +121,9 @@ class PoseLayout(Protocol):
     geometry: list[tuple[int, int]]
     geometry_index: tuple[np.ndarray, np.ndarray]
     moves: dict[int, np.ndarray]
+    #: What families derive from the layout alone (the nominal model's joints, the markers),
+    #: by key, computed once per model (:func:`layout_cached`).
+    layout_cache: dict[str, Any]
 
     def frame_id(self, name: str) -> int: ...
 
@@ -128,6 +132,16 @@ class PoseLayout(Protocol):
     def downstream(self, joint: int) -> list[int]: ...
 
     def spring_downstream(self, spring: int) -> list[int]: ...
+
+
+def layout_cached(pm: PoseLayout, key: str, compute: Callable[[], Any]) -> Any:
+    """``compute()`` once per model ``pm`` (kept in its :attr:`PoseLayout.layout_cache` under
+    ``key``): what a family derives from the layout alone, read-only, at each evaluation (the
+    links a bend family reads: a forward kinematics and a walk of the markers' chains, 10 % of
+    a pose evaluation when recomputed each time)."""
+    if key not in pm.layout_cache:
+        pm.layout_cache[key] = compute()
+    return pm.layout_cache[key]
 
 
 @dataclass

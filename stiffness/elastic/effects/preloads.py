@@ -23,10 +23,11 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.linalg import cross
 from stiffness.batch.poses import torque_regressors
 from stiffness.elastic.effects.base import PHYSICAL_FACTOR
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
-from stiffness.elastic.effects.geometry import References, cross, reach, skew
+from stiffness.elastic.effects.geometry import References, reach, skew
 from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
