@@ -475,7 +475,7 @@ def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error(monkeypa
     assert diverged, "no diverging sag met: the case no longer tests what it is for"
     assert d.unexplained is not None
     if "gravity_lumped" in d.families:  # as the step that added it fitted it
-        step = next(s for s in d.steps if s.family == "gravity_lumped")
+        step = next(s for s in d.steps if s.effect == "gravity_lumped")
         lumped = d.judge.parameters(step.fit)["gravity_lumped"]
         held = [p for p in lumped if p.held.startswith("held at its nominal value")]
         assert held and all(p.determined for p in lumped if not p.held)

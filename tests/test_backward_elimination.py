@@ -6,8 +6,7 @@ adds a stand-in by itself: ``tests/test_pose_selection.py``)."""
 from __future__ import annotations
 
 from stiffness.calibration.diagnose import DeflectionSearch, _baseline_fit
-from stiffness.calibration.diagnosis import kept_steps
-from stiffness.calibration.search import Candidate, eliminate, search
+from stiffness.calibration.search import Candidate, eliminate, kept_steps, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     config_folds,
@@ -67,7 +66,8 @@ def test_backward_elimination_removes_a_deflection_effect_the_final_model_is_bet
     removal = kind.steps[-1]
     assert removal.fit is final and removal.delta_bic < -BIC_MARGIN
     assert removal.cv_rms <= kind.steps[-2].cv_rms and "then removed force_sensor_bias" in stop
-    assert [s.effect.label for s in kept_steps(kind.steps)] == ["joint_compliance(wrist_1_joint)"]
+    kept = kept_steps(kind.steps, [e.label for e in final.model.effects])
+    assert [s.effect.label for s in kept] == ["joint_compliance(wrist_1_joint)"]
     # the refits of the final model are kept for how_sure: one, without the spring
     assert kind.removals is not None and kind.removals.final is final
     assert len(kind.removals.fits) == 1 and kind.removals.fits[0].model.effects == ()

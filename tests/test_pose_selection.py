@@ -87,7 +87,7 @@ def test_forced_and_forbidden_families_are_recorded(ur10, tmp_path):
     file's selection."""
     campaign = _campaign(ur10, 15, 4)
     d = diagnose_poses(campaign, families=["joint_compliance"], not_families=["geometry"])
-    assert [s.family for s in d.steps[:2]] == ["baseline", "joint_compliance"]
+    assert [s.effect for s in d.steps[:2]] == ["baseline", "joint_compliance"]
     assert d.steps[1].forced and not any(s.forced for s in d.steps[2:])
     assert "geometry" not in d.families and "geometry" not in d.rejected
     record = d.to_dict()
@@ -126,7 +126,7 @@ def test_the_step_table_aligns_long_family_names(ur10):
     count now ends where the header's 'params' does (the baseline's step relabelled: the
     table's layout alone is under test)."""
     d = diagnose_poses(_campaign(ur10, 8, 4), not_families=CANDIDATES["known"])
-    long = dataclasses.replace(d.steps[0], family="gravity_compensator", forced=True)
+    long = dataclasses.replace(d.steps[0], effect="gravity_compensator", forced=True)
     lines = format_pose_report(dataclasses.replace(d, steps=[d.steps[0], long],
                                                    search=None)).splitlines()
     header = next(i for i, line in enumerate(lines) if line.startswith("step "))
@@ -241,10 +241,10 @@ def test_backward_elimination_removes_a_family_the_final_model_is_better_without
     campaign = _backlash_stand_in_campaign()
     d = diagnose_poses(campaign)
     assert d.families == ["frame", "markers", "geometry", "joint_compliance"], d.families
-    added = [s.family for s in d.steps[1:] if not s.removed]
+    added = [s.effect for s in d.steps[1:] if not s.removed]
     assert added[0] == "backlash" and set(added) == {"backlash", "geometry", "joint_compliance"}
     last = d.steps[-1]
-    assert last.removed and last.family == "backlash" and last.fit is d.final
+    assert last.removed and last.effect == "backlash" and last.fit is d.final
     assert last.delta_bic < -BIC_MARGIN and last.cv_rms <= d.steps[-2].cv_rms
     assert "backlash" not in d.final.model.families and not d.unexplained
     assert "then removed backlash" in d.stop_reason

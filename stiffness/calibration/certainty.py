@@ -23,16 +23,12 @@ SI inside; :meth:`Certainty.to_dict` in the campaign's length unit.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TypeVar
 
 from stiffness.calibration.naming import STAND_IN_NOTE, alternative
-from stiffness.calibration.search import Removals, SearchKind
+from stiffness.calibration.search import E, F, Removals, SearchKind, Step, label
 from stiffness.calibration.selection import information_criterion
-
-E = TypeVar("E")
-F = TypeVar("F")
 
 
 @dataclass
@@ -82,12 +78,11 @@ class Certainty:
                 f"{alt}{verdict}")
 
 
-def how_sure(kind: SearchKind[E, F], final: F, cv_final: float,
-             named: Sequence[tuple[str, Sequence[tuple[str, float]], float, bool]]
-             ) -> list[Certainty]:
-    """The :class:`Certainty` of each effect ``named`` by a diagnosis whose final fit is
-    ``final`` (held-out RMS ``cv_final``, m): its label, its step's ranking ``(label, delta
-    BIC)`` best first, its own BIC change and whether it is a stand-in; removed in turn
+def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[Step[E, F]],
+             stand_in: Callable[[str], bool]) -> list[Certainty]:
+    """The :class:`Certainty` of what each step ``named`` adds to a diagnosis whose final fit
+    is ``final`` (held-out RMS ``cv_final``, m): its step's ranking, its own BIC change and
+    whether it is a stand-in (``stand_in`` of its label); removed in turn
     (:meth:`~stiffness.calibration.search.SearchKind.without`, judged held out by
     :meth:`~stiffness.calibration.search.SearchKind.held_out_of`: those the search's
     backward elimination made of ``final``, :attr:`~stiffness.calibration.search.SearchKind.
@@ -102,7 +97,8 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float,
     out = kind.removals
     if out is None or out.final is not final:
         out = kind.removals = Removals(final, kind.without(final), {})
-    return [Certainty(label, cv - cv_final, bic(fit) - bic(final),
-                      *alternative(ranking, label, delta), stand_in)
-            for (label, ranking, delta, stand_in), fit, cv
-            in zip(named, out.fits, out.held_out(kind, range(len(out.fits))), strict=True)]
+    return [Certainty(s.label, cv - cv_final, bic(fit) - bic(final),
+                      *alternative([(label(e), d) for e, d, _ in s.ranking], s.label,
+                                   s.delta_bic), stand_in(s.label))
+            for s, fit, cv in zip(named, out.fits, out.held_out(kind, range(len(out.fits))),
+                                  strict=True)]

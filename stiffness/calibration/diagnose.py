@@ -19,7 +19,7 @@
    are many) and add the first that beats the current model's; until the model fits to noise
    or nothing helps; then remove, one at a time, any effect the final model is better
    without (BIC and cross-validation: :func:`stiffness.calibration.search.eliminate`, a
-   :class:`~stiffness.calibration.diagnosis.Step` marked ``removed``). If the search ends
+   :class:`~stiffness.calibration.search.Step` marked ``removed``). If the search ends
    with the chi-square test still rejecting, the result is *unexplained*
    (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the final residual's
    structure (:func:`~stiffness.calibration.breakdown.residual_structure`:
@@ -58,7 +58,7 @@ from stiffness.calibration.deflection_parameters import (
     stiffness_parameters,
 )
 from stiffness.calibration.deflection_validation import other_campaign, validated
-from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis, Step, kept_steps
+from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.naming import is_stand_in, settle
 from stiffness.calibration.outliers import (
@@ -67,7 +67,16 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
-from stiffness.calibration.search import Candidate, Removals, Stop, check_max_steps, ranked, search
+from stiffness.calibration.search import (
+    Candidate,
+    Removals,
+    Step,
+    Stop,
+    check_max_steps,
+    kept_steps,
+    ranked,
+    search,
+)
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -317,11 +326,9 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                seed if propose else None)
     final_parameters = effect_parameters(final, cov_final, quantile, edge, campaign.units,
                                           held_final)
-    sure = how_sure(kind, final, steps[-1].cv_rms if steps else cv_base, [
-        (e.label, [(r["effect"] if r["where"] is None else f"{r['effect']}({r['where']})",
-                    r["delta_bic"]) for r in s.ranking], s.delta_bic,
-         is_stand_in(final_parameters.get(e.label, [])))
-        for e, s in zip(final.model.effects, kept_steps(steps), strict=True)])
+    sure = how_sure(kind, final, steps[-1].cv_rms if steps else cv_base,
+                    kept_steps(steps, {e.label for e in final.model.effects}),
+                    lambda label: is_stand_in(final_parameters.get(label, [])))
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(
@@ -508,7 +515,7 @@ class DeflectionSearch:
     units: Units
     masses: str = "known"
     forbidden: tuple[str, ...] = ()
-    steps: list[Step] = field(default_factory=list)
+    steps: list[Step[DeflectionEffect, Fit]] = field(default_factory=list)
     ambiguities: list[tuple[int, Found, Found, float]] = field(default_factory=list)
     dispersion: float = 1.0
     removals: Removals[Fit] | None = None
@@ -596,17 +603,15 @@ class DeflectionSearch:
         fit = winner.fit = _fit_settings(winner.fit, self.measured, self.scale, self.n,
                                          self.sigma, self.say)
         effect = winner.effect = fit.model.effects[-1]
-        bic, delta = winner.bic, winner.delta_bic
+        delta = winner.delta_bic
         if winner.settled:
             sigma = None if self.sigma is None else self.sigma * math.sqrt(self.dispersion)
-            bic = information_criterion(fit.loss_rss, self.n, fit.penalty_params, sigma)
-            delta = bic - (winner.bic - winner.delta_bic)
+            delta = information_criterion(fit.loss_rss, self.n, fit.penalty_params, sigma) - (
+                winner.bic - winner.delta_bic)
         assert winner.cv_rms is not None  # judged held out
-        self.steps.append(Step(effect, fit, fit.rms(), bic, delta, winner.cv_rms,
-                               self.reported(fit, self.units)[effect.label],
-                               [{"effect": c.effect.name, "where": c.effect.where,
-                                 "delta_bic": c.delta_bic, "cv_rms": c.cv_rms}
-                                for c in ranking[:6]], self.dispersion))
+        self.steps.append(Step(effect, fit, delta, winner.cv_rms,
+                               [(c.effect, c.delta_bic, c.cv_rms) for c in ranking[:6]],
+                               self.reported(fit, self.units)[effect.label], self.dispersion))
         self.say(f"added {effect.label}: RMS {fit.rms():.4g} m")
         return fit
 
@@ -652,20 +657,13 @@ class DeflectionSearch:
 
     def removable(self, final: Fit) -> list[bool]:
         """Every effect not forced (``--families``; none acts through another)."""
-        forced = {s.effect.label for s in self.steps if s.forced}
+        forced = {s.label for s in self.steps if s.forced}
         return [e.label not in forced for e in final.model.effects]
 
-    def remove(self, final: Fit, index: int, fit: Fit, delta_bic: float, cv_rms: float,
-               dispersion: float) -> str:
-        """A :class:`Step` marked ``removed``: its effect, the fit without it, its BIC (under
-        the overdispersion ``dispersion``) and change, its held-out RMS (m)."""
+    def remove(self, final: Fit, index: int, fit: Fit) -> DeflectionEffect:
         effect = final.model.effects[index]
-        sigma = None if self.sigma is None else self.sigma * math.sqrt(dispersion)
-        self.steps.append(Step(effect, fit, fit.rms(), information_criterion(
-            fit.loss_rss, self.n, fit.penalty_params, sigma), delta_bic, cv_rms, [], [],
-            dispersion, removed=True))
         self.say(f"removed {effect.label}: RMS {fit.rms():.4g} m")
-        return effect.label
+        return effect
 
     def covariance(self, fit: Fit) -> tuple[np.ndarray, float]:
         """The covariance of ``fit.x`` (:func:`parameter_covariance`) and the noise std (m)

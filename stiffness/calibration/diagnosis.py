@@ -26,6 +26,7 @@ from stiffness.calibration.outliers import (
     Outlier,
 )
 from stiffness.calibration.residual_figures import residual_axes_png
+from stiffness.calibration.search import Step, kept_steps, selection
 from stiffness.calibration.selection import GOF_LEVEL
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
@@ -91,61 +92,6 @@ class Ambiguity:
 
 
 @dataclass
-class Step:
-    """One effect added, or (``removed``) removed again by the search's backward elimination
-    (:func:`stiffness.calibration.search.eliminate`).
-
-    Attributes
-    ----------
-    effect
-        The effect.
-    fit
-        The model after adding it.
-    rms
-        RMS residual (m).
-    bic, delta_bic, cv_rms
-        Its BIC, the BIC change, its cross-validated RMS (m).
-    parameters
-        The effect's parameters, campaign units.
-    ranking
-        The best candidates of the step: label, delta BIC, CV RMS (m) or None.
-    dispersion
-        The step's overdispersion
-        (:func:`~stiffness.calibration.selection.step_criteria`): its BICs use the noise
-        variance times this.
-    removed
-        Whether the step removes ``effect`` (then ``fit`` is the model without it, no
-        parameters nor ranking).
-    forced
-        Whether ``effect`` was forced in (``diagnose --families``: added first, whatever its
-        BIC and held-out error; never removed again).
-    validation
-        Its model (not refitted) on a validation campaign (``diagnose --validate``: the keys
-        of :meth:`~stiffness.calibration.validation.Validation.to_dict` but ``model``,
-        ``campaign``, ``robot`` and ``kind``), or ``None``.
-    """
-
-    effect: DeflectionEffect
-    fit: Fit
-    rms: float
-    bic: float
-    delta_bic: float
-    cv_rms: float
-    parameters: list[Parameter]
-    ranking: list[dict]
-    dispersion: float = 1.0
-    removed: bool = False
-    forced: bool = False
-    validation: dict | None = None
-
-
-def kept_steps(steps: list[Step]) -> list[Step]:
-    """The steps adding the effects of the last one's model (none removed again), in order."""
-    labels = {e.label for e in steps[-1].fit.model.effects} if steps else set()
-    return [s for s in steps if not s.removed and s.effect.label in labels]
-
-
-@dataclass
 class Diagnosis:
     """Result of :func:`~stiffness.calibration.diagnose.diagnose` (SI; :meth:`to_dict` and the
     files use campaign units).
@@ -165,7 +111,8 @@ class Diagnosis:
     noise_std_m, noise_std_source, noise_note
         The noise level (m), where it comes from (:data:`NOISE_SOURCES`) and what that means.
     steps
-        Effects added, in order, then those removed again (:attr:`Step.removed`).
+        Effects added, in order, then those removed again
+        (:class:`~stiffness.calibration.search.Step`, ``removed``).
     stop_reason
         Why the search stopped.
     baseline_disagreement, final_disagreement
@@ -202,7 +149,8 @@ class Diagnosis:
         With a validation campaign (``diagnose --validate``,
         :mod:`stiffness.calibration.deflection_validation`): the final model file on it
         (:meth:`~stiffness.calibration.validation.Validation.to_dict`) and the baseline's
-        (as :attr:`Step.validation`); else ``None``.
+        (as each step's :attr:`~stiffness.calibration.search.Step.validation`); else
+        ``None``.
     """
 
     campaign: Campaign
@@ -213,7 +161,7 @@ class Diagnosis:
     noise_std_m: float
     noise_std_source: str
     noise_note: str
-    steps: list[Step]
+    steps: list[Step[DeflectionEffect, Fit]]
     stop_reason: str
     baseline_disagreement: dict
     final_disagreement: dict
@@ -277,9 +225,9 @@ class Diagnosis:
                    "fail the test (see outliers)" if self.outliers else ""))
 
     @property
-    def named_steps(self) -> list[Step]:
+    def named_steps(self) -> list[Step[DeflectionEffect, Fit]]:
         """The steps adding the final model's effects (:func:`kept_steps`)."""
-        return kept_steps(self.steps)
+        return kept_steps(self.steps, {e.label for e in self.final.model.effects})
 
     @property
     def missing_effects(self) -> list[str]:
@@ -294,7 +242,7 @@ class Diagnosis:
             "noise_std": self._len(self.noise_std_m),
             "noise_std_source": self.noise_std_source,
             "steps": [{"effect": s.effect.name, "where": s.effect.where,
-                       "rms": self._len(s.rms),
+                       "rms": self._len(s.fit.rms()),
                        "parameters": {p.name: p.to_dict() for p in s.parameters},
                        "stand_in": not s.removed and self.stand_in(s.effect.label),
                        "removed": s.removed, "forced": s.forced,
@@ -318,10 +266,9 @@ class Diagnosis:
         })
 
     def selection(self) -> dict:
-        """How the effects were chosen (kept in the model file, a pose diagnosis's keys):
-        ``forced`` and ``forbidden`` (``--families``, ``--not``)."""
-        return {"forced": [s.effect.label for s in self.steps if s.forced],
-                "forbidden": self.forbidden}
+        """How the effects were chosen (kept in the model file, a pose diagnosis's keys:
+        :func:`~stiffness.calibration.search.selection`)."""
+        return selection(self.steps, self.forbidden)
 
     def stand_in(self, label: str) -> bool:
         """Whether the named effect ``label`` is a stand-in (a determined parameter of the
@@ -369,8 +316,9 @@ class Diagnosis:
                               "description": s.effect.describe(),
                               "delta_bic": s.delta_bic, "dispersion": s.dispersion,
                               "ranking": [
-                                  {**r, "cv_rms": None if r["cv_rms"] is None
-                                   else self._len(r["cv_rms"])} for r in s.ranking]}
+                                  {"effect": e.name, "where": e.where, "delta_bic": d,
+                                   "cv_rms": None if cv is None else self._len(cv)}
+                                  for e, d, cv in s.ranking]}
                              for s in self.steps],
             "where_baseline_disagrees": self.baseline_disagreement,
             "where_final_disagrees": self.final_disagreement,

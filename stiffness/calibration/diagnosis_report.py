@@ -69,7 +69,7 @@ def format_report(d: Diagnosis) -> str:
     for i, s in enumerate(d.steps, start=1):
         name = s.effect.name + (" *" if s.forced else "")
         lines.append(f"{i:<5} {'removed ' * s.removed + name:<28} {s.effect.where or '':<30} "
-                     f"{s.rms / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
+                     f"{s.fit.rms() / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
     if any(s.forced for s in d.steps):
         lines.append("* forced (--families): added first, whatever its BIC and held-out error")
     if d.baseline_validation:  # diagnose --validate: each step's model on the other campaign

@@ -12,10 +12,11 @@ screened by one Gauss-Newton step, the best fitted, held out by leaving one conf
 at a time from each fit's linearised hat matrix without refitting
 (:func:`~stiffness.calibration.pose_fit.held_out_rms`, stable on small campaigns where folds
 would leave about as many parameters as poses), then removes any the final model is better
-without (:func:`~stiffness.calibration.search.eliminate`; a :class:`PoseStep` marked
-``removed``, never a forced family). The user may force families in (added first,
-in order) and forbid others (``diagnose --families``, ``--not``; kept in the model file's
-``selection``). Only identifiable parameters are fitted (:mod:`stiffness.calibration.pose_fit`).
+without (:func:`~stiffness.calibration.search.eliminate`; a
+:class:`~stiffness.calibration.search.Step` marked ``removed``, never a forced family). The
+user may force families in (added first, in order) and forbid others (``diagnose
+--families``, ``--not``; kept in the model file's ``selection``). Only identifiable parameters
+are fitted (:mod:`stiffness.calibration.pose_fit`).
 At the end the residual is tested against the declared noise
 (:func:`~stiffness.calibration.selection.goodness_of_fit` at
 :data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it is "unexplained",
@@ -53,7 +54,17 @@ from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
-from stiffness.calibration.search import Candidate, Removals, Stop, check_max_steps, ranked, search
+from stiffness.calibration.search import (
+    Candidate,
+    Removals,
+    Step,
+    Stop,
+    check_max_steps,
+    kept_steps,
+    ranked,
+    search,
+    selection,
+)
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
@@ -88,33 +99,17 @@ HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
 
 
 @dataclass
-class PoseStep:
-    """One step of a pose diagnosis: a family added, or (``removed``) removed again by the
-    search's backward elimination (``fit`` then without it)."""
-
-    family: str
-    fit: PoseFit
-    delta_bic: float
-    cv_rms: float
-    validation: dict | None = None
-    forced: bool = False
-    ranking: dict[str, float] = field(default_factory=dict)
-    removed: bool = False
-
-
-@dataclass
 class PoseDiagnosis:
-    """The steps, the final fit and the verdict of a pose diagnosis; ``outliers`` the poses
-    the final fit does not explain and ``outlier_sigma_m`` the noise std (m) they were
-    standardised by (:func:`~stiffness.calibration.pose_fit.flag_pose_outliers`; flagged,
-    none dropped)."""
+    """The steps (:class:`~stiffness.calibration.search.Step`), the final fit and the verdict
+    of a pose diagnosis; ``outliers`` the poses the final fit does not explain and
+    ``outlier_sigma_m`` the noise std (m) they were standardised by
+    (:func:`~stiffness.calibration.pose_fit.flag_pose_outliers`; flagged, none dropped)."""
 
     campaign: PoseCampaign
     masses: str
-    steps: list[PoseStep]
+    steps: list[Step[str, PoseFit]]
     rejected: dict[str, float] = field(default_factory=dict)
     loss: str = "linear"
-    forced: list[str] = field(default_factory=list)
     forbidden: list[str] = field(default_factory=list)
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
@@ -129,15 +124,13 @@ class PoseDiagnosis:
         (:func:`stiffness.calibration.certainty.how_sure`; computed when first asked: it
         refits the final model without each, and the families acting through it)."""
         return [] if self.search is None else certainty.how_sure(
-            self.search, self.final, self.steps[-1].cv_rms,
-            [(s.family, sorted(s.ranking.items(), key=lambda item: item[1]), s.delta_bic,
-              self.stand_in(s.family)) for s in self.named_steps])
+            self.search, self.final, self.steps[-1].cv_rms, self.named_steps, self.stand_in)
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
-        ``forbidden`` (``--families``, ``--not``) and the ``held_out`` criterion."""
-        return {"forced": self.forced, "forbidden": self.forbidden,
-                "held_out": HELD_OUT_CRITERION}
+        ``forbidden`` (:func:`~stiffness.calibration.search.selection`) and the
+        ``held_out`` criterion."""
+        return {**selection(self.steps, self.forbidden), "held_out": HELD_OUT_CRITERION}
 
     @property
     def final(self) -> PoseFit:
@@ -145,15 +138,14 @@ class PoseDiagnosis:
         return self.steps[-1].fit
 
     @property
-    def named_steps(self) -> list[PoseStep]:
-        """The steps adding the final model's families (none removed again), in order."""
-        return [s for s in self.steps[1:] if not s.removed
-                and s.family in self.final.model.families]
+    def named_steps(self) -> list[Step[str, PoseFit]]:
+        """The steps adding the final model's families (:func:`kept_steps`)."""
+        return kept_steps(self.steps, self.final.model.families)
 
     @property
     def families(self) -> list[str]:
         """Families of the final model, in the order chosen."""
-        return list(BASE_FAMILIES) + [s.family for s in self.named_steps]
+        return list(BASE_FAMILIES) + [s.effect for s in self.named_steps]
 
     def gof(self) -> float | None:
         """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
@@ -199,7 +191,7 @@ class PoseDiagnosis:
                 "loss": self.loss,
                 "noise_std": None if self.campaign.noise_std is None
                 else self.campaign.noise_std / lu,
-                "steps": [{"family": s.family, "rms": s.fit.rms() / lu,
+                "steps": [{"family": s.effect, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
                            "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
                            "forced": s.forced, "removed": s.removed, **self._named(s),
@@ -225,14 +217,14 @@ class PoseDiagnosis:
             return False
         return is_stand_in(self.judge.parameters(self.final).get(family, []))
 
-    def _named(self, step: PoseStep) -> dict:
+    def _named(self, step: Step[str, PoseFit]) -> dict:
         """A step's ``parameters`` (its family's, as that step fitted them, SI) and
         ``stand_in`` (in the final model), the keys of a deflection diagnosis's steps."""
-        if self.judge is None or step.family == "baseline" or step.removed:
+        if self.judge is None or step.effect == "baseline" or step.removed:
             return {}
-        params = self.judge.parameters(step.fit)[step.family]
+        params = self.judge.parameters(step.fit)[step.effect]
         return {"parameters": {p.name: p.to_dict() for p in params},
-                "stand_in": self.stand_in(step.family)}
+                "stand_in": self.stand_in(step.effect)}
 
 
 def _finite(v: float) -> float | None:
@@ -452,20 +444,21 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     judge = PoseJudge.of(campaign, masses)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
-    kind = PoseSearch(campaign, chosen, frame0, settings, scale, validate, say, workers, draw,
+    kind = PoseSearch(campaign, chosen, frame0, settings, scale, say, workers, draw,
                       judge, base.n_observed, campaign.noise_std,
                       [f for f in CANDIDATES[masses]
                        if f not in forced and f not in forbidden and f not in empty])
     steps = kind.steps
-    steps.append(PoseStep("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
-                          _validation(base, validate)))
+    steps.append(Step("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
+                      validation=_validation(base, validate)))  # the markers checked first
     for f in forced:
         kind.force(f, loss)
     _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms, max_steps)
+    for step in steps[1:]:
+        step.validation = _validation(step.fit, validate)
     outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
-    return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, list(forced),
-                         sorted(forbidden), outliers, outlier_sigma, stop, judge, kind,
-                         kind.not_judged)
+    return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, sorted(forbidden),
+                         outliers, outlier_sigma, stop, judge, kind, kind.not_judged)
 
 
 def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settings: dict,
@@ -524,7 +517,6 @@ class PoseSearch:
     frame0: tuple[np.ndarray, np.ndarray]
     settings: dict
     scale: float | None
-    validate: PoseCampaign | None
     say: Callable[[str], None]
     workers: int | None
     bar: Bar
@@ -532,7 +524,7 @@ class PoseSearch:
     n: int
     sigma: float | None
     remaining: list[str]
-    steps: list[PoseStep] = field(default_factory=list)
+    steps: list[Step[str, PoseFit]] = field(default_factory=list)
     rejected: dict[str, float] = field(default_factory=dict)
     not_judged: dict[str, str] = field(default_factory=dict)
     delta: dict[str, float] = field(default_factory=dict)
@@ -557,11 +549,9 @@ class PoseSearch:
         fit = settled(self.campaign, _fit(self.campaign, self.chosen, self.frame0, self.settings,
                                           current, loss, self.scale),
                       self.chosen, self.judge, self.scale)
-        delta = self.deltas(current, {family: self.terms(fit)})
-        self.steps.append(PoseStep(family, fit, delta[family],
-                                   held_out_rms(fit, self.campaign,
-                                                self.bar(f"held-out {family}")),
-                                   _validation(fit, self.validate), forced=True, ranking=delta))
+        delta = self.deltas(current, {family: self.terms(fit)})[family]
+        cv = held_out_rms(fit, self.campaign, self.bar(f"held-out {family}"))
+        self.steps.append(Step(family, fit, delta, cv, [(family, delta, None)], forced=True))
 
     def candidates(self, current: PoseFit) -> list[Family] | None:
         """Each ready family added to :attr:`chosen`, screened from ``current`` by one
@@ -640,10 +630,10 @@ class PoseSearch:
         self.chosen.append(best)
         self.remaining.remove(best)
         settled_delta = self.deltas(current, {**self.full, "": self.terms(fit)})[""]
-        self.steps.append(PoseStep(best, fit, self.delta[best]
-                                   if fit.n_fitted == self.full[best][1] else settled_delta,
-                                   winner.cv_rms, _validation(fit, self.validate),
-                                   ranking=self.delta))
+        self.steps.append(Step(best, fit, self.delta[best] if fit.n_fitted == self.full[best][1]
+                               else settled_delta, winner.cv_rms,
+                               sorted(((f, d, None) for f, d in self.delta.items()),
+                                      key=lambda r: r[1])))
         return fit
 
     def reject(self, ranking: list[Family]) -> None:
@@ -657,7 +647,7 @@ class PoseSearch:
         last = self.steps[-1]
         before = (self.steps[-2].fit if len(self.steps) > 1 and last.fit is final
                   and not last.removed else None)
-        return [before if before is not None and s == last.family else
+        return [before if before is not None and s == last.effect else
                 _fit(self.campaign, [f for f in self.chosen if f != s
                                      and s not in FAMILIES[f].requires],
                      frame0, final.model.settings, final, final.loss, self.scale)
@@ -665,15 +655,12 @@ class PoseSearch:
 
     def removable(self, final: PoseFit) -> list[bool]:
         """Not forced (``--families``), no other chosen family acting through it."""
-        forced = {s.family for s in self.steps if s.forced}
+        forced = {s.effect for s in self.steps if s.forced}
         return [f not in forced and not any(f in FAMILIES[g].requires for g in self.chosen)
                 for f in self.chosen[len(BASE_FAMILIES):]]
 
-    def remove(self, final: PoseFit, index: int, fit: PoseFit, delta_bic: float,
-               cv_rms: float, dispersion: float) -> str:
+    def remove(self, final: PoseFit, index: int, fit: PoseFit) -> str:
         family = self.chosen.pop(len(BASE_FAMILIES) + index)
-        self.steps.append(PoseStep(family, fit, delta_bic, cv_rms,
-                                   _validation(fit, self.validate), removed=True))
         self.say(f"removed {family}: the model is better without it")
         return family
 

@@ -28,9 +28,9 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     c = d.campaign
     unit, lu = c.units.length, c.units.length_to_si
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
-    names = [f"removed {s.family}" if s.removed else s.family + (" *" if s.forced else "")
+    names = [f"removed {s.effect}" if s.removed else s.effect + (" *" if s.forced else "")
              for s in d.steps]
-    w = max(18, *(max(len(s.family) + 2, len(name))  # the family column: the longest name
+    w = max(18, *(max(len(s.effect) + 2, len(name))  # the family column: the longest name
                   for s, name in zip(d.steps, names, strict=True)))
     lines = [f"pose campaign {c.name} of {c.robot.title}: {c.n_rows} rows, "
              f"{len(c.markers)} marker(s) ({', '.join(m.name for m in c.markers)}), "
@@ -47,10 +47,10 @@ def format_pose_report(d: PoseDiagnosis) -> str:
         lines.append(row)
     lines.append("CV RMS: leave one configuration out (linearised hat matrix; unbounded: one "
                  "configuration alone determines a parameter)"
-                 + ("; * forced (--families)" if d.forced else "")
+                 + ("; * forced (--families)" if any(s.forced for s in d.steps) else "")
                  + (f"; not tried (--not): {', '.join(d.forbidden)}" if d.forbidden else ""))
     if d.steps[0].validation:
-        lines += ["", *stage_table([(f"{i} {s.family}", s.validation)
+        lines += ["", *stage_table([(f"{i} {s.effect}", s.validation)
                                     for i, s in enumerate(d.steps) if s.validation])]
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): "

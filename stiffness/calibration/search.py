@@ -16,17 +16,18 @@ another one acts through: :meth:`SearchKind.removable`); those whose removal low
 than :data:`~stiffness.calibration.selection.BIC_MARGIN` under the same overdispersion rule
 (:func:`~stiffness.calibration.selection.step_criteria`, the final fit as the current model)
 are judged held out in BIC order, the first :data:`~stiffness.calibration.selection.CV_TOP`,
-and the first whose held-out RMS is not above the final's is removed (recorded as a step,
-:meth:`SearchKind.remove`), and so on until none is. The stop reason then says what was
-removed after the forward search stopped. The refits of the last final are kept
-(:attr:`SearchKind.removals`): how sure the diagnosis is of each effect
+and the first whose held-out RMS is not above the final's is removed
+(:meth:`SearchKind.remove`, recorded as a :class:`Step` marked ``removed``), and so on until
+none is. The stop reason then says what was removed after the forward search stopped. The
+refits of the last final are kept (:attr:`SearchKind.removals`): how sure the diagnosis is
 (:func:`stiffness.calibration.certainty.how_sure`) reads them instead of refitting.
 
 A campaign kind is a small object (:class:`SearchKind`): its candidates and their fits, its
 reported parameters, how it settles a candidate, its held-out criterion, how it records a step
 and how it removes an added effect again (:func:`stiffness.calibration.certainty.how_sure`):
 :class:`stiffness.calibration.diagnose.DeflectionSearch`,
-:class:`stiffness.calibration.pose_diagnose.PoseSearch`.
+:class:`stiffness.calibration.pose_diagnose.PoseSearch`. Both record their steps as
+:class:`Step`, and both kinds' results read them alike (:func:`kept_steps`, :func:`selection`).
 """
 
 from __future__ import annotations
@@ -34,18 +35,19 @@ from __future__ import annotations
 import enum
 import itertools
 import math
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Collection, Iterator, Sequence
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
 from stiffness.calibration.naming import namable
 from stiffness.calibration.selection import BIC_MARGIN, CV_TOP, fits_to_noise, step_criteria
-from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.errors import StiffnessError
 
-E = TypeVar("E")
+#: What a candidate or a step adds: an effect of the library, or a pose family's name.
+E = TypeVar("E", bound=Effect | str)
 F = TypeVar("F")
 
 
@@ -62,6 +64,69 @@ class Candidate(Generic[E, F]):
     delta_bic: float
     cv_rms: float | None = None
     settled: bool = False
+
+
+def label(what: Effect | str) -> str:
+    """What a candidate or step adds, by label: an effect's ``name(where)``, a family's name."""
+    return what if isinstance(what, str) else what.label
+
+
+@dataclass
+class Step(Generic[E, F]):
+    """One step of a diagnosis of either kind: what it adds, or (``removed``) what the backward
+    elimination (:func:`eliminate`) removes again, and the fit after it.
+
+    Attributes
+    ----------
+    effect, fit
+        What the step adds or removes (an effect; a pose family's name, ``"baseline"`` for a
+        pose diagnosis's step 0) and the fit after it.
+    delta_bic, cv_rms, dispersion
+        Its BIC change, held-out RMS (m) and overdispersion (its BICs use the noise variance
+        times this: :func:`~stiffness.calibration.selection.step_criteria`).
+    ranking
+        The step's candidates, best first: what each adds, its BIC change and held-out RMS
+        (m, or ``None``): a deflection step's best six fitted, a pose step's every family
+        tried (screened or fitted); none for a removal.
+    parameters
+        A deflection step's effect's parameters, campaign units (a pose diagnosis reads its
+        families' from the fits).
+    validation
+        Its model, not refitted, on a validation campaign (``diagnose --validate``), or
+        ``None``.
+    forced
+        Forced in (``diagnose --families``: added first, whatever its BIC and held-out
+        error; never removed again).
+    """
+
+    effect: E
+    fit: F
+    delta_bic: float
+    cv_rms: float
+    ranking: list[tuple[E, float, float | None]] = field(default_factory=list)
+    parameters: list[Parameter] = field(default_factory=list)
+    dispersion: float = 1.0
+    validation: dict | None = None
+    forced: bool = False
+    removed: bool = False
+
+    @property
+    def label(self) -> str:
+        """What it adds or removes, by :func:`label`."""
+        return label(self.effect)
+
+
+def kept_steps(steps: Sequence[Step[E, F]], labels: Collection[str]) -> list[Step[E, F]]:
+    """The steps adding what ``labels`` name (a final model's effects or families), none
+    removed again, in order."""
+    return [s for s in steps if not s.removed and s.label in labels]
+
+
+def selection(steps: Sequence[Step[E, F]], forbidden: Sequence[str]) -> dict:
+    """How a diagnosis chose what it added (kept in ``--json`` and the model file):
+    ``forced`` (``--families``, its forced steps' labels in order) and ``forbidden``
+    (``--not``)."""
+    return {"forced": [s.label for s in steps if s.forced], "forbidden": list(forbidden)}
 
 
 class Stop(enum.Enum):
@@ -94,13 +159,14 @@ class Removals(Generic[F]):
 class SearchKind(Protocol[E, F]):
     """What a campaign kind supplies to :func:`search`: its residual count ``n`` and noise
     std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, the last
-    final fit's :class:`Removals` (``None`` before :func:`eliminate`), and the methods
-    below."""
+    final fit's :class:`Removals` (``None`` before :func:`eliminate`), its :class:`Step`
+    records, and the methods below."""
 
     n: int
     sigma: float | None
     stops: ClassVar[dict[Stop, str]]
     removals: Removals[F] | None
+    steps: list[Step[E, F]]
 
     def terms(self, fit: F) -> tuple[float, int]:
         """``fit``'s objective as a sum of squares (m^2) and its parameter count."""
@@ -136,11 +202,9 @@ class SearchKind(Protocol[E, F]):
         """Whether each effect ``final`` added (in :meth:`without`'s order) may be removed:
         not forced, and no other effect acts through it."""
 
-    def remove(self, final: F, index: int, fit: F, delta_bic: float, cv_rms: float,
-               dispersion: float) -> str:
-        """The step removing ``final``'s effect ``index`` recorded (``fit`` without it, its
-        BIC change under the overdispersion ``dispersion`` and its held-out RMS, m); the
-        effect's label."""
+    def remove(self, final: F, index: int, fit: F) -> E:
+        """``final``'s effect ``index`` removed (``fit``: ``final`` without it), said; that
+        effect."""
 
 
 def check_max_steps(max_steps: int | None) -> None:
@@ -213,9 +277,11 @@ def eliminate(kind: SearchKind[E, F], final: F, cv_final: float) -> tuple[F, lis
             out.held_out(kind, [i])[0], cv_final)), None)
         if drop is None:
             return final, removed
-        removed.append(kind.remove(final, drop, out.fits[drop], delta[drop], out.cv_rms[drop],
-                                   dispersion))
         final, cv_final = out.fits[drop], out.cv_rms[drop]
+        effect = kind.remove(out.final, drop, final)
+        kind.steps.append(Step(effect, final, delta[drop], cv_final, dispersion=dispersion,
+                               removed=True))
+        removed.append(label(effect))
 
 
 def _not_worse(cv: float, cv_final: float) -> bool:
