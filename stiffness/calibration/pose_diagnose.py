@@ -444,10 +444,9 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     judge = PoseJudge.of(campaign, masses)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
-    kind = PoseSearch(campaign, chosen, frame0, settings, scale, say, workers, draw,
-                      judge, base.n_observed, campaign.noise_std,
-                      [f for f in CANDIDATES[masses]
-                       if f not in forced and f not in forbidden and f not in empty])
+    kind = PoseSearch(campaign, chosen, frame0, settings, scale, say, workers, draw, judge,
+                      base.n_observed, campaign.noise_std,
+                      [f for f in CANDIDATES[masses] if f not in {*forced, *forbidden, *empty}])
     steps = kind.steps
     steps.append(Step("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
                       validation=_validation(base, validate)))  # the markers checked first
