@@ -28,8 +28,8 @@ How they must agree:
 * exact against exact (the pose model's sag fixed point ``dq = law(tau(q + dq))`` and the elastic
   model's Newton equilibrium; the deflection fit's ``exact`` baseline of joint springs): to
   1e-12 m on displacements of 4-7 mm (measured: at most 3e-15 m, 8e-14 m with springs on the
-  chain joints of a coupling, and 4e-15 rad between the deflection fit's exact baseline and the
-  elastic model);
+  chain joints of a coupling, 1e-15 m with a backlash on a controller coordinate, and 4e-15
+  rad between the deflection fit's exact baseline and the elastic model);
 * a first-order model against the exact one: the error is second order in the deflection, so it
   falls by 16 when the deflection falls by 4 (log-log slope 2 +- 0.1 between sizes 1 and 1/4;
   measured 1.99-2.03; the error at size 1 0.1-2 % of the displacement). The deflection fit's
@@ -51,9 +51,12 @@ What is not compared, and why:
 * ``gravity_lumped`` is not applied by the elastic model (its parameters are combinations of
   masses): the lumped weight at the robot's true masses is compared with the known weight
   (``gravity_preload``);
-* backlash and a compensator on springs acting on controller coordinates: the deflection face
-  and the elastic model put them on the coordinate, the pose face lays them out on compliant
-  chain joints only (none there: no parameter) and the pose simulator refuses them;
+* a compensator on springs acting on controller coordinates: the deflection face and the
+  elastic model put it on the coordinate (its angle the coordinate's, from its zero), the pose
+  face lays it out on compliant chain joints only (none there: no parameter; a compensator
+  acts on one link, docs/absolute-poses.md, Limits) and the pose simulator refuses it. A
+  backlash there is compared (T2 and T3 of the torso: the pose face acts on each spring
+  through ``S``, as the other two sides);
 * rotations: the pose model observes points; the deflection fit's and the elastic model's
   rotations are compared;
 * ``joint_angles = "link"`` (the recorded pose the unloaded one): the pose model's rows are
@@ -63,7 +66,8 @@ The analytic Jacobian columns are checked against central differences elsewhere:
 deflection fit's for every candidate on the UR5 (``test_effects.py``), its exact baseline
 (``test_identify.py``) and controller springs (``test_transversal_controller.py``); the pose
 model's for every family (``test_absolute_poses.py``), controller springs
-(``test_pose_coupling.py``) and every joint kind (``test_pose_rows_at_once.py``). Only the
+(``test_pose_coupling.py``; a backlash on them, ``test_backlash_controller.py``) and every
+joint kind (``test_pose_rows_at_once.py``). Only the
 deflection fit's on prismatic springs (m/N, a backlash in m, 1/N) were not: they are here.
 """
 
@@ -288,13 +292,18 @@ def test_nonlinear_spring(name, joint, beta, request):
 
 
 @pytest.mark.parametrize(("name", "joint", "half_width"), [("ur5", "elbow_joint", 2e-3),
+                                                           ("torso", "T3", 1e-3),
+                                                           ("torso", "T2", 1e-3),
                                                            ("chain", "t3", 1e-3),
                                                            ("prism", "j4", 1e-4)])
 def test_backlash(name, joint, half_width, request):
-    """``backlash`` of 2 mrad on the UR5's elbow, 1 mrad on the chain spring t3, 0.1 mm on the
-    prismatic j4, smoothed over 5 N.m (N) on every side: the pose model and the elastic model
-    agree to 1e-12 m; the deflection fit is off at second order (the compliances and the
-    half-width scaled together)."""
+    """``backlash`` of 2 mrad on the UR5's elbow, 1 mrad on the torso's controller
+    coordinates T2 (which turns t2 and the passive t4) and T3, and on the chain spring t3, 0.1
+    mm on the prismatic j4, smoothed over 5 N.m (N) on every side: the pose model and the
+    elastic model agree to 1e-12 m (measured on T2 and T3: 1e-15 m of 4 mm, the backlash
+    showing by 0.27-0.58 mm; before, the pose model had no parameter there); the deflection
+    fit is off at second order (the compliances and the half-width scaled together; slope
+    2.02 on T2 and T3)."""
     arm = request.getfixturevalue(name)
     effect = dataclasses.replace(make_effect("backlash", joint, Geometry.of(arm.robot)),
                                  smoothing_torque=SMOOTHING)

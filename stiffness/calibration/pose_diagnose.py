@@ -463,7 +463,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
 def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settings: dict,
            families: Sequence[str]) -> set[str]:
     """The ``families`` with no parameter on the campaign's robot and markers (bearing tilts
-    and backlash of springs on controller coordinates: nothing to try)."""
+    where no marker's chain holds a joint the springs turn, a compensator on springs on
+    controller coordinates: nothing to try)."""
     out = set()
     for f in families:
         with_it = (*BASE_FAMILIES, *FAMILIES[f].requires, f)

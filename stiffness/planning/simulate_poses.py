@@ -12,8 +12,9 @@ measuring frame is an arbitrary rigid placement. Hidden elastic effects beyond t
 springs act in the same equilibrium: a spring compensator's torque
 (:func:`spring_compensator_torque`, from the spring's attachment points, not from the
 library's scalar law) joins the joint's torque,
-backlash adds ``b tanh(tau / tau_s)`` to its deflection (``tau_s`` computed here from the
-commanded poses' torques: :func:`smoothing_torques`), and a link bend rotates the part of the
+backlash adds ``b tanh(t / tau_s)`` to its spring's deflection (``t = A^T tau`` on a controller
+coordinate; ``tau_s`` computed here from the commanded poses' torques:
+:func:`smoothing_torques`), and a link bend rotates the part of the
 arm beyond the link's distal joint exactly (its placement turned by ``omega``) under the moment
 that part's weight and the wrench exert there, taken from Pinocchio's recursive Newton-Euler
 forces (not from the centre-of-mass form the fitted model uses), about two axes normal to the
@@ -82,8 +83,9 @@ class HiddenPoseErrors:
         :func:`~stiffness.elastic.effects.link_bends.marker_links`) -> its two bending
         compliances (rad/(N.m)).
     backlash
-        (n_compliant,) backlash half-widths (rad or m), smoothed as the deflection library's
-        (``tau_s`` from the campaign's torques), or ``None``.
+        (n_compliant,) backlash half-widths (rad or m) of the springs (on the controller's
+        coordinates when the springs act there), smoothed as the deflection library's
+        (``tau_s`` from the torques the springs carry over the campaign), or ``None``.
     compensator
         Revolute compliant joint name -> (stiffness N/m, tension N with the link up) of a
         spring compensator with the library's default geometry
@@ -227,9 +229,10 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
     if hidden.stiffness is None:
         return None
     model = robot.model
-    if robot.springs_on_controller and (hidden.backlash is not None or hidden.compensator):
-        raise StiffnessError("hidden backlash and compensators act on chain joints; this "
-                             "robot's springs act on its controller's coordinates")
+    if robot.springs_on_controller and hidden.compensator:
+        raise StiffnessError("a hidden gravity_compensator acts on a chain joint's link; this "
+                             "robot's springs act on its controller's coordinates (hide "
+                             "backlash or springs there, or put the springs on the chain)")
     names = list(robot.compliant_joints)
     ids = [int(model.getJointId(n)) for n in names]
     # which joint pairs are links is the fitted model's naming (the parameters it reports);
@@ -445,11 +448,12 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
 
 def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
                       ) -> dict[str, float]:
-    """Backlash smoothing torque ``tau_s`` (N.m, N) of each compliant joint: the
-    :data:`SMOOTHING_FRACTION` of the RMS torque it carries at the commanded poses ``q``
-    (coordinates, rad or m) of the nominal robot, ``-g(q) + J(q)^T w`` under its weight and
-    the ``payload`` wrench at the target frame (world axes; ``None``: none). A joint that
-    carries none gets 1 (its backlash never opens)."""
+    """Backlash smoothing torque ``tau_s`` (N.m, N) of each spring (compliant joint or
+    controller coordinate): the :data:`SMOOTHING_FRACTION` of the RMS torque it carries at the
+    commanded poses ``q`` (coordinates, rad or m) of the nominal robot, ``S^T (-g(q) + J(q)^T
+    w)`` under its weight and the ``payload`` wrench at the target frame (world axes; ``None``:
+    none; ``S``: :meth:`Robot.rate_projection`, the unit columns for springs on joints). A
+    spring that carries none gets 1 (its backlash never opens)."""
     model = robot.model
     data = model.createData()
     fid = frame_id(model, robot.target_frame)
@@ -462,13 +466,10 @@ def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
             pin.updateFramePlacements(model, data)
             torques[i] += pin.getFrameJacobian(model, data, fid,
                                                pin.LOCAL_WORLD_ALIGNED).T @ payload
-    rms = np.sqrt(np.mean(torques ** 2, axis=0))
-    out = {}
-    for name in robot.compliant_joints:
-        if model.existJointName(name):
-            r = rms[model.joints[model.getJointId(name)].idx_v]
-            out[name] = float(SMOOTHING_FRACTION * r) if r > 0 else 1.0
-    return out
+    rms = np.sqrt(np.mean((torques @ robot.rate_projection(robot.compliant_joints)) ** 2,
+                          axis=0))
+    return {name: float(SMOOTHING_FRACTION * r) if r > 0 else 1.0
+            for name, r in zip(robot.compliant_joints, rms, strict=True)}
 
 
 def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: np.ndarray

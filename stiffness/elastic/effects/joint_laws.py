@@ -6,9 +6,9 @@ Each class carries its prediction hooks
 (:class:`stiffness.elastic.effects.deflection_face.DeflectionEffect`) and its contribution to a
 model used away from its campaign (:meth:`Effect.contribute`);
 ``joint_compliance``, ``backlash`` and ``nonlinear_joint_stiffness`` also their pose-model
-face (:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every compliant
-joint of a pose model, under gravity and the applied wrench, their part of the joints'
-deflection in the sag's fixed point,
+face (:class:`~stiffness.elastic.effects.pose_face.JointDeflectionFamily`: on every spring of
+a pose model, a compliant joint or a controller coordinate through the spring map, under
+gravity and the applied wrench, their part of the joints' deflection in the sag's fixed point,
 :meth:`stiffness.calibration.pose_model.PoseModel.loaded_configuration`).
 
 Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
@@ -155,16 +155,21 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
 class Backlash(JointEffect, Settings, JointDeflectionFamily):
     """Lost motion at a joint: ``dtheta += b tanh(tau / tau_s)``.
 
-    Pose face: on each compliant joint, ``Delta q_j += b_j tanh(tau_j / tau_s)`` (``tau_s`` =
-    :data:`~stiffness.elastic.effects.geometry.BACKLASH_SMOOTHING` times the joint's RMS torque
-    over the campaign, setting ``backlash_smoothing_torque``); ``b_j`` rad (m prismatic). A
-    joint whose torque is nil at every pose of the campaign (below :data:`NIL_TORQUE` of the
-    largest joint's RMS: a vertical base axis) has no parameter: its lost motion never shows.
+    Pose face: on each spring, ``Delta u_j += b_j tanh(t_j / tau_s)`` with ``t = S^T tau``
+    the torque it carries and ``Delta q = S Delta u`` (``S``: :attr:`PoseLayout.spring_map`,
+    the unit columns for springs on joints; a spring on a controller coordinate loses motion
+    on that coordinate, as the deflection face and the elastic model have it); ``tau_s`` =
+    :data:`~stiffness.elastic.effects.geometry.BACKLASH_SMOOTHING` times the RMS of ``t_j``
+    over the campaign, setting ``backlash_smoothing_torque`` by spring name; ``b_j`` rad (m
+    prismatic), named after the spring. A spring whose torque is nil at every pose of the
+    campaign (below :data:`NIL_TORQUE` of the largest spring's RMS: a vertical base axis) has
+    no parameter: its lost motion never shows.
     """
 
     #: smoothing torque (N.m, N) a model file gives; ``None``: the campaign's
     smoothing_torque: float | None = None
-    #: the pose face's joints (velocity indices, smoothing torques), built once per model
+    #: the pose face's springs (columns of the spring map) and their smoothing torques,
+    #: built once per model
     _pose_layout: tuple[list[int], np.ndarray] | None = field(default=None, init=False,
                                                               repr=False)
     name: ClassVar[str] = "backlash"
@@ -206,68 +211,64 @@ class Backlash(JointEffect, Settings, JointDeflectionFamily):
     family_scale: ClassVar[float] = 1e-4
     sized_as_effect: ClassVar[bool] = True
     needs_masses: ClassVar[bool] = True
-    #: the model setting naming each compliant joint's smoothing torque (N.m or N)
+    #: the model setting naming each spring's smoothing torque (N.m or N)
     SETTING: ClassVar[str] = BACKLASH_SETTING
-    #: RMS torque, relative to the largest joint's, below which a joint carries none
+    #: RMS torque, relative to the largest spring's, below which a spring carries none
     NIL_TORQUE: ClassVar[float] = 1e-6
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
-        names = pm.robot.model.names
-        return [self.param(backlash_label(names[j]), pm.joint_unit(j, "rad", "m"))
-                for j, _, _ in self._pose_joints(pm)]
+        columns, _ = self._springs(pm)
+        return [self.param(backlash_label(pm.springs[s]),
+                           "m" if pm.robot.is_prismatic(pm.springs[s]) else "rad")
+                for s in columns]
 
     @classmethod
     def campaign_settings(cls, torques: np.ndarray, pm: PoseLayout) -> dict:
-        """``backlash_smoothing_torque``: joint name -> smoothing torque, from the (rows, nv)
-        torques the joints carry at the campaign's commanded poses (joints that carry none
-        left out)."""
-        names = pm.robot.model.names
-        rms = np.sqrt(np.mean(torques[:, pm.compliant_v] ** 2, axis=0))
+        """``backlash_smoothing_torque``: spring name -> smoothing torque, from the RMS of the
+        torques ``t = S^T tau`` each spring carries at the campaign's commanded poses (the
+        (rows, nv) ``torques``; springs that carry none left out)."""
+        rms = np.sqrt(np.mean((torques @ pm.spring_map) ** 2, axis=0))
         top = float(rms.max(initial=0.0))
-        return {cls.SETTING: {names[j]: float(BACKLASH_SMOOTHING * r)
-                              for j, r in zip(pm.compliant, rms, strict=True)
+        return {cls.SETTING: {n: float(BACKLASH_SMOOTHING * r)
+                              for n, r in zip(pm.springs, rms, strict=True)
                               if r > cls.NIL_TORQUE * top}}
 
-    def _pose_joints(self, pm: PoseLayout) -> list[tuple[int, int, float]]:
-        """(joint id, velocity index, smoothing torque) of each joint with a parameter."""
-        given = pm.settings.get(self.SETTING)
-        if not isinstance(given, dict):
-            raise StiffnessError("backlash needs each compliant joint's smoothing torque "
-                                 f"(setting {self.SETTING}); build the model with "
-                                 "pose_fit.campaign_settings(campaign)")
-        names = pm.robot.model.names
-        return [(j, v, float(given[names[j]]))
-                for j, v in zip(pm.compliant, pm.compliant_v, strict=True) if names[j] in given]
-
-    def _ratio(self, pm: PoseLayout, state: SagState) -> tuple[list[int], np.ndarray,
-                                                                np.ndarray]:
-        """Velocity indices, ``tau_j / tau_s`` and ``tau_s`` of the joints with a parameter
-        (the torques (nv,) of a row or (..., nv) of a batch of rows)."""
+    def _springs(self, pm: PoseLayout) -> tuple[list[int], np.ndarray]:
+        """The columns of the spring map with a parameter and their smoothing torques."""
         if self._pose_layout is None:  # built once per model
-            joints = self._pose_joints(pm)
-            self._pose_layout = ([v for _, v, _ in joints], np.array([s for _, _, s in joints]))
-        v_index, smooth = self._pose_layout
-        return v_index, state.torque[..., v_index] / smooth, smooth
+            given = pm.settings.get(self.SETTING)
+            if not isinstance(given, dict):
+                raise StiffnessError("backlash needs each spring's smoothing torque (setting "
+                                     f"{self.SETTING}); build the model with "
+                                     "pose_fit.campaign_settings(campaign)")
+            columns = [s for s, n in enumerate(pm.springs) if n in given]
+            self._pose_layout = (columns, np.array([float(given[pm.springs[s]])
+                                                    for s in columns]))
+        return self._pose_layout
+
+    def _carried(self, pm: PoseLayout, state: SagState
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The spring map's columns (nv, n_f) of the springs with a parameter, ``t / tau_s``
+        (..., n_f) of the torques they carry at ``state`` and the smoothing torques (n_f,)."""
+        columns, smooth = self._springs(pm)
+        spring_map = pm.spring_map[:, columns]
+        return spring_map, (state.torque @ spring_map) / smooth, smooth
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
-        v_index, ratio, _ = self._ratio(pm, state)
-        out = np.zeros(state.torque.shape)
-        out[..., v_index] = x_f * np.tanh(ratio)
-        return out
+        spring_map, ratio, _ = self._carried(pm, state)
+        return (x_f * np.tanh(ratio)) @ spring_map.T
 
     def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                               ) -> np.ndarray:
-        v_index, ratio, smooth = self._ratio(pm, state)
-        out = np.zeros(state.torque.shape)
-        out[..., v_index] = x_f * (1.0 - np.tanh(ratio) ** 2) / smooth
-        return out
+        """The diagonal of ``S diag(b sech^2(t / tau_s) / tau_s) S^T`` (as
+        ``joint_compliance``'s)."""
+        spring_map, ratio, smooth = self._carried(pm, state)
+        return (x_f * (1.0 - np.tanh(ratio) ** 2) / smooth) @ (spring_map ** 2).T
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray:
-        v_index, ratio, _ = self._ratio(pm, state)
-        out = np.zeros(state.torque.shape + (x_f.size,))
-        out[..., v_index, np.arange(x_f.size)] = np.tanh(ratio)
-        return out
+        spring_map, ratio, _ = self._carried(pm, state)
+        return spring_map * np.tanh(ratio)[..., None, :]
 
 
 @dataclass(eq=False)
