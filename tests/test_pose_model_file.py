@@ -342,3 +342,12 @@ def test_backlash_follows_the_springs_order_and_is_named_when_left_out(calibrati
                       rf"backlash\({last}\) left out with them"):
         em = load_model(rigid)
     assert [e.label for e, _ in em.not_applied] == [f"backlash({j})" for j in joints[1:-1]]
+
+
+def test_a_pose_model_of_another_robot_is_named_by_its_robot(calibration, capsys):
+    """kx --model a pose calibration --robot another: the refusal named the calibrated robot
+    by the model file's own path ("is of robot '/tmp/.../final-model.json', not 'ur5'")."""
+    _, path = calibration
+    assert main(["kx", "--model", str(path), "--robot", "ur5", "--wrench", "0,0,-10"]) == 2
+    err = capsys.readouterr().err
+    assert f"is of robot 'ur10' ({path.resolve()}), not 'ur5'" in err, err

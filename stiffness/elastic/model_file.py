@@ -419,7 +419,7 @@ def _read_calibration(path: Path) -> ModelFile:
         target_offset_m=cal.target_offset_m, compliant_joints=tuple(p.name for p in k),
         k_theta=value, units=tuple(p.unit for p in k), formulation="exact", standard_error=se,
         ci95_low=low, ci95_high=high, produced_by="diagnose", fixed_base=cal.fixed_base,
-        no_spring=parts.no_spring,
+        no_spring=parts.no_spring, robot_name=cal.name,
         effects=tuple(ModelEffect(n, w, LIBRARY[n].kind, ps, st, "of the pose calibration")
                       for n, w, ps, st in parts.effects))
 

@@ -100,6 +100,8 @@ class PoseCalibration:
     parameters
         Each parameter's row (``family``, ``parameter`` label, ``unit``, ``value``, ``fitted``,
         ``std``, ``interval_95``), in the model's order.
+    name
+        The calibrated robot's name (``robot.name``; "" in a file without it).
     """
 
     path: Path
@@ -115,6 +117,7 @@ class PoseCalibration:
     families: tuple[str, ...]
     settings: dict
     parameters: list[dict]
+    name: str = ""
 
     def values(self) -> dict[str, float]:
         """Parameter label -> SI value."""
@@ -203,7 +206,7 @@ def read_pose_calibration(path: str | os.PathLike) -> PoseCalibration:
              for m in doc["markers"]],
             None if doc["load_frame"] is None else str(doc["load_frame"]),
             tuple(str(f) for f in doc["families"]), dict(doc.get("settings", {})),
-            [_parameter(p) for p in doc["parameters"]])
+            [_parameter(p) for p in doc["parameters"]], str(r.get("name", "")))
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
                               "stiffness diagnose --out", path=path) from exc
