@@ -334,6 +334,10 @@ def test_scan_model_scans_the_models_springs(tmp_path, capsys):
     capsys.readouterr()
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["spec"]["k_theta"] == K_ARM.tolist() + [2e4]
+    # the echo names where the springs came from (it said "robot default" for the model's)
+    assert main(["scan", "--model", str(path), "--samples", "2", "--load", "0,0,-100",
+                 "--out", str(tmp_path / "echo"), "--no-plots"]) == 0
+    assert f"K_theta [model file {path}] (N.m/rad" in capsys.readouterr().out
     assert manifest["spec"]["robot"]["compliant_joints"] == list(ARM) + ["wrist_1_joint"]
     from stiffness.workspace.engine import load_scan
 

@@ -248,7 +248,8 @@ def echo_lines(spec: ScanSpec, robot: Robot, args: argparse.Namespace) -> list[s
     q_source = preset or flags.coordinates_source(robot, args)
     load_source = f"{flags.FROM_FLAG} --wrench" if args.wrench else (
         preset or (f"{flags.FROM_ROBOT} wrench_SI" if "wrench_SI" in robot.defaults else "default"))
-    k_source = f"{flags.FROM_FLAG} --kq" if args.kq is not None else flags.FROM_ROBOT
+    k_source = f"{flags.FROM_FLAG} --kq" if args.kq is not None else (
+        flags.FROM_ROBOT if args.model is None else f"{flags.FROM_MODEL} {args.model}")
     swept = ", ".join(a["joint"] for a in spec.axes)
     loads = "; ".join(f"{name}: {','.join(f'{v:g}' for v in load)}"
                       for name, load in zip(spec.load_names, spec.loads, strict=True))
