@@ -66,6 +66,7 @@ def test_a_rigid_joint_is_covered_and_reported_one_sided():
             assert lift.at_bound and math.isinf(lift.ci95[1]) and math.isfinite(lift.ci95[0])
             assert lift.text().startswith("shoulder_lift_joint rigid to the data")
             assert lift.to_dict()["ci95"][1] is None and not lift.excludes_zero
+            assert lift.to_dict()["standard_error"] is None  # not se_c / c^2 at c = 1e-14
     assert rigid >= 5, rigid  # the fit reaches the rigid bound in some seeds
     assert binomial_consistent(hits, len(seeds)), (hits, len(seeds))
 

@@ -46,8 +46,9 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
         u = refs.k_ref / k  # the compliance in its typical size, 1 / k_ref
         p = stiffness_report(j, u, float(matrix[i, i]) * u ** 2, 1.0 / refs.k_ref,
                              "N/m" if prismatic else "N.m/rad", q)
-        return Parameter(j, k, p.standard_error, p.ci95, p.unit,
-                         at_bound=i in fit.at_bound and fit.x[i] >= top[i])
+        rigid = i in fit.at_bound and fit.x[i] >= top[i]  # no standard error (2.7e26 N.m/rad)
+        return Parameter(j, k, math.inf if rigid else p.standard_error, p.ci95, p.unit,
+                         at_bound=rigid)
 
     return [with_bounds(fit, i, one(i, j, cov, quantile), cov,
                         None if held_cov is None else one(i, j, held_cov, quantile),
