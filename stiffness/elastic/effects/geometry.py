@@ -114,6 +114,9 @@ class Rows:
     #: the weight's preload per unit gravity parameter, by weighed links
     #: (:meth:`Geometry.weight_regressor`)
     weights: dict = field(default_factory=dict, repr=False, compare=False)
+    #: each link bend's point and axes at the rows (``bend_at`` of
+    #: :mod:`stiffness.elastic.effects.link_bends`), by bend
+    bends: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n_rows(self) -> int:
