@@ -437,6 +437,7 @@ class PoseModel:
             if last is not None and last[0] is row:
                 sag[i], warm[i] = last[1], True
         at, gravity, applied = np.empty((n, model.nq)), np.empty((n, nv)), np.empty((n, nv))
+        kept: dict[str, np.ndarray] = {}  # the families' extras at ``at``, as computed there
         pending = np.arange(n)
         for attempt in range(2):  # from the last converged sag, then from zero
             for _ in range(SAG_ITERATIONS):
@@ -445,11 +446,14 @@ class PoseModel:
                 q = integrate(model, commanded[pending], offsets + sag[pending], self._kinds)
                 g, w = self._row_torques(model, data, q,
                                          None if wrench is None else wrench[pending])
-                new = self.deflection(x, self._state(x, q, g, w, self._extras(model, data, q)))
+                extras = self._extras(model, data, q)
+                new = self.deflection(x, self._state(x, q, g, w, extras))
                 done = np.max(np.abs(new - sag[pending]), axis=1) <= SAG_TOLERANCE
                 sag[pending] = new
                 finished = pending[done]
                 at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
+                for f, e in extras.items():
+                    kept.setdefault(f, np.empty((n,) + e.shape[1:]))[finished] = e[done]
                 pending = pending[~done]
             if not pending.size or attempt or not warm[pending].all():
                 break
@@ -458,7 +462,7 @@ class PoseModel:
             raise ConvergenceError(SAG_DIVERGES)
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
-        extras = {f: e[:, None] for f, e in self._extras(model, data, at).items()}
+        extras = {f: e[:, None] for f, e in kept.items()}
         return (integrate(model, commanded, offsets + sag, self._kinds),
                 self._state(x, at, gravity[:, None], applied[:, None], extras))
 
