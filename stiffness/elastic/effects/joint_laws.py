@@ -41,6 +41,24 @@ from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
 J = TypeVar("J", bound="JointEffect")
 
 
+def spring_setting(pm: PoseLayout, family: str, setting: str, what: str
+                   ) -> tuple[list[int], np.ndarray]:
+    """The columns of ``pm``'s spring map that ``family``'s per-spring ``setting`` names (the
+    springs carrying torque in the campaign) and their values (N.m or N).
+
+    Raises
+    ------
+    StiffnessError
+        The model was built without the setting.
+    """
+    given = pm.settings.get(setting)
+    if not isinstance(given, dict):
+        raise StiffnessError(f"{family} needs each spring's {what} (setting {setting}); build "
+                             "the model with pose_fit.campaign_settings(campaign)")
+    columns = [s for s, n in enumerate(pm.springs) if n in given]
+    return columns, np.array([float(given[pm.springs[s]]) for s in columns])
+
+
 @dataclass(eq=False)
 class JointEffect(DeflectionEffect):
     """The shared part of the per-joint effects (the joint laws, a spring compensator): the
@@ -236,14 +254,7 @@ class Backlash(JointEffect, Settings, JointDeflectionFamily):
     def _springs(self, pm: PoseLayout) -> tuple[list[int], np.ndarray]:
         """The columns of the spring map with a parameter and their smoothing torques."""
         if self._pose_layout is None:  # built once per model
-            given = pm.settings.get(self.SETTING)
-            if not isinstance(given, dict):
-                raise StiffnessError("backlash needs each spring's smoothing torque (setting "
-                                     f"{self.SETTING}); build the model with "
-                                     "pose_fit.campaign_settings(campaign)")
-            columns = [s for s, n in enumerate(pm.springs) if n in given]
-            self._pose_layout = (columns, np.array([float(given[pm.springs[s]])
-                                                    for s in columns]))
+            self._pose_layout = spring_setting(pm, self.name, self.SETTING, "smoothing torque")
         return self._pose_layout
 
     def _carried(self, pm: PoseLayout, state: SagState
@@ -357,14 +368,7 @@ class NonlinearJointStiffness(JointEffect, JointDeflectionFamily):
     def _springs(self, pm: PoseLayout) -> tuple[list[int], np.ndarray]:
         """The columns of the spring map with a parameter and their largest torques."""
         if self._pose_layout is None:  # built once per model
-            given = pm.settings.get(self.SETTING)
-            if not isinstance(given, dict):
-                raise StiffnessError("nonlinear_joint_stiffness needs each spring's largest "
-                                     f"torque (setting {self.SETTING}); build the model with "
-                                     "pose_fit.campaign_settings(campaign)")
-            columns = [s for s, n in enumerate(pm.springs) if n in given]
-            self._pose_layout = (columns, np.array([float(given[pm.springs[s]])
-                                                    for s in columns]))
+            self._pose_layout = spring_setting(pm, self.name, self.SETTING, "largest torque")
         return self._pose_layout
 
     def _carried(self, pm: PoseLayout, state: SagState) -> tuple[np.ndarray, np.ndarray]:
