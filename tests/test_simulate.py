@@ -12,6 +12,7 @@ import pytest
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli.main import main
+from stiffness.elastic.effects import LIBRARY
 from stiffness.errors import StiffnessError
 from stiffness.files import resolve_source
 from stiffness.planning.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
@@ -120,6 +121,9 @@ def test_simulate_writes_a_loadable_campaign(tmp_path):
     truth = json.loads((tmp_path / "sim" / TRUTH_FILE).read_text())
     assert truth["expected_missing_effects"] == ["backlash"]
     assert truth["effect_rms_noise_units"]["backlash(shoulder_lift_joint)"] > 1.0
+    # every effect simulate hides with values has their unit (transversal_compliance had none)
+    valued = {name for name, e in LIBRARY.items() if 0 not in e.value_counts}
+    assert valued <= set(truth["value_units"]), valued - set(truth["value_units"])
     # repeats share the deflection, differ by noise
     d = camp.deflection
     assert np.abs(d[0] - d[1]).max() < 6 * 5e-6

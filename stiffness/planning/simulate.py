@@ -451,6 +451,7 @@ class Simulation:
             "unit": self.campaign.units.length,
             "value_units": {
                 "joint_compliance": "N.m/rad (N/m prismatic)", "link_compliance": "N.m/rad",
+                "transversal_compliance": "N.m/rad",
                 "backlash": self.campaign.units.angle, "nonlinear_joint_stiffness": "1/(N.m)",
                 "frame_misalignment": self.campaign.units.angle,
                 "target_offset": self.campaign.units.length,
