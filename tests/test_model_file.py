@@ -349,7 +349,7 @@ def test_scan_model_scans_the_models_springs(tmp_path, capsys):
     path = _link_model().write(tmp_path / "link.json")
     assert main(["scan", "--model", str(path), "--samples", "6", "--out",
                  str(tmp_path / "no"), "--quiet"]) == 2
-    assert "link_compliance(elbow_joint->wrist_1_joint) change K_X" in capsys.readouterr().err
+    assert "link_compliance(elbow_joint->wrist_1_joint) changes K_X" in capsys.readouterr().err
 
 
 def test_fixed_base_and_loop_file_travel_with_the_model(tmp_path):

@@ -162,7 +162,8 @@ def _refuse_unscannable(model) -> None:
     extra = list(model.beyond_springs)
     if extra:
         raise StiffnessError(
-            f"scan --model: {', '.join(extra)} change K_X beyond joint springs, which the "
+            f"scan --model: {', '.join(extra)} change{'s' * (len(extra) == 1)} K_X beyond "
+            "joint springs, which the "
             "batched scan does not model; use `stiffness kx --model` or `stiffness view "
             "--model` at chosen poses, or give --kq to scan the springs alone")
 
