@@ -47,6 +47,9 @@ def format_pose_report(d: PoseDiagnosis) -> str:
         lines.append(row)
     lines.append("CV RMS: leave one configuration out (linearised hat matrix; unbounded: one "
                  "configuration alone determines a parameter)"
+                 + ("" if d.loss == "linear" else f"; under {d.loss}, the root of the held-out "
+                    "loss per component: the RMS for Gaussian residuals, less for large ones, "
+                    "not comparable with RMS")
                  + ("; * forced (--families)" if any(s.forced for s in d.steps) else "")
                  + (f"; not tried (--not): {', '.join(d.forbidden)}" if d.forbidden else ""))
     if d.steps[0].validation:
