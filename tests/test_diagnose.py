@@ -138,6 +138,15 @@ def test_replicates_give_the_noise():
     assert s["noise_std"] == pytest.approx(NOISE * 1e3, rel=0.3)
 
 
+def test_one_configuration_prints_no_nan():
+    """A campaign of one configuration has nothing to hold out: its held-out RMS is a dash
+    with its reason, not 'nan' (UR5, three arm joints, 1 configuration x 4 loads)."""
+    result = diagnose(_simulate(UR5, [], configs=1).campaign, propose=False)
+    report = format_report(result)
+    assert "nan" not in report.split()
+    assert "CV RMS -: one configuration, none to hold out" in report
+
+
 def test_config_folds():
     labels = tuple("AABBCCDD")
     folds = config_folds(labels)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 from stiffness.calibration.breakdown import strongest_correlations
@@ -12,6 +13,12 @@ from stiffness.calibration.selection import GOF_LEVEL
 
 if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
+
+
+def _cv_cell(cv_rms: float, length_unit: float) -> str:
+    """A held-out RMS (m) in the table's unit, or ``-`` where nothing was held out (one
+    configuration: no cross-validation)."""
+    return f"{cv_rms / length_unit:>10.4g}" if math.isfinite(cv_rms) else f"{'-':>10}"
 
 
 def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
@@ -65,11 +72,13 @@ def format_report(d: Diagnosis) -> str:
     lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {'RMS':>10} {'dBIC':>9} "
                   f"{'CV RMS':>10}"]
     lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
-                 f"{d.cv_baseline / lu:>10.4g}")
+                 f"{_cv_cell(d.cv_baseline, lu)}")
     for i, s in enumerate(d.steps, start=1):
         name = s.effect.name + (" *" if s.forced else "")
         lines.append(f"{i:<5} {'removed ' * s.removed + name:<28} {s.effect.where or '':<30} "
-                     f"{s.fit.rms() / lu:>10.4g} {s.delta_bic:>9.4g} {s.cv_rms / lu:>10.4g}")
+                     f"{s.fit.rms() / lu:>10.4g} {s.delta_bic:>9.4g} {_cv_cell(s.cv_rms, lu)}")
+    if not math.isfinite(d.cv_baseline):
+        lines.append("CV RMS -: one configuration, none to hold out (effects named on BIC alone)")
     if any(s.forced for s in d.steps):
         lines.append("* forced (--families): added first, whatever its BIC and held-out error")
     if d.baseline_validation:  # diagnose --validate: each step's model on the other campaign
