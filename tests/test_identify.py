@@ -13,6 +13,7 @@ from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.identify import identify, stiffness_model
+from stiffness.cli.identify import format_table
 from stiffness.cli.main import main
 from stiffness.elastic.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file
 from stiffness.errors import FileFormatError, MissingFileError, StiffnessError
@@ -244,6 +245,11 @@ def test_a_stiffness_the_loads_never_excite_is_flagged(ur5_unexcited):
     joints = json.loads(result.to_json())["joints"]
     assert joints[5]["determined"] is False and joints[5]["ci95"][1] is None
     assert joints[0]["determined"] is True
+    # held at its start, not fitted: said so, and the table prints no number for it
+    assert joints[5]["held"] == "no effect on the data" and joints[0]["held"] is None
+    (row,) = [line for line in format_table(result).splitlines()
+              if line.startswith("wrist_3_joint")]
+    assert row.split()[1:5] == ["-"] * 4 and "not fitted (held at 1e+05 N.m/rad)" in row
 
 
 def test_one_configuration_one_direction_cannot_determine_six_stiffnesses(ur5_unexcited):

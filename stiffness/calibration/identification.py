@@ -139,6 +139,10 @@ class Identification:
         :data:`~stiffness.calibration.identify.REL_CI_WIDTH_LIMIT`.
     undetermined_directions
         Undetermined directions in ``ln k`` space.
+    held
+        Per joint, why the fit held its stiffness at the start instead of fitting it (the
+        identifiability's clause: ``no effect on the data``, ``merged: ...``), or ``None``:
+        fitted. Empty: every joint fitted.
     starts
         Every least-squares run.
     starts_agree
@@ -221,6 +225,12 @@ class Identification:
     outliers: list[Outlier] = field(default_factory=list)
     outlier_sigma_m: float | None = None
     stiffness_coordinates: str = "chain"
+    held: tuple[str | None, ...] = ()
+
+    @property
+    def held_joints(self) -> tuple[str | None, ...]:
+        """:attr:`held`, one entry per joint (``None`` for each when every joint was fitted)."""
+        return self.held or (None,) * len(self.joints)
 
     @property
     def ci95_method(self) -> str:
@@ -275,10 +285,11 @@ class Identification:
                 {"joint": j, "k": float(k), "unit": u, "k_paper_units": float(kp),
                  "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
                  "ci95": [float(lo), float(hi)], "relative_ci_width": float(w),
-                 "determined": j not in self.undetermined_joints}
-                for j, k, u, kp, se, lo, hi, w in zip(
+                 "determined": j not in self.undetermined_joints, "held": h}
+                for j, k, u, kp, se, lo, hi, w, h in zip(
                     self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
-                    self.ci95_low, self.ci95_high, self.relative_ci_width, strict=True)
+                    self.ci95_low, self.ci95_high, self.relative_ci_width, self.held_joints,
+                    strict=True)
             ],
             "ci95_method": self.ci95_method,
             "loss": self.loss,

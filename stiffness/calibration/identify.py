@@ -71,6 +71,7 @@ from stiffness.calibration.fitting import (
     fit_model,
     kind_noise,
     observations,
+    parameter_labels,
 )
 from stiffness.calibration.identification import (
     Identification,
@@ -384,7 +385,17 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         outliers=outliers,
         outlier_sigma_m=flag_sigma,
         stiffness_coordinates=rob.stiffness_coordinates,
+        held=_held(best_fit),
     )
+
+
+def _held(fit: Fit) -> tuple[str | None, ...]:
+    """Per parameter of ``fit``, why it was held at its start (the identifiability's clause),
+    or ``None``: fitted."""
+    labels = parameter_labels(fit.model)
+    ident = fit.identifiability
+    dropped = [None if ident is None else ident.dropped_at(i) for i in range(fit.x.size)]
+    return tuple(None if d is None else d.describe(labels) for d in dropped)
 
 
 def _check_pose_options(formulation: str | None, method: str, robot: Robot | None) -> None:

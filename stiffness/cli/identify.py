@@ -80,6 +80,11 @@ def format_table(result: Identification) -> str:
     for j, joint in enumerate(result.joints):
         unit = "" if revolute else result.units[j]
         flag = "undetermined" if joint in result.undetermined_joints else ""
+        held = result.held_joints[j]
+        if held is not None:  # not a value the data gave: say so, no number in its columns
+            rows.append((joint, "-", "-", "-", "-", f"not fitted (held at "
+                         f"{_g(result.k[j])} {result.units[j]}): {held}"))
+            continue
         rows.append((
             joint,
             f"{_g(result.k[j])} {unit}".rstrip(),
