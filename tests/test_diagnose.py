@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from browser import chromium
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.deflection_validation import validated
-from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.diagnose import _ambiguities, diagnose
 from stiffness.calibration.diagnosis import DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.diagnosis_report import format_report
@@ -145,6 +147,15 @@ def test_one_configuration_prints_no_nan():
     report = format_report(result)
     assert "nan" not in report.split()
     assert "CV RMS -: one configuration, none to hold out" in report
+    # a rival BIC prefers, neither cross-validated: not said to have failed cross-validation
+    fit = SimpleNamespace(predicted=np.zeros((4, 3)), penalty_params=3)
+    found = [SimpleNamespace(fit=fit, bic=b, cv_rms=math.nan, effect=SimpleNamespace(label=n))
+             for b, n in ((10.0, "deflection_offset"), (9.0, "frame_misalignment"))]
+    (rival,) = _ambiguities([(1, *found, 0.9)], NOISE, result.campaign, result.geometry, None)
+    assert "no cross-validation" in rival.reason and "does not predict" not in rival.reason
+    report = format_report(dataclasses.replace(result, ambiguities=[rival]))
+    assert "nan" not in report.replace(",", " ").split()
+    assert "CV RMS not cross-validated against not cross-validated" in report
 
 
 def test_config_folds():

@@ -689,7 +689,10 @@ def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,
     for step_no, w, c, similarity in raw:
         sep = float(np.sqrt(np.mean((w.fit.predicted - c.fit.predicted) ** 2))) / sigma
         d_bic = c.bic - w.bic
-        if d_bic < 0:
+        if d_bic < 0 and w.cv_rms is not None and math.isnan(w.cv_rms):
+            reason = ("BIC prefers the other, but it was not chosen; a single configuration "
+                      "leaves nothing to hold out to compare them by (no cross-validation)")
+        elif d_bic < 0:
             reason = ("BIC prefers the other, but it does not predict held-out configurations "
                       "better than the current model (cross-validation)")
         elif d_bic < AMBIGUITY_BIC:

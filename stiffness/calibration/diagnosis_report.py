@@ -130,8 +130,8 @@ def format_report(d: Diagnosis) -> str:
     if d.ambiguities:
         lines += ["", "cannot tell apart:"]
         for a in d.ambiguities:
-            cv = " against ".join("not cross-validated" if v is None else f"{v / lu:.4g} {unit}"
-                                  for v in a.cv_rms)
+            cv = " against ".join(f"{v / lu:.4g} {unit}" if v is not None and math.isfinite(v)
+                                  else "not cross-validated" for v in a.cv_rms)
             lines.append(f"  step {a.step}: {a.chosen} vs {a.other}: {a.reason}; dBIC "
                          f"{a.delta_bic:+.3g}, CV RMS {cv}, signature similarity "
                          f"{a.similarity:.3f}; their predictions differ by {a.separation:.3g} "
