@@ -500,3 +500,14 @@ def test_design_on_a_parallel_robot_that_does_not_close_at_zero(tmp_path):
     assert plan.q.shape[0] >= 4
     for q in plan.q:  # every planned pose assembles
         assert robot.assemble(q).residual < 1e-9
+
+
+def test_default_noise_is_echoed_once(tmp_path, capsys):
+    """With no --noise the report names the default once, in the plan's unit: it printed
+    'noise std 0.005 mm (default (5e-06 m))', the value twice and the brackets doubled."""
+    assert main(["design", "--robot", "ur5", "--compliant-joints", ",".join(UR5_ARM), "--kq",
+                 "3e4,2e4,1.5e4", "--configs", "1", "--loads-per-config", "1", "--candidates",
+                 "5", "--random-plans", "1", "--max-force", "50", "--seed", "1", "--out",
+                 str(tmp_path / "p.csv")]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if "noise std" in s)
+    assert line.endswith("noise std 0.005 mm (default)"), line

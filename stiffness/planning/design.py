@@ -587,7 +587,7 @@ def _noise_level(noise_std_m: float | None, existing: Campaign | None) -> tuple[
     elif existing is not None and existing.noise_std_m is not None:
         sigma, noise_source = existing.noise_std_m, "declared noise_std of the existing campaign"
     else:
-        sigma, noise_source = DEFAULT_NOISE_STD_M, f"default ({DEFAULT_NOISE_STD_M:g} m)"
+        sigma, noise_source = DEFAULT_NOISE_STD_M, "default"  # the value is printed beside it
     if not (math.isfinite(sigma) and sigma > 0):
         raise StiffnessError(f"the noise std must be a positive length, got {sigma}")
     return sigma, noise_source
