@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.linalg import cross
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import Loads, Marker, one_dof_joints
@@ -184,9 +185,9 @@ def bend_axes(p_a: np.ndarray, p_b: np.ndarray, mount_rotation: np.ndarray, colu
     both the link and the mounting body's ``column``-th axis ``r`` (``u x r / |u x r|``, ``u``
     the link's direction), ``e_1 = e_2 x u`` (``r`` with its part along the link removed)."""
     u = (p_b - p_a) / np.linalg.norm(p_b - p_a)
-    e2 = np.cross(u, mount_rotation[:, column])
+    e2 = cross(u, mount_rotation[:, column])
     e2 = e2 / np.linalg.norm(e2)
-    return np.cross(e2, u), e2
+    return cross(e2, u), e2
 
 
 def link_column(model: pin.Model, a: int, b: int, q: np.ndarray | None = None) -> int:
@@ -382,7 +383,7 @@ def _bend_rotations(model: pin.Model, data: pin.Data, q: np.ndarray, springs: Hi
         p_b = data.oMi[link.b].translation
         moment = -data.oMi[link.b].rotation @ data.f[link.b].angular
         if wrench is not None and link.b in set(model.supports[model.frames[fid].parentJoint]):
-            moment = moment + np.cross(data.oMf[fid].translation - p_b, wrench[:3]) + wrench[3:]
+            moment = moment + cross(data.oMf[fid].translation - p_b, wrench[:3]) + wrench[3:]
         if link.a == link.b:  # a joint tilting: the bearing's axes normal to the joint's
             mount = data.oMi[model.parents[link.b]].rotation @ model.jointPlacements[
                 link.b].rotation
