@@ -54,6 +54,22 @@ def _campaign(robot, n: int, seed: int, placement: float = 1e-4, poses: int | No
                                   payload=np.array([0.0, 0.0, -payload, 0.0, 0.0, 0.0]))
 
 
+@pytest.fixture(scope="module")
+def forced_compliance(ur10):
+    """A 15-pose campaign and its diagnosis with joint_compliance forced and geometry
+    forbidden, computed once for the two tests that read it (they only read it)."""
+    campaign = _campaign(ur10, 15, 4)
+    return campaign, diagnose_poses(campaign, families=["joint_compliance"],
+                                    not_families=["geometry"])
+
+
+@pytest.fixture(scope="module")
+def baseline_only(ur10):
+    """The diagnosis of an 8-pose campaign with every candidate family forbidden (the
+    baseline alone), computed once for the two tests that read it (they only read it)."""
+    return diagnose_poses(_campaign(ur10, 8, 4), not_families=CANDIDATES["known"])
+
+
 @pytest.mark.parametrize("families", [("frame", "markers", "joint_offsets"),
                                       ("frame", "markers", "joint_offsets", "joint_compliance")])
 def test_hat_matrix_matches_refitting_without_each_configuration(ur10, families):
@@ -81,12 +97,11 @@ def test_hat_matrix_matches_refitting_without_each_configuration(ur10, families)
     assert refit > 1.2 * full.rms()  # held out is worse than in-sample: the check can fail
 
 
-def test_forced_and_forbidden_families_are_recorded(ur10, tmp_path):
+def test_forced_and_forbidden_families_are_recorded(forced_compliance, tmp_path):
     """--families adds its families first whatever their BIC (a rigid arm's zero offsets are
     forced even where they explain nothing); --not keeps a family out; both in the model
     file's selection."""
-    campaign = _campaign(ur10, 15, 4)
-    d = diagnose_poses(campaign, families=["joint_compliance"], not_families=["geometry"])
+    campaign, d = forced_compliance
     assert [s.effect for s in d.steps[:2]] == ["baseline", "joint_compliance"]
     assert d.steps[1].forced and not any(s.forced for s in d.steps[2:])
     assert "geometry" not in d.families and "geometry" not in d.rejected
@@ -120,12 +135,12 @@ def test_joint_placement_accepted_on_a_small_one_marker_campaign(ur10):
     assert validation["rms"] < 1.3 * np.sqrt(3) * NOISE < 0.5 * d.steps[-2].validation["rms"]
 
 
-def test_the_step_table_aligns_long_family_names(ur10):
+def test_the_step_table_aligns_long_family_names(baseline_only):
     """A forced gravity_compensator ('gravity_compensator *', 21 characters) pushed its row's
     numbers past the header's columns (the family column was 18 wide): every row's parameter
     count now ends where the header's 'params' does (the baseline's step relabelled: the
     table's layout alone is under test)."""
-    d = diagnose_poses(_campaign(ur10, 8, 4), not_families=CANDIDATES["known"])
+    d = baseline_only
     long = dataclasses.replace(d.steps[0], effect="gravity_compensator", forced=True)
     lines = format_pose_report(dataclasses.replace(d, steps=[d.steps[0], long],
                                                    search=None)).splitlines()
@@ -136,12 +151,12 @@ def test_the_step_table_aligns_long_family_names(ur10):
     assert all(row[end - 1].isdigit() and row[end] == " " for row in rows), rows
 
 
-def test_an_infinite_interval_is_written_as_null_and_said(ur10, tmp_path):
+def test_an_infinite_interval_is_written_as_null_and_said(baseline_only, tmp_path):
     """A fitted parameter the data do not determine at the optimum has an infinite standard
     deviation: diagnose --out ended in a traceback ("Out of range float values are not JSON
     compliant: inf": a prism-jointed arm and a 12-pose Talos arm of the sweep of issue 47);
     the files write null, as the model file's undetermined bounds, and the text 'no bound'."""
-    d = diagnose_poses(_campaign(ur10, 8, 4), not_families=CANDIDATES["known"])
+    d = baseline_only
     fit = d.final
     cov = fit.covariance.copy()
     cov[0, :], cov[:, 0] = np.inf, np.inf
@@ -196,12 +211,11 @@ def test_a_parameter_the_data_leave_without_bound_is_held(tmp_path):
         "held at its nominal value") for row in table)
 
 
-def test_max_steps_limits_the_pose_search(ur10):
+def test_max_steps_limits_the_pose_search(forced_compliance):
     """``max_steps`` counts the families the search adds after the forced ones (it was
     ignored for pose campaigns): 0 keeps the baseline and the forced family, 1 adds the
     unlimited search's first family and stops there, naming the limit."""
-    campaign = _campaign(ur10, 15, 4)
-    free = diagnose_poses(campaign, families=["joint_compliance"], not_families=["geometry"])
+    campaign, free = forced_compliance
     forced = free.families.index("joint_compliance") + 1
     assert len(free.families) > forced  # the search adds something past the forced family
     for limit in (0, 1):
