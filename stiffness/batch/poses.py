@@ -173,14 +173,20 @@ def frame_placements(model: pin.Model, kin: JointPlacements, frame_ids: list[int
     return rot_p @ local_rot, np.einsum("mfab,fb->mfa", rot_p, local_t) + t_p
 
 
+def support_masks(model: pin.Model, frame_ids: list[int]) -> np.ndarray:
+    """(F, nv) 1 where a velocity coordinate moves frame ``frame_ids[f]``, else 0."""
+    return np.array([support_mask(model, int(model.frames[f].parentJoint)) for f in frame_ids],
+                    dtype=float).reshape(len(frame_ids), model.nv)
+
+
 def point_jacobians(model: pin.Model, kin: JointPlacements, frame_ids: list[int],
-                    points: np.ndarray) -> np.ndarray:
+                    points: np.ndarray, masks: np.ndarray | None = None) -> np.ndarray:
     """d point / d v (m, F, 3, nv), world axes, of points (m, F, 3) (world, m) fixed to
     frames ``frame_ids``: ``J_v - [p]x J_omega`` over the joints that move each frame (the
-    columns of ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` moved to the point)."""
+    columns of ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` moved to the point);
+    ``masks`` their :func:`support_masks` when known (a walk of each frame's chain)."""
     assert kin.jacobian is not None
-    masks = np.array([support_mask(model, int(model.frames[f].parentJoint)) for f in frame_ids],
-                     dtype=float).reshape(len(frame_ids), model.nv)
+    masks = support_masks(model, frame_ids) if masks is None else masks
     j_v, j_w = kin.jacobian[:, None, :3], kin.jacobian[:, None, 3:]
     lever = cross_matrices(points.reshape(-1, 3)).reshape(points.shape + (3,))
     # cross_matrices(p) is -[p]x: J_v + X J_omega = J_v - [p]x J_omega

@@ -61,6 +61,7 @@ from stiffness.batch.poses import (
     joint_kinds,
     joint_placements,
     point_jacobians,
+    support_masks,
 )
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base_tilt import declared_tilt, tilted_gravity
@@ -208,6 +209,7 @@ class PoseModel:
         self._elastic = any(f.family_kind == "elastic" for f in self.family_objects)
         # the perturbed copies of the model differ in placements and gravity only
         self._kinds = joint_kinds(model)
+        self._frame_masks = support_masks(model, self.frame_ids)  # the same in perturbed copies
         # the families that implement each per-row hook (the others would add nothing)
         self._hooked = {hook: [f for f in self.family_objects
                                if getattr(type(f), hook) is not getattr(PoseFamily, hook)]
@@ -401,8 +403,8 @@ class PoseModel:
         rotation, translation = frame_placements(model, kin, self.frame_ids)
         offsets = np.array([self.marker_offset(x, k) for k in range(len(self.markers))])
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
-        j_point = (point_jacobians(model, kin, self.frame_ids, point) if ev.jacobian
-                   else np.zeros(point.shape + (0,)))
+        j_point = (point_jacobians(model, kin, self.frame_ids, point, self._frame_masks)
+                   if ev.jacobian else np.zeros(point.shape + (0,)))
         caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows, ev.jacobian)
                   for f in self.family_objects}
         view = MarkerView(model, ev.data, point, np.zeros(3), ev.to_measuring,

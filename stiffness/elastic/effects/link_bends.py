@@ -115,23 +115,29 @@ def carried_moments(pm: PoseLayout, model: pin.Model, kin: JointPlacements,
     masses = np.array([model.inertias[k].mass for k in range(model.njoints)])
     levers = np.array([model.inertias[k].lever for k in range(model.njoints)])
     centres = np.einsum("nkab,kb->nka", kin.rotation, levers) + kin.translation
-    subtree = np.zeros((len(joints), model.njoints))
-    for n, b in enumerate(joints):
-        subtree[n, list(model.subtrees[b])] = 1.0
-    weights = subtree * masses
+    weights = layout_cached(pm, f"subtrees {joints}", lambda: _subtrees(model, joints)) * masses
     arms = (np.einsum("lk,nka->nla", weights, centres)
             - weights.sum(axis=1)[None, :, None] * origins)
     moments = cross(arms, np.asarray(model.gravity.linear, dtype=float))
     loaded = [i for i, row in enumerate(rows) if row.wrench is not None]
     if loaded and pm.loads is not None:
         fid = pm.frame_id(pm.loads.frame)
-        carried = set(model.supports[model.frames[fid].parentJoint])
-        beyond = np.array([b in carried for b in joints], dtype=float).reshape(-1, 1)
+        beyond = layout_cached(pm, f"loaded beyond {joints}", lambda: np.array(
+            [b in set(model.supports[model.frames[fid].parentJoint]) for b in joints],
+            dtype=float).reshape(-1, 1))
         wrench = np.array([rows[i].wrench for i in loaded]).reshape(-1, 6)
         x_w = frame_placements(model, kin, [fid])[1][loaded]  # (n_loaded, 1, 3)
         moments[loaded] += beyond * (cross(x_w - origins[loaded], wrench[:, None, :3])
                                      + wrench[:, None, 3:])
     return origins, moments, arms
+
+
+def _subtrees(model: pin.Model, joints: list[int]) -> np.ndarray:
+    """(L, njoints) 1 where a body is in the subtree of ``joints[l]`` (of its weight)."""
+    subtree = np.zeros((len(joints), model.njoints))
+    for n, b in enumerate(joints):
+        subtree[n, list(model.subtrees[b])] = 1.0
+    return subtree
 
 
 @dataclass
