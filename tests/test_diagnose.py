@@ -19,7 +19,7 @@ from stiffness.calibration.diagnose import _ambiguities, diagnose
 from stiffness.calibration.diagnosis import DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.diagnosis_report import format_report
-from stiffness.calibration.selection import config_folds
+from stiffness.calibration.selection import config_folds, replicate_noise
 from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
 from stiffness.errors import StiffnessError
@@ -156,6 +156,23 @@ def test_one_configuration_prints_no_nan():
     report = format_report(dataclasses.replace(result, ambiguities=[rival]))
     assert "nan" not in report.replace(",", " ").split()
     assert "CV RMS not cross-validated against not cross-validated" in report
+
+
+def test_rows_written_twice_are_no_replicates():
+    """A campaign whose rows are each written twice (a logger's mistake): the copies' scatter
+    is zero, and they counted as replicates (noise 0: diagnose died dividing by it); only
+    distinct measurements count (SK120, 6 configurations x 4 loads, 3 repeats)."""
+    def doubled(c):
+        twice = np.repeat(np.arange(c.n_rows), 2)
+        return dataclasses.replace(c, q=c.q[twice], force=c.force[twice],
+                                   deflection=c.deflection[twice],
+                                   config=tuple(c.config[i] for i in twice), lines=None)
+    repeated = _simulate(SK120, [], configs=6, declare_noise=False, repeats=3).campaign
+    sigma, dof = replicate_noise(repeated)
+    assert replicate_noise(doubled(repeated)) == (sigma, dof)
+    single = _simulate(SK120, [], configs=6, declare_noise=False).campaign
+    assert replicate_noise(single) is None and replicate_noise(doubled(single)) is None
+    assert replicate_noise(doubled(single), robust=True) is None
 
 
 def test_config_folds():

@@ -249,11 +249,25 @@ def interval_quantile(sigma: float | None, n: int, p: int, level: float = 0.975)
     return float(stdtrit(max(n - p, 1), level))
 
 
+def _distinct(values: np.ndarray, rows: list[int]) -> list[int]:
+    """Of ``rows``, those whose measured ``values`` are not an exact copy of an earlier one's."""
+    seen: set[bytes] = set()
+    out = []
+    for i in rows:
+        key = values[i].tobytes()
+        if key not in seen:
+            seen.add(key)
+            out.append(i)
+    return out
+
+
 def replicate_noise(campaign: Campaign, kind: str = "translation", robust: bool = False
                     ) -> tuple[float, int] | None:
     """Std (m; rad for ``kind="rotation"``) of replicate rows (same coordinates and force)
     and its degrees of freedom, or ``None`` when the replicates give fewer than 9 degrees of
-    freedom (or the campaign measures no rotations).
+    freedom (or the campaign measures no rotations). A row whose measured values copy an
+    earlier replicate's to the last bit is the same row written twice, not a repeated
+    measurement, and does not count (copies would give a noise of zero).
 
     The pooled scatter, ``sqrt(sum (d - mean)^2 / dof)``; with ``robust`` (for a robust
     loss), :func:`stiffness.calibration.outliers.robust_noise` of the deviations from their
@@ -269,7 +283,8 @@ def replicate_noise(campaign: Campaign, kind: str = "translation", robust: bool 
         key = tuple(np.round(campaign.q[i], 9)) + tuple(np.round(campaign.wrench[i], 6))
         groups.setdefault(key, []).append(i)
     ss, dof, scaled = 0.0, 0, []
-    for idx in groups.values():
+    for group in groups.values():
+        idx = _distinct(values, group)
         if len(idx) > 1:
             d = values[idx] - values[idx].mean(axis=0)
             ss += float(np.sum(d ** 2))
