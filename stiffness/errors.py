@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import copy
 import os
+import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -251,3 +253,15 @@ class DataFileNote(DataFileWarning):
 class UnknownColumnWarning(DataFileWarning):
     """Campaign CSV columns no reader knows (a rig's bookkeeping), ignored; the command line's
     ``--strict`` refuses them."""
+
+
+def warn_user(message: str, category: type[Warning]) -> None:
+    """:func:`warnings.warn` pointed at the first caller outside this package (the user's
+    line, whatever the depth of the calls inside the package; the outermost frame when there
+    is none, as on the command line)."""
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame, level = sys._getframe(1), 2  # the function that warns: stacklevel 2 from here
+    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(
+            package):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -483,6 +484,10 @@ def test_an_undetermined_stiffness_is_used_with_a_warning(tmp_path):
                       "undetermined"):
         compliant = elastic_model_of(read_model_file(path))
     np.testing.assert_array_equal(compliant.k_theta, K_ARM)
+    with warnings.catch_warnings(record=True) as caught:  # at the user's line, not inside
+        warnings.simplefilter("always")
+        load_model(path)
+    assert [(w.category, w.filename) for w in caught] == [(DataFileWarning, __file__)]
 
 
 def test_the_old_names_still_work_with_a_deprecation_warning():

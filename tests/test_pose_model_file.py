@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import warnings
 
 import numpy as np
 import pinocchio as pin
@@ -279,8 +280,14 @@ def test_families_without_a_deflection_effect_are_announced(calibration, tmp_pat
     tilted = tmp_path / "diagnosis" / "final-model.json"
     tilted.parent.mkdir()
     tilted.write_text(json.dumps(doc))
-    with pytest.warns(DataFileWarning, match="base_tilt of the calibration are not carried"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         load_model(tilted)
+    said = [w for w in caught if issubclass(w.category, DataFileWarning)]
+    assert any("base_tilt of the calibration are not carried" in str(w.message) for w in said)
+    assert any("held rigid" in str(w.message) for w in said)
+    # each points at this line, the user's call, not inside the library (it named model_file.py)
+    assert {w.filename for w in said} == {__file__}
 
 
 def test_a_calibrated_bearing_tilt_enters_the_compliance(calibration, tmp_path):

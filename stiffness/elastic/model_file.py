@@ -66,6 +66,7 @@ from stiffness.errors import (
     FileFormatError,
     StiffnessError,
     did_you_mean,
+    warn_user,
     with_context,
 )
 from stiffness.files import (
@@ -406,11 +407,11 @@ def _read_calibration(path: Path) -> ModelFile:
     cal = read_pose_calibration(path)
     parts = calibrated_elastics(cal)
     if parts.undetermined:
-        warnings.warn(f"{path}: {parts.rigid_note()}", DataFileWarning, stacklevel=3)
+        warn_user(f"{path}: {parts.rigid_note()}", DataFileWarning)
     if parts.left_out:
-        warnings.warn(f"{path}: {', '.join(parts.left_out)} of the calibration are not carried "
-                      "into the elastic model (no deflection effect): its predictions leave "
-                      "them out", DataFileWarning, stacklevel=3)
+        warn_user(f"{path}: {', '.join(parts.left_out)} of the calibration are not carried into "
+                  "the elastic model (no deflection effect): its predictions leave them out",
+                  DataFileWarning)
     k = parts.stiffness
     value, se, low, high = np.array([[p.value, p.standard_error, *p.ci95] for p in k],
                                     dtype=float).reshape(-1, 4).T
@@ -652,9 +653,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
             not_applied.append((e, reason))
     parts.check_joints()
     if model.undetermined_joints:
-        warnings.warn(f"{where}the stiffness of {', '.join(model.undetermined_joints)} is marked "
-                      "undetermined (its campaign did not load it): K_X in the directions it "
-                      "governs rests on an unidentified value", DataFileWarning, stacklevel=3)
+        warn_user(f"{where}the stiffness of {', '.join(model.undetermined_joints)} is marked "
+                  "undetermined (its campaign did not load it): K_X in the directions it "
+                  "governs rests on an unidentified value", DataFileWarning)
     offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
         target_offset, dtype=float).reshape(3)
     try:
