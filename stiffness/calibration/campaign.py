@@ -88,7 +88,7 @@ from stiffness.calibration.campaign_toml import (
     typed_value,
 )
 from stiffness.calibration.coordinate_columns import fixed_values
-from stiffness.calibration.measurements import coordinates_in_si, read_rows
+from stiffness.calibration.measurements import coordinates_in_si, read_rows, warn_copied_rows
 from stiffness.calibration.unit_checks import check_deflection_size, check_force_unit
 from stiffness.errors import (
     StiffnessError,
@@ -351,6 +351,9 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     moment = None if rows.moment is None else rows.moment * units.moment_to_si
     rotation = None if rows.rotation is None else rows.rotation * units.rotation_to_si
     has_moment, has_rotation = moment is not None, rotation is not None
+    warn_copied_rows(np.column_stack([a for a in (rows.q, rows.force, rows.deflection,
+                                                  rows.moment, rows.rotation) if a is not None]),
+                     lines, data_path)
     if check_deflection_size(robot, deflection, force, units, data_path):
         check_force_unit(robot, q, force, moment, deflection, units, data_path)
     if not has_rotation and rot_noise is not None:

@@ -424,3 +424,32 @@ def _warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
         f"{lines[j]} and {lines[i]}, q{k + 1} {q[j, k] / scale:.6g} vs {q[i, k] / scale:.6g} "
         f"{unit}); rows of one label are one configuration, so give each pose its own label",
         DataFileWarning, stacklevel=4)
+
+
+def warn_copied_rows(cells: np.ndarray, lines: list[int] | tuple[int, ...], data: Path) -> None:
+    """Warn once when rows repeat an earlier row in every cell.
+
+    A repeated measurement differs from the first by its noise; a row identical to the last
+    bit is the same row written twice (a logger or a copy and paste), which the fits would
+    count twice: its weight doubled and the intervals too narrow. It is still read.
+
+    Parameters
+    ----------
+    cells
+        (n_rows, n_cells) every number a row holds, as read (NaN for an empty cell).
+    lines
+        The file line of each row.
+    """
+    first: dict[bytes, int] = {}
+    copies = []
+    for i, row in enumerate(np.asarray(cells, dtype=float)):
+        j = first.setdefault(row.tobytes(), i)
+        if j != i:
+            copies.append((j, i))
+    if copies:
+        j, i = copies[0]
+        warnings.warn(
+            f"{data}: {len(copies)} row(s) repeat an earlier row in every cell (first: line "
+            f"{lines[i]} copies line {lines[j]}): a row written twice counts twice (its weight "
+            "doubled, the intervals too narrow); remove the copies (a repeated measurement "
+            "differs by its noise)", DataFileWarning, stacklevel=4)

@@ -41,7 +41,11 @@ from stiffness.calibration.coordinate_columns import (
     locate_coordinates,
     warn_unknown,
 )
-from stiffness.calibration.measurements import coordinates_in_si, parse_number
+from stiffness.calibration.measurements import (
+    coordinates_in_si,
+    parse_number,
+    warn_copied_rows,
+)
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.unit_checks import check_marker_spread
 from stiffness.errors import FileFormatError
@@ -309,6 +313,9 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
                              f"{robot.title}", "markers", m.name)
     data = toml_path.parent / data_name
     labels, coordinates, q_read, pos, wrench, numbers, rot = _rows(data, robot, markers)
+    warn_copied_rows(np.column_stack([a.reshape(len(labels), -1) for a in (q_read, pos, wrench,
+                                                                           rot) if a is not None]),
+                     numbers, data)
     fixed = fixed_values(settings.fixed, robot, units,
                          lambda problem: toml.error(problem, "robot", "fixed"))
     held = held_coordinates(robot, coordinates, fixed, units, data,
