@@ -50,16 +50,33 @@ def test_a_label_forces_its_place(tilted):
                                                  "transversal_compliance(elbow_joint)"]
 
 
+def test_a_place_in_simulates_spelling_is_forced_or_forbidden(tilted):
+    """``NAME:WHERE`` (simulate's spelling) names the place as ``NAME(WHERE)`` does, in
+    ``--families`` and ``--not`` (it was refused: 'a place is written NAME(WHERE)'): the
+    shoulder's tilt forced, the elbow's forbidden, the search names another effect there."""
+    d = diagnose(tilted.campaign, propose=False, workers=1, max_steps=1,
+                 families=["transversal_compliance:shoulder_lift_joint"],
+                 not_families=["transversal_compliance:elbow_joint"])
+    labels = [s.effect.label for s in d.steps]
+    assert labels[0] == "transversal_compliance(shoulder_lift_joint)" and d.steps[0].forced
+    assert "transversal_compliance(elbow_joint)" not in labels
+    assert d.to_dict()["selection"] == {
+        "forced": ["transversal_compliance(shoulder_lift_joint)"],
+        "forbidden": ["transversal_compliance(elbow_joint)"]}
+
+
 def test_forced_names_are_checked(tilted, tmp_path, capsys):
-    """A name outside the library, one also forbidden, a place with no candidate, a place in
-    simulate's spelling (it said 'not an effect of the library ... Did you mean backlash?',
-    which forces backlash anywhere): one line each; the command line records --families in the
-    model file."""
+    """A name outside the library, one also forbidden (everywhere or at its place, in either
+    spelling), a place with no candidate (in either spelling), a place not closed: one line
+    each; the command line records --families in the model file."""
     for families, forbid, words in ((["target_ofset"], [], "not an effect of the library"),
                                     (["backlash"], ["backlash"], "both forced"),
+                                    (["backlash:elbow_joint"], ["backlash(elbow_joint)"],
+                                     "both forced"),
                                     (["backlash(wrist_3_joint)"], [], "no candidate"),
-                                    (["backlash:elbow_joint"], [], r"a place is written "
-                                     r"backlash\(elbow_joint\), not with a colon")):
+                                    (["backlash:wrist_3_joint"], [],
+                                     r"backlash\(wrist_3_joint\): no candidate"),
+                                    (["backlash(elbow_joint"], [], "closing bracket")):
         with pytest.raises(StiffnessError, match=words):
             diagnose(tilted.campaign, propose=False, workers=1, families=families,
                      not_families=forbid)

@@ -96,7 +96,7 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses
-from stiffness.elastic.effects.base import Parameter, effect_report
+from stiffness.elastic.effects.base import Parameter, effect_place, effect_report, place_label
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -242,36 +242,33 @@ def diagnose(
 
 
 def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:
-    """The deflection effects never tried (``--not``), checked against the library (one
+    """The deflection effects never tried (``--not``: names of the library, everywhere, or
+    places ``name(where)`` or ``name:where``, as labels), checked against the library (one
     line naming the valid ones)."""
-    for name in not_families:
-        _library_name("--not", name, name)
-    return tuple(sorted(set(not_families)))
+    return tuple(sorted({_library_label("--not", text)[1] for text in not_families}))
 
 
 def _forced(families: Sequence[str], forbidden: tuple[str, ...]) -> tuple[str, ...]:
-    """The deflection effects forced in (``--families``: names of the library, or labels
-    ``name(where)`` naming the place), in order, each once, checked (one line): a name of the
-    library, not forbidden too."""
-    for label in families:
-        name = label.partition("(")[0]
-        effect, colon, where = name.partition(":")  # simulate's NAME:WHERE=VALUE spelling
-        if colon and effect in LIBRARY:
-            raise StiffnessError(f"--families {label!r}: a place is written "
-                                 f"{effect}({where.partition('=')[0]}), not with a colon")
-        _library_name("--families", label, name)
-        if name in forbidden:
-            raise StiffnessError(f"{name} is both forced (--families) and forbidden (--not); "
+    """The deflection effects forced in (``--families``: names of the library, or places
+    ``name(where)`` or ``name:where``, as labels), in order, each once, checked (one line): a
+    name of the library, not forbidden too."""
+    named = [_library_label("--families", text) for text in families]
+    for name, label in named:
+        if {name, label} & set(forbidden):
+            raise StiffnessError(f"{label} is both forced (--families) and forbidden (--not); "
                                  "name it in one of them")
-    return tuple(dict.fromkeys(families))
+    return tuple(dict.fromkeys(label for _, label in named))
 
 
-def _library_name(flag: str, label: str, name: str) -> None:
-    """Refuse ``label``, given to ``flag``, unless ``name`` (its effect's) is of the library
+def _library_label(flag: str, text: str) -> tuple[str, str]:
+    """The name and label of the effect ``text`` names to ``flag`` (:func:`effect_place`:
+    ``name``, ``name(where)`` or ``name:where``), refused unless the name is of the library
     (one line naming the valid ones)."""
+    name, where = effect_place(text, flag)
     if name not in LIBRARY:
-        raise StiffnessError(f"{flag} {label!r} is not an effect of the library; "
+        raise StiffnessError(f"{flag} {text!r} is not an effect of the library; "
                              f"{did_you_mean(name, list(LIBRARY))}")
+    return name, place_label(name, where)
 
 
 def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose: bool,
@@ -365,16 +362,19 @@ def _check_options(max_steps: int, loss: str, masses: str) -> None:
 
 
 def _declared_settings(base: Fit, settings: dict[str, dict]) -> dict[str, dict]:
-    """``settings`` by effect label, checked: each label a candidate of the campaign's model
-    and its settings ones the effect takes (:meth:`DeflectionEffect.declare`; a typed error)."""
+    """``settings`` by effect label (keys ``name(where)`` or ``name:where``,
+    :func:`effect_place`), checked: each label a candidate of the campaign's model and its
+    settings ones the effect takes (:meth:`DeflectionEffect.declare`; a typed error)."""
+    places = [effect_place(key, "effect settings for") for key in settings]
+    settings = {place_label(*p): v for p, v in zip(places, settings.values(), strict=True)}
     made = candidates(base.model, settings)
     labels = [e.label for e in made]
-    for label in settings:
-        if label not in labels:
-            same = [e.label for e in made if e.name == label.partition("(")[0]] or labels
+    for name, where in places:
+        if (label := place_label(name, where)) not in labels:
+            same = [e.label for e in made if e.name == name] or labels
             raise StiffnessError(f"effect settings for {label}, which is not a candidate of "
                                  f"this campaign's model; {did_you_mean(label, same)}")
-    return dict(settings)
+    return settings
 
 
 #: A declared setting an effect can fit is fitted when the half-width of its 95 % interval is
@@ -535,7 +535,8 @@ class DeflectionSearch:
         by BIC (the step's overdispersion kept), or ``None`` when there is none; with
         ``only``, those of that effect name or label."""
         effects = [e for e in candidates(current.model, self.declared, self.masses)
-                   if e.name not in self.forbidden and only in (None, e.name, e.label)]
+                   if not {e.name, e.label} & set(self.forbidden)
+                   and only in (None, e.name, e.label)]
         fits = list(zip(effects, fitting.fit_models(
             [fit_job(current.model.extended(e), self.measured, self.scale,
                      current.model.extend_x(current.x, e), tolerance=SCREEN_TOLERANCE,

@@ -70,7 +70,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--separate", metavar="EFFECT[:WHERE],EFFECT[:WHERE]",
                         help="choose the rows that tell these two alternatives, fitted to "
                              "--existing, apart (e.g. backlash:joint2,nonlinear_joint_stiffness:"
-                             "joint2)")
+                             "joint2; a place NAME:WHERE or NAME(WHERE))")
     parser.add_argument("--existing", metavar="CAMPAIGN",
                         help="measured campaign whose rows count as already chosen")
     flags.add_strict_flag(parser)  # of --existing's CSV

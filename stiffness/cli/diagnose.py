@@ -85,12 +85,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="families forced into the model, added first in this order "
                              "whatever their BIC and held-out error, never removed again "
                              "(e.g. joint_offsets,geometry; a deflection campaign's are "
-                             "effect names, each at its best place, or labels such as "
-                             "'transversal_compliance(joint3)'); recorded in final-model.json")
+                             "effect names, each at its best place, or places such as "
+                             "'transversal_compliance(joint3)' or "
+                             "transversal_compliance:joint3); recorded in final-model.json")
     parser.add_argument("--not", dest="not_families", metavar="A,B",
                         help="families never tried (e.g. backlash; a deflection campaign's "
-                             "are the library's effect names, e.g. transversal_compliance); "
-                             "recorded in final-model.json")
+                             "are the library's effect names, e.g. transversal_compliance, "
+                             "or places, never tried there: 'backlash(joint2)' or "
+                             "backlash:joint2); recorded in final-model.json")
     parser.add_argument("--base-tilt", metavar="RX,RY",
                         help="pose campaigns: a measured tilt of the robot's base against "
                              "gravity, two angles in deg (rotation exp([rx, ry, 0]) of the "

@@ -41,7 +41,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     flags.add_stiffness_flag(parser, help="true stiffness per declared compliant joint, "
                                           "N.m/rad (N/m prismatic); default the shipped robot's")
     parser.add_argument("--effect", action="append", default=[], metavar="NAME[:WHERE]=VALUE",
-                        help="hidden effect, repeatable: " + ", ".join(LIBRARY) + "; e.g. "
+                        help="hidden effect, repeatable: " + ", ".join(LIBRARY) + "; a "
+                             "place NAME:WHERE or NAME(WHERE), e.g. "
                              "backlash:joint2=0.003 (deg), joint_compliance:joint5=3e5 "
                              "(N.m/rad), 'link_compliance:joint2->elbow=2e6' (N.m/rad), "
                              "nonlinear_joint_stiffness:joint3=0.001 (1/(N.m)), "

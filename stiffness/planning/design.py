@@ -43,6 +43,7 @@ from stiffness.calibration.experiment import (
 )
 from stiffness.calibration.selection import fit_baseline, fit_model, replicate_noise
 from stiffness.elastic.effects import LIBRARY, make_effect
+from stiffness.elastic.effects.base import effect_place
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
 from stiffness.elastic.model_file import ModelFile, read_model_file
@@ -63,7 +64,9 @@ DEFAULT_NOISE_STD_M = 5e-6
 
 
 def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | None]]:
-    """``EFFECT[:WHERE],EFFECT[:WHERE]`` as two ``(name, where)`` pairs, names checked.
+    """``EFFECT[:WHERE],EFFECT[:WHERE]`` as two ``(name, where)`` pairs, names checked; a
+    place may also be written ``EFFECT(WHERE)``
+    (:func:`~stiffness.elastic.effects.base.effect_place`).
 
     A link segment may be written ``A->B`` or ``A/B`` (a comma inside a where is not allowed).
 
@@ -78,13 +81,12 @@ def parse_separate(text: str) -> tuple[tuple[str, str | None], tuple[str, str | 
                              f"{text!r}")
     out = []
     for part in parts:
-        name, _, where = part.partition(":")
-        name = name.strip()
+        name, where = effect_place(part, "--separate")
         if name not in LIBRARY:
             raise UnknownEffectError(f"unknown effect {name!r} in --separate {text!r}; "
                                      f"{did_you_mean(name, list(LIBRARY))}", name=name,
                                      choices=list(LIBRARY))
-        out.append((name, where.strip() or None))
+        out.append((name, where))
     return out[0], out[1]
 
 

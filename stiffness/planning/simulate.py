@@ -67,6 +67,7 @@ from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects import LIBRARY, make_effect
+from stiffness.elastic.effects.base import effect_place, place_label
 from stiffness.elastic.effects.geometry import (
     Geometry,
     cached_robot,
@@ -132,7 +133,7 @@ class HiddenEffect:
     @property
     def label(self) -> str:
         """``name`` or ``name(where)``."""
-        return self.name if self.where is None else f"{self.name}({self.where})"
+        return place_label(self.name, self.where)
 
     def to_dict(self) -> dict:
         """JSON-ready."""
@@ -140,7 +141,9 @@ class HiddenEffect:
 
 
 def parse_effect(text: str) -> HiddenEffect:
-    """Parse ``NAME[:where]=value[,value...]`` (``complementary_stiffness`` takes no value).
+    """Parse ``NAME[:WHERE]=value[,value...]`` or ``NAME(WHERE)=value[,value...]``
+    (:func:`~stiffness.elastic.effects.base.effect_place`; ``complementary_stiffness`` takes no
+    value).
 
     Raises
     ------
@@ -148,8 +151,7 @@ def parse_effect(text: str) -> HiddenEffect:
         Unknown name, a missing value, a wrong number of values, or a non-number.
     """
     head, _, rest = text.partition("=")
-    name, _, where_text = head.strip().partition(":")
-    name, where = name.strip(), where_text.strip() or None
+    name, where = effect_place(head, "--effect")
     if name not in LIBRARY:
         raise UnknownEffectError(f"unknown effect {name!r} in --effect {text!r}; "
                                  f"{did_you_mean(name, list(LIBRARY))}", name=name,

@@ -39,6 +39,40 @@ E = TypeVar("E", bound="Effect")
 EFFECT_KINDS = ("stiffness", "measurement", "lost_motion", "preload")
 
 
+def place_label(name: str, where: str | None) -> str:
+    """An effect's label: ``name``, or ``name(where)`` at a place."""
+    return name if where is None else f"{name}({where})"
+
+
+def effect_place(text: str, flag: str) -> tuple[str, str | None]:
+    """The effect name and place (``None``: none) a user wrote, in either spelling:
+    ``NAME:WHERE`` (``simulate --effect``, ``design --separate``) or the label ``NAME(WHERE)``
+    (``diagnose --families``); ``NAME`` alone has no place.
+
+    The name ends at the first ``:`` or ``(`` (no effect's name holds either), so a place may
+    hold both: ``NAME:WHERE`` is all after that colon (``link_compliance:a->b``, a URDF joint
+    ``j(1)``), ``NAME(WHERE)`` all between that bracket and the closing one at the end
+    (``backlash(a:b)``). The name is not checked (each caller names its flag's choices).
+
+    Raises
+    ------
+    StiffnessError
+        ``NAME(`` with no closing bracket at the end, ``NAME()``, or ``NAME:(WHERE)``, which
+        reads either way (one line naming the two spellings).
+    """
+    text = text.strip()
+    cut = min((i for i in (text.find(":"), text.find("(")) if i >= 0), default=len(text))
+    name, mark, rest = text[:cut].strip(), text[cut:cut + 1], text[cut + 1:]
+    where = (rest if mark == ":" else rest[:-1]).strip()
+    if mark == "(" and not (rest.endswith(")") and where):
+        raise StiffnessError(f"{flag} {text!r}: write a place {name}(WHERE) with the closing "
+                             f"bracket at the end, or {name}:WHERE")
+    if mark == ":" and where.startswith("(") and where.endswith(")"):
+        raise StiffnessError(f"{flag} {text!r} reads two ways: write {name}{where} for the "
+                             f"place {where[1:-1]}, or {name}({where}) for a place named {where}")
+    return name, where or None
+
+
 @dataclass
 class Parameter:
     """A reported parameter: value, standard error and 95 % interval in ``unit``.
@@ -213,7 +247,7 @@ class Effect:
     @property
     def label(self) -> str:
         """``name`` or ``name(where)``."""
-        return self.name if self.where is None else f"{self.name}({self.where})"
+        return place_label(self.name, self.where)
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

@@ -25,7 +25,7 @@ import pinocchio as pin
 
 from stiffness.batch.linalg import cross
 from stiffness.batch.poses import torque_regressors
-from stiffness.elastic.effects.base import PHYSICAL_FACTOR
+from stiffness.elastic.effects.base import PHYSICAL_FACTOR, effect_place
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import References, reach, skew
 from stiffness.elastic.effects.joint_laws import JointEffect
@@ -428,7 +428,8 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
 
 def declared_geometry(robot: Robot, settings: dict[str, dict]) -> dict[str, dict]:
     """Compensators' declared lever and base (m) by joint, from declared settings by effect
-    label (``gravity_compensator(JOINT)``: ``diagnose --compensator-geometry``), checked:
+    label (``gravity_compensator(JOINT)`` or ``gravity_compensator:JOINT``, :func:`effect_place`:
+    ``diagnose --compensator-geometry``), checked:
     each a revolute compliant joint of ``robot``, two positive lengths
     (:meth:`GravityCompensator.declare`); the pose model's setting
     :attr:`GravityCompensator.GEOMETRY_SETTING`.
@@ -442,13 +443,12 @@ def declared_geometry(robot: Robot, settings: dict[str, dict]) -> dict[str, dict
     valid = [j for j in robot.compliant_joints if not robot.is_prismatic(j)]
     out = {}
     for label, lengths in settings.items():
-        name, _, where = label.partition("(")
-        joint = where[:-1]
+        name, joint = effect_place(label, "declared settings")
         if name != "gravity_compensator" or joint not in valid:
             raise StiffnessError(f"declared settings {label}: a pose campaign takes those of "
                                  f"gravity_compensator(JOINT), JOINT a revolute compliant joint "
                                  f"of {robot.title}: {', '.join(valid) or 'none'}")
-        spring = GravityCompensator(joint_name=joint).declare(lengths)
+        spring = GravityCompensator(joint_name=str(joint)).declare(lengths)
         out[joint] = {"lever_m": spring.lever_m, "base_m": spring.base_m}
     return out
 
