@@ -559,12 +559,15 @@ class PoseSearch:
         columns explain of the residual, to first order); the best
         :data:`~stiffness.calibration.selection.CV_TOP` by that BIC that pass
         :data:`~stiffness.calibration.selection.BIC_MARGIN` fitted under ``current``'s loss
-        and :attr:`scale` (on Dask workers with their held-out RMS, :func:`candidate_fit`)."""
+        and :attr:`scale` (on Dask workers with their held-out RMS, :func:`candidate_fit`); one
+        with more identifiable parameters than measured components is not fitted and the next
+        in line takes its place."""
         ready = [f for f in self.remaining if set(FAMILIES[f].requires) <= set(self.chosen)]
         if not ready:
             return None
         self.say(f"step {len(self.steps)}: trying {', '.join(ready)}")
-        c, families, held_out = self.campaign, self.chosen, {}
+        c, families = self.campaign, self.chosen
+        held_out: dict[str, float] = {}
         screen = {}
         for f in ready:
             model = PoseModel(c.robot, c.markers, tuple(families + [f]), self.frame0, c.loads,
@@ -572,8 +575,29 @@ class PoseSearch:
             screen[f] = linearised_rss(model, c, rows_of(model, c), families + [f],
                                        warm_start(model, current), current.loss, current.sigma)
         self.delta = self.deltas(current, screen)
-        best = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN),
-                      key=lambda f: self.delta[f])[:CV_TOP]
+        order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN),
+                       key=lambda f: self.delta[f])
+        tried: list[tuple[str, PoseFit | None]] = []
+        while order and (need := CV_TOP - sum(fit is not None for _, fit in tried)) > 0:
+            best, order = order[:need], order[need:]  # the next in line replace those not fitted
+            more, held = self._fitted(best, current)
+            tried += more
+            held_out.update(held)
+        fits = [(f, fit) for f, fit in tried if fit is not None]
+        ranking, _ = ranked(self, current, fits)
+        for candidate in ranking:
+            candidate.cv_rms = held_out.get(candidate.effect)
+            self.delta[candidate.effect] = candidate.delta_bic
+        self.full = {f: self.terms(fit) for f, fit in fits}
+        return ranking
+
+    def _fitted(self, best: list[str], current: PoseFit
+                ) -> tuple[list[tuple[str, PoseFit | None]], dict[str, float]]:
+        """``best`` each added to :attr:`chosen` and fitted from ``current`` (``None``: more
+        identifiable parameters than measured components, rejected for good), with the held-out
+        RMS of those fitted on workers."""
+        c, families = self.campaign, self.chosen
+        held_out: dict[str, float] = {}
         tried: list[tuple[str, PoseFit | None]]
         if self.workers is None or self.workers <= 1 or len(best) < 2:
             tried = [(f, _candidate(c, families + [f], self.frame0, self.settings, current,
@@ -593,13 +617,7 @@ class PoseSearch:
             self.not_judged[f] = (f"not fitted: as many identifiable parameters as the {self.n} "
                                   "measured components, or more")
             self.remaining.remove(f)
-        fits = [(f, fit) for f, fit in tried if fit is not None]
-        ranking, _ = ranked(self, current, fits)
-        for candidate in ranking:
-            candidate.cv_rms = held_out.get(candidate.effect)
-            self.delta[candidate.effect] = candidate.delta_bic
-        self.full = {f: self.terms(fit) for f, fit in fits}
-        return ranking
+        return tried, held_out
 
     def parameters(self, c: Family) -> list[Parameter]:
         return self.judge.parameters(c.fit)[c.effect]
@@ -637,7 +655,14 @@ class PoseSearch:
         return fit
 
     def reject(self, ranking: list[Family]) -> None:
+        """The step's families rejected; one past the margin on its screen alone, not fitted
+        (others were), said so: its screened change is no verdict."""
         self.rejected.update(self.delta)
+        fitted = {c.effect for c in ranking}
+        for f, d in self.delta.items():
+            if d < -BIC_MARGIN and f not in fitted and f not in self.not_judged:
+                self.not_judged[f] = (f"screened {d:+.3g} by one Gauss-Newton step, not fitted: "
+                                      f"the {CV_TOP} best screened were, and none was added")
 
     def without(self, final: PoseFit) -> list[PoseFit]:
         """``final`` refitted without each family it added; without the last one added by
