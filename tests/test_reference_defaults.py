@@ -167,6 +167,31 @@ def test_view_path_cells_are_read_as_the_campaign_readers_read_them(tmp_path):
         read_path(robot, path, deg=True)
 
 
+def test_view_path_reads_compensates_path_file(tmp_path):
+    """``view --path`` reads ``compensate --path``'s file, its header naming the columns (it
+    said 'not a row of finite numbers' on the header line): the docs' UR5 path in degrees, and
+    a Panda path by arm joint names, a unit and per-row loads (the finger keeps its
+    reference)."""
+    from pathlib import Path
+
+    from stiffness.cli.view import read_path
+
+    ur5 = load_robot("ur5")
+    docs = Path(__file__).resolve().parents[1] / "docs" / "compensation" / "ur5-path.csv"
+    expected = np.deg2rad(np.loadtxt(docs, delimiter=",", skiprows=1))
+    np.testing.assert_allclose(read_path(ur5, docs, deg=True), expected, rtol=1e-15)
+    panda = load_robot("panda")
+    path = tmp_path / "path.csv"
+    header = [*ARMS["panda"][:1], f"{ARMS['panda'][1]} [rad]", *ARMS["panda"][2:]]
+    path.write_text(",".join(header) + ",fx,fy,fz\n0,-0.8,0,-2.4,0,1.6,0.8,0,0,-10\n")
+    rows = read_path(panda, path)
+    arm = [panda.coordinate_joints.index(j) for j in ARMS["panda"]]
+    np.testing.assert_allclose(rows[0, arm], [0, -0.8, 0, -2.4, 0, 1.6, 0.8])
+    finger = panda.coordinate_joints.index("panda_finger_joint1")
+    assert rows.shape == (1, 8)
+    assert rows[0, finger] == reference_configuration(panda).coords[finger]
+
+
 def test_a_reference_posture_outside_a_revolute_limit_is_moved_by_a_turn_into_it():
     """kinova's posture 'arm_up' has j2s6s200_joint_3 at -1.5707 rad, outside its URDF limits
     [0.3316, 5.9516]; the reference is the same pose with that joint at -1.5707 + 2 pi (the

@@ -30,6 +30,7 @@ from stiffness.cli import flags, kx
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.files import csv_float, read_text
+from stiffness.machining.compensation import read_joint_path
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
@@ -78,7 +79,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "--deg)")
     parser.add_argument("--path", metavar="FILE.csv",
                         help="animate a path: one row of coordinates per frame, comma-separated "
-                             "(rad, m prismatic; degrees with --deg)")
+                             "(rad, m prismatic; degrees with --deg), or compensate's path "
+                             "file (a header line naming the columns)")
     parser.add_argument("--fps", type=flags.number, default=10.0,
                         help="frames per second of the animation (default 10)")
     parser.add_argument("--field", type=flags.integer, metavar="N",
@@ -171,10 +173,31 @@ def _csv_rows(text: str, path: Path, n: int) -> np.ndarray:
     return np.atleast_2d(np.array(rows, dtype=float))
 
 
+def _named_columns(text: str) -> bool:
+    """Whether the first line of ``text`` that holds data (not blank, not a ``#`` comment) is
+    a header: no cell of it is a number."""
+    for line in text.splitlines():
+        cells = line.split("#", 1)[0].strip()
+        if cells:
+            return not any(_is_number(cell) for cell in cells.split(","))
+    return False
+
+
+def _is_number(cell: str) -> bool:
+    """Whether ``float`` reads ``cell`` (a mistyped number is a row's, not a column name)."""
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
 def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
     """Rows of coordinates from a CSV file (one configuration per line; ``#`` comments): one
     value per coordinate, or per joint outside the end effector's fingers (which keep their
-    reference value).
+    reference value); or ``stiffness compensate``'s path file, a header line naming the
+    columns (:func:`~stiffness.machining.compensation.read_joint_path`; its load columns are
+    not used).
 
     Raises
     ------
@@ -184,7 +207,10 @@ def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
         If a value is not a number or a row has the wrong number of values.
     """
     path = Path(path)
-    rows = _csv_rows(read_text(path, "--path file"), path, robot.n_coordinates)
+    text = read_text(path, "--path file")
+    if _named_columns(text):
+        return read_joint_path(path, robot, deg).coords
+    rows = _csv_rows(text, path, robot.n_coordinates)
     if rows.size == 0:
         raise FileFormatError(f"no rows; give one row of {robot.n_coordinates} coordinates per "
                               "line", path=path)
