@@ -19,6 +19,7 @@ from stiffness.calibration.diagnose import _ambiguities, diagnose
 from stiffness.calibration.diagnosis import DIAGNOSIS_FILE, FINAL_MODEL_FILE, RESIDUALS_PLOT
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.diagnosis_report import format_report
+from stiffness.calibration.identify import identify
 from stiffness.calibration.selection import config_folds, replicate_noise
 from stiffness.cli.main import main
 from stiffness.elastic.effects import REQUIRED_EFFECTS
@@ -173,6 +174,21 @@ def test_rows_written_twice_are_no_replicates():
     single = _simulate(SK120, [], configs=6, declare_noise=False).campaign
     assert replicate_noise(single) is None and replicate_noise(doubled(single)) is None
     assert replicate_noise(doubled(single), robust=True) is None
+
+
+def test_noise_declared_ten_times_too_large_is_said():
+    """The UR5 campaign's noise declared 10x too large (50 um for 5 um): the residual's
+    chi-square lower tail is far below 1e-3, and diagnose and identify say the noise is
+    overstated (the intervals too wide, an effect below it unseen); with the true noise they
+    do not."""
+    campaign = _simulate(UR5, [], configs=3).campaign
+    overstated = dataclasses.replace(campaign, noise_std_m=10 * NOISE)
+    for c, said in ((campaign, False), (overstated, True)):
+        d = diagnose(c, propose=False)
+        assert d.unexplained is False
+        assert ("overstated noise" in d.unexplained_note) is said
+        assert ("overstated noise" in format_report(d)) is said
+        assert any("overstated noise" in n for n in identify(c, starts=1).notes) is said
 
 
 def test_config_folds():

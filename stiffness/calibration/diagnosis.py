@@ -27,7 +27,7 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.search import Step, kept_steps, selection
-from stiffness.calibration.selection import GOF_LEVEL
+from stiffness.calibration.selection import GOF_LEVEL, OVERSTATED_P, noise_overstated
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
@@ -216,7 +216,11 @@ class Diagnosis:
             return ("not tested: the noise is estimated from the final model's residuals, so "
                     "whether something outside the library is left cannot be said")
         if not self.unexplained:
-            return "the final model explains the data to noise (chi-square test)"
+            return "the final model explains the data to noise (chi-square test)" + (
+                f"; its residual is far below the declared noise (chi-square lower tail p < "
+                f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the "
+                "intervals are too wide and an effect below the noise goes unseen"
+                if noise_overstated(self.gof_final) else "")
         return (f"the residual is still above the noise (chi-square p = {self.gof_final:.3g} "
                 f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
                 "cross-validation: the data contain something the library does not model; "

@@ -9,7 +9,7 @@ from stiffness.calibration.breakdown import strongest_correlations
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_report import stage_table
-from stiffness.calibration.selection import GOF_LEVEL
+from stiffness.calibration.selection import GOF_LEVEL, noise_overstated
 
 if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
@@ -112,6 +112,8 @@ def format_report(d: Diagnosis) -> str:
     ratio = d.final.rms() / d.noise_std_m
     lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
                  f"stopped: {d.stop_reason}")
+    if d.unexplained is False and noise_overstated(d.gof_final):
+        lines.append(f"note: {d.unexplained_note}")
     if d.loss != "linear":
         lines.append(f"loss {d.loss} (every fit; intervals from Huber's sandwich covariance)")
     lines += describe_outliers(d.outliers)

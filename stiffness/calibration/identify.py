@@ -86,7 +86,12 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
-from stiffness.calibration.selection import interval_quantile
+from stiffness.calibration.selection import (
+    OVERSTATED_P,
+    goodness_of_fit,
+    interval_quantile,
+    noise_overstated,
+)
 from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects.base import stiffness_interval
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -505,6 +510,13 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                 f"declared noise_std ({sigma * 1e3:.4g} mm): model error or underestimated noise; "
                 "the confidence intervals are too narrow"
             )
+        gof = goodness_of_fit(ss_m2, n, p, sigma)
+        if sigma_res is not None and noise_overstated(gof):
+            notes.append(
+                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much smaller than the "
+                f"declared noise_std ({sigma * 1e3:.4g} mm; chi-square lower tail p < "
+                f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the confidence "
+                "intervals are too wide and an effect below the noise goes unseen")
         return sigma, "declared noise_std", interval_quantile(sigma, n, p), sigma_res, notes
     # Student t, dof degrees of freedom (> 0 without a declared noise: _check_residual_count)
     assert sigma_res is not None

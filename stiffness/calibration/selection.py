@@ -220,12 +220,25 @@ def bounded_intervals(x: np.ndarray, lower: np.ndarray, covariance: np.ndarray,
     return low, high
 
 
+#: Chi-square lower-tail probability below which residuals are too small for the declared
+#: noise (:func:`noise_overstated`): a std under about half the noise over tens of components.
+OVERSTATED_P = 1e-3
+
+
 def goodness_of_fit(rss: float, n: int, p: int, sigma: float | None) -> float | None:
     """Chi-square p-value of ``rss / sigma^2`` with ``n - p`` degrees of freedom, or ``None``
     without a known noise std ``sigma`` (m) or degrees of freedom."""
     if sigma is None or n <= p:
         return None
     return float(chdtrc(n - p, rss / sigma ** 2))
+
+
+def noise_overstated(gof: float | None) -> bool:
+    """Whether residuals are too small for the declared noise: the chi-square lower tail
+    ``1 - gof`` (``gof`` from :func:`goodness_of_fit`) below :data:`OVERSTATED_P`. The noise
+    is then overstated (or the rows averaged): the intervals are too wide, and an effect
+    smaller than the noise goes unseen."""
+    return gof is not None and 1.0 - gof < OVERSTATED_P
 
 
 def fits_to_noise(rss: float, n: int, p: int, sigma: float | None) -> str | None:
