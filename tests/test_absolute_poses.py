@@ -25,7 +25,7 @@ from stats import Coverage
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_diagnose import _flagged, diagnose_poses
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import format_pose_report, stage_table
@@ -184,6 +184,10 @@ def test_drift_outside_the_library_is_unexplained(ur10):
     assert re.search(r"RMS \(m\) by marker tip [\d.e-]{3,9}, elbow [\d.e-]{3,9}, by axis x ",
                      verdict) and "{" not in verdict, verdict
     assert "too many for stray measurements, the model misses something" in verdict
+    # least squares: a few gross poses can pull the fit onto the rest, which a robust loss tells
+    assert "unless a few gross poses pull the least-squares fit onto the others: --loss " \
+        "soft_l1 flags those alone" in verdict
+    assert "--loss" not in _flagged(20, 50, "soft_l1")
 
 
 def test_masses_unknown_lumped_fit_predicts_held_out_poses(ur10):

@@ -178,7 +178,7 @@ class PoseDiagnosis:
                         for key in ("rms_by_marker", "rms_by_axis"))
         return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
                 f"({self.campaign.units.length}) by marker {marker}, by axis {axis}{where}"
-                + _flagged(len(self.outliers), self.campaign.n_rows))
+                + _flagged(len(self.outliers), self.campaign.n_rows, self.loss))
 
     def to_dict(self) -> dict:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
@@ -232,14 +232,17 @@ def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-def _flagged(n: int, rows: int) -> str:
+def _flagged(n: int, rows: int, loss: str) -> str:
     """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
-    test alone; more than a tenth of the poses are a pattern the model misses."""
+    test alone; more than a tenth of the poses are a pattern the model misses, unless (least
+    squares) a few gross poses pulled the fit onto the others, which a robust loss tells."""
     if not n:
         return ""
     if n > rows / 10:
         return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
-                "stray measurements, the model misses something")
+                "stray measurements, the model misses something"
+                + (", unless a few gross poses pull the least-squares fit onto the others: "
+                   "--loss soft_l1 flags those alone" if loss == "linear" else ""))
     return f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
 
 
