@@ -222,6 +222,9 @@ def test_diagnose_flags_outliers_and_takes_a_robust_loss(tmp_path):
     plain = diagnose(c, propose=False, workers=1, max_steps=0)
     # least squares, pulled by the outliers, may flag a neighbour as well
     assert set(expected) <= {(o.label, o.row) for o in plain.outliers}
+    # least squares says what a robust loss would do about them; the robust diagnosis does not
+    assert "--loss soft_l1 weighs them down" in plain.unexplained_note
+    assert "--loss" not in robust.unexplained_note
     text = format_report(plain)
     assert f"config {expected[0][0]} row {expected[0][1]}" in text
     paths = robust.write(tmp_path / "out", command="stiffness diagnose c --loss soft_l1")

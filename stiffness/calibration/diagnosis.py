@@ -226,7 +226,10 @@ class Diagnosis:
                 "cross-validation: the data contain something the library does not model; "
                 "the residual's structure (where_final_disagrees) says where to look"
                 + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
-                   "fail the test (see outliers)" if self.outliers else ""))
+                   "fail the test (see outliers)" if self.outliers else "")
+                + ("; a least-squares fit pulled by gross rows bends the stiffnesses and flags "
+                   "clean rows too: --loss soft_l1 weighs them down"
+                   if self.outliers and self.loss == "linear" else ""))
 
     @property
     def named_steps(self) -> list[Step[DeflectionEffect, Fit]]:
