@@ -1,7 +1,8 @@
 """One identifiability for both campaign kinds (:mod:`stiffness.calibration.identifiability`):
 the reduction against closed forms, and a deflection campaign whose link bend aliases a joint
-spring reporting the merge instead of a rigid joint with an interval [0, inf]; physical
-bounds: a rigid joint's compliance is never fitted negative."""
+spring reporting the merge instead of a rigid joint with an interval [0, inf], the merged
+parameter held at its nominal value whatever the fit starts from; physical bounds: a rigid
+joint's compliance is never fitted negative."""
 
 from __future__ import annotations
 
@@ -17,7 +18,10 @@ from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.identifiability import reduce_columns
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Marker, PoseModel
-from stiffness.calibration.selection import bounded_intervals
+from stiffness.calibration.selection import bounded_intervals, fit_model
+from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
@@ -79,6 +83,38 @@ def test_a_bend_aliasing_a_joint_spring_is_reported_merged(aliased):
     summary = json.loads(json.dumps(d.to_dict()))
     step = summary["steps"][0]["parameters"]["stiffness_1"]
     assert step["held"].startswith("merged") and step["determined"] is False
+
+
+def test_a_merged_parameter_is_held_at_its_nominal_value_whatever_the_start():
+    """The aliased campaign's bend fitted from its nominal start and from a warm one (its
+    variables at 3, as a refit from another fit's optimum): the merged variable is held at its
+    nominal value, the bend's start, in both, and the two fits agree. Held at the warm start
+    instead, the joint absorbed the bend minus its held share: the 3-unit bend (compliance
+    1.5e-4 rad/(N.m)) is beyond the pair in series (1 / 11400), so the wrist's compliance went
+    to its bound, wrist_1 rigid at 1e14 N.m/rad and the RSS 72 times larger (measured before
+    the rule; from 0.3 units the wrist printed 13751 N.m/rad instead of 11405)."""
+    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=UR5_PARALLEL,
+                   target_offset_m=[0.0, 0.0, 0.1], max_force=100.0,
+                   effects=[parse_effect("link_compliance:elbow_joint->wrist_1_joint=5e4")],
+                   configs=6, loads_per_config=4, noise_std_m=5e-6, seed=0)
+    c = sim.campaign
+    geo = Geometry.of(c.robot())
+    rows = geo.rows(c.q, c.force, c.moment)
+    base = Hypothesis(geo, rows, "enhanced", tuple(UR5_PARALLEL), (),
+                      References.of(geo, rows, 2e4, c.deflection))
+    bend = make_effect("link_compliance", "elbow_joint->wrist_1_joint", geo)
+    model = base.extended(bend)
+    cold = base.extend_x(np.log([3e4, 2e4, 1.5e4]), bend)
+    warm = np.concatenate([cold[:3], [3.0, 3.0]])
+    fits = [fit_model(model, c.deflection, 5e-6, x0) for x0 in (cold, warm)]
+    for fit in fits:
+        (merged,) = fit.identifiability.dropped
+        assert merged.reason == "merged" and merged.index == 3
+        assert fit.x[3] == bend.start()[0]
+    np.testing.assert_allclose(fits[1].x, fits[0].x, rtol=1e-6)
+    assert fits[1].rss == pytest.approx(fits[0].rss, rel=1e-9)
+    # the wrist's spring absorbs the bend: the two compliances in series
+    assert np.exp(fits[1].x[2]) == pytest.approx(1.0 / (1 / 1.5e4 + 1 / 5e4), rel=0.03)
 
 
 def _binomial_consistent(hits: int, n: int, level: float = 0.95, alpha: float = 1e-3) -> bool:

@@ -563,19 +563,17 @@ class DeflectionSearch:
         """Issue 36.4 inside a family (:func:`stiffness.calibration.naming.settle`): the
         parameters of ``c``'s effect that the data do not determine held at their nominal
         value (the effect's start, :meth:`Effect.start`: a compensator's stiffness or preload
-        0, its base the declared one), the least determined first, each time the fit
-        redone."""
+        0, its base the declared one; the fit puts them there,
+        :func:`~stiffness.calibration.fitting.nominal_parameters`), the least determined
+        first, each time the fit redone."""
         effect = c.fit.model.effects[-1]
         start = c.fit.model.offsets[-2]
 
         def hold(fit: Fit, ks: list[int], ps: list[Parameter], whys: list[str]) -> Fit:
-            x = fit.x.copy()
-            for k in ks:
-                x[start + k] = effect.start()[k]
             cov = self.covariance(fit)[0]
             held = {f"{effect.label}.{p.name}": why + share(fit, start + k, cov)
                     for k, p, why in zip(ks, ps, whys, strict=True)}
-            return fit_job(fit.model.holding(held), self.measured, self.scale, x,
+            return fit_job(fit.model.holding(held), self.measured, self.scale, fit.x,
                            loss=fit.loss, f_scale=fit.f_scale).run()
 
         return settle(c.fit, lambda fit: self.reported(fit, SI_UNITS)[effect.label],

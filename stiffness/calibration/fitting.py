@@ -19,7 +19,8 @@ variables in the order added, judged at the start's representative point, every 
 at its typical size; near aliases judged again at the optimum); the others (no effect on the
 data: the stiffness of a joint whose axis passes through every load's line; merged: a link bend
 about an axis parallel to a joint's, which that joint's compliance absorbs; or undetermined:
-held by the diagnosis, :attr:`Hypothesis.held`) are held at their start and reported as such
+held by the diagnosis, :attr:`Hypothesis.held`) are held at their nominal values, whatever the
+fit starts from (:func:`nominal_parameters`), and reported as such
 (:attr:`Fit.identifiability`). Optional pseudo-residuals ``PRIOR_WEIGHT (x - x_anchor)`` keep
 directions the data do not see at the start instead of letting them drift on round-off; they
 are left out of every reported quantity. Where the model cannot be evaluated (a buckling load,
@@ -110,8 +111,8 @@ class Fit:
     loss_value
         ``sum f^2 rho((r / f)^2)`` of the scaled residuals at the optimum (:func:`loss_sum`).
     identifiability
-        The parameters fitted and those held at their start (:func:`layout`; every one
-        fitted when ``None``).
+        The parameters fitted and those held at their nominal values (:func:`layout`,
+        :func:`nominal_parameters`; every one fitted when ``None``).
     at_bound
         Columns of ``x`` the bounded solver left at a bound (:meth:`Hypothesis.bounds`: a
         compliance at 0, a stiffness at the 1e14 rigid bound, a mass at 0).
@@ -226,6 +227,7 @@ class Objective:
         self.n_res, self.p = measured.size, model.n_params
         self.numeric = np.flatnonzero(~model.analytic_columns)
         self.layout = layout(model)
+        self.nominal = nominal_parameters(model)
         self._bounds = model.bounds() if bounded else None
         self._key: bytes | None = None
         self._pred: np.ndarray | None = None
@@ -326,13 +328,7 @@ class Objective:
         return a
 
     def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
-        """``x`` with a baseline joint whose compliance moves no measurement at its nominal
-        stiffness (:func:`nominal_log_stiffness`: the same for every fit, identify's and
-        diagnose's, not its start); the other parameters left out stay at ``x``."""
-        unseen = [d.index for d in ident.dropped
-                  if d.index < len(self.model.compliant) and d.reason == "no effect"]
-        x = np.array(x, dtype=float)
-        x[unseen] = nominal_log_stiffness(self.model)[unseen]
+        """``x`` itself (its parameters left out already at :attr:`nominal`)."""
         return x
 
 
@@ -375,8 +371,9 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
         (:func:`stiffness.calibration.identifiability.identifiable`; ``scale`` the noise std),
         0 for none.
 
-    The parameters of ``model.held`` (:attr:`Hypothesis.held`) stay at ``x0``, reported as
-    undetermined with why (:meth:`Identifiability.holding`).
+    The parameters of ``model.held`` (:attr:`Hypothesis.held`), as those the data do not
+    identify, are held at their nominal values (:func:`nominal_parameters`), the former
+    reported as undetermined with why (:meth:`Identifiability.holding`).
     """
     check_loss(loss, method)
     objective = Objective(model, measured, scale, anchor, bounded)
@@ -414,6 +411,15 @@ def _rigid(model: Hypothesis, x: np.ndarray, at_bound: list[int], kept: Sequence
     x = x.copy()
     x[rigid] = hi[rigid]
     return x, sorted(at_bound + rigid)
+
+
+def nominal_parameters(model: Hypothesis) -> np.ndarray:
+    """``model``'s nominal parameter vector, what a parameter left out of a fit is held at
+    (:func:`stiffness.calibration.solver.held_at_nominal`): each baseline joint's ``ln k`` at
+    its nominal stiffness (:func:`nominal_log_stiffness`: the same for every fit, identify's
+    and diagnose's), each effect's variables at its start (:meth:`Effect.start`: the effect
+    nearly absent, a compensator's base at the declared one)."""
+    return np.concatenate([nominal_log_stiffness(model)] + [e.start() for e in model.effects])
 
 
 def nominal_log_stiffness(model: Hypothesis) -> np.ndarray:

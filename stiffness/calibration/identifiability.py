@@ -12,8 +12,10 @@ of its own norm (the sine of its angle to their span; column-pivoted QR within t
 parameter left out either has no effect on the data ("no effect": its column is below
 :data:`IDENTIFIABILITY_TOL` of the largest column of its group) or is a combination of kept
 ones ("merged": the kept parameters absorb it with the least-squares coefficients reported,
-in the parameters' own units). A left-out parameter is held at its start and reported as
-such, never as a value the data gave.
+in the parameters' own units). A left-out parameter is held at its nominal value (the
+model's start for its joint or effect, whatever the fit starts from:
+:func:`stiffness.calibration.solver.held_at_nominal`) and reported as such, never as a value
+the data gave.
 
 Near aliases. A fit whose columns are whitened (residuals divided by the noise std) may also
 give a ``resolution`` per group: a column nearly in the span of the columns kept from the

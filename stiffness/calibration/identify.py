@@ -395,8 +395,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
 
 
 def _held(fit: Fit) -> tuple[str | None, ...]:
-    """Per parameter of ``fit``, why it was held at its start (the identifiability's clause),
-    or ``None``: fitted."""
+    """Per parameter of ``fit``, why it was held at its nominal value (the identifiability's
+    clause), or ``None``: fitted."""
     labels = parameter_labels(fit.model)
     ident = fit.identifiability
     dropped = [None if ident is None else ident.dropped_at(i) for i in range(fit.x.size)]

@@ -482,11 +482,15 @@ class PoseProblem:
     predicted minus measured components (m; orientations weighted) of ``obs`` and their
     Jacobian over the model's parameters, the families laid out in ``order``
     (:func:`layout`), the columns whitened by ``noise`` (m) when known; a parameter left out
-    is held at zero, and a start whose sag diverges so falls back to zero."""
+    is held at zero, its nominal value, and a start whose sag diverges so falls back to
+    zero."""
 
     def __init__(self, obs: PoseObservations, order: list[str], noise: float | None) -> None:
         self.obs, self.noise = obs, noise
         self.layout = layout(obs.model, order)
+        #: every parameter's nominal value: zero (the nominal robot, rigid, the measuring
+        #: frame at its start)
+        self.nominal = np.zeros(obs.model.size)
         self.lower = np.array([p.lower for p in obs.model.parameters])
         self._factor: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -577,8 +581,8 @@ class PoseProblem:
         return tri[:, 1:] * (self.layout.scales / (self.noise or 1.0))
 
     def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
-        """``x`` with the parameters left out at zero (all at zero where the sag diverges
-        so).
+        """``x`` (its parameters left out already at :attr:`nominal`, zero), or all at zero
+        where the sag diverges there.
 
         Raises
         ------
@@ -588,9 +592,7 @@ class PoseProblem:
         if len(ident.kept) >= self.obs.size:
             raise TooFewMeasurementsError(f"{len(ident.kept)} identifiable parameters but only "
                                  f"{self.obs.size} measured components; measure more poses")
-        x = np.array(x, dtype=float)
-        x[[d.index for d in ident.dropped]] = 0.0
-        return np.zeros(x.size) if self.failed(x) else x
+        return self.nominal.copy() if self.failed(x) else x
 
 
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],

@@ -2,8 +2,8 @@
 
 A campaign kind supplies only its observation: a :class:`Problem`, its residuals and their
 Jacobian columns over a parameter vector ``x``, the parameters' bounds, how they are laid out
-for identifiability (:class:`~stiffness.calibration.identifiability.Layout`) and the value a
-parameter left out is held at. A deflection campaign's is
+for identifiability (:class:`~stiffness.calibration.identifiability.Layout`) and each
+parameter's nominal value, the value a parameter left out is held at. A deflection campaign's is
 :class:`stiffness.calibration.fitting.Objective` (over a
 :class:`~stiffness.elastic.effects.hypothesis.Hypothesis`); a pose campaign's
 :class:`stiffness.calibration.pose_fit.PoseProblem` (over a
@@ -12,7 +12,8 @@ parameter left out is held at. A deflection campaign's is
 * :func:`fit`: which parameters the data identify (the one judgement,
   :func:`stiffness.calibration.identifiability.identifiable`, at the start's representative
   point; near aliases judged again at the optimum and the fit redone without them), the others
-  held (:meth:`Problem.start`), and :func:`solve`;
+  held at their nominal values whatever the fit starts from (:func:`held_at_nominal`), and
+  :func:`solve`;
 * :func:`solve`: :func:`scipy.optimize.least_squares` over the kept columns within the
   parameters' bounds: trust-region reflective, or Levenberg-Marquardt followed, when its optimum
   is past a bound, by the bounded fit from the clipped optimum; under a robust loss
@@ -175,6 +176,10 @@ class Problem(Protocol):
     """A campaign's observation, what :func:`fit` and :func:`solve` need of it."""
 
     layout: Layout
+    #: Each parameter's nominal value (p,), what a parameter left out of a fit (no effect,
+    #: merged, undetermined) is held at whatever the fit starts from
+    #: (:func:`held_at_nominal`): the model's start for its joint or effect.
+    nominal: np.ndarray
 
     def fun(self, x: np.ndarray) -> np.ndarray:
         """The residuals the solver minimises at ``x`` (a large constant where the model
@@ -201,7 +206,9 @@ class Problem(Protocol):
         ...
 
     def start(self, x: np.ndarray, ident: Identifiability) -> np.ndarray:
-        """``x`` with the parameters ``ident`` leaves out at the value they are held at."""
+        """The start the fit solves from: ``x``, whose parameters ``ident`` leaves out are at
+        their nominal values, or what the campaign kind puts instead (a pose campaign: all
+        nominal where the sag diverges at ``x``); refuses a fit the kind cannot make."""
         ...
 
 
@@ -270,16 +277,17 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
     """The fit of ``problem`` from ``x0``: the identifiable parameters (at the representative
     point of ``x0``; near aliases at ``resolution``, noise std per typical size, judged at the
     optimum, and at the start too with ``near_at_start``), those of ``held`` (column: why)
-    held as undetermined, the others held at :meth:`Problem.start`, and :func:`solve`. When
-    the near aliases at the optimum are not those of the start, the fit is redone from the
-    optimum with them held (unless the optimum's reduction keeps the same span, other members
-    of exact aliases: the same model). A fit that ends where the model diverges (a bounded
-    refit from a bound) is returned as it ended: its residual is the diverged constant, and
-    the caller never chooses it."""
+    held as undetermined, every one left out held at its nominal value
+    (:func:`held_at_nominal`, whatever ``x0`` says: a warm start is another fit's optimum),
+    and :func:`solve`. When the near aliases at the optimum are not those of the start, the
+    fit is redone from the optimum with them held (unless the optimum's reduction keeps the
+    same span, other members of exact aliases: the same model). A fit that ends where the
+    model diverges (a bounded refit from a bound) is returned as it ended: its residual is the
+    diverged constant, and the caller never chooses it."""
     ident = identifiable(problem.layout, x0, lambda p: problem.columns(p, False),
                          resolution if near_at_start else 0.0).holding(held or {})
-    start = problem.start(np.asarray(x0, dtype=float), ident)
-    sol = solve(problem, start, ident, options)
+    sol = solve(problem, problem.start(held_at_nominal(problem, x0, ident), ident), ident,
+                options)
     if resolution <= 0 or problem.failed(sol.x):
         return sol  # a fit ending where the model diverges is not judged again (never chosen)
     seen: list[np.ndarray] = []
@@ -293,10 +301,25 @@ def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 
     if set(near.kept) == set(ident.kept) or (
             seen and same_span(seen[0], ident.kept, near.kept)):
         return sol  # the same model (at most other members of exact aliases kept)
-    x = np.where(np.isin(np.arange(sol.x.size), near.kept), sol.x, start)
-    again = solve(problem, problem.start(x, near), near, options)
+    again = solve(problem, problem.start(held_at_nominal(problem, sol.x, near), near), near,
+                  options)
     again.nfev += sol.nfev
     return again
+
+
+def held_at_nominal(problem: Problem, x: np.ndarray, ident: Identifiability) -> np.ndarray:
+    """``x`` with the parameters ``ident`` leaves out (no effect, merged, undetermined) at
+    their nominal values (:attr:`Problem.nominal`): the one rule of both campaign kinds. Not
+    at ``x``'s: a fit's start is often another fit's optimum (a candidate extending the
+    current model, a cross-validation fold, a refit without an effect), and a parameter held
+    there would carry that fit's value, on other rows (a fold's held-out ones) or other
+    columns, into this one and its report. An exact merge's kept parameters absorb the held
+    one at any value (the same predictions); a near merge's move by the part of its column the
+    kept ones cannot absorb (below the resolution per typical size the held value moves)."""
+    out = np.array(x, dtype=float)
+    left = [d.index for d in ident.dropped]
+    out[left] = problem.nominal[left]
+    return out
 
 
 class Handed:
