@@ -436,3 +436,28 @@ def test_identify_on_a_too_small_pose_campaign(tmp_path, capsys):
     assert main(["identify", str(tmp_path / "poses")]) == 2
     err = capsys.readouterr().err.strip()
     assert "measure more poses" in err and "\n" not in err, err
+
+
+def test_a_stiffness_rigid_to_the_data_is_one_sided_as_diagnose_says():
+    """UR5, one configuration, three loads: the fit takes wrist_2's compliance to zero (its
+    ln k runs off). identify says it is rigid to the data with the one-sided bound diagnose
+    gives from its bounded fit (the same number, two computations: the unbounded fit's
+    compliance covariance and diagnose's bound-aware interval), and prints no value for it; a
+    joint no load moves is held (not fitted)."""
+    from stiffness.calibration.diagnose import diagnose
+    from stiffness.planning.simulate import simulate
+
+    sim = simulate("ur5", kq=[2e5, 2e5, 1e5, 3e4, 3e4, 3e4], configs=1, loads_per_config=3,
+                   noise_std_m=5e-6, seed=6)
+    result = identify(sim.campaign)
+    joints = json.loads(result.to_json())["joints"]
+    assert [j["at_bound"] for j in joints] == [False] * 4 + [True, False]
+    rigid = joints[4]
+    assert rigid["standard_error"] is None and rigid["ci95"][1] is None
+    assert joints[5]["held"] == "no effect on the data"
+    (row,) = [line for line in format_table(result).splitlines()
+              if line.startswith("wrist_2_joint")]
+    assert row.split()[1:5] == ["rigid", "-", "-", "above"] and "rigid to the data" in row
+    (said,) = [p for p in diagnose(sim.campaign, max_steps=0).baseline_stiffness
+               if p.name == "wrist_2_joint"]
+    assert said.at_bound and rigid["ci95"][0] == pytest.approx(said.ci95[0], rel=1e-3)

@@ -143,6 +143,11 @@ class Identification:
         Per joint, why the fit held its stiffness at the start instead of fitting it (the
         identifiability's clause: ``no effect on the data``, ``merged: ...``), or ``None``:
         fitted. Empty: every joint fitted.
+    at_bound
+        Per joint, whether it is rigid to the data (its compliance fitted within
+        :data:`~stiffness.calibration.fitting.RIGID_COMPLIANCE` typical sizes of zero): its
+        interval is then one-sided, ``[ci95_low, inf]``, and it has no standard error. Empty:
+        none.
     starts
         Every least-squares run.
     starts_agree
@@ -226,6 +231,7 @@ class Identification:
     outlier_sigma_m: float | None = None
     stiffness_coordinates: str = "chain"
     held: tuple[str | None, ...] = ()
+    at_bound: tuple[bool, ...] = ()
 
     @property
     def held_joints(self) -> tuple[str | None, ...]:
@@ -285,11 +291,11 @@ class Identification:
                 {"joint": j, "k": float(k), "unit": u, "k_paper_units": float(kp),
                  "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
                  "ci95": [float(lo), float(hi)], "relative_ci_width": float(w),
-                 "determined": j not in self.undetermined_joints, "held": h}
-                for j, k, u, kp, se, lo, hi, w, h in zip(
+                 "determined": j not in self.undetermined_joints, "held": h, "at_bound": b}
+                for j, k, u, kp, se, lo, hi, w, h, b in zip(
                     self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
                     self.ci95_low, self.ci95_high, self.relative_ci_width, self.held_joints,
-                    strict=True)
+                    self.at_bound or (False,) * len(self.joints), strict=True)
             ],
             "ci95_method": self.ci95_method,
             "loss": self.loss,

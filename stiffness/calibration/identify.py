@@ -66,7 +66,9 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.fitting import (
+    RIGID_COMPLIANCE,
     Fit,
+    compliance_covariance,
     covariance,
     fit_model,
     kind_noise,
@@ -335,6 +337,9 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
                                                                    n_res, p, robust_sigma)
     unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, quantile,
                        rob.compliant_joints)
+    declared = sigma_source == "declared noise_std"  # the one-sided quantile of the same law
+    rigid = _rigid(best_fit, sigma, measured,
+                   interval_quantile(sigma if declared else None, n_res, p, level=0.95), unc)
     outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, p,
                                     tuple(campaign.config or ()), campaign.lines)
     if outliers and best_fit.loss == "linear":
@@ -391,7 +396,31 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         outlier_sigma_m=flag_sigma,
         stiffness_coordinates=rob.stiffness_coordinates,
         held=_held(best_fit),
+        at_bound=tuple(bool(r) for r in rigid),
     )
+
+
+def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: float,
+           unc: _Uncertainty) -> np.ndarray:
+    """Which fitted stiffnesses are rigid to the data, their compliance within
+    :data:`~stiffness.calibration.fitting.RIGID_COMPLIANCE` typical sizes (``1 / k_ref``) of
+    zero, as diagnose judges them; their intervals in ``unc`` made one-sided, the compliance's
+    ``[0, quantile se_c]`` (``quantile`` the one-sided 95 % one, as diagnose's) carried to
+    ``k`` (above ``1 / (quantile se_c)``, ``se_c`` from the
+    covariance in compliance units, where the data still see the joint), with no standard
+    error (the delta method's ``k se(ln k)`` means nothing at ``c = 0``)."""
+    n0 = len(fit.model.compliant)
+    u = fit.model.refs.k_ref * np.exp(-fit.x[:n0])
+    rigid = np.array([i in fit.kept for i in range(n0)]) & (u <= RIGID_COMPLIANCE)
+    if rigid.any():
+        var_log = np.diag(compliance_covariance(fit, sigma, measured))[:n0]
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            se_c = np.sqrt(var_log) * np.exp(-fit.x[:n0])  # SI: se(ln k) c
+            unc.low[rigid] = np.where(np.isfinite(se_c), 1.0 / (quantile * se_c), 0.0)[rigid]
+        unc.high[rigid] = np.inf
+        unc.se_log[rigid] = np.inf
+        unc.width[rigid] = np.inf
+    return rigid
 
 
 def _held(fit: Fit) -> tuple[str | None, ...]:

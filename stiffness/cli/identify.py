@@ -85,6 +85,10 @@ def format_table(result: Identification) -> str:
             rows.append((joint, "-", "-", "-", "-", f"not fitted (held at "
                          f"{_g(result.k[j])} {result.units[j]}): {held}"))
             continue
+        if result.at_bound and result.at_bound[j]:  # its compliance at zero: no value
+            rows.append((joint, "rigid", "-", "-", f"above {_g(result.ci95_low[j])}",
+                         "rigid to the data: its compliance at zero (one-sided 95 % interval)"))
+            continue
         rows.append((
             joint,
             f"{_g(result.k[j])} {unit}".rstrip(),
