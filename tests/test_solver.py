@@ -26,6 +26,7 @@ class Linear:
         self.a, self.b = a, b
         p = a.shape[1]
         self.layout = Layout([list(range(p))], [False], np.ones(p), np.ones(p))
+        self.nominal = np.zeros(p)
 
     def fun(self, x):
         return self.a @ x - self.b
@@ -172,6 +173,7 @@ class Bilinear:
         self.t, self.y = t, y
         self.layout = Layout([[0], [1]], [False, False], np.ones(2), np.ones(2),
                              [([0], [0, 1])])
+        self.nominal = np.zeros(2)
 
     def fun(self, x):
         return x[0] * self.t + x[0] * x[1] * self.t ** 2 - self.y
