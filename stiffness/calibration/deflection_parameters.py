@@ -17,13 +17,10 @@ import math
 import numpy as np
 
 from stiffness.calibration.fitting import Fit, parameter_labels
+from stiffness.calibration.identifiability import confound_clause, confounded
 from stiffness.calibration.naming import one_sided
 from stiffness.calibration.selection import held_ends
 from stiffness.elastic.effects.base import Parameter, effect_report, stiffness_report
-
-#: Correlation of two estimates above which holding one gives its share to the other (the
-#: held reason names it: a near alias the data do not split).
-ALIAS_CORRELATION = 0.9
 
 
 def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float,
@@ -125,15 +122,7 @@ def _above(parameter: Parameter, floor: float) -> Parameter:
 
 def share(fit: Fit, column: int, cov: np.ndarray) -> str:
     """What takes the share of parameter ``column`` of ``fit`` once it is held: the fitted
-    parameters its estimate is correlated with beyond :data:`ALIAS_CORRELATION` (``cov``, the
-    fit's covariance), as a clause of its held reason ("" for none)."""
-    var = np.diag(cov)
-    if not math.isfinite(var[column]) or var[column] <= 0:
-        return ""
-    labels = parameter_labels(fit.model)
-    others = [i for i in fit.kept if i != column and math.isfinite(var[i]) and var[i] > 0
-              and abs(cov[column, i]) >= ALIAS_CORRELATION * math.sqrt(var[column] * var[i])]
-    if not others:
-        return ""
-    return (f"; not told apart from {', '.join(labels[i] for i in others)}, which "
-            f"{'takes' if len(others) == 1 else 'take'} its share")
+    parameters its estimate is correlated with (:func:`~stiffness.calibration.
+    identifiability.confounded`, ``cov`` the fit's covariance), as a clause of its held
+    reason ("" for none)."""
+    return confound_clause(confounded(cov, column, fit.kept), parameter_labels(fit.model))

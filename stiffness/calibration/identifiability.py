@@ -43,6 +43,8 @@ absent) and its columns; the judgement is this module's, one for both kinds.
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
@@ -63,6 +65,12 @@ NEAR_ALIAS_RESOLUTION = 2.0
 PIVOT_TIE = 1e-9
 #: Rows of a regressor per block of :func:`triangular`'s QR (its one copy: this many rows).
 TRIANGULAR_BLOCK = 8192
+#: Correlation of two estimates above which holding one gives its share to the other: the held
+#: parameter's reason names it (:func:`confounded`; a near alias the data do not split).
+ALIAS_CORRELATION = 0.9
+#: How :func:`confound_clause` writes each confounded parameter, and how :func:`confounds_in`
+#: reads it back from a held parameter's note (the note carries the reason through refits).
+_CONFOUND = re.compile(r"(.+?) \(correlation (-?[0-9.]+)\)(?:, |$)")
 
 
 @dataclass(frozen=True)
@@ -127,15 +135,50 @@ class Identifiability:
         return next((d for d in self.dropped if d.index == index), None)
 
     def to_dict(self, labels: list[str]) -> dict:
-        """JSON form: kept labels, and each dropped label with its reason and combination
-        (``labels``: every column's label)."""
+        """JSON form: kept labels, and each dropped label with its reason, combination and
+        the kept parameters an undetermined one is confounded with (:func:`confounded`;
+        ``labels``: every column's label)."""
         return {"tolerance": IDENTIFIABILITY_TOL,
                 "kept": [labels[i] for i in self.kept],
                 "dropped": [{"parameter": labels[d.index], "reason": d.reason,
                              "note": d.note or None,
+                             "confounded_with": [{"parameter": label, "correlation": r}
+                                                 for label, r in confounds_in(d.note)],
                              "merged_into": [{"parameter": labels[i], "coefficient": c}
                                              for i, c in d.merged_into]}
                             for d in self.dropped]}
+
+
+def confounded(cov: np.ndarray, index: int, others: Iterable[int]) -> list[tuple[int, float]]:
+    """The estimates of ``others`` correlated with that of ``index`` by at least
+    :data:`ALIAS_CORRELATION` in ``cov`` (a fit's covariance; indices are its rows), as
+    (index, correlation) pairs, the most correlated first; none where ``index``'s variance
+    is not finite and positive. Both campaign kinds name, with these, what a parameter the
+    naming rules hold is not told apart from (:func:`confound_clause`)."""
+    var = np.diag(cov)
+    if not math.isfinite(var[index]) or var[index] <= 0:
+        return []
+    pairs = [(int(i), float(cov[index, i] / math.sqrt(var[index] * var[i]))) for i in others
+             if i != index and math.isfinite(var[i]) and var[i] > 0]
+    return sorted([(i, r) for i, r in pairs if abs(r) >= ALIAS_CORRELATION],
+                  key=lambda pair: -abs(pair[1]))
+
+
+def confound_clause(pairs: list[tuple[int, float]], labels: list[str]) -> str:
+    """The clause a held parameter's reason ends with for :func:`confounded`'s ``pairs``
+    (``labels``: every index's label): ``; not told apart from compliance(elbow_joint)
+    (correlation 0.998), which takes its share``, or "" for none."""
+    if not pairs:
+        return ""
+    names = ", ".join(f"{labels[i]} (correlation {r:.3f})" for i, r in pairs)
+    verb = "takes" if len(pairs) == 1 else "take"
+    return f"; not told apart from {names}, which {verb} its share"
+
+
+def confounds_in(note: str) -> list[tuple[str, float]]:
+    """The (label, correlation) pairs :func:`confound_clause` wrote into ``note``."""
+    names = note.partition("; not told apart from ")[2].rpartition(", which ")[0]
+    return [(label, float(r)) for label, r in _CONFOUND.findall(names)]
 
 
 @dataclass(frozen=True)

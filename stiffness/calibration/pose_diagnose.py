@@ -36,6 +36,7 @@ import numpy as np
 from stiffness.calibration import certainty
 from stiffness.calibration.breakdown import error_summary, marker_structure
 from stiffness.calibration.certainty import Certainty
+from stiffness.calibration.identifiability import confound_clause, confounded
 from stiffness.calibration.naming import held_reason, is_stand_in, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
@@ -280,14 +281,21 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
     model, family = fit.model, families[-1]
     frame0 = (model.rotation0, model.translation0)
 
-    def hold(trial: PoseFit, ks: list[int], ps: list[Parameter], whys: list[str]) -> PoseFit:
-        return _fit(campaign, families, frame0, model.settings, trial, trial.loss, scale,
-                    {**held_labels(trial), **{p.name: why for p, why in zip(ps, whys,
-                                                                           strict=True)}})
-
     sizes = model.family_objects[model.families.index(family)].physical_sizes(
         model, judge.references(fit))
     start = model.slices()[family].start
+    labels = [p.label for p in model.parameters]
+
+    def hold(trial: PoseFit, ks: list[int], ps: list[Parameter], whys: list[str]) -> PoseFit:
+        kept = trial.identifiability.kept
+        place = {i: c for c, i in enumerate(kept)}
+        shares = [confound_clause([(kept[c], r) for c, r in confounded(
+            trial.covariance, place[start + k], range(len(kept)))], labels)
+                  if start + k in place else "" for k in ks]
+        return _fit(campaign, families, frame0, model.settings, trial, trial.loss, scale,
+                    {**held_labels(trial), **{p.name: why + clause for p, why, clause in zip(
+                        ps, whys, shares or [""] * len(ps), strict=True)}})
+
     fit = settle(fit, lambda trial: judge.parameters(trial)[family], sizes, hold,
                  lambda trial, loose: _uncorrelated(trial, [start + k for k in loose], loose))
     # a parameter the data leave without any bound at this fit (its column zero: a vertical
