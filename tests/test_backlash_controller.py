@@ -28,13 +28,25 @@ from pose_columns import assert_columns
 from pose_truth import truth
 
 from stiffness import load_model
+from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import campaign_settings, predict
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
+from stiffness.elastic.effects import candidates, make_effect
+from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.joint_laws import Backlash
 from stiffness.elastic.effects.pose_face import SagState
+from stiffness.elastic.model_file import (
+    ModelEffect,
+    ModelFile,
+    ModelFileError,
+    elastic_model_of,
+)
 from stiffness.errors import StiffnessError
+from stiffness.planning.simulate import simulate
 from stiffness.planning.simulate_poses import (
     HiddenPoseErrors,
     simulate_pose_campaign,
@@ -188,3 +200,43 @@ def test_a_compensator_on_a_coordinate_is_refused(torso):
     with pytest.raises(StiffnessError, match="gravity_compensator has no parameter") as err:
         diagnose_poses(c, families=["joint_compliance", "gravity_compensator"])
     assert "\n" not in str(err.value)
+
+
+def test_the_deflection_side_refuses_a_compensator_on_a_coordinate_of_two_links(torso):
+    """The same rule on the deflection side (:meth:`JointEffect.placement_problem`): T2 turns
+    t2 and the passive t4, so ``gravity_compensator:T2`` is refused in one line naming the
+    coordinates that are one chain joint each (T1, A1, A2; T3 turns t3 and t4), by
+    ``make_effect`` (simulate, a hypothesis), ``diagnose --families`` and a model file; diagnose
+    offers it on T1, A1 and A2 only; T1 (t1 one to one) still takes one, from its zero. Before,
+    every side but the pose one put it on T2 at T2's angle from its zero."""
+    geo = Geometry.of(torso)
+    fix = r"turns t2, t4 .*one chain joint \(T1, A1, A2\) or drop it$"
+    with pytest.raises(StiffnessError, match=fix) as err:
+        make_effect("gravity_compensator", "T2", geo)
+    assert "\n" not in str(err.value)
+    assert make_effect("gravity_compensator", "T1", geo).settings["angle_reference"] \
+        == "joint_zero"
+    rows = geo.rows(np.radians([[10.0, 20.0, 15.0, -30.0, 40.0]]), np.array([[20.0, -15, -60]]),
+                    np.zeros((1, 3)))
+    refs = References.of(geo, rows, 2e4, np.full((1, 3), 1e-3))
+    offered = [e.where for e in candidates(Hypothesis(geo, rows, "enhanced", SPRINGS, (), refs))
+               if e.name == "gravity_compensator"]
+    assert offered == ["T1", "A1", "A2"]
+    c = simulate(str(TORSO), configs=4, noise_std_m=5e-6, seed=0).campaign
+    with pytest.raises(StiffnessError, match=fix):
+        diagnose(c, propose=False, max_steps=0, families=["gravity_compensator(T2)"])
+
+    def model(joint: str) -> ModelFile:
+        return ModelFile(
+            source=str(TORSO), frame="tool", target_offset_m=[0.0, 0.0, 0.0],
+            compliant_joints=SPRINGS, k_theta=K, units=("N.m/rad",) * 5,
+            formulation="conventional", noise_std_m=5e-6, noise_source="declared",
+            campaign="test", produced_by="diagnose", effects=(ModelEffect(
+                "gravity_compensator", joint, "preload",
+                [Parameter("stiffness", 5e3, 50.0, (4.9e3, 5.1e3), "N/m"),
+                 Parameter("preload", 300.0, 3.0, (294.0, 306.0), "N")]),))
+
+    assert [e.label for e in elastic_model_of(model("T1")).applied] \
+        == ["gravity_compensator(T1)"]
+    with pytest.raises(ModelFileError, match=fix):
+        elastic_model_of(model("T2"))

@@ -30,6 +30,7 @@ from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.preloads import GravityCompensator
 from stiffness.elastic.model_file import ModelEffect, elastic_model_of, read_model_file
+from stiffness.errors import StiffnessError
 from stiffness.mechanics.gravity import spring_balancer, upward_angle
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.robot.robot import load_robot
@@ -170,8 +171,10 @@ def test_no_upward_direction_falls_back_to_the_joint_zero_and_says_so(tmp_path):
 
 
 def test_a_controller_coordinate_falls_back_to_its_zero(tmp_path):
-    """A robot.toml whose springs sit on controller coordinates (J2 drives j2 and j3): the
-    compensator's angle is measured from the coordinate's zero, said so (and no crash)."""
+    """A robot.toml whose springs sit on controller coordinates (J1 is j1 one to one, J2 drives
+    j2 and j3): on J1 the compensator's angle is measured from the coordinate's zero, said so
+    (and no crash); J2 is no one link's joint and is refused in one line naming J1 (before, it
+    was taken from J2's zero, as for J1)."""
     path = tmp_path / "arm" / "robot.toml"
     path.parent.mkdir()
     path.write_text("""[dh]
@@ -192,9 +195,12 @@ chain = { j1 = "J1", j2 = "J2", j3 = "-J2 - J3" }
 springs_on = "controller"
 """)
     robot = load_robot(path)
-    effect = make_effect("gravity_compensator", "J2", Geometry.of(robot))
+    effect = make_effect("gravity_compensator", "J1", Geometry.of(robot))
     assert effect.settings["angle_reference"] == "joint_zero"
     assert "controller coordinate" in effect.describe()
+    with pytest.raises(StiffnessError, match=r"J2 turns j2, j3 .* \(J1\) or drop it$") as err:
+        make_effect("gravity_compensator", "J2", Geometry.of(robot))
+    assert "\n" not in str(err.value)
     assert upward_angle(robot, "j2").reference == "upward"  # the chain joint has a link
 
 

@@ -95,7 +95,7 @@ from stiffness.calibration.selection import (
     replicate_noise,
 )
 from stiffness.calibration.solver import check_loss
-from stiffness.elastic.effects import LIBRARY, candidates, check_masses
+from stiffness.elastic.effects import LIBRARY, candidates, check_masses, make_effect
 from stiffness.elastic.effects.base import Parameter, effect_place, effect_report, place_label
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -637,10 +637,14 @@ class DeflectionSearch:
         Raises
         ------
         StiffnessError
-            ``name`` is no candidate of ``current``'s model (one line naming the valid ones).
+            ``name`` is no candidate of ``current``'s model (one line naming the valid ones;
+            a place the effect cannot act at, that effect's own line: :func:`make_effect`).
         """
         ranking = self.candidates(current, only=name)
         if ranking is None:
+            effect, where = effect_place(name, "--families")
+            if where is not None:
+                make_effect(effect, where, current.model.geometry)  # e.g. a compensator on T2
             valid = sorted({e.name for e in candidates(current.model, self.declared,
                                                         self.masses)} - set(self.forbidden))
             raise StiffnessError(f"--families {name}: no candidate of this campaign's model "

@@ -631,7 +631,8 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
     Raises
     ------
     ModelFileError, UnknownJointError
-        A ``joint_compliance`` on a joint ``k_theta`` holds; a joint-law effect on a rigid one.
+        A ``joint_compliance`` on a joint ``k_theta`` holds; a joint-law effect on a rigid one;
+        a compensator on a controller coordinate that is no one link's chain joint.
     ModelRobotError
         An effect names a joint the robot does not have.
     """
@@ -667,11 +668,15 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
     if problem := wrong_model_stiffness_unit(model, robot.is_prismatic):
         raise ModelFileError(problem, path=model.path or "model file")
     for e in model.effects:  # a bend's or tilt's joints are the chain's, a joint law's a spring
-        law = robot.compliant_joints if isinstance(e.effect(), JointEffect) else ()
+        effect = e.effect()
+        law = robot.compliant_joints if isinstance(effect, JointEffect) else ()
         joints = list(dict.fromkeys([*robot.model.names[1:], *law]))  # backlash(T2): a coordinate
         for name in [n for n in segment(e.where) or [e.where] if n is not None and n not in joints]:
             raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
                                   f"{robot.title}; {did_you_mean(str(name), joints)}")
+        if isinstance(effect, JointEffect) and (
+                problem := effect.placement_problem(robot, effect.joint_name)):
+            raise ModelFileError(problem, path=model.path or "model file")
     em = ElasticModel.of_parts(
         robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
         source=None if model.path is None else str(model.path), applied=tuple(applied),

@@ -89,6 +89,16 @@ class CoordinateMap:
         """Chain joint rates per unit rate of one controller coordinate (column of A)."""
         return self.matrix[:, self.coordinates.index(coordinate)]
 
+    def sole_joint(self, coordinate: str) -> str | None:
+        """The chain joint ``coordinate`` is one to one (``j = u + b``: it turns that joint
+        alone, at rate 1, and nothing else turns it), or ``None``."""
+        i = self.coordinates.index(coordinate)
+        used = np.flatnonzero(self.matrix[:, i])
+        if used.shape[0] != 1 or self.matrix[used[0], i] != 1.0:
+            return None
+        alone = np.flatnonzero(self.matrix[used[0]]).tolist() == [i]
+        return self.chain[int(used[0])] if alone else None
+
 
 def linear_terms(text: str, names: tuple[str, ...]) -> tuple[dict[str, float], float]:
     """Coefficients and constant of a linear expression of ``names``.

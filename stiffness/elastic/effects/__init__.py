@@ -185,7 +185,9 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     :meth:`~stiffness.robot.robot.Robot.driven_joints`) whose axis is a frame axis
     (:attr:`Geometry.tilt_columns`); ``backlash`` and ``nonlinear_joint_stiffness`` of each
     compliant joint; then the global effects, the weight as ``gravity_preload`` with the
-    ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`). An effect whose label
+    ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`); ``gravity_compensator`` of
+    each revolute compliant joint carrying one link (not a controller coordinate that turns
+    several chain joints: :meth:`JointEffect.placement_problem`). An effect whose label
     ``declared`` names takes those settings (:meth:`DeflectionEffect.declare`).
     """
     geo = model.geometry
@@ -217,6 +219,7 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
         add(make_effect("gravity_preload" if masses == "known" else "gravity_lumped", None,
                         geo))
     for j in model.joints:
-        if not geo.prismatic[geo.joints.index(j)]:
+        if not (geo.prismatic[geo.joints.index(j)]
+                or GravityCompensator.placement_problem(geo.robot, j)):
             add(make_effect("gravity_compensator", j, geo))
     return out

@@ -36,6 +36,7 @@ from stiffness.elastic.effects.pose_face import (
     nonlinear_label,
 )
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
+from stiffness.robot.robot import Robot
 
 #: A per-joint effect's own class (:meth:`JointEffect.at_place`).
 J = TypeVar("J", bound="JointEffect")
@@ -70,6 +71,10 @@ class JointEffect(DeflectionEffect):
     prismatic: bool = False
     #: whether the effect needs a revolute joint
     revolute_only: ClassVar[bool] = False
+    #: whether the effect acts on one link, at its chain joint's angle (a spring compensator):
+    #: a controller coordinate then qualifies only one to one with a chain joint
+    #: (:meth:`placement_problem`)
+    one_link: ClassVar[bool] = False
 
     @classmethod
     def at_place(cls: type[J], where: str | None, geometry: Geometry | None = None) -> J:
@@ -89,8 +94,30 @@ class JointEffect(DeflectionEffect):
             raise UnknownJointError(f"{cls.name} needs {kind}, e.g. {cls.name}:{joints[0]}; "
                                     f"{did_you_mean(str(where), joints)}", name=str(where),
                                     choices=joints)
+        if problem := cls.placement_problem(geometry.robot, where):
+            raise StiffnessError(problem)
         return cls(joint_name=where,
                    prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
+
+    @classmethod
+    def placement_problem(cls, robot: Robot, where: str) -> str:
+        """Why the effect cannot act at ``robot``'s spring ``where`` (one line naming the fix),
+        or "": an effect on one link (:attr:`one_link`) needs a chain joint carrying one link,
+        and a controller coordinate is one only when it alone turns one chain joint at rate 1
+        (:meth:`~stiffness.robot.coupling.CoordinateMap.sole_joint`; ``T2``, turning ``t2``
+        and the passive ``t4``, is none)."""
+        coupling = robot.coupling
+        if not (cls.one_link and robot.springs_on_controller and coupling is not None
+                and where in coupling.coordinates) or coupling.sole_joint(where) is not None:
+            return ""
+        turned = [j for j, a in zip(coupling.chain, coupling.column(where), strict=True) if a]
+        fit = [c for c in robot.compliant_joints
+               if coupling.sole_joint(c) is not None and not robot.is_prismatic(c)]
+        fix = (f"put it on a coordinate that alone turns one chain joint ({', '.join(fit)}) "
+               "or drop it" if fit else "compensators are not available for these springs")
+        return (f"{cls.name}:{where} needs a chain joint carrying one link, and controller "
+                f"coordinate {where} turns {', '.join(turned)} (springs on the controller's "
+                f"coordinates); {fix}")
 
     @property
     def where(self) -> str:

@@ -182,6 +182,7 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
     beyond_springs: ClassVar[bool] = True
     value_counts: ClassVar[tuple[int, ...]] = (2, 4)
     revolute_only: ClassVar[bool] = True
+    one_link: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         if not (self.lever_m > 0 and self.base_m > 0 and abs(self.lever_m - self.base_m) > 1e-6):
@@ -199,7 +200,7 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
 
     @classmethod
     def at_place(cls, where, geometry=None):
-        placed = super().at_place(where, geometry)  # checked: a revolute joint
+        placed = super().at_place(where, geometry)  # checked: a revolute joint of one link
         return placed if geometry is None else cls.upward(geometry.robot, str(where))
 
     def configured(self, settings):
