@@ -52,7 +52,8 @@ What is not compared, and why:
   masses): the lumped weight at the robot's true masses is compared with the known weight
   (``gravity_preload``);
 * a compensator on springs acting on controller coordinates: the deflection face and the
-  elastic model put it on the coordinate (its angle the coordinate's, from its zero), the pose
+  elastic model take it only on a coordinate that is one chain joint one to one (its angle
+  the coordinate's, from its zero; T2 of the torso, turning t2 and t4, is refused), the pose
   face lays it out on compliant chain joints only (none there: no parameter; a compensator
   acts on one link, docs/absolute-poses.md, Limits) and the pose simulator refuses it. A
   backlash there is compared (T2 and T3 of the torso: the pose face acts on each spring

@@ -284,11 +284,8 @@ class ModelFile:
         doc = {
             "schema": SCHEMA,
             "format": LEGACY_IDENTIFIED if self.produced_by == "identify" else LEGACY_DIAGNOSED,
-            "version": 1,
-            "produced_by": self.produced_by,
-            "campaign": self.campaign,
-            "robot": robot,
-            "formulation": self.formulation,
+            "version": 1, "produced_by": self.produced_by, "campaign": self.campaign,
+            "robot": robot, "formulation": self.formulation,
             "k_theta": {"joints": joints, "values": self.k_theta, "unit": list(self.units),
                         "standard_error": self.standard_error,
                         "ci95": {"low": self.ci95_low, "high": self.ci95_high},
@@ -668,15 +665,13 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
     if problem := wrong_model_stiffness_unit(model, robot.is_prismatic):
         raise ModelFileError(problem, path=model.path or "model file")
     for e in model.effects:  # a bend's or tilt's joints are the chain's, a joint law's a spring
-        effect = e.effect()
-        law = robot.compliant_joints if isinstance(effect, JointEffect) else ()
+        law = robot.compliant_joints if isinstance(effect := e.effect(), JointEffect) else ()
         joints = list(dict.fromkeys([*robot.model.names[1:], *law]))  # backlash(T2): a coordinate
         for name in [n for n in segment(e.where) or [e.where] if n is not None and n not in joints]:
             raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
                                   f"{robot.title}; {did_you_mean(str(name), joints)}")
-        if isinstance(effect, JointEffect) and (
-                problem := effect.placement_problem(robot, effect.joint_name)):
-            raise ModelFileError(problem, path=model.path or "model file")
+        if isinstance(effect, JointEffect) and (bad := effect.placement_problem(robot, e.where)):
+            raise ModelFileError(bad, path=model.path or "model file")  # a compensator on T2
     em = ElasticModel.of_parts(
         robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
         source=None if model.path is None else str(model.path), applied=tuple(applied),

@@ -100,7 +100,7 @@ class JointEffect(DeflectionEffect):
                    prismatic=bool(geometry.prismatic[geometry.joints.index(where)]))
 
     @classmethod
-    def placement_problem(cls, robot: Robot, where: str) -> str:
+    def placement_problem(cls, robot: Robot, where: str | None) -> str:
         """Why the effect cannot act at ``robot``'s spring ``where`` (one line naming the fix),
         or "": an effect on one link (:attr:`one_link`) needs a chain joint carrying one link,
         and a controller coordinate is one only when it alone turns one chain joint at rate 1
