@@ -396,16 +396,23 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
                sol.identifiability, at_bound)
 
 
-def _rigid(model: Hypothesis, x: np.ndarray, at_bound: list[int], kept: Sequence[int]
-           ) -> tuple[np.ndarray, list[int]]:
-    """``x`` with each fitted baseline compliance within :data:`RIGID_COMPLIANCE` typical
-    sizes of zero set at its bound (the stiffness's upper bound) and listed in ``at_bound``:
-    the bound judged in compliance units, where the data see the parameter."""
+def rigid_joints(model: Hypothesis, x: np.ndarray, kept: Sequence[int]) -> list[int]:
+    """The baseline joints of ``model`` fitted (in ``kept``) rigid to the data at ``x``: their
+    compliance within :data:`RIGID_COMPLIANCE` typical sizes (``1 / k_ref``) of its bound's,
+    the bound judged in compliance units, where the data see the parameter (the one rule of
+    diagnose's bounded fits and identify's unbounded ones, whose ``ln k`` may run past it)."""
     n0 = len(model.compliant)
     hi = model.bounds()[1]
     u = model.refs.k_ref * (np.exp(-x[:n0]) - np.exp(-hi[:n0]))
-    rigid = [i for i in range(n0) if i in kept and i not in at_bound
-             and u[i] <= RIGID_COMPLIANCE]
+    return [i for i in range(n0) if i in kept and u[i] <= RIGID_COMPLIANCE]
+
+
+def _rigid(model: Hypothesis, x: np.ndarray, at_bound: list[int], kept: Sequence[int]
+           ) -> tuple[np.ndarray, list[int]]:
+    """``x`` with each joint rigid to the data (:func:`rigid_joints`) set at its bound (the
+    stiffness's upper bound) and listed in ``at_bound``."""
+    hi = model.bounds()[1]
+    rigid = [i for i in rigid_joints(model, x, kept) if i not in at_bound]
     if not rigid:
         return x, at_bound
     x = x.copy()

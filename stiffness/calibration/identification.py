@@ -145,7 +145,8 @@ class Identification:
         fitted. Empty: every joint fitted.
     at_bound
         Per joint, whether it is rigid to the data (its compliance fitted within
-        :data:`~stiffness.calibration.fitting.RIGID_COMPLIANCE` typical sizes of zero): its
+        :data:`~stiffness.calibration.fitting.RIGID_COMPLIANCE` typical sizes of its bound's,
+        :func:`~stiffness.calibration.fitting.rigid_joints`): its
         interval is then one-sided, ``[ci95_low, inf]``, and it has no standard error. Empty:
         none.
     starts

@@ -66,7 +66,6 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.fitting import (
-    RIGID_COMPLIANCE,
     Fit,
     compliance_covariance,
     covariance,
@@ -74,6 +73,7 @@ from stiffness.calibration.fitting import (
     kind_noise,
     observations,
     parameter_labels,
+    rigid_joints,
 )
 from stiffness.calibration.identification import (
     Identification,
@@ -402,16 +402,15 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
 
 def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: float,
            unc: _Uncertainty) -> np.ndarray:
-    """Which fitted stiffnesses are rigid to the data, their compliance within
-    :data:`~stiffness.calibration.fitting.RIGID_COMPLIANCE` typical sizes (``1 / k_ref``) of
-    zero, as diagnose judges them; their intervals in ``unc`` made one-sided, the compliance's
+    """Which fitted stiffnesses are rigid to the data, as diagnose judges them
+    (:func:`~stiffness.calibration.fitting.rigid_joints`); their intervals in ``unc`` made
+    one-sided, the compliance's
     ``[0, quantile se_c]`` (``quantile`` the one-sided 95 % one, as diagnose's) carried to
     ``k`` (above ``1 / (quantile se_c)``, ``se_c`` from the
     covariance in compliance units, where the data still see the joint), with no standard
     error (the delta method's ``k se(ln k)`` means nothing at ``c = 0``)."""
     n0 = len(fit.model.compliant)
-    u = fit.model.refs.k_ref * np.exp(-fit.x[:n0])
-    rigid = np.array([i in fit.kept for i in range(n0)]) & (u <= RIGID_COMPLIANCE)
+    rigid = np.isin(np.arange(n0), rigid_joints(fit.model, fit.x, fit.kept))
     if rigid.any():
         var_log = np.diag(compliance_covariance(fit, sigma, measured))[:n0]
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
