@@ -426,6 +426,15 @@ def _warn_shared_labels(robot: Robot, labels: list[str], q: np.ndarray,
         DataFileWarning, stacklevel=4)
 
 
+def first_copies(values: np.ndarray) -> np.ndarray:
+    """For each row of ``values`` (n_rows, n_cells), the index of the first row equal to it
+    in every cell to the last bit (its own where none comes before): the same row written
+    twice, not a repeated measurement, which differs by its noise."""
+    first: dict[bytes, int] = {}
+    return np.array([first.setdefault(row.tobytes(), i)
+                     for i, row in enumerate(np.asarray(values, dtype=float))], dtype=int)
+
+
 def warn_copied_rows(cells: np.ndarray, lines: list[int] | tuple[int, ...], data: Path) -> None:
     """Warn once when rows repeat an earlier row in every cell.
 
@@ -440,16 +449,13 @@ def warn_copied_rows(cells: np.ndarray, lines: list[int] | tuple[int, ...], data
     lines
         The file line of each row.
     """
-    first: dict[bytes, int] = {}
-    copies = []
-    for i, row in enumerate(np.asarray(cells, dtype=float)):
-        j = first.setdefault(row.tobytes(), i)
-        if j != i:
-            copies.append((j, i))
-    if copies:
-        j, i = copies[0]
+    first = first_copies(cells)
+    copies = np.flatnonzero(first != np.arange(first.size))
+    if copies.size:
+        i = int(copies[0])
+        j = int(first[i])
         warnings.warn(
-            f"{data}: {len(copies)} row(s) repeat an earlier row in every cell (first: line "
+            f"{data}: {copies.size} row(s) repeat an earlier row in every cell (first: line "
             f"{lines[i]} copies line {lines[j]}): a row written twice counts twice (its weight "
             "doubled, the intervals too narrow); remove the copies (a repeated measurement "
             "differs by its noise)", DataFileWarning, stacklevel=4)

@@ -19,6 +19,7 @@ from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import Fit, FitJob
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability
+from stiffness.calibration.measurements import first_copies
 from stiffness.calibration.outliers import robust_noise
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
@@ -263,15 +264,10 @@ def interval_quantile(sigma: float | None, n: int, p: int, level: float = 0.975)
 
 
 def _distinct(values: np.ndarray, rows: list[int]) -> list[int]:
-    """Of ``rows``, those whose measured ``values`` are not an exact copy of an earlier one's."""
-    seen: set[bytes] = set()
-    out = []
-    for i in rows:
-        key = values[i].tobytes()
-        if key not in seen:
-            seen.add(key)
-            out.append(i)
-    return out
+    """Of ``rows``, those whose measured ``values`` are not an exact copy of an earlier one's
+    (:func:`~stiffness.calibration.measurements.first_copies`)."""
+    first = first_copies(values[rows])
+    return [r for k, r in enumerate(rows) if first[k] == k]
 
 
 def replicate_noise(campaign: Campaign, kind: str = "translation", robust: bool = False
