@@ -416,3 +416,23 @@ def test_import_fixed_holds_the_joints_without_a_column(tmp_path, capsys):
         assert main([*argv, "--fixed", fixed, "--out", str(tmp_path / "c")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and words in err, err
+
+
+def test_a_column_mapped_to_a_marker_is_not_also_read_as_a_force(tmp_path, capsys):
+    """A tracker's columns named fx,fy,fz, mapped to a marker's tip_x..tip_z, were also read
+    as forces by their own names: the pose import refused with "no force unit" and, given
+    one, wrote the marker positions again as a load in N (FIGAROH's UR10 file, its columns
+    renamed so). A file column the map gives to one campaign column is that column's only."""
+    rig = tmp_path / "rig.csv"
+    rows = ["j1,j2,j3,j4,j5,j6,fx,fy,fz"] + [
+        f"{a},-1.2,1.5,-0.3,1.57,0,{0.8 + a / 10},{0.1 * a},{1.1 - a / 20}" for a in range(6)]
+    rig.write_text("\n".join(rows) + "\n")
+    mapping = ",".join([f"q{i}=j{i}" for i in range(1, 7)] + ["tip_x=fx,tip_y=fy,tip_z=fz"])
+    with warnings.catch_warnings():  # the made-up positions are not the UR10's: warned
+        warnings.simplefilter("ignore")
+        assert main(["campaign", "import", str(rig), "--kind", "poses", "--robot", "ur10",
+                     "--map", mapping, "--units", "angle=rad,length=m", "--marker",
+                     "tip=tool0", "--quiet", "--out", str(tmp_path / "c")]) == 0, \
+            capsys.readouterr().err
+    header = (tmp_path / "c" / "measurements.csv").read_text().splitlines()[0].split(",")
+    assert header[-3:] == ["tip_x", "tip_y", "tip_z"] and "fx" not in header, header

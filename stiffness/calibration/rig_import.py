@@ -10,8 +10,8 @@ and ``design --existing``:
   rows), or by a key column present in every file (``join``; its values unique in each
   file; rows in the first file's order).
 * **Column map.** Each campaign column (:data:`TARGETS`) is read from the file column the map
-  names (``q1=theta1,fx=Base_Fx``), else from a column of its own name (``dx`` or ``dx [mm]``).
-  A column name found in
+  names (``q1=theta1,fx=Base_Fx``), else from a column of its own name (``dx`` or ``dx [mm]``)
+  that the map does not give to another campaign column. A column name found in
   several files is named ``FILE:COLUMN`` (the file's name).
 * **Deflections**, one of three ways: ``dx,dy,dz`` (loaded minus unloaded position); two
   column sets ``x_loaded..z_loaded`` and ``x_unloaded..z_unloaded``; or paired rows:
@@ -360,13 +360,21 @@ class ColumnMapper:
 
     def find(self, target: str) -> Column | None:
         """The column of ``target``: the mapped one (which must exist), else one of its own
-        name, else ``None``."""
+        name that the map does not give to another campaign column, else ``None``."""
         name = self.settings.column_map.get(target)
         column = self._lookup(name if name is not None else target, target,
                               required=name is not None)
+        if name is None and any(column is c for c in self._mapped_elsewhere(target)):
+            return None
         if column is not None:
             self.used[target] = column
         return column
+
+    def _mapped_elsewhere(self, target: str) -> list[Column]:
+        """The file columns the map gives to campaign columns other than ``target``: a rig's
+        ``fx`` mapped to a marker's ``tip_x`` is no force as well."""
+        return [c for other, source in self.settings.column_map.items() if other != target
+                for c in [self._lookup(source, other, required=False)] if c is not None]
 
     def _lookup(self, name: str, target: str, required: bool) -> Column | None:
         file_name, _, column = name.rpartition(":")
