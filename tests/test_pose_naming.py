@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
-
 from pose_campaigns import ur10_tip_campaign
 
 from stiffness.calibration.naming import alternative, namable, one_sided, settle
