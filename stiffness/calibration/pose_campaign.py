@@ -47,7 +47,7 @@ from stiffness.calibration.measurements import (
     warn_copied_rows,
 )
 from stiffness.calibration.pose_model import Loads, Marker
-from stiffness.calibration.unit_checks import check_marker_spread
+from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
 from stiffness.errors import FileFormatError
 from stiffness.files import (
     atomic_write,
@@ -322,9 +322,11 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
                             lambda problem: toml.error(problem, "robot", "fixed"))
     q = coordinates_in_si(robot, fill_held(q_read, held, robot, units), units, labels,
                           numbers, data)
-    check_marker_spread(robot, [m.frame for m in markers],
-                        np.array([m.offset for m in markers]), q, pos * units.length_to_si,
-                        units, data)
+    offsets = np.array([m.offset for m in markers])
+    check_marker_offsets(robot, [m.name for m in markers], offsets, units,
+                         f"{toml_path} [markers]")
+    check_marker_spread(robot, [m.frame for m in markers], offsets, q,
+                        pos * units.length_to_si, units, data)
     loads = None if wrench is None else Loads.read(
         str(doc.get("load", {}).get("frame", robot.target_frame)), wrench[:, :3],
         wrench[:, 3:] if wrench.shape[1] == 6 else None, units)

@@ -55,6 +55,7 @@ from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
+from stiffness.calibration.pose_plausibility import Plausibility, plausibility
 from stiffness.calibration.search import (
     Candidate,
     Removals,
@@ -126,6 +127,14 @@ class PoseDiagnosis:
         refits the final model without each, and the families acting through it)."""
         return [] if self.search is None else certainty.how_sure(
             self.search, self.final, self.steps[-1].cv_rms, self.named_steps, self.stand_in)
+
+    @functools.cached_property
+    def plausibility(self) -> Plausibility:
+        """Whether the final fit can be a calibration: its lengths against the robot's
+        reach, the campaign's marker spread against its kinematics
+        (:func:`~stiffness.calibration.pose_plausibility.plausibility`; a unit read 1000x off
+        is absorbed by the geometry and reads *explained*)."""
+        return plausibility(self.final, self.campaign)
 
     def selection(self) -> dict:
         """How the families were chosen (kept in the model file): ``forced`` and
@@ -203,6 +212,8 @@ class PoseDiagnosis:
                 "stop_reason": self.stop_reason,
                 "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
+                "plausible": self.plausibility.plausible,
+                "plausibility": self.plausibility.to_dict(),
                 "outlier_threshold": OUTLIER_THRESHOLD,
                 "outliers": [o.to_dict() for o in self.outliers],
                 "identifiability": self.final.identifiability.to_dict(

@@ -65,7 +65,8 @@ class PoseIdentification:
         """Write the pose model file of the fit (read by :func:`stiffness.load_model`,
         ``validate`` and every ``--model``), atomically; :attr:`model_path` is set."""
         d = self.diagnosis
-        self.model_path = write_pose_model(d.final, d.campaign, path, d.selection())
+        self.model_path = write_pose_model(d.final, d.campaign, path, d.selection(),
+                                         d.plausibility.to_dict())
         return self.model_path
 
     def to_dict(self) -> dict:
@@ -88,6 +89,7 @@ class PoseIdentification:
             "undetermined_joints": [p.name for p in self.stiffnesses if not p.determined],
             "sigma_m": fit.sigma, "sigma_source": fit.sigma_source, "rms_m": fit.rms(),
             "gof_p": d.gof(), "unexplained": d.unexplained,
+            "plausible": d.plausibility.plausible, "plausibility": d.plausibility.to_dict(),
             "n_residuals": fit.n_observed, "n_parameters": fit.n_fitted,
             "n_rows": d.campaign.n_rows,
             "outlier_threshold": OUTLIER_THRESHOLD, "outlier_sigma_m": d.outlier_sigma_m,
@@ -104,13 +106,18 @@ class PoseIdentification:
                  f"{fit.n_fitted} parameters ({', '.join(d.families)}); loss {d.loss}",
                  "the springs' stiffness with the measuring frame and markers, nothing else "
                  "fitted (stiffness diagnose searches the rest)", ""]
-        if d.unexplained:
+        verdict = d.plausibility.verdict()
+        if verdict is not None:  # a unit read wrong: no diagnosis finds what is missing
+            lines += [verdict, "NOT TO BE TRUSTED: these stiffnesses take what the robot's "
+                      "kinematics cannot (above), whatever the verdict below"]
+        elif d.unexplained:
             lines.append("NOT TO BE TRUSTED: the model does not explain the poses (verdict "
                          "below); these stiffnesses take what it misses")
         lines += [f"  {p.text()}" for p in self.stiffnesses]
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
                       f"({fit.sigma_source}); " + d.verdict()]
-        if d.unexplained:
+        lines += d.plausibility.notes()
+        if d.unexplained and verdict is None:
             where = c.name if c.path is None else str(c.path.parent)
             lines.append(f"the stiffnesses absorb what the model misses and their intervals "
                          f"are too narrow; run stiffness diagnose {where} to find it")

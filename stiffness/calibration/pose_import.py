@@ -35,7 +35,7 @@ from stiffness.calibration.rig_import import (
     read_table,
     row_labels,
 )
-from stiffness.calibration.unit_checks import check_marker_spread
+from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
 from stiffness.errors import StiffnessError
 from stiffness.robot.robot import Robot
 
@@ -104,8 +104,9 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     labels = row_labels(mapper.find("config"), rows, q_file)
     q_file = fill_held(q_file, held, robot, units)
     q = coordinates_in_si(robot, q_file, units, labels, q_cols[0].lines, q_cols[0].path)
-    check_marker_spread(robot, [m.frame for m in markers],
-                        np.array([m.offset for m in markers], float) * units.length_to_si, q,
+    offsets = np.array([m.offset for m in markers], float) * units.length_to_si
+    check_marker_offsets(robot, [m.name for m in markers], offsets, units, "--marker")
+    check_marker_spread(robot, [m.frame for m in markers], offsets, q,
                         positions * units.length_to_si, units, q_cols[0].path)
     loads = None if force is None else Loads.read(robot.target_frame, force, moment, units)
     scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si)

@@ -64,11 +64,13 @@ def _softening(row: dict, table: list[dict]) -> dict:
 
 
 def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathLike,
-                    selection: dict | None = None) -> dict:
+                    selection: dict | None = None, plausibility: dict | None = None) -> dict:
     """The model file of a pose calibration written into ``folder``: robot (its source relative
     to ``folder``, :func:`~stiffness.files.written_source`), measuring frame, markers,
     parameters (SI), and ``selection`` (:meth:`PoseDiagnosis.selection`: the forced and
-    forbidden families) when the fit comes from a diagnosis; read by
+    forbidden families) and ``plausibility`` (:meth:`~stiffness.calibration.
+    pose_plausibility.Plausibility.to_dict`, whether the fit can be a calibration) when the fit
+    comes from a diagnosis; read by
     :func:`~stiffness.robot.calibration.read_pose_calibration`."""
     s, robot = campaign.settings, campaign.robot
     return {"kind": POSE_MODEL_KIND, "version": 1, "units": "SI",
@@ -85,15 +87,16 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathL
             "families": list(fit.model.families),
             "settings": fit.model.settings,
             **({} if selection is None else {"selection": selection}),
+            **({} if plausibility is None else {"plausibility": plausibility}),
             "parameters": parameter_table(fit)}
 
 
 def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike,
-                     selection: dict | None = None) -> Path:
+                     selection: dict | None = None, plausibility: dict | None = None) -> Path:
     """Write the pose model file (JSON, atomically; :func:`pose_model_dict`)."""
     path = Path(path)
-    atomic_write(path, json.dumps(pose_model_dict(fit, campaign, path.parent, selection),
-                                  indent=1) + "\n")
+    atomic_write(path, json.dumps(pose_model_dict(fit, campaign, path.parent, selection,
+                                                  plausibility), indent=1) + "\n")
     return path
 
 

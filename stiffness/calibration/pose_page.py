@@ -165,6 +165,9 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
         f" ({d['robot_name']})" if d.get("robot_name") else "")
     verdict = ("noise not declared" if d["unexplained"] is None else
                "UNEXPLAINED" if d["unexplained"] else "explained to noise")
+    plausibility = d.get("plausibility") or {}
+    if plausibility.get("verdict"):  # the fit is no calibration, whatever its chi-square
+        verdict = f"{plausibility['verdict']} (chi-square: {verdict})"
     parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),
              table("What the diagnosis finds", ["quantity", "value"], [
                  ["families", esc(", ".join(d["families"]))],

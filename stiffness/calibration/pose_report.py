@@ -60,7 +60,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                      + not_added(d.rejected, d.not_judged))
     if d.stop_reason:
         lines.append(f"search stopped: {d.stop_reason}")
-    lines += ["", d.verdict(), *describe_outliers(d.outliers), "",
+    lines += ["", *_plausibility_lines(d), d.verdict(), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
@@ -73,6 +73,13 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                      + ("" if p.get("determined", True) else
                         f"  undetermined ({p['physical_scale']})") + _softening(p))
     return "\n".join(lines + _how_sure_lines(d))
+
+
+def _plausibility_lines(d: PoseDiagnosis) -> list[str]:
+    """The verdict on the fit's lengths (NOT A CALIBRATION, naming the likely unit and the
+    fix) and the markers' offset notes, before the chi-square verdict."""
+    verdict = d.plausibility.verdict()
+    return ([] if verdict is None else [verdict]) + d.plausibility.notes()
 
 
 def _softening(p: dict) -> str:
@@ -122,7 +129,7 @@ def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
         atomic_write(stage / POSE_DIAGNOSIS_FILES["diagnosis"],
                      json.dumps(record, indent=1, allow_nan=False) + "\n")
         write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"],
-                         d.selection())
+                         d.selection(), d.plausibility.to_dict())
         atomic_write(stage / POSE_DIAGNOSIS_FILES["page"],
                      render_pose_diagnosis(record, stage_plot(record), provenance(command),
                                            marker_residual_plots(d)))

@@ -91,10 +91,50 @@ def nominal_marker_positions(robot: Robot, frames: list[str], offsets: np.ndarra
     return out
 
 
+def marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q: np.ndarray,
+                  positions: np.ndarray) -> tuple[float, int] | None:
+    """The median ratio of the measured to the nominal distance a marker moves between two rows
+    (over row pairs of :data:`ROWS_CHECKED` rows, both distances beyond a thousandth of the
+    reach) and how many pairs it is over; ``None`` when no pair tells.
+
+    Parameters
+    ----------
+    frames, offsets
+        The markers' frames and nominal offsets (M, 3; m); an offset beyond the robot's reach
+        is taken as 0 (in the same unit as the positions, it is as wrong as they are).
+    q, positions
+        The rows' coordinates (n, n_coordinates; rad, m) and measured positions (n, M, 3; m,
+        NaN unseen).
+    """
+    rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), ROWS_CHECKED)).astype(int))
+    size = reach(robot.model)
+    offsets = np.where(np.linalg.norm(offsets, axis=1, keepdims=True) <= size, offsets, 0.0)
+    try:
+        nominal = nominal_marker_positions(robot, frames, offsets, q[rows])
+    except StiffnessError:  # a pose the loops cannot close: reported where it is used
+        return None
+    measured = positions[rows]
+    i, j = np.triu_indices(len(rows), 1)
+    d_nom = np.linalg.norm(nominal[i] - nominal[j], axis=-1)  # (pairs, M)
+    d_meas = np.linalg.norm(measured[i] - measured[j], axis=-1)
+    usable = (d_nom > 1e-3 * size) & np.isfinite(d_meas)
+    if not usable.any():
+        return None
+    ratios = d_meas[usable] / d_nom[usable]
+    return float(np.median(ratios)), int(ratios.size)
+
+
+def spread_advice(ratio: float, units: Units) -> str:
+    """What to check when the markers move ``ratio`` times as far as the kinematics moves
+    them: the length unit that brings it to 1, else the unit, the robot and the frames."""
+    return _advice(likely_length_unit(1.0 / ratio, units) if ratio > 0 else None)
+
+
 def check_marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q: np.ndarray,
                         positions: np.ndarray, units: Units, data: Path) -> None:
     """Warn once when the measured marker positions (n, M, 3; m, NaN unseen) move between rows
-    by other distances than the nominal kinematics at ``q`` (rad, m) moves them.
+    by other distances than the nominal kinematics at ``q`` (rad, m) moves them
+    (:func:`marker_spread`).
 
     Warns
     -----
@@ -102,34 +142,38 @@ def check_marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q:
         The median ratio of measured to nominal distances outside :data:`SPREAD_RATIO`, with
         the length unit that would bring it to 1 (:func:`likely_length_unit`).
     """
-    rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), ROWS_CHECKED)).astype(int))
-    size = reach(robot.model)
-    # the offsets are in the same unit: beyond the reach they are as wrong as the positions
-    offsets = np.where(np.linalg.norm(offsets, axis=1, keepdims=True) <= size, offsets, 0.0)
-    try:
-        nominal = nominal_marker_positions(robot, frames, offsets, q[rows])
-    except StiffnessError:  # a pose the loops cannot close: reported where it is used
+    spread = marker_spread(robot, frames, offsets, q, positions)
+    if spread is None or SPREAD_RATIO[0] <= spread[0] <= SPREAD_RATIO[1]:
         return
-    measured = positions[rows]
-    floor = 1e-3 * size
-    ratios = []
-    for k in range(len(frames)):
-        for i in range(len(rows)):
-            for j in range(i + 1, len(rows)):
-                d_nom = np.linalg.norm(nominal[i, k] - nominal[j, k])
-                d_meas = np.linalg.norm(measured[i, k] - measured[j, k])
-                if d_nom > floor and np.isfinite(d_meas):
-                    ratios.append(d_meas / d_nom)
-    if not ratios:
-        return
-    ratio = float(np.median(ratios))
-    if SPREAD_RATIO[0] <= ratio <= SPREAD_RATIO[1]:
-        return
+    ratio, pairs = spread
     warnings.warn(
         f"{data}: the measured marker positions move {ratio:.3g} times as far between rows as "
-        f"{robot.title}'s kinematics moves the markers (median over {len(ratios)} row pairs, "
-        f"length unit {units.length}); "
-        f"{_advice(likely_length_unit(1.0 / ratio, units) if ratio > 0 else None)}",
+        f"{robot.title}'s kinematics moves the markers (median over {pairs} row pairs, "
+        f"length unit {units.length}); {spread_advice(ratio, units)}",
+        DataFileWarning, stacklevel=3)
+
+
+def check_marker_offsets(robot: Robot, names: list[str], offsets: np.ndarray, units: Units,
+                         where: str | Path) -> None:
+    """Warn once, naming them, when declared marker offsets (M, 3; m) put a marker farther
+    from its frame than the robot's reach: such a marker is not on the robot, and its offset
+    is most likely in another length unit than the campaign's.
+
+    Warns
+    -----
+    DataFileWarning
+        The markers, their distance from their frame and the reach.
+    """
+    size = reach(robot.model)
+    far = [(n, float(np.linalg.norm(o))) for n, o in zip(names, offsets, strict=True)
+           if np.linalg.norm(o) > size]
+    if not far:
+        return
+    listed = ", ".join(f"{n} {d / units.length_to_si:.4g} {units.length}" for n, d in far)
+    warnings.warn(
+        f"{where}: marker offset(s) beyond {robot.title}'s reach ({size / units.length_to_si:.4g} "
+        f"{units.length}): {listed} from their frame; a marker that far is not on the robot: "
+        f"give the offsets in the campaign's length unit ({units.length})",
         DataFileWarning, stacklevel=3)
 
 

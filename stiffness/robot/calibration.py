@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import FileFormatError
+from stiffness.errors import DataFileWarning, FileFormatError, warn_user
 from stiffness.files import looks_like_path, read_json, resolve_source
 from stiffness.robot.kinematics import frame_id
 from stiffness.robot.sources import (
@@ -186,12 +186,22 @@ def read_pose_calibration(path: str | os.PathLike) -> PoseCalibration:
     FileFormatError
         Not a pose model file, a missing or malformed key, or a number not finite or not of
         its shape (one line naming it).
+
+    Warns
+    -----
+    DataFileWarning
+        The file's ``plausibility`` says the fit is no calibration (a length unit read wrong:
+        :mod:`stiffness.calibration.pose_plausibility`), with its verdict.
     """
     path = Path(path)
     doc = read_json(path, "model file")
     if not isinstance(doc, dict) or doc.get("kind") != POSE_MODEL_KIND:
         raise FileFormatError(f"not a pose model file (kind {POSE_MODEL_KIND!r}); give the "
                               "final-model.json of a pose diagnosis", path=path)
+    judged = doc.get("plausibility")
+    if isinstance(judged, dict) and judged.get("plausible") is False:
+        warn_user(f"{path}: {judged.get('verdict')}",
+                  DataFileWarning)
     try:
         r = doc["robot"]
         frame = r["frame"]

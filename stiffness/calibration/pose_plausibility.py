@@ -1,0 +1,207 @@
+"""Whether a pose fit is a calibration: its geometric parameters against the robot's size, and
+the campaign's marker spread against the robot's kinematics.
+
+A pose campaign whose length unit is read 1000x off (declared mm, written m, or the reverse)
+does not stop the fit: the joint placement errors (``geometry``) shrink or stretch every link
+and the marker offsets follow, until the residual sits at the noise. Its chi-square then reads
+*explained* and its parameters like a calibration. Three things tell it apart, each from the
+robot's size (its reach, :func:`~stiffness.elastic.effects.geometry.reach`):
+
+* **Placement errors beyond a tenth of the reach** (:data:`PLACEMENT_FRACTION`): a wrong unit
+  changes every link's length by all of it, and of ``n`` joints' links the longest is at least
+  ``1/n`` of the reach (a tenth or more for the arms of up to ten joints), while a machined
+  robot is off its drawing by millimetres. A prismatic joint's zero offset beyond the reach
+  too.
+* **A marker beyond the reach from its frame** (its fitted offset ``o + delta o``): not on the
+  robot.
+* **The spread** (:func:`~stiffness.calibration.unit_checks.marker_spread`): the distance a
+  marker moves between two rows does not depend on where the measuring system stands, so
+  its median ratio to the nominal kinematics' is about 1 whatever the fit; outside
+  :data:`~stiffness.calibration.unit_checks.SPREAD_RATIO` the unit (or the robot, or the
+  markers' frames) is wrong, and the length unit that brings it to 1 is the likely one.
+
+Any of them makes the fit *not a calibration* (:attr:`Plausibility.plausible` false). The
+measuring frame is free (a tracker 250 m from the robot, or a site's coordinates, is normal)
+and so are the revolute zero offsets and every rotation: a unit shows in lengths.
+
+A marker whose fitted offset is a unit's factor (10 or more) times its declared one, in the
+same direction (cosine above :data:`SAME_DIRECTION`), had its offset declared in another unit
+than the campaign's: the fit corrected it, so the calibration stands, and a note names the
+unit and the offset to declare (:class:`OffsetUnit`).
+
+SI throughout; the text in the campaign's length unit where it quotes the files.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_fit import PoseFit
+from stiffness.calibration.unit_checks import (
+    SPREAD_RATIO,
+    likely_length_unit,
+    marker_spread,
+    spread_advice,
+)
+from stiffness.elastic.effects.geometry import reach
+from stiffness.files import number_text
+from stiffness.units import LENGTH_UNITS, Units
+
+#: A joint placement error beyond this fraction of the robot's reach is no calibration.
+PLACEMENT_FRACTION = 0.1
+#: Cosine between a marker's declared and fitted offsets above which they point the same way.
+SAME_DIRECTION = 0.95
+#: At most this many parameters are quoted in the verdict line (all in ``--json``).
+QUOTED = 3
+
+
+@dataclass(frozen=True)
+class Beyond:
+    """A fitted length beyond what a calibration corrects: ``parameter`` (a label of the
+    parameter table, or ``<marker> offset`` for a marker's fitted offset), its ``value`` and
+    the ``limit`` it is beyond (m)."""
+
+    parameter: str
+    value: float
+    limit: float
+
+    def to_dict(self) -> dict:
+        return {"parameter": self.parameter, "value": self.value, "limit": self.limit,
+                "unit": "m"}
+
+
+@dataclass(frozen=True)
+class OffsetUnit:
+    """A marker whose fitted offset (3,; m) is ``factor`` times its declared one (3,; m) in the
+    same direction: declared in ``unit``, not in the campaign's."""
+
+    marker: str
+    declared: np.ndarray
+    fitted: np.ndarray
+    factor: float
+    unit: str
+
+    def note(self, units: Units) -> str:
+        """The report's line: the unit and the offset to declare (campaign length unit)."""
+        numbers = self.declared / units.length_to_si * LENGTH_UNITS[self.unit] / units.length_to_si
+        return (f"note: marker {self.marker}'s fitted offset ({_numbers(self.fitted, units)}) "
+                f"{units.length} is {self.factor:.3g} times its declared "
+                f"({_numbers(self.declared, units)}) {units.length}: its declared offset looks "
+                f"like {self.unit}; in {units.length}: "
+                f"offset = [{_numbers(numbers, units, si=False)}]")
+
+    def to_dict(self, units: Units) -> dict:
+        return {"marker": self.marker, "declared": (self.declared / units.length_to_si).tolist(),
+                "fitted": (self.fitted / units.length_to_si).tolist(), "unit": units.length,
+                "factor": self.factor, "likely_length_unit": self.unit}
+
+
+def _numbers(v: np.ndarray, units: Units, si: bool = True) -> str:
+    scale = units.length_to_si if si else 1.0
+    return ", ".join(number_text(float(f"{x / scale:.4g}")) for x in v)
+
+
+@dataclass(frozen=True)
+class Plausibility:
+    """Whether a pose fit is a calibration (module docstring): the lengths beyond what one
+    corrects, the campaign's marker spread (median ratio, ``None`` when no row pair tells) and
+    the markers whose offsets were declared in another unit."""
+
+    robot: str
+    reach_m: float
+    units: Units
+    beyond: tuple[Beyond, ...]
+    spread: float | None
+    offsets: tuple[OffsetUnit, ...]
+
+    @property
+    def spread_off(self) -> bool:
+        """Whether the markers move by other distances than the kinematics moves them."""
+        return self.spread is not None and not SPREAD_RATIO[0] <= self.spread <= SPREAD_RATIO[1]
+
+    @property
+    def plausible(self) -> bool:
+        """Whether the fit can be a calibration (no length beyond it, the spread about 1)."""
+        return not self.beyond and not self.spread_off
+
+    @property
+    def likely_unit(self) -> str | None:
+        """The length unit the data look like, from the spread, or ``None``."""
+        if not self.spread_off or self.spread is None or self.spread <= 0:
+            return None
+        return likely_length_unit(1.0 / self.spread, self.units)
+
+    def verdict(self) -> str | None:
+        """The report's line when the fit is no calibration (``None`` when it can be one)."""
+        if self.plausible:
+            return None
+        parts = []
+        if self.spread_off and self.spread is not None:
+            parts.append(f"the measured markers move {self.spread:.3g} times as far between "
+                         f"poses as {self.robot}'s kinematics moves them")
+        if self.beyond:
+            quoted = ", ".join(f"{b.parameter} {b.value:.3g} m" for b in self.beyond[:QUOTED])
+            more = len(self.beyond) - QUOTED
+            parts.append(f"the fit moves {quoted}" + (f" (and {more} more)" if more > 0 else "")
+                         + f", beyond what a calibration corrects on a robot of reach "
+                         f"{self.reach_m:.3g} m (a tenth of it for a placement, all of it for "
+                         "a marker)")
+        advice = (spread_advice(self.spread, self.units) if self.spread_off and self.spread
+                  else "check the length unit, the robot and the markers' frames")
+        return "NOT A CALIBRATION: " + "; ".join(parts) + f"; {advice}"
+
+    def notes(self) -> list[str]:
+        """The markers' offset notes (:meth:`OffsetUnit.note`)."""
+        return [o.note(self.units) for o in self.offsets]
+
+    def to_dict(self) -> dict:
+        """``plausibility`` in ``diagnose --json`` and ``identify --json``."""
+        return {"plausible": self.plausible, "verdict": self.verdict(),
+                "spread_ratio": self.spread, "spread_range": list(SPREAD_RATIO),
+                "likely_length_unit": self.likely_unit, "reach_m": self.reach_m,
+                "placement_limit_m": PLACEMENT_FRACTION * self.reach_m,
+                "beyond": [b.to_dict() for b in self.beyond],
+                "marker_offsets": [o.to_dict(self.units) for o in self.offsets]}
+
+
+def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
+    """Judge ``fit`` of ``campaign`` (module docstring)."""
+    model, robot = fit.model, campaign.robot
+    size = reach(robot.model)
+    beyond = []
+    for i, p in enumerate(model.parameters):
+        limit = {"geometry": PLACEMENT_FRACTION * size, "joint_offsets": size}.get(p.family)
+        if limit is not None and p.unit == "m" and abs(fit.x[i]) > limit:
+            beyond.append(Beyond(p.label, float(fit.x[i]), limit))
+    offsets = []
+    for k, m in enumerate(model.markers):
+        fitted = model.marker_offset(fit.x, k)
+        if np.linalg.norm(fitted) > size:
+            beyond.append(Beyond(f"{m.name} offset", float(np.linalg.norm(fitted)), size))
+        unit = _declared_unit(np.asarray(m.offset, float), fitted, campaign.units)
+        if unit is not None:
+            offsets.append(OffsetUnit(m.name, np.asarray(m.offset, float), fitted, *unit))
+    spread = marker_spread(robot, [m.frame for m in campaign.markers],
+                           np.array([m.offset for m in campaign.markers]), campaign.q,
+                           campaign.positions)
+    beyond.sort(key=lambda b: -abs(b.value) / b.limit)
+    return Plausibility(robot.title, size, campaign.units, tuple(beyond),
+                        None if spread is None else spread[0], tuple(offsets))
+
+
+def _declared_unit(declared: np.ndarray, fitted: np.ndarray, units: Units
+                   ) -> tuple[float, str] | None:
+    """``(factor, unit)`` when ``fitted`` (m) is a unit's factor times ``declared`` (m) in the
+    same direction (module docstring), else ``None``."""
+    a, b = float(np.linalg.norm(declared)), float(np.linalg.norm(fitted))
+    if a == 0 or b == 0 or float(declared @ fitted) < SAME_DIRECTION * a * b:
+        return None
+    factor = b / a
+    if abs(math.log10(factor)) < 0.5:  # not a unit's factor (10 or more)
+        return None
+    unit = likely_length_unit(factor, units)
+    return None if unit is None else (factor, unit)

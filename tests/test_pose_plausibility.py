@@ -1,0 +1,182 @@
+"""A pose campaign in the wrong length unit is no calibration, and says so
+(stiffness.calibration.pose_plausibility, docs/absolute-poses.md "Units").
+
+Declared mm and written m, the joint placement errors shrink the robot 1000x and the fit
+reads *explained to noise*: the diagnosis, identify and the model file they write must say
+NOT A CALIBRATION with the unit and the fix. Declared m and written mm, the marker offsets
+go tens of metres. A marker offset declared in m in a mm campaign (or the reverse) is
+corrected by the fit and noted. A tracker 250 m away and millimetre placement errors are a
+calibration: nothing said.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from stiffness.calibration import pose_report
+from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
+from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_identify import identify_poses
+from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_plausibility import PLACEMENT_FRACTION
+from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
+from stiffness.errors import DataFileWarning
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.calibration import read_pose_calibration
+from stiffness.robot.robot import load_robot
+from stiffness.units import Units
+
+MARKERS = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
+           Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
+
+
+def quietly(read):
+    """``read()`` and the messages of the DataFileWarnings it raised."""
+    with warnings.catch_warnings(record=True) as found:
+        warnings.simplefilter("always")
+        out = read()
+    return out, [str(w.message) for w in found if issubclass(w.category, DataFileWarning)]
+
+
+@pytest.fixture(scope="module")
+def legit(tmp_path_factory) -> Path:
+    """A rigid UR10 seen by a tracker 250 m away and turned, 0.4 mm placement errors, 10
+    poses, two markers, 20 um noise, written in mm."""
+    robot = load_robot("ur10", frame="tool0")
+    rng = np.random.default_rng(3)
+    eps = np.zeros((6, 6))
+    eps[:, :2] = rng.normal(0.0, 4e-4, (6, 2))
+    hidden = HiddenPoseErrors(pin.exp3(np.array([0.1, -0.2, 1.0])),
+                              np.array([250.0, -80.0, 30.0]),
+                              np.array([m.offset for m in MARKERS]) + 1e-3, np.zeros(6), eps)
+    campaign = simulate_pose_campaign(robot, MARKERS, hidden, 10, 20e-6, seed=1,
+                                      units=Units("deg", "N", "mm"))
+    folder = tmp_path_factory.mktemp("legit")
+    write_pose_campaign(campaign, folder)
+    return folder
+
+
+def variant(source: Path, folder: Path, scale: float = 1.0,
+            edits: tuple[tuple[str, str], ...] = ()) -> Path:
+    """A copy of ``source`` with its marker positions times ``scale`` and, in its
+    campaign.toml, each ``(old, new)`` text of ``edits`` replaced."""
+    shutil.copytree(source, folder)
+    toml = folder / "campaign.toml"
+    text = toml.read_text()
+    for old, new in edits:
+        assert old in text, old
+        text = text.replace(old, new)
+    toml.write_text(text)
+    path = folder / "measurements.csv"
+    rows = list(csv.reader(path.open()))
+    cols = [i for i, name in enumerate(rows[0]) if name[-2:] in ("_x", "_y", "_z")]
+    for row in rows[1:]:
+        for i in cols:
+            row[i] = repr(float(row[i]) * scale)
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return folder
+
+
+#: The campaign toml in m: its unit, noise and offsets.
+IN_M = (('length = "mm"', 'length = "m"'), ("noise_std = 0.02", "noise_std = 2e-05"),
+        ("offset = [0.0, 50.0, 200.0]", "offset = [0.0, 0.05, 0.2]"))
+#: The tip's offset written in m.
+TIP_IN_M = (("offset = [0.0, 30.0, 50.0]", "offset = [0.0, 0.03, 0.05]"),)
+
+
+def test_a_legit_calibration_far_from_the_tracker_is_plausible(legit):
+    campaign, warned = quietly(lambda: load_pose_campaign(legit))
+    assert warned == []
+    d = diagnose_poses(campaign, families=["geometry"], max_steps=0)
+    assert not d.unexplained and d.plausibility.plausible
+    assert abs(d.plausibility.spread - 1.0) < 0.01
+    text = format_pose_report(d)
+    assert "NOT A CALIBRATION" not in text and "note: marker" not in text
+    record = d.to_dict()
+    assert record["plausible"] is True and record["plausibility"]["beyond"] == []
+
+
+@pytest.fixture(scope="module")
+def shrunk(legit, tmp_path_factory):
+    """The campaign declared mm and written m, loaded (its warnings) and diagnosed with the
+    geometry forced in."""
+    folder = variant(legit, tmp_path_factory.mktemp("units") / "mm_is_m", 1e-3)
+    campaign, warned = quietly(lambda: load_pose_campaign(folder))
+    return diagnose_poses(campaign, families=["geometry"], max_steps=0), warned
+
+
+def test_declared_mm_written_m_reads_explained_but_is_no_calibration(shrunk):
+    """The geometry shrinks every link: 'explained to noise', and the verdict says no."""
+    d, warned = shrunk
+    assert len(warned) == 1 and 'the data look like m: [units] length = "m"' in warned[0]
+    assert not d.unexplained  # the fit alone reads like a calibration
+    p = d.plausibility
+    assert not p.plausible and p.likely_unit == "m" and abs(p.spread - 1e-3) < 1e-5
+    limit = PLACEMENT_FRACTION * p.reach_m
+    assert any("placement" in b.parameter and abs(b.value) > limit for b in p.beyond)
+    text = format_pose_report(d)
+    verdict = next(line for line in text.splitlines() if line.startswith("NOT A CALIBRATION"))
+    assert '[units] length = "m"' in verdict and "0.001 times as far" in verdict
+    assert text.index("NOT A CALIBRATION") < text.index("explained to noise")
+    record = d.to_dict()
+    assert record["plausible"] is False
+    assert record["plausibility"]["likely_length_unit"] == "m"
+
+
+def test_declared_m_written_mm(legit, tmp_path):
+    """1000x too far: the markers' fitted offsets go metres beyond the reach."""
+    folder = variant(legit, tmp_path / "m_is_mm", 1.0, IN_M + TIP_IN_M)
+    campaign, _ = quietly(lambda: load_pose_campaign(folder))
+    p = diagnose_poses(campaign, max_steps=0).plausibility
+    assert not p.plausible and p.likely_unit == "mm"
+    assert any(b.parameter.endswith("offset") and b.value > p.reach_m for b in p.beyond)
+    assert '[units] length = "mm"' in p.verdict()
+
+
+def test_identify_says_it_instead_of_sending_to_diagnose(shrunk):
+    """identify's springs take a 1000x shrink: its text names the unit, not diagnose."""
+    d, _ = shrunk
+    identified = identify_poses(d.campaign)
+    text = identified.format()
+    assert text.splitlines()[3].startswith("NOT A CALIBRATION")
+    assert '[units] length = "m"' in text and "run stiffness diagnose" not in text
+    assert identified.to_dict()["plausibility"]["likely_length_unit"] == "m"
+
+
+@pytest.mark.parametrize(("name", "scale", "edits", "unit", "declare"), [
+    ("offset_in_m", 1.0, TIP_IN_M, "m", "in mm: offset = [0.0, 30.0, 50.0]"),
+    ("offset_in_mm", 1e-3, IN_M, "mm", "in m: offset = [0.0, 0.03, 0.05]"),
+])
+def test_a_marker_offset_in_the_wrong_unit_is_noted(legit, tmp_path, name, scale, edits, unit,
+                                                    declare):
+    """The fit corrects it (a calibration), and a note names the unit and what to declare."""
+    folder = variant(legit, tmp_path / name, scale, edits)
+    campaign, warned = quietly(lambda: load_pose_campaign(folder))
+    assert [w for w in warned if "beyond ur10's reach" in w] == ([] if unit == "m" else [
+        w for w in warned if "tip 58.31 m from their frame" in w])
+    d = diagnose_poses(campaign, families=["geometry"], max_steps=0)
+    assert not d.unexplained and d.plausibility.plausible
+    notes = d.plausibility.notes()
+    assert len(notes) == 1 and f"looks like {unit}" in notes[0] and declare in notes[0], notes
+    assert d.to_dict()["plausibility"]["marker_offsets"][0]["likely_length_unit"] == unit
+
+
+def test_the_output_folder_and_the_model_file_say_it(shrunk, tmp_path, monkeypatch):
+    """diagnose --out: the page's verdict, and the model file warns whoever reads it (the
+    residual figures, seconds of plotting, left out)."""
+    monkeypatch.setattr(pose_report, "marker_residual_plots", lambda d: None)
+    d, _ = shrunk
+    paths = write_pose_diagnosis(d, tmp_path / "out", "stiffness diagnose mm_is_m")
+    assert json.loads(paths["diagnosis"].read_text())["plausible"] is False
+    assert "NOT A CALIBRATION" in paths["page"].read_text()
+    _, warned = quietly(lambda: read_pose_calibration(paths["model"]))
+    assert len(warned) == 1 and '[units] length = "m"' in warned[0]
