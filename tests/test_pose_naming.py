@@ -151,3 +151,20 @@ def test_how_sure_removal_bic_is_on_the_steps_scale_when_the_model_stays_above_t
     sure = record["how_sure"][0]
     assert sure["removal_delta_bic"] == pytest.approx(expected, rel=1e-9)
     assert sure["removal_delta_bic"] == pytest.approx(-final["delta_bic"], rel=1e-9)
+
+
+def test_a_family_adding_no_parameter_says_so_instead_of_a_bic_change():
+    """FIGAROH's TIAGo and UR10 tracker data printed "base_tilt (+0)" and "base_tilt
+    (-4.26e-14)" among the families not added: a base tilt moves no marker while no spring
+    sags, so its screen adds no identifiable parameter and its BIC change is zero to
+    rounding, no verdict. It is said so (not_judged, the report's line)."""
+    campaign = ur10_tip_campaign(8)
+    d = diagnose_poses(campaign, not_families=[*NOT_HIDDEN[:-2], "joint_compliance",
+                                               "link_compliance",
+                                               "nonlinear_joint_stiffness"])
+    record = d.to_dict()
+    assert "base_tilt" in record["rejected"] and abs(record["rejected"]["base_tilt"]) < 1e-6
+    assert record["not_judged"]["base_tilt"].startswith("no identifiable parameter beside")
+    assert "base_tilt (no identifiable parameter beside the families in" in \
+        format_pose_report(d)
+    assert "joint_offsets" not in record["not_judged"]  # one that adds parameters is judged

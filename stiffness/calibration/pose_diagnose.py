@@ -86,6 +86,10 @@ from stiffness.workspace.distributed import run_chunks
 
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
+#: Why a family tried and not added has no BIC change to show: it added no identifiable
+#: parameter (a base tilt while no spring sags, a compliance no torque loads).
+NO_PARAMETER = ("no identifiable parameter beside the families in: it moves no marker here, "
+                "or only as they do")
 #: Families tried after the base, by whether the robot's masses are trusted.
 #: (link_compliance and backlash need the links' masses; gravity_compensator and
 #: nonlinear_joint_stiffness act through joint_compliance, tried once it is in: absolute-poses.md)
@@ -594,8 +598,14 @@ class PoseSearch:
         for f in ready:
             model = PoseModel(c.robot, c.markers, tuple(families + [f]), self.frame0, c.loads,
                               self.settings)
-            screen[f] = linearised_rss(model, c, rows_of(model, c), families + [f],
-                                       warm_start(model, current), current.loss, current.sigma)
+            rss, p, fresh = linearised_rss(model, c, rows_of(model, c), families + [f],
+                                           warm_start(model, current), current.loss,
+                                           current.sigma)
+            screen[f] = (rss, p)
+            if fresh == 0:  # its BIC change is 0 to rounding: no verdict, said so
+                self.not_judged[f] = NO_PARAMETER
+            elif self.not_judged.get(f) == NO_PARAMETER:
+                del self.not_judged[f]
         self.delta = self.deltas(current, screen)
         order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN),
                        key=lambda f: self.delta[f])

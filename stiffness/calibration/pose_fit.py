@@ -256,10 +256,12 @@ def layout(model: PoseModel, order: list[str]) -> Layout:
 @one_blas_thread
 def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray, loss: str = "linear",
-                   sigma: float = 1.0) -> tuple[float, int]:
+                   sigma: float = 1.0) -> tuple[float, int, int]:
     """One Gauss-Newton step from ``x0``: the objective it reaches (:func:`objective_rss`
     under ``loss`` scaled by ``sigma``, m^2, comparable with the fit's
-    :meth:`PoseFit.loss_rss`) and the number of identifiable parameters. From a fit of some of
+    :meth:`PoseFit.loss_rss`), the number of identifiable parameters and how many of them
+    are the last family of ``order``'s (0: it adds none, it moves no marker beyond what the
+    others do). From a fit of some of
     ``model``'s families (``x0`` its optimum, zero for the others), this is the score-test
     screen of adding the others: what their columns explain of the residual beyond the fitted
     ones, to first order (infinite where the sag diverges at ``x0``)."""
@@ -268,19 +270,21 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     try:  # the residual and the Jacobian through their factor R (observed_factor)
         tri = observed_factor(obs, x0)
     except ConvergenceError:
-        return math.inf, 0
+        return math.inf, 0, 0
     kept = plan.reduce(tri[:, 1:] * plan.scales).kept
+    last = model.slices()[order[-1]]
+    fresh = sum(last.start <= k < last.stop for k in kept)
     # |r - J_kept s| = |R_r - R_kept s| for every s: the least squares on the factor
     scales = plan.scales[kept]  # the step in typical sizes: lstsq's cut-off is relative
     columns = tri[:, [1 + c for c in kept]] * scales
     step, *_ = np.linalg.lstsq(columns, tri[:, 0], rcond=None)
     if loss == "linear":
         left = tri[:, 0] - columns @ step
-        return float(left @ left), len(kept)
+        return float(left @ left), len(kept), fresh
     after = np.empty(obs.size)  # a robust loss needs the residuals: a second pass
     for index, r, j in obs.blocks(x0):
         after[index] = r - (j[:, kept] * scales) @ step
-    return objective_rss(after, loss, sigma), len(kept)
+    return objective_rss(after, loss, sigma), len(kept), fresh
 
 
 def held_out_rms(fit: PoseFit, campaign: PoseCampaign,
