@@ -53,6 +53,10 @@ def truth(model, hidden: HiddenPoseErrors) -> np.ndarray:
                               strict=True):
             if f"{j} nonlinear compliance" in labels:  # gamma = c beta
                 x[labels[f"{j} nonlinear compliance"]] = beta / k
+    for joint, (stiffness, tension) in hidden.compensator.items():
+        if f"{joint} compensator stiffness" in labels:
+            x[labels[f"{joint} compensator stiffness"]] = stiffness
+            x[labels[f"{joint} compensator preload"]] = tension
     if hidden.backlash is not None and "backlash" in sl:
         for j, b in zip(model.robot.compliant_joints, hidden.backlash, strict=True):
             if f"{j} backlash" in labels:  # a joint carrying no torque has none

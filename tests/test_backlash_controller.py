@@ -13,7 +13,8 @@ so a pose campaign had no parameter for it and the pose simulator refused to hid
 * the model at the truth reproduces a simulated arm hiding a backlash on T2;
 * diagnose names it, and the model file it writes gives an elastic model with
   ``backlash(T2)``;
-* a gravity compensator, which acts on one link, is refused on a coordinate.
+* a gravity compensator, which acts on one link, is refused on a coordinate that turns two
+  chain joints (T2) by the deflection side; the pose side's: test_compensator_controller.py.
 """
 
 from __future__ import annotations
@@ -185,21 +186,6 @@ def test_diagnose_names_a_hidden_backlash_on_a_coordinate(torso, tmp_path):
     q, wrench = np.radians([10.0, 20.0, 15.0, -30.0, 40.0]), np.r_[0.0, 0.0, 200.0, 0, 0, 0]
     assert np.abs(em.at(q, wrench).equilibrium().twist[:3]
                   - tight.at(q, wrench).equilibrium().twist[:3]).max() > 1e-4
-
-
-def test_a_compensator_on_a_coordinate_is_refused(torso):
-    """A gravity compensator acts on one link's chain joint, and a controller coordinate is no
-    link (docs/absolute-poses.md, Limits): the pose simulator refuses to hide one on T2, and
-    diagnose forcing the family says it has no parameter, each in one line."""
-    hidden, _ = _campaign(torso, 0, 2, NOISE)
-    hidden.compensator = {"T2": np.array([5e3, 300.0])}
-    with pytest.raises(StiffnessError, match="gravity_compensator acts on a chain joint") as err:
-        simulate_pose_campaign(torso, MARKERS, hidden, 4, NOISE)
-    assert "\n" not in str(err.value)
-    _, c = _campaign(torso, 0, 8, NOISE)
-    with pytest.raises(StiffnessError, match="gravity_compensator has no parameter") as err:
-        diagnose_poses(c, families=["joint_compliance", "gravity_compensator"])
-    assert "\n" not in str(err.value)
 
 
 def test_the_deflection_side_refuses_a_compensator_on_a_coordinate_of_two_links(torso):

@@ -28,8 +28,9 @@ How they must agree:
 * exact against exact (the pose model's sag fixed point ``dq = law(tau(q + dq))`` and the elastic
   model's Newton equilibrium; the deflection fit's ``exact`` baseline of joint springs): to
   1e-12 m on displacements of 4-7 mm (measured: at most 3e-15 m, 8e-14 m with springs on the
-  chain joints of a coupling, 1e-15 m with a backlash on a controller coordinate, and 4e-15
-  rad between the deflection fit's exact baseline and the elastic model);
+  chain joints of a coupling, 1e-15 m with a backlash on a controller coordinate, 2e-16 m
+  with a compensator on one, and 4e-15 rad between the deflection fit's exact baseline and
+  the elastic model);
 * a first-order model against the exact one: the error is second order in the deflection, so it
   falls by 16 when the deflection falls by 4 (log-log slope 2 +- 0.1 between sizes 1 and 1/4;
   measured 1.99-2.03; the error at size 1 0.1-2 % of the displacement). The deflection fit's
@@ -51,13 +52,11 @@ What is not compared, and why:
 * ``gravity_lumped`` is not applied by the elastic model (its parameters are combinations of
   masses): the lumped weight at the robot's true masses is compared with the known weight
   (``gravity_preload``);
-* a compensator on springs acting on controller coordinates: the deflection face and the
-  elastic model take it only on a coordinate that is one chain joint one to one (its angle
-  the coordinate's, from its zero; T2 of the torso, turning t2 and t4, is refused), the pose
-  face lays it out on compliant chain joints only (none there: no parameter; a compensator
-  acts on one link, docs/absolute-poses.md, Limits) and the pose simulator refuses it. A
-  backlash there is compared (T2 and T3 of the torso: the pose face acts on each spring
-  through ``S``, as the other two sides);
+* a compensator on a controller coordinate that turns several chain joints (T2 of the torso,
+  turning t2 and t4): refused on every side (docs/absolute-poses.md, Limits); on T1, which
+  alone turns t1 at rate 1, it is compared (its angle the coordinate's, from its zero, on
+  every side). A backlash on T2 and T3 is compared (the pose face acts on each spring through
+  ``S``, as the other two sides);
 * rotations: the pose model observes points; the deflection fit's and the elastic model's
   rotations are compared;
 * ``joint_angles = "link"`` (the recorded pose the unloaded one): the pose model's rows are
@@ -319,26 +318,31 @@ def test_backlash(name, joint, half_width, request):
 
 
 @pytest.mark.parametrize("gravity", [False, True])
-def test_gravity_compensator(ur5, gravity):
-    """``gravity_compensator`` on the shoulder (5e3 N/m, 300 N), without gravity (its angle
-    from the joint's zero) and with the links' weight (from the link's upward direction): the
-    pose model and the elastic model agree to 1e-12 m; the deflection fit is off at second
-    order in the load, the sag held."""
-    robot = ur5.robot if gravity else ur5.flat
-    spring = GravityCompensator.upward(robot, "shoulder_lift_joint")
-    assert spring.angle_reference == ("upward" if gravity else "joint_zero")
+@pytest.mark.parametrize(("name", "joint"), [("ur5", "shoulder_lift_joint"), ("torso", "T1")])
+def test_gravity_compensator(name, joint, gravity, request):
+    """``gravity_compensator`` (5e3 N/m, 300 N) on the UR5's shoulder and on the torso's
+    controller coordinate T1 (which alone turns the waist t1 at rate 1: its angle the
+    coordinate's, from its zero, on every side), without gravity (its angle from the joint's
+    zero) and with the links' weight (from the link's upward direction; T1, a coordinate,
+    from its zero): the pose model and the elastic model agree to 1e-12 m; the deflection fit
+    is off at second order in the load, the sag held."""
+    arm = request.getfixturevalue(name)
+    robot = arm.robot if gravity else arm.flat
+    spring = GravityCompensator.upward(robot, joint)
+    assert spring.angle_reference == ("upward" if gravity and joint in robot.model.names
+                                      else "joint_zero")
     values = [5e3, 300.0]
-    weight = ([make_effect("gravity_preload", None, Geometry.of(ur5.robot))], [GravityPreload()],
-              [np.zeros(4)]) if gravity else ([], [], [])
-    exact = ur5.elastic([spring, *weight[1]], [values, *weight[2]])
-    pose = ur5.pose(("joint_compliance", "gravity_compensator"), {
-        **ur5.compliances(), compensator_label("shoulder_lift_joint", "stiffness"): values[0],
-        compensator_label("shoulder_lift_joint", "preload"): values[1]}, gravity=gravity)
+    weight = ([make_effect("gravity_preload", None, Geometry.of(arm.robot))],
+              [GravityPreload()], [np.zeros(4)]) if gravity else ([], [], [])
+    exact = arm.elastic([spring, *weight[1]], [values, *weight[2]])
+    pose = arm.pose(("joint_compliance", "gravity_compensator"), {
+        **arm.compliances(), compensator_label(joint, "stiffness"): values[0],
+        compensator_label(joint, "preload"): values[1]}, gravity=gravity)
     assert _gap(pose, exact[:, :3]) < EXACT
-    unsprung = ur5.pose(("joint_compliance",), ur5.compliances(), gravity=gravity)
+    unsprung = arm.pose(("joint_compliance",), arm.compliances(), gravity=gravity)
     assert _gap(pose, unsprung) > 1e-6  # the spring's stiffness shows
-    _second_order(lambda s: (ur5.hypothesis([spring, *weight[0]], [values, *weight[2]], load=s),
-                             ur5.elastic([spring, *weight[1]], [values, *weight[2]], load=s)),
+    _second_order(lambda s: (arm.hypothesis([spring, *weight[0]], [values, *weight[2]], load=s),
+                             arm.elastic([spring, *weight[1]], [values, *weight[2]], load=s)),
                   0.01)
 
 

@@ -490,7 +490,7 @@ def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settin
            families: Sequence[str]) -> set[str]:
     """The ``families`` with no parameter on the campaign's robot and markers (bearing tilts
     where no marker's chain holds a joint the springs turn, a compensator on springs on
-    controller coordinates: nothing to try)."""
+    controller coordinates that each turn several chain joints: nothing to try)."""
     out = set()
     for f in families:
         with_it = (*BASE_FAMILIES, *FAMILIES[f].requires, f)

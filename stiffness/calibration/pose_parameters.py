@@ -83,6 +83,9 @@ class PoseJudge:
         weight = weight_torques([pin_model.names[j] for j in single],
                                 self.weight[:, [pin_model.joints[j].idx_v for j in single]],
                                 self.masses)
+        # and on each controller coordinate's spring: what it carries, S^T tau
+        carried = weight_torques(model.springs, self.weight @ model.spring_map, self.masses)
+        weight.update({k: v for k, v in carried.items() if k not in weight})
         return References.scaled(tuple(model.springs), _k_ref(fit),
                                  self.torques @ model.spring_map, self.force_rms, 1e-12, weight,
                                  reach(pin_model))

@@ -165,7 +165,9 @@ def _geometry_effects(cal: PoseCalibration, rows: dict[str, dict], springs: set[
         if isinstance(spring, GravityCompensator):
             declared = cal.settings.get(GravityCompensator.GEOMETRY_SETTING, {})
             spring = spring.declare(declared[joint]) if joint in declared else spring
-            offset = float(rows.get(zero_label(joint), {}).get("value", 0.0))
+            sole = (None if nominal.coupling is None or joint not in nominal.coupling.coordinates
+                    else nominal.coupling.sole_joint(joint))  # a coordinate's: its joint's
+            offset = float(rows.get(zero_label(sole or joint), {}).get("value", 0.0))
             settings = {**spring.settings,  # the calibrated robot's angles exclude the offset
                         "angle_up_rad": spring.settings["angle_up_rad"] - offset}
             out.effects.append(("gravity_compensator", joint,

@@ -41,6 +41,7 @@ from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import Loads, Marker, one_dof_joints
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.link_bends import marker_links
+from stiffness.elastic.effects.preloads import GravityCompensator, compensated_joints
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.gravity import upward_angle
 from stiffness.robot.kinematics import frame_id
@@ -88,8 +89,11 @@ class HiddenPoseErrors:
         coordinates when the springs act there), smoothed as the deflection library's
         (``tau_s`` from the torques the springs carry over the campaign), or ``None``.
     compensator
-        Revolute compliant joint name -> (stiffness N/m, tension N with the link up) of a
-        spring compensator with the library's default geometry
+        Revolute compliant joint name (or a compliant controller coordinate that alone turns
+        one chain joint at rate 1, its angle the coordinate's:
+        :func:`~stiffness.elastic.effects.preloads.compensated_joints`) -> (stiffness N/m,
+        tension N with the link up) of a spring compensator with the library's default
+        geometry
         (:func:`spring_compensator_torque`, its angle from the link's upward direction:
         :func:`~stiffness.mechanics.gravity.upward_angle`).
     transversal_compliance
@@ -151,8 +155,9 @@ class HiddenElasticity:
     backlash, smoothing
         (n_compliant,) backlash half-widths and smoothing torques.
     compensators
-        (velocity index, joint id, the joint's angle with the link up (rad), (stiffness N/m,
-        tension N)) per compensated joint.
+        (velocity index, joint id, the chain joint's angle with the link up (rad: the
+        spring's reference plus the offset ``b`` of a controller coordinate's ``q_j = u +
+        b``), (stiffness N/m, tension N)) per compensated joint.
     links
         (bend, its two compliances) per bending link or joint tilting in its bearing.
     """
@@ -230,12 +235,10 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
     if hidden.stiffness is None:
         return None
     model = robot.model
-    if robot.springs_on_controller and hidden.compensator:
-        raise StiffnessError("a hidden gravity_compensator acts on a chain joint's link; this "
-                             "robot's springs act on its controller's coordinates (hide "
-                             "backlash or springs there, or put the springs on the chain)")
+    for where in hidden.compensator:  # on a link: a coordinate only one to one with its joint
+        if problem := GravityCompensator.placement_problem(robot, where):
+            raise StiffnessError(f"hidden {problem}")
     names = list(robot.compliant_joints)
-    ids = [int(model.getJointId(n)) for n in names]
     # which joint pairs are links is the fitted model's naming (the parameters it reports);
     # the axes a link bends about are this module's own (link_column, bend_axes)
     links = {f"{model.names[k.a]}->{model.names[k.b]}": (k.a, k.b)
@@ -244,10 +247,11 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
     if unknown:
         raise StiffnessError(f"hidden link_compliance on {unknown}: not links of the markers' "
                              f"chains; valid: {', '.join(links)}")
-    wrong = [j for j in hidden.compensator if j not in names or robot.is_prismatic(j)]
+    compensated = {name: (j, offset) for name, j, offset in compensated_joints(robot, names)}
+    wrong = [j for j in hidden.compensator if j not in compensated]
     if wrong:
         raise StiffnessError(f"hidden gravity_compensator on {wrong}: name revolute compliant "
-                             f"joints ({', '.join(names)})")
+                             f"joints ({', '.join(compensated)})")
     n = len(names)
     bends = [(Bend(*links[w], link_column(model, *links[w])), np.asarray(c, dtype=float))
              for w, c in hidden.link_compliance.items()]
@@ -256,8 +260,8 @@ def hidden_elasticity(robot: Robot, markers: list[Marker], hidden: HiddenPoseErr
         np.zeros(n) if hidden.nonlinear is None else np.asarray(hidden.nonlinear, dtype=float),
         np.zeros(n) if hidden.backlash is None else np.asarray(hidden.backlash, dtype=float),
         np.array([smoothing.get(j, 1.0) for j in names]),
-        [(model.joints[ids[names.index(j)]].idx_v, ids[names.index(j)],
-          upward_angle(robot, j).angle_rad, np.asarray(p, dtype=float))
+        [(model.joints[compensated[j][0]].idx_v, compensated[j][0],
+          upward_angle(robot, j).angle_rad + compensated[j][1], np.asarray(p, dtype=float))
          for j, p in hidden.compensator.items()],
         sorted(bends + _tilting(robot, markers, hidden), key=lambda item: item[0].b))
 

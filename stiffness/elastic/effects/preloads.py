@@ -161,9 +161,11 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
 
     Pose face: one compensator with its default geometry (:meth:`upward`), or the one the
     model's setting :data:`GEOMETRY_SETTING` declares (:meth:`declared_at`), on each revolute
-    compliant joint; its torque at the loaded joint angle joins what the joint's spring
-    carries. Parameters per joint: the spring's stiffness (N/m) and its tension at the joint's
-    zero (N); the torque is linear in both. Needs ``joint_compliance`` (the torque acts
+    compliant joint, or controller coordinate that alone turns one revolute chain joint
+    (:func:`compensated_joints`: on that joint, its angle the coordinate's); its torque at the
+    loaded joint angle joins what the joint's spring carries. Parameters per joint: the
+    spring's stiffness (N/m) and its tension at the joint's zero (N); the torque is linear in
+    both. Needs ``joint_compliance`` (the torque acts
     through the joint's compliance)."""
 
     lever_m: float = float(COMPENSATOR_GEOMETRY["lever_m"])
@@ -174,9 +176,10 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
     reference_reason: str = ""
     geometry_source: str = "default"
     geometry_note: str = ""
-    #: the pose face's joints (id) and their compensators, built once per model
-    _pose_springs: list[tuple[int, GravityCompensator]] | None = field(default=None,
-                                                                        init=False, repr=False)
+    #: the pose face's chain joints (id), their angles' offsets and their compensators, built
+    #: once per model
+    _pose_springs: list[tuple[int, float, GravityCompensator]] | None = field(
+        default=None, init=False, repr=False)
     name: ClassVar[str] = "gravity_compensator"
     param_names: ClassVar[tuple[str, ...]] = ("stiffness", "preload")
     beyond_springs: ClassVar[bool] = True
@@ -370,14 +373,16 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
         return cls(joint_name=joint, angle_up_rad=up.angle_rad, angle_reference=up.reference,
                    reference_reason=up.reason)
 
-    def _pose_joints(self, pm: PoseLayout) -> list[tuple[int, GravityCompensator]]:
-        """Each revolute compliant joint (id) and its spring (built once per model), its
-        lever and base those the model's setting :data:`GEOMETRY_SETTING` declares for it,
-        else the library's defaults."""
+    def _pose_joints(self, pm: PoseLayout) -> list[tuple[int, float, GravityCompensator]]:
+        """Each compensated chain joint (id), the offset (rad) of the spring's angle on it and
+        its spring (:func:`compensated_joints`; built once per model), its lever and base
+        those the model's setting :data:`GEOMETRY_SETTING` declares for it, else the
+        library's defaults."""
         if self._pose_springs is None:
-            names, declared = pm.robot.model.names, pm.settings.get(self.GEOMETRY_SETTING, {})
-            self._pose_springs = [(j, self.declared_at(pm.robot, names[j], declared))
-                                  for j in pm.compliant if not pm.robot.is_prismatic(names[j])]
+            declared = pm.settings.get(self.GEOMETRY_SETTING, {})
+            self._pose_springs = [(j, offset, self.declared_at(pm.robot, name, declared))
+                                  for name, j, offset in compensated_joints(pm.robot,
+                                                                            pm.springs)]
         return self._pose_springs
 
     @classmethod
@@ -391,12 +396,12 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
     def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
         # each spring's own (its lever and base): the deflection effect's scale
         return np.concatenate([spring.physical_scale(refs)[:2]
-                               for _, spring in self._pose_joints(pm)] or [np.zeros(0)])
+                               for _, _, spring in self._pose_joints(pm)] or [np.zeros(0)])
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [FamilyParameter(self.name, compensator_label(spring.joint_name, what), size,
                                 unit, lower)
-                for _, spring in self._pose_joints(pm)
+                for _, _, spring in self._pose_joints(pm)
                 for what, size, unit, lower in zip(("stiffness", "preload"), self.SIZES,
                                                    ("N/m", "N"), (0.0, -math.inf),
                                                    strict=True)]
@@ -406,11 +411,11 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
         ``state.torque`` over a batch of rows (``state.q`` (n, nq))."""
         out = np.zeros(state.torque.shape)
         model = pm.robot.model
-        for n, (j, spring) in enumerate(self._pose_joints(pm)):
+        for n, (j, offset, spring) in enumerate(self._pose_joints(pm)):
             p = x_f[2 * n: 2 * n + 2]
             if p.any():  # a spring without stiffness or tension adds nothing
                 v = model.joints[j].idx_v
-                torque = spring.torque(p, _joint_angle(model, j, state.q))[0]
+                torque = spring.torque(p, _joint_angle(model, j, state.q) - offset)[0]
                 out[..., v] += torque.reshape(out[..., v].shape)
         return out
 
@@ -419,12 +424,36 @@ class GravityCompensator(JointEffect, Settings, JointDeflectionFamily):
         per unit tension at the loaded angle (the torque is linear in both)."""
         out = np.zeros(state.torque.shape + (x_f.size,))
         model = pm.robot.model
-        for n, (j, spring) in enumerate(self._pose_joints(pm)):
-            v, theta = model.joints[j].idx_v, _joint_angle(model, j, state.q)
+        for n, (j, offset, spring) in enumerate(self._pose_joints(pm)):
+            v, theta = model.joints[j].idx_v, _joint_angle(model, j, state.q) - offset
             for c, unit in enumerate((np.array([1.0, 0.0]), np.array([0.0, 1.0]))):
                 out[..., v, 2 * n + c] = spring.torque(unit, theta)[0].reshape(
                     out[..., v, 2 * n + c].shape)
         return out
+
+
+def compensated_joints(robot: Robot, springs: tuple[str, ...] | list[str]
+                       ) -> list[tuple[str, int, float]]:
+    """The springs of ``springs`` a compensator can act on, each with the revolute chain
+    joint (id) whose link it turns and the offset ``b`` (rad) of that joint's angle from the
+    spring's, ``q_j = u + b``: a revolute spring joint (``b = 0``), or a controller coordinate
+    that alone turns one revolute chain joint at rate 1
+    (:meth:`~stiffness.robot.coupling.CoordinateMap.sole_joint`, e.g. the torso's ``T1``;
+    :meth:`JointEffect.placement_problem` refuses the others). Its angle is the coordinate's,
+    from its zero, as the deflection face and the elastic model measure it
+    (:meth:`Robot.value_of`)."""
+    coupling = robot.coupling
+    out = []
+    for name in springs:
+        joint, offset = name, 0.0
+        if coupling is not None and name in coupling.coordinates:
+            sole = coupling.sole_joint(name)
+            if sole is None:
+                continue
+            joint, offset = sole, float(coupling.offset[coupling.chain.index(sole)])
+        if not robot.is_prismatic(joint):
+            out.append((name, int(robot.model.getJointId(joint)), offset))
+    return out
 
 
 def declared_geometry(robot: Robot, settings: dict[str, dict]) -> dict[str, dict]:
@@ -441,7 +470,7 @@ def declared_geometry(robot: Robot, settings: dict[str, dict]) -> dict[str, dict
         Another effect's label, a joint that carries no compensator, or lengths that are not
         two positive ones.
     """
-    valid = [j for j in robot.compliant_joints if not robot.is_prismatic(j)]
+    valid = [name for name, _, _ in compensated_joints(robot, robot.compliant_joints)]
     out = {}
     for label, lengths in settings.items():
         name, joint = effect_place(label, "declared settings")
