@@ -22,6 +22,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.calibration.campaign_toml import (
     CAMPAIGN_FILE,
@@ -174,15 +175,21 @@ def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
         if not isinstance(spec, dict) or not isinstance(spec.get("frame"), str):
             raise toml.error(f"[markers] {name} must be a table with frame = \"<frame name>\"",
                              "markers", name)
-        extra = set(spec) - {"frame", "offset"}
+        extra = set(spec) - {"frame", "offset", "rotation"}
         if extra:
             raise toml.error(f"[markers] {name}: unknown key(s) {sorted(extra)}; valid: frame, "
-                             "offset", "markers", name)
+                             "offset, rotation", "markers", name)
         offset = spec.get("offset", [0.0, 0.0, 0.0])
         if not three_numbers(offset):
             raise toml.error(f"[markers] {name}: offset must be three finite numbers in "
                              f"{units.length}, got {offset!r}", "markers", name)
-        out.append(Marker(name, spec["frame"], np.array(offset, float) * units.length_to_si))
+        turn = spec.get("rotation", [0.0, 0.0, 0.0])
+        if not three_numbers(turn):
+            raise toml.error(f"[markers] {name}: rotation must be three finite numbers (a "
+                             f"rotation vector in {units.rotation}), got {turn!r}", "markers",
+                             name)
+        out.append(Marker(name, spec["frame"], np.array(offset, float) * units.length_to_si,
+                          pin.exp3(np.array(turn, float) * units.rotation_to_si)))
     return out
 
 
@@ -369,8 +376,10 @@ def write_pose_campaign(c: PoseCampaign, folder: str | os.PathLike) -> Path:
         lines += ["", "[load]", f'frame = "{c.loads.frame}"']
     lines += ["", "[markers]"] + [
         f'{m.name} = {{ frame = "{m.frame}", offset = ['
-        + ", ".join(number_text(v / u.length_to_si) for v in m.offset) + "] }"
-        for m in c.markers]
+        + ", ".join(number_text(v / u.length_to_si) for v in m.offset) + "]"
+        + ("" if np.allclose(m.rotation, np.eye(3), rtol=0, atol=1e-15) else ", rotation = ["
+           + ", ".join(number_text(v / u.rotation_to_si) for v in pin.log3(m.rotation)) + "]")
+        + " }" for m in c.markers]
     with staged_folder(folder, keep_others=True) as stage:  # published by one rename
         atomic_write(stage / CAMPAIGN_FILE, "\n".join(lines) + "\n")
         atomic_write(stage / "measurements.csv", _csv_text(c))

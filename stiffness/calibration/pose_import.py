@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
 from stiffness.calibration.coordinate_columns import fill_held
@@ -50,7 +51,8 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                          settings: ImportSettings, markers: list[Marker],
                          name: str = "imported", noise_std: float | None = None,
                          robot: Robot | None = None,
-                         noise_std_rotation: float | None = None
+                         noise_std_rotation: float | None = None,
+                         marker_turns: dict[str, np.ndarray] | None = None
                          ) -> tuple[PoseCampaign, ImportReport]:
     """Read a rig's CSV files into a pose campaign (SI), and what was read (the report of
     :func:`stiffness.calibration.rig_import.import_campaign`, each column listed).
@@ -64,6 +66,9 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     noise_std_rotation
         Orientation noise std in the files' angle unit, or ``None`` (refused without
         orientation columns).
+    marker_turns
+        A marker's axes in its frame's axes (a 6-D probe's mounting), as a rotation vector in
+        the files' angle unit, by marker name; the others have their frame's axes.
 
     Raises
     ------
@@ -109,7 +114,10 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     check_marker_spread(robot, [m.frame for m in markers], offsets, q,
                         positions * units.length_to_si, units, q_cols[0].path)
     loads = None if force is None else Loads.read(robot.target_frame, force, moment, units)
-    scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si)
+    turns = marker_turns or {}
+    scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si,
+                     pin.exp3(np.asarray(turns.get(m.name, np.zeros(3)), float)
+                              * units.angle_to_si))
               for m in markers]
     campaign = PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,
                             positions * units.length_to_si, loads,

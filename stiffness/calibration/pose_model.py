@@ -104,11 +104,16 @@ class Marker:
         Name of the robot frame the marker is fixed to.
     offset
         Nominal position in the frame's axes (m), shape (3,).
+    rotation
+        The marker's own axes in the frame's axes (3, 3): a 6-D probe's mounting, its
+        measured orientation that of the frame turned by it; the identity (default) for a
+        probe whose axes are the frame's. Declared, not fitted.
     """
 
     name: str
     frame: str
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
 @dataclass

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit
@@ -81,7 +82,8 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathL
                       **({"fixed_base": True} if s.fixed_base else {})},
             "measuring_frame": {"rotation": fit.model.rotation0.tolist(),
                                 "translation_m": fit.model.translation0.tolist()},
-            "markers": [{"name": m.name, "frame": m.frame, "offset_m": list(map(float, m.offset))}
+            "markers": [{"name": m.name, "frame": m.frame, "offset_m": list(map(float, m.offset)),
+                         "rotation_rad": list(map(float, pin.log3(m.rotation)))}
                         for m in fit.model.markers],
             "load_frame": None if campaign.loads is None else campaign.loads.frame,
             "families": list(fit.model.families),
@@ -125,7 +127,8 @@ def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> Pose
         robot = robot or load_robot(cal.source, frame=cal.frame, target_offset=cal.target_offset_m,
                                     compliant_joints=cal.compliant_joints,
                                     fixed_base=cal.fixed_base)
-        markers = [Marker(name, frame, offset) for name, frame, offset in cal.markers]
+        markers = [Marker(name, frame, offset, cal.marker_rotation(name))
+                   for name, frame, offset in cal.markers]
         model = PoseModel(robot, markers, cal.families, (cal.rotation, cal.translation),
                           None if cal.load_frame is None else Loads(cal.load_frame,
                                                                     np.zeros((0, 6))),

@@ -5,7 +5,8 @@ frame in the measuring frame) are predicted from the pose model's own points, so
 parameter family acts on them without a rotation hook of its own: each marker is evaluated as
 four points of an auxiliary :class:`~stiffness.calibration.pose_model.PoseModel`, its position
 ``p`` and the points ``a_i`` at its offset plus :data:`AXIS_LENGTH_M` along each axis ``e_i``
-of its frame, all four sharing the marker's offset correction. With ``v_i = a_i - p`` (measuring
+of its own frame (the robot frame's axes turned by its declared ``rotation``, a 6-D probe's
+mounting), all four sharing the marker's offset correction. With ``v_i = a_i - p`` (measuring
 axes) the predicted orientation is the rotation nearest ``[v_x v_y v_z] / L`` (its polar
 factor; exactly the frame's rotation where the link is rigid at the marker), and its derivative,
 as a rotation vector in measuring axes, is ``d theta = sum_i v_i x d v_i / (2 L^2)``: exact for
@@ -258,8 +259,8 @@ def _frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _auxiliary(model: PoseModel) -> tuple[PoseModel, np.ndarray]:
     """The four-point model of ``model``'s markers and the (p_aux, p) map of the parameters
     (each marker's offset correction shared by its four points)."""
-    points = [Marker(f"{m.name}#{i}", m.frame,
-                     np.asarray(m.offset, float) + AXIS_LENGTH_M * np.eye(4, 3, -1)[i])
+    points = [Marker(f"{m.name}#{i}", m.frame, np.asarray(m.offset, float)
+                     + AXIS_LENGTH_M * (np.eye(4, 3, -1) @ np.asarray(m.rotation, float).T)[i])
               for m in model.markers for i in range(4)]
     aux = PoseModel(model.robot, points, model.families, (model.rotation0, model.translation0),
                     model.loads, model.settings)

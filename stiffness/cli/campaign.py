@@ -83,10 +83,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--kind", choices=CAMPAIGN_KINDS, default="deflections",
                    help="deflections (default) or poses: absolute marker positions in the "
                         "measuring system's frame (docs/absolute-poses.md)")
-    p.add_argument("--marker", action="append", metavar="NAME=FRAME[@X,Y,Z]",
+    p.add_argument("--marker", action="append", metavar="NAME=FRAME[@X,Y,Z[@RX,RY,RZ]]",
                    help="--kind poses: a marker, its columns NAME_x, NAME_y, NAME_z, on the "
                         "robot frame FRAME at the nominal offset X,Y,Z (the files' length "
-                        "unit; default 0); repeat for each marker")
+                        "unit; default 0), its axes turned from the frame's by the rotation "
+                        "vector RX,RY,RZ (the files' angle unit; a 6-D probe's mounting; "
+                        "default 0); repeat for each marker")
 
 
 def _settings(args: argparse.Namespace) -> ImportSettings:
@@ -101,19 +103,27 @@ def _settings(args: argparse.Namespace) -> ImportSettings:
                           {**base.fixed, **fixed})
 
 
-def _markers(texts: list[str] | None) -> list[Marker]:
-    """The ``--marker NAME=FRAME[@X,Y,Z]`` flags (offsets in the files' length unit)."""
-    out = []
+def _markers(texts: list[str] | None) -> tuple[list[Marker], dict[str, np.ndarray]]:
+    """The ``--marker NAME=FRAME[@X,Y,Z[@RX,RY,RZ]]`` flags: the markers (offsets in the
+    files' length unit) and the rotation vectors given (the files' angle unit), by name."""
+    out, turns = [], {}
     for text in texts or []:
         name, sep, rest = text.partition("=")
-        frame, _, offset = rest.partition("@")
+        frame, _, placement = rest.partition("@")
+        offset, _, turn = placement.partition("@")
         if not sep or not name.strip() or not frame.strip():
-            raise StiffnessError(f"--marker {text!r}: write NAME=FRAME or NAME=FRAME@X,Y,Z")
-        xyz = flags.parse_list(offset, "--marker offset") if offset else [0.0, 0.0, 0.0]
-        if len(xyz) != 3 or not np.all(np.isfinite(xyz)):
-            raise StiffnessError(f"--marker {text!r}: the offset is three finite numbers")
-        out.append(Marker(name.strip(), frame.strip(), np.array(xyz, dtype=float)))
-    return out
+            raise StiffnessError(f"--marker {text!r}: write NAME=FRAME, NAME=FRAME@X,Y,Z or "
+                                 "NAME=FRAME@X,Y,Z@RX,RY,RZ")
+        parsed = {}
+        for what, cells in (("offset", offset), ("rotation", turn)):
+            xyz = flags.parse_list(cells, f"--marker {what}") if cells else [0.0, 0.0, 0.0]
+            if len(xyz) != 3 or not np.all(np.isfinite(xyz)):
+                raise StiffnessError(f"--marker {text!r}: the {what} is three finite numbers")
+            parsed[what] = np.array(xyz, dtype=float)
+        if turn:
+            turns[name.strip()] = parsed["rotation"]
+        out.append(Marker(name.strip(), frame.strip(), parsed["offset"]))
+    return out, turns
 
 
 def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
@@ -123,9 +133,10 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
         raise StiffnessError("--kind poses reads absolute positions in the measuring system's "
                              "frame and wrenches in world axes; drop --force-frame/"
                              "--deflection-frame tool")
-    campaign, report = import_pose_campaign(args.files, robot_settings, settings,
-                                            _markers(args.marker), args.name, args.noise,
-                                            robot, args.noise_rotation)
+    markers, turns = _markers(args.marker)
+    campaign, report = import_pose_campaign(args.files, robot_settings, settings, markers,
+                                            args.name, args.noise, robot, args.noise_rotation,
+                                            turns)
     flags.warn_rig_noise(args.noise, "--noise", campaign.units.length, campaign.units.length_to_si)
     path = write_pose_campaign(campaign, args.out)
     seen = np.isfinite(campaign.positions).all(axis=2).sum(axis=0)

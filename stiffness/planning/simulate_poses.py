@@ -416,8 +416,9 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
         Isotropic Gaussian noise of each position component (m).
     rotation_noise_std
         When given, the markers' orientations are measured too (rotation vectors of their
-        frames in the measuring frame), each with a rotation ``exp(n)``, ``n`` Gaussian of this
-        std per component (rad), applied on the measuring side.
+        own frames, turned by their ``rotation``, in the measuring frame), each with a
+        rotation ``exp(n)``, ``n`` Gaussian of this std per component (rad), applied on the
+        measuring side.
     """
     rng = np.random.default_rng(seed)
     q = sample_coordinates(robot, n_poses, rng)
@@ -434,8 +435,8 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
         pin.framesForwardKinematics(bent, data, q_l)
         for k, m in enumerate(markers):
             point = data.oMf[frame_id(bent, m.frame)].act(hidden.marker_offsets[k])
-            orientations[i, k] = hidden.frame_rotation @ data.oMf[frame_id(bent, m.frame)
-                                                                  ].rotation
+            orientations[i, k] = (hidden.frame_rotation @ data.oMf[frame_id(bent, m.frame)]
+                                  .rotation @ m.rotation)
             positions[i, k] = (hidden.frame_rotation @ point + hidden.frame_translation
                                + hidden.drift * i / max(n_poses - 1, 1))
     positions += rng.normal(0.0, noise_std, positions.shape)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -102,6 +102,10 @@ class PoseCalibration:
         ``std``, ``interval_95``), in the model's order.
     name
         The calibrated robot's name (``robot.name``; "" in a file without it).
+    marker_rotations
+        Each marker's declared axes in its frame's axes as a rotation vector (3,) rad, by name
+        (a 6-D probe's mounting, the file's ``rotation_rad``); a marker not named has its
+        frame's axes.
     """
 
     path: Path
@@ -118,6 +122,11 @@ class PoseCalibration:
     settings: dict
     parameters: list[dict]
     name: str = ""
+    marker_rotations: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def marker_rotation(self, name: str) -> np.ndarray:
+        """The declared axes (3, 3) of marker ``name`` in its frame's axes."""
+        return pin.exp3(self.marker_rotations.get(name, np.zeros(3)))
 
     def values(self) -> dict[str, float]:
         """Parameter label -> SI value."""
@@ -216,7 +225,9 @@ def read_pose_calibration(path: str | os.PathLike) -> PoseCalibration:
              for m in doc["markers"]],
             None if doc["load_frame"] is None else str(doc["load_frame"]),
             tuple(str(f) for f in doc["families"]), dict(doc.get("settings", {})),
-            [_parameter(p) for p in doc["parameters"]], str(r.get("name", "")))
+            [_parameter(p) for p in doc["parameters"]], str(r.get("name", "")),
+            {str(m["name"]): np.array(m["rotation_rad"], float)
+             for m in doc["markers"] if "rotation_rad" in m})
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
                               "stiffness diagnose --out", path=path) from exc
@@ -245,6 +256,8 @@ def _check_numbers(cal: PoseCalibration) -> None:
     bad = [p["parameter"] for p in cal.parameters if not np.isfinite(p["value"])]
     bad += [f"marker {name} offset_m" for name, _, offset in cal.markers
             if offset.shape != (3,) or not np.all(np.isfinite(offset))]
+    bad += [f"marker {name} rotation_rad" for name, turn in cal.marker_rotations.items()
+            if turn.shape != (3,) or not np.all(np.isfinite(turn))]
     if cal.target_offset_m.shape != (3,) or not np.all(np.isfinite(cal.target_offset_m)):
         bad.append("robot target_offset_m")
     rotation, translation = cal.rotation, cal.translation
@@ -313,7 +326,7 @@ def with_marker_frames(robot, cal: PoseCalibration):
     model = pin.Model(robot.model)
     for k, (name, frame_name, _) in enumerate(cal.markers):
         frame = model.frames[frame_id(model, frame_name)]
-        offset = pin.SE3(np.eye(3), cal.marker_offset(k))
+        offset = pin.SE3(cal.marker_rotation(name), cal.marker_offset(k))
         model.addFrame(pin.Frame(f"marker_{name}", frame.parentJoint,
                                  frame_id(model, frame_name), frame.placement * offset,
                                  pin.FrameType.OP_FRAME))
