@@ -114,9 +114,9 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     check_marker_spread(robot, [m.frame for m in markers], offsets, q,
                         positions * units.length_to_si, units, q_cols[0].path)
     loads = None if force is None else Loads.read(robot.target_frame, force, moment, units)
-    turns = marker_turns or {}
+    mounts = marker_turns or {}
     scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si,
-                     pin.exp3(np.asarray(turns.get(m.name, np.zeros(3)), float)
+                     pin.exp3(np.array(mounts.get(m.name, np.zeros(3)), dtype=float)
                               * units.angle_to_si))
               for m in markers]
     campaign = PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,

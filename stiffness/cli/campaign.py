@@ -133,8 +133,8 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
         raise StiffnessError("--kind poses reads absolute positions in the measuring system's "
                              "frame and wrenches in world axes; drop --force-frame/"
                              "--deflection-frame tool")
-    markers, turns = _markers(args.marker)
-    campaign, report = import_pose_campaign(args.files, robot_settings, settings, markers,
+    declared, turns = _markers(args.marker)
+    campaign, report = import_pose_campaign(args.files, robot_settings, settings, declared,
                                             args.name, args.noise, robot, args.noise_rotation,
                                             turns)
     flags.warn_rig_noise(args.noise, "--noise", campaign.units.length, campaign.units.length_to_si)
