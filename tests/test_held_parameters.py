@@ -28,6 +28,7 @@ from stiffness.calibration.selection import (
     interval_quantile,
     parameter_covariance,
 )
+from stiffness.elastic.effects.base import Held
 
 #: The spring whose fit the interval mechanics are checked on (N/m, N): 35 times the weight
 #: the UR5's shoulder carries (no compensator; the interval mechanics do not care), the free
@@ -35,7 +36,7 @@ from stiffness.calibration.selection import (
 SPRING = (1e5, 2e4)
 
 
-def _fit(held: dict[str, str] | None = None, warm: float | None = None):
+def _fit(held: dict[str, Held] | None = None, warm: float | None = None):
     """The campaign's fit from the nominal start, or with the compensator's stiffness
     starting at ``warm`` (as a refit from another fit's optimum)."""
     arm = (*ARMS[0][:4], SPRING)
@@ -53,11 +54,12 @@ def test_a_held_parameter_is_held_at_its_nominal_value_and_says_why():
     the fit starts elsewhere (a warm start: another fit's optimum), where it used to stay at
     the start."""
     label = f"gravity_compensator({ARMS[0][3]}).stiffness"
-    fit, c = _fit({label: "held at its nominal value: test"}, warm=0.7)
+    fit, c = _fit({label: Held("held at its nominal value: test")}, warm=0.7)
     index = parameter_labels(fit.model).index(label)
     assert fit.x[index] == 0.0
     dropped = fit.identifiability.dropped_at(index)
-    assert dropped.reason == "undetermined" and dropped.note == "held at its nominal value: test"
+    assert dropped.reason == "undetermined"
+    assert dropped.held == Held("held at its nominal value: test")
     assert fit.penalty_params == fit.model.penalty_params - 1
     cov = parameter_covariance(fit, NOISE, c.deflection)
     quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
@@ -67,7 +69,7 @@ def test_a_held_parameter_is_held_at_its_nominal_value_and_says_why():
     assert stiffness.held == "held at its nominal value: test" and not stiffness.determined
     assert "not fitted (held at 0 N/m)" in stiffness.text()
     # the model derived from it (an extension, other rows) keeps holding it
-    assert fit.model.with_effects(fit.model.effects).held == {label: dropped.note}
+    assert fit.model.with_effects(fit.model.effects).held == {label: dropped.held}
 
 
 def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():

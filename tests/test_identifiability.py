@@ -18,9 +18,7 @@ from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.identifiability import (
     Identifiability,
-    confound_clause,
     confounded,
-    confounds_in,
     reduce_columns,
 )
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
@@ -28,6 +26,7 @@ from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.selection import bounded_intervals, fit_model
 from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.base import Held
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.planning.simulate import parse_effect, simulate
@@ -223,26 +222,30 @@ def test_a_near_alias_at_its_bound_leaves_an_interval_that_covers():
 def test_a_held_parameter_names_what_it_is_confounded_with():
     """Two unit columns at cosine rho: the least-squares estimates' correlation is -rho
     (closed form, (A^T A)^-1 of [[1, rho], [rho, 1]]). Beyond ALIAS_CORRELATION the held
-    parameter's note names the other with that correlation, and identifiability's JSON lists
+    parameter's reason names the other with that correlation, and identifiability's JSON lists
     it under ``confounded_with``; below it, nothing."""
     e = np.eye(4)
+    labels = ["compliance(elbow_joint)", "bend.stiffness_2", "frame x"]
     for rho, named in ((0.95, True), (-0.97, True), (0.5, False)):
         a = np.column_stack([e[0], rho * e[0] + math.sqrt(1 - rho ** 2) * e[1], e[2]])
         cov = np.linalg.inv(a.T @ a)
-        pairs = confounded(cov, 1, [0, 1, 2])
-        assert pairs == ([(0, pytest.approx(-rho, abs=1e-12))] if named else [])
-        labels = ["compliance(elbow_joint)", "bend.stiffness_2", "frame x"]
-        note = "held at its nominal value: why" + confound_clause(pairs, labels)
-        dropped = Identifiability([0, 2], []).holding({1: note}).to_dict(labels)["dropped"]
+        pairs = confounded(cov, 1, [0, 1, 2], labels)
+        assert pairs == ((("compliance(elbow_joint)", pytest.approx(-rho, abs=1e-12)),)
+                         if named else ())
+        held = Held("held at its nominal value: why", pairs)
+        dropped = Identifiability([0, 2], []).holding({1: held}).to_dict(labels)["dropped"]
         assert dropped[0]["confounded_with"] == (
             [{"parameter": "compliance(elbow_joint)", "correlation": round(-rho, 3)}]
             if named else [])
-        assert ("(correlation" in note) is named
+        assert dropped[0]["note"] == held.text()
+        assert ("(correlation" in held.text()) is named
     # a pose label has spaces; two named, the most correlated first
-    pairs = [(2, -0.95), (0, 0.93)]
-    note = "why" + confound_clause(pairs, labels)
-    assert note.endswith("which take its share")
-    assert confounds_in(note) == [("frame x", -0.95), ("compliance(elbow_joint)", 0.93)]
+    held = Held("why", (("frame x", -0.95), ("compliance(elbow_joint)", 0.93)))
+    assert held.text() == ("why; not told apart from frame x (correlation -0.950), "
+                           "compliance(elbow_joint) (correlation 0.930), which take its share")
+    (dropped,) = Identifiability([0, 2], []).holding({1: held}).to_dict(labels)["dropped"]
+    assert [(c["parameter"], c["correlation"]) for c in dropped["confounded_with"]] == [
+        ("frame x", -0.95), ("compliance(elbow_joint)", 0.93)]
 
 
 def test_a_forced_bend_held_beside_the_elbow_spring_names_it(tmp_path, capsys):

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from stiffness.calibration.fitting import Fit, parameter_labels
-from stiffness.calibration.identifiability import confound_clause, confounded
+from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import one_sided
 from stiffness.calibration.selection import held_ends
 from stiffness.elastic.effects.base import Parameter, effect_report, stiffness_report
@@ -120,9 +120,9 @@ def _above(parameter: Parameter, floor: float) -> Parameter:
     return parameter if not low < floor else dataclasses.replace(parameter, ci95=(floor, high))
 
 
-def share(fit: Fit, column: int, cov: np.ndarray) -> str:
+def share(fit: Fit, column: int, cov: np.ndarray) -> tuple[tuple[str, float], ...]:
     """What takes the share of parameter ``column`` of ``fit`` once it is held: the fitted
     parameters its estimate is correlated with (:func:`~stiffness.calibration.
-    identifiability.confounded`, ``cov`` the fit's covariance), as a clause of its held
-    reason ("" for none)."""
-    return confound_clause(confounded(cov, column, fit.kept), parameter_labels(fit.model))
+    identifiability.confounded`, ``cov`` the fit's covariance), as (label, correlation)
+    pairs (:attr:`~stiffness.elastic.effects.base.Held.confounded_with`; none for none)."""
+    return confounded(cov, column, fit.kept, parameter_labels(fit.model))

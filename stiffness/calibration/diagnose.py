@@ -96,7 +96,13 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses, make_effect
-from stiffness.elastic.effects.base import Parameter, effect_place, effect_report, place_label
+from stiffness.elastic.effects.base import (
+    Held,
+    Parameter,
+    effect_place,
+    effect_report,
+    place_label,
+)
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -571,7 +577,7 @@ class DeflectionSearch:
 
         def hold(fit: Fit, ks: list[int], ps: list[Parameter], whys: list[str]) -> Fit:
             cov = self.covariance(fit)[0]
-            held = {f"{effect.label}.{p.name}": why + share(fit, start + k, cov)
+            held = {f"{effect.label}.{p.name}": Held(why, share(fit, start + k, cov))
                     for k, p, why in zip(ks, ps, whys, strict=True)}
             return fit_job(fit.model.holding(held), self.measured, self.scale, fit.x,
                            loss=fit.loss, f_scale=fit.f_scale).run()

@@ -44,12 +44,13 @@ absent) and its columns; the judgement is this module's, one for both kinds.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
+
+from stiffness.elastic.effects.base import Held
 
 #: Smallest sine between a kept column and the span of the others (documented above).
 IDENTIFIABILITY_TOL = 1e-6
@@ -68,9 +69,6 @@ TRIANGULAR_BLOCK = 8192
 #: Correlation of two estimates above which holding one gives its share to the other: the held
 #: parameter's reason names it (:func:`confounded`; a near alias the data do not split).
 ALIAS_CORRELATION = 0.9
-#: How :func:`confound_clause` writes each confounded parameter, and how :func:`confounds_in`
-#: reads it back from a held parameter's note (the note carries the reason through refits).
-_CONFOUND = re.compile(r"(.+?) \(correlation (-?[0-9.]+)\)(?:, |$)")
 
 
 @dataclass(frozen=True)
@@ -84,26 +82,26 @@ class Dropped:
     reason
         ``"no effect"``, ``"merged"`` or ``"undetermined"`` (a fit of it left its 95 %
         interval wider than its physical scale: held at its nominal value by the caller,
-        :func:`stiffness.calibration.diagnose.settled`, ``note`` saying so).
+        :func:`stiffness.calibration.diagnose.settled`, ``held`` saying why).
     merged_into
         For a merged parameter: (kept column, coefficient) pairs, largest first; the kept
         parameters absorb ``coefficient x`` this one (in their own units).
-    note
-        For an undetermined parameter: why, in words.
+    held
+        For an undetermined parameter: why, and what takes its share.
     """
 
     index: int
     reason: str
     merged_into: tuple[tuple[int, float], ...] = ()
-    note: str = ""
+    held: Held | None = None
 
     def describe(self, labels: list[str]) -> str:
-        """One clause: ``no effect on the data``, ``merged: absorbed as 1 x joint2`` or the
-        note of an undetermined parameter."""
+        """One clause: ``no effect on the data``, ``merged: absorbed as 1 x joint2`` or why an
+        undetermined parameter is held (:meth:`Held.text`)."""
         if self.reason == "no effect":
             return "no effect on the data"
         if self.reason == "undetermined":
-            return self.note
+            return "" if self.held is None else self.held.text()
         big = max((abs(c) for _, c in self.merged_into), default=0.0)
         combo = " + ".join(f"{c:.3g} x {labels[i]}" for i, c in self.merged_into[:3]
                            if abs(c) >= 1e-3 * big)
@@ -122,12 +120,12 @@ class Identifiability:
         """Every one of ``p`` columns kept."""
         return cls(list(range(p)), [])
 
-    def holding(self, held: dict[int, str]) -> Identifiability:
+    def holding(self, held: dict[int, Held]) -> Identifiability:
         """This reduction with the columns of ``held`` (column: why) dropped as
         ``undetermined``."""
         return Identifiability([i for i in self.kept if i not in held],
                                [d for d in self.dropped if d.index not in held]
-                               + [Dropped(i, "undetermined", note=why)
+                               + [Dropped(i, "undetermined", held=why)
                                   for i, why in held.items()])
 
     def dropped_at(self, index: int) -> Dropped | None:
@@ -136,49 +134,37 @@ class Identifiability:
 
     def to_dict(self, labels: list[str]) -> dict:
         """JSON form: kept labels, and each dropped label with its reason, combination and
-        the kept parameters an undetermined one is confounded with (:func:`confounded`;
-        ``labels``: every column's label)."""
+        the kept parameters an undetermined one is confounded with (:attr:`Held.
+        confounded_with`, each correlation to the 3 decimals its note shows; ``labels``: every
+        column's label)."""
         return {"tolerance": IDENTIFIABILITY_TOL,
                 "kept": [labels[i] for i in self.kept],
                 "dropped": [{"parameter": labels[d.index], "reason": d.reason,
-                             "note": d.note or None,
-                             "confounded_with": [{"parameter": label, "correlation": r}
-                                                 for label, r in confounds_in(d.note)],
+                             "note": d.held.text() if d.held else None,
+                             "confounded_with": [{"parameter": label, "correlation": round(r, 3)}
+                                                 for label, r in (d.held.confounded_with
+                                                                  if d.held else ())],
                              "merged_into": [{"parameter": labels[i], "coefficient": c}
                                              for i, c in d.merged_into]}
                             for d in self.dropped]}
 
 
-def confounded(cov: np.ndarray, index: int, others: Iterable[int]) -> list[tuple[int, float]]:
+def confounded(cov: np.ndarray, index: int, others: Iterable[int], labels: list[str]
+               ) -> tuple[tuple[str, float], ...]:
     """The estimates of ``others`` correlated with that of ``index`` by at least
-    :data:`ALIAS_CORRELATION` in ``cov`` (a fit's covariance; indices are its rows), as
-    (index, correlation) pairs, the most correlated first; none where ``index``'s variance
-    is not finite and positive. Both campaign kinds name, with these, what a parameter the
-    naming rules hold is not told apart from (:func:`confound_clause`)."""
+    :data:`ALIAS_CORRELATION` in ``cov`` (a fit's covariance; indices are its rows, named by
+    ``labels``), as (label, correlation) pairs, the most correlated first; none where
+    ``index``'s variance is not finite and positive. Both campaign kinds name, with these,
+    what a parameter the naming rules hold is not told apart from
+    (:attr:`Held.confounded_with`)."""
     var = np.diag(cov)
     if not math.isfinite(var[index]) or var[index] <= 0:
-        return []
+        return ()
     pairs = [(int(i), float(cov[index, i] / math.sqrt(var[index] * var[i]))) for i in others
              if i != index and math.isfinite(var[i]) and var[i] > 0]
-    return sorted([(i, r) for i, r in pairs if abs(r) >= ALIAS_CORRELATION],
-                  key=lambda pair: -abs(pair[1]))
-
-
-def confound_clause(pairs: list[tuple[int, float]], labels: list[str]) -> str:
-    """The clause a held parameter's reason ends with for :func:`confounded`'s ``pairs``
-    (``labels``: every index's label): ``; not told apart from compliance(elbow_joint)
-    (correlation 0.998), which takes its share``, or "" for none."""
-    if not pairs:
-        return ""
-    names = ", ".join(f"{labels[i]} (correlation {r:.3f})" for i, r in pairs)
-    verb = "takes" if len(pairs) == 1 else "take"
-    return f"; not told apart from {names}, which {verb} its share"
-
-
-def confounds_in(note: str) -> list[tuple[str, float]]:
-    """The (label, correlation) pairs :func:`confound_clause` wrote into ``note``."""
-    names = note.partition("; not told apart from ")[2].rpartition(", which ")[0]
-    return [(label, float(r)) for label, r in _CONFOUND.findall(names)]
+    return tuple((labels[i], r) for i, r in sorted(
+        [(i, r) for i, r in pairs if abs(r) >= ALIAS_CORRELATION],
+        key=lambda pair: -abs(pair[1])))
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ import numpy as np
 from stiffness.calibration import certainty
 from stiffness.calibration.breakdown import error_summary, marker_structure
 from stiffness.calibration.certainty import Certainty
-from stiffness.calibration.identifiability import confound_clause, confounded
+from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import held_reason, is_stand_in, settle
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
@@ -77,7 +77,7 @@ from stiffness.calibration.selection import (
 from stiffness.calibration.solver import check_loss
 from stiffness.cores import one_blas_thread
 from stiffness.elastic.effects import FAMILIES, check_masses
-from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.effects.base import Held, Parameter
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
 from stiffness.elastic.effects.preloads import GravityCompensator, declared_geometry
 from stiffness.errors import StiffnessError, TooFewMeasurementsError
@@ -265,7 +265,7 @@ def _flagged(n: int, rows: int, loss: str) -> str:
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
          settings: dict, start: PoseFit | dict[str, float] | None = None,
          loss: str = "linear", scale: float | None = None,
-         held: dict[str, str] | None = None) -> PoseFit:
+         held: dict[str, Held] | None = None) -> PoseFit:
     """Fit ``families``, starting from ``start``'s values of the parameters they share (a fit,
     or its values by label), under ``loss`` scaled by ``scale`` (m; :func:`fit_pose_model`),
     the parameters of ``held`` (label: why; default those ``start`` held) held at nominal."""
@@ -279,12 +279,12 @@ def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, 
                           held={index[k]: why for k, why in held.items() if k in index})
 
 
-def held_labels(fit: PoseFit) -> dict[str, str]:
+def held_labels(fit: PoseFit) -> dict[str, Held]:
     """The parameters ``fit`` holds at nominal because the data do not determine them
     (label: why)."""
     labels = [p.label for p in fit.model.parameters]
-    return {labels[d.index]: d.note for d in fit.identifiability.dropped
-            if d.reason == "undetermined"}
+    return {labels[d.index]: d.held for d in fit.identifiability.dropped
+            if d.reason == "undetermined" and d.held is not None}
 
 
 def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: PoseJudge,
@@ -304,12 +304,12 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
     def hold(trial: PoseFit, ks: list[int], ps: list[Parameter], whys: list[str]) -> PoseFit:
         kept = trial.identifiability.kept
         place = {i: c for c, i in enumerate(kept)}
-        shares = [confound_clause([(kept[c], r) for c, r in confounded(
-            trial.covariance, place[start + k], range(len(kept)))], labels)
-                  if start + k in place else "" for k in ks]
+        shares = [confounded(trial.covariance, place[start + k], range(len(kept)),
+                             [labels[i] for i in kept])
+                  if start + k in place else () for k in ks]
         return _fit(campaign, families, frame0, model.settings, trial, trial.loss, scale,
-                    {**held_labels(trial), **{p.name: why + clause for p, why, clause in zip(
-                        ps, whys, shares or [""] * len(ps), strict=True)}})
+                    {**held_labels(trial), **{p.name: Held(why, share) for p, why, share in zip(
+                        ps, whys, shares or [()] * len(ps), strict=True)}})
 
     fit = settle(fit, lambda trial: judge.parameters(trial)[family], sizes, hold,
                  lambda trial, loose: _uncorrelated(trial, [start + k for k in loose], loose))

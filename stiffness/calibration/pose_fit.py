@@ -73,6 +73,7 @@ from stiffness.calibration.solver import (
     objective_rss,
 )
 from stiffness.cores import one_blas_thread
+from stiffness.elastic.effects.base import Held
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import ConvergenceError, StiffnessError, TooFewMeasurementsError
 
@@ -405,7 +406,7 @@ def _padded(group: np.ndarray) -> np.ndarray:
 @one_blas_thread
 def fit_pose_model(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray | None = None, loss: str = "linear",
-                   scale: float | None = None, held: dict[int, str] | None = None
+                   scale: float | None = None, held: dict[int, Held] | None = None
                    ) -> PoseFit:
     """Fit the identifiable parameters of ``model`` to ``campaign``.
 
@@ -601,7 +602,7 @@ class PoseProblem:
 
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                       order: list[str], x0: np.ndarray | None, loss: str,
-                      held: dict[int, str] | None = None) -> PoseFit:
+                      held: dict[int, Held] | None = None) -> PoseFit:
     """A robust ``loss`` fit scaled by the robust noise estimate: from a least-squares fit's
     residuals, then twice from the loss fit's (``held`` held throughout)."""
     fit = fit_pose_model(model, campaign, rows, order, x0, held=held)

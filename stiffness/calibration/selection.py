@@ -21,6 +21,7 @@ from stiffness.calibration.fitting import Fit, FitJob
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION, Identifiability
 from stiffness.calibration.measurements import first_copies
 from stiffness.calibration.outliers import robust_noise
+from stiffness.elastic.effects.base import Held
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: Goodness-of-fit level: the model explains the data to noise when the chi-square test of
@@ -176,7 +177,7 @@ def held_at_bounds(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray |
         return None
     ident = fit.identifiability or Identifiability.full(fit.x.size)
     return parameter_covariance(replace(fit, identifiability=ident.holding(
-        {i: "at its bound" for i in bound})), sigma, measured)
+        {i: Held("at its bound") for i in bound})), sigma, measured)
 
 
 def held_ends(pull: list[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:

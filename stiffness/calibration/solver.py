@@ -55,6 +55,7 @@ from stiffness.calibration.identifiability import (
     identifiable,
     same_span,
 )
+from stiffness.elastic.effects.base import Held
 from stiffness.errors import StiffnessError, UnknownNameError
 
 #: Losses of every fit (scipy.optimize.least_squares'): ``linear`` is least squares.
@@ -273,7 +274,7 @@ class Solution:
 
 
 def fit(problem: Problem, x0: np.ndarray, options: Options, resolution: float = 0.0,
-        held: dict[int, str] | None = None, near_at_start: bool = False) -> Solution:
+        held: dict[int, Held] | None = None, near_at_start: bool = False) -> Solution:
     """The fit of ``problem`` from ``x0``: the identifiable parameters (at the representative
     point of ``x0``; near aliases at ``resolution``, noise std per typical size, judged at the
     optimum, and at the start too with ``near_at_start``), those of ``held`` (column: why)

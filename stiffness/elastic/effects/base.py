@@ -1,4 +1,5 @@
-"""The effect base class (:class:`Effect`) and its reported parameters (:class:`Parameter`).
+"""The effect base class (:class:`Effect`), its reported parameters (:class:`Parameter`) and why
+a fit holds one (:class:`Held`).
 
 An :class:`Effect` is one thing a stiffness model may miss. It has up to three faces:
 
@@ -71,6 +72,36 @@ def effect_place(text: str, flag: str) -> tuple[str, str | None]:
         raise StiffnessError(f"{flag} {text!r} reads two ways: write {name}{where} for the "
                              f"place {where[1:-1]}, or {name}({where}) for a place named {where}")
     return name, where or None
+
+
+@dataclass(frozen=True)
+class Held:
+    """Why a fit holds a parameter at its nominal value instead of fitting it, carried as data
+    from the fit that decided it to every refit and report
+    (:attr:`~stiffness.elastic.effects.hypothesis.Hypothesis.held`,
+    :meth:`stiffness.calibration.identifiability.Identifiability.holding`).
+
+    Attributes
+    ----------
+    reason
+        Why, in words (``held at its nominal value: the data do not determine it ...``).
+    confounded_with
+        The fitted parameters its estimate is correlated with (label, correlation), the most
+        correlated first, which take its share once it is held
+        (:func:`stiffness.calibration.identifiability.confounded`); none by default.
+    """
+
+    reason: str
+    confounded_with: tuple[tuple[str, float], ...] = ()
+
+    def text(self) -> str:
+        """The reason, ending with what takes its share: ``...; not told apart from
+        compliance(elbow_joint) (correlation 0.998), which takes its share``."""
+        if not self.confounded_with:
+            return self.reason
+        names = ", ".join(f"{label} (correlation {r:.3f})" for label, r in self.confounded_with)
+        verb = "takes" if len(self.confounded_with) == 1 else "take"
+        return f"{self.reason}; not told apart from {names}, which {verb} its share"
 
 
 @dataclass

@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from stiffness.batch.equilibrium import solve_equilibria, unloaded_kinematics
+from stiffness.elastic.effects.base import Held
 from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import (
     Geometry,
@@ -90,7 +91,7 @@ class Hypothesis:
     def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
                  compliant: tuple[str, ...], effects: tuple[DeflectionEffect, ...],
                  refs: References, rotation_weight: float | None = None,
-                 held: dict[str, str] | None = None
+                 held: dict[str, Held] | None = None
                  ) -> None:
         if baseline not in BASELINES:
             raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
@@ -153,7 +154,7 @@ class Hypothesis:
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, effects,
                           self.refs, self.rotation_weight, self.held)
 
-    def holding(self, held: dict[str, str]) -> Hypothesis:
+    def holding(self, held: dict[str, Held]) -> Hypothesis:
         """The same model with the parameters of ``held`` (label: why) held too."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
                           self.refs, self.rotation_weight, {**self.held, **held})
