@@ -331,15 +331,13 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     pred, rot_res = best_fit.predicted[:, :3], None
     if campaign.rotation is not None:
         rot_res = best_fit.residuals(measured)[1]
-        if rot_source == "residuals":
+        if campaign.rotation_noise_std_rad is None:  # not declared: the residuals'
             rot_sigma = kind_noise(rot_res, n_res, p)
-    sigma, sigma_source, quantile, sigma_res, notes = _noise_level(campaign, best_fit.rss,
-                                                                   n_res, p, robust_sigma)
-    unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, quantile,
+    noise = _noise_level(campaign, best_fit.rss, n_res, p, robust_sigma)
+    sigma, notes = noise.sigma, noise.notes
+    unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, noise.quantile,
                        rob.compliant_joints)
-    declared = sigma_source == "declared noise_std"  # the one-sided quantile of the same law
-    rigid = _rigid(best_fit, sigma, measured,
-                   interval_quantile(sigma if declared else None, n_res, p, level=0.95), unc)
+    rigid = _rigid(best_fit, sigma, measured, noise.edge, unc)
     outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, p,
                                     tuple(campaign.config or ()), campaign.lines)
     if outliers and best_fit.loss == "linear":
@@ -368,8 +366,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         ci95_high=unc.high,
         covariance_log=unc.covariance_log,
         sigma_m=float(sigma),
-        sigma_source=sigma_source,
-        sigma_residual_m=sigma_res,
+        sigma_source=noise.source,
+        sigma_residual_m=noise.sigma_residual,
         residual_ss_m2=best_fit.rss,
         n_residuals=n_res,
         n_parameters=p,
@@ -516,22 +514,52 @@ def _least_squares_runs(model: Hypothesis, measured: np.ndarray, scale: float, f
     return runs, fits
 
 
+@dataclass(frozen=True)
+class _Noise:
+    """The noise an identification's intervals use (:func:`_noise_level`).
+
+    Attributes
+    ----------
+    sigma
+        Noise std (m) the covariance uses.
+    source
+        Where it comes from, in words (``Identification.sigma_source``).
+    quantile, edge
+        The 97.5 % quantile of the two-sided intervals and the 95 % one of a one-sided
+        interval at a bound (:func:`selection.interval_quantile` over ``n`` residuals and
+        ``p`` parameters).
+    sigma_residual
+        The residuals' own estimate (m), ``None`` without degrees of freedom.
+    notes
+        Where the residuals and a declared noise disagree.
+    """
+
+    sigma: float
+    source: str
+    quantile: float
+    edge: float
+    sigma_residual: float | None
+    notes: list[str]
+
+
 def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
-                 robust_sigma: float | None = None
-                 ) -> tuple[float, str, float, float | None, list[str]]:
-    """The noise std (m) the covariance uses, its source, the 97.5 % quantile of the
-    intervals (:func:`selection.interval_quantile` over ``n`` residuals and ``p`` parameters),
-    the residuals' own estimate (m, or None) and a note when they disagree; with
-    ``robust_sigma`` (m, a robust fit's scale) that one, and Student's t for the sandwich."""
+                 robust_sigma: float | None = None) -> _Noise:
+    """The noise of the intervals (:class:`_Noise`): a declared noise std (normal quantiles),
+    else the residuals' (Student's t); with ``robust_sigma`` (m, a robust fit's scale) that
+    one, and Student's t for the sandwich's two-sided intervals. The one-sided quantile is
+    the normal's wherever the noise is declared (robust fits included)."""
     dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     notes: list[str] = []
+    declared = campaign.noise_std_m
+    edge = interval_quantile(declared, n, p, level=0.95)
     if robust_sigma is not None:
-        source = ("declared noise_std" if campaign.noise_std_m is not None
+        source = ("declared noise_std" if declared is not None
                   else "robust estimate (1.4826 median |residual|)")
-        return robust_sigma, source, interval_quantile(None, n, p), sigma_res, notes
-    if campaign.noise_std_m is not None:
-        sigma = campaign.noise_std_m
+        return _Noise(robust_sigma, source, interval_quantile(None, n, p), edge, sigma_res,
+                      notes)
+    if declared is not None:
+        sigma = declared
         if sigma_res is not None and sigma_res > 2.0 * sigma:
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much larger than the "
@@ -545,11 +573,12 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                 f"declared noise_std ({sigma * 1e3:.4g} mm; chi-square lower tail p < "
                 f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the confidence "
                 "intervals are too wide and an effect below the noise goes unseen")
-        return sigma, "declared noise_std", interval_quantile(sigma, n, p), sigma_res, notes
+        return _Noise(sigma, "declared noise_std", interval_quantile(sigma, n, p), edge,
+                      sigma_res, notes)
     # Student t, dof degrees of freedom (> 0 without a declared noise: _check_residual_count)
     assert sigma_res is not None
-    return (sigma_res, "residuals (SS / (N - p))", interval_quantile(None, n, p), sigma_res,
-            notes)
+    return _Noise(sigma_res, "residuals (SS / (N - p))", interval_quantile(None, n, p), edge,
+                  sigma_res, notes)
 
 
 def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarray,
