@@ -320,6 +320,25 @@ def test_missing_stiffness_names_the_joints_and_both_units(capsys, tmp_path, com
                        "prismatic)")
 
 
+@pytest.mark.parametrize("command", ["kx", "view", "scan", "compensate"])
+def test_wrong_stiffness_count_names_the_flag_and_the_joints(capsys, tmp_path, command):
+    """--kq with another count than the compliant joints: one line naming --kq, the joints and
+    the fix (kx, view and compensate said 'need one joint stiffness per compliant joint (2),
+    got 3', scan 'need 2 finite positive joint stiffnesses'; a new user of a Gepetto 5-bar
+    gave 12 values to its 2 motors)."""
+    argv = [command, "--robot", "ur5", "--compliant-joints", "shoulder_pan_joint,elbow_joint",
+            "--kq", "1e4,1e4,1e4"]
+    argv += {"kx": ["--wrench", "0,0,-1"], "view": ["--export", str(tmp_path / "v.html")],
+             "scan": ["--samples", "4", "--out", str(tmp_path / "s")],
+             "compensate": ["--path", str(tmp_path / "missing.csv")]}[command]
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"stiffness {command}: error: --kq has 3 values for the 2 compliant joints of ur5 "
+        "(shoulder_pan_joint, elbow_joint); give one per compliant joint, in their order, "
+        "N.m/rad (N/m prismatic), or choose the joints with --compliant-joints")
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("command", ["kx", "simulate", "robot"])
 def test_compliant_joints_naming_no_joint_is_refused_as_such(capsys, tmp_path, command):
     """--compliant-joints '' (or ','): one line saying it names no joint (kx said 'need one

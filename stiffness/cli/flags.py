@@ -229,6 +229,25 @@ def stiffness_required(robot: Robot) -> StiffnessError:
         f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)")
 
 
+def parse_kq(text: str, robot: Robot) -> list[float]:
+    """``--kq``: one stiffness per compliant joint of ``robot`` (N.m/rad, N/m prismatic).
+
+    Raises
+    ------
+    StiffnessError
+        If an item is not a plain number (:func:`parse_list`), or the count is not the number
+        of compliant joints: one line naming the joints and the fix.
+    """
+    values = parse_list(text, "--kq")
+    if len(values) != robot.n_compliant:
+        raise StiffnessError(
+            f"--kq has {len(values)} value{'s' if len(values) != 1 else ''} for the "
+            f"{robot.n_compliant} compliant joints of {robot.title} "
+            f"({', '.join(robot.compliant_joints)}); give one per compliant joint, in their "
+            "order, N.m/rad (N/m prismatic), or choose the joints with --compliant-joints")
+    return values
+
+
 def parse_names(text: str | None) -> list[str] | None:
     """Comma-separated names (``--compliant-joints a,b``), or None when not given."""
     if text is None:
@@ -467,7 +486,7 @@ def model_from_args(args: argparse.Namespace, *outputs: str | None) -> ElasticMo
         em.source = str(args.model)
         return em
     robot, _, _ = robot_from_args(args)
-    kq = parse_list(args.kq, "--kq") if args.kq is not None else default_stiffness(robot)
+    kq = parse_kq(args.kq, robot) if args.kq is not None else default_stiffness(robot)
     if kq is None:
         raise stiffness_required(robot)
     return ElasticModel.joint_springs(robot, np.diag(joint_stiffness(kq, robot.n_compliant)))

@@ -160,7 +160,7 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     if cm is not None:
         kq, kq_source = cm.k_theta, f"{flags.FROM_MODEL} {args.model}"
     elif args.kq is not None:
-        kq, kq_source = flags.parse_list(args.kq, "--kq"), f"{flags.FROM_FLAG} --kq"
+        kq, kq_source = flags.parse_kq(args.kq, robot), f"{flags.FROM_FLAG} --kq"
     elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
         kq, kq_source = model.k_theta, f"{flags.FROM_MODEL} {args.model}"
     else:

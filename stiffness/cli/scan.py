@@ -55,7 +55,13 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.cli import flags
-from stiffness.cli.flags import parse_list, robot_flags, robot_from_args, stiffness_required
+from stiffness.cli.flags import (
+    parse_kq,
+    parse_list,
+    robot_flags,
+    robot_from_args,
+    stiffness_required,
+)
 from stiffness.cli.kx import elastic_model_from_args, model_file_from_args
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
@@ -173,7 +179,6 @@ def _robot(args: argparse.Namespace) -> tuple[Robot, dict, list[float] | None]:
     arguments the chunks load it with, and its springs (N.m/rad, N/m; None: the robot's)."""
     model = elastic_model_from_args(args)
     declared = model_file_from_args(args)
-    kq = parse_list(args.kq, "--kq") if args.kq is not None else None
     if model is not None and declared is not None:
         robot = model.robot
         _refuse_unscannable(model)
@@ -181,7 +186,8 @@ def _robot(args: argparse.Namespace) -> tuple[Robot, dict, list[float] | None]:
                       "target_offset": robot.target_offset.tolist(),
                       "compliant_joints": list(robot.compliant_joints),
                       **{k: v for k, v in declared.robot_options().items() if v}}
-        return robot, robot_spec, model.k_theta.tolist() if kq is None else kq
+        return robot, robot_spec, (model.k_theta.tolist() if args.kq is None
+                                   else parse_kq(args.kq, robot))
     fallback = declared
     robot, compliant, offset = robot_from_args(args, fallback=fallback)
     robot_spec = {"source": str(args.robot) if args.robot else robot.name,
@@ -194,9 +200,9 @@ def _robot(args: argparse.Namespace) -> tuple[Robot, dict, list[float] | None]:
         robot_spec["loops"] = str(Path(given.loops).resolve())
     if given.fixed_base:
         robot_spec["fixed_base"] = True
-    if kq is None and default_stiffness(robot) is None:
+    if args.kq is None and default_stiffness(robot) is None:
         raise stiffness_required(robot)
-    return robot, robot_spec, kq
+    return robot, robot_spec, None if args.kq is None else parse_kq(args.kq, robot)
 
 
 def _axes(robot: Robot, args: argparse.Namespace) -> list[tuple[str, tuple]]:
