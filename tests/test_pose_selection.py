@@ -11,9 +11,9 @@ import re
 import numpy as np
 import pinocchio as pin
 import pytest
-from pose_campaigns import PRISM_ARM
+from pose_campaigns import PRISM_ARM, ur10_tip_campaign
 
-from stiffness.calibration.pose_diagnose import CANDIDATES, diagnose_poses
+from stiffness.calibration.pose_diagnose import CANDIDATES, _fit, diagnose_poses, screened
 from stiffness.calibration.pose_fit import (
     campaign_settings,
     fit_pose_model,
@@ -298,3 +298,22 @@ def test_a_family_not_fitted_gives_its_place_and_screens_are_said():
     unfitted = [f for f, v in d.rejected.items() if v < -BIC_MARGIN and f != "geometry"]
     assert unfitted and all(d.not_judged[f].startswith("screened") for f in unfitted)
     assert "screened" in format_pose_report(d)
+
+
+def test_the_screen_holds_what_the_current_fit_holds():
+    """A step screens each family by one Gauss-Newton step from the current fit. On FIGAROH's
+    TALOS arm (geometry holding 9 undetermined parameters at nominal) that step moved them
+    too: every family gained the same -9.2 in BIC, so that a base tilt and zero offsets adding
+    no parameter ranked first and took the three fits from link_compliance. Here the current
+    fit holds elbow_joint's zero offset: screening base_tilt (no parameter while no spring
+    sags) must give back the current fit, its objective and its count, and no new parameter."""
+    campaign = ur10_tip_campaign(12)
+    families = ["frame", "markers", "joint_offsets"]
+    current = _fit(campaign, families, starting_frame(campaign), {},
+                   held={"elbow_joint zero": "held by the test"})
+    assert "elbow_joint zero" in {p.label for p, v in zip(current.model.parameters, current.x,
+                                                          strict=True) if v == 0.0}
+    rss, p, fresh = screened(campaign, [*families, "base_tilt"], starting_frame(campaign), {},
+                             current)
+    assert fresh == 0 and p == current.n_fitted
+    assert rss == pytest.approx(current.loss_rss(), rel=1e-8)

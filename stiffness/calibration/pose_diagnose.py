@@ -358,6 +358,24 @@ def _values(fit: PoseFit) -> dict[str, float]:
     return {p.label: float(v) for p, v in zip(fit.model.parameters, fit.x, strict=True)}
 
 
+def screened(campaign: PoseCampaign, families: list[str],
+             frame0: tuple[np.ndarray, np.ndarray], settings: dict, current: PoseFit
+             ) -> tuple[float, int, int]:
+    """The screen of adding ``families[-1]`` to ``current`` (a fit of the others): one
+    Gauss-Newton step from it (:func:`~stiffness.calibration.pose_fit.linearised_rss`), the
+    parameters ``current`` holds at nominal held there as the candidate's fit holds them
+    (:func:`_fit`); the objective it reaches (m^2), its identifiable parameters and how many
+    of them are the new family's. Letting the held ones move gave every family of a step the
+    same spurious gain (FIGAROH's TALOS arm, geometry holding 9 parameters: -9.2 in BIC, so
+    that a base tilt and zero offsets adding no parameter ranked first and took the fits)."""
+    model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
+                      settings)
+    index = {p.label: i for i, p in enumerate(model.parameters)}
+    return linearised_rss(model, campaign, rows_of(model, campaign), families,
+                          warm_start(model, current), current.loss, current.sigma,
+                          [index[k] for k in held_labels(current) if k in index])
+
+
 def candidate_fit(campaign: PoseCampaign, families: list[str],
                   frame0: tuple[np.ndarray, np.ndarray], settings: dict, start: dict[str, float],
                   loss: str, scale: float | None, candidates: list[str], index: int
@@ -594,20 +612,17 @@ class PoseSearch:
         self.say(f"step {len(self.steps)}: trying {', '.join(ready)}")
         c, families = self.campaign, self.chosen
         held_out: dict[str, float] = {}
-        screen = {}
+        screen: dict[str, tuple[float, int]] = {}
+        fresh: dict[str, int] = {}
         for f in ready:
-            model = PoseModel(c.robot, c.markers, tuple(families + [f]), self.frame0, c.loads,
-                              self.settings)
-            rss, p, fresh = linearised_rss(model, c, rows_of(model, c), families + [f],
-                                           warm_start(model, current), current.loss,
-                                           current.sigma)
+            rss, p, fresh[f] = screened(c, families + [f], self.frame0, self.settings, current)
             screen[f] = (rss, p)
-            if fresh == 0:  # its BIC change is 0 to rounding: no verdict, said so
+            if fresh[f] == 0:  # its BIC change is 0 to rounding: no verdict, said so
                 self.not_judged[f] = NO_PARAMETER
             elif self.not_judged.get(f) == NO_PARAMETER:
                 del self.not_judged[f]
         self.delta = self.deltas(current, screen)
-        order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN),
+        order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN and fresh[f] > 0),
                        key=lambda f: self.delta[f])
         tried: list[tuple[str, PoseFit | None]] = []
         while order and (need := CV_TOP - sum(fit is not None for _, fit in tried)) > 0:

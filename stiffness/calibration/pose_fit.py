@@ -43,7 +43,7 @@ squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` i
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -257,22 +257,25 @@ def layout(model: PoseModel, order: list[str]) -> Layout:
 @one_blas_thread
 def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                    order: list[str], x0: np.ndarray, loss: str = "linear",
-                   sigma: float = 1.0) -> tuple[float, int, int]:
+                   sigma: float = 1.0, held: Sequence[int] = ()) -> tuple[float, int, int]:
     """One Gauss-Newton step from ``x0``: the objective it reaches (:func:`objective_rss`
     under ``loss`` scaled by ``sigma``, m^2, comparable with the fit's
     :meth:`PoseFit.loss_rss`), the number of identifiable parameters and how many of them
     are the last family of ``order``'s (0: it adds none, it moves no marker beyond what the
-    others do). From a fit of some of
-    ``model``'s families (``x0`` its optimum, zero for the others), this is the score-test
-    screen of adding the others: what their columns explain of the residual beyond the fitted
-    ones, to first order (infinite where the sag diverges at ``x0``)."""
+    others do; the parameters ``held``, model columns, stay at ``x0`` and are not counted).
+    From a fit of some of ``model``'s families (``x0`` its optimum, zero for the others),
+    this is the score-test screen of adding the others: what their columns explain of the
+    residual beyond the fitted ones, to first order (infinite where the sag diverges at
+    ``x0``)."""
     obs = PoseObservations(model, campaign, rows)
     plan = layout(model, order)
     try:  # the residual and the Jacobian through their factor R (observed_factor)
         tri = observed_factor(obs, x0)
     except ConvergenceError:
         return math.inf, 0, 0
-    kept = plan.reduce(tri[:, 1:] * plan.scales).kept
+    columns = tri[:, 1:] * plan.scales
+    columns[:, list(held)] = 0.0  # held: no effect on the step
+    kept = plan.reduce(columns).kept
     last = model.slices()[order[-1]]
     fresh = sum(last.start <= k < last.stop for k in kept)
     # |r - J_kept s| = |R_r - R_kept s| for every s: the least squares on the factor
