@@ -86,8 +86,7 @@ from stiffness.workspace.distributed import run_chunks
 
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
-#: Why a family tried and not added has no BIC change to show: it added no identifiable
-#: parameter (a base tilt while no spring sags, a compliance no torque loads).
+#: Why a family has no BIC change to show: no identifiable parameter (a tilt, no spring in).
 NO_PARAMETER = ("no identifiable parameter beside the families in: it moves no marker here, "
                 "or only as they do")
 #: Families tried after the base, by whether the robot's masses are trusted.
@@ -361,13 +360,10 @@ def _values(fit: PoseFit) -> dict[str, float]:
 def screened(campaign: PoseCampaign, families: list[str],
              frame0: tuple[np.ndarray, np.ndarray], settings: dict, current: PoseFit
              ) -> tuple[float, int, int]:
-    """The screen of adding ``families[-1]`` to ``current`` (a fit of the others): one
-    Gauss-Newton step from it (:func:`~stiffness.calibration.pose_fit.linearised_rss`), the
-    parameters ``current`` holds at nominal held there as the candidate's fit holds them
-    (:func:`_fit`); the objective it reaches (m^2), its identifiable parameters and how many
-    of them are the new family's. Letting the held ones move gave every family of a step the
-    same spurious gain (FIGAROH's TALOS arm, geometry holding 9 parameters: -9.2 in BIC, so
-    that a base tilt and zero offsets adding no parameter ranked first and took the fits)."""
+    """:func:`~stiffness.calibration.pose_fit.linearised_rss` of adding ``families[-1]`` to
+    ``current``, what it holds at nominal held as the candidate's fit (:func:`_fit`) holds it
+    (moving, it gave every family the same spurious gain): objective (m^2), identifiable
+    parameters, how many are the new family's."""
     model = PoseModel(campaign.robot, campaign.markers, tuple(families), frame0, campaign.loads,
                       settings)
     index = {p.label: i for i, p in enumerate(model.parameters)}
@@ -612,17 +608,15 @@ class PoseSearch:
         self.say(f"step {len(self.steps)}: trying {', '.join(ready)}")
         c, families = self.campaign, self.chosen
         held_out: dict[str, float] = {}
-        screen: dict[str, tuple[float, int]] = {}
-        fresh: dict[str, int] = {}
-        for f in ready:
-            rss, p, fresh[f] = screened(c, families + [f], self.frame0, self.settings, current)
-            screen[f] = (rss, p)
-            if fresh[f] == 0:  # its BIC change is 0 to rounding: no verdict, said so
+        screens = {f: screened(c, families + [f], self.frame0, self.settings, current)
+                   for f in ready}
+        for f, (_, _, fresh) in screens.items():  # none new: BIC change 0, no verdict: said
+            if fresh == 0:
                 self.not_judged[f] = NO_PARAMETER
             elif self.not_judged.get(f) == NO_PARAMETER:
                 del self.not_judged[f]
-        self.delta = self.deltas(current, screen)
-        order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN and fresh[f] > 0),
+        self.delta = self.deltas(current, {f: (s[0], s[1]) for f, s in screens.items()})
+        order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN and screens[f][2] > 0),
                        key=lambda f: self.delta[f])
         tried: list[tuple[str, PoseFit | None]] = []
         while order and (need := CV_TOP - sum(fit is not None for _, fit in tried)) > 0:
