@@ -261,3 +261,16 @@ def test_a_stiffness_unit_is_refused_exactly_when_not_of_its_joints_kind(springs
     else:
         assert problem is not None and f"joint {bad[0]!r}" in problem
         assert repr(units[joints.index(bad[0])]) in problem
+
+
+def test_a_reading_a_hair_past_a_limit_is_not_blamed_on_the_units(tmp_path):
+    """FIGAROH's TIAGo reads its torso lift at 0.350184 m, limits [0, 0.35] m: the warning
+    said "check the angle and length units and the robot". A coordinate at most 1 % of its
+    range past a limit is a reading at the end stop: said so, with how far past."""
+    folder = _campaign(tmp_path, "# a campaign")
+    text = (folder / "measurements.csv").read_text().replace(",80.0,", ",180.5,")
+    (folder / "measurements.csv").write_text(text)
+    with pytest.warns(DataFileWarning, match=r"\(elbow_joint\) = 180.5 deg, limits \[-180, "
+                      r"180\] deg\); at most 0.5 deg past, 1 % of the range or less: readings "
+                      r"at the end stops, the units look right"):
+        load_campaign(folder)

@@ -351,6 +351,11 @@ def coordinates_in_si(robot: Robot, q_file: np.ndarray, units: Units, labels: li
     return q
 
 
+#: Largest excess past a joint limit, as a fraction of the joint's range, read as a reading at
+#: its end stop (FIGAROH's TIAGo: the torso lift 0.184 mm past 0.35 m) rather than a unit.
+END_STOP = 0.01
+
+
 def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int, ...],
                        data: Path, units: Units) -> None:
     """Warn once when rows hold coordinates beyond the robot's joint limits.
@@ -384,6 +389,13 @@ def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[in
     if units.angle == "rad" and revolute[beyond.any(axis=0)].all() \
             and not outside(as_degrees).any():
         hint = 'the angles look like degrees: [units] angle = "deg" (or --units angle=deg)'
+    past = np.where(beyond, np.maximum(lo - q, q - hi), 0.0)
+    spans = np.where(np.isfinite(hi - lo), hi - lo, np.inf)
+    if (past <= END_STOP * spans).all():  # not a unit: a hair past
+        k = int(np.unravel_index(np.argmax(past / spans), past.shape)[1])
+        s, u = _coordinate_unit(robot, units, k)
+        hint = (f"at most {past[:, k].max() / s:.3g} {u} past, {100 * END_STOP:.0f} % of the "
+                "range or less: readings at the end stops, the units look right")
     warnings.warn(
         f"{data}: {rows.size} of {len(q)} rows have coordinates beyond {robot.title}'s joint "
         f"limits (first: line {lines[i]}, q{j + 1} ({robot.coordinate_joints[j]}) = "
