@@ -110,10 +110,10 @@ def test_a_target_always_below_the_base_is_named_as_the_reason_no_pose_is_found(
 
 def test_poses_found_above_a_base_the_target_mostly_hangs_below_are_warned_about(tmp_path):
     """A hanging arm that can swing up a little: 94 % of the poses put the target below the
-    base and are left out, the few above are drawn, silently before (Gepetto's 5-bar, its target 0.85 m below
-    its motors: `design` drew its poses on the other assembly branch, the only one above the
-    base, and the simulated campaign was 2.6e4 noise std off its linear model). Now a warning
-    names the count and the fix; with the fix none."""
+    base and are left out, the few above are drawn, silently before (Gepetto's 5-bar, its
+    target 0.85 m below its motors: `design` drew its poses on the other assembly branch, the
+    only one above the base, and the simulated campaign was 2.6e4 noise std off its linear
+    model). Now a warning names the count and the fix; with the fix none."""
     (tmp_path / "swing.urdf").write_text(HANGING_ARM.replace(
         '<limit lower="-0.5" upper="0.5"', '<limit lower="-1.65" upper="1.65"', 1))
     with pytest.warns(RobotFileWarning, match=r"the target of hanging was below the base plane "
