@@ -240,3 +240,31 @@ def test_a_probe_mounted_turned_is_declared_and_its_orientations_explained(ur10,
         rms[name] = json.loads(capsys.readouterr().out)["rotation_rms"]
     assert rms["declared"] == pytest.approx(np.rad2deg(np.sqrt(3) * NOISE_ROT), rel=0.35)
     assert rms["not"] > 10.0  # deg: the mounting's turn, unexplained
+
+
+def test_import_reads_roll_pitch_yaw_columns(ur10, tmp_path, capsys):
+    """FIGAROH's and ROS's rigs write orientations as roll, pitch, yaw (R = Rz Ry Rx), not
+    rotation vectors: --rotation-format rpy turns them into the campaign's rotation vectors
+    (those simulated, to 1e-12; the matrices built with Pinocchio's rpy, apart from the
+    import's route); refused for a deflection campaign."""
+    _, c = _campaign(ur10, 17, n=6)
+    c.rotations[2, 1] = np.nan
+    rpy = np.array([[np.full(3, np.nan) if not np.all(np.isfinite(r)) else
+                     np.rad2deg(pin.rpy.matrixToRpy(pin.exp3(r))) for r in row]
+                    for row in c.rotations])
+    cols = [f"{m}_{a}" for m in ("tip", "elbow") for a in "xyz"] + [
+        f"{m}_r{a}" for m in ("tip", "elbow") for a in "xyz"]
+    rows = [",".join([f"q{i}" for i in range(1, 7)] + cols)] + [
+        ",".join("" if not np.isfinite(v) else repr(float(v)) for v in np.r_[
+            np.rad2deg(c.q[i]), c.positions[i].ravel() * 1e3, rpy[i].ravel()])
+        for i in range(c.n_rows)]
+    (tmp_path / "rig.csv").write_text("\n".join(rows) + "\n")
+    argv = ["campaign", "import", str(tmp_path / "rig.csv"), "--robot", "ur10", "--frame",
+            "tool0", "--units", "angle=deg,length=mm", "--quiet", "--rotation-format", "rpy"]
+    assert main([*argv, "--kind", "poses", "--marker", "tip=tool0@0,30,50", "--marker",
+                 "elbow=forearm_link@0,50,200", "--out", str(tmp_path / "c")]) == 0
+    back = load_pose_campaign(tmp_path / "c")
+    np.testing.assert_allclose(back.rotations, c.rotations, rtol=0, atol=1e-12)
+    capsys.readouterr()
+    assert main([*argv, "--out", str(tmp_path / "d")]) == 2
+    assert "--rotation-format is for --kind poses" in capsys.readouterr().err

@@ -47,12 +47,29 @@ def marker_targets(markers: list[Marker]) -> tuple[str, ...]:
     return tuple(f"{m.name}_{a}" for m in markers for a in ("x", "y", "z", *ROTATION_AXES))
 
 
+#: What a rig's orientation columns may hold (:func:`as_rotation_vectors`).
+ROTATION_FORMATS = ("vector", "rpy")
+
+
+def as_rotation_vectors(rotations: np.ndarray, rotation_format: str) -> np.ndarray:
+    """Orientations (..., 3) rad as rotation vectors (NaN rows kept): as they are for
+    ``"vector"``; for ``"rpy"`` roll, pitch, yaw ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    if rotation_format == "vector":
+        return rotations
+    out = np.full(rotations.shape, np.nan)
+    for index in np.ndindex(rotations.shape[:-1]):
+        if np.all(np.isfinite(rotations[index])):
+            out[index] = pin.log3(pin.rpy.rpyToMatrix(*rotations[index]))
+    return out
+
+
 def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSettings,
                          settings: ImportSettings, markers: list[Marker],
                          name: str = "imported", noise_std: float | None = None,
                          robot: Robot | None = None,
                          noise_std_rotation: float | None = None,
-                         marker_turns: dict[str, np.ndarray] | None = None
+                         marker_turns: dict[str, np.ndarray] | None = None,
+                         rotation_format: str = "vector"
                          ) -> tuple[PoseCampaign, ImportReport]:
     """Read a rig's CSV files into a pose campaign (SI), and what was read (the report of
     :func:`stiffness.calibration.rig_import.import_campaign`, each column listed).
@@ -69,6 +86,10 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     marker_turns
         A marker's axes in its frame's axes (a 6-D probe's mounting), as a rotation vector in
         the files' angle unit, by marker name; the others have their frame's axes.
+    rotation_format
+        What the orientation columns hold: ``"vector"`` (the campaign's rotation vector) or
+        ``"rpy"`` (roll, pitch, yaw about the fixed x, y, z axes, ``R = Rz(yaw) Ry(pitch)
+        Rx(roll)``: ROS's and FIGAROH's ``phix, phiy, phiz``), turned into rotation vectors.
 
     Raises
     ------
@@ -95,6 +116,9 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
     rotations = (None if all(t is None for t in turns) else np.stack(
         [np.full((positions.shape[0], 3), np.nan) if t is None else t for t in turns], axis=1))
+    if rotation_format not in ROTATION_FORMATS:
+        raise StiffnessError(f"rotation format {rotation_format!r}: valid "
+                             f"{', '.join(ROTATION_FORMATS)}")
     if noise_std_rotation is not None and rotations is None:
         raise StiffnessError("a rotation noise is given but no marker has orientation columns "
                              "(<marker>_rx,_ry,_rz); map them or drop the rotation noise")
@@ -123,7 +147,8 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                             positions * units.length_to_si, loads,
                             None if noise_std is None else noise_std * units.length_to_si,
                             rotations=None if rotations is None
-                            else rotations * units.angle_to_si,
+                            else as_rotation_vectors(rotations * units.angle_to_si,
+                                                     rotation_format),
                             noise_std_rotation=None if noise_std_rotation is None
                             else noise_std_rotation * units.angle_to_si)
     kinds = UNIT_KINDS | {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {

@@ -23,7 +23,7 @@ from stiffness.calibration.campaign import CAMPAIGN_KINDS
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.pose_campaign import write_pose_campaign
-from stiffness.calibration.pose_import import import_pose_campaign
+from stiffness.calibration.pose_import import ROTATION_FORMATS, import_pose_campaign
 from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.rig_import import (
     FRAMES,
@@ -71,6 +71,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-rotation", type=flags.number, metavar="STD",
                    help="--kind poses with orientation columns: their noise std, in the files' "
                         "angle unit (noise_std_rotation)")
+    p.add_argument("--rotation-format", choices=ROTATION_FORMATS, default="vector",
+                   help="--kind poses: what the orientation columns hold, vector (rotation "
+                        "vector, default) or rpy (roll, pitch, yaw about the fixed x, y, z "
+                        "axes, R = Rz Ry Rx: ROS's, FIGAROH's phix,phiy,phiz)")
     p.add_argument("--baseline", choices=BASELINES, default="enhanced",
                    help="the model identify starts from; default enhanced")
     p.add_argument("--name", default="imported", help="campaign name; default imported")
@@ -136,7 +140,7 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
     declared, turns = _markers(args.marker)
     campaign, report = import_pose_campaign(args.files, robot_settings, settings, declared,
                                             args.name, args.noise, robot, args.noise_rotation,
-                                            turns)
+                                            turns, args.rotation_format)
     flags.warn_rig_noise(args.noise, "--noise", campaign.units.length, campaign.units.length_to_si)
     path = write_pose_campaign(campaign, args.out)
     seen = np.isfinite(campaign.positions).all(axis=2).sum(axis=0)
@@ -169,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     flags.check_noise_std(args.noise_rotation, "--noise-rotation", "the files' angle unit")
     if args.noise_rotation is not None and args.kind != "poses":
         raise StiffnessError("--noise-rotation is for --kind poses")
+    if args.rotation_format != "vector" and args.kind != "poses":
+        raise StiffnessError("--rotation-format is for --kind poses")
     output_folder(args.out, create=False)
     settings = _settings(args)
     robot_settings = RobotSettings(
