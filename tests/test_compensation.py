@@ -381,7 +381,7 @@ def test_bad_path_errors_are_typed(tmp_path, ur5):
         MissingFileError,
         UnstableEquilibriumError,
     )
-    from stiffness.machining.compensation import read_joint_path
+    from stiffness.machining.joint_path import read_joint_path
 
     rows = UR5_PATH.copy()
     rows[1, 2] = np.nan
@@ -409,7 +409,7 @@ def test_path_columns_may_name_their_unit_in_brackets(ur5, tmp_path):
     with its fix. The columns were taken as unknown ('its columns name none of them: is the
     model file of another robot?', 'per-row loads need the columns fx, fy, fz')."""
     from stiffness.errors import FileFormatError
-    from stiffness.machining.compensation import read_joint_path
+    from stiffness.machining.joint_path import read_joint_path
 
     joints = list(ur5.coordinate_joints)
     rows = np.column_stack([UR5_PATH, np.tile([1.0, -2.0, 30.0, 0.5, 0.0, 0.0], (2, 1))])
@@ -437,7 +437,7 @@ def test_a_path_names_the_joints_that_move_the_target_and_the_other_limbs_are_he
     import warnings
 
     from stiffness.errors import DataFileNote, FileFormatError
-    from stiffness.machining.compensation import read_joint_path
+    from stiffness.machining.joint_path import read_joint_path
     from stiffness.mechanics.defaults import default_coordinates
 
     solo = load_robot("solo8", fixed_base=True)

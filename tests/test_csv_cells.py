@@ -15,7 +15,7 @@ from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_c
 from stiffness.calibration.pose_model import Marker
 from stiffness.errors import FileFormatError
 from stiffness.files import csv_float
-from stiffness.machining.compensation import read_joint_path
+from stiffness.machining.joint_path import read_joint_path
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 

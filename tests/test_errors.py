@@ -269,7 +269,7 @@ def test_csv_with_another_separator_is_named(tmp_path, separator):
     (campaign, pose campaign, rig import, joint path, plan)."""
     from stiffness.calibration.pose_campaign import load_pose_campaign
     from stiffness.calibration.rig_import import read_table
-    from stiffness.machining.compensation import read_joint_path
+    from stiffness.machining.joint_path import read_joint_path
     from stiffness.planning.plan import read_plan
 
     def semi(source: Path, target: Path) -> Path:

@@ -305,7 +305,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs" / "compensation"
 @FUZZ
 @given(data=st.data())
 def test_joint_path_mutations(ur5, tmp_path_factory, data):
-    from stiffness.machining.compensation import read_joint_path
+    from stiffness.machining.joint_path import read_joint_path
 
     folder = tmp_path_factory.mktemp("fuzz-path")
     text = (DOCS / "ur5-path.csv").read_text()

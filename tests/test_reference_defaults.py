@@ -132,12 +132,12 @@ def test_a_urdf_without_reference_takes_the_middle_of_limits_that_exclude_zero()
 
 def test_view_path_rows_need_no_finger_values(tmp_path):
     """``view --path``: rows of the Panda's 7 arm joints (deg); the finger keeps its reference."""
-    from stiffness.cli.view import read_path
+    from stiffness.machining.joint_path import read_joint_path
 
     robot = load_robot("panda")
     path = tmp_path / "path.csv"
     path.write_text("0,-45,0,-135,0,90,45\n10,-40,0,-130,0,92,46\n")
-    rows = read_path(robot, path, deg=True)
+    rows = read_joint_path(path, robot, deg=True).coords
     finger = robot.coordinate_joints.index("panda_finger_joint1")
     reference = reference_configuration(robot).coords
     assert rows.shape == (2, 8) and np.all(rows[:, finger] == reference[finger])
@@ -149,22 +149,22 @@ def test_view_path_cells_are_read_as_the_campaign_readers_read_them(tmp_path):
     """``view --path``: a NaN coordinate was read by numpy (and drawn as nothing), '1_0' was
     refused in numpy's words; each is now one line naming the line of the file, as the
     campaign readers say it; comments and blank lines are skipped."""
-    from stiffness.cli.view import read_path
     from stiffness.errors import FileFormatError
+    from stiffness.machining.joint_path import read_joint_path
 
     robot = load_robot("panda")
     path = tmp_path / "path.csv"
     path.write_text("# arm joints, deg\n0,-45,0,-135,0,90,45\n\n")
-    assert read_path(robot, path, deg=True).shape == (1, 8)
+    assert read_joint_path(path, robot, deg=True).coords.shape == (1, 8)
     for bad, words in (("nan", "not a row of finite numbers"), ("1_0", "digit separators"),
                        ("x", "line 2")):
         path.write_text(f"0,-45,0,-135,0,90,45\n10,-40,0,{bad},0,92,46\n")
         with pytest.raises(FileFormatError, match=words) as info:
-            read_path(robot, path, deg=True)
+            read_joint_path(path, robot, deg=True)
         assert "line 2" in str(info.value) and "\n" not in str(info.value)
     path.write_text("0,-45,0,-135,0,90,45\n10,-40,0\n")
     with pytest.raises(FileFormatError, match="line 2"):
-        read_path(robot, path, deg=True)
+        read_joint_path(path, robot, deg=True)
 
 
 def test_view_path_reads_compensates_path_file(tmp_path):
@@ -174,17 +174,18 @@ def test_view_path_reads_compensates_path_file(tmp_path):
     reference)."""
     from pathlib import Path
 
-    from stiffness.cli.view import read_path
+    from stiffness.machining.joint_path import read_joint_path
 
     ur5 = load_robot("ur5")
     docs = Path(__file__).resolve().parents[1] / "docs" / "compensation" / "ur5-path.csv"
     expected = np.deg2rad(np.loadtxt(docs, delimiter=",", skiprows=1))
-    np.testing.assert_allclose(read_path(ur5, docs, deg=True), expected, rtol=1e-15)
+    np.testing.assert_allclose(read_joint_path(docs, ur5, deg=True).coords, expected,
+                               rtol=1e-15)
     panda = load_robot("panda")
     path = tmp_path / "path.csv"
     header = [*ARMS["panda"][:1], f"{ARMS['panda'][1]} [rad]", *ARMS["panda"][2:]]
     path.write_text(",".join(header) + ",fx,fy,fz\n0,-0.8,0,-2.4,0,1.6,0.8,0,0,-10\n")
-    rows = read_path(panda, path)
+    rows = read_joint_path(path, panda).coords
     arm = [panda.coordinate_joints.index(j) for j in ARMS["panda"]]
     np.testing.assert_allclose(rows[0, arm], [0, -0.8, 0, -2.4, 0, 1.6, 0.8])
     finger = panda.coordinate_joints.index("panda_finger_joint1")

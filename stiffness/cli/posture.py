@@ -35,7 +35,7 @@ from stiffness.cli.flags import (
     parse_list,
 )
 from stiffness.errors import StiffnessError
-from stiffness.machining.compensation import angular_coordinates
+from stiffness.machining.joint_path import angular_coordinates
 from stiffness.machining.posture import posture
 
 

@@ -22,16 +22,13 @@ import argparse
 import json
 import math
 import signal
-from pathlib import Path
 
 import numpy as np
 
 from stiffness.cli import flags, kx
 from stiffness.elastic.model import ElasticModel
-from stiffness.errors import FileFormatError, StiffnessError
-from stiffness.files import csv_float, read_text
-from stiffness.machining.compensation import read_joint_path
-from stiffness.mechanics.defaults import default_coordinates
+from stiffness.errors import StiffnessError
+from stiffness.machining.joint_path import read_joint_path
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, coordinate_index
 from stiffness.units import FLAG_NUMBER, plain_int
@@ -146,92 +143,6 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     return rows
 
 
-def _csv_rows(text: str, path: Path, n: int) -> np.ndarray:
-    """The rows of finite numbers of a CSV text (``#`` comments, blank lines skipped), read
-    as the campaign readers read a cell (:func:`~stiffness.files.csv_float`).
-
-    Raises
-    ------
-    FileFormatError
-        A cell that is not a finite plain number, or rows of unequal length (its ``line``).
-    """
-    rows: list[list[float]] = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        cells = line.split("#", 1)[0].strip()
-        if not cells:
-            continue
-        try:
-            row = [csv_float(cell) for cell in cells.split(",")]
-        except ValueError as exc:
-            raise FileFormatError(f"{exc}; give one row of {n} coordinates per line",
-                                  path=path, line=number) from exc
-        if not all(math.isfinite(v) for v in row) or (rows and len(row) != len(rows[0])):
-            raise FileFormatError(f"{cells!r} is not a row of finite numbers as long as the "
-                                  f"first; give one row of {n} coordinates per line",
-                                  path=path, line=number)
-        rows.append(row)
-    return np.atleast_2d(np.array(rows, dtype=float))
-
-
-def _named_columns(text: str) -> bool:
-    """Whether the first line of ``text`` that holds data (not blank, not a ``#`` comment) is
-    a header: no cell of it is a number."""
-    for line in text.splitlines():
-        cells = line.split("#", 1)[0].strip()
-        if cells:
-            return not any(_is_number(cell) for cell in cells.split(","))
-    return False
-
-
-def _is_number(cell: str) -> bool:
-    """Whether ``float`` reads ``cell`` (a mistyped number is a row's, not a column name)."""
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
-
-
-def read_path(robot: Robot, path: str | Path, deg: bool = False) -> np.ndarray:
-    """Rows of coordinates from a CSV file (one configuration per line; ``#`` comments): one
-    value per coordinate, or per joint outside the end effector's fingers (which keep their
-    reference value); or ``stiffness compensate``'s path file, a header line naming the
-    columns (:func:`~stiffness.machining.compensation.read_joint_path`; its load columns are
-    not used).
-
-    Raises
-    ------
-    MissingFileError
-        If the file is missing.
-    FileFormatError
-        If a value is not a number or a row has the wrong number of values.
-    """
-    path = Path(path)
-    text = read_text(path, "--path file")
-    if _named_columns(text):
-        return read_joint_path(path, robot, deg).coords
-    rows = _csv_rows(text, path, robot.n_coordinates)
-    if rows.size == 0:
-        raise FileFormatError(f"no rows; give one row of {robot.n_coordinates} coordinates per "
-                              "line", path=path)
-    given = list(robot.coordinate_joints) if rows.shape[1] == robot.n_coordinates else \
-        list(robot.chain_joints)
-    if rows.shape[1] != len(given):
-        chain = "" if not robot.branch_joints else (
-            f", or {len(robot.chain_joints)} without the end effector's fingers")
-        raise FileFormatError(
-            f"each row needs {robot.n_coordinates} values "
-            f"({', '.join(robot.coordinate_joints)}){chain}, this file has {rows.shape[1]}",
-            path=path)
-    reference = default_coordinates(robot)
-    full = np.tile(np.zeros(robot.n_coordinates) if reference is None else reference,
-                   (rows.shape[0], 1))
-    for i, joint in enumerate(given):
-        scale = np.pi / 180.0 if deg and _revolute(robot, joint) else 1.0
-        full[:, robot.coordinate_joints.index(joint)] = rows[:, i] * scale
-    return full
-
-
 def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = None
           ) -> StiffnessViewer:
     """The viewer with everything the flags ask for drawn (the caller closes it)."""
@@ -242,7 +153,7 @@ def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = Non
     if args.sweep is not None:
         rows = sweep_path(robot, coords, args.sweep, args.deg)
     elif args.path is not None:
-        rows = read_path(robot, args.path, args.deg)
+        rows = read_joint_path(args.path, robot, args.deg, "--path file").coords
     model = kx.elastic_model_from_args(args)
     options = {"live": live, "quantity": args.quantity, "size": args.size,
                "exaggeration": args.exaggeration, "host": args.host, "port": args.port,

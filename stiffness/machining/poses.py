@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import FileFormatError, StiffnessError
-from stiffness.machining.compensation import header_without_units, read_table
+from stiffness.machining.joint_path import header_without_units, read_table
 
 #: Named free axes (target frame).
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]),

@@ -60,7 +60,8 @@ from stiffness.machining.branches import (
     candidate_tracks,
     fixed_values,
 )
-from stiffness.machining.compensation import WRENCH_FRAMES, angular_coordinates
+from stiffness.machining.compensation import WRENCH_FRAMES
+from stiffness.machining.joint_path import angular_coordinates
 from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import as_wrench, target_state
