@@ -7,6 +7,8 @@ reaching both noises, validate's rotation keys, and the import of a rig's rotati
 from __future__ import annotations
 
 import json
+import re
+import warnings
 
 import numpy as np
 import pinocchio as pin
@@ -20,7 +22,7 @@ from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.cli.main import main
-from stiffness.errors import StiffnessError
+from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 from stiffness.units import Units
@@ -222,9 +224,21 @@ def test_a_probe_mounted_turned_is_declared_and_its_orientations_explained(ur10,
             "--units", "angle=deg,length=mm", "--noise", "0.02",
             "--noise-rotation", str(np.rad2deg(NOISE_ROT)), "--quiet"]
     turned = ",".join(repr(float(v)) for v in np.rad2deg(mount))
-    assert main([*argv, "--marker", f"tip=tool0@0,30,50@{turned}",
-                 "--out", str(tmp_path / "declared")]) == 0
-    assert main([*argv, "--marker", "tip=tool0@0,30,50", "--out", str(tmp_path / "not")]) == 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main([*argv, "--marker", f"tip=tool0@0,30,50@{turned}",
+                     "--out", str(tmp_path / "declared")]) == 0
+    assert not [w for w in caught if "mounted turned" in str(w.message)]
+    # undeclared, the import estimates the mounting (the orientations alone: the measuring
+    # frame's rotation and the mounting in turn) and says what to declare, in deg
+    with pytest.warns(DataFileWarning, match="a 6-D probe mounted turned") as said:
+        assert main([*argv, "--marker", "tip=tool0@0,30,50", "--out", str(tmp_path / "not")
+                     ]) == 0
+    message = next(str(w.message) for w in said if "mounted turned" in str(w.message))
+    declare = re.search(r"rotation = \[([^\]]+)\] \(deg;", message)
+    assert declare, message
+    estimate = np.deg2rad([float(v) for v in declare.group(1).split(",")])
+    assert np.degrees(np.linalg.norm(pin.log3(pin.exp3(estimate).T @ pin.exp3(mount)))) < 0.02
     capsys.readouterr()
     back = load_pose_campaign(tmp_path / "declared")
     np.testing.assert_allclose(back.markers[0].rotation, pin.exp3(mount), rtol=0, atol=1e-12)

@@ -48,6 +48,7 @@ from stiffness.calibration.measurements import (
     warn_copied_rows,
 )
 from stiffness.calibration.pose_model import Loads, Marker
+from stiffness.calibration.probe_mounting import check_marker_mounting
 from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
 from stiffness.errors import FileFormatError
 from stiffness.files import (
@@ -334,6 +335,8 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
                          f"{toml_path} [markers]")
     check_marker_spread(robot, [m.frame for m in markers], offsets, q,
                         pos * units.length_to_si, units, data)
+    check_marker_mounting(robot, markers, q, pos * units.length_to_si,
+                          None if rot is None else rot * units.rotation_to_si, units, data)
     loads = None if wrench is None else Loads.read(
         str(doc.get("load", {}).get("frame", robot.target_frame)), wrench[:, :3],
         wrench[:, 3:] if wrench.shape[1] == 6 else None, units)

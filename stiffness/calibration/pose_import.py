@@ -22,6 +22,7 @@ from stiffness.calibration.coordinate_columns import fill_held
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
 from stiffness.calibration.pose_model import Loads, Marker
+from stiffness.calibration.probe_mounting import check_marker_mounting
 from stiffness.calibration.rig_import import (
     FORCE,
     MOMENT,
@@ -151,6 +152,8 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                                                      rotation_format),
                             noise_std_rotation=None if noise_std_rotation is None
                             else noise_std_rotation * units.angle_to_si)
+    check_marker_mounting(robot, campaign.markers, q, campaign.positions, campaign.rotations,
+                          units, q_cols[0].path)
     kinds = UNIT_KINDS | {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {
         f"{m.name}_{a}": "angle" for m in markers for a in ROTATION_AXES}
     report = ImportReport([(str(t.path), len(t.rows)) for t in tables], campaign.n_rows,
