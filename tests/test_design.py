@@ -44,6 +44,7 @@ from stiffness.errors import (
     UnknownEffectError,
 )
 from stiffness.files import read_toml
+from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import target_state
 from stiffness.planning.design import design, fit_alternatives
 from stiffness.planning.plan import PLAN_FILE, read_plan, write_plan
@@ -397,6 +398,42 @@ def test_python_api_at_package_top(pools):
                               candidates=_seeded_subset(pool, 1, 10), random_plans=4)
     assert result.k_source.startswith("the robot's shipped")
     assert result.plan.n_rows == 3 and result.to_dict()["rows"] == 3
+
+
+def test_a_plan_whose_loads_leave_its_linear_model_says_so(pools):
+    """The design's predicted errors assume its linear model; a plan whose loads deflect the
+    robot past it says by how much, against the exact equilibrium (solve_equilibrium) and
+    J (K - K_C)^-1 J^T F written out here. Before, a Solo12 leg at 50 N.m/rad and 50 N (124 mm
+    deflections) was promised 0.005 % errors and its simulated campaign missed the model by
+    2.3e3 noise std, said only by simulate."""
+    robot, k, force, pool = pools["ur5"]
+    sub = _seeded_subset(pool, 2, 10)
+    found = {}
+    for scale in (10.0, 0.01):
+        res = design(robot, 2, force, loads_per_config=2, candidates=sub, k=k * scale,
+                     random_plans=2)
+        diffs, largest = [], 0.0
+        for q, f in zip(res.plan.q, res.plan.force, strict=True):
+            q0 = robot.configuration(q)
+            exact = solve_equilibrium(robot, q0, np.diag(res.k), np.r_[f, 0.0, 0.0, 0.0]).dx
+            st = target_state(robot, q0, f)
+            jac = st.jacobian[:3]
+            linear = jac @ np.linalg.solve(np.diag(res.k) - st.k_c, jac.T @ f)
+            diffs.append(exact - linear)
+            largest = max(largest, float(np.linalg.norm(exact)))
+        rms = float(np.sqrt(np.mean(np.square(diffs))))
+        assert res.linearisation == pytest.approx((rms, largest), rel=1e-6)
+        assert res.to_dict()["linearisation_error"]["noise_units"] == pytest.approx(
+            rms / res.noise_std_m)
+        found[scale] = (res, rms)
+    stiff, soft = found[10.0], found[0.01]
+    assert stiff[1] < stiff[0].noise_std_m < soft[1]
+    assert not [n for n in stiff[0].notes if "exact equilibrium" in n]
+    assert (f"at the nominal stiffness the enhanced model misses the exact equilibrium by "
+            f"{soft[1] / soft[0].noise_std_m:.3g} noise std RMS on the plan's rows (the largest "
+            f"deflection {soft[0].linearisation[1] * 1e3:.3g} mm): the predicted errors assume "
+            f"that model; identify with --formulation exact, or lower --max-force (100 N)"
+            ) in soft[0].notes
 
 
 def test_random_plans_are_distinct_poses_and_loads():

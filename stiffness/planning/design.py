@@ -49,6 +49,7 @@ from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
 from stiffness.elastic.model_file import ModelFile, read_model_file
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
 from stiffness.planning.plan import Plan, write_plan
+from stiffness.planning.simulate import build_truth, row_smoothing_torques
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.units import Units
 
@@ -237,6 +238,10 @@ class DesignResult:
         Exchanges accepted after the greedy pass.
     notes
         Remarks.
+    linearisation
+        ``(rms_m, largest_m)``: the RMS (m) by which ``formulation``'s linear deflections miss
+        the exact equilibrium at the nominal stiffness on the plan's rows, and the largest
+        exact deflection (m); ``None`` when the exact equilibrium was not found.
     """
 
     plan: Plan
@@ -260,6 +265,7 @@ class DesignResult:
     row_separation: np.ndarray | None = None
     exchanges: int = 0
     notes: list[str] = field(default_factory=list)
+    linearisation: tuple[float, float] | None = None
 
     @property
     def random_relative_se(self) -> np.ndarray:
@@ -332,6 +338,10 @@ class DesignResult:
                                               strict=True)},
             },
             "notes": self.notes,
+            "linearisation_error": None if self.linearisation is None else {
+                "rms_m": self.linearisation[0],
+                "noise_units": self.linearisation[0] / self.noise_std_m,
+                "largest_deflection_m": self.linearisation[1]},
         }
         if self.separate is not None:
             out["separate"] = {
@@ -483,6 +493,10 @@ def design(
         int(random_plans), rng)]
     plan = _plan(robot, cands, selection, int(configs), int(loads_per_config), existing,
                  units, formulation, sigma)
+    say("checking the plan's rows against the exact equilibrium")
+    linearisation = linearisation_error(robot, k_arr, plan, formulation)
+    notes = search.notes(designed, joints) + _linearisation_notes(linearisation, sigma,
+                                                                  formulation, max_force)
     return DesignResult(
         plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source or k_found,
         noise_std_m=sigma, noise_source=noise_source, criterion=criterion,
@@ -493,7 +507,56 @@ def design(
         separate=alternatives.labels if alternatives is not None else None,
         separation_sigma_source=alternatives.sigma_source if alternatives is not None else None,
         row_separation=None if alternatives is None else search.row_separation(selection),
-        exchanges=selection.exchanges, notes=search.notes(designed, joints))
+        exchanges=selection.exchanges, notes=notes, linearisation=linearisation)
+
+
+def linearisation_error(robot: Robot, k: np.ndarray, plan: Plan, formulation: str
+                        ) -> tuple[float, float] | None:
+    """How far the design's linear model is from the exact equilibrium on the plan's rows.
+
+    Parameters
+    ----------
+    robot, k
+        The robot and its nominal stiffness per compliant joint (N.m/rad, N/m).
+    plan
+        The rows (coordinates rad, m; forces N).
+    formulation
+        ``enhanced`` or ``conventional``.
+
+    Returns
+    -------
+    ``(rms_m, largest_m)``: the RMS difference (m) between the exact and the linear
+    deflections per component, and the largest exact deflection (m); ``None`` when the exact
+    equilibrium is not found at some row (the load buckles the robot there, or the loop
+    passes a singularity).
+    """
+    geometry = Geometry.of(robot)
+    smoothing = row_smoothing_torques(geometry.robot, plan.q, plan.force)  # as simulate's
+    truth = build_truth(robot, np.asarray(k, dtype=float), [], plan.units, smoothing, geometry)
+    try:
+        exact = truth.deflections(plan.q, plan.force)
+    except StiffnessError:
+        return None
+    linear = truth.deflections(plan.q, plan.force, mode=formulation)
+    return (float(np.sqrt(np.mean((exact - linear) ** 2))),
+            float(np.linalg.norm(exact, axis=1).max()))
+
+
+def _linearisation_notes(linearisation: tuple[float, float] | None, sigma: float,
+                         formulation: str, max_force: float) -> list[str]:
+    """The note when the plan's loads take the robot out of the design's linear model (its
+    predicted errors assume the model)."""
+    fix = (f"the predicted errors assume that model; identify with --formulation exact, or "
+           f"lower --max-force ({max_force:g} N)")
+    if linearisation is None:
+        return [f"the exact equilibrium is not found at some of the plan's rows (the load "
+                f"buckles the robot, or a loop passes a singularity): {fix}"]
+    rms, largest = linearisation
+    if rms <= sigma:
+        return []
+    return [f"at the nominal stiffness the {formulation} model misses the exact equilibrium by "
+            f"{rms / sigma:.3g} noise std RMS on the plan's rows (the largest deflection "
+            f"{largest * 1e3:.3g} mm): {fix}"]
 
 
 def _inputs(robot: Robot | str | None, existing: Campaign | str | os.PathLike | None,
