@@ -487,16 +487,10 @@ def design(
         say(f"selecting {configs} x {loads_per_config} rows ({criterion}-optimal)")
     selection = search.select(int(configs), int(loads_per_config), criterion)
     designed = search.predict(selection)
-    rng = np.random.default_rng(None if seed is None else seed + 7919)
-    randoms = [search.predict(s) for s in random_selections(
-        cands.n_poses, cands.n_directions, int(configs), int(loads_per_config),
-        int(random_plans), rng)]
+    randoms = _random_predictions(search, configs, loads_per_config, random_plans, seed)
     plan = _plan(robot, cands, selection, int(configs), int(loads_per_config), existing,
                  units, formulation, sigma)
-    say("checking the plan's rows against the exact equilibrium")
-    linearisation = linearisation_error(robot, k_arr, plan, formulation)
-    notes = search.notes(designed, joints) + _linearisation_notes(linearisation, sigma,
-                                                                  formulation, max_force)
+    linearisation = linearisation_error(robot, k_arr, plan, formulation)  # the model's reach
     return DesignResult(
         plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source or k_found,
         noise_std_m=sigma, noise_source=noise_source, criterion=criterion,
@@ -507,7 +501,19 @@ def design(
         separate=alternatives.labels if alternatives is not None else None,
         separation_sigma_source=alternatives.sigma_source if alternatives is not None else None,
         row_separation=None if alternatives is None else search.row_separation(selection),
-        exchanges=selection.exchanges, notes=notes, linearisation=linearisation)
+        exchanges=selection.exchanges, linearisation=linearisation,
+        notes=search.notes(designed, joints) + _linearisation_notes(
+            linearisation, sigma, formulation, max_force))
+
+
+def _random_predictions(search: _Search, configs: int, loads_per_config: int,
+                        random_plans: int, seed: int | None) -> list[Prediction]:
+    """The predictions of ``random_plans`` random plans of the same size from the candidates
+    (seeded by ``seed``)."""
+    rng = np.random.default_rng(None if seed is None else seed + 7919)
+    return [search.predict(s) for s in random_selections(
+        search.cands.n_poses, search.cands.n_directions, int(configs), int(loads_per_config),
+        int(random_plans), rng)]
 
 
 def linearisation_error(robot: Robot, k: np.ndarray, plan: Plan, formulation: str
