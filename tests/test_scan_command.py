@@ -499,8 +499,8 @@ def test_console_names_the_stiffness_range_and_where_k_x_is_undefined(tmp_path, 
                           capsys)
     assert code == 0
     assert captured.out.splitlines()[-1].startswith(
-        "K_X, load case 1: undefined at all 30 valid configurations (the compliance C is "
-        "singular there")
+        "K_X: undefined at all 30 valid configurations: the target moves in fewer than 3 "
+        "directions at every one")
 
 
 def test_killed_scan_resumed_with_workers_gives_the_same_maps(tmp_path):

@@ -79,3 +79,45 @@ def test_ranges_leave_out_near_singular_and_unstable_configurations(tmp_path, wr
                                                                             rel=1e-6)
     else:
         assert want["unstable"] > 0  # 4e5 N buckles the upright poses (critical 2.5e5 N)
+
+
+
+PLANAR_3R = """<robot name="planar3r"><link name="base"/><link name="l1"/><link name="l2"/>
+<link name="l3"/><link name="tip"/>
+<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+ <limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+<joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0.4 0 0"/>
+ <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+<joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0.3 0 0"/>
+ <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+<joint name="t" type="fixed"><parent link="l3"/><child link="tip"/><origin xyz="0.2 0 0"/>
+</joint></robot>"""
+
+
+def test_a_robot_spanning_fewer_than_three_directions_everywhere_is_named_as_such(tmp_path,
+                                                                                  capsys):
+    """A planar arm of three springs (as Gepetto's 5-bar and planar delta): its target
+    Jacobian has rank 2 at every configuration (checked here pose by pose), so K_X exists
+    nowhere. The summary said 'left out of the K_X ranges: 12 of 12 ... near a singularity'
+    and 'undefined ... a kinematic singularity, fewer compliant joints than directions, or the
+    buckling limit'; now one line names the reason and where the subspace stiffness is."""
+    from stiffness.cli.main import main
+
+    (tmp_path / "planar3r.urdf").write_text(PLANAR_3R)
+    robot = load_robot(tmp_path / "planar3r.urdf")
+    assert main(["scan", "--robot", str(tmp_path / "planar3r.urdf"), "--kq", "1e3,1e3,1e3",
+                 "--samples", "12", "--load", "0,-5,0", "--out", str(tmp_path / "s"),
+                 "--no-plots", "--quiet"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    coords = load_scan(tmp_path / "s")["coordinates"]
+    assert len(coords) == 12
+    for c in coords:
+        s = np.linalg.svd(target_state(robot, robot.configuration(c)).jacobian[:3],
+                          compute_uv=False)
+        assert s[2] < 1e-12 * s[0] and s[1] > 1e-3 * s[0]
+    assert lines[-1] == (
+        "K_X: undefined at all 12 valid configurations: the target moves in fewer than 3 "
+        "directions at every one (a planar robot, or fewer than 3 compliant joints), so its 3x3 "
+        "compliance is singular everywhere; `stiffness kx --q ...` gives the stiffness on the "
+        "subspace it spans at one pose")
+    assert not [line for line in lines if "left out of the K_X ranges" in line]

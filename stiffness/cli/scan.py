@@ -324,7 +324,16 @@ def k_x_lines(summary: dict) -> list[str]:
     lines = []
     valid = summary["valid_configurations"]
     near = summary.get("near_singular", 0)
-    if any("k_x_undefined" in case for case in summary["load_cases"].values()) and near:
+    cases = summary["load_cases"].values()
+    if valid and near == valid and all(c.get("k_x_undefined") == valid for c in cases):
+        return [f"K_X: undefined at all {valid} valid configurations: the target moves in "
+                "fewer than 3 directions at every one (a planar robot, or fewer than 3 "
+                "compliant joints), so its 3x3 compliance is singular everywhere; `stiffness "
+                "kx --q ...` gives the stiffness on the subspace it spans at one pose"] + [
+            f"K_X, load case {name}: unstable (K_theta - K_C not positive definite) at "
+            f"{case['unstable']} of {valid}" for name, case in summary["load_cases"].items()
+            if case.get("unstable")]
+    if any("k_x_undefined" in case for case in cases) and near:
         lines.append(f"left out of the K_X ranges: {near} of {valid} valid configurations "
                      f"near a singularity (sigma_min/sigma_max of the translational Jacobian "
                      f"below {summary['singularity_margin']:g}, where the largest principal "
