@@ -97,7 +97,7 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[
     out = kind.removals
     if out is None or out.final is not final:
         out = kind.removals = Removals(final, kind.without(final), {})
-    base, bics, _ = step_criteria(kind.terms(final), [kind.terms(f) for f in out.fits],
+    base, bics, _ = step_criteria(final.terms(), [f.terms() for f in out.fits],
                                   kind.n, kind.sigma)
     return [Certainty(s.label, cv - cv_final, bic - base,
                       *alternative([(label(e), d) for e, d, _ in s.ranking], s.label,

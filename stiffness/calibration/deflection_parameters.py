@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from stiffness.calibration.fitting import Fit, parameter_labels
+from stiffness.calibration.fitting import Fit
 from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import one_sided
 from stiffness.calibration.selection import held_ends
@@ -69,7 +69,7 @@ def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
     variable's low end is the parameter's high end."""
     dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
     if dropped is not None:
-        return parameter.held_as(dropped.describe(parameter_labels(fit.model)))
+        return parameter.held_as(dropped.describe(fit.labels()))
     lo, hi = fit.model.bounds()
     inward = {b: 1.0 if abs(fit.x[b] - lo[b]) <= abs(fit.x[b] - hi[b]) else -1.0
               for b in fit.at_bound}
@@ -125,4 +125,4 @@ def share(fit: Fit, column: int, cov: np.ndarray) -> tuple[tuple[str, float], ..
     parameters its estimate is correlated with (:func:`~stiffness.calibration.
     identifiability.confounded`, ``cov`` the fit's covariance), as (label, correlation)
     pairs (:attr:`~stiffness.elastic.effects.base.Held.confounded_with`; none for none)."""
-    return confounded(cov, column, fit.kept, parameter_labels(fit.model))
+    return confounded(cov, column, fit.kept, fit.labels())

@@ -330,7 +330,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     final_parameters = effect_parameters(final, cov_final, quantile, edge, campaign.units,
                                           held_final)
     sure = how_sure(kind, final, steps[-1].cv_rms if steps else cv_base,
-                    kept_steps(steps, {e.label for e in final.model.effects}),
+                    kept_steps(steps, final.additions()),
                     lambda label: is_stand_in(final_parameters.get(label, [])))
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
@@ -532,9 +532,6 @@ class DeflectionSearch:
                      "within its physical scale with an interval excluding zero"),
         Stop.HELD_OUT: ("no candidate that improves BIC also improves the error predicted "
                         "for held-out configurations (cross-validation)")}
-
-    def terms(self, fit: Fit) -> tuple[float, int]:
-        return fit.loss_rss, fit.penalty_params
 
     def candidates(self, current: Fit, only: str | None = None) -> list[Found] | None:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked

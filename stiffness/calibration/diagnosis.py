@@ -18,7 +18,7 @@ import numpy as np
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.diagnosis_page import render_diagnosis
-from stiffness.calibration.fitting import Fit, parameter_labels
+from stiffness.calibration.fitting import Fit
 from stiffness.calibration.identifiability import Identifiability
 from stiffness.calibration.naming import is_stand_in
 from stiffness.calibration.outliers import (
@@ -234,7 +234,7 @@ class Diagnosis:
     @property
     def named_steps(self) -> list[Step[DeflectionEffect, Fit]]:
         """The steps adding the final model's effects (:func:`kept_steps`)."""
-        return kept_steps(self.steps, {e.label for e in self.final.model.effects})
+        return kept_steps(self.steps, self.final.additions())
 
     @property
     def missing_effects(self) -> list[str]:
@@ -288,7 +288,7 @@ class Diagnosis:
         baseline's compliances as ``compliance(joint)``, effects' as ``label.parameter``)."""
         f = self.final
         ident = f.identifiability or Identifiability.full(f.x.size)
-        return ident.to_dict(parameter_labels(f.model))
+        return ident.to_dict(f.labels())
 
     def summary(self) -> dict:
         """The ``--json`` object (:meth:`to_dict`)."""

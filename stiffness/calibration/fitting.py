@@ -175,6 +175,19 @@ class Fit:
         """RMS residual component (m; rotations in translation-noise units)."""
         return math.sqrt(self.rss / self.n_residuals)
 
+    def terms(self) -> tuple[float, int]:
+        """:attr:`loss_rss` (m^2) and :attr:`penalty_params`, what the information criterion
+        and the fit-to-noise test take (:class:`~stiffness.calibration.search.Fitted`)."""
+        return self.loss_rss, self.penalty_params
+
+    def labels(self) -> list[str]:
+        """Each column of :attr:`x` named (:func:`parameter_labels`)."""
+        return parameter_labels(self.model)
+
+    def additions(self) -> set[str]:
+        """The labels of the effects the model adds to the baseline."""
+        return {e.label for e in self.model.effects}
+
     def residuals(self, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Translation (m, 3) residuals in m and rotation residuals (m, 3) in rad (or
         ``None``), predicted minus ``measured`` (the fitted observations)."""

@@ -72,7 +72,6 @@ from stiffness.calibration.fitting import (
     fit_model,
     kind_noise,
     observations,
-    parameter_labels,
     rigid_joints,
 )
 from stiffness.calibration.identification import (
@@ -423,7 +422,7 @@ def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: float,
 def _held(fit: Fit) -> tuple[str | None, ...]:
     """Per parameter of ``fit``, why it was held at its nominal value (the identifiability's
     clause), or ``None``: fitted."""
-    labels = parameter_labels(fit.model)
+    labels = fit.labels()
     ident = fit.identifiability
     dropped = [None if ident is None else ident.dropped_at(i) for i in range(fit.x.size)]
     return tuple(None if d is None else d.describe(labels) for d in dropped)

@@ -153,7 +153,7 @@ class PoseDiagnosis:
     @property
     def named_steps(self) -> list[Step[str, PoseFit]]:
         """The steps adding the final model's families (:func:`kept_steps`)."""
-        return kept_steps(self.steps, self.final.model.families)
+        return kept_steps(self.steps, self.final.additions())
 
     @property
     def families(self) -> list[str]:
@@ -219,8 +219,7 @@ class PoseDiagnosis:
                 "plausibility": self.plausibility.to_dict(),
                 "outlier_threshold": OUTLIER_THRESHOLD,
                 "outliers": [o.to_dict() for o in self.outliers],
-                "identifiability": self.final.identifiability.to_dict(
-                    [p.label for p in self.final.model.parameters]),
+                "identifiability": self.final.identifiability.to_dict(self.final.labels()),
                 "parameters": parameter_table(self.final, self.judge),
                 "how_sure": [c.to_dict(lu) for c in self.how_sure],
                 "residual_structure": marker_structure(self.final, self.campaign)})
@@ -281,7 +280,7 @@ def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, 
 def held_labels(fit: PoseFit) -> dict[str, Held]:
     """The parameters ``fit`` holds at nominal because the data do not determine them
     (label: why)."""
-    labels = [p.label for p in fit.model.parameters]
+    labels = fit.labels()
     return {labels[d.index]: d.held for d in fit.identifiability.dropped
             if d.reason == "undetermined" and d.held is not None}
 
@@ -298,7 +297,7 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
     sizes = model.family_objects[model.families.index(family)].physical_sizes(
         model, judge.references(fit))
     start = model.slices()[family].start
-    labels = [p.label for p in model.parameters]
+    labels = fit.labels()
 
     def hold(trial: PoseFit, ks: list[int], ps: list[Parameter], whys: list[str]) -> PoseFit:
         kept = trial.identifiability.kept
@@ -550,7 +549,7 @@ class PoseSearch:
     when no configuration's removal can validate it (infinite). ``steps`` (from the
     baseline), ``chosen`` and ``rejected`` (families tried and not added, with their last BIC
     change) grow as the search goes; ``delta`` holds the step's BIC changes (screened or
-    fitted), ``full`` the fitted candidates' :meth:`terms`."""
+    fitted), ``full`` the fitted candidates' :meth:`PoseFit.terms`."""
 
     campaign: PoseCampaign
     chosen: list[str]
@@ -578,9 +577,6 @@ class PoseSearch:
         Stop.HELD_OUT: (f"no family improves BIC by more than {BIC_MARGIN:g} and the held-out "
                         "error")}
 
-    def terms(self, fit: PoseFit) -> tuple[float, int]:
-        return fit.loss_rss(), fit.n_fitted
-
     def force(self, family: str, loss: str) -> None:
         """Add ``family`` whatever its BIC and held-out error (``diagnose --families``)."""
         self.say(f"step {len(self.steps)}: {family} (forced)")
@@ -589,7 +585,7 @@ class PoseSearch:
         fit = settled(self.campaign, _fit(self.campaign, self.chosen, self.frame0, self.settings,
                                           current, loss, self.scale),
                       self.chosen, self.judge, self.scale)
-        delta = self.deltas(current, {family: self.terms(fit)})[family]
+        delta = self.deltas(current, {family: fit.terms()})[family]
         cv = held_out_rms(fit, self.campaign, self.bar(f"held-out {family}"))
         self.steps.append(Step(family, fit, delta, cv, [(family, delta, None)], forced=True))
 
@@ -629,7 +625,7 @@ class PoseSearch:
         for candidate in ranking:
             candidate.cv_rms = held_out.get(candidate.effect)
             self.delta[candidate.effect] = candidate.delta_bic
-        self.full = {f: self.terms(fit) for f, fit in fits}
+        self.full = {f: fit.terms() for f, fit in fits}
         return ranking
 
     def _fitted(self, best: list[str], current: PoseFit
@@ -688,7 +684,7 @@ class PoseSearch:
         self.rejected.pop(best, None)
         self.chosen.append(best)
         self.remaining.remove(best)
-        settled_delta = self.deltas(current, {**self.full, "": self.terms(fit)})[""]
+        settled_delta = self.deltas(current, {**self.full, "": fit.terms()})[""]
         self.steps.append(Step(best, fit, self.delta[best] if fit.n_fitted == self.full[best][1]
                                else settled_delta, winner.cv_rms,
                                sorted(((f, d, None) for f, d in self.delta.items()),
@@ -738,9 +734,9 @@ class PoseSearch:
 
     def deltas(self, current: PoseFit, terms: dict[str, tuple[float, int]]
                ) -> dict[str, float]:
-        """Each extension's BIC change from its :meth:`terms`, under the step's
+        """Each extension's BIC change from its :meth:`PoseFit.terms`, under the step's
         overdispersion (:func:`selection.step_criteria`)."""
-        base, bics, _ = step_criteria(self.terms(current), list(terms.values()), self.n,
+        base, bics, _ = step_criteria(current.terms(), list(terms.values()), self.n,
                                       self.sigma)
         return {f: b - base for f, b in zip(terms, bics, strict=True)}
 

@@ -211,6 +211,19 @@ class PoseFit:
         (:func:`~stiffness.calibration.solver.objective_rss`)."""
         return objective_rss(self.components(), self.loss, self.sigma)
 
+    def terms(self) -> tuple[float, int]:
+        """:meth:`loss_rss` (m^2) and :attr:`n_fitted`, what the information criterion and
+        the fit-to-noise test take (:class:`~stiffness.calibration.search.Fitted`)."""
+        return self.loss_rss(), self.n_fitted
+
+    def labels(self) -> list[str]:
+        """Each column of :attr:`x` named (its parameter's label)."""
+        return [p.label for p in self.model.parameters]
+
+    def additions(self) -> tuple[str, ...]:
+        """The model's families (those of the baseline too: no step adds them)."""
+        return self.model.families
+
     def std(self) -> np.ndarray:
         """(p,) standard deviations; NaN for parameters not fitted."""
         out = np.full(self.model.size, np.nan)

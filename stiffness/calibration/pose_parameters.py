@@ -99,7 +99,7 @@ class PoseJudge:
         std = fit.std()
         known = fit.sigma if fit.sigma_source == "declared" else None
         z = interval_quantile(known, fit.n_observed, fit.n_fitted)
-        labels = [p.label for p in model.parameters]
+        labels = fit.labels()
         out: dict[str, list[Parameter]] = {}
         for family in model.family_objects:
             cut = model.slices()[family.name]

@@ -112,7 +112,7 @@ _DROPPED = {"no effect": "dropped", "undetermined": "held"}
 
 def _dropped_lines(d: PoseDiagnosis) -> list[str]:
     ident = d.final.identifiability
-    labels = [p.label for p in d.final.model.parameters]
+    labels = d.final.labels()
     return [f"  fitted: {len(ident.kept)} parameters"] + [
         f"  {_DROPPED.get(item.reason, 'merged')} {labels[item.index]}: "
         f"{item.describe(labels)}" for item in ident.dropped]

@@ -41,14 +41,43 @@ from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
+from stiffness.calibration.identifiability import Identifiability
 from stiffness.calibration.naming import namable
 from stiffness.calibration.selection import BIC_MARGIN, CV_TOP, fits_to_noise, step_criteria
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.errors import StiffnessError
 
+
+class Fitted(Protocol):
+    """What the loop, how sure a diagnosis is (:mod:`stiffness.calibration.certainty`) and
+    both kinds' results read of a fit, alike for either kind
+    (:class:`~stiffness.calibration.fitting.Fit`, :class:`~stiffness.calibration.pose_fit.
+    PoseFit`): its parameters ``x`` (SI or scaled), which it fitted and held, and the
+    methods below."""
+
+    @property
+    def x(self) -> np.ndarray: ...
+
+    @property
+    def identifiability(self) -> Identifiability | None: ...
+
+    def terms(self) -> tuple[float, int]:
+        """Its objective as a sum of squares (m^2) and the parameter count, what the
+        information criterion and the fit-to-noise test take."""
+
+    def rms(self) -> float:
+        """RMS residual component (m)."""
+
+    def labels(self) -> list[str]:
+        """Each column of ``x`` named."""
+
+    def additions(self) -> Collection[str]:
+        """What its model adds to the baseline, by label (effects; pose families)."""
+
+
 #: What a candidate or a step adds: an effect of the library, or a pose family's name.
 E = TypeVar("E", bound=Effect | str)
-F = TypeVar("F")
+F = TypeVar("F", bound=Fitted)
 
 
 @dataclass(eq=False)
@@ -160,16 +189,14 @@ class SearchKind(Protocol[E, F]):
     """What a campaign kind supplies to :func:`search`: its residual count ``n`` and noise
     std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, the last
     final fit's :class:`Removals` (``None`` before :func:`eliminate`), its :class:`Step`
-    records, and the methods below."""
+    records, and the methods below (its fits' objective and parameter count are the fits'
+    own, :meth:`Fitted.terms`)."""
 
     n: int
     sigma: float | None
     stops: ClassVar[dict[Stop, str]]
     removals: Removals[F] | None
     steps: list[Step[E, F]]
-
-    def terms(self, fit: F) -> tuple[float, int]:
-        """``fit``'s objective as a sum of squares (m^2) and its parameter count."""
 
     def candidates(self, current: F) -> list[Candidate[E, F]] | None:
         """The extensions of ``current`` fitted, :func:`ranked` (``None``: none left)."""
@@ -242,7 +269,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
     """The forward search: the last fit, its held-out RMS (m) and why it stopped."""
     added = 0
     while True:
-        rss, p = kind.terms(current)
+        rss, p = current.terms()
         noise = fits_to_noise(rss, kind.n, p, kind.sigma)
         if noise is not None:
             return current, cv_current, noise
@@ -270,7 +297,7 @@ def eliminate(kind: SearchKind[E, F], final: F, cv_final: float) -> tuple[F, lis
             return final, removed
         out = kind.removals = Removals(final, kind.without(final), {})
         base, bics, dispersion = step_criteria(
-            kind.terms(final), [kind.terms(out.fits[i]) for i in which], kind.n, kind.sigma)
+            final.terms(), [out.fits[i].terms() for i in which], kind.n, kind.sigma)
         delta = {i: b - base for i, b in zip(which, bics, strict=True)}
         eligible = sorted((i for i in which if delta[i] < -BIC_MARGIN), key=delta.__getitem__)
         drop = next((i for i in eligible[:CV_TOP] if _not_worse(
@@ -322,7 +349,7 @@ def ranked(kind: SearchKind[E, F], current: F, fits: Sequence[tuple[E, F]]
     """A step's candidates ``(effect, fit)`` by BIC (best first) under the step's
     overdispersion (:func:`~stiffness.calibration.selection.step_criteria`), and that."""
     current_bic, bics, dispersion = step_criteria(
-        kind.terms(current), [kind.terms(f) for _, f in fits], kind.n, kind.sigma)
+        current.terms(), [f.terms() for _, f in fits], kind.n, kind.sigma)
     out = [Candidate(e, f, b, b - current_bic) for (e, f), b in zip(fits, bics, strict=True)]
     out.sort(key=lambda c: c.bic)
     return out, dispersion
