@@ -107,7 +107,7 @@ _ON_FIRST_USE = {
     "PoseModel": "stiffness.calibration.pose_model",
     "PoseModelError": "stiffness.calibration.pose_model",
     "diagnose_poses": "stiffness.calibration.pose_diagnose",
-    "PoseDiagnosis": "stiffness.calibration.pose_diagnose",
+    "PoseDiagnosis": "stiffness.calibration.pose_diagnosis",
     "PoseIdentification": "stiffness.calibration.pose_identify",
     "validate": "stiffness.calibration.validation",
     "Validation": "stiffness.calibration.validation",

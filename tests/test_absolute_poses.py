@@ -25,7 +25,8 @@ from stats import Coverage
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_diagnose import _flagged, diagnose_poses
+from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_diagnosis import _flagged
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import format_pose_report, stage_table

@@ -21,13 +21,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from stiffness.calibration import pose_report
+from stiffness.calibration import pose_diagnosis
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_identify import identify_poses
 from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.pose_plausibility import PLACEMENT_FRACTION
-from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
+from stiffness.calibration.pose_report import format_pose_report
 from stiffness.errors import DataFileWarning
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.calibration import read_pose_calibration
@@ -173,9 +173,9 @@ def test_a_marker_offset_in_the_wrong_unit_is_noted(legit, tmp_path, name, scale
 def test_the_output_folder_and_the_model_file_say_it(shrunk, tmp_path, monkeypatch):
     """diagnose --out: the page's verdict, and the model file warns whoever reads it (the
     residual figures, seconds of plotting, left out)."""
-    monkeypatch.setattr(pose_report, "marker_residual_plots", lambda d: None)
+    monkeypatch.setattr(pose_diagnosis, "marker_residual_plots", lambda d: None)
     d, _ = shrunk
-    paths = write_pose_diagnosis(d, tmp_path / "out", "stiffness diagnose mm_is_m")
+    paths = d.write(tmp_path / "out", "stiffness diagnose mm_is_m")
     assert json.loads(paths["diagnosis"].read_text())["plausible"] is False
     assert "NOT A CALIBRATION" in paths["page"].read_text()
     _, warned = quietly(lambda: read_pose_calibration(paths["model"]))

@@ -24,7 +24,7 @@ from stiffness.calibration.pose_fit import (
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import parameter_table
-from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
+from stiffness.calibration.pose_report import format_pose_report
 from stiffness.calibration.selection import BIC_MARGIN
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
@@ -108,7 +108,7 @@ def test_forced_and_forbidden_families_are_recorded(forced_compliance, tmp_path)
     record = d.to_dict()
     assert record["selection"]["forced"] == ["joint_compliance"]
     assert record["selection"]["forbidden"] == ["geometry"]
-    write_pose_diagnosis(d, tmp_path / "out")
+    d.write(tmp_path / "out")
     model = json.loads((tmp_path / "out" / "final-model.json").read_text())
     assert model["selection"] == record["selection"]
     for families, forbid, words in ((["gravity_lumped"], [], "not a candidate"),
@@ -163,7 +163,7 @@ def test_an_infinite_interval_is_written_as_null_and_said(baseline_only, tmp_pat
     step = dataclasses.replace(d.steps[0], fit=dataclasses.replace(fit, covariance=cov),
                                cv_rms=np.inf)  # a forced family one configuration determines
     blind = dataclasses.replace(d, steps=[step], search=None)
-    written = write_pose_diagnosis(blind, tmp_path / "out")
+    written = blind.write(tmp_path / "out")
     record = json.loads(written["diagnosis"].read_text())
     row = record["parameters"][0]
     assert row["std"] is None and row["interval_95"][1] is None
@@ -267,7 +267,7 @@ def test_backward_elimination_removes_a_family_the_final_model_is_better_without
     assert [c["effect"] for c in out["how_sure"]] == ["geometry", "joint_compliance"]
     assert all(c["removal_delta_bic"] > 0 for c in out["how_sure"])
     assert re.search(r"^4 +removed backlash +31 ", format_pose_report(d), re.M)
-    written = write_pose_diagnosis(d, tmp_path / "out")
+    written = d.write(tmp_path / "out")
     model = json.loads(written["model"].read_text())
     assert model["families"] == ["frame", "markers", "geometry", "joint_compliance"]
     assert "<td>removed backlash</td>" in written["page"].read_text()

@@ -51,7 +51,6 @@ import numpy as np
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
-from stiffness.calibration.certainty import how_sure
 from stiffness.calibration.deflection_parameters import (
     effect_parameters,
     share,
@@ -60,20 +59,20 @@ from stiffness.calibration.deflection_parameters import (
 from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.fitting import Fit, kind_noise, observations
-from stiffness.calibration.naming import is_stand_in, settle
+from stiffness.calibration.naming import settle
 from stiffness.calibration.outliers import (
     flag_fit,
     robust_noise,
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
-from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
+from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.search import (
     Candidate,
     Removals,
     Step,
     Stop,
     check_max_steps,
-    kept_steps,
     ranked,
     search,
 )
@@ -329,9 +328,6 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                seed if propose else None)
     final_parameters = effect_parameters(final, cov_final, quantile, edge, campaign.units,
                                           held_final)
-    sure = how_sure(kind, final, steps[-1].cv_rms if steps else cv_base,
-                    kept_steps(steps, final.additions()),
-                    lambda label: is_stand_in(final_parameters.get(label, [])))
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(
@@ -350,7 +346,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0,
-        final_parameters=final_parameters, certainty=sure,
+        final_parameters=final_parameters, search=kind,
         final_parameters_si=effect_parameters(final, cov_final, quantile, edge, SI_UNITS,
                                                held_final),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,

@@ -19,20 +19,14 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit
-from stiffness.calibration.identifiability import Identifiability
-from stiffness.calibration.naming import is_stand_in
-from stiffness.calibration.outliers import (
-    OUTLIER_THRESHOLD,
-    Outlier,
-)
 from stiffness.calibration.residual_figures import residual_axes_png
-from stiffness.calibration.search import Step, kept_steps, selection
+from stiffness.calibration.result import DiagnosisResult, Output, written
 from stiffness.calibration.selection import GOF_LEVEL, OVERSTATED_P, noise_overstated
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
-from stiffness.files import atomic_write, staged_folder, written_path, written_source
+from stiffness.files import written_path, written_source
 from stiffness.provenance import provenance
 from stiffness.units import Units
 
@@ -92,14 +86,15 @@ class Ambiguity:
 
 
 @dataclass
-class Diagnosis:
+class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     """Result of :func:`~stiffness.calibration.diagnose.diagnose` (SI; :meth:`to_dict` and the
-    files use campaign units).
+    files use campaign units): what both kinds hold (:class:`~stiffness.calibration.result.
+    DiagnosisResult`: the campaign, the steps, effects added in order then those removed
+    again, the stop reason, the loss, the masses, the outliers, what was forbidden, how sure
+    each named effect is) and a deflection campaign's own.
 
     Attributes
     ----------
-    campaign
-        The campaign diagnosed.
     geometry
         Its robot's shared geometry.
     baseline
@@ -110,11 +105,6 @@ class Diagnosis:
         The same in the final model.
     noise_std_m, noise_std_source, noise_note
         The noise level (m), where it comes from (:data:`NOISE_SOURCES`) and what that means.
-    steps
-        Effects added, in order, then those removed again
-        (:class:`~stiffness.calibration.search.Step`, ``removed``).
-    stop_reason
-        Why the search stopped.
     baseline_disagreement, final_disagreement
         Residual breakdowns (:func:`~stiffness.calibration.breakdown.disagreement`).
     gof_baseline, gof_final
@@ -131,20 +121,6 @@ class Diagnosis:
         outside the library is in the data, and :attr:`final_disagreement` says where to look.
         ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
         from the residuals (no test available).
-    loss, masses
-        The loss of every fit (:data:`stiffness.calibration.solver.LOSSES`); whether the
-        robot's link masses were trusted (``known``: the weight is ``gravity_preload``) or
-        not (``unknown``: ``gravity_lumped``).
-    certainty
-        How sure each named effect is (:mod:`stiffness.calibration.certainty`: held-out cost
-        of removing it, best alternative, stand-in), in the order added.
-    outliers, outlier_sigma_m
-        The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
-        (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
-        they are standardised by.
-    forbidden
-        The library's effects never tried (``diagnose --not``), kept in ``--json`` and the
-        model file as ``selection.forbidden`` (a pose diagnosis's key).
     validation, baseline_validation
         With a validation campaign (``diagnose --validate``,
         :mod:`stiffness.calibration.deflection_validation`): the final model file on it
@@ -153,7 +129,6 @@ class Diagnosis:
         ``None``.
     """
 
-    campaign: Campaign
     geometry: Geometry
     baseline: Fit
     baseline_stiffness: list[Parameter]
@@ -161,8 +136,6 @@ class Diagnosis:
     noise_std_m: float
     noise_std_source: str
     noise_note: str
-    steps: list[Step[DeflectionEffect, Fit]]
-    stop_reason: str
     baseline_disagreement: dict
     final_disagreement: dict
     gof_baseline: float | None
@@ -176,12 +149,6 @@ class Diagnosis:
     measured: np.ndarray | None = None
     rotation_noise_std_rad: float | None = None
     rotation_noise_source: str | None = None
-    loss: str = "linear"
-    outliers: list[Outlier] = field(default_factory=list)
-    outlier_sigma_m: float | None = None
-    masses: str = "known"
-    certainty: list[Certainty] = field(default_factory=list)
-    forbidden: list[str] = field(default_factory=list)
     validation: dict | None = None
     baseline_validation: dict | None = None
 
@@ -197,14 +164,10 @@ class Diagnosis:
         return out
 
     @property
-    def final(self) -> Fit:
-        """The final fit."""
-        return self.steps[-1].fit if self.steps else self.baseline
-
-    @property
-    def unit(self) -> str:
-        """The campaign's length unit."""
-        return self.campaign.units.length
+    def certainty(self) -> list[Certainty]:
+        """How sure each named effect is (:attr:`how_sure`: held-out cost of removing it,
+        best alternative, stand-in), in the order added."""
+        return self.how_sure
 
     def _len(self, value_m: float) -> float:
         return value_m / self.campaign.units.length_to_si
@@ -232,11 +195,6 @@ class Diagnosis:
                    if self.outliers and self.loss == "linear" else ""))
 
     @property
-    def named_steps(self) -> list[Step[DeflectionEffect, Fit]]:
-        """The steps adding the final model's effects (:func:`kept_steps`)."""
-        return kept_steps(self.steps, self.final.additions())
-
-    @property
     def missing_effects(self) -> list[str]:
         """Names of the effects of the final model (added, not removed again)."""
         return [s.effect.name for s in self.named_steps]
@@ -261,38 +219,19 @@ class Diagnosis:
             "unit": self.unit,
             "loss": self.loss,
             "masses": self.masses,
-            "outlier_threshold": OUTLIER_THRESHOLD,
-            "outliers": [o.to_dict() for o in self.outliers],
+            **self.outlier_keys(),
             "rms_by_kind": self.rms_by_kind(),
             "identifiability": self.identifiability(),
-            "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.certainty],
+            "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.how_sure],
             "selection": self.selection(),
             **({"baseline_validation": self.baseline_validation}
                if self.baseline_validation else {}),
             **({"validation": self.validation} if self.validation else {}),
         })
 
-    def selection(self) -> dict:
-        """How the effects were chosen (kept in the model file, a pose diagnosis's keys:
-        :func:`~stiffness.calibration.search.selection`)."""
-        return selection(self.steps, self.forbidden)
-
-    def stand_in(self, label: str) -> bool:
-        """Whether the named effect ``label`` is a stand-in (a determined parameter of the
-        final model beyond its physical scale: :mod:`stiffness.calibration.certainty`)."""
-        return is_stand_in(self.final_parameters.get(label, []))
-
-    def identifiability(self) -> dict:
-        """The final fit's fitted and held parameters
-        (:meth:`stiffness.calibration.identifiability.Identifiability.to_dict`; the
-        baseline's compliances as ``compliance(joint)``, effects' as ``label.parameter``)."""
-        f = self.final
-        ident = f.identifiability or Identifiability.full(f.x.size)
-        return ident.to_dict(f.labels())
-
-    def summary(self) -> dict:
-        """The ``--json`` object (:meth:`to_dict`)."""
-        return self.to_dict()
+    def named_parameters(self) -> dict[str, list[Parameter]]:
+        """:attr:`final_parameters` (campaign units)."""
+        return self.final_parameters
 
     def record(self, folder: Path | None = None) -> dict:
         """Everything (``diagnosis.json``): :meth:`to_dict` plus the breakdowns, rankings,
@@ -388,23 +327,18 @@ class Diagnosis:
             },
         )
 
-    def write(self, folder: str | Path, command: str | None = None) -> dict[str, Path]:
-        """Write ``diagnosis.json``, ``residuals.png``, ``final-model.json`` and
-        ``diagnosis.html`` in ``folder``; ``command`` is recorded in the page's provenance
-        (default: this process's command line); :attr:`validation` is recorded under
-        ``validation`` (paths relative to ``folder``) and shown on the page with the stages."""
-        folder = Path(folder)
+    def outputs(self, folder: Path, command: str | None) -> dict[str, Output]:
+        """``diagnosis.json`` (:meth:`record`), ``residuals.png``, ``final-model.json`` and
+        ``diagnosis.html``; :attr:`validation` is recorded under ``validation`` (paths
+        relative to ``folder``) and shown on the page with the stages."""
         record = self.record(folder) | ({"validation": _validation_in(self.validation, folder)}
                                         if self.validation else {})
         png = residual_plot(self)
-        with staged_folder(folder) as stage:  # published whole, by one rename
-            atomic_write(stage / DIAGNOSIS_FILE, json.dumps(record, indent=1) + "\n")
-            self.model_file().write(stage / FINAL_MODEL_FILE)
-            atomic_write(stage / RESIDUALS_PLOT, png)
-            atomic_write(stage / DIAGNOSIS_PAGE, render_diagnosis(record, png,
-                                                                  provenance(command)))
-        return {"diagnosis": folder / DIAGNOSIS_FILE, "plot": folder / RESIDUALS_PLOT,
-                "final_model": folder / FINAL_MODEL_FILE, "page": folder / DIAGNOSIS_PAGE}
+        return {"diagnosis": (DIAGNOSIS_FILE, written(json.dumps(record, indent=1) + "\n")),
+                "plot": (RESIDUALS_PLOT, written(png)),
+                "final_model": (FINAL_MODEL_FILE, self.model_file().write),
+                "page": (DIAGNOSIS_PAGE, written(render_diagnosis(record, png,
+                                                                  provenance(command))))}
 
 
 def _validation_in(validation: dict, folder: Path) -> dict:

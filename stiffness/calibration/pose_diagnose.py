@@ -25,7 +25,6 @@ with its structure (per marker, per axis, along the row order).
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -33,13 +32,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from stiffness.calibration import certainty
-from stiffness.calibration.breakdown import error_summary, marker_structure
-from stiffness.calibration.certainty import Certainty
+from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.identifiability import confounded
-from stiffness.calibration.naming import held_reason, is_stand_in, settle
-from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
+from stiffness.calibration.naming import held_reason, settle
 from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_diagnosis import BASE_FAMILIES, PoseDiagnosis
 from stiffness.calibration.pose_fit import (
     PoseFit,
     campaign_settings,
@@ -52,26 +49,20 @@ from stiffness.calibration.pose_fit import (
     starting_frame,
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
-from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_orientation import orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
-from stiffness.calibration.pose_plausibility import Plausibility, plausibility
 from stiffness.calibration.search import (
     Candidate,
     Removals,
     Step,
     Stop,
     check_max_steps,
-    kept_steps,
     ranked,
     search,
-    selection,
 )
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
-    GOF_LEVEL,
-    goodness_of_fit,
     step_criteria,
 )
 from stiffness.calibration.solver import check_loss
@@ -81,11 +72,8 @@ from stiffness.elastic.effects.base import Held, Parameter
 from stiffness.elastic.effects.base_tilt import DECLARED_TILT, declared_tilt
 from stiffness.elastic.effects.preloads import GravityCompensator, declared_geometry
 from stiffness.errors import StiffnessError, TooFewMeasurementsError
-from stiffness.files import jsonable
 from stiffness.workspace.distributed import run_chunks
 
-#: The families every pose diagnosis starts with (the tracker's placement and the markers).
-BASE_FAMILIES = ("frame", "markers")
 #: Why a family has no BIC change to show: no identifiable parameter (a tilt, no spring in).
 NO_PARAMETER = ("no identifiable parameter beside the families in: it moves no marker here, "
                 "or only as they do")
@@ -98,166 +86,6 @@ CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
 #: A progress-bar factory: given a label, a ``(done, total)`` callback or ``None``.
 Bar = Callable[[str], Callable[[int, int], None] | None]
-#: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
-#: linearised hat matrix (:func:`~stiffness.calibration.pose_fit.held_out_rms`).
-HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
-
-
-@dataclass
-class PoseDiagnosis:
-    """The steps (:class:`~stiffness.calibration.search.Step`), the final fit and the verdict
-    of a pose diagnosis; ``outliers`` the poses the final fit does not explain and
-    ``outlier_sigma_m`` the noise std (m) they were standardised by
-    (:func:`~stiffness.calibration.pose_fit.flag_pose_outliers`; flagged, none dropped)."""
-
-    campaign: PoseCampaign
-    masses: str
-    steps: list[Step[str, PoseFit]]
-    rejected: dict[str, float] = field(default_factory=dict)
-    loss: str = "linear"
-    forbidden: list[str] = field(default_factory=list)
-    outliers: list[Outlier] = field(default_factory=list)
-    outlier_sigma_m: float | None = None
-    stop_reason: str = ""
-    judge: PoseJudge | None = None
-    search: PoseSearch | None = None
-    not_judged: dict[str, str] = field(default_factory=dict)
-
-    @functools.cached_property
-    def how_sure(self) -> list[Certainty]:
-        """How sure the diagnosis is of each family it added
-        (:func:`stiffness.calibration.certainty.how_sure`; computed when first asked: it
-        refits the final model without each, and the families acting through it)."""
-        return [] if self.search is None else certainty.how_sure(
-            self.search, self.final, self.steps[-1].cv_rms, self.named_steps, self.stand_in)
-
-    @functools.cached_property
-    def plausibility(self) -> Plausibility:
-        """Whether the final fit can be a calibration: its lengths against the robot's
-        reach, the campaign's marker spread against its kinematics
-        (:func:`~stiffness.calibration.pose_plausibility.plausibility`; a unit read 1000x off
-        is absorbed by the geometry and reads *explained*)."""
-        return plausibility(self.final, self.campaign)
-
-    def selection(self) -> dict:
-        """How the families were chosen (kept in the model file): ``forced`` and
-        ``forbidden`` (:func:`~stiffness.calibration.search.selection`) and the
-        ``held_out`` criterion."""
-        return {**selection(self.steps, self.forbidden), "held_out": HELD_OUT_CRITERION}
-
-    @property
-    def final(self) -> PoseFit:
-        """The last accepted fit."""
-        return self.steps[-1].fit
-
-    @property
-    def named_steps(self) -> list[Step[str, PoseFit]]:
-        """The steps adding the final model's families (:func:`kept_steps`)."""
-        return kept_steps(self.steps, self.final.additions())
-
-    @property
-    def families(self) -> list[str]:
-        """Families of the final model, in the order chosen."""
-        return list(BASE_FAMILIES) + [s.effect for s in self.named_steps]
-
-    def gof(self) -> float | None:
-        """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
-        declared noise, or None (:func:`~stiffness.calibration.selection.goodness_of_fit`)."""
-        fit = self.final
-        return goodness_of_fit(fit.loss_rss(), fit.n_observed, fit.n_fitted,
-                               self.campaign.noise_std)
-
-    @property
-    def unexplained(self) -> bool | None:
-        """Whether the final residual is above the declared noise (None: no noise declared)."""
-        p = self.gof()
-        return None if p is None else p < 1 - GOF_LEVEL
-
-    def verdict(self) -> str:
-        """Whether the final model explains the poses to their noise (chi-square against the
-        declared noise), in words; where it does not, where the residual sits (RMS by marker
-        and axis, the strongest trend along the rows) and the poses flagged as outliers."""
-        p = self.gof()
-        if p is None:
-            return ("noise not declared: whether the final model explains the data to noise "
-                    "cannot be said; declare [measurement] noise_std")
-        if not self.unexplained:
-            return f"explained to noise (chi-square p = {p:.3g})"
-        s = marker_structure(self.final, self.campaign)
-        trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
-        where = ("" if trend is None else
-                 f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
-        marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
-                        for key in ("rms_by_marker", "rms_by_axis"))
-        return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
-                f"({self.campaign.units.length}) by marker {marker}, by axis {axis}{where}"
-                + _flagged(len(self.outliers), self.campaign.n_rows, self.loss))
-
-    def to_dict(self) -> dict:
-        """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
-        an infinite number, a forced family's held-out RMS that one configuration determines,
-        as null)."""
-        lu = self.campaign.units.length_to_si
-        return jsonable({"kind": "poses", "campaign": self.campaign.name,
-                "robot_name": self.campaign.robot.title,
-                "unit": self.campaign.units.length, "masses": self.masses,
-                "loss": self.loss,
-                "noise_std": None if self.campaign.noise_std is None
-                else self.campaign.noise_std / lu,
-                "steps": [{"family": s.effect, "rms": s.fit.rms() / lu,
-                           "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
-                           "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
-                           "forced": s.forced, "removed": s.removed, **self._named(s),
-                           **({"validation": s.validation} if s.validation else {})}
-                          for s in self.steps],
-                "rejected": self.rejected, "not_judged": self.not_judged,
-                "families": self.families,
-                "stop_reason": self.stop_reason,
-                "selection": self.selection(),
-                "gof_p": self.gof(), "unexplained": self.unexplained,
-                "plausible": self.plausibility.plausible,
-                "plausibility": self.plausibility.to_dict(),
-                "outlier_threshold": OUTLIER_THRESHOLD,
-                "outliers": [o.to_dict() for o in self.outliers],
-                "identifiability": self.final.identifiability.to_dict(self.final.labels()),
-                "parameters": parameter_table(self.final, self.judge),
-                "how_sure": [c.to_dict(lu) for c in self.how_sure],
-                "residual_structure": marker_structure(self.final, self.campaign)})
-
-    def stand_in(self, family: str) -> bool:
-        """Whether the final model's ``family`` is a stand-in (its size is not physical:
-        :func:`stiffness.calibration.naming.is_stand_in`)."""
-        if self.judge is None:
-            return False
-        return is_stand_in(self.judge.parameters(self.final).get(family, []))
-
-    def _named(self, step: Step[str, PoseFit]) -> dict:
-        """A step's ``parameters`` (its family's, as that step fitted them, SI) and
-        ``stand_in`` (in the final model), the keys of a deflection diagnosis's steps."""
-        if self.judge is None or step.effect == "baseline" or step.removed:
-            return {}
-        params = self.judge.parameters(step.fit)[step.effect]
-        return {"parameters": {p.name: p.to_dict() for p in params},
-                "stand_in": self.stand_in(step.effect)}
-
-
-def _finite(v: float) -> float | None:
-    """``v``, or ``None`` (JSON null: no bound) where it is infinite."""
-    return float(v) if math.isfinite(v) else None
-
-
-def _flagged(n: int, rows: int, loss: str) -> str:
-    """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
-    test alone; more than a tenth of the poses are a pattern the model misses, unless (least
-    squares) a few gross poses pulled the fit onto the others, which a robust loss tells."""
-    if not n:
-        return ""
-    if n > rows / 10:
-        return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
-                "stray measurements, the model misses something"
-                + (", unless a few gross poses pull the least-squares fit onto the others: "
-                   "--loss soft_l1 flags those alone" if loss == "linear" else ""))
-    return f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
 
 
 def _fit(campaign: PoseCampaign, families: list[str], frame0: tuple[np.ndarray, np.ndarray],
@@ -399,9 +227,8 @@ def _candidate(campaign: PoseCampaign, families: list[str],
 @one_blas_thread
 def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    validate: PoseCampaign | None = None,
-                   progress: Callable[[str], None] | None = None,
-                   loss: str = "linear", families: Sequence[str] = (),
-                   not_families: Sequence[str] = (),
+                   progress: Callable[[str], None] | None = None, loss: str = "linear",
+                   families: Sequence[str] = (), not_families: Sequence[str] = (),
                    base_tilt: Sequence[float] | None = None, workers: int | None = None,
                    bar: Bar | None = None, max_steps: int | None = None,
                    effect_settings: dict[str, dict] | None = None) -> PoseDiagnosis:
@@ -494,9 +321,10 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms, max_steps)
     for step in steps[1:]:
         step.validation = _validation(step.fit, validate)
-    outliers, outlier_sigma = flag_pose_outliers(steps[-1].fit, campaign)
-    return PoseDiagnosis(campaign, masses, steps, kind.rejected, loss, sorted(forbidden),
-                         outliers, outlier_sigma, stop, judge, kind, kind.not_judged)
+    outliers, sigma = flag_pose_outliers(steps[-1].fit, campaign)
+    return PoseDiagnosis(kind.rejected, judge, kind.not_judged, campaign=campaign, steps=steps,
+                         masses=masses, loss=loss, forbidden=sorted(forbidden), stop_reason=stop,
+                         outliers=outliers, outlier_sigma_m=sigma, search=kind)
 
 
 def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settings: dict,

@@ -28,7 +28,8 @@ from pathlib import Path
 
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, describe_outliers
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_diagnose import PoseDiagnosis, diagnose_poses
+from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
 from stiffness.calibration.pose_parameters import SPRINGS
 from stiffness.elastic.effects.base import Parameter, reciprocal

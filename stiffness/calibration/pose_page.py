@@ -157,7 +157,7 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
     prov
         :func:`stiffness.provenance.provenance`.
     residual_pngs
-        :func:`~stiffness.calibration.residual_figures.marker_residual_plots`: a figure per
+        :func:`~stiffness.calibration.pose_diagnosis.marker_residual_plots`: a figure per
         marker, embedded if given.
     """
     unit = d["unit"]

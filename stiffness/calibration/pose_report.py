@@ -1,26 +1,17 @@
-"""The text report and the output folder of a pose diagnosis (``stiffness diagnose`` on a pose
-campaign) and of ``stiffness validate``."""
+"""The text report of a pose diagnosis (``stiffness diagnose`` on a pose campaign; its output
+folder is :meth:`~stiffness.calibration.result.DiagnosisResult.write`) and of ``stiffness
+validate``."""
 
 from __future__ import annotations
 
-import json
 import math
-import os
-from pathlib import Path
 
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
-from stiffness.calibration.pose_diagnose import PoseDiagnosis
-from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
-from stiffness.calibration.pose_page import not_added, render_pose_diagnosis, stage_plot
-from stiffness.calibration.residual_figures import marker_residual_plots
-from stiffness.files import atomic_write, staged_folder
-from stiffness.provenance import provenance
-
-#: Files written by :func:`write_pose_diagnosis`.
-POSE_DIAGNOSIS_FILES = {"diagnosis": "diagnosis.json", "model": "final-model.json",
-                        "page": "diagnosis.html"}
+from stiffness.calibration.pose_diagnosis import PoseDiagnosis
+from stiffness.calibration.pose_model_file import parameter_table
+from stiffness.calibration.pose_page import not_added
 
 
 def format_pose_report(d: PoseDiagnosis) -> str:
@@ -92,8 +83,8 @@ def _softening(p: dict) -> str:
 def _how_sure_lines(d: PoseDiagnosis) -> list[str]:
     """The held parameters and how sure the diagnosis is of each family it added, in the
     words of a deflection diagnosis's report."""
-    held = [p for ps in ({} if d.judge is None else d.judge.parameters(d.final)).values()
-            for p in ps if p.held.startswith("held at its nominal value")]
+    held = [p for ps in d.named_parameters().values() for p in ps
+            if p.held.startswith("held at its nominal value")]
     lines = ["", "held at nominal (the data do not determine them):",
              *[f"  {p.text()}" for p in held]] if held else []
     if d.how_sure:
@@ -116,24 +107,6 @@ def _dropped_lines(d: PoseDiagnosis) -> list[str]:
     return [f"  fitted: {len(ident.kept)} parameters"] + [
         f"  {_DROPPED.get(item.reason, 'merged')} {labels[item.index]}: "
         f"{item.describe(labels)}" for item in ident.dropped]
-
-
-def write_pose_diagnosis(d: PoseDiagnosis, folder: str | os.PathLike,
-                         command: str | None = None) -> dict[str, Path]:
-    """Write ``diagnosis.json``, ``final-model.json`` and ``diagnosis.html`` (the page, with a
-    residual figure per marker and the stage figure when there is a validation campaign) into
-    ``folder``; ``command`` is
-    recorded in the page's provenance (default: this process's command line)."""
-    record = d.to_dict()
-    with staged_folder(folder) as stage:  # published whole, by one rename
-        atomic_write(stage / POSE_DIAGNOSIS_FILES["diagnosis"],
-                     json.dumps(record, indent=1, allow_nan=False) + "\n")
-        write_pose_model(d.final, d.campaign, stage / POSE_DIAGNOSIS_FILES["model"],
-                         d.selection(), d.plausibility.to_dict())
-        atomic_write(stage / POSE_DIAGNOSIS_FILES["page"],
-                     render_pose_diagnosis(record, stage_plot(record), provenance(command),
-                                           marker_residual_plots(d)))
-    return {key: Path(folder) / name for key, name in POSE_DIAGNOSIS_FILES.items()}
 
 
 def format_validation(result: dict) -> str:

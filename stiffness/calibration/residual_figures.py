@@ -3,20 +3,16 @@ and after the effects, row by row, against the noise (matplotlib, Agg, PNG bytes
 
 One drawing for both campaign kinds: a deflection campaign's tool deflection
 (:func:`stiffness.calibration.diagnosis.residual_plot`) and each marker of a pose campaign
-(:func:`marker_residual_plots`).
+(:func:`stiffness.calibration.pose_diagnosis.marker_residual_plots`).
 """
 
 from __future__ import annotations
 
 import io
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stiffness.calibration.breakdown import finite_rms
-
-if TYPE_CHECKING:
-    from stiffness.calibration.pose_diagnose import PoseDiagnosis
 
 
 def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None, unit: str,
@@ -67,20 +63,3 @@ def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
     return buf.getvalue()
-
-
-def marker_residual_plots(d: PoseDiagnosis) -> dict[str, bytes]:
-    """One :func:`residual_axes_png` per marker of a pose diagnosis: its measured minus
-    predicted position before (the first step: tracker placement and marker offsets only) and
-    after (the final model), in the campaign's length unit; keyed by marker name."""
-    c = d.campaign
-    lu = c.units.length_to_si
-    before, after = d.steps[0].fit.residual / lu, d.final.residual / lu
-    sigma = None if c.noise_std is None else c.noise_std / lu
-    plots = {}
-    for k, m in enumerate(c.markers):
-        plots[m.name] = residual_axes_png(
-            before[:, k], after[:, k], sigma, c.units.length,
-            f"{c.name}, marker {m.name}: before, the tracker placement and marker offsets "
-            f"fitted; after, with {', '.join(d.families[2:]) or 'nothing more'}")
-    return plots

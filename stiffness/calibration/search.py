@@ -27,7 +27,8 @@ reported parameters, how it settles a candidate, its held-out criterion, how it 
 and how it removes an added effect again (:func:`stiffness.calibration.certainty.how_sure`):
 :class:`stiffness.calibration.diagnose.DeflectionSearch`,
 :class:`stiffness.calibration.pose_diagnose.PoseSearch`. Both record their steps as
-:class:`Step`, and both kinds' results read them alike (:func:`kept_steps`, :func:`selection`).
+:class:`Step`, and both kinds' results read them alike
+(:class:`stiffness.calibration.result.DiagnosisResult`).
 """
 
 from __future__ import annotations
@@ -149,13 +150,6 @@ def kept_steps(steps: Sequence[Step[E, F]], labels: Collection[str]) -> list[Ste
     """The steps adding what ``labels`` name (a final model's effects or families), none
     removed again, in order."""
     return [s for s in steps if not s.removed and s.label in labels]
-
-
-def selection(steps: Sequence[Step[E, F]], forbidden: Sequence[str]) -> dict:
-    """How a diagnosis chose what it added (kept in ``--json`` and the model file):
-    ``forced`` (``--families``, its forced steps' labels in order) and ``forbidden``
-    (``--not``)."""
-    return {"forced": [s.label for s in steps if s.forced], "forbidden": list(forbidden)}
 
 
 class Stop(enum.Enum):

@@ -219,7 +219,7 @@ def run_poses(args: argparse.Namespace) -> int:
     """``stiffness diagnose`` on a pose campaign (docs/absolute-poses.md)."""
     from stiffness.calibration.pose_campaign import load_pose_campaign  # only for pose campaigns
     from stiffness.calibration.pose_diagnose import diagnose_poses
-    from stiffness.calibration.pose_report import format_pose_report, write_pose_diagnosis
+    from stiffness.calibration.pose_report import format_pose_report
 
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
@@ -236,7 +236,7 @@ def run_poses(args: argparse.Namespace) -> int:
                                 for v in flags.parse_list(args.base_tilt, "--base-tilt")],
                             max_steps=args.max_steps,
                             effect_settings=compensator_geometry(args.compensator_geometry))
-    paths = write_pose_diagnosis(result, args.out, pose_command_line(args)) if args.out else None
+    paths = result.write(args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)
 
 

@@ -1,0 +1,171 @@
+"""What a diagnosis of either campaign kind holds and reads alike (:class:`DiagnosisResult`,
+the base of :class:`~stiffness.calibration.diagnosis.Diagnosis` and
+:class:`~stiffness.calibration.pose_diagnosis.PoseDiagnosis`): the steps of the one selection
+loop (:mod:`stiffness.calibration.search`) and the final fit, what they name, how sure each is,
+the outliers, how the effects were chosen, and the ``--out`` folder written whole.
+
+A kind keeps only what its mathematics makes different: its ``--json`` object
+(:meth:`DiagnosisResult.to_dict`), its reported parameters
+(:meth:`DiagnosisResult.named_parameters`) and its files
+(:meth:`DiagnosisResult.outputs`).
+"""
+
+from __future__ import annotations
+
+import abc
+import functools
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
+
+from stiffness.calibration import certainty
+from stiffness.calibration.certainty import Certainty
+from stiffness.calibration.identifiability import Identifiability
+from stiffness.calibration.naming import is_stand_in
+from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
+from stiffness.calibration.search import E, F, SearchKind, Step, kept_steps
+from stiffness.elastic.effects.base import Parameter
+from stiffness.files import atomic_write, staged_folder
+from stiffness.units import Units
+
+#: A file of the ``--out`` folder: its name and what writes it at a path.
+Output = tuple[str, Callable[[Path], object]]
+
+
+class Observed(Protocol):
+    """What a result reads of its campaign, of either kind."""
+
+    @property
+    def units(self) -> Units: ...
+
+
+C = TypeVar("C", bound=Observed)
+
+
+def written(content: str | bytes) -> Callable[[Path], object]:
+    """A writer of ``content`` (atomically) at the path it is given."""
+    return functools.partial(atomic_write, data=content)
+
+
+@dataclass(kw_only=True)
+class DiagnosisResult(abc.ABC, Generic[C, E, F]):
+    """A diagnosis of either kind: its campaign, its steps, the final fit and the verdicts on
+    it.
+
+    Attributes
+    ----------
+    campaign
+        The campaign diagnosed.
+    steps
+        The steps (:class:`~stiffness.calibration.search.Step`): what each added, in order,
+        then those removed again (``removed``).
+    stop_reason
+        Why the search stopped.
+    loss, masses
+        The loss of every fit (:data:`stiffness.calibration.solver.LOSSES`); whether the
+        robot's link masses were trusted (``known``) or not (``unknown``).
+    outliers, outlier_sigma_m
+        The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
+        (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
+        they are standardised by.
+    forbidden
+        What was never tried (``diagnose --not``), kept in ``--json`` and the model file as
+        ``selection.forbidden``.
+    search
+        The search that made the steps (:class:`~stiffness.calibration.search.SearchKind`),
+        read by :attr:`how_sure`; ``None``: nothing to be sure of.
+    """
+
+    campaign: C
+    steps: list[Step[E, F]]
+    stop_reason: str = ""
+    loss: str = "linear"
+    masses: str = "known"
+    outliers: list[Outlier] = field(default_factory=list)
+    outlier_sigma_m: float | None = None
+    forbidden: list[str] = field(default_factory=list)
+    search: SearchKind[E, F] | None = None
+
+    if TYPE_CHECKING:  # a deflection diagnosis's field, a pose diagnosis's first step
+
+        @property
+        def baseline(self) -> F:
+            """The baseline's fit."""
+
+    @property
+    def final(self) -> F:
+        """The final fit: the last step's (the baseline's when no step was taken)."""
+        return self.steps[-1].fit if self.steps else self.baseline
+
+    @property
+    def unit(self) -> str:
+        """The campaign's length unit."""
+        return self.campaign.units.length
+
+    @property
+    def named_steps(self) -> list[Step[E, F]]:
+        """The steps adding what the final model adds (:func:`kept_steps`)."""
+        return kept_steps(self.steps, self.final.additions())
+
+    @functools.cached_property
+    def how_sure(self) -> list[Certainty]:
+        """How sure the diagnosis is of each effect it named, in the order added
+        (:func:`stiffness.calibration.certainty.how_sure`; computed when first asked: it
+        refits the final model without each, and those acting through it)."""
+        if self.search is None or not self.steps:
+            return []
+        return certainty.how_sure(self.search, self.final, self.steps[-1].cv_rms,
+                                  self.named_steps, self.stand_in)
+
+    def selection(self) -> dict:
+        """How the effects were chosen (kept in ``--json`` and the model file): ``forced``
+        (``--families``, the forced steps' labels in order) and ``forbidden`` (``--not``)."""
+        return {"forced": [s.label for s in self.steps if s.forced],
+                "forbidden": list(self.forbidden)}
+
+    @abc.abstractmethod
+    def named_parameters(self) -> dict[str, list[Parameter]]:
+        """The final model's reported parameters, by the label of what added them."""
+
+    def stand_in(self, label: str) -> bool:
+        """Whether what ``label`` added is a stand-in (a determined parameter of the final
+        model beyond its physical scale: :func:`stiffness.calibration.naming.is_stand_in`)."""
+        return is_stand_in(self.named_parameters().get(label, []))
+
+    def identifiability(self) -> dict:
+        """The final fit's fitted and held parameters
+        (:meth:`stiffness.calibration.identifiability.Identifiability.to_dict`, each column
+        by its label)."""
+        f = self.final
+        ident = f.identifiability or Identifiability.full(f.x.size)
+        return ident.to_dict(f.labels())
+
+    def outlier_keys(self) -> dict:
+        """``outlier_threshold`` and ``outliers``, as ``--json`` has them."""
+        return {"outlier_threshold": OUTLIER_THRESHOLD,
+                "outliers": [o.to_dict() for o in self.outliers]}
+
+    @abc.abstractmethod
+    def to_dict(self) -> dict:
+        """The object ``stiffness diagnose --json`` prints (campaign units)."""
+
+    def summary(self) -> dict:
+        """The ``--json`` object (:meth:`to_dict`)."""
+        return self.to_dict()
+
+    @abc.abstractmethod
+    def outputs(self, folder: Path, command: str | None) -> dict[str, Output]:
+        """The files of the ``--out`` folder ``folder`` by key (:meth:`write`)."""
+
+    def write(self, folder: str | os.PathLike, command: str | None = None) -> dict[str, Path]:
+        """Write the ``--out`` folder (:meth:`outputs`), published whole by one rename;
+        ``command`` is recorded in the page's provenance (default: this process's command
+        line). Returns each file's path, by key."""
+        folder = Path(folder)
+        files = self.outputs(folder, command)
+        with staged_folder(folder) as stage:
+            for name, write in files.values():
+                write(stage / name)
+        return {key: folder / name for key, (name, _) in files.items()}
