@@ -1,14 +1,7 @@
-"""What a diagnosis of either campaign kind holds and reads alike (:class:`DiagnosisResult`,
-the base of :class:`~stiffness.calibration.diagnosis.Diagnosis` and
-:class:`~stiffness.calibration.pose_diagnosis.PoseDiagnosis`): the steps of the one selection
-loop (:mod:`stiffness.calibration.search`) and the final fit, what they name, how sure each is,
-the outliers, how the effects were chosen, and the ``--out`` folder written whole.
-
-A kind keeps only what its mathematics makes different: its ``--json`` object
-(:meth:`DiagnosisResult.to_dict`), its reported parameters
-(:meth:`DiagnosisResult.named_parameters`) and its files
-(:meth:`DiagnosisResult.outputs`).
-"""
+"""What a diagnosis of either campaign kind holds and reads alike: :class:`DiagnosisResult`, the
+base of :class:`~stiffness.calibration.diagnosis.Diagnosis` and
+:class:`~stiffness.calibration.pose_diagnosis.PoseDiagnosis`. A kind keeps only what its
+mathematics makes different: its ``--json`` object, its reported parameters and its files."""
 
 from __future__ import annotations
 
@@ -18,30 +11,23 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 from stiffness.calibration import certainty
+from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.identifiability import Identifiability
 from stiffness.calibration.naming import is_stand_in
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
+from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.search import E, F, SearchKind, Step, kept_steps
 from stiffness.elastic.effects.base import Parameter
 from stiffness.files import atomic_write, staged_folder
-from stiffness.units import Units
 
 #: A file of the ``--out`` folder: its name and what writes it at a path.
 Output = tuple[str, Callable[[Path], object]]
-
-
-class Observed(Protocol):
-    """What a result reads of its campaign, of either kind."""
-
-    @property
-    def units(self) -> Units: ...
-
-
-C = TypeVar("C", bound=Observed)
+#: The campaign of a result.
+C = TypeVar("C", bound=Campaign | PoseCampaign)
 
 
 def written(content: str | bytes) -> Callable[[Path], object]:
@@ -51,32 +37,13 @@ def written(content: str | bytes) -> Callable[[Path], object]:
 
 @dataclass(kw_only=True)
 class DiagnosisResult(abc.ABC, Generic[C, E, F]):
-    """A diagnosis of either kind: its campaign, its steps, the final fit and the verdicts on
-    it.
-
-    Attributes
-    ----------
-    campaign
-        The campaign diagnosed.
-    steps
-        The steps (:class:`~stiffness.calibration.search.Step`): what each added, in order,
-        then those removed again (``removed``).
-    stop_reason
-        Why the search stopped.
-    loss, masses
-        The loss of every fit (:data:`stiffness.calibration.solver.LOSSES`); whether the
-        robot's link masses were trusted (``known``) or not (``unknown``).
-    outliers, outlier_sigma_m
-        The final model's rows beyond :data:`OUTLIER_THRESHOLD` noise std
-        (:mod:`stiffness.calibration.outliers`; flagged, none dropped) and the noise std (m)
-        they are standardised by.
-    forbidden
-        What was never tried (``diagnose --not``), kept in ``--json`` and the model file as
-        ``selection.forbidden``.
-    search
-        The search that made the steps (:class:`~stiffness.calibration.search.SearchKind`),
-        read by :attr:`how_sure`; ``None``: nothing to be sure of.
-    """
+    """A diagnosis of either kind: the ``campaign`` diagnosed, its ``steps``
+    (:class:`~stiffness.calibration.search.Step`: what each added, in order, then those
+    removed again) and why the ``search`` (:class:`~stiffness.calibration.search.SearchKind`,
+    read by :attr:`how_sure`; ``None``: nothing to be sure of) stopped, the ``loss`` of every
+    fit, whether the robot's link ``masses`` were trusted (``known``, ``unknown``), the final
+    model's ``outliers`` beyond :data:`OUTLIER_THRESHOLD` noise std (flagged, none dropped)
+    and the noise std (m) they are standardised by, and what was ``forbidden`` (``--not``)."""
 
     campaign: C
     steps: list[Step[E, F]]
