@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg
+from scipy.optimize import lsq_linear
 
 from stiffness.calibration import solver
 from stiffness.calibration.identifiability import (
@@ -294,7 +295,13 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
     # |r - J_kept s| = |R_r - R_kept s| for every s: the least squares on the factor
     scales = plan.scales[kept]  # the step in typical sizes: lstsq's cut-off is relative
     columns = tri[:, [1 + c for c in kept]] * scales
-    step, *_ = np.linalg.lstsq(columns, tri[:, 0], rcond=None)
+    # the parameters move by -step * scales, never past their physical bounds (a compliance
+    # below 0: the bounded fit cannot follow, and a family screened so took others' fits)
+    room = (x0[kept] - np.array([p.lower for p in model.parameters])[kept]) / scales
+    if np.isfinite(room).any():
+        step = lsq_linear(columns, tri[:, 0], bounds=(-np.inf, room), method="bvls").x
+    else:
+        step, *_ = np.linalg.lstsq(columns, tri[:, 0], rcond=None)
     if loss == "linear":
         left = tri[:, 0] - columns @ step
         return float(left @ left), len(kept), fresh
