@@ -118,3 +118,35 @@ def test_diagnosis_page_says_undetermined_for_an_unbounded_interval():
     assert undetermined[4].startswith("<b>undetermined</b> (at least 0, no upper bound")
     assert "—" not in undetermined[4]
     assert determined[3] == 1.2e4 and determined[4] == "9.1e+05 to 9.6e+05"
+
+
+def test_kx_says_when_a_pose_is_near_a_kinematic_singularity():
+    """A Kinova arm folded back on itself (q2, q3 at 3.1 rad): K_X exists but its two largest
+    principal stiffnesses are 5000 and 14000 times the smallest, growing without bound at the
+    singularity; kx printed them with no word. The ratio sigma_min/sigma_max of the
+    translational Jacobian (Pinocchio's frame Jacobian here) is printed below the scan's 0.01,
+    and in --json; a pose away from it gets no note."""
+    import json
+
+    import numpy as np
+    import pinocchio as pin
+
+    kq = "2e4,2e4,2e4,5e3,5e3,5e3"
+    robot = load_robot("kinova")
+    for q, near in (("0,3.1,3.1,0,3.14159,0", True), ("0,2.6,4.7,3.1,2.6,0", False)):
+        argv = ["kx", "--robot", "kinova", "--kq", kq, "--q", q, "--wrench", "0,0,-50"]
+        code, out, _ = run_cli([*argv, "--json"])
+        ratio = json.loads(out)["singularity_ratio"]
+        full = robot.configuration([float(v) for v in q.split(",")])
+        jac = pin.computeFrameJacobian(robot.model, robot.data, full, robot.target_frame_id,
+                                       pin.LOCAL_WORLD_ALIGNED)[:3]
+        sv = np.linalg.svd(jac[:, robot.compliant_v], compute_uv=False)
+        assert ratio == pytest.approx(sv[2] / sv[0], rel=1e-9)
+        assert (ratio < 0.01) == near
+        code, out, _ = run_cli([*argv, "--quiet"])
+        assert code == 0
+        notes = [line for line in out.splitlines() if "near a kinematic singularity" in line]
+        assert notes == ([f"note: near a kinematic singularity: sigma_min/sigma_max of the "
+                          f"translational Jacobian is {ratio:.2g} (below 0.01, where `stiffness "
+                          "scan` leaves a pose out of its ranges): the largest principal "
+                          "stiffnesses grow without bound as it is approached"] if near else [])

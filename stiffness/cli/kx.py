@@ -32,6 +32,7 @@ from stiffness.mechanics.formulation import FORMULATIONS, joint_stiffness
 from stiffness.mechanics.wrench import TWIST_ORDERS
 from stiffness.robot.assembly import Assembly
 from stiffness.robot.robot import Robot
+from stiffness.workspace.maps import SINGULARITY_MARGIN
 
 _LOAD_NAMES = ("fx", "fy", "fz", "mx", "my", "mz")
 
@@ -245,6 +246,7 @@ def compute(args: argparse.Namespace) -> dict:
         **inputs_summary(inputs),
         "configuration": _configuration(robot, inputs.q),
         "closure": None if inputs.assembly is None else inputs.assembly.as_dict(),
+        "singularity_ratio": _singularity_ratio(np.asarray(report["J"])),
         "notes": list(robot.notes),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
@@ -258,12 +260,20 @@ def compute(args: argparse.Namespace) -> dict:
             "closure": "residual in m (rad for 6D rotation rows)",
             "critical_load_factor": "1 (the factor on the wrench at which K_theta - K_C turns "
                                     "singular; null: never along this wrench)",
+            "singularity_ratio": "1 (sigma_min / sigma_max of J's translational rows)",
         },
     }
     summary = model_summary(args)
     if summary is not None:
         out["model"] = summary
     return out
+
+
+def _singularity_ratio(jacobian: np.ndarray) -> float:
+    """``sigma_min / sigma_max`` of the translational rows of ``jacobian`` (0 when they span
+    fewer than three directions or are zero): how far the pose is from a singularity."""
+    sv = np.linalg.svd(jacobian[:3], compute_uv=False)
+    return float(sv[2] / sv[0]) if len(sv) == 3 and sv[0] > 0 else 0.0
 
 
 def _configuration(robot: Robot, q: np.ndarray) -> dict:
@@ -326,6 +336,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"the arm is unstable under this load: K_theta - K_C turns singular at "
                   f"{factor:.4g} times the wrench (critical load factor below 1), so K_X is "
                   "not the stiffness of a stable equilibrium; reduce the load")
+        if result["singularity_ratio"] < SINGULARITY_MARGIN:
+            print(f"note: near a kinematic singularity: sigma_min/sigma_max of the "
+                  f"translational Jacobian is {result['singularity_ratio']:.2g} (below "
+                  f"{SINGULARITY_MARGIN:g}, where `stiffness scan` leaves a pose out of its "
+                  "ranges): the largest principal stiffnesses grow without bound as it is "
+                  "approached")
     print(f"definiteness: {result['definiteness']}")
     if "model" in result:
         m = result["model"]
