@@ -287,9 +287,9 @@ def linearised_rss(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms
         tri = observed_factor(obs, x0)
     except ConvergenceError:
         return math.inf, 0, 0
-    columns = tri[:, 1:] * plan.scales
-    columns[:, list(held)] = 0.0  # held: no effect on the step
-    kept = plan.reduce(columns).kept
+    # held after the reduction, as the fit holds them: what merges into a held one stays out
+    held_set = set(held)
+    kept = [k for k in plan.reduce(tri[:, 1:] * plan.scales).kept if k not in held_set]
     last = model.slices()[order[-1]]
     fresh = sum(last.start <= k < last.stop for k in kept)
     # |r - J_kept s| = |R_r - R_kept s| for every s: the least squares on the factor
