@@ -348,7 +348,8 @@ def test_compliant_joints_naming_no_joint_is_refused_as_such(capsys, tmp_path, c
             "robot": ["robot", "export", "--urdf", str(tmp_path / "r.urdf")]}[command]
     assert main([*argv, "--robot", "ur5", "--compliant-joints", " , ", "--kq", "1e5"]) == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        f"stiffness {command}: error: --compliant-joints names no joint; give at least one "
+        f"stiffness {argv[0]}{' export' if command == 'robot' else ''}: error: "
+        "--compliant-joints names no joint; give at least one "
         "(j1,j2,...), or leave the flag out for the robot's own springs")
     assert not list(tmp_path.iterdir())
 

@@ -241,7 +241,7 @@ def test_cli_refuses_in_one_line(tmp_path, capsys):
                  "angle=deg,force=N", "--out", str(tmp_path / "out")])
     assert code == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("stiffness campaign: error:") and "\n" not in err
+    assert err.startswith("stiffness campaign import: error:") and "\n" not in err
     assert not (tmp_path / "out").exists()
     code = main(["campaign", "import", str(path), "--robot", "ur5", "--units",
                  "angle=deg,force=N,length=mm", "--json", "--out", str(tmp_path / "out")])

@@ -98,24 +98,26 @@ def _run(argv: list[str] | None) -> int:
         parser.print_help()
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
+    name = " ".join(w for w in (args.command, getattr(args, "robot_command", None),
+                                getattr(args, "action", None)) if w)  # robot export
     try:
         with warnings.catch_warnings():
             if getattr(args, "strict", False):
                 warnings.simplefilter("error", UnknownColumnWarning)
             return int(module.run(args) or 0)
     except (StiffnessError, UnknownColumnWarning) as exc:
-        print(f"stiffness {args.command}: error: {_one_line(str(exc))}", file=sys.stderr)
+        print(f"stiffness {name}: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader (| head) stopped: not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as exc:  # a file that cannot be read or written (permissions, disk full...)
         where = f" {exc.filename}" if exc.filename else ""
-        print(f"stiffness {args.command}: error: cannot access{where}: "
+        print(f"stiffness {name}: error: cannot access{where}: "
               f"{exc.strerror or exc}; check the path and its permissions", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"stiffness {args.command}: interrupted", file=sys.stderr)
+        print(f"stiffness {name}: interrupted", file=sys.stderr)
         return 130
 
 
