@@ -89,9 +89,7 @@ class Ambiguity:
 class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     """Result of :func:`~stiffness.calibration.diagnose.diagnose` (SI; :meth:`to_dict` and the
     files use campaign units): what both kinds hold (:class:`~stiffness.calibration.result.
-    DiagnosisResult`: the campaign, the steps, effects added in order then those removed
-    again, the stop reason, the loss, the masses, the outliers, what was forbidden, how sure
-    each named effect is) and a deflection campaign's own.
+    DiagnosisResult`) and a deflection campaign's own.
 
     Attributes
     ----------

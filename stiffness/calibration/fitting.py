@@ -176,8 +176,7 @@ class Fit:
         return math.sqrt(self.rss / self.n_residuals)
 
     def terms(self) -> tuple[float, int]:
-        """:attr:`loss_rss` (m^2) and :attr:`penalty_params`, what the information criterion
-        and the fit-to-noise test take (:class:`~stiffness.calibration.search.Fitted`)."""
+        """:attr:`loss_rss` (m^2) and :attr:`penalty_params` (:meth:`search.Fitted.terms`)."""
         return self.loss_rss, self.penalty_params
 
     def labels(self) -> list[str]:

@@ -1,10 +1,6 @@
-"""The result of a pose diagnosis (:func:`stiffness.calibration.pose_diagnose.diagnose_poses`):
-the steps from the baseline, the final fit, the verdict against the declared noise, its
-``--json`` object and its ``--out`` folder (:class:`PoseDiagnosis`; what both campaign kinds'
-results share is :class:`stiffness.calibration.result.DiagnosisResult`).
-
-SI inside; the JSON and the files in the campaign's length unit.
-"""
+"""The result of a pose diagnosis (:func:`stiffness.calibration.pose_diagnose.diagnose_poses`),
+:class:`PoseDiagnosis`: its verdict, its ``--json`` object and its ``--out`` folder (SI inside;
+the JSON and the files in the campaign's length unit)."""
 
 from __future__ import annotations
 
@@ -38,12 +34,9 @@ HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
 @dataclass
 class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
     """A pose diagnosis: what both kinds hold (:class:`~stiffness.calibration.result.
-    DiagnosisResult`: the campaign, the steps from the baseline's, the stop reason, the loss,
-    the masses, the poses the final fit does not explain, flagged by
-    :func:`~stiffness.calibration.pose_fit.flag_pose_outliers`, what was forbidden, how sure
-    each family added is) and a pose campaign's own: the families ``rejected`` (with their
-    last BIC change) and why some were ``not_judged``, and the ``judge`` of its parameters
-    against their physical scales."""
+    DiagnosisResult`; the steps from the baseline's, the outliers flagged by
+    :func:`~stiffness.calibration.pose_fit.flag_pose_outliers`), the families ``rejected``
+    (their last BIC change) or ``not_judged`` (why), and the ``judge`` of its parameters."""
 
     rejected: dict[str, float] = field(default_factory=dict)
     judge: PoseJudge | None = None
@@ -183,7 +176,7 @@ def marker_residual_plots(d: PoseDiagnosis) -> dict[str, bytes]:
     after (the final model), in the campaign's length unit; keyed by marker name."""
     c = d.campaign
     lu = c.units.length_to_si
-    before, after = d.steps[0].fit.residual / lu, d.final.residual / lu
+    before, after = d.baseline.residual / lu, d.final.residual / lu
     sigma = None if c.noise_std is None else c.noise_std / lu
     plots = {}
     for k, m in enumerate(c.markers):

@@ -213,8 +213,7 @@ class PoseFit:
         return objective_rss(self.components(), self.loss, self.sigma)
 
     def terms(self) -> tuple[float, int]:
-        """:meth:`loss_rss` (m^2) and :attr:`n_fitted`, what the information criterion and
-        the fit-to-noise test take (:class:`~stiffness.calibration.search.Fitted`)."""
+        """:meth:`loss_rss` (m^2) and :attr:`n_fitted` (:meth:`search.Fitted.terms`)."""
         return self.loss_rss(), self.n_fitted
 
     def labels(self) -> list[str]:

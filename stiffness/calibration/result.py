@@ -78,9 +78,8 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
 
     @functools.cached_property
     def how_sure(self) -> list[Certainty]:
-        """How sure the diagnosis is of each effect it named, in the order added
-        (:func:`stiffness.calibration.certainty.how_sure`; computed when first asked: it
-        refits the final model without each, and those acting through it)."""
+        """How sure the diagnosis is of each effect it named, in order (:func:`certainty.
+        how_sure`; computed when first asked: it refits the final model without each)."""
         if self.search is None or not self.steps:
             return []
         return certainty.how_sure(self.search, self.final, self.steps[-1].cv_rms,
@@ -102,9 +101,8 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
         return is_stand_in(self.named_parameters().get(label, []))
 
     def identifiability(self) -> dict:
-        """The final fit's fitted and held parameters
-        (:meth:`stiffness.calibration.identifiability.Identifiability.to_dict`, each column
-        by its label)."""
+        """The final fit's fitted and held parameters, by label (:meth:`stiffness.calibration.
+        identifiability.Identifiability.to_dict`)."""
         f = self.final
         ident = f.identifiability or Identifiability.full(f.x.size)
         return ident.to_dict(f.labels())
@@ -127,9 +125,8 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
         """The files of the ``--out`` folder ``folder`` by key (:meth:`write`)."""
 
     def write(self, folder: str | os.PathLike, command: str | None = None) -> dict[str, Path]:
-        """Write the ``--out`` folder (:meth:`outputs`), published whole by one rename;
-        ``command`` is recorded in the page's provenance (default: this process's command
-        line). Returns each file's path, by key."""
+        """Write the ``--out`` folder (:meth:`outputs`), published whole by one rename, the
+        page's provenance naming ``command`` (default: this process's); each path by key."""
         folder = Path(folder)
         files = self.outputs(folder, command)
         with staged_folder(folder) as stage:

@@ -50,11 +50,9 @@ from stiffness.errors import StiffnessError
 
 
 class Fitted(Protocol):
-    """What the loop, how sure a diagnosis is (:mod:`stiffness.calibration.certainty`) and
-    both kinds' results read of a fit, alike for either kind
-    (:class:`~stiffness.calibration.fitting.Fit`, :class:`~stiffness.calibration.pose_fit.
-    PoseFit`): its parameters ``x`` (SI or scaled), which it fitted and held, and the
-    methods below."""
+    """What the loop, :mod:`~stiffness.calibration.certainty` and both kinds' results read of
+    a fit of either kind (:class:`~stiffness.calibration.fitting.Fit`,
+    :class:`~stiffness.calibration.pose_fit.PoseFit`): ``x``, which it fitted and held."""
 
     @property
     def x(self) -> np.ndarray: ...
@@ -63,8 +61,7 @@ class Fitted(Protocol):
     def identifiability(self) -> Identifiability | None: ...
 
     def terms(self) -> tuple[float, int]:
-        """Its objective as a sum of squares (m^2) and the parameter count, what the
-        information criterion and the fit-to-noise test take."""
+        """Its objective as a sum of squares (m^2) and parameter count: what the criteria take."""
 
     def rms(self) -> float:
         """RMS residual component (m)."""
