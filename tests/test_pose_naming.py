@@ -133,8 +133,8 @@ def test_how_sure_removal_bic_is_on_the_steps_scale_when_the_model_stays_above_t
     "joint_offsets ... dBIC -16.82" in the step table and "removing it: dBIC +430" under how
     sure: the removal used the bare noise, the steps the overdispersion of what the model
     leaves above it. Here 12 UR10 poses with their 20 um noise declared 5 um, only zero offsets
-    offered (the geometry and springs stay unexplained): the removal's BIC change is the one of
-    the backward elimination's rule, recomputed from the two steps' RMS and parameter counts."""
+    offered (the geometry and springs stay unexplained): the removal's BIC change is under the
+    naming step's overdispersion, recomputed from the two steps' RMS and parameter counts."""
     campaign = ur10_tip_campaign(12)
     campaign.noise_std = 5e-6
     record = diagnose_poses(campaign, not_families=[*NOT_HIDDEN[:-1], "joint_compliance",

@@ -7,9 +7,8 @@ For each effect of the final model:
   folds, a pose campaign's leave-one-configuration-out); the cost is that model's held-out RMS
   minus the final model's (m): what predicting unseen configurations loses without the
   effect. Its in-sample counterpart is the BIC change of the removal
-  (positive: the effect earns its parameters), under the backward elimination's
-  overdispersion (a final fit's misfit above the noise acts as extra noise), on the scale
-  of the steps' BIC changes.
+  (positive: the effect earns its parameters), under the overdispersion of the step that
+  named it (a misfit above the noise acts as extra noise), on that step's scale.
 * **best alternative**: the best-ranked other candidate of the step that named it, and its BIC
   minus the chosen one's (a few units: a coin toss; tens: solid).
 * **stand-in**: a parameter determined (:attr:`stiffness.elastic.effects.base.Parameter.
@@ -30,7 +29,7 @@ from dataclasses import dataclass
 
 from stiffness.calibration.naming import STAND_IN_NOTE, alternative
 from stiffness.calibration.search import E, F, Removals, SearchKind, Step, label
-from stiffness.calibration.selection import step_criteria
+from stiffness.calibration.selection import information_criterion
 
 
 @dataclass
@@ -44,9 +43,10 @@ class Certainty:
     held_out_cost
         Cross-validated RMS without it minus the final model's (m); NaN without folds.
     removal_delta_bic
-        BIC of the final model without it minus the final model's, under the backward
-        elimination's overdispersion (:func:`~stiffness.calibration.selection.step_criteria`
-        over the final fit and its removals), as the steps' BIC changes are.
+        BIC of the final model without it minus the final model's, under the overdispersion
+        of the step that named it (:attr:`~stiffness.calibration.search.Step.dispersion`), as
+        that step's BIC changes are: removing the last effect added costs what adding it
+        gained.
     alternative, alternative_delta_bic
         Label of the best other candidate of its step and its BIC minus the chosen one's
         (``None`` when the step had no other candidate).
@@ -94,13 +94,16 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[
     if not named:
         return []
 
+    def bic(fit: F, dispersion: float) -> float:
+        rss, p = fit.terms()
+        return information_criterion(rss, kind.n, p, None if kind.sigma is None
+                                     else kind.sigma * math.sqrt(dispersion))
+
     out = kind.removals
     if out is None or out.final is not final:
         out = kind.removals = Removals(final, kind.without(final), {})
-    base, bics, _ = step_criteria(final.terms(), [f.terms() for f in out.fits],
-                                  kind.n, kind.sigma)
-    return [Certainty(s.label, cv - cv_final, bic - base,
+    return [Certainty(s.label, cv - cv_final, bic(fit, s.dispersion) - bic(final, s.dispersion),
                       *alternative([(label(e), d) for e, d, _ in s.ranking], s.label,
                                    s.delta_bic), stand_in(s.label))
-            for s, bic, cv in zip(named, bics, out.held_out(kind, range(len(out.fits))),
+            for s, fit, cv in zip(named, out.fits, out.held_out(kind, range(len(out.fits))),
                                   strict=True)]

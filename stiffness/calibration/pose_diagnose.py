@@ -413,9 +413,11 @@ class PoseSearch:
         fit = settled(self.campaign, _fit(self.campaign, self.chosen, self.frame0, self.settings,
                                           current, loss, self.scale),
                       self.chosen, self.judge, self.scale)
-        delta = self.deltas(current, {family: fit.terms()})[family]
+        base, (bic,), dispersion = step_criteria(current.terms(), [fit.terms()], self.n,
+                                                 self.sigma)
         cv = held_out_rms(fit, self.campaign, self.bar(f"held-out {family}"))
-        self.steps.append(Step(family, fit, delta, cv, [(family, delta, None)], forced=True))
+        self.steps.append(Step(family, fit, bic - base, cv, [(family, bic - base, None)],
+                               dispersion=dispersion, forced=True))
 
     def candidates(self, current: PoseFit) -> list[Family] | None:
         """Each ready family added to :attr:`chosen`, screened from ``current`` by one
@@ -513,10 +515,12 @@ class PoseSearch:
         self.chosen.append(best)
         self.remaining.remove(best)
         settled_delta = self.deltas(current, {**self.full, "": fit.terms()})[""]
+        *_, dispersion = step_criteria(current.terms(), [*self.full.values(), fit.terms()],
+                                       self.n, self.sigma)
         self.steps.append(Step(best, fit, self.delta[best] if fit.n_fitted == self.full[best][1]
                                else settled_delta, winner.cv_rms,
                                sorted(((f, d, None) for f, d in self.delta.items()),
-                                      key=lambda r: r[1])))
+                                      key=lambda r: r[1]), dispersion=dispersion))
         return fit
 
     def reject(self, ranking: list[Family]) -> None:
