@@ -167,6 +167,39 @@ def test_library_at_ur5_singularity(ur5):
     assert three.regular[0, 0] and np.isfinite(three.k_x).all()
 
 
+PLANAR_2R = """<robot name="planar2r"><link name="base"/><link name="l1"/><link name="l2"/>
+<link name="tip"/>
+<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+ <limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+<joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0.4 0 0"/>
+ <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+<joint name="t" type="fixed"><parent link="l2"/><child link="tip"/><origin xyz="0.3 0 0"/>
+</joint></robot>"""
+
+
+def test_subspace_stiffness_of_a_buckled_planar_arm_keeps_its_sign(tmp_path, capsys):
+    """A planar 2R arm pushed along itself past its buckling load: K_theta - K_C is indefinite,
+    so is the 2-D compliance, and the stiffness on the moving subspace has a negative principal
+    value. It was printed positive (1/singular values: Gepetto's 5-bar next to its parallel
+    singularity showed [10.6, 5.6e4] N/m while unstable); now the signed eigenvalues of C's
+    inverse on its range, from C's own eigen-decomposition here."""
+    import json
+
+    from stiffness.cli.main import main
+
+    (tmp_path / "planar2r.urdf").write_text(PLANAR_2R)
+    argv = ["kx", "--robot", str(tmp_path / "planar2r.urdf"), "--kq", "10,10", "--q", "0,0.3"]
+    for load, unstable in (("-200,0,0", True), ("0,-5,0", False)):
+        assert main([*argv, "--wrench", load, "--json"]) == 0
+        out = json.loads(capsys.readouterr().out)
+        lam, vec = np.linalg.eigh(np.array(out["compliance"]))
+        on_range = np.abs(lam) > 1e-12 * np.abs(lam).max()
+        assert on_range.sum() == 2 and out["K_X_subspace"]["rank"] == 2
+        np.testing.assert_allclose(out["K_X_subspace"]["eigenvalues"],
+                                   np.sort(1.0 / lam[on_range]), rtol=1e-9)
+        assert (min(out["K_X_subspace"]["eigenvalues"]) < 0) == unstable == (not out["stable"])
+
+
 def test_flat_sk120_parallelogram_is_one_typed_line(capsys):
     """Folded flat, the passive joints are not determined by the actuated ones: K_C, J and the
     compliance do not exist there. One-at-a-time calls raise; batch and scan mark it invalid."""

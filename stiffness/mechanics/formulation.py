@@ -337,7 +337,10 @@ class SubspaceStiffness:
     stiffness
         (rows, rows) ``C^+`` (N/m for translations), base axes like ``C``.
     values
-        (r,) its principal stiffnesses ``1 / S_r`` on the moving subspace, ascending.
+        (r,) its principal stiffnesses on the moving subspace, ascending: the eigenvalues of
+        the symmetric part of ``U_r^T C^+ U_r`` (as :func:`ellipsoid`'s of a regular K_X);
+        ``1 / S_r`` for a positive definite ``C``, negative ones where the load buckles the
+        robot (``K_theta - K_C`` indefinite).
     """
 
     rank: int
@@ -357,7 +360,9 @@ def subspace_stiffness(compliance_matrix: np.ndarray) -> SubspaceStiffness:
     inv = np.zeros_like(sv)
     inv[:rank] = 1.0 / sv[:rank]
     stiffness = (vt.T * inv) @ u.T
-    return SubspaceStiffness(rank, u[:, :rank], vt[rank:].T, stiffness, np.sort(inv[:rank]))
+    on_range = u[:, :rank].T @ stiffness @ u[:, :rank]  # signed: 1 / S_r carries no sign
+    values = np.linalg.eigvalsh(0.5 * (on_range + on_range.T))
+    return SubspaceStiffness(rank, u[:, :rank], vt[rank:].T, stiffness, values)
 
 
 def deflection(state: TargetState, k_theta: np.ndarray, formulation: str = "enhanced",
