@@ -436,3 +436,22 @@ def test_a_column_mapped_to_a_marker_is_not_also_read_as_a_force(tmp_path, capsy
             capsys.readouterr().err
     header = (tmp_path / "c" / "measurements.csv").read_text().splitlines()[0].split(",")
     assert header[-3:] == ["tip_x", "tip_y", "tip_z"] and "fx" not in header, header
+
+
+def test_pose_import_refusals_name_the_fix(tmp_path, capsys):
+    """A new user's slips with FIGAROH's TIAGo file, each one line naming the fix: no angle
+    unit (the header example was 'Fx [N]', a force, for an angle), a marker frame misspelt
+    (no closest names were offered), --marker without --kind poses."""
+    rig = tmp_path / "rig.csv"
+    rig.write_text("q1,q2,q3,q4,q5,q6,x1,y1,z1\n" + "".join(
+        f"{a},-1.2,1.5,-0.3,1.57,0,{0.8 + a / 10},{0.1 * a},{1.1 - a / 20}\n" for a in range(4)))
+    argv = ["campaign", "import", str(rig), "--robot", "ur10", "--map", "tip_x=x1,tip_y=y1,"
+            "tip_z=z1", "--out", str(tmp_path / "c")]
+    for extra, words in (
+            (["--kind", "poses", "--marker", "tip=tool0"], "e.g. 'theta1 [deg]'; valid angle"),
+            (["--kind", "poses", "--units", "angle=rad,length=m", "--marker", "tip=tool_0"],
+             "Did you mean tool0"),
+            (["--units", "angle=rad,length=m", "--marker", "tip=tool0"], "add --kind poses")):
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and words in err, err

@@ -50,7 +50,7 @@ from stiffness.calibration.measurements import (
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.probe_mounting import check_marker_mounting
 from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
-from stiffness.errors import FileFormatError
+from stiffness.errors import FileFormatError, did_you_mean
 from stiffness.files import (
     atomic_write,
     check_csv_header,
@@ -318,7 +318,9 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     for m in markers:
         if not robot.model.existFrame(m.frame):
             raise toml.error(f"[markers] {m.name}: frame {m.frame!r} is not a frame of "
-                             f"{robot.title}", "markers", m.name)
+                             f"{robot.title}; "
+                             f"{did_you_mean(m.frame, [f.name for f in robot.model.frames])}",
+                             "markers", m.name)
     data = toml_path.parent / data_name
     labels, coordinates, q_read, pos, wrench, numbers, rot = _rows(data, robot, markers)
     warn_copied_rows(np.column_stack([a.reshape(len(labels), -1) for a in (q_read, pos, wrench,

@@ -38,7 +38,7 @@ from stiffness.calibration.rig_import import (
     row_labels,
 )
 from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, UnknownFrameError, did_you_mean
 from stiffness.robot.robot import Robot
 
 
@@ -105,8 +105,10 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     robot = robot if robot is not None else load_import_robot(robot_settings)
     for m in markers:
         if not robot.model.existFrame(m.frame):
-            raise StiffnessError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
-                                 f"{robot.title}; name one of its frames")
+            names = list(dict.fromkeys(f.name for f in robot.model.frames))
+            raise UnknownFrameError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
+                                    f"{robot.title}; {did_you_mean(m.frame, names)}",
+                                    name=m.frame, choices=names)
     tables = [read_table(f) for f in files]
     check_map(settings, robot, ("config", *FORCE, *MOMENT, *marker_targets(markers)))
     columns, _ = join_tables(tables, settings.join)

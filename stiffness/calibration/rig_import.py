@@ -92,6 +92,9 @@ UNIT_KINDS = {**{t: "force" for t in FORCE}, **{t: "moment" for t in MOMENT},
          **{t: "length" for t in (*DIRECT, *LOADED, *UNLOADED, *POSITION)}}
 _UNIT_TABLES = {"angle": ANGLE_UNITS, "force": FORCE_UNITS, "length": LENGTH_UNITS,
                 "moment": MOMENT_UNITS}
+#: A header naming its unit, of each kind (the refusal of a unit no one names shows one).
+_HEADER_EXAMPLES = {"angle": "theta1 [deg]", "force": "Fx [N]", "length": "X [mm]",
+                    "moment": "Mx [N.m]"}
 _HEADER_UNIT = re.compile(r"^.*?[\[(]\s*([^\[\]()\s]+)\s*[\])]\s*$")
 #: Rows whose coordinates agree to this (rad or m) share a ``P`` label.
 SAME_POSE = 1e-9
@@ -443,8 +446,8 @@ class ColumnMapper:
         found = given if given is not None else (seen[0][0] if seen else None)
         if found is None and needed:
             raise StiffnessError(f"no {kind} unit: give it (--units {kind}=...) or write it "
-                                 f"in the headers, e.g. 'Fx [N]'; valid {kind} units: "
-                                 f"{', '.join(_UNIT_TABLES[kind])}")
+                                 f"in the headers, e.g. '{_HEADER_EXAMPLES[kind]}'; valid "
+                                 f"{kind} units: {', '.join(_UNIT_TABLES[kind])}")
         return found
 
 

@@ -164,7 +164,8 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness campaign import``; returns the exit code."""
     if args.marker and args.kind != "poses":
-        raise StiffnessError("--marker is for --kind poses")
+        raise StiffnessError("--marker is for --kind poses (absolute marker positions): add "
+                             "--kind poses")
     robot_flags = flags.robot_flags(args)
     if robot_flags.source is None:
         raise StiffnessError("--robot is required: a shipped robot, an "
