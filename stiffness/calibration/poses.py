@@ -8,7 +8,8 @@
 * it follows the robot's workspace rules, where its ``robot.toml`` declares a ``[workspace]``
   table (:class:`Workspace`); otherwise the coordinates are uniform within the limits, or, for
   a closed-loop robot (whose limits say little about where it assembles), within
-  :data:`LOOP_SPAN_RAD` (revolute) or :data:`LOOP_SPAN_FRACTION` of the reference length
+  :data:`~stiffness.mechanics.defaults.LOOP_SPAN_RAD` (revolute) or
+  :data:`~stiffness.mechanics.defaults.LOOP_SPAN_FRACTION` of the reference length
   (prismatic, at least 1 cm) around its reference assembly (its shipped coordinates, else
   zero);
 * the target is above the base plane (z >= 0 in the base frame), unless the workspace says
@@ -44,6 +45,7 @@ from stiffness.errors import (
     warn_user,
 )
 from stiffness.mechanics import ik
+from stiffness.mechanics.defaults import loop_sampling_box
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
@@ -52,10 +54,6 @@ from stiffness.units import finite_number
 
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 MAX_JACOBIAN = 10.0
-#: Closed loops without workspace rules: revolute coordinates within this of the reference (rad).
-LOOP_SPAN_RAD = 0.5
-#: ... and prismatic ones within this fraction of their reference length.
-LOOP_SPAN_FRACTION = 0.05
 #: Give up when this many draws (plus 10 per pose asked) assemble none.
 _FIRST_POSE_TRIES = 50
 #: Probe poses used to find the rank the robot's Jacobian reaches in general.
@@ -248,17 +246,7 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
 def sampling_box(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Box (rad, m) the coordinates are drawn in when no workspace rule says otherwise: the
     limits (:func:`coordinate_limits`), narrowed around the reference assembly for loops."""
-    lo, hi = coordinate_limits(robot)
-    if robot.loop.is_open_chain:
-        return lo, hi
-    from stiffness.mechanics.defaults import default_coordinates
-
-    ref = default_coordinates(robot)
-    ref = np.zeros(robot.n_coordinates) if ref is None else ref
-    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
-    span = np.where(prismatic, np.maximum(LOOP_SPAN_FRACTION * np.abs(ref), 0.01),
-                    LOOP_SPAN_RAD)
-    return np.maximum(lo, ref - span), np.minimum(hi, ref + span)
+    return loop_sampling_box(robot, *coordinate_limits(robot))
 
 
 def singular_values(robot: Robot, q: np.ndarray) -> np.ndarray:

@@ -102,7 +102,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "repeat for several axes")
     parser.add_argument("--samples", type=flags.number,
                         help="random configurations (uniform in the --axis ranges, else in the "
-                             "joint limits) instead of a grid")
+                             "joint limits; a closed loop's within 0.5 rad of its reference "
+                             "assembly, as design draws) instead of a grid")
     flags.add_seed_flag(parser, "seed of --samples; default 0")
     flags.add_configuration_flags(parser, q_help=(
         "values of the coordinates that are not swept: one per coordinate, or name=value "

@@ -115,3 +115,26 @@ def default_load(robot: Robot, q: np.ndarray, k_theta: np.ndarray
         load = holding_wrench(robot, q, k_theta, robot.defaults["rest_q_SI"])
         return as_wrench(load), "rest_q_SI (wrench holding the target against the springs)"
     return None
+
+
+#: Closed loops without workspace rules: revolute coordinates within this of the reference (rad).
+LOOP_SPAN_RAD = 0.5
+#: ... and prismatic ones within this fraction of their reference length (at least 1 cm).
+LOOP_SPAN_FRACTION = 0.05
+
+
+def loop_sampling_box(robot: Robot, lo: np.ndarray, hi: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The box ``lo, hi`` (rad, m; per coordinate) to draw random poses in, narrowed for a
+    closed-loop robot (whose limits say little about where it assembles: Gepetto's legs have
+    none) to :data:`LOOP_SPAN_RAD` (revolute) or :data:`LOOP_SPAN_FRACTION` of the reference
+    length (prismatic) around its reference assembly (its default coordinates, else zero);
+    unchanged for an open chain. ``design``'s candidates and ``scan --samples`` draw in it."""
+    if robot.loop.is_open_chain:
+        return lo, hi
+    ref = default_coordinates(robot)
+    ref = np.zeros(robot.n_coordinates) if ref is None else ref
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
+    span = np.where(prismatic, np.maximum(LOOP_SPAN_FRACTION * np.abs(ref), 0.01),
+                    LOOP_SPAN_RAD)
+    return np.maximum(lo, ref - span), np.minimum(hi, ref + span)

@@ -22,7 +22,11 @@ import numpy as np
 from stiffness.batch import kernels as batch
 from stiffness.elastic.model_file import ModelFile, elastic_model_of, read_model_file
 from stiffness.errors import StiffnessError
-from stiffness.mechanics.defaults import default_coordinates, default_stiffness
+from stiffness.mechanics.defaults import (
+    default_coordinates,
+    default_stiffness,
+    loop_sampling_box,
+)
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot, coordinate_index, load_robot
 from stiffness.robot.sources import resolve_source
@@ -113,7 +117,8 @@ def swept_axes(robot: Robot, axes: Mapping[str, Sequence[float]] | Sequence, gri
                ) -> list[dict]:
     """The swept coordinates ``{"index", "joint", "lower", "upper", "step"}`` of ``axes``:
     joint name (or ``q<i>``) to ``(low, high)`` or ``(low, high, step)`` (rad, m), a mapping or
-    a sequence of such pairs; every coordinate within its limits when empty (sampled).
+    a sequence of such pairs; every coordinate within its limits when empty (sampled; a
+    closed loop's within :func:`~stiffness.mechanics.defaults.loop_sampling_box`).
 
     Raises
     ------
@@ -136,11 +141,13 @@ def swept_axes(robot: Robot, axes: Mapping[str, Sequence[float]] | Sequence, gri
             raise StiffnessError(f"--axis repeats {robot.coordinate_joints[index]}")
         out.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
                     "upper": hi, "step": step if grid else None})
-    if not out:
+    if not out:  # every coordinate, sampled: a closed loop near its reference assembly
+        ranges = np.array([joint_range(robot, i) for i in range(robot.n_coordinates)])
+        lower, upper = loop_sampling_box(robot, ranges[:, 0], ranges[:, 1])
         for index in range(robot.n_coordinates):
-            lo, hi = joint_range(robot, index)
-            out.append({"index": index, "joint": robot.coordinate_joints[index], "lower": lo,
-                        "upper": hi, "step": None})
+            out.append({"index": index, "joint": robot.coordinate_joints[index],
+                        "lower": float(lower[index]), "upper": float(upper[index]),
+                        "step": None})
     return out
 
 
@@ -204,7 +211,9 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
     axes, samples, seed
         Swept coordinates (:func:`swept_axes`, rad or m): a grid, or ``samples`` random
         configurations in their ranges (default :data:`DEFAULT_SAMPLES` over the joint limits
-        when no axis is given) drawn with ``seed``.
+        when no axis is given; for a closed loop within
+        :func:`~stiffness.mechanics.defaults.loop_sampling_box` of its reference assembly)
+        drawn with ``seed``.
     q
         Coordinates of the joints not swept (rad, m); default the robot's shipped pose, else
         zero.
