@@ -87,6 +87,10 @@ def test_deflections_in_the_wrong_unit(tmp_path, declared, words):
         assert messages == []
         return
     assert len(messages) == 1 and words in messages[0] and "larger than" in messages[0], messages
+    # a robot this soft (a Solo12 leg at 50 N.m/rad under 50 N: 101 mm) is not told only to
+    # change its unit
+    assert messages[0].endswith("; if it really deflects that much, only the exact equilibrium "
+                                "models it: identify with --formulation exact"), messages[0]
 
 
 def test_radians_that_look_like_degrees_suggest_degrees(tmp_path):

@@ -208,7 +208,9 @@ def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarra
         f"{data}: the median deflection is {size / units.length_to_si:.3g} {units.length} "
         f"({size:.3g} m under a median load of {load:.3g} N), {side} than a loaded robot of "
         f"{robot.title}'s reach ({reach(robot.model):.3g} m) deflects ({low:.0e} m to "
-        f"{high:.3g} m); {_advice(unit)}", DataFileWarning, stacklevel=3)
+        f"{high:.3g} m); {_advice(unit)}" + (
+            "; if it really deflects that much, only the exact equilibrium models it: identify "
+            "with --formulation exact" if size > high else ""), DataFileWarning, stacklevel=3)
     return False
 
 
