@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -148,6 +149,8 @@ def test_one_configuration_prints_no_nan():
     report = format_report(result)
     assert "nan" not in report.split()
     assert "CV RMS -: one configuration, none to hold out" in report
+    # the step table names its lengths' unit (the campaign's), as every other RMS printed does
+    assert re.search(r"^step +effect +where +RMS \(mm\) +dBIC +CV RMS \(mm\)$", report, re.M)
     # a rival BIC prefers, neither cross-validated: not said to have failed cross-validation
     fit = SimpleNamespace(predicted=np.zeros((4, 3)), penalty_params=3)
     found = [SimpleNamespace(fit=fit, bic=b, cv_rms=math.nan, effect=SimpleNamespace(label=n))

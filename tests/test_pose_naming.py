@@ -5,6 +5,7 @@ campaigns use (stiffness.calibration.naming): simulated UR10 campaigns with the 
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -165,6 +166,8 @@ def test_a_family_adding_no_parameter_says_so_instead_of_a_bic_change():
     record = d.to_dict()
     assert "base_tilt" in record["rejected"] and abs(record["rejected"]["base_tilt"]) < 1e-6
     assert record["not_judged"]["base_tilt"].startswith("no identifiable parameter beside")
-    assert "base_tilt (no identifiable parameter beside the families in" in \
-        format_pose_report(d)
+    report = format_pose_report(d)
+    assert "base_tilt (no identifiable parameter beside the families in" in report
+    # the step table names its lengths' unit (FIGAROH's runs printed RMS and CV RMS bare)
+    assert re.search(r"^step +family +params +RMS \(m\) +dBIC +CV RMS \(m\)$", report, re.M)
     assert "joint_offsets" not in record["not_judged"]  # one that adds parameters is judged

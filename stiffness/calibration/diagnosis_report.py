@@ -18,7 +18,7 @@ if TYPE_CHECKING:  # annotations only
 def _cv_cell(cv_rms: float, length_unit: float) -> str:
     """A held-out RMS (m) in the table's unit, or ``-`` where nothing was held out (one
     configuration: no cross-validation)."""
-    return f"{cv_rms / length_unit:>10.4g}" if math.isfinite(cv_rms) else f"{'-':>10}"
+    return f"{cv_rms / length_unit:>12.4g}" if math.isfinite(cv_rms) else f"{'-':>12}"
 
 
 def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
@@ -69,8 +69,8 @@ def format_report(d: Diagnosis) -> str:
         lines.append(f"the baseline {verdict} to noise (chi-square p = {d.gof_baseline:.3g})")
     lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
     lines += _disagreement_lines(d.baseline_disagreement, c.units.force)
-    lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {'RMS':>10} {'dBIC':>9} "
-                  f"{'CV RMS':>10}"]
+    lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {f'RMS ({unit})':>10} "
+                  f"{'dBIC':>9} {f'CV RMS ({unit})':>12}"]
     lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
                  f"{_cv_cell(d.cv_baseline, lu)}")
     for i, s in enumerate(d.steps, start=1):

@@ -27,12 +27,13 @@ def format_pose_report(d: PoseDiagnosis) -> str:
              f"{len(c.markers)} marker(s) ({', '.join(m.name for m in c.markers)}), "
              f"{c.n_observed} measured components; noise std {noise}; masses {d.masses}; "
              f"loss {d.loss}",
-             "", f"{'step':<5} {'family':<{w}} {'params':>6} {'RMS':>11} {'dBIC':>10} "
-                 f"{'CV RMS':>11}" + ("  validation RMS" if d.steps[0].validation else "")]
+             "", f"{'step':<5} {'family':<{w}} {'params':>6} {f'RMS ({unit})':>11} {'dBIC':>10} "
+                 f"{f'CV RMS ({unit})':>13}"
+                 + ("  validation RMS" if d.steps[0].validation else "")]
     for i, (s, name) in enumerate(zip(d.steps, names, strict=True)):
         row = (f"{i:<5} {name:<{w}} {s.fit.n_fitted:>6} "
                f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} "
-               + (f"{s.cv_rms / lu:>11.4g}" if math.isfinite(s.cv_rms) else f"{'unbounded':>11}"))
+               + (f"{s.cv_rms / lu:>13.4g}" if math.isfinite(s.cv_rms) else f"{'unbounded':>13}"))
         if s.validation:
             row += f"  {s.validation['rms']:.4g} (3-D, {s.validation['unit']})"
         lines.append(row)
