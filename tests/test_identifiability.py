@@ -17,6 +17,7 @@ from scipy import stats
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.identifiability import (
+    Dropped,
     Identifiability,
     confounded,
     reduce_columns,
@@ -296,3 +297,12 @@ def test_a_pose_parameter_held_beside_the_elbow_spring_names_it():
                if d["confounded_with"]]
     assert said["confounded_with"] == [{"parameter": other, "correlation": round(r, 3)}]
     assert f"not told apart from {other} (correlation {r:.3f}), which takes" in said["note"]
+
+
+def test_a_merge_reads_as_what_the_merged_parameter_does():
+    """FIGAROH's TIAGo printed "torso_lift_joint ...: merged: absorbed as -185 x frame z", read
+    as the compliance being -185 frame heights; its column is -185 times the frame height's
+    (the coefficient in SI, N: the weight the lift carries), so it acts as -185 x frame z."""
+    d = Dropped(0, "merged", ((1, -185.0), (2, 1.96)))
+    assert d.describe(["torso_lift_joint compliance", "frame z", "frame y"]) == (
+        "merged: acts on the data as -185 x frame z + 1.96 x frame y (SI units, per unit of it)")

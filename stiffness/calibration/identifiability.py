@@ -96,8 +96,11 @@ class Dropped:
     held: Held | None = None
 
     def describe(self, labels: list[str]) -> str:
-        """One clause: ``no effect on the data``, ``merged: absorbed as 1 x joint2`` or why an
-        undetermined parameter is held (:meth:`Held.text`)."""
+        """One clause: ``no effect on the data``, ``merged: acts on the data as 1 x joint2 (SI
+        units, per unit of it)`` (its column is that combination of the kept ones': the kept
+        parameters absorb it, each its coefficient times it; a coefficient carries the units'
+        ratio, -185 N for a torso lift's compliance, m/N, against the frame's height, m) or why
+        an undetermined parameter is held (:meth:`Held.text`)."""
         if self.reason == "no effect":
             return "no effect on the data"
         if self.reason == "undetermined":
@@ -105,7 +108,8 @@ class Dropped:
         big = max((abs(c) for _, c in self.merged_into), default=0.0)
         combo = " + ".join(f"{c:.3g} x {labels[i]}" for i, c in self.merged_into[:3]
                            if abs(c) >= 1e-3 * big)
-        return f"merged: absorbed as {combo or '(negligible)'}"
+        return (f"merged: acts on the data as {combo} (SI units, per unit of it)" if combo
+                else "merged: absorbed as (negligible)")
 
 
 @dataclass
