@@ -233,7 +233,8 @@ def _parameters(d: dict) -> list[str]:
     rows = [[esc(x["parameter"]), esc(x["reason"]), esc(" + ".join(
         f"{num(m['coefficient'], 3)} × {m['parameter']}" for m in x["merged_into"][:3]))]
         for x in dropped]
-    parts.append(table("Parameters left out", ["parameter", "reason", "acts on the data as (SI)"], rows,
+    parts.append(table("Parameters left out",
+                       ["parameter", "reason", "acts on the data as (SI)"], rows,
                        "No effect: it moves no marker; merged: a combination of kept ones.")
                  if rows else "<p>Every parameter of the final model is identifiable.</p>")
     return parts
