@@ -293,3 +293,44 @@ def test_mjcf_of_a_link_with_an_impossible_inertia_compiles_with_a_warning(tmp_p
     check_mjcf(xml, robot.name)
     model = mujoco.MjModel.from_xml_string(xml)
     assert model.jnt_stiffness.tolist() == [123.0]
+
+
+LIFT_ARM = """<?xml version="1.0"?><robot name="lift"><link name="base"/>
+  <link name="column"><inertial><mass value="2"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="arm"><inertial><origin xyz="0.2 0 0"/><mass value="1"/>
+    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="tip"/>
+  <joint name="lift" type="prismatic"><parent link="base"/><child link="column"/>
+    <axis xyz="0 0 1"/><limit effort="1" velocity="1" lower="0" upper="0.35"/></joint>
+  <joint name="swing" type="revolute"><parent link="column"/><child link="arm"/>
+    <origin xyz="0 0 0.5"/><axis xyz="0 1 0"/>
+    <limit effort="1" velocity="1" lower="-1" upper="1"/></joint>
+  <joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/>
+    <origin xyz="0.4 0 0"/></joint></robot>"""
+
+
+def test_mjcf_warns_of_springs_resting_on_a_joint_limit(tmp_path):
+    """tiago's zero pose puts its torso lift on its lower limit (0 on [0, 0.35] m): MuJoCo's
+    range stopped the lift's spring and the exported model deflected half as far as the
+    toolkit's under a downward load, silently. A lift on its limit is warned about, and
+    MuJoCo's rest misses the exact equilibrium by the lift's whole deflection; inside the
+    limits no warning, and it agrees."""
+    (tmp_path / "lift.urdf").write_text(LIFT_ARM)
+    robot = load_robot(tmp_path / "lift.urdf")
+    springs, force = {"lift": 1e4, "swing": 2e3}, np.array([0.0, 0.0, -50.0])
+    missed = {}
+    for height, warned in ((0.0, True), (0.1, False)):
+        q0 = robot.configuration(np.array([height, 0.3]))
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            xml = robot_mjcf(robot, springs, q0)
+        said = [str(w.message) for w in seen if "a joint limit" in str(w.message)]
+        assert said == (["lift: the springs of lift (0, limits [0, 0.35]) rest on or beyond a "
+                         "joint limit, where MuJoCo's range stops their deflection one way (the "
+                         "toolkit's statics ignore limits); give --q inside the limits"]
+                        if warned else [])
+        position, _ = simulate_to_rest(xml, force, armature=0.05, damping=np.array([300.0, 60.0]))
+        exact = solve_equilibrium(robot, q0, np.diag(list(springs.values())), force)
+        missed[height] = np.linalg.norm(position - exact.position) / np.linalg.norm(exact.dx)
+    assert missed[0.0] > 0.5 and missed[0.1] < 1e-6, missed
