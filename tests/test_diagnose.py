@@ -67,9 +67,9 @@ HIDDEN = [
 
 def _simulate(setup: dict, effects: list[str], configs: int = 10, seed: int = 1, **kw):
     args = {k: v for k, v in setup.items() if k != "robot"}
-    args.update(kw)
+    args.update({"loads_per_config": 4, **kw})
     return simulate(setup["robot"], effects=[parse_effect(e) for e in effects],
-                    configs=configs, loads_per_config=4, noise_std_m=NOISE, seed=seed, **args)
+                    configs=configs, noise_std_m=NOISE, seed=seed, **args)
 
 
 def test_every_required_effect_is_exercised():
@@ -143,14 +143,19 @@ def test_replicates_give_the_noise():
 
 
 def test_one_configuration_prints_no_nan():
-    """A campaign of one configuration has nothing to hold out: its held-out RMS is a dash
-    with its reason, not 'nan' (UR5, three arm joints, 1 configuration x 4 loads)."""
+    """A campaign of one configuration is held out one load at a time (UR5, three arm joints,
+    1 configuration x 4 loads: a held-out RMS, and the line saying how); one load measured
+    three times leaves nothing to hold out: its held-out RMS is a dash with its reason, not
+    'nan'."""
     result = diagnose(_simulate(UR5, [], configs=1).campaign, propose=False)
     report = format_report(result)
-    assert "nan" not in report.split()
-    assert "CV RMS -: one configuration, none to hold out" in report
+    assert "nan" not in report.split() and math.isfinite(result.cv_baseline)
+    assert "CV RMS: one configuration, held out one load at a time" in report
     # the step table names its lengths' unit (the campaign's), as every other RMS printed does
     assert re.search(r"^step +effect +where +RMS \(mm\) +dBIC +CV RMS \(mm\)$", report, re.M)
+    once = diagnose(_simulate(UR5, [], configs=1, loads_per_config=1, repeats=3).campaign,
+                    propose=False)
+    assert "CV RMS -: one configuration with one load, none to hold out" in format_report(once)
     # a rival BIC prefers, neither cross-validated: not said to have failed cross-validation
     fit = SimpleNamespace(predicted=np.zeros((4, 3)), penalty_params=3)
     found = [SimpleNamespace(fit=fit, bic=b, cv_rms=math.nan, effect=SimpleNamespace(label=n))

@@ -16,9 +16,11 @@
    otherwise, under the step's overdispersion; a parameter-free switch counts one parameter),
    cross-validate the best over configurations (leave-one-configuration-out, or
    :data:`~stiffness.calibration.selection.CV_FOLDS`-fold over configuration labels when there
-   are many) and add the first that beats the current model's; until the model fits to noise
-   or nothing helps; then remove, one at a time, any effect the final model is better
-   without (BIC and cross-validation: :func:`stiffness.calibration.search.eliminate`, a
+   are many; a campaign of one configuration over its loads, naming only what those rows can
+   judge: :class:`OneConfigurationSearch`) and add the first that beats the current model's;
+   until the model fits to noise or nothing helps; then remove, one at a time, any effect the
+   final model is better without (BIC and cross-validation:
+   :func:`stiffness.calibration.search.eliminate`, a
    :class:`~stiffness.calibration.search.Step` marked ``removed``). If the search ends
    with the chi-square test still rejecting, the result is *unexplained*
    (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the final residual's
@@ -58,6 +60,7 @@ from stiffness.calibration.deflection_parameters import (
 )
 from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
+from stiffness.calibration.experiment import propose_measurements
 from stiffness.calibration.fitting import Fit, kind_noise, observations
 from stiffness.calibration.naming import settle
 from stiffness.calibration.outliers import (
@@ -92,6 +95,7 @@ from stiffness.calibration.selection import (
     interval_quantile,
     parameter_covariance,
     replicate_noise,
+    row_support,
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses, make_effect
@@ -300,11 +304,12 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (), refs0), n, sigma,
         loss, masses)
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
-    folds = config_folds(campaign.config, seed)
+    folds = config_folds(campaign.config, seed, campaign.wrench)
     cv_base = cross_validate([base], measured, folds, workers)[0]
-    kind = DeflectionSearch(measured, folds, scale, n, sigma, workers, say,
-                            _declared_settings(base, effect_settings), campaign.units, masses,
-                            forbidden)
+    one = len(set(campaign.config)) < 2  # held out one load at a time
+    kind = (OneConfigurationSearch if one else DeflectionSearch)(
+        measured, folds, scale, n, sigma, workers, say, _declared_settings(base, effect_settings),
+        campaign.units, masses, forbidden)
     current, cv_current = base, cv_base
     for name in forced:
         say(f"step {len(kind.steps) + 1}: {name} (forced)")
@@ -683,6 +688,33 @@ class DeflectionSearch:
                                   units, held_at_bounds(fit, sig, self.measured))
 
 
+@dataclass
+class OneConfigurationSearch(DeflectionSearch):
+    """:class:`DeflectionSearch` on a campaign of one configuration: its rows held out one
+    load at a time (:func:`~stiffness.calibration.selection.config_folds` over the loads),
+    and a candidate named only where those rows can judge it
+    (:func:`~stiffness.calibration.selection.row_support`: each fold's fit keeps more
+    residual components than the candidate's parameters, and the candidate does not fit below
+    the noise); else it is refused, said in the stop reason."""
+
+    stops: ClassVar[dict[Stop, str]] = {
+        **DeflectionSearch.stops,
+        Stop.HELD_OUT: ("no candidate that improves BIC also improves the error predicted "
+                        "for held-out loads of the one configuration (cross-validation over "
+                        "its rows)"),
+        Stop.REFUSED: ("one configuration: its rows can judge none of the candidates that "
+                       "improve BIC, so none is named")}
+
+    def held_out(self, named: Iterator[Found]) -> Iterator[Found]:
+        """Those the rows can judge cross-validated together over the folds; the others
+        ``refused``, with why."""
+        tried = list(named)
+        for c in tried:
+            c.refused = row_support(self.folds, self.measured, *self.terms(c.fit), self.sigma)
+        super().held_out(c for c in tried if c.refused is None)
+        return iter(tried)
+
+
 def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,
                  campaign: Campaign, geo: Geometry, seed: int | None) -> list[Ambiguity]:
     """The pairs the campaign cannot tell apart, with why, and (``seed`` not None, first
@@ -745,44 +777,3 @@ def _similarity(current: Fit, a: Fit, b: Fit, scale: float) -> float:
     if na == 0 or nb == 0:
         return 0.0
     return float(da @ db / (na * nb))
-
-
-def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit, sigma: float,
-                         n_poses: int = 40, n_best: int = 3, seed: int = 0) -> list[dict]:
-    """Extra poses and loads where two fitted models' predictions differ most.
-
-    The experiment design's separation (:mod:`stiffness.calibration.experiment`): ``n_poses``
-    reachable candidate poses, loads along the axes and cube diagonals at the campaign's largest
-    force; the ``n_best`` poses, one load each, that add the most separation left after either
-    model is refitted, in the campaign's units. Each proposal's ``separation_noise_units`` is
-    ``|dx_a - dx_b| / sigma`` there.
-    """
-    from stiffness.calibration.experiment import (
-        Alternatives,
-        candidate_set,
-        select_rows,
-        separation_score,
-        separation_statistics,
-    )
-
-    f_max = float(np.linalg.norm(campaign.force, axis=1).max())
-    cands = candidate_set(geometry.robot, n_poses, f_max, seed)
-    labels = (a.model.describe(), b.model.describe())
-    sep = separation_statistics(Alternatives(a, b, labels, sigma, ""), cands)
-    chosen = select_rows(sep.rows, sep.base, separation_score, min(n_best, cands.n_poses), 1)
-    u = campaign.units
-    robot = geometry.robot
-    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints], dtype=bool)
-    out = []
-    for pose, load in zip(chosen.poses, chosen.loads[:, 0], strict=True):
-        qc = cands.coords[pose].copy()
-        qc[~prismatic] /= u.angle_to_si
-        qc[prismatic] /= u.length_to_si
-        force = cands.directions[load] * cands.max_force
-        out.append({"q": qc.tolist(), "force": (force / u.force_to_si).tolist(),
-                    "deflection_chosen": (sep.predicted_a[pose, load, :3]
-                                          / u.length_to_si).tolist(),
-                    "deflection_other": (sep.predicted_b[pose, load, :3]
-                                         / u.length_to_si).tolist(),
-                    "separation_noise_units": float(sep.raw[pose, load])})
-    return out

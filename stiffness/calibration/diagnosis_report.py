@@ -15,9 +15,15 @@ if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
 
 
+#: The report's line on a campaign of one configuration, its rows held out by load.
+ONE_CONFIGURATION = ("CV RMS: one configuration, held out one load at a time; an effect is "
+                     "named only where the rows without a load keep more residual components "
+                     "than its parameters and its fit is not below the noise")
+
+
 def _cv_cell(cv_rms: float, length_unit: float) -> str:
     """A held-out RMS (m) in the table's unit, or ``-`` where nothing was held out (one
-    configuration: no cross-validation)."""
+    configuration with one load: no cross-validation)."""
     return f"{cv_rms / length_unit:>12.4g}" if math.isfinite(cv_rms) else f"{'-':>12}"
 
 
@@ -77,8 +83,10 @@ def format_report(d: Diagnosis) -> str:
         name = s.effect.name + (" *" if s.forced else "")
         lines.append(f"{i:<5} {'removed ' * s.removed + name:<28} {s.effect.where or '':<30} "
                      f"{s.fit.rms() / lu:>10.4g} {s.delta_bic:>9.4g} {_cv_cell(s.cv_rms, lu)}")
-    if not math.isfinite(d.cv_baseline):
-        lines.append("CV RMS -: one configuration, none to hold out (effects named on BIC alone)")
+    if len(set(c.config)) < 2:
+        lines.append(ONE_CONFIGURATION if math.isfinite(d.cv_baseline) else
+                     "CV RMS -: one configuration with one load, none to hold out: nothing "
+                     "is named")
     if any(s.forced for s in d.steps):
         lines.append("* forced (--families): added first, whatever its BIC and held-out error")
     if d.baseline_validation:  # diagnose --validate: each step's model on the other campaign

@@ -47,6 +47,8 @@ from typing import Protocol
 
 import numpy as np
 
+from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.fitting import Fit
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import Geometry, References, Rows
 from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
@@ -529,3 +531,37 @@ def separation_score(acc: list[np.ndarray]) -> np.ndarray:
         x = np.linalg.solve(m, b[..., None])[..., 0]
         out.append(a - np.sum(b * x, axis=-1))
     return np.maximum(np.minimum(out[0], out[1]), 0.0)
+
+
+def propose_measurements(campaign: Campaign, geometry: Geometry, a: Fit, b: Fit,
+                         sigma: float, n_poses: int = 40, n_best: int = 3, seed: int = 0
+                         ) -> list[dict]:
+    """Extra poses and loads where two fitted models' predictions differ most.
+
+    The experiment design's separation (:func:`separation_statistics`): ``n_poses``
+    reachable candidate poses, loads along the axes and cube diagonals at the campaign's largest
+    force; the ``n_best`` poses, one load each, that add the most separation left after either
+    model is refitted, in the campaign's units. Each proposal's ``separation_noise_units`` is
+    ``|dx_a - dx_b| / sigma`` there.
+    """
+    f_max = float(np.linalg.norm(campaign.force, axis=1).max())
+    cands = candidate_set(geometry.robot, n_poses, f_max, seed)
+    labels = (a.model.describe(), b.model.describe())
+    sep = separation_statistics(Alternatives(a, b, labels, sigma, ""), cands)
+    chosen = select_rows(sep.rows, sep.base, separation_score, min(n_best, cands.n_poses), 1)
+    u = campaign.units
+    robot = geometry.robot
+    prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints], dtype=bool)
+    out = []
+    for pose, load in zip(chosen.poses, chosen.loads[:, 0], strict=True):
+        qc = cands.coords[pose].copy()
+        qc[~prismatic] /= u.angle_to_si
+        qc[prismatic] /= u.length_to_si
+        force = cands.directions[load] * cands.max_force
+        out.append({"q": qc.tolist(), "force": (force / u.force_to_si).tolist(),
+                    "deflection_chosen": (sep.predicted_a[pose, load, :3]
+                                          / u.length_to_si).tolist(),
+                    "deflection_other": (sep.predicted_b[pose, load, :3]
+                                         / u.length_to_si).tolist(),
+                    "separation_noise_units": float(sep.raw[pose, load])})
+    return out

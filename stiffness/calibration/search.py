@@ -7,7 +7,9 @@ improving BIC by more than :data:`~stiffness.calibration.selection.BIC_MARGIN` (
 the first :data:`~stiffness.calibration.selection.CV_TOP` that may be named as fitted and once
 their undetermined parameters are held at nominal (:mod:`stiffness.calibration.naming`) are
 judged held out, and the first whose held-out RMS beats the current model's is added; else the
-search stops and says why (:class:`Stop`, in the kind's words).
+search stops and says why (:class:`Stop`, in the kind's words; a candidate the kind's rows
+cannot judge held out, ``refused``, is never added, and the first such one's reason ends the
+stop reason).
 
 Then backward elimination (:func:`eliminate`): a greedy search can keep an effect that a later
 one made redundant (an early stand-in for what the later ones model). The final fit is refitted
@@ -83,7 +85,8 @@ class Candidate(Generic[E, F]):
     """One candidate of a step: what it adds (an effect; a pose family's name), its fit, its
     BIC and change from the current model's (the step's ranking: of the fit in full, even
     when ``settled``, ``fit`` then holding undetermined parameters at nominal) and its
-    held-out RMS (m) once judged."""
+    held-out RMS (m) once judged, or why the rows cannot judge it (``refused``: then never
+    added; one configuration's rows, :func:`~stiffness.calibration.selection.row_support`)."""
 
     effect: E
     fit: F
@@ -91,6 +94,7 @@ class Candidate(Generic[E, F]):
     delta_bic: float
     cv_rms: float | None = None
     settled: bool = False
+    refused: str | None = None
 
 
 def label(what: Effect | str) -> str:
@@ -156,6 +160,7 @@ class Stop(enum.Enum):
     BIC = "no candidate past the BIC margin"
     NAMED = "none of those may be named"
     HELD_OUT = "none of those beats the held-out error"
+    REFUSED = "the rows cannot judge any of those held out"
 
 
 @dataclass(eq=False)
@@ -269,10 +274,11 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
         ranking = kind.candidates(current)
         if ranking is None:
             return current, cv_current, kind.stops[Stop.LEFT]
-        winner, why = _winner(kind, ranking, cv_current)
+        winner, why, refused = _winner(kind, ranking, cv_current)
         if winner is None or winner.cv_rms is None:
             kind.reject(ranking)
-            return current, cv_current, kind.stops[why]
+            return current, cv_current, kind.stops[why] + "".join(
+                f"; {label(c.effect)} not judged: {c.refused}" for c in refused[:1])
         current, cv_current = kind.accept(current, winner, ranking), winner.cv_rms
         added += 1
 
@@ -309,18 +315,22 @@ def _not_worse(cv: float, cv_final: float) -> bool:
 
 
 def _winner(kind: SearchKind[E, F], ranking: list[Candidate[E, F]], cv_current: float
-            ) -> tuple[Candidate[E, F] | None, Stop]:
+            ) -> tuple[Candidate[E, F] | None, Stop, list[Candidate[E, F]]]:
     """The step's winner (a held-out RMS ``cv_current`` not known, NaN, holds none back), or
-    ``None`` and why."""
+    ``None`` and why; and the candidates the rows could not judge (``refused``), in order."""
     eligible = [c for c in ranking if c.delta_bic < -BIC_MARGIN]
     if not eligible:
-        return None, Stop.BIC
-    why = Stop.NAMED
+        return None, Stop.BIC, []
+    why, refused = Stop.NAMED, []
     for c in kind.held_out(itertools.islice((c for c in eligible if _named(kind, c)), CV_TOP)):
+        if c.refused is not None:
+            refused.append(c)
+            why = Stop.REFUSED if why is Stop.NAMED else why
+            continue
         why = Stop.HELD_OUT
         if c.cv_rms is not None and (c.cv_rms < cv_current or math.isnan(cv_current)):
-            return c, why
-    return None, why
+            return c, why, refused
+    return None, why, refused
 
 
 def _named(kind: SearchKind[E, F], c: Candidate[E, F]) -> bool:

@@ -1,6 +1,7 @@
 """Model selection for ``diagnose``: fitting a hypothesis (from a non-negative linear start),
-its information criterion and overdispersion, cross-validation over configurations, the
-chi-square test of fitting to noise, interval quantiles and the noise of replicate rows.
+its information criterion and overdispersion, cross-validation over configurations (over one
+configuration's loads, and what those rows can judge, when there is one), the chi-square test
+of fitting to noise, interval quantiles and the noise of replicate rows.
 
 SI inside (m, N, rad).
 """
@@ -13,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.special import chdtrc, ndtri, stdtrit
+from scipy.special import chdtr, chdtrc, ndtri, stdtrit
 
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign
@@ -115,19 +116,54 @@ def step_criteria(current: tuple[float, int], extensions: list[tuple[float, int]
             [information_criterion(r, n, p, s_step) for r, p in extensions], c)
 
 
-def config_folds(labels: tuple[str, ...], seed: int = 0) -> list[np.ndarray]:
+def config_folds(labels: tuple[str, ...], seed: int = 0, loads: np.ndarray | None = None
+                 ) -> list[np.ndarray]:
     """Held-out row indices of each fold: one configuration label each, or
-    :data:`CV_FOLDS` groups of labels when there are more than :data:`LOCO_MAX`."""
-    labels_arr = np.asarray(labels)
-    unique = list(dict.fromkeys(labels))
+    :data:`CV_FOLDS` groups of labels when there are more than :data:`LOCO_MAX`. With a single
+    configuration and the rows' ``loads`` (wrenches, (m, 6) N and N.m) given, the rows of
+    one load each instead (its repeats held out together), grouped alike: one configuration's
+    rows held out one load at a time (:func:`row_support` says which models they judge)."""
+    keys: list = list(labels)
+    if len(dict.fromkeys(keys)) < 2 and loads is not None:
+        keys = [tuple(np.round(w, 6)) for w in np.asarray(loads)]
+    unique = list(dict.fromkeys(keys))
     if len(unique) < 2:
         return []
     if len(unique) <= LOCO_MAX:
-        groups = [[u] for u in unique]
+        groups = [[u] for u in range(len(unique))]
     else:
         order = np.random.default_rng(seed).permutation(len(unique))
-        groups = [[unique[i] for i in order[f::CV_FOLDS]] for f in range(CV_FOLDS)]
-    return [np.flatnonzero(np.isin(labels_arr, g)) for g in groups]
+        groups = [[int(i) for i in order[f::CV_FOLDS]] for f in range(CV_FOLDS)]
+    index = {u: i for i, u in enumerate(unique)}
+    which = np.array([index[k] for k in keys])
+    return [np.flatnonzero(np.isin(which, g)) for g in groups]
+
+
+def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: int,
+                sigma: float | None) -> str | None:
+    """Why the rows of one configuration cannot name a model of ``p`` parameters (residual sum
+    of squares ``rss``, m^2) held out over ``folds`` (:func:`config_folds` over its loads), or
+    ``None`` when they can: no load to hold out; a fold whose fit keeps no more residual
+    components than ``p`` (the held-out error then judges an interpolation; with none left
+    over all rows, the model explains them with zero degrees of freedom); or, with a known
+    noise std ``sigma`` (m), a fit below the noise (the chi-square lower tail of
+    ``rss / sigma^2`` with ``N - p`` degrees of freedom under ``1 - GOF_LEVEL``: an over-fit).
+    """
+    if not folds:
+        return "one configuration with one load: no row to hold out"
+    per_row = measured.shape[1]
+    train = measured.size - per_row * max(len(f) for f in folds)
+    if train <= p:
+        return (f"{p} parameters, and the rows without one load leave {train} residual "
+                f"components to fit them")
+    n = measured.size
+    if sigma is None:
+        return None
+    low = float(chdtr(n - p, rss / sigma ** 2))
+    if low < 1.0 - GOF_LEVEL:
+        return (f"fits below the noise (RMS {math.sqrt(rss / n) / sigma:.2g}x the noise, "
+                f"chi-square lower tail p = {low:.2g} < {1 - GOF_LEVEL:.2g}): an over-fit")
+    return None
 
 
 def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray],
