@@ -587,7 +587,8 @@ class StiffnessViewer:
         ----------
         samples
             Number of random configurations (uniform within the joint limits, angles within
-            [-180, 180] deg), or an (m, n_coordinates) array of coordinates.
+            [-180, 180] deg; a closed loop's within 0.5 rad of its reference assembly), or an
+            (m, n_coordinates) array of coordinates.
         wrench
             Load at every sample (default: as :meth:`show`).
         formulation

@@ -12,6 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import UnknownJointError
+from stiffness.mechanics.defaults import loop_sampling_box
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.viewer.ellipsoid import PrincipalEllipsoid, RotationalBlock
@@ -79,7 +80,9 @@ def rotational_pose(block: RotationalBlock, state: SceneState, size: float
 def random_coordinates(robot: Robot, n: int, base: np.ndarray, joints: Sequence[str] | None,
                        seed: int) -> np.ndarray:
     """``n`` rows of coordinates: ``base`` with each of ``joints`` (default all) uniform within
-    its limits, clipped to [-180, 180] deg (angles) or [-1, 1] m (prismatic joints)."""
+    its limits (a closed loop's: within
+    :func:`~stiffness.mechanics.defaults.loop_sampling_box` of its reference assembly, where it
+    assembles), clipped to [-180, 180] deg (angles) or [-1, 1] m (prismatic joints)."""
     names = list(robot.coordinate_joints) if joints is None else list(joints)
     unknown = [j for j in names if j not in robot.coordinate_joints]
     if unknown:
@@ -88,7 +91,7 @@ def random_coordinates(robot: Robot, n: int, base: np.ndarray, joints: Sequence[
                                 name=unknown[0], choices=robot.coordinate_joints)
     rng = np.random.default_rng(seed)
     rows = np.tile(base, (n, 1))
-    lower, upper = coordinate_limits(robot)  # +-inf for continuous joints
+    lower, upper = loop_sampling_box(robot, *coordinate_limits(robot))  # +-inf: continuous
     for name in names:
         i = robot.coordinate_joints.index(name)
         lo, hi = lower[i], upper[i]
