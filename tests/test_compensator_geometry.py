@@ -22,7 +22,7 @@ from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
-from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
+from stiffness.calibration.selection import Noise, fit_model, parameter_covariance
 from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import effect_report
@@ -274,8 +274,8 @@ def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
         fit = fit_model(model, campaign.deflection, NOISE,
                         np.concatenate([np.log(KINOVA[2]), freed.start()]))
         matrix = parameter_covariance(fit, NOISE, campaign.deflection)
-        quantile = interval_quantile(NOISE, campaign.deflection.size, model.penalty_params)
-        edge = interval_quantile(NOISE, campaign.deflection.size, model.penalty_params, 0.95)
+        quantile = Noise(NOISE).two_sided()
+        edge = Noise(NOISE).one_sided()
         params = [*stiffness_parameters(fit, matrix, quantile, edge),
                   *effect_report(freed, fit.x[3:], matrix[3:, 3:], refs, SI_UNITS, quantile)]
         for p, want in zip(params, truth, strict=True):

@@ -23,9 +23,9 @@ from stiffness.calibration.fitting import (
     parameter_labels,
 )
 from stiffness.calibration.selection import (
+    Noise,
     fit_model,
     held_at_bounds,
-    interval_quantile,
     parameter_covariance,
 )
 from stiffness.elastic.effects.base import Held
@@ -62,8 +62,8 @@ def test_a_held_parameter_is_held_at_its_nominal_value_and_says_why():
     assert dropped.held == Held("held at its nominal value: test")
     assert fit.penalty_params == fit.model.penalty_params - 1
     cov = parameter_covariance(fit, NOISE, c.deflection)
-    quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
-    edge = interval_quantile(NOISE, c.deflection.size, fit.penalty_params, 0.95)
+    quantile = Noise(NOISE).two_sided()
+    edge = Noise(NOISE).one_sided()
     stiffness, preload = effect_parameters(fit, cov, quantile, edge, SI_UNITS)[
         f"gravity_compensator({ARMS[0][3]})"]
     assert stiffness.held == "held at its nominal value: test" and not stiffness.determined
@@ -84,8 +84,8 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
     assert fit.at_bound == [k]
     cov = parameter_covariance(fit, NOISE, c.deflection)
     held = held_at_bounds(fit, NOISE, c.deflection)
-    quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
-    edge = interval_quantile(NOISE, c.deflection.size, fit.penalty_params, 0.95)
+    quantile = Noise(NOISE).two_sided()
+    edge = Noise(NOISE).one_sided()
     free = effect_parameters(fit, cov, quantile, edge, SI_UNITS)
     both = effect_parameters(fit, cov, quantile, edge, SI_UNITS, held)
     only = effect_parameters(fit, held, quantile, edge, SI_UNITS)
@@ -116,7 +116,7 @@ def test_an_interval_never_reaches_below_the_physical_bound():
     inside.x[k] = 0.1  # one tenth of a sizeable spring, its standard error ten times that
     cov = np.diag(np.full(fit.x.size, 1e-6))
     cov[k, k], cov[k + 1, k + 1] = 1.0, 1.0
-    quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
+    quantile = Noise(NOISE).two_sided()
     stiffness, preload = effect_parameters(inside, cov, quantile, quantile, SI_UNITS)[
         f"gravity_compensator({ARMS[0][3]})"]
     scale = stiffness.value / 0.1
@@ -187,8 +187,8 @@ def test_a_quantity_derived_from_a_variable_beside_a_bound_is_reported():
     fit = fit_model(model, c.deflection, NOISE, model.extend_x(fit.x, effect))
     assert fit.at_bound  # the compensator's stiffness still at 0
     cov = parameter_covariance(fit, NOISE, c.deflection)
-    quantile = interval_quantile(NOISE, c.deflection.size, fit.penalty_params)
-    edge = interval_quantile(NOISE, c.deflection.size, fit.penalty_params, 0.95)
+    quantile = Noise(NOISE).two_sided()
+    edge = Noise(NOISE).one_sided()
     beta, change = effect_parameters(fit, cov, quantile, edge, SI_UNITS,
                                       held_at_bounds(fit, NOISE, c.deflection))[effect.label]
     assert (beta.name, change.name) == ("beta", "relative_change_at_max_torque")

@@ -106,8 +106,8 @@ def test_soft_l1_recovers_the_truth_through_gross_outliers(ur10):
 def test_robust_fit_agrees_with_least_squares_without_outliers(ur10):
     """No outliers: soft_l1 (declared noise, 2 seeds) and huber (noise undeclared, estimated
     robustly) move each kept parameter by less than one least-squares standard deviation,
-    with intervals within 25 % of least squares' widths; the fit records its loss and the
-    scale's source."""
+    with intervals within 25 % of least squares' widths; the fit records its loss, the
+    scale's source and its intervals' noise (Student's t over n - p: selection.Noise)."""
     for seed, loss in ((0, "soft_l1"), (1, "soft_l1"), (2, "huber")):
         rng = np.random.default_rng(seed)
         c = simulate_pose_campaign(ur10, MARKERS, _hidden(rng), 40, NOISE, seed=seed,
@@ -122,6 +122,9 @@ def test_robust_fit_agrees_with_least_squares_without_outliers(ur10):
             assert robust.sigma == pytest.approx(NOISE, rel=0.25)
         else:
             assert robust.sigma_source == "declared" and robust.sigma == NOISE
+        # its intervals' noise: the sandwich's, estimated over n - p, declared scale or not
+        assert robust.noise.dof == robust.n_observed - robust.n_fitted
+        assert ls.noise.declared and ls.noise.sigma == NOISE
         k = ls.identifiability.kept
         assert robust.identifiability.kept == k
         assert np.all(np.abs(robust.x[k] - ls.x[k]) < ls.std()[k])

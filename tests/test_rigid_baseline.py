@@ -21,9 +21,9 @@ from stats import binomial_consistent
 from stiffness.calibration import fitting
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.selection import (
+    Noise,
     fit_model,
     held_at_bounds,
-    interval_quantile,
     parameter_covariance,
 )
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -47,8 +47,8 @@ def _fit(k: np.ndarray, seed: int):
 
 def _stiffness(fit, measured):
     cov = parameter_covariance(fit, NOISE, measured)
-    quantile = interval_quantile(NOISE, measured.size, fit.penalty_params)
-    edge = interval_quantile(NOISE, measured.size, fit.penalty_params, 0.95)
+    quantile = Noise(NOISE).two_sided()
+    edge = Noise(NOISE).one_sided()
     return stiffness_parameters(fit, cov, quantile, edge, held_at_bounds(fit, NOISE, measured))
 
 

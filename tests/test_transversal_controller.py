@@ -33,7 +33,7 @@ from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.calibration.selection import fit_model, interval_quantile, parameter_covariance
+from stiffness.calibration.selection import Noise, fit_model, parameter_covariance
 from stiffness.elastic.effects import candidates, make_effect
 from stiffness.elastic.effects.base import effect_report
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -103,8 +103,8 @@ def _true_fit(robot, q, force, moment, deflection, effects: tuple) -> list:
     model = Hypothesis(geo, rows, "enhanced", SPRINGS, effects, refs)
     fit = fit_model(model, deflection, NOISE, np.concatenate([np.log(K), effects[-1].start()]))
     matrix = parameter_covariance(fit, NOISE, deflection)
-    quantile = interval_quantile(NOISE, deflection.size, model.penalty_params)
-    edge = interval_quantile(NOISE, deflection.size, model.penalty_params, 0.95)
+    quantile = Noise(NOISE).two_sided()
+    edge = Noise(NOISE).one_sided()
     n = len(SPRINGS)
     return [*stiffness_parameters(fit, matrix, quantile, edge),
             *effect_report(effects[-1], fit.x[n:], matrix[n:, n:], refs, SI_UNITS, quantile)]

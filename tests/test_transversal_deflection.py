@@ -177,9 +177,9 @@ def test_a_rigid_bearing_is_never_fitted_negative_and_the_others_cover():
     from stiffness.calibration.deflection_parameters import effect_parameters, stiffness_parameters
     from stiffness.calibration.diagnosis import SI_UNITS
     from stiffness.calibration.selection import (
+        Noise,
         fit_model,
         held_at_bounds,
-        interval_quantile,
         parameter_covariance,
     )
     from stiffness.elastic.effects.geometry import References
@@ -200,8 +200,8 @@ def test_a_rigid_bearing_is_never_fitted_negative_and_the_others_cover():
         assert np.all(fit.x[3:] >= 0.0)  # compliances (scaled): never negative
         cov = parameter_covariance(fit, noise, c.deflection)
         held = held_at_bounds(fit, noise, c.deflection)
-        quantile = interval_quantile(noise, c.deflection.size, fit.penalty_params)
-        edge = interval_quantile(noise, c.deflection.size, fit.penalty_params, 0.95)
+        quantile = Noise(noise).two_sided()
+        edge = Noise(noise).one_sided()
         tilts = effect_parameters(fit, cov, quantile, edge, SI_UNITS, held)[tilt.label]
         for k, p in enumerate(tilts):
             assert p.value > 0.0 and p.ci95[0] >= 0.0

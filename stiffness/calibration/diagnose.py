@@ -84,6 +84,7 @@ from stiffness.calibration.selection import (
     CV_TOP,
     GOF_LEVEL,
     SCREEN_TOLERANCE,
+    Noise,
     config_folds,
     cross_validate,
     fit_baseline,
@@ -92,7 +93,6 @@ from stiffness.calibration.selection import (
     goodness_of_fit,
     held_at_bounds,
     information_criterion,
-    interval_quantile,
     parameter_covariance,
     replicate_noise,
     row_support,
@@ -318,15 +318,13 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     steps = kind.steps
     p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
-    sigma_used, note = _final_noise(final, n, sigma, note)
-    known = sigma if loss == "linear" else None  # a sandwich estimates its spread: t
-    quantile = interval_quantile(known, n, p_final)
-    edge = interval_quantile(known, n, p_final, 0.95)
+    noise_final, note = _fit_noise(sigma, final, n), _final_note(final, n, sigma, note)
+    sigma_used = noise_final.sigma
+    quantile, edge = noise_final.two_sided(), noise_final.one_sided()
     cov_final = parameter_covariance(final, sigma_used, measured)
     held_final = held_at_bounds(final, sigma_used, measured)
-    sigma_base = sigma_used if sigma is not None else math.sqrt(
-        base.loss_rss / max(n - base.penalty_params, 1))
-    cov_base = parameter_covariance(base, sigma_base, measured)
+    noise_base = _fit_noise(sigma, base, n)
+    cov_base = parameter_covariance(base, noise_base.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
@@ -336,9 +334,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(
-            base, cov_base, interval_quantile(known, n, base.penalty_params),
-            interval_quantile(known, n, base.penalty_params, 0.95),
-            held_at_bounds(base, sigma_base, measured)),
+            base, cov_base, noise_base.two_sided(), noise_base.one_sided(),
+            held_at_bounds(base, noise_base.sigma, measured)),
         final_stiffness=stiffness_parameters(final, cov_final, quantile, edge, held_final),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
@@ -402,13 +399,11 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: f
     extra = freed.start()[effect.n_params:]
     trial = fit_model(fit.model.with_effects(fit.model.effects[:-1] + (freed,)), measured, scale,
                       np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
-    p = trial.penalty_params
-    sig = sigma if sigma is not None else math.sqrt(trial.loss_rss / max(n - p, 1))
-    cov = parameter_covariance(trial, sig, measured)
-    quantile = interval_quantile(sigma if fit.loss == "linear" else None, n, p)
+    noise = _fit_noise(sigma, trial, n)
+    cov = parameter_covariance(trial, noise.sigma, measured)
     c = b + len(extra)
     freed_params = effect_report(freed, trial.x[a:c], cov[a:c, a:c], trial.model.refs,
-                                 SI_UNITS, quantile)[effect.n_params:]
+                                 SI_UNITS, noise.two_sided())[effect.n_params:]
     reason = _undetermined(freed_params)
     if reason is None and trial.loss_rss <= fit.loss_rss * (1.0 + 1e-9):
         say(f"{freed.label}: {', '.join(q.name for q in freed_params)} fitted")
@@ -430,17 +425,27 @@ def _undetermined(params: list[Parameter]) -> str | None:
     return None
 
 
-def _final_noise(final: Fit, n: int, sigma: float | None, note: str) -> tuple[float, str]:
-    """The noise std (m) the intervals use and its note: ``sigma`` when known, else the
-    final model's residual scatter over its ``n - p`` degrees of freedom (said so)."""
+def _fit_noise(sigma: float | None, fit: Fit, n: int) -> Noise:
+    """The noise of ``fit``'s covariance and intervals over ``n`` residuals
+    (:class:`~stiffness.calibration.selection.Noise`): the campaign's ``sigma`` (m, declared
+    or the replicates'; its quantiles the normal's) when known, else estimated from ``fit``'s
+    residuals over its ``n - p`` degrees of freedom; under a robust loss the sandwich's
+    (:meth:`Noise.of_fit`)."""
+    p = fit.penalty_params
+    noise = (Noise(sigma) if sigma is not None
+             else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
+    return noise.of_fit(fit.loss, n, p)
+
+
+def _final_note(final: Fit, n: int, sigma: float | None, note: str) -> str:
+    """The note on the noise of the final model's intervals (:func:`_fit_noise`): ``note``
+    when ``sigma`` is known, else that it is that model's residual scatter (said so)."""
     if sigma is not None:
-        return sigma, note
-    p_final = final.penalty_params
-    return (math.sqrt(final.loss_rss / max(n - p_final, 1)),
-            f"estimated from the residuals of the final model ({final.model.describe()}, "
-            f"{n - p_final} degrees of freedom): it includes any model error left, so the "
-            "fit-to-noise test is not available and 'nothing missing' means only that no "
-            "candidate helped")
+        return note
+    return (f"estimated from the residuals of the final model ({final.model.describe()}, "
+            f"{n - final.penalty_params} degrees of freedom): it includes any model error "
+            "left, so the fit-to-noise test is not available and 'nothing missing' means only "
+            "that no candidate helped")
 
 
 def _translation_noise(campaign: Campaign, loss: str = "linear"
@@ -481,7 +486,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     measured = observations(deflection, campaign.rotation, weight)
     model0 = model0.with_rotation_weight(weight)
     base = fit_baseline(model0, measured, scale, loss if sigma is not None else "linear")
-    if rot_source == "residuals":  # the rotation noise from the baseline's residuals
+    if campaign.rotation is not None and rot_sigma is None:  # from the baseline's residuals
         res_t, res_r = base.residuals(measured)
         s_t = sigma if sigma is not None else kind_noise(res_t, n, len(base.x))
         rot_sigma = kind_noise(res_r, n, len(base.x))
@@ -672,20 +677,17 @@ class DeflectionSearch:
         self.say(f"removed {effect.label}: RMS {fit.rms():.4g} m")
         return effect
 
-    def covariance(self, fit: Fit) -> tuple[np.ndarray, float]:
-        """The covariance of ``fit.x`` (:func:`parameter_covariance`) and the noise std (m)
-        it is for: the declared one, else estimated from ``fit``'s residuals."""
-        sig = self.sigma if self.sigma is not None else math.sqrt(fit.loss_rss / max(
-            self.n - fit.penalty_params, 1))
-        return parameter_covariance(fit, sig, self.measured), sig
+    def covariance(self, fit: Fit) -> tuple[np.ndarray, Noise]:
+        """The covariance of ``fit.x`` (:func:`parameter_covariance`) and the noise it is for
+        (:func:`_fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
+        noise = _fit_noise(self.sigma, fit, self.n)
+        return parameter_covariance(fit, noise.sigma, self.measured), noise
 
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""
-        cov, sig = self.covariance(fit)
-        known = self.sigma if fit.loss == "linear" else None
-        return effect_parameters(fit, cov, interval_quantile(known, self.n, fit.penalty_params),
-                                  interval_quantile(known, self.n, fit.penalty_params, 0.95),
-                                  units, held_at_bounds(fit, sig, self.measured))
+        cov, noise = self.covariance(fit)
+        return effect_parameters(fit, cov, noise.two_sided(), noise.one_sided(), units,
+                                 held_at_bounds(fit, noise.sigma, self.measured))
 
 
 @dataclass

@@ -20,6 +20,7 @@ from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
     Outlier,
 )
+from stiffness.calibration.selection import Noise
 from stiffness.elastic.model_file import ModelFile, jsonable
 from stiffness.robot.robot import Robot
 
@@ -118,10 +119,12 @@ class Identification:
         when the compliance's interval reaches zero) (SI).
     covariance_log
         (p, p) covariance of ``ln k``.
-    sigma_m
-        Noise standard deviation used for the covariance (m).
+    noise
+        Noise standard deviation used for the covariance (m, :attr:`sigma_m`) and whether it
+        is declared or estimated (:class:`~stiffness.calibration.selection.Noise`).
     sigma_source
-        ``declared noise_std`` or ``residuals (SS / (N - p))``.
+        ``declared noise_std``, ``residuals (SS / (N - p))`` or (a robust loss) ``robust
+        estimate (1.4826 median |residual|)``.
     sigma_residual_m
         Estimate ``sqrt(SS / (N - p))`` from the residuals (m), or ``None`` when N <= p.
     residual_ss_m2
@@ -199,7 +202,7 @@ class Identification:
     ci95_low: np.ndarray
     ci95_high: np.ndarray
     covariance_log: np.ndarray
-    sigma_m: float
+    noise: Noise
     sigma_source: str
     sigma_residual_m: float | None
     residual_ss_m2: float
@@ -233,6 +236,11 @@ class Identification:
     stiffness_coordinates: str = "chain"
     held: tuple[str | None, ...] = ()
     at_bound: tuple[bool, ...] = ()
+
+    @property
+    def sigma_m(self) -> float:
+        """Noise standard deviation used for the covariance (m)."""
+        return float(self.noise.sigma)
 
     @property
     def held_joints(self) -> tuple[str | None, ...]:
@@ -353,7 +361,7 @@ class Identification:
             units=self.units, formulation=self.formulation,
             standard_error=self.standard_error, ci95_low=self.ci95_low,
             ci95_high=self.ci95_high, noise_std_m=self.sigma_m,
-            noise_source="declared" if self.sigma_source.startswith("declared") else "residuals",
+            noise_source="declared" if self.noise.declared else "residuals",
             campaign=self.campaign, produced_by="identify",
             undetermined_joints=self.undetermined_joints,
             extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,

@@ -45,8 +45,11 @@ the result reports the RMS of each kind.
 
 A robust ``loss`` (scipy's ``soft_l1``, ``huber``, ``cauchy``, scaled by the declared or
 robustly estimated noise) is minimised instead, with intervals from Huber's sandwich covariance
-(:mod:`stiffness.calibration.fitting`) and Student's ``t``. Every identification flags the rows
-beyond 4 noise std (:mod:`stiffness.calibration.outliers`) and drops none.
+(:mod:`stiffness.calibration.fitting`) and Student's ``t`` with ``N - p`` degrees of freedom,
+two-sided and one-sided at a bound alike, the noise declared or not: the sandwich takes its
+spread from the residuals (:class:`stiffness.calibration.selection.Noise`, the one rule).
+Every identification flags the rows beyond 4 noise std (:mod:`stiffness.calibration.outliers`)
+and drops none.
 
 A stiffness the data cannot determine is one whose 95 % interval is wider than the value itself
 (relative width > 1, infinite when the data do not excite it); a direction in ``ln k`` space is
@@ -89,8 +92,8 @@ from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
 from stiffness.calibration.selection import (
     OVERSTATED_P,
+    Noise,
     goodness_of_fit,
-    interval_quantile,
     noise_overstated,
 )
 from stiffness.calibration.solver import Covariance, check_loss
@@ -332,11 +335,12 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         rot_res = best_fit.residuals(measured)[1]
         if campaign.rotation_noise_std_rad is None:  # not declared: the residuals'
             rot_sigma = kind_noise(rot_res, n_res, p)
-    noise = _noise_level(campaign, best_fit.rss, n_res, p, robust_sigma)
-    sigma, notes = noise.sigma, noise.notes
-    unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, noise.quantile,
+    level = _noise_level(campaign, best_fit.rss, n_res, p, robust_sigma)
+    sigma, notes = level.noise.sigma, level.notes
+    intervals = level.noise.of_fit(best_fit.loss, n_res, p)
+    unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, intervals.two_sided(),
                        rob.compliant_joints)
-    rigid = _rigid(best_fit, sigma, measured, noise.edge, unc)
+    rigid = _rigid(best_fit, sigma, measured, intervals.one_sided(), unc)
     outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, p,
                                     tuple(campaign.config or ()), campaign.lines)
     if outliers and best_fit.loss == "linear":
@@ -364,9 +368,9 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         ci95_low=unc.low,
         ci95_high=unc.high,
         covariance_log=unc.covariance_log,
-        sigma_m=float(sigma),
-        sigma_source=noise.source,
-        sigma_residual_m=noise.sigma_residual,
+        noise=level.noise,
+        sigma_source=level.source,
+        sigma_residual_m=level.sigma_residual,
         residual_ss_m2=best_fit.rss,
         n_residuals=n_res,
         n_parameters=p,
@@ -402,7 +406,8 @@ def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: float,
     """Which fitted stiffnesses are rigid to the data, as diagnose judges them
     (:func:`~stiffness.calibration.fitting.rigid_joints`); their intervals in ``unc`` made
     one-sided, the compliance's
-    ``[0, quantile se_c]`` (``quantile`` the one-sided 95 % one, as diagnose's) carried to
+    ``[0, quantile se_c]`` (``quantile`` the one-sided 95 % one,
+    :meth:`~stiffness.calibration.selection.Noise.one_sided`, as diagnose's) carried to
     ``k`` (above ``1 / (quantile se_c)``, ``se_c`` from the
     covariance in compliance units, where the data still see the joint), with no standard
     error (the delta method's ``k se(ln k)`` means nothing at ``c = 0``)."""
@@ -514,49 +519,44 @@ def _least_squares_runs(model: Hypothesis, measured: np.ndarray, scale: float, f
 
 
 @dataclass(frozen=True)
-class _Noise:
-    """The noise an identification's intervals use (:func:`_noise_level`).
+class _NoiseLevel:
+    """The noise of an identification (:func:`_noise_level`).
 
     Attributes
     ----------
-    sigma
-        Noise std (m) the covariance uses.
+    noise
+        The noise std (m) the covariance uses and how it is known
+        (:class:`~stiffness.calibration.selection.Noise`: declared, or estimated over the fit's
+        ``n - p`` degrees of freedom); its intervals' quantiles are those of
+        ``noise.of_fit(loss, n, p)``.
     source
         Where it comes from, in words (``Identification.sigma_source``).
-    quantile, edge
-        The 97.5 % quantile of the two-sided intervals and the 95 % one of a one-sided
-        interval at a bound (:func:`selection.interval_quantile` over ``n`` residuals and
-        ``p`` parameters).
     sigma_residual
         The residuals' own estimate (m), ``None`` without degrees of freedom.
     notes
         Where the residuals and a declared noise disagree.
     """
 
-    sigma: float
+    noise: Noise
     source: str
-    quantile: float
-    edge: float
     sigma_residual: float | None
     notes: list[str]
 
 
 def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
-                 robust_sigma: float | None = None) -> _Noise:
-    """The noise of the intervals (:class:`_Noise`): a declared noise std (normal quantiles),
-    else the residuals' (Student's t); with ``robust_sigma`` (m, a robust fit's scale) that
-    one, and Student's t for the sandwich's two-sided intervals. The one-sided quantile is
-    the normal's wherever the noise is declared (robust fits included)."""
+                 robust_sigma: float | None = None) -> _NoiseLevel:
+    """The noise of the intervals (:class:`_NoiseLevel`): a declared noise std, else the
+    residuals'; with ``robust_sigma`` (m, a robust fit's scale) that one, declared or the
+    robust estimate."""
     dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     notes: list[str] = []
     declared = campaign.noise_std_m
-    edge = interval_quantile(declared, n, p, level=0.95)
     if robust_sigma is not None:
-        source = ("declared noise_std" if declared is not None
-                  else "robust estimate (1.4826 median |residual|)")
-        return _Noise(robust_sigma, source, interval_quantile(None, n, p), edge, sigma_res,
-                      notes)
+        if declared is not None:
+            return _NoiseLevel(Noise(robust_sigma), "declared noise_std", sigma_res, notes)
+        return _NoiseLevel(Noise.estimated(robust_sigma, n, p),
+                           "robust estimate (1.4826 median |residual|)", sigma_res, notes)
     if declared is not None:
         sigma = declared
         if sigma_res is not None and sigma_res > 2.0 * sigma:
@@ -572,12 +572,11 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                 f"declared noise_std ({sigma * 1e3:.4g} mm; chi-square lower tail p < "
                 f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the confidence "
                 "intervals are too wide and an effect below the noise goes unseen")
-        return _Noise(sigma, "declared noise_std", interval_quantile(sigma, n, p), edge,
-                      sigma_res, notes)
-    # Student t, dof degrees of freedom (> 0 without a declared noise: _check_residual_count)
+        return _NoiseLevel(Noise(sigma), "declared noise_std", sigma_res, notes)
+    # dof > 0 without a declared noise: _check_residual_count
     assert sigma_res is not None
-    return _Noise(sigma_res, "residuals (SS / (N - p))", interval_quantile(None, n, p), edge,
-                  sigma_res, notes)
+    return _NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
+                       notes)
 
 
 def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarray,

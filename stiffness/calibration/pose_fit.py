@@ -21,8 +21,8 @@ physical bounds when its optimum is past one), at most :data:`MAX_EVALUATIONS` e
 thousands: a 57-parameter geometry fit on 30 poses, or a lumped gravity fit whose trial steps
 keep meeting a diverging sag); covariance ``sigma^2 (J^T J)^-1`` with the declared noise, or
 the residual variance when the campaign declares none; 95 % intervals from the normal quantile
-(Student's t when the noise is not declared or the loss is robust), as deflection diagnose's
-(:func:`stiffness.calibration.selection.interval_quantile`).
+(Student's t over the fit's degrees of freedom when the noise is not declared or the loss is
+robust), as deflection campaigns' (:class:`stiffness.calibration.selection.Noise`).
 
 Robust losses (``loss`` of :data:`~stiffness.calibration.solver.LOSSES` other than
 ``linear``): the deflection engine's mathematics, not a copy of it. The fit minimises
@@ -63,8 +63,8 @@ from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import (
+    Noise,
     bounded_intervals,
-    interval_quantile,
 )
 from stiffness.calibration.solver import (
     Options,
@@ -132,8 +132,10 @@ class PoseFit:
         (k, k) covariance of the kept parameters (order of ``identifiability.kept``).
     residual
         (n, M, 3) measured minus predicted (m); NaN where a marker was not seen.
-    sigma
-        Noise standard deviation used for the covariance (m); a robust fit's loss scale.
+    noise
+        The noise of its intervals (:class:`~stiffness.calibration.selection.Noise`): the
+        standard deviation used for the covariance (m, :attr:`sigma`; a robust fit's loss
+        scale) and whether it is declared or estimated, with its quantiles.
     sigma_source
         ``"declared"``, ``"residual"`` (least squares' residual variance) or ``"robust"``
         (the robust estimate scaling a robust loss).
@@ -165,8 +167,8 @@ class PoseFit:
     identifiability: Identifiability
     covariance: np.ndarray
     residual: np.ndarray
-    sigma: float
-    sigma_source: str = "declared"
+    noise: Noise
+    sigma_source: str
     extras: dict = field(default_factory=dict)
     loss: str = "linear"
     converged: bool = True
@@ -176,6 +178,11 @@ class PoseFit:
     observations: PoseObservations | None = None
     at_bound: list[int] = field(default_factory=list)
     unbounded_covariance: np.ndarray | None = None
+
+    @property
+    def sigma(self) -> float:
+        """Noise standard deviation used for the covariance (m); a robust fit's loss scale."""
+        return self.noise.sigma
 
     def components(self) -> np.ndarray:
         """The residual components as fitted: positions (m), then the weighted orientations
@@ -231,23 +238,21 @@ class PoseFit:
         return out
 
     def interval(self) -> tuple[np.ndarray, np.ndarray]:
-        """95 % intervals (p,) each; NaN for parameters not fitted (the normal quantile with
-        the declared noise, Student's without: :func:`selection.interval_quantile`), none
+        """95 % intervals (p,) each; NaN for parameters not fitted (the quantiles of
+        :attr:`noise`), none
         below a parameter's physical lower bound. A parameter at its bound
         (:attr:`at_bound`) has the one-sided interval from the bound to its 95 % upper
         limit. The others' :attr:`covariance` holds those at their bound; each end of an
         interval holds only those that moving the parameter that way would take past their
         bound (:func:`~stiffness.calibration.selection.bounded_intervals` on
         :attr:`unbounded_covariance`)."""
-        known = self.sigma if self.sigma_source == "declared" else None
         lower = np.array([p.lower for p in self.model.parameters])
         kept = self.identifiability.kept
         lo, hi = np.full(self.model.size, np.nan), np.full(self.model.size, np.nan)
         lo[kept], hi[kept] = bounded_intervals(
             self.x[kept], lower[kept], self.covariance if self.unbounded_covariance is None
             else self.unbounded_covariance, [kept.index(i) for i in self.at_bound],
-            interval_quantile(known, self.n_observed, self.n_fitted),
-            interval_quantile(known, self.n_observed, self.n_fitted, 0.95))
+            self.noise.two_sided(), self.noise.one_sided())
         return lo, hi
 
 
@@ -657,6 +662,10 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
         sigma, source = campaign.noise_std, "declared"
     else:
         sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
+    # the intervals' noise: declared, else estimated over n - k degrees of freedom (least
+    # squares' residuals; a robust loss's sandwich, declared scale or not)
+    noise = (Noise(sigma) if campaign.noise_std is not None else
+             Noise.estimated(sigma, n, k)).of_fit(loss, n, k)
     sizes = np.array([obs.model.parameters[i].scale for i in ident.kept])
 
     def spread(columns: list[int]) -> np.ndarray:
@@ -669,7 +678,7 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
         cov = np.zeros((k, k))
         cov[np.ix_(free, free)] = spread(free)
         cov[bound, bound] = np.diag(unbounded)[bound]
-    return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, sigma, source, loss=loss,
+    return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, noise, source, loss=loss,
                    converged=sol.status > 0, rotation_residual=rotation,
                    rotation_weight=obs.weight,
                    factor=jac if jac.shape[0] <= k + 1 else triangular(jac), observations=obs,

@@ -42,7 +42,6 @@ from stiffness.calibration.naming import one_sided
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, rows_of
 from stiffness.calibration.pose_model import PoseModel
-from stiffness.calibration.selection import interval_quantile
 from stiffness.elastic.effects.base import Parameter, judged
 from stiffness.elastic.effects.geometry import References, reach, rms_force, weight_torques
 from stiffness.mechanics.defaults import default_stiffness
@@ -97,8 +96,7 @@ class PoseJudge:
         model, refs = fit.model, self.references(fit)
         lo, hi = fit.interval()
         std = fit.std()
-        known = fit.sigma if fit.sigma_source == "declared" else None
-        z = interval_quantile(known, fit.n_observed, fit.n_fitted)
+        z = fit.noise.two_sided()
         labels = fit.labels()
         out: dict[str, list[Parameter]] = {}
         for family in model.family_objects:

@@ -1,7 +1,8 @@
 """Model selection for ``diagnose``: fitting a hypothesis (from a non-negative linear start),
 its information criterion and overdispersion, cross-validation over configurations (over one
 configuration's loads, and what those rows can judge, when there is one), the chi-square test
-of fitting to noise, interval quantiles and the noise of replicate rows.
+of fitting to noise, the noise of a fit's intervals with their quantiles (:class:`Noise`) and
+the noise of replicate rows.
 
 SI inside (m, N, rad).
 """
@@ -10,7 +11,7 @@ SI inside (m, N, rad).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import nnls
@@ -289,15 +290,63 @@ def fits_to_noise(rss: float, n: int, p: int, sigma: float | None) -> str | None
     return f"the model explains the data to noise (chi-square p = {gof:.3g} > {1 - GOF_LEVEL:.2g})"
 
 
-def interval_quantile(sigma: float | None, n: int, p: int, level: float = 0.975) -> float:
-    """The ``level`` quantile every reported interval uses (the one function for it; 0.975:
-    a two-sided 95 % interval's, 0.95: a one-sided one's): the standard normal's when the
-    noise std ``sigma`` is declared, Student's t with ``n - p`` degrees of freedom (at least
-    1) when it is estimated from ``n`` residuals of a fit of ``p`` parameters (``sigma``
-    None, or a robust fit's sandwich)."""
-    if sigma is not None:
-        return float(ndtri(level))
-    return float(stdtrit(max(n - p, 1), level))
+@dataclass(frozen=True)
+class Noise:
+    """A noise std, how it is known, and the quantiles of the 95 % intervals computed with it:
+    the one rule of every reported interval of both campaign kinds (identify and diagnose,
+    deflections and poses).
+
+    A declared noise std is known: an interval's standardised error is normal, and the
+    standard normal's quantiles apply. A noise estimated from the data with ``dof`` degrees of
+    freedom (a fit's residuals, replicate rows) makes it Student's t with ``dof``. A robust
+    fit's covariance (Huber's sandwich, :func:`~stiffness.calibration.solver.sandwich_matrix`)
+    takes its spread from the fit's residuals whatever noise std scales its loss, declared or
+    not: its intervals are those of a noise estimated over the fit's ``n - p`` degrees of
+    freedom (:meth:`of_fit`).
+
+    Attributes
+    ----------
+    sigma
+        The noise std (m; a pose fit's position-noise units).
+    dof
+        ``None`` for a declared noise std; else the degrees of freedom it was estimated with.
+    """
+
+    sigma: float
+    dof: int | None = None
+
+    @classmethod
+    def estimated(cls, sigma: float, n: int, p: int) -> Noise:
+        """A noise std estimated from ``n`` residuals of a fit of ``p`` parameters: ``n - p``
+        degrees of freedom (at least 1)."""
+        return cls(sigma, max(n - p, 1))
+
+    @property
+    def declared(self) -> bool:
+        """Whether the noise std is declared (known), not estimated from the data."""
+        return self.dof is None
+
+    def of_fit(self, loss: str, n: int, p: int) -> Noise:
+        """The noise of the intervals of a fit of ``p`` parameters to ``n`` residuals under
+        ``loss`` (:data:`~stiffness.calibration.solver.LOSSES`) scaled by this one: this one for
+        least squares; for a robust loss the sandwich's, estimated over ``n - p`` degrees of
+        freedom (the std scaling the loss kept as :attr:`sigma`)."""
+        return self if loss == "linear" else Noise.estimated(self.sigma, n, p)
+
+    def quantile(self, level: float) -> float:
+        """The ``level`` quantile of an interval's standardised error: the standard normal's
+        for a declared noise, Student's t with :attr:`dof` for an estimated one."""
+        if self.dof is None:
+            return float(ndtri(level))
+        return float(stdtrit(self.dof, level))
+
+    def two_sided(self) -> float:
+        """The quantile of a two-sided 95 % interval (97.5 %)."""
+        return self.quantile(0.975)
+
+    def one_sided(self) -> float:
+        """The quantile of a one-sided 95 % interval (95 %), a parameter's at its bound."""
+        return self.quantile(0.95)
 
 
 def _distinct(values: np.ndarray, rows: list[int]) -> list[int]:
