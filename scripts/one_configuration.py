@@ -109,9 +109,11 @@ def table(results: list[dict], seeds: int) -> str:
     nulls = [r for r in results if r["spec"] in (None, "undeclared")]
     found = [r for r in results if r["spec"] not in (None, "undeclared")]
     total = sum(r["seconds"] for r in results)
+    below = sum(bool(r["named"]) and r["final_over_noise"] < 0.5 for r in results)
     lines += ["", f"Nothing hidden: an effect named in {sum(bool(r['named']) for r in nulls)}"
                   f"/{len(nulls)}; hidden: found in {sum(_found(r) == 1 for r in found)}/"
-                  f"{len(found)} (+ {sum(_found(r) == 2 for r in found)} alias). "
+                  f"{len(found)} (+ {sum(_found(r) == 2 for r in found)} alias). Runs naming "
+                  f"an effect with a final RMS below half the noise: {below}. "
                   f"{len(results)} campaigns, {total:.0f} s."]
     return "\n".join(lines)
 

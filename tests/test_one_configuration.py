@@ -75,8 +75,8 @@ def test_row_support():
 def test_zero_degrees_of_freedom_not_named(seed):
     """UR10, six springs, one configuration x 3 loads (9 residual components), a deflection
     offset hidden (3.5 noise std), the two constant shifts tried: before, 16 of seeds 0-19
-    named the offset or a force bias with 0 or 1 degree of freedom left, at 0.15-0.29 of the
-    noise (seeds 0 and 2-4 here); now none (0/20): the rows without one load leave 6
+    named the offset or a force bias with 0 or 1 degree of freedom left (seeds 0 and 2-4 here,
+    at 0.15-0.29 of the noise); now none (0/20): the rows without one load leave 6
     components for the 6 springs and the effect, so nothing is named, and the stop reason
     says why. By the rule, not by chance: no tolerance."""
     d = _diagnose(UR10, 3, seed, ("deflection_offset=0.03",))
