@@ -30,9 +30,10 @@ def truth(model, hidden: HiddenPoseErrors) -> np.ndarray:
         frame = sl["frame"].start
         x[frame:frame + 3] = hidden.frame_translation - model.translation0
         x[frame + 3:frame + 6] = pin.log3(hidden.frame_rotation @ model.rotation0.T)
-    if "markers" in sl:
-        x[sl["markers"]] = (hidden.marker_offsets
-                            - np.array([m.offset for m in model.markers])).ravel()
+    if "markers" in sl:  # the offsets; the mounting turns after them are zero (none hidden)
+        start = sl["markers"].start
+        x[start:start + 3 * len(model.markers)] = (
+            hidden.marker_offsets - np.array([m.offset for m in model.markers])).ravel()
     if "joint_offsets" in sl:
         x[sl["joint_offsets"]] = hidden.joint_offsets
     if "geometry" in sl:

@@ -92,7 +92,8 @@ class PoseCampaign:
     units
         Units of the files.
     markers
-        The markers, with their nominal offsets (m).
+        The markers, with their nominal offsets (m), flagged ``oriented`` where a row
+        measures their orientation.
     labels
         Configuration label of each row.
     q
@@ -128,6 +129,15 @@ class PoseCampaign:
     rotations: np.ndarray | None = None
     noise_std_rotation: float | None = None
     lines: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        """Flag the markers whose orientation is measured on some row (their mounting turn is
+        then fitted, :class:`~stiffness.calibration.pose_model.Marker`); a subset keeps its
+        campaign's flags, so that every fold fits the same parameters."""
+        if self.rotations is not None:
+            seen = np.isfinite(self.rotations).all(axis=-1).any(axis=0)
+            self.markers = [m if m.oriented or not seen[k] else replace(m, oriented=True)
+                            for k, m in enumerate(self.markers)]
 
     @property
     def n_rows(self) -> int:

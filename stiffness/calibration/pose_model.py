@@ -15,7 +15,10 @@ with the parameter families of :data:`stiffness.elastic.effects.FAMILIES`:
     the measuring frame's placement relative to its starting estimate ``R_0, t_0``: ``t`` (m,
     measuring-frame axes) and ``omega`` (rad, a rotation vector applied on the left);
 ``markers``
-    each marker's offset correction ``delta o_m`` (m, in its frame's axes);
+    each marker's offset correction ``delta o_m`` (m, in its frame's axes) and, for a marker
+    whose orientation the campaign measures, its mounting turn ``delta_m`` (rad, its own axes:
+    its axes ``R_f M_m exp(delta_m)``), which acts on orientations alone
+    (:mod:`stiffness.calibration.pose_orientation`);
 ``joint_offsets``
     joint zero offsets ``delta_0`` (rad, or m for prismatic joints), one per coordinate;
 ``geometry``
@@ -107,13 +110,19 @@ class Marker:
     rotation
         The marker's own axes in the frame's axes (3, 3): a 6-D probe's mounting, its
         measured orientation that of the frame turned by it; the identity (default) for a
-        probe whose axes are the frame's. Declared, not fitted.
+        probe whose axes are the frame's. Declared: the ``markers`` family fits a turn
+        ``delta`` about it (``rotation exp(delta)``) where the marker is ``oriented``.
+    oriented
+        Whether the campaign measures the marker's orientation (set by
+        :class:`~stiffness.calibration.pose_campaign.PoseCampaign`): the ``markers`` family
+        then fits its mounting turn too.
     """
 
     name: str
     frame: str
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    oriented: bool = False
 
 
 @dataclass

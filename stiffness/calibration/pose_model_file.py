@@ -127,8 +127,8 @@ def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> Pose
         robot = robot or load_robot(cal.source, frame=cal.frame, target_offset=cal.target_offset_m,
                                     compliant_joints=cal.compliant_joints,
                                     fixed_base=cal.fixed_base)
-        markers = [Marker(name, frame, offset, cal.marker_rotation(name))
-                   for name, frame, offset in cal.markers]
+        markers = [Marker(name, frame, offset, cal.declared_rotation(name),
+                          cal.is_oriented(name)) for name, frame, offset in cal.markers]
         model = PoseModel(robot, markers, cal.families, (cal.rotation, cal.translation),
                           None if cal.load_frame is None else Loads(cal.load_frame,
                                                                     np.zeros((0, 6))),

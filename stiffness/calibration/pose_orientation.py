@@ -10,8 +10,12 @@ mounting), all four sharing the marker's offset correction. With ``v_i = a_i - p
 axes) the predicted orientation is the rotation nearest ``[v_x v_y v_z] / L`` (its polar
 factor; exactly the frame's rotation where the link is rigid at the marker), and its derivative,
 as a rotation vector in measuring axes, is ``d theta = sum_i v_i x d v_i / (2 L^2)``: exact for
-a rigid frame, since every family's point columns are. The residual of an orientation is
-``e = log(R_pred R_meas^T)`` (rad, measuring axes), with derivative ``Jl(e)^-1 d theta``.
+a rigid frame, since every family's point columns are. An oriented marker's fitted mounting
+turn ``delta`` (the ``markers`` family, rad, its own axes) turns that rotation on the right,
+``R exp(delta)``, adding ``R exp(delta) Jr(delta) d delta`` to ``d theta``
+(:meth:`~stiffness.elastic.effects.kinematic_errors.MarkerOffsets.turned`); it moves no point.
+The residual of an orientation is ``e = log(R_pred R_meas^T)`` (rad, measuring axes), with
+derivative ``Jl(e)^-1 d theta``.
 
 The fit stacks positions (m) and orientations weighted by ``w = sigma_t / sigma_r`` (m/rad),
 the declared position and rotation noise stds, as deflection campaigns do
@@ -30,6 +34,7 @@ import pinocchio as pin
 
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import ROW_BLOCK, Marker, PoseModel
+from stiffness.elastic.effects.kinematic_errors import MarkerOffsets
 from stiffness.elastic.effects.pose_face import RowTerms
 from stiffness.errors import StiffnessError
 
@@ -221,12 +226,13 @@ class PoseObservations:
         n, m = y4.shape[0], y4.shape[1] // 4
         y4 = y4.reshape(n, m, 4, 3)
         axes, rot = _frames(y4)
+        rot, turn = _turned(self.model, x, rot)
         if j4 is None:
             return y4[:, :, 0], rot, None, None
         j4 = (j4 @ self.expand).reshape(n, m, 4, 3, -1)
         dv = j4[:, :, 1:] - j4[:, :, :1]                    # (n, M, 3, 3, p)
         dtheta = np.cross(axes[..., None], dv, axisa=-2, axisb=-2, axisc=-2).sum(axis=2)
-        return y4[:, :, 0], rot, j4[:, :, 0], dtheta / (2.0 * AXIS_LENGTH_M ** 2)
+        return y4[:, :, 0], rot, j4[:, :, 0], dtheta / (2.0 * AXIS_LENGTH_M ** 2) + turn
 
 
 def orientation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
@@ -239,6 +245,7 @@ def orientation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
     aux, expand = _auxiliary(model)
     y4, _ = aux.evaluate(expand @ x, rows, jacobian=False)
     _, rot = _frames(y4.reshape(shape[0], shape[1], 4, 3))
+    rot, _ = _turned(model, x, rot)
     out = np.full(shape, np.nan)
     for i, k in np.ndindex(shape):
         measured = campaign.rotations[i, k]
@@ -254,6 +261,18 @@ def _frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     axes = points[:, :, 1:] - points[:, :, :1]
     u, _, vt = np.linalg.svd(np.swapaxes(axes, -1, -2) / AXIS_LENGTH_M)
     return axes, u @ vt
+
+
+def _turned(model: PoseModel, x: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The orientations ``rot`` (n, M, 3, 3) turned by the oriented markers' mounting turns in
+    ``x`` and the turns' columns of ``d theta`` (n, M, 3, p)
+    (:meth:`~stiffness.elastic.effects.kinematic_errors.MarkerOffsets.turned`)."""
+    cols = np.zeros(rot.shape[:-1] + (model.size,))
+    sl = model.slices().get("markers")
+    if sl is None:
+        return rot, cols
+    rot, cols[..., sl] = MarkerOffsets.turned(model, x[sl], rot)
+    return rot, cols
 
 
 def _auxiliary(model: PoseModel) -> tuple[PoseModel, np.ndarray]:

@@ -1,12 +1,14 @@
 """A 6-D probe mounted turned, caught when a pose campaign is read.
 
 A marker's measured orientation is that of its own axes: its frame's, turned by its declared
-``rotation`` (:class:`~stiffness.calibration.pose_model.Marker`). The fit does not turn them
-(the ``markers`` family fits the offset only), so a probe whose mounting is not declared leaves
-every orientation off by one constant turn in the marker's axes: FIGAROH's UR10 probe reads
-wrist_3_link turned by 29.5 deg about its x axis, 200 noise std at 0.002 rad, and the diagnosis
-ends *UNEXPLAINED* without saying why. This check estimates that turn from the nominal robot
-and warns (a :class:`~stiffness.errors.DataFileWarning`, once) with the rotation to declare.
+``rotation`` (:class:`~stiffness.calibration.pose_model.Marker`). The fit turns them by a
+mounting turn about the declared mounting (the ``markers`` family), judged physical within
+:data:`~stiffness.elastic.effects.kinematic_errors.MOUNTING_TURN_RAD` (a few degrees): a probe
+whose mounting is not declared leaves every orientation off by one constant turn in the
+marker's axes, FIGAROH's UR10 probe wrist_3_link's turned by 29.5 deg about its x axis (200
+noise std at 0.002 rad), which the fit then takes as an implausible mounting turn. This check
+estimates that turn from the nominal robot and warns (a
+:class:`~stiffness.errors.DataFileWarning`, once) with the rotation to declare.
 
 The estimate: ``R_measured,i = R0 R_axes(q_i) M`` with the measuring frame's rotation ``R0``
 and the mounting ``M`` unknown; from ``R0`` placed by the markers' positions (Kabsch,
@@ -30,13 +32,14 @@ import pinocchio as pin
 
 from stiffness.calibration.pose_model import Marker, PoseModelError, align_frames
 from stiffness.calibration.unit_checks import nominal_marker_positions
+from stiffness.elastic.effects.kinematic_errors import MOUNTING_TURN_RAD
 from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.robot.kinematics import frame_id
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
-#: Smallest constant turn (rad) reported: below a degree, the fit's geometry takes it.
-SMALLEST_TURN_RAD = np.deg2rad(1.0)
+#: Smallest constant turn (rad) reported: below it, the fit's mounting turn takes it.
+SMALLEST_TURN_RAD = MOUNTING_TURN_RAD
 #: How far the constant turn must stand above the rows' scatter about it (RMS per component).
 TURN_OVER_SCATTER = 5.0
 #: Alternations of the measuring frame's and the mounting's mean rotations.
@@ -137,6 +140,7 @@ def check_marker_mounting(robot: Robot, markers: list[Marker], q: np.ndarray,
         warnings.warn(
             f"{where}: marker {m.name}'s measured orientations are its axes on {m.frame} turned "
             f"by a constant {angle / scale:.4g} {unit} about ({axis}) in them (scatter "
-            f"{scatter / scale:.3g} {unit} about it): a 6-D probe mounted turned, which the fit "
-            f"does not turn; declare its mounting: [markers] {m.name} rotation = [{declare}] "
+            f"{scatter / scale:.3g} {unit} about it): a 6-D probe mounted turned, beyond the "
+            f"{MOUNTING_TURN_RAD / scale:.3g} {unit} the fit's mounting turn is judged "
+            f"physical within; declare its mounting: [markers] {m.name} rotation = [{declare}] "
             f"({unit}; campaign import {flag})", DataFileWarning, stacklevel=3)

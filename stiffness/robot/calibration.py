@@ -58,6 +58,11 @@ def marker_label(marker: str, axis: str) -> str:
     return f"{marker} offset {axis}"
 
 
+def mounting_label(marker: str, axis: str) -> str:
+    """Label of a marker's fitted mounting turn about ``axis`` (rx, ry, rz: its own axes)."""
+    return f"{marker} mounting {axis}"
+
+
 def zero_label(joint: str) -> str:
     """Label of a joint's zero offset."""
     return f"{joint} zero"
@@ -124,9 +129,21 @@ class PoseCalibration:
     name: str = ""
     marker_rotations: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def marker_rotation(self, name: str) -> np.ndarray:
-        """The declared axes (3, 3) of marker ``name`` in its frame's axes."""
+    def declared_rotation(self, name: str) -> np.ndarray:
+        """The declared axes (3, 3) of marker ``name`` in its frame's axes (``rotation_rad``)."""
         return pin.exp3(self.marker_rotations.get(name, np.zeros(3)))
+
+    def marker_rotation(self, name: str) -> np.ndarray:
+        """The calibrated axes (3, 3) of marker ``name`` in its frame's axes: the declared ones
+        turned by the fitted mounting turn ``delta`` (its own axes, rad) where the fit has one,
+        ``M exp(delta)``."""
+        v = self.values()
+        turn = np.array([v.get(mounting_label(name, a), 0.0) for a in ("rx", "ry", "rz")])
+        return self.declared_rotation(name) @ pin.exp3(turn)
+
+    def is_oriented(self, name: str) -> bool:
+        """Whether the fit turned marker ``name``'s mounting (its orientations measured)."""
+        return mounting_label(name, "rx") in self.values()
 
     def values(self) -> dict[str, float]:
         """Parameter label -> SI value."""

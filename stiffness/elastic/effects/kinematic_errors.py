@@ -1,8 +1,8 @@
 """Kinematic errors: the geometric effects of the library, families of the pose model
 (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`): the measuring frame (``frame``),
-the markers' offsets (``markers``), the joints' zero offsets (``joint_offsets``) and the joints'
-placement errors (``geometry``); docs/absolute-poses.md, :mod:`stiffness.calibration.pose_model`.
-They have no deflection face (no
+the markers' offsets and 6-D probes' mounting turns (``markers``), the joints' zero offsets
+(``joint_offsets``) and the joints' placement errors (``geometry``); docs/absolute-poses.md,
+:mod:`stiffness.calibration.pose_model`. They have no deflection face (no
 :class:`~stiffness.elastic.effects.deflection_face.DeflectionEffect`).
 
 Units: SI (m, rad).
@@ -30,10 +30,15 @@ from stiffness.robot.calibration import (
     PLACEMENT_UNITS,
     frame_label,
     marker_label,
+    mounting_label,
     perturbed_placement,
     placement_label,
     zero_label,
 )
+
+#: Physical scale (rad) of a probe's mounting turn about its declared mounting: a few degrees
+#: (beyond, the mounting is declared wrong, :mod:`stiffness.calibration.probe_mounting`).
+MOUNTING_TURN_RAD = math.radians(5.0)
 
 
 class MeasuringFrame(PoseFamily):
@@ -64,24 +69,53 @@ class MeasuringFrame(PoseFamily):
 
 
 class MarkerOffsets(PoseFamily):
-    """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes)."""
+    """``markers``: each marker's offset correction ``delta o`` (m, in its frame's axes), then
+    each oriented marker's mounting turn ``delta`` (rad, in its own axes: a 6-D probe's axes
+    ``R_f M exp(delta)`` with ``M`` its declared mounting), which acts on orientations alone
+    (the offset is in the frame's axes, not the probe's)."""
 
     name: ClassVar[str] = "markers"
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
-        return [self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
+        return ([self.param(marker_label(m.name, a), "m") for m in pm.markers for a in "xyz"]
+                + [self.param(mounting_label(m.name, a), "rad") for m in pm.markers
+                   if m.oriented for a in PLACEMENT_AXES[3:]])
 
     def physical_sizes(self, pm: PoseLayout, refs: References) -> np.ndarray:
-        """The robot's reach (m, :attr:`References.reach_m`), as a deflection campaign's
-        ``target_offset``: a marker farther than that from where the campaign puts it is
-        not on the robot."""
-        return np.full(3 * len(pm.markers), refs.reach_m)
+        """The robot's reach (m, :attr:`References.reach_m`) for an offset, as a deflection
+        campaign's ``target_offset``: a marker farther than that from where the campaign puts
+        it is not on the robot; :data:`MOUNTING_TURN_RAD` for a mounting turn."""
+        turns = 3 * sum(m.oriented for m in pm.markers)
+        return np.concatenate([np.full(3 * len(pm.markers), refs.reach_m),
+                               np.full(turns, MOUNTING_TURN_RAD)])
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
-        """``d y = exp(omega) R_0 R_frame d o`` in the marker's own three columns."""
+        """``d y = exp(omega) R_0 R_frame d o`` in the marker's own three columns; zero in the
+        mounting turns' (positions do not move with them)."""
         turn = view.to_measuring @ view.frame_rotation
         cols = turn[..., :, None, :] * view.selector[..., None, :, None]
-        return cols.reshape(turn.shape[:-1] + (x_f.size,))
+        cols = cols.reshape(turn.shape[:-1] + (3 * len(pm.markers),))
+        return np.concatenate([cols, np.zeros(cols.shape[:-1] + (x_f.size - cols.shape[-1],))],
+                              axis=-1)
+
+    @staticmethod
+    def turned(pm: PoseLayout, x_f: np.ndarray, rotation: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The markers' orientations ``R exp(delta)`` from ``rotation`` (n, M, 3, 3), their
+        orientations with ``delta = 0`` (measuring axes), and their derivative as a rotation
+        vector in measuring axes, ``d theta = R exp(delta) Jr(delta) d delta`` (n, M, 3, n_f)
+        (zero in the offsets' columns and in the other markers')."""
+        out = np.array(rotation, dtype=float)
+        cols = np.zeros(rotation.shape[:-1] + (x_f.size,))
+        start = 3 * len(pm.markers)
+        for k, m in enumerate(pm.markers):
+            if not m.oriented:
+                continue
+            delta = x_f[start:start + 3]
+            out[:, k] = rotation[:, k] @ pin.exp3(delta)
+            cols[:, k, :, start:start + 3] = out[:, k] @ pin.Jexp3(delta)
+            start += 3
+        return out, cols
 
 
 class JointOffsets(PoseFamily):
