@@ -8,6 +8,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from stiffness.calibration.pose_model import Loads, PoseModel
 from stiffness.elastic.effects import FAMILIES
 
 
@@ -26,3 +27,14 @@ def assert_columns(model, rows, x: np.ndarray, scales: np.ndarray, tol: float,
             2 * h)
         assert np.abs(jac[..., c] - fd).max() <= tol * max(np.abs(fd).max(), 1e-3), \
             model.parameters[c].label
+
+
+def loaded_rows(robot, markers, rng: np.random.Generator, n: int = 3):
+    """The tool loads (none recorded), the nominal model of ``markers`` and ``n`` rows at
+    coordinates uniform in +-0.8 (rad, m) under random wrenches (100 N, 10 N.m per axis std)."""
+    loads = Loads("tool", np.zeros((0, 6)))
+    nominal = PoseModel(robot, markers, (), (np.eye(3), np.zeros(3)), loads)
+    rows = [nominal.row_terms(robot.configuration(rng.uniform(-0.8, 0.8, robot.n_coordinates)),
+                              rng.normal(size=6) * np.r_[100.0, 100.0, 100.0, 10.0, 10.0, 10.0])
+            for _ in range(n)]
+    return loads, nominal, rows

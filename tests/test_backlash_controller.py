@@ -25,14 +25,14 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from pose_columns import assert_columns
+from pose_columns import assert_columns, loaded_rows
 from pose_truth import truth
 
 from stiffness import load_model
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import campaign_settings, predict
-from stiffness.calibration.pose_model import Loads, Marker, PoseModel
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.elastic.effects import candidates, make_effect
 from stiffness.elastic.effects.base import Parameter
@@ -93,11 +93,7 @@ def test_columns_and_slope_by_central_differences(torso):
     ``d Delta q / d tau`` (the diagonal of ``S diag(b sech^2 / tau_s) S^T``) equals central
     differences of the deflection in each chain joint's torque to 1e-7."""
     rng = np.random.default_rng(3)
-    loads = Loads("tool", np.zeros((0, 6)))
-    nominal = PoseModel(torso, MARKERS, (), (np.eye(3), np.zeros(3)), loads)
-    rows = [nominal.row_terms(torso.configuration(rng.uniform(-0.8, 0.8, 5)),
-                              rng.normal(size=6) * np.r_[100.0, 100.0, 100.0, 10.0, 10.0, 10.0])
-            for _ in range(3)]
+    loads, nominal, rows = loaded_rows(torso, MARKERS, rng)
     model = PoseModel(torso, MARKERS, ("frame", "markers", "joint_compliance", "backlash"),
                       (pin.exp3(rng.normal(size=3)), np.array([1.0, 0.5, 0.2])), loads,
                       nominal.campaign_settings(rows))

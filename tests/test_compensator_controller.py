@@ -23,12 +23,13 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from pose_columns import loaded_rows
 from pose_truth import truth
 
 from stiffness import load_model
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import campaign_settings, predict
-from stiffness.calibration.pose_model import Loads, Marker, PoseModel
+from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.elastic.effects.preloads import declared_geometry
 from stiffness.errors import StiffnessError
@@ -74,11 +75,7 @@ def test_parameters_and_columns(torso):
     the documented ``C dtau/dq`` the columns leave out (measured 1.0-1.6e-2 and 1.0-1.6e-4;
     a wrong chain rule through ``S`` would leave a constant error)."""
     rng = np.random.default_rng(3)
-    loads = Loads("tool", np.zeros((0, 6)))
-    nominal = PoseModel(torso, MARKERS, (), (np.eye(3), np.zeros(3)), loads)
-    rows = [nominal.row_terms(torso.configuration(rng.uniform(-0.8, 0.8, 5)),
-                              rng.normal(size=6) * np.r_[100.0, 100.0, 100.0, 10.0, 10.0, 10.0])
-            for _ in range(3)]
+    loads, nominal, rows = loaded_rows(torso, MARKERS, rng)
     model = PoseModel(torso, MARKERS, ("frame", "markers", "joint_compliance",
                                        "gravity_compensator"),
                       (pin.exp3(rng.normal(size=3)), np.array([1.0, 0.5, 0.2])), loads)
