@@ -9,6 +9,7 @@ from stiffness.calibration.diagnose import DeflectionSearch, _baseline_fit
 from stiffness.calibration.search import Candidate, eliminate, kept_steps, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
+    Noise,
     config_folds,
     cross_validate,
     fit_model,
@@ -38,7 +39,7 @@ def _search_with_a_stand_in():
     base, measured, scale, _, _ = _baseline_fit(c, Hypothesis(
         geo, rows, c.baseline, ARM, (), References.of(geo, rows, 1e5, c.deflection)), n, NOISE)
     folds = config_folds(c.config)
-    kind = DeflectionSearch(measured, folds, scale, n, NOISE, 1, lambda text: None, {},
+    kind = DeflectionSearch(measured, folds, scale, n, Noise(NOISE), 1, lambda text: None, {},
                             c.units)
     bias = ForceSensorBias()
     fit = fit_model(base.model.extended(bias), measured, scale,

@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from browser import chromium
+from scipy import stats
 
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.deflection_validation import validated
@@ -136,10 +137,21 @@ def test_unknown_noise_is_estimated_and_said_so():
 
 
 def test_replicates_give_the_noise():
+    """The replicates' scatter is the noise, estimated: the intervals take Student's t with
+    the replicates' degrees of freedom (selection.Noise), not the normal quantile."""
     sim = _simulate(SK120, [], configs=6, declare_noise=False, repeats=3)
-    s = diagnose(sim.campaign, propose=False).summary()
+    result = diagnose(sim.campaign, propose=False)
+    s = result.summary()
     assert s["noise_std_source"] == "replicates"
     assert s["noise_std"] == pytest.approx(NOISE * 1e3, rel=0.3)
+    dof = replicate_noise(sim.campaign)[1]
+    checked = 0
+    for p in result.baseline_stiffness:  # c -+ q se_c, se_c = se_k / k^2
+        if not p.at_bound and math.isfinite(p.ci95[1]):
+            q = 0.5 * (1.0 / p.ci95[0] - 1.0 / p.ci95[1]) / (p.standard_error / p.value ** 2)
+            assert q == pytest.approx(stats.t.ppf(0.975, dof), rel=1e-6), (p.name, q, dof)
+            checked += 1
+    assert checked >= 2
 
 
 def test_one_configuration_prints_no_nan():

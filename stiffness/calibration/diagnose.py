@@ -298,7 +298,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     if n <= len(compliant) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
                              f"{len(compliant)} stiffnesses; add measurement rows")
-    sigma, source, note = _translation_noise(campaign, loss)
+    known, source, note = _translation_noise(campaign, loss)
+    sigma = None if known is None else known.sigma
     refs0 = References.of(geo, rows, 1e5, campaign.deflection, masses)
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
         campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (), refs0), n, sigma,
@@ -308,7 +309,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     cv_base = cross_validate([base], measured, folds, workers)[0]
     one = len(set(campaign.config)) < 2  # held out one load at a time
     kind = (OneConfigurationSearch if one else DeflectionSearch)(
-        measured, folds, scale, n, sigma, workers, say, _declared_settings(base, effect_settings),
+        measured, folds, scale, n, known, workers, say, _declared_settings(base, effect_settings),
         campaign.units, masses, forbidden)
     current, cv_current = base, cv_base
     for name in forced:
@@ -318,12 +319,12 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     steps = kind.steps
     p_final = final.penalty_params
     gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
-    noise_final, note = _fit_noise(sigma, final, n), _final_note(final, n, sigma, note)
+    noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
     cov_final = parameter_covariance(final, sigma_used, measured)
     held_final = held_at_bounds(final, sigma_used, measured)
-    noise_base = _fit_noise(sigma, base, n)
+    noise_base = _fit_noise(known, base, n)
     cov_base = parameter_covariance(base, noise_base.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
                                        tuple(campaign.config or ()), campaign.lines)
@@ -386,7 +387,7 @@ def _declared_settings(base: Fit, settings: dict[str, dict]) -> dict[str, dict]:
 SETTING_PRECISION = 0.5
 
 
-def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: float | None,
+def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, known: Noise | None,
                   say: Callable[[str], None]) -> Fit:
     """``fit`` with the declared settings of its last effect (a compensator's lever and base,
     :meth:`Settings.settings_freed`) refitted as parameters and kept where the data determine
@@ -399,7 +400,7 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, sigma: f
     extra = freed.start()[effect.n_params:]
     trial = fit_model(fit.model.with_effects(fit.model.effects[:-1] + (freed,)), measured, scale,
                       np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
-    noise = _fit_noise(sigma, trial, n)
+    noise = _fit_noise(known, trial, n)
     cov = parameter_covariance(trial, noise.sigma, measured)
     c = b + len(extra)
     freed_params = effect_report(freed, trial.x[a:c], cov[a:c, a:c], trial.model.refs,
@@ -425,22 +426,22 @@ def _undetermined(params: list[Parameter]) -> str | None:
     return None
 
 
-def _fit_noise(sigma: float | None, fit: Fit, n: int) -> Noise:
+def _fit_noise(known: Noise | None, fit: Fit, n: int) -> Noise:
     """The noise of ``fit``'s covariance and intervals over ``n`` residuals
-    (:class:`~stiffness.calibration.selection.Noise`): the campaign's ``sigma`` (m, declared
-    or the replicates'; its quantiles the normal's) when known, else estimated from ``fit``'s
-    residuals over its ``n - p`` degrees of freedom; under a robust loss the sandwich's
+    (:class:`~stiffness.calibration.selection.Noise`): the campaign's ``known`` one (declared,
+    or the replicates' with their degrees of freedom), else estimated from ``fit``'s residuals
+    over its ``n - p`` degrees of freedom; under a robust loss the sandwich's
     (:meth:`Noise.of_fit`)."""
     p = fit.penalty_params
-    noise = (Noise(sigma) if sigma is not None
+    noise = (known if known is not None
              else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
     return noise.of_fit(fit.loss, n, p)
 
 
-def _final_note(final: Fit, n: int, sigma: float | None, note: str) -> str:
+def _final_note(final: Fit, n: int, known: Noise | None, note: str) -> str:
     """The note on the noise of the final model's intervals (:func:`_fit_noise`): ``note``
-    when ``sigma`` is known, else that it is that model's residual scatter (said so)."""
-    if sigma is not None:
+    with a ``known`` noise, else that it is that model's residual scatter (said so)."""
+    if known is not None:
         return note
     return (f"estimated from the residuals of the final model ({final.model.describe()}, "
             f"{n - final.penalty_params} degrees of freedom): it includes any model error "
@@ -449,20 +450,22 @@ def _final_note(final: Fit, n: int, sigma: float | None, note: str) -> str:
 
 
 def _translation_noise(campaign: Campaign, loss: str = "linear"
-                       ) -> tuple[float | None, str, str]:
-    """The translation noise std (m; ``None`` when only the residuals can tell), its source
-    (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter (robust
-    under a robust ``loss``: :func:`~stiffness.calibration.selection.replicate_noise`)."""
+                       ) -> tuple[Noise | None, str, str]:
+    """The translation noise (m; ``None`` when only the residuals can tell), its source
+    (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter with its
+    degrees of freedom (robust under a robust ``loss``:
+    :func:`~stiffness.calibration.selection.replicate_noise`)."""
     if campaign.noise_std_m is not None:
-        return campaign.noise_std_m, "declared", "declared noise_std of the campaign"
+        return Noise(campaign.noise_std_m), "declared", "declared noise_std of the campaign"
     rep = replicate_noise(campaign, robust=loss != "linear")
     if rep is None:
         return None, "residuals", ""
     if loss != "linear":
-        return (rep[0], "replicates",
+        return (Noise(*rep), "replicates",
                 "robust scatter of replicate rows (1.4826 median |deviation from the group "
                 f"mean|, {rep[1]} degrees of freedom)")
-    return rep[0], "replicates", f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)"
+    return (Noise(*rep), "replicates",
+            f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)")
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
@@ -510,7 +513,8 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
 @dataclass
 class DeflectionSearch:
     """The effect search of :func:`diagnose` over fixed observations (m), cross-validation
-    folds, residual scale (m), residual count, noise std (m, or None) and workers: a
+    folds, residual scale (m), residual count, known noise (declared or the replicates',
+    :class:`~stiffness.calibration.selection.Noise`; ``None``: not known) and workers: a
     deflection campaign's :class:`~stiffness.calibration.search.SearchKind` (the library's
     effects screened by loose full fits, the best refined; held out over configuration
     folds). Its :attr:`steps` and raw :attr:`ambiguities` ``(step, winner, other,
@@ -520,7 +524,7 @@ class DeflectionSearch:
     folds: list[np.ndarray]
     scale: float
     n: int
-    sigma: float | None
+    noise: Noise | None
     workers: int | None
     say: Callable[[str], None]
     declared: dict[str, dict]
@@ -538,6 +542,11 @@ class DeflectionSearch:
                      "within its physical scale with an interval excluding zero"),
         Stop.HELD_OUT: ("no candidate that improves BIC also improves the error predicted "
                         "for held-out configurations (cross-validation)")}
+
+    @property
+    def sigma(self) -> float | None:
+        """The known noise std (m), ``None`` when only the residuals can tell."""
+        return None if self.noise is None else self.noise.sigma
 
     def candidates(self, current: Fit, only: str | None = None) -> list[Found] | None:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
@@ -609,7 +618,7 @@ class DeflectionSearch:
                                                               and d_bic < WEAK_BIC)):
                 self.ambiguities.append((len(self.steps) + 1, winner, c, similarity))
         fit = winner.fit = _fit_settings(winner.fit, self.measured, self.scale, self.n,
-                                         self.sigma, self.say)
+                                         self.noise, self.say)
         effect = winner.effect = fit.model.effects[-1]
         delta = winner.delta_bic
         if winner.settled:
@@ -680,7 +689,7 @@ class DeflectionSearch:
     def covariance(self, fit: Fit) -> tuple[np.ndarray, Noise]:
         """The covariance of ``fit.x`` (:func:`parameter_covariance`) and the noise it is for
         (:func:`_fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
-        noise = _fit_noise(self.sigma, fit, self.n)
+        noise = _fit_noise(self.noise, fit, self.n)
         return parameter_covariance(fit, noise.sigma, self.measured), noise
 
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:

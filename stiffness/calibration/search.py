@@ -189,10 +189,13 @@ class SearchKind(Protocol[E, F]):
     own, :meth:`Fitted.terms`)."""
 
     n: int
-    sigma: float | None
     stops: ClassVar[dict[Stop, str]]
     removals: Removals[F] | None
     steps: list[Step[E, F]]
+
+    @property
+    def sigma(self) -> float | None:
+        """The noise std (m), ``None`` when not known."""
 
     def candidates(self, current: F) -> list[Candidate[E, F]] | None:
         """The extensions of ``current`` fitted, :func:`ranked` (``None``: none left)."""
