@@ -90,7 +90,6 @@ from stiffness.calibration.selection import (
     fit_baseline,
     fit_job,
     fit_model,
-    goodness_of_fit,
     held_at_bounds,
     information_criterion,
     parameter_covariance,
@@ -318,7 +317,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     final, stop = search(kind, current, cv_current, max_steps)
     steps = kind.steps
     p_final = final.penalty_params
-    gof_final = goodness_of_fit(final.loss_rss, n, p_final, sigma)
+    gof_final = None if known is None else known.goodness_of_fit(final.loss_rss, n, p_final)
     noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
@@ -344,7 +343,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                            sigma_used, rows, geo.angles(rows)),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
                                         sigma_used, rows, geo.angles(rows)),
-        gof_baseline=goodness_of_fit(base.loss_rss, n, base.penalty_params, sigma),
+        gof_baseline=None if known is None else known.goodness_of_fit(
+            base.loss_rss, n, base.penalty_params),
         gof_final=gof_final, unexplained=None if gof_final is None
         else bool(gof_final <= 1.0 - GOF_LEVEL),
         ambiguities=ambiguities, cv_baseline=cv_base,

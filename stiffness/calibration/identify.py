@@ -93,7 +93,6 @@ from stiffness.calibration.pose_identify import PoseIdentification, identify_pos
 from stiffness.calibration.selection import (
     OVERSTATED_P,
     Noise,
-    goodness_of_fit,
     noise_overstated,
 )
 from stiffness.calibration.solver import Covariance, check_loss
@@ -565,7 +564,7 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                 f"declared noise_std ({sigma * 1e3:.4g} mm): model error or underestimated noise; "
                 "the confidence intervals are too narrow"
             )
-        gof = goodness_of_fit(ss_m2, n, p, sigma)
+        gof = Noise(sigma).goodness_of_fit(ss_m2, n, p)
         if sigma_res is not None and noise_overstated(gof):
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much smaller than the "

@@ -18,7 +18,7 @@ user may force families in (added first, in order) and forbid others (``diagnose
 --families``, ``--not``; kept in the model file's ``selection``). Only identifiable parameters
 are fitted (:mod:`stiffness.calibration.pose_fit`).
 At the end the residual is tested against the declared noise
-(:func:`~stiffness.calibration.selection.goodness_of_fit` at
+(:meth:`~stiffness.calibration.selection.Noise.goodness_of_fit` at
 :data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it is "unexplained",
 with its structure (per marker, per axis, along the row order).
 """
@@ -63,6 +63,7 @@ from stiffness.calibration.search import (
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
+    Noise,
     step_criteria,
 )
 from stiffness.calibration.solver import check_loss
@@ -404,6 +405,11 @@ class PoseSearch:
                      "its physical scale with an interval excluding zero"),
         Stop.HELD_OUT: (f"no family improves BIC by more than {BIC_MARGIN:g} and the held-out "
                         "error")}
+
+    @property
+    def noise(self) -> Noise | None:
+        """The declared noise std (position-noise units), ``None`` when not declared."""
+        return None if self.sigma is None else Noise(self.sigma)
 
     def force(self, family: str, loss: str) -> None:
         """Add ``family`` whatever its BIC and held-out error (``diagnose --families``)."""

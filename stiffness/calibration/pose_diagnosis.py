@@ -19,7 +19,7 @@ from stiffness.calibration.pose_plausibility import Plausibility, plausibility
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
 from stiffness.calibration.search import Step
-from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
+from stiffness.calibration.selection import GOF_LEVEL, Noise
 from stiffness.elastic.effects.base import Parameter
 from stiffness.files import jsonable
 from stiffness.provenance import provenance
@@ -67,10 +67,10 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
 
     def gof(self) -> float | None:
         """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
-        declared noise, or None (:func:`~stiffness.calibration.selection.goodness_of_fit`)."""
-        fit = self.final
-        return goodness_of_fit(fit.loss_rss(), fit.n_observed, fit.n_fitted,
-                               self.campaign.noise_std)
+        declared noise, or None (:meth:`~stiffness.calibration.selection.Noise.goodness_of_fit`)."""
+        fit, sigma = self.final, self.campaign.noise_std
+        return None if sigma is None else Noise(sigma).goodness_of_fit(
+            fit.loss_rss(), fit.n_observed, fit.n_fitted)
 
     @property
     def unexplained(self) -> bool | None:

@@ -46,7 +46,13 @@ import numpy as np
 
 from stiffness.calibration.identifiability import Identifiability
 from stiffness.calibration.naming import namable
-from stiffness.calibration.selection import BIC_MARGIN, CV_TOP, fits_to_noise, step_criteria
+from stiffness.calibration.selection import (
+    BIC_MARGIN,
+    CV_TOP,
+    Noise,
+    fits_to_noise,
+    step_criteria,
+)
 from stiffness.elastic.effects.base import Effect, Parameter
 from stiffness.errors import StiffnessError
 
@@ -197,6 +203,11 @@ class SearchKind(Protocol[E, F]):
     def sigma(self) -> float | None:
         """The noise std (m), ``None`` when not known."""
 
+    @property
+    def noise(self) -> Noise | None:
+        """The noise std and how it is known (:class:`~stiffness.calibration.selection.Noise`:
+        its test of fitting to it), ``None`` when not known."""
+
     def candidates(self, current: F) -> list[Candidate[E, F]] | None:
         """The extensions of ``current`` fitted, :func:`ranked` (``None``: none left)."""
 
@@ -269,7 +280,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
     added = 0
     while True:
         rss, p = current.terms()
-        noise = fits_to_noise(rss, kind.n, p, kind.sigma)
+        noise = fits_to_noise(rss, kind.n, p, kind.noise)
         if noise is not None:
             return current, cv_current, noise
         if max_steps is not None and added >= max_steps:

@@ -34,7 +34,7 @@ from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaig
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_model_file import read_pose_model
-from stiffness.calibration.selection import GOF_LEVEL, goodness_of_fit
+from stiffness.calibration.selection import GOF_LEVEL, Noise
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import (
     ModelFile,
@@ -125,7 +125,8 @@ class Validation:
         chi2 = self.chi2
         if chi2 is None or self.noise_std is None:
             return None
-        return goodness_of_fit(chi2 * self.noise_std ** 2, self.components, 0, self.noise_std)
+        return Noise(self.noise_std).goodness_of_fit(chi2 * self.noise_std ** 2,
+                                                     self.components, 0)
 
     @property
     def verdict(self) -> str | None:

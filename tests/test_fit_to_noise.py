@@ -1,0 +1,75 @@
+"""The test of fitting to the noise (``selection.Noise.goodness_of_fit``: the search's stop rule
+and the "unexplained" verdict) rejects a correct model at its level, however the noise is known.
+
+A noise estimated from replicate rows is not known: its scatter over ``nu`` degrees of freedom
+is the pure error of rows among those fitted, so the residual sum of squares holds it and the
+test is the lack-of-fit F test. Checked on a tiny linear problem (12 groups of 3 components, 3
+parameters, the first 3 groups measured twice: 45 components, 9 replicate degrees of freedom,
+4000 draws): the F test rejects 5.4 %; the chi-square test that takes the replicates' scatter
+for a declared noise rejects 27 %, and fails the two-sided check.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+from stats import binomial_consistent
+
+from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.selection import GOF_LEVEL, Noise, replicate_noise
+from stiffness.planning.simulate import simulate
+
+GROUPS, P, REPEATED, DRAWS = 12, 3, 3, 4000
+
+
+def _null_draws() -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Residual sums of squares and replicate noise stds of a correct linear model under
+    unit Gaussian noise, the residual count and the replicates' degrees of freedom."""
+    rng = np.random.default_rng(0)
+    design = rng.normal(size=(GROUPS, 3, P))
+    rows = design[list(range(GROUPS)) + list(range(REPEATED))].reshape(-1, P)
+    n, nu = rows.shape[0], 3 * REPEATED
+    y = rng.normal(size=(DRAWS, n))
+    fitted = y @ (rows @ np.linalg.pinv(rows)).T
+    rss = np.sum((y - fitted) ** 2, axis=1)
+    groups = y.reshape(DRAWS, -1, 3)
+    pure = np.sum((groups[:, :REPEATED] - groups[:, GROUPS:]) ** 2, axis=(1, 2)) / 2.0
+    return rss, np.sqrt(pure / nu), n, nu
+
+
+def _kept(noises: list[Noise], rss: np.ndarray, n: int) -> int:
+    """How many draws the test does not reject at :data:`GOF_LEVEL`."""
+    return sum(noise.goodness_of_fit(float(r), n, P) > 1.0 - GOF_LEVEL  # type: ignore[operator]
+               for noise, r in zip(noises, rss, strict=True))
+
+
+def test_replicate_noise_takes_the_lack_of_fit_f_test():
+    rss, s, n, nu = _null_draws()
+    kept = _kept([Noise(float(v), nu) for v in s], rss, n)
+    assert binomial_consistent(kept, DRAWS, GOF_LEVEL), kept / DRAWS
+    as_known = _kept([Noise(float(v)) for v in s], rss, n)  # the scatter taken as declared
+    assert not binomial_consistent(as_known, DRAWS, GOF_LEVEL), as_known / DRAWS
+    # a declared noise (the true std 1) keeps chi-square with n - p degrees of freedom
+    declared = _kept([Noise(1.0)] * DRAWS, rss, n)
+    assert binomial_consistent(declared, DRAWS, GOF_LEVEL), declared / DRAWS
+    assert Noise(1.0).goodness_of_fit(40.0, n, P) == pytest.approx(stats.chi2.sf(40.0, n - P))
+    # a noise estimated from the tested residuals themselves leaves no test
+    assert Noise.estimated(1.0, n, P).goodness_of_fit(float(rss[0]), n, P) is None
+
+
+def test_diagnose_tests_replicates_for_lack_of_fit():
+    """End to end: a UR5 campaign without declared noise, every load measured twice (4
+    configurations x 3 loads, three arm joints compliant, nothing hidden)."""
+    sim = simulate("ur5", configs=4, loads_per_config=3, repeats=2, noise_std_m=5e-6, seed=3,
+                   declare_noise=False, kq=[3e4, 2e4, 1.5e4], max_force=100.0,
+                   compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"],
+                   target_offset_m=[0.0, 0.0, 0.1])
+    result = diagnose(sim.campaign, propose=False, workers=1)
+    sigma, nu = replicate_noise(sim.campaign)  # type: ignore[misc]
+    n, p = sim.campaign.deflection.size, result.baseline.penalty_params
+    lack = n - p - nu
+    f = (result.baseline.loss_rss / sigma ** 2 - nu) / lack
+    assert result.gof_baseline == pytest.approx(stats.f.sf(f, lack, nu), rel=1e-9)
+    assert result.summary()["noise_std_source"] == "replicates"
+    assert "lack-of-fit F p =" in result.stop_reason
