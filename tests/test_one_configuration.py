@@ -12,7 +12,7 @@ from scipy import stats
 from stats import binomial_consistent
 
 from stiffness.calibration.diagnose import diagnose
-from stiffness.calibration.selection import config_folds, row_support
+from stiffness.calibration.selection import Noise, config_folds, row_support
 from stiffness.elastic.effects import LIBRARY
 from stiffness.planning.simulate import parse_effect, simulate
 
@@ -57,18 +57,28 @@ def test_one_configuration_is_held_out_by_load():
 def test_row_support():
     """Refused without a load to hold out, when a fold's fit keeps no more residual components
     than the parameters, and below the noise (chi-square lower tail under 5 %, against
-    scipy's chi-square distribution); judged otherwise, and without a known noise."""
+    scipy's chi-square distribution; a replicate noise's lack-of-fit F lower tail, against
+    scipy's F); judged otherwise, and without a known noise."""
     measured, folds = np.zeros((4, 3)), [np.array([i]) for i in range(4)]  # 12 components
-    assert "no row to hold out" in row_support([], measured, 1.0, 3, NOISE)
+    assert "no row to hold out" in row_support([], measured, 1.0, 3, Noise(NOISE))
     assert "9 parameters, and the rows without one load leave 9 residual components" in \
         row_support(folds, measured, 1e-10, 9, None)
     dof = 12 - 6
     low = stats.chi2.ppf(0.04, dof) * NOISE ** 2  # lower tail 4 %: below the noise
-    said = row_support(folds, measured, low, 6, NOISE)
+    said = row_support(folds, measured, low, 6, Noise(NOISE))
     assert "below the noise" in said and "p = 0.04" in said
-    assert row_support(folds, measured, stats.chi2.ppf(0.06, dof) * NOISE ** 2, 6, NOISE) is None
+    assert row_support(folds, measured, stats.chi2.ppf(0.06, dof) * NOISE ** 2, 6,
+                       Noise(NOISE)) is None
     assert row_support(folds, measured, low, 6, None) is None
-    assert row_support(folds, measured, stats.chi2.ppf(0.01, 4) * NOISE ** 2, 8, NOISE)
+    assert row_support(folds, measured, stats.chi2.ppf(0.01, 4) * NOISE ** 2, 8, Noise(NOISE))
+    # a replicate noise over 3 degrees of freedom: the lower tail of the lack-of-fit F test,
+    # F(12 - 6 - 3, 3) of (rss / s^2 - 3) / 3 (scipy's F distribution)
+    replicates = Noise(NOISE, 3)
+    said = row_support(folds, measured, (3 * stats.f.ppf(0.04, 3, 3) + 3) * NOISE ** 2, 6,
+                       replicates)
+    assert "lack-of-fit F lower tail p = 0.04" in said
+    assert row_support(folds, measured, (3 * stats.f.ppf(0.06, 3, 3) + 3) * NOISE ** 2, 6,
+                       replicates) is None
 
 
 @pytest.mark.parametrize("seed", range(5))

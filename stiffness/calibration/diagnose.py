@@ -721,7 +721,7 @@ class OneConfigurationSearch(DeflectionSearch):
         ``refused``, with why."""
         tried = list(named)
         for c in tried:
-            c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.sigma)
+            c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.noise)
         super().held_out(c for c in tried if c.refused is None)
         return iter(tried)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.special import chdtr, chdtrc, fdtrc, ndtri, stdtrit
+from scipy.special import chdtrc, fdtrc, ndtri, stdtrit
 
 from stiffness.calibration import fitting
 from stiffness.calibration.campaign import Campaign
@@ -143,14 +143,14 @@ def config_folds(labels: tuple[str, ...], seed: int = 0, loads: np.ndarray | Non
 
 
 def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: int,
-                sigma: float | None) -> str | None:
+                noise: Noise | None) -> str | None:
     """Why the rows of one configuration cannot name a model of ``p`` parameters (residual sum
     of squares ``rss``, m^2) held out over ``folds`` (:func:`config_folds` over its loads), or
     ``None`` when they can: no load to hold out; a fold whose fit keeps no more residual
     components than ``p`` (the held-out error then judges an interpolation; with none left
     over all rows, the model explains them with zero degrees of freedom); or, with a known
-    noise std ``sigma`` (m), a fit below the noise (the chi-square lower tail of
-    ``rss / sigma^2`` with ``N - p`` degrees of freedom under ``1 - GOF_LEVEL``: an over-fit).
+    ``noise`` (declared or the replicates'), a fit below it (the lower tail of its test of
+    fitting to the noise, :meth:`Noise.goodness_of_fit`, under ``1 - GOF_LEVEL``: an over-fit).
     """
     if not folds:
         return "one configuration with one load: no row to hold out"
@@ -160,12 +160,14 @@ def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: in
         return (f"{p} parameters, and the rows without one load leave {train} residual "
                 f"components to fit them")
     n = measured.size
-    if sigma is None:
+    gof = None if noise is None else noise.goodness_of_fit(rss, n, p)
+    if noise is None or gof is None:
         return None
-    low = float(chdtr(n - p, rss / sigma ** 2))
+    low = 1.0 - gof
     if low < 1.0 - GOF_LEVEL:
-        return (f"fits below the noise (RMS {math.sqrt(rss / n) / sigma:.2g}x the noise, "
-                f"chi-square lower tail p = {low:.2g} < {1 - GOF_LEVEL:.2g}): an over-fit")
+        test = "chi-square" if noise.declared else "lack-of-fit F"
+        return (f"fits below the noise (RMS {math.sqrt(rss / n) / noise.sigma:.2g}x the noise, "
+                f"{test} lower tail p = {low:.2g} < {1 - GOF_LEVEL:.2g}): an over-fit")
     return None
 
 
