@@ -252,6 +252,23 @@ def test_a_stiffness_the_loads_never_excite_is_flagged(ur5_unexcited):
     assert row.split()[1:5] == ["-"] * 4 and "not fitted (held at 1e+05 N.m/rad)" in row
 
 
+def test_a_robust_fit_with_a_held_stiffness_counts_only_the_fitted_in_its_t(ur5_unexcited):
+    """Huber's sandwich of a robust fit spreads over ``n - d`` degrees of freedom, ``d`` the
+    directions the data determine: wrist_3, held (no load moves it), is not one of them. The
+    intervals take Student's t with 54 - 5 = 49 degrees of freedom (they took 48, counting
+    the held joint: a quantile 2.0106 for 2.0096)."""
+    from scipy.special import stdtrit
+
+    result = identify(ur5_unexcited, "enhanced", starts=1, loss="soft_l1")
+    joints = json.loads(result.to_json())["joints"]
+    assert joints[5]["held"] is not None and result.n_residuals == 54
+    for j in joints[:5]:
+        low, high = j["ci95"]
+        # the compliance's interval: 1 / k (1 -+ q se(ln k)), se(ln k) = se(k) / k
+        q = (1.0 / low - 1.0 / high) * j["k"] / 2.0 / (j["standard_error"] / j["k"])
+        assert q == pytest.approx(float(stdtrit(54 - 5, 0.975)), rel=1e-9)
+
+
 def test_one_configuration_one_direction_cannot_determine_six_stiffnesses(ur5_unexcited):
     c = ur5_unexcited
     one = Campaign("one", "conventional", c.robot_settings, q=c.q[:3],

@@ -336,7 +336,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
             rot_sigma = kind_noise(rot_res, n_res, p)
     level = _noise_level(campaign, best_fit.rss, n_res, p, robust_sigma)
     sigma, notes = level.noise.sigma, level.notes
-    intervals = level.noise.of_fit(best_fit.loss, n_res, p)
+    # a held stiffness is no direction of the sandwich's n - d: only the fitted count
+    intervals = level.noise.of_fit(best_fit.loss, n_res, len(best_fit.kept))
     unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, intervals.two_sided(),
                        rob.compliant_joints)
     rigid = _rigid(best_fit, sigma, measured, intervals.one_sided(), unc)
