@@ -269,6 +269,24 @@ def test_a_robust_fit_with_a_held_stiffness_counts_only_the_fitted_in_its_t(ur5_
         assert q == pytest.approx(float(stdtrit(54 - 5, 0.975)), rel=1e-9)
 
 
+def test_a_held_stiffness_takes_no_degree_of_freedom_of_the_residual_noise(ur5_unexcited):
+    """Least squares, noise undeclared, wrist_3 held: the residuals' noise is
+    ``sqrt(SS / (54 - 5))`` and its intervals take t(49), as diagnose counts a fit's kept
+    parameters (they were ``SS / 48`` and t(48): 1.0 % and 0.05 % narrower)."""
+    from scipy.special import stdtrit
+
+    result = identify(dataclasses.replace(ur5_unexcited, noise_std_m=None), "enhanced",
+                      starts=1)
+    joints = json.loads(result.to_json())["joints"]
+    assert joints[5]["held"] is not None and result.n_residuals == 54
+    assert result.sigma_residual_m == pytest.approx(np.sqrt(result.residual_ss_m2 / 49),
+                                                    rel=1e-12)
+    for j in joints[:5]:
+        low, high = j["ci95"]
+        q = (1.0 / low - 1.0 / high) * j["k"] / 2.0 / (j["standard_error"] / j["k"])
+        assert q == pytest.approx(float(stdtrit(54 - 5, 0.975)), rel=1e-9)
+
+
 def test_one_configuration_one_direction_cannot_determine_six_stiffnesses(ur5_unexcited):
     c = ur5_unexcited
     one = Campaign("one", "conventional", c.robot_settings, q=c.q[:3],

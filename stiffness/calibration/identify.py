@@ -330,18 +330,18 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     best_index = min(range(len(runs)), key=lambda i: runs[i].cost)
     best, best_fit = runs[best_index], fits[best_index]
     pred, rot_res = best_fit.predicted[:, :3], None
+    fitted = len(best_fit.kept)  # a held stiffness takes no degree of freedom (as diagnose)
     if campaign.rotation is not None:
         rot_res = best_fit.residuals(measured)[1]
         if campaign.rotation_noise_std_rad is None:  # not declared: the residuals'
-            rot_sigma = kind_noise(rot_res, n_res, p)
-    level = _noise_level(campaign, best_fit.rss, n_res, p, robust_sigma)
+            rot_sigma = kind_noise(rot_res, n_res, fitted)
+    level = _noise_level(campaign, best_fit.rss, n_res, fitted, robust_sigma)
     sigma, notes = level.noise.sigma, level.notes
-    # a held stiffness is no direction of the sandwich's n - d: only the fitted count
-    intervals = level.noise.of_fit(best_fit.loss, n_res, len(best_fit.kept))
+    intervals = level.noise.of_fit(best_fit.loss, n_res, fitted)
     unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, intervals.two_sided(),
                        rob.compliant_joints)
     rigid = _rigid(best_fit, sigma, measured, intervals.one_sided(), unc)
-    outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, p,
+    outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, fitted,
                                     tuple(campaign.config or ()), campaign.lines)
     if outliers and best_fit.loss == "linear":
         notes.append(f"{len(outliers)} row(s) beyond {OUTLIER_THRESHOLD:g} noise std (listed "
