@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_campaign import PoseCampaign, write_pose_campaign
 from stiffness.calibration.pose_model import Marker
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
@@ -30,6 +32,17 @@ def ur10_tip_campaign(poses: int, payload_n: float | None = None) -> PoseCampaig
                               stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
     payload = None if payload_n is None else np.array([0.0, 0.0, -payload_n, 0, 0, 0])
     return simulate_pose_campaign(robot, markers, hidden, poses, 20e-6, seed=2, payload=payload)
+
+
+def write_ur5_tip_campaign(folder: Path) -> None:
+    """A UR5 pose campaign of three poses of one marker on tool0 (10 um noise, seed 1, nothing
+    hidden but the springs at 2e5 N.m/rad) written to ``folder``."""
+    robot = load_robot("ur5")
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in markers]),
+                              np.zeros(6), np.zeros((6, 6)), np.full(6, 2e5))
+    write_pose_campaign(simulate_pose_campaign(robot, markers, hidden, 3, 1e-5, seed=1),
+                        folder)
 
 
 #: A DH arm with two prismatic joints (a vertical lift and a radial slide); ``{}`` the two

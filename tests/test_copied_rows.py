@@ -6,16 +6,13 @@ from __future__ import annotations
 
 import warnings
 
-import numpy as np
 import pytest
+from pose_campaigns import write_ur5_tip_campaign
 from test_campaign import HEADER, ROW_A, ROW_B, write
 
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.errors import DataFileWarning
-from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
-from stiffness.robot.robot import load_robot
 
 COPIED = "1 row(s) repeat an earlier row in every cell (first: line {} copies line {})"
 
@@ -37,12 +34,7 @@ def test_deflection_campaign_row_written_twice(tmp_path):
 
 
 def test_pose_campaign_row_written_twice(tmp_path):
-    robot = load_robot("ur5")
-    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
-    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in markers]),
-                              np.zeros(6), np.zeros((6, 6)), np.full(6, 2e5))
-    write_pose_campaign(simulate_pose_campaign(robot, markers, hidden, 3, 1e-5, seed=1),
-                        tmp_path)
+    write_ur5_tip_campaign(tmp_path)
     _no_copy_warning(load_pose_campaign, tmp_path)
     data = tmp_path / "measurements.csv"
     lines = data.read_text().splitlines()

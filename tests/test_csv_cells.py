@@ -6,17 +6,15 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
+from pose_campaigns import write_ur5_tip_campaign
 from test_campaign import HEADER, ROW_A, ROW_B, csv_error
 from test_rig_import import BASE_ROWS, refusal
 
-from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.errors import FileFormatError
 from stiffness.files import csv_float
 from stiffness.machining.joint_path import read_joint_path
-from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 
 FIX = "'1_000' has '_' digit separators, which a CSV number cannot have; write 1000"
@@ -50,12 +48,7 @@ def test_rig_file_refuses_digit_separators(tmp_path):
 
 
 def test_pose_campaign_refuses_digit_separators(tmp_path):
-    robot = load_robot("ur5")
-    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
-    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in markers]),
-                              np.zeros(6), np.zeros((6, 6)), np.full(6, 2e5))
-    write_pose_campaign(simulate_pose_campaign(robot, markers, hidden, 3, 1e-5, seed=1),
-                        tmp_path)
+    write_ur5_tip_campaign(tmp_path)
     data = tmp_path / "measurements.csv"
     lines = data.read_text().splitlines()
     row = next(i for i, line in enumerate(lines) if line and not line.startswith("#")) + 1
