@@ -47,12 +47,12 @@ from stiffness.calibration.unit_checks import (
     marker_spread,
     spread_advice,
 )
+from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.geometry import reach
+from stiffness.elastic.effects.kinematic_errors import PLACEMENT_FRACTION
 from stiffness.files import number_text
 from stiffness.units import LENGTH_UNITS, Units
 
-#: A joint placement error beyond this fraction of the robot's reach is no calibration.
-PLACEMENT_FRACTION = 0.1
 #: Cosine between a marker's declared and fitted offsets above which they point the same way.
 SAME_DIRECTION = 0.95
 #: At most this many parameters are quoted in the verdict line (all in ``--json``).
@@ -174,9 +174,9 @@ def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
     size = reach(robot.model)
     beyond = []
     for i, p in enumerate(model.parameters):
-        limit = {"geometry": PLACEMENT_FRACTION * size, "joint_offsets": size}.get(p.family)
-        if limit is not None and p.unit == "m" and abs(fit.x[i]) > limit:
-            beyond.append(Beyond(p.label, float(fit.x[i]), limit))
+        fraction = FAMILIES[p.family].plausible_reach_fraction
+        if fraction is not None and p.unit == "m" and abs(fit.x[i]) > fraction * size:
+            beyond.append(Beyond(p.label, float(fit.x[i]), fraction * size))
     offsets = []
     for k, m in enumerate(model.markers):
         fitted = model.marker_offset(fit.x, k)

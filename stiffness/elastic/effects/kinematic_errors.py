@@ -41,6 +41,13 @@ from stiffness.robot.calibration import (
 MOUNTING_TURN_RAD = math.radians(5.0)
 
 
+#: A joint placement error beyond this fraction of the robot's reach is no calibration: a wrong
+#: unit changes every link by all of it, the longest link being at least a tenth of the reach of
+#: an arm of up to ten joints, while a machined robot is off its drawing by millimetres
+#: (:mod:`stiffness.calibration.pose_plausibility`).
+PLACEMENT_FRACTION = 0.1
+
+
 class MeasuringFrame(PoseFamily):
     """``frame``: the measuring frame's translation ``t`` (m) and rotation ``omega`` (rad)
     relative to the starting estimate: ``y = exp(omega) R_0 p + t_0 + t``."""
@@ -122,6 +129,8 @@ class JointOffsets(PoseFamily):
     """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
 
     name: ClassVar[str] = "joint_offsets"
+    #: a prismatic joint's zero offset beyond the reach is a unit, not an error
+    plausible_reach_fraction: ClassVar[float | None] = 1.0
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names
@@ -149,6 +158,7 @@ class JointGeometry(PoseFamily):
     the component along its own motion (its zero offset): 5 per joint along a frame axis."""
 
     name: ClassVar[str] = "geometry"
+    plausible_reach_fraction: ClassVar[float | None] = PLACEMENT_FRACTION
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names

@@ -249,6 +249,10 @@ class PoseFamily(Effect):
     #: correction at zero is the nominal geometry: at a typical 1 mrad a joint placement error
     #: would tell apart parameters that parallel axes make one.
     absent_at_zero: ClassVar[bool] = False
+    #: the largest of its lengths (m parameters) a calibration corrects, as a fraction of the
+    #: robot's reach (:mod:`stiffness.calibration.pose_plausibility`); ``None``: not judged
+    #: (the measuring frame is free, the marker offsets are judged whole)
+    plausible_reach_fraction: ClassVar[float | None] = None
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
