@@ -31,10 +31,9 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.pose_model import Marker, PoseModelError, align_frames
-from stiffness.calibration.unit_checks import nominal_marker_positions
+from stiffness.calibration.unit_checks import marker_points, nominal_frames
 from stiffness.elastic.effects.kinematic_errors import MOUNTING_TURN_RAD
 from stiffness.errors import DataFileWarning, StiffnessError
-from stiffness.robot.kinematics import frame_id
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -66,8 +65,8 @@ def mounting_turns(robot: Robot, markers: list[Marker], q: np.ndarray, positions
     rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), ROWS_USED)).astype(int))
     q, positions, rotations = q[rows], positions[rows], rotations[rows]
     try:
-        nominal = nominal_marker_positions(robot, frames, np.array([m.offset for m in markers]),
-                                           q)
+        turns, origins = nominal_frames(robot, frames, q)
+        nominal = marker_points(turns, origins, np.array([m.offset for m in markers]))
         r0, _ = align_frames(nominal.reshape(-1, 3), positions.reshape(-1, 3))
     except (StiffnessError, PoseModelError):  # reported where the fit meets it
         return [None] * len(markers)
@@ -77,11 +76,8 @@ def mounting_turns(robot: Robot, markers: list[Marker], q: np.ndarray, positions
         if not seen.size:
             out.append(None)
             continue
-        fid = frame_id(robot.model, m.frame)
-        axes, measured = [], [pin.exp3(rotations[i, k]) for i in seen]
-        for i in seen:
-            pin.framesForwardKinematics(robot.model, robot.data, robot.configuration(q[i]))
-            axes.append(robot.data.oMf[fid].rotation @ m.rotation)
+        axes = [turns[i, k] @ m.rotation for i in seen]
+        measured = [pin.exp3(rotations[i, k]) for i in seen]
         out.append(_mounting(axes, measured, r0))
     return out
 

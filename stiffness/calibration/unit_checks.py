@@ -75,20 +75,38 @@ def _advice(unit: str | None) -> str:
     return f"the data look like {unit}: [units] length = \"{unit}\" (or --units length={unit})"
 
 
-def nominal_marker_positions(robot: Robot, frames: list[str], offsets: np.ndarray,
-                             q: np.ndarray) -> np.ndarray:
-    """(n, M, 3) positions (m, base frame) of markers on ``frames`` at ``offsets`` (M, 3) for
-    each row of coordinates ``q`` (n, n_coordinates), by the robot's nominal kinematics."""
+def nominal_frames(robot: Robot, frames: list[str], q: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The (n, M, 3, 3) rotations and (n, M, 3) origins (m) in the base frame of ``frames`` for
+    each row of coordinates ``q`` (n, n_coordinates), by the robot's nominal kinematics (the
+    loops closed from the previous row's assembly)."""
     ids = [frame_id(robot.model, f) for f in frames]
-    out = np.empty((len(q), len(frames), 3))
+    rotations = np.empty((len(q), len(frames), 3, 3))
+    origins = np.empty((len(q), len(frames), 3))
     seed = None
     for r, coords in enumerate(q):
         full = robot.configuration(coords, seed)
         seed = None if robot.loop.is_open_chain else full
         pin.framesForwardKinematics(robot.model, robot.data, full)
         for k, fid in enumerate(ids):
-            out[r, k] = robot.data.oMf[fid].act(offsets[k])
-    return out
+            rotations[r, k] = robot.data.oMf[fid].rotation
+            origins[r, k] = robot.data.oMf[fid].translation
+    return rotations, origins
+
+
+def nominal_marker_positions(robot: Robot, frames: list[str], offsets: np.ndarray,
+                             q: np.ndarray) -> np.ndarray:
+    """(n, M, 3) positions (m, base frame) of markers on ``frames`` at ``offsets`` (M, 3) for
+    each row of coordinates ``q`` (n, n_coordinates), by the robot's nominal kinematics
+    (:func:`nominal_frames`)."""
+    return marker_points(*nominal_frames(robot, frames, q), offsets)
+
+
+def marker_points(rotations: np.ndarray, origins: np.ndarray, offsets: np.ndarray
+                  ) -> np.ndarray:
+    """(n, M, 3) points (m) at ``offsets`` (M, 3; m, in their frames' axes) of frames turned by
+    ``rotations`` (n, M, 3, 3) at ``origins`` (n, M, 3; m)."""
+    return np.einsum("nmij,mj->nmi", rotations, offsets) + origins
 
 
 def marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q: np.ndarray,
