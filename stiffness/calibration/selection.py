@@ -165,9 +165,8 @@ def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: in
         return None
     low = 1.0 - gof
     if low < 1.0 - GOF_LEVEL:
-        test = "chi-square" if noise.declared else "lack-of-fit F"
         return (f"fits below the noise (RMS {math.sqrt(rss / n) / noise.sigma:.2g}x the noise, "
-                f"{test} lower tail p = {low:.2g} < {1 - GOF_LEVEL:.2g}): an over-fit")
+                f"{noise.test} lower tail p = {low:.2g} < {1 - GOF_LEVEL:.2g}): an over-fit")
     return None
 
 
@@ -280,11 +279,13 @@ def fits_to_noise(rss: float, n: int, p: int, noise: Noise | None) -> str | None
     """The stop rule of both campaign kinds' searches: why a search stops because its current
     model explains the data to the ``noise`` (:meth:`Noise.goodness_of_fit` above
     ``1 - GOF_LEVEL``; known noise only, ``None``: not known), or ``None`` when it goes on."""
-    gof = None if noise is None else noise.goodness_of_fit(rss, n, p)
+    if noise is None:
+        return None
+    gof = noise.goodness_of_fit(rss, n, p)
     if gof is None or gof <= 1.0 - GOF_LEVEL:
         return None
-    test = "chi-square" if noise is None or noise.declared else "lack-of-fit F"
-    return f"the model explains the data to noise ({test} p = {gof:.3g} > {1 - GOF_LEVEL:.2g})"
+    return (f"the model explains the data to noise ({noise.test} p = {gof:.3g} > "
+            f"{1 - GOF_LEVEL:.2g})")
 
 
 @dataclass(frozen=True)
@@ -356,6 +357,12 @@ class Noise:
         if lack <= 0:
             return None
         return float(fdtrc(lack, self.dof, max(rss / self.sigma ** 2 - self.dof, 0.0) / lack))
+
+    @property
+    def test(self) -> str:
+        """The name of :meth:`goodness_of_fit`'s test: ``chi-square`` for a declared noise,
+        ``lack-of-fit F`` for one estimated from replicates."""
+        return "chi-square" if self.declared else "lack-of-fit F"
 
     def quantile(self, level: float) -> float:
         """The ``level`` quantile of an interval's standardised error: the standard normal's
