@@ -1,6 +1,7 @@
-"""The result of :func:`stiffness.calibration.identify.identify`: the identified stiffnesses
-with their uncertainty, every least-squares run, what the data cannot determine
-(:class:`Identification`: its ``--json`` object and the identified-model file).
+"""The result of :func:`stiffness.calibration.identify.identify` on a deflection campaign: the
+identified stiffnesses with their uncertainty, every least-squares run, what the data cannot
+determine (:class:`Identification`, an :class:`~stiffness.calibration.result.
+IdentificationResult` as a pose campaign's: its ``--json`` object and the identified-model file).
 
 Stiffnesses in SI (N.m/rad, N/m); the papers' N.mm/rad beside them.
 """
@@ -8,18 +9,14 @@ Stiffnesses in SI (N.m/rad, N/m); the papers' N.mm/rad beside them.
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.outliers import (
-    OUTLIER_THRESHOLD,
-    Outlier,
-)
+from stiffness.calibration.outliers import Outlier, outlier_keys
+from stiffness.calibration.result import IdentificationResult
 from stiffness.calibration.selection import Noise
 from stiffness.elastic.model_file import ModelFile, jsonable
 from stiffness.robot.robot import Robot
@@ -85,9 +82,9 @@ class UndeterminedDirection:
 
 
 @dataclass
-class Identification:
-    """Result of :func:`~stiffness.calibration.identify.identify`; stiffnesses in SI (N.m/rad or
-    N/m per joint).
+class Identification(IdentificationResult):
+    """Result of :func:`~stiffness.calibration.identify.identify` on a deflection campaign;
+    stiffnesses in SI (N.m/rad or N/m per joint).
 
     Attributes
     ----------
@@ -181,7 +178,8 @@ class Identification:
     outlier_sigma_m
         The noise std the residuals are standardised by (m).
     model_path
-        The identified-model file :meth:`write_model` wrote last, or ``None``.
+        The identified-model file :meth:`write_model` wrote last, or ``None``
+        (:class:`~stiffness.calibration.result.IdentificationResult`).
     stiffness_coordinates
         The coordinates the stiffnesses refer to: ``"controller"`` (the springs act on the
         controller's coordinates of a ``[controller]`` robot file) or ``"chain"`` (the
@@ -228,7 +226,6 @@ class Identification:
     rotation_weight_m_per_rad: float | None = None
     robot_loops: str | None = None
     robot_fixed_base: bool = False
-    model_path: Path | None = None
     loss: str = "linear"
     robot_name: str = ""
     outliers: list[Outlier] = field(default_factory=list)
@@ -308,9 +305,7 @@ class Identification:
             ],
             "ci95_method": self.ci95_method,
             "loss": self.loss,
-            "outlier_threshold": OUTLIER_THRESHOLD,
-            "outlier_sigma_m": self.outlier_sigma_m,
-            "outliers": [o.to_dict() for o in self.outliers],
+            **outlier_keys(self.outliers, self.outlier_sigma_m),
             "covariance_log": self.covariance_log,
             "sigma_m": self.sigma_m,
             "sigma_source": self.sigma_source,
@@ -348,10 +343,6 @@ class Identification:
             "model_file": None if self.model_path is None else str(self.model_path),
         })
 
-    def to_json(self, indent: int | None = 1) -> str:
-        """The result as JSON text (see :meth:`to_dict`)."""
-        return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
-
     def model_file(self) -> ModelFile:
         """The identified model (:class:`stiffness.elastic.model_file.ModelFile`)."""
         return ModelFile(
@@ -372,11 +363,8 @@ class Identification:
                        "weight_m_per_rad": self.rotation_weight_m_per_rad}})},
         )
 
-    def write_model(self, path: str | os.PathLike) -> Path:
-        """Write the identified model (``identified-model.json``) atomically; returns its path.
-
-        A URDF source is stored relative to the file's folder; read it back with
-        :func:`stiffness.elastic.model_file.read_model_file`; :attr:`model_path` is set.
-        """
-        self.model_path = self.model_file().write(path)
-        return self.model_path
+    def write_model_file(self, path: Path) -> Path:
+        """Write the identified model (``identified-model.json``, :meth:`model_file`)
+        atomically; returns its path. A URDF source is stored relative to the file's folder;
+        read it back with :func:`stiffness.elastic.model_file.read_model_file`."""
+        return self.model_file().write(path)

@@ -155,6 +155,13 @@ def flag_fit(fit: Fit, measured: np.ndarray, declared_m: float | None, n_paramet
                           n_parameters, labels, lines)
 
 
+def outlier_keys(outliers: list[Outlier], sigma_m: float | None) -> dict:
+    """``outlier_threshold``, ``outlier_sigma_m`` (the noise std the residuals were
+    standardised by, m) and ``outliers``, as an identification's ``--json`` has them."""
+    return {"outlier_threshold": OUTLIER_THRESHOLD, "outlier_sigma_m": sigma_m,
+            "outliers": [o.to_dict() for o in outliers]}
+
+
 def describe_outliers(outliers: list[Outlier], threshold: float = OUTLIER_THRESHOLD,
                       limit: int = 12) -> list[str]:
     """Text lines of a report: the threshold, then one line per flagged row (at most

@@ -141,6 +141,12 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         return {"parameters": {p.name: p.to_dict() for p in params},
                 "stand_in": self.stand_in(step.effect)}
 
+    def write_model(self, path: Path) -> Path:
+        """Write the pose model file of the final fit at ``path`` atomically (with how the
+        families were chosen and the plausibility); returns its path."""
+        return write_pose_model(self.final, self.campaign, path, self.selection(),
+                                self.plausibility.to_dict())
+
     def outputs(self, folder: Path, command: str | None) -> dict[str, Output]:
         """``diagnosis.json`` (:meth:`to_dict`), ``final-model.json`` (the pose model file)
         and ``diagnosis.html`` (the page, with a residual figure per marker and the stage
@@ -150,9 +156,7 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                                      marker_residual_plots(self))
         return {"diagnosis": ("diagnosis.json",
                               written(json.dumps(record, indent=1, allow_nan=False) + "\n")),
-                "model": ("final-model.json", lambda path: write_pose_model(
-                    self.final, self.campaign, path, self.selection(),
-                    self.plausibility.to_dict())),
+                "model": ("final-model.json", self.write_model),
                 "page": ("diagnosis.html", written(page))}
 
 

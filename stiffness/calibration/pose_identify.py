@@ -21,17 +21,17 @@ SI inside (m, N, rad, N.m/rad, N/m).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from stiffness.calibration.outliers import OUTLIER_THRESHOLD, describe_outliers
+from stiffness.calibration.outliers import describe_outliers, outlier_keys
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
-from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
+from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_parameters import SPRINGS
+from stiffness.calibration.result import IdentificationResult
 from stiffness.elastic.effects.base import Parameter, reciprocal
 from stiffness.elastic.effects.pose_face import compliance_label
 from stiffness.files import jsonable
@@ -41,13 +41,13 @@ STIFFNESS_UNITS = {"rad/(N.m)": "N.m/rad", "m/N": "N/m"}
 
 
 @dataclass
-class PoseIdentification:
+class PoseIdentification(IdentificationResult):
     """The springs' stiffnesses identified from a pose campaign, with the fit behind them
     (:attr:`diagnosis`: its baseline and the forced ``joint_compliance`` step) and the model
-    file :meth:`write_model` wrote (``None`` before)."""
+    file :meth:`write_model` wrote (``model_path``, ``None`` before): an
+    :class:`~stiffness.calibration.result.IdentificationResult`, as a deflection campaign's."""
 
     diagnosis: PoseDiagnosis
-    model_path: Path | None = None
 
     @property
     def stiffnesses(self) -> list[Parameter]:
@@ -62,13 +62,10 @@ class PoseIdentification:
             out.append(replace(reciprocal(c, STIFFNESS_UNITS[c.unit]), name=joint))
         return out
 
-    def write_model(self, path: str | os.PathLike) -> Path:
-        """Write the pose model file of the fit (read by :func:`stiffness.load_model`,
-        ``validate`` and every ``--model``), atomically; :attr:`model_path` is set."""
-        d = self.diagnosis
-        self.model_path = write_pose_model(d.final, d.campaign, path, d.selection(),
-                                         d.plausibility.to_dict())
-        return self.model_path
+    def write_model_file(self, path: Path) -> Path:
+        """Write the pose model file of the fit atomically (:meth:`PoseDiagnosis.write_model`);
+        returns its path."""
+        return self.diagnosis.write_model(path)
 
     def to_dict(self) -> dict:
         """What ``stiffness identify --json`` prints for a pose campaign (SI): the keys of a
@@ -92,9 +89,7 @@ class PoseIdentification:
             "gof_p": d.gof(), "unexplained": d.unexplained,
             "plausible": d.plausibility.plausible, "plausibility": d.plausibility.to_dict(),
             "n_residuals": fit.n_observed, "n_parameters": fit.n_fitted,
-            "n_rows": d.campaign.n_rows,
-            "outlier_threshold": OUTLIER_THRESHOLD, "outlier_sigma_m": d.outlier_sigma_m,
-            "outliers": [o.to_dict() for o in d.outliers],
+            "n_rows": d.campaign.n_rows, **outlier_keys(d.outliers, d.outlier_sigma_m),
             "parameters": parameter_table(fit, d.judge),
             "model_file": None if self.model_path is None else str(self.model_path)})
 

@@ -1,12 +1,15 @@
-"""What a diagnosis of either campaign kind holds and reads alike: :class:`DiagnosisResult`, the
+"""What a result of either campaign kind holds and reads alike: :class:`DiagnosisResult`, the
 base of :class:`~stiffness.calibration.diagnosis.Diagnosis` and
-:class:`~stiffness.calibration.pose_diagnosis.PoseDiagnosis`. A kind keeps only what its
+:class:`~stiffness.calibration.pose_diagnosis.PoseDiagnosis`, and :class:`IdentificationResult`,
+the base of :class:`~stiffness.calibration.identification.Identification` and
+:class:`~stiffness.calibration.pose_identify.PoseIdentification`. A kind keeps only what its
 mathematics makes different: its ``--json`` object, its reported parameters and its files."""
 
 from __future__ import annotations
 
 import abc
 import functools
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -133,3 +136,33 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
             for name, write in files.values():
                 write(stage / name)
         return {key: folder / name for key, (name, _) in files.items()}
+
+
+@dataclass(kw_only=True)
+class IdentificationResult(abc.ABC):
+    """An identification of either kind, what :func:`~stiffness.calibration.identify.identify`
+    returns: the compliant joints' stiffnesses and the model file :meth:`write_model` wrote
+    last (``model_path``, ``None`` before); read once for both: its JSON text and the model
+    file written. A kind supplies only what its mathematics makes different: its ``--json``
+    object (:meth:`to_dict`) and its model file (:meth:`write_model_file`)."""
+
+    model_path: Path | None = None
+
+    @abc.abstractmethod
+    def to_dict(self) -> dict:
+        """The object ``stiffness identify --json`` prints (SI)."""
+
+    @abc.abstractmethod
+    def write_model_file(self, path: Path) -> Path:
+        """Write the kind's model file at ``path`` atomically; returns its path."""
+
+    def to_json(self, indent: int | None = 1) -> str:
+        """The result as JSON text (see :meth:`to_dict`)."""
+        return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
+
+    def write_model(self, path: str | os.PathLike) -> Path:
+        """Write the identified model at ``path`` (:meth:`write_model_file`; read back by
+        :func:`stiffness.load_model`, ``validate`` and every ``--model``) atomically;
+        :attr:`model_path` is set to it."""
+        self.model_path = self.write_model_file(Path(path))
+        return self.model_path

@@ -18,16 +18,18 @@ model file.
 from __future__ import annotations
 
 import argparse
-import json
+import functools
 import os
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.identification import Identification
 from stiffness.calibration.identify import FORMULATIONS, METHODS, MODEL_FILE, identify
 from stiffness.calibration.outliers import describe_outliers
+from stiffness.calibration.pose_campaign import load_pose_campaign
+from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
+from stiffness.calibration.result import IdentificationResult
 from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
 from stiffness.errors import StiffnessError
@@ -174,22 +176,29 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.flush()
 
     path = None if args.out is None else model_path(args.out)  # a bad --out fails at once
+    result: IdentificationResult
     if campaign_kind(args.campaign) == "poses":
-        return _run_poses(args, path)
-    result = identify(load_campaign(args.campaign), formulation=args.formulation,
-                      method=args.method or "trf", starts=8 if args.starts is None else args.starts,
-                      seed=args.seed, progress=progress if show else None, loss=args.loss)
+        result = poses = _identify_poses(args)
+        report = poses.format
+    else:
+        result = ident = identify(
+            load_campaign(args.campaign), formulation=args.formulation,
+            method=args.method or "trf", starts=8 if args.starts is None else args.starts,
+            seed=args.seed, progress=progress if show else None, loss=args.loss)
+        report = functools.partial(format_table, ident)
     out = None if path is None else result.write_model(path)
-    _emit(args.json, result.to_dict(), lambda: format_table(result), out)
+    if args.json:
+        print(result.to_json())
+        return 0
+    print(report())
+    print("identified model not written (--out DIR or --out FILE.json writes it)"
+          if out is None else f"identified model written to {out}")
     return 0
 
 
-def _run_poses(args: argparse.Namespace, path: Path | None) -> int:
+def _identify_poses(args: argparse.Namespace) -> PoseIdentification:
     """``stiffness identify`` on a pose campaign: the springs with the measuring frame and
     markers (:func:`~stiffness.calibration.pose_identify.identify_poses`)."""
-    from stiffness.calibration.pose_campaign import load_pose_campaign  # pose campaigns only
-    from stiffness.calibration.pose_identify import identify_poses
-
     for flag, value in (("--formulation", args.formulation), ("--method", args.method),
                         ("--starts", args.starts)):
         if value is not None:
@@ -197,19 +206,6 @@ def _run_poses(args: argparse.Namespace, path: Path | None) -> int:
                                  f"pose campaign, fitted at the sag's exact fixed point by "
                                  f"the pose engine: drop {flag}")
     show = sys.stderr.isatty() and not args.quiet
-    result = identify_poses(load_pose_campaign(args.campaign), loss=args.loss,
-                            progress=(lambda text: print(text, file=sys.stderr, flush=True))
-                            if show else None)
-    out = None if path is None else result.write_model(path)
-    _emit(args.json, result.to_dict(), result.format, out)
-    return 0
-
-
-def _emit(as_json: bool, record: dict, report: Callable[[], str], out: Path | None) -> None:
-    """Print ``record`` as JSON, or the text report and where the model went."""
-    if as_json:
-        print(json.dumps(record, indent=1, allow_nan=False))
-        return
-    print(report())
-    print("identified model not written (--out DIR or --out FILE.json writes it)"
-          if out is None else f"identified model written to {out}")
+    return identify_poses(load_pose_campaign(args.campaign), loss=args.loss,
+                          progress=(lambda text: print(text, file=sys.stderr, flush=True))
+                          if show else None)
