@@ -93,6 +93,7 @@ from stiffness.calibration.selection import (
     held_at_bounds,
     information_criterion,
     parameter_covariance,
+    pooled_replicates,
     replicate_noise,
     row_support,
 )
@@ -303,7 +304,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
         campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (), refs0), n, sigma,
         loss, masses)
-    known = _with_rotation_replicates(known, campaign, rot_source, loss)
+    known = pooled_replicates(known, campaign, loss != "linear")
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed, campaign.wrench)
     cv_base = cross_validate([base], measured, folds, workers)[0]
@@ -467,18 +468,6 @@ def _translation_noise(campaign: Campaign, loss: str = "linear"
                 f"mean|, {rep[1]} degrees of freedom)")
     return (Noise(*rep), "replicates",
             f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)")
-
-
-def _with_rotation_replicates(known: Noise | None, campaign: Campaign, rot_source: str | None,
-                              loss: str) -> Noise | None:
-    """``known`` with the rotation replicates' degrees of freedom for the lack-of-fit test
-    (:attr:`~stiffness.calibration.selection.Noise.rotation_dof`) when both kinds' noise
-    comes from replicates (the rotations then weighted by the ratio of their stds)."""
-    if known is None or known.declared or rot_source != "replicates":
-        return known
-    rep = replicate_noise(campaign, "rotation", robust=loss != "linear")
-    assert rep is not None  # the rotation noise's source says so
-    return dataclasses.replace(known, rotation_dof=rep[1])
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,

@@ -416,6 +416,18 @@ def _distinct(values: np.ndarray, rows: list[int]) -> list[int]:
     return [r for k, r in enumerate(rows) if first[k] == k]
 
 
+def pooled_replicates(noise: Noise | None, campaign: Campaign, robust: bool = False
+                      ) -> Noise | None:
+    """``noise`` with the rotation replicates' degrees of freedom for the lack-of-fit test
+    (:attr:`Noise.rotation_dof`) when it is the translation replicates' and the campaign's
+    undeclared rotation noise is the replicates' too (the rotations then weighted by the
+    ratio of the two stds); ``robust`` as :func:`replicate_noise`'s."""
+    if noise is None or noise.declared or campaign.rotation_noise_std_rad is not None:
+        return noise
+    rep = replicate_noise(campaign, "rotation", robust)
+    return noise if rep is None else replace(noise, rotation_dof=rep[1])
+
+
 def replicate_noise(campaign: Campaign, kind: str = "translation", robust: bool = False
                     ) -> tuple[float, int] | None:
     """Std (m; rad for ``kind="rotation"``) of replicate rows (same coordinates and force)
