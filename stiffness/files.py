@@ -40,7 +40,7 @@ import shutil
 import signal
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -361,6 +361,37 @@ def _refuse_enclosing(target: Path) -> None:
         raise OutputError(f"cannot write the output folder {target}: it is the working folder "
                           "or encloses it, and publishing replaces it whole; give a new folder",
                           path=target)
+
+
+def refuse_foreign_folder(target: str | os.PathLike[str], marker: str, what: str,
+                          writes: Collection[str] | None = None) -> None:
+    """Refuse to write the folder ``target`` over files that are not a previous ``what``.
+
+    A folder publisher replaces ``target`` (whole, or with ``writes`` only the files of those
+    names): over a campaign folder given as ``--out`` by mistake it would delete or overwrite
+    the measurements. ``target`` is taken for a previous output when it holds ``marker`` (a
+    file every such output has), or when it is missing or empty.
+
+    Raises
+    ------
+    OutputError
+        ``target`` holds files without ``marker`` that the write would delete (``writes``
+        None) or overwrite (those among ``writes``).
+    """
+    target = Path(target)
+    if not target.is_dir():
+        return
+    names = sorted(p.name for p in target.iterdir()
+                   if not (p.name.startswith(".") and p.name.endswith(".tmp")))
+    if marker in names:
+        return
+    lost = names if writes is None else [n for n in names if n in writes]
+    if lost:
+        shown = ", ".join(lost[:3]) + (f" and {len(lost) - 3} more" if len(lost) > 3 else "")
+        verb = "delete" if writes is None else "overwrite"
+        raise OutputError(f"{target} is not a previous {what} (it has no {marker}) and holds "
+                          f"{shown}, which writing the {what} there would {verb}; choose a new "
+                          "or empty folder", path=target)
 
 
 @contextlib.contextmanager

@@ -25,7 +25,7 @@ from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.search import E, F, SearchKind, Step, kept_steps
 from stiffness.elastic.effects.base import Parameter
-from stiffness.files import atomic_write, staged_folder
+from stiffness.files import atomic_write, refuse_foreign_folder, staged_folder
 
 #: A file of the ``--out`` folder: its name and what writes it at a path.
 Output = tuple[str, Callable[[Path], object]]
@@ -132,6 +132,7 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
         page's provenance naming ``command`` (default: this process's); each path by key."""
         folder = Path(folder)
         files = self.outputs(folder, command)
+        refuse_foreign_folder(folder, files["diagnosis"][0], "diagnosis")
         with staged_folder(folder) as stage:
             for name, write in files.values():
                 write(stage / name)

@@ -40,6 +40,7 @@ from stiffness.planning.design import (
     design_robot,
     parse_separate,
 )
+from stiffness.planning.plan import check_plan_target
 from stiffness.units import LENGTH_UNITS, Units
 
 
@@ -159,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
     check_sizes(args.configs, args.loads_per_config, args.candidates)
     out = Path(args.out)  # before the work: a bad --out fails at once
     output_folder(out.parent if out.suffix.lower() == ".csv" else out, create=False)
+    check_plan_target(out)
     if args.separate is not None:
         parse_separate(args.separate)
     existing = load_campaign(args.existing) if args.existing else None

@@ -27,12 +27,13 @@ from pathlib import Path
 
 from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose
+from stiffness.calibration.diagnosis import DIAGNOSIS_FILE
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
 from stiffness.elastic.effects import MASSES
 from stiffness.errors import StiffnessError
-from stiffness.files import output_folder
+from stiffness.files import output_folder, refuse_foreign_folder
 from stiffness.workspace.definiteness import terminal_progress
 
 
@@ -198,8 +199,9 @@ def run(args: argparse.Namespace) -> int:
 
 def check_out_folder(out: str | None) -> None:
     """Refuse, before any work, an ``--out`` that cannot hold the diagnosis: a file in the
-    way, or a name ending in ``.json`` (not an existing folder), the form ``identify --out
-    FILE.json`` takes for its one file, where diagnose writes several.
+    way, a name ending in ``.json`` (not an existing folder), the form ``identify --out
+    FILE.json`` takes for its one file, where diagnose writes several, or a folder that is not
+    a previous diagnosis (a campaign's: publishing the diagnosis would delete its files).
 
     Raises
     ------
@@ -213,6 +215,7 @@ def check_out_folder(out: str | None) -> None:
                              f"final-model.json, diagnosis.html...), not one JSON file; give a "
                              f"folder name, e.g. --out {Path(out).with_suffix('')}")
     output_folder(out, create=False)
+    refuse_foreign_folder(out, DIAGNOSIS_FILE, "diagnosis")
 
 
 def run_poses(args: argparse.Namespace) -> int:

@@ -24,7 +24,7 @@ from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.identification import Identification
 from stiffness.calibration.identify import identify
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, staged_folder, written_path
+from stiffness.files import atomic_write, refuse_foreign_folder, staged_folder, written_path
 from stiffness.mechanics.equilibrium import linear_departure
 from stiffness.papers import figures as plots
 from stiffness.papers.conventions import compare_conventions
@@ -405,6 +405,7 @@ def write_report(out: Path, summary: dict, figures: dict[str, bytes],
     """
     if summary.get("campaign") not in (None, SHIPPED_CAMPAIGN):  # relative to the report
         summary = {**summary, "campaign": written_path(summary["campaign"], out)}
+    refuse_foreign_folder(out, "summary.json", "report")
     with staged_folder(out) as folder:  # published whole, by one rename
         if scene is not None:
             scene(folder / SCENE_FILE)

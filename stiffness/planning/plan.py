@@ -52,6 +52,7 @@ from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
     MissingFileError,
+    OutputError,
     StiffnessError,
 )
 from stiffness.files import (
@@ -59,6 +60,7 @@ from stiffness.files import (
     check_csv_header,
     number_text,
     read_text,
+    refuse_foreign_folder,
     resolve_path,
     resolve_source,
     staged_folder,
@@ -68,6 +70,8 @@ from stiffness.units import Units
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"
+#: The first line of a plan CSV starts with it.
+PLAN_COMMENT = "# measurement plan"
 
 
 @dataclass
@@ -129,12 +133,37 @@ def plan_csv(plan: Plan, robot: Robot) -> str:
     q[:, ~prismatic] /= u.angle_to_si
     q[:, prismatic] /= u.length_to_si
     out = io.StringIO()
-    out.write(f"# measurement plan; units: angle={u.angle} force={u.force} length={u.length}\n")
+    out.write(f"{PLAN_COMMENT}; units: angle={u.angle} force={u.force} length={u.length}\n")
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(_header(plan.q.shape[1]))
     for label, qi, fi in zip(plan.config, q, plan.force / u.force_to_si, strict=True):
         writer.writerow([label, *(number_text(v) for v in (*qi, *fi))])
     return out.getvalue()
+
+
+def check_plan_target(out: str | os.PathLike) -> None:
+    """Refuse a plan target that holds something else: a ``.csv`` file that is not a plan (a
+    campaign's measurements), or a folder whose ``campaign.toml`` is not a plan folder's
+    (:func:`stiffness.files.refuse_foreign_folder`).
+
+    Raises
+    ------
+    OutputError
+        Writing the plan there would overwrite measurements or a campaign.
+    """
+    out = Path(out)
+    if out.suffix.lower() != ".csv":
+        refuse_foreign_folder(out, PLAN_FILE, "plan folder", writes=(CAMPAIGN_FILE,))
+        return
+    try:
+        with out.open("rb") as file:
+            first = file.readline(200)
+    except OSError:  # absent (or unreadable: the write says so)
+        return
+    if first and not first.startswith(PLAN_COMMENT.encode()):
+        raise OutputError(f"{out} exists and is not a plan written by stiffness design (its "
+                          f"first line is not '{PLAN_COMMENT}...'): writing the plan there "
+                          "would overwrite it; choose a new file name", path=out)
 
 
 def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
@@ -147,6 +176,7 @@ def write_plan(plan: Plan, robot: Robot, out: str | os.PathLike) -> Path:
         If a folder is asked for a plan without robot settings.
     """
     out = Path(out)
+    check_plan_target(out)
     if out.suffix.lower() == ".csv":
         return atomic_write(out, plan_csv(plan, robot))
     if plan.robot_settings is None:

@@ -63,7 +63,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.campaign_toml import RobotSettings
+from stiffness.calibration.campaign_toml import CAMPAIGN_FILE, RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects import LIBRARY, make_effect
@@ -82,7 +82,13 @@ from stiffness.errors import (
     UnknownNameError,
     did_you_mean,
 )
-from stiffness.files import atomic_write, staged_folder, written_path, written_source
+from stiffness.files import (
+    atomic_write,
+    refuse_foreign_folder,
+    staged_folder,
+    written_path,
+    written_source,
+)
 from stiffness.mechanics.equilibrium import SpringLaw, solve_equilibrium, tangent_equilibrium
 from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.gravity import joint_preload, with_payload
@@ -469,6 +475,8 @@ class Simulation:
     def write(self, folder: str | Path) -> Path:
         """Write ``campaign.toml``, ``measurements.csv`` and ``truth.json``; returns the toml."""
         folder = Path(folder)
+        refuse_foreign_folder(folder, TRUTH_FILE, "simulated campaign",
+                              writes=(CAMPAIGN_FILE, Path(self.campaign.data_file).name))
         with staged_folder(folder, keep_others=True) as stage:  # published by one rename
             written = write_campaign(self.campaign, stage)
             atomic_write(stage / TRUTH_FILE,
