@@ -82,3 +82,31 @@ def test_simulate_and_plan_over_a_measured_campaign_are_refused(tmp_path):
     sim.write(tmp_path / "sim")  # a new folder, then a rerun over it
     sim.write(tmp_path / "sim")
     check_plan_target(tmp_path / "sim" / "plan.csv")  # absent
+
+
+def test_an_output_file_that_is_an_input_is_refused(tmp_path, capsys):
+    """``compensate --out path.csv --path path.csv`` replaced the path it read (and a second
+    run then doubled its columns); ``robot export --urdf`` over the ``--robot`` URDF or its
+    loop file replaced the user's robot file."""
+    path = tmp_path / "path.csv"
+    path.write_text("q1,q2,q3,q4,q5,q6\n0.1,-1.2,1.5,-0.3,1.57,0.2\n")
+    before = path.read_bytes()
+    kq = ["--kq", "3e5,3e5,2e5,4e4,4e4,4e4"]
+    for command in (["compensate", "--robot", "ur5", *kq, "--wrench", "0,0,-300"],
+                    ["posture", "--robot", "ur5", *kq]):
+        assert main([*command, "--path", str(path), "--out", str(tmp_path / "." / "path.csv")]) \
+            == 2
+        err = capsys.readouterr().err
+        assert "it is the --path file this command reads" in err and err.count("\n") == 1
+    assert path.read_bytes() == before
+    sk120 = Path(__file__).resolve().parents[1] / "robots" / "sk120"
+    for name in ("sk120.urdf", "sk120.loops.yaml"):
+        shutil.copy(sk120 / name, tmp_path / name)
+    robot = tmp_path / "sk120.urdf"
+    saved = _contents(tmp_path)
+    assert main(["robot", "export", "--robot", str(robot), "--urdf", str(robot)]) == 2
+    assert "it is the --robot file" in capsys.readouterr().err
+    assert main(["robot", "export", "--robot", str(robot), "--urdf",
+                 str(tmp_path / "sk120.xml")]) == 2  # its loops would go to sk120.loops.yaml
+    assert "it is the loop file" in capsys.readouterr().err
+    assert _contents(tmp_path) == saved

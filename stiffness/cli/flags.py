@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 import warnings
@@ -440,9 +441,11 @@ def robot_from_args(args: argparse.Namespace, fallback: object | None = None
     return flags.load(), flags.compliant_joints, flags.target_offset
 
 
-def check_outputs(*paths: str | None) -> None:
+def check_outputs(*paths: str | None, inputs: dict[str, str | None] | None = None) -> None:
     """Refuse, before any work, output files that cannot be written (a folder in the way, a
-    read-only or missing-and-uncreatable folder): one-line :class:`OutputError`."""
+    read-only or missing-and-uncreatable folder) or that are one of the command's ``inputs``
+    (by flag: ``--out path.csv`` beside ``--path path.csv`` would replace the path read):
+    one-line :class:`OutputError`."""
     for name in paths:
         if name is None:
             continue
@@ -451,6 +454,12 @@ def check_outputs(*paths: str | None) -> None:
             raise OutputError(f"cannot write {target}: it is a folder; give a file name",
                               path=target)
         output_folder(target.parent, create=False)
+        for flag, given in (inputs or {}).items():
+            if given is not None and target.is_file() and Path(given).is_file() \
+                    and os.path.samefile(target, given):
+                raise OutputError(f"cannot write {target}: it is the {flag} file this command "
+                                  "reads, which it would replace; give another output file "
+                                  "name", path=target)
 
 
 def model_from_args(args: argparse.Namespace, *outputs: str | None) -> ElasticModel:
@@ -473,7 +482,7 @@ def model_from_args(args: argparse.Namespace, *outputs: str | None) -> ElasticMo
     if args.model is None and args.robot is None:
         raise StiffnessError("--model M.json is required (the identified or diagnosed model), "
                              "or --robot R with --kq")
-    check_outputs(*outputs)
+    check_outputs(*outputs, inputs={"--model": args.model, "--path": getattr(args, "path", None)})
     if args.model is not None:
         for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
             if value is not None:

@@ -100,6 +100,10 @@ def run(args: argparse.Namespace) -> int:
     if model is not None and args.robot is not None:
         model.check_robot(args.robot)
     robot, _, _ = flags.robot_from_args(args, model)
+    loops_out = None if args.urdf is None else str(Path(args.urdf).with_suffix(".loops.yaml"))
+    flags.check_outputs(args.mjcf, args.urdf, loops_out,
+                        inputs={"--robot": args.robot, "--model": args.model,
+                                "loop": robot.loop_file})
     written = []
     if args.mjcf is not None:
         springs = _springs(robot, args, model)
