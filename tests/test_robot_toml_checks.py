@@ -79,3 +79,25 @@ def test_a_urdf_robot_toml_is_checked_too(tmp_path):
     toml.write_text(text.replace("\nframe = ", "\nframes = ", 1))
     with pytest.raises(FileFormatError, match="unknown key 'frames'.*Did you mean frame"):
         load_robot(toml)
+
+
+def test_a_target_offset_beyond_the_reach_is_warned_about(tmp_path):
+    """``--target-offset 0,0,100`` (meant in mm; the flag is in m) put the UR5's target 100 m
+    from its flange silently: kx printed the stiffness there and simulate failed with 'found
+    only 0 reachable poses ... check the joint limits'. Now one warning names the reach and the
+    unit, from a flag (FlagValueWarning) or a robot.toml (RobotFileWarning); a real tool is
+    quiet."""
+    from stiffness.errors import FlagValueWarning, RobotFileWarning
+
+    with pytest.warns(FlagValueWarning, match=r"ur5: the target offset 0,0,100 m puts the "
+                                              r"target 100 m from frame tool0, beyond the "
+                                              r"robot's reach \(1.33 m\); give it in m \(in mm "
+                                              r"these values are 0.1 m\)"):
+        load_robot("ur5", frame="tool0", target_offset=[0.0, 0.0, 100.0])
+    path = edited(tmp_path, "target_offset_m = [0.0, 0.0, 0.0]",
+                  "target_offset_m = [0.0, 0.0, 205.32]")
+    with pytest.warns(RobotFileWarning, match=r"205 m from frame tool, beyond the robot's reach"):
+        load_robot(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_robot("ur5", frame="tool0", target_offset=[0.0, 0.0, 0.3])

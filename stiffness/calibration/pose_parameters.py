@@ -21,7 +21,7 @@ the same effects by:
   (:meth:`~stiffness.elastic.effects.preloads.GravityCompensator.physical_scale`); with the
   masses unknown that weight is not trusted and the compensator takes the joint spring's
   scales instead;
-* the robot's reach (:func:`~stiffness.elastic.effects.geometry.reach`): a marker's offset
+* the robot's reach (:func:`~stiffness.robot.kinematics.reach`): a marker's offset
   (a marker farther than that from where the campaign puts it is not on the robot) and a
   prismatic joint's zero offset; a revolute joint's zero offset: half a turn (pi rad, beyond
   it another zero, not an error);
@@ -43,8 +43,9 @@ from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, rows_of
 from stiffness.calibration.pose_model import PoseModel
 from stiffness.elastic.effects.base import Parameter, judged
-from stiffness.elastic.effects.geometry import References, reach, rms_force, weight_torques
+from stiffness.elastic.effects.geometry import References, rms_force, weight_torques
 from stiffness.mechanics.defaults import default_stiffness
+from stiffness.robot.kinematics import reach
 
 #: The family whose fitted compliances give ``k_ref`` (module docstring).
 SPRINGS = "joint_compliance"

@@ -5,7 +5,7 @@ A pose campaign whose length unit is read 1000x off (declared mm, written m, or 
 does not stop the fit: the joint placement errors (``geometry``) shrink or stretch every link
 and the marker offsets follow, until the residual sits at the noise. Its chi-square then reads
 *explained* and its parameters like a calibration. Three things tell it apart, each from the
-robot's size (its reach, :func:`~stiffness.elastic.effects.geometry.reach`):
+robot's size (its reach, :func:`~stiffness.robot.kinematics.reach`):
 
 * **Placement errors beyond a tenth of the reach** (:data:`PLACEMENT_FRACTION`): a wrong unit
   changes every link's length by all of it, and of ``n`` joints' links the longest is at least
@@ -48,9 +48,9 @@ from stiffness.calibration.unit_checks import (
     spread_advice,
 )
 from stiffness.elastic.effects import FAMILIES
-from stiffness.elastic.effects.geometry import reach
 from stiffness.elastic.effects.kinematic_errors import PLACEMENT_FRACTION
 from stiffness.files import number_text
+from stiffness.robot.kinematics import reach
 from stiffness.units import LENGTH_UNITS, Units
 
 #: Cosine between a marker's declared and fitted offsets above which they point the same way.

@@ -32,11 +32,10 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.calibration.fitting import nominal_stiffness
-from stiffness.elastic.effects.geometry import reach
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import DataFileWarning, StiffnessError
 from stiffness.mechanics.defaults import default_stiffness
-from stiffness.robot.kinematics import frame_id
+from stiffness.robot.kinematics import frame_id, reach
 from stiffness.robot.robot import Robot
 from stiffness.units import FORCE_UNITS, LENGTH_UNITS, Units
 

@@ -10,9 +10,10 @@ import numpy as np
 
 from stiffness.calibration.campaign_toml import JOINT_ANGLES
 from stiffness.elastic.effects import make_effect
-from stiffness.elastic.effects.geometry import Geometry, reach
+from stiffness.elastic.effects.geometry import Geometry
 from stiffness.errors import FlagValueWarning, StiffnessError, UnknownNameError
 from stiffness.planning.plan import Plan
+from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -74,7 +75,7 @@ def warn_effect_lengths(hidden: list[tuple[str, str | None, tuple[float, ...]]],
     """Warn (:class:`~stiffness.errors.FlagValueWarning`, one line per effect) when a hidden
     effect's lengths, given in the files' length unit ``units.length`` (a target offset, a
     payload's centre of mass, a deflection offset, a prismatic joint's backlash), put it
-    farther than the robot's reach (:func:`~stiffness.elastic.effects.geometry.reach`, the
+    farther than the robot's reach (:func:`~stiffness.robot.kinematics.reach`, the
     physical scale of a target offset and of a centre of mass): no effect on this robot is
     that large, the value was meant in a smaller unit (``target_offset=20`` in m, meant in
     mm). ``hidden``: each effect's name, place (or ``None``) and values as given, checked as

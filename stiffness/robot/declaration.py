@@ -16,8 +16,17 @@ import os
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import RobotFileError, StiffnessError, UnknownJointError, did_you_mean
+from stiffness.errors import (
+    FlagValueWarning,
+    RobotFileError,
+    RobotFileWarning,
+    StiffnessError,
+    UnknownJointError,
+    did_you_mean,
+    warn_user,
+)
 from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
+from stiffness.robot.kinematics import reach
 from stiffness.robot.urdf import Mimic, warn
 
 #: Pinocchio joints that can be coordinates: revolute, continuous and prismatic.
@@ -60,6 +69,23 @@ def target_offset_of(target_offset: np.ndarray | list[float] | None, settings: d
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
     return offset
+
+
+def warn_far_target(title: str, model: pin.Model, frame: str, offset: np.ndarray,
+                    given: bool) -> None:
+    """Warn once (:class:`~stiffness.errors.FlagValueWarning` when the offset was ``given``,
+    else :class:`~stiffness.errors.RobotFileWarning`) when the target ``offset`` (m) from
+    ``frame`` is longer than the robot's reach (:func:`~stiffness.robot.kinematics.reach`): no
+    tool is that long, the values were meant in mm (``--target-offset 0,0,100``)."""
+    size, length = reach(model), float(np.linalg.norm(offset))
+    if length <= size:
+        return
+    values = ",".join(f"{v:g}" for v in offset)
+    warn_user(f"{title}: the target offset {values} m puts the target {length:.3g} m from frame "
+              f"{frame}, beyond the robot's reach ({size:.3g} m); give it in m (in mm these "
+              f"values are {length * 1e-3:.3g} m): --target-offset and robot.toml's "
+              "target_offset_m are in m, a campaign's [robot] target_offset in its [units] "
+              "length", FlagValueWarning if given else RobotFileWarning)
 
 
 def free_joints(model: pin.Model, excluded: set[str]) -> list[str]:

@@ -46,6 +46,18 @@ def frame_id(model: pin.Model, name: str) -> int:
     return min(matches, key=lambda i: (order.get(model.frames[i].type, len(order)), i))
 
 
+def reach(model: pin.Model) -> float:
+    """The robot's reach (m): the longest chain of joint and frame placements from the base
+    (the sum of their lengths, whatever the pose), at least 0.1 m."""
+    chain = [0.0] * model.njoints
+    for j in range(1, model.njoints):
+        chain[j] = chain[model.parents[j]] + float(np.linalg.norm(
+            model.jointPlacements[j].translation))
+    frames = [chain[f.parentJoint] + float(np.linalg.norm(f.placement.translation))
+              for f in model.frames]
+    return max([0.1, *chain, *frames])
+
+
 def update_kinematics(model: pin.Model, data: pin.Data, q: np.ndarray) -> None:
     """Compute placements, joint Jacobians and kinematic Hessians at ``q``.
 

@@ -24,6 +24,7 @@ from stiffness.batch.linalg import cross
 from stiffness.errors import StiffnessError, with_context
 from stiffness.mechanics.formulation import target_states
 from stiffness.mechanics.gravity import gravity_preload, gravity_regressor, weight_bases
+from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot, load_robot
 
 #: Backlash smoothing torque, as a fraction of the joint's RMS torque over the campaign.
@@ -393,18 +394,6 @@ def tilt_axes(mount_rotation: np.ndarray, column: int) -> tuple[np.ndarray, np.n
     the parent link) other than its rotation axis ``column``, in cyclic order (so
     ``e_1 x e_2`` is the joint's axis)."""
     return mount_rotation[..., :, (column + 1) % 3], mount_rotation[..., :, (column + 2) % 3]
-
-
-def reach(model: pin.Model) -> float:
-    """The robot's reach (m): the longest chain of joint and frame placements from the base
-    (the sum of their lengths, whatever the pose), at least 0.1 m."""
-    chain = [0.0] * model.njoints
-    for j in range(1, model.njoints):
-        chain[j] = chain[model.parents[j]] + float(np.linalg.norm(
-            model.jointPlacements[j].translation))
-    frames = [chain[f.parentJoint] + float(np.linalg.norm(f.placement.translation))
-              for f in model.frames]
-    return max([0.1, *chain, *frames])
 
 
 # ------------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from stiffness.batch.linalg import cross
 from stiffness.batch.poses import torque_regressors
 from stiffness.elastic.effects.base import PHYSICAL_FACTOR, effect_place
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
-from stiffness.elastic.effects.geometry import References, reach, skew
+from stiffness.elastic.effects.geometry import References, skew
 from stiffness.elastic.effects.joint_laws import JointEffect
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
@@ -45,6 +45,7 @@ from stiffness.mechanics.gravity import (
     upward_angle,
     weighed_bodies,
 )
+from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot
 
 #: Default geometry of ``gravity_compensator`` (m, m, rad, rad): lever on the link, distance of
