@@ -207,6 +207,12 @@ def test_refusals_name_file_line_and_column(tmp_path):
     assert "mixed units" in msg and "column 2" in msg
     msg = refusal(tmp_path, "\n".join(BASE_ROWS + ["0,0,0"]))
     assert "rig.csv, line 4" in msg and "3 cells" in msg
+    # a rig's 'Fx [N]' is not fx (names are exact): the refusal names the map that reads them
+    header = BASE_ROWS[0].replace("fx,fy,fz", "Fx [N],Fy [N],Fz [N]")
+    msg = refusal(tmp_path, "\n".join([header, *BASE_ROWS[1:]]))
+    assert msg.endswith("no column for fx, fy, fz in " + str(tmp_path / "rig.csv") + "; the "
+                        "files spell them Fx, Fy, Fz: map them (--map fx=Fx,fy=Fy,fz=Fz) or "
+                        "rename the columns")
 
 
 def test_unpaired_and_repeated_keys(tmp_path):

@@ -407,9 +407,14 @@ class ColumnMapper:
             return None
         missing = [t for t, c in zip(targets, found, strict=True) if c is None]
         if missing:
+            bare = {_bare(named) for named in self.columns}
+            cased = {t: b for t in missing for b in sorted(bare) if b.lower() == t.lower()}
+            fix = (f"map it ({missing[0]}=COLUMN) or name a column {missing[0]}"
+                   if len(cased) < len(missing) else  # 'Fx [N]' is not fx: names are exact
+                   f"the files spell them {', '.join(cased.values())}: map them (--map "
+                   f"{','.join(f'{t}={b}' for t, b in cased.items())}) or rename the columns")
             raise StiffnessError(f"no column for {', '.join(missing)} in "
-                                 f"{', '.join(str(f) for f in self.files)}; map it "
-                                 f"({missing[0]}=COLUMN) or name a column {missing[0]}")
+                                 f"{', '.join(str(f) for f in self.files)}; {fix}")
         return [c for c in found if c is not None]
 
     def values(self, target: str, column: Column, kind: str, empty_is_nan: bool = False
