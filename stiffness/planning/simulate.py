@@ -56,6 +56,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,6 +78,7 @@ from stiffness.elastic.effects.geometry import (
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import (
+    FlagValueWarning,
     StiffnessError,
     UnknownEffectError,
     UnknownNameError,
@@ -107,6 +109,7 @@ from stiffness.planning.simulate_request import (
     true_stiffness,
     warn_effect_lengths,
 )
+from stiffness.robot.declaration import FAR_TARGET
 from stiffness.robot.robot import Robot
 from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, plain_float
 
@@ -379,9 +382,11 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
         effect.contribute(effect.simulated_values(h.values, units), parts)
     parts.check_joints()
     compliant = tuple(parts.springs)
-    robot = cached_robot(declared.name, declared.target_frame,
-                         tuple(declared.target_offset.copy() + parts.target_shift), compliant,
-                         declared.loop_file, declared.fixed_base)
+    with warnings.catch_warnings():  # a hidden offset's length: warned in --units at the flag
+        warnings.filterwarnings("ignore", FAR_TARGET, FlagValueWarning)
+        robot = cached_robot(declared.name, declared.target_frame,
+                             tuple(declared.target_offset.copy() + parts.target_shift),
+                             compliant, declared.loop_file, declared.fixed_base)
     reference = declared.assemble(None).q
     columns = {(a, b): link_column(declared.model, declared.model.getJointId(a),
                                    declared.model.getJointId(b), reference)

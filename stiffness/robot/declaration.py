@@ -60,15 +60,22 @@ def checked_mimics(name: str, mimics: tuple[Mimic, ...], model: pin.Model, passi
     return tuple(kept)
 
 
-def target_offset_of(target_offset: np.ndarray | list[float] | None, settings: dict
-                   ) -> np.ndarray:
-    """The target's position (3,) in its frame's axes (m): given, else the robot file's."""
+def target_offset_of(target_offset: np.ndarray | list[float] | None, settings: dict,
+                     title: str, model: pin.Model, frame: str) -> np.ndarray:
+    """The target's position (3,) in ``frame``'s axes (m): given, else the robot file's; one
+    beyond the reach of ``title``'s ``model`` is warned about (:func:`warn_far_target`)."""
+    given = target_offset is not None
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
     offset = np.asarray(target_offset, dtype=float).reshape(-1)
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
+    warn_far_target(title, model, frame, offset, given)
     return offset
+
+
+#: The start of :func:`warn_far_target`'s message after the robot's name (a filter's pattern).
+FAR_TARGET = ".*the target offset .* beyond the robot's reach"
 
 
 def warn_far_target(title: str, model: pin.Model, frame: str, offset: np.ndarray,

@@ -44,7 +44,6 @@ from stiffness.robot.declaration import (
     free_joints,
     ordered_coordinates,
     target_offset_of,
-    warn_far_target,
 )
 from stiffness.robot.loops import (
     CLOSURE_TOLERANCE_M,
@@ -686,8 +685,7 @@ def load_robot(
         name, model, frame if frame is not None else settings.get("frame"), closure, gripper)
     fid = kinematics.frame_id(model, frame)  # a default target is off the tip joint's origin
     offset = default_target_offset(model, fid) if defaulted else target_offset_of(
-        target_offset, settings)
-    warn_far_target(name, model, frame, offset, target_offset is not None)
+        target_offset, settings, name, model, frame)
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
         model, fid, spring_names, coupling is not None or not loop.is_open_chain))
     settings = check_counts(settings, coordinate_joints, springs)
