@@ -84,7 +84,8 @@ class UndeterminedDirection:
 @dataclass
 class Identification(IdentificationResult):
     """Result of :func:`~stiffness.calibration.identify.identify` on a deflection campaign;
-    stiffnesses in SI (N.m/rad or N/m per joint).
+    stiffnesses in SI (N.m/rad or N/m per joint); ``model_path`` and :meth:`write_model` as
+    :class:`~stiffness.calibration.result.IdentificationResult` has them.
 
     Attributes
     ----------
@@ -177,9 +178,6 @@ class Identification(IdentificationResult):
         (:mod:`stiffness.calibration.outliers`), flagged and kept.
     outlier_sigma_m
         The noise std the residuals are standardised by (m).
-    model_path
-        The identified-model file :meth:`write_model` wrote last, or ``None``
-        (:class:`~stiffness.calibration.result.IdentificationResult`).
     stiffness_coordinates
         The coordinates the stiffnesses refer to: ``"controller"`` (the springs act on the
         controller's coordinates of a ``[controller]`` robot file) or ``"chain"`` (the
