@@ -101,3 +101,20 @@ def test_a_target_offset_beyond_the_reach_is_warned_about(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_robot("ur5", frame="tool0", target_offset=[0.0, 0.0, 0.3])
+
+
+def test_an_empty_robot_name_and_a_string_of_joints(tmp_path, monkeypatch):
+    """An empty robot name (an unset ``--robot $ROBOT``) loaded the one URDF of the working
+    folder silently (``Path('')`` is '.'); ``compliant_joints="elbow_joint"`` was read as
+    its letters ('compliant joint 'e' is not a coordinate joint'). Now the first is a one-line
+    refusal and the second reads comma-separated names, as the flag does."""
+    from stiffness.errors import UnknownRobotError
+
+    shutil.copy(robots_directory() / "sk120" / "sk120.urdf", tmp_path / "arm.urdf")
+    monkeypatch.chdir(tmp_path)
+    for name in ("", "  "):
+        with pytest.raises(UnknownRobotError, match="the robot is an empty name"):
+            load_robot(name)
+    assert load_robot("ur5", compliant_joints="elbow_joint").compliant_joints == ("elbow_joint",)
+    assert load_robot("ur5", compliant_joints="elbow_joint, wrist_1_joint").compliant_joints \
+        == ("elbow_joint", "wrist_1_joint")

@@ -95,6 +95,14 @@ def warn_far_target(title: str, model: pin.Model, frame: str, offset: np.ndarray
               "length", FlagValueWarning if given else RobotFileWarning)
 
 
+def joint_names(names: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """Joint names given as a sequence, or as one string of comma-separated names (as the
+    ``--compliant-joints`` flag takes them: ``"elbow_joint"`` was read as its letters)."""
+    if isinstance(names, str):
+        return tuple(n.strip() for n in names.split(","))
+    return tuple(names)
+
+
 def free_joints(model: pin.Model, excluded: set[str]) -> list[str]:
     """Joints with a degree of freedom, in model order, but the ``excluded`` ones (passive
     loop joints, mimic followers): the coordinate joints.

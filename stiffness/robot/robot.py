@@ -42,6 +42,7 @@ from stiffness.robot.declaration import (
     checked_mimics,
     controller_map,
     free_joints,
+    joint_names,
     ordered_coordinates,
     target_offset_of,
 )
@@ -622,7 +623,7 @@ def load_robot(
     source: str | os.PathLike,
     frame: str | None = None,
     target_offset: np.ndarray | list[float] | None = None,
-    compliant_joints: list[str] | tuple[str, ...] | None = None,
+    compliant_joints: str | list[str] | tuple[str, ...] | None = None,
     loops: str | os.PathLike | None = None,
     fixed_base: bool = False,
 ) -> Robot:
@@ -641,10 +642,10 @@ def load_robot(
     target_offset
         Target position in ``frame`` axes (m); default zero (or the shipped robot's).
     compliant_joints
-        Joints modelled as springs; default: the shipped robot's, else the coordinate joints on
-        the chain from the base to the target, which move it (not a head, wheels, fingers or
-        another limb; every coordinate of a robot with loops or controller coordinates;
-        :func:`stiffness.robot.targets.target_chain`).
+        Joints modelled as springs (names, or one string of them comma-separated); default: the
+        shipped robot's, else the coordinate joints on the chain from the base to the target,
+        which move it (not a head, wheels, fingers or another limb; every coordinate of a robot
+        with loops or controller coordinates; :func:`stiffness.robot.targets.target_chain`).
     loops
         Loop declaration (YAML, Gepetto's Extended-URDF format) overriding the sidecar.
     fixed_base
@@ -689,7 +690,7 @@ def load_robot(
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
         model, fid, spring_names, coupling is not None or not loop.is_open_chain))
     settings = check_counts(settings, coordinate_joints, springs)
-    compliant_joints = tuple(springs if compliant_joints is None else compliant_joints)
+    compliant_joints = tuple(springs if compliant_joints is None else joint_names(compliant_joints))
     check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
 
     parent = model.frames[fid]

@@ -363,6 +363,10 @@ def resolve_source(source: str | os.PathLike) -> RobotSource:
     """
     text = str(source)
     shipped = shipped_robots()
+    if not text.strip():  # Path("") is the working folder: an unset $ROBOT took its URDF
+        raise UnknownRobotError(f"the robot is an empty name {text!r}; give a shipped robot "
+                                f"({', '.join(shipped)}), an example-robot-data name, a URDF "
+                                "path or a robot.toml", name=text, choices=shipped)
     if text in shipped:
         return _from_toml(robots_directory() / text, text)
     path = Path(text)
