@@ -176,3 +176,39 @@ def test_forces_in_kn_read_as_n_against_nominal_springs(soft_ur5, tmp_path):
         [folder / "measurements.csv"], RobotSettings("ur5"),
         ImportSettings(units={"angle": "deg", "force": "N", "length": "mm"})))
     assert [m for m in imported if "the forces look like kN" in m], imported
+
+
+def _table2_with(tmp_path: Path, change) -> Path:
+    """Table II copied with ``change(cells)`` applied to each data row's cells."""
+    folder = tmp_path / "c"
+    shutil.copytree(TABLE2, folder)
+    data = folder / "measurements.csv"
+    lines = data.read_text().splitlines()
+    data.write_text("\n".join([lines[0], *(",".join(change(line.split(","))) for line in
+                                           lines[1:])]) + "\n")
+    return folder
+
+
+def test_reversed_deflections_and_unloaded_campaigns_are_warned_about(tmp_path):
+    """A rig that writes unloaded minus loaded positions (every deflection against its load:
+    the SK120 then identified 'rigid' for all three joints, silently), or a campaign with no
+    load at all (identified 'undetermined', silently), is warned about in one line; Table II
+    as published is not, nor the same rows with a few signs flipped by noise."""
+    def negate(columns):
+        return lambda cells: [f"{-float(c):g}" if i in columns else c
+                              for i, c in enumerate(cells)]
+
+    assert caught(lambda: load_campaign(TABLE2)) == []
+    [message] = caught(lambda: load_campaign(_table2_with(tmp_path / "d", negate({10, 11, 12}))))
+    assert "in 15 of 15 loaded rows the deflection points against the force" in message
+    assert "negate dx,dy,dz (loaded minus unloaded) or fx,fy,fz" in message
+    assert caught(lambda: load_campaign(_table2_with(tmp_path / "f", negate({7, 8, 9})))) \
+        == [message.replace(str(tmp_path / "d"), str(tmp_path / "f"))]
+    [message] = caught(lambda: load_campaign(_table2_with(
+        tmp_path / "z", lambda cells: [*cells[:7], "0", "0", "0", *cells[10:]])))
+    assert message.endswith("no row carries a load (every fx,fy,fz is 0): the deflections tell "
+                            "nothing of the stiffness; give the loads applied at each row")
+    flipped = iter(range(100))  # two rows in 15 against their load: noise, not a sign convention
+    assert caught(lambda: load_campaign(_table2_with(
+        tmp_path / "n", lambda cells: negate({10, 11, 12})(cells) if next(flipped) < 2
+        else cells))) == []

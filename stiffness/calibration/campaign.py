@@ -89,7 +89,11 @@ from stiffness.calibration.campaign_toml import (
 )
 from stiffness.calibration.coordinate_columns import fixed_values
 from stiffness.calibration.measurements import coordinates_in_si, read_rows, warn_copied_rows
-from stiffness.calibration.unit_checks import check_deflection_size, check_force_unit
+from stiffness.calibration.unit_checks import (
+    check_deflection_sign,
+    check_deflection_size,
+    check_force_unit,
+)
 from stiffness.errors import (
     StiffnessError,
     UnknownNameError,
@@ -354,6 +358,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     warn_copied_rows(np.column_stack([a for a in (rows.q, rows.force, rows.deflection,
                                                   rows.moment, rows.rotation) if a is not None]),
                      lines, data_path)
+    check_deflection_sign(force, moment, deflection, data_path)
     if check_deflection_size(robot, deflection, force, units, data_path):
         check_force_unit(robot, q, force, moment, deflection, units, data_path)
     if not has_rotation and rot_noise is not None:

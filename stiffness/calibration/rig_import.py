@@ -55,7 +55,11 @@ from stiffness.calibration.coordinate_columns import (
 )
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
-from stiffness.calibration.unit_checks import check_deflection_size, check_force_unit
+from stiffness.calibration.unit_checks import (
+    check_deflection_sign,
+    check_deflection_size,
+    check_force_unit,
+)
 from stiffness.errors import (
     DataFileNote,
     FileFormatError,
@@ -584,6 +588,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
             m_si = None if m_si is None else np.einsum("rij,rj->ri", turns, m_si)
         if settings.deflection_frame == "tool":
             d_si = np.einsum("rij,rj->ri", turns, d_si)
+    check_deflection_sign(f_si, m_si, d_si, first.path)
     if check_deflection_size(robot, d_si, f_si, units, first.path):
         check_force_unit(robot, q_si, f_si, m_si, d_si, units, first.path)
     campaign = Campaign(name=name, baseline=baseline, robot_settings=robot_settings, q=q_si,

@@ -194,6 +194,51 @@ def check_marker_offsets(robot: Robot, names: list[str], offsets: np.ndarray, un
         DataFileWarning, stacklevel=3)
 
 
+#: Rows that say the deflections' sign is reversed: at least this many loaded rows, this share of
+#: them against their load and a mean cosine of load and deflection below this (noise alone
+#: turns a row's sign at random; a stable robot's deflection has a positive work F.C.F).
+SIGN_ROWS, SIGN_SHARE, SIGN_COSINE = 5, 0.9, -0.3
+
+
+def check_deflection_sign(force: np.ndarray, moment: np.ndarray | None, deflection: np.ndarray,
+                          data: Path) -> None:
+    """Warn once when no row is loaded, or when the measured deflections (m) point against the
+    forces (N) in nearly every loaded row without moments: under a load a stable elastic robot
+    deflects with a positive work ``F . C F``, so the deflections are unloaded minus loaded
+    positions (or the forces the robot's reaction on the sensor).
+
+    Warns
+    -----
+    DataFileWarning
+        Naming the rows and the columns to negate.
+    """
+    loaded = np.linalg.norm(force, axis=1) > 0
+    if moment is not None:
+        loaded |= np.linalg.norm(moment, axis=1) > 0
+    if not loaded.any():
+        columns = "fx,fy,fz" + ("" if moment is None else ",mx,my,mz")
+        warnings.warn(f"{data}: no row carries a load (every {columns} is 0): the deflections "
+                      "tell nothing of the stiffness; give the loads applied at each row",
+                      DataFileWarning, stacklevel=3)
+        return
+    if moment is not None:
+        loaded &= np.linalg.norm(moment, axis=1) == 0
+    size = np.linalg.norm(force, axis=1) * np.linalg.norm(deflection, axis=1)
+    rows = loaded & (size > 0)
+    if rows.sum() < SIGN_ROWS:
+        return
+    cosine = np.einsum("ij,ij->i", force[rows], deflection[rows]) / size[rows]
+    against = int(np.sum(cosine < 0))
+    if against < SIGN_SHARE * cosine.size or float(np.mean(cosine)) > SIGN_COSINE:
+        return
+    warnings.warn(f"{data}: in {against} of {cosine.size} loaded rows the deflection points "
+                  f"against the force (mean cosine {np.mean(cosine):.2f}), which a stable "
+                  "elastic robot never does: the deflections look like unloaded minus loaded "
+                  "positions, or the forces like the robot's reaction; negate dx,dy,dz (loaded "
+                  "minus unloaded) or fx,fy,fz (the load applied to the robot)",
+                  DataFileWarning, stacklevel=3)
+
+
 def check_deflection_size(robot: Robot, deflection: np.ndarray, force: np.ndarray,
                           units: Units, data: Path) -> bool:
     """Warn once when the median measured deflection (m) is beyond what a loaded robot of this
