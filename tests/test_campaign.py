@@ -405,3 +405,12 @@ def test_coordinate_columns_named_by_joint_in_any_order(tmp_path):
     np.testing.assert_allclose(c.deflection, ref.deflection)
 
 
+
+
+def test_a_written_campaign_names_where_its_format_is(tmp_path):
+    """The first comment of a written campaign.toml pointed at stiffness/campaign.py, which
+    does not exist; the file it names now does."""
+    write_campaign(load_campaign(TABLE2), tmp_path / "c")
+    first = (tmp_path / "c" / CAMPAIGN_FILE).read_text().splitlines()[0]
+    [named] = re.findall(r"stiffness/[\w/]+\.py", first)
+    assert (Path(__file__).resolve().parents[1] / named).is_file(), first

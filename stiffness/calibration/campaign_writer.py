@@ -144,7 +144,7 @@ def campaign_toml(c: Campaign, folder: str | os.PathLike) -> str:
     u = c.units
     data_name = Path(c.data_file).name or DEFAULT_DATA_FILE
     toml = [
-        "# Measurement campaign (see stiffness/campaign.py for the format).",
+        "# Measurement campaign (its format: stiffness/calibration/campaign.py).",
         f"name = {_toml_string(c.name)}",
         f"baseline = {_toml_string(c.baseline)}",
         "",
