@@ -754,6 +754,19 @@ def test_cli_sweep_and_errors(tmp_path, capsys):
     assert "JOINT=START:STOP" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("flag", "value", "words"), [
+    ("--port", "99999", "--port must be a TCP port, 1 to 65535"),  # was a free port, silently
+    ("--size", "-0.1", "--size must be a positive radius in m, got -0.1"),
+    ("--fps", "0", "--fps must be a positive number of frames per second"),
+    ("--field", "0", "--field must be at least 1, got 0"),  # was 'the loops cannot close'
+    ("--duration", "-1", "--duration must be 0 or more seconds"),
+])
+def test_cli_refuses_impossible_viewer_settings_before_the_work(capsys, flag, value, words):
+    assert cli_main(["view", "--robot", "nowhere", flag, value]) == 2  # before the robot
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
+
+
 def test_cli_live_serves_for_its_duration():
     cli = subprocess.run([sys.executable, "-m", "stiffness.cli.main", "view", "--robot", "sk120",
                           "--duration", "0.5"], capture_output=True, text=True, timeout=60)

@@ -143,6 +143,28 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
     return rows
 
 
+def check_view_flags(args: argparse.Namespace) -> None:
+    """Refuse, before any work, viewer settings no page can have: a radius or frame rate that
+    is not positive, an empty field, a port outside 0..65535 (``--port 99999`` was replaced
+    by a free port, silently), a negative duration.
+
+    Raises
+    ------
+    StiffnessError
+        Naming the flag and what it takes.
+    """
+    for flag, value, what in (("--size", args.size, "radius in m"),
+                              ("--fps", args.fps, "number of frames per second")):
+        if value is not None and value <= 0:
+            raise StiffnessError(f"{flag} must be a positive {what}, got {value:g}")
+    flags.require_at_least_one(args.field, "--field")
+    if not 0 <= args.port <= 65535:
+        raise StiffnessError(f"--port must be a TCP port, 1 to 65535 (0 or none: a free one), "
+                             f"got {args.port}")
+    if args.duration is not None and args.duration < 0:
+        raise StiffnessError(f"--duration must be 0 or more seconds, got {args.duration:g}")
+
+
 def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = None
           ) -> StiffnessViewer:
     """The viewer with everything the flags ask for drawn (the caller closes it)."""
@@ -260,6 +282,7 @@ def _report(args: argparse.Namespace, inputs: kx.KxInputs, **where: str | None) 
 
 def run(args: argparse.Namespace) -> int:
     """Export the static page, or serve the live viewer until Ctrl-C or ``--duration``."""
+    check_view_flags(args)
     inputs = kx.resolve_inputs(args, require_load=False)
     if args.export is not None:
         viewer = build(args, live=False, inputs=inputs)
