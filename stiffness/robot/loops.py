@@ -353,6 +353,47 @@ class LoopClosure:
         c = self.jacobian(model, data)
         return -np.linalg.pinv(c[:, self.passive_v], rcond=1e-9) @ c[:, independent_v]
 
+    def passive_basis(self, model: pin.Model, data: pin.Data, rank: int | None = None,
+                      rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+        """Basis ``(B, V)`` in which :meth:`mode_determinant` reads the assembly mode here.
+
+        V (n_passive_v, r) spans the passive motions the loops determine (the identity when
+        there is no idle motion; else the right singular vectors of the r nonzero singular
+        values of the passive columns C_p of :meth:`jacobian`) and B = C_p V, so that
+        ``det(B^T C_p V)`` is positive here (redundant rows of a planar loop drop out).
+        ``rank`` imposes r (e.g. next to a singular pose); by default the rank of C_p. Joint
+        Jacobians must be up to date.
+        """
+        cp = self.jacobian(model, data)[:, self.passive_v]
+        return self._basis(cp, rank, rtol)
+
+    def _basis(self, cp: np.ndarray, rank: int | None, rtol: float = 1e-9
+               ) -> tuple[np.ndarray, np.ndarray]:
+        n = cp.shape[1]
+        if rank == n:
+            return cp, np.eye(n)
+        u, sv, vt = np.linalg.svd(cp, full_matrices=False)
+        if rank is None:
+            rank = int(np.sum(sv > rtol * max(1.0, sv[0] if sv.size else 0.0)))
+        v = vt[:rank].T
+        return cp @ v, v
+
+    def mode_determinant(self, model: pin.Model, data: pin.Data,
+                         basis: tuple[np.ndarray, np.ndarray]
+                         ) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
+        """``det(B^T C_p V)`` at the current pose in a :meth:`passive_basis` taken at a nearby
+        pose, and the basis at this pose.
+
+        Positive in the same assembly mode; negative across a parallel (type-2) singularity,
+        where a singular value of the passive columns C_p passes through zero. Joint Jacobians
+        must be up to date.
+        """
+        b, v = basis
+        if v.shape[1] == 0:
+            return 1.0, basis
+        cp = self.jacobian(model, data)[:, self.passive_v]
+        return float(np.linalg.det(b.T @ cp @ v)), self._basis(cp, v.shape[1])
+
     def loop_residuals(self, model: pin.Model, data: pin.Data) -> list[tuple[str, float]]:
         """Name (``[frame_a, frame_b]``) and residual norm (m; rad) of each loop, placements
         current."""

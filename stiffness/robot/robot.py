@@ -23,6 +23,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 import pinocchio as pin
@@ -34,7 +35,7 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.robot import kinematics
-from stiffness.robot.assembly import Assembly, least_squares_assembly
+from stiffness.robot.assembly import Assembly, least_squares_assembly, locate_crossing
 from stiffness.robot.calibration import calibrated_source, is_json
 from stiffness.robot.coupling import CoordinateMap
 from stiffness.robot.declaration import (
@@ -448,12 +449,14 @@ class Robot:
             start_coords, start_q, searched = self._reference_assembly()
         else:
             start_coords, start_q = self.coordinates_of(seed), seed
+        crossings: list[tuple[float, ...]] = []
         try:
-            q = self._continue(start_coords, start_q, coords)
+            q, crossings = self._continue(start_coords, start_q, coords)
         except LoopClosureError:
             q = self._search(coords, self._tree_configuration(coords, start_q))
             searched = True
         self.last_assembly = self.closure_report(q, searched)
+        self.last_assembly.singular_crossings = tuple(crossings)
         return self.last_assembly
 
     def closure_report(self, q: np.ndarray, searched: bool = False) -> Assembly:
@@ -493,7 +496,7 @@ class Robot:
         except LoopClosureError:
             pass
         try:
-            return self._continue(self.coordinates_of(found), found, coords)
+            return self._continue(self.coordinates_of(found), found, coords)[0]
         except LoopClosureError:
             pass
         closest, left = least_squares_assembly(model, data, loop,
@@ -509,64 +512,90 @@ class Robot:
             f"{np.round(self.coordinates_of(found), 6).tolist()}); the pose is out of the "
             "loop's reach; check the joint values and their units", loop=name, residual=worst)
 
-    def _continue(self, start: np.ndarray, q: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    def _continue(self, start: np.ndarray, q: np.ndarray, coords: np.ndarray
+                  ) -> tuple[np.ndarray, list[tuple[float, ...]]]:
         """Close the loops along the straight coordinate path from ``start`` (closed at ``q``).
 
         Predictor: the tangent (first step) then the secant through the last two solutions,
         which carries the branch through singular poses (e.g. a flat parallelogram). Corrector:
-        Newton on the passive joints. A step whose correction exceeds
-        :data:`_BRANCH_JUMP` is halved, so the path cannot hop to another assembly branch.
+        Newton on the passive joints. A step whose correction exceeds :data:`_BRANCH_JUMP`, or
+        that changes the sign of the passive Jacobian's determinant by a jump rather than
+        through a singular pose (:func:`~stiffness.robot.assembly.locate_crossing`), is halved,
+        so the path keeps its assembly mode. Returns the closed configuration and the
+        coordinates of the singular poses passed through.
         """
+        model, data, loop = self.model, self.data, self.loop
         span = float(np.max(np.abs(coords - start))) if coords.size else 0.0
         if span == 0.0:
-            return self.loop.close(self.model, self.data, self._tree_configuration(coords, q))
+            return loop.close(model, data, self._tree_configuration(coords, q)), []
         passive_q = np.concatenate([
             np.arange(j.idx_q, j.idx_q + j.nq)
-            for j in (self._joint(n) for n in self.loop.passive_joints)
+            for j in (self._joint(n) for n in loop.passive_joints)
         ] + [np.zeros(0)]).astype(int)
+
+        def close_at(part: float, guess: np.ndarray) -> np.ndarray | None:
+            try:
+                return loop.close(model, data, self._tree_configuration(
+                    start + (coords - start) * part, guess))
+            except LoopClosureError:
+                return None
+
         nominal = min(1.0, _CONTINUATION_STEP / span)
         fraction, h = 0.0, nominal
         previous: tuple[np.ndarray, float] | None = None
+        crossings: list[tuple[float, ...]] = []
+        kinematics.update_first_order(model, data, q)
+        basis = loop.passive_basis(model, data)
         while fraction < 1.0 - 1e-12:
             h = min(h, 1.0 - fraction)
             if previous is None:
-                pin.computeJointJacobians(self.model, self.data, q)
-                dv = np.zeros(self.model.nv)
+                pin.computeJointJacobians(model, data, q)
+                dv = np.zeros(model.nv)
                 dv[self.coordinate_v] = (coords - start) * h
-                dv[self.loop.passive_v] = self.loop.passive_rates(
-                    self.model, self.data, self.coordinate_v) @ dv[self.coordinate_v]
-                predicted = pin.integrate(self.model, q, dv)
+                dv[loop.passive_v] = loop.passive_rates(
+                    model, data, self.coordinate_v) @ dv[self.coordinate_v]
+                predicted = pin.integrate(model, q, dv)
             else:
                 predicted = q.copy()
                 q_prev, h_prev = previous
                 predicted[passive_q] += (q[passive_q] - q_prev[passive_q]) * h / h_prev
-                predicted = pin.normalize(self.model, predicted)  # quaternions of ball joints
-            target = start + (coords - start) * (fraction + h)
-            try:
-                closed = self.loop.close(
-                    self.model, self.data, self._tree_configuration(target, predicted))
-                jump = float(np.max(np.abs(closed[passive_q] - predicted[passive_q]),
-                                    initial=0.0))
-            except LoopClosureError:
-                closed, jump = predicted, np.inf  # not taken: the step is halved
-            if jump > _BRANCH_JUMP:
+                predicted = pin.normalize(model, predicted)  # quaternions of ball joints
+            closed = close_at(fraction + h, predicted)
+            jump = np.inf if closed is None else float(
+                np.max(np.abs(closed[passive_q] - predicted[passive_q]), initial=0.0))
+            if closed is not None and jump <= _BRANCH_JUMP:
+                sign, here = loop.mode_determinant(model, data, basis)  # data at `closed`
+                if sign < 0:
+                    verdict, part = locate_crossing(model, data, loop, close_at, passive_q,
+                                                    (fraction, q), (fraction + h, closed), span)
+                    if verdict == "jump":
+                        jump = np.inf  # onto another assembly mode: not taken
+                    elif verdict == "crossing":
+                        crossings.append(tuple((start + (coords - start) * part).tolist()))
+                    kinematics.update_first_order(model, data, closed)
+                    here = loop.passive_basis(model, data, rank=basis[1].shape[1])
+            if closed is None or jump > _BRANCH_JUMP:
                 h /= 2.0
                 if h < 1e-9:
-                    kinematics.update_first_order(self.model, self.data,
-                                                  self._tree_configuration(target, predicted))
-                    name, worst = max(self.loop.loop_residuals(self.model, self.data),
-                                      key=lambda item: item[1])
-                    raise LoopClosureError(
-                        f"the loops of {self.title} cannot be closed continuously from "
-                        f"coordinates {np.round(start, 6).tolist()} to "
-                        f"{np.round(coords, 6).tolist()}: the "
-                        "path meets a fold of the loop (the pose is unreachable on this branch)",
-                        loop=name, residual=worst)
+                    self._fold(start, coords, self._tree_configuration(
+                        start + (coords - start) * (fraction + h), predicted))
                 continue
             previous = (q, h)
-            q, fraction = closed, fraction + h
+            q, fraction, basis = closed, fraction + h, here
             h = min(2.0 * h, nominal)
-        return q
+        return q, crossings
+
+    def _fold(self, start: np.ndarray, coords: np.ndarray, q: np.ndarray) -> NoReturn:
+        """Raise the :class:`LoopClosureError` of a continuation stopped at ``q`` by a fold."""
+        kinematics.update_first_order(self.model, self.data, q)
+        name, worst = max(self.loop.loop_residuals(self.model, self.data),
+                          key=lambda item: item[1])
+        raise LoopClosureError(
+            f"the loops of {self.title} cannot be closed continuously from "
+            f"coordinates {np.round(start, 6).tolist()} to "
+            f"{np.round(coords, 6).tolist()}: the "
+            "path meets a fold of the loop (the pose is unreachable on this branch)",
+            loop=name, residual=worst)
 
     def _step_inside(self, start: np.ndarray, q: np.ndarray) -> np.ndarray:
         """An assembly a little further from ``start`` than ``q``, when one closes.
@@ -582,7 +611,7 @@ class Robot:
             return q
         step = delta * min(_INSIDE_STEP, 0.05 / span)
         try:
-            return self._continue(found, q, found + step)
+            return self._continue(found, q, found + step)[0]
         except LoopClosureError:
             return q
 
