@@ -306,22 +306,47 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
     q = step(q, (rates @ (keys - anchor_keys)[..., None])[..., 0])
     predicted = q[:, passive_q].copy()
     done = np.zeros(keys.shape[0], dtype=bool)
+    c_closed = np.zeros_like(c_anchor[:, :, pv])  # passive columns where each key closed
     active = np.arange(keys.shape[0])
     for _ in range(_NEWTON_ITERATIONS):
         res, c_w = residual_and_jacobian(q[active])
         norm = np.linalg.norm(res, axis=1)
         converged = norm < CLOSURE_TOLERANCE_M
         done[active[converged]] = True
+        c_closed[active[converged]] = c_w[converged][:, :, pv]
         active = active[~converged]
         if active.size == 0:
             break
         dv = lstsq(c_w[~converged][:, :, pv], -res[~converged], 1e-10)
         q[active] = step(q[active], dv)
     if active.size:
-        res, _ = residual_and_jacobian(q[active])
-        done[active[np.linalg.norm(res, axis=1) < 1e3 * CLOSURE_TOLERANCE_M]] = True
+        res, c_w = residual_and_jacobian(q[active])
+        close = np.linalg.norm(res, axis=1) < 1e3 * CLOSURE_TOLERANCE_M
+        done[active[close]] = True
+        c_closed[active] = c_w[:, :, pv]
     jump = np.abs(q[:, passive_q] - predicted).max(axis=1) if passive_q.size else 0.0
-    return q, done & (jump <= _NEWTON_JUMP)
+    same = _same_mode(c_anchor[:, :, pv], s, vt, c_closed)
+    return q, done & (jump <= _NEWTON_JUMP) & same
+
+
+def _same_mode(c_anchor: np.ndarray, s: np.ndarray, vt: np.ndarray, c_closed: np.ndarray
+               ) -> np.ndarray:
+    """(m,) whether each closure kept its anchor's assembly mode.
+
+    The batched :meth:`~stiffness.robot.loops.LoopClosure.mode_determinant`: the sign of
+    ``det(B^T C V)`` with V the anchor's right singular vectors of its nonzero singular values
+    (``s``, ``vt`` of the anchor's passive columns ``c_anchor``), B = C_anchor V and C the
+    passive columns where the key closed (``c_closed``). A key that changed sign is closed by
+    continuation from its anchor instead (which tells a singular pose from a jump).
+    """
+    rank = np.sum(s > 1e-9 * s[:, :1], axis=1)
+    same = np.ones(c_anchor.shape[0], dtype=bool)
+    for r in np.unique(rank):
+        sel = rank == r
+        v = np.swapaxes(vt[sel][:, :r, :], 1, 2)  # (k, n_passive, r)
+        b = c_anchor[sel] @ v
+        same[sel] = np.linalg.det(np.swapaxes(b, 1, 2) @ c_closed[sel] @ v) > 0
+    return same
 
 
 def point_supports(robot: Robot) -> np.ndarray:

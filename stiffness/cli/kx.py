@@ -247,7 +247,8 @@ def compute(args: argparse.Namespace) -> dict:
         "configuration": _configuration(robot, inputs.q),
         "closure": None if inputs.assembly is None else inputs.assembly.as_dict(),
         "singularity_ratio": _singularity_ratio(np.asarray(report["J"])),
-        "notes": list(robot.notes),
+        "notes": list(robot.notes) + ([] if inputs.assembly is None
+                                      else inputs.assembly.notes()),
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
             "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",

@@ -24,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.robot import kinematics
-from stiffness.robot.loops import CLOSURE_TOLERANCE_M, LoopClosure
+from stiffness.robot.loops import CLOSURE_TOLERANCE_M, SINGULAR_RATIO, LoopClosure
 
 #: Iterations of the all-joint least squares.
 MAX_ITERATIONS = 400
@@ -33,9 +33,6 @@ CROSSING_WIDTH = 1e-9
 #: Largest change of the passive joints (rad or m) across that width for the branch to count
 #: as continuous (a pass through a singular pose) rather than a jump to another mode.
 CONTINUOUS_JUMP = 1e-6
-#: Smallest over largest singular value of the passive Jacobian (its nonzero ones elsewhere)
-#: below which a located sign change is a singular pose.
-SINGULAR_RATIO = 1e-6
 #: Most trials of :func:`locate_crossing` (it needs about ten through a singular pose).
 _LOCATE_ITERATIONS = 80
 
@@ -74,16 +71,29 @@ class Assembly:
                 "assembly_search": self.assembly_search,
                 "singular_crossings": [list(c) for c in self.singular_crossings]}
 
+    def notes(self) -> list[str]:
+        """One line per singular pose the closure passed through (none when it kept the
+        reference assembly mode)."""
+        return [f"closing the loops from the reference assembly passed through a singular pose "
+                f"at coordinates {np.round(c, 6).tolist()} (rad or m), where two assembly "
+                "modes meet; beyond it they are on the branch that goes straight on (as a "
+                "parallelogram through its flat pose), not the reference's mode; give --q on "
+                "the near side of that pose for the reference mode"
+                for c in self.singular_crossings]
+
 
 def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
                     close_at: Callable[[float, np.ndarray], np.ndarray | None],
                     passive_q: np.ndarray, start: tuple[float, np.ndarray],
-                    end: tuple[float, np.ndarray], span: float) -> tuple[str, float]:
+                    end: tuple[float, np.ndarray], span: float,
+                    basis: tuple[np.ndarray, np.ndarray]) -> tuple[str, float]:
     """What happened in a continuation step whose end has the other mode sign.
 
     Locates the change of sign of the mode determinant
-    (:meth:`~stiffness.robot.loops.LoopClosure.mode_determinant`, in the basis of the step's
-    start) within :data:`CROSSING_WIDTH` (``span`` is the path's largest coordinate change, rad
+    (:meth:`~stiffness.robot.loops.LoopClosure.mode_determinant`, in ``basis``, the step
+    start's or, when the step starts on a singular pose, the last one before it: then the
+    crossing is there) within
+    :data:`CROSSING_WIDTH` (``span`` is the path's largest coordinate change, rad
     or m) by the Illinois variant of regula falsi, closing each trial from the configuration
     interpolated between the bracket's ends with ``close_at(fraction, guess)`` (None when it
     does not close).
@@ -93,16 +103,17 @@ def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
     verdict, fraction
         ``"crossing"``: the passive joints change by at most :data:`CONTINUOUS_JUMP` across
         the change and a singular value of the passive Jacobian vanishes there
-        (:data:`SINGULAR_RATIO`): a pass through a singular pose at ``fraction`` of the path
-        (the step stands); ``"same"``: continuous, but nothing vanishes (the basis had turned,
-        the step stands); ``"jump"``: the passive joints jump there (or a trial does not
-        close, or lands off the chord): the step hopped to another assembly mode and must be
-        shortened.
+        (:data:`~stiffness.robot.loops.SINGULAR_RATIO`): a pass through a singular pose at
+        ``fraction`` of the path (the step stands); ``"same"``: continuous, but nothing
+        vanishes (the basis had turned; the step stands); ``"jump"``: the passive joints jump
+        there (or a trial does not close, or lands off the chord): the step hopped to another
+        assembly mode and must be shortened.
     """
     (fa, qa), (fb, qb) = start, end
     kinematics.update_first_order(model, data, qa)
-    basis = loop.passive_basis(model, data)
-    ga = loop.mode_determinant(model, data, basis)[0]
+    ga, here = loop.mode_determinant(model, data, basis)
+    if here is basis:  # the step starts on a singular pose, where the modes meet
+        return "crossing", fa
     kinematics.update_first_order(model, data, qb)
     gb, kept = loop.mode_determinant(model, data, basis)[0], 0
     for _ in range(_LOCATE_ITERATIONS):

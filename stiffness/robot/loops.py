@@ -52,6 +52,10 @@ from stiffness.robot.rewrite import JOINT_REWRITES
 #: Closure tolerance on the loop residual (m; rad for the rotation rows of a 6D pair).
 CLOSURE_TOLERANCE_M = 1e-11
 
+#: Smallest over largest singular value of the passive Jacobian (its nonzero ones elsewhere)
+#: below which a pose is singular: the assembly modes meet there.
+SINGULAR_RATIO = 1e-6
+
 #: Longest Gauss-Newton step (rad or m, norm over the passive joints) of the closure.
 MAX_STEP = 0.5
 
@@ -353,22 +357,22 @@ class LoopClosure:
         c = self.jacobian(model, data)
         return -np.linalg.pinv(c[:, self.passive_v], rcond=1e-9) @ c[:, independent_v]
 
-    def passive_basis(self, model: pin.Model, data: pin.Data, rank: int | None = None,
-                      rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    def passive_basis(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9
+                      ) -> tuple[np.ndarray, np.ndarray]:
         """Basis ``(B, V)`` in which :meth:`mode_determinant` reads the assembly mode here.
 
         V (n_passive_v, r) spans the passive motions the loops determine (the identity when
         there is no idle motion; else the right singular vectors of the r nonzero singular
         values of the passive columns C_p of :meth:`jacobian`) and B = C_p V, so that
         ``det(B^T C_p V)`` is positive here (redundant rows of a planar loop drop out).
-        ``rank`` imposes r (e.g. next to a singular pose); by default the rank of C_p. Joint
-        Jacobians must be up to date.
+        Joint Jacobians must be up to date.
         """
         cp = self.jacobian(model, data)[:, self.passive_v]
-        return self._basis(cp, rank, rtol)
+        return self._basis(cp, None, rtol)
 
     def _basis(self, cp: np.ndarray, rank: int | None, rtol: float = 1e-9
                ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`passive_basis` of the passive columns ``cp``, of ``rank`` (None: theirs)."""
         n = cp.shape[1]
         if rank == n:
             return cp, np.eye(n)
@@ -382,17 +386,24 @@ class LoopClosure:
                          basis: tuple[np.ndarray, np.ndarray]
                          ) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
         """``det(B^T C_p V)`` at the current pose in a :meth:`passive_basis` taken at a nearby
-        pose, and the basis at this pose.
+        pose, and the basis to read the next pose in.
 
         Positive in the same assembly mode; negative across a parallel (type-2) singularity,
-        where a singular value of the passive columns C_p passes through zero. Joint Jacobians
-        must be up to date.
+        where a singular value of the passive columns C_p passes through zero. The basis
+        returned is this pose's, or the given one where this pose is singular (smallest over
+        largest singular value below :data:`SINGULAR_RATIO`, where the modes meet and cannot
+        be told apart). Joint Jacobians must be up to date.
         """
         b, v = basis
-        if v.shape[1] == 0:
-            return 1.0, basis
         cp = self.jacobian(model, data)[:, self.passive_v]
-        return float(np.linalg.det(b.T @ cp @ v)), self._basis(cp, v.shape[1])
+        det = float(np.linalg.det(b.T @ cp @ v)) if v.shape[1] else 1.0
+        here = self._basis(cp, cp.shape[1] if v.shape[1] == cp.shape[1] else None)
+        gram = here[0].T @ here[0]
+        rank = gram.shape[0]
+        if rank < v.shape[1] or rank and np.linalg.det(gram) <= \
+                SINGULAR_RATIO ** 2 * (np.trace(gram) / rank) ** rank:
+            here = basis
+        return det, here
 
     def loop_residuals(self, model: pin.Model, data: pin.Data) -> list[tuple[str, float]]:
         """Name (``[frame_a, frame_b]``) and residual norm (m; rad) of each loop, placements

@@ -567,13 +567,14 @@ class Robot:
                 sign, here = loop.mode_determinant(model, data, basis)  # data at `closed`
                 if sign < 0:
                     verdict, part = locate_crossing(model, data, loop, close_at, passive_q,
-                                                    (fraction, q), (fraction + h, closed), span)
+                                                    (fraction, q), (fraction + h, closed), span,
+                                                    basis)
                     if verdict == "jump":
                         jump = np.inf  # onto another assembly mode: not taken
                     elif verdict == "crossing":
                         crossings.append(tuple((start + (coords - start) * part).tolist()))
                     kinematics.update_first_order(model, data, closed)
-                    here = loop.passive_basis(model, data, rank=basis[1].shape[1])
+                    here = loop.mode_determinant(model, data, basis)[1]
             if closed is None or jump > _BRANCH_JUMP:
                 h /= 2.0
                 if h < 1e-9:
