@@ -7,7 +7,8 @@ the elbows E1, E2; the assembly mode is the side of E1 -> E2 it lies on, the sig
 cross(E2 - E1, P - E1) (the sign of the passive Jacobian's determinant). Where the elbows
 coincide (motor angles ``SINGULAR``) the two circles coincide: a singular pose where the modes
 meet. A straight coordinate path that passes near it sees the mode's P swing round quickly (the
-elbows swap sides); a path exactly through it can only go straight on, into the other mode.
+elbows swap sides); a path exactly through it goes straight on into the other mode, as the
+SK120's parallelogram through its flat pose (q2 + q3 = -90 deg), and says so.
 """
 
 from __future__ import annotations
@@ -157,18 +158,6 @@ def test_batched_closures_keep_the_assembly_mode(five_bar):
         assert _mode_and_elbows(robot, q) == REFERENCE_MODE
 
 
-def test_kx_reports_the_singular_pose_it_passed(five_bar, capsys):
-    """`kx --q` through the singular pose: a note and the JSON closure's singular_crossings."""
-    q = ",".join(repr(float(v)) for v in _past_the_singular_pose(0.0))
-    args = ["kx", "--robot", str(five_bar), "--frame", "tip", "--kq", "1e3,1e3", "--q", q,
-            "--wrench", "0,10,0"]
-    assert main([*args, "--json"]) == 0
-    closure = json.loads(capsys.readouterr().out)["closure"]
-    assert np.allclose(closure["singular_crossings"], [SINGULAR], atol=1e-7)
-    assert main(args) == 0
-    assert "singular pose" in capsys.readouterr().out
-
-
 def test_sk120_goes_straight_through_its_flat_parallelogram(sk120):
     """The SK120's path from zero to q2 + q3 = -120 deg passes the flat parallelogram
     (q2 + q3 = -90 deg, three quarters of the way): reported there, and the forearm keeps the
@@ -185,3 +174,22 @@ def test_sk120_goes_straight_through_its_flat_parallelogram(sk120):
         pin.framesForwardKinematics(sk120.model, sk120.data, assembly.q)
         rotations.append(sk120.data.oMf[forearm].rotation.copy())
     assert np.allclose(rotations[0], rotations[1], atol=1e-10)
+
+
+def _sk120_args(q2_deg: float) -> list[str]:
+    coords = np.deg2rad([10.0, q2_deg, -150.0, 0.0, 0.0, 0.0])
+    return ["kx", "--robot", "sk120", "--q", ",".join(repr(float(v)) for v in coords)]
+
+
+def test_kx_reports_the_flat_parallelogram_it_went_through(capsys):
+    """`kx --q` beyond the SK120's flat parallelogram (q2 + q3 = -120 deg): the JSON
+    closure's singular_crossings and a note; short of it (-70 deg), none."""
+    for q2, crossings in ((30.0, [[0.1309, 0.392699, -1.963495, 0.0, 0.0, 0.0]]), (80.0, [])):
+        assert main([*_sk120_args(q2), "--json"]) == 0
+        closure = json.loads(capsys.readouterr().out)["closure"]
+        assert np.allclose(np.reshape(closure["singular_crossings"], (-1, 6)),
+                           np.reshape(crossings, (-1, 6)), atol=1e-6)
+    assert main(_sk120_args(30.0)) == 0
+    assert ("note: closing the loops from the reference assembly went through a singular pose "
+            "of the loops at coordinates [0.1309, 0.392699, -1.963495, 0.0, 0.0, 0.0]"
+            ) in capsys.readouterr().out

@@ -5,14 +5,6 @@ is often not assembled), :func:`least_squares_assembly` moves *all* free joints 
 passive) by damped Gauss-Newton (Levenberg-Marquardt: small steps, so the result stays near
 the pose) until the loop residual vanishes; the caller then restores the requested
 independent values and closes over the passive joints from there.
-
-Assembly modes: the continuation of :meth:`stiffness.robot.robot.Robot.configuration` keeps the
-sign of the passive constraint Jacobian's determinant
-(:meth:`~stiffness.robot.loops.LoopClosure.mode_determinant`). Where a step changes it,
-:func:`locate_crossing` tells a pass through a singular pose (the branch goes on
-continuously, as a parallelogram through its flat pose) from a jump onto the other assembly
-mode across a gap (the path passed near a parallel singularity, where the two modes come
-close: the step is then refused and shortened).
 """
 
 from __future__ import annotations
@@ -24,17 +16,10 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.robot import kinematics
-from stiffness.robot.loops import CLOSURE_TOLERANCE_M, SINGULAR_RATIO, LoopClosure
+from stiffness.robot.loops import CLOSURE_TOLERANCE_M, LoopClosure
 
 #: Iterations of the all-joint least squares.
 MAX_ITERATIONS = 400
-#: Width (rad or m, along the coordinate path) to which a change of the mode sign is located.
-CROSSING_WIDTH = 1e-9
-#: Largest change of the passive joints (rad or m) across that width for the branch to count
-#: as continuous (a pass through a singular pose) rather than a jump to another mode.
-CONTINUOUS_JUMP = 1e-6
-#: Most trials of :func:`locate_crossing` (it needs about ten through a singular pose).
-_LOCATE_ITERATIONS = 80
 
 
 @dataclass
@@ -56,7 +41,8 @@ class Assembly:
         Coordinates (rad or m) at which the path from the reference assembly went through a
         singular pose of the loops (the sign of the passive Jacobian's determinant changes
         there, the branch going straight on, as the SK120's parallelogram through its flat
-        pose); empty when the closure kept the reference assembly mode all the way.
+        pose); empty when the closure kept the reference assembly mode all the way
+        (:mod:`stiffness.robot.continuation`).
     """
 
     q: np.ndarray
@@ -74,78 +60,12 @@ class Assembly:
     def notes(self) -> list[str]:
         """One line per singular pose the closure passed through (none when it kept the
         reference assembly mode)."""
-        return [f"closing the loops from the reference assembly passed through a singular pose "
-                f"at coordinates {np.round(c, 6).tolist()} (rad or m), where two assembly "
-                "modes meet; beyond it they are on the branch that goes straight on (as a "
-                "parallelogram through its flat pose), not the reference's mode; give --q on "
-                "the near side of that pose for the reference mode"
+        return [f"closing the loops from the reference assembly went through a singular pose "
+                f"of the loops at coordinates {np.round(c, 6).tolist()} (rad or m), where two "
+                "assembly modes meet; beyond it the loops are on the branch that goes straight "
+                "on (as a parallelogram through its flat pose), the other sign of the passive "
+                "Jacobian's determinant"
                 for c in self.singular_crossings]
-
-
-def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
-                    close_at: Callable[[float, np.ndarray], np.ndarray | None],
-                    passive_q: np.ndarray, start: tuple[float, np.ndarray],
-                    end: tuple[float, np.ndarray], span: float,
-                    basis: tuple[np.ndarray, np.ndarray]) -> tuple[str, float]:
-    """What happened in a continuation step whose end has the other mode sign.
-
-    Locates the change of sign of the mode determinant
-    (:meth:`~stiffness.robot.loops.LoopClosure.mode_determinant`, in ``basis``, the step
-    start's or, when the step starts on a singular pose, the last one before it: then the
-    crossing is there) within
-    :data:`CROSSING_WIDTH` (``span`` is the path's largest coordinate change, rad
-    or m) by the Illinois variant of regula falsi, closing each trial from the configuration
-    interpolated between the bracket's ends with ``close_at(fraction, guess)`` (None when it
-    does not close).
-
-    Returns
-    -------
-    verdict, fraction
-        ``"crossing"``: the passive joints change by at most :data:`CONTINUOUS_JUMP` across
-        the change and a singular value of the passive Jacobian vanishes there
-        (:data:`~stiffness.robot.loops.SINGULAR_RATIO`): a pass through a singular pose at
-        ``fraction`` of the path (the step stands); ``"same"``: continuous, but nothing
-        vanishes (the basis had turned; the step stands); ``"jump"``: the passive joints jump
-        there (or a trial does not close, or lands off the chord): the step hopped to another
-        assembly mode and must be shortened.
-    """
-    (fa, qa), (fb, qb) = start, end
-    kinematics.update_first_order(model, data, qa)
-    ga, here = loop.mode_determinant(model, data, basis)
-    if here is basis:  # the step starts on a singular pose, where the modes meet
-        return "crossing", fa
-    kinematics.update_first_order(model, data, qb)
-    gb, kept = loop.mode_determinant(model, data, basis)[0], 0
-    for _ in range(_LOCATE_ITERATIONS):
-        if (fb - fa) * span <= CROSSING_WIDTH:
-            break
-        part = min(max(ga / (ga - gb), 0.01), 0.99)  # regula falsi, kept inside the bracket
-        fm = fa + (fb - fa) * part
-        guess = pin.interpolate(model, qa, qb, part)
-        qm = close_at(fm, guess)
-        if qm is None:
-            return "jump", fm
-        chord = float(np.max(np.abs(qb[passive_q] - qa[passive_q]), initial=0.0))
-        if float(np.max(np.abs(qm[passive_q] - guess[passive_q]), initial=0.0)) \
-                > 0.5 * chord + CONTINUOUS_JUMP:
-            return "jump", fm
-        kinematics.update_first_order(model, data, qm)
-        gm = loop.mode_determinant(model, data, basis)[0]
-        if gm > 0:
-            fa, qa, ga = fm, qm, gm
-            gb, kept = (gb / 2.0 if kept == 1 else gb), 1  # Illinois: b kept twice
-        else:
-            fb, qb, gb = fm, qm, gm
-            ga, kept = (ga / 2.0 if kept == -1 else ga), -1
-    if float(np.max(np.abs(qb[passive_q] - qa[passive_q]), initial=0.0)) > CONTINUOUS_JUMP:
-        return "jump", fa
-    rank = basis[1].shape[1]
-    ratios = []
-    for q in (qa, qb):
-        kinematics.update_first_order(model, data, q)
-        sv = np.linalg.svd(loop.jacobian(model, data)[:, loop.passive_v], compute_uv=False)
-        ratios.append(sv[rank - 1] / sv[0] if rank else 1.0)
-    return ("crossing" if min(ratios) <= SINGULAR_RATIO else "same"), fa
 
 
 def least_squares_assembly(model: pin.Model, data: pin.Data, loop: LoopClosure, q: np.ndarray,

@@ -31,6 +31,7 @@ every solve on them is rank-revealing (least squares / pseudo-inverse).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -375,7 +376,7 @@ class LoopClosure:
         """:meth:`passive_basis` of the passive columns ``cp``, of ``rank`` (None: theirs)."""
         n = cp.shape[1]
         if rank == n:
-            return cp, np.eye(n)
+            return cp, _identity(n)
         u, sv, vt = np.linalg.svd(cp, full_matrices=False)
         if rank is None:
             rank = int(np.sum(sv > rtol * max(1.0, sv[0] if sv.size else 0.0)))
@@ -396,12 +397,12 @@ class LoopClosure:
         """
         b, v = basis
         cp = self.jacobian(model, data)[:, self.passive_v]
-        det = float(np.linalg.det(b.T @ cp @ v)) if v.shape[1] else 1.0
+        det = _small_det(b.T @ cp @ v)
         here = self._basis(cp, cp.shape[1] if v.shape[1] == cp.shape[1] else None)
         gram = here[0].T @ here[0]
         rank = gram.shape[0]
-        if rank < v.shape[1] or rank and np.linalg.det(gram) <= \
-                SINGULAR_RATIO ** 2 * (np.trace(gram) / rank) ** rank:
+        if rank < v.shape[1] or rank and _small_det(gram) <= \
+                SINGULAR_RATIO ** 2 * (float(gram.trace()) / rank) ** rank:
             here = basis
         return det, here
 
@@ -465,6 +466,31 @@ class LoopClosure:
             f"the kinematic loop does not close at {name} (residual {np.linalg.norm(c):.3g} m "
             f"after {max_iterations} iterations): the configuration is out of the loop's reach; "
             "check the joint values and their units", loop=name, residual=worst)
+
+
+@functools.cache
+def _identity(n: int) -> np.ndarray:
+    """The (n, n) identity, made once (read only)."""
+    out = np.eye(n)
+    out.flags.writeable = False
+    return out
+
+
+def _small_det(m: np.ndarray) -> float:
+    """Determinant of a square matrix, written out up to 3 x 3 (1 for 0 x 0)."""
+    n = m.shape[0]
+    if n > 3:
+        return float(np.linalg.det(m))
+    if n == 0:
+        return 1.0
+    a = m.tolist()
+    if n == 1:
+        return a[0][0]
+    if n == 2:
+        return a[0][0] * a[1][1] - a[0][1] * a[1][0]
+    return (a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]))
 
 
 def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,

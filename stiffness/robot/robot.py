@@ -23,7 +23,6 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 import pinocchio as pin
@@ -35,8 +34,9 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.robot import kinematics
-from stiffness.robot.assembly import Assembly, least_squares_assembly, locate_crossing
+from stiffness.robot.assembly import Assembly, least_squares_assembly
 from stiffness.robot.calibration import calibrated_source, is_json
+from stiffness.robot.continuation import Continuation
 from stiffness.robot.coupling import CoordinateMap
 from stiffness.robot.declaration import (
     check_compliant,
@@ -68,10 +68,6 @@ from stiffness.robot.urdf import Mimic
 #: Name of the operational frame added at the measurement target.
 TARGET_FRAME = "stiffness_target"
 
-#: Largest joint step (rad or m) of the continuation used to close loops along a path.
-_CONTINUATION_STEP = 0.15
-#: Largest Newton correction of the passive joints (rad or m) accepted in one continuation step.
-_BRANCH_JUMP = 0.05
 #: Fraction of the way from the requested pose to the assembly found by the search that the
 #: reference assembly steps on, into the loops' reach (see Robot._step_inside).
 _INSIDE_STEP = 0.1
@@ -514,89 +510,15 @@ class Robot:
 
     def _continue(self, start: np.ndarray, q: np.ndarray, coords: np.ndarray
                   ) -> tuple[np.ndarray, list[tuple[float, ...]]]:
-        """Close the loops along the straight coordinate path from ``start`` (closed at ``q``).
-
-        Predictor: the tangent (first step) then the secant through the last two solutions,
-        which carries the branch through singular poses (e.g. a flat parallelogram). Corrector:
-        Newton on the passive joints. A step whose correction exceeds :data:`_BRANCH_JUMP`, or
-        that changes the sign of the passive Jacobian's determinant by a jump rather than
-        through a singular pose (:func:`~stiffness.robot.assembly.locate_crossing`), is halved,
-        so the path keeps its assembly mode. Returns the closed configuration and the
-        coordinates of the singular poses passed through.
-        """
-        model, data, loop = self.model, self.data, self.loop
-        span = float(np.max(np.abs(coords - start))) if coords.size else 0.0
-        if span == 0.0:
-            return loop.close(model, data, self._tree_configuration(coords, q)), []
+        """Close the loops along the straight coordinate path from ``start`` (closed at ``q``)
+        in ``q``'s assembly mode (:class:`~stiffness.robot.continuation.Continuation`); also
+        the coordinates of the singular poses passed through."""
         passive_q = np.concatenate([
             np.arange(j.idx_q, j.idx_q + j.nq)
-            for j in (self._joint(n) for n in loop.passive_joints)
+            for j in (self._joint(n) for n in self.loop.passive_joints)
         ] + [np.zeros(0)]).astype(int)
-
-        def close_at(part: float, guess: np.ndarray) -> np.ndarray | None:
-            try:
-                return loop.close(model, data, self._tree_configuration(
-                    start + (coords - start) * part, guess))
-            except LoopClosureError:
-                return None
-
-        nominal = min(1.0, _CONTINUATION_STEP / span)
-        fraction, h = 0.0, nominal
-        previous: tuple[np.ndarray, float] | None = None
-        crossings: list[tuple[float, ...]] = []
-        kinematics.update_first_order(model, data, q)
-        basis = loop.passive_basis(model, data)
-        while fraction < 1.0 - 1e-12:
-            h = min(h, 1.0 - fraction)
-            if previous is None:
-                pin.computeJointJacobians(model, data, q)
-                dv = np.zeros(model.nv)
-                dv[self.coordinate_v] = (coords - start) * h
-                dv[loop.passive_v] = loop.passive_rates(
-                    model, data, self.coordinate_v) @ dv[self.coordinate_v]
-                predicted = pin.integrate(model, q, dv)
-            else:
-                predicted = q.copy()
-                q_prev, h_prev = previous
-                predicted[passive_q] += (q[passive_q] - q_prev[passive_q]) * h / h_prev
-                predicted = pin.normalize(model, predicted)  # quaternions of ball joints
-            closed = close_at(fraction + h, predicted)
-            jump = np.inf if closed is None else float(
-                np.max(np.abs(closed[passive_q] - predicted[passive_q]), initial=0.0))
-            if closed is not None and jump <= _BRANCH_JUMP:
-                sign, here = loop.mode_determinant(model, data, basis)  # data at `closed`
-                if sign < 0:
-                    verdict, part = locate_crossing(model, data, loop, close_at, passive_q,
-                                                    (fraction, q), (fraction + h, closed), span,
-                                                    basis)
-                    if verdict == "jump":
-                        jump = np.inf  # onto another assembly mode: not taken
-                    elif verdict == "crossing":
-                        crossings.append(tuple((start + (coords - start) * part).tolist()))
-                    kinematics.update_first_order(model, data, closed)
-                    here = loop.mode_determinant(model, data, basis)[1]
-            if closed is None or jump > _BRANCH_JUMP:
-                h /= 2.0
-                if h < 1e-9:
-                    self._fold(start, coords, self._tree_configuration(
-                        start + (coords - start) * (fraction + h), predicted))
-                continue
-            previous = (q, h)
-            q, fraction, basis = closed, fraction + h, here
-            h = min(2.0 * h, nominal)
-        return q, crossings
-
-    def _fold(self, start: np.ndarray, coords: np.ndarray, q: np.ndarray) -> NoReturn:
-        """Raise the :class:`LoopClosureError` of a continuation stopped at ``q`` by a fold."""
-        kinematics.update_first_order(self.model, self.data, q)
-        name, worst = max(self.loop.loop_residuals(self.model, self.data),
-                          key=lambda item: item[1])
-        raise LoopClosureError(
-            f"the loops of {self.title} cannot be closed continuously from "
-            f"coordinates {np.round(start, 6).tolist()} to "
-            f"{np.round(coords, 6).tolist()}: the "
-            "path meets a fold of the loop (the pose is unreachable on this branch)",
-            loop=name, residual=worst)
+        return Continuation(self.model, self.data, self.loop, self.coordinate_v,
+                            self._tree_configuration, passive_q, self.title).run(start, q, coords)
 
     def _step_inside(self, start: np.ndarray, q: np.ndarray) -> np.ndarray:
         """An assembly a little further from ``start`` than ``q``, when one closes.
