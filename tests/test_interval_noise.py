@@ -20,11 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 from scipy.optimize import least_squares
 from stats import Coverage
 
+from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.selection import Noise
 from stiffness.calibration.solver import covariance_matrix
+from stiffness.planning.simulate import simulate
 
 SIGMA = 0.01
 N, P, SEEDS = 6, 3, 200
@@ -82,3 +85,21 @@ def test_the_rule_by_how_the_noise_is_known():
     assert Noise.estimated(1.0, 3, 5).dof == 1
     robust = declared.of_fit("huber", 9, 6)
     assert robust == Noise(2e-6, 3) and robust.one_sided() == pytest.approx(2.353363, abs=1e-6)
+
+
+def test_a_robust_fits_t_takes_the_directions_its_sandwich_spreads_over():
+    """A parameterless switch (``complementary_stiffness``) counts in the information
+    criterion's p but gives the sandwich no direction: diagnose's robust intervals take
+    t(n - 3) over the three springs, as the sandwich's N - p does (they took t(n - 4)). The
+    quantile is read back from each reported interval, ``k / (1 -+ t SE(k) / k)``."""
+    sim = simulate("ur5", configs=3, loads_per_config=2, noise_std_m=5e-6, seed=1,
+                   kq=[3e4, 2e4, 1.5e4], max_force=100.0, target_offset_m=[0.0, 0.0, 0.1],
+                   compliant_joints=["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"])
+    d = diagnose(sim.campaign, propose=False, workers=1, loss="huber", max_steps=0,
+                 families=["complementary_stiffness"])
+    assert d.final.penalty_params == 4 and len(d.final.kept) == 3
+    t = stats.t.ppf(0.975, sim.campaign.deflection.size - 3)
+    for p in d.final_stiffness:
+        s = p.standard_error / p.value
+        assert (1.0 - p.value / p.ci95[1]) / s == pytest.approx(t, rel=1e-9)
+        assert (p.value / p.ci95[0] - 1.0) / s == pytest.approx(t, rel=1e-9)

@@ -565,6 +565,15 @@ def compliance_covariance(fit: Fit, sigma: float, measured: np.ndarray | None = 
         return np.where(np.isinf(matrix), np.inf, matrix / np.outer(slope, slope))
 
 
+def determined_directions(fit: Fit) -> int:
+    """How many directions of ``fit.x`` its kept parameters determine
+    (:attr:`~stiffness.calibration.solver.Covariance.rank`): those a robust fit's sandwich
+    spreads over, whose intervals then take ``n - rank`` degrees of freedom (a parameterless
+    switch such as ``complementary_stiffness`` counts in :attr:`Fit.penalty_params`, not
+    here)."""
+    return covariance(replace(fit, loss="linear"), 1.0).rank
+
+
 def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Covariance:
     """The covariance of ``fit.x`` for a noise std ``sigma`` (m): the one covariance of both
     campaign kinds (:func:`stiffness.calibration.solver.covariance_matrix`; for a robust loss,

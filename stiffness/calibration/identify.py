@@ -337,9 +337,9 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
             rot_sigma = kind_noise(rot_res, n_res, fitted)
     level = _noise_level(campaign, best_fit.rss, n_res, fitted, robust_sigma)
     sigma, notes = level.noise.sigma, level.notes
-    intervals = level.noise.of_fit(best_fit.loss, n_res, fitted)
-    unc = _uncertainty(covariance(best_fit, sigma, measured), best.k, intervals.two_sided(),
-                       rob.compliant_joints)
+    cov = covariance(best_fit, sigma, measured)
+    intervals = level.noise.of_fit(best_fit.loss, n_res, cov.rank)
+    unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
     rigid = _rigid(best_fit, sigma, measured, intervals.one_sided(), unc)
     outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, fitted,
                                     tuple(campaign.config or ()), campaign.lines)

@@ -663,10 +663,13 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
     else:
         sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
     # the intervals' noise: declared, else estimated over n - k degrees of freedom (least
-    # squares' residuals; a robust loss's sandwich, declared scale or not)
-    noise = (Noise(sigma) if campaign.noise_std is not None else
-             Noise.estimated(sigma, n, k)).of_fit(loss, n, k)
+    # squares' residuals); a robust loss's sandwich, declared scale or not, over n - d: d the
+    # directions it spreads over, those the free parameters' columns determine
     sizes = np.array([obs.model.parameters[i].scale for i in ident.kept])
+    spread_over = k if loss == "linear" else covariance_matrix(jac[:, free] * sizes[free],
+                                                                sigma).rank
+    noise = (Noise(sigma) if campaign.noise_std is not None else
+             Noise.estimated(sigma, n, k)).of_fit(loss, n, spread_over)
 
     def spread(columns: list[int]) -> np.ndarray:
         typical = sizes[columns]

@@ -334,10 +334,12 @@ class Noise:
         """The noise of the intervals of a fit of ``p`` parameters to ``n`` residuals under
         ``loss`` (:data:`~stiffness.calibration.solver.LOSSES`) scaled by this one: this one for
         least squares; for a robust loss the sandwich's, estimated over ``n - p`` degrees of
-        freedom (the std scaling the loss kept as :attr:`sigma`). ``p`` counts the parameters
-        the fit moved, not those held as not identifiable: the sandwich spreads over the
-        directions the data determine
-        (:func:`~stiffness.calibration.solver.sandwich_matrix`)."""
+        freedom (the std scaling the loss kept as :attr:`sigma`). For a robust loss ``p`` is
+        the number of directions the sandwich spreads over
+        (:func:`~stiffness.calibration.solver.sandwich_matrix`,
+        :attr:`~stiffness.calibration.solver.Covariance.rank`): not a parameter held as not
+        identifiable, nor a parameterless switch (``complementary_stiffness``), nor a pose
+        parameter at its bound."""
         return self if loss == "linear" else Noise.estimated(self.sigma, n, p)
 
     def goodness_of_fit(self, rss: float, n: int, p: int) -> float | None:

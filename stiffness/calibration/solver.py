@@ -540,6 +540,12 @@ class Covariance:
     undetermined: np.ndarray
 
     @property
+    def rank(self) -> int:
+        """How many directions the data determine: those a robust fit's sandwich spreads over
+        (:func:`sandwich_matrix`), whose intervals then take ``n - rank`` degrees of freedom."""
+        return int(np.count_nonzero(~self.undetermined))
+
+    @property
     def condition_number(self) -> float:
         """Largest over smallest singular value (inf with an undetermined direction)."""
         if self.undetermined.any() or not self.singular_values.size:
