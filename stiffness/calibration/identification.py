@@ -150,6 +150,10 @@ class Identification(IdentificationResult):
         :func:`~stiffness.calibration.fitting.rigid_joints`): its
         interval is then one-sided, ``[ci95_low, inf]``, and it has no standard error. Empty:
         none.
+    kinematics_bias_se
+        The enhanced formulation's first-order kinematics' bias of each stiffness, in its
+        standard errors (:func:`~stiffness.calibration.identify.kinematics_bias`; NaN for a
+        held one), ``None`` for the other formulations; JSON ``kinematics_bias_se``.
     starts
         Every least-squares run.
     starts_agree
@@ -231,6 +235,7 @@ class Identification(IdentificationResult):
     stiffness_coordinates: str = "chain"
     held: tuple[str | None, ...] = ()
     at_bound: tuple[bool, ...] = ()
+    kinematics_bias_se: np.ndarray | None = None
 
     @property
     def sigma_m(self) -> float:
@@ -302,6 +307,8 @@ class Identification(IdentificationResult):
                     self.at_bound or (False,) * len(self.joints), strict=True)
             ],
             "ci95_method": self.ci95_method,
+            "kinematics_bias_se": None if self.kinematics_bias_se is None else [
+                float(b) if math.isfinite(b) else None for b in self.kinematics_bias_se],
             "loss": self.loss,
             **outlier_keys(self.outliers, self.outlier_sigma_m),
             "covariance_log": self.covariance_log,
