@@ -715,3 +715,19 @@ def test_default_load_is_the_robots_as_in_kx(robot_name):
                        if line.startswith("wrench"))
     assert ("wrench_SI" in wrench_line) == (declared is not None)
     assert robot_name != "sk120" or declared is not None  # the shipped SK120 declares its load
+
+
+def test_an_axis_beyond_the_joint_limits_is_warned_about(tmp_path, recwarn):
+    """``--axis elbow_joint=0:90:30`` without ``--deg`` swept the UR5's elbow to 90 rad with no
+    word (``--q`` is warned about); now one warning names the range, the limits and ``--deg``,
+    and the same range in degrees is quiet."""
+    base = ["scan", "--robot", "ur5", "--kq", UR5_KQ, "--wrench", "0,0,-100", "--quiet",
+            "--no-plots"]
+    assert main([*base, "--axis", "elbow_joint=0:90:30", "--out", str(tmp_path / "a")]) == 0
+    [message] = [str(w.message) for w in recwarn if "--axis" in str(w.message)]
+    assert message == ("ur5: --axis elbow_joint runs 0..90, beyond elbow_joint's limits "
+                       "[-3.14159, 3.14159] (rad, m) (the values look like degrees: add --deg)")
+    recwarn.clear()
+    assert main([*base, "--axis", "elbow_joint=0:90:30", "--deg", "--out",
+                 str(tmp_path / "b")]) == 0
+    assert not [w for w in recwarn if "--axis" in str(w.message)]

@@ -50,6 +50,7 @@ import argparse
 import json
 import re
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -220,8 +221,26 @@ def _axes(robot: Robot, args: argparse.Namespace) -> list[tuple[str, tuple]]:
         bounds = [parse_list(match.group(k), "--axis")[0] * scale for k in (2, 3)]
         if match.group(4) is not None:
             bounds.append(parse_list(match.group(4), "--axis")[0] * scale)
+        _warn_beyond_limits(robot, match.group(1), bounds[:2], args.deg)
         axes.append((match.group(1), tuple(bounds)))
     return axes
+
+
+def _warn_beyond_limits(robot: Robot, name: str, bounds: list[float], deg: bool) -> None:
+    """Warn when an ``--axis`` range (rad, m) leaves its joint's limits, as ``--q`` does
+    (``--axis elbow_joint=0:90:30`` without ``--deg`` swept 90 rad, silently)."""
+    from stiffness.mechanics.ik import coordinate_limits
+
+    index = coordinate_index(robot, name, "--axis")
+    lo, hi = (float(v[index]) for v in coordinate_limits(robot))
+    if lo - 1e-9 <= min(bounds) and max(bounds) <= hi + 1e-9:
+        return
+    joint = robot.coordinate_joints[index]
+    hint = ("" if deg or robot.is_prismatic(joint) or not
+            lo <= np.deg2rad(min(bounds)) <= np.deg2rad(max(bounds)) <= hi else
+            " (the values look like degrees: add --deg)")
+    warnings.warn(f"{robot.title}: --axis {name} runs {bounds[0]:.6g}..{bounds[1]:.6g}, beyond "
+                  f"{joint}'s limits [{lo:.6g}, {hi:.6g}] (rad, m){hint}", stacklevel=2)
 
 
 def scan_arguments(args: argparse.Namespace) -> tuple[Robot, dict]:
