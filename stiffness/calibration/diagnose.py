@@ -63,10 +63,7 @@ from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
 from stiffness.calibration.fitting import Fit, determined_directions, kind_noise, observations
 from stiffness.calibration.naming import settle
-from stiffness.calibration.outliers import (
-    flag_fit,
-    robust_noise,
-)
+from stiffness.calibration.outliers import flag_fit, robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
@@ -87,6 +84,7 @@ from stiffness.calibration.selection import (
     Noise,
     config_folds,
     cross_validate,
+    extra_fit,
     fit_baseline,
     fit_job,
     fit_model,
@@ -707,8 +705,10 @@ class OneConfigurationSearch(DeflectionSearch):
     load at a time (:func:`~stiffness.calibration.selection.config_folds` over the loads),
     and a candidate named only where those rows can judge it
     (:func:`~stiffness.calibration.selection.row_support`: each fold's fit keeps more
-    residual components than the candidate's parameters, and the candidate does not fit below
-    the noise); else it is refused, said in the stop reason."""
+    residual components than its parameters, and it does not fit below a known noise) and,
+    the noise not known, show it (:func:`~stiffness.calibration.selection.extra_fit` against
+    the step's current model, :attr:`current_terms`, over its :attr:`tried` candidates);
+    else it is refused, said in the stop reason."""
 
     stops: ClassVar[dict[Stop, str]] = {
         **DeflectionSearch.stops,
@@ -717,13 +717,22 @@ class OneConfigurationSearch(DeflectionSearch):
                         "its rows)"),
         Stop.REFUSED: ("one configuration: its rows can judge none of the candidates that "
                        "improve BIC, so none is named")}
+    current_terms: tuple[float, int] = (math.nan, 0)
+    tried: int = 0
+
+    def candidates(self, current: Fit, only: str | None = None) -> list[Found] | None:
+        results = super().candidates(current, only)
+        self.current_terms, self.tried = current.terms(), len(results or ())
+        return results
 
     def held_out(self, named: Iterator[Found]) -> Iterator[Found]:
-        """Those the rows can judge cross-validated together over the folds; the others
-        ``refused``, with why."""
+        """Those the rows can judge and show cross-validated together over the folds; the
+        others ``refused``, with why."""
         tried = list(named)
         for c in tried:
             c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.noise)
+            if c.refused is None and self.noise is None:
+                c.refused = extra_fit(self.current_terms, c.fit.terms(), self.n, self.tried)
         super().held_out(c for c in tried if c.refused is None)
         return iter(tried)
 

@@ -170,6 +170,36 @@ def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: in
     return None
 
 
+#: Family-wise level of the extra-sum-of-squares F test a candidate of a campaign of one
+#: configuration passes to be named when its noise is not known (:func:`extra_fit`).
+SELECTION_LEVEL = 0.05
+
+
+def extra_fit(current: tuple[float, int], extension: tuple[float, int], n: int, tried: int
+              ) -> str | None:
+    """Why the rows do not show an extension of the current model, one of ``tried`` fitted in
+    a step, to be real without a known noise, or ``None`` when they do; models are given as
+    ``(RSS m^2, parameters)`` over ``n`` residual components.
+
+    The extra-sum-of-squares F test of nested models: ``F = ((RSS0 - RSS1) / dp) /
+    (RSS1 / (n - p1))`` against F(``dp``, ``n - p1``) (``dp = p1 - p0``, at least 1), whose
+    null distribution needs no noise std (exact for linear models). The step names the best
+    of its ``tried`` candidates, so each must pass at :data:`SELECTION_LEVEL` / ``tried``
+    (Bonferroni): the step names a false effect at most at that level, whichever is best.
+    """
+    (rss0, p0), (rss1, p1) = current, extension
+    dp, dof = max(p1 - p0, 1), n - p1
+    if dof <= 0:
+        return f"{p1} parameters on {n} residual components: no degree of freedom left"
+    f = (rss0 - rss1) / dp / max(rss1 / dof, 1e-300)
+    p = float(fdtrc(dp, dof, max(f, 0.0)))
+    if p < SELECTION_LEVEL / max(tried, 1):
+        return None
+    return (f"the noise not known, the rows do not show it (extra-sum-of-squares F = {f:.3g} "
+            f"on ({dp}, {dof}) degrees of freedom, p = {p:.2g}, not below "
+            f"{SELECTION_LEVEL:g}/{max(tried, 1)}: the best of {max(tried, 1)} candidates)")
+
+
 def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray],
                    workers: int | None = None) -> list[float]:
     """Cross-validated RMS residual (m) of each fit: each fold refitted without its rows, from
