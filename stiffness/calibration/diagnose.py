@@ -726,8 +726,7 @@ class OneConfigurationSearch(DeflectionSearch):
         return results
 
     def held_out(self, named: Iterator[Found]) -> Iterator[Found]:
-        """Those the rows can judge and show cross-validated together over the folds; the
-        others ``refused``, with why."""
+        """Those the rows can judge and show cross-validated; the others ``refused``, why."""
         tried = list(named)
         for c in tried:
             c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.noise)
