@@ -93,15 +93,15 @@ class Continuation:
         previous: tuple[np.ndarray, float] | None = None
         crossings: list[tuple[float, ...]] = []
         kinematics.update_first_order(model, data, q)
-        basis = loop.passive_basis(model, data)
+        jacobian = loop.jacobian(model, data)
+        basis = loop.passive_basis(model, data, jacobian)
+        rates = loop.passive_rates(model, data, self.coordinate_v, jacobian)  # tangent at q
         while fraction < 1.0 - 1e-12:
             h = min(h, 1.0 - fraction)
-            if previous is None:
-                pin.computeJointJacobians(model, data, q)
+            if previous is None:  # the first step, from the start
                 dv = np.zeros(model.nv)
                 dv[self.coordinate_v] = (coords - start) * h
-                dv[loop.passive_v] = loop.passive_rates(
-                    model, data, self.coordinate_v) @ dv[self.coordinate_v]
+                dv[loop.passive_v] = rates @ dv[self.coordinate_v]
                 predicted = pin.integrate(model, q, dv)
             else:
                 predicted = q.copy()

@@ -348,33 +348,37 @@ class LoopClosure:
         sv = np.linalg.svd(cp, compute_uv=False)
         return int(np.sum(sv > rtol * max(1.0, sv[0] if sv.size else 0.0)))
 
-    def passive_rates(self, model: pin.Model, data: pin.Data, independent_v: np.ndarray
-                      ) -> np.ndarray:
+    def passive_rates(self, model: pin.Model, data: pin.Data, independent_v: np.ndarray,
+                      jacobian: np.ndarray | None = None) -> np.ndarray:
         """Rates of the passive joints per unit rate of the independent joints, (n_p, n_i).
 
         Least-squares (rank-revealing) solution of ``C_p dq_p = -C_i dq_i``; joint Jacobians
-        must be up to date.
+        must be up to date (or give :meth:`jacobian` there).
         """
-        c = self.jacobian(model, data)
+        c = self.jacobian(model, data) if jacobian is None else jacobian
         return -np.linalg.pinv(c[:, self.passive_v], rcond=1e-9) @ c[:, independent_v]
 
-    def passive_basis(self, model: pin.Model, data: pin.Data, rtol: float = 1e-9
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def passive_basis(self, model: pin.Model, data: pin.Data,
+                      jacobian: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Basis ``(B, V)`` in which :meth:`mode_determinant` reads the assembly mode here.
 
         V (n_passive_v, r) spans the passive motions the loops determine (the identity when
         there is no idle motion; else the right singular vectors of the r nonzero singular
         values of the passive columns C_p of :meth:`jacobian`) and B = C_p V, so that
         ``det(B^T C_p V)`` is positive here (redundant rows of a planar loop drop out).
-        Joint Jacobians must be up to date.
+        Joint Jacobians must be up to date (or give :meth:`jacobian` there).
         """
-        cp = self.jacobian(model, data)[:, self.passive_v]
-        return self._basis(cp, None, rtol)
+        c = self.jacobian(model, data) if jacobian is None else jacobian
+        return self._basis(c[:, self.passive_v], None)
 
     def _basis(self, cp: np.ndarray, rank: int | None, rtol: float = 1e-9
                ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`passive_basis` of the passive columns ``cp``, of ``rank`` (None: theirs)."""
         n = cp.shape[1]
+        if rank is None and 0 < n <= cp.shape[0]:  # full rank, without an SVD
+            gram = cp.T @ cp
+            if _small_det(gram) > SINGULAR_RATIO ** 2 * (float(gram.trace()) / n) ** n:
+                rank = n
         if rank == n:
             return cp, _identity(n)
         u, sv, vt = np.linalg.svd(cp, full_matrices=False)
