@@ -104,3 +104,8 @@ def test_track_refuses_what_mujoco_cannot_simulate():
         track(rigid, np.array([[0.0, -1.0, 1.0, 0, 0, 0], [0.1, -1.0, 1.0, 0, 0, 0]]),
               [0.0, 0.0, -100.0])
     assert "shoulder_pan_joint" in str(err.value)
+    # a segment shorter than a tick: 2 ticks, a 62 mm 'error' the compensator cannot touch
+    springs = ElasticModel.joint_springs(ur5, [3e5] * 6)
+    for times in ({"segment_time": 0.0}, {"timestep": 10.0}):
+        with pytest.raises(StiffnessError, match=r"shorter than the time step .* would jump"):
+            track(springs, np.zeros((2, 6)), [0.0, 0.0, -100.0], **times)

@@ -285,6 +285,10 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
         if not (np.isfinite(value) and value >= 0.0) or (name == "time step" and value <= 0):
             raise StiffnessError(f"the {name} must be a finite positive number of seconds, "
                                  f"got {value!r}")
+    if coords.shape[0] > 1 and segment_time < timestep:  # 0 s: jumps, tracked by nothing
+        raise StiffnessError(f"the segment time {segment_time:g} s is shorter than the time "
+                             f"step {timestep:g} s: the path would jump from point to point; "
+                             "give a segment time of many time steps (--segment-time)")
     rigid = np.setdiff1d(np.arange(em.robot.n_coordinates), em.robot.compliant_in_springs) \
         if em.robot.spring_joints == em.robot.coordinate_joints else np.array([], dtype=int)
     moved = [em.robot.coordinate_joints[j] for j in rigid
