@@ -118,3 +118,47 @@ def test_an_empty_robot_name_and_a_string_of_joints(tmp_path, monkeypatch):
     assert load_robot("ur5", compliant_joints="elbow_joint").compliant_joints == ("elbow_joint",)
     assert load_robot("ur5", compliant_joints="elbow_joint, wrist_1_joint").compliant_joints \
         == ("elbow_joint", "wrist_1_joint")
+
+
+GRIPPER = """<?xml version="1.0"?>
+<robot name="grip">
+  <link name="palm"/><link name="left_finger"/><link name="right_finger"/>
+  <joint name="finger_joint" type="revolute"><parent link="palm"/><child link="left_finger"/>
+    <origin xyz="0 0.02 0.05"/><axis xyz="1 0 0"/>
+    <limit lower="0" upper="0.8" effort="1" velocity="1"/></joint>
+  <joint name="right_finger_joint" type="revolute"><parent link="palm"/>
+    <child link="right_finger"/><origin xyz="0 -0.02 0.05"/><axis xyz="1 0 0"/>
+    <limit lower="-0.8" upper="0" effort="1" velocity="1"/>
+    <mimic joint="finger_joint" multiplier="-1"/></joint>
+</robot>
+"""
+
+
+def test_a_target_moved_by_a_mimic_follower_has_its_leader_as_spring(tmp_path):
+    """A target on a ``<mimic>`` follower's link (robotiq 2F-85's default target, its
+    ``left_inner_finger``) had no default compliant joint: the follower is no coordinate and
+    its leader is not on the target's chain, so kx said '--kq has 1 value for the 0 compliant
+    joints of robotiq_arg85_description ()'. The leader that moves it is the spring now."""
+    path = tmp_path / "grip.urdf"
+    path.write_text(GRIPPER)
+    robot = load_robot(path, frame="right_finger", target_offset=[0.0, 0.0, 0.05])
+    assert robot.compliant_joints == ("finger_joint",)
+    step = 1e-6
+    moved = (frame_point(robot, robot.configuration([0.3 + step]))
+             - frame_point(robot, robot.configuration([0.3 - step]))) / (2 * step)
+    np.testing.assert_allclose(robot_jacobian(robot, robot.configuration([0.3]))[:3, 0], moved,
+                               atol=1e-8)
+    assert np.linalg.norm(moved) > 0.04  # the follower's 5 cm lever, turned by the leader
+
+
+def robot_jacobian(robot, q):
+    from stiffness.mechanics.formulation import target_state
+
+    return target_state(robot, q).jacobian
+
+
+def frame_point(robot, q):
+    import pinocchio as pin
+
+    pin.framesForwardKinematics(robot.model, robot.data, q)
+    return robot.data.oMf[robot.target_frame_id].translation.copy()

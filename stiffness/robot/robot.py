@@ -640,7 +640,7 @@ def load_robot(
     offset = default_target_offset(model, fid) if defaulted else target_offset_of(
         target_offset, settings, name, model, frame)
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
-        model, fid, spring_names, coupling is not None or not loop.is_open_chain))
+        model, fid, spring_names, coupling is not None or not loop.is_open_chain, mimics))
     settings = check_counts(settings, coordinate_joints, springs)
     compliant_joints = tuple(springs if compliant_joints is None else joint_names(compliant_joints))
     check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)

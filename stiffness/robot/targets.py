@@ -154,15 +154,18 @@ def branch_joints(model: pin.Model, frame_id: int, coordinate_joints: Sequence[s
                  if (jid := model.getJointId(name)) != parent and parent in model.supports[jid])
 
 
-def target_chain(model: pin.Model, frame_id: int, names: Sequence[str], coupled: bool
-                 ) -> tuple[str, ...]:
+def target_chain(model: pin.Model, frame_id: int, names: Sequence[str], coupled: bool,
+                 mimics: Sequence[Mimic] = ()) -> tuple[str, ...]:
     """The joints of ``names`` on the chain from the base to frame ``frame_id``: the joints
-    that move it (not a head, wheels, fingers or another limb); all of ``names`` when
-    ``coupled`` (closed loops or a controller map may tie every coordinate to the target)."""
+    that move it (not a head, wheels, fingers or another limb), a ``<mimic>`` leader among them
+    when its follower is on the chain (a gripper's jaw as the target: robotiq's
+    ``left_inner_finger`` moved by ``finger_joint`` through its followers); all of ``names``
+    when ``coupled`` (closed loops or a controller map may tie every coordinate to the target)."""
     if coupled:
         return tuple(names)
-    supports = set(model.supports[model.frames[frame_id].parentJoint])
-    return tuple(name for name in names if model.getJointId(name) in supports)
+    supports = {model.names[j] for j in model.supports[model.frames[frame_id].parentJoint]}
+    supports |= {m.leader for m in mimics if m.follower in supports}
+    return tuple(name for name in names if name in supports)
 
 
 def default_target_offset(model: pin.Model, frame_id: int) -> np.ndarray:
