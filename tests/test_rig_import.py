@@ -461,3 +461,21 @@ def test_pose_import_refusals_name_the_fix(tmp_path, capsys):
         assert main([*argv, *extra]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and words in err, err
+
+
+def test_import_never_replaces_the_rig_file_it_reads(tmp_path, capsys):
+    """``campaign import rig/measurements.csv --out rig`` replaced the rig's own file (its
+    extra columns and header units lost) with the converted campaign's measurements.csv."""
+    rig = tmp_path / "rig"
+    rig.mkdir()
+    path = rig / "measurements.csv"
+    path.write_text("\n".join(BASE_ROWS))
+    before = path.read_bytes()
+    argv = ["campaign", "import", str(path), "--robot", "ur5", "--units",
+            "angle=deg,force=N,length=mm"]
+    assert main([*argv, "--out", str(rig)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {rig} would replace the rig's file {path} with the campaign's " \
+           "measurements.csv; give another --out folder" in err and err.count("\n") == 1
+    assert path.read_bytes() == before and not (rig / "campaign.toml").exists()
+    assert main([*argv, "--out", str(rig / "campaign"), "--quiet"]) == 0

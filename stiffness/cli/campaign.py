@@ -16,11 +16,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 
 from stiffness.calibration.campaign import CAMPAIGN_KINDS
-from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
+from stiffness.calibration.campaign_toml import (
+    BASELINES,
+    CAMPAIGN_FILE,
+    DEFAULT_DATA_FILE,
+    RobotSettings,
+)
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_import import ROTATION_FORMATS, import_pose_campaign
@@ -161,6 +168,19 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
     return 0
 
 
+def _check_rig_files_kept(files: list[str], out: str) -> None:
+    """Refuse an ``--out`` folder whose campaign files would replace a rig file read
+    (``import rig/measurements.csv --out rig`` replaced the rig's own file, its extra columns
+    and header units lost, with the converted one)."""
+    for name in (CAMPAIGN_FILE, DEFAULT_DATA_FILE):
+        target = Path(out) / name
+        for given in files:
+            if target.is_file() and Path(given).is_file() and os.path.samefile(target, given):
+                raise StiffnessError(f"--out {out} would replace the rig's file {given} with "
+                                     f"the campaign's {name}; give another --out folder (the "
+                                     "rig's files stay as they are)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness campaign import``; returns the exit code."""
     if args.marker and args.kind != "poses":
@@ -177,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.rotation_format != "vector" and args.kind != "poses":
         raise StiffnessError("--rotation-format is for --kind poses")
     output_folder(args.out, create=False)
+    _check_rig_files_kept(args.files, args.out)
     settings = _settings(args)
     robot_settings = RobotSettings(
         robot_flags.source, robot_flags.frame,
