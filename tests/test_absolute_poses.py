@@ -272,6 +272,12 @@ def test_unseen_markers_and_reader_errors(ur10, tmp_path):
     (tmp_path / "campaign.toml").write_text(toml.replace('kind = "poses"', 'kind = "pose"'))
     with pytest.raises(StiffnessError, match="valid kinds"):
         load_campaign(tmp_path)
+    (tmp_path / "campaign.toml").write_text(toml)  # a tracker's export spelling its columns
+    (tmp_path / "measurements.csv").write_text("\n".join([csv[0].replace("tip_x", "Tip_X")]
+                                                          + csv[1:]))
+    with pytest.raises(StiffnessError, match=r"has no columns tip_x, tip_y, tip_z; rename "
+                                             r"Tip_X as tip_x \(names are exact\)"):
+        load_pose_campaign(tmp_path)
 
 
 @pytest.fixture(scope="module")

@@ -222,9 +222,13 @@ def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
     for m in markers:
         cols = [f"{m.name}_{a}" for a in "xyz"]
         if not all(c in names for c in cols):
+            cased = [f"{n} as {c}" for c in cols for n in names
+                     if n.lower() == c.lower() and n != c]
             raise FileFormatError(f"marker {m.name!r} of [markers] has no columns "
-                                  f"{', '.join(cols)}; add them (empty cells where it was not "
-                                  "seen)", path=data, line=1)
+                                  f"{', '.join(cols)}; " + (
+                                      f"rename {', '.join(cased)} (names are exact)" if cased
+                                      else "add them (empty cells where it was not seen)"),
+                                  path=data, line=1)
         columns.append([names.index(c) for c in cols])
     present = [c for c in _WRENCH if c in names]
     taken = {0, *(i for i in coordinates if i is not None)}
