@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import warnings
 from dataclasses import replace
 
@@ -581,3 +582,34 @@ def test_a_joint_effects_unit_of_a_prismatic_joint_on_a_revolute_one_is_refused(
     message = str(info.value)
     assert f"effects[0] ({effect}(elbow_joint)) {param} is in {wrong!r}, expected " \
            f"{expected!r} (of revolute joint 'elbow_joint')" in message and "\n" not in message
+
+
+def test_a_model_file_moved_away_from_its_urdf_takes_it_from_robot(tmp_path, capsys):
+    """A model file names its URDF relative to itself: copied elsewhere (sent to a colleague)
+    it could not be used at all, since ``--robot`` at the URDF's new place was refused as
+    'another robot'. A --robot of the same robot name now stands in for the missing file; a
+    robot of another name is still refused, and so is another robot while the file is there."""
+    from stiffness.cli.main import main
+
+    (tmp_path / "robot").mkdir()
+    urdf = tmp_path / "robot" / "slider.urdf"
+    urdf.write_text(SLIDER_URDF)
+    model = ModelFile(source=str(urdf), frame="tip", target_offset_m=np.zeros(3),
+                      compliant_joints=("slide", "swing"), k_theta=np.array([1e5, 2e4]),
+                      units=("N/m", "N.m/rad"), formulation="enhanced", robot_name="slider")
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    moved = model.write(tmp_path / "a" / "b" / "identified-model.json")
+    kx = ["kx", "--model", str(moved), "--wrench", "0,0,-10", "--json"]
+    assert main(kx) == 0  # beside its URDF (relative path ../../robot/slider.urdf)
+    at_home = json.loads(capsys.readouterr().out)["K_X"]
+    shutil.move(str(tmp_path / "a"), str(tmp_path / "robot" / "a"))  # now ../../slider.urdf
+    moved = tmp_path / "robot" / "a" / "b" / "identified-model.json"
+    assert main(kx[:2] + [str(moved)] + kx[3:]) == 2
+    assert "slider.urdf does not exist" in capsys.readouterr().err
+    assert main(kx[:2] + [str(moved), "--robot", str(urdf)] + kx[3:]) == 0
+    np.testing.assert_array_equal(json.loads(capsys.readouterr().out)["K_X"], at_home)
+    with pytest.raises(ModelRobotError, match="is of robot 'slider'"):
+        read_model_file(moved).check_robot("ur5")
+    (tmp_path / "robot" / "other.urdf").write_text(SLIDER_URDF)
+    with pytest.raises(ModelRobotError, match="is of robot 'slider'"):
+        model.check_robot(str(tmp_path / "robot" / "other.urdf"))  # the model's file is there

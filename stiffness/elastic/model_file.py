@@ -21,21 +21,19 @@ calibration's ``final-model.json`` (its robot the calibrated robot, its elastic 
 library's effects: :mod:`stiffness.elastic.calibrated`).
 
 Public API: :func:`read_model_file` (path -> :class:`ModelFile`: ``write``, ``to_dict``,
-``check_robot``); :func:`load_model` (a file, a :class:`ModelFile` or a robot with springs ->
-the one :class:`stiffness.elastic.model.ElasticModel`; :func:`elastic_model_of` for a read
-file); :func:`fitted_deflection`. Errors: :class:`ModelFileError` (unknown schema, missing or
-malformed key), :class:`ModelRobotError` (another robot, an effect on a joint it lacks).
-``CompliantModel``, ``ModelCompliance`` and ``model_compliance`` are deprecated names of
-:func:`elastic_model_of`, :class:`~stiffness.elastic.model.ElasticState` and
-``load_model(path).at(q, load)``.
+``check_robot``); :func:`load_model` (a file, a :class:`ModelFile` or a robot with springs -> the
+one :class:`stiffness.elastic.model.ElasticModel`; :func:`elastic_model_of` for a read file);
+:func:`fitted_deflection`. Errors: :class:`ModelFileError` (unknown schema, missing or malformed
+key), :class:`ModelRobotError` (another robot, an effect on a joint it lacks). ``CompliantModel``,
+``ModelCompliance`` and ``model_compliance`` are deprecated names of :func:`elastic_model_of`,
+:class:`~stiffness.elastic.model.ElasticState` and ``load_model(path).at(q, load)``.
 
 How each effect enters the elastic model is its class's business (its one hook,
 :meth:`stiffness.elastic.effects.base.Effect.contribute`; ``kind`` of
-:data:`stiffness.elastic.effects.base.EFFECT_KINDS`): ``stiffness`` and ``preload`` effects
-change the robot and its K_X; ``measurement`` effects (how the campaign observed its
-deflections) and ``lost_motion`` (backlash: a deflection, not a stiffness) are listed, not
-applied to K_X (the exact equilibrium and :func:`fitted_deflection` include the lost motion).
-docs/model-file.md gives the formulas.
+:data:`stiffness.elastic.effects.base.EFFECT_KINDS`): ``stiffness`` and ``preload`` effects change
+the robot and its K_X; ``measurement`` effects (how the campaign observed its deflections) and
+``lost_motion`` (backlash: a deflection, not a stiffness) are listed, not applied to K_X (the exact
+equilibrium and :func:`fitted_deflection` include it). Formulas: docs/model-file.md.
 """
 
 from __future__ import annotations
@@ -82,6 +80,7 @@ from stiffness.mechanics.defaults import default_stiffness
 from stiffness.mechanics.formulation import as_wrench
 from stiffness.robot.calibration import (
     POSE_MODEL_KIND,
+    moved_robot_file,
     read_pose_calibration,
     refuse_campaign,
     robot_identity,
@@ -254,9 +253,10 @@ class ModelFile:
                           compliant_joints=self.compliant_joints, **self.robot_options())
 
     def check_robot(self, source: str | os.PathLike) -> None:
-        """Refuse the model when ``source`` names another robot than the model's.
-
-        Raises ``ModelRobotError`` if ``source`` and the model's are different robots."""
+        """Refuse (``ModelRobotError``) a ``source`` naming another robot than the model's; a
+        model file moved away from its robot file takes ``source`` (:func:`moved_robot_file`)."""
+        if moved_robot_file(self.source, self.robot_name, str(source)):
+            self.source = str(source)
         if robot_identity(str(source)) != robot_identity(self.source):
             where = f" {self.path}" if self.path is not None else ""
             mine = repr(self.source) if self.robot_name in ("", self.source) else (

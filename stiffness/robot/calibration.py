@@ -375,6 +375,18 @@ def robot_identity(source: str) -> str:
     return source
 
 
+def moved_robot_file(recorded: str, name: str, given: str) -> bool:
+    """Whether the robot source ``given`` stands in for the robot file ``recorded`` that is no
+    longer where a model file names it (the model copied away from its URDF): ``recorded`` a
+    path that does not exist, ``given`` an existing file whose robot has the recorded ``name``
+    (its URDF's robot name, or its ``robot.toml``'s)."""
+    if not name or not looks_like_path(recorded) or Path(recorded).exists() \
+            or not Path(given).exists():
+        return False
+    found = resolve_robot_source(given)
+    return name in (found.model.name, found.settings.get("name"))
+
+
 def kinematic_fingerprint(model: pin.Model) -> str:
     """A short hash of a model's kinematics: its joints' names, types and placements (rounded
     to 1e-9 m and rad). Two robots with the same fingerprint move their frames alike."""
