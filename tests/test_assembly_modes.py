@@ -146,6 +146,24 @@ def test_a_path_through_the_singular_pose_goes_straight_on_and_says_so(five_bar)
     assert assembly.as_dict()["singular_crossings"] == [list(crossing)]
 
 
+def test_an_assembly_found_past_a_fold_says_its_mode_is_unchecked(five_bar):
+    """The straight path to motors (-2.91, 2.18) rad meets a fold (the elbows more than 2 B
+    apart on the way, not at the end); the assembly search finds an assembly there (here in
+    the other mode) and says its mode is not checked (flag, JSON key, note)."""
+    robot = load_robot(five_bar, frame="tip")
+    coords = np.array([-2.9118, 2.1818])
+    elbows = [closed_form(t * coords, REFERENCE_MODE)[0] for t in np.linspace(0.0, 1.0, 101)]
+    gaps = np.array([np.linalg.norm(e[1] - e[0]) for e in elbows])
+    assert gaps.max() > 2 * B > gaps[-1]  # out of reach on the way, in reach at the end
+    assembly = robot.assemble(coords)
+    assert assembly.assembly_search and not assembly.mode_checked
+    assert assembly.as_dict()["mode_checked"] is False
+    assert any("not checked to be in the reference assembly mode" in n
+               for n in assembly.notes())
+    assert _mode_and_elbows(robot, assembly.q) == -REFERENCE_MODE
+    assert robot.assemble(_past_the_singular_pose(1e-3)).mode_checked
+
+
 def test_batched_closures_keep_the_assembly_mode(five_bar):
     """close_loops on poses along a line passing 1e-4 rad from the singular pose: every key
     in the reference mode, at the closed form's elbow angles (3 of the 6 were in the other mode

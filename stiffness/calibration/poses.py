@@ -313,7 +313,10 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
         if np.any(values < set_lo - 1e-12) or np.any(values > set_hi + 1e-12):
             continue
         try:
-            q = robot.configuration(coords)
+            assembly = robot.assemble(coords)
+            if not assembly.mode_checked:  # past a fold, perhaps in another assembly mode
+                continue
+            q = assembly.q
             state = target_state(robot, q)
             if np.abs(state.jacobian[:3]).max() > MAX_JACOBIAN:
                 continue

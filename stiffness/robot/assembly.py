@@ -43,6 +43,10 @@ class Assembly:
         there, the branch going straight on, as the SK120's parallelogram through its flat
         pose); empty when the closure kept the reference assembly mode all the way
         (:mod:`stiffness.robot.continuation`).
+    mode_checked
+        False when the straight path from the reference assembly met a fold of the loops and
+        the assembly search found this one near the coordinates: its assembly mode is then not
+        known to be the reference's.
     """
 
     q: np.ndarray
@@ -50,22 +54,28 @@ class Assembly:
     idle_passive_motions: int
     assembly_search: bool
     singular_crossings: tuple[tuple[float, ...], ...] = ()
+    mode_checked: bool = True
 
     def as_dict(self) -> dict:
         """The JSON ``closure`` object of ``kx``."""
         return {"residual": self.residual, "idle_passive_motions": self.idle_passive_motions,
                 "assembly_search": self.assembly_search,
-                "singular_crossings": [list(c) for c in self.singular_crossings]}
+                "singular_crossings": [list(c) for c in self.singular_crossings],
+                "mode_checked": self.mode_checked}
 
     def notes(self) -> list[str]:
-        """One line per singular pose the closure passed through (none when it kept the
-        reference assembly mode)."""
-        return [f"closing the loops from the reference assembly went through a singular pose "
-                f"of the loops at coordinates {np.round(c, 6).tolist()} (rad or m), where two "
-                "assembly modes meet; beyond it the loops are on the branch that goes straight "
-                "on (as a parallelogram through its flat pose), the other sign of the passive "
-                "Jacobian's determinant"
-                for c in self.singular_crossings]
+        """One line per singular pose the closure passed through, and one when the mode was
+        not checked (none when it kept the reference assembly mode)."""
+        unchecked = [] if self.mode_checked else [
+            "the straight path from the reference assembly meets a fold of the loops before "
+            "these coordinates; the assembly the assembly search found near them is not "
+            "checked to be in the reference assembly mode (it may be another one)"]
+        return unchecked + [
+            f"closing the loops from the reference assembly went through a singular pose of "
+            f"the loops at coordinates {np.round(c, 6).tolist()} (rad or m), where two assembly "
+            "modes meet; beyond it the loops are on the branch that goes straight on (as a "
+            "parallelogram through its flat pose), the other sign of the passive Jacobian's "
+            "determinant" for c in self.singular_crossings]
 
 
 def least_squares_assembly(model: pin.Model, data: pin.Data, loop: LoopClosure, q: np.ndarray,

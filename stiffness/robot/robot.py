@@ -446,13 +446,15 @@ class Robot:
         else:
             start_coords, start_q = self.coordinates_of(seed), seed
         crossings: list[tuple[float, ...]] = []
+        checked = True
         try:
             q, crossings = self._continue(start_coords, start_q, coords)
         except LoopClosureError:
             q = self._search(coords, self._tree_configuration(coords, start_q))
-            searched = True
+            searched, checked = True, False
         self.last_assembly = self.closure_report(q, searched)
         self.last_assembly.singular_crossings = tuple(crossings)
+        self.last_assembly.mode_checked = checked
         return self.last_assembly
 
     def closure_report(self, q: np.ndarray, searched: bool = False) -> Assembly:
