@@ -11,6 +11,8 @@ One small link-angle UR5 campaign with a hidden compensator whose stiffness the 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from test_joint_angles import ARMS, NOISE, _model, _sim
@@ -25,7 +27,7 @@ from stiffness.calibration.fitting import (
 from stiffness.calibration.selection import (
     Noise,
     fit_model,
-    held_at_bounds,
+    holding,
     parameter_covariance,
 )
 from stiffness.elastic.effects.base import Held
@@ -83,12 +85,13 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
     k = labels.index(f"gravity_compensator({ARMS[0][3]}).stiffness")
     assert fit.at_bound == [k]
     cov = parameter_covariance(fit, NOISE, c.deflection)
-    held = held_at_bounds(fit, NOISE, c.deflection)
+    held = holding(cov, fit.at_bound)  # the fit's covariance with the bound one held
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
-    free = effect_parameters(fit, cov, quantile, edge, SI_UNITS)
-    both = effect_parameters(fit, cov, quantile, edge, SI_UNITS, held)
-    only = effect_parameters(fit, held, quantile, edge, SI_UNITS)
+    unbounded = dataclasses.replace(fit, at_bound=[])  # no bound rule: the plain intervals
+    free = effect_parameters(unbounded, cov, quantile, edge, SI_UNITS)
+    both = effect_parameters(fit, cov, quantile, edge, SI_UNITS)
+    only = effect_parameters(unbounded, held, quantile, edge, SI_UNITS)
     label = f"gravity_compensator({ARMS[0][3]})"
     stiffness, preload = both[label]
     assert stiffness.at_bound and stiffness.ci95[0] == stiffness.value
@@ -97,9 +100,9 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
     assert preload.ci95 == (only[label][1].ci95[0], free[label][1].ci95[1])
     assert preload.ci95[0] < 2e4 < preload.ci95[1] and preload.excludes_zero
     # the joint stiffnesses follow the same rule
-    for p, f, h in zip(stiffness_parameters(fit, cov, quantile, edge, held),
-                       stiffness_parameters(fit, cov, quantile, edge),
-                       stiffness_parameters(fit, held, quantile, edge), strict=True):
+    for p, f, h in zip(stiffness_parameters(fit, cov, quantile, edge),
+                       stiffness_parameters(unbounded, cov, quantile, edge),
+                       stiffness_parameters(unbounded, held, quantile, edge), strict=True):
         assert p.ci95[0] in (f.ci95[0], h.ci95[0]) and p.ci95[1] in (f.ci95[1], h.ci95[1])
 
 
@@ -189,7 +192,6 @@ def test_a_quantity_derived_from_a_variable_beside_a_bound_is_reported():
     cov = parameter_covariance(fit, NOISE, c.deflection)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
-    beta, change = effect_parameters(fit, cov, quantile, edge, SI_UNITS,
-                                      held_at_bounds(fit, NOISE, c.deflection))[effect.label]
+    beta, change = effect_parameters(fit, cov, quantile, edge, SI_UNITS)[effect.label]
     assert (beta.name, change.name) == ("beta", "relative_change_at_max_torque")
     assert beta.ci95[0] <= beta.value <= beta.ci95[1]

@@ -23,7 +23,6 @@ from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.selection import (
     Noise,
     fit_model,
-    held_at_bounds,
     parameter_covariance,
 )
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -49,7 +48,7 @@ def _stiffness(fit, measured):
     cov = parameter_covariance(fit, NOISE, measured)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
-    return stiffness_parameters(fit, cov, quantile, edge, held_at_bounds(fit, NOISE, measured))
+    return stiffness_parameters(fit, cov, quantile, edge)
 
 
 def test_a_rigid_joint_is_covered_and_reported_one_sided():

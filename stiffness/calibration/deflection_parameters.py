@@ -1,8 +1,9 @@
 """The parameters a deflection diagnosis reports: the baseline's joint stiffnesses and each
 effect's parameters, with their 95 % intervals from the fit's covariance
 (:func:`stiffness.calibration.selection.parameter_covariance`), one-sided at a physical bound,
-each end of the others' respecting the bounds (:func:`with_bounds`), and what takes a held
-parameter's share (:func:`share`). The pose campaigns' counterpart is
+each end of the others' respecting the bounds by both campaign kinds' rule
+(:func:`with_bounds`, :func:`~stiffness.calibration.selection.end_covariances`), and what
+takes a held parameter's share (:func:`share`). The pose campaigns' counterpart is
 :mod:`stiffness.calibration.pose_parameters`; the naming rules both follow are
 :mod:`stiffness.calibration.naming`.
 
@@ -12,28 +13,28 @@ Units: the stiffnesses SI (N.m/rad, N/m), the effects' in the units asked for.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 
 from stiffness.calibration.fitting import Fit
 from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import one_sided
-from stiffness.calibration.selection import held_ends
+from stiffness.calibration.selection import end_covariances
 from stiffness.elastic.effects.base import Parameter, effect_report, stiffness_report
 
 
-def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float,
-                         held_cov: np.ndarray | None = None) -> list[Parameter]:
+def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
+                         ) -> list[Parameter]:
     """The joint stiffnesses a diagnosis reports: ``k = exp(x)`` with the interval of its
     compliance ``c = 1 / k`` (``c -+ quantile se_c``, ``se_c = c se`` with ``se`` that of
     ``ln k`` from ``cov``; a predicted deflection is linear in the compliances) carried to
     the stiffness, ``[1 / (c + quantile se_c), 1 / (c - quantile se_c)]`` (unbounded above
     when the compliance's interval reaches zero), in N.m/rad or N/m; a joint at its rigid bound
     (:func:`~stiffness.calibration.fitting.fit_model`) one-sided from there, with the one-sided
-    quantile ``edge``; with ``held_cov``
-    (:func:`~stiffness.calibration.selection.held_at_bounds`) each end bounded as
-    :func:`with_bounds` says."""
+    quantile ``edge``; each end of the others' bounded as :func:`with_bounds` says."""
     model = fit.model
     refs, top = model.refs, model.bounds()[1]
 
@@ -48,23 +49,23 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
                          at_bound=rigid)
 
     return [with_bounds(fit, i, one(i, j, cov, quantile), cov,
-                        None if held_cov is None else one(i, j, held_cov, quantile),
+                        lambda matrix, i=i, j=j: one(i, j, matrix, quantile),
                         edge=one(i, j, cov, edge) if i in fit.at_bound else None)
             for i, j in enumerate(model.compliant)]
 
 
 def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
-                bounded: Parameter | None = None, reciprocal: bool = False,
+                report: Callable[[np.ndarray], Parameter], reciprocal: bool = False,
                 edge: Parameter | None = None) -> Parameter:
     """``parameter`` (column ``index`` of ``fit.x``, its interval from the covariance ``cov``)
     as held, with why, when the fit did not identify it (:attr:`Fit.identifiability`); at its
     physical bound (:attr:`Fit.at_bound`) with a one-sided 95 % interval from the bound
     (``edge``'s other end: the parameter reported with the one-sided quantile, as a pose fit
-    reports it, :func:`~stiffness.calibration.selection.bounded_intervals`); else,
-    ``bounded`` being the parameter reported with the parameters at their bound held there,
-    with each end of its interval from ``bounded``
-    where moving it that way would take one of those past its bound (its covariance with
-    them, ``cov``): an interval that respects the bounds. ``reciprocal``: the parameter
+    reports it, :func:`~stiffness.calibration.selection.bounded_intervals`); else each end of
+    its interval that of the parameter reported (``report`` of a covariance) from that end's
+    covariance (:func:`~stiffness.calibration.selection.end_covariances`, the rule of both
+    campaign kinds: the parameters at their bound that moving it that way would take past
+    theirs held there): an interval that respects the bounds. ``reciprocal``: the parameter
     falls as its variable rises (a stiffness reported from a compliance variable), so the
     variable's low end is the parameter's high end."""
     dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
@@ -76,21 +77,21 @@ def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
     if index in fit.at_bound:  # one reported from a compliance at zero is one-sided already
         side = parameter if edge is None else edge
         return side if side.at_bound else one_sided(side, inward[index] > 0)
-    if bounded is None:
+    if not fit.at_bound:
         return parameter
-    held_low, held_high = held_ends([cov[index, b] * inward[b] for b in fit.at_bound])
+    ends = end_covariances(cov, index, fit.at_bound, [inward[b] for b in fit.at_bound])
     if reciprocal:
-        held_low, held_high = held_high, held_low
-    low = bounded.ci95[0] if held_low.any() else parameter.ci95[0]
-    high = bounded.ci95[1] if held_high.any() else parameter.ci95[1]
+        ends = ends[::-1]
+    low = parameter.ci95[0] if ends[0] is cov else report(ends[0]).ci95[0]
+    high = parameter.ci95[1] if ends[1] is cov else report(ends[1]).ci95[1]
     return dataclasses.replace(parameter, ci95=(low, high))
 
 
-def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, units,
-                       held_cov: np.ndarray | None = None) -> dict[str, list[Parameter]]:
+def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, units
+                      ) -> dict[str, list[Parameter]]:
     """Each effect's parameters in ``fit`` with their intervals (from ``cov`` with the
     two-sided ``quantile``, or one-sided from a bound with the one-sided ``edge``; each end
-    bounded by ``held_cov`` as :func:`with_bounds` says). A reported quantity beyond the
+    bounded as :func:`with_bounds` says). A reported quantity beyond the
     effect's variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``)
     is held, at its bound or bounded as its last variable is."""
     model = fit.model
@@ -98,18 +99,21 @@ def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, u
     for i, e in enumerate(model.effects):
         a, b = model.offsets[i + 1], model.offsets[i + 2]
         free = effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
-        bounded = (free if held_cov is None else effect_report(
-            e, fit.x[a:b], held_cov[a:b, a:b], model.refs, units, quantile))
+
+        def report(matrix: np.ndarray, k: int, e=e, a=a, b=b) -> Parameter:
+            return effect_report(e, fit.x[a:b], matrix[a:b, a:b], model.refs, units,
+                                 quantile)[k]
+
         sided = (effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
                  if any(a <= c < b for c in fit.at_bound) else free)  # one-sided at a bound
         floor = [-math.inf] * len(free) if e.compliance_variables else [  # a stiffness's is 0
             p.value for p in effect_report(e, e.bounds()[0], np.zeros((b - a, b - a)),
                                            model.refs, units, quantile)]
         out[e.label] = [_above(with_bounds(fit, a + min(k, b - a - 1), p, cov,
-                                           None if held_cov is None else q,
+                                           functools.partial(report, k=k),
                                            e.compliance_variables and k < b - a, one), low)
-                        for k, (p, q, one, low) in enumerate(zip(free, bounded, sided, floor,
-                                                                 strict=True))]
+                        for k, (p, one, low) in enumerate(zip(free, sided, floor,
+                                                              strict=True))]
     return out
 
 

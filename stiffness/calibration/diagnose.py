@@ -88,7 +88,6 @@ from stiffness.calibration.selection import (
     fit_baseline,
     fit_job,
     fit_model,
-    held_at_bounds,
     information_criterion,
     parameter_covariance,
     pooled_replicates,
@@ -322,21 +321,18 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
     cov_final = parameter_covariance(final, sigma_used, measured)
-    held_final = held_at_bounds(final, sigma_used, measured)
     noise_base = _fit_noise(known, base, n)
     cov_base = parameter_covariance(base, noise_base.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
                                seed if propose else None)
-    final_parameters = effect_parameters(final, cov_final, quantile, edge, campaign.units,
-                                          held_final)
+    final_parameters = effect_parameters(final, cov_final, quantile, edge, campaign.units)
     return Diagnosis(
         campaign=campaign, geometry=geo, baseline=base,
         baseline_stiffness=stiffness_parameters(
-            base, cov_base, noise_base.two_sided(), noise_base.one_sided(),
-            held_at_bounds(base, noise_base.sigma, measured)),
-        final_stiffness=stiffness_parameters(final, cov_final, quantile, edge, held_final),
+            base, cov_base, noise_base.two_sided(), noise_base.one_sided()),
+        final_stiffness=stiffness_parameters(final, cov_final, quantile, edge),
         noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
@@ -350,8 +346,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, search=kind,
-        final_parameters_si=effect_parameters(final, cov_final, quantile, edge, SI_UNITS,
-                                               held_final),
+        final_parameters_si=effect_parameters(final, cov_final, quantile, edge, SI_UNITS),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
         forbidden=list(forbidden),
@@ -695,8 +690,7 @@ class DeflectionSearch:
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""
         cov, noise = self.covariance(fit)
-        return effect_parameters(fit, cov, noise.two_sided(), noise.one_sided(), units,
-                                 held_at_bounds(fit, noise.sigma, self.measured))
+        return effect_parameters(fit, cov, noise.two_sided(), noise.one_sided(), units)
 
 
 @dataclass
