@@ -220,6 +220,37 @@ def test_a_near_alias_at_its_bound_leaves_an_interval_that_covers():
     assert stats.binom.cdf(strict_hits, 1000, 0.95) < 1e-3, strict_hits
 
 
+def test_the_others_intervals_at_a_bound_cover_and_holding_it_on_both_ends_does_not():
+    """The one rule at a bound of both campaign kinds (:func:`end_covariances`, through
+    :func:`bounded_intervals`), checked two-sided (coverage and spread, tests/stats.py) on the
+    closed form of a two-parameter linear fit bounded below on x1 (2000 draws): x0 and x1
+    correlated -0.9, x1's truth two standard errors above its bound (the fit puts it at the
+    bound 2 % of the time, then x0 is the held fit ``x0 - rho x1``). The rule covers x0 at
+    nominal (measured 1905/2000, sum z^2 / n 0.98); holding x1 on both ends (the covariance
+    of a fit with it held) is too narrow where the bound is not the truth (1877/2000, sum z^2
+    / n 1.32) and fails the same check."""
+    from stats import Coverage
+
+    from stiffness.calibration.selection import holding
+
+    rho = -0.9
+    full = np.array([[1.0, rho], [rho, 1.0]])
+    draws = np.array([0.0, 2.0]) + np.random.default_rng(0).multivariate_normal(
+        np.zeros(2), full, 2000)
+    rule, both = Coverage(), Coverage()
+    for x in draws:
+        bound = [1] if x[1] < 0.0 else []
+        if bound:  # the bounded least-squares optimum (KKT): x1 at 0, x0 the held fit
+            x = np.array([x[0] - rho * x[1], 0.0])
+        lo, hi = bounded_intervals(x, np.array([-np.inf, 0.0]), full, bound, 1.96, 1.645)
+        rule.add(x[0], (lo[0], hi[0]), 0.0)
+        half = 1.96 * math.sqrt(holding(full, bound)[0, 0])
+        both.add(x[0], (x[0] - half, x[0] + half), 0.0)
+    rule.check(design_effect=1.0)
+    with pytest.raises(AssertionError):
+        both.check(design_effect=1.0)
+
+
 def test_a_held_parameter_names_what_it_is_confounded_with():
     """Two unit columns at cosine rho: the least-squares estimates' correlation is -rho
     (closed form, (A^T A)^-1 of [[1, rho], [rho, 1]]). Beyond ALIAS_CORRELATION the held
