@@ -49,7 +49,7 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
                          at_bound=rigid)
 
     return [with_bounds(fit, i, one(i, j, cov, quantile), cov,
-                        lambda matrix, i=i, j=j: one(i, j, matrix, quantile),
+                        functools.partial(one, i, j, q=quantile),
                         edge=one(i, j, cov, edge) if i in fit.at_bound else None)
             for i, j in enumerate(model.compliant)]
 

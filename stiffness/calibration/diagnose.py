@@ -63,7 +63,7 @@ from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
 from stiffness.calibration.fitting import Fit, determined_directions, kind_noise, observations
 from stiffness.calibration.naming import settle
-from stiffness.calibration.outliers import flag_fit, robust_noise
+from stiffness.calibration.outliers import flag_fit, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
@@ -470,7 +470,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     from the baseline's residuals when not known), with the references of its stiffness and
     of the robot's link ``masses`` (``unknown``: no weight to judge a compensator against);
     under a robust ``loss`` scaled by ``sigma`` (m), else by a robust estimate
-    (:func:`stiffness.calibration.outliers.robust_noise`, twice).
+    (:func:`stiffness.calibration.outliers.robust_rounds`).
 
     Returns
     -------
@@ -499,9 +499,12 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     if sigma is None and loss == "linear":
         scale = max(base.rms(), 1e-12)
         base = fit_model(base.model, measured, scale, base.x)
-    for _ in range(2 if sigma is None and loss != "linear" else 0):
-        scale = robust_noise(base.predicted - measured, len(base.x)) or max(base.rms(), 1e-12)
-        base = fit_model(base.model, measured, scale, base.x, loss=loss)
+    if sigma is None and loss != "linear":
+        base, robust = robust_rounds(
+            base, lambda fit, s: fit_model(fit.model, measured, s, fit.x, loss=loss),
+            lambda fit: fit.predicted - measured, lambda fit: fit.x.size,
+            lambda fit: max(fit.rms(), 1e-12))
+        scale = float(robust or scale)
     return base, measured, scale, rot_sigma, rot_source
 
 

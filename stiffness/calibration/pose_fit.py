@@ -29,8 +29,8 @@ Robust losses (``loss`` of :data:`~stiffness.calibration.solver.LOSSES` other th
 ``sum s^2 rho((r / s)^2)`` of the residual components ``r`` (m) by the trust-region reflective
 method from the least-squares optimum, ``s`` the noise std: the declared one, else a robust
 estimate
-(:func:`~stiffness.calibration.outliers.robust_noise` of a least-squares fit's residuals, then
-twice of the loss fit's, as the deflection diagnose does), its steps on the factor of the
+(:func:`~stiffness.calibration.outliers.robust_rounds`: of a least-squares fit's residuals,
+then of the loss fit's, as both deflection commands do), its steps on the factor of the
 loss-reweighted Jacobian over blocks of rows (:meth:`PoseProblem.robust_factor`), as least
 squares' on that of ``[r, J]``. The covariance is Huber's sandwich
 (:func:`~stiffness.calibration.solver.sandwich_matrix`, on the factor of ``J``), and
@@ -58,7 +58,7 @@ from stiffness.calibration.identifiability import (
     stacked_triangular,
     triangular,
 )
-from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_noise
+from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
@@ -630,13 +630,14 @@ class PoseProblem:
 def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTerms],
                       order: list[str], x0: np.ndarray | None, loss: str,
                       held: dict[int, Held] | None = None) -> PoseFit:
-    """A robust ``loss`` fit scaled by the robust noise estimate: from a least-squares fit's
-    residuals, then twice from the loss fit's (``held`` held throughout)."""
-    fit = fit_pose_model(model, campaign, rows, order, x0, held=held)
-    for _ in range(2):
-        r = fit.residual[np.isfinite(fit.residual)]
-        scale = robust_noise(r, fit.n_fitted) or max(fit.rms(), 1e-12)
-        fit = fit_pose_model(model, campaign, rows, order, fit.x, loss, scale, held)
+    """A robust ``loss`` fit scaled by the robust noise estimate
+    (:func:`~stiffness.calibration.outliers.robust_rounds` from a least-squares fit; ``held``
+    held throughout)."""
+    fit, _ = robust_rounds(
+        fit_pose_model(model, campaign, rows, order, x0, held=held),
+        lambda fit, s: fit_pose_model(model, campaign, rows, order, fit.x, loss, s, held),
+        lambda fit: fit.residual[np.isfinite(fit.residual)], lambda fit: fit.n_fitted,
+        lambda fit: max(fit.rms(), 1e-12))
     return fit
 
 
