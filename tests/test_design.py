@@ -320,6 +320,10 @@ def test_cli_design_then_simulate_the_plan(tmp_path, capsys):
     np.testing.assert_allclose(camp.force, plan.force, atol=1e-12)
     assert camp.config == plan.config and camp.robot().compliant_joints == UR5_ARM
     np.testing.assert_allclose(camp.robot().target_offset, UR5_OFFSET)
+    # before it is measured, the plan folder is named for what it is ('dx is missing' before)
+    with pytest.raises(StiffnessError, match=r"plan.csv, line 1: a measurement plan \(stiffness "
+                                             r"design wrote it\), not measurements"):
+        load_campaign(tmp_path / "plan")
     # once measured (dx, dy, dz added), the plan folder is a campaign
     text = (tmp_path / "plan" / PLAN_FILE).read_text().splitlines()
     rows = [text[1] + ",dx,dy,dz"] + [r + ",0.1,0.2,0.3" for r in text[2:]]

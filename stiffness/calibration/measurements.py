@@ -38,6 +38,8 @@ FORCE_COLUMNS = ("fx", "fy", "fz")
 DEFLECTION_COLUMNS = ("dx", "dy", "dz")
 MOMENT_COLUMNS = ("mx", "my", "mz")
 ROTATION_COLUMNS = ("rx", "ry", "rz")
+#: The first line of a measurement plan's CSV (``stiffness design``) starts with it.
+PLAN_COMMENT = "# measurement plan"
 
 
 def expected_header(n_q: int) -> list[str]:
@@ -267,6 +269,11 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
             header = [c.strip() for c in cells]
             header_line = number
             check_csv_header(header, data, number)
+            if text.startswith(PLAN_COMMENT) and not set(DEFLECTION_COLUMNS) & set(header):
+                raise FileFormatError(
+                    "a measurement plan (stiffness design wrote it), not measurements: it has "
+                    "no dx,dy,dz; measure its rows and add them, or simulate it (stiffness "
+                    "simulate --plan)", path=data, line=1)
             continue
         rows.append((number, cells))
     if header is None:

@@ -40,6 +40,7 @@ from stiffness.calibration.campaign_toml import (
 )
 from stiffness.calibration.campaign_writer import campaign_toml
 from stiffness.calibration.measurements import (
+    PLAN_COMMENT,
     UNITS_COMMENT_EXAMPLE,
     check_units_comment,
     coordinates_in_si,
@@ -70,8 +71,6 @@ from stiffness.units import Units
 
 #: Name of the plan CSV inside a plan folder.
 PLAN_FILE = "plan.csv"
-#: The first line of a plan CSV starts with it.
-PLAN_COMMENT = "# measurement plan"
 
 
 @dataclass
