@@ -110,3 +110,16 @@ def test_an_output_file_that_is_an_input_is_refused(tmp_path, capsys):
                  str(tmp_path / "sk120.xml")]) == 2  # its loops would go to sk120.loops.yaml
     assert "it is the loop file" in capsys.readouterr().err
     assert _contents(tmp_path) == saved
+
+
+def test_view_export_over_an_input_is_refused(tmp_path, capsys):
+    """``view --export`` over the ``--path`` file (or the ``--model`` or ``--robot`` file)
+    replaced it with the HTML page."""
+    path = tmp_path / "path.csv"
+    path.write_text("q1,q2,q3,q4,q5,q6\n0.1,-1.2,1.5,-0.3,1.57,0.2\n0.2,-1.2,1.5,-0.3,1.57,0.2\n")
+    before = path.read_bytes()
+    assert main(["view", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4", "--path",
+                 str(path), "--export", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "it is the --path file this command reads" in err and err.count("\n") == 1
+    assert path.read_bytes() == before

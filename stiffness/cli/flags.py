@@ -482,7 +482,8 @@ def model_from_args(args: argparse.Namespace, *outputs: str | None) -> ElasticMo
     if args.model is None and args.robot is None:
         raise StiffnessError("--model M.json is required (the identified or diagnosed model), "
                              "or --robot R with --kq")
-    check_outputs(*outputs, inputs={"--model": args.model, "--path": getattr(args, "path", None)})
+    check_outputs(*outputs, inputs={"--robot": args.robot, "--model": args.model,
+                                    "--path": getattr(args, "path", None)})
     if args.model is not None:
         for flag, value in (("--kq", args.kq), ("--compliant-joints", args.compliant_joints)):
             if value is not None:

@@ -146,7 +146,7 @@ def sweep_path(robot: Robot, coords: np.ndarray, spec: str, deg: bool = False) -
 def check_view_flags(args: argparse.Namespace) -> None:
     """Refuse, before any work, viewer settings no page can have: a radius or frame rate that
     is not positive, an empty field, a port outside 0..65535 (``--port 99999`` was replaced
-    by a free port, silently), a negative duration.
+    by a free port, silently), a negative duration, an ``--export`` page over an input file.
 
     Raises
     ------
@@ -163,6 +163,8 @@ def check_view_flags(args: argparse.Namespace) -> None:
                              f"got {args.port}")
     if args.duration is not None and args.duration < 0:
         raise StiffnessError(f"--duration must be 0 or more seconds, got {args.duration:g}")
+    flags.check_outputs(args.export, inputs={"--robot": args.robot, "--model": args.model,
+                                             "--path": args.path})
 
 
 def build(args: argparse.Namespace, live: bool, inputs: kx.KxInputs | None = None
