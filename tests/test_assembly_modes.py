@@ -20,6 +20,7 @@ import pinocchio as pin
 import pytest
 
 from stiffness.batch.loops import close_loops
+from stiffness.calibration.poses import sample_coordinates
 from stiffness.cli.main import main
 from stiffness.robot.robot import load_robot
 
@@ -211,3 +212,19 @@ def test_kx_reports_the_flat_parallelogram_it_went_through(capsys):
     assert ("note: closing the loops from the reference assembly went through a singular pose "
             "of the loops at coordinates [0.1309, 0.392699, -1.963495, 0.0, 0.0, 0.0]"
             ) in capsys.readouterr().out
+
+
+def test_design_draws_its_poses_in_the_reference_mode(five_bar, tmp_path):
+    """Poses drawn over motors within ±100 deg (a robot.toml [workspace] beside the URDF): every
+    one closes in the reference mode (1 of these 20 was in the other one before)."""
+    for name in ("five_bar.urdf", "five_bar.loops.yaml"):
+        (tmp_path / name).write_text((five_bar.parent / name).read_text())
+    (tmp_path / "robot.toml").write_text(
+        'urdf = "five_bar.urdf"\nframe = "tip"\n[workspace]\nangle_unit = "deg"\n'
+        "uniform = { mot1 = [-100.0, 100.0], mot2 = [-100.0, 100.0] }\n"
+        "target_above_base = false\n")
+    robot = load_robot(tmp_path / "robot.toml")
+    for coords in sample_coordinates(robot, 20, np.random.default_rng(0)):
+        assembly = robot.assemble(coords)
+        assert assembly.mode_checked
+        assert _mode_and_elbows(robot, assembly.q) == REFERENCE_MODE
