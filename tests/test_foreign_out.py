@@ -79,6 +79,9 @@ def test_simulate_and_plan_over_a_measured_campaign_are_refused(tmp_path):
     with pytest.raises(OutputError, match="is not a plan written by stiffness design"):
         check_plan_target(camp / "measurements.csv")
     assert _contents(camp) == before
+    with pytest.raises(OutputError, match=r"--out .*plan.json: a plan is a CSV file .* give e.g. "
+                                          r"--out .*plan.csv or --out .*plan$"):
+        check_plan_target(tmp_path / "plan.json")  # made a folder named plan.json
     sim.write(tmp_path / "sim")  # a new folder, then a rerun over it
     sim.write(tmp_path / "sim")
     check_plan_target(tmp_path / "sim" / "plan.csv")  # absent

@@ -140,10 +140,15 @@ def plan_csv(plan: Plan, robot: Robot) -> str:
     return out.getvalue()
 
 
+#: Names a plan's ``--out`` may not end with: files of other kinds, never a plan folder.
+_FILE_SUFFIXES = (".json", ".toml", ".txt", ".tsv", ".xlsx", ".xls", ".dat", ".html", ".png")
+
+
 def check_plan_target(out: str | os.PathLike) -> None:
     """Refuse a plan target that holds something else: a ``.csv`` file that is not a plan (a
     campaign's measurements), or a folder whose ``campaign.toml`` is not a plan folder's
-    (:func:`stiffness.files.refuse_foreign_folder`).
+    (:func:`stiffness.files.refuse_foreign_folder`); or a name of another kind of file
+    (``plan.json``), which would be a folder.
 
     Raises
     ------
@@ -151,6 +156,10 @@ def check_plan_target(out: str | os.PathLike) -> None:
         Writing the plan there would overwrite measurements or a campaign.
     """
     out = Path(out)
+    if out.suffix.lower() in _FILE_SUFFIXES and not out.is_dir():  # 'plan.json' made a folder
+        raise OutputError(f"--out {out}: a plan is a CSV file (a name ending in .csv) or a "
+                          f"folder (campaign.toml and plan.csv); give e.g. --out "
+                          f"{out.with_suffix('.csv')} or --out {out.with_suffix('')}", path=out)
     if out.suffix.lower() != ".csv":
         refuse_foreign_folder(out, PLAN_FILE, "plan folder", writes=(CAMPAIGN_FILE,))
         return
