@@ -251,6 +251,28 @@ def test_the_others_intervals_at_a_bound_cover_and_holding_it_on_both_ends_does_
         both.check(design_effect=1.0)
 
 
+def test_each_end_holds_only_the_bound_parameters_it_pushes():
+    """:func:`end_covariances` against closed forms: x0 correlated +0.6 with x1 and -0.5 with
+    x2, both at a lower bound. Lowering x0 pushes x1 below its bound (positive covariance):
+    the low end holds x1 alone, its covariance the inverse of the information's block over
+    x0 and x2 (a fit with x1 held); raising x0 pushes x2: the high end holds x2 alone. With
+    x2 at an upper bound instead, lowering x0 pushes both (the low end holds both) and raising
+    it neither (the high end is the free one)."""
+    from stiffness.calibration.selection import end_covariances, holding
+
+    cov = np.array([[1.0, 0.6, -0.5], [0.6, 1.0, 0.1], [-0.5, 0.1, 1.0]])
+    info = np.linalg.inv(cov)
+    low, high = end_covariances(cov, 0, [1, 2], [1.0, 1.0])
+    np.testing.assert_allclose(low[np.ix_([0, 2], [0, 2])],
+                               np.linalg.inv(info[np.ix_([0, 2], [0, 2])]), atol=1e-12)
+    np.testing.assert_allclose(high[np.ix_([0, 1], [0, 1])],
+                               np.linalg.inv(info[np.ix_([0, 1], [0, 1])]), atol=1e-12)
+    assert low[0, 0] == pytest.approx(1.0 - 0.36) and high[0, 0] == pytest.approx(1.0 - 0.25)
+    low, high = end_covariances(cov, 0, [1, 2], [1.0, -1.0])  # x2 at an upper bound
+    np.testing.assert_allclose(low, holding(cov, [1, 2]), atol=1e-12)
+    assert high is cov
+
+
 def test_a_held_parameter_names_what_it_is_confounded_with():
     """Two unit columns at cosine rho: the least-squares estimates' correlation is -rho
     (closed form, (A^T A)^-1 of [[1, rho], [rho, 1]]). Beyond ALIAS_CORRELATION the held
