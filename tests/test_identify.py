@@ -211,6 +211,18 @@ def test_declared_noise_too_small_is_noted(sk120_robot):
     assert any("larger than the declared noise_std" in n for n in result.notes)
 
 
+def test_a_noise_declared_too_small_by_half_is_noted(sk120_robot):
+    """The note is the chi-square test diagnose's verdict uses, not a factor 2 on the std: a
+    noise declared at 0.6 of the true one (residual std 1.7 times it over 84 degrees of
+    freedom, chi-square p = 5e-20) was printed without a word until 5 December 2026, its
+    intervals too narrow; declared right, the same rows draw no note."""
+    rows = sk120_synthetic(sk120_robot, seed=3, noise=8e-6, n_configs=6, n_loads=5)
+    assert not identify(rows, "enhanced", starts=1).notes
+    understated = dataclasses.replace(rows, noise_std_m=4.8e-6)
+    notes = identify(understated, "enhanced", starts=1).notes
+    assert "larger than the declared noise_std (0.0048 mm; chi-square p = " in notes[0]
+
+
 @pytest.fixture(scope="module")
 def ur5_unexcited():
     """UR5, target on the wrist_3 axis and forces only: wrist_3_joint is never loaded."""

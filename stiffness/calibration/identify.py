@@ -91,6 +91,7 @@ from stiffness.calibration.outliers import (
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
 from stiffness.calibration.selection import (
+    GOF_LEVEL,
     OVERSTATED_P,
     Noise,
     noise_overstated,
@@ -599,13 +600,14 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                            "robust estimate (1.4826 median |residual|)", sigma_res, notes)
     if declared is not None:
         sigma = declared
-        if sigma_res is not None and sigma_res > 2.0 * sigma:
-            notes.append(
-                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much larger than the "
-                f"declared noise_std ({sigma * 1e3:.4g} mm): model error or underestimated noise; "
-                "the confidence intervals are too narrow"
-            )
         gof = Noise(sigma).goodness_of_fit(ss_m2, n, p)
+        if sigma_res is not None and gof is not None and gof <= 1.0 - GOF_LEVEL:
+            notes.append(
+                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the declared "
+                f"noise_std ({sigma * 1e3:.4g} mm; chi-square p = {gof:.3g} <= "
+                f"{1.0 - GOF_LEVEL:.2g}): model error or underestimated noise; the confidence "
+                "intervals are too narrow (stiffness diagnose finds what is missing)"
+            )
         if sigma_res is not None and noise_overstated(gof):
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much smaller than the "
