@@ -363,6 +363,28 @@ def _refuse_enclosing(target: Path) -> None:
                           path=target)
 
 
+#: Names of files of other kinds, which an output folder's name does not end with (``--out
+#: report.html`` made a folder named ``report.html``).
+FILE_SUFFIXES = (".json", ".toml", ".txt", ".csv", ".tsv", ".xlsx", ".xls", ".dat", ".html",
+                 ".png", ".npz", ".parquet", ".urdf", ".xml", ".yaml")
+
+
+def check_folder_name(target: str | os.PathLike[str]) -> None:
+    """Refuse an output folder named like a file (``report.html``, ``maps.npz``) that is not
+    already a folder: the command writes a folder there, not that file.
+
+    Raises
+    ------
+    OutputError
+        Naming the folder the command would make instead.
+    """
+    target = Path(target)
+    if target.suffix.lower() in FILE_SUFFIXES and not target.is_dir():
+        raise OutputError(f"--out {target}: this command writes a folder (several files), not "
+                          f"a {target.suffix} file; give a folder name, e.g. --out "
+                          f"{target.with_suffix('')}", path=target)
+
+
 def refuse_foreign_folder(target: str | os.PathLike[str], marker: str, what: str,
                           writes: Collection[str] | None = None) -> None:
     """Refuse to write the folder ``target`` over files that are not a previous ``what``.
@@ -428,6 +450,7 @@ def staged_folder(target: str | os.PathLike[str], resume: bool = False,
         yield target
         return
     output_folder(target, create=False)
+    check_folder_name(target)
     _refuse_enclosing(target)
     output_folder(target.parent)
     adopted = _sweep(target, resume)

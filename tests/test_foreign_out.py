@@ -126,3 +126,19 @@ def test_view_export_over_an_input_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "it is the --path file this command reads" in err and err.count("\n") == 1
     assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "--robot", "sk120", "--configs", "1", "--out", "{tmp}/camp.csv"],
+    ["diagnose", str(TABLE2), "--out", "{tmp}/diagnosis.html"],
+    ["report", "--out", "{tmp}/report.html"],
+    ["scan", "--robot", "ur5", "--kq", "3e5,3e5,2e5,4e4,4e4,4e4", "--axis",
+     "elbow_joint=0:1:0.5", "--no-plots", "--out", "{tmp}/maps.npz"],
+])
+def test_an_output_folder_named_like_a_file_is_refused(tmp_path, capsys, argv):
+    """``--out report.html`` (or ``maps.npz``, ``camp.csv``) made a folder of that name."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main([*argv, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "this command writes a folder (several files), not a" in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []

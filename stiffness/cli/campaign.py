@@ -42,7 +42,7 @@ from stiffness.calibration.rig_import import (
 )
 from stiffness.cli import flags
 from stiffness.errors import StiffnessError
-from stiffness.files import output_folder
+from stiffness.files import check_folder_name, output_folder
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -197,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.rotation_format != "vector" and args.kind != "poses":
         raise StiffnessError("--rotation-format is for --kind poses")
     output_folder(args.out, create=False)
+    check_folder_name(args.out)
     _check_rig_files_kept(args.files, args.out)
     settings = _settings(args)
     robot_settings = RobotSettings(

@@ -33,7 +33,7 @@ from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
 from stiffness.elastic.effects import MASSES
 from stiffness.errors import StiffnessError
-from stiffness.files import output_folder, refuse_foreign_folder
+from stiffness.files import check_folder_name, output_folder, refuse_foreign_folder
 from stiffness.workspace.definiteness import terminal_progress
 
 
@@ -215,6 +215,7 @@ def check_out_folder(out: str | None) -> None:
                              f"final-model.json, diagnosis.html...), not one JSON file; give a "
                              f"folder name, e.g. --out {Path(out).with_suffix('')}")
     output_folder(out, create=False)
+    check_folder_name(out)
     refuse_foreign_folder(out, DIAGNOSIS_FILE, "diagnosis")
 
 

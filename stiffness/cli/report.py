@@ -32,7 +32,7 @@ import stiffness
 from stiffness.cli import flags
 from stiffness.cores import usable_cores
 from stiffness.errors import StiffnessError
-from stiffness.files import atomic_write, output_folder
+from stiffness.files import atomic_write, check_folder_name, output_folder
 
 # The report, the figures and the viewer are imported by the functions that use them: `run`
 # starts the second process before this one spends its time importing them.
@@ -201,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
                              "CAMPAIGN --out DIR (the SK120 report has no such option)")
     args.out = args.out or SK120_OUT
     out = output_folder(args.out, create=False)  # before the work: a bad --out fails at once
+    check_folder_name(out)
     scene: dict[str, str] = {}
     with background_independent_parts() as collect:
         from stiffness.papers.report import build_report

@@ -57,6 +57,7 @@ from stiffness.errors import (
     StiffnessError,
 )
 from stiffness.files import (
+    FILE_SUFFIXES,
     atomic_write,
     check_csv_header,
     number_text,
@@ -140,10 +141,6 @@ def plan_csv(plan: Plan, robot: Robot) -> str:
     return out.getvalue()
 
 
-#: Names a plan's ``--out`` may not end with: files of other kinds, never a plan folder.
-_FILE_SUFFIXES = (".json", ".toml", ".txt", ".tsv", ".xlsx", ".xls", ".dat", ".html", ".png")
-
-
 def check_plan_target(out: str | os.PathLike) -> None:
     """Refuse a plan target that holds something else: a ``.csv`` file that is not a plan (a
     campaign's measurements), or a folder whose ``campaign.toml`` is not a plan folder's
@@ -156,7 +153,7 @@ def check_plan_target(out: str | os.PathLike) -> None:
         Writing the plan there would overwrite measurements or a campaign.
     """
     out = Path(out)
-    if out.suffix.lower() in _FILE_SUFFIXES and not out.is_dir():  # 'plan.json' made a folder
+    if out.suffix.lower() in set(FILE_SUFFIXES) - {".csv"} and not out.is_dir():  # plan.json
         raise OutputError(f"--out {out}: a plan is a CSV file (a name ending in .csv) or a "
                           f"folder (campaign.toml and plan.csv); give e.g. --out "
                           f"{out.with_suffix('.csv')} or --out {out.with_suffix('')}", path=out)
