@@ -453,3 +453,20 @@ def test_singular_compliance_with_fewer_compliant_joints():
         twist_basis_stiffness(state, np.diag([3e4, 3e4]))
     with pytest.raises(StiffnessError, match="needs six compliant joints"):
         joint_connection_stiffness(state, np.diag([3e4, 3e4]))
+
+
+def test_target_state_takes_coordinates_and_refuses_a_wrong_size():
+    """``target_state(robot, [angles], load)`` (a list, or the SK120's 6 coordinates for its 8
+    configuration values) ended in Pinocchio's C++-signature error or assertion; coordinates
+    are now closed into the configuration (the same J and K_C), a wrong size is one line."""
+    from stiffness.robot.robot import load_robot
+
+    for name, coords in (("ur5", [0.0, -1.2, 1.5, -0.3, 1.57, 0.0]),
+                         ("sk120", [-0.58, 0.28, -0.97, 0.0, -0.6, -1.57])):
+        robot = load_robot(name)
+        given = target_state(robot, coords, load=[0.0, 0.0, -100.0])
+        closed = target_state(robot, robot.configuration(np.array(coords)), [0.0, 0.0, -100.0])
+        np.testing.assert_array_equal(given.jacobian, closed.jacobian)
+        np.testing.assert_array_equal(given.k_c, closed.k_c)
+    with pytest.raises(StiffnessError, match=r"q has 2 values; give the 6 coordinates of sk120"):
+        target_state(robot, [0.0, 0.0])

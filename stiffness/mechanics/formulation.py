@@ -185,11 +185,33 @@ def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) ->
     robot
         The robot.
     q
-        Full configuration with loops closed (see :meth:`Robot.configuration`).
+        Full configuration with loops closed (see :meth:`Robot.configuration`), or the
+        robot's coordinates (rad, m), closed here (:func:`full_configuration`).
     load
         Dead force (3,) in N or wrench (6,) [N, N.m] at the target, base axes; default zero.
     """
     return target_states(robot, q, [np.zeros(6) if load is None else load])[0]
+
+
+def full_configuration(robot: Robot, q: np.ndarray | list[float]) -> np.ndarray:
+    """``q`` as Pinocchio's configuration (``model.nq`` values): as given when it has that
+    size, else the robot's coordinates (:meth:`Robot.configuration`, loops closed: a list of
+    joint angles, a closed loop's independent joints, a continuous joint's angle).
+
+    Raises
+    ------
+    StiffnessError
+        ``q`` has neither size (Pinocchio's own error was a C++ signature or an assertion).
+    """
+    values = np.asarray(q, dtype=float).reshape(-1)
+    if values.shape[0] == robot.model.nq:
+        return values
+    if values.shape[0] == robot.n_coordinates:
+        return robot.configuration(values)
+    raise StiffnessError(f"q has {values.shape[0]} values; give the {robot.n_coordinates} "
+                         f"coordinates of {robot.title} ({', '.join(robot.coordinate_joints)}) "
+                         f"or its full configuration of {robot.model.nq} values "
+                         "(robot.configuration(coordinates))")
 
 
 def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list[TargetState]:
@@ -201,6 +223,7 @@ def target_states(robot: Robot, q: np.ndarray, loads: list | np.ndarray) -> list
     """
     model, data = robot.model, robot.data
     wrenches = [as_wrench(load) for load in loads]
+    q = full_configuration(robot, q)
     kinematics.update_kinematics(model, data, q)
     fid = robot.target_frame_id
     j_full = kinematics.frame_jacobian(model, data, fid)
