@@ -109,8 +109,7 @@ class Continuation:
                 predicted[pq] += (q[pq] - q_prev[pq]) * h / h_prev
                 predicted = pin.normalize(model, predicted)  # quaternions of ball joints
             closed = self.close_at(start, coords, fraction + h, predicted)
-            jump = np.inf if closed is None else float(
-                np.max(np.abs(closed[pq] - predicted[pq]), initial=0.0))
+            jump = np.inf if closed is None else _largest(closed[pq] - predicted[pq])
             if closed is not None and jump <= BRANCH_JUMP:
                 closed, here, crossing = self._mode_check(
                     start, coords, (fraction, q), (fraction + h, closed), basis)
@@ -201,12 +200,11 @@ def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
         return "crossing", fa
     kinematics.update_first_order(model, data, qb)
     gb, kept = loop.mode_determinant(model, data, basis)[0], 0
-    width, chord = fb - fa, float(np.max(np.abs(qb[passive_q] - qa[passive_q]), initial=0.0))
+    width, chord = fb - fa, _largest(qb[passive_q] - qa[passive_q])
     for _ in range(_LOCATE_ITERATIONS):
         if (fb - fa) * span <= CROSSING_WIDTH:
             break
-        if fb - fa < 1e-3 * width and np.max(np.abs(qb[passive_q] - qa[passive_q]),
-                                             initial=0.0) > 0.5 * chord:
+        if fb - fa < 1e-3 * width and _largest(qb[passive_q] - qa[passive_q]) > 0.5 * chord:
             return "jump", fa  # a thousand times narrower and the joints still jump
         part = min(max(ga / (ga - gb), 0.01), 0.99)  # regula falsi, kept inside the bracket
         fm = fa + (fb - fa) * part
@@ -214,8 +212,8 @@ def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
         qm = close_at(fm, guess)
         if qm is None:
             return "jump", fm
-        chord = float(np.max(np.abs(qb[passive_q] - qa[passive_q]), initial=0.0))
-        if float(np.max(np.abs(qm[passive_q] - guess[passive_q]), initial=0.0)) \
+        chord = _largest(qb[passive_q] - qa[passive_q])
+        if _largest(qm[passive_q] - guess[passive_q]) \
                 > 0.5 * chord + CONTINUOUS_JUMP:
             return "jump", fm
         kinematics.update_first_order(model, data, qm)
@@ -226,7 +224,7 @@ def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
         else:
             fb, qb, gb = fm, qm, gm
             ga, kept = (ga / 2.0 if kept == -1 else ga), -1
-    if float(np.max(np.abs(qb[passive_q] - qa[passive_q]), initial=0.0)) > CONTINUOUS_JUMP:
+    if _largest(qb[passive_q] - qa[passive_q]) > CONTINUOUS_JUMP:
         return "jump", fa
     rank = basis[1].shape[1]
     ratios = []
@@ -235,3 +233,8 @@ def locate_crossing(model: pin.Model, data: pin.Data, loop: LoopClosure,
         sv = np.linalg.svd(loop.jacobian(model, data)[:, loop.passive_v], compute_uv=False)
         ratios.append(sv[rank - 1] / sv[0] if rank else 1.0)
     return ("crossing" if min(ratios) <= SINGULAR_RATIO else "same"), fa
+
+
+def _largest(change: np.ndarray) -> float:
+    """Largest absolute entry of ``change`` (0 when empty)."""
+    return float(np.abs(change).max(initial=0.0))

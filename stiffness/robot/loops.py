@@ -32,6 +32,7 @@ every solve on them is rank-revealing (least squares / pseudo-inverse).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -259,7 +260,7 @@ class LoopClosure:
         for cm, cd in zip(self.constraints, self.constraint_datas, strict=True):
             cm.calc(model, data, cd)
             out.append(np.array(cd.constraint_position_error))
-        return np.concatenate(out) if out else np.zeros(0)
+        return (out[0] if len(out) == 1 else np.concatenate(out)) if out else np.zeros(0)
 
     def jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
         """Exact Jacobian (n_rows, nv) of :meth:`residual`; joint Jacobians must be up to date.
@@ -277,6 +278,8 @@ class LoopClosure:
                 a_m_b = cd.c1Mc2
                 jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() @ jac
             rows.append(jac)
+        if len(rows) == 1:
+            return rows[0]  # a new array already
         return np.vstack(rows) if rows else np.zeros((0, model.nv))
 
     def _world_points(self, model: pin.Model) -> list[list[_PointPair] | None]:
@@ -375,10 +378,8 @@ class LoopClosure:
                ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`passive_basis` of the passive columns ``cp``, of ``rank`` (None: theirs)."""
         n = cp.shape[1]
-        if rank is None and 0 < n <= cp.shape[0]:  # full rank, without an SVD
-            gram = cp.T @ cp
-            if _small_det(gram) > SINGULAR_RATIO ** 2 * (float(gram.trace()) / n) ** n:
-                rank = n
+        if rank is None and 0 < n <= cp.shape[0] and _regular(cp.T @ cp):
+            rank = n  # full rank, without an SVD
         if rank == n:
             return cp, _identity(n)
         u, sv, vt = np.linalg.svd(cp, full_matrices=False)
@@ -401,12 +402,12 @@ class LoopClosure:
         """
         b, v = basis
         cp = self.jacobian(model, data)[:, self.passive_v]
-        det = _small_det(b.T @ cp @ v)
-        here = self._basis(cp, cp.shape[1] if v.shape[1] == cp.shape[1] else None)
-        gram = here[0].T @ here[0]
-        rank = gram.shape[0]
-        if rank < v.shape[1] or rank and _small_det(gram) <= \
-                SINGULAR_RATIO ** 2 * (float(gram.trace()) / rank) ** rank:
+        n = cp.shape[1]
+        bc = b.T @ cp
+        det = _small_det(bc if v is _identity(n) else bc @ v)  # (times I: the same bits)
+        here = self._basis(cp, n if v.shape[1] == n else None)
+        rank = here[1].shape[1]
+        if rank < v.shape[1] or rank and not _regular(here[0].T @ here[0]):
             here = basis
         return det, here
 
@@ -451,11 +452,11 @@ class LoopClosure:
         for _ in range(max_iterations):
             kinematics.update_first_order(model, data, q)
             c = self.residual(model, data)
-            if np.linalg.norm(c) < CLOSURE_TOLERANCE_M:
+            if math.sqrt(c.dot(c)) < CLOSURE_TOLERANCE_M:  # np.linalg.norm's arithmetic
                 return q
             cp = self.jacobian(model, data)[:, self.passive_v]
             step = np.linalg.lstsq(cp, -c, rcond=1e-10)[0]
-            norm = float(np.linalg.norm(step))
+            norm = math.sqrt(step.dot(step))
             if norm > MAX_STEP:
                 step *= MAX_STEP / norm
             dv = np.zeros(model.nv)
@@ -478,6 +479,20 @@ def _identity(n: int) -> np.ndarray:
     out = np.eye(n)
     out.flags.writeable = False
     return out
+
+
+def _regular(gram: np.ndarray) -> bool:
+    """Whether the Gram matrix ``C^T C`` (n x n, n >= 1) of some columns C is regular: its
+    determinant above ``SINGULAR_RATIO^2 (trace / n)^n`` (for two columns, about their
+    smallest singular value above :data:`SINGULAR_RATIO` of the largest)."""
+    n = gram.shape[0]
+    if n > 2:
+        det, trace = _small_det(gram), float(gram.trace())
+    else:  # the same sums as np.trace and _small_det, without their calls
+        a = gram.tolist()
+        det = a[0][0] if n == 1 else a[0][0] * a[1][1] - a[0][1] * a[1][0]
+        trace = a[0][0] if n == 1 else a[0][0] + a[1][1]
+    return det > SINGULAR_RATIO ** 2 * (trace / n) ** n
 
 
 def _small_det(m: np.ndarray) -> float:

@@ -141,6 +141,10 @@ class Robot:
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
     _visual_loader: Callable[[], pin.GeometryModel | None] | None = field(default=None, repr=False)
+    #: (model, {joint name: (idx_q, nq)}): the joints' slots in ``q``, read once per model (the
+    #: closure sets the coordinates at every continuation and Newton step).
+    _slots: tuple[pin.Model | None, dict[str, tuple[int, int]]] = field(
+        default_factory=lambda: (None, {}), init=False, repr=False, compare=False)
 
     @property
     def visual_model(self) -> pin.GeometryModel | None:
@@ -352,18 +356,29 @@ class Robot:
     def _joint(self, name: str):
         return self.model.joints[self.model.getJointId(name)]
 
+    def _slot(self, name: str) -> tuple[int, int]:
+        """``(idx_q, nq)`` of a joint (looked up once per model)."""
+        model, slots = self._slots
+        if model is not self.model:
+            model, slots = self._slots = (self.model, {})
+        slot = slots.get(name)
+        if slot is None:
+            joint = self._joint(name)
+            slot = slots[name] = (joint.idx_q, joint.nq)
+        return slot
+
     def _value(self, q: np.ndarray, name: str) -> float:
-        joint = self._joint(name)
-        if joint.nq == 2:
-            return float(np.arctan2(q[joint.idx_q + 1], q[joint.idx_q]))
-        return float(q[joint.idx_q])
+        idx, nq = self._slot(name)
+        if nq == 2:
+            return float(np.arctan2(q[idx + 1], q[idx]))
+        return float(q[idx])
 
     def _set_value(self, q: np.ndarray, name: str, value: float) -> None:
-        joint = self._joint(name)
-        if joint.nq == 2:
-            q[joint.idx_q: joint.idx_q + 2] = np.cos(value), np.sin(value)
+        idx, nq = self._slot(name)
+        if nq == 2:
+            q[idx: idx + 2] = np.cos(value), np.sin(value)
         else:
-            q[joint.idx_q] = value
+            q[idx] = value
 
     def value_of(self, q: np.ndarray, name: str) -> float:
         """The value (rad or m) of a coordinate or a joint in the full configuration ``q``."""
@@ -516,8 +531,7 @@ class Robot:
         in ``q``'s assembly mode (:class:`~stiffness.robot.continuation.Continuation`); also
         the coordinates of the singular poses passed through."""
         passive_q = np.concatenate([
-            np.arange(j.idx_q, j.idx_q + j.nq)
-            for j in (self._joint(n) for n in self.loop.passive_joints)
+            np.arange(idx, idx + nq) for idx, nq in map(self._slot, self.loop.passive_joints)
         ] + [np.zeros(0)]).astype(int)
         return Continuation(self.model, self.data, self.loop, self.coordinate_v,
                             self._tree_configuration, passive_q, self.title).run(start, q, coords)
