@@ -211,6 +211,21 @@ def test_noise_declared_ten_times_too_large_is_said():
         assert any("overstated noise" in n for n in identify(c, starts=1).notes) is said
 
 
+def test_noise_declared_too_small_names_the_noise_as_a_reading_of_unexplained():
+    """The UR5 campaign's noise declared at 0.4 of the true one: the verdict is unexplained, and
+    its sentence names the understated noise beside a missing effect (until 5 December 2026 it
+    said only that the data hold something the library does not model, and pointed at
+    --loss soft_l1)."""
+    campaign = _simulate(UR5, [], configs=3).campaign
+    understated = dataclasses.replace(campaign, noise_std_m=0.4 * NOISE)
+    d = diagnose(understated, propose=False)
+    assert d.unexplained is True
+    assert "unless the declared noise_std (0.002 mm) understates the scatter: the final RMS" \
+        in d.unexplained_note
+    ratio = float(d.unexplained_note.split("the final RMS is ")[1].split(" ")[0])
+    assert ratio == pytest.approx(d.final.rms() / (0.4 * NOISE), rel=1e-2)
+
+
 def test_config_folds():
     labels = tuple("AABBCCDD")
     folds = config_folds(labels)

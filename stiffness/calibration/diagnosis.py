@@ -186,11 +186,23 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
                 f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
                 "cross-validation: the data contain something the library does not model; "
                 "the residual's structure (where_final_disagrees) says where to look"
+                + self._understated_note()
                 + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
                    "fail the test (see outliers)" if self.outliers else "")
                 + ("; a least-squares fit pulled by gross rows bends the stiffnesses and flags "
                    "clean rows too: --loss soft_l1 weighs them down"
                    if self.outliers and self.loss == "linear" else ""))
+
+    def _understated_note(self) -> str:
+        """The other reading of an unexplained verdict under a declared noise: the noise
+        understated (a residual without structure, about as large everywhere, points there)."""
+        if self.noise_std_source != "declared":
+            return ""
+        declared = f"{self._len(self.noise_std_m):.4g} {self.unit}"
+        ratio = self.final.rms() / self.noise_std_m
+        return (f", unless the declared noise_std ({declared}) understates the scatter: the "
+                f"final RMS is {ratio:.3g} times it, and a residual without structure (as large "
+                "in every configuration, axis, load and row block) points there")
 
     @property
     def missing_effects(self) -> list[str]:
