@@ -201,3 +201,18 @@ def test_kx_and_view_give_one_critical_factor(capsys, tmp_path):
         assert from_kx["stable"] == from_view["stable"] is True
         assert from_kx["critical_load_factor"] == from_view["critical_load_factor"]
     assert from_kx["critical_load_factor"] is None
+
+
+def test_joint_springs_refuse_a_coupled_matrix():
+    """``load_model("ur5", k=K)`` with a full (coupled) K_theta kept its diagonal and dropped
+    the coupling silently (K_X then off by the coupling); a diagonal matrix is still taken."""
+    from stiffness.elastic.model_file import load_model
+    from stiffness.errors import StiffnessError
+
+    k = np.diag([3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
+    coupled = k.copy()
+    coupled[1, 2] = coupled[2, 1] = 5e4
+    with pytest.raises(StiffnessError, match="k_theta of ur5 couples joints: joint springs are "
+                                             "one per joint; give a vector or a diagonal matrix"):
+        load_model("ur5", k=coupled)
+    np.testing.assert_array_equal(load_model("ur5", k=k).k_theta, np.diag(k))

@@ -18,15 +18,14 @@ from joint springs (:meth:`ElasticModel.joint_springs`), from a model file
 * the target (moved by a ``target_offset``) and the measurement effects (how a campaign
   observed its deflections: listed, not applied to the robot).
 
-At a pose and a load it answers (:meth:`ElasticModel.at`, an :class:`ElasticState`): the
-linearised quantities, ``C = J (K_t - K_C - K_p)^-1 J^T + C_link`` with ``K_t`` the joint
-law's tangent at the load, ``K_X = C^-1`` in both formulations (``enhanced`` with ``K_C``, A&S
-eq. 10; ``conventional`` without, eq. 8) and both 6x6 connections of Zefran & Kumar, the
-definiteness and the critical load factor along the wrench; and the exact loaded equilibrium
+At a pose and a load it answers (:meth:`ElasticModel.at`, an :class:`ElasticState`): the linearised
+quantities, ``C = J (K_t - K_C - K_p)^-1 J^T + C_link`` with ``K_t`` the joint law's tangent at the
+load, ``K_X = C^-1`` in both formulations (``enhanced`` with ``K_C``, A&S eq. 10; ``conventional``
+without, eq. 8) and both 6x6 connections of Zefran & Kumar, the definiteness and the critical load
+factor along the wrench; and the exact loaded equilibrium
 (:func:`stiffness.elastic.loaded.loaded_equilibrium`, or under a preload
-:func:`stiffness.mechanics.equilibrium.solve_equilibrium`). With a preload, ``J`` and ``K_C``
-are those of the preloaded pose, the commanded one deflected by
-``dtheta_0 = f(tau_p + K_p dtheta_0)``.
+:func:`stiffness.mechanics.equilibrium.solve_equilibrium`). With a preload, ``J`` and ``K_C`` are
+those of the preloaded pose, the commanded one deflected by ``dtheta_0 = f(tau_p + K_p dtheta_0)``.
 
 Units: SI (m, N, rad, N.m/rad; m and N/m for prismatic joints).
 """
@@ -163,9 +162,12 @@ class ElasticModel:
         Raises
         ------
         StiffnessError
-            Not one finite positive stiffness per compliant joint.
+            Not one finite positive stiffness per compliant joint, or off-diagonal terms.
         """
         k = np.asarray(k_theta, dtype=float)
+        if k.ndim == 2 and np.any(k != np.diag(np.diag(k))):  # its coupling was dropped
+            raise StiffnessError(f"k_theta of {robot.title} couples joints: joint springs are "
+                                 "one per joint; give a vector or a diagonal matrix")
         k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
         if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
             raise StiffnessError(
