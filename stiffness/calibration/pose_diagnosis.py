@@ -94,9 +94,15 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                  f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
         marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
                         for key in ("rms_by_marker", "rms_by_axis"))
+        length = self.campaign.units.length
+        noise = self.campaign.noise_std or 0.0
         return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
-                f"({self.campaign.units.length}) by marker {marker}, by axis {axis}{where}"
-                + _flagged(len(self.outliers), self.campaign.n_rows, self.loss))
+                f"({length}) by marker {marker}, by axis {axis}{where}"
+                + _flagged(len(self.outliers), self.campaign.n_rows, self.loss)
+                + f"; or the declared noise_std ({noise / self.campaign.units.length_to_si:.4g}"
+                f" {length}) understates the scatter: the final RMS is "
+                f"{self.final.rms() / noise:.3g} times it, and a residual without structure (as "
+                "large on every marker and axis, no trend along the rows) points there")
 
     def to_dict(self) -> dict:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
