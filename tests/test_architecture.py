@@ -40,7 +40,7 @@ LAYERS = {
     "planning": 7, "machining": 7,
     "papers": 8,
     "viewer": 9,
-    "cli": 10,
+    "cli": 10, "__main__": 10,
 }
 #: Layers that must not know about a paper.
 GENERAL = {name for name, layer in LAYERS.items() if layer < LAYERS["papers"]}

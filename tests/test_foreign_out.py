@@ -142,3 +142,20 @@ def test_an_output_folder_named_like_a_file_is_refused(tmp_path, capsys, argv):
     err = capsys.readouterr().err
     assert "this command writes a folder (several files), not a" in err and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_python_m_stiffness_is_the_command(tmp_path):
+    """``python -m stiffness`` (the console script's folder not on the PATH) said 'No module
+    named stiffness.__main__'; it is the command, its errors one line."""
+    import subprocess
+    import sys
+
+    import stiffness
+
+    run = subprocess.run([sys.executable, "-m", "stiffness", "--version"], capture_output=True,
+                         text=True, timeout=60, cwd=tmp_path)
+    assert run.returncode == 0 and run.stdout.strip() == f"stiffness {stiffness.__version__}"
+    run = subprocess.run([sys.executable, "-m", "stiffness", "kx", "--robot", ""],
+                         capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert run.returncode == 2 and run.stderr.startswith("stiffness kx: error: the robot is an "
+                                                         "empty name")
