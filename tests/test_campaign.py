@@ -414,3 +414,14 @@ def test_a_written_campaign_names_where_its_format_is(tmp_path):
     first = (tmp_path / "c" / CAMPAIGN_FILE).read_text().splitlines()[0]
     [named] = re.findall(r"stiffness/[\w/]+\.py", first)
     assert (Path(__file__).resolve().parents[1] / named).is_file(), first
+
+
+def test_a_trailing_comma_is_named_in_the_ignored_columns(tmp_path):
+    """A spreadsheet export ending every line with a comma has an empty header cell, which the
+    warning listed as nothing ('column(s)  are not campaign columns')."""
+    text = f"{HEADER},\n{ROW_A},\n"
+    with pytest.warns(UnknownColumnWarning, match=r"column\(s\) '' \(an empty header cell: a "
+                                                  r"trailing comma\?\) are not campaign columns"):
+        c = load_campaign(write(tmp_path, csv=text))
+    np.testing.assert_allclose(c.q, load_campaign(write(tmp_path / "ref", csv=f"{HEADER}\n"
+                                                                          f"{ROW_A}\n")).q)

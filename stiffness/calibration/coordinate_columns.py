@@ -175,7 +175,8 @@ def warn_unknown(names: list[str], data: Path, what: str) -> None:
     have); :class:`UnknownColumnWarning`, an error under ``--strict``."""
     if names:
         # read as a warning (ignored) and, under --strict, as the error: says both
-        warnings.warn(f"{data}: column(s) {listed(names)} are not campaign columns ({what}): "
+        shown = [n or "'' (an empty header cell: a trailing comma?)" for n in names]
+        warnings.warn(f"{data}: column(s) {listed(shown)} are not campaign columns ({what}): "
                       "ignored, refused under --strict; remove or rename them",
                       UnknownColumnWarning, stacklevel=3)
 
