@@ -312,6 +312,10 @@ def test_cli_design_then_simulate_the_plan(tmp_path, capsys):
     assert (tmp_path / "plan" / "campaign.toml").is_file()
     assert main(["simulate", "--plan", str(tmp_path / "plan"), "--kq", "3e4,2e4,1.5e4",
                  "--noise", "0.005", "--out", str(tmp_path / "sim")]) == 0
+    # the plan's poses are the UR5's: another --robot simulated them on it, silently
+    assert main(["simulate", "--plan", str(tmp_path / "plan"), "--robot", "sk120", "--out",
+                 str(tmp_path / "sk")]) == 2
+    assert "was designed for robot 'ur5', not 'sk120'" in capsys.readouterr().err
     camp = load_campaign(tmp_path / "sim")
     truth = json.loads((tmp_path / "sim" / "truth.json").read_text())
     assert truth["settings"]["plan"] == "../plan/campaign.toml"  # relative to truth.json

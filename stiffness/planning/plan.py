@@ -67,6 +67,7 @@ from stiffness.files import (
     resolve_source,
     staged_folder,
 )
+from stiffness.robot.calibration import robot_identity
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -352,7 +353,7 @@ def plan_and_robot(path: str | os.PathLike, robot: PlannedRobot) -> tuple[Plan, 
     Raises
     ------
     StiffnessError
-        As :func:`read_plan`.
+        As :func:`read_plan`; a plan folder of another robot than ``robot``'s source.
     """
     declared = None
     if robot.source is not None:
@@ -363,6 +364,11 @@ def plan_and_robot(path: str | os.PathLike, robot: PlannedRobot) -> tuple[Plan, 
                                 else str(Path(robot.loops).resolve()), robot.fixed_base)
     plan, _ = read_plan(path, declared)
     s = plan.robot_settings
+    if robot.source is not None and s is not None and \
+            robot_identity(str(robot.source)) != robot_identity(plan.resolved_source() or s.source):
+        raise StiffnessError(f"plan {path} was designed for robot {s.source!r}, not "
+                             f"{str(robot.source)!r}: its poses are that robot's; drop the "
+                             "robot (the plan folder names it) or design a plan for this one")
     if robot.source is None and s is not None:
         robot = PlannedRobot(
             plan.resolved_source(), robot.frame or s.frame,
