@@ -19,6 +19,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit
+from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
 from stiffness.calibration.selection import GOF_LEVEL, OVERSTATED_P, noise_overstated
@@ -199,10 +200,13 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         if self.noise_std_source != "declared":
             return ""
         declared = f"{self._len(self.noise_std_m):.4g} {self.unit}"
-        ratio = self.final.rms() / self.noise_std_m
+        measured = self.campaign.deflection if self.measured is None else self.measured
+        robust = robust_noise(self.final.residuals(measured)[0], self.final.penalty_params)
         return (f", unless the declared noise_std ({declared}) understates the scatter: the "
-                f"final RMS is {ratio:.3g} times it, and a residual without structure (as large "
-                "in every configuration, axis, load and row block) points there")
+                f"final residual's robust std (1.4826 median |r|, which gross rows do not "
+                f"inflate) is {(robust or 0.0) / self.noise_std_m:.3g} times it, and a residual "
+                "without structure (as large in every configuration, axis, load and row block) "
+                "points there")
 
     @property
     def missing_effects(self) -> list[str]:

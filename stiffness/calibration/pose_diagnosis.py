@@ -9,7 +9,10 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from stiffness.calibration.breakdown import marker_structure
+from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit
 from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
@@ -96,13 +99,16 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                         for key in ("rms_by_marker", "rms_by_axis"))
         length = self.campaign.units.length
         noise = self.campaign.noise_std or 0.0
+        r = self.final.residual
+        robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted) or 0.0
         return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
                 f"({length}) by marker {marker}, by axis {axis}{where}"
                 + _flagged(len(self.outliers), self.campaign.n_rows, self.loss)
                 + f"; or the declared noise_std ({noise / self.campaign.units.length_to_si:.4g}"
-                f" {length}) understates the scatter: the final RMS is "
-                f"{self.final.rms() / noise:.3g} times it, and a residual without structure (as "
-                "large on every marker and axis, no trend along the rows) points there")
+                f" {length}) understates the scatter: the final positions' robust std (1.4826 "
+                f"median |r|, which gross poses do not inflate) is {robust / noise:.3g} times it, "
+                "and a residual without structure (as large on every marker and axis, no trend "
+                "along the rows) points there")
 
     def to_dict(self) -> dict:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
