@@ -195,8 +195,8 @@ def test_drift_outside_the_library_is_unexplained(ur10):
 def test_an_understated_noise_is_named_as_a_reading_of_unexplained(ur10):
     """The poses' noise declared at half the true one, the model otherwise right: the verdict
     is unexplained, and it names the understated noise beside a missing effect, with the
-    residual's robust std in units of it, which gross poses do not inflate (until 5 December 2026 it read only "too many for stray measurements,
-    the model misses something")."""
+    residual's robust std in units of it, which gross poses do not inflate (until 5 December
+    2026 it read only "too many for stray measurements, the model misses something")."""
     _, c = _campaign(ur10, 3, n=20, geometry=False)
     c = dataclasses.replace(c, noise_std=NOISE / 2)
     d = diagnose_poses(c, families=["joint_offsets", "joint_compliance"], max_steps=0,
