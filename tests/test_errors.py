@@ -12,6 +12,8 @@ import pytest
 from stiffness import errors
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli import main as cli
+from stiffness.elastic.effects import make_effect
+from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import (
     ConvergenceError,
@@ -89,6 +91,20 @@ def test_unknown_names_carry_the_choices(sk120):
     with pytest.raises(UnknownNameError) as info:
         tangent_joint_stiffness(np.eye(3), np.zeros((3, 3)), "linear")
     assert info.value.choices == ("conventional", "enhanced")
+
+
+def test_an_unknown_joint_of_an_effect_is_named(sk120):
+    """``backlash:nope`` said "backlash needs a joint", as if no joint had been given: the
+    unknown joint is named, with the valid ones; without a joint the effect still asks for one."""
+    geometry = Geometry.of(sk120)
+    with pytest.raises(UnknownJointError) as info:
+        make_effect("backlash", "nope", geometry)
+    message = str(info.value)
+    assert message.startswith("backlash:nope: 'nope' is not a joint of sk120 with a spring; "
+                              "valid names: joint1, joint2") and "needs" not in message
+    assert info.value.name == "nope" and info.value.choices == sk120.coordinate_joints
+    with pytest.raises(UnknownJointError, match="backlash needs a joint, e.g. backlash:joint1"):
+        make_effect("backlash", None, geometry)
 
 
 def test_missing_and_malformed_files(tmp_path):

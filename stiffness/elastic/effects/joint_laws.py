@@ -91,9 +91,11 @@ class JointEffect(DeflectionEffect):
                   if not (p and cls.revolute_only)]
         if where not in joints:
             kind = "a revolute joint" if cls.revolute_only else "a joint"
-            raise UnknownJointError(f"{cls.name} needs {kind}, e.g. {cls.name}:{joints[0]}; "
-                                    f"{did_you_mean(str(where), joints)}", name=str(where),
-                                    choices=joints)
+            problem = (f"{cls.name} needs {kind}, e.g. {cls.name}:{joints[0]}" if not where else
+                       f"{cls.name}:{where}: {where!r} is not {kind} of {geometry.robot.title} "
+                       f"with a spring")
+            raise UnknownJointError(f"{problem}; {did_you_mean(str(where), joints)}",
+                                    name=str(where), choices=joints)
         if problem := cls.placement_problem(geometry.robot, where):
             raise StiffnessError(problem)
         return cls(joint_name=where,
