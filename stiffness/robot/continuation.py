@@ -51,7 +51,8 @@ class Continuation:
     """The loops of one robot, closed along straight coordinate paths.
 
     ``tree_configuration(coords, q)`` sets the coordinates (rad or m) in ``q`` (mimic followers
-    included); ``passive_q`` are the configuration indices of the passive joints.
+    included); ``passive_q`` are the configuration indices of the passive joints; ``title()``
+    names the robot in an error (only read then: it may look at files).
     """
 
     model: pin.Model
@@ -60,7 +61,7 @@ class Continuation:
     coordinate_v: np.ndarray
     tree_configuration: Callable[[np.ndarray, np.ndarray], np.ndarray]
     passive_q: np.ndarray
-    title: str
+    title: Callable[[], str]
 
     def close_at(self, start: np.ndarray, coords: np.ndarray, part: float,
                  guess: np.ndarray, iterations: int = 50) -> np.ndarray | None:
@@ -85,7 +86,7 @@ class Continuation:
             When the path meets a fold of the loop (the pose is unreachable on the branch).
         """
         model, data, loop, pq = self.model, self.data, self.loop, self.passive_q
-        span = float(np.max(np.abs(coords - start))) if coords.size else 0.0
+        span = _largest(coords - start)
         if span == 0.0:
             return loop.close(model, data, self.tree_configuration(coords, q)), []
         nominal = min(1.0, CONTINUATION_STEP / span)
@@ -144,7 +145,7 @@ class Continuation:
         verdict, part = locate_crossing(
             model, data, loop, lambda f, g: self.close_at(start, coords, f, g, _LOCATE_NEWTON),
             self.passive_q,
-            before, after, float(np.max(np.abs(coords - start))), basis)
+            before, after, _largest(coords - start), basis)
         if verdict == "jump":
             return None, basis, None
         crossing = None
@@ -159,7 +160,7 @@ class Continuation:
         name, worst = max(self.loop.loop_residuals(self.model, self.data),
                           key=lambda item: item[1])
         raise LoopClosureError(
-            f"the loops of {self.title} cannot be closed continuously from "
+            f"the loops of {self.title()} cannot be closed continuously from "
             f"coordinates {np.round(start, 6).tolist()} to "
             f"{np.round(coords, 6).tolist()}: the "
             "path meets a fold of the loop (the pose is unreachable on this branch)",

@@ -141,9 +141,9 @@ class Robot:
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
     _visual_loader: Callable[[], pin.GeometryModel | None] | None = field(default=None, repr=False)
-    #: (model, {joint name: (idx_q, nq)}): the joints' slots in ``q``, read once per model (the
-    #: closure sets the coordinates at every continuation and Newton step).
-    _slots: tuple[pin.Model | None, dict[str, tuple[int, int]]] = field(
+    #: (model, {joint name: (idx_q, nq, idx_v)}): the joints' slots in ``q`` and ``v``, read once
+    #: per model (the closure sets the coordinates at every continuation and Newton step).
+    _slots: tuple[pin.Model | None, dict[str, tuple[int, int, int]]] = field(
         default_factory=lambda: (None, {}), init=False, repr=False, compare=False)
 
     @property
@@ -203,7 +203,7 @@ class Robot:
         if not self.model.existJointName(joint):
             raise StiffnessError(f"{joint!r} is a controller coordinate of {self.title}, not a "
                                  "joint: it has no velocity index (use rate_projection)")
-        return self.model.joints[self.model.getJointId(joint)].idx_v
+        return self._slot(joint)[2]
 
     @property
     def coordinate_v(self) -> np.ndarray:
@@ -356,25 +356,25 @@ class Robot:
     def _joint(self, name: str):
         return self.model.joints[self.model.getJointId(name)]
 
-    def _slot(self, name: str) -> tuple[int, int]:
-        """``(idx_q, nq)`` of a joint (looked up once per model)."""
+    def _slot(self, name: str) -> tuple[int, int, int]:
+        """``(idx_q, nq, idx_v)`` of a joint (looked up once per model)."""
         model, slots = self._slots
         if model is not self.model:
             model, slots = self._slots = (self.model, {})
         slot = slots.get(name)
         if slot is None:
             joint = self._joint(name)
-            slot = slots[name] = (joint.idx_q, joint.nq)
+            slot = slots[name] = (joint.idx_q, joint.nq, joint.idx_v)
         return slot
 
     def _value(self, q: np.ndarray, name: str) -> float:
-        idx, nq = self._slot(name)
+        idx, nq, _ = self._slot(name)
         if nq == 2:
             return float(np.arctan2(q[idx + 1], q[idx]))
         return float(q[idx])
 
     def _set_value(self, q: np.ndarray, name: str, value: float) -> None:
-        idx, nq = self._slot(name)
+        idx, nq, _ = self._slot(name)
         if nq == 2:
             q[idx: idx + 2] = np.cos(value), np.sin(value)
         else:
@@ -531,10 +531,11 @@ class Robot:
         in ``q``'s assembly mode (:class:`~stiffness.robot.continuation.Continuation`); also
         the coordinates of the singular poses passed through."""
         passive_q = np.concatenate([
-            np.arange(idx, idx + nq) for idx, nq in map(self._slot, self.loop.passive_joints)
+            np.arange(idx, idx + nq) for idx, nq, _ in map(self._slot, self.loop.passive_joints)
         ] + [np.zeros(0)]).astype(int)
         return Continuation(self.model, self.data, self.loop, self.coordinate_v,
-                            self._tree_configuration, passive_q, self.title).run(start, q, coords)
+                            self._tree_configuration, passive_q, lambda: self.title
+                            ).run(start, q, coords)
 
     def _step_inside(self, start: np.ndarray, q: np.ndarray) -> np.ndarray:
         """An assembly a little further from ``start`` than ``q``, when one closes.
