@@ -11,11 +11,13 @@ effects, and diagnosed (:func:`stiffness.calibration.diagnose.diagnose`). A noth
 *names* when its final model keeps any effect; a hidden-effect run *finds* the effect when the
 final model keeps it by name (``alias``: it keeps what one pose cannot tell from it instead,
 :data:`ALIAS`). The table goes to stdout and between the
-markers of ``docs/diagnose.md``.
+markers of ``docs/diagnose.md``. With ``--undeclared``, only the UR5's and UR10's campaigns
+with the noise undeclared, nothing hidden and each hidden effect (to stdout only).
 
 Usage::
 
     python scripts/one_configuration.py [--seeds 20] [--rows 3,6,12] [--workers 2] [--no-write]
+                                        [--undeclared]
 """
 
 from __future__ import annotations
@@ -63,6 +65,8 @@ UNDECLARED = ("ur5", "ur10")
 #: bend of the segment ending at that joint about the same axis (docs/diagnose.md).
 ALIAS = {"deflection_offset": "force_sensor_bias", "force_sensor_bias": "deflection_offset",
          "joint_compliance": "link_compliance"}
+#: Before a hidden effect's ``--effect`` text: that campaign with the noise undeclared.
+UNDECLARED_PREFIX = "undeclared "
 NOISE_M = 5e-6
 MARK_START, MARK_END = "<!-- one-configuration:start -->", "<!-- one-configuration:end -->"
 
@@ -72,10 +76,12 @@ def run_one(job: tuple) -> dict:
     robot, spec, rows, seed = job
     setup = dict(ROBOTS[robot])
     source = setup.pop("robot")
-    effects = [] if spec in (None, "undeclared") else [parse_effect(spec)]
+    hidden = spec.removeprefix(UNDECLARED_PREFIX) if spec is not None else None
+    declared = hidden == spec and spec != "undeclared"
+    effects = [] if hidden in (None, "undeclared") else [parse_effect(hidden)]
     t0 = time.perf_counter()
     sim = simulate(source, effects=effects, configs=1, loads_per_config=rows,
-                   noise_std_m=NOISE_M, seed=seed, declare_noise=spec != "undeclared", **setup)
+                   noise_std_m=NOISE_M, seed=seed, declare_noise=declared, **setup)
     result = diagnose(sim.campaign, propose=False, workers=1)
     s = result.summary()
     return {"robot": robot, "spec": spec, "rows": rows, "seed": seed,
@@ -85,12 +91,13 @@ def run_one(job: tuple) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
-def table(results: list[dict], seeds: int) -> str:
+def table(results: list[dict], seeds: int, undeclared: bool = False) -> str:
     """A markdown table of the results."""
     sizes = sorted({r["rows"] for r in results})
     lines = [
         f"Campaigns of one random reachable configuration x R random loads (3R residual "
-        f"components), declared noise {NOISE_M * 1e3:g} mm, {seeds} seeds per cell. Nothing "
+        f"components), {'undeclared' if undeclared else 'declared'} noise {NOISE_M * 1e3:g} mm, "
+        f"{seeds} seeds per cell. Nothing "
         "hidden: `named/runs`, runs whose final model keeps an effect (a false name), and the "
         "effects named. A hidden effect: `found/runs` keeping it (+ its one-pose alias, a force "
         "bias for a deflection offset and back), then its median size in noise std.",
@@ -98,13 +105,14 @@ def table(results: list[dict], seeds: int) -> str:
         "| robot | hidden | " + " | ".join(f"R = {r}" for r in sizes) + " |",
         "|---|---|" + "---|" * len(sizes),
     ]
-    for robot, spec in cases():
+    for robot, spec in cases(undeclared):
         cells = []
         for rows in sizes:
             rs = [r for r in results if (r["robot"], r["spec"], r["rows"]) == (robot, spec, rows)]
             cells.append(_cell(rs, spec) if rs else "-")
         title = {None: "nothing", "undeclared": "nothing, noise undeclared"}.get(
-            spec, f"`{spec}`")
+            spec, f"`{str(spec).removeprefix(UNDECLARED_PREFIX)}`"
+            + (", noise undeclared" if str(spec).startswith(UNDECLARED_PREFIX) else ""))
         lines.append(f"| {robot} | {title} | " + " | ".join(cells) + " |")
     nulls = [r for r in results if r["spec"] in (None, "undeclared")]
     found = [r for r in results if r["spec"] not in (None, "undeclared")]
@@ -118,9 +126,14 @@ def table(results: list[dict], seeds: int) -> str:
     return "\n".join(lines)
 
 
-def cases() -> list[tuple[str, str | None]]:
+def cases(undeclared: bool = False) -> list[tuple[str, str | None]]:
     """The (robot, hidden) cases in table order: ``None`` nothing hidden, ``undeclared``
-    nothing hidden and the noise undeclared, else the ``--effect`` text."""
+    nothing hidden and the noise undeclared, else the ``--effect`` text, after
+    :data:`UNDECLARED_PREFIX` with the noise undeclared; with ``undeclared``, only the cases
+    of the :data:`UNDECLARED` robots with the noise undeclared, each hidden effect's too."""
+    if undeclared:
+        return [(robot, spec) for robot in UNDECLARED for spec in
+                ["undeclared", *(UNDECLARED_PREFIX + e for e in EFFECTS[robot])]]
     return [(robot, spec) for robot in ROBOTS
             for spec in [None, *(["undeclared"] if robot in UNDECLARED else []),
                          *EFFECTS[robot]]]
@@ -128,7 +141,7 @@ def cases() -> list[tuple[str, str | None]]:
 
 def _found(record: dict) -> int:
     """1 when the run keeps its hidden effect by name, 2 its one-pose alias only, else 0."""
-    hidden = record["spec"].split(":")[0].split("=")[0]
+    hidden = record["spec"].removeprefix(UNDECLARED_PREFIX).split(":")[0].split("=")[0]
     return 1 if hidden in record["named"] else 2 if ALIAS.get(hidden) in record["named"] else 0
 
 
@@ -155,15 +168,18 @@ def main(argv: list[str] | None = None) -> int:
                         help="also write each run's record to this JSON file")
     parser.add_argument("--records", type=Path, default=None,
                         help="tabulate the records of an earlier --json file instead of running")
+    parser.add_argument("--undeclared", action="store_true",
+                        help="only the UR5's and UR10's campaigns with the noise undeclared, "
+                             "nothing hidden and each hidden effect (never written)")
     args = parser.parse_args(argv)
     sizes = [int(r) for r in args.rows.split(",")]
     jobs = [(robot, spec, rows, 300 + seed) for seed in range(args.seeds)
-            for robot, spec in cases() for rows in sizes]
+            for robot, spec in cases(args.undeclared) for rows in sizes]
     results = (json.loads(args.records.read_text()) if args.records is not None
                else run_jobs(run_one, jobs, args.workers, args.json))
-    text = table(results, args.seeds)
+    text = table(results, args.seeds, args.undeclared)
     print(text)
-    if not args.no_write:
+    if not args.no_write and not args.undeclared:
         return write_between_markers(ROOT / "docs" / "diagnose.md", MARK_START, MARK_END, text)
     return 0
 
