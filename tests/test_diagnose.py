@@ -231,6 +231,18 @@ def test_noise_declared_too_small_names_the_noise_as_a_reading_of_unexplained():
     assert 2.0 < ratio < 3.0
 
 
+def test_the_verdict_names_the_replicates_test():
+    """Noise from the replicates' scatter: the verdict and the baseline's line name the
+    lack-of-fit F test they use (Noise.test), not chi-square (printed until 5 December 2026
+    whatever the noise's source)."""
+    c = _simulate(UR5, [], configs=3, declare_noise=False, repeats=3).campaign
+    d = diagnose(c, propose=False)
+    assert d.noise_std_source == "replicates" and d.unexplained is False
+    assert "(lack-of-fit F test)" in d.unexplained_note
+    report = format_report(d)
+    assert "to noise (lack-of-fit F p = " in report and "chi-square" not in report
+
+
 def test_config_folds():
     labels = tuple("AABBCCDD")
     folds = config_folds(labels)

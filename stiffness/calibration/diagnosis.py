@@ -172,18 +172,24 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         return value_m / self.campaign.units.length_to_si
 
     @property
+    def test(self) -> str:
+        """The fit-to-noise test's name (:attr:`Noise.test`): ``chi-square`` for a declared
+        noise, ``lack-of-fit F`` for the replicates' scatter."""
+        return "chi-square" if self.noise_std_source == "declared" else "lack-of-fit F"
+
+    @property
     def unexplained_note(self) -> str:
         """One sentence on the verdict of :attr:`unexplained`."""
         if self.unexplained is None:
             return ("not tested: the noise is estimated from the final model's residuals, so "
                     "whether something outside the library is left cannot be said")
         if not self.unexplained:
-            return "the final model explains the data to noise (chi-square test)" + (
+            return f"the final model explains the data to noise ({self.test} test)" + (
                 f"; its residual is far below the declared noise (chi-square lower tail p < "
                 f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the "
                 "intervals are too wide and an effect below the noise goes unseen"
                 if noise_overstated(self.gof_final) else "")
-        return (f"the residual is still above the noise (chi-square p = {self.gof_final:.3g} "
+        return (f"the residual is still above the noise ({self.test} p = {self.gof_final:.3g} "
                 f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
                 "cross-validation: the data contain something the library does not model; "
                 "the residual's structure (where_final_disagrees) says where to look"

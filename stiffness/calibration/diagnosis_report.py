@@ -72,7 +72,7 @@ def format_report(d: Diagnosis) -> str:
     ]
     if d.gof_baseline is not None:
         verdict = "fits" if d.gof_baseline > 1 - GOF_LEVEL else "does NOT fit"
-        lines.append(f"the baseline {verdict} to noise (chi-square p = {d.gof_baseline:.3g})")
+        lines.append(f"the baseline {verdict} to noise ({d.test} p = {d.gof_baseline:.3g})")
     lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
     lines += _disagreement_lines(d.baseline_disagreement, c.units.force)
     lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {f'RMS ({unit})':>10} "
