@@ -223,6 +223,30 @@ def test_a_noise_declared_too_small_by_half_is_noted(sk120_robot):
     assert "larger than the declared noise_std (0.0048 mm; chi-square p = " in notes[0]
 
 
+def test_replicates_give_the_noise_and_the_lack_of_fit_note(sk120_robot):
+    """No noise declared, each row measured twice: identify takes the replicates' pooled
+    scatter (as diagnose does), its intervals Student's t with their degrees of freedom, and
+    notes a residual the lack-of-fit F test rejects (until 5 December 2026 it took the
+    residuals' own std, which a drift or a missing effect inflates, and said nothing)."""
+    base = sk120_synthetic(sk120_robot, seed=4, noise=None, n_configs=4, n_loads=3)
+    rng = np.random.default_rng(4)
+    twice = np.repeat(np.arange(base.n_rows), 2)
+    measured = base.deflection[twice] + rng.normal(scale=NOISE_M, size=(2 * base.n_rows, 3))
+    rows = dataclasses.replace(base, q=base.q[twice], force=base.force[twice],
+                               deflection=measured, config=tuple(base.config[i] for i in twice),
+                               noise_std_m=None)
+    pairs = measured.reshape(-1, 2, 3)
+    scatter = np.sqrt(np.sum((pairs - pairs.mean(axis=1, keepdims=True)) ** 2) / (3 * 12))
+    result = identify(rows, "enhanced", starts=1)
+    assert result.sigma_source == "replicates (pooled scatter, 36 degrees of freedom)"
+    assert result.sigma_m == pytest.approx(scatter, rel=1e-9)
+    assert not result.notes
+    drift = rows.deflection + np.linspace(0, 8 * NOISE_M, 2 * base.n_rows)[:, None]
+    notes = identify(dataclasses.replace(rows, deflection=drift), "enhanced", starts=1).notes
+    assert any("larger than the replicate rows' scatter" in n and "lack-of-fit F p = " in n
+               for n in notes), notes
+
+
 @pytest.fixture(scope="module")
 def ur5_unexcited():
     """UR5, target on the wrist_3 axis and forces only: wrist_3_joint is never loaded."""

@@ -252,8 +252,8 @@ class Identification(IdentificationResult):
         """How the 95 % intervals are computed."""
         if self.loss == "linear":
             return ("the compliance's interval c -+ t SE(c), SE(c) = c SE(ln k), carried to "
-                    "k = 1/c: k / (1 +- t SE(ln k)); t = Student (N - p dof) if sigma is "
-                    "estimated, normal if declared")
+                    "k = 1/c: k / (1 +- t SE(ln k)); t = Student with the replicates' dof "
+                    "for their scatter, N - p dof for the residuals', normal if declared")
         return (f"Huber's sandwich covariance of the {self.loss} fit's ln k; the compliance's "
                 "interval carried to k = 1/c: k / (1 +- t SE(ln k)), t = Student (N - p dof)")
 

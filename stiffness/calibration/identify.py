@@ -95,6 +95,7 @@ from stiffness.calibration.selection import (
     OVERSTATED_P,
     Noise,
     noise_overstated,
+    replicate_noise,
 )
 from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects import make_effect
@@ -587,6 +588,7 @@ class _NoiseLevel:
 def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                  robust_sigma: float | None = None) -> _NoiseLevel:
     """The noise of the intervals (:class:`_NoiseLevel`): a declared noise std, else the
+    replicate rows' scatter (translations only: not with measured rotations), else the
     residuals'; with ``robust_sigma`` (m, a robust fit's scale) that one, declared or the
     robust estimate."""
     dof = n - p
@@ -617,6 +619,18 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
         return _NoiseLevel(Noise(sigma), "declared noise_std", sigma_res, notes)
     # dof > 0 without a declared noise: _check_residual_count
     assert sigma_res is not None
+    rep = replicate_noise(campaign) if campaign.rotation is None else None
+    if rep is not None:  # diagnose's noise (its _translation_noise): the replicates' scatter
+        noise = Noise(*rep)
+        gof = noise.goodness_of_fit(ss_m2, n, p)
+        if gof is not None and gof <= 1.0 - GOF_LEVEL:
+            notes.append(
+                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the replicate "
+                f"rows' scatter ({rep[0] * 1e3:.4g} mm; {noise.test} p = {gof:.3g} <= "
+                f"{1.0 - GOF_LEVEL:.2g}): the model misses something; the confidence intervals "
+                "are too narrow (stiffness diagnose finds what is missing)")
+        return _NoiseLevel(noise, f"replicates (pooled scatter, {rep[1]} degrees of freedom)",
+                           sigma_res, notes)
     return _NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
                        notes)
 
