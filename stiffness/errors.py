@@ -202,6 +202,22 @@ def with_context(exc: StiffnessError, context: str) -> StiffnessError:
     return out
 
 
+def given(value: object) -> str:
+    """How a wrong argument is named in a message: its type, and its value (shortened) or its
+    shape (an array)."""
+    kind, shape = type(value).__name__, getattr(value, "shape", None)
+    if isinstance(shape, tuple) and (len(shape) > 1 or getattr(value, "size", 13) > 12):
+        return f"{kind} of shape {shape}"
+    text = repr(value.tolist() if isinstance(shape, tuple) else value)  # type: ignore[attr-defined]
+    return f"{kind} {text if len(text) <= 60 else text[:57] + '...'}"
+
+
+def wrong_argument(name: str, value: object, needed: str, prefix: str = "") -> StiffnessError:
+    """The error of a Python API argument of the wrong type, size or value, in one line:
+    ``"<name> must be <prefix><needed>, got <given(value)>"``."""
+    return StiffnessError(f"{name} must be {prefix}{needed}, got {given(value)}")
+
+
 def did_you_mean(name: str, valid: list[str] | tuple[str, ...], limit: int = 40) -> str:
     """Text listing the valid names (up to ``limit``), closest matches first when there are many."""
     import difflib

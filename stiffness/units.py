@@ -7,7 +7,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TypeGuard
 
-from stiffness.errors import UnknownNameError
+import numpy as np
+
+from stiffness.errors import UnknownNameError, wrong_argument
 
 #: Unit name -> factor to SI (rad, N, m).
 ANGLE_UNITS = {"deg": math.pi / 180.0, "rad": 1.0}
@@ -82,6 +84,53 @@ def three_numbers(value: object, limit: float = math.inf) -> bool:
     """Whether ``value`` is a list of three :func:`finite_number` (an offset in a file)."""
     return isinstance(value, list) and len(value) == 3 and all(
         finite_number(v, limit) for v in value)
+
+
+def float_array(value: object, name: str, needed: str, size: int | None = None,
+                ndim: int | None = None, finite: bool = True) -> np.ndarray:
+    """``value`` (a Python API argument: a number, a sequence or an array of numbers) as a
+    float array, checked where it enters: numbers only (no string, None or bool), of ``ndim``
+    dimensions and ``size`` values when given, finite unless ``finite`` is False (for a caller
+    whose own message says more).
+
+    Parameters
+    ----------
+    name, needed
+        The argument's name and what it must be, with its unit (``"q"``, ``"6 joint
+        coordinates (rad, m)"``), for the message.
+
+    Raises
+    ------
+    StiffnessError
+        ``"<name> must be <needed>, got <what was given>"``
+        (:func:`stiffness.errors.wrong_argument`).
+    """
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nesting
+        raise wrong_argument(name, value, needed) from None
+    if array.dtype.kind not in "iuf" or (ndim is not None and array.ndim != ndim) or (
+            size is not None and array.size != size):
+        raise wrong_argument(name, value, needed)
+    array = array.astype(float)
+    if finite and not np.all(np.isfinite(array)):
+        raise wrong_argument(name, value, needed, "finite numbers: ")
+    return array
+
+
+def whole_number(value: object, name: str, minimum: int = 1) -> int:
+    """``value`` (a Python API count: ``configs``, ``repeats``) as an int, checked where it
+    enters: an integer (a Python or NumPy int; no bool, float or string) of at least
+    ``minimum``.
+
+    Raises
+    ------
+    StiffnessError
+        ``"<name> must be a whole number >= <minimum>, got <what was given>"``.
+    """
+    if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < minimum:
+        raise wrong_argument(name, value, f"a whole number >= {minimum}")
+    return int(value)
 
 
 #: Moment unit name -> factor to N.m (every force unit times every length unit).

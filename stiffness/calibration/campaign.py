@@ -97,6 +97,7 @@ from stiffness.calibration.unit_checks import (
 from stiffness.errors import (
     StiffnessError,
     UnknownNameError,
+    wrong_argument,
 )
 from stiffness.files import (
     read_text,
@@ -290,8 +291,12 @@ def campaign_kind(path: str | os.PathLike) -> str:
     Raises
     ------
     StiffnessError
-        The file cannot be read, or ``kind`` is not one of :data:`CAMPAIGN_KINDS`.
+        ``path`` is no path (the Python API's ``campaign`` argument: ``identify(5)``), the file
+        cannot be read, or ``kind`` is not one of :data:`CAMPAIGN_KINDS`.
     """
+    if not isinstance(path, str | os.PathLike):
+        raise wrong_argument("campaign", path, "a Campaign, a PoseCampaign, or the path of a "
+                             "campaign.toml or its folder (str or os.PathLike)")
     toml_path = campaign_toml_path(path)
     doc = read_toml(toml_path, "campaign file")
     kind = doc.get("kind", "deflections")

@@ -42,7 +42,7 @@ from stiffness.elastic.model_file import (
     load_model,
     read_model_file,
 )
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.robot.calibration import (
     is_pose_calibration,
     kinematic_fingerprint,
@@ -164,6 +164,9 @@ def validate(model: ModelFile | str | os.PathLike,
         A pose calibration with a deflection campaign or the other way round, or a file
         that cannot be read.
     """
+    if not isinstance(model, ModelFile | str | os.PathLike):
+        raise wrong_argument("model", model, "a model file's path (str or os.PathLike) or a "
+                             "ModelFile")
     pose_model = not isinstance(model, ModelFile) and is_pose_calibration(model)
     kind = "poses" if isinstance(campaign, PoseCampaign) else "deflections" if isinstance(
         campaign, Campaign) else campaign_kind(campaign)

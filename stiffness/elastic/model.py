@@ -52,6 +52,7 @@ from stiffness.elastic.loaded import (
     loaded_equilibrium,
 )
 from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
     deflected_configuration,
@@ -72,6 +73,7 @@ from stiffness.mechanics.gravity import joint_preload, require_open_chain, with_
 from stiffness.mechanics.ik import all_coordinates
 from stiffness.mechanics.wrench import TWIST_ORDERS, reorder_twist
 from stiffness.robot.robot import Robot, load_robot
+from stiffness.units import float_array
 
 #: Formulations of the linear answer.
 FORMULATIONS = ("conventional", "enhanced")
@@ -80,6 +82,7 @@ CONNECTIONS = ("joint", "twist")
 #: A critical load factor this many times the inverse of K_C's size relative to K_theta comes
 #: from round-off (a K_C with no positive eigenvalue): no critical load.
 ROUND_OFF_FACTOR = 1e10
+
 
 
 @dataclass
@@ -164,15 +167,7 @@ class ElasticModel:
         StiffnessError
             Not one finite positive stiffness per compliant joint, or off-diagonal terms.
         """
-        k = np.asarray(k_theta, dtype=float)
-        if k.ndim == 2 and np.any(k != np.diag(np.diag(k))):  # its coupling was dropped
-            raise StiffnessError(f"k_theta of {robot.title} couples joints: joint springs are "
-                                 "one per joint; give a vector or a diagonal matrix")
-        k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
-        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise StiffnessError(
-                f"need one finite positive stiffness per compliant joint of {robot.title} "
-                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+        k = joint_stiffnesses(robot, k_theta)
         n = len(robot.spring_joints)
         compliance_ = np.zeros(n)
         compliance_[robot.compliant_in_springs] = 1.0 / k
@@ -217,11 +212,7 @@ class ElasticModel:
         StiffnessError
             A bad stiffness, or an effect that does not fit the robot.
         """
-        k = np.asarray(k_theta, dtype=float).reshape(-1)
-        if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
-            raise StiffnessError(
-                f"need one finite positive stiffness per compliant joint of {robot.title} "
-                f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+        k = joint_stiffnesses(robot, k_theta)
         parts = ElasticParts(dict(zip(robot.compliant_joints, k.tolist(), strict=True)))
         for effect, values in effects:
             effect.contribute(np.asarray(values, dtype=float), parts)
@@ -326,7 +317,9 @@ class ElasticModel:
         StiffnessError
             Neither length.
         """
-        q = np.asarray(q, dtype=float).reshape(-1)
+        q = float_array(q, "q", f"the {self.robot.n_coordinates} coordinates of "
+                        f"{self.robot.title} (rad, m) or its full configuration of "
+                        f"{self.robot.model.nq} values").reshape(-1)
         if q.shape[0] == self.robot.n_coordinates:
             return self.robot.configuration(q)
         if q.shape[0] == self.robot.model.nq:
@@ -480,7 +473,8 @@ class ElasticState:
                  closed: np.ndarray | None = None) -> None:
         _check_formulation(formulation)
         self.model, self.formulation = model, formulation
-        self.load = np.asarray(load, dtype=float).reshape(-1)
+        self.load = float_array(load, "the load", "a force (fx,fy,fz in N) or a wrench "
+                                "(fx,fy,fz,mx,my,mz in N, N.m)", finite=False).reshape(-1)
         self.wrench = as_wrench(self.load)
         self.q_commanded = model.configuration(q) if closed is None else np.asarray(
             closed, dtype=float)

@@ -14,10 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stiffness.errors import StiffnessError
 from stiffness.mechanics.formulation import as_wrench
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.mechanics.wrench import holding_wrench
 from stiffness.robot.robot import Robot
+from stiffness.units import float_array
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,28 @@ def default_stiffness(robot: Robot) -> np.ndarray | None:
             robot.defaults.get("compliant_joints", robot.coordinate_joints)):
         return np.asarray(robot.defaults["k_theta_SI"], dtype=float)
     return None
+
+
+def joint_stiffnesses(robot: Robot, k_theta: object) -> np.ndarray:
+    """``k_theta`` as the user gives it (N.m/rad, N/m prismatic; a vector or a diagonal matrix)
+    as one finite positive stiffness per compliant joint of ``robot`` (n_compliant,).
+
+    Raises
+    ------
+    StiffnessError
+        Not numbers, off-diagonal terms, or not one finite positive value per compliant joint.
+    """
+    k = float_array(k_theta, "k_theta", f"one stiffness per compliant joint of {robot.title} "
+                    "(N.m/rad, N/m prismatic): a vector or a diagonal matrix", finite=False)
+    if k.ndim == 2 and np.any(k != np.diag(np.diag(k))):  # its coupling was dropped
+        raise StiffnessError(f"k_theta of {robot.title} couples joints: joint springs are "
+                             "one per joint; give a vector or a diagonal matrix")
+    k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
+    if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
+        raise StiffnessError(
+            f"need one finite positive stiffness per compliant joint of {robot.title} "
+            f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+    return k
 
 
 def default_load(robot: Robot, q: np.ndarray, k_theta: np.ndarray

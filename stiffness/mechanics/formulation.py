@@ -33,10 +33,12 @@ from stiffness.errors import (
     StiffnessError,
     UndeterminedMotionError,
     UnknownNameError,
+    wrong_argument,
 )
 from stiffness.mechanics import closed_loop
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
+from stiffness.units import float_array
 
 FORMULATIONS = ("conventional", "enhanced")
 DEFINITENESS_CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
@@ -44,14 +46,11 @@ DEFINITENESS_CLASSES = ("PD", "PSD", "ND", "NSD", "ID")
 
 def as_wrench(load: Sequence[float] | np.ndarray) -> np.ndarray:
     """A force (3,) or wrench (6,) as a wrench [F (N); M (N.m)], checked finite."""
-    load = np.asarray(load, dtype=float).reshape(-1)
-    if load.shape not in ((3,), (6,)):
-        raise StiffnessError(
-            f"a load is a force (fx,fy,fz in N) or a wrench (fx,fy,fz,mx,my,mz in N, N.m); "
-            f"got {load.shape[0]} values"
-        )
-    if not np.all(np.isfinite(load)):
-        raise StiffnessError(f"the load must be finite numbers, got {load.tolist()}")
+    needed = "a force (fx,fy,fz in N) or a wrench (fx,fy,fz,mx,my,mz in N, N.m)"
+    values = float_array(load, "the load", needed, finite=False).reshape(-1)
+    if values.shape not in ((3,), (6,)):
+        raise StiffnessError(f"a load is {needed}; got {values.shape[0]} values")
+    load = float_array(values, "the load", needed)
     return np.concatenate([load, np.zeros(6 - load.shape[0])])
 
 
@@ -203,7 +202,8 @@ def full_configuration(robot: Robot, q: np.ndarray | list[float]) -> np.ndarray:
     StiffnessError
         ``q`` has neither size (Pinocchio's own error was a C++ signature or an assertion).
     """
-    values = np.asarray(q, dtype=float).reshape(-1)
+    values = float_array(q, "q", f"the {robot.n_coordinates} coordinates of {robot.title} (rad, "
+                         f"m) or its full configuration of {robot.model.nq} values").reshape(-1)
     if values.shape[0] == robot.model.nq:
         return values
     if values.shape[0] == robot.n_coordinates:
@@ -301,7 +301,18 @@ def compliance(jacobian: np.ndarray, tangent_stiffness: np.ndarray) -> np.ndarra
     ------
     SingularConfigurationError
         If the tangent joint stiffness is singular.
+    StiffnessError
+        ``jacobian`` is not an (r, n) matrix of numbers, or ``tangent_stiffness`` not (n, n).
     """
+    jacobian = float_array(jacobian, "jacobian", "an (r, n) matrix (m/rad for translations; "
+                           "r Cartesian rows, n joints)", ndim=2)
+    n = jacobian.shape[1]
+    tangent_stiffness = float_array(
+        tangent_stiffness, "tangent_stiffness",
+        f"a ({n}, {n}) matrix (N.m/rad) for the {n} columns of the jacobian", ndim=2)
+    if tangent_stiffness.shape != (n, n):
+        raise wrong_argument("tangent_stiffness", tangent_stiffness,
+                             f"a ({n}, {n}) matrix (N.m/rad) for the {n} columns of the jacobian")
     try:
         x = np.linalg.solve(tangent_stiffness, jacobian.T)
     except np.linalg.LinAlgError as exc:
@@ -326,7 +337,13 @@ def cartesian_stiffness(compliance_matrix: np.ndarray) -> np.ndarray:
         If the compliance is singular, condition number above :data:`CONDITION_LIMIT` (the
         Jacobian loses rank: a kinematic singularity, or fewer compliant joints than Cartesian
         directions). :func:`subspace_stiffness` then gives the stiffness where it exists.
+    StiffnessError
+        ``compliance_matrix`` is not a square matrix of finite numbers.
     """
+    needed = "a square matrix (m/N for translations)"
+    compliance_matrix = float_array(compliance_matrix, "compliance_matrix", needed, ndim=2)
+    if compliance_matrix.shape[0] != compliance_matrix.shape[1]:
+        raise wrong_argument("compliance_matrix", compliance_matrix, needed)
     cond = np.linalg.cond(compliance_matrix)
     if not np.isfinite(cond) or cond > CONDITION_LIMIT:
         raise SingularConfigurationError(

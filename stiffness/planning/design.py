@@ -51,7 +51,7 @@ from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameErro
 from stiffness.planning.plan import Plan, write_plan
 from stiffness.planning.simulate import build_truth, row_smoothing_torques
 from stiffness.robot.robot import Robot, load_robot
-from stiffness.units import Units
+from stiffness.units import Units, float_array, whole_number
 
 #: Default number of candidate poses.
 DEFAULT_CANDIDATES = 200
@@ -595,6 +595,11 @@ def _check_request(robot: Robot, configs: int, max_force: float, loads_per_confi
     if robot.n_compliant == 0:
         raise StiffnessError(f"{robot.title} has no compliant joint: there is no stiffness to "
                              "design for; name the springs with --compliant-joints")
+    for name, count in (("configs", configs), ("loads_per_config", loads_per_config),
+                        ("random_plans", random_plans)) + (
+            () if isinstance(candidates, Candidates) else (("candidates", candidates),)):
+        whole_number(count, name)
+    float_array(max_force, "max_force", "a force > 0 (N)", ndim=0, finite=False)
     check_sizes(configs, loads_per_config,
                 candidates.n_poses if isinstance(candidates, Candidates) else candidates)
     if not (math.isfinite(max_force) and max_force > 0):
@@ -627,7 +632,8 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
     robot's shipped ``k_theta_SI``, else the baseline fitted to ``existing``."""
     joints = tuple(robot.compliant_joints)
     if k is not None:
-        k_arr, k_source = np.asarray(k, dtype=float).reshape(-1), "given"
+        k_arr, k_source = float_array(k, "k", f"one stiffness per compliant joint of {robot.title} "
+                                      "(N.m/rad, N/m prismatic)", finite=False).reshape(-1), "given"
     elif "k_theta_SI" in robot.defaults and len(robot.defaults["k_theta_SI"]) == len(joints):
         k_arr, k_source = np.asarray(robot.defaults["k_theta_SI"], dtype=float), \
             "the robot's shipped k_theta_SI"

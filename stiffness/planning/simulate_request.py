@@ -15,7 +15,7 @@ from stiffness.errors import FlagValueWarning, StiffnessError, UnknownNameError
 from stiffness.planning.plan import Plan
 from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot
-from stiffness.units import Units
+from stiffness.units import Units, float_array, whole_number
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")
@@ -53,8 +53,12 @@ def check_request(configs: int, loads_per_config: int, repeats: int, max_force: 
         raise UnknownNameError(f"unknown load pattern {load_pattern!r}; valid: "
                                f"{', '.join(LOAD_PATTERNS)}", name=load_pattern,
                                choices=LOAD_PATTERNS)
-    if configs < 1 or loads_per_config < 1 or repeats < 1:
-        raise StiffnessError("configs, loads per config and repeats must be at least 1")
+    for name, count in (("configs", configs), ("loads_per_config", loads_per_config),
+                        ("repeats", repeats)):
+        whole_number(count, name)
+    for name, value, needed in (("max_force", max_force, "a force > 0 (N)"),
+                                ("noise_std_m", noise_std_m, "a length >= 0 (m)")):
+        float_array(value, name, needed, ndim=0, finite=False)
     rows = (plan_rows if plan_rows is not None else configs * loads_per_config) * repeats
     if rows > MAX_ROWS:
         raise StiffnessError(
@@ -120,7 +124,8 @@ def true_stiffness(declared: Robot, kq: list[float] | np.ndarray | None, source:
             raise StiffnessError(f"give the true joint stiffness of {source} (--kq), one per "
                                  f"compliant joint: {', '.join(declared.compliant_joints)}")
         kq = declared.defaults["k_theta_SI"]
-    kq = np.asarray(kq, dtype=float).reshape(-1)
+    kq = float_array(kq, "kq", f"one stiffness per compliant joint of {source} (N.m/rad, N/m "
+                     "prismatic)", finite=False).reshape(-1)
     if kq.shape[0] != declared.n_compliant or np.any(kq <= 0) or not np.all(np.isfinite(kq)):
         raise StiffnessError(f"need {declared.n_compliant} positive stiffnesses (one per "
                              f"compliant joint {', '.join(declared.compliant_joints)}), got "

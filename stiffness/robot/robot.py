@@ -64,6 +64,7 @@ from stiffness.robot.targets import (
     target_chain,
 )
 from stiffness.robot.urdf import Mimic
+from stiffness.units import float_array
 
 #: Name of the operational frame added at the measurement target.
 TARGET_FRAME = "stiffness_target"
@@ -443,14 +444,14 @@ class Robot:
             start_coords, q, searched = self._reference_assembly()
             self.last_assembly = self.closure_report(q, searched)
             return self.last_assembly
-        coords = np.asarray(coords, dtype=float).reshape(-1)
+        needed = f"the {self.n_coordinates} coordinates of {self.title} (rad, m)"
+        coords = float_array(coords, "joint coordinates", needed, finite=False).reshape(-1)
         if coords.shape[0] != self.n_coordinates:
             raise StiffnessError(
                 f"{self.title} has {self.n_coordinates} coordinates "
                 f"({', '.join(self.coordinate_joints)}) but {coords.shape[0]} values were given"
             )
-        if not np.all(np.isfinite(coords)):
-            raise StiffnessError(f"joint coordinates must be finite numbers, got {coords.tolist()}")
+        coords = float_array(coords, "joint coordinates", needed)
         if self.loop.is_open_chain:
             q = self._tree_configuration(coords, pin.neutral(self.model))
             self.last_assembly = Assembly(q, 0.0, 0, False)

@@ -21,7 +21,7 @@ import numpy as np
 
 from stiffness.batch import kernels as batch
 from stiffness.elastic.model_file import ModelFile, elastic_model_of, read_model_file
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.mechanics.defaults import (
     default_coordinates,
     default_stiffness,
@@ -30,6 +30,7 @@ from stiffness.mechanics.defaults import (
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot, coordinate_index, load_robot
 from stiffness.robot.sources import resolve_source
+from stiffness.units import float_array
 from stiffness.workspace.engine import run_scan
 from stiffness.workspace.spec import ScanSpec, grid_length, parse_fields
 
@@ -98,12 +99,18 @@ def load_cases(wrench: Sequence[float] | Sequence[Sequence[float]] | None
     Raises
     ------
     StiffnessError
-        A case with neither 3 nor 6 values.
+        No sequence of numbers, or a case with neither 3 nor 6 values.
     """
-    if wrench is None or len(wrench) == 0:
+    needed = "fx,fy,fz (N) or fx,fy,fz,mx,my,mz (N, N.m), or a list of them"
+    if wrench is None:
         return [], []
-    cases = cast("Sequence[Sequence[float]]", [wrench] if np.ndim(wrench) == 1 else wrench)
-    loads = [[float(v) for v in w] for w in cases]
+    if isinstance(wrench, str | bytes) or not hasattr(wrench, "__len__"):
+        raise wrong_argument("wrench", wrench, needed)
+    if len(wrench) == 0:
+        return [], []
+    flat = all(not hasattr(v, "__len__") for v in wrench)
+    cases = cast("Sequence[Sequence[float]]", [wrench] if flat else wrench)
+    loads = [float_array(w, "wrench", needed, ndim=1).tolist() for w in cases]
     for load in loads:
         if len(load) not in (3, 6):
             raise StiffnessError(f"--wrench (alias --load) takes fx,fy,fz (N) or "
@@ -235,8 +242,10 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
             raise StiffnessError(
                 f"--kq is required for {robot.title}: one stiffness per compliant joint "
                 f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic)")
-    k_theta = [float(v) for v in np.asarray(k_theta, dtype=float).reshape(-1)]
-    batch.as_joint_stiffness(k_theta, robot.n_compliant)  # validates
+    springs: list[float] = float_array(
+        k_theta, "k_theta", f"one stiffness per compliant joint of {robot.title} (N.m/rad, N/m "
+        "prismatic)", finite=False).reshape(-1).tolist()
+    batch.as_joint_stiffness(springs, robot.n_compliant)  # validates
     if chunk_size < 1:
         raise StiffnessError(f"--chunk-size must be a positive number, got {chunk_size}")
     if rtol < 0:
@@ -245,7 +254,7 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
     stored = parse_fields(fields)
     common: dict[str, Any] = {
         "robot": robot_spec, "coordinate_joints": list(robot.coordinate_joints),
-        "k_theta": k_theta, "rtol": rtol, "chunk_size": chunk_size, "fields": stored,
+        "k_theta": springs, "rtol": rtol, "chunk_size": chunk_size, "fields": stored,
         "dtype": dtype, "compression": compression}
     if preset is not None:
         if len(axes) or samples is not None:
@@ -267,7 +276,9 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
         samples = DEFAULT_SAMPLES
     if q is None:
         q = default_coordinates(robot)
-    base = np.zeros(robot.n_coordinates) if q is None else np.asarray(q, dtype=float)
+    base = np.zeros(robot.n_coordinates) if q is None else float_array(
+        q, "q", f"the {robot.n_coordinates} coordinates of {robot.title} (rad, m)",
+        size=robot.n_coordinates).reshape(-1)
     return ScanSpec(preset="samples" if samples is not None else "grid", base=base.tolist(),
                     axes=swept, samples=samples, seed=seed, loads=loads, load_names=names,
                     map_axes=figure_axes(robot, swept, map_axes, samples), **common)

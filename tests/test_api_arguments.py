@@ -1,0 +1,162 @@
+"""Wrong arguments to the Python API are refused where they enter, in one line naming the
+argument, what was given and what it must be (:func:`stiffness.units.float_array`,
+:func:`stiffness.units.whole_number`, :func:`stiffness.errors.wrong_argument`): a
+:class:`~stiffness.errors.StiffnessError`, never NumPy's TypeError, ValueError or IndexError
+(``model.at("0,0,0,0,0,0")`` said "could not convert string to float", ``identify(5)``
+"expected str, bytes or os.PathLike object", ``compliance`` with a shape mismatch a gufunc
+signature); valid arguments keep their results.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import timedelta
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import stiffness
+from stiffness.errors import StiffnessError
+from stiffness.errors import given as given_text
+from stiffness.units import float_array, whole_number
+
+CHEAP = settings(max_examples=40, deadline=timedelta(seconds=5))
+NOT_FINITE = [math.nan, math.inf, -math.inf]
+finite = st.floats(-10.0, 10.0, allow_nan=False)
+
+
+def wrong_vector(sizes: tuple[int, ...]) -> st.SearchStrategy:
+    """Anything that is not a vector of numbers of one of ``sizes``: strings, None, bools,
+    dicts, other lengths, ragged nesting, strings among numbers, a NaN or infinity."""
+    size = sizes[0]
+    return st.one_of(
+        st.text(max_size=12), st.none(), st.booleans(), st.dictionaries(st.text(), finite),
+        st.lists(finite, max_size=9).filter(lambda v: len(v) not in sizes),
+        st.lists(finite, min_size=size, max_size=size).flatmap(lambda v: st.sampled_from(
+            [v[:-1] + [x] for x in NOT_FINITE] + [v[:-1] + ["1"], [v, [1.0]], [True] * size])))
+
+
+def _one_line(exc: BaseException, name: str) -> str:
+    message = str(exc)
+    assert isinstance(exc, StiffnessError) and "\n" not in message, message
+    assert message.startswith((name, "give ", "a load is", "q has", "need ")), message
+    return message
+
+
+@pytest.fixture(scope="module")
+def model(ur5):
+    return stiffness.load_model(ur5, k=[3e5, 3e5, 2e5, 4e4, 4e4, 4e4])
+
+
+@CHEAP
+@given(q=wrong_vector((6,)))
+def test_model_at_refuses_wrong_coordinates(model, q):
+    with pytest.raises(StiffnessError) as info:
+        model.at(q)
+    _one_line(info.value, "q")
+
+
+@CHEAP
+@given(wrench=wrong_vector((3, 6)).filter(lambda w: w is not None))
+def test_model_at_refuses_wrong_loads(model, wrench):
+    with pytest.raises(StiffnessError) as info:
+        model.at(np.zeros(6), wrench)
+    _one_line(info.value, "the load")
+
+
+@CHEAP
+@given(q=wrong_vector((6,)))
+def test_target_state_refuses_wrong_coordinates(ur5, q):
+    with pytest.raises(StiffnessError) as info:
+        stiffness.target_state(ur5, q)
+    _one_line(info.value, "q")
+
+
+@CHEAP
+@given(k=wrong_vector((6,)).filter(lambda k: k is not None and not isinstance(k, bool)))
+def test_load_model_refuses_wrong_stiffnesses(ur5, k):
+    with pytest.raises(StiffnessError) as info:
+        stiffness.load_model(ur5, k=k)
+    _one_line(info.value, "k_theta")
+
+
+@CHEAP
+@given(q=st.lists(finite, min_size=6, max_size=6),
+       wrench=st.lists(st.floats(-100.0, 100.0), min_size=3, max_size=3))
+def test_valid_arguments_keep_their_result(model, q, wrench):
+    """A list, a tuple and an array of the same numbers give the same state; ints pass."""
+    state = model.at(np.array(q), np.array(wrench))
+    again = model.at(tuple(q), list(wrench))
+    assert np.array_equal(state.q, again.q) and np.array_equal(state.wrench, again.wrench)
+    assert np.array_equal(model.at([0] * 6, [0, 0, -10]).wrench, [0, 0, -10, 0, 0, 0])
+
+
+@CHEAP
+@given(rows=st.integers(1, 6), n=st.integers(1, 6), other=st.integers(1, 6),
+       data=st.data())
+def test_compliance_checks_its_matrices(rows, n, other, data):
+    """J (r, n) and K (n, n) give J K^-1 J^T (checked against the inverse); any other shape,
+    a string or a NaN is refused naming the argument."""
+    jacobian = np.reshape(data.draw(st.lists(finite, min_size=rows * n, max_size=rows * n)),
+                          (rows, n))
+    k = np.diag(np.arange(1.0, n + 1.0))
+    assert np.allclose(stiffness.compliance(jacobian, k),
+                       jacobian @ np.linalg.inv(k) @ jacobian.T, atol=1e-12)
+    if other != n:
+        with pytest.raises(StiffnessError) as info:
+            stiffness.compliance(jacobian, np.eye(other))
+        assert _one_line(info.value, "tangent_stiffness").endswith(f"shape ({other}, {other})")
+    bad = data.draw(st.sampled_from(["J", None, jacobian.ravel(), np.full((rows, n), np.nan)]))
+    with pytest.raises(StiffnessError) as info:
+        stiffness.compliance(bad, k)
+    _one_line(info.value, "jacobian")
+    with pytest.raises(StiffnessError) as info:
+        stiffness.cartesian_stiffness(np.ones((rows, rows + 1)))
+    _one_line(info.value, "compliance_matrix")
+
+
+@pytest.mark.parametrize("call", [
+    lambda: stiffness.identify(5), lambda: stiffness.identify(None),
+    lambda: stiffness.diagnose(["campaign"]), lambda: stiffness.validate(5, "x"),
+])
+def test_workflows_refuse_a_campaign_or_model_of_another_type(call):
+    with pytest.raises(StiffnessError) as info:
+        call()
+    assert _one_line(info.value, "").startswith(("campaign must be", "model must be"))
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"configs": "2"}, "configs"), ({"configs": 2.0}, "configs"), ({"repeats": True}, "repeats"),
+    ({"kq": "3e5"}, "kq"), ({"max_force": "100"}, "max_force"),
+])
+def test_simulate_refuses_wrong_sizes_and_stiffnesses(kwargs, name):
+    args = {"robot": "ur5", "kq": [3e5] * 6, "configs": 2, **kwargs}
+    with pytest.raises(StiffnessError) as info:
+        stiffness.simulate(**args)
+    _one_line(info.value, name)
+
+
+def test_design_and_scan_refuse_wrong_arguments(ur5):
+    with pytest.raises(StiffnessError, match="^configs must be a whole number >= 1, got str"):
+        stiffness.design(ur5, "2", 100.0, k=[3e5] * 6)
+    with pytest.raises(StiffnessError, match=r"^q must be the 6 coordinates of ur5 \(rad, m\), "
+                       r"got ndarray \[0.0, 0.0\]$"):
+        stiffness.scan(ur5, k_theta=[3e5] * 6, q=np.zeros(2))
+    with pytest.raises(StiffnessError, match="^wrench must be fx,fy,fz"):
+        stiffness.scan(ur5, k_theta=[3e5] * 6, wrench="0,0,-10")
+
+
+def test_the_helpers_name_what_was_given():
+    assert given_text("0,0") == "str '0,0'" and given_text(np.zeros((2, 6))) == (
+        "ndarray of shape (2, 6)")
+    assert given_text("x" * 100).endswith("...") and len(given_text("x" * 100)) < 70
+    with pytest.raises(StiffnessError, match=r"^v must be finite numbers: 2 numbers \(m\), "
+                       r"got list \[1.0, nan\]$"):
+        float_array([1.0, math.nan], "v", "2 numbers (m)", size=2)
+    assert float_array((1, 2), "v", "2 numbers (m)", size=2).dtype == float
+    assert whole_number(np.int64(3), "n") == 3
+    for wrong in (0, 2.0, "2", True, None):
+        with pytest.raises(StiffnessError, match="^n must be a whole number >= 1, got "):
+            whole_number(wrong, "n")
