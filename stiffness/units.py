@@ -118,18 +118,20 @@ def float_array(value: object, name: str, needed: str, size: int | None = None,
     return array
 
 
-def whole_number(value: object, name: str, minimum: int = 1) -> int:
+def whole_number(value: object, name: str, minimum: int | None = 1) -> int:
     """``value`` (a Python API count: ``configs``, ``repeats``) as an int, checked where it
     enters: an integer (a Python or NumPy int; no bool, float or string) of at least
-    ``minimum``.
+    ``minimum`` (any when None: the caller's own message says more).
 
     Raises
     ------
     StiffnessError
         ``"<name> must be a whole number >= <minimum>, got <what was given>"``.
     """
-    if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < minimum:
-        raise wrong_argument(name, value, f"a whole number >= {minimum}")
+    needed = "a whole number" + ("" if minimum is None else f" >= {minimum}")
+    if not isinstance(value, int | np.integer) or isinstance(value, bool) or (
+            minimum is not None and value < minimum):
+        raise wrong_argument(name, value, needed)
     return int(value)
 
 

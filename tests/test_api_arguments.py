@@ -20,11 +20,13 @@ from hypothesis import strategies as st
 import stiffness
 from stiffness.errors import StiffnessError
 from stiffness.errors import given as given_text
+from stiffness.robot.sources import robots_directory
 from stiffness.units import float_array, whole_number
 
 CHEAP = settings(max_examples=40, deadline=timedelta(seconds=5))
 NOT_FINITE = [math.nan, math.inf, -math.inf]
 finite = st.floats(-10.0, 10.0, allow_nan=False)
+TABLE2 = str(robots_directory() / "sk120" / "campaigns" / "table2")
 
 
 def wrong_vector(sizes: tuple[int, ...]) -> st.SearchStrategy:
@@ -160,3 +162,38 @@ def test_the_helpers_name_what_was_given():
     for wrong in (0, 2.0, "2", True, None):
         with pytest.raises(StiffnessError, match="^n must be a whole number >= 1, got "):
             whole_number(wrong, "n")
+
+
+@pytest.fixture(scope="module")
+def path():
+    """Three UR5 path points (rad)."""
+    points = np.tile(np.deg2rad([0.0, -90.0, 90.0, -90.0, -90.0, 0.0]), (3, 1))
+    points[:, 0] = [0.0, 0.01, 0.02]
+    return points
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda m, p: stiffness.compensate(m, p, wrench="0,0,-10"), "wrench"),
+    (lambda m, p: stiffness.compensate(m, p, wrench=[[0, 0, -10]] * 2), "2 wrenches for 3"),
+    (lambda m, p: stiffness.compensate(m, [["a"] * 6] * 3), "path"),
+    (lambda m, p: stiffness.track(m, p, wrench="0,0,-10"), "wrench"),
+    (lambda m, p: stiffness.posture(m, [["a", "b", "c"]], axes=[[0, 0, 1]]), "positions"),
+    (lambda m, p: stiffness.posture(m, [[0.4, 0.1, 0.4]], axes="z"), "axes"),
+    (lambda m, p: stiffness.posture(m, [[0.4, 0.1, 0.4]], quaternions=[["1"] * 4]),
+     "quaternions"),
+    (lambda m, p: stiffness.posture(m, [[0.4, 0.1, 0.4]], axes=[[0, 0, 1]], wrench=None),
+     "give a process wrench"),
+    (lambda m, p: stiffness.load_robot("ur5", target_offset="0,0,0.1"), "target_offset"),
+    (lambda m, p: stiffness.simulate("ur5", kq=[3e5] * 6, configs=2, target_offset_m="0"),
+     "target_offset_m"),
+    (lambda m, p: stiffness.identify(TABLE2, starts="2"), "starts"),
+    (lambda m, p: stiffness.scan(m.robot, k_theta=[3e5] * 6, samples="3"), "samples"),
+])
+def test_machining_and_robot_entries_refuse_wrong_arguments(model, path, call, name):
+    """The path, wrench, positions, axes, offsets and counts of compensate, track, posture,
+    load_robot, simulate, identify and scan: one line naming the argument (NumPy's 'could not
+    convert string to float', "ufunc 'isfinite' not supported", 'must be real number'
+    before)."""
+    with pytest.raises(StiffnessError) as info:
+        call(model, path)
+    _one_line(info.value, name)

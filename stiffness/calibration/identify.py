@@ -104,6 +104,7 @@ from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.robot.robot import Robot
+from stiffness.units import whole_number
 
 FORMULATIONS = ("conventional", "enhanced", "exact")
 METHODS = ("trf", "lm", "both")
@@ -499,7 +500,7 @@ def _check_options(method: str, starts: int, loss: str = "linear") -> None:
     if method not in METHODS:
         raise UnknownNameError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}",
                                name=method, choices=METHODS)
-    if int(starts) < 1:
+    if whole_number(starts, "starts", None) < 1:
         raise StiffnessError(f"starts must be at least 1, got {starts}")
     check_loss(loss, method)
 

@@ -52,6 +52,7 @@ from stiffness.mechanics.formulation import as_wrench, target_state
 from stiffness.mechanics.ik import HOLDS, coordinate_limits, solve_ik
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
+from stiffness.units import float_array
 
 #: Reference frames of a process wrench.
 WRENCH_FRAMES = ("base", "target")
@@ -378,12 +379,7 @@ def compensate(
     table, path, wrench = path_and_wrench(em.robot, path, wrench, deg)
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
-    w = np.asarray(wrench, dtype=float)
-    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
-    if w.shape[0] == 1:
-        w = np.repeat(w, path.shape[0], axis=0)
-    if w.shape[0] != path.shape[0]:
-        raise StiffnessError(f"{w.shape[0]} wrenches for {path.shape[0]} path points")
+    w = point_wrenches(wrench, path.shape[0])
     lo, hi = coordinate_limits(em.full)
     for i, row in enumerate(path):
         bad = np.flatnonzero((row < lo - 1e-12) | (row > hi + 1e-12))
@@ -422,6 +418,24 @@ def compensate(
     return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em, table, deg)
 
 
+def point_wrenches(wrench: object, m: int) -> np.ndarray:
+    """The wrench (m, 6) [N; N.m] at each of ``m`` path points: one force (3,) or wrench (6,)
+    for all, or one per point (m, 3) or (m, 6).
+
+    Raises
+    ------
+    StiffnessError
+        Not numbers, rows of neither 3 nor 6 values, another number of rows, a NaN.
+    """
+    w = float_array(wrench, "wrench", "fx,fy,fz[,mx,my,mz] (N, N.m), or one such row per point",
+                    finite=False)
+    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
+    w = np.repeat(w, m, axis=0) if w.shape[0] == 1 else w
+    if w.shape[0] != m:
+        raise StiffnessError(f"{w.shape[0]} wrenches for {m} path points")
+    return w
+
+
 def path_and_wrench(robot: Robot, path: np.ndarray | str | Path,
                      wrench: np.ndarray | list[float] | None, deg: bool
                      ) -> tuple[JointPath, np.ndarray, np.ndarray | list[float]]:
@@ -442,8 +456,10 @@ def path_and_wrench(robot: Robot, path: np.ndarray | str | Path,
         source, path = path, table.coords
         if wrench is None:
             wrench = table.wrench
-    path = np.atleast_2d(np.asarray(path, dtype=float))
     n = robot.n_coordinates
+    path = np.atleast_2d(float_array(path, "path", f"(m, {n}) coordinates of {robot.title} "
+                                     "(rad, m; deg with deg=True) or a joint path file",
+                                     finite=False))
     if path.shape[1] != n or path.shape[0] == 0:
         raise StiffnessError(
             f"the path needs one column per coordinate of {robot.title} "

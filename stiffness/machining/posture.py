@@ -60,13 +60,14 @@ from stiffness.machining.branches import (
     candidate_tracks,
     fixed_values,
 )
-from stiffness.machining.compensation import WRENCH_FRAMES
+from stiffness.machining.compensation import WRENCH_FRAMES, point_wrenches
 from stiffness.machining.joint_path import angular_coordinates
 from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
 from stiffness.mechanics.defaults import default_coordinates
-from stiffness.mechanics.formulation import as_wrench, target_state
+from stiffness.mechanics.formulation import target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits
 from stiffness.robot.robot import Robot
+from stiffness.units import float_array
 
 #: Most candidate angles about the free axis (0.1 deg apart); the search costs steps^2.
 MAX_STEPS = 3600
@@ -474,7 +475,11 @@ def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | Non
                                  "--wrench, or drop those columns")
         source, wrench = positions, poses.wrench if wrench is None else wrench
         positions, axes, quaternions = poses.positions, poses.axes, poses.quaternions
-    positions = np.atleast_2d(np.asarray(positions, dtype=float))
+    positions = np.atleast_2d(float_array(positions, "positions", "(m, 3) points in m or a "
+                                          "poses file", finite=False))
+    axes = None if axes is None else float_array(axes, "axes", "(m, 3) tool axes", finite=False)
+    quaternions = None if quaternions is None else float_array(
+        quaternions, "quaternions", "(m, 4) orientations qw,qx,qy,qz", finite=False)
     m = positions.shape[0]
     if positions.shape[1] != 3 or m == 0:
         raise StiffnessError(f"positions must be (m, 3) in m, got shape {positions.shape}")
@@ -489,12 +494,7 @@ def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | Non
         poses = Poses.of_arrays(positions, axes, quaternions)
     if wrench is None:
         raise StiffnessError("give a process wrench (fx,fy,fz[,mx,my,mz] in N, N.m)")
-    w = np.asarray(wrench, dtype=float)
-    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
-    w = np.repeat(w, m, axis=0) if w.shape[0] == 1 else w
-    if w.shape[0] != m:
-        raise StiffnessError(f"{w.shape[0]} wrenches for {m} path points")
-    return poses, w
+    return poses, point_wrenches(wrench, m)
 
 
 def _check_search(full: Robot, steps: int, max_step_deg: float, singularity_margin: float,

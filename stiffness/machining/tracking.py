@@ -38,8 +38,7 @@ from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
 from stiffness.files import atomic_write_with
-from stiffness.machining.compensation import path_and_wrench
-from stiffness.mechanics.formulation import as_wrench
+from stiffness.machining.compensation import path_and_wrench, point_wrenches
 from stiffness.robot.mjcf import joint_value, robot_mjcf, spring_plan
 from stiffness.robot.robot import TARGET_FRAME, Robot
 
@@ -275,11 +274,7 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
     """
     em = load_model(model, k_theta)
     _, coords, loads = path_and_wrench(em.robot, path, wrench, deg)
-    w = np.asarray(loads, dtype=float)
-    w = np.array([as_wrench(r) for r in (w.reshape(1, -1) if w.ndim == 1 else w)])
-    w = np.repeat(w, coords.shape[0], axis=0) if w.shape[0] == 1 else w
-    if w.shape[0] != coords.shape[0]:
-        raise StiffnessError(f"{w.shape[0]} wrenches for {coords.shape[0]} path points")
+    w = point_wrenches(loads, coords.shape[0])
     for name, value in (("segment time", segment_time), ("settle time", settle_time),
                         ("time step", timestep)):
         if not (np.isfinite(value) and value >= 0.0) or (name == "time step" and value <= 0):

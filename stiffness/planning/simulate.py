@@ -111,7 +111,7 @@ from stiffness.planning.simulate_request import (
 )
 from stiffness.robot.declaration import FAR_TARGET
 from stiffness.robot.robot import Robot
-from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, plain_float
+from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, float_array, plain_float
 
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
@@ -607,7 +607,8 @@ def _given_robot(robot: Robot | str | None, frame: str | None,
         fixed_base = fixed_base or robot.fixed_base
     source = robot.name if isinstance(robot, Robot) else robot
     return PlannedRobot(source, frame, None if target_offset_m is None else [
-        float(v) for v in np.asarray(target_offset_m, dtype=float).reshape(-1)],
+        float(v) for v in float_array(target_offset_m, "target_offset_m", "three lengths in m",
+                                      finite=False).reshape(-1)],
         None if compliant_joints is None else list(compliant_joints), loops, fixed_base)
 
 

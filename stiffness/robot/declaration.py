@@ -28,6 +28,7 @@ from stiffness.errors import (
 from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
 from stiffness.robot.kinematics import reach
 from stiffness.robot.urdf import Mimic, warn
+from stiffness.units import float_array
 
 #: Pinocchio joints that can be coordinates: revolute, continuous and prismatic.
 SUPPORTED_JOINTS = {
@@ -67,7 +68,8 @@ def target_offset_of(target_offset: np.ndarray | list[float] | None, settings: d
     given = target_offset is not None
     if target_offset is None:
         target_offset = settings.get("target_offset_m", [0.0, 0.0, 0.0])
-    offset = np.asarray(target_offset, dtype=float).reshape(-1)
+    offset = float_array(target_offset, "target_offset", "three lengths in m",
+                         finite=False).reshape(-1)
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise StiffnessError(f"target offset must be three finite lengths in m, got {offset}")
     warn_far_target(title, model, frame, offset, given)

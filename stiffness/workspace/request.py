@@ -268,6 +268,8 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
     if not loads:
         loads, names = [default_scan_load(robot)], ["1"]
     if samples is not None:
+        samples = float(float_array(samples, "samples", "a positive whole number", ndim=0,
+                                    finite=False))
         if not math.isfinite(samples) or samples < 1 or samples != int(samples):
             raise StiffnessError(f"--samples must be a positive integer, got {samples:g}")
         samples = int(samples)
