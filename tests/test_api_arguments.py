@@ -197,3 +197,27 @@ def test_machining_and_robot_entries_refuse_wrong_arguments(model, path, call, n
     with pytest.raises(StiffnessError) as info:
         call(model, path)
     _one_line(info.value, name)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda m: m.at(np.zeros(6)).compliance(rows="abc"), "rows"),
+    (lambda m: m.at(np.zeros(6)).k_x(rows=5), "rows"),
+    (lambda m: m.at(np.zeros(6)).compliance(rows=slice(6, 9)), "rows"),
+    (lambda m: stiffness.load_robot("ur5", frame=5), "frame"),
+    (lambda m: stiffness.load_robot("ur5", compliant_joints=5), "compliant_joints"),
+    (lambda m: stiffness.load_robot("ur5", compliant_joints=[1, 2]), "compliant_joints"),
+    (lambda m: stiffness.simulate("ur5", kq=[3e5] * 6, configs=2, seed="x"), "seed"),
+    (lambda m: stiffness.simulate("ur5", kq=[3e5] * 6, configs=2, effects=[5]), "effects"),
+    (lambda m: stiffness.simulate("ur5", kq=[3e5] * 6, configs=2,
+                                  effects="backlash:elbow_joint=0.01"), "effects"),
+    (lambda m: stiffness.deflection(m.at(np.zeros(6)).commanded, [3e5] * 6), "k_theta"),
+    (lambda m: stiffness.deflection(m.at(np.zeros(6)).commanded, np.eye(5)), "k_theta"),
+])
+def test_state_robot_and_simulation_arguments(model, call, name):
+    """``rows`` of a state's compliance and K_X (an IndexError before), the frame and
+    compliant joints of load_robot (a Boost.Python signature, 'int' object is not iterable),
+    simulate's seed and effects (a string was read letter by letter: "unknown effect 'b'"),
+    deflection's joint stiffness matrix (a ufunc type error)."""
+    with pytest.raises(StiffnessError) as info:
+        call(model)
+    _one_line(info.value, name)

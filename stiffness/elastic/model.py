@@ -51,7 +51,7 @@ from stiffness.elastic.loaded import (
     linear_deflection,
     loaded_equilibrium,
 )
-from stiffness.errors import StiffnessError, UnknownNameError
+from stiffness.errors import StiffnessError, UnknownNameError, wrong_argument
 from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
@@ -539,6 +539,8 @@ class ElasticState:
         SingularConfigurationError
             If ``K_t - K_C - K_p`` is singular (the load is at the buckling limit).
         """
+        if not isinstance(rows, slice) or not len(range(6)[rows]):
+            raise wrong_argument("rows", rows, "a slice of the 6 rows [v; omega] (slice(0, 3))")
         lin = self.linearisation(formulation)
         jac = self.jacobian[rows]
         return compliance(jac, lin.joint_stiffness) + lin.link_compliance[rows, rows]

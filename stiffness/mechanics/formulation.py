@@ -411,6 +411,11 @@ def deflection(state: TargetState, k_theta: np.ndarray, formulation: str = "enha
 
     ``rows`` selects the output (default the position, m); the whole wrench loads the joints.
     """
+    n = state.k_c.shape[0]
+    needed = f"a ({n}, {n}) joint stiffness matrix (N.m/rad, N/m; np.diag of the springs)"
+    k_theta = float_array(k_theta, "k_theta", needed, ndim=2)
+    if k_theta.shape != (n, n):
+        raise wrong_argument("k_theta", k_theta, needed)
     tangent = tangent_joint_stiffness(k_theta, state.k_c, formulation)
     try:
         dtheta = np.linalg.solve(tangent, state.jacobian.T @ state.wrench)

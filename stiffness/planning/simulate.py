@@ -83,6 +83,7 @@ from stiffness.errors import (
     UnknownEffectError,
     UnknownNameError,
     did_you_mean,
+    wrong_argument,
 )
 from stiffness.files import (
     atomic_write,
@@ -111,7 +112,7 @@ from stiffness.planning.simulate_request import (
 )
 from stiffness.robot.declaration import FAR_TARGET
 from stiffness.robot.robot import Robot
-from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, float_array, plain_float
+from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, float_array, plain_float, whole_number
 
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
@@ -564,13 +565,13 @@ def simulate(
     given = _given_robot(robot, frame, target_offset_m, compliant_joints, loops, fixed_base)
     if plan is not None and not isinstance(plan, Plan):
         plan, given = plan_and_robot(plan, given)
-    hidden = [parse_effect(e) if isinstance(e, str) else e for e in effects or []]
+    hidden = _hidden(effects)
     check_request(configs, loads_per_config, repeats, max_force, noise_std_m, load_pattern,
                   None if plan is None else len(plan.q), [h.label for h in hidden], joint_angles)
     declared = _declared_robot(given)
     kq = true_stiffness(declared, kq, str(given.source))
     baseline = _declared_baseline(hidden, baseline)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(whole_number(seed, "seed", 0))
     q, applied, row_labels = _rows(declared, plan, configs, loads_per_config, load_pattern,
                                    max_force, rng)
     rotation_noise_std_rad = rotation_noise_std(rotation_noise_std_rad, noise_std_m)
@@ -589,6 +590,16 @@ def simulate(
             "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
             "backlash_smoothing_Nm": smoothing, "joint_angles": joint_angles}
     return Simulation(campaign, hidden, kq, noise_std_m, effect_rms, info, baseline_error)
+
+
+def _hidden(effects: list[HiddenEffect | str] | None) -> list[HiddenEffect]:
+    """The hidden effects of :func:`simulate` (``--effect`` texts parsed), or its one-line
+    error for anything but a list of them."""
+    if effects is not None and not (isinstance(effects, list | tuple) and all(
+            isinstance(e, str | HiddenEffect) for e in effects)):
+        raise wrong_argument("effects", effects, "a list of hidden effects "
+                             "('backlash:elbow_joint=0.01' or HiddenEffect)")
+    return [parse_effect(e) if isinstance(e, str) else e for e in effects or []]
 
 
 def _given_robot(robot: Robot | str | None, frame: str | None,

@@ -24,6 +24,7 @@ from stiffness.errors import (
     UnknownJointError,
     did_you_mean,
     warn_user,
+    wrong_argument,
 )
 from stiffness.robot.coupling import CoordinateMap, read_coordinate_map
 from stiffness.robot.kinematics import reach
@@ -102,6 +103,9 @@ def joint_names(names: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     ``--compliant-joints`` flag takes them: ``"elbow_joint"`` was read as its letters)."""
     if isinstance(names, str):
         return tuple(n.strip() for n in names.split(","))
+    if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
+        raise wrong_argument("compliant_joints", names, "joint names: a list of str, or one str "
+                             "'a,b,...'")
     return tuple(names)
 
 

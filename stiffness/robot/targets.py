@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import StiffnessError, UnknownFrameError, did_you_mean
+from stiffness.errors import StiffnessError, UnknownFrameError, did_you_mean, wrong_argument
 from stiffness.robot.urdf import Mimic
 
 
@@ -120,6 +120,8 @@ def _below(model: pin.Model, frame_id: int, names: frozenset[str]) -> bool:
 def checked_target_frame(name: str, model: pin.Model, frame: str | None,
                   closure: frozenset[str], gripper: frozenset[str]) -> str:
     """The requested target frame, checked, or the default one."""
+    if frame is not None and not isinstance(frame, str):
+        raise wrong_argument("frame", frame, f"the name (str) of a frame of {name}")
     frame_names = [f.name for f in model.frames]
     moving = moving_frames(model)
     if frame is None:
