@@ -221,3 +221,32 @@ def test_state_robot_and_simulation_arguments(model, call, name):
     with pytest.raises(StiffnessError) as info:
         call(model)
     _one_line(info.value, name)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda m: stiffness.posture(m, [[0.4, 0.1, 0.4]], axes=[[0, 0, 1]], wrench=[0, 0, -10],
+                                 steps="3"), "steps"),
+    (lambda m: stiffness.posture(m, [[0.4, 0.1, 0.4]], axes=[[0, 0, 1]], wrench=[0, 0, -10],
+                                 max_step_deg="3"), "max_step_deg"),
+    (lambda m: stiffness.posture(m, [[0.4, 0.1, 0.4]], axes=[[0, 0, 1]], wrench=[0, 0, -10],
+                                 reference_angle_deg=math.nan), "reference_angle_deg"),
+    (lambda m: stiffness.posture(m, [[0.4, 0.1, 0.4]], axes=[[0, 0, 1]], wrench=[0, 0, -10],
+                                 start="x"), "start"),
+    (lambda m: stiffness.design(m.robot, 2, 100.0, k=[3e5] * 6, noise_std_m="x"),
+     "noise_std_m"),
+    (lambda m: stiffness.design(m.robot, 2, 100.0, k=[3e5] * 6, candidates=4, seed="x"),
+     "seed"),
+    (lambda m: stiffness.identify(TABLE2, seed="x"), "seed"),
+    (lambda m: stiffness.diagnose(TABLE2, seed=-1, max_steps=0), "seed"),
+    (lambda m: stiffness.diagnose(TABLE2, workers="2", max_steps=0), "workers"),
+    (lambda m: stiffness.scan(m.robot, k_theta=[3e5] * 6, samples=3, seed="x"), "seed"),
+    (lambda m: stiffness.scan(m.robot, k_theta=[3e5] * 6, axes="q1"), "axes"),
+    (lambda m: stiffness.scan(m.robot, k_theta=[3e5] * 6, axes={"q1": "0,1"}), "axes['q1']"),
+])
+def test_search_and_seed_arguments(model, call, name):
+    """posture's search settings and start (TypeErrors of '<', isfinite, deg2rad before),
+    design's noise, the seeds of design, identify, diagnose and scan (SeedSequence's
+    TypeError, or ignored), diagnose's workers, scan's axes (an unpacking ValueError)."""
+    with pytest.raises(StiffnessError) as info:
+        call(model)
+    _one_line(info.value, name)

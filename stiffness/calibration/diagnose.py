@@ -107,7 +107,7 @@ from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError, did_you_mean
-from stiffness.units import Units
+from stiffness.units import Units, whole_number
 
 #: The best candidates of a step (by the first fits' BIC) refitted to the engine's tolerance
 #: from there: those ranked, cross-validated and compared.
@@ -236,7 +236,7 @@ def diagnose(
                               not_families=not_families, max_steps=max_steps,
                               effect_settings=effect_settings)
     max_steps = MAX_STEPS if max_steps is None else max_steps
-    _check_options(max_steps, loss, masses)
+    _check_options(max_steps, loss, masses, (seed, workers))
     forbidden = _forbidden(not_families)
     forced = _forced(families, forbidden)
     if not isinstance(campaign, Campaign):
@@ -353,9 +353,12 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     )
 
 
-def _check_options(max_steps: int, loss: str, masses: str) -> None:
-    """Refuse a negative or non-integer ``max_steps``, an unknown loss or an unknown
-    ``masses`` (one line)."""
+def _check_options(max_steps: int, loss: str, masses: str, counts: tuple) -> None:
+    """Refuse a negative or non-integer ``max_steps``, an unknown loss or ``masses``, or a
+    seed or a number of workers (``counts``) that is no whole number (one line)."""
+    for name, value, least in zip(("seed", "workers"), counts, (0, None), strict=True):
+        if value is not None:
+            whole_number(value, name, least)
     check_masses(masses)
     check_max_steps(max_steps)
     check_loss(loss)

@@ -54,6 +54,7 @@ from stiffness.elastic.effects.geometry import Geometry, References, Rows
 from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
 from stiffness.errors import StiffnessError, UnknownNameError, UnstableEquilibriumError
 from stiffness.robot.robot import Robot
+from stiffness.units import whole_number
 
 #: Load directions of the candidates: the six axes, then the eight cube diagonals (unit).
 LOAD_DIRECTIONS = np.vstack([np.eye(3), 0.0 - np.eye(3)] + [  # 0 - 0: no -0 printed
@@ -158,7 +159,8 @@ def candidate_set(robot: Robot, n_poses: int, max_force: float, seed: int | None
     if coords is None:
         if int(n_poses) < 1:
             raise StiffnessError(f"--candidates must be at least 1, got {n_poses}")
-        coords = sample_coordinates(robot, int(n_poses), np.random.default_rng(seed),
+        rng = np.random.default_rng(None if seed is None else whole_number(seed, "seed", 0))
+        coords = sample_coordinates(robot, int(n_poses), rng,
                                     singularity_margin=singularity_margin,
                                     fold_margin=fold_margin)
     coords = np.atleast_2d(np.asarray(coords, dtype=float))

@@ -295,7 +295,7 @@ def identify(
     if not isinstance(campaign, Campaign):
         campaign = load_campaign(campaign)
     formulation = campaign.baseline if formulation is None else formulation
-    _check_options(method, starts, loss)
+    _check_options(method, starts, loss, seed)
     rob = robot if robot is not None else campaign.robot()
     _check_residual_count(campaign, method, rob.n_compliant, loss)
     model = stiffness_model(campaign, formulation, rob)
@@ -494,9 +494,12 @@ def _check_pose_options(formulation: str | None, method: str, robot: Robot | Non
                              "drop robot=")
 
 
-def _check_options(method: str, starts: int, loss: str = "linear") -> None:
-    """Refuse an unknown method or loss, a robust loss with ``lm``, or fewer than one start
-    (one line; an unknown formulation: :func:`stiffness_model`)."""
+def _check_options(method: str, starts: int, loss: str = "linear", seed: int | None = None
+                   ) -> None:
+    """Refuse an unknown method or loss, a robust loss with ``lm``, fewer than one start or a
+    seed that is no whole number (one line; an unknown formulation: :func:`stiffness_model`)."""
+    if seed is not None:
+        whole_number(seed, "seed", 0)
     if method not in METHODS:
         raise UnknownNameError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}",
                                name=method, choices=METHODS)

@@ -67,7 +67,7 @@ from stiffness.mechanics.defaults import default_coordinates
 from stiffness.mechanics.formulation import target_state
 from stiffness.mechanics.ik import IKResult, coordinate_limits
 from stiffness.robot.robot import Robot
-from stiffness.units import float_array
+from stiffness.units import float_array, whole_number
 
 #: Most candidate angles about the free axis (0.1 deg apart); the search costs steps^2.
 MAX_STEPS = 3600
@@ -334,7 +334,8 @@ def posture(
     em = load_model(model, k_theta)
     full = em.full
     poses, w = _poses_and_wrench(positions, axes, quaternions, wrench)
-    _check_search(full, steps, max_step_deg, singularity_margin, wrench_frame, branch)
+    _check_search(full, steps, (max_step_deg, singularity_margin, reference_angle_deg),
+                  wrench_frame, branch)
     m = poses.positions.shape[0]
     free = free_axis_vector(free_axis)
     angular = angular_coordinates(full)
@@ -343,9 +344,7 @@ def posture(
                              free, w, wrench_frame, singularity_margin, np.deg2rad(max_step_deg),
                              angular, spacing)
     ref, angles, sweep = _candidate_angles(steps, reference_angle_deg)
-    if start is None:
-        start = default_coordinates(full)
-    start = np.zeros(full.n_coordinates) if start is None else np.asarray(start, dtype=float)
+    start = _start_coordinates(full, start)
     total = m * (2 if refine else 1)
     tick = (lambda n: progress(n, total)) if progress is not None else (lambda n: None)
     # 1. candidate tracks of every branch
@@ -497,9 +496,27 @@ def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | Non
     return poses, point_wrenches(wrench, m)
 
 
-def _check_search(full: Robot, steps: int, max_step_deg: float, singularity_margin: float,
+def _start_coordinates(full: Robot, start: object) -> np.ndarray:
+    """The coordinates (rad, m) the search starts from: ``start``, else the robot's default
+    configuration, else zero; a ``start`` that is not one number per coordinate is refused."""
+    if start is None:
+        start = default_coordinates(full)
+    return np.zeros(full.n_coordinates) if start is None else float_array(
+        start, "start", f"the {full.n_coordinates} coordinates (rad, m) the search starts from",
+        size=full.n_coordinates).reshape(-1)
+
+
+def _check_search(full: Robot, steps: int, angles: tuple[float, float, float],
                   wrench_frame: str, branch: str) -> None:
-    """Refuse an arm that cannot hold a pose, or search settings out of range (one line)."""
+    """Refuse an arm that cannot hold a pose, or search settings (``steps``; ``angles``: the
+    largest step (deg), the singularity margin, the reference angle (deg)) of another type
+    or out of range (one line)."""
+    whole_number(steps, "steps", None)
+    names = ("max_step_deg", "singularity_margin", "reference_angle_deg")
+    needs = ("an angle > 0 (deg)", "a number >= 0", "an angle (deg)")
+    for name, value, needed in zip(names, angles, needs, strict=True):  # range checks below
+        float_array(value, name, needed, ndim=0, finite=name == "reference_angle_deg")
+    max_step_deg, singularity_margin = angles[0], angles[1]
     if full.n_coordinates < 6:
         raise StiffnessError(
             f"{full.name} has {full.n_coordinates} coordinates: choosing a posture about the "

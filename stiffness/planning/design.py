@@ -510,7 +510,7 @@ def _random_predictions(search: _Search, configs: int, loads_per_config: int,
                         random_plans: int, seed: int | None) -> list[Prediction]:
     """The predictions of ``random_plans`` random plans of the same size from the candidates
     (seeded by ``seed``)."""
-    rng = np.random.default_rng(None if seed is None else seed + 7919)
+    rng = np.random.default_rng(None if seed is None else whole_number(seed, "seed", 0) + 7919)
     return [search.predict(s) for s in random_selections(
         search.cands.n_poses, search.cands.n_directions, int(configs), int(loads_per_config),
         int(random_plans), rng)]
@@ -660,7 +660,9 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
 def _noise_level(noise_std_m: float | None, existing: Campaign | None) -> tuple[float, str]:
     """The noise std per deflection component (m) and where it comes from."""
     if noise_std_m is not None:
-        sigma, noise_source = float(noise_std_m), "given"
+        sigma = float(float_array(noise_std_m, "noise_std_m", "a length > 0 (m)", ndim=0,
+                                  finite=False))
+        noise_source = "given"
     elif existing is not None and existing.noise_std_m is not None:
         sigma, noise_source = existing.noise_std_m, "declared noise_std of the existing campaign"
     else:

@@ -30,7 +30,7 @@ from stiffness.mechanics.defaults import (
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot, coordinate_index, load_robot
 from stiffness.robot.sources import resolve_source
-from stiffness.units import float_array
+from stiffness.units import float_array, whole_number
 from stiffness.workspace.engine import run_scan
 from stiffness.workspace.spec import ScanSpec, grid_length, parse_fields
 
@@ -133,12 +133,23 @@ def swept_axes(robot: Robot, axes: Mapping[str, Sequence[float]] | Sequence, gri
         An unknown coordinate, one swept twice, bounds in the wrong order, a grid axis without
         a positive step.
     """
+    needed = "(low, high) or (low, high, step) in rad or m"
+    if isinstance(axes, str) or not isinstance(axes, Mapping | Sequence | np.ndarray):
+        raise wrong_argument("axes", axes, f"a mapping of coordinate names to {needed}")
     items = list(axes.items()) if isinstance(axes, Mapping) else list(axes)
     out: list[dict] = []
-    for name, bounds in items:
+    for item in items:
+        if isinstance(item, str) or not isinstance(item, Sequence) or len(item) != 2:
+            raise wrong_argument("axes", axes, f"a mapping of coordinate names to {needed}, or "
+                                 "a list of (name, bounds) pairs")
+        name, bounds = item
         index = coordinate_index(robot, str(name), "--axis")
-        lo, hi = float(bounds[0]), float(bounds[1])
-        step = float(bounds[2]) if len(bounds) > 2 and bounds[2] is not None else None
+        if isinstance(bounds, str) or not isinstance(bounds, Sequence | np.ndarray) or len(
+                bounds) not in (2, 3):
+            raise wrong_argument(f"axes[{name!r}]", bounds, needed)
+        lo, hi = float_array(bounds[:2], f"axes[{name!r}]", needed, finite=False).tolist()
+        step = float(float_array(bounds[2], f"axes[{name!r}]", needed, ndim=0, finite=False)) \
+            if len(bounds) > 2 and bounds[2] is not None else None
         if hi < lo:
             raise StiffnessError(f"--axis {name}: the upper bound is below the lower one")
         if grid and (step is None or step <= 0):
@@ -251,6 +262,7 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
     if rtol < 0:
         raise StiffnessError(f"--rtol must be >= 0, got {rtol}")
     loads, names = load_cases(wrench)
+    whole_number(seed, "seed", 0)
     stored = parse_fields(fields)
     common: dict[str, Any] = {
         "robot": robot_spec, "coordinate_joints": list(robot.coordinate_joints),
