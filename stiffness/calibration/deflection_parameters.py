@@ -34,7 +34,14 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
     the stiffness, ``[1 / (c + quantile se_c), 1 / (c - quantile se_c)]`` (unbounded above
     when the compliance's interval reaches zero), in N.m/rad or N/m; a joint at its rigid bound
     (:func:`~stiffness.calibration.fitting.fit_model`) one-sided from there, with the one-sided
-    quantile ``edge``; each end of the others' bounded as :func:`with_bounds` says."""
+    quantile ``edge``; each end of the others' bounded as :func:`with_bounds` says. A fitted
+    stiffness the data do not bound whose estimate is confounded with an effect's fitted
+    parameter (:func:`~stiffness.calibration.identifiability.confounded`: correlation at
+    least :data:`~stiffness.calibration.identifiability.ALIAS_CORRELATION` in ``cov``; a link
+    bend about an axis nearly parallel to the joint's, which the near-alias merge of
+    :mod:`~stiffness.calibration.identifiability` left in) is reported as not told apart from
+    it, without an interval (:meth:`~stiffness.elastic.effects.base.Parameter.confounded_as`):
+    its linearised interval runs along the alias and is not the joint's."""
     model = fit.model
     refs, top = model.refs, model.bounds()[1]
 
@@ -48,10 +55,13 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
         return Parameter(j, k, math.inf if rigid else p.standard_error, p.ci95, p.unit,
                          at_bound=rigid)
 
-    return [with_bounds(fit, i, one(i, j, cov, quantile), cov,
-                        functools.partial(one, i, j, q=quantile),
-                        edge=one(i, j, cov, edge) if i in fit.at_bound else None)
-            for i, j in enumerate(model.compliant)]
+    effects = [c for c in fit.kept if c >= len(model.compliant)]
+    out = [with_bounds(fit, i, one(i, j, cov, quantile), cov,
+                       functools.partial(one, i, j, q=quantile),
+                       edge=one(i, j, cov, edge) if i in fit.at_bound else None)
+           for i, j in enumerate(model.compliant)]
+    return [p if p.held or p.determined else p.confounded_as(share(fit, i, cov, effects))
+            for i, p in enumerate(out)]
 
 
 def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
@@ -124,9 +134,11 @@ def _above(parameter: Parameter, floor: float) -> Parameter:
     return parameter if not low < floor else dataclasses.replace(parameter, ci95=(floor, high))
 
 
-def share(fit: Fit, column: int, cov: np.ndarray) -> tuple[tuple[str, float], ...]:
+def share(fit: Fit, column: int, cov: np.ndarray, among: list[int] | None = None
+          ) -> tuple[tuple[str, float], ...]:
     """What takes the share of parameter ``column`` of ``fit`` once it is held: the fitted
-    parameters its estimate is correlated with (:func:`~stiffness.calibration.
-    identifiability.confounded`, ``cov`` the fit's covariance), as (label, correlation)
-    pairs (:attr:`~stiffness.elastic.effects.base.Held.confounded_with`; none for none)."""
-    return confounded(cov, column, fit.kept, fit.labels())
+    parameters (of ``among``; every kept one by default) its estimate is correlated with
+    (:func:`~stiffness.calibration.identifiability.confounded`, ``cov`` the fit's
+    covariance), as (label, correlation) pairs
+    (:attr:`~stiffness.elastic.effects.base.Held.confounded_with`; none for none)."""
+    return confounded(cov, column, fit.kept if among is None else among, fit.labels())

@@ -241,13 +241,25 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "masses": self.masses,
             **self.outlier_keys(),
             "rms_by_kind": self.rms_by_kind(),
-            "identifiability": self.identifiability(),
+            "identifiability": self.confounded(self.identifiability()),
             "how_sure": [c.to_dict(self.campaign.units.length_to_si) for c in self.how_sure],
             "selection": self.selection(),
             **({"baseline_validation": self.baseline_validation}
                if self.baseline_validation else {}),
             **({"validation": self.validation} if self.validation else {}),
         })
+
+    def confounded(self, identifiability: dict) -> dict:
+        """``identifiability`` (:meth:`identifiability`) with, where a fitted joint spring of
+        the final model is not told apart from an effect's parameter
+        (:attr:`Parameter.confounded_with`, issue 35), the key ``confounded``: each such
+        spring's compliance label, its note and what it is confounded with (absent when
+        none, so other campaigns' output is unchanged)."""
+        labels = self.final.labels()
+        rows = [{"parameter": labels[i], "note": p.text(),
+                 "confounded_with": p.to_dict()["confounded_with"]}
+                for i, p in enumerate(self.final_stiffness) if p.confounded_with]
+        return {**identifiability, "confounded": rows} if rows else identifiability
 
     def named_parameters(self) -> dict[str, list[Parameter]]:
         """:attr:`final_parameters` (campaign units)."""

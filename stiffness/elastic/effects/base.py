@@ -21,7 +21,7 @@ Units: SI inside (m, N, rad, N.m/rad).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar, TypeVar
 
 import numpy as np
@@ -121,6 +121,10 @@ class Parameter:
         Why the fit did not move it (not identifiable: "no effect on the data", or merged
         into others, :mod:`stiffness.calibration.identifiability`), "" when fitted: its value
         is then the one it was held at, not a measurement.
+    confounded_with
+        For a fitted parameter the data do not bound: the fitted parameters its estimate is
+        correlated with (label, correlation; :attr:`Held.confounded_with`), which take its
+        share; its interval is then not reported (:meth:`confounded_as`). None by default.
     """
 
     name: str
@@ -133,6 +137,7 @@ class Parameter:
     resolved: bool = True
     scale_note: str = ""
     beyond_scale: bool = False
+    confounded_with: tuple[tuple[str, float], ...] = ()
 
     @property
     def determined(self) -> bool:
@@ -154,13 +159,30 @@ class Parameter:
         """JSON-ready (inf and NaN become ``None``; ``determined`` says whether the interval
         is bounded, "undetermined" where it is not; ``held`` why the fit did not move it, or
         ``None``; ``at_bound`` whether it sits at its physical bound, its interval then
-        one-sided)."""
+        one-sided; ``confounded_with``, only for a parameter :meth:`confounded_as`, what it is
+        not told apart from, as in :meth:`stiffness.calibration.identifiability.
+        Identifiability.to_dict`)."""
         def num(v: float) -> float | None:
             return float(v) if math.isfinite(v) else None
-        return {"value": num(self.value), "standard_error": num(self.standard_error),
-                "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
-                "determined": self.determined, "held": self.held or None,
-                "at_bound": self.at_bound, "physical_scale": self.scale_note or None}
+        out = {"value": num(self.value), "standard_error": num(self.standard_error),
+               "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
+               "determined": self.determined, "held": self.held or None,
+               "at_bound": self.at_bound, "physical_scale": self.scale_note or None}
+        if self.confounded_with:
+            out["confounded_with"] = [{"parameter": label, "correlation": round(r, 3)}
+                                      for label, r in self.confounded_with]
+        return out
+
+    def confounded_as(self, pairs: tuple[tuple[str, float], ...]) -> Parameter:
+        """This fitted parameter, which the data do not bound, not told apart from ``pairs``
+        (:attr:`confounded_with`): its value kept, its standard error and interval not
+        reported (NaN), since a linearised interval along a near alias is not the
+        parameter's (a one-sided bound that excludes the truth); itself where ``pairs`` is
+        empty."""
+        if not pairs:
+            return self
+        return replace(self, standard_error=math.nan, ci95=(math.nan, math.nan),
+                       resolved=False, confounded_with=pairs)
 
     def held_as(self, reason: str) -> Parameter:
         """This parameter held by the fit at its value, for ``reason``: no uncertainty."""
@@ -169,10 +191,15 @@ class Parameter:
 
     def text(self) -> str:
         """One line: ``name = value +- se unit [low, high]``, or what the parameter was held
-        at and why, or that the data do not bound it."""
+        at and why, or that the data do not bound it (and what it is not told apart from,
+        :attr:`confounded_with`)."""
         if self.held:
             at = "rigid" if math.isinf(self.value) else f"at {self.value:.5g} {self.unit}"
             return f"{self.name} not fitted (held {at}): {self.held}"
+        if self.confounded_with:  # its value is where the fit left it along the alias
+            why = Held("the data do not bound it", self.confounded_with).text()
+            return (f"{self.name} undetermined: {why} (the fit left it at {self.value:.5g} "
+                    f"{self.unit}, not a measurement)")
         if self.at_bound and math.isinf(self.ci95[1]):  # a stiffness of zero compliance
             return (f"{self.name} rigid to the data: its compliance at its bound, zero (one-sided"
                     f" 95 % interval: stiffness above {self.ci95[0]:.5g} {self.unit})")
