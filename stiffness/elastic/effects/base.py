@@ -164,10 +164,11 @@ class Parameter:
         Identifiability.to_dict`)."""
         def num(v: float) -> float | None:
             return float(v) if math.isfinite(v) else None
-        out = {"value": num(self.value), "standard_error": num(self.standard_error),
-               "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
-               "determined": self.determined, "held": self.held or None,
-               "at_bound": self.at_bound, "physical_scale": self.scale_note or None}
+        out: dict[str, object] = {
+            "value": num(self.value), "standard_error": num(self.standard_error),
+            "ci95": [num(self.ci95[0]), num(self.ci95[1])], "unit": self.unit,
+            "determined": self.determined, "held": self.held or None,
+            "at_bound": self.at_bound, "physical_scale": self.scale_note or None}
         if self.confounded_with:
             out["confounded_with"] = [{"parameter": label, "correlation": round(r, 3)}
                                       for label, r in self.confounded_with]
