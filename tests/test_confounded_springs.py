@@ -8,21 +8,33 @@ said "stiffness above 4805.9 N.m/rad" (truth 2000).
 
 from __future__ import annotations
 
+import json
 import math
+import warnings
 
 import numpy as np
+import pytest
 
 from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.diagnosis_page import render_diagnosis
+from stiffness.elastic.model_file import load_model, read_model_file
+from stiffness.errors import DataFileWarning
 from stiffness.planning.simulate import simulate
+from stiffness.provenance import provenance
 
 KQ = [3e3, 3e3, 2e3, 1e3, 1e3, 1e3]  # N.m/rad
 NOISE = 1e-5  # m
 BEND = "link_compliance(j2s6s200_joint_1->j2s6s200_joint_3)"
 
 
-def test_a_spring_a_bend_aliases_is_reported_as_confounded_not_bounded():
+@pytest.fixture(scope="module")
+def d():
+    """The diagnosis with the bend forced in (one fit, ~5 s), shared by the tests below."""
     c = simulate("kinova", kq=KQ, max_force=30.0, noise_std_m=NOISE, configs=6, seed=0).campaign
-    d = diagnose(c, families=(BEND,), max_steps=0, workers=1)
+    return diagnose(c, families=(BEND,), max_steps=0, workers=1)
+
+
+def test_a_spring_a_bend_aliases_is_reported_as_confounded_not_bounded(d):
     spring = next(p for p in d.final_stiffness if p.name == "j2s6s200_joint_3")
     (label, r), = spring.confounded_with
     assert label == f"{BEND}.stiffness_2" and abs(r) >= 0.9
@@ -53,3 +65,61 @@ def test_a_spring_a_bend_aliases_is_reported_as_confounded_not_bounded():
     assert row["parameter"] == "compliance(j2s6s200_joint_3)"
     assert row["confounded_with"][0]["parameter"] == f"{BEND}.stiffness_2"
     assert "not told apart from" in row["note"]
+
+
+def _joint_3_note(d) -> str:
+    """The text report's phrase for joint 3, after its name."""
+    text = next(p for p in d.final_stiffness if p.name == "j2s6s200_joint_3").text()
+    return text.removeprefix("j2s6s200_joint_3 undetermined: ")
+
+
+def test_the_page_names_what_the_spring_is_not_told_apart_from(d):
+    """diagnosis.html says what the text says (the one phrase), not 'no upper bound'."""
+    page = render_diagnosis(d.record(), None, provenance("stiffness diagnose kinova"))
+    row = page[page.index("<td>j2s6s200_joint_3</td>"):]
+    row = row[:row.index("</tr>")]
+    note = _joint_3_note(d)
+    assert note.startswith(f"the data do not bound it; not told apart from {BEND}.stiffness_2 "
+                           "(correlation ") and note.endswith("N.m/rad, not a measurement)")
+    assert f"<b>undetermined</b>: {note}" in row.replace("&gt;", ">")
+    assert "no upper bound" not in row
+
+
+def test_the_model_file_marks_the_spring_as_not_a_measurement(d, tmp_path):
+    """final-model.json keeps joint 3's k_theta (where the fit left it) under
+    undetermined_joints and names the bend's parameter in confounded_joints; loading it warns
+    with the text report's phrase, not that the campaign did not load the joint. A file
+    without confounded_joints (an older one) reads and warns as before."""
+    path = d.model_file().write(tmp_path / "final-model.json")
+    doc = json.loads(path.read_text())
+    entry = doc["confounded_joints"]["j2s6s200_joint_3"]
+    assert entry["confounded_with"][0]["parameter"] == f"{BEND}.stiffness_2"
+    assert abs(entry["confounded_with"][0]["correlation"]) >= 0.9
+    assert entry["note"] == _joint_3_note(d)
+    assert list(doc["confounded_joints"]) == ["j2s6s200_joint_3"]
+    plain = [j for j in doc["undetermined_joints"] if j != "j2s6s200_joint_3"]
+    assert "j2s6s200_joint_3" in doc["undetermined_joints"]
+    k3 = doc["k_theta"]["values"][doc["k_theta"]["joints"].index("j2s6s200_joint_3")]
+    assert f"the fit left it at {k3:.5g} N.m/rad" in entry["note"]
+    model = read_model_file(path)
+    assert model.extra["confounded_joints"] == doc["confounded_joints"]  # kept as written
+    assert model.to_dict(tmp_path)["confounded_joints"] == doc["confounded_joints"]
+    with pytest.warns(DataFileWarning) as caught:
+        load_model(path)
+    said = [str(w.message) for w in caught if "is marked undetermined" in str(w.message)]
+    assert said == [*[_plain(path, plain)] * bool(plain), f"{path}: the stiffness of "
+                    f"j2s6s200_joint_3 is marked undetermined: {entry['note']}"]
+    del doc["confounded_joints"]
+    older = tmp_path / "older.json"
+    older.write_text(json.dumps(doc))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_model(older)
+    said = [str(w.message) for w in caught if "is marked undetermined" in str(w.message)]
+    assert said == [_plain(older, doc["undetermined_joints"])]
+
+
+def _plain(path, joints: list[str]) -> str:
+    """The warning of springs the campaign did not load (older files: every undetermined one)."""
+    return (f"{path}: the stiffness of {', '.join(joints)} is marked undetermined (its campaign "
+            "did not load it): K_X in the directions it governs rests on an unidentified value")

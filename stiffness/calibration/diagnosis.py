@@ -27,6 +27,7 @@ from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
+from stiffness.elastic.undetermined_springs import confounded_joints
 from stiffness.files import written_path, written_source
 from stiffness.provenance import provenance
 from stiffness.units import Units
@@ -356,6 +357,8 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
                                "tau_smoothing": dict(zip(refs.joints,
                                                          refs.tau_smoothing.tolist(),
                                                          strict=True))},
+                **({"confounded_joints": confounded} if (
+                    confounded := confounded_joints(stiff)) else {}),
             },
         )
 

@@ -12,6 +12,7 @@ campaign (``--validate``).
 from __future__ import annotations
 
 from stiffness.calibration.validation_page import validation_section
+from stiffness.elastic.effects.base import confounded_note
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -48,14 +49,20 @@ HOW = ("the cross-validated RMS of each step (above) is the held-out check withi
 
 def parameter_rows(where: str, parameters: dict) -> list[list]:
     """Rows of the parameter table; an interval without a finite bound (JSON null) and an
-    infinite standard error are said to be undetermined, with what is known; a parameter the
-    fit held (not identifiable) is said to be, with why."""
+    infinite standard error are said to be undetermined, with what is known, or with what it
+    is not told apart from (``confounded_with``: the text report's phrase,
+    :func:`~stiffness.elastic.effects.base.confounded_note`); a parameter the fit held (not
+    identifiable) is said to be, with why."""
     rows = []
     for name, p in parameters.items():
         lo, hi = p["ci95"] if p.get("ci95") else (None, None)
         se = p.get("standard_error")
         if p.get("held"):
             interval = f"<b>not fitted</b> (held at this value: {esc(p['held'])})"
+        elif p.get("confounded_with"):  # not told apart from an effect's parameter
+            pairs = tuple((c["parameter"], c["correlation"]) for c in p["confounded_with"])
+            interval = "<b>undetermined</b>: " + esc(confounded_note(pairs, p["value"],
+                                                                     p.get("unit", "")))
         elif finite_number(lo) and finite_number(hi):
             interval = f"{num(lo)} to {num(hi)}"
         else:

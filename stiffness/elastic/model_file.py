@@ -59,6 +59,7 @@ from stiffness.elastic.effects.link_bends import segment
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel, ElasticState
 from stiffness.elastic.stiffness_units import wrong_model_stiffness_unit
+from stiffness.elastic.undetermined_springs import undetermined_notes
 from stiffness.errors import (
     DataFileWarning,
     FileFormatError,
@@ -650,10 +651,9 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         else:
             not_applied.append((e, reason))
     parts.check_joints()
-    if model.undetermined_joints:
-        warn_user(f"{where}the stiffness of {', '.join(model.undetermined_joints)} is marked "
-                  "undetermined (its campaign did not load it): K_X in the directions it "
-                  "governs rests on an unidentified value", DataFileWarning)
+    notes = undetermined_notes(model.undetermined_joints, model.extra.get("confounded_joints"))
+    for note in notes:  # older files: no confounded_joints
+        warn_user(f"{where}{note}", DataFileWarning)
     offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
         target_offset, dtype=float).reshape(3)
     try:

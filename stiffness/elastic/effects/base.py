@@ -104,6 +104,14 @@ class Held:
         return f"{self.reason}; not told apart from {names}, which {verb} its share"
 
 
+def confounded_note(pairs: tuple[tuple[str, float], ...], value: float, unit: str) -> str:
+    """Why a fitted parameter at ``value`` (``unit``) the data do not bound has no interval:
+    not told apart from ``pairs`` (label, correlation; :attr:`Parameter.confounded_with`),
+    which take its share, its value where the fit left it, not a measurement."""
+    why = Held("the data do not bound it", tuple(pairs)).text()
+    return f"{why} (the fit left it at {value:.5g} {unit}, not a measurement)"
+
+
 @dataclass
 class Parameter:
     """A reported parameter: value, standard error and 95 % interval in ``unit``.
@@ -198,9 +206,8 @@ class Parameter:
             at = "rigid" if math.isinf(self.value) else f"at {self.value:.5g} {self.unit}"
             return f"{self.name} not fitted (held {at}): {self.held}"
         if self.confounded_with:  # its value is where the fit left it along the alias
-            why = Held("the data do not bound it", self.confounded_with).text()
-            return (f"{self.name} undetermined: {why} (the fit left it at {self.value:.5g} "
-                    f"{self.unit}, not a measurement)")
+            return (f"{self.name} undetermined: "
+                    f"{confounded_note(self.confounded_with, self.value, self.unit)}")
         if self.at_bound and math.isinf(self.ci95[1]):  # a stiffness of zero compliance
             return (f"{self.name} rigid to the data: its compliance at its bound, zero (one-sided"
                     f" 95 % interval: stiffness above {self.ci95[0]:.5g} {self.unit})")
