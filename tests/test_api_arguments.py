@@ -250,3 +250,62 @@ def test_search_and_seed_arguments(model, call, name):
     with pytest.raises(StiffnessError) as info:
         call(model)
     _one_line(info.value, name)
+
+
+@pytest.mark.parametrize("k", [[3e5] * 5, [3e5] * 5 + [-1.0], [3e5] * 5 + [math.nan], "3e5",
+                               np.ones((2, 3)), np.ones((6, 6, 1))])
+def test_joint_springs_are_checked_once(ur5, k):
+    """load_model's k_theta, simulate's kq and design's k: one check
+    (:func:`stiffness.mechanics.defaults.joint_stiffnesses`), one message (three before:
+    'need one finite positive stiffness per compliant joint of ur5 ...', 'need 6 positive
+    stiffnesses (one per compliant joint ...)' twice, worded apart)."""
+    texts = set()
+    for name, call in (("k_theta", lambda: stiffness.load_model(ur5, k=k)),
+                       ("kq", lambda: stiffness.simulate(ur5, kq=k, configs=2)),
+                       ("k", lambda: stiffness.design(ur5, 2, 100.0, k=k))):
+        with pytest.raises(StiffnessError) as info:
+            call()
+        message = _one_line(info.value, name)
+        assert message.startswith(f"{name} must be one finite positive stiffness per compliant "
+                                  "joint of ur5 (shoulder_pan_joint, "), message
+        texts.add(message.removeprefix(name))
+    assert len(texts) == 1, texts
+
+
+@pytest.mark.parametrize("args, kwargs, name", [
+    (("0,0,0,0,0,0", np.diag([3e5] * 6), [0, 0, -10]), {}, "q"),
+    ((np.zeros(6), "x", [0, 0, -10]), {}, "k_theta"),
+    ((np.zeros(6), [3e5] * 6, [0, 0, -10]), {}, "k_theta"),
+    ((np.zeros(6), np.eye(5), [0, 0, -10]), {}, "k_theta"),
+    ((np.zeros(6), np.diag([3e5] * 6), [0, 0, -10]), {"max_iterations": "60"}, "max_iterations"),
+])
+def test_solve_equilibrium_checks_where_its_arguments_enter(ur5, args, kwargs, name):
+    """A vector or a (5, 5) k_theta was a LinAlgError or a gufunc signature, a string 'x' a
+    'could not convert string to float'; a valid call keeps its result."""
+    with pytest.raises(StiffnessError) as info:
+        stiffness.solve_equilibrium(ur5, *args, **kwargs)
+    assert _one_line(info.value, name).startswith(f"{name} must be ")
+    q = [0.0, -1.2, 1.4, -0.9, -1.5, 0.3]
+    np.testing.assert_array_equal(
+        stiffness.solve_equilibrium(ur5, q, np.diag([3e5] * 6), (0, 0, -50)).dtheta,
+        stiffness.solve_equilibrium(ur5, np.array(q), np.diag([3e5] * 6),
+                                    np.array([0.0, 0, -50, 0, 0, 0])).dtheta)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda m, p: m.at(np.zeros(6), closed="x"), "closed"),
+    (lambda m, p: m.at(np.zeros(6), closed=np.zeros(5)), "closed"),
+    (lambda m, p: m.linear_deflection("0,0,0,0,0,0", [0, 0, -10]), "coords"),
+    (lambda m, p: m.linear_deflection(np.zeros(5), [0, 0, -10]), "coords"),
+    (lambda m, p: stiffness.track(m, p, [0, 0, -10], segment_time="1"), "segment_time"),
+    (lambda m, p: stiffness.track(m, p, [0, 0, -10], settle_time=-1.0), "settle_time"),
+    (lambda m, p: stiffness.track(m, p, [0, 0, -10], timestep=0.0), "timestep"),
+    (lambda m, p: stiffness.track(m, p, [0, 0, -10], timestep=math.nan), "timestep"),
+])
+def test_state_and_tracking_arguments(model, path, call, name):
+    """A state's closed configuration and linear_deflection's coordinates (NumPy's 'could not
+    convert string to float' or Pinocchio's signature before), track's times (np.isfinite of
+    a string was a TypeError)."""
+    with pytest.raises(StiffnessError) as info:
+        call(model, path)
+    assert _one_line(info.value, name).startswith(f"{name} must be ")

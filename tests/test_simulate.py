@@ -170,7 +170,8 @@ def test_hidden_complementary_stiffness_declares_conventional():
 def test_simulate_rejects_bad_inputs():
     with pytest.raises(StiffnessError, match="already compliant"):
         simulate("sk120", effects=[parse_effect("joint_compliance:joint2=1e5")], configs=2)
-    with pytest.raises(StiffnessError, match="positive stiffnesses"):
+    with pytest.raises(StiffnessError, match=r"kq must be one finite positive stiffness per "
+                       r"compliant joint of sk120 \(joint1, joint2, joint3\)"):
         simulate("sk120", kq=[1e6, -1.0, 1e6], configs=2)
     with pytest.raises(StiffnessError, match="compliant joint"):
         simulate("sk120", effects=[parse_effect("backlash:joint5=0.01")], configs=2)

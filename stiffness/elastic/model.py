@@ -365,11 +365,13 @@ class ElasticModel:
         (:func:`stiffness.elastic.loaded.linear_deflection`); under a preload (the weight, a
         compensator) ``C`` is the tangent compliance at the preloaded operating point,
         ``J (K_t - K_C - K_p)^-1 J^T`` (:meth:`ElasticState.compliance`)."""
+        coords = float_array(coords, "coords", f"the {self.robot.n_coordinates} coordinates of "
+                             f"{self.robot.title} (rad, m)", size=self.robot.n_coordinates, ndim=1)
         if not self.preloaded:
             return linear_deflection(self, self.robot.spring_command(coords), wrench,
                                      seed_q=seed_q)
         w = as_wrench(wrench)
-        q = self.full.configuration(np.asarray(coords, dtype=float), seed=seed_q)
+        q = self.full.configuration(coords, seed=seed_q)
         return self.at(coords, w, closed=q).compliance(slice(0, 6)) @ w
 
     def preloaded_configuration(self, q: np.ndarray) -> np.ndarray:
@@ -476,8 +478,9 @@ class ElasticState:
         self.load = float_array(load, "the load", "a force (fx,fy,fz in N) or a wrench "
                                 "(fx,fy,fz,mx,my,mz in N, N.m)", finite=False).reshape(-1)
         self.wrench = as_wrench(self.load)
-        self.q_commanded = model.configuration(q) if closed is None else np.asarray(
-            closed, dtype=float)
+        self.q_commanded = model.configuration(q) if closed is None else float_array(
+            closed, "closed", f"the full configuration of {model.robot.title} "
+            f"({model.robot.model.nq} values, loops closed)", size=model.robot.model.nq, ndim=1)
         self.commanded = target_state(model.robot, self.q_commanded, self.wrench)
         self.q = self.q_commanded
         self.operating = self.commanded

@@ -36,11 +36,12 @@ import pinocchio as pin
 
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.files import atomic_write_with
 from stiffness.machining.compensation import path_and_wrench, point_wrenches
 from stiffness.robot.mjcf import joint_value, robot_mjcf, spring_plan
 from stiffness.robot.robot import TARGET_FRAME, Robot
+from stiffness.units import float_array
 
 #: Time step of the simulation (s).
 TIMESTEP = 1e-3
@@ -272,14 +273,15 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
         A model MuJoCo cannot simulate, a path moving a rigid (welded) coordinate, bad
         times, a compensation that fails.
     """
+    for name, value, needed in (("segment_time", segment_time, "a time >= 0 (s)"),
+                                ("settle_time", settle_time, "a time >= 0 (s)"),
+                                ("timestep", timestep, "a time > 0 (s)")):
+        seconds = float(float_array(value, name, needed, ndim=0))
+        if seconds < 0 or (name == "timestep" and seconds == 0):
+            raise wrong_argument(name, value, needed)
     em = load_model(model, k_theta)
     _, coords, loads = path_and_wrench(em.robot, path, wrench, deg)
     w = point_wrenches(loads, coords.shape[0])
-    for name, value in (("segment time", segment_time), ("settle time", settle_time),
-                        ("time step", timestep)):
-        if not (np.isfinite(value) and value >= 0.0) or (name == "time step" and value <= 0):
-            raise StiffnessError(f"the {name} must be a finite positive number of seconds, "
-                                 f"got {value!r}")
     if coords.shape[0] > 1 and segment_time < timestep:  # 0 s: jumps, tracked by nothing
         raise StiffnessError(f"the segment time {segment_time:g} s is shorter than the time "
                              f"step {timestep:g} s: the path would jump from point to point; "

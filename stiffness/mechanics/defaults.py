@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.errors import StiffnessError
+from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.mechanics.formulation import as_wrench
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.mechanics.wrench import holding_wrench
@@ -101,25 +101,33 @@ def default_stiffness(robot: Robot) -> np.ndarray | None:
     return None
 
 
-def joint_stiffnesses(robot: Robot, k_theta: object) -> np.ndarray:
+def joint_stiffnesses(robot: Robot, k_theta: object, name: str = "k_theta") -> np.ndarray:
     """``k_theta`` as the user gives it (N.m/rad, N/m prismatic; a vector or a diagonal matrix)
-    as one finite positive stiffness per compliant joint of ``robot`` (n_compliant,).
+    as one finite positive stiffness per compliant joint of ``robot`` (n_compliant,): the one
+    check of joint springs given to the Python API (``load_model``'s ``k``, ``simulate``'s
+    ``kq``, ``design``'s ``k``), ``name`` the argument's name for the message.
 
     Raises
     ------
     StiffnessError
-        Not numbers, off-diagonal terms, or not one finite positive value per compliant joint.
+        ``"<name> must be one finite positive stiffness per compliant joint of <robot> (...),
+        N.m/rad (N/m prismatic): a vector or a diagonal matrix, got <what was given>"``, or
+        off-diagonal terms.
     """
-    k = float_array(k_theta, "k_theta", f"one stiffness per compliant joint of {robot.title} "
-                    "(N.m/rad, N/m prismatic): a vector or a diagonal matrix", finite=False)
-    if k.ndim == 2 and np.any(k != np.diag(np.diag(k))):  # its coupling was dropped
-        raise StiffnessError(f"k_theta of {robot.title} couples joints: joint springs are "
-                             "one per joint; give a vector or a diagonal matrix")
-    k = np.diag(k) if k.ndim == 2 else k.reshape(-1)
+    needed = (f"one finite positive stiffness per compliant joint of {robot.title} "
+              f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic): a vector or a "
+              "diagonal matrix")
+    k = float_array(k_theta, name, needed, finite=False)
+    if k.ndim == 2 and k.shape[0] == k.shape[1]:
+        if np.any(k != np.diag(np.diag(k))):  # its coupling was dropped
+            raise StiffnessError(f"{name} of {robot.title} couples joints: joint springs are "
+                                 "one per joint; give a vector or a diagonal matrix")
+        k = np.diag(k)
+    elif k.ndim > 2 or (k.ndim == 2 and min(k.shape) != 1):
+        raise wrong_argument(name, k_theta, needed)
+    k = k.reshape(-1)
     if k.shape[0] != robot.n_compliant or not np.all(np.isfinite(k)) or np.any(k <= 0):
-        raise StiffnessError(
-            f"need one finite positive stiffness per compliant joint of {robot.title} "
-            f"({', '.join(robot.compliant_joints)}), got {k.tolist()}")
+        raise wrong_argument(name, k_theta, needed)
     return k
 
 

@@ -27,14 +27,16 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import ConvergenceError, UnstableEquilibriumError
+from stiffness.errors import ConvergenceError, UnstableEquilibriumError, wrong_argument
 from stiffness.mechanics.formulation import (
     as_wrench,
     compliant_projection,
+    full_configuration,
     tangent_joint_stiffness,
     target_state,
 )
 from stiffness.robot.robot import Robot
+from stiffness.units import float_array, whole_number
 
 #: Absolute floor of the convergence test, relative to the largest residual term: the round-off
 #: of the kinematics (a few eps) that couples every joint's residual to the largest term.
@@ -381,8 +383,10 @@ def solve_equilibrium(
         If the tangent stiffness becomes singular on the way, or the equilibrium found is
         unstable (K_theta - K_C not positive definite there): the load buckles the robot.
     """
-    law = as_joint_law(k_theta)
+    q0 = full_configuration(robot, q0)
+    law = _joint_law(robot, k_theta)
     wrench = as_wrench(load)
+    float_array(tolerance, "tolerance", "a relative tolerance > 0", ndim=0)
     base = target_state(robot, q0)
     tau0 = base.jacobian.T @ wrench
     if preload is not None:
@@ -390,7 +394,7 @@ def solve_equilibrium(
     dtheta = law.start(tau0)
     q = q0
     iterations = 0
-    for iterations in range(1, max_iterations + 1):  # noqa: B007 (used after the loop)
+    for iterations in range(1, whole_number(max_iterations, "max_iterations") + 1):  # noqa: B007
         q = deflected_configuration(robot, q0, dtheta, q)
         state = target_state(robot, q, wrench)
         tau = state.jacobian.T @ wrench
@@ -434,6 +438,18 @@ def solve_equilibrium(
     rot = pin.log3(state.rotation @ base.rotation.T)
     return Equilibrium(q, dtheta, state.position - base.position, rot, iterations, tau,
                        state.position.copy())
+
+
+def _joint_law(robot: Robot, k_theta: JointLaw | np.ndarray) -> JointLaw:
+    """``k_theta`` of :func:`solve_equilibrium` as a joint law, checked where it enters: a
+    :class:`JointLaw`, or the (n, n) joint stiffness matrix of the compliant joints."""
+    if not isinstance(k_theta, JointLaw):
+        n = robot.n_compliant
+        needed = (f"the ({n}, {n}) joint stiffness matrix of {robot.title} (N.m/rad, N/m "
+                  "prismatic; np.diag(k) of one per compliant joint) or a JointLaw")
+        if np.atleast_2d(float_array(k_theta, "k_theta", needed)).shape != (n, n):
+            raise wrong_argument("k_theta", k_theta, needed)
+    return as_joint_law(k_theta)
 
 
 def converged(residual: np.ndarray, scale: np.ndarray, tolerance: float) -> np.ndarray:

@@ -48,6 +48,7 @@ from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
 from stiffness.elastic.model_file import ModelFile, read_model_file
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
+from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.planning.plan import Plan, write_plan
 from stiffness.planning.simulate import build_truth, row_smoothing_torques
 from stiffness.robot.robot import Robot, load_robot
@@ -632,9 +633,8 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
     robot's shipped ``k_theta_SI``, else the baseline fitted to ``existing``."""
     joints = tuple(robot.compliant_joints)
     if k is not None:
-        k_arr, k_source = float_array(k, "k", f"one stiffness per compliant joint of {robot.title} "
-                                      "(N.m/rad, N/m prismatic)", finite=False).reshape(-1), "given"
-    elif "k_theta_SI" in robot.defaults and len(robot.defaults["k_theta_SI"]) == len(joints):
+        return joint_stiffnesses(robot, k, "k"), "given"
+    if "k_theta_SI" in robot.defaults and len(robot.defaults["k_theta_SI"]) == len(joints):
         k_arr, k_source = np.asarray(robot.defaults["k_theta_SI"], dtype=float), \
             "the robot's shipped k_theta_SI"
     elif existing is not None:
@@ -651,10 +651,7 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
         raise StiffnessError(f"--kq is required: the design is local to a nominal stiffness, one "
                              f"per compliant joint ({', '.join(joints)}), N.m/rad (N/m "
                              "prismatic)")
-    if k_arr.shape != (len(joints),) or not np.all(np.isfinite(k_arr)) or np.any(k_arr <= 0):
-        raise StiffnessError(f"need {len(joints)} positive stiffnesses (one per compliant joint "
-                             f"{', '.join(joints)}), got {k_arr.tolist()}")
-    return k_arr, k_source
+    return joint_stiffnesses(robot, k_arr, k_source), k_source
 
 
 def _noise_level(noise_std_m: float | None, existing: Campaign | None) -> tuple[float, str]:

@@ -12,6 +12,7 @@ from stiffness.calibration.campaign_toml import JOINT_ANGLES
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.errors import FlagValueWarning, StiffnessError, UnknownNameError
+from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.planning.plan import Plan
 from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot
@@ -124,13 +125,7 @@ def true_stiffness(declared: Robot, kq: list[float] | np.ndarray | None, source:
             raise StiffnessError(f"give the true joint stiffness of {source} (--kq), one per "
                                  f"compliant joint: {', '.join(declared.compliant_joints)}")
         kq = declared.defaults["k_theta_SI"]
-    kq = float_array(kq, "kq", f"one stiffness per compliant joint of {source} (N.m/rad, N/m "
-                     "prismatic)", finite=False).reshape(-1)
-    if kq.shape[0] != declared.n_compliant or np.any(kq <= 0) or not np.all(np.isfinite(kq)):
-        raise StiffnessError(f"need {declared.n_compliant} positive stiffnesses (one per "
-                             f"compliant joint {', '.join(declared.compliant_joints)}), got "
-                             f"{kq.tolist()}")
-    return kq
+    return joint_stiffnesses(declared, kq, "kq")
 
 
 def request_record(plan: Plan | None, configs: int, loads_per_config: int, repeats: int,
