@@ -253,16 +253,20 @@ def _slack_campaign(seed: int, configs: int = 10, loads: int = 4, robot: str = K
 
 
 def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
-    """25 small campaigns (6 poses x 3 loads), the lever declared at 0.1 m (the default): the
+    """Small campaigns (6 poses x 3 loads), the lever declared at 0.1 m (the default): the
     fitted base, stiffness and preload are those of the true spring rescaled to that lever
     (d = 0.4 * 0.1/0.3 m, k = 1e5 * 9, F0 = 0); their reported 95 % intervals and the three
     joint stiffnesses' (as diagnose reports them), 150 in all, cover the truth two-sidedly
-    (:meth:`stats.Coverage.check`)."""
+    (:meth:`stats.Coverage.check`). A joint stiffness the data do not bound and cannot tell
+    from its compensator (correlation about 1: joint_2 in 2 of the first 26 campaigns) is
+    reported as not told apart, with no interval to count, and a campaign more is drawn."""
     k, f0, a, d = SLACK_SPRING
     s = 0.1 / a
     truth = (*KINOVA[2], k / s ** 2, f0 / s, d * s)
-    cov = Coverage()
-    for seed in range(25):
+    cov, confounded = Coverage(), []
+    for seed in range(40):
+        if cov.n >= 150:
+            break
         campaign = _slack_campaign(seed, configs=6, loads=3)
         robot = campaign.robot()
         geo = Geometry.of(robot)
@@ -279,7 +283,12 @@ def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
         params = [*stiffness_parameters(fit, matrix, quantile, edge),
                   *effect_report(freed, fit.x[3:], matrix[3:, 3:], refs, SI_UNITS, quantile)]
         for p, want in zip(params, truth, strict=True):
+            if p.confounded_with:  # no interval: reported as not told apart from the spring
+                confounded.append(p)
+                continue
             cov.add(p.value, p.ci95, want)
+    assert all(p.name in KINOVA[1] and "not told apart" in p.text() for p in confounded)
+    assert len(confounded) <= 10, [p.text() for p in confounded]
     cov.check()
 
 
