@@ -114,8 +114,8 @@ class Continuation:
             if closed is not None and jump <= BRANCH_JUMP:
                 closed, here, crossing = self._mode_check(
                     start, coords, (fraction, q), (fraction + h, closed), basis)
-                if closed is None:  # onto another assembly mode: not taken, a shorter step
-                    jump, h = np.inf, h / 4.0  # (the modes swap fast there) is
+                if closed is None:  # onto another assembly mode: not taken; the step is cut
+                    jump, h = np.inf, h / 4.0  # by 8 (with the halving below): the modes swap
                 elif crossing is not None:
                     crossings.append(crossing)
             if closed is None or jump > BRANCH_JUMP:
