@@ -79,9 +79,9 @@ from stiffness.calibration.search import (
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
-    GOF_LEVEL,
     SCREEN_TOLERANCE,
     Noise,
+    above_noise,
     config_folds,
     cross_validate,
     extra_fit,
@@ -342,7 +342,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         gof_baseline=None if known is None else known.goodness_of_fit(
             base.loss_rss, n, base.penalty_params),
         gof_final=gof_final, unexplained=None if gof_final is None
-        else bool(gof_final <= 1.0 - GOF_LEVEL),
+        else above_noise(gof_final),
         ambiguities=ambiguities, cv_baseline=cv_base,
         elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, search=kind,

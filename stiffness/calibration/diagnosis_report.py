@@ -9,7 +9,7 @@ from stiffness.calibration.breakdown import strongest_correlations
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_report import stage_table
-from stiffness.calibration.selection import GOF_LEVEL, noise_overstated
+from stiffness.calibration.selection import above_noise, noise_overstated
 
 if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
@@ -71,7 +71,7 @@ def format_report(d: Diagnosis) -> str:
         f"noise std: {d.noise_std_m / lu:.4g} {unit} ({d.noise_std_source}: {d.noise_note})",
     ]
     if d.gof_baseline is not None:
-        verdict = "fits" if d.gof_baseline > 1 - GOF_LEVEL else "does NOT fit"
+        verdict = "does NOT fit" if above_noise(d.gof_baseline) else "fits"
         lines.append(f"the baseline {verdict} to noise ({d.test} p = {d.gof_baseline:.3g})")
     lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
     lines += _disagreement_lines(d.baseline_disagreement, c.units.force)
@@ -112,7 +112,7 @@ def format_report(d: Diagnosis) -> str:
     else:
         lines.append("missing effects: none" + (
             " (the baseline explains the data to noise)" if d.gof_baseline is not None
-            and d.gof_baseline > 1 - GOF_LEVEL else ""))
+            and not above_noise(d.gof_baseline) else ""))
     lines.append("stiffness (final model): " + ", ".join(
         f"{p.name} {p.value:.5g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}"
         for p in d.final_stiffness if p.determined))

@@ -94,6 +94,7 @@ from stiffness.calibration.selection import (
     GOF_LEVEL,
     OVERSTATED_P,
     Noise,
+    above_noise,
     noise_overstated,
     replicate_noise,
 )
@@ -607,7 +608,7 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
     if declared is not None:
         sigma = declared
         gof = Noise(sigma).goodness_of_fit(ss_m2, n, p)
-        if sigma_res is not None and gof is not None and gof <= 1.0 - GOF_LEVEL:
+        if sigma_res is not None and gof is not None and above_noise(gof):
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the declared "
                 f"noise_std ({sigma * 1e3:.4g} mm; chi-square p = {gof:.3g} <= "
@@ -627,7 +628,7 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
     if rep is not None:  # diagnose's noise (its _translation_noise): the replicates' scatter
         noise = Noise(*rep)
         gof = noise.goodness_of_fit(ss_m2, n, p)
-        if gof is not None and gof <= 1.0 - GOF_LEVEL:
+        if gof is not None and above_noise(gof):
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the replicate "
                 f"rows' scatter ({rep[0] * 1e3:.4g} mm; {noise.test} p = {gof:.3g} <= "

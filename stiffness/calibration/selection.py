@@ -319,14 +319,21 @@ def noise_overstated(gof: float | None) -> bool:
     return gof is not None and 1.0 - gof < OVERSTATED_P
 
 
+def above_noise(gof: float) -> bool:
+    """Whether the fit-to-noise test (:meth:`Noise.goodness_of_fit`, p-value ``gof``)
+    rejects the model at :data:`GOF_LEVEL`: its residual is above the noise (``gof <= 1 -
+    GOF_LEVEL``). The stop rule, diagnose's unexplained verdict and identify's notes."""
+    return gof <= 1.0 - GOF_LEVEL
+
+
 def fits_to_noise(rss: float, n: int, p: int, noise: Noise | None) -> str | None:
     """The stop rule of both campaign kinds' searches: why a search stops because its current
-    model explains the data to the ``noise`` (:meth:`Noise.goodness_of_fit` above
-    ``1 - GOF_LEVEL``; known noise only, ``None``: not known), or ``None`` when it goes on."""
+    model explains the data to the ``noise`` (:meth:`Noise.goodness_of_fit` not
+    :func:`above_noise`; known noise only, ``None``: not known), or ``None`` when it goes on."""
     if noise is None:
         return None
     gof = noise.goodness_of_fit(rss, n, p)
-    if gof is None or gof <= 1.0 - GOF_LEVEL:
+    if gof is None or above_noise(gof):
         return None
     return (f"the model explains the data to noise ({noise.test} p = {gof:.3g} > "
             f"{1 - GOF_LEVEL:.2g})")
