@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import binom
 
-from stiffness.calibration.diagnose import GOF_LEVEL, diagnose
+from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.selection import GOF_LEVEL
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
