@@ -22,7 +22,7 @@ from stiffness.calibration.pose_plausibility import Plausibility, plausibility
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
 from stiffness.calibration.search import Step
-from stiffness.calibration.selection import GOF_LEVEL, Noise
+from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.effects.base import Parameter
 from stiffness.files import jsonable
 from stiffness.provenance import provenance
@@ -77,9 +77,10 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
 
     @property
     def unexplained(self) -> bool | None:
-        """Whether the final residual is above the declared noise (None: no noise declared)."""
+        """Whether the final residual is above the declared noise (None: no noise declared;
+        :func:`~stiffness.calibration.selection.above_noise`)."""
         p = self.gof()
-        return None if p is None else p < 1 - GOF_LEVEL
+        return None if p is None else above_noise(p)
 
     def verdict(self) -> str:
         """Whether the final model explains the poses to their noise (chi-square against the

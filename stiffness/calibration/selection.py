@@ -322,7 +322,8 @@ def noise_overstated(gof: float | None) -> bool:
 def above_noise(gof: float) -> bool:
     """Whether the fit-to-noise test (:meth:`Noise.goodness_of_fit`, p-value ``gof``)
     rejects the model at :data:`GOF_LEVEL`: its residual is above the noise (``gof <= 1 -
-    GOF_LEVEL``). The stop rule, diagnose's unexplained verdict and identify's notes."""
+    GOF_LEVEL``). The stop rule, both kinds' unexplained verdicts, identify's notes and
+    validate's verdict."""
     return gof <= 1.0 - GOF_LEVEL
 
 

@@ -34,7 +34,7 @@ from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaig
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_model_file import read_pose_model
-from stiffness.calibration.selection import GOF_LEVEL, Noise
+from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import (
     ModelFile,
@@ -130,12 +130,13 @@ class Validation:
 
     @property
     def verdict(self) -> str | None:
-        """``consistent with the noise`` or ``above the noise`` (chi-square test at
-        :data:`~stiffness.calibration.selection.GOF_LEVEL`), ``None`` without a noise."""
+        """``consistent with the noise`` or ``above the noise`` (the chi-square test at
+        :data:`~stiffness.calibration.selection.GOF_LEVEL`,
+        :func:`~stiffness.calibration.selection.above_noise`), ``None`` without a noise."""
         p = self.gof()
         if p is None:
             return None
-        return "above the noise" if p < 1 - GOF_LEVEL else "consistent with the noise"
+        return "above the noise" if above_noise(p) else "consistent with the noise"
 
     def to_dict(self) -> dict:
         """What ``stiffness validate --json`` prints: the error summary's keys, and
