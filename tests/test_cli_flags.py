@@ -325,7 +325,8 @@ def test_wrong_stiffness_count_names_the_flag_and_the_joints(capsys, tmp_path, c
     """--kq with another count than the compliant joints: one line naming --kq, the joints and
     the fix (kx, view and compensate said 'need one joint stiffness per compliant joint (2),
     got 3', scan 'need 2 finite positive joint stiffnesses'; a new user of a Gepetto 5-bar
-    gave 12 values to its 2 motors)."""
+    gave 12 values to its 2 motors); since 5 December 2026 the one check of joint springs,
+    :func:`~stiffness.mechanics.defaults.joint_stiffnesses`, whose words ``load_model`` uses."""
     argv = [command, "--robot", "ur5", "--compliant-joints", "shoulder_pan_joint,elbow_joint",
             "--kq", "1e4,1e4,1e4"]
     argv += {"kx": ["--wrench", "0,0,-1"], "view": ["--export", str(tmp_path / "v.html")],
@@ -333,9 +334,10 @@ def test_wrong_stiffness_count_names_the_flag_and_the_joints(capsys, tmp_path, c
              "compensate": ["--path", str(tmp_path / "missing.csv")]}[command]
     assert main(argv) == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        f"stiffness {command}: error: --kq has 3 values for the 2 compliant joints of ur5 "
-        "(shoulder_pan_joint, elbow_joint); give one per compliant joint, in their order, "
-        "N.m/rad (N/m prismatic), or choose the joints with --compliant-joints")
+        f"stiffness {command}: error: --kq must be one finite positive stiffness per compliant "
+        "joint of ur5 (shoulder_pan_joint, elbow_joint), N.m/rad (N/m prismatic): "
+        "comma-separated in their order, or choose the joints with --compliant-joints, got "
+        "list [10000.0, 10000.0, 10000.0]")
     assert not list(tmp_path.iterdir())
 
 

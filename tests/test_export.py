@@ -204,7 +204,8 @@ def test_mjcf_from_a_model_file_carries_its_springs(tmp_path):
 @pytest.mark.parametrize("args, words", [
     (["--robot", "ur5"], ["--urdf", "--mjcf"]),
     (["--robot", "ur5", "--mjcf", "OUT"], ["--kq is required"]),
-    (["--robot", "ur5", "--mjcf", "OUT", "--kq", "1,2"], ["--kq needs 6"]),
+    (["--robot", "ur5", "--mjcf", "OUT", "--kq", "1,2"],
+     ["--kq must be one finite positive stiffness per compliant joint of ur5"]),
     (["--robot", "nosuchrobot", "--urdf", "OUT"], ["nosuchrobot"]),
     (["--robot", "sk120", "--mjcf", "OUT"], ["closed loops", "--urdf"]),
     (["--robot", SK120_DH, "--compliant-joints", "joint1,joint2", "--kq", "1e6,1e6",

@@ -185,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
     result = design(
         robot, args.configs, args.max_force, loads_per_config=args.loads_per_config,
         candidates=args.candidates, criterion=args.criterion,
-        k=None if args.kq is None else flags.parse_list(args.kq, "--kq"),
+        k=None if args.kq is None else flags.parse_kq(args.kq, robot),
         k_source=None if args.kq is None else "--kq",
         noise_std_m=None if args.noise is None else args.noise * units.length_to_si,
         existing=existing, separate=args.separate, seed=args.seed,

@@ -223,6 +223,11 @@ def warn_rig_noise(value: float | None, flag: str, unit: str, to_si: float) -> N
                   f"{5e-6 / to_si:g} {unit})", FlagValueWarning, stacklevel=2)
 
 
+#: How ``--kq`` is written, for the one check's message
+#: (:func:`~stiffness.mechanics.defaults.joint_stiffnesses`).
+KQ_FORM = "comma-separated in their order, or choose the joints with --compliant-joints"
+
+
 def stiffness_required(robot: Robot) -> StiffnessError:
     """The error of a command that needs ``--kq`` for a robot with no stiffness of its own."""
     return StiffnessError(
@@ -231,22 +236,19 @@ def stiffness_required(robot: Robot) -> StiffnessError:
 
 
 def parse_kq(text: str, robot: Robot) -> list[float]:
-    """``--kq``: one stiffness per compliant joint of ``robot`` (N.m/rad, N/m prismatic).
+    """``--kq``: one stiffness per compliant joint of ``robot`` (N.m/rad, N/m prismatic), its
+    numbers read as every flag's (:func:`parse_list`) and checked by the one check of joint
+    springs (:func:`~stiffness.mechanics.defaults.joint_stiffnesses`).
 
     Raises
     ------
     StiffnessError
-        If an item is not a plain number (:func:`parse_list`), or the count is not the number
-        of compliant joints: one line naming the joints and the fix.
+        If an item is not a plain finite number (:func:`parse_list`), or the values are not
+        one positive stiffness per compliant joint: one line naming the joints and the fix.
     """
-    values = parse_list(text, "--kq")
-    if len(values) != robot.n_compliant:
-        raise StiffnessError(
-            f"--kq has {len(values)} value{'s' if len(values) != 1 else ''} for the "
-            f"{robot.n_compliant} compliant joints of {robot.title} "
-            f"({', '.join(robot.compliant_joints)}); give one per compliant joint, in their "
-            "order, N.m/rad (N/m prismatic), or choose the joints with --compliant-joints")
-    return values
+    from stiffness.mechanics.defaults import joint_stiffnesses
+
+    return joint_stiffnesses(robot, parse_list(text, "--kq"), "--kq", KQ_FORM).tolist()
 
 
 def parse_names(text: str | None) -> list[str] | None:

@@ -65,12 +65,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 def _springs(robot: Robot, args: argparse.Namespace, model) -> dict[str, float]:
     """The springs of ``--kq``, else the model file's, else the robot's own (N.m/rad, N/m)."""
     if args.kq is not None:
-        k = flags.parse_list(args.kq, "--kq")
-        if len(k) != robot.n_compliant or not all(np.isfinite(k)) or min(k) <= 0:
-            raise StiffnessError(
-                f"--kq needs {robot.n_compliant} positive stiffnesses, N.m/rad (N/m prismatic), "
-                f"one per compliant joint ({', '.join(robot.compliant_joints)}), got {args.kq!r}")
-        return dict(zip(robot.compliant_joints, k, strict=True))
+        return dict(zip(robot.compliant_joints, flags.parse_kq(args.kq, robot), strict=True))
     if model is not None:
         springs, left_out = model_springs(model)
         if left_out:

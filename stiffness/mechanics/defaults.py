@@ -101,22 +101,23 @@ def default_stiffness(robot: Robot) -> np.ndarray | None:
     return None
 
 
-def joint_stiffnesses(robot: Robot, k_theta: object, name: str = "k_theta") -> np.ndarray:
+def joint_stiffnesses(robot: Robot, k_theta: object, name: str = "k_theta",
+                      form: str = "a vector or a diagonal matrix") -> np.ndarray:
     """``k_theta`` as the user gives it (N.m/rad, N/m prismatic; a vector or a diagonal matrix)
     as one finite positive stiffness per compliant joint of ``robot`` (n_compliant,): the one
-    check of joint springs given to the Python API (``load_model``'s ``k``, ``simulate``'s
-    ``kq``, ``design``'s ``k``), ``name`` the argument's name for the message.
+    check of joint springs, given to the Python API (``load_model``'s ``k``, ``simulate``'s
+    ``kq``, ``design``'s ``k``, :class:`~stiffness.viewer.StiffnessViewer`'s ``k_theta``) or
+    as the flag ``--kq`` (its numbers read by the command line first), ``name`` the argument's
+    name and ``form`` how it is written, for the message.
 
     Raises
     ------
     StiffnessError
         ``"<name> must be one finite positive stiffness per compliant joint of <robot> (...),
-        N.m/rad (N/m prismatic): a vector or a diagonal matrix, got <what was given>"``, or
-        off-diagonal terms.
+        N.m/rad (N/m prismatic): <form>, got <what was given>"``, or off-diagonal terms.
     """
     needed = (f"one finite positive stiffness per compliant joint of {robot.title} "
-              f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic): a vector or a "
-              "diagonal matrix")
+              f"({', '.join(robot.compliant_joints)}), N.m/rad (N/m prismatic): {form}")
     k = float_array(k_theta, name, needed, finite=False)
     if k.ndim == 2 and k.shape[0] == k.shape[1]:
         if np.any(k != np.diag(np.diag(k))):  # its coupling was dropped

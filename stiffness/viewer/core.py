@@ -25,12 +25,11 @@ import pinocchio as pin
 
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.files import atomic_write
-from stiffness.mechanics.defaults import default_coordinates, default_load
+from stiffness.mechanics.defaults import default_coordinates, default_load, joint_stiffnesses
 from stiffness.mechanics.equilibrium import deflected_configuration, solve_equilibrium
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
     as_wrench,
-    joint_stiffness,
     tangent_joint_stiffness,
     target_state,
 )
@@ -102,8 +101,10 @@ class StiffnessViewer:
     robot
         The robot (:func:`stiffness.robot.robot.load_robot`).
     k_theta
-        Joint stiffness: one value per compliant joint (N.m/rad; N/m prismatic) or the (n, n)
-        matrix.
+        Joint stiffness: one finite positive value per compliant joint (N.m/rad; N/m
+        prismatic) or their diagonal (n, n) matrix
+        (:func:`~stiffness.mechanics.defaults.joint_stiffnesses`, the one check of joint
+        springs).
     live
         Start a live server (the page follows every call; its controls move the joints, the
         load and the formulation, see :meth:`browse`). ``False``: record the scene only, for
@@ -142,11 +143,7 @@ class StiffnessViewer:
         if quantity not in QUANTITIES:
             raise UnknownNameError(f"quantity must be one of {', '.join(QUANTITIES)}, got "
                                    f"{quantity!r}", name=quantity, choices=QUANTITIES)
-        k = np.asarray(k_theta, dtype=float)
-        self.k_theta = k if k.ndim == 2 else joint_stiffness(k, robot.n_compliant)
-        if self.k_theta.shape != (robot.n_compliant, robot.n_compliant):
-            raise StiffnessError(f"k_theta must be ({robot.n_compliant}, {robot.n_compliant}) "
-                                 f"for {robot.title}, got {self.k_theta.shape}")
+        self.k_theta = np.diag(joint_stiffnesses(robot, k_theta))
         self.robot = robot
         self.quantity = quantity
         self.reach = self._reach()
