@@ -251,11 +251,79 @@ def mass_jacobians(model: pin.Model, kin: JointPlacements) -> np.ndarray:
     return weight * kin.jacobian[:, :3] + np.cross(kin.jacobian[:, 3:], moment, axis=1)
 
 
-def torque_regressors(model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
-    """(m, nv, 10 (njoints - 1)) ``pin.computeJointTorqueRegressor`` at rest (zero velocity
-    and acceleration: the gravity regressor) of the (m, nq) configurations ``q``."""
-    out = np.empty((q.shape[0], model.nv, 10 * (model.njoints - 1)))
-    regressor, rest = pin.computeJointTorqueRegressor, np.zeros(model.nv)
-    for i in range(q.shape[0]):
-        out[i] = regressor(model, data, q[i], rest, rest)
-    return out
+def gravity_regressors(model: pin.Model, data: pin.Data, q: np.ndarray,
+                       derivative: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """The generalized gravity's regressor at the (m, nq) configurations ``q``, and its
+    derivative when asked: ``g(q) = Y pi`` and ``dg/dq = Y_q pi`` (``g`` as
+    ``pin.computeGeneralizedGravity``, ``M qdd + C + g = tau``; ``dg/dq`` as
+    ``pin.computeGeneralizedGravityDerivatives``) for the gravity parameters ``pi`` of every
+    body (mass, then the mass moments ``m c_x, m c_y, m c_z`` in its joint's frame; kg, kg.m:
+    :data:`~stiffness.mechanics.gravity.GRAVITY_PARAMETERS`). Both faces of the lumped weight
+    read it (``gravity_lumped``: the pose face ``Y`` at each row of the sag, the deflection face
+    ``Y`` and ``Y_q`` at each distinct configuration).
+
+    ``Y`` is the gravity columns of ``pin.computeJointTorqueRegressor`` at rest (zero velocity
+    and acceleration), one call per configuration. ``Y_q`` in closed form from the joint
+    Jacobians (:func:`joint_placements`): a unit mass at a point ``x`` fixed to body ``k`` has
+    the potential ``-g0 . x`` (``g0 = model.gravity``), so its column is ``Y_a = -u_a . g0``
+    over the coordinates ``a`` that move ``k``, ``u_a = v_a + w_a x x`` the point's velocity per
+    unit rate (``[v_a; w_a]`` the joint Jacobian's column, world axes at the world origin). Of
+    two such coordinates, ``b`` on a joint that supports ``a``'s (or is it), the column
+    ``S_a`` turns with ``q_b`` as ``S_b x S_a`` and the point moves by ``u_b``, so
+
+    ``(Y_q)_ab = (Y_q)_ba = -(w_b x u_a) . g0``    (Eq. 1; the potential's Hessian)
+
+    (``(Y_q)_ba`` only when the joints differ). A mass moment ``m c_i``'s column is the unit
+    mass at the joint's origin moved by the unit lever ``R_k e_i`` minus the unit mass at the
+    origin: ``u_a = w_a x R_k e_i``. Tested against finite differences of ``Y`` and against
+    ``pin.computeGeneralizedGravityDerivatives`` on bodies of random masses (open chains, a
+    closed loop's tree, prismatic joints, a free-flyer base).
+
+    Returns
+    -------
+    y, y_q
+        (m, nv, njoints - 1, 4) N.m per kg or per kg.m (N for a prismatic joint's row; a view
+        on the torque regressor), and (m, nv, nv, njoints - 1, 4) its derivative
+        ``y_q[:, a, b] = d y[:, a] / d q_b`` (per rad, or per m), or ``None``.
+    """
+    m, nv, bodies = q.shape[0], model.nv, model.njoints - 1
+    full = np.empty((m, nv, bodies, 10))  # each body's 10 dynamic parameters, the 4 first ours
+    regressor, rest = pin.computeJointTorqueRegressor, np.zeros(nv)
+    for i in range(m):
+        full[i] = regressor(model, data, q[i], rest, rest).reshape(nv, bodies, 10)
+    y = full[..., :4]
+    if not derivative:
+        return y, None
+    kin = joint_placements(model, data, q)
+    assert kin.jacobian is not None
+    masks, proximal = _gravity_structure(tuple(model.parents), tuple(model.idx_vs),
+                                         tuple(model.nvs))
+    v, w = kin.jacobian[:, :3].transpose(0, 2, 1), kin.jacobian[:, 3:].transpose(0, 2, 1)
+    origin = v[:, None] + cross(w[:, None], kin.translation[:, 1:, None])  # (m, B, nv, 3)
+    lever = cross(w[:, None, None], kin.rotation[:, 1:].transpose(0, 1, 3, 2)[:, :, :, None])
+    u = np.concatenate([origin[:, :, None], lever], axis=2) * masks[:, None, :, None]
+    # a[:, a, b] = -(w_b x u_a) . g0 where a and b both move the body (Eq. 1)
+    g0 = np.asarray(model.gravity.linear, dtype=float)
+    a = -np.einsum("mkpac,mbc->mabkp", u, cross(g0, w)) * masks.T[None, None, :, :, None]
+    return y, np.where(proximal[None, :, :, None, None], a, a.transpose(0, 2, 1, 3, 4))
+
+
+@functools.lru_cache(maxsize=64)
+def _gravity_structure(parents: tuple[int, ...], idx_v: tuple[int, ...], nvs: tuple[int, ...]
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Of a model's tree (:func:`gravity_regressors`): (njoints - 1, nv) 1.0 where a velocity
+    coordinate moves a body, and (nv, nv) whether coordinate ``b``'s joint supports coordinate
+    ``a``'s (or is it), built once per tree (read-only)."""
+    nv = sum(nvs)
+    joint_of = np.zeros(nv, dtype=int)
+    for j in range(1, len(parents)):
+        joint_of[idx_v[j]: idx_v[j] + nvs[j]] = j
+    supports = np.zeros((len(parents), len(parents)), dtype=bool)  # [k, j]: j supports k
+    for k in range(1, len(parents)):
+        supports[k] = supports[parents[k]]
+        supports[k, k] = True
+    masks = supports[1:][:, joint_of].astype(float)
+    proximal = supports[joint_of][:, joint_of]
+    for a in (masks, proximal):
+        a.setflags(write=False)
+    return masks, proximal

@@ -92,43 +92,6 @@ def weighed_bodies(robot: Robot) -> list[int]:
             if any(model.joints[j].idx_v in moving for j in model.supports[k] if j > 0)]
 
 
-def weight_bases(robot: Robot, bodies: list[int]) -> list[pin.Model]:
-    """Per body and per gravity parameter (:data:`GRAVITY_PARAMETERS`), a copy of
-    ``robot.model`` weightless but for that body: a unit mass at its joint's origin, then at
-    the origin's unit x, y, z (so that the mass moment ``m c_i`` column is the difference of
-    the two, :func:`gravity_regressor`)."""
-    out = []
-    for k in bodies:
-        for lever in np.vstack([np.zeros(3), np.eye(3)]):
-            model = pin.Model(robot.model)
-            for j in range(model.njoints):
-                model.inertias[j] = pin.Inertia.Zero()
-            model.inertias[k] = pin.Inertia(1.0, lever, np.zeros((3, 3)))
-            out.append(model)
-    return out
-
-
-def gravity_regressor(robot: Robot, q: np.ndarray, bases: list[pin.Model]
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """The weight's joint preload (:func:`gravity_preload`) per unit gravity parameter of each
-    body of ``bases`` (:func:`weight_bases`) at the configuration ``q``: ``tau_g = Y pi`` and
-    ``K_g = Y_K pi`` for parameters ``pi`` (kg, kg.m; body by body, :data:`GRAVITY_PARAMETERS`).
-
-    Returns
-    -------
-    y, y_k
-        (n, P) N.m per kg or per kg.m and (n, n, P) N.m/rad per kg or per kg.m, over the
-        compliant joints (their coupling included, as :func:`gravity_preload`).
-    """
-    preloads = [gravity_preload(robot, q, model=b) for b in bases]
-    y = np.stack([tau for tau, _ in preloads], axis=-1)
-    y_k = np.stack([k for _, k in preloads], axis=-1)
-    for first in range(0, len(bases), 4):  # a mass moment: the unit mass moved by a unit lever
-        y[..., first + 1: first + 4] -= y[..., first: first + 1]
-        y_k[..., first + 1: first + 4] -= y_k[..., first: first + 1]
-    return y, y_k
-
-
 def spring_balancer(theta: float | np.ndarray, stiffness: float, preload: float, lever_m: float,
                     base_m: float, angle0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Torque of a spring gravity compensator on its joint and the torque's angle derivative.

@@ -66,7 +66,7 @@ The deflection campaigns' library (:data:`LIBRARY`):
 ``gravity_lumped`` (``--masses unknown``, instead of ``gravity_preload``)
     The links' weight with their masses unknown: each weighed link's mass and mass moments
     (kg, kg.m) fitted through the gravity regressor
-    (:func:`stiffness.mechanics.gravity.gravity_regressor`), on the chain's springs or a
+    (:func:`stiffness.batch.poses.gravity_regressors`), on the chain's springs or a
     ``[controller]``'s; not applied to a model used away from its campaign.
 ``gravity_compensator`` (where: a revolute compliant joint)
     A spring between the base and a lever on the link, its angle measured from the link's

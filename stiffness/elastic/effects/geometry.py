@@ -21,9 +21,10 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.linalg import cross
+from stiffness.batch.poses import gravity_regressors
 from stiffness.errors import StiffnessError, with_context
-from stiffness.mechanics.formulation import target_states
-from stiffness.mechanics.gravity import gravity_preload, gravity_regressor, weight_bases
+from stiffness.mechanics.formulation import compliant_projection, target_states
+from stiffness.mechanics.gravity import gravity_preload, require_open_chain
 from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot, load_robot
 
@@ -168,7 +169,7 @@ class Geometry:
     prismatic: np.ndarray
     link_columns: dict[tuple[str, str], int] = field(default_factory=dict)
     tilt_columns: dict[str, int] = field(default_factory=dict)
-    #: weighed links -> their weight bases and the regressor per distinct configuration
+    #: weighed links -> the weight's regressor per distinct configuration
     _weights: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -282,20 +283,31 @@ class Geometry:
     def weight_regressor(self, rows: Rows, links: tuple[str, ...]
                          ) -> tuple[np.ndarray, np.ndarray]:
         """The weight's preload per unit gravity parameter of the bodies of ``links`` (joint
-        names) at the rows: (m, n, P) N.m per kg or kg.m and (m, n, n, P) its derivative
-        (:func:`stiffness.mechanics.gravity.gravity_regressor`), Pinocchio run once per
+        names) at the rows: (m, n, P) N.m per kg or kg.m and (m, n, n, P) its derivative, the
+        generalized gravity's regressor and its derivative
+        (:func:`stiffness.batch.poses.gravity_regressors`) projected on the springs as
+        :func:`~stiffness.mechanics.gravity.gravity_preload` projects the weight
+        (``tau_g = -E^T Y pi``, ``K_g = -E^T Y_q E pi``, ``E`` the compliant rates'
+        :func:`~stiffness.mechanics.formulation.compliant_projection`), computed once per
         distinct configuration of the geometry and the stacked arrays kept with the rows."""
         if links not in rows.weights:
-            model = self.robot.model
-            if links not in self._weights:
-                self._weights[links] = (weight_bases(self.robot, [model.getJointId(j)
-                                                                  for j in links]), {})
-            bases, done = self._weights[links]
+            robot = self.robot
+            require_open_chain(robot)
+            bodies = [robot.model.getJointId(j) - 1 for j in links]
+            done = self._weights.setdefault(links, {})
             keys = [tuple(c) for c in rows.coords]
-            for key in dict.fromkeys(keys):
-                if key not in done:
-                    done[key] = gravity_regressor(
-                        self.robot, self.robot.configuration(np.array(key)), bases)
+            new = [k for k in dict.fromkeys(keys) if k not in done]
+            if new:
+                q = np.array([robot.configuration(np.array(k)) for k in new])
+                y, y_q = gravity_regressors(robot.model, robot.model.createData(), q,
+                                            derivative=True)
+                assert y_q is not None
+                e = compliant_projection(robot)
+                y = -np.einsum("va,mvkp->makp", e, y[:, :, bodies])
+                y_k = -np.einsum("va,mvwkp,wb->mabkp", e, y_q[:, :, :, bodies], e)
+                for i, key in enumerate(new):
+                    done[key] = (y[i].reshape(e.shape[1], -1),
+                                 y_k[i].reshape(e.shape[1], e.shape[1], -1))
             rows.weights[links] = (np.array([done[k][0] for k in keys]),
                                    np.array([done[k][1] for k in keys]))
         return rows.weights[links]

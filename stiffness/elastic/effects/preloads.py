@@ -24,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.linalg import cross
-from stiffness.batch.poses import torque_regressors
+from stiffness.batch.poses import gravity_regressors
 from stiffness.elastic.effects.base import PHYSICAL_FACTOR, effect_place
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import References, skew
@@ -501,15 +501,18 @@ class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
 
     Deflection face (a deflection campaign's candidate instead of ``gravity_preload``): the
     weight ``tau_g = Y(q) pi`` and its stiffness ``K_g = Y_K(q) pi`` preload the joints
-    (:meth:`preload`, :func:`stiffness.mechanics.gravity.gravity_regressor`), ``pi`` the
-    gravity parameters of :attr:`links` (kg, kg.m in each link's joint frame); combinations the
-    campaign cannot tell apart are merged by the fit's identifiability.
+    (:meth:`preload`, :meth:`Geometry.weight_regressor`), ``pi`` the gravity parameters of
+    :attr:`links` (kg, kg.m in each link's joint frame); combinations the campaign cannot tell
+    apart are merged by the fit's identifiability.
 
     Pose face: ``Delta q_j = - sum_k theta_jk Y_jk(q)``, ``Y`` the gravity regressor at the
-    loaded configuration, ``theta_jk = c_j pi_k`` lumped (``pi_k``: the mass and mass moments
-    of link ``k`` downstream of ``j``); for springs on controller coordinates
-    ``Delta q = - S_j theta_jk S_j^T Y_k`` (``S_j`` the spring's column of
-    :attr:`PoseLayout.spring_map`)."""
+    loaded configuration (:meth:`at_configuration`), ``theta_jk = c_j pi_k`` lumped (``pi_k``:
+    the mass and mass moments of link ``k`` downstream of ``j``); for springs on controller
+    coordinates ``Delta q = - S_j theta_jk S_j^T Y_k`` (``S_j`` the spring's column of
+    :attr:`PoseLayout.spring_map`).
+
+    Both faces read one regressor, :func:`stiffness.batch.poses.gravity_regressors` (the
+    deflection face with its derivative: ``Y_K = -Y_q`` on the springs)."""
 
     #: the weighed links (the joints of their bodies), in model order
     links: tuple[str, ...] = ()
@@ -583,12 +586,13 @@ class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
         """d(Delta q)/d theta (nv, n_theta): ``-S_j (S_j^T Y_k)`` of each pair (minus the
         regressor entry at a spring on a joint); (n, nv, n_theta) at a batch (n, nq) of
         configurations."""
-        regressor = torque_regressors(model, data, q.reshape(-1, model.nq)).reshape(
-            q.shape[:-1] + (model.nv, -1))
+        regressor, _ = gravity_regressors(model, data, q.reshape(-1, model.nq))
+        regressor = regressor.reshape(q.shape[:-1] + regressor.shape[1:])
         pairs = _lumped_pairs(tuple(tuple(pm.spring_downstream(c))
                                     for c in range(len(pm.springs))))
+        regressor = regressor[..., pairs[:, 1], pairs[:, 2]]  # (..., nv, n_theta)
         springs = pm.spring_map[:, pairs[:, 0]]  # each pair's spring column S_j (nv, n_theta)
-        return -springs * np.sum(springs * regressor[..., pairs[:, 1]], axis=-2)[..., None, :]
+        return -springs * np.sum(springs * regressor, axis=-2)[..., None, :]
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         return state.extras[self.name] @ x_f
@@ -600,10 +604,11 @@ class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
 
 @functools.lru_cache(maxsize=64)
 def _lumped_pairs(links: tuple[tuple[int, ...], ...]) -> np.ndarray:
-    """(spring, regressor column) of each lumped gravity parameter, in the family's parameter
-    order, for springs moving the joints ``links[spring]``: built once per layout, not at each
-    of a fit's sag iterations (read-only)."""
-    pairs = np.array([(c, 10 * (k - 1) + p) for c, moved in enumerate(links) for k in moved
-                      for p in range(len(GRAVITY_PARAMETERS))], dtype=int).reshape(-1, 2)
+    """(spring, body, gravity parameter) of each lumped gravity parameter, in the family's
+    parameter order (the regressor's axes, :func:`~stiffness.batch.poses.gravity_regressors`),
+    for springs moving the joints ``links[spring]``: built once per layout, not at each of a
+    fit's sag iterations (read-only)."""
+    pairs = np.array([(c, k - 1, p) for c, moved in enumerate(links) for k in moved
+                      for p in range(len(GRAVITY_PARAMETERS))], dtype=int).reshape(-1, 3)
     pairs.setflags(write=False)
     return pairs
