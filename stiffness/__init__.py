@@ -120,10 +120,10 @@ _ON_FIRST_USE = {
     "DesignResult": "stiffness.planning.design",
     # machining: compensation along a path, the stiffest posture
     "ElasticModel": "stiffness.elastic.model",
-    "ElasticState": "stiffness.elastic.model",
+    "ElasticState": "stiffness.elastic.state",
     "load_model": "stiffness.elastic.model_file",
-    "ModelFileError": "stiffness.elastic.model_file",
-    "ModelRobotError": "stiffness.elastic.model_file",
+    "ModelFileError": "stiffness.elastic.model_contents",
+    "ModelRobotError": "stiffness.elastic.model_contents",
     "compensate": "stiffness.machining.compensation",
     "PathCompensation": "stiffness.machining.compensation",
     "posture": "stiffness.machining.posture",

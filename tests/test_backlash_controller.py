@@ -40,12 +40,8 @@ from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.joint_laws import Backlash
 from stiffness.elastic.effects.pose_face import SagState
-from stiffness.elastic.model_file import (
-    ModelEffect,
-    ModelFile,
-    ModelFileError,
-    elastic_model_of,
-)
+from stiffness.elastic.file_model import elastic_model_of
+from stiffness.elastic.model_contents import ModelEffect, ModelFile, ModelFileError
 from stiffness.errors import StiffnessError
 from stiffness.planning.simulate import simulate
 from stiffness.planning.simulate_poses import (

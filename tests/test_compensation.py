@@ -506,7 +506,8 @@ def test_model_file_effects_enter_the_elastic_model(tmp_path, ur5):
     """A model file (the one schema of identify and diagnose) with every kind of effect: the
     robot's effects enter the law and the bends, the measurement ones are listed, and the
     compensation still lands on the nominal pose."""
-    from stiffness.elastic.model_file import ModelEffect, ModelFile, load_model
+    from stiffness.elastic.model_contents import ModelEffect, ModelFile
+    from stiffness.elastic.model_file import load_model
 
     arm = JOINTS[:5]
     effects = (
@@ -565,7 +566,8 @@ def test_linear_deflection_is_the_model_files_compliance(tmp_path, ur5):
     """The first-order deflection the posture search minimises (link bends included) equals
     the model file's compliance times the load (ElasticModel.at)."""
     from stiffness.elastic.loaded import linear_deflection
-    from stiffness.elastic.model_file import ModelEffect, ModelFile, load_model
+    from stiffness.elastic.model_contents import ModelEffect, ModelFile
+    from stiffness.elastic.model_file import load_model
 
     bend = ModelEffect("link_compliance", "shoulder_lift_joint->elbow_joint", "stiffness",
                        [_parameter("stiffness_1", 1.5e5, "N.m/rad"),

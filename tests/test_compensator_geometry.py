@@ -29,7 +29,9 @@ from stiffness.elastic.effects.base import effect_report
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.elastic.effects.preloads import GravityCompensator
-from stiffness.elastic.model_file import ModelEffect, elastic_model_of, read_model_file
+from stiffness.elastic.file_model import elastic_model_of
+from stiffness.elastic.model_contents import ModelEffect
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.gravity import spring_balancer, upward_angle
 from stiffness.planning.simulate import parse_effect, simulate

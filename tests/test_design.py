@@ -36,7 +36,7 @@ from stiffness.calibration.experiment import (
 from stiffness.calibration.identify import identify
 from stiffness.calibration.poses import coordinate_limits
 from stiffness.cli.main import main
-from stiffness.elastic.model_file import ModelFile
+from stiffness.elastic.model_contents import ModelFile
 from stiffness.errors import (
     FileFormatError,
     MissingFileError,

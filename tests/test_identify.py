@@ -15,7 +15,8 @@ from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.identify import identify, stiffness_model
 from stiffness.cli.identify import format_table
 from stiffness.cli.main import main
-from stiffness.elastic.model_file import LEGACY_IDENTIFIED, ModelFileError, read_model_file
+from stiffness.elastic.model_contents import LEGACY_IDENTIFIED, ModelFileError
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import FileFormatError, MissingFileError, StiffnessError
 from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.mechanics.formulation import deflection, target_state

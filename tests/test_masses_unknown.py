@@ -106,7 +106,7 @@ def test_lumped_weight_model_file_reads_back(tmp_path):
     its fitted prediction equals that of the file holding ``gravity_preload`` without payload
     (to 1e-9)."""
     from stiffness.elastic.effects.base import Parameter
-    from stiffness.elastic.model_file import ModelEffect, ModelFile
+    from stiffness.elastic.model_contents import ModelEffect, ModelFile
 
     arm = ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint")
     geo = Geometry.of(load_robot("ur5", compliant_joints=arm))

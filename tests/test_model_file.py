@@ -14,16 +14,15 @@ from test_campaign import SLIDER_URDF
 
 from stiffness.elastic.effects import LIBRARY
 from stiffness.elastic.effects.base import Parameter
-from stiffness.elastic.model_file import (
+from stiffness.elastic.file_model import elastic_model_of
+from stiffness.elastic.model_contents import (
     SCHEMA,
     ModelEffect,
     ModelFile,
     ModelFileError,
     ModelRobotError,
-    elastic_model_of,
-    load_model,
-    read_model_file,
 )
+from stiffness.elastic.model_file import load_model, read_model_file
 from stiffness.errors import UnknownJointError
 from stiffness.robot.robot import load_robot
 from stiffness.robot.sources import robots_directory
@@ -494,7 +493,7 @@ def test_an_undetermined_stiffness_is_used_with_a_warning(tmp_path):
 def test_the_old_names_still_work_with_a_deprecation_warning():
     """CompliantModel, ModelCompliance and model_compliance: one release more, same numbers."""
     import stiffness.elastic.model_file as model_file
-    from stiffness.elastic.model import ElasticState
+    from stiffness.elastic.state import ElasticState
 
     model, force = _ur5_model(), np.array([20.0, -10.0, -80.0])
     with pytest.warns(DeprecationWarning, match="CompliantModel is deprecated"):

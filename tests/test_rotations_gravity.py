@@ -25,7 +25,8 @@ from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.elastic.model_file import elastic_model_of, read_model_file
+from stiffness.elastic.file_model import elastic_model_of
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import FileFormatError, StiffnessError
 from stiffness.mechanics.gravity import gravity_preload, spring_balancer, with_payload
 from stiffness.planning.simulate import parse_effect, simulate

@@ -13,7 +13,8 @@ from scipy import stats
 import stiffness
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli.main import main
-from stiffness.elastic.model_file import ModelRobotError, read_model_file
+from stiffness.elastic.model_contents import ModelRobotError
+from stiffness.elastic.model_file import read_model_file
 
 UR5_ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 ARM_K = [3e4, 2e4, 1.5e4]  # N.m/rad

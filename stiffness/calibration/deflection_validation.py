@@ -90,7 +90,7 @@ def _stage(fit: Fit, geometry: Geometry, rows: Rows, other: Campaign, final: Val
     of ``geometry``, against the noise ``final`` states; ``moved``: ``other`` declared
     another target offset, its own, so a fitted ``target_offset`` (which moved this
     campaign's) does not apply, as in the model file moved there
-    (:func:`~stiffness.elastic.model_file.elastic_model_of`)."""
+    (:func:`~stiffness.elastic.file_model.elastic_model_of`)."""
     m, x = fit.model, fit.x
     kept = [i for i, e in enumerate(m.effects) if not (moved and e.name == "target_offset")]
     x = np.concatenate([x[:m.offsets[1]], *(x[m.offsets[i + 1]:m.offsets[i + 2]] for i in kept)])

@@ -26,9 +26,9 @@ from stiffness.calibration.selection import GOF_LEVEL, OVERSTATED_P, noise_overs
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
-from stiffness.elastic.model_file import ModelEffect, ModelFile, jsonable
+from stiffness.elastic.model_contents import ModelEffect, ModelFile
 from stiffness.elastic.undetermined_springs import confounded_joints
-from stiffness.files import written_path, written_source
+from stiffness.files import jsonable, written_path, written_source
 from stiffness.provenance import provenance
 from stiffness.units import Units
 

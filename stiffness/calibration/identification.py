@@ -18,7 +18,8 @@ import numpy as np
 from stiffness.calibration.outliers import Outlier, outlier_keys
 from stiffness.calibration.result import IdentificationResult
 from stiffness.calibration.selection import Noise
-from stiffness.elastic.model_file import ModelFile, jsonable
+from stiffness.elastic.model_contents import ModelFile
+from stiffness.files import jsonable
 from stiffness.robot.robot import Robot
 
 
@@ -349,7 +350,7 @@ class Identification(IdentificationResult):
         })
 
     def model_file(self) -> ModelFile:
-        """The identified model (:class:`stiffness.elastic.model_file.ModelFile`)."""
+        """The identified model (:class:`stiffness.elastic.model_contents.ModelFile`)."""
         return ModelFile(
             source=self.robot_source, loops=self.robot_loops, fixed_base=self.robot_fixed_base,
             frame=self.robot_frame, robot_name=self.robot_name,

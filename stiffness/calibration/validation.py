@@ -36,12 +36,8 @@ from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.model import ElasticModel
-from stiffness.elastic.model_file import (
-    ModelFile,
-    ModelRobotError,
-    load_model,
-    read_model_file,
-)
+from stiffness.elastic.model_contents import ModelFile, ModelRobotError
+from stiffness.elastic.model_file import load_model, read_model_file
 from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.robot.calibration import (
     is_pose_calibration,

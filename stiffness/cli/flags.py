@@ -476,8 +476,9 @@ def model_from_args(args: argparse.Namespace, *outputs: str | None) -> ElasticMo
         Neither ``--model`` nor ``--robot``, ``--kq`` or ``--compliant-joints`` beside
         ``--model``, a ``--robot`` that is not the model file's, a missing ``--kq``.
     """
+    from stiffness.elastic.file_model import elastic_model_of
     from stiffness.elastic.model import ElasticModel
-    from stiffness.elastic.model_file import elastic_model_of, read_model_file
+    from stiffness.elastic.model_file import read_model_file
     from stiffness.mechanics.defaults import default_stiffness
     from stiffness.mechanics.formulation import joint_stiffness
 

@@ -24,8 +24,10 @@ import numpy as np
 
 from stiffness.cli import flags
 from stiffness.elastic.cartesian import cartesian_report
+from stiffness.elastic.file_model import elastic_model_of
 from stiffness.elastic.model import ElasticModel
-from stiffness.elastic.model_file import ModelFile, elastic_model_of, read_model_file
+from stiffness.elastic.model_contents import ModelFile
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.formulation import FORMULATIONS, joint_stiffness

@@ -240,7 +240,7 @@ def _terminate(signum: int, frame: object) -> None:
 
 def stability(inputs: kx.KxInputs) -> dict:
     """Whether the drawn configuration is stable under its load, and the critical load factor
-    (:attr:`stiffness.elastic.model.ElasticState.critical_load_factor`, None when the load
+    (:attr:`stiffness.elastic.state.ElasticState.critical_load_factor`, None when the load
     never buckles the arm along its direction)."""
     model = inputs.model or ElasticModel.joint_springs(inputs.robot, inputs.k_theta)
     state = model.at(inputs.coords, inputs.load, closed=inputs.q)

@@ -1,6 +1,6 @@
 """The Cartesian stiffness of an elastic model at a pose, as ``stiffness kx`` reports it.
 
-:func:`cartesian_report` gathers what :class:`stiffness.elastic.model.ElasticState` computes
+:func:`cartesian_report` gathers what :class:`stiffness.elastic.state.ElasticState` computes
 (the compliance and K_X in a formulation and a connection, K_C, the definiteness, the critical
 load factor) into the JSON object of ``stiffness kx --json``: the command only resolves its
 flags into a state and prints this.
@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from stiffness.elastic.model import ElasticState
+from stiffness.elastic.state import ElasticState
 from stiffness.errors import SingularConfigurationError
 from stiffness.mechanics.formulation import (
     cartesian_stiffness,

@@ -1,101 +1,68 @@
-"""The model file: an identified or diagnosed stiffness model, and the elastic model it makes.
+"""Reading a model file (:func:`read_model_file`) and the one elastic model of a model file or
+a robot with springs (:func:`load_model`).
 
 ``stiffness identify`` (``identified-model.json``) and ``stiffness diagnose --out``
-(``final-model.json``) write the same JSON schema, documented in ``docs/model-file.md``::
+(``final-model.json``) write the same JSON schema (docs/model-file.md; what it holds,
+:class:`~stiffness.elastic.model_contents.ModelFile`, in :mod:`stiffness.elastic.model_contents`).
+The older files (``format`` ``stiffness-identified-model``, ``-diagnosed-model``, version 1) still
+read, and so does a pose calibration's ``final-model.json`` (its robot the calibrated robot, its
+elastic families the library's effects: :mod:`stiffness.elastic.calibrated`).
 
-    {"schema": "stiffness-model/1",
-     "robot": {"source", "frame", "target_offset_m", "compliant_joints",
-               "loops", "fixed_base", "joint_angles", "name"},  # the last four when given
-     "formulation": "conventional" | "enhanced" | "exact",
-     "k_theta": {"joints", "values", "unit", "standard_error", "ci95": {"low", "high"},
-                 "determined"},
-     "effects": [{"effect", "where", "kind", "description",
-                  "parameters": {name: {"value", "standard_error", "ci95", "unit"}},
-                  "settings": {...}}],
-     "noise": {"std_m", "source"},
-     ...}
-
-Everything is SI; a parameter's ``unit`` names its unit; the older files (``format``
-``stiffness-identified-model``, ``-diagnosed-model``, version 1) still read, and so does a pose
-calibration's ``final-model.json`` (its robot the calibrated robot, its elastic families the
-library's effects: :mod:`stiffness.elastic.calibrated`).
-
-Public API: :func:`read_model_file` (path -> :class:`ModelFile`: ``write``, ``to_dict``,
-``check_robot``); :func:`load_model` (a file, a :class:`ModelFile` or a robot with springs -> the
-one :class:`stiffness.elastic.model.ElasticModel`; :func:`elastic_model_of` for a read file);
-:func:`fitted_deflection`. Errors: :class:`ModelFileError` (unknown schema, missing or malformed
-key), :class:`ModelRobotError` (another robot, an effect on a joint it lacks). ``CompliantModel``,
-``ModelCompliance`` and ``model_compliance`` are deprecated names of :func:`elastic_model_of`,
-:class:`~stiffness.elastic.model.ElasticState` and ``load_model(path).at(q, load)``.
-
-How each effect enters the elastic model is its class's business (its one hook,
-:meth:`stiffness.elastic.effects.base.Effect.contribute`; ``kind`` of
-:data:`stiffness.elastic.effects.base.EFFECT_KINDS`): ``stiffness`` and ``preload`` effects change
-the robot and its K_X; ``measurement`` effects (how the campaign observed its deflections) and
-``lost_motion`` (backlash: a deflection, not a stiffness) are listed, not applied to K_X (the exact
-equilibrium and :func:`fitted_deflection` include it). Formulas: docs/model-file.md.
+Public API: :func:`read_model_file` (path -> :class:`~stiffness.elastic.model_contents.ModelFile`:
+``write``, ``to_dict``, ``check_robot``); :func:`load_model` (a file, a ``ModelFile`` or a robot
+with springs -> the one :class:`stiffness.elastic.model.ElasticModel`;
+:func:`~stiffness.elastic.file_model.elastic_model_of` for a read file, in
+:mod:`stiffness.elastic.file_model` with the fitted deflection). Errors: a file's
+(:class:`~stiffness.elastic.model_contents.ModelFileError`,
+:class:`~stiffness.elastic.model_contents.ModelRobotError`). ``CompliantModel``,
+``ModelCompliance`` and ``model_compliance`` are deprecated names of
+:func:`~stiffness.elastic.file_model.elastic_model_of`,
+:class:`~stiffness.elastic.state.ElasticState` and ``load_model(path).at(q, load)``.
 """
 
 from __future__ import annotations
 
-import functools
-import json
 import math
 import os
 import warnings
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from stiffness.elastic.calibrated import calibrated_elastics
 from stiffness.elastic.effects import LIBRARY
-from stiffness.elastic.effects.base import Parameter, effect_variables
-from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
-from stiffness.elastic.effects.geometry import Geometry, References
-from stiffness.elastic.effects.hypothesis import Hypothesis
-from stiffness.elastic.effects.joint_laws import JointEffect
-from stiffness.elastic.effects.link_bends import segment
-from stiffness.elastic.effects.parts import ElasticParts
-from stiffness.elastic.model import ElasticModel, ElasticState
-from stiffness.elastic.stiffness_units import wrong_model_stiffness_unit
-from stiffness.elastic.undetermined_springs import undetermined_notes
+from stiffness.elastic.effects.base import Parameter
+from stiffness.elastic.file_model import elastic_model_of
+from stiffness.elastic.model import ElasticModel
+from stiffness.elastic.model_contents import (
+    LEGACY_DIAGNOSED,
+    LEGACY_IDENTIFIED,
+    SCHEMA,
+    SCHEMA_NAME,
+    SCHEMA_VERSION,
+    ModelEffect,
+    ModelFile,
+    ModelFileError,
+)
+from stiffness.elastic.state import ElasticState
 from stiffness.errors import (
     DataFileWarning,
-    FileFormatError,
     StiffnessError,
-    did_you_mean,
     warn_user,
-    with_context,
 )
 from stiffness.files import (
-    atomic_write,
-    jsonable,
-    output_folder,
     read_json,
     resolve_source,
-    written_path,
-    written_source,
 )
 from stiffness.mechanics.defaults import default_stiffness
-from stiffness.mechanics.formulation import as_wrench
 from stiffness.robot.calibration import (
     POSE_MODEL_KIND,
-    moved_robot_file,
     read_pose_calibration,
     refuse_campaign,
-    robot_identity,
 )
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.units import ANGLE_UNITS, FORCE_UNITS, LENGTH_UNITS
 
-#: Name and version of the schema written: ``"schema": "stiffness-model/1"``.
-SCHEMA_NAME = "stiffness-model"
-SCHEMA_VERSION = 1
-SCHEMA = f"{SCHEMA_NAME}/{SCHEMA_VERSION}"
-#: ``format`` tags of the older files, still read (and still written beside ``schema``).
-LEGACY_IDENTIFIED = "stiffness-identified-model"
-LEGACY_DIAGNOSED = "stiffness-diagnosed-model"
 #: Formulations a model may be identified with.
 FORMULATIONS = ("conventional", "enhanced", "exact")
 #: Unit names of the files -> factor to SI.
@@ -104,212 +71,6 @@ _UNIT_TO_SI = {**ANGLE_UNITS, **FORCE_UNITS, **LENGTH_UNITS, "N.m/rad": 1.0, "N/
 #: Units an effect parameter of the current schema may name (the file is SI).
 SI_PARAMETER_UNITS = ("m", "rad", "N", "N.m", "kg", "N.m/rad", "N/m", "1/(N.m)", "1/N", "kg.m",
                       "1", "SI")
-
-
-class ModelFileError(FileFormatError):
-    """A model file of an unknown schema, or with a missing or malformed key (the message
-    starts with the file)."""
-
-
-class ModelRobotError(StiffnessError):
-    """A model file used with another robot than its own, or whose effects name joints its
-    robot does not have."""
-
-
-# the model ----------------------------------------------------------------------------------------
-
-
-@dataclass
-class ModelEffect:
-    """An effect of a model file, SI.
-
-    Attributes
-    ----------
-    name
-        Library name (:data:`stiffness.elastic.effects.LIBRARY`).
-    where
-        A joint, ``a->b``, or ``None``.
-    kind
-        ``stiffness``, ``measurement`` or ``lost_motion``.
-    parameters
-        Values with standard errors and 95 % intervals, SI (each names its unit).
-    settings
-        Fixed settings of the effect (``smoothing_torque`` of a backlash, N.m or N).
-    description
-        One line on what it is.
-    """
-
-    name: str
-    where: str | None
-    kind: str
-    parameters: list[Parameter] = field(default_factory=list)
-    settings: dict = field(default_factory=dict)
-    description: str = ""
-
-    @property
-    def label(self) -> str:
-        """``name`` or ``name(where)``."""
-        return self.name if self.where is None else f"{self.name}({self.where})"
-
-    def value(self, name: str) -> float:
-        """The SI value of parameter ``name``."""
-        for p in self.parameters:
-            if p.name == name:
-                return float(p.value)
-        raise ModelFileError(f"effect {self.label} has no parameter {name!r}", path="model file")
-
-    def values(self) -> np.ndarray:
-        """SI values in the effect's parameter order."""
-        return np.array([p.value for p in self.parameters], dtype=float)
-
-    def effect(self, geometry: Geometry | None = None) -> DeflectionEffect:
-        """The library's effect with its settings, placed on ``geometry`` (unchecked without)."""
-        effect = LIBRARY[self.name].at_place(self.where, geometry)
-        return effect.configured(self.settings) if isinstance(effect, Settings) else effect
-
-    def to_dict(self) -> dict:
-        """JSON-ready."""
-        return {"effect": self.name, "where": self.where, "kind": self.kind,
-                "description": self.description,
-                "parameters": {p.name: p.to_dict() for p in self.parameters},
-                "settings": dict(self.settings)}
-
-
-@dataclass
-class ModelFile:
-    """A stiffness model: robot, compliant joints, K_theta with intervals, formulation,
-    effects, noise (SI).
-
-    Attributes
-    ----------
-    source, frame, target_offset_m
-        The robot and its measurement target (offset in m, frame axes). A URDF source is an
-        absolute path in memory (relative to the file's folder on disk); a pose calibration's
-        is the file itself (the calibrated robot).
-    loops, fixed_base, robot_name
-        The robot's loop declaration (a path, like ``source``) and whether its floating or
-        planar base is fixed: how the robot is loaded (:meth:`robot_options`); its name for
-        the user (:attr:`stiffness.robot.robot.Robot.title`), or "".
-    compliant_joints, k_theta, units
-        The baseline's compliant joints, their stiffness (N.m/rad or N/m) and unit names.
-    standard_error, ci95_low, ci95_high
-        Uncertainty of ``k_theta`` (NaN or inf where undetermined).
-    formulation
-        ``conventional``, ``enhanced`` or ``exact``: what ``k_theta`` was identified with.
-    effects
-        Effects added by a diagnosis (none for an identification).
-    noise_std_m, noise_source
-        Measurement noise std (m) and where it comes from, or ``None``.
-    campaign, produced_by
-        Campaign name; ``identify`` or ``diagnose``.
-    undetermined_joints, no_spring
-        Joints whose stiffness the campaign could not determine; why a calibration has none.
-    extra, path
-        Further keys kept as written (e.g. ``residual_norm``); the file read, or ``None``.
-    """
-
-    source: str
-    frame: str
-    target_offset_m: np.ndarray
-    compliant_joints: tuple[str, ...]
-    k_theta: np.ndarray
-    units: tuple[str, ...]
-    formulation: str
-    standard_error: np.ndarray | None = None
-    ci95_low: np.ndarray | None = None
-    ci95_high: np.ndarray | None = None
-    effects: tuple[ModelEffect, ...] = ()
-    noise_std_m: float | None = None
-    noise_source: str | None = None
-    campaign: str = ""
-    produced_by: str = "identify"
-    undetermined_joints: tuple[str, ...] = ()
-    extra: dict = field(default_factory=dict)
-    path: Path | None = None
-    loops: str | None = None
-    fixed_base: bool = False
-    joint_angles: str = "motor"
-    robot_name: str = ""
-    no_spring: str = ""
-
-    def __post_init__(self) -> None:
-        n = len(self.compliant_joints)
-        self.compliant_joints = tuple(self.compliant_joints)
-        self.target_offset_m = np.asarray(self.target_offset_m, dtype=float).reshape(3)
-        self.k_theta = np.asarray(self.k_theta, dtype=float).reshape(n)
-        self.standard_error, self.ci95_low, self.ci95_high = (
-            np.full(n, np.nan) if v is None else np.asarray(v, dtype=float).reshape(n)
-            for v in (self.standard_error, self.ci95_low, self.ci95_high))
-        self.effects = tuple(self.effects)
-
-    # views -----------------------------------------------------------------------------
-    def robot_options(self) -> dict:
-        """``loops`` and ``fixed_base``, as keyword arguments of
-        :func:`stiffness.robot.robot.load_robot`."""
-        return {"loops": self.loops, "fixed_base": self.fixed_base}
-
-    def robot(self) -> Robot:
-        """The declared robot (baseline compliant joints, declared target), effects not applied."""
-        return load_robot(self.source, frame=self.frame, target_offset=self.target_offset_m,
-                          compliant_joints=self.compliant_joints, **self.robot_options())
-
-    def check_robot(self, source: str | os.PathLike) -> None:
-        """Refuse (``ModelRobotError``) a ``source`` naming another robot than the model's; a
-        model file moved away from its robot file takes ``source`` (:func:`moved_robot_file`)."""
-        if moved_robot_file(self.source, self.robot_name, str(source)):
-            self.source = str(source)
-        if robot_identity(str(source)) != robot_identity(self.source):
-            where = f" {self.path}" if self.path is not None else ""
-            mine = repr(self.source) if self.robot_name in ("", self.source) else (
-                f"{self.robot_name!r} ({self.source})")
-            raise ModelRobotError(
-                f"the model file{where} is of robot {mine}, not {str(source)!r}; drop "
-                "--robot (the model names its robot) or give the model of that robot")
-
-    # writing ---------------------------------------------------------------------------
-    def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict:
-        """The file's JSON object (a URDF source relative to ``relative_to`` when given)."""
-        folder = None if relative_to is None else Path(relative_to)
-        source = self.source if folder is None else written_source(self.source, folder)
-        joints = list(self.compliant_joints)
-        determined = [j not in self.undetermined_joints for j in joints]
-        robot: dict[str, object] = {"source": source, "frame": self.frame,
-                                    "target_offset_m": self.target_offset_m,
-                                    "compliant_joints": joints}
-        if self.loops is not None:
-            robot["loops"] = self.loops if folder is None else written_path(self.loops, folder)
-        if self.fixed_base:
-            robot["fixed_base"] = True
-        robot.update({"joint_angles": self.joint_angles} if self.joint_angles != "motor" else {})
-        robot.update({"name": self.robot_name} if self.robot_name else {})
-        doc = {
-            "schema": SCHEMA,
-            "format": LEGACY_IDENTIFIED if self.produced_by == "identify" else LEGACY_DIAGNOSED,
-            "version": 1, "produced_by": self.produced_by, "campaign": self.campaign,
-            "robot": robot, "formulation": self.formulation,
-            "k_theta": {"joints": joints, "values": self.k_theta, "unit": list(self.units),
-                        "standard_error": self.standard_error,
-                        "ci95": {"low": self.ci95_low, "high": self.ci95_high},
-                        "determined": determined},
-            "effects": [e.to_dict() for e in self.effects],
-            "noise": {"std_m": self.noise_std_m, "source": self.noise_source},
-            # the keys of the first identified-model files, kept for their readers
-            "standard_error": self.standard_error,
-            "ci95": {"low": self.ci95_low, "high": self.ci95_high,
-                     "method": "delta method on ln k"},
-            "undetermined_joints": list(self.undetermined_joints),
-        }
-        for key, value in self.extra.items():
-            doc.setdefault(key, value)
-        return jsonable(doc)
-
-    def write(self, path: str | os.PathLike) -> Path:
-        """Write the file atomically (a URDF source relative to its folder); returns the path."""
-        path = Path(path)
-        output_folder(path.parent)
-        text = json.dumps(self.to_dict(path.parent), indent=1, allow_nan=False)
-        atomic_write(path, text + "\n")
-        return path
 
 
 # reading ------------------------------------------------------------------------------------------
@@ -606,83 +367,6 @@ def _read_effect(r: _Reader, doc, where: str, si: bool) -> ModelEffect:
                        dict(settings), str(doc.get("description", "")))
 
 
-# the elastic model of a file ----------------------------------------------------------------------
-
-#: Why an effect of a kind that does not change the stiffness is not applied to K_X.
-_NOT_STIFFNESS = {"lost_motion": "lost motion: a deflection of +-half_width that does not "
-                                 "change the stiffness"}
-
-
-def elastic_model_of(model: ModelFile, frame: str | None = None,
-                     target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
-    """The elastic model of a model file: each effect contributes through its class's one hook
-    (:meth:`stiffness.elastic.effects.base.Effect.contribute`).
-
-    Parameters
-    ----------
-    model
-        The model file.
-    frame, target_offset
-        Another target (frame, offset in m in its axes) than the model's; the model's
-        ``target_offset`` effect then does not apply (it moved the campaign's target).
-
-    Raises
-    ------
-    ModelFileError, UnknownJointError
-        A ``joint_compliance`` on a joint ``k_theta`` holds; a joint-law effect on a rigid one;
-        a compensator on a controller coordinate that is no one link's chain joint.
-    ModelRobotError
-        An effect names a joint the robot does not have.
-    """
-    where = f"{model.path}: " if model.path is not None else ""
-    if not model.compliant_joints:
-        raise StiffnessError(f"{where}no spring: {model.no_spring or 'the file holds none'}")
-    parts = ElasticParts(dict(zip(model.compliant_joints, model.k_theta, strict=True)),
-                         keep_target=frame is None and target_offset is None)
-    applied, not_applied = [], []
-    for e in model.effects:
-        try:
-            e.effect().contribute(e.values(), parts)
-        except StiffnessError as exc:
-            raise ModelFileError(str(exc), path=model.path or "model file") from exc
-        reason = parts.not_applied.get(e.label, _NOT_STIFFNESS.get(e.kind))
-        if reason is None:
-            applied.append(e)
-        else:
-            not_applied.append((e, reason))
-    parts.check_joints()
-    notes = undetermined_notes(model.undetermined_joints, model.extra.get("confounded_joints"))
-    for note in notes:  # older files: no confounded_joints
-        warn_user(f"{where}{note}", DataFileWarning)
-    offset = model.target_offset_m.copy() if target_offset is None else np.asarray(
-        target_offset, dtype=float).reshape(3)
-    try:
-        robot = load_robot(model.source, frame=frame or model.frame,
-                           target_offset=offset + parts.target_shift,
-                           compliant_joints=tuple(parts.springs), **model.robot_options())
-    except StiffnessError as exc:
-        raise with_context(exc, f"{where}the model's robot with its effects") from exc
-    if problem := wrong_model_stiffness_unit(model, robot.is_prismatic):
-        raise ModelFileError(problem, path=model.path or "model file")
-    for e in model.effects:  # a bend's or tilt's joints are the chain's, a joint law's a spring
-        law = robot.compliant_joints if isinstance(effect := e.effect(), JointEffect) else ()
-        joints = list(dict.fromkeys([*robot.model.names[1:], *law]))  # backlash(T2): a coordinate
-        for name in [n for n in segment(e.where) or [e.where] if n is not None and n not in joints]:
-            raise ModelRobotError(f"{where}effect {e.label} names {name!r}, not a joint of "
-                                  f"{robot.title}; {did_you_mean(str(name), joints)}")
-        if isinstance(effect, JointEffect) and (bad := effect.placement_problem(robot, e.where)):
-            raise ModelFileError(bad, path=model.path or "model file")  # a compensator on T2
-    em = ElasticModel.of_parts(
-        robot, parts, "conventional" if model.formulation == "conventional" else "enhanced",
-        source=None if model.path is None else str(model.path), applied=tuple(applied),
-        not_applied=tuple(not_applied), joint_angles=model.joint_angles,
-        beyond_springs=tuple(e.label for e in applied if LIBRARY[e.name].beyond_springs))
-    em.fitted = functools.partial(fitted_deflection, model if parts.keep_target else replace(
-        model, frame=robot.target_frame, target_offset_m=offset,  # predicted there too
-        effects=tuple(e for e in model.effects if e.name != "target_offset")))
-    return em
-
-
 def load_model(source: ElasticModel | Robot | ModelFile | str | os.PathLike,
                k: np.ndarray | list[float] | None = None, frame: str | None = None,
                target_offset: np.ndarray | list[float] | None = None) -> ElasticModel:
@@ -730,48 +414,6 @@ def load_model(source: ElasticModel | Robot | ModelFile | str | os.PathLike,
     return ElasticModel.joint_springs(robot, k)
 
 
-def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
-                      measured: bool = False) -> np.ndarray:
-    """Predicted target displacement (3,) in m under a dead ``load`` (force or wrench), as
-    the fitted model predicts it (:class:`stiffness.elastic.effects.hypothesis.Hypothesis`):
-    every effect applied, lost motion included; measurement effects only with ``measured``
-    (what the campaign's instrument reads).
-
-    Raises
-    ------
-    StiffnessError
-        Not the coordinates of the model's declared robot.
-    """
-    declared = model.robot()
-    geometry = Geometry.of(declared)
-    wrench = as_wrench(load)
-    coords = np.asarray(q, dtype=float).reshape(-1)
-    if coords.shape[0] != declared.n_coordinates:
-        raise StiffnessError(f"give the {declared.n_coordinates} coordinates of "
-                             f"{declared.name} ({', '.join(declared.coordinate_joints)})")
-    rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:],
-                         joint_angles=model.joint_angles)
-    parts = ElasticParts({})
-    effects, values = [], []
-    for e in model.effects:
-        if e.kind == "measurement" and not measured:
-            continue
-        effect = e.effect(geometry)
-        effect.contribute(e.values(), parts)
-        effects.append(effect)
-        values.append(e.values())
-    smoothing = np.array([parts.smoothing.get(j, 1.0) for j in geometry.joints])
-    refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing, 1.0, 1.0, 1.0)
-    baseline = "conventional" if model.formulation == "conventional" else "enhanced"
-    if model.formulation == "exact" and not any(e.second_order for e in effects):
-        effects.insert(0, LIBRARY["complementary_stiffness"]())
-        values.insert(0, np.zeros(0))
-    fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
-    x = np.concatenate([np.log(model.k_theta)] + [
-        effect_variables(e, v, refs) for e, v in zip(effects, values, strict=True)])
-    return fitted.predict(x)[0]
-
-
 # deprecated names (one release) -------------------------------------------------------------------
 
 
@@ -784,8 +426,8 @@ def _model_compliance(model: ModelFile | ElasticModel | str | os.PathLike, q: np
 
 _DEPRECATED = {
     "CompliantModel": (elastic_model_of, "stiffness.load_model(path) or "
-                                         "stiffness.elastic.model_file.elastic_model_of(file)"),
-    "ModelCompliance": (ElasticState, "stiffness.elastic.model.ElasticState"),
+                                         "stiffness.elastic.file_model.elastic_model_of(file)"),
+    "ModelCompliance": (ElasticState, "stiffness.elastic.state.ElasticState"),
     "model_compliance": (_model_compliance, "stiffness.load_model(path).at(q, wrench)"),
 }
 

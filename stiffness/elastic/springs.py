@@ -10,7 +10,7 @@ Measurement effects (how a campaign was observed) are not properties of the robo
 from __future__ import annotations
 
 from stiffness.elastic.effects.parts import ElasticParts
-from stiffness.elastic.model_file import ModelFile
+from stiffness.elastic.model_contents import ModelFile
 
 #: Effect kinds that describe the measurement, not the robot.
 _MEASUREMENT = "measurement"

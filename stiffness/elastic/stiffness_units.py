@@ -30,7 +30,7 @@ def wrong_model_stiffness_unit(model, prismatic: Callable[[str], bool]) -> str |
     Parameters
     ----------
     model
-        The model file (:class:`stiffness.elastic.model_file.ModelFile`): its
+        The model file (:class:`stiffness.elastic.model_contents.ModelFile`): its
         ``compliant_joints``, their ``units`` and its ``effects``.
     prismatic
         Whether a joint of the model's robot is prismatic (``Robot.is_prismatic``).

@@ -46,7 +46,8 @@ from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import effect_place
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import BASELINES, Hypothesis
-from stiffness.elastic.model_file import ModelFile, read_model_file
+from stiffness.elastic.model_contents import ModelFile
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameError, did_you_mean
 from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.planning.plan import Plan, write_plan

@@ -20,7 +20,9 @@ from typing import Any, cast
 import numpy as np
 
 from stiffness.batch import kernels as batch
-from stiffness.elastic.model_file import ModelFile, elastic_model_of, read_model_file
+from stiffness.elastic.file_model import elastic_model_of
+from stiffness.elastic.model_contents import ModelFile
+from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.mechanics.defaults import (
     default_coordinates,
