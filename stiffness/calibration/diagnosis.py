@@ -174,8 +174,12 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
 
     @property
     def test(self) -> str:
-        """The fit-to-noise test's name (:attr:`Noise.test`): ``chi-square`` for a declared
-        noise, ``lack-of-fit F`` for the replicates' scatter."""
+        """The fit-to-noise test's name (:attr:`Noise.test`, the search's noise): ``chi-square``
+        for a declared noise, ``lack-of-fit F`` for the replicates' scatter, ``chi-square +
+        lack-of-fit F`` when one kind's noise is declared and the other's is its replicates'."""
+        noise = None if self.search is None else self.search.noise
+        if noise is not None:
+            return noise.test
         return "chi-square" if self.noise_std_source == "declared" else "lack-of-fit F"
 
     @property
