@@ -75,9 +75,11 @@ def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
     its interval that of the parameter reported (``report`` of a covariance) from that end's
     covariance (:func:`~stiffness.calibration.selection.end_covariances`, the rule of both
     campaign kinds: the parameters at their bound that moving it that way would take past
-    theirs held there): an interval that respects the bounds. ``reciprocal``: the parameter
-    falls as its variable rises (a stiffness reported from a compliance variable), so the
-    variable's low end is the parameter's high end."""
+    theirs held there): an interval that respects the bounds. Its standard error stays
+    ``parameter``'s, from ``cov`` none held (both kinds' rule: a pose fit's ``std`` is its
+    covariance's alike). ``reciprocal``: the parameter falls as its variable rises (a
+    stiffness reported from a compliance variable), so the variable's low end is the
+    parameter's high end."""
     dropped = None if fit.identifiability is None else fit.identifiability.dropped_at(index)
     if dropped is not None:
         return parameter.held_as(dropped.describe(fit.labels()))

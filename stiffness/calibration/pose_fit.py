@@ -129,7 +129,11 @@ class PoseFit:
     identifiability
         The fitted (kept) and dropped parameters.
     covariance
-        (k, k) covariance of the kept parameters (order of ``identifiability.kept``).
+        (k, k) covariance of the kept parameters (order of ``identifiability.kept``), none
+        of them held, those at their bound neither: a deflection fit's
+        (:func:`~stiffness.calibration.selection.parameter_covariance`), whose diagonal gives
+        :meth:`std`; only an interval's end holds bound parameters
+        (:func:`~stiffness.calibration.selection.end_covariances`).
     residual
         (n, M, 3) measured minus predicted (m); NaN where a marker was not seen.
     noise
@@ -157,9 +161,6 @@ class PoseFit:
     observations
         What the fit compared: ``J``'s rows are evaluated again from it at ``x``, a block
         at a time.
-    unbounded_covariance
-        With parameters at their bound, the (k, k) covariance of the kept parameters none of
-        them held (:meth:`interval`); else ``None``.
     """
 
     model: PoseModel
@@ -177,7 +178,6 @@ class PoseFit:
     factor: np.ndarray | None = None
     observations: PoseObservations | None = None
     at_bound: list[int] = field(default_factory=list)
-    unbounded_covariance: np.ndarray | None = None
 
     @property
     def sigma(self) -> float:
@@ -232,7 +232,10 @@ class PoseFit:
         return self.model.families
 
     def std(self) -> np.ndarray:
-        """(p,) standard deviations; NaN for parameters not fitted."""
+        """(p,) standard deviations; NaN for parameters not fitted. Those of :attr:`covariance`,
+        none held, also beside parameters at their bound: the standard error both campaign
+        kinds print beside an interval (:func:`~stiffness.calibration.selection.
+        end_covariances`)."""
         out = np.full(self.model.size, np.nan)
         out[self.identifiability.kept] = np.sqrt(np.diag(self.covariance))
         return out
@@ -242,16 +245,14 @@ class PoseFit:
         :attr:`noise`), none
         below a parameter's physical lower bound. A parameter at its bound
         (:attr:`at_bound`) has the one-sided interval from the bound to its 95 % upper
-        limit. The others' :attr:`covariance` holds those at their bound; each end of an
-        interval holds only those that moving the parameter that way would take past their
-        bound (:func:`~stiffness.calibration.selection.bounded_intervals` on
-        :attr:`unbounded_covariance`)."""
+        limit. Each end of the others' holds only those that moving the parameter that way
+        would take past their bound
+        (:func:`~stiffness.calibration.selection.bounded_intervals` on :attr:`covariance`)."""
         lower = np.array([p.lower for p in self.model.parameters])
         kept = self.identifiability.kept
         lo, hi = np.full(self.model.size, np.nan), np.full(self.model.size, np.nan)
         lo[kept], hi[kept] = bounded_intervals(
-            self.x[kept], lower[kept], self.covariance if self.unbounded_covariance is None
-            else self.unbounded_covariance, [kept.index(i) for i in self.at_bound],
+            self.x[kept], lower[kept], self.covariance, [kept.index(i) for i in self.at_bound],
             self.noise.two_sided(), self.noise.one_sided())
         return lo, hi
 
@@ -650,8 +651,8 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
     ``robust_scale`` the (noise std, source) scaling a robust ``loss``. The covariance is the
     engine's (:func:`~stiffness.calibration.solver.covariance_matrix`, in the parameters'
     typical sizes), of the declared noise, else the residual's (least squares), or the
-    sandwich; the parameters at their physical bound (``sol.at_bound``) are held there in the
-    others' covariance, theirs is their marginal one (for a one-sided interval)."""
+    sandwich, over every kept parameter, those at their physical bound (``sol.at_bound``) too
+    (none held: :attr:`PoseFit.covariance`)."""
     ident = sol.identifiability
     residual, rotation = obs.split(fun)
     n, k = fun.size, len(ident.kept)
@@ -672,22 +673,13 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
     noise = (Noise(sigma) if campaign.noise_std is not None else
              Noise.estimated(sigma, n, k)).of_fit(loss, n, spread_over)
 
-    def spread(columns: list[int]) -> np.ndarray:
-        typical = sizes[columns]
-        cov = covariance_matrix(jac[:, columns] * typical, sigma, loss, fun, sigma).matrix
-        return cov * np.outer(typical, typical)
-
-    cov = unbounded = spread(list(range(k)))
-    if bound:
-        cov = np.zeros((k, k))
-        cov[np.ix_(free, free)] = spread(free)
-        cov[bound, bound] = np.diag(unbounded)[bound]
+    typical = np.outer(sizes, sizes)
+    cov = covariance_matrix(jac * sizes, sigma, loss, fun, sigma).matrix * typical
     return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, noise, source, loss=loss,
                    converged=sol.status > 0, rotation_residual=rotation,
                    rotation_weight=obs.weight,
                    factor=jac if jac.shape[0] <= k + 1 else triangular(jac), observations=obs,
-                   at_bound=list(sol.at_bound),
-                   unbounded_covariance=unbounded if bound else None)
+                   at_bound=list(sol.at_bound))
 
 
 def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign

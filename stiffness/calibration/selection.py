@@ -273,7 +273,11 @@ def end_covariances(covariance: np.ndarray, index: int, at_bound: list[int],
     covariance of a fit with them held) covered the other stiffnesses 117 times in 134 where
     a rigid neighbour's compliance, one standard error above 0, sat at its bound; holding on
     a pushed end every bound parameter, not only the pushed ones, 888 in 1000 on a bounded
-    linear fit with a near alias (docs/diagnose.md, "At a physical bound")."""
+    linear fit with a near alias (docs/diagnose.md, "Physical bounds"). Only these ends
+    hold: the standard error printed beside the interval is ``covariance``'s own, none held,
+    for both kinds (the interval lies within ``x -+ quantile se``, an end pulled in where a
+    bound excludes it); the held one's was 3 times too small in spread where the truth sat
+    above the bound (docs/diagnose.md, "Physical bounds")."""
     cov = np.asarray(covariance, dtype=float)
     bound = np.asarray(at_bound, dtype=int)
     if bound.size == 0 or not np.isfinite(cov[index, index]):
