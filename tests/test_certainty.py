@@ -33,6 +33,8 @@ def test_a_force_bias_is_determined_against_the_load_range():
         assert p.standard_error == pytest.approx(se_n)
         assert p.determined is determined
         assert ("narrower than" if determined else "wider than") in p.scale_note
+        # both numbers carry their unit (the scale's was bare: 'its physical scale 69')
+        assert p.scale_note.endswith(f"its physical scale {100.0:.3g} N"), p.scale_note
     # an undetermined direction (infinite variance) is said so, not "inf N wide" (the pose
     # sweep of issue 47: compensator springs no pose loaded)
     p = effect_report(e, np.array([0.5, 0.0, 0.0]), np.diag([np.inf, 1.0, 1.0]), REFS, SI_UNITS,

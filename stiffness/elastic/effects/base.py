@@ -370,7 +370,7 @@ def scale_note(width: float, size: float, unit: str) -> str:
     if not math.isfinite(width):
         return f"no finite 95 % interval, its physical scale {size:.3g} {unit}"
     relation = "narrower than" if width < size else "wider than"
-    return f"95 % interval {width:.3g} {unit} wide, {relation} its physical scale {size:.3g}"
+    return f"95 % interval {width:.3g} {unit} wide, {relation} its physical scale {size:.3g} {unit}"
 
 
 def judged(name: str, value: float, standard_error: float, ci95: tuple[float, float],
