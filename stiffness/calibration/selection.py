@@ -468,8 +468,9 @@ class Noise:
         the replicated kind's (share ``share``) holds its pure error, exactly ``nu`` once
         divided by its own estimate, and its lack of fit over ``l = (n - p) share - nu``
         degrees of freedom divided by that estimate, ``l F(l, nu)``. So ``rss / sigma^2 - nu``
-        is ``chi2(a) + l F(l, nu)``, the two independent (:func:`_chi2_plus_f_sf`); exact but
-        for the split of ``p`` for a linear model.
+        is ``chi2(a) + l F(l, nu)``, the two independent (:func:`_chi2_plus_f_sf`): an
+        approximation even for a linear model, in the split of ``p`` and in that the fit's
+        projection moves with the estimated weight.
         """
         estimated_share, nu = ((self.rotations, self.rotation_dof) if self.dof is None
                                else (1.0 - self.rotations, self.dof))
