@@ -637,12 +637,10 @@ class DeflectionSearch:
         """Nothing: a deflection diagnosis keeps the added steps only."""
 
     def without(self, final: Fit) -> list[Fit]:
-        model = final.model
-        return fitting.fit_models([fit_job(
-            model.with_effects(model.effects[:i] + model.effects[i + 1:]), self.measured,
-            final.scale, np.delete(final.x, np.arange(model.offsets[i + 1], model.offsets[i + 2])),
-            loss=final.loss, f_scale=final.f_scale) for i in range(len(model.effects))],
-            self.workers)
+        """``final`` without each effect and those acting through it, refitted in order."""
+        parts = [final.model.without(i, final.x) for i in range(len(final.model.effects))]
+        return fitting.fit_models([fit_job(m, self.measured, final.scale, x, loss=final.loss,
+                                           f_scale=final.f_scale) for m, x in parts], self.workers)
 
     def held_out_of(self, fits: list[Fit]) -> list[float]:
         return cross_validate(fits, self.measured, self.folds, self.workers)
@@ -678,9 +676,11 @@ class DeflectionSearch:
         return fit, winner.cv_rms
 
     def removable(self, final: Fit) -> list[bool]:
-        """Every effect not forced (``--families``; none acts through another)."""
+        """Every effect not forced (``--families``), none acting through it (a joint law at
+        the joint whose spring it adds, :meth:`Hypothesis.through`)."""
         forced = {s.label for s in self.steps if s.forced}
-        return [e.label not in forced for e in final.model.effects]
+        return [e.label not in forced and final.model.through(i) == [i]
+                for i, e in enumerate(final.model.effects)]
 
     def remove(self, final: Fit, index: int, fit: Fit) -> DeflectionEffect:
         effect = final.model.effects[index]

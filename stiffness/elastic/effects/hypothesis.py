@@ -154,6 +154,24 @@ class Hypothesis:
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, effects,
                           self.refs, self.rotation_weight, self.held)
 
+    def through(self, i: int) -> list[int]:
+        """Effect ``i`` and the effects acting through it, by position: the joint laws
+        (:attr:`DeflectionEffect.through_law`) at the joint whose spring it adds
+        (:attr:`DeflectionEffect.adds_spring`), which have no joint to act on without it."""
+        e = self.effects[i]
+        return [j for j, f in enumerate(self.effects) if j == i or (
+            e.adds_spring and f.through_law and f.where == e.where)]
+
+    def without(self, i: int, x: np.ndarray) -> tuple[Hypothesis, np.ndarray]:
+        """The model without effect ``i`` and those acting through it (:meth:`through`), and
+        ``x`` (its parameter vector) without their parameters."""
+        gone = self.through(i)
+        keep = np.ones(x.size, dtype=bool)
+        for j in gone:
+            keep[self.offsets[j + 1]: self.offsets[j + 2]] = False
+        return self.with_effects(tuple(e for j, e in enumerate(self.effects)
+                                       if j not in gone)), x[keep]
+
     def holding(self, held: dict[str, Held]) -> Hypothesis:
         """The same model with the parameters of ``held`` (label: why) held too."""
         return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
