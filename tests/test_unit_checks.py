@@ -212,3 +212,47 @@ def test_reversed_deflections_and_unloaded_campaigns_are_warned_about(tmp_path):
     assert caught(lambda: load_campaign(_table2_with(
         tmp_path / "n", lambda cells: negate({10, 11, 12})(cells) if next(flipped) < 2
         else cells))) == []
+
+
+def slipped(source: Path, folder: Path, config: str, columns: tuple[str, ...]) -> Path:
+    """A copy of campaign ``source`` whose ``columns`` on the rows of ``config`` are divided by
+    1000 (that configuration's numbers written in a unit 1000x larger)."""
+    shutil.copytree(source, folder)
+    data = folder / "measurements.csv"
+    lines = data.read_text().splitlines()
+    header = lines[0].split(",")
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        if cells[0] == config:
+            for c in columns:
+                cells[header.index(c)] = repr(float(cells[header.index(c)]) / 1000)
+        out.append(",".join(cells))
+    data.write_text("\n".join(out) + "\n")
+    return folder
+
+
+def test_one_configuration_in_another_unit_is_named(tmp_path):
+    """One configuration's deflections written in m (or its forces in kN) among a campaign in
+    mm and N: the campaign-wide medians stay plausible, a least-squares diagnosis then names
+    a stand-in and an effect that is not there (a UR5 of 6 configurations: gravity_preload
+    and nonlinear_joint_stiffness, 20 rows flagged); the configuration is named with its
+    factor, 1000 either way, and a clean campaign is no false alarm."""
+    from stiffness.planning.simulate import simulate
+
+    clean = tmp_path / "clean"
+    simulate("ur5", kq=[2e4, 2e4, 1e4, 3e3, 3e3, 3e3], configs=6, loads_per_config=3,
+             seed=7).write(clean)
+
+    def slip_messages(folder: Path) -> list[str]:
+        return [m for m in caught(lambda: load_campaign(folder))
+                if "per unit load of configuration" in m]
+
+    assert slip_messages(clean) == []
+    for config, columns, factor, words in (
+            ("C3", ("dx", "dy", "dz"), 1e-3, "deflections in a larger unit (m among mm)"),
+            ("C2", ("fx", "fy", "fz"), 1e3, "forces in a larger one (kN among N)")):
+        messages = slip_messages(slipped(clean, tmp_path / config, config, columns))
+        assert len(messages) == 1 and words in messages[0], messages
+        said = float(messages[0].split(f"configuration {config} (")[1].split("x)")[0])
+        assert said == pytest.approx(factor, rel=0.5), messages

@@ -90,6 +90,7 @@ from stiffness.calibration.campaign_toml import (
 from stiffness.calibration.coordinate_columns import fixed_values
 from stiffness.calibration.measurements import coordinates_in_si, read_rows, warn_copied_rows
 from stiffness.calibration.unit_checks import (
+    check_configuration_units,
     check_deflection_sign,
     check_deflection_size,
     check_force_unit,
@@ -366,6 +367,7 @@ def load_campaign(path: str | os.PathLike) -> Campaign:
     check_deflection_sign(force, moment, deflection, data_path)
     if check_deflection_size(robot, deflection, force, units, data_path):
         check_force_unit(robot, q, force, moment, deflection, units, data_path)
+    check_configuration_units(robot, q, force, moment, deflection, list(labels), data_path)
     if not has_rotation and rot_noise is not None:
         raise toml.error(f"[measurement] {rot_key} is given but {data_name} has no "
                          "rotation columns rx,ry,rz; add them after dz (or after mz) or drop "

@@ -56,6 +56,7 @@ from stiffness.calibration.coordinate_columns import (
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
 from stiffness.calibration.unit_checks import (
+    check_configuration_units,
     check_deflection_sign,
     check_deflection_size,
     check_force_unit,
@@ -591,6 +592,7 @@ def import_campaign(files: list[str | os.PathLike], robot_settings: RobotSetting
     check_deflection_sign(f_si, m_si, d_si, first.path)
     if check_deflection_size(robot, d_si, f_si, units, first.path):
         check_force_unit(robot, q_si, f_si, m_si, d_si, units, first.path)
+    check_configuration_units(robot, q_si, f_si, m_si, d_si, list(labels), first.path)
     campaign = Campaign(name=name, baseline=baseline, robot_settings=robot_settings, q=q_si,
                         force=f_si, deflection=d_si, config=tuple(labels), moment=m_si,
                         noise_std_m=None if noise_std is None else noise_std
