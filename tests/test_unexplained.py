@@ -112,6 +112,8 @@ def test_out_of_library_is_unexplained_and_names_nothing():
             "by_row_order"} <= set(structure)
     text = format_report(drift)
     assert "UNEXPLAINED" in text and "row order: R2" in text
+    # the intervals printed above the verdict say they take the model as complete
+    assert "too narrow while it misses something" in text.split("UNEXPLAINED")[0]
     full = drift.record()
     assert full["unexplained"] is True and full["missing_effects"] == []
     notes = drift.model_file().to_dict()
@@ -136,6 +138,9 @@ def test_nothing_hidden_comes_back_empty():
     # Bin(n, 38/45)
     assert empty >= binom.ppf(0.01, len(runs), 38 / 45), [
         r.summary()["missing_effects"] for r in runs]
+    # a model explained to noise has intervals to sign: no caveat on them
+    assert all("too narrow while" not in format_report(r) for r in runs
+               if r.summary()["unexplained"] is False)
 
 
 def test_library_effect_with_an_unexplained_rest():

@@ -117,6 +117,9 @@ def format_report(d: Diagnosis) -> str:
         f"{p.name} {p.value:.5g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}"
         for p in d.final_stiffness if p.determined))
     lines += [f"  {p.text()}" for p in d.final_stiffness if not p.determined]
+    if d.unexplained:  # identify's note on a fit above the noise, said where the numbers are
+        lines.append("  these 95 % intervals (and the effects') take the final model as "
+                     "complete: too narrow while it misses something (UNEXPLAINED, below)")
     ratio = d.final.rms() / d.noise_std_m
     lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
                  f"stopped: {d.stop_reason}")
