@@ -41,7 +41,8 @@ UR5_SOFT = {**UR5, "kq": [1e4, 1e4, 8e3], "max_force": 150.0}
 SK120 = {"robot": "sk120", "max_force": 400.0}
 NOISE = 5e-6
 SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missing_effects",
-                "unexplained", "final_rms", "unit", "loss", "masses", "outlier_threshold",
+                "unexplained", "final_rms", "final_stiffness", "final_parameters", "unit",
+                "loss", "masses", "outlier_threshold",
                 "outliers",
                 "rms_by_kind", "identifiability", "how_sure", "selection"}
 
@@ -279,6 +280,16 @@ def test_cli_json_and_files(tmp_path, capsys, monkeypatch):
     assert model["k_theta"]["joints"] == ["joint1", "joint2", "joint3"]
     assert model["effects"][0]["kind"] == "measurement"
     assert model["effects"][0]["parameters"]["fx"]["unit"] == "N"
+    # --json holds the final model's values, not only each step's (a step's force bias is
+    # the fit at its step: the final one moves when later effects join)
+    final = summary["final_parameters"]["force_sensor_bias"]
+    for axis in ("fx", "fy", "fz"):
+        assert final[axis] == model["effects"][0]["parameters"][axis]
+    for j, k, low in zip(model["k_theta"]["joints"], model["k_theta"]["values"],
+                         model["k_theta"]["ci95"]["low"], strict=True):
+        stiff = summary["final_stiffness"][j]
+        assert stiff["unit"] == "N.m/rad" and stiff["value"] == pytest.approx(k, rel=1e-12)
+        assert stiff["ci95"][0] == pytest.approx(low, rel=1e-12)
     full = json.loads((out / DIAGNOSIS_FILE).read_text())
     assert "where_baseline_disagrees" in full and "by_load_sign" in full[
         "where_baseline_disagrees"]

@@ -241,6 +241,9 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "missing_effects": self.missing_effects,
             "unexplained": self.unexplained,
             "final_rms": self._len(self.final.rms()),
+            "final_stiffness": {p.name: p.to_dict() for p in self.final_stiffness},
+            "final_parameters": {label: {p.name: p.to_dict() for p in params}
+                                 for label, params in self.final_parameters.items()},
             "unit": self.unit,
             "loss": self.loss,
             "masses": self.masses,
@@ -294,7 +297,6 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "cv_rms": {"baseline": self._len(self.cv_baseline),
                        "steps": [self._len(s.cv_rms) for s in self.steps]},
             "baseline_stiffness": {p.name: p.to_dict() for p in self.baseline_stiffness},
-            "final_stiffness": {p.name: p.to_dict() for p in self.final_stiffness},
             "step_details": [{"effect": s.effect.name, "where": s.effect.where,
                               "description": s.effect.describe(),
                               "delta_bic": s.delta_bic, "dispersion": s.dispersion,
