@@ -18,7 +18,32 @@ from stiffness.calibration.validation import Validation
 def validation(rows: int, rms: float, noise_std: float | None) -> Validation:
     """A validation of ``rows`` rows leaving a 3-D error RMS ``rms`` (no model evaluated)."""
     return Validation(model="m", campaign="c", kind="poses", robot={}, noise_std=noise_std,
-                      errors={"rms": rms, "rows": rows})
+                      errors={"rms": rms, "rows": rows,
+                              "markers": {"tip": {"rms": rms, "rows": rows}}})
+
+
+def test_two_markers_count_every_seen_position():
+    """Two markers on 25 rows, one unseen on 5 of them: the chi-square sums the 45 seen
+    3-D errors' squares over 135 components, computed here from the errors themselves (the
+    verdict counted 3 per row, 75, and the squares of 25 mean errors: half the test for a
+    two-marker campaign, p = 0.096 'consistent' where the 150 components gave about 0.035)."""
+    import numpy as np
+
+    from stiffness.calibration.breakdown import error_summary
+
+    rng = np.random.default_rng(3)
+    sigma = 2e-5
+    err = np.linalg.norm(rng.normal(0.0, 1.2 * sigma, (25, 2, 3)), axis=2)
+    err[:5, 1] = np.nan
+    errors = {**error_summary(err, 1.0), "rows": 25,
+              "markers": {name: error_summary(err[:, k], 1.0)
+                          for k, name in enumerate(("tip", "elbow"))}}
+    v = Validation(model="m", campaign="c", kind="poses", robot={}, noise_std=sigma,
+                   errors=errors)
+    assert v.components == 3 * 45
+    chi2 = float(np.nansum(err ** 2) / sigma ** 2)
+    assert abs(v.chi2 - chi2) <= 1e-9 * chi2
+    assert abs(v.gof() - stats.chi2.sf(chi2, 135)) <= 1e-9
 
 
 @given(rows=st.integers(1, 300), ratio=st.floats(0.0, 3.0), sigma=st.floats(1e-6, 1e-2))

@@ -15,8 +15,8 @@ The campaign must be of the model's robot: the same source, or the same coordina
 kinematics (:func:`stiffness.robot.calibration.kinematic_fingerprint`); another robot is
 refused with one line. With the campaign's declared noise ``sigma`` the verdict is a
 chi-square test of the position residual: ``chi2 = sum r^2 / sigma^2`` over the ``3 n`` seen
-components (nothing is refitted), its p-value against ``chi2(3 n)`` and the ratio
-``rms_3d / (sqrt(3) sigma)`` (1 for a model that predicts to the noise).
+components (``n`` the markers seen over all rows; nothing is refitted), its p-value against
+``chi2(3 n)`` and the ratio ``rms_3d / (sqrt(3) sigma)`` (1 for a model that predicts to the noise).
 """
 
 from __future__ import annotations
@@ -106,12 +106,14 @@ class Validation:
 
     @property
     def components(self) -> int:
-        """Seen residual components (3 per seen marker or row)."""
-        return 3 * int(self.errors["rows"] or 0)
+        """Seen residual components: 3 per marker seen on a row (its ``markers``' counts;
+        ``rows`` counts the campaign's rows, which two markers see twice)."""
+        return 3 * sum(int(m["rows"] or 0) for m in self.errors["markers"].values())
 
     @property
     def chi2(self) -> float | None:
-        """``sum r^2 / sigma^2`` over the seen components, or ``None`` without a noise."""
+        """``sum r^2 / sigma^2`` over the seen components (``rms`` is that of the 3-D errors
+        of every seen marker), or ``None`` without a noise."""
         if self.noise_std is None or self.errors["rms"] is None:
             return None
         return float((self.errors["rms"] / self.noise_std) ** 2 * self.components / 3)
