@@ -12,7 +12,7 @@ campaign (``--validate``).
 from __future__ import annotations
 
 from stiffness.calibration.validation_page import validation_section
-from stiffness.elastic.effects.base import confounded_note
+from stiffness.elastic.effects.base import confounded_note, place_label
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -315,9 +315,10 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts += how_sure_table(d, unit)
     parts.append(heading("parameters", SECTIONS))
     rows = parameter_rows("joint stiffness", d["final_stiffness"])
+    final = d["final_parameters"]  # the final fit's values: a step's are its fit at that step
     for s in _kept(d["steps"]):
         rows += parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
-                                s["parameters"])
+                               final.get(place_label(s["effect"], s.get("where")), {}))
     parts.append(table("Identified parameters of the final model",
                        ["part", "parameter", "value", "standard error", "95 % interval",
                         "unit"], rows,
