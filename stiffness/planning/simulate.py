@@ -215,6 +215,8 @@ class Truth:
     model
         The true robot as an elastic model (:class:`stiffness.elastic.model.ElasticModel`), of
         which the truth holds the parts its deflections need.
+    zero_offsets
+        (n_coordinates,) ``joint_offsets`` (rad, m): each row is exactly at its coordinates plus it.
     """
 
     robot: Robot
@@ -228,6 +230,7 @@ class Truth:
     payload: tuple[float, np.ndarray] = (0.0, np.zeros(3))
     compensators: list[tuple[str, float, float, dict]] = field(default_factory=list)
     model: ElasticModel | None = None
+    zero_offsets: np.ndarray | float = 0.0
 
     @classmethod
     def of_model(cls, model: ElasticModel, chain: tuple[str, ...]) -> Truth:
@@ -293,7 +296,7 @@ class Truth:
         for i, (c, f) in enumerate(zip(coords, force, strict=True)):
             key = tuple(c)
             if key not in q0:
-                q0[key] = self.robot.configuration(c)
+                q0[key] = self.robot.configuration(c + self.zero_offsets)
                 rest[key] = self._unloaded(q0[key], mode)
             out[i] = self._row(q0[key], f, mode, rest[key])
         turn = rotation_matrix(self.misalignment)
@@ -393,7 +396,9 @@ def build_truth(declared: Robot, kq: np.ndarray, effects: list[HiddenEffect], un
                                    declared.model.getJointId(b), reference)
                for a, b, _, _ in parts.bends}
     model = ElasticModel.of_parts(robot, parts, link_columns=columns)
-    return Truth.of_model(model, geometry.chain)
+    truth = Truth.of_model(model, geometry.chain)
+    truth.zero_offsets = np.array([parts.zero_offsets.get(j, 0) for j in robot.coordinate_joints])
+    return truth
 
 
 # ------------------------------------------------------------------------------------------
@@ -470,7 +475,8 @@ class Simulation:
                 "frame_misalignment": self.campaign.units.angle,
                 "target_offset": self.campaign.units.length,
                 "force_sensor_bias": self.campaign.units.force,
-                "deflection_offset": self.campaign.units.length,
+                "deflection_offset": self.campaign.units.length, "joint_offsets":
+                f"{self.campaign.units.angle} ({self.campaign.units.length} prismatic)",
                 "gravity_preload": f"kg, then {self.campaign.units.length} (target frame)",
                 "gravity_compensator": "N/m, N, then lever and base in m"},
             "settings": settings,

@@ -73,6 +73,12 @@ The deflection campaigns' library (:data:`LIBRARY`):
     upward direction at zero load (:func:`stiffness.mechanics.gravity.compensator_torque`;
     parameters its stiffness N/m and its tension N with the link straight up): its torque
     preloads the joint, its angle derivative adds to the joint's stiffness.
+``joint_offsets``
+    The joints' zero offsets ``delta_0`` (rad, m): the loaded and unloaded tool are at
+    ``q + delta_0``, seen to first order through the Jacobian there,
+    ``J -> J + sum_j delta_j dJ/dq_j`` in the load's torques and the output (a second-order
+    effect: an offset times the deflection); one parameter per chain joint whose offset moves
+    the rows' Jacobian (open chains without a controller map).
 
 The pose model's families (:data:`FAMILIES`, in column order; docs/absolute-poses.md):
 ``frame``, ``markers``, ``joint_offsets``, ``geometry`` (geometric:
@@ -135,16 +141,17 @@ LIBRARY: dict[str, type[DeflectionEffect]] = {
     cls.name: cls for cls in (ComplementaryStiffness, JointCompliance, LinkCompliance,
                               TransversalCompliance, Backlash, NonlinearJointStiffness,
                               FrameMisalignment, TargetOffset, ForceSensorBias, DeflectionOffset,
-                              GravityPreload, GravityLumped, GravityCompensator)
+                              GravityPreload, GravityLumped, GravityCompensator, JointOffsets)
 }
 #: The parameter families of an absolute-pose model, the effects with a pose face: name ->
 #: class, in the order the columns are laid out.
 FAMILIES: dict[str, type[PoseFamily]] = {
     name: cls for name, cls in EFFECTS.items() if issubclass(cls, PoseFamily)
 }
-#: Effects the issue requires (``deflection_offset`` and ``gravity_lumped``, the weight of
-#: unknown masses, are extras).
-REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n not in ("deflection_offset", "gravity_lumped"))
+#: Effects the issue requires (``deflection_offset``, ``gravity_lumped``, the weight of unknown
+#: masses, and ``joint_offsets``, the joints' zero offsets, are extras).
+REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n not in ("deflection_offset", "gravity_lumped",
+                                                          "joint_offsets"))
 #: What a campaign's robot's link masses are: ``known`` (the URDF's inertias: the weight is
 #: ``gravity_preload``) or ``unknown`` (``gravity_lumped`` fits their gravity parameters).
 MASSES = ("known", "unknown")
@@ -187,7 +194,9 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     compliant joint; then the global effects, the weight as ``gravity_preload`` with the
     ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`); ``gravity_compensator`` of
     each revolute compliant joint carrying one link (not a controller coordinate that turns
-    several chain joints: :meth:`JointEffect.placement_problem`). An effect whose label
+    several chain joints: :meth:`JointEffect.placement_problem`); ``joint_offsets`` of the
+    chain's joints whose offset changes the rows' Jacobian (:meth:`JointOffsets.on_rows`; open
+    chains without a controller map). An effect whose label
     ``declared`` names takes those settings (:meth:`DeflectionEffect.declare`).
     """
     geo = model.geometry
@@ -222,4 +231,8 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
         if not (geo.prismatic[geo.joints.index(j)]
                 or GravityCompensator.placement_problem(geo.robot, j)):
             add(make_effect("gravity_compensator", j, geo))
+    if not JointOffsets.placement_problem(geo):
+        offsets = JointOffsets.at_place(None, geo).on_rows(model, model.rows)
+        if offsets.joints:
+            add(offsets)
     return out

@@ -36,11 +36,11 @@ class HypothesisArrays(Protocol):
 class DeflectionEffect(Effect):
     """An effect with a deflection-campaign face: its part of the prediction of a campaign's
     rows, whose Jacobian columns :class:`~stiffness.elastic.effects.hypothesis.Hypothesis`
-    takes analytically where :attr:`through_law` or :attr:`linear_motion` says they are
-    affine. Hooks default to nothing: the joint's law (:meth:`adjust_law`), the load
-    (:meth:`adjust_load`), the target (:meth:`target_shift`), an extra displacement
-    (:meth:`target_motion`), the measured output (:meth:`output_map`), a preload
-    (:meth:`preload`)."""
+    takes analytically where :attr:`through_law`, :attr:`linear_motion` or
+    :attr:`moves_jacobian` says they are affine. Hooks default to nothing: the joint's law
+    (:meth:`adjust_law`), the load (:meth:`adjust_load`), the target (:meth:`target_shift`),
+    the Jacobian (:meth:`jacobian_change`), an extra displacement (:meth:`target_motion`), the
+    measured output (:meth:`output_map`), a preload (:meth:`preload`)."""
 
     #: whether the model gets ``K_C`` and the second-order kinematics
     second_order: ClassVar[bool] = False
@@ -54,6 +54,10 @@ class DeflectionEffect(Effect):
     #: model then takes their columns exactly, as the motion at unit variables
     #: (:attr:`Hypothesis.analytic_columns`)
     linear_motion: ClassVar[bool] = False
+    #: whether the variables enter only through :meth:`jacobian_change`, linearly (joint zero
+    #: offsets): the model then differentiates the prediction with respect to them
+    #: analytically, through the torques ``J^T W`` and the output ``J dtheta``
+    moves_jacobian: ClassVar[bool] = False
 
     def adjust_load(self, p: np.ndarray, force: np.ndarray, moment: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -73,6 +77,13 @@ class DeflectionEffect(Effect):
                       ) -> tuple[np.ndarray, np.ndarray] | None:
         """(m, 3) extra target displacement (m) and (m, 3) extra rotation of the target frame
         (rad, base axes), or ``None``."""
+        return None
+
+    def jacobian_change(self, p: np.ndarray, model: HypothesisArrays, rows: Rows
+                        ) -> np.ndarray | None:
+        """(m, 6, n) change of the target Jacobian over the model's joints (:attr:`index` of
+        ``model``), rows ``[v; omega]``, linear in ``p`` (called when :attr:`moves_jacobian`),
+        or ``None``: it moves the load's torques ``J^T W`` and the output ``J dtheta`` alike."""
         return None
 
     def output_map(self, p: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:

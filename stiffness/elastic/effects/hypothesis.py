@@ -269,12 +269,14 @@ class Hypothesis:
     def analytic_columns(self) -> np.ndarray:
         """(p,) mask of the parameters :meth:`predict_with_jacobian` differentiates: ``ln k``,
         the variables of effects acting through the joint law
-        (:attr:`DeflectionEffect.through_law`) and those of effects moving the target linearly
-        (:attr:`DeflectionEffect.linear_motion`); the fitting engine differentiates the others
+        (:attr:`DeflectionEffect.through_law`), of effects moving the target linearly
+        (:attr:`DeflectionEffect.linear_motion`) and of effects changing the Jacobian linearly
+        (:attr:`DeflectionEffect.moves_jacobian`); the fitting engine differentiates the others
         numerically."""
         mask = np.ones(self.n_params, dtype=bool)
         for i, e in enumerate(self.effects):
-            mask[self.offsets[i + 1]: self.offsets[i + 2]] = e.through_law or e.linear_motion
+            mask[self.offsets[i + 1]: self.offsets[i + 2]] = (e.through_law or e.linear_motion
+                                                              or e.moves_jacobian)
         return mask
 
     def _motion_columns(self, rows: Rows, force: np.ndarray, moment: np.ndarray,
@@ -296,6 +298,38 @@ class Hypothesis:
                 assert motion is not None  # a linear motion moves the target
                 out.append((int(analytic[self.offsets[i + 1] + k]), motion[0], motion[1]))
         return out
+
+    def _moved_jacobian(self, params: list[np.ndarray], jv: np.ndarray, jw: np.ndarray,
+                        force: np.ndarray, moment: np.ndarray, tangent: bool
+                        ) -> tuple[np.ndarray, np.ndarray, list, np.ndarray | None]:
+        """The Jacobian ``J + sum_e dJ_e`` of the effects changing it
+        (:meth:`DeflectionEffect.jacobian_change`) and, with ``tangent``, each of their
+        variables' ``(position among the analytic columns, dJ / d u (m, 6, n))`` with the
+        torques' tangent ``d (J^T W) / d u`` (m, n, P) over the analytic columns (``None``
+        without such an effect); exact, the change being linear in its variables."""
+        moved, t_tau = [], None
+        analytic = np.cumsum(self.analytic_columns) - 1
+        for i, (e, p) in enumerate(zip(self.effects, params, strict=True)):
+            if not e.moves_jacobian:
+                continue
+            change = e.jacobian_change(p, self, self.rows)
+            if change is not None:
+                jv, jw = jv + change[:, :3], jw + change[:, 3:]
+            if not tangent:
+                continue
+            scale = e.scale(self.refs)
+            for k in range(e.n_params):
+                unit = np.zeros(e.n_params)
+                unit[k] = scale[k]
+                d_j = e.jacobian_change(unit, self, self.rows)
+                assert d_j is not None  # a Jacobian-moving effect moves it
+                moved.append((int(analytic[self.offsets[i + 1] + k]), d_j))
+        if moved:
+            t_tau = np.zeros(jv.shape[:1] + jv.shape[2:] + (int(self.analytic_columns.sum()),))
+            for column, d_j in moved:
+                t_tau[:, :, column] = (np.einsum("mkn,mk->mn", d_j[:, :3], force)
+                                       + np.einsum("mkn,mk->mn", d_j[:, 3:], moment))
+        return jv, jw, moved, t_tau
 
     def predict_with_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted displacements (m, 3) and their derivatives (m, 3, p) w.r.t. ``x`` in
@@ -433,6 +467,7 @@ class Hypothesis:
             if shift is not None:
                 jv = jv - skew(shift) @ jw
                 point = point + shift
+        jv, jw, moved, t_tau = self._moved_jacobian(params, jv, jw, force, moment, tangent)
         tau0 = np.einsum("mkn,mk->mn", jv, force) + np.einsum("mkn,mk->mn", jw, moment)
         law = self.law(x, params)
         directions = self._law_directions(x, law) if tangent else None
@@ -447,7 +482,7 @@ class Hypothesis:
                 pre_k = pre[1] if pre_k is None else pre_k + pre[1]
 
         dtheta, t_theta, unloaded, t_unloaded = self._joint_deflection(
-            law, directions, tau0, k_c, pre_tau, pre_k)
+            law, directions, tau0, k_c, pre_tau, pre_k, t_tau)
         sag = (dtheta, t_theta, unloaded, t_unloaded)
         dx, t_dx = self._output(jv, self.h[:, :3], *sag)
         motions = [e.target_motion(p, self, rows, force, moment, point)
@@ -460,6 +495,8 @@ class Hypothesis:
             moving = self._motion_columns(rows, force, moment, point)
             for column, d_dx, _ in moving:
                 t_dx[:, :, column] += d_dx
+            for column, d_j in moved:  # the output's own Jacobian: dJ_v dtheta
+                t_dx[:, :, column] += np.einsum("mkn,mn->mk", d_j[:, :3], dtheta)
         maps = [e.output_map(p) for e, p in zip(self.effects, params, strict=True)]
         for rot, offset in maps:
             if rot is not None:
@@ -470,6 +507,9 @@ class Hypothesis:
                 dx = dx + offset
         if self.rotation_weight is not None:  # K_C of unit moments: the rotation's H
             dphi, t_phi = self._output(jw, self.h[:, 3:], *sag)
+            for column, d_j in moved:
+                if t_phi is not None:  # with the tangent
+                    t_phi[:, :, column] += np.einsum("mkn,mn->mk", d_j[:, 3:], dtheta)
             for extra in motions:
                 if extra is not None:
                     dphi = dphi + extra[1]
@@ -515,9 +555,11 @@ class Hypothesis:
 
     def _joint_deflection(self, law: SpringLaw, directions: tuple | None, tau0: np.ndarray,
                           k_c: np.ndarray | None, pre_tau: np.ndarray | None,
-                          pre_k: np.ndarray | None) -> tuple:
+                          pre_k: np.ndarray | None, t_tau: np.ndarray | None = None) -> tuple:
         """Joint deflections (m, n) of the rows under the load torques ``tau0`` (frozen
-        geometry, ``K_C`` = ``k_c``), with ``directions`` their (m, n, P) tangent; under a
+        geometry, ``K_C`` = ``k_c``), with ``directions`` their (m, n, P) tangent (and that of
+        the load torques' changes ``t_tau`` (m, n, P), if any: ``(I - diag(f') K) d dtheta =
+        diag(f') d tau0`` at the loaded equilibrium, ``K`` its stiffness); under a
         preload (torque ``pre_tau``, stiffness ``pre_k``) the loaded minus the unloaded
         equilibrium, and the unloaded one (the sag) with its tangent when the rows' angles are
         motor-side (else ``None``, the rows' pose being the preloaded one).
@@ -528,19 +570,23 @@ class Hypothesis:
         """
         tangent = directions is not None
 
-        def equilibrium(torque, stiffness):
+        def equilibrium(torque, stiffness, loaded=False):
             d = law.frozen_deflection(torque, stiffness, LAW_ITERATIONS)
-            return d, (law.deflection_tangent(torque, stiffness, d, *directions)
-                       if tangent else None)
+            if not tangent:
+                return d, None
+            t = law.deflection_tangent(torque, stiffness, d, *directions)
+            if loaded and t_tau is not None:
+                t = t + torque_response(law, torque, stiffness, d, t_tau)
+            return d, t
 
         if pre_tau is None or pre_k is None:
-            dtheta, t_theta = equilibrium(tau0, k_c)
+            dtheta, t_theta = equilibrium(tau0, k_c, loaded=True)
             return dtheta, t_theta, None, None
         unloaded, t_unloaded = equilibrium(pre_tau, pre_k)
         stiffness = pre_k if k_c is None else k_c + pre_k
         if self.rows.joint_angles == "link" and k_c is not None:
             torque = tau0 + pre_tau - np.einsum("mab,mb->ma", k_c, unloaded)
-            loaded, t_loaded = equilibrium(torque, stiffness)
+            loaded, t_loaded = equilibrium(torque, stiffness, loaded=True)
             if tangent:  # the torque moves with the unloaded deflection
                 slope = law(torque + np.einsum("mab,mb->ma", stiffness, loaded))[1]
                 eye = np.eye(slope.shape[-1])
@@ -548,7 +594,7 @@ class Hypothesis:
                                            slope[..., :, None] * eye)
                 t_loaded = t_loaded - response @ (k_c @ t_unloaded)
         else:
-            loaded, t_loaded = equilibrium(tau0 + pre_tau, stiffness)
+            loaded, t_loaded = equilibrium(tau0 + pre_tau, stiffness, loaded=True)
         dtheta = loaded - unloaded
         t_theta = t_loaded - t_unloaded if tangent else None
         if self.rows.joint_angles == "link":
@@ -559,3 +605,17 @@ class Hypothesis:
         """E.g. ``enhanced over joint1, joint2 + backlash(joint2)``."""
         text = f"{self.baseline} over {', '.join(self.compliant)}"
         return text + "".join(f" + {e.label}" for e in self.effects)
+
+
+def torque_response(law: SpringLaw, tau0: np.ndarray, k_c: np.ndarray | None,
+                    dtheta: np.ndarray, t_tau: np.ndarray) -> np.ndarray:
+    """(m, n, P) change of :meth:`~stiffness.mechanics.equilibrium.SpringLaw.frozen_deflection`'s
+    ``dtheta = f(tau0 + K_C dtheta)`` along changes ``t_tau`` (m, n, P) of the torques
+    ``tau0``: the implicit function theorem, ``(I - diag(f') K_C) d dtheta = diag(f') d tau0``
+    with ``f'`` the law's slope at the equilibrium's torque (``K_C = None``: ``diag(f')``)."""
+    tau = tau0 if k_c is None else tau0 + np.einsum("...ab,...b->...a", k_c, dtheta)
+    slope = law(tau)[1]
+    if k_c is None:
+        return slope[..., :, None] * t_tau
+    return np.linalg.solve(np.eye(tau.shape[-1]) - slope[..., :, None] * k_c,
+                           slope[..., :, None] * t_tau)

@@ -2,22 +2,26 @@
 (:class:`~stiffness.elastic.effects.pose_face.PoseFamily`): the measuring frame (``frame``),
 the markers' offsets and 6-D probes' mounting turns (``markers``), the joints' zero offsets
 (``joint_offsets``) and the joints' placement errors (``geometry``); docs/absolute-poses.md,
-:mod:`stiffness.calibration.pose_model`. They have no deflection face (no
-:class:`~stiffness.elastic.effects.deflection_face.DeflectionEffect`).
+:mod:`stiffness.calibration.pose_model`. The joints' zero offsets also have a deflection face
+(:class:`~stiffness.elastic.effects.deflection_face.DeflectionEffect`: the loaded and unloaded
+tool at ``q + delta_0``, through the Jacobian there); the others have none.
 
 Units: SI (m, rad).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements
-from stiffness.elastic.effects.geometry import References, skew
+from stiffness.elastic.effects.deflection_face import HypothesisArrays, Settings
+from stiffness.elastic.effects.geometry import Geometry, References, Rows, skew
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
     MarkerView,
@@ -25,6 +29,7 @@ from stiffness.elastic.effects.pose_face import (
     PoseLayout,
     RowTerms,
 )
+from stiffness.errors import StiffnessError
 from stiffness.robot.calibration import (
     PLACEMENT_AXES,
     PLACEMENT_UNITS,
@@ -125,12 +130,139 @@ class MarkerOffsets(PoseFamily):
         return out, cols
 
 
-class JointOffsets(PoseFamily):
-    """``joint_offsets``: each 1-dof joint's zero offset (rad, m for a prismatic joint)."""
+#: A joint whose offset changes a deflection campaign's Jacobian by less than this fraction of
+#: the largest joint's change is not a parameter of ``joint_offsets``' deflection face (a tool
+#: on the last joint's axis: that joint's offset moves nothing the campaign observes).
+OFFSET_NEGLIGIBLE = 1e-9
+#: The size of a sizeable zero offset (rad, m): one optimiser unit of the deflection face.
+OFFSET_SCALE = 1e-3
 
+
+@dataclass(eq=False)
+class JointOffsets(Settings, PoseFamily):
+    """``joint_offsets``: each 1-dof joint's zero offset ``delta_0`` (rad, m for a prismatic
+    joint): the robot is at ``q + delta_0`` where its encoders read ``q``.
+
+    Pose face: the configuration's offset (:meth:`configuration_offset`) on every 1-dof joint
+    of the pose model, its columns the markers' Jacobian.
+
+    Deflection face (a deflection campaign's candidate): the campaign observes the tool loaded
+    minus unloaded at one commanded ``q``, the same physics at ``q + delta_0``, so an offset
+    acts only through the geometry there, to first order the Jacobian
+    ``J(q + delta_0) = J + sum_j delta_j dJ/dq_j`` (:meth:`jacobian_change`), in both the load's
+    torques ``J^T W`` and the output ``J dtheta``: ``d dx = (dJ dtheta + J C dJ^T W)
+    delta_0``, second order (an offset times the deflection). ``dJ[k, b]/dq_j = K_C(e_k)[b,
+    j]`` from the rows' ``K_C`` of unit wrenches (:attr:`Rows.k_c_unit`,
+    :func:`stiffness.mechanics.formulation.target_states`); ``K_C``'s own change (third order)
+    is left out. Its parameters are the offsets of :attr:`joints`: the spring joints of the
+    target's chain on an open chain without a controller map, less those whose offset changes
+    no row's Jacobian (:meth:`on_rows`); each judged against half a turn (the pose face's
+    physical scale)."""
+
+    #: the joints whose offsets are parameters (deflection face), in the geometry's order
+    joints: tuple[str, ...] = ()
+    #: whether each of :attr:`joints` is prismatic (its offset in m)
+    prismatic: tuple[bool, ...] = ()
     name: ClassVar[str] = "joint_offsets"
+    kind: ClassVar[str] = "measurement"
+    moves_jacobian: ClassVar[bool] = True
+    #: one value (every joint alike) or one per joint of :attr:`joints`
+    value_counts: ClassVar[tuple[int, ...]] = tuple(range(1, 13))
     #: a prismatic joint's zero offset beyond the reach is a unit, not an error
     plausible_reach_fraction: ClassVar[float | None] = 1.0
+
+    @classmethod
+    def at_place(cls, where, geometry=None):
+        """Every spring joint of the target's chain of ``geometry`` (unchecked without).
+
+        Raises
+        ------
+        StiffnessError
+            A place given, or a robot with closed loops or a controller map (whose coordinates
+            are not the joints an offset turns).
+        """
+        placed = super().at_place(where, geometry)
+        if geometry is None:
+            return placed
+        problem = cls.placement_problem(geometry)
+        if problem:
+            raise StiffnessError(problem)
+        joints = [j for j in geometry.joints if j in geometry.chain]
+        return cls(joints=tuple(joints), prismatic=tuple(
+            bool(geometry.prismatic[geometry.joints.index(j)]) for j in joints))
+
+    @staticmethod
+    def placement_problem(geometry: Geometry) -> str:
+        """Why a deflection campaign of ``geometry``'s robot cannot have the effect, or ""."""
+        robot = geometry.robot
+        if robot.loop.is_open_chain and robot.coupling is None:
+            return ""
+        return (f"joint_offsets in a deflection campaign needs an open chain whose coordinates "
+                f"are its joints; {robot.title} has closed loops or a controller map")
+
+    def on_rows(self, model: HypothesisArrays, rows: Rows) -> JointOffsets:
+        """This effect on the joints whose offset changes some row's Jacobian over ``model``'s
+        joints by more than :data:`OFFSET_NEGLIGIBLE` of the largest such change."""
+        geo = model.geometry
+        cols = [geo.joints.index(j) for j in self.joints]
+        size = np.sqrt(np.sum(rows.k_c_unit[:, :, model.index][..., cols] ** 2,
+                              axis=(0, 1, 2))) if cols else np.zeros(0)
+        keep = size > OFFSET_NEGLIGIBLE * max(float(size.max(initial=0.0)), 1e-300)
+        return dataclasses.replace(self, joints=tuple(np.array(self.joints)[keep].tolist()),
+                                   prismatic=tuple(np.array(self.prismatic, bool)[keep].tolist()))
+
+    def configured(self, settings):
+        return dataclasses.replace(self, joints=tuple(settings.get("joints", self.joints)),
+                                   prismatic=tuple(bool(p) for p in settings.get(
+                                       "prismatic", self.prismatic)))
+
+    def file_settings(self, refs):
+        return {"joints": list(self.joints), "prismatic": list(self.prismatic)}
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(f"{j}_zero" for j in self.joints)
+
+    def simulated_values(self, values, units):
+        """One value per joint of :attr:`joints` (``--effect joint_offsets=...``; one value:
+        every joint alike), in the angle unit (the length unit for a prismatic joint).
+
+        Raises
+        ------
+        StiffnessError
+            Another count of values.
+        """
+        if len(values) not in (1, len(self.joints)):
+            raise StiffnessError(f"joint_offsets takes one value (every joint) or one per joint "
+                                 f"of {', '.join(self.joints)}, got {len(values)}")
+        return np.resize(np.asarray(values, dtype=float), len(self.joints)) * np.array(
+            [units.length_to_si if p else units.angle_to_si for p in self.prismatic])
+
+    def contribute(self, values, parts):
+        parts.offset_zeros(self.label, dict(zip(self.joints, np.asarray(values, float).tolist(),
+                                                strict=True)))
+
+    def scale(self, refs):
+        return np.full(self.n_params, OFFSET_SCALE)
+
+    def physical_scale(self, refs):
+        """The pose face's (:meth:`physical_sizes`): half a turn for a revolute joint, the
+        robot's reach for a prismatic one."""
+        return np.array([refs.reach_m if p else math.pi for p in self.prismatic])
+
+    def units(self, units):
+        return [(units.length, units.length_to_si) if p else (units.angle, units.angle_to_si)
+                for p in self.prismatic]
+
+    def jacobian_change(self, p, model, rows):
+        """``sum_j p_j dJ/dq_j`` over the model's joints, ``dJ[k, b]/dq_j = K_C(e_k)[b, j]``
+        (m, 6, n)."""
+        cols = [model.geometry.joints.index(j) for j in self.joints]
+        return rows.k_c_unit[:, :, model.index][..., cols] @ p
+
+    def describe(self) -> str:
+        return ("the joints' zero offsets: the robot is where its encoders read plus the "
+                "offsets (the deflection seen through the Jacobian there)")
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names

@@ -49,6 +49,9 @@ class ElasticParts:
     misalignment, force_bias, deflection_offset
         The instrument's frame rotation vector (rad), recorded minus applied force (N) and the
         offset of measured deflections (m).
+    zero_offsets
+        Joint -> its zero offset (rad, m): the robot is at the commanded coordinates plus these
+        (a simulated truth reads them; not applied to a model used away from its campaign).
     not_applied
         Reasons an effect does not act, by the effect's label (:meth:`skip`).
     """
@@ -66,6 +69,7 @@ class ElasticParts:
     misalignment: np.ndarray = field(default_factory=lambda: np.zeros(3))
     force_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     deflection_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    zero_offsets: dict[str, float] = field(default_factory=dict)
     not_applied: dict[str, str] = field(default_factory=dict)
 
     # what effects record ------------------------------------------------------------------
@@ -138,6 +142,14 @@ class ElasticParts:
             self.deflection_offset = np.asarray(deflection_offset, dtype=float).reshape(3)
         self.skip(label, "a measurement effect (how the campaign observed the deflection), "
                          "not a stiffness")
+
+    def offset_zeros(self, label: str, offsets: dict[str, float]) -> None:
+        """The joints' zero offsets (joint -> rad, m): the robot's calibration, not its
+        stiffness, listed as not applied (a model used away from its campaign takes its
+        commanded coordinates as they are)."""
+        self.zero_offsets.update({j: float(v) for j, v in offsets.items()})
+        self.skip(label, "the joints' zero offsets (the robot's calibration, not its "
+                         "stiffness): commanded coordinates are taken as given")
 
     def skip(self, label: str, reason: str) -> None:
         """Note that the effect ``label`` does not act on the robot, and why."""
