@@ -112,6 +112,8 @@ def test_out_of_library_is_unexplained_and_names_nothing():
             "by_row_order"} <= set(structure)
     text = format_report(drift)
     assert "UNEXPLAINED" in text and "row order: R2" in text
+    # eight configurations: the folds determine the model, no note on them
+    assert "too few configurations" not in text
     # the intervals printed above the verdict say they take the model as complete
     assert "too narrow while it misses something" in text.split("UNEXPLAINED")[0]
     full = drift.record()
@@ -171,3 +173,19 @@ def test_correlation_against_a_closed_form():
           for _ in range(200)]
     assert np.mean(r2) == pytest.approx(1 / 49, rel=0.2)
     assert correlation(np.ones(50), res, NOISE, 1e-3)["r2"] is None
+
+
+def test_too_few_configurations_for_the_cross_validation_is_said():
+    """Two configurations x 3 loads, replicated, a 15 mm target offset hidden (4.3 noise std
+    RMS): each fold fits one configuration, the baseline's held-out RMS is 31 times its fit's,
+    so no effect passes cross-validation and the verdict is unexplained; its note says the
+    folds are too few to confirm a library effect, rather than only that the library lacks
+    it."""
+    sim = simulate("ur5", kq=[2e4, 2e4, 1e4, 3e3, 3e3, 3e3], configs=2, loads_per_config=3,
+                   repeats=2, declare_noise=False, effects=["target_offset=15"],
+                   noise_std_m=1e-5, seed=5)
+    r = diagnose(sim.campaign, propose=False)
+    assert r.unexplained is True and r.missing_effects == [], format_report(r)
+    assert r.cv_baseline > 5 * r.baseline.rms()
+    assert "too few configurations for the cross-validation" in r.unexplained_note
+    assert "on 2 configuration(s)" in r.unexplained_note

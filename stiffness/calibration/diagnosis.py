@@ -43,6 +43,12 @@ DIAGNOSIS_PAGE = "diagnosis.html"
 NOISE_SOURCES = ("declared", "replicates", "residuals")
 
 
+#: A baseline whose held-out RMS is this many times its fit's has folds too small to determine
+#: it (campaigns of 5 to 8 configurations: 1.05 to 1.6; 2 configurations: 31 to 65; 3: 3.5 to
+#: 4.6), so the cross-validation cannot confirm an effect (:meth:`Diagnosis.unexplained_note`).
+WEAK_FOLDS = 5.0
+
+
 @dataclass
 class Ambiguity:
     """Two effects the campaign cannot tell apart, and the measurements that would.
@@ -198,12 +204,26 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
                 f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
                 "cross-validation: the data contain something the library does not model; "
                 "the residual's structure (where_final_disagrees) says where to look"
-                + self._understated_note()
+                + self._understated_note() + self._weak_folds_note()
                 + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
                    "fail the test (see outliers)" if self.outliers else "")
                 + ("; a least-squares fit pulled by gross rows bends the stiffnesses and flags "
                    "clean rows too: --loss soft_l1 weighs them down"
                    if self.outliers and self.loss == "linear" else ""))
+
+    def _weak_folds_note(self) -> str:
+        """The other reading of an unexplained verdict on too few configurations: when the
+        baseline's own held-out RMS is :data:`WEAK_FOLDS` times its fit's, each fold cannot
+        determine the model, and cross-validation refuses library effects that are there (a
+        UR5 of 2 configurations x 3 loads with a hidden 15 mm target offset: 31 times)."""
+        ratio = self.cv_baseline / self.baseline.rms()
+        if not ratio > WEAK_FOLDS:
+            return ""
+        times = f"{ratio:.3g} times" if math.isfinite(ratio) else "unbounded against"
+        return (f"; or too few configurations for the cross-validation to confirm an effect: "
+                f"on {len(set(self.campaign.config))} configuration(s) the baseline's own "
+                f"held-out RMS is {times} its fit's, so a library effect may be what is "
+                "missing; measure more configurations")
 
     def _understated_note(self) -> str:
         """The other reading of an unexplained verdict under a declared noise: the noise
