@@ -18,16 +18,23 @@ and Student's t 0.965."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import pinocchio as pin
 import pytest
 from scipy import stats
 from scipy.optimize import least_squares
 from stats import Coverage
 
 from stiffness.calibration.diagnose import diagnose
-from stiffness.calibration.selection import Noise
+from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.selection import Noise, parameter_covariance
 from stiffness.calibration.solver import covariance_matrix
 from stiffness.planning.simulate import simulate
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.robot import load_robot
 
 SIGMA = 0.01
 N, P, SEEDS = 6, 3, 200
@@ -61,7 +68,7 @@ def test_a_robust_fits_intervals_take_students_t_even_with_a_declared_noise():
     of freedom; its intervals pass the two-sided check (tests/stats.py: coverage consistent
     with 95 %, standardised errors of variance about 1), and the check fails the normal
     quantile's and the rule's scaled by 2 and by 0.5, so it can fail."""
-    noise = Noise(SIGMA).of_fit("soft_l1", N, P)
+    noise = Noise(SIGMA).of_fit("soft_l1", N, covariance_matrix(np.eye(N, P), SIGMA))
     assert noise.dof == N - P and noise.sigma == SIGMA
     assert noise.two_sided() == pytest.approx(3.182446, abs=1e-6)
     assert noise.one_sided() == pytest.approx(2.353363, abs=1e-6)
@@ -76,14 +83,15 @@ def test_the_rule_by_how_the_noise_is_known():
     """Declared: the normal quantiles, for least squares only; estimated from n residuals of
     p parameters: Student's t with n - p degrees of freedom (at least 1)."""
     declared = Noise(2e-6)
-    assert declared.declared and declared.of_fit("linear", 9, 6) is declared
+    six = covariance_matrix(np.eye(9, 6), 1.0)  # of rank 6
+    assert declared.declared and declared.of_fit("linear", 9, six) is declared
     assert declared.two_sided() == pytest.approx(1.959964, abs=1e-6)
     assert declared.one_sided() == pytest.approx(1.644854, abs=1e-6)
     estimated = Noise.estimated(2e-6, 9, 6)
     assert not estimated.declared and estimated.dof == 3
-    assert estimated.of_fit("linear", 9, 6) is estimated
+    assert estimated.of_fit("linear", 9, six) is estimated
     assert Noise.estimated(1.0, 3, 5).dof == 1
-    robust = declared.of_fit("huber", 9, 6)
+    robust = declared.of_fit("huber", 9, six)
     assert robust == Noise(2e-6, 3) and robust.one_sided() == pytest.approx(2.353363, abs=1e-6)
 
 
@@ -103,3 +111,56 @@ def test_a_robust_fits_t_takes_the_directions_its_sandwich_spreads_over():
         s = p.standard_error / p.value
         assert (1.0 - p.value / p.ci95[1]) / s == pytest.approx(t, rel=1e-9)
         assert (p.value / p.ci95[0] - 1.0) / s == pytest.approx(t, rel=1e-9)
+
+
+def _rank(covariance: np.ndarray) -> int:
+    """numpy's count of the directions ``covariance`` spreads over, on its correlation matrix
+    (free of the parameters' units, which span 1e-14 to 1 here)."""
+    s = np.sqrt(np.diag(covariance))
+    return int(np.linalg.matrix_rank(covariance / np.outer(s, s), hermitian=True))
+
+
+def test_a_robust_fits_t_counts_a_parameter_at_its_bound_in_both_kinds():
+    """One count for both campaign kinds (``Noise.of_fit``): a robust fit's intervals take
+    t(N - p), p the directions the covariance it reports spreads over, numpy's rank of it,
+    a parameter at its bound among them. A pose fit counted only its free parameters' (p one
+    less); a deflection fit its ``ln k`` columns', where a spring at its rigid bound
+    (1e14 N.m/rad) vanished or not by a factor of 1e-10 (its compliance's column does not).
+
+    Deflection: UR5, pan, lift, elbow, the lift rigid, one configuration under six loads
+    (N = 18), huber, seed 5: the lift at its bound; its one-sided bound ``above 1 / (c + t se_c)``
+    read back gives t(15), not t(16). Pose: UR10, 30 poses of two markers (N = 180), frame,
+    markers and joint compliances, the lift rigid, huber, seed 3: the lift's compliance at 0,
+    the fit's noise of N - 16 degrees of freedom, not 165."""
+    arm = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
+    sim = simulate("ur5", kq=[3e4, 1e13, 1.5e4], compliant_joints=arm,
+                   target_offset_m=[0.0, 0.0, 0.1], max_force=100.0, noise_std_m=2e-5,
+                   configs=1, loads_per_config=6, seed=5)
+    measured = sim.campaign.deflection
+    d = diagnose(sim.campaign, propose=False, workers=1, loss="huber", max_steps=0)
+    assert d.final.at_bound == [1] and len(d.final.kept) == 3
+    cov = parameter_covariance(d.final, 2e-5, measured)  # robust: the sandwich, any sigma
+    p = _rank(cov)
+    assert p == 3
+    c = math.exp(-d.final.x[1])  # rad/(N.m), 1e-14
+    se_c = math.sqrt(cov[1, 1]) * c
+    t = (1.0 / d.final_stiffness[1].ci95[0] - c) / se_c
+    assert t == pytest.approx(stats.t.ppf(0.95, measured.size - p), rel=1e-6)
+    assert abs(t / stats.t.ppf(0.95, measured.size - p + 1) - 1.0) > 3e-3  # can fail
+
+    robot = load_robot("ur10", frame="tool0")
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
+               Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
+    rng = np.random.default_rng(3)
+    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                              np.array([m.offset for m in markers])
+                              + rng.normal(0, 2e-3, (2, 3)), np.zeros(6), np.zeros((6, 6)),
+                              np.array([3e5, np.inf, 1.2e5, 4e4, 3e4, 3e4]))
+    c = simulate_pose_campaign(robot, markers, hidden, 30, 2e-5, seed=3,
+                               payload=np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0]))
+    families = ["frame", "markers", "joint_compliance"]
+    model = PoseModel(robot, c.markers, tuple(families), starting_frame(c), c.loads)
+    fit = fit_pose_model(model, c, rows_of(model, c), families, loss="huber")
+    assert len(fit.at_bound) == 1
+    n = int(np.isfinite(fit.residual).sum())  # positions only: no orientations measured
+    assert fit.noise.dof == n - _rank(fit.covariance) == 180 - 16

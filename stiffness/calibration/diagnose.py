@@ -61,7 +61,7 @@ from stiffness.calibration.deflection_parameters import (
 from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
-from stiffness.calibration.fitting import Fit, determined_directions, kind_noise, observations
+from stiffness.calibration.fitting import Fit, compliance_spread, kind_noise, observations
 from stiffness.calibration.naming import settle
 from stiffness.calibration.outliers import flag_fit, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
@@ -429,11 +429,11 @@ def _fit_noise(known: Noise | None, fit: Fit, n: int) -> Noise:
     (:class:`~stiffness.calibration.selection.Noise`): the campaign's ``known`` one (declared,
     or the replicates' with their degrees of freedom), else estimated from ``fit``'s residuals
     over its ``n - p`` degrees of freedom; under a robust loss the sandwich's, over the
-    directions it spreads over (:meth:`Noise.of_fit`, :func:`determined_directions`)."""
+    directions the reported covariance spreads over (:func:`compliance_spread`)."""
     p = fit.penalty_params
     noise = (known if known is not None
              else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
-    return noise.of_fit(fit.loss, n, p if fit.loss == "linear" else determined_directions(fit))
+    return noise.of_fit(fit.loss, n, compliance_spread(dataclasses.replace(fit, loss="linear")))
 
 
 def _final_note(final: Fit, n: int, known: Noise | None, note: str) -> str:

@@ -550,28 +550,39 @@ def fit_models(jobs: list[FitJob], workers: int | None = None) -> list[Fit]:
 
 def compliance_covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None
                           ) -> np.ndarray:
-    """:func:`covariance`'s matrix of ``fit.x``, computed with the baseline's columns in
-    compliance units ``u = k_ref / k`` (``dr/du = -dr/d ln k / u``) and carried back to
-    ``ln k`` (``d ln k = -du / u``): the same matrix wherever the problem is well conditioned,
-    and a stiff joint's compliance stays a parameter the data see, so that a near alias of it
-    is not judged as if that joint were held (its ``ln k`` column vanishes with its
+    """:func:`compliance_spread`'s matrix carried back to ``ln k`` (``d ln k = -du / u``):
+    :func:`covariance`'s matrix of ``fit.x`` wherever the problem is well conditioned, and a
+    stiff joint's compliance stays a parameter the data see, so that a near alias of it is
+    not judged as if that joint were held (its ``ln k`` column vanishes with its
     compliance). An infinite entry (a parameter along an undetermined direction) stays
     ``+inf``."""
-    n0 = len(fit.model.compliant)
-    slope = np.ones(fit.x.size)
-    slope[:n0] = -fit.model.refs.k_ref * np.exp(-fit.x[:n0])  # d u / d ln k
-    matrix = covariance(replace(fit, jacobian=fit.jacobian / slope), sigma, measured).matrix
+    slope = _compliance_slope(fit)
+    matrix = compliance_spread(fit, sigma, measured).matrix
     with np.errstate(invalid="ignore"):
         return np.where(np.isinf(matrix), np.inf, matrix / np.outer(slope, slope))
 
 
-def determined_directions(fit: Fit) -> int:
-    """How many directions of ``fit.x`` its kept parameters determine
-    (:attr:`~stiffness.calibration.solver.Covariance.rank`): those a robust fit's sandwich
-    spreads over, whose intervals then take ``n - rank`` degrees of freedom (a parameterless
-    switch such as ``complementary_stiffness`` counts in :attr:`Fit.penalty_params`, not
-    here)."""
-    return covariance(replace(fit, loss="linear"), 1.0).rank
+def _compliance_slope(fit: Fit) -> np.ndarray:
+    """``d u / d x``: ``-u`` for the baseline's columns (``u = k_ref / k``), 1 for the others."""
+    slope = np.ones(fit.x.size)
+    n0 = len(fit.model.compliant)
+    slope[:n0] = -fit.model.refs.k_ref * np.exp(-fit.x[:n0])
+    return slope
+
+
+def compliance_spread(fit: Fit, sigma: float = 1.0, measured: np.ndarray | None = None
+                      ) -> Covariance:
+    """:func:`covariance` of ``fit`` computed with the baseline's columns in compliance units
+    ``u = k_ref / k`` (``dr/du = -dr/d ln k / u``): the covariance a deflection fit reports
+    (:func:`compliance_covariance`) before it is carried back to ``ln k``. Its
+    :attr:`~stiffness.calibration.solver.Covariance.rank` counts the directions that
+    covariance spreads over, a spring at its rigid bound among them (its ``ln k`` column
+    vanishes there, its compliance's does not): a robust fit's intervals take ``n - rank``
+    degrees of freedom (:meth:`~stiffness.calibration.selection.Noise.of_fit`). A
+    parameterless switch such as ``complementary_stiffness`` counts in
+    :attr:`Fit.penalty_params`, not here."""
+    return covariance(replace(fit, jacobian=fit.jacobian / _compliance_slope(fit)), sigma,
+                      measured)
 
 
 def covariance(fit: Fit, sigma: float, measured: np.ndarray | None = None) -> Covariance:

@@ -62,7 +62,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import overload
 
 import numpy as np
@@ -71,6 +71,7 @@ from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaig
 from stiffness.calibration.fitting import (
     Fit,
     compliance_covariance,
+    compliance_spread,
     covariance,
     fit_model,
     kind_noise,
@@ -347,7 +348,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     level = _noise_level(campaign, best_fit.rss, n_res, fitted, robust_sigma)
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
-    intervals = level.noise.of_fit(best_fit.loss, n_res, cov.rank)
+    intervals = level.noise.of_fit(best_fit.loss, n_res,
+                                   compliance_spread(replace(best_fit, loss="linear")))
     unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
     bias = kinematics_bias(best_fit, cov.matrix) if formulation == "enhanced" else None
     notes += _bias_note(bias, rob.compliant_joints)
@@ -575,7 +577,7 @@ class _NoiseLevel:
         The noise std (m) the covariance uses and how it is known
         (:class:`~stiffness.calibration.selection.Noise`: declared, or estimated over the fit's
         ``n - p`` degrees of freedom); its intervals' quantiles are those of
-        ``noise.of_fit(loss, n, p)``.
+        ``noise.of_fit(loss, n, covariance)``.
     source
         Where it comes from, in words (``Identification.sigma_source``).
     sigma_residual

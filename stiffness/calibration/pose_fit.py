@@ -656,25 +656,20 @@ def _finish(obs: PoseObservations, campaign: PoseCampaign, sol: Solution, jac: n
     ident = sol.identifiability
     residual, rotation = obs.split(fun)
     n, k = fun.size, len(ident.kept)
-    bound = [c for c, i in enumerate(ident.kept) if i in sol.at_bound]
-    free = [c for c in range(k) if c not in bound]
     if robust_scale is not None:
         sigma, source = robust_scale
     elif campaign.noise_std is not None:
         sigma, source = campaign.noise_std, "declared"
     else:
         sigma, source = float(np.sqrt(fun @ fun / max(n - k, 1))), "residual"
+    sizes = np.array([obs.model.parameters[i].scale for i in ident.kept])
+    spread = covariance_matrix(jac * sizes, sigma, loss, fun, sigma)
     # the intervals' noise: declared, else estimated over n - k degrees of freedom (least
     # squares' residuals); a robust loss's sandwich, declared scale or not, over n - d: d the
-    # directions it spreads over, those the free parameters' columns determine
-    sizes = np.array([obs.model.parameters[i].scale for i in ident.kept])
-    spread_over = k if loss == "linear" else covariance_matrix(jac[:, free] * sizes[free],
-                                                                sigma).rank
+    # directions the covariance reported spreads over, bound parameters' too (Noise.of_fit)
     noise = (Noise(sigma) if campaign.noise_std is not None else
-             Noise.estimated(sigma, n, k)).of_fit(loss, n, spread_over)
-
-    typical = np.outer(sizes, sizes)
-    cov = covariance_matrix(jac * sizes, sigma, loss, fun, sigma).matrix * typical
+             Noise.estimated(sigma, n, k)).of_fit(loss, n, spread)
+    cov = spread.matrix * np.outer(sizes, sizes)
     return PoseFit(obs.model, sol.x.copy(), ident, cov, residual, noise, source, loss=loss,
                    converged=sol.status > 0, rotation_residual=rotation,
                    rotation_weight=obs.weight,

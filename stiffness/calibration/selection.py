@@ -24,6 +24,7 @@ from stiffness.calibration.fitting import Fit, FitJob
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION
 from stiffness.calibration.measurements import first_copies
 from stiffness.calibration.outliers import robust_noise
+from stiffness.calibration.solver import Covariance
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: Goodness-of-fit level: the model explains the data to noise when the test of
@@ -394,17 +395,20 @@ class Noise:
         """Whether the noise std is declared (known), not estimated from the data."""
         return self.dof is None
 
-    def of_fit(self, loss: str, n: int, p: int) -> Noise:
-        """The noise of the intervals of a fit of ``p`` parameters to ``n`` residuals under
-        ``loss`` (:data:`~stiffness.calibration.solver.LOSSES`) scaled by this one: this one for
-        least squares; for a robust loss the sandwich's, estimated over ``n - p`` degrees of
-        freedom (the std scaling the loss kept as :attr:`sigma`). For a robust loss ``p`` is
-        the number of directions the sandwich spreads over
-        (:func:`~stiffness.calibration.solver.sandwich_matrix`,
-        :attr:`~stiffness.calibration.solver.Covariance.rank`): not a parameter held as not
-        identifiable, nor a parameterless switch (``complementary_stiffness``), nor a pose
-        parameter at its bound."""
-        return self if loss == "linear" else Noise.estimated(self.sigma, n, p)
+    def of_fit(self, loss: str, n: int, covariance: Covariance) -> Noise:
+        """The noise of the intervals of a fit to ``n`` residuals under ``loss``
+        (:data:`~stiffness.calibration.solver.LOSSES`) scaled by this one, whose reported
+        ``covariance`` is given: this one for least squares; for a robust loss the
+        sandwich's, estimated over ``n - p`` degrees of freedom (the std scaling the loss kept
+        as :attr:`sigma`), ``p`` the directions that covariance spreads over
+        (:attr:`~stiffness.calibration.solver.Covariance.rank`; the sandwich's own ``N - p``,
+        :func:`~stiffness.calibration.solver.sandwich_matrix`): the one count of both
+        campaign kinds, every fitted parameter the data see, those at their bound too (a
+        pose fit's :attr:`~stiffness.calibration.pose_fit.PoseFit.covariance`, a deflection
+        fit's in compliance units, :func:`~stiffness.calibration.fitting.compliance_spread`);
+        not a parameter held as not identifiable, nor a parameterless switch
+        (``complementary_stiffness``)."""
+        return self if loss == "linear" else Noise.estimated(self.sigma, n, covariance.rank)
 
     def goodness_of_fit(self, rss: float, n: int, p: int) -> float | None:
         """The p-value of a fit of ``p`` parameters leaving residual sum of squares ``rss``
