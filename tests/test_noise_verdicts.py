@@ -62,7 +62,7 @@ def test_at_the_level_itself_every_verdict_says_above_the_noise(monkeypatch):
     is unexplained and ``validate`` says above the noise (until 5 December 2026 the last two
     said the opposite, with ``p < 1 - GOF_LEVEL``)."""
     level = 1 - GOF_LEVEL
-    monkeypatch.setattr(Noise, "goodness_of_fit", lambda self, rss, n, p: level)
+    monkeypatch.setattr(Noise, "goodness_of_fit", lambda self, rss, n, p, translations=None: level)
     assert fits_to_noise(1.0, 10, 1, Noise(1.0)) is None
     monkeypatch.setattr(Validation, "gof", lambda self: level)
     assert validation(10, 1.0, 1.0).verdict == "above the noise"

@@ -86,6 +86,7 @@ from stiffness.calibration.selection import (
     cross_validate,
     extra_fit,
     fit_baseline,
+    fit_goodness,
     fit_job,
     fit_model,
     information_criterion,
@@ -316,7 +317,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     final, stop = search(kind, current, cv_current, max_steps)
     steps = kind.steps
     p_final = final.penalty_params
-    gof_final = None if known is None else known.goodness_of_fit(final.loss_rss, n, p_final)
+    gof_final = fit_goodness(known, final, n)
     noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
@@ -339,12 +340,9 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                            sigma_used, rows, geo.angles(rows)),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
                                         sigma_used, rows, geo.angles(rows)),
-        gof_baseline=None if known is None else known.goodness_of_fit(
-            base.loss_rss, n, base.penalty_params),
-        gof_final=gof_final, unexplained=None if gof_final is None
-        else above_noise(gof_final),
-        ambiguities=ambiguities, cv_baseline=cv_base,
-        elapsed_s=time.perf_counter() - t0,
+        gof_baseline=fit_goodness(known, base, n), gof_final=gof_final,
+        unexplained=None if gof_final is None else above_noise(gof_final),
+        ambiguities=ambiguities, cv_baseline=cv_base, elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, search=kind,
         final_parameters_si=effect_parameters(final, cov_final, quantile, edge, SI_UNITS),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
@@ -729,7 +727,8 @@ class OneConfigurationSearch(DeflectionSearch):
         """Those the rows can judge and show cross-validated; the others ``refused``, why."""
         tried = list(named)
         for c in tried:
-            c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.noise)
+            c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.noise,
+                                    c.fit.translation_terms())
             if c.refused is None and self.noise is None:
                 c.refused = extra_fit(self.current_terms, c.fit.terms(), self.n, self.tried)
         super().held_out(c for c in tried if c.refused is None)

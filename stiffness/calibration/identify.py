@@ -97,6 +97,7 @@ from stiffness.calibration.selection import (
     Noise,
     above_noise,
     noise_overstated,
+    pooled_replicates,
     replicate_noise,
 )
 from stiffness.calibration.solver import Covariance, check_loss
@@ -345,7 +346,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         rot_res = best_fit.residuals(measured)[1]
         if campaign.rotation_noise_std_rad is None:  # not declared: the residuals'
             rot_sigma = kind_noise(rot_res, n_res, fitted)
-    level = _noise_level(campaign, best_fit.rss, n_res, fitted, robust_sigma)
+    level = _noise_level(campaign, best_fit.rss, n_res, fitted, robust_sigma,
+                         best_fit.translation_terms())
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
     intervals = level.noise.of_fit(best_fit.loss, n_res,
@@ -593,11 +595,15 @@ class _NoiseLevel:
 
 
 def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
-                 robust_sigma: float | None = None) -> _NoiseLevel:
+                 robust_sigma: float | None = None,
+                 translations: tuple[float, int, float] | None = None) -> _NoiseLevel:
     """The noise of the intervals (:class:`_NoiseLevel`): a declared noise std, else the
     replicate rows' scatter (translations only: not with measured rotations), else the
     residuals'; with ``robust_sigma`` (m, a robust fit's scale) that one, declared or the
-    robust estimate."""
+    robust estimate. A declared one is tested as ``diagnose`` tests it
+    (:func:`~stiffness.calibration.selection.pooled_replicates`, a rotation noise not declared
+    being the residuals': the test then reads ``translations``,
+    :meth:`~stiffness.calibration.fitting.Fit.translation_terms`)."""
     dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     notes: list[str] = []
@@ -609,18 +615,20 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
                            "robust estimate (1.4826 median |residual|)", sigma_res, notes)
     if declared is not None:
         sigma = declared
-        gof = Noise(sigma).goodness_of_fit(ss_m2, n, p)
+        tested = pooled_replicates(Noise(sigma), campaign, replicates=False)
+        assert tested is not None  # a declared noise
+        gof = tested.goodness_of_fit(ss_m2, n, p, translations)
         if sigma_res is not None and gof is not None and above_noise(gof):
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the declared "
-                f"noise_std ({sigma * 1e3:.4g} mm; chi-square p = {gof:.3g} <= "
+                f"noise_std ({sigma * 1e3:.4g} mm; {tested.test} p = {gof:.3g} <= "
                 f"{1.0 - GOF_LEVEL:.2g}): model error or underestimated noise; the confidence "
                 "intervals are too narrow (stiffness diagnose finds what is missing)"
             )
         if sigma_res is not None and noise_overstated(gof):
             notes.append(
                 f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much smaller than the "
-                f"declared noise_std ({sigma * 1e3:.4g} mm; chi-square lower tail p < "
+                f"declared noise_std ({sigma * 1e3:.4g} mm; {tested.test} lower tail p < "
                 f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the confidence "
                 "intervals are too wide and an effect below the noise goes unseen")
         return _NoiseLevel(Noise(sigma), "declared noise_std", sigma_res, notes)

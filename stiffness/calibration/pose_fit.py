@@ -223,6 +223,11 @@ class PoseFit:
         """:meth:`loss_rss` (m^2) and :attr:`n_fitted` (:meth:`search.Fitted.terms`)."""
         return self.loss_rss(), self.n_fitted
 
+    def translation_terms(self) -> None:
+        """No split of :meth:`terms` by kind (:meth:`search.Fitted.translation_terms`): a pose
+        fit's test of fitting to the noise reads its whole objective."""
+        return None
+
     def labels(self) -> list[str]:
         """Each column of :attr:`x` named (its parameter's label)."""
         return [p.label for p in self.model.parameters]

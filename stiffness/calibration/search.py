@@ -71,6 +71,13 @@ class Fitted(Protocol):
     def terms(self) -> tuple[float, int]:
         """Its objective as a sum of squares (m^2) and parameter count: what the criteria take."""
 
+    def translation_terms(self) -> tuple[float, int, float] | None:
+        """The translations' part of :meth:`terms` where another kind is fitted beside them
+        (their objective, m^2, component count and share of the parameters; ``None``: no
+        such split): what the test of fitting to the noise reads when that kind's noise is
+        estimated from the residuals (:meth:`~stiffness.calibration.selection.Noise.
+        goodness_of_fit`)."""
+
     def rms(self) -> float:
         """RMS residual component (m)."""
 
@@ -280,7 +287,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
     added = 0
     while True:
         rss, p = current.terms()
-        noise = fits_to_noise(rss, kind.n, p, kind.noise)
+        noise = fits_to_noise(rss, kind.n, p, kind.noise, current.translation_terms())
         if noise is not None:
             return current, cv_current, noise
         if max_steps is not None and added >= max_steps:
