@@ -474,7 +474,7 @@ def test_validate_evaluates_every_step_on_another_campaign(tmp_path):
     report = format_report(result)
     assert "held-out 3-D error (mm)" in report and "1 joint_compliance(wrist_1_joint)" in report
     page = render_diagnosis(result.record(), None, provenance("test"))
-    assert "model on the validation campaign (mm)" in page and "consistent with" not in page
+    assert "Held-out 3-D error per stage (mm)" in page and "consistent with" not in page
     # at another target offset, each step at OTHER's target as the model file moved there
     moved = _simulate(UR5, hidden, configs=8, seed=2, target_offset_m=[0.0, 0.03, 0.15])
     validated(result, moved.campaign, moved.campaign)

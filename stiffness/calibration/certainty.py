@@ -18,7 +18,8 @@ For each effect of the final model:
 The rules (stand-in, best alternative) are :mod:`stiffness.calibration.naming`'s; the removals
 and their held-out RMS the campaign kind's (:class:`~stiffness.calibration.search.SearchKind`).
 
-SI inside; :meth:`Certainty.to_dict` in the campaign's length unit.
+SI inside; :meth:`Certainty.to_dict` in the campaign's length unit, which both kinds' text
+report (:func:`how_sure_lines`) and page (:func:`how_sure_table`) read.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 from stiffness.calibration.naming import STAND_IN_NOTE, alternative
 from stiffness.calibration.search import E, F, Removals, SearchKind, Step, label
 from stiffness.calibration.selection import information_criterion
+from stiffness.htmlpage import esc, table
 
 
 @dataclass
@@ -71,16 +73,6 @@ class Certainty:
                 "alternative_delta_bic": self.alternative_delta_bic,
                 "stand_in": self.stand_in}
 
-    def text(self, unit: str, length_to_si: float) -> str:
-        """One line of the text report."""
-        cost = ("not cross-validated" if not math.isfinite(self.held_out_cost) else
-                f"held-out RMS {self.held_out_cost / length_to_si:+.3g} {unit} without it")
-        alt = ("no alternative" if self.alternative is None else
-               f"best alternative {self.alternative} (dBIC {self.alternative_delta_bic:+.3g})")
-        verdict = f"; STAND-IN: {STAND_IN_NOTE}" if self.stand_in else ""
-        return (f"  {self.effect}: removing it: dBIC {self.removal_delta_bic:+.3g}, {cost}; "
-                f"{alt}{verdict}")
-
 
 def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[Step[E, F]],
              stand_in: Callable[[str], bool]) -> list[Certainty]:
@@ -107,3 +99,43 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[
                                    s.delta_bic), stand_in(s.label))
             for s, fit, cv in zip(named, out.fits, out.held_out(kind, range(len(out.fits))),
                                   strict=True)]
+
+
+def how_sure_lines(d: dict) -> list[str]:
+    """The text report's lines of how sure a diagnosis of either kind is of each effect it
+    named, from its ``--json`` object ``d`` (``how_sure``: :meth:`Certainty.to_dict`, the
+    cost in ``d["unit"]``), then the stand-ins; none when it named none."""
+    if not d.get("how_sure"):
+        return []
+    lines = ["how sure (each effect removed from the final model, the rest refitted; the best "
+             "other candidate of its step):"]
+    for c in d["how_sure"]:
+        cost = ("not cross-validated" if c["held_out_cost"] is None else
+                f"held-out RMS {c['held_out_cost']:+.3g} {d['unit']} without it")
+        alt = ("no alternative" if c["alternative"] is None else
+               f"best alternative {c['alternative']} (dBIC {c['alternative_delta_bic']:+.3g})")
+        verdict = f"; STAND-IN: {STAND_IN_NOTE}" if c["stand_in"] else ""
+        lines.append(f"  {c['effect']}: removing it: dBIC {c['removal_delta_bic']:+.3g}, "
+                     f"{cost}; {alt}{verdict}")
+    stand_ins = [c["effect"] for c in d["how_sure"] if c["stand_in"]]
+    return lines + ([f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins)] if stand_ins
+                    else [])
+
+
+def how_sure_table(d: dict) -> list[str]:
+    """The diagnosis page's table of how sure each named effect is, from the ``--json``
+    object ``d`` of either kind (as :func:`how_sure_lines`); none when it named none."""
+    if not d.get("how_sure"):
+        return []
+    return [table("How sure: each named effect", [
+        "effect", "ΔBIC without it", f"held-out RMS change without it ({d['unit']})",
+        "best alternative", "its ΔBIC", "stand-in"], [
+        [esc(c["effect"]), c["removal_delta_bic"], c["held_out_cost"],
+         esc(c["alternative"] or "none"), c["alternative_delta_bic"],
+         "yes: the data prefer this shape; its size is not physical" if c["stand_in"]
+         else "no"] for c in d["how_sure"]],
+        "Each effect removed from the final model and the rest refitted: the BIC change "
+        "(positive: the effect earns its parameters) and the change of the RMS predicted "
+        "for configurations left out (positive: worse without it). Best alternative: the "
+        "best other candidate of the step that named it, and its BIC minus the chosen "
+        "one's (a few units: a coin toss).")]

@@ -11,6 +11,8 @@ campaign (``--validate``).
 
 from __future__ import annotations
 
+from stiffness.calibration.certainty import how_sure_table
+from stiffness.calibration.stage_table import stage_section
 from stiffness.calibration.validation_page import validation_section
 from stiffness.elastic.effects.base import confounded_note, place_label
 from stiffness.htmlpage import (
@@ -228,43 +230,6 @@ def _steps(d: dict, unit: str) -> list[str]:
     return parts
 
 
-def _stages(d: dict, unit: str) -> list[str]:
-    """The stage table of ``diagnose --validate``: the baseline's and each step's model on the
-    validation campaign without refitting (3-D error RMS, mean, std, max, ratio to the noise);
-    none without one (or with another target: only the final model moved there)."""
-    if not d.get("baseline_validation"):
-        return []
-    stages = [("0", "baseline", d["baseline_validation"])] + [
-        (str(i), ("removed " if s.get("removed") else "") + s["effect"]
-         + (f"({s['where']})" if s.get("where") else ""), s["validation"])
-        for i, s in enumerate(d["steps"], start=1) if s.get("validation")]
-    rows = [[i, esc(name), v["rms"], v["mean_error"], v["std_error"], v["max_error"],
-             v["rms_over_noise"], esc(v["verdict"] or "")] for i, name, v in stages]
-    return [table(f"Each step's model on the validation campaign ({unit})",
-                  ["step", "model", "RMS", "mean", "std", "max", "RMS / noise", "verdict"],
-                  rows, "3-D deflection error of every row of the validation campaign under "
-                  "the step's fitted model, nothing refitted; RMS / noise: over sqrt(3) "
-                  "noise std (1 for a model that predicts to the noise).")]
-
-
-def how_sure_table(d: dict, unit: str) -> list[str]:
-    """The table of how sure each named effect is (:mod:`stiffness.calibration.certainty`)."""
-    if not d.get("how_sure"):
-        return []
-    return [table("How sure: each named effect", [
-        "effect", "ΔBIC without it", f"held-out RMS change without it ({unit})",
-        "best alternative", "its ΔBIC", "stand-in"], [
-        [esc(c["effect"]), c["removal_delta_bic"], c["held_out_cost"],
-         esc(c["alternative"] or "none"), c["alternative_delta_bic"],
-         "yes: the data prefer this shape; its size is not physical" if c["stand_in"]
-         else "no"] for c in d["how_sure"]],
-        "Each effect removed from the final model and the rest refitted: the BIC change "
-        "(positive: the effect earns its parameters) and the change of the RMS predicted "
-        "for configurations left out (positive: worse without it). Best alternative: the "
-        "best other candidate of the step that named it, and its BIC minus the chosen "
-        "one's (a few units: a coin toss).")]
-
-
 def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     """The page.
 
@@ -312,7 +277,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
                                    unit))
     parts.append(heading("steps", SECTIONS))
     parts += _steps(d, unit)
-    parts += how_sure_table(d, unit)
+    parts += how_sure_table(d)
     parts.append(heading("parameters", SECTIONS))
     rows = parameter_rows("joint stiffness", d["final_stiffness"])
     final = d["final_parameters"]  # the final fit's values: a step's are its fit at that step
@@ -330,7 +295,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts += _left(d, unit)
     parts.append(heading("ambiguities", SECTIONS))
     parts += _ambiguities(d["cannot_tell_apart"], unit)
-    parts += [heading("validation", SECTIONS), *_stages(d, unit),
+    parts += [heading("validation", SECTIONS), *stage_section(d),
               *validation_section(d.get("validation"), HOW)]
     parts.append(reproduce_block(prov, "reproduce", SECTIONS,
                                  "The run writes this page, diagnosis.json, residuals.png and "

@@ -6,10 +6,11 @@ import math
 from typing import TYPE_CHECKING
 
 from stiffness.calibration.breakdown import strongest_correlations
+from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
-from stiffness.calibration.pose_report import stage_table
 from stiffness.calibration.selection import above_noise, noise_overstated
+from stiffness.calibration.stage_table import stage_table, stages
 
 if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
@@ -61,7 +62,7 @@ def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
 
 def format_report(d: Diagnosis) -> str:
     """The human-readable report of ``stiffness diagnose``."""
-    c, unit = d.campaign, d.unit
+    c, unit, summary = d.campaign, d.unit, d.summary()
     lu = c.units.length_to_si
     lines = [
         f"campaign {c.name}" + (f" ({c.path})" if c.path else "")
@@ -89,10 +90,8 @@ def format_report(d: Diagnosis) -> str:
                      "is named")
     if any(s.forced for s in d.steps):
         lines.append("* forced (--families): added first, whatever its BIC and held-out error")
-    if d.baseline_validation:  # diagnose --validate: each step's model on the other campaign
-        lines += ["", *stage_table([("0 baseline", d.baseline_validation)] + [
-            (f"{i} {'removed ' * s.removed}{s.effect.label}", s.validation)
-            for i, s in enumerate(d.steps, start=1) if s.validation])]
+    if named := stages(summary):  # diagnose --validate: each step's model on the other one
+        lines += ["", *stage_table(named)]
     lines.append("")
     if d.named_steps:
         lines.append("identified effects (final model; 95 % intervals):")
@@ -103,12 +102,7 @@ def format_report(d: Diagnosis) -> str:
                 lines.append(f"    {p.text()}")
         found = [s.effect.label for s in d.named_steps if not d.stand_in(s.effect.label)]
         lines.append("missing effects: " + (", ".join(found) or "none found physical"))
-        stand_ins = [s.effect.label for s in d.named_steps if d.stand_in(s.effect.label)]
-        if stand_ins:
-            lines.append(f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins))
-        lines.append("how sure (each effect removed from the final model; the best other "
-                     "candidate of its step):")
-        lines += [c.text(unit, lu) for c in d.certainty]
+        lines += how_sure_lines(summary)
     else:
         lines.append("missing effects: none" + (
             " (the baseline explains the data to noise)" if d.gof_baseline is not None

@@ -11,7 +11,9 @@ import io
 
 import numpy as np
 
-from stiffness.calibration.diagnosis_page import how_sure_table, outliers_section
+from stiffness.calibration.certainty import how_sure_table
+from stiffness.calibration.diagnosis_page import outliers_section
+from stiffness.calibration.stage_table import stage_section
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -86,20 +88,6 @@ def stage_plot(d: dict) -> bytes | None:
     return buf.getvalue()
 
 
-def _stage_rows(d: dict) -> tuple[list[str], list[list]]:
-    """Headers and rows of the stage table (mean, std, max per marker and overall)."""
-    stages = [(i, s) for i, s in enumerate(d["steps"]) if s.get("validation")]
-    names = ["all", *stages[0][1]["validation"]["markers"]]
-    headers = ["step", "family"] + [f"{n} {q}" for n in names for q in ("mean", "std", "max")]
-    rows = []
-    for i, s in stages:
-        v = s["validation"]
-        cells = [v if n == "all" else v["markers"][n] for n in names]
-        rows.append([str(i), esc(s["family"])]
-                    + [c[k] for c in cells for k in ("mean_error", "std_error", "max_error")])
-    return headers, rows
-
-
 def _residuals(d: dict, residual_pngs: dict[str, bytes] | None) -> list[str]:
     """The final residual by marker and axis, its trend along the rows, and a figure per
     marker (before and after)."""
@@ -129,7 +117,7 @@ def _how_sure(d: dict) -> list[str]:
     else the evidence when the family was added (its BIC change and held-out RMS gain)."""
     unit = d["unit"]
     if d.get("how_sure"):
-        return how_sure_table(d, unit)
+        return how_sure_table(d)
     steps = d["steps"]
     rows = [[esc(s["family"]), s["delta_bic"], steps[i - 1]["cv_rms"] - s["cv_rms"]]
             for i, s in enumerate(steps) if i > 0 and s["family"] in d["families"]
@@ -198,11 +186,7 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
         parts.append("<p>No validation campaign: run <code>stiffness diagnose --validate "
                      "OTHER_CAMPAIGN</code> for the held-out error after each step.</p>")
     else:
-        headers, rows = _stage_rows(d)
-        parts.append(table(f"Held-out 3-D error per stage ({unit})", headers, rows,
-                           "Each step's model evaluated on the validation campaign without "
-                           "refitting: mean, standard deviation and maximum of the 3-D marker "
-                           "error."))
+        parts += stage_section(d)
         parts.append(figure(STAGE_FIGURE, stage_png,
                             f"Held-out 3-D marker error after each step ({unit})"))
     how = ("run <code>stiffness diagnose CAMPAIGN --validate OTHER_CAMPAIGN</code> (or "

@@ -6,17 +6,18 @@ from __future__ import annotations
 
 import math
 
+from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
-from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_page import not_added
+from stiffness.calibration.stage_table import stage_table, stages
 
 
 def format_pose_report(d: PoseDiagnosis) -> str:
     """The human-readable report of a pose diagnosis (lengths in the campaign's unit)."""
-    c = d.campaign
+    c, summary = d.campaign, d.summary()
     unit, lu = c.units.length, c.units.length_to_si
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
     names = [f"removed {s.effect}" if s.removed else s.effect + (" *" if s.forced else "")
@@ -44,9 +45,8 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                     "not comparable with RMS")
                  + ("; * forced (--families)" if any(s.forced for s in d.steps) else "")
                  + (f"; not tried (--not): {', '.join(d.forbidden)}" if d.forbidden else ""))
-    if d.steps[0].validation:
-        lines += ["", *stage_table([(f"{i} {s.effect}", s.validation)
-                                    for i, s in enumerate(d.steps) if s.validation])]
+    if named := stages(summary):
+        lines += ["", *stage_table(named)]
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): "
                      + not_added(d.rejected, d.not_judged))
@@ -88,14 +88,7 @@ def _how_sure_lines(d: PoseDiagnosis) -> list[str]:
             if p.held.startswith("held at its nominal value")]
     lines = ["", "held at nominal (the data do not determine them):",
              *[f"  {p.text()}" for p in held]] if held else []
-    if d.how_sure:
-        lines += ["", "how sure (each family removed from the final model, the rest refitted):",
-                  *[c.text(d.campaign.units.length, d.campaign.units.length_to_si)
-                    for c in d.how_sure]]
-    stand_ins = [c.effect for c in d.how_sure if c.stand_in]
-    if stand_ins:
-        lines.append(f"stand-ins ({STAND_IN_NOTE}): " + ", ".join(stand_ins))
-    return lines
+    return lines + (["", *how_sure_lines(d.summary())] if d.how_sure else [])
 
 
 #: How the identifiability lines name a parameter left out, by its reason.
@@ -112,8 +105,8 @@ def _dropped_lines(d: PoseDiagnosis) -> list[str]:
 
 def format_validation(result: dict) -> str:
     """The text of ``stiffness validate``: overall and per-marker 3-D errors, the verdict
-    against the campaign's noise, then the line of the stage table (:func:`stage_table`) for
-    this one model."""
+    against the campaign's noise, then the line of the stage table
+    (:func:`~stiffness.calibration.stage_table.stage_table`) for this one model."""
     unit = result["unit"]
     lines = [f"{result['rows']} rows; 3-D position error in {unit}:",
              f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}"]
@@ -137,29 +130,3 @@ def _validation_row(name: str, r: dict) -> str:
         return f"  {name:<12} never seen"
     return (f"  {name:<12} {r['rms']:>11.4g} {r['mean_error']:>11.4g} {r['std_error']:>11.4g} "
             f"{r['max_error']:>11.4g} {r['rows']:>6}")
-
-
-def stage_table(stages: list[tuple[str, dict]]) -> list[str]:
-    """The table calibration papers publish: per stage (a name and its validation object,
-    :func:`~stiffness.calibration.pose_diagnose.validation_errors`), the held-out 3-D error's
-    mean, standard deviation and maximum overall and per marker, in the campaign's unit. The
-    lines of ``diagnose --validate`` (one per step) and of ``stiffness validate`` (one model)."""
-    first = stages[0][1]
-    names = ["all", *first["markers"]]
-    cells = [[_stage_cell(c) for c in (r, *(r["markers"][n] for n in names[1:]))]
-             for _, r in stages]
-    width = [max(len(n), *(len(row[i]) for row in cells)) for i, n in enumerate(names)]
-    label = max(len("stage"), *(len(name) for name, _ in stages))
-    lines = [f"held-out 3-D error ({first['unit']}): mean ± std (max)",
-             f"  {'stage':<{label}}" + "".join(f"  {n:>{w}}" for n, w in zip(names, width,
-                                                                              strict=True))]
-    for (name, _), row in zip(stages, cells, strict=True):
-        lines.append(f"  {name:<{label}}" + "".join(f"  {c:>{w}}" for c, w in zip(row, width,
-                                                                                  strict=True)))
-    return lines
-
-
-def _stage_cell(r: dict) -> str:
-    if r["mean_error"] is None:
-        return "never seen"
-    return f"{r['mean_error']:.4g} ± {r['std_error']:.2g} ({r['max_error']:.3g})"
