@@ -106,7 +106,7 @@ def test_design_says_undetermined_not_inf(tmp_path):
 def test_diagnosis_page_says_undetermined_for_an_unbounded_interval():
     """diagnosis.json writes an infinite bound as null: the page says 'undetermined' and what
     is known, not '0 to —'."""
-    from stiffness.calibration.diagnosis_page import parameter_rows
+    from stiffness.calibration.parameter_section import parameter_rows
 
     rows = parameter_rows("joint stiffness", {
         "joint2": {"value": 3.024e7, "standard_error": None, "ci95": [0.0, None],
@@ -117,7 +117,7 @@ def test_diagnosis_page_says_undetermined_for_an_unbounded_interval():
     assert undetermined[3] == "undetermined"
     assert undetermined[4].startswith("<b>undetermined</b> (at least 0, no upper bound")
     assert "—" not in undetermined[4]
-    assert determined[3] == 1.2e4 and determined[4] == "9.1e+05 to 9.6e+05"
+    assert determined[3] == 1.2e4 and determined[4] == "[9.1e+05, 9.6e+05]"
 
 
 def test_kx_says_when_a_pose_is_near_a_kinematic_singularity():

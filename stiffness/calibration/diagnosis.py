@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.certainty import Certainty
 from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.fitting import Fit
 from stiffness.calibration.outliers import robust_noise
@@ -168,12 +167,6 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             out[label] = {"translation": self._len(t), "rotation": None if r is None
                           else r / self.campaign.units.rotation_to_si}
         return out
-
-    @property
-    def certainty(self) -> list[Certainty]:
-        """How sure each named effect is (:attr:`how_sure`: held-out cost of removing it,
-        best alternative, stand-in), in the order added."""
-        return self.how_sure
 
     def _len(self, value_m: float) -> float:
         return value_m / self.campaign.units.length_to_si

@@ -12,9 +12,11 @@ campaign (``--validate``).
 from __future__ import annotations
 
 from stiffness.calibration.certainty import how_sure_table
+from stiffness.calibration.outliers import outliers_section
+from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.stage_table import stage_section
 from stiffness.calibration.validation_page import validation_section
-from stiffness.elastic.effects.base import confounded_note, place_label
+from stiffness.elastic.effects.base import place_label
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -27,7 +29,6 @@ from stiffness.htmlpage import (
     table,
     vec,
 )
-from stiffness.units import finite_number
 
 SECTIONS = {
     "summary": "Summary",
@@ -47,34 +48,6 @@ SECTIONS = {
 HOW = ("the cross-validated RMS of each step (above) is the held-out check within this "
        "campaign; <code>stiffness diagnose CAMPAIGN --validate OTHER_CAMPAIGN</code> evaluates "
        "the final model on another campaign of the same robot without refitting")
-
-
-def parameter_rows(where: str, parameters: dict) -> list[list]:
-    """Rows of the parameter table; an interval without a finite bound (JSON null) and an
-    infinite standard error are said to be undetermined, with what is known, or with what it
-    is not told apart from (``confounded_with``: the text report's phrase,
-    :func:`~stiffness.elastic.effects.base.confounded_note`); a parameter the fit held (not
-    identifiable) is said to be, with why."""
-    rows = []
-    for name, p in parameters.items():
-        lo, hi = p["ci95"] if p.get("ci95") else (None, None)
-        se = p.get("standard_error")
-        if p.get("held"):
-            interval = f"<b>not fitted</b> (held at this value: {esc(p['held'])})"
-        elif p.get("confounded_with"):  # not told apart from an effect's parameter
-            pairs = tuple((c["parameter"], c["correlation"]) for c in p["confounded_with"])
-            interval = "<b>undetermined</b>: " + esc(confounded_note(pairs, p["value"],
-                                                                     p.get("unit", "")))
-        elif finite_number(lo) and finite_number(hi):
-            interval = f"{num(lo)} to {num(hi)}"
-        else:
-            known = f"at least {num(lo)}, " if finite_number(lo) else ""
-            interval = f"<b>undetermined</b> ({known}no upper bound: the measurements do not " \
-                       "bound it)"
-        spread = se if finite_number(se) else "-" if p.get("held") else "undetermined"
-        rows.append([esc(where), esc(name), p["value"], spread, interval,
-                     esc(p.get("unit", ""))])
-    return rows
 
 
 def _by_configuration(before: dict, after: dict, unit: str) -> str:
@@ -150,24 +123,6 @@ def _left(d: dict, unit: str) -> list[str]:
                        "axes, that part's RMS in noise std, and the F-test p-value. Large "
                        "shares with small p-values say where to look."))
     return parts
-
-
-def outliers_section(d: dict) -> list[str]:
-    """The rows beyond the outlier threshold (flagged, none dropped): the section of both
-    campaign kinds' pages, from their ``outlier_threshold``, ``outliers`` and ``loss`` keys."""
-    threshold = d.get("outlier_threshold")
-    intro = (f"<p>Rows of the final model whose standardised residual (residual over the "
-             f"noise std and its leverage) exceeds {num(threshold)} in some component; "
-             f"flagged only: every row stays in the fit (loss: {esc(d.get('loss', 'linear'))})."
-             "</p>")
-    flagged = d.get("outliers", [])
-    if not flagged:
-        return [intro, "<p>None.</p>"]
-    rows = [[esc(o["label"]), o["row"], o["line"] if o["line"] is not None else "-",
-             esc(o["component"]), o["standardised_residual"]] for o in flagged]
-    return [intro, table("Flagged rows", ["configuration", "row", "CSV line", "component",
-                                          "standardised residual"], rows,
-                         "Standardised residual: predicted minus measured, in noise std.")]
 
 
 def _ambiguities(ambiguities: list[dict], unit: str) -> list[str]:
@@ -284,11 +239,7 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     for s in _kept(d["steps"]):
         rows += parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
                                final.get(place_label(s["effect"], s.get("where")), {}))
-    parts.append(table("Identified parameters of the final model",
-                       ["part", "parameter", "value", "standard error", "95 % interval",
-                        "unit"], rows,
-                       "Intervals from the fit's covariance at the stated noise (a robust "
-                       "loss: Huber's sandwich covariance)."))
+    parts.append(parameter_table(rows))
     parts.append(heading("outliers", SECTIONS))
     parts += outliers_section(d)
     parts.append(heading("left", SECTIONS))

@@ -30,6 +30,7 @@ from stiffness.calibration.fitting import Fit, fit_model
 from stiffness.calibration.solver import SINGULAR_RTOL
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
+from stiffness.htmlpage import esc, num, table
 
 #: A row is flagged when a component's standardised residual exceeds this (noise stds).
 OUTLIER_THRESHOLD = 4.0
@@ -206,6 +207,24 @@ def describe_outliers(outliers: list[Outlier], threshold: float = OUTLIER_THRESH
     if len(outliers) > limit:
         lines.append(f"  ... and {len(outliers) - limit} more (see --json)")
     return lines
+
+
+def outliers_section(d: dict) -> list[str]:
+    """The rows beyond the outlier threshold (flagged, none dropped): the section of both
+    campaign kinds' pages, from their ``outlier_threshold``, ``outliers`` and ``loss`` keys."""
+    threshold = d.get("outlier_threshold")
+    intro = (f"<p>Rows of the final model whose standardised residual (residual over the "
+             f"noise std and its leverage) exceeds {num(threshold)} in some component; "
+             f"flagged only: every row stays in the fit (loss: {esc(d.get('loss', 'linear'))})."
+             "</p>")
+    flagged = d.get("outliers", [])
+    if not flagged:
+        return [intro, "<p>None.</p>"]
+    rows = [[esc(o["label"]), o["row"], o["line"] if o["line"] is not None else "-",
+             esc(o["component"]), o["standardised_residual"]] for o in flagged]
+    return [intro, table("Flagged rows", ["configuration", "row", "CSV line", "component",
+                                          "standardised residual"], rows,
+                         "Standardised residual: predicted minus measured, in noise std.")]
 
 
 def robust_noise_scale(model: Hypothesis, measured: np.ndarray, scale: float,

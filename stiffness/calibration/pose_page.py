@@ -12,7 +12,8 @@ import io
 import numpy as np
 
 from stiffness.calibration.certainty import how_sure_table
-from stiffness.calibration.diagnosis_page import outliers_section
+from stiffness.calibration.outliers import outliers_section
+from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.stage_table import stage_section
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
@@ -112,25 +113,6 @@ def _residuals(d: dict, residual_pngs: dict[str, bytes] | None) -> list[str]:
     return parts
 
 
-def _how_sure(d: dict) -> list[str]:
-    """Each named family with how sure it is: the record's ``how_sure`` when it carries one,
-    else the evidence when the family was added (its BIC change and held-out RMS gain)."""
-    unit = d["unit"]
-    if d.get("how_sure"):
-        return how_sure_table(d)
-    steps = d["steps"]
-    rows = [[esc(s["family"]), s["delta_bic"], steps[i - 1]["cv_rms"] - s["cv_rms"]]
-            for i, s in enumerate(steps) if i > 0 and s["family"] in d["families"]
-            and not s.get("removed")]
-    if not rows:
-        return ["<p>No effect named beyond the tracker placement and the marker offsets.</p>"]
-    return [table("The evidence for each named family when it was added",
-                  ["family", "ΔBIC on adding it", f"held-out RMS gain ({unit})"], rows,
-                  "ΔBIC: negative, the family earns its parameters (below -10: strong). "
-                  "Held-out RMS gain: how much the residual on configurations left out of the "
-                  "fit fell when it was added (positive: it predicts, not only fits).")]
-
-
 def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                           residual_pngs: dict[str, bytes] | None = None) -> str:
     """The page of a pose diagnosis.
@@ -181,7 +163,9 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
         parts.append("<p>Not added (ΔBIC or held-out RMS): "
                      + esc(not_added(d["rejected"], d.get("not_judged", {}))) + "</p>")
     parts += [heading("residuals", SECTIONS), *_residuals(d, residual_pngs),
-              heading("how-sure", SECTIONS), *_how_sure(d), heading("stages", SECTIONS)]
+              heading("how-sure", SECTIONS),
+              *(how_sure_table(d) or ["<p>No effect named beyond the tracker placement and "
+                                      "the marker offsets.</p>"]), heading("stages", SECTIONS)]
     if stage_png is None:
         parts.append("<p>No validation campaign: run <code>stiffness diagnose --validate "
                      "OTHER_CAMPAIGN</code> for the held-out error after each step.</p>")
@@ -205,13 +189,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
 
 def _parameters(d: dict) -> list[str]:
     """The fitted parameters with their intervals, then what the campaign cannot identify."""
-    rows = [[esc(p["family"]), esc(p["parameter"]), p["value"], p["std"],
-             "—" if p["interval_95"] is None else
-             f"[{num(p['interval_95'][0])}, {num(p['interval_95'][1])}]", esc(p["unit"])]
-            for p in d["parameters"] if p["fitted"]]
-    parts = [table("Fitted parameters of the final model (SI)",
-                   ["family", "parameter", "value", "standard error", "95 % interval",
-                    "unit"], rows, "Only the identifiable parameters are fitted."),
+    parts = [parameter_table([row for p in d["parameters"] if p["fitted"]
+                              for row in parameter_rows(p["family"], {p["parameter"]: p})]),
              heading("identifiability", SECTIONS)]
     dropped = d["identifiability"]["dropped"]
     rows = [[esc(x["parameter"]), esc(x["reason"]), esc(" + ".join(

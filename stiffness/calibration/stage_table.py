@@ -66,8 +66,8 @@ def stage_section(d: dict) -> list[str]:
                    *(VERDICT_COLUMNS[k] for k in extra)], rows,
                   "Each step's model evaluated on the validation campaign without refitting: "
                   "RMS, and mean, standard deviation and maximum of the 3-D error, overall and "
-                  "per marker; RMS / noise: over sqrt(3) noise std (1 for a model that predicts "
-                  "to the noise).")]
+                  "per marker" + ("; RMS / noise: over sqrt(3) noise std (1 for a model that "
+                                  "predicts to the noise)." if extra else "."))]
 
 
 def _cells(named: list[tuple[str, dict]]) -> tuple[list[str], list[list[str]]]:

@@ -1,0 +1,53 @@
+"""The parameters of a final model with their standard errors, 95 % intervals and units: the
+table of either campaign kind's diagnosis page, from its ``--json`` object
+(:meth:`~stiffness.calibration.result.DiagnosisResult.summary`; a deflection diagnosis's
+``final_stiffness`` and its named steps' ``parameters``, a pose diagnosis's ``parameters``
+rows, which carry the same keys, :func:`~stiffness.calibration.pose_model_file.
+parameter_table`)."""
+
+from __future__ import annotations
+
+from stiffness.elastic.effects.base import confounded_note
+from stiffness.htmlpage import esc, num, table
+from stiffness.units import finite_number
+
+
+def parameter_rows(where: str, parameters: dict) -> list[list]:
+    """Rows of the parameter table, each parameter of ``parameters`` (by name) under the part
+    ``where``; a fitted interval as ``[low, high]`` (one-sided at a physical bound, said); an
+    interval without a finite bound (JSON null) and an infinite standard error are said to
+    be undetermined, with what is known, or with what it is not told apart from
+    (``confounded_with``: the text report's phrase,
+    :func:`~stiffness.elastic.effects.base.confounded_note`); a parameter the fit held (not
+    identifiable) is said to be, with why."""
+    rows = []
+    for name, p in parameters.items():
+        se = p.get("standard_error", p.get("std"))
+        spread = se if finite_number(se) else "-" if p.get("held") else "undetermined"
+        rows.append([esc(where), esc(name), p["value"], spread, _interval(p),
+                     esc(p.get("unit", ""))])
+    return rows
+
+
+def _interval(p: dict) -> str:
+    """A parameter's 95 % interval cell (:func:`parameter_rows`)."""
+    lo, hi = p.get("ci95") or p.get("interval_95") or (None, None)
+    if p.get("held"):
+        return f"<b>not fitted</b> (held at this value: {esc(p['held'])})"
+    if p.get("confounded_with"):  # not told apart from an effect's parameter
+        pairs = tuple((c["parameter"], c["correlation"]) for c in p["confounded_with"])
+        return "<b>undetermined</b>: " + esc(confounded_note(pairs, p["value"],
+                                                             p.get("unit", "")))
+    if finite_number(lo) and finite_number(hi):
+        return f"[{num(lo)}, {num(hi)}]" + (" one-sided: at its physical bound"
+                                            if p.get("at_bound") else "")
+    known = f"at least {num(lo)}, " if finite_number(lo) else ""
+    return f"<b>undetermined</b> ({known}no upper bound: the measurements do not bound it)"
+
+
+def parameter_table(rows: list[list]) -> str:
+    """The table of :func:`parameter_rows`."""
+    return table("Identified parameters of the final model",
+                 ["part", "parameter", "value", "standard error", "95 % interval", "unit"],
+                 rows, "Intervals from the fit's covariance at the stated noise (a robust "
+                 "loss: Huber's sandwich covariance), one-sided at a physical bound.")
