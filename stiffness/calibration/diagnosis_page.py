@@ -15,6 +15,7 @@ from stiffness.calibration.certainty import how_sure_table
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.stage_table import stage_section
+from stiffness.calibration.steps_table import steps_table
 from stiffness.calibration.validation_page import validation_section
 from stiffness.elastic.effects.base import place_label
 from stiffness.htmlpage import (
@@ -162,25 +163,16 @@ def _steps(d: dict, unit: str) -> list[str]:
     """The steps' table and each step's best candidates."""
     parts: list[str] = []
     cv = d["cv_rms"]
-    rows = [["0", "baseline", "", "", d["baseline_rms"], cv["baseline"]]]
-    for i, (s, detail) in enumerate(zip(d["steps"], d["step_details"], strict=True)):
-        rows.append([str(i + 1), esc(("removed " if s.get("removed") else "") + s["effect"]
-                                     + (" (forced)" if s.get("forced") else "")),
-                     esc(s.get("where") or ""),
-                     detail["delta_bic"], s["rms"], cv["steps"][i]])
-    parts.append(table("Effects added one at a time", ["step", "effect", "where", "ΔBIC",
-                       f"RMS ({unit})", f"cross-validated RMS ({unit})"], rows,
-                       "ΔBIC: change of the Bayesian information criterion from the "
-                       "previous step (negative: the effect earns its parameters; a "
-                       "\"removed\" step: the final model is better without the effect). "
-                       "Cross-validated RMS: residual on configurations left out of the "
-                       "fit."))
+    parts.append(steps_table([{"effect": "baseline", "rms": d["baseline_rms"],
+                               "cv_rms": cv["baseline"]}] + [
+        {**s, "delta_bic": detail["delta_bic"], "cv_rms": cv_rms} for s, detail, cv_rms in
+        zip(d["steps"], d["step_details"], cv["steps"], strict=True)], unit))
     for i, detail in enumerate(d["step_details"]):
         ranked = [[esc(r.get("effect", "")), esc(r.get("where") or ""), r.get("delta_bic"),
                    r.get("cv_rms")] for r in detail["ranking"][:6]]
         if ranked:
             parts.append(table(f"Step {i + 1}: the best candidates",
-                               ["effect", "where", "ΔBIC", f"cross-validated RMS ({unit})"],
+                               ["effect", "where", "ΔBIC", f"held-out RMS ({unit})"],
                                ranked, "The six best-ranked candidate effects of this step."))
     return parts
 

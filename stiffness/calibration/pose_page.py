@@ -15,6 +15,7 @@ from stiffness.calibration.certainty import how_sure_table
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.stage_table import stage_section
+from stiffness.calibration.steps_table import steps_table
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -150,15 +151,7 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                  "RMS over all residual components, in the campaign's length unit."),
              contents(SECTIONS), heading("provenance", SECTIONS), provenance_block(prov),
              heading("steps", SECTIONS)]
-    rows = [[str(i), esc(("removed " if s.get("removed") else "") + s["family"]),
-             s["n_parameters"], s["delta_bic"], s["rms"],
-             s["cv_rms"]] for i, s in enumerate(d["steps"])]
-    parts.append(table("Families added one at a time",
-                       ["step", "family", "parameters", "ΔBIC", f"RMS ({unit})",
-                        f"held-out RMS ({unit})"], rows,
-                       "Held-out RMS: the residual on configurations left out of the "
-                       "fit. A \"removed\" step: the final model is better without the "
-                       "family (lower BIC, held-out RMS not higher)."))
+    parts.append(steps_table(d["steps"], unit))
     if d["rejected"]:
         parts.append("<p>Not added (ΔBIC or held-out RMS): "
                      + esc(not_added(d["rejected"], d.get("not_judged", {}))) + "</p>")
