@@ -31,7 +31,7 @@ from stiffness.calibration.pose_diagnosis import _flagged
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import format_pose_report
-from stiffness.calibration.stage_table import stage_table
+from stiffness.calibration.steps_table import stage_table
 from stiffness.cli.main import main
 from stiffness.elastic.effects import FAMILIES
 from stiffness.errors import ConvergenceError, DataFileWarning, StiffnessError

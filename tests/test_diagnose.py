@@ -374,7 +374,7 @@ def test_diagnosis_page(tmp_path):
     summary = result.summary()
     assert "force_sensor_bias" in visible and "ΔBIC" in visible
     fx = summary["steps"][0]["parameters"]["fx"]
-    assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
+    assert f"[{fx['ci95'][0]:.4g}, {fx['ci95'][1]:.4g}]" in visible
     assert f"{summary['final_rms']:.4g}" in visible
     # a proposal that could not be made (no reachable pose sampled) is said, not a KeyError
     record = result.record()

@@ -14,8 +14,7 @@ from __future__ import annotations
 from stiffness.calibration.certainty import how_sure_table
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
-from stiffness.calibration.stage_table import stage_section
-from stiffness.calibration.steps_table import steps_table
+from stiffness.calibration.steps_table import stage_section, steps_table
 from stiffness.calibration.validation_page import validation_section
 from stiffness.elastic.effects.base import place_label
 from stiffness.htmlpage import (

@@ -10,7 +10,7 @@ from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.selection import above_noise, noise_overstated
-from stiffness.calibration.stage_table import stage_table, stages
+from stiffness.calibration.steps_table import stage_table, stages
 
 if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis

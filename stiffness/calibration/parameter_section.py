@@ -1,9 +1,6 @@
-"""The parameters of a final model with their standard errors, 95 % intervals and units: the
-table of either campaign kind's diagnosis page, from its ``--json`` object
-(:meth:`~stiffness.calibration.result.DiagnosisResult.summary`; a deflection diagnosis's
-``final_stiffness`` and its named steps' ``parameters``, a pose diagnosis's ``parameters``
-rows, which carry the same keys, :func:`~stiffness.calibration.pose_model_file.
-parameter_table`)."""
+"""A final model's parameters with standard errors, 95 % intervals and units: the table of
+either kind's diagnosis page, from its ``--json`` parameter objects (a pose diagnosis's
+``parameters`` rows carry a deflection diagnosis's keys)."""
 
 from __future__ import annotations
 

@@ -14,8 +14,7 @@ import numpy as np
 from stiffness.calibration.certainty import how_sure_table
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
-from stiffness.calibration.stage_table import stage_section
-from stiffness.calibration.steps_table import steps_table
+from stiffness.calibration.steps_table import stage_section, steps_table
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,

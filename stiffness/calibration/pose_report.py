@@ -12,7 +12,7 @@ from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_page import not_added
-from stiffness.calibration.stage_table import stage_table, stages
+from stiffness.calibration.steps_table import stage_table, stages
 
 
 def format_pose_report(d: PoseDiagnosis) -> str:
@@ -106,7 +106,7 @@ def _dropped_lines(d: PoseDiagnosis) -> list[str]:
 def format_validation(result: dict) -> str:
     """The text of ``stiffness validate``: overall and per-marker 3-D errors, the verdict
     against the campaign's noise, then the line of the stage table
-    (:func:`~stiffness.calibration.stage_table.stage_table`) for this one model."""
+    (:func:`~stiffness.calibration.steps_table.stage_table`) for this one model."""
     unit = result["unit"]
     lines = [f"{result['rows']} rows; 3-D position error in {unit}:",
              f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}"]

@@ -1,16 +1,36 @@
-"""The steps table of either campaign kind's diagnosis page: what each step of the search added
-(or removed), its BIC change, its RMS and its held-out RMS, in the campaign's length unit."""
+"""A diagnosis's steps as tables, for either campaign kind, from its ``--json`` object: each
+step's fit (the page's steps table) and each step's model on a validation campaign, the stage
+table calibration papers publish (``diagnose --validate``; text and page)."""
 
 from __future__ import annotations
 
-from stiffness.calibration.stage_table import step_label
 from stiffness.htmlpage import esc, table
+
+#: The keys, beside the errors, a stage's validation object may carry, and their columns.
+VERDICT_COLUMNS = {"rms_over_noise": "RMS / noise", "verdict": "verdict"}
+
+
+def step_label(step: dict) -> str:
+    """A step (a ``--json`` step object) by name: ``removed`` for a removal, then a pose
+    step's family or a deflection step's effect with its place, ``name(where)``."""
+    name = step.get("family") or step["effect"] + (f"({step['where']})" if step.get("where")
+                                                   else "")
+    return ("removed " if step.get("removed") else "") + name
+
+
+def stages(d: dict) -> list[tuple[str, dict]]:
+    """Each stage of ``d`` (a name, its number and :func:`step_label`, and its validation):
+    the baseline (``baseline_validation``, where the steps do not hold it), then the steps."""
+    steps = ([{"effect": "baseline", "validation": d["baseline_validation"]}]
+             if d.get("baseline_validation") else []) + d["steps"]
+    return [(f"{i} {step_label(s)}", s["validation"]) for i, s in enumerate(steps)
+            if s.get("validation")]
 
 
 def steps_table(steps: list[dict], unit: str) -> str:
-    """The table of ``steps``: ``--json`` step objects (:func:`~stiffness.calibration.
-    stage_table.step_label` names them) with ``delta_bic`` (absent: no cell), ``rms`` and
-    ``cv_rms``, numbered from 0, and ``n_parameters`` where the kind counts them."""
+    """The page's table of ``steps``, ``--json`` step objects (named by :func:`step_label`,
+    numbered from 0) with ``delta_bic`` (absent: no cell), ``rms``, ``cv_rms`` and, where the
+    kind counts them, ``n_parameters``."""
     counted = any("n_parameters" in s for s in steps)
     rows = [[str(i), esc(step_label(s) + (" (forced)" if s.get("forced") else "")),
              *([s.get("n_parameters", "")] if counted else []), s.get("delta_bic", ""),
@@ -22,3 +42,55 @@ def steps_table(steps: list[dict], unit: str) -> str:
                  "(negative: the effect earns its parameters). Held-out RMS: the residual on "
                  "configurations left out of the fit. A \"removed\" step: the final model is "
                  "better without the effect (lower BIC, held-out RMS not higher).")
+
+
+def stage_table(named: list[tuple[str, dict]]) -> list[str]:
+    """The text lines: per stage (a name and its validation object,
+    :func:`~stiffness.calibration.pose_diagnose.validation_errors` or
+    :func:`~stiffness.calibration.validation.deflection_errors`), the held-out 3-D error's
+    ``mean ± std (max)`` overall and per marker; the lines of ``diagnose --validate`` (one per
+    step, :func:`stages`) and of ``stiffness validate`` (one model)."""
+    names, cells = _cells(named)
+    width = [max(len(n), *(len(row[i]) for row in cells)) for i, n in enumerate(names)]
+    label = max(len("stage"), *(len(name) for name, _ in named))
+    lines = [f"held-out 3-D error ({named[0][1]['unit']}): mean ± std (max)",
+             f"  {'stage':<{label}}" + "".join(f"  {n:>{w}}" for n, w in zip(names, width,
+                                                                              strict=True))]
+    for (name, _), row in zip(named, cells, strict=True):
+        lines.append(f"  {name:<{label}}" + "".join(f"  {c:>{w}}" for c, w in zip(row, width,
+                                                                                  strict=True)))
+    return lines
+
+
+def stage_section(d: dict) -> list[str]:
+    """The page's table of :func:`stages` (none without a validation campaign): the text
+    table's cells, with each stage's RMS and, where its validation object has them, its RMS
+    over the noise and its verdict."""
+    named = stages(d)
+    if not named:
+        return []
+    names, cells = _cells(named)
+    extra = [k for k in VERDICT_COLUMNS if any(k in v for _, v in named)]
+    rows = [[esc(name), v["rms"], *row, *(v.get(k) if k == "rms_over_noise" else
+                                          esc(v.get(k) or "") for k in extra)]
+            for (name, v), row in zip(named, cells, strict=True)]
+    return [table(f"Held-out 3-D error per stage ({d['unit']})",
+                  ["stage", "RMS", *(f"{n}: mean ± std (max)" for n in names),
+                   *(VERDICT_COLUMNS[k] for k in extra)], rows,
+                  "Each step's model evaluated on the validation campaign without refitting: "
+                  "RMS, and mean, standard deviation and maximum of the 3-D error, overall and "
+                  "per marker" + ("; RMS / noise: over sqrt(3) noise std (1 for a model that "
+                                  "predicts to the noise)." if extra else "."))]
+
+
+def _cells(named: list[tuple[str, dict]]) -> tuple[list[str], list[list[str]]]:
+    """The columns (``all``, then the first stage's markers) and each stage's cells."""
+    names = ["all", *named[0][1]["markers"]]
+    return names, [[_stage_cell(c) for c in (r, *(r["markers"][n] for n in names[1:]))]
+                   for _, r in named]
+
+
+def _stage_cell(r: dict) -> str:
+    if r["mean_error"] is None:
+        return "never seen"
+    return f"{r['mean_error']:.4g} ± {r['std_error']:.2g} ({r['max_error']:.3g})"
