@@ -421,7 +421,7 @@ def test_two_hidden_effects_are_both_named():
     final = s["final_parameters"][place_label(first["effect"], first["where"])]
 
     def interval(p: dict) -> str:
-        return f"{p['ci95'][0]:.4g} to {p['ci95'][1]:.4g}"
+        return f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}]"
 
     moved = [n for n, p in first["parameters"].items() if interval(p) != interval(final[n])]
     assert moved, first

@@ -16,7 +16,6 @@ from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.steps_table import stage_section, steps_table
 from stiffness.calibration.validation_page import validation_section
-from stiffness.elastic.effects.base import place_label
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -151,13 +150,6 @@ def _ambiguities(ambiguities: list[dict], unit: str) -> list[str]:
     return parts
 
 
-def _kept(steps: list[dict]) -> list[dict]:
-    """The steps (``--json`` objects) adding the final model's effects: not a removal
-    (``removed``), not removed by a later one."""
-    gone = {(s["effect"], s.get("where")) for s in steps if s.get("removed")}
-    return [s for s in steps if (s["effect"], s.get("where")) not in gone]
-
-
 def _steps(d: dict, unit: str) -> list[str]:
     """The steps' table and each step's best candidates."""
     parts: list[str] = []
@@ -192,15 +184,13 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     unit = d["unit"]
     title = f"Diagnosis of campaign {d['campaign']}" + (
         f" ({d['robot_name']})" if d.get("robot_name") else "")
-    effects = ", ".join(f"{s['effect']} ({s['where']})" if s.get("where") else s["effect"]
-                        for s in _kept(d["steps"])) or "none"
     parts = [f"<h1>{esc(title)}</h1>", heading("summary", SECTIONS),
              table("What the diagnosis finds", ["quantity", "value"], [
                  ["baseline model", esc(d["baseline"])],
                  [f"baseline RMS residual ({unit})", d["baseline_rms"]],
                  [f"noise standard deviation ({unit})",
                   f"{num(d['noise_std'])} ({esc(d['noise_std_source'])})"],
-                 ["effects added", esc(effects)],
+                 ["effects added", esc(", ".join(d["final_parameters"]) or "none")],
                  [f"final RMS residual ({unit})", d["final_rms"]],
                  ["final model", esc(d["final_model"])],
                  ["why it stopped", esc(d["stop_reason"])],
@@ -226,10 +216,8 @@ def render_diagnosis(d: dict, residuals_png: bytes | None, prov: dict) -> str:
     parts += how_sure_table(d)
     parts.append(heading("parameters", SECTIONS))
     rows = parameter_rows("joint stiffness", d["final_stiffness"])
-    final = d["final_parameters"]  # the final fit's values: a step's are its fit at that step
-    for s in _kept(d["steps"]):
-        rows += parameter_rows(f"{s['effect']} {s.get('where') or ''}".strip(),
-                               final.get(place_label(s["effect"], s.get("where")), {}))
+    for label, params in d["final_parameters"].items():  # the final fit's, not each step's
+        rows += parameter_rows(label, params)
     parts.append(parameter_table(rows))
     parts.append(heading("outliers", SECTIONS))
     parts += outliers_section(d)

@@ -10,7 +10,6 @@ from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
-from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_page import not_added
 from stiffness.calibration.steps_table import stage_table, stages
 
@@ -52,26 +51,20 @@ def format_pose_report(d: PoseDiagnosis) -> str:
                      + not_added(d.rejected, d.not_judged))
     if d.stop_reason:
         lines.append(f"search stopped: {d.stop_reason}")
-    lines += ["", *_plausibility_lines(d), d.verdict(), *describe_outliers(d.outliers), "",
+    # the verdict on the fit's lengths (NOT A CALIBRATION) and the markers' offset notes
+    lines += ["", *filter(None, [d.plausibility.verdict()]), *d.plausibility.notes(),
+              d.verdict(), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
-    table = parameter_table(d.final, d.judge)
-    for p in (p for p in table if p["fitted"]):
+    for p in (p for p in summary["parameters"] if p["fitted"]):
         lo, hi = ("no bound" if v is None else f"{v:.5g}" for v in p["interval_95"])
         lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
                      f"[{lo}, {hi}]" + ("  at its lower bound" if p["at_bound"]
                                                 else "")
                      + ("" if p.get("determined", True) else
                         f"  undetermined ({p['physical_scale']})") + _softening(p))
-    return "\n".join(lines + _how_sure_lines(d))
-
-
-def _plausibility_lines(d: PoseDiagnosis) -> list[str]:
-    """The verdict on the fit's lengths (NOT A CALIBRATION, naming the likely unit and the
-    fix) and the markers' offset notes, before the chi-square verdict."""
-    verdict = d.plausibility.verdict()
-    return ([] if verdict is None else [verdict]) + d.plausibility.notes()
+    return "\n".join(lines + _how_sure_lines(d, summary))
 
 
 def _softening(p: dict) -> str:
@@ -81,14 +74,14 @@ def _softening(p: dict) -> str:
     return "" if beta is None else f"  beta = gamma/c = {beta['value']:.4g} {beta['unit']}"
 
 
-def _how_sure_lines(d: PoseDiagnosis) -> list[str]:
-    """The held parameters and how sure the diagnosis is of each family it added, in the
-    words of a deflection diagnosis's report."""
+def _how_sure_lines(d: PoseDiagnosis, summary: dict) -> list[str]:
+    """The held parameters and how sure the diagnosis is of each family it added
+    (``summary``: its ``--json`` object), in the words of a deflection diagnosis's report."""
     held = [p for ps in d.named_parameters().values() for p in ps
             if p.held.startswith("held at its nominal value")]
     lines = ["", "held at nominal (the data do not determine them):",
              *[f"  {p.text()}" for p in held]] if held else []
-    return lines + (["", *how_sure_lines(d.summary())] if d.how_sure else [])
+    return lines + (["", *how_sure_lines(summary)] if d.how_sure else [])
 
 
 #: How the identifiability lines name a parameter left out, by its reason.
