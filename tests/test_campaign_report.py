@@ -99,7 +99,7 @@ def test_report_of_a_pose_campaign(tmp_path, capsys):
 
 
 def test_report_of_a_deflection_campaign(tmp_path, capsys):
-    """The steps with their cross-validated RMS, the residual figure (x, y, z before and after),
+    """The steps with their held-out RMS, the residual figure (x, y, z before and after),
     the parameters with intervals and the validation on another campaign (the same numbers as
     ``stiffness validate`` of the written final-model.json); the same page as diagnose --out."""
     campaigns = []
@@ -124,11 +124,11 @@ def test_report_of_a_deflection_campaign(tmp_path, capsys):
     assert record["robot_name"] == "ur5" and "(ur5)</title>" in page
     assert json.loads((out / "final-model.json").read_text())["robot"]["name"] == "ur5"
     visible = _visible(page)
-    assert "cross-validated RMS" in visible
+    assert "held-out RMS" in visible
     assert [s["effect"] for s in record["steps"]] == ["force_sensor_bias"]
     assert f"{record['cv_rms']['steps'][0]:.4g}" in visible
     fx = record["steps"][0]["parameters"]["fx"]
-    assert f"{fx['ci95'][0]:.4g} to {fx['ci95'][1]:.4g}" in visible
+    assert f"[{fx['ci95'][0]:.4g}, {fx['ci95'][1]:.4g}]" in visible
     (sure,) = record["how_sure"]  # how sure the named effect is, on the page
     assert re.search(rf"{sure['effect']}\s+{sure['removal_delta_bic']:.4g}\s+"
                      rf"{sure['held_out_cost']:.4g}\b", visible)
