@@ -52,8 +52,9 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
         p = stiffness_report(j, u, float(matrix[i, i]) * u ** 2, 1.0 / refs.k_ref,
                              "N/m" if prismatic else "N.m/rad", q)
         rigid = i in fit.at_bound and fit.x[i] >= top[i]  # no standard error (2.7e26 N.m/rad)
-        return Parameter(j, k, math.inf if rigid else p.standard_error, p.ci95, p.unit,
-                         at_bound=rigid)
+        # judged as stiffness_report judged it (resolved against the physical scale, its note)
+        return dataclasses.replace(p, value=k, standard_error=math.inf if rigid
+                                   else p.standard_error, at_bound=rigid)
 
     effects = [c for c in fit.kept if c >= len(model.compliant)]
     out = [with_bounds(fit, i, one(i, j, cov, quantile), cov,

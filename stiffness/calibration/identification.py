@@ -137,8 +137,9 @@ class Identification(IdentificationResult):
     relative_ci_width
         Per joint, ``(high - low) / k``.
     undetermined_joints
-        Joints whose relative CI width exceeds
-        :data:`~stiffness.calibration.identify.REL_CI_WIDTH_LIMIT`.
+        Joints the data do not determine, by diagnose's rule
+        (:attr:`~stiffness.elastic.effects.base.Parameter.determined`: fitted, with a finite
+        95 % interval whose compliance's width is narrower than its physical scale).
     undetermined_directions
         Undetermined directions in ``ln k`` space.
     held
@@ -155,6 +156,9 @@ class Identification(IdentificationResult):
         The enhanced formulation's first-order kinematics' bias of each stiffness, in its
         standard errors (:func:`~stiffness.calibration.identify.kinematics_bias`; NaN for a
         held one), ``None`` for the other formulations; JSON ``kinematics_bias_se``.
+    physical_scale
+        Per joint, its 95 % interval against its physical scale in words (diagnose's
+        ``physical_scale``; empty: not judged), JSON ``joints[].physical_scale``.
     starts
         Every least-squares run.
     starts_agree
@@ -237,6 +241,7 @@ class Identification(IdentificationResult):
     held: tuple[str | None, ...] = ()
     at_bound: tuple[bool, ...] = ()
     kinematics_bias_se: np.ndarray | None = None
+    physical_scale: tuple[str, ...] = ()
 
     @property
     def sigma_m(self) -> float:
@@ -301,11 +306,13 @@ class Identification(IdentificationResult):
                 {"joint": j, "k": float(k), "unit": u, "k_paper_units": float(kp),
                  "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
                  "ci95": [float(lo), float(hi)], "relative_ci_width": float(w),
-                 "determined": j not in self.undetermined_joints, "held": h, "at_bound": b}
-                for j, k, u, kp, se, lo, hi, w, h, b in zip(
+                 "determined": j not in self.undetermined_joints, "held": h, "at_bound": b,
+                 "physical_scale": s or None}
+                for j, k, u, kp, se, lo, hi, w, h, b, s in zip(
                     self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
                     self.ci95_low, self.ci95_high, self.relative_ci_width, self.held_joints,
-                    self.at_bound or (False,) * len(self.joints), strict=True)
+                    self.at_bound or (False,) * len(self.joints),
+                    self.physical_scale or ("",) * len(self.joints), strict=True)
             ],
             "ci95_method": self.ci95_method,
             "kinematics_bias_se": None if self.kinematics_bias_se is None else [

@@ -51,10 +51,14 @@ spread from the residuals (:class:`stiffness.calibration.selection.Noise`, the o
 Every identification flags the rows beyond 4 noise std (:mod:`stiffness.calibration.outliers`)
 and drops none.
 
-A stiffness the data cannot determine is one whose 95 % interval is wider than the value itself
-(relative width > 1, infinite when the data do not excite it); a direction in ``ln k`` space is
-undetermined when the same criterion fails along a right-singular vector of the whitened
-residual Jacobian (singular value below ``t / asinh(1/2)``, or numerically zero).
+A stiffness is determined by diagnose's rule, the one rule of both commands and both campaign
+kinds (:attr:`stiffness.elastic.effects.base.Parameter.determined`, :mod:`stiffness.calibration.
+naming`, issue 36): fitted, with a finite 95 % interval whose compliance's width is narrower
+than its physical scale, ten times the baseline's mean compliance ``1 / k_ref``
+(:func:`stiffness.calibration.deflection_parameters.stiffness_parameters`, which diagnose
+reports). A direction in ``ln k`` space is undetermined when its relative 95 % width exceeds 1
+along a right-singular vector of the whitened residual Jacobian (singular value below
+``t / asinh(1/2)``, or numerically zero).
 """
 
 from __future__ import annotations
@@ -68,6 +72,7 @@ from typing import overload
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
+from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.fitting import (
     Fit,
     compliance_covariance,
@@ -115,7 +120,8 @@ METHODS = ("trf", "lm", "both")
 PAPER_START_SI = 1e5
 #: Range (SI) of the log-uniform random starts.
 RANDOM_START_RANGE_SI = (1e2, 1e8)
-#: A stiffness is undetermined when its 95 % interval is wider than this times its value.
+#: A direction in ``ln k`` space is undetermined when its 95 % interval is wider than this
+#: times its value (a stiffness is judged by diagnose's rule, module docstring).
 REL_CI_WIDTH_LIMIT = 1.0
 #: Two solutions agree when every determined ln k differs by less than this (0.1 %).
 AGREEMENT_TOL_LOG = 1e-3
@@ -361,8 +367,9 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     if outliers and best_fit.loss == "linear":
         notes.append(f"{len(outliers)} row(s) beyond {OUTLIER_THRESHOLD:g} noise std (listed "
                      "as outliers, kept in the fit); --loss soft_l1 weighs them down")
-    undetermined = tuple(j for j, w in zip(rob.compliant_joints, unc.width, strict=True)
-                         if not w <= REL_CI_WIDTH_LIMIT)
+    judged = stiffness_parameters(_judging(best_fit, campaign), cov.matrix,
+                                  intervals.two_sided(), intervals.one_sided())
+    undetermined = tuple(p.name for p in judged if not p.determined)
     determined = np.array([j not in undetermined for j in rob.compliant_joints])
     starts_agree, methods_agree = _agreement(runs, best, determined, method, notes)
     options = campaign.robot_options()
@@ -414,7 +421,19 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         held=_held(best_fit),
         at_bound=tuple(bool(r) for r in rigid),
         kinematics_bias_se=bias,
+        physical_scale=tuple(p.scale_note for p in judged),
     )
+
+
+def _judging(fit: Fit, campaign: Campaign) -> Fit:
+    """``fit`` with diagnose's physical scales: its model's references at ``k_ref`` the
+    geometric mean of its stiffnesses, as diagnose sets them from its baseline
+    (:func:`stiffness.calibration.diagnose`), so a stiffness's physical scale, ten times
+    ``1 / k_ref`` in compliance, is the one diagnose judges it against."""
+    model = fit.model
+    refs = References.of(model.geometry, model.rows, float(np.exp(np.mean(fit.x))),
+                         campaign.deflection)
+    return replace(fit, model=model.with_refs(refs))
 
 
 def kinematics_bias(fit: Fit, cov_log: np.ndarray) -> np.ndarray:

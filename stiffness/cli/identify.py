@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import math
 import os
 import sys
 from pathlib import Path
@@ -73,6 +74,20 @@ def _g(value: float, digits: int = 5) -> str:
     return f"{value:.{digits}g}" if abs(value) != float("inf") else "unbounded"
 
 
+def _undetermined_row(result: Identification, j: int) -> tuple[str, str, str, str, str, str]:
+    """The table row of joint ``j``, which the data do not determine (diagnose's rule,
+    :attr:`~stiffness.elastic.effects.base.Parameter.determined`): the word instead of its
+    value and standard error, its 95 % interval (``at least`` its low end when unbounded
+    above), and why (its physical scale, or an unbounded interval)."""
+    low, high = result.ci95_low[j], result.ci95_high[j]
+    bounded = math.isfinite(low) and math.isfinite(high)
+    interval = f"[{_g(low)}, {_g(high)}]" if bounded else (
+        f"at least {_g(low)}" if math.isfinite(low) and low > 0 else "unbounded")
+    scale = result.physical_scale[j] if result.physical_scale else ""
+    why = scale if bounded and scale else "the data do not bound it"
+    return (result.joints[j], "undetermined", "-", "-", interval, f"undetermined: {why}")
+
+
 def format_table(result: Identification) -> str:
     """Human-readable report of an identification."""
     revolute = all(u == "N.m/rad" for u in result.units)
@@ -81,7 +96,6 @@ def format_table(result: Identification) -> str:
     rows = [("joint", f"K ({si})", f"K ({paper})", f"SE ({si})", f"CI95 ({si})", "")]
     for j, joint in enumerate(result.joints):
         unit = "" if revolute else result.units[j]
-        flag = "undetermined" if joint in result.undetermined_joints else ""
         held = result.held_joints[j]
         if held is not None:  # not a value the data gave: say so, no number in its columns
             rows.append((joint, "-", "-", "-", "-", f"not fitted (held at "
@@ -91,13 +105,16 @@ def format_table(result: Identification) -> str:
             rows.append((joint, "rigid", "-", "-", f"above {_g(result.ci95_low[j])}",
                          "rigid to the data: its compliance at zero (one-sided 95 % interval)"))
             continue
+        if joint in result.undetermined_joints:  # its interval, no value to read as measured
+            rows.append(_undetermined_row(result, j))
+            continue
         rows.append((
             joint,
             f"{_g(result.k[j])} {unit}".rstrip(),
             _g(result.k_paper_units[j]),
             _g(result.standard_error[j], 3),
             f"[{_g(result.ci95_low[j])}, {_g(result.ci95_high[j])}]",
-            flag,
+            "",
         ))
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     lines = [

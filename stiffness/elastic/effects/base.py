@@ -200,7 +200,8 @@ class Parameter:
 
     def text(self) -> str:
         """One line: ``name = value +- se unit [low, high]``, or what the parameter was held
-        at and why, or that the data do not bound it (and what it is not told apart from,
+        at and why, or ``name: undetermined (...)`` with its interval and no value where the
+        data do not determine it (and what it is not told apart from,
         :attr:`confounded_with`)."""
         if self.held:
             at = "rigid" if math.isinf(self.value) else f"at {self.value:.5g} {self.unit}"
@@ -214,15 +215,16 @@ class Parameter:
         if self.at_bound:
             return (f"{self.name} at its physical bound ({self.value:.5g} {self.unit}; one-sided "
                     f"95 % interval [{self.ci95[0]:.5g}, {self.ci95[1]:.5g}])")
+        # undetermined: no value printed, so none is read as a measurement
         if not self.resolved and math.isfinite(self.standard_error):
-            return (f"{self.name} = {self.value:.5g} +- {self.standard_error:.3g} {self.unit}, "
-                    f"undetermined ({self.scale_note})")
+            return (f"{self.name}: undetermined (95 % interval [{self.ci95[0]:.5g}, "
+                    f"{self.ci95[1]:.5g}] {self.unit}; {self.scale_note})")
         if not self.determined:
-            known = "; ".join(f"{side} {v:.5g}" for side, v in zip(("above", "below"),
-                                                                    self.ci95, strict=True)
+            known = "; ".join(f"{side} {v:.5g} {self.unit}"
+                              for side, v in zip(("at least", "at most"), self.ci95, strict=True)
                               if math.isfinite(v) and v != 0)
-            return (f"{self.name} = {self.value:.5g} {self.unit}, undetermined (the data do not "
-                    f"bound it{': ' + known if known else ''})")
+            return (f"{self.name}: undetermined (the data do not bound it"
+                    f"{': 95 % interval ' + known if known else ''})")
         return (f"{self.name} = {self.value:.5g} +- {self.standard_error:.3g} {self.unit} "
                 f"[{self.ci95[0]:.5g}, {self.ci95[1]:.5g}]")
 
