@@ -139,11 +139,11 @@ def test_the_step_table_aligns_long_family_names(baseline_only):
     """A forced gravity_compensator ('gravity_compensator *', 21 characters) pushed its row's
     numbers past the header's columns (the family column was 18 wide): every row's parameter
     count now ends where the header's 'params' does (the baseline's step relabelled: the
-    table's layout alone is under test)."""
+    table's layout alone is under test, so no judge reads the relabelled step's parameters)."""
     d = baseline_only
     long = dataclasses.replace(d.steps[0], effect="gravity_compensator", forced=True)
-    lines = format_pose_report(dataclasses.replace(d, steps=[d.steps[0], long],
-                                                   search=None)).splitlines()
+    lines = format_pose_report(dataclasses.replace(d, steps=[d.steps[0], long], search=None,
+                                                   judge=None)).splitlines()
     header = next(i for i, line in enumerate(lines) if line.startswith("step "))
     end = lines[header].index("params") + len("params")
     rows = lines[header + 1:header + 3]
