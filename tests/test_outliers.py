@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 from stats import Coverage, binomial_consistent
 
 from stiffness.calibration.campaign import Campaign, load_campaign
@@ -31,7 +32,7 @@ from stiffness.calibration.outliers import (
     leverage,
     robust_noise,
 )
-from stiffness.calibration.selection import replicate_noise
+from stiffness.calibration.selection import noise_terms, replicate_noise
 from stiffness.calibration.solver import LOSSES, loss_terms
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
@@ -215,14 +216,19 @@ def test_diagnose_flags_outliers_and_takes_a_robust_loss(tmp_path):
     robust = diagnose(c, propose=False, workers=1, loss="soft_l1", max_steps=2)
     summary = robust.to_dict()
     assert summary["loss"] == "soft_l1" and summary["missing_effects"] == []
-    # the outliers themselves stay above the noise (no row is dropped), and the verdict says so
-    assert "2 row(s) are flagged as outliers" in robust.unexplained_note
+    # no row is dropped from the fit; the robust verdict leaves the flagged rows out of its
+    # test (they would fail it alone) and says so, in text and JSON
+    assert robust.unexplained is False
+    assert "2 row(s) flagged as outliers left out of the test" in robust.unexplained_note
+    assert "2 row(s) flagged as outliers left out" in robust.stop_reason
+    assert robust.record()["fits_to_noise"]["final_rows_excluded"] == 2
     assert [(o["label"], o["row"]) for o in summary["outliers"]] == expected
     assert robust.final.predicted.shape[0] == c.n_rows
     plain = diagnose(c, propose=False, workers=1, max_steps=0)
     # least squares, pulled by the outliers, may flag a neighbour as well
     assert set(expected) <= {(o.label, o.row) for o in plain.outliers}
-    # least squares says what a robust loss would do about them; the robust diagnosis does not
+    # least squares judges every row: above the noise, it says what a robust loss would do
+    assert plain.unexplained and plain.record()["fits_to_noise"]["final_rows_excluded"] == 0
     assert "--loss soft_l1 weighs them down" in plain.unexplained_note
     assert "--loss" not in robust.unexplained_note
     text = format_report(plain)
@@ -291,3 +297,26 @@ def test_robust_loss_takes_a_robust_replicate_noise():
         replicate_noise(replace(campaign, deflection=rng.normal(0.0, noise, deflection.shape)),
                         robust=True)[0] / noise for _ in range(30)])
     assert abs(ratios.mean() - 1.0) < 3.0 * ratios.std(ddof=1) / math.sqrt(len(ratios))
+
+
+def test_robust_fit_to_noise_leaves_the_flagged_rows_out(tmp_path):
+    """The fit-to-noise test's terms (:func:`noise_terms`): least squares takes ``loss_rss``
+    over all ``n`` components, bit for bit; a robust loss the plain sum of squares of the rows
+    not flagged, over their components, recomputed here by hand from the residuals."""
+    c = simulated(tmp_path / "c", seed=4, configs=8, loads=3)
+    rows = with_gross_outliers(c, seed=4, share=0.08)
+    model = stiffness_model(c, "conventional")
+    measured = np.asarray(c.deflection, dtype=float)
+    x0 = np.full(len(model.compliant), math.log(1e5))
+    plain = fit_model(model, measured, 1e-5, x0, anchor=x0)
+    assert noise_terms(plain, measured, measured.size) == (plain.loss_rss, measured.size, 0)
+    sigma = NOISE_MM * 1e-3
+    robust = fit_model(model, measured, 1e-5, plain.x, anchor=x0, loss="soft_l1",
+                       f_scale=sigma / 1e-5)
+    rss, n, excluded = noise_terms(robust, measured, measured.size)
+    clean = np.delete(robust.predicted - measured, rows, axis=0)
+    assert excluded == len(rows) == 2 and n == clean.size == measured.size - 6
+    assert rss == pytest.approx(float(np.sum(clean ** 2)), rel=1e-12)
+    # the outliers' loss fails chi-square; the rows left fit to noise (seed 4)
+    assert chi2.sf(robust.loss_rss / sigma ** 2, measured.size - 3) < 1e-6
+    assert chi2.sf(rss / sigma ** 2, n - 3) > 0.05

@@ -90,6 +90,7 @@ from stiffness.calibration.selection import (
     fit_job,
     fit_model,
     information_criterion,
+    noise_terms,
     parameter_covariance,
     pooled_replicates,
     replicate_noise,
@@ -97,13 +98,7 @@ from stiffness.calibration.selection import (
 )
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses, make_effect
-from stiffness.elastic.effects.base import (
-    Held,
-    Parameter,
-    effect_place,
-    effect_report,
-    place_label,
-)
+from stiffness.elastic.effects.base import Held, Parameter, effect_place, effect_report, place_label
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -317,7 +312,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     final, stop = search(kind, current, cv_current, max_steps)
     steps = kind.steps
     p_final = final.penalty_params
-    gof_final = fit_goodness(known, final, n)
+    gof_final = fit_goodness(known, final, measured, n)
+    excluded = noise_terms(final, measured, n)[2]
     noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
@@ -340,7 +336,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                            sigma_used, rows, geo.angles(rows)),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
                                         sigma_used, rows, geo.angles(rows)),
-        gof_baseline=fit_goodness(known, base, n), gof_final=gof_final,
+        gof_baseline=fit_goodness(known, base, measured, n), gof_final=gof_final,
+        gof_excluded_rows=excluded,
         unexplained=None if gof_final is None else above_noise(gof_final),
         ambiguities=ambiguities, cv_baseline=cv_base, elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, search=kind,
@@ -546,6 +543,10 @@ class DeflectionSearch:
     def sigma(self) -> float | None:
         """The known noise std (m), ``None`` when only the residuals can tell."""
         return None if self.noise is None else self.noise.sigma
+
+    def noise_terms(self, fit: Fit) -> tuple[float, int, int]:
+        """:func:`~stiffness.calibration.selection.noise_terms` of ``fit``."""
+        return noise_terms(fit, self.measured, self.n)
 
     def candidates(self, current: Fit, only: str | None = None) -> list[Found] | None:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked

@@ -21,7 +21,12 @@ from stiffness.calibration.fitting import Fit
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
-from stiffness.calibration.selection import GOF_LEVEL, OVERSTATED_P, noise_overstated
+from stiffness.calibration.selection import (
+    GOF_LEVEL,
+    OVERSTATED_P,
+    excluded_note,
+    noise_overstated,
+)
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
@@ -113,7 +118,9 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     baseline_disagreement, final_disagreement
         Residual breakdowns (:func:`~stiffness.calibration.breakdown.disagreement`).
     gof_baseline, gof_final
-        Chi-square p-values of the baseline and final fits (known noise only).
+        Chi-square p-values of the baseline and final fits (known noise only; under a robust
+        loss over the rows not flagged as outliers,
+        :func:`~stiffness.calibration.selection.noise_terms`).
     ambiguities
         What the campaign cannot tell apart.
     cv_baseline
@@ -126,6 +133,9 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         outside the library is in the data, and :attr:`final_disagreement` says where to look.
         ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
         from the residuals (no test available).
+    gof_excluded_rows
+        Rows flagged as outliers that the final fit's fit-to-noise test left out (a robust
+        loss's; 0 under least squares).
     validation, baseline_validation
         With a validation campaign (``diagnose --validate``,
         :mod:`stiffness.calibration.deflection_validation`): the final model file on it
@@ -156,6 +166,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     rotation_noise_source: str | None = None
     validation: dict | None = None
     baseline_validation: dict | None = None
+    gof_excluded_rows: int = 0
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -188,18 +199,21 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             return ("not tested: the noise is estimated from the final model's residuals, so "
                     "whether something outside the library is left cannot be said")
         if not self.unexplained:
-            return f"the final model explains the data to noise ({self.test} test)" + (
+            return (f"the final model explains the data to noise ({self.test} test"
+                    f"{excluded_note(self.gof_excluded_rows)})") + (
                 f"; its residual is far below the declared noise (chi-square lower tail p < "
                 f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the "
                 "intervals are too wide and an effect below the noise goes unseen"
                 if noise_overstated(self.gof_final) else "")
         return (f"the residual is still above the noise ({self.test} p = {self.gof_final:.3g} "
-                f"<= {1 - GOF_LEVEL:.2g}) and no further library effect passes BIC and "
-                "cross-validation: the data contain something the library does not model; "
+                f"<= {1 - GOF_LEVEL:.2g}{excluded_note(self.gof_excluded_rows)}) and no "
+                "further library effect passes BIC and cross-validation: the data contain "
+                "something the library does not model; "
                 "the residual's structure (where_final_disagrees) says where to look"
                 + self._understated_note() + self._weak_folds_note()
                 + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
-                   "fail the test (see outliers)" if self.outliers else "")
+                   "fail the test (see outliers)" if self.outliers and self.loss == "linear"
+                   else "")
                 + ("; a least-squares fit pulled by gross rows bends the stiffnesses and flags "
                    "clean rows too: --loss soft_l1 weighs them down"
                    if self.outliers and self.loss == "linear" else ""))
@@ -304,7 +318,8 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "final_model": self.final.model.describe(),
             "noise_std_note": self.noise_note,
             "fits_to_noise": {"baseline_p_value": self.gof_baseline,
-                              "final_p_value": self.gof_final, "level": GOF_LEVEL},
+                              "final_p_value": self.gof_final, "level": GOF_LEVEL,
+                              "final_rows_excluded": self.gof_excluded_rows},
             "stop_reason": self.stop_reason,
             "unexplained_note": self.unexplained_note,
             "cv_rms": {"baseline": self._len(self.cv_baseline),

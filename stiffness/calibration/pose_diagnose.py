@@ -411,6 +411,11 @@ class PoseSearch:
         """The declared noise std (position-noise units), ``None`` when not declared."""
         return None if self.sigma is None else Noise(self.sigma)
 
+    def noise_terms(self, fit: PoseFit) -> tuple[float, int, int]:
+        """:meth:`PoseFit.loss_rss` (position-noise units squared) over every observed
+        component, no pose left out (a robust loss's flagged poses stay in the test)."""
+        return fit.loss_rss(), self.n, 0
+
     def force(self, family: str, loss: str) -> None:
         """Add ``family`` whatever its BIC and held-out error (``diagnose --families``)."""
         self.say(f"step {len(self.steps)}: {family} (forced)")

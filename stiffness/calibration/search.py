@@ -215,6 +215,11 @@ class SearchKind(Protocol[E, F]):
         """The noise std and how it is known (:class:`~stiffness.calibration.selection.Noise`:
         its test of fitting to it), ``None`` when not known."""
 
+    def noise_terms(self, fit: F) -> tuple[float, int, int]:
+        """The residual (m^2) and component count ``fit``'s fit-to-noise test takes, and the
+        rows flagged as outliers it leaves out
+        (:func:`~stiffness.calibration.selection.noise_terms`)."""
+
     def candidates(self, current: F) -> list[Candidate[E, F]] | None:
         """The extensions of ``current`` fitted, :func:`ranked` (``None``: none left)."""
 
@@ -286,8 +291,9 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
     """The forward search: the last fit, its held-out RMS (m) and why it stopped."""
     added = 0
     while True:
-        rss, p = current.terms()
-        noise = fits_to_noise(rss, kind.n, p, kind.noise, current.translation_terms())
+        rss, n, excluded = kind.noise_terms(current)
+        noise = fits_to_noise(rss, n, current.terms()[1], kind.noise,
+                              current.translation_terms(), excluded)
         if noise is not None:
             return current, cv_current, noise
         if max_steps is not None and added >= max_steps:

@@ -23,7 +23,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import Fit, FitJob
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION
 from stiffness.calibration.measurements import first_copies
-from stiffness.calibration.outliers import robust_noise
+from stiffness.calibration.outliers import flag_fit, robust_noise
 from stiffness.calibration.solver import Covariance
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
@@ -335,30 +335,63 @@ def above_noise(gof: float) -> bool:
     return gof <= 1.0 - GOF_LEVEL
 
 
-def fit_goodness(noise: Noise | None, fit: fitting.Fit, n: int) -> float | None:
-    """:meth:`Noise.goodness_of_fit` of a deflection ``fit`` to ``n`` residual components
-    (its :meth:`~stiffness.calibration.fitting.Fit.terms` and
-    :meth:`~stiffness.calibration.fitting.Fit.translation_terms`), ``None`` when the noise is
-    not known (``None``) or no test is available."""
+def fit_goodness(noise: Noise | None, fit: fitting.Fit, measured: np.ndarray, n: int
+                 ) -> float | None:
+    """:meth:`Noise.goodness_of_fit` of a deflection ``fit`` to ``measured`` (m), ``n``
+    residual components (its :func:`noise_terms`, :meth:`~stiffness.calibration.fitting.Fit.
+    terms`' parameter count and :meth:`~stiffness.calibration.fitting.Fit.translation_terms`),
+    ``None`` when the noise is not known (``None``) or no test is available."""
     if noise is None:
         return None
-    rss, p = fit.terms()
-    return noise.goodness_of_fit(rss, n, p, fit.translation_terms())
+    rss, m, _ = noise_terms(fit, measured, n)
+    return noise.goodness_of_fit(rss, m, fit.terms()[1], fit.translation_terms())
 
 
 def fits_to_noise(rss: float, n: int, p: int, noise: Noise | None,
-                  translations: tuple[float, int, float] | None = None) -> str | None:
+                  translations: tuple[float, int, float] | None = None, excluded: int = 0
+                  ) -> str | None:
     """The stop rule of both campaign kinds' searches: why a search stops because its current
     model explains the data to the ``noise`` (:meth:`Noise.goodness_of_fit` not
     :func:`above_noise`, ``translations`` its; known noise only, ``None``: not known), or
-    ``None`` when it goes on."""
+    ``None`` when it goes on. ``rss`` and ``n`` are the test's (:func:`noise_terms`), which
+    left ``excluded`` rows flagged as outliers out."""
     if noise is None:
         return None
     gof = noise.goodness_of_fit(rss, n, p, translations)
     if gof is None or above_noise(gof):
         return None
     return (f"the model explains the data to noise ({noise.test} p = {gof:.3g} > "
-            f"{1 - GOF_LEVEL:.2g})")
+            f"{1 - GOF_LEVEL:.2g}{excluded_note(excluded)})")
+
+
+def excluded_note(excluded: int) -> str:
+    """The words of a fit-to-noise verdict on the rows :func:`noise_terms` left out: ``""``
+    when none."""
+    return (f"; {excluded} row(s) flagged as outliers left out of the test" if excluded
+            else "")
+
+
+def noise_terms(fit: Fit, measured: np.ndarray, n: int) -> tuple[float, int, int]:
+    """The residual (m^2) and component count of the fit-to-noise test
+    (:meth:`Noise.goodness_of_fit`) of a deflection ``fit`` to ``measured`` (m) of ``n``
+    components, and the rows it leaves out: the one place the stop rule and the verdict take
+    them from.
+
+    Least squares: :attr:`Fit.loss_rss`, ``n``, no row left out. A robust loss weighs gross rows
+    down, and the test must not judge the fit by them: the rows
+    :func:`~stiffness.calibration.outliers.flag_fit` flags (standardised by the noise std the
+    loss is scaled by, ``f_scale * scale``: the declared one, else the robust estimate) are left
+    out, and the test takes the sum of squares of the other rows' components over their count
+    (chi-square with ``n - k - p`` degrees of freedom for ``k`` components left out).
+    """
+    if fit.loss == "linear":
+        return fit.loss_rss, n, 0
+    flagged, _ = flag_fit(fit, measured, fit.f_scale * fit.scale, fit.penalty_params,
+                          ("",) * measured.shape[0], None)
+    keep = np.ones(measured.shape[0], dtype=bool)
+    keep[[o.row - 1 for o in flagged]] = False
+    residual = (fit.predicted - measured)[keep].reshape(-1)
+    return float(residual @ residual), n - measured[~keep].size, len(flagged)
 
 
 @dataclass(frozen=True)
