@@ -376,3 +376,29 @@ def test_deflection_tangent_is_the_derivative(data, n):
             fd = (plus - minus) / (2 * h)
             np.testing.assert_allclose(tangent[..., d], fd, rtol=1e-5,
                                        atol=1e-7 * max(np.abs(fd).max(), 1e-30))
+
+
+def test_loops_leaving_their_reach_under_a_buckling_load_say_buckling():
+    """Griffis-Duffy's platform on its 1..6 kN/m legs, without its springs' rest lengths,
+    buckles under 10 N: K_theta - K_C (computed here at the unloaded pose) is indefinite. The
+    first Newton step overshoots the loops' reach; that was reported as a LoopClosureError
+    ("check the joint values and their units", which the user never gave: `stiffness simulate
+    --robot griffis-duffy` ended so); now the step is damped and the load named as too large.
+    Under 0.1 N the same solver reaches K_theta dtheta = J(q)^T F at the closed pose."""
+    from stiffness.errors import LoopClosureError, UnstableEquilibriumError
+    from stiffness.mechanics.defaults import default_coordinates
+    from stiffness.robot.robot import load_robot
+
+    robot = load_robot("griffis-duffy")
+    q0 = robot.configuration(default_coordinates(robot))
+    k = np.diag(np.asarray(robot.defaults["k_theta_SI"], dtype=float))
+    force = np.array([0.0, 0.0, -10.0])
+    start = k - target_state(robot, q0, force).k_c
+    assert np.linalg.eigvalsh(0.5 * (start + start.T))[0] < 0
+    with pytest.raises(UnstableEquilibriumError, match="buckling load") as info:
+        solve_equilibrium(robot, q0, k, force)
+    assert not isinstance(info.value, LoopClosureError)
+    small = force / 100
+    eq = solve_equilibrium(robot, q0, k, small)
+    jac = target_state(robot, eq.q).jacobian[:3]
+    assert np.abs(k @ eq.dtheta - jac.T @ small).max() < 1e-9 * np.abs(jac.T @ small).max()

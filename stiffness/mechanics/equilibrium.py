@@ -27,7 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import ConvergenceError, UnstableEquilibriumError, wrong_argument
+from stiffness.errors import (
+    ConvergenceError,
+    LoopClosureError,
+    UnstableEquilibriumError,
+    wrong_argument,
+)
 from stiffness.mechanics.formulation import (
     as_wrench,
     compliant_projection,
@@ -41,6 +46,9 @@ from stiffness.units import float_array, whole_number
 #: Absolute floor of the convergence test, relative to the largest residual term: the round-off
 #: of the kinematics (a few eps) that couples every joint's residual to the largest term.
 _ROUND_OFF = 16 * np.finfo(float).eps
+#: Times a Newton step whose loops do not close is halved back towards the last deflection that
+#: closed, before the equilibrium is given up as beyond the loops' reach.
+_HALVINGS = 12
 
 
 class JointLaw:
@@ -378,7 +386,9 @@ def solve_equilibrium(
     Raises
     ------
     ConvergenceError
-        If Newton's method does not converge (the load may exceed the buckling load).
+        If Newton's method does not converge (the load may exceed the buckling load), or a
+        closed-loop robot's loops close nowhere along a step, however damped (the load
+        carries the mechanism out of their reach).
     UnstableEquilibriumError
         If the tangent stiffness becomes singular on the way, or the equilibrium found is
         unstable (K_theta - K_C not positive definite there): the load buckles the robot.
@@ -392,10 +402,12 @@ def solve_equilibrium(
     if preload is not None:
         tau0 = tau0 + preload(q0)[0]
     dtheta = law.start(tau0)
-    q = q0
+    q, closed = q0, np.zeros_like(dtheta)  # the last deflection whose loops closed, at q
     iterations = 0
     for iterations in range(1, whole_number(max_iterations, "max_iterations") + 1):  # noqa: B007
-        q = deflected_configuration(robot, q0, dtheta, q)
+        q, dtheta = _closed_deflection(robot, q0, dtheta, q, closed, lambda: _raise_if_buckled(
+            robot, law, q0, tau0, wrench, f"the loops of {robot.title} do not close on the way"))
+        closed = dtheta
         state = target_state(robot, q, wrench)
         tau = state.jacobian.T @ wrench
         k_c = state.k_c
@@ -413,15 +425,8 @@ def solve_equilibrium(
                 "the load buckles the robot; reduce the load or stiffen the joints") from exc
         dtheta = dtheta + step
     else:
-        start = tangent_joint_stiffness(law.tangent_stiffness(tau0),
-                                        target_state(robot, q0, wrench).k_c)
-        lowest = np.linalg.eigvalsh(0.5 * (start + start.T))[0]
-        if lowest <= 0:
-            raise UnstableEquilibriumError(
-                f"the exact equilibrium did not converge in {max_iterations} iterations and "
-                f"K_theta - K_C under this load is already indefinite at the unloaded pose "
-                f"(eigenvalue {lowest:.3g}): loads this large exceed the buckling load; "
-                "reduce it or stiffen the joints")
+        _raise_if_buckled(robot, law, q0, tau0, wrench, "the exact equilibrium did not "
+                          f"converge in {max_iterations} iterations")
         raise ConvergenceError(
             f"the exact equilibrium did not converge in {max_iterations} iterations "
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
@@ -438,6 +443,53 @@ def solve_equilibrium(
     rot = pin.log3(state.rotation @ base.rotation.T)
     return Equilibrium(q, dtheta, state.position - base.position, rot, iterations, tau,
                        state.position.copy())
+
+
+def _raise_if_buckled(robot: Robot, law: JointLaw, q0: np.ndarray, tau0: np.ndarray,
+                      wrench: np.ndarray, what: str) -> None:
+    """Raise :class:`UnstableEquilibriumError` (``what`` saying what failed) when the tangent
+    ``K_theta - K_C`` under ``wrench`` is already indefinite at the unloaded pose ``q0``."""
+    start = tangent_joint_stiffness(law.tangent_stiffness(tau0),
+                                    target_state(robot, q0, wrench).k_c)
+    lowest = np.linalg.eigvalsh(0.5 * (start + start.T))[0]
+    if lowest <= 0:
+        raise UnstableEquilibriumError(
+            f"{what} and K_theta - K_C under this load is already indefinite at the unloaded "
+            f"pose (eigenvalue {lowest:.3g}): loads this large exceed the buckling load; "
+            "reduce it or stiffen the joints")
+
+
+def _closed_deflection(robot: Robot, q0: np.ndarray, dtheta: np.ndarray, q: np.ndarray,
+                       last: np.ndarray, buckled: Callable[[], None]
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The configuration at the deflection ``dtheta`` (rad, m) from ``q0``, loops closed from
+    ``q`` (the closed configuration at the deflection ``last``), and that deflection; where the
+    loops do not close there (a Newton step past their reach, on a soft mechanism near a
+    singular pose), the step from ``last`` is halved up to :data:`_HALVINGS` times (a damped
+    Newton step). An open chain, or a step whose loops close, is taken as it is.
+
+    Raises
+    ------
+    UnstableEquilibriumError
+        If the loops close at none of those deflections and ``buckled()`` finds the load past
+        the buckling load.
+    ConvergenceError
+        If the loops close at none of those deflections otherwise: the load carries the
+        mechanism out of their reach.
+    """
+    for _ in range(_HALVINGS + 1):
+        try:
+            return deflected_configuration(robot, q0, dtheta, q), dtheta
+        except LoopClosureError as exc:
+            error = exc
+            dtheta = last + 0.5 * (dtheta - last)
+    buckled()
+    raise ConvergenceError(
+        f"the loops of {robot.title} do not close at the deflection this load calls for, nor "
+        f"at {0.5 ** _HALVINGS:.1e} of the way to it from the last that closed (largest joint "
+        f"deflection {np.abs(last).max():.3g} rad or m): the load carries the mechanism out of "
+        f"its loops' reach at this pose ({error}); reduce the load or stiffen the joints"
+    ) from error
 
 
 def _joint_law(robot: Robot, k_theta: JointLaw | np.ndarray) -> JointLaw:
