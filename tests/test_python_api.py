@@ -1,9 +1,9 @@
 """The Python API equals the command line: for each workflow at the package top
 (``stiffness.identify``, ``diagnose``, ``simulate``, ``design``, ``compensate``, ``posture``,
-``scan``; ``diagnose`` of a pose campaign and ``validate``), the result's ``.to_dict()`` is
-the JSON object the command prints with ``--json`` for the same inputs (the command run
-through ``stiffness.cli.main.main``), and what the command writes, the result's ``.write()``
-writes the same.
+``scan``; ``diagnose`` of a pose campaign, ``simulate_poses`` and ``validate``), the result's
+``.to_dict()`` is the JSON object the command prints with ``--json`` for the same inputs (the
+command run through ``stiffness.cli.main.main``), and what the command writes, the result's
+``.write()`` writes the same.
 
 Inputs are tiny (a few rows, poses and candidates) so that the file runs in seconds.
 """
@@ -70,6 +70,23 @@ def test_simulate(tmp_path, capsys):
     assert _as_json(sim) == printed
     sim.write(tmp_path / "py")
     for name in ("measurements.csv", "truth.json"):
+        assert (tmp_path / "py" / name).read_text() == (tmp_path / "cli" / name).read_text()
+
+
+def test_simulate_poses(tmp_path, capsys):
+    """``simulate --kind poses`` is ``stiffness.simulate_poses``: the same truth and files."""
+    effects = ["joint_compliance:shoulder_lift_joint=2e5", "backlash:shoulder_lift_joint=0.01",
+               "frame=1,2,3,100,0,0"]
+    argv = ["simulate", "--kind", "poses", "--robot", "ur10", "--frame", "tool0", "--poses", "4",
+            "--marker", "tip=tool0@0,30,50", "--load", "0,0,-100", "--noise", "0.02",
+            "--seed", "5"] + [f"--effect={e}" for e in effects]
+    printed = _command_json(capsys, argv + ["--out", str(tmp_path / "cli")])
+    sim = stiffness.simulate_poses("ur10", [stiffness.Marker("tip", "tool0", np.array(
+        [0.0, 0.03, 0.05]))], poses=4, effects=effects, noise_std_m=2e-5, seed=5,
+        payload=[0.0, 0.0, -100.0], frame="tool0")
+    assert _as_json(sim) == printed
+    sim.write(tmp_path / "py")
+    for name in ("campaign.toml", "measurements.csv", "truth.json"):
         assert (tmp_path / "py" / name).read_text() == (tmp_path / "cli" / name).read_text()
 
 

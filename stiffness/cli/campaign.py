@@ -31,7 +31,6 @@ from stiffness.calibration.campaign_toml import (
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_import import ROTATION_FORMATS, import_pose_campaign
-from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.rig_import import (
     FRAMES,
     ImportSettings,
@@ -114,29 +113,6 @@ def _settings(args: argparse.Namespace) -> ImportSettings:
                           {**base.fixed, **fixed})
 
 
-def _markers(texts: list[str] | None) -> tuple[list[Marker], dict[str, np.ndarray]]:
-    """The ``--marker NAME=FRAME[@X,Y,Z[@RX,RY,RZ]]`` flags: the markers (offsets in the
-    files' length unit) and the rotation vectors given (the files' angle unit), by name."""
-    out, turns = [], {}
-    for text in texts or []:
-        name, sep, rest = text.partition("=")
-        frame, _, placement = rest.partition("@")
-        offset, _, turn = placement.partition("@")
-        if not sep or not name.strip() or not frame.strip():
-            raise StiffnessError(f"--marker {text!r}: write NAME=FRAME, NAME=FRAME@X,Y,Z or "
-                                 "NAME=FRAME@X,Y,Z@RX,RY,RZ")
-        parsed = {}
-        for what, cells in (("offset", offset), ("rotation", turn)):
-            xyz = flags.parse_list(cells, f"--marker {what}") if cells else [0.0, 0.0, 0.0]
-            if len(xyz) != 3 or not np.all(np.isfinite(xyz)):
-                raise StiffnessError(f"--marker {text!r}: the {what} is three finite numbers")
-            parsed[what] = np.array(xyz, dtype=float)
-        if turn:
-            turns[name.strip()] = parsed["rotation"]
-        out.append(Marker(name.strip(), frame.strip(), parsed["offset"]))
-    return out, turns
-
-
 def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
                settings: ImportSettings) -> int:
     """``--kind poses``: write a pose campaign."""
@@ -144,7 +120,7 @@ def _run_poses(args: argparse.Namespace, robot_settings: RobotSettings, robot,
         raise StiffnessError("--kind poses reads absolute positions in the measuring system's "
                              "frame and wrenches in world axes; drop --force-frame/"
                              "--deflection-frame tool")
-    declared, turns = _markers(args.marker)
+    declared, turns = flags.parse_markers(args.marker)
     campaign, report = import_pose_campaign(args.files, robot_settings, settings, declared,
                                             args.name, args.noise, robot, args.noise_rotation,
                                             turns, args.rotation_format)

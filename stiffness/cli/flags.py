@@ -46,6 +46,7 @@ from stiffness.files import output_folder
 from stiffness.units import FLAG_NUMBER, MAX_CELL, plain_float, plain_int
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
+    from stiffness.calibration.pose_model import Marker
     from stiffness.elastic.model import ElasticModel
     from stiffness.robot.robot import Robot
 
@@ -256,6 +257,32 @@ def parse_names(text: str | None) -> list[str] | None:
     if text is None:
         return None
     return [name.strip() for name in text.split(",") if name.strip()]
+
+
+def parse_markers(texts: list[str] | None) -> tuple[list[Marker], dict[str, np.ndarray]]:
+    """The ``--marker NAME=FRAME[@X,Y,Z[@RX,RY,RZ]]`` flags (``campaign import``,
+    ``simulate``): the markers (offsets in the files' length unit) and the rotation vectors
+    given (the files' angle unit), by name."""
+    from stiffness.calibration.pose_model import Marker
+
+    out, turns = [], {}
+    for text in texts or []:
+        name, sep, rest = text.partition("=")
+        frame, _, placement = rest.partition("@")
+        offset, _, turn = placement.partition("@")
+        if not sep or not name.strip() or not frame.strip():
+            raise StiffnessError(f"--marker {text!r}: write NAME=FRAME, NAME=FRAME@X,Y,Z or "
+                                 "NAME=FRAME@X,Y,Z@RX,RY,RZ")
+        parsed = {}
+        for what, cells in (("offset", offset), ("rotation", turn)):
+            xyz = parse_list(cells, f"--marker {what}") if cells else [0.0, 0.0, 0.0]
+            if len(xyz) != 3 or not np.all(np.isfinite(xyz)):
+                raise StiffnessError(f"--marker {text!r}: the {what} is three finite numbers")
+            parsed[what] = np.array(xyz, dtype=float)
+        if turn:
+            turns[name.strip()] = parsed["rotation"]
+        out.append(Marker(name.strip(), frame.strip(), parsed["offset"]))
+    return out, turns
 
 
 # --- declaring flags -------------------------------------------------------------------------

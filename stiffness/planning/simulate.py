@@ -54,7 +54,6 @@ deflections (:attr:`Simulation.effect_rms_m`), in noise units in ``truth.json``.
 from __future__ import annotations
 
 import json
-import math
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -105,6 +104,7 @@ from stiffness.planning.simulate_poses import (
 from stiffness.planning.simulate_request import (
     check_request,
     draw_loads,
+    effect_values,
     request_record,
     rotation_noise_std,
     true_stiffness,
@@ -112,7 +112,7 @@ from stiffness.planning.simulate_request import (
 )
 from stiffness.robot.declaration import FAR_TARGET
 from stiffness.robot.robot import Robot
-from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, float_array, plain_float, whole_number
+from stiffness.units import Units, float_array, whole_number
 
 #: File documenting the hidden truth beside ``campaign.toml``.
 TRUTH_FILE = "truth.json"
@@ -166,15 +166,7 @@ def parse_effect(text: str) -> HiddenEffect:
         raise UnknownEffectError(f"unknown effect {name!r} in --effect {text!r}; "
                                  f"{did_you_mean(name, list(LIBRARY))}", name=name,
                                  choices=list(LIBRARY))
-    values: list[float] = []
-    if rest.strip():
-        for item in rest.split(","):
-            try:
-                values.append(plain_float(item, FLAG_NUMBER))
-            except ValueError as exc:
-                raise StiffnessError(f"--effect {text!r}: {exc}") from None
-    if not all(math.isfinite(v) and abs(v) <= MAX_CELL for v in values):
-        raise StiffnessError(f"--effect {text!r}: values must be finite, within +-{MAX_CELL:.0e}")
+    values = effect_values(text, rest)
     value_counts = LIBRARY[name].value_counts
     if len(values) not in value_counts:
         counts = " or ".join(str(c) for c in value_counts)

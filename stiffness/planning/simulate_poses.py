@@ -76,8 +76,9 @@ class HiddenPoseErrors:
     placement_errors
         (n_joints, 6) placement errors ``eps_j`` of the same joints.
     stiffness
-        (n_compliant,) joint stiffness (N.m/rad or N/m) of the robot's compliant joints, or
-        ``None`` for a rigid arm.
+        (n_compliant,) joint stiffness (N.m/rad or N/m) of the robot's compliant joints
+        (``inf``: that spring rigid, its backlash alone moving it), or ``None`` for a rigid
+        arm.
     drift
         Drift of the measuring frame's origin over the campaign (m), linear along the rows.
     link_compliance

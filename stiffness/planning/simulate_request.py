@@ -16,7 +16,7 @@ from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.planning.plan import Plan
 from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot
-from stiffness.units import Units, float_array, whole_number
+from stiffness.units import FLAG_NUMBER, MAX_CELL, Units, float_array, plain_float, whole_number
 
 #: Load patterns of :func:`simulate`.
 LOAD_PATTERNS = ("random", "ramp", "axes")
@@ -39,6 +39,27 @@ def draw_loads(pattern: str, n: int, max_force: float, rng: np.random.Generator)
         return np.outer(np.arange(1, n + 1) / n, d) * max_force
     axes = np.vstack([np.eye(3), -np.eye(3)])
     return axes[np.arange(n) % 6] * max_force
+
+
+def effect_values(text: str, rest: str) -> list[float]:
+    """The values after ``=`` (``rest``) of the ``--effect`` ``text``: comma-separated finite
+    numbers within the cells' range (none when empty).
+
+    Raises
+    ------
+    StiffnessError
+        A non-number, or a value not finite or beyond the range.
+    """
+    values: list[float] = []
+    if rest.strip():
+        for item in rest.split(","):
+            try:
+                values.append(plain_float(item, FLAG_NUMBER))
+            except ValueError as exc:
+                raise StiffnessError(f"--effect {text!r}: {exc}") from None
+    if not all(math.isfinite(v) and abs(v) <= MAX_CELL for v in values):
+        raise StiffnessError(f"--effect {text!r}: values must be finite, within +-{MAX_CELL:.0e}")
+    return values
 
 
 def check_request(configs: int, loads_per_config: int, repeats: int, max_force: float,
