@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,24 @@ def ur10_tip_campaign(poses: int, payload_n: float | None = None) -> PoseCampaig
                               stiffness=np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]))
     payload = None if payload_n is None else np.array([0.0, 0.0, -payload_n, 0, 0, 0])
     return simulate_pose_campaign(robot, markers, hidden, poses, 20e-6, seed=2, payload=payload)
+
+
+@functools.cache
+def ur10_rigid_lift_campaign() -> PoseCampaign:
+    """30 UR10 poses of its two markers (:func:`ur10_markers`, 20 um noise, 150 N downward
+    payload, seed 3) with a hidden frame and marker offsets off by mm, joint springs, the
+    shoulder lift rigid (its compliance's truth at the bound 0), no zero offsets or link
+    geometry errors. Built once per test process: tests only read it (test_interval_noise and
+    test_standard_error_at_bound fit it, with huber and least squares)."""
+    robot = load_robot("ur10", frame="tool0")
+    markers = ur10_markers()
+    rng = np.random.default_rng(3)
+    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
+                              np.array([m.offset for m in markers])
+                              + rng.normal(0, 2e-3, (2, 3)), np.zeros(6), np.zeros((6, 6)),
+                              np.array([3e5, np.inf, 1.2e5, 4e4, 3e4, 3e4]))
+    return simulate_pose_campaign(robot, markers, hidden, 30, 20e-6, seed=3,
+                                  payload=np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0]))
 
 
 def write_ur5_tip_campaign(folder: Path) -> None:

@@ -11,19 +11,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from pose_campaigns import ur10_rigid_lift_campaign
 
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
-from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.selection import Noise, fit_model, holding, parameter_covariance
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.planning.simulate import simulate
-from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
-from stiffness.robot.robot import load_robot
 
 NOISE = 2e-5  # m
 
@@ -83,19 +81,9 @@ def test_a_pose_fit_at_a_bound_reports_the_covariance_none_held():
     every fitted parameter's ``std`` (what ``--json`` and the model file write) is the rule's;
     the elbow compliance's is 9.6 % above the held covariance's, which the fit printed
     before."""
-    robot = load_robot("ur10", frame="tool0")
-    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
-               Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
-    rng = np.random.default_rng(3)
-    hidden = HiddenPoseErrors(pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3),
-                              np.array([m.offset for m in markers])
-                              + rng.normal(0, 2e-3, (2, 3)),
-                              np.zeros(6), np.zeros((6, 6)),
-                              np.array([3e5, np.inf, 1.2e5, 4e4, 3e4, 3e4]))
-    c = simulate_pose_campaign(robot, markers, hidden, 30, NOISE, seed=3,
-                               payload=np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0]))
+    c = ur10_rigid_lift_campaign()
     families = ["frame", "markers", "joint_compliance"]
-    model = PoseModel(robot, c.markers, tuple(families), starting_frame(c), c.loads)
+    model = PoseModel(c.robot, c.markers, tuple(families), starting_frame(c), c.loads)
     rows = rows_of(model, c)
     fit = fit_pose_model(model, c, rows, families)
     kept = list(fit.identifiability.kept)
