@@ -36,6 +36,11 @@ def edited(tmp_path: Path, old: str, new: str) -> Path:
      "(q_deg): q_deg has 2 values for 6 coordinates (joint1, joint2, joint3, joint4"),
     ('compliant_joints = ["joint1", "joint2", "joint3"]', 'compliant_joints = ["joint1"]',
      "k_theta_SI has 3 values for 1 compliant joints (joint1)"),
+    # a negative spring was refused only when kx used it, naming neither file nor key
+    ("k_theta_SI = [1.4098e6, 4.0076e5, 9.3528e5]", "k_theta_SI = [1.4098e6, -4.0076e5, 9.3528e5]",
+     "(k_theta_SI): k_theta_SI must be positive stiffnesses, one per compliant joint, N.m/rad"),
+    ("k_theta_SI = [1.4098e6, 4.0076e5, 9.3528e5]", "k_theta_SI = [1.4098e6, 0, 9.3528e5]",
+     "(k_theta_SI): k_theta_SI must be positive stiffnesses"),
     ("uniform = { joint1", "unifrom = { joint1",  # at load, not when poses are drawn
      "([workspace].unifrom): unknown key 'unifrom'; valid names: "),
 ])

@@ -160,8 +160,8 @@ WORKSPACE_KEYS = ("angle_unit", "uniform", "choice", "linear", "avoid", "target_
 
 def check_settings(settings: dict, toml: Path) -> None:
     """Refuse a ``robot.toml`` whose known top-level keys hold values of the wrong type (a
-    number where names are listed, text where numbers are) or an unknown key (top-level or of
-    ``[workspace]``), in one line naming the key.
+    number where names are listed, text where numbers are; a stiffness not positive) or an
+    unknown key (top-level or of ``[workspace]``), in one line naming the key.
 
     Raises
     ------
@@ -186,6 +186,9 @@ def check_settings(settings: dict, toml: Path) -> None:
                                     and (counts is None or len(value) in counts)):
             size = "" if counts is None else " or ".join(map(str, counts)) + " "
             refuse(key, f"a list of {size}finite numbers")
+    if not all(v > 0 for v in settings.get("k_theta_SI", ())):
+        refuse("k_theta_SI", "positive stiffnesses, one per compliant joint, N.m/rad (N/m "
+               "prismatic)")
     for key in TABLE_KEYS:
         if key in settings and not isinstance(settings[key], dict):
             refuse(key, f"a table ([{key}])")
