@@ -147,7 +147,10 @@ def test_diagnose_names_the_hidden_joint_spring(tmp_path, capsys):
     (["--kind", "poses", "--effect", "joint_compliance:elbow_joint=-1e4"], "positive values"),
     (["--kind", "poses", "--rotation-noise", "0.01"], "add --rotations"),
     (["--kind", "poses", "--drift", "1,2"], "--drift takes three lengths"),
-    (["--effect", "frame=1,2,3"], "unknown effect 'frame'"),
+    (["--effect", "frame=1,2,3"], "(frame is a pose campaign's: --kind poses)"),
+    (["--kind", "poses", "--marker", "tip=nowhere"], "frame 'nowhere' is not a frame of ur10"),
+    (["--kind", "poses", "--marker", "a=tool0", "--marker", "a=tool0"], "distinct names"),
+    (["--kind", "poses", "--robot", "sk120", "--frame", "fixture_target"], "closed loops"),
 ])
 def test_bad_flags_are_refused_in_one_line(tmp_path, capsys, flags, says):
     """Exit 2, one line on stderr naming the problem, nothing on stdout, nothing written."""

@@ -58,6 +58,7 @@ from stiffness.elastic.effects.base import effect_place
 from stiffness.errors import (
     StiffnessError,
     UnknownEffectError,
+    UnknownFrameError,
     UnknownJointError,
     UnknownNameError,
     did_you_mean,
@@ -414,6 +415,7 @@ def simulate_poses(
         str(robot), frame=frame, compliant_joints=None if compliant_joints is None
         else list(compliant_joints), fixed_base=fixed_base)
     markers = markers if markers is not None else [Marker("tip", given.target_frame)]
+    _check_robot_and_markers(given, markers)
     poses = whole_number(poses, "poses")
     if poses > MAX_ROWS:
         raise StiffnessError(f"{poses} poses is more than {MAX_ROWS:.0e}; ask for fewer")
@@ -442,6 +444,24 @@ def simulate_poses(
                 "rotations": rotations, "rotation_noise_std_rad": rotation_std,
                 "drift_m": truth.drift.tolist(), "declare_noise": declare_noise}
     return PoseSimulation(campaign, truth, hidden_effects, noise_std_m, sizes, settings)
+
+
+def _check_robot_and_markers(robot: Robot, markers: list[Marker]) -> None:
+    """Refuse a robot with closed loops (the pose model's open chains only), no marker, a
+    marker name given twice or a marker on a frame the robot does not have (one line)."""
+    if not robot.loop.is_open_chain:
+        raise StiffnessError(f"{robot.title} has closed loops; a pose campaign (absolute-pose "
+                             "calibration) takes open chains only: simulate a serial robot, or "
+                             "a deflection campaign")
+    names = [m.name for m in markers]
+    if not names or len(set(names)) != len(names):
+        raise StiffnessError(f"a pose campaign needs markers of distinct names, got {names}")
+    frames = list(dict.fromkeys(f.name for f in robot.model.frames))
+    for m in markers:
+        if not robot.model.existFrame(m.frame):
+            raise UnknownFrameError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
+                                    f"{robot.title}; {did_you_mean(m.frame, frames)}",
+                                    name=m.frame, choices=frames)
 
 
 def _effect_sizes(robot: Robot, markers: list[Marker], hidden: list[HiddenEffect],

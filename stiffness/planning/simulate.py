@@ -66,7 +66,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import CAMPAIGN_FILE, RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.elastic.effects import LIBRARY, make_effect
+from stiffness.elastic.effects import FAMILIES, LIBRARY, make_effect
 from stiffness.elastic.effects.base import effect_place, place_label
 from stiffness.elastic.effects.geometry import (
     Geometry,
@@ -163,8 +163,9 @@ def parse_effect(text: str) -> HiddenEffect:
     head, _, rest = text.partition("=")
     name, where = effect_place(head, "--effect")
     if name not in LIBRARY:
+        pose = f" ({name} is a pose campaign's: --kind poses)" if name in FAMILIES else ""
         raise UnknownEffectError(f"unknown effect {name!r} in --effect {text!r}; "
-                                 f"{did_you_mean(name, list(LIBRARY))}", name=name,
+                                 f"{did_you_mean(name, list(LIBRARY))}{pose}", name=name,
                                  choices=list(LIBRARY))
     values = effect_values(text, rest)
     value_counts = LIBRARY[name].value_counts
