@@ -51,6 +51,7 @@ from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.formulation import compliant_projection, target_state
 from stiffness.mechanics.gravity import compensator_torque
 from stiffness.mechanics.ik import HOLDS
+from stiffness.mechanics.law_terms import lost_motion_column, softening_column
 from stiffness.robot import kinematics
 from stiffness.robot.robot import TARGET_FRAME, Robot
 from stiffness.robot.targets import checked_target_frame
@@ -181,12 +182,13 @@ class Compensator:
         # coordinate motion per compliant joint's deflection (through a coupling's A)
         select = np.column_stack([robot.coordinate_motion(e) for e in springs.T])
         # the law c tau + c beta tau |tau| + b tanh(tau / s) as one map of the stacked terms
-        # [tau, tau |tau|, tanh(tau / s)] (those present) to the coordinates' motion
+        # [tau, tau |tau|, tanh(tau / s)] (those present; the columns of law_terms) to the
+        # coordinates' motion
         self._softening, self._backlash = bool(np.any(law.beta)), bool(np.any(law.backlash))
         blocks = [law.compliance] + [law.compliance * law.beta] * self._softening + [
             law.backlash] * self._backlash
         self._map = np.hstack([select * b for b in blocks])  # (n, k nc)
-        self._inverse_s = 1.0 / law.smoothing
+        self._smoothing = law.smoothing
         self._stack = np.zeros(len(blocks) * nc)
         self._views = self._split(self._stack, nc)  # (tau, tau |tau|, tanh(tau / s)) or None
         self._comp = [(robot.spring_joints.index(j), robot.compliant_joints.index(j), k, f, g)
@@ -367,11 +369,9 @@ class Compensator:
         """Fill the law's nonlinear terms from the torques (views of :meth:`_split`)."""
         tau, square, smooth = views
         if square is not None:
-            np.abs(tau, out=square)
-            square *= tau
+            softening_column(tau, out=square)
         if smooth is not None:
-            np.multiply(tau, self._inverse_s, out=smooth)
-            np.tanh(smooth, out=smooth)
+            lost_motion_column(tau, self._smoothing, out=smooth)
 
     def _configuration(self, u: np.ndarray) -> np.ndarray:
         """The full configuration of coordinates ``u`` (open chain), into the compensator's

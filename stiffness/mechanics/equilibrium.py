@@ -9,7 +9,8 @@ gives each joint's deflection under its torque:
   ``Pi = 1/2 dtheta^T K_theta dtheta - W . x(theta)``, solved as ``K_theta dtheta = J^T W``;
 * :class:`SpringLaw` ``f_j(tau_j) = c_j tau_j (1 + beta_j |tau_j|) + b_j tanh(tau_j / s_j)``:
   linear springs (``beta = b = 0``), softening or hardening springs (``beta``) and lost motion
-  (backlash of half-width ``b`` smoothed over the torque ``s``).
+  (backlash of half-width ``b`` smoothed over the torque ``s``); its terms are
+  :mod:`stiffness.mechanics.law_terms`'.
 
 Newton's method runs on the law's residual with ``d(J^T W)/d theta = K_C`` (A&S eq. 9), i.e. the
 tangent ``K_t - K_C`` with ``K_t = (df/dtau)^-1``; the solution must be stable (``K_t - K_C``
@@ -39,6 +40,13 @@ from stiffness.mechanics.formulation import (
     full_configuration,
     tangent_joint_stiffness,
     target_state,
+)
+from stiffness.mechanics.law_terms import (
+    linear,
+    lost_motion,
+    lost_motion_column,
+    softening,
+    softening_column,
 )
 from stiffness.robot.robot import Robot
 from stiffness.units import float_array, whole_number
@@ -136,7 +144,8 @@ class SpringLaw(JointLaw):
         """Deflections and their derivatives w.r.t. the torques, both shaped like ``tau``
         (..., n): the linear part ``c tau`` plus :meth:`_remainder`."""
         phi, slope = self._remainder(tau, slice(None))
-        return self.compliance * tau + phi, self.compliance + slope
+        value, compliance = linear(self.compliance, tau)
+        return value + phi, compliance + slope
 
     def nonlinear_joints(self) -> np.ndarray:
         """Indices of the joints whose law is not ``c tau`` (``beta`` or ``b`` non-zero)."""
@@ -146,11 +155,9 @@ class SpringLaw(JointLaw):
                    ) -> tuple[np.ndarray, np.ndarray]:
         """``phi(tau) = c beta tau |tau| + b tanh(tau / s)`` on ``joints`` (the law less its
         linear part ``c tau``) and its derivative, for torques ``tau`` (..., len(joints))."""
-        c, beta = self.compliance[joints], self.beta[joints]
-        b, s = self.backlash[joints], self.smoothing[joints]
-        a = np.abs(tau)
-        th = np.tanh(tau / s)
-        return c * beta * tau * a + b * th, 2.0 * c * beta * a + b / s * (1.0 - th ** 2)
+        soft, soft_slope = softening(self.compliance[joints] * self.beta[joints], tau)
+        lost, lost_slope = lost_motion(self.backlash[joints], tau, self.smoothing[joints])
+        return soft + lost, soft_slope + lost_slope
 
     def frozen_deflection(self, tau0: np.ndarray, k_c: np.ndarray | None = None,
                           iterations: int = 30, tolerance: float | None = None) -> np.ndarray:
@@ -238,10 +245,10 @@ class SpringLaw(JointLaw):
             (..., n, P) derivatives of the deflections.
         """
         tau = tau0 if k_c is None else tau0 + np.einsum("...ab,...b->...a", k_c, dtheta)
-        a = np.abs(tau)
-        rhs = ((tau * (1.0 + self.beta * a))[..., :, None] * d_compliance.T
-               + (self.compliance * tau * a)[..., :, None] * d_beta.T
-               + np.tanh(tau / self.smoothing)[..., :, None] * d_backlash.T)
+        square = softening_column(tau)
+        rhs = ((tau + self.beta * square)[..., :, None] * d_compliance.T
+               + (self.compliance * square)[..., :, None] * d_beta.T
+               + lost_motion_column(tau, self.smoothing)[..., :, None] * d_backlash.T)
         if k_c is None:
             return rhs
         slope = self(tau)[1]

@@ -43,6 +43,7 @@ from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.link_bends import marker_links
 from stiffness.elastic.effects.preloads import GravityCompensator, compensated_joints
 from stiffness.errors import ConvergenceError, StiffnessError
+from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.gravity import upward_angle
 from stiffness.robot.kinematics import frame_id
 from stiffness.robot.robot import Robot
@@ -304,14 +305,14 @@ def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticit
         return model, q_command
     bends = np.zeros((len(springs.links), 3))
     dv = np.zeros(model.nv)
+    law = SpringLaw(1.0 / springs.stiffness, springs.beta, springs.backlash, springs.smoothing)
     for _ in range(_SAG_ITERATIONS):
         bent = _bent(model, q_command, dv, springs, bends)
         data = bent.createData()
         q = pin.integrate(bent, q_command, dv)
         torque = _joint_torque(bent, data, q, springs, wrench, load_frame)
         tau = springs.spring_map.T @ torque  # the torque each spring carries
-        new = springs.spring_map @ (tau / springs.stiffness * (1.0 + springs.beta * np.abs(tau))
-                                    + springs.backlash * np.tanh(tau / springs.smoothing))
+        new = springs.spring_map @ law(tau)[0]
         new_bends = _bend_rotations(bent, data, q, springs, wrench, load_frame)
         change = max(np.max(np.abs(new - dv)), np.max(np.abs(new_bends - bends), initial=0.0))
         dv, bends = new, new_bends

@@ -11,6 +11,9 @@ a pose model, a compliant joint or a controller coordinate through the spring ma
 gravity and the applied wrench, their part of the joints' deflection in the sag's fixed point,
 :meth:`stiffness.calibration.pose_model.PoseModel.loaded_configuration`).
 
+The law's terms (``c t``, ``gamma t |t|``, ``b tanh(t / tau_s)``) are
+:mod:`stiffness.mechanics.law_terms`'.
+
 Units: SI (rad, m, N.m, N.m/rad; m, N, N/m for prismatic joints).
 """
 
@@ -36,6 +39,13 @@ from stiffness.elastic.effects.pose_face import (
     nonlinear_label,
 )
 from stiffness.errors import StiffnessError, UnknownJointError, did_you_mean
+from stiffness.mechanics.law_terms import (
+    linear,
+    lost_motion,
+    lost_motion_column,
+    softening,
+    softening_column,
+)
 from stiffness.robot.robot import Robot
 
 #: A per-joint effect's own class (:meth:`JointEffect.at_place`).
@@ -184,7 +194,7 @@ class JointCompliance(JointEffect, JointDeflectionFamily):
                 for n in pm.springs]
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
-        return (x_f * (state.torque @ pm.spring_map)) @ pm.spring_map.T
+        return linear(x_f, state.torque @ pm.spring_map)[0] @ pm.spring_map.T
 
     def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                               ) -> np.ndarray:
@@ -288,27 +298,27 @@ class Backlash(JointEffect, Settings, JointDeflectionFamily):
 
     def _carried(self, pm: PoseLayout, state: SagState
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The spring map's columns (nv, n_f) of the springs with a parameter, ``t / tau_s``
-        (..., n_f) of the torques they carry at ``state`` and the smoothing torques (n_f,)."""
+        """The spring map's columns (nv, n_f) of the springs with a parameter, the torques
+        ``t`` (..., n_f) they carry at ``state`` and the smoothing torques (n_f,)."""
         columns, smooth = self._springs(pm)
         spring_map = pm.spring_map[:, columns]
-        return spring_map, (state.torque @ spring_map) / smooth, smooth
+        return spring_map, state.torque @ spring_map, smooth
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
-        spring_map, ratio, _ = self._carried(pm, state)
-        return (x_f * np.tanh(ratio)) @ spring_map.T
+        spring_map, t, smooth = self._carried(pm, state)
+        return (x_f * lost_motion_column(t, smooth)) @ spring_map.T
 
     def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                               ) -> np.ndarray:
         """The diagonal of ``S diag(b sech^2(t / tau_s) / tau_s) S^T`` (as
         ``joint_compliance``'s)."""
-        spring_map, ratio, smooth = self._carried(pm, state)
-        return (x_f * (1.0 - np.tanh(ratio) ** 2) / smooth) @ (spring_map ** 2).T
+        spring_map, t, smooth = self._carried(pm, state)
+        return lost_motion(x_f, t, smooth)[1] @ (spring_map ** 2).T
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray:
-        spring_map, ratio, _ = self._carried(pm, state)
-        return spring_map * np.tanh(ratio)[..., None, :]
+        spring_map, t, smooth = self._carried(pm, state)
+        return spring_map * lost_motion_column(t, smooth)[..., None, :]
 
 
 @dataclass(eq=False)
@@ -409,15 +419,15 @@ class NonlinearJointStiffness(JointEffect, JointDeflectionFamily):
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         spring_map, t = self._carried(pm, state)
-        return (x_f * t * np.abs(t)) @ spring_map.T
+        return softening(x_f, t)[0] @ spring_map.T
 
     def deflection_per_torque(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                               ) -> np.ndarray:
         """The diagonal of ``S diag(2 gamma |t|) S^T`` (as ``joint_compliance``'s)."""
         spring_map, t = self._carried(pm, state)
-        return (2.0 * x_f * np.abs(t)) @ (spring_map ** 2).T
+        return softening(x_f, t)[1] @ (spring_map ** 2).T
 
     def deflection_columns(self, pm: PoseLayout, x_f: np.ndarray, state: SagState
                            ) -> np.ndarray:
         spring_map, t = self._carried(pm, state)
-        return spring_map * (t * np.abs(t))[..., None, :]
+        return spring_map * softening_column(t)[..., None, :]
