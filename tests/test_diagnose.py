@@ -467,6 +467,22 @@ def test_validate_evaluates_every_step_on_another_campaign(tmp_path):
     assert final is not None and final["model"] == "the final model"
     for key in ("rms", "mean_error", "std_error", "max_error", "chi2", "gof_p"):
         assert step.validation[key] == pytest.approx(final[key], rel=1e-9, abs=1e-300), key
+    # the model file's parameter covariance (ln k, the named spring's compliance 1/k: its
+    # standard errors the file's, se_k = k sd(ln k) = k^2 sd(1/k)), taken by the final
+    # validation and by the last stage alike (its own fit's)
+    file = result.model_file()
+    assert file.covariance is not None
+    sd = dict(zip(file.covariance.labels, np.sqrt(np.diag(file.covariance.matrix)),
+                  strict=True))
+    for j, k, se in zip(file.compliant_joints, file.k_theta, file.standard_error, strict=True):
+        assert k * sd[f"ln k_theta({j})"] == pytest.approx(se, rel=1e-9), j
+    (spring,) = [p for e in file.effects for p in e.parameters]
+    assert spring.value ** 2 * sd["1/joint_compliance(wrist_1_joint).stiffness"] == \
+        pytest.approx(spring.standard_error, rel=1e-9)
+    assert final["verdict_test"] == step.validation["verdict_test"] == \
+        "noise and the model's parameter uncertainty"
+    assert step.validation["chi2_with_parameters"] == pytest.approx(
+        final["chi2_with_parameters"], rel=1e-6)
     summary = result.to_dict()
     assert summary["steps"][0]["validation"]["rms"] == step.validation["rms"]
     assert summary["baseline_validation"]["rms"] == base["rms"]

@@ -235,6 +235,43 @@ def test_validate(tmp_path, capsys, pose_campaigns, campaign):
     assert printed["markers"]["tip"]["rows"] == 15
     with pytest.raises(stiffness.StiffnessError, match="pose calibration"):
         stiffness.validate(model, campaign)
+    _check_pose_covariance(model, other)
+
+
+def _check_pose_covariance(model: Path, other: Path) -> None:
+    """The pose model file's ``parameter_covariance``: its fitted parameters in the table's
+    order, their standard deviations the table's; ``validate`` carries it to the other
+    campaign's positions, ``J Sigma J^T`` equal to that of central differences of the
+    prediction to 2e-3 of the largest entry (``evaluate``'s Jacobian, the fit's, holds the
+    joint torques fixed, exact at zero compliance: 5e-4 measured with this fit's springs)."""
+    from stiffness.calibration.pose_diagnose import validation_jacobian
+    from stiffness.calibration.pose_model_file import read_pose_model
+
+    doc = json.loads(model.read_text())
+    fitted = [p for p in doc["parameters"] if p["fitted"]]
+    cov = doc["parameter_covariance"]
+    assert cov["labels"] == [p["parameter"] for p in fitted]
+    assert cov["units"] == [p["unit"] for p in fitted]
+    np.testing.assert_allclose(np.sqrt(np.diag(cov["matrix"])), [p["std"] for p in fitted],
+                               rtol=1e-12)
+    poses = stiffness.load_pose_campaign(other)
+    result = stiffness.validate(model, poses)
+    calibration = read_pose_model(model, poses.robot)
+    labels = [p.label for p in calibration.model.parameters]
+    columns = [labels.index(label) for label in cov["labels"]]
+    fd = []
+    for i in columns:
+        h = 1e-6 * max(1.0, abs(calibration.x[i]))
+        sides = [validation_jacobian(calibration.model, calibration.x + s * h * np.eye(
+            len(labels))[i], poses)[0] for s in (1, -1)]
+        fd.append(-(sides[0] - sides[1]).reshape(-1) / (2 * h))
+    fd = np.array(fd).T / poses.units.length_to_si
+    expected = fd @ np.array(cov["matrix"]) @ fd.T
+    term = result.parameters
+    assert term is not None and term.labels == tuple(cov["labels"])
+    np.testing.assert_allclose(term.variance(), expected, rtol=0,
+                               atol=2e-3 * np.abs(expected).max())
+    assert result.to_dict()["verdict_test"] == "noise and the model's parameter uncertainty"
 
 
 def test_validate_takes_a_model_and_campaigns_loaded(tmp_path, capsys, pose_campaigns,

@@ -7,8 +7,10 @@ A step's model is its fitted :class:`~stiffness.elastic.effects.hypothesis.Hypot
 other campaign's rows, every effect applied, measurement effects included (what the other
 campaign's instrument reads; at another declared target offset, its own, without a fitted
 ``target_offset``, as the model file moved there); its errors, noise and verdict are those
-of :class:`~stiffness.calibration.validation.Validation`. The last stage is the final model:
-its numbers are the ``validation`` key's (to rounding).
+of :class:`~stiffness.calibration.validation.Validation`, with the step's own parameter
+uncertainty (its fit's covariance at the diagnosis's noise) when the final model file's is
+taken. The last stage is the final model: its numbers are the ``validation`` key's (to
+rounding).
 """
 
 from __future__ import annotations
@@ -19,9 +21,10 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.diagnosis import Diagnosis
-from stiffness.calibration.fitting import Fit
+from stiffness.calibration.fitting import Fit, Objective, compliance_covariance
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.validation import (
+    ParameterTerm,
     Validation,
     campaign_name,
     error_keys,
@@ -30,6 +33,7 @@ from stiffness.calibration.validation import (
 )
 from stiffness.elastic.effects.geometry import Geometry, Rows
 from stiffness.elastic.effects.hypothesis import Hypothesis
+from stiffness.elastic.parameter_covariance import ParameterCovariance
 from stiffness.errors import StiffnessError
 
 #: The keys of a stage's validation: the errors', the noise's and the verdict's (not the model,
@@ -78,25 +82,39 @@ def validated(d: Diagnosis, other: Campaign,
     rows = geometry.rows(other.q, other.force, other.moment,
                          labels=[other.describe_row(i) for i in range(other.n_rows)],
                          joint_angles=other.robot_settings.joint_angles)
-    d.baseline_validation = _stage(d.baseline, geometry, rows, other, final, moved)
+    d.baseline_validation = _stage(d, d.baseline, geometry, rows, other, final, moved)
     for step in d.steps:
-        step.validation = _stage(step.fit, geometry, rows, other, final, moved)
+        step.validation = _stage(d, step.fit, geometry, rows, other, final, moved)
     return d
 
 
-def _stage(fit: Fit, geometry: Geometry, rows: Rows, other: Campaign, final: Validation,
-           moved: bool) -> dict:
+def _stage(d: Diagnosis, fit: Fit, geometry: Geometry, rows: Rows, other: Campaign,
+           final: Validation, moved: bool) -> dict:
     """The validation keys of ``fit`` (its parameters, not refitted) on ``other``'s ``rows``
-    of ``geometry``, against the noise ``final`` states; ``moved``: ``other`` declared
-    another target offset, its own, so a fitted ``target_offset`` (which moved this
-    campaign's) does not apply, as in the model file moved there
-    (:func:`~stiffness.elastic.file_model.elastic_model_of`)."""
-    m, x = fit.model, fit.x
+    of ``geometry``, against the noise ``final`` states, with ``fit``'s parameter
+    uncertainty (its covariance at ``d``'s noise, :func:`~stiffness.calibration.fitting.
+    compliance_covariance`, as the final model file's) when ``final`` took the model's;
+    ``moved``: ``other`` declared another target offset, its own, so a fitted
+    ``target_offset`` (which moved this campaign's) does not apply, as in the model file
+    moved there (:func:`~stiffness.elastic.file_model.elastic_model_of`)."""
+    m = fit.model
     kept = [i for i, e in enumerate(m.effects) if not (moved and e.name == "target_offset")]
-    x = np.concatenate([x[:m.offsets[1]], *(x[m.offsets[i + 1]:m.offsets[i + 2]] for i in kept)])
+    columns = list(range(m.offsets[1])) + [c for i in kept
+                                           for c in range(m.offsets[i + 1], m.offsets[i + 2])]
+    x = fit.x[columns]
     model = Hypothesis(geometry, rows, m.baseline, m.compliant,
                        tuple(m.effects[i] for i in kept), m.refs, m.rotation_weight, m.held)
+    predicted = model.predict(x)
+    term = None
+    if final.parameters is not None:  # d pred / d x: analytic, else the fit's differences
+        jac = Objective(model, np.zeros_like(predicted), 1.0).data_jacobian(x)
+        labels = [fit.labels()[c] for c in columns]
+        cov = ParameterCovariance(tuple(labels), ("",) * len(labels), compliance_covariance(
+            fit, d.noise_std_m, d.measured)[np.ix_(columns, columns)])
+        term = ParameterTerm.of(cov, (other.deflection - predicted[:, :3]).reshape(-1),
+                                jac.reshape(*predicted.shape, -1)[:, :3].reshape(
+                                    -1, len(columns)), labels, other.units.length_to_si)
     stage = Validation(final.model, final.campaign, final.kind,
-                       error_keys(other, model.predict(x)[:, :3]), final.robot,
-                       final.noise_std).to_dict()
+                       error_keys(other, predicted[:, :3]), final.robot,
+                       final.noise_std, term).to_dict()
     return {k: v for k, v in stage.items() if k not in _NOT_STAGE_KEYS}

@@ -344,7 +344,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         final_parameters_si=effect_parameters(final, cov_final, quantile, edge, SI_UNITS),
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
-        forbidden=list(forbidden),
+        forbidden=list(forbidden), final_covariance=cov_final,
     )
 
 

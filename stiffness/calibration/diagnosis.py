@@ -31,6 +31,7 @@ from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
 from stiffness.elastic.model_contents import ModelEffect, ModelFile
+from stiffness.elastic.parameter_covariance import deflection_covariance
 from stiffness.elastic.undetermined_springs import confounded_joints
 from stiffness.files import jsonable, written_path, written_source
 from stiffness.provenance import provenance
@@ -142,6 +143,10 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         (:meth:`~stiffness.calibration.validation.Validation.to_dict`) and the baseline's
         (as each step's :attr:`~stiffness.calibration.search.Step.validation`); else
         ``None``.
+    final_covariance
+        The covariance of the final fit's ``x`` (:func:`~stiffness.calibration.selection.
+        parameter_covariance` at :attr:`noise_std_m`), written into the model file in its
+        variables (:mod:`stiffness.elastic.parameter_covariance`), or ``None``.
     """
 
     geometry: Geometry
@@ -167,6 +172,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     validation: dict | None = None
     baseline_validation: dict | None = None
     gof_excluded_rows: int = 0
+    final_covariance: np.ndarray | None = None
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -369,6 +375,12 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             ci95_high=np.array([p.ci95[1] for p in stiff]),
             effects=tuple(effects), noise_std_m=self.noise_std_m,
             noise_source=self.noise_std_source, campaign=c.name, produced_by="diagnose",
+            covariance=None if self.final_covariance is None else deflection_covariance(
+                f.model.effects, f.model.compliant,
+                {e.label: [p.unit for p in e.parameters] for e in effects},
+                self.final_covariance,
+                np.concatenate([np.zeros(0)] + [e.scale(refs) for e in f.model.effects]),
+                self.noise_std_m),
             undetermined_joints=tuple(p.name for p in stiff if not (
                 math.isfinite(p.ci95[1]) and p.ci95[0] > 0)),
             extra={

@@ -19,6 +19,7 @@ from stiffness.calibration.outliers import Outlier, outlier_keys
 from stiffness.calibration.result import IdentificationResult
 from stiffness.calibration.selection import Noise
 from stiffness.elastic.model_contents import ModelFile
+from stiffness.elastic.parameter_covariance import ParameterCovariance, stiffness_labels
 from stiffness.files import jsonable
 from stiffness.robot.robot import Robot
 
@@ -368,6 +369,9 @@ class Identification(IdentificationResult):
             noise_source="declared" if self.noise.declared else "residuals",
             campaign=self.campaign, produced_by="identify",
             undetermined_joints=self.undetermined_joints,
+            covariance=ParameterCovariance(tuple(stiffness_labels(self.joints)),
+                                           ("1",) * len(self.joints), self.covariance_log,
+                                           self.sigma_m),
             extra={"residual_norm": {"eq12_m2": self.residual_ss_m2,
                                      "eq12_mm2": self.residual_ss_mm2},
                    **({} if self.rotation_residuals is None else {"rotation_noise": {

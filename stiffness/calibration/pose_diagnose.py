@@ -613,6 +613,20 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
     return out
 
 
+def validation_jacobian(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
+    was not seen; markers in the model's order, as :func:`validation_errors` reads them) and
+    the prediction's Jacobian (n, M, 3, p) with respect to ``x``
+    (:meth:`~stiffness.calibration.pose_model.PoseModel.evaluate`, the fit's)."""
+    campaign = _in_model_order(model.markers, campaign)
+    model = PoseModel(campaign.robot, model.markers, model.families,
+                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    y, jac = model.evaluate(x, rows_of(model, campaign))
+    assert jac is not None
+    return campaign.positions - y, jac
+
+
 def _rotation_summary(angle: np.ndarray, campaign: PoseCampaign) -> dict:
     """``rotation_rms``, ``rotation_mean_error``, ``rotation_max_error`` of error angles (rad)
     in the campaign's rotation unit, and ``rotation_unit``."""

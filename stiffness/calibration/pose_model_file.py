@@ -20,8 +20,9 @@ from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.elastic.calibrated import softening
 from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_label
+from stiffness.elastic.parameter_covariance import KEY, POSE_VARIABLES, ParameterCovariance
 from stiffness.errors import FileFormatError
-from stiffness.files import atomic_write, jsonable, written_source
+from stiffness.files import atomic_write, jsonable, read_json, written_source
 from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
 from stiffness.robot.robot import Robot, load_robot
 
@@ -90,7 +91,20 @@ def pose_model_dict(fit: PoseFit, campaign: PoseCampaign, folder: str | os.PathL
             "settings": fit.model.settings,
             **({} if selection is None else {"selection": selection}),
             **({} if plausibility is None else {"plausibility": plausibility}),
-            "parameters": parameter_table(fit)}
+            "parameters": parameter_table(fit),
+            KEY: pose_covariance(fit).to_dict()}
+
+
+def pose_covariance(fit: PoseFit) -> ParameterCovariance:
+    """The covariance of ``fit``'s fitted parameters (:attr:`PoseFit.covariance`, SI, each in
+    its unit) in the parameter table's order, labelled by their ``parameter``, for the noise
+    std the fit used (:mod:`stiffness.elastic.parameter_covariance`)."""
+    kept = list(fit.identifiability.kept)
+    order = np.argsort(kept)
+    params = [fit.model.parameters[kept[i]] for i in order]
+    return ParameterCovariance(tuple(p.label for p in params), tuple(p.unit for p in params),
+                               np.asarray(fit.covariance)[np.ix_(order, order)],
+                               float(fit.sigma), POSE_VARIABLES)
 
 
 def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLike,
@@ -104,12 +118,14 @@ def write_pose_model(fit: PoseFit, campaign: PoseCampaign, path: str | os.PathLi
 
 @dataclass
 class PoseModelFile:
-    """A pose model file read back: its robot, its model and parameters."""
+    """A pose model file read back: its robot, its model and parameters, and their
+    covariance (``None`` in a file written before it)."""
 
     robot: Robot
     model: PoseModel
     x: np.ndarray
     path: Path
+    covariance: ParameterCovariance | None = None
 
 
 def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> PoseModelFile:
@@ -138,4 +154,8 @@ def read_pose_model(path: str | os.PathLike, robot: Robot | None = None) -> Pose
     except (KeyError, TypeError, ValueError) as exc:
         raise FileFormatError(f"malformed pose model file ({exc!r}); rewrite it with "
                               "stiffness diagnose --out", path=cal.path) from exc
-    return PoseModelFile(robot, model, x, cal.path)
+    doc = read_json(cal.path, "pose model file")
+    covariance = None if KEY not in doc else ParameterCovariance.from_dict(
+        doc[KEY], lambda text: FileFormatError(f"{text}; rewrite it with stiffness diagnose "
+                                               "--out", path=cal.path))
+    return PoseModelFile(robot, model, x, cal.path, covariance)

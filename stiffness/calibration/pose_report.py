@@ -113,9 +113,18 @@ def _noise_verdict(result: dict) -> str:
     """The verdict line of ``stiffness validate`` against the campaign's declared noise."""
     if result.get("verdict") is None:
         return "no noise declared in the campaign: no verdict (declare [measurement] noise_std)"
-    return (f"verdict: {result['verdict'].upper()} (RMS {result['rms_over_noise']:.3g}x the "
-            f"noise {result['noise_std']:.4g} {result['unit']} per axis; chi-square "
-            f"{result['chi2']:.4g} on {result['dof']} components, p = {result['gof_p']:.3g})")
+    line = (f"verdict: {result['verdict'].upper()} (RMS {result['rms_over_noise']:.3g}x the "
+            f"noise {result['noise_std']:.4g} {result['unit']} per axis; ")
+    if result.get("gof_p_with_parameters") is None:
+        return (line + f"chi-square {result['chi2']:.4g} on {result['dof']} components, "
+                f"p = {result['gof_p']:.3g}; the noise only: the model file carries no "
+                "parameter covariance, its parameters' uncertainty is not included)")
+    share = result["parameter_uncertainty"]["prediction_variance_share"]
+    return (line + f"chi-square with the model's parameter uncertainty "
+            f"{result['chi2_with_parameters']:.4g} on {result['dof']} components, "
+            f"p = {result['gof_p_with_parameters']:.3g}; the parameters add {share:.3g} of "
+            f"the noise variance; the noise alone: chi-square {result['chi2']:.4g}, "
+            f"p = {result['gof_p']:.3g})")
 
 
 def _validation_row(name: str, r: dict) -> str:

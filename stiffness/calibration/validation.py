@@ -17,6 +17,15 @@ refused with one line. With the campaign's declared noise ``sigma`` the verdict 
 chi-square test of the position residual: ``chi2 = sum r^2 / sigma^2`` over the ``3 n`` seen
 components (``n`` the markers seen over all rows; nothing is refitted), its p-value against
 ``chi2(3 n)`` and the ratio ``rms_3d / (sqrt(3) sigma)`` (1 for a model that predicts to the noise).
+
+That test takes the model's parameters as exact. A model file that carries its fitted
+parameters' covariance ``Sigma`` (``parameter_covariance``,
+:mod:`stiffness.elastic.parameter_covariance`) is judged instead with the residual's covariance
+``sigma^2 I + J Sigma J^T``, ``J`` the prediction's derivative with respect to those parameters
+on the seen components (:class:`ParameterTerm`): ``chi2 = r^T (sigma^2 I + J Sigma J^T)^-1 r``
+against ``chi2(3 n)`` (:func:`prediction_chi2`), the test a model from a small campaign passes
+at its level on fresh campaigns of the same robot (docs/absolute-poses.md, Validation). The
+verdict is that test's; ``chi2`` and ``gof_p`` stay the noise-only test's.
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import cast
 
 import numpy as np
@@ -32,12 +41,14 @@ import numpy as np
 from stiffness.calibration.breakdown import error_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
-from stiffness.calibration.pose_diagnose import validation_errors
+from stiffness.calibration.pose_diagnose import validation_errors, validation_jacobian
 from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import Noise, above_noise
+from stiffness.elastic.file_model import fitted_prediction
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_contents import ModelFile, ModelRobotError
 from stiffness.elastic.model_file import load_model, read_model_file
+from stiffness.elastic.parameter_covariance import ParameterCovariance
 from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.robot.calibration import (
     is_pose_calibration,
@@ -75,6 +86,75 @@ def error_keys(campaign: Campaign, predicted: np.ndarray) -> dict:
     return out
 
 
+def prediction_chi2(residual: np.ndarray, jacobian: np.ndarray, covariance: np.ndarray,
+                    sigma: float) -> float:
+    """``r^T (sigma^2 I + J Sigma J^T)^-1 r`` of the residual ``r`` (N,), the prediction's
+    derivatives ``J`` (N, k) and the parameters' covariance ``Sigma`` (k, k) (its negative
+    eigenvalues, round-off, clipped to 0), by Woodbury's identity on ``A = J Sigma^(1/2)``:
+    ``(r^T r - b^T (sigma^2 I + A^T A)^-1 b) / sigma^2``, ``b = A^T r`` (a k x k solve: a
+    pose campaign has thousands of components)."""
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    a = jacobian @ (vectors * np.sqrt(np.clip(values, 0.0, None)))
+    b = a.T @ residual
+    inner = sigma ** 2 * np.eye(a.shape[1]) + a.T @ a
+    return float((residual @ residual - b @ np.linalg.solve(inner, b)) / sigma ** 2)
+
+
+@dataclass
+class ParameterTerm:
+    """The model's fitted parameters on the campaign's seen components, to carry their
+    uncertainty into the test (:func:`prediction_chi2`).
+
+    Attributes
+    ----------
+    residual
+        (N,) measured minus predicted over the seen position components (campaign length
+        unit).
+    jacobian
+        (N, k) the prediction's derivatives with respect to the variables ``labels`` (campaign
+        length unit per variable's unit).
+    covariance
+        (k, k) those variables' covariance from the model file.
+    labels
+        The variables (the model file's labels).
+    left_out
+        The model's variables taken as exact: not determined by its fit (held, or along a
+        direction its data did not see).
+    """
+
+    residual: np.ndarray
+    jacobian: np.ndarray
+    covariance: np.ndarray
+    labels: tuple[str, ...]
+    left_out: tuple[str, ...] = ()
+
+    def variance(self) -> np.ndarray:
+        """(N, N) ``J Sigma J^T``, what the parameters add to each component's variance and
+        covariance (campaign length unit squared)."""
+        return self.jacobian @ self.covariance @ self.jacobian.T
+
+    def chi2(self, sigma: float) -> float:
+        """:func:`prediction_chi2` with the noise std ``sigma`` (campaign length unit)."""
+        return prediction_chi2(self.residual, self.jacobian, self.covariance, sigma)
+
+    @classmethod
+    def of(cls, covariance: ParameterCovariance | None, residual: np.ndarray,
+           jacobian: np.ndarray, labels: list[str], to_length: float) -> ParameterTerm | None:
+        """The term of the residual (SI, m) and the derivatives (m per variable, columns
+        ``labels``) over the seen components, in a length unit of ``to_length`` m, with the
+        model file's ``covariance`` (``None`` without one)."""
+        if covariance is None:
+            return None
+        matrix, used, left = covariance.over(labels)
+        return cls(residual / to_length, jacobian[:, used] / to_length, matrix,
+                   tuple(labels[k] for k in used), tuple(left))
+
+
+#: The words of a verdict's test.
+WITH_PARAMETERS = "noise and the model's parameter uncertainty"
+NOISE_ONLY = "noise only"
+
+
 @dataclass
 class Validation:
     """A model file evaluated on a campaign, without refitting.
@@ -95,6 +175,10 @@ class Validation:
         ``fingerprint``.
     noise_std
         The campaign's declared position noise std (campaign unit), or ``None``.
+    parameters
+        The model's fitted parameters on the seen components (:class:`ParameterTerm`), or
+        ``None`` for a model file without their covariance (written before it): the verdict
+        is then the noise-only test's.
     """
 
     model: str
@@ -103,6 +187,7 @@ class Validation:
     errors: dict
     robot: dict
     noise_std: float | None
+    parameters: ParameterTerm | None = None
 
     @property
     def components(self) -> int:
@@ -127,11 +212,35 @@ class Validation:
                                                      self.components, 0)
 
     @property
+    def chi2_with_parameters(self) -> float | None:
+        """``r^T (sigma^2 I + J Sigma J^T)^-1 r`` over the seen components
+        (:meth:`ParameterTerm.chi2`), or ``None`` without a noise or a covariance."""
+        if self.noise_std is None or self.parameters is None:
+            return None
+        return self.parameters.chi2(self.noise_std)
+
+    def gof_with_parameters(self) -> float | None:
+        """Chi-square p-value of :attr:`chi2_with_parameters` against ``chi2(3 n)``, or
+        ``None``."""
+        chi2 = self.chi2_with_parameters
+        if chi2 is None or self.noise_std is None:
+            return None
+        return Noise(self.noise_std).goodness_of_fit(chi2 * self.noise_std ** 2,
+                                                     self.components, 0)
+
+    @property
+    def verdict_test(self) -> str:
+        """What the verdict's test takes the residual's covariance to be:
+        :data:`WITH_PARAMETERS` with the model's covariance, else :data:`NOISE_ONLY`."""
+        return NOISE_ONLY if self.parameters is None else WITH_PARAMETERS
+
+    @property
     def verdict(self) -> str | None:
         """``consistent with the noise`` or ``above the noise`` (the chi-square test at
         :data:`~stiffness.calibration.selection.GOF_LEVEL`,
-        :func:`~stiffness.calibration.selection.above_noise`), ``None`` without a noise."""
-        p = self.gof()
+        :func:`~stiffness.calibration.selection.above_noise`: :meth:`gof_with_parameters`
+        with the model's covariance, else :meth:`gof`), ``None`` without a noise."""
+        p = self.gof() if self.parameters is None else self.gof_with_parameters()
         if p is None:
             return None
         return "above the noise" if above_noise(p) else "consistent with the noise"
@@ -139,14 +248,32 @@ class Validation:
     def to_dict(self) -> dict:
         """What ``stiffness validate --json`` prints: the error summary's keys, and
         ``kind``, ``robot``, ``noise_std``, ``rms_over_noise`` (3-D RMS over ``sqrt(3)``
-        noise stds), ``chi2``, ``dof``, ``gof_p`` and ``verdict``."""
+        noise stds), ``chi2``, ``dof``, ``gof_p`` (the noise-only test), ``verdict``;
+        ``chi2_with_parameters`` and ``gof_p_with_parameters`` (the test with the model's
+        parameter covariance, ``None`` without one), ``verdict_test`` (which test the verdict
+        is) and ``parameter_uncertainty`` (``included``, ``variables``, ``left_out``:
+        those taken as exact, ``prediction_variance_share``: the trace of ``J Sigma J^T``
+        over ``N sigma^2``)."""
         rms = self.errors["rms"]
         ratio = (None if self.noise_std is None or rms is None
                  else rms / (math.sqrt(3) * self.noise_std))
+        term = self.parameters
+        share = (None if term is None or self.noise_std is None or not term.residual.size
+                 else float(np.einsum("ij,jk,ik->", term.jacobian, term.covariance,
+                                      term.jacobian) / (term.residual.size
+                                                        * self.noise_std ** 2)))
         return {**self.errors, "kind": self.kind, "model": self.model,
                 "campaign": self.campaign, "robot": self.robot, "noise_std": self.noise_std,
                 "rms_over_noise": ratio, "chi2": self.chi2, "dof": self.components,
-                "gof_p": self.gof(), "verdict": self.verdict}
+                "gof_p": self.gof(), "verdict": self.verdict,
+                "chi2_with_parameters": self.chi2_with_parameters,
+                "gof_p_with_parameters": self.gof_with_parameters(),
+                "verdict_test": self.verdict_test,
+                "parameter_uncertainty": {
+                    "included": term is not None,
+                    "variables": [] if term is None else list(term.labels),
+                    "left_out": [] if term is None else list(term.left_out),
+                    "prediction_variance_share": share}}
 
 
 def validate(model: ModelFile | str | os.PathLike,
@@ -188,7 +315,14 @@ def validate(model: ModelFile | str | os.PathLike,
     calibration = read_pose_model(model, poses.robot)
     errors = validation_errors(calibration.model, calibration.x, poses)
     noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
-    return Validation(name, campaign_name(campaign), "poses", errors, robot, noise)
+    term = None
+    if calibration.covariance is not None:
+        residual, jac = validation_jacobian(calibration.model, calibration.x, poses)
+        seen = np.isfinite(residual)
+        term = ParameterTerm.of(calibration.covariance, residual[seen], jac[seen],
+                                [p.label for p in calibration.model.parameters],
+                                poses.units.length_to_si)
+    return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term)
 
 
 def campaign_name(campaign: Campaign | PoseCampaign | str | os.PathLike) -> str:
@@ -223,7 +357,26 @@ def validate_deflection_model(declared: ModelFile, model: str,
         declared, frame=target.target_frame, target_offset=target.target_offset), measured)
     noise = None if measured.noise_std_m is None else (
         measured.noise_std_m / measured.units.length_to_si)
-    return Validation(model, campaign_name(campaign), "deflections", errors, robot, noise)
+    return Validation(model, campaign_name(campaign), "deflections", errors, robot, noise,
+                      _deflection_term(declared if same else replace(
+                          declared, frame=target.target_frame,
+                          target_offset_m=target.target_offset,
+                          effects=tuple(e for e in declared.effects
+                                        if e.name != "target_offset")), measured))
+
+
+def _deflection_term(declared: ModelFile, measured: Campaign) -> ParameterTerm | None:
+    """The :class:`ParameterTerm` of the model file ``declared`` (at the campaign's target)
+    on ``measured``'s rows (:func:`~stiffness.elastic.file_model.fitted_prediction`: every
+    effect applied, measurement effects included), ``None`` without its covariance."""
+    if declared.covariance is None:
+        return None
+    wrench = np.hstack([measured.force, measured.moment if measured.moment is not None
+                        else np.zeros_like(measured.force)])
+    predicted, jac, labels = fitted_prediction(declared, measured.q, wrench)
+    return ParameterTerm.of(declared.covariance, (measured.deflection - predicted).reshape(-1),
+                            jac.reshape(-1, jac.shape[-1]), labels,
+                            measured.units.length_to_si)
 
 
 def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,

@@ -1,6 +1,7 @@
 """The validation section of the diagnosis pages (either campaign kind): the final model's 3-D
 error on a campaign it was not fitted to, overall and per marker (a deflection campaign's one
-"marker" is its target), and the verdict against that campaign's noise when there is one."""
+"marker" is its target), and the verdict against that campaign's noise when there is one (and
+which test it is: with the model's parameter uncertainty, or the noise only)."""
 
 from __future__ import annotations
 
@@ -45,7 +46,11 @@ def validation_section(v: dict | None, how: str) -> list[str]:
                        "without refitting: RMS, mean, standard deviation and maximum of its "
                        "norm."))
     if v.get("verdict"):
+        with_parameters = v.get("gof_p_with_parameters")
+        test = (f"chi-square p = {num(v['gof_p'], 3)}, the noise only" if with_parameters is None
+                else f"chi-square with the model's parameter uncertainty p = "
+                f"{num(with_parameters, 3)}; the noise alone p = {num(v['gof_p'], 3)}")
         parts.append(f"<p>Verdict: <b>{esc(v['verdict'])}</b> (RMS {num(v['rms_over_noise'], 3)}"
                      f" times the 3-D noise √3 σ, σ = {num(v['noise_std'])} {esc(unit)}; "
-                     f"chi-square p = {num(v['gof_p'], 3)}).</p>")
+                     f"{test}).</p>")
     return parts

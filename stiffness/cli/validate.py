@@ -11,11 +11,14 @@ file of ``identify`` or ``diagnose`` and the error is the measured deflection mi
 prediction under each row's load (the one marker is ``target``). Both in the campaign's length
 unit: RMS, mean, std and max, then the stage table's line of this model (as ``diagnose
 --validate`` prints one per step), and the verdict against the campaign's declared noise (a
-chi-square test). The campaign must be of the model's robot (one line refuses another).
+chi-square test, with the model's parameter uncertainty when its file carries their
+covariance). The campaign must be of the model's robot (one line refuses another).
 ``--json`` keys: ``rms``, ``mean_error``, ``std_error``, ``max_error``, ``unit``, ``rows``,
 ``markers`` (the same keys per marker), ``kind``, ``model``, ``campaign``, ``robot``
 (``source``, ``coordinates``, ``fingerprint``), ``noise_std``, ``rms_over_noise``, ``chi2``,
-``dof``, ``gof_p``, ``verdict`` (:class:`stiffness.calibration.validation.Validation`).
+``dof``, ``gof_p``, ``verdict``, ``chi2_with_parameters``, ``gof_p_with_parameters``,
+``verdict_test``, ``parameter_uncertainty``
+(:class:`stiffness.calibration.validation.Validation`).
 """
 
 from __future__ import annotations

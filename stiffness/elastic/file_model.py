@@ -25,6 +25,7 @@ from stiffness.elastic.effects.link_bends import segment
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_contents import ModelFile, ModelFileError, ModelRobotError
+from stiffness.elastic.parameter_covariance import effect_labels, stiffness_labels
 from stiffness.elastic.stiffness_units import wrong_model_stiffness_unit
 from stiffness.elastic.undetermined_springs import undetermined_notes
 from stiffness.errors import (
@@ -125,16 +126,50 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
         Not the coordinates of the model's declared robot.
     """
     declared = model.robot()
-    geometry = Geometry.of(declared)
-    wrench = as_wrench(load)
     coords = np.asarray(q, dtype=float).reshape(-1)
     if coords.shape[0] != declared.n_coordinates:
         raise StiffnessError(f"give the {declared.n_coordinates} coordinates of "
                              f"{declared.name} ({', '.join(declared.coordinate_joints)})")
-    rows = geometry.rows(coords[None], wrench[None, :3], wrench[None, 3:],
-                         joint_angles=model.joint_angles)
+    fitted, x, _, _ = _fitted(model, coords[None], as_wrench(load)[None], measured)
+    return fitted.predict(x)[0]
+
+
+def fitted_prediction(model: ModelFile, q: np.ndarray, wrench: np.ndarray,
+                      measured: bool = True) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The fitted model's predicted displacements (m, 3) in m at the rows ``q`` (m,
+    n_coordinates) under the wrenches (m, 6) (:func:`fitted_deflection` of each row), their
+    derivatives (m, 3, p) with respect to the model file's parameter variables
+    (:mod:`stiffness.elastic.parameter_covariance`: ``ln k``, an effect's compliance or SI
+    value), and those variables' labels. The derivatives are the fit's: analytic where
+    :meth:`Hypothesis.predict_with_jacobian` has them (:attr:`Hypothesis.analytic_columns`),
+    central differences (relative step :data:`FD_STEP`) in the other columns, as the fitting
+    engine takes them."""
+    fitted, x, labels, scale = _fitted(model, np.asarray(q, dtype=float),
+                                       np.asarray(wrench, dtype=float), measured)
+    pred, jac = fitted.predict_with_jacobian(x)
+    for i in np.flatnonzero(~fitted.analytic_columns):
+        h = FD_STEP * max(1.0, abs(x[i]))
+        step = np.zeros_like(x)
+        step[i] = h
+        jac[:, :, i] = (fitted.predict(x + step) - fitted.predict(x - step)) / (2.0 * h)
+    return pred[:, :3], jac[:, :3] / scale, labels
+
+
+#: Relative step of :func:`fitted_prediction`'s central differences (the fitting engine's).
+FD_STEP = 1e-6
+
+
+def _fitted(model: ModelFile, q: np.ndarray, wrench: np.ndarray, measured: bool
+            ) -> tuple[Hypothesis, np.ndarray, list[str], np.ndarray]:
+    """The fitted model of ``model`` over the rows ``q`` (m, n_coordinates) under ``wrench``
+    (m, 6): its hypothesis, its parameter vector, each column's label in the file's
+    covariance (:func:`~stiffness.elastic.parameter_covariance.effect_labels`) and the
+    file variable's value of one unit of the column (1 for ``ln k``, the effect's
+    :meth:`~stiffness.elastic.effects.base.Effect.scale` at unit references)."""
+    geometry = Geometry.of(model.robot())
+    rows = geometry.rows(q, wrench[:, :3], wrench[:, 3:], joint_angles=model.joint_angles)
     parts = ElasticParts({})
-    effects, values = [], []
+    effects, values, units = [], [], []
     for e in model.effects:
         if e.kind == "measurement" and not measured:
             continue
@@ -142,8 +177,14 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
         effect.contribute(e.values(), parts)
         effects.append(effect)
         values.append(e.values())
+        units.append([p.unit for p in e.parameters])
     smoothing = np.array([parts.smoothing.get(j, 1.0) for j in geometry.joints])
     refs = References(geometry.joints, 1.0, np.ones(len(geometry.joints)), smoothing, 1.0, 1.0, 1.0)
+    labels = stiffness_labels(model.compliant_joints)
+    for effect, unit in zip(effects, units, strict=True):
+        labels += effect_labels(effect, unit)[0]
+    scale = np.concatenate([np.ones(len(model.compliant_joints))]
+                           + [e.scale(refs) for e in effects])
     baseline = "conventional" if model.formulation == "conventional" else "enhanced"
     if model.formulation == "exact" and not any(e.second_order for e in effects):
         effects.insert(0, LIBRARY["complementary_stiffness"]())
@@ -151,4 +192,4 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
     fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
     x = np.concatenate([np.log(model.k_theta)] + [
         effect_variables(e, v, refs) for e, v in zip(effects, values, strict=True)])
-    return fitted.predict(x)[0]
+    return fitted, x, labels, scale

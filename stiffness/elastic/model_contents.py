@@ -14,6 +14,7 @@ of its schema, its errors, and its writing (:meth:`ModelFile.write`, :meth:`Mode
                   "parameters": {name: {"value", "standard_error", "ci95", "unit"}},
                   "settings": {...}}],
      "noise": {"std_m", "source"},
+     "parameter_covariance": {"variables", "labels", "units", "matrix", "noise_std_m"},
      ...}
 
 Everything is SI; a parameter's ``unit`` names its unit. The file is read by
@@ -35,6 +36,7 @@ from stiffness.elastic.effects import LIBRARY
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
+from stiffness.elastic.parameter_covariance import KEY, ParameterCovariance
 from stiffness.errors import (
     FileFormatError,
     StiffnessError,
@@ -161,6 +163,10 @@ class ModelFile:
         Joints whose stiffness the campaign could not determine; why a calibration has none.
     extra, path
         Further keys kept as written (e.g. ``residual_norm``); the file read, or ``None``.
+    covariance
+        The fitted parameters' covariance (``parameter_covariance``, SI:
+        :class:`~stiffness.elastic.parameter_covariance.ParameterCovariance`), or ``None``
+        (a file written before it, or a model not fitted).
     """
 
     source: str
@@ -186,6 +192,7 @@ class ModelFile:
     joint_angles: str = "motor"
     robot_name: str = ""
     no_spring: str = ""
+    covariance: ParameterCovariance | None = None
 
     def __post_init__(self) -> None:
         n = len(self.compliant_joints)
@@ -254,6 +261,8 @@ class ModelFile:
                      "method": "delta method on ln k"},
             "undetermined_joints": list(self.undetermined_joints),
         }
+        if self.covariance is not None:
+            doc[KEY] = self.covariance.to_dict()
         for key, value in self.extra.items():
             doc.setdefault(key, value)
         return jsonable(doc)

@@ -44,6 +44,7 @@ from stiffness.elastic.model_contents import (
     ModelFile,
     ModelFileError,
 )
+from stiffness.elastic.parameter_covariance import KEY, ParameterCovariance
 from stiffness.elastic.state import ElasticState
 from stiffness.errors import (
     DataFileWarning,
@@ -257,7 +258,9 @@ def _read_current(r: _Reader) -> ModelFile:
     noise = r.get("noise", default={}) or {}
     std = noise.get("std_m") if isinstance(noise, dict) else None
     known = {"schema", "format", "version", "produced_by", "campaign", "robot", "formulation",
-             "k_theta", "effects", "noise", "standard_error", "ci95", "undetermined_joints"}
+             "k_theta", "effects", "noise", "standard_error", "ci95", "undetermined_joints",
+             KEY}
+    covariance = None if KEY not in r.doc else ParameterCovariance.from_dict(r.doc[KEY], r.fail)
     return ModelFile(
         source=source, **_robot_options(r), frame=frame, target_offset_m=offset,
         compliant_joints=tuple(joints),
@@ -268,7 +271,7 @@ def _read_current(r: _Reader) -> ModelFile:
         campaign=str(r.get("campaign", default="")),
         produced_by=str(r.get("produced_by", default="identify")),
         undetermined_joints=tuple(j for j, d in zip(joints, determined, strict=False) if not d),
-        extra={k2: v for k2, v in r.doc.items() if k2 not in known},
+        extra={k2: v for k2, v in r.doc.items() if k2 not in known}, covariance=covariance,
     )
 
 
