@@ -457,6 +457,23 @@ def _error_line(capsys, argv: list[str]) -> str:
     return err
 
 
+def test_an_existing_campaign_of_another_robot_is_refused(tmp_path, capsys):
+    """A UR5 campaign completed for a UR10 (the same joint names) was planned silently, its
+    rows taken for the UR10's; for a Panda the campaign's frame was reported missing. Both now
+    name the two robots in one line."""
+    sim = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=UR5_ARM, configs=2,
+                   loads_per_config=2, seed=2)
+    old = sim.campaign
+    with pytest.raises(StiffnessError, match="measured on 'ur5' .* not on 'ur10' .* other "
+                       "kinematics; drop --robot"):
+        design(load_robot("ur10", compliant_joints=UR5_ARM), 2, 50.0, candidates=20,
+               k=[3e4, 2e4, 1.5e4], existing=old)
+    err = _error_line(capsys, ["design", "--robot", "panda", "--existing",
+                               str(sim.write(tmp_path / "ur5-campaign")), "--configs", "2",
+                               "--max-force", "50", "--out", str(tmp_path / "p.csv")])
+    assert "measured on 'ur5'" in err and "not on 'panda'" in err and "other coordinates" in err
+
+
 def test_bad_input_one_line(tmp_path, capsys):
     base = ["design", "--robot", "ur5", "--compliant-joints", ",".join(UR5_ARM), "--kq",
             "3e4,2e4,1.5e4", "--max-force", "100", "--out", str(tmp_path / "p.csv")]

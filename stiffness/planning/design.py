@@ -52,6 +52,7 @@ from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameErro
 from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.planning.plan import Plan, write_plan
 from stiffness.planning.simulate import build_truth, row_smoothing_torques
+from stiffness.robot.calibration import kinematic_fingerprint, robot_identity
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.units import Units, float_array, whole_number
 
@@ -387,6 +388,9 @@ def design_robot(robot: str | None = None, frame: str | None = None,
     elif existing is not None:
         if all(v is None for v in (robot, frame, target_offset_m, compliant_joints)):
             return existing.robot()
+        if robot is not None and robot_identity(robot) != robot_identity(
+                existing.resolved_source()):  # another robot: not the campaign's frame, springs
+            _check_existing_robot(load_robot(robot, loops=loops, fixed_base=fixed_base), existing)
         s = existing.robot_settings
         fallback = (existing.resolved_source(), s.frame, s.target_offset_m,
                     s.compliant_joints or existing.robot().compliant_joints)
@@ -579,10 +583,28 @@ def _inputs(robot: Robot | str | None, existing: Campaign | str | os.PathLike | 
         model = read_model_file(model)
     if not isinstance(robot, Robot):
         robot = design_robot(robot, model=model, existing=existing)
+    if existing is not None:
+        _check_existing_robot(robot, existing)
     if formulation is None:
         formulation = (existing.baseline if existing is not None else model.formulation
                        if model is not None and model.formulation in BASELINES else "enhanced")
     return robot, existing, model, formulation
+
+
+def _check_existing_robot(robot: Robot, existing: Campaign) -> None:
+    """Refuse to complete a campaign measured on another robot (other coordinates or
+    kinematics: :func:`~stiffness.robot.calibration.kinematic_fingerprint`), whose rows the
+    plan would take for this robot's, in one line naming both."""
+    measured = existing.robot()
+    mine = (robot.coordinate_joints, kinematic_fingerprint(robot.model))
+    theirs = (measured.coordinate_joints, kinematic_fingerprint(measured.model))
+    if mine != theirs:
+        what = "coordinates" if mine[0] != theirs[0] else "kinematics"
+        raise StiffnessError(
+            f"the existing campaign {existing.name!r} was measured on {measured.title!r} "
+            f"({len(theirs[0])} coordinates, kinematics {theirs[1]}), not on {robot.title!r} "
+            f"({len(mine[0])} coordinates, kinematics {mine[1]}): other {what}; drop --robot "
+            f"(the campaign names its robot) or complete a campaign of {robot.title}")
 
 
 def _check_request(robot: Robot, configs: int, max_force: float, loads_per_config: int,
