@@ -194,6 +194,9 @@ def test_loop_closure_singular_convergence_unstable(non_grashof_four_bar, ur5):
     (["kx", "--robot", "sk120", "--frame", "nowhere"], "frame 'nowhere' is not in sk120"),
     (["kx", "--robot", "ur5", "--q", "elbw=1", "--kq", "1,1,1,1,1,1", "--wrench", "0,0,-1"],
      "'elbw' is not a coordinate of ur5"),
+    (["kx", "--robot", "panda", "--q", "panda_finger_joint2=0.01", "--kq", "1,1,1,1,1,1,1",
+      "--wrench", "0,0,-1"], "'panda_finger_joint2' is not a coordinate of panda (a mimic "
+     "follower: it follows panda_finger_joint1, set that)"),
     (["kx", "--robot", "sk120", "--model", "{tmp}/none.json"], "no such file"),
     (["kx", "--robot", "sk120", "--model", "{tmp}/bad.json"], "bad.json, line 1, column 2"),
     (["kx", "--robot", "sk120", "--deg", "--q", "-33.2,15.9,-105.9,0,-34.4,-90"],

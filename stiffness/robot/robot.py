@@ -729,7 +729,9 @@ def coordinate_index(robot: Robot, name: str, what: str) -> int:
     if match and 1 <= int(match.group(1)) <= len(names):
         return int(match.group(1)) - 1
     passive = not robot.loop.is_open_chain and name in robot.loop.passive_joints
-    why = " (a passive loop joint: it follows the others)" if passive else ""
+    leader = next((m.leader for m in robot.mimics if m.follower == name), None)
+    why = (" (a passive loop joint: it follows the others)" if passive else
+           f" (a mimic follower: it follows {leader}, set that)" if leader else "")
     raise UnknownJointError(
         f"{what}: {name!r} is not a coordinate of {robot.title}{why}; use a joint name or q1..q"
         f"{len(names)}: {did_you_mean(name, names)}", name=name, choices=names)
