@@ -119,12 +119,15 @@ def _noise_verdict(result: dict) -> str:
         return (line + f"chi-square {result['chi2']:.4g} on {result['dof']} components, "
                 f"p = {result['gof_p']:.3g}; the noise only: the model file carries no "
                 "parameter covariance, its parameters' uncertainty is not included)")
-    share = result["parameter_uncertainty"]["prediction_variance_share"]
+    uncertainty = result["parameter_uncertainty"]
+    left = uncertainty["left_out"]
     return (line + f"chi-square with the model's parameter uncertainty "
             f"{result['chi2_with_parameters']:.4g} on {result['dof']} components, "
-            f"p = {result['gof_p_with_parameters']:.3g}; the parameters add {share:.3g} of "
-            f"the noise variance; the noise alone: chi-square {result['chi2']:.4g}, "
-            f"p = {result['gof_p']:.3g})")
+            f"p = {result['gof_p_with_parameters']:.3g}; the parameters add "
+            f"{uncertainty['prediction_variance_share']:.3g} of the noise variance"
+            + (f", {len(left)} its fit did not determine taken as exact ({', '.join(left)})"
+               if left else "")
+            + f"; the noise alone: chi-square {result['chi2']:.4g}, p = {result['gof_p']:.3g})")
 
 
 def _validation_row(name: str, r: dict) -> str:
