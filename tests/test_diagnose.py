@@ -4,6 +4,7 @@ campaigns."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import re
@@ -46,11 +47,13 @@ SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missi
                 "outliers",
                 "rms_by_kind", "identifiability", "how_sure", "selection"}
 
+#: A hidden wrist spring, which looks like a bending forearm about the same axis.
+WRIST_SPRING = "joint_compliance:wrist_1_joint=1e4"
 #: Each library effect hidden at a clearly detectable size (3 to 25 noise std RMS).
 HIDDEN = [
     (UR5_SOFT, "complementary_stiffness"),
     (SK120, "joint_compliance:joint5=3e5"),
-    (UR5, "joint_compliance:wrist_1_joint=1e4"),
+    (UR5, WRIST_SPRING),
     (SK120, "link_compliance:joint2->elbow=2e6"),
     (UR5, "link_compliance:elbow_joint->wrist_1_joint=5e4"),
     (UR5, "transversal_compliance:elbow_joint=3e4,2e4"),
@@ -74,6 +77,21 @@ def _simulate(setup: dict, effects: list[str], configs: int = 10, seed: int = 1,
                     configs=configs, noise_std_m=NOISE, seed=seed, **args)
 
 
+#: The setups by name (:func:`_diagnosed`'s cache key).
+SETUPS = {"ur5": UR5, "ur5_soft": UR5_SOFT, "sk120": SK120}
+
+
+@functools.cache
+def _diagnosed(setup: str, effects: tuple[str, ...], seed: int):
+    """``SETUPS[setup]`` simulated with ``effects`` hidden (10 configurations x 4 loads,
+    ``seed``) and its diagnosis with proposals (the default), computed once per test process
+    for the tests that diagnose the same campaign: proposals only add measurements to the
+    ambiguities, the steps, fits and verdicts are those of ``propose=False``. Tests only read
+    them."""
+    sim = _simulate(SETUPS[setup], list(effects), seed=seed)
+    return sim, diagnose(sim.campaign)
+
+
 def test_every_required_effect_is_exercised():
     assert {parse_effect(e).name for _, e in HIDDEN} >= set(REQUIRED_EFFECTS)
 
@@ -81,8 +99,10 @@ def test_every_required_effect_is_exercised():
 @pytest.mark.parametrize(("setup", "effect"), HIDDEN, ids=[e for _, e in HIDDEN])
 def test_hidden_effect_is_named_first(setup, effect):
     hidden = parse_effect(effect)
-    sim = _simulate(setup, [effect])
-    result = diagnose(sim.campaign, propose=False)
+    if setup is UR5 and effect == WRIST_SPRING:  # test_cannot_tell_apart_and_proposals' too
+        result = _diagnosed("ur5", (effect,), 1)[1]
+    else:
+        result = diagnose(_simulate(setup, [effect]).campaign, propose=False)
     summary = result.summary()
     assert summary["missing_effects"], format_report(result)
     first = summary["steps"][0]
@@ -93,8 +113,10 @@ def test_hidden_effect_is_named_first(setup, effect):
 
 @pytest.mark.parametrize("setup", [UR5, SK120], ids=["ur5", "sk120"])
 def test_nothing_hidden_nothing_missing(setup):
-    sim = _simulate(setup, [], seed=7)
-    result = diagnose(sim.campaign)
+    if setup is UR5:  # test_identification_is_diagnosis_without_effects' too
+        result = _diagnosed("ur5", (), 7)[1]
+    else:
+        result = diagnose(_simulate(setup, [], seed=7).campaign)
     assert result.summary()["missing_effects"] == [], format_report(result)
     assert result.gof_baseline is not None and result.gof_baseline > 0.05
     assert "nothing" in format_report(result) or "none" in format_report(result)
@@ -111,8 +133,7 @@ def test_identified_parameters_cover_the_truth():
 
 def test_cannot_tell_apart_and_proposals():
     # a hidden wrist joint looks like a bending forearm about the same axis
-    sim = _simulate(UR5, ["joint_compliance:wrist_1_joint=1e4"])
-    result = diagnose(sim.campaign)
+    result = _diagnosed("ur5", (WRIST_SPRING,), 1)[1]
     pairs = {(a.chosen, a.other) for a in result.ambiguities}
     assert ("joint_compliance(wrist_1_joint)",
             "link_compliance(elbow_joint->wrist_1_joint)") in pairs
@@ -335,8 +356,7 @@ def test_identification_is_diagnosis_without_effects():
     the same intervals (one objective, one covariance) and the same model-file schema."""
     from stiffness.calibration.identify import identify
 
-    sim = _simulate(UR5, [], seed=7)
-    diagnosis = diagnose(sim.campaign, propose=False)
+    sim, diagnosis = _diagnosed("ur5", (), 7)
     assert diagnosis.steps == []
     ident = identify(sim.campaign, starts=2)
     stiff = diagnosis.final_stiffness
