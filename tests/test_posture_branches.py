@@ -117,8 +117,12 @@ def brute_force_point(robot, data, p):
         q = ur5_branches(robot, p, R0 @ _rz(psi))[branch]
         return np.inf if q is None else deflection(robot, data, q)
 
+    def values_at(psi):  # the eight branches at one angle, solved once
+        return [np.inf if q is None else deflection(robot, data, q)
+                for q in ur5_branches(robot, p, R0 @ _rz(psi))]
+
     grid = np.deg2rad(np.arange(0.0, 360.0, 10.0))
-    values = np.array([[value(b, psi) for psi in grid] for b in range(8)])
+    values = np.array([values_at(psi) for psi in grid]).T  # (branch, angle)
     best = np.inf
     for flat in np.argsort(values, axis=None)[:3]:
         b, k = np.unravel_index(flat, values.shape)
