@@ -207,7 +207,8 @@ def test_passive_loop_joint_as_compliant():
 
 
 def test_repeated_compliant_joint(serial_urdf):
-    with pytest.raises(StiffnessError, match="compliant joints repeat a name"):
+    with pytest.raises(StiffnessError, match=r"compliant joints repeat a name: \['slide', "
+                       r"'slide'\] \('slide' twice\); name each joint once"):
         load_robot(serial_urdf, compliant_joints=["slide", "slide"])
 
 

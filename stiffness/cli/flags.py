@@ -604,7 +604,8 @@ def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
         for match in (m for m in pairs if m is not None):
             index = coordinate_index(robot, match.group(1), flag)
             if index in seen:
-                raise StiffnessError(f"{flag} names {robot.coordinate_joints[index]} twice")
+                raise StiffnessError(f"{flag} names {robot.coordinate_joints[index]} twice; "
+                                     "give each coordinate once")
             seen.add(index)
             value = parse_list(match.group(2), flag)
             if len(value) != 1:

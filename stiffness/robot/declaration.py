@@ -175,7 +175,9 @@ def check_compliant(name: str, compliant_joints: tuple[str, ...], spring_names: 
                 f"{did_you_mean(joint_name, spring_names)}", name=joint_name,
                 choices=spring_names)
     if len(set(compliant_joints)) != len(compliant_joints):
-        raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)}")
+        twice = next(j for j in compliant_joints if compliant_joints.count(j) > 1)
+        raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)} "
+                             f"({twice!r} twice); name each joint once")
 
 
 def controller_map(name: str, settings: dict, model: pin.Model, chain: list[str], looped: bool,
