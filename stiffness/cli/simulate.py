@@ -176,11 +176,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {path} ({sim.campaign.n_rows} rows) and {path.parent / TRUTH_FILE}")
     if args.quiet:
         return 0
-    print(f"baseline {sim.campaign.baseline}; noise std {truth['noise_std']:.4g} "
-          f"{truth['unit']}; the baseline's linearisation misses "
-          f"{truth['baseline_model_error_noise_units']:.3g} noise std RMS")
-    for label, size in truth["effect_rms_noise_units"].items():
-        print(f"hidden {label}: changes the deflections by {size:.3g} noise std RMS")
+    unit = truth["unit"]
+    if sim.noise_std_m > 0:
+        print(f"baseline {sim.campaign.baseline}; noise std {truth['noise_std']:.4g} {unit}; "
+              f"the baseline's linearisation misses "
+              f"{truth['baseline_model_error_noise_units']:.3g} noise std RMS")
+    else:  # noise-free: sizes in the length unit (there is no noise std to count them in)
+        print(f"baseline {sim.campaign.baseline}; no noise; the baseline's linearisation "
+              f"misses {truth['baseline_model_error']:.3g} {unit} RMS")
+    for label, size in truth["effect_rms"].items():
+        ratio = truth["effect_rms_noise_units"][label]
+        print(f"hidden {label}: changes the deflections by "
+              + (f"{ratio:.3g} noise std RMS" if ratio is not None else f"{size:.3g} {unit} RMS"))
     if not sim.effects:
         print("no hidden effect")
     return 0

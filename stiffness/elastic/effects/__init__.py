@@ -195,9 +195,9 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
     ``masses`` known, else ``gravity_lumped`` (:data:`MASSES`); ``gravity_compensator`` of
     each revolute compliant joint carrying one link (not a controller coordinate that turns
     several chain joints: :meth:`JointEffect.placement_problem`); ``joint_offsets`` of the
-    chain's joints whose offset changes the rows' Jacobian (:meth:`JointOffsets.on_rows`; open
-    chains without a controller map). An effect whose label
-    ``declared`` names takes those settings (:meth:`DeflectionEffect.declare`).
+    coordinates whose offset changes the rows' Jacobian (:meth:`JointOffsets.on_rows`). An
+    effect whose label ``declared`` names takes those settings
+    (:meth:`DeflectionEffect.declare`).
     """
     geo = model.geometry
     have = {e.label for e in model.effects}
@@ -231,8 +231,7 @@ def candidates(model: Hypothesis, declared: dict[str, dict] | None = None,
         if not (geo.prismatic[geo.joints.index(j)]
                 or GravityCompensator.placement_problem(geo.robot, j)):
             add(make_effect("gravity_compensator", j, geo))
-    if not JointOffsets.placement_problem(geo):
-        offsets = JointOffsets.at_place(None, geo).on_rows(model, model.rows)
-        if offsets.joints:
-            add(offsets)
+    offsets = JointOffsets.at_place(None, geo).on_rows(model, model.rows)
+    if offsets.joints:
+        add(offsets)
     return out

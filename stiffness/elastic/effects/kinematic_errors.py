@@ -136,6 +136,27 @@ class MarkerOffsets(PoseFamily):
 OFFSET_NEGLIGIBLE = 1e-9
 #: The size of a sizeable zero offset (rad, m): one optimiser unit of the deflection face.
 OFFSET_SCALE = 1e-3
+#: A deflection campaign's physical scale of a revolute joint's zero offset (rad): a few
+#: degrees, what a zero calibration can plausibly be wrong by (mastering marks are good to a
+#: tenth of a degree; an arm off by degrees misses its taught points by centimetres at a metre's
+#: reach, and is remastered), and where the face's first-order model
+#: ``J(q + delta_0) = J + sum_j delta_j dJ/dq_j`` still holds (its left-out term, about
+#: ``delta_0 / 2`` of the kept one, is 4 % here). The pose face's half a turn
+#: (:meth:`JointOffsets.physical_sizes`) only says when an offset is another zero: it models
+#: any offset exactly.
+DEFLECTION_OFFSET_RAD = math.radians(5.0)
+
+
+def offset_coordinates(geometry: Geometry) -> tuple[str, ...]:
+    """The robot's coordinates whose zero offset may move the target, in coordinate order:
+    those that drive a joint of the target's chain (a coordinate joint on it, or a
+    ``[controller]`` coordinate whose column of ``A`` moves one); every coordinate of a robot
+    with closed loops, whose closure may tie each to the target."""
+    robot = geometry.robot
+    if not robot.loop.is_open_chain:
+        return tuple(robot.coordinate_joints)
+    chain = set(geometry.chain)
+    return tuple(c for c in robot.coordinate_joints if chain & set(robot.driven_joints([c])))
 
 
 @dataclass(eq=False)
@@ -154,12 +175,16 @@ class JointOffsets(Settings, PoseFamily):
     delta_0``, second order (an offset times the deflection). ``dJ[k, b]/dq_j = K_C(e_k)[b,
     j]`` from the rows' ``K_C`` of unit wrenches (:attr:`Rows.k_c_unit`,
     :func:`stiffness.mechanics.formulation.target_states`); ``K_C``'s own change (third order)
-    is left out. Its parameters are the offsets of :attr:`joints`: the spring joints of the
-    target's chain on an open chain without a controller map, less those whose offset changes
-    no row's Jacobian (:meth:`on_rows`); each judged against half a turn (the pose face's
-    physical scale)."""
+    is left out. The offsets are on the robot's coordinates, what its encoders read: a
+    ``[controller]``'s coordinates move the chain joints by ``A delta_0``
+    (:meth:`chain_rates`), and on a closed loop the passive joints follow (the rows' ``J`` and
+    ``K_C`` are along the loop manifold, ``K_C(e_k)`` the Hessian of the target's coordinate
+    ``x_k`` there). Its parameters are the offsets of :attr:`joints`: the coordinates that
+    drive the target's chain (:func:`offset_coordinates`), less those whose offset changes no
+    row's Jacobian (:meth:`on_rows`); each judged against a few degrees
+    (:data:`DEFLECTION_OFFSET_RAD`)."""
 
-    #: the joints whose offsets are parameters (deflection face), in the geometry's order
+    #: the coordinates whose offsets are parameters (deflection face), in coordinate order
     joints: tuple[str, ...] = ()
     #: whether each of :attr:`joints` is prismatic (its offset in m)
     prismatic: tuple[bool, ...] = ()
@@ -173,40 +198,37 @@ class JointOffsets(Settings, PoseFamily):
 
     @classmethod
     def at_place(cls, where, geometry=None):
-        """Every spring joint of the target's chain of ``geometry`` (unchecked without).
+        """Every coordinate of ``geometry``'s robot whose offset may move the target
+        (:func:`offset_coordinates`; unchecked without ``geometry``).
 
         Raises
         ------
         StiffnessError
-            A place given, or a robot with closed loops or a controller map (whose coordinates
-            are not the joints an offset turns).
+            A place given.
         """
         placed = super().at_place(where, geometry)
         if geometry is None:
             return placed
-        problem = cls.placement_problem(geometry)
-        if problem:
-            raise StiffnessError(problem)
-        joints = [j for j in geometry.joints if j in geometry.chain]
-        return cls(joints=tuple(joints), prismatic=tuple(
-            bool(geometry.prismatic[geometry.joints.index(j)]) for j in joints))
-
-    @staticmethod
-    def placement_problem(geometry: Geometry) -> str:
-        """Why a deflection campaign of ``geometry``'s robot cannot have the effect, or ""."""
         robot = geometry.robot
-        if robot.loop.is_open_chain and robot.coupling is None:
-            return ""
-        return (f"joint_offsets in a deflection campaign needs an open chain whose coordinates "
-                f"are its joints; {robot.title} has closed loops or a controller map")
+        joints = offset_coordinates(geometry)
+        return cls(joints=joints, prismatic=tuple(robot.is_prismatic(j) for j in joints))
+
+    def chain_rates(self, geometry: Geometry) -> np.ndarray:
+        """(n_springs, n_offsets) rates of the geometry's spring joints (the columns of
+        :attr:`Rows.jac`) per unit offset of each of :attr:`joints`: the coupling's ``A``
+        for springs on a ``[controller]``'s chain (``delta q_chain = A delta_0``), else the
+        identity's columns (:attr:`~stiffness.robot.robot.Robot.spring_map`). Passive loop
+        joints follow through the closure: the rows' Jacobian and ``K_C`` are taken along the
+        loop manifold already."""
+        robot = geometry.robot
+        return robot.spring_map[:, [robot.coordinate_joints.index(j) for j in self.joints]]
 
     def on_rows(self, model: HypothesisArrays, rows: Rows) -> JointOffsets:
-        """This effect on the joints whose offset changes some row's Jacobian over ``model``'s
-        joints by more than :data:`OFFSET_NEGLIGIBLE` of the largest such change."""
-        geo = model.geometry
-        cols = [geo.joints.index(j) for j in self.joints]
-        size = np.sqrt(np.sum(rows.k_c_unit[:, :, model.index][..., cols] ** 2,
-                              axis=(0, 1, 2))) if cols else np.zeros(0)
+        """This effect on the coordinates whose offset changes some row's Jacobian over
+        ``model``'s joints by more than :data:`OFFSET_NEGLIGIBLE` of the largest such
+        change."""
+        moved = rows.k_c_unit[:, :, model.index] @ self.chain_rates(model.geometry)
+        size = np.sqrt(np.sum(moved ** 2, axis=(0, 1, 2)))
         keep = size > OFFSET_NEGLIGIBLE * max(float(size.max(initial=0.0)), 1e-300)
         return dataclasses.replace(self, joints=tuple(np.array(self.joints)[keep].tolist()),
                                    prismatic=tuple(np.array(self.prismatic, bool)[keep].tolist()))
@@ -246,19 +268,23 @@ class JointOffsets(Settings, PoseFamily):
         return np.full(self.n_params, OFFSET_SCALE)
 
     def physical_scale(self, refs):
-        """The pose face's (:meth:`physical_sizes`): half a turn for a revolute joint, the
-        robot's reach for a prismatic one."""
-        return np.array([refs.reach_m if p else math.pi for p in self.prismatic])
+        """:data:`DEFLECTION_OFFSET_RAD` for a revolute joint; for a prismatic one the length
+        that moves the tool as far as that angle does at the robot's reach (m,
+        :attr:`References.reach_m`). Narrower than the pose face's (:meth:`physical_sizes`):
+        a deflection campaign sees an offset only through the Jacobian's change, to first
+        order."""
+        return np.array([refs.reach_m * DEFLECTION_OFFSET_RAD if p else DEFLECTION_OFFSET_RAD
+                         for p in self.prismatic])
 
     def units(self, units):
         return [(units.length, units.length_to_si) if p else (units.angle, units.angle_to_si)
                 for p in self.prismatic]
 
     def jacobian_change(self, p, model, rows):
-        """``sum_j p_j dJ/dq_j`` over the model's joints, ``dJ[k, b]/dq_j = K_C(e_k)[b, j]``
-        (m, 6, n)."""
-        cols = [model.geometry.joints.index(j) for j in self.joints]
-        return rows.k_c_unit[:, :, model.index][..., cols] @ p
+        """``sum_j (M delta_0)_j dJ/dq_j`` over the model's joints, ``dJ[k, b]/dq_j =
+        K_C(e_k)[b, j]`` along the geometry's spring joints ``j`` and ``M`` their rates per
+        offset (:meth:`chain_rates`) (m, 6, n)."""
+        return rows.k_c_unit[:, :, model.index] @ (self.chain_rates(model.geometry) @ p)
 
     def describe(self) -> str:
         return ("the joints' zero offsets: the robot is where its encoders read plus the "
