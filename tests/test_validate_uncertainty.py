@@ -18,13 +18,13 @@ from scipy import stats
 
 import stiffness
 from stiffness.calibration.campaign import load_campaign
-from stiffness.calibration.pose_report import format_validation
 from stiffness.calibration.validation import (
     NOISE_ONLY,
     WITH_PARAMETERS,
     ParameterTerm,
     prediction_chi2,
 )
+from stiffness.calibration.validation_report import format_validation
 from stiffness.cli.main import main
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.geometry import Geometry, References

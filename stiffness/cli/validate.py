@@ -26,8 +26,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from stiffness.calibration.pose_report import format_validation
 from stiffness.calibration.validation import validate
+from stiffness.calibration.validation_report import format_validation
 from stiffness.cli import flags
 
 
