@@ -169,5 +169,5 @@ def test_a_family_adding_no_parameter_says_so_instead_of_a_bic_change():
     report = format_pose_report(d)
     assert "base_tilt (no identifiable parameter beside the families in" in report
     # the step table names its lengths' unit (FIGAROH's runs printed RMS and CV RMS bare)
-    assert re.search(r"^step +family +params +RMS \(m\) +dBIC +CV RMS \(m\)$", report, re.M)
+    assert re.search(r"^step +effect +params +RMS \(m\) +dBIC +CV RMS \(m\)$", report, re.M)
     assert "joint_offsets" not in record["not_judged"]  # one that adds parameters is judged

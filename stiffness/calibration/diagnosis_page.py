@@ -14,7 +14,7 @@ from __future__ import annotations
 from stiffness.calibration.certainty import how_sure_table
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
-from stiffness.calibration.steps_table import stage_section, steps_table
+from stiffness.calibration.steps_table import scored_steps, stage_section, steps_table
 from stiffness.calibration.validation_page import validation_section
 from stiffness.htmlpage import (
     contents,
@@ -153,11 +153,7 @@ def _ambiguities(ambiguities: list[dict], unit: str) -> list[str]:
 def _steps(d: dict, unit: str) -> list[str]:
     """The steps' table and each step's best candidates."""
     parts: list[str] = []
-    cv = d["cv_rms"]
-    parts.append(steps_table([{"effect": "baseline", "rms": d["baseline_rms"],
-                               "cv_rms": cv["baseline"]}] + [
-        {**s, "delta_bic": detail["delta_bic"], "cv_rms": cv_rms} for s, detail, cv_rms in
-        zip(d["steps"], d["step_details"], cv["steps"], strict=True)], unit))
+    parts.append(steps_table(scored_steps(d), unit))
     for i, detail in enumerate(d["step_details"]):
         ranked = [[esc(r.get("effect", "")), esc(r.get("where") or ""), r.get("delta_bic"),
                    r.get("cv_rms")] for r in detail["ranking"][:6]]

@@ -10,7 +10,7 @@ from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.selection import above_noise, noise_overstated
-from stiffness.calibration.steps_table import stage_table, stages
+from stiffness.calibration.steps_table import stage_table, stages, step_lines
 
 if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
@@ -20,12 +20,6 @@ if TYPE_CHECKING:  # annotations only
 ONE_CONFIGURATION = ("CV RMS: one configuration, held out one load at a time; an effect is "
                      "named only where the rows without a load keep more residual components "
                      "than its parameters and its fit is not below the noise")
-
-
-def _cv_cell(cv_rms: float, length_unit: float) -> str:
-    """A held-out RMS (m) in the table's unit, or ``-`` where nothing was held out (one
-    configuration with one load: no cross-validation)."""
-    return f"{cv_rms / length_unit:>12.4g}" if math.isfinite(cv_rms) else f"{'-':>12}"
 
 
 def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
@@ -62,7 +56,7 @@ def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
 
 def format_report(d: Diagnosis) -> str:
     """The human-readable report of ``stiffness diagnose``."""
-    c, unit, summary = d.campaign, d.unit, d.summary()
+    c, unit, summary = d.campaign, d.unit, d.record()
     lu = c.units.length_to_si
     lines = [
         f"campaign {c.name}" + (f" ({c.path})" if c.path else "")
@@ -76,20 +70,10 @@ def format_report(d: Diagnosis) -> str:
         lines.append(f"the baseline {verdict} to noise ({d.test} p = {d.gof_baseline:.3g})")
     lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
     lines += _disagreement_lines(d.baseline_disagreement, c.units.force)
-    lines += ["", f"{'step':<5} {'effect':<28} {'where':<30} {f'RMS ({unit})':>10} "
-                  f"{'dBIC':>9} {f'CV RMS ({unit})':>12}"]
-    lines.append(f"{0:<5} {'baseline':<28} {'':<30} {d.baseline.rms() / lu:>10.4g} {'':>9} "
-                 f"{_cv_cell(d.cv_baseline, lu)}")
-    for i, s in enumerate(d.steps, start=1):
-        name = s.effect.name + (" *" if s.forced else "")
-        lines.append(f"{i:<5} {'removed ' * s.removed + name:<28} {s.effect.where or '':<30} "
-                     f"{s.fit.rms() / lu:>10.4g} {s.delta_bic:>9.4g} {_cv_cell(s.cv_rms, lu)}")
-    if len(set(c.config)) < 2:
-        lines.append(ONE_CONFIGURATION if math.isfinite(d.cv_baseline) else
-                     "CV RMS -: one configuration with one load, none to hold out: nothing "
-                     "is named")
-    if any(s.forced for s in d.steps):
-        lines.append("* forced (--families): added first, whatever its BIC and held-out error")
+    one = [] if len(set(c.config)) > 1 else [
+        ONE_CONFIGURATION if math.isfinite(d.cv_baseline) else
+        "CV RMS -: one configuration with one load, none to hold out: nothing is named"]
+    lines += ["", *step_lines(summary, one)]
     if named := stages(summary):  # diagnose --validate: each step's model on the other one
         lines += ["", *stage_table(named)]
     lines.append("")

@@ -3,14 +3,12 @@ folder is :meth:`~stiffness.calibration.result.DiagnosisResult.write`)."""
 
 from __future__ import annotations
 
-import math
-
 from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_page import not_added
-from stiffness.calibration.steps_table import stage_table, stages
+from stiffness.calibration.steps_table import stage_table, stages, step_lines
 
 
 def format_pose_report(d: PoseDiagnosis) -> str:
@@ -18,31 +16,16 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     c, summary = d.campaign, d.summary()
     unit, lu = c.units.length, c.units.length_to_si
     noise = "not declared" if c.noise_std is None else f"{c.noise_std / lu:.4g} {unit}"
-    names = [f"removed {s.effect}" if s.removed else s.effect + (" *" if s.forced else "")
-             for s in d.steps]
-    w = max(18, *(max(len(s.effect) + 2, len(name))  # the family column: the longest name
-                  for s, name in zip(d.steps, names, strict=True)))
     lines = [f"pose campaign {c.name} of {c.robot.title}: {c.n_rows} rows, "
              f"{len(c.markers)} marker(s) ({', '.join(m.name for m in c.markers)}), "
              f"{c.n_observed} measured components; noise std {noise}; masses {d.masses}; "
              f"loss {d.loss}",
-             "", f"{'step':<5} {'family':<{w}} {'params':>6} {f'RMS ({unit})':>11} {'dBIC':>10} "
-                 f"{f'CV RMS ({unit})':>13}"
-                 + ("  validation RMS" if d.steps[0].validation else "")]
-    for i, (s, name) in enumerate(zip(d.steps, names, strict=True)):
-        row = (f"{i:<5} {name:<{w}} {s.fit.n_fitted:>6} "
-               f"{s.fit.rms() / lu:>11.4g} {s.delta_bic:>10.4g} "
-               + (f"{s.cv_rms / lu:>13.4g}" if math.isfinite(s.cv_rms) else f"{'unbounded':>13}"))
-        if s.validation:
-            row += f"  {s.validation['rms']:.4g} (3-D, {s.validation['unit']})"
-        lines.append(row)
-    lines.append("CV RMS: leave one configuration out (linearised hat matrix; unbounded: one "
-                 "configuration alone determines a parameter)"
-                 + ("" if d.loss == "linear" else f"; under {d.loss}, the root of the held-out "
-                    "loss per component: the RMS for Gaussian residuals, less for large ones, "
-                    "not comparable with RMS")
-                 + ("; * forced (--families)" if any(s.forced for s in d.steps) else "")
-                 + (f"; not tried (--not): {', '.join(d.forbidden)}" if d.forbidden else ""))
+             ""]
+    lines += step_lines(summary, [
+        "CV RMS: leave one configuration out (linearised hat matrix; unbounded: one "
+        "configuration alone determines a parameter)" + ("" if d.loss == "linear" else
+        f"; under {d.loss}, the root of the held-out loss per component: the RMS for Gaussian "
+        "residuals, less for large ones, not comparable with RMS")])
     if named := stages(summary):
         lines += ["", *stage_table(named)]
     if d.rejected:

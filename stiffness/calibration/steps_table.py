@@ -1,6 +1,6 @@
 """A diagnosis's steps as tables, for either campaign kind, from its ``--json`` object: each
-step's fit (the page's steps table) and each step's model on a validation campaign, the stage
-table calibration papers publish (``diagnose --validate``; text and page)."""
+step's fit (the steps table, text and page) and each step's model on a validation campaign,
+the stage table calibration papers publish (``diagnose --validate``; text and page)."""
 
 from __future__ import annotations
 
@@ -16,6 +16,60 @@ def step_label(step: dict) -> str:
     name = step.get("family") or step["effect"] + (f"({step['where']})" if step.get("where")
                                                    else "")
     return ("removed " if step.get("removed") else "") + name
+
+
+def scored_steps(d: dict) -> list[dict]:
+    """The steps of ``d`` numbered from 0, each with its ``rms``, ``delta_bic`` and ``cv_rms``:
+    a pose diagnosis's ``steps`` (its baseline the first) as they are; a deflection
+    diagnosis's record (:meth:`~stiffness.calibration.diagnosis.Diagnosis.record`) has its
+    baseline apart (``baseline_rms``, ``baseline_validation``) and the scores in
+    ``step_details`` and ``cv_rms``."""
+    if "step_details" not in d:
+        return d["steps"]
+    cv, validation = d["cv_rms"], d.get("baseline_validation")
+    return [{"effect": "baseline", "where": None, "rms": d["baseline_rms"],
+             "cv_rms": cv["baseline"],
+             **({"validation": validation} if validation else {})}] + [
+        {**s, "delta_bic": detail["delta_bic"], "cv_rms": cv_rms} for s, detail, cv_rms in
+        zip(d["steps"], d["step_details"], cv["steps"], strict=True)]
+
+
+def step_lines(d: dict, notes: list[str]) -> list[str]:
+    """The text table of :func:`scored_steps` (lengths in ``d["unit"]``): each step's effect
+    (``removed``, ``*`` forced), its place where a deflection step has one, its parameter
+    count where a pose step has one, RMS, dBIC, held-out RMS (a null one: ``unbounded`` for a
+    pose step, one configuration determines a parameter; ``-`` for a deflection step, nothing
+    held out) and, with a validation campaign, each step's validation RMS; then ``notes`` (the
+    kind's words on its held-out RMS), the forced steps and what ``--not`` forbade."""
+    steps, unit = scored_steps(d), d["unit"]
+
+    def cell(v: float | None, null: str = "") -> str:
+        return null if v is None else f"{v:.4g}"
+
+    columns = [("step", [str(i) for i in range(len(steps))]),
+               ("effect", [("removed " if s.get("removed") else "") + (s.get("family") or
+                           s["effect"]) + (" *" if s.get("forced") else "") for s in steps])]
+    if any("where" in s for s in steps):
+        columns.append(("where", [s.get("where") or "" for s in steps]))
+    if any("n_parameters" in s for s in steps):
+        columns.append(("params", [str(s["n_parameters"]) for s in steps]))
+    columns += [(f"RMS ({unit})", [cell(s["rms"]) for s in steps]),
+                ("dBIC", [cell(s.get("delta_bic")) for s in steps]),
+                (f"CV RMS ({unit})", [cell(s["cv_rms"], "unbounded" if "family" in s else "-")
+                                      for s in steps])]
+    width = [max(len(h), 18 if h == "effect" else 0, *map(len, cells)) for h, cells in columns]
+    rows = [" ".join(c.ljust(w) if j < 2 or h == "where" else c.rjust(w) for j, (c, w, h) in
+                     enumerate(zip(row, width, (h for h, _ in columns), strict=True)))
+            for row in zip(*([h] + cells for h, cells in columns), strict=True)]
+    if any(s.get("validation") for s in steps):
+        rows = [rows[0] + "  validation RMS"] + [
+            row + (f"  {v['rms']:.4g} (3-D, {v['unit']})" if (v := s.get("validation")) else "")
+            for row, s in zip(rows[1:], steps, strict=True)]
+    forbidden = d.get("selection", {}).get("forbidden")
+    return [*rows, *notes,
+            *(["* forced (--families): added first, whatever its BIC and held-out error"]
+              if any(s.get("forced") for s in steps) else []),
+            *([f"not tried (--not): {', '.join(forbidden)}"] if forbidden else [])]
 
 
 def stages(d: dict) -> list[tuple[str, dict]]:
