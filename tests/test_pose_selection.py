@@ -155,7 +155,8 @@ def test_an_infinite_interval_is_written_as_null_and_said(baseline_only, tmp_pat
     """A fitted parameter the data do not determine at the optimum has an infinite standard
     deviation: diagnose --out ended in a traceback ("Out of range float values are not JSON
     compliant: inf": a prism-jointed arm and a 12-pose Talos arm of the sweep of issue 47);
-    the files write null, as the model file's undetermined bounds, and the text 'no bound'."""
+    the files write null, as the model file's undetermined bounds, and the text 'undetermined'
+    (the data do not bound it)."""
     d = baseline_only
     fit = d.final
     cov = fit.covariance.copy()
@@ -172,7 +173,7 @@ def test_an_infinite_interval_is_written_as_null_and_said(baseline_only, tmp_pat
     assert model["interval_95"][1] is None
     line = next(x for x in format_pose_report(blind).splitlines()
                 if x.strip().startswith(row["parameter"]))
-    assert "no bound]" in line and "inf" not in line, line
+    assert "undetermined (the data do not bound it" in line and "inf" not in line, line
     step_row = next(x for x in format_pose_report(blind).splitlines() if x.startswith("0 "))
     assert step_row.split()[-1] == "unbounded", step_row
 

@@ -9,6 +9,7 @@ from stiffness.calibration.breakdown import strongest_correlations
 from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
+from stiffness.calibration.parameter_section import parameter_lines
 from stiffness.calibration.selection import above_noise, noise_overstated
 from stiffness.calibration.steps_table import stage_table, stages, step_lines
 
@@ -82,8 +83,7 @@ def format_report(d: Diagnosis) -> str:
         for s in d.named_steps:
             stand_in = f" STAND-IN: {STAND_IN_NOTE}" if d.stand_in(s.effect.label) else ""
             lines.append(f"  {s.effect.label}: {s.effect.describe()}{stand_in}")
-            for p in d.final_parameters.get(s.effect.label, []):
-                lines.append(f"    {p.text()}")
+            lines += parameter_lines(summary["final_parameters"].get(s.effect.label, {}), "    ")
         found = [s.effect.label for s in d.named_steps if not d.stand_in(s.effect.label)]
         lines.append("missing effects: " + (", ".join(found) or "none found physical"))
         lines += how_sure_lines(summary)

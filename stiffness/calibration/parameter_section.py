@@ -1,10 +1,13 @@
 """A final model's parameters with standard errors, 95 % intervals and units: the table of
-either kind's diagnosis page, from its ``--json`` parameter objects (a pose diagnosis's
-``parameters`` rows carry a deflection diagnosis's keys)."""
+either kind's diagnosis page and the lines of either kind's text report, from its ``--json``
+parameter objects (a pose diagnosis's ``parameters`` rows carry a deflection diagnosis's
+keys)."""
 
 from __future__ import annotations
 
-from stiffness.elastic.effects.base import confounded_note
+import math
+
+from stiffness.elastic.effects.base import Parameter, confounded_note
 from stiffness.htmlpage import esc, num, table
 from stiffness.units import finite_number
 
@@ -48,3 +51,34 @@ def parameter_table(rows: list[list]) -> str:
                  ["part", "parameter", "value", "standard error", "95 % interval", "unit"],
                  rows, "Intervals from the fit's covariance at the stated noise (a robust "
                  "loss: Huber's sandwich covariance), one-sided at a physical bound.")
+
+
+def parameter_lines(parameters: dict[str, dict], indent: str = "  ") -> list[str]:
+    """The text beside :func:`parameter_rows`: one line per parameter of ``parameters`` (by
+    name) in the words of :meth:`~stiffness.elastic.effects.base.Parameter.text` (an
+    undetermined parameter's interval, never its value), a nonlinear spring's ``gamma``
+    followed by its ``beta = gamma / c``
+    (:func:`~stiffness.calibration.pose_model_file.parameter_table`) where it has one."""
+    return [indent + _parameter(name, p).text() + ("" if (beta := p.get("beta")) is None else
+                                                   f"  beta = gamma/c = {beta['value']:.4g} "
+                                                   f"{beta['unit']}")
+            for name, p in parameters.items()]
+
+
+def _parameter(name: str, p: dict) -> Parameter:
+    """The :class:`~stiffness.elastic.effects.base.Parameter` a ``--json`` parameter object
+    was written from (:meth:`~stiffness.elastic.effects.base.Parameter.to_dict`, or a pose
+    row's ``std`` and ``interval_95``): null as infinite, not resolved where it is said
+    undetermined with finite numbers."""
+    se = p.get("standard_error", p.get("std"))
+    lo, hi = p.get("ci95") or p.get("interval_95") or (None, None)
+    spread = (math.inf if se is None else se, -math.inf if lo is None else lo,
+              math.inf if hi is None else hi)
+    return Parameter(name, math.inf if p["value"] is None else p["value"], spread[0],
+                     spread[1:], p.get("unit", ""), held=p.get("held") or "",
+                     at_bound=bool(p.get("at_bound")),
+                     resolved=p.get("determined", True) or bool(p.get("held")) or not all(
+                         map(math.isfinite, spread)),
+                     scale_note=p.get("physical_scale") or "",
+                     confounded_with=tuple((c["parameter"], c["correlation"])
+                                           for c in p.get("confounded_with", [])))

@@ -6,6 +6,7 @@ from __future__ import annotations
 from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.outliers import describe_outliers
+from stiffness.calibration.parameter_section import parameter_lines
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_page import not_added
 from stiffness.calibration.steps_table import stage_table, stages, step_lines
@@ -38,32 +39,15 @@ def format_pose_report(d: PoseDiagnosis) -> str:
               d.verdict(), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
-    lines += ["", "fitted parameters (SI, 95 % interval; one-sided at a physical bound):"]
-    for p in (p for p in summary["parameters"] if p["fitted"]):
-        lo, hi = ("no bound" if v is None else f"{v:.5g}" for v in p["interval_95"])
-        lines.append(f"  {p['parameter']:<42} {p['value']:>12.5g} {p['unit']:<10} "
-                     f"[{lo}, {hi}]" + ("  at its lower bound" if p["at_bound"]
-                                                else "")
-                     + ("" if p.get("determined", True) else
-                        f"  undetermined ({p['physical_scale']})") + _softening(p))
-    return "\n".join(lines + _how_sure_lines(d, summary))
-
-
-def _softening(p: dict) -> str:
-    """Beside a nonlinear spring's ``gamma``, its row's ``beta = gamma / c``
-    (:func:`~stiffness.calibration.pose_model_file.parameter_table`), where it has one."""
-    beta = p.get("beta")
-    return "" if beta is None else f"  beta = gamma/c = {beta['value']:.4g} {beta['unit']}"
-
-
-def _how_sure_lines(d: PoseDiagnosis, summary: dict) -> list[str]:
-    """The held parameters and how sure the diagnosis is of each family it added
-    (``summary``: its ``--json`` object), in the words of a deflection diagnosis's report."""
-    held = [p for ps in d.named_parameters().values() for p in ps
-            if p.held.startswith("held at its nominal value")]
-    lines = ["", "held at nominal (the data do not determine them):",
-             *[f"  {p.text()}" for p in held]] if held else []
-    return lines + (["", *how_sure_lines(summary)] if d.how_sure else [])
+    rows = {p["parameter"]: p for p in summary["parameters"]}
+    held = {k: p for k, p in rows.items() if (p.get("held") or "").startswith("held at its "
+                                                                             "nominal value")}
+    lines += ["", "fitted parameters (SI, 95 % intervals):",
+              *parameter_lines({k: p for k, p in rows.items() if p["fitted"]})]
+    if held:
+        lines += ["", "held at nominal (the data do not determine them):",
+                  *parameter_lines(held)]
+    return "\n".join(lines + (["", *how_sure_lines(summary)] if d.how_sure else []))
 
 
 #: How the identifiability lines name a parameter left out, by its reason.
