@@ -539,8 +539,20 @@ def looks_like_path(source: str) -> bool:
             or os.sep in source or Path(source).is_absolute())
 
 
+def _posix_separators(path: str, folder: Path) -> str:
+    """``path`` as written in a file in ``folder``, with Windows separators (a relative
+    ``..\\robot\\arm.urdf`` written on Windows) read as ``/`` where the path as written names
+    nothing and the other does (on Windows, and where it names a file, as it is)."""
+    if os.sep == "\\" or "\\" not in path or (folder / path).exists():
+        return path
+    other = path.replace("\\", "/")
+    return other if (folder / other).exists() else path
+
+
 def resolve_path(path: str, folder: Path) -> str:
-    """A file path of a campaign (``loops``): absolute as is, else relative to ``folder``."""
+    """A file path of a campaign (``loops``): absolute as is, else relative to ``folder``
+    (Windows separators read as ``/``: :func:`_posix_separators`)."""
+    path = _posix_separators(path, folder)
     return path if Path(path).is_absolute() else str(folder / path)
 
 
@@ -565,7 +577,9 @@ def written_source(source: str, folder: Path, base: Path | None = None) -> str:
 
 
 def resolve_source(source: str, folder: Path) -> str:
-    """A robot name as is; a relative URDF path made absolute against ``folder``."""
+    """A robot name as is; a relative URDF path made absolute against ``folder`` (Windows
+    separators read as ``/``: :func:`_posix_separators`)."""
+    source = _posix_separators(source, folder)
     if looks_like_path(source) and not Path(source).is_absolute():
         return str((folder / source).resolve())
     return source

@@ -425,3 +425,28 @@ def test_a_trailing_comma_is_named_in_the_ignored_columns(tmp_path):
         c = load_campaign(write(tmp_path, csv=text))
     np.testing.assert_allclose(c.q, load_campaign(write(tmp_path / "ref", csv=f"{HEADER}\n"
                                                                           f"{ROW_A}\n")).q)
+
+
+def test_windows_separators_in_a_campaign_path_are_read(tmp_path):
+    """A campaign.toml written on Windows names its URDF and loop file with backslashes
+    (``..\\robot\\sk120.urdf``): refused before ('URDF file .../camp/..\\robot\\sk120.urdf does
+    not exist'), read now as ``/`` where that names the file; a name stays a name, and a path
+    naming nothing either way stays as written (its error names it so)."""
+    import shutil
+
+    from stiffness.files import resolve_path, resolve_source
+
+    shutil.copytree(robots_directory() / "sk120", tmp_path / "robot",
+                    ignore=shutil.ignore_patterns("campaigns", "paper"))
+    shutil.copytree(robots_directory() / "sk120" / "campaigns" / "table2", tmp_path / "camp")
+    toml = tmp_path / "camp" / "campaign.toml"
+    toml.write_text(toml.read_text().replace(
+        'source = "sk120"', 'source = "..\\\\robot\\\\sk120.urdf"\n'
+        'loops = "..\\\\robot\\\\sk120.loops.yaml"', 1))
+    camp = load_campaign(tmp_path / "camp")
+    assert camp.resolved_source() == str((tmp_path / "robot" / "sk120.urdf").resolve())
+    assert Path(camp.robot_options()["loops"]).resolve() == (
+        tmp_path / "robot" / "sk120.loops.yaml").resolve()
+    assert camp.robot().n_coordinates == 6
+    assert resolve_source("ur5", tmp_path) == "ur5"
+    assert resolve_path("..\\none.yaml", tmp_path) == str(tmp_path / "..\\none.yaml")
