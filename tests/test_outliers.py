@@ -300,20 +300,24 @@ def test_robust_loss_takes_a_robust_replicate_noise():
 
 
 def test_robust_fit_to_noise_leaves_the_flagged_rows_out(tmp_path):
-    """The fit-to-noise test's terms (:func:`noise_terms`): least squares takes ``loss_rss``
-    over all ``n`` components, bit for bit; a robust loss the plain sum of squares of the rows
-    not flagged, over their components, recomputed here by hand from the residuals."""
+    """The fit-to-noise test's terms (:func:`noise_terms`): least squares takes the residual
+    sum of squares (``loss_rss``, to rounding: summed from ``predicted - measured``) over all
+    ``n`` components; a robust loss the plain sum of squares of the rows not flagged, over
+    their components, recomputed here by hand from the residuals."""
     c = simulated(tmp_path / "c", seed=4, configs=8, loads=3)
     rows = with_gross_outliers(c, seed=4, share=0.08)
     model = stiffness_model(c, "conventional")
     measured = np.asarray(c.deflection, dtype=float)
     x0 = np.full(len(model.compliant), math.log(1e5))
     plain = fit_model(model, measured, 1e-5, x0, anchor=x0)
-    assert noise_terms(plain, measured, measured.size) == (plain.loss_rss, measured.size, 0)
+    terms = noise_terms(plain, measured)
+    assert (terms.n, terms.p, terms.excluded) == (measured.size, plain.penalty_params, 0)
+    assert terms.rss == pytest.approx(plain.loss_rss, rel=1e-12)
     sigma = NOISE_MM * 1e-3
     robust = fit_model(model, measured, 1e-5, plain.x, anchor=x0, loss="soft_l1",
                        f_scale=sigma / 1e-5)
-    rss, n, excluded = noise_terms(robust, measured, measured.size)
+    terms = noise_terms(robust, measured)
+    rss, n, excluded = terms.rss, terms.n, terms.excluded
     clean = np.delete(robust.predicted - measured, rows, axis=0)
     assert excluded == len(rows) == 2 and n == clean.size == measured.size - 6
     assert rss == pytest.approx(float(np.sum(clean ** 2)), rel=1e-12)

@@ -81,12 +81,12 @@ from stiffness.calibration.selection import (
     CV_TOP,
     SCREEN_TOLERANCE,
     Noise,
+    NoiseTerms,
     above_noise,
     config_folds,
     cross_validate,
     extra_fit,
     fit_baseline,
-    fit_goodness,
     fit_job,
     fit_model,
     information_criterion,
@@ -312,8 +312,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     final, stop = search(kind, current, cv_current, max_steps)
     steps = kind.steps
     p_final = final.penalty_params
-    gof_final = fit_goodness(known, final, measured, n)
-    excluded = noise_terms(final, measured, n)[2]
+    gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
     noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
@@ -336,8 +335,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
                                            sigma_used, rows, geo.angles(rows)),
         final_disagreement=disagreement((final.predicted - measured)[:, :3], campaign,
                                         sigma_used, rows, geo.angles(rows)),
-        gof_baseline=fit_goodness(known, base, measured, n), gof_final=gof_final,
-        gof_excluded_rows=excluded,
+        gof_baseline=noise_terms(base, measured).p_value(known), gof_final=gof_final,
+        gof_excluded_rows=final_terms.excluded,
         unexplained=None if gof_final is None else above_noise(gof_final),
         ambiguities=ambiguities, cv_baseline=cv_base, elapsed_s=time.perf_counter() - t0,
         final_parameters=final_parameters, search=kind,
@@ -544,9 +543,9 @@ class DeflectionSearch:
         """The known noise std (m), ``None`` when only the residuals can tell."""
         return None if self.noise is None else self.noise.sigma
 
-    def noise_terms(self, fit: Fit) -> tuple[float, int, int]:
+    def noise_terms(self, fit: Fit) -> NoiseTerms:
         """:func:`~stiffness.calibration.selection.noise_terms` of ``fit``."""
-        return noise_terms(fit, self.measured, self.n)
+        return noise_terms(fit, self.measured)
 
     def candidates(self, current: Fit, only: str | None = None) -> list[Found] | None:
         """Every library extension of ``current`` fitted (screened, the best refined), ranked
@@ -728,8 +727,9 @@ class OneConfigurationSearch(DeflectionSearch):
         """Those the rows can judge and show cross-validated; the others ``refused``, why."""
         tried = list(named)
         for c in tried:
-            c.refused = row_support(self.folds, self.measured, *c.fit.terms(), self.noise,
-                                    c.fit.translation_terms())
+            t = self.noise_terms(c.fit)
+            c.refused = row_support(self.folds, self.measured, t.rss, t.p, self.noise,
+                                    t.translations, t.n)
             if c.refused is None and self.noise is None:
                 c.refused = extra_fit(self.current_terms, c.fit.terms(), self.n, self.tried)
         super().held_out(c for c in tried if c.refused is None)

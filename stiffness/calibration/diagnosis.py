@@ -121,7 +121,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     gof_baseline, gof_final
         Chi-square p-values of the baseline and final fits (known noise only; under a robust
         loss over the rows not flagged as outliers,
-        :func:`~stiffness.calibration.selection.noise_terms`).
+        :func:`~stiffness.calibration.selection.kept_terms`).
     ambiguities
         What the campaign cannot tell apart.
     cv_baseline

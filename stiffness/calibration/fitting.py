@@ -110,9 +110,6 @@ class Fit:
         units of ``scale``.
     loss_value
         ``sum f^2 rho((r / f)^2)`` of the scaled residuals at the optimum (:func:`loss_sum`).
-    translation_loss_value
-        The same of the translation components alone when rotations are fitted beside them
-        (:meth:`translation_terms`), else ``None``.
     identifiability
         The parameters fitted and those held at their nominal values (:func:`layout`,
         :func:`nominal_parameters`; every one fitted when ``None``).
@@ -135,7 +132,6 @@ class Fit:
     loss_value: float | None = None
     identifiability: Identifiability | None = None
     at_bound: list[int] = field(default_factory=list)
-    translation_loss_value: float | None = None
 
     @property
     def kept(self) -> list[int]:
@@ -166,8 +162,10 @@ class Fit:
 
     @property
     def loss_rss(self) -> float:
-        """The objective as a sum of squares (m^2), what selection criteria and fit-to-noise
-        tests compare: :attr:`rss` for the linear loss; for a robust one ``scale^2``
+        """The objective as a sum of squares (m^2), what selection criteria compare (the
+        fit-to-noise test reads the rows a robust loss keeps instead,
+        :func:`~stiffness.calibration.selection.noise_terms`): :attr:`rss` for the linear
+        loss; for a robust one ``scale^2``
         :attr:`loss_value` over :func:`gaussian_loss_mean` (same expectation, ``N sigma^2``,
         for Gaussian residuals at the loss's scale ``sigma``; an outlier adds about
         ``2 f |r|`` instead of ``r^2``)."""
@@ -182,25 +180,6 @@ class Fit:
     def terms(self) -> tuple[float, int]:
         """:attr:`loss_rss` (m^2) and :attr:`penalty_params` (:meth:`search.Fitted.terms`)."""
         return self.loss_rss, self.penalty_params
-
-    def translation_terms(self) -> tuple[float, int, float] | None:
-        """The translations' part of :meth:`terms` when rotations are fitted beside them
-        (``None`` without; :meth:`search.Fitted.translation_terms`): their :attr:`loss_rss`
-        (m^2), their component count and their share of :attr:`penalty_params`, it times the
-        trace of the fit's hat matrix ``J (J^T J)^+ J^T`` over the translation components
-        over its whole trace (for a linear model the translations' residual sum of squares
-        has mean ``(count - share) sigma^2``; :meth:`Noise.goodness_of_fit
-        <stiffness.calibration.selection.Noise.goodness_of_fit>`)."""
-        if self.translation_loss_value is None:
-            return None
-        jac = self.jacobian[:, self.kept]
-        hat = np.einsum("ij,ij->i", jac, np.linalg.pinv(jac).T).reshape(self.predicted.shape)
-        total = float(hat.sum())
-        share = self.penalty_params * float(hat[:, :3].sum()) / total if total > 0 else 0.0
-        value = self.translation_loss_value * self.scale ** 2
-        if self.loss != "linear":
-            value /= gaussian_loss_mean(self.loss)
-        return value, hat[:, :3].size, share
 
     def labels(self) -> list[str]:
         """Each column of :attr:`x` named (:func:`parameter_labels`)."""
@@ -426,11 +405,9 @@ def fit_model(model: Hypothesis, measured: np.ndarray, scale: float, x0: np.ndar
     jac = objective.data_jacobian(x)
     r = objective.data(x)
     pred = measured + r.reshape(measured.shape) * scale
-    translations = (None if measured.shape[1] < 6 else
-                    loss_sum(r.reshape(measured.shape)[:, :3], loss, f_scale))
     return Fit(model, x, pred, float(np.sum((r * scale) ** 2)), jac, scale, sol.success,
                sol.message, sol.nfev, loss, float(f_scale), loss_sum(r, loss, f_scale),
-               sol.identifiability, at_bound, translations)
+               sol.identifiability, at_bound)
 
 
 def rigid_joints(model: Hypothesis, x: np.ndarray, kept: Sequence[int]) -> list[int]:

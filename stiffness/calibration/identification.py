@@ -160,6 +160,12 @@ class Identification(IdentificationResult):
     physical_scale
         Per joint, its 95 % interval against its physical scale in words (diagnose's
         ``physical_scale``; empty: not judged), JSON ``joints[].physical_scale``.
+    fits_to_noise
+        The test of fitting to a known noise (declared, or the replicates'), JSON
+        ``fits_to_noise``: its ``p_value``, ``level``, ``test`` and ``final_rows_excluded``
+        (the rows flagged as outliers a robust loss's test leaves out, 0 under least squares;
+        :func:`~stiffness.calibration.selection.noise_terms`); ``None`` when the noise is
+        estimated from the residuals.
     starts
         Every least-squares run.
     starts_agree
@@ -243,6 +249,7 @@ class Identification(IdentificationResult):
     at_bound: tuple[bool, ...] = ()
     kinematics_bias_se: np.ndarray | None = None
     physical_scale: tuple[str, ...] = ()
+    fits_to_noise: dict | None = None
 
     @property
     def sigma_m(self) -> float:
@@ -353,6 +360,7 @@ class Identification(IdentificationResult):
                 "weight_m_per_rad": self.rotation_weight_m_per_rad,
                 "rms_rad": self.rms_by_kind["rotation_rad"],
                 "residuals_rad": self.rotation_residuals},
+            "fits_to_noise": self.fits_to_noise,
             "notes": list(self.notes),
             "model_file": None if self.model_path is None else str(self.model_path),
         })

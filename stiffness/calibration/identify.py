@@ -100,8 +100,11 @@ from stiffness.calibration.selection import (
     GOF_LEVEL,
     OVERSTATED_P,
     Noise,
+    NoiseTerms,
     above_noise,
+    excluded_note,
     noise_overstated,
+    noise_terms,
     pooled_replicates,
     replicate_noise,
 )
@@ -352,8 +355,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         rot_res = best_fit.residuals(measured)[1]
         if campaign.rotation_noise_std_rad is None:  # not declared: the residuals'
             rot_sigma = kind_noise(rot_res, n_res, fitted)
-    level = _noise_level(campaign, best_fit.rss, n_res, fitted, robust_sigma,
-                         best_fit.translation_terms())
+    level = _noise_level(campaign, best_fit.rss, n_res, fitted,
+                         noise_terms(best_fit, measured), robust_sigma)
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
     intervals = level.noise.of_fit(best_fit.loss, n_res,
@@ -422,6 +425,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         at_bound=tuple(bool(r) for r in rigid),
         kinematics_bias_se=bias,
         physical_scale=tuple(p.scale_note for p in judged),
+        fits_to_noise=level.fits_to_noise,
     )
 
 
@@ -604,69 +608,78 @@ class _NoiseLevel:
     sigma_residual
         The residuals' own estimate (m), ``None`` without degrees of freedom.
     notes
-        Where the residuals and a declared noise disagree.
+        Where the residuals and a known noise disagree.
+    fits_to_noise
+        The test of fitting to the known noise (declared, or the replicates'): its
+        ``p_value``, ``level``, ``test`` and ``final_rows_excluded`` (the rows flagged as
+        outliers a robust loss's test left out); ``None`` when the noise is not known.
     """
 
     noise: Noise
     source: str
     sigma_residual: float | None
     notes: list[str]
+    fits_to_noise: dict | None = None
 
 
-def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int,
-                 robust_sigma: float | None = None,
-                 translations: tuple[float, int, float] | None = None) -> _NoiseLevel:
+def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int, terms: NoiseTerms,
+                 robust_sigma: float | None = None) -> _NoiseLevel:
     """The noise of the intervals (:class:`_NoiseLevel`): a declared noise std, else the
-    replicate rows' scatter (translations only: not with measured rotations), else the
-    residuals'; with ``robust_sigma`` (m, a robust fit's scale) that one, declared or the
-    robust estimate. A declared one is tested as ``diagnose`` tests it
-    (:func:`~stiffness.calibration.selection.pooled_replicates`, a rotation noise not declared
-    being the residuals': the test then reads ``translations``,
-    :meth:`~stiffness.calibration.fitting.Fit.translation_terms`)."""
+    replicate rows' scatter (translations only: not with measured rotations; least squares
+    only), else the residuals'; with ``robust_sigma`` (m, a robust fit's scale) that one,
+    declared or the robust estimate. A known one is tested as ``diagnose`` tests it, on the
+    fit's ``terms`` (:func:`~stiffness.calibration.selection.noise_terms`: a robust loss's
+    flagged rows left out; a declared noise by
+    :func:`~stiffness.calibration.selection.pooled_replicates`, a rotation noise not declared
+    being the residuals')."""
     dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
-    notes: list[str] = []
     declared = campaign.noise_std_m
-    if robust_sigma is not None:
-        if declared is not None:
-            return _NoiseLevel(Noise(robust_sigma), "declared noise_std", sigma_res, notes)
-        return _NoiseLevel(Noise.estimated(robust_sigma, n, p),
-                           "robust estimate (1.4826 median |residual|)", sigma_res, notes)
     if declared is not None:
-        sigma = declared
-        tested = pooled_replicates(Noise(sigma), campaign, replicates=False)
+        tested = pooled_replicates(Noise(declared), campaign, replicates=False)
         assert tested is not None  # a declared noise
-        gof = tested.goodness_of_fit(ss_m2, n, p, translations)
-        if sigma_res is not None and gof is not None and above_noise(gof):
-            notes.append(
-                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the declared "
-                f"noise_std ({sigma * 1e3:.4g} mm; {tested.test} p = {gof:.3g} <= "
-                f"{1.0 - GOF_LEVEL:.2g}): model error or underestimated noise; the confidence "
-                "intervals are too narrow (stiffness diagnose finds what is missing)"
-            )
-        if sigma_res is not None and noise_overstated(gof):
-            notes.append(
-                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are much smaller than the "
-                f"declared noise_std ({sigma * 1e3:.4g} mm; {tested.test} lower tail p < "
-                f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the confidence "
-                "intervals are too wide and an effect below the noise goes unseen")
-        return _NoiseLevel(Noise(sigma), "declared noise_std", sigma_res, notes)
+        return _NoiseLevel(Noise(declared), "declared noise_std", sigma_res,
+                           *_tested(tested, terms, "declared noise_std"))
+    if robust_sigma is not None:
+        return _NoiseLevel(Noise.estimated(robust_sigma, n, p),
+                           "robust estimate (1.4826 median |residual|)", sigma_res, [])
     # dof > 0 without a declared noise: _check_residual_count
     assert sigma_res is not None
     rep = replicate_noise(campaign) if campaign.rotation is None else None
     if rep is not None:  # diagnose's noise (its _translation_noise): the replicates' scatter
-        noise = Noise(*rep)
-        gof = noise.goodness_of_fit(ss_m2, n, p)
-        if gof is not None and above_noise(gof):
-            notes.append(
-                f"the residuals (sigma {sigma_res * 1e3:.4g} mm) are larger than the replicate "
-                f"rows' scatter ({rep[0] * 1e3:.4g} mm; {noise.test} p = {gof:.3g} <= "
-                f"{1.0 - GOF_LEVEL:.2g}): the model misses something; the confidence intervals "
-                "are too narrow (stiffness diagnose finds what is missing)")
-        return _NoiseLevel(noise, f"replicates (pooled scatter, {rep[1]} degrees of freedom)",
-                           sigma_res, notes)
+        return _NoiseLevel(Noise(*rep), f"replicates (pooled scatter, {rep[1]} degrees of "
+                           "freedom)", sigma_res, *_tested(Noise(*rep), terms, "replicate "
+                                                           "rows' scatter"))
     return _NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
-                       notes)
+                       [])
+
+
+def _tested(noise: Noise, terms: NoiseTerms, name: str) -> tuple[list[str], dict]:
+    """The notes and the ``fits_to_noise`` record of the test of fitting to a known
+    ``noise`` (its ``name`` in words) on ``terms``: residuals above it (model error or an
+    underestimated noise), or a declared one far below (overstated)."""
+    gof = terms.p_value(noise)
+    dof = terms.n - terms.p
+    sigma = math.sqrt(terms.rss / dof) if dof > 0 else None
+    left_out = excluded_note(terms.excluded)
+    notes = []
+    if sigma is not None and gof is not None and above_noise(gof):
+        notes.append(
+            f"the residuals (sigma {sigma * 1e3:.4g} mm) are larger than the {name} "
+            f"({noise.sigma * 1e3:.4g} mm; {noise.test} p = {gof:.3g} <= "
+            f"{1.0 - GOF_LEVEL:.2g}{left_out}): " + (
+                "model error or underestimated noise; the confidence intervals are too narrow "
+                "(stiffness diagnose finds what is missing)" if noise.declared else
+                "the model misses something; the confidence intervals are too narrow "
+                "(stiffness diagnose finds what is missing)"))
+    if sigma is not None and noise.declared and noise_overstated(gof):
+        notes.append(
+            f"the residuals (sigma {sigma * 1e3:.4g} mm) are much smaller than the {name} "
+            f"({noise.sigma * 1e3:.4g} mm; {noise.test} lower tail p < {OVERSTATED_P:g}"
+            f"{left_out}): overstated noise, or averaged rows; the confidence intervals are too "
+            "wide and an effect below the noise goes unseen")
+    return notes, {"p_value": gof, "level": GOF_LEVEL, "test": noise.test,
+                   "final_rows_excluded": terms.excluded}
 
 
 def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarray,

@@ -36,6 +36,11 @@ from stiffness.htmlpage import esc, num, table
 OUTLIER_THRESHOLD = 4.0
 #: The median absolute deviation of a normal variable times this is its standard deviation.
 MAD_TO_STD = 1.482602218505602
+#: Largest share of a campaign's rows flagged that are read as stray measurements: a robust
+#: loss's fit-to-noise test leaves them out (:func:`stiffness.calibration.selection.
+#: kept_terms`); more are a pattern the model misses, kept in the test (a model missing a
+#: sizeable effect flags most rows: leaving them out would leave nothing to reject it).
+STRAY_SHARE = 0.1
 #: Component names of a row's residual, translations then rotations.
 COMPONENTS = ("dx", "dy", "dz", "rx", "ry", "rz")
 #: Rounds of :func:`robust_rounds`: the scale from a least-squares fit's residuals, then from

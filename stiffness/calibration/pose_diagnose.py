@@ -19,8 +19,10 @@ user may force families in (added first, in order) and forbid others (``diagnose
 are fitted (:mod:`stiffness.calibration.pose_fit`).
 At the end the residual is tested against the declared noise
 (:meth:`~stiffness.calibration.selection.Noise.goodness_of_fit` at
-:data:`~stiffness.calibration.selection.GOF_LEVEL`): what is left above it is "unexplained",
-with its structure (per marker, per axis, along the row order).
+:data:`~stiffness.calibration.selection.GOF_LEVEL`, on
+:func:`~stiffness.calibration.pose_fit.noise_terms`: a robust loss's flagged poses left out,
+as the search's stop rule leaves them): what is left above it is "unexplained", with its
+structure (per marker, per axis, along the row order).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from stiffness.calibration.pose_fit import (
     flag_pose_outliers,
     held_out_rms,
     linearised_rss,
+    noise_terms,
     predict,
     rows_of,
     starting_frame,
@@ -64,6 +67,7 @@ from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
     Noise,
+    NoiseTerms,
     step_criteria,
 )
 from stiffness.calibration.solver import check_loss
@@ -251,8 +255,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     loss
         ``linear`` (least squares) or a robust loss of
         :data:`~stiffness.calibration.solver.LOSSES` for every fit, scaled by the declared
-        noise std, else by the baseline's robust estimate; BIC and the fit-to-noise test
-        compare :meth:`PoseFit.loss_rss` (:mod:`stiffness.calibration.pose_fit`).
+        noise std, else by the baseline's robust estimate; BIC compares :meth:`PoseFit.loss_rss`,
+        the fit-to-noise test the poses not flagged (:mod:`stiffness.calibration.pose_fit`).
     families
         Families forced in (``diagnose --families``): added first, in this order, whatever
         their BIC and held-out error (a family another one acts through must come before it).
@@ -411,10 +415,10 @@ class PoseSearch:
         """The declared noise std (position-noise units), ``None`` when not declared."""
         return None if self.sigma is None else Noise(self.sigma)
 
-    def noise_terms(self, fit: PoseFit) -> tuple[float, int, int]:
-        """:meth:`PoseFit.loss_rss` (position-noise units squared) over every observed
-        component, no pose left out (a robust loss's flagged poses stay in the test)."""
-        return fit.loss_rss(), self.n, 0
+    def noise_terms(self, fit: PoseFit) -> NoiseTerms:
+        """:func:`~stiffness.calibration.pose_fit.noise_terms` of ``fit``: every observed
+        component, a robust loss's flagged poses left out."""
+        return noise_terms(fit, self.campaign)
 
     def force(self, family: str, loss: str) -> None:
         """Add ``family`` whatever its BIC and held-out error (``diagnose --families``)."""

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.breakdown import marker_structure
-from stiffness.calibration.outliers import robust_noise
+from stiffness.calibration.outliers import STRAY_SHARE, robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_fit import PoseFit
+from stiffness.calibration.pose_fit import PoseFit, noise_terms
 from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
 from stiffness.calibration.pose_page import render_pose_diagnosis, stage_plot
 from stiffness.calibration.pose_parameters import PoseJudge
@@ -22,7 +22,7 @@ from stiffness.calibration.pose_plausibility import Plausibility, plausibility
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
 from stiffness.calibration.search import Step
-from stiffness.calibration.selection import Noise, above_noise
+from stiffness.calibration.selection import Noise, NoiseTerms, above_noise, excluded_note
 from stiffness.elastic.effects.base import Parameter
 from stiffness.files import jsonable
 from stiffness.provenance import provenance
@@ -68,12 +68,18 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         """Families of the final model, in the order chosen."""
         return list(BASE_FAMILIES) + [s.effect for s in self.named_steps]
 
+    @functools.cached_property
+    def final_terms(self) -> NoiseTerms:
+        """What the final fit's fit-to-noise test reads
+        (:func:`~stiffness.calibration.pose_fit.noise_terms`: every observed component, a
+        robust loss's flagged poses left out)."""
+        return noise_terms(self.final, self.campaign)
+
     def gof(self) -> float | None:
-        """Chi-square p-value of the final residual (:meth:`PoseFit.loss_rss`) against the
+        """Chi-square p-value of the final residual (:attr:`final_terms`) against the
         declared noise, or None (:meth:`~stiffness.calibration.selection.Noise.goodness_of_fit`)."""
-        fit, sigma = self.final, self.campaign.noise_std
-        return None if sigma is None else Noise(sigma).goodness_of_fit(
-            fit.loss_rss(), fit.n_observed, fit.n_fitted)
+        sigma = self.campaign.noise_std
+        return None if sigma is None else self.final_terms.p_value(Noise(sigma))
 
     @property
     def unexplained(self) -> bool | None:
@@ -90,8 +96,9 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         if p is None:
             return ("noise not declared: whether the final model explains the data to noise "
                     "cannot be said; declare [measurement] noise_std")
+        left_out = excluded_note(self.final_terms.excluded)
         if not self.unexplained:
-            return f"explained to noise (chi-square p = {p:.3g})"
+            return f"explained to noise (chi-square p = {p:.3g}{left_out})"
         s = marker_structure(self.final, self.campaign)
         trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
         where = ("" if trend is None else
@@ -102,7 +109,8 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         noise = self.campaign.noise_std or 0.0
         r = self.final.residual
         robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted) or 0.0
-        return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}); RMS "
+        return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}"
+                f"{left_out}); RMS "
                 f"({length}) by marker {marker}, by axis {axis}{where}"
                 + _flagged(len(self.outliers), self.campaign.n_rows, self.loss)
                 + f"; or the declared noise_std ({noise / self.campaign.units.length_to_si:.4g}"
@@ -133,6 +141,7 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                 "stop_reason": self.stop_reason,
                 "selection": self.selection(),
                 "gof_p": self.gof(), "unexplained": self.unexplained,
+                "final_rows_excluded": self.final_terms.excluded,
                 "plausible": self.plausibility.plausible,
                 "plausibility": self.plausibility.to_dict(),
                 **self.outlier_keys(), "identifiability": self.identifiability(),
@@ -175,16 +184,19 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
 
 def _flagged(n: int, rows: int, loss: str) -> str:
     """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
-    test alone; more than a tenth of the poses are a pattern the model misses, unless (least
-    squares) a few gross poses pulled the fit onto the others, which a robust loss tells."""
+    test alone (least squares: a robust loss's test leaves them out); more than
+    :data:`~stiffness.calibration.outliers.STRAY_SHARE` of the poses are a pattern the model
+    misses (a robust loss's test keeps them), unless (least squares) a few gross poses pulled
+    the fit onto the others, which a robust loss tells."""
     if not n:
         return ""
-    if n > rows / 10:
+    if n > STRAY_SHARE * rows:
         return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
                 "stray measurements, the model misses something"
                 + (", unless a few gross poses pull the least-squares fit onto the others: "
                    "--loss soft_l1 flags those alone" if loss == "linear" else ""))
-    return f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
+    return (f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
+            if loss == "linear" else "")
 
 
 def marker_residual_plots(d: PoseDiagnosis) -> dict[str, bytes]:

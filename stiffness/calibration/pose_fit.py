@@ -36,8 +36,8 @@ squares' on that of ``[r, J]``. The covariance is Huber's sandwich
 (:func:`~stiffness.calibration.solver.sandwich_matrix`, on the factor of ``J``), and
 :meth:`PoseFit.loss_rss` (the loss sum over its Gaussian expectation,
 :func:`~stiffness.calibration.solver.gaussian_loss_mean`) stands for the residual sum of
-squares in BIC and the fit-to-noise test, so an outlier adds about ``2 s |r|`` instead of
-``r^2``.
+squares in BIC, so an outlier adds about ``2 s |r|`` instead of ``r^2``; the fit-to-noise
+test leaves the poses flagged as outliers out instead (:func:`noise_terms`).
 """
 
 from __future__ import annotations
@@ -64,7 +64,9 @@ from stiffness.calibration.pose_model import PoseModel, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import (
     Noise,
+    NoiseTerms,
     bounded_intervals,
+    kept_terms,
 )
 from stiffness.calibration.solver import (
     Options,
@@ -203,6 +205,18 @@ class PoseFit:
         """Number of fitted parameters."""
         return len(self.identifiability.kept)
 
+    def row_residuals(self) -> np.ndarray:
+        """Each pose's residual components, predicted minus measured: (n, 3 M) positions (m),
+        then with orientations their (n, 3 M) weighted into position-noise units, NaN where
+        not seen (the CSV's columns, ``<marker>_x`` ... ``<marker>_rz``): the rows
+        :func:`flag_pose_outliers` flags and the fit-to-noise test reads
+        (:func:`noise_terms`)."""
+        n = self.residual.shape[0]
+        parts = [-self.residual.reshape(n, -1)]
+        if self.rotation_residual is not None and self.rotation_weight is not None:
+            parts.append(-self.rotation_weight * self.rotation_residual.reshape(n, -1))
+        return np.hstack(parts)
+
     def rss(self) -> float:
         """Sum of squared residual components (m^2; orientations weighted)."""
         r = self.components()
@@ -222,11 +236,6 @@ class PoseFit:
     def terms(self) -> tuple[float, int]:
         """:meth:`loss_rss` (m^2) and :attr:`n_fitted` (:meth:`search.Fitted.terms`)."""
         return self.loss_rss(), self.n_fitted
-
-    def translation_terms(self) -> None:
-        """No split of :meth:`terms` by kind (:meth:`search.Fitted.translation_terms`): a pose
-        fit's test of fitting to the noise reads its whole objective."""
-        return None
 
     def labels(self) -> list[str]:
         """Each column of :attr:`x` named (its parameter's label)."""
@@ -707,20 +716,29 @@ def flag_pose_outliers(fit: PoseFit, campaign: PoseCampaign
     for index, _, jac in obs.blocks(fit.x):
         h[index] = leverage(jac[:, fit.identifiability.kept], fit.factor)
     n = fit.residual.shape[0]
-    parts: list[tuple[np.ndarray, tuple[str, ...]]] = [(-fit.residual, ("x", "y", "z"))]
+    parts: list[tuple[np.ndarray, tuple[str, ...]]] = [(fit.residual, ("x", "y", "z"))]
     if fit.rotation_residual is not None and fit.rotation_weight is not None:
-        parts.append((-fit.rotation_weight * fit.rotation_residual, ("rx", "ry", "rz")))
-    residual, lev, names, used = [], [], [], 0
-    for e, axes in parts:
+        parts.append((fit.rotation_residual, ("rx", "ry", "rz")))
+    lev, names, used = [], [], 0
+    for e, axes in parts:  # the leverages in the layout of PoseFit.row_residuals
         seen = np.isfinite(e)
         scattered = np.full(e.shape, np.nan)
         scattered[seen] = h[used:used + int(seen.sum())]
         used += int(seen.sum())
-        residual.append(e.reshape(n, -1))
         lev.append(scattered.reshape(n, -1))
         names += [f"{m.name}_{a}" for m in fit.model.markers for a in axes]
-    return flag_residuals(np.hstack(residual), np.hstack(lev), campaign.noise_std,
+    return flag_residuals(fit.row_residuals(), np.hstack(lev), campaign.noise_std,
                           fit.n_fitted, tuple(campaign.labels), campaign.lines, names)
+
+
+def noise_terms(fit: PoseFit, campaign: PoseCampaign) -> NoiseTerms:
+    """:func:`~stiffness.calibration.selection.kept_terms` of a pose ``fit`` on ``campaign``:
+    its poses' residual components (:meth:`PoseFit.row_residuals`) and, under a robust loss,
+    the poses :func:`flag_pose_outliers` flags left out (standardised by the declared noise
+    std, which a fit-to-noise test needs and a robust loss is then scaled by); its whole
+    objective tested (no split by kind: a pose campaign's orientation noise is declared)."""
+    return kept_terms(fit.row_residuals(), fit.n_fitted, fit.loss,
+                      lambda: [o.row - 1 for o in flag_pose_outliers(fit, campaign)[0]])
 
 
 def predict(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> np.ndarray:

@@ -71,7 +71,8 @@ class PoseIdentification(IdentificationResult):
         """What ``stiffness identify --json`` prints for a pose campaign (SI): the keys of a
         deflection identification where they mean the same (``joints`` with ``k``,
         ``unit``, ``standard_error``, ``ci95``, ``relative_ci_width``, ``determined``), and
-        the pose fit's (``families``, ``parameters``, ``gof_p``, ``unexplained``)."""
+        the pose fit's (``families``, ``parameters``, ``gof_p``, ``unexplained``, and
+        ``final_rows_excluded``: the poses its test left out, a robust loss's)."""
         d, fit = self.diagnosis, self.diagnosis.final
         return jsonable({
             "kind": "poses", "campaign": d.campaign.name,
@@ -87,6 +88,7 @@ class PoseIdentification(IdentificationResult):
             "undetermined_joints": [p.name for p in self.stiffnesses if not p.determined],
             "sigma_m": fit.sigma, "sigma_source": fit.sigma_source, "rms_m": fit.rms(),
             "gof_p": d.gof(), "unexplained": d.unexplained,
+            "final_rows_excluded": d.final_terms.excluded,
             "plausible": d.plausibility.plausible, "plausibility": d.plausibility.to_dict(),
             "n_residuals": fit.n_observed, "n_parameters": fit.n_fitted,
             "n_rows": d.campaign.n_rows, **outlier_keys(d.outliers, d.outlier_sigma_m),

@@ -1,9 +1,10 @@
 """The one selection loop of ``diagnose``, for both campaign kinds (:func:`search`).
 
 From the current model, each step stops when it fits to the noise (:func:`~stiffness.
-calibration.selection.fits_to_noise`) or ``max_steps`` were added; else the kind fits its
-candidate extensions, ranked by BIC under the step's overdispersion (:func:`ranked`). Of those
-improving BIC by more than :data:`~stiffness.calibration.selection.BIC_MARGIN` (in BIC order),
+calibration.selection.fits_to_noise` of the kind's :meth:`SearchKind.noise_terms`) or
+``max_steps`` were added; else the kind fits its candidate extensions, ranked by BIC under
+the step's overdispersion (:func:`ranked`). Of those improving BIC by more than
+:data:`~stiffness.calibration.selection.BIC_MARGIN` (in BIC order),
 the first :data:`~stiffness.calibration.selection.CV_TOP` that may be named as fitted and once
 their undetermined parameters are held at nominal (:mod:`stiffness.calibration.naming`) are
 judged held out, and the first whose held-out RMS beats the current model's is added; else the
@@ -50,7 +51,7 @@ from stiffness.calibration.selection import (
     BIC_MARGIN,
     CV_TOP,
     Noise,
-    fits_to_noise,
+    NoiseTerms,
     step_criteria,
 )
 from stiffness.elastic.effects.base import Effect, Parameter
@@ -70,13 +71,6 @@ class Fitted(Protocol):
 
     def terms(self) -> tuple[float, int]:
         """Its objective as a sum of squares (m^2) and parameter count: what the criteria take."""
-
-    def translation_terms(self) -> tuple[float, int, float] | None:
-        """The translations' part of :meth:`terms` where another kind is fitted beside them
-        (their objective, m^2, component count and share of the parameters; ``None``: no
-        such split): what the test of fitting to the noise reads when that kind's noise is
-        estimated from the residuals (:meth:`~stiffness.calibration.selection.Noise.
-        goodness_of_fit`)."""
 
     def rms(self) -> float:
         """RMS residual component (m)."""
@@ -215,10 +209,10 @@ class SearchKind(Protocol[E, F]):
         """The noise std and how it is known (:class:`~stiffness.calibration.selection.Noise`:
         its test of fitting to it), ``None`` when not known."""
 
-    def noise_terms(self, fit: F) -> tuple[float, int, int]:
-        """The residual (m^2) and component count ``fit``'s fit-to-noise test takes, and the
-        rows flagged as outliers it leaves out
-        (:func:`~stiffness.calibration.selection.noise_terms`)."""
+    def noise_terms(self, fit: F) -> NoiseTerms:
+        """What ``fit``'s fit-to-noise test reads, over the rows it keeps (a robust loss's
+        flagged rows left out): :func:`~stiffness.calibration.selection.kept_terms` of the
+        kind's residual rows."""
 
     def candidates(self, current: F) -> list[Candidate[E, F]] | None:
         """The extensions of ``current`` fitted, :func:`ranked` (``None``: none left)."""
@@ -291,9 +285,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
     """The forward search: the last fit, its held-out RMS (m) and why it stopped."""
     added = 0
     while True:
-        rss, n, excluded = kind.noise_terms(current)
-        noise = fits_to_noise(rss, n, current.terms()[1], kind.noise,
-                              current.translation_terms(), excluded)
+        noise = kind.noise_terms(current).verdict(kind.noise)
         if noise is not None:
             return current, cv_current, noise
         if max_steps is not None and added >= max_steps:

@@ -11,6 +11,7 @@ SI inside (m, N, rad).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -23,7 +24,7 @@ from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import Fit, FitJob
 from stiffness.calibration.identifiability import NEAR_ALIAS_RESOLUTION
 from stiffness.calibration.measurements import first_copies
-from stiffness.calibration.outliers import flag_fit, robust_noise
+from stiffness.calibration.outliers import STRAY_SHARE, flag_fit, robust_noise
 from stiffness.calibration.solver import Covariance
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
@@ -144,8 +145,8 @@ def config_folds(labels: tuple[str, ...], seed: int = 0, loads: np.ndarray | Non
 
 
 def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: int,
-                noise: Noise | None, translations: tuple[float, int, float] | None = None
-                ) -> str | None:
+                noise: Noise | None, translations: tuple[float, int, float] | None = None,
+                n: int | None = None) -> str | None:
     """Why the rows of one configuration cannot name a model of ``p`` parameters (residual sum
     of squares ``rss``, m^2) held out over ``folds`` (:func:`config_folds` over its loads), or
     ``None`` when they can: no load to hold out; a fold whose fit keeps no more residual
@@ -153,7 +154,8 @@ def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: in
     over all rows, the model explains them with zero degrees of freedom); or, with a known
     ``noise`` (declared or the replicates'), a fit below it (the lower tail of its test of
     fitting to the noise, :meth:`Noise.goodness_of_fit`, ``translations`` its, under
-    ``1 - GOF_LEVEL``: an over-fit).
+    ``1 - GOF_LEVEL``: an over-fit). ``rss``, ``p``, ``translations`` and ``n`` (default
+    every component of ``measured``) are the test's (:func:`kept_terms`).
     """
     if not folds:
         return "one configuration with one load: no row to hold out"
@@ -162,7 +164,7 @@ def row_support(folds: list[np.ndarray], measured: np.ndarray, rss: float, p: in
     if train <= p:
         return (f"{p} parameters, and the rows without one load leave {train} residual "
                 f"components to fit them")
-    n = measured.size
+    n = measured.size if n is None else n
     gof = None if noise is None else noise.goodness_of_fit(rss, n, p, translations)
     if noise is None or gof is None:
         return None
@@ -335,26 +337,15 @@ def above_noise(gof: float) -> bool:
     return gof <= 1.0 - GOF_LEVEL
 
 
-def fit_goodness(noise: Noise | None, fit: fitting.Fit, measured: np.ndarray, n: int
-                 ) -> float | None:
-    """:meth:`Noise.goodness_of_fit` of a deflection ``fit`` to ``measured`` (m), ``n``
-    residual components (its :func:`noise_terms`, :meth:`~stiffness.calibration.fitting.Fit.
-    terms`' parameter count and :meth:`~stiffness.calibration.fitting.Fit.translation_terms`),
-    ``None`` when the noise is not known (``None``) or no test is available."""
-    if noise is None:
-        return None
-    rss, m, _ = noise_terms(fit, measured, n)
-    return noise.goodness_of_fit(rss, m, fit.terms()[1], fit.translation_terms())
-
-
 def fits_to_noise(rss: float, n: int, p: int, noise: Noise | None,
                   translations: tuple[float, int, float] | None = None, excluded: int = 0
                   ) -> str | None:
     """The stop rule of both campaign kinds' searches: why a search stops because its current
     model explains the data to the ``noise`` (:meth:`Noise.goodness_of_fit` not
     :func:`above_noise`, ``translations`` its; known noise only, ``None``: not known), or
-    ``None`` when it goes on. ``rss`` and ``n`` are the test's (:func:`noise_terms`), which
-    left ``excluded`` rows flagged as outliers out."""
+    ``None`` when it goes on. ``rss``, ``n``, ``p`` and ``translations`` are the test's
+    (:class:`NoiseTerms`, :func:`kept_terms`), which left ``excluded`` rows flagged as
+    outliers out."""
     if noise is None:
         return None
     gof = noise.goodness_of_fit(rss, n, p, translations)
@@ -365,33 +356,123 @@ def fits_to_noise(rss: float, n: int, p: int, noise: Noise | None,
 
 
 def excluded_note(excluded: int) -> str:
-    """The words of a fit-to-noise verdict on the rows :func:`noise_terms` left out: ``""``
+    """The words of a fit-to-noise verdict on the rows :func:`kept_terms` left out: ``""``
     when none."""
     return (f"; {excluded} row(s) flagged as outliers left out of the test" if excluded
             else "")
 
 
-def noise_terms(fit: Fit, measured: np.ndarray, n: int) -> tuple[float, int, int]:
-    """The residual (m^2) and component count of the fit-to-noise test
-    (:meth:`Noise.goodness_of_fit`) of a deflection ``fit`` to ``measured`` (m) of ``n``
-    components, and the rows it leaves out: the one place the stop rule and the verdict take
-    them from.
+@dataclass(frozen=True)
+class NoiseTerms:
+    """What the fit-to-noise test (:meth:`Noise.goodness_of_fit`) of a fit of either campaign
+    kind reads, over the rows it keeps (:func:`kept_terms`).
 
-    Least squares: :attr:`Fit.loss_rss`, ``n``, no row left out. A robust loss weighs gross rows
-    down, and the test must not judge the fit by them: the rows
-    :func:`~stiffness.calibration.outliers.flag_fit` flags (standardised by the noise std the
-    loss is scaled by, ``f_scale * scale``: the declared one, else the robust estimate) are left
-    out, and the test takes the sum of squares of the other rows' components over their count
-    (chi-square with ``n - k - p`` degrees of freedom for ``k`` components left out).
+    Attributes
+    ----------
+    rss
+        Sum of squares of the kept rows' residual components (m^2; rotations weighted into
+        translation-noise units as fitted).
+    n
+        Their count.
+    p
+        The fit's parameter count (:meth:`search.Fitted.terms`).
+    translations
+        The translations' part of the three where rotations are fitted beside them (their
+        sum of squares, count and share of ``p``), read when the rotation noise is the
+        residuals' (:attr:`Noise.residual_rotations`); ``None`` without rotations.
+    excluded
+        Rows flagged as outliers left out (a robust loss's; 0 under least squares).
     """
-    if fit.loss == "linear":
-        return fit.loss_rss, n, 0
-    flagged, _ = flag_fit(fit, measured, fit.f_scale * fit.scale, fit.penalty_params,
-                          ("",) * measured.shape[0], None)
-    keep = np.ones(measured.shape[0], dtype=bool)
-    keep[[o.row - 1 for o in flagged]] = False
-    residual = (fit.predicted - measured)[keep].reshape(-1)
-    return float(residual @ residual), n - measured[~keep].size, len(flagged)
+
+    rss: float
+    n: int
+    p: int
+    translations: tuple[float, int, float] | None = None
+    excluded: int = 0
+
+    def p_value(self, noise: Noise | None) -> float | None:
+        """:meth:`Noise.goodness_of_fit` of these terms, ``None`` when the noise is not known
+        (``None``) or no test is available."""
+        return None if noise is None else noise.goodness_of_fit(self.rss, self.n, self.p,
+                                                                self.translations)
+
+    def verdict(self, noise: Noise | None) -> str | None:
+        """:func:`fits_to_noise` of these terms (the stop rule's words, ``None``: go on)."""
+        return fits_to_noise(self.rss, self.n, self.p, noise, self.translations,
+                             self.excluded)
+
+
+def kept_terms(residual: np.ndarray, p: int, loss: str,
+               flagged: Callable[[], Iterable[int]], jacobian: np.ndarray | None = None
+               ) -> NoiseTerms:
+    """The terms of the fit-to-noise test (:class:`NoiseTerms`) of a fit of either campaign
+    kind, over the rows it keeps: the one place every test of fitting to the noise takes
+    them from (both kinds' stop rule and verdict, ``identify``'s notes, whatever form the
+    noise takes).
+
+    Least squares keeps every row. A robust loss weighs gross rows down, and the test must not
+    judge the fit by them: the rows ``flagged`` as outliers
+    (:func:`~stiffness.calibration.outliers.flag_residuals`, standardised by the noise std
+    the loss is scaled by; called only under a robust loss) are left out, and the test takes
+    the plain sum of squares of the other rows' components over their count (chi-square with
+    ``n - k - p`` degrees of freedom for ``k`` components left out), the translations' part
+    too. Only stray rows are left out: when more than
+    :data:`~stiffness.calibration.outliers.STRAY_SHARE` of the rows are flagged, they are a
+    pattern the model misses (a model without a sizeable effect flags most rows), and every
+    row stays in the test.
+
+    Parameters
+    ----------
+    residual
+        (m, k) residual components of each row (a deflection campaign's row: its load, ``dx``
+        ... ``rz``; a pose campaign's: its pose, every marker's), predicted minus measured (m;
+        rotations weighted into translation-noise units as fitted), NaN where not observed.
+    p
+        The fit's parameter count (:meth:`search.Fitted.terms`).
+    loss
+        The fit's loss (:data:`~stiffness.calibration.solver.LOSSES`).
+    flagged
+        The rows flagged as outliers (0-based), asked only under a robust loss.
+    jacobian
+        (m k, q) derivative of the residual components (row-major) with respect to the
+        fitted parameters, given when the first three of a row's ``k = 6`` components are
+        translations and the others rotations fitted beside them: the translations' share of
+        ``p`` is ``p`` times the trace of the kept rows' hat matrix ``J (J^T J)^+ J^T`` over
+        their translation components over its whole trace (for a linear model their residual
+        sum of squares has mean ``(count - share) sigma^2``; :meth:`Noise.goodness_of_fit`).
+    """
+    rows = np.asarray(residual, dtype=float)
+    keep = np.ones(rows.shape[0], dtype=bool)
+    if loss != "linear":
+        out = list(flagged())
+        keep[out if len(out) <= STRAY_SHARE * rows.shape[0] else []] = False
+    kept = rows[keep]
+    values = kept[np.isfinite(kept)]
+    translations = None
+    if jacobian is not None:
+        jac = jacobian.reshape(*rows.shape, -1)[keep].reshape(kept.size, -1)
+        hat = np.einsum("ij,ij->i", jac, np.linalg.pinv(jac).T).reshape(kept.shape)
+        total = float(hat.sum())
+        share = p * float(hat[:, :3].sum()) / total if total > 0 else 0.0
+        moved = kept[:, :3].reshape(-1)
+        translations = (float(moved @ moved), moved.size, share)
+    return NoiseTerms(float(values @ values), int(values.size), p, translations,
+                      int(np.count_nonzero(~keep)))
+
+
+def noise_terms(fit: Fit, measured: np.ndarray) -> NoiseTerms:
+    """:func:`kept_terms` of a deflection ``fit`` to ``measured`` (m): its rows' residual
+    components, the rows :func:`~stiffness.calibration.outliers.flag_fit` flags standardised
+    by the noise std its loss is scaled by (``f_scale * scale``: the declared one, else the
+    robust estimate), and with rotations its Jacobian over the fitted parameters."""
+    def flagged() -> list[int]:
+        found, _ = flag_fit(fit, measured, fit.f_scale * fit.scale, fit.penalty_params,
+                            ("",) * measured.shape[0], None)
+        return [o.row - 1 for o in found]
+
+    jacobian = fit.jacobian[:, fit.kept] if measured.shape[1] == 6 else None
+    return kept_terms(fit.predicted - measured, fit.penalty_params, fit.loss, flagged,
+                      jacobian)
 
 
 @dataclass(frozen=True)
@@ -470,8 +551,9 @@ class Noise:
         leaving residual sum of squares ``rss`` (m^2) over ``n`` components explaining them to
         this noise, or ``None`` when no test is available. ``translations``: the translations'
         part of the three when rotations are fitted beside them
-        (:meth:`~stiffness.calibration.fitting.Fit.translation_terms`: their ``rss``,
-        component count and share of ``p``), read with :attr:`residual_rotations` only.
+        (:attr:`NoiseTerms.translations`: their ``rss``, component count and share of
+        ``p``), read with :attr:`residual_rotations` only. Every caller takes the four from
+        :func:`kept_terms` (:meth:`NoiseTerms.p_value`), over the rows a robust loss keeps.
 
         A declared noise: ``rss / sigma^2`` is chi-square with ``n - p`` degrees of freedom.
         A noise estimated with :attr:`dof` degrees of freedom is the pure error of replicate

@@ -125,7 +125,7 @@ def loss_sum(residuals: np.ndarray, loss: str, f_scale: float) -> float:
 
 def objective_rss(residual: np.ndarray, loss: str, sigma: float) -> float:
     """The objective of residuals (any unit) as a sum of squares (that unit squared), what
-    selection criteria and fit-to-noise tests compare: their sum of squares for least
+    selection criteria compare: their sum of squares for least
     squares; for a robust ``loss`` ``sigma^2 sum rho((r / sigma)^2)`` over its Gaussian
     expectation (:func:`gaussian_loss_mean`: the same expectation, ``N sigma^2``, for Gaussian
     residuals of std ``sigma``; an outlier adds about ``2 sigma |r|`` instead of ``r^2``)."""
