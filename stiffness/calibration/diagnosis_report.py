@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 from stiffness.calibration.breakdown import strongest_correlations
 from stiffness.calibration.certainty import how_sure_lines
+from stiffness.calibration.fit_verdict import fit_lines
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.parameter_section import parameter_lines
@@ -98,13 +99,9 @@ def format_report(d: Diagnosis) -> str:
     if d.unexplained:  # identify's note on a fit above the noise, said where the numbers are
         lines.append("  these 95 % intervals (and the effects') take the final model as "
                      "complete: too narrow while it misses something (UNEXPLAINED, below)")
-    ratio = d.final.rms() / d.noise_std_m
-    lines.append(f"final RMS {d.final.rms() / lu:.4g} {unit} ({ratio:.3g}x noise); "
-                 f"stopped: {d.stop_reason}")
+    lines += fit_lines(summary)
     if d.unexplained is False and noise_overstated(d.gof_final):
         lines.append(f"note: {d.unexplained_note}")
-    if d.loss != "linear":
-        lines.append(f"loss {d.loss} (every fit; intervals from Huber's sandwich covariance)")
     lines += describe_outliers(d.outliers)
     if d.unexplained:
         lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",

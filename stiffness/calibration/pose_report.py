@@ -4,6 +4,7 @@ folder is :meth:`~stiffness.calibration.result.DiagnosisResult.write`)."""
 from __future__ import annotations
 
 from stiffness.calibration.certainty import how_sure_lines
+from stiffness.calibration.fit_verdict import fit_lines
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.parameter_section import parameter_lines
@@ -32,8 +33,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): "
                      + not_added(d.rejected, d.not_judged))
-    if d.stop_reason:
-        lines.append(f"search stopped: {d.stop_reason}")
+    lines += fit_lines(summary)
     # the verdict on the fit's lengths (NOT A CALIBRATION) and the markers' offset notes
     lines += ["", *filter(None, [d.plausibility.verdict()]), *d.plausibility.notes(),
               d.verdict(), *describe_outliers(d.outliers), "",
