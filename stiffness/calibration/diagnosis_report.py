@@ -92,10 +92,8 @@ def format_report(d: Diagnosis) -> str:
         lines.append("missing effects: none" + (
             " (the baseline explains the data to noise)" if d.gof_baseline is not None
             and not above_noise(d.gof_baseline) else ""))
-    lines.append("stiffness (final model): " + ", ".join(
-        f"{p.name} {p.value:.5g} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}] {p.unit}"
-        for p in d.final_stiffness if p.determined))
-    lines += [f"  {p.text()}" for p in d.final_stiffness if not p.determined]
+    lines += ["stiffness (final model; 95 % intervals):",
+              *parameter_lines(summary["final_stiffness"])]
     if d.unexplained:  # identify's note on a fit above the noise, said where the numbers are
         lines.append("  these 95 % intervals (and the effects') take the final model as "
                      "complete: too narrow while it misses something (UNEXPLAINED, below)")
