@@ -24,7 +24,7 @@ from stiffness.calibration.validation import (
     ParameterTerm,
     prediction_chi2,
 )
-from stiffness.calibration.validation_report import format_validation
+from stiffness.calibration.validation_page import format_validation
 from stiffness.cli.main import main
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.geometry import Geometry, References

@@ -42,25 +42,15 @@ def step_lines(d: dict, notes: list[str]) -> list[str]:
     held out) and, with a validation campaign, each step's validation RMS; then ``notes`` (the
     kind's words on its held-out RMS), the forced steps and what ``--not`` forbade."""
     steps, unit = scored_steps(d), d["unit"]
-
-    def cell(v: float | None, null: str = "") -> str:
-        return null if v is None else f"{v:.4g}"
-
-    columns = [("step", [str(i) for i in range(len(steps))]),
-               ("effect", [("removed " if s.get("removed") else "") + (s.get("family") or
-                           s["effect"]) + (" *" if s.get("forced") else "") for s in steps])]
-    if any("where" in s for s in steps):
-        columns.append(("where", [s.get("where") or "" for s in steps]))
-    if any("n_parameters" in s for s in steps):
-        columns.append(("params", [str(s["n_parameters"]) for s in steps]))
-    columns += [(f"RMS ({unit})", [cell(s["rms"]) for s in steps]),
-                ("dBIC", [cell(s.get("delta_bic")) for s in steps]),
-                (f"CV RMS ({unit})", [cell(s["cv_rms"], "unbounded" if "family" in s else "-")
-                                      for s in steps])]
-    width = [max(len(h), 18 if h == "effect" else 0, *map(len, cells)) for h, cells in columns]
-    rows = [" ".join(c.ljust(w) if j < 2 or h == "where" else c.rjust(w) for j, (c, w, h) in
-                     enumerate(zip(row, width, (h for h, _ in columns), strict=True)))
-            for row in zip(*([h] + cells for h, cells in columns), strict=True)]
+    where, counted = (any(k in s for s in steps) for k in ("where", "n_parameters"))
+    rows = _aligned([["step", "effect".ljust(18), *["where"][:where], *["params"][:counted],
+                      f"RMS ({unit})", "dBIC", f"CV RMS ({unit})"]] + [
+        [str(i), ("removed " if s.get("removed") else "") + (s.get("family") or s["effect"])
+         + (" *" if s.get("forced") else ""), *[s.get("where") or ""][:where],
+         *[str(s.get("n_parameters"))][:counted], _number(s["rms"]),
+         _number(s.get("delta_bic")),
+         _number(s["cv_rms"], "unbounded" if "family" in s else "-")]
+        for i, s in enumerate(steps)], 2 + where)
     if any(s.get("validation") for s in steps):
         rows = [rows[0] + "  validation RMS"] + [
             row + (f"  {v['rms']:.4g} (3-D, {v['unit']})" if (v := s.get("validation")) else "")
@@ -72,12 +62,24 @@ def step_lines(d: dict, notes: list[str]) -> list[str]:
             *([f"not tried (--not): {', '.join(forbidden)}"] if forbidden else [])]
 
 
+def _number(v: float | None, null: str = "") -> str:
+    """A cell of :func:`step_lines`: ``v`` to 4 digits, ``null`` for a JSON null."""
+    return null if v is None else f"{v:.4g}"
+
+
+def _aligned(rows: list[list[str]], left: int, sep: str = " ", indent: str = "") -> list[str]:
+    """``rows`` (the header first) in columns as wide as their widest cell, the first
+    ``left`` aligned left, the others right."""
+    width = [max(map(len, column)) for column in zip(*rows, strict=True)]
+    return [indent + sep.join(c.ljust(w) if j < left else c.rjust(w)
+                              for j, (c, w) in enumerate(zip(row, width, strict=True)))
+            for row in rows]
+
+
 def stages(d: dict) -> list[tuple[str, dict]]:
-    """Each stage of ``d`` (a name, its number and :func:`step_label`, and its validation):
-    the baseline (``baseline_validation``, where the steps do not hold it), then the steps."""
-    steps = ([{"effect": "baseline", "validation": d["baseline_validation"]}]
-             if d.get("baseline_validation") else []) + d["steps"]
-    return [(f"{i} {step_label(s)}", s["validation"]) for i, s in enumerate(steps)
+    """Each stage of ``d`` with a validation (a name, its number and :func:`step_label`, and
+    its validation): the steps of :func:`scored_steps`, the baseline the first."""
+    return [(f"{i} {step_label(s)}", s["validation"]) for i, s in enumerate(scored_steps(d))
             if s.get("validation")]
 
 
@@ -105,15 +107,9 @@ def stage_table(named: list[tuple[str, dict]]) -> list[str]:
     ``mean ± std (max)`` overall and per marker; the lines of ``diagnose --validate`` (one per
     step, :func:`stages`) and of ``stiffness validate`` (one model)."""
     names, cells = _cells(named)
-    width = [max(len(n), *(len(row[i]) for row in cells)) for i, n in enumerate(names)]
-    label = max(len("stage"), *(len(name) for name, _ in named))
-    lines = [f"held-out 3-D error ({named[0][1]['unit']}): mean ± std (max)",
-             f"  {'stage':<{label}}" + "".join(f"  {n:>{w}}" for n, w in zip(names, width,
-                                                                              strict=True))]
-    for (name, _), row in zip(named, cells, strict=True):
-        lines.append(f"  {name:<{label}}" + "".join(f"  {c:>{w}}" for c, w in zip(row, width,
-                                                                                  strict=True)))
-    return lines
+    return [f"held-out 3-D error ({named[0][1]['unit']}): mean ± std (max)",
+            *_aligned([["stage", *names]] + [[name, *row] for (name, _), row in
+                                            zip(named, cells, strict=True)], 1, "  ", "  ")]
 
 
 def stage_section(d: dict) -> list[str]:

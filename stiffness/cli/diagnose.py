@@ -189,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
     paths = result.write(args.out, command_line(args)) if args.out else None
     if result.validation is None:
         return _emit(args.json, result.to_dict(), lambda: format_report(result), paths)
-    from stiffness.calibration.validation_report import format_validation  # only with --validate
+    from stiffness.calibration.validation_page import format_validation  # only with --validate
 
     validation = result.validation
     return _emit(args.json, result.to_dict(),

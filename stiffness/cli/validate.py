@@ -27,7 +27,7 @@ import argparse
 import json
 
 from stiffness.calibration.validation import validate
-from stiffness.calibration.validation_report import format_validation
+from stiffness.calibration.validation_page import format_validation
 from stiffness.cli import flags
 
 
