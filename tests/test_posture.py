@@ -32,10 +32,12 @@ def ur5_offset():
 
 @pytest.fixture(scope="module")
 def ur5_path(ur5_offset):
-    """20 points along a line, tool axis down, thrust along the tool axis (300 N)."""
+    """10 points along a line, tool axis down, thrust along the tool axis (300 N). (20 points
+    of the same line gave the same largest reduction, 1.1250007, in 1.6 times the CPU; 10 points
+    take joint steps up to 5.7 deg, 20 points 2.7 deg, under the bound of 10.)"""
     em = ElasticModel.joint_springs(ur5_offset, UR5_K)
-    positions = _line(20)
-    axes = np.tile([0.0, 0.0, -1.0], (20, 1))
+    positions = _line(10)
+    axes = np.tile([0.0, 0.0, -1.0], (10, 1))
     result = posture(em, positions, axes=axes, wrench=[0.0, 0.0, 300.0], steps=36,
                      max_step_deg=10.0, start=UR5_START)
     return em, positions, axes, result
@@ -75,7 +77,7 @@ def test_never_worse_than_the_fixed_angle_and_measurably_better(ur5_path):
         np.testing.assert_allclose(p.deflection, expected, rtol=1e-9, atol=1e-15)
         assert np.linalg.norm(p.deflection) <= np.linalg.norm(p.deflection_fixed) * (1 + 1e-12)
     s = result.summary()
-    # measured on this path: 1.125 (as on 50 points of the same line)
+    # measured on this path: 1.125 (as on 20 and 50 points of the same line)
     assert s["max_reduction_factor"] > 1.05, s
     assert s["max_deflection_m"] < s["max_deflection_fixed_m"]
 
