@@ -18,12 +18,6 @@ if TYPE_CHECKING:  # annotations only
     from stiffness.calibration.diagnosis import Diagnosis
 
 
-#: The report's line on a campaign of one configuration, its rows held out by load.
-ONE_CONFIGURATION = ("CV RMS: one configuration, held out one load at a time; an effect is "
-                     "named only where the rows without a load keep more residual components "
-                     "than its parameters and its fit is not below the noise")
-
-
 def _disagreement_lines(d: dict, force_unit: str) -> list[str]:
     def cell(g: dict) -> str:
         return f"{g['rms']:.4g} ({g['ratio']:.2g}x)" if g["rows"] else "-"
@@ -73,7 +67,9 @@ def format_report(d: Diagnosis) -> str:
     lines += ["", f"where the baseline disagrees (RMS in {unit}, and in noise std):"]
     lines += _disagreement_lines(d.baseline_disagreement, c.units.force)
     one = [] if len(set(c.config)) > 1 else [
-        ONE_CONFIGURATION if math.isfinite(d.cv_baseline) else
+        "CV RMS: one configuration, held out one load at a time; an effect is named only "
+        "where the rows without a load keep more residual components than its parameters and "
+        "its fit is not below the noise" if math.isfinite(d.cv_baseline) else
         "CV RMS -: one configuration with one load, none to hold out: nothing is named"]
     lines += ["", *step_lines(summary, one)]
     if named := stages(summary):  # diagnose --validate: each step's model on the other one

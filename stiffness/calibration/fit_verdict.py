@@ -6,10 +6,8 @@ from __future__ import annotations
 
 
 def fit_lines(d: dict) -> list[str]:
-    """The lines of both kinds' text reports on the final fit (lengths in ``d["unit"]``): its
-    RMS (a deflection diagnosis's ``final_rms``, a pose diagnosis's last step's ``rms``) in
-    the unit and over ``noise_std`` (null: not declared), the ``stop_reason`` (empty: nothing
-    searched) and, for a ``loss`` other than linear, that every fit used it."""
+    """The final RMS (``final_rms``, or the last step's) over ``noise_std`` (null: not
+    declared), the ``stop_reason`` and a ``loss`` other than linear."""
     rms = d["final_rms"] if "final_rms" in d else d["steps"][-1]["rms"]
     noise = d["noise_std"]
     ratio = "noise not declared" if noise is None else f"{rms / noise:.3g}x noise"

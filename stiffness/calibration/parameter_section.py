@@ -54,11 +54,8 @@ def parameter_table(rows: list[list]) -> str:
 
 
 def parameter_lines(parameters: dict[str, dict], indent: str = "  ") -> list[str]:
-    """The text beside :func:`parameter_rows`: one line per parameter of ``parameters`` (by
-    name) in the words of :meth:`~stiffness.elastic.effects.base.Parameter.text` (an
-    undetermined parameter's interval, never its value), a nonlinear spring's ``gamma``
-    followed by its ``beta = gamma / c``
-    (:func:`~stiffness.calibration.pose_model_file.parameter_table`) where it has one."""
+    """The text beside :func:`parameter_rows`: a line per parameter of ``parameters`` (by name),
+    :meth:`~stiffness.elastic.effects.base.Parameter.text`, and a nonlinear spring's ``beta``."""
     return [indent + _parameter(name, p).text() + ("" if (beta := p.get("beta")) is None else
                                                    f"  beta = gamma/c = {beta['value']:.4g} "
                                                    f"{beta['unit']}")
@@ -66,12 +63,10 @@ def parameter_lines(parameters: dict[str, dict], indent: str = "  ") -> list[str
 
 
 def _parameter(name: str, p: dict) -> Parameter:
-    """The :class:`~stiffness.elastic.effects.base.Parameter` a ``--json`` parameter object
-    was written from (:meth:`~stiffness.elastic.effects.base.Parameter.to_dict`, or a pose
-    row's ``std`` and ``interval_95``): null as infinite, not resolved where it is said
-    undetermined with finite numbers."""
-    se = p.get("standard_error", p.get("std"))
-    lo, hi = p.get("ci95") or p.get("interval_95") or (None, None)
+    """The parameter a ``--json`` parameter object was written from (:meth:`~stiffness.elastic.
+    effects.base.Parameter.to_dict`, or a pose row's ``std`` and ``interval_95``; null: inf)."""
+    se, (lo, hi) = (p.get("standard_error", p.get("std")),
+                    p.get("ci95") or p.get("interval_95") or (None, None))
     spread = (math.inf if se is None else se, -math.inf if lo is None else lo,
               math.inf if hi is None else hi)
     return Parameter(name, math.inf if p["value"] is None else p["value"], spread[0],

@@ -19,11 +19,10 @@ def step_label(step: dict) -> str:
 
 
 def scored_steps(d: dict) -> list[dict]:
-    """The steps of ``d`` numbered from 0, each with its ``rms``, ``delta_bic`` and ``cv_rms``:
-    a pose diagnosis's ``steps`` (its baseline the first) as they are; a deflection
-    diagnosis's record (:meth:`~stiffness.calibration.diagnosis.Diagnosis.record`) has its
-    baseline apart (``baseline_rms``, ``baseline_validation``) and the scores in
-    ``step_details`` and ``cv_rms``."""
+    """The steps of ``d``, the baseline the first, each with ``rms``, ``delta_bic`` and
+    ``cv_rms``: a pose diagnosis's as they are, a deflection diagnosis's record
+    (:meth:`~stiffness.calibration.diagnosis.Diagnosis.record`) joined to its baseline's and
+    its ``step_details``' and ``cv_rms``' scores."""
     if "step_details" not in d:
         return d["steps"]
     cv, validation = d["cv_rms"], d.get("baseline_validation")
@@ -35,12 +34,9 @@ def scored_steps(d: dict) -> list[dict]:
 
 
 def step_lines(d: dict, notes: list[str]) -> list[str]:
-    """The text table of :func:`scored_steps` (lengths in ``d["unit"]``): each step's effect
-    (``removed``, ``*`` forced), its place where a deflection step has one, its parameter
-    count where a pose step has one, RMS, dBIC, held-out RMS (a null one: ``unbounded`` for a
-    pose step, one configuration determines a parameter; ``-`` for a deflection step, nothing
-    held out) and, with a validation campaign, each step's validation RMS; then ``notes`` (the
-    kind's words on its held-out RMS), the forced steps and what ``--not`` forbade."""
+    """The text table of :func:`scored_steps`: effect, ``where`` (deflection), parameter count
+    (pose), RMS, dBIC, held-out RMS (null: ``unbounded`` for a pose step, ``-`` for a
+    deflection step) and any validation RMS; then ``notes``, the forced steps and ``--not``."""
     steps, unit = scored_steps(d), d["unit"]
     where, counted = (any(k in s for s in steps) for k in ("where", "n_parameters"))
     rows = _aligned([["step", "effect".ljust(18), *["where"][:where], *["params"][:counted],
@@ -63,7 +59,6 @@ def step_lines(d: dict, notes: list[str]) -> list[str]:
 
 
 def _number(v: float | None, null: str = "") -> str:
-    """A cell of :func:`step_lines`: ``v`` to 4 digits, ``null`` for a JSON null."""
     return null if v is None else f"{v:.4g}"
 
 

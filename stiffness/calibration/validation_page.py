@@ -7,7 +7,7 @@ text of ``stiffness validate`` and ``diagnose --validate``."""
 from __future__ import annotations
 
 from stiffness.calibration.steps_table import stage_table
-from stiffness.htmlpage import esc, num, table
+from stiffness.htmlpage import esc, table
 
 #: The error keys of a validation record, in the table's order.
 ERROR_KEYS = ("rms", "mean_error", "std_error", "max_error")
@@ -47,14 +47,8 @@ def validation_section(v: dict | None, how: str) -> list[str]:
                        "3-D position error (measured minus predicted) of the final model "
                        "without refitting: RMS, mean, standard deviation and maximum of its "
                        "norm."))
-    if v.get("verdict"):
-        with_parameters = v.get("gof_p_with_parameters")
-        test = (f"chi-square p = {num(v['gof_p'], 3)}, the noise only" if with_parameters is None
-                else f"chi-square with the model's parameter uncertainty p = "
-                f"{num(with_parameters, 3)}; the noise alone p = {num(v['gof_p'], 3)}")
-        parts.append(f"<p>Verdict: <b>{esc(v['verdict'])}</b> (RMS {num(v['rms_over_noise'], 3)}"
-                     f" times the 3-D noise √3 σ, σ = {num(v['noise_std'])} {esc(unit)}; "
-                     f"{test}).</p>")
+    if v.get("verdict"):  # the text's words (format_validation)
+        parts.append(f"<p>{esc(_noise_verdict(v))}</p>")
     return parts
 
 
@@ -62,12 +56,9 @@ def format_validation(result: dict) -> str:
     """The text of ``stiffness validate``: overall and per-marker 3-D errors, the verdict
     against the campaign's noise, then the line of the stage table
     (:func:`~stiffness.calibration.steps_table.stage_table`) for this one model."""
-    unit = result["unit"]
-    lines = [f"{result['rows']} rows; 3-D position error in {unit}:",
-             f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}"]
-    lines.append(_validation_row("all", result))
-    for name, m in result["markers"].items():
-        lines.append(_validation_row(name, m))
+    lines = [f"{result['rows']} rows; 3-D position error in {result['unit']}:",
+             f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}",
+             *(_validation_row(n, r) for n, r in [("all", result), *result["markers"].items()])]
     return "\n".join(lines + [_noise_verdict(result), "", *stage_table([("model", result)])])
 
 
@@ -93,7 +84,5 @@ def _noise_verdict(result: dict) -> str:
 
 
 def _validation_row(name: str, r: dict) -> str:
-    if r["rms"] is None:
-        return f"  {name:<12} never seen"
-    return (f"  {name:<12} {r['rms']:>11.4g} {r['mean_error']:>11.4g} {r['std_error']:>11.4g} "
-            f"{r['max_error']:>11.4g} {r['rows']:>6}")
+    return f"  {name:<12} " + ("never seen" if r["rms"] is None else " ".join(
+        f"{r[k]:>11.4g}" for k in ERROR_KEYS) + f" {r['rows']:>6}")
