@@ -139,7 +139,7 @@ def test_report_of_a_deflection_campaign(tmp_path, capsys):
     assert v["rms"] == pytest.approx(val["rms"], rel=1e-9) and v["verdict"] == val["verdict"]
     assert "id='validation'" in page
     assert re.search(rf"target\s+{v['rows']}\s+{v['rms']:.4g}\b", visible)
-    assert re.search(rf"Verdict:\s+{v['verdict']}", visible)
+    assert re.search(rf"verdict:\s+{v['verdict'].upper()} \(RMS", visible)  # the text's sentence
 
 
 @pytest.mark.parametrize(("argv", "said"), [
