@@ -52,9 +52,11 @@ from stiffness.elastic.parameter_covariance import ParameterCovariance
 from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.robot.calibration import (
     is_pose_calibration,
-    kinematic_fingerprint,
     read_pose_calibration,
+    robot_description,
+    robot_difference,
     robot_identity,
+    robot_signature,
 )
 from stiffness.robot.robot import Robot
 
@@ -392,16 +394,13 @@ def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_rob
     ModelRobotError
         Other coordinates or kinematics (one line naming both robots).
     """
-    theirs = (campaign_robot.coordinate_joints, kinematic_fingerprint(campaign_robot.model))
     if robot_identity(model_source) != robot_identity(campaign_source):
         other = model_robot()
-        mine = (other.coordinate_joints, kinematic_fingerprint(other.model))
-        if mine != theirs:
-            what = "coordinates" if mine[0] != theirs[0] else "kinematics"
+        if what := robot_difference(other, campaign_robot):
             raise ModelRobotError(
-                f"{campaign} is a campaign of robot {campaign_robot.title!r} "
-                f"({len(theirs[0])} coordinates, kinematics {theirs[1]}), not of the model's "
-                f"{other.title!r} ({len(mine[0])} coordinates, kinematics "
-                f"{mine[1]}): other {what}; validate {model} on a campaign of its robot")
+                f"{campaign} is a campaign of robot {robot_description(campaign_robot)}, not "
+                f"of the model's {robot_description(other)}: other {what}; validate {model} "
+                "on a campaign of its robot")
+    coordinates, fingerprint = robot_signature(campaign_robot)
     return {"source": robot_identity(campaign_source), "name": campaign_robot.title,
-            "coordinates": list(theirs[0]), "fingerprint": theirs[1]}
+            "coordinates": list(coordinates), "fingerprint": fingerprint}

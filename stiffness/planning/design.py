@@ -52,7 +52,7 @@ from stiffness.errors import StiffnessError, UnknownEffectError, UnknownNameErro
 from stiffness.mechanics.defaults import joint_stiffnesses
 from stiffness.planning.plan import Plan, write_plan
 from stiffness.planning.simulate import build_truth, row_smoothing_torques
-from stiffness.robot.calibration import kinematic_fingerprint, robot_identity
+from stiffness.robot.calibration import robot_description, robot_difference, robot_identity
 from stiffness.robot.robot import Robot, load_robot
 from stiffness.units import Units, float_array, whole_number
 
@@ -596,14 +596,11 @@ def _check_existing_robot(robot: Robot, existing: Campaign) -> None:
     kinematics: :func:`~stiffness.robot.calibration.kinematic_fingerprint`), whose rows the
     plan would take for this robot's, in one line naming both."""
     measured = existing.robot()
-    mine = (robot.coordinate_joints, kinematic_fingerprint(robot.model))
-    theirs = (measured.coordinate_joints, kinematic_fingerprint(measured.model))
-    if mine != theirs:
-        what = "coordinates" if mine[0] != theirs[0] else "kinematics"
+    if what := robot_difference(robot, measured):
         raise StiffnessError(
-            f"the existing campaign {existing.name!r} was measured on {measured.title!r} "
-            f"({len(theirs[0])} coordinates, kinematics {theirs[1]}), not on {robot.title!r} "
-            f"({len(mine[0])} coordinates, kinematics {mine[1]}): other {what}; drop --robot "
+            f"the existing campaign {existing.name!r} was measured on "
+            f"{robot_description(measured)}, not on {robot_description(robot)}: other {what}; "
+            "drop --robot "
             f"(the campaign names its robot) or complete a campaign of {robot.title}")
 
 

@@ -398,3 +398,25 @@ def kinematic_fingerprint(model: pin.Model) -> str:
         digest.update(f"{model.names[j]}:{model.joints[j].shortname()}:"
                       f"{model.parents[j]}:{numbers.tolist()}".encode())
     return digest.hexdigest()[:16]
+
+
+def robot_signature(robot) -> tuple[tuple[str, ...], str]:
+    """A robot's (:class:`stiffness.robot.robot.Robot`, which imports this module)
+    coordinates and :func:`kinematic_fingerprint`: what two robots share when a campaign of
+    one is a campaign of the other."""
+    return tuple(robot.coordinate_joints), kinematic_fingerprint(robot.model)
+
+
+def robot_difference(mine, theirs) -> str | None:
+    """What differs between two robots' :func:`robot_signature`: ``"coordinates"``,
+    ``"kinematics"`` or ``None`` (the same robot, or a copy of its files)."""
+    a, b = robot_signature(mine), robot_signature(theirs)
+    if a == b:
+        return None
+    return "coordinates" if a[0] != b[0] else "kinematics"
+
+
+def robot_description(robot) -> str:
+    """``'title' (n coordinates, kinematics <fingerprint>)``, how a refusal names a robot."""
+    coordinates, fingerprint = robot_signature(robot)
+    return f"{robot.title!r} ({len(coordinates)} coordinates, kinematics {fingerprint})"
