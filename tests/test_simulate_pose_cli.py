@@ -146,6 +146,7 @@ def test_diagnose_names_the_hidden_joint_spring(tmp_path, capsys):
       "joint_compliance:elbow_joint=1e4"], "either by --kq"),
     (["--kind", "poses", "--effect", "joint_compliance:elbow_joint=-1e4"], "positive values"),
     (["--kind", "poses", "--rotation-noise", "0.01"], "add --rotations"),
+    (["--rotation-noise", "0.01"], "add --rotations"),  # a deflection campaign's too
     (["--kind", "poses", "--drift", "1,2"], "--drift takes three lengths"),
     (["--effect", "frame=1,2,3"], "(frame is a pose campaign's: --kind poses)"),
     (["--kind", "poses", "--marker", "tip=nowhere"], "frame 'nowhere' is not a frame of ur10"),

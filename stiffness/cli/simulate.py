@@ -123,7 +123,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="also write the measured rotations rx, ry, rz of the target frame "
                              "(poses: the markers' orientations)")
     parser.add_argument("--rotation-noise", type=flags.number, default=None,
-                        help="rotation noise std, deg; default --noise / 100 mm (rad)")
+                        help="rotation noise std of --rotations, deg; default --noise / 100 mm "
+                             "(rad)")
     parser.add_argument("--undeclared-noise", action="store_true",
                         help="do not write noise_std into the campaign")
     parser.add_argument("--baseline", choices=BASELINES,
@@ -207,7 +208,7 @@ def _check_kind_flags(args: argparse.Namespace) -> None:
                              + (" (stiffness design plans deflection campaigns only)"
                                 if "--plan" in given else "")
                              + (" or add --kind poses" if owner == "poses" else ""))
-    if args.kind == "poses" and args.rotation_noise is not None and not args.rotations:
+    if args.rotation_noise is not None and not args.rotations:  # either kind: not ignored
         raise StiffnessError("--rotation-noise is the noise of the orientations --rotations "
                              "measures: add --rotations, or drop it")
     for name, value in _DEFLECTION_DEFAULTS.items():
