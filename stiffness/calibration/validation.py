@@ -207,11 +207,7 @@ class Validation:
 
     def gof(self) -> float | None:
         """Chi-square p-value of the residual against the declared noise, or ``None``."""
-        chi2 = self.chi2
-        if chi2 is None or self.noise_std is None:
-            return None
-        return Noise(self.noise_std).goodness_of_fit(chi2 * self.noise_std ** 2,
-                                                     self.components, 0)
+        return self._p_value(self.chi2)
 
     @property
     def chi2_with_parameters(self) -> float | None:
@@ -224,7 +220,11 @@ class Validation:
     def gof_with_parameters(self) -> float | None:
         """Chi-square p-value of :attr:`chi2_with_parameters` against ``chi2(3 n)``, or
         ``None``."""
-        chi2 = self.chi2_with_parameters
+        return self._p_value(self.chi2_with_parameters)
+
+    def _p_value(self, chi2: float | None) -> float | None:
+        """Chi-square p-value of ``chi2`` on the seen components against the declared noise,
+        or ``None`` without either."""
         if chi2 is None or self.noise_std is None:
             return None
         return Noise(self.noise_std).goodness_of_fit(chi2 * self.noise_std ** 2,
