@@ -19,6 +19,10 @@ code keeps working); the subclasses say what went wrong and carry what a program
 * :class:`UnstableEquilibriumError`: the load buckles the robot (K_theta - K_C not positive
   definite at the equilibrium).
 
+Warnings: :class:`RobotFileWarning` (its :class:`RobotFileNote` a note, silent under the
+command line's ``--quiet``), :class:`DataFileWarning` (its :class:`DataFileNote`,
+:class:`UnknownColumnWarning`), :class:`FlagValueWarning`.
+
 The command line turns each into exit status 2 and one line on stderr.
 """
 
@@ -248,6 +252,13 @@ class FloatingBaseError(StiffnessError):
 class RobotFileWarning(UserWarning):
     """Something in a robot file that the toolkit ignores or reads in its own way (one warning
     per thing)."""
+
+
+class RobotFileNote(RobotFileWarning):
+    """What reading a robot file did its own way that the user should hear once, though the
+    robot loads as the file means it: joints whose ``<limit>`` gives no bounds taken as
+    unbounded, an XML declaration's version ignored, visuals Pinocchio cannot read (statics do
+    not use them). The command line prints it as a note, and not at all under ``--quiet``."""
 
 
 class DataFileWarning(UserWarning):

@@ -28,6 +28,7 @@ from stiffness.errors import (
     FloatingBaseError,
     LoopClosureError,
     RobotFileError,
+    RobotFileNote,
     RobotFileWarning,
     StiffnessError,
     UndeterminedMotionError,
@@ -148,7 +149,8 @@ def spinning(tmp_path_factory):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         robot = load_robot(path)
-    return robot, [str(w.message) for w in caught if w.category is RobotFileWarning]
+    return robot, [str(w.message) for w in caught
+                   if issubclass(w.category, RobotFileWarning)]
 
 
 def test_gepetto_files_load_unchanged(spinning):
@@ -397,8 +399,59 @@ def test_xml_header_version_0_0_loads_with_one_warning(tmp_path):
     path.write_text(_planar_arm(header='<?xml version="0.0"?>'))
     with pytest.warns(RobotFileWarning, match="XML declaration version '0.0' ignored") as rec:
         robot = load_robot(path)
-    assert len([w for w in rec if w.category is RobotFileWarning]) == 1
+    assert len([w for w in rec if issubclass(w.category, RobotFileWarning)]) == 1
     assert robot.coordinate_joints == ("j1", "j2")
+
+
+def _unbounded_chain(n: int, lower: bool = False) -> str:
+    """A serial chain of ``n`` revolute joints whose ``<limit>`` gives effort and velocity
+    only (an Onshape export), ``lower="-1"`` on each with ``lower``."""
+    bound = ' lower="-1"' if lower else ""
+    joints = "".join(
+        f'<link name="l{i + 1}"/><joint name="j{i + 1}" type="revolute"><parent link="l{i}"/>'
+        f'<child link="l{i + 1}"/><origin xyz="0.1 0 0"/><axis xyz="0 0 1"/>'
+        f'<limit effort="1" velocity="1"{bound}/></joint>\n' for i in range(n))
+    return f'<?xml version="1.0"?>\n<robot name="chain"><link name="l0"/>\n{joints}</robot>\n'
+
+
+def test_joints_without_bounds_are_one_note_not_one_line_each(tmp_path):
+    """Gepetto's kangaroo_like has 63 joints whose <limit> has no bounds: it printed 63
+    warning lines. Now one note per file counts them, names the first six with their lines,
+    and they load unbounded."""
+    path = tmp_path / "chain.urdf"
+    path.write_text(_unbounded_chain(9))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        robot = load_robot(path)
+    notes = [str(w.message) for w in caught if issubclass(w.category, RobotFileWarning)]
+    assert [w.category for w in caught if issubclass(w.category, RobotFileWarning)] == [
+        RobotFileNote]
+    assert notes[0].startswith(f"{path}: 9 joints have a <limit> without lower and upper: "
+                               "'j1' (line 3), 'j2' (line 4),")
+    assert "'j6' (line 8) and 3 more; they are taken as unbounded" in notes[0]
+    assert np.all(np.isinf(robot.model.lowerPositionLimit)) and np.all(
+        np.isinf(robot.model.upperPositionLimit))
+    path.write_text(_unbounded_chain(2, lower=True))  # a lower bound only: unbounded above
+    with pytest.warns(RobotFileNote, match=r"2 joints have a <limit> without upper: 'j1' "
+                      r"\(line 3\), 'j2' \(line 4\); they are taken as unbounded above"):
+        robot = load_robot(path)
+    np.testing.assert_array_equal(robot.model.lowerPositionLimit, [-1.0, -1.0])
+
+
+def test_robot_file_notes_print_once_as_notes_and_not_under_quiet(tmp_path):
+    from stiffness.cli.main import _one_line_warning
+
+    path = tmp_path / "chain.urdf"
+    path.write_text(_unbounded_chain(3))
+    argv = ["kx", "--robot", str(path), "--kq", "1e3,1e3,1e3", "--wrench", "0,1,0"]
+    for flags, expected in (([], 1), (["--quiet"], 0)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert main([*argv, *flags]) == 0
+        notes = [w for w in caught if issubclass(w.category, RobotFileWarning)]
+        assert len(notes) == expected, (flags, [str(w.message) for w in notes])
+    assert _one_line_warning("3 joints", RobotFileNote, "urdf.py", 1) == \
+        "stiffness: note: 3 joints\n"
 
 
 @pytest.mark.parametrize(("text", "line", "problem"), [

@@ -15,7 +15,12 @@ from typing import NoReturn
 
 from stiffness import __version__
 from stiffness.cli.flags import ArgumentParser
-from stiffness.errors import DataFileNote, StiffnessError, UnknownColumnWarning
+from stiffness.errors import (
+    DataFileNote,
+    RobotFileNote,
+    StiffnessError,
+    UnknownColumnWarning,
+)
 
 #: command name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -68,7 +73,7 @@ def build_parser(only: str | None = None) -> ArgumentParser:
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     """Warnings on the command line: one line each, no source excerpt (a note, which reports
     what was done rather than a doubt, as ``note``)."""
-    word = "note" if issubclass(category, DataFileNote) else "warning"
+    word = "note" if issubclass(category, DataFileNote | RobotFileNote) else "warning"
     return f"stiffness: {word}: {message}\n"
 
 
@@ -104,6 +109,8 @@ def _run(argv: list[str] | None) -> int:
         with warnings.catch_warnings():
             if getattr(args, "strict", False):
                 warnings.simplefilter("error", UnknownColumnWarning)
+            if getattr(args, "quiet", False):  # how the robot file was read: not news
+                warnings.simplefilter("ignore", RobotFileNote)
             return int(module.run(args) or 0)
     except (StiffnessError, UnknownColumnWarning) as exc:
         print(f"stiffness {name}: error: {_one_line(str(exc))}", file=sys.stderr)

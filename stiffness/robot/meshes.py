@@ -27,7 +27,7 @@ from urllib.parse import unquote
 
 import pinocchio as pin
 
-from stiffness.errors import RobotFileWarning
+from stiffness.errors import RobotFileNote
 from stiffness.robot import kinematics
 
 #: Radius (m) of the sphere drawn in place of a missing mesh.
@@ -133,6 +133,6 @@ def resolve_visual_meshes(urdf: Path, root, model: pin.Model
             visual = None
     problems = [m.strip() for m in re.findall(r"Error:\s*(.+)", err[0] if err else "")]
     for problem in dict.fromkeys(problems):
-        warnings.warn(f"{urdf}: visuals: {problem} (ignored by Pinocchio)", RobotFileWarning,
-                      stacklevel=3)
+        warnings.warn(f"{urdf}: visuals: {problem} (ignored by Pinocchio; statics do not use "
+                      "visuals)", RobotFileNote, stacklevel=3)
     return visual, tuple(missing)

@@ -2,8 +2,10 @@
 
 Whatever Pinocchio's parser accepts loads: a ``<limit effort velocity/>`` without ``lower`` or
 ``upper``, any XML header version (pybullet's ``<?xml version="0.0"?>``), tags it does not know.
-Each thing the toolkit reads differently from the file, or ignores, gives one
-:class:`RobotFileWarning`. A file Pinocchio refuses gets one
+Each kind of thing the toolkit reads differently from the file, or ignores, gives one line
+(a :class:`~stiffness.errors.RobotFileNote`, silent under the command line's ``--quiet``, when
+the robot loads as the file means it; a :class:`RobotFileWarning` otherwise), not one per
+joint. A file Pinocchio refuses gets one
 :class:`~stiffness.errors.RobotFileError` line naming the file, the line and the problem
 (urdfdom's own diagnosis, which it prints on the C-level standard error, is captured for it).
 
@@ -23,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from stiffness.errors import MissingFileError, RobotFileError, RobotFileWarning
+from stiffness.errors import MissingFileError, RobotFileError, RobotFileNote, RobotFileWarning
 from stiffness.robot import kinematics
 from stiffness.robot.meshes import MissingMesh, resolve_visual_meshes
 
@@ -74,6 +76,11 @@ class UrdfRobot:
 def warn(message: str) -> None:
     """Emit one :class:`RobotFileWarning`."""
     warnings.warn(message, RobotFileWarning, stacklevel=3)
+
+
+def note(message: str) -> None:
+    """Emit one :class:`RobotFileNote` (read the file's own way; silent under ``--quiet``)."""
+    warnings.warn(message, RobotFileNote, stacklevel=3)
 
 
 def _tolerant_bytes(raw: bytes) -> bytes:
@@ -182,13 +189,15 @@ def mimic_tags(root, include_fixed: bool = False) -> tuple[Mimic, ...]:
 
 
 def _warn_ignored(path: Path, raw: bytes, root, model: pin.Model) -> None:
-    """One warning per thing the toolkit ignores or reads its own way."""
+    """One note per kind of thing the toolkit ignores or reads its own way (not one per
+    joint: an Onshape export has dozens of joints without bounds)."""
     match = _DECLARATION.match(raw)
     if match is not None:
         version = _VERSION.search(match.group(0))
         if version is not None and version.group(1) != b"1.0":
-            warn(f"{path}: XML declaration version {version.group(1).decode()!r} ignored "
+            note(f"{path}: XML declaration version {version.group(1).decode()!r} ignored "
                  "(read as XML 1.0, as Pinocchio does)")
+    unbounded: dict[str, list[tuple[str, int]]] = {}
     for joint in root.iter("joint"):
         limit = joint.find("limit")
         name = joint.get("name")
@@ -196,13 +205,34 @@ def _warn_ignored(path: Path, raw: bytes, root, model: pin.Model) -> None:
             continue
         missing = [b for b in ("lower", "upper") if limit.get(b) is None]
         if missing and model.existJointName(name):
-            warn(f"{path}, line {limit.sourceline}: joint {name!r} has a <limit> without "
-                 f"{' and '.join(missing)}; the joint is taken as unbounded")
+            unbounded.setdefault(" and ".join(missing), []).append((name, limit.sourceline))
             j = model.joints[model.getJointId(name)]
             if "lower" in missing:
                 model.lowerPositionLimit[j.idx_q] = -np.inf
             if "upper" in missing:
                 model.upperPositionLimit[j.idx_q] = np.inf
+    for missing, joints in unbounded.items():
+        note(_unbounded_message(path, missing, joints))
+
+
+#: Joints named in full in the note on joints without bounds before it is summarised.
+_NAMED_JOINTS = 6
+
+
+def _unbounded_message(path: Path, missing: str, joints: list[tuple[str, int]]) -> str:
+    """The one line saying that ``joints`` (name, line of the ``<limit>``) have a ``<limit>``
+    without ``missing`` (``lower``, ``upper`` or both) and are taken as unbounded."""
+    side = {"lower": "below", "upper": "above"}.get(missing, "")
+    if len(joints) == 1:
+        name, line = joints[0]
+        return (f"{path}, line {line}: joint {name!r} has a <limit> without {missing}; the "
+                f"joint is taken as unbounded{' ' + side if side else ''} (add {missing} to "
+                "the <limit> to bound it)")
+    shown = ", ".join(f"{name!r} (line {line})" for name, line in joints[:_NAMED_JOINTS])
+    more = f" and {len(joints) - _NAMED_JOINTS} more" if len(joints) > _NAMED_JOINTS else ""
+    return (f"{path}: {len(joints)} joints have a <limit> without {missing}: {shown}{more}; "
+            f"they are taken as unbounded{' ' + side if side else ''} (add {missing} to "
+            "their <limit> to bound them)")
 
 
 def read_urdf(path: str | os.PathLike) -> UrdfRobot:
