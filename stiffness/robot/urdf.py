@@ -211,8 +211,8 @@ def _warn_ignored(path: Path, raw: bytes, root, model: pin.Model) -> None:
                 model.lowerPositionLimit[j.idx_q] = -np.inf
             if "upper" in missing:
                 model.upperPositionLimit[j.idx_q] = np.inf
-    for missing, joints in unbounded.items():
-        note(_unbounded_message(path, missing, joints))
+    for bounds, joints in unbounded.items():
+        note(_unbounded_message(path, bounds, joints))
 
 
 #: Joints named in full in the note on joints without bounds before it is summarised.
