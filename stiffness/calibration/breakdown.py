@@ -19,6 +19,7 @@ from scipy.special import fdtrc
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.elastic.effects.geometry import Rows
+from stiffness.units import Units
 
 if TYPE_CHECKING:  # a pose fit is judged here; its module imports this one
     from stiffness.calibration.pose_campaign import PoseCampaign
@@ -212,6 +213,16 @@ def error_summary(errors: np.ndarray, length_to_si: float) -> dict:
                 "rows": 0}
     return {"rms": float(np.sqrt(np.mean(e ** 2))), "mean_error": float(e.mean()),
             "std_error": float(e.std()), "max_error": float(e.max()), "rows": int(e.size)}
+
+
+def rotation_summary(angle: np.ndarray, units: Units) -> dict:
+    """``rotation_rms``, ``rotation_mean_error``, ``rotation_max_error`` of rotation errors'
+    angles (rad; NaN: not measured) in the campaign's rotation unit, and ``rotation_unit``:
+    the rotation keys of a validation, a pose campaign's oriented markers' and a deflection
+    campaign's measured rotations alike."""
+    summary = error_summary(angle, units.rotation_to_si)
+    return {**{f"rotation_{key}": summary[key] for key in ("rms", "mean_error", "max_error")},
+            "rotation_unit": units.rotation}
 
 
 def marker_structure(fit: PoseFit, campaign: PoseCampaign) -> dict:

@@ -24,10 +24,9 @@ from stiffness.calibration.diagnosis import Diagnosis
 from stiffness.calibration.fitting import Fit, Objective, compliance_covariance
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.validation import (
-    ParameterTerm,
     Validation,
     campaign_name,
-    error_keys,
+    deflection_validation,
     same_robot,
     validate_deflection_model,
 )
@@ -102,19 +101,16 @@ def _stage(d: Diagnosis, fit: Fit, geometry: Geometry, rows: Rows, other: Campai
     columns = list(range(m.offsets[1])) + [c for i in kept
                                            for c in range(m.offsets[i + 1], m.offsets[i + 2])]
     x = fit.x[columns]
-    model = Hypothesis(geometry, rows, m.baseline, m.compliant,
-                       tuple(m.effects[i] for i in kept), m.refs, m.rotation_weight, m.held)
+    model = Hypothesis(geometry, rows, m.baseline, m.compliant,  # rotations in rad (w = 1)
+                       tuple(m.effects[i] for i in kept), m.refs,
+                       None if other.rotation is None else 1.0, m.held)
     predicted = model.predict(x)
-    term = None
+    jac, labels, cov = None, [fit.labels()[c] for c in columns], None
     if final.parameters is not None:  # d pred / d x: analytic, else the fit's differences
-        jac = Objective(model, np.zeros_like(predicted), 1.0).data_jacobian(x)
-        labels = [fit.labels()[c] for c in columns]
+        jac = Objective(model, np.zeros_like(predicted), 1.0).data_jacobian(x).reshape(
+            *predicted.shape, -1)
         cov = ParameterCovariance(tuple(labels), ("",) * len(labels), compliance_covariance(
             fit, d.noise_std_m, d.measured)[np.ix_(columns, columns)])
-        term = ParameterTerm.of(cov, (other.deflection - predicted[:, :3]).reshape(-1),
-                                jac.reshape(*predicted.shape, -1)[:, :3].reshape(
-                                    -1, len(columns)), labels, other.units.length_to_si)
-    stage = Validation(final.model, final.campaign, final.kind,
-                       error_keys(other, predicted[:, :3]), final.robot,
-                       final.noise_std, term).to_dict()
+    stage = deflection_validation(final.model, final.campaign, final.robot, other, predicted,
+                                  jac, labels, cov).to_dict()
     return {k: v for k, v in stage.items() if k not in _NOT_STAGE_KEYS}

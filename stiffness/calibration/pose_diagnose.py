@@ -34,7 +34,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from stiffness.calibration.breakdown import error_summary
+from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import held_reason, settle
 from stiffness.calibration.pose_campaign import PoseCampaign
@@ -52,7 +52,7 @@ from stiffness.calibration.pose_fit import (
     starting_frame,
 )
 from stiffness.calibration.pose_model import Marker, PoseModel
-from stiffness.calibration.pose_orientation import orientation_errors
+from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.calibration.search import (
     Candidate,
@@ -611,9 +611,9 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
                       for k, m in enumerate(campaign.markers)}
     if campaign.rotations is not None:
         angle = orientation_errors(model, x, campaign, rows_of(model, campaign))
-        out.update(_rotation_summary(angle, campaign))
+        out.update(rotation_summary(angle, campaign.units))
         for k, m in enumerate(campaign.markers):
-            out["markers"][m.name].update(_rotation_summary(angle[:, k], campaign))
+            out["markers"][m.name].update(rotation_summary(angle[:, k], campaign.units))
     return out
 
 
@@ -631,12 +631,21 @@ def validation_jacobian(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
     return campaign.positions - y, jac
 
 
-def _rotation_summary(angle: np.ndarray, campaign: PoseCampaign) -> dict:
-    """``rotation_rms``, ``rotation_mean_error``, ``rotation_max_error`` of error angles (rad)
-    in the campaign's rotation unit, and ``rotation_unit``."""
-    summary = error_summary(angle, campaign.units.rotation_to_si)
-    return {**{f"rotation_{key}": summary[key] for key in ("rms", "mean_error", "max_error")},
-            "rotation_unit": campaign.units.rotation}
+def validation_orientations(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Measured minus predicted orientations of ``campaign``'s seen oriented markers (N_r,)
+    in rad (minus the error ``log(R_pred R_meas^T)`` the fit takes,
+    :class:`~stiffness.calibration.pose_orientation.PoseObservations`; row by row, markers in
+    the model's order) and its prediction's Jacobian (N_r, p) with respect to ``x``. The
+    campaign measures orientations and declares both noise stds."""
+    campaign = _in_model_order(model.markers, campaign)
+    model = PoseModel(campaign.robot, model.markers, model.families,
+                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    observed = PoseObservations(model, campaign, rows_of(model, campaign))
+    residual, jac = observed.evaluate(x)
+    assert jac is not None and observed.weight is not None
+    positions = int(observed.observed.sum())
+    return -residual[positions:] / observed.weight, jac[positions:] / observed.weight
 
 
 def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:

@@ -18,13 +18,23 @@ chi-square test of the position residual: ``chi2 = sum r^2 / sigma^2`` over the 
 components (``n`` the markers seen over all rows; nothing is refitted), its p-value against
 ``chi2(3 n)`` and the ratio ``rms_3d / (sqrt(3) sigma)`` (1 for a model that predicts to the noise).
 
+A campaign that measures rotations and declares their noise ``sigma_r`` (a deflection
+campaign's ``rx, ry, rz`` with ``rotation_noise_std``; a pose campaign's oriented markers with
+``noise_std_rotation``) has them in the test too, each at its own noise: the rotation residual
+(rad) weighted by ``sigma / sigma_r`` (campaign length unit per rad), as the fits weigh it, so
+that ``chi2`` sums ``r_t^2 / sigma^2 + r_r^2 / sigma_r^2`` over the seen translation and
+rotation components, its degrees of freedom both counts (until 5 December 2026 the rotations
+were left out of the test without a word). Rotations measured without a declared noise are
+reported, not tested.
+
 That test takes the model's parameters as exact. A model file that carries its fitted
 parameters' covariance ``Sigma`` (``parameter_covariance``,
 :mod:`stiffness.elastic.parameter_covariance`) is judged instead with the residual's covariance
 ``sigma^2 I + J Sigma J^T``, ``J`` the prediction's derivative with respect to those parameters
-on the seen components (:class:`ParameterTerm`): ``chi2 = r^T (sigma^2 I + J Sigma J^T)^-1 r``
-against ``chi2(3 n)`` (:func:`prediction_chi2`), the test a model from a small campaign passes
-at its level on fresh campaigns of the same robot (docs/absolute-poses.md, Validation). The
+on the seen components (:class:`ParameterTerm`; the weighted rotations' too):
+``chi2 = r^T (sigma^2 I + J Sigma J^T)^-1 r`` against chi-square on the same components
+(:func:`prediction_chi2`), the test a model from a small campaign passes at its level on
+fresh campaigns of the same robot (docs/absolute-poses.md, Validation). The
 verdict is that test's; ``chi2`` and ``gof_p`` stay the noise-only test's.
 """
 
@@ -38,10 +48,14 @@ from typing import cast
 
 import numpy as np
 
-from stiffness.calibration.breakdown import error_summary
+from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
-from stiffness.calibration.pose_diagnose import validation_errors, validation_jacobian
+from stiffness.calibration.pose_diagnose import (
+    validation_errors,
+    validation_jacobian,
+    validation_orientations,
+)
 from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.file_model import fitted_prediction
@@ -152,6 +166,45 @@ class ParameterTerm:
                    tuple(labels[k] for k in used), tuple(left))
 
 
+@dataclass
+class RotationTerm:
+    """The rotation components a validation tests, each at its own noise.
+
+    Attributes
+    ----------
+    residual
+        (N_r,) measured minus predicted rotation components (rad) times :attr:`weight`: in
+        the campaign's length unit, at the position noise ``sigma``.
+    weight
+        ``sigma / sigma_r`` (campaign length unit per rad), ``sigma_r`` the declared rotation
+        noise std.
+    noise_std
+        ``sigma_r`` in the campaign's rotation unit.
+    """
+
+    residual: np.ndarray
+    weight: float
+    noise_std: float
+
+    def chi2(self, sigma: float) -> float:
+        """``sum r_r^2 / sigma_r^2``: the weighted residual over the position noise
+        ``sigma`` (campaign length unit)."""
+        return float(self.residual @ self.residual / sigma ** 2)
+
+    @classmethod
+    def of(cls, residual_rad: np.ndarray, noise_m: float | None,
+           rotation_noise_rad: float | None, length_to_si: float, rotation_to_si: float
+           ) -> RotationTerm | None:
+        """The term of the seen rotation residual components (rad) with the declared
+        position (m) and rotation (rad) noise stds, ``None`` without either; in a length
+        unit of ``length_to_si`` m and a rotation unit of ``rotation_to_si`` rad."""
+        if noise_m is None or rotation_noise_rad is None:
+            return None
+        weight = noise_m / rotation_noise_rad / length_to_si
+        return cls(weight * np.asarray(residual_rad, dtype=float).reshape(-1), weight,
+                   rotation_noise_rad / rotation_to_si)
+
+
 #: The words of a verdict's test.
 WITH_PARAMETERS = "noise and the model's parameter uncertainty"
 NOISE_ONLY = "noise only"
@@ -178,9 +231,12 @@ class Validation:
     noise_std
         The campaign's declared position noise std (campaign unit), or ``None``.
     parameters
-        The model's fitted parameters on the seen components (:class:`ParameterTerm`), or
-        ``None`` for a model file without their covariance (written before it): the verdict
-        is then the noise-only test's.
+        The model's fitted parameters on the seen components (:class:`ParameterTerm`, the
+        tested rotations after the positions), or ``None`` for a model file without their
+        covariance (written before it): the verdict is then the noise-only test's.
+    rotations
+        The tested rotation components (:class:`RotationTerm`), ``None`` when the campaign
+        measures none or declares no rotation noise (or no position noise).
     """
 
     model: str
@@ -190,20 +246,31 @@ class Validation:
     robot: dict
     noise_std: float | None
     parameters: ParameterTerm | None = None
+    rotations: RotationTerm | None = None
 
     @property
-    def components(self) -> int:
-        """Seen residual components: 3 per marker seen on a row (its ``markers``' counts;
+    def position_components(self) -> int:
+        """Seen position components: 3 per marker seen on a row (its ``markers``' counts;
         ``rows`` counts the campaign's rows, which two markers see twice)."""
         return 3 * sum(int(m["rows"] or 0) for m in self.errors["markers"].values())
 
     @property
+    def components(self) -> int:
+        """The test's components: the seen position components and the tested rotation
+        components."""
+        return self.position_components + (0 if self.rotations is None
+                                           else self.rotations.residual.size)
+
+    @property
     def chi2(self) -> float | None:
-        """``sum r^2 / sigma^2`` over the seen components (``rms`` is that of the 3-D errors
-        of every seen marker), or ``None`` without a noise."""
+        """``sum r^2 / sigma^2`` over the seen position components (``rms`` is that of the
+        3-D errors of every seen marker) plus ``sum r_r^2 / sigma_r^2`` over the tested
+        rotation components, or ``None`` without a noise."""
         if self.noise_std is None or self.errors["rms"] is None:
             return None
-        return float((self.errors["rms"] / self.noise_std) ** 2 * self.components / 3)
+        rotations = 0.0 if self.rotations is None else self.rotations.chi2(self.noise_std)
+        return float((self.errors["rms"] / self.noise_std) ** 2 * self.position_components / 3
+                     + rotations)
 
     def gof(self) -> float | None:
         """Chi-square p-value of the residual against the declared noise, or ``None``."""
@@ -255,7 +322,9 @@ class Validation:
         parameter covariance, ``None`` without one), ``verdict_test`` (which test the verdict
         is) and ``parameter_uncertainty`` (``included``, ``variables``, ``left_out``:
         those taken as exact, ``prediction_variance_share``: the trace of ``J Sigma J^T``
-        over ``N sigma^2``)."""
+        over ``N sigma^2``); ``rotation_noise_std`` (the declared rotation noise std in the
+        campaign's rotation unit) and ``rotation_components`` (the rotation components in
+        ``dof``: 0 when none is tested)."""
         rms = self.errors["rms"]
         ratio = (None if self.noise_std is None or rms is None
                  else rms / (math.sqrt(3) * self.noise_std))
@@ -267,6 +336,10 @@ class Validation:
         return {**self.errors, "kind": self.kind, "model": self.model,
                 "campaign": self.campaign, "robot": self.robot, "noise_std": self.noise_std,
                 "rms_over_noise": ratio, "chi2": self.chi2, "dof": self.components,
+                "rotation_noise_std": None if self.rotations is None
+                else self.rotations.noise_std,
+                "rotation_components": 0 if self.rotations is None
+                else int(self.rotations.residual.size),
                 "gof_p": self.gof(), "verdict": self.verdict,
                 "chi2_with_parameters": self.chi2_with_parameters,
                 "gof_p_with_parameters": self.gof_with_parameters(),
@@ -317,14 +390,28 @@ def validate(model: ModelFile | str | os.PathLike,
     calibration = read_pose_model(model, poses.robot)
     errors = validation_errors(calibration.model, calibration.x, poses)
     noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
+    rotations = rotation_residual = rotation_jacobian = None
+    if poses.rotations is not None and poses.noise_std is not None \
+            and poses.noise_std_rotation is not None:  # oriented markers, at their own noise
+        rotation_residual, rotation_jacobian = validation_orientations(
+            calibration.model, calibration.x, poses)
+        rotations = RotationTerm.of(rotation_residual, poses.noise_std, poses.noise_std_rotation,
+                                    poses.units.length_to_si, poses.units.rotation_to_si)
     term = None
     if calibration.covariance is not None:
         residual, jac = validation_jacobian(calibration.model, calibration.x, poses)
         seen = np.isfinite(residual)
-        term = ParameterTerm.of(calibration.covariance, residual[seen], jac[seen],
+        residual, jac = residual[seen], jac[seen]
+        if rotations is not None and rotation_residual is not None \
+                and rotation_jacobian is not None:  # weighted into metres, as fitted
+            weight_si = rotations.weight * poses.units.length_to_si
+            residual = np.concatenate([residual, weight_si * rotation_residual])
+            jac = np.vstack([jac, weight_si * rotation_jacobian])
+        term = ParameterTerm.of(calibration.covariance, residual, jac,
                                 [p.label for p in calibration.model.parameters],
                                 poses.units.length_to_si)
-    return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term)
+    return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term,
+                      rotations)
 
 
 def campaign_name(campaign: Campaign | PoseCampaign | str | os.PathLike) -> str:
@@ -355,30 +442,56 @@ def validate_deflection_model(declared: ModelFile, model: str,
     target = measured.robot()
     same = target.target_frame == declared.frame and np.allclose(
         target.target_offset, declared.target_offset_m, rtol=0.0, atol=1e-12)
-    errors = deflection_errors(load_model(declared) if same else load_model(
-        declared, frame=target.target_frame, target_offset=target.target_offset), measured)
-    noise = None if measured.noise_std_m is None else (
-        measured.noise_std_m / measured.units.length_to_si)
-    return Validation(model, campaign_name(campaign), "deflections", errors, robot, noise,
-                      _deflection_term(declared if same else replace(
-                          declared, frame=target.target_frame,
-                          target_offset_m=target.target_offset,
-                          effects=tuple(e for e in declared.effects
-                                        if e.name != "target_offset")), measured))
-
-
-def _deflection_term(declared: ModelFile, measured: Campaign) -> ParameterTerm | None:
-    """The :class:`ParameterTerm` of the model file ``declared`` (at the campaign's target)
-    on ``measured``'s rows (:func:`~stiffness.elastic.file_model.fitted_prediction`: every
-    effect applied, measurement effects included), ``None`` without its covariance."""
-    if declared.covariance is None:
-        return None
+    if same:  # the model file's checks (its effects on its robot), as load_model makes them
+        load_model(declared)
+    else:
+        load_model(declared, frame=target.target_frame, target_offset=target.target_offset)
+    at_target = declared if same else replace(
+        declared, frame=target.target_frame, target_offset_m=target.target_offset,
+        effects=tuple(e for e in declared.effects if e.name != "target_offset"))
     wrench = np.hstack([measured.force, measured.moment if measured.moment is not None
                         else np.zeros_like(measured.force)])
-    predicted, jac, labels = fitted_prediction(declared, measured.q, wrench)
-    return ParameterTerm.of(declared.covariance, (measured.deflection - predicted).reshape(-1),
-                            jac.reshape(-1, jac.shape[-1]), labels,
-                            measured.units.length_to_si)
+    # every row at once: the prediction of load_model(...).deflection, row by row
+    predicted, jac, labels = fitted_prediction(at_target, measured.q, wrench,
+                                               rotations=measured.rotation is not None)
+    return deflection_validation(model, campaign_name(campaign), robot, measured, predicted,
+                                 jac, labels, at_target.covariance)
+
+
+def deflection_validation(model: str, campaign: str, robot: dict, measured: Campaign,
+                          predicted: np.ndarray, jacobian: np.ndarray | None,
+                          labels: list[str], covariance: ParameterCovariance | None
+                          ) -> Validation:
+    """The :class:`Validation` named ``model`` and ``campaign`` of the predictions (m, 3)
+    in m, or (m, 6) with the rotations (rad) when ``measured`` measures them, at
+    ``measured``'s rows, their derivatives (m, 3 or 6, p) in the variables ``labels``
+    (``None`` without a ``covariance``) and those variables' covariance (``None``: the
+    noise-only test): the errors, and the rotations tested at their own noise, weighted by
+    ``sigma / sigma_r`` into the positions' (:class:`RotationTerm`), when both are declared."""
+    errors = error_keys(measured, predicted[:, :3])
+    noise = None if measured.noise_std_m is None else (
+        measured.noise_std_m / measured.units.length_to_si)
+    residual = [measured.deflection - predicted[:, :3]]
+    columns = [] if jacobian is None else [jacobian[:, :3]]
+    rotations = None
+    if measured.rotation is not None:
+        rotation_residual = measured.rotation - predicted[:, 3:6]
+        angle = np.linalg.norm(rotation_residual, axis=1)
+        errors.update(rotation_summary(angle, measured.units))
+        errors["markers"][TARGET].update(rotation_summary(angle, measured.units))
+        rotations = RotationTerm.of(rotation_residual, measured.noise_std_m,
+                                    measured.rotation_noise_std_rad, measured.units.length_to_si,
+                                    measured.units.rotation_to_si)
+        if rotations is not None:  # weighted into metres at the position noise, as fitted
+            weight_si = rotations.weight * measured.units.length_to_si
+            residual.append(weight_si * rotation_residual)
+            if jacobian is not None:
+                columns.append(weight_si * jacobian[:, 3:6])
+    term = None if jacobian is None else ParameterTerm.of(
+        covariance, np.concatenate([r.reshape(-1) for r in residual]),
+        np.concatenate([c.reshape(-1, c.shape[-1]) for c in columns]), labels,
+        measured.units.length_to_si)
+    return Validation(model, campaign, "deflections", errors, robot, noise, term, rotations)
 
 
 def same_robot(model_source: str, model_robot: Callable[[], Robot], campaign_robot: Robot,

@@ -68,6 +68,7 @@ def _noise_verdict(result: dict) -> str:
         return "no noise declared in the campaign: no verdict (declare [measurement] noise_std)"
     line = (f"verdict: {result['verdict'].upper()} (RMS {result['rms_over_noise']:.3g}x the "
             f"noise {result['noise_std']:.4g} {result['unit']} per axis; ")
+    line = _rotations_said(result, line)
     if result.get("gof_p_with_parameters") is None:
         return (line + f"chi-square {result['chi2']:.4g} on {result['dof']} components, "
                 f"p = {result['gof_p']:.3g}; the noise only: the model file carries no "
@@ -81,6 +82,18 @@ def _noise_verdict(result: dict) -> str:
             + (f", {len(left)} its fit did not determine taken as exact ({', '.join(left)})"
                if left else "")
             + f"; the noise alone: chi-square {result['chi2']:.4g}, p = {result['gof_p']:.3g})")
+
+
+def _rotations_said(result: dict, line: str) -> str:
+    """``line`` with what the test takes of the measured rotations: how many components at
+    their own noise, or that they are not tested (no rotation noise declared)."""
+    if result.get("rotation_components"):
+        return line + (f"{result['rotation_components']} of the components rotations at their "
+                       f"noise {result['rotation_noise_std']:.4g} {result['rotation_unit']}; ")
+    if result.get("rotation_rms") is not None:
+        return line + ("rotations measured but not tested: declare [measurement] "
+                       "rotation_noise_std; ")
+    return line
 
 
 def _validation_row(name: str, r: dict) -> str:

@@ -135,7 +135,8 @@ def fitted_deflection(model: ModelFile, q: np.ndarray, load: np.ndarray,
 
 
 def fitted_prediction(model: ModelFile, q: np.ndarray, wrench: np.ndarray,
-                      measured: bool = True) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                      measured: bool = True, rotations: bool = False
+                      ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """The fitted model's predicted displacements (m, 3) in m at the rows ``q`` (m,
     n_coordinates) under the wrenches (m, 6) (:func:`fitted_deflection` of each row), their
     derivatives (m, 3, p) with respect to the model file's parameter variables
@@ -143,26 +144,32 @@ def fitted_prediction(model: ModelFile, q: np.ndarray, wrench: np.ndarray,
     value), and those variables' labels. The derivatives are the fit's: analytic where
     :meth:`Hypothesis.predict_with_jacobian` has them (:attr:`Hypothesis.analytic_columns`),
     central differences (relative step :data:`FD_STEP`) in the other columns, as the fitting
-    engine takes them."""
+    engine takes them. With ``rotations`` the rows are (m, 6) and (m, 6, p): the target's
+    displacement (m) then its rotation vector (rad, base axes), as a campaign measuring
+    rotations is fitted (:attr:`Hypothesis.rotation_weight` 1 m/rad)."""
     fitted, x, labels, scale = _fitted(model, np.asarray(q, dtype=float),
-                                       np.asarray(wrench, dtype=float), measured)
+                                       np.asarray(wrench, dtype=float), measured,
+                                       1.0 if rotations else None)
     pred, jac = fitted.predict_with_jacobian(x)
     for i in np.flatnonzero(~fitted.analytic_columns):
         h = FD_STEP * max(1.0, abs(x[i]))
         step = np.zeros_like(x)
         step[i] = h
         jac[:, :, i] = (fitted.predict(x + step) - fitted.predict(x - step)) / (2.0 * h)
-    return pred[:, :3], jac[:, :3] / scale, labels
+    width = 6 if rotations else 3
+    return pred[:, :width], jac[:, :width] / scale, labels
 
 
 #: Relative step of :func:`fitted_prediction`'s central differences (the fitting engine's).
 FD_STEP = 1e-6
 
 
-def _fitted(model: ModelFile, q: np.ndarray, wrench: np.ndarray, measured: bool
+def _fitted(model: ModelFile, q: np.ndarray, wrench: np.ndarray, measured: bool,
+            rotation_weight: float | None = None
             ) -> tuple[Hypothesis, np.ndarray, list[str], np.ndarray]:
     """The fitted model of ``model`` over the rows ``q`` (m, n_coordinates) under ``wrench``
-    (m, 6): its hypothesis, its parameter vector, each column's label in the file's
+    (m, 6), predicting rotations too with a ``rotation_weight`` (m/rad,
+    :class:`Hypothesis`): its hypothesis, its parameter vector, each column's label in the file's
     covariance (:func:`~stiffness.elastic.parameter_covariance.effect_labels`) and the
     file variable's value of one unit of the column (1 for ``ln k``, the effect's
     :meth:`~stiffness.elastic.effects.base.Effect.scale` at unit references)."""
@@ -189,7 +196,8 @@ def _fitted(model: ModelFile, q: np.ndarray, wrench: np.ndarray, measured: bool
     if model.formulation == "exact" and not any(e.second_order for e in effects):
         effects.insert(0, LIBRARY["complementary_stiffness"]())
         values.insert(0, np.zeros(0))
-    fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs)
+    fitted = Hypothesis(geometry, rows, baseline, model.compliant_joints, tuple(effects), refs,
+                        rotation_weight)
     x = np.concatenate([np.log(model.k_theta)] + [
         effect_variables(e, v, refs) for e, v in zip(effects, values, strict=True)])
     return fitted, x, labels, scale
