@@ -23,7 +23,7 @@ from stiffness.calibration.identifiability import Identifiability
 from stiffness.calibration.naming import is_stand_in
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.search import E, F, SearchKind, Step, kept_steps
+from stiffness.calibration.search import E, F, SearchKind, Step, kept_steps, label
 from stiffness.elastic.effects.base import Parameter
 from stiffness.files import atomic_write, refuse_foreign_folder, staged_folder
 
@@ -93,6 +93,23 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
         (``--families``, the forced steps' labels in order) and ``forbidden`` (``--not``)."""
         return {"forced": [s.label for s in self.steps if s.forced],
                 "forbidden": list(self.forbidden)}
+
+    def best_rejected(self) -> dict | None:
+        """The best candidate by BIC of the step that added nothing
+        (:class:`~stiffness.calibration.search.Refusal`), as ``--json`` has it (``best_rejected``;
+        lengths in the campaign's unit): its ``candidate`` label, ``delta_bic``, its fit's
+        ``rms`` and held-out ``cv_rms`` (null: not judged) against those of the model it
+        extends (``rms_before``, ``cv_rms_before``), and ``not_judged`` (why the rows cannot
+        judge it held out, or null). ``None`` when no step was refused (the search stopped at
+        the noise, at ``max_steps`` or with nothing left to try) or none was fitted."""
+        refusal = None if self.search is None else self.search.refusal
+        if refusal is None or not refusal.ranking:
+            return None
+        best, lu = refusal.ranking[0], self.campaign.units.length_to_si
+        return {"candidate": label(best.effect), "delta_bic": best.delta_bic,
+                "rms": best.fit.rms() / lu, "rms_before": refusal.current.rms() / lu,
+                "cv_rms": None if best.cv_rms is None else best.cv_rms / lu,
+                "cv_rms_before": refusal.cv_current / lu, "not_judged": best.refused}
 
     @abc.abstractmethod
     def named_parameters(self) -> dict[str, list[Parameter]]:

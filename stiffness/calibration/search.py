@@ -171,6 +171,18 @@ class Stop(enum.Enum):
 
 
 @dataclass(eq=False)
+class Refusal(Generic[E, F]):
+    """The forward search's last step, which added nothing (:func:`search`): its candidates,
+    best BIC first (:func:`ranked`; a pose step's those fitted), the ``current`` fit they
+    extend, its held-out RMS ``cv_current`` (m) and why none was added."""
+
+    ranking: list[Candidate[E, F]]
+    current: F
+    cv_current: float
+    why: Stop
+
+
+@dataclass(eq=False)
 class Removals(Generic[F]):
     """A final fit refitted without each effect it added (:meth:`SearchKind.without`, in
     order) and the held-out RMS (m) of those judged so far, by position."""
@@ -191,13 +203,15 @@ class Removals(Generic[F]):
 class SearchKind(Protocol[E, F]):
     """What a campaign kind supplies to :func:`search`: its residual count ``n`` and noise
     std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, the last
-    final fit's :class:`Removals` (``None`` before :func:`eliminate`), its :class:`Step`
-    records, and the methods below (its fits' objective and parameter count are the fits'
-    own, :meth:`Fitted.terms`)."""
+    final fit's :class:`Removals` (``None`` before :func:`eliminate`), the step that added
+    nothing (:class:`Refusal`, ``None`` unless the forward search stopped so), its
+    :class:`Step` records, and the methods below (its fits' objective and parameter count are
+    the fits' own, :meth:`Fitted.terms`)."""
 
     n: int
     stops: ClassVar[dict[Stop, str]]
     removals: Removals[F] | None
+    refusal: Refusal[E, F] | None
     steps: list[Step[E, F]]
 
     @property
@@ -295,6 +309,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
             return current, cv_current, kind.stops[Stop.LEFT]
         winner, why, refused = _winner(kind, ranking, cv_current)
         if winner is None or winner.cv_rms is None:
+            kind.refusal = Refusal(ranking, current, cv_current, why)
             kind.reject(ranking)
             return current, cv_current, kind.stops[why] + "".join(
                 f"; {label(c.effect)} not judged: {c.refused}" for c in refused[:1])
