@@ -25,9 +25,9 @@ from pose_truth import add_intervals
 from stats import Coverage
 
 from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
-from stiffness.calibration.pose_diagnosis import _flagged
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
 from stiffness.calibration.pose_report import format_pose_report
@@ -188,9 +188,11 @@ def test_drift_outside_the_library_is_unexplained(ur10):
                      verdict) and "{" not in verdict, verdict
     assert "too many for stray measurements, the model misses something" in verdict
     # least squares: a few gross poses can pull the fit onto the rest, which a robust loss tells
-    assert "unless a few gross poses pull the least-squares fit onto the others: --loss " \
-        "soft_l1 flags those alone" in verdict
-    assert "--loss" not in _flagged(20, 50, "soft_l1")
+    assert "unless a few gross poses pull the least-squares fit onto the others (flagging " \
+        "clean poses too): --loss soft_l1 weighs them down and flags those alone" in verdict
+    # under a robust loss the same poses are said to stay in its test, with no --loss advice
+    robust = verdict_sentence({**d.to_dict(), "loss": "soft_l1"})
+    assert "--loss" not in robust and "the soft_l1 fit's test keeps them all" in robust
 
 
 def test_an_understated_noise_is_named_as_a_reading_of_unexplained(ur10):
@@ -207,7 +209,7 @@ def test_an_understated_noise_is_named_as_a_reading_of_unexplained(ur10):
     robust = 1.4826 * np.median(np.abs(r)) * np.sqrt(r.size / (r.size - d.final.n_fitted))
     assert 1.6 < robust / (NOISE / 2) < 2.4
     assert (f"or the declared noise_std ({NOISE / 2:.4g} m) understates the scatter: the final "
-            f"positions' robust std (1.4826 median |r|, which gross poses do not inflate) is "
+            f"residual's robust std (1.4826 median |r|, which gross poses do not inflate) is "
             f"{robust / (NOISE / 2):.3g} times it") in d.verdict()
     # three gross poses (20 noise std) under the right noise, a robust fit: the robust std
     # reads the noise as right (a least-squares fit, pulled by them, spreads them over all)

@@ -45,7 +45,11 @@ SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missi
                 "unexplained", "final_rms", "final_stiffness", "final_parameters", "unit",
                 "loss", "masses", "outlier_threshold",
                 "outliers",
-                "rms_by_kind", "identifiability", "how_sure", "selection"}
+                "rms_by_kind", "identifiability", "how_sure", "selection",
+                # the verdict's keys (fit_verdict.verdict_sentence, both kinds') and the verdict
+                "gof_test", "gof_p", "final_rows_excluded", "robust_noise_ratio",
+                "best_rejected", "stop_reason", "baseline_cv_rms", "rows", "configurations",
+                "unexplained_note"}
 
 #: A hidden wrist spring, which looks like a bending forearm about the same axis.
 WRIST_SPRING = "joint_compliance:wrist_1_joint=1e4"
@@ -243,13 +247,16 @@ def test_noise_declared_too_small_names_the_noise_as_a_reading_of_unexplained():
     understated = dataclasses.replace(campaign, noise_std_m=0.4 * NOISE)
     d = diagnose(understated, propose=False)
     assert d.unexplained is True
-    assert "unless the declared noise_std (0.002 mm) understates the scatter: the final " \
+    # "unless the declared ..." until the verdict became one sentence for both kinds
+    assert "; or the declared noise_std (0.002 mm) understates the scatter: the final " \
         "residual's robust std (1.4826 median |r|" in d.unexplained_note
     ratio = float(d.unexplained_note.split("inflate) is ")[1].split(" ")[0])
     residual = d.final.predicted[:, :3] - understated.deflection
     n, p = residual.size, d.final.penalty_params
     robust = 1.4826 * np.median(np.abs(residual)) * np.sqrt(n / (n - p))
     assert ratio == pytest.approx(robust / (0.4 * NOISE), rel=1e-2)
+    # the JSON carries the same ratio, unrounded (robust_noise_ratio: both kinds' key)
+    assert d.to_dict()["robust_noise_ratio"] == pytest.approx(robust / (0.4 * NOISE), rel=1e-5)
     assert 2.0 < ratio < 3.0
 
 
@@ -260,7 +267,7 @@ def test_the_verdict_names_the_replicates_test():
     c = _simulate(UR5, [], configs=3, declare_noise=False, repeats=3).campaign
     d = diagnose(c, propose=False)
     assert d.noise_std_source == "replicates" and d.unexplained is False
-    assert "(lack-of-fit F test)" in d.unexplained_note
+    assert "(lack-of-fit F p = " in d.unexplained_note  # "(lack-of-fit F test)" until then
     report = format_report(d)
     assert "to noise (lack-of-fit F p = " in report and "chi-square" not in report
 

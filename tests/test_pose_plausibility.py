@@ -126,7 +126,10 @@ def test_declared_mm_written_m_reads_explained_but_is_no_calibration(shrunk):
     text = format_pose_report(d)
     verdict = next(line for line in text.splitlines() if line.startswith("NOT A CALIBRATION"))
     assert '[units] length = "m"' in verdict and "0.001 times as far" in verdict
-    assert text.index("NOT A CALIBRATION") < text.index("explained to noise")
+    # the chi-square verdict, below the plausibility's (its words "explained to noise" until
+    # the verdict became one sentence for both campaign kinds, 5 December 2026)
+    assert text.index("NOT A CALIBRATION") < text.index("the final model explains the data to "
+                                                        "noise")
     record = d.to_dict()
     assert record["plausible"] is False
     assert record["plausibility"]["likely_length_unit"] == "m"

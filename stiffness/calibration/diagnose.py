@@ -69,6 +69,7 @@ from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.search import (
     Candidate,
+    Refusal,
     Removals,
     Step,
     Stop,
@@ -310,8 +311,6 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         say(f"step {len(kind.steps) + 1}: {name} (forced)")
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
-    steps = kind.steps
-    p_final = final.penalty_params
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
     noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
@@ -319,7 +318,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     cov_final = parameter_covariance(final, sigma_used, measured)
     noise_base = _fit_noise(known, base, n)
     cov_base = parameter_covariance(base, noise_base.sigma, measured)
-    outliers, outlier_sigma = flag_fit(final, measured, sigma, p_final,
+    outliers, outlier_sigma = flag_fit(final, measured, sigma, final.penalty_params,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
                                seed if propose else None)
@@ -329,7 +328,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         baseline_stiffness=stiffness_parameters(
             base, cov_base, noise_base.two_sided(), noise_base.one_sided()),
         final_stiffness=stiffness_parameters(final, cov_final, quantile, edge),
-        noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=steps,
+        noise_std_m=float(sigma_used), noise_std_source=source, noise_note=note, steps=kind.steps,
         stop_reason=stop,
         baseline_disagreement=disagreement((base.predicted - measured)[:, :3], campaign,
                                            sigma_used, rows, geo.angles(rows)),
@@ -530,6 +529,7 @@ class DeflectionSearch:
     ambiguities: list[tuple[int, Found, Found, float]] = field(default_factory=list)
     dispersion: float = 1.0
     removals: Removals[Fit] | None = None
+    refusal: Refusal[DeflectionEffect, Fit] | None = None
     stops: ClassVar[dict[Stop, str]] = {
         Stop.LEFT: "no candidate left",
         Stop.BIC: f"no candidate improves BIC by more than {BIC_MARGIN:g}",

@@ -17,16 +17,12 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.diagnosis_page import render_diagnosis
+from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.fitting import Fit
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
-from stiffness.calibration.selection import (
-    GOF_LEVEL,
-    OVERSTATED_P,
-    excluded_note,
-    noise_overstated,
-)
+from stiffness.calibration.selection import GOF_LEVEL
 from stiffness.elastic.effects.base import Parameter
 from stiffness.elastic.effects.deflection_face import DeflectionEffect, Settings
 from stiffness.elastic.effects.geometry import Geometry
@@ -46,12 +42,6 @@ DIAGNOSIS_FILE, RESIDUALS_PLOT, FINAL_MODEL_FILE = (
 DIAGNOSIS_PAGE = "diagnosis.html"
 #: Noise sources.
 NOISE_SOURCES = ("declared", "replicates", "residuals")
-
-
-#: A baseline whose held-out RMS is this many times its fit's has folds too small to determine
-#: it (campaigns of 5 to 8 configurations: 1.05 to 1.6; 2 configurations: 31 to 65; 3: 3.5 to
-#: 4.6), so the cross-validation cannot confirm an effect (:meth:`Diagnosis.unexplained_note`).
-WEAK_FOLDS = 5.0
 
 
 @dataclass
@@ -131,7 +121,9 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     unexplained
         ``True`` when the search ended (library exhausted, or nothing else passing BIC and
         cross-validation) with the chi-square test still rejecting the final model: something
-        outside the library is in the data, and :attr:`final_disagreement` says where to look.
+        outside the library is in the data, or a library effect the campaign is too small to
+        confirm (:meth:`~stiffness.calibration.result.DiagnosisResult.best_rejected`), and
+        :attr:`final_disagreement` says where to look.
         ``False`` when the final model fits to noise; ``None`` when the noise is only estimated
         from the residuals (no test available).
     gof_excluded_rows
@@ -200,57 +192,34 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
 
     @property
     def unexplained_note(self) -> str:
-        """One sentence on the verdict of :attr:`unexplained`."""
-        if self.unexplained is None:
-            return ("not tested: the noise is estimated from the final model's residuals, so "
-                    "whether something outside the library is left cannot be said")
-        if not self.unexplained:
-            return (f"the final model explains the data to noise ({self.test} test"
-                    f"{excluded_note(self.gof_excluded_rows)})") + (
-                f"; its residual is far below the declared noise (chi-square lower tail p < "
-                f"{OVERSTATED_P:g}): overstated noise, or averaged rows; the "
-                "intervals are too wide and an effect below the noise goes unseen"
-                if noise_overstated(self.gof_final) else "")
-        return (f"the residual is still above the noise ({self.test} p = {self.gof_final:.3g} "
-                f"<= {1 - GOF_LEVEL:.2g}{excluded_note(self.gof_excluded_rows)}) and no "
-                "further library effect passes BIC and cross-validation: the data contain "
-                "something the library does not model; "
-                "the residual's structure (where_final_disagrees) says where to look"
-                + self._understated_note() + self._weak_folds_note()
-                + (f"; {len(self.outliers)} row(s) are flagged as outliers, which alone can "
-                   "fail the test (see outliers)" if self.outliers and self.loss == "linear"
-                   else "")
-                + ("; a least-squares fit pulled by gross rows bends the stiffnesses and flags "
-                   "clean rows too: --loss soft_l1 weighs them down"
-                   if self.outliers and self.loss == "linear" else ""))
+        """One sentence on the verdict of :attr:`unexplained` and its readings
+        (:func:`~stiffness.calibration.fit_verdict.verdict_sentence` of
+        :meth:`verdict_keys`)."""
+        return verdict_sentence(self.verdict_keys())
 
-    def _weak_folds_note(self) -> str:
-        """The other reading of an unexplained verdict on too few configurations: when the
-        baseline's own held-out RMS is :data:`WEAK_FOLDS` times its fit's, each fold cannot
-        determine the model, and cross-validation refuses library effects that are there (a
-        UR5 of 2 configurations x 3 loads with a hidden 15 mm target offset: 31 times)."""
-        ratio = self.cv_baseline / self.baseline.rms()
-        if not ratio > WEAK_FOLDS:
-            return ""
-        times = f"{ratio:.3g} times" if math.isfinite(ratio) else "unbounded against"
-        return (f"; or too few configurations for the cross-validation to confirm an effect: "
-                f"on {len(set(self.campaign.config))} configuration(s) the baseline's own "
-                f"held-out RMS is {times} its fit's, so a library effect may be what is "
-                "missing; measure more configurations")
-
-    def _understated_note(self) -> str:
-        """The other reading of an unexplained verdict under a declared noise: the noise
-        understated (a residual without structure, about as large everywhere, points there)."""
-        if self.noise_std_source != "declared":
-            return ""
-        declared = f"{self._len(self.noise_std_m):.4g} {self.unit}"
+    def verdict_keys(self) -> dict:
+        """The keys of :meth:`to_dict` the verdict reads
+        (:func:`~stiffness.calibration.fit_verdict.verdict_sentence`; campaign units):
+        ``unexplained``, the test (``gof_test``, ``gof_p``, ``final_rows_excluded``), the
+        noise (``noise_std``, ``noise_std_source``, ``robust_noise_ratio``: the final residual's
+        robust std, 1.4826 median |r|, over ``noise_std``; null when the noise is the
+        residuals'), the search's end (``best_rejected``, ``stop_reason``), the baseline's
+        held-out RMS (``baseline_cv_rms``, null when not finite, ``baseline_cv_unbounded``
+        when infinite) and the campaign (``rows``, ``configurations``, the outliers)."""
         measured = self.campaign.deflection if self.measured is None else self.measured
         robust = robust_noise(self.final.residuals(measured)[0], self.final.penalty_params)
-        return (f", unless the declared noise_std ({declared}) understates the scatter: the "
-                f"final residual's robust std (1.4826 median |r|, which gross rows do not "
-                f"inflate) is {(robust or 0.0) / self.noise_std_m:.3g} times it, and a residual "
-                "without structure (as large in every configuration, axis, load and row block) "
-                "points there")
+        return jsonable({
+            "unexplained": self.unexplained, "gof_test": self.test, "gof_p": self.gof_final,
+            "final_rows_excluded": self.gof_excluded_rows,
+            "noise_std": self._len(self.noise_std_m), "noise_std_source": self.noise_std_source,
+            "robust_noise_ratio": None if self.noise_std_source == "residuals" or robust is None
+            else robust / self.noise_std_m,
+            "best_rejected": self.best_rejected(), "stop_reason": self.stop_reason,
+            "baseline_rms": self._len(self.baseline.rms()),
+            "baseline_cv_rms": self._len(self.cv_baseline),
+            **({"baseline_cv_unbounded": True} if math.isinf(self.cv_baseline) else {}),
+            "rows": self.campaign.n_rows, "configurations": len(set(self.campaign.config)),
+            "unit": self.unit, "loss": self.loss, **self.outlier_keys()})
 
     @property
     def missing_effects(self) -> list[str]:
@@ -258,8 +227,9 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         return [s.effect.name for s in self.named_steps]
 
     def to_dict(self) -> dict:
-        """The object ``stiffness diagnose --json`` prints (campaign units): exactly the keys
-        of the issue; :meth:`record` has everything."""
+        """The object ``stiffness diagnose --json`` prints (campaign units): the keys of the
+        issue, those the verdict reads (:meth:`verdict_keys`) and the verdict
+        (``unexplained_note``); :meth:`record` has everything."""
         return jsonable({
             "baseline_rms": self._len(self.baseline.rms()),
             "noise_std": self._len(self.noise_std_m),
@@ -288,6 +258,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             **({"baseline_validation": self.baseline_validation}
                if self.baseline_validation else {}),
             **({"validation": self.validation} if self.validation else {}),
+            **self.verdict_keys(), "unexplained_note": self.unexplained_note,
         })
 
     def confounded(self, identifiability: dict) -> dict:

@@ -12,6 +12,7 @@ campaign (``--validate``).
 from __future__ import annotations
 
 from stiffness.calibration.certainty import how_sure_table
+from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.steps_table import scored_steps, stage_section, steps_table
@@ -65,7 +66,7 @@ def _by_configuration(before: dict, after: dict, unit: str) -> str:
 def _verdict(d: dict) -> str:
     flag = d.get("unexplained")
     word = "not tested" if flag is None else ("<b>yes</b>" if flag else "no")
-    return f"{word}: {esc(d.get('unexplained_note', ''))}"
+    return f"{word}: {esc(verdict_sentence(d))}"
 
 
 def _group_rows(groups: dict) -> list[list]:
@@ -87,7 +88,7 @@ def _correlation_rows(corr: dict, label: str) -> list[list]:
 def _left(d: dict, unit: str) -> list[str]:
     """The final residual's structure."""
     after = d["where_final_disagrees"]
-    parts = [f"<p>{esc(d.get('unexplained_note', ''))}.</p>"]
+    parts = [f"<p>{esc(verdict_sentence(d))}.</p>"]
     if "by_load_direction" not in after:
         return parts
     head = ["group", "rows", f"RMS ({unit})", "in noise std", f"mean dx, dy, dz ({unit})"]

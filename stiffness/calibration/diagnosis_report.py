@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 from stiffness.calibration.breakdown import strongest_correlations
 from stiffness.calibration.certainty import how_sure_lines
-from stiffness.calibration.fit_verdict import fit_lines
+from stiffness.calibration.fit_verdict import fit_lines, verdict_line
 from stiffness.calibration.naming import STAND_IN_NOTE
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.parameter_section import parameter_lines
@@ -95,10 +95,10 @@ def format_report(d: Diagnosis) -> str:
                      "complete: too narrow while it misses something (UNEXPLAINED, below)")
     lines += fit_lines(summary)
     if d.unexplained is False and noise_overstated(d.gof_final):
-        lines.append(f"note: {d.unexplained_note}")
+        lines.append(f"note: {verdict_line(summary)}")
     lines += describe_outliers(d.outliers)
     if d.unexplained:
-        lines += ["", f"UNEXPLAINED: {d.unexplained_note}.",
+        lines += ["", f"{verdict_line(summary)}.",
                   f"where the final model disagrees (RMS in {unit}, and in noise std):"]
         lines += _disagreement_lines(d.final_disagreement, c.units.force)
     if d.rotation_noise_std_rad is not None:

@@ -38,7 +38,7 @@ from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import held_reason, settle
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_diagnosis import BASE_FAMILIES, PoseDiagnosis
+from stiffness.calibration.pose_diagnosis import BASE_FAMILIES, NO_PARAMETER, PoseDiagnosis
 from stiffness.calibration.pose_fit import (
     PoseFit,
     campaign_settings,
@@ -56,6 +56,7 @@ from stiffness.calibration.pose_orientation import PoseObservations, orientation
 from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.calibration.search import (
     Candidate,
+    Refusal,
     Removals,
     Step,
     Stop,
@@ -79,9 +80,6 @@ from stiffness.elastic.effects.preloads import GravityCompensator, declared_geom
 from stiffness.errors import StiffnessError, TooFewMeasurementsError
 from stiffness.workspace.distributed import run_chunks
 
-#: Why a family has no BIC change to show: no identifiable parameter (a tilt, no spring in).
-NO_PARAMETER = ("no identifiable parameter beside the families in: it moves no marker here, "
-                "or only as they do")
 #: Families tried after the base, by whether the robot's masses are trusted.
 #: (link_compliance and backlash need the links' masses; gravity_compensator and
 #: nonlinear_joint_stiffness act through joint_compliance, tried once it is in: absolute-poses.md)
@@ -402,6 +400,7 @@ class PoseSearch:
     delta: dict[str, float] = field(default_factory=dict)
     full: dict[str, tuple[float, int]] = field(default_factory=dict)
     removals: Removals[PoseFit] | None = None
+    refusal: Refusal[str, PoseFit] | None = None
     stops: ClassVar[dict[Stop, str]] = {
         Stop.LEFT: "no candidate family left",
         Stop.BIC: f"no family improves BIC by more than {BIC_MARGIN:g}",

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.breakdown import marker_structure
-from stiffness.calibration.outliers import STRAY_SHARE, robust_noise
+from stiffness.calibration.fit_verdict import verdict_line, verdict_sentence
+from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, noise_terms
 from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
@@ -22,13 +23,16 @@ from stiffness.calibration.pose_plausibility import Plausibility, plausibility
 from stiffness.calibration.residual_figures import residual_axes_png
 from stiffness.calibration.result import DiagnosisResult, Output, written
 from stiffness.calibration.search import Step
-from stiffness.calibration.selection import Noise, NoiseTerms, above_noise, excluded_note
+from stiffness.calibration.selection import Noise, NoiseTerms, above_noise
 from stiffness.elastic.effects.base import Parameter
 from stiffness.files import jsonable
 from stiffness.provenance import provenance
 
 #: The families every pose diagnosis starts with (the tracker's placement and the markers).
 BASE_FAMILIES = ("frame", "markers")
+#: Why a family has no BIC change to show: no identifiable parameter (a tilt, no spring in).
+NO_PARAMETER = ("no identifiable parameter beside the families in: it moves no marker here, "
+                "or only as they do")
 #: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
 #: linearised hat matrix (:func:`~stiffness.calibration.pose_fit.held_out_rms`).
 HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
@@ -90,46 +94,60 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
 
     def verdict(self) -> str:
         """Whether the final model explains the poses to their noise (chi-square against the
-        declared noise), in words; where it does not, where the residual sits (RMS by marker
-        and axis, the strongest trend along the rows) and the poses flagged as outliers."""
-        p = self.gof()
-        if p is None:
-            return ("noise not declared: whether the final model explains the data to noise "
-                    "cannot be said; declare [measurement] noise_std")
-        left_out = excluded_note(self.final_terms.excluded)
-        if not self.unexplained:
-            return f"explained to noise (chi-square p = {p:.3g}{left_out})"
-        s = marker_structure(self.final, self.campaign)
-        trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
-        where = ("" if trend is None else
-                 f"; strongest trend along the rows: correlation {trend['correlation']:+.2f}")
-        marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
-                        for key in ("rms_by_marker", "rms_by_axis"))
-        length = self.campaign.units.length
-        noise = self.campaign.noise_std or 0.0
+        declared noise), in words, headed ``UNEXPLAINED`` where it does not
+        (:func:`~stiffness.calibration.fit_verdict.verdict_line` of :meth:`verdict_keys`:
+        where the residual sits, the poses flagged as outliers, the best family rejected and
+        an understated noise)."""
+        return verdict_line(self.verdict_keys())
+
+    def best_rejected(self) -> dict | None:
+        """:meth:`DiagnosisResult.best_rejected`; when the last step fitted no family (none
+        past the BIC margin on its one Gauss-Newton screen), the family of :attr:`rejected`
+        with the lowest BIC change (of those with an identifiable parameter,
+        :data:`NO_PARAMETER`), its RMS and held-out RMS not known (null)."""
+        best = super().best_rejected()
+        refusal = None if self.search is None else self.search.refusal
+        tried = {f: d for f, d in self.rejected.items() if self.not_judged.get(f) != NO_PARAMETER}
+        if best is not None or refusal is None or not tried:
+            return best
+        family = min(tried, key=tried.__getitem__)
+        lu = self.campaign.units.length_to_si
+        return {"candidate": family, "delta_bic": self.rejected[family], "rms": None,
+                "rms_before": refusal.current.rms() / lu, "cv_rms": None,
+                "cv_rms_before": refusal.cv_current / lu,
+                "not_judged": self.not_judged.get(family)}
+
+    def verdict_keys(self) -> dict:
+        """The keys of :meth:`to_dict` the verdict reads
+        (:func:`~stiffness.calibration.fit_verdict.verdict_sentence`; lengths in the campaign
+        unit): ``kind``, ``unexplained``, the test (``gof_test``, ``gof_p``,
+        ``final_rows_excluded``), the noise (``noise_std``, ``noise_std_source``,
+        ``robust_noise_ratio``: the final residual's robust std, 1.4826 median |r|, over the
+        declared noise; null when none is declared), the search's end (``best_rejected``,
+        ``stop_reason``), where the residual sits (``residual_structure``), ``rows`` (poses)
+        and the outliers."""
+        c, lu = self.campaign, self.campaign.units.length_to_si
         r = self.final.residual
-        robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted) or 0.0
-        return (f"UNEXPLAINED: the residual is above the noise (chi-square p = {p:.3g}"
-                f"{left_out}); RMS "
-                f"({length}) by marker {marker}, by axis {axis}{where}"
-                + _flagged(len(self.outliers), self.campaign.n_rows, self.loss)
-                + f"; or the declared noise_std ({noise / self.campaign.units.length_to_si:.4g}"
-                f" {length}) understates the scatter: the final positions' robust std (1.4826 "
-                f"median |r|, which gross poses do not inflate) is {robust / noise:.3g} times it, "
-                "and a residual without structure (as large on every marker and axis, no trend "
-                "along the rows) points there")
+        robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted)
+        return jsonable({
+            "kind": "poses", "unexplained": self.unexplained, "gof_test": "chi-square",
+            "gof_p": self.gof(), "final_rows_excluded": self.final_terms.excluded,
+            "noise_std": None if c.noise_std is None else c.noise_std / lu,
+            "noise_std_source": None if c.noise_std is None else "declared",
+            "robust_noise_ratio": None if c.noise_std is None or robust is None
+            else robust / c.noise_std,
+            "best_rejected": self.best_rejected(), "stop_reason": self.stop_reason,
+            "residual_structure": marker_structure(self.final, c), "rows": c.n_rows,
+            "unit": c.units.length, "loss": self.loss, **self.outlier_keys()})
 
     def to_dict(self) -> dict:
         """What ``diagnose --json`` prints for a pose campaign (lengths in the campaign unit;
         an infinite number, a forced family's held-out RMS that one configuration determines,
-        as null)."""
-        lu = self.campaign.units.length_to_si
-        return jsonable({"kind": "poses", "campaign": self.campaign.name,
-                "robot_name": self.campaign.robot.title,
-                "unit": self.campaign.units.length, "masses": self.masses,
-                "loss": self.loss,
-                "noise_std": None if self.campaign.noise_std is None
-                else self.campaign.noise_std / lu,
+        as null): its steps and families, those the verdict reads (:meth:`verdict_keys`) and
+        the verdict (``unexplained_note``)."""
+        lu, verdict = self.campaign.units.length_to_si, self.verdict_keys()
+        return jsonable({"campaign": self.campaign.name, "robot_name": self.campaign.robot.title,
+                "masses": self.masses,
                 "steps": [{"family": s.effect, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
                            "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
@@ -138,16 +156,13 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                           for s in self.steps],
                 "rejected": self.rejected, "not_judged": self.not_judged,
                 "families": self.families,
-                "stop_reason": self.stop_reason,
                 "selection": self.selection(),
-                "gof_p": self.gof(), "unexplained": self.unexplained,
-                "final_rows_excluded": self.final_terms.excluded,
                 "plausible": self.plausibility.plausible,
                 "plausibility": self.plausibility.to_dict(),
-                **self.outlier_keys(), "identifiability": self.identifiability(),
+                "identifiability": self.identifiability(),
                 "parameters": parameter_table(self.final, self.judge),
                 "how_sure": [c.to_dict(lu) for c in self.how_sure],
-                "residual_structure": marker_structure(self.final, self.campaign)})
+                **verdict, "unexplained_note": verdict_sentence(verdict)})
 
     def named_parameters(self) -> dict[str, list[Parameter]]:
         """Each family's parameters in the final fit (SI), judged against their physical
@@ -180,23 +195,6 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                               written(json.dumps(record, indent=1, allow_nan=False) + "\n")),
                 "model": ("final-model.json", self.write_model),
                 "page": ("diagnosis.html", written(page))}
-
-
-def _flagged(n: int, rows: int, loss: str) -> str:
-    """The verdict's word on ``n`` poses of ``rows`` flagged as outliers: a few can fail the
-    test alone (least squares: a robust loss's test leaves them out); more than
-    :data:`~stiffness.calibration.outliers.STRAY_SHARE` of the poses are a pattern the model
-    misses (a robust loss's test keeps them), unless (least squares) a few gross poses pulled
-    the fit onto the others, which a robust loss tells."""
-    if not n:
-        return ""
-    if n > STRAY_SHARE * rows:
-        return (f"; {n} of {rows} poses are flagged as outliers (see outliers): too many for "
-                "stray measurements, the model misses something"
-                + (", unless a few gross poses pull the least-squares fit onto the others: "
-                   "--loss soft_l1 flags those alone" if loss == "linear" else ""))
-    return (f"; {n} of {rows} poses are flagged as outliers, which alone can fail the test"
-            if loss == "linear" else "")
 
 
 def marker_residual_plots(d: PoseDiagnosis) -> dict[str, bytes]:

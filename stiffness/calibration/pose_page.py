@@ -12,6 +12,7 @@ import io
 import numpy as np
 
 from stiffness.calibration.certainty import how_sure_table
+from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.steps_table import stage_section, steps_table
@@ -148,7 +149,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                  ["poses flagged as outliers", len(d.get("outliers", []))],
                  ["loss", esc(d["loss"])]],
                  "RMS over all residual components, in the campaign's length unit."),
-             contents(SECTIONS), heading("provenance", SECTIONS), provenance_block(prov),
+             f"<p>{esc(verdict_sentence(d))}.</p>", contents(SECTIONS),
+             heading("provenance", SECTIONS), provenance_block(prov),
              heading("steps", SECTIONS)]
     parts.append(steps_table(d["steps"], unit))
     if d["rejected"]:

@@ -4,7 +4,7 @@ folder is :meth:`~stiffness.calibration.result.DiagnosisResult.write`)."""
 from __future__ import annotations
 
 from stiffness.calibration.certainty import how_sure_lines
-from stiffness.calibration.fit_verdict import fit_lines
+from stiffness.calibration.fit_verdict import fit_lines, verdict_line
 from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.parameter_section import parameter_lines
@@ -36,7 +36,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     lines += fit_lines(summary)
     # the verdict on the fit's lengths (NOT A CALIBRATION) and the markers' offset notes
     lines += ["", *filter(None, [d.plausibility.verdict()]), *d.plausibility.notes(),
-              d.verdict(), *describe_outliers(d.outliers), "",
+              verdict_line(summary), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
     lines += _dropped_lines(d)
     rows = {p["parameter"]: p for p in summary["parameters"]}
