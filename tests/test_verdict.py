@@ -6,6 +6,7 @@ it reads checked against independent computations."""
 from __future__ import annotations
 
 import dataclasses
+import html
 
 import numpy as np
 import pinocchio as pin
@@ -14,14 +15,17 @@ from pose_campaigns import ur10_markers
 from scipy.stats import norm
 
 from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.diagnosis_page import render_diagnosis
 from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.outliers import STRAY_SHARE
+from stiffness.calibration.pose_page import render_pose_diagnosis
 from stiffness.calibration.pose_report import format_pose_report
 from stiffness.calibration.selection import fit_model
 from stiffness.elastic.effects import candidates
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.provenance import provenance
 from stiffness.robot.robot import load_robot
 
 NOISE = 5e-6
@@ -76,6 +80,7 @@ def test_a_library_effect_the_campaign_cannot_confirm_is_named():
     assert "more configurations or loads can confirm it" in note
     assert "--families joint_offsets forces it in" in note
     assert f"UNEXPLAINED: {note}." in format_report(d)
+    assert note in html.unescape(render_diagnosis(d.record(), None, provenance("test")))
 
 
 def test_no_rejected_effect_is_named_where_none_was_rejected():
@@ -204,3 +209,4 @@ def test_pose_verdict_a_few_gross_poses_under_least_squares(ur10):
     assert "too many for stray" not in note
     assert "the residual's structure says where to look: RMS (m) by marker tip " in note
     assert f"UNEXPLAINED: {note}" in format_pose_report(d).splitlines()
+    assert f"<p>{note}.</p>" in html.unescape(render_pose_diagnosis(s, None, provenance("test")))
