@@ -28,6 +28,7 @@ from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.calibration.selection import GOF_LEVEL
 from stiffness.calibration.validation import validate
+from stiffness.calibration.validation_page import format_validation
 from stiffness.elastic.model_contents import ModelFile
 from stiffness.elastic.parameter_covariance import ParameterCovariance
 from stiffness.mechanics.formulation import deflection, target_state
@@ -109,6 +110,9 @@ def test_rotations_are_tested_at_their_own_noise(design):
     assert undeclared["chi2"] == pytest.approx(r_t @ r_t / NOISE ** 2, rel=1e-6)
     assert undeclared["rotation_noise_std"] is None
     assert undeclared["rotation_rms"] == pytest.approx(out["rotation_rms"], rel=1e-12)
+    assert "18 of the components rotations at their noise 0.0002865 deg" in format_validation(
+        out)
+    assert "rotations measured but not tested" in format_validation(undeclared)
 
 
 def test_a_model_wrong_only_in_rotations_is_caught(design):
