@@ -190,6 +190,12 @@ def test_drift_outside_the_library_is_unexplained(ur10):
     # least squares: a few gross poses can pull the fit onto the rest, which a robust loss tells
     assert "unless a few gross poses pull the least-squares fit onto the others (flagging " \
         "clean poses too): --loss soft_l1 weighs them down and flags those alone" in verdict
+    # no family lowers BIC (the best screened, the tilt, raises it): the drift is read as
+    # outside the library only, no library effect "too small to confirm" named
+    best = d.to_dict()["best_rejected"]
+    assert best["delta_bic"] > 0
+    assert f"does not model (none lowers BIC: the best, {best['candidate']}, dBIC " in verdict
+    assert "too small to confirm" not in verdict
     # under a robust loss the same poses are said to stay in its test, with no --loss advice
     robust = verdict_sentence({**d.to_dict(), "loss": "soft_l1"})
     assert "--loss" not in robust and "the soft_l1 fit's test keeps them all" in robust

@@ -189,3 +189,5 @@ def test_too_few_configurations_for_the_cross_validation_is_said():
     assert r.cv_baseline > 5 * r.baseline.rms()
     assert "too few configurations for the cross-validation" in r.unexplained_note
     assert "on 2 configuration(s)" in r.unexplained_note
+    # the noise is the replicates', not declared: no reading of an understated declared noise
+    assert r.noise_std_source == "replicates" and "understates" not in r.unexplained_note
