@@ -752,7 +752,7 @@ def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,
                       "better than the current model (cross-validation)")
         elif d_bic < AMBIGUITY_BIC:
             reason = f"BIC within {AMBIGUITY_BIC:g}"
-        elif c.fit.penalty_params > w.fit.penalty_params:
+        elif c.params > w.params:  # the counts d_bic penalises, not a settled fit's
             reason = (f"similar signatures (cosine {similarity:.3f}); the chosen one wins by "
                       "parsimony (fewer parameters), hardly by fit")
         else:

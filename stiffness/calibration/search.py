@@ -91,9 +91,11 @@ F = TypeVar("F", bound=Fitted)
 class Candidate(Generic[E, F]):
     """One candidate of a step: what it adds (an effect; a pose family's name), its fit, its
     BIC and change from the current model's (the step's ranking: of the fit in full, even
-    when ``settled``, ``fit`` then holding undetermined parameters at nominal) and its
-    held-out RMS (m) once judged, or why the rows cannot judge it (``refused``: then never
-    added; one configuration's rows, :func:`~stiffness.calibration.selection.row_support`)."""
+    when ``settled``, ``fit`` then holding undetermined parameters at nominal), the parameter
+    count that BIC penalises (``params``, of the fit given, the ranked one: a later settled
+    ``fit`` counts fewer) and its held-out RMS (m) once judged, or why the rows cannot judge
+    it (``refused``: then never added; one configuration's rows,
+    :func:`~stiffness.calibration.selection.row_support`)."""
 
     effect: E
     fit: F
@@ -102,6 +104,10 @@ class Candidate(Generic[E, F]):
     cv_rms: float | None = None
     settled: bool = False
     refused: str | None = None
+    params: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.params = self.fit.terms()[1]
 
 
 def label(what: Effect | str) -> str:
