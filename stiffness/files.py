@@ -31,6 +31,7 @@ counting atomic writes and folder publications), so a test can stop a command at
 from __future__ import annotations
 
 import contextlib
+import csv
 import errno
 import json
 import math
@@ -86,6 +87,10 @@ def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
         raise MissingFileError(f"cannot read {what} {path}: {exc.strerror}; check its "
                                "permissions", path=path) from exc
     except UnicodeDecodeError as exc:
+        if path.read_bytes()[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            raise FileFormatError(f"UTF-16 text (a spreadsheet's 'Unicode text'); save the "
+                                  f"{what} as UTF-8 (a spreadsheet's 'CSV UTF-8')",
+                                  path=path) from exc
         raise FileFormatError(f"not UTF-8 text (byte {exc.start}); save the {what} as UTF-8",
                               path=path) from exc
 
@@ -101,6 +106,22 @@ def csv_float(cell: str) -> float:
         separators (``1_000``, which ``float`` would read as 1000), the fix.
     """
     return plain_float(cell, "a CSV number")
+
+
+def csv_cells(line: str, path: str | os.PathLike[str], number: int) -> list[str]:
+    """The cells of one line of a CSV file (``number``: its 1-based line), as the files'
+    readers take them a line at a time (a quote opened in a cell closes at the line's end).
+
+    Raises
+    ------
+    FileFormatError
+        The line is not CSV to Python's reader (a cell over its 128 KiB limit).
+    """
+    try:
+        return next(csv.reader([line]), [])
+    except csv.Error as exc:
+        raise FileFormatError(f"not CSV ({exc}); write one row per line, cells separated by "
+                              "commas", path=path, line=number) from exc
 
 
 def check_csv_header(cells: list[str], path: str | os.PathLike[str], line: int) -> None:

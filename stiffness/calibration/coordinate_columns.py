@@ -8,12 +8,20 @@ for a prismatic joint), else at the robot's reference configuration
 (:func:`stiffness.mechanics.defaults.reference_configuration`); the readers say so once
 (:class:`stiffness.errors.DataFileNote`). Columns no reader knows are ignored with one
 :class:`stiffness.errors.UnknownColumnWarning` (the command line's ``--strict`` refuses them).
+
+What spreadsheets write is read as the plain file (:func:`canonical_header`,
+:func:`is_blank_row`, :func:`trim_empty_columns`): column names in another case or with
+surrounding spaces (``Q1``, `` fx ``, ``Tip_X``), the empty last column of a comma ending every
+line, rows of empty cells. A units row under the header (:func:`is_units_row`) is the
+headers' units to the import (:func:`header_with_units`) and refused by the campaign readers,
+whose units are their ``campaign.toml``'s.
 """
 
 from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +32,18 @@ from stiffness.errors import (
     UnknownColumnWarning,
     did_you_mean,
 )
+from stiffness.files import csv_float
 from stiffness.mechanics.defaults import reference_configuration
 from stiffness.robot.robot import Robot
-from stiffness.units import MAX_CELL, Units, finite_number
+from stiffness.units import (
+    ANGLE_UNITS,
+    FORCE_UNITS,
+    LENGTH_UNITS,
+    MAX_CELL,
+    MOMENT_UNITS,
+    Units,
+    finite_number,
+)
 
 #: A positional coordinate column: ``q1``, ``q2``, ...
 Q_COLUMN = re.compile(r"q(\d+)$")
@@ -95,6 +112,117 @@ def locate_coordinates(names: list[str], robot: Robot, data: Path, line: int
             raise fail(i, f"joint {names[i]!r} has two columns; keep one")
         index[k] = i
     return index
+
+
+def canonical_header(cells: list[str], known: Iterable[str]) -> list[str]:
+    """The header's cells stripped of surrounding spaces and, where a cell names a ``known``
+    column in another case, spelt as that column (``Q1`` -> ``q1``, ``FX`` -> ``fx``,
+    ``Tip_X`` -> ``tip_x``). A ``q<digits>`` cell in any case is ``q<digits>``. A cell whose
+    lower case matches several known names (joints ``A`` and ``a``) is left as written.
+
+    Two cells of one column in two cases (``fx`` and ``FX``) become two ``fx``: the readers
+    refuse a column given twice.
+    """
+    folded: dict[str, list[str]] = {}
+    for name in dict.fromkeys(known):
+        folded.setdefault(name.casefold(), []).append(name)
+    out = []
+    for cell in cells:
+        name = cell.strip()
+        matches = folded.get(name.casefold(), [])
+        if Q_COLUMN.match(name.casefold()):
+            name = name.casefold()
+        elif name not in matches and len(matches) == 1:
+            name = matches[0]
+        out.append(name)
+    return out
+
+
+def is_blank_row(cells: list[str]) -> bool:
+    """A row of empty cells only (``,,,,``: a spreadsheet's formatted but empty row), read as a
+    blank line."""
+    return all(not c.strip() for c in cells)
+
+
+def trim_empty_columns(header: list[str], rows: list[list[str]]
+                       ) -> tuple[list[str], list[list[str]]]:
+    """The header and rows without the empty columns a spreadsheet export adds at the end
+    (a comma ending every line): trailing header cells that are empty above empty cells only,
+    and empty cells past the header's width on any row. A nameless column holding a value
+    is kept (the readers name it); the rows' other cells are unchanged."""
+    width = len(header)
+    while width > 1 and not header[width - 1] and all(
+            len(r) < width or not r[width - 1].strip() for r in rows):
+        width -= 1
+
+    def trimmed(row: list[str]) -> list[str]:
+        end = len(row)
+        while end > width and not row[end - 1].strip():
+            end -= 1
+        return row[:end]
+
+    return header[:width], [trimmed(r) for r in rows]
+
+
+#: What a units row under a header holds besides the units the toolkit reads (each in any
+#: case, brackets stripped): their spelt-out forms.
+UNIT_WORDS = frozenset(u.casefold() for u in (
+    *ANGLE_UNITS, *FORCE_UNITS, *LENGTH_UNITS, *MOMENT_UNITS, "degree", "degrees", "°",
+    "radian", "radians", "Nm", "N*m", "N·m", "kNm", "Nmm", "µm", "micron", "in", "inch", "s"))
+
+
+def unit_cell(cell: str) -> str:
+    """A units row's cell without its brackets: ``[mm]`` -> ``mm``."""
+    return cell.strip().strip("[]()").strip()
+
+
+def is_units_row(cells: list[str]) -> bool:
+    """A row that names units rather than holding numbers (``,deg,deg,N,mm``, ``unit,[deg],
+    ...``: a spreadsheet's second header line): no cell is a number and some cell is a unit."""
+    def number(cell: str) -> bool:
+        try:
+            csv_float(cell)
+        except ValueError:
+            return False
+        return True
+
+    return not any(number(c) for c in cells) and any(
+        unit_cell(c).casefold() in UNIT_WORDS for c in cells)
+
+
+#: Cells of a units row that name no unit (under a label or key column).
+_NO_UNIT = ("", "-", "unit", "units")
+
+
+def header_with_units(header: list[str], units: list[str], path: Path, line: int
+                      ) -> list[str]:
+    """The header with a units row's units in brackets (``q1`` over ``deg``: ``q1 [deg]``),
+    as a header naming its unit is read (``stiffness campaign import``).
+
+    Raises
+    ------
+    FileFormatError
+        A units row of another width than the header, or a unit beside a header that names
+        one, or one with spaces or brackets (line and column named).
+    """
+    if len(units) != len(header):
+        raise FileFormatError(f"the units row has {len(units)} cells but the header has "
+                              f"{len(header)} columns; give one unit (or an empty cell) per "
+                              "column", path=path, line=line)
+    out = []
+    for i, (name, cell) in enumerate(zip(header, units, strict=True)):
+        unit = unit_cell(cell)
+        if unit.casefold() in _NO_UNIT:
+            out.append(name)
+        elif re.search(r"[\[(][^\[\]()]*[\])]$", name) or not re.fullmatch(r"[^\[\]()\s]+",
+                                                                            unit):
+            raise FileFormatError(f"the units row gives {cell.strip()!r} for column {name!r}, "
+                                  "which cannot be read as its unit; give a unit such as deg, "
+                                  "N or mm (and none in the header too)", path=path, line=line,
+                                  column=i + 1, field=name)
+        else:
+            out.append(f"{name} [{unit}]")
+    return out
 
 
 def fixed_values(fixed: dict[str, float], robot: Robot, units: Units,

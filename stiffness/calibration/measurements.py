@@ -6,7 +6,6 @@ read into SI (coordinates, forces, moments, deflections, rotations) with their w
 
 from __future__ import annotations
 
-import csv
 import math
 import re
 import warnings
@@ -18,10 +17,14 @@ import numpy as np
 
 from stiffness.calibration.coordinate_columns import (
     Q_COLUMN,
+    canonical_header,
     fill_held,
     held_coordinates,
+    is_blank_row,
+    is_units_row,
     locate_coordinates,
     near_miss,
+    trim_empty_columns,
     warn_unknown,
 )
 from stiffness.errors import (
@@ -29,7 +32,7 @@ from stiffness.errors import (
     FileFormatError,
     StiffnessError,
 )
-from stiffness.files import check_csv_header, csv_float, read_text
+from stiffness.files import check_csv_header, csv_cells, csv_float, read_text
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.units import MAX_CELL, Units
@@ -73,6 +76,13 @@ _WITH_UNIT = re.compile(r"^(.*?)\s*[\[(]\s*[^\[\]()\s]+\s*[\])]$")
 
 _HEADER_HELP = ("the header is config, the coordinates (q1..qn, or columns named after the "
                 "joints), fx,fy,fz,dx,dy,dz, optionally mx,my,mz and rx,ry,rz")
+
+
+def known_columns(robot: Robot) -> list[str]:
+    """Every column a deflection campaign of ``robot`` may have (the q columns aside), as
+    :func:`coordinate_columns.canonical_header` spells them."""
+    return ["config", *robot.coordinate_joints, *FORCE_COLUMNS, *DEFLECTION_COLUMNS,
+            *MOMENT_COLUMNS, *ROTATION_COLUMNS]
 
 
 def _parse_header(cells: list[str], data: Path, line: int, robot: Robot) -> Header:
@@ -264,9 +274,11 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
             if declared is not None:
                 check_units_comment(declared, units, toml_path, data, number)
             continue
-        cells = next(csv.reader([raw]))
+        cells = csv_cells(raw, data, number)
+        if is_blank_row(cells):  # ',,,,': a spreadsheet's empty row
+            continue
         if header is None:
-            header = [c.strip() for c in cells]
+            header = canonical_header(cells, known_columns(robot))
             header_line = number
             check_csv_header(header, data, number)
             if text.startswith(PLAN_COMMENT) and not set(DEFLECTION_COLUMNS) & set(header):
@@ -280,10 +292,19 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
         raise FileFormatError("the file is empty; it needs a header "
                               "config,q1,...,qn,fx,fy,fz,dx,dy,dz and measurement rows",
                               path=data, line=1)
+    header, cells_of = trim_empty_columns(header, [cells for _, cells in rows])
+    rows = [(number, cells) for (number, _), cells in zip(rows, cells_of, strict=True)]
     where = _parse_header(header, data, header_line, robot)
     if not rows:
         raise FileFormatError("no measurement rows after the header; add one row per loaded "
                               "measurement", path=data, line=header_line + 1)
+    if is_units_row(rows[0][1]):
+        raise FileFormatError(
+            f"a units row ({', '.join(c.strip() for c in rows[0][1] if c.strip())}), not "
+            "measurements: a campaign's CSV holds numbers, its units are campaign.toml's "
+            "[units]; delete the row (or make it a comment such as "
+            f"'{UNITS_COMMENT_EXAMPLE}'), or read the rig's file with `stiffness campaign "
+            "import`, which reads a units row", path=data, line=rows[0][0])
     width = len(header)
     read = [i for i in where.coordinates if i is not None]
     columns = [*read, *where.force, *where.deflection, *(where.moment or []),

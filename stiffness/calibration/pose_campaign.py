@@ -13,8 +13,6 @@ Units as in deflection campaigns; in memory SI.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import os
 from dataclasses import dataclass, replace
@@ -36,10 +34,14 @@ from stiffness.calibration.campaign_toml import (
 )
 from stiffness.calibration.campaign_writer import robot_toml
 from stiffness.calibration.coordinate_columns import (
+    canonical_header,
     fill_held,
     fixed_values,
     held_coordinates,
+    is_blank_row,
+    is_units_row,
     locate_coordinates,
+    trim_empty_columns,
     warn_unknown,
 )
 from stiffness.calibration.measurements import (
@@ -54,6 +56,7 @@ from stiffness.errors import FileFormatError, did_you_mean
 from stiffness.files import (
     atomic_write,
     check_csv_header,
+    csv_cells,
     number_text,
     read_text,
     staged_folder,
@@ -265,19 +268,35 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
     NaN where held), positions (file units, NaN unseen), wrench (file units), line numbers,
     rotations (file units, NaN unseen; ``None`` without rotation columns)."""
     text = read_text(data, "measurement file ([measurement] data)")
-    lines = [(i + 1, r) for i, r in enumerate(csv.reader(io.StringIO(text)))
-             if r and not r[0].lstrip().startswith("#")]
+    lines: list[tuple[int, list[str]]] = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        if raw.lstrip().startswith("#"):  # a line at a time: a quote in a comment is text
+            continue
+        cells = csv_cells(raw, data, number)
+        if not is_blank_row(cells):
+            lines.append((number, cells))
     if lines:
         check_csv_header(lines[0][1], data, lines[0][0])
     if len(lines) < 2:
         raise FileFormatError("no data rows after the header", path=data)
-    coordinates, columns, wrench_cols, rot_columns = _header(lines[0][1], data, robot, markers)
-    header = [c.strip() for c in lines[0][1]]
+    known = ["config", *robot.coordinate_joints, *_WRENCH, *(
+        f"{m.name}_{a}" for m in markers for a in ("x", "y", "z", *ROTATION_AXES))]
+    header, cells_of = trim_empty_columns(canonical_header(lines[0][1], known),
+                                          [cells for _, cells in lines[1:]])
+    lines = [lines[0], *((number, cells) for (number, _), cells in zip(lines[1:], cells_of,
+                                                                       strict=True))]
+    if is_units_row(lines[1][1]):
+        raise FileFormatError(
+            f"a units row ({', '.join(c.strip() for c in lines[1][1] if c.strip())}), not "
+            "measurements: a campaign's CSV holds numbers, its units are campaign.toml's "
+            "[units]; delete the row, or read the rig's file with `stiffness campaign import "
+            "--kind poses`, which reads a units row", path=data, line=lines[1][0])
+    coordinates, columns, wrench_cols, rot_columns = _header(header, data, robot, markers)
     labels, q, pos, wrench, numbers, rot = [], [], [], [], [], []
     for number, cells in lines[1:]:
-        if len(cells) != len(lines[0][1]):
-            raise FileFormatError(f"{len(cells)} cells, the header has {len(lines[0][1])}",
-                                  path=data, line=number)
+        if len(cells) != len(header):
+            raise FileFormatError(f"{len(cells)} cells, the header has {len(header)}; give one "
+                                  "cell per column", path=data, line=number)
         labels.append(cells[0].strip())
         q.append([math.nan if j is None else parse_number(cells[j], data, number, j + 1,
                                                           header[j])

@@ -35,7 +35,6 @@ Every refusal is a one-line :class:`stiffness.errors.FileFormatError` or
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import re
@@ -50,8 +49,12 @@ from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import (
     fill_held,
     fixed_values,
+    header_with_units,
     held_coordinates,
+    is_blank_row,
+    is_units_row,
     listed,
+    trim_empty_columns,
 )
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
@@ -67,7 +70,7 @@ from stiffness.errors import (
     StiffnessError,
     did_you_mean,
 )
-from stiffness.files import check_csv_header, csv_float, read_text, read_toml
+from stiffness.files import check_csv_header, csv_cells, csv_float, read_text, read_toml
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot
 from stiffness.units import (
@@ -221,7 +224,9 @@ class ImportSettings:
 
 
 def read_table(path: str | os.PathLike) -> Table:
-    """Read one CSV file (header first; blank and ``#`` lines skipped).
+    """Read one CSV file (header first; blank, empty (``,,,``) and ``#`` lines skipped; the
+    empty last column of a comma ending every line dropped; a units row under the header
+    (``,deg,N,mm``) read as the headers' units, ``q1 [deg]``).
 
     Raises
     ------
@@ -230,29 +235,31 @@ def read_table(path: str | os.PathLike) -> Table:
         number of cells than the header (file and line named).
     """
     path = Path(path)
-    text = read_text(path, "rig file").lstrip("\ufeff")
-    header: list[str] | None = None
-    rows, lines = [], []
+    text = read_text(path, "rig file")
+    found: list[tuple[int, list[str]]] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        try:
-            cells = [c.strip() for c in next(csv.reader([line]))]
-        except csv.Error as exc:
-            raise FileFormatError(f"not CSV ({exc})", path=path, line=number) from exc
-        if header is None:
-            _check_header(cells, path, number)
-            header = cells
-            continue
+        cells = [c.strip() for c in csv_cells(line, path, number)]
+        if not is_blank_row(cells):
+            found.append((number, cells))
+    if not found:
+        raise FileFormatError("no header; a rig file is a CSV with a header line and data rows",
+                              path=path)
+    check_csv_header(found[0][1], path, found[0][0])
+    header, rows = trim_empty_columns(found[0][1], [cells for _, cells in found[1:]])
+    lines = [number for number, _ in found[1:]]
+    if rows and is_units_row(rows[0]):
+        header = header_with_units(header, rows[0], path, lines[0])
+        rows, lines = rows[1:], lines[1:]
+    _check_header(header, path, found[0][0])
+    for cells, number in zip(rows, lines, strict=True):
         if len(cells) != len(header):
             raise FileFormatError(f"{len(cells)} cells but the header has {len(header)} "
                                   "columns; give one cell per column", path=path, line=number)
-        rows.append(cells)
-        lines.append(number)
-    if header is None or not rows:
-        raise FileFormatError("no " + ("header" if header is None else "data row") +
-                              "; a rig file is a CSV with a header line and data rows",
-                              path=path)
+    if not rows:
+        raise FileFormatError("no data row; a rig file is a CSV with a header line and data "
+                              "rows", path=path)
     return Table(path, header, rows, lines)
 
 

@@ -19,8 +19,6 @@ cell is (:func:`~stiffness.files.csv_float`). Units: rad and m (degrees with ``d
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import re
 import warnings
@@ -30,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.coordinate_columns import listed
+from stiffness.calibration.coordinate_columns import canonical_header, is_blank_row, listed
 from stiffness.errors import DataFileNote, FileFormatError
-from stiffness.files import check_csv_header, csv_float, read_text
+from stiffness.files import check_csv_header, csv_cells, csv_float, read_text
 from stiffness.mechanics.defaults import default_coordinates
 from stiffness.robot.robot import Robot
 
@@ -151,12 +149,13 @@ def read_table(path: str | Path, what: str) -> Table:
 def _table(text: str, path: Path, what: str) -> Table:
     """:func:`read_table` of the file's ``text``."""
     rows, lines = [], []
-    for row in csv.reader(io.StringIO(text)):
-        if row and any(c.strip() for c in row):
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.lstrip().startswith("#"):  # a comment, as in a file without a header
+            continue
+        row = csv_cells(line, path, number)
+        if not is_blank_row(row):
             rows.append(row)
-    # csv.reader does not give line numbers: count them on the text (no quoted newlines)
-    numbered = [k + 1 for k, line in enumerate(text.splitlines()) if line.strip(" ,\t")]
-    lines = numbered[: len(rows)]
+            lines.append(number)
     if len(rows) < 2:
         raise FileFormatError(f"no {what} rows: give a header line and one row per point",
                               path=path)
@@ -194,9 +193,10 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False,
         return _numbered_rows(text, path, robot, deg)
     table = _table(text, path, "path file")
     written = table.header  # the input's own column names, carried to the output
-    table.header = _without_units(table, robot, deg)
-    header = table.header
     joints = list(robot.coordinate_joints)
+    table.header = canonical_header(_without_units(table, robot, deg),
+                                    [*joints, *WRENCH_COLUMNS])  # ELBOW_JOINT, Q1, FX
+    header = table.header
     chain = list(robot.chain_joints)
     by_index = [f"q{i + 1}" for i in range(len(joints))]
     if all(j in header for j in joints):

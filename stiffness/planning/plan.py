@@ -39,7 +39,14 @@ from stiffness.calibration.campaign_toml import (
     units_section,
 )
 from stiffness.calibration.campaign_writer import campaign_toml
+from stiffness.calibration.coordinate_columns import (
+    canonical_header,
+    is_blank_row,
+    trim_empty_columns,
+)
 from stiffness.calibration.measurements import (
+    DEFLECTION_COLUMNS,
+    FORCE_COLUMNS,
     PLAN_COMMENT,
     UNITS_COMMENT_EXAMPLE,
     check_units_comment,
@@ -60,6 +67,7 @@ from stiffness.files import (
     FILE_SUFFIXES,
     atomic_write,
     check_csv_header,
+    csv_cells,
     number_text,
     read_text,
     refuse_foreign_folder,
@@ -224,13 +232,18 @@ def _plan_lines(text: str, data: Path, toml_path: Path | None, units: Units
                                     data, number)
             units, declared_line = declared, number
             continue
-        cells = next(csv.reader([raw]))
+        cells = csv_cells(raw, data, number)
+        if is_blank_row(cells):  # ',,,,': a spreadsheet's empty row
+            continue
         if header is None:
-            header = [c.strip() for c in cells]
+            header = canonical_header(cells, ["config", *FORCE_COLUMNS, *DEFLECTION_COLUMNS])
             header_line = number
             check_csv_header(header, data, number)
         else:
             rows.append((number, cells))
+    if header is not None:  # a comma ending every line: no column
+        header, trimmed = trim_empty_columns(header, [cells for _, cells in rows])
+        rows = [(number, cells) for (number, _), cells in zip(rows, trimmed, strict=True)]
     return header, header_line, rows, units, declared_line
 
 
