@@ -164,3 +164,50 @@ def replaced(doc, path, value):
         node = node[key]
     node[path[-1]] = value
     return copy
+
+
+#: Comment lines a rig's export may carry: an unbalanced quote, commas, an indented one.
+COMMENTS = ["# exported 2026-12-05 14:03", '# operator "R. Smith', '# pose 1,"tip seen', "#",
+            "  # indented"]
+#: Bytes that break naive readers: separators, quotes, line ends, NUL, a byte-order mark's
+#: and invalid UTF-8's.
+NASTY_BYTES = b',;"\r\n\t #.-+eE0\x00\xff\xfe\xef\xbb\xbf\xc3'
+
+
+@st.composite
+def spreadsheet_mutation(draw, text: str, case: bool = True) -> bytes:
+    """What a spreadsheet or a rig's logger makes of a valid CSV ``text`` that a person still
+    reads as the same table: header names in another case (with ``case``) or with spaces
+    around them, a comma ending every line, comment lines anywhere, blank or empty (``,,,``)
+    rows at the end, Windows line ends, a byte-order mark; as the bytes of the file."""
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    if case:
+        header = [draw(st.sampled_from([h, h.upper(), h.title()])) for h in header]
+    header = [draw(st.sampled_from([h, f" {h}", f"{h} ", f"  {h}  "])) for h in header]
+    lines[0] = ",".join(header)
+    if draw(st.booleans()):
+        lines = [line + "," for line in lines]
+    for _ in range(draw(st.integers(0, 3))):
+        lines.insert(draw(st.integers(0, len(lines))), draw(st.sampled_from(COMMENTS)))
+    lines += draw(st.lists(st.sampled_from(["", "  ", ",,,", "," * len(header)]), max_size=3))
+    end = draw(st.sampled_from(["\n", "\r\n"]))
+    out = end.join(lines) + end
+    return (("\ufeff" if draw(st.booleans()) else "") + out).encode()
+
+
+@st.composite
+def byte_mutation(draw, text: str) -> bytes:
+    """A valid CSV ``text``'s bytes with one to four bytes replaced, inserted or deleted (a
+    separator, a quote, a line end, NUL, invalid UTF-8, or any byte)."""
+    raw = bytearray(text.encode())
+    for _ in range(draw(st.integers(1, 4))):
+        kind = draw(st.sampled_from(["replace", "insert", "delete"]))
+        byte = draw(st.sampled_from(list(NASTY_BYTES)) | st.integers(0, 255))
+        if kind == "insert" or not raw:
+            raw.insert(draw(st.integers(0, len(raw))), byte)
+        elif kind == "replace":
+            raw[draw(st.integers(0, len(raw) - 1))] = byte
+        else:
+            del raw[draw(st.integers(0, len(raw) - 1))]
+    return bytes(raw)

@@ -1,0 +1,252 @@
+"""CSV files as spreadsheets and rigs write them, through every reader of a user's CSV.
+
+What a person reads as the same table is read as the same numbers (hypothesis,
+:func:`fuzzing.spreadsheet_mutation`): column names in another case or with spaces around
+them (``Q1``, `` fx ``, ``Tip_X``; the rig import's names stay exact, it refuses with the map
+that reads them), a comma ending every line, comment lines, blank or empty rows at the end,
+Windows line ends, a byte-order mark. Any byte changed, inserted or deleted
+(:func:`fuzzing.byte_mutation`) reads or raises a one-line
+:class:`~stiffness.errors.StiffnessError`, never another exception.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fuzzing import (
+    LONG,
+    assert_reader_contract,
+    byte_mutation,
+    spreadsheet_mutation,
+)
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pose_campaigns import write_ur5_tip_campaign
+from test_rig_import import BASE_ROWS
+
+from stiffness.calibration.campaign import load_campaign
+from stiffness.calibration.campaign_toml import RobotSettings
+from stiffness.calibration.pose_campaign import load_pose_campaign
+from stiffness.calibration.rig_import import ImportSettings, import_campaign
+from stiffness.errors import UnknownColumnWarning
+
+#: Few examples each (the suite stays fast); ``HYPOTHESIS_PROFILE=long`` runs more.
+EDGES = settings(max_examples=1000 if LONG else 25, deadline=None)
+TABLE2 = Path(__file__).resolve().parents[1] / "robots" / "sk120" / "campaigns" / "table2"
+TABLE_TEXT = (TABLE2 / "measurements.csv").read_text()
+RIG = "\n".join(BASE_ROWS) + "\n"
+UNITS = {"angle": "deg", "force": "N", "length": "mm"}
+
+
+def _same(a, b, names: tuple[str, ...]) -> None:
+    for name in names:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+@pytest.fixture(scope="module")
+def deflections(tmp_path_factory) -> tuple[Path, object]:
+    """A copy of the Table II campaign (the working folder) and the campaign it reads as."""
+    folder = tmp_path_factory.mktemp("edges-deflections")
+    for name in ("campaign.toml", "measurements.csv"):
+        shutil.copy(TABLE2 / name, folder / name)
+    return folder, load_campaign(folder)
+
+
+@pytest.fixture(scope="module")
+def poses(tmp_path_factory) -> tuple[Path, str, object]:
+    """A UR5 pose campaign (three poses of the marker 'tip'), its CSV text and its reading."""
+    folder = tmp_path_factory.mktemp("edges-poses")
+    write_ur5_tip_campaign(folder)
+    return folder, (folder / "measurements.csv").read_text(), load_pose_campaign(folder)
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory) -> tuple[Path, object]:
+    folder = tmp_path_factory.mktemp("edges-rig")
+    (folder / "rig.csv").write_text(RIG)
+    campaign, _ = import_campaign([folder / "rig.csv"], RobotSettings("ur5"),
+                                  ImportSettings(units=UNITS))
+    return folder, campaign
+
+
+@contextlib.contextmanager
+def _written(path: Path, raw: bytes, text: str) -> Iterator[Path]:
+    """``path`` holding ``raw`` for the block, ``text`` again after it."""
+    path.write_bytes(raw)
+    try:
+        yield path
+    finally:
+        path.write_text(text)
+
+
+def _read_deflections(folder: Path, raw: bytes):
+    with _written(folder / "measurements.csv", raw, TABLE_TEXT):
+        return load_campaign(folder)
+
+
+@EDGES
+@given(data=st.data())
+def test_a_spreadsheets_campaign_reads_the_same_numbers(deflections, data):
+    folder, plain = deflections
+    raw = data.draw(spreadsheet_mutation(TABLE_TEXT))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnknownColumnWarning)
+        campaign = _read_deflections(folder, raw)
+    _same(campaign, plain, ("q", "force", "deflection"))
+    assert list(campaign.config) == list(plain.config)
+
+
+@EDGES
+@given(data=st.data())
+def test_any_byte_of_a_campaign_reads_or_is_one_line(deflections, data):
+    folder, _ = deflections
+    raw = data.draw(byte_mutation(TABLE_TEXT))
+    with warnings.catch_warnings(), _written(folder / "measurements.csv", raw, TABLE_TEXT):
+        warnings.simplefilter("ignore")
+        result = assert_reader_contract(lambda: load_campaign(folder), folder)
+    if result is not None:
+        assert all(np.all(np.isfinite(getattr(result, n))) for n in ("q", "force",
+                                                                     "deflection"))
+
+
+def _read_poses(folder: Path, text: str, raw: bytes):
+    with _written(folder / "measurements.csv", raw, text):
+        return load_pose_campaign(folder)
+
+
+@EDGES
+@given(data=st.data())
+def test_a_trackers_pose_campaign_reads_the_same_numbers(poses, data):
+    folder, text, plain = poses
+    raw = data.draw(spreadsheet_mutation(text))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnknownColumnWarning)
+        campaign = _read_poses(folder, text, raw)
+    _same(campaign, plain, ("q", "positions"))
+    assert list(campaign.labels) == list(plain.labels)
+
+
+@EDGES
+@given(data=st.data())
+def test_any_byte_of_a_pose_campaign_reads_or_is_one_line(poses, data):
+    folder, text, _ = poses
+    raw = data.draw(byte_mutation(text))
+    with warnings.catch_warnings(), _written(folder / "measurements.csv", raw, text):
+        warnings.simplefilter("ignore")
+        result = assert_reader_contract(lambda: load_pose_campaign(folder), folder)
+    if result is not None:
+        assert np.all(np.isfinite(result.q))
+
+
+def _import(folder: Path, raw: bytes | None = None):
+    if raw is None:
+        return import_campaign([folder / "rig.csv"], RobotSettings("ur5"),
+                               ImportSettings(units=UNITS))[0]
+    with _written(folder / "rig.csv", raw, RIG):
+        return _import(folder)
+
+
+@EDGES
+@given(data=st.data())
+def test_a_rigs_export_imports_the_same_numbers(rig, data):
+    """The rig import reads names exactly (``Fx [N]`` is no ``fx``: it refuses, naming the
+    map): spaces around the names, not their case."""
+    folder, plain = rig
+    raw = data.draw(spreadsheet_mutation(RIG, case=False))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        campaign = _import(folder, raw)
+    _same(campaign, plain, ("q", "force", "deflection"))
+
+
+@EDGES
+@given(data=st.data())
+def test_any_byte_of_a_rigs_export_imports_or_is_one_line(rig, data):
+    folder, _ = rig
+    raw = data.draw(byte_mutation(RIG))
+    with warnings.catch_warnings(), _written(folder / "rig.csv", raw, RIG):
+        warnings.simplefilter("ignore")
+        result = assert_reader_contract(lambda: _import(folder), folder)
+    if result is not None:
+        assert np.all(np.isfinite(result.q)) and np.all(np.isfinite(result.deflection))
+
+
+def test_a_units_row_is_the_headers_units_to_the_import(rig, tmp_path):
+    """A rig's units row under the header (``deg, ..., N, ..., mm``) reads as units in the
+    headers: the same campaign as --units, without --units; a unit that is not the column's
+    kind is refused naming the column."""
+    _, plain = rig
+    header, *rows = BASE_ROWS
+    units = ",".join(["deg"] * 6 + ["[N]"] * 3 + ["mm"] * 3)
+    path = tmp_path / "rig.csv"
+    path.write_text("\n".join([header, units, *rows]) + "\n")
+    campaign, _ = import_campaign([path], RobotSettings("ur5"), ImportSettings())
+    _same(campaign, plain, ("q", "force", "deflection"))
+    path.write_text("\n".join([header, units.replace("deg", "mm", 1), *rows]) + "\n")
+    with pytest.raises(Exception, match=r"rig.csv, column 1 \(q1 \[mm\]\): the header says "
+                                        r"'mm', not a angle unit"):
+        import_campaign([path], RobotSettings("ur5"), ImportSettings())
+
+
+def test_a_cell_beyond_pythons_csv_limit_is_one_line(deflections, poses, rig):
+    """A 200 KB cell (a logger's runaway line) raised _csv.Error, which is no ValueError: a
+    traceback; now one line naming the file and the line."""
+    from stiffness.errors import FileFormatError
+
+    huge = "1" * 200_000
+    for read, folder, text in (
+            (lambda raw: _read_deflections(deflections[0], raw), deflections[0], TABLE_TEXT),
+            (lambda raw: _read_poses(poses[0], poses[1], raw), poses[0], poses[1]),
+            (lambda raw: _import(rig[0], raw), rig[0], RIG)):
+        lines = text.splitlines()
+        lines[1] = f'"{huge}",' + lines[1]
+        with pytest.raises(FileFormatError, match=r", line 2: not CSV \(field larger than "
+                                                  r"field limit"):
+            read("\n".join(lines).encode())
+        assert folder.is_dir()
+
+
+def _spreadsheet_variants(text: str) -> dict[str, bytes]:
+    """Fixed spreadsheet edges of a CSV ``text`` (header first)."""
+    header, *rows = text.splitlines()
+    return {
+        "names in upper case with spaces": "\n".join([",".join(
+            f" {c.upper()} " for c in header.split(",")), *rows, ""]).encode(),
+        "a comma ending every line": "".join(f"{line},\n" for line in [header, *rows]).encode(),
+        "BOM, CRLF, empty rows": ("\ufeff" + "\r\n".join([header, *rows, ",,,,", ""])).encode(),
+        "comments": "\n".join(["# logged", header, '# pose 1,"tip seen', *rows, "#", ""]
+                              ).encode(),
+    }
+
+
+def test_a_spreadsheets_path_and_plan_read_the_same_numbers(ur5, tmp_path):
+    """The joint path (compensate --path) and the plan (simulate --plan) readers too: the
+    path's header of joint names in upper case was refused, a comment line read as its
+    header; the plan refused 'CONFIG', a comma ending every line ('got ''') and ',,,,' rows."""
+    from test_fuzz_readers import DOCS, PLAN, PLAN_UNITS
+
+    from stiffness.machining.joint_path import read_joint_path
+    from stiffness.planning.plan import read_plan
+
+    path_text = (DOCS / "ur5-path.csv").read_text()
+    plain_path = read_joint_path(DOCS / "ur5-path.csv", ur5, deg=True)
+    (tmp_path / "plan.csv").write_text(PLAN_UNITS + PLAN)
+    plain_plan, _ = read_plan(tmp_path / "plan.csv", ur5)
+    for name, raw in _spreadsheet_variants(path_text).items():
+        (tmp_path / "path.csv").write_bytes(raw)
+        np.testing.assert_array_equal(read_joint_path(tmp_path / "path.csv", ur5,
+                                                      deg=True).coords, plain_path.coords,
+                                      err_msg=name)
+    for name, raw in _spreadsheet_variants(PLAN).items():
+        (tmp_path / "plan.csv").write_bytes(PLAN_UNITS.encode() + raw.removeprefix(
+            "\ufeff".encode()))
+        plan, _ = read_plan(tmp_path / "plan.csv", ur5)
+        _same(plan, plain_plan, tuple(k for k, v in vars(plain_plan).items()
+                                      if isinstance(v, np.ndarray)))
+        assert plan.config == plain_plan.config, name
