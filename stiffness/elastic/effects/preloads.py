@@ -15,7 +15,6 @@ Units: SI (kg, m, N, N/m, N.m, rad).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -35,6 +34,7 @@ from stiffness.elastic.effects.pose_face import (
     PoseLayout,
     SagState,
     compensator_label,
+    layout_cached,
 )
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.gravity import (
@@ -585,14 +585,14 @@ class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
                          q: np.ndarray) -> np.ndarray:
         """d(Delta q)/d theta (nv, n_theta): ``-S_j (S_j^T Y_k)`` of each pair (minus the
         regressor entry at a spring on a joint); (n, nv, n_theta) at a batch (n, nq) of
-        configurations."""
+        configurations. ``S^T Y`` is one product of the spring map with the regressor, read
+        at each pair's (spring, body, parameter) (:func:`_lumped_layout`): exactly the
+        regressor's entry for a spring on a joint (one unit entry in ``S_j``)."""
         regressor, _ = gravity_regressors(model, data, q.reshape(-1, model.nq))
-        regressor = regressor.reshape(q.shape[:-1] + regressor.shape[1:])
-        pairs = _lumped_pairs(tuple(tuple(pm.spring_downstream(c))
-                                    for c in range(len(pm.springs))))
-        regressor = regressor[..., pairs[:, 1], pairs[:, 2]]  # (..., nv, n_theta)
-        springs = pm.spring_map[:, pairs[:, 0]]  # each pair's spring column S_j (nv, n_theta)
-        return -springs * np.sum(springs * regressor, axis=-2)[..., None, :]
+        springs, pick = layout_cached(pm, "gravity_lumped pairs", lambda: _lumped_layout(pm))
+        carried = pm.spring_map.T @ regressor.reshape(regressor.shape[:2] + (-1,))
+        carried = carried.reshape(regressor.shape[0], -1)[:, pick]  # (n, n_theta)
+        return (-springs * carried[:, None, :]).reshape(q.shape[:-1] + springs.shape)
 
     def joint_deflection(self, pm: PoseLayout, x_f: np.ndarray, state: SagState) -> np.ndarray:
         return state.extras[self.name] @ x_f
@@ -602,13 +602,19 @@ class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
         return state.extras[self.name]
 
 
-@functools.lru_cache(maxsize=64)
-def _lumped_pairs(links: tuple[tuple[int, ...], ...]) -> np.ndarray:
-    """(spring, body, gravity parameter) of each lumped gravity parameter, in the family's
-    parameter order (the regressor's axes, :func:`~stiffness.batch.poses.gravity_regressors`),
-    for springs moving the joints ``links[spring]``: built once per layout, not at each of a
-    fit's sag iterations (read-only)."""
-    pairs = np.array([(c, k - 1, p) for c, moved in enumerate(links) for k in moved
-                      for p in range(len(GRAVITY_PARAMETERS))], dtype=int).reshape(-1, 3)
-    pairs.setflags(write=False)
-    return pairs
+def _lumped_layout(pm: PoseLayout) -> tuple[np.ndarray, np.ndarray]:
+    """Each lumped gravity parameter's spring column ``S_j`` (nv, n_theta) and the position
+    of its (spring, body, gravity parameter) in ``S^T Y`` flattened per row (spring-major;
+    ``Y`` the regressor of :func:`~stiffness.batch.poses.gravity_regressors`: bodies of joints
+    1 .. njoints - 1, then :data:`GRAVITY_PARAMETERS`), in the family's parameter order: of
+    the layout alone, built once per model (:func:`layout_cached`), not at each of a fit's sag
+    iterations (read-only)."""
+    n_p, bodies = len(GRAVITY_PARAMETERS), pm.robot.model.njoints - 1
+    pairs = np.array([(c, k - 1, p) for c in range(len(pm.springs))
+                      for k in pm.spring_downstream(c) for p in range(n_p)],
+                     dtype=int).reshape(-1, 3)
+    springs = pm.spring_map[:, pairs[:, 0]]
+    pick = (pairs[:, 0] * bodies + pairs[:, 1]) * n_p + pairs[:, 2]
+    springs.setflags(write=False)
+    pick.setflags(write=False)
+    return springs, pick
