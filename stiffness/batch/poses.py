@@ -207,10 +207,10 @@ def integrate(model: pin.Model, q: np.ndarray, v: np.ndarray, kinds: JointKinds 
               ) -> np.ndarray:
     """(m, nq) ``pin.integrate`` of each (m, nq) configuration by its (m, nv) or (nv,)
     displacement; ``kinds`` as for :func:`joint_placements`."""
-    v = np.broadcast_to(v, (q.shape[0], model.nv))
     axes = _axis_joints(model) if kinds is None else kinds.axes
     if axes is not None:  # q and v are the same coordinates
         return q + v
+    v = np.broadcast_to(v, (q.shape[0], model.nv))
     out = np.empty_like(q)
     step = pin.integrate
     for i in range(q.shape[0]):

@@ -461,7 +461,8 @@ class PoseModel:
                     break
                 q = integrate(model, commanded[pending], offsets + sag[pending], self._kinds)
                 g, w = self._row_torques(model, data, q,
-                                         None if wrench is None else wrench[pending])
+                                         None if wrench is None else wrench[pending],
+                                         not self._lumped)
                 extras = self._extras(model, data, q)
                 new = self.deflection(x, self._state(x, q, g, w, extras))
                 done = np.max(np.abs(new - sag[pending]), axis=1) <= SAG_TOLERANCE
@@ -476,6 +477,8 @@ class PoseModel:
             sag[pending] = 0.0
         if pending.size:
             raise ConvergenceError(SAG_DIVERGES)
+        if self._lumped:  # gravity's torque, outside the sag, only where it converged
+            gravity = -generalized_gravity(model, data, at)
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
         extras = {f: e[:, None] for f, e in kept.items()}
@@ -489,9 +492,13 @@ class PoseModel:
                 for fam in self._hooked["at_configuration"]}
 
     def _row_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
-                     wrench: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_load_torques` of (n, nq) configurations: (n, nv) each."""
-        gravity = -generalized_gravity(model, data, q)
+                     wrench: np.ndarray | None, gravity_too: bool
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_load_torques` of (n, nq) configurations: (n, nv) each (gravity's zero
+        unless ``gravity_too``: a lumped weight's sag does not read it, 10 % of its
+        iterations' time)."""
+        gravity = (-generalized_gravity(model, data, q) if gravity_too
+                   else np.zeros((q.shape[0], model.nv)))
         if wrench is None or self.loads is None:
             return gravity, np.zeros(gravity.shape)
         jac = frame_jacobians(model, data, q, self._frame_id(self.loads.frame))
