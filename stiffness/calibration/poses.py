@@ -313,10 +313,9 @@ def sample_coordinates(robot: Robot, n: int, rng: np.random.Generator, max_tries
         if np.any(values < set_lo - 1e-12) or np.any(values > set_hi + 1e-12):
             continue
         try:
-            assembly = robot.assemble(coords)
-            if not assembly.mode_checked:  # past a fold, perhaps in another assembly mode
-                continue
-            q = assembly.q
+            # a pose the continuation from the reference does not reach is refused (the
+            # assembly search would close it past a fold, perhaps in another assembly mode)
+            q = robot.assemble(coords, search=False).q
             state = target_state(robot, q)
             if np.abs(state.jacobian[:3]).max() > MAX_JACOBIAN:
                 continue

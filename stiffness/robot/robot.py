@@ -429,14 +429,18 @@ class Robot:
         """
         return self.assemble(coords, seed).q
 
-    def assemble(self, coords: np.ndarray | None, seed: np.ndarray | None = None) -> Assembly:
+    def assemble(self, coords: np.ndarray | None, seed: np.ndarray | None = None,
+                 search: bool = True) -> Assembly:
         """:meth:`configuration` with how the loops were closed (residual, idle passive
         motions, whether the assembly search was needed); also kept as ``last_assembly``.
 
         ``coords=None`` asks for the robot's reference pose: zero coordinates (or the shipped
         ``q_SI``) and, when that pose does not close, the assembly found near it by moving
         every joint (its coordinates then differ from zero: read them with
-        :meth:`coordinates_of`).
+        :meth:`coordinates_of`). ``search=False`` raises the continuation's
+        :class:`LoopClosureError` instead of searching (for a caller that refuses a searched
+        assembly, whose mode is not checked: the search is most of the cost of a pose out of
+        reach).
         """
         if coords is None:
             if self.loop.is_open_chain:
@@ -466,6 +470,8 @@ class Robot:
         try:
             q, crossings = self._continue(start_coords, start_q, coords)
         except LoopClosureError:
+            if not search:
+                raise
             q = self._search(coords, self._tree_configuration(coords, start_q))
             searched, checked = True, False
         self.last_assembly = self.closure_report(q, searched)
