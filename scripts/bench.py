@@ -58,6 +58,12 @@ Issue 15 figures (``--json`` keys), each a ratio or time measured in this run:
   ``pose_fit_1000_poses_s`` (one full fit), ``pose_fk_1000_poses_s`` (one forward-kinematics
   + frame-Jacobian pass over the rows and markers), ``pose_fit_1000_poses_over_fk`` (target
   <= 100) and ``pose_diagnose_1000_poses_over_fit`` (target <= 15).
+* ``--lumped`` alone: the masses-unknown pose fit (``gravity_lumped``) on the 22 Panda poses of
+  tests/test_absolute_poses.py, over a forward-kinematics pass of the same rows
+  (``pose_lumped_fit_22_poses_over_fk``; :func:`lumped_gravity_costs`).
+* ``--design-sampling`` alone: experiment design's pose draws on the Griffis-Duffy platform
+  over the closure of the poses kept (``griffis_duffy_sampling_over_assembly``;
+  :func:`design_sampling_costs`).
 """
 
 from __future__ import annotations
@@ -678,6 +684,76 @@ def pose_calibration_costs(poses: int, rounds: int = 2) -> dict[str, float]:
             f"pose_diagnose_{poses}_poses_over_fit": diagnose / fit}
 
 
+def _panda_lumped_campaign():
+    """The masses-unknown case of tests/test_absolute_poses.py: 22 poses of seed 2 of a marker
+    on the Panda's hand, the tracker shifted 1 m, 1 mrad zero offsets, 2e4 N.m/rad joints,
+    20 um noise."""
+    from stiffness.calibration.pose_model import Marker
+    from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+
+    panda = load_robot("panda", frame="panda_hand", compliant_joints=PANDA_ARM)
+    joints = sum(panda.model.joints[j].nv == 1 for j in range(1, panda.model.njoints))
+    hidden = HiddenPoseErrors(np.eye(3), np.array([1.0, 0.0, 0.0]), np.array([[0, 0, 0.101]]),
+                              np.full(joints, 1e-3), np.zeros((joints, 6)), np.full(7, 2e4))
+    return simulate_pose_campaign(panda, [Marker("hand", "panda_hand", np.array([0, 0, 0.1]))],
+                                  hidden, 22, 20e-6, seed=2)
+
+
+def lumped_gravity_costs(rounds: int = 2) -> dict[str, float]:
+    """The masses-unknown pose fit (``gravity_lumped``: its sag reads the gravity regressor at
+    each fixed-point iteration) on :func:`_panda_lumped_campaign`: one full fit of frame,
+    markers, joint_offsets and gravity_lumped from zero (``pose_lumped_fit_22_poses_s``), best
+    of ``rounds`` interleaved with :func:`_fk_jacobian_pass` over the same rows
+    (``pose_lumped_fk_22_poses_s``), and ``pose_lumped_fit_22_poses_over_fk``."""
+    from stiffness.calibration.pose_fit import (
+        campaign_settings,
+        fit_pose_model,
+        rows_of,
+        starting_frame,
+    )
+    from stiffness.calibration.pose_model import PoseModel
+
+    campaign = _panda_lumped_campaign()
+    families = ("frame", "markers", "joint_offsets", "gravity_lumped")
+    frame0, settings = starting_frame(campaign), campaign_settings(campaign)
+    fk, fit = math.inf, math.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        _fk_jacobian_pass(campaign)
+        fk = min(fk, time.perf_counter() - start)
+        start = time.perf_counter()
+        model = PoseModel(campaign.robot, campaign.markers, families, frame0, campaign.loads,
+                          settings)
+        fit_pose_model(model, campaign, rows_of(model, campaign), list(families))
+        fit = min(fit, time.perf_counter() - start)
+    return {"pose_lumped_fit_22_poses_s": fit, "pose_lumped_fk_22_poses_s": fk,
+            "pose_lumped_fit_22_poses_over_fk": fit / fk}
+
+
+def design_sampling_costs(poses: int = 2, rounds: int = 2) -> dict[str, float]:
+    """Experiment design's pose draws on a closed-loop robot whose sampling box is mostly out
+    of its loops' reach (Griffis-Duffy): :func:`~stiffness.calibration.poses.
+    sample_coordinates` of ``poses`` poses, seed 1 (``griffis_duffy_sampling_{poses}_poses_s``),
+    best of ``rounds`` interleaved with the closure of the poses it keeps from the reference
+    (:meth:`Robot.assemble`, ``griffis_duffy_assembly_{poses}_poses_s``), and
+    ``griffis_duffy_sampling_over_assembly``: the cost of the draws refused per pose kept."""
+    from stiffness.calibration.poses import sample_coordinates
+
+    robot = load_robot("griffis-duffy")
+    sample, closure = math.inf, math.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        coords = sample_coordinates(robot, poses, np.random.default_rng(1))
+        sample = min(sample, time.perf_counter() - start)
+        start = time.perf_counter()
+        for c in coords:
+            robot.assemble(c)
+        closure = min(closure, time.perf_counter() - start)
+    return {f"griffis_duffy_sampling_{poses}_poses_s": sample,
+            f"griffis_duffy_assembly_{poses}_poses_s": closure,
+            "griffis_duffy_sampling_over_assembly": sample / closure}
+
+
 # ------------------------------------------------------------------------------ report
 
 
@@ -714,6 +790,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="only the compensator's figures (one JSON line)")
     parser.add_argument("--pose", type=int, metavar="POSES",
                         help="only the pose-calibration figures on POSES poses (one JSON line)")
+    parser.add_argument("--lumped", action="store_true",
+                        help="only the masses-unknown pose fit's figures (one JSON line)")
+    parser.add_argument("--design-sampling", action="store_true",
+                        help="only the Griffis-Duffy pose draws' figures (one JSON line)")
     parser.add_argument("--plot", metavar="PNG",
                         help="only draw scan time against configurations (1e3 ... 1e7, in "
                              "process and two workers) into PNG")
@@ -725,6 +805,13 @@ def main(argv: list[str] | None = None) -> int:
         draw_scan_time(scan_time_rows(sizes), Path(args.plot))
         return 0
     load_before = os.getloadavg()
+    alone = {"lumped": lumped_gravity_costs, "design_sampling": design_sampling_costs}
+    for flag, costs_of in alone.items():
+        if getattr(args, flag):
+            figures = costs_of()
+            figures["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}
+            print(json.dumps(figures))
+            return 0
     if args.pose:
         pose = pose_calibration_costs(args.pose)
         pose["load_average"] = {"before": list(load_before), "after": list(os.getloadavg())}

@@ -22,6 +22,7 @@ import pytest
 from stiffness.batch.loops import close_loops
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.cli.main import main
+from stiffness.errors import LoopClosureError
 from stiffness.robot.robot import load_robot
 
 D, A, B = 0.3, 0.46, 0.46
@@ -163,6 +164,10 @@ def test_an_assembly_found_past_a_fold_says_its_mode_is_unchecked(five_bar):
                for n in assembly.notes())
     assert _mode_and_elbows(robot, assembly.q) == -REFERENCE_MODE
     assert robot.assemble(_past_the_singular_pose(1e-3)).mode_checked
+    # without the search (sample_coordinates refuses such a pose), the fold is an error
+    with pytest.raises(LoopClosureError):
+        robot.assemble(coords, search=False)
+    assert robot.assemble(_past_the_singular_pose(1e-3), search=False).mode_checked
 
 
 def test_batched_closures_keep_the_assembly_mode(five_bar):
