@@ -286,7 +286,7 @@ class ElasticModel:
         StiffnessError
             Neither length.
         """
-        q = float_array(q, "q", f"the {self.robot.n_coordinates} coordinates of "
+        q = float_array(q, "q", lambda: f"the {self.robot.n_coordinates} coordinates of "
                         f"{self.robot.title} (rad, m) or its full configuration of "
                         f"{self.robot.model.nq} values").reshape(-1)
         if q.shape[0] == self.robot.n_coordinates:
@@ -334,8 +334,9 @@ class ElasticModel:
         (:func:`stiffness.elastic.loaded.linear_deflection`); under a preload (the weight, a
         compensator) ``C`` is the tangent compliance at the preloaded operating point,
         ``J (K_t - K_C - K_p)^-1 J^T`` (:meth:`ElasticState.compliance`)."""
-        coords = float_array(coords, "coords", f"the {self.robot.n_coordinates} coordinates of "
-                             f"{self.robot.title} (rad, m)", size=self.robot.n_coordinates, ndim=1)
+        coords = float_array(coords, "coords", lambda: f"the {self.robot.n_coordinates} "
+                             f"coordinates of {self.robot.title} (rad, m)",
+                             size=self.robot.n_coordinates, ndim=1)
         if not self.preloaded:
             return linear_deflection(self, self.robot.spring_command(coords), wrench,
                                      seed_q=seed_q)

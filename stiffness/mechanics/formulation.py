@@ -202,8 +202,9 @@ def full_configuration(robot: Robot, q: np.ndarray | list[float]) -> np.ndarray:
     StiffnessError
         ``q`` has neither size (Pinocchio's own error was a C++ signature or an assertion).
     """
-    values = float_array(q, "q", f"the {robot.n_coordinates} coordinates of {robot.title} (rad, "
-                         f"m) or its full configuration of {robot.model.nq} values").reshape(-1)
+    values = float_array(q, "q", lambda: f"the {robot.n_coordinates} coordinates of "
+                         f"{robot.title} (rad, m) or its full configuration of {robot.model.nq} "
+                         "values").reshape(-1)
     if values.shape[0] == robot.model.nq:
         return values
     if values.shape[0] == robot.n_coordinates:

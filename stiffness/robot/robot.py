@@ -448,7 +448,9 @@ class Robot:
             start_coords, q, searched = self._reference_assembly()
             self.last_assembly = self.closure_report(q, searched)
             return self.last_assembly
-        needed = f"the {self.n_coordinates} coordinates of {self.title} (rad, m)"
+        def needed() -> str:
+            return f"the {self.n_coordinates} coordinates of {self.title} (rad, m)"
+
         coords = float_array(coords, "joint coordinates", needed, finite=False).reshape(-1)
         if coords.shape[0] != self.n_coordinates:
             raise StiffnessError(
