@@ -22,9 +22,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fuzzing import assert_reader_contract, byte_mutation
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stiffness.cli.main import main
 from stiffness.errors import (
+    FileFormatError,
     FloatingBaseError,
     LoopClosureError,
     RobotFileError,
@@ -742,3 +746,39 @@ def test_mimic_of_a_joint_not_in_the_file_is_ignored_with_a_warning(tmp_path):
     with pytest.warns(RobotFileWarning, match="'j2' mimics 'nope'.*independent joint"):
         robot = load_robot(str(urdf))
     assert robot.coordinate_joints == ("j1", "j2") and not robot.mimics
+
+
+# ------------------------------------------------------------- a sidecar that is not UTF-8
+
+
+def test_a_sidecar_not_in_utf8_is_one_line_or_ignored(tmp_path):
+    """A robot.yaml beside the URDF in Latin-1 (an accented comment) raised
+    UnicodeDecodeError (a traceback) while looking for its closed_loop key. A loop declaration
+    so written is refused in one line naming the bytes; another YAML so written is ignored
+    with the warning of any YAML without closed_loop."""
+    path = _write(tmp_path / "a", _rssr_urdf(ROD), None)
+    (tmp_path / "a" / "robot.yaml").write_bytes(
+        (_rssr_yaml("spherical") + "# op\u00e9rateur\n").encode("latin-1"))
+    with pytest.raises(FileFormatError, match=r"robot.yaml: not UTF-8 text \(byte \d+\); save "
+                                             r"the loop declaration as UTF-8"):
+        load_robot(path)
+    path = _write(tmp_path / "b", _planar_arm(), None, urdf_name="planar.urdf")
+    (tmp_path / "b" / "robot.yaml").write_bytes("name: x  # op\u00e9rateur\n".encode("latin-1"))
+    with pytest.warns(RobotFileWarning, match="robot.yaml: not a loop declaration"):
+        robot = load_robot(path)
+    assert robot.coordinate_joints == ("j1", "j2")
+
+
+@settings(max_examples=20, deadline=None)
+@given(data=st.data())
+def test_any_byte_of_a_sidecar_loads_or_is_one_line(tmp_path_factory, data):
+    """A Gepetto robot.yaml with one to four bytes replaced, inserted or deleted: the robot
+    loads, or one line, never another exception."""
+    folder = tmp_path_factory.mktemp("sidecar")
+    path = _write(folder, _rssr_urdf(ROD), None)
+    (folder / "robot.yaml").write_bytes(data.draw(byte_mutation(_rssr_yaml("spherical"))))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        robot = assert_reader_contract(lambda: load_robot(path), folder)
+    if robot is not None:
+        assert robot.model.nq > 0

@@ -7,10 +7,12 @@ A path file has one row per point, in either form (:func:`read_joint_path`):
   coordinate order), or one per joint outside the end-effector branch, or, by joint name, at
   least every joint that moves the target; optional per-row loads ``fx,fy,fz[,mx,my,mz]``
   (N, N.m); a unit in brackets after a name (``elbow_joint [deg]``) is checked against the
-  one the column is read in;
+  one the column is read in; a name in another case (``ELBOW_JOINT``, ``Q1``, ``FX``) is read
+  as the column of that spelling;
 * no header (its first line holding data is all numbers): one value per coordinate, or per
-  joint outside the end effector's fingers, in model order; ``#`` comments and blank lines
-  skipped; no loads.
+  joint outside the end effector's fingers, in model order; no loads.
+
+In both, ``#`` comment lines, blank lines and rows of empty cells are skipped.
 
 The joints without a column keep their reference value
 (:func:`~stiffness.mechanics.defaults.default_coordinates`). A cell is read as every campaign

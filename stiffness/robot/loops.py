@@ -119,7 +119,7 @@ def _names(path: Path, content: dict, key: str, required: bool) -> list[str]:
 
 def _key_line(path: Path, key: str) -> int | None:
     """Line of a top-level key in a YAML file (for error messages)."""
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         if line.startswith(f"{key}:") or line.startswith(f"{key} :"):
             return number
     return None

@@ -116,7 +116,9 @@ def find_loop_sidecar(urdf: Path) -> Path | None:
         if candidate.name.endswith(".loops.yaml"):
             return candidate
         try:
-            content = yaml.safe_load(candidate.read_text())
+            # not UTF-8 (a ROS config in Latin-1): read what can be; a loop declaration's
+            # reader then names the bytes
+            content = yaml.safe_load(candidate.read_bytes().decode("utf-8", "replace"))
         except yaml.YAMLError:
             return candidate  # let the loop reader report where the YAML is broken
         if isinstance(content, dict) and "closed_loop" in content:
