@@ -50,8 +50,9 @@ def as_wrench(load: Sequence[float] | np.ndarray) -> np.ndarray:
     values = float_array(load, "the load", needed, finite=False).reshape(-1)
     if values.shape not in ((3,), (6,)):
         raise StiffnessError(f"a load is {needed}; got {values.shape[0]} values")
-    load = float_array(values, "the load", needed)
-    return np.concatenate([load, np.zeros(6 - load.shape[0])])
+    if not np.isfinite(values).all():  # float_array's check and message, without a copy
+        raise wrong_argument("the load", values, needed, "finite numbers: ")
+    return np.concatenate([values, np.zeros(6 - values.shape[0])])
 
 
 @dataclass
