@@ -492,13 +492,18 @@ def test_what_spreadsheets_write_reads_the_same_numbers(tmp_path, text):
     (f"{HEADER}\nunit,[deg],[deg],[deg],[deg],[deg],[deg],[N],[N],[N],[mm],[mm],[mm]\n"
      f"{ROW_A}\n", 2, "read the rig's file with `stiffness campaign import`, which reads a "
                       "units row"),
+    (HEADER + "\n" + ROW_A.replace("72.9220", '"72,9220"') + "\n", 2,
+     "column 9 (fy): '72,9220' is not a finite number; write it with a decimal point, 72.9220"),
+    (f"{HEADER}\n{ROW_A.replace('72.9220', '72,9220')}\n", 2,
+     "column 14 (extra cell '0.0560'): the row has 14 cells but the header has 13; if a number "
+     "has a decimal comma (1,5), it made two cells: write 1.5"),
     (f"{HEADER.replace(',', ';')}\n{ROW_A.replace(',', ';').replace('.', ',')}\n", 1,
      "column 1: the columns are separated by ';', not commas; write the file as CSV with "
      "commas (and '.' as the decimal point)"),
 ])
 def test_what_spreadsheets_write_that_is_not_read_is_one_line(tmp_path, text, line, words):
-    """A units row under the header and a European spreadsheet's ';' with decimal commas:
-    one line naming the file, the line and the fix."""
+    """A units row under the header, decimal commas, and a European spreadsheet's ';' with
+    decimal commas: one line naming the file, the line and the fix."""
     msg = csv_error(tmp_path, text)
     assert f"measurements.csv, line {line}" in msg and words in msg and "\n" not in msg
 

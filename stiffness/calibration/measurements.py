@@ -211,6 +211,10 @@ def check_units_comment(declared: Units, expected: Units, source: object, path: 
                               "them agree", path=path, line=line)
 
 
+#: A number written with a decimal comma (a European spreadsheet's ``72,922``).
+DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+(?:[eE][+-]?\d+)?")
+
+
 def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float:
     text = cell.strip()
     try:
@@ -222,9 +226,11 @@ def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float
         value = None
     if value is None or not math.isfinite(value):
         shown = repr(cell) if text else "an empty cell"
-        raise FileFormatError(
-            f"{shown} is not a finite number; every q, force, moment, deflection and rotation "
-            "cell must be a number", path=data, line=line, column=col, field=name)
+        fix = (f"write it with a decimal point, {text.replace(',', '.')}"
+               if DECIMAL_COMMA.fullmatch(text) else "every q, force, moment, deflection and "
+               "rotation cell must be a number")
+        raise FileFormatError(f"{shown} is not a finite number; {fix}", path=data, line=line,
+                              column=col, field=name)
     if abs(value) > MAX_CELL:
         raise FileFormatError(
             f"{text} is beyond +-{MAX_CELL:.0e}, larger than any coordinate, force or "
@@ -314,8 +320,10 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
         if len(cells) != width:
             col = min(len(cells), width) + 1
             name = header[col - 1] if col <= width else f"extra cell {cells[width]!r}"
+            hint = ("; if a number has a decimal comma (1,5), it made two cells: write 1.5"
+                    if len(cells) > width else "")
             raise FileFormatError(
-                f"the row has {len(cells)} cells but the header has {width}", path=data,
+                f"the row has {len(cells)} cells but the header has {width}{hint}", path=data,
                 line=number, column=col, field=name)
         label = cells[0].strip()
         if not label:
