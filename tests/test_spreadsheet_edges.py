@@ -250,3 +250,24 @@ def test_a_spreadsheets_path_and_plan_read_the_same_numbers(ur5, tmp_path):
         _same(plan, plain_plan, tuple(k for k, v in vars(plain_plan).items()
                                       if isinstance(v, np.ndarray)))
         assert plan.config == plain_plan.config, name
+
+
+def test_a_row_index_before_config_is_named(deflections, poses):
+    """pandas' to_csv without index=False writes an unnamed first column of row numbers:
+    'the first column must be config, got ''' said what, not why. The pose campaign's header
+    errors also named line 1 whatever comments came before the header."""
+    from stiffness.errors import FileFormatError
+
+    words = ("got '', an unnamed column before config: a row index (pandas writes one unless "
+             "to_csv(index=False)); delete that column")
+    for read, text in ((lambda raw: _read_deflections(deflections[0], raw), TABLE_TEXT),
+                       (lambda raw: _read_poses(poses[0], poses[1], raw), poses[1])):
+        lines = text.splitlines()
+        indexed = ["# exported by pandas", "," + lines[0],
+                   *(f"{i},{line}" for i, line in enumerate(lines[1:]))]
+        with pytest.raises(FileFormatError, match=r"measurements.csv, line 2(, column 1)?: "
+                                                  r"the first column must be '?config'?, "):
+            read("\n".join(indexed).encode())
+        with pytest.raises(FileFormatError) as info:
+            read("\n".join(indexed).encode())
+        assert words in str(info.value)

@@ -138,6 +138,17 @@ def canonical_header(cells: list[str], known: Iterable[str]) -> list[str]:
     return out
 
 
+def first_column_problem(cells: list[str]) -> str:
+    """How a header whose first cell is not ``config`` is named in the refusal: ``got 'x'``,
+    and for an unnamed column before ``config`` what wrote it (a row index: pandas'
+    ``DataFrame.to_csv`` without ``index=False``, or a spreadsheet's row numbers)."""
+    got = repr(cells[0]) if cells else "nothing"
+    if len(cells) > 1 and not cells[0] and cells[1] == "config":
+        return (f"got {got}, an unnamed column before config: a row index (pandas writes one "
+                "unless to_csv(index=False)); delete that column")
+    return f"got {got}"
+
+
 def is_blank_row(cells: list[str]) -> bool:
     """A row of empty cells only (``,,,,``: a spreadsheet's formatted but empty row), read as a
     blank line."""

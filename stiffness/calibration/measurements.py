@@ -19,6 +19,7 @@ from stiffness.calibration.coordinate_columns import (
     Q_COLUMN,
     canonical_header,
     fill_held,
+    first_column_problem,
     held_coordinates,
     is_blank_row,
     is_units_row,
@@ -99,8 +100,8 @@ def _parse_header(cells: list[str], data: Path, line: int, robot: Robot) -> Head
         return FileFormatError(text, path=data, line=line, column=col)
 
     if not cells or cells[0] != "config":
-        got = repr(cells[0]) if cells else "nothing"
-        raise fail(1, f"the first column must be 'config', got {got}; {_HEADER_HELP}")
+        raise fail(1, f"the first column must be 'config', {first_column_problem(cells)}; "
+                      f"{_HEADER_HELP}")
     campaign = (*FORCE_COLUMNS, *DEFLECTION_COLUMNS, *MOMENT_COLUMNS, *ROTATION_COLUMNS)
     for i, cell in enumerate(cells):
         match = _WITH_UNIT.match(cell)

@@ -36,6 +36,7 @@ from stiffness.calibration.campaign_writer import robot_toml
 from stiffness.calibration.coordinate_columns import (
     canonical_header,
     fill_held,
+    first_column_problem,
     fixed_values,
     held_coordinates,
     is_blank_row,
@@ -207,20 +208,21 @@ def _markers(doc: dict, toml: TomlFile, units: Units) -> list[Marker]:
     return out
 
 
-def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
+def _header(cells: list[str], data: Path, line: int, robot: Robot, markers: list[Marker]
             ) -> tuple[list[int | None], list[list[int]], list[int], list[list[int] | None]]:
     """Check the header; (each coordinate's column or ``None`` when held, each marker's x, y,
     z columns, the wrench columns, each marker's rx, ry, rz columns or ``None``)."""
     names = [c.strip() for c in cells]
     if not names or names[0] != "config":
-        raise FileFormatError(f"the first column must be config, got {names[0]!r}; then the "
+        raise FileFormatError(f"the first column must be config, {first_column_problem(names)};"
+                              " then the "
                               f"coordinates (q1..q{robot.n_coordinates}, or columns named after "
-                              "the joints) and the markers' columns", path=data, line=1)
+                              "the joints) and the markers' columns", path=data, line=line)
     twice = sorted({c for c in names if names.count(c) > 1})
     if twice:
         raise FileFormatError(f"column(s) {twice} appear more than once; keep one of each",
-                              path=data, line=1)
-    coordinates = locate_coordinates(names, robot, data, 1)
+                              path=data, line=line)
+    coordinates = locate_coordinates(names, robot, data, line)
     columns = []
     for m in markers:
         cols = [f"{m.name}_{a}" for a in "xyz"]
@@ -231,7 +233,7 @@ def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
                                   f"{', '.join(cols)}; " + (
                                       f"rename {', '.join(cased)} (names are exact)" if cased
                                       else "add them (empty cells where it was not seen)"),
-                                  path=data, line=1)
+                                  path=data, line=line)
         columns.append([names.index(c) for c in cols])
     present = [c for c in _WRENCH if c in names]
     taken = {0, *(i for i in coordinates if i is not None)}
@@ -242,12 +244,12 @@ def _header(cells: list[str], data: Path, robot: Robot, markers: list[Marker]
                  "(optionally _rx/_ry/_rz) and optionally fx..mz")
     if present and present not in (list(_WRENCH[:3]), list(_WRENCH)):
         raise FileFormatError("give the applied wrench as fx,fy,fz or fx,fy,fz,mx,my,mz",
-                              path=data, line=1)
+                              path=data, line=line)
     return coordinates, columns, [names.index(c) for c in present], _rotation_columns(
-        names, markers, data)
+        names, markers, data, line)
 
 
-def _rotation_columns(names: list[str], markers: list[Marker], data: Path
+def _rotation_columns(names: list[str], markers: list[Marker], data: Path, line: int
                       ) -> list[list[int] | None]:
     """Each marker's rx, ry, rz columns, or ``None`` without them (some but not all refused)."""
     out: list[list[int] | None] = []
@@ -256,7 +258,7 @@ def _rotation_columns(names: list[str], markers: list[Marker], data: Path
         present = [c in names for c in cols]
         if any(present) and not all(present):
             raise FileFormatError(f"marker {m.name!r} has some of {', '.join(cols)}; give all "
-                                  "three rotation columns or none", path=data, line=1)
+                                  "three rotation columns or none", path=data, line=line)
         out.append([names.index(c) for c in cols] if all(present) else None)
     return out
 
@@ -291,7 +293,8 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
             "measurements: a campaign's CSV holds numbers, its units are campaign.toml's "
             "[units]; delete the row, or read the rig's file with `stiffness campaign import "
             "--kind poses`, which reads a units row", path=data, line=lines[1][0])
-    coordinates, columns, wrench_cols, rot_columns = _header(header, data, robot, markers)
+    coordinates, columns, wrench_cols, rot_columns = _header(header, data, lines[0][0], robot,
+                                                                 markers)
     labels, q, pos, wrench, numbers, rot = [], [], [], [], [], []
     for number, cells in lines[1:]:
         if len(cells) != len(header):
