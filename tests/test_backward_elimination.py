@@ -5,7 +5,10 @@ adds a stand-in by itself: ``tests/test_pose_selection.py``)."""
 
 from __future__ import annotations
 
+import pytest
+
 from stiffness.calibration.diagnose import DeflectionSearch, _baseline_fit, diagnose
+from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.search import Candidate, eliminate, kept_steps, search
 from stiffness.calibration.selection import (
     BIC_MARGIN,
@@ -104,3 +107,20 @@ def test_an_effect_acting_through_a_spring_goes_with_it():
            for rss, p in (d.baseline.terms(), d.final.terms())]
     assert abs(spring.removal_delta_bic - (bic[0] - bic[1])) <= 1e-6 * abs(bic[0])
     assert backlash.effect == "backlash(wrist_1_joint)" and d.summary()["how_sure"]
+    # why each best alternative was not chosen: ranked after the chosen one by BIC (not even
+    # past the margin: never judged held out), and no held-out reason invented beside the
+    # chosen one's held-out RMS
+    record = d.record()
+    for sure, step in zip(record["how_sure"], record["step_details"], strict=True):
+        ranking = [f"{r['effect']}({r['where']})" for r in step["ranking"]]
+        alt = step["ranking"][ranking.index(sure["alternative"])]
+        assert ranking.index(sure["alternative"]) > ranking.index(sure["effect"])
+        assert sure["alternative_delta_bic"] == pytest.approx(
+            alt["delta_bic"] - step["delta_bic"], abs=1e-9)
+        assert alt["delta_bic"] > -BIC_MARGIN and alt["cv_rms"] is None
+        assert sure["alternative_delta_bic"] > 0 and step["ranking"][0]["cv_rms"] > 0
+        assert sure["alternative_not_chosen"] == {"reason": "worse BIC", "held_out_rms": None,
+                                                  "chosen_held_out_rms": None, "note": None}
+    lines = [line for line in format_report(d).splitlines() if "best alternative" in line]
+    assert len(lines) == 2 and all(line.endswith("; not chosen: worse BIC)") for line in lines)
+    assert all(line.count("held-out RMS") == 1 for line in lines)  # the removal's

@@ -21,6 +21,7 @@ from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.outliers import STRAY_SHARE
 from stiffness.calibration.pose_diagnose import _fit as _pose_fit
 from stiffness.calibration.pose_diagnose import validation_errors
+from stiffness.calibration.pose_fit import held_out_rms
 from stiffness.calibration.pose_page import render_pose_diagnosis
 from stiffness.calibration.pose_report import format_pose_report
 from stiffness.calibration.selection import BIC_MARGIN, fit_model
@@ -261,3 +262,22 @@ def test_pose_family_fitted_then_refused_held_out(ur10):
             f"{best['cv_rms']:.4g} against the model's {best['cv_rms_before']:.4g} m)") in note
     assert "--families geometry forces it in" in note
     assert f"UNEXPLAINED: {note}" in format_pose_report(d).splitlines()
+    # how sure: joint_offsets' best alternative is geometry, ranked before it by BIC (geometry
+    # holds the offsets, so with or without them its BIC change is the same: rejected's) and
+    # not chosen on its held-out error, against the chosen step's (until 5 December 2026 the
+    # line gave its better BIC and no reason). Its held-out RMS: geometry fitted again from the
+    # baseline, judged by the pose criterion (held_out_rms, first order: 5 poses leave 30
+    # components for 30 parameters, too few to refit each fold; the criterion is tested in
+    # tests/test_pose_selection.py against refits).
+    (sure,) = s["how_sure"]
+    why = sure["alternative_not_chosen"]
+    assert sure["effect"] == "joint_offsets" and sure["alternative"] == "geometry"
+    assert sure["alternative_delta_bic"] == pytest.approx(s["rejected"]["geometry"], abs=1e-6)
+    assert why["reason"] == "held-out error" and why["note"] is None
+    assert why["chosen_held_out_rms"] == last["cv_rms"]
+    geometry = _pose_fit(c, ["frame", "markers", "geometry"], frame0, settings, d.steps[0].fit)
+    assert held_out_rms(geometry, c) == pytest.approx(why["held_out_rms"], rel=1e-3)
+    assert why["held_out_rms"] > 10 * why["chosen_held_out_rms"]
+    assert (f"best alternative geometry (dBIC {sure['alternative_delta_bic']:+.3g}; not chosen: "
+            f"held-out RMS {why['held_out_rms']:.4g} m against the chosen one's "
+            f"{why['chosen_held_out_rms']:.4g} m)") in format_pose_report(d)

@@ -10,7 +10,10 @@ For each effect of the final model:
   (positive: the effect earns its parameters), under the overdispersion of the step that
   named it (a misfit above the noise acts as extra noise), on that step's scale.
 * **best alternative**: the best-ranked other candidate of the step that named it, and its BIC
-  minus the chosen one's (a few units: a coin toss; tens: solid).
+  minus the chosen one's (a few units: a coin toss; tens: solid), and why it was not chosen
+  (:class:`NotChosen`, from what that step recorded): ranked after the chosen one by BIC, or,
+  ranked before it, refused on its held-out RMS (against the chosen one's) or passed over
+  without a held-out verdict (why the rows could not judge it, or that it may not be named).
 * **stand-in**: a parameter determined (:attr:`stiffness.elastic.effects.base.Parameter.
   determined`) but beyond its physical scale: the data prefer the effect's shape, its size is
   not physical (a finding only of that shape).
@@ -52,6 +55,8 @@ class Certainty:
     alternative, alternative_delta_bic
         Label of the best other candidate of its step and its BIC minus the chosen one's
         (``None`` when the step had no other candidate).
+    not_chosen
+        Why that alternative was not chosen (``None`` when there is none).
     stand_in
         Whether a determined parameter is beyond its physical scale.
     """
@@ -62,6 +67,7 @@ class Certainty:
     alternative: str | None
     alternative_delta_bic: float | None
     stand_in: bool
+    not_chosen: NotChosen | None = None
 
     def to_dict(self, length_to_si: float = 1.0) -> dict:
         """JSON-ready (the cost in the campaign's length unit; NaN as ``None``)."""
@@ -71,7 +77,61 @@ class Certainty:
                 "removal_delta_bic": self.removal_delta_bic,
                 "alternative": self.alternative,
                 "alternative_delta_bic": self.alternative_delta_bic,
+                "alternative_not_chosen": None if self.not_chosen is None
+                else self.not_chosen.to_dict(length_to_si),
                 "stand_in": self.stand_in}
+
+
+#: :attr:`NotChosen.reason`: ranked after the chosen one by BIC (its fit in full).
+WORSE_BIC = "worse BIC"
+#: :attr:`NotChosen.reason`: judged held out and refused.
+HELD_OUT = "held-out error"
+#: :attr:`NotChosen.reason`: passed over without a held-out verdict.
+NOT_JUDGED = "not judged held out"
+
+
+@dataclass
+class NotChosen:
+    """Why the best alternative of a step was not chosen.
+
+    Attributes
+    ----------
+    reason
+        :data:`WORSE_BIC`, :data:`HELD_OUT` or :data:`NOT_JUDGED`.
+    held_out_rms, chosen_held_out_rms
+        :data:`HELD_OUT`: its held-out RMS and the chosen one's (m); else NaN.
+    note
+        :data:`NOT_JUDGED`: why (:attr:`~stiffness.calibration.search.Step.not_judged`), or
+        ``None`` when the step did not say.
+    """
+
+    reason: str
+    held_out_rms: float = math.nan
+    chosen_held_out_rms: float = math.nan
+    note: str | None = None
+
+    def to_dict(self, length_to_si: float = 1.0) -> dict:
+        """JSON-ready (lengths in the campaign's unit; NaN as ``None``)."""
+        def length(x: float) -> float | None:
+            return x / length_to_si if math.isfinite(x) else None
+        return {"reason": self.reason, "held_out_rms": length(self.held_out_rms),
+                "chosen_held_out_rms": length(self.chosen_held_out_rms), "note": self.note}
+
+
+def not_chosen(step: Step[E, F], alt: str | None) -> NotChosen | None:
+    """Why ``alt``, the best alternative of ``step`` (:func:`~stiffness.calibration.naming.
+    alternative`), was not chosen, from what the step recorded: ranked after the chosen one
+    (:data:`WORSE_BIC`); else passed over unjudged (its ``not_judged`` note), or judged held
+    out and refused (its held-out RMS, then not below the model's the step extended, against
+    the chosen one's: :data:`HELD_OUT`)."""
+    if alt is None:
+        return None
+    if label(step.ranking[0][0]) != alt:
+        return NotChosen(WORSE_BIC)
+    cv = step.ranking[0][2]
+    if alt in step.not_judged or cv is None:
+        return NotChosen(NOT_JUDGED, note=step.not_judged.get(alt))
+    return NotChosen(HELD_OUT, cv, step.cv_rms)
 
 
 def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[Step[E, F]],
@@ -94,11 +154,28 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[
     out = kind.removals
     if out is None or out.final is not final:
         out = kind.removals = Removals(final, kind.without(final), {})
-    return [Certainty(s.label, cv - cv_final, bic(fit, s.dispersion) - bic(final, s.dispersion),
-                      *alternative([(label(e), d) for e, d, _ in s.ranking], s.label,
-                                   s.delta_bic), stand_in(s.label))
-            for s, fit, cv in zip(named, out.fits, out.held_out(kind, range(len(out.fits))),
-                                  strict=True)]
+    certain = []
+    for s, fit, cv in zip(named, out.fits, out.held_out(kind, range(len(out.fits))),
+                          strict=True):
+        alt, delta = alternative([(label(e), d) for e, d, _ in s.ranking], s.label, s.delta_bic)
+        certain.append(Certainty(s.label, cv - cv_final,
+                                 bic(fit, s.dispersion) - bic(final, s.dispersion), alt, delta,
+                                 stand_in(s.label), not_chosen(s, alt)))
+    return certain
+
+
+def why_not_text(c: dict, unit: str) -> str:
+    """Why a ``how_sure`` entry's best alternative was not chosen, in words (its
+    ``alternative_not_chosen``, lengths in ``unit``); empty when it has none."""
+    why = c.get("alternative_not_chosen")
+    if why is None:
+        return ""
+    if why["reason"] == HELD_OUT:
+        return (f"held-out RMS {why['held_out_rms']:.4g} {unit} against the chosen one's "
+                f"{why['chosen_held_out_rms']:.4g} {unit}")
+    if why["reason"] == NOT_JUDGED and why["note"]:
+        return f"{NOT_JUDGED}: {why['note']}"
+    return why["reason"]
 
 
 def how_sure_lines(d: dict) -> list[str]:
@@ -112,8 +189,10 @@ def how_sure_lines(d: dict) -> list[str]:
     for c in d["how_sure"]:
         cost = ("not cross-validated" if c["held_out_cost"] is None else
                 f"held-out RMS {c['held_out_cost']:+.3g} {d['unit']} without it")
+        why = why_not_text(c, d["unit"])
         alt = ("no alternative" if c["alternative"] is None else
-               f"best alternative {c['alternative']} (dBIC {c['alternative_delta_bic']:+.3g})")
+               f"best alternative {c['alternative']} (dBIC {c['alternative_delta_bic']:+.3g}"
+               f"{f'; not chosen: {why}' if why else ''})")
         verdict = f"; STAND-IN: {STAND_IN_NOTE}" if c["stand_in"] else ""
         lines.append(f"  {c['effect']}: removing it: dBIC {c['removal_delta_bic']:+.3g}, "
                      f"{cost}; {alt}{verdict}")
@@ -129,13 +208,15 @@ def how_sure_table(d: dict) -> list[str]:
         return []
     return [table("How sure: each named effect", [
         "effect", "ΔBIC without it", f"held-out RMS change without it ({d['unit']})",
-        "best alternative", "its ΔBIC", "stand-in"], [
+        "best alternative", "its ΔBIC", "why not chosen", "stand-in"], [
         [esc(c["effect"]), c["removal_delta_bic"], c["held_out_cost"],
          esc(c["alternative"] or "none"), c["alternative_delta_bic"],
+         esc(why_not_text(c, d["unit"])),
          "yes: the data prefer this shape; its size is not physical" if c["stand_in"]
          else "no"] for c in d["how_sure"]],
         "Each effect removed from the final model and the rest refitted: the BIC change "
         "(positive: the effect earns its parameters) and the change of the RMS predicted "
         "for configurations left out (positive: worse without it). Best alternative: the "
         "best other candidate of the step that named it, and its BIC minus the chosen "
-        "one's (a few units: a coin toss).")]
+        "one's (a few units: a coin toss), and why it was not chosen: ranked after it by "
+        "BIC, its held-out RMS against the chosen one's, or why it was not judged held out.")]

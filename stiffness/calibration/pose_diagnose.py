@@ -531,11 +531,22 @@ class PoseSearch:
         settled_delta = self.deltas(current, {**self.full, "": fit.terms()})[""]
         *_, dispersion = step_criteria(current.terms(), [*self.full.values(), fit.terms()],
                                        self.n, self.sigma)
+        cv = {c.effect: c.cv_rms for c in ranking}
         self.steps.append(Step(best, fit, self.delta[best] if fit.n_fitted == self.full[best][1]
                                else settled_delta, winner.cv_rms,
-                               sorted(((f, d, None) for f, d in self.delta.items()),
-                                      key=lambda r: r[1]), dispersion=dispersion))
+                               sorted(((f, d, cv.get(f)) for f, d in self.delta.items()),
+                                      key=lambda r: r[1]), dispersion=dispersion,
+                               not_judged=self._passed_over(ranking)))
         return fit
+
+    def _passed_over(self, ranking: list[Family]) -> dict[str, str]:
+        """Why each family of the step (``ranking``: those fitted) got no held-out verdict:
+        an infinite held-out RMS, or screened only (the loop adds those refused or that may
+        not be named, :func:`~stiffness.calibration.search.not_judged`)."""
+        fitted = {c.effect for c in ranking}
+        return {f: self.not_judged.get(f, f"screened {d:+.3g} by one Gauss-Newton step, "
+                                          "not fitted")
+                for f, d in self.delta.items() if f in self.not_judged or f not in fitted}
 
     def reject(self, ranking: list[Family]) -> None:
         """The step's families rejected; one past the margin on its screen alone, not fitted

@@ -95,7 +95,8 @@ class Candidate(Generic[E, F]):
     count that BIC penalises (``params``, of the fit given, the ranked one: a later settled
     ``fit`` counts fewer) and its held-out RMS (m) once judged, or why the rows cannot judge
     it (``refused``: then never added; one configuration's rows,
-    :func:`~stiffness.calibration.selection.row_support`)."""
+    :func:`~stiffness.calibration.selection.row_support`); whether it may be named, once the
+    step's winner was looked for (``namable``; ``None``: not looked at, :func:`_named`)."""
 
     effect: E
     fit: F
@@ -104,6 +105,7 @@ class Candidate(Generic[E, F]):
     cv_rms: float | None = None
     settled: bool = False
     refused: str | None = None
+    namable: bool | None = None
     params: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -141,6 +143,10 @@ class Step(Generic[E, F]):
     forced
         Forced in (``diagnose --families``: added first, whatever its BIC and held-out
         error; never removed again).
+    not_judged
+        The step's candidates passed over without a held-out verdict, by label, and why
+        (:func:`not_judged`, added by :func:`search`; a pose step's also an infinite
+        held-out RMS, or a family screened but not fitted).
     """
 
     effect: E
@@ -153,6 +159,7 @@ class Step(Generic[E, F]):
     validation: dict | None = None
     forced: bool = False
     removed: bool = False
+    not_judged: dict[str, str] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
@@ -320,6 +327,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
             return current, cv_current, kind.stops[why] + "".join(
                 f"; {label(c.effect)} not judged: {c.refused}" for c in refused[:1])
         current, cv_current = kind.accept(current, winner, ranking), winner.cv_rms
+        kind.steps[-1].not_judged.update(not_judged(ranking))
         added += 1
 
 
@@ -376,13 +384,27 @@ def _winner(kind: SearchKind[E, F], ranking: list[Candidate[E, F]], cv_current: 
 def _named(kind: SearchKind[E, F], c: Candidate[E, F]) -> bool:
     """Whether ``c`` may be named as fitted and still once settled (then ``c.fit``, its held-out
     RMS forgotten); holding parameters never makes a candidate namable."""
-    if not namable(kind.parameters(c)):
+    c.namable = namable(kind.parameters(c))
+    if not c.namable:
         return False
     full = c.fit
     c.fit = kind.settle(c)
     if c.fit is not full:
         c.settled, c.cv_rms = True, None
-    return namable(kind.parameters(c))
+    c.namable = namable(kind.parameters(c))
+    return c.namable
+
+
+#: Why a candidate that may not be named was passed over (:attr:`Step.not_judged`).
+NOT_NAMABLE = "it may not be named: no parameter determined with its 95 % interval excluding zero"
+
+
+def not_judged(ranking: Sequence[Candidate[E, F]]) -> dict[str, str]:
+    """The candidates of a step's ``ranking`` passed over unjudged held out, by label, and
+    why: the rows cannot judge them (:attr:`Candidate.refused`) or they may not be named
+    (:data:`NOT_NAMABLE`) (a :class:`Step`'s ``not_judged``)."""
+    return {label(c.effect): c.refused if c.refused is not None else NOT_NAMABLE
+            for c in ranking if c.refused is not None or c.namable is False}
 
 
 def ranked(kind: SearchKind[E, F], current: F, fits: Sequence[tuple[E, F]]
