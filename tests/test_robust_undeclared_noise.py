@@ -1,5 +1,6 @@
 """``identify --loss soft_l1`` on a deflection campaign that declares no noise: the loss is
-scaled by the robust estimate ``1.4826 median |e| sqrt(N / (N - p))`` of the residuals (two
+scaled by the robust estimate ``1.4826 median |e| sqrt(N / (N - p))`` of the residuals,
+with a robust fit's further shrinkage, (two
 rounds, :func:`stiffness.calibration.outliers.robust_rounds`) and the intervals are Huber's
 sandwich with Student's t over N - p (:class:`stiffness.calibration.selection.Noise`).
 
@@ -104,15 +105,16 @@ def _contaminated_median_ratio(share: float) -> float:
 
 
 def test_the_noise_estimate_is_the_noise(runs):
-    """Clean: the mean reported std is the true one within 8 % (50 seeds: standard error
-    3 %; measured over 200 seeds 0.955 +- 0.014: the robust fit's residuals are a little
-    smaller than least squares', for which the estimator's mean is 1.008 on 36 residuals).
-    One gross row (3 of 36 components): the median's closed-form inflation, 1.108, within
-    8 % (measured 1.106 +- 0.017), where least squares' std would be several times the
-    noise."""
+    """Clean: the mean reported std is the true one within 3 standard errors and 2 % (the
+    first-order shrinkage rule's bias left, :func:`~stiffness.calibration.outliers.
+    residual_shrinkage`); measured over 200 seeds 0.991 +- 0.014 (least squares' shrinkage
+    alone, the rule before, 0.955 +- 0.014: the robust fit's residuals are smaller than least
+    squares' near their median). One gross row (3 of 36 components): the median's closed-form
+    inflation, 1.108, within 8 % (measured 1.130 +- 0.018, before 1.106 +- 0.017), where least
+    squares' std would be several times the noise."""
     clean, gross = runs[0][1], runs[1][1]
     se = clean.std() / math.sqrt(clean.size)
-    assert abs(clean.mean() - 1.0) < 0.08 and se < 0.04, (clean.mean(), se)
+    assert abs(clean.mean() - 1.0) < 0.02 + 3 * se and se < 0.04, (clean.mean(), se)
     inflation = _contaminated_median_ratio(3 / (3 * CONFIGS * LOADS))
     assert inflation == pytest.approx(1.108, abs=1e-3)
     assert abs(gross.mean() / inflation - 1.0) < 0.08, (gross.mean(), inflation)

@@ -498,7 +498,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     if sigma is None and loss != "linear":
         base, robust = robust_rounds(
             base, lambda fit, s: fit_model(fit.model, measured, s, fit.x, loss=loss),
-            lambda fit: fit.predicted - measured, lambda fit: fit.x.size,
+            lambda fit: fit.predicted - measured, lambda fit: fit.x.size, loss,
             lambda fit: max(fit.rms(), 1e-12))
         scale = float(robust or scale)
     return base, measured, scale, rot_sigma, rot_source

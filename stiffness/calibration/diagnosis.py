@@ -207,7 +207,9 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         held-out RMS (``baseline_cv_rms``, null when not finite, ``baseline_cv_unbounded``
         when infinite) and the campaign (``rows``, ``configurations``, the outliers)."""
         measured = self.campaign.deflection if self.measured is None else self.measured
-        robust = robust_noise(self.final.residuals(measured)[0], self.final.penalty_params)
+        f = self.final
+        robust = robust_noise(f.residuals(measured)[0], f.penalty_params, f.loss,
+                              f.f_scale * f.scale)
         return jsonable({
             "unexplained": self.unexplained, "gof_test": self.test, "gof_p": self.gof_final,
             "final_rows_excluded": self.gof_excluded_rows,

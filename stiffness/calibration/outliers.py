@@ -27,7 +27,7 @@ from typing import TypeVar
 import numpy as np
 
 from stiffness.calibration.fitting import Fit, fit_model
-from stiffness.calibration.solver import SINGULAR_RTOL
+from stiffness.calibration.solver import SINGULAR_RTOL, loss_terms
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 from stiffness.htmlpage import esc, num, table
@@ -84,35 +84,70 @@ class Outlier:
                 "standardised_residual": self.standardised_residual}
 
 
-def robust_noise(residuals: np.ndarray, n_parameters: int) -> float | None:
-    """Noise std from residuals (m) that may hold gross outliers: ``1.4826 median |e|``
-    times ``sqrt(N / (N - p))`` for the ``p`` fitted parameters; ``None`` without degrees of
-    freedom or when every residual is zero."""
+def residual_shrinkage(loss: str, standardised: np.ndarray, threshold: float) -> float:
+    """``kappa``: the median of the absolute residuals of a fit of ``p`` parameters to ``N``
+    components under ``loss`` (soft threshold ``threshold`` noise stds) is ``m0 (1 - kappa p
+    / (2 N))`` of the noise's, to first order in ``p / N`` (``m0 = Phi^-1(3/4)``); 1 for
+    least squares on Gaussian noise, whose residuals' variance is ``1 - h``.
+
+    An M-fit's residual is ``r_i = e_i - (1/A) sum_j h_ij psi(e_j)`` (``h`` the hat matrix,
+    ``psi`` the loss's derivative, ``A = mean psi'``, ``B = mean psi^2``, here over the
+    ``standardised`` residuals, noise stds, gross ones included): its own term moves the
+    median by ``-h psi(m0) / A``, the others' (variance ``h B / A^2``) by ``+h m0 B /
+    (2 A^2)``: ``kappa = 2 psi(m0) / (m0 A) - B / A^2``. A robust loss fits the small
+    residuals closer than least squares (``A < 1``): soft_l1 at 1 noise std has ``kappa``
+    1.86 on Gaussian noise."""
+    def psi(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z = (x / threshold) ** 2
+        _, d_rho, dd_rho = loss_terms(loss, z)
+        return d_rho * x, d_rho + 2.0 * z * dd_rho
+
+    m0 = 1.0 / MAD_TO_STD
+    p, dp = psi(np.asarray(standardised, dtype=float))
+    a, b = float(np.mean(dp)), float(np.mean(p ** 2))
+    return 2.0 * float(psi(np.array([m0]))[0][0]) / (m0 * a) - b / a ** 2
+
+
+def robust_noise(residuals: np.ndarray, n_parameters: int, loss: str = "linear",
+                 f_scale_m: float | None = None) -> float | None:
+    """Noise std from residuals (m) that may hold gross outliers: ``1.4826 median |e|`` times
+    ``sqrt(N / (N - p))`` for the ``p`` parameters of the fit that left them (least squares'
+    shrinkage of its residuals), and for a fit under a robust ``loss`` with soft threshold
+    ``f_scale_m`` (m) by ``1 / (1 - (kappa - 1) p / (2 N))`` too, the median's further
+    shrinkage (:func:`residual_shrinkage` of the residuals over the estimate); ``None``
+    without degrees of freedom or when every residual is zero."""
     e = np.abs(np.asarray(residuals, dtype=float).reshape(-1))
     n = e.size
     if n <= n_parameters:
         return None
-    value = MAD_TO_STD * float(np.median(e)) * math.sqrt(n / (n - n_parameters))
+    least_squares = MAD_TO_STD * float(np.median(e)) * math.sqrt(n / (n - n_parameters))
+    value = least_squares
+    if loss != "linear" and f_scale_m is not None and value > 0:
+        for _ in range(3):  # kappa at the estimate itself: a fixed point
+            kappa = residual_shrinkage(loss, e / value, f_scale_m / value)
+            value = least_squares / max(1.0 - (kappa - 1.0) * n_parameters / (2.0 * n), 0.5)
     return value if value > 0 else None
 
 
 def robust_rounds(fit: _F, refit: Callable[[_F, float], _F],
                   residuals: Callable[[_F], np.ndarray], n_parameters: Callable[[_F], int],
-                  fallback: Callable[[_F], float] | None = None) -> tuple[_F, float | None]:
+                  loss: str, fallback: Callable[[_F], float] | None = None
+                  ) -> tuple[_F, float | None]:
     """A robust loss's noise scale, the one rule of both campaign kinds, identify's and
     diagnose's: :data:`ROBUST_ROUNDS` times, :func:`robust_noise` of the ``residuals`` (m) of
-    ``fit`` (least squares the first time) over its ``n_parameters``, then ``fit`` refitted
-    under the loss scaled by it (``refit``). ``fallback`` gives the scale where the residuals
-    give none (all zero); without it the rounds stop there. Returns the last fit and scale
-    (m; ``None``: none)."""
+    ``fit`` (least squares the first time, then under ``loss`` scaled by the last estimate)
+    over its ``n_parameters``, then ``fit`` refitted under the loss scaled by it (``refit``).
+    ``fallback`` gives the scale where the residuals give none (all zero); without it the
+    rounds stop there. Returns the last fit and scale (m; ``None``: none)."""
     sigma = None
+    fitted: tuple[str, float | None] = ("linear", None)
     for _ in range(ROBUST_ROUNDS):
-        sigma = robust_noise(residuals(fit), n_parameters(fit))
+        sigma = robust_noise(residuals(fit), n_parameters(fit), *fitted)
         if sigma is None and fallback is not None:
             sigma = fallback(fit)
         if sigma is None:
             return fit, None
-        fit = refit(fit, sigma)
+        fit, fitted = refit(fit, sigma), (loss, sigma)
     return fit, sigma
 
 
@@ -263,7 +298,7 @@ def robust_noise_scale(model: Hypothesis, measured: np.ndarray, scale: float,
         fit_model(model, measured, scale, x0, anchor=x0, **options),
         lambda fit, s: fit_model(model, measured, scale, fit.x, anchor=x0, loss=loss,
                                  f_scale=s / scale, **options),
-        lambda fit: fit.predicted - measured, lambda fit: len(model.compliant))
+        lambda fit: fit.predicted - measured, lambda fit: len(model.compliant), loss)
     if sigma is None:
         raise StiffnessError("the residuals are zero: a robust loss has no noise to scale by; "
                              "declare [measurement] noise_std or use --loss linear")

@@ -128,7 +128,8 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         and the outliers."""
         c, lu = self.campaign, self.campaign.units.length_to_si
         r = self.final.residual
-        robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted)
+        robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted, self.final.loss,
+                              self.final.noise.sigma)
         return jsonable({
             "kind": "poses", "unexplained": self.unexplained, "gof_test": "chi-square",
             "gof_p": self.gof(), "final_rows_excluded": self.final_terms.excluded,

@@ -652,7 +652,7 @@ def _fit_robust_scale(model: PoseModel, campaign: PoseCampaign, rows: list[RowTe
         fit_pose_model(model, campaign, rows, order, x0, held=held),
         lambda fit, s: fit_pose_model(model, campaign, rows, order, fit.x, loss, s, held),
         lambda fit: fit.residual[np.isfinite(fit.residual)], lambda fit: fit.n_fitted,
-        lambda fit: max(fit.rms(), 1e-12))
+        loss, lambda fit: max(fit.rms(), 1e-12))
     return fit
 
 
