@@ -20,7 +20,9 @@ consistent with 95 %.
 Without outliers (40 poses; soft_l1 on seeds 0 and 1, huber with the noise undeclared on
 seed 2) the robust fits move each parameter by at most 0.72 of its least-squares standard
 deviation, their intervals are within 6 % of least squares' widths, and huber's robust noise
-estimate is 0.91 of the true noise.
+estimate is 0.94 of the true noise (0.91 before the robust fit's shrinkage of its residuals
+was corrected, :func:`stiffness.calibration.outliers.residual_shrinkage`; over 100 seeds of 20
+poses, soft_l1, 0.920 +- 0.011 before, 0.994 +- 0.012 after).
 """
 
 from __future__ import annotations
