@@ -2,8 +2,10 @@
 
 The contract (:func:`assert_reader_contract`): a reader given any input either returns (the
 test then checks the meaning) or raises a :class:`~stiffness.errors.StiffnessError` whose
-message is one line. It never raises another exception, never takes longer than the
-hypothesis deadline, and never writes a file.
+message is one line. It never raises another exception and never writes a file. No
+per-example deadline: speed lives in scripts/bench.py, never in a test (a reader example took
+7.8 s against a 5 s deadline on a loaded 2-core machine, then 222 ms on the retry); a reader
+that hung would stop the suite itself.
 
 Examples: a few dozen per reader in CI, thousands with
 ``HYPOTHESIS_PROFILE=long python -m pytest tests/test_fuzz_readers.py`` (:data:`FUZZ`).
@@ -14,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable
-from datetime import timedelta
 from pathlib import Path
 
 from hypothesis import settings
@@ -22,11 +23,10 @@ from hypothesis import strategies as st
 
 from stiffness.errors import StiffnessError
 
-#: Settings of every fuzz test: a few dozen examples with a bounded time each, thousands under
-#: the ``long`` profile (profiles: tests/conftest.py).
+#: Settings of every fuzz test: a few dozen examples, thousands under the ``long`` profile
+#: (profiles: tests/conftest.py; no deadline, as there).
 LONG = os.environ.get("HYPOTHESIS_PROFILE") == "long"
-FUZZ = settings(max_examples=2000 if LONG else 40,
-                deadline=timedelta(seconds=10 if LONG else 5))
+FUZZ = settings(max_examples=2000 if LONG else 40, deadline=None)
 
 #: Cell values that break naive readers.
 NASTY_CELLS = ["nan", "NaN", "inf", "-inf", "1e309", "-1e309", "", " ", "1,5", "0x1F", "1e-400",
