@@ -642,6 +642,31 @@ def _fk_jacobian_pass(campaign) -> None:
             frame_jacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
 
 
+def _fit_and_fk(campaign, families: tuple[str, ...], rounds: int) -> tuple[float, float]:
+    """Wall times (s) of one full pose fit of ``families`` from zero and of
+    :func:`_fk_jacobian_pass` over the same rows, each the best of ``rounds``, interleaved."""
+    from stiffness.calibration.pose_fit import (
+        campaign_settings,
+        fit_pose_model,
+        rows_of,
+        starting_frame,
+    )
+    from stiffness.calibration.pose_model import PoseModel
+
+    frame0, settings = starting_frame(campaign), campaign_settings(campaign)
+    fk, fit = math.inf, math.inf
+    for _ in range(rounds):
+        start = time.perf_counter()
+        _fk_jacobian_pass(campaign)
+        fk = min(fk, time.perf_counter() - start)
+        start = time.perf_counter()
+        model = PoseModel(campaign.robot, campaign.markers, families, frame0, campaign.loads,
+                          settings)
+        fit_pose_model(model, campaign, rows_of(model, campaign), list(families))
+        fit = min(fit, time.perf_counter() - start)
+    return fit, fk
+
+
 def pose_calibration_costs(poses: int, rounds: int = 2) -> dict[str, float]:
     """Issue 29's and 37's pose-calibration figures on :func:`_pose_campaign`, in one run:
 
@@ -655,27 +680,10 @@ def pose_calibration_costs(poses: int, rounds: int = 2) -> dict[str, float]:
       ``pose_diagnose_{poses}_poses_over_fit`` (target <= 15).
     """
     from stiffness.calibration.pose_diagnose import diagnose_poses
-    from stiffness.calibration.pose_fit import (
-        campaign_settings,
-        fit_pose_model,
-        rows_of,
-        starting_frame,
-    )
-    from stiffness.calibration.pose_model import PoseModel
 
     campaign = _pose_campaign(poses)
-    families = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance")
-    frame0, settings = starting_frame(campaign), campaign_settings(campaign)
-    fk, fit = math.inf, math.inf
-    for _ in range(rounds):
-        start = time.perf_counter()
-        _fk_jacobian_pass(campaign)
-        fk = min(fk, time.perf_counter() - start)
-        start = time.perf_counter()
-        model = PoseModel(campaign.robot, campaign.markers, families, frame0, campaign.loads,
-                          settings)
-        fit_pose_model(model, campaign, rows_of(model, campaign), list(families))
-        fit = min(fit, time.perf_counter() - start)
+    fit, fk = _fit_and_fk(campaign, ("frame", "markers", "joint_offsets", "geometry",
+                                     "joint_compliance"), rounds)
     start = time.perf_counter()
     diagnose_poses(campaign)
     diagnose = time.perf_counter() - start
@@ -705,27 +713,8 @@ def lumped_gravity_costs(rounds: int = 2) -> dict[str, float]:
     markers, joint_offsets and gravity_lumped from zero (``pose_lumped_fit_22_poses_s``), best
     of ``rounds`` interleaved with :func:`_fk_jacobian_pass` over the same rows
     (``pose_lumped_fk_22_poses_s``), and ``pose_lumped_fit_22_poses_over_fk``."""
-    from stiffness.calibration.pose_fit import (
-        campaign_settings,
-        fit_pose_model,
-        rows_of,
-        starting_frame,
-    )
-    from stiffness.calibration.pose_model import PoseModel
-
-    campaign = _panda_lumped_campaign()
-    families = ("frame", "markers", "joint_offsets", "gravity_lumped")
-    frame0, settings = starting_frame(campaign), campaign_settings(campaign)
-    fk, fit = math.inf, math.inf
-    for _ in range(rounds):
-        start = time.perf_counter()
-        _fk_jacobian_pass(campaign)
-        fk = min(fk, time.perf_counter() - start)
-        start = time.perf_counter()
-        model = PoseModel(campaign.robot, campaign.markers, families, frame0, campaign.loads,
-                          settings)
-        fit_pose_model(model, campaign, rows_of(model, campaign), list(families))
-        fit = min(fit, time.perf_counter() - start)
+    fit, fk = _fit_and_fk(_panda_lumped_campaign(),
+                          ("frame", "markers", "joint_offsets", "gravity_lumped"), rounds)
     return {"pose_lumped_fit_22_poses_s": fit, "pose_lumped_fk_22_poses_s": fk,
             "pose_lumped_fit_22_poses_over_fk": fit / fk}
 
