@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 from stats import binomial_consistent
+from ur5_arm import ARM, OFFSET, arm_rows
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import RobotSettings
@@ -28,9 +29,7 @@ from stiffness.calibration.selection import (
     above_noise,
     replicate_noise,
 )
-from stiffness.mechanics.formulation import deflection, target_state
 from stiffness.planning.simulate import simulate
-from stiffness.robot.robot import load_robot
 
 GROUPS, P, REPEATED, DRAWS = 12, 3, 3, 4000
 
@@ -273,27 +272,13 @@ def _replicated_design() -> tuple[Campaign, np.ndarray]:
     without noise and its rows' true [translation; rotation] (m, rad) by the conventional
     formula (:func:`stiffness.mechanics.formulation.deflection`), the baseline it declares,
     so that the model is exact."""
-    offset = np.array([0.05, 0.0, 0.1])
-    joints = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
-    robot = load_robot("ur5", target_offset=offset, compliant_joints=joints)
-    rng = np.random.default_rng(11)
-    q, force, truth = [], [], []
-    for _ in range(2):
-        coords = rng.uniform(-np.pi, np.pi, 6)
-        full = robot.configuration(coords)
-        for _ in range(3):
-            f = rng.normal(size=3)
-            f *= rng.uniform(40.0, 100.0) / np.linalg.norm(f)
-            row = deflection(target_state(robot, full, f), np.diag([3e4, 2e4, 1.5e4]),
-                             "conventional", rows=slice(0, 6))
-            q += [coords, coords]
-            force += [f, f]
-            truth += [row, row]
+    robot, once_q, once_force, once_truth = arm_rows(2, 3, rotations=True)
+    q, force, truth = (np.repeat(a, 2, axis=0) for a in (once_q, once_force, once_truth))
     campaign = Campaign("split", "conventional", RobotSettings(
-        "ur5", target_offset_m=offset, compliant_joints=joints), q=np.array(q),
-        force=np.array(force), deflection=np.zeros((12, 3)), rotation=np.zeros((12, 3)),
+        "ur5", target_offset_m=OFFSET, compliant_joints=ARM), q=q, force=force,
+        deflection=np.zeros((12, 3)), rotation=np.zeros((12, 3)),
         config=tuple(f"c{i // 6}" for i in range(12)), _robot=robot)
-    return campaign, np.array(truth)
+    return campaign, truth
 
 
 def test_diagnose_one_kind_replicated_is_uniform_end_to_end():

@@ -19,16 +19,12 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 from stats import Coverage
+from ur5_arm import ARM, OFFSET, K, arm_rows
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.identify import identify
-from stiffness.mechanics.formulation import deflection, target_state
-from stiffness.robot.robot import load_robot
 
-ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
-K = np.array([3e4, 2e4, 1.5e4])  # N.m/rad
-OFFSET = np.array([0.05, 0.0, 0.1])  # m
 NOISE = 1e-5  # m
 CONFIGS, LOADS = 6, 2
 SEEDS = 50
@@ -38,19 +34,7 @@ SEEDS = 50
 def design():
     """6 configurations x 2 loads (40-100 N) of the UR5 arm's three springs: the robot, the
     rows' coordinates and forces and their true deflections (m)."""
-    robot = load_robot("ur5", target_offset=OFFSET, compliant_joints=ARM)
-    rng = np.random.default_rng(11)
-    q, force, truth = [], [], []
-    for _ in range(CONFIGS):
-        coords = rng.uniform(-np.pi, np.pi, 6)
-        full = robot.configuration(coords)
-        for _ in range(LOADS):
-            f = rng.normal(size=3)
-            f *= rng.uniform(40.0, 100.0) / np.linalg.norm(f)
-            q.append(coords)
-            force.append(f)
-            truth.append(deflection(target_state(robot, full, f), np.diag(K), "conventional"))
-    return robot, np.array(q), np.array(force), np.array(truth)
+    return arm_rows(CONFIGS, LOADS)
 
 
 def _campaign(design, seed: int, gross: int) -> Campaign:

@@ -18,6 +18,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from scipy import stats
+from ur5_arm import ARM, OFFSET, K, arm_rows
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import RobotSettings
@@ -31,14 +32,10 @@ from stiffness.calibration.validation import validate
 from stiffness.calibration.validation_page import format_validation
 from stiffness.elastic.model_contents import ModelFile
 from stiffness.elastic.parameter_covariance import ParameterCovariance
-from stiffness.mechanics.formulation import deflection, target_state
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 from stiffness.units import Units
 
-ARM = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint")
-K = np.array([3e4, 2e4, 1.5e4])  # N.m/rad
-OFFSET = np.array([0.05, 0.0, 0.1])  # m
 NOISE = 5e-6  # m
 ROTATION_NOISE = 5e-6  # rad
 SEEDS = 150
@@ -49,20 +46,7 @@ def design():
     """The UR5 arm over 3 configurations x 2 loads (forces up to 100 N): the robot, the rows'
     coordinates and forces, and their true [translation; rotation] (m, rad) under ``K`` by
     the conventional formula."""
-    robot = load_robot("ur5", target_offset=OFFSET, compliant_joints=ARM)
-    rng = np.random.default_rng(11)
-    q, force, truth = [], [], []
-    for _ in range(3):
-        coords = rng.uniform(-np.pi, np.pi, 6)
-        full = robot.configuration(coords)
-        for _ in range(2):
-            f = rng.normal(size=3)
-            f *= rng.uniform(40.0, 100.0) / np.linalg.norm(f)
-            q.append(coords)
-            force.append(f)
-            truth.append(deflection(target_state(robot, full, f), np.diag(K), "conventional",
-                                    rows=slice(0, 6)))
-    return robot, np.array(q), np.array(force), np.array(truth)
+    return arm_rows(3, 2, rotations=True)
 
 
 def _campaign(design, rng: np.random.Generator, rotation_noise: float | None = ROTATION_NOISE
