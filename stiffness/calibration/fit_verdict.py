@@ -8,6 +8,7 @@ model explains the data to the noise and, where it does not, every reading of th
 from __future__ import annotations
 
 from stiffness.calibration.outliers import STRAY_SHARE
+from stiffness.calibration.search import CUT_SHORT
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     GOF_LEVEL,
@@ -85,7 +86,7 @@ def _missing(d: dict) -> str:
     best = d.get("best_rejected")
     if best is None:
         stop = d.get("stop_reason", "")
-        if "(max_steps)" in stop:  # search.py's words for a search cut short
+        if CUT_SHORT in stop:  # a backward elimination may follow it
             return (f" and the search was cut short ({stop}): a library effect not tried may "
                     "be what is missing (stiffness diagnose tries more with a larger --max-steps)")
         return (f" and the search added nothing more ({stop}): the data contain something the "

@@ -183,6 +183,11 @@ class Stop(enum.Enum):
     REFUSED = "the rows cannot judge any of those held out"
 
 
+#: The words in :func:`search`'s stop reason when ``max_steps`` cut the forward search
+#: short (read by the verdict, :func:`~stiffness.calibration.fit_verdict.verdict_sentence`).
+CUT_SHORT = "(max_steps)"
+
+
 @dataclass(eq=False)
 class Refusal(Generic[E, F]):
     """The forward search's last step, which added nothing (:func:`search`): its candidates,
@@ -316,7 +321,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
         if noise is not None:
             return current, cv_current, noise
         if max_steps is not None and added >= max_steps:
-            return current, cv_current, f"stopped after {max_steps} effects (max_steps)"
+            return current, cv_current, f"stopped after {max_steps} effects {CUT_SHORT}"
         ranking = kind.candidates(current)
         if ranking is None:
             return current, cv_current, kind.stops[Stop.LEFT]
