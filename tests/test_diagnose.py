@@ -48,7 +48,8 @@ SUMMARY_KEYS = {"baseline_rms", "noise_std", "noise_std_source", "steps", "missi
                 "rms_by_kind", "identifiability", "how_sure", "selection",
                 # the verdict's keys (fit_verdict.verdict_sentence, both kinds') and the verdict
                 "gof_test", "gof_p", "final_rows_excluded", "robust_noise_ratio",
-                "best_rejected", "stop_reason", "baseline_cv_rms", "rows", "configurations",
+                "best_rejected", "stop_reason", "cut_short", "baseline_cv_rms", "rows",
+                "configurations",
                 "unexplained_note"}
 
 #: A hidden wrist spring, which looks like a bending forearm about the same axis.

@@ -215,15 +215,22 @@ def test_a_parameter_the_data_leave_without_bound_is_held(tmp_path):
 def test_max_steps_limits_the_pose_search(forced_compliance):
     """``max_steps`` counts the families the search adds after the forced ones (it was
     ignored for pose campaigns): 0 keeps the baseline and the forced family, 1 adds the
-    unlimited search's first family and stops there, naming the limit."""
+    unlimited search's first family and stops there, naming the limit and saying so in
+    ``--json`` (``cut_short``, which the unlimited search's is not), and the verdict, still
+    above the noise, reads it."""
     campaign, free = forced_compliance
     forced = free.families.index("joint_compliance") + 1
     assert len(free.families) > forced  # the search adds something past the forced family
+    assert free.to_dict()["cut_short"] is False and "max_steps" not in free.stop_reason
     for limit in (0, 1):
         d = diagnose_poses(campaign, families=["joint_compliance"], not_families=["geometry"],
                            max_steps=limit)
         assert d.families == free.families[:forced + limit]
-        assert "max_steps" in d.stop_reason
+        s = d.to_dict()
+        assert "max_steps" in d.stop_reason and s["cut_short"] is True
+        assert s["unexplained"] is True and s["best_rejected"] is None
+        assert (f"the search was cut short (stopped after {limit} effects (max_steps)): a "
+                "library effect not tried may be what is missing") in s["unexplained_note"]
     with pytest.raises(StiffnessError, match="non-negative integer"):
         diagnose_poses(campaign, max_steps=-1)
 

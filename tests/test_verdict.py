@@ -88,18 +88,27 @@ def test_a_library_effect_the_campaign_cannot_confirm_is_named():
 
 def test_no_rejected_effect_is_named_where_none_was_rejected():
     """The same campaign cut short (max_steps 0): nothing was rejected, the verdict says the
-    search stopped early; seed 2, the offsets added and explained to noise: no reading of an
-    unexplained verdict."""
+    search stopped early, from the ``--json`` key ``cut_short`` (not from the stop reason's
+    words: the same object with ``cut_short`` false reads as a search that added nothing);
+    seed 2, the offsets added and explained to noise with max_steps 1, the step the limit
+    allows: not cut short (the search stopped at the noise), and no reading of an unexplained
+    verdict."""
     short = diagnose(_offsets_campaign(1), max_steps=0, propose=False, workers=1,
                      not_families=ONLY_OFFSETS).to_dict()
     assert short["unexplained"] is True and short["best_rejected"] is None
+    assert short["cut_short"] is True
     note = short["unexplained_note"]
     assert "the search was cut short (stopped after 0 effects (max_steps))" in note
     assert "a larger --max-steps" in note and "best rejected" not in note
     assert "does not model" not in note
-    found = diagnose(_offsets_campaign(2), propose=False, workers=1,
+    as_if_not = verdict_sentence({**short, "cut_short": False})
+    assert "cut short" not in as_if_not and "--max-steps" not in as_if_not
+    assert ("the search added nothing more (stopped after 0 effects (max_steps)): the data "
+            "contain something the library does not model") in as_if_not
+    found = diagnose(_offsets_campaign(2), max_steps=1, propose=False, workers=1,
                      not_families=ONLY_OFFSETS).to_dict()
     assert found["missing_effects"] == ["joint_offsets"] and found["unexplained"] is False
+    assert found["cut_short"] is False and "max_steps" not in found["stop_reason"]
     assert found["unexplained_note"].startswith("the final model explains the data to noise "
                                                 f"(chi-square p = {found['gof_p']:.3g})")
     for word in ("best rejected", "does not model", "understates", "outliers"):

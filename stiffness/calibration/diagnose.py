@@ -19,14 +19,12 @@
    are many; a campaign of one configuration over its loads, naming only what those rows can
    judge: :class:`OneConfigurationSearch`) and add the first that beats the current model's;
    until the model fits to noise or nothing helps; then remove, one at a time, any effect the
-   final model is better without (BIC and cross-validation:
-   :func:`stiffness.calibration.search.eliminate`, a
-   :class:`~stiffness.calibration.search.Step` marked ``removed``). If the search ends
-   with the chi-square test still rejecting, the result is *unexplained*
+   final model is better without (BIC and cross-validation: :func:`stiffness.calibration.
+   search.eliminate`, a :class:`~stiffness.calibration.search.Step` marked ``removed``). If
+   the search ends with the chi-square test still rejecting, the result is *unexplained*
    (:attr:`~stiffness.calibration.diagnosis.Diagnosis.unexplained`) and the final residual's
-   structure (:func:`~stiffness.calibration.breakdown.residual_structure`:
-   by load direction and row order, correlations with each joint's torque and angle) says
-   where to look.
+   structure (:func:`~stiffness.calibration.breakdown.residual_structure`: by load direction
+   and row order, correlations with each joint's torque and angle) says where to look.
 4. Report the RMS after each step, each added effect's parameters with standard errors and 95 %
    intervals, the residuals before and after, the final model.
 5. Report the candidates the campaign cannot tell from the winner (BIC within
@@ -530,6 +528,7 @@ class DeflectionSearch:
     dispersion: float = 1.0
     removals: Removals[Fit] | None = None
     refusal: Refusal[DeflectionEffect, Fit] | None = None
+    cut_short: bool = False
     stops: ClassVar[dict[Stop, str]] = {
         Stop.LEFT: "no candidate left",
         Stop.BIC: f"no candidate improves BIC by more than {BIC_MARGIN:g}",

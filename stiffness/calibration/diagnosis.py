@@ -203,9 +203,10 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         ``unexplained``, the test (``gof_test``, ``gof_p``, ``final_rows_excluded``), the
         noise (``noise_std``, ``noise_std_source``, ``robust_noise_ratio``: the final residual's
         robust std, 1.4826 median |r|, over ``noise_std``; null when the noise is the
-        residuals'), the search's end (``best_rejected``, ``stop_reason``), the baseline's
-        held-out RMS (``baseline_cv_rms``, null when not finite, ``baseline_cv_unbounded``
-        when infinite) and the campaign (``rows``, ``configurations``, the outliers)."""
+        residuals'), the search's end (:meth:`search_end`: ``best_rejected``, ``stop_reason``,
+        ``cut_short``), the baseline's held-out RMS (``baseline_cv_rms``, null when not
+        finite, ``baseline_cv_unbounded`` when infinite) and the campaign (``rows``,
+        ``configurations``, the outliers)."""
         measured = self.campaign.deflection if self.measured is None else self.measured
         f = self.final
         robust = robust_noise(f.residuals(measured)[0], f.penalty_params, f.loss,
@@ -216,7 +217,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "noise_std": self._len(self.noise_std_m), "noise_std_source": self.noise_std_source,
             "robust_noise_ratio": None if self.noise_std_source == "residuals" or robust is None
             else robust / self.noise_std_m,
-            "best_rejected": self.best_rejected(), "stop_reason": self.stop_reason,
+            **self.search_end(),
             "baseline_rms": self._len(self.baseline.rms()),
             "baseline_cv_rms": self._len(self.cv_baseline),
             **({"baseline_cv_unbounded": True} if math.isinf(self.cv_baseline) else {}),

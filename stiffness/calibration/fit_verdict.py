@@ -8,7 +8,6 @@ model explains the data to the noise and, where it does not, every reading of th
 from __future__ import annotations
 
 from stiffness.calibration.outliers import STRAY_SHARE
-from stiffness.calibration.search import CUT_SHORT
 from stiffness.calibration.selection import (
     BIC_MARGIN,
     GOF_LEVEL,
@@ -56,7 +55,8 @@ def verdict_sentence(d: dict) -> str:
     overstated (:func:`~stiffness.calibration.selection.noise_overstated`). Unexplained, every
     reading the numbers allow: a missing effect outside the library, or a library effect this
     campaign is too small to confirm (``best_rejected``: what it did, what would confirm it;
-    else why the search added nothing, ``stop_reason``), folds too small to confirm one
+    else why the search added nothing, ``stop_reason``, or that ``--max-steps`` cut it short,
+    ``cut_short``), folds too small to confirm one
     (``baseline_cv_rms`` over ``baseline_rms`` above :data:`WEAK_FOLDS`, on ``configurations``),
     where the residual sits (``residual_structure``, or ``where_final_disagrees``), the rows
     flagged as outliers (``outliers`` of ``rows``, under ``loss``) and an understated declared
@@ -86,7 +86,7 @@ def _missing(d: dict) -> str:
     best = d.get("best_rejected")
     if best is None:
         stop = d.get("stop_reason", "")
-        if CUT_SHORT in stop:  # a backward elimination may follow it
+        if d.get("cut_short"):  # --max-steps stopped it (a backward elimination may follow)
             return (f" and the search was cut short ({stop}): a library effect not tried may "
                     "be what is missing (stiffness diagnose tries more with a larger --max-steps)")
         return (f" and the search added nothing more ({stop}): the data contain something the "

@@ -401,6 +401,7 @@ class PoseSearch:
     full: dict[str, tuple[float, int]] = field(default_factory=dict)
     removals: Removals[PoseFit] | None = None
     refusal: Refusal[str, PoseFit] | None = None
+    cut_short: bool = False
     stops: ClassVar[dict[Stop, str]] = {
         Stop.LEFT: "no candidate family left",
         Stop.BIC: f"no family improves BIC by more than {BIC_MARGIN:g}",

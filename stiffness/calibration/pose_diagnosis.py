@@ -123,9 +123,9 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         unit): ``kind``, ``unexplained``, the test (``gof_test``, ``gof_p``,
         ``final_rows_excluded``), the noise (``noise_std``, ``noise_std_source``,
         ``robust_noise_ratio``: the final residual's robust std, 1.4826 median |r|, over the
-        declared noise; null when none is declared), the search's end (``best_rejected``,
-        ``stop_reason``), where the residual sits (``residual_structure``), ``rows`` (poses)
-        and the outliers."""
+        declared noise; null when none is declared), the search's end (:meth:`search_end`:
+        ``best_rejected``, ``stop_reason``, ``cut_short``), where the residual sits
+        (``residual_structure``), ``rows`` (poses) and the outliers."""
         c, lu = self.campaign, self.campaign.units.length_to_si
         r = self.final.residual
         robust = robust_noise(r[np.isfinite(r)], self.final.n_fitted, self.final.loss,
@@ -137,7 +137,7 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
             "noise_std_source": None if c.noise_std is None else "declared",
             "robust_noise_ratio": None if c.noise_std is None or robust is None
             else robust / c.noise_std,
-            "best_rejected": self.best_rejected(), "stop_reason": self.stop_reason,
+            **self.search_end(),
             "residual_structure": marker_structure(self.final, c), "rows": c.n_rows,
             "unit": c.units.length, "loss": self.loss, **self.outlier_keys()})
 

@@ -94,6 +94,21 @@ class DiagnosisResult(abc.ABC, Generic[C, E, F]):
         return {"forced": [s.label for s in self.steps if s.forced],
                 "forbidden": list(self.forbidden)}
 
+    @property
+    def cut_short(self) -> bool:
+        """Whether ``max_steps`` (``--max-steps``) cut the forward search short
+        (:attr:`~stiffness.calibration.search.SearchKind.cut_short`; a backward elimination
+        may have followed)."""
+        return self.search is not None and self.search.cut_short
+
+    def search_end(self) -> dict:
+        """How the search ended, as ``--json`` has it (the verdict reads it): the
+        ``best_rejected`` candidate (:meth:`best_rejected`), the ``stop_reason`` and
+        ``cut_short`` (:attr:`cut_short`: a library effect not tried may be what is
+        missing)."""
+        return {"best_rejected": self.best_rejected(), "stop_reason": self.stop_reason,
+                "cut_short": self.cut_short}
+
     def best_rejected(self) -> dict | None:
         """The best candidate by BIC of the step that added nothing
         (:class:`~stiffness.calibration.search.Refusal`), as ``--json`` has it (``best_rejected``;

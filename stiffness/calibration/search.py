@@ -184,7 +184,7 @@ class Stop(enum.Enum):
 
 
 #: The words in :func:`search`'s stop reason when ``max_steps`` cut the forward search
-#: short (read by the verdict, :func:`~stiffness.calibration.fit_verdict.verdict_sentence`).
+#: short (the verdict reads :attr:`SearchKind.cut_short`, the ``--json`` key ``cut_short``).
 CUT_SHORT = "(max_steps)"
 
 
@@ -222,7 +222,8 @@ class SearchKind(Protocol[E, F]):
     """What a campaign kind supplies to :func:`search`: its residual count ``n`` and noise
     std ``sigma`` (m; ``None``: not known), its words for each :class:`Stop`, the last
     final fit's :class:`Removals` (``None`` before :func:`eliminate`), the step that added
-    nothing (:class:`Refusal`, ``None`` unless the forward search stopped so), its
+    nothing (:class:`Refusal`, ``None`` unless the forward search stopped so), whether
+    ``max_steps`` cut the forward search short (``cut_short``, set by :func:`search`), its
     :class:`Step` records, and the methods below (its fits' objective and parameter count are
     the fits' own, :meth:`Fitted.terms`)."""
 
@@ -230,6 +231,7 @@ class SearchKind(Protocol[E, F]):
     stops: ClassVar[dict[Stop, str]]
     removals: Removals[F] | None
     refusal: Refusal[E, F] | None
+    cut_short: bool
     steps: list[Step[E, F]]
 
     @property
@@ -303,7 +305,9 @@ def search(kind: SearchKind[E, F], current: F, cv_current: float,
            max_steps: int | None = None) -> tuple[F, str]:
     """Add ``kind``'s candidates to ``current`` (held-out RMS ``cv_current``, m), then remove
     those the final model is better without (:func:`eliminate`), as the module docstring
-    says; the final fit and why the search stopped."""
+    says; the final fit and why the search stopped (``kind.cut_short``: whether
+    ``max_steps`` stopped it)."""
+    kind.cut_short = False
     final, cv_final, stop = _forward(kind, current, cv_current, max_steps)
     final, removed = eliminate(kind, final, cv_final)
     if removed:
@@ -321,6 +325,7 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
         if noise is not None:
             return current, cv_current, noise
         if max_steps is not None and added >= max_steps:
+            kind.cut_short = True
             return current, cv_current, f"stopped after {max_steps} effects {CUT_SHORT}"
         ranking = kind.candidates(current)
         if ranking is None:
