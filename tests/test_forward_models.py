@@ -8,7 +8,9 @@ its one hook ``Effect.contribute``) give the same tool displacement at the same 
 
 Arms: the UR5 with its three arm joints compliant and a 0.1 m tool (as
 ``scripts/detection_rate.py``), the torso of ``tests/data/torso-passive`` (five springs on
-controller coordinates driving six chain joints; the pose model takes no closed loop), the same
+controller coordinates driving six chain joints: its passive joint is a coupling, not a closed
+loop; the pose model's closed loops are compared with the elastic model in
+``test_pose_loops.py``), the same
 torso with its springs on the six chain joints (``springs_on = "chain"``) and the DH arm with
 two prismatic joints of ``tests/pose_campaigns.py`` (springs in N/m, compliances in m/N, a
 backlash in m), each at three random configurations under three random wrenches (force ~100 N,

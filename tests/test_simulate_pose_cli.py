@@ -151,7 +151,8 @@ def test_diagnose_names_the_hidden_joint_spring(tmp_path, capsys):
     (["--effect", "frame=1,2,3"], "(frame is a pose campaign's: --kind poses)"),
     (["--kind", "poses", "--marker", "tip=nowhere"], "frame 'nowhere' is not a frame of ur10"),
     (["--kind", "poses", "--marker", "a=tool0", "--marker", "a=tool0"], "distinct names"),
-    (["--kind", "poses", "--robot", "sk120", "--frame", "fixture_target"], "closed loops"),
+    (["--kind", "poses", "--robot", "sk120", "--frame", "fixture_target", "--effect",
+      "geometry:elbow=1,0,0"], "elbow is inside a closed loop of sk120"),
 ])
 def test_bad_flags_are_refused_in_one_line(tmp_path, capsys, flags, says):
     """Exit 2, one line on stderr naming the problem, nothing on stdout, nothing written."""

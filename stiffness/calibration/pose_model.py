@@ -40,6 +40,11 @@ with the parameter families of :data:`stiffness.elastic.effects.FAMILIES`:
     (Pinocchio's joint-torque regressor at rest, at the loaded configuration) and
     ``theta_jk = c_j pi_k`` lumped; only the combinations the data determine are fitted.
 
+On a robot with closed loops the commanded coordinates are the independent ones, every
+configuration is the loops' closure over their passive joints, the springs carry the torque
+the independent coordinates feel, ``T(q)^T tau`` with ``T = dq/du`` the loop's tangent map,
+and the point Jacobians are ``J_p T`` (:mod:`stiffness.calibration.pose_loops`).
+
 Every column of the Jacobian is analytic (Pinocchio's frame Jacobians, the right Jacobians of
 ``exp`` on SO(3) and SE(3)); finite differences check it in the tests. The derivative holds
 the torques at the loaded configuration fixed (the sag's own change with the parameters is left
@@ -66,6 +71,7 @@ from stiffness.batch.poses import (
     point_jacobians,
     support_masks,
 )
+from stiffness.calibration.pose_loops import PoseLoops, projected
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base_tilt import declared_tilt, tilted_gravity
 from stiffness.elastic.effects.kinematic_errors import MeasuringFrame
@@ -158,7 +164,8 @@ class PoseModel:
     Parameters
     ----------
     robot
-        An open-chain robot (no closed loops) with the inertias gravity needs.
+        A robot with the inertias gravity needs; with closed loops, the families of
+        :data:`~stiffness.calibration.pose_loops.LOOP_FAMILIES` (:mod:`.pose_loops`).
     markers
         The markers the measuring system sees.
     families
@@ -177,14 +184,14 @@ class PoseModel:
     def __init__(self, robot: Robot, markers: list[Marker], families: tuple[str, ...],
                  frame0: tuple[np.ndarray, np.ndarray], loads: Loads | None = None,
                  settings: dict | None = None) -> None:
-        if not robot.loop.is_open_chain:
-            raise PoseModelError(
-                f"{robot.title} has closed loops; absolute-pose calibration handles open chains "
-                "only: calibrate a serial robot, or use a deflection campaign")
         unknown = [f for f in families if f not in FAMILIES]
         if unknown:
             raise PoseModelError(f"unknown parameter families {unknown}; valid: "
                                  f"{', '.join(FAMILIES)}")
+        #: the loops' closure and tangent map (``None``: an open chain)
+        self.loops = None if robot.loop.is_open_chain else PoseLoops(robot)
+        if self.loops is not None:
+            self.loops.refuse_families(families)
         self.robot = robot
         self.markers = markers
         self.settings = dict(settings or {})
@@ -198,15 +205,17 @@ class PoseModel:
         model = robot.model
         self._frame_ids_by_name: dict[str, int] = {}
         self.frame_ids = [self._frame_id(m.frame) for m in markers]
-        self.joints = one_dof_joints(model)
+        self.joints = pose_joints(robot)
         self.springs = tuple(robot.compliant_joints)
         self.spring_map = robot.rate_projection(self.springs)
         self._spring_links = [self._links_moved_by(c) for c in range(len(self.springs))]
         # the compliant chain joints: none when the springs act on controller coordinates
         self.compliant = ([] if robot.springs_on_controller else
                           [int(model.getJointId(n)) for n in self.springs])
+        placed = set(self.joints if self.loops is None else
+                     self.loops.geometry_joints(self.joints))  # none that closes a loop
         self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
-                         if c != _zero_component(model.joints[j].shortname())]
+                         if j in placed and c != _zero_component(model.joints[j].shortname())]
         self.geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
                                np.array([c for _, c in self.geometry], dtype=int))
         self.joints_v = [model.joints[j].idx_v for j in self.joints]
@@ -365,8 +374,11 @@ class PoseModel:
         data = model.createData()
         torques = np.array([sum(self._load_torques(model, data, row.q_full,
                                                    row.wrench if wrench else None))
-                            for row in rows])
-        return torques.reshape(len(rows), model.nv)
+                            for row in rows]).reshape(len(rows), model.nv)
+        if self.loops is None:
+            return torques
+        q = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
+        return projected(self.loops.tangent(model, data, q), torques)
 
     def deflection(self, x: np.ndarray, state: SagState) -> np.ndarray:
         """Joint deflection ``Delta q`` (nv,) at ``state`` for parameters ``x``: the sum of the
@@ -419,6 +431,8 @@ class PoseModel:
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
         j_point = (point_jacobians(model, kin, self.frame_ids, point, self._frame_masks)
                    if ev.jacobian else np.zeros(point.shape + (0,)))
+        if ev.jacobian and self.loops is not None:  # per independent rate: J_p T
+            j_point = j_point @ self.loops.tangent(model, ev.data, q)[:, None]
         caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows, ev.jacobian)
                   for f in self.family_objects}
         view = MarkerView(model, ev.data, point, np.zeros(3), ev.to_measuring,
@@ -443,7 +457,7 @@ class PoseModel:
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
         if not self.elastic:
-            return integrate(model, commanded, offsets, self._kinds), None
+            return self._configurations(model, data, commanded, offsets), None
         n, nv = len(rows), model.nv
         wrench = (None if self.loads is None or all(r.wrench is None for r in rows) else
                   np.array([np.zeros(6) if r.wrench is None else r.wrench for r in rows]))
@@ -459,7 +473,8 @@ class PoseModel:
             for _ in range(SAG_ITERATIONS):
                 if not pending.size:
                     break
-                q = integrate(model, commanded[pending], offsets + sag[pending], self._kinds)
+                q = self._configurations(model, data, commanded[pending],
+                                         offsets + sag[pending])
                 g, w = self._row_torques(model, data, q,
                                          None if wrench is None else wrench[pending],
                                          not self._lumped)
@@ -482,8 +497,16 @@ class PoseModel:
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
         extras = {f: e[:, None] for f, e in kept.items()}
-        return (integrate(model, commanded, offsets + sag, self._kinds),
+        return (self._configurations(model, data, commanded, offsets + sag),
                 self._state(x, at, gravity[:, None], applied[:, None], extras))
+
+    def _configurations(self, model: pin.Model, data: pin.Data, commanded: np.ndarray,
+                        shift: np.ndarray) -> np.ndarray:
+        """(n, nq) the ``commanded`` configurations moved by ``shift`` ((n, nv) or (nv,), on
+        the independent coordinates) and, on a robot with closed loops, closed over the
+        passive joints from the commanded assembly (:class:`PoseLoops`)."""
+        q = integrate(model, commanded, shift, self._kinds)
+        return q if self.loops is None else self.loops.close(model, data, q)
 
     def _extras(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> dict:
         """The families' :meth:`~stiffness.elastic.effects.pose_face.PoseFamily.
@@ -499,10 +522,14 @@ class PoseModel:
         iterations' time)."""
         gravity = (-generalized_gravity(model, data, q) if gravity_too
                    else np.zeros((q.shape[0], model.nv)))
-        if wrench is None or self.loads is None:
-            return gravity, np.zeros(gravity.shape)
-        jac = frame_jacobians(model, data, q, self._frame_id(self.loads.frame))
-        return gravity, np.einsum("nkv,nk->nv", jac, wrench)
+        applied = np.zeros(gravity.shape)
+        if wrench is not None and self.loads is not None:
+            jac = frame_jacobians(model, data, q, self._frame_id(self.loads.frame))
+            applied = np.einsum("nkv,nk->nv", jac, wrench)
+        if self.loops is None:
+            return gravity, applied
+        tangent = self.loops.tangent(model, data, q)  # what the independent coordinates feel
+        return projected(tangent, gravity), projected(tangent, applied)
 
     def _displacement(self, parts: dict[str, np.ndarray], view: MarkerView) -> np.ndarray:
         """The families' displacement of a marker (robot-world axes, m): the link bends."""
@@ -560,6 +587,14 @@ def one_dof_joints(model: pin.Model) -> list[int]:
     """Ids of the joints with one degree of freedom, in model order (those the geometry and
     zero-offset families perturb)."""
     return [j for j in range(1, model.njoints) if model.joints[j].nv == 1]
+
+
+def pose_joints(robot: Robot) -> list[int]:
+    """Ids of the joints the zero-offset and geometry families perturb, in model order:
+    :func:`one_dof_joints` but a closed loop's passive joints (not commanded: their zero or
+    placement is the loop's own geometry)."""
+    passive = {int(robot.model.getJointId(n)) for n in robot.loop.passive_joints}
+    return [j for j in one_dof_joints(robot.model) if j not in passive]
 
 
 def _zero_component(shortname: str) -> int | None:

@@ -52,7 +52,8 @@ import pinocchio as pin
 
 from stiffness.calibration.campaign_toml import CAMPAIGN_FILE
 from stiffness.calibration.pose_campaign import PoseCampaign, write_pose_campaign
-from stiffness.calibration.pose_model import Marker, one_dof_joints
+from stiffness.calibration.pose_loops import PoseLoops
+from stiffness.calibration.pose_model import Marker, pose_joints
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base import effect_place
 from stiffness.errors import (
@@ -164,7 +165,8 @@ def hidden_pose_errors(robot: Robot, markers: list[Marker],
     if len(set(labels)) != len(labels):
         raise StiffnessError(f"an effect is hidden twice: {labels}")
     model = robot.model
-    joints = [str(model.names[j]) for j in one_dof_joints(model)]
+    joints = [str(model.names[j]) for j in pose_joints(robot)]
+    _refuse_in_loops(robot, hidden, joints)
     springs = list(robot.compliant_joints)
     truth = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in markers],
                                                               dtype=float).reshape(-1, 3),
@@ -201,6 +203,30 @@ def hidden_pose_errors(robot: Robot, markers: list[Marker],
     if elastic:
         truth.stiffness, truth.backlash, truth.nonlinear = stiffness, backlash, beta
     return truth
+
+
+def _refuse_in_loops(robot: Robot, hidden: list[HiddenEffect], joints: list[str]) -> None:
+    """On a robot with closed loops, refuse an effect the pose model does not take there
+    (:data:`~stiffness.calibration.pose_loops.LOOP_FAMILIES`), and a placement error or zero
+    offset of a joint inside a loop (a passive joint, or on a loop's path for ``geometry``).
+
+    Raises
+    ------
+    LoopGeometryError
+        One line naming the valid effects or joints.
+    """
+    if robot.loop.is_open_chain:
+        return
+    loops = PoseLoops(robot)
+    loops.refuse_families([h.name for h in hidden])
+    model = robot.model
+    placed = [str(model.names[j]) for j in loops.geometry_joints(
+        [int(model.getJointId(n)) for n in joints])]
+    for h in hidden:
+        valid = placed if h.name == "geometry" else joints
+        if h.name in ("geometry", "joint_offsets") and h.where and h.where not in valid \
+                and h.where in model.names:
+            loops.refuse_placement(str(h.where), valid, f"--effect {h.label}")
 
 
 def _springs(robot: Robot, hidden: list[HiddenEffect], kq: list[float] | np.ndarray | None
@@ -447,12 +473,8 @@ def simulate_poses(
 
 
 def _check_robot_and_markers(robot: Robot, markers: list[Marker]) -> None:
-    """Refuse a robot with closed loops (the pose model's open chains only), no marker, a
-    marker name given twice or a marker on a frame the robot does not have (one line)."""
-    if not robot.loop.is_open_chain:
-        raise StiffnessError(f"{robot.title} has closed loops; a pose campaign (absolute-pose "
-                             "calibration) takes open chains only: simulate a serial robot, or "
-                             "a deflection campaign")
+    """Refuse no marker, a marker name given twice or a marker on a frame the robot does not
+    have (one line)."""
     names = [m.name for m in markers]
     if not names or len(set(names)) != len(names):
         raise StiffnessError(f"a pose campaign needs markers of distinct names, got {names}")

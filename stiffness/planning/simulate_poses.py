@@ -38,7 +38,7 @@ import pinocchio as pin
 from stiffness.batch.linalg import cross
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_model import Loads, Marker, one_dof_joints
+from stiffness.calibration.pose_model import Loads, Marker, pose_joints
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.link_bends import marker_links
 from stiffness.elastic.effects.preloads import GravityCompensator, compensated_joints
@@ -46,6 +46,7 @@ from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.equilibrium import SpringLaw
 from stiffness.mechanics.gravity import upward_angle
 from stiffness.robot.kinematics import frame_id
+from stiffness.robot.loops import LoopClosure
 from stiffness.robot.robot import Robot
 from stiffness.units import Units
 
@@ -133,7 +134,7 @@ def true_model(robot: Robot, hidden: HiddenPoseErrors) -> pin.Model:
     """The robot's model with the hidden placement errors applied (``M_j exp(eps_j)``) and its
     gravity turned into the tilted base's axes."""
     model = pin.Model(robot.model)
-    for j, eps in zip(one_dof_joints(model), hidden.placement_errors, strict=True):
+    for j, eps in zip(pose_joints(robot), hidden.placement_errors, strict=True):
         model.jointPlacements[j] = model.jointPlacements[j] * pin.exp6(pin.Motion(eps))
     if hidden.base_tilt is not None:
         tilt = pin.exp3(np.array([hidden.base_tilt[0], hidden.base_tilt[1], 0.0]))
@@ -298,9 +299,13 @@ def _tilting(robot: Robot, markers: list[Marker], hidden: HiddenPoseErrors
 
 
 def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticity | None,
-               wrench: np.ndarray | None, load_frame: str) -> tuple[pin.Model, np.ndarray]:
+               wrench: np.ndarray | None, load_frame: str, loop: LoopClosure | None = None
+               ) -> tuple[pin.Model, np.ndarray]:
     """The exact equilibrium of the hidden elasticity under gravity and ``wrench``: the model
-    with its links bent and the loaded configuration (fixed point of joints and bends)."""
+    with its links bent and the loaded configuration (fixed point of joints and bends). With
+    closed loops (``loop``; ``q_command`` closed) the springs' coordinates are independent
+    ones: each iterate is closed over the passive joints and the springs carry the torque
+    the independent coordinates feel, :func:`loop_torque`."""
     if springs is None:
         return model, q_command
     bends = np.zeros((len(springs.links), 3))
@@ -309,8 +314,9 @@ def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticit
     for _ in range(_SAG_ITERATIONS):
         bent = _bent(model, q_command, dv, springs, bends)
         data = bent.createData()
-        q = pin.integrate(bent, q_command, dv)
-        torque = _joint_torque(bent, data, q, springs, wrench, load_frame)
+        q = _closed(bent, data, pin.integrate(bent, q_command, dv), loop)
+        torque = loop_torque(bent, data, q, loop,
+                             _joint_torque(bent, data, q, springs, wrench, load_frame))
         tau = springs.spring_map.T @ torque  # the torque each spring carries
         new = springs.spring_map @ law(tau)[0]
         new_bends = _bend_rotations(bent, data, q, springs, wrench, load_frame)
@@ -318,9 +324,32 @@ def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticit
         dv, bends = new, new_bends
         if change < _SAG_TOL:
             bent = _bent(model, q_command, dv, springs, bends)
-            return bent, pin.integrate(bent, q_command, dv)
+            return bent, _closed(bent, bent.createData(), pin.integrate(bent, q_command, dv),
+                                 loop)
     raise ConvergenceError("the simulated sag did not converge: the springs are too soft for "
                            "the arm's weight; raise the stiffness")
+
+
+def _closed(model: pin.Model, data: pin.Data, q: np.ndarray, loop: LoopClosure | None
+            ) -> np.ndarray:
+    """``q`` with the loops closed over their passive joints (itself for an open chain)."""
+    return q if loop is None else loop.close(model, data, q)
+
+
+def loop_torque(model: pin.Model, data: pin.Data, q: np.ndarray, loop: LoopClosure | None,
+                torque: np.ndarray) -> np.ndarray:
+    """The generalised force (nv,) the independent coordinates feel of the tree's ``torque``
+    at the closed ``q``: ``tau_i + R^T tau_p`` with ``R`` the passive joints' rates per
+    independent rate (virtual work through the loop), zero on the passive coordinates;
+    ``torque`` itself for an open chain."""
+    if loop is None:
+        return torque
+    independent = np.setdiff1d(np.arange(model.nv), loop.passive_v)
+    pin.computeJointJacobians(model, data, q)
+    rates = loop.passive_rates(model, data, independent)
+    out = np.zeros(model.nv)
+    out[independent] = torque[independent] + rates.T @ torque[loop.passive_v]
+    return out
 
 
 def _joint_torque(model: pin.Model, data: pin.Data, q: np.ndarray, springs: HiddenElasticity,
@@ -430,9 +459,10 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
     springs = hidden_elasticity(robot, markers, hidden, smoothing_torques(robot, q, payload))
     positions = np.empty((n_poses, len(markers), 3))
     orientations = np.empty((n_poses, len(markers), 3, 3))
+    loop = None if robot.loop.is_open_chain else robot.loop
     for i, coords in enumerate(q):
         q_full = _command(robot, model, hidden, coords)
-        bent, q_l = loaded_arm(model, q_full, springs, payload, robot.target_frame)
+        bent, q_l = loaded_arm(model, q_full, springs, payload, robot.target_frame, loop)
         data = bent.createData()
         pin.framesForwardKinematics(bent, data, q_l)
         for k, m in enumerate(markers):
@@ -460,7 +490,8 @@ def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
     controller coordinate): the :data:`SMOOTHING_FRACTION` of the RMS torque it carries at the
     commanded poses ``q`` (coordinates, rad or m) of the nominal robot, ``S^T (-g(q) + J(q)^T
     w)`` under its weight and the ``payload`` wrench at the target frame (world axes; ``None``:
-    none; ``S``: :meth:`Robot.rate_projection`, the unit columns for springs on joints). A
+    none; ``S``: :meth:`Robot.rate_projection`, the unit columns for springs on joints; with
+    closed loops, of the torque the independent coordinates feel, :func:`loop_torque`). A
     spring that carries none gets 1 (its backlash never opens)."""
     model = robot.model
     data = model.createData()
@@ -474,6 +505,8 @@ def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
             pin.updateFramePlacements(model, data)
             torques[i] += pin.getFrameJacobian(model, data, fid,
                                                pin.LOCAL_WORLD_ALIGNED).T @ payload
+        torques[i] = loop_torque(model, data, q_full, None if robot.loop.is_open_chain
+                                 else robot.loop, torques[i])
     rms = np.sqrt(np.mean((torques @ robot.rate_projection(robot.compliant_joints)) ** 2,
                           axis=0))
     return {name: float(SMOOTHING_FRACTION * r) if r > 0 else 1.0
@@ -482,7 +515,10 @@ def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
 
 def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: np.ndarray
              ) -> np.ndarray:
-    """The configuration the links are at before sagging: commanded plus zero offsets."""
+    """The configuration the links are at before sagging: commanded plus zero offsets (the
+    loops closed again over their passive joints)."""
     offsets = np.zeros(model.nv)
-    offsets[[model.joints[j].idx_v for j in one_dof_joints(model)]] = hidden.joint_offsets
-    return pin.integrate(model, robot.configuration(coords), offsets)
+    offsets[[model.joints[j].idx_v for j in pose_joints(robot)]] = hidden.joint_offsets
+    return _closed(model, model.createData(), pin.integrate(model, robot.configuration(coords),
+                                                            offsets),
+                   None if robot.loop.is_open_chain else robot.loop)

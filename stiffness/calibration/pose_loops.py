@@ -1,0 +1,156 @@
+"""Closed kinematic loops in the pose model: the loaded configuration by assembly, and the
+loop's tangent map.
+
+On a robot with closed loops (the SK120's parallelogram, Gepetto's parallel robots) the
+commanded coordinates are the independent ones ``u`` (every joint with a degree of freedom but
+the loops' passive joints); the full configuration ``q(u)`` is the closure of the loops with
+the passive joints solved (:meth:`~stiffness.robot.loops.LoopClosure.close`, Gauss-Newton
+from the commanded assembly, so on its branch). The springs act on independent coordinates
+(the robot's compliant joints, or its controller coordinates), and the torque the
+independent coordinates feel is
+
+.. math::
+
+    t = T(q)^T \\big(J_{load}(q)^T w - g(q)\\big), \\qquad
+    T(q) = \\frac{\\partial q}{\\partial u} = \\begin{bmatrix} I \\\\ -C_p^{+} C_u
+    \\end{bmatrix},
+
+with ``C = dc/dq`` the loop-closure Jacobian (:meth:`LoopClosure.passive_rates`,
+rank-revealing: planar loops give redundant rows); ``T`` is laid out (nv, nv), its passive
+columns zero, so that ``S(q) = T(q) S_0`` is the configuration-dependent analogue of the
+constant spring map ``S_0`` (:attr:`PoseLayout.spring_map`, zero on passive joints) and the
+springs' torque is ``S_0^T t``. The loaded configuration is the fixed point
+``q* = q(u + delta_0 + Delta u)``, ``Delta u = law(S_0^T t(q*))``, and the marker Jacobian
+per independent rate is ``J_p(q*) T(q*)`` (design notes, "Closed loops").
+
+Families whose parameters leave the loop's own geometry alone act unchanged
+(:data:`LOOP_FAMILIES`); ``geometry`` has parameters only at joints whose placement error
+moves both frames of every loop pair rigidly or neither (:meth:`PoseLoops.geometry_joints`),
+and a placement error hidden inside a loop is refused (:class:`LoopGeometryError`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.errors import StiffnessError
+from stiffness.robot.robot import Robot
+
+#: The pose families a robot with closed loops takes: none of them changes the loops' own
+#: closure (geometry only outside the loops: :meth:`PoseLoops.geometry_joints`).
+LOOP_FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
+                 "backlash", "nonlinear_joint_stiffness")
+
+
+class LoopGeometryError(StiffnessError):
+    """A parameter family or hidden effect that would change a closed loop's own geometry.
+
+    Attributes
+    ----------
+    name : str
+        The family, or the joint, named.
+    choices : tuple of str
+        The valid ones.
+    """
+
+    def __init__(self, message: str, *, name: str, choices: Sequence[str]) -> None:
+        super().__init__(message)
+        self.name = str(name)
+        self.choices = tuple(str(c) for c in choices)
+
+
+class PoseLoops:
+    """A robot's loop closures as the pose model uses them.
+
+    Parameters
+    ----------
+    robot
+        A robot with closed loops (``robot.loop`` has pairs).
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        model = robot.model
+        self.robot = robot
+        self.loop = robot.loop
+        passive = set(int(v) for v in self.loop.passive_v)
+        #: velocity indices of the independent coordinates (every one but the passive ones)
+        self.independent_v = np.array([v for v in range(model.nv) if v not in passive],
+                                      dtype=int)
+        path: set[int] = set()
+        for fa, fb in self.loop.frame_ids:
+            sa = set(model.supports[model.frames[fa].parentJoint])
+            sb = set(model.supports[model.frames[fb].parentJoint])
+            path |= sa ^ sb
+        #: joints on the path between a loop's two frames (their placement closes the loop)
+        self.path_joints = frozenset(int(j) for j in path)
+
+    def geometry_joints(self, joints: Sequence[int]) -> list[int]:
+        """The ``joints`` (ids) whose placement errors leave the loops closed: those on no
+        loop's path (a common ancestor of both frames moves the loop rigidly; a joint beyond
+        neither frame does not touch it)."""
+        return [j for j in joints if j not in self.path_joints]
+
+    def refuse_families(self, families: Sequence[str]) -> None:
+        """Refuse the families a closed loop does not take (one line naming the valid ones).
+
+        Raises
+        ------
+        LoopGeometryError
+            A family outside :data:`LOOP_FAMILIES`.
+        """
+        wrong = [f for f in families if f not in LOOP_FAMILIES]
+        if wrong:
+            raise LoopGeometryError(
+                f"{self.robot.title} has closed loops: absolute-pose calibration takes "
+                f"{', '.join(LOOP_FAMILIES)} there, not {', '.join(wrong)} "
+                "(docs/absolute-poses.md, Limits); drop it", name=wrong[0],
+                choices=LOOP_FAMILIES)
+
+    def refuse_placement(self, joint: str, valid: Sequence[str], what: str) -> None:
+        """Refuse ``what`` (a hidden effect's label) at ``joint``, inside a loop (one line).
+
+        Raises
+        ------
+        LoopGeometryError
+            Always: the joint's placement or zero closes a loop.
+        """
+        raise LoopGeometryError(
+            f"{what}: {joint} is inside a closed loop of {self.robot.title} (its placement or "
+            f"zero changes the loop's closure, which a pose campaign does not model); "
+            f"name one of {', '.join(valid)}", name=joint, choices=valid)
+
+    def close(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+        """(n, nq) configurations with the loops closed over the passive joints, each from
+        its own row of ``q`` (n, nq) (Gauss-Newton: the branch it starts on).
+
+        Raises
+        ------
+        LoopClosureError
+            A row whose loop does not close (the message names the loop).
+        """
+        out = np.empty_like(q)
+        for i in range(q.shape[0]):
+            out[i] = self.loop.close(model, data, q[i])
+        return out
+
+    def tangent(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+        """(n, nv, nv) ``T = dq/du`` at the closed configurations ``q`` (n, nq): the identity
+        on the independent coordinates, :meth:`LoopClosure.passive_rates` on the passive
+        rows, zero passive columns."""
+        n, nv = q.shape[0], model.nv
+        out = np.zeros((n, nv, nv))
+        ind, pas = self.independent_v, self.loop.passive_v
+        out[:, ind, ind] = 1.0
+        for i in range(n):
+            pin.computeJointJacobians(model, data, q[i])
+            out[i][np.ix_(pas, ind)] = self.loop.passive_rates(model, data, ind)
+        return out
+
+
+def projected(tangent: np.ndarray, torque: np.ndarray) -> np.ndarray:
+    """``T^T tau`` per row: (n, nv) torques the independent coordinates feel (zero on the
+    passive ones) of the tree's generalised forces ``torque`` (n, nv)."""
+    return np.einsum("nvk,nv->nk", tangent, torque)
