@@ -204,9 +204,9 @@ def test_a_simulated_sk120_campaign_is_recovered(tmp_path, capsys):
     and one on the forearm, 20 µm, a 2 kN payload pulling sideways too, the paper's springs,
     zero offsets of 0.1 and -0.05 deg on the parallelogram's drives) and ``diagnose`` with the
     springs and offsets forced in: explained to noise, and the 95 % intervals of the three
-    compliances and the two hidden offsets hold the truth (seed 0; over seeds 0-11 of the
-    same campaign through the Python API, 58 of 60 intervals held it, sum z^2 / n per
-    parameter 0.5-1.6)."""
+    compliances and the two hidden offsets hold the truth (seed 0; over seeds 0-19 of the
+    same campaign through the Python API 98 of 100 intervals held it, sum z^2 / n per
+    parameter 0.52-0.99, explained to noise in 19)."""
     out = tmp_path / "sim"
     k = [1.4098e6, 4.0076e5, 9.3528e5]
     code, _, err = _run(capsys, [
