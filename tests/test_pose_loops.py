@@ -34,11 +34,13 @@ from scipy.optimize import minimize
 
 from stiffness.calibration.pose_loops import LOOP_FAMILIES, LoopGeometryError
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
+from stiffness.calibration.poses import sample_coordinates
 from stiffness.cli.main import main
+from stiffness.elastic.effects import Backlash
 from stiffness.elastic.effects.pose_face import compliance_label
 from stiffness.elastic.model import ElasticModel
 from stiffness.planning.pose_simulation import hidden_pose_errors
-from stiffness.planning.simulate_poses import simulate_pose_campaign
+from stiffness.planning.simulate_poses import simulate_pose_campaign, smoothing_torques
 from stiffness.robot.loops import CLOSURE_TOLERANCE_M
 from stiffness.robot.robot import TARGET_FRAME, load_robot
 
@@ -190,6 +192,32 @@ def test_columns_equal_central_differences(robot_name, sk120, tilted_four_bar_ro
         x[sl["backlash"]] = 1e-4 * size
         x[sl["nonlinear_joint_stiffness"]] *= size
         assert_columns(model, rows, x, scales, tol)
+
+
+def test_backlash_smoothing_is_the_simulators(sk120):
+    """The backlash smoothing torques (2 % of the RMS torque each spring carries) of the pose
+    model's campaign settings and of the pose simulator (its own projection,
+    :func:`~stiffness.planning.simulate_poses.loop_torque`) on SK120 poses under a payload
+    agree to 1e-12; through the loop the crank's (joint3) is not the tree's torque at its
+    joint, which carries none of the forearm's load."""
+    rng = np.random.default_rng(6)
+    coords = sample_coordinates(sk120, 10, rng)
+    payload = np.array([400.0, 300.0, -2000.0, 50.0, 0.0, 20.0])
+    nominal = PoseModel(sk120, [Marker("tip", TARGET_FRAME)], (), (np.eye(3), np.zeros(3)),
+                        Loads(TARGET_FRAME, np.tile(payload, (len(coords), 1))))
+    rows = [nominal.row_terms(sk120.configuration(c), payload) for c in coords]
+    fitted = nominal.campaign_settings(rows)[Backlash.SETTING]
+    simulated = smoothing_torques(sk120, coords, payload)
+    assert set(fitted) == set(simulated) == set(sk120.compliant_joints)
+    for name, tau_s in fitted.items():
+        assert simulated[name] == pytest.approx(tau_s, rel=1e-12), name
+    crank = sk120.model.joints[sk120.model.getJointId("joint3")].idx_v
+    for row in rows:  # the tree's torque at the crank: none
+        pin.computeJointJacobians(sk120.model, sk120.data, row.q_full)
+        jac = pin.getFrameJacobian(sk120.model, sk120.data, sk120.target_frame_id,
+                                   pin.LOCAL_WORLD_ALIGNED)
+        assert (jac.T @ payload)[crank] == 0.0
+    assert fitted["joint3"] > 0.0
 
 
 def _run(capsys, argv: list[str]) -> tuple[int, str, str]:
