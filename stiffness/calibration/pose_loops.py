@@ -41,8 +41,8 @@ from stiffness.robot.robot import Robot
 
 #: The pose families a robot with closed loops takes: none of them changes the loops' own
 #: closure (geometry only outside the loops: :meth:`PoseLoops.geometry_joints`).
-LOOP_FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "joint_compliance",
-                 "backlash", "nonlinear_joint_stiffness")
+LOOP_FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "base_tilt",
+                 "joint_compliance", "gravity_lumped", "backlash", "nonlinear_joint_stiffness")
 
 
 class LoopGeometryError(StiffnessError):

@@ -277,10 +277,23 @@ class PoseModel:
         return self._spring_links[spring]
 
     def _links_moved_by(self, spring: int) -> list[int]:
+        """The joints whose links move with spring ``spring``'s coordinate: downstream of the
+        joints it drives, a loop's passive joints it moves included (their rates per unit rate
+        at the reference assembly)."""
         model = self.robot.model
+        rates = self.spring_map[:, spring]
+        if self.loops is not None:
+            q = self.robot.assemble(None).q[None]
+            rates = self.loops.tangent(model, model.createData(), q)[0] @ rates
         driven = [j for j in range(1, model.njoints) if model.joints[j].nv == 1
-                  and self.spring_map[model.joints[j].idx_v, spring] != 0.0]
+                  and abs(rates[model.joints[j].idx_v]) > 1e-12]
         return sorted({k for j in driven for k in self.downstream(j)})
+
+    def loop_tangent(self, model: pin.Model, data: pin.Data, q: np.ndarray
+                     ) -> np.ndarray | None:
+        """(n, nv, nv) ``T = dq/du`` at the closed configurations ``q`` (n, nq) of a robot
+        with closed loops (:meth:`PoseLoops.tangent`), ``None`` for an open chain."""
+        return None if self.loops is None else self.loops.tangent(model, data, q)
 
     @property
     def size(self) -> int:
@@ -431,14 +444,16 @@ class PoseModel:
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
         j_point = (point_jacobians(model, kin, self.frame_ids, point, self._frame_masks)
                    if ev.jacobian else np.zeros(point.shape + (0,)))
-        if ev.jacobian and self.loops is not None:  # per independent rate: J_p T
-            j_point = j_point @ self.loops.tangent(model, ev.data, q)[:, None]
+        tangent = (self.loops.tangent(model, ev.data, q)
+                   if ev.jacobian and self.loops is not None else None)
+        if tangent is not None:  # per independent rate: J_p T
+            j_point = j_point @ tangent[:, None]
         caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows, ev.jacobian)
                   for f in self.family_objects}
         view = MarkerView(model, ev.data, point, np.zeros(3), ev.to_measuring,
                           ev.rot_w, ev.d_omega, j_point, state, caches, rotation,
                           np.array([self.moves[f] for f in self.frame_ids]),
-                          np.eye(len(self.markers)))
+                          np.eye(len(self.markers)), tangent)
         bent = point + self._displacement(parts, view)
         view.world = bent @ self.rotation0.T
         y[:] = view.world @ ev.rot_w.T + ev.translation

@@ -120,6 +120,8 @@ class BaseTilt(JointDeflectionFamily):
         if view.sag is None:
             return np.zeros(view.point.shape + (2,))
         torque, dg = view.caches[self.name]
+        if view.tangent is not None:  # through closed loops: T^T d tau
+            torque = np.swapaxes(view.tangent, -1, -2)[:, None] @ torque
         dq = view.sag.per_torque[..., None] * torque
         bends = sum((gravity_slope(cache, view) for cache in view.caches.values()
                      if isinstance(cache, BendCache)), np.zeros(view.point.shape + (3,)))

@@ -133,6 +133,9 @@ class PoseLayout(Protocol):
 
     def spring_downstream(self, spring: int) -> list[int]: ...
 
+    def loop_tangent(self, model: pin.Model, data: pin.Data, q: np.ndarray
+                     ) -> np.ndarray | None: ...
+
 
 def layout_cached(pm: PoseLayout, key: str, compute: Callable[[], Any]) -> Any:
     """``compute()`` once per model ``pm`` (kept in its :attr:`PoseLayout.layout_cache` under
@@ -204,6 +207,10 @@ class MarkerView:
         marker's frame, else 0.
     selector
         (M, M) one-hot: each marker among the model's markers.
+    tangent
+        (n, nv, nv) ``T = dq/du`` of a robot with closed loops at each row's loaded
+        configuration (``j_point`` already holds it: ``J_p T``; a torque of the tree reaches
+        the springs as ``T^T tau``), or ``None``: an open chain, or no Jacobian asked for.
     """
 
     model: pin.Model
@@ -219,6 +226,7 @@ class MarkerView:
     frame_rotation: np.ndarray
     moving: np.ndarray
     selector: np.ndarray
+    tangent: np.ndarray | None = None
 
 
 class PoseFamily(Effect):

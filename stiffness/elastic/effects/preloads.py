@@ -589,6 +589,9 @@ class GravityLumped(Settings, DeflectionEffect, JointDeflectionFamily):
         at each pair's (spring, body, parameter) (:func:`_lumped_layout`): exactly the
         regressor's entry for a spring on a joint (one unit entry in ``S_j``)."""
         regressor, _ = gravity_regressors(model, data, q.reshape(-1, model.nq))
+        tangent = pm.loop_tangent(model, data, q.reshape(-1, model.nq))
+        if tangent is not None:  # through closed loops: T^T Y
+            regressor = np.einsum("nvu,nvkp->nukp", tangent, regressor)
         springs, pick = layout_cached(pm, "gravity_lumped pairs", lambda: _lumped_layout(pm))
         carried = pm.spring_map.T @ regressor.reshape(regressor.shape[:2] + (-1,))
         carried = carried.reshape(regressor.shape[0], -1)[:, pick]  # (n, n_theta)
