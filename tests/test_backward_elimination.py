@@ -120,7 +120,8 @@ def test_an_effect_acting_through_a_spring_goes_with_it():
         assert alt["delta_bic"] > -BIC_MARGIN and alt["cv_rms"] is None
         assert sure["alternative_delta_bic"] > 0 and step["ranking"][0]["cv_rms"] > 0
         assert sure["alternative_not_chosen"] == {"reason": "worse BIC", "held_out_rms": None,
-                                                  "chosen_held_out_rms": None, "note": None}
+                                                  "chosen_held_out_rms": None, "note": None,
+                                                  "ranked_delta_bic": None}
     lines = [line for line in format_report(d).splitlines() if "best alternative" in line]
     assert len(lines) == 2 and all(line.endswith("; not chosen: worse BIC)") for line in lines)
     assert all(line.count("held-out RMS") == 1 for line in lines)  # the removal's

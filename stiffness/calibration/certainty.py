@@ -14,6 +14,11 @@ For each effect of the final model:
   (:class:`NotChosen`, from what that step recorded): ranked after the chosen one by BIC, or,
   ranked before it, refused on its held-out RMS (against the chosen one's) or passed over
   without a held-out verdict (why the rows could not judge it, or that it may not be named).
+  The step ranks its candidates fitted in full, and only then holds the chosen one's
+  undetermined parameters at nominal (:func:`~stiffness.calibration.naming.settle`): its BIC
+  as named can rise past an alternative ranked after it, whose BIC change is then negative
+  although its BIC was worse; the reason then says so (:data:`WORSE_BIC_IN_FULL`: its BIC
+  against the chosen one's both fitted in full, and what holding cost the chosen one).
 * **stand-in**: a parameter determined (:attr:`stiffness.elastic.effects.base.Parameter.
   determined`) but beyond its physical scale: the data prefer the effect's shape, its size is
   not physical (a finding only of that shape).
@@ -84,6 +89,9 @@ class Certainty:
 
 #: :attr:`NotChosen.reason`: ranked after the chosen one by BIC (its fit in full).
 WORSE_BIC = "worse BIC"
+#: :attr:`NotChosen.reason`: ranked after the chosen one by BIC, both fitted in full, but below
+#: the chosen one's once the latter's undetermined parameters were held at nominal.
+WORSE_BIC_IN_FULL = "worse BIC fitted in full"
 #: :attr:`NotChosen.reason`: judged held out and refused.
 HELD_OUT = "held-out error"
 #: :attr:`NotChosen.reason`: passed over without a held-out verdict.
@@ -97,36 +105,48 @@ class NotChosen:
     Attributes
     ----------
     reason
-        :data:`WORSE_BIC`, :data:`HELD_OUT` or :data:`NOT_JUDGED`.
+        :data:`WORSE_BIC`, :data:`WORSE_BIC_IN_FULL`, :data:`HELD_OUT` or :data:`NOT_JUDGED`.
     held_out_rms, chosen_held_out_rms
         :data:`HELD_OUT`: its held-out RMS and the chosen one's (m); else NaN.
     note
         :data:`NOT_JUDGED`: why (:attr:`~stiffness.calibration.search.Step.not_judged`), or
         ``None`` when the step did not say.
+    ranked_delta_bic
+        :data:`WORSE_BIC_IN_FULL`: its BIC minus the chosen one's as the step ranked them,
+        both fitted in full (a pose family the step did not fit, by its screen; positive);
+        else NaN.
     """
 
     reason: str
     held_out_rms: float = math.nan
     chosen_held_out_rms: float = math.nan
     note: str | None = None
+    ranked_delta_bic: float = math.nan
 
     def to_dict(self, length_to_si: float = 1.0) -> dict:
         """JSON-ready (lengths in the campaign's unit; NaN as ``None``)."""
         def length(x: float) -> float | None:
             return x / length_to_si if math.isfinite(x) else None
         return {"reason": self.reason, "held_out_rms": length(self.held_out_rms),
-                "chosen_held_out_rms": length(self.chosen_held_out_rms), "note": self.note}
+                "chosen_held_out_rms": length(self.chosen_held_out_rms), "note": self.note,
+                "ranked_delta_bic": self.ranked_delta_bic
+                if math.isfinite(self.ranked_delta_bic) else None}
 
 
 def not_chosen(step: Step[E, F], alt: str | None) -> NotChosen | None:
     """Why ``alt``, the best alternative of ``step`` (:func:`~stiffness.calibration.naming.
     alternative`), was not chosen, from what the step recorded: ranked after the chosen one
-    (:data:`WORSE_BIC`); else passed over unjudged (its ``not_judged`` note), or judged held
-    out and refused (its held-out RMS, then not below the model's the step extended, against
-    the chosen one's: :data:`HELD_OUT`)."""
+    (:data:`WORSE_BIC`; :data:`WORSE_BIC_IN_FULL` with the ranking's BIC difference when its
+    BIC is below the chosen one's as named, ``step.delta_bic``, whose undetermined parameters
+    were held after the ranking); else passed over unjudged (its ``not_judged`` note), or
+    judged held out and refused (its held-out RMS, then not below the model's the step
+    extended, against the chosen one's: :data:`HELD_OUT`)."""
     if alt is None:
         return None
-    if label(step.ranking[0][0]) != alt:
+    if label(step.ranking[0][0]) != alt:  # ranking[0] is the chosen one, fitted in full
+        delta = next(d for e, d, _ in step.ranking if label(e) == alt)
+        if delta < step.delta_bic:
+            return NotChosen(WORSE_BIC_IN_FULL, ranked_delta_bic=delta - step.ranking[0][1])
         return NotChosen(WORSE_BIC)
     cv = step.ranking[0][2]
     if alt in step.not_judged or cv is None:
@@ -175,6 +195,11 @@ def why_not_text(c: dict, unit: str) -> str:
                 f"{why['chosen_held_out_rms']:.4g} {unit}")
     if why["reason"] == NOT_JUDGED and why["note"]:
         return f"{NOT_JUDGED}: {why['note']}"
+    if why["reason"] == WORSE_BIC_IN_FULL:
+        ranked = why["ranked_delta_bic"]
+        return (f"{WORSE_BIC_IN_FULL}: dBIC {ranked:+.3g} against the chosen one fitted in full, "
+                f"whose BIC then rose by {ranked - c['alternative_delta_bic']:.3g} with its "
+                "undetermined parameters held at nominal")
     return why["reason"]
 
 
@@ -219,4 +244,6 @@ def how_sure_table(d: dict) -> list[str]:
         "for configurations left out (positive: worse without it). Best alternative: the "
         "best other candidate of the step that named it, and its BIC minus the chosen "
         "one's (a few units: a coin toss), and why it was not chosen: ranked after it by "
-        "BIC, its held-out RMS against the chosen one's, or why it was not judged held out.")]
+        "BIC (both fitted in full, before the chosen one's undetermined parameters were held "
+        "at nominal), its held-out RMS against the chosen one's, or why it was not judged "
+        "held out.")]
