@@ -508,3 +508,39 @@ def warn_copied_rows(cells: np.ndarray, lines: list[int] | tuple[int, ...], data
             f"{lines[i]} copies line {lines[j]}): a row written twice counts twice (its weight "
             "doubled, the intervals too narrow); remove the copies (a repeated measurement "
             "differs by its noise)", DataFileWarning, stacklevel=4)
+
+
+def warn_copied_markers(names: list[str] | tuple[str, ...], positions: np.ndarray,
+                        data: Path | str) -> None:
+    """Warn once when a marker's positions equal another marker's on every row both are seen.
+
+    Two markers are two physical points, each read with its own noise: positions equal to the
+    last bit on every row are one marker's columns written twice (a tracker export repeating a
+    marker, a map naming the same columns twice), which the fits would count twice: its
+    weight doubled and the intervals too narrow. The campaign is still read.
+
+    Parameters
+    ----------
+    names
+        The markers' names, in the order of ``positions``' second axis.
+    positions
+        (n_rows, n_markers, 3) positions as read (NaN where a marker was not seen).
+    data
+        The file the positions came from, named in the warning.
+    """
+    pos = np.asarray(positions, dtype=float)
+    pairs = []
+    for a in range(pos.shape[1]):
+        for b in range(a + 1, pos.shape[1]):
+            both = np.isfinite(pos[:, a]).all(axis=1) & np.isfinite(pos[:, b]).all(axis=1)
+            if both.sum() >= 2 and np.array_equal(pos[both, a], pos[both, b]):
+                pairs.append((names[a], names[b], int(both.sum())))
+    if pairs:
+        first, copy, n = pairs[0]
+        others = f" ({len(pairs) - 1} more pair(s))" if len(pairs) > 1 else ""
+        warnings.warn(
+            f"{data}: markers {first} and {copy} read the same positions, to the last digit, on "
+            f"all {n} rows that see both{others}: one marker's columns written twice (a tracker "
+            "export repeating a marker, or a map naming the same columns twice), which the fits "
+            "count twice (its weight doubled, the intervals too narrow); map each marker to its "
+            f"own columns, or drop {copy}", DataFileWarning, stacklevel=4)

@@ -48,6 +48,7 @@ from stiffness.calibration.coordinate_columns import (
 from stiffness.calibration.measurements import (
     coordinates_in_si,
     parse_number,
+    warn_copied_markers,
     warn_copied_rows,
 )
 from stiffness.calibration.pose_model import Loads, Marker
@@ -362,6 +363,7 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
     warn_copied_rows(np.column_stack([a.reshape(len(labels), -1) for a in (q_read, pos, wrench,
                                                                            rot) if a is not None]),
                      numbers, data)
+    warn_copied_markers([m.name for m in markers], pos, data)
     fixed = fixed_values(settings.fixed, robot, units,
                          lambda problem: toml.error(problem, "robot", "fixed"))
     held = held_coordinates(robot, coordinates, fixed, units, data,

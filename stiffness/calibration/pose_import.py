@@ -13,6 +13,7 @@ axes, at the robot's target frame). Positions are absolute, so no frame is conve
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -20,6 +21,7 @@ import pinocchio as pin
 from stiffness.calibration.campaign import RobotSettings, Units, coordinates_in_si
 from stiffness.calibration.coordinate_columns import fill_held
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
+from stiffness.calibration.measurements import warn_copied_markers
 from stiffness.calibration.pose_campaign import ROTATION_AXES, PoseCampaign
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.probe_mounting import check_marker_mounting
@@ -114,8 +116,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     columns, _ = join_tables(tables, settings.join)
     mapper = ColumnMapper(columns, settings, [t.path for t in tables])
     q_cols, q_file, prismatic, held = read_coordinates(mapper, robot)
-    seen = [_marker(mapper, m) for m in markers]
-    positions = np.stack([p for p in seen if p is not None], axis=1)  # required: all there
+    positions = _positions(mapper, markers, tables[0].path)
     turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
     rotations = (None if all(t is None for t in turns) else np.stack(
         [np.full((positions.shape[0], 3), np.nan) if t is None else t for t in turns], axis=1))
@@ -164,6 +165,15 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                           "measuring system", kind="poses")
     warn_unused(columns, report, settings.join)
     return campaign, report
+
+
+def _positions(mapper: ColumnMapper, markers: list[Marker], path: Path) -> np.ndarray:
+    """(n, markers, 3) the markers' positions in the files' unit, NaN where not seen; a
+    marker's columns that copy another's are warned about (:func:`warn_copied_markers`)."""
+    seen = [_marker(mapper, m) for m in markers]
+    positions = np.stack([p for p in seen if p is not None], axis=1)  # required: all there
+    warn_copied_markers([m.name for m in markers], positions, path)
+    return positions
 
 
 def _marker(mapper: ColumnMapper, marker: Marker, axes: tuple[str, ...] = ("x", "y", "z"),
