@@ -17,7 +17,11 @@ with the noise undeclared, nothing hidden and each hidden effect (to stdout only
 Usage::
 
     python scripts/one_configuration.py [--seeds 20] [--rows 3,6,12] [--workers 2] [--no-write]
-                                        [--undeclared]
+                                        [--undeclared] [--first-seed 300]
+
+``--first-seed S`` runs seeds S to S + ``--seeds`` - 1 (default 300: seeds 300-319), so a run
+can be split over machines or sessions; ``--records`` tabulates their ``--json`` records
+joined into one list.
 """
 
 from __future__ import annotations
@@ -161,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run the study; returns the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--first-seed", type=int, default=300,
+                        help="the first seed (default 300)")
     parser.add_argument("--rows", default="3,6,12", help="rows per campaign, comma-separated")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-write", action="store_true", help="do not update docs/diagnose.md")
@@ -173,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
                              "nothing hidden and each hidden effect (never written)")
     args = parser.parse_args(argv)
     sizes = [int(r) for r in args.rows.split(",")]
-    jobs = [(robot, spec, rows, 300 + seed) for seed in range(args.seeds)
+    jobs = [(robot, spec, rows, args.first_seed + seed) for seed in range(args.seeds)
             for robot, spec in cases(args.undeclared) for rows in sizes]
     results = (json.loads(args.records.read_text()) if args.records is not None
                else run_jobs(run_one, jobs, args.workers, args.json))
