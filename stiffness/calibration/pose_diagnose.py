@@ -51,7 +51,6 @@ from stiffness.calibration.pose_fit import (
     rows_of,
     starting_frame,
 )
-from stiffness.calibration.pose_loops import LOOP_FAMILIES
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
@@ -335,13 +334,10 @@ def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settin
            families: Sequence[str]) -> set[str]:
     """The ``families`` with no parameter on the campaign's robot and markers (bearing tilts
     where no marker's chain holds a joint the springs turn, a compensator on springs on
-    controller coordinates that each turn several chain joints, a family a robot with closed
-    loops does not take: nothing to try)."""
+    controller coordinates that each turn several chain joints, bends and tilts only inside
+    closed loops: nothing to try)."""
     out = set()
     for f in families:
-        if not campaign.robot.loop.is_open_chain and f not in LOOP_FAMILIES:
-            out.add(f)
-            continue
         with_it = (*BASE_FAMILIES, *FAMILIES[f].requires, f)
         sl = PoseModel(campaign.robot, campaign.markers, with_it, frame0, campaign.loads,
                        settings).slices()[f]

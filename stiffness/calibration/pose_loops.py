@@ -23,10 +23,14 @@ springs' torque is ``S_0^T t``. The loaded configuration is the fixed point
 ``q* = q(u + delta_0 + Delta u)``, ``Delta u = law(S_0^T t(q*))``, and the marker Jacobian
 per independent rate is ``J_p(q*) T(q*)`` (design notes, "Closed loops").
 
-Families whose parameters leave the loop's own geometry alone act unchanged
-(:data:`LOOP_FAMILIES`); ``geometry`` has parameters only at joints whose placement error
-moves both frames of every loop pair rigidly or neither (:meth:`PoseLoops.geometry_joints`),
-and a placement error hidden inside a loop is refused (:class:`LoopGeometryError`).
+Every family acts through this: torques of the tree (gravity's, its regressor, a base tilt's
+derivative) reach the springs as ``T^T tau``; a compensator's spring torque on an independent
+joint is its own there (``T``'s row of an independent coordinate is a unit row). What would
+change a loop's own geometry has no parameter: ``joint_offsets`` only on the independent
+coordinates, ``geometry``, ``link_compliance`` and ``transversal_compliance`` only at joints
+whose placement error, bend or tilt moves both frames of every loop pair rigidly or neither
+(:meth:`PoseLoops.geometry_joints`, :attr:`PoseLayout.loop_path`); such an error hidden
+inside a loop is refused (:class:`LoopGeometryError`).
 """
 
 from __future__ import annotations
@@ -38,11 +42,6 @@ import pinocchio as pin
 
 from stiffness.errors import StiffnessError
 from stiffness.robot.robot import Robot
-
-#: The pose families a robot with closed loops takes: none of them changes the loops' own
-#: closure (geometry only outside the loops: :meth:`PoseLoops.geometry_joints`).
-LOOP_FAMILIES = ("frame", "markers", "joint_offsets", "geometry", "base_tilt",
-                 "joint_compliance", "gravity_lumped", "backlash", "nonlinear_joint_stiffness")
 
 
 class LoopGeometryError(StiffnessError):
@@ -93,34 +92,19 @@ class PoseLoops:
         neither frame does not touch it)."""
         return [j for j in joints if j not in self.path_joints]
 
-    def refuse_families(self, families: Sequence[str]) -> None:
-        """Refuse the families a closed loop does not take (one line naming the valid ones).
-
-        Raises
-        ------
-        LoopGeometryError
-            A family outside :data:`LOOP_FAMILIES`.
-        """
-        wrong = [f for f in families if f not in LOOP_FAMILIES]
-        if wrong:
-            raise LoopGeometryError(
-                f"{self.robot.title} has closed loops: absolute-pose calibration takes "
-                f"{', '.join(LOOP_FAMILIES)} there, not {', '.join(wrong)} "
-                "(docs/absolute-poses.md, Limits); drop it", name=wrong[0],
-                choices=LOOP_FAMILIES)
-
     def refuse_placement(self, joint: str, valid: Sequence[str], what: str) -> None:
         """Refuse ``what`` (a hidden effect's label) at ``joint``, inside a loop (one line).
 
         Raises
         ------
         LoopGeometryError
-            Always: the joint's placement or zero closes a loop.
+            Always: the joint's placement, zero, bend or tilt closes a loop.
         """
         raise LoopGeometryError(
-            f"{what}: {joint} is inside a closed loop of {self.robot.title} (its placement or "
-            f"zero changes the loop's closure, which a pose campaign does not model); "
-            f"name one of {', '.join(valid)}", name=joint, choices=valid)
+            f"{what}: {joint} is inside a closed loop of {self.robot.title} (a placement "
+            f"error, zero offset, bend or tilt there changes the loop's closure, which a pose "
+            f"campaign does not model); name one of {', '.join(valid)}", name=joint,
+            choices=valid)
 
     def close(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
         """(n, nq) configurations with the loops closed over the passive joints, each from

@@ -164,8 +164,8 @@ class PoseModel:
     Parameters
     ----------
     robot
-        A robot with the inertias gravity needs; with closed loops, the families of
-        :data:`~stiffness.calibration.pose_loops.LOOP_FAMILIES` (:mod:`.pose_loops`).
+        A robot with the inertias gravity needs (with closed loops:
+        :mod:`stiffness.calibration.pose_loops`).
     markers
         The markers the measuring system sees.
     families
@@ -190,8 +190,6 @@ class PoseModel:
                                  f"{', '.join(FAMILIES)}")
         #: the loops' closure and tangent map (``None``: an open chain)
         self.loops = None if robot.loop.is_open_chain else PoseLoops(robot)
-        if self.loops is not None:
-            self.loops.refuse_families(families)
         self.robot = robot
         self.markers = markers
         self.settings = dict(settings or {})
@@ -212,10 +210,10 @@ class PoseModel:
         # the compliant chain joints: none when the springs act on controller coordinates
         self.compliant = ([] if robot.springs_on_controller else
                           [int(model.getJointId(n)) for n in self.springs])
-        placed = set(self.joints if self.loops is None else
-                     self.loops.geometry_joints(self.joints))  # none that closes a loop
+        self.loop_path = frozenset() if self.loops is None else self.loops.path_joints
         self.geometry = [(n, c) for n, j in enumerate(self.joints) for c in range(6)
-                         if j in placed and c != _zero_component(model.joints[j].shortname())]
+                         if j not in self.loop_path  # none that closes a loop
+                         and c != _zero_component(model.joints[j].shortname())]
         self.geometry_index = (np.array([n for n, _ in self.geometry], dtype=int),
                                np.array([c for _, c in self.geometry], dtype=int))
         self.joints_v = [model.joints[j].idx_v for j in self.joints]

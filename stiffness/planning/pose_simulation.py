@@ -206,27 +206,30 @@ def hidden_pose_errors(robot: Robot, markers: list[Marker],
 
 
 def _refuse_in_loops(robot: Robot, hidden: list[HiddenEffect], joints: list[str]) -> None:
-    """On a robot with closed loops, refuse an effect the pose model does not take there
-    (:data:`~stiffness.calibration.pose_loops.LOOP_FAMILIES`), and a placement error or zero
-    offset of a joint inside a loop (a passive joint, or on a loop's path for ``geometry``).
+    """On a robot with closed loops, refuse an error inside a loop, which the pose model does
+    not model: a zero offset of a passive joint, a placement error, a bend at or a tilt of a
+    joint on a loop's path (:attr:`PoseLoops.path_joints`).
 
     Raises
     ------
     LoopGeometryError
-        One line naming the valid effects or joints.
+        One line naming the valid joints.
     """
     if robot.loop.is_open_chain:
         return
     loops = PoseLoops(robot)
-    loops.refuse_families([h.name for h in hidden])
     model = robot.model
-    placed = [str(model.names[j]) for j in loops.geometry_joints(
+    outside = [str(model.names[j]) for j in loops.geometry_joints(
         [int(model.getJointId(n)) for n in joints])]
     for h in hidden:
-        valid = placed if h.name == "geometry" else joints
-        if h.name in ("geometry", "joint_offsets") and h.where and h.where not in valid \
-                and h.where in model.names:
-            loops.refuse_placement(str(h.where), valid, f"--effect {h.label}")
+        where = str(h.where or "")
+        joint = where.partition("->")[2] if h.name == "link_compliance" else where
+        if h.name not in ("geometry", "joint_offsets", "link_compliance",
+                          "transversal_compliance") or not model.existJointName(joint):
+            continue
+        valid = joints if h.name == "joint_offsets" else outside
+        if joint not in valid:
+            loops.refuse_placement(joint, valid, f"--effect {h.label}")
 
 
 def _springs(robot: Robot, hidden: list[HiddenEffect], kq: list[float] | np.ndarray | None

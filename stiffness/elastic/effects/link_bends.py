@@ -269,9 +269,11 @@ class LinkCompliance(DeflectionEffect, PoseFamily):
                 for link in self.links(pm) for i in (1, 2)]
 
     def links(self, pm: PoseLayout) -> list[Link]:
-        """The model's bending links (:func:`marker_links`; computed once per model)."""
-        return layout_cached(pm, f"{self.name} links",
-                             lambda: marker_links(pm.robot.model, pm.frame_ids))
+        """The model's bending links (:func:`marker_links`; computed once per model), but
+        those bending at a joint on a closed loop's path (:attr:`PoseLayout.loop_path`)."""
+        return layout_cached(pm, f"{self.name} links", lambda: [
+            link for link in marker_links(pm.robot.model, pm.frame_ids)
+            if link.b not in pm.loop_path])
 
     def rows_cache(self, pm: PoseLayout, x_f: np.ndarray, model: pin.Model,
                    kin: JointPlacements, rows: list[RowTerms], jacobian: bool
@@ -286,7 +288,7 @@ class LinkCompliance(DeflectionEffect, PoseFamily):
                           e2 * np.sum(e2 * moments, axis=-1, keepdims=True)], axis=-2)
         markers = layout_cached(pm, f"{self.name} beyond", lambda: np.array(
             [[link.b in set(model.supports[model.frames[fid].parentJoint]) for link in links]
-             for fid in pm.frame_ids], dtype=float).reshape(-1, len(links)))
+             for fid in pm.frame_ids], dtype=float).reshape(len(pm.frame_ids), len(links)))
         per_gravity = None
         if jacobian:  # d omega_b / d g = sum_i c_i e_i e_i^T [m_b (c_b - p_b)]x
             # (cross_matrices(a) is -[a]x)
@@ -418,11 +420,13 @@ class TransversalCompliance(LinkCompliance):
     def links(self, pm: PoseLayout) -> list[Link]:
         """The model's tilting joints (:func:`transversal_joints`) among the joints its springs
         turn (the compliant joints, or the chain joints of compliant controller coordinates:
-        :meth:`~stiffness.robot.robot.Robot.driven_joints`); computed once per model."""
+        :meth:`~stiffness.robot.robot.Robot.driven_joints`), but those on a closed loop's path
+        (:attr:`PoseLayout.loop_path`); computed once per model."""
         model = pm.robot.model
         return layout_cached(pm, f"{self.name} links", lambda: transversal_joints(
             model, pm.frame_ids,
-            [int(model.getJointId(j)) for j in pm.robot.driven_joints(pm.springs)]))
+            [j for j in (int(model.getJointId(n)) for n in pm.robot.driven_joints(pm.springs))
+             if j not in pm.loop_path]))
 
     @staticmethod
     def bend_axes(model: pin.Model, kin: JointPlacements, links: list[Link],

@@ -121,6 +121,9 @@ class PoseLayout(Protocol):
     geometry: list[tuple[int, int]]
     geometry_index: tuple[np.ndarray, np.ndarray]
     moves: dict[int, np.ndarray]
+    #: joints (ids) on the path between a closed loop's two frames: their placement, a bend or
+    #: a tilt there changes the loop's closure (empty for an open chain)
+    loop_path: frozenset[int]
     #: What families derive from the layout alone (the nominal model's joints, the markers),
     #: by key, computed once per model (:func:`layout_cached`).
     layout_cache: dict[str, Any]
