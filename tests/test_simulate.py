@@ -14,8 +14,14 @@ import pytest
 from stiffness.calibration.campaign import load_campaign
 from stiffness.cli.main import main
 from stiffness.elastic.effects import LIBRARY
-from stiffness.errors import RobotFileWarning, StiffnessError
+from stiffness.errors import (
+    ConvergenceError,
+    RobotFileWarning,
+    StiffnessError,
+    UnstableEquilibriumError,
+)
 from stiffness.files import resolve_source
+from stiffness.planning import simulate as simulate_module
 from stiffness.planning.simulate import TRUTH_FILE, parse_effect, sample_coordinates, simulate
 from stiffness.robot.robot import load_robot
 
@@ -245,3 +251,39 @@ def test_backlash_on_a_joint_the_loads_do_not_turn_is_refused_in_one_line():
                        r"campaign put no torque on wrist_3_joint .*--target-offset\)$"):
         simulate("ur5", kq=[3e4] * 6, configs=2, loads_per_config=2,
                  effects=["backlash:wrist_3_joint=0.002"])
+
+
+def test_a_row_the_loads_buckle_is_named_with_the_flags_that_fix_it(capsys):
+    """A UR5 on 5 N.m/rad springs under loads up to 100 N: the exact equilibrium of a row is
+    unstable; simulate names the row and its load and sends to --max-force or --kq, in one
+    line, keeping the equilibrium's error class."""
+    argv = ["simulate", "--robot", "ur5", "--kq", "5,5,5", "--compliant-joints",
+            "shoulder_pan_joint,shoulder_lift_joint,elbow_joint", "--configs", "2", "--seed", "1",
+            "--quiet", "--out", "unused"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err
+    assert re.match(r"stiffness simulate: error: simulated row \d+ \(load [-\d.e+, ]+ N\): the "
+                    r"equilibrium found under this load is unstable .*: lower the loads "
+                    r"\(--max-force, or a plan's forces\) or give stiffer springs \(--kq\)$", err)
+    with pytest.raises(UnstableEquilibriumError, match=r"^simulated row \d+ "):
+        simulate("ur5", kq=[5.0] * 3, compliant_joints=["shoulder_pan_joint",
+                 "shoulder_lift_joint", "elbow_joint"], configs=2, seed=1)
+
+
+def test_a_row_whose_equilibrium_stalls_says_which_flag_fixes_it(monkeypatch):
+    """Newton stalled at a limit point (Gepetto's 5-bar linkage on 1e3 N.m/rad motors under
+    100 N snaps through at 0.61 of a row's load): the equilibrium's own fix, 'raise
+    max_iterations', is no flag; simulate's line names the row and --max-force or --kq."""
+    def stalled(*args, **kwargs):
+        raise ConvergenceError("the exact equilibrium did not converge in 60 iterations "
+                               "(residual 0.0218): the load may exceed the buckling load; "
+                               "reduce it or raise max_iterations")
+    monkeypatch.setattr(simulate_module, "solve_equilibrium", stalled)
+    with pytest.raises(ConvergenceError) as caught:
+        simulate("ur5", kq=[3e4] * 6, configs=1, loads_per_config=2, seed=1)
+    message = str(caught.value)
+    assert message.startswith("simulated row 1 (load ")
+    assert "max_iterations" not in message
+    assert message.endswith("lower the loads (--max-force, or a plan's forces) or give stiffer "
+                            "springs (--kq)")

@@ -77,10 +77,12 @@ from stiffness.elastic.effects.geometry import (
 from stiffness.elastic.effects.parts import ElasticParts
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import (
+    ConvergenceError,
     FlagValueWarning,
     StiffnessError,
     UnknownEffectError,
     UnknownNameError,
+    UnstableEquilibriumError,
     did_you_mean,
     wrong_argument,
 )
@@ -291,7 +293,10 @@ class Truth:
             if key not in q0:
                 q0[key] = self.robot.configuration(c + self.zero_offsets)
                 rest[key] = self._unloaded(q0[key], mode)
-            out[i] = self._row(q0[key], f, mode, rest[key])
+            try:
+                out[i] = self._row(q0[key], f, mode, rest[key])
+            except (ConvergenceError, UnstableEquilibriumError) as exc:
+                raise type(exc)(_buckled_row(self.robot, i, f, str(exc))) from exc
         turn = rotation_matrix(self.misalignment)
         out[:, :3] = out[:, :3] @ turn.T + self.deflection_offset
         out[:, 3:] = out[:, 3:] @ turn.T
@@ -638,6 +643,17 @@ def _declared_robot(given: PlannedRobot) -> Robot:
                         if given.compliant_joints is None else tuple(given.compliant_joints),
                         None if given.loops is None else str(Path(given.loops).resolve()),
                         given.fixed_base)
+
+
+def _buckled_row(robot: Robot, row: int, force: np.ndarray, reason: str) -> str:
+    """One line for a simulated row whose exact equilibrium fails (``reason``, the
+    equilibrium's own error without its Python-side fix): the row, its load and the flags
+    that bring the loads under the robot's buckling load."""
+    load = ", ".join(f"{v:.4g}" for v in np.asarray(force, float))
+    return (f"simulated row {row + 1} (load {load} N): {reason.split('; ')[0]}; the rows' loads "
+            f"buckle {robot.title} at that pose, or come near it (the exact equilibrium is what "
+            "the campaign records): lower the loads (--max-force, or a plan's forces) or give "
+            "stiffer springs (--kq)")
 
 
 def _declared_baseline(hidden: list[HiddenEffect], baseline: str | None) -> str:
