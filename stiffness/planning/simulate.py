@@ -104,6 +104,7 @@ from stiffness.planning.simulate_poses import (
     rotation_axis_column,
 )
 from stiffness.planning.simulate_request import (
+    buckled_row,
     check_request,
     draw_loads,
     effect_values,
@@ -296,7 +297,7 @@ class Truth:
             try:
                 out[i] = self._row(q0[key], f, mode, rest[key])
             except (ConvergenceError, UnstableEquilibriumError) as exc:
-                raise type(exc)(_buckled_row(self.robot, i, f, str(exc))) from exc
+                raise type(exc)(buckled_row(self.robot, i, f, str(exc))) from exc
         turn = rotation_matrix(self.misalignment)
         out[:, :3] = out[:, :3] @ turn.T + self.deflection_offset
         out[:, 3:] = out[:, 3:] @ turn.T
@@ -643,17 +644,6 @@ def _declared_robot(given: PlannedRobot) -> Robot:
                         if given.compliant_joints is None else tuple(given.compliant_joints),
                         None if given.loops is None else str(Path(given.loops).resolve()),
                         given.fixed_base)
-
-
-def _buckled_row(robot: Robot, row: int, force: np.ndarray, reason: str) -> str:
-    """One line for a simulated row whose exact equilibrium fails (``reason``, the
-    equilibrium's own error without its Python-side fix): the row, its load and the flags
-    that bring the loads under the robot's buckling load."""
-    load = ", ".join(f"{v:.4g}" for v in np.asarray(force, float))
-    return (f"simulated row {row + 1} (load {load} N): {reason.split('; ')[0]}; the rows' loads "
-            f"buckle {robot.title} at that pose, or come near it (the exact equilibrium is what "
-            "the campaign records): lower the loads (--max-force, or a plan's forces) or give "
-            "stiffer springs (--kq)")
 
 
 def _declared_baseline(hidden: list[HiddenEffect], baseline: str | None) -> str:

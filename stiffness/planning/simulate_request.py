@@ -1,5 +1,6 @@
-"""What ``stiffness simulate`` is asked for: the request's checks, its drawn loads and its
-record in ``truth.json``'s settings (:mod:`stiffness.planning.simulate`)."""
+"""What ``stiffness simulate`` is asked for: the request's checks, its drawn loads, its
+record in ``truth.json``'s settings and the line for a row its loads buckle
+(:mod:`stiffness.planning.simulate`)."""
 
 from __future__ import annotations
 
@@ -161,3 +162,14 @@ def request_record(plan: Plan | None, configs: int, loads_per_config: int, repea
             "plan": str(plan.path) if plan.path is not None else None, "repeats": repeats,
             "max_force_N": float(np.linalg.norm(applied, axis=1).max()),
             "load_pattern": None}
+
+
+def buckled_row(robot: Robot, row: int, force: np.ndarray, reason: str) -> str:
+    """One line for a simulated row whose exact equilibrium fails (``reason``, the
+    equilibrium's own error without its Python-side fix): the row, its load and the flags
+    that bring the loads under the robot's buckling load."""
+    load = ", ".join(f"{v:.4g}" for v in np.asarray(force, float))
+    return (f"simulated row {row + 1} (load {load} N): {reason.split('; ')[0]}; the rows' loads "
+            f"buckle {robot.title} at that pose, or come near it (the exact equilibrium is what "
+            "the campaign records): lower the loads (--max-force, or a plan's forces) or give "
+            "stiffer springs (--kq)")
