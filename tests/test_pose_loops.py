@@ -340,7 +340,8 @@ def test_a_simulated_sk120_campaign_is_recovered(tmp_path, capsys):
     and one on the forearm, 20 µm, a 2 kN payload pulling sideways too, the paper's springs,
     zero offsets of 0.1 and -0.05 deg on the parallelogram's drives) and ``diagnose`` with the
     springs and offsets forced in: explained to noise, and the 95 % intervals of the three
-    compliances and the two hidden offsets hold the truth (seed 0; over seeds 0-19 of the
+    compliances and the two hidden offsets hold the truth, and the model file it writes gives
+    ``stiffness kx`` the springs (seed 0; over seeds 0-19 of the
     same campaign through the Python API 98 of 100 intervals held it, sum z^2 / n per
     parameter 0.52-0.99, explained to noise in 19)."""
     out = tmp_path / "sim"
@@ -353,8 +354,11 @@ def test_a_simulated_sk120_campaign_is_recovered(tmp_path, capsys):
         "--effect", "joint_offsets:joint3=-0.05", "--out", str(out)])
     assert code == 0, err
     code, printed, err = _run(capsys, ["diagnose", str(out), "--json", "--families",
-                                       "joint_offsets,joint_compliance", "--max-steps", "0"])
+                                       "joint_offsets,joint_compliance", "--max-steps", "0",
+                                       "--out", str(tmp_path / "fit")])
     assert code == 0, err
+    code, said, err = _run(capsys, ["kx", "--model", str(tmp_path / "fit" / "final-model.json")])
+    assert code == 0 and "K_X (N/m)" in said, err  # its springs (the robot weighs nothing)
     diagnosis = json.loads(printed)
     assert not diagnosis["unexplained"]
     rows = {p["parameter"]: p for p in diagnosis["parameters"]}

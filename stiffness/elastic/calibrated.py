@@ -11,7 +11,9 @@ deflection library's effects (:data:`stiffness.elastic.effects.LIBRARY`), whose 
     determine (not fitted, or ``c <= 0``) is held rigid and listed as undetermined;
 ``gravity_preload``
     with the masses known the springs carried the robot's weight in the calibration, so the
-    weight preloads them (no payload);
+    weight preloads them (no payload); not on a robot with closed loops, which the elastic
+    model does not weigh (:attr:`CalibratedElastics.weight_left_out` says so when it weighs
+    something);
 ``backlash``, ``link_compliance``, ``transversal_compliance``, ``gravity_compensator``
     the same effects, with the calibration's smoothing torques, ``1/c`` bend and bearing-tilt
     stiffnesses (a bend or a tilt off the target's chain does not act on it), and the
@@ -79,6 +81,9 @@ class CalibratedElastics:
     undetermined: list[str] = field(default_factory=list)
     left_out: list[str] = field(default_factory=list)
     no_spring: str = ""
+    #: why the robot's weight does not preload the springs, or "" (it does, or it weighs
+    #: nothing): the elastic model weighs no closed loop
+    weight_left_out: str = ""
     #: the fitted joint laws (backlash, nonlinear spring) of springs held rigid, not carried
     with_rigid: list[str] = field(default_factory=list)
 
@@ -109,7 +114,13 @@ def calibrated_elastics(cal: PoseCalibration) -> CalibratedElastics:
         out.no_spring = (f"the calibration determined none of the joint compliances "
                          f"({', '.join(out.undetermined)}); a campaign whose poses or payload "
                          "load the joints more determines them")
-    if "gravity_lumped" not in cal.families:
+    robot = load_robot(cal.source, fixed_base=cal.fixed_base)
+    if "gravity_lumped" not in cal.families and not robot.loop.is_open_chain:
+        weight = sum(inertia.mass for inertia in robot.model.inertias)
+        out.weight_left_out = "" if weight == 0.0 else (
+            f"the weight of {robot.title} ({weight:.4g} kg) is not carried into the elastic "
+            "model, which weighs no closed loop: its predictions leave gravity's preload out")
+    elif "gravity_lumped" not in cal.families:
         out.effects.append(("gravity_preload", None, [
             Parameter(n, 0.0, 0.0, (0.0, 0.0), u)
             for n, u in zip(("mass", "com_x", "com_y", "com_z"), ("kg", "m", "m", "m"),

@@ -168,6 +168,8 @@ def _read_calibration(path: Path) -> ModelFile:
     parts = calibrated_elastics(cal)
     if parts.undetermined:
         warn_user(f"{path}: {parts.rigid_note()}", DataFileWarning)
+    if parts.weight_left_out:
+        warn_user(f"{path}: {parts.weight_left_out}", DataFileWarning)
     if parts.left_out:
         warn_user(f"{path}: {', '.join(parts.left_out)} of the calibration are not carried into "
                   "the elastic model (no deflection effect): its predictions leave them out",
