@@ -210,6 +210,10 @@ def test_mjcf_from_a_model_file_carries_its_springs(tmp_path):
     (["--robot", "sk120", "--mjcf", "OUT"], ["closed loops", "--urdf"]),
     (["--robot", SK120_DH, "--compliant-joints", "joint1,joint2", "--kq", "1e6,1e6",
       "--mjcf", "OUT"], ["rigid controller coordinate 'joint3'"]),
+    # springs for a URDF (which has none) were accepted and dropped, any count (TX40, 3 for 6)
+    (["--robot", "ur5", "--urdf", "OUT", "--kq", "1,2,3"],
+     ["--kq is for --mjcf", "add --mjcf OUT.xml, or drop --kq"]),
+    (["--robot", "ur5", "--urdf", "OUT", "--q", "0,0,0,0,0,0"], ["--q is for --mjcf"]),
 ])
 def test_bad_input_gives_one_line(args, words, tmp_path, capsys):
     out = str(tmp_path / "out.xml")

@@ -95,6 +95,12 @@ def run(args: argparse.Namespace) -> int:
     if model is not None and args.robot is not None:
         model.check_robot(args.robot)
     robot, _, _ = flags.robot_from_args(args, model)
+    unused = [flag for flag, value in (("--kq", args.kq), ("--q", args.q)) if value is not None]
+    if args.mjcf is None and unused:
+        named = " and ".join(unused)
+        raise StiffnessError(f"{named} {'are' if len(unused) > 1 else 'is'} for --mjcf (the "
+                             "joint springs and their rest), and --urdf writes no springs (a "
+                             f"URDF has none): add --mjcf OUT.xml, or drop {named}")
     loops_out = None if args.urdf is None else str(Path(args.urdf).with_suffix(".loops.yaml"))
     flags.check_outputs(args.mjcf, args.urdf, loops_out,
                         inputs={"--robot": args.robot, "--model": args.model,
