@@ -44,9 +44,10 @@ STRAY_SHARE = 0.1
 #: Component names of a row's residual, translations then rotations.
 COMPONENTS = ("dx", "dy", "dz", "rx", "ry", "rz")
 #: Rounds of :func:`robust_rounds`: the scale from a least-squares fit's residuals, then from
-#: the loss fit's. Measured (docs/diagnose.md, "Robust losses"): UR5, 18 rows, 3 springs,
-#: Huber, 3 components 30 noise stds off, 300 seeds: one round covered 836 of 900 stiffness
-#: intervals (sum z^2 / n 1.59), two 846 (1.17), three 848 (1.18).
+#: the loss fit's. Measured (scripts/robust_rounds.py; docs/outliers.md, "Robust losses"): UR5,
+#: 18 rows, 3 springs, 20 um undeclared, Huber, 3 components 30 noise stds off, 300 seeds: one
+#: round covered 845 of 900 stiffness intervals (sum z^2 / n 1.14), two 847 (1.09), three 845
+#: (1.09).
 ROBUST_ROUNDS = 2
 
 _F = TypeVar("_F")
