@@ -1,5 +1,6 @@
 """Absolute-pose calibration of robots with closed kinematic loops (issue 35, "one forward
-model"): the SK120's parallelogram five-bar and a tilted non-parallelogram four-bar.
+model"): the SK120's parallelogram five-bar, a tilted non-parallelogram four-bar and the
+shipped Stewart-Gough platform (``hexapod``).
 
 The pose model's loaded configuration is the fixed point ``q(u + delta_0 + Delta u)``, the
 loops closed over their passive joints, the springs carrying ``S(q)^T (J^T w - g)`` with
@@ -8,10 +9,10 @@ loops closed over their passive joints, the springs carrying ``S(q)^T (J^T w - g
 * against an independent computation, the elastic model's exact loaded equilibrium
   (``ElasticModel.with_effects(...).at(q, wrench).equilibrium()``, Newton on the constraint
   manifold), to the loops' closure tolerance on displacements of millimetres (measured 3e-15 m
-  on the SK120, 8e-12 m on the four-bar); the pose simulator's truth (its own fixed point,
-  :func:`~stiffness.planning.simulate_poses.loop_torque`) against it too; gravity's torque
-  through the loop (neither robot file has masses: the four-bar is given some) against the
-  minimum of the potential energy;
+  on the SK120, 2e-15 m on the hexapod, 8e-12 m on the four-bar); the pose simulator's truth
+  (its own fixed point, :func:`~stiffness.planning.simulate_poses.loop_torque`) against it
+  too; gravity's torque through the loop (no robot file here has masses: the four-bar is
+  given some) against the minimum of the potential energy;
 * every Jacobian column against central differences: to 1e-6 of the largest difference at
   rigid springs (exact there: ``J_p T``), to 1e-2 at the springs' compliance (first order in
   ``C dtau/dq``, as on open chains; measured 6e-4 on the SK120);
@@ -98,6 +99,21 @@ def test_sk120_pose_model_is_the_elastic_models_equilibrium(sk120):
     k = np.array(sk120.defaults["k_theta_SI"])
     coords, wrench = _rows(sk120, 0, 1000.0)
     pose, exact = _displacements(sk120, k, coords, wrench)
+    assert np.abs(exact).max() > 1e-3
+    assert np.abs(pose - exact).max() < EXACT
+
+
+def test_hexapod_pose_model_is_the_elastic_models_equilibrium():
+    """The shipped 6-UPS Stewart-Gough platform (six 3D loops, prismatic legs as springs of
+    1e5 N/m, the platform's passive joints solved by the closure), legs within 1 cm of home,
+    100 N and 10 N.m wrenches: the pose model equals the elastic model's equilibrium (measured
+    2e-15 m on 1.1 mm)."""
+    robot = load_robot("hexapod")
+    rng = np.random.default_rng(0)
+    home = robot.coordinates_of(robot.assemble(None).q)
+    coords = home + rng.uniform(-0.01, 0.01, (3, robot.n_coordinates))
+    wrench = rng.normal(size=(3, 6)) * np.r_[100.0, 100.0, 100.0, 10.0, 10.0, 10.0]
+    pose, exact = _displacements(robot, np.full(6, 1e5), coords, wrench)
     assert np.abs(exact).max() > 1e-3
     assert np.abs(pose - exact).max() < EXACT
 
