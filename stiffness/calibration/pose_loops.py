@@ -45,14 +45,15 @@ from stiffness.robot.robot import Robot
 
 
 class LoopGeometryError(StiffnessError):
-    """A parameter family or hidden effect that would change a closed loop's own geometry.
+    """A hidden error that would change a closed loop's own geometry: a zero offset of a
+    passive joint, or a placement error, link bend or bearing tilt at a joint on a loop's path.
 
     Attributes
     ----------
     name : str
-        The family, or the joint, named.
+        The joint named.
     choices : tuple of str
-        The valid ones.
+        The valid joints.
     """
 
     def __init__(self, message: str, *, name: str, choices: Sequence[str]) -> None:
