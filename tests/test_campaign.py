@@ -9,11 +9,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
 
 from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.campaign_toml import CAMPAIGN_FILE, RobotSettings
 from stiffness.calibration.campaign_writer import write_campaign
-from stiffness.errors import StiffnessError, UnknownColumnWarning
+from stiffness.calibration.coordinate_columns import locate_coordinates
+from stiffness.errors import FileFormatError, StiffnessError, UnknownColumnWarning
 from stiffness.robot.sources import robots_directory
 from stiffness.units import Units
 
@@ -185,6 +188,9 @@ def csv_error(tmp_path, text: str) -> str:
     ("config,q1,q2,q3,q4,q5,q6,fx,FX,fy,fz,dx,dy,dz", 1, 9, "'fx' appears twice"),
     ("label,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz", 1, 1, "must be 'config'"),
     ("config,q1,q3,q2,q4,q5,q6,fx,fy,fz,dx,dy,dz", 1, 3, "expected 'q2'"),
+    # a misnamed q column is named itself (it said: column 4, got 'q3', expected 'q2')
+    ("config,q1,joint_two,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz", 1, 3,
+     "got 'joint_two' between q1 and 'q3', where q2 (joint2) belongs; name it q2"),
     ("config,q1,q2,q3,q4,q5,fx,fy,fz,dx,dy,dz", 1, 7, "but the header has 5 q columns"),
     ("config,q1,q2,q3,q4,q5,q6,q7,fx,fy,fz,dx,dy,dz", 1, 8, "has 7 q columns"),
     ("config,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz,mx,my", 1, 16, "'mz' is missing"),
@@ -518,3 +524,21 @@ def test_a_campaign_file_not_in_utf8_names_the_encoding_to_save(tmp_path):
         (tmp_path / "measurements.csv").write_bytes(raw)
         msg = error_of(toml)
         assert words in msg and "save the measurement file ([measurement] data) as UTF-8" in msg
+
+
+@given(k=st.integers(2, 6), name=st.text(st.characters(codec="ascii", categories=["L", "N"]),
+                                          min_size=1, max_size=8))
+def test_a_misnamed_q_column_is_the_column_named(sk120, k, name):
+    """Law: a header q1..q6 with q_k (k >= 2) written as anything that is neither a q column
+    nor a joint of the SK120 is refused at that column, naming it (and q_k's joint when a
+    q column follows)."""
+    robot = sk120
+    assume(not re.match(r"q\d+$", name.casefold()) and name not in robot.coordinate_joints)
+    names = ["config"] + [f"q{i}" if i != k else name for i in range(1, 7)]
+    with pytest.raises(FileFormatError) as caught:
+        locate_coordinates(names, robot, Path("m.csv"), 1)
+    assert caught.value.column == k + 1
+    message = str(caught.value)
+    assert (f"got {name!r} between q{k - 1} and 'q{k + 1}', where q{k} "
+            f"({robot.coordinate_joints[k - 1]}) belongs" in message if k < 6 else
+            f"(column 7 is {name!r}, where q6 follows)" in message)

@@ -92,14 +92,20 @@ def locate_coordinates(names: list[str], robot: Robot, data: Path, line: int
                                f"name every coordinate column q1..q{n} or after its joint")
     if q_at:
         for k, i in enumerate(q_at):
+            if k and names[i] != f"q{k + 1}" and names[i - 2: i - 1] == [f"q{k}"]:
+                raise fail(i - 1, f"got {names[i - 1]!r} between q{k} and {names[i]!r}, where "
+                                  f"q{k + 1} ({robot.coordinate_joints[k]}) belongs; name it "
+                                  f"q{k + 1} (q columns are q1, q2, ... in order)")
             if names[i] != f"q{k + 1}":
                 raise fail(i, f"got {names[i]!r}, expected 'q{k + 1}' (q columns are q1, q2, "
                               "... in order)")
         if len(q_at) != n:
             col = q_at[min(len(q_at), n)] if len(q_at) > n else q_at[-1] + 1
+            there = (f" (column {col + 1} is {names[col]!r}, where q{len(q_at) + 1} follows)"
+                     if len(q_at) < n and col < len(names) else "")
             raise fail(col, f"{robot.title} has {n} coordinates ({joints_text(robot)}) but the "
-                            f"header has {len(q_at)} q columns; give q1..q{n} in that order, or "
-                            "name the columns after the joints")
+                            f"header has {len(q_at)} q columns{there}; give q1..q{n} in that "
+                            "order, or name the columns after the joints")
         return list(q_at)
     if not by_name:
         raise fail(1 if len(names) > 1 else 0,
