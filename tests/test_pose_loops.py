@@ -30,6 +30,7 @@ loops closed over their passive joints, the springs carrying ``S(q)^T (J^T w - g
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pinocchio as pin
@@ -342,6 +343,24 @@ def test_a_compensator_is_the_simulators(sk120):
     y = model.evaluate(truth(model, hidden), rows, False)[0]
     assert np.abs(sprung.positions - plain.positions).max() > 1e-3
     assert np.abs(y - sprung.positions).max() < EXACT
+
+
+def test_a_pose_model_of_a_loop_travels_to_workers(sk120):
+    """``diagnose --workers`` pickles the campaign's robot and the fitted pose models: the
+    loops' Pinocchio constraints do not pickle, so the robot rebuilds them; the unpickled
+    model predicts the same markers and Jacobian, bit for bit."""
+    model = PoseModel(sk120, [Marker("tip", TARGET_FRAME)], ("joint_offsets",
+                                                             "joint_compliance"),
+                      (np.eye(3), np.zeros(3)), Loads(TARGET_FRAME, np.zeros((0, 6))))
+    coords, wrench = _rows(sk120, 9, 1000.0)
+    rows = [model.row_terms(sk120.configuration(c), w) for c, w in zip(coords, wrench,
+                                                                        strict=True)]
+    x = np.r_[np.full(6, 1e-3), 1.0 / np.array(sk120.defaults["k_theta_SI"])]
+    travelled = pickle.loads(pickle.dumps((model, rows)))
+    assert travelled[0].robot.loop.pairs == sk120.loop.pairs
+    for ours, theirs in zip(model.evaluate(x, rows), travelled[0].evaluate(x, travelled[1]),
+                            strict=True):
+        assert np.array_equal(ours, theirs)
 
 
 def _run(capsys, argv: list[str]) -> tuple[int, str, str]:

@@ -41,6 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.errors import StiffnessError
+from stiffness.robot.loops import LoopClosure
 from stiffness.robot.robot import Robot
 
 
@@ -74,7 +75,6 @@ class PoseLoops:
     def __init__(self, robot: Robot) -> None:
         model = robot.model
         self.robot = robot
-        self.loop = robot.loop
         passive = set(int(v) for v in self.loop.passive_v)
         #: velocity indices of the independent coordinates (every one but the passive ones)
         self.independent_v = np.array([v for v in range(model.nv) if v not in passive],
@@ -86,6 +86,11 @@ class PoseLoops:
             path |= sa ^ sb
         #: joints on the path between a loop's two frames (their placement closes the loop)
         self.path_joints = frozenset(int(j) for j in path)
+
+    @property
+    def loop(self) -> LoopClosure:
+        """The robot's loop closure (read through the robot, which pickles it)."""
+        return self.robot.loop
 
     def geometry_joints(self, joints: Sequence[int]) -> list[int]:
         """The ``joints`` (ids) whose placement errors leave the loops closed: those on no

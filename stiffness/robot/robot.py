@@ -147,6 +147,21 @@ class Robot:
     _slots: tuple[pin.Model | None, dict[str, tuple[int, int, int]]] = field(
         default_factory=lambda: (None, {}), init=False, repr=False, compare=False)
 
+    def __getstate__(self) -> dict:
+        """The robot to pickle (a Dask worker's task, a deep copy): its loop closure as its
+        frame pairs and passive joints, whose Pinocchio constraints do not pickle
+        (:meth:`__setstate__` builds them again on the model)."""
+        state = dict(self.__dict__)
+        state["loop"] = (self.loop.pairs, self.loop.passive_joints)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        """The robot of :meth:`__getstate__`'s state, its loop closure built again."""
+        pairs, passive = state["loop"]
+        state["loop"] = (build_loop_closure(state["model"], LoopDeclaration(pairs, (), passive))
+                         if pairs else LoopClosure.open_chain())
+        self.__dict__.update(state)
+
     @property
     def visual_model(self) -> pin.GeometryModel | None:
         """Pinocchio visual geometry of :attr:`model`, or None (no meshes)."""
