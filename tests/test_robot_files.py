@@ -472,6 +472,14 @@ def test_robot_file_notes_print_once_as_notes_and_not_under_quiet(tmp_path):
      "joint 'j2' has the zero axis xyz='0 0 0': it would move nothing; give the direction"),
     (_planar_arm().replace('lower="-3" upper="3"', 'lower="3" upper="-3"'), 8,
      "joint 'j1' has lower=3 above upper=-3; swap them"),
+    # a xacro file given as a URDF: PAL's hey5_test.urdf.xacro (a hand whose links are all in
+    # macros) read as 'no joint of hey5.urdf.xacro moves any frame'
+    (_planar_arm('\n  <xacro:include filename="$(find arm)/urdf/hand.urdf.xacro"/>').replace(
+        '<robot name="planar">', '<robot name="planar" xmlns:xacro="http://ros.org/wiki/xacro">'),
+     13, "a xacro file, not a URDF: its <xacro:include> is not expanded; expand it first "
+         "(`xacro bad.urdf > bad.expanded.urdf`"),
+    (_planar_arm().replace('lower="-3"', 'lower="${-pi}"'), 8,
+     "a xacro file, not a URDF: its lower='${-pi}' is not expanded"),
 ])
 def test_malformed_urdf_is_one_line_with_file_and_line(tmp_path, text, line, problem):
     path = tmp_path / "bad.urdf"
@@ -782,3 +790,21 @@ def test_any_byte_of_a_sidecar_loads_or_is_one_line(tmp_path_factory, data):
         robot = assert_reader_contract(lambda: load_robot(path), folder)
     if robot is not None:
         assert robot.model.nq > 0
+
+
+@given(after=st.integers(3, 12), tag=st.sampled_from(["include", "property", "macro", "arg",
+                                                        "if", "my_hand"]))
+def test_a_xacro_element_anywhere_is_refused_at_its_line(tmp_path_factory, after, tag):
+    """Law: a ``<xacro:...>`` element inserted after any line of a valid URDF is refused as a
+    xacro file at the element's line, naming it, whatever the macro."""
+    lines = _planar_arm().replace(
+        '<robot name="planar">',
+        '<robot name="planar" xmlns:xacro="http://ros.org/wiki/xacro">').splitlines()
+    lines.insert(after, f'<xacro:{tag} name="x"/>')
+    path = tmp_path_factory.mktemp("xacro") / "arm.urdf.xacro"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RobotFileError) as info:
+        load_robot(path)
+    assert info.value.line == after + 1
+    assert f"a xacro file, not a URDF: its <xacro:{tag}> is not expanded" in str(info.value)
+    assert "`xacro arm.urdf.xacro > arm.urdf`" in str(info.value)

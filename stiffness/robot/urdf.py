@@ -175,6 +175,27 @@ def _joint_problem(root) -> tuple[str, int] | None:
     return None
 
 
+#: The namespace of xacro's macro elements (``<xacro:include>``, ``<xacro:property>``...).
+_XACRO = "{http://ros.org/wiki/xacro}"
+
+
+def _xacro_problem(path: Path, root) -> tuple[str, int] | None:
+    """A xacro file given as a URDF: its first ``<xacro:...>`` element or ``${...}`` /
+    ``$(...)`` substitution, unexpanded (Pinocchio's parser skips them, and a hand whose links
+    are all in macros read as a robot without joints), with its line."""
+    for element in root.iter():
+        tag = element.tag if isinstance(element.tag, str) else ""
+        found = f"<xacro:{tag[len(_XACRO):]}>" if tag.startswith(_XACRO) else next(
+            (f"{k}={v!r}" for k, v in element.attrib.items() if "${" in v or "$(" in v), None)
+        if found is not None:
+            stem = path.name.removesuffix(".xacro").removesuffix(".urdf")
+            out = f"{stem}.urdf" if path.name.endswith(".xacro") else f"{stem}.expanded.urdf"
+            return (f"a xacro file, not a URDF: its {found} is not expanded; expand it first "
+                    f"(`xacro {path.name} > {out}`, ROS's xacro or `pip install xacro`) and "
+                    "load that URDF"), element.sourceline
+    return None
+
+
 def mimic_tags(root, include_fixed: bool = False) -> tuple[Mimic, ...]:
     """The ``<mimic>`` couplings of a parsed URDF (lxml root); those of fixed joints (which
     couple nothing) only with ``include_fixed``."""
@@ -250,6 +271,10 @@ def read_urdf(path: str | os.PathLike) -> UrdfRobot:
         raise MissingFileError(f"URDF file {path} does not exist; give an existing .urdf path",
                                path=path)
     raw = path.read_bytes()
+    xacro = _xacro_problem(path, _parse_tree(path, raw, strict=False)) if b"$" in raw or \
+        b"xacro" in raw else None
+    if xacro is not None:
+        raise RobotFileError(path, xacro[1], xacro[0])
     with kinematics.captured_stderr() as err:
         try:
             model = pin.buildModelFromXML(raw.decode("utf-8", "replace"))
