@@ -319,8 +319,6 @@ class Truth:
              ) -> np.ndarray:
         robot, law = self.robot, self.law
         wrench = as_wrench(force)
-        base = target_state(robot, q0, wrench)
-        tau0 = base.jacobian.T @ wrench
         if mode == "exact":
             eq = solve_equilibrium(robot, q0, law, wrench,
                                    preload=self.preload if rest is not None else None)
@@ -329,7 +327,9 @@ class Truth:
                 state = target_state(robot, eq.q)
                 dx = state.position - rest[0]
                 rot = pin.log3(state.rotation @ rest[1].T)
-        else:
+        else:  # the linear modes: the Jacobian and K_C of the unloaded pose
+            base = target_state(robot, q0, wrench)
+            tau0 = base.jacobian.T @ wrench
             k_c = base.k_c if mode == "enhanced" else np.zeros_like(base.k_c)
             if rest is None:
                 dtheta = tangent_equilibrium(law, tau0, k_c)
