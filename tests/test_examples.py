@@ -4,11 +4,12 @@ Each example runs in a fresh interpreter from a temporary folder (nothing is wri
 checkout); all of them start at once (the suite's time budget). Besides a clean exit, each
 example's printed check is read back: the linear deflection agrees with the exact equilibrium
 to second order, the batched K_C with the single-pose one, the identified springs with the
-simulated ones.
+simulated ones, the SK120's pose calibration's intervals with the truth computed here.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -90,6 +91,25 @@ def test_pose_calibration_example_closes_the_gap_to_the_noise(outputs):
     text = outputs["07_pose_calibration.py"].stdout
     assert _number(r"from ([0-9.]+) um to", text) > 300.0
     assert _number(r"to ([0-9.]+) um \(noise", text) < 25.0
+
+
+def test_sk120_pose_example_holds_the_truth_in_its_intervals(outputs):
+    """The SK120 from a tracker (seed 0, 10 poses, 20 um): explained to noise, and the 95 %
+    interval it prints for each compliance (1/k of the paper's springs, written here) and each
+    hidden zero offset (0.1 and -0.05 deg) holds the truth, and a compliance's is narrower than
+    10 % of it (a fit that determines nothing would hold anything)."""
+    text = outputs["08_pose_calibration_sk120.py"].stdout
+    assert "explains the data to noise" in text, text
+    truth = {"joint1 compliance": 1 / 1.4098e6, "joint2 compliance": 1 / 4.0076e5,
+             "joint3 compliance": 1 / 9.3528e5, "joint2 zero": math.radians(0.1),
+             "joint3 zero": math.radians(-0.05)}
+    number = r"([0-9.e+-]+)"
+    for label, value in truth.items():
+        low = _number(rf"{label}: .*\[{number},", text)
+        high = _number(rf"{label}: .*, {number}\]", text)
+        assert low <= value <= high, (label, low, value, high)
+        if "compliance" in label:
+            assert high - low < 0.1 * value, (label, low, high)
 
 
 def test_python_loop_example_finds_the_bend_and_its_stiffness(outputs):
