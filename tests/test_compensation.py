@@ -656,3 +656,29 @@ def test_linear_deflection_under_a_preload_is_the_exact_equilibriums_slope(ur5):
     springs = ElasticModel.joint_springs(ur5, UR5_K)
     springs_only = springs.linear_deflection(coords, 1e-6 * wrench) / 1e-6
     assert np.abs(springs_only - fd).max() > 1e-4 * np.abs(fd).max()
+
+
+def test_a_path_starting_at_a_singular_pose_is_held_by_pose_on_joint_springs(ur5):
+    """A UR5 path from its singular upright home (0, -90, 0, -90, 0, 0 deg) on joint springs:
+    `auto` holds the pose, as the arm can and the closed form does at any pose (it held the
+    position only, for the whole path, because the first point was singular); the exact
+    commands leave no position nor rotation error at either point, the first included. With a
+    bending link (the general solver, which a singular pose can stall) the first point still
+    decides."""
+    home = np.array([0.0, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0])
+    sv = np.linalg.svd(target_state(ur5, ur5.configuration(home)).jacobian, compute_uv=False)
+    assert sv[-1] < 1e-9 * sv[0]  # the first point is singular
+    joints, linked, _ = _ur5_link_model(ur5)
+    path, wrench = np.vstack([home, UR5_PATH[0]]), [100.0, 0.0, -300.0]
+    result = compensate(joints, path, wrench)
+    assert result.hold == "pose"
+    for point, nominal in zip(result.points, path, strict=True):
+        assert np.linalg.norm(point.deflection) > 1e-4
+        assert np.linalg.norm(point.residual) < 1e-12
+        assert np.linalg.norm(point.rotation_residual) < 1e-12
+        # independently: the springs at rest at the command settle on the nominal pose
+        loaded = _independent_equilibrium(ur5, point.command, np.array(UR5_K),
+                                          np.concatenate([wrench, np.zeros(3)]), point.q_nominal)
+        (p, r), (p_n, r_n) = (_fk(ur5, c, point.q_nominal) for c in (loaded, nominal))
+        assert np.linalg.norm(p - p_n) < 1e-9 and np.linalg.norm(pin.log3(r @ r_n.T)) < 1e-9
+    assert compensate(linked, path, wrench).hold == "position"

@@ -119,13 +119,38 @@ def retargeted(robot: Robot, frame: str | None, target_offset: np.ndarray | list
                    target_offset=offset, _reference=None)
 
 
-def choose_hold(em: ElasticModel, q: np.ndarray) -> str:
+def choose_hold(em: ElasticModel, q: np.ndarray, generic: bool = False) -> str:
     """``pose`` when the coordinates can hold position and orientation (6-row rank at the full
-    configuration ``q``), else ``position``."""
-    jac = target_state(em.full, q).jacobian
-    sv = np.linalg.svd(jac, compute_uv=False)
-    rank = int(np.sum(sv > 1e-9 * max(sv[0], 1e-300)))
-    return "pose" if rank == 6 else "position"
+    configuration ``q``), else ``position``.
+
+    With ``generic`` (the closed form, which cancels the deflection exactly at any pose, a
+    singular one included: the command is the nominal pose less the deflection), a singular
+    ``q`` (a UR arm's upright home, where a path often starts) is judged by the arm's rank
+    next to it, every coordinate moved by :data:`_GENERIC_STEP`: the arm's ability, not its
+    first point's, decides (such a first point held a UR5's whole path by its position only).
+    """
+    if _rank6(em.full, q):
+        return "pose"
+    if not generic:
+        return "position"
+    robot = em.full
+    coords = robot.coordinates_of(q)
+    step = np.random.default_rng(0).choice((-1.0, 1.0), coords.shape) * _GENERIC_STEP
+    try:
+        nearby = robot.configuration(coords + step, seed=q)
+    except StiffnessError:  # the loops do not close there: keep the point's own answer
+        return "position"
+    return "pose" if _rank6(robot, nearby) else "position"
+
+
+#: How far (rad, m) each coordinate is moved off a singular point to judge the arm's rank.
+_GENERIC_STEP = 0.05
+
+
+def _rank6(robot: Robot, q: np.ndarray) -> bool:
+    """Whether the target Jacobian at ``q`` has 6 independent rows (relative 1e-9)."""
+    sv = np.linalg.svd(target_state(robot, q).jacobian, compute_uv=False)
+    return int(np.sum(sv > 1e-9 * max(sv[0], 1e-300))) == 6
 
 
 class Compensator:

@@ -392,11 +392,12 @@ def compensate(
     seed = None
     chosen = hold
     compensator = None
+    closed_form = hold == "auto" and em.compensator(method=method).method == "closed-form"
     for i, coords in enumerate(path):
         try:
             q = em.full.configuration(coords, seed=seed)
             if chosen == "auto":
-                chosen = choose_hold(em, q)
+                chosen = choose_hold(em, q, generic=closed_form)
         except StiffnessError as exc:
             raise with_context(exc, f"path row {i + 1}") from exc
         if compensator is None:  # refuses a method the model cannot take: not the row's fault
