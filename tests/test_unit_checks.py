@@ -59,6 +59,30 @@ def declared_as(source: Path, folder: Path, declared: str) -> Path:
     return folder
 
 
+def test_pose_angles_in_radians_declared_degrees_suggest_radians(tmp_path):
+    """A UR10 pose campaign whose joint angles are in rad but declared deg (FIGAROH's UR10
+    calibration.csv imported with --units angle=deg: markers 8.4 times as far apart as the
+    kinematics moved them, the advice to check the length unit): the angles read in rad bring
+    the spread to 1, and the warning names that unit, not a length unit."""
+    robot = load_robot("ur10", frame="tool0")
+    markers = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+    hidden = HiddenPoseErrors(np.eye(3), np.array([2.0, 0.0, 0.3]),
+                              np.array([m.offset for m in markers]), np.zeros(6),
+                              np.zeros((6, 6)), np.full(6, 2e5))
+    campaign = simulate_pose_campaign(robot, markers, hidden, 12, 2e-5, seed=4,
+                                      units=Units("rad", "N", "mm"))
+    write_pose_campaign(campaign, tmp_path / "rad")
+    assert not [m for m in caught(lambda: load_pose_campaign(tmp_path / "rad"))
+                if "marker positions" in m]
+    toml = tmp_path / "rad" / "campaign.toml"
+    toml.write_text(toml.read_text().replace('angle = "rad"', 'angle = "deg"'))
+    messages = [m for m in caught(lambda: load_pose_campaign(tmp_path / "rad"))
+                if "marker positions" in m]
+    assert len(messages) == 1, messages
+    assert 'the angles look like rad: [units] angle = "rad"' in messages[0], messages[0]
+    assert "length unit" not in messages[0].split("; ", 1)[1]
+
+
 @pytest.mark.parametrize(("declared", "words"), [
     ("mm", None), ("m", 'the data look like mm: [units] length = "mm"'),
     ("um", 'the data look like mm: [units] length = "mm"'),

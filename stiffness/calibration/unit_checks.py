@@ -163,11 +163,35 @@ def check_marker_spread(robot: Robot, frames: list[str], offsets: np.ndarray, q:
     if spread is None or SPREAD_RATIO[0] <= spread[0] <= SPREAD_RATIO[1]:
         return
     ratio, pairs = spread
+    other = _other_angle_unit(robot, frames, offsets, q, positions, units)
+    advice = spread_advice(ratio, units) if other is None else (
+        f"with the angles read in {other[0]} they move {other[1]:.3g} times as far: the angles "
+        f'look like {other[0]}: [units] angle = "{other[0]}" (or --units angle={other[0]})')
     warnings.warn(
         f"{data}: the measured marker positions move {ratio:.3g} times as far between rows as "
         f"{robot.title}'s kinematics moves the markers (median over {pairs} row pairs, "
-        f"length unit {units.length}); {spread_advice(ratio, units)}",
+        f"length unit {units.length}, angle unit {units.angle}); {advice}",
         DataFileWarning, stacklevel=3)
+
+
+def _other_angle_unit(robot: Robot, frames: list[str], offsets: np.ndarray, q: np.ndarray,
+                      positions: np.ndarray, units: Units) -> tuple[str, float] | None:
+    """The other angle unit (``deg`` for ``rad`` and back) and the spread ratio the rows show
+    with their revolute coordinates read in it, when that ratio is within
+    :data:`SPREAD_RATIO`: radians declared as degrees shrink every turn 57 times, which the
+    markers' spread shows as a wrong length unit would (FIGAROH's UR10 file read in deg: 8.4)."""
+    other = {"deg": "rad", "rad": "deg"}.get(units.angle)
+    if other is None:
+        return None
+    try:
+        revolute = np.array([not robot.is_prismatic(j) for j in robot.coordinate_joints])
+    except StiffnessError:
+        return None
+    factor = 180.0 / math.pi if units.angle == "deg" else math.pi / 180.0
+    spread = marker_spread(robot, frames, offsets, np.where(revolute, q * factor, q), positions)
+    if spread is None or not SPREAD_RATIO[0] <= spread[0] <= SPREAD_RATIO[1]:
+        return None
+    return other, spread[0]
 
 
 def check_marker_offsets(robot: Robot, names: list[str], offsets: np.ndarray, units: Units,
