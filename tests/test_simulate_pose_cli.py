@@ -7,6 +7,7 @@ line (exit 2, nothing written)."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pinocchio as pin
@@ -15,6 +16,7 @@ import pytest
 from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.calibration.pose_model import Marker
 from stiffness.cli.main import main
+from stiffness.errors import FlagValueWarning
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 
@@ -103,6 +105,28 @@ def test_effect_sizes_are_the_rigid_displacements(tmp_path, capsys):
             "noise_std", "unit", "value_units", "hidden", "settings", "model"} == set(truth)
     assert truth["kind"] == "poses" and truth["unit"] == "mm"
     assert truth["settings"]["poses"] == 5 and truth["markers"][0]["frame"] == "tool0"
+
+
+def test_springs_no_payload_loads_on_a_weightless_robot_are_warned(tmp_path, capsys):
+    """The SK120's robot file has no link masses: its springs hidden without ``--load`` move
+    no marker (0 mm RMS), which one warning line traces to the missing payload; with one they
+    move the markers and nothing is warned."""
+    argv = ["simulate", "--kind", "poses", "--robot", "sk120", "--poses", "3", "--kq",
+            "1.4e6,4e5,9.4e5"]
+    with pytest.warns(FlagValueWarning) as record:
+        code, out, err = _run(capsys, argv + ["--out", str(tmp_path / "free")])
+    assert code == 0, err
+    assert "hidden joint_compliance: moves the markers by 0 mm RMS" in out, out
+    assert [str(w.message).split(":")[0] for w in record] == ["hidden joint_compliance moves no "
+                                                              "marker"]
+    assert "sk120 weighs nothing" in str(record[0].message)
+    assert "--load FX,FY,FZ" in str(record[0].message)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FlagValueWarning)
+        code, out, err = _run(capsys, argv + ["--load", "0,0,-2000", "--out",
+                                              str(tmp_path / "held")])
+    assert code == 0, err
+    assert "hidden joint_compliance: moves the markers by 0 mm" not in out, out
 
 
 def test_diagnose_names_the_hidden_joint_spring(tmp_path, capsys):

@@ -57,12 +57,14 @@ from stiffness.calibration.pose_model import Marker, pose_joints
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base import effect_place
 from stiffness.errors import (
+    FlagValueWarning,
     StiffnessError,
     UnknownEffectError,
     UnknownFrameError,
     UnknownJointError,
     UnknownNameError,
     did_you_mean,
+    warn_user,
 )
 from stiffness.files import atomic_write, refuse_foreign_folder, staged_folder, written_source
 from stiffness.planning.design import DEFAULT_NOISE_STD_M
@@ -466,6 +468,7 @@ def simulate_poses(
     if not declare_noise:
         campaign.noise_std = campaign.noise_std_rotation = None
     sizes = _effect_sizes(given, markers, hidden_effects, kq, units, drift_m, poses, seed, wrench)
+    _warn_unloaded(given, sizes, wrench)
     settings = {"robot": {"source": given.name, "frame": given.target_frame},
                 "poses": poses, "seed": seed,
                 "kq": None if kq is None else np.asarray(truth.stiffness).tolist(),
@@ -473,6 +476,24 @@ def simulate_poses(
                 "rotations": rotations, "rotation_noise_std_rad": rotation_std,
                 "drift_m": truth.drift.tolist(), "declare_noise": declare_noise}
     return PoseSimulation(campaign, truth, hidden_effects, noise_std_m, sizes, settings)
+
+
+#: A hidden effect's RMS on the markers below which it moves none of them (m): float rounding.
+UNSEEN_M = 1e-12
+
+
+def _warn_unloaded(robot: Robot, sizes: dict[str, float], wrench: np.ndarray | None) -> None:
+    """Warn (:class:`~stiffness.errors.FlagValueWarning`, one line) when the robot weighs
+    nothing (its file has no link masses: the SK120, the hexapod) and no payload loads it, so
+    that hidden effects move no marker (``sizes``: each one's RMS, m): springs that carry no
+    torque, which a user reading ``0 mm RMS`` may not trace to the missing ``--load``."""
+    unseen = [label for label, size in sizes.items() if size < UNSEEN_M]
+    if not unseen or (wrench is not None and np.any(wrench)) or pin.computeTotalMass(
+            robot.model) > 0:
+        return
+    warn_user(f"hidden {', '.join(unseen)} moves no marker: {robot.title} weighs nothing (its "
+              f"robot file has no link masses) and no payload loads its springs; give one "
+              f"(--load FX,FY,FZ in N; from Python payload=[...])", FlagValueWarning)
 
 
 def _check_robot_and_markers(robot: Robot, markers: list[Marker]) -> None:
