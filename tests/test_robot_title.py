@@ -81,3 +81,30 @@ def test_echo_messages_reports_and_model_files_name_the_robot(tmp_path, capsys, 
                     ).campaign.name == f"simulated-{NAME}"
     assert main(["robot", "export", "--robot", str(toml), "--urdf", "arm.urdf"]) == 0
     assert f'<robot name="{NAME}"' in (tmp_path / "arm.urdf").read_text()
+
+
+TINY_URDF = """<robot name="tiny_arm">
+  <link name="base"/><link name="l1"/><link name="tip"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>
+    <limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="jt" type="fixed"><parent link="l1"/><child link="tip"/><origin xyz="0.3 0 0"/>
+  </joint>
+</robot>
+"""
+
+
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"compliant_joints": ["joint1"]}, "compliant joint 'joint1' is not a coordinate joint of "
+                                       "tiny_arm; valid names: j1"),
+    ({"frame": "tool0"}, "frame 'tool0' is not in tiny_arm; valid names: "),
+])
+def test_loading_refusals_name_a_urdf_robot_by_its_name_not_its_path(tmp_path, kwargs, words):
+    """A compliant joint or frame a URDF lacks is refused naming the robot as its URDF does
+    (a TX40 campaign's 'joint1' said 'not a coordinate joint of /tmp/.../tx40_mdh_modified.urdf'
+    while its [robot] fixed said 'of staubli_tx40')."""
+    path = tmp_path / "deep" / "arm.urdf"
+    path.parent.mkdir()
+    path.write_text(TINY_URDF)
+    with pytest.raises(StiffnessError) as caught:
+        load_robot(str(path), **kwargs)
+    assert words in str(caught.value) and str(tmp_path) not in str(caught.value)

@@ -175,19 +175,7 @@ class Robot:
         ``name`` its ``robot.toml`` declares; else a shipped or example-robot-data robot's
         name; else, for a file, the URDF's robot name (a pose calibration's: its model's; else
         the file's stem) or the folder of a ``robot.toml``, never a path."""
-        declared = self.defaults.get("name")
-        if isinstance(declared, str) and declared.strip():
-            return declared.strip()
-        name = self.name
-        if not ("/" in name or "\\" in name or "." in Path(name).name or os.path.isdir(name)):
-            return name
-        path = Path(name)
-        if path.suffix.lower() == ".toml" or path.is_dir():
-            folder = path.resolve() if path.is_dir() else path.resolve().parent
-            return folder.name or name
-        if path.suffix.lower() in (".urdf", ".xml", ".json") and self.model.name:
-            return self.model.name
-        return path.stem or name
+        return robot_title(self.name, self.defaults, self.model.name)
 
     @property
     def n_coordinates(self) -> int:
@@ -612,6 +600,23 @@ class Robot:
         return self._reference
 
 
+def robot_title(name: str, settings: dict, model_name: str) -> str:
+    """:attr:`Robot.title` of a robot loaded from the source ``name`` with the robot-file
+    settings ``settings`` and the Pinocchio model name ``model_name``: never a path."""
+    declared = settings.get("name")
+    if isinstance(declared, str) and declared.strip():
+        return declared.strip()
+    if not ("/" in name or "\\" in name or "." in Path(name).name or os.path.isdir(name)):
+        return name
+    path = Path(name)
+    if path.suffix.lower() == ".toml" or path.is_dir():
+        folder = path.resolve() if path.is_dir() else path.resolve().parent
+        return folder.name or name
+    if path.suffix.lower() in (".urdf", ".xml", ".json") and model_name:
+        return model_name
+    return path.stem or name
+
+
 def load_robot(
     source: str | os.PathLike,
     frame: str | None = None,
@@ -675,8 +680,9 @@ def load_robot(
     closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
     gripper = gripper_joints(model, src.all_mimics + src.mimics)
     defaulted = frame is target_offset is None and not {"frame", "target_offset_m"} & {*settings}
+    title = robot_title(name, settings, model.name)
     frame = checked_target_frame(
-        name, model, frame if frame is not None else settings.get("frame"), closure, gripper)
+        title, model, frame if frame is not None else settings.get("frame"), closure, gripper)
     fid = kinematics.frame_id(model, frame)  # a default target is off the tip joint's origin
     offset = default_target_offset(model, fid) if defaulted else target_offset_of(
         target_offset, settings, name, model, frame)
@@ -684,7 +690,7 @@ def load_robot(
         model, fid, spring_names, coupling is not None or not loop.is_open_chain, mimics))
     settings = check_counts(settings, coordinate_joints, springs)
     compliant_joints = tuple(springs if compliant_joints is None else joint_names(compliant_joints))
-    check_compliant(name, compliant_joints, spring_names, passive, dependent, coupling)
+    check_compliant(title, compliant_joints, spring_names, passive, dependent, coupling)
 
     parent = model.frames[fid]
     placement = parent.placement * pin.SE3(np.eye(3), offset)
