@@ -653,17 +653,15 @@ def load_robot(
     ------
     StiffnessError
         Unknown source, missing or malformed file (:class:`~stiffness.errors.RobotFileError`),
-        unknown frame or joint, unsupported joint type, floating base without ``fixed_base``
-        (:class:`~stiffness.errors.FloatingBaseError`).
+        unknown frame or joint (the robot named by :func:`robot_title`), unsupported joint
+        type, floating base without ``fixed_base`` (:class:`~stiffness.errors.FloatingBaseError`).
     """
     src = calibrated_source(source) if is_json(source) else resolve_source(source)
     name, settings = src.name, src.settings
     declaration = loop_declaration(src, loops)
     model, visual, visual_loader, notes = _edited_model(src, declaration, fixed_base)
-    followers = tuple(m.follower for m in src.mimics)
-    loop = LoopClosure.open_chain()
-    if declaration is not None:
-        loop = build_loop_closure(model, declaration, dependent=followers)
+    loop = LoopClosure.open_chain() if declaration is None else build_loop_closure(
+        model, declaration, dependent=tuple(m.follower for m in src.mimics))
     passive = set(loop.passive_joints)
     mimics = checked_mimics(name, src.mimics, model, passive)
     dependent = {m.follower for m in mimics}
