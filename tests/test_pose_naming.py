@@ -207,3 +207,39 @@ def test_a_family_adding_no_parameter_says_so_instead_of_a_bic_change():
     # the step table names its lengths' unit (FIGAROH's runs printed RMS and CV RMS bare)
     assert re.search(r"^step +effect +params +RMS \(m\) +dBIC +CV RMS \(m\)$", report, re.M)
     assert "joint_offsets" not in record["not_judged"]  # one that adds parameters is judged
+
+
+def test_how_sure_removal_of_an_effect_named_before_a_larger_misfit_is_explained():
+    """An effect named first, while a larger misfit was still unexplained (here forced first:
+    ``--families joint_offsets,joint_compliance --max-steps 0`` on the SK120 of
+    examples/08), was judged on that step's overdispersion: its removal read dBIC -9.30 while
+    the offsets move the markers by ~50 noise std of the final fit. Now every removal is
+    judged under the final model's overdispersion, as backward elimination judges it; the
+    expected change is computed from an independent fit without the offsets."""
+    import stiffness
+
+    robot = stiffness.load_robot("sk120")
+    springs = np.array(robot.defaults["k_theta_SI"])
+    markers = [Marker("tip", "fixture_target", np.zeros(3)),
+               Marker("fore", "forearm", np.array([0.3, 0.0, 0.1]))]
+    sigma = 20e-6
+    campaign = stiffness.simulate_poses(
+        robot, markers, poses=10, kq=springs, noise_std_m=sigma, seed=0,
+        payload=[400.0, 300.0, -2000.0], effects=["frame=1,2,-3,500,300,100",
+                                                  "joint_offsets:joint2=0.1",
+                                                  "joint_offsets:joint3=-0.05"]).campaign
+    both = stiffness.diagnose(campaign, families=["joint_offsets", "joint_compliance"],
+                              max_steps=0).summary()
+    alone = stiffness.diagnose(campaign, families=["joint_compliance"],
+                               max_steps=0).summary()
+    n = 10 * 2 * 3
+    lu = 1e-3  # the campaign's length unit (mm) in m
+    fits = [(both["steps"][-1]["rms"] * lu, both["steps"][-1]["n_parameters"]),
+            (alone["steps"][-1]["rms"] * lu, alone["steps"][-1]["n_parameters"])]
+    rss = [r ** 2 * n for r, _ in fits]
+    p = [k for _, k in fits]
+    c = max(1.0, min(r / (sigma ** 2 * (n - k)) for r, k in zip(rss, p, strict=True)))
+    expected = (rss[1] - rss[0]) / (c * sigma ** 2) - (p[0] - p[1]) * math.log(n)
+    offsets = next(s for s in both["how_sure"] if s["effect"] == "joint_offsets")
+    assert expected > 1000  # the offsets earn their parameters by far
+    assert offsets["removal_delta_bic"] == pytest.approx(expected, rel=1e-4)

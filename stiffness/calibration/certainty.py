@@ -7,8 +7,13 @@ For each effect of the final model:
   folds, a pose campaign's leave-one-configuration-out); the cost is that model's held-out RMS
   minus the final model's (m): what predicting unseen configurations loses without the
   effect. Its in-sample counterpart is the BIC change of the removal
-  (positive: the effect earns its parameters), under the overdispersion of the step that
-  named it (a misfit above the noise acts as extra noise), on that step's scale.
+  (positive: the effect earns its parameters), under the overdispersion of the final model
+  and its removals (a misfit above the noise acts as extra noise;
+  :func:`~stiffness.calibration.selection.step_criteria`), the scale backward elimination
+  judges the same removals on: when the final model stays above the noise, that of the step
+  that named the last effect, so removing the last effect added costs what adding it gained;
+  an effect named earlier, under a misfit the later effects explained, is judged on what the
+  final model leaves, not on that larger misfit.
 * **best alternative**: the best-ranked other candidate of the step that named it, and its BIC
   minus the chosen one's (a few units: a coin toss; tens: solid), and why it was not chosen
   (:class:`NotChosen`, from what that step recorded): ranked after the chosen one by BIC, or,
@@ -38,7 +43,7 @@ from dataclasses import dataclass
 
 from stiffness.calibration.naming import STAND_IN_NOTE, alternative
 from stiffness.calibration.search import E, F, Removals, SearchKind, Step, label
-from stiffness.calibration.selection import information_criterion
+from stiffness.calibration.selection import step_criteria
 from stiffness.htmlpage import esc, table
 
 
@@ -54,9 +59,8 @@ class Certainty:
         Cross-validated RMS without it minus the final model's (m); NaN without folds.
     removal_delta_bic
         BIC of the final model without it minus the final model's, under the overdispersion
-        of the step that named it (:attr:`~stiffness.calibration.search.Step.dispersion`), as
-        that step's BIC changes are: removing the last effect added costs what adding it
-        gained.
+        of the final model and its removals (the module docstring), as backward elimination
+        judges them.
     alternative, alternative_delta_bic
         Label of the best other candidate of its step and its BIC minus the chosen one's
         (``None`` when the step had no other candidate).
@@ -166,20 +170,16 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[
     if not named:
         return []
 
-    def bic(fit: F, dispersion: float) -> float:
-        rss, p = fit.terms()
-        return information_criterion(rss, kind.n, p, None if kind.sigma is None
-                                     else kind.sigma * math.sqrt(dispersion))
-
     out = kind.removals
     if out is None or out.final is not final:
         out = kind.removals = Removals(final, kind.without(final), {})
+    base, bics, _ = step_criteria(final.terms(), [fit.terms() for fit in out.fits], kind.n,
+                                  kind.sigma)
     certain = []
-    for s, fit, cv in zip(named, out.fits, out.held_out(kind, range(len(out.fits))),
+    for s, bic, cv in zip(named, bics, out.held_out(kind, range(len(out.fits))),
                           strict=True):
         alt, delta = alternative([(label(e), d) for e, d, _ in s.ranking], s.label, s.delta_bic)
-        certain.append(Certainty(s.label, cv - cv_final,
-                                 bic(fit, s.dispersion) - bic(final, s.dispersion), alt, delta,
+        certain.append(Certainty(s.label, cv - cv_final, bic - base, alt, delta,
                                  stand_in(s.label), not_chosen(s, alt)))
     return certain
 
