@@ -16,7 +16,11 @@ from stiffness.calibration.fit_verdict import verdict_line, verdict_sentence
 from stiffness.calibration.outliers import robust_noise
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, noise_terms
-from stiffness.calibration.pose_model_file import parameter_table, write_pose_model
+from stiffness.calibration.pose_model_file import (
+    measuring_frame,
+    parameter_table,
+    write_pose_model,
+)
 from stiffness.calibration.pose_page import render_pose_diagnosis, stage_plot
 from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.calibration.pose_plausibility import Plausibility, plausibility
@@ -162,6 +166,7 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                 "plausibility": self.plausibility.to_dict(),
                 "identifiability": self.identifiability(),
                 "parameters": parameter_table(self.final, self.judge),
+                "measuring_frame": measuring_frame(self.final, lu),
                 "how_sure": [c.to_dict(lu) for c in self.how_sure],
                 **verdict, "unexplained_note": verdict_sentence(verdict)})
 

@@ -23,7 +23,11 @@ from stiffness.elastic.effects.pose_face import compliance_label, nonlinear_labe
 from stiffness.elastic.parameter_covariance import KEY, POSE_VARIABLES, ParameterCovariance
 from stiffness.errors import FileFormatError
 from stiffness.files import atomic_write, jsonable, read_json, written_source
-from stiffness.robot.calibration import POSE_MODEL_KIND, read_pose_calibration
+from stiffness.robot.calibration import (
+    POSE_MODEL_KIND,
+    measuring_placement,
+    read_pose_calibration,
+)
 from stiffness.robot.robot import Robot, load_robot
 
 
@@ -49,6 +53,21 @@ def parameter_table(fit: PoseFit, judge: PoseJudge | None = None) -> list[dict]:
     for row in table:
         row.update(_softening(row, table))
     return table
+
+
+def measuring_frame(fit: PoseFit, length_to_si: float) -> dict:
+    """The fitted measuring frame whole (``diagnose --json``'s ``measuring_frame``): the
+    robot world's placement in the measuring system's axes, ``y = R p + t``
+    (:func:`~stiffness.robot.calibration.measuring_placement`: the starting estimate corrected
+    by the ``frame`` family, whose parameters are that correction, not the frame): ``rotation``
+    (3x3), ``rotation_vector_deg`` (its rotation vector, deg) and ``translation`` (the
+    campaign's length unit, ``length_to_si`` m each)."""
+    values = {p.label: float(fit.x[i]) for i, p in enumerate(fit.model.parameters)}
+    rotation, translation = measuring_placement(fit.model.rotation0, fit.model.translation0,
+                                                values)
+    return {"rotation": rotation.tolist(),
+            "rotation_vector_deg": np.degrees(pin.log3(rotation)).tolist(),
+            "translation": (translation / length_to_si).tolist()}
 
 
 def _softening(row: dict, table: list[dict]) -> dict:

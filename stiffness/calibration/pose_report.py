@@ -47,7 +47,18 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     if held:
         lines += ["", "held at nominal (the data do not determine them):",
                   *parameter_lines(held)]
+    lines += ["", *_frame_lines(summary["measuring_frame"], unit)]
     return "\n".join(lines + (["", *how_sure_lines(summary)] if d.how_sure else []))
+
+
+def _frame_lines(frame: dict, unit: str) -> list[str]:
+    """The fitted measuring frame whole (the ``frame`` parameters above are its correction
+    to the starting estimate, not the frame)."""
+    t, r = frame["translation"], frame["rotation_vector_deg"]
+    return ["measuring frame (the robot world in the measuring system's axes, y = R p + t; "
+            "the frame parameters are its correction to the starting estimate):",
+            f"  t = ({t[0]:.6g}, {t[1]:.6g}, {t[2]:.6g}) {unit}, R = rotation vector "
+            f"({r[0]:.6g}, {r[1]:.6g}, {r[2]:.6g}) deg"]
 
 
 #: How the identifiability lines name a parameter left out, by its reason.

@@ -157,16 +157,25 @@ class PoseCalibration:
 
     def measuring_placement(self) -> tuple[np.ndarray, np.ndarray]:
         """(R, t) with ``y = R p + t`` for a robot-world point ``p``: the calibrated measuring
-        frame, ``exp(omega) R_0`` and ``t_0 + t``."""
-        v = self.values()
-        part = np.array([v.get(frame_label(a), 0.0) for a in PLACEMENT_AXES])
-        return pin.exp3(part[3:]) @ self.rotation, self.translation + part[:3]
+        frame (:func:`measuring_placement`)."""
+        return measuring_placement(self.rotation, self.translation, self.values())
 
     def marker_offset(self, k: int) -> np.ndarray:
         """Calibrated offset (3,) m of marker ``k`` in its frame's axes."""
         name, _, nominal = self.markers[k]
         v = self.values()
         return nominal + np.array([v.get(marker_label(name, a), 0.0) for a in "xyz"])
+
+
+def measuring_placement(rotation0: np.ndarray, translation0: np.ndarray,
+                        values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) with ``y = R p + t`` for a robot-world point ``p``: a pose calibration's
+    measuring frame, its starting estimate ``R_0, t_0`` (m) corrected by the ``frame``
+    family's parameters in ``values`` (SI, by label; absent: zero), ``exp(omega) R_0`` and
+    ``t_0 + t`` (docs/absolute-poses.md, *What is fitted*)."""
+    part = np.array([values.get(frame_label(a), 0.0) for a in PLACEMENT_AXES])
+    return pin.exp3(part[3:]) @ np.asarray(rotation0, float), np.asarray(translation0,
+                                                                         float) + part[:3]
 
 
 def is_json(source: str | os.PathLike) -> bool:
