@@ -10,7 +10,8 @@ loops closed over their passive joints, the springs carrying ``S(q)^T (J^T w - g
   (``ElasticModel.with_effects(...).at(q, wrench).equilibrium()``, Newton on the constraint
   manifold), to the loops' closure tolerance on displacements of millimetres (measured 3e-15 m
   on the SK120, 2e-15 m on the hexapod, 8e-12 m on the four-bar); the pose simulator's truth
-  (its own fixed point, :func:`~stiffness.planning.simulate_poses.loop_torque`) against it
+  (its own fixed point; the projection through the loop, ``LoopClosure.tangent``, is the
+  model's, which the elastic model's equilibrium checks) against it
   too; gravity's torque through the loop (no robot file here has masses: the four-bar is
   given some) against the minimum of the potential energy;
 * every Jacobian column against central differences: to 1e-6 of the largest difference at
@@ -270,8 +271,9 @@ def test_columns_equal_central_differences(robot_name, sk120, tilted_four_bar_ro
 
 def test_backlash_smoothing_is_the_simulators(sk120):
     """The backlash smoothing torques (2 % of the RMS torque each spring carries) of the pose
-    model's campaign settings and of the pose simulator (its own projection,
-    :func:`~stiffness.planning.simulate_poses.loop_torque`) on SK120 poses under a payload
+    model's campaign settings and of the pose simulator (its path,
+    :func:`~stiffness.planning.simulate_poses.loop_torque`, through the same
+    ``LoopClosure.tangent``) on SK120 poses under a payload
     agree to 1e-12; through the loop the crank's (joint3) is not the tree's torque at its
     joint, which carries none of the forearm's load."""
     rng = np.random.default_rng(6)

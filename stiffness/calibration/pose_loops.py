@@ -75,10 +75,6 @@ class PoseLoops:
     def __init__(self, robot: Robot) -> None:
         model = robot.model
         self.robot = robot
-        passive = set(int(v) for v in self.loop.passive_v)
-        #: velocity indices of the independent coordinates (every one but the passive ones)
-        self.independent_v = np.array([v for v in range(model.nv) if v not in passive],
-                                      dtype=int)
         path: set[int] = set()
         for fa, fb in self.loop.frame_ids:
             sa = set(model.supports[model.frames[fa].parentJoint])
@@ -127,17 +123,10 @@ class PoseLoops:
         return out
 
     def tangent(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
-        """(n, nv, nv) ``T = dq/du`` at the closed configurations ``q`` (n, nq): the identity
-        on the independent coordinates, :meth:`LoopClosure.passive_rates` on the passive
-        rows, zero passive columns."""
-        n, nv = q.shape[0], model.nv
-        out = np.zeros((n, nv, nv))
-        ind, pas = self.independent_v, self.loop.passive_v
-        out[:, ind, ind] = 1.0
-        for i in range(n):
-            pin.computeJointJacobians(model, data, q[i])
-            out[i][np.ix_(pas, ind)] = self.loop.passive_rates(model, data, ind)
-        return out
+        """(n, nv, nv) ``T = dq/du`` at the closed configurations ``q`` (n, nq), one
+        :meth:`LoopClosure.tangent` per row."""
+        return np.array([self.loop.tangent(model, data, qi) for qi in q]).reshape(
+            q.shape[0], model.nv, model.nv)
 
 
 def projected(tangent: np.ndarray, torque: np.ndarray) -> np.ndarray:

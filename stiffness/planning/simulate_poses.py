@@ -342,14 +342,7 @@ def loop_torque(model: pin.Model, data: pin.Data, q: np.ndarray, loop: LoopClosu
     at the closed ``q``: ``tau_i + R^T tau_p`` with ``R`` the passive joints' rates per
     independent rate (virtual work through the loop), zero on the passive coordinates;
     ``torque`` itself for an open chain."""
-    if loop is None:
-        return torque
-    independent = np.setdiff1d(np.arange(model.nv), loop.passive_v)
-    pin.computeJointJacobians(model, data, q)
-    rates = loop.passive_rates(model, data, independent)
-    out = np.zeros(model.nv)
-    out[independent] = torque[independent] + rates.T @ torque[loop.passive_v]
-    return out
+    return torque if loop is None else loop.tangent(model, data, q).T @ torque
 
 
 def _joint_torque(model: pin.Model, data: pin.Data, q: np.ndarray, springs: HiddenElasticity,

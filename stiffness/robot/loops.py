@@ -361,6 +361,19 @@ class LoopClosure:
         c = self.jacobian(model, data) if jacobian is None else jacobian
         return -np.linalg.pinv(c[:, self.passive_v], rcond=1e-9) @ c[:, independent_v]
 
+    def tangent(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+        """(nv, nv) ``T = dq/du`` at the closed configuration ``q``: the identity on the
+        independent coordinates (every one but the passive ones), :meth:`passive_rates` on
+        the passive rows, zero passive columns; ``T^T tau`` is the generalised force the
+        independent coordinates feel of the tree's ``tau`` (virtual work through the loop).
+        Computes the joint Jacobians at ``q``."""
+        independent = np.setdiff1d(np.arange(model.nv), self.passive_v)
+        pin.computeJointJacobians(model, data, q)
+        out = np.zeros((model.nv, model.nv))
+        out[independent, independent] = 1.0
+        out[np.ix_(self.passive_v, independent)] = self.passive_rates(model, data, independent)
+        return out
+
     def passive_basis(self, model: pin.Model, data: pin.Data,
                       jacobian: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Basis ``(B, V)`` in which :meth:`mode_determinant` reads the assembly mode here.
