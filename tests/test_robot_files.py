@@ -26,6 +26,8 @@ from fuzzing import assert_reader_contract, byte_mutation
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import CRANK_ROCKER, write_four_bar
+
 from stiffness.cli.main import main
 from stiffness.errors import (
     FileFormatError,
@@ -268,8 +270,38 @@ def test_no_assembly_anywhere_is_refused(tmp_path):
     path = _write(tmp_path, _rssr_urdf(2.0), _rssr_yaml("UJOINT_XY"))
     robot = load_robot(path)
     with pytest.raises(LoopClosureError, match=r"no assembly near its zero pose.*loop "
-                                               r"\[rod_end, rocker_end\].*residual"):
+                                               r"\[rod_end, rocker_end\].*residual.*the frames "
+                                               r"of \[rod_end, rocker_end\] cannot meet even "
+                                               r"with that loop alone"):
         robot.assemble(None)
+
+
+def test_a_ball_closure_typed_as_a_weld_is_named_with_the_fix(tmp_path):
+    """Gepetto's generateYAML types every pair 6d (their kangaroo_like: 5 of 11 pairs cannot
+    weld). A planar four-bar's pin closure welded: the coupler and rocker would be parallel
+    with their ends met, so |crank end - rocker pivot| = |c - b|, which the crank, turning,
+    never reaches (that distance stays within [d - a, d + a]); as a point contact it closes."""
+    bar = write_four_bar(tmp_path, "fourbar", **CRANK_ROCKER)
+    a, b, c, d = (CRANK_ROCKER[k] for k in "abcd")
+    assert abs(c - b) < d - a  # independently: no crank angle welds it
+    load_robot(bar.urdf, frame="tool_tip").assemble(None)  # declared 3D: closes
+    sidecar = bar.urdf.with_suffix("").with_suffix(".loops.yaml")
+    sidecar.write_text(sidecar.read_text().replace('"3D"', '"6D"'))
+    with pytest.raises(LoopClosureError, match=r"keeps a residual of [0-9.e-]+ m; the loops close "
+                       r"with the 6d pairs typed 3d .*\(\[coupler_end, rocker_end\] cannot "
+                       r"close as welds even alone\): type the ball and pin closures 3d") as info:
+        load_robot(bar.urdf, frame="tool_tip").assemble(None)
+    assert "\n" not in str(info.value)
+
+
+def test_loop_frames_left_out_of_the_loop_file_are_named(tmp_path):
+    """kangaroo_like's robot.yaml pairs closedloop0, 2..11 but not the URDF's closedloop1_A/B."""
+    bar = write_four_bar(tmp_path, "fourbar", **CRANK_ROCKER)
+    bar.urdf.write_text(bar.urdf.read_text().replace('"tool_tip"', '"closedloop1_A"'))
+    with pytest.warns(RobotFileWarning, match=r"1 frames of fourbar.urdf named as loop-closure "
+                      r"frames are in no closed_loop pair \(closedloop1_A\): their loops are "
+                      r"left open"):
+        load_robot(bar.urdf, frame="closedloop1_A")
 
 
 def test_kx_json_configuration_and_closure(spinning, capsys):

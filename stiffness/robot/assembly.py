@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.robot import kinematics
-from stiffness.robot.loops import CLOSURE_TOLERANCE_M, LoopClosure
+from stiffness.robot.loops import CLOSURE_TOLERANCE_M, LoopClosure, LoopPair
 
 #: Iterations of the all-joint least squares.
 MAX_ITERATIONS = 400
@@ -117,3 +117,44 @@ def least_squares_assembly(model: pin.Model, data: pin.Data, loop: LoopClosure, 
             kinematics.update_first_order(model, data, q)
     kinematics.update_first_order(model, data, q)
     return q, float(np.linalg.norm(loop.residual(model, data)))
+
+
+
+def _names(pairs: list[LoopPair]) -> str:
+    """Up to four pairs as ``[a, b]``, then how many more."""
+    shown = ", ".join(f"[{p.frame_a}, {p.frame_b}]" for p in pairs[:4])
+    return shown + (f" and {len(pairs) - 4} more" if len(pairs) > 4 else "")
+
+
+def assembly_diagnosis(model: pin.Model, data: pin.Data, loop: LoopClosure, q: np.ndarray,
+                       free_v: np.ndarray, follow: Callable[[np.ndarray], np.ndarray]) -> str:
+    """What in the loop file keeps the assembly search from closing the loops near ``q``: a
+    clause for the error naming the pairs and the fix.
+
+    Each pair is closed alone by :func:`least_squares_assembly` over ``free_v``, and, a "6D"
+    pair (a weld), also as "3D" (the frames' origins meeting). A pair that cannot meet even
+    alone names the loop file's frames (or the URDF's path between them); a "6D" pair that
+    closes only as "3D" is a ball or pin closure typed as a weld (Gepetto's ``generateYAML``
+    writes every pair "6D"); when every pair closes alone, all of them taken as "3D" are tried
+    together.
+    """
+    def closes(pairs: tuple[LoopPair, ...]) -> bool:
+        points = loop.retyped(model, pairs)
+        found = least_squares_assembly(model, data, points, q, free_v, follow)[1]
+        return found <= 1e3 * CLOSURE_TOLERANCE_M
+
+    def as_point(pair: LoopPair) -> LoopPair:
+        return LoopPair(pair.frame_a, pair.frame_b, "3D")
+
+    apart = [p for p in loop.pairs if not closes((as_point(p),))]
+    if apart:
+        return (f"the frames of {_names(apart)} cannot meet even with that loop alone: the "
+                "loop file pairs frames no joint path brings together (or the URDF lacks a "
+                "joint on that path)")
+    welds = [p for p in loop.pairs if p.kind == "6D" and not closes((p,))]
+    if not welds and not (any(p.kind == "6D" for p in loop.pairs)
+                          and closes(tuple(map(as_point, loop.pairs)))):
+        return "each loop closes alone but not all together: check the loop file's frame pairs"
+    named = f" ({_names(welds)} cannot close as welds even alone)" if welds else ""
+    return (f"the loops close with the 6d pairs typed 3d (frames whose origins meet), not as "
+            f"declared{named}: type the ball and pin closures 3d in the loop file")

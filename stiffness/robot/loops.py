@@ -424,6 +424,12 @@ class LoopClosure:
             here = basis
         return det, here
 
+    def retyped(self, model: pin.Model, pairs: tuple[LoopPair, ...]) -> LoopClosure:
+        """These loop pairs (frames of this closure's, any type) with this closure's passive
+        joints, as Pinocchio constraints on ``model``."""
+        declaration = LoopDeclaration(pairs, (), self.passive_joints)
+        return build_loop_closure(model, declaration)
+
     def loop_residuals(self, model: pin.Model, data: pin.Data) -> list[tuple[str, float]]:
         """Name (``[frame_a, frame_b]``) and residual norm (m; rad) of each loop, placements
         current."""

@@ -34,7 +34,7 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.robot import kinematics
-from stiffness.robot.assembly import Assembly, least_squares_assembly
+from stiffness.robot.assembly import Assembly, least_squares_assembly, assembly_diagnosis
 from stiffness.robot.calibration import calibrated_source, is_json
 from stiffness.robot.continuation import Continuation
 from stiffness.robot.coupling import CoordinateMap
@@ -590,10 +590,12 @@ class Robot:
                 if residual > 1e3 * CLOSURE_TOLERANCE_M:
                     name, worst = max(self.loop.loop_residuals(self.model, self.data),
                                       key=lambda item: item[1])
+                    why = assembly_diagnosis(self.model, self.data, self.loop, q0, free_v,
+                                             self.follow)
                     raise LoopClosureError(
                         f"{self.title} has no assembly near its zero pose: even moving every "
-                        f"joint, the loop {name} keeps a residual of {worst:.3g} m; check the "
-                        "loop file's frame pairs", loop=name, residual=worst) from None
+                        f"joint, the loop {name} keeps a residual of {worst:.3g} m; {why}",
+                        loop=name, residual=worst) from None
                 q0, searched = self._step_inside(coords, self.loop.close(
                     self.model, self.data, found)), True
             self._reference = (self.coordinates_of(q0), q0, searched)

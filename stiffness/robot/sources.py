@@ -451,12 +451,19 @@ def loop_declaration(source: RobotSource, loops: str | os.PathLike | None
     """The loop declaration to read: ``loops``, the shipped one, or the sidecar found; with
     none, a warning if the URDF's frames are named as loop-closure frames
     (:data:`LOOP_FRAME_MARKS`): its loops would otherwise be dropped in silence."""
-    if loops is not None:
-        return read_loop_declaration(Path(loops))
-    if source.loop_file is not None:
-        return read_loop_declaration(source.loop_file)
     marked = [f.name for f in source.model.frames if f.type in (pin.BODY, pin.OP_FRAME)
               and any(mark in f.name.lower() for mark in LOOP_FRAME_MARKS)]
+    path = Path(loops) if loops is not None else source.loop_file
+    if path is not None:
+        declaration = read_loop_declaration(path)
+        paired = {name for p in declaration.pairs for name in (p.frame_a, p.frame_b)}
+        left = [name for name in marked if name not in paired]
+        if left and source.urdf is not None:
+            warn(f"{path}: {len(left)} frames of {source.urdf.name} named as loop-closure "
+                 f"frames are in no closed_loop pair ({', '.join(left[:4])}"
+                 f"{' ...' if len(left) > 4 else ''}): their loops are left open; add each "
+                 "pair to closed_loop with its type (docs/robot-files.md)")
+        return declaration
     if marked and source.urdf is not None:
         warn(f"{source.urdf}: {len(marked)} frames are named as loop-closure frames (e.g. "
              f"{marked[0]!r}) but no loop declaration is beside it: loaded as an open tree; "
