@@ -22,11 +22,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CRANK_ROCKER, write_four_bar
 from fuzzing import assert_reader_contract, byte_mutation
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from conftest import CRANK_ROCKER, write_four_bar
 
 from stiffness.cli.main import main
 from stiffness.errors import (

@@ -34,7 +34,7 @@ from stiffness.errors import (
     did_you_mean,
 )
 from stiffness.robot import kinematics
-from stiffness.robot.assembly import Assembly, least_squares_assembly, assembly_diagnosis
+from stiffness.robot.assembly import Assembly, assembly_diagnosis, least_squares_assembly
 from stiffness.robot.calibration import calibrated_source, is_json
 from stiffness.robot.continuation import Continuation
 from stiffness.robot.coupling import CoordinateMap
