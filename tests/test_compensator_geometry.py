@@ -22,7 +22,8 @@ from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
-from stiffness.calibration.selection import Noise, fit_model, parameter_covariance
+from stiffness.calibration.fitting import compliance_covariance
+from stiffness.calibration.selection import Noise, fit_model
 from stiffness.cli.main import main
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import effect_report
@@ -279,7 +280,7 @@ def test_the_base_given_the_declared_lever_is_fitted_with_covering_intervals():
         model = Hypothesis(geo, rows, "enhanced", tuple(robot.compliant_joints), (freed,), refs)
         fit = fit_model(model, campaign.deflection, NOISE,
                         np.concatenate([np.log(KINOVA[2]), freed.start()]))
-        matrix = parameter_covariance(fit, NOISE, campaign.deflection)
+        matrix = compliance_covariance(fit, NOISE, campaign.deflection)
         quantile = Noise(NOISE).two_sided()
         edge = Noise(NOISE).one_sided()
         params = [*stiffness_parameters(fit, matrix, quantile, edge),

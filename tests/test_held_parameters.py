@@ -21,6 +21,7 @@ from stiffness.calibration.deflection_parameters import effect_parameters, stiff
 from stiffness.calibration.diagnosis import SI_UNITS
 from stiffness.calibration.fitting import (
     NOMINAL_STIFFNESS,
+    compliance_covariance,
     nominal_log_stiffness,
     parameter_labels,
 )
@@ -28,7 +29,6 @@ from stiffness.calibration.selection import (
     Noise,
     fit_model,
     holding,
-    parameter_covariance,
 )
 from stiffness.elastic.effects.base import Held
 
@@ -63,7 +63,7 @@ def test_a_held_parameter_is_held_at_its_nominal_value_and_says_why():
     assert dropped.reason == "undetermined"
     assert dropped.held == Held("held at its nominal value: test")
     assert fit.penalty_params == fit.model.penalty_params - 1
-    cov = parameter_covariance(fit, NOISE, c.deflection)
+    cov = compliance_covariance(fit, NOISE, c.deflection)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
     stiffness, preload = effect_parameters(fit, cov, quantile, edge, SI_UNITS)[
@@ -84,7 +84,7 @@ def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():
     labels = parameter_labels(fit.model)
     k = labels.index(f"gravity_compensator({ARMS[0][3]}).stiffness")
     assert fit.at_bound == [k]
-    cov = parameter_covariance(fit, NOISE, c.deflection)
+    cov = compliance_covariance(fit, NOISE, c.deflection)
     held = holding(cov, fit.at_bound)  # the fit's covariance with the bound one held
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
@@ -189,7 +189,7 @@ def test_a_quantity_derived_from_a_variable_beside_a_bound_is_reported():
     model = fit.model.extended(effect)
     fit = fit_model(model, c.deflection, NOISE, model.extend_x(fit.x, effect))
     assert fit.at_bound  # the compensator's stiffness still at 0
-    cov = parameter_covariance(fit, NOISE, c.deflection)
+    cov = compliance_covariance(fit, NOISE, c.deflection)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
     beta, change = effect_parameters(fit, cov, quantile, edge, SI_UNITS)[effect.label]

@@ -28,9 +28,10 @@ from scipy.optimize import least_squares
 from stats import Coverage
 
 from stiffness.calibration.diagnose import diagnose
+from stiffness.calibration.fitting import compliance_covariance
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import PoseModel
-from stiffness.calibration.selection import Noise, parameter_covariance
+from stiffness.calibration.selection import Noise
 from stiffness.calibration.solver import covariance_matrix
 from stiffness.planning.simulate import simulate
 
@@ -137,7 +138,7 @@ def test_a_robust_fits_t_counts_a_parameter_at_its_bound_in_both_kinds():
     measured = sim.campaign.deflection
     d = diagnose(sim.campaign, propose=False, workers=1, loss="huber", max_steps=0)
     assert d.final.at_bound == [1] and len(d.final.kept) == 3
-    cov = parameter_covariance(d.final, 2e-5, measured)  # robust: the sandwich, any sigma
+    cov = compliance_covariance(d.final, 2e-5, measured)  # robust: the sandwich, any sigma
     p = _rank(cov)
     assert p == 3
     c = math.exp(-d.final.x[1])  # rad/(N.m), 1e-14

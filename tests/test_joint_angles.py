@@ -23,7 +23,8 @@ from stiffness.calibration.campaign_writer import write_campaign
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
-from stiffness.calibration.selection import Noise, fit_model, parameter_covariance
+from stiffness.calibration.fitting import compliance_covariance
+from stiffness.calibration.selection import Noise, fit_model
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import effect_report, effect_variables
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -139,7 +140,7 @@ def _fitted_parameters(arm, seed: int) -> list:
     c = _sim(arm, seed).campaign
     model, (comp,) = _model(c, [("gravity_compensator", arm[3])], "link")
     fit = fit_model(model, c.deflection, NOISE, np.concatenate([np.log(arm[2]), comp.start()]))
-    matrix = parameter_covariance(fit, NOISE, c.deflection)
+    matrix = compliance_covariance(fit, NOISE, c.deflection)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
     return [*stiffness_parameters(fit, matrix, quantile, edge),

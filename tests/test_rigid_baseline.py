@@ -23,7 +23,6 @@ from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.selection import (
     Noise,
     fit_model,
-    parameter_covariance,
 )
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -45,7 +44,7 @@ def _fit(k: np.ndarray, seed: int):
 
 
 def _stiffness(fit, measured):
-    cov = parameter_covariance(fit, NOISE, measured)
+    cov = fitting.compliance_covariance(fit, NOISE, measured)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
     return stiffness_parameters(fit, cov, quantile, edge)
@@ -75,5 +74,5 @@ def test_compliance_columns_give_the_same_covariance_when_well_conditioned(seed)
     fit, measured = _fit(np.array([3e4, 2e4, 1.5e4]), seed)
     plain = fitting.covariance(fit, NOISE, measured).matrix
     assert np.all(np.isfinite(plain))
-    np.testing.assert_allclose(parameter_covariance(fit, NOISE, measured), plain,
+    np.testing.assert_allclose(fitting.compliance_covariance(fit, NOISE, measured), plain,
                                rtol=1e-8, atol=1e-12 * np.abs(plain).max())

@@ -15,10 +15,11 @@ import pytest
 from pose_campaigns import ur10_rigid_lift_campaign
 
 from stiffness.calibration.deflection_parameters import stiffness_parameters
+from stiffness.calibration.fitting import compliance_covariance
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.pose_model_file import parameter_table
-from stiffness.calibration.selection import Noise, fit_model, holding, parameter_covariance
+from stiffness.calibration.selection import Noise, fit_model, holding
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.planning.simulate import simulate
@@ -65,7 +66,7 @@ def test_a_deflection_fit_at_a_bound_reports_the_covariance_none_held():
     compliance = np.exp(-fit.x)
     rule = _covariance(lambda u: model.predict(-np.log(u)), compliance,
                        np.full(3, 1e-8), NOISE, np.zeros(3))  # rad/(N.m), of 5e-5
-    cov = parameter_covariance(fit, NOISE, c.deflection)
+    cov = compliance_covariance(fit, NOISE, c.deflection)
     elbow = stiffness_parameters(fit, cov, Noise(NOISE).two_sided(),
                                  Noise(NOISE).one_sided())[2]
     assert not elbow.at_bound

@@ -30,10 +30,11 @@ from stats import Coverage
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.diagnose import diagnose
 from stiffness.calibration.diagnosis import SI_UNITS
+from stiffness.calibration.fitting import compliance_covariance
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.poses import sample_coordinates
-from stiffness.calibration.selection import Noise, fit_model, parameter_covariance
+from stiffness.calibration.selection import Noise, fit_model
 from stiffness.elastic.effects import candidates, make_effect
 from stiffness.elastic.effects.base import effect_report
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -102,7 +103,7 @@ def _true_fit(robot, q, force, moment, deflection, effects: tuple) -> list:
     refs = References.of(geo, rows, 2e4, deflection)
     model = Hypothesis(geo, rows, "enhanced", SPRINGS, effects, refs)
     fit = fit_model(model, deflection, NOISE, np.concatenate([np.log(K), effects[-1].start()]))
-    matrix = parameter_covariance(fit, NOISE, deflection)
+    matrix = compliance_covariance(fit, NOISE, deflection)
     quantile = Noise(NOISE).two_sided()
     edge = Noise(NOISE).one_sided()
     n = len(SPRINGS)

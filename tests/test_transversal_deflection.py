@@ -176,11 +176,8 @@ def test_a_rigid_bearing_is_never_fitted_negative_and_the_others_cover():
 
     from stiffness.calibration.deflection_parameters import effect_parameters, stiffness_parameters
     from stiffness.calibration.diagnosis import SI_UNITS
-    from stiffness.calibration.selection import (
-        Noise,
-        fit_model,
-        parameter_covariance,
-    )
+    from stiffness.calibration.fitting import compliance_covariance
+    from stiffness.calibration.selection import Noise, fit_model
     from stiffness.elastic.effects.geometry import References
     from stiffness.planning.simulate import simulate
 
@@ -197,7 +194,7 @@ def test_a_rigid_bearing_is_never_fitted_negative_and_the_others_cover():
         fit = fit_model(model, c.deflection, noise,
                         np.concatenate([np.full(3, np.log(2e4)), tilt.start()]))
         assert np.all(fit.x[3:] >= 0.0)  # compliances (scaled): never negative
-        cov = parameter_covariance(fit, noise, c.deflection)
+        cov = compliance_covariance(fit, noise, c.deflection)
         quantile = Noise(noise).two_sided()
         edge = Noise(noise).one_sided()
         tilts = effect_parameters(fit, cov, quantile, edge, SI_UNITS)[tilt.label]

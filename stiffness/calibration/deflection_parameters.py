@@ -1,6 +1,6 @@
 """The parameters a deflection diagnosis reports: the baseline's joint stiffnesses and each
 effect's parameters, with their 95 % intervals from the fit's covariance
-(:func:`stiffness.calibration.selection.parameter_covariance`), one-sided at a physical bound,
+(:func:`stiffness.calibration.fitting.compliance_covariance`), one-sided at a physical bound,
 each end of the others' respecting the bounds by both campaign kinds' rule
 (:func:`with_bounds`, :func:`~stiffness.calibration.selection.end_covariances`), and what
 takes a held parameter's share (:func:`share`). The pose campaigns' counterpart is

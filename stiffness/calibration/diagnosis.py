@@ -136,8 +136,8 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         (as each step's :attr:`~stiffness.calibration.search.Step.validation`); else
         ``None``.
     final_covariance
-        The covariance of the final fit's ``x`` (:func:`~stiffness.calibration.selection.
-        parameter_covariance` at :attr:`noise_std_m`), written into the model file in its
+        The covariance of the final fit's ``x`` (:func:`~stiffness.calibration.fitting.
+        compliance_covariance` at :attr:`noise_std_m`), written into the model file in its
         variables (:mod:`stiffness.elastic.parameter_covariance`), or ``None``.
     """
 

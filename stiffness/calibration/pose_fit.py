@@ -133,7 +133,7 @@ class PoseFit:
     covariance
         (k, k) covariance of the kept parameters (order of ``identifiability.kept``), none
         of them held, those at their bound neither: a deflection fit's
-        (:func:`~stiffness.calibration.selection.parameter_covariance`), whose diagonal gives
+        (:func:`~stiffness.calibration.fitting.compliance_covariance`), whose diagonal gives
         :meth:`std`; only an interval's end holds bound parameters
         (:func:`~stiffness.calibration.selection.end_covariances`).
     residual

@@ -236,13 +236,6 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
     return out
 
 
-def parameter_covariance(fit: Fit, sigma: float, measured: np.ndarray) -> np.ndarray:
-    """Covariance of ``x``: the engine's ``sigma^2 (J^T J)^+`` (a robust fit's sandwich),
-    the baseline's compliances judged in compliance units
-    (:func:`~stiffness.calibration.fitting.compliance_covariance`)."""
-    return fitting.compliance_covariance(fit, sigma, measured)
-
-
 def held_ends(pull: list[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which parameters at their bound hold each end of another parameter's 95 % interval:
     ``(low, high)`` masks over them, true where moving the parameter that way (down, up)
