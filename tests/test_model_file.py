@@ -490,23 +490,6 @@ def test_an_undetermined_stiffness_is_used_with_a_warning(tmp_path):
     assert [(w.category, w.filename) for w in caught] == [(DataFileWarning, __file__)]
 
 
-def test_the_old_names_still_work_with_a_deprecation_warning():
-    """CompliantModel, ModelCompliance and model_compliance: one release more, same numbers."""
-    import stiffness.elastic.model_file as model_file
-    from stiffness.elastic.state import ElasticState
-
-    model, force = _ur5_model(), np.array([20.0, -10.0, -80.0])
-    with pytest.warns(DeprecationWarning, match="CompliantModel is deprecated"):
-        old = model_file.CompliantModel(model)
-    with pytest.warns(DeprecationWarning, match="model_compliance is deprecated"):
-        at = model_file.model_compliance(model, Q, force)
-    with pytest.warns(DeprecationWarning, match="ModelCompliance is deprecated"):
-        assert model_file.ModelCompliance is ElasticState
-    new = elastic_model_of(model).at(Q, force)
-    np.testing.assert_array_equal(old.at(Q, force).k_x(), new.stiffness())
-    np.testing.assert_array_equal(at.compliance(slice(0, 6)), new.compliance(slice(0, 6)))
-
-
 @pytest.mark.parametrize(("joint", "wrong", "expected"), [("slide", "N.m/rad", "N/m"),
                                                            ("swing", "N/m", "N.m/rad")])
 def test_a_stiffness_unit_of_the_wrong_kind_of_joint_is_refused(tmp_path, joint, wrong,

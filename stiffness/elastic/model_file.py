@@ -14,17 +14,13 @@ with springs -> the one :class:`stiffness.elastic.model.ElasticModel`;
 :func:`~stiffness.elastic.file_model.elastic_model_of` for a read file, in
 :mod:`stiffness.elastic.file_model` with the fitted deflection). Errors: a file's
 (:class:`~stiffness.elastic.model_contents.ModelFileError`,
-:class:`~stiffness.elastic.model_contents.ModelRobotError`). ``CompliantModel``,
-``ModelCompliance`` and ``model_compliance`` are deprecated names of
-:func:`~stiffness.elastic.file_model.elastic_model_of`,
-:class:`~stiffness.elastic.state.ElasticState` and ``load_model(path).at(q, load)``.
+:class:`~stiffness.elastic.model_contents.ModelRobotError`).
 """
 
 from __future__ import annotations
 
 import math
 import os
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +41,6 @@ from stiffness.elastic.model_contents import (
     ModelFileError,
 )
 from stiffness.elastic.parameter_covariance import KEY, ParameterCovariance
-from stiffness.elastic.state import ElasticState
 from stiffness.errors import (
     DataFileWarning,
     StiffnessError,
@@ -417,31 +412,3 @@ def load_model(source: ElasticModel | Robot | ModelFile | str | os.PathLike,
             raise StiffnessError(f"give k: one stiffness per compliant joint of {robot.title} "
                                  f"({', '.join(robot.compliant_joints)})")
     return ElasticModel.joint_springs(robot, k)
-
-
-# deprecated names (one release) -------------------------------------------------------------------
-
-
-def _model_compliance(model: ModelFile | ElasticModel | str | os.PathLike, q: np.ndarray,
-                      load: np.ndarray | None = None, formulation: str = "enhanced"
-                      ) -> ElasticState:
-    """Deprecated: ``load_model(model).at(q, load, formulation)``."""
-    return load_model(model).at(q, load, formulation)
-
-
-_DEPRECATED = {
-    "CompliantModel": (elastic_model_of, "stiffness.load_model(path) or "
-                                         "stiffness.elastic.file_model.elastic_model_of(file)"),
-    "ModelCompliance": (ElasticState, "stiffness.elastic.state.ElasticState"),
-    "model_compliance": (_model_compliance, "stiffness.load_model(path).at(q, wrench)"),
-}
-
-
-def __getattr__(name: str):
-    """The names this module had before the one elastic model, with a DeprecationWarning."""
-    if name in _DEPRECATED:
-        value, instead = _DEPRECATED[name]
-        warnings.warn(f"stiffness.elastic.model_file.{name} is deprecated; use {instead}",
-                      DeprecationWarning, stacklevel=2)
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
