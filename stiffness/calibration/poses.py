@@ -129,7 +129,7 @@ class Workspace:
         if unit not in ("deg", "rad"):
             raise StiffnessError(f"{where}: angle_unit must be deg or rad, got {unit!r}")
         names = list(robot.coordinate_joints)
-        factor = np.array([1.0 if _is_prismatic(robot, j) else (
+        factor = np.array([1.0 if robot.is_prismatic(j) else (
             math.pi / 180.0 if unit == "deg" else 1.0) for j in names])
 
         def index(name) -> int:
@@ -215,10 +215,6 @@ class Workspace:
         for i, constant, c in self.linear:
             coords[i] = constant + sum(v * coords[j] for j, v in c.items())
         return coords
-
-
-def _is_prismatic(robot: Robot, joint: str) -> bool:
-    return robot.is_prismatic(joint)
 
 
 

@@ -148,10 +148,6 @@ LIBRARY: dict[str, type[DeflectionEffect]] = {
 FAMILIES: dict[str, type[PoseFamily]] = {
     name: cls for name, cls in EFFECTS.items() if issubclass(cls, PoseFamily)
 }
-#: Effects the issue requires (``deflection_offset``, ``gravity_lumped``, the weight of unknown
-#: masses, and ``joint_offsets``, the joints' zero offsets, are extras).
-REQUIRED_EFFECTS = tuple(n for n in LIBRARY if n not in ("deflection_offset", "gravity_lumped",
-                                                          "joint_offsets"))
 #: What a campaign's robot's link masses are: ``known`` (the URDF's inertias: the weight is
 #: ``gravity_preload``) or ``unknown`` (``gravity_lumped`` fits their gravity parameters).
 MASSES = ("known", "unknown")

@@ -314,7 +314,7 @@ class LinkCompliance(DeflectionEffect, PoseFamily):
                                                mounts[:, sel], column)
         return e1, e2
 
-    def _lever(self, pm: PoseLayout, view: MarkerView) -> tuple[np.ndarray, np.ndarray]:
+    def _lever(self, view: MarkerView) -> tuple[np.ndarray, np.ndarray]:
         """Per link, the turn per unit compliance (L, 2, 3) of the links the marker is beyond
         (zero for the others), and the marker's lever from ``p_b`` (L, 3)."""
         cache = view.caches[self.name]
@@ -323,12 +323,12 @@ class LinkCompliance(DeflectionEffect, PoseFamily):
 
     def marker_displacement(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView
                             ) -> np.ndarray:
-        turns, lever = self._lever(pm, view)
+        turns, lever = self._lever(view)
         omega = np.einsum("...lik,li->...lk", turns, x_f.reshape(-1, 2))
         return cross(omega, lever).sum(axis=-2)
 
     def columns(self, pm: PoseLayout, x_f: np.ndarray, view: MarkerView) -> np.ndarray:
-        turns, lever = self._lever(pm, view)
+        turns, lever = self._lever(view)
         cols = cross(turns, lever[..., None, :]).reshape(turns.shape[:-3] + (-1, 3))
         return view.to_measuring @ np.swapaxes(cols, -1, -2)  # (..., 3, 2L)
 
