@@ -59,13 +59,7 @@ from stiffness.calibration.deflection_parameters import (
 from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
-from stiffness.calibration.fitting import (
-    Fit,
-    compliance_covariance,
-    compliance_spread,
-    kind_noise,
-    observations,
-)
+from stiffness.calibration.fitting import Fit, compliance_spread, kind_noise, observations
 from stiffness.calibration.naming import settle
 from stiffness.calibration.outliers import flag_fit, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
@@ -318,9 +312,9 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
-    cov_final = compliance_covariance(final, sigma_used, measured)
+    cov_final = fitting.compliance_covariance(final, sigma_used, measured)
     noise_base = _fit_noise(known, base, n)
-    cov_base = compliance_covariance(base, noise_base.sigma, measured)
+    cov_base = fitting.compliance_covariance(base, noise_base.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, final.penalty_params,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
@@ -395,7 +389,7 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, known: N
     trial = fit_model(fit.model.with_effects(fit.model.effects[:-1] + (freed,)), measured, scale,
                       np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
     noise = _fit_noise(known, trial, n)
-    cov = compliance_covariance(trial, noise.sigma, measured)
+    cov = fitting.compliance_covariance(trial, noise.sigma, measured)
     c = b + len(extra)
     freed_params = effect_report(freed, trial.x[a:c], cov[a:c, a:c], trial.model.refs,
                                  SI_UNITS, noise.two_sided())[effect.n_params:]
@@ -690,11 +684,10 @@ class DeflectionSearch:
         return effect
 
     def covariance(self, fit: Fit) -> tuple[np.ndarray, Noise]:
-        """The covariance of ``fit.x`` (:func:`~stiffness.calibration.fitting.
-        compliance_covariance`) and the noise it is for
-        (:func:`_fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
+        """The covariance of ``fit.x`` (:func:`fitting.compliance_covariance`) and the noise it
+        is for (:func:`_fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
         noise = _fit_noise(self.noise, fit, self.n)
-        return compliance_covariance(fit, noise.sigma, self.measured), noise
+        return fitting.compliance_covariance(fit, noise.sigma, self.measured), noise
 
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""
