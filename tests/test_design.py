@@ -535,8 +535,8 @@ def test_separation_is_what_refitting_leaves(pools):
     for this, other in ((alt.a, alt.b), (alt.b, alt.a)):
         diffs, jacs = [], []
         for r in (this.model.rows, new_rows):
-            p_this = this.model.with_rows(r).predict(this.x)
-            m_other = other.model.with_rows(r)
+            p_this = this.model.replaced(rows=r).predict(this.x)
+            m_other = other.model.replaced(rows=r)
             p_other = m_other.predict(other.x)
             jac = np.stack([(m_other.predict(other.x + h) - m_other.predict(other.x - h)) / 2e-6
                             for h in 1e-6 * np.eye(len(other.x))], axis=-1)

@@ -71,7 +71,7 @@ def test_a_held_parameter_is_held_at_its_nominal_value_and_says_why():
     assert stiffness.held == "held at its nominal value: test" and not stiffness.determined
     assert "not fitted (held at 0 N/m)" in stiffness.text()
     # the model derived from it (an extension, other rows) keeps holding it
-    assert fit.model.with_effects(fit.model.effects).held == {label: dropped.held}
+    assert fit.model.replaced(effects=fit.model.effects).held == {label: dropped.held}
 
 
 def test_at_a_bound_the_interval_is_one_sided_and_the_others_respect_it():

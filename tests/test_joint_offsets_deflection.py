@@ -53,7 +53,7 @@ def test_wrist_3_offset_is_no_parameter_when_the_tool_is_on_its_axis(ur10):
     camp, _, geo = ur10
     model = _model(geo, camp, camp.force)
     assert model.effects[-1].joints == geo.joints[:5]
-    assert [e.label for e in candidates(model.with_effects(()))].count("joint_offsets") == 1
+    assert [e.label for e in candidates(model.replaced(effects=()))].count("joint_offsets") == 1
 
 
 @pytest.mark.parametrize("extra, rotation_weight", [

@@ -386,8 +386,8 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, known: N
         return fit
     a, b = fit.model.offsets[-2], fit.model.offsets[-1]
     extra = freed.start()[effect.n_params:]
-    trial = fit_model(fit.model.with_effects(fit.model.effects[:-1] + (freed,)), measured, scale,
-                      np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
+    trial = fit_model(fit.model.replaced(effects=fit.model.effects[:-1] + (freed,)), measured,
+                      scale, np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
     noise = _fit_noise(known, trial, n)
     cov = fitting.compliance_covariance(trial, noise.sigma, measured)
     c = b + len(extra)
@@ -398,7 +398,7 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, known: N
         say(f"{freed.label}: {', '.join(q.name for q in freed_params)} fitted")
         return trial
     held = effect.settings_held(reason or "freeing them did not lower the residual")
-    return dataclasses.replace(fit, model=fit.model.with_effects(fit.model.effects[:-1]
+    return dataclasses.replace(fit, model=fit.model.replaced(effects=fit.model.effects[:-1]
                                                                  + (held,)))
 
 
@@ -475,7 +475,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
     rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma, loss)
     measured = observations(deflection, campaign.rotation, weight)
-    model0 = model0.with_rotation_weight(weight)
+    model0 = model0.replaced(rotation_weight=weight)
     base = fit_baseline(model0, measured, scale, loss if sigma is not None else "linear")
     if campaign.rotation is not None and rot_sigma is None:  # from the baseline's residuals
         res_t, res_r = base.residuals(measured)
@@ -484,10 +484,10 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
         if s_t and rot_sigma:
             weight = s_t / rot_sigma
             measured = observations(deflection, campaign.rotation, weight)
-            base = fit_baseline(model0.with_rotation_weight(weight), measured, scale,
+            base = fit_baseline(model0.replaced(rotation_weight=weight), measured, scale,
                                 loss if sigma is not None else "linear")
     k_ref = float(np.exp(np.mean(base.x)))
-    base.model = base.model.with_refs(References.of(model0.geometry, model0.rows, k_ref,
+    base.model = base.model.replaced(refs=References.of(model0.geometry, model0.rows, k_ref,
                                                     deflection, masses))
     if sigma is None and loss == "linear":
         scale = max(base.rms(), 1e-12)

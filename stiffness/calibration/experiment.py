@@ -489,7 +489,7 @@ class SeparationStatistics:
 def _row_statistics(alt: Alternatives, rows: Rows) -> tuple[list[np.ndarray], np.ndarray,
                                                             np.ndarray, np.ndarray]:
     a, b = alt.a, alt.b
-    ma, mb = a.model.with_rows(rows), b.model.with_rows(rows)
+    ma, mb = a.model.replaced(rows=rows), b.model.replaced(rows=rows)
     try:
         with np.errstate(all="ignore"):
             pa, pb = ma.predict(a.x), mb.predict(b.x)

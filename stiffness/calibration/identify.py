@@ -437,7 +437,7 @@ def _judging(fit: Fit, campaign: Campaign) -> Fit:
     model = fit.model
     refs = References.of(model.geometry, model.rows, float(np.exp(np.mean(fit.x))),
                          campaign.deflection)
-    return replace(fit, model=model.with_refs(refs))
+    return replace(fit, model=model.replaced(refs=refs))
 
 
 def kinematics_bias(fit: Fit, cov_log: np.ndarray) -> np.ndarray:
@@ -569,7 +569,7 @@ def _least_squares_runs(model: Hypothesis, measured: np.ndarray, scale: float, f
                         ) -> tuple[list[StartResult], list[Fit]]:
     """Every least-squares run: each start (raised to ``floor``, SI) by each method; the
     exact formulation first converges each start with the enhanced one."""
-    pre = model.with_baseline("enhanced") if formulation == "exact" else None
+    pre = model.replaced(baseline="enhanced") if formulation == "exact" else None
     methods = ("trf", "lm") if method == "both" else (method,)
     runs: list[StartResult] = []
     fits: list[Fit] = []
@@ -737,7 +737,7 @@ def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, opt
         x0 = np.full(len(model.compliant), math.log(PAPER_START_SI))
         n, p = 6 * campaign.n_rows, len(model.compliant)
         for _ in range(2):
-            weighted = model.with_rotation_weight(weight)
+            weighted = model.replaced(rotation_weight=weight)
             fit = fit_model(weighted, observations(campaign.deflection, campaign.rotation,
                                                    weight), scale, x0, anchor=x0, **options)
             res_t, res_r = fit.residuals(observations(campaign.deflection, campaign.rotation,
@@ -747,6 +747,6 @@ def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, opt
             if not s_t or not s_r:
                 break
             weight, x0 = s_t / s_r, fit.x
-    model = model.with_rotation_weight(weight)
+    model = model.replaced(rotation_weight=weight)
     return (model, observations(campaign.deflection, campaign.rotation, weight), weight,
             sigma_r, source)

@@ -214,7 +214,7 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
         return [math.nan] * len(fits)
     m = measured.shape[0]
     trains = [np.setdiff1d(np.arange(m), test) for test in folds]
-    subs = fitting.fit_models([fit_job(f.model.with_rows(f.model.rows.subset(train)),
+    subs = fitting.fit_models([fit_job(f.model.replaced(rows=f.model.rows.subset(train)),
                                        measured[train], f.scale, f.x, loss=f.loss,
                                        f_scale=f.f_scale)
                                for f in fits for train in trains], workers)
@@ -224,7 +224,7 @@ def cross_validate(fits: list[Fit], measured: np.ndarray, folds: list[np.ndarray
         for test, sub in zip(folds, subs[i * len(folds): (i + 1) * len(folds)], strict=True):
             try:
                 with np.errstate(all="ignore"):
-                    pred = fit.model.with_rows(fit.model.rows.subset(test)).predict(sub.x)
+                    pred = fit.model.replaced(rows=fit.model.rows.subset(test)).predict(sub.x)
             except np.linalg.LinAlgError:
                 total = math.inf
                 break

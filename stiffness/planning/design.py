@@ -162,7 +162,7 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
     model0 = Hypothesis(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
     base = fit_baseline(model0, measured, scale)
     refs = References.of(geo, rows, float(np.exp(np.mean(base.x))), measured)
-    base.model = base.model.with_refs(refs)
+    base.model = base.model.replaced(refs=refs)
     fits = [fit_model(base.model.extended(e), measured, scale, base.model.extend_x(base.x, e))
             for e in chosen]
     if sigma is None:
@@ -361,7 +361,7 @@ class DesignResult:
 
 
 def _info_of(cands: Candidates, model: Hypothesis, x: np.ndarray, sigma: float) -> np.ndarray:
-    sens = sensitivities(model.with_rows(cands.rows), x)
+    sens = sensitivities(model.replaced(rows=cands.rows), x)
     info = row_information(sens, sigma)
     p = info.shape[-1]
     return info.reshape(cands.n_poses, cands.n_directions, p, p)
@@ -711,7 +711,7 @@ class _Search:
         if existing is not None:
             ex_rows = cands.geometry.rows(existing.q, existing.force, existing.moment,
                                           joint_angles=existing.robot_settings.joint_angles)
-            prior = row_information(sensitivities(model.with_rows(ex_rows), x),
+            prior = row_information(sensitivities(model.replaced(rows=ex_rows), x),
                                     sigma).sum(axis=0)
             existing_pred = Prediction(standard_errors(prior))
         return cls(cands, info, prior, existing_pred)

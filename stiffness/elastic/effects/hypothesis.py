@@ -27,6 +27,7 @@ Units: SI inside (m, N, rad, N.m/rad).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -129,30 +130,17 @@ class Hypothesis:
                             self.joints, robot.loop_file, robot.fixed_base)
 
     # construction ----------------------------------------------------------------------------
-    def with_rows(self, rows: Rows) -> Hypothesis:
-        """The same model over other rows."""
-        return Hypothesis(self.geometry, rows, self.baseline, self.compliant, self.effects,
-                          self.refs, self.rotation_weight, self.held)
+    def replaced(self, **changes: Any) -> Hypothesis:
+        """The same model with constructor arguments replaced (``rows``, ``baseline``,
+        ``effects``, ``refs``, ``rotation_weight`` in m/rad or ``None``, ``held``)."""
+        args = {"geometry": self.geometry, "rows": self.rows, "baseline": self.baseline,
+                "compliant": self.compliant, "effects": self.effects, "refs": self.refs,
+                "rotation_weight": self.rotation_weight, "held": self.held}
+        return Hypothesis(**{**args, **changes})
 
     def extended(self, effect: DeflectionEffect) -> Hypothesis:
         """This model plus ``effect``."""
-        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant,
-                          self.effects + (effect,), self.refs, self.rotation_weight, self.held)
-
-    def with_refs(self, refs: References) -> Hypothesis:
-        """The same model with other variable scales."""
-        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
-                          refs, self.rotation_weight, self.held)
-
-    def with_baseline(self, baseline: str) -> Hypothesis:
-        """The same model under another baseline."""
-        return Hypothesis(self.geometry, self.rows, baseline, self.compliant, self.effects,
-                          self.refs, self.rotation_weight, self.held)
-
-    def with_effects(self, effects: tuple[DeflectionEffect, ...]) -> Hypothesis:
-        """The same model with other effects."""
-        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, effects,
-                          self.refs, self.rotation_weight, self.held)
+        return self.replaced(effects=self.effects + (effect,))
 
     def through(self, i: int) -> list[int]:
         """Effect ``i`` and the effects acting through it, by position: the joint laws
@@ -169,19 +157,12 @@ class Hypothesis:
         keep = np.ones(x.size, dtype=bool)
         for j in gone:
             keep[self.offsets[j + 1]: self.offsets[j + 2]] = False
-        return self.with_effects(tuple(e for j, e in enumerate(self.effects)
+        return self.replaced(effects=tuple(e for j, e in enumerate(self.effects)
                                        if j not in gone)), x[keep]
 
     def holding(self, held: dict[str, Held]) -> Hypothesis:
         """The same model with the parameters of ``held`` (label: why) held too."""
-        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
-                          self.refs, self.rotation_weight, {**self.held, **held})
-
-    def with_rotation_weight(self, weight: float | None) -> Hypothesis:
-        """The same model predicting rotations with weight ``weight`` (m/rad), or only
-        translations (``None``)."""
-        return Hypothesis(self.geometry, self.rows, self.baseline, self.compliant, self.effects,
-                          self.refs, weight, self.held)
+        return self.replaced(held={**self.held, **held})
 
     @property
     def n_outputs(self) -> int:
