@@ -269,7 +269,7 @@ def _check_pose_covariance(model: Path, other: Path) -> None:
     expected = fd @ np.array(cov["matrix"]) @ fd.T
     term = result.parameters
     assert term is not None and term.labels == tuple(cov["labels"])
-    np.testing.assert_allclose(term.variance(), expected, rtol=0,
+    np.testing.assert_allclose(term.jacobian @ term.covariance @ term.jacobian.T, expected, rtol=0,
                                atol=2e-3 * np.abs(expected).max())
     assert result.to_dict()["verdict_test"] == "noise and the model's parameter uncertainty"
 

@@ -185,8 +185,8 @@ def test_the_parameter_term_is_the_finite_differences_of_the_prediction(ur5):
     term = result.parameters
     assert term is not None and term.labels == tuple(f"ln k_theta({j})" for j in ARM)
     expected = fd @ file.covariance.matrix @ fd.T
-    np.testing.assert_allclose(term.variance(), expected, rtol=1e-6,
-                               atol=1e-6 * np.abs(expected).max())
+    np.testing.assert_allclose(term.jacobian @ term.covariance @ term.jacobian.T, expected,
+                               rtol=1e-6, atol=1e-6 * np.abs(expected).max())
     r = (campaign.deflection.reshape(-1) - predicted(file.k_theta) * mm) / mm
     sigma = NOISE / mm
     assert result.chi2_with_parameters == pytest.approx(

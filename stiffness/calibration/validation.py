@@ -144,11 +144,6 @@ class ParameterTerm:
     labels: tuple[str, ...]
     left_out: tuple[str, ...] = ()
 
-    def variance(self) -> np.ndarray:
-        """(N, N) ``J Sigma J^T``, what the parameters add to each component's variance and
-        covariance (campaign length unit squared)."""
-        return self.jacobian @ self.covariance @ self.jacobian.T
-
     def chi2(self, sigma: float) -> float:
         """:func:`prediction_chi2` with the noise std ``sigma`` (campaign length unit)."""
         return prediction_chi2(self.residual, self.jacobian, self.covariance, sigma)
