@@ -59,12 +59,13 @@ from stiffness.calibration.deflection_parameters import (
 from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
-from stiffness.calibration.fitting import Fit, compliance_spread, kind_noise, observations
+from stiffness.calibration.fitting import Fit, compliance_spread, observations
 from stiffness.calibration.naming import settle
 from stiffness.calibration.outliers import flag_fit, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
+from stiffness.calibration.rotation_weight import known_noise, weighting
 from stiffness.calibration.search import (
     Candidate,
     Refusal,
@@ -91,7 +92,6 @@ from stiffness.calibration.selection import (
     information_criterion,
     noise_terms,
     pooled_replicates,
-    replicate_noise,
     row_support,
 )
 from stiffness.calibration.solver import check_loss
@@ -442,18 +442,18 @@ def _translation_noise(campaign: Campaign, loss: str = "linear"
     """The translation noise (m; ``None`` when only the residuals can tell), its source
     (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter with its
     degrees of freedom (robust under a robust ``loss``:
-    :func:`~stiffness.calibration.selection.replicate_noise`)."""
-    if campaign.noise_std_m is not None:
-        return Noise(campaign.noise_std_m), "declared", "declared noise_std of the campaign"
-    rep = replicate_noise(campaign, robust=loss != "linear")
-    if rep is None:
+    :func:`~stiffness.calibration.rotation_weight.known_noise`)."""
+    known = known_noise(campaign, robust=loss != "linear")
+    if known is None:
         return None, "residuals", ""
+    sigma, dof, source = known
+    if dof is None:
+        return Noise(sigma), source, "declared noise_std of the campaign"
     if loss != "linear":
-        return (Noise(*rep), "replicates",
+        return (Noise(sigma, dof), source,
                 "robust scatter of replicate rows (1.4826 median |deviation from the group "
-                f"mean|, {rep[1]} degrees of freedom)")
-    return (Noise(*rep), "replicates",
-            f"pooled scatter of replicate rows ({rep[1]} degrees of freedom)")
+                f"mean|, {dof} degrees of freedom)")
+    return Noise(sigma, dof), source, f"pooled scatter of replicate rows ({dof} degrees of freedom)"
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
@@ -473,19 +473,22 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     deflection = campaign.deflection
     rms_meas = float(np.sqrt(np.mean(deflection ** 2)))
     scale = sigma if sigma is not None else max(rms_meas * 1e-2, 1e-12)
-    rot_sigma, rot_source, weight = _rotation_noise(campaign, sigma, loss)
+    fit_loss = loss if sigma is not None else "linear"
+    rot_sigma: float | None = None
+    rot_source: str | None = None
+    weight: float | None = None
+    weighted: Fit | None = None  # the baseline fitted at the weight, when it took fits
+    if campaign.rotation is not None:  # the weight: rotation_weight.weighting
+        rotation = campaign.rotation
+        rotations = weighting(campaign, sigma, lambda w, _: fit_baseline(
+            model0.replaced(rotation_weight=w), observations(deflection, rotation, w), scale,
+            fit_loss), robust=loss != "linear")
+        weight, rot_sigma, rot_source = (rotations.weight, rotations.sigma_rad,
+                                         rotations.source)
+        weighted = rotations.fit
     measured = observations(deflection, campaign.rotation, weight)
     model0 = model0.replaced(rotation_weight=weight)
-    base = fit_baseline(model0, measured, scale, loss if sigma is not None else "linear")
-    if campaign.rotation is not None and rot_sigma is None:  # from the baseline's residuals
-        res_t, res_r = base.residuals(measured)
-        s_t = sigma if sigma is not None else kind_noise(res_t, n, len(base.x))
-        rot_sigma = kind_noise(res_r, n, len(base.x))
-        if s_t and rot_sigma:
-            weight = s_t / rot_sigma
-            measured = observations(deflection, campaign.rotation, weight)
-            base = fit_baseline(model0.replaced(rotation_weight=weight), measured, scale,
-                                loss if sigma is not None else "linear")
+    base = weighted if weighted is not None else fit_baseline(model0, measured, scale, fit_loss)
     k_ref = float(np.exp(np.mean(base.x)))
     base.model = base.model.replaced(refs=References.of(model0.geometry, model0.rows, k_ref,
                                                     deflection, masses))
@@ -766,26 +769,6 @@ def _ambiguities(raw: list[tuple[int, Found, Found, float]], sigma: float,
                 amb.proposals = [{"note": str(exc)}]
         ambiguities.append(amb)
     return ambiguities
-
-
-def _rotation_noise(campaign: Campaign, sigma: float | None, loss: str = "linear"
-                    ) -> tuple[float | None, str | None, float | None]:
-    """Rotation noise std (rad), its source and the rotation weight ``sigma_t / sigma_r``
-    (m/rad) of a campaign with rotations (``None``s without): declared, else replicates
-    (robust under a robust ``loss``), else ``residuals`` (then the weight is a first guess,
-    the ratio of the measured RMS of each kind, refined from the baseline's residuals)."""
-    if campaign.rotation is None:
-        return None, None, None
-    rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2))) or 1.0
-    rms_r = float(np.sqrt(np.mean(campaign.rotation ** 2))) or 1.0
-    s_t = sigma if sigma is not None else rms_t
-    rot: float | None
-    if campaign.rotation_noise_std_rad is not None:
-        rot, source = campaign.rotation_noise_std_rad, "declared"
-    else:
-        rep = replicate_noise(campaign, "rotation", robust=loss != "linear")
-        rot, source = (rep[0], "replicates") if rep is not None else (None, "residuals")
-    return rot, source, s_t / (rot if rot is not None else rms_r)
 
 
 def _similarity(current: Fit, a: Fit, b: Fit, scale: float) -> float:

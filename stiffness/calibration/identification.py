@@ -186,7 +186,7 @@ class Identification(IdentificationResult):
         ``rotation_weight_m_per_rad = sigma_t / sigma_r``).
     rotation_sigma_rad, rotation_sigma_source
         The rotation noise std (rad) and where it comes from (``declared
-        rotation_noise_std`` or ``residuals``).
+        rotation_noise_std``, ``replicates`` or ``residuals``).
     loss
         The fit's loss (:data:`stiffness.calibration.solver.LOSSES`).
     outliers

@@ -38,10 +38,10 @@ as diagnose reports it: a deflection is linear in the compliances.
 
 A campaign with measured rotations (``rx, ry, rz``) is fitted on translations and rotations
 together: the rotation residuals are weighted by ``w = sigma_t / sigma_r``
-(:func:`stiffness.calibration.fitting.observations`), with ``sigma_r`` the declared
-``rotation_noise_std`` or, failing it, estimated from the residuals of a preliminary fit
-(:func:`stiffness.calibration.fitting.kind_noise`); ``sigma`` above is then ``sigma_t`` and
-the result reports the RMS of each kind.
+(:func:`stiffness.calibration.fitting.observations`), each kind's noise std declared, else its
+replicates', else estimated from the residuals of preliminary fits at the weight's fixed
+point (:func:`stiffness.calibration.rotation_weight.weighting`, diagnose's rule); ``sigma``
+above is then ``sigma_t`` and the result reports the RMS of each kind.
 
 A robust ``loss`` (scipy's ``soft_l1``, ``huber``, ``cauchy``, scaled by the declared or
 robustly estimated noise) is minimised instead, with intervals from Huber's sandwich covariance
@@ -96,6 +96,7 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
+from stiffness.calibration.rotation_weight import known_noise, weighting
 from stiffness.calibration.selection import (
     GOF_LEVEL,
     OVERSTATED_P,
@@ -322,7 +323,7 @@ def identify(
     rot_sigma = rot_source = weight = None
     if campaign.rotation is not None:
         model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
-            campaign, model, scale, options)
+            campaign, model, scale, options, loss != "linear")
     robust_sigma: float | None = None
     if loss != "linear":
         robust_sigma = robust_noise_scale(model, measured, float(scale), campaign.noise_std_m,
@@ -353,7 +354,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     fitted = len(best_fit.kept)  # a held stiffness takes no degree of freedom (as diagnose)
     if campaign.rotation is not None:
         rot_res = best_fit.residuals(measured)[1]
-        if campaign.rotation_noise_std_rad is None:  # not declared: the residuals'
+        if rot_source == "residuals":  # neither declared nor the replicates'
             rot_sigma = kind_noise(rot_res, n_res, fitted)
     level = _noise_level(campaign, best_fit.rss, n_res, fitted,
                          noise_terms(best_fit, measured), robust_sigma)
@@ -625,18 +626,17 @@ class _NoiseLevel:
 def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int, terms: NoiseTerms,
                  robust_sigma: float | None = None) -> _NoiseLevel:
     """The noise of the intervals (:class:`_NoiseLevel`): a declared noise std, else the
-    replicate rows' scatter (translations only: not with measured rotations; least squares
-    only), else the residuals'; with ``robust_sigma`` (m, a robust fit's scale) that one,
-    declared or the robust estimate. A known one is tested as ``diagnose`` tests it, on the
-    fit's ``terms`` (:func:`~stiffness.calibration.selection.noise_terms`: a robust loss's
-    flagged rows left out; a declared noise by
-    :func:`~stiffness.calibration.selection.pooled_replicates`, a rotation noise not declared
-    being the residuals')."""
+    replicate rows' scatter (least squares only), else the residuals'; with ``robust_sigma``
+    (m, a robust fit's scale) that one, declared or the robust estimate. A known one is tested
+    as ``diagnose`` tests it, on the fit's ``terms``
+    (:func:`~stiffness.calibration.selection.noise_terms`: a robust loss's flagged rows left
+    out) through :func:`~stiffness.calibration.selection.pooled_replicates` (the rotation
+    replicates' degrees of freedom with it, or the rotations' noise being the residuals')."""
     dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
     declared = campaign.noise_std_m
     if declared is not None:
-        tested = pooled_replicates(Noise(declared), campaign, replicates=False)
+        tested = pooled_replicates(Noise(declared), campaign, robust_sigma is not None)
         assert tested is not None  # a declared noise
         return _NoiseLevel(Noise(declared), "declared noise_std", sigma_res,
                            *_tested(tested, terms, "declared noise_std"))
@@ -645,11 +645,13 @@ def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int, terms: NoiseT
                            "robust estimate (1.4826 median |residual|)", sigma_res, [])
     # dof > 0 without a declared noise: _check_residual_count
     assert sigma_res is not None
-    rep = replicate_noise(campaign) if campaign.rotation is None else None
+    rep = replicate_noise(campaign)
     if rep is not None:  # diagnose's noise (its _translation_noise): the replicates' scatter
+        tested = pooled_replicates(Noise(*rep), campaign)
+        assert tested is not None  # a known noise
         return _NoiseLevel(Noise(*rep), f"replicates (pooled scatter, {rep[1]} degrees of "
-                           "freedom)", sigma_res, *_tested(Noise(*rep), terms, "replicate "
-                                                           "rows' scatter"))
+                           "freedom)", sigma_res, *_tested(tested, terms, "replicate rows' "
+                                                           "scatter"))
     return _NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
                        [])
 
@@ -707,46 +709,28 @@ def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarra
     return starts_agree, methods_agree
 
 
-def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, options: dict
+def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
+                        robust: bool = False
                         ) -> tuple[Hypothesis, np.ndarray, float, float | None, str]:
-    """The model and observations of a campaign with rotations, and the weight
-    ``w = sigma_t / sigma_r`` (m/rad) (:mod:`stiffness.calibration.fitting`).
+    """The model and observations of a campaign with rotations, the weight
+    ``w = sigma_t / sigma_r`` (m/rad), the rotation noise std (rad; ``None`` until estimated
+    from the best fit's residuals) and its source: diagnose's rule
+    (:func:`~stiffness.calibration.rotation_weight.weighting`: each kind's declared std, else
+    its replicates', else the fixed point over the residuals of a fit from the paper's start),
+    the replicates' robust under a ``robust`` loss."""
+    x_start = np.full(len(model.compliant), math.log(PAPER_START_SI))
+    rotation = campaign.rotation
+    assert rotation is not None  # a campaign with rotations
 
-    A declared noise std is used as is; an undeclared one is estimated from the residuals of a
-    baseline fit (:func:`stiffness.calibration.fitting.kind_noise`), twice, starting from the
-    ratio of the measured RMS of each kind.
+    def at(weight: float, previous: Fit | None) -> Fit:
+        x0 = x_start if previous is None else previous.x
+        return fit_model(model.replaced(rotation_weight=weight),
+                         observations(campaign.deflection, rotation, weight), scale, x0,
+                         anchor=x0, **options)
 
-    Returns
-    -------
-    model, measured, weight, rotation sigma (rad, or None until estimated), its source.
-    """
-    sigma_t, sigma_r = campaign.noise_std_m, campaign.rotation_noise_std_rad
-    source = "declared rotation_noise_std" if sigma_r is not None else "residuals"
-    if sigma_t is not None and sigma_r is not None:
-        weight = sigma_t / sigma_r
-    else:
-        rms_t = float(np.sqrt(np.mean(campaign.deflection ** 2)))
-        rotation = campaign.rotation
-        assert rotation is not None  # a campaign with rotations
-        rms_r = float(np.sqrt(np.mean(rotation ** 2)))
-        weight = rms_t / rms_r if rms_t > 0 and rms_r > 0 else 1.0
-        if sigma_t is not None:
-            weight = sigma_t / rms_r if rms_r > 0 else 1.0
-        elif sigma_r is not None:
-            weight = rms_t / sigma_r if rms_t > 0 else 1.0
-        x0 = np.full(len(model.compliant), math.log(PAPER_START_SI))
-        n, p = 6 * campaign.n_rows, len(model.compliant)
-        for _ in range(2):
-            weighted = model.replaced(rotation_weight=weight)
-            fit = fit_model(weighted, observations(campaign.deflection, campaign.rotation,
-                                                   weight), scale, x0, anchor=x0, **options)
-            res_t, res_r = fit.residuals(observations(campaign.deflection, campaign.rotation,
-                                                      weight))
-            s_t = sigma_t if sigma_t is not None else kind_noise(res_t, n, p)
-            s_r = sigma_r if sigma_r is not None else kind_noise(res_r, n, p)
-            if not s_t or not s_r:
-                break
-            weight, x0 = s_t / s_r, fit.x
-    model = model.replaced(rotation_weight=weight)
-    return (model, observations(campaign.deflection, campaign.rotation, weight), weight,
-            sigma_r, source)
+    translation = known_noise(campaign, robust=robust)
+    rotations = weighting(campaign, None if translation is None else translation[0], at, robust)
+    source = {"declared": "declared rotation_noise_std"}.get(rotations.source, rotations.source)
+    return (model.replaced(rotation_weight=rotations.weight), rotations.measured(campaign),
+            rotations.weight, rotations.sigma_rad if rotations.source != "residuals" else None,
+            source)

@@ -698,21 +698,21 @@ def _distinct(values: np.ndarray, rows: list[int]) -> list[int]:
     return [r for k, r in enumerate(rows) if first[k] == k]
 
 
-def pooled_replicates(noise: Noise | None, campaign: Campaign, robust: bool = False,
-                      replicates: bool = True) -> Noise | None:
+def pooled_replicates(noise: Noise | None, campaign: Campaign, robust: bool = False
+                      ) -> Noise | None:
     """``noise`` (the translations', declared or the replicates') as the fit-to-noise test
     of a campaign that measures rotations takes it, ``identify``'s and ``diagnose``'s: with
     the rotations' share of the residual components (:attr:`Noise.rotations`) when their
     noise is declared or the replicates', and in the latter case the rotation replicates'
     degrees of freedom (:attr:`Noise.rotation_dof`; the rotations then weighted by ``sigma``
     over the replicates' std); marked :attr:`Noise.residual_rotations` when their noise is
-    estimated from the residuals (always, undeclared, unless ``replicates``: ``identify``'s);
-    ``noise`` itself without rotations. ``robust`` as :func:`replicate_noise`'s."""
+    estimated from the residuals (neither declared nor replicated); ``noise`` itself
+    without rotations. ``robust`` as :func:`replicate_noise`'s."""
     if noise is None or campaign.rotation is None:
         return noise
     if campaign.rotation_noise_std_rad is not None:
         return replace(noise, rotations=0.5)
-    rep = replicate_noise(campaign, "rotation", robust) if replicates else None
+    rep = replicate_noise(campaign, "rotation", robust)
     if rep is None:
         return replace(noise, residual_rotations=True)
     return replace(noise, rotation_dof=rep[1], rotations=0.5)
