@@ -186,6 +186,18 @@ class RotationTerm:
         ``sigma`` (campaign length unit)."""
         return float(self.residual @ self.residual / sigma ** 2)
 
+    def stacked(self, residual: np.ndarray, jacobian: np.ndarray, rotation_rad: np.ndarray,
+                rotation_jacobian: np.ndarray, length_to_si: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The position components (m) and their Jacobian (rows of parameter columns) with
+        the rotation components (rad) and theirs below, weighted into metres at the position
+        noise as the fits weigh them (:attr:`weight` times ``length_to_si`` m per length
+        unit): what :meth:`ParameterTerm.of` takes."""
+        weight_si = self.weight * length_to_si
+        p = jacobian.shape[-1]
+        return (np.concatenate([residual.reshape(-1), weight_si * rotation_rad.reshape(-1)]),
+                np.vstack([jacobian.reshape(-1, p), weight_si * rotation_jacobian.reshape(-1, p)]))
+
     @classmethod
     def of(cls, residual_rad: np.ndarray, noise_m: float | None,
            rotation_noise_rad: float | None, length_to_si: float, rotation_to_si: float
@@ -398,10 +410,9 @@ def validate(model: ModelFile | str | os.PathLike,
         seen = np.isfinite(residual)
         residual, jac = residual[seen], jac[seen]
         if rotations is not None and rotation_residual is not None \
-                and rotation_jacobian is not None:  # weighted into metres, as fitted
-            weight_si = rotations.weight * poses.units.length_to_si
-            residual = np.concatenate([residual, weight_si * rotation_residual])
-            jac = np.vstack([jac, weight_si * rotation_jacobian])
+                and rotation_jacobian is not None:
+            residual, jac = rotations.stacked(residual, jac, rotation_residual,
+                                              rotation_jacobian, poses.units.length_to_si)
         term = ParameterTerm.of(calibration.covariance, residual, jac,
                                 [p.label for p in calibration.model.parameters],
                                 poses.units.length_to_si)
@@ -466,8 +477,8 @@ def deflection_validation(model: str, campaign: str, robot: dict, measured: Camp
     errors = error_keys(measured, predicted[:, :3])
     noise = None if measured.noise_std_m is None else (
         measured.noise_std_m / measured.units.length_to_si)
-    residual = [measured.deflection - predicted[:, :3]]
-    columns = [] if jacobian is None else [jacobian[:, :3]]
+    residual = (measured.deflection - predicted[:, :3]).reshape(-1)
+    jac = None if jacobian is None else jacobian[:, :3].reshape(-1, jacobian.shape[-1])
     rotations = None
     if measured.rotation is not None:
         rotation_residual = measured.rotation - predicted[:, 3:6]
@@ -477,15 +488,11 @@ def deflection_validation(model: str, campaign: str, robot: dict, measured: Camp
         rotations = RotationTerm.of(rotation_residual, measured.noise_std_m,
                                     measured.rotation_noise_std_rad, measured.units.length_to_si,
                                     measured.units.rotation_to_si)
-        if rotations is not None:  # weighted into metres at the position noise, as fitted
-            weight_si = rotations.weight * measured.units.length_to_si
-            residual.append(weight_si * rotation_residual)
-            if jacobian is not None:
-                columns.append(weight_si * jacobian[:, 3:6])
-    term = None if jacobian is None else ParameterTerm.of(
-        covariance, np.concatenate([r.reshape(-1) for r in residual]),
-        np.concatenate([c.reshape(-1, c.shape[-1]) for c in columns]), labels,
-        measured.units.length_to_si)
+        if rotations is not None and jacobian is not None and jac is not None:
+            residual, jac = rotations.stacked(residual, jac, rotation_residual,
+                                              jacobian[:, 3:6], measured.units.length_to_si)
+    term = None if jac is None else ParameterTerm.of(covariance, residual, jac, labels,
+                                                      measured.units.length_to_si)
     return Validation(model, campaign, "deflections", errors, robot, noise, term, rotations)
 
 
