@@ -578,12 +578,11 @@ class DeflectionSearch:
         return self.reported(c.fit, SI_UNITS)[c.fit.model.effects[-1].label]
 
     def settle(self, c: Found) -> Fit:
-        """Issue 36.4 inside a family (:func:`stiffness.calibration.naming.settle`): the
-        parameters of ``c``'s effect that the data do not determine held at their nominal
-        value (the effect's start, :meth:`Effect.start`: a compensator's stiffness or preload
-        0, its base the declared one; the fit puts them there,
-        :func:`~stiffness.calibration.fitting.nominal_parameters`), the least determined
-        first, each time the fit redone."""
+        """Issue 36.4 inside a family (:func:`stiffness.calibration.naming.settle`): the parameters
+        of ``c``'s effect that the data do not determine held at their nominal value (the
+        effect's start, :meth:`Effect.start`: a compensator's stiffness or preload 0, its base
+        the declared one; :func:`~stiffness.calibration.fitting.nominal_parameters`), the
+        least determined first, each time the fit redone."""
         effect = c.fit.model.effects[-1]
         start = c.fit.model.offsets[-2]
 
@@ -596,6 +595,9 @@ class DeflectionSearch:
 
         return settle(c.fit, lambda fit: self.reported(fit, SI_UNITS)[effect.label],
                       effect.physical_scale(c.fit.model.refs), hold)
+
+    def split_confused(self, c: Found) -> None:
+        """None: a deflection effect's parameters are only settled (:meth:`settle`)."""
 
     def held_out(self, named: Iterator[Found]) -> Iterator[Found]:
         """All cross-validated together over the folds (NaN without folds)."""

@@ -36,7 +36,7 @@ import numpy as np
 
 from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.identifiability import confounded
-from stiffness.calibration.naming import held_reason, settle
+from stiffness.calibration.naming import held_reason, namable, settle
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_diagnosis import BASE_FAMILIES, NO_PARAMETER, PoseDiagnosis
 from stiffness.calibration.pose_fit import (
@@ -152,6 +152,56 @@ def settled(campaign: PoseCampaign, fit: PoseFit, families: list[str], judge: Po
             break
         fit = hold(fit, [], blind, [held_reason(p) for p in blind])
     return fit
+
+
+def split_confused(campaign: PoseCampaign, fit: PoseFit, families: list[str],
+                   judge: PoseJudge, scale: float | None) -> PoseFit | None:
+    """``fit`` with, while no parameter of its last family may be named
+    (:func:`~stiffness.calibration.naming.namable`), one of each pair of that family's fitted
+    parameters the data confuse held at nominal: correlated by :data:`CONFUSED_CORRELATION` or
+    more, both intervals holding zero; of a pair, the one fewer standard errors from zero,
+    whose holding raises the chi-square least (by its t squared, to first order), the other
+    then judged alone. ``None`` when there is no such pair.
+
+    A family's misfit the data see only as a sum of its parameters is not unnamed for that: a
+    tracker marker on digit_like's tarsus (Gepetto's example-parallel-robots) sees
+    ``motor_knee``'s zero offset and ``motor_hip_z``'s alike (correlation 0.9999), so both
+    intervals held zero while the family took the misfit from 14 times the noise to it.
+    """
+    family = families[-1]
+    start = fit.model.slices()[family].start
+    labels = fit.labels()
+    split = None
+    for _ in range(fit.model.size):
+        params = judge.parameters(fit)[family]
+        if namable(params):
+            return split
+        kept = fit.identifiability.kept
+        place = {i: c for c, i in enumerate(kept)}
+        loose = {place[start + k]: p for k, p in enumerate(params)
+                 if not p.held and start + k in place and not p.excludes_zero
+                 and 0.0 < p.standard_error < math.inf}
+        cov = fit.covariance
+        sd = np.sqrt(np.abs(np.diag(cov)))
+        confused = [a for a in loose for b in loose
+                    if a != b and abs(cov[a, b]) >= CONFUSED_CORRELATION * sd[a] * sd[b]]
+        if not confused:
+            return split
+        a = min(confused, key=lambda a: abs(loose[a].value) / loose[a].standard_error)
+        why = Held(CONFUSED_REASON, confounded(cov, a, range(len(kept)),
+                                               [labels[i] for i in kept]))
+        fit = split = _fit(campaign, families, (fit.model.rotation0, fit.model.translation0),
+                           fit.model.settings, fit, fit.loss, scale,
+                           {**held_labels(fit), labels[kept[a]]: why})
+    return split
+
+
+#: Correlation of two estimates of one family at or above which the data confuse them
+#: (:func:`split_confused`): they see one combination of the two, not each.
+CONFUSED_CORRELATION = 0.99
+#: Why :func:`split_confused` holds a parameter.
+CONFUSED_REASON = ("held at its nominal value: the data do not tell it from another parameter "
+                   "of its family (its 95 % interval held zero)")
 
 
 #: Parameters held together in one refit (:func:`settled`) are correlated by less than this.
@@ -507,6 +557,10 @@ class PoseSearch:
 
     def settle(self, c: Family) -> PoseFit:
         return settled(self.campaign, c.fit, self.chosen + [c.effect], self.judge, self.scale)
+
+    def split_confused(self, c: Family) -> PoseFit | None:
+        return split_confused(self.campaign, c.fit, self.chosen + [c.effect], self.judge,
+                              self.scale)
 
     def held_out(self, named: Iterator[Family]) -> Iterator[Family]:
         """Computed as needed, in order; a family that did not win and that the campaign

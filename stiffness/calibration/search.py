@@ -258,6 +258,11 @@ class SearchKind(Protocol[E, F]):
         """``c.fit`` with the undetermined parameters of what it adds held at nominal
         (:func:`~stiffness.calibration.naming.settle`)."""
 
+    def split_confused(self, c: Candidate[E, F]) -> F | None:
+        """When no parameter of what ``c`` adds may be named as fitted (:func:`namable`) because
+        the data confuse some of them with one another, ``c.fit`` with, of each such pair, the
+        one whose holding costs the fit least held at nominal; ``None`` when none are."""
+
     def held_out(self, named: Iterator[Candidate[E, F]]) -> Iterator[Candidate[E, F]]:
         """The ``named`` candidates in order, each with its held-out RMS ``cv_rms`` (m)."""
 
@@ -393,10 +398,18 @@ def _winner(kind: SearchKind[E, F], ranking: list[Candidate[E, F]], cv_current: 
 
 def _named(kind: SearchKind[E, F], c: Candidate[E, F]) -> bool:
     """Whether ``c`` may be named as fitted and still once settled (then ``c.fit``, its held-out
-    RMS forgotten); holding parameters never makes a candidate namable."""
+    RMS forgotten); holding parameters never makes a candidate namable, but for one whose
+    parameters the data confuse pairwise (:meth:`SearchKind.split_confused`): one of each
+    pair held, the other may be named."""
     c.namable = namable(kind.parameters(c))
     if not c.namable:
-        return False
+        split = kind.split_confused(c)
+        if split is None:
+            return False
+        c.fit, c.settled, c.cv_rms = split, True, None
+        c.namable = namable(kind.parameters(c))
+        if not c.namable:
+            return False
     full = c.fit
     c.fit = kind.settle(c)
     if c.fit is not full:
