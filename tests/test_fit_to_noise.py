@@ -323,7 +323,7 @@ def _null_draws_rotations_from_residuals(draws: int, rows: int = 12, p: int = 4
     translation noise is declared (1) and the rotation noise is estimated from the residuals:
     weight 1 over the measured rotations' RMS, then 1 over the rotation residuals' std
     (``fitting.kind_noise``: half of ``p`` taken from their degrees of freedom). The weight's
-    fixed point (``rotation_weight.weighting``, which stops when a round moves the weight by
+    fixed point (``deflection_noise.weighting``, which stops when a round moves the weight by
     at most 0.1 %) stops there on 1993 of these 2000 draws, and rejects as often. Per draw the
     residual sum of squares, the translations' and the trace of the hat matrix over the
     translation components; the residual count and the translations'."""

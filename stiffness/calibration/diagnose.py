@@ -51,6 +51,7 @@ import numpy as np
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
+from stiffness.calibration.deflection_noise import fit_noise, translation_noise, weighting
 from stiffness.calibration.deflection_parameters import (
     effect_parameters,
     share,
@@ -59,13 +60,12 @@ from stiffness.calibration.deflection_parameters import (
 from stiffness.calibration.deflection_validation import other_campaign, validated
 from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
-from stiffness.calibration.fitting import Fit, compliance_spread, observations
+from stiffness.calibration.fitting import Fit, observations
 from stiffness.calibration.naming import settle
 from stiffness.calibration.outliers import flag_fit, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
-from stiffness.calibration.rotation_weight import known_noise, weighting
 from stiffness.calibration.search import (
     Candidate,
     Refusal,
@@ -289,7 +289,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     if n <= len(compliant) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
                              f"{len(compliant)} stiffnesses; add measurement rows")
-    known, source, note = _translation_noise(campaign, loss)
+    known, source, note = translation_noise(campaign, loss)
     sigma = None if known is None else known.sigma
     refs0 = References.of(geo, rows, 1e5, campaign.deflection, masses)
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(
@@ -309,11 +309,11 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
-    noise_final, note = _fit_noise(known, final, n), _final_note(final, n, known, note)
+    noise_final, note = fit_noise(known, final, n), _final_note(final, n, known, note)
     sigma_used = noise_final.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
     cov_final = fitting.compliance_covariance(final, sigma_used, measured)
-    noise_base = _fit_noise(known, base, n)
+    noise_base = fit_noise(known, base, n)
     cov_base = fitting.compliance_covariance(base, noise_base.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, final.penalty_params,
                                        tuple(campaign.config or ()), campaign.lines)
@@ -388,7 +388,7 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, known: N
     extra = freed.start()[effect.n_params:]
     trial = fit_model(fit.model.replaced(effects=fit.model.effects[:-1] + (freed,)), measured,
                       scale, np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
-    noise = _fit_noise(known, trial, n)
+    noise = fit_noise(known, trial, n)
     cov = fitting.compliance_covariance(trial, noise.sigma, measured)
     c = b + len(extra)
     freed_params = effect_report(freed, trial.x[a:c], cov[a:c, a:c], trial.model.refs,
@@ -414,20 +414,8 @@ def _undetermined(params: list[Parameter]) -> str | None:
     return None
 
 
-def _fit_noise(known: Noise | None, fit: Fit, n: int) -> Noise:
-    """The noise of ``fit``'s covariance and intervals over ``n`` residuals
-    (:class:`~stiffness.calibration.selection.Noise`): the campaign's ``known`` one (declared,
-    or the replicates' with their degrees of freedom), else estimated from ``fit``'s residuals
-    over its ``n - p`` degrees of freedom; under a robust loss the sandwich's, over the
-    directions the reported covariance spreads over (:func:`compliance_spread`)."""
-    p = fit.penalty_params
-    noise = (known if known is not None
-             else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
-    return noise.of_fit(fit.loss, n, compliance_spread(dataclasses.replace(fit, loss="linear")))
-
-
 def _final_note(final: Fit, n: int, known: Noise | None, note: str) -> str:
-    """The note on the noise of the final model's intervals (:func:`_fit_noise`): ``note``
+    """The note on the noise of the final model's intervals (:func:`fit_noise`): ``note``
     with a ``known`` noise, else that it is that model's residual scatter (said so)."""
     if known is not None:
         return note
@@ -435,25 +423,6 @@ def _final_note(final: Fit, n: int, known: Noise | None, note: str) -> str:
             f"{n - final.penalty_params} degrees of freedom): it includes any model error "
             "left, so the fit-to-noise test is not available and 'nothing missing' means only "
             "that no candidate helped")
-
-
-def _translation_noise(campaign: Campaign, loss: str = "linear"
-                       ) -> tuple[Noise | None, str, str]:
-    """The translation noise (m; ``None`` when only the residuals can tell), its source
-    (:data:`NOISE_SOURCES`) and a note on it: declared, else the replicates' scatter with its
-    degrees of freedom (robust under a robust ``loss``:
-    :func:`~stiffness.calibration.rotation_weight.known_noise`)."""
-    known = known_noise(campaign, robust=loss != "linear")
-    if known is None:
-        return None, "residuals", ""
-    sigma, dof, source = known
-    if dof is None:
-        return Noise(sigma), source, "declared noise_std of the campaign"
-    if loss != "linear":
-        return (Noise(sigma, dof), source,
-                "robust scatter of replicate rows (1.4826 median |deviation from the group "
-                f"mean|, {dof} degrees of freedom)")
-    return Noise(sigma, dof), source, f"pooled scatter of replicate rows ({dof} degrees of freedom)"
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
@@ -478,7 +447,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     rot_source: str | None = None
     weight: float | None = None
     weighted: Fit | None = None  # the baseline fitted at the weight, when it took fits
-    if campaign.rotation is not None:  # the weight: rotation_weight.weighting
+    if campaign.rotation is not None:  # the weight: deflection_noise.weighting
         rotation = campaign.rotation
         rotations = weighting(campaign, sigma, lambda w, _: fit_baseline(
             model0.replaced(rotation_weight=w), observations(deflection, rotation, w), scale,
@@ -690,8 +659,8 @@ class DeflectionSearch:
 
     def covariance(self, fit: Fit) -> tuple[np.ndarray, Noise]:
         """The covariance of ``fit.x`` (:func:`fitting.compliance_covariance`) and the noise it
-        is for (:func:`_fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
-        noise = _fit_noise(self.noise, fit, self.n)
+        is for (:func:`fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
+        noise = fit_noise(self.noise, fit, self.n)
         return fitting.compliance_covariance(fit, noise.sigma, self.measured), noise
 
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:

@@ -40,14 +40,15 @@ A campaign with measured rotations (``rx, ry, rz``) is fitted on translations an
 together: the rotation residuals are weighted by ``w = sigma_t / sigma_r``
 (:func:`stiffness.calibration.fitting.observations`), each kind's noise std declared, else its
 replicates', else estimated from the residuals of preliminary fits at the weight's fixed
-point (:func:`stiffness.calibration.rotation_weight.weighting`, diagnose's rule); ``sigma``
+point (:func:`stiffness.calibration.deflection_noise.weighting`, diagnose's rule); ``sigma``
 above is then ``sigma_t`` and the result reports the RMS of each kind.
 
-A robust ``loss`` (scipy's ``soft_l1``, ``huber``, ``cauchy``, scaled by the declared or
-robustly estimated noise) is minimised instead, with intervals from Huber's sandwich covariance
-(:mod:`stiffness.calibration.fitting`) and Student's ``t`` with ``N - p`` degrees of freedom,
-two-sided and one-sided at a bound alike, the noise declared or not: the sandwich takes its
-spread from the residuals (:class:`stiffness.calibration.selection.Noise`, the one rule).
+A robust ``loss`` (scipy's ``soft_l1``, ``huber``, ``cauchy``, scaled by the declared noise,
+else the replicates' robust scatter, else the robustly estimated noise) is minimised instead,
+with intervals from Huber's sandwich covariance (:mod:`stiffness.calibration.fitting`) and
+Student's ``t`` with ``N - p`` degrees of freedom, two-sided and one-sided at a bound alike,
+the noise declared or not: the sandwich takes its spread from the residuals
+(:class:`stiffness.calibration.selection.Noise`, the one rule).
 Every identification flags the rows beyond 4 noise std (:mod:`stiffness.calibration.outliers`)
 and drops none.
 
@@ -72,11 +73,11 @@ from typing import overload
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
+from stiffness.calibration.deflection_noise import fit_noise, translation_noise, weighting
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.fitting import (
     Fit,
     compliance_covariance,
-    compliance_spread,
     covariance,
     fit_model,
     kind_noise,
@@ -96,7 +97,6 @@ from stiffness.calibration.outliers import (
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
-from stiffness.calibration.rotation_weight import known_noise, weighting
 from stiffness.calibration.selection import (
     GOF_LEVEL,
     OVERSTATED_P,
@@ -107,7 +107,6 @@ from stiffness.calibration.selection import (
     noise_overstated,
     noise_terms,
     pooled_replicates,
-    replicate_noise,
 )
 from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects import make_effect
@@ -282,7 +281,8 @@ def identify(
         Called as ``progress(done, total, text)`` after each least-squares run.
     loss
         ``linear`` (least squares), or the robust ``soft_l1``, ``huber`` or ``cauchy``
-        (scipy's, ``f_scale`` the declared or robustly estimated noise; method ``trf`` only;
+        (scipy's, ``f_scale`` the declared noise, the replicates' robust scatter or the
+        robustly estimated noise; method ``trf`` only;
         intervals from Huber's sandwich covariance).
 
     Returns
@@ -320,31 +320,35 @@ def identify(
         scale = rms if rms > 0 else 1e-3
     options: dict = {"bounded": False, "tolerance": 1e-12,
                      "max_nfev": 200 * (rob.n_compliant + 1)}
+    known = translation_noise(campaign, loss)[0]  # diagnose's: declared, else the replicates'
     rot_sigma = rot_source = weight = None
     if campaign.rotation is not None:
         model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
-            campaign, model, scale, options, loss != "linear")
+            campaign, model, scale, options, known, loss != "linear")
     robust_sigma: float | None = None
     if loss != "linear":
-        robust_sigma = robust_noise_scale(model, measured, float(scale), campaign.noise_std_m,
-                                          loss, options, PAPER_START_SI)
+        robust_sigma = robust_noise_scale(model, measured, float(scale),
+                                          None if known is None else known.sigma, loss,
+                                          options, PAPER_START_SI)
         options = {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}
     floor = _k_c_floor(model, formulation)
     runs, fits = _least_squares_runs(model, measured, scale, formulation, method, starts,
                                      seed, floor, options, progress)
     rotations = (measured, weight, rot_sigma, rot_source)
     return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
-                           rotations, robust_sigma)
+                           rotations, (known, robust_sigma))
 
 
 def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
                     method: str, runs: list[StartResult], fits: list[Fit], floor: float,
-                    rotations: tuple, robust_sigma: float | None = None) -> Identification:
+                    rotations: tuple, noise: tuple[Noise | None, float | None] = (None, None)
+                    ) -> Identification:
     """The :class:`Identification` of the best run: its uncertainty, what is undetermined,
     whether the runs agree, the rows flagged as outliers. ``rotations`` is ``(observations,
     weight (m/rad), rotation noise std (rad) or None, its source)``, the last three ``None``
-    without measured rotations; ``robust_sigma`` the noise std (m) a robust loss was scaled
-    by (``None`` for least squares)."""
+    without measured rotations; ``noise`` the campaign's known translation noise
+    (:func:`~stiffness.calibration.deflection_noise.translation_noise`, ``None`` when not known)
+    and the noise std (m) a robust loss was scaled by (``None`` for least squares)."""
     measured, weight, rot_sigma, rot_source = rotations
     p = rob.n_compliant
     n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
@@ -356,12 +360,11 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         rot_res = best_fit.residuals(measured)[1]
         if rot_source == "residuals":  # neither declared nor the replicates'
             rot_sigma = kind_noise(rot_res, n_res, fitted)
-    level = _noise_level(campaign, best_fit.rss, n_res, fitted,
-                         noise_terms(best_fit, measured), robust_sigma)
+    level = _noise_level(campaign, noise, best_fit.rss, n_res, fitted,
+                         noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
-    intervals = level.noise.of_fit(best_fit.loss, n_res,
-                                   compliance_spread(replace(best_fit, loss="linear")))
+    intervals = fit_noise(level.noise, best_fit, n_res)
     unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
     bias = kinematics_bias(best_fit, cov.matrix) if formulation == "enhanced" else None
     notes += _bias_note(bias, rob.compliant_joints)
@@ -623,35 +626,37 @@ class _NoiseLevel:
     fits_to_noise: dict | None = None
 
 
-def _noise_level(campaign: Campaign, ss_m2: float, n: int, p: int, terms: NoiseTerms,
-                 robust_sigma: float | None = None) -> _NoiseLevel:
-    """The noise of the intervals (:class:`_NoiseLevel`): a declared noise std, else the
-    replicate rows' scatter (least squares only), else the residuals'; with ``robust_sigma``
-    (m, a robust fit's scale) that one, declared or the robust estimate. A known one is tested
-    as ``diagnose`` tests it, on the fit's ``terms``
+def _noise_level(campaign: Campaign, noise: tuple[Noise | None, float | None], ss_m2: float,
+                 n: int, p: int, terms: NoiseTerms) -> _NoiseLevel:
+    """The noise of the intervals (:class:`_NoiseLevel`), ``noise`` the campaign's known
+    translation noise and a robust loss's scale (m; ``None`` for least squares): the known one
+    (declared, else the replicates', robust under a robust loss:
+    :func:`~stiffness.calibration.deflection_noise.translation_noise`, diagnose's), else the
+    robust loss's scale (1.4826 median |residual|, :func:`robust_noise_scale`; diagnose's,
+    from the loss's value at that scale, :func:`~stiffness.calibration.deflection_noise.
+    fit_noise`: two estimates of one std, both unbiased for Gaussian residuals), else the
+    residuals'. A known one is tested as ``diagnose`` tests it, on the fit's ``terms``
     (:func:`~stiffness.calibration.selection.noise_terms`: a robust loss's flagged rows left
     out) through :func:`~stiffness.calibration.selection.pooled_replicates` (the rotation
     replicates' degrees of freedom with it, or the rotations' noise being the residuals')."""
+    known, robust_sigma = noise
     dof = n - p
     sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
-    declared = campaign.noise_std_m
-    if declared is not None:
-        tested = pooled_replicates(Noise(declared), campaign, robust_sigma is not None)
-        assert tested is not None  # a declared noise
-        return _NoiseLevel(Noise(declared), "declared noise_std", sigma_res,
-                           *_tested(tested, terms, "declared noise_std"))
+    if known is not None:
+        tested = pooled_replicates(known, campaign, robust_sigma is not None)
+        assert tested is not None  # a known noise
+        if known.declared:
+            return _NoiseLevel(known, "declared noise_std", sigma_res,
+                               *_tested(tested, terms, "declared noise_std"))
+        scatter = "robust" if robust_sigma is not None else "pooled"
+        return _NoiseLevel(known, f"replicates ({scatter} scatter, {known.dof} degrees of "
+                           "freedom)", sigma_res, *_tested(tested, terms, "replicate rows' "
+                                                           "scatter"))
     if robust_sigma is not None:
         return _NoiseLevel(Noise.estimated(robust_sigma, n, p),
                            "robust estimate (1.4826 median |residual|)", sigma_res, [])
     # dof > 0 without a declared noise: _check_residual_count
     assert sigma_res is not None
-    rep = replicate_noise(campaign)
-    if rep is not None:  # diagnose's noise (its _translation_noise): the replicates' scatter
-        tested = pooled_replicates(Noise(*rep), campaign)
-        assert tested is not None  # a known noise
-        return _NoiseLevel(Noise(*rep), f"replicates (pooled scatter, {rep[1]} degrees of "
-                           "freedom)", sigma_res, *_tested(tested, terms, "replicate rows' "
-                                                           "scatter"))
     return _NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
                        [])
 
@@ -710,14 +715,15 @@ def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarra
 
 
 def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
-                        robust: bool = False
+                        known: Noise | None, robust: bool = False
                         ) -> tuple[Hypothesis, np.ndarray, float, float | None, str]:
     """The model and observations of a campaign with rotations, the weight
     ``w = sigma_t / sigma_r`` (m/rad), the rotation noise std (rad; ``None`` until estimated
     from the best fit's residuals) and its source: diagnose's rule
-    (:func:`~stiffness.calibration.rotation_weight.weighting`: each kind's declared std, else
+    (:func:`~stiffness.calibration.deflection_noise.weighting`: each kind's declared std, else
     its replicates', else the fixed point over the residuals of a fit from the paper's start),
-    the replicates' robust under a ``robust`` loss."""
+    ``known`` the translations' (:func:`~stiffness.calibration.deflection_noise.
+    translation_noise`), the replicates' robust under a ``robust`` loss."""
     x_start = np.full(len(model.compliant), math.log(PAPER_START_SI))
     rotation = campaign.rotation
     assert rotation is not None  # a campaign with rotations
@@ -728,8 +734,7 @@ def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, opt
                          observations(campaign.deflection, rotation, weight), scale, x0,
                          anchor=x0, **options)
 
-    translation = known_noise(campaign, robust=robust)
-    rotations = weighting(campaign, None if translation is None else translation[0], at, robust)
+    rotations = weighting(campaign, None if known is None else known.sigma, at, robust)
     source = {"declared": "declared rotation_noise_std"}.get(rotations.source, rotations.source)
     return (model.replaced(rotation_weight=rotations.weight), rotations.measured(campaign),
             rotations.weight, rotations.sigma_rad if rotations.source != "residuals" else None,

@@ -1,5 +1,7 @@
-"""The weight of measured rotations beside translations in one least squares, for ``identify``
-and ``diagnose`` alike.
+"""The noise of a deflection fit, for ``identify`` and ``diagnose`` alike: each kind's known
+noise std (:func:`known_noise`, :func:`translation_noise`), the weight of measured rotations
+beside the translations (:func:`weighting`) and the noise of a fit's intervals
+(:func:`fit_noise`).
 
 A deflection campaign that measures rotations (rad) beside translations (m) is fitted on
 ``[d; w r]``, ``w = sigma_t / sigma_r`` (m/rad, :func:`~stiffness.calibration.fitting.
@@ -17,13 +19,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.fitting import Fit, kind_noise, observations
-from stiffness.calibration.selection import replicate_noise
+from stiffness.calibration.fitting import Fit, compliance_spread, kind_noise, observations
+from stiffness.calibration.selection import Noise, replicate_noise
 
 #: The weight's fixed point is reached when a round moves it by at most this fraction.
 WEIGHT_TOLERANCE = 1e-3
@@ -44,6 +46,38 @@ def known_noise(campaign: Campaign, kind: str = "translation", robust: bool = Fa
         return declared, None, "declared"
     rep = replicate_noise(campaign, kind, robust=robust)
     return None if rep is None else (rep[0], rep[1], "replicates")
+
+
+def translation_noise(campaign: Campaign, loss: str = "linear"
+                      ) -> tuple[Noise | None, str, str]:
+    """The translation noise (m; ``None`` when only the residuals can tell), its source
+    (``declared``, ``replicates`` or ``residuals``) and a note on it: :func:`known_noise` with
+    its degrees of freedom, the replicates' robust under a robust ``loss``."""
+    known = known_noise(campaign, robust=loss != "linear")
+    if known is None:
+        return None, "residuals", ""
+    sigma, dof, source = known
+    if dof is None:
+        return Noise(sigma), source, "declared noise_std of the campaign"
+    if loss != "linear":
+        return (Noise(sigma, dof), source,
+                "robust scatter of replicate rows (1.4826 median |deviation from the group "
+                f"mean|, {dof} degrees of freedom)")
+    return (Noise(sigma, dof), source,
+            f"pooled scatter of replicate rows ({dof} degrees of freedom)")
+
+
+def fit_noise(known: Noise | None, fit: Fit, n: int) -> Noise:
+    """The noise of ``fit``'s covariance and intervals over ``n`` residuals
+    (:class:`~stiffness.calibration.selection.Noise`): ``known`` (the campaign's, declared or
+    the replicates' with their degrees of freedom; identify's, a robust estimate too), else
+    estimated from ``fit``'s residuals over its ``n - p`` degrees of freedom; under a robust
+    loss the sandwich's, over the directions the reported covariance spreads over
+    (:meth:`~stiffness.calibration.selection.Noise.of_fit`, :func:`compliance_spread`)."""
+    p = fit.penalty_params
+    noise = (known if known is not None
+             else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
+    return noise.of_fit(fit.loss, n, compliance_spread(replace(fit, loss="linear")))
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """The weight of measured rotations, ``sigma_t / sigma_r``: one rule for identify and diagnose
-(:mod:`stiffness.calibration.rotation_weight`)."""
+(:mod:`stiffness.calibration.deflection_noise`)."""
 
 import dataclasses
 import functools
@@ -78,4 +78,21 @@ def test_replicates_give_identify_the_weight_and_the_noise_as_diagnose():
     assert r.rotation_sigma_source == d.rotation_noise_source == "replicates"
     assert r.noise.sigma == pytest.approx(s_t, rel=1e-12) and r.noise.dof == 36
     assert r.fits_to_noise is not None and r.fits_to_noise["test"] == d.test == "lack-of-fit F"
+    assert r.fits_to_noise["p_value"] == pytest.approx(d.gof_baseline, rel=1e-6)
+
+
+def test_a_robust_identify_reads_the_replicates_as_diagnose():
+    """Rows measured twice, no rotations, the noise not declared, ``--loss huber``: identify
+    takes the replicates' robust scatter (36 degrees of freedom) and tests the fit against it
+    as diagnose does (until 6 December 2026 it took the robust estimate from its residuals,
+    5.45 um here against the replicates' 5.70 um, and tested nothing)."""
+    c = dataclasses.replace(_campaign(2), noise_std_m=None, rotation=None,
+                            rotation_noise_std_rad=None)
+    r = identify(c, starts=1, loss="huber")
+    d = diagnose(c, propose=False, workers=1, max_steps=0, loss="huber")
+    assert r.sigma_source == "replicates (robust scatter, 36 degrees of freedom)"
+    assert d.noise_std_source == "replicates"
+    assert r.noise.sigma == pytest.approx(d.noise_std_m, rel=1e-12)
+    assert 0.7 * NOISE < r.noise.sigma < 1.3 * NOISE
+    assert r.fits_to_noise is not None
     assert r.fits_to_noise["p_value"] == pytest.approx(d.gof_baseline, rel=1e-6)
