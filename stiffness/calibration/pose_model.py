@@ -90,6 +90,9 @@ from stiffness.units import Units
 #: Tolerance (rad or m) and iteration cap of the sag's fixed point.
 SAG_TOLERANCE = 1e-13
 SAG_ITERATIONS = 50
+#: Relative spread of the ratio of successive sag steps under which a row's passes follow one
+#: slow mode (:func:`_sag_jump`).
+SAG_STEADY_RATIO = 1e-3
 #: Rows a model of row-at-once families evaluates together (bounds the arrays a large
 #: campaign's evaluation holds besides its Jacobian).
 ROW_BLOCK = 1024
@@ -466,7 +469,11 @@ class PoseModel:
         by fixed-point iteration (to :data:`SAG_TOLERANCE`; it contracts by about
         ``|C dtau/dq|``, 1e-3 for real arms), each row until its own sag converges, started
         from the row's last converged sag (an optimiser's next trial differs little from its
-        last), and from zero if that does not converge."""
+        last), and from zero if that does not converge. A row whose passes contract at a
+        steady ratio (a slow mode: a steep lost motion, a lumped weight) jumps to the limit
+        they approach (:func:`_sag_jump`) and iterates on from there; the verdict stays the
+        plain passes': an attempt fails where they would need more than
+        :data:`SAG_ITERATIONS`."""
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
         if not self.elastic:
@@ -483,7 +490,10 @@ class PoseModel:
         kept: dict[str, np.ndarray] = {}  # the families' extras at ``at``, as computed there
         pending = np.arange(n)
         for attempt in range(2):  # from the last converged sag, then from zero
-            for _ in range(SAG_ITERATIONS):
+            trail = np.zeros((3, n, nv))  # each row's steps of the last three passes
+            start = np.zeros(n, dtype=int)  # the pass its plain steps start at (its jump)
+            failed = np.zeros(0, dtype=int)
+            for k in range(SAG_ITERATIONS):
                 if not pending.size:
                     break
                 q = self._configurations(model, data, commanded[pending],
@@ -493,13 +503,28 @@ class PoseModel:
                                          not self._lumped)
                 extras = self._extras(model, data, q)
                 new = self.deflection(x, self._state(x, q, g, w, extras))
-                done = np.max(np.abs(new - sag[pending]), axis=1) <= SAG_TOLERANCE
+                trail[k % 3, pending] = new - sag[pending]
+                size = np.max(np.abs(trail[k % 3, pending]), axis=1)
+                done = size <= SAG_TOLERANCE
                 sag[pending] = new
                 finished = pending[done]
                 at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
                 for f, e in extras.items():
                     kept.setdefault(f, np.empty((n,) + e.shape[1:]))[finished] = e[done]
-                pending = pending[~done]
+                pending, size = pending[~done], size[~done]  # pending only shrinks
+                ready = k - start[pending] >= 2 if k >= 2 else None  # three plain steps
+                if ready is not None and ready.any():
+                    slow = pending[ready]
+                    jump, hopeless = _sag_jump(trail[:, slow][[k % 3, (k - 1) % 3, (k - 2) % 3]],
+                                               size[ready], SAG_ITERATIONS - 1 - k)
+                    sag[slow] += jump
+                    start[slow[jump.any(axis=1)]] = k + 1
+                    if hopeless.any():  # the plain passes would not converge in time
+                        failed = np.concatenate([failed, slow[hopeless]])
+                        if attempt or not warm[failed].all():
+                            raise ConvergenceError(SAG_DIVERGES)
+                        pending = pending[~np.isin(pending, failed)]
+            pending = np.concatenate([failed, pending])
             if not pending.size or attempt or not warm[pending].all():
                 break
             sag[pending] = 0.0
@@ -578,6 +603,43 @@ class _Evaluation:
     to_measuring: np.ndarray
     translation: np.ndarray
     jacobian: bool
+
+
+def _sag_jump(steps: np.ndarray, size: np.ndarray, left: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the sag's plain passes contract at a steady ratio, the jump to their limit.
+
+    Parameters
+    ----------
+    steps
+        (3, p, nv) each pending row's last three plain steps ``s_0, s_1, s_2`` (rad, m; a
+        pass's new sag minus its start), newest first.
+    size
+        (p,) the largest component of the newest step.
+    left
+        Passes left in the attempt.
+
+    Returns
+    -------
+    jump : (p, nv)
+        Aitken's extrapolation ``s_0 r / (1 - r)`` to the limit of passes whose steps
+        ``s_2, s_1, s_0`` (newest last) shrink by the ratio ``r = s_0 . s_1 / |s_1|^2`` (a
+        dominant mode: ``s_1 . s_2 / |s_2|^2`` the same to :data:`SAG_STEADY_RATIO`), zero
+        elsewhere.
+    hopeless : (p,)
+        Rows whose plain passes, at that ratio, would not reach :data:`SAG_TOLERANCE` within
+        ``left`` more passes (or never: ``|r| >= 1``): the attempt fails there, as it did
+        before the jumps.
+    """
+    step = steps[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio, before = (np.sum(steps[:2] * steps[1:], axis=2)
+                         / np.sum(steps[1:] * steps[1:], axis=2))
+        steady = (np.abs(ratio - before) <= SAG_STEADY_RATIO * np.abs(ratio))
+        needed = np.log(SAG_TOLERANCE / size) / np.log(np.abs(ratio))
+        hopeless = steady & ((np.abs(ratio) >= 1.0) | (needed > left))
+        jump = np.where((steady & ~hopeless)[:, None], step * (ratio / (1.0 - ratio))[:, None],
+                        0.0)
+    return jump, hopeless
 
 
 def _check_combination(families: list[PoseFamily]) -> None:
