@@ -7,8 +7,8 @@
   point of its run (a bounded, seeded loop: one kill per command by default,
   ``STIFFNESS_FAULT_KILLS`` for more). Afterwards every file in its output folder is
   either absent or complete and valid (JSON parses, PNG ends with IEND, HTML is closed, NPZ and
-  Parquet load); then the same command is rerun in that folder (a scan resumes) and its outputs
-  equal the uninterrupted run's, and no temporary file is left.
+  Parquet load); then the same command is rerun in that folder (in the test's process; a scan
+  resumes) and its outputs equal the uninterrupted run's, and no temporary file is left.
 * A full disk (a small tmpfs when this process may mount one, else a file-size limit set on
   the command) gives exit 2 with one line, and leaves no half-written file.
 * A read-only folder (a read-only tmpfs) and ``--out`` naming an existing file give one line.
@@ -28,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -44,15 +45,36 @@ KILLS = int(os.environ.get("STIFFNESS_FAULT_KILLS", "1"))
 VOLATILE = {"elapsed_s", "provenance", "generated", "date", "started", "seconds", "chunks"}
 
 
-def cli(*args: str, cwd: Path | None = None, limit_bytes: int | None = None,
+def cli(*args: str, limit_bytes: int | None = None,
         timeout: float = 120.0) -> subprocess.CompletedProcess:
-    def limit() -> None:
-        if limit_bytes is not None:
-            resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    """``stiffness ARGS``: its exit status and what it printed, warnings included. Run in this
+    process (``main``, as the console script runs it, with a fresh interpreter's warning
+    filters and its warnings printed, not recorded by pytest: 1-2 s of imports less than a
+    process), or as a process of its own under a file-size limit (``limit_bytes``: a limit
+    set here would stay on the test worker)."""
+    if limit_bytes is None:
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+                warnings.catch_warnings():
+            warnings.resetwarnings()
+            for ignored in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
+                            ResourceWarning):
+                warnings.simplefilter("ignore", ignored)
+            warnings.showwarning = _printed
+            code = main(list(args))
+        return subprocess.CompletedProcess(["stiffness", *args], code, out.getvalue(),
+                                           err.getvalue())
 
-    return subprocess.run([sys.executable, "-m", "stiffness.cli.main", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=timeout,
-                          preexec_fn=limit if limit_bytes else None)
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return subprocess.run([sys.executable, "-m", "stiffness.cli.main", *args],
+                          capture_output=True, text=True, timeout=timeout, preexec_fn=limit)
+
+
+def _printed(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning on stderr, as an interpreter without pytest shows it."""
+    sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
 def without_volatile(value: object) -> object:
