@@ -467,7 +467,7 @@ def simulate_poses(
     campaign.settings = replace(campaign.settings, fixed_base=given.fixed_base)
     if not declare_noise:
         campaign.noise_std = campaign.noise_std_rotation = None
-    sizes = _effect_sizes(given, markers, hidden_effects, kq, units, drift_m, poses, seed, wrench)
+    sizes = _effect_sizes(given, markers, hidden_effects, kq, units, drift_m, campaign.q, wrench)
     _warn_unloaded(given, sizes, wrench)
     settings = {"robot": {"source": given.name, "frame": given.target_frame},
                 "poses": poses, "seed": seed,
@@ -512,15 +512,16 @@ def _check_robot_and_markers(robot: Robot, markers: list[Marker]) -> None:
 
 def _effect_sizes(robot: Robot, markers: list[Marker], hidden: list[HiddenEffect],
                   kq: list[float] | np.ndarray | None, units: Units,
-                  drift_m: np.ndarray | list[float] | None, poses: int, seed: int,
+                  drift_m: np.ndarray | list[float] | None, poses: np.ndarray,
                   wrench: np.ndarray | None) -> dict[str, float]:
-    """Each hidden effect's RMS change (m) of the noise-free marker positions: the truth
-    against the truth without it (and without what acts through a spring it removes)."""
+    """Each hidden effect's RMS change (m) of the noise-free marker positions at the
+    campaign's commanded ``poses`` (rad, m): the truth against the truth without it (and
+    without what acts through a spring it removes)."""
     def positions(effects: list[HiddenEffect], k: list[float] | np.ndarray | None,
                   drift: np.ndarray | list[float] | None) -> np.ndarray:
         truth = hidden_pose_errors(robot, markers, effects, k, units, drift)
-        return simulate_pose_campaign(robot, markers, truth, poses, 0.0, seed,
-                                      wrench).positions
+        return simulate_pose_campaign(robot, markers, truth, len(poses), 0.0, 0, wrench,
+                                      coordinates=poses).positions
 
     def rms(a: np.ndarray) -> float:
         return float(np.sqrt(np.mean((a - full) ** 2)))

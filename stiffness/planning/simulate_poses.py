@@ -427,7 +427,8 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
                            n_poses: int, noise_std: float, seed: int = 0,
                            payload: np.ndarray | None = None, units: Units | None = None,
                            name: str = "simulated-poses",
-                           rotation_noise_std: float | None = None) -> PoseCampaign:
+                           rotation_noise_std: float | None = None,
+                           coordinates: np.ndarray | None = None) -> PoseCampaign:
     """A pose campaign of ``n_poses`` reachable poses seen through ``hidden``.
 
     Parameters
@@ -443,10 +444,14 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
         own frames, turned by their ``rotation``, in the measuring frame), each with a
         rotation ``exp(n)``, ``n`` Gaussian of this std per component (rad), applied on the
         measuring side.
+    coordinates
+        The ``n_poses`` commanded poses (rad, m) instead of drawing them (the seed then draws
+        the noise only): another truth seen at a campaign's poses.
     """
     rng = np.random.default_rng(seed)
     model = true_model(robot, hidden)
-    q = _truth_reachable(robot, model, hidden, sample_coordinates(robot, n_poses, rng), rng)
+    q = (_truth_reachable(robot, model, hidden, sample_coordinates(robot, n_poses, rng), rng)
+         if coordinates is None else np.asarray(coordinates, dtype=float).reshape(n_poses, -1))
     loads = None if payload is None else Loads(robot.target_frame,
                                                np.tile(payload, (n_poses, 1)))
     springs = hidden_elasticity(robot, markers, hidden, smoothing_torques(robot, q, payload))
