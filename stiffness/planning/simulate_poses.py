@@ -308,6 +308,21 @@ def loaded_arm(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticit
     the independent coordinates feel, :func:`loop_torque`."""
     if springs is None:
         return model, q_command
+    try:
+        return _sag(model, q_command, springs, wrench, load_frame, loop)
+    except LoopClosureError as exc:  # an iterate past the loops' reach
+        where = "" if exc.loop is None or exc.residual is None else \
+            f" ({exc.loop} stays {exc.residual:.3g} m open)"
+        raise ConvergenceError(
+            f"the simulated sag takes the loops out of reach{where}: the springs are too soft "
+            "for the arm's weight and the payload at this pose; raise the stiffness or lower "
+            "the payload") from None
+
+
+def _sag(model: pin.Model, q_command: np.ndarray, springs: HiddenElasticity,
+         wrench: np.ndarray | None, load_frame: str, loop: LoopClosure | None
+         ) -> tuple[pin.Model, np.ndarray]:
+    """:func:`loaded_arm`'s fixed point (``springs`` given)."""
     bends = np.zeros((len(springs.links), 3))
     dv = np.zeros(model.nv)
     law = SpringLaw(1.0 / springs.stiffness, springs.beta, springs.backlash, springs.smoothing)
