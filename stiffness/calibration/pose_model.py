@@ -503,15 +503,17 @@ class PoseModel:
                                          not self._lumped)
                 extras = self._extras(model, data, q)
                 new = self.deflection(x, self._state(x, q, g, w, extras))
-                trail[k % 3, pending] = new - sag[pending]
-                size = np.max(np.abs(trail[k % 3, pending]), axis=1)
+                step = new - sag[pending]
+                trail[k % 3, pending] = step
+                size = np.max(np.abs(step), axis=1)
                 done = size <= SAG_TOLERANCE
                 sag[pending] = new
-                finished = pending[done]
-                at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
-                for f, e in extras.items():
-                    kept.setdefault(f, np.empty((n,) + e.shape[1:]))[finished] = e[done]
-                pending, size = pending[~done], size[~done]  # pending only shrinks
+                if done.any():
+                    finished = pending[done]
+                    at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
+                    for f, e in extras.items():
+                        kept.setdefault(f, np.empty((n,) + e.shape[1:]))[finished] = e[done]
+                    pending, size = pending[~done], size[~done]  # pending only shrinks
                 ready = k - start[pending] >= 2 if k >= 2 else None  # three plain steps
                 if ready is not None and ready.any():
                     slow = pending[ready]
@@ -630,15 +632,17 @@ def _sag_jump(steps: np.ndarray, size: np.ndarray, left: int) -> tuple[np.ndarra
         ``left`` more passes (or never: ``|r| >= 1``): the attempt fails there, as it did
         before the jumps.
     """
-    step = steps[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio, before = (np.sum(steps[:2] * steps[1:], axis=2)
-                         / np.sum(steps[1:] * steps[1:], axis=2))
-        steady = (np.abs(ratio - before) <= SAG_STEADY_RATIO * np.abs(ratio))
-        needed = np.log(SAG_TOLERANCE / size) / np.log(np.abs(ratio))
-        hopeless = steady & ((np.abs(ratio) >= 1.0) | (needed > left))
-        jump = np.where((steady & ~hopeless)[:, None], step * (ratio / (1.0 - ratio))[:, None],
-                        0.0)
+    ratio, before = np.sum(steps[:2] * steps[1:], axis=2) / np.sum(steps[1:] ** 2, axis=2)
+    steady = np.abs(ratio - before) <= SAG_STEADY_RATIO * np.abs(ratio)  # no step is nil
+    jump, hopeless = np.zeros(steps.shape[1:]), np.zeros(len(size), dtype=bool)
+    if steady.any():
+        r = ratio[steady]
+        with np.errstate(divide="ignore"):  # a ratio of exactly zero: no pass needed
+            needed = np.log(SAG_TOLERANCE / size[steady]) / np.log(np.abs(r))
+        hopeless[steady] = (np.abs(r) >= 1.0) | (needed > left)
+        going = ~hopeless[steady]
+        jump[np.flatnonzero(steady)[going]] = (steps[0][steady][going]
+                                               * (r[going] / (1.0 - r[going]))[:, None])
     return jump, hopeless
 
 
