@@ -12,6 +12,7 @@ import warnings
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import _joint, _robot_xml
 
 from stiffness.calibration.pose_campaign import load_pose_campaign
 from stiffness.calibration.pose_model import Marker
@@ -186,3 +187,35 @@ def test_bad_flags_are_refused_in_one_line(tmp_path, capsys, flags, says):
     assert code == 2 and printed == ""
     assert len(err.strip().splitlines()) == 1 and says in err, err
     assert not out.exists()
+
+
+def _mimic_arm(folder) -> str:
+    """j1 and j2 about z, j3 a ``<mimic>`` follower of j2 (half its angle), then the tool."""
+    joints = [_joint("j1", "base", "l1"), _joint("j2", "l1", "l2", xyz=(0.3, 0, 0)),
+              _joint("j3", "l2", "l3", xyz=(0.3, 0, 0)).replace(
+                  "</joint>", '<mimic joint="j2" multiplier="0.5"/></joint>'),
+              _joint("tip", "l3", "tool", xyz=(0.2, 0, 0), kind="fixed")]
+    path = folder / "mimic.urdf"
+    path.write_text(_robot_xml("mimic", ["base", "l1", "l2", "l3", "tool"], joints))
+    return str(path)
+
+
+@pytest.mark.parametrize("effect", ["backlash:j3=0.1", "joint_compliance:j3=1e4"])
+@pytest.mark.parametrize("compliant", [("j1", "j2"), ("j1",)])
+def test_a_spring_effect_on_a_mimic_follower_names_its_leader(tmp_path, effect, compliant):
+    """A mimic follower cannot be declared compliant (its leader carries the spring: loading
+    it so is refused), so the hint names the leader, not '--compliant-joints' for j3."""
+    from stiffness.errors import StiffnessError
+    from stiffness.planning.pose_simulation import simulate_poses
+    path = _mimic_arm(tmp_path)
+    with pytest.raises(StiffnessError, match="its leader carries the spring"):
+        load_robot(path, compliant_joints=["j1", "j3"])
+    robot = load_robot(path, compliant_joints=list(compliant))
+    effects = [effect] if effect.startswith("joint") else ["joint_compliance:j1=1e4", effect]
+    with pytest.raises(StiffnessError) as info:
+        simulate_poses(robot, poses=4, effects=effects)
+    text = str(info.value)
+    assert "'j3' is not a compliant joint of" in text and "\n" not in text
+    assert "mimic follower: its leader 'j2' carries the spring; name j2" in text
+    assert ("declared with --compliant-joints" in text) == ("j2" not in compliant)
+    assert "declare it with" not in text

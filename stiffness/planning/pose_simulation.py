@@ -137,6 +137,19 @@ def _index(names: list[str], where: str, effect: HiddenEffect, what: str, fix: s
                 f"{did_you_mean(where, names)}", name=where, choices=names)
 
 
+def _spring_fix(robot: Robot, joint: str) -> str:
+    """How to put an effect on a spring at ``joint``, not a compliant joint of ``robot``:
+    declare it with ``--compliant-joints``, but a mimic follower cannot be declared (its
+    leader carries the spring, :func:`~stiffness.robot.declaration.check_compliant`): name
+    its leader."""
+    leader = next((m.leader for m in robot.mimics if m.follower == joint), None)
+    if leader is None:
+        return " (declare it with --compliant-joints)"
+    declare = "" if leader in robot.compliant_joints else ", declared with --compliant-joints"
+    return (f" (it is a mimic follower: its leader {leader!r} carries the spring; name "
+            f"{leader}{declare})")
+
+
 def _positive(effect: HiddenEffect, values: np.ndarray, zero: bool = False) -> np.ndarray:
     """``values`` refused unless all positive (non-negative with ``zero``)."""
     if not (np.all(values >= 0) if zero else np.all(values > 0)):
@@ -184,7 +197,7 @@ def hidden_pose_errors(robot: Robot, markers: list[Marker],
         v = np.asarray(h.values, dtype=float)
         if h.name in _ON_SPRING:
             k = _index(springs, str(h.where), h, "a compliant joint of " + robot.title,
-                       " (declare it with --compliant-joints)")
+                       _spring_fix(robot, str(h.where)))
             if h.name in _THROUGH_SPRING and not math.isfinite(stiffness[k]):
                 raise StiffnessError(f"--effect {h.label} acts through {h.where}'s spring: "
                                      f"give it one (--effect joint_compliance:{h.where}=K, or "
@@ -252,7 +265,7 @@ def _springs(robot: Robot, hidden: list[HiddenEffect], kq: list[float] | np.ndar
     out = np.full(len(springs), np.inf)
     for h in given:
         k = _index(springs, str(h.where), h, "a compliant joint of " + robot.title,
-                   " (declare it with --compliant-joints)")
+                   _spring_fix(robot, str(h.where)))
         out[k] = _positive(h, np.asarray(h.values, dtype=float))[0]
     return out
 
