@@ -312,31 +312,53 @@ def identify(
     rob = robot if robot is not None else campaign.robot()
     _check_residual_count(campaign, method, rob.n_compliant, loss)
     model = stiffness_model(campaign, formulation, rob)
-    measured = campaign.deflection
-    if campaign.noise_std_m is not None:
-        scale = campaign.noise_std_m
-    else:  # any fixed scale: sigma is estimated from the residuals
-        rms = float(np.sqrt(np.mean(measured ** 2)))
-        scale = rms if rms > 0 else 1e-3
+    scale = _residual_scale(campaign)
     options: dict = {"bounded": False, "tolerance": 1e-12,
                      "max_nfev": 200 * (rob.n_compliant + 1)}
     known = translation_noise(campaign, loss)[0]  # diagnose's: declared, else the replicates'
-    rot_sigma = rot_source = weight = None
-    if campaign.rotation is not None:
-        model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
-            campaign, model, scale, options, known, loss != "linear")
-    robust_sigma: float | None = None
-    if loss != "linear":
-        robust_sigma = robust_noise_scale(model, measured, float(scale),
-                                          None if known is None else known.sigma, loss,
-                                          options, PAPER_START_SI)
-        options = {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}
+    model, rotations = _observed(campaign, model, scale, options, known, loss)
+    options, robust_sigma = _robust_options(model, rotations[0], scale, options, known, loss)
     floor = _k_c_floor(model, formulation)
-    runs, fits = _least_squares_runs(model, measured, scale, formulation, method, starts,
+    runs, fits = _least_squares_runs(model, rotations[0], scale, formulation, method, starts,
                                      seed, floor, options, progress)
-    rotations = (measured, weight, rot_sigma, rot_source)
     return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
                            rotations, (known, robust_sigma))
+
+
+def _residual_scale(campaign: Campaign) -> float:
+    """The fixed scale ``s`` (m) the residuals are divided by: the declared noise std, else
+    the RMS of the measured deflections (``1e-3`` when they are all zero; sigma is then
+    estimated from the residuals)."""
+    if campaign.noise_std_m is not None:
+        return campaign.noise_std_m
+    rms = float(np.sqrt(np.mean(campaign.deflection ** 2)))
+    return rms if rms > 0 else 1e-3
+
+
+def _observed(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
+              known: Noise | None, loss: str) -> tuple[Hypothesis, tuple]:
+    """The model and the observations it is fitted to, as ``(model, (observations, weight
+    (m/rad), rotation noise std (rad) or None, its source))``: the translations (m) alone, the
+    last three ``None``, or with the rotations weighted by :func:`_rotation_weighting`
+    (``scale`` the residual scale, m; ``known`` the translations' noise)."""
+    if campaign.rotation is None:
+        return model, (campaign.deflection, None, None, None)
+    model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
+        campaign, model, scale, options, known, loss != "linear")
+    return model, (measured, weight, rot_sigma, rot_source)
+
+
+def _robust_options(model: Hypothesis, measured: np.ndarray, scale: float, options: dict,
+                    known: Noise | None, loss: str) -> tuple[dict, float | None]:
+    """The solver ``options`` with a robust ``loss`` and its ``f_scale`` (in units of the
+    residual ``scale``), and the noise std (m) the loss is scaled by
+    (:func:`robust_noise_scale`); for least squares, ``options`` unchanged and ``None``."""
+    if loss == "linear":
+        return options, None
+    robust_sigma = robust_noise_scale(model, measured, float(scale),
+                                      None if known is None else known.sigma, loss,
+                                      options, PAPER_START_SI)
+    return {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}, robust_sigma
 
 
 def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
