@@ -659,47 +659,22 @@ def load_robot(
         type, floating base without ``fixed_base`` (:class:`~stiffness.errors.FloatingBaseError`).
     """
     src = calibrated_source(source) if is_json(source) else resolve_source(source)
-    name, settings = src.name, src.settings
     declaration = loop_declaration(src, loops)
     model, visual, visual_loader, notes = _edited_model(src, declaration, fixed_base)
-    loop = LoopClosure.open_chain() if declaration is None else build_loop_closure(
-        model, declaration, dependent=tuple(m.follower for m in src.mimics))
-    passive = set(loop.passive_joints)
-    mimics = checked_mimics(name, src.mimics, model, passive)
-    dependent = {m.follower for m in mimics}
-    coordinate_joints, settings = ordered_coordinates(
-        name, settings, free_joints(model, passive | dependent), loops)
-    coupling = controller_map(name, settings, model, coordinate_joints, not loop.is_open_chain,
-                           mimics)
-    spring_names = coordinate_joints
-    if coupling is not None:
-        coordinate_joints = list(coupling.coordinates)
-        spring_names = coordinate_joints if coupling.springs_on == "controller" \
-            else list(coupling.chain)
-
-    closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
-    gripper = gripper_joints(model, src.all_mimics + src.mimics)
-    defaulted = frame is target_offset is None and not {"frame", "target_offset_m"} & {*settings}
-    title = robot_title(name, settings, model.name)
-    frame = checked_target_frame(
-        title, model, frame if frame is not None else settings.get("frame"), closure, gripper)
-    fid = kinematics.frame_id(model, frame)  # a default target is off the tip joint's origin
-    offset = default_target_offset(model, fid) if defaulted else target_offset_of(
-        target_offset, settings, name, model, frame)
+    loop, mimics = _loop_and_mimics(src, model, declaration)
+    coordinate_joints, spring_names, coupling, settings = _coordinates(
+        src, model, loop, mimics, loops)
+    title = robot_title(src.name, settings, model.name)
+    frame, fid, offset = _target(src, title, model, loop, settings, frame, target_offset)
     springs = settings.get("compliant_joints", target_chain(  # default: the joints moving it
         model, fid, spring_names, coupling is not None or not loop.is_open_chain, mimics))
     settings = check_counts(settings, coordinate_joints, springs)
     compliant_joints = tuple(springs if compliant_joints is None else joint_names(compliant_joints))
-    check_compliant(title, compliant_joints, spring_names, passive, dependent, coupling)
-
-    parent = model.frames[fid]
-    placement = parent.placement * pin.SE3(np.eye(3), offset)
-    target_id = model.addFrame(
-        pin.Frame(TARGET_FRAME, parent.parentJoint, fid, placement, pin.FrameType.OP_FRAME)
-    )
-    defaults = {k: v for k, v in settings.items() if not k.startswith("_")}
+    check_compliant(title, compliant_joints, spring_names, set(loop.passive_joints),
+                    {m.follower for m in mimics}, coupling)
+    target_id = _add_target_frame(model, fid, offset)  # before the data, which holds its frame
     return Robot(
-        name=name,
+        name=src.name,
         model=model,
         data=model.createData(),
         target_frame=frame,
@@ -710,7 +685,7 @@ def load_robot(
         loop=loop,
         _visual=visual,
         _visual_loader=visual_loader,
-        defaults=defaults,
+        defaults={k: v for k, v in settings.items() if not k.startswith("_")},
         mimics=mimics,
         missing_meshes=src.missing_meshes,
         notes=tuple(notes),
@@ -718,6 +693,59 @@ def load_robot(
         fixed_base=fixed_base,
         coupling=coupling,
     )
+
+
+def _loop_and_mimics(src: RobotSource, model: pin.Model, declaration: LoopDeclaration | None
+                     ) -> tuple[LoopClosure, tuple[Mimic, ...]]:
+    """The loop closures of ``model`` (an open chain without a declaration) and the source's
+    mimic couplings that still apply (:func:`~stiffness.robot.declaration.checked_mimics`)."""
+    loop = LoopClosure.open_chain() if declaration is None else build_loop_closure(
+        model, declaration, dependent=tuple(m.follower for m in src.mimics))
+    return loop, checked_mimics(src.name, src.mimics, model, set(loop.passive_joints))
+
+
+def _coordinates(src: RobotSource, model: pin.Model, loop: LoopClosure, mimics: tuple[Mimic, ...],
+                 loops: str | os.PathLike | None
+                 ) -> tuple[list[str], list[str], CoordinateMap | None, dict]:
+    """The coordinate joints (in ``coordinate_order``; the controller's coordinates when the
+    file maps them), the joints that can carry a spring, the controller map (None without one)
+    and the settings (:func:`~stiffness.robot.declaration.ordered_coordinates`)."""
+    dependent = set(loop.passive_joints) | {m.follower for m in mimics}
+    coordinate_joints, settings = ordered_coordinates(
+        src.name, src.settings, free_joints(model, dependent), loops)
+    coupling = controller_map(src.name, settings, model, coordinate_joints,
+                              not loop.is_open_chain, mimics)
+    spring_names = coordinate_joints
+    if coupling is not None:
+        coordinate_joints = list(coupling.coordinates)
+        spring_names = coordinate_joints if coupling.springs_on == "controller" \
+            else list(coupling.chain)
+    return coordinate_joints, spring_names, coupling, settings
+
+
+def _target(src: RobotSource, title: str, model: pin.Model, loop: LoopClosure, settings: dict,
+            frame: str | None, target_offset: np.ndarray | list[float] | None
+            ) -> tuple[str, int, np.ndarray]:
+    """The target frame (checked, or the default one: not a loop's or a gripper's), its id, and
+    the target's offset (3,) in its axes (m): the given or declared one, else the default."""
+    closure = frozenset(n for p in loop.pairs for n in (p.frame_a, p.frame_b))
+    gripper = gripper_joints(model, src.all_mimics + src.mimics)
+    defaulted = frame is target_offset is None and not {"frame", "target_offset_m"} & {*settings}
+    frame = checked_target_frame(
+        title, model, frame if frame is not None else settings.get("frame"), closure, gripper)
+    fid = kinematics.frame_id(model, frame)  # a default target is off the tip joint's origin
+    offset = default_target_offset(model, fid) if defaulted else target_offset_of(
+        target_offset, settings, src.name, model, frame)
+    return frame, fid, offset
+
+
+def _add_target_frame(model: pin.Model, fid: int, offset: np.ndarray) -> int:
+    """Add the :data:`TARGET_FRAME` at ``offset`` (3,) (m) in frame ``fid``'s axes to ``model``;
+    return its frame id."""
+    parent = model.frames[fid]
+    placement = parent.placement * pin.SE3(np.eye(3), offset)
+    return model.addFrame(
+        pin.Frame(TARGET_FRAME, parent.parentJoint, fid, placement, pin.FrameType.OP_FRAME))
 
 
 def _edited_model(src: RobotSource, declaration: LoopDeclaration | None, fixed_base: bool
