@@ -347,25 +347,16 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     say(f"pose diagnosis: {campaign.n_rows} rows, baseline (measuring frame and markers)")
     frame0 = starting_frame(campaign)
     chosen = list(BASE_FAMILIES)
-    settings = campaign_settings(campaign)
-    if base_tilt is not None:
-        settings[DECLARED_TILT] = [float(v) for v in base_tilt]
-        declared_tilt(settings)  # two finite angles, else a one-line error
-    if effect_settings:
-        settings[GravityCompensator.GEOMETRY_SETTING] = declared_geometry(
-            campaign.robot, effect_settings)
+    settings = _model_settings(campaign, base_tilt, effect_settings)
     empty = _empty(campaign, frame0, settings, CANDIDATES[masses])
-    if empty & set(forced):
-        f = next(f for f in forced if f in empty)
-        raise StiffnessError(f"--families {f}: {f} has no parameter on {campaign.robot.title} "
-                             "with these markers (docs/absolute-poses.md, Limits); drop it")
+    _check_forced(campaign, forced, empty)
     base = _fit(campaign, chosen, frame0, settings, loss=loss)
     judge = PoseJudge.of(campaign, masses)
     scale = None if loss == "linear" else base.sigma  # every fit under one loss scale
     draw = bar or (lambda label: None)
     kind = PoseSearch(campaign, chosen, frame0, settings, scale, say, workers, draw, judge,
                       base.n_observed, campaign.noise_std,
-                      [f for f in CANDIDATES[masses] if f not in {*forced, *forbidden, *empty}])
+                      _tried(masses, forced, forbidden, empty))
     steps = kind.steps
     steps.append(Step("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
                       validation=_validation(base, validate)))  # the markers checked first
@@ -378,6 +369,43 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
     return PoseDiagnosis(kind.rejected, judge, kind.not_judged, campaign=campaign, steps=steps,
                          masses=masses, loss=loss, forbidden=sorted(forbidden), stop_reason=stop,
                          outliers=outliers, outlier_sigma_m=sigma, search=kind)
+
+
+def _model_settings(campaign: PoseCampaign, base_tilt: Sequence[float] | None,
+                    effect_settings: dict[str, dict] | None) -> dict:
+    """The model settings of every fit of the diagnosis: the campaign's, with a declared
+    ``base_tilt`` ``(r_x, r_y)`` (rad) and a gravity compensator's declared geometry
+    (``lever_m``, ``base_m``, m) from ``effect_settings``.
+
+    Raises
+    ------
+    StiffnessError
+        A base tilt that is not two finite angles, or an invalid compensator geometry.
+    """
+    settings = campaign_settings(campaign)
+    if base_tilt is not None:
+        settings[DECLARED_TILT] = [float(v) for v in base_tilt]
+        declared_tilt(settings)  # two finite angles, else a one-line error
+    if effect_settings:
+        settings[GravityCompensator.GEOMETRY_SETTING] = declared_geometry(
+            campaign.robot, effect_settings)
+    return settings
+
+
+def _check_forced(campaign: PoseCampaign, forced: Sequence[str], empty: set[str]) -> None:
+    """Refuse a forced family with no parameter on the campaign's robot and markers (one
+    line, naming the first such family of ``forced``; ``empty`` from :func:`_empty`)."""
+    if empty & set(forced):
+        f = next(f for f in forced if f in empty)
+        raise StiffnessError(f"--families {f}: {f} has no parameter on {campaign.robot.title} "
+                             "with these markers (docs/absolute-poses.md, Limits); drop it")
+
+
+def _tried(masses: str, forced: Sequence[str], forbidden: set[str], empty: set[str]
+           ) -> list[str]:
+    """The candidate families of ``masses`` the search tries, in their order: neither forced
+    (added first), forbidden, nor without a parameter (``empty``, :func:`_empty`)."""
+    return [f for f in CANDIDATES[masses] if f not in {*forced, *forbidden, *empty}]
 
 
 def _empty(campaign: PoseCampaign, frame0: tuple[np.ndarray, np.ndarray], settings: dict,
