@@ -474,22 +474,12 @@ def design(
     pair = _check_request(robot, configs, max_force, loads_per_config, candidates, criterion,
                           random_plans, existing, separate)
     joints = tuple(robot.compliant_joints)
-    if k is None and model is not None and tuple(model.compliant_joints) == joints:
-        k, k_source = model.k_theta, k_source or f"the model file {model.path}"
-    k_arr, k_found = _nominal_stiffness(robot, k, existing)
+    k_arr, k_source = _nominal_stiffness(robot, k, k_source, model, existing)
     sigma, noise_source = _noise_level(noise_std_m, existing)
-    if isinstance(candidates, Candidates):
-        cands = candidates
-    else:
-        say(f"drawing {candidates} candidate poses")
-        cands = candidate_set(robot, int(candidates), max_force, seed)
+    cands = _candidates(robot, candidates, max_force, seed, say)
     search = _Search.of(cands, joints, k_arr, formulation, sigma, existing)
-    alternatives = None
-    if pair is not None and existing is not None:  # _check_request: a pair has an existing
-        say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
-        alternatives = fit_alternatives(existing, pair, noise_std_m)
-        search.separate(alternatives)
-    else:
+    alternatives = _alternatives(search, pair, existing, noise_std_m, say)
+    if alternatives is None:
         say(f"selecting {configs} x {loads_per_config} rows ({criterion}-optimal)")
     selection = search.select(int(configs), int(loads_per_config), criterion)
     designed = search.predict(selection)
@@ -498,7 +488,7 @@ def design(
                  units, formulation, sigma)
     linearisation = linearisation_error(robot, k_arr, plan, formulation)  # the model's reach
     return DesignResult(
-        plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source or k_found,
+        plan=plan, robot=robot, joints=joints, k=k_arr, k_source=k_source,
         noise_std_m=sigma, noise_source=noise_source, criterion=criterion,
         formulation=formulation, n_candidates=cands.n_poses, n_directions=cands.n_directions,
         max_force=cands.max_force, designed=designed, random=randoms,
@@ -510,6 +500,26 @@ def design(
         exchanges=selection.exchanges, linearisation=linearisation,
         notes=search.notes(designed, joints) + _linearisation_notes(
             linearisation, sigma, formulation, max_force))
+
+
+def _candidates(robot: Robot, candidates: int | Candidates, max_force: float, seed: int,
+                say: Callable[[str], None]) -> Candidates:
+    """``candidates`` if built, else that many candidate poses drawn (loads ``max_force``, N)."""
+    if isinstance(candidates, Candidates):
+        return candidates
+    say(f"drawing {candidates} candidate poses")
+    return candidate_set(robot, int(candidates), max_force, seed)
+
+
+def _alternatives(search: _Search, pair: tuple | None, existing: Campaign | None,
+                  noise_std_m: float | None, say: Callable[[str], None]) -> Alternatives | None:
+    """The two alternatives of ``pair`` fitted to ``existing``, set on ``search``; or None."""
+    if pair is None or existing is None:  # _check_request: a pair has an existing
+        return None
+    say(f"fitting {pair[0][0]} and {pair[1][0]} to {existing.name}")
+    alternatives = fit_alternatives(existing, pair, noise_std_m)
+    search.separate(alternatives)
+    return alternatives
 
 
 def _random_predictions(search: _Search, configs: int, loads_per_config: int,
@@ -647,13 +657,17 @@ def _check_request(robot: Robot, configs: int, max_force: float, loads_per_confi
     return pair
 
 
-def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
-                       existing: Campaign | None) -> tuple[np.ndarray, str]:
-    """The nominal stiffness (SI) per compliant joint and where it comes from: ``k``, the
-    robot's shipped ``k_theta_SI``, else the baseline fitted to ``existing``."""
+def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None, given: str | None,
+                       model: ModelFile | None, existing: Campaign | None
+                       ) -> tuple[np.ndarray, str]:
+    """The nominal stiffness (SI) per compliant joint and where it comes from (``given``
+    unless None): ``k``, ``model``'s K_theta (same compliant joints), the robot's shipped
+    ``k_theta_SI``, else the baseline fitted to ``existing``."""
     joints = tuple(robot.compliant_joints)
+    if k is None and model is not None and tuple(model.compliant_joints) == joints:
+        k, given = model.k_theta, given or f"the model file {model.path}"
     if k is not None:
-        return joint_stiffnesses(robot, k, "k"), "given"
+        return joint_stiffnesses(robot, k, "k"), given or "given"
     if "k_theta_SI" in robot.defaults and len(robot.defaults["k_theta_SI"]) == len(joints):
         k_arr, k_source = np.asarray(robot.defaults["k_theta_SI"], dtype=float), \
             "the robot's shipped k_theta_SI"
@@ -671,7 +685,7 @@ def _nominal_stiffness(robot: Robot, k: np.ndarray | list[float] | None,
         raise StiffnessError(f"--kq is required: the design is local to a nominal stiffness, one "
                              f"per compliant joint ({', '.join(joints)}), N.m/rad (N/m "
                              "prismatic)")
-    return joint_stiffnesses(robot, k_arr, k_source), k_source
+    return joint_stiffnesses(robot, k_arr, k_source), given or k_source
 
 
 def _noise_level(noise_std_m: float | None, existing: Campaign | None) -> tuple[float, str]:
