@@ -31,6 +31,7 @@ from stiffness.calibration.rig_import import (
     UNIT_KINDS,
     ColumnMapper,
     ImportSettings,
+    Table,
     check_map,
     join_tables,
     load_import_robot,
@@ -105,34 +106,19 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     if not markers:
         raise StiffnessError("a pose campaign needs at least one --marker NAME=FRAME")
     robot = robot if robot is not None else load_import_robot(robot_settings)
-    for m in markers:
-        if not robot.model.existFrame(m.frame):
-            names = list(dict.fromkeys(f.name for f in robot.model.frames))
-            raise UnknownFrameError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
-                                    f"{robot.title}; {did_you_mean(m.frame, names)}",
-                                    name=m.frame, choices=names)
+    _check_frames(robot, markers)
     tables = [read_table(f) for f in files]
     check_map(settings, robot, ("config", *FORCE, *MOMENT, *marker_targets(markers)))
     columns, _ = join_tables(tables, settings.join)
     mapper = ColumnMapper(columns, settings, [t.path for t in tables])
     q_cols, q_file, prismatic, held = read_coordinates(mapper, robot)
     positions = _positions(mapper, markers, tables[0].path)
-    turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
-    rotations = (None if all(t is None for t in turns) else np.stack(
-        [np.full((positions.shape[0], 3), np.nan) if t is None else t for t in turns], axis=1))
-    if rotation_format not in ROTATION_FORMATS:
-        raise StiffnessError(f"rotation format {rotation_format!r}: valid "
-                             f"{', '.join(ROTATION_FORMATS)}")
-    if noise_std_rotation is not None and rotations is None:
-        raise StiffnessError("a rotation noise is given but no marker has orientation columns "
-                             "(<marker>_rx,_ry,_rz); map them or drop the rotation noise")
+    rotations = _orientations(mapper, markers, positions.shape[0], rotation_format,
+                              noise_std_rotation)
     force = read_block(mapper, FORCE, "force", False)
     moment = read_block(mapper, MOMENT, "moment", False) if force is not None else None
-    units = Units(mapper.unit("angle", bool((~prismatic).any()) or rotations is not None)
-                  or "rad",
-                  mapper.unit("force", force is not None) or "N",
-                  mapper.unit("length", True) or "m",
-                  moment_unit=mapper.unit("moment", moment is not None))
+    units = _units(mapper, prismatic, rotations is not None, force is not None,
+                   moment is not None)
     rows = np.arange(q_file.shape[0])
     labels = row_labels(mapper.find("config"), rows, q_file)
     q_file = fill_held(q_file, held, robot, units)
@@ -142,12 +128,8 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
     check_marker_spread(robot, [m.frame for m in markers], offsets, q,
                         positions * units.length_to_si, units, q_cols[0].path)
     loads = None if force is None else Loads.read(robot.target_frame, force, moment, units)
-    mounts = marker_turns or {}
-    scaled = [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si,
-                     pin.exp3(np.array(mounts.get(m.name, np.zeros(3)), dtype=float)
-                              * units.angle_to_si))
-              for m in markers]
-    campaign = PoseCampaign(name, robot, robot_settings, units, scaled, labels, q,
+    campaign = PoseCampaign(name, robot, robot_settings, units,
+                            _scaled_markers(markers, marker_turns, units), labels, q,
                             positions * units.length_to_si, loads,
                             None if noise_std is None else noise_std * units.length_to_si,
                             rotations=None if rotations is None
@@ -157,14 +139,75 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                             else noise_std_rotation * units.angle_to_si)
     check_marker_mounting(robot, campaign.markers, q, campaign.positions, campaign.rotations,
                           units, q_cols[0].path)
-    kinds = UNIT_KINDS | {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {
-        f"{m.name}_{a}": "angle" for m in markers for a in ROTATION_AXES}
-    report = ImportReport([(str(t.path), len(t.rows)) for t in tables], campaign.n_rows,
-                          "none (absolute marker positions)",
-                          column_report(mapper, units, robot, prismatic, kinds), units, "world",
-                          "measuring system", kind="poses")
+    report = _report(tables, campaign.n_rows, mapper, units, robot, prismatic, markers)
     warn_unused(columns, report, settings.join)
     return campaign, report
+
+
+def _units(mapper: ColumnMapper, prismatic: np.ndarray, rotations: bool, force: bool,
+           moment: bool) -> Units:
+    """The files' units (angle default rad, force N, length m): each asked of the mapper only
+    where the files have that kind (an angle for a revolute coordinate or ``rotations``)."""
+    return Units(mapper.unit("angle", bool((~prismatic).any()) or rotations) or "rad",
+                 mapper.unit("force", force) or "N",
+                 mapper.unit("length", True) or "m",
+                 moment_unit=mapper.unit("moment", moment))
+
+
+def _check_frames(robot: Robot, markers: list[Marker]) -> None:
+    """Refuse a marker on a frame the robot lacks (one line, naming the nearest frames)."""
+    for m in markers:
+        if not robot.model.existFrame(m.frame):
+            names = list(dict.fromkeys(f.name for f in robot.model.frames))
+            raise UnknownFrameError(f"marker {m.name!r}: frame {m.frame!r} is not a frame of "
+                                    f"{robot.title}; {did_you_mean(m.frame, names)}",
+                                    name=m.frame, choices=names)
+
+
+def _orientations(mapper: ColumnMapper, markers: list[Marker], n: int, rotation_format: str,
+                  noise_std_rotation: float | None) -> np.ndarray | None:
+    """(n, markers, 3) the markers' orientation columns in the files' angle unit, as the files
+    hold them (``rotation_format``), NaN for a marker without them; ``None`` when no marker
+    has them.
+
+    Raises
+    ------
+    StiffnessError
+        An unknown ``rotation_format``, or a rotation noise std without orientation columns.
+    """
+    turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
+    rotations = (None if all(t is None for t in turns) else np.stack(
+        [np.full((n, 3), np.nan) if t is None else t for t in turns], axis=1))
+    if rotation_format not in ROTATION_FORMATS:
+        raise StiffnessError(f"rotation format {rotation_format!r}: valid "
+                             f"{', '.join(ROTATION_FORMATS)}")
+    if noise_std_rotation is not None and rotations is None:
+        raise StiffnessError("a rotation noise is given but no marker has orientation columns "
+                             "(<marker>_rx,_ry,_rz); map them or drop the rotation noise")
+    return rotations
+
+
+def _scaled_markers(markers: list[Marker], marker_turns: dict[str, np.ndarray] | None,
+                    units: Units) -> list[Marker]:
+    """The ``markers`` in SI: their offsets (m) and mountings (rotation matrices, from the
+    rotation vectors of ``marker_turns`` in the files' angle unit; identity when not given)."""
+    mounts = marker_turns or {}
+    return [Marker(m.name, m.frame, np.asarray(m.offset, float) * units.length_to_si,
+                   pin.exp3(np.array(mounts.get(m.name, np.zeros(3)), dtype=float)
+                            * units.angle_to_si))
+            for m in markers]
+
+
+def _report(tables: list[Table], n_rows: int, mapper: ColumnMapper, units: Units, robot: Robot,
+            prismatic: np.ndarray, markers: list[Marker]) -> ImportReport:
+    """What was read: the files and their rows, the campaign's ``n_rows``, and each column
+    with its unit kind (a marker's positions length, its orientations angle)."""
+    kinds = UNIT_KINDS | {f"{m.name}_{a}": "length" for m in markers for a in "xyz"} | {
+        f"{m.name}_{a}": "angle" for m in markers for a in ROTATION_AXES}
+    return ImportReport([(str(t.path), len(t.rows)) for t in tables], n_rows,
+                        "none (absolute marker positions)",
+                        column_report(mapper, units, robot, prismatic, kinds), units, "world",
+                        "measuring system", kind="poses")
 
 
 def _positions(mapper: ColumnMapper, markers: list[Marker], path: Path) -> np.ndarray:
