@@ -173,13 +173,44 @@ def solve_ik(
     """
     full = all_coordinates(robot)
     position = np.asarray(position, dtype=float).reshape(3)
+    coords, q, lo, hi = _start(full, seed, seed_q, limits)
+    coords, q, err, iterations = _descend(full, position, rotation, coords, q, lo, hi, limits,
+                                          tolerance, max_iterations)
+    p_err = float(np.linalg.norm(err[:3]))
+    r_err = float(np.linalg.norm(err[3:])) if rotation is not None else 0.0
+    result = IKResult(coords, q, p_err, r_err, iterations)
+    if raise_on_failure and not _converged(err, 1e3 * tolerance):
+        within = " within the joint limits" if limits else ""
+        raise ConvergenceError(
+            f"the target pose is out of reach (inverse kinematics stops {p_err:.3g} m and "
+            f"{r_err:.3g} rad away after {iterations} steps{within}); move the pose into the "
+            "workspace"
+        )
+    return result
+
+
+def _start(full: Robot, seed: np.ndarray | None, seed_q: np.ndarray | None, limits: bool
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The starting coordinates (rad, m: ``seed``, else ``seed_q``'s, else zeros; inside the
+    limits when ``limits``), their closed configuration near ``seed_q``, and the coordinates'
+    lower and upper position limits (rad, m; infinite where unbounded)."""
     if seed is None:
         seed = full.coordinates_of(seed_q) if seed_q is not None else np.zeros(full.n_coordinates)
     coords = np.asarray(seed, dtype=float).copy()
     lo, hi = coordinate_limits(full)
     if limits:
         coords = inside_limits(coords, lo, hi)
-    q = full.configuration(coords, seed=seed_q)
+    return coords, full.configuration(coords, seed=seed_q), lo, hi
+
+
+def _descend(full: Robot, position: np.ndarray, rotation: np.ndarray | None, coords: np.ndarray,
+             q: np.ndarray, lo: np.ndarray, hi: np.ndarray, limits: bool, tolerance: float,
+             max_iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Damped least-squares descent of the target's error from ``coords`` (rad, m; closed
+    configuration ``q``), the damping adapted (x10 on a rejected step, /10 on an accepted one),
+    stopped when converged to ``tolerance`` (m, rad), stalled (cost not quartered in 20 steps)
+    or the damping above 1e6; returns the best coordinates, their configuration, error
+    (:func:`frame_error`: m, rad) and the steps taken."""
     kinematics.update_first_order(full.model, full.data, q)
     err, jac = frame_error(full, position, rotation)
     cost = float(err @ err)
@@ -193,14 +224,7 @@ def solve_ik(
             if cost > 0.25 * checkpoint:  # stalled (a limit, a singularity, out of reach)
                 break
             checkpoint = cost
-        step = damped_step(jac, err, lam)
-        if limits:
-            # active set: joints at a limit that the step pushes outward are held there
-            held = ((coords <= lo + 1e-12) & (step < 0)) | ((coords >= hi - 1e-12) & (step > 0))
-            if held.any():
-                free = ~held
-                step = np.zeros_like(step)
-                step[free] = damped_step(jac[:, free], err, lam)
+        step = _held_step(jac, err, lam, coords, lo, hi) if limits else damped_step(jac, err, lam)
         trial = coords + step
         if limits:
             trial = np.clip(trial, lo, hi)
@@ -221,17 +245,20 @@ def solve_ik(
             lam *= 10.0
             if lam > 1e6:
                 break
-    p_err = float(np.linalg.norm(err[:3]))
-    r_err = float(np.linalg.norm(err[3:])) if rotation is not None else 0.0
-    result = IKResult(coords, q, p_err, r_err, iterations)
-    if raise_on_failure and not _converged(err, 1e3 * tolerance):
-        within = " within the joint limits" if limits else ""
-        raise ConvergenceError(
-            f"the target pose is out of reach (inverse kinematics stops {p_err:.3g} m and "
-            f"{r_err:.3g} rad away after {iterations} steps{within}); move the pose into the "
-            "workspace"
-        )
-    return result
+    return coords, q, err, iterations
+
+
+def _held_step(jac: np.ndarray, err: np.ndarray, lam: float, coords: np.ndarray,
+               lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """:func:`damped_step` with an active set: the coordinates (rad, m) at a limit that the step
+    pushes outward are held there, the others take the step without them."""
+    step = damped_step(jac, err, lam)
+    held = ((coords <= lo + 1e-12) & (step < 0)) | ((coords >= hi - 1e-12) & (step > 0))
+    if held.any():
+        free = ~held
+        step = np.zeros_like(step)
+        step[free] = damped_step(jac[:, free], err, lam)
+    return step
 
 
 def inside_limits(coords: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
