@@ -68,7 +68,7 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 
@@ -92,6 +92,7 @@ from stiffness.calibration.identification import (
 )
 from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
+    Outlier,
     flag_fit,
     robust_noise_scale,
 )
@@ -376,12 +377,10 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
     best_index = min(range(len(runs)), key=lambda i: runs[i].cost)
     best, best_fit = runs[best_index], fits[best_index]
-    pred, rot_res = best_fit.predicted[:, :3], None
+    pred = best_fit.predicted[:, :3]
     fitted = len(best_fit.kept)  # a held stiffness takes no degree of freedom (as diagnose)
-    if campaign.rotation is not None:
-        rot_res = best_fit.residuals(measured)[1]
-        if rot_source == "residuals":  # neither declared nor the replicates'
-            rot_sigma = kind_noise(rot_res, n_res, fitted)
+    rot_res, rot_sigma = _rotation_noise(campaign, best_fit, measured, rot_sigma, rot_source,
+                                         n_res, fitted)
     level = _noise_level(campaign, noise, best_fit.rss, n_res, fitted,
                          noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
@@ -391,27 +390,14 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     bias = kinematics_bias(best_fit, cov.matrix) if formulation == "enhanced" else None
     notes += _bias_note(bias, rob.compliant_joints)
     rigid = _rigid(best_fit, sigma, measured, intervals.one_sided(), unc)
-    outliers, flag_sigma = flag_fit(best_fit, measured, campaign.noise_std_m, fitted,
-                                    tuple(campaign.config or ()), campaign.lines)
-    if outliers and best_fit.loss == "linear":
-        notes.append(f"{len(outliers)} row(s) beyond {OUTLIER_THRESHOLD:g} noise std (listed "
-                     "as outliers, kept in the fit); --loss soft_l1 weighs them down")
+    outliers, flag_sigma = _outliers(best_fit, measured, campaign, fitted, notes)
     judged = stiffness_parameters(_judging(best_fit, campaign), cov.matrix,
                                   intervals.two_sided(), intervals.one_sided())
     undetermined = tuple(p.name for p in judged if not p.determined)
     determined = np.array([j not in undetermined for j in rob.compliant_joints])
     starts_agree, methods_agree = _agreement(runs, best, determined, method, notes)
-    options = campaign.robot_options()
     return Identification(
-        campaign=campaign.name,
-        campaign_path=str(campaign.path) if campaign.path is not None else None,
-        robot_source=campaign.resolved_source(),
-        robot_loops=options["loops"],
-        robot_fixed_base=options["fixed_base"], robot_name=rob.title,
-        robot_frame=rob.target_frame,
-        target_offset_m=rob.target_offset.copy(),
-        joints=tuple(rob.compliant_joints),
-        units=tuple(stiffness_unit(rob, j) for j in rob.compliant_joints),
+        **_provenance(campaign, rob),
         formulation=formulation,
         method=method,
         k=best.k,
@@ -453,6 +439,53 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         physical_scale=tuple(p.scale_note for p in judged),
         fits_to_noise=level.fits_to_noise,
     )
+
+
+def _rotation_noise(campaign: Campaign, fit: Fit, measured: np.ndarray, sigma: float | None,
+                    source: str | None, n: int, p: int
+                    ) -> tuple[np.ndarray | None, float | None]:
+    """The rotation residuals (rad) of ``fit`` on ``measured`` and the rotation noise std
+    (rad): ``sigma`` as given, or, when its ``source`` is the residuals (neither declared nor
+    the replicates'), estimated from them over ``n`` residuals and ``p`` fitted parameters
+    (:func:`~stiffness.calibration.fitting.kind_noise`); ``(None, sigma)`` when the
+    ``campaign`` measured no rotations."""
+    if campaign.rotation is None:
+        return None, sigma
+    residuals = fit.residuals(measured)[1]
+    if source == "residuals":  # neither declared nor the replicates'
+        sigma = kind_noise(residuals, n, p)
+    return residuals, sigma
+
+
+def _outliers(fit: Fit, measured: np.ndarray, campaign: Campaign, p: int, notes: list[str]
+              ) -> tuple[list[Outlier], float | None]:
+    """The rows of ``fit`` beyond :data:`OUTLIER_THRESHOLD` noise std and the noise std (m)
+    they are flagged against (:func:`~stiffness.calibration.outliers.flag_fit`, ``p`` fitted
+    parameters); appends a note when least squares kept some."""
+    outliers, flag_sigma = flag_fit(fit, measured, campaign.noise_std_m, p,
+                                    tuple(campaign.config or ()), campaign.lines)
+    if outliers and fit.loss == "linear":
+        notes.append(f"{len(outliers)} row(s) beyond {OUTLIER_THRESHOLD:g} noise std (listed "
+                     "as outliers, kept in the fit); --loss soft_l1 weighs them down")
+    return outliers, flag_sigma
+
+
+def _provenance(campaign: Campaign, rob: Robot) -> dict[str, Any]:
+    """The :class:`Identification` fields naming what was identified: the campaign and its
+    path, the robot (source, loops, fixed base, name, target frame and offset, m), its
+    compliant joints and their stiffness units."""
+    options = campaign.robot_options()
+    return {
+        "campaign": campaign.name,
+        "campaign_path": str(campaign.path) if campaign.path is not None else None,
+        "robot_source": campaign.resolved_source(),
+        "robot_loops": options["loops"],
+        "robot_fixed_base": options["fixed_base"], "robot_name": rob.title,
+        "robot_frame": rob.target_frame,
+        "target_offset_m": rob.target_offset.copy(),
+        "joints": tuple(rob.compliant_joints),
+        "units": tuple(stiffness_unit(rob, j) for j in rob.compliant_joints),
+    }
 
 
 def _judging(fit: Fit, campaign: Campaign) -> Fit:
