@@ -35,6 +35,7 @@ from stiffness.errors import (
     wrong_argument,
 )
 from stiffness.mechanics.formulation import (
+    TargetState,
     as_wrench,
     compliant_projection,
     full_configuration,
@@ -408,6 +409,32 @@ def solve_equilibrium(
     tau0 = base.jacobian.T @ wrench
     if preload is not None:
         tau0 = tau0 + preload(q0)[0]
+    q, dtheta, state, tau, k_c, iterations = _newton(robot, law, q0, tau0, wrench, preload,
+                                                     tolerance, max_iterations)
+    _check_stable(law, tau, k_c)
+    rot = pin.log3(state.rotation @ base.rotation.T)
+    return Equilibrium(q, dtheta, state.position - base.position, rot, iterations, tau,
+                       state.position.copy())
+
+
+def _newton(robot: Robot, law: JointLaw, q0: np.ndarray, tau0: np.ndarray, wrench: np.ndarray,
+            preload: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None,
+            tolerance: float, max_iterations: int
+            ) -> tuple[np.ndarray, np.ndarray, TargetState, np.ndarray, np.ndarray, int]:
+    """Newton's method on the law's residual from ``law.start(tau0)`` (``tau0``: the joint
+    torques at ``q0``, N.m or N), the loops closed at each step.
+
+    Returns
+    -------
+    The configuration, deflection (rad, m), target state, joint torques (N.m, N) and K_C (with
+    the preload's derivative) at the converged point, and the iterations used.
+
+    Raises
+    ------
+    ConvergenceError, UnstableEquilibriumError
+        As :func:`solve_equilibrium`: no convergence, loops that do not close, a singular
+        tangent.
+    """
     dtheta = law.start(tau0)
     q, closed = q0, np.zeros_like(dtheta)  # the last deflection whose loops closed, at q
     iterations = 0
@@ -439,6 +466,12 @@ def solve_equilibrium(
             f"(residual {np.abs(residual).max():.3g}): the load may exceed the buckling load; "
             "reduce it or raise max_iterations"
         )
+    return q, dtheta, state, tau, k_c, iterations
+
+
+def _check_stable(law: JointLaw, tau: np.ndarray, k_c: np.ndarray) -> None:
+    """Raise :class:`UnstableEquilibriumError` when the tangent ``K_theta - K_C`` (N.m/rad,
+    N/m) at the equilibrium's joint torques ``tau`` (N.m, N) is not positive definite."""
     tangent = tangent_joint_stiffness(law.tangent_stiffness(tau), k_c)
     lowest = np.linalg.eigvalsh(0.5 * (tangent + tangent.T))[0]
     if lowest <= 0:
@@ -447,9 +480,6 @@ def solve_equilibrium(
             f"{lowest:.3g} there): the load exceeds the buckling load of the robot in this "
             "configuration; reduce the load or stiffen the joints"
         )
-    rot = pin.log3(state.rotation @ base.rotation.T)
-    return Equilibrium(q, dtheta, state.position - base.position, rot, iterations, tau,
-                       state.position.copy())
 
 
 def _raise_if_buckled(robot: Robot, law: JointLaw, q0: np.ndarray, tau0: np.ndarray,
