@@ -220,12 +220,8 @@ def diagnose(
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
         if not isinstance(campaign, PoseCampaign):
             campaign = load_pose_campaign(campaign)
-        if isinstance(validate, Campaign):
-            raise StiffnessError("validate a pose campaign's diagnosis on another pose "
-                                 f"campaign, not on the deflection campaign {validate.name!r}")
-        if validate is not None and not isinstance(validate, PoseCampaign):
-            validate = load_pose_campaign(validate)
-        return diagnose_poses(campaign, masses=masses, seed=seed, validate=validate,
+        return diagnose_poses(campaign, masses=masses, seed=seed,
+                              validate=_pose_validation(validate),
                               progress=progress, loss=loss, families=families,
                               not_families=not_families, max_steps=max_steps,
                               effect_settings=effect_settings)
@@ -239,6 +235,23 @@ def diagnose(
     result = _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
                                    effect_settings or {}, masses, forbidden, forced)
     return result if other is None or validate is None else validated(result, other, validate)
+
+
+def _pose_validation(validate: Campaign | PoseCampaign | str | os.PathLike | None
+                     ) -> PoseCampaign | None:
+    """The pose campaign a pose diagnosis is validated on (loaded from its path), or ``None``.
+
+    Raises
+    ------
+    StiffnessError
+        A deflection campaign given to validate a pose diagnosis (one line).
+    """
+    if isinstance(validate, Campaign):
+        raise StiffnessError("validate a pose campaign's diagnosis on another pose "
+                             f"campaign, not on the deflection campaign {validate.name!r}")
+    if validate is not None and not isinstance(validate, PoseCampaign):
+        return load_pose_campaign(validate)
+    return validate
 
 
 def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:
