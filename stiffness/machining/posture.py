@@ -336,16 +336,11 @@ def posture(
     poses, w = _poses_and_wrench(positions, axes, quaternions, wrench)
     _check_search(full, steps, (max_step_deg, singularity_margin, reference_angle_deg),
                   wrench_frame, branch)
-    m = poses.positions.shape[0]
-    free = free_axis_vector(free_axis)
-    angular = angular_coordinates(full)
-    spacing = 2.0 * np.pi / steps
-    problem = PostureProblem(em, poses.positions, tool_frames(free, poses.axes, poses.quaternions),
-                             free, w, wrench_frame, singularity_margin, np.deg2rad(max_step_deg),
-                             angular, spacing)
+    problem = _posture_problem(em, poses, w, free_axis, wrench_frame, steps, max_step_deg,
+                               singularity_margin)
     ref, angles, sweep = _candidate_angles(steps, reference_angle_deg)
     start = _start_coordinates(full, start)
-    total = m * (2 if refine else 1)
+    total = poses.positions.shape[0] * (2 if refine else 1)
     tick = (lambda n: progress(n, total)) if progress is not None else (lambda n: None)
     # 1. candidate tracks of every branch
     tracks, origins = candidate_tracks(problem, angles, sweep, start, full.configuration(start),
@@ -359,8 +354,20 @@ def posture(
         notes.append("the path changes branch where the step bound allows it (--branch keep "
                      "holds one)")
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
-                         float(np.deg2rad(max_step_deg)), notes, poses, angular,
+                         float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
                          {branch_label(b): o.coords for b, o in enumerate(origins)}, deg)
+
+
+def _posture_problem(em: ElasticModel, poses: Poses, w: np.ndarray, free_axis: str | np.ndarray,
+                     wrench_frame: str, steps: int, max_step_deg: float,
+                     singularity_margin: float) -> PostureProblem:
+    """The search's shared state: the path's tool frames about the free axis, the wrenches
+    (N, N.m), the singularity margin, the joint-step bound (``max_step_deg``, deg, held in rad)
+    and the spacing of the ``steps`` candidate angles (rad)."""
+    free = free_axis_vector(free_axis)
+    return PostureProblem(em, poses.positions, tool_frames(free, poses.axes, poses.quaternions),
+                          free, w, wrench_frame, singularity_margin, np.deg2rad(max_step_deg),
+                          angular_coordinates(em.full), 2.0 * np.pi / steps)
 
 
 def _candidate_angles(steps: int, reference_angle_deg: float
