@@ -110,6 +110,7 @@ from stiffness.planning.simulate_request import (
     effect_values,
     request_record,
     rotation_noise_std,
+    settings_record,
     true_stiffness,
     warn_effect_lengths,
 )
@@ -587,13 +588,9 @@ def simulate(
     recorded_q = truth.link_coordinates(q) if joint_angles == "link" else q
     campaign = rig.campaign(given, declared, name, baseline, recorded_q,
                             applied + truth.force_bias, clean6, row_labels, rng, joint_angles)
-    info = {"robot": {"source": str(given.source), "frame": declared.target_frame,
-                      "target_offset_m": declared.target_offset.tolist()},
-            **request_record(plan, configs, loads_per_config, repeats, load_pattern,
-                              max_force, row_labels, applied), "seed": seed,
-            "declare_noise": declare_noise, "rotations": rotations,
-            "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
-            "backlash_smoothing_Nm": smoothing, "joint_angles": joint_angles}
+    info = settings_record(str(given.source), declared, request_record(
+        plan, configs, loads_per_config, repeats, load_pattern, max_force, row_labels, applied),
+        seed, declare_noise, rotations, rotation_noise_std_rad, smoothing, joint_angles)
     return Simulation(campaign, hidden, kq, noise_std_m, effect_rms, info, baseline_error)
 
 

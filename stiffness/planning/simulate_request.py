@@ -164,6 +164,21 @@ def request_record(plan: Plan | None, configs: int, loads_per_config: int, repea
             "load_pattern": None}
 
 
+def settings_record(source: str, declared: Robot, request: dict, seed: int, declare_noise: bool,
+                    rotations: bool, rotation_noise_std_rad: float, smoothing: dict[str, float],
+                    joint_angles: str) -> dict:
+    """``truth.json``'s settings: the robot (its ``source``, the declared target frame and
+    offset, m), the ``request`` (:func:`request_record`), the seed, whether the noise is
+    declared, whether rotations are recorded and their noise std (rad; None when not), the
+    backlash smoothing torque per joint (N.m) and what the joint angles record."""
+    return {"robot": {"source": source, "frame": declared.target_frame,
+                      "target_offset_m": declared.target_offset.tolist()},
+            **request, "seed": seed,
+            "declare_noise": declare_noise, "rotations": rotations,
+            "rotation_noise_std_rad": rotation_noise_std_rad if rotations else None,
+            "backlash_smoothing_Nm": smoothing, "joint_angles": joint_angles}
+
+
 def buckled_row(robot: Robot, row: int, force: np.ndarray, reason: str) -> str:
     """One line for a simulated row whose exact equilibrium fails (``reason``, the
     equilibrium's own error without its Python-side fix): the row, its load and the flags
