@@ -317,13 +317,13 @@ def identify(
     options: dict = {"bounded": False, "tolerance": 1e-12,
                      "max_nfev": 200 * (rob.n_compliant + 1)}
     known = translation_noise(campaign, loss)[0]  # diagnose's: declared, else the replicates'
-    model, rotations = _observed(campaign, model, scale, options, known, loss)
-    options, robust_sigma = _robust_options(model, rotations[0], scale, options, known, loss)
+    model, observed = _observed(campaign, model, scale, options, known, loss)
+    options, robust_sigma = _robust_options(model, observed[0], scale, options, known, loss)
     floor = _k_c_floor(model, formulation)
-    runs, fits = _least_squares_runs(model, rotations[0], scale, formulation, method, starts,
+    runs, fits = _least_squares_runs(model, observed[0], scale, formulation, method, starts,
                                      seed, floor, options, progress)
     return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
-                           rotations, (known, robust_sigma))
+                           observed, (known, robust_sigma))
 
 
 def _residual_scale(campaign: Campaign) -> float:
@@ -364,15 +364,15 @@ def _robust_options(model: Hypothesis, measured: np.ndarray, scale: float, optio
 
 def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
                     method: str, runs: list[StartResult], fits: list[Fit], floor: float,
-                    rotations: tuple, noise: tuple[Noise | None, float | None] = (None, None)
+                    observed: tuple, noise: tuple[Noise | None, float | None] = (None, None)
                     ) -> Identification:
     """The :class:`Identification` of the best run: its uncertainty, what is undetermined,
-    whether the runs agree, the rows flagged as outliers. ``rotations`` is ``(observations,
+    whether the runs agree, the rows flagged as outliers. ``observed`` is ``(observations,
     weight (m/rad), rotation noise std (rad) or None, its source)``, the last three ``None``
     without measured rotations; ``noise`` the campaign's known translation noise
     (:func:`~stiffness.calibration.deflection_noise.translation_noise`, ``None`` when not known)
     and the noise std (m) a robust loss was scaled by (``None`` for least squares)."""
-    measured, weight, rot_sigma, rot_source = rotations
+    measured, weight, rot_sigma, rot_source = observed
     p = rob.n_compliant
     n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
     best_index = min(range(len(runs)), key=lambda i: runs[i].cost)
