@@ -18,7 +18,7 @@ from stiffness.elastic.model import ElasticModel
 from stiffness.errors import ConvergenceError, LoopClosureError
 from stiffness.planning.pose_simulation import hidden_pose_errors
 from stiffness.planning.simulate_poses import (
-    _truth_reachable,
+    _commanded_poses,
     hidden_elasticity,
     loaded_arm,
     smoothing_torques,
@@ -48,8 +48,8 @@ def test_a_pose_whose_truth_is_past_a_fold_is_drawn_again(tmp_path):
     four_bar_closed_form(near[0], **TRIPLE_ROCKER)  # the commanded pose closes
     with pytest.raises(ValueError):  # its truth, the crank 0.05 rad further, does not
         four_bar_closed_form(near[0] + OFFSET_RAD, **TRIPLE_ROCKER)
-    q = _truth_reachable(robot, true_model(robot, hidden), hidden, np.array([far, near]),
-                         np.random.default_rng(0))
+    q, _ = _commanded_poses(robot, true_model(robot, hidden), hidden, np.array([far, near]),
+                            np.random.default_rng(0))
     np.testing.assert_array_equal(q[0], far)  # a pose whose truth closes is kept
     assert not np.array_equal(q[1], near)
     four_bar_closed_form(q[1][0] + OFFSET_RAD, **TRIPLE_ROCKER)  # the one drawn closes

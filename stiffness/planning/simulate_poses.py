@@ -465,16 +465,17 @@ def simulate_pose_campaign(robot: Robot, markers: list[Marker], hidden: HiddenPo
     """
     rng = np.random.default_rng(seed)
     model = true_model(robot, hidden)
-    q = (_truth_reachable(robot, model, hidden, sample_coordinates(robot, n_poses, rng), rng)
-         if coordinates is None else np.asarray(coordinates, dtype=float).reshape(n_poses, -1))
+    q, commands = (
+        _commanded_poses(robot, model, hidden, sample_coordinates(robot, n_poses, rng), rng)
+        if coordinates is None else _commanded_poses(
+            robot, model, hidden, np.asarray(coordinates, dtype=float).reshape(n_poses, -1)))
     loads = None if payload is None else Loads(robot.target_frame,
                                                np.tile(payload, (n_poses, 1)))
     springs = hidden_elasticity(robot, markers, hidden, smoothing_torques(robot, q, payload))
     positions = np.empty((n_poses, len(markers), 3))
     orientations = np.empty((n_poses, len(markers), 3, 3))
     loop = None if robot.loop.is_open_chain else robot.loop
-    for i, coords in enumerate(q):
-        q_full = _command(robot, model, hidden, coords)
+    for i, q_full in enumerate(commands):
         bent, q_l = loaded_arm(model, q_full, springs, payload, robot.target_frame, loop)
         data = bent.createData()
         pin.framesForwardKinematics(bent, data, q_l)
@@ -530,36 +531,39 @@ def smoothing_torques(robot: Robot, q: np.ndarray, payload: np.ndarray | None
 _REDRAWS = 50
 
 
-def _truth_reachable(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, q: np.ndarray,
-                     rng: np.random.Generator) -> np.ndarray:
-    """The poses ``q`` (rad, m), each one whose links, at the hidden zero offsets and geometry,
-    do not close the loops drawn again (:func:`sample_coordinates`): the commanded assembly
-    reaches a pose near a fold that the offsets take past it (digit_like's knee loop with
-    0.5 deg on motor_knee: seeds 2 and 3 of 20 poses each drew one, and the simulation
-    stopped on 'the kinematic loop does not close'). Unchanged on an open chain, or when
-    every pose assembles.
+def _commanded_poses(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, q: np.ndarray,
+                     rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The poses ``q`` (rad, m) and the configurations the links are at there before sagging
+    (:func:`_command`), each closed once. With ``rng``, a pose whose links, at the hidden zero
+    offsets and geometry, do not close the loops is drawn again (:func:`sample_coordinates`):
+    the commanded assembly reaches a pose near a fold that the offsets take past it
+    (digit_like's knee loop with 0.5 deg on motor_knee: seeds 2 and 3 of 20 poses each drew
+    one, and the simulation stopped on 'the kinematic loop does not close'). Unchanged on an
+    open chain, or when every pose assembles.
 
     Raises
     ------
+    LoopClosureError
+        Without ``rng``, when a pose's truth does not close.
     ConvergenceError
         When :data:`_REDRAWS` poses drawn in place of one all fail so.
     """
-    if robot.loop.is_open_chain:
-        return q
-    out = []
+    poses, commands = [], []
     for coords in q:
         for _ in range(_REDRAWS):
             try:
-                _command(robot, model, hidden, coords)
+                commands.append(_command(robot, model, hidden, coords))
                 break
             except LoopClosureError:
+                if rng is None:
+                    raise
                 coords = sample_coordinates(robot, 1, rng)[0]
         else:
             raise ConvergenceError(
                 f"the hidden zero offsets or geometry of {robot.title} open its loops at "
                 f"{_REDRAWS} poses in a row: they take the loops out of reach; hide smaller ones")
-        out.append(coords)
-    return np.array(out)
+        poses.append(coords)
+    return np.array(poses), np.array(commands)
 
 
 def _command(robot: Robot, model: pin.Model, hidden: HiddenPoseErrors, coords: np.ndarray
