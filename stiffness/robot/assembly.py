@@ -119,7 +119,6 @@ def least_squares_assembly(model: pin.Model, data: pin.Data, loop: LoopClosure, 
     return q, float(np.linalg.norm(loop.residual(model, data)))
 
 
-
 def _names(pairs: list[LoopPair]) -> str:
     """Up to four pairs as ``[a, b]``, then how many more."""
     shown = ", ".join(f"[{p.frame_a}, {p.frame_b}]" for p in pairs[:4])
