@@ -1,7 +1,10 @@
 """The noise of a deflection fit, for ``identify`` and ``diagnose`` alike: each kind's known
 noise std (:func:`known_noise`, :func:`translation_noise`), the weight of measured rotations
 beside the translations (:func:`weighting`) and the noise of a fit's intervals
-(:func:`fit_noise`).
+(:func:`fit_noise`); and how ``identify`` applies them: its observations at the weight
+(:func:`weighted_observations`), its robust loss's scale (:func:`robust_loss_options`), the
+rotation noise of its best fit (:func:`residual_rotation_noise`) and the noise of its
+intervals with the test against a known one (:func:`noise_level`).
 
 A deflection campaign that measures rotations (rad) beside translations (m) is fitted on
 ``[d; w r]``, ``w = sigma_t / sigma_r`` (m/rad, :func:`~stiffness.calibration.fitting.
@@ -24,8 +27,26 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.fitting import Fit, compliance_spread, kind_noise, observations
-from stiffness.calibration.selection import Noise, replicate_noise
+from stiffness.calibration.fitting import (
+    Fit,
+    compliance_spread,
+    fit_model,
+    kind_noise,
+    observations,
+)
+from stiffness.calibration.outliers import robust_noise_scale
+from stiffness.calibration.selection import (
+    GOF_LEVEL,
+    OVERSTATED_P,
+    Noise,
+    NoiseTerms,
+    above_noise,
+    excluded_note,
+    noise_overstated,
+    pooled_replicates,
+    replicate_noise,
+)
+from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: The weight's fixed point is reached when a round moves it by at most this fraction.
 WEIGHT_TOLERANCE = 1e-3
@@ -161,3 +182,168 @@ def weighting(campaign: Campaign, translation: float | None,
     else:  # not settled: the last weight, fitted
         current = fit(weight, current)
     return RotationWeight(weight, estimated, source, current)
+
+
+def weighted_observations(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
+                          known: Noise | None, loss: str, start_si: float
+                          ) -> tuple[Hypothesis, tuple]:
+    """``identify``'s model and the observations it is fitted to, as ``(model, (observations,
+    weight (m/rad), rotation noise std (rad) or None, its source))``: the translations (m)
+    alone, the last three ``None``, or with the rotations weighted by :func:`weighting`
+    (``scale`` the residual scale, m; ``known`` the translations' noise; the fits start with
+    every stiffness at ``start_si``, N.m/rad or N/m)."""
+    if campaign.rotation is None:
+        return model, (campaign.deflection, None, None, None)
+    model, measured, weight, rot_sigma, rot_source = _fitted_weighting(
+        campaign, model, scale, options, known, loss != "linear", start_si)
+    return model, (measured, weight, rot_sigma, rot_source)
+
+
+def _fitted_weighting(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
+                      known: Noise | None, robust: bool, start_si: float
+                      ) -> tuple[Hypothesis, np.ndarray, float, float | None, str]:
+    """The model and observations of a campaign with rotations, the weight
+    ``w = sigma_t / sigma_r`` (m/rad), the rotation noise std (rad; ``None`` until estimated
+    from the best fit's residuals) and its source: diagnose's rule (:func:`weighting`: each
+    kind's declared std, else its replicates', else the fixed point over the residuals of a
+    fit from every stiffness at ``start_si``), ``known`` the translations'
+    (:func:`translation_noise`), the replicates' robust under a ``robust`` loss."""
+    x_start = np.full(len(model.compliant), math.log(start_si))
+    rotation = campaign.rotation
+    assert rotation is not None  # a campaign with rotations
+
+    def at(weight: float, previous: Fit | None) -> Fit:
+        x0 = x_start if previous is None else previous.x
+        return fit_model(model.replaced(rotation_weight=weight),
+                         observations(campaign.deflection, rotation, weight), scale, x0,
+                         anchor=x0, **options)
+
+    rotations = weighting(campaign, None if known is None else known.sigma, at, robust)
+    source = {"declared": "declared rotation_noise_std"}.get(rotations.source, rotations.source)
+    return (model.replaced(rotation_weight=rotations.weight), rotations.measured(campaign),
+            rotations.weight, rotations.sigma_rad if rotations.source != "residuals" else None,
+            source)
+
+
+def robust_loss_options(model: Hypothesis, measured: np.ndarray, scale: float, options: dict,
+                        known: Noise | None, loss: str, start_si: float
+                        ) -> tuple[dict, float | None]:
+    """``identify``'s solver ``options`` with a robust ``loss`` and its ``f_scale`` (in units
+    of the residual ``scale``), and the noise std (m) the loss is scaled by
+    (:func:`~stiffness.calibration.outliers.robust_noise_scale`, from every stiffness at
+    ``start_si``); for least squares, ``options`` unchanged and ``None``."""
+    if loss == "linear":
+        return options, None
+    robust_sigma = robust_noise_scale(model, measured, float(scale),
+                                      None if known is None else known.sigma, loss,
+                                      options, start_si)
+    return {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}, robust_sigma
+
+
+def residual_rotation_noise(campaign: Campaign, fit: Fit, measured: np.ndarray,
+                            sigma: float | None, source: str | None, n: int, p: int
+                            ) -> tuple[np.ndarray | None, float | None]:
+    """The rotation residuals (rad) of ``fit`` on ``measured`` and the rotation noise std
+    (rad): ``sigma`` as given, or, when its ``source`` is the residuals (neither declared nor
+    the replicates'), estimated from them over ``n`` residuals and ``p`` fitted parameters
+    (:func:`~stiffness.calibration.fitting.kind_noise`); ``(None, sigma)`` when the
+    ``campaign`` measured no rotations."""
+    if campaign.rotation is None:
+        return None, sigma
+    residuals = fit.residuals(measured)[1]
+    if source == "residuals":  # neither declared nor the replicates'
+        sigma = kind_noise(residuals, n, p)
+    return residuals, sigma
+
+
+@dataclass(frozen=True)
+class NoiseLevel:
+    """The noise of an identification (:func:`noise_level`), ``identify``'s.
+
+    Attributes
+    ----------
+    noise
+        The noise std (m) the covariance uses and how it is known
+        (:class:`~stiffness.calibration.selection.Noise`: declared, or estimated over the fit's
+        ``n - p`` degrees of freedom); its intervals' quantiles are those of
+        ``noise.of_fit(loss, n, covariance)``.
+    source
+        Where it comes from, in words (``Identification.sigma_source``).
+    sigma_residual
+        The residuals' own estimate (m), ``None`` without degrees of freedom.
+    notes
+        Where the residuals and a known noise disagree.
+    fits_to_noise
+        The test of fitting to the known noise (declared, or the replicates'): its
+        ``p_value``, ``level``, ``test`` and ``final_rows_excluded`` (the rows flagged as
+        outliers a robust loss's test left out); ``None`` when the noise is not known.
+    """
+
+    noise: Noise
+    source: str
+    sigma_residual: float | None
+    notes: list[str]
+    fits_to_noise: dict | None = None
+
+
+def noise_level(campaign: Campaign, noise: tuple[Noise | None, float | None], ss_m2: float,
+                n: int, p: int, terms: NoiseTerms) -> NoiseLevel:
+    """The noise of ``identify``'s intervals (:class:`NoiseLevel`), ``noise`` the campaign's
+    known translation noise and a robust loss's scale (m; ``None`` for least squares): the
+    known one (declared, else the replicates', robust under a robust loss:
+    :func:`translation_noise`, diagnose's), else the robust loss's scale (1.4826 median
+    |residual|, :func:`~stiffness.calibration.outliers.robust_noise_scale`; diagnose's, from
+    the loss's value at that scale, :func:`fit_noise`: two estimates of one std, both unbiased
+    for Gaussian residuals), else the residuals'. A known one is tested as ``diagnose`` tests
+    it, on the fit's ``terms`` (:func:`~stiffness.calibration.selection.noise_terms`: a robust
+    loss's flagged rows left out) through
+    :func:`~stiffness.calibration.selection.pooled_replicates` (the rotation replicates'
+    degrees of freedom with it, or the rotations' noise being the residuals')."""
+    known, robust_sigma = noise
+    dof = n - p
+    sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
+    if known is not None:
+        tested = pooled_replicates(known, campaign, robust_sigma is not None)
+        assert tested is not None  # a known noise
+        if known.declared:
+            return NoiseLevel(known, "declared noise_std", sigma_res,
+                              *_tested(tested, terms, "declared noise_std"))
+        scatter = "robust" if robust_sigma is not None else "pooled"
+        return NoiseLevel(known, f"replicates ({scatter} scatter, {known.dof} degrees of "
+                          "freedom)", sigma_res, *_tested(tested, terms, "replicate rows' "
+                                                          "scatter"))
+    if robust_sigma is not None:
+        return NoiseLevel(Noise.estimated(robust_sigma, n, p),
+                          "robust estimate (1.4826 median |residual|)", sigma_res, [])
+    # dof > 0 without a declared noise: identify's _check_residual_count
+    assert sigma_res is not None
+    return NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
+                      [])
+
+
+def _tested(noise: Noise, terms: NoiseTerms, name: str) -> tuple[list[str], dict]:
+    """The notes and the ``fits_to_noise`` record of the test of fitting to a known
+    ``noise`` (its ``name`` in words) on ``terms``: residuals above it (model error or an
+    underestimated noise), or a declared one far below (overstated)."""
+    gof = terms.p_value(noise)
+    dof = terms.n - terms.p
+    sigma = math.sqrt(terms.rss / dof) if dof > 0 else None
+    left_out = excluded_note(terms.excluded)
+    notes = []
+    if sigma is not None and gof is not None and above_noise(gof):
+        notes.append(
+            f"the residuals (sigma {sigma * 1e3:.4g} mm) are larger than the {name} "
+            f"({noise.sigma * 1e3:.4g} mm; {noise.test} p = {gof:.3g} <= "
+            f"{1.0 - GOF_LEVEL:.2g}{left_out}): " + (
+                "model error or underestimated noise; the confidence intervals are too narrow "
+                "(stiffness diagnose finds what is missing)" if noise.declared else
+                "the model misses something; the confidence intervals are too narrow "
+                "(stiffness diagnose finds what is missing)"))
+    if sigma is not None and noise.declared and noise_overstated(gof):
+        notes.append(
+            f"the residuals (sigma {sigma * 1e3:.4g} mm) are much smaller than the {name} "
+            f"({noise.sigma * 1e3:.4g} mm; {noise.test} lower tail p < {OVERSTATED_P:g}"
+            f"{left_out}): overstated noise, or averaged rows; the confidence intervals are too "
+            "wide and an effect below the noise goes unseen")
+    return notes, {"p_value": gof, "level": GOF_LEVEL, "test": noise.test,
+                   "final_rows_excluded": terms.excluded}

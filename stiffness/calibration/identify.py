@@ -73,15 +73,20 @@ from typing import Any, overload
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
-from stiffness.calibration.deflection_noise import fit_noise, translation_noise, weighting
+from stiffness.calibration.deflection_noise import (
+    fit_noise,
+    noise_level,
+    residual_rotation_noise,
+    robust_loss_options,
+    translation_noise,
+    weighted_observations,
+)
 from stiffness.calibration.deflection_parameters import stiffness_parameters
 from stiffness.calibration.fitting import (
     Fit,
     compliance_covariance,
     covariance,
     fit_model,
-    kind_noise,
-    observations,
     rigid_joints,
 )
 from stiffness.calibration.identification import (
@@ -94,20 +99,12 @@ from stiffness.calibration.outliers import (
     OUTLIER_THRESHOLD,
     Outlier,
     flag_fit,
-    robust_noise_scale,
 )
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
 from stiffness.calibration.selection import (
-    GOF_LEVEL,
-    OVERSTATED_P,
     Noise,
-    NoiseTerms,
-    above_noise,
-    excluded_note,
-    noise_overstated,
     noise_terms,
-    pooled_replicates,
 )
 from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects import make_effect
@@ -317,8 +314,10 @@ def identify(
     options: dict = {"bounded": False, "tolerance": 1e-12,
                      "max_nfev": 200 * (rob.n_compliant + 1)}
     known = translation_noise(campaign, loss)[0]  # diagnose's: declared, else the replicates'
-    model, observed = _observed(campaign, model, scale, options, known, loss)
-    options, robust_sigma = _robust_options(model, observed[0], scale, options, known, loss)
+    model, observed = weighted_observations(campaign, model, scale, options, known, loss,
+                                            PAPER_START_SI)
+    options, robust_sigma = robust_loss_options(model, observed[0], scale, options, known, loss,
+                                                PAPER_START_SI)
     floor = _k_c_floor(model, formulation)
     runs, fits = _least_squares_runs(model, observed[0], scale, formulation, method, starts,
                                      seed, floor, options, progress)
@@ -334,32 +333,6 @@ def _residual_scale(campaign: Campaign) -> float:
         return campaign.noise_std_m
     rms = float(np.sqrt(np.mean(campaign.deflection ** 2)))
     return rms if rms > 0 else 1e-3
-
-
-def _observed(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
-              known: Noise | None, loss: str) -> tuple[Hypothesis, tuple]:
-    """The model and the observations it is fitted to, as ``(model, (observations, weight
-    (m/rad), rotation noise std (rad) or None, its source))``: the translations (m) alone, the
-    last three ``None``, or with the rotations weighted by :func:`_rotation_weighting`
-    (``scale`` the residual scale, m; ``known`` the translations' noise)."""
-    if campaign.rotation is None:
-        return model, (campaign.deflection, None, None, None)
-    model, measured, weight, rot_sigma, rot_source = _rotation_weighting(
-        campaign, model, scale, options, known, loss != "linear")
-    return model, (measured, weight, rot_sigma, rot_source)
-
-
-def _robust_options(model: Hypothesis, measured: np.ndarray, scale: float, options: dict,
-                    known: Noise | None, loss: str) -> tuple[dict, float | None]:
-    """The solver ``options`` with a robust ``loss`` and its ``f_scale`` (in units of the
-    residual ``scale``), and the noise std (m) the loss is scaled by
-    (:func:`robust_noise_scale`); for least squares, ``options`` unchanged and ``None``."""
-    if loss == "linear":
-        return options, None
-    robust_sigma = robust_noise_scale(model, measured, float(scale),
-                                      None if known is None else known.sigma, loss,
-                                      options, PAPER_START_SI)
-    return {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}, robust_sigma
 
 
 def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
@@ -379,9 +352,9 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     best, best_fit = runs[best_index], fits[best_index]
     pred = best_fit.predicted[:, :3]
     fitted = len(best_fit.kept)  # a held stiffness takes no degree of freedom (as diagnose)
-    rot_res, rot_sigma = _rotation_noise(campaign, best_fit, measured, rot_sigma, rot_source,
-                                         n_res, fitted)
-    level = _noise_level(campaign, noise, best_fit.rss, n_res, fitted,
+    rot_res, rot_sigma = residual_rotation_noise(campaign, best_fit, measured, rot_sigma,
+                                                 rot_source, n_res, fitted)
+    level = noise_level(campaign, noise, best_fit.rss, n_res, fitted,
                          noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
@@ -439,22 +412,6 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         physical_scale=tuple(p.scale_note for p in judged),
         fits_to_noise=level.fits_to_noise,
     )
-
-
-def _rotation_noise(campaign: Campaign, fit: Fit, measured: np.ndarray, sigma: float | None,
-                    source: str | None, n: int, p: int
-                    ) -> tuple[np.ndarray | None, float | None]:
-    """The rotation residuals (rad) of ``fit`` on ``measured`` and the rotation noise std
-    (rad): ``sigma`` as given, or, when its ``source`` is the residuals (neither declared nor
-    the replicates'), estimated from them over ``n`` residuals and ``p`` fitted parameters
-    (:func:`~stiffness.calibration.fitting.kind_noise`); ``(None, sigma)`` when the
-    ``campaign`` measured no rotations."""
-    if campaign.rotation is None:
-        return None, sigma
-    residuals = fit.residuals(measured)[1]
-    if source == "residuals":  # neither declared nor the replicates'
-        sigma = kind_noise(residuals, n, p)
-    return residuals, sigma
 
 
 def _outliers(fit: Fit, measured: np.ndarray, campaign: Campaign, p: int, notes: list[str]
@@ -651,99 +608,6 @@ def _least_squares_runs(model: Hypothesis, measured: np.ndarray, scale: float, f
     return runs, fits
 
 
-@dataclass(frozen=True)
-class _NoiseLevel:
-    """The noise of an identification (:func:`_noise_level`).
-
-    Attributes
-    ----------
-    noise
-        The noise std (m) the covariance uses and how it is known
-        (:class:`~stiffness.calibration.selection.Noise`: declared, or estimated over the fit's
-        ``n - p`` degrees of freedom); its intervals' quantiles are those of
-        ``noise.of_fit(loss, n, covariance)``.
-    source
-        Where it comes from, in words (``Identification.sigma_source``).
-    sigma_residual
-        The residuals' own estimate (m), ``None`` without degrees of freedom.
-    notes
-        Where the residuals and a known noise disagree.
-    fits_to_noise
-        The test of fitting to the known noise (declared, or the replicates'): its
-        ``p_value``, ``level``, ``test`` and ``final_rows_excluded`` (the rows flagged as
-        outliers a robust loss's test left out); ``None`` when the noise is not known.
-    """
-
-    noise: Noise
-    source: str
-    sigma_residual: float | None
-    notes: list[str]
-    fits_to_noise: dict | None = None
-
-
-def _noise_level(campaign: Campaign, noise: tuple[Noise | None, float | None], ss_m2: float,
-                 n: int, p: int, terms: NoiseTerms) -> _NoiseLevel:
-    """The noise of the intervals (:class:`_NoiseLevel`), ``noise`` the campaign's known
-    translation noise and a robust loss's scale (m; ``None`` for least squares): the known one
-    (declared, else the replicates', robust under a robust loss:
-    :func:`~stiffness.calibration.deflection_noise.translation_noise`, diagnose's), else the
-    robust loss's scale (1.4826 median |residual|, :func:`robust_noise_scale`; diagnose's,
-    from the loss's value at that scale, :func:`~stiffness.calibration.deflection_noise.
-    fit_noise`: two estimates of one std, both unbiased for Gaussian residuals), else the
-    residuals'. A known one is tested as ``diagnose`` tests it, on the fit's ``terms``
-    (:func:`~stiffness.calibration.selection.noise_terms`: a robust loss's flagged rows left
-    out) through :func:`~stiffness.calibration.selection.pooled_replicates` (the rotation
-    replicates' degrees of freedom with it, or the rotations' noise being the residuals')."""
-    known, robust_sigma = noise
-    dof = n - p
-    sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
-    if known is not None:
-        tested = pooled_replicates(known, campaign, robust_sigma is not None)
-        assert tested is not None  # a known noise
-        if known.declared:
-            return _NoiseLevel(known, "declared noise_std", sigma_res,
-                               *_tested(tested, terms, "declared noise_std"))
-        scatter = "robust" if robust_sigma is not None else "pooled"
-        return _NoiseLevel(known, f"replicates ({scatter} scatter, {known.dof} degrees of "
-                           "freedom)", sigma_res, *_tested(tested, terms, "replicate rows' "
-                                                           "scatter"))
-    if robust_sigma is not None:
-        return _NoiseLevel(Noise.estimated(robust_sigma, n, p),
-                           "robust estimate (1.4826 median |residual|)", sigma_res, [])
-    # dof > 0 without a declared noise: _check_residual_count
-    assert sigma_res is not None
-    return _NoiseLevel(Noise.estimated(sigma_res, n, p), "residuals (SS / (N - p))", sigma_res,
-                       [])
-
-
-def _tested(noise: Noise, terms: NoiseTerms, name: str) -> tuple[list[str], dict]:
-    """The notes and the ``fits_to_noise`` record of the test of fitting to a known
-    ``noise`` (its ``name`` in words) on ``terms``: residuals above it (model error or an
-    underestimated noise), or a declared one far below (overstated)."""
-    gof = terms.p_value(noise)
-    dof = terms.n - terms.p
-    sigma = math.sqrt(terms.rss / dof) if dof > 0 else None
-    left_out = excluded_note(terms.excluded)
-    notes = []
-    if sigma is not None and gof is not None and above_noise(gof):
-        notes.append(
-            f"the residuals (sigma {sigma * 1e3:.4g} mm) are larger than the {name} "
-            f"({noise.sigma * 1e3:.4g} mm; {noise.test} p = {gof:.3g} <= "
-            f"{1.0 - GOF_LEVEL:.2g}{left_out}): " + (
-                "model error or underestimated noise; the confidence intervals are too narrow "
-                "(stiffness diagnose finds what is missing)" if noise.declared else
-                "the model misses something; the confidence intervals are too narrow "
-                "(stiffness diagnose finds what is missing)"))
-    if sigma is not None and noise.declared and noise_overstated(gof):
-        notes.append(
-            f"the residuals (sigma {sigma * 1e3:.4g} mm) are much smaller than the {name} "
-            f"({noise.sigma * 1e3:.4g} mm; {noise.test} lower tail p < {OVERSTATED_P:g}"
-            f"{left_out}): overstated noise, or averaged rows; the confidence intervals are too "
-            "wide and an effect below the noise goes unseen")
-    return notes, {"p_value": gof, "level": GOF_LEVEL, "test": noise.test,
-                   "final_rows_excluded": terms.excluded}
-
-
 def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarray,
                method: str, notes: list[str]) -> tuple[bool, bool | None]:
     """Whether every run reached the best cost and stiffnesses, and (``both``) whether trf and
@@ -767,30 +631,3 @@ def _agreement(runs: list[StartResult], best: StartResult, determined: np.ndarra
         methods_agree = _agree(best_of["trf"].k, best_of["lm"].k, determined) and abs(
             best_of["trf"].cost - best_of["lm"].cost) <= tol_cost
     return starts_agree, methods_agree
-
-
-def _rotation_weighting(campaign: Campaign, model: Hypothesis, scale: float, options: dict,
-                        known: Noise | None, robust: bool = False
-                        ) -> tuple[Hypothesis, np.ndarray, float, float | None, str]:
-    """The model and observations of a campaign with rotations, the weight
-    ``w = sigma_t / sigma_r`` (m/rad), the rotation noise std (rad; ``None`` until estimated
-    from the best fit's residuals) and its source: diagnose's rule
-    (:func:`~stiffness.calibration.deflection_noise.weighting`: each kind's declared std, else
-    its replicates', else the fixed point over the residuals of a fit from the paper's start),
-    ``known`` the translations' (:func:`~stiffness.calibration.deflection_noise.
-    translation_noise`), the replicates' robust under a ``robust`` loss."""
-    x_start = np.full(len(model.compliant), math.log(PAPER_START_SI))
-    rotation = campaign.rotation
-    assert rotation is not None  # a campaign with rotations
-
-    def at(weight: float, previous: Fit | None) -> Fit:
-        x0 = x_start if previous is None else previous.x
-        return fit_model(model.replaced(rotation_weight=weight),
-                         observations(campaign.deflection, rotation, weight), scale, x0,
-                         anchor=x0, **options)
-
-    rotations = weighting(campaign, None if known is None else known.sigma, at, robust)
-    source = {"declared": "declared rotation_noise_std"}.get(rotations.source, rotations.source)
-    return (model.replaced(rotation_weight=rotations.weight), rotations.measured(campaign),
-            rotations.weight, rotations.sigma_rad if rotations.source != "residuals" else None,
-            source)
