@@ -45,7 +45,7 @@ from stiffness.errors import (
     warn_user,
 )
 from stiffness.mechanics import ik
-from stiffness.mechanics.defaults import loop_sampling_box
+from stiffness.mechanics.defaults import assembly_coordinates, loop_sampling_box
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot import kinematics
 from stiffness.robot.robot import Robot
@@ -221,7 +221,9 @@ class Workspace:
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (rad, m) of the coordinates as poses are drawn.
 
-    Revolute joints within +-pi; a joint without finite limits: +-pi, or 0..0.1 m if prismatic.
+    Revolute joints within +-pi; a joint without finite limits: +-pi, or 0..0.1 m if prismatic,
+    that span centred on the reference pose's value (:func:`assembly_coordinates`) when the
+    pose lies outside it (Gepetto's wl16 leg closes with its unbounded motors near -0.3 m).
     """
     model = robot.model
     prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints], dtype=bool)
@@ -234,6 +236,10 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
     lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
     hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
+    if np.any(bad & prismatic):
+        ref = assembly_coordinates(robot)
+        moved = bad & prismatic & ((ref < lo) | (ref > hi))
+        lo, hi = np.where(moved, ref - 0.05, lo), np.where(moved, ref + 0.05, hi)
     lo = np.where(prismatic, lo, np.maximum(lo, -math.pi))
     hi = np.where(prismatic, hi, np.minimum(hi, math.pi))
     return lo, hi

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.errors import StiffnessError, wrong_argument
+from stiffness.errors import LoopClosureError, StiffnessError, wrong_argument
 from stiffness.mechanics.formulation import as_wrench
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.mechanics.wrench import holding_wrench
@@ -161,13 +161,27 @@ def loop_sampling_box(robot: Robot, lo: np.ndarray, hi: np.ndarray
     """The box ``lo, hi`` (rad, m; per coordinate) to draw random poses in, narrowed for a
     closed-loop robot (whose limits say little about where it assembles: Gepetto's legs have
     none) to :data:`LOOP_SPAN_RAD` (revolute) or :data:`LOOP_SPAN_FRACTION` of the reference
-    length (prismatic) around its reference assembly (its default coordinates, else zero);
+    length (prismatic) around its reference assembly (:func:`assembly_coordinates`);
     unchanged for an open chain. ``design``'s candidates and ``scan --samples`` draw in it."""
     if robot.loop.is_open_chain:
         return lo, hi
-    ref = default_coordinates(robot)
-    ref = np.zeros(robot.n_coordinates) if ref is None else ref
+    ref = assembly_coordinates(robot)
     prismatic = np.array([robot.is_prismatic(j) for j in robot.coordinate_joints])
     span = np.where(prismatic, np.maximum(LOOP_SPAN_FRACTION * np.abs(ref), 0.01),
                     LOOP_SPAN_RAD)
     return np.maximum(lo, ref - span), np.minimum(hi, ref + span)
+
+
+def assembly_coordinates(robot: Robot) -> np.ndarray:
+    """The coordinates (rad, m) of a robot's reference pose: :func:`default_coordinates`, else,
+    for closed loops, those of the assembly found near the zero pose (:meth:`Robot.assemble`:
+    Gepetto's wl16 leg closes only with its prismatic motors near -0.3 m), else zero."""
+    ref = default_coordinates(robot)
+    if ref is not None:
+        return ref
+    if robot.loop.is_open_chain:
+        return np.zeros(robot.n_coordinates)
+    try:
+        return robot.coordinates_of(robot.assemble(None).q)
+    except LoopClosureError:  # no assembly near zero: the draws will say why
+        return np.zeros(robot.n_coordinates)
