@@ -54,7 +54,7 @@ from stiffness.calibration.measurements import (
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.probe_mounting import check_marker_mounting
 from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
-from stiffness.errors import FileFormatError, did_you_mean
+from stiffness.errors import FileFormatError, StiffnessError, did_you_mean
 from stiffness.files import (
     atomic_write,
     check_csv_header,
@@ -138,7 +138,12 @@ class PoseCampaign:
     def __post_init__(self) -> None:
         """Flag the markers whose orientation is measured on some row (their mounting turn is
         then fitted, :class:`~stiffness.calibration.pose_model.Marker`); a subset keeps its
-        campaign's flags, so that every fold fits the same parameters."""
+        campaign's flags, so that every fold fits the same parameters. A rotation noise
+        without measured orientations is refused (one line), as a deflection campaign's."""
+        if self.noise_std_rotation is not None and self.rotations is None:
+            raise StiffnessError("noise_std_rotation is given but the campaign has no measured "
+                                 "orientations (<marker>_rx,_ry,_rz); add them or drop "
+                                 "noise_std_rotation")
         if self.rotations is not None:
             seen = np.isfinite(self.rotations).all(axis=-1).any(axis=0)
             self.markers = [m if m.oriented or not seen[k] else replace(m, oriented=True)

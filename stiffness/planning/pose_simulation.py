@@ -442,7 +442,8 @@ def simulate_poses(
         campaign (m).
     noise_std_m, rotations, rotation_noise_std_rad
         Position noise std per component (m); whether the markers' orientations are measured
-        too, and their noise std (rad; default ``noise_std_m / 0.1 m``).
+        too, and their noise std (rad; default ``noise_std_m / 0.1 m``; refused without
+        ``rotations``: it would be ignored).
     payload
         Constant wrench at the target frame on every pose, world axes (N, then N.m), or ``None``.
     units, name, declare_noise
@@ -452,7 +453,8 @@ def simulate_poses(
     Raises
     ------
     StiffnessError
-        On bad inputs (an unknown effect or place, a count below one, a negative noise).
+        On bad inputs (an unknown effect or place, a count below one, a negative noise, a
+        rotation noise without ``rotations``).
     """
     units = units or Units()
     given = robot if isinstance(robot, Robot) else load_robot(
@@ -473,7 +475,8 @@ def simulate_poses(
     wrench = None if wrench is None else np.resize(np.concatenate([wrench, np.zeros(3)]), 6)
     hidden_effects = [parse_pose_effect(e) if isinstance(e, str) else e for e in effects or []]
     truth = hidden_pose_errors(given, markers, hidden_effects, kq, units, drift_m)
-    rotation_std = rotation_noise_std(rotation_noise_std_rad, noise_std_m) if rotations else None
+    std = rotation_noise_std(rotation_noise_std_rad, noise_std_m, rotations)
+    rotation_std = std if rotations else None
     seed = whole_number(seed, "seed", 0)
     campaign = simulate_pose_campaign(given, markers, truth, poses, noise_std_m, seed, wrench,
                                       units, name or "simulated-poses", rotation_std)

@@ -547,7 +547,8 @@ def simulate(
         Campaign name; whether it also records the rotations ``rx, ry, rz`` of the target.
     rotation_noise_std_rad
         Their noise std (rad); default ``noise_std_m / 0.1 m`` (a 6-D probe whose markers are
-        0.1 m apart). Declared with ``declare_noise``.
+        0.1 m apart). Declared with ``declare_noise``; refused without ``rotations`` (it would
+        be ignored).
     loops, fixed_base
         Loop declaration overriding the robot's sidecar, and whether to fix a floating or
         planar base (:func:`stiffness.robot.robot.load_robot`); both are written into the
@@ -580,7 +581,7 @@ def simulate(
     rng = np.random.default_rng(whole_number(seed, "seed", 0))
     q, applied, row_labels = _rows(declared, plan, configs, loads_per_config, load_pattern,
                                    max_force, rng)
-    rotation_noise_std_rad = rotation_noise_std(rotation_noise_std_rad, noise_std_m)
+    rotation_noise_std_rad = rotation_noise_std(rotation_noise_std_rad, noise_std_m, rotations)
     rig = _Rig(noise_std_m, rotation_noise_std_rad, rotations, declare_noise, repeats,
                units or Units())
     truth, smoothing, effect_rms, baseline_error, clean6 = _truth_and_sizes(

@@ -128,9 +128,15 @@ def warn_effect_lengths(hidden: list[tuple[str, str | None, tuple[float, ...]]],
             f"in{example}", FlagValueWarning, stacklevel=3)
 
 
-def rotation_noise_std(rotation_noise_std_rad: float | None, noise_std_m: float) -> float:
+def rotation_noise_std(rotation_noise_std_rad: float | None, noise_std_m: float,
+                       rotations: bool) -> float:
     """The rotation noise std (rad): given, else ``noise_std_m / 0.1 m`` (a 6-D probe whose
-    markers are 0.1 m apart); refused when negative or not finite."""
+    markers are 0.1 m apart); refused when negative or not finite, or given when no
+    orientation is measured (``rotations`` false: it would be ignored; the CLI's
+    ``--rotation-noise`` without ``--rotations`` alike)."""
+    if rotation_noise_std_rad is not None and not rotations:
+        raise StiffnessError("rotation_noise_std_rad is the noise of the orientations "
+                             "rotations=True measures: pass rotations=True, or drop it")
     if rotation_noise_std_rad is None:
         rotation_noise_std_rad = noise_std_m / 0.1
     if not (rotation_noise_std_rad >= 0 and math.isfinite(rotation_noise_std_rad)):
