@@ -246,9 +246,11 @@ def _pose_validation(validate: Campaign | PoseCampaign | str | os.PathLike | Non
     StiffnessError
         A deflection campaign given to validate a pose diagnosis (one line).
     """
-    if isinstance(validate, Campaign):
+    if isinstance(validate, Campaign) or (validate is not None and not isinstance(
+            validate, PoseCampaign) and campaign_kind(validate) != "poses"):
+        name = repr(validate.name) if isinstance(validate, Campaign) else str(validate)
         raise StiffnessError("validate a pose campaign's diagnosis on another pose "
-                             f"campaign, not on the deflection campaign {validate.name!r}")
+                             f"campaign, not on the deflection campaign {name}")
     if validate is not None and not isinstance(validate, PoseCampaign):
         return load_pose_campaign(validate)
     return validate

@@ -5,8 +5,9 @@ deflection model on a deflection campaign (:func:`deflection_errors`).
 For a pose campaign (``kind = "poses"``) the model is a pose calibration's ``final-model.json``
 (its measuring frame and marker offsets are the model's) and the error is the 3-D position
 error, overall and per marker (:func:`stiffness.calibration.pose_diagnose.validation_errors`);
-for a deflection campaign the model is a model file of ``identify`` or ``diagnose`` and the
-error is the measured deflection minus the model's prediction under each row's load
+for a deflection campaign the model is a model file of ``identify`` or ``diagnose`` (or a
+pose calibration's, the elastic model :func:`~stiffness.elastic.model_file.read_model_file`
+reads of it) and the error is the measured deflection minus the model's prediction under each row's load
 (:func:`deflection_errors`: every effect applied, measurement effects included, what the
 campaign's instrument reads; the one "marker" is the campaign's target). Both in the
 campaign's length unit.
@@ -362,15 +363,19 @@ def validate(model: ModelFile | str | os.PathLike,
              campaign: Campaign | PoseCampaign | str | os.PathLike) -> Validation:
     """The model file ``model`` (a path, or a deflection model read: :class:`ModelFile`)
     evaluated on ``campaign`` (a ``campaign.toml`` or its folder, or a campaign loaded):
-    errors in the campaign's length unit and the verdict against its declared noise.
+    errors in the campaign's length unit and the verdict against its declared noise. A pose
+    calibration's ``final-model.json`` on a deflection campaign is the elastic model
+    :func:`~stiffness.elastic.model_file.read_model_file` reads of it (its springs and elastic
+    families, on the calibrated robot), as a :class:`ModelFile` of it given here is
+    (refused as another kind of campaign until 6 December 2026, given by its path); it carries
+    no parameter covariance, so its verdict is the noise-only test's.
 
     Raises
     ------
     ModelRobotError
         The campaign is of another robot than the model's.
     StiffnessError
-        A pose calibration with a deflection campaign or the other way round, or a file
-        that cannot be read.
+        A deflection model with a pose campaign, or a file that cannot be read.
     """
     if not isinstance(model, ModelFile | str | os.PathLike):
         raise wrong_argument("model", model, "a model file's path (str or os.PathLike) or a "
@@ -379,13 +384,13 @@ def validate(model: ModelFile | str | os.PathLike,
     kind = "poses" if isinstance(campaign, PoseCampaign) else "deflections" if isinstance(
         campaign, Campaign) else campaign_kind(campaign)
     name = str(model.path or "the model") if isinstance(model, ModelFile) else str(model)
-    if (kind == "poses") != pose_model:
+    if kind == "poses" and not pose_model:
         raise StiffnessError(
-            f"{name} is {'a pose calibration' if pose_model else 'a deflection model'} "
-            f"and {campaign_name(campaign)} is not a {'pose' if pose_model else 'deflection'} "
-            "campaign; validate a pose calibration on a pose campaign, a deflection model on a "
-            "deflection campaign")
-    if isinstance(model, ModelFile) or not pose_model:
+            f"{name} is a deflection model and {campaign_name(campaign)} is not a deflection "
+            "campaign; validate a deflection model on a deflection campaign, a pose "
+            "calibration on a pose or a deflection campaign")
+    if isinstance(model, ModelFile) or kind == "deflections":  # a pose calibration read as
+        # the elastic model load_model makes of it (its springs and elastic families)
         declared = model if isinstance(model, ModelFile) else read_model_file(model)
         return validate_deflection_model(  # a deflection campaign: kind said so
             declared, name, cast("Campaign | str | os.PathLike", campaign))

@@ -7,7 +7,8 @@ Example::
 For a pose campaign (``kind = "poses"``) the model is a pose calibration's
 ``final-model.json`` (its measuring frame and marker offsets are the model's) and the output is
 the 3-D position error, overall and per marker; for a deflection campaign the model is a model
-file of ``identify`` or ``diagnose`` and the error is the measured deflection minus the model's
+file of ``identify`` or ``diagnose`` (or a pose calibration's, its springs and elastic families
+as ``load_model`` reads them) and the error is the measured deflection minus the model's
 prediction under each row's load (the one marker is ``target``). Both in the campaign's length
 unit: RMS, mean, std and max, then the stage table's line of this model (as ``diagnose
 --validate`` prints one per step), and the verdict against the campaign's declared noise (a
