@@ -3,9 +3,9 @@
 load without refitting, by path as by a :class:`~stiffness.elastic.model_contents.ModelFile`
 of it (the path was refused as the wrong kind of campaign until 6 December 2026, the
 ModelFile evaluated). The verdict is checked against the chi-square computed by hand from
-``load_model``'s deflections at the campaign's target, row by row. A pose diagnosis with ``--validate`` on a deflection
-campaign is refused in one line naming it, by path as by object (the path read as a pose
-campaign and complained of its ``baseline`` key)."""
+``load_model``'s deflections at the campaign's target, row by row. A pose diagnosis with
+``--validate`` on a deflection campaign is refused in one line naming it, by path as by
+object (the path read as a pose campaign and complained of its ``baseline`` key)."""
 
 from __future__ import annotations
 

@@ -7,10 +7,10 @@ For a pose campaign (``kind = "poses"``) the model is a pose calibration's ``fin
 error, overall and per marker (:func:`stiffness.calibration.pose_diagnose.validation_errors`);
 for a deflection campaign the model is a model file of ``identify`` or ``diagnose`` (or a
 pose calibration's, the elastic model :func:`~stiffness.elastic.model_file.read_model_file`
-reads of it) and the error is the measured deflection minus the model's prediction under each row's load
-(:func:`deflection_errors`: every effect applied, measurement effects included, what the
-campaign's instrument reads; the one "marker" is the campaign's target). Both in the
-campaign's length unit.
+reads of it) and the error is the measured deflection minus the model's prediction under
+each row's load (:func:`deflection_errors`: every effect applied, measurement effects
+included, what the campaign's instrument reads; the one "marker" is the campaign's target).
+Both in the campaign's length unit.
 
 The campaign must be of the model's robot: the same source, or the same coordinates and
 kinematics (:func:`stiffness.robot.calibration.kinematic_fingerprint`); another robot is
