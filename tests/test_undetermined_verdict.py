@@ -1,8 +1,9 @@
 """identify and diagnose judge "undetermined" by one rule (issue 36's, :attr:`stiffness.elastic.
 effects.base.Parameter.determined`): fitted, with a finite 95 % interval whose compliance's
 width is narrower than its physical scale, ten times ``1 / k_ref`` (``k_ref`` the geometric
-mean of the fitted stiffnesses). identify used to call a spring undetermined when its interval
-was wider than its value, which disagreed with diagnose on this campaign."""
+mean of the fitted stiffnesses, the held ones left out). identify used to call a spring
+undetermined when its interval was wider than its value, which disagreed with diagnose on this
+campaign."""
 
 import json
 import math
@@ -30,7 +31,7 @@ def test_identify_and_diagnose_give_one_verdict_by_the_physical_scale(panda):
     result, diagnosis = panda
     joints = json.loads(result.to_json())["joints"]
     fitted = [j for j in joints if j["held"] is None]
-    k_ref = math.exp(sum(math.log(j["k"]) for j in joints) / len(joints))  # held at its start
+    k_ref = math.exp(sum(math.log(j["k"]) for j in fitted) / len(fitted))  # none rigid here
     scale = 10.0 / k_ref  # rad/(N.m)
     for j in fitted:  # the rule computed here, from the reported interval alone
         low, high = j["ci95"]

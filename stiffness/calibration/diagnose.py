@@ -473,7 +473,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     measured = observations(deflection, campaign.rotation, weight)
     model0 = model0.replaced(rotation_weight=weight)
     base = weighted if weighted is not None else fit_baseline(model0, measured, scale, fit_loss)
-    k_ref = float(np.exp(np.mean(base.x)))
+    k_ref = fitting.reference_stiffness(base)
     base.model = base.model.replaced(refs=References.of(model0.geometry, model0.rows, k_ref,
                                                     deflection, masses))
     if sigma is None and loss == "linear":

@@ -87,6 +87,7 @@ from stiffness.calibration.fitting import (
     compliance_covariance,
     covariance,
     fit_model,
+    reference_stiffness,
     rigid_joints,
 )
 from stiffness.calibration.identification import (
@@ -447,11 +448,12 @@ def _provenance(campaign: Campaign, rob: Robot) -> dict[str, Any]:
 
 def _judging(fit: Fit, campaign: Campaign) -> Fit:
     """``fit`` with diagnose's physical scales: its model's references at ``k_ref`` the
-    geometric mean of its stiffnesses, as diagnose sets them from its baseline
+    geometric mean of the stiffnesses it determines (:func:`reference_stiffness`), as
+    diagnose sets them from its baseline
     (:func:`stiffness.calibration.diagnose`), so a stiffness's physical scale, ten times
     ``1 / k_ref`` in compliance, is the one diagnose judges it against."""
     model = fit.model
-    refs = References.of(model.geometry, model.rows, float(np.exp(np.mean(fit.x))),
+    refs = References.of(model.geometry, model.rows, reference_stiffness(fit),
                          campaign.deflection)
     return replace(fit, model=model.replaced(refs=refs))
 

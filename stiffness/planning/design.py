@@ -41,6 +41,7 @@ from stiffness.calibration.experiment import (
     separation_statistics,
     standard_errors,
 )
+from stiffness.calibration.fitting import reference_stiffness
 from stiffness.calibration.selection import fit_baseline, fit_model, replicate_noise
 from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import effect_place
@@ -158,19 +159,18 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
             sigma, source = rep[0], "replicate rows of the campaign"
     scale = sigma if sigma is not None else max(float(np.sqrt(np.mean(measured ** 2))) * 1e-2,
                                                 1e-12)
-    refs0 = References.of(geo, rows, 1e5, measured)
-    model0 = Hypothesis(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (), refs0)
+    model0 = Hypothesis(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (),
+                        References.of(geo, rows, 1e5, measured))
     base = fit_baseline(model0, measured, scale)
-    refs = References.of(geo, rows, float(np.exp(np.mean(base.x))), measured)
-    base.model = base.model.replaced(refs=refs)
+    base.model = base.model.replaced(refs=References.of(geo, rows, reference_stiffness(base),
+                                                        measured))
     fits = [fit_model(base.model.extended(e), measured, scale, base.model.extend_x(base.x, e))
             for e in chosen]
     if sigma is None:
         best = min(fits, key=lambda f: f.rss)
         dof = max(measured.size - best.penalty_params, 1)
         sigma, source = math.sqrt(best.rss / dof), "residual scatter of the better fit"
-    return Alternatives(fits[0], fits[1], (chosen[0].label, chosen[1].label), float(sigma),
-                        source)
+    return Alternatives(fits[0], fits[1], (chosen[0].label, chosen[1].label), float(sigma), source)
 
 
 # ------------------------------------------------------------------------------------------

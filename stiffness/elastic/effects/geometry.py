@@ -421,7 +421,8 @@ class References:
     joints
         Coordinate joints (the order of the per-joint arrays).
     k_ref
-        Geometric mean of the baseline stiffnesses (compliances are in units of ``1/k_ref``).
+        Geometric mean of the baseline stiffnesses the fit determines (compliances are in
+        units of ``1/k_ref``; :func:`stiffness.calibration.fitting.reference_stiffness`).
     tau_max
         (n,) largest |torque| per coordinate joint over the campaign.
     tau_smoothing
