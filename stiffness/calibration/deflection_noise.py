@@ -1,7 +1,8 @@
 """The noise of a deflection fit, for ``identify`` and ``diagnose`` alike: each kind's known
 noise std (:func:`known_noise`, :func:`translation_noise`), the weight of measured rotations
 beside the translations (:func:`weighting`) and the noise of a fit's intervals
-(:func:`fit_noise`); and how ``identify`` applies them: its observations at the weight
+(:func:`fit_noise`) with each parameter's quantile (:func:`interval_quantiles`); and how
+``identify`` applies them: its observations at the weight
 (:func:`weighted_observations`), its robust loss's scale (:func:`robust_loss_options`), the
 rotation noise of its best fit (:func:`residual_rotation_noise`) and the noise of its
 intervals with the test against a known one (:func:`noise_level`).
@@ -16,6 +17,11 @@ residuals of a fit of that kind (:func:`~stiffness.calibration.fitting.kind_nois
 residuals depend on the weight they are fitted at, so an estimated std is the fixed point of
 ``w -> s_t(w) / s_r(w)`` over the caller's baseline fit at ``w``, reached from the ratio of
 the known stds or, for an unknown one, of the measured RMS of that kind (:func:`weighting`).
+
+A parameter's variance is then the sum of the translations' and the rotations' contributions,
+each scaled by its kind's noise variance, known or estimated over its own degrees of freedom:
+the quantile of its interval is Student's t with their Welch-Satterthwaite effective degrees
+of freedom (:func:`interval_quantiles`, :func:`effective_dof`).
 """
 
 from __future__ import annotations
@@ -25,10 +31,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.special import ndtri, stdtrit
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import (
     Fit,
+    compliance_slope,
     compliance_spread,
     fit_model,
     kind_noise,
@@ -100,6 +108,105 @@ def fit_noise(known: Noise | None, fit: Fit, n: int) -> Noise:
     noise = (known if known is not None
              else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
     return noise.of_fit(fit.loss, n, compliance_spread(replace(fit, loss="linear")))
+
+
+def effective_dof(contributions: np.ndarray, dofs: np.ndarray) -> np.ndarray:
+    """Welch-Satterthwaite effective degrees of freedom of variances ``V = sum_k c_k``, each
+    contribution ``c_k = a_k s_k^2`` (rows of ``contributions``, one column per parameter)
+    scaled by a noise variance estimated over ``dofs[k]`` degrees of freedom (``inf`` for a
+    known one): ``nu_eff = V^2 / sum_k c_k^2 / nu_k`` (Satterthwaite 1946, eq. 3), ``inf``
+    when every contributing variance is known. One kind alone gives its own ``nu_k``."""
+    c = np.asarray(contributions, dtype=float)
+    nu = np.asarray(dofs, dtype=float).reshape(-1, 1)
+    spread = np.sum(np.divide(c ** 2, nu, out=np.zeros_like(c), where=np.isfinite(nu)), axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(spread > 0, np.sum(c, axis=0) ** 2 / spread, np.inf)
+
+
+@dataclass(frozen=True)
+class Quantiles:
+    """The noise of a deflection fit's 95 % intervals and their quantiles
+    (:func:`interval_quantiles`).
+
+    Attributes
+    ----------
+    noise
+        The noise of the fit's covariance (:func:`fit_noise`).
+    dof
+        Per column of the fit's ``x``, the degrees of freedom of its standardised error:
+        Student's t with them, the standard normal where ``inf``.
+    """
+
+    noise: Noise
+    dof: np.ndarray
+
+    def quantile(self, level: float) -> np.ndarray:
+        """Each parameter's ``level`` quantile (Student's t, the normal's at ``inf``)."""
+        nu = np.asarray(self.dof, dtype=float)
+        finite = np.isfinite(nu)
+        return np.where(finite, stdtrit(np.where(finite, nu, 1.0), level), ndtri(level))
+
+    def two_sided(self) -> np.ndarray:
+        """Each parameter's quantile of a two-sided 95 % interval (97.5 %)."""
+        return self.quantile(0.975)
+
+    def one_sided(self) -> np.ndarray:
+        """Each parameter's quantile of a one-sided 95 % interval (95 %), at its bound."""
+        return self.quantile(0.95)
+
+    @property
+    def reported_dof(self) -> list[float | None]:
+        """:attr:`dof` as a report gives it: ``None`` for the normal's (``inf``)."""
+        return [float(v) if math.isfinite(v) else None for v in self.dof]
+
+
+def kind_dof(campaign: Campaign, kind: str, n: int, p: int) -> float:
+    """The degrees of freedom of a ``kind``'s (``translation``, ``rotation``) noise std in a
+    fit of ``p`` parameters to ``n`` residual components of a campaign measuring rotations:
+    ``inf`` declared, the replicates' (:func:`known_noise`), else the residuals' share,
+    ``n / 2 - p / 2`` (:func:`~stiffness.calibration.fitting.kind_noise`)."""
+    known = known_noise(campaign, kind)
+    if known is None:
+        return max(0.5 * (n - p), 1.0)
+    return math.inf if known[1] is None else float(known[1])
+
+
+def interval_quantiles(known: Noise | None, fit: Fit, n: int, campaign: Campaign | None
+                       ) -> Quantiles:
+    """The noise of ``fit``'s 95 % intervals over ``n`` residual components
+    (:func:`fit_noise` of ``known``) and each parameter's quantile: the one rule of
+    ``identify`` and ``diagnose``.
+
+    Without measured rotations (or ``campaign`` ``None``), or under a robust loss (the
+    sandwich takes its spread from the residuals over ``noise.dof``), every parameter takes
+    the noise's degrees of freedom (:meth:`~stiffness.calibration.selection.Noise.quantile`). With
+    rotations under least squares, a parameter's variance is ``a_t s_t^2 + a_r w^2 s_r^2``
+    (``w = s_t / s_r``, so both terms are in ``s_t^2``): the diagonal of
+    ``C G_kind^T G_kind C`` for each kind's rows ``G_kind`` of the whitened Jacobian in
+    compliance units, ``C`` the covariance (:func:`compliance_spread`). Each kind's std comes
+    with its own degrees of freedom (:func:`kind_dof`), and the parameter's t has their
+    :func:`effective_dof`: about ``nu_r`` for a stiffness the rotations determine, hundreds
+    for one the declared translations determine, ``inf`` (the normal's) with both declared.
+    The normal's for every parameter under-covered with an undeclared rotation noise over few
+    degrees of freedom, t with ``nu_r`` over-covered (2 poses x 2 loads, nu_r = 9: a
+    rotation-determined stiffness 0.922 and 0.963, t with ``nu_eff`` 0.951; docs/diagnose.md,
+    "Rotations")."""
+    noise = fit_noise(known, fit, n)
+    out = np.full(fit.x.size, math.inf if noise.dof is None else float(noise.dof))
+    if campaign is None or campaign.rotation is None or fit.loss != "linear":
+        return Quantiles(noise, out)
+    kept = np.asarray(fit.kept, dtype=int)
+    jac = (fit.jacobian / compliance_slope(fit))[:, kept]  # rows of [d; w r], 6 per row
+    cov = compliance_spread(fit).matrix[np.ix_(kept, kept)]  # a common factor: no matter
+    dofs = np.array([kind_dof(campaign, k, n, fit.penalty_params)
+                     for k in ("translation", "rotation")])
+    rotation_rows = (np.arange(jac.shape[0]) % 6) >= 3
+    with np.errstate(invalid="ignore"):
+        parts = np.array([np.einsum("ij,ij->j", g @ cov, g @ cov)
+                          for g in (jac[~rotation_rows], jac[rotation_rows])])
+    out[kept] = np.where(np.isfinite(parts).all(axis=0), effective_dof(
+        np.nan_to_num(parts), dofs), out[kept])  # an undetermined one's interval is infinite
+    return Quantiles(noise, out)
 
 
 @dataclass(frozen=True)

@@ -26,12 +26,14 @@ from stiffness.calibration.selection import end_covariances
 from stiffness.elastic.effects.base import Parameter, effect_report, stiffness_report
 
 
-def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
-                         ) -> list[Parameter]:
+def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float | np.ndarray,
+                         edge: float | np.ndarray) -> list[Parameter]:
     """The joint stiffnesses a diagnosis reports: ``k = exp(x)`` with the interval of its
     compliance ``c = 1 / k`` (``c -+ quantile se_c``, ``se_c = c se`` with ``se`` that of
     ``ln k`` from ``cov``; a predicted deflection is linear in the compliances) carried to
-    the stiffness, ``[1 / (c + quantile se_c), 1 / (c - quantile se_c)]`` (unbounded above
+    the stiffness, ``[1 / (c + quantile se_c), 1 / (c - quantile se_c)]`` (``quantile`` and
+    ``edge`` one for all or one per column of ``fit.x``,
+    :func:`~stiffness.calibration.deflection_noise.interval_quantiles`; unbounded above
     when the compliance's interval reaches zero), in N.m/rad or N/m; a joint at its rigid bound
     (:func:`~stiffness.calibration.fitting.fit_model`) one-sided from there, with the one-sided
     quantile ``edge``; each end of the others' bounded as :func:`with_bounds` says. A fitted
@@ -44,6 +46,7 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
     its linearised interval runs along the alias and is not the joint's."""
     model = fit.model
     refs, top = model.refs, model.bounds()[1]
+    quantile, edge = per_column(fit, quantile), per_column(fit, edge)
 
     def one(i: int, j: str, matrix: np.ndarray, q: float) -> Parameter:
         k = math.exp(fit.x[i])
@@ -57,9 +60,9 @@ def stiffness_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float
                                    else p.standard_error, at_bound=rigid)
 
     effects = [c for c in fit.kept if c >= len(model.compliant)]
-    out = [with_bounds(fit, i, one(i, j, cov, quantile), cov,
-                       functools.partial(one, i, j, q=quantile),
-                       edge=one(i, j, cov, edge) if i in fit.at_bound else None)
+    out = [with_bounds(fit, i, one(i, j, cov, quantile[i]), cov,
+                       functools.partial(one, i, j, q=quantile[i]),
+                       edge=one(i, j, cov, edge[i]) if i in fit.at_bound else None)
            for i, j in enumerate(model.compliant)]
     return [p if p.held or p.determined else p.confounded_as(share(fit, i, cov, effects))
             for i, p in enumerate(out)]
@@ -100,34 +103,57 @@ def with_bounds(fit: Fit, index: int, parameter: Parameter, cov: np.ndarray,
     return dataclasses.replace(parameter, ci95=(low, high))
 
 
-def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float, edge: float, units
-                      ) -> dict[str, list[Parameter]]:
+def effect_parameters(fit: Fit, cov: np.ndarray, quantile: float | np.ndarray,
+                      edge: float | np.ndarray, units) -> dict[str, list[Parameter]]:
     """Each effect's parameters in ``fit`` with their intervals (from ``cov`` with the
-    two-sided ``quantile``, or one-sided from a bound with the one-sided ``edge``; each end
-    bounded as :func:`with_bounds` says). A reported quantity beyond the
+    two-sided ``quantile``, or one-sided from a bound with the one-sided ``edge``, each one for
+    all or one per column of ``fit.x``,
+    :func:`~stiffness.calibration.deflection_noise.interval_quantiles`;
+    each end bounded as :func:`with_bounds` says). A reported quantity beyond the
     effect's variables (``nonlinear_joint_stiffness``'s relative change, from its ``beta``)
-    is held, at its bound or bounded as its last variable is."""
+    is held, at its bound or bounded as its last variable is, with its quantile."""
     model = fit.model
+    quantile, edge = per_column(fit, quantile), per_column(fit, edge)
     out = {}
     for i, e in enumerate(model.effects):
         a, b = model.offsets[i + 1], model.offsets[i + 2]
-        free = effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, quantile)
 
-        def report(matrix: np.ndarray, k: int, e=e, a=a, b=b) -> Parameter:
-            return effect_report(e, fit.x[a:b], matrix[a:b, a:b], model.refs, units,
-                                 quantile)[k]
+        def reports(matrix: np.ndarray, q: np.ndarray, x: np.ndarray | None = None, e=e, a=a,
+                    b=b) -> list[Parameter]:  # at fit.x, or at x
+            u = fit.x[a:b] if x is None else x
+            return _each_quantile(lambda v: effect_report(e, u, matrix[a:b, a:b], model.refs,
+                                                          units, v), q[a:b])
 
-        sided = (effect_report(e, fit.x[a:b], cov[a:b, a:b], model.refs, units, edge)
-                 if any(a <= c < b for c in fit.at_bound) else free)  # one-sided at a bound
+        free = reports(cov, quantile)
+
+        def report(matrix: np.ndarray, k: int, reports=reports) -> Parameter:
+            return reports(matrix, quantile)[k]
+
+        sided = reports(cov, edge) if any(a <= c < b for c in fit.at_bound) else free
         floor = [-math.inf] * len(free) if e.compliance_variables else [  # a stiffness's is 0
-            p.value for p in effect_report(e, e.bounds()[0], np.zeros((b - a, b - a)),
-                                           model.refs, units, quantile)]
+            p.value for p in reports(np.zeros_like(cov), quantile, e.bounds()[0])]
         out[e.label] = [_above(with_bounds(fit, a + min(k, b - a - 1), p, cov,
                                            functools.partial(report, k=k),
                                            e.compliance_variables and k < b - a, one), low)
                         for k, (p, one, low) in enumerate(zip(free, sided, floor,
                                                               strict=True))]
     return out
+
+
+def per_column(fit: Fit, quantile: float | np.ndarray) -> np.ndarray:
+    """``quantile`` for each column of ``fit.x``: one for all, or already one per column."""
+    return np.broadcast_to(np.asarray(quantile, dtype=float), fit.x.shape)
+
+
+def _each_quantile(report: Callable[[float], list[Parameter]], quantile: np.ndarray
+                   ) -> list[Parameter]:
+    """An effect's reported quantities (``report`` with a quantile), each with its variable's
+    ``quantile`` (one per variable; a relative change beyond them, from the first variable,
+    :func:`~stiffness.elastic.effects.base.effect_report`, the first's); none without
+    variables."""
+    reports = {float(q): report(float(q)) for q in np.unique(quantile)}
+    size = len(reports[float(quantile[0])]) if quantile.size else 0
+    return [reports[float(quantile[k if k < quantile.size else 0])][k] for k in range(size)]
 
 
 def _above(parameter: Parameter, floor: float) -> Parameter:

@@ -51,7 +51,13 @@ import numpy as np
 from stiffness.calibration import fitting
 from stiffness.calibration.breakdown import disagreement
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
-from stiffness.calibration.deflection_noise import fit_noise, translation_noise, weighting
+from stiffness.calibration.deflection_noise import (
+    Quantiles,
+    fit_noise,
+    interval_quantiles,
+    translation_noise,
+    weighting,
+)
 from stiffness.calibration.deflection_parameters import (
     effect_parameters,
     share,
@@ -317,19 +323,20 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     one = len(set(campaign.config)) < 2  # held out one load at a time
     kind = (OneConfigurationSearch if one else DeflectionSearch)(
         measured, folds, scale, n, known, workers, say, _declared_settings(base, effect_settings),
-        campaign.units, masses, forbidden)
+        campaign.units, masses, forbidden, campaign)
     current, cv_current = base, cv_base
     for name in forced:
         say(f"step {len(kind.steps) + 1}: {name} (forced)")
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
-    noise_final, note = fit_noise(known, final, n), _final_note(final, n, known, note)
-    sigma_used = noise_final.sigma
+    noise_final = interval_quantiles(known, final, n, campaign)
+    note = _final_note(final, n, known, note)
+    sigma_used = noise_final.noise.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
     cov_final = fitting.compliance_covariance(final, sigma_used, measured)
-    noise_base = fit_noise(known, base, n)
-    cov_base = fitting.compliance_covariance(base, noise_base.sigma, measured)
+    noise_base = interval_quantiles(known, base, n, campaign)
+    cov_base = fitting.compliance_covariance(base, noise_base.noise.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, final.penalty_params,
                                        tuple(campaign.config or ()), campaign.lines)
     ambiguities = _ambiguities(kind.ambiguities, sigma_used, campaign, geo,
@@ -496,7 +503,10 @@ class DeflectionSearch:
     deflection campaign's :class:`~stiffness.calibration.search.SearchKind` (the library's
     effects screened by loose full fits, the best refined; held out over configuration
     folds). Its :attr:`steps` and raw :attr:`ambiguities` ``(step, winner, other,
-    similarity)`` grow as :func:`~stiffness.calibration.search.search` adds effects."""
+    similarity)`` grow as :func:`~stiffness.calibration.search.search` adds effects; its
+    ``campaign`` (``None``: one noise quantile for every parameter) gives the intervals'
+    quantiles of a campaign with rotations
+    (:func:`~stiffness.calibration.deflection_noise.interval_quantiles`)."""
 
     measured: np.ndarray
     folds: list[np.ndarray]
@@ -509,6 +519,7 @@ class DeflectionSearch:
     units: Units
     masses: str = "known"
     forbidden: tuple[str, ...] = ()
+    campaign: Campaign | None = None
     steps: list[Step[DeflectionEffect, Fit]] = field(default_factory=list)
     ambiguities: list[tuple[int, Found, Found, float]] = field(default_factory=list)
     dispersion: float = 1.0
@@ -672,11 +683,12 @@ class DeflectionSearch:
         self.say(f"removed {effect.label}: RMS {fit.rms():.4g} m")
         return effect
 
-    def covariance(self, fit: Fit) -> tuple[np.ndarray, Noise]:
+    def covariance(self, fit: Fit) -> tuple[np.ndarray, Quantiles]:
         """The covariance of ``fit.x`` (:func:`fitting.compliance_covariance`) and the noise it
-        is for (:func:`fit_noise`: the known one, else estimated from ``fit``'s residuals)."""
-        noise = fit_noise(self.noise, fit, self.n)
-        return fitting.compliance_covariance(fit, noise.sigma, self.measured), noise
+        is for with its intervals' quantiles (:func:`interval_quantiles`: the known one, else
+        estimated from ``fit``'s residuals)."""
+        noise = interval_quantiles(self.noise, fit, self.n, self.campaign)
+        return fitting.compliance_covariance(fit, noise.noise.sigma, self.measured), noise
 
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:
         """Each effect's parameters in ``fit`` with their intervals."""

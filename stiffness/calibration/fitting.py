@@ -573,13 +573,13 @@ def compliance_covariance(fit: Fit, sigma: float, measured: np.ndarray | None = 
     not judged as if that joint were held (its ``ln k`` column vanishes with its
     compliance). An infinite entry (a parameter along an undetermined direction) stays
     ``+inf``."""
-    slope = _compliance_slope(fit)
+    slope = compliance_slope(fit)
     matrix = compliance_spread(fit, sigma, measured).matrix
     with np.errstate(invalid="ignore"):
         return np.where(np.isinf(matrix), np.inf, matrix / np.outer(slope, slope))
 
 
-def _compliance_slope(fit: Fit) -> np.ndarray:
+def compliance_slope(fit: Fit) -> np.ndarray:
     """``d u / d x``: ``-u`` for the baseline's columns (``u = k_ref / k``), 1 for the others."""
     slope = np.ones(fit.x.size)
     n0 = len(fit.model.compliant)
@@ -598,7 +598,7 @@ def compliance_spread(fit: Fit, sigma: float = 1.0, measured: np.ndarray | None 
     degrees of freedom (:meth:`~stiffness.calibration.selection.Noise.of_fit`). A
     parameterless switch such as ``complementary_stiffness`` counts in
     :attr:`Fit.penalty_params`, not here."""
-    return covariance(replace(fit, jacobian=fit.jacobian / _compliance_slope(fit)), sigma,
+    return covariance(replace(fit, jacobian=fit.jacobian / compliance_slope(fit)), sigma,
                       measured)
 
 

@@ -157,6 +157,10 @@ class Identification(IdentificationResult):
         The enhanced formulation's first-order kinematics' bias of each stiffness, in its
         standard errors (:func:`~stiffness.calibration.identify.kinematics_bias`; NaN for a
         held one), ``None`` for the other formulations; JSON ``kinematics_bias_se``.
+    ci95_dof
+        Per joint, the degrees of freedom of its interval's Student t quantile
+        (:func:`~stiffness.calibration.deflection_noise.interval_quantiles`), ``None`` for the
+        normal's (a declared noise); JSON ``ci95_dof`` in each joint's entry. Empty: not given.
     physical_scale
         Per joint, its 95 % interval against its physical scale in words (diagnose's
         ``physical_scale``; empty: not judged), JSON ``joints[].physical_scale``.
@@ -248,6 +252,7 @@ class Identification(IdentificationResult):
     held: tuple[str | None, ...] = ()
     at_bound: tuple[bool, ...] = ()
     kinematics_bias_se: np.ndarray | None = None
+    ci95_dof: tuple[float | None, ...] = ()
     physical_scale: tuple[str, ...] = ()
     fits_to_noise: dict | None = None
 
@@ -267,7 +272,9 @@ class Identification(IdentificationResult):
         if self.loss == "linear":
             return ("the compliance's interval c -+ t SE(c), SE(c) = c SE(ln k), carried to "
                     "k = 1/c: k / (1 +- t SE(ln k)); t = Student with the replicates' dof "
-                    "for their scatter, N - p dof for the residuals', normal if declared")
+                    "for their scatter, N - p dof for the residuals', normal if declared; with "
+                    "rotations, per joint the Welch-Satterthwaite dof of the two kinds' "
+                    "(ci95_dof)")
         return (f"Huber's sandwich covariance of the {self.loss} fit's ln k; the compliance's "
                 "interval carried to k = 1/c: k / (1 +- t SE(ln k)), t = Student (N - p dof)")
 
@@ -315,12 +322,13 @@ class Identification(IdentificationResult):
                  "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
                  "ci95": [float(lo), float(hi)], "relative_ci_width": float(w),
                  "determined": j not in self.undetermined_joints, "held": h, "at_bound": b,
-                 "physical_scale": s or None}
-                for j, k, u, kp, se, lo, hi, w, h, b, s in zip(
+                 "physical_scale": s or None, "ci95_dof": dof}
+                for j, k, u, kp, se, lo, hi, w, h, b, s, dof in zip(
                     self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
                     self.ci95_low, self.ci95_high, self.relative_ci_width, self.held_joints,
                     self.at_bound or (False,) * len(self.joints),
-                    self.physical_scale or ("",) * len(self.joints), strict=True)
+                    self.physical_scale or ("",) * len(self.joints),
+                    self.ci95_dof or (None,) * len(self.joints), strict=True)
             ],
             "ci95_method": self.ci95_method,
             "kinematics_bias_se": None if self.kinematics_bias_se is None else [

@@ -74,7 +74,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.deflection_noise import (
-    fit_noise,
+    interval_quantiles,
     noise_level,
     residual_rotation_noise,
     robust_loss_options,
@@ -160,26 +160,26 @@ class _Uncertainty:
     directions: list[UndeterminedDirection]
 
 
-def _uncertainty(cov: Covariance, k: np.ndarray, quantile: float, joints: tuple[str, ...]
+def _uncertainty(cov: Covariance, k: np.ndarray, quantile: np.ndarray, joints: tuple[str, ...]
                  ) -> _Uncertainty:
     """Intervals and undetermined directions from the fitting engine's covariance of ln k:
     each stiffness's interval is its compliance's, ``c -+ quantile se_c`` with ``se_c = c
-    se(ln k)``, carried to ``k = 1 / c`` (a deflection is linear in the compliances; unbounded
-    above when the compliance's interval reaches zero), as diagnose reports it
-    (:func:`stiffness.calibration.deflection_parameters.stiffness_parameters`)."""
+    se(ln k)`` (``quantile`` per joint), carried to ``k = 1 / c`` (a deflection is linear in
+    the compliances; unbounded above when the compliance's interval reaches zero), as diagnose
+    reports it (:func:`stiffness.calibration.deflection_parameters.stiffness_parameters`); a
+    direction's width with the largest quantile."""
     se_log = np.sqrt(np.diag(cov.matrix))
     # the compliance 1 / k in units of itself: 1 +- quantile se(ln k)
-    low, high = np.array([stiffness_interval((1.0 - quantile * s) * (1.0 / kk),
-                                             (1.0 + quantile * s) * (1.0 / kk))
-                          for s, kk in zip(se_log, k, strict=True)]).reshape(-1, 2).T
+    low, high = np.array([stiffness_interval((1.0 - q * s) * (1.0 / kk), (1.0 + q * s) * (1.0 / kk))
+                          for q, s, kk in zip(quantile, se_log, k, strict=True)]).reshape(-1, 2).T
     with np.errstate(invalid="ignore"):
         width = (high - low) / k
     width = np.where(np.isfinite(width), width, np.inf)
     directions = []
     for s_j, v, zero in zip(cov.singular_values, cov.directions, cov.undetermined, strict=True):
         dir_width = math.inf
-        if not zero and quantile / s_j < 700.0:
-            dir_width = 2.0 * math.sinh(quantile / s_j)
+        if not zero and max(quantile) / s_j < 700.0:
+            dir_width = 2.0 * math.sinh(max(quantile) / s_j)
         if dir_width <= REL_CI_WIDTH_LIMIT:
             continue
         v = v * (1.0 if v[np.argmax(np.abs(v))] > 0 else -1.0)
@@ -359,7 +359,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
                          noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
-    intervals = fit_noise(level.noise, best_fit, n_res)
+    intervals = interval_quantiles(level.noise, best_fit, n_res, campaign)
     unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
     bias = kinematics_bias(best_fit, cov.matrix) if formulation == "enhanced" else None
     notes += _bias_note(bias, rob.compliant_joints)
@@ -410,6 +410,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         held=_held(best_fit),
         at_bound=tuple(bool(r) for r in rigid),
         kinematics_bias_se=bias,
+        ci95_dof=tuple(intervals.reported_dof),
         physical_scale=tuple(p.scale_note for p in judged),
         fits_to_noise=level.fits_to_noise,
     )
@@ -494,12 +495,12 @@ def _bias_note(bias: np.ndarray | None, joints: list[str] | tuple[str, ...]) -> 
             "cover less than 95 %; --formulation exact fits it"]
 
 
-def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: float,
+def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: np.ndarray,
            unc: _Uncertainty) -> np.ndarray:
     """Which fitted stiffnesses are rigid to the data, as diagnose judges them
     (:func:`~stiffness.calibration.fitting.rigid_joints`); their intervals in ``unc`` made
     one-sided, the compliance's
-    ``[0, quantile se_c]`` (``quantile`` the one-sided 95 % one,
+    ``[0, quantile se_c]`` (``quantile`` the one-sided 95 % one per joint,
     :meth:`~stiffness.calibration.selection.Noise.one_sided`, as diagnose's) carried to
     ``k`` (above ``1 / (quantile se_c)``, ``se_c`` from the
     covariance in compliance units, where the data still see the joint), with no standard
@@ -510,7 +511,8 @@ def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: float,
         var_log = np.diag(compliance_covariance(fit, sigma, measured))[:n0]
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             se_c = np.sqrt(var_log) * np.exp(-fit.x[:n0])  # SI: se(ln k) c
-            unc.low[rigid] = np.where(np.isfinite(se_c), 1.0 / (quantile * se_c), 0.0)[rigid]
+            unc.low[rigid] = np.where(np.isfinite(se_c), 1.0 / (quantile[:n0] * se_c),
+                                      0.0)[rigid]
         unc.high[rigid] = np.inf
         unc.se_log[rigid] = np.inf
         unc.width[rigid] = np.inf

@@ -649,7 +649,9 @@ class Noise:
 
     def quantile(self, level: float) -> float:
         """The ``level`` quantile of an interval's standardised error: the standard normal's
-        for a declared noise, Student's t with :attr:`dof` for an estimated one."""
+        for a declared noise, Student's t with :attr:`dof` for an estimated one (a deflection
+        fit with measured rotations takes each parameter's own,
+        :func:`~stiffness.calibration.deflection_noise.interval_quantiles`)."""
         if self.dof is None:
             return float(ndtri(level))
         return float(stdtrit(self.dof, level))
