@@ -104,11 +104,12 @@ def run(args: argparse.Namespace) -> int:
     s = doc["summary"]
     print(f"{em.robot.title}: {s['points']} points, {args.steps} angles, max joint step "
           f"{s['max_joint_step_deg']:.3g} deg (bound {args.max_step:g})")
+    factor = s.get("max_reduction_factor")
     print(f"max deflection: {s['max_deflection_m']:.4g} m chosen, "
-          f"{_g(s['max_deflection_fixed_m'])} m fixed angle "
-          f"(factor {_g(s.get('max_reduction_factor'))})")
+          f"{_fixed(s['max_deflection_fixed_m'])}"
+          + (f" (factor {factor:.4g})" if factor is not None else ""))
     print(f"RMS deflection: {s['rms_deflection_m']:.4g} m chosen, "
-          f"{_g(s['rms_deflection_fixed_m'])} m fixed angle")
+          f"{_fixed(s['rms_deflection_fixed_m'])}")
     print(f"IK residual: {s['max_ik_residual_m']:.2g} m, {s['max_ik_residual_rad']:.2g} rad")
     print(f"branches: {s['branches_found']} found at the first point, used "
           f"{', '.join(s['branches_used'])}")
@@ -120,5 +121,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _g(value) -> str:
-    return "n/a" if value is None else f"{value:.4g}"
+def _fixed(value: float | None) -> str:
+    """A fixed-angle deflection (m) as printed: out of reach at every point when ``None``
+    (a note says so)."""
+    return "fixed angle out of reach (note below)" if value is None else \
+        f"{value:.4g} m fixed angle"

@@ -353,6 +353,12 @@ def posture(
     if len({p.branch for p in points}) > 1:
         notes.append("the path changes branch where the step bound allows it (--branch keep "
                      "holds one)")
+    missed = sum(not np.all(np.isfinite(p.deflection_fixed)) for p in points)
+    if missed:
+        notes.append(f"the fixed angle ({reference_angle_deg:g} deg) is out of reach at {missed} "
+                     f"of {len(points)} points on the branch used: "
+                     + ("its deflections are over the others, " if missed < len(points) else "")
+                     + "no factor; --reference-angle DEG compares with another angle")
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
                          float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
                          {branch_label(b): o.coords for b, o in enumerate(origins)}, deg)
