@@ -41,6 +41,7 @@ from stiffness.mechanics.formulation import (
     twist_basis_stiffness,
 )
 from stiffness.mechanics.wrench import TWIST_ORDERS, reorder_twist
+from stiffness.robot.kinematics import reach
 from stiffness.robot.robot import Robot
 from stiffness.units import float_array
 
@@ -77,6 +78,10 @@ CONNECTIONS = ("joint", "twist")
 #: A critical load factor this many times the inverse of K_C's size relative to K_theta comes
 #: from round-off (a K_C with no positive eigenvalue): no critical load.
 ROUND_OFF_FACTOR = 1e10
+#: A whitened ``K_C`` this many times below the wrench's own scale (force x reach + moment,
+#: over ``K_theta``) is round-off: a SCARA under a vertical load (its ``K_C`` entries 1e-31
+#: N.m/rad) had a critical load factor of 1.4e34 instead of none.
+ROUND_OFF_SIZE = 1e-12
 
 
 @dataclass
@@ -356,7 +361,18 @@ class ElasticState:
             scaled = np.linalg.solve(chol, np.linalg.solve(chol, self.k_c).T)
             factor = float(critical_load_factor(np.eye(len(base)), scaled))
         size = float(np.linalg.norm(scaled, 2))
+        if size <= ROUND_OFF_SIZE * self._load_scale(base):  # K_C nil: round-off alone
+            return math.inf
         return factor if math.isfinite(factor) and factor * size < ROUND_OFF_FACTOR else math.inf
+
+    def _load_scale(self, base: np.ndarray) -> float:
+        """The size a physical ``K_C`` of this wrench has, whitened by ``base`` (1): its force
+        times the robot's reach plus its moment (N.m, :func:`~stiffness.robot.kinematics.
+        reach`) over ``base``'s smallest eigenvalue."""
+        low = float(np.linalg.eigvalsh(0.5 * (base + base.T))[0])
+        load = (float(np.linalg.norm(self.wrench[:3])) * reach(self.model.robot.model)
+                + float(np.linalg.norm(self.wrench[3:])))
+        return load / low if low > 0 else math.inf
 
     @property
     def stable(self) -> bool:
