@@ -1,7 +1,8 @@
 """The noise of a deflection fit, for ``identify`` and ``diagnose`` alike: each kind's known
 noise std (:func:`known_noise`, :func:`translation_noise`), the weight of measured rotations
 beside the translations (:func:`weighting`) and the noise of a fit's intervals
-(:func:`fit_noise`) with each parameter's quantile (:func:`interval_quantiles`); and how
+(:func:`fit_noise`; a robust fit's unknown noise, :func:`robust_fit_noise`) with each
+parameter's quantile (:func:`interval_quantiles`); and how
 ``identify`` applies them: its observations at the weight
 (:func:`weighted_observations`), its robust loss's scale (:func:`robust_loss_options`), the
 rotation noise of its best fit (:func:`residual_rotation_noise`) and the noise of its
@@ -42,7 +43,7 @@ from stiffness.calibration.fitting import (
     kind_noise,
     observations,
 )
-from stiffness.calibration.outliers import robust_noise_scale
+from stiffness.calibration.outliers import robust_noise, robust_noise_scale
 from stiffness.calibration.selection import (
     GOF_LEVEL,
     OVERSTATED_P,
@@ -97,17 +98,40 @@ def translation_noise(campaign: Campaign, loss: str = "linear"
             f"pooled scatter of replicate rows ({dof} degrees of freedom)")
 
 
-def fit_noise(known: Noise | None, fit: Fit, n: int) -> Noise:
+def fit_noise(known: Noise | None, fit: Fit, n: int, measured: np.ndarray) -> Noise:
     """The noise of ``fit``'s covariance and intervals over ``n`` residuals
-    (:class:`~stiffness.calibration.selection.Noise`): ``known`` (the campaign's, declared or
-    the replicates' with their degrees of freedom; identify's, a robust estimate too), else
-    estimated from ``fit``'s residuals over its ``n - p`` degrees of freedom; under a robust
-    loss the sandwich's, over the directions the reported covariance spreads over
-    (:meth:`~stiffness.calibration.selection.Noise.of_fit`, :func:`compliance_spread`)."""
+    (:class:`~stiffness.calibration.selection.Noise`), ``fit`` to the observations
+    ``measured`` (m): ``known`` (the campaign's, declared or the replicates' with their degrees
+    of freedom), else estimated from ``fit``'s residuals over its ``n - p`` degrees of freedom:
+    under a robust loss their robust scale (:func:`robust_fit_noise`), under least squares
+    ``sqrt(SS / (n - p))``; under a robust loss the sandwich's, over the directions the
+    reported covariance spreads over (:meth:`~stiffness.calibration.selection.Noise.of_fit`,
+    :func:`compliance_spread`). identify's and diagnose's."""
     p = fit.penalty_params
-    noise = (known if known is not None
-             else Noise.estimated(math.sqrt(fit.loss_rss / max(n - p, 1)), n, p))
+    noise = known
+    if noise is None:
+        robust = robust_fit_noise(fit, measured)
+        noise = Noise.estimated(robust if robust is not None
+                                else math.sqrt(fit.loss_rss / max(n - p, 1)), n, p)
     return noise.of_fit(fit.loss, n, compliance_spread(replace(fit, loss="linear")))
+
+
+def robust_fit_noise(fit: Fit, measured: np.ndarray) -> float | None:
+    """The noise std (m) of a robust ``fit`` when no noise is known, identify's and diagnose's
+    (issue 35: one estimate of one std): the robust scale of its residuals on ``measured``
+    (m, rotations weighted), :func:`~stiffness.calibration.outliers.robust_noise` over its
+    :attr:`~stiffness.calibration.fitting.Fit.penalty_params` at its loss's scale, the rule of
+    the rounds that scaled the loss (:func:`~stiffness.calibration.outliers.robust_rounds`)
+    applied to the fit itself. Not the loss's value at that scale (``loss_rss``), which a few
+    gross rows inflate: on 300 UR5 campaigns of 12 rows, 2 of them moved by 20-50 noise
+    stds, the robust scale is 1.30 times the true std (spread 0.28) and the loss's value 3.39
+    (0.51); without gross rows 1.02 (0.21) and 1.00 (0.13) (docs/architecture.md). ``None``
+    for least squares, or without degrees of freedom or nonzero residuals.
+    """
+    if fit.loss == "linear":
+        return None
+    return robust_noise(fit.predicted - measured, fit.penalty_params, fit.loss,
+                        fit.f_scale * fit.scale)
 
 
 def effective_dof(contributions: np.ndarray, dofs: np.ndarray) -> np.ndarray:
@@ -171,11 +195,11 @@ def kind_dof(campaign: Campaign, kind: str, n: int, p: int) -> float:
     return math.inf if known[1] is None else float(known[1])
 
 
-def interval_quantiles(known: Noise | None, fit: Fit, n: int, campaign: Campaign | None
-                       ) -> Quantiles:
+def interval_quantiles(known: Noise | None, fit: Fit, n: int, campaign: Campaign | None,
+                       measured: np.ndarray) -> Quantiles:
     """The noise of ``fit``'s 95 % intervals over ``n`` residual components
-    (:func:`fit_noise` of ``known``) and each parameter's quantile: the one rule of
-    ``identify`` and ``diagnose``.
+    (:func:`fit_noise` of ``known``, ``fit`` to ``measured``, m) and each parameter's
+    quantile: the one rule of ``identify`` and ``diagnose``.
 
     Without measured rotations (or ``campaign`` ``None``), or under a robust loss (the
     sandwich takes its spread from the residuals over ``noise.dof``), every parameter takes
@@ -191,7 +215,7 @@ def interval_quantiles(known: Noise | None, fit: Fit, n: int, campaign: Campaign
     degrees of freedom, t with ``nu_r`` over-covered (2 poses x 2 loads, nu_r = 9: a
     rotation-determined stiffness 0.922 and 0.963, t with ``nu_eff`` 0.951; docs/diagnose.md,
     "Rotations")."""
-    noise = fit_noise(known, fit, n)
+    noise = fit_noise(known, fit, n, measured)
     out = np.full(fit.x.size, math.inf if noise.dof is None else float(noise.dof))
     if campaign is None or campaign.rotation is None or fit.loss != "linear":
         return Quantiles(noise, out)
@@ -333,18 +357,17 @@ def _fitted_weighting(campaign: Campaign, model: Hypothesis, scale: float, optio
 
 
 def robust_loss_options(model: Hypothesis, measured: np.ndarray, scale: float, options: dict,
-                        known: Noise | None, loss: str, start_si: float
-                        ) -> tuple[dict, float | None]:
+                        known: Noise | None, loss: str, start_si: float) -> dict:
     """``identify``'s solver ``options`` with a robust ``loss`` and its ``f_scale`` (in units
-    of the residual ``scale``), and the noise std (m) the loss is scaled by
+    of the residual ``scale``): the known noise std, else the robust one
     (:func:`~stiffness.calibration.outliers.robust_noise_scale`, from every stiffness at
-    ``start_si``); for least squares, ``options`` unchanged and ``None``."""
+    ``start_si``); for least squares, ``options`` unchanged."""
     if loss == "linear":
-        return options, None
+        return options
     robust_sigma = robust_noise_scale(model, measured, float(scale),
                                       None if known is None else known.sigma, loss,
                                       options, start_si)
-    return {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}, robust_sigma
+    return {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}
 
 
 def residual_rotation_noise(campaign: Campaign, fit: Fit, measured: np.ndarray,
@@ -393,33 +416,32 @@ class NoiseLevel:
     fits_to_noise: dict | None = None
 
 
-def noise_level(campaign: Campaign, noise: tuple[Noise | None, float | None], ss_m2: float,
+def noise_level(campaign: Campaign, known: Noise | None, fit: Fit, measured: np.ndarray,
                 n: int, p: int, terms: NoiseTerms) -> NoiseLevel:
-    """The noise of ``identify``'s intervals (:class:`NoiseLevel`), ``noise`` the campaign's
-    known translation noise and a robust loss's scale (m; ``None`` for least squares): the
-    known one (declared, else the replicates', robust under a robust loss:
-    :func:`translation_noise`, diagnose's), else the robust loss's scale (1.4826 median
-    |residual|, :func:`~stiffness.calibration.outliers.robust_noise_scale`; diagnose's, from
-    the loss's value at that scale, :func:`fit_noise`: two estimates of one std, both unbiased
-    for Gaussian residuals), else the residuals'. A known one is tested as ``diagnose`` tests
-    it, on the fit's ``terms`` (:func:`~stiffness.calibration.selection.noise_terms`: a robust
-    loss's flagged rows left out) through
-    :func:`~stiffness.calibration.selection.pooled_replicates` (the rotation replicates'
-    degrees of freedom with it, or the rotations' noise being the residuals')."""
-    known, robust_sigma = noise
+    """The noise of ``identify``'s intervals (:class:`NoiseLevel`) from its best ``fit`` to
+    ``measured`` (m) over ``n`` residuals and ``p`` fitted stiffnesses, ``known`` the
+    campaign's known translation noise (declared, else the replicates', robust under a robust
+    loss: :func:`translation_noise`, diagnose's); else estimated from the fit's residuals as
+    diagnose estimates it (:func:`fit_noise`): under a robust loss their robust scale
+    (:func:`robust_fit_noise`), under least squares ``SS / (N - p)``. A known one is tested
+    as ``diagnose`` tests it, on the fit's ``terms``
+    (:func:`~stiffness.calibration.selection.noise_terms`: a robust loss's flagged rows left
+    out) through :func:`~stiffness.calibration.selection.pooled_replicates` (the rotation
+    replicates' degrees of freedom with it, or the rotations' noise being the residuals')."""
+    robust = fit.loss != "linear"
     dof = n - p
-    sigma_res = math.sqrt(ss_m2 / dof) if dof > 0 else None
+    sigma_res = math.sqrt(fit.rss / dof) if dof > 0 else None
     if known is not None:
-        tested = pooled_replicates(known, campaign, robust_sigma is not None)
+        tested = pooled_replicates(known, campaign, robust)
         assert tested is not None  # a known noise
         if known.declared:
             return NoiseLevel(known, "declared noise_std", sigma_res,
                               *_tested(tested, terms, "declared noise_std"))
-        scatter = "robust" if robust_sigma is not None else "pooled"
+        scatter = "robust" if robust else "pooled"
         return NoiseLevel(known, f"replicates ({scatter} scatter, {known.dof} degrees of "
                           "freedom)", sigma_res, *_tested(tested, terms, "replicate rows' "
                                                           "scatter"))
-    if robust_sigma is not None:
+    if (robust_sigma := robust_fit_noise(fit, measured)) is not None:
         return NoiseLevel(Noise.estimated(robust_sigma, n, p),
                           "robust estimate (1.4826 median |residual|)", sigma_res, [])
     # dof > 0 without a declared noise: identify's _check_residual_count

@@ -330,12 +330,12 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
-    noise_final = interval_quantiles(known, final, n, campaign)
+    noise_final = interval_quantiles(known, final, n, campaign, measured)
     note = _final_note(final, n, known, note)
     sigma_used = noise_final.noise.sigma
     quantile, edge = noise_final.two_sided(), noise_final.one_sided()
     cov_final = fitting.compliance_covariance(final, sigma_used, measured)
-    noise_base = interval_quantiles(known, base, n, campaign)
+    noise_base = interval_quantiles(known, base, n, campaign, measured)
     cov_base = fitting.compliance_covariance(base, noise_base.noise.sigma, measured)
     outliers, outlier_sigma = flag_fit(final, measured, sigma, final.penalty_params,
                                        tuple(campaign.config or ()), campaign.lines)
@@ -410,7 +410,7 @@ def _fit_settings(fit: Fit, measured: np.ndarray, scale: float, n: int, known: N
     extra = freed.start()[effect.n_params:]
     trial = fit_model(fit.model.replaced(effects=fit.model.effects[:-1] + (freed,)), measured,
                       scale, np.concatenate([fit.x, extra]), loss=fit.loss, f_scale=fit.f_scale)
-    noise = fit_noise(known, trial, n)
+    noise = fit_noise(known, trial, n, measured)
     cov = fitting.compliance_covariance(trial, noise.sigma, measured)
     c = b + len(extra)
     freed_params = effect_report(freed, trial.x[a:c], cov[a:c, a:c], trial.model.refs,
@@ -438,10 +438,13 @@ def _undetermined(params: list[Parameter]) -> str | None:
 
 def _final_note(final: Fit, n: int, known: Noise | None, note: str) -> str:
     """The note on the noise of the final model's intervals (:func:`fit_noise`): ``note``
-    with a ``known`` noise, else that it is that model's residual scatter (said so)."""
+    with a ``known`` noise, else that it is that model's residual scatter (said so; under a
+    robust loss their robust scale)."""
     if known is not None:
         return note
-    return (f"estimated from the residuals of the final model ({final.model.describe()}, "
+    robust = "" if final.loss == "linear" else " (robust scale, 1.4826 median |residual|)"
+    return (f"estimated from the residuals of the final model{robust} "
+            f"({final.model.describe()}, "
             f"{n - final.penalty_params} degrees of freedom): it includes any model error "
             "left, so the fit-to-noise test is not available and 'nothing missing' means only "
             "that no candidate helped")
@@ -687,7 +690,7 @@ class DeflectionSearch:
         """The covariance of ``fit.x`` (:func:`fitting.compliance_covariance`) and the noise it
         is for with its intervals' quantiles (:func:`interval_quantiles`: the known one, else
         estimated from ``fit``'s residuals)."""
-        noise = interval_quantiles(self.noise, fit, self.n, self.campaign)
+        noise = interval_quantiles(self.noise, fit, self.n, self.campaign, self.measured)
         return fitting.compliance_covariance(fit, noise.noise.sigma, self.measured), noise
 
     def reported(self, fit: Fit, units: Units) -> dict[str, list[Parameter]]:

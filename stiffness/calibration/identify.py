@@ -317,13 +317,13 @@ def identify(
     known = translation_noise(campaign, loss)[0]  # diagnose's: declared, else the replicates'
     model, observed = weighted_observations(campaign, model, scale, options, known, loss,
                                             PAPER_START_SI)
-    options, robust_sigma = robust_loss_options(model, observed[0], scale, options, known, loss,
-                                                PAPER_START_SI)
+    options = robust_loss_options(model, observed[0], scale, options, known, loss,
+                                  PAPER_START_SI)
     floor = _k_c_floor(model, formulation)
     runs, fits = _least_squares_runs(model, observed[0], scale, formulation, method, starts,
                                      seed, floor, options, progress)
     return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
-                           observed, (known, robust_sigma))
+                           observed, known)
 
 
 def _residual_scale(campaign: Campaign) -> float:
@@ -338,14 +338,13 @@ def _residual_scale(campaign: Campaign) -> float:
 
 def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
                     method: str, runs: list[StartResult], fits: list[Fit], floor: float,
-                    observed: tuple, noise: tuple[Noise | None, float | None] = (None, None)
-                    ) -> Identification:
+                    observed: tuple, known: Noise | None = None) -> Identification:
     """The :class:`Identification` of the best run: its uncertainty, what is undetermined,
     whether the runs agree, the rows flagged as outliers. ``observed`` is ``(observations,
     weight (m/rad), rotation noise std (rad) or None, its source)``, the last three ``None``
-    without measured rotations; ``noise`` the campaign's known translation noise
-    (:func:`~stiffness.calibration.deflection_noise.translation_noise`, ``None`` when not known)
-    and the noise std (m) a robust loss was scaled by (``None`` for least squares)."""
+    without measured rotations; ``known`` the campaign's known translation noise
+    (:func:`~stiffness.calibration.deflection_noise.translation_noise`, ``None`` when not
+    known)."""
     measured, weight, rot_sigma, rot_source = observed
     p = rob.n_compliant
     n_res = (3 if campaign.rotation is None else 6) * campaign.n_rows
@@ -355,11 +354,11 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     fitted = len(best_fit.kept)  # a held stiffness takes no degree of freedom (as diagnose)
     rot_res, rot_sigma = residual_rotation_noise(campaign, best_fit, measured, rot_sigma,
                                                  rot_source, n_res, fitted)
-    level = noise_level(campaign, noise, best_fit.rss, n_res, fitted,
-                         noise_terms(best_fit, measured))
+    level = noise_level(campaign, known, best_fit, measured, n_res, fitted,
+                        noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
     cov = covariance(best_fit, sigma, measured)
-    intervals = interval_quantiles(level.noise, best_fit, n_res, campaign)
+    intervals = interval_quantiles(level.noise, best_fit, n_res, campaign, measured)
     unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
     bias = kinematics_bias(best_fit, cov.matrix) if formulation == "enhanced" else None
     notes += _bias_note(bias, rob.compliant_joints)

@@ -109,14 +109,24 @@ def residual_shrinkage(loss: str, standardised: np.ndarray, threshold: float) ->
     return 2.0 * float(psi(np.array([m0]))[0][0]) / (m0 * a) - b / a ** 2
 
 
+#: The robust fit's first-order shrinkage factor ``1 - (kappa - 1) p / (2 N)``
+#: (:func:`robust_noise`) is kept within ``[SHRINKAGE_BOUND, 1 / SHRINKAGE_BOUND]``: beyond,
+#: the first order is no answer. Gross rows far beyond a loss scaled far above the noise make
+#: ``kappa`` hugely negative (their ``psi^2``, the threshold squared, in ``B``): a UR5
+#: campaign of 36 components, two rows moved by 1000 noise stds, under soft_l1 scaled by 23
+#: noise stds, read 0.04 noise std unbounded, 0.96 bounded.
+SHRINKAGE_BOUND = 0.5
+
+
 def robust_noise(residuals: np.ndarray, n_parameters: int, loss: str = "linear",
                  f_scale_m: float | None = None) -> float | None:
     """Noise std from residuals (m) that may hold gross outliers: ``1.4826 median |e|`` times
     ``sqrt(N / (N - p))`` for the ``p`` parameters of the fit that left them (least squares'
     shrinkage of its residuals), and for a fit under a robust ``loss`` with soft threshold
     ``f_scale_m`` (m) by ``1 / (1 - (kappa - 1) p / (2 N))`` too, the median's further
-    shrinkage (:func:`residual_shrinkage` of the residuals over the estimate); ``None``
-    without degrees of freedom or when every residual is zero."""
+    shrinkage (:func:`residual_shrinkage` of the residuals over the estimate; that factor
+    within :data:`SHRINKAGE_BOUND` and its inverse); ``None`` without degrees of freedom or
+    when every residual is zero."""
     e = np.abs(np.asarray(residuals, dtype=float).reshape(-1))
     n = e.size
     if n <= n_parameters:
@@ -126,7 +136,8 @@ def robust_noise(residuals: np.ndarray, n_parameters: int, loss: str = "linear",
     if loss != "linear" and f_scale_m is not None and value > 0:
         for _ in range(3):  # kappa at the estimate itself: a fixed point
             kappa = residual_shrinkage(loss, e / value, f_scale_m / value)
-            value = least_squares / max(1.0 - (kappa - 1.0) * n_parameters / (2.0 * n), 0.5)
+            factor = 1.0 - (kappa - 1.0) * n_parameters / (2.0 * n)
+            value = least_squares / min(max(factor, SHRINKAGE_BOUND), 1.0 / SHRINKAGE_BOUND)
     return value if value > 0 else None
 
 
