@@ -4,7 +4,7 @@ A SCARA (vertical revolute axes, a vertical prismatic joint) under a vertical lo
 work -F.x depends on the prismatic coordinate alone, linearly, so its Hessian K_C is exactly
 zero and no load along it buckles the arm. Pinocchio's K_C came out with entries of 1e-31
 N.m/rad, and `kx` printed "stable under this load: K_theta - K_C is positive definite up to
-1.367e+34 times it" instead of "at any magnitude".
+1.367e+34 times it" instead of "at any magnitude", and K_C's class as ID.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ def test_a_vertical_load_on_a_scara_never_buckles_it(tmp_path, capsys):
     out = _kx(tmp_path, capsys, "0,0,-80")
     assert np.abs(np.array(out["K_C"])).max() < 1e-20  # zero but for round-off
     assert out["critical_load_factor"] is None and out["stable"]
+    assert out["definiteness"]["K_C"] == "PSD"  # a zero matrix's class (was ID, from the 1e-31)
 
 
 def test_a_horizontal_load_keeps_its_finite_factor(tmp_path, capsys):

@@ -337,7 +337,7 @@ class ElasticState:
         (:func:`stiffness.mechanics.formulation.definiteness`)."""
         k_theta = np.diag(self.k_theta)
         k_c = self.commanded.k_c
-        return {"K_C": definiteness(k_c),
+        return {"K_C": definiteness(k_c, atol=ROUND_OFF_SIZE * self._load_moment()),
                 "K_theta_minus_K_C": tangent_definiteness(k_theta, k_theta - k_c)}
 
     @property
@@ -366,13 +366,16 @@ class ElasticState:
         return factor if math.isfinite(factor) and factor * size < ROUND_OFF_FACTOR else math.inf
 
     def _load_scale(self, base: np.ndarray) -> float:
-        """The size a physical ``K_C`` of this wrench has, whitened by ``base`` (1): its force
-        times the robot's reach plus its moment (N.m, :func:`~stiffness.robot.kinematics.
-        reach`) over ``base``'s smallest eigenvalue."""
+        """The size a physical ``K_C`` of this wrench has, whitened by ``base`` (1):
+        :meth:`_load_moment` over ``base``'s smallest eigenvalue."""
         low = float(np.linalg.eigvalsh(0.5 * (base + base.T))[0])
-        load = (float(np.linalg.norm(self.wrench[:3])) * reach(self.model.robot.model)
+        return self._load_moment() / low if low > 0 else math.inf
+
+    def _load_moment(self) -> float:
+        """The wrench's force times the robot's reach plus its moment (N.m): the size of a
+        physical ``K_C`` (:func:`~stiffness.robot.kinematics.reach`)."""
+        return (float(np.linalg.norm(self.wrench[:3])) * reach(self.model.robot.model)
                 + float(np.linalg.norm(self.wrench[3:])))
-        return load / low if low > 0 else math.inf
 
     @property
     def stable(self) -> bool:
