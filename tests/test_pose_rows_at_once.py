@@ -90,6 +90,27 @@ def _free_flyer_chain() -> pin.Model:
     return model
 
 
+def test_point_jacobians_on_a_free_flyer_base():
+    """A frame point's Jacobian on a free-flyer base (Pinocchio places it) is
+    ``getFrameJacobian``'s moved to the point, all six base columns included (the support mask
+    once kept only a multi-coordinate joint's first column: five of them were zero)."""
+    model = _free_flyer_chain()
+    fid = model.addFrame(pin.Frame("tip", model.njoints - 1, 0, pin.SE3(np.eye(3), np.ones(3)),
+                                   pin.FrameType.OP_FRAME))
+    data = model.createData()
+    q = np.array([pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))
+                  for _ in range(2)])
+    kin = joint_placements(model, data, q)
+    _, trans = frame_placements(model, kin, [fid])
+    jac = point_jacobians(model, kin, [fid], trans)
+    for i in range(q.shape[0]):
+        pin.computeJointJacobians(model, data, q[i])
+        pin.updateFramePlacements(model, data)
+        j6 = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+        assert np.abs(j6[:3, :6]).max(axis=0).min() > 0.1  # each base column moves it
+        assert np.allclose(jac[i, 0], j6[:3], rtol=0.0, atol=1e-12)
+
+
 @pytest.mark.parametrize("source", ["mixed", "free-flyer", "panda", "sk120"])
 def test_gravity_regressors_match_pinocchio_and_finite_differences(source):
     """The one regressor of the lumped weight (both faces of ``gravity_lumped``): with random

@@ -358,8 +358,9 @@ def point_supports(robot: Robot) -> np.ndarray:
 
 
 def support_mask(model: pin.Model, joint: int) -> np.ndarray:
-    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body."""
+    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body (every
+    coordinate of a joint with several, a free-flyer base's six)."""
     mask = np.zeros(model.nv, dtype=bool)
     for j in list(model.supports[joint])[1:]:
-        mask[model.joints[j].idx_v] = True
+        mask[model.joints[j].idx_v: model.joints[j].idx_v + model.joints[j].nv] = True
     return mask
