@@ -10,12 +10,12 @@ import pytest
 from pose_columns import assert_columns
 
 from stiffness.batch.poses import (
-    _pinocchio_placements,
     frame_placements,
     gravity_regressors,
     integrate,
     joint_placements,
     mass_jacobians,
+    pinocchio_placements,
     point_jacobians,
 )
 from stiffness.calibration.pose_model import Loads, Marker, PoseModel
@@ -55,7 +55,7 @@ def test_array_kinematics_match_pinocchio():
     rng = np.random.default_rng(5)
     q = rng.uniform(-2, 2, (6, model.nq))
     kin = joint_placements(model, data, q)
-    reference = _pinocchio_placements(model, data, q, True)
+    reference = pinocchio_placements(model, data, q, True)
     for a, b in ((kin.rotation, reference.rotation), (kin.translation, reference.translation),
                  (kin.jacobian, reference.jacobian)):
         assert np.allclose(a, b, rtol=0.0, atol=1e-12)

@@ -84,9 +84,9 @@ from stiffness.batch.loops import (
     loop_coordinate_indices,
     loop_points,
     point_supports,
-    support_mask,
     tree_configurations,
 )
+from stiffness.batch.poses import support_mask
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics import closed_loop
 from stiffness.mechanics.formulation import FORMULATIONS, compliant_projection

@@ -5,6 +5,9 @@ closes each distinct value of the *loop coordinates* (:func:`loop_coordinate_ind
 coordinates of the joints on the path between the loop frames; the others, e.g. the SK120's
 theta1 and wrist, move the loop rigidly or not at all) once, by continuation for one anchor per
 small cell of those coordinates and by a batched Newton iteration from the anchor for the rest.
+That iteration, :func:`newton_closure`, is the one batched closure: the pose model closes its
+rows with it from their own starts (:func:`close_rows`) and takes their tangent maps
+``T = dq/du`` (:func:`tangent_maps`) from the residual's Jacobian it leaves.
 :func:`tree_configurations` is the vectorised :meth:`~stiffness.robot.robot.Robot.configuration`
 without closure (open chains, or the starting point of a closure).
 
@@ -18,7 +21,13 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.poses import (
+    moving_point_jacobians,
+    pinocchio_placements,
+    support_mask,
+)
 from stiffness.errors import StiffnessError
+from stiffness.robot.loops import CLOSURE_TOLERANCE_M, MAX_STEP
 from stiffness.robot.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -242,58 +251,14 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
     """Close the loop at each key by Newton from its anchor's closure, all keys at once.
 
     Predictor: the anchor's passive values plus their first-order rates times the key step.
-    Corrector: Gauss-Newton on the world-axes residual of :func:`loop_points` (its zero set is
-    the closed loop), least squares by pseudo-inverse. Returns the configurations and the mask
-    of keys that converged within :data:`_NEWTON_JUMP` of the prediction.
+    Corrector: :func:`newton_closure`. Returns the configurations and the mask of keys that
+    converged within :data:`_NEWTON_JUMP` of the prediction, in their anchor's assembly mode.
     """
-    from stiffness.robot.loops import CLOSURE_TOLERANCE_M
-
     model, data = robot.model, robot.data
-    loop = robot.loop
-    points = loop_points(robot)
+    layout = ClosureLayout.of(robot)
     coordinate_v = robot.coordinate_v[keys_at]
-    pv = loop.passive_v
-    simple = all(robot.model.joints[robot.model.getJointId(j)].nq ==
-                 robot.model.joints[robot.model.getJointId(j)].nv for j in loop.passive_joints)
-    passive_q = _passive_q_indices(robot)
-
-    def residual_and_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m = q.shape[0]
-        pos = np.empty((len(points), m, 3))
-        jac = np.empty((len(points), m, 6, model.nv))
-        joint_jacobians = pin.computeJointJacobians
-        frame_jacobian = pin.getFrameJacobian
-        for i in range(m):
-            joint_jacobians(model, data, q[i])
-            for f, point in enumerate(points):
-                jac[f, i] = frame_jacobian(model, data, *point, LWA)
-                if len(point) == 1:
-                    pos[f, i] = pin.updateFramePlacement(model, data, point[0]).translation
-                else:
-                    pos[f, i] = (data.oMi[point[0]] * point[1]).translation
-        pairs = range(0, len(points), 2)
-        res = np.concatenate([pos[p + 1] - pos[p] for p in pairs], axis=1)
-        c_w = np.concatenate([jac[p + 1, :, :3] - jac[p, :, :3] for p in pairs], axis=1)
-        return res, c_w
-
-    def lstsq(a: np.ndarray, b: np.ndarray, rcond: float) -> np.ndarray:
-        u, s, vt = np.linalg.svd(a, full_matrices=False)
-        cutoff = rcond * s[:, :1]
-        s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
-        return ((np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
-                @ b[..., None])[..., 0]
-
-    def step(q: np.ndarray, dv: np.ndarray) -> np.ndarray:
-        if simple:
-            out = q.copy()
-            out[:, passive_q] += dv
-            return out
-        full = np.zeros((q.shape[0], model.nv))
-        full[:, pv] = dv
-        return np.array([pin.integrate(model, qi, di) for qi, di in zip(q, full, strict=True)])
-
-    # predictor from the anchors' rates
-    _, c_anchor = residual_and_jacobian(anchor_q)
+    pv = layout.passive_v
+    _, c_anchor = closure_residuals(layout, model, data, anchor_q)
     u, s, vt = np.linalg.svd(c_anchor[:, :, pv], full_matrices=False)
     cutoff = 1e-9 * s[:, :1]
     s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
@@ -302,31 +267,186 @@ def _newton_from_anchors(robot: Robot, keys: np.ndarray, anchor_keys: np.ndarray
     coords = np.zeros((keys.shape[0], robot.n_coordinates))
     coords[:, keys_at] = keys
     q = tree_configurations(robot, coords)
-    q[:, passive_q] = anchor_q[:, passive_q]
-    q = step(q, (rates @ (keys - anchor_keys)[..., None])[..., 0])
-    predicted = q[:, passive_q].copy()
-    done = np.zeros(keys.shape[0], dtype=bool)
-    c_closed = np.zeros_like(c_anchor[:, :, pv])  # passive columns where each key closed
-    active = np.arange(keys.shape[0])
-    for _ in range(_NEWTON_ITERATIONS):
-        res, c_w = residual_and_jacobian(q[active])
+    q[:, layout.passive_q] = anchor_q[:, layout.passive_q]
+    q = layout.step(model, q, (rates @ (keys - anchor_keys)[..., None])[..., 0])
+    predicted = q[:, layout.passive_q].copy()
+    q, done, c_closed = newton_closure(layout, model, data, q, _NEWTON_ITERATIONS)
+    jump = (np.abs(q[:, layout.passive_q] - predicted).max(axis=1) if layout.passive_q.size
+            else 0.0)
+    same = _same_mode(c_anchor[:, :, pv], s, vt, c_closed[:, :, pv])
+    return q, done & (jump <= _NEWTON_JUMP) & same
+
+
+@dataclass(frozen=True)
+class ClosureLayout:
+    """What closing a robot's loops reads of it, once (:meth:`of`; plain arrays, pickled with
+    a pose model).
+
+    Attributes
+    ----------
+    joints, offsets
+        (P,) parent joint and (P, 3) position in its frame (m) of each point of
+        :func:`loop_points`: consecutive points (a, b) make the world-axes residual rows
+        ``p_b - p_a``.
+    masks
+        (P, nv) the velocity coordinates that move each point.
+    passive_v, passive_q
+        Velocity and configuration indices of the loops' passive joints.
+    independent_v
+        Every other velocity index (the independent coordinates ``u``).
+    simple
+        Whether every passive joint's configuration is its velocity coordinates (a step is
+        ``q + dv``; else ``pin.integrate``).
+    """
+
+    joints: np.ndarray
+    offsets: np.ndarray
+    masks: np.ndarray
+    passive_v: np.ndarray
+    passive_q: np.ndarray
+    independent_v: np.ndarray
+    simple: bool
+
+    @classmethod
+    def of(cls, robot: Robot) -> ClosureLayout:
+        """The layout of ``robot`` (with closed loops)."""
+        model = robot.model
+        joints, offsets = [], []
+        for point in loop_points(robot):
+            if len(point) == 1:
+                frame = model.frames[point[0]]
+                joints.append(int(frame.parentJoint))
+                offsets.append(np.array(frame.placement.translation))
+            else:
+                joints.append(int(point[0]))
+                offsets.append(np.array(point[1].translation))
+        passive = [model.joints[model.getJointId(j)] for j in robot.loop.passive_joints]
+        pv = np.asarray(robot.loop.passive_v, dtype=int)
+        return cls(np.array(joints, dtype=int), np.array(offsets).reshape(-1, 3),
+                   np.array([support_mask(model, j) for j in joints],
+                            dtype=float).reshape(len(joints), model.nv),
+                   pv, _passive_q_indices(robot), np.setdiff1d(np.arange(model.nv), pv),
+                   all(j.nq == j.nv for j in passive))
+
+    def step(self, model: pin.Model, q: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """(m, nq) configurations ``q`` with their passive joints moved by ``dv`` (m, n_pv)."""
+        if self.simple:
+            out = q.copy()
+            out[:, self.passive_q] += dv
+            return out
+        full = np.zeros((q.shape[0], model.nv))
+        full[:, self.passive_v] = dv
+        return np.array([pin.integrate(model, qi, di) for qi, di in zip(q, full, strict=True)])
+
+
+def closure_residuals(layout: ClosureLayout, model: pin.Model, data: pin.Data, q: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The world-axes loop residual (m, r) of :func:`loop_points` (m) at the (m, nq)
+    configurations ``q`` and its Jacobian (m, r, nv), from Pinocchio's joint placements and
+    Jacobians of each row (:func:`stiffness.batch.poses.pinocchio_placements`; ``data``
+    scratch space) and the points' in NumPy over the rows. Its zero set is the closed
+    loop."""
+    kin = pinocchio_placements(model, data, q, True)
+    points = (np.einsum("mpab,pb->mpa", kin.rotation[:, layout.joints], layout.offsets)
+              + kin.translation[:, layout.joints])
+    jac = moving_point_jacobians(kin, points, layout.masks)
+    m = q.shape[0]
+    return ((points[:, 1::2] - points[:, ::2]).reshape(m, -1),
+            (jac[:, 1::2] - jac[:, ::2]).reshape(m, -1, model.nv))
+
+
+def newton_closure(layout: ClosureLayout, model: pin.Model, data: pin.Data, q: np.ndarray,
+                   iterations: int = _NEWTON_ITERATIONS
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The loops closed over the passive joints from each row of ``q`` (m, nq), all rows at
+    once: :meth:`~stiffness.robot.loops.LoopClosure.close`'s Gauss-Newton (minimum-norm
+    least-squares steps, each at most :data:`~stiffness.robot.loops.MAX_STEP` long, so on
+    the branch a row starts on) on the residual of :func:`closure_residuals`, each row until
+    its residual is below :data:`~stiffness.robot.loops.CLOSURE_TOLERANCE_M`, at most
+    ``iterations`` steps, and then one step more: the closure is then exact to round-off and
+    smooth in the row's coordinates (stopped at the tolerance, its error, up to 1e-11 m, would
+    jump with them: a central difference over a step of 1e-6 m sees it, and a start already
+    within the tolerance, a sag pass's from the last one's, would keep its error).
+
+    Returns
+    -------
+    q : (m, nq)
+        The closed configurations (the last iterates where ``closed`` is False).
+    closed : (m,)
+        Rows that converged (to 1e3 times the tolerance after the last step).
+    jacobian : (m, r, nv)
+        The residual's Jacobian at the last iterate but the final step (the tangent maps'
+        input, :func:`tangent_maps`: its error there is the tolerance's, 1e-11 relative).
+    """
+    q = q.copy()
+    m = q.shape[0]
+    done = np.zeros(m, dtype=bool)
+    c_at = np.empty((m, 3 * (layout.joints.size // 2), model.nv))
+    active = np.arange(m)
+    for _ in range(iterations + 1):
+        res, c_w = closure_residuals(layout, model, data, q[active])
+        c_at[active] = c_w
         norm = np.linalg.norm(res, axis=1)
-        converged = norm < CLOSURE_TOLERANCE_M
+        converged = norm < (CLOSURE_TOLERANCE_M if _ < iterations else 1e3 * CLOSURE_TOLERANCE_M)
+        if _ == iterations:  # the last iterate: only the converged step
+            active, res, c_w = active[converged], res[converged], c_w[converged]
+        dv = _lstsq(c_w[:, :, layout.passive_v], -res, 1e-10)
+        size = np.linalg.norm(dv, axis=1, keepdims=True)
+        dv = np.where(size > MAX_STEP, dv * (MAX_STEP / np.maximum(size, MAX_STEP)), dv)
+        q[active] = layout.step(model, q[active], dv)
+        if _ == iterations:
+            done[active] = True
+            break
         done[active[converged]] = True
-        c_closed[active[converged]] = c_w[converged][:, :, pv]
         active = active[~converged]
         if active.size == 0:
             break
-        dv = lstsq(c_w[~converged][:, :, pv], -res[~converged], 1e-10)
-        q[active] = step(q[active], dv)
-    if active.size:
-        res, c_w = residual_and_jacobian(q[active])
-        close = np.linalg.norm(res, axis=1) < 1e3 * CLOSURE_TOLERANCE_M
-        done[active[close]] = True
-        c_closed[active] = c_w[:, :, pv]
-    jump = np.abs(q[:, passive_q] - predicted).max(axis=1) if passive_q.size else 0.0
-    same = _same_mode(c_anchor[:, :, pv], s, vt, c_closed)
-    return q, done & (jump <= _NEWTON_JUMP) & same
+    return q, done, c_at
+
+
+def _lstsq(a: np.ndarray, b: np.ndarray, rcond: float) -> np.ndarray:
+    """Minimum-norm least-squares solutions (m, n) of the stacked systems ``a`` (m, r, n),
+    ``b`` (m, r) (singular values below ``rcond`` times the largest dropped)."""
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    cutoff = rcond * s[:, :1]
+    s_inv = np.where(s > cutoff, 1.0 / np.where(s > cutoff, s, 1.0), 0.0)
+    return ((np.swapaxes(vt, 1, 2) * s_inv[:, None, :]) @ np.swapaxes(u, 1, 2)
+            @ b[..., None])[..., 0]
+
+
+def tangent_maps(layout: ClosureLayout, jacobian: np.ndarray) -> np.ndarray:
+    """(m, nv, nv) ``T = dq/du`` of the closed configurations whose residual Jacobian
+    (:func:`closure_residuals`) is ``jacobian`` (m, r, nv): the identity on the independent
+    coordinates, the passive rates ``-C_p^+ C_u`` (rank-revealing pseudo-inverse, as
+    :meth:`~stiffness.robot.loops.LoopClosure.passive_rates`: planar loops give redundant
+    rows) on the passive rows, zero passive columns. ``T^T tau`` is the generalised force the
+    independent coordinates feel of the tree's ``tau``."""
+    m, nv = jacobian.shape[0], jacobian.shape[2]
+    pv, iv = layout.passive_v, layout.independent_v
+    out = np.zeros((m, nv, nv))
+    out[:, iv, iv] = 1.0
+    out[:, pv[:, None], iv] = -np.linalg.pinv(jacobian[:, :, pv], rcond=1e-9) @ jacobian[:, :, iv]
+    return out
+
+
+def close_rows(robot: Robot, layout: ClosureLayout, model: pin.Model, data: pin.Data,
+               q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The loops of ``robot`` closed from each row of ``q`` (m, nq) on ``model`` (the robot's,
+    or a copy placed differently off the loops' paths), and the tangent maps there:
+    :func:`newton_closure` with :meth:`~stiffness.robot.loops.LoopClosure.close`'s 50
+    iterations, then :func:`tangent_maps`. Returns (m, nq) and (m, nv, nv).
+
+    Raises
+    ------
+    LoopClosureError
+        A row whose loop does not close (from the one-row closure, which names the loop).
+    """
+    closed, done, jacobian = newton_closure(layout, model, data, q, 50)
+    if not done.all():  # the one-row closure: the same steps, or the loop it cannot close
+        failed = np.flatnonzero(~done)
+        closed[failed] = [robot.loop.close(model, data, q[i]) for i in failed]
+        jacobian[failed] = closure_residuals(layout, model, data, closed[failed])[1]
+    return closed, tangent_maps(layout, jacobian)
 
 
 def _same_mode(c_anchor: np.ndarray, s: np.ndarray, vt: np.ndarray, c_closed: np.ndarray
@@ -356,11 +476,3 @@ def point_supports(robot: Robot) -> np.ndarray:
                                    if len(point) == 1 else point[0])
                      for point in loop_points(robot)], dtype=bool).reshape(-1, model.nv)
 
-
-def support_mask(model: pin.Model, joint: int) -> np.ndarray:
-    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body (every
-    coordinate of a joint with several, a free-flyer base's six)."""
-    mask = np.zeros(model.nv, dtype=bool)
-    for j in list(model.supports[joint])[1:]:
-        mask[model.joints[j].idx_v: model.joints[j].idx_v + model.joints[j].nv] = True
-    return mask

@@ -20,7 +20,6 @@ import numpy as np
 import pinocchio as pin
 
 from stiffness.batch.linalg import cross, cross_matrices
-from stiffness.batch.loops import support_mask
 
 
 @dataclass
@@ -79,7 +78,7 @@ def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians:
     """
     axes = _axis_joints(model) if kinds is None else kinds.axes
     if axes is None:
-        return _pinocchio_placements(model, data, q, jacobians)
+        return pinocchio_placements(model, data, q, jacobians)
     m, nj = q.shape[0], model.njoints
     rotation = np.empty((m, nj, 3, 3))
     translation = np.empty((m, nj, 3))
@@ -141,9 +140,11 @@ def _axis_matrices(axis: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.
     return out
 
 
-def _pinocchio_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool
+def pinocchio_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool
                           ) -> JointPlacements:
-    """:func:`joint_placements` by one Pinocchio call per configuration."""
+    """:func:`joint_placements` by one Pinocchio call per configuration, whatever the joints
+    (the cheaper for a few rows: the array algebra's cost is per joint, about 0.1 ms on the
+    SK120's eight joints whatever the rows, Pinocchio's per row, about 5 us)."""
     m, nj = q.shape[0], model.njoints
     rotation = np.empty((m, nj, 3, 3))
     translation = np.empty((m, nj, 3))
@@ -173,6 +174,15 @@ def frame_placements(model: pin.Model, kin: JointPlacements, frame_ids: list[int
     return rot_p @ local_rot, np.einsum("mfab,fb->mfa", rot_p, local_t) + t_p
 
 
+def support_mask(model: pin.Model, joint: int) -> np.ndarray:
+    """(nv,) mask of the velocity coordinates of the joints that move ``joint``'s body (every
+    coordinate of a joint with several, a free-flyer base's six)."""
+    mask = np.zeros(model.nv, dtype=bool)
+    for j in list(model.supports[joint])[1:]:
+        mask[model.joints[j].idx_v: model.joints[j].idx_v + model.joints[j].nv] = True
+    return mask
+
+
 def support_masks(model: pin.Model, frame_ids: list[int]) -> np.ndarray:
     """(F, nv) 1 where a velocity coordinate moves frame ``frame_ids[f]``, else 0."""
     return np.array([support_mask(model, int(model.frames[f].parentJoint)) for f in frame_ids],
@@ -185,8 +195,16 @@ def point_jacobians(model: pin.Model, kin: JointPlacements, frame_ids: list[int]
     frames ``frame_ids``: ``J_v - [p]x J_omega`` over the joints that move each frame (the
     columns of ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` moved to the point);
     ``masks`` their :func:`support_masks` when known (a walk of each frame's chain)."""
-    assert kin.jacobian is not None
     masks = support_masks(model, frame_ids) if masks is None else masks
+    return moving_point_jacobians(kin, points, masks)
+
+
+def moving_point_jacobians(kin: JointPlacements, points: np.ndarray, masks: np.ndarray
+                           ) -> np.ndarray:
+    """d point / d v (m, P, 3, nv), world axes, of points (m, P, 3) (world, m) each fixed to a
+    body, ``masks`` (P, nv) the velocity coordinates that move each body
+    (:func:`support_mask`): :func:`point_jacobians` of points not named by frames."""
+    assert kin.jacobian is not None
     j_v, j_w = kin.jacobian[:, None, :3], kin.jacobian[:, None, 3:]
     lever = cross_matrices(points.reshape(-1, 3)).reshape(points.shape + (3,))
     # cross_matrices(p) is -[p]x: J_v + X J_omega = J_v - [p]x J_omega
