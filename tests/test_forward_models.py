@@ -563,14 +563,16 @@ def test_exact_baseline_is_an_observation_of_the_pose_model(name, tol, request):
     model's forward model: the target loaded minus unloaded, and its frame's rotation from
     three points along its axes, on the UR5, the torso's controller springs and the SK120's
     loop, equal to 1e-12 m and rad (measured 5e-16 m of 6.3 mm, 6e-16 m of 4.0 mm); on the loop
-    to ten times its closure tolerance (1e-11 m on the loop residual, to which the pose model
-    closes every pass of its sag and the batched Newton its iterates: measured 4.5e-12 m of 2.5
-    mm). The pose model's ``joint_compliance`` columns hold the torques at the loaded
+    to ten times its closure tolerance (1e-11 m on the loop residual, to which the exact
+    baseline's Newton closes its iterates; the pose model closes one Newton step past it, to
+    round-off: measured 1.9e-11 m of 2.5 mm, 4e-15 m with the baseline's closure tolerance at
+    1e-14 m). The pose model's ``joint_compliance`` columns hold the torques at the loaded
     configuration fixed: they miss the sag's own change and are off the exact baseline's
     Jacobian by the relative size of ``C K_C`` (measured 1.1e-2, 9.6e-3, 1.1e-3 of its largest
     entry); carried through it, ``d Delta u = (I - C K_C)^-1 d Delta u|_tau`` with ``K_C`` at
     the loaded configuration (:func:`target_state` at the single-pose Newton equilibrium), they
-    are that Jacobian to 1e-9 (measured 1.5e-14, 1.3e-14, 6.3e-12)."""
+    are that Jacobian to 1e-9 (measured 1.5e-14, 1.3e-14, 2.3e-11; 2e-13 on the SK120 with the
+    baseline's closure tolerance at 1e-14 m)."""
     arm = request.getfixturevalue(name)
     geo = Geometry.of(arm.robot)
     rows = geo.rows(arm.coords, arm.wrench[:, :3], arm.wrench[:, 3:])

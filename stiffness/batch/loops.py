@@ -138,6 +138,9 @@ _ANCHOR_CELL = 0.1
 #: Robot.configuration's continuation; beyond it the key is closed by continuation.
 _NEWTON_JUMP = 0.05
 _NEWTON_ITERATIONS = 12
+#: Residual, relative to the closure tolerance, below which a closure's Jacobian is read before
+#: its last Newton step (:func:`newton_closure`): exact there to 1e-14 relative.
+_EXACT_JACOBIAN = 1e-3
 
 
 def close_loops(robot: Robot, coordinates: np.ndarray) -> ClosedConfigurations:
@@ -363,10 +366,13 @@ def newton_closure(layout: ClosureLayout, model: pin.Model, data: pin.Data, q: n
     least-squares steps, each at most :data:`~stiffness.robot.loops.MAX_STEP` long, so on
     the branch a row starts on) on the residual of :func:`closure_residuals`, each row until
     its residual is below :data:`~stiffness.robot.loops.CLOSURE_TOLERANCE_M`, at most
-    ``iterations`` steps, and then one step more: the closure is then exact to round-off and
-    smooth in the row's coordinates (stopped at the tolerance, its error, up to 1e-11 m, would
-    jump with them: a central difference over a step of 1e-6 m sees it, and a start already
-    within the tolerance, a sag pass's from the last one's, would keep its error).
+    ``iterations`` steps, and then one step more, so that a closure is exact to round-off and
+    smooth in the row's coordinates (stopped at the tolerance, its error, up to 1e-11 m,
+    would jump with them: central differences over steps of 1e-6 saw it). The Jacobian
+    returned is the one before that last step where the residual there was below
+    :data:`_EXACT_JACOBIAN` times the tolerance, else after it (one evaluation more): the
+    tangent maps read it, and a Jacobian 1e-11 off its closure turned a sag of millimetres by
+    1e-13 m.
 
     Returns
     -------
@@ -375,30 +381,31 @@ def newton_closure(layout: ClosureLayout, model: pin.Model, data: pin.Data, q: n
     closed : (m,)
         Rows that converged (to 1e3 times the tolerance after the last step).
     jacobian : (m, r, nv)
-        The residual's Jacobian at the last iterate but the final step (the tangent maps'
-        input, :func:`tangent_maps`: its error there is the tolerance's, 1e-11 relative).
+        The residual's Jacobian at the closure (the tangent maps' input, :func:`tangent_maps`).
     """
     q = q.copy()
     m = q.shape[0]
-    done = np.zeros(m, dtype=bool)
+    done, stepped = np.zeros(m, dtype=bool), np.zeros(m, dtype=bool)
     c_at = np.empty((m, 3 * (layout.joints.size // 2), model.nv))
     active = np.arange(m)
-    for _ in range(iterations + 1):
+    for k in range(iterations + 1):
         res, c_w = closure_residuals(layout, model, data, q[active])
         c_at[active] = c_w
         norm = np.linalg.norm(res, axis=1)
-        converged = norm < (CLOSURE_TOLERANCE_M if _ < iterations else 1e3 * CLOSURE_TOLERANCE_M)
-        if _ == iterations:  # the last iterate: only the converged step
-            active, res, c_w = active[converged], res[converged], c_w[converged]
+        if k == iterations:  # the last iterate: closed to the relaxed tolerance, or not
+            kept = norm < 1e3 * CLOSURE_TOLERANCE_M
+            active, res, c_w = active[kept], res[kept], c_w[kept]
         dv = _lstsq(c_w[:, :, layout.passive_v], -res, 1e-10)
         size = np.linalg.norm(dv, axis=1, keepdims=True)
         dv = np.where(size > MAX_STEP, dv * (MAX_STEP / np.maximum(size, MAX_STEP)), dv)
         q[active] = layout.step(model, q[active], dv)
-        if _ == iterations:
+        if k == iterations:
             done[active] = True
             break
-        done[active[converged]] = True
-        active = active[~converged]
+        finished = stepped[active] | (norm < _EXACT_JACOBIAN * CLOSURE_TOLERANCE_M)
+        stepped[active[norm < CLOSURE_TOLERANCE_M]] = True
+        done[active[finished]] = True
+        active = active[~finished]
         if active.size == 0:
             break
     return q, done, c_at

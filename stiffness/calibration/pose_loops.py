@@ -4,8 +4,9 @@ loop's tangent map.
 On a robot with closed loops (the SK120's parallelogram, Gepetto's parallel robots) the
 commanded coordinates are the independent ones ``u`` (every joint with a degree of freedom but
 the loops' passive joints); the full configuration ``q(u)`` is the closure of the loops with
-the passive joints solved (:meth:`~stiffness.robot.loops.LoopClosure.close`, Gauss-Newton
-from the commanded assembly, so on its branch). The springs act on independent coordinates
+the passive joints solved (:func:`stiffness.batch.loops.newton_closure`, Gauss-Newton from
+the commanded assembly, so on its branch, all rows at once; a pass of the sag starts from the
+last pass's closure). The springs act on independent coordinates
 (the robot's compliant joints, or its controller coordinates), and the torque the
 independent coordinates feel is
 
@@ -15,8 +16,10 @@ independent coordinates feel is
     T(q) = \\frac{\\partial q}{\\partial u} = \\begin{bmatrix} I \\\\ -C_p^{+} C_u
     \\end{bmatrix},
 
-with ``C = dc/dq`` the loop-closure Jacobian (:meth:`LoopClosure.passive_rates`,
-rank-revealing: planar loops give redundant rows); ``T`` is laid out (nv, nv), its passive
+with ``C = dc/dq`` the Jacobian of the loops' world-axes residual at the closure
+(:func:`stiffness.batch.loops.tangent_maps`, rank-revealing: planar loops give redundant rows;
+the same map as :meth:`LoopClosure.tangent`, whose residual has the same zero set); ``T`` is
+laid out (nv, nv), its passive
 columns zero, so that ``S(q) = T(q) S_0`` is the configuration-dependent analogue of the
 constant spring map ``S_0`` (:attr:`PoseLayout.spring_map`, zero on passive joints) and the
 springs' torque is ``S_0^T t``. The loaded configuration is the fixed point
@@ -40,6 +43,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from stiffness.batch.loops import ClosureLayout, close_rows, closure_residuals, tangent_maps
 from stiffness.errors import StiffnessError
 from stiffness.robot.loops import LoopClosure
 from stiffness.robot.robot import Robot
@@ -82,6 +86,8 @@ class PoseLoops:
             path |= sa ^ sb
         #: joints on the path between a loop's two frames (their placement closes the loop)
         self.path_joints = frozenset(int(j) for j in path)
+        #: what the closure reads of the robot (the loops' points and passive joints)
+        self.layout = ClosureLayout.of(robot)
 
     @property
     def loop(self) -> LoopClosure:
@@ -108,25 +114,23 @@ class PoseLoops:
             f"campaign does not model); name one of {', '.join(valid)}", name=joint,
             choices=valid)
 
-    def close(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
+    def close(self, model: pin.Model, data: pin.Data, q: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
         """(n, nq) configurations with the loops closed over the passive joints, each from
-        its own row of ``q`` (n, nq) (Gauss-Newton: the branch it starts on).
+        its own row of ``q`` (n, nq) (Gauss-Newton: the branch it starts on), and (n, nv, nv)
+        ``T = dq/du`` there, all rows at once (:func:`stiffness.batch.loops.close_rows`).
 
         Raises
         ------
         LoopClosureError
             A row whose loop does not close (the message names the loop).
         """
-        out = np.empty_like(q)
-        for i in range(q.shape[0]):
-            out[i] = self.loop.close(model, data, q[i])
-        return out
+        return close_rows(self.robot, self.layout, model, data, q)
 
     def tangent(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> np.ndarray:
-        """(n, nv, nv) ``T = dq/du`` at the closed configurations ``q`` (n, nq), one
-        :meth:`LoopClosure.tangent` per row."""
-        return np.array([self.loop.tangent(model, data, qi) for qi in q]).reshape(
-            q.shape[0], model.nv, model.nv)
+        """(n, nv, nv) ``T = dq/du`` at the closed configurations ``q`` (n, nq), all rows at
+        once (:func:`stiffness.batch.loops.tangent_maps`)."""
+        return tangent_maps(self.layout, closure_residuals(self.layout, model, data, q)[1])
 
 
 def projected(tangent: np.ndarray, torque: np.ndarray) -> np.ndarray:

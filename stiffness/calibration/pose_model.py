@@ -436,7 +436,7 @@ class PoseModel:
         """A block of rows of :meth:`evaluate` at once into ``y`` (n, M, 3) and ``jac``
         (n, M, 3, p): the families' hooks on arrays with leading (row, marker) axes."""
         model, x, parts = ev.model, ev.x, ev.parts
-        q, state = self._loaded_rows(model, ev.data, x, rows)
+        q, state, tangent = self._loaded_rows(model, ev.data, x, rows)
         if ev.jacobian and state is not None:
             state.per_torque = self.deflection_slope(x, state)
         kin = joint_placements(model, ev.data, q, ev.jacobian, self._kinds)
@@ -445,9 +445,7 @@ class PoseModel:
         point = np.einsum("nkab,kb->nka", rotation, offsets) + translation
         j_point = (point_jacobians(model, kin, self.frame_ids, point, self._frame_masks)
                    if ev.jacobian else np.zeros(point.shape + (0,)))
-        tangent = (self.loops.tangent(model, ev.data, q)
-                   if ev.jacobian and self.loops is not None else None)
-        if tangent is not None:  # per independent rate: J_p T
+        if ev.jacobian and tangent is not None:  # per independent rate: J_p T
             j_point = j_point @ tangent[:, None]
         caches = {f.name: f.rows_cache(self, parts[f.name], model, kin, rows, ev.jacobian)
                   for f in self.family_objects}
@@ -463,10 +461,12 @@ class PoseModel:
                 jac[..., self._slices[fam.name]] = fam.columns(self, parts[fam.name], view)
 
     def _loaded_rows(self, model: pin.Model, data: pin.Data, x: np.ndarray,
-                     rows: list[RowTerms]) -> tuple[np.ndarray, SagState | None]:
-        """The configurations the links are at, (n, nq), and the sag's state there, with
-        (n, 1, nv) arrays: ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved
-        by fixed-point iteration (to :data:`SAG_TOLERANCE`; it contracts by about
+                     rows: list[RowTerms]
+                     ) -> tuple[np.ndarray, SagState | None, np.ndarray | None]:
+        """The configurations the links are at, (n, nq), the sag's state there, with
+        (n, 1, nv) arrays, and the loops' tangent maps there (:meth:`_configurations`):
+        ``q = q_c + delta_0 + Delta q`` with ``Delta q = C tau(q)`` solved by fixed-point
+        iteration (to :data:`SAG_TOLERANCE`; it contracts by about
         ``|C dtau/dq|``, 1e-3 for real arms), each row until its own sag converges, started
         from the row's last converged sag (an optimiser's next trial differs little from its
         last), and from zero if that does not converge. A row whose passes contract at a
@@ -477,7 +477,8 @@ class PoseModel:
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
         if not self.elastic:
-            return self._configurations(model, data, commanded, offsets), None
+            q, tangent = self._configurations(model, data, commanded, offsets)
+            return q, None, tangent
         n, nv = len(rows), model.nv
         wrench = (None if self.loads is None or all(r.wrench is None for r in rows) else
                   np.array([np.zeros(6) if r.wrench is None else r.wrench for r in rows]))
@@ -489,6 +490,7 @@ class PoseModel:
         at, gravity, applied = np.empty((n, model.nq)), np.empty((n, nv)), np.empty((n, nv))
         kept: dict[str, np.ndarray] = {}  # the families' extras at ``at``, as computed there
         pending = np.arange(n)
+        closed = commanded.copy()  # each row's last closure, whose passive joints seed its next
         for attempt in range(2):  # from the last converged sag, then from zero
             trail = np.zeros((3, n, nv))  # each row's steps of the last three passes
             start = np.zeros(n, dtype=int)  # the pass its plain steps start at (its jump)
@@ -496,9 +498,10 @@ class PoseModel:
             for k in range(SAG_ITERATIONS):
                 if not pending.size:
                     break
-                q = self._configurations(model, data, commanded[pending],
-                                         offsets + sag[pending])
-                g, w = self._row_torques(model, data, q,
+                q, tangent = self._configurations(model, data, commanded[pending],
+                                                  offsets + sag[pending], closed[pending])
+                closed[pending] = q
+                g, w = self._row_torques(model, data, q, tangent,
                                          None if wrench is None else wrench[pending],
                                          not self._lumped)
                 extras = self._extras(model, data, q)
@@ -529,7 +532,7 @@ class PoseModel:
             pending = np.concatenate([failed, pending])
             if not pending.size or attempt or not warm[pending].all():
                 break
-            sag[pending] = 0.0
+            sag[pending], closed[pending] = 0.0, commanded[pending]
         if pending.size:
             raise ConvergenceError(SAG_DIVERGES)
         if self._lumped:  # gravity's torque, outside the sag, only where it converged
@@ -537,16 +540,25 @@ class PoseModel:
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
         extras = {f: e[:, None] for f, e in kept.items()}
-        return (self._configurations(model, data, commanded, offsets + sag),
-                self._state(x, at, gravity[:, None], applied[:, None], extras))
+        q, tangent = self._configurations(model, data, commanded, offsets + sag, closed)
+        return q, self._state(x, at, gravity[:, None], applied[:, None], extras), tangent
 
     def _configurations(self, model: pin.Model, data: pin.Data, commanded: np.ndarray,
-                        shift: np.ndarray) -> np.ndarray:
+                        shift: np.ndarray, seed: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray | None]:
         """(n, nq) the ``commanded`` configurations moved by ``shift`` ((n, nv) or (nv,), on
         the independent coordinates) and, on a robot with closed loops, closed over the
-        passive joints from the commanded assembly (:class:`PoseLoops`)."""
+        passive joints, with their (n, nv, nv) tangent maps ``T = dq/du``
+        (:meth:`PoseLoops.close`, all rows at once; ``None`` for an open chain). The closure
+        starts from the passive joints of ``seed`` (n, nq), closed configurations of the same
+        rows a sag pass before (one Newton step fewer), else of the commanded assembly."""
         q = integrate(model, commanded, shift, self._kinds)
-        return q if self.loops is None else self.loops.close(model, data, q)
+        if self.loops is None:
+            return q, None
+        if seed is not None:
+            passive = self.loops.layout.passive_q
+            q[:, passive] = seed[:, passive]
+        return self.loops.close(model, data, q)
 
     def _extras(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> dict:
         """The families' :meth:`~stiffness.elastic.effects.pose_face.PoseFamily.
@@ -555,20 +567,20 @@ class PoseModel:
                 for fam in self._hooked["at_configuration"]}
 
     def _row_torques(self, model: pin.Model, data: pin.Data, q: np.ndarray,
-                     wrench: np.ndarray | None, gravity_too: bool
+                     tangent: np.ndarray | None, wrench: np.ndarray | None, gravity_too: bool
                      ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_load_torques` of (n, nq) configurations: (n, nv) each (gravity's zero
         unless ``gravity_too``: a lumped weight's sag does not read it, 10 % of its
-        iterations' time)."""
+        iterations' time); on a robot with closed loops, those the independent coordinates
+        feel through the loops' tangent maps ``tangent`` (n, nv, nv) at ``q``."""
         gravity = (-generalized_gravity(model, data, q) if gravity_too
                    else np.zeros((q.shape[0], model.nv)))
         applied = np.zeros(gravity.shape)
         if wrench is not None and self.loads is not None:
             jac = frame_jacobians(model, data, q, self._frame_id(self.loads.frame))
             applied = np.einsum("nkv,nk->nv", jac, wrench)
-        if self.loops is None:
+        if tangent is None:
             return gravity, applied
-        tangent = self.loops.tangent(model, data, q)  # what the independent coordinates feel
         return projected(tangent, gravity), projected(tangent, applied)
 
     def _displacement(self, parts: dict[str, np.ndarray], view: MarkerView) -> np.ndarray:
