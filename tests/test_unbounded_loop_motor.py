@@ -73,3 +73,33 @@ def test_simulated_campaign_identifies_the_true_spring(slider_crank, tmp_path):
     ident = stiffness.identify(tmp_path / "camp", starts=1)
     assert ident.ci95_low[0] < 4e4 < ident.ci95_high[0]
     assert ident.ci95_high[0] / ident.ci95_low[0] < 1.1  # determined, not a vacuous interval
+
+
+def test_design_judges_folds_against_the_assembly(slider_crank):
+    """design keeps poses whose fold ratio is at least 0.1 of the reference assembly's; with
+    no assembly at zero it took an absolute 1 as that reference and refused every pose of
+    Gepetto's wl16 leg (fold ratios about 0.003): "found only 0 of 30 reachable poses away
+    from singularities and folds". The plan's slider positions lie in its reach."""
+    robot = stiffness.load_robot(str(slider_crank), frame="tool_tip")
+    plan = stiffness.design(robot, 2, 20.0, loads_per_config=2, candidates=6, k=[4e4],
+                            random_plans=2)
+    coords = np.array(plan.plan.q)[:, 0]
+    assert np.all((coords > _REACH[0]) & (coords < _REACH[1]))
+
+
+def test_the_fold_reference_is_the_assemblys(slider_crank):
+    """The fold ratio design's margin is relative to: sigma_min / sigma_max of the closure
+    Jacobian's passive columns at the reference assembly, here in closed form (the rod end
+    pivot + 0.4 (c1, s1) + 0.4 (c12, s12) differentiated in the crank and elbow angles). With
+    the zero pose out of reach it was an absolute 1 (wl16: every pose refused)."""
+    from stiffness.calibration.poses import _reference_fold_ratio
+
+    robot = stiffness.load_robot(str(slider_crank), frame="tool_tip")
+    q = robot.configuration(assembly_coordinates(robot))
+    model = robot.model
+    t1 = q[model.joints[model.getJointId("crank_joint")].idx_q]
+    t12 = t1 + q[model.joints[model.getJointId("elbow_joint")].idx_q]
+    jac = 0.4 * np.array([[-np.sin(t1) - np.sin(t12), -np.sin(t12)],
+                          [np.cos(t1) + np.cos(t12), np.cos(t12)]])
+    sv = np.linalg.svd(jac, compute_uv=False)
+    assert _reference_fold_ratio(robot) == pytest.approx(sv[1] / sv[0], rel=1e-9)
