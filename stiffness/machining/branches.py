@@ -24,7 +24,7 @@ import pinocchio as pin
 
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import ConvergenceError, StiffnessError
-from stiffness.mechanics.formulation import target_state
+from stiffness.mechanics.formulation import target_jacobian
 from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
 
 #: Random IK seeds tried at the first point to find a non-redundant arm's branches.
@@ -100,7 +100,7 @@ class PostureProblem:
         return self.solve(i, psi, [(wrapped, None)]) or ik
 
     def admissible(self, ik: IKResult) -> bool:
-        jac = target_state(self.full, ik.q).jacobian
+        jac = target_jacobian(self.full, ik.q)
         return float(np.linalg.svd(jac, compute_uv=False)[-1]) >= self.margin
 
     def load(self, i: int, psi: float) -> np.ndarray:

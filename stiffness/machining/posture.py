@@ -64,7 +64,7 @@ from stiffness.machining.compensation import WRENCH_FRAMES, point_wrenches
 from stiffness.machining.joint_path import angular_coordinates
 from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
 from stiffness.mechanics.defaults import default_coordinates
-from stiffness.mechanics.formulation import target_state
+from stiffness.mechanics.formulation import target_jacobian
 from stiffness.mechanics.ik import IKResult, coordinate_limits
 from stiffness.robot.robot import Robot
 from stiffness.units import float_array, whole_number
@@ -623,7 +623,7 @@ def _null_space_descent(problem: PostureProblem, i: int, chosen: list[IKResult],
 
     for _ in range(iterations):
         ik = chosen[i]
-        jac = target_state(full, ik.q).jacobian
+        jac = target_jacobian(full, ik.q)
         free = np.linalg.norm(jac, axis=0) > 0
         grad = np.zeros(full.n_coordinates)
         h = 1e-6

@@ -193,6 +193,26 @@ def target_state(robot: Robot, q: np.ndarray, load: np.ndarray | None = None) ->
     return target_states(robot, q, [np.zeros(6) if load is None else load])[0]
 
 
+def target_jacobian(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """:func:`target_state`'s ``jacobian`` (6, n_compliant) alone (rows [v; omega], base axes
+    at the target; m/rad, rad/rad): the same numbers, without the kinematic Hessians on an open
+    chain (a closed loop's map S needs its closure derivatives: :func:`target_state`).
+
+    Parameters
+    ----------
+    robot
+        The robot.
+    q
+        Full configuration with loops closed, or the robot's coordinates (rad, m).
+    """
+    if not robot.loop.is_open_chain:
+        return target_state(robot, q).jacobian
+    model, data = robot.model, robot.data
+    kinematics.update_first_order(model, data, full_configuration(robot, q))
+    return kinematics.frame_jacobian(model, data, robot.target_frame_id) @ \
+        velocity_projection(robot)
+
+
 def full_configuration(robot: Robot, q: np.ndarray | list[float]) -> np.ndarray:
     """``q`` as Pinocchio's configuration (``model.nq`` values): as given when it has that
     size, else the robot's coordinates (:meth:`Robot.configuration`, loops closed: a list of

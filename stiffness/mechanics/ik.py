@@ -93,13 +93,14 @@ def set_joint_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     model = robot.model
     lo, hi = [], []
     names, _ = robot.joint_values(np.zeros(robot.n_coordinates))
+    lower, upper = model.lowerPositionLimit, model.upperPositionLimit  # each read builds a view
     for name in names:
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 2:  # continuous joint: cos/sin pair, no limit
             lo.append(-np.inf)
             hi.append(np.inf)
             continue
-        a, b = model.lowerPositionLimit[joint.idx_q], model.upperPositionLimit[joint.idx_q]
+        a, b = lower[joint.idx_q], upper[joint.idx_q]
         bounded = np.isfinite(a) and np.isfinite(b) and b > a and abs(b - a) < 1e10
         lo.append(a if bounded else -np.inf)
         hi.append(b if bounded else np.inf)
@@ -281,7 +282,7 @@ def damped_step(jac: np.ndarray, err: np.ndarray, lam: float) -> np.ndarray:
     """
     if jac.shape[1] == 0:
         return np.zeros(0)
-    if not (np.all(np.isfinite(jac)) and np.all(np.isfinite(err))):
+    if not (np.isfinite(jac).all() and np.isfinite(err).all()):
         raise ConvergenceError("inverse kinematics met a non-finite Jacobian or pose error "
                                "(a NaN or infinite coordinate or target); give finite values")
     u, s, vt = np.linalg.svd(jac, full_matrices=False)

@@ -55,6 +55,7 @@ from stiffness.robot.loops import (
 )
 from stiffness.robot.meshes import MissingMesh
 from stiffness.robot.rewrite import EditedVisual, fix_base, rewrite_joints
+from stiffness.robot.slots import JointSlots
 from stiffness.robot.sources import RobotSource, check_counts, loop_declaration, resolve_source
 from stiffness.robot.targets import (
     branch_joints,
@@ -142,10 +143,8 @@ class Robot:
     last_assembly: Assembly | None = field(default=None, repr=False)
     _reference: tuple[np.ndarray, np.ndarray, bool] | None = field(default=None, repr=False)
     _visual_loader: Callable[[], pin.GeometryModel | None] | None = field(default=None, repr=False)
-    #: (model, {joint name: (idx_q, nq, idx_v)}): the joints' slots in ``q`` and ``v``, read once
-    #: per model (the closure sets the coordinates at every continuation and Newton step).
-    _slots: tuple[pin.Model | None, dict[str, tuple[int, int, int]]] = field(
-        default_factory=lambda: (None, {}), init=False, repr=False, compare=False)
+    #: The joints' slots in ``q`` and ``v``, read once per model (:mod:`stiffness.robot.slots`).
+    _slots: JointSlots | None = field(default=None, init=False, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
         """The robot to pickle (a Dask worker's task, a deep copy): its loop closure as its
@@ -216,8 +215,11 @@ class Robot:
 
     @property
     def compliant_v(self) -> np.ndarray:
-        """Velocity indices of the compliant joints (when they are joints of the model)."""
-        return np.array([self.joint_v_index(j) for j in self.compliant_joints], dtype=int)
+        """Velocity indices (read-only) of the compliant joints (when joints of the model)."""
+        joints = tuple(self.compliant_joints)
+        kept = self._joint_slots().velocity(joints)
+        return kept if kept is not None else self._joint_slots().keep_velocity(
+            joints, np.array([self.joint_v_index(j) for j in joints], dtype=int))
 
     @property
     def spring_joints(self) -> tuple[str, ...]:
@@ -360,16 +362,14 @@ class Robot:
     def _joint(self, name: str):
         return self.model.joints[self.model.getJointId(name)]
 
+    def _joint_slots(self) -> JointSlots:
+        if self._slots is None or self._slots.model is not self.model:
+            self._slots = JointSlots(self.model)
+        return self._slots
+
     def _slot(self, name: str) -> tuple[int, int, int]:
         """``(idx_q, nq, idx_v)`` of a joint (looked up once per model)."""
-        model, slots = self._slots
-        if model is not self.model:
-            model, slots = self._slots = (self.model, {})
-        slot = slots.get(name)
-        if slot is None:
-            joint = self._joint(name)
-            slot = slots[name] = (joint.idx_q, joint.nq, joint.idx_v)
-        return slot
+        return self._joint_slots().slot(name)
 
     def _value(self, q: np.ndarray, name: str) -> float:
         idx, nq, _ = self._slot(name)
@@ -406,8 +406,12 @@ class Robot:
     def _tree_configuration(self, coords: np.ndarray, base: np.ndarray) -> np.ndarray:
         q = base.copy()
         names, values = self.joint_values(coords)
-        for value, name in zip(values, names, strict=True):
-            self._set_value(q, name, value)
+        if len(values) != len(names):
+            raise ValueError(f"{len(values)} values for the {len(names)} joints {names}")
+        where, slots, pairs = self._joint_slots().placing(tuple(names))
+        q[slots] = values[where]
+        for i in pairs:  # continuous joints: a cos/sin pair each
+            self._set_value(q, names[i], values[i])
         return self.follow(q)
 
     def configuration(self, coords: np.ndarray, seed: np.ndarray | None = None) -> np.ndarray:
