@@ -103,3 +103,45 @@ def test_the_fold_reference_is_the_assemblys(slider_crank):
                           [np.cos(t1) + np.cos(t12), np.cos(t12)]])
     sv = np.linalg.svd(jac, compute_uv=False)
     assert _reference_fold_ratio(robot) == pytest.approx(sv[1] / sv[0], rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def slider_crank_wrist(tmp_path_factory):
+    """The slider-crank with a wrist joint (outside the loop) carrying the tool: two
+    coordinates, slide and wrist."""
+    folder = tmp_path_factory.mktemp("slider-wrist")
+    urdf = _URDF.replace('<link name="tool_tip"/>', '<link name="hand"/><link name="tool_tip"/>')
+    urdf = urdf.replace(
+        '<joint name="tool_joint" type="fixed"><parent link="rod"/><child link="tool_tip"/>',
+        '<joint name="wrist" type="revolute"><parent link="rod"/><child link="hand"/>'
+        '<origin xyz="0.2 0.05 0" rpy="0 0 0"/><axis xyz="0 0 1"/>'
+        '<limit effort="100" velocity="2" lower="-3" upper="3"/></joint>'
+        '<joint name="tool_joint" type="fixed"><parent link="hand"/><child link="tool_tip"/>')
+    urdf = urdf.replace('<origin xyz="0.2 0.05 0" rpy="0 0 0"/></joint>\n</robot>',
+                        '<origin xyz="0.1 0 0" rpy="0 0 0"/></joint>\n</robot>')
+    (folder / "arm.urdf").write_text(urdf)
+    (folder / "arm.loops.yaml").write_text(
+        'closed_loop:\n  - [slider, rod_end]\ntype: ["3D"]\nname_mot: [slide, wrist]\n')
+    return folder / "arm.urdf"
+
+
+def test_scan_holds_the_other_coordinates_at_the_assembly(slider_crank_wrist, tmp_path, capsys):
+    """scan --axis wrist without --q held the slider at 0 m, out of its reach
+    [-1.74, -0.26] m: every configuration invalid, and the summary still said "K_theta - K_C
+    positive definite everywhere: True". Now the slider stays at the assembly and all are
+    valid; a sweep out of reach says there is nothing to judge."""
+    from stiffness.cli.main import main
+
+    robot = stiffness.load_robot(str(slider_crank_wrist), frame="tool_tip")
+    assert set(robot.coordinate_joints) == {"slide", "wrist"}
+    kq = ",".join("4e4" if j == "slide" else "2e3" for j in robot.compliant_joints)
+    args = ["scan", "--robot", str(slider_crank_wrist), "--frame", "tool_tip", "--kq", kq,
+            "--wrench", "0,10,0", "--workers", "1", "--no-plots"]
+    assert main([*args, "--axis", "wrist=0:0.2:0.1", "--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    slide = assembly_coordinates(robot)[robot.coordinate_joints.index("slide")]
+    assert _REACH[0] < slide < _REACH[1] and f"slide={slide:g}" in out
+    assert "(3 valid)" in out and "positive definite everywhere: True" in out
+    assert main([*args, "--axis", "slide=0:0.02:0.01", "--out", str(tmp_path / "b")]) == 0
+    out = capsys.readouterr().out
+    assert "(0 valid)" in out and "everywhere" not in out and "nothing to judge" in out

@@ -578,7 +578,7 @@ def coordinates_from_args(robot: Robot, args: argparse.Namespace, *, required: b
 def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
                          flag: str) -> np.ndarray:
     """:func:`coordinates_from_args` before the limit check."""
-    from stiffness.mechanics.defaults import default_coordinates
+    from stiffness.mechanics.defaults import assembly_coordinates, default_coordinates
     from stiffness.robot.robot import coordinate_index
 
     text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
@@ -590,9 +590,9 @@ def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
             raise StiffnessError(
                 f"{flag} is required for {robot.title}: give {robot.n_coordinates} joint values "
                 f"({', '.join(robot.coordinate_joints)}) or name=value pairs")
-        return np.zeros(robot.n_coordinates)
+        return assembly_coordinates(robot)  # a loop's assembly when zero does not close
     deg = bool(getattr(args, "deg", False))
-    base = np.zeros(robot.n_coordinates) if shipped is None else shipped.copy()
+    base = assembly_coordinates(robot) if shipped is None else shipped.copy()
     items = [item for item in text.split(",") if item.strip()]
     pairs = [_PAIR.match(item) for item in items]
     if any(pairs):
@@ -648,9 +648,10 @@ def coordinates_source(robot: Robot, args: argparse.Namespace, flag: str = "--q"
 
     text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
     reference = reference_configuration(robot)
-    rest = reference.source if reference is not None else "zero"
+    rest = reference.source if reference is not None else (
+        "zero" if robot.loop.is_open_chain else "the assembly found near the zero pose")
     if text is None:
-        return rest if reference is not None else "zero (no default)"
+        return rest if reference is not None else f"{rest} (no default)"
     items = [item for item in text.split(",") if item.strip()]
     if "=" in text and len(items) < robot.n_coordinates:
         return f"{FROM_FLAG} {flag} (coordinates not named: {rest})"

@@ -331,7 +331,10 @@ def run(args: argparse.Namespace) -> int:
                   + " ".join(f"{case['k_c'][c]:>6}" for c in COUNT_LABELS))
         tangent_pd = all(c["k_theta_minus_k_c"]["PD"] == summary["valid_configurations"]
                          for c in cases.values())
-        print(f"K_theta - K_C positive definite everywhere: {tangent_pd}")
+        print(f"K_theta - K_C positive definite everywhere: {tangent_pd}"
+              if summary["valid_configurations"] else "no valid configuration (none "
+              "assembled, or all out of the limits): nothing to judge; give --q a pose of "
+              "the robot, or sweep --axis where it reaches")
     for line in k_x_lines(summary):
         print(line)
     return 0
@@ -359,7 +362,7 @@ def k_x_lines(summary: dict) -> list[str]:
                      f"below {summary['singularity_margin']:g}, where the largest principal "
                      "stiffness grows without bound)")
     for name, case in summary["load_cases"].items():
-        if "k_x_undefined" not in case:
+        if "k_x_undefined" not in case or not valid:  # none valid: said above
             continue
         undefined = case["k_x_undefined"]
         count = "all" if undefined == valid else f"{undefined} of"

@@ -15,7 +15,7 @@ A path file has one row per point, in either form (:func:`read_joint_path`):
 In both, ``#`` comment lines, blank lines and rows of empty cells are skipped.
 
 The joints without a column keep their reference value
-(:func:`~stiffness.mechanics.defaults.default_coordinates`). A cell is read as every campaign
+(:func:`~stiffness.mechanics.defaults.assembly_coordinates`). A cell is read as every campaign
 cell is (:func:`~stiffness.files.csv_float`). Units: rad and m (degrees with ``deg``), N, N.m.
 """
 
@@ -33,7 +33,7 @@ import numpy as np
 from stiffness.calibration.coordinate_columns import canonical_header, is_blank_row, listed
 from stiffness.errors import DataFileNote, FileFormatError
 from stiffness.files import check_csv_header, csv_cells, csv_float, read_text
-from stiffness.mechanics.defaults import default_coordinates
+from stiffness.mechanics.defaults import assembly_coordinates
 from stiffness.robot.robot import Robot
 
 #: Wrench columns a path file may carry (N, N.m).
@@ -237,8 +237,7 @@ def _coordinates(robot: Robot, m: int, deg: bool,
     (degrees with ``deg`` for an angle), every other joint at its reference value."""
     joints = list(robot.coordinate_joints)
     angular = angular_coordinates(robot)
-    reference = default_coordinates(robot)
-    coords = np.tile(np.zeros(len(joints)) if reference is None else reference, (m, 1))
+    coords = np.tile(assembly_coordinates(robot), (m, 1))
     for name, values in columns:
         k = joints.index(name)
         coords[:, k] = np.deg2rad(values) if deg and angular[k] else values

@@ -25,7 +25,7 @@ import pinocchio as pin
 
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.files import atomic_write
-from stiffness.mechanics.defaults import default_coordinates, default_load, joint_stiffnesses
+from stiffness.mechanics.defaults import assembly_coordinates, default_load, joint_stiffnesses
 from stiffness.mechanics.equilibrium import deflected_configuration, solve_equilibrium
 from stiffness.mechanics.formulation import (
     FORMULATIONS,
@@ -82,9 +82,9 @@ from stiffness.viewer.style import (
 
 
 def _coordinates_or_zero(robot: Robot) -> np.ndarray:
-    """A shipped robot's default coordinates, else zeros (rad, m)."""
-    shipped = default_coordinates(robot)
-    return np.zeros(robot.n_coordinates) if shipped is None else shipped
+    """A shipped robot's default coordinates, else a loop's assembly found near the zero pose,
+    else zeros (rad, m; :func:`assembly_coordinates`)."""
+    return assembly_coordinates(robot)
 
 
 def _load_or_zero(robot: Robot, q: np.ndarray, k_theta: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ from stiffness.elastic.model_contents import ModelFile
 from stiffness.elastic.model_file import read_model_file
 from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.mechanics.defaults import (
-    default_coordinates,
+    assembly_coordinates,
     default_stiffness,
     loop_sampling_box,
 )
@@ -291,7 +291,7 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
     if not len(axes) and samples is None:
         samples = DEFAULT_SAMPLES
     if q is None:
-        q = default_coordinates(robot)
+        q = assembly_coordinates(robot)  # a loop's assembly when zero does not close
     base = np.zeros(robot.n_coordinates) if q is None else float_array(
         q, "q", f"the {robot.n_coordinates} coordinates of {robot.title} (rad, m)",
         size=robot.n_coordinates).reshape(-1)
