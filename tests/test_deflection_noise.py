@@ -192,3 +192,28 @@ def test_a_robust_fit_s_unknown_noise_is_one_estimate_for_identify_and_diagnose(
     base = diagnosed.baseline
     loss_value = np.sqrt(base.loss_rss / (base.n_residuals - base.penalty_params))
     assert loss_value / noise > 2.5, loss_value / noise  # what diagnose reported before
+
+
+def test_diagnose_s_robust_baseline_is_identify_s_under_extreme_outliers():
+    """Issue 35, one engine: with no noise known, diagnose's baseline under soft_l1 is
+    identify's fit, its loss scaled by the same robust rounds with the same fits
+    (:func:`~stiffness.calibration.deflection_noise.fit_options`). Two of 12 rows moved by 1000
+    noise stds: diagnose's former rounds (bounded, scipy's default budget) left the loss's
+    scale at 23 noise stds and the first stiffness at 33 200 N.m/rad, where identify's reach
+    1.08 noise stds and 30 600 (truth 30 000)."""
+    noise = 2e-5
+    campaign = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=ARM, configs=6,
+                        loads_per_config=2, noise_std_m=noise, seed=4, declare_noise=False,
+                        target_offset_m=[0.05, 0.0, 0.1]).campaign
+    moved = campaign.deflection.copy()
+    moved[[2, 7]] += 1000 * noise * np.array([[1.0, -1.0, 1.0], [-1.0, 0.0, 1.0]])
+    campaign = dataclasses.replace(campaign, deflection=moved)
+    identified = identify(campaign, loss="soft_l1", starts=1)
+    diagnosed = diagnose(campaign, max_steps=0, loss="soft_l1", propose=False, workers=1)
+    base = diagnosed.baseline
+    assert base.f_scale * base.scale / noise < 2.0  # the loss scaled by about the noise
+    k = np.array([p.value for p in diagnosed.baseline_stiffness])
+    np.testing.assert_allclose(k, identified.k, rtol=1e-6)
+    for p, truth in zip(diagnosed.baseline_stiffness, [3e4, 2e4, 1.5e4], strict=True):
+        assert p.ci95[0] < truth < p.ci95[1], (p.value, p.ci95, truth)
+        assert abs(p.value / truth - 1.0) < 0.05, (p.value, truth)

@@ -356,6 +356,30 @@ def _fitted_weighting(campaign: Campaign, model: Hypothesis, scale: float, optio
             source)
 
 
+def residual_scale(campaign: Campaign) -> float:
+    """identify's fixed scale ``s`` (m) the residuals are divided by, that of the robust
+    rounds of both commands (:func:`robust_loss_options`): the declared noise std, else the
+    RMS of the measured deflections (``1e-3`` when they are all zero; sigma is then estimated
+    from the residuals)."""
+    if campaign.noise_std_m is not None:
+        return campaign.noise_std_m
+    rms = float(np.sqrt(np.mean(campaign.deflection ** 2)))
+    return rms if rms > 0 else 1e-3
+
+
+def fit_options(n_stiffnesses: int) -> dict:
+    """identify's solver options for a model of ``n_stiffnesses`` springs, which the robust
+    rounds of identify and diagnose fit with (:func:`robust_loss_options`; issue 35: one
+    engine): ``ln k`` unbounded, tolerance 1e-12, ``200 (p + 1)`` evaluations. diagnose's
+    former rounds (until 6 December 2026: bounded, tolerance 1e-10, from its bounded
+    least-squares baseline) failed a UR5 campaign of 12 rows, two moved by 1000 noise stds:
+    least squares put two of the three springs at the 1e14 rigid bound, the soft_l1 refit
+    (scaled by 27 noise stds) stopped there after 6 evaluations, and the next scale was 23
+    noise stds (first stiffness 33 200 N.m/rad); identify's rounds reach 1.08 (30 600, truth
+    30 000)."""
+    return {"bounded": False, "tolerance": 1e-12, "max_nfev": 200 * (n_stiffnesses + 1)}
+
+
 def robust_loss_options(model: Hypothesis, measured: np.ndarray, scale: float, options: dict,
                         known: Noise | None, loss: str, start_si: float) -> dict:
     """``identify``'s solver ``options`` with a robust ``loss`` and its ``f_scale`` (in units

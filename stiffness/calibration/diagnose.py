@@ -54,7 +54,10 @@ from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaig
 from stiffness.calibration.deflection_noise import (
     Quantiles,
     fit_noise,
+    fit_options,
     interval_quantiles,
+    residual_scale,
+    robust_loss_options,
     translation_noise,
     weighting,
 )
@@ -68,7 +71,7 @@ from stiffness.calibration.diagnosis import SI_UNITS, Ambiguity, Diagnosis
 from stiffness.calibration.experiment import propose_measurements
 from stiffness.calibration.fitting import Fit, observations
 from stiffness.calibration.naming import settle
-from stiffness.calibration.outliers import flag_fit, robust_rounds
+from stiffness.calibration.outliers import flag_fit
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
@@ -456,8 +459,9 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     """The campaign's baseline ``model0`` fitted (rotations weighted by their noise, estimated
     from the baseline's residuals when not known), with the references of its stiffness and
     of the robot's link ``masses`` (``unknown``: no weight to judge a compensator against);
-    under a robust ``loss`` scaled by ``sigma`` (m), else by a robust estimate
-    (:func:`stiffness.calibration.outliers.robust_rounds`).
+    under a robust ``loss`` scaled by ``sigma`` (m), else by identify's robust estimate
+    (:func:`~stiffness.calibration.deflection_noise.robust_loss_options`: the rounds of
+    :func:`~stiffness.calibration.outliers.robust_rounds` with identify's fits).
 
     Returns
     -------
@@ -489,12 +493,12 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     if sigma is None and loss == "linear":
         scale = max(base.rms(), 1e-12)
         base = fit_model(base.model, measured, scale, base.x)
-    if sigma is None and loss != "linear":
-        base, robust = robust_rounds(
-            base, lambda fit, s: fit_model(fit.model, measured, s, fit.x, loss=loss),
-            lambda fit: fit.predicted - measured, lambda fit: fit.x.size, loss,
-            lambda fit: max(fit.rms(), 1e-12))
-        scale = float(robust or scale)
+    if sigma is None and loss != "linear":  # identify's rounds and fits (issue 35)
+        rounds = residual_scale(campaign)
+        options = fit_options(len(model0.compliant))
+        scale = robust_loss_options(base.model, measured, rounds, options, None, loss,
+                                    1e5)["f_scale"] * rounds
+        base = fit_baseline(base.model, measured, scale, loss)
     return base, measured, scale, rot_sigma, rot_source
 
 

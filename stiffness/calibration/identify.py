@@ -74,9 +74,11 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.deflection_noise import (
+    fit_options,
     interval_quantiles,
     noise_level,
     residual_rotation_noise,
+    residual_scale,
     robust_loss_options,
     translation_noise,
     weighted_observations,
@@ -311,9 +313,8 @@ def identify(
     rob = robot if robot is not None else campaign.robot()
     _check_residual_count(campaign, method, rob.n_compliant, loss)
     model = stiffness_model(campaign, formulation, rob)
-    scale = _residual_scale(campaign)
-    options: dict = {"bounded": False, "tolerance": 1e-12,
-                     "max_nfev": 200 * (rob.n_compliant + 1)}
+    scale = residual_scale(campaign)
+    options = fit_options(rob.n_compliant)
     known = translation_noise(campaign, loss)[0]  # diagnose's: declared, else the replicates'
     model, observed = weighted_observations(campaign, model, scale, options, known, loss,
                                             PAPER_START_SI)
@@ -324,16 +325,6 @@ def identify(
                                      seed, floor, options, progress)
     return _identification(campaign, rob, model, formulation, method, runs, fits, floor,
                            observed, known)
-
-
-def _residual_scale(campaign: Campaign) -> float:
-    """The fixed scale ``s`` (m) the residuals are divided by: the declared noise std, else
-    the RMS of the measured deflections (``1e-3`` when they are all zero; sigma is then
-    estimated from the residuals)."""
-    if campaign.noise_std_m is not None:
-        return campaign.noise_std_m
-    rms = float(np.sqrt(np.mean(campaign.deflection ** 2)))
-    return rms if rms > 0 else 1e-3
 
 
 def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulation: str,
