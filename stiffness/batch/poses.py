@@ -14,7 +14,7 @@ included). Units: SI (m, rad).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -52,14 +52,22 @@ class JointKinds:
     axes
         (revolute, unit axis (3,) in the joint's frame) of each joint after the universe, or
         ``None`` when one is not a revolute or prismatic joint about or along a fixed axis.
+    chain
+        With ``axes``: (parent joint, ``idx_q``, ``idx_v``, the axis as a tuple of floats) of
+        each joint after the universe (read from the bindings once, not at each placement).
     """
 
     axes: list[tuple[bool, np.ndarray]] | None
+    chain: list[tuple[int, int, int, tuple[float, ...]]] = field(default_factory=list)
 
 
 def joint_kinds(model: pin.Model) -> JointKinds:
     """The model's :class:`JointKinds`."""
-    return JointKinds(_axis_joints(model))
+    axes = _axis_joints(model)
+    chain = [] if axes is None else [
+        (int(model.parents[j]), int(model.joints[j].idx_q), int(model.joints[j].idx_v),
+         tuple(float(a) for a in local)) for j, (_, local) in enumerate(axes, start=1)]
+    return JointKinds(axes, chain)
 
 
 def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians: bool = True,
@@ -76,7 +84,8 @@ def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians:
     ``pin.computeJointJacobians`` (``pin.forwardKinematics`` without Jacobians) per
     configuration; ``data`` is then scratch space.
     """
-    axes = _axis_joints(model) if kinds is None else kinds.axes
+    kinds = joint_kinds(model) if kinds is None else kinds
+    axes = kinds.axes
     if axes is None:
         return pinocchio_placements(model, data, q, jacobians)
     m, nj = q.shape[0], model.njoints
@@ -84,24 +93,24 @@ def joint_placements(model: pin.Model, data: pin.Data, q: np.ndarray, jacobians:
     translation = np.empty((m, nj, 3))
     rotation[:, 0], translation[:, 0] = np.eye(3), 0.0
     jacobian = np.zeros((m, 6, model.nv)) if jacobians else None
-    for j, (revolute, local) in enumerate(axes, start=1):
-        parent, placement = model.parents[j], model.jointPlacements[j]
+    for j, ((revolute, local), (parent, idx_q, idx_v, key)) in enumerate(
+            zip(axes, kinds.chain, strict=True), start=1):
+        placement = model.jointPlacements[j]
         rot = rotation[:, parent] @ placement.rotation
         translation[:, j] = rotation[:, parent] @ placement.translation + translation[:, parent]
-        value = q[:, model.joints[j].idx_q]
+        value = q[:, idx_q]
         axis = rot @ local  # world axes; the joint's own motion keeps it
         if revolute:
-            rotation[:, j] = rot @ _axis_rotations(local, value)
+            rotation[:, j] = rot @ _axis_rotations(key, value)
         else:
             rotation[:, j] = rot
             translation[:, j] += axis * value[:, None]
         if jacobian is not None:
-            v = model.joints[j].idx_v
             if revolute:
-                jacobian[:, 3:, v] = axis
-                jacobian[:, :3, v] = cross(translation[:, j], axis)
+                jacobian[:, 3:, idx_v] = axis
+                jacobian[:, :3, idx_v] = cross(translation[:, j], axis)
             else:
-                jacobian[:, :3, v] = axis
+                jacobian[:, :3, idx_v] = axis
     return JointPlacements(rotation, translation, jacobian)
 
 
@@ -120,10 +129,10 @@ def _axis_joints(model: pin.Model) -> list[tuple[bool, np.ndarray]] | None:
     return out
 
 
-def _axis_rotations(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(m, 3, 3) rotations by ``angle`` (m,) (rad) about the unit ``axis`` (3,) (Rodrigues:
-    ``I + sin K + (1 - cos) K^2``)."""
-    eye, k, k2 = _axis_matrices(tuple(float(a) for a in axis))
+def _axis_rotations(axis: tuple[float, ...], angle: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) rotations by ``angle`` (m,) (rad) about the unit ``axis`` (3 floats)
+    (Rodrigues: ``I + sin K + (1 - cos) K^2``)."""
+    eye, k, k2 = _axis_matrices(axis)
     return eye + np.sin(angle)[:, None, None] * k + (1.0 - np.cos(angle))[:, None, None] * k2
 
 
