@@ -132,9 +132,14 @@ def compliant_projection(robot: Robot) -> np.ndarray:
     (:meth:`Robot.rate_projection`)."""
     if robot.springs_on_controller:
         return robot.rate_projection(robot.compliant_joints)
-    followers = [(robot.joint_v_index(m.follower), robot.joint_v_index(m.leader), m.multiplier)
-                 for m in robot.mimics]
-    return closed_loop.base_projection(robot.compliant_v, robot.model.nv, followers)
+    key = ("compliant_projection", tuple(robot.compliant_joints))
+    kept = robot.slots.kept.get(key)
+    if kept is None:  # made once per robot (inverse kinematics asks at every step)
+        followers = [(robot.joint_v_index(m.follower), robot.joint_v_index(m.leader),
+                      m.multiplier) for m in robot.mimics]
+        kept = robot.slots.kept[key] = (
+            closed_loop.base_projection(robot.compliant_v, robot.model.nv, followers),)
+    return kept[0].copy()
 
 
 def _target_passive(robot: Robot) -> np.ndarray:

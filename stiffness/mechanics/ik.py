@@ -80,10 +80,14 @@ def all_coordinates(robot: Robot) -> Robot:
 
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper position limits (rad, m) of the coordinates (+-inf where unbounded)."""
-    lo, hi = set_joint_limits(robot)
-    if robot.coupling is not None:  # the chain's limits, as the controller's coordinates
-        return robot.coupling.limits(lo, hi)
-    return lo, hi
+    key = ("coordinate_limits", tuple(robot.coordinate_joints))
+    kept = robot.slots.kept.get(key)
+    if kept is None:  # read once per robot (each inverse kinematics asks)
+        lo, hi = set_joint_limits(robot)
+        if robot.coupling is not None:  # the chain's limits, as the controller's coordinates
+            lo, hi = robot.coupling.limits(lo, hi)
+        kept = robot.slots.kept[key] = (lo, hi)
+    return kept[0].copy(), kept[1].copy()
 
 
 def set_joint_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:

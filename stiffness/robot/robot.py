@@ -217,8 +217,8 @@ class Robot:
     def compliant_v(self) -> np.ndarray:
         """Velocity indices (read-only) of the compliant joints (when joints of the model)."""
         joints = tuple(self.compliant_joints)
-        kept = self._joint_slots().velocity(joints)
-        return kept if kept is not None else self._joint_slots().keep_velocity(
+        kept = self.slots.velocity(joints)
+        return kept if kept is not None else self.slots.keep_velocity(
             joints, np.array([self.joint_v_index(j) for j in joints], dtype=int))
 
     @property
@@ -362,14 +362,16 @@ class Robot:
     def _joint(self, name: str):
         return self.model.joints[self.model.getJointId(name)]
 
-    def _joint_slots(self) -> JointSlots:
+    @property
+    def slots(self) -> JointSlots:
+        """Joint slots in ``q`` and ``v``, read once per model, and :attr:`JointSlots.kept`."""
         if self._slots is None or self._slots.model is not self.model:
             self._slots = JointSlots(self.model)
         return self._slots
 
     def _slot(self, name: str) -> tuple[int, int, int]:
         """``(idx_q, nq, idx_v)`` of a joint (looked up once per model)."""
-        return self._joint_slots().slot(name)
+        return self.slots.slot(name)
 
     def _value(self, q: np.ndarray, name: str) -> float:
         idx, nq, _ = self._slot(name)
@@ -408,7 +410,7 @@ class Robot:
         names, values = self.joint_values(coords)
         if len(values) != len(names):
             raise ValueError(f"{len(values)} values for the {len(names)} joints {names}")
-        where, slots, pairs = self._joint_slots().placing(tuple(names))
+        where, slots, pairs = self.slots.placing(tuple(names))
         q[slots] = values[where]
         for i in pairs:  # continuous joints: a cos/sin pair each
             self._set_value(q, names[i], values[i])

@@ -21,6 +21,9 @@ class JointSlots:
         self._joints: dict[str, tuple[int, int, int]] = {}
         self._placing: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, list[int]]] = {}
         self._velocity: dict[tuple[str, ...], np.ndarray] = {}
+        #: What the layers above derive from the model's joints alone, by their key (the
+        #: compliant joints' rates, the coordinates' limits), so as to derive it once.
+        self.kept: dict[tuple[str, tuple[str, ...]], tuple[np.ndarray, ...]] = {}
 
     def slot(self, name: str) -> tuple[int, int, int]:
         """``(idx_q, nq, idx_v)`` of a joint of the model."""
