@@ -15,9 +15,10 @@ noise declared; and the same campaign with three of its 54 residual components m
 noise stds (random components and signs). Each is identified (``stiffness.identify``, the
 conventional formulation, one start) under ``huber`` and ``soft_l1`` with the loss's noise
 scale from 1, 2 and 3 rounds (:func:`~stiffness.calibration.outliers.robust_rounds`, its
-``ROBUST_ROUNDS`` set for the run): the first round's scale is the robust estimate of a
-least-squares fit's residuals, which the gross components inflate; each further round's that
-of the robust fit scaled by the last.
+``ROBUST_ROUNDS`` and ``deflection_noise.SCALE_ROUNDS`` set for the run, so that exactly
+that many rounds run, not the default's rounds until the scale settles): the first round's
+scale is the robust estimate of a least-squares fit's residuals, which the gross components
+inflate; each further round's that of the robust fit scaled by the last.
 
 ``--before-shrinkage``: the rule before 5 December 2026, a robust fit's residuals corrected by
 least squares' ``sqrt(N / (N - p))`` alone (``outliers.residual_shrinkage`` taken as 1), for the
@@ -41,7 +42,7 @@ from multiprocessing import Pool
 
 import numpy as np
 
-from stiffness.calibration import outliers
+from stiffness.calibration import deflection_noise, outliers
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import RobotSettings
 from stiffness.calibration.identify import identify
@@ -96,7 +97,7 @@ def seed_results(seed: int, before_shrinkage: bool = False
     for gross, campaign in enumerate(campaigns(seed)):
         for loss in LOSSES:
             for rounds in ROUNDS:
-                outliers.ROBUST_ROUNDS = rounds
+                outliers.ROBUST_ROUNDS = deflection_noise.SCALE_ROUNDS = rounds
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     joints = identify(campaign, loss=loss, starts=1).to_dict()["joints"]

@@ -47,7 +47,8 @@ COMPONENTS = ("dx", "dy", "dz", "rx", "ry", "rz")
 #: the loss fit's. Measured (scripts/robust_rounds.py; docs/outliers.md, "Robust losses"): UR5,
 #: 18 rows, 3 springs, 20 um undeclared, Huber, 3 components 30 noise stds off, 300 seeds: one
 #: round covered 845 of 900 stiffness intervals (sum z^2 / n 1.14), two 847 (1.09), three 845
-#: (1.09).
+#: (1.09). Deflection fits (identify, diagnose) go on until the scale settles
+#: (:data:`stiffness.calibration.deflection_noise.SCALE_TOLERANCE`); pose fits stop at this.
 ROBUST_ROUNDS = 2
 
 _F = TypeVar("_F")
@@ -143,23 +144,30 @@ def robust_noise(residuals: np.ndarray, n_parameters: int, loss: str = "linear",
 
 def robust_rounds(fit: _F, refit: Callable[[_F, float], _F],
                   residuals: Callable[[_F], np.ndarray], n_parameters: Callable[[_F], int],
-                  loss: str, fallback: Callable[[_F], float] | None = None
-                  ) -> tuple[_F, float | None]:
+                  loss: str, fallback: Callable[[_F], float] | None = None,
+                  settle: tuple[float, int] | None = None) -> tuple[_F, float | None]:
     """A robust loss's noise scale, the one rule of both campaign kinds, identify's and
     diagnose's: :data:`ROBUST_ROUNDS` times, :func:`robust_noise` of the ``residuals`` (m) of
     ``fit`` (least squares the first time, then under ``loss`` scaled by the last estimate)
-    over its ``n_parameters``, then ``fit`` refitted under the loss scaled by it (``refit``).
-    ``fallback`` gives the scale where the residuals give none (all zero); without it the
-    rounds stop there. Returns the last fit and scale (m; ``None``: none)."""
+    over its ``n_parameters``, then ``fit`` refitted under the loss scaled by it (``refit``);
+    with ``settle = (tolerance, most)`` further rounds until one moves the scale by at most
+    ``tolerance`` of it (at most ``most`` rounds in all). ``fallback`` gives the scale where
+    the residuals give none (all zero); without it the rounds stop there. Returns the last fit
+    and scale (m; ``None``: none)."""
     sigma = None
     fitted: tuple[str, float | None] = ("linear", None)
-    for _ in range(ROBUST_ROUNDS):
+    tolerance, most = settle if settle is not None else (math.inf, ROBUST_ROUNDS)
+    for done in range(max(most, ROBUST_ROUNDS)):
+        previous = sigma
         sigma = robust_noise(residuals(fit), n_parameters(fit), *fitted)
         if sigma is None and fallback is not None:
             sigma = fallback(fit)
         if sigma is None:
             return fit, None
         fit, fitted = refit(fit, sigma), (loss, sigma)
+        if done + 1 >= ROBUST_ROUNDS and previous is not None and math.isclose(
+                sigma, previous, rel_tol=tolerance):
+            break
     return fit, sigma
 
 
@@ -281,7 +289,8 @@ def outliers_section(d: dict) -> list[str]:
 
 def robust_noise_scale(model: Hypothesis, measured: np.ndarray, scale: float,
                        declared_m: float | None, loss: str, options: dict,
-                       start_si: float = 1e5) -> float:
+                       start_si: float = 1e5, settle: tuple[float, int] | None = None
+                       ) -> float:
     """The noise std (m) a robust loss is scaled by: the declared one, else that of
     :func:`robust_rounds` from a least-squares fit (a few gross outliers move it little).
 
@@ -297,6 +306,9 @@ def robust_noise_scale(model: Hypothesis, measured: np.ndarray, scale: float,
         Further keyword arguments of :func:`stiffness.calibration.fitting.fit_model`.
     start_si
         Every stiffness at the start (N.m/rad or N/m).
+    settle
+        :func:`robust_rounds`' further rounds until the scale settles, ``(tolerance, most)``;
+        ``None``: :data:`ROBUST_ROUNDS`.
 
     Raises
     ------
@@ -310,7 +322,8 @@ def robust_noise_scale(model: Hypothesis, measured: np.ndarray, scale: float,
         fit_model(model, measured, scale, x0, anchor=x0, **options),
         lambda fit, s: fit_model(model, measured, scale, fit.x, anchor=x0, loss=loss,
                                  f_scale=s / scale, **options),
-        lambda fit: fit.predicted - measured, lambda fit: len(model.compliant), loss)
+        lambda fit: fit.predicted - measured, lambda fit: len(model.compliant), loss,
+        settle=settle)
     if sigma is None:
         raise StiffnessError("the residuals are zero: a robust loss has no noise to scale by; "
                              "declare [measurement] noise_std or use --loss linear")
