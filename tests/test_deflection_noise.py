@@ -172,15 +172,15 @@ def test_undeclared_rotation_noise_intervals_cover_two_sidedly():
 
 
 #: Translation noise std of the robust-fit campaigns below (m), not declared to the fits.
-NOISE = 2e-5
+ROBUST_NOISE = 2e-5
 
 
 def _moved(seed: int, rows: list[int], shift: np.ndarray):
     """A UR5 campaign of 3 springs, 6 configurations x 2 loads, whose ``rows`` are moved by
     ``shift`` (m, one row each)."""
     campaign = simulate("ur5", kq=[3e4, 2e4, 1.5e4], compliant_joints=ARM, configs=6,
-                        loads_per_config=2, noise_std_m=NOISE, seed=seed, declare_noise=False,
-                        target_offset_m=[0.05, 0.0, 0.1]).campaign
+                        loads_per_config=2, noise_std_m=ROBUST_NOISE, seed=seed,
+                        declare_noise=False, target_offset_m=[0.05, 0.0, 0.1]).campaign
     moved = campaign.deflection.copy()
     moved[rows] += shift
     return dataclasses.replace(campaign, deflection=moved)
@@ -193,7 +193,7 @@ def test_a_robust_fit_s_unknown_noise_is_one_estimate_for_identify_and_diagnose(
     former estimate, the loss's value at that scale, grows with them (about ``2 f |r|`` per
     gross component). Over 300 seeds of 12 rows, two moved by 20-50 stds: 1.30 and 3.39
     times the noise on average (docs/architecture.md)."""
-    noise = NOISE
+    noise = ROBUST_NOISE
     campaign = _moved(4, [2, 7], 40 * noise * np.array([[1.0, -1.0, 1.0], [-1.0, 0.0, 1.0]]))
     identified = identify(campaign, loss="soft_l1", starts=1)
     diagnosed = diagnose(campaign, max_steps=0, loss="soft_l1", propose=False, workers=1)
@@ -211,7 +211,7 @@ def test_diagnose_s_robust_baseline_is_identify_s_under_extreme_outliers():
     noise stds: diagnose's former rounds (bounded, scipy's default budget) left the loss's
     scale at 23 noise stds and the first stiffness at 33 200 N.m/rad, where identify's reach
     1.08 noise stds and 30 600 (truth 30 000)."""
-    noise = NOISE
+    noise = ROBUST_NOISE
     campaign = _moved(4, [2, 7], 1000 * noise * np.array([[1.0, -1.0, 1.0], [-1.0, 0.0, 1.0]]))
     identified = identify(campaign, loss="soft_l1", starts=1)
     diagnosed = diagnose(campaign, max_steps=0, loss="soft_l1", propose=False, workers=1)
@@ -233,7 +233,7 @@ def test_the_robust_rounds_go_on_until_the_scale_settles():
     deflection_noise.SCALE_TOLERANCE`): 1.73 noise stds (the median of 36 components, 6 of
     them far out, reads high), every interval covering its truth, identify's and diagnose's
     alike."""
-    noise = NOISE
+    noise = ROBUST_NOISE
     campaign = _moved(21, [4, 1], 1000 * noise * np.array([[0.59, -0.801, -0.102],
                                                           [-0.634, -0.528, -0.565]]))
     diagnosed = diagnose(campaign, max_steps=0, loss="soft_l1", propose=False, workers=1)

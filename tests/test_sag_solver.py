@@ -39,8 +39,8 @@ def _plain(model: PoseModel, x: np.ndarray, rows) -> tuple[np.ndarray, int]:
     offsets = model._offsets(x)
     sag = np.zeros((len(rows), pin_model.nv))
     for passes in range(1, 10_000):
-        q = model._configurations(pin_model, data, commanded, offsets + sag)
-        g, w = model._row_torques(pin_model, data, q, None, True)
+        q, tangent = model._configurations(pin_model, data, commanded, offsets + sag)
+        g, w = model._row_torques(pin_model, data, q, tangent, None, True)
         new = model.deflection(x, model._state(x, q, g, w, model._extras(pin_model, data, q)))
         step, sag = np.max(np.abs(new - sag)), new
         if step <= SAG_TOLERANCE:
@@ -55,7 +55,7 @@ def _solved(model: PoseModel, x: np.ndarray, rows, monkeypatch) -> tuple[np.ndar
     monkeypatch.setattr(PoseModel, "deflection",
                         lambda self, *a: passes.append(1) or deflection(self, *a))
     pin_model = model.perturbed_model(x)
-    q, _ = model._loaded_rows(pin_model, pin_model.createData(), x, rows)
+    q, _, _ = model._loaded_rows(pin_model, pin_model.createData(), x, rows)
     monkeypatch.setattr(PoseModel, "deflection", deflection)
     return q, len(passes)
 
