@@ -104,6 +104,14 @@ def test_track_refuses_what_mujoco_cannot_simulate():
         track(rigid, np.array([[0.0, -1.0, 1.0, 0, 0, 0], [0.1, -1.0, 1.0, 0, 0, 0]]),
               [0.0, 0.0, -100.0])
     assert "shoulder_pan_joint" in str(err.value)
+    # a closed loop is refused first, with the open-chain remedy, not with the rigid wrist
+    # the path moves (whose remedy, springs on it, led only to the loop's refusal)
+    sk120 = ElasticModel.joint_springs(load_robot("sk120"), [1.4e6, 4.9e5, 1.2e6])
+    wrist = np.zeros((2, sk120.robot.n_coordinates))
+    wrist[1, -2] = 0.1
+    with pytest.raises(StiffnessError, match=r"sk120 has closed loops.*coupling") as err:
+        track(sk120, wrist, [0.0, -250.0, -200.0])
+    assert "\n" not in str(err.value)
     # a segment shorter than a tick: 2 ticks, a 62 mm 'error' the compensator cannot touch
     springs = ElasticModel.joint_springs(ur5, [3e5] * 6)
     for times in ({"segment_time": 0.0}, {"timestep": 10.0}):

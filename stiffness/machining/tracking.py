@@ -56,8 +56,14 @@ def exported_robot(em: ElasticModel) -> tuple[Robot, bool]:
     Raises
     ------
     StiffnessError
-        A model MuJoCo cannot simulate: nonlinear laws, backlash, link bends, compensators.
+        A model MuJoCo cannot simulate: closed loops, nonlinear laws, backlash, link bends,
+        compensators.
     """
+    if not em.robot.loop.is_open_chain:  # before any path check: no path can make it run
+        raise StiffnessError(
+            f"{em.robot.title} has closed loops, which MuJoCo closes only by soft constraints "
+            "that give way under load more than its joint springs: track an open chain, the "
+            "loop written as a coupling of the controller's coordinates (examples/sk120-dh)")
     law = em.compliant_law()
     beyond = [what for what, present in (
         ("nonlinear springs", np.any(law.beta != 0)), ("backlash", np.any(law.backlash != 0)),
@@ -280,6 +286,7 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
         if seconds < 0 or (name == "timestep" and seconds == 0):
             raise wrong_argument(name, value, needed)
     em = load_model(model, k_theta)
+    gravity = exported_robot(em)[1]  # refuses what MuJoCo cannot simulate, before the path
     _, coords, loads = path_and_wrench(em.robot, path, wrench, deg)
     w = point_wrenches(loads, coords.shape[0])
     if coords.shape[0] > 1 and segment_time < timestep:  # 0 s: jumps, tracked by nothing
@@ -292,7 +299,8 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
              if np.ptp(coords[:, j]) > 1e-12]
     if moved:
         raise StiffnessError(f"the path moves {', '.join(moved)}, which the model holds rigid "
-                             "and MuJoCo welds: keep them constant or give them springs")
+                             "and MuJoCo welds: keep them constant or give them springs "
+                             "(--compliant-joints with --kq)")
     times, targets, loads_t = _schedule(coords, w, segment_time, timestep)
     robot = em.robot
     data = robot.model.createData()
@@ -316,7 +324,7 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
             arm.step(load)
         runs.append(TrackRun(errors, times))
     settings = {"segment_time_s": segment_time, "settle_time_s": settle_time,
-                "timestep_s": timestep, "gravity": exported_robot(em)[1],
+                "timestep_s": timestep, "gravity": gravity,
                 "model": em.describe(),
                 "compensator_model": (compensator_model or em).describe()}
     return Tracking(robot.title, coords.shape[0], runs[0], runs[1], settings)
