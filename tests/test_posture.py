@@ -225,3 +225,19 @@ def test_pose_columns_may_name_their_unit_in_brackets(tmp_path):
     with pytest.raises(FileFormatError, match=r"line 1, column 1 \(x \[mm\]\): the header says "
                        "mm but x is read in m; convert the column to m"):
         read_poses(tmp_path / "c.csv")
+
+
+def test_joint_step_is_degrees_of_revolute_and_metres_of_prismatic_joints():
+    # the hexapod's legs (all prismatic) moved 2.4 mm and were reported as 0.138 deg
+    from stiffness.machining.posture import PosturePoint, PostureResult
+
+    def point(coords):
+        return PosturePoint(np.array(coords), 0.0, np.zeros(3), np.zeros(3), 0.0, 0.0, "A",
+                            q=np.array(coords))
+
+    path = [[0.1, 0.70], [0.101, 0.75], [0.1005, 0.72]]  # a turn (rad), a slide (m)
+    result = PostureResult([point(c) for c in path], ("turn", "slide"), 0.0, np.zeros(1),
+                           np.deg2rad(10.0), [], None, np.array([True, False]), {})
+    summary = result.summary()
+    assert summary["max_joint_step_deg"] == pytest.approx(np.rad2deg(0.001), rel=1e-9)
+    assert summary["max_joint_step_m"] == pytest.approx(0.05, rel=1e-9)

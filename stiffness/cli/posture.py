@@ -102,8 +102,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, allow_nan=False))
         return 0
     s = doc["summary"]
+    steps = ([f"{s['max_joint_step_deg']:.3g} deg (bound {args.max_step:g})"]
+             if result.angular.any() else []) \
+        + ([f"{s['max_joint_step_m']:.3g} m prismatic"] if not result.angular.all() else [])
     print(f"{em.robot.title}: {s['points']} points, {args.steps} angles, max joint step "
-          f"{s['max_joint_step_deg']:.3g} deg (bound {args.max_step:g})")
+          + ", ".join(steps))
     factor = s.get("max_reduction_factor")
     print(f"max deflection: {s['max_deflection_m']:.4g} m chosen, "
           f"{_fixed(s['max_deflection_fixed_m'])}"

@@ -238,18 +238,20 @@ class PostureResult:
 
     def summary(self) -> dict:
         """Max/RMS deflections (m) chosen and fixed (on the chosen branch), their ratio, the
-        largest joint step, the branches found and used."""
+        largest joint step (revolute in deg, prismatic in m), the branches found and used."""
         d = np.array([np.linalg.norm(p.deflection) for p in self.points])
         f = np.array([np.linalg.norm(p.deflection_fixed) for p in self.points])
         ok = np.isfinite(f)
         steps = np.abs(np.diff(self.joint_path(), axis=0))
+        turns, slides = steps[:, self.angular], steps[:, ~self.angular]
         out = {
             "max_deflection_m": float(d.max()),
             "rms_deflection_m": float(np.sqrt(np.mean(d ** 2))),
             "max_deflection_fixed_m": float(f[ok].max()) if ok.any() else None,
             "rms_deflection_fixed_m": float(np.sqrt(np.mean(f[ok] ** 2))) if ok.any() else None,
             "fixed_reachable_points": int(ok.sum()),
-            "max_joint_step_deg": float(np.rad2deg(steps.max())) if steps.size else 0.0,
+            "max_joint_step_deg": float(np.rad2deg(turns.max())) if turns.size else 0.0,
+            "max_joint_step_m": float(slides.max()) if slides.size else 0.0,
             "max_ik_residual_m": float(max(p.ik_position_error for p in self.points)),
             "max_ik_residual_rad": float(max(p.ik_rotation_error for p in self.points)),
             "reference_angle_deg": float(np.rad2deg(self.reference_angle)),
