@@ -112,6 +112,12 @@ def test_track_refuses_what_mujoco_cannot_simulate():
     with pytest.raises(StiffnessError, match=r"sk120 has closed loops.*coupling") as err:
         track(sk120, wrist, [0.0, -250.0, -200.0])
     assert "\n" not in str(err.value)
+    # a path in degrees read as radians: refused as compensate refuses it, not run into
+    # MuJoCo's joint ranges (1.15 m of 'error' on docs/compensation's UR5 path)
+    degrees = np.array([[5.7296, -68.7549, 85.9437, -17.1887, 89.9544, 11.4592]] * 2)
+    with pytest.raises(StiffnessError, match=r"row 1: shoulder_lift_joint = -68.7549 is beyond"
+                                             r" its limits .* fix the path or its unit"):
+        track(ElasticModel.joint_springs(ur5, [3e5] * 6), degrees, [0.0, 0.0, -300.0])
     # a segment shorter than a tick: 2 ticks, a 62 mm 'error' the compensator cannot touch
     springs = ElasticModel.joint_springs(ur5, [3e5] * 6)
     for times in ({"segment_time": 0.0}, {"timestep": 10.0}):

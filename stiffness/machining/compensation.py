@@ -380,14 +380,7 @@ def compensate(
     if wrench_frame not in WRENCH_FRAMES:
         raise StiffnessError(f"wrench frame must be base or target, got {wrench_frame!r}")
     w = point_wrenches(wrench, path.shape[0])
-    lo, hi = coordinate_limits(em.full)
-    for i, row in enumerate(path):
-        bad = np.flatnonzero((row < lo - 1e-12) | (row > hi + 1e-12))
-        if bad.size:
-            j = bad[0]
-            raise StiffnessError(
-                f"path row {i + 1}: {em.robot.coordinate_joints[j]} = {row[j]:.6g} is beyond "
-                f"its limits [{lo[j]:.6g}, {hi[j]:.6g}] (rad or m); fix the path or its unit")
+    check_path_limits(em, path)
     points: list[PointCompensation] = []
     seed = None
     chosen = hold
@@ -417,6 +410,25 @@ def compensate(
         if progress is not None:
             progress(i + 1, path.shape[0])
     return PathCompensation(points, tuple(em.robot.coordinate_joints), chosen, em, table, deg)
+
+
+def check_path_limits(em: ElasticModel, path: np.ndarray) -> None:
+    """Refuse a path (m, n) (rad, m) with a coordinate beyond its joint limits (often a path
+    in degrees read as radians).
+
+    Raises
+    ------
+    StiffnessError
+        The first such row, named with its joint, value and limits.
+    """
+    lo, hi = coordinate_limits(em.full)
+    for i, row in enumerate(path):
+        bad = np.flatnonzero((row < lo - 1e-12) | (row > hi + 1e-12))
+        if bad.size:
+            j = bad[0]
+            raise StiffnessError(
+                f"path row {i + 1}: {em.robot.coordinate_joints[j]} = {row[j]:.6g} is beyond "
+                f"its limits [{lo[j]:.6g}, {hi[j]:.6g}] (rad or m); fix the path or its unit")
 
 
 def point_wrenches(wrench: object, m: int) -> np.ndarray:

@@ -38,7 +38,7 @@ from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError, wrong_argument
 from stiffness.files import atomic_write_with
-from stiffness.machining.compensation import path_and_wrench, point_wrenches
+from stiffness.machining.compensation import check_path_limits, path_and_wrench, point_wrenches
 from stiffness.robot.mjcf import joint_value, robot_mjcf, spring_plan
 from stiffness.robot.robot import TARGET_FRAME, Robot
 from stiffness.units import float_array
@@ -276,8 +276,8 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
     Raises
     ------
     StiffnessError
-        A model MuJoCo cannot simulate, a path moving a rigid (welded) coordinate, bad
-        times, a compensation that fails.
+        A model MuJoCo cannot simulate, a path beyond the joint limits or moving a rigid
+        (welded) coordinate, bad times, a compensation that fails.
     """
     for name, value, needed in (("segment_time", segment_time, "a time >= 0 (s)"),
                                 ("settle_time", settle_time, "a time >= 0 (s)"),
@@ -288,6 +288,7 @@ def track(model: ElasticModel | Robot | str | Path, path: np.ndarray | str | Pat
     em = load_model(model, k_theta)
     gravity = exported_robot(em)[1]  # refuses what MuJoCo cannot simulate, before the path
     _, coords, loads = path_and_wrench(em.robot, path, wrench, deg)
+    check_path_limits(em, coords)  # MuJoCo's ranges would stop it: metres of 'error'
     w = point_wrenches(loads, coords.shape[0])
     if coords.shape[0] > 1 and segment_time < timestep:  # 0 s: jumps, tracked by nothing
         raise StiffnessError(f"the segment time {segment_time:g} s is shorter than the time "
