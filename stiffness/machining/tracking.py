@@ -62,8 +62,9 @@ def exported_robot(em: ElasticModel) -> tuple[Robot, bool]:
     if not em.robot.loop.is_open_chain:  # before any path check: no path can make it run
         raise StiffnessError(
             f"{em.robot.title} has closed loops, which MuJoCo closes only by soft constraints "
-            "that give way under load more than its joint springs: track an open chain, the "
-            "loop written as a coupling of the controller's coordinates (examples/sk120-dh)")
+            "that give way under load more than its joint springs: track simulates open "
+            "chains only (a serial arm's parallelogram may be written as a coupling of the "
+            "controller's coordinates, as examples/sk120-dh does)")
     law = em.compliant_law()
     beyond = [what for what, present in (
         ("nonlinear springs", np.any(law.beta != 0)), ("backlash", np.any(law.backlash != 0)),
