@@ -582,17 +582,14 @@ def _coordinates_of_flag(robot: Robot, args: argparse.Namespace, required: bool,
     from stiffness.robot.robot import coordinate_index
 
     text = getattr(args, flag.lstrip("-").replace("-", "_"), None)
-    shipped = default_coordinates(robot)
     if text is None:
-        if shipped is not None:
-            return shipped
-        if required:
+        if required and default_coordinates(robot) is None:
             raise StiffnessError(
                 f"{flag} is required for {robot.title}: give {robot.n_coordinates} joint values "
                 f"({', '.join(robot.coordinate_joints)}) or name=value pairs")
         return assembly_coordinates(robot)  # a loop's assembly when zero does not close
     deg = bool(getattr(args, "deg", False))
-    base = assembly_coordinates(robot) if shipped is None else shipped.copy()
+    base = assembly_coordinates(robot).copy()
     items = [item for item in text.split(",") if item.strip()]
     pairs = [_PAIR.match(item) for item in items]
     if any(pairs):

@@ -81,12 +81,6 @@ from stiffness.viewer.style import (
 )
 
 
-def _coordinates_or_zero(robot: Robot) -> np.ndarray:
-    """A shipped robot's default coordinates, else a loop's assembly found near the zero pose,
-    else zeros (rad, m; :func:`assembly_coordinates`)."""
-    return assembly_coordinates(robot)
-
-
 def _load_or_zero(robot: Robot, q: np.ndarray, k_theta: np.ndarray) -> np.ndarray:
     """A shipped robot's default load as a wrench [F (N); M (N.m)], else no load."""
     shipped = default_load(robot, q, k_theta)
@@ -182,7 +176,7 @@ class StiffnessViewer:
         model, data = self.robot.model, self.robot.data
         q = pin.neutral(model)
         with contextlib.suppress(StiffnessError):
-            q = self.robot.configuration(_coordinates_or_zero(self.robot))
+            q = self.robot.configuration(assembly_coordinates(self.robot))
         pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
         points = [data.oMi[j].translation for j in range(model.njoints)]
@@ -249,7 +243,7 @@ class StiffnessViewer:
         if coords is None:
             if self.state is not None:
                 return self.state.coords, self.state.q
-            coords = _coordinates_or_zero(robot)
+            coords = assembly_coordinates(robot)
         values = np.asarray(coords, dtype=float).reshape(-1)
         if values.shape[0] != robot.n_coordinates and values.shape[0] == robot.model.nq:
             return robot.coordinates_of(values), values

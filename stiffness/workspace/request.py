@@ -292,9 +292,8 @@ def scan_spec(robot: Robot, robot_spec: dict, k_theta: Sequence[float] | np.ndar
         samples = DEFAULT_SAMPLES
     if q is None:
         q = assembly_coordinates(robot)  # a loop's assembly when zero does not close
-    base = np.zeros(robot.n_coordinates) if q is None else float_array(
-        q, "q", f"the {robot.n_coordinates} coordinates of {robot.title} (rad, m)",
-        size=robot.n_coordinates).reshape(-1)
+    base = float_array(q, "q", f"the {robot.n_coordinates} coordinates of {robot.title} (rad, m)",
+                       size=robot.n_coordinates).reshape(-1)
     return ScanSpec(preset="samples" if samples is not None else "grid", base=base.tolist(),
                     axes=swept, samples=samples, seed=seed, loads=loads, load_names=names,
                     map_axes=figure_axes(robot, swept, map_axes, samples), **common)
