@@ -401,10 +401,20 @@ def robust_loss_options(model: Hypothesis, measured: np.ndarray, scale: float, o
     unchanged. identify's and diagnose's."""
     if loss == "linear":
         return options
-    robust_sigma = robust_noise_scale(model, measured, float(scale),
-                                      None if known is None else known.sigma, loss,
-                                      options, start_si, (SCALE_TOLERANCE, SCALE_ROUNDS))
+    robust_sigma = robust_scale(model, measured, scale, options, known, loss, start_si)
     return {**options, "loss": loss, "f_scale": robust_sigma / float(scale)}
+
+
+def robust_scale(model: Hypothesis, measured: np.ndarray, scale: float, options: dict,
+                 known: Noise | None, loss: str, start_si: float) -> float:
+    """The noise std (m) a robust ``loss`` is scaled by in both commands: the ``known`` one,
+    else :func:`~stiffness.calibration.outliers.robust_noise_scale` of fits with ``options``
+    to ``measured`` (m) at the residual ``scale`` (m), from every stiffness at ``start_si``,
+    its rounds until a round moves the scale by at most :data:`SCALE_TOLERANCE`, at most
+    :data:`SCALE_ROUNDS`."""
+    return robust_noise_scale(model, measured, float(scale),
+                              None if known is None else known.sigma, loss, options, start_si,
+                              (SCALE_TOLERANCE, SCALE_ROUNDS))
 
 
 def residual_rotation_noise(campaign: Campaign, fit: Fit, measured: np.ndarray,

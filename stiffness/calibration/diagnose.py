@@ -57,7 +57,7 @@ from stiffness.calibration.deflection_noise import (
     fit_options,
     interval_quantiles,
     residual_scale,
-    robust_loss_options,
+    robust_scale,
     translation_noise,
     weighting,
 )
@@ -460,7 +460,7 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     from the baseline's residuals when not known), with the references of its stiffness and
     of the robot's link ``masses`` (``unknown``: no weight to judge a compensator against);
     under a robust ``loss`` scaled by ``sigma`` (m), else by identify's robust estimate
-    (:func:`~stiffness.calibration.deflection_noise.robust_loss_options`: the rounds of
+    (:func:`~stiffness.calibration.deflection_noise.robust_scale`: the rounds of
     :func:`~stiffness.calibration.outliers.robust_rounds` with identify's fits).
 
     Returns
@@ -494,10 +494,8 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
         scale = max(base.rms(), 1e-12)
         base = fit_model(base.model, measured, scale, base.x)
     if sigma is None and loss != "linear":  # identify's rounds and fits (issue 35)
-        rounds = residual_scale(campaign)
-        options = fit_options(len(model0.compliant))
-        scale = robust_loss_options(base.model, measured, rounds, options, None, loss,
-                                    1e5)["f_scale"] * rounds
+        scale = robust_scale(base.model, measured, residual_scale(campaign),
+                             fit_options(len(model0.compliant)), None, loss, 1e5)
         base = fit_baseline(base.model, measured, scale, loss)
     return base, measured, scale, rot_sigma, rot_source
 
