@@ -271,3 +271,46 @@ def test_a_row_index_before_config_is_named(deflections, poses):
         with pytest.raises(FileFormatError) as info:
             read("\n".join(indexed).encode())
         assert words in str(info.value)
+
+
+def _hashed(text: str, row: int) -> str:
+    """``text`` with data row ``row`` (1-based after the header) given a label starting with
+    '#', as a rig numbers its rows (``#2``); every other line kept."""
+    lines = text.splitlines()
+    lines[row] = "#" + lines[row]
+    return "\n".join(["# exported 2026-12-05, 3 poses, 2 markers", *lines]) + "\n"
+
+
+def test_a_row_whose_label_starts_with_a_hash_is_not_dropped_unseen(deflections, poses, rig,
+                                                                    ur5, tmp_path):
+    """A line starting with '#' is a comment; one holding a whole row of numbers after the
+    header (a rig's row label '#2', or a measurement commented out) was dropped without a word
+    by every reader: the campaign read one row fewer. Now each reader says so, once, naming
+    the line; comment lines of prose stay silent."""
+    from test_fuzz_readers import DOCS
+
+    from stiffness.errors import DataFileWarning
+    from stiffness.machining.joint_path import read_joint_path
+
+    path_text = (DOCS / "ur5-path.csv").read_text()
+    (tmp_path / "rig.csv").write_text(_hashed(RIG, 2))
+    (tmp_path / "path.csv").write_text(_hashed(path_text, 2))
+    reads = {
+        "campaign": lambda: _read_deflections(deflections[0], _hashed(TABLE_TEXT, 2).encode()),
+        "poses": lambda: _read_poses(poses[0], poses[1], _hashed(poses[1], 2).encode()),
+        "rig": lambda: import_campaign([tmp_path / "rig.csv"], RobotSettings("ur5"),
+                                       ImportSettings(units=UNITS)),
+        "path": lambda: read_joint_path(tmp_path / "path.csv", ur5, deg=True),
+    }
+    for name, read in reads.items():
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            read()
+        said = [str(w.message) for w in caught if issubclass(w.category, DataFileWarning)
+                and "starting with '#'" in str(w.message)]
+        assert len(said) == 1, (name, [str(w.message) for w in caught])
+        assert "1 line(s) starting with '#' hold a full data row (first: line 4)" in said[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataFileWarning)
+        _read_deflections(deflections[0], ("# a comment, 1, 2, 3\n" + TABLE_TEXT + "# end, 4, 5"
+                                           ).encode())

@@ -28,11 +28,12 @@ import numpy as np
 
 from stiffness.errors import (
     DataFileNote,
+    DataFileWarning,
     FileFormatError,
     UnknownColumnWarning,
     did_you_mean,
 )
-from stiffness.files import csv_float
+from stiffness.files import csv_cells, csv_float
 from stiffness.mechanics.defaults import reference_configuration
 from stiffness.robot.robot import Robot
 from stiffness.units import (
@@ -161,6 +162,46 @@ def is_blank_row(cells: list[str]) -> bool:
     return all(not c.strip() for c in cells)
 
 
+def _is_number(cell: str) -> bool:
+    try:
+        csv_float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: Path) -> None:
+    """Say once that lines read as comments hold data rows, which would vanish silently.
+
+    A line starting with ``#`` is a comment to every reader. One after the header whose cells
+    fill the header's ``width`` (empty cells past it aside), at least two and half of those
+    past the first being numbers, is a row commented out or a row whose label starts with
+    ``#`` (a rig's row number, ``#12``): skipped either way, and said so
+    (:class:`DataFileWarning`) so that a measurement never disappears unseen.
+
+    Parameters
+    ----------
+    comments
+        The comment lines after the header: (1-based line number, the line as written).
+    """
+    rows = []
+    for number, line in comments:
+        try:
+            cells = csv_cells(line, path, number)
+        except FileFormatError:  # not CSV: no row
+            continue
+        while len(cells) > width and not cells[-1].strip():
+            cells.pop()
+        numbers = sum(_is_number(c) for c in cells[1:])
+        if width > 2 and len(cells) == width and numbers >= max(2, (width - 1) / 2):
+            rows.append(number)
+    if rows:
+        warnings.warn(f"{path}: {len(rows)} line(s) starting with '#' hold a full data row "
+                      f"(first: line {rows[0]}) and are skipped as comments; if they are "
+                      "measurements, give them a label that does not start with '#'",
+                      DataFileWarning, stacklevel=3)
+
+
 def trim_empty_columns(header: list[str], rows: list[list[str]]
                        ) -> tuple[list[str], list[list[str]]]:
     """The header and rows without the empty columns a spreadsheet export adds at the end
@@ -196,14 +237,7 @@ def unit_cell(cell: str) -> str:
 def is_units_row(cells: list[str]) -> bool:
     """A row that names units rather than holding numbers (``,deg,deg,N,mm``, ``unit,[deg],
     ...``: a spreadsheet's second header line): no cell is a number and some cell is a unit."""
-    def number(cell: str) -> bool:
-        try:
-            csv_float(cell)
-        except ValueError:
-            return False
-        return True
-
-    return not any(number(c) for c in cells) and any(
+    return not any(_is_number(c) for c in cells) and any(
         unit_cell(c).casefold() in UNIT_WORDS for c in cells)
 
 

@@ -26,6 +26,7 @@ from stiffness.calibration.coordinate_columns import (
     locate_coordinates,
     near_miss,
     trim_empty_columns,
+    warn_commented_rows,
     warn_unknown,
 )
 from stiffness.errors import (
@@ -273,6 +274,7 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
     text = read_text(data, "measurement file ([measurement] data)")
     header = None
     rows: list[tuple[int, list[str]]] = []
+    comments: list[tuple[int, str]] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         if not raw.strip():
             continue
@@ -280,6 +282,8 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
             declared = read_units_comment(raw.strip(), data, number)
             if declared is not None:
                 check_units_comment(declared, units, toml_path, data, number)
+            elif header is not None:
+                comments.append((number, raw))
             continue
         cells = csv_cells(raw, data, number)
         if is_blank_row(cells):  # ',,,,': a spreadsheet's empty row
@@ -301,6 +305,7 @@ def read_rows(data: Path, robot: Robot, units: Units, toml_path: Path,
                               path=data, line=1)
     header, cells_of = trim_empty_columns(header, [cells for _, cells in rows])
     rows = [(number, cells) for (number, _), cells in zip(rows, cells_of, strict=True)]
+    warn_commented_rows(comments, len(header), data)
     where = _parse_header(header, data, header_line, robot)
     if not rows:
         raise FileFormatError("no measurement rows after the header; add one row per loaded "

@@ -43,6 +43,7 @@ from stiffness.calibration.coordinate_columns import (
     is_units_row,
     locate_coordinates,
     trim_empty_columns,
+    warn_commented_rows,
     warn_unknown,
 )
 from stiffness.calibration.measurements import (
@@ -277,8 +278,11 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
     rotations (file units, NaN unseen; ``None`` without rotation columns)."""
     text = read_text(data, "measurement file ([measurement] data)")
     lines: list[tuple[int, list[str]]] = []
+    comments: list[tuple[int, str]] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         if raw.lstrip().startswith("#"):  # a line at a time: a quote in a comment is text
+            if lines:
+                comments.append((number, raw))
             continue
         cells = csv_cells(raw, data, number)
         if not is_blank_row(cells):
@@ -293,6 +297,7 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
                                           [cells for _, cells in lines[1:]])
     lines = [lines[0], *((number, cells) for (number, _), cells in zip(lines[1:], cells_of,
                                                                        strict=True))]
+    warn_commented_rows(comments, len(header), data)
     if is_units_row(lines[1][1]):
         raise FileFormatError(
             f"a units row ({', '.join(c.strip() for c in lines[1][1] if c.strip())}), not "

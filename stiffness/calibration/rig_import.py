@@ -55,6 +55,7 @@ from stiffness.calibration.coordinate_columns import (
     is_units_row,
     listed,
     trim_empty_columns,
+    warn_commented_rows,
 )
 from stiffness.calibration.import_report import ImportReport, column_report, warn_unused
 from stiffness.calibration.measurements import coordinates_in_si
@@ -237,8 +238,10 @@ def read_table(path: str | os.PathLike) -> Table:
     path = Path(path)
     text = read_text(path, "rig file")
     found: list[tuple[int, list[str]]] = []
+    comments: list[tuple[int, str]] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
+            comments.extend([(number, line)] if found else [])  # blank ones are no rows
             continue
         cells = [c.strip() for c in csv_cells(line, path, number)]
         if not is_blank_row(cells):
@@ -249,6 +252,7 @@ def read_table(path: str | os.PathLike) -> Table:
     check_csv_header(found[0][1], path, found[0][0])
     header, rows = trim_empty_columns(found[0][1], [cells for _, cells in found[1:]])
     lines = [number for number, _ in found[1:]]
+    warn_commented_rows(comments, len(header), path)
     if rows and is_units_row(rows[0]):
         header = header_with_units(header, rows[0], path, lines[0])
         rows, lines = rows[1:], lines[1:]

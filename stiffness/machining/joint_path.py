@@ -30,7 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-from stiffness.calibration.coordinate_columns import canonical_header, is_blank_row, listed
+from stiffness.calibration.coordinate_columns import (
+    canonical_header,
+    is_blank_row,
+    listed,
+    warn_commented_rows,
+)
 from stiffness.errors import DataFileNote, FileFormatError
 from stiffness.files import check_csv_header, csv_cells, csv_float, read_text
 from stiffness.mechanics.defaults import assembly_coordinates
@@ -150,9 +155,13 @@ def read_table(path: str | Path, what: str) -> Table:
 
 def _table(text: str, path: Path, what: str) -> Table:
     """:func:`read_table` of the file's ``text``."""
-    rows, lines = [], []
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    comments: list[tuple[int, str]] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if line.lstrip().startswith("#"):  # a comment, as in a file without a header
+            if rows:
+                comments.append((number, line))
             continue
         row = csv_cells(line, path, number)
         if not is_blank_row(row):
@@ -163,6 +172,7 @@ def _table(text: str, path: Path, what: str) -> Table:
                               path=path)
     header = [h.strip() for h in rows[0]]
     check_csv_header(header, path, lines[0])
+    warn_commented_rows(comments, len(header), path)
     for k, name in enumerate(header):
         if name and name in header[:k]:
             raise FileFormatError(f"the column {name!r} appears twice (columns "
