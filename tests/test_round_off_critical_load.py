@@ -54,3 +54,21 @@ def test_a_horizontal_load_keeps_its_finite_factor(tmp_path, capsys):
     w = 1.0 / np.sqrt([2e4, 1e4, 5e5, 2e3])
     top = np.linalg.eigvalsh(0.5 * (k_c + k_c.T) * w[:, None] * w[None, :])[-1]
     assert top > 0 and abs(out["critical_load_factor"] * top - 1.0) < 1e-9
+
+
+def test_round_off_entries_of_k_c_are_reported_as_zero(tmp_path, capsys):
+    """At this pose Pinocchio's K_C under the vertical load had an entry of 2.3e-16 N.m/rad
+    (printed as a number by `kx`); the load does no work on the geometry of the revolute
+    joints (docstring above), so K_C is exactly zero, in the JSON and in the printed matrix."""
+    (tmp_path / "robot.toml").write_text(SCARA)
+    args = ["kx", "--robot", str(tmp_path / "robot.toml"), "--q", "0.3,0.2,0.05,0.5",
+            "--kq", "2e4,1e4,5e5,2e3", "--wrench", "0,0,-80", "--quiet"]
+    assert main(args + ["--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert np.array(out["K_C"]).tolist() == np.zeros((4, 4)).tolist()
+    # 1e-12 of the load's size: 80 N times the reach, about 1.2 m (base to tool, stretched)
+    assert 1e-12 * 80 * 0.5 < out["K_C_round_off"] < 1e-12 * 80 * 2.0
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    block = text.split("K_C (N.m/rad")[1].split("K_X")[0]
+    assert "e-" not in block.split("\n", 1)[1] and "0." in block

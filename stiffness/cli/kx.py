@@ -254,6 +254,7 @@ def compute(args: argparse.Namespace) -> dict:
         "units": {
             "J": "m/rad (m/m for prismatic); angular rows rad/rad (rad/m prismatic)",
             "K_C": "N.m/rad (N/m between prismatic joints, N between a prismatic and a revolute)",
+            "K_C_round_off": "N.m/rad (K_C entries at or below it are round-off, given as 0)",
             "K_theta": "N.m/rad (N/m prismatic)", "K_X": trans,
             "compliance": "m/N (inverse of K_X)", "eigenvalues": "same as K_X",
             "K_X_subspace": "K_X, eigenvalues: as K_X (pseudo-inverse of the compliance in SI: "
@@ -315,7 +316,9 @@ def run(args: argparse.Namespace) -> int:
                   f"{'used' if closure['assembly_search'] else 'not needed'}")
     print(f"position (m): {np.array(result['position'])}")
     print(f"J ({result['units']['J']}):\n{np.array(result['J'])}")
-    print(f"K_C (N.m/rad):\n{np.array(result['K_C'])}")
+    tol = result["K_C_round_off"]
+    print("K_C (N.m/rad" + (f"; entries within {tol:.2g} of 0, round-off at this load, as 0"
+                            if tol > 0 else "") + f"):\n{np.array(result['K_C'])}")
     if result["K_X"] is None:
         sub = result["K_X_subspace"]
         print(f"K_X undefined: {result['K_X_undefined']}")

@@ -33,7 +33,9 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
     """K_X, the compliance, J, K_C, principal stiffnesses, definiteness and stability of
     ``state`` (JSON-ready: the numeric part of ``stiffness kx --json``).
 
-    ``K_X`` is :meth:`ElasticState.stiffness` with the same arguments (``None`` where it does
+    ``K_C``'s entries at or below :attr:`ElasticState.k_c_round_off` (``K_C_round_off``,
+    the round-off of this load) are given as 0. ``K_X`` is :meth:`ElasticState.stiffness` with
+    the same arguments (``None`` where it does
     not exist: ``K_X_undefined`` says why and ``K_X_subspace`` gives it on the moving
     subspace). ``J`` and ``K_C`` are those of the commanded pose; with a model file,
     ``K_theta_tangent`` and ``link_compliance`` are those of the operating pose.
@@ -68,6 +70,8 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
             k_x = cartesian_stiffness(c_x)
         except SingularConfigurationError as exc:
             k_x, undefined = None, str(exc)
+    round_off = state.k_c_round_off
+    k_c = np.where(np.abs(k_c) <= round_off, 0.0, k_c)  # round-off of this load: 0
     wrench = commanded.wrench[: 6 if six else 3]
     blocks = _principal_by_block(c_x) if six and k_x is not None else None
     if six:
@@ -91,6 +95,7 @@ def cartesian_report(state: ElasticState, formulation: str = "enhanced",
         "J": jac.tolist(),
         "K_theta": state.k_theta.tolist(),
         "K_C": k_c.tolist(),
+        "K_C_round_off": round_off,
         "K_X": None if k_x is None else k_x.tolist(),
         "K_X_undefined": undefined,
         "K_X_subspace": None if k_x is not None else _subspace_json(c_x),

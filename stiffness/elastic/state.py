@@ -337,8 +337,16 @@ class ElasticState:
         (:func:`stiffness.mechanics.formulation.definiteness`)."""
         k_theta = np.diag(self.k_theta)
         k_c = self.commanded.k_c
-        return {"K_C": definiteness(k_c, atol=ROUND_OFF_SIZE * self._load_moment()),
+        return {"K_C": definiteness(k_c, atol=self.k_c_round_off),
                 "K_theta_minus_K_C": tangent_definiteness(k_theta, k_theta - k_c)}
+
+    @property
+    def k_c_round_off(self) -> float:
+        """The size (N.m/rad) at or below which an entry or eigenvalue of ``K_C`` is round-off:
+        :data:`ROUND_OFF_SIZE` times :meth:`_load_moment`, the order of a physical ``K_C``
+        of this wrench (0 without a load). :attr:`definiteness` counts such eigenvalues as
+        zero and ``stiffness kx`` reports such entries as 0."""
+        return ROUND_OFF_SIZE * self._load_moment()
 
     @property
     def critical_load_factor(self) -> float:
