@@ -285,6 +285,47 @@ def test_commands_on_a_written_campaign(ur10, tmp_path, capsys):
     assert printed[-1].split()[1:] == last.split()[2:]  # validate prints the step's line
 
 
+def test_a_trackers_nan_dropouts_read_as_empty_cells(ur10, tmp_path):
+    """A tracker (or MATLAB, or numpy.savetxt) writes NaN in a lost marker's three cells: the
+    pose campaign refused them ('NaN' is not a finite number; every q, force ... cell must be
+    a number) and so did the import, where empty cells are read as the marker not seen. Both
+    now read NaN as not seen, the same campaign as empty cells; a NaN beside numbers is
+    refused as a partial marker is, and a NaN coordinate still is."""
+    rng = np.random.default_rng(8)
+    c = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, rng), 6, NOISE, seed=8)
+    c.positions[3, 1] = np.nan
+    write_pose_campaign(c, tmp_path / "empty")
+    empty = load_pose_campaign(tmp_path / "empty")
+    lines = (tmp_path / "empty" / "measurements.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    unseen = [header.index(f"{ur10_markers()[1].name}_{a}") for a in "xyz"]
+
+    def with_cells(row: int, cols: list[int], cell: str) -> str:
+        cells = lines[row].split(",")
+        for j in cols:
+            cells[j] = cell
+        return "\n".join([*lines[:row], ",".join(cells), *lines[row + 1:]]) + "\n"
+
+    (tmp_path / "empty" / "measurements.csv").write_text(with_cells(4, unseen, "NaN"))
+    back = load_pose_campaign(tmp_path / "empty")
+    np.testing.assert_array_equal(back.positions, empty.positions)
+    assert back.n_observed == empty.n_observed == 3 * (12 - 1)
+    for cols, words in ((unseen[:1], "some but not all"), ([1], "not a finite number")):
+        (tmp_path / "empty" / "measurements.csv").write_text(with_cells(2, cols, "nan"))
+        with pytest.raises(StiffnessError, match=words):
+            load_pose_campaign(tmp_path / "empty")
+    rig = tmp_path / "rig.csv"
+    rig.write_text(with_cells(4, unseen, "NaN"))
+    mapping = ",".join(f"q{i}=q{i}" for i in range(1, 7))
+    markers = [f"{m.name}={m.frame}" for m in ur10_markers()]
+    assert main(["campaign", "import", str(rig), "--kind", "poses", "--robot", "ur10",
+                 "--map", mapping, "--units", "angle=deg,length=mm", *(
+                     f for m in markers for f in ("--marker", m)), "--quiet",
+                 "--out", str(tmp_path / "imported")]) == 0
+    imported = load_pose_campaign(tmp_path / "imported")
+    assert np.isnan(imported.positions[3, 1]).all() and imported.n_observed == 3 * (12 - 1)
+
+
 def test_unseen_markers_and_reader_errors(ur10, tmp_path):
     """Empty cells are unseen markers; partial cells, unknown frames and kinds are refused."""
     rng = np.random.default_rng(8)

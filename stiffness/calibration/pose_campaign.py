@@ -332,11 +332,13 @@ def _rows(data: Path, robot: Robot, markers: list[Marker]
 def _position(cells: list[str], columns: list[int], data: Path, line: int, name: str,
               axes: tuple[str, ...] = ("x", "y", "z")) -> list[float]:
     raw = [cells[c].strip() for c in columns]
-    if all(c == "" for c in raw):
+    unseen = [c.casefold() in ("", "nan") for c in raw]  # a tracker writes NaN for a dropout
+    if all(unseen):
         return [math.nan] * 3
-    if any(c == "" for c in raw):
+    if any(unseen):
         raise FileFormatError(f"marker {name!r} has some but not all of its three cells; leave "
-                              "all three empty where it was not seen", path=data, line=line)
+                              "all three empty (or NaN) where it was not seen", path=data,
+                              line=line)
     return [parse_number(c, data, line, columns[i] + 1, f"{name}_{axes[i]}")
             for i, c in enumerate(raw)]
 

@@ -158,10 +158,10 @@ class Column:
 
     def numbers(self, empty_is_nan: bool = False) -> np.ndarray:
         """The cells as finite numbers within +-:data:`MAX_CELL` (file, line and column named
-        otherwise); with ``empty_is_nan`` an empty cell is NaN (a marker not seen)."""
+        otherwise); with ``empty_is_nan`` an empty or ``NaN`` cell is NaN (a marker not seen)."""
         out = np.empty(len(self.cells))
         for i, cell in enumerate(self.cells):
-            if empty_is_nan and not cell.strip():
+            if empty_is_nan and cell.strip().casefold() in ("", "nan"):
                 out[i] = math.nan
                 continue
             try:
