@@ -93,3 +93,32 @@ def test_verdict_against_the_declared_noise(ur5, tmp_path, capsys):
     assert stiffness.validate(tmp_path / "stiff.json", ur5 / "c2").verdict == "above the noise"
     assert main(["validate", str(tmp_path / "stiff.json"), str(ur5 / "c2")]) == 0
     assert "verdict: ABOVE THE NOISE" in capsys.readouterr().out
+
+
+def test_a_gross_row_is_flagged_where_it_is(ur5, tmp_path, capsys):
+    """One row of the validation campaign moved by 200 noise stds (a tracker's slip): validate
+    said only ABOVE THE NOISE, not where; identify flags such a row, validate did not. Now the
+    row is flagged by its label and line (as identify's outliers), and the clean campaign
+    flags none. Each component's excess is the shift over the declared noise, up to the
+    model's own error (a few noise stds)."""
+    import shutil
+
+    shutil.copytree(ur5 / "c2", tmp_path / "c2")
+    data = tmp_path / "c2" / "measurements.csv"
+    lines = data.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[5].split(",")
+    shift = 200 * NOISE * 1e3  # the campaign is in mm
+    cells[header.index("dz")] = repr(float(cells[header.index("dz")]) + shift)
+    data.write_text("\n".join([*lines[:5], ",".join(cells), *lines[6:]]) + "\n")
+    clean = stiffness.validate(ur5 / "model.json", ur5 / "c2").to_dict()
+    assert clean["outliers"] == [] and clean["outlier_threshold"] == 4.0
+    moved = stiffness.validate(ur5 / "model.json", tmp_path / "c2").to_dict()
+    assert len(moved["outliers"]) == 1, moved["outliers"]
+    flagged = moved["outliers"][0]
+    assert (flagged["line"], flagged["row"], flagged["component"]) == (6, 5, "dz")
+    assert flagged["label"] == cells[0]
+    assert -210 < flagged["standardised_residual"] < -190  # predicted minus measured
+    assert main(["validate", str(ur5 / "model.json"), str(tmp_path / "c2")]) == 0
+    out = capsys.readouterr().out
+    assert "1 row(s)\n  config " + cells[0] + " row 5 (line 6): dz -" in out, out

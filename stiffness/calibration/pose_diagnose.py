@@ -711,6 +711,16 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
     return out
 
 
+def validation_residual(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
+                        ) -> np.ndarray:
+    """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
+    was not seen; markers in the model's order, as :func:`validation_errors` reads them)."""
+    campaign = _in_model_order(model.markers, campaign)
+    model = PoseModel(campaign.robot, model.markers, model.families,
+                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    return campaign.positions - predict(model, x, campaign)
+
+
 def validation_jacobian(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
                         ) -> tuple[np.ndarray, np.ndarray]:
     """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker

@@ -6,6 +6,7 @@ text of ``stiffness validate`` and ``diagnose --validate``."""
 
 from __future__ import annotations
 
+from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier, describe_outliers
 from stiffness.calibration.steps_table import stage_table
 from stiffness.htmlpage import esc, table
 
@@ -59,7 +60,11 @@ def format_validation(result: dict) -> str:
     lines = [f"{result['rows']} rows; 3-D position error in {result['unit']}:",
              f"  {'':<12} {'RMS':>11} {'mean':>11} {'std':>11} {'max':>11} {'seen':>6}",
              *(_validation_row(n, r) for n, r in [("all", result), *result["markers"].items()])]
-    return "\n".join(lines + [_noise_verdict(result), "", *stage_table([("model", result)])])
+    flagged = describe_outliers([Outlier(**o) for o in result.get("outliers", [])],
+                                result.get("outlier_threshold", OUTLIER_THRESHOLD))
+    return "\n".join(lines + [_noise_verdict(result)] + (
+        flagged if result.get("verdict") is not None else []) + ["", *stage_table(
+            [("model", result)])])
 
 
 def _noise_verdict(result: dict) -> str:
