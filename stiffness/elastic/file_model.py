@@ -12,6 +12,7 @@ equilibrium and :func:`fitted_deflection` include it). Formulas: docs/model-file
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -81,7 +82,14 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         else:
             not_applied.append((e, reason))
     parts.check_joints()
-    notes = undetermined_notes(model.undetermined_joints, model.extra.get("confounded_joints"))
+    n = len(model.compliant_joints)
+    lows, highs = (np.full(n, np.nan) if v is None else v
+                   for v in (model.ci95_low, model.ci95_high))
+    rigid = {j: (float(k), float(low)) for j, k, low, high in zip(
+        model.compliant_joints, model.k_theta, lows, highs, strict=True)
+        if math.isfinite(low) and not math.isfinite(high)}
+    notes = undetermined_notes(model.undetermined_joints, model.extra.get("confounded_joints"),
+                               rigid)
     for note in notes:  # older files: no confounded_joints
         warn_user(f"{where}{note}", DataFileWarning)
     offset = model.target_offset_m.copy() if target_offset is None else np.asarray(

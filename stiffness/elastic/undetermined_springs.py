@@ -7,7 +7,7 @@ share and that its ``k_theta`` is where the fit left it, not a measurement.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from stiffness.elastic.effects.base import Parameter, confounded_note
 
@@ -22,16 +22,36 @@ def confounded_joints(stiffness: Sequence[Parameter]) -> dict:
             for p in stiffness if p.confounded_with}
 
 
-def undetermined_notes(joints: Sequence[str], confounded: object) -> list[str]:
+def undetermined_notes(joints: Sequence[str], confounded: object,
+                       rigid: Mapping[str, tuple[float, float]] | None = None) -> list[str]:
     """One warning per kind of undetermined spring of a model file: ``joints`` (its
-    ``undetermined_joints``) not loaded by the campaign, then each one ``confounded`` (its
-    ``confounded_joints``, :func:`confounded_joints`; absent in older files) names with its
-    note. A ``confounded`` entry without a text ``note`` is read as plainly undetermined."""
+    ``undetermined_joints``) not loaded by the campaign, then those ``rigid`` to it, then each
+    one ``confounded`` (its ``confounded_joints``, :func:`confounded_joints`; absent in older
+    files) names with its note. A ``confounded`` entry without a text ``note`` is read as
+    plainly undetermined.
+
+    Parameters
+    ----------
+    rigid
+        Joint -> (the file's stiffness, its 95 % interval's lower end) for the undetermined
+        springs whose interval has no upper end: the campaign loaded them but cannot tell them
+        from rigid, so the file's value (where the fit stopped: 1.8e5 N.m/rad, or 4e19 at the
+        compliance's zero bound) is no measurement, only the lower end is. Until 6 December
+        2026 they were said not to be loaded by their campaign.
+    """
     given = confounded if isinstance(confounded, dict) else {}
     notes = {j: given[j]["note"] for j in joints
              if isinstance(given.get(j), dict) and isinstance(given[j].get("note"), str)}
-    plain = [j for j in joints if j not in notes]
+    stiff = {j: v for j, v in (rigid or {}).items() if j in joints and j not in notes}
+    plain = [j for j in joints if j not in notes and j not in stiff]
     return ([f"the stiffness of {', '.join(plain)} is marked undetermined (its campaign did "
              "not load it): K_X in the directions it governs rests on an unidentified value"]
-            if plain else []) + [f"the stiffness of {j} is marked undetermined: {note}"
-                                 for j, note in notes.items()]
+            if plain else []) + ([
+                f"the stiffness of {', '.join(stiff)} is bounded by its campaign only from "
+                "below (stiffer than "
+                f"{', '.join(f'{low:.3g}' for _, low in stiff.values())} SI at 95 %, perhaps "
+                f"rigid): the file's {', '.join(f'{k:.3g}' for k, _ in stiff.values())} is "
+                "where the fit stopped, not a measurement; K_X in the directions it governs "
+                "rests on it"]
+                if stiff else []) + [f"the stiffness of {j} is marked undetermined: {note}"
+                                     for j, note in notes.items()]
