@@ -16,6 +16,7 @@ from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_fit import campaign_settings, rows_of
 from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.cli.diagnose import compensator_geometry
 from stiffness.cli.main import main
 from stiffness.elastic.effects.preloads import COMPENSATOR_GEOMETRY, GravityCompensator
 from stiffness.errors import StiffnessError
@@ -69,21 +70,25 @@ def test_declared_lengths_follow_the_scaling_law(campaign):
 
 
 def test_a_fit_with_doubled_lengths_and_its_model_file(campaign, tmp_path, capsys):
-    """Diagnosed with the lengths doubled (--compensator-geometry), the fit finds the spring
-    scaled by the law (each within its 95 % interval), the model file keeps the geometry and
-    the elastic model read from it carries it; a joint without a compensator is refused."""
-    d = diagnose_poses(campaign, families=FAMILIES, max_steps=0, effect_settings=DOUBLED)
-    table = {p["parameter"]: p for p in d.to_dict()["parameters"]}
-    for what, true in zip(("stiffness", "preload"), SPRING / [4.0, 2.0], strict=True):
-        low, high = table[f"{JOINT} compensator {what}"]["interval_95"]
-        assert low <= true <= high, (what, low, true, high)
+    """Diagnosed with the lengths doubled (--compensator-geometry, which reaches
+    :func:`diagnose_poses` as its ``effect_settings``), the fit finds the spring scaled by the
+    law (each within its 95 % interval, read from the written diagnosis: one diagnosis, not
+    one through the API and the same again through the command), the model file keeps the
+    geometry and the elastic model read from it carries it; a joint without a compensator is
+    refused."""
     folder = tmp_path / "poses"
     write_pose_campaign(campaign, folder)
     lever, base = DOUBLED[f"gravity_compensator({JOINT})"].values()
+    assert compensator_geometry([f"{JOINT}={lever},{base}"]) == DOUBLED
     assert main(["diagnose", str(folder), "--families", ",".join(FAMILIES), "--max-steps", "0",
                  "--compensator-geometry", f"{JOINT}={lever},{base}", "--quiet", "--out",
                  str(tmp_path / "out")]) == 0
     capsys.readouterr()
+    diagnosis = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    table = {p["parameter"]: p for p in diagnosis["parameters"]}
+    for what, true in zip(("stiffness", "preload"), SPRING / [4.0, 2.0], strict=True):
+        low, high = table[f"{JOINT} compensator {what}"]["interval_95"]
+        assert low <= true <= high, (what, low, true, high)
     model = json.loads((tmp_path / "out" / "final-model.json").read_text())
     assert model["settings"][GravityCompensator.GEOMETRY_SETTING] == {
         JOINT: {"lever_m": lever, "base_m": base}}
