@@ -108,8 +108,9 @@ def test_forced_and_forbidden_families_are_recorded(forced_compliance, tmp_path)
     record = d.to_dict()
     assert record["selection"]["forced"] == ["joint_compliance"]
     assert record["selection"]["forbidden"] == ["geometry"]
-    d.write(tmp_path / "out")
-    model = json.loads((tmp_path / "out" / "final-model.json").read_text())
+    # the model file as diagnose --out writes it (PoseDiagnosis.outputs' "model"), without the
+    # page and its figures (1.8 s of CPU; written and read in the backward-elimination test)
+    model = json.loads(d.write_model(tmp_path / "final-model.json").read_text())
     assert model["selection"] == record["selection"]
     for families, forbid, words in ((["gravity_lumped"], [], "not a candidate"),
                                     (["backlash"], ["backlash"], "both forced"),
