@@ -386,18 +386,21 @@ def test_pose_reader_contract(pose_folder, data):
 
 def test_calibrated_urdf_reproduces_the_rigid_positions(ur10, tmp_path, capsys):
     """robot export --urdf --model final-model.json: reloaded, the marker frames seen from
-    measuring_frame are the calibrated model's rigid predictions (1e-9 m)."""
+    measuring_frame are the calibrated model's rigid predictions (1e-9 m). The model file is
+    the one ``diagnose CAMPAIGN --out`` writes (:meth:`PoseDiagnosis.write_model` of the
+    diagnosis of the written campaign: the same file, without the page and its figures, 2.3
+    s of CPU; the command's --out is test_commands_on_a_written_campaign's)."""
     rng = np.random.default_rng(11)
     hidden = _hidden(ur10, rng)
     hidden.stiffness = None
     c = simulate_pose_campaign(ur10, ur10_markers(), hidden, 40, NOISE, seed=11)
     write_pose_campaign(c, tmp_path / "c")
-    assert main(["diagnose", str(tmp_path / "c"), "--out", str(tmp_path / "d")]) == 0
+    written = diagnose_poses(load_pose_campaign(tmp_path / "c")).write_model(
+        tmp_path / "final-model.json")
     out = tmp_path / "calibrated.urdf"
-    assert main(["robot", "export", "--model", str(tmp_path / "d" / "final-model.json"),
-                 "--urdf", str(out)]) == 0
+    assert main(["robot", "export", "--model", str(written), "--urdf", str(out)]) == 0
     from stiffness.calibration.pose_model_file import read_pose_model
-    file = read_pose_model(tmp_path / "d" / "final-model.json")
+    file = read_pose_model(written)
     predicted = file.model.evaluate(file.x, rows_of(file.model, c), jacobian=False)[0]
     written = load_robot(str(out))
     model, data = written.model, written.model.createData()
