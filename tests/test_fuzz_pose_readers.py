@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -119,3 +120,31 @@ def test_pose_model_file_mutations(pose_folder, data):
             assert np.all(np.isfinite(result.x))
     finally:
         target.unlink()
+
+
+@FUZZ
+@given(data=st.data())
+def test_pose_import_reader_contract(pose_folder, data):
+    """`campaign import --kind poses` (import_pose_campaign) on a mutated tracker file: a
+    finite campaign (three coordinates or none per marker and row) or one line, nothing
+    written. The pose import was the one reader of a user's file without such a test."""
+    from stiffness.calibration.campaign_toml import RobotSettings
+    from stiffness.calibration.pose_import import import_pose_campaign
+    from stiffness.calibration.rig_import import ImportSettings
+
+    folder, pristine, _ = pose_folder
+    original = load_pose_campaign(pristine)
+    units = original.units
+    settings = ImportSettings(units={"angle": units.angle, "length": units.length})
+    markers = [Marker(m.name, m.frame, m.offset / units.length_to_si) for m in original.markers]
+    rig = folder / "tracker.csv"
+    try:
+        write_text(rig, data.draw(csv_mutation((pristine / "measurements.csv").read_text())))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = assert_reader_contract(lambda: import_pose_campaign(
+                [rig], RobotSettings("ur10", frame="tool0"), settings, markers), folder)
+        if result is not None:
+            _check_meaning(result[0], original)
+    finally:
+        rig.unlink(missing_ok=True)
