@@ -155,6 +155,17 @@ def test_each_stiffness_takes_the_dof_of_its_noise_kinds():
     d = diagnose(c, propose=False, workers=1, max_steps=0)
     np.testing.assert_allclose([p.ci95 for p in d.final_stiffness],
                                np.column_stack([r.ci95_low, r.ci95_high]), rtol=1e-5)
+    # diagnose --json gives each stiffness's dof as identify does (ci95_dof), the one its
+    # own interval takes: k / (1 -+ t(dof) se(ln k)) from its own covariance
+    entries = d.to_dict()["final_stiffness"]
+    d_dof = np.array([entries[p.name]["ci95_dof"] for p in d.final_stiffness], dtype=float)
+    np.testing.assert_allclose(d_dof, dof, rtol=1e-4)
+    k = np.array([p.value for p in d.final_stiffness])
+    q = student.ppf(0.975, d_dof)
+    se = np.sqrt(np.diag(d.final_covariance)[:6])
+    np.testing.assert_allclose([p.ci95 for p in d.final_stiffness],
+                               np.column_stack([k / (1.0 + q * se), k / (1.0 - q * se)]),
+                               rtol=1e-9)
     declared = identify(dataclasses.replace(c, rotation_noise_std_rad=ROTATION_NOISE), starts=1)
     assert declared.ci95_dof == (None,) * 6
 

@@ -365,7 +365,15 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         measured=measured, rotation_noise_std_rad=rot_sigma, rotation_noise_source=rot_source,
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
         forbidden=list(forbidden), final_covariance=cov_final,
+        baseline_dof=_stiffness_dof(noise_base, base),
+        final_dof=_stiffness_dof(noise_final, final),
     )
+
+
+def _stiffness_dof(quantiles: Quantiles, fit: Fit) -> tuple[float | None, ...]:
+    """The degrees of freedom of the 95 % intervals of ``fit``'s joint stiffnesses (its first
+    columns; ``None``: the normal's), as ``identify`` reports them (``ci95_dof``)."""
+    return tuple(quantiles.reported_dof[: len(fit.model.compliant)])
 
 
 def _check_options(max_steps: int, loss: str, masses: str, counts: tuple) -> None:

@@ -139,6 +139,12 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         The covariance of the final fit's ``x`` (:func:`~stiffness.calibration.fitting.
         compliance_covariance` at :attr:`noise_std_m`), written into the model file in its
         variables (:mod:`stiffness.elastic.parameter_covariance`), or ``None``.
+    baseline_dof, final_dof
+        Per stiffness of :attr:`baseline_stiffness` and :attr:`final_stiffness`, the degrees
+        of freedom of its 95 % interval's Student's t
+        (:func:`~stiffness.calibration.deflection_noise.interval_quantiles`, ``None`` for the
+        normal's), as ``identify`` reports them: JSON ``ci95_dof`` in each entry. Empty: not
+        given.
     """
 
     geometry: Geometry
@@ -165,6 +171,8 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     baseline_validation: dict | None = None
     gof_excluded_rows: int = 0
     final_covariance: np.ndarray | None = None
+    baseline_dof: tuple[float | None, ...] = ()
+    final_dof: tuple[float | None, ...] = ()
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -247,7 +255,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "missing_effects": self.missing_effects,
             "unexplained": self.unexplained,
             "final_rms": self._len(self.final.rms()),
-            "final_stiffness": {p.name: p.to_dict() for p in self.final_stiffness},
+            "final_stiffness": stiffness_entries(self.final_stiffness, self.final_dof),
             "final_parameters": {label: {p.name: p.to_dict() for p in params}
                                  for label, params in self.final_parameters.items()},
             "unit": self.unit,
@@ -304,7 +312,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "unexplained_note": self.unexplained_note,
             "cv_rms": {"baseline": self._len(self.cv_baseline),
                        "steps": [self._len(s.cv_rms) for s in self.steps]},
-            "baseline_stiffness": {p.name: p.to_dict() for p in self.baseline_stiffness},
+            "baseline_stiffness": stiffness_entries(self.baseline_stiffness, self.baseline_dof),
             "step_details": [{"effect": s.effect.name, "where": s.effect.where,
                               "description": s.effect.describe(),
                               "delta_bic": s.delta_bic, "dispersion": s.dispersion,
@@ -419,3 +427,11 @@ def residual_plot(d: Diagnosis) -> bytes:
                              f"{d.campaign.name}: RMS {d.baseline.rms() / lu:.3g} -> "
                              f"{d.final.rms() / lu:.3g} {d.unit} (noise {sigma:.3g}); {title}",
                              starts)
+
+
+def stiffness_entries(stiffness: list[Parameter], dof: tuple[float | None, ...]) -> dict:
+    """The JSON entries of a diagnosis's stiffnesses (:meth:`Parameter.to_dict`), each with
+    ``ci95_dof``, its interval's degrees of freedom (``None``: the normal's), where ``dof``
+    gives them (``identify --json``'s key and rule)."""
+    return {p.name: {**p.to_dict(), **({"ci95_dof": d} if dof else {})}
+            for p, d in zip(stiffness, dof or (None,) * len(stiffness), strict=True)}
