@@ -34,14 +34,13 @@ def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None
         Row indices (0-based) where a new configuration starts: a thin vertical line before
         each (at most 30 drawn, none beyond).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     rows = np.arange(1, before.shape[0] + 1)
-    lines = boundaries[1:] if boundaries and len(boundaries) <= 30 else []
-    fig, axes = plt.subplots(3, 2, figsize=(11, 7.5), sharex=True)
+    lines = np.asarray(boundaries[1:] if boundaries and len(boundaries) <= 30 else [],
+                       dtype=float)
+    fig = Figure(figsize=(11, 7.5))
+    axes = fig.subplots(3, 2, sharex=True)
     for col, (values, word) in enumerate(((before, "before"), (after, "after"))):
         for k in range(3):
             ax = axes[k, col]
@@ -51,8 +50,9 @@ def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None
             ax.axhline(0.0, color="0.3", lw=0.6)
             ax.set_ylabel(f"{'xyz'[k]} residual ({unit})")
             ax.grid(alpha=0.3)
-            for i in lines:
-                ax.axvline(i + 0.5, color="0.8", lw=0.5)
+            if lines.size:  # one collection, not a line each: full height, as axvline draws
+                ax.vlines(lines + 0.5, 0.0, 1.0, transform=ax.get_xaxis_transform(),
+                          colors="0.8", lw=0.5)
         axes[0, col].set_title(f"{word} (RMS {finite_rms(values):.3g} {unit})", fontsize=9)
         axes[-1, col].set_xlabel("measurement row")
     if sigma:
@@ -61,5 +61,4 @@ def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None
     fig.subplots_adjust(left=0.09, right=0.99, top=0.92, bottom=0.07, hspace=0.1, wspace=0.3)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
     return buf.getvalue()
