@@ -19,7 +19,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stiffness.batch.equilibrium import solve_equilibria
+from stiffness.calibration.exact_baseline import ExactObservation
+from stiffness.elastic.effects.geometry import Geometry, References
+from stiffness.elastic.effects.hypothesis import Hypothesis
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.equilibrium import (
     SpringLaw,
@@ -284,39 +286,43 @@ def test_bad_load_for_equilibrium(cases, load):
 # ------------------------------------------------------------------ many rows at once (batch)
 
 
+def _exact_baseline(robot, q_rows, loads, rotation_weight=None):
+    """The deflection fit's exact baseline (the pose model's sag observed at the target) over
+    the rows ``q_rows`` (m, nq) under ``loads`` (m, 3 or 6)."""
+    loads = np.array([np.r_[w, 0.0, 0.0, 0.0] if len(w) == 3 else w for w in loads])
+    geo = Geometry.of(robot)
+    rows = geo.rows(np.array([robot.coordinates_of(q) for q in q_rows]), loads[:, :3],
+                    loads[:, 3:])
+    refs = References.of(geo, rows, 2e4, np.full((1, 3), 1e-3))
+    return Hypothesis(geo, rows, "exact", tuple(robot.compliant_joints), (), refs,
+                      rotation_weight, exact=ExactObservation)
+
+
 @pytest.mark.parametrize("name", ["sk120", "ur5", "panda", "four_bar"])
-def test_batched_equilibria_equal_the_one_at_a_time_solver(name, cases):
-    """solve_equilibria over rows of loads (a wrench among them, two poses) equals
-    solve_equilibrium row by row, and each row balances K dtheta = J(theta)^T W."""
+def test_exact_baseline_equals_the_one_at_a_time_solver(name, cases):
+    """The exact baseline over rows of loads (a wrench among them, two poses) equals
+    solve_equilibrium row by row: the target's displacement and rotation to 1e-9 of their
+    largest (the loops' closures; the open chains' to round-off)."""
     robot, q0, k_theta, force = cases[name]
     q1 = robot.configuration(robot.coordinates_of(q0) + 0.05)
     loads = np.array([np.r_[0.5 * force, 0, 0, 0], np.r_[2.0 * force, 0, 0, 0],
                       np.r_[force, 0.02 * np.abs(force).max() * np.array([1.0, -0.5, 0.3])],
                       np.r_[-force, 0, 0, 0]])
     q_rows = np.array([q0, q0, q0, q1])
-    eqs = solve_equilibria(robot, q_rows, k_theta, loads)
-    for i, (q, load) in enumerate(zip(q_rows, loads, strict=True)):
-        one = solve_equilibrium(robot, q, k_theta, load)
-        state = target_state(robot, one.q, load)
-        scale = np.abs(one.dx).max()
-        np.testing.assert_allclose(eqs.dx[i], one.dx, rtol=0, atol=1e-9 * scale)
-        np.testing.assert_allclose(eqs.rotation[i], one.rotation, rtol=0,
-                                   atol=1e-9 * np.abs(one.rotation).max())
-        np.testing.assert_allclose(eqs.dtheta[i], one.dtheta, rtol=1e-9, atol=1e-15)
-        np.testing.assert_allclose(eqs.torque[i], one.torque, rtol=1e-9,
-                                   atol=1e-12 * np.abs(one.torque).max())
-        np.testing.assert_allclose(eqs.jacobian[i], state.jacobian, atol=1e-9)
-        np.testing.assert_allclose(eqs.k_c[i], state.k_c, atol=1e-9 * np.abs(state.k_c).max())
-        assert eqs.iterations[i] == one.iterations
-        np.testing.assert_allclose(k_theta @ eqs.dtheta[i], state.jacobian.T @ load,
-                                   atol=1e-9 * np.abs(state.jacobian.T @ load).max())
+    pred = _exact_baseline(robot, q_rows, loads, 1.0).predict(np.log(np.diag(k_theta)))
+    one = [solve_equilibrium(robot, q, k_theta, load)
+           for q, load in zip(q_rows, loads, strict=True)]
+    dx, rotation = np.array([e.dx for e in one]), np.array([e.rotation for e in one])
+    np.testing.assert_allclose(pred[:, :3], dx, rtol=0, atol=1e-9 * np.abs(dx).max())
+    np.testing.assert_allclose(pred[:, 3:], rotation, rtol=0,
+                               atol=1e-9 * np.abs(rotation).max())
 
 
-def test_batched_equilibria_refuse_a_load_beyond_buckling(cases):
+def test_exact_baseline_refuses_a_load_beyond_buckling(cases):
     robot, q0, k_theta, force = cases["ur5"]
-    with pytest.raises(StiffnessError, match="row 2 did not converge"):
-        solve_equilibria(robot, np.array([q0, q0]), k_theta,
-                         np.array([force, [0.0, 0.0, 1e5]]))
+    model = _exact_baseline(robot, np.array([q0, q0]), np.array([force, [0.0, 0.0, 1e5]]))
+    with pytest.raises(StiffnessError, match="buckling load"):
+        model.predict(np.log(np.diag(k_theta)))
 
 
 # ------------------------------------------------------------------ frozen-geometry joint law

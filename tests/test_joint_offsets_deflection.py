@@ -3,9 +3,9 @@ through the Jacobian there (:meth:`JointOffsets.jacobian_change`).
 
 Checked against independent computations: its analytic Jacobian columns against central finite
 differences of the prediction; its prediction against the exact equilibria
-(:func:`stiffness.batch.equilibrium.solve_equilibria`) at the offset configurations minus those
-at the commanded ones (error second order in the offsets); the simulator's hidden offsets
-against the same exact equilibria.
+(:func:`stiffness.mechanics.equilibrium.solve_equilibrium`, row by row) at the offset
+configurations minus those at the commanded ones (error second order in the offsets); the
+simulator's hidden offsets against the same exact equilibria.
 """
 
 from __future__ import annotations
@@ -16,17 +16,25 @@ import numpy as np
 import pytest
 from conftest import CRANK_ROCKER, write_four_bar
 
-from stiffness.batch.equilibrium import solve_equilibria
 from stiffness.calibration.campaign import load_campaign
 from stiffness.calibration.diagnose import diagnose
 from stiffness.cli.main import main
 from stiffness.elastic.effects import Geometry, Hypothesis, candidates, make_effect
 from stiffness.elastic.effects.geometry import References
+from stiffness.mechanics.equilibrium import solve_equilibrium
 from stiffness.planning.simulate import parse_effect, simulate
 from stiffness.robot.robot import load_robot
 
 #: a soft UR10 (docs/diagnose.md, "Joint zero offsets")
 KQ = [1.2e5, 8e4, 6e4, 2e4, 2e4, 1.5e4]
+
+
+def _exact_dx(robot, q, k, force) -> np.ndarray:
+    """(m, 3) exact tool displacements (m) of the configurations ``q`` (m, nq) under the forces
+    (m, 3) or one force (3,), springs ``k`` (SI): the one-pose solver row by row."""
+    force = np.broadcast_to(force, (len(q), 3))
+    return np.array([solve_equilibrium(robot, qi, np.diag(k), f).dx
+                     for qi, f in zip(q, force, strict=True)])
 
 
 @pytest.fixture(scope="module")
@@ -85,13 +93,13 @@ def test_prediction_is_the_exact_change_to_second_order(ur10):
     model = _model(geo, camp, force, [make_effect("complementary_stiffness", None, geo)])
     signs = np.random.default_rng(3).choice([-1.0, 1.0], 6)
     q = np.array([robot.configuration(c) for c in camp.q])
-    exact0 = solve_equilibria(robot, q, np.diag(KQ), force).dx
+    exact0 = _exact_dx(robot, q, KQ, force)
     x0 = np.concatenate([np.log(KQ), np.zeros(5)])
     sizes, errors = np.array([4e-3, 2e-3, 1e-3, 5e-4]), []
     for d in sizes:
         delta = d * signs
         q_d = np.array([robot.configuration(c + delta) for c in camp.q])
-        exact = solve_equilibria(robot, q_d, np.diag(KQ), force).dx - exact0
+        exact = _exact_dx(robot, q_d, KQ, force) - exact0
         change = model.predict(np.concatenate([np.log(KQ), delta[:5] / 1e-3])) - model.predict(x0)
         errors.append(np.sqrt(np.mean((change - exact) ** 2)))
         assert errors[-1] < 2.0 * d * np.sqrt(np.mean(exact ** 2))  # relative O(delta_0)
@@ -102,7 +110,7 @@ def test_prediction_is_the_exact_change_to_second_order(ur10):
 def test_simulated_offsets_are_the_exact_equilibria_at_the_offset_configuration():
     """``stiffness simulate --effect joint_offsets=...`` measures the exact equilibrium at
     ``q + delta_0`` (not the first-order model): its noise-free deflections equal
-    :func:`solve_equilibria` there."""
+    :func:`solve_equilibrium` there."""
     values = (0.2, -0.1, 0.15, -0.3, 0.25, -0.05)  # deg
     sim = simulate("ur10", kq=KQ, configs=3, loads_per_config=2, max_force=300.0, seed=2,
                    noise_std_m=0.0, effects=[parse_effect(
@@ -110,10 +118,10 @@ def test_simulated_offsets_are_the_exact_equilibria_at_the_offset_configuration(
     camp = sim.campaign
     robot = camp.robot()
     q_d = np.array([robot.configuration(c + np.radians(values)) for c in camp.q])
-    exact = solve_equilibria(robot, q_d, np.diag(KQ), camp.force).dx
+    exact = _exact_dx(robot, q_d, KQ, camp.force)
     assert np.abs(camp.deflection - exact).max() < 1e-12  # SI
     q = np.array([robot.configuration(c) for c in camp.q])
-    unmoved = solve_equilibria(robot, q, np.diag(KQ), camp.force).dx
+    unmoved = _exact_dx(robot, q, KQ, camp.force)
     assert np.abs(unmoved - exact).max() > 1e-7  # the offsets show
 
 
@@ -180,14 +188,14 @@ def test_coupled_and_closed_loop_prediction_is_the_exact_change(case, tmp_path):
     model = base.extended(offsets)
     signs = np.random.default_rng(3).choice([-1.0, 1.0], robot.n_coordinates)
     q = np.array([robot.configuration(c) for c in coords])
-    exact0 = solve_equilibria(robot, q, np.diag(kq), force).dx
+    exact0 = _exact_dx(robot, q, kq, force)
     x0 = np.concatenate([np.log(kq), np.zeros(robot.n_coordinates)])
     sizes, errors = np.array([4e-3, 2e-3, 1e-3, 5e-4]), []
     for d in sizes:
         delta = d * signs
         q_d = np.array([robot.configuration(c + delta, seed=s) for c, s in zip(coords, q,
                                                                                 strict=True)])
-        exact = solve_equilibria(robot, q_d, np.diag(kq), force).dx - exact0
+        exact = _exact_dx(robot, q_d, kq, force) - exact0
         change = model.predict(np.concatenate([np.log(kq), delta / 1e-3])) - model.predict(x0)
         errors.append(np.sqrt(np.mean((change - exact) ** 2)))
         assert errors[-1] < 2.0 * d * np.sqrt(np.mean(exact ** 2))  # relative O(delta_0)
@@ -212,8 +220,8 @@ def test_simulate_cli_hides_offsets_on_the_controller_coordinates(tmp_path, caps
     q = np.array([robot.configuration(c) for c in camp.q])
     q_d = np.array([robot.configuration(c + np.radians(values), seed=s)
                     for c, s in zip(camp.q, q, strict=True)])
-    exact = solve_equilibria(robot, q_d, np.diag(SK120_KQ), camp.force).dx
-    unmoved = solve_equilibria(robot, q, np.diag(SK120_KQ), camp.force).dx
+    exact = _exact_dx(robot, q_d, SK120_KQ, camp.force)
+    unmoved = _exact_dx(robot, q, SK120_KQ, camp.force)
     assert np.abs(camp.deflection - exact).max() < 1e-9  # m: the files' digits
     assert np.abs(unmoved - exact).max() > 1e-6  # the offsets show
 

@@ -48,6 +48,7 @@ from typing import Protocol
 import numpy as np
 
 from stiffness.calibration.campaign import Campaign
+from stiffness.calibration.exact_baseline import ExactObservation
 from stiffness.calibration.fitting import Fit
 from stiffness.calibration.poses import sample_coordinates
 from stiffness.elastic.effects.geometry import Geometry, References, Rows
@@ -185,7 +186,8 @@ def baseline_model(geometry: Geometry, rows: Rows, compliant: tuple[str, ...], k
                                f"{', '.join(BASELINES)}", name=formulation, choices=BASELINES)
     k = np.asarray(k, dtype=float)
     refs = References.of(geometry, rows, float(np.exp(np.mean(np.log(k)))), np.ones((1, 3)))
-    return Hypothesis(geometry, rows, formulation, compliant, (), refs), np.log(k)
+    return (Hypothesis(geometry, rows, formulation, compliant, (), refs, exact=ExactObservation),
+            np.log(k))
 
 
 def sensitivities(model: Hypothesis, x: np.ndarray, n_columns: int | None = None) -> np.ndarray:

@@ -7,8 +7,9 @@ joints, N/m for prismatic ones). For each measurement row ``r`` (configuration `
 * ``conventional``: ``J K^-1 J^T W`` (A&S eq. 8),
 * ``enhanced``: ``J (K - K_C(W))^-1 J^T W`` (A&S eq. 10-11),
 * ``exact``: the displacement of the exact elastostatic equilibrium
-  (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`, all rows at once by
-  :func:`stiffness.batch.equilibrium.solve_equilibria`; slower),
+  (:func:`stiffness.mechanics.equilibrium.solve_equilibrium`; all rows at once as an
+  observation of the pose model's sag, :class:`stiffness.calibration.exact_baseline.
+  ExactObservation`; slower),
 
 with ``J`` the translational target Jacobian w.r.t. the compliant joints. Identification is a
 diagnosis with no effects: the model is the campaign's baseline
@@ -84,6 +85,7 @@ from stiffness.calibration.deflection_noise import (
     weighted_observations,
 )
 from stiffness.calibration.deflection_parameters import stiffness_parameters
+from stiffness.calibration.exact_baseline import ExactObservation
 from stiffness.calibration.fitting import (
     Fit,
     compliance_covariance,
@@ -215,7 +217,8 @@ def stiffness_model(campaign: Campaign, formulation: str, robot: Robot | None = 
                          labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
                          joint_angles=campaign.robot_settings.joint_angles)
     refs = References.of(geometry, rows, PAPER_START_SI, campaign.deflection)
-    return Hypothesis(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs)
+    return Hypothesis(geometry, rows, formulation, tuple(robot.compliant_joints), (), refs,
+                      exact=ExactObservation)
 
 
 @overload

@@ -479,6 +479,43 @@ class PoseModel:
         if not self.elastic:
             q, tangent = self._configurations(model, data, commanded, offsets)
             return q, None, tangent
+        sag, closed, state, _ = self._sag(model, data, x, rows, commanded, offsets)
+        q, tangent = self._configurations(model, data, commanded, offsets + sag, closed)
+        return q, state, tangent
+
+    def loaded_state(self, x: np.ndarray, rows: list[RowTerms]
+                     ) -> tuple[SagState, np.ndarray]:
+        """The sag of ``rows`` for parameters ``x`` (an elastic model's) without the closure
+        :meth:`_loaded_rows` ends with: the sag's state at the configurations of its last pass
+        (``q`` (n, nq), closed on a robot with loops; the torques (n, 1, nv) there) and that
+        pass's step (n, nv; on the independent coordinates, at most :data:`SAG_TOLERANCE`),
+        which takes them to the converged sag.
+
+        Raises
+        ------
+        StiffnessError
+            If the model has no elastic family.
+        ConvergenceError
+            If the sag does not converge.
+        """
+        if not self.elastic:
+            raise StiffnessError("a model without an elastic family does not sag: add "
+                                 "joint_compliance to its families")
+        x = np.asarray(x, dtype=float)
+        model = self.perturbed_model(x)
+        commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
+        _, _, state, step = self._sag(model, model.createData(), x, rows, commanded,
+                                      self._offsets(x))
+        return state, step
+
+    def _sag(self, model: pin.Model, data: pin.Data, x: np.ndarray, rows: list[RowTerms],
+             commanded: np.ndarray, offsets: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, SagState, np.ndarray]:
+        """The sag's fixed point of :meth:`_loaded_rows` from the ``commanded`` (n, nq)
+        configurations moved by the zero ``offsets`` (nv,): the sag (n, nv), each row's last
+        closure (n, nq: the commanded configurations on an open chain), the sag's state at
+        the configurations of its last pass and that pass's step (n, nv: the sag minus the
+        sag of those configurations, at most :data:`SAG_TOLERANCE`)."""
         n, nv = len(rows), model.nv
         wrench = (None if self.loads is None or all(r.wrench is None for r in rows) else
                   np.array([np.zeros(6) if r.wrench is None else r.wrench for r in rows]))
@@ -488,6 +525,7 @@ class PoseModel:
             if last is not None and last[0] is row:
                 sag[i], warm[i] = last[1], True
         at, gravity, applied = np.empty((n, model.nq)), np.empty((n, nv)), np.empty((n, nv))
+        final_step = np.empty((n, nv))
         kept: dict[str, np.ndarray] = {}  # the families' extras at ``at``, as computed there
         pending = np.arange(n)
         closed = commanded.copy()  # each row's last closure, whose passive joints seed its next
@@ -514,6 +552,7 @@ class PoseModel:
                 if done.any():
                     finished = pending[done]
                     at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
+                    final_step[finished] = step[done]
                     for f, e in extras.items():
                         kept.setdefault(f, np.empty((n,) + e.shape[1:]))[finished] = e[done]
                     pending, size = pending[~done], size[~done]  # pending only shrinks
@@ -540,8 +579,8 @@ class PoseModel:
         for i, row in enumerate(rows):
             self._sag_start[id(row)] = (row, sag[i])
         extras = {f: e[:, None] for f, e in kept.items()}
-        q, tangent = self._configurations(model, data, commanded, offsets + sag, closed)
-        return q, self._state(x, at, gravity[:, None], applied[:, None], extras), tangent
+        state = self._state(x, at, gravity[:, None], applied[:, None], extras)
+        return sag, closed, state, final_step
 
     def _configurations(self, model: pin.Model, data: pin.Data, commanded: np.ndarray,
                         shift: np.ndarray, seed: np.ndarray | None = None

@@ -27,30 +27,38 @@ Units: SI inside (m, N, rad, N.m/rad).
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
-from stiffness.batch.equilibrium import solve_equilibria, unloaded_kinematics
 from stiffness.elastic.effects.base import Held
 from stiffness.elastic.effects.deflection_face import DeflectionEffect
 from stiffness.elastic.effects.geometry import (
     Geometry,
     References,
     Rows,
-    cached_robot,
     contract_hessian,
     skew,
 )
 from stiffness.errors import StiffnessError, UnknownNameError
 from stiffness.mechanics.equilibrium import SpringLaw
-from stiffness.robot.robot import Robot
 
 #: Newton iterations of the joint law when it is nonlinear (backlash, nonlinear spring).
 LAW_ITERATIONS = 4
-#: Baselines a model may start from (``exact``: the exact equilibrium of every row,
-#: :func:`stiffness.batch.equilibrium.solve_equilibria`, without effects).
+#: Baselines a model may start from (``exact``: the exact equilibrium of every row, without
+#: effects, from the model's :class:`ExactForward`).
 BASELINES = ("conventional", "enhanced", "exact")
+
+
+class ExactForward(Protocol):
+    """The ``exact`` baseline's forward model over a hypothesis's rows
+    (:class:`stiffness.calibration.exact_baseline.ExactObservation`, the pose model's sag)."""
+
+    def __call__(self, k: np.ndarray, jacobian: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The rows predicted at the stiffnesses ``k`` (SI, the hypothesis's joints), and
+        with ``jacobian`` their derivatives in ``ln k``."""
 
 # ------------------------------------------------------------------------------------------
 # the hypothesis
@@ -87,19 +95,27 @@ class Hypothesis:
         label (``compliance(joint)`` or ``effect_label.parameter``) with why
         (:func:`stiffness.calibration.fitting.fit_model` keeps them at the start; carried to
         every model derived from this one).
+    exact
+        What makes the ``exact`` baseline's forward model of a hypothesis (required with that
+        baseline: :class:`stiffness.calibration.exact_baseline.ExactObservation`, which
+        :func:`stiffness.calibration.identify.stiffness_model` gives); carried to every model
+        derived from this one.
     """
 
     def __init__(self, geometry: Geometry, rows: Rows, baseline: str,
                  compliant: tuple[str, ...], effects: tuple[DeflectionEffect, ...],
                  refs: References, rotation_weight: float | None = None,
-                 held: dict[str, Held] | None = None
-                 ) -> None:
+                 held: dict[str, Held] | None = None,
+                 exact: Callable[[Hypothesis], ExactForward] | None = None) -> None:
         if baseline not in BASELINES:
             raise UnknownNameError(f"unknown baseline {baseline!r}; valid: {', '.join(BASELINES)}",
                                    name=baseline, choices=BASELINES)
         if baseline == "exact" and effects:
             raise StiffnessError("the exact baseline takes no effects (complementary_stiffness "
                                  "approximates it to second order); start from enhanced")
+        if baseline == "exact" and exact is None:
+            raise StiffnessError("the exact baseline needs its forward model: give "
+                                 "exact=ExactObservation (stiffness.calibration.exact_baseline)")
         self.geometry, self.rows, self.baseline = geometry, rows, baseline
         self.compliant, self.effects, self.refs = tuple(compliant), tuple(effects), refs
         self.rotation_weight = None if rotation_weight is None else float(rotation_weight)
@@ -110,8 +126,9 @@ class Hypothesis:
         self.second_order = any(e.second_order for e in self.effects)
         sizes = [len(self.compliant)] + [e.n_params for e in self.effects]
         self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-        #: exact baseline: its robot, the rows' unloaded configurations and their kinematics
-        self._exact_rows: tuple | None = None
+        self.exact = exact
+        #: the exact baseline's forward model over these rows, made at its first evaluation
+        self._exact_forward: ExactForward | None = None
         self._prepare()
 
     def _prepare(self) -> None:
@@ -122,20 +139,15 @@ class Hypothesis:
         self._k_c: np.ndarray | None = None
         self._tau: np.ndarray | None = None
 
-    def _exact_robot(self) -> Robot:
-        robot = self.geometry.robot
-        if self.joints == tuple(robot.compliant_joints):  # every coordinate joint: no reload
-            return robot
-        return cached_robot(robot.name, robot.target_frame, tuple(robot.target_offset),
-                            self.joints, robot.loop_file, robot.fixed_base)
-
     # construction ----------------------------------------------------------------------------
     def replaced(self, **changes: Any) -> Hypothesis:
         """The same model with constructor arguments replaced (``rows``, ``baseline``,
-        ``effects``, ``refs``, ``rotation_weight`` in m/rad or ``None``, ``held``)."""
+        ``effects``, ``refs``, ``rotation_weight`` in m/rad or ``None``, ``held``,
+        ``exact``)."""
         args = {"geometry": self.geometry, "rows": self.rows, "baseline": self.baseline,
                 "compliant": self.compliant, "effects": self.effects, "refs": self.refs,
-                "rotation_weight": self.rotation_weight, "held": self.held}
+                "rotation_weight": self.rotation_weight, "held": self.held,
+                "exact": self.exact}
         return Hypothesis(**{**args, **changes})
 
     def extended(self, effect: DeflectionEffect) -> Hypothesis:
@@ -377,30 +389,12 @@ class Hypothesis:
 
     def _exact(self, k: np.ndarray, jacobian: bool = True
                ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Exact equilibria of every row (:func:`stiffness.batch.equilibrium.solve_equilibria`)
-        and their derivatives w.r.t. ``ln k``."""
-        if self._exact_rows is None:
-            robot = self._exact_robot()
-            rows = self.rows
-            q0: dict[int, np.ndarray] = {}
-            for i in range(rows.n_rows):
-                c = int(rows.config_index[i])
-                if c not in q0:
-                    q0[c] = robot.configuration(rows.coords[i])
-            q = np.array([q0[int(c)] for c in rows.config_index])
-            self._exact_rows = (robot, q, unloaded_kinematics(robot, q))
-        robot, q, base = self._exact_rows
-        kmat = np.diag(k)
-        eq = solve_equilibria(robot, q, kmat, self.wrench, base=base)
-        w = self.rotation_weight
-        out = eq.jacobian[:, :3] if w is None else np.concatenate(
-            [eq.jacobian[:, :3], w * eq.jacobian[:, 3:]], axis=1)
-        pred = eq.dx if w is None else np.hstack([eq.dx, w * eq.rotation])
-        if not jacobian:
-            return pred, None
-        # implicit function theorem: d dtheta / d ln k_i = -(K - K_C)^-1 e_i k_i dtheta_i
-        dtheta = -np.linalg.solve(kmat - eq.k_c, eq.dtheta[:, :, None] * np.diag(k))
-        return pred, out @ dtheta
+        """Exact equilibria of every row and, with ``jacobian``, their derivatives w.r.t.
+        ``ln k``, from the model's :class:`ExactForward` (made at the first call)."""
+        if self._exact_forward is None:
+            assert self.exact is not None  # required with the exact baseline
+            self._exact_forward = self.exact(self)
+        return self._exact_forward(k, jacobian)
 
     def predict(self, x: np.ndarray, detail: bool = False):
         """(m, 3) predicted measured displacements (m) for parameters ``x``; (m, 6)
