@@ -108,9 +108,11 @@ def csv_float(cell: str) -> float:
     return plain_float(cell, "a CSV number")
 
 
-def csv_cells(line: str, path: str | os.PathLike[str], number: int) -> list[str]:
+def csv_cells(line: str, path: str | os.PathLike[str], number: int,
+              separator: str = ",") -> list[str]:
     """The cells of one line of a CSV file (``number``: its 1-based line), as the files'
-    readers take them a line at a time (a quote opened in a cell closes at the line's end).
+    readers take them a line at a time (a quote opened in a cell closes at the line's end);
+    ``separator`` another than the comma (a rig file's ``;`` or tab).
 
     Raises
     ------
@@ -118,7 +120,7 @@ def csv_cells(line: str, path: str | os.PathLike[str], number: int) -> list[str]
         The line is not CSV to Python's reader (a cell over its 128 KiB limit).
     """
     try:
-        return next(csv.reader([line]), [])
+        return next(csv.reader([line], delimiter=separator), [])
     except csv.Error as exc:
         raise FileFormatError(f"not CSV ({exc}); write one row per line, cells separated by "
                               "commas", path=path, line=number) from exc

@@ -283,11 +283,11 @@ def test_main_maps_every_type_to_one_line(monkeypatch, capsys, cls):
 
 @pytest.mark.parametrize("separator", [";", "\t"])
 def test_csv_with_another_separator_is_named(tmp_path, separator):
-    """A spreadsheet's ';' (decimal commas) or a tab-separated export: every CSV reader says
-    which separator it found, in one line, instead of a missing 'config' or coordinate column
-    (campaign, pose campaign, rig import, joint path, plan)."""
+    """A spreadsheet's ';' (decimal commas) or a tab-separated export: every reader of the
+    toolkit's own CSV files says which separator it found, in one line, instead of a missing
+    'config' or coordinate column (campaign, pose campaign, joint path, plan). The rig import
+    reads them since 6 December 2026 (tests/test_spreadsheet_edges.py)."""
     from stiffness.calibration.pose_campaign import load_pose_campaign
-    from stiffness.calibration.rig_import import read_table
     from stiffness.machining.joint_path import read_joint_path
     from stiffness.planning.plan import read_plan
 
@@ -309,7 +309,6 @@ def test_csv_with_another_separator_is_named(tmp_path, separator):
                                  + separator.join(["A", "1", "2"]) + "\n")
     robot = load_robot("sk120")
     readers = [lambda: load_campaign(campaign), lambda: load_pose_campaign(poses),
-               lambda: read_table(campaign / "measurements.csv"),
                lambda: read_joint_path(semi(DOCS_PATH.parent / "sk120-path.csv",
                                             tmp_path / "path.csv"), robot),
                lambda: read_plan(campaign / "measurements.csv", robot)]

@@ -314,3 +314,59 @@ def test_a_row_whose_label_starts_with_a_hash_is_not_dropped_unseen(deflections,
         warnings.simplefilter("error", DataFileWarning)
         _read_deflections(deflections[0], ("# a comment, 1, 2, 3\n" + TABLE_TEXT + "# end, 4, 5"
                                            ).encode())
+
+
+#: A rig's rows with decimals in every kind of column (UR5, deg, N, mm).
+DECIMAL_RIG = ["label,q1,q2,q3,q4,q5,q6,fx,fy,fz,dx,dy,dz",
+               "A,0.5,-90.25,90,0,90,0,10.5,0,-2.25,0.1,0,-0.0125",
+               "B,0.5,-80.75,90,0,90,0,0,10.25,0,0.015,0.1,1.5e-3"]
+
+
+@EDGES
+@given(separator=st.sampled_from([";", "\t"]), comma=st.booleans(),
+       values=st.lists(st.floats(-1e3, 1e3, allow_nan=False).map(lambda v: round(v, 4)),
+                       min_size=3, max_size=3))
+def test_a_european_or_tab_separated_export_imports_the_same_numbers(rig, separator, comma,
+                                                                     values):
+    """A European spreadsheet writes ';' and decimal commas, a tracker's text export tabs:
+    the rig import refused both ('the columns are separated by ...'), though nothing in them
+    is ambiguous. Now it reads them, to the same campaign as the comma-separated file,
+    whatever the numbers (here the first row's deflections drawn)."""
+    folder = rig[0]
+    rows = [line.split(",") for line in DECIMAL_RIG]
+    rows[1][10:13] = [repr(v) for v in values]
+    plain = folder / "plain.csv"
+    plain.write_text("\n".join(",".join(r) for r in rows) + "\n")
+    other = folder / "other.csv"
+    other.write_text("\n".join(separator.join(c.replace(".", ",") if comma else c for c in r)
+                               for r in rows) + "\n")
+    settings = ImportSettings(column_map={"config": "label"}, units=UNITS)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            want, _ = import_campaign([plain], RobotSettings("ur5"), settings)
+            got, _ = import_campaign([other], RobotSettings("ur5"), settings)
+    finally:
+        plain.unlink()
+        other.unlink()
+    _same(got, want, ("q", "force", "deflection"))
+    assert list(got.config) == list(want.config)
+
+
+def test_decimal_points_beside_decimal_commas_are_refused(tmp_path):
+    """';' with decimal commas, but one number written with a point: '1.234' might be a
+    thousands separator's 1234, so neither reading is guessed: one line naming the cell."""
+    from stiffness.errors import DataFileNote, FileFormatError
+
+    rows = [r.replace(".", ",").replace(",", ";", 12) if i == 0 else ";".join(
+        c.replace(".", ",") for c in r.split(",")) for i, r in enumerate(DECIMAL_RIG)]
+    path = tmp_path / "rig.csv"
+    path.write_text("\n".join(rows) + "\n")
+    settings = ImportSettings(column_map={"config": "label"}, units=UNITS)
+    with pytest.warns(DataFileNote, match="separated by ';', numbers with a decimal comma"):
+        import_campaign([path], RobotSettings("ur5"), settings)
+    path.write_text("\n".join(rows).replace("10,5", "10.5") + "\n")
+    with pytest.raises(FileFormatError, match=r"rig.csv, line 2, column 8 \(fx\)?.*'10.5' has a "
+                                              r"decimal point, but line 2 has a number with a "
+                                              "decimal comma"):
+        import_campaign([path], RobotSettings("ur5"), settings)

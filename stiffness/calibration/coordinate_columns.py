@@ -50,6 +50,11 @@ from stiffness.units import (
 Q_COLUMN = re.compile(r"q(\d+)$")
 #: Names listed in full in a note before it is summarised (``..., and 40 more``).
 LISTED = 8
+#: A number written with a decimal comma (a European spreadsheet's ``72,922``).
+DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+(?:[eE][+-]?\d+)?")
+#: The separators a rig's export may use instead of commas (a European spreadsheet's ``;``,
+#: a tracker's tab-separated text), by how messages name them.
+SEPARATORS = {";": "';'", "\t": "tabs"}
 
 
 def listed(names: list[str] | tuple[str, ...], limit: int = LISTED) -> str:
@@ -170,7 +175,8 @@ def _is_number(cell: str) -> bool:
     return True
 
 
-def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: Path) -> None:
+def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: Path,
+                        separator: str = ",") -> None:
     """Say once that lines read as comments hold data rows, which would vanish silently.
 
     A line starting with ``#`` is a comment to every reader. One after the header whose cells
@@ -183,11 +189,13 @@ def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: P
     ----------
     comments
         The comment lines after the header: (1-based line number, the line as written).
+    separator
+        The file's column separator.
     """
     rows = []
     for number, line in comments:
         try:
-            cells = csv_cells(line, path, number)
+            cells = csv_cells(line, path, number, separator)
         except FileFormatError:  # not CSV: no row
             continue
         while len(cells) > width and not cells[-1].strip():
@@ -200,6 +208,64 @@ def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: P
                       f"(first: line {rows[0]}) and are skipped as comments; if they are "
                       "measurements, give them a label that does not start with '#'",
                       DataFileWarning, stacklevel=3)
+
+
+def rig_rows(text: str, path: Path
+             ) -> tuple[list[tuple[int, list[str]]], list[tuple[int, str]], str]:
+    """The rows of a rig file's ``text`` (the header first) as (1-based line, stripped cells),
+    blank, empty (``,,,``) and ``#`` lines skipped; the comment (and blank) lines after the
+    header; and the column separator, read from the header: a header that is one cell to a
+    comma-separated reading but holds ``;`` or tabs (a European spreadsheet's export, a
+    tracker's text file) separates the columns with those (:data:`SEPARATORS`). Numbers with
+    decimal commas in such a file are read by :func:`decimal_commas`."""
+    separator = ","
+    found: list[tuple[int, list[str]]] = []
+    comments: list[tuple[int, str]] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            comments.extend([(number, line)] if found else [])  # blank ones are no rows
+            continue
+        if not found and len(csv_cells(line, path, number)) == 1:
+            separator = next((c for c in SEPARATORS if c in line), ",")
+        cells = [c.strip() for c in csv_cells(line, path, number, separator)]
+        if not is_blank_row(cells):
+            found.append((number, cells))
+    return found, comments, separator
+
+
+def decimal_commas(found: list[tuple[int, list[str]]], separator: str, path: Path
+                   ) -> list[tuple[int, list[str]]]:
+    """The rows ``found`` (:func:`rig_rows`: the header, then the rows) of a file separated by
+    ``separator`` (``;`` or tabs) with the numbers written with a decimal comma (``72,922``)
+    rewritten with a point, said once (:class:`DataFileNote`); a comma-separated file's rows
+    unchanged.
+
+    Raises
+    ------
+    FileFormatError
+        Numbers with a decimal comma and numbers with a decimal point in one file: one of them
+        may be a thousands separator (``1,234`` is 1.234 or 1234), so neither is guessed.
+    """
+    if separator == "," or not found:
+        return found
+    header, rows = found[0][1], found[1:]
+    commas = [(n, j) for n, cells in rows for j, c in enumerate(cells)
+              if DECIMAL_COMMA.fullmatch(c)]
+    points = [(n, j, c) for n, cells in rows for j, c in enumerate(cells)
+              if "." in c and _is_number(c)]
+    if commas and points:
+        line, column, cell = points[0]
+        raise FileFormatError(
+            f"{cell!r} has a decimal point, but line {commas[0][0]} has a number with a "
+            "decimal comma: with both, one may be a thousands separator (1,234 is 1.234 or "
+            "1234); write every number with the same decimal mark", path=path, line=line,
+            column=column + 1, field=header[column] if column < len(header) else None)
+    if not commas:
+        return found
+    warnings.warn(f"{path}: columns separated by {SEPARATORS[separator]}, numbers with a "
+                  "decimal comma (72,922 read as 72.922)", DataFileNote, stacklevel=3)
+    return [found[0], *((n, [c.replace(",", ".") if DECIMAL_COMMA.fullmatch(c) else c
+                             for c in cells]) for n, cells in rows)]
 
 
 def trim_empty_columns(header: list[str], rows: list[list[str]]

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stiffness.calibration.coordinate_columns import (
+    DECIMAL_COMMA,
     Q_COLUMN,
     canonical_header,
     fill_held,
@@ -213,8 +214,6 @@ def check_units_comment(declared: Units, expected: Units, source: object, path: 
                               "them agree", path=path, line=line)
 
 
-#: A number written with a decimal comma (a European spreadsheet's ``72,922``).
-DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+(?:[eE][+-]?\d+)?")
 
 
 def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float:

@@ -47,13 +47,14 @@ import numpy as np
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.campaign_toml import BASELINES, RobotSettings
 from stiffness.calibration.coordinate_columns import (
+    decimal_commas,
     fill_held,
     fixed_values,
     header_with_units,
     held_coordinates,
-    is_blank_row,
     is_units_row,
     listed,
+    rig_rows,
     trim_empty_columns,
     warn_commented_rows,
 )
@@ -71,7 +72,7 @@ from stiffness.errors import (
     StiffnessError,
     did_you_mean,
 )
-from stiffness.files import check_csv_header, csv_cells, csv_float, read_text, read_toml
+from stiffness.files import check_csv_header, csv_float, read_text, read_toml
 from stiffness.robot.kinematics import frame_rotation, update_first_order
 from stiffness.robot.robot import Robot
 from stiffness.units import (
@@ -227,7 +228,8 @@ class ImportSettings:
 def read_table(path: str | os.PathLike) -> Table:
     """Read one CSV file (header first; blank, empty (``,,,``) and ``#`` lines skipped; the
     empty last column of a comma ending every line dropped; a units row under the header
-    (``,deg,N,mm``) read as the headers' units, ``q1 [deg]``).
+    (``,deg,N,mm``) read as the headers' units, ``q1 [deg]``; columns separated by ``;`` or
+    tabs, and decimal commas there, read: :func:`~.coordinate_columns.rig_rows`).
 
     Raises
     ------
@@ -236,23 +238,14 @@ def read_table(path: str | os.PathLike) -> Table:
         number of cells than the header (file and line named).
     """
     path = Path(path)
-    text = read_text(path, "rig file")
-    found: list[tuple[int, list[str]]] = []
-    comments: list[tuple[int, str]] = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            comments.extend([(number, line)] if found else [])  # blank ones are no rows
-            continue
-        cells = [c.strip() for c in csv_cells(line, path, number)]
-        if not is_blank_row(cells):
-            found.append((number, cells))
+    found, comments, separator = rig_rows(read_text(path, "rig file"), path)
     if not found:
         raise FileFormatError("no header; a rig file is a CSV with a header line and data rows",
                               path=path)
-    check_csv_header(found[0][1], path, found[0][0])
+    found = decimal_commas(found, separator, path)
     header, rows = trim_empty_columns(found[0][1], [cells for _, cells in found[1:]])
     lines = [number for number, _ in found[1:]]
-    warn_commented_rows(comments, len(header), path)
+    warn_commented_rows(comments, len(header), path, separator)
     if rows and is_units_row(rows[0]):
         header = header_with_units(header, rows[0], path, lines[0])
         rows, lines = rows[1:], lines[1:]
