@@ -8,9 +8,10 @@ fixed point ``Delta q = C tau(q + Delta q)``, on a robot with loops each pass cl
 rows at once) on the robot without gravity, the rows' wrenches applied at the target:
 :class:`ExactObservation` observes the target there, loaded minus unloaded (without gravity an
 unloaded row does not sag: its configuration is the commanded one). Its position, the rotation
-vector ``log(R R_0^T)`` of its frame and their derivatives come from the batch kernels at the
-sag's configurations (:func:`stiffness.batch.kernels.batch_kinematics`: the target's Jacobian
-over the springs and ``K_C``), moved by the sag's last step (at most
+vector ``phi = log(R R_0^T)`` of its frame and their derivatives (the rotation's through the
+inverse Jacobian of ``log``: ``d phi = Jlog3(R R_0^T) R_0 R^T J_w d theta``) come from the
+batch kernels at the sag's configurations (:func:`stiffness.batch.kernels.batch_kinematics`:
+the target's Jacobian over the springs and ``K_C``), moved by the sag's last step (at most
 :data:`~stiffness.calibration.pose_model.SAG_TOLERANCE`, to first order) to its converged value.
 
 The derivatives are the implicit function theorem's on the equilibrium,
@@ -113,11 +114,13 @@ class ExactObservation:
         w = self.rotation_weight
         if w is None:
             pred, out = dx, kin.jacobian[:, :3]
-        else:
-            rotation = np.array([pin.log3(r @ r0.T) for r, r0 in zip(
-                kin.rotation, base.rotation, strict=True)]) + last[:, 3:]
+        else:  # the rotation vector phi = log(R R_0^T) and its derivative d phi / d omega
+            turn = np.einsum("mab,mcb->mac", kin.rotation, base.rotation)
+            d_log = np.array([pin.Jlog3(t) @ t.T for t in turn])
+            rotation = (np.array([pin.log3(t) for t in turn])
+                        + np.einsum("mab,mb->ma", d_log, last[:, 3:]))
             pred = np.hstack([dx, w * rotation])
-            out = np.concatenate([kin.jacobian[:, :3], w * kin.jacobian[:, 3:]], axis=1)
+            out = np.concatenate([kin.jacobian[:, :3], w * d_log @ kin.jacobian[:, 3:]], axis=1)
         kmat = np.diag(k)
         tangent = kmat - np.einsum("mk,mkab->mab", self.wrench, kin.k_c_basis)
         _check_stable(tangent)
