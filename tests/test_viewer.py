@@ -316,12 +316,16 @@ def test_static_page_is_self_contained(sk120_page):
     assert "MeshCat.Viewer" in page
 
 
-#: Fixes the canvas size (the viewports of --dump-dom and --screenshot runs differ).
+#: Fixes the canvas size (the viewports of --dump-dom and --screenshot runs differ), and drops
+#: the scene's commands from the DOM once the page's script has loaded them: --dump-dom then
+#: prints the page without them (a UR5 page: 9.8 MB -> 0.9 MB, 8.0 -> 6.8 s of chromium's CPU).
 FIX_CANVAS = """
 <script>
 (function () { var resize = viewer.set_3d_pane_size.bind(viewer);
   viewer.set_3d_pane_size = function () { resize(CANVAS[0], CANVAS[1]); };
-  viewer.set_3d_pane_size(); })();
+  viewer.set_3d_pane_size();
+  var commands = document.getElementById("stiffness-commands");
+  if (commands) { commands.remove(); } })();
 </script>
 """.replace("CANVAS", json.dumps(CANVAS))
 
