@@ -109,8 +109,10 @@ from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_identify import PoseIdentification, identify_poses
 from stiffness.calibration.selection import (
     Noise,
+    above_noise,
     noise_terms,
 )
+from stiffness.calibration.sign_checks import flipped_column_note
 from stiffness.calibration.solver import Covariance, check_loss
 from stiffness.elastic.effects import make_effect
 from stiffness.elastic.effects.base import stiffness_interval
@@ -351,6 +353,12 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     level = noise_level(campaign, known, best_fit, measured, n_res, fitted,
                         noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
+    if best_fit.loss == "linear" and level.fits_to_noise is not None and above_noise(
+            level.fits_to_noise["p_value"]):  # the data missed: a column's sign reversed?
+        notes += flipped_column_note(
+            campaign, lambda c: stiffness_model(c, "enhanced" if formulation == "exact"
+                                                else formulation, rob),
+            best_fit.x, best_fit.rss, sigma, fit_options(p))
     cov = covariance(best_fit, sigma, measured)
     intervals = interval_quantiles(level.noise, best_fit, n_res, campaign, measured)
     unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
