@@ -105,3 +105,21 @@ def test_compensate_reads_a_path_without_header(ur5, tmp_path):
     a, b = (compensate(model, f, wrench=[0.0, 0.0, -50.0]) for f in (plain, named))
     np.testing.assert_array_equal(a.array("command"), b.array("command"))
     assert a.csv() == b.csv() and a.csv().startswith(",".join(JOINTS) + ",")
+
+
+def test_a_units_row_under_the_header_is_read_as_the_columns_units(ur5, tmp_path):
+    """A spreadsheet's second header line of units ('deg' under every joint): the path reader
+    refused it as "'deg' is not a number; every value must be one". It is now read as the
+    units in the header are (campaign import's rule): the same path with --deg, and without
+    it the refusal names the fix."""
+    from pathlib import Path
+
+    docs = Path(__file__).resolve().parents[1] / "docs" / "compensation" / "ur5-path.csv"
+    lines = docs.read_text().splitlines()
+    plain = read_joint_path(docs, ur5, deg=True)
+    path = tmp_path / "path.csv"
+    path.write_text("\n".join([lines[0], ",".join(["[deg]"] * 6), *lines[1:]]) + "\n")
+    np.testing.assert_array_equal(read_joint_path(path, ur5, deg=True).coords, plain.coords)
+    with pytest.raises(FileFormatError, match=r"the header says deg but shoulder_pan_joint is "
+                                              "read in rad; give --deg"):
+        read_joint_path(path, ur5)

@@ -32,7 +32,9 @@ import numpy as np
 
 from stiffness.calibration.coordinate_columns import (
     canonical_header,
+    header_with_units,
     is_blank_row,
+    is_units_row,
     listed,
     warn_commented_rows,
 )
@@ -205,6 +207,10 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False,
         return _numbered_rows(text, path, robot, deg)
     table = _table(text, path, "path file")
     written = table.header  # the input's own column names, carried to the output
+    if table.rows and is_units_row(table.rows[0]):  # a spreadsheet's second header line
+        table.header = header_with_units([h.strip() for h in table.header], table.rows[0],
+                                         path, table.lines[0])
+        table.rows, table.lines = table.rows[1:], table.lines[1:]
     joints = list(robot.coordinate_joints)
     table.header = canonical_header(_without_units(table, robot, deg),
                                     [*joints, *WRENCH_COLUMNS])  # ELBOW_JOINT, Q1, FX
