@@ -62,14 +62,34 @@ def plain_int(text: str, where: str) -> int:
     return int(_plain(text, _INTEGER, where, "an integer"))
 
 
+class NumberSpellingError(ValueError):
+    """A number written in a way the readers do not take, whose intended value is plain: the
+    message names the spelling and the fix (``1_000``: write 1000; ``−5`` with a typographic
+    minus, U+2212 or a dash, as copied from a PDF or a word processor: write -5). The readers
+    pass this message on; any other :class:`ValueError` of :func:`plain_float` is a cell that
+    is no number."""
+
+
+#: Minus signs and dashes a number copied from a PDF, a word processor or a web page carries
+#: in place of the ASCII hyphen-minus.
+_MINUS_LOOKALIKES = "\u2212\u2012\u2013\u2014\u2010\u2011\ufe63\uff0d"
+
+
 def _plain(text: str, rule: re.Pattern[str], where: str, what: str) -> str:
-    """``text`` stripped, when ``rule`` matches it; else the ValueError of :func:`plain_float`."""
+    """``text`` stripped, when ``rule`` matches it; else the ValueError of :func:`plain_float`
+    (a :class:`NumberSpellingError` for digit separators and a typographic minus)."""
     stripped = text.strip()
     if rule.fullmatch(stripped):
         return stripped
     if "_" in stripped and rule.fullmatch(stripped.replace("_", "")):
-        raise ValueError(f"{stripped!r} has '_' digit separators, which {where} cannot have; "
-                         f"write {stripped.replace('_', '')}")
+        raise NumberSpellingError(f"{stripped!r} has '_' digit separators, which {where} "
+                                  f"cannot have; write {stripped.replace('_', '')}")
+    ascii_minus = stripped.translate({ord(c): "-" for c in _MINUS_LOOKALIKES})
+    if ascii_minus != stripped and rule.fullmatch(ascii_minus):
+        sign = next(c for c in stripped if c in _MINUS_LOOKALIKES)
+        raise NumberSpellingError(f"{stripped!r} has a typographic minus sign ({sign}, U+"
+                                  f"{ord(sign):04X}, as a PDF or a word processor writes it), "
+                                  f"which {where} cannot have; write {ascii_minus}")
     raise ValueError(f"{text!r} is not {what}")
 
 

@@ -5,6 +5,7 @@ with one line naming the file, line, column, the cell and the fix, never read as
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from pose_campaigns import write_ur5_tip_campaign
@@ -67,3 +68,30 @@ def test_joint_path_refuses_digit_separators(tmp_path):
     with pytest.raises(FileFormatError, match=FIX) as info:
         read_joint_path(path, load_robot("ur5"))
     assert (info.value.line, info.value.column) == (3, 3)
+
+
+@pytest.mark.parametrize("minus", ["\u2212", "\u2013"])
+def test_a_typographic_minus_is_named_with_its_fix(tmp_path, minus):
+    """A table copied from a PDF or a word processor carries '−' (U+2212) or an en dash for
+    the minus sign: every reader refused the cell as no number ("every value must be one",
+    "every q, force ... cell must be a number"), without saying what was wrong with a cell
+    that looks like -5. Now each names the character and the fix, in one line."""
+    from stiffness.cli.flags import parse_list
+    from stiffness.errors import StiffnessError
+
+    fix = (f"'{minus}80' has a typographic minus sign ({minus}, U+{ord(minus):04X}, as a PDF "
+           "or a word processor writes it), which a CSV number cannot have; write -80")
+    cells = ROW_B.split(",")
+    cells[8] = f"{minus}80"
+    msg = csv_error(tmp_path, f"{HEADER}\n{ROW_A}\n{','.join(cells)}\n")
+    assert "measurements.csv, line 3, column 9 (fy): " + fix in msg and "\n" not in msg
+    rows = list(BASE_ROWS)
+    rows[2] = f"0,{minus}80,90,0,90,0,0,10,0,0,0.1,0"
+    assert "rig.csv, line 3, column 2 (q2): " + fix in refusal(tmp_path, "\n".join(rows))
+    path = tmp_path / "path.csv"
+    path.write_text(f"q1,q2,q3,q4,q5,q6\n0,-1.2,1.5,-0.3,1.57,0\n0,{minus}80,1,-0.3,1.57,0\n")
+    with pytest.raises(FileFormatError, match=re.escape(fix)):
+        read_joint_path(path, load_robot("ur5"))
+    with pytest.raises(StiffnessError, match=re.escape(fix.replace(
+            "a CSV number", "a command-line number"))):
+        parse_list(f"0,{minus}80", "--q")

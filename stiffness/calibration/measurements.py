@@ -38,7 +38,7 @@ from stiffness.errors import (
 from stiffness.files import check_csv_header, csv_cells, csv_float, read_text
 from stiffness.mechanics.ik import coordinate_limits
 from stiffness.robot.robot import Robot
-from stiffness.units import MAX_CELL, Units
+from stiffness.units import MAX_CELL, NumberSpellingError, Units
 
 FORCE_COLUMNS = ("fx", "fy", "fz")
 DEFLECTION_COLUMNS = ("dx", "dy", "dz")
@@ -221,7 +221,7 @@ def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float
     try:
         value = csv_float(text)
     except ValueError as exc:
-        if "_" in text:  # 1_000: float() would read 1000
+        if isinstance(exc, NumberSpellingError):  # 1_000: float() would read 1000
             raise FileFormatError(str(exc), path=data, line=line, column=col, field=name
                                   ) from None
         value = None

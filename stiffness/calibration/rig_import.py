@@ -81,6 +81,7 @@ from stiffness.units import (
     LENGTH_UNITS,
     MAX_CELL,
     MOMENT_UNITS,
+    NumberSpellingError,
     Units,
     finite_number,
 )
@@ -168,7 +169,7 @@ class Column:
             try:
                 value = csv_float(cell)
             except ValueError as exc:
-                if "_" in cell:  # 1_000: float() would read 1000
+                if isinstance(exc, NumberSpellingError):  # 1_000: float() reads 1000
                     raise self.error(i, str(exc)) from None
                 value = math.nan
             if not (math.isfinite(value) and abs(value) <= MAX_CELL):

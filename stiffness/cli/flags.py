@@ -43,7 +43,7 @@ import numpy as np
 
 from stiffness.errors import FlagValueWarning, OutputError, StiffnessError
 from stiffness.files import output_folder
-from stiffness.units import FLAG_NUMBER, MAX_CELL, plain_float, plain_int
+from stiffness.units import FLAG_NUMBER, MAX_CELL, NumberSpellingError, plain_float, plain_int
 
 if TYPE_CHECKING:  # the robot layers load Pinocchio: imported when a flag is read, not declared
     from stiffness.calibration.pose_model import Marker
@@ -352,7 +352,7 @@ def _seed(text: str) -> int:
     try:
         value = plain_int(text, FLAG_NUMBER)
     except ValueError as exc:
-        if "_" in text:
+        if isinstance(exc, NumberSpellingError):
             raise argparse.ArgumentTypeError(str(exc)) from None
         value = None
     if value is None or value < 0:

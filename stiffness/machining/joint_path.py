@@ -42,6 +42,7 @@ from stiffness.errors import DataFileNote, FileFormatError
 from stiffness.files import check_csv_header, csv_cells, csv_float, read_text
 from stiffness.mechanics.defaults import assembly_coordinates
 from stiffness.robot.robot import Robot
+from stiffness.units import NumberSpellingError
 
 #: Wrench columns a path file may carry (N, N.m).
 WRENCH_COLUMNS = ("fx", "fy", "fz", "mx", "my", "mz")
@@ -116,7 +117,7 @@ class Table:
             try:
                 value = csv_float(cell)
             except ValueError as exc:
-                problem = str(exc) if "_" in cell else \
+                problem = str(exc) if isinstance(exc, NumberSpellingError) else \
                     f"{cell!r} is not a number; every value must be one"
                 raise FileFormatError(problem, path=self.path, line=line, column=k + 1,
                                       field=name) from None
