@@ -574,3 +574,20 @@ def test_masses_unknown_on_too_few_poses_ends_in_a_verdict_not_an_error(monkeypa
         assert held and all(p.determined for p in lumped if not p.held)
     else:
         assert "gravity_lumped" in d.rejected
+
+
+def test_a_single_pose_is_refused_naming_what_the_campaign_holds(ur10, tmp_path, capsys):
+    """One pose of two markers: two points cannot place the measuring frame. The refusal said
+    'the measured markers span fewer than three non-collinear points; measure more varied
+    poses', naming neither the campaign nor that it held one pose."""
+    rng = np.random.default_rng(8)
+    c = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, rng), 3, NOISE, seed=8)
+    write_pose_campaign(c, tmp_path)
+    data = tmp_path / "measurements.csv"
+    data.write_text("\n".join(data.read_text().splitlines()[:2]) + "\n")
+    assert main(["identify", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("campaign.toml: 1 pose(s) of 2 marker(s), 2 marker position(s) seen: "
+                        "the measuring frame needs three seen positions not in one line; "
+                        "measure more poses (or markers), varied"), err
+    assert "\n" not in err

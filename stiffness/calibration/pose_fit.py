@@ -60,7 +60,7 @@ from stiffness.calibration.identifiability import (
 )
 from stiffness.calibration.outliers import Outlier, flag_residuals, leverage, robust_rounds
 from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_model import PoseModel, align_frames
+from stiffness.calibration.pose_model import PoseModel, PoseModelError, align_frames
 from stiffness.calibration.pose_orientation import PoseObservations
 from stiffness.calibration.selection import (
     Noise,
@@ -115,7 +115,15 @@ def starting_frame(campaign: PoseCampaign) -> tuple[np.ndarray, np.ndarray]:
     """The measuring frame that best aligns the nominal robot's markers with the measurements."""
     nominal = PoseModel(campaign.robot, campaign.markers, (), (np.eye(3), np.zeros(3)))
     y, _ = nominal.evaluate(np.zeros(0), rows_of(nominal, campaign), jacobian=False)
-    return align_frames(y.reshape(-1, 3), campaign.positions.reshape(-1, 3))
+    try:
+        return align_frames(y.reshape(-1, 3), campaign.positions.reshape(-1, 3))
+    except PoseModelError as exc:  # one pose of one marker: say what the campaign holds
+        seen = int(np.all(np.isfinite(campaign.positions), axis=2).sum())
+        where = "" if campaign.path is None else f"{campaign.path}: "
+        raise PoseModelError(
+            f"{where}{campaign.n_rows} pose(s) of {len(campaign.markers)} marker(s), "
+            f"{seen} marker position(s) seen: the measuring frame needs three seen positions "
+            "not in one line; measure more poses (or markers), varied") from exc
 
 
 @dataclass
