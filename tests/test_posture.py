@@ -241,3 +241,25 @@ def test_joint_step_is_degrees_of_revolute_and_metres_of_prismatic_joints():
     summary = result.summary()
     assert summary["max_joint_step_deg"] == pytest.approx(np.rad2deg(0.001), rel=1e-9)
     assert summary["max_joint_step_m"] == pytest.approx(0.05, rel=1e-9)
+
+
+def test_a_loop_whose_zero_does_not_close_starts_from_its_assembly(tmp_path):
+    """The hexapod's URDF and loop file without its robot.toml: no shipped coordinates, and
+    zero leg lengths do not assemble. posture started its search at zero (a LoopClosureError
+    out of the first IK) where every other command starts at the assembly found near zero
+    (assembly_coordinates). At the home pose (0, 0, 0.6) m, level, the legs are the
+    robot.toml's home lengths, 0.719285458839 m."""
+    import shutil
+
+    from stiffness.mechanics.defaults import default_coordinates
+    from stiffness.robot.sources import robots_directory
+
+    for name in ("hexapod.urdf", "hexapod.loops.yaml"):
+        shutil.copy(robots_directory() / "hexapod" / name, tmp_path / name)
+    robot = load_robot(str(tmp_path / "hexapod.urdf"), frame="platform",
+                       loops=str(tmp_path / "hexapod.loops.yaml"))
+    assert default_coordinates(robot) is None
+    em = ElasticModel.joint_springs(robot, [1e7] * 6)
+    result = posture(em, np.array([[0.0, 0.0, 0.6]]), axes=np.array([[0.0, 0.0, 1.0]]),
+                     wrench=[0.0, 0.0, -300.0], steps=1, refine=False)
+    np.testing.assert_allclose(result.points[0].coords, np.full(6, 0.719285458839), atol=1e-9)

@@ -63,7 +63,7 @@ from stiffness.machining.branches import (
 from stiffness.machining.compensation import WRENCH_FRAMES, point_wrenches
 from stiffness.machining.joint_path import angular_coordinates
 from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
-from stiffness.mechanics.defaults import default_coordinates
+from stiffness.mechanics.defaults import assembly_coordinates
 from stiffness.mechanics.formulation import target_jacobian
 from stiffness.mechanics.ik import IKResult, coordinate_limits
 from stiffness.robot.robot import Robot
@@ -313,7 +313,8 @@ def posture(
     singularity_margin
         Smallest admissible singular value of the 6-row target Jacobian (m/rad, rad/rad).
     start
-        IK seed of the first point (rad, m); default the robot's shipped coordinates, else zero.
+        IK seed of the first point (rad, m); default the robot's reference pose (its shipped
+        coordinates, else for a closed loop the assembly found near zero, else zero).
         Its branch is branch ``A``; the others are found from seeds spread over the limits.
     refine, progress
         Whether to refine each angle locally after the dynamic programming; called with
@@ -512,11 +513,13 @@ def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | Non
 
 
 def _start_coordinates(full: Robot, start: object) -> np.ndarray:
-    """The coordinates (rad, m) the search starts from: ``start``, else the robot's default
-    configuration, else zero; a ``start`` that is not one number per coordinate is refused."""
+    """The coordinates (rad, m) the search starts from: ``start``, else the robot's reference
+    pose (:func:`~stiffness.mechanics.defaults.assembly_coordinates`: its shipped coordinates,
+    else for a closed loop the assembly found near zero, else zero); a ``start`` that is not
+    one number per coordinate is refused."""
     if start is None:
-        start = default_coordinates(full)
-    return np.zeros(full.n_coordinates) if start is None else float_array(
+        return assembly_coordinates(full)
+    return float_array(
         start, "start", f"the {full.n_coordinates} coordinates (rad, m) the search starts from",
         size=full.n_coordinates).reshape(-1)
 
