@@ -25,7 +25,7 @@ import pinocchio as pin
 from stiffness.elastic.model import ElasticModel
 from stiffness.errors import ConvergenceError, StiffnessError
 from stiffness.mechanics.formulation import target_jacobian
-from stiffness.mechanics.ik import IKResult, coordinate_limits, solve_ik
+from stiffness.mechanics.ik import IKResult, coordinate_limits, inside_limits, solve_ik
 
 #: Random IK seeds tried at the first point to find a non-redundant arm's branches.
 BRANCH_SEEDS = 32
@@ -158,7 +158,11 @@ def branch_origins(problem: PostureProblem, angles: np.ndarray, sweep: list[int]
         span = np.where(problem.angular, np.pi, 1.0)
         lo, hi = np.where(np.isfinite(lo), lo, -span), np.where(np.isfinite(hi), hi, span)
         rng = np.random.default_rng(0)
-        seeds += [(rng.uniform(lo, hi), None) for _ in range(BRANCH_SEEDS)]
+        for _ in range(BRANCH_SEEDS):
+            coords = rng.uniform(lo, hi)
+            seed = (coords, None) if full.loop.is_open_chain else _loop_seed(problem, coords)
+            if seed is not None:
+                seeds.append(seed)
     for k in sweep:
         found: list[IKResult] = []
         for seed in seeds:
@@ -176,6 +180,21 @@ def branch_origins(problem: PostureProblem, angles: np.ndarray, sweep: list[int]
         f"row 1: the pose at {np.round(problem.positions[0], 6).tolist()} m is out of reach "
         "for every angle about the free axis (within the joint limits); move it into the "
         "workspace")
+
+
+def _loop_seed(problem: PostureProblem, coords: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """A random seed (rad, m) of a closed loop, moved inside the joint limits as the IK moves
+    it, with its assembly closed by continuation from the reference one; None when the
+    continuation meets a fold. The assembly search (least squares over every joint) is not
+    tried: its assembly mode is not checked, and on a hexapod, whose random leg lengths mostly
+    do not assemble, it cost half of ``stiffness posture``'s time without ever closing."""
+    full = problem.full
+    coords = inside_limits(coords, *coordinate_limits(full))
+    try:
+        return coords, full.assemble(coords, search=False).q
+    except StiffnessError:
+        return None
 
 
 def _walk(problem: PostureProblem, i: int, track: Track, order: list[int], angles: np.ndarray,

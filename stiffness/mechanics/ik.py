@@ -234,7 +234,7 @@ def _descend(full: Robot, position: np.ndarray, rotation: np.ndarray | None, coo
         if limits:
             trial = np.clip(trial, lo, hi)
         try:
-            q_trial = full.configuration(trial, seed=q)
+            q_trial = full.assemble(trial, seed=q, search=False).q
         except StiffnessError:
             lam *= 10.0
             if lam > 1e6:
