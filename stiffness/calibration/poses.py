@@ -52,6 +52,9 @@ from stiffness.robot.robot import Robot
 from stiffness.robot.sources import WORKSPACE_KEYS
 from stiffness.units import finite_number
 
+#: A coordinate this close (rad, m) to its workspace range counts as inside it
+#: (:meth:`Workspace.departures`): far below any joint's repeatability.
+WORKSPACE_TOLERANCE = 1e-6
 #: Poses whose target Jacobian exceeds this (m/rad) are near a loop singularity: not drawn.
 MAX_JACOBIAN = 10.0
 #: Give up when this many draws (plus 10 per pose asked) assemble none.
@@ -193,6 +196,55 @@ class Workspace:
             raise StiffnessError(f"{where}: target_above_base must be true or false")
         ws.target_above_base = above
         return ws
+
+    def spans(self) -> dict[int, tuple[float, float]]:
+        """Coordinate index -> the range (SI) the rules give its poses: a ``uniform`` range,
+        the span of a ``choice``'s values, a ``linear`` coordinate's range over its terms'
+        (interval arithmetic; none when a term has no range: its joint limits then say, as
+        for a coordinate without a rule)."""
+        out = dict(self.uniform)
+        out.update({i: (min(v), max(v)) for i, v in self.choice.items()})
+        for i, constant, terms in self.linear:
+            out.pop(i, None)
+            if all(j in out for j in terms):
+                ends = [(c * out[j][0], c * out[j][1]) for j, c in terms.items()]
+                out[i] = (constant + sum(min(e) for e in ends),
+                          constant + sum(max(e) for e in ends))
+        return out
+
+    def departures(self, robot: Robot, coords: np.ndarray) -> list[str]:
+        """What puts the coordinates ``coords`` (rad, m) of ``robot`` outside the declared
+        workspace, one phrase each (angles in deg): a coordinate beyond its :meth:`spans`
+        (a revolute one by whole turns too: the same pose), an ``avoid`` combination within
+        its margin of a value; empty inside, or without a declared workspace. Within
+        :data:`WORKSPACE_TOLERANCE` counts as inside (``linear``'s constants are exact)."""
+        if not self.declared:
+            return []
+        names = list(robot.coordinate_joints)
+        turn = np.array([not robot.is_prismatic(j) for j in names])
+        unit = np.where(turn, 180.0 / math.pi, 1.0)
+
+        def shown(i: int, value: float, named: bool = True) -> str:
+            return f"{value * unit[i]:.4g}" + (f" {'deg' if turn[i] else 'm'}" if named else "")
+
+        out = []
+        tol = WORKSPACE_TOLERANCE
+        for i, (lo, hi) in sorted(self.spans().items()):
+            value = float(coords[i])
+            shift = (value - lo + tol) % (2.0 * math.pi) - tol if turn[i] else value - lo
+            if not -tol <= shift <= hi - lo + tol:
+                out.append(f"{names[i]} {shown(i, value)} outside [{shown(i, lo, False)}, "
+                           f"{shown(i, hi)}]")
+        for terms, values, margin in self.avoid:
+            combo = sum(c * float(coords[j]) for j, c in terms.items())
+            near = min(values, key=lambda v: abs(combo - v))
+            if abs(combo - near) < margin - tol:
+                i = next(iter(terms))
+                text = " + ".join(names[j] if c == 1.0 else f"{c:g} {names[j]}"
+                                  for j, c in terms.items())
+                out.append(f"{text} {shown(i, combo)} within {shown(i, margin)} of "
+                           f"{shown(i, near)}")
+        return out
 
     def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
              ) -> np.ndarray | None:

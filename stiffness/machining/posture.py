@@ -25,7 +25,8 @@ Algorithm:
    ``|C W|`` (the model's first-order position deflection, every effect included) with the joint
    change between consecutive points at most ``max_step`` (and one branch throughout with
    ``branch="keep"``) and, where the fixed-angle posture on the node's branch is admissible, no
-   point worse than it.
+   point worse than it; with a robot's declared ``[workspace]``, where its model is calibrated
+   (:mod:`stiffness.machining.region`), the fewest points outside it first.
 3. Local refinement: each point's angle walks downhill on its branch in half-spacing steps as
    far as the constraints allow (not capped at one spacing), then a bounded scalar minimisation
    polishes it; a redundant arm then descends the deflection in the null space of its pose
@@ -63,6 +64,7 @@ from stiffness.machining.branches import (
 from stiffness.machining.compensation import WRENCH_FRAMES, point_wrenches
 from stiffness.machining.joint_path import angular_coordinates
 from stiffness.machining.poses import Poses, free_axis_vector, read_poses, tool_frames
+from stiffness.machining.region import Region
 from stiffness.mechanics.defaults import assembly_coordinates
 from stiffness.mechanics.formulation import target_jacobian
 from stiffness.mechanics.ik import IKResult, coordinate_limits
@@ -95,6 +97,9 @@ class PosturePoint:
         Remaining IK error of the chosen posture (m, rad).
     branch
         The branch of the chosen posture (``A``, ``B``, ...: :attr:`PostureResult.branches`).
+    outside
+        What puts the posture outside the robot's declared ``[workspace]``
+        (:meth:`~stiffness.calibration.poses.Workspace.departures`); empty inside it.
     """
 
     coords: np.ndarray
@@ -105,6 +110,7 @@ class PosturePoint:
     ik_rotation_error: float
     branch: str
     q: np.ndarray = field(repr=False)
+    outside: tuple[str, ...] = ()
 
 
 @dataclass
@@ -132,6 +138,9 @@ class PostureResult:
         found at (the reference angle unless that is out of reach).
     deg
         Whether :meth:`to_dict` and :meth:`csv` give the angles in degrees (else rad).
+    workspace
+        Whether the robot declares a ``[workspace]``, where its model was calibrated, that the
+        postures were judged against (:attr:`PosturePoint.outside`).
     """
 
     points: list[PosturePoint]
@@ -144,6 +153,7 @@ class PostureResult:
     angular: np.ndarray
     branches: dict[str, np.ndarray]
     deg: bool = False
+    workspace: bool = False
 
     def _scale(self) -> np.ndarray:
         """Factor from SI to the written unit of each coordinate."""
@@ -151,8 +161,10 @@ class PostureResult:
 
     def to_dict(self) -> dict:
         """The object ``stiffness posture --json`` prints: ``joints``, ``rows`` (joint values
-        in the written unit, the rest SI), ``summary``, ``notes``, ``units``, ``branches``
-        (each branch's coordinates at the first point, in the unit of ``q``)."""
+        in the written unit, the rest SI; ``in_workspace``, whether the posture is inside the
+        robot's declared ``[workspace]``, ``None`` without one, and ``workspace_departures``,
+        what puts it outside), ``summary``, ``notes``, ``units``, ``branches`` (each branch's
+        coordinates at the first point, in the unit of ``q``)."""
         def num(v: float | np.floating) -> float | None:
             return float(v) if math.isfinite(v) else None
 
@@ -163,7 +175,9 @@ class PostureResult:
                  "deflection": p.deflection.tolist(),
                  "deflection_fixed_m": num(np.linalg.norm(p.deflection_fixed)),
                  "ik_residual_m": p.ik_position_error, "ik_residual_rad": p.ik_rotation_error,
-                 "branch": p.branch}
+                 "branch": p.branch,
+                 "in_workspace": not p.outside if self.workspace else None,
+                 "workspace_departures": list(p.outside)}
                 for p in self.points]
         branches = {name: (c * scale).tolist() for name, c in self.branches.items()}
         return {"joints": list(self.joints), "rows": rows, "summary": self.summary(),
@@ -238,7 +252,8 @@ class PostureResult:
 
     def summary(self) -> dict:
         """Max/RMS deflections (m) chosen and fixed (on the chosen branch), their ratio, the
-        largest joint step (revolute in deg, prismatic in m), the branches found and used."""
+        largest joint step (revolute in deg, prismatic in m), the branches found and used, the
+        points outside the declared ``[workspace]`` (``None`` without one)."""
         d = np.array([np.linalg.norm(p.deflection) for p in self.points])
         f = np.array([np.linalg.norm(p.deflection_fixed) for p in self.points])
         ok = np.isfinite(f)
@@ -258,6 +273,8 @@ class PostureResult:
             "points": len(self.points),
             "branches_found": len(self.branches),
             "branches_used": sorted({p.branch for p in self.points}),
+            "points_outside_workspace": sum(bool(p.outside) for p in self.points)
+            if self.workspace else None,
         }
         if ok.all() and d.max() > 0:
             out["max_reduction_factor"] = float(f.max() / d.max())
@@ -349,10 +366,27 @@ def posture(
     tracks, origins = candidate_tracks(problem, angles, sweep, start, full.configuration(start),
                                        tick)
     layers = candidate_layers(problem, tracks, angles)
-    # 2. dynamic programming over (angle, branch)
-    choice, notes = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin)
+    region = Region.of(full, layers)
+    # 2. dynamic programming over (angle, branch), inside the declared workspace where it can
+    choice, notes = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
+                            region)
     # 3. local refinement
-    points = _chosen_points(problem, layers, choice, angles, tick if refine else None)
+    points = _chosen_points(problem, layers, choice, angles, tick if refine else None, region)
+    notes += _notes(points, reference_angle_deg)
+    if region.declared:  # the stiffest path with the workspace not judged, to compare
+        free = (_dynamic_programming(problem, layers, branch == "keep", bounded=True)
+                or _dynamic_programming(problem, layers, branch == "keep", bounded=False))
+        notes += region.notes([(p.branch, p.outside) for p in points], layers, choice, free)
+    return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
+                         float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
+                         {branch_label(b): o.coords for b, o in enumerate(origins)}, deg,
+                         region.declared)
+
+
+def _notes(points: list[PosturePoint], reference_angle_deg: float) -> list[str]:
+    """What the user should know of the chosen path: it changes branch; the fixed angle
+    (``reference_angle_deg``, deg) is out of reach at some points."""
+    notes = []
     if len({p.branch for p in points}) > 1:
         notes.append("the path changes branch where the step bound allows it (--branch keep "
                      "holds one)")
@@ -362,9 +396,7 @@ def posture(
                      f"of {len(points)} points on the branch used: "
                      + ("its deflections are over the others, " if missed < len(points) else "")
                      + "no factor; --reference-angle DEG compares with another angle")
-    return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
-                         float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
-                         {branch_label(b): o.coords for b, o in enumerate(origins)}, deg)
+    return notes
 
 
 def _posture_problem(em: ElasticModel, poses: Poses, w: np.ndarray, free_axis: str | np.ndarray,
@@ -391,11 +423,12 @@ def _candidate_angles(steps: int, reference_angle_deg: float
 
 
 def _chosen_points(problem: PostureProblem, layers: list[Layer], choice: list[int],
-                   angles: np.ndarray, refined: Callable[[int], None] | None
+                   angles: np.ndarray, refined: Callable[[int], None] | None, region: Region
                    ) -> list[PosturePoint]:
     """The chosen nodes (refined locally unless ``refined`` is None, which is called with the
-    progress count as each point is done) as points, with the fixed angle's deflection on the
-    same branch (m; NaN where out of reach) beside them."""
+    progress count as each point is done; a node inside the declared workspace ``region``
+    kept inside it) as points, with the fixed angle's deflection on the same branch (m; NaN
+    where out of reach) and what puts each outside the workspace beside them."""
     m = len(layers)
     chosen = [layer.iks[n] for layer, n in zip(layers, choice, strict=True)]
     psi = np.array([angles[layer.angle[n]] for layer, n in zip(layers, choice, strict=True)])
@@ -404,7 +437,7 @@ def _chosen_points(problem: PostureProblem, layers: list[Layer], choice: list[in
     if refined is not None:
         for i, (layer, n) in enumerate(zip(layers, choice, strict=True)):
             _refine_point(problem, i, chosen, psi, defl, fixed_values(layer)[n],
-                          2.0 * np.pi / len(angles))
+                          2.0 * np.pi / len(angles), region.keeper(i, n))
             refined(m + i + 1)
     points = []
     for i, layer in enumerate(layers):
@@ -413,17 +446,19 @@ def _chosen_points(problem: PostureProblem, layers: list[Layer], choice: list[in
         ik = chosen[i]
         points.append(PosturePoint(ik.coords, float(psi[i]), defl[i], fixed_vec,
                                    ik.position_error, ik.rotation_error,
-                                   branch_label(labels[i]), ik.q))
+                                   branch_label(labels[i]), ik.q, region.judge(ik.coords)))
     return points
 
 
 def _choose(layers: list[Layer], problem: PostureProblem, keep: bool, max_step_deg: float,
-            margin: float) -> tuple[list[int], list[str]]:
-    """The DP's choice, bounded point by point by the fixed angle where that is possible."""
+            margin: float, region: Region) -> tuple[list[int], list[str]]:
+    """The DP's choice, bounded point by point by the fixed angle where that is possible,
+    with the fewest points outside the declared workspace ``region``."""
     notes: list[str] = []
-    choice = _dynamic_programming(problem, layers, keep, bounded=True)
+    penalty = region.penalty()
+    choice = _dynamic_programming(problem, layers, keep, bounded=True, penalty=penalty)
     if choice is None:
-        choice = _dynamic_programming(problem, layers, keep, bounded=False)
+        choice = _dynamic_programming(problem, layers, keep, bounded=False, penalty=penalty)
         if choice is not None:
             notes.append("the fixed-angle path itself breaks the joint-step bound or the "
                          "singularity margin somewhere: the chosen path is not bounded by it "
@@ -436,10 +471,13 @@ def _choose(layers: list[Layer], problem: PostureProblem, keep: bool, max_step_d
 
 
 def _dynamic_programming(problem: PostureProblem, layers: list[Layer], keep: bool,
-                         bounded: bool) -> list[int] | None:
+                         bounded: bool, penalty: list[np.ndarray] | None = None
+                         ) -> list[int] | None:
     """Node indices (one per point) minimising the sum of squared deflections with every
     revolute step within the bound (and the branch kept, and no node above its branch's
-    fixed angle, when asked); None if no such sequence."""
+    fixed angle, when asked); None if no such sequence. ``penalty`` (per point, per node;
+    m^2) is added to the nodes' squared deflections: large ones make the fewest such nodes
+    come first (:meth:`Region.penalty`)."""
     def allowed(layer: Layer) -> np.ndarray:
         ok = layer.admissible.copy()
         if bounded:
@@ -447,17 +485,19 @@ def _dynamic_programming(problem: PostureProblem, layers: list[Layer], keep: boo
             ok &= ~np.isfinite(fixed) | (layer.values <= fixed * (1 + 1e-12))
         return ok
 
-    cost = np.where(allowed(layers[0]), layers[0].values ** 2, np.inf)
+    def own(i: int) -> np.ndarray:
+        return layers[i].values ** 2 + (0.0 if penalty is None else penalty[i])
+
+    cost = np.where(allowed(layers[0]), own(0), np.inf)
     backs = []
-    for before, layer in zip(layers[:-1], layers[1:], strict=True):
+    for i, (before, layer) in enumerate(zip(layers[:-1], layers[1:], strict=True), 1):
         jumps = np.abs(layer.coords[:, None, :] - before.coords[None, :, :])[..., problem.angular]
         link = np.all(jumps <= problem.max_step + 1e-12, axis=2)
         if keep:
             link &= layer.branch[:, None] == before.branch[None, :]
         reach = np.where(link, cost[None, :], np.inf)
         back = np.argmin(reach, axis=1)
-        cost = np.where(allowed(layer), reach[np.arange(len(back)), back] + layer.values ** 2,
-                        np.inf)
+        cost = np.where(allowed(layer), reach[np.arange(len(back)), back] + own(i), np.inf)
         backs.append(back)
         if not np.isfinite(cost).any():
             return None
@@ -555,8 +595,10 @@ def _check_search(full: Robot, steps: int, angles: tuple[float, float, float],
 
 
 def _refine_point(problem: PostureProblem, i: int, chosen: list[IKResult], psi: np.ndarray,
-                  defl: list[np.ndarray], bound: float, spacing: float) -> None:
-    """Refine point ``i``'s angle (and null-space posture) in place under the constraints.
+                  defl: list[np.ndarray], bound: float, spacing: float,
+                  inside: Callable[[np.ndarray], bool]) -> None:
+    """Refine point ``i``'s angle (and null-space posture) in place under the constraints
+    (``inside``: whether coordinates may be taken, the declared workspace's judgement).
 
     The angle walks downhill in half-spacing steps on its branch (each IK seeded from the last
     one) as far as the constraints allow, then a bounded scalar minimisation polishes the best
@@ -571,7 +613,7 @@ def _refine_point(problem: PostureProblem, i: int, chosen: list[IKResult], psi: 
             return False
         if i + 1 < m and not problem.step_ok(chosen[i + 1].coords, ik.coords):
             return False
-        return problem.admissible(ik)
+        return inside(ik.coords) and problem.admissible(ik)
 
     samples: dict[float, tuple[float, IKResult, np.ndarray]] = {
         float(psi[i]): (float(np.linalg.norm(defl[i])), chosen[i], defl[i])}
