@@ -479,3 +479,36 @@ def test_import_never_replaces_the_rig_file_it_reads(tmp_path, capsys):
            "measurements.csv; give another --out folder" in err and err.count("\n") == 1
     assert path.read_bytes() == before and not (rig / "campaign.toml").exists()
     assert main([*argv, "--out", str(rig / "campaign"), "--quiet"]) == 0
+
+
+def test_numeric_join_keys_match_by_value(tmp_path):
+    """A controller's log numbers its samples 001, 002, ...; the load cell's file 1, 2, ...;
+    the tracker's 1.0, 2.0, ...: the import refused "key '001' has no row in forces.csv".
+    Numbers now match by their exact value (a 19-digit time stamp stays itself), other keys
+    as written; '1' and '1.0' in one file are one key given twice, refused."""
+    units = {"angle": "deg", "force": "N", "length": "mm"}
+    rows = [r.split(",") for r in BASE_ROWS[1:]]
+
+    def files(keys: list[list[str]]) -> list[Path]:
+        out = []
+        for name, cols, ks in zip(("j", "f", "t"), ((0, 6), (6, 9), (9, 12)), keys,
+                                  strict=True):
+            path = tmp_path / f"{name}.csv"
+            head = BASE_ROWS[0].split(",")[cols[0]:cols[1]]
+            path.write_text("\n".join([",".join(["k", *head])] + [
+                ",".join([k, *r[cols[0]:cols[1]]]) for k, r in zip(ks, rows, strict=True)]))
+            out.append(path)
+        return out
+
+    settings = ImportSettings(units=units, join="k")
+    same, _ = import_campaign(files([["1", "2"]] * 3), RobotSettings("ur5"), settings)
+    mixed, _ = import_campaign(files([["001", "002"], ["1", "2"], ["1.0", "2e0"]]),
+                               RobotSettings("ur5"), settings)
+    for name in ("q", "force", "deflection"):
+        np.testing.assert_array_equal(getattr(mixed, name), getattr(same, name))
+    stamps = ["1733472000123456789", "1733472000123456788"]
+    import_campaign(files([stamps] * 3), RobotSettings("ur5"), settings)  # not one float
+    with pytest.raises(StiffnessError, match=r"j.csv, line 3, column 1 \(k\): key '1.0' "
+                                             "repeats line 2"):
+        import_campaign(files([["1", "1.0"], ["1", "2"], ["1", "2"]]), RobotSettings("ur5"),
+                        settings)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import re
 import warnings
 from collections.abc import Iterable
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -266,6 +267,16 @@ def decimal_commas(found: list[tuple[int, list[str]]], separator: str, path: Pat
                   "decimal comma (72,922 read as 72.922)", DataFileNote, stacklevel=3)
     return [found[0], *((n, [c.replace(",", ".") if DECIMAL_COMMA.fullmatch(c) else c
                              for c in cells]) for n, cells in rows)]
+
+
+def join_key(cell: str) -> str:
+    """A join key as files are matched on: a plain number by its value, exactly (``001``,
+    ``1`` and ``1.0`` are one sample, as a controller's log and a tracker's export write it;
+    a 19-digit time stamp stays itself), any other cell as written."""
+    if not _is_number(cell):
+        return cell
+    value = Decimal(cell.strip())
+    return str(value.normalize() + 0) if value.is_finite() else cell
 
 
 def trim_empty_columns(header: list[str], rows: list[list[str]]

@@ -53,6 +53,7 @@ from stiffness.calibration.coordinate_columns import (
     header_with_units,
     held_coordinates,
     is_units_row,
+    join_key,
     listed,
     rig_rows,
     trim_empty_columns,
@@ -324,11 +325,12 @@ def _key_orders(tables: list[Table], key: str) -> list[list[int]]:
         j = t.header.index(key)
         where: dict[str, int] = {}
         for i, row in enumerate(t.rows):
-            if row[j] in where:
-                raise FileFormatError(f"key {row[j]!r} repeats line {t.lines[where[row[j]]]}; "
-                                      "join keys must be unique in each file",
+            if join_key(row[j]) in where:
+                raise FileFormatError(f"key {row[j]!r} repeats line "
+                                      f"{t.lines[where[join_key(row[j])]]}; join keys must be "
+                                      "unique in each file (numbers by their value)",
                                       path=t.path, line=t.lines[i], column=j + 1, field=key)
-            where[row[j]] = i
+            where[join_key(row[j])] = i
         index.append(where)
     first = tables[0]
     j0 = first.header.index(key)
@@ -336,12 +338,12 @@ def _key_orders(tables: list[Table], key: str) -> list[list[int]]:
     for t, where in zip(tables, index, strict=True):
         order = []
         for i, row in enumerate(first.rows):
-            if row[j0] not in where:
+            if join_key(row[j0]) not in where:
                 raise FileFormatError(f"key {row[j0]!r} has no row in {t.path}; every file "
                                       "needs a row for each key", path=first.path,
                                       line=first.lines[i], column=j0 + 1, field=key)
-            order.append(where[row[j0]])
-        extra = set(where) - {row[j0] for row in first.rows}
+            order.append(where[join_key(row[j0])])
+        extra = set(where) - {join_key(row[j0]) for row in first.rows}
         if extra:
             i = min(where[k] for k in extra)
             raise FileFormatError(f"key {t.rows[i][t.header.index(key)]!r} has no row in "
